@@ -1,0 +1,161 @@
+"""Positions of points on the structure (antennas, thrusters) as functions of the coordinates q.
+
+A point attached to section ``s`` with nominal body-frame position ``r`` moves as
+
+    p(q) = o + Rz(q_rigid) @ ( c_s + t_s(q) + R_s(q) @ (r - c_s) + D @ q )
+
+where ``o`` is the body origin in the lab frame, ``c_s`` the section pivot, ``t_s`` the section's
+translation (coordinates along body axes), ``R_s = Rz(θz) @ Ry(θy) @ Rx(θx)`` its rotation (exact,
+large angles allowed), and ``D`` (3, n_q) an optional linear displacement per coordinate (mode
+shapes at the point from finite-element software).  All functions are vectorized over epochs.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .config import StructureConfig
+
+
+def _rot(axis: int, angle: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Elementary rotation matrices and their derivatives, shape (N, 3, 3) each."""
+    c, s = np.cos(angle), np.sin(angle)
+    n = angle.shape[0]
+    R = np.zeros((n, 3, 3))
+    dR = np.zeros((n, 3, 3))
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]   # plane of rotation, right-handed
+    R[:, axis, axis] = 1.0
+    R[:, i, i] = c
+    R[:, j, j] = c
+    R[:, i, j] = -s
+    R[:, j, i] = s
+    dR[:, i, i] = -s
+    dR[:, j, j] = -s
+    dR[:, i, j] = -c
+    dR[:, j, i] = c
+    return R, dR
+
+
+def rotation_z(angle_rad: np.ndarray) -> np.ndarray:
+    """Rotation about the vertical axis, shape (N, 3, 3)."""
+    return _rot(2, np.atleast_1d(np.asarray(angle_rad, dtype=float)))[0]
+
+
+def point_positions(cfg: StructureConfig, q: np.ndarray, section: np.ndarray, position_m: np.ndarray,
+                    displacement: np.ndarray | None = None, jacobian: bool = False):
+    """Lab-frame positions of body points, and optionally their Jacobians.
+
+    Parameters
+    ----------
+    cfg : StructureConfig
+    q : ndarray, shape (N, n_q)
+        Generalized coordinates per epoch (metres / radians as declared in the config).
+    section : ndarray of int, shape (P,)
+        Section index per point, -1 for points fixed to the body frame.
+    position_m : ndarray, shape (P, 3)
+        Nominal positions in the body frame, metres.
+    displacement : ndarray, shape (P, 3, n_q), optional
+        Linear displacement per coordinate (metres per unit coordinate).
+    jacobian : bool
+        Also return ∂p/∂q.
+
+    Returns
+    -------
+    p : ndarray, shape (N, P, 3)
+        Positions in the lab frame, metres.
+    J : ndarray, shape (N, P, 3, n_q)
+        Only when ``jacobian`` is true.
+    """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    n, n_q = q.shape
+    P = len(section)
+    local = np.empty((n, P, 3))
+    dlocal = np.zeros((n, P, 3, n_q)) if jacobian else None
+    for k in range(P):
+        s = int(section[k])
+        r = np.asarray(position_m[k], dtype=float)
+        if s < 0:
+            local[:, k, :] = r
+            continue
+        sec = cfg.sections[s]
+        rel = r - sec.pivot_m
+        R = np.broadcast_to(np.eye(3), (n, 3, 3))
+        mats = []
+        for axis in (2, 1, 0):          # Rz @ Ry @ Rx
+            j = next((jj for ax, jj in sec.rotation if ax == axis), None)
+            if j is None:
+                mats.append((None, None, None))
+                continue
+            Ra, dRa = _rot(axis, q[:, j])
+            mats.append((j, Ra, dRa))
+        Rtot = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+        for j, Ra, _ in mats:
+            if j is not None:
+                Rtot = Rtot @ Ra
+        pos = sec.pivot_m + Rtot @ rel
+        for axis, j in sec.translation:
+            pos[:, axis] += q[:, j]
+        local[:, k, :] = pos
+        if jacobian:
+            for axis, j in sec.translation:
+                dlocal[:, k, axis, j] += 1.0
+            for idx, (j, _, dRa) in enumerate(mats):
+                if j is None:
+                    continue
+                M = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+                for idx2, (j2, Ra2, _) in enumerate(mats):
+                    if j2 is None:
+                        continue
+                    M = M @ (dRa if idx2 == idx else Ra2)
+                dlocal[:, k, :, j] += M @ rel
+    if displacement is not None:
+        local += np.einsum("pij,nj->npi", displacement, q)
+        if jacobian:
+            dlocal += displacement[None]
+    if cfg.rigid_index is not None:
+        Rb, dRb = _rot(2, q[:, cfg.rigid_index])
+        p = np.einsum("nij,npj->npi", Rb, local) + cfg.body_origin_m
+        if jacobian:
+            J = np.einsum("nij,npjq->npiq", Rb, dlocal)
+            J[:, :, :, cfg.rigid_index] += np.einsum("nij,npj->npi", dRb, local)
+    else:
+        p = local + cfg.body_origin_m
+        J = dlocal
+    return (p, J) if jacobian else p
+
+
+def antenna_positions(cfg: StructureConfig, q: np.ndarray, jacobian: bool = False):
+    """Lab-frame positions (N, n_a, 3) of every antenna (and Jacobians (N, n_a, 3, n_q))."""
+    return point_positions(cfg, q, cfg.antenna_section, cfg.antenna_position_m,
+                           cfg.antenna_displacement, jacobian=jacobian)
+
+
+def gyro_matrix(cfg: StructureConfig) -> np.ndarray:
+    """Small-angle rate-gyro map G, shape (n_g, n_q): rate_rad_s = G @ dq/dt.
+
+    A single-axis gyro on section s with axis a (section frame) reads a · ω, where ω is the sum of
+    the section's rotation rates about its axes plus the rigid-body rate about the vertical.
+    """
+    G = np.zeros((len(cfg.gyro_names), cfg.n_q))
+    for g, (s, a) in enumerate(zip(cfg.gyro_section, cfg.gyro_axis)):
+        if s >= 0:
+            for axis, j in cfg.sections[s].rotation:
+                G[g, j] += a[axis]
+        if cfg.rigid_index is not None:
+            G[g, cfg.rigid_index] += a[2]
+    return G
+
+
+def thruster_forcing(cfg: StructureConfig) -> np.ndarray:
+    """Generalized force per newton of each thruster, Υ of Eq. (5), shape (n_q, n_u).
+
+    Υ[:, k] = J_k(0)ᵀ d_k with J_k the Jacobian of the thruster's attachment point at q = 0 and
+    d_k its unit force direction (virtual work), so that modal forcing is Uᵀ Υ u for
+    mass-normalized mode shapes.
+    """
+    n_u = len(cfg.thruster_names)
+    if n_u == 0:
+        return np.zeros((cfg.n_q, 0))
+    _, J = point_positions(cfg, np.zeros((1, cfg.n_q)), cfg.thruster_section, cfg.thruster_position_m,
+                           None, jacobian=True)
+    return np.einsum("kiq,ki->qk", J[0], cfg.thruster_direction)

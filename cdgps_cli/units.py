@@ -1,0 +1,6 @@
+"""Physical constants used across cdgps (one source of truth)."""
+
+SPEED_OF_LIGHT_M_S = 299_792_458.0
+GPS_L1_HZ = 1_575.42e6
+GPS_L1_WAVELENGTH_M = SPEED_OF_LIGHT_M_S / GPS_L1_HZ
+STANDARD_GRAVITY_M_S2 = 9.80665
