@@ -1,0 +1,141 @@
+"""Command-line interface: thin click shells over the library functions.
+
+User errors (:class:`CdgpsError`) are printed on stderr as ``cdgps: error: …`` without a traceback
+and exit with status 2.  ``--json`` prints a machine-readable summary on stdout; human messages and
+progress go to stderr and are silenced by ``--quiet``.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import click
+
+from . import __version__
+from .errors import CdgpsError
+
+
+class _Group(click.Group):
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except CdgpsError as exc:
+            click.echo(f"cdgps: error: {exc}", err=True)
+            ctx.exit(2)
+
+
+def _say(ctx, msg: str) -> None:
+    if not ctx.obj.get("quiet"):
+        click.echo(msg, err=True)
+
+
+def _emit_json(data: dict) -> None:
+    click.echo(json.dumps(data, indent=2, sort_keys=False))
+
+
+@click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="cdgps")
+@click.option("--quiet", "-q", is_flag=True, help="No progress or human summaries on stderr.")
+@click.pass_context
+def main(ctx, quiet):
+    """cdgps: carrier-phase GPS sensing of flexible structures.
+
+    Stages, chained through files: simulate (or your own logs) → ingest → RUN.mcap → init →
+    estimate → spectra → report.  See README.md.
+    """
+    ctx.ensure_object(dict)
+    ctx.obj["quiet"] = quiet
+
+
+@main.command()
+@click.argument("config", type=click.Path(dir_okay=False))
+@click.option("--duration", "duration_s", type=float, default=60.0, show_default=True, help="Seconds to simulate.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed (same seed → identical files).")
+@click.option("--scenario", type=click.Choice(["free", "static", "pulse"]), default="free", show_default=True,
+              help="free vibration; static (motion, then rest at the surveyed angle); pulse (Fig. 9 thruster pulse).")
+@click.option("--noise-m", "phase_sigma_m", type=float, default=None, help="White phase noise, metres (default: config [simulation]).")
+@click.option("--multipath-m", "multipath_sigma_m", type=float, default=None, help="Slow multipath sigma, metres (default: config).")
+@click.option("--slip", "slips", multiple=True, metavar="ANT:TX:TIME_S:CYCLES", help="Inject a cycle slip (repeatable).")
+@click.option("--outage", "outages", multiple=True, metavar="TX:START_S:DURATION_S", help="Lose a transmitter for a while (repeatable).")
+@click.option("--random-slips", type=int, default=0, show_default=True, help="Number of random cycle slips to inject.")
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output directory.")
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
+@click.pass_context
+def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_sigma_m, slips, outages,
+             random_slips, out_dir, as_json):
+    """Simulate a structure run: receiver.csv, gyro.csv, truth.csv, truth.json (+ actuators.csv)."""
+    from .config import load_config
+    from .simulate import SimOptions, parse_outage, parse_slip, simulate as run_sim, write_simulation
+
+    cfg = load_config(config)
+    opt = SimOptions(duration_s=duration_s, seed=seed, scenario=scenario, phase_sigma_m=phase_sigma_m,
+                     multipath_sigma_m=multipath_sigma_m, slips=[parse_slip(s) for s in slips],
+                     outages=[parse_outage(o) for o in outages], random_slips=random_slips)
+    _say(ctx, f"simulating {cfg.name}: {scenario}, {duration_s:g} s, seed {seed} …")
+    summary = write_simulation(run_sim(cfg, opt), out_dir)
+    _say(ctx, f"wrote {summary['receiver_rows']} phase rows, {summary['gyro_rows']} gyro rows, "
+              f"{summary['slips']} slip/relock events to {out_dir}/")
+    if as_json:
+        _emit_json(summary)
+
+
+@main.command()
+@click.argument("receiver_csv", type=click.Path(dir_okay=False))
+@click.argument("gyro_csv", required=False, type=click.Path(dir_okay=False))
+@click.option("--actuators", "actuator_csv", type=click.Path(dir_okay=False), help="Thruster command log CSV.")
+@click.option("--config", "config", required=True, type=click.Path(dir_okay=False), help="Structure config TOML.")
+@click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="RUN.mcap to write.")
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
+@click.pass_context
+def ingest(ctx, receiver_csv, gyro_csv, actuator_csv, config, output, as_json):
+    """Validate native CSV logs and write one self-contained RUN.mcap."""
+    from .config import load_config
+    from .run import write_run
+
+    cfg = load_config(config)
+    _say(ctx, f"ingesting {receiver_csv}" + (f" + {gyro_csv}" if gyro_csv else "") + f" with {cfg.name} …")
+    s = write_run(cfg, receiver_csv, output, gyro_csv, actuator_csv)
+    _say(ctx, f"wrote {output}: {s['phase_messages']} epochs ({s['start_s']:g}–{s['end_s']:g} s), "
+              f"{s['channels']} channels, {len(s['gaps'])} gaps, {s['lock_restarts']} lock restarts")
+    for g in s["gaps"][:10]:
+        _say(ctx, f"  gap {g['start_s']:g}–{g['end_s']:g} s ({g['missing_epochs']} epochs missing)")
+    if as_json:
+        _emit_json(s)
+
+
+@main.command()
+@click.argument("mcap_file", type=click.Path(dir_okay=False))
+@click.option("--json", "as_json", is_flag=True, help="Print the full summary as JSON on stdout.")
+@click.pass_context
+def info(ctx, mcap_file, as_json):
+    """Topics, counts, time span, sampling, gaps, channels and slips of an MCAP file."""
+    from .run import run_info
+
+    s = run_info(mcap_file)
+    if as_json:
+        _emit_json(s)
+        return
+    out = [f"{s['file']}"]
+    for t in s["topics"]:
+        per = f"{t['median_period_s']:g} s" if t["median_period_s"] else "-"
+        out.append(f"  {t['topic']:<22} {t['messages']:>8} msgs  {t['start_s']:g}–{t['end_s']:g} s  period {per}"
+                   f"  ({t['schema']}, {t['message_encoding']})")
+    if "config" in s:
+        c = s["config"]
+        out.append(f"  config {c['name']} (sha256 {c['config_sha256'][:12]}…), master {c['master']}")
+        out.append(f"  channels: {len(s['channels'])}; gaps: {len(s['gaps'])}; lock restarts (slips/relocks): {len(s['slips'])}")
+        for g in s["gaps"][:10]:
+            out.append(f"    gap {g['start_s']:g}–{g['end_s']:g} s ({g['missing_epochs']} epochs missing)")
+        for sl in s["slips"][:20]:
+            out.append(f"    lock restart {sl['antenna']}/{sl['transmitter']} at {sl['time_s']:g} s")
+        if len(s["slips"]) > 20:
+            out.append(f"    … {len(s['slips']) - 20} more")
+    for name, md in s["metadata"].items():
+        out.append(f"  metadata {name}: " + ", ".join(f"{k}={v}" for k, v in sorted(md.items()) if not k.endswith("sha256")))
+    click.echo("\n".join(out))
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,175 @@
+"""Native CSV log formats: reading and validation.
+
+Receiver log (one row per epoch and channel)::
+
+    time_s,receiver,master,antenna,transmitter,phase_cycles,lock,snr_dbhz
+
+``phase_cycles`` is the accumulated differential carrier phase of ``antenna`` minus ``master`` for
+``transmitter`` (λ·phase_cycles = |p_tx − p_antenna| − |p_tx − p_master| + bias + noise); ``lock``
+counts epochs since lock (0 = new lock or slip); ``snr_dbhz`` may be empty.
+
+Gyro log: ``time_s,gyro,rate_rad_s``.  Actuator log: ``time_s,actuator,force_n`` (a thruster's
+commanded force from ``time_s`` until its next row; 0 before its first row).
+
+Every reader validates the whole file and raises one :class:`CdgpsError` naming the file, the
+line (1-based, the header is line 1) and the problem, listing at most a few lines per kind of problem.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .config import StructureConfig
+from .errors import CdgpsError
+
+RECEIVER_COLUMNS = ("time_s", "receiver", "master", "antenna", "transmitter", "phase_cycles", "lock", "snr_dbhz")
+GYRO_COLUMNS = ("time_s", "gyro", "rate_rad_s")
+ACTUATOR_COLUMNS = ("time_s", "actuator", "force_n")
+_MAX_LINES_PER_PROBLEM = 5
+
+
+class _Problems:
+    def __init__(self, path):
+        self.path = path
+        self.items: list[str] = []
+
+    def rows(self, mask: np.ndarray, what: str, values=None) -> None:
+        idx = np.flatnonzero(mask)
+        if idx.size == 0:
+            return
+        shown = idx[:_MAX_LINES_PER_PROBLEM]
+        for i in shown:
+            extra = f" (got {values[i]!r})" if values is not None else ""
+            self.items.append(f"{self.path}, line {i + 2}: {what}{extra}")
+        if idx.size > shown.size:
+            self.items.append(f"{self.path}: … and {idx.size - shown.size} more lines with: {what}")
+
+    def add(self, msg: str) -> None:
+        self.items.append(f"{self.path}: {msg}")
+
+    def raise_if_any(self) -> None:
+        if self.items:
+            head = f"{self.path}: invalid log ({len(self.items)} problem{'s' if len(self.items) > 1 else ''})"
+            raise CdgpsError(head + "\n  - " + "\n  - ".join(self.items))
+
+
+def _read_table(path: str | Path, columns: tuple, numeric: tuple, optional_numeric: tuple = ()) -> tuple[pd.DataFrame, _Problems]:
+    p = Path(path)
+    probs = _Problems(str(p))
+    try:
+        with open(p, "rb") as fh:
+            head = fh.readline().decode("utf-8", errors="replace").strip().lstrip("\ufeff")
+    except OSError as exc:
+        raise CdgpsError(f"{p}: cannot read: {exc.strerror}") from None
+    if not head:
+        raise CdgpsError(f"{p}, line 1: empty file; expected the header {','.join(columns)}")
+    header = [h.strip() for h in head.split(",")]
+    missing = [c for c in columns if c not in header]
+    unknown = [c for c in header if c not in columns]
+    dup = sorted({c for c in header if header.count(c) > 1})
+    if missing or unknown or dup:
+        msg = []
+        if missing:
+            msg.append(f"missing column(s) {', '.join(missing)}")
+        if unknown:
+            msg.append(f"unknown column(s) {', '.join(unknown)}")
+        if dup:
+            msg.append(f"duplicate column(s) {', '.join(dup)}")
+        raise CdgpsError(f"{p}, line 1: " + "; ".join(msg) + f"; expected the header {','.join(columns)}")
+    try:
+        df = pd.read_csv(p, dtype=str, keep_default_na=False, na_filter=False, engine="c")
+    except pd.errors.ParserError as exc:
+        raise CdgpsError(f"{p}: malformed CSV: {exc}") from None
+    except UnicodeDecodeError:
+        raise CdgpsError(f"{p}: not a UTF-8 text file") from None
+    df.columns = [c.strip() for c in df.columns]
+    if len(df) == 0:
+        raise CdgpsError(f"{p}: no data rows after the header")
+    out = {}
+    for c in columns:
+        col = df[c].str.strip() if df[c].dtype == object else df[c]
+        if c in numeric or c in optional_numeric:
+            empty = col.to_numpy() == ""
+            vals = pd.to_numeric(col.where(~empty, "nan"), errors="coerce").to_numpy(dtype=float)
+            literal_nan = col.str.lower().isin(["nan", "+nan", "-nan"]).to_numpy()
+            bad = np.isnan(vals) & ~empty & ~literal_nan
+            probs.rows(bad, f"column {c}: not a number", col.to_numpy())
+            if c in numeric:
+                probs.rows(empty, f"column {c}: empty value")
+                probs.rows(literal_nan, f"column {c}: NaN value")
+            out[c] = vals
+        else:
+            v = col.to_numpy()
+            probs.rows(v == "", f"column {c}: empty value")
+            out[c] = v
+    return pd.DataFrame(out, columns=list(columns)), probs
+
+
+def _check_time(df: pd.DataFrame, probs: _Problems) -> None:
+    t = df["time_s"].to_numpy()
+    probs.rows(np.isinf(t), "column time_s: not finite")
+    probs.rows(t < 0, "column time_s: negative time", t)
+    back = np.r_[False, np.diff(t) < 0]
+    probs.rows(back, "time goes backwards (rows must be in time order)", t)
+
+
+def _check_names(df, col, allowed, probs, what):
+    v = df[col].to_numpy()
+    bad = ~pd.Series(v).isin(allowed).to_numpy() & (v != "")
+    probs.rows(bad, f"column {col}: {what} not in the config (known: {', '.join(allowed)})", v)
+
+
+def read_receiver_log(path: str | Path, cfg: StructureConfig) -> pd.DataFrame:
+    """Read and validate a receiver log against a structure config.
+
+    Returns
+    -------
+    DataFrame
+        Columns of :data:`RECEIVER_COLUMNS`; ``phase_cycles``, ``snr_dbhz`` (NaN when empty) and
+        ``time_s`` float64, ``lock`` int64.
+
+    Raises
+    ------
+    CdgpsError
+        Missing or unknown columns, non-numeric values, NaN phase, time going backwards,
+        duplicate (time, antenna, transmitter) rows, names unknown to the config.
+    """
+    df, probs = _read_table(path, RECEIVER_COLUMNS, ("time_s", "phase_cycles", "lock"), ("snr_dbhz",))
+    _check_time(df, probs)
+    ph = df["phase_cycles"].to_numpy()
+    probs.rows(np.isinf(ph), "column phase_cycles: infinite phase")
+    lock = df["lock"].to_numpy()
+    badlock = np.isfinite(lock) & ((lock < 0) | (lock != np.round(lock)))
+    probs.rows(badlock, "column lock: expected a non-negative integer", lock)
+    _check_names(df, "antenna", list(cfg.rover_names), probs, "antenna")
+    _check_names(df, "transmitter", list(cfg.transmitter_names), probs, "transmitter")
+    master = cfg.antenna_names[cfg.master_index]
+    probs.rows(df["master"].to_numpy() != master, f"column master: expected the config's master antenna {master!r}", df["master"].to_numpy())
+    key = pd.DataFrame({"t": df["time_s"], "a": df["antenna"], "x": df["transmitter"]})
+    probs.rows(key.duplicated().to_numpy(), "duplicate row (same time_s, antenna and transmitter as an earlier row)")
+    probs.raise_if_any()
+    df["lock"] = df["lock"].astype(np.int64)
+    return df
+
+
+def read_gyro_log(path: str | Path, cfg: StructureConfig) -> pd.DataFrame:
+    """Read and validate a gyro log (``time_s,gyro,rate_rad_s``)."""
+    df, probs = _read_table(path, GYRO_COLUMNS, ("time_s", "rate_rad_s"))
+    _check_time(df, probs)
+    _check_names(df, "gyro", list(cfg.gyro_names), probs, "gyro")
+    probs.rows(df.duplicated(["time_s", "gyro"]).to_numpy(), "duplicate row (same time_s and gyro as an earlier row)")
+    probs.raise_if_any()
+    return df
+
+
+def read_actuator_log(path: str | Path, cfg: StructureConfig) -> pd.DataFrame:
+    """Read and validate an actuator log (``time_s,actuator,force_n``)."""
+    df, probs = _read_table(path, ACTUATOR_COLUMNS, ("time_s", "force_n"))
+    _check_time(df, probs)
+    _check_names(df, "actuator", list(cfg.thruster_names), probs, "actuator")
+    probs.rows(df.duplicated(["time_s", "actuator"]).to_numpy(), "duplicate row (same time_s and actuator as an earlier row)")
+    probs.raise_if_any()
+    return df

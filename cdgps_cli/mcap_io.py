@@ -1,0 +1,253 @@
+"""MCAP containers shared by every stage (RUN.mcap from ingest, later STATES.mcap).
+
+Layout written by :class:`McapOut`:
+
+* zstd-compressed chunks, chunk and data-section CRCs, full summary and indexes;
+* JSON-schema channels (schema encoding ``jsonschema``, message encoding ``json``) so Foxglove can
+  open the file; one message per epoch per topic, the epoch's channels as arrays, with a
+  ``timestamp {sec, nsec}`` field (log time = publish time = that timestamp);
+* attachments (e.g. the structure config ``config.toml``) and metadata records.
+
+Files are written under a temporary name in the target directory and renamed when complete, so a
+failed run never leaves a half-written output.  Readers always validate CRCs and turn any
+corruption or truncation into a :class:`CdgpsError`.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap.writer import CompressionType, Writer
+
+from .errors import CdgpsError
+
+PHASE_TOPIC = "/cdgps/phase"
+GYRO_TOPIC = "/cdgps/gyro"
+ACTUATOR_TOPIC = "/cdgps/actuators"
+CONFIG_ATTACHMENT = "config.toml"
+
+_TS = {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}}
+
+
+def array_schema(title: str, fields: dict[str, str], scalars: dict[str, str] | None = None) -> dict:
+    """JSON schema of an epoch message: ``timestamp``, ``time_s``, scalars and per-channel arrays."""
+    props = {"timestamp": _TS, "time_s": {"type": "number", "description": "seconds"}}
+    for k, t in (scalars or {}).items():
+        props[k] = {"type": t}
+    for k, t in fields.items():
+        props[k] = {"type": "array", "items": {"type": t} if t != "number|null" else {"type": ["number", "null"]}}
+    return {"title": title, "type": "object", "properties": props}
+
+
+PHASE_SCHEMA = array_schema(
+    "cdgps.DifferentialPhase",
+    {"receiver": "string", "antenna": "string", "transmitter": "string", "phase_cycles": "number",
+     "lock": "integer", "snr_dbhz": "number|null"},
+    {"master": "string"},
+)
+GYRO_SCHEMA = array_schema("cdgps.RateGyro", {"gyro": "string", "rate_rad_s": "number"})
+ACTUATOR_SCHEMA = array_schema("cdgps.ThrusterCommand", {"actuator": "string", "force_n": "number"})
+
+
+def time_ns(time_s: float) -> int:
+    """Seconds → integer nanoseconds (log time); rounds to the nearest nanosecond."""
+    return int(round(float(time_s) * 1e9))
+
+
+def timestamp(time_s: float) -> dict:
+    ns = time_ns(time_s)
+    return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
+
+
+def _clean(v):
+    """JSON-safe scalar (NaN → null)."""
+    return None if isinstance(v, float) and v != v else v
+
+
+class McapOut:
+    """Atomic MCAP writer (context manager).
+
+    Examples
+    --------
+    >>> with McapOut("run.mcap") as out:                        # doctest: +SKIP
+    ...     ch = out.channel("/cdgps/phase", PHASE_SCHEMA)
+    ...     out.write(ch, 0.1, {"phase_cycles": [0.25]})
+    """
+
+    def __init__(self, path: str | Path, profile: str = "cdgps"):
+        self.path = Path(path)
+        self.tmp = self.path.with_name(f".{self.path.name}.tmp{os.getpid()}")
+        self.profile = profile
+        self._schemas: dict[str, int] = {}
+        self._seq: dict[int, int] = {}
+
+    def __enter__(self) -> "McapOut":
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._fh = open(self.tmp, "wb")
+        except OSError as exc:
+            raise CdgpsError(f"{self.path}: cannot write: {exc.strerror}") from None
+        self.writer = Writer(self._fh, compression=CompressionType.ZSTD, enable_crcs=True,
+                             enable_data_crcs=True, chunk_size=1 << 20)
+        self.writer.start(profile=self.profile, library="cdgps")
+        return self
+
+    def channel(self, topic: str, schema: dict, metadata: dict | None = None) -> int:
+        title = schema["title"]
+        if title not in self._schemas:
+            self._schemas[title] = self.writer.register_schema(
+                name=title, encoding="jsonschema", data=json.dumps(schema, sort_keys=True).encode())
+        cid = self.writer.register_channel(topic=topic, message_encoding="json",
+                                           schema_id=self._schemas[title], metadata=metadata or {})
+        self._seq[cid] = 0
+        return cid
+
+    def write(self, channel_id: int, time_s: float, payload: dict) -> None:
+        ns = time_ns(time_s)
+        msg = {"timestamp": {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}, "time_s": float(time_s)}
+        msg.update(payload)
+        data = json.dumps(msg, separators=(",", ":"), allow_nan=False).encode()
+        self.writer.add_message(channel_id=channel_id, log_time=ns, publish_time=ns, data=data,
+                                sequence=self._seq[channel_id])
+        self._seq[channel_id] += 1
+
+    def write_table(self, channel_id: int, df: pd.DataFrame, array_columns: list[str],
+                    scalar_columns: list[str] = ()) -> int:
+        """Write a long table (sorted by ``time_s``) as one message per distinct time.
+
+        Returns the number of messages written.
+        """
+        if len(df) == 0:
+            return 0
+        t = df["time_s"].to_numpy()
+        cuts = np.flatnonzero(np.r_[True, t[1:] != t[:-1], True])
+        cols = {c: df[c].to_numpy() for c in array_columns}
+        lists = {}
+        for c, v in cols.items():
+            if v.dtype.kind == "f" and np.isnan(v).any():
+                lists[c] = [_clean(x) for x in v.tolist()]
+            else:
+                lists[c] = v.tolist()
+        scal = {c: df[c].to_numpy() for c in scalar_columns}
+        for a, b in zip(cuts[:-1], cuts[1:]):
+            payload = {c: scal[c][a] for c in scalar_columns}
+            payload.update({c: lists[c][a:b] for c in array_columns})
+            self.write(channel_id, t[a], payload)
+        return len(cuts) - 1
+
+    def attach(self, name: str, data: bytes, media_type: str = "text/plain") -> None:
+        self.writer.add_attachment(create_time=0, log_time=0, name=name, media_type=media_type, data=data)
+
+    def metadata(self, name: str, data: dict) -> None:
+        self.writer.add_metadata(name=name, data={k: str(v) for k, v in data.items()})
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        try:
+            if exc_type is None:
+                self.writer.finish()
+            self._fh.close()
+            if exc_type is None:
+                os.replace(self.tmp, self.path)
+        finally:
+            if self.tmp.exists():
+                self.tmp.unlink()
+
+
+class TopicColumns:
+    """Messages of one topic accumulated column-wise while reading (memory-lean).
+
+    ``scalars[name]`` holds one value per message; ``arrays[name]`` the concatenation of the
+    per-message arrays; ``counts`` the array length of each message.  Strings are interned.
+    """
+
+    def __init__(self):
+        self.scalars: dict[str, list] = {}
+        self.arrays: dict[str, list] = {}
+        self.counts: list[int] = []
+
+    def add(self, msg: dict) -> None:
+        n = None
+        for k, v in msg.items():
+            if isinstance(v, list):
+                if v and isinstance(v[0], str):
+                    v = [sys.intern(e) for e in v]
+                self.arrays.setdefault(k, []).extend(v)
+                n = len(v) if n is None else n
+            elif k != "timestamp":
+                self.scalars.setdefault(k, []).append(v)
+        self.counts.append(0 if n is None else n)
+
+    def __len__(self) -> int:
+        return len(self.counts)
+
+    def times(self) -> np.ndarray:
+        return np.asarray(self.scalars.get("time_s", []), dtype=float)
+
+    def table(self, array_columns: list[str], scalar_columns: list[str] = ()) -> pd.DataFrame:
+        """Long table: one row per array element, scalars repeated (inverse of write_table)."""
+        counts = np.asarray(self.counts, dtype=np.int64)
+        out = {"time_s": np.repeat(self.times(), counts)}
+        for c in scalar_columns:
+            out[c] = np.repeat(np.array(self.scalars.get(c, []), dtype=object), counts)
+        for c in array_columns:
+            flat = self.arrays.get(c, [])
+            if flat and any(v is None for v in flat):
+                flat = [np.nan if v is None else v for v in flat]
+            out[c] = np.array(flat) if flat else np.array([], dtype=float)
+        return pd.DataFrame(out)
+
+
+@dataclass
+class McapContents:
+    """What :func:`read_mcap` returns: messages per topic (column-wise), attachments and metadata."""
+
+    path: str
+    topics: dict            # topic → TopicColumns (log-time order)
+    attachments: dict       # name → bytes
+    metadata: dict          # name → dict[str, str]
+    schemas: dict           # topic → (schema name, encoding)
+    message_encoding: dict  # topic → encoding
+
+
+def read_mcap(path: str | Path, topics: list[str] | None = None) -> McapContents:
+    """Read an MCAP file with CRC validation.
+
+    Raises
+    ------
+    CdgpsError
+        If the file is missing, not an MCAP file, truncated or fails a CRC check.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise CdgpsError(f"{p}: no such file")
+    cols: dict = {}
+    schemas, encodings = {}, {}
+    try:
+        with open(p, "rb") as fh:
+            reader = make_reader(fh, validate_crcs=True)
+            summary = reader.get_summary()
+            if summary is None:
+                raise CdgpsError(f"{p}: MCAP file has no summary section (truncated or not written by a complete run)")
+            for schema, channel, message in reader.iter_messages(topics=topics):
+                acc = cols.get(channel.topic)
+                if acc is None:
+                    acc = cols[channel.topic] = TopicColumns()
+                    schemas[channel.topic] = (schema.name if schema else "", schema.encoding if schema else "")
+                    encodings[channel.topic] = channel.message_encoding
+                acc.add(json.loads(message.data))
+            attachments = {a.name: bytes(a.data) for a in reader.iter_attachments()}
+            metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+    except CdgpsError:
+        raise
+    except (McapError, EOFError, ValueError, KeyError, struct.error, OSError) as exc:
+        raise CdgpsError(f"{p}: not a valid MCAP file (truncated or corrupt): {type(exc).__name__}: {exc}") from None
+    return McapContents(str(p), cols, attachments, metadata, schemas, encodings)
