@@ -124,9 +124,13 @@ def ld_factorize(Q):
 
     Notes
     -----
-    The factorisation proceeds from the last row upwards: the last row of
-    ``Q`` fixes ``d[n-1]`` and ``L[n-1, :]``, its rank-one contribution is
-    removed from the leading block, and the process repeats.  Cost O(n^3).
+    ``d[i]`` is the pivot obtained when eliminating from the last ambiguity
+    upwards.  It is computed as a Cholesky factorisation of the
+    index-reversed matrix: with ``J`` the reversal permutation,
+    ``J Q J = C C^T`` (``C`` lower) gives ``Q = U U^T`` with
+    ``U = J C J`` upper triangular, hence ``d = diag(U)**2`` and
+    ``L = (U / sqrt(d)).T``.  A pivot ``d[i] <= PIVOT_RTOL * n * max(diag Q)``
+    is treated as loss of positive definiteness.  Cost O(n^3) in LAPACK.
     """
     Qa = _as_square_matrix(Q)
     asym, tol = _asymmetry(Qa)
@@ -137,21 +141,24 @@ def ld_factorize(Q):
         )
     n = Qa.shape[0]
     A = 0.5 * (Qa + Qa.T)
-    floor = PIVOT_RTOL * n * max(float(np.max(np.diag(A))), 0.0)
-    L = np.zeros((n, n))
-    d = np.empty(n)
-    for i in range(n - 1, -1, -1):
-        di = A[i, i]
-        if not (di > floor) or not np.isfinite(di):
-            raise AmbiguityError(
-                f"Q is not symmetric positive definite: non-positive pivot "
-                f"d[{i}] = {di:.6g} in the L^T D L factorisation"
-            )
-        d[i] = di
-        row = A[i, : i + 1] / di  # unit diagonal after division
-        # remove the rank-one contribution di * row^T row of this ambiguity
-        A[:i, :i] -= di * np.outer(row[:i], row[:i])
-        L[i, : i + 1] = row
+    try:
+        C = np.linalg.cholesky(A[::-1, ::-1])
+    except np.linalg.LinAlgError as exc:
+        raise AmbiguityError(
+            "Q is not symmetric positive definite (Cholesky factorisation failed)"
+        ) from exc
+    U = C[::-1, ::-1]
+    sq = np.diag(U).copy()
+    d = sq * sq
+    pivot_floor = PIVOT_RTOL * n * max(float(np.max(np.diag(A))), 0.0)
+    bad = np.flatnonzero(~(d > pivot_floor))
+    if bad.size:
+        i = int(bad[-1])
+        raise AmbiguityError(
+            f"Q is not symmetric positive definite: pivot d[{i}] = {d[i]:.6g} "
+            f"is not significantly positive in the L^T D L factorisation"
+        )
+    L = np.ascontiguousarray((U / sq).T)
     return L, d
 
 
@@ -161,22 +168,35 @@ def ld_factorize(Q):
 
 
 def _reduce(L, d):
-    """LAMBDA reduction; returns (L, d, Z, Zinv) with Zinv = Z^{-1} exactly.
+    """LAMBDA reduction on Python lists.
 
-    Implementation notes
-    --------------------
+    Returns
+    -------
+    Lr : list of lists, shape (n, n)
+        Reduced factor, row-major (``Lr[r][c] == L[r, c]``).
+    dl : list of float, length n
+        Reduced conditional variances.
+    ops : list of (i, j, mu) tuples
+        The transformation as a sequence of elementary operations on the
+        ambiguity vector ``z``: ``mu != 0`` is the integer Gauss
+        transformation ``z_j <- z_j - mu z_i``; ``mu == 0`` swaps ``z_i``
+        and ``z_j`` (``j == i + 1``).  ``Z`` is the product of the
+        corresponding elementary matrices in order.
+
+    Notes
+    -----
     Pure-Python lists are used on purpose: the algorithm consists of many
     tiny, sequentially dependent updates for which per-call numpy overhead
-    dominates.  ``Lc[c][r]`` holds ``L[r, c]`` (column-major), ``Zc[c]`` is
-    column ``c`` of ``Z`` and ``Zr[r]`` is row ``r`` of ``Z^{-1}`` (Python
-    ints, so no overflow is possible during the reduction).
+    would dominate.  Recording the operations instead of updating ``Z``
+    (and ``Z^{-1}``) makes every operation O(1) in ``z``; ``Z`` is only
+    materialised when explicitly asked for (:func:`decorrelate`).
 
     Strategy (as in MLAMBDA): walk the adjacent pairs ``(k, k+1)`` from the
     end; before testing a pair only the sub-diagonal element ``L[k+1, k]``
-    is size-reduced; after a swap the walk steps back one pair, because only
-    pairs ``k-1``, ``k`` and ``k+1`` are affected by the swap.  The
-    remaining off-diagonal elements do not influence ``d`` and are reduced
-    in one final pass for numerical conditioning of the search.
+    is size-reduced; after a swap the walk steps back one pair, since only
+    the pairs ``k-1``, ``k`` and ``k+1`` are affected by the swap.  The
+    other off-diagonal elements do not influence ``d`` and are reduced in a
+    final pass, which keeps the search numerically well conditioned.
     """
     L = np.asarray(L, dtype=float)
     d = np.asarray(d, dtype=float)
@@ -185,31 +205,27 @@ def _reduce(L, d):
         raise AmbiguityError(
             f"L must have shape (n, n) matching d of shape (n,), got {L.shape} and {d.shape}"
         )
-    Lc = L.T.tolist()
+    Lr = L.tolist()
     dl = d.tolist()
-    Zc = [[int(r == c) for r in range(n)] for c in range(n)]
-    Zr = [[int(r == c) for c in range(n)] for r in range(n)]
+    ops = []
     floor = math.floor
 
     def gauss(i, j):
         # integer Gauss transformation z_j <- z_j - mu z_i (i > j) making
-        # |L[i, j]| <= 1/2.  With G = I - mu e_i e_j^T:  L <- L G,
-        # Z <- Z G,  Z^{-1} <- G^{-1} Z^{-1} (row i += mu row j).
-        colj = Lc[j]
-        mu = floor(colj[i] + 0.5)
+        # |L[i, j]| <= 1/2; with G = I - mu e_i e_j^T:  L <- L G, Z <- Z G.
+        mu = floor(Lr[i][j] + 0.5)
         if mu:
-            coli = Lc[i]
             for r in range(i, n):
-                colj[r] -= mu * coli[r]
-            Zc[j] = [x - mu * y for x, y in zip(Zc[j], Zc[i])]
-            Zr[i] = [x + mu * y for x, y in zip(Zr[i], Zr[j])]
+                row = Lr[r]
+                row[j] -= mu * row[i]
+            ops.append((i, j, mu))
 
     k = n - 2
     while k >= 0:
         gauss(k + 1, k)
-        ck = Lc[k]
-        ck1 = Lc[k + 1]
-        lk = ck[k + 1]
+        rk = Lr[k]
+        rk1 = Lr[k + 1]
+        lk = rk1[k]
         dk = dl[k]
         dk1 = dl[k + 1]
         # conditional variance of the last of the pair after swapping
@@ -219,16 +235,16 @@ def _reduce(L, d):
             lam = dk1 * lk / delta
             dl[k] = eta * dk1
             dl[k + 1] = delta
-            for c in range(k):
-                col = Lc[c]
-                a0 = col[k]
-                a1 = col[k + 1]
-                col[k] = a1 - lk * a0
-                col[k + 1] = eta * a0 + lam * a1
-            ck[k + 1] = lam
-            ck[k + 2 :], ck1[k + 2 :] = ck1[k + 2 :], ck[k + 2 :]
-            Zc[k], Zc[k + 1] = Zc[k + 1], Zc[k]
-            Zr[k], Zr[k + 1] = Zr[k + 1], Zr[k]
+            if k:
+                old_k = rk[:k]
+                old_k1 = rk1[:k]
+                rk[:k] = [b - lk * a for a, b in zip(old_k, old_k1)]
+                rk1[:k] = [eta * a + lam * b for a, b in zip(old_k, old_k1)]
+            rk1[k] = lam
+            for r in range(k + 2, n):
+                row = Lr[r]
+                row[k], row[k + 1] = row[k + 1], row[k]
+            ops.append((k, k + 1, 0))
             if k < n - 2:
                 k += 1
         else:
@@ -238,19 +254,41 @@ def _reduce(L, d):
     for j in range(n - 2, -1, -1):
         for i in range(j + 2, n):
             gauss(i, j)
-
-    Lout = np.array(Lc, dtype=float).T.copy()
-    dout = np.array(dl, dtype=float)
-    Z = _to_int64(Zc).T.copy()
-    Zinv = _to_int64(Zr)
-    return Lout, dout, Z, Zinv
+    return Lr, dl, ops
 
 
-def _to_int64(rows):
-    big = max((abs(x) for row in rows for x in row), default=0)
+def _forward(ops, v):
+    """Apply the recorded transformation: ``v <- Z^T v`` (in place, list)."""
+    for i, j, mu in ops:
+        if mu:
+            v[j] -= mu * v[i]
+        else:
+            v[i], v[j] = v[j], v[i]
+    return v
+
+
+def _backward(ops, v):
+    """Apply the inverse transformation: ``v <- Z^{-T} v`` (in place, list)."""
+    for i, j, mu in reversed(ops):
+        if mu:
+            v[j] += mu * v[i]
+        else:
+            v[i], v[j] = v[j], v[i]
+    return v
+
+
+def _z_matrix(ops, n):
+    """Materialise ``Z`` (int64, shape (n, n)) from the recorded operations."""
+    cols = [[int(r == c) for r in range(n)] for c in range(n)]
+    for i, j, mu in ops:
+        if mu:
+            cols[j] = [x - mu * y for x, y in zip(cols[j], cols[i])]
+        else:
+            cols[i], cols[j] = cols[j], cols[i]
+    big = max((abs(x) for col in cols for x in col), default=0)
     if big >= 2**62:
         raise AmbiguityError("decorrelation produced integer entries too large for int64")
-    return np.array(rows, dtype=np.int64)
+    return np.array(cols, dtype=np.int64).T.copy()
 
 
 def decorrelate(L, d):
@@ -267,9 +305,11 @@ def decorrelate(L, d):
     -------
     L : ndarray, shape (n, n), float64
         Reduced unit lower-triangular factor (``|L[i, j]| <= 1/2`` below the
-        diagonal, up to the permutation tolerance).
+        diagonal).
     d : ndarray, shape (n,), float64
-        Reduced conditional variances.
+        Reduced conditional variances; adjacent entries satisfy
+        ``d[k+1] <= d[k] + L[k+1, k]**2 * d[k+1] + 1e-6`` (no swap would
+        reduce ``d[k+1]`` further).
     Z : ndarray, shape (n, n), int64
         Unimodular (``|det Z| = 1``) integer transformation.  If the input
         factors satisfy ``Q = L^T diag(d) L`` then the transformed float
@@ -279,10 +319,11 @@ def decorrelate(L, d):
     Notes
     -----
     The inputs are not modified.  Integer solutions in the transformed space
-    map back with ``a = Z^{-T} z`` (exact in integer arithmetic).
+    map back with ``a = Z^{-T} z`` (exactly, since ``Z^{-1}`` is integer).
     """
-    L2, d2, Z, _ = _reduce(L, d)
-    return L2, d2, Z
+    Lr, dl, ops = _reduce(L, d)
+    n = len(dl)
+    return np.array(Lr, dtype=float).reshape(n, n), np.array(dl, dtype=float), _z_matrix(ops, n)
 
 
 # ---------------------------------------------------------------------------
@@ -328,19 +369,23 @@ def search(L, d, zs, candidates):
     d = np.asarray(d, dtype=float)
     zs = np.asarray(zs, dtype=float)
     n = d.shape[0]
-    m = int(candidates)
-    if m < 1:
-        raise AmbiguityError(f"candidates must be >= 1, got {candidates}")
-    if L.shape != (n, n) or zs.shape != (n,):
+    if d.ndim != 1 or n < 1 or L.shape != (n, n) or zs.shape != (n,):
         raise AmbiguityError(
-            f"inconsistent shapes: L {L.shape}, d {d.shape}, zs {zs.shape}"
+            f"inconsistent shapes: L {L.shape}, d {d.shape}, zs {zs.shape} (need (n, n), (n,), (n,))"
         )
+    if isinstance(candidates, bool) or not isinstance(candidates, numbers.Integral) or candidates < 1:
+        raise AmbiguityError(f"candidates must be an integer >= 1, got {candidates!r}")
+    if not np.all(d > 0):
+        raise AmbiguityError("conditional variances d must all be > 0")
+    m = int(candidates)
 
+    Lr = L.tolist()
     dl = d.tolist()
     zsl = zs.tolist()
-    # S[k, :k+1] accumulates sum_{i>k} L[i, :k+1] * (z_i - zb_i); the
-    # conditional estimate of component k is zb_k = zs_k + S[k, k].
-    S = np.zeros((n, n))
+    floor = math.floor
+    # S[k][:k+1] accumulates sum_{i>k} L[i, :k+1] * (z_i - zb_i); the
+    # conditional estimate of component k is zb_k = zs_k + S[k][k].
+    S = [[0.0] * (k + 1) for k in range(n)]
     dist = [0.0] * n
     zb = [0.0] * n
     z = [0.0] * n
@@ -353,23 +398,25 @@ def search(L, d, zs, candidates):
 
     k = n - 1
     zb[k] = zsl[k]
-    z[k] = math.floor(zb[k] + 0.5)
+    z[k] = floor(zb[k] + 0.5)
     y = zb[k] - z[k]
     step[k] = 1.0 if y > 0 else -1.0
     while True:
         newdist = dist[k] + y * y / dl[k]
         if newdist < maxdist:
-            if k != 0:
-                # descend one level
+            if k:
+                # descend one level: condition component k-1 on z[k:]
+                e = z[k] - zb[k]
+                lrow = Lr[k]
                 k -= 1
                 dist[k] = newdist
-                S[k, : k + 1] = S[k + 1, : k + 1] + (z[k + 1] - zb[k + 1]) * L[k + 1, : k + 1]
-                zb[k] = zsl[k] + float(S[k, k])
-                z[k] = math.floor(zb[k] + 0.5)
-                y = zb[k] - z[k]
+                S[k] = Sk = [sv + e * lv for sv, lv in zip(S[k + 1], lrow)]
+                zb[k] = zbk = zsl[k] + Sk[k]
+                z[k] = zk = floor(zbk + 0.5)
+                y = zbk - zk
                 step[k] = 1.0 if y > 0 else -1.0
                 continue
-            # full candidate reached
+            # a full candidate has been reached
             if len(out_z) < m:
                 out_z.append(z[:])
                 out_s.append(newdist)
@@ -381,18 +428,20 @@ def search(L, d, zs, candidates):
                 out_s[imax] = newdist
                 imax = max(range(m), key=out_s.__getitem__)
                 maxdist = out_s[imax]
-            # next integer at the bottom level (zig-zag)
-            z[0] += step[0]
+            # next integer at the bottom level (zig-zag around zb[0])
+            st = step[0]
+            z[0] += st
             y = zb[0] - z[0]
-            step[0] = -step[0] - (1.0 if step[0] > 0 else -1.0)
+            step[0] = -st - (1.0 if st > 0 else -1.0)
         else:
             if k == n - 1:
                 break
-            # move up one level and to the next integer there
+            # move up one level and on to the next integer there
             k += 1
-            z[k] += step[k]
+            st = step[k]
+            z[k] += st
             y = zb[k] - z[k]
-            step[k] = -step[k] - (1.0 if step[k] > 0 else -1.0)
+            step[k] = -st - (1.0 if st > 0 else -1.0)
 
     order = sorted(range(len(out_s)), key=out_s.__getitem__)
     zn = np.array([out_z[i] for i in order], dtype=float).reshape(len(order), n)
@@ -493,11 +542,16 @@ def lambda_search(a, Q, candidates=2):
     offset = _round_half_up(aa)
     af = aa - offset  # exact for |a| < 2**52
     L, d = ld_factorize(Qs)
-    Lr, dr, Z, Zinv = _reduce(L, d)
-    zs = Z.T.astype(float) @ af
+    Lr, dr, ops = _reduce(L, d)
+    zs = _forward(ops, af.tolist())
     zn, s = search(Lr, dr, zs, m)
-    # a = Z^{-T} z  <=>  a^T = z^T Z^{-1}, exact integer arithmetic
-    cands = zn.astype(np.int64) @ Zinv + offset.astype(np.int64)
+    # back-transform a = Z^{-T} z with exact (Python int) arithmetic
+    base = offset.astype(np.int64).tolist()
+    rows = []
+    for zk in zn.tolist():
+        ak = _backward(ops, [int(x) for x in zk])
+        rows.append([x + b for x, b in zip(ak, base)])
+    cands = np.array(rows, dtype=np.int64).reshape(m, aa.shape[0])
     return cands, s
 
 
