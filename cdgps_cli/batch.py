@@ -24,7 +24,9 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import solve_triangular
-from scipy.linalg.lapack import dgeqrf
+from scipy.linalg.lapack import dgeqrf, dtrtrs
+
+_MASKS: dict = {}
 
 
 def _qr_r(M: np.ndarray) -> np.ndarray:
@@ -33,7 +35,19 @@ def _qr_r(M: np.ndarray) -> np.ndarray:
     if info != 0:  # pragma: no cover - LAPACK argument error
         raise RuntimeError(f"dgeqrf failed (info={info})")
     k = min(M.shape)
-    return np.triu(qr[:k])
+    shape = (k, M.shape[1])
+    mask = _MASKS.get(shape)
+    if mask is None:
+        mask = _MASKS[shape] = np.triu(np.ones(shape))
+    return qr[:k] * mask
+
+
+def _tri_solve(R: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Solve R x = b for upper-triangular R (LAPACK dtrtrs, no checks)."""
+    x, info = dtrtrs(R, b)
+    if info > 0:
+        raise np.linalg.LinAlgError("singular triangular factor")
+    return x
 
 
 @dataclass
@@ -170,7 +184,7 @@ def srif_solve(prob: LinearProblem) -> LinearSolution:
     for k in range(N - 2, -1, -1):
         zk1 = np.concatenate([xs[k + 1], b])
         if r:
-            ws[k] = solve_triangular(store_R_w[k], store_d_w[k] - store_R_wz[k] @ zk1)
+            ws[k] = _tri_solve(store_R_w[k], store_d_w[k] - store_R_wz[k] @ zk1)
             xs[k] = Ainv @ (xs[k + 1] - G @ ws[k])
         else:
             xs[k] = Ainv @ xs[k + 1]

@@ -43,8 +43,8 @@ class InitOptions:
     ratio_threshold: float = 3.0
     partial: bool = True                # partial fixing when the full set fails
     starts: int = 8                     # initial guesses of the rigid angle (or lowest mode)
-    start_iterations: int = 4           # Gauss–Newton iterations per start before choosing
-    start_window_s: float = 15.0        # starts are compared on this first part of the window
+    start_iterations: int = 3           # Gauss–Newton iterations per start before choosing
+    start_window_s: float = 10.0        # starts are compared on this first part of the window
     max_iterations: int = 30
     step_tol_m: float = 1e-5            # convergence: max bias / position step (m)
     cost_rtol: float = 1e-9             # convergence: relative cost change
@@ -238,7 +238,7 @@ class _Problem:
         return out
 
     def gauss_newton(self, x_init: np.ndarray, b_init: np.ndarray, max_iter: int, opt: InitOptions,
-                     w_init: np.ndarray | None = None) -> GNResult:
+                     w_init: np.ndarray | None = None, max_retries: int = 12) -> GNResult:
         """Gauss–Newton with Levenberg–Marquardt step control on x₁ and b.
 
         Each iteration first tries the step with the damping reduced tenfold (undamped once it is
@@ -254,7 +254,7 @@ class _Problem:
         it = 0
         for it in range(1, max_iter + 1):
             accepted = False
-            for _ in range(12):
+            for _ in range(max_retries):
                 sw = lam / self.sigma          # square-root weight of the damping prior
                 lin = srif_solve(self.linear_problem(x, sw, x[0], sw, b))
                 # backtracking along the Gauss–Newton step before adding damping
@@ -349,7 +349,7 @@ def initialize(run: Run, opt: InitOptions | None = None) -> dict:
     results = []
     for label, x1 in _start_guesses(cfg, opt.starts):
         xs = sub.propagate(x1)
-        g = sub.gauss_newton(xs, sub.initial_biases(xs), opt.start_iterations, opt)
+        g = sub.gauss_newton(xs, sub.initial_biases(xs), opt.start_iterations, opt, max_retries=3)
         results.append((label, g))
         _say(opt, f"  start {label}: cost {g.cost:.4g} after {g.iterations} iterations on the first {n_sub} epochs")
     best_i = int(np.argmin([g.cost for _, g in results]))

@@ -212,11 +212,14 @@ def simulate(cfg: StructureConfig, opt: SimOptions) -> Simulation:
         qdot = (1 - blend)[:, None] * qdot + dblend[:, None] * (target - q_free)
         Uinv = np.linalg.pinv(U)
         x = np.hstack([q @ Uinv.T, qdot @ Uinv.T])
-        rest_start = float(min(t_rest + t_settle, time_s[-1]))
-        segments = [{"kind": "motion", "start_s": 0.0, "end_s": float(min(t_rest, time_s[-1]))},
-                    {"kind": "settling", "start_s": float(min(t_rest, time_s[-1])), "end_s": rest_start},
-                    {"kind": "rest", "start_s": rest_start, "end_s": float(time_s[-1]),
-                     "q": {nme: float(v) for nme, v in zip(cfg.coord_names, target)}}]
+        end = float(time_s[-1])
+        rest_start = t_rest + t_settle
+        segments = [{"kind": "motion", "start_s": 0.0, "end_s": float(min(t_rest, end))}]
+        if t_rest < end:
+            segments.append({"kind": "settling", "start_s": float(t_rest), "end_s": float(min(rest_start, end))})
+        if rest_start < end:
+            segments.append({"kind": "rest", "start_s": float(rest_start), "end_s": end,
+                             "q": {nme: float(v) for nme, v in zip(cfg.coord_names, target)}})
     elif opt.scenario == "pulse":
         segments = [{"kind": "rest", "start_s": 0.0, "end_s": float(sim["pulse_time_s"])},
                     {"kind": "pulse", "start_s": float(sim["pulse_time_s"]),
@@ -283,7 +286,7 @@ def _phase_log(cfg, opt, rng, time_s, q):
         events = sorted([(k, "reacquisition", 0) for k in starts[1:]] + [(k, "slip", cyc) for k, cyc in slip_at.get(c, []) if vis[k]])
         k0 = starts[0] if starts else 0
         y0 = h[k0, c] + line_bias[c] + noise[k0, c]
-        integer = -int(np.floor(y0 / lam))
+        integer = -int(np.floor(np.round(y0 / lam, 6)))   # phase at lock, as written, in [0, 1)
         bias_records.append({"antenna": ant_names[c], "transmitter": tx_names[c],
                              "bias_m": float(line_bias[c] + lam * integer), "integer_cycles": integer,
                              "line_bias_m": float(line_bias[c])})
@@ -295,7 +298,7 @@ def _phase_log(cfg, opt, rng, time_s, q):
                 new = before + cyc
             else:
                 y = h[k, c] + line_bias[c] + noise[k, c]
-                new = -int(np.floor(y / lam))
+                new = -int(np.floor(np.round(y / lam, 6)))
             integers[k:] = new
             lock_start[k:] = k
             slip_records.append({"time_s": float(time_s[k]), "antenna": ant_names[c], "transmitter": tx_names[c],

@@ -335,7 +335,7 @@ def test_pulse_needs_pulse_thrusters(dof2_cfg):
 
 
 # --------------------------------------------------------------------------------------------
-# known package defects (strict xfail: they start failing loudly once fixed)
+# regression tests for defects found in review
 
 EDGE_CONFIG = """
 [model]
@@ -374,9 +374,6 @@ sigma = [0.1]
 """
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "simulate._phase_log rounds phase_cycles to 6 decimals after choosing the integer: a fractional "
-    "phase in [0.9999995, 1) at lock is written as 1.0, outside the documented [0, 1)"))
 def test_phase_at_lock_below_one_after_rounding():
     # h = 1 m, line bias 1.9999999 m, λ = 1 m, no noise: y/λ = 2.9999999 → phase 0.9999999 → "1.0"
     cfg = parse_config(EDGE_CONFIG, "edge.toml")
@@ -386,9 +383,6 @@ def test_phase_at_lock_below_one_after_rounding():
     assert (at_lock["phase_cycles"] < 1.0).all(), at_lock
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "static scenario shorter than static_rest_after_s + static_settle_s: truth.json still reports a "
-    "'rest' segment with the target q although truth.csv never reaches it"))
 def test_static_rest_segment_consistent_with_truth_when_short(testbed_cfg):
     res = simulate(testbed_cfg, SimOptions(duration_s=30.0, seed=4, scenario="static"))
     for seg in res.truth["segments"]:
