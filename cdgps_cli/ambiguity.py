@@ -58,9 +58,14 @@ SYMMETRY_RTOL = 1e-9
 PIVOT_RTOL = np.finfo(float).eps
 
 #: The permutation step of the reduction is only taken when it reduces the
-#: conditional variance by more than this absolute amount (prevents cycling
-#: on ties caused by rounding).
-_PERM_EPS = 1e-6
+#: conditional variance ``d[k+1]`` by more than this *relative* amount
+#: (prevents cycling on ties caused by rounding; relative so that the
+#: reduction does not depend on the scale of ``Q``).
+PERM_RTOL = 1e-6
+
+#: Largest accepted magnitude of a float ambiguity (cycles): beyond 2**52 a
+#: float64 cannot carry a fractional part any more.
+MAX_ABS_AMBIGUITY = 2.0**52
 
 
 class AmbiguityError(ValueError):
@@ -230,7 +235,7 @@ def _reduce(L, d):
         dk1 = dl[k + 1]
         # conditional variance of the last of the pair after swapping
         delta = dk + lk * lk * dk1
-        if delta + _PERM_EPS < dk1:
+        if delta < dk1 * (1.0 - PERM_RTOL):
             eta = dk / delta
             lam = dk1 * lk / delta
             dl[k] = eta * dk1
@@ -308,8 +313,8 @@ def decorrelate(L, d):
         diagonal).
     d : ndarray, shape (n,), float64
         Reduced conditional variances; adjacent entries satisfy
-        ``d[k+1] <= d[k] + L[k+1, k]**2 * d[k+1] + 1e-6`` (no swap would
-        reduce ``d[k+1]`` further).
+        ``d[k] + L[k+1, k]**2 * d[k+1] >= (1 - PERM_RTOL) * d[k+1]`` (no
+        swap would reduce ``d[k+1]`` noticeably).
     Z : ndarray, shape (n, n), int64
         Unimodular (``|det Z| = 1``) integer transformation.  If the input
         factors satisfy ``Q = L^T diag(d) L`` then the transformed float
@@ -475,6 +480,8 @@ def _validate(a, Q, candidates):
             errors.append("a must contain at least one ambiguity (n >= 1)")
         if not np.all(np.isfinite(aa)):
             errors.append("a contains non-finite values (NaN or inf)")
+        elif aa.size and float(np.max(np.abs(aa))) >= MAX_ABS_AMBIGUITY:
+            errors.append(f"a has entries with magnitude >= 2**52 (max |a| = {np.max(np.abs(aa)):.6g})")
     Q_shape_ok = False
     if Qa is not None:
         if Qa.ndim != 2 or Qa.shape[0] != Qa.shape[1]:
@@ -510,8 +517,9 @@ def lambda_search(a, Q, candidates=2):
     Parameters
     ----------
     a : array_like, shape (n,)
-        Float ambiguities (cycles), ``n >= 1``, finite.  Arbitrarily large
-        integer offsets are allowed (the search runs on ``a - round(a)``).
+        Float ambiguities (cycles), ``n >= 1``, finite, ``|a| < 2**52``.
+        Large integer offsets are harmless: the search runs on
+        ``a - round(a)`` and the offset is added back exactly.
     Q : array_like, shape (n, n)
         Covariance of ``a`` (cycles^2); finite, symmetric (relative
         tolerance ``SYMMETRY_RTOL``) and positive definite.

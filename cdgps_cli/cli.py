@@ -105,6 +105,60 @@ def ingest(ctx, receiver_csv, gyro_csv, actuator_csv, config, output, as_json):
         _emit_json(s)
 
 
+def _write_json_atomic(path: str, data: dict) -> None:
+    import os
+    p = Path(path)
+    tmp = p.with_name(f".{p.name}.tmp{os.getpid()}")
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        tmp.write_text(json.dumps(data, indent=2) + "\n")
+        os.replace(tmp, p)
+    except OSError as exc:
+        raise CdgpsError(f"{p}: cannot write: {exc.strerror}") from None
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+@main.command("init")
+@click.argument("run_mcap", type=click.Path(dir_okay=False))
+@click.option("--start", "start_s", type=float, default=None, help="Window start, s (default: automatic).")
+@click.option("--duration", "duration_s", type=float, default=None, help="Window length, s (default: 60 s).")
+@click.option("--no-process-noise", is_flag=True, help="1995 variant: no process noise in the batch.")
+@click.option("--float-only", is_flag=True, help="Do not fix integers (float biases only).")
+@click.option("--ratio", "ratio_threshold", type=float, default=3.0, show_default=True, help="Ratio-test threshold.")
+@click.option("--no-partial", is_flag=True, help="Do not try partial integer fixing when the full set fails.")
+@click.option("--starts", type=int, default=8, show_default=True, help="Initial guesses of the rigid angle (cold start).")
+@click.option("--max-iterations", type=int, default=30, show_default=True, help="Gauss-Newton iteration cap.")
+@click.option("--sigma-m", type=float, default=None, help="Measurement noise, m (default: config).")
+@click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="INIT.json to write.")
+@click.option("--json", "as_json", is_flag=True, help="Also print INIT.json on stdout.")
+@click.pass_context
+def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, ratio_threshold, no_partial,
+             starts, max_iterations, sigma_m, output, as_json):
+    """Batch bias initialization (Eq. 9-15) with LAMBDA integer fixing → INIT.json."""
+    import hashlib
+
+    from .init import InitOptions, initialize
+    from .run import read_run
+
+    run = read_run(run_mcap)
+    opt = InitOptions(start_s=start_s, duration_s=duration_s, process_noise=not no_process_noise,
+                      fix_integers=not float_only, ratio_threshold=ratio_threshold, partial=not no_partial,
+                      starts=starts, max_iterations=max_iterations, sigma_m=sigma_m,
+                      progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
+    res = initialize(run, opt)
+    res["run_sha256"] = hashlib.sha256(Path(run_mcap).read_bytes()).hexdigest()
+    res.pop("elapsed_s", None)          # keep INIT.json byte-identical across runs
+    _write_json_atomic(output, res)
+    cur = [b for b in res["biases"] if b["current"]]
+    ratio = res["ratio"] if isinstance(res["ratio"], str) or res["ratio"] is None else f"{res['ratio']:.2f}"
+    _say(ctx, f"INIT: {len(cur)} channel biases, {res['n_fixed']} integers fixed, ratio {ratio}, "
+              f"{res['iterations']} iterations, cost/dof {res['cost_per_dof']:.3f} → {output}")
+    if as_json:
+        _emit_json(res)
+
+
 @main.command()
 @click.argument("mcap_file", type=click.Path(dir_okay=False))
 @click.option("--json", "as_json", is_flag=True, help="Print the full summary as JSON on stdout.")

@@ -341,6 +341,8 @@ def initialize(run: Run, opt: InitOptions | None = None) -> dict:
               f"{len(wd.segments)} bias segments, phase motion RMS {motion * 100:.2f} cm")
     if N < 3:
         raise CdgpsError(f"window {t0:g}–{t1:g} s has only {N} epochs; need at least 3")
+    if motion < opt.min_motion_ratio * sigma:
+        raise CdgpsError(_unobservable_msg(t0, t1, motion, sigma, None, cfg.wavelength_m, opt, motion_only=True))
     prob = _Problem(cfg, wd, sigma, opt.process_noise)
 
     # --- cold start: several initial guesses, each tried on the first part of the window
@@ -362,10 +364,6 @@ def initialize(run: Run, opt: InitOptions | None = None) -> dict:
     w_init[:len(g0.w)] = g0.w
     g = prob.gauss_newton(x_init, prob.initial_biases(x_init), opt.max_iterations, opt, w_init=w_init)
     total_iter = sum(r.iterations for _, r in results) + g.iterations
-    if not g.converged:
-        raise CdgpsError(f"batch initialization did not converge in {opt.max_iterations} iterations "
-                         f"(window {t0:g}–{t1:g} s, cost {g.cost:.4g}); try another window (--start/--duration) "
-                         f"or more iterations (--max-iterations)")
     lin = g.lin
     m = len(wd.segments)
     n = prob.n
@@ -375,6 +373,10 @@ def initialize(run: Run, opt: InitOptions | None = None) -> dict:
     bias_sigma = np.sqrt(np.diag(Pbb))
     if bias_sigma.max() > opt.max_bias_sigma_cycles * cfg.wavelength_m:
         raise CdgpsError(_unobservable_msg(t0, t1, motion, sigma, bias_sigma.max(), cfg.wavelength_m, opt))
+    if not g.converged:
+        raise CdgpsError(f"batch initialization did not converge in {opt.max_iterations} iterations "
+                         f"(window {t0:g}–{t1:g} s, cost {g.cost:.4g}); try another window (--start/--duration) "
+                         f"or more iterations (--max-iterations)")
     b_float = g.b.copy()
 
     # --- integers
@@ -482,9 +484,14 @@ def initialize(run: Run, opt: InitOptions | None = None) -> dict:
     }
 
 
-def _unobservable_msg(t0, t1, motion, sigma, bias_sigma, lam, opt) -> str:
-    s = "singular (some bias has no information)" if bias_sigma is None else f"{bias_sigma * 100:.1f} cm"
-    return (f"biases not observable in the window {t0:g}–{t1:g} s: phase motion RMS {motion * 100:.2f} cm "
-            f"against {sigma * 100:.2f} cm noise, largest float-bias sigma {s} "
-            f"(limit {opt.max_bias_sigma_cycles:g} cycle = {opt.max_bias_sigma_cycles * lam * 100:.1f} cm). "
+def _unobservable_msg(t0, t1, motion, sigma, bias_sigma, lam, opt, motion_only=False) -> str:
+    if motion_only:
+        detail = (f"phase motion RMS {motion * 100:.2f} cm is below {opt.min_motion_ratio:g} × the "
+                  f"{sigma * 100:.2f} cm measurement noise")
+    else:
+        s = "singular (some bias has no information)" if bias_sigma is None else f"{bias_sigma * 100:.1f} cm"
+        detail = (f"phase motion RMS {motion * 100:.2f} cm against {sigma * 100:.2f} cm noise, largest "
+                  f"float-bias sigma {s} (limit {opt.max_bias_sigma_cycles:g} cycle = "
+                  f"{opt.max_bias_sigma_cycles * lam * 100:.1f} cm)")
+    return (f"biases not observable in the window {t0:g}–{t1:g} s: {detail}. "
             f"Initialize on a window where the structure moves (--start/--duration).")
