@@ -1,0 +1,397 @@
+"""Extended Kalman filter and Rauch–Tung–Striebel smoother of the structure's modal state.
+
+Teague, How & Parkinson (1998) Eq. 16–23, in information form with diagonal R:
+
+    time update        x̄_k = A x_{k−1} + B u_{k−1},   P̄_k = A P_{k−1} Aᵀ + B_w W B_wᵀ
+    measurement update P_k = (P̄_k⁻¹ + H_kᵀ R⁻¹ H_k)⁻¹            (Eq. 20, by Cholesky: stays SPD)
+                       ρ_k = Δφ_k − h(x̄_k) − b,  K = P_k H_kᵀ R⁻¹,  x_k = x̄_k + K ρ_k   (Eq. 21–23)
+
+Biases come from INIT.json (``biases="fixed"``) or are carried in the state with a small fictitious
+process noise (``biases="states"``, the 1995 paper's variant).  Integrity: each epoch's normalized
+innovation squared (NIS) is tested against its chi-square bound; a channel whose lock counter
+restarts, or whose normalized innovation is an outlier, has its bias dropped and re-estimated from
+the filter's prediction over a short window (its integer re-fixed when the float value is
+unambiguous).  Persistent NIS failures trigger a batch re-initialization on a window after the
+event, as in the 1995 paper's Fig. 7.  Every event is logged (time, channel, kind, action).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.linalg import cho_factor, cho_solve
+from scipy.stats import chi2
+
+from .config import StructureConfig
+from .dynamics import discrete_model
+from .errors import CdgpsError
+from .measurement import channel_indices, phase_model
+from .run import Run
+
+
+@dataclass
+class EstimateOptions:
+    """Options of :func:`estimate` (all echoed in STATES.mcap metadata)."""
+
+    biases: str = "fixed"              # "fixed" (from INIT) or "states" (estimated in the filter)
+    smooth: bool = False               # Rauch–Tung–Striebel pass after the filter
+    sigma_m: float | None = None       # measurement noise (default: INIT's, else config)
+    bias_process_sigma_m: float = 1e-4  # per-epoch random walk of bias states (biases="states")
+    nis_probability: float = 0.999     # chi-square test level of the per-epoch NIS
+    outlier_sigma: float = 6.0         # |ν_i| / sqrt(S_ii) above this → suspected slip on channel i
+    rebias_epochs: int = 10            # epochs used to re-estimate a dropped channel's bias
+    refix_max_sigma_cycles: float = 0.1   # re-fix the integer when the float's sigma is below this
+    refix_max_offset_cycles: float = 0.25  # … and it is this close to an integer
+    reinit_after_epochs: int = 20      # consecutive NIS failures → batch re-initialization
+    reinit_window_s: float = 30.0
+    progress: object = None
+
+    def echo(self) -> dict:
+        return {k: v for k, v in self.__dict__.items() if k != "progress"}
+
+
+@dataclass
+class EstimateResult:
+    cfg: StructureConfig
+    time_s: np.ndarray            # (N,)
+    x: np.ndarray                 # (N, n) filtered (or smoothed) modal state
+    P: np.ndarray                 # (N, n, n)
+    x_filt: np.ndarray | None
+    P_filt: np.ndarray | None
+    channels: list                # [(antenna, transmitter)]
+    residual_m: np.ndarray        # (N, C) post-fit residual (NaN where not used)
+    nis: np.ndarray               # (N,)
+    nis_dof: np.ndarray           # (N,) int
+    events: list = field(default_factory=list)
+    biases: dict = field(default_factory=dict)   # channel → final bias (m)
+    smoothed: bool = False
+
+
+def _chol_inv(M: np.ndarray) -> np.ndarray:
+    c = cho_factor(M, lower=False, check_finite=False)
+    return cho_solve(c, np.eye(M.shape[0]), check_finite=False)
+
+
+def load_init_state(init: dict, cfg: StructureConfig) -> tuple[float, np.ndarray, np.ndarray, dict]:
+    """Initial time, state, covariance and per-channel biases (current segments) from INIT.json."""
+    problems = []
+    for key in ("state", "biases", "config_sha256"):
+        if key not in init:
+            problems.append(f"missing key {key!r}")
+    if problems:
+        raise CdgpsError("INIT.json: " + "; ".join(problems))
+    if init["config_sha256"] != cfg.sha256:
+        raise CdgpsError("INIT.json was made with a different structure config than the RUN "
+                         f"(INIT config_sha256 {init['config_sha256'][:12]}…, RUN {cfg.sha256[:12]}…)")
+    st = init["state"]
+    n = cfg.n_states
+    try:
+        x = np.asarray(st["x"], dtype=float)
+        P = np.asarray(st["P"], dtype=float)
+        t0 = float(st["time_s"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CdgpsError(f"INIT.json: state: expected time_s, x ({n} numbers) and P ({n}×{n}): {exc}") from None
+    if x.shape != (n,) or P.shape != (n, n) or not np.all(np.isfinite(P)) or not np.all(np.isfinite(x)):
+        raise CdgpsError(f"INIT.json: state: expected x of {n} numbers and P of {n}×{n} finite numbers")
+    P = 0.5 * (P + P.T)
+    biases = {}
+    for i, b in enumerate(init["biases"]):
+        try:
+            if b.get("current", True):
+                biases[(b["antenna"], b["transmitter"])] = float(b["bias_m"])
+        except (KeyError, TypeError, ValueError):
+            raise CdgpsError(f"INIT.json: biases[{i}]: expected antenna, transmitter, bias_m") from None
+    return t0, x, P, biases
+
+
+def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> EstimateResult:
+    """Run the EKF (and optionally the RTS smoother) over a RUN from INIT's state.
+
+    Parameters
+    ----------
+    run : Run
+    init : dict
+        INIT.json contents (from :func:`cdgps_cli.init.initialize`).
+    opt : EstimateOptions
+
+    Returns
+    -------
+    EstimateResult
+    """
+    opt = opt or EstimateOptions()
+    if opt.biases not in ("fixed", "states"):
+        raise CdgpsError(f"--biases: expected fixed or states, got {opt.biases!r}")
+    cfg = run.cfg
+    t0, x0, P0, init_bias = load_init_state(init, cfg)
+    sigma = opt.sigma_m or float(init.get("sigma_m") or cfg.measurement_sigma_m)
+    model = discrete_model(cfg)
+    T = cfg.sample_period_s
+    lam = cfg.wavelength_m
+    nm = cfg.n_modes
+    n = cfg.n_states
+
+    # epoch grid from INIT time to the end
+    ph = run.phase[run.phase["time_s"] >= t0 - 1e-9]
+    if len(ph) == 0:
+        raise CdgpsError(f"{run.path}: no phase data after INIT's state time {t0:g} s")
+    t_end = float(ph["time_s"].max())
+    N = int(round((t_end - t0) / T)) + 1
+    grid = t0 + np.arange(N) * T
+    chans = sorted(set(zip(ph["antenna"], ph["transmitter"])) | set(init_bias),
+                   key=lambda c: (cfg.antenna_names.index(c[0]), cfg.transmitter_names.index(c[1])))
+    cidx = {c: i for i, c in enumerate(chans)}
+    C = len(chans)
+    k_of = np.rint((ph["time_s"].to_numpy() - t0) / T).astype(int)
+    c_of = np.array([cidx[c] for c in zip(ph["antenna"], ph["transmitter"])])
+    Y = np.full((N, C), np.nan)
+    LOCK = np.full((N, C), -1, dtype=np.int64)
+    Y[k_of, c_of] = ph["phase_cycles"].to_numpy() * lam
+    LOCK[k_of, c_of] = ph["lock"].to_numpy()
+    ant, tx = channel_indices(cfg, [c[0] for c in chans], [c[1] for c in chans])
+    line = cfg.antenna_line_bias_m[ant] - cfg.antenna_line_bias_m[cfg.master_index]
+
+    # thruster commands (zero-order hold), per epoch
+    U_in = np.zeros((N, len(cfg.thruster_names)))
+    if len(run.actuators):
+        names = list(cfg.thruster_names)
+        for tname, grp in run.actuators.groupby("actuator"):
+            j = names.index(tname)
+            times = grp["time_s"].to_numpy()
+            forces = grp["force_n"].to_numpy()
+            idx = np.searchsorted(times, grid + 1e-9, side="right") - 1
+            U_in[:, j] = np.where(idx >= 0, forces[np.maximum(idx, 0)], 0.0)
+
+    # state layout
+    use_bias_states = opt.biases == "states"
+    p = n + (C if use_bias_states else 0)
+    A = np.eye(p)
+    A[:n, :n] = model.A
+    Qd = np.zeros((p, p))
+    Qd[:n, :n] = model.Q
+    if use_bias_states:
+        Qd[n:, n:] = np.eye(C) * opt.bias_process_sigma_m**2
+    Bu = np.zeros((p, model.B.shape[1]))
+    Bu[:n] = model.B
+
+    bias = np.full(C, np.nan)
+    for c, key in enumerate(chans):
+        if key in init_bias:
+            bias[c] = init_bias[key]
+    x = np.zeros(p)
+    x[:n] = x0
+    P = np.zeros((p, p))
+    P[:n, :n] = P0
+    if use_bias_states:
+        x[n:] = np.nan_to_num(bias)
+        P[n:, n:] = np.eye(C) * (sigma**2)
+    inv_r = 1.0 / sigma**2
+
+    xs = np.empty((N, p))
+    Ps = np.empty((N, p, p))
+    resid = np.full((N, C), np.nan)
+    nis = np.full(N, np.nan)
+    nis_dof = np.zeros(N, dtype=np.int64)
+    events: list = []
+    rebias: dict[int, list] = {}           # channel → list of (k, y − h(x̄), var_h)
+    prev_lock = np.full(C, -1, dtype=np.int64)
+    prev_seen = np.full(C, -1, dtype=np.int64)
+    fail_run = 0
+    k_reinit_block = -1
+    say = opt.progress or (lambda m: None)
+    report_every = max(N // 10, 1)
+
+    def log(k, c, kind, action, **detail):
+        ev = {"time_s": float(grid[k]), "antenna": chans[c][0] if c is not None else "",
+              "transmitter": chans[c][1] if c is not None else "", "kind": kind, "action": action}
+        ev.update(detail)
+        events.append(ev)
+
+    def drop_bias(k, c, kind):
+        nonlocal x, P
+        bias[c] = np.nan
+        rebias[c] = []
+        if use_bias_states:
+            P[n + c, :] = 0.0
+            P[:, n + c] = 0.0
+            P[n + c, n + c] = 1e6
+        log(k, c, kind, f"bias dropped; re-estimating over {opt.rebias_epochs} epochs")
+
+    k = 0
+    while k < N:
+        if k > 0:
+            x = A @ x + Bu @ U_in[k - 1]
+            P = A @ P @ A.T + Qd
+        y = Y[k]
+        present = ~np.isnan(y)
+        # lock restarts (slips, re-acquisitions) and first sightings
+        for c in np.flatnonzero(present):
+            lk = LOCK[k, c]
+            gap = prev_seen[c] >= 0 and (k - prev_seen[c]) > 1
+            restarted = prev_seen[c] >= 0 and (lk == 0 or lk < prev_lock[c] or (gap and lk != prev_lock[c] + (k - prev_seen[c])))
+            if k == 0 and np.isnan(bias[c]) and not use_bias_states:
+                rebias[c] = []
+                log(k, c, "new channel", "no INIT bias; estimating")
+            elif restarted:
+                drop_bias(k, c, "lock restart" if not gap else "re-acquisition")
+            elif prev_seen[c] < 0 and k > 0 and np.isnan(bias[c]):
+                rebias.setdefault(c, [])
+                log(k, c, "new channel", "estimating bias")
+            prev_lock[c] = lk
+            prev_seen[c] = k
+        xq = x[:n]
+        h, Hx = phase_model(cfg, xq[None, :], ant, tx, jacobian=True)
+        h = h[0]
+        Hx = Hx[0]
+        if use_bias_states:
+            usable = present & np.array([c not in rebias for c in range(C)])
+        else:
+            usable = present & ~np.isnan(bias)
+        # channels being re-biased: collect y − h(x̄)
+        for c in list(rebias):
+            if not present[c]:
+                continue
+            var_h = float(Hx[c] @ P[:n, :n] @ Hx[c])
+            rebias[c].append((y[c] - h[c], var_h))
+            if len(rebias[c]) >= opt.rebias_epochs:
+                vals = np.array([v for v, _ in rebias[c]])
+                est = float(vals.mean())
+                s_b = float(np.sqrt(sigma**2 / len(vals) + np.mean([v for _, v in rebias[c]])))
+                a = (est - line[c]) / lam
+                nint = int(np.rint(a))
+                if (cfg.line_bias_calibrated and s_b / lam < opt.refix_max_sigma_cycles
+                        and abs(a - nint) < opt.refix_max_offset_cycles):
+                    est = line[c] + lam * nint
+                    action = f"integer re-fixed: {nint} cycles (float {a:.3f}, sigma {s_b / lam:.3f} cycle)"
+                else:
+                    action = f"float bias {est:.4f} m (sigma {s_b / lam:.3f} cycle)"
+                bias[c] = est
+                if use_bias_states:
+                    x[n + c] = est
+                    P[n + c, :] = 0.0
+                    P[:, n + c] = 0.0
+                    P[n + c, n + c] = s_b**2
+                del rebias[c]
+                log(k, c, "bias re-estimated", action)
+        idx = np.flatnonzero(usable)
+        if idx.size:
+            H = np.zeros((idx.size, p))
+            H[:, :n] = Hx[idx]
+            if use_bias_states:
+                H[np.arange(idx.size), n + idx] = 1.0
+                b_used = x[n + idx]
+            else:
+                b_used = bias[idx]
+            rho = y[idx] - h[idx] - b_used
+            # per-channel outlier test on the innovation
+            S_diag = np.einsum("ij,jk,ik->i", H, P, H) + sigma**2
+            z = rho / np.sqrt(S_diag)
+            out = np.flatnonzero(np.abs(z) > opt.outlier_sigma)
+            if out.size and out.size < idx.size // 2 + 1:
+                worst = out[np.argsort(-np.abs(z[out]))]
+                for j in worst:
+                    drop_bias(k, int(idx[j]), "innovation outlier")
+                    events[-1]["normalized_innovation"] = float(z[j])
+                keep = np.setdiff1d(np.arange(idx.size), worst)
+                idx, H, rho = idx[keep], H[keep], rho[keep]
+            if idx.size:
+                Pinv = _chol_inv(P)
+                Y_info = Pinv + inv_r * (H.T @ H)
+                try:
+                    Pn = _chol_inv(Y_info)
+                except np.linalg.LinAlgError:
+                    raise CdgpsError(f"filter covariance lost positive definiteness at {grid[k]:g} s") from None
+                Pn = 0.5 * (Pn + Pn.T)
+                g = inv_r * (H.T @ rho)
+                # NIS = ρᵀ S⁻¹ ρ with S⁻¹ = R⁻¹ − R⁻¹ H P Hᵀ R⁻¹ (Woodbury)
+                nis[k] = float(inv_r * rho @ rho - g @ Pn @ g)
+                nis_dof[k] = idx.size
+                x = x + Pn @ g
+                P = Pn
+                resid[k, idx] = y[idx] - (h[idx] + Hx[idx] @ (x[:n] - xq)) - (x[n + idx] if use_bias_states else bias[idx])
+                if nis[k] > chi2.ppf(opt.nis_probability, idx.size):
+                    fail_run += 1
+                else:
+                    fail_run = 0
+        xs[k] = x
+        Ps[k] = P
+        if fail_run >= opt.reinit_after_epochs and k > k_reinit_block:
+            k_new = _reinitialize(run, grid, k, opt, sigma, chans, bias, line, x, P, n, use_bias_states, log)
+            fail_run = 0
+            if k_new is not None:
+                kk, xr, Pr, new_bias = k_new
+                for c, b in new_bias.items():
+                    bias[c] = b
+                    rebias.pop(c, None)
+                x = np.zeros(p)
+                x[:n] = xr
+                P = np.zeros((p, p))
+                P[:n, :n] = Pr
+                if use_bias_states:
+                    x[n:] = np.nan_to_num(bias)
+                    P[n:, n:] = np.eye(C) * 1e-8
+                k_reinit_block = kk + opt.reinit_after_epochs
+                xs[kk] = x
+                Ps[kk] = P
+                k = kk + 1
+                continue
+            k_reinit_block = k + int(opt.reinit_window_s / T)
+        if k % report_every == 0:
+            say(f"  filter {100 * k / N:3.0f}%")
+        k += 1
+
+    res = EstimateResult(cfg, grid, xs[:, :n].copy(), Ps[:, :n, :n].copy(), None, None, chans, resid, nis,
+                         nis_dof, events, {chans[c]: (float(xs[-1, n + c]) if use_bias_states else float(bias[c]))
+                                           for c in range(C)})
+    if opt.smooth:
+        xsm, Psm = rts_smooth(A, Qd, Bu, U_in, xs, Ps)
+        res.x_filt, res.P_filt = res.x, res.P
+        res.x, res.P = xsm[:, :n], Psm[:, :n, :n]
+        res.smoothed = True
+    return res
+
+
+def rts_smooth(A, Q, B, U_in, xf, Pf):
+    """Rauch–Tung–Striebel smoother over filtered states (N, p) and covariances (N, p, p).
+
+    The priors are recomputed from the filtered values (x̄ = A x + B u, P̄ = A P Aᵀ + Q) so that
+    only the filtered arrays are stored.  Returns smoothed states and covariances.
+    """
+    N = xf.shape[0]
+    xs = xf.copy()
+    Ps = Pf.copy()
+    for k in range(N - 2, -1, -1):
+        xp = A @ xf[k] + B @ U_in[k]
+        Pp = A @ Pf[k] @ A.T + Q
+        c = cho_factor(Pp, check_finite=False)
+        G = cho_solve(c, A @ Pf[k], check_finite=False).T      # P_k Aᵀ P̄⁻¹
+        xs[k] = xf[k] + G @ (xs[k + 1] - xp)
+        Pk = Pf[k] + G @ (Ps[k + 1] - Pp) @ G.T
+        Ps[k] = 0.5 * (Pk + Pk.T)
+    return xs, Ps
+
+
+def _reinitialize(run, grid, k, opt, sigma, chans, bias, line, x, P, n, use_bias_states, log):
+    """Batch re-initialization on a window after epoch k (1995 paper, Fig. 7)."""
+    from .init import InitOptions, initialize
+
+    t0 = float(grid[k])
+    t1 = min(t0 + opt.reinit_window_s, float(grid[-1]))
+    log(k, None, "integrity failure", f"{opt.reinit_after_epochs} consecutive NIS failures; batch re-initialization on {t0:g}–{t1:g} s")
+    if t1 - t0 < 5.0:
+        log(k, None, "re-initialization", "skipped: not enough data left")
+        return None
+    try:
+        res = initialize(run, InitOptions(start_s=t0, duration_s=t1 - t0, sigma_m=sigma, starts=8))
+    except CdgpsError as exc:
+        log(k, None, "re-initialization", f"failed: {exc}")
+        return None
+    kk = int(round((res["state"]["time_s"] - grid[0]) / (grid[1] - grid[0]))) if len(grid) > 1 else k
+    new_bias = {}
+    cidx = {c: i for i, c in enumerate(chans)}
+    for b in res["biases"]:
+        if b["current"] and (b["antenna"], b["transmitter"]) in cidx:
+            new_bias[cidx[(b["antenna"], b["transmitter"])]] = b["bias_m"]
+    log(kk, None, "re-initialization", f"filter restarted at {grid[kk]:g} s from the batch solution "
+        f"({res['n_fixed']} integers fixed)")
+    return kk, np.asarray(res["state"]["x"]), np.asarray(res["state"]["P"]), new_bias
