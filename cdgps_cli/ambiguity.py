@@ -376,9 +376,14 @@ def search(L, d, zs, candidates):
     n = d.shape[0]
     if d.ndim != 1 or n < 1 or L.shape != (n, n) or zs.shape != (n,):
         raise AmbiguityError(
-            f"inconsistent shapes: L {L.shape}, d {d.shape}, zs {zs.shape} (need (n, n), (n,), (n,))"
+            f"inconsistent shapes: L {L.shape}, d {d.shape}, zs {zs.shape} "
+            "(need (n, n), (n,), (n,))"
         )
-    if isinstance(candidates, bool) or not isinstance(candidates, numbers.Integral) or candidates < 1:
+    if (
+        isinstance(candidates, bool)
+        or not isinstance(candidates, numbers.Integral)
+        or candidates < 1
+    ):
         raise AmbiguityError(f"candidates must be an integer >= 1, got {candidates!r}")
     if not np.all(d > 0):
         raise AmbiguityError("conditional variances d must all be > 0")
@@ -481,7 +486,9 @@ def _validate(a, Q, candidates):
         if not np.all(np.isfinite(aa)):
             errors.append("a contains non-finite values (NaN or inf)")
         elif aa.size and float(np.max(np.abs(aa))) >= MAX_ABS_AMBIGUITY:
-            errors.append(f"a has entries with magnitude >= 2**52 (max |a| = {np.max(np.abs(aa)):.6g})")
+            errors.append(
+                f"a has entries with magnitude >= 2**52 (max |a| = {np.max(np.abs(aa)):.6g})"
+            )
     Q_shape_ok = False
     if Qa is not None:
         if Qa.ndim != 2 or Qa.shape[0] != Qa.shape[1]:

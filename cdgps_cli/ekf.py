@@ -26,7 +26,7 @@ from scipy.stats import chi2
 from .config import StructureConfig
 from .dynamics import discrete_model
 from .errors import CdgpsError
-from .measurement import channel_indices, phase_model
+from .measurement import EpochPhaseModel, channel_indices
 from .run import Run
 
 
@@ -45,6 +45,7 @@ class EstimateOptions:
     refix_max_offset_cycles: float = 0.25  # … and it is this close to an integer
     reinit_after_epochs: int = 20      # consecutive NIS failures → batch re-initialization
     reinit_window_s: float = 30.0
+    restart_sigma_cycles: float = 10.0  # biases="states": variance inflation at a lock restart
     progress: object = None
 
     def echo(self) -> dict:
@@ -138,18 +139,24 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     t_end = float(ph["time_s"].max())
     N = int(round((t_end - t0) / T)) + 1
     grid = t0 + np.arange(N) * T
-    chans = sorted(set(zip(ph["antenna"], ph["transmitter"])) | set(init_bias),
+    ph_ant = ph["antenna"].to_numpy()
+    ph_tx = ph["transmitter"].to_numpy()
+    pairs, inverse = np.unique(np.char.add(np.char.add(ph_ant.astype(str), "\x1f"), ph_tx.astype(str)),
+                               return_inverse=True)
+    seen = [tuple(s.split("\x1f")) for s in pairs]
+    chans = sorted(set(seen) | set(init_bias),
                    key=lambda c: (cfg.antenna_names.index(c[0]), cfg.transmitter_names.index(c[1])))
     cidx = {c: i for i, c in enumerate(chans)}
     C = len(chans)
     k_of = np.rint((ph["time_s"].to_numpy() - t0) / T).astype(int)
-    c_of = np.array([cidx[c] for c in zip(ph["antenna"], ph["transmitter"])])
+    c_of = np.array([cidx[c] for c in seen], dtype=int)[inverse]
     Y = np.full((N, C), np.nan)
     LOCK = np.full((N, C), -1, dtype=np.int64)
     Y[k_of, c_of] = ph["phase_cycles"].to_numpy() * lam
     LOCK[k_of, c_of] = ph["lock"].to_numpy()
     ant, tx = channel_indices(cfg, [c[0] for c in chans], [c[1] for c in chans])
     line = cfg.antenna_line_bias_m[ant] - cfg.antenna_line_bias_m[cfg.master_index]
+    hmodel = EpochPhaseModel(cfg, ant, tx)
 
     # thruster commands (zero-order hold), per epoch
     U_in = np.zeros((N, len(cfg.thruster_names)))
@@ -194,8 +201,9 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     nis_dof = np.zeros(N, dtype=np.int64)
     events: list = []
     rebias: dict[int, list] = {}           # channel → list of (k, y − h(x̄), var_h)
-    prev_lock = np.full(C, -1, dtype=np.int64)
-    prev_seen = np.full(C, -1, dtype=np.int64)
+    extra_q: dict[int, list] = {}          # epoch → [(state index, added variance)] (bias states)
+    EVENT = lock_events(Y, LOCK)
+    chi2_bound = {}
     fail_run = 0
     k_reinit_block = -1
     say = opt.progress or (lambda m: None)
@@ -208,13 +216,16 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
         events.append(ev)
 
     def drop_bias(k, c, kind):
-        nonlocal x, P
+        if use_bias_states:
+            # the 1995 variant: the bias state absorbs the jump; its variance is inflated as extra
+            # process noise at this epoch (recorded so that the smoother stays exact)
+            q = opt.restart_sigma_cycles**2 * lam**2
+            P[n + c, n + c] += q
+            extra_q.setdefault(k, []).append((n + c, q))
+            log(k, c, kind, f"bias state variance inflated by ({opt.restart_sigma_cycles:g} cycles)²")
+            return
         bias[c] = np.nan
         rebias[c] = []
-        if use_bias_states:
-            P[n + c, :] = 0.0
-            P[:, n + c] = 0.0
-            P[n + c, n + c] = 1e6
         log(k, c, kind, f"bias dropped; re-estimating over {opt.rebias_epochs} epochs")
 
     k = 0
@@ -224,27 +235,18 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
             P = A @ P @ A.T + Qd
         y = Y[k]
         present = ~np.isnan(y)
-        # lock restarts (slips, re-acquisitions) and first sightings
-        for c in np.flatnonzero(present):
-            lk = LOCK[k, c]
-            gap = prev_seen[c] >= 0 and (k - prev_seen[c]) > 1
-            restarted = prev_seen[c] >= 0 and (lk == 0 or lk < prev_lock[c] or (gap and lk != prev_lock[c] + (k - prev_seen[c])))
-            if k == 0 and np.isnan(bias[c]) and not use_bias_states:
-                rebias[c] = []
-                log(k, c, "new channel", "no INIT bias; estimating")
-            elif restarted:
-                drop_bias(k, c, "lock restart" if not gap else "re-acquisition")
-            elif prev_seen[c] < 0 and k > 0 and np.isnan(bias[c]):
-                rebias.setdefault(c, [])
-                log(k, c, "new channel", "estimating bias")
-            prev_lock[c] = lk
-            prev_seen[c] = k
+        # lock restarts (slips, re-acquisitions) and first sightings (precomputed, rare)
+        for c in np.flatnonzero(EVENT[k]):
+            if EVENT[k, c] == 1:
+                if np.isnan(bias[c]) and not use_bias_states:
+                    rebias.setdefault(c, [])
+                    log(k, c, "new channel", "no INIT bias; estimating")
+            else:
+                drop_bias(k, c, "lock restart" if EVENT[k, c] == 2 else "re-acquisition")
         xq = x[:n]
-        h, Hx = phase_model(cfg, xq[None, :], ant, tx, jacobian=True)
-        h = h[0]
-        Hx = Hx[0]
+        h, Hx = hmodel(xq)
         if use_bias_states:
-            usable = present & np.array([c not in rebias for c in range(C)])
+            usable = present.copy()
         else:
             usable = present & ~np.isnan(bias)
         # channels being re-biased: collect y − h(x̄)
@@ -292,8 +294,11 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                 for j in worst:
                     drop_bias(k, int(idx[j]), "innovation outlier")
                     events[-1]["normalized_innovation"] = float(z[j])
-                keep = np.setdiff1d(np.arange(idx.size), worst)
-                idx, H, rho = idx[keep], H[keep], rho[keep]
+                if use_bias_states:
+                    S_diag = np.einsum("ij,jk,ik->i", H, P, H) + sigma**2
+                else:
+                    keep = np.setdiff1d(np.arange(idx.size), worst)
+                    idx, H, rho = idx[keep], H[keep], rho[keep]
             if idx.size:
                 Pinv = _chol_inv(P)
                 Y_info = Pinv + inv_r * (H.T @ H)
@@ -309,7 +314,10 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                 x = x + Pn @ g
                 P = Pn
                 resid[k, idx] = y[idx] - (h[idx] + Hx[idx] @ (x[:n] - xq)) - (x[n + idx] if use_bias_states else bias[idx])
-                if nis[k] > chi2.ppf(opt.nis_probability, idx.size):
+                bound = chi2_bound.get(idx.size)
+                if bound is None:
+                    bound = chi2_bound[idx.size] = chi2.ppf(opt.nis_probability, idx.size)
+                if nis[k] > bound:
                     fail_run += 1
                 else:
                     fail_run = 0
@@ -344,25 +352,49 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                          nis_dof, events, {chans[c]: (float(xs[-1, n + c]) if use_bias_states else float(bias[c]))
                                            for c in range(C)})
     if opt.smooth:
-        xsm, Psm = rts_smooth(A, Qd, Bu, U_in, xs, Ps)
+        xsm, Psm = rts_smooth(A, Qd, Bu, U_in, xs, Ps, extra_q)
         res.x_filt, res.P_filt = res.x, res.P
         res.x, res.P = xsm[:, :n], Psm[:, :n, :n]
         res.smoothed = True
     return res
 
 
-def rts_smooth(A, Q, B, U_in, xf, Pf):
+def lock_events(Y: np.ndarray, LOCK: np.ndarray) -> np.ndarray:
+    """Per (epoch, channel): 1 = first sighting, 2 = lock restart (slip), 3 = re-acquisition after a
+    gap with a lock counter that does not continue; 0 otherwise.  Y, LOCK: (N, C), NaN / −1 = absent."""
+    N, C = Y.shape
+    ev = np.zeros((N, C), dtype=np.int8)
+    for c in range(C):
+        k = np.flatnonzero(~np.isnan(Y[:, c]))
+        if k.size == 0:
+            continue
+        ev[k[0], c] = 1
+        lk = LOCK[k, c]
+        dk = np.diff(k)
+        restart = (lk[1:] == 0) | (lk[1:] < lk[:-1])
+        gap = dk > 1
+        reacq = gap & (lk[1:] != lk[:-1] + dk) & ~restart
+        ev[k[1:][restart], c] = np.where(gap[restart], 3, 2)
+        ev[k[1:][reacq], c] = 3
+    return ev
+
+
+def rts_smooth(A, Q, B, U_in, xf, Pf, extra_q=None):
     """Rauch–Tung–Striebel smoother over filtered states (N, p) and covariances (N, p, p).
 
-    The priors are recomputed from the filtered values (x̄ = A x + B u, P̄ = A P Aᵀ + Q) so that
-    only the filtered arrays are stored.  Returns smoothed states and covariances.
+    The priors are recomputed from the filtered values (x̄ = A x + B u, P̄ = A P Aᵀ + Q_k) so that
+    only the filtered arrays are stored; ``extra_q`` {epoch: [(index, variance)]} adds the
+    variance inflations the filter applied at that epoch.  Returns smoothed states and covariances.
     """
+    extra_q = extra_q or {}
     N = xf.shape[0]
     xs = xf.copy()
     Ps = Pf.copy()
     for k in range(N - 2, -1, -1):
         xp = A @ xf[k] + B @ U_in[k]
         Pp = A @ Pf[k] @ A.T + Q
+        for i, q in extra_q.get(k + 1, ()):
+            Pp[i, i] += q
         c = cho_factor(Pp, check_finite=False)
         G = cho_solve(c, A @ Pf[k], check_finite=False).T      # P_k Aᵀ P̄⁻¹
         xs[k] = xf[k] + G @ (xs[k + 1] - xp)

@@ -159,3 +159,101 @@ def thruster_forcing(cfg: StructureConfig) -> np.ndarray:
     _, J = point_positions(cfg, np.zeros((1, cfg.n_q)), cfg.thruster_section, cfg.thruster_position_m,
                            None, jacobian=True)
     return np.einsum("kiq,ki->qk", J[0], cfg.thruster_direction)
+
+
+class EpochGeometry:
+    """Single-epoch antenna positions and Jacobians, precompiled from a config for speed.
+
+    Same model as :func:`point_positions` (tested against it) but organized for one state at a
+    time, as the Kalman filter needs: all section rotations are built at once from closed-form
+    entries, and the constant parts of the Jacobian (translations, linear displacements) are
+    precomputed.
+    """
+
+    def __init__(self, cfg: StructureConfig):
+        self.cfg = cfg
+        S = len(cfg.sections)
+        nq = cfg.n_q
+        self.rot_idx = np.full((S, 3), -1, dtype=int)      # coordinate driving rotation about x, y, z
+        for s, sec in enumerate(cfg.sections):
+            for axis, j in sec.rotation:
+                self.rot_idx[s, axis] = j
+        self.rot_mask = self.rot_idx >= 0
+        self.rot_take = np.where(self.rot_mask, self.rot_idx, 0)
+        sec = np.asarray(cfg.antenna_section)
+        self.on_section = sec >= 0
+        self.sec = np.where(sec >= 0, sec, 0)
+        A = len(sec)
+        pivots = np.array([s.pivot_m for s in cfg.sections]) if S else np.zeros((0, 3))
+        self.pivot = np.where(self.on_section[:, None], pivots[self.sec] if S else 0.0, 0.0)
+        self.rel = np.asarray(cfg.antenna_position_m) - self.pivot
+        self.D = np.asarray(cfg.antenna_displacement)                      # (A, 3, nq)
+        self.J_const = self.D.copy()
+        self.trans = []
+        for a in range(A):
+            if self.on_section[a]:
+                for axis, j in cfg.sections[self.sec[a]].translation:
+                    self.J_const[a, axis, j] += 1.0
+                    self.trans.append((a, axis, j))
+        self.trans_a = np.array([t[0] for t in self.trans], dtype=int)
+        self.trans_ax = np.array([t[1] for t in self.trans], dtype=int)
+        self.trans_j = np.array([t[2] for t in self.trans], dtype=int)
+        # rotation Jacobian scatter: for each antenna on a section and each driven axis
+        pairs = [(a, axis, self.rot_idx[self.sec[a], axis]) for a in range(A) if self.on_section[a]
+                 for axis in range(3) if self.rot_idx[self.sec[a], axis] >= 0]
+        self.rj_a = np.array([p[0] for p in pairs], dtype=int)
+        self.rj_axis = np.array([p[1] for p in pairs], dtype=int)
+        self.rj_q = np.array([p[2] for p in pairs], dtype=int)
+        self.rigid = cfg.rigid_index
+        self.origin = np.asarray(cfg.body_origin_m)
+        self.nq = nq
+        self.A = A
+
+    def _section_rotations(self, q):
+        ang = np.where(self.rot_mask, q[self.rot_take], 0.0)              # (S, 3) θx, θy, θz
+        c, s = np.cos(ang), np.sin(ang)
+        S = ang.shape[0]
+        Rx = np.zeros((S, 3, 3)); Ry = np.zeros((S, 3, 3)); Rz = np.zeros((S, 3, 3))
+        dRx = np.zeros((S, 3, 3)); dRy = np.zeros((S, 3, 3)); dRz = np.zeros((S, 3, 3))
+        cx, cy, cz = c[:, 0], c[:, 1], c[:, 2]
+        sx, sy, sz = s[:, 0], s[:, 1], s[:, 2]
+        Rx[:, 0, 0] = 1; Rx[:, 1, 1] = cx; Rx[:, 1, 2] = -sx; Rx[:, 2, 1] = sx; Rx[:, 2, 2] = cx
+        Ry[:, 1, 1] = 1; Ry[:, 0, 0] = cy; Ry[:, 0, 2] = sy; Ry[:, 2, 0] = -sy; Ry[:, 2, 2] = cy
+        Rz[:, 2, 2] = 1; Rz[:, 0, 0] = cz; Rz[:, 0, 1] = -sz; Rz[:, 1, 0] = sz; Rz[:, 1, 1] = cz
+        dRx[:, 1, 1] = -sx; dRx[:, 1, 2] = -cx; dRx[:, 2, 1] = cx; dRx[:, 2, 2] = -sx
+        dRy[:, 0, 0] = -sy; dRy[:, 0, 2] = cy; dRy[:, 2, 0] = -cy; dRy[:, 2, 2] = -sy
+        dRz[:, 0, 0] = -sz; dRz[:, 0, 1] = -cz; dRz[:, 1, 0] = cz; dRz[:, 1, 1] = -sz
+        RzRy = Rz @ Ry
+        R = RzRy @ Rx
+        dR = np.stack([RzRy @ dRx, Rz @ dRy @ Rx, dRz @ Ry @ Rx], axis=1)  # (S, 3 axes, 3, 3)
+        return R, dR
+
+    def positions(self, q: np.ndarray, jacobian: bool = True):
+        """Antenna positions (A, 3) in the lab frame and Jacobians (A, 3, n_q) for one q (n_q,)."""
+        q = np.asarray(q, dtype=float)
+        local = self.pivot + self.D @ q if self.D.size else self.pivot.copy()
+        J = self.J_const.copy() if jacobian else None
+        if len(self.cfg.sections):
+            R, dR = self._section_rotations(q)
+            Ra = R[self.sec]                                            # (A, 3, 3)
+            rot = np.einsum("aij,aj->ai", Ra, self.rel)
+            local = local + np.where(self.on_section[:, None], rot - self.rel, 0.0) + self.rel
+            if self.trans:
+                np.add.at(local, (self.trans_a, self.trans_ax), q[self.trans_j])
+            if jacobian and self.rj_a.size:
+                cols = np.einsum("kij,kj->ki", dR[self.sec[self.rj_a], self.rj_axis], self.rel[self.rj_a])
+                np.add.at(J, (self.rj_a, slice(None), self.rj_q), cols)
+        else:
+            local = local + self.rel
+        if self.rigid is not None:
+            psi = q[self.rigid]
+            c, s = np.cos(psi), np.sin(psi)
+            Rb = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+            dRb = np.array([[-s, -c, 0.0], [c, -s, 0.0], [0.0, 0.0, 0.0]])
+            p = local @ Rb.T + self.origin
+            if jacobian:
+                J = np.einsum("ij,ajq->aiq", Rb, J)
+                J[:, :, self.rigid] += local @ dRb.T
+        else:
+            p = local + self.origin
+        return (p, J) if jacobian else p

@@ -87,3 +87,45 @@ def phase_model(cfg: StructureConfig, x: np.ndarray, ant: np.ndarray, tx: np.nda
     H = np.zeros(dq.shape[:2] + (2 * nm,))
     H[:, :, :nm] = dq @ U
     return h, H
+
+
+class EpochPhaseModel:
+    """h(x) and H = ∂h/∂x for one modal state, fast path for the Kalman filter.
+
+    Equivalent to :func:`phase_model` with N = 1 (tested against it).
+    """
+
+    def __init__(self, cfg: StructureConfig, ant: np.ndarray, tx: np.ndarray):
+        from .kinematics import EpochGeometry
+
+        self.cfg = cfg
+        self.geo = EpochGeometry(cfg)
+        self.ant = np.asarray(ant, dtype=int)
+        self.tx = np.asarray(tx, dtype=int)
+        self.m = cfg.master_index
+        self.U = np.asarray(cfg.mode_shapes)
+        self.nm = cfg.n_modes
+        self.far = cfg.transmitter_far_field
+        self.tpos = np.asarray(cfg.transmitter_position_m)[self.tx]
+
+    def __call__(self, x: np.ndarray):
+        nm = self.nm
+        q = self.U @ x[:nm]
+        p, J = self.geo.positions(q)
+        pa = p[self.ant]
+        if self.far:
+            s = self.tpos
+            h = -np.einsum("ci,ci->c", s, pa - p[self.m])
+            dq = -np.einsum("ci,ciq->cq", s, J[self.ant] - J[self.m])
+        else:
+            va = self.tpos - pa
+            vm = self.tpos - p[self.m]
+            da = np.sqrt(np.einsum("ci,ci->c", va, va))
+            dm = np.sqrt(np.einsum("ci,ci->c", vm, vm))
+            h = da - dm
+            ua = va / da[:, None]
+            um = vm / dm[:, None]
+            dq = um @ J[self.m] - np.einsum("ci,ciq->cq", ua, J[self.ant])
+        H = np.zeros((len(h), 2 * nm))
+        H[:, :nm] = dq @ self.U
+        return h, H
