@@ -60,11 +60,13 @@ def main(ctx, quiet):
 @click.option("--slip", "slips", multiple=True, metavar="ANT:TX:TIME_S:CYCLES", help="Inject a cycle slip (repeatable).")
 @click.option("--outage", "outages", multiple=True, metavar="TX:START_S:DURATION_S", help="Lose a transmitter for a while (repeatable).")
 @click.option("--random-slips", type=int, default=0, show_default=True, help="Number of random cycle slips to inject.")
+@click.option("--disturbance-scale", type=float, default=None,
+              help="True disturbance as a fraction of the config's process noise (default: config; 1 = filter model).")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output directory.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
 def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_sigma_m, slips, outages,
-             random_slips, out_dir, as_json):
+             random_slips, disturbance_scale, out_dir, as_json):
     """Simulate a structure run: receiver.csv, gyro.csv, truth.csv, truth.json (+ actuators.csv)."""
     from .config import load_config
     from .simulate import SimOptions, parse_outage, parse_slip, simulate as run_sim, write_simulation
@@ -72,7 +74,8 @@ def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_s
     cfg = load_config(config)
     opt = SimOptions(duration_s=duration_s, seed=seed, scenario=scenario, phase_sigma_m=phase_sigma_m,
                      multipath_sigma_m=multipath_sigma_m, slips=[parse_slip(s) for s in slips],
-                     outages=[parse_outage(o) for o in outages], random_slips=random_slips)
+                     outages=[parse_outage(o) for o in outages], random_slips=random_slips,
+                     disturbance_scale=disturbance_scale)
     _say(ctx, f"simulating {cfg.name}: {scenario}, {duration_s:g} s, seed {seed} …")
     summary = write_simulation(run_sim(cfg, opt), out_dir)
     _say(ctx, f"wrote {summary['receiver_rows']} phase rows, {summary['gyro_rows']} gyro rows, "
@@ -160,6 +163,102 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
 
 
 @main.command()
+@click.argument("run_mcap", type=click.Path(dir_okay=False))
+@click.option("--init", "init_json", required=True, type=click.Path(dir_okay=False), help="INIT.json from 'cdgps init'.")
+@click.option("--smooth", is_flag=True, help="Add a Rauch-Tung-Striebel smoothing pass (post-processing).")
+@click.option("--biases", type=click.Choice(["fixed", "states"]), default="fixed", show_default=True,
+              help="fixed: biases from INIT; states: biases in the filter state (1995 variant).")
+@click.option("--sigma-m", type=float, default=None, help="Measurement noise, m (default: INIT's).")
+@click.option("--nis-probability", type=float, default=0.999, show_default=True, help="Chi-square level of the NIS test.")
+@click.option("--outlier-sigma", type=float, default=6.0, show_default=True, help="Innovation outlier threshold (sigmas).")
+@click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="STATES.mcap to write.")
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
+@click.pass_context
+def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability, outlier_sigma, output, as_json):
+    """Extended Kalman filter (Eq. 16-23) [+ RTS smoother] over a RUN from INIT → STATES.mcap."""
+    from .ekf import EstimateOptions, estimate as run_ekf
+    from .run import read_run
+    from .states import write_states
+
+    if not 0.5 < nis_probability < 1.0:
+        raise CdgpsError(f"--nis-probability must be in (0.5, 1), got {nis_probability:g}")
+    if outlier_sigma <= 0:
+        raise CdgpsError(f"--outlier-sigma must be positive, got {outlier_sigma:g}")
+    try:
+        init_text = Path(init_json).read_text()
+        init = json.loads(init_text)
+    except OSError as exc:
+        raise CdgpsError(f"{init_json}: cannot read: {exc.strerror}") from None
+    except json.JSONDecodeError as exc:
+        raise CdgpsError(f"{init_json}, line {exc.lineno}: not valid JSON: {exc.msg}") from None
+    if not isinstance(init, dict):
+        raise CdgpsError(f"{init_json}: expected a JSON object from 'cdgps init'")
+    run = read_run(run_mcap)
+    opt = EstimateOptions(biases=biases, smooth=smooth, sigma_m=sigma_m, nis_probability=nis_probability,
+                          outlier_sigma=outlier_sigma,
+                          progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
+    _say(ctx, f"estimating {run_mcap} from {init_json} (biases {biases}{', smoothing' if smooth else ''}) …")
+    res = run_ekf(run, init, opt)
+    s = write_states(res, run_mcap, init, init_text, output, opt.echo())
+    _say(ctx, f"wrote {output}: {s['epochs']} epochs ({s['start_s']:g}–{s['end_s']:g} s), "
+              f"mean NIS/dof {s['mean_nis_per_dof']:.3f}, {s['events']} events")
+    for ev in s["event_list"][:20]:
+        ch = f" {ev['antenna']}/{ev['transmitter']}" if ev["antenna"] else ""
+        _say(ctx, f"  {ev['time_s']:8.2f} s{ch}: {ev['kind']} → {ev['action']}")
+    if len(s["event_list"]) > 20:
+        _say(ctx, f"  … {len(s['event_list']) - 20} more events (topic /cdgps/events)")
+    if as_json:
+        _emit_json(s)
+
+
+@main.command()
+@click.argument("states_mcap", type=click.Path(dir_okay=False))
+@click.option("--csv", "out_csv", required=True, type=click.Path(dir_okay=False), help="CSV to write.")
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
+@click.pass_context
+def export(ctx, states_mcap, out_csv, as_json):
+    """Export estimated coordinates and their 1-sigma to CSV (columns line up with truth.csv)."""
+    from .states import export_csv
+
+    s = export_csv(states_mcap, out_csv)
+    _say(ctx, f"wrote {s['rows']} rows to {out_csv}")
+    if as_json:
+        _emit_json(s)
+
+
+@main.command()
+@click.option("--truth", "truth_dir", required=True, type=click.Path(file_okay=False), help="Simulator output directory.")
+@click.option("--estimate", "states_mcap", required=True, type=click.Path(dir_okay=False), help="STATES.mcap.")
+@click.option("--converge-s", type=float, default=1.0, show_default=True, help="Seconds after the start excluded from RMS.")
+@click.option("--json", "as_json", is_flag=True, help="Print the full result as JSON on stdout.")
+@click.pass_context
+def evaluate(ctx, truth_dir, states_mcap, converge_s, as_json):
+    """Errors of an estimate against simulator truth: RMS per coordinate, NEES, NIS, biases."""
+    from .states import evaluate as run_eval
+
+    r = run_eval(truth_dir, states_mcap, converge_s)
+    if as_json:
+        _emit_json(r)
+        return
+    lines = [f"{states_mcap} vs {truth_dir}: {r['epochs']} epochs ({r['start_s']:g}–{r['end_s']:g} s)"]
+    for n, v in r["rms_error"].items():
+        u = r["rms_error_units"][n]
+        extra = f"  ({r['rms_error_deg'][n]:.4f} deg)" if n in r["rms_error_deg"] else ""
+        lines.append(f"  RMS error {n:>8}: {v:.6f} {u}{extra}")
+    ne = r["nees"]
+    lines.append(f"  NEES (dof {ne['dof']}): mean {ne['mean']:.2f}, 95% interval {ne['interval95_single'][0]:.2f}–"
+                 f"{ne['interval95_single'][1]:.2f}, {100 * ne['fraction_in_interval']:.1f}% of epochs inside")
+    if "nis" in r:
+        lines.append(f"  NIS: mean per dof {r['nis']['mean_per_dof']:.3f}, {100 * r['nis']['fraction_in_interval95']:.1f}% in 95% interval")
+    lines.append(f"  within 3 sigma: {100 * r['within_3sigma_fraction']:.1f}% of epochs; converged after "
+                 f"{'never' if r['convergence_s'] is None else format(r['convergence_s'], '.2f') + ' s'} (NEES below its 99.9% bound for 1 s)")
+    if "bias_error" in r:
+        b = r["bias_error"]
+        lines.append(f"  final biases: RMS error {b['rms_m'] * 1000:.2f} mm, {b['wrong_integers']} wrong integers of {b['channels']}")
+    click.echo("\n".join(lines))
+
+
+@main.command()
 @click.argument("mcap_file", type=click.Path(dir_okay=False))
 @click.option("--json", "as_json", is_flag=True, help="Print the full summary as JSON on stdout.")
 @click.pass_context
@@ -187,7 +286,8 @@ def info(ctx, mcap_file, as_json):
         if len(s["slips"]) > 20:
             out.append(f"    … {len(s['slips']) - 20} more")
     for name, md in s["metadata"].items():
-        out.append(f"  metadata {name}: " + ", ".join(f"{k}={v}" for k, v in sorted(md.items()) if not k.endswith("sha256")))
+        out.append(f"  metadata {name}: " + ", ".join(f"{k}={v if len(v) <= 60 else v[:57] + '…'}"
+                                                     for k, v in sorted(md.items()) if not k.endswith("sha256")))
     click.echo("\n".join(out))
 
 

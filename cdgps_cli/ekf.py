@@ -344,7 +344,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                 k = kk + 1
                 continue
             k_reinit_block = k + int(opt.reinit_window_s / T)
-        if k % report_every == 0:
+        if N >= 3000 and k % report_every == 0:
             say(f"  filter {100 * k / N:3.0f}%")
         k += 1
 

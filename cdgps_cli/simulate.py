@@ -76,6 +76,7 @@ class SimOptions:
     slips: list = field(default_factory=list)
     outages: list = field(default_factory=list)
     random_slips: int = 0
+    disturbance_scale: float | None = None
 
 
 def parse_slip(text: str) -> SlipSpec:
@@ -123,7 +124,7 @@ def _validate(cfg: StructureConfig, opt: SimOptions) -> None:
     for o in opt.outages:
         if o.transmitter not in cfg.transmitter_names:
             problems.append(f"--outage: unknown transmitter {o.transmitter!r} (known: {', '.join(cfg.transmitter_names)})")
-    for name in ("phase_sigma_m", "multipath_sigma_m"):
+    for name in ("phase_sigma_m", "multipath_sigma_m", "disturbance_scale"):
         v = getattr(opt, name)
         if v is not None and not (v >= 0 and np.isfinite(v)):
             problems.append(f"{name}: expected a non-negative number, got {v}")
@@ -159,7 +160,8 @@ def simulate(cfg: StructureConfig, opt: SimOptions) -> Simulation:
 
     # ---- inputs: disturbance and thruster commands
     n_w = model.Bw.shape[1]
-    w = rng.standard_normal((n, n_w)) * (sim["disturbance_scale"] * np.asarray(cfg.process_noise_sigma))
+    dscale = sim["disturbance_scale"] if opt.disturbance_scale is None else opt.disturbance_scale
+    w = rng.standard_normal((n, n_w)) * (dscale * np.asarray(cfg.process_noise_sigma))
     n_u = len(cfg.thruster_names)
     u = np.zeros((n, n_u))
     actuators = None

@@ -1,0 +1,249 @@
+"""STATES.mcap (output of ``cdgps estimate``), CSV export and evaluation against simulator truth.
+
+Topics (JSON schema / JSON, one message per epoch, ``timestamp {sec, nsec}``):
+
+* ``/cdgps/state`` — the estimate (smoothed when ``--smooth``): ``q`` and ``sigma_q`` as objects
+  keyed by coordinate name (so Foxglove plots ``/cdgps/state.q.q10`` directly), the modal state
+  ``xi``, ``xidot``, the modal-position covariance ``P_xi`` (row-major n_m×n_m), ``smoothed``;
+* ``/cdgps/state_filtered`` — the forward filter, only when smoothing;
+* ``/cdgps/residuals`` — per channel post-fit residual (m), the epoch's NIS and its dof;
+* ``/cdgps/events`` — slips, re-acquisitions, outliers, integrity failures and their actions.
+
+Attachments: ``config.toml``, ``init.json``.  Metadata ``cdgps.estimate``: RUN and INIT sha256,
+options, final biases.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from scipy.stats import chi2
+
+from . import __version__
+from .config import StructureConfig, parse_config
+from .ekf import EstimateResult
+from .errors import CdgpsError
+from .mcap_io import CONFIG_ATTACHMENT, McapOut, array_schema, read_mcap
+
+STATE_TOPIC = "/cdgps/state"
+STATE_FILTERED_TOPIC = "/cdgps/state_filtered"
+RESIDUAL_TOPIC = "/cdgps/residuals"
+EVENT_TOPIC = "/cdgps/events"
+INIT_ATTACHMENT = "init.json"
+ESTIMATE_METADATA = "cdgps.estimate"
+
+
+def _state_schema(cfg: StructureConfig) -> dict:
+    obj = {"type": "object", "properties": {n: {"type": "number"} for n in cfg.coord_names}}
+    s = array_schema("cdgps.StructureState", {"xi": "number", "xidot": "number", "P_xi": "number"},
+                     {"smoothed": "boolean"})
+    s["properties"]["q"] = dict(obj, description="generalized coordinates (m or rad)")
+    s["properties"]["sigma_q"] = dict(obj, description="1-sigma of q")
+    return s
+
+
+RESIDUAL_SCHEMA = array_schema("cdgps.Residuals", {"antenna": "string", "transmitter": "string", "residual_m": "number|null"},
+                               {"nis": "number|null", "nis_dof": "integer"})
+EVENT_SCHEMA = {"title": "cdgps.Event", "type": "object", "properties": {
+    "timestamp": {"type": "object"}, "time_s": {"type": "number"}, "antenna": {"type": "string"},
+    "transmitter": {"type": "string"}, "kind": {"type": "string"}, "action": {"type": "string"}}}
+
+
+def coordinate_sigma(cfg: StructureConfig, P_xi: np.ndarray) -> np.ndarray:
+    """1-σ of q = U ξ from the modal-position covariances (N, n_m, n_m) → (N, n_q)."""
+    U = np.asarray(cfg.mode_shapes)
+    return np.sqrt(np.maximum(np.einsum("qi,nij,qj->nq", U, P_xi, U), 0.0))
+
+
+def write_states(res: EstimateResult, run_path: str | Path, init: dict, init_text: str,
+                 out_path: str | Path, options: dict) -> dict:
+    """Write STATES.mcap atomically; returns a summary."""
+    cfg = res.cfg
+    nm = cfg.n_modes
+    U = np.asarray(cfg.mode_shapes)
+    names = list(cfg.coord_names)
+    meta = {"cdgps_version": __version__, "created_by": "cdgps estimate", "config_name": cfg.name,
+            "config_sha256": cfg.sha256, "run": Path(run_path).name,
+            "run_sha256": hashlib.sha256(Path(run_path).read_bytes()).hexdigest(),
+            "init_sha256": hashlib.sha256(init_text.encode()).hexdigest(),
+            "options": json.dumps(options, sort_keys=True),
+            "final_biases": json.dumps([{"antenna": a, "transmitter": t, "bias_m": b}
+                                        for (a, t), b in res.biases.items()]),
+            "smoothed": str(res.smoothed).lower()}
+    with McapOut(out_path) as out:
+        schema = _state_schema(cfg)
+        series = [(STATE_TOPIC, res.x, res.P, res.smoothed)]
+        if res.smoothed:
+            series.append((STATE_FILTERED_TOPIC, res.x_filt, res.P_filt, False))
+        for topic, X, P, smoothed in series:
+            ch = out.channel(topic, schema)
+            q = X[:, :nm] @ U.T
+            sq = coordinate_sigma(cfg, P[:, :nm, :nm])
+            for k, t in enumerate(res.time_s):
+                out.write(ch, t, {
+                    "q": dict(zip(names, q[k].tolist())), "sigma_q": dict(zip(names, sq[k].tolist())),
+                    "xi": X[k, :nm].tolist(), "xidot": X[k, nm:].tolist(),
+                    "P_xi": P[k, :nm, :nm].ravel().tolist(), "smoothed": smoothed})
+        ch = out.channel(RESIDUAL_TOPIC, RESIDUAL_SCHEMA)
+        ants = [c[0] for c in res.channels]
+        txs = [c[1] for c in res.channels]
+        for k, t in enumerate(res.time_s):
+            r = res.residual_m[k]
+            used = ~np.isnan(r)
+            out.write(ch, t, {"antenna": [a for a, u in zip(ants, used) if u],
+                              "transmitter": [x for x, u in zip(txs, used) if u],
+                              "residual_m": r[used].tolist(),
+                              "nis": None if np.isnan(res.nis[k]) else float(res.nis[k]),
+                              "nis_dof": int(res.nis_dof[k])})
+        ch = out.channel(EVENT_TOPIC, EVENT_SCHEMA)
+        for ev in res.events:
+            body = {k: v for k, v in ev.items() if k != "time_s"}
+            out.write(ch, ev["time_s"], body)
+        out.attach(CONFIG_ATTACHMENT, cfg.text.encode(), "application/toml")
+        out.attach(INIT_ATTACHMENT, init_text.encode(), "application/json")
+        out.metadata(ESTIMATE_METADATA, meta)
+    nis_ok = res.nis_dof > 0
+    return {"output": str(out_path), "epochs": int(len(res.time_s)), "start_s": float(res.time_s[0]),
+            "end_s": float(res.time_s[-1]), "smoothed": res.smoothed, "events": len(res.events),
+            "mean_nis_per_dof": float(np.nanmean(res.nis[nis_ok] / res.nis_dof[nis_ok])) if nis_ok.any() else None,
+            "event_list": res.events}
+
+
+class States:
+    """A STATES.mcap read back: config, times, q, sigma_q, modal state, covariances, events."""
+
+    def __init__(self, path: str | Path, topic: str = STATE_TOPIC):
+        c = read_mcap(path)
+        if topic not in c.topics or CONFIG_ATTACHMENT not in c.attachments:
+            raise CdgpsError(f"{path}: no {topic} messages or config; is this a STATES.mcap from 'cdgps estimate'?")
+        self.path = str(path)
+        self.cfg = parse_config(c.attachments[CONFIG_ATTACHMENT].decode(), f"{path}:{CONFIG_ATTACHMENT}")
+        tc = c.topics[topic]
+        self.time_s = tc.times()
+        names = list(self.cfg.coord_names)
+        qs = tc.scalars["q"]
+        ss = tc.scalars["sigma_q"]
+        self.q = np.array([[m[n] for n in names] for m in qs], dtype=float)
+        self.sigma_q = np.array([[m[n] for n in names] for m in ss], dtype=float)
+        nm = self.cfg.n_modes
+        N = len(self.time_s)
+        self.xi = np.asarray(tc.arrays["xi"], dtype=float).reshape(N, nm)
+        self.P_xi = np.asarray(tc.arrays["P_xi"], dtype=float).reshape(N, nm, nm)
+        self.metadata = c.metadata.get(ESTIMATE_METADATA, {})
+        res = c.topics.get(RESIDUAL_TOPIC)
+        self.nis = np.array([np.nan if v is None else v for v in res.scalars["nis"]], dtype=float) if res else None
+        self.nis_dof = np.asarray(res.scalars["nis_dof"], dtype=float) if res else None
+        ev = c.topics.get(EVENT_TOPIC)
+        self.events = []
+        if ev:
+            for i, t in enumerate(ev.times()):
+                self.events.append({"time_s": float(t), **{k: ev.scalars[k][i] for k in ev.scalars if k != "time_s"}})
+
+
+def export_csv(states_path: str | Path, out_csv: str | Path) -> dict:
+    """Write time_s, one column per coordinate and sigma_<name> for each (lines up with truth.csv)."""
+    import os
+    st = States(states_path)
+    names = list(st.cfg.coord_names)
+    df = pd.DataFrame(st.q, columns=names)
+    for i, n in enumerate(names):
+        df["sigma_" + n] = st.sigma_q[:, i]
+    df.insert(0, "time_s", np.round(st.time_s, 9))
+    out = Path(out_csv)
+    tmp = out.with_name(f".{out.name}.tmp{os.getpid()}")
+    try:
+        df.to_csv(tmp, index=False, lineterminator="\n")
+        os.replace(tmp, out)
+    except OSError as exc:
+        raise CdgpsError(f"{out}: cannot write: {exc.strerror}") from None
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return {"output": str(out), "rows": int(len(df)), "columns": list(df.columns)}
+
+
+def evaluate(truth_dir: str | Path, states_path: str | Path, converge_s: float = 1.0) -> dict:
+    """Compare a STATES.mcap with simulator truth (truth.csv, truth.json).
+
+    Returns RMS error per coordinate (after ``converge_s`` from the first estimate), NEES on the
+    modal positions with its chi-square 95% interval, NIS statistics, convergence time and bias errors.
+    """
+    truth_dir = Path(truth_dir)
+    try:
+        truth = pd.read_csv(truth_dir / "truth.csv")
+        tj = json.loads((truth_dir / "truth.json").read_text())
+    except (OSError, ValueError) as exc:
+        raise CdgpsError(f"{truth_dir}: cannot read truth.csv / truth.json: {exc}") from None
+    st = States(states_path)
+    cfg = st.cfg
+    names = list(cfg.coord_names)
+    missing = [n for n in ["time_s", *names] if n not in truth.columns]
+    if missing:
+        raise CdgpsError(f"{truth_dir / 'truth.csv'}: missing column(s) {', '.join(missing)}")
+    if tj.get("config_sha256") and tj["config_sha256"] != cfg.sha256:
+        raise CdgpsError("truth.json was simulated with a different config than the estimate's")
+    tt = np.rint(truth["time_s"].to_numpy() * 1e6).astype(np.int64)
+    te = np.rint(st.time_s * 1e6).astype(np.int64)
+    common, it, ie = np.intersect1d(tt, te, return_indices=True)
+    if common.size == 0:
+        raise CdgpsError("no common epochs between truth and estimate")
+    qt = truth[names].to_numpy()[it]
+    qe = st.q[ie]
+    se = st.sigma_q[ie]
+    time = st.time_s[ie]
+    err = qe - qt
+    after = time >= time[0] + converge_s - 1e-9
+    rms = np.sqrt(np.mean(err[after] ** 2, axis=0))
+    U = np.asarray(cfg.mode_shapes)
+    xi_t = qt @ np.linalg.pinv(U).T
+    d = st.xi[ie] - xi_t
+    nm = cfg.n_modes
+    nees = np.einsum("ni,ni->n", d, np.linalg.solve(st.P_xi[ie], d[..., None])[..., 0])
+    lo, hi = chi2.ppf(0.025, nm), chi2.ppf(0.975, nm)
+    na = int(after.sum())
+    # time-averaged NEES: 95% interval of the mean of na chi2(nm) samples (if independent)
+    mlo, mhi = chi2.ppf(0.025, na * nm) / na, chi2.ppf(0.975, na * nm) / na
+    inside = np.all(np.abs(err) <= 3 * se + 1e-12, axis=1)
+    # convergence: first epoch from which the NEES stays below its 99.9% bound for a full second
+    bound = chi2.ppf(0.999, nm)
+    T = float(np.median(np.diff(time))) if time.size > 1 else 1.0
+    w = max(int(round(1.0 / T)), 1)
+    ok = nees <= bound
+    run_ok = np.convolve(ok.astype(int), np.ones(w, dtype=int), mode="valid") == w
+    first = np.flatnonzero(run_ok)
+    conv_t = float(time[first[0]] - time[0]) if first.size else None
+    out = {
+        "epochs": int(common.size), "start_s": float(time[0]), "end_s": float(time[-1]),
+        "rms_error": {n: float(v) for n, v in zip(names, rms)},
+        "rms_error_units": {n: cfg.coord_unit(n) for n in names},
+        "rms_error_deg": {n: float(np.degrees(v)) for n, v in zip(names, rms) if cfg.coord_unit(n) == "rad"},
+        "within_3sigma_fraction": float(np.mean(inside[after])),
+        "convergence_definition": "first time from which the NEES stays below its 99.9% chi-square bound for 1 s",
+        "convergence_s": conv_t,
+        "nees": {"dof": nm, "mean": float(np.mean(nees[after])), "interval95_single": [float(lo), float(hi)],
+                 "fraction_in_interval": float(np.mean((nees[after] >= lo) & (nees[after] <= hi))),
+                 "interval95_mean_if_independent": [float(mlo), float(mhi)]},
+    }
+    if st.nis is not None:
+        ok = (st.nis_dof > 0) & np.isfinite(st.nis)
+        r = st.nis[ok] / st.nis_dof[ok]
+        inside_nis = (st.nis[ok] >= chi2.ppf(0.025, st.nis_dof[ok])) & (st.nis[ok] <= chi2.ppf(0.975, st.nis_dof[ok]))
+        out["nis"] = {"mean_per_dof": float(np.mean(r)), "fraction_in_interval95": float(np.mean(inside_nis))}
+    # bias errors: final biases vs truth (latest segment per channel)
+    fb = json.loads(st.metadata.get("final_biases", "[]"))
+    tb = {(b["antenna"], b["transmitter"]): b["bias_m"] for b in tj.get("biases", [])}
+    for s in tj.get("slips", []):
+        if s["time_s"] <= time[-1] + 1e-9:
+            tb[(s["antenna"], s["transmitter"])] = s["bias_m"]
+    errs = [(b["antenna"], b["transmitter"], b["bias_m"] - tb[(b["antenna"], b["transmitter"])])
+            for b in fb if (b["antenna"], b["transmitter"]) in tb and b["bias_m"] is not None and np.isfinite(b["bias_m"])]
+    if errs:
+        e = np.array([x[2] for x in errs])
+        out["bias_error"] = {"rms_m": float(np.sqrt(np.mean(e**2))), "max_abs_m": float(np.max(np.abs(e))),
+                             "wrong_integers": int(np.sum(np.abs(e) > cfg.wavelength_m / 2)), "channels": len(errs)}
+    out["events"] = len(st.events)
+    return out
