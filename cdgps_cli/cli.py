@@ -258,6 +258,110 @@ def evaluate(ctx, truth_dir, states_mcap, converge_s, as_json):
     click.echo("\n".join(lines))
 
 
+def _spectra_options(coords, segment_s, overlap, pad):
+    from .spectra import SpectraOptions
+
+    return SpectraOptions(coords=tuple(c.strip() for c in coords.split(",") if c.strip()) if coords else None,
+                          segment_s=segment_s, overlap=overlap, pad=pad)
+
+
+_spectra_opts = [
+    click.option("--gyro", "gyro_mcap", type=click.Path(dir_okay=False), help="RUN.mcap with the gyro log."),
+    click.option("--coords", default=None, help="Comma-separated coordinates (default: all but the rigid one)."),
+    click.option("--segment-s", type=float, default=None, help="Welch/FDD segment length, s (default: min(duration/4, 600 s))."),
+    click.option("--overlap", type=float, default=0.5, show_default=True, help="Segment overlap fraction."),
+    click.option("--pad", type=int, default=4, show_default=True, help="FFT zero-padding factor."),
+]
+
+
+def _with(opts):
+    def deco(f):
+        for o in reversed(opts):
+            f = o(f)
+        return f
+    return deco
+
+
+@main.command()
+@click.argument("states_mcap", type=click.Path(dir_okay=False))
+@_with(_spectra_opts)
+@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False), help="Output directory.")
+@click.option("--json", "as_json", is_flag=True, help="Print peaks.json on stdout.")
+@click.pass_context
+def spectra(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad, out_dir, as_json):
+    """Welch PSDs vs gyros, FDD modal identification → psd.csv, peaks.json, psd.png, fdd.png."""
+    from .reports import run_spectra
+    from .run import read_run
+    from .states import States
+
+    st = States(states_mcap)
+    run = read_run(gyro_mcap) if gyro_mcap else None
+    s = run_spectra(st, run, _spectra_options(coords, segment_s, overlap, pad), out_dir)
+    seen = sum(1 for m in s["modes"] if m["seen"])
+    _say(ctx, f"wrote {', '.join(s['files'])} to {out_dir}/: {seen} of {len(s['modes'])} modes identified")
+    for m in s["modes"]:
+        g = "–" if m["gps_hz"] is None else f"{m['gps_hz']:.4f}"
+        e = "" if m["error_pct"] is None else f" ({m['error_pct']:+.2f}%)"
+        _say(ctx, f"  {m['mode']:<12} model {m['model_hz']:.4f} Hz  GPS {g} Hz{e}  {'seen' if m['seen'] else 'not seen'}")
+    if as_json:
+        _emit_json({"modes": s["modes"], "settings": s["settings"]})
+
+
+@main.group()
+def report():
+    """Sensor-test reports (markdown, JSON and a self-contained HTML page)."""
+
+
+@report.command("static")
+@click.argument("states_mcap", type=click.Path(dir_okay=False))
+@click.option("--gyro", "gyro_mcap", type=click.Path(dir_okay=False), help="RUN.mcap with the gyro log.")
+@click.option("--angle", required=True, help='Angle expression, e.g. "q6+q10" (see README).')
+@click.option("--survey-deg", type=float, default=None, help="Surveyed angle, degrees.")
+@click.option("--start", "start_s", type=float, default=None, help="Rest segment start, s (default: detected).")
+@click.option("--end", "end_s", type=float, default=None, help="Rest segment end, s (default: detected).")
+@click.option("--gyro-name", default=None, help="Gyro to integrate (default: the one whose axis matches the angle).")
+@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False), help="Output directory.")
+@click.option("--json", "as_json", is_flag=True, help="Print report.json on stdout.")
+@click.pass_context
+def report_static(ctx, states_mcap, gyro_mcap, angle, survey_deg, start_s, end_s, gyro_name, out_dir, as_json):
+    """Static sensor test (1998 paper Fig. 7): mean vs survey, noise, GPS and gyro drift."""
+    from .reports import static_report
+    from .run import read_run
+    from .states import States
+
+    st = States(states_mcap)
+    run = read_run(gyro_mcap) if gyro_mcap else None
+    d = static_report(st, run, angle, survey_deg, out_dir, start_s, end_s, gyro_name)
+    err = "" if d["error_deg"] is None else f", error {d['error_deg']:+.4f}°"
+    gd = "" if d["gyro_drift_deg_per_min"] is None else f", gyro drift {d['gyro_drift_deg_per_min']:+.4f}°/min"
+    _say(ctx, f"{angle}: mean {d['mean_deg']:.4f}°{err}, noise {d['noise_rms_deg']:.4f}° RMS, "
+              f"drift {d['drift_deg_per_min']:+.4f}°/min{gd} on {d['start_s']:.1f}–{d['end_s']:.1f} s")
+    _say(ctx, f"report: {Path(out_dir) / 'report.html'}")
+    if as_json:
+        _emit_json(d)
+
+
+@report.command("spectrum")
+@click.argument("states_mcap", type=click.Path(dir_okay=False))
+@_with(_spectra_opts)
+@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False), help="Output directory.")
+@click.option("--json", "as_json", is_flag=True, help="Print report.json on stdout.")
+@click.pass_context
+def report_spectrum(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad, out_dir, as_json):
+    """Dynamic sensor test (1998 paper Fig. 8): PSDs vs gyros and identified modes vs the model."""
+    from .reports import spectrum_report
+    from .run import read_run
+    from .states import States
+
+    st = States(states_mcap)
+    run = read_run(gyro_mcap) if gyro_mcap else None
+    d = spectrum_report(st, run, _spectra_options(coords, segment_s, overlap, pad), out_dir)
+    _say(ctx, d["summary"])
+    _say(ctx, f"report: {Path(out_dir) / 'report.html'}")
+    if as_json:
+        _emit_json(d)
+
+
 @main.command()
 @click.argument("mcap_file", type=click.Path(dir_okay=False))
 @click.option("--json", "as_json", is_flag=True, help="Print the full summary as JSON on stdout.")

@@ -34,7 +34,7 @@ class SpectraOptions:
     """Options of :func:`compute_spectra` (echoed in peaks.json)."""
 
     coords: tuple | None = None        # coordinates for PSD/FDD (default: all but the rigid one)
-    segment_s: float | None = None     # Welch segment length (default: min(duration, 1200 s))
+    segment_s: float | None = None     # Welch segment length (default: min(duration / 4, 600 s): ≥ 7 averages, so the CSD matrix has rank > 1)
     overlap: float = 0.5               # fraction of a segment
     pad: int = 4                       # FFT zero-padding factor (finer peak location)
     band_pct: float = 5.0              # search band around each model frequency, %
@@ -234,7 +234,7 @@ def compute_spectra(cfg: StructureConfig, time_s: np.ndarray, q: np.ndarray,
         raise CdgpsError("state epochs are not regularly spaced; spectra need a regular grid")
     fs = 1.0 / T
     duration = N * T
-    seg_s = opt.segment_s or min(duration, 1200.0)
+    seg_s = opt.segment_s or min(duration / 4.0, 600.0)
     if seg_s <= 0 or opt.pad < 1 or not 0 <= opt.overlap < 1:
         raise CdgpsError("segment must be positive, pad ≥ 1, 0 ≤ overlap < 1")
     nperseg = int(min(N, max(16, round(seg_s * fs))))
@@ -286,7 +286,7 @@ def compute_spectra(cfg: StructureConfig, time_s: np.ndarray, q: np.ndarray,
             continue
         # 1. modal filter + single-mode fit, with a resolution matched to the model's bandwidth
         bw_model = 2 * zeta_model * fm
-        seg_j = min(duration, max(60.0, 8.0 / bw_model), seg_s)
+        seg_j = min(duration, max(60.0, 8.0 / bw_model))
         npj = int(min(N, round(seg_j * fs)))
         nfj = int(2 ** np.ceil(np.log2(npj * opt.pad)))
         fj, pj = welch(Ystd @ Wfilt[j], fs=fs, window="hann", nperseg=npj, noverlap=int(npj * opt.overlap),
@@ -297,7 +297,7 @@ def compute_spectra(cfg: StructureConfig, time_s: np.ndarray, q: np.ndarray,
         # 2. FDD: singular-value peak in the band whose vector matches the model shape
         band = (f >= fm * (1 - opt.band_pct / 100)) & (f <= fm * (1 + opt.band_pct / 100))
         best = None
-        for k in range(min(2, S_sv.shape[1])):
+        for k in range(min(3, S_sv.shape[1])):
             idx = np.flatnonzero(band)
             if idx.size == 0:
                 continue
@@ -305,8 +305,7 @@ def compute_spectra(cfg: StructureConfig, time_s: np.ndarray, q: np.ndarray,
             score = S_sv[idx, k] * macs
             ib = int(np.argmax(score))
             i = int(idx[ib])
-            is_peak = 0 < i < len(f) - 1 and S_sv[i, k] >= S_sv[i - 1, k] and S_sv[i, k] >= S_sv[i + 1, k]
-            if is_peak and (best is None or score[ib] > best[0]):
+            if best is None or score[ib] > best[0]:
                 best = (score[ib], k, i, macs[ib])
         if best is not None:
             _, k, i, m_mac = best
@@ -336,8 +335,8 @@ def compute_spectra(cfg: StructureConfig, time_s: np.ndarray, q: np.ndarray,
         "f_hz": f[keep], "psd": {k: v[keep] for k, v in psd.items()},
         "fdd_sv": S_sv[keep, : min(3, S_sv.shape[1])],
         "modes": modes,
-        "settings": {"sample_rate_hz": fs, "duration_s": duration, "segment_s": nperseg / fs,
+        "settings": {**opt.echo(), "sample_rate_hz": fs, "duration_s": duration, "segment_s": nperseg / fs,
                      "segments": int((N - nperseg) // max(int(round(nperseg * (1 - opt.overlap))), 1) + 1),
                      "nfft": nfft, "resolution_hz": resolution, "coordinates": [names[i] for i in sel],
-                     "window": "hann", **opt.echo()},
+                     "window": "hann"},
     }
