@@ -294,8 +294,8 @@ def spectra(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad, out_di
     from .run import read_run
     from .states import States
 
-    st = States(states_mcap)
-    run = read_run(gyro_mcap) if gyro_mcap else None
+    st = States(states_mcap, diagnostics=False)
+    run = read_run(gyro_mcap, phase=False) if gyro_mcap else None
     s = run_spectra(st, run, _spectra_options(coords, segment_s, overlap, pad), out_dir)
     seen = sum(1 for m in s["modes"] if m["seen"])
     _say(ctx, f"wrote {', '.join(s['files'])} to {out_dir}/: {seen} of {len(s['modes'])} modes identified")
@@ -329,8 +329,8 @@ def report_static(ctx, states_mcap, gyro_mcap, angle, survey_deg, start_s, end_s
     from .run import read_run
     from .states import States
 
-    st = States(states_mcap)
-    run = read_run(gyro_mcap) if gyro_mcap else None
+    st = States(states_mcap, diagnostics=False)
+    run = read_run(gyro_mcap, phase=False) if gyro_mcap else None
     d = static_report(st, run, angle, survey_deg, out_dir, start_s, end_s, gyro_name)
     err = "" if d["error_deg"] is None else f", error {d['error_deg']:+.4f}°"
     gd = "" if d["gyro_drift_deg_per_min"] is None else f", gyro drift {d['gyro_drift_deg_per_min']:+.4f}°/min"
@@ -353,8 +353,8 @@ def report_spectrum(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad
     from .run import read_run
     from .states import States
 
-    st = States(states_mcap)
-    run = read_run(gyro_mcap) if gyro_mcap else None
+    st = States(states_mcap, diagnostics=False)
+    run = read_run(gyro_mcap, phase=False) if gyro_mcap else None
     d = spectrum_report(st, run, _spectra_options(coords, segment_s, overlap, pad), out_dir)
     _say(ctx, d["summary"])
     _say(ctx, f"report: {Path(out_dir) / 'report.html'}")

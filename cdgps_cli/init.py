@@ -23,6 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from scipy.stats import chi2
+
 from .ambiguity import lambda_search, partial_fix, ratio_test
 from .batch import LinearProblem, srif_solve
 from .config import StructureConfig
@@ -45,6 +47,8 @@ class InitOptions:
     starts: int = 8                     # initial guesses of the rigid angle (or lowest mode)
     start_iterations: int = 3           # Gauss–Newton iterations per start before choosing
     start_window_s: float = 10.0        # starts are compared on this first part of the window
+    finalists: int = 3                  # best starts continued on the whole window
+    fix_validation_probability: float = 0.999  # chi-square test of the cost increase caused by fixing
     max_iterations: int = 30
     step_tol_m: float = 1e-5            # convergence: max bias / position step (m)
     cost_rtol: float = 1e-9             # convergence: relative cost change
@@ -354,16 +358,26 @@ def initialize(run: Run, opt: InitOptions | None = None) -> dict:
         g = sub.gauss_newton(xs, sub.initial_biases(xs), opt.start_iterations, opt, max_retries=3)
         results.append((label, g))
         _say(opt, f"  start {label}: cost {g.cost:.4g} after {g.iterations} iterations on the first {n_sub} epochs")
-    best_i = int(np.argmin([g.cost for _, g in results]))
-    label, g0 = results[best_i]
-    x_init = np.empty((N, prob.n))
-    x_init[:len(g0.x)] = g0.x
-    for k in range(len(g0.x), N):
-        x_init[k] = prob.A @ x_init[k - 1]
-    w_init = np.zeros((N - 1, prob.G.shape[1]))
-    w_init[:len(g0.w)] = g0.w
-    g = prob.gauss_newton(x_init, prob.initial_biases(x_init), opt.max_iterations, opt, w_init=w_init)
-    total_iter = sum(r.iterations for _, r in results) + g.iterations
+    # the most promising starts (lowest short-window cost) are continued on the whole window; the
+    # lowest full-window cost wins (a short window can prefer a mirror solution ~180° away)
+    order = list(np.argsort([g.cost for _, g in results]))[: max(1, min(opt.finalists, len(results)))]
+    finals = []
+    for i in order:
+        _, g0 = results[i]
+        x_init = np.empty((N, prob.n))
+        x_init[:len(g0.x)] = g0.x
+        for k in range(len(g0.x), N):
+            x_init[k] = prob.A @ x_init[k - 1]
+        w_init = np.zeros((N - 1, prob.G.shape[1]))
+        w_init[:len(g0.w)] = g0.w
+        gi = prob.gauss_newton(x_init, prob.initial_biases(x_init), opt.max_iterations, opt, w_init=w_init)
+        finals.append((i, gi))
+        _say(opt, f"  continued {results[i][0]} on the whole window: cost {gi.cost:.6g} after {gi.iterations} iterations")
+    best_i, g = min(finals, key=lambda t: t[1].cost)
+    best_i = int(best_i)
+    label = results[best_i][0]
+    final_costs = {i: gi.cost for i, gi in finals}
+    total_iter = sum(r.iterations for _, r in results) + sum(gi.iterations for _, gi in finals)
     lin = g.lin
     m = len(wd.segments)
     n = prob.n
@@ -420,6 +434,22 @@ def initialize(run: Run, opt: InitOptions | None = None) -> dict:
         total_iter += gf.iterations
         final_b = prob_f.full_bias(gf.b)
         x_traj, lin_final, prob_final, J_final = gf.x, gf.lin, prob_f, gf.cost
+        # validation: with the right integers the cost rises by about a chi-square(n_fixed) amount
+        # (scaled by the float solution's cost per degree of freedom)
+        n_obs = int(np.isfinite(prob.y).sum())
+        dof_f = max(n_obs - n - m, 1)
+        scale = max(g.cost / dof_f, 1e-12)
+        dJ = (J_final - g.cost) / scale
+        limit = float(chi2.ppf(opt.fix_validation_probability, int(fixed.sum())))
+        if dJ > limit:
+            _say(opt, f"  integer fix rejected by validation: cost increase {dJ:.1f} > {limit:.1f} "
+                      f"(chi-square {opt.fix_validation_probability:g}, {int(fixed.sum())} dof)")
+            fix_note = (f"integer fix rejected by validation (cost increase {dJ:.1f} > {limit:.1f}); "
+                        f"float biases kept")
+            fixed[:] = False
+            integers = np.rint(a_float).astype(np.int64)
+            final_b = b_float.copy()
+            x_traj, lin_final, prob_final, J_final = g.x, lin, prob, g.cost
     else:
         x_traj, lin_final, prob_final, J_final = g.x, lin, prob, g.cost
 
@@ -470,7 +500,8 @@ def initialize(run: Run, opt: InitOptions | None = None) -> dict:
         },
         "iterations": int(total_iter),
         "converged": True,
-        "starts": [{"label": lab, "cost": float(r.cost), "iterations": r.iterations, "won": i == best_i}
+        "starts": [{"label": lab, "cost": float(r.cost), "iterations": r.iterations, "won": i == best_i,
+                    "full_window_cost": (float(final_costs[i]) if i in final_costs else None)}
                    for i, (lab, r) in enumerate(results)],
         "cost": float(J_final),
         "cost_per_dof": float(J_final / dof),

@@ -260,11 +260,18 @@ def _write_report(out: Path, title: str, md: str, data: dict, sections, figures)
 # ----------------------------------------------------------------------------- static report
 
 def detect_rest(time_s: np.ndarray, angle_rad: np.ndarray, window_s: float = 10.0,
-                max_std_deg: float = 0.05, min_length_s: float = 10.0) -> tuple[float, float]:
-    """Longest span where the angle's rolling standard deviation stays below ``max_std_deg``."""
+                max_std_deg: float | None = None, min_length_s: float = 10.0) -> tuple[float, float]:
+    """Longest span where the angle's rolling standard deviation stays quiet.
+
+    Quiet means below ``max_std_deg``; by default the larger of 0.05° and four times the 5th
+    percentile of the rolling standard deviation (i.e. a few times the estimate's own noise).
+    """
     T = float(np.median(np.diff(time_s)))
     w = max(int(round(window_s / T)), 3)
     s = pd.Series(np.degrees(angle_rad)).rolling(w, center=True, min_periods=w // 2).std().to_numpy()
+    if max_std_deg is None:
+        finite = s[np.isfinite(s)]
+        max_std_deg = max(0.05, 4.0 * float(np.percentile(finite, 5))) if finite.size else 0.05
     quiet = s < max_std_deg
     best = (0, -1)
     k = 0

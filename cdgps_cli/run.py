@@ -145,15 +145,21 @@ def write_run(cfg: StructureConfig, receiver_csv: str | Path, out_path: str | Pa
     }
 
 
-def read_run(path: str | Path) -> Run:
-    """Read a RUN.mcap written by :func:`write_run` (CRCs validated)."""
-    c = read_mcap(path)
+def read_run(path: str | Path, phase: bool = True) -> Run:
+    """Read a RUN.mcap written by :func:`write_run` (CRCs validated).
+
+    With ``phase=False`` only the gyro and actuator topics are decoded (the phase table is empty).
+    """
+    c = read_mcap(path, topics=None if phase else [GYRO_TOPIC, ACTUATOR_TOPIC])
     if CONFIG_ATTACHMENT not in c.attachments:
         raise CdgpsError(f"{path}: no {CONFIG_ATTACHMENT} attachment; is this a RUN.mcap from 'cdgps ingest'?")
-    if PHASE_TOPIC not in c.topics:
+    if phase and PHASE_TOPIC not in c.topics:
         raise CdgpsError(f"{path}: no {PHASE_TOPIC} messages; is this a RUN.mcap from 'cdgps ingest'?")
     cfg = parse_config(c.attachments[CONFIG_ATTACHMENT].decode("utf-8"), f"{path}:{CONFIG_ATTACHMENT}")
-    phase = c.topics[PHASE_TOPIC].table(PHASE_ARRAYS, ["master"])
+    phase = c.topics.get(PHASE_TOPIC, TopicColumns()).table(PHASE_ARRAYS, ["master"])
+    for col in ("receiver", "master", "antenna", "transmitter", "phase_cycles", "lock", "snr_dbhz"):
+        if col not in phase:
+            phase[col] = np.array([], dtype=float)
     phase = phase[["time_s", "receiver", "master", "antenna", "transmitter", "phase_cycles", "lock", "snr_dbhz"]]
     phase["lock"] = phase["lock"].astype(np.int64)
     phase["snr_dbhz"] = phase["snr_dbhz"].astype(float)

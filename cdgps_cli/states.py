@@ -116,8 +116,8 @@ def write_states(res: EstimateResult, run_path: str | Path, init: dict, init_tex
 class States:
     """A STATES.mcap read back: config, times, q, sigma_q, modal state, covariances, events."""
 
-    def __init__(self, path: str | Path, topic: str = STATE_TOPIC):
-        c = read_mcap(path)
+    def __init__(self, path: str | Path, topic: str = STATE_TOPIC, diagnostics: bool = True):
+        c = read_mcap(path, topics=[topic, RESIDUAL_TOPIC, EVENT_TOPIC] if diagnostics else [topic])
         if topic not in c.topics or CONFIG_ATTACHMENT not in c.attachments:
             raise CdgpsError(f"{path}: no {topic} messages or config; is this a STATES.mcap from 'cdgps estimate'?")
         self.path = str(path)
