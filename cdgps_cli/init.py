@@ -49,6 +49,7 @@ class InitOptions:
     start_window_s: float = 10.0        # starts are compared on this first part of the window
     finalists: int = 3                  # best starts continued on the whole window
     fix_validation_probability: float = 0.999  # chi-square test of the cost increase caused by fixing
+    fix_validation_margin: float = 4.0  # … times this margin for model error (e.g. no process noise)
     max_iterations: int = 30
     step_tol_m: float = 1e-5            # convergence: max bias / position step (m)
     cost_rtol: float = 1e-9             # convergence: relative cost change
@@ -440,10 +441,10 @@ def initialize(run: Run, opt: InitOptions | None = None) -> dict:
         dof_f = max(n_obs - n - m, 1)
         scale = max(g.cost / dof_f, 1e-12)
         dJ = (J_final - g.cost) / scale
-        limit = float(chi2.ppf(opt.fix_validation_probability, int(fixed.sum())))
+        limit = opt.fix_validation_margin * float(chi2.ppf(opt.fix_validation_probability, int(fixed.sum())))
         if dJ > limit:
             _say(opt, f"  integer fix rejected by validation: cost increase {dJ:.1f} > {limit:.1f} "
-                      f"(chi-square {opt.fix_validation_probability:g}, {int(fixed.sum())} dof)")
+                      f"(chi-square {opt.fix_validation_probability:g}, {int(fixed.sum())} dof, margin {opt.fix_validation_margin:g})")
             fix_note = (f"integer fix rejected by validation (cost increase {dJ:.1f} > {limit:.1f}); "
                         f"float biases kept")
             fixed[:] = False

@@ -11,13 +11,15 @@ counts epochs since lock (0 = new lock or slip); ``snr_dbhz`` may be empty.
 Gyro log: ``time_s,gyro,rate_rad_s``.  Actuator log: ``time_s,actuator,force_n`` (a thruster's
 commanded force from ``time_s`` until its next row; 0 before its first row).
 
-Files ending in ``.gz`` are read through gzip.  Every reader validates the whole file and raises one :class:`CdgpsError` naming the file, the
+Files ending in ``.gz``, ``.xz`` or ``.bz2`` are decompressed on the fly.  Every reader validates the whole file and raises one :class:`CdgpsError` naming the file, the
 line (1-based, the header is line 1) and the problem, listing at most a few lines per kind of problem.
 """
 
 from __future__ import annotations
 
+import bz2
 import gzip
+import lzma
 from pathlib import Path
 
 import numpy as np
@@ -60,14 +62,14 @@ class _Problems:
 def _read_table(path: str | Path, columns: tuple, numeric: tuple, optional_numeric: tuple = ()) -> tuple[pd.DataFrame, _Problems]:
     p = Path(path)
     probs = _Problems(str(p))
-    opener = gzip.open if p.suffix == ".gz" else open
+    opener = {".gz": gzip.open, ".xz": lzma.open, ".bz2": bz2.open}.get(p.suffix, open)
     try:
         with opener(p, "rb") as fh:
             head = fh.readline().decode("utf-8", errors="replace").strip().lstrip("\ufeff")
     except OSError as exc:
         raise CdgpsError(f"{p}: cannot read: {exc.strerror or exc}") from None
-    except EOFError:
-        raise CdgpsError(f"{p}: truncated gzip file") from None
+    except (EOFError, lzma.LZMAError):
+        raise CdgpsError(f"{p}: truncated or corrupt compressed file") from None
     if not head:
         raise CdgpsError(f"{p}, line 1: empty file; expected the header {','.join(columns)}")
     header = [h.strip() for h in head.split(",")]
@@ -89,7 +91,7 @@ def _read_table(path: str | Path, columns: tuple, numeric: tuple, optional_numer
         raise CdgpsError(f"{p}: malformed CSV: {exc}") from None
     except UnicodeDecodeError:
         raise CdgpsError(f"{p}: not a UTF-8 text file") from None
-    except (EOFError, OSError) as exc:
+    except (EOFError, OSError, lzma.LZMAError) as exc:
         raise CdgpsError(f"{p}: cannot read: {exc}") from None
     df.columns = [c.strip() for c in df.columns]
     if len(df) == 0:

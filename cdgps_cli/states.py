@@ -173,8 +173,12 @@ def evaluate(truth_dir: str | Path, states_path: str | Path, converge_s: float =
     modal positions with its chi-square 95% interval, NIS statistics, convergence time and bias errors.
     """
     truth_dir = Path(truth_dir)
+    csv = truth_dir / "truth.csv"
+    for alt in ("truth.csv.xz", "truth.csv.gz"):
+        if not csv.exists() and (truth_dir / alt).exists():
+            csv = truth_dir / alt
     try:
-        truth = pd.read_csv(truth_dir / "truth.csv")
+        truth = pd.read_csv(csv)
         tj = json.loads((truth_dir / "truth.json").read_text())
     except (OSError, ValueError) as exc:
         raise CdgpsError(f"{truth_dir}: cannot read truth.csv / truth.json: {exc}") from None

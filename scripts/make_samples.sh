@@ -1,19 +1,19 @@
 #!/usr/bin/env bash
 # Regenerate the bundled sample logs in data/ with the simulator (deterministic: fixed seeds,
-# gzip -n).  Usage: scripts/make_samples.sh [path/to/cdgps]
+# xz).  Usage: scripts/make_samples.sh [path/to/cdgps]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 CDGPS=${1:-.venv/bin/cdgps}
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
 "$CDGPS" -q simulate configs/testbed-1998.toml --duration 60 --seed 11 --scenario free --out "$tmp/testbed-free"
-"$CDGPS" -q simulate configs/testbed-1998.toml --duration 100 --seed 12 --scenario static --noise-m 0.002 --out "$tmp/testbed-static"
+"$CDGPS" -q simulate configs/testbed-1998.toml --duration 180 --seed 12 --scenario static --noise-m 0.002 --out "$tmp/testbed-static"
 "$CDGPS" -q simulate configs/teague-1995-2dof.toml --duration 30 --seed 13 --scenario free --out "$tmp/teague-1995"
 for d in testbed-free testbed-static teague-1995; do
   rm -rf "data/$d"; mkdir -p "data/$d"
   for f in "$tmp/$d"/*; do
     case "$f" in
-      *.csv) gzip -9 -n -c "$f" > "data/$d/$(basename "$f").gz" ;;
+      *.csv) xz -9e -c "$f" > "data/$d/$(basename "$f").xz" ;;
       *) cp "$f" "data/$d/" ;;
     esac
   done
