@@ -96,13 +96,37 @@ def load_init_state(init: dict, cfg: StructureConfig) -> tuple[float, np.ndarray
     if x.shape != (n,) or P.shape != (n, n) or not np.all(np.isfinite(P)) or not np.all(np.isfinite(x)):
         raise CdgpsError(f"INIT.json: state: expected x of {n} numbers and P of {n}×{n} finite numbers")
     P = 0.5 * (P + P.T)
+    try:
+        np.linalg.cholesky(P)
+    except np.linalg.LinAlgError:
+        raise CdgpsError("INIT.json: state.P is not positive definite") from None
+    if not isinstance(init["biases"], list):
+        raise CdgpsError("INIT.json: biases: expected a list of objects {antenna, transmitter, bias_m, …}")
     biases = {}
+    problems = []
     for i, b in enumerate(init["biases"]):
+        if not isinstance(b, dict):
+            problems.append(f"biases[{i}]: expected an object")
+            continue
         try:
-            if b.get("current", True):
-                biases[(b["antenna"], b["transmitter"])] = float(b["bias_m"])
+            key = (str(b["antenna"]), str(b["transmitter"]))
+            val = float(b["bias_m"])
         except (KeyError, TypeError, ValueError):
-            raise CdgpsError(f"INIT.json: biases[{i}]: expected antenna, transmitter, bias_m") from None
+            problems.append(f"biases[{i}]: expected antenna, transmitter and a numeric bias_m")
+            continue
+        if key[0] not in cfg.rover_names:
+            problems.append(f"biases[{i}]: antenna {key[0]!r} is not a rover antenna of the config")
+        elif key[1] not in cfg.transmitter_names:
+            problems.append(f"biases[{i}]: transmitter {key[1]!r} is not in the config")
+        elif not np.isfinite(val):
+            problems.append(f"biases[{i}]: bias_m is not finite")
+        elif b.get("current", True):
+            biases[key] = val
+    if problems:
+        raise CdgpsError("INIT.json: " + "; ".join(problems[:10]) + (f" (+{len(problems) - 10} more)" if len(problems) > 10 else ""))
+    sig = init.get("sigma_m")
+    if sig is not None and (isinstance(sig, bool) or not isinstance(sig, (int, float)) or not sig > 0):
+        raise CdgpsError(f"INIT.json: sigma_m: expected a positive number, got {sig!r}")
     return t0, x, P, biases
 
 
@@ -206,6 +230,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     chi2_bound = {}
     fail_run = 0
     k_reinit_block = -1
+    no_link = np.zeros(N, dtype=bool)      # smoother: epoch k is not linked to k+1 (re-init boundary)
     say = opt.progress or (lambda m: None)
     report_every = max(N // 10, 1)
 
@@ -327,7 +352,20 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
             k_new = _reinitialize(run, grid, k, opt, sigma, chans, bias, line, x, P, n, use_bias_states, log)
             fail_run = 0
             if k_new is not None:
-                kk, xr, Pr, new_bias = k_new
+                kk, xr, Pr, new_bias, traj_t, traj_x = k_new
+                # epochs k+1 … kk−1 take the batch solution (smoothed over the re-init window)
+                for j in range(k + 1, kk):
+                    xj = np.zeros(p)
+                    ti = int(np.argmin(np.abs(traj_t - grid[j])))
+                    xj[:n] = traj_x[ti]
+                    if use_bias_states:
+                        xj[n:] = xs[k, n:]
+                    xs[j] = xj
+                    Ps[j] = np.zeros((p, p))
+                    Ps[j][:n, :n] = Pr
+                    if use_bias_states:
+                        Ps[j][n:, n:] = Ps[k][n:, n:]
+                no_link[k:kk] = True
                 for c, b in new_bias.items():
                     bias[c] = b
                     rebias.pop(c, None)
@@ -352,7 +390,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                          nis_dof, events, {chans[c]: (float(xs[-1, n + c]) if use_bias_states else float(bias[c]))
                                            for c in range(C)})
     if opt.smooth:
-        xsm, Psm = rts_smooth(A, Qd, Bu, U_in, xs, Ps, extra_q)
+        xsm, Psm = rts_smooth(A, Qd, Bu, U_in, xs, Ps, extra_q, no_link)
         res.x_filt, res.P_filt = res.x, res.P
         res.x, res.P = xsm[:, :n], Psm[:, :n, :n]
         res.smoothed = True
@@ -379,18 +417,21 @@ def lock_events(Y: np.ndarray, LOCK: np.ndarray) -> np.ndarray:
     return ev
 
 
-def rts_smooth(A, Q, B, U_in, xf, Pf, extra_q=None):
+def rts_smooth(A, Q, B, U_in, xf, Pf, extra_q=None, no_link=None):
     """Rauch–Tung–Striebel smoother over filtered states (N, p) and covariances (N, p, p).
 
     The priors are recomputed from the filtered values (x̄ = A x + B u, P̄ = A P Aᵀ + Q_k) so that
     only the filtered arrays are stored; ``extra_q`` {epoch: [(index, variance)]} adds the
-    variance inflations the filter applied at that epoch.  Returns smoothed states and covariances.
+    variance inflations the filter applied at that epoch; ``no_link[k]`` leaves epoch k as it is
+    (re-initialization boundaries and batch-filled epochs).  Returns smoothed states and covariances.
     """
     extra_q = extra_q or {}
     N = xf.shape[0]
     xs = xf.copy()
     Ps = Pf.copy()
     for k in range(N - 2, -1, -1):
+        if no_link is not None and no_link[k]:
+            continue                      # a re-initialization boundary or batch-filled epoch
         xp = A @ xf[k] + B @ U_in[k]
         Pp = A @ Pf[k] @ A.T + Q
         for i, q in extra_q.get(k + 1, ()):
@@ -414,7 +455,8 @@ def _reinitialize(run, grid, k, opt, sigma, chans, bias, line, x, P, n, use_bias
         log(k, None, "re-initialization", "skipped: not enough data left")
         return None
     try:
-        res = initialize(run, InitOptions(start_s=t0, duration_s=t1 - t0, sigma_m=sigma, starts=8))
+        res, traj = initialize(run, InitOptions(start_s=t0, duration_s=t1 - t0, sigma_m=sigma, starts=8),
+                               return_trajectory=True)
     except CdgpsError as exc:
         log(k, None, "re-initialization", f"failed: {exc}")
         return None
@@ -426,4 +468,4 @@ def _reinitialize(run, grid, k, opt, sigma, chans, bias, line, x, P, n, use_bias
             new_bias[cidx[(b["antenna"], b["transmitter"])]] = b["bias_m"]
     log(kk, None, "re-initialization", f"filter restarted at {grid[kk]:g} s from the batch solution "
         f"({res['n_fixed']} integers fixed)")
-    return kk, np.asarray(res["state"]["x"]), np.asarray(res["state"]["P"]), new_bias
+    return kk, np.asarray(res["state"]["x"]), np.asarray(res["state"]["P"]), new_bias, traj["time_s"], traj["x"]

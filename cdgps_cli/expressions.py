@@ -39,7 +39,8 @@ def parse_expression(text: str, names: list[str] | tuple[str, ...]) -> np.ndarra
             break
         m = _TOKEN.match(text, pos)
         if not m or m.end() == pos:
-            raise CdgpsError(f"angle expression {text!r}: unexpected character {text[pos:].strip()[0]!r} at position {pos + 1}; "
+            at = pos + len(text[pos:]) - len(text[pos:].lstrip())
+            raise CdgpsError(f"angle expression {text!r}: unexpected character {text[at]!r} at position {at + 1}; "
                              f"expected coordinate names joined by + or -, optionally scaled as 0.5*q2")
         kind = m.lastgroup
         tokens.append((kind, m.group(kind), m.start(kind)))
@@ -62,6 +63,8 @@ def parse_expression(text: str, names: list[str] | tuple[str, ...]) -> np.ndarra
                 if i + 2 >= len(tokens) or tokens[i + 1][:2] != ("op", "*") or tokens[i + 2][0] != "name":
                     raise CdgpsError(f"angle expression {text!r}: a number must be followed by '*' and a name (position {at + 1})")
                 scale = float(val)
+                if not np.isfinite(scale):
+                    raise CdgpsError(f"angle expression {text!r}: coefficient {val!r} is not a finite number (position {at + 1})")
                 i += 2
                 kind, val, at = tokens[i]
             if kind != "name":

@@ -324,10 +324,11 @@ def _start_guesses(cfg: StructureConfig, n_starts: int) -> list[tuple[str, np.nd
     return starts
 
 
-def initialize(run: Run, opt: InitOptions | None = None) -> dict:
+def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool = False):
     """Estimate channel biases and the filter's initial state from a window of a RUN.
 
-    Returns the INIT.json dictionary (see the README).  Raises :class:`CdgpsError` when the window
+    Returns the INIT.json dictionary (see the README); with ``return_trajectory`` also
+    ``{"time_s", "x"}``, the smoothed batch trajectory over the window.  Raises :class:`CdgpsError` when the window
     does not make the biases observable or Gauss–Newton does not converge.
     """
     opt = opt or InitOptions()
@@ -484,7 +485,7 @@ def initialize(run: Run, opt: InitOptions | None = None) -> dict:
     q_end = U @ x_end[:nm]
     elapsed = _time.perf_counter() - t_start
     dof = max(int(np.isfinite(resid).sum()) - n - int(prob_final.free.size), 1)
-    return {
+    out = {
         "format": "cdgps.init/1",
         "config": cfg.name,
         "config_sha256": cfg.sha256,
@@ -514,6 +515,9 @@ def initialize(run: Run, opt: InitOptions | None = None) -> dict:
         "options": opt.echo(),
         "elapsed_s": elapsed,
     }
+    if return_trajectory:
+        return out, {"time_s": wd.time_s, "x": x_traj}
+    return out
 
 
 def _unobservable_msg(t0, t1, motion, sigma, bias_sigma, lam, opt, motion_only=False) -> str:

@@ -176,6 +176,7 @@ class TopicColumns:
 
     def add(self, msg: dict) -> None:
         n = None
+        count = len(self.counts)
         for k, v in msg.items():
             if isinstance(v, list):
                 if v and isinstance(v[0], str):
@@ -183,7 +184,13 @@ class TopicColumns:
                 self.arrays.setdefault(k, []).extend(v)
                 n = len(v) if n is None else n
             elif k != "timestamp":
-                self.scalars.setdefault(k, []).append(v)
+                col = self.scalars.get(k)
+                if col is None:
+                    col = self.scalars[k] = [None] * count      # a key first seen now: backfill
+                col.append(v)
+        for k, col in self.scalars.items():
+            if len(col) == count:                             # a key this message lacks
+                col.append(None)
         self.counts.append(0 if n is None else n)
 
     def __len__(self) -> int:

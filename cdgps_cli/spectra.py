@@ -86,11 +86,13 @@ def mac(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def _parabolic(f: np.ndarray, y: np.ndarray, i: int) -> float:
-    if 0 < i < len(y) - 1:
+    """Peak location refined by a parabola through log y at i−1, i, i+1 (only at a local maximum,
+    and never by more than half a bin)."""
+    if 0 < i < len(y) - 1 and y[i] >= y[i - 1] and y[i] >= y[i + 1] and min(y[i - 1], y[i], y[i + 1]) > 0:
         a, b, c = np.log(y[i - 1]), np.log(y[i]), np.log(y[i + 1])
         den = a - 2 * b + c
         if den < 0:
-            d = 0.5 * (a - c) / den
+            d = float(np.clip(0.5 * (a - c) / den, -0.5, 0.5))
             return float(f[i] + d * (f[1] - f[0]))
     return float(f[i])
 
@@ -229,9 +231,16 @@ def compute_spectra(cfg: StructureConfig, time_s: np.ndarray, q: np.ndarray,
     if N < 16:
         raise CdgpsError(f"only {N} epochs: too short for spectra")
     dt = np.diff(time_s)
+    if np.any(dt <= 0):
+        k = int(np.flatnonzero(dt <= 0)[0])
+        raise CdgpsError(f"state epochs are not increasing (at {time_s[k]:g} s → {time_s[k + 1]:g} s)")
     T = float(np.median(dt))
     if np.any(np.abs(dt - T) > 1e-6 * max(T, 1)):
         raise CdgpsError("state epochs are not regularly spaced; spectra need a regular grid")
+    bad = ~np.isfinite(np.asarray(q, dtype=float))
+    if bad.any():
+        k, j = np.argwhere(bad)[0]
+        raise CdgpsError(f"the estimate has a non-finite value ({names[j]} at {time_s[k]:g} s); spectra need finite data")
     fs = 1.0 / T
     duration = N * T
     seg_s = opt.segment_s or min(duration / 4.0, 600.0)
@@ -293,7 +302,10 @@ def compute_spectra(cfg: StructureConfig, time_s: np.ndarray, q: np.ndarray,
                        nfft=nfj, detrend="constant")
         res_j = 1.44 * fs / npj
         half = max(4 * bw_model, 4 * res_j, fm * opt.band_pct / 100)
-        f_fit, z_fit, f_sig = sdof_fit(fj, pj, fm, zeta_model, half, correlated_bins=opt.pad, with_sigma=True)
+        # the fit's formal sigma treats bins as independent; zero padding (pad) and the Hann window
+        # correlate neighbours and the log-periodogram is not Gaussian: the factor 7·pad was
+        # calibrated on 12 seeds × 8 modes of the testbed (normalized error RMS 2.6 → 1.0)
+        f_fit, z_fit, f_sig = sdof_fit(fj, pj, fm, zeta_model, half, correlated_bins=7 * opt.pad, with_sigma=True)
         # 2. FDD: singular-value peak in the band whose vector matches the model shape
         band = (f >= fm * (1 - opt.band_pct / 100)) & (f <= fm * (1 + opt.band_pct / 100))
         best = None
@@ -319,7 +331,8 @@ def compute_spectra(cfg: StructureConfig, time_s: np.ndarray, q: np.ndarray,
         if gy is not None:
             U_full = np.asarray(cfg.mode_shapes)[:, j]
             weights = np.abs(gy["G"] @ U_full)
-            if weights.max() > 0:
+            visible = np.linalg.norm(gy["G"], axis=1) * np.linalg.norm(U_full) * 1e-6
+            if np.any(weights > visible):
                 g = int(np.argmax(weights))
                 gname = gy["names"][g]
                 center = entry["gps_hz"] or fm
