@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
+from scipy.linalg.lapack import dpotrf, dpotri
 from scipy.stats import chi2
 
 from .config import StructureConfig
@@ -69,9 +70,24 @@ class EstimateResult:
     smoothed: bool = False
 
 
+_MASKS: dict = {}
+
+
 def _chol_inv(M: np.ndarray) -> np.ndarray:
-    c = cho_factor(M, lower=False, check_finite=False)
-    return cho_solve(c, np.eye(M.shape[0]), check_finite=False)
+    """Inverse of a symmetric positive definite matrix by Cholesky (LAPACK dpotrf/dpotri).
+
+    Raises numpy.linalg.LinAlgError when M is not positive definite.  Returns a symmetric matrix.
+    """
+    c, info = dpotrf(M, lower=0, clean=0)
+    if info != 0:
+        raise np.linalg.LinAlgError("matrix is not positive definite")
+    inv, info = dpotri(c, lower=0)
+    if info != 0:
+        raise np.linalg.LinAlgError("matrix is singular")
+    masks = _MASKS.get(M.shape[0])
+    if masks is None:
+        masks = _MASKS[M.shape[0]] = (np.triu(np.ones(M.shape)), np.triu(np.ones(M.shape), 1))
+    return inv * masks[0] + (inv * masks[1]).T
 
 
 def load_init_state(init: dict, cfg: StructureConfig) -> tuple[float, np.ndarray, np.ndarray, dict]:
@@ -157,7 +173,8 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     n = cfg.n_states
 
     # epoch grid from INIT time to the end
-    ph = run.phase[run.phase["time_s"] >= t0 - 1e-9]
+    keep = run.phase["time_s"].to_numpy() >= t0 - 1e-9
+    ph = run.phase if keep.all() else run.phase[keep]
     if len(ph) == 0:
         raise CdgpsError(f"{run.path}: no phase data after INIT's state time {t0:g} s")
     t_end = float(ph["time_s"].max())
@@ -302,16 +319,17 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                 log(k, c, "bias re-estimated", action)
         idx = np.flatnonzero(usable)
         if idx.size:
-            H = np.zeros((idx.size, p))
-            H[:, :n] = Hx[idx]
             if use_bias_states:
+                H = np.zeros((idx.size, p))
+                H[:, :n] = Hx[idx]
                 H[np.arange(idx.size), n + idx] = 1.0
                 b_used = x[n + idx]
             else:
+                H = Hx[idx]
                 b_used = bias[idx]
             rho = y[idx] - h[idx] - b_used
             # per-channel outlier test on the innovation
-            S_diag = np.einsum("ij,jk,ik->i", H, P, H) + sigma**2
+            S_diag = np.sum((H @ P) * H, axis=1) + sigma**2
             z = rho / np.sqrt(S_diag)
             out = np.flatnonzero(np.abs(z) > opt.outlier_sigma)
             if out.size and out.size < idx.size // 2 + 1:
@@ -320,7 +338,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                     drop_bias(k, int(idx[j]), "innovation outlier")
                     events[-1]["normalized_innovation"] = float(z[j])
                 if use_bias_states:
-                    S_diag = np.einsum("ij,jk,ik->i", H, P, H) + sigma**2
+                    S_diag = np.sum((H @ P) * H, axis=1) + sigma**2
                 else:
                     keep = np.setdiff1d(np.arange(idx.size), worst)
                     idx, H, rho = idx[keep], H[keep], rho[keep]
@@ -331,7 +349,6 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                     Pn = _chol_inv(Y_info)
                 except np.linalg.LinAlgError:
                     raise CdgpsError(f"filter covariance lost positive definiteness at {grid[k]:g} s") from None
-                Pn = 0.5 * (Pn + Pn.T)
                 g = inv_r * (H.T @ rho)
                 # NIS = ρᵀ S⁻¹ ρ with S⁻¹ = R⁻¹ − R⁻¹ H P Hᵀ R⁻¹ (Woodbury)
                 nis[k] = float(inv_r * rho @ rho - g @ Pn @ g)
@@ -386,13 +403,16 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
             say(f"  filter {100 * k / N:3.0f}%")
         k += 1
 
-    res = EstimateResult(cfg, grid, xs[:, :n].copy(), Ps[:, :n, :n].copy(), None, None, chans, resid, nis,
+    res = EstimateResult(cfg, grid, xs[:, :n] if p == n else xs[:, :n].copy(),
+                         Ps if p == n else Ps[:, :n, :n].copy(), None, None, chans, resid, nis,
                          nis_dof, events, {chans[c]: (float(xs[-1, n + c]) if use_bias_states else float(bias[c]))
                                            for c in range(C)})
     if opt.smooth:
         xsm, Psm = rts_smooth(A, Qd, Bu, U_in, xs, Ps, extra_q, no_link)
         res.x_filt, res.P_filt = res.x, res.P
-        res.x, res.P = xsm[:, :n], Psm[:, :n, :n]
+        res.x = xsm[:, :n] if p == n else xsm[:, :n].copy()
+        res.P = Psm if p == n else Psm[:, :n, :n].copy()
+        del xsm, Psm
         res.smoothed = True
     return res
 

@@ -206,53 +206,60 @@ class EpochGeometry:
         self.rj_q = np.array([p[2] for p in pairs], dtype=int)
         self.rigid = cfg.rigid_index
         self.origin = np.asarray(cfg.body_origin_m)
+        self.has_D = bool(np.any(self.D))
+        self.all_on_section = bool(np.all(self.on_section))
+        self.rj_sec = self.sec[self.rj_a] if self.rj_a.size else self.rj_a
+        self.rel_rj = self.rel[self.rj_a][:, :, None] if self.rj_a.size else None
+        self.rel_col = self.rel[:, :, None]
         self.nq = nq
         self.A = A
 
+    # templates: an elementary rotation about axis a is T0[a] + cos·Tc[a] + sin·Ts[a] (3×3)
+    _T0 = np.zeros((3, 3, 3))
+    _Tc = np.zeros((3, 3, 3))
+    _Ts = np.zeros((3, 3, 3))
+    for _a, (_i, _j) in enumerate([(1, 2), (2, 0), (0, 1)]):
+        _T0[_a, _a, _a] = 1.0
+        _Tc[_a, _i, _i] = _Tc[_a, _j, _j] = 1.0
+        _Ts[_a, _i, _j] = -1.0
+        _Ts[_a, _j, _i] = 1.0
+
     def _section_rotations(self, q):
         ang = np.where(self.rot_mask, q[self.rot_take], 0.0)              # (S, 3) θx, θy, θz
-        c, s = np.cos(ang), np.sin(ang)
-        S = ang.shape[0]
-        Rx = np.zeros((S, 3, 3)); Ry = np.zeros((S, 3, 3)); Rz = np.zeros((S, 3, 3))
-        dRx = np.zeros((S, 3, 3)); dRy = np.zeros((S, 3, 3)); dRz = np.zeros((S, 3, 3))
-        cx, cy, cz = c[:, 0], c[:, 1], c[:, 2]
-        sx, sy, sz = s[:, 0], s[:, 1], s[:, 2]
-        Rx[:, 0, 0] = 1; Rx[:, 1, 1] = cx; Rx[:, 1, 2] = -sx; Rx[:, 2, 1] = sx; Rx[:, 2, 2] = cx
-        Ry[:, 1, 1] = 1; Ry[:, 0, 0] = cy; Ry[:, 0, 2] = sy; Ry[:, 2, 0] = -sy; Ry[:, 2, 2] = cy
-        Rz[:, 2, 2] = 1; Rz[:, 0, 0] = cz; Rz[:, 0, 1] = -sz; Rz[:, 1, 0] = sz; Rz[:, 1, 1] = cz
-        dRx[:, 1, 1] = -sx; dRx[:, 1, 2] = -cx; dRx[:, 2, 1] = cx; dRx[:, 2, 2] = -sx
-        dRy[:, 0, 0] = -sy; dRy[:, 0, 2] = cy; dRy[:, 2, 0] = -cy; dRy[:, 2, 2] = -sy
-        dRz[:, 0, 0] = -sz; dRz[:, 0, 1] = -cz; dRz[:, 1, 0] = cz; dRz[:, 1, 1] = -sz
+        c = np.cos(ang)[..., None, None]
+        s = np.sin(ang)[..., None, None]
+        E = self._T0 + c * self._Tc + s * self._Ts                        # (S, 3, 3, 3) Rx, Ry, Rz
+        dE = c * self._Ts - s * self._Tc                                  # their derivatives
+        Rx, Ry, Rz = E[:, 0], E[:, 1], E[:, 2]
         RzRy = Rz @ Ry
         R = RzRy @ Rx
-        dR = np.stack([RzRy @ dRx, Rz @ dRy @ Rx, dRz @ Ry @ Rx], axis=1)  # (S, 3 axes, 3, 3)
+        dR = np.stack([RzRy @ dE[:, 0], Rz @ dE[:, 1] @ Rx, dE[:, 2] @ Ry @ Rx], axis=1)  # (S, 3, 3, 3)
         return R, dR
 
     def positions(self, q: np.ndarray, jacobian: bool = True):
         """Antenna positions (A, 3) in the lab frame and Jacobians (A, 3, n_q) for one q (n_q,)."""
         q = np.asarray(q, dtype=float)
-        local = self.pivot + self.D @ q if self.D.size else self.pivot.copy()
+        local = self.pivot + self.D @ q if self.has_D else self.pivot
         J = self.J_const.copy() if jacobian else None
         if len(self.cfg.sections):
             R, dR = self._section_rotations(q)
-            Ra = R[self.sec]                                            # (A, 3, 3)
-            rot = np.einsum("aij,aj->ai", Ra, self.rel)
-            local = local + np.where(self.on_section[:, None], rot - self.rel, 0.0) + self.rel
+            rot = (R[self.sec] @ self.rel_col)[:, :, 0]                     # (A, 3)
+            local = local + (rot if self.all_on_section else np.where(self.on_section[:, None], rot, self.rel))
             if self.trans:
-                np.add.at(local, (self.trans_a, self.trans_ax), q[self.trans_j])
+                local[self.trans_a, self.trans_ax] += q[self.trans_j]        # (antenna, axis) pairs are unique
             if jacobian and self.rj_a.size:
-                cols = np.einsum("kij,kj->ki", dR[self.sec[self.rj_a], self.rj_axis], self.rel[self.rj_a])
-                np.add.at(J, (self.rj_a, slice(None), self.rj_q), cols)
+                cols = (dR[self.rj_sec, self.rj_axis] @ self.rel_rj)[:, :, 0]
+                J[self.rj_a, :, self.rj_q] += cols                           # (antenna, coordinate) pairs are unique
         else:
             local = local + self.rel
         if self.rigid is not None:
-            psi = q[self.rigid]
+            psi = float(q[self.rigid])
             c, s = np.cos(psi), np.sin(psi)
             Rb = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-            dRb = np.array([[-s, -c, 0.0], [c, -s, 0.0], [0.0, 0.0, 0.0]])
             p = local @ Rb.T + self.origin
             if jacobian:
-                J = np.einsum("ij,ajq->aiq", Rb, J)
+                J = np.matmul(Rb, J)                                         # (3,3) @ (A,3,nq)
+                dRb = np.array([[-s, -c, 0.0], [c, -s, 0.0], [0.0, 0.0, 0.0]])
                 J[:, :, self.rigid] += local @ dRb.T
         else:
             p = local + self.origin

@@ -165,13 +165,15 @@ class McapOut:
 class TopicColumns:
     """Messages of one topic accumulated column-wise while reading (memory-lean).
 
-    ``scalars[name]`` holds one value per message; ``arrays[name]`` the concatenation of the
-    per-message arrays; ``counts`` the array length of each message.  Strings are interned.
+    ``scalars[name]`` holds one value per message (None where a message lacks the key);
+    array fields are kept as numpy chunks — strings as integer codes into a per-field vocabulary —
+    and concatenated on demand by :meth:`column`; ``counts`` is the array length of each message.
     """
 
     def __init__(self):
         self.scalars: dict[str, list] = {}
-        self.arrays: dict[str, list] = {}
+        self._chunks: dict[str, list] = {}
+        self._vocab: dict[str, dict] = {}
         self.counts: list[int] = []
 
     def add(self, msg: dict) -> None:
@@ -179,10 +181,15 @@ class TopicColumns:
         count = len(self.counts)
         for k, v in msg.items():
             if isinstance(v, list):
-                if v and isinstance(v[0], str):
-                    v = [sys.intern(e) for e in v]
-                self.arrays.setdefault(k, []).extend(v)
                 n = len(v) if n is None else n
+                if not v:
+                    continue
+                if isinstance(v[0], str):
+                    vocab = self._vocab.setdefault(k, {})
+                    arr = np.fromiter((vocab.setdefault(e, len(vocab)) for e in v), dtype=np.int32, count=len(v))
+                else:
+                    arr = np.array(v, dtype=float)            # None → NaN
+                self._chunks.setdefault(k, []).append(arr)
             elif k != "timestamp":
                 col = self.scalars.get(k)
                 if col is None:
@@ -199,6 +206,19 @@ class TopicColumns:
     def times(self) -> np.ndarray:
         return np.asarray(self.scalars.get("time_s", []), dtype=float)
 
+    def column(self, name: str) -> np.ndarray:
+        """Concatenation of an array field over all messages (object array for strings)."""
+        chunks = self._chunks.get(name)
+        if not chunks:
+            return np.array([], dtype=float)
+        flat = np.concatenate(chunks)
+        if name in self._vocab:
+            words = np.empty(len(self._vocab[name]), dtype=object)
+            for w, i in self._vocab[name].items():
+                words[i] = w
+            return words[flat]
+        return flat
+
     def table(self, array_columns: list[str], scalar_columns: list[str] = ()) -> pd.DataFrame:
         """Long table: one row per array element, scalars repeated (inverse of write_table)."""
         counts = np.asarray(self.counts, dtype=np.int64)
@@ -206,10 +226,7 @@ class TopicColumns:
         for c in scalar_columns:
             out[c] = np.repeat(np.array(self.scalars.get(c, []), dtype=object), counts)
         for c in array_columns:
-            flat = self.arrays.get(c, [])
-            if flat and any(v is None for v in flat):
-                flat = [np.nan if v is None else v for v in flat]
-            out[c] = np.array(flat) if flat else np.array([], dtype=float)
+            out[c] = self.column(c)
         return pd.DataFrame(out)
 
 

@@ -113,19 +113,20 @@ class EpochPhaseModel:
         q = self.U @ x[:nm]
         p, J = self.geo.positions(q)
         pa = p[self.ant]
+        Ja = J[self.ant]                                                    # (C, 3, nq)
         if self.far:
             s = self.tpos
-            h = -np.einsum("ci,ci->c", s, pa - p[self.m])
-            dq = -np.einsum("ci,ciq->cq", s, J[self.ant] - J[self.m])
+            h = -np.sum(s * (pa - p[self.m]), axis=1)
+            dq = -(s[:, None, :] @ (Ja - J[self.m]))[:, 0, :]
         else:
             va = self.tpos - pa
             vm = self.tpos - p[self.m]
-            da = np.sqrt(np.einsum("ci,ci->c", va, va))
-            dm = np.sqrt(np.einsum("ci,ci->c", vm, vm))
+            da = np.sqrt(np.sum(va * va, axis=1))
+            dm = np.sqrt(np.sum(vm * vm, axis=1))
             h = da - dm
             ua = va / da[:, None]
             um = vm / dm[:, None]
-            dq = um @ J[self.m] - np.einsum("ci,ciq->cq", ua, J[self.ant])
+            dq = um @ J[self.m] - (ua[:, None, :] @ Ja)[:, 0, :]
         H = np.zeros((len(h), 2 * nm))
         H[:, :nm] = dq @ self.U
         return h, H

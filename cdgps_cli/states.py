@@ -131,8 +131,8 @@ class States:
         self.sigma_q = np.array([[m[n] for n in names] for m in ss], dtype=float)
         nm = self.cfg.n_modes
         N = len(self.time_s)
-        self.xi = np.asarray(tc.arrays["xi"], dtype=float).reshape(N, nm)
-        self.P_xi = np.asarray(tc.arrays["P_xi"], dtype=float).reshape(N, nm, nm)
+        self.xi = tc.column("xi").reshape(N, nm)
+        self.P_xi = tc.column("P_xi").reshape(N, nm, nm)
         self.metadata = c.metadata.get(ESTIMATE_METADATA, {})
         res = c.topics.get(RESIDUAL_TOPIC)
         self.nis = np.array([np.nan if v is None else v for v in res.scalars["nis"]], dtype=float) if res else None
