@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 CDGPS  := $(VENV)/bin/cdgps
 DEMO   := build/demo
 
-.PHONY: demo test venv clean bench
+.PHONY: demo test venv clean bench studies
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -22,7 +22,18 @@ demo: venv
 	bash scripts/demo.sh $(CDGPS) $(DEMO)
 
 bench: venv
+	$(PY) -m pip install --quiet -e '.[bench]'
 	$(PY) benchmarks/bench_foundation.py
+	$(PY) benchmarks/bench_init.py
+	$(PY) benchmarks/bench_estimate.py
+	$(PY) benchmarks/bench_spectra.py
+
+# long studies (tens of minutes on 2 cores): integer-fix success table, accuracy reports
+studies: venv
+	$(PY) -m pip install --quiet -e '.[bench]'
+	$(PY) benchmarks/init_success.py
+	$(PY) benchmarks/estimate_accuracy.py
+	$(PY) benchmarks/oma_crosscheck.py
 
 clean:
 	rm -rf build $(VENV)
