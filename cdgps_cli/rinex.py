@@ -63,7 +63,6 @@ OBS_COLUMNS = (
 # GPS L1 tracking modes in order of preference (RINEX 3 attribute letters): C/A first, since the
 # project's receivers track C/A; then the semi-codeless P(Y) variants and the L1C signal.
 _L1_ATTRIBUTES = "CWPYXSLMN"
-_MAX_SHOWN = 5
 
 
 # ----------------------------------------------------------------------------------------------

@@ -51,7 +51,6 @@ UBX_OBS_COLUMNS = (
 
 _SYNC = b"\xb5\x62"
 _RAWX = (0x02, 0x15)
-_RAW_LEGACY = (0x02, 0x10)
 _GNSS = {0: "GPS", 1: "SBAS", 2: "Galileo", 3: "BeiDou", 4: "IMES", 5: "QZSS", 6: "GLONASS", 7: "NavIC"}
 _MAX_SHOWN = 5
 
