@@ -109,18 +109,9 @@ def ingest(ctx, receiver_csv, gyro_csv, actuator_csv, config, output, as_json):
 
 
 def _write_json_atomic(path: str, data: dict) -> None:
-    import os
-    p = Path(path)
-    tmp = p.with_name(f".{p.name}.tmp{os.getpid()}")
-    try:
-        p.parent.mkdir(parents=True, exist_ok=True)
-        tmp.write_text(json.dumps(data, indent=2) + "\n")
-        os.replace(tmp, p)
-    except OSError as exc:
-        raise CdgpsError(f"{p}: cannot write: {exc.strerror}") from None
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    from .atomic import write_bytes_atomic
+
+    write_bytes_atomic(path, (json.dumps(data, indent=2) + "\n").encode())
 
 
 @main.command("init")

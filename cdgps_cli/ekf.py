@@ -161,11 +161,13 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     EstimateResult
     """
     opt = opt or EstimateOptions()
+    if opt.sigma_m is not None and not (np.isfinite(opt.sigma_m) and opt.sigma_m > 0):
+        raise CdgpsError(f"--sigma-m must be a positive number of metres, got {opt.sigma_m!r}")
     if opt.biases not in ("fixed", "states"):
         raise CdgpsError(f"--biases: expected fixed or states, got {opt.biases!r}")
     cfg = run.cfg
     t0, x0, P0, init_bias = load_init_state(init, cfg)
-    sigma = opt.sigma_m or float(init.get("sigma_m") or cfg.measurement_sigma_m)
+    sigma = opt.sigma_m if opt.sigma_m is not None else float(init.get("sigma_m") or cfg.measurement_sigma_m)
     model = discrete_model(cfg)
     T = cfg.sample_period_s
     lam = cfg.wavelength_m

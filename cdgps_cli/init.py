@@ -334,7 +334,9 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
     opt = opt or InitOptions()
     cfg = run.cfg
     t_start = _time.perf_counter()
-    sigma = opt.sigma_m or cfg.measurement_sigma_m
+    if opt.sigma_m is not None and not (np.isfinite(opt.sigma_m) and opt.sigma_m > 0):
+        raise CdgpsError(f"--sigma-m must be a positive number of metres, got {opt.sigma_m!r}")
+    sigma = opt.sigma_m if opt.sigma_m is not None else cfg.measurement_sigma_m
     if opt.ratio_threshold <= 1.0:
         raise CdgpsError(f"--ratio must be greater than 1, got {opt.ratio_threshold:g}")
     if opt.starts < 1 or opt.max_iterations < 1:

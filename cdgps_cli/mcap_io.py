@@ -28,6 +28,7 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
+from .atomic import temporary_name
 from .errors import CdgpsError
 
 PHASE_TOPIC = "/cdgps/phase"
@@ -85,7 +86,7 @@ class McapOut:
 
     def __init__(self, path: str | Path, profile: str = "cdgps"):
         self.path = Path(path)
-        self.tmp = self.path.with_name(f".{self.path.name}.tmp{os.getpid()}")
+        self.tmp = temporary_name(self.path)
         self.profile = profile
         self._schemas: dict[str, int] = {}
         self._seq: dict[int, int] = {}

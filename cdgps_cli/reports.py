@@ -10,12 +10,12 @@ import base64
 import html
 import io
 import json
-import os
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from .atomic import write_atomic, write_bytes_atomic
 from .errors import CdgpsError
 from .expressions import parse_expression
 from .kinematics import gyro_matrix
@@ -33,14 +33,7 @@ def _mpl():
     return plt
 
 
-def _atomic_bytes(path: Path, data: bytes) -> None:
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    try:
-        tmp.write_bytes(data)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+_atomic_bytes = write_bytes_atomic
 
 
 def _save_fig(fig, path: Path) -> bytes:
@@ -111,13 +104,7 @@ def run_spectra(states, run, opt: SpectraOptions, out_dir: str | Path) -> dict:
         df[col] = v
     for i in range(res["fdd_sv"].shape[1]):
         df[f"fdd_singular_value_{i + 1}"] = res["fdd_sv"][:, i]
-    tmp = out / f".psd.csv.tmp{os.getpid()}"
-    try:
-        df.to_csv(tmp, index=False, lineterminator="\n", float_format="%.9g")
-        os.replace(tmp, out / "psd.csv")
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    write_atomic(out / "psd.csv", lambda p: df.to_csv(p, index=False, lineterminator="\n", float_format="%.9g"))
     peaks = _json_clean({"modes": res["modes"], "settings": res["settings"], "states": str(states.path),
                          "config": cfg.name, "config_sha256": cfg.sha256, "gyros": gnames})
     _atomic_bytes(out / "peaks.json", (json.dumps(peaks, indent=2) + "\n").encode())

@@ -27,7 +27,6 @@ removes rows and re-acquires with a new integer.  Gyros read G·q̇ + bias + dri
 from __future__ import annotations
 
 import json
-import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,6 +37,7 @@ from scipy.signal import lfilter
 
 from .config import StructureConfig
 from .dynamics import discrete_model
+from .atomic import write_atomic
 from .errors import CdgpsError
 from .kinematics import gyro_matrix
 from .measurement import all_channels, phase_model_q
@@ -350,14 +350,7 @@ def _gyro_log(cfg, rng, time_s, qdot):
     return df, info
 
 
-def _write_atomic(path: Path, writer) -> None:
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    try:
-        writer(tmp)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+_write_atomic = write_atomic
 
 
 def write_simulation(result: Simulation, out_dir: str | Path) -> dict:

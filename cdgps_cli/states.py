@@ -26,6 +26,7 @@ from scipy.stats import chi2
 from . import __version__
 from .config import StructureConfig, parse_config
 from .ekf import EstimateResult
+from .atomic import write_atomic
 from .errors import CdgpsError
 from .mcap_io import CONFIG_ATTACHMENT, McapOut, array_schema, read_mcap
 
@@ -146,7 +147,6 @@ class States:
 
 def export_csv(states_path: str | Path, out_csv: str | Path) -> dict:
     """Write time_s, one column per coordinate and sigma_<name> for each (lines up with truth.csv)."""
-    import os
     st = States(states_path)
     names = list(st.cfg.coord_names)
     df = pd.DataFrame(st.q, columns=names)
@@ -154,15 +154,7 @@ def export_csv(states_path: str | Path, out_csv: str | Path) -> dict:
         df["sigma_" + n] = st.sigma_q[:, i]
     df.insert(0, "time_s", np.round(st.time_s, 9))
     out = Path(out_csv)
-    tmp = out.with_name(f".{out.name}.tmp{os.getpid()}")
-    try:
-        df.to_csv(tmp, index=False, lineterminator="\n")
-        os.replace(tmp, out)
-    except OSError as exc:
-        raise CdgpsError(f"{out}: cannot write: {exc.strerror}") from None
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    write_atomic(out, lambda p: df.to_csv(p, index=False, lineterminator="\n"))
     return {"output": str(out), "rows": int(len(df)), "columns": list(df.columns)}
 
 

@@ -1,0 +1,44 @@
+"""Atomic file output: write under a temporary name in the target directory, rename when complete.
+
+A failed or interrupted command therefore never leaves a half-written output behind, and an
+existing file is replaced only by a complete new one.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Callable
+
+from .errors import CdgpsError
+
+
+def temporary_name(path: Path) -> Path:
+    """The hidden temporary sibling used while ``path`` is being written."""
+    return path.with_name(f".{path.name}.tmp{os.getpid()}")
+
+
+def write_atomic(path: str | Path, writer: Callable[[Path], None]) -> None:
+    """Call ``writer(tmp_path)``, then rename the temporary file to ``path``.
+
+    Raises
+    ------
+    CdgpsError
+        If the directory cannot be created or the file cannot be written.
+    """
+    path = Path(path)
+    tmp = temporary_name(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        writer(tmp)
+        os.replace(tmp, path)
+    except OSError as exc:
+        raise CdgpsError(f"{path}: cannot write: {exc.strerror or exc}") from None
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def write_bytes_atomic(path: str | Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically."""
+    write_atomic(path, lambda p: p.write_bytes(data))
