@@ -386,5 +386,120 @@ def info(ctx, mcap_file, as_json):
     click.echo("\n".join(out))
 
 
+# ----------------------------------------------------------------------------------------------
+# static baseline from real receiver logs (RINEX + broadcast ephemeris): docs/geonet.md
+
+
+def _parse_stations(items) -> dict:
+    out = {}
+    for it in items:
+        name, sep, path = it.partition("=")
+        if not sep or not name.strip() or not path.strip():
+            raise CdgpsError(f"--rinex expects NAME=PATH (e.g. 3040=30400920.05o), got {it!r}")
+        if name.strip() in out:
+            raise CdgpsError(f"--rinex: station {name.strip()!r} given twice")
+        out[name.strip()] = path.strip()
+    return out
+
+
+def _write_text_atomic(path: str, text: str) -> None:
+    import os
+    p = Path(path)
+    tmp = p.with_name(f".{p.name}.tmp{os.getpid()}")
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        tmp.write_text(text)
+        os.replace(tmp, p)
+    except OSError as exc:
+        raise CdgpsError(f"{p}: cannot write: {exc.strerror}") from None
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+@main.command("baseline")
+@click.option("--config", "job", type=click.Path(dir_okay=False), default=None,
+              help="Baseline job TOML (files, master, options; see docs/geonet.md). Options below override it.")
+@click.option("--rinex", "rinex", multiple=True, metavar="NAME=PATH", help="RINEX observation file of a station (give two).")
+@click.option("--nav", "nav", multiple=True, type=click.Path(dir_okay=False), help="RINEX GPS navigation file (repeatable).")
+@click.option("--master", default=None, help="Station held at its RINEX header position (the reference).")
+@click.option("--mask-deg", type=float, default=None, help="Elevation mask, degrees [15].")
+@click.option("--ratio", "ratio_threshold", type=float, default=None, help="LAMBDA ratio-test threshold [3].")
+@click.option("--weighting", type=click.Choice(["elevation", "equal"]), default=None,
+              help="Phase weights: a²+b²/sin²(el) or equal [elevation].")
+@click.option("--no-partial", is_flag=True, help="Do not try partial fixing when the full set fails the ratio test.")
+@click.option("--float-only", is_flag=True, help="Do not fix integers (float solution only).")
+@click.option("--no-troposphere", is_flag=True, help="No a priori hydrostatic troposphere.")
+@click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="Result JSON to write.")
+@click.option("--json", "as_json", is_flag=True, help="Also print the result JSON on stdout.")
+@click.pass_context
+def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, weighting, no_partial, float_only,
+                 no_troposphere, output, as_json):
+    """Static baseline from two receivers' RINEX L1 phase: float, LAMBDA integers, fixed → JSON."""
+    import dataclasses
+
+    from .baseline import BaselineOptions, baseline_from_files, format_summary, json_safe, load_baseline_job
+
+    if job:
+        cfg = load_baseline_job(job)
+        stations, navs, mst, opt = cfg["rinex"], cfg["nav"], cfg["master"], cfg["options"]
+    else:
+        stations, navs, mst, opt = {}, [], None, BaselineOptions()
+    if rinex:
+        stations = _parse_stations(rinex)
+    if nav:
+        navs = list(nav)
+    mst = master or mst
+    if len(stations) != 2:
+        raise CdgpsError(f"give exactly two stations with --rinex NAME=PATH (or --config), got {len(stations)}")
+    if not navs:
+        raise CdgpsError("give at least one navigation file with --nav (or --config)")
+    if not mst:
+        raise CdgpsError(f"--master is required: which of {', '.join(stations)} is the reference at its header position")
+    if mst not in stations:
+        raise CdgpsError(f"master {mst!r} is not one of the stations given: {', '.join(stations)}")
+    changes = {}
+    if mask_deg is not None:
+        changes["mask_deg"] = mask_deg
+    if ratio_threshold is not None:
+        changes["ratio_threshold"] = ratio_threshold
+    if weighting is not None:
+        changes["weighting"] = weighting
+    if no_partial:
+        changes["partial"] = False
+    if float_only:
+        changes["fix"] = False
+    if no_troposphere:
+        changes["troposphere"] = False
+    opt = dataclasses.replace(opt, **changes)
+    rover = next(n for n in stations if n != mst)
+    _say(ctx, f"baseline {mst} → {rover}: {len(navs)} navigation file(s), mask {opt.mask_deg:g}°, ratio {opt.ratio_threshold:g} …")
+    res = json_safe(baseline_from_files(stations, navs, mst, opt))
+    if job:
+        res["inputs"]["config"] = str(job)
+    _write_json_atomic(output, res)
+    _say(ctx, format_summary(res))
+    _say(ctx, f"wrote {output}")
+    if as_json:
+        _emit_json(res)
+
+
+@main.command("baseline-config")
+@click.option("--rinex", "rinex", multiple=True, required=True, metavar="NAME=PATH", help="RINEX observation file (give two).")
+@click.option("--nav", "nav", multiple=True, required=True, type=click.Path(dir_okay=False), help="RINEX GPS navigation file.")
+@click.option("--master", default=None, help="Reference station (default: the first --rinex).")
+@click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="Job TOML to write.")
+@click.pass_context
+def baseline_config_cmd(ctx, rinex, nav, master, output):
+    """Write a starter baseline job TOML for 'cdgps baseline --config' (headers summarised in comments)."""
+    from .baseline import load_baseline_job, starter_job_toml
+
+    stations = _parse_stations(rinex)
+    text = starter_job_toml(stations, list(nav), master, relative_to=Path(output).resolve().parent)
+    _write_text_atomic(output, text)
+    load_baseline_job(output)  # the written job must load
+    _say(ctx, f"wrote {output}")
+
+
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())

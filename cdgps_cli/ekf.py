@@ -20,6 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import pandas as pd
 from scipy.linalg import cho_factor, cho_solve
 from scipy.linalg.lapack import dpotrf, dpotri
 from scipy.stats import chi2
@@ -182,11 +183,11 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     t_end = float(ph["time_s"].max())
     N = int(round((t_end - t0) / T)) + 1
     grid = t0 + np.arange(N) * T
-    ph_ant = ph["antenna"].to_numpy()
-    ph_tx = ph["transmitter"].to_numpy()
-    pairs, inverse = np.unique(np.char.add(np.char.add(ph_ant.astype(str), "\x1f"), ph_tx.astype(str)),
-                               return_inverse=True)
-    seen = [tuple(s.split("\x1f")) for s in pairs]
+    a_codes, a_names = pd.factorize(ph["antenna"], sort=True)
+    t_codes, t_names = pd.factorize(ph["transmitter"], sort=True)
+    pair_code = a_codes.astype(np.int64) * len(t_names) + t_codes
+    pairs, inverse = np.unique(pair_code, return_inverse=True)
+    seen = [(a_names[pc // len(t_names)], t_names[pc % len(t_names)]) for pc in pairs]
     chans = sorted(set(seen) | set(init_bias),
                    key=lambda c: (cfg.antenna_names.index(c[0]), cfg.transmitter_names.index(c[1])))
     cidx = {c: i for i, c in enumerate(chans)}
@@ -246,6 +247,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     rebias: dict[int, list] = {}           # channel → list of (k, y − h(x̄), var_h)
     extra_q: dict[int, list] = {}          # epoch → [(state index, added variance)] (bias states)
     EVENT = lock_events(Y, LOCK)
+    new_states: list = []
     chi2_bound = {}
     fail_run = 0
     k_reinit_block = -1
@@ -285,10 +287,23 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                 if np.isnan(bias[c]) and not use_bias_states:
                     rebias.setdefault(c, [])
                     log(k, c, "new channel", "no INIT bias; estimating")
+                elif np.isnan(bias[c]) and use_bias_states:
+                    new_states.append(c)
             else:
                 drop_bias(k, c, "lock restart" if EVENT[k, c] == 2 else "re-acquisition")
         xq = x[:n]
         h, Hx = hmodel(xq)
+        for c in new_states:
+            # a channel INIT did not know: its bias state starts from the prediction with a wide prior
+            q_new = opt.restart_sigma_cycles**2 * lam**2
+            x[n + c] = y[c] - h[c]
+            P[n + c, :] = 0.0
+            P[:, n + c] = 0.0
+            P[n + c, n + c] = q_new
+            bias[c] = x[n + c]
+            extra_q.setdefault(k, []).append((n + c, q_new))
+            log(k, c, "new channel", f"bias state initialized from the prediction (sigma {opt.restart_sigma_cycles:g} cycles)")
+        new_states = []
         if use_bias_states:
             usable = present.copy()
         else:
@@ -306,7 +321,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                 a = (est - line[c]) / lam
                 nint = int(np.rint(a))
                 if (cfg.line_bias_calibrated and s_b / lam < opt.refix_max_sigma_cycles
-                        and abs(a - nint) < opt.refix_max_offset_cycles):
+                        and abs(a - nint) < min(opt.refix_max_offset_cycles, 3.0 * s_b / lam)):
                     est = line[c] + lam * nint
                     action = f"integer re-fixed: {nint} cycles (float {a:.3f}, sigma {s_b / lam:.3f} cycle)"
                 else:
@@ -410,11 +425,13 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                          nis_dof, events, {chans[c]: (float(xs[-1, n + c]) if use_bias_states else float(bias[c]))
                                            for c in range(C)})
     if opt.smooth:
-        xsm, Psm = rts_smooth(A, Qd, Bu, U_in, xs, Ps, extra_q, no_link)
-        res.x_filt, res.P_filt = res.x, res.P
-        res.x = xsm[:, :n] if p == n else xsm[:, :n].copy()
-        res.P = Psm if p == n else Psm[:, :n, :n].copy()
-        del xsm, Psm
+        # keep the filter's states and covariances, then smooth in place (one copy instead of three)
+        res.x_filt = res.x.copy()
+        res.P_filt = res.P.copy()
+        res.P = None
+        rts_smooth(A, Qd, Bu, U_in, xs, Ps, extra_q, no_link, in_place=True)
+        res.x = xs[:, :n] if p == n else xs[:, :n].copy()
+        res.P = Ps if p == n else Ps[:, :n, :n].copy()
         res.smoothed = True
     return res
 
@@ -439,18 +456,20 @@ def lock_events(Y: np.ndarray, LOCK: np.ndarray) -> np.ndarray:
     return ev
 
 
-def rts_smooth(A, Q, B, U_in, xf, Pf, extra_q=None, no_link=None):
+def rts_smooth(A, Q, B, U_in, xf, Pf, extra_q=None, no_link=None, in_place=False):
     """Rauch–Tung–Striebel smoother over filtered states (N, p) and covariances (N, p, p).
 
     The priors are recomputed from the filtered values (x̄ = A x + B u, P̄ = A P Aᵀ + Q_k) so that
     only the filtered arrays are stored; ``extra_q`` {epoch: [(index, variance)]} adds the
     variance inflations the filter applied at that epoch; ``no_link[k]`` leaves epoch k as it is
-    (re-initialization boundaries and batch-filled epochs).  Returns smoothed states and covariances.
+    (re-initialization boundaries and batch-filled epochs).  Returns smoothed states and covariances;
+    with ``in_place`` they overwrite ``xf`` and ``Pf`` (epoch k is read before it is replaced, and
+    epoch k+1 is already smoothed when k is processed, so this is exact and saves two copies).
     """
     extra_q = extra_q or {}
     N = xf.shape[0]
-    xs = xf.copy()
-    Ps = Pf.copy()
+    xs = xf if in_place else xf.copy()
+    Ps = Pf if in_place else Pf.copy()
     for k in range(N - 2, -1, -1):
         if no_link is not None and no_link[k]:
             continue                      # a re-initialization boundary or batch-filled epoch

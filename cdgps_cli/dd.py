@@ -1,0 +1,435 @@
+"""Between-receiver single differences and double differences of GPS L1 observations.
+
+Data layout
+-----------
+Single differences (SD, rover minus base, one per epoch and satellite seen by both receivers) are
+kept as flat arrays sorted by epoch, then satellite; ``ptr`` (:func:`epoch_pointers`) gives the
+rows of epoch ``k`` as ``ptr[k]:ptr[k+1]``.  Double differences (DD) are formed inside each epoch
+against a *reference row*: ``DD_i = SD_i − SD_ref``.
+
+Ambiguity parametrization
+-------------------------
+Ambiguities are parameters of the **single differences**, one per (satellite, lock segment)
+(:func:`ambiguity_segments`: a new segment after a loss-of-lock flag, a gap or a power failure),
+and the DDs reach them through the DD operator D (+1 on the satellite, −1 on the reference).  A
+change of reference satellite (it sets, or slips) then needs no re-expression of parameters: it
+only changes which rows of D are formed.  SD ambiguities contain the (non-integer) receiver phase
+biases, common to all satellites of a receiver pair, so only their *differences* are integers and
+estimable; one SD ambiguity per connected set of segments (:func:`ambiguity_datum`) is held at
+zero as the datum (an S-basis).  Every other parameter is then the integer DD ambiguity
+"segment minus pivot", which is what LAMBDA resolves.
+
+Covariance
+----------
+With undifferenced variances σ²_rover, σ²_base (:func:`sd_variance`) the SDs are independent
+with Σ = diag(σ²_rover + σ²_base), and the DDs of an epoch are correlated:
+``Cov(DD) = D Σ Dᵀ`` (:func:`dd_covariance`) — ``2σ²(I + 11ᵀ)`` for equal weights.  The weight
+that the DDs give the SDs, ``P = Dᵀ (D Σ Dᵀ)⁻¹ D`` (:func:`dd_weight`), does not depend on the
+choice of the reference (any DD basis spans the same space); it equals
+``Σ⁻¹ − Σ⁻¹11ᵀΣ⁻¹ / (1ᵀΣ⁻¹1)`` (:func:`projected_weight`), which the tests use as a brute-force
+check and which shows that a DD least-squares solution equals an SD solution with one
+receiver-clock parameter per epoch.
+
+All functions are pure and work on numpy arrays; units are given per argument.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+__all__ = [
+    "epoch_pointers",
+    "sd_variance",
+    "ambiguity_segments",
+    "ambiguity_datum",
+    "select_reference",
+    "dd_operator",
+    "dd_covariance",
+    "dd_weight",
+    "projected_weight",
+    "dd_weight_blocks",
+    "double_differences",
+]
+
+
+def epoch_pointers(epoch, n_epochs: int | None = None) -> np.ndarray:
+    """Row pointers of epoch-sorted rows.
+
+    Parameters
+    ----------
+    epoch : array_like of int, shape (N,)
+        Epoch index of each row, non-decreasing.
+    n_epochs : int, optional
+        Number of epochs (default ``max(epoch) + 1``).
+
+    Returns
+    -------
+    ndarray of int64, shape (n_epochs + 1,)
+        Rows of epoch k are ``ptr[k]:ptr[k+1]`` (empty for epochs without rows).
+    """
+    ep = np.asarray(epoch, dtype=np.int64)
+    if ep.size and np.any(np.diff(ep) < 0):
+        raise ValueError("rows must be sorted by epoch")
+    ne = (int(ep.max()) + 1 if ep.size else 0) if n_epochs is None else int(n_epochs)
+    counts = np.bincount(ep, minlength=ne) if ep.size else np.zeros(ne, dtype=np.int64)
+    ptr = np.zeros(ne + 1, dtype=np.int64)
+    np.cumsum(counts, out=ptr[1:])
+    return ptr
+
+
+def sd_variance(el_rover_rad, el_base_rad, *, sigma_a_m: float = 0.003, sigma_b_m: float = 0.003,
+                weighting: str = "elevation") -> np.ndarray:
+    """Variance of single differences from undifferenced variances, m².
+
+    ``σ²(el) = a² + b²/sin²(el)`` per receiver (RTKLIB's phase error model with ``err`` = a, b) for
+    ``weighting="elevation"``, or ``a² + b²`` at every elevation for ``"equal"``; the SD variance is
+    the sum over the two receivers.
+
+    Parameters
+    ----------
+    el_rover_rad, el_base_rad : array_like, shape (N,)
+        Elevation at each receiver, rad.
+    sigma_a_m, sigma_b_m : float
+        Constant and elevation-dependent terms of the undifferenced standard deviation, m.
+    weighting : {"elevation", "equal"}
+
+    Returns
+    -------
+    ndarray, shape (N,)
+        σ²_rover + σ²_base, m².
+    """
+    er = np.asarray(el_rover_rad, dtype=np.float64)
+    eb = np.asarray(el_base_rad, dtype=np.float64)
+    a2, b2 = sigma_a_m**2, sigma_b_m**2
+    if weighting == "equal":
+        return np.full(np.broadcast(er, eb).shape, 2.0 * (a2 + b2))
+    if weighting != "elevation":
+        raise ValueError(f"weighting must be 'elevation' or 'equal', got {weighting!r}")
+    return (a2 + b2 / np.sin(er) ** 2) + (a2 + b2 / np.sin(eb) ** 2)
+
+
+def ambiguity_segments(epoch, sat, slip, *, epoch_time_s=None, max_gap_s: float | None = None,
+                       reset_epochs=None) -> tuple[np.ndarray, dict]:
+    """Assign each SD row to an ambiguity: one per satellite and continuous lock segment.
+
+    A new segment (new ambiguity) starts at a satellite's first row, at a row whose ``slip`` flag
+    is set (LLI bit 0 at either receiver), after a gap in its rows of more than ``max_gap_s`` (or
+    any skipped epoch index when times are not given), and at every row of a ``reset_epochs``
+    epoch (e.g. epoch flag 1, power failure).
+
+    Parameters
+    ----------
+    epoch : array_like of int, shape (N,)
+        Epoch index of each row.
+    sat : array_like of int, shape (N,)
+        Satellite index of each row.
+    slip : array_like of bool, shape (N,)
+        Loss of lock at this row (the ambiguity changed since the previous epoch).
+    epoch_time_s : array_like, shape (n_epochs,), optional
+        Time of each epoch, s (for ``max_gap_s``).
+    max_gap_s : float, optional
+        Largest time step within a segment, s (default: 1.5 × the median epoch spacing).
+    reset_epochs : array_like of int, optional
+        Epochs at which every satellite restarts.
+
+    Returns
+    -------
+    seg : ndarray of int64, shape (N,)
+        Ambiguity index of each row, numbered by (satellite, start epoch).
+    table : dict of ndarray
+        Per segment: ``sat``, ``first_epoch``, ``last_epoch``, ``n_rows``.
+    """
+    ep = np.asarray(epoch, dtype=np.int64)
+    sv = np.asarray(sat, dtype=np.int64)
+    sl = np.asarray(slip, dtype=bool)
+    n = ep.size
+    if n == 0:
+        z = np.zeros(0, dtype=np.int64)
+        return z, {"sat": z, "first_epoch": z, "last_epoch": z, "n_rows": z}
+    order = np.lexsort((ep, sv))
+    e_o, s_o = ep[order], sv[order]
+    start = np.ones(n, dtype=bool)
+    same = s_o[1:] == s_o[:-1]
+    if epoch_time_s is not None:
+        tt = np.asarray(epoch_time_s, dtype=np.float64)
+        if max_gap_s is None:
+            ut = np.unique(tt)
+            max_gap_s = 1.5 * float(np.median(np.diff(ut))) if ut.size > 1 else np.inf
+        gap = (tt[e_o[1:]] - tt[e_o[:-1]]) > max_gap_s
+    else:
+        gap = (e_o[1:] - e_o[:-1]) > 1
+    start[1:] = ~same | gap | sl[order][1:]
+    if reset_epochs is not None and len(reset_epochs):
+        start |= np.isin(e_o, np.asarray(reset_epochs, dtype=np.int64))
+    seg_o = np.cumsum(start) - 1
+    seg = np.empty(n, dtype=np.int64)
+    seg[order] = seg_o
+    first = np.flatnonzero(start)
+    last = np.append(first[1:], n) - 1
+    table = {
+        "sat": s_o[first],
+        "first_epoch": e_o[first],
+        "last_epoch": e_o[last],
+        "n_rows": (last - first + 1).astype(np.int64),
+    }
+    return seg, table
+
+
+def ambiguity_datum(epoch, seg, n_seg: int) -> tuple[np.ndarray, np.ndarray]:
+    """Choose the datum ambiguities: one pivot per connected set of SD ambiguities.
+
+    Two ambiguities are connected when they are observed in the same epoch (so a DD links them).
+    Only differences within a connected set are estimable; the pivot (the set's ambiguity with
+    the most rows, the lowest index on ties) is held at zero.  Rows of epochs with a single row
+    form no DD and should be removed beforehand.
+
+    Parameters
+    ----------
+    epoch : array_like of int, shape (N,)
+        Epoch index of each row (sorted).
+    seg : array_like of int, shape (N,)
+        Ambiguity index of each row.
+    n_seg : int
+        Number of ambiguities.
+
+    Returns
+    -------
+    pivots : ndarray of int64
+        Ambiguity index of each set's pivot.
+    component : ndarray of int64, shape (n_seg,)
+        Set of each ambiguity.
+    """
+    ep = np.asarray(epoch, dtype=np.int64)
+    sg = np.asarray(seg, dtype=np.int64)
+    if sg.size == 0:
+        return np.zeros(0, dtype=np.int64), np.arange(n_seg, dtype=np.int64)
+    ptr = epoch_pointers(ep)
+    first_row = np.repeat(ptr[:-1], np.diff(ptr))
+    g = coo_matrix((np.ones(sg.size), (sg, sg[first_row])), shape=(n_seg, n_seg))
+    ncomp, comp = connected_components(g, directed=False)
+    counts = np.bincount(sg, minlength=n_seg)
+    pivots = []
+    for c in range(ncomp):
+        members = np.flatnonzero(comp == c)
+        pivots.append(int(members[np.argmax(counts[members])]))
+    return np.asarray(pivots, dtype=np.int64), comp.astype(np.int64)
+
+
+def select_reference(ptr, sat, elevation_rad, slip=None, *, usable=None) -> np.ndarray:
+    """Reference row of each epoch: keep the current reference satellite while it is observed and
+    does not slip, else take the highest satellite.
+
+    Parameters
+    ----------
+    ptr : array_like of int, shape (n_epochs + 1,)
+        Epoch pointers (:func:`epoch_pointers`).
+    sat : array_like of int, shape (N,)
+        Satellite index of each row.
+    elevation_rad : array_like, shape (N,)
+        Elevation of each row, rad.
+    slip : array_like of bool, shape (N,), optional
+        Loss-of-lock flag of each row: a slipping reference is replaced (its new ambiguity
+        would otherwise enter every DD of the epoch).
+    usable : array_like of bool, shape (N,), optional
+        Rows that may serve (default all).
+
+    Returns
+    -------
+    ndarray of int64, shape (n_epochs,)
+        Row index of the reference of each epoch, −1 where the epoch has fewer than two usable
+        rows.
+    """
+    ptr = np.asarray(ptr, dtype=np.int64)
+    sv = np.asarray(sat, dtype=np.int64)
+    el = np.asarray(elevation_rad, dtype=np.float64)
+    n = sv.size
+    sl = np.zeros(n, dtype=bool) if slip is None else np.asarray(slip, dtype=bool)
+    ok = np.ones(n, dtype=bool) if usable is None else np.asarray(usable, dtype=bool)
+    ne = ptr.size - 1
+    ref = np.full(ne, -1, dtype=np.int64)
+    cur = -1
+    el_l, sv_l, sl_l, ok_l = el.tolist(), sv.tolist(), sl.tolist(), ok.tolist()
+    for k in range(ne):
+        a, b = int(ptr[k]), int(ptr[k + 1])
+        rows = [i for i in range(a, b) if ok_l[i]]
+        if len(rows) < 2:
+            continue
+        pick = -1
+        if cur >= 0:
+            for i in rows:
+                if sv_l[i] == cur and not sl_l[i]:
+                    pick = i
+                    break
+        if pick < 0:
+            cand = [i for i in rows if not sl_l[i]] or rows
+            pick = max(cand, key=lambda i: (el_l[i], -sv_l[i]))
+            cur = sv_l[pick]
+        ref[k] = pick
+    return ref
+
+
+def dd_operator(n: int, ref: int) -> np.ndarray:
+    """The DD operator of one epoch: ``DD = D @ SD``.
+
+    Parameters
+    ----------
+    n : int
+        Number of SDs (satellites) in the epoch, ≥ 2.
+    ref : int
+        Position of the reference among them, 0 ≤ ref < n.
+
+    Returns
+    -------
+    ndarray, shape (n − 1, n)
+        Row j has +1 at the j-th non-reference satellite and −1 at the reference.
+    """
+    if n < 2 or not 0 <= ref < n:
+        raise ValueError(f"need n >= 2 and 0 <= ref < n, got n={n}, ref={ref}")
+    others = [i for i in range(n) if i != ref]
+    d = np.zeros((n - 1, n))
+    d[np.arange(n - 1), others] = 1.0
+    d[:, ref] = -1.0
+    return d
+
+
+def dd_covariance(var_sd, ref: int) -> np.ndarray:
+    """Covariance of the DDs of one epoch, ``D diag(var_sd) Dᵀ``.
+
+    Parameters
+    ----------
+    var_sd : array_like, shape (n,)
+        Variances of the (independent) single differences, m² (:func:`sd_variance`).
+    ref : int
+        Position of the reference.
+
+    Returns
+    -------
+    ndarray, shape (n − 1, n − 1)
+        ``diag(var_others) + var_ref · 11ᵀ``, m²; with equal undifferenced variances σ² this is
+        ``2σ² (I + 11ᵀ)``.
+    """
+    v = np.asarray(var_sd, dtype=np.float64)
+    d = dd_operator(v.size, ref)
+    return (d * v) @ d.T
+
+
+def dd_weight(var_sd, ref: int) -> np.ndarray:
+    """Weight that the DDs of one epoch put on its SDs: ``P = Dᵀ (D Σ Dᵀ)⁻¹ D``, 1/m².
+
+    Parameters
+    ----------
+    var_sd : array_like, shape (n,)
+        SD variances, m².
+    ref : int
+        Position of the reference (the result does not depend on it).
+
+    Returns
+    -------
+    ndarray, shape (n, n)
+        Symmetric, positive semi-definite, ``P @ 1 = 0``.
+    """
+    v = np.asarray(var_sd, dtype=np.float64)
+    d = dd_operator(v.size, ref)
+    c = (d * v) @ d.T
+    return d.T @ np.linalg.solve(c, d)
+
+
+def projected_weight(var_sd) -> np.ndarray:
+    """``Σ⁻¹ − Σ⁻¹11ᵀΣ⁻¹ / (1ᵀΣ⁻¹1)`` for ``Σ = diag(var_sd)``: the reference-free form of
+    :func:`dd_weight` (SD weights with one common clock eliminated), 1/m²."""
+    w = 1.0 / np.asarray(var_sd, dtype=np.float64)
+    return np.diag(w) - np.outer(w, w) / w.sum()
+
+
+def dd_weight_blocks(ptr, var_sd, ref_rows, *, usable=None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """DD weights ``P_k = D_kᵀ (D_k Σ_k D_kᵀ)⁻¹ D_k`` of all epochs, batched by satellite count.
+
+    Parameters
+    ----------
+    ptr : array_like of int, shape (n_epochs + 1,)
+        Epoch pointers.
+    var_sd : array_like, shape (N,)
+        SD variances, m².
+    ref_rows : array_like of int, shape (n_epochs,)
+        Reference row of each epoch (:func:`select_reference`), −1 to skip the epoch; it must be
+        one of the epoch's usable rows.
+    usable : array_like of bool, shape (N,), optional
+        Rows that enter the DDs (default all); the others get no weight.
+
+    Returns
+    -------
+    list of (rows, P)
+        ``rows`` (K, n) int row indices of K epochs with n usable rows each (reference included),
+        ``P`` (K, n, n) their weights in the same order, 1/m².  The DD covariance of each epoch is
+        formed explicitly from its operator (``D Σ Dᵀ``, Cholesky-solved in batch), so the cost
+        is linear in the number of epochs.
+    """
+    ptr = np.asarray(ptr, dtype=np.int64)
+    var = np.asarray(var_sd, dtype=np.float64)
+    refs = np.asarray(ref_rows, dtype=np.int64)
+    n_rows = var.size
+    ok = np.ones(n_rows, dtype=bool) if usable is None else np.asarray(usable, dtype=bool)
+    ne = ptr.size - 1
+    ep_of_row = np.repeat(np.arange(ne), np.diff(ptr))
+    keep = ok & (refs[ep_of_row] >= 0)
+    rows_all = np.flatnonzero(keep)
+    ep_k = ep_of_row[rows_all]
+    cnt = np.bincount(ep_k, minlength=ne)
+    out = []
+    for n in np.unique(cnt[cnt >= 2]):
+        eps = np.flatnonzero(cnt == n)
+        sel = np.isin(ep_k, eps)
+        rows = rows_all[sel].reshape(eps.size, n)
+        ref = refs[eps]
+        pos = np.argmax(rows == ref[:, None], axis=1)
+        if not np.all(rows[np.arange(eps.size), pos] == ref):
+            raise ValueError("a reference row is not among its epoch's usable rows")
+        v = var[rows]  # (K, n)
+        # DD operator per epoch: identity without the reference column, minus ones in it
+        k_idx = np.arange(eps.size)
+        j = np.arange(n - 1)[None, :]
+        others = j + (j >= pos[:, None])  # columns of the non-reference rows
+        d = np.zeros((eps.size, n - 1, n))
+        d[k_idx[:, None], np.arange(n - 1)[None, :], others] = 1.0
+        d[k_idx, :, pos] = -1.0
+        c = np.einsum("kin,kn,kjn->kij", d, v, d)
+        p = np.einsum("kai,kab->kib", d, np.linalg.solve(c, d))
+        p = 0.5 * (p + np.swapaxes(p, 1, 2))
+        out.append((rows, p))
+    return out
+
+
+def double_differences(ptr, ref_rows, values, *, usable=None) -> dict:
+    """Form the DDs ``values[i] − values[ref]`` of every epoch.
+
+    Parameters
+    ----------
+    ptr : array_like of int, shape (n_epochs + 1,)
+        Epoch pointers.
+    ref_rows : array_like of int, shape (n_epochs,)
+        Reference row of each epoch, −1 to skip it.
+    values : array_like, shape (N,) or (N, m)
+        SD quantities (observations, model values, design rows …), any unit.
+    usable : array_like of bool, shape (N,), optional
+        Rows that enter (default all).
+
+    Returns
+    -------
+    dict
+        ``epoch`` (M,), ``row`` (M,) the satellite's SD row, ``ref_row`` (M,), ``value`` (M,) or
+        (M, m): one entry per usable non-reference row of epochs with a reference.
+    """
+    ptr = np.asarray(ptr, dtype=np.int64)
+    refs = np.asarray(ref_rows, dtype=np.int64)
+    val = np.asarray(values)
+    n_rows = val.shape[0]
+    ok = np.ones(n_rows, dtype=bool) if usable is None else np.asarray(usable, dtype=bool)
+    ne = ptr.size - 1
+    ep_of_row = np.repeat(np.arange(ne), np.diff(ptr))
+    r = refs[ep_of_row]
+    sel = ok & (r >= 0) & (np.arange(n_rows) != r)
+    rows = np.flatnonzero(sel)
+    rr = r[rows]
+    return {"epoch": ep_of_row[rows], "row": rows, "ref_row": rr, "value": val[rows] - val[rr]}
