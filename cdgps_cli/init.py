@@ -48,7 +48,6 @@ class InitOptions:
     start_iterations: int = 3           # Gauss–Newton iterations per start before choosing
     start_window_s: float = 10.0        # starts are compared on this first part of the window
     finalists: int = 3                  # best starts continued on the whole window
-    finalist_iterations: int = 3        # … for this many iterations before the clearly worse are dropped
     fix_validation_probability: float = 0.999  # chi-square test of the cost increase caused by fixing
     fix_validation_margin: float = 4.0  # … times this margin for model error (e.g. no process noise)
     max_iterations: int = 30
@@ -375,20 +374,9 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
             x_init[k] = prob.A @ x_init[k - 1]
         w_init = np.zeros((N - 1, prob.G.shape[1]))
         w_init[:len(g0.w)] = g0.w
-        gi = prob.gauss_newton(x_init, prob.initial_biases(x_init), opt.finalist_iterations, opt, w_init=w_init)
+        gi = prob.gauss_newton(x_init, prob.initial_biases(x_init), opt.max_iterations, opt, w_init=w_init)
         finals.append((i, gi))
-    # finalists well above the best one after a few full-window iterations sit in another basin
-    best_cost = min(gi.cost for _, gi in finals)
-    survivors = []
-    for i, gi in finals:
-        if gi.cost <= 2.0 * best_cost and not gi.converged:
-            gi2 = prob.gauss_newton(gi.x, gi.b, opt.max_iterations, opt, w_init=gi.w)
-            gi2.iterations += gi.iterations
-            gi = gi2
-        survivors.append((i, gi))
-        _say(opt, f"  continued {results[i][0]} on the whole window: cost {gi.cost:.6g} after {gi.iterations} iterations"
-                  + ("" if gi.cost <= 2.0 * best_cost else " (dropped: another basin)"))
-    finals = survivors
+        _say(opt, f"  continued {results[i][0]} on the whole window: cost {gi.cost:.6g} after {gi.iterations} iterations")
     best_i, g = min(finals, key=lambda t: t[1].cost)
     best_i = int(best_i)
     label = results[best_i][0]
