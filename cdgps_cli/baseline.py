@@ -508,6 +508,9 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
             break
     q_float = cho_solve(cf, np.eye(n_par))
     t_float = time.perf_counter() - t0
+    model, g = _rover_model(d, xr0 + r_enu.T @ x_enu, r_enu)
+    r_ph = _center(d.epoch, d.y_phase_m - model - LAMBDA_L1 * a_seg[seg], n_ep)
+    r_cd = _center(d.epoch, y_code - model, n_ep, code_ok)
     sq_ph, n_dd_ph = _quad(blocks_ph, r_ph)
     sq_cd, n_dd_cd = _quad(blocks_code, r_cd)
     dof_float = n_dd_ph + n_dd_cd - n_par

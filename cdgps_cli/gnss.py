@@ -5,8 +5,9 @@ epoch matching, per-receiver reception geometry, and a simulator of two static r
   — Saastamoinen zenith hydrostatic delay under the standard atmosphere, mapped with the Niell
   (1996) hydrostatic mapping function.  This is the a priori troposphere that RTKLIB 2.4.3 applies
   to every undifferenced range in relative positioning (``zdres`` in ``rtkpos.c``), so that both
-  programs model the same thing; over a short baseline it cancels almost entirely in the double
-  differences (here 5.6 m of height difference → about 2 mm zenith, < 1 mm in the solution).
+  programs model the same thing; over a short baseline it largely cancels in the double
+  differences (GEONET 3040–0759: 5.6 m of height difference, about 2 mm zenith; leaving it out
+  moves that solution by 2–5 mm).
 * :func:`estimate_receiver_clock` — receiver clock offset per epoch from L1 pseudoranges at a known
   position, so that geometry can be computed at each receiver's *true* reception time.
 * :func:`spp_static` — static single-point position (all epochs, one clock per epoch), used when
@@ -25,6 +26,7 @@ phases cycles of the L1 carrier; pseudoranges and delays m.  Functions are pure.
 
 from __future__ import annotations
 
+import datetime as dt
 import math
 
 import numpy as np
@@ -78,8 +80,6 @@ def day_of_year(t_gps_s) -> np.ndarray:
     ndarray
         Day of year, days (leap seconds ignored: the NMF seasonal term varies over months).
     """
-    import datetime as dt
-
     t = np.asarray(t_gps_s, dtype=np.float64)
     flat = t.ravel()
     out = np.empty_like(flat)
@@ -220,19 +220,16 @@ def ephemeris_coverage(nav: pd.DataFrame, sats, t_gps_s, *, max_age_s: float = M
     t = np.asarray(t_gps_s, dtype=np.float64)
     ok = np.zeros(t.shape, dtype=bool)
     healthy = nav[nav["sv_health"] == 0]
-    toes = {s: g["toe_gps_s"].to_numpy() for s, g in healthy.groupby("sat")}
+    toes = {s: np.sort(g["toe_gps_s"].to_numpy()) for s, g in healthy.groupby("sat")}
     for s in np.unique(sats):
-        sel = np.flatnonzero(sats == s)
         toe = toes.get(s)
         if toe is None or toe.size == 0:
             continue
-        toe = np.sort(toe)
-        k = np.clip(np.searchsorted(toe, t[sel]), 1, toe.size) if toe.size > 1 else np.zeros(sel.size, dtype=int)
-        if toe.size > 1:
-            age = np.minimum(np.abs(t[sel] - toe[k - 1]), np.abs(t[sel] - toe[np.minimum(k, toe.size - 1)]))
-        else:
-            age = np.abs(t[sel] - toe[0])
-        ok[sel] = age <= max_age_s
+        sel = np.flatnonzero(sats == s)
+        k = np.searchsorted(toe, t[sel])
+        before = toe[np.clip(k - 1, 0, toe.size - 1)]
+        after = toe[np.clip(k, 0, toe.size - 1)]
+        ok[sel] = np.minimum(np.abs(t[sel] - before), np.abs(t[sel] - after)) <= max_age_s
     return ok
 
 
@@ -580,8 +577,9 @@ def simulate_static_pair(
     clock_drift_ms : (float, float)
         Base and rover clock offset at the end of the span, ms.
     slips : sequence of (receiver, sat, t_gps_s, cycles)
-        Cycle slips (receiver ``"base"`` or ``"rover"``): from nominal time ``t_gps_s`` on, the
-        phase jumps by ``cycles`` and the first record after the slip carries LLI = 1.
+        Cycle slips (receiver ``"base"`` or ``"rover"``): from the first record at or after
+        nominal time ``t_gps_s`` to the end of its lock segment, the phase is shifted by
+        ``cycles``; that first record carries LLI = 1.
     seed : int
         Random seed.
     troposphere : bool
@@ -645,10 +643,12 @@ def simulate_static_pair(
                 if rx_name != name or sl_sat != s:
                     continue
                 after = t_nom[idx] >= sl_t
-                if after.any():
-                    amb = amb + np.where(after, float(cyc), 0.0)
-                    lli[int(np.argmax(after))] |= 1
-                    amb_rows.append((name, s, "slip", float(sl_t), int(cyc)))
+                if after.any():  # the slip shifts the rest of the lock segment it falls in
+                    j0 = int(np.argmax(after))
+                    hit = after & (seg_id == seg_id[j0])
+                    amb = amb + np.where(hit, float(cyc), 0.0)
+                    lli[j0] |= 1
+                    amb_rows.append((name, s, "slip", float(t_nom[idx[j0]]), int(cyc)))
             common = rho + SPEED_OF_LIGHT * (clock[name][idx] - dts) + trop
             recs.append(pd.DataFrame({
                 "time_gps_s": tag[name][idx],
