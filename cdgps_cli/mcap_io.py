@@ -262,7 +262,7 @@ def read_mcap(path: str | Path, topics: list[str] | None = None) -> McapContents
             summary = reader.get_summary()
             if summary is None:
                 raise CdgpsError(f"{p}: MCAP file has no summary section (truncated or not written by a complete run)")
-            for schema, channel, message in reader.iter_messages(topics=topics):
+            for schema, channel, message in (reader.iter_messages(topics=topics) if topics != [] else ()):
                 acc = cols.get(channel.topic)
                 if acc is None:
                     acc = cols[channel.topic] = TopicColumns()

@@ -103,7 +103,7 @@ def run_spectra(states, run, opt: SpectraOptions, out_dir: str | Path) -> dict:
             col = k + "_rad2_hz"
         df[col] = v
     for i in range(res["fdd_sv"].shape[1]):
-        df[f"fdd_singular_value_{i + 1}"] = res["fdd_sv"][:, i]
+        df[f"fdd_singular_value_{i + 1}_1_hz"] = res["fdd_sv"][:, i]      # of the standardized CSD
     write_atomic(out / "psd.csv", lambda p: df.to_csv(p, index=False, lineterminator="\n", float_format="%.9g"))
     peaks = _json_clean({"modes": res["modes"], "settings": res["settings"], "states": str(states.path),
                          "config": cfg.name, "config_sha256": cfg.sha256, "gyros": gnames})

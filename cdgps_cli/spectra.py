@@ -228,6 +228,10 @@ def compute_spectra(cfg: StructureConfig, time_s: np.ndarray, q: np.ndarray,
     else:
         sel = [i for i in range(len(names)) if i != cfg.rigid_index]
     N = len(time_s)
+    if np.shape(q) != (N, len(names)):
+        raise CdgpsError(f"q has shape {np.shape(q)}, expected ({N}, {len(names)}) for {N} epochs and the config's coordinates")
+    if opt.fmax_hz is not None and not opt.fmax_hz > 0:
+        raise CdgpsError(f"fmax_hz must be positive, got {opt.fmax_hz!r}")
     if N < 16:
         raise CdgpsError(f"only {N} epochs: too short for spectra")
     dt = np.diff(time_s)
@@ -339,10 +343,13 @@ def compute_spectra(cfg: StructureConfig, time_s: np.ndarray, q: np.ndarray,
                 gb = (f >= center * (1 - opt.band_pct / 100)) & (f <= center * (1 + opt.band_pct / 100))
                 pg = psd[f"gyro_{gname}"]
                 if gb.any():
-                    ii = int(np.flatnonzero(gb)[np.nanargmax(pg[gb])])
+                    band_idx = np.flatnonzero(gb)
+                    ii = int(band_idx[np.nanargmax(pg[gb])])
                     entry["gyro"] = gname
-                    entry["gyro_hz"] = _parabolic(f, pg, ii)
                     entry["coherence"] = float(psd[f"coherence_{gname}"][ii])
+                    # a maximum on the band edge is the flank of something else, not a peak
+                    if band_idx[0] < ii < band_idx[-1]:
+                        entry["gyro_hz"] = _parabolic(f, pg, ii)
         modes.append(entry)
     return {
         "f_hz": f[keep], "psd": {k: v[keep] for k, v in psd.items()},

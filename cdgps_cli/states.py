@@ -60,6 +60,20 @@ def coordinate_sigma(cfg: StructureConfig, P_xi: np.ndarray) -> np.ndarray:
     return np.sqrt(np.maximum(np.einsum("qi,nij,qj->nq", U, P_xi, U), 0.0))
 
 
+def _npy_bytes(arr: np.ndarray) -> bytes:
+    import io
+
+    buf = io.BytesIO()
+    np.save(buf, np.asarray(arr, dtype=float), allow_pickle=False)
+    return buf.getvalue()
+
+
+def _npy_load(data: bytes) -> np.ndarray:
+    import io
+
+    return np.load(io.BytesIO(data), allow_pickle=False)
+
+
 def write_states(res: EstimateResult, run_path: str | Path, init: dict, init_text: str,
                  out_path: str | Path, options: dict) -> dict:
     """Write STATES.mcap atomically; returns a summary."""
@@ -106,6 +120,14 @@ def write_states(res: EstimateResult, run_path: str | Path, init: dict, init_tex
             out.write(ch, ev["time_s"], body)
         out.attach(CONFIG_ATTACHMENT, cfg.text.encode(), "application/toml")
         out.attach(INIT_ATTACHMENT, init_text.encode(), "application/json")
+        # the same series as .npy arrays, for fast machine reading (spectra, reports, evaluate)
+        for topic, X, P, _ in series:
+            q = X[:, :nm] @ U.T
+            arrays = {"time_s": np.asarray(res.time_s, dtype=float), "q": q,
+                      "sigma_q": coordinate_sigma(cfg, P[:, :nm, :nm]), "xi": X[:, :nm],
+                      "P_xi": np.ascontiguousarray(P[:, :nm, :nm])}
+            for name, arr in arrays.items():
+                out.attach(f"arrays{topic}/{name}.npy", _npy_bytes(arr), "application/x-npy")
         out.metadata(ESTIMATE_METADATA, meta)
     nis_ok = res.nis_dof > 0
     return {"output": str(out_path), "epochs": int(len(res.time_s)), "start_s": float(res.time_s[0]),
@@ -118,22 +140,33 @@ class States:
     """A STATES.mcap read back: config, times, q, sigma_q, modal state, covariances, events."""
 
     def __init__(self, path: str | Path, topic: str = STATE_TOPIC, diagnostics: bool = True):
-        c = read_mcap(path, topics=[topic, RESIDUAL_TOPIC, EVENT_TOPIC] if diagnostics else [topic])
-        if topic not in c.topics or CONFIG_ATTACHMENT not in c.attachments:
-            raise CdgpsError(f"{path}: no {topic} messages or config; is this a STATES.mcap from 'cdgps estimate'?")
+        c = read_mcap(path, topics=[RESIDUAL_TOPIC, EVENT_TOPIC] if diagnostics else [])
         self.path = str(path)
+        if CONFIG_ATTACHMENT not in c.attachments:
+            raise CdgpsError(f"{path}: no config attachment; is this a STATES.mcap from 'cdgps estimate'?")
         self.cfg = parse_config(c.attachments[CONFIG_ATTACHMENT].decode(), f"{path}:{CONFIG_ATTACHMENT}")
-        tc = c.topics[topic]
-        self.time_s = tc.times()
-        names = list(self.cfg.coord_names)
-        qs = tc.scalars["q"]
-        ss = tc.scalars["sigma_q"]
-        self.q = np.array([[m[n] for n in names] for m in qs], dtype=float)
-        self.sigma_q = np.array([[m[n] for n in names] for m in ss], dtype=float)
         nm = self.cfg.n_modes
-        N = len(self.time_s)
-        self.xi = tc.column("xi").reshape(N, nm)
-        self.P_xi = tc.column("P_xi").reshape(N, nm, nm)
+        key = f"arrays{topic}/"
+        if key + "time_s.npy" in c.attachments:          # fast path: the .npy attachments
+            try:
+                self.time_s = _npy_load(c.attachments[key + "time_s.npy"])
+                self.q = _npy_load(c.attachments[key + "q.npy"])
+                self.sigma_q = _npy_load(c.attachments[key + "sigma_q.npy"])
+                self.xi = _npy_load(c.attachments[key + "xi.npy"])
+                self.P_xi = _npy_load(c.attachments[key + "P_xi.npy"])
+            except (KeyError, ValueError, OSError) as exc:
+                raise CdgpsError(f"{path}: damaged state arrays attachment: {exc}") from None
+        else:                                             # messages only (older files)
+            tc = read_mcap(path, topics=[topic]).topics.get(topic)
+            if tc is None:
+                raise CdgpsError(f"{path}: no {topic} messages; is this a STATES.mcap from 'cdgps estimate'?")
+            self.time_s = tc.times()
+            names = list(self.cfg.coord_names)
+            self.q = np.array([[m[n] for n in names] for m in tc.scalars["q"]], dtype=float)
+            self.sigma_q = np.array([[m[n] for n in names] for m in tc.scalars["sigma_q"]], dtype=float)
+            N = len(self.time_s)
+            self.xi = tc.column("xi").reshape(N, nm)
+            self.P_xi = tc.column("P_xi").reshape(N, nm, nm)
         self.metadata = c.metadata.get(ESTIMATE_METADATA, {})
         res = c.topics.get(RESIDUAL_TOPIC)
         self.nis = np.array([np.nan if v is None else v for v in res.scalars["nis"]], dtype=float) if res else None
