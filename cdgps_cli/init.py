@@ -49,7 +49,7 @@ class InitOptions:
     start_window_s: float = 10.0        # starts are compared on this first part of the window
     finalists: int = 3                  # best starts continued on the whole window
     fix_validation_probability: float = 0.999  # chi-square test of the cost increase caused by fixing
-    fix_validation_margin: float = 4.0  # … times this margin for model error (e.g. no process noise)
+    fix_validation_margin: float = 10.0  # … times this margin for model error (e.g. no process noise)
     max_iterations: int = 30
     step_tol_m: float = 1e-5            # convergence: max bias / position step (m)
     cost_rtol: float = 1e-9             # convergence: relative cost change
