@@ -186,7 +186,7 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
         raise CdgpsError(f"{init_json}: expected a JSON object from 'cdgps init'")
     run = read_run(run_mcap)
     opt = EstimateOptions(biases=biases, smooth=smooth, sigma_m=sigma_m, nis_probability=nis_probability,
-                          outlier_sigma=outlier_sigma,
+                          outlier_sigma=outlier_sigma, keep_filtered_covariance="modal",
                           progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
     _say(ctx, f"estimating {run_mcap} from {init_json} (biases {biases}{', smoothing' if smooth else ''}) …")
     res = run_ekf(run, init, opt)

@@ -48,6 +48,7 @@ class EstimateOptions:
     reinit_after_epochs: int = 20      # consecutive NIS failures → batch re-initialization
     reinit_window_s: float = 30.0
     restart_sigma_cycles: float = 10.0  # biases="states": variance inflation at a lock restart
+    keep_filtered_covariance: str = "full"  # with smooth: "full" (n×n) or "modal" (the n_m×n_m block the outputs use)
     progress: object = None
 
     def echo(self) -> dict:
@@ -192,12 +193,14 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                    key=lambda c: (cfg.antenna_names.index(c[0]), cfg.transmitter_names.index(c[1])))
     cidx = {c: i for i, c in enumerate(chans)}
     C = len(chans)
-    k_of = np.rint((ph["time_s"].to_numpy() - t0) / T).astype(int)
-    c_of = np.array([cidx[c] for c in seen], dtype=int)[inverse]
+    k_of = np.rint((ph["time_s"].to_numpy() - t0) / T).astype(np.int32)
+    c_of = np.array([cidx[c] for c in seen], dtype=np.int32)[inverse]
+    del inverse, pair_code, a_codes, t_codes
     Y = np.full((N, C), np.nan)
-    LOCK = np.full((N, C), -1, dtype=np.int64)
+    LOCK = np.full((N, C), -1, dtype=np.int32)
     Y[k_of, c_of] = ph["phase_cycles"].to_numpy() * lam
     LOCK[k_of, c_of] = ph["lock"].to_numpy()
+    del k_of, c_of
     ant, tx = channel_indices(cfg, [c[0] for c in chans], [c[1] for c in chans])
     line = cfg.antenna_line_bias_m[ant] - cfg.antenna_line_bias_m[cfg.master_index]
     hmodel = EpochPhaseModel(cfg, ant, tx)
@@ -427,7 +430,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     if opt.smooth:
         # keep the filter's states and covariances, then smooth in place (one copy instead of three)
         res.x_filt = res.x.copy()
-        res.P_filt = res.P.copy()
+        res.P_filt = res.P.copy() if opt.keep_filtered_covariance == "full" else res.P[:, :nm, :nm].copy()
         res.P = None
         rts_smooth(A, Qd, Bu, U_in, xs, Ps, extra_q, no_link, in_place=True)
         res.x = xs[:, :n] if p == n else xs[:, :n].copy()

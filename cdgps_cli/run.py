@@ -161,6 +161,9 @@ def read_run(path: str | Path, phase: bool = True) -> Run:
         if col not in phase:
             phase[col] = np.array([], dtype=float)
     phase = phase[["time_s", "receiver", "master", "antenna", "transmitter", "phase_cycles", "lock", "snr_dbhz"]]
+    for col in ("receiver", "master", "antenna", "transmitter"):
+        if len(phase):
+            phase[col] = phase[col].astype("category")       # a few names repeated 1e6 times
     phase["lock"] = phase["lock"].astype(np.int64)
     phase["snr_dbhz"] = phase["snr_dbhz"].astype(float)
     gyro = c.topics.get(GYRO_TOPIC, TopicColumns()).table(["gyro", "rate_rad_s"])
