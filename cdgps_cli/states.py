@@ -103,6 +103,11 @@ def write_states(res: EstimateResult, run_path: str | Path, init: dict, init_tex
                     "q": dict(zip(names, q[k].tolist())), "sigma_q": dict(zip(names, sq[k].tolist())),
                     "xi": X[k, :nm].tolist(), "xidot": X[k, nm:].tolist(),
                     "P_xi": P[k, :nm, :nm].ravel().tolist(), "smoothed": smoothed})
+            # the same series as .npy arrays, for fast machine reading (spectra, reports, evaluate)
+            for name, arr in (("time_s", res.time_s), ("q", q), ("sigma_q", sq), ("xi", X[:, :nm]),
+                              ("P_xi", P[:, :nm, :nm])):
+                out.attach(f"arrays{topic}/{name}.npy", _npy_bytes(arr), "application/x-npy")
+            del q, sq
         ch = out.channel(RESIDUAL_TOPIC, RESIDUAL_SCHEMA)
         ants = [c[0] for c in res.channels]
         txs = [c[1] for c in res.channels]
@@ -120,14 +125,6 @@ def write_states(res: EstimateResult, run_path: str | Path, init: dict, init_tex
             out.write(ch, ev["time_s"], body)
         out.attach(CONFIG_ATTACHMENT, cfg.text.encode(), "application/toml")
         out.attach(INIT_ATTACHMENT, init_text.encode(), "application/json")
-        # the same series as .npy arrays, for fast machine reading (spectra, reports, evaluate)
-        for topic, X, P, _ in series:
-            q = X[:, :nm] @ U.T
-            arrays = {"time_s": np.asarray(res.time_s, dtype=float), "q": q,
-                      "sigma_q": coordinate_sigma(cfg, P[:, :nm, :nm]), "xi": X[:, :nm],
-                      "P_xi": np.ascontiguousarray(P[:, :nm, :nm])}
-            for name, arr in arrays.items():
-                out.attach(f"arrays{topic}/{name}.npy", _npy_bytes(arr), "application/x-npy")
         out.metadata(ESTIMATE_METADATA, meta)
     nis_ok = res.nis_dof > 0
     return {"output": str(out_path), "epochs": int(len(res.time_s)), "start_s": float(res.time_s[0]),
