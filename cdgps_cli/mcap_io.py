@@ -19,6 +19,7 @@ import json
 import os
 import struct
 import sys
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -243,6 +244,19 @@ class McapContents:
     message_encoding: dict  # topic → encoding
 
 
+def _check_attachment_crcs(fh, summary, path) -> None:
+    """Validate every attachment's CRC-32 (the mcap library writes it but does not check it)."""
+    for idx in summary.attachment_indexes:
+        fh.seek(idx.offset)
+        raw = fh.read(idx.length)
+        if len(raw) != idx.length or len(raw) < 13:
+            raise CdgpsError(f"{path}: attachment {idx.name!r} is truncated")
+        content = raw[9:]                      # opcode (1) + record length (8)
+        stored = struct.unpack("<I", content[-4:])[0]
+        if stored != 0 and zlib.crc32(content[:-4]) != stored:
+            raise CdgpsError(f"{path}: attachment {idx.name!r} fails its CRC check (corrupt file)")
+
+
 def read_mcap(path: str | Path, topics: list[str] | None = None) -> McapContents:
     """Read an MCAP file with CRC validation.
 
@@ -269,10 +283,11 @@ def read_mcap(path: str | Path, topics: list[str] | None = None) -> McapContents
                     schemas[channel.topic] = (schema.name if schema else "", schema.encoding if schema else "")
                     encodings[channel.topic] = channel.message_encoding
                 acc.add(json.loads(message.data))
+            _check_attachment_crcs(fh, summary, p)
             attachments = {a.name: bytes(a.data) for a in reader.iter_attachments()}
             metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
     except CdgpsError:
         raise
-    except (McapError, EOFError, ValueError, KeyError, struct.error, OSError) as exc:
+    except (McapError, EOFError, ValueError, KeyError, struct.error, OSError, UnicodeDecodeError) as exc:
         raise CdgpsError(f"{p}: not a valid MCAP file (truncated or corrupt): {type(exc).__name__}: {exc}") from None
     return McapContents(str(p), cols, attachments, metadata, schemas, encodings)

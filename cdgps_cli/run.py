@@ -7,6 +7,8 @@ into tables plus the embedded structure config (later stages need no ``--config`
 from __future__ import annotations
 
 import hashlib
+import io
+import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,6 +23,24 @@ from .mcap_io import (ACTUATOR_SCHEMA, ACTUATOR_TOPIC, CONFIG_ATTACHMENT, GYRO_S
                       PHASE_SCHEMA, PHASE_TOPIC, McapOut, TopicColumns, read_mcap)
 
 PHASE_ARRAYS = ["receiver", "antenna", "transmitter", "phase_cycles", "lock", "snr_dbhz"]
+GYRO_ARRAYS = "arrays/cdgps/gyro/"
+
+
+def _npy(arr: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, arr, allow_pickle=False)
+    return buf.getvalue()
+
+
+def _gyro_from_attachments(att: dict) -> pd.DataFrame | None:
+    try:
+        t = np.load(io.BytesIO(att[GYRO_ARRAYS + "time_s.npy"]), allow_pickle=False)
+        r = np.load(io.BytesIO(att[GYRO_ARRAYS + "rate_rad_s.npy"]), allow_pickle=False)
+        i = np.load(io.BytesIO(att[GYRO_ARRAYS + "gyro_index.npy"]), allow_pickle=False)
+        names = np.array(json.loads(att[GYRO_ARRAYS + "gyro_names.json"]), dtype=object)
+    except (KeyError, ValueError, OSError):
+        return None
+    return pd.DataFrame({"time_s": t, "gyro": names[i], "rate_rad_s": r})
 INGEST_METADATA = "cdgps.ingest"
 
 
@@ -126,6 +146,12 @@ def write_run(cfg: StructureConfig, receiver_csv: str | Path, out_path: str | Pa
         n_gyro = n_act = 0
         if gyro is not None:
             n_gyro = out.write_table(out.channel(GYRO_TOPIC, GYRO_SCHEMA, {"units": "rad/s"}), gyro, ["gyro", "rate_rad_s"])
+            # the gyro log also as .npy arrays (fast reading by spectra and reports)
+            codes, names = pd.factorize(gyro["gyro"])
+            out.attach(GYRO_ARRAYS + "time_s.npy", _npy(gyro["time_s"].to_numpy(dtype=float)), "application/x-npy")
+            out.attach(GYRO_ARRAYS + "rate_rad_s.npy", _npy(gyro["rate_rad_s"].to_numpy(dtype=float)), "application/x-npy")
+            out.attach(GYRO_ARRAYS + "gyro_index.npy", _npy(codes.astype(np.int64)), "application/x-npy")
+            out.attach(GYRO_ARRAYS + "gyro_names.json", json.dumps(list(names)).encode(), "application/json")
         if act is not None:
             n_act = out.write_table(out.channel(ACTUATOR_TOPIC, ACTUATOR_SCHEMA, {"units": "N"}), act, ["actuator", "force_n"])
         out.attach(CONFIG_ATTACHMENT, cfg.text.encode("utf-8"), "application/toml")
@@ -150,10 +176,11 @@ def read_run(path: str | Path, phase: bool = True) -> Run:
 
     With ``phase=False`` only the gyro and actuator topics are decoded (the phase table is empty).
     """
-    c = read_mcap(path, topics=None if phase else [GYRO_TOPIC, ACTUATOR_TOPIC])
+    want_phase = phase
+    c = read_mcap(path, topics=None if want_phase else [ACTUATOR_TOPIC])
     if CONFIG_ATTACHMENT not in c.attachments:
         raise CdgpsError(f"{path}: no {CONFIG_ATTACHMENT} attachment; is this a RUN.mcap from 'cdgps ingest'?")
-    if phase and PHASE_TOPIC not in c.topics:
+    if want_phase and PHASE_TOPIC not in c.topics:
         raise CdgpsError(f"{path}: no {PHASE_TOPIC} messages; is this a RUN.mcap from 'cdgps ingest'?")
     cfg = parse_config(c.attachments[CONFIG_ATTACHMENT].decode("utf-8"), f"{path}:{CONFIG_ATTACHMENT}")
     phase = c.topics.get(PHASE_TOPIC, TopicColumns()).table(PHASE_ARRAYS, ["master"])
@@ -166,7 +193,12 @@ def read_run(path: str | Path, phase: bool = True) -> Run:
             phase[col] = phase[col].astype("category")       # a few names repeated 1e6 times
     phase["lock"] = phase["lock"].astype(np.int64)
     phase["snr_dbhz"] = phase["snr_dbhz"].astype(float)
-    gyro = c.topics.get(GYRO_TOPIC, TopicColumns()).table(["gyro", "rate_rad_s"])
+    gyro = _gyro_from_attachments(c.attachments) if not want_phase else None
+    if gyro is None:
+        if not want_phase and GYRO_TOPIC not in c.topics:
+            c2 = read_mcap(path, topics=[GYRO_TOPIC])        # an older RUN.mcap without arrays
+            c.topics.update(c2.topics)
+        gyro = c.topics.get(GYRO_TOPIC, TopicColumns()).table(["gyro", "rate_rad_s"])
     act = c.topics.get(ACTUATOR_TOPIC, TopicColumns()).table(["actuator", "force_n"])
     return Run(str(path), cfg, phase, gyro, act, c.metadata.get(INGEST_METADATA, {}))
 
