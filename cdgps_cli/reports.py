@@ -104,7 +104,7 @@ def run_spectra(states, run, opt: SpectraOptions, out_dir: str | Path) -> dict:
         df[col] = v
     for i in range(res["fdd_sv"].shape[1]):
         df[f"fdd_singular_value_{i + 1}_1_hz"] = res["fdd_sv"][:, i]      # of the standardized CSD
-    write_atomic(out / "psd.csv", lambda p: df.to_csv(p, index=False, lineterminator="\n", float_format="%.9g"))
+    write_atomic(out / "psd.csv", lambda p: df.to_csv(p, index=False, lineterminator="\n", float_format="%.7g"))
     peaks = _json_clean({"modes": res["modes"], "settings": res["settings"], "states": str(states.path),
                          "config": cfg.name, "config_sha256": cfg.sha256, "gyros": gnames})
     _atomic_bytes(out / "peaks.json", (json.dumps(peaks, indent=2) + "\n").encode())
@@ -136,13 +136,22 @@ def _mode_key(cfg, res) -> str:
     return "model modes: " + ", ".join(f"{order[m['mode']]} {m['mode']} ({m['model_hz']:g} Hz)" for m in res["modes"])
 
 
+def _plot_index(f: np.ndarray, fmin: float, fmax: float, points: int = 2000) -> np.ndarray:
+    """Indices of ~``points`` log-spaced frequencies in [fmin, fmax] (plots only; data files keep all)."""
+    sel = np.flatnonzero((f >= fmin) & (f <= fmax))
+    if sel.size <= points:
+        return sel
+    want = np.geomspace(f[sel[0]], f[sel[-1]], points)
+    return np.unique(sel[0] + np.searchsorted(f[sel], want).clip(0, sel.size - 1))
+
+
 def plot_psd(res, cfg, gnames) -> bytes:
     """Fig. 8 style: GPS- vs gyro-derived angle PSDs (rad²/Hz), log-log, model modes marked."""
     plt = _mpl()
     f = res["f_hz"]
     fmin = max(f[0], 0.01)
     fmax = min(f[-1], 2.0)
-    sel = (f >= fmin) & (f <= fmax)
+    sel = _plot_index(f, fmin, fmax)
     if gnames:
         n = len(gnames)
         cols = 2 if n > 1 else 1
@@ -183,7 +192,7 @@ def plot_fdd(res, cfg):
     plt = _mpl()
     f = res["f_hz"]
     fm = [m["model_hz"] for m in res["modes"]] or [0.1]
-    sel = (f >= max(f[0], min(fm) / 2)) & (f <= min(f[-1], max(fm) * 3))
+    sel = _plot_index(f, max(f[0], min(fm) / 2), min(f[-1], max(fm) * 3))
     fig, ax = plt.subplots(figsize=(10, 4.2))
     for i in range(res["fdd_sv"].shape[1]):
         ax.loglog(f[sel], res["fdd_sv"][sel, i], lw=0.9, label=f"singular value {i + 1}")
