@@ -19,7 +19,6 @@ from .atomic import write_atomic, write_bytes_atomic
 from .errors import CdgpsError
 from .expressions import parse_expression
 from .kinematics import gyro_matrix
-from .spectra import SpectraOptions, compute_spectra
 
 
 def _mpl():
@@ -79,8 +78,10 @@ def _gyro_table(run) -> tuple[np.ndarray, np.ndarray, list]:
 
 # ----------------------------------------------------------------------------- spectra
 
-def run_spectra(states, run, opt: SpectraOptions, out_dir: str | Path) -> dict:
+def run_spectra(states, run, opt, out_dir: str | Path) -> dict:
     """Compute spectra and write psd.csv, peaks.json, psd.png, fdd.png into ``out_dir``."""
+    from .spectra import compute_spectra
+
     cfg = states.cfg
     gt, gr, gnames = (np.zeros(0), None, [])
     if run is not None:
@@ -385,7 +386,7 @@ def static_report(states, run, angle: str, survey_deg: float | None, out_dir: st
 
 # ----------------------------------------------------------------------------- spectrum report
 
-def spectrum_report(states, run, opt: SpectraOptions, out_dir: str | Path) -> dict:
+def spectrum_report(states, run, opt, out_dir: str | Path) -> dict:
     """The dynamic sensor test (Sec. VI.B): PSD figure and identified modes vs the model."""
     out = _out_dir(out_dir)
     s = run_spectra(states, run, opt, out)

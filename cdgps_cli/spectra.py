@@ -20,9 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.signal import coherence, welch
-from scipy.signal.windows import hann
+
 
 from .config import StructureConfig
 from .errors import CdgpsError
@@ -63,10 +61,10 @@ def cross_spectral_matrix(x: np.ndarray, fs: float, nperseg: int, overlap: float
     -------
     f : (F,) Hz;  G : (F, m, m) complex, one-sided, units of x² / Hz.
     """
-    step = max(int(round(nperseg * (1 - overlap))), 1)
+    step = max(nperseg - int(nperseg * overlap), 1)          # as scipy.signal.welch's noverlap
     seg = _segments(x - x.mean(axis=0), nperseg, step)
     seg = seg - seg.mean(axis=1, keepdims=True)
-    w = hann(nperseg, sym=False)
+    w = 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(nperseg) / nperseg)    # periodic Hann
     X = np.fft.rfft(seg * w[None, :, None], n=nfft, axis=1)      # (S, F, m)
     scale = 1.0 / (fs * np.sum(w**2))
     G = np.einsum("sfi,sfj->fij", X, X.conj()) * scale / seg.shape[0]
@@ -76,6 +74,24 @@ def cross_spectral_matrix(x: np.ndarray, fs: float, nperseg: int, overlap: float
         G[1:] *= 2.0
     f = np.fft.rfftfreq(nfft, 1.0 / fs)
     return f, G
+
+
+def welch_psd(x: np.ndarray, fs: float, nperseg: int, overlap: float, nfft: int):
+    """One-sided Welch PSD of a series (Hann, constant detrend per segment), x² / Hz.
+
+    Equal to ``scipy.signal.welch`` with the same settings (tested); written here with
+    :func:`cross_spectral_matrix` so the command line does not pay for importing scipy.signal.
+    """
+    f, G = cross_spectral_matrix(np.asarray(x, dtype=float)[:, None], fs, nperseg, overlap, nfft)
+    return f, np.real(G[:, 0, 0])
+
+
+def coherence_msc(x: np.ndarray, y: np.ndarray, fs: float, nperseg: int, overlap: float, nfft: int):
+    """Magnitude-squared coherence |Gxy|² / (Gxx Gyy) from the same Welch estimates."""
+    f, G = cross_spectral_matrix(np.column_stack([x, y]).astype(float), fs, nperseg, overlap, nfft)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        c = np.abs(G[:, 0, 1]) ** 2 / np.real(G[:, 0, 0] * G[:, 1, 1])
+    return f, np.nan_to_num(c)
 
 
 def mac(a: np.ndarray, b: np.ndarray) -> float:
@@ -185,6 +201,8 @@ def sdof_fit(f: np.ndarray, p: np.ndarray, f0: float, zeta0: float, half_width_h
     lo = [-np.inf, f0 - half_width_hz, 1e-4, -np.inf]
     hi = [np.inf, f0 + half_width_hz, 0.5, np.inf]
     x0[1] = min(max(x0[1], lo[1] + 1e-12), hi[1] - 1e-12)
+    from scipy.optimize import least_squares
+
     try:
         r = least_squares(lambda x: model(x) - np.log(pp), x0, bounds=(lo, hi), x_scale="jac")
     except ValueError:
@@ -273,15 +291,12 @@ def compute_spectra(cfg: StructureConfig, time_s: np.ndarray, q: np.ndarray,
         rates = np.column_stack([np.interp(time_s, gyro_time_s, gyro_rate[:, g]) for g in range(gyro_rate.shape[1])])
         gps_ang = q @ Gm.T
         for g, gname in enumerate(cfg.gyro_names):
-            fw, pr = welch(rates[:, g], fs=fs, window="hann", nperseg=nperseg, noverlap=int(nperseg * opt.overlap),
-                           nfft=nfft, detrend="constant")
+            fw, pr = welch_psd(rates[:, g], fs, nperseg, opt.overlap, nfft)
             with np.errstate(divide="ignore", invalid="ignore"):
                 psd[f"gyro_{gname}"] = np.where(fw > 0, pr / (2 * np.pi * fw) ** 2, np.nan)
-            _, pa = welch(gps_ang[:, g], fs=fs, window="hann", nperseg=nperseg, noverlap=int(nperseg * opt.overlap),
-                          nfft=nfft, detrend="constant")
+            _, pa = welch_psd(gps_ang[:, g], fs, nperseg, opt.overlap, nfft)
             psd[f"gps_{gname}"] = pa
-            _, coh = coherence(gps_ang[:, g], rates[:, g], fs=fs, window="hann", nperseg=nperseg,
-                               noverlap=int(nperseg * opt.overlap), nfft=nfft)
+            _, coh = coherence_msc(gps_ang[:, g], rates[:, g], fs, nperseg, opt.overlap, nfft)
             psd[f"coherence_{gname}"] = coh
     modes = []
     Ystd = Y / std
@@ -302,8 +317,7 @@ def compute_spectra(cfg: StructureConfig, time_s: np.ndarray, q: np.ndarray,
         seg_j = min(duration, max(60.0, 8.0 / bw_model))
         npj = int(min(N, round(seg_j * fs)))
         nfj = int(2 ** np.ceil(np.log2(npj * opt.pad)))
-        fj, pj = welch(Ystd @ Wfilt[j], fs=fs, window="hann", nperseg=npj, noverlap=int(npj * opt.overlap),
-                       nfft=nfj, detrend="constant")
+        fj, pj = welch_psd(Ystd @ Wfilt[j], fs, npj, opt.overlap, nfj)
         res_j = 1.44 * fs / npj
         half = max(4 * bw_model, 4 * res_j, fm * opt.band_pct / 100)
         # the fit's formal sigma treats bins as independent; zero padding (pad) and the Hann window

@@ -21,11 +21,9 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from scipy.stats import chi2
 
 from . import __version__
 from .config import StructureConfig, parse_config
-from .ekf import EstimateResult
 from .atomic import write_atomic
 from .errors import CdgpsError
 from .mcap_io import CONFIG_ATTACHMENT, McapOut, array_schema, read_mcap
@@ -74,7 +72,7 @@ def _npy_load(data: bytes) -> np.ndarray:
     return np.load(io.BytesIO(data), allow_pickle=False)
 
 
-def write_states(res: EstimateResult, run_path: str | Path, init: dict, init_text: str,
+def write_states(res, run_path: str | Path, init: dict, init_text: str,
                  out_path: str | Path, options: dict) -> dict:
     """Write STATES.mcap atomically; returns a summary."""
     cfg = res.cfg
@@ -194,6 +192,8 @@ def evaluate(truth_dir: str | Path, states_path: str | Path, converge_s: float =
     Returns RMS error per coordinate (after ``converge_s`` from the first estimate), NEES on the
     modal positions with its chi-square 95% interval, NIS statistics, convergence time and bias errors.
     """
+    from scipy.stats import chi2
+
     truth_dir = Path(truth_dir)
     csv = truth_dir / "truth.csv"
     for alt in ("truth.csv.xz", "truth.csv.gz"):

@@ -75,8 +75,7 @@ def test_cross_spectral_matrix_matches_scipy(nperseg, overlap, nfft):
     e = rng.standard_normal((n, 3))
     x = np.column_stack([e[:, 0], 0.6 * e[:, 0] + 0.8 * e[:, 1], np.convolve(e[:, 2], np.ones(5) / 5, "same")]) + [3.0, -1.0, 0.5]
     f, G = cross_spectral_matrix(x, FS, nperseg, overlap, nfft)
-    step = int(round(nperseg * (1 - overlap)))
-    kw = dict(fs=FS, window="hann", nperseg=nperseg, noverlap=nperseg - step, nfft=nfft, detrend="constant")
+    kw = dict(fs=FS, window="hann", nperseg=nperseg, noverlap=int(nperseg * overlap), nfft=nfft, detrend="constant")
     for i in range(3):
         fw, pw = welch(x[:, i], **kw)
         np.testing.assert_allclose(f, fw)
@@ -390,3 +389,21 @@ def test_reported_frequency_sigma_is_calibrated(testbed_cfg):
     assert 0.5 < rms < 1.5, rms
     assert np.mean(np.abs(z) > 3) < 0.03
 
+
+
+@pytest.mark.parametrize("nperseg,overlap,nfft", [(256, 0.5, 1024), (333, 0.5, 1333), (500, 0.75, 2048)])
+def test_welch_psd_and_coherence_match_scipy(nperseg, overlap, nfft):
+    from scipy.signal import coherence
+    from cdgps_cli.spectra import coherence_msc, welch_psd
+
+    rng = np.random.default_rng(nperseg + 1)
+    e = rng.standard_normal((4000, 2))
+    x, y = e[:, 0] + 2.0, 0.7 * e[:, 0] + 0.5 * e[:, 1]
+    kw = dict(fs=FS, window="hann", nperseg=nperseg, noverlap=int(nperseg * overlap), nfft=nfft)
+    f, p = welch_psd(x, FS, nperseg, overlap, nfft)
+    fw, pw = welch(x, detrend="constant", **kw)
+    np.testing.assert_allclose(f, fw)
+    np.testing.assert_allclose(p, pw, rtol=1e-10, atol=1e-14 * pw.max())
+    _, c = coherence_msc(x, y, FS, nperseg, overlap, nfft)
+    _, cw = coherence(x, y, **kw)
+    np.testing.assert_allclose(c, cw, rtol=1e-9, atol=1e-12)
