@@ -249,6 +249,14 @@ def evaluate(ctx, truth_dir, states_mcap, converge_s, as_json):
     click.echo("\n".join(lines))
 
 
+def _states_and_gyro(states_mcap, gyro_mcap):
+    """STATES.mcap (state series only) and, optionally, the gyro log of a RUN.mcap."""
+    from .run import read_run
+    from .states import States
+
+    return States(states_mcap, diagnostics=False), (read_run(gyro_mcap, phase=False) if gyro_mcap else None)
+
+
 def _spectra_options(coords, segment_s, overlap, pad):
     from .spectra import SpectraOptions
 
@@ -282,11 +290,7 @@ def _with(opts):
 def spectra(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad, out_dir, as_json):
     """Welch PSDs vs gyros, FDD modal identification → psd.csv, peaks.json, psd.png, fdd.png."""
     from .reports import run_spectra
-    from .run import read_run
-    from .states import States
-
-    st = States(states_mcap, diagnostics=False)
-    run = read_run(gyro_mcap, phase=False) if gyro_mcap else None
+    st, run = _states_and_gyro(states_mcap, gyro_mcap)
     s = run_spectra(st, run, _spectra_options(coords, segment_s, overlap, pad), out_dir)
     seen = sum(1 for m in s["modes"] if m["seen"])
     _say(ctx, f"wrote {', '.join(s['files'])} to {out_dir}/: {seen} of {len(s['modes'])} modes identified")
@@ -317,11 +321,7 @@ def report():
 def report_static(ctx, states_mcap, gyro_mcap, angle, survey_deg, start_s, end_s, gyro_name, out_dir, as_json):
     """Static sensor test (1998 paper Fig. 7): mean vs survey, noise, GPS and gyro drift."""
     from .reports import static_report
-    from .run import read_run
-    from .states import States
-
-    st = States(states_mcap, diagnostics=False)
-    run = read_run(gyro_mcap, phase=False) if gyro_mcap else None
+    st, run = _states_and_gyro(states_mcap, gyro_mcap)
     d = static_report(st, run, angle, survey_deg, out_dir, start_s, end_s, gyro_name)
     err = "" if d["error_deg"] is None else f", error {d['error_deg']:+.4f}°"
     gd = "" if d["gyro_drift_deg_per_min"] is None else f", gyro drift {d['gyro_drift_deg_per_min']:+.4f}°/min"
@@ -341,11 +341,7 @@ def report_static(ctx, states_mcap, gyro_mcap, angle, survey_deg, start_s, end_s
 def report_spectrum(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad, out_dir, as_json):
     """Dynamic sensor test (1998 paper Fig. 8): PSDs vs gyros and identified modes vs the model."""
     from .reports import spectrum_report
-    from .run import read_run
-    from .states import States
-
-    st = States(states_mcap, diagnostics=False)
-    run = read_run(gyro_mcap, phase=False) if gyro_mcap else None
+    st, run = _states_and_gyro(states_mcap, gyro_mcap)
     d = spectrum_report(st, run, _spectra_options(coords, segment_s, overlap, pad), out_dir)
     _say(ctx, d["summary"])
     _say(ctx, f"report: {Path(out_dir) / 'report.html'}")

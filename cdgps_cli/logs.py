@@ -163,21 +163,22 @@ def read_receiver_log(path: str | Path, cfg: StructureConfig) -> pd.DataFrame:
     return df
 
 
-def read_gyro_log(path: str | Path, cfg: StructureConfig) -> pd.DataFrame:
-    """Read and validate a gyro log (``time_s,gyro,rate_rad_s``)."""
-    df, probs = _read_table(path, GYRO_COLUMNS, ("time_s", "rate_rad_s"))
+def _read_named_series(path, columns: tuple, value: str, allowed: list, what: str) -> pd.DataFrame:
+    """A ``time_s,<name>,<value>`` log: times in order, names from the config, no duplicate rows."""
+    name = columns[1]
+    df, probs = _read_table(path, columns, ("time_s", value))
     _check_time(df, probs)
-    _check_names(df, "gyro", list(cfg.gyro_names), probs, "gyro")
-    probs.rows(df.duplicated(["time_s", "gyro"]).to_numpy(), "duplicate row (same time_s and gyro as an earlier row)")
+    _check_names(df, name, allowed, probs, what)
+    probs.rows(df.duplicated(["time_s", name]).to_numpy(), f"duplicate row (same time_s and {name} as an earlier row)")
     probs.raise_if_any()
     return df
+
+
+def read_gyro_log(path: str | Path, cfg: StructureConfig) -> pd.DataFrame:
+    """Read and validate a gyro log (``time_s,gyro,rate_rad_s``)."""
+    return _read_named_series(path, GYRO_COLUMNS, "rate_rad_s", list(cfg.gyro_names), "gyro")
 
 
 def read_actuator_log(path: str | Path, cfg: StructureConfig) -> pd.DataFrame:
     """Read and validate an actuator log (``time_s,actuator,force_n``)."""
-    df, probs = _read_table(path, ACTUATOR_COLUMNS, ("time_s", "force_n"))
-    _check_time(df, probs)
-    _check_names(df, "actuator", list(cfg.thruster_names), probs, "actuator")
-    probs.rows(df.duplicated(["time_s", "actuator"]).to_numpy(), "duplicate row (same time_s and actuator as an earlier row)")
-    probs.raise_if_any()
-    return df
+    return _read_named_series(path, ACTUATOR_COLUMNS, "force_n", list(cfg.thruster_names), "actuator")
