@@ -388,8 +388,8 @@ def static_report(states, run, angle: str, survey_deg: float | None, out_dir: st
 
 def spectrum_report(states, run, opt, out_dir: str | Path) -> dict:
     """The dynamic sensor test (Sec. VI.B): PSD figure and identified modes vs the model."""
-    out = _out_dir(out_dir)
-    s = run_spectra(states, run, opt, out)
+    s = run_spectra(states, run, opt, out_dir)        # validates and computes before creating out_dir
+    out = Path(out_dir)
     pngs = s["pngs"]
     rows = []
     for m in s["modes"]:
