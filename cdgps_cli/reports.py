@@ -394,14 +394,15 @@ def spectrum_report(states, run, opt, out_dir: str | Path) -> dict:
     rows = []
     for m in s["modes"]:
         rows.append([m["mode"], f"{m['model_hz']:.4f}", _fmt(m["gps_hz"]), _fmt(m.get("gps_hz_sigma")),
-                     _fmt(m["gyro_hz"]), _fmt(m["error_pct"], "+.2f"), _fmt(m["damping"]),
+                     _fmt(m["gyro_hz"]), _fmt(m["error_pct"], "+.2f"), _fmt(m["damping"]), _fmt(m.get("damping_sigma")),
                      f"{m['model_damping']:.4f}", _fmt(m["mac"], ".2f"), "yes" if m["seen"] else "no"])
-    header = ["mode", "model Hz", "GPS Hz", "σ Hz", "gyro Hz", "error %", "damping", "model damping", "MAC", "seen"]
+    header = ["mode", "model Hz", "GPS Hz", "σ Hz", "gyro Hz", "error %", "damping", "σ damping", "model damping", "MAC", "seen"]
     seen = sum(1 for m in s["modes"] if m["seen"])
     st = s["settings"]
     text = (f"{seen} of {len(s['modes'])} elastic modes identified within {opt.seen_pct:g}% of the model "
-            f"(Welch/FDD segment {st['segment_s']:.0f} s, resolution {st['resolution_hz']:.4f} Hz, "
-            f"{st['duration_s']:.0f} s of data).")
+            f"(frequency and damping by a maximum-likelihood single-mode fit "
+            f"to the modal filter's periodogram, σ = 1-σ; FDD/PSD segment {st['segment_s']:.0f} s, resolution "
+            f"{st['resolution_hz']:.4f} Hz; {st['duration_s']:.0f} s of data).")
     md = (f"# Spectrum sensor test\n\n{text}\n\n{_md_table(rows, header)}\n\n![psd](psd.png)\n\n![fdd](fdd.png)\n")
     data = {"modes": s["modes"], "settings": st, "seen": seen, "summary": text}
     _write_report(out, "Spectrum sensor test", md, data,
