@@ -6,7 +6,8 @@ Layout written by :class:`McapOut`:
 * JSON-schema channels (schema encoding ``jsonschema``, message encoding ``json``) so Foxglove can
   open the file; one message per epoch per topic, the epoch's channels as arrays, with a
   ``timestamp {sec, nsec}`` field (log time = publish time = that timestamp);
-* attachments (e.g. the structure config ``config.toml``) and metadata records.
+* attachments (e.g. the structure config ``config.toml``; large ``.npy`` arrays are streamed to
+  the file by :meth:`McapOut.attach_npy` instead of being built in memory) and metadata records.
 
 Files are written under a temporary name in the target directory and renamed when complete, so a
 failed run never leaves a half-written output.  Readers always validate CRCs and turn any
@@ -15,11 +16,13 @@ corruption or truncation into a :class:`CdgpsError`.
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import struct
 import sys
 import zlib
+from array import array
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,7 +30,9 @@ import numpy as np
 import pandas as pd
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
-from mcap.writer import CompressionType, Writer
+from mcap.opcode import Opcode
+from mcap.records import AttachmentIndex
+from mcap.writer import CompressionType, IndexType, Writer
 
 from .atomic import temporary_name
 from .errors import CdgpsError
@@ -68,6 +73,19 @@ def time_ns(time_s: float) -> int:
 def timestamp(time_s: float) -> dict:
     ns = time_ns(time_s)
     return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
+
+
+_OPCODE_ATTACHMENT = int(Opcode.ATTACHMENT)
+_WRITER_INTERNALS = ("flush", "stream", "enable_data_crcs", "data_section_crc", "statistics",
+                     "index_types", "attachment_indexes")
+
+
+def _streaming_supported(writer: Writer, fh) -> bool:
+    """Whether :meth:`McapOut.attach_stream` can write past the mcap Writer (its private state is as
+    expected: mcap-python ≥ 1.1, writing to our own file handle)."""
+    if not all(hasattr(writer, "_Writer__" + a) for a in _WRITER_INTERNALS):
+        return False
+    return writer._Writer__stream is fh and hasattr(writer._Writer__statistics, "attachment_count")
 
 
 def _clean(v):
@@ -149,6 +167,90 @@ class McapOut:
     def attach(self, name: str, data: bytes, media_type: str = "text/plain") -> None:
         self.writer.add_attachment(create_time=0, log_time=0, name=name, media_type=media_type, data=data)
 
+    def attach_npy(self, name: str, arr: np.ndarray, media_type: str = "application/x-npy",
+                   chunk_bytes: int = 1 << 20) -> None:
+        """Attach ``arr`` in ``.npy`` format (the bytes of ``np.save``), streamed to the file.
+
+        Neither the ``.npy`` bytes nor the attachment record are built in memory: the array is
+        written in pieces of about ``chunk_bytes`` (a C-ordered copy of a few rows at a time when it
+        is not contiguous), so a large (N, n, n) slice costs no full-size copy.  The file is the same,
+        byte for byte, as ``attach(name, <np.save bytes>, media_type)``.
+        """
+        arr = np.asanyarray(arr)
+        if arr.dtype.hasobject:
+            raise ValueError("object arrays cannot be attached as .npy")
+        d = np.lib.format.header_data_from_array_1_0(arr)
+        head = io.BytesIO()
+        try:
+            np.lib.format.write_array_header_1_0(head, d)
+        except ValueError:                                   # header too long for format 1.0
+            np.lib.format.write_array_header_2_0(head, d)
+        src = arr.T if d["fortran_order"] else arr           # np.save writes Fortran arrays as-is
+        n_rows = src.shape[0] if src.ndim else 1
+        row_bytes = max(src.nbytes // max(n_rows, 1), 1)
+        step = max(chunk_bytes // row_bytes, 1)
+
+        def pieces():
+            yield head.getvalue()
+            if src.ndim == 0:
+                yield src.tobytes()
+                return
+            for i in range(0, n_rows, step):
+                block = np.ascontiguousarray(src[i:i + step])
+                if block.nbytes:
+                    yield memoryview(block).cast("B")
+
+        self.attach_stream(name, len(head.getvalue()) + src.nbytes, pieces(), media_type)
+
+    def attach_stream(self, name: str, size: int, pieces, media_type: str = "text/plain") -> None:
+        """Attach ``size`` bytes given as an iterable of bytes-like ``pieces``, written as they come.
+
+        Writes the same attachment record, CRCs and index entry as :meth:`attach`, without holding
+        the data: the mcap library builds every record in memory (several copies of an attachment),
+        so large attachments go straight to the file here.  Falls back to :meth:`attach` when the
+        installed mcap writer does not have the internals this relies on.
+        """
+        w = self.writer
+        if not _streaming_supported(w, self._fh):
+            data = b"".join(bytes(p) for p in pieces)
+            if len(data) != size:
+                raise ValueError(f"attachment {name!r}: expected {size} bytes, got {len(data)}")
+            self.attach(name, data, media_type)
+            return
+        w._Writer__flush()                     # records built so far go out first (as add_attachment does)
+        fh = self._fh
+        offset = fh.tell()
+        name_b, media_b = name.encode(), media_type.encode()
+        body_len = 8 + 8 + 4 + len(name_b) + 4 + len(media_b) + 8 + size + 4
+        head = (struct.pack("<BQ", _OPCODE_ATTACHMENT, body_len) + struct.pack("<QQ", 0, 0)
+                + struct.pack("<I", len(name_b)) + name_b + struct.pack("<I", len(media_b)) + media_b
+                + struct.pack("<Q", size))
+        data_crcs = bool(w._Writer__enable_data_crcs)
+        section_crc = w._Writer__data_section_crc
+
+        def put(b):
+            nonlocal section_crc
+            fh.write(b)
+            if data_crcs:
+                section_crc = zlib.crc32(b, section_crc)
+
+        put(head)
+        crc = zlib.crc32(head[9:])
+        written = 0
+        for p in pieces:
+            crc = zlib.crc32(p, crc)
+            put(p)
+            written += len(p)
+        if written != size:
+            raise ValueError(f"attachment {name!r}: expected {size} bytes, got {written}")
+        put(struct.pack("<I", crc))
+        w._Writer__data_section_crc = section_crc
+        w._Writer__statistics.attachment_count += 1
+        if w._Writer__index_types & IndexType.ATTACHMENT:
+            w._Writer__attachment_indexes.append(AttachmentIndex(
+                offset=offset, length=9 + body_len, create_time=0, log_time=0, data_size=size,
+                name=name, media_type=media_type))
+
     def metadata(self, name: str, data: dict) -> None:
         self.writer.add_metadata(name=name, data={k: str(v) for k, v in data.items()})
 
@@ -168,13 +270,15 @@ class TopicColumns:
     """Messages of one topic accumulated column-wise while reading (memory-lean).
 
     ``scalars[name]`` holds one value per message (None where a message lacks the key);
-    array fields are kept as numpy chunks — strings as integer codes into a per-field vocabulary —
-    and concatenated on demand by :meth:`column`; ``counts`` is the array length of each message.
+    array fields are appended to one flat growing buffer per field (8-byte floats, None → NaN;
+    strings as 4-byte integer codes into a per-field vocabulary), so a million elements cost
+    8 MB and no per-message objects; :meth:`column` returns their concatenation as numpy;
+    ``counts`` is the array length of each message.
     """
 
     def __init__(self):
         self.scalars: dict[str, list] = {}
-        self._chunks: dict[str, list] = {}
+        self._buf: dict[str, array] = {}
         self._vocab: dict[str, dict] = {}
         self.counts: list[int] = []
 
@@ -186,12 +290,32 @@ class TopicColumns:
                 n = len(v) if n is None else n
                 if not v:
                     continue
+                buf = self._buf.get(k)
                 if isinstance(v[0], str):
-                    vocab = self._vocab.setdefault(k, {})
-                    arr = np.fromiter((vocab.setdefault(e, len(vocab)) for e in v), dtype=np.int32, count=len(v))
+                    if buf is None:
+                        buf = self._buf[k] = array("i")
+                        self._vocab[k] = {}
+                    elif k not in self._vocab:
+                        raise ValueError(f"field {k!r}: strings after numbers")
+                    vocab = self._vocab[k]
+                    try:
+                        buf.extend([vocab.setdefault(e, len(vocab)) for e in v])
+                    except TypeError:                         # unhashable element
+                        raise ValueError(f"field {k!r}: mixed array elements") from None
                 else:
-                    arr = np.array(v, dtype=float)            # None → NaN
-                self._chunks.setdefault(k, []).append(arr)
+                    if buf is None:
+                        buf = self._buf[k] = array("d")
+                    elif k in self._vocab:
+                        raise ValueError(f"field {k!r}: numbers after strings")
+                    size = len(buf)
+                    try:
+                        buf.extend(v)
+                    except TypeError:                         # None (→ NaN), nested or mixed lists
+                        del buf[size:]                        # extend stops part way: undo
+                        vals = np.array(v, dtype=float)
+                        if vals.ndim != 1:
+                            raise ValueError(f"field {k!r}: nested arrays are not supported") from None
+                        buf.frombytes(vals.tobytes())
             elif k != "timestamp":
                 col = self.scalars.get(k)
                 if col is None:
@@ -210,16 +334,15 @@ class TopicColumns:
 
     def column(self, name: str) -> np.ndarray:
         """Concatenation of an array field over all messages (object array for strings)."""
-        chunks = self._chunks.get(name)
-        if not chunks:
+        buf = self._buf.get(name)
+        if not buf:
             return np.array([], dtype=float)
-        flat = np.concatenate(chunks)
         if name in self._vocab:
             words = np.empty(len(self._vocab[name]), dtype=object)
             for w, i in self._vocab[name].items():
                 words[i] = w
-            return words[flat]
-        return flat
+            return words[np.frombuffer(buf, dtype=np.int32)]
+        return np.frombuffer(buf, dtype=float).copy()        # a copy: the buffer may still grow
 
     def table(self, array_columns: list[str], scalar_columns: list[str] = ()) -> pd.DataFrame:
         """Long table: one row per array element, scalars repeated (inverse of write_table)."""

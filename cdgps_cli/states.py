@@ -58,14 +58,6 @@ def coordinate_sigma(cfg: StructureConfig, P_xi: np.ndarray) -> np.ndarray:
     return np.sqrt(np.maximum(np.einsum("qi,nij,qj->nq", U, P_xi, U), 0.0))
 
 
-def _npy_bytes(arr: np.ndarray) -> bytes:
-    import io
-
-    buf = io.BytesIO()
-    np.save(buf, np.asarray(arr, dtype=float), allow_pickle=False)
-    return buf.getvalue()
-
-
 def _npy_load(data: bytes) -> np.ndarray:
     import io
 
@@ -94,18 +86,20 @@ def write_states(res, run_path: str | Path, init: dict, init_text: str,
             series.append((STATE_FILTERED_TOPIC, res.x_filt, res.P_filt, False))
         for topic, X, P, smoothed in series:
             ch = out.channel(topic, schema)
-            q = X[:, :nm] @ U.T
-            sq = coordinate_sigma(cfg, P[:, :nm, :nm])
+            P_xi = P[:, :nm, :nm]                  # views: nothing below copies the (N, n, n) series
+            q = X[:, :nm] @ U.T                    # (N, n_q): small
+            sq = coordinate_sigma(cfg, P_xi)
             for k, t in enumerate(res.time_s):
                 out.write(ch, t, {
                     "q": dict(zip(names, q[k].tolist())), "sigma_q": dict(zip(names, sq[k].tolist())),
                     "xi": X[k, :nm].tolist(), "xidot": X[k, nm:].tolist(),
-                    "P_xi": P[k, :nm, :nm].ravel().tolist(), "smoothed": smoothed})
-            # the same series as .npy arrays, for fast machine reading (spectra, reports, evaluate)
+                    "P_xi": P_xi[k].ravel().tolist(), "smoothed": smoothed})
+            # the same series as .npy arrays, for fast machine reading (spectra, reports, evaluate),
+            # streamed to the file a few rows at a time (the bytes of np.save, never built in memory)
             for name, arr in (("time_s", res.time_s), ("q", q), ("sigma_q", sq), ("xi", X[:, :nm]),
-                              ("P_xi", P[:, :nm, :nm])):
-                out.attach(f"arrays{topic}/{name}.npy", _npy_bytes(arr), "application/x-npy")
-            del q, sq
+                              ("P_xi", P_xi)):
+                out.attach_npy(f"arrays{topic}/{name}.npy", np.asarray(arr, dtype=float))
+            del q, sq, P_xi
         ch = out.channel(RESIDUAL_TOPIC, RESIDUAL_SCHEMA)
         ants = [c[0] for c in res.channels]
         txs = [c[1] for c in res.channels]
