@@ -7,7 +7,9 @@
     biases subtracted from the measurement (FilterPy calls HJacobian and Hx separately at the same
     state; the model is evaluated once and h is cached, so both filters evaluate it once per epoch).
     Also FilterPy with a trivial precomputed h/H (the filter mechanics alone) and the measurement
-    model alone.  Both filters run on the same data and must agree (max |Δx| printed).
+    model alone.  Both filters run on the same data and must agree (max |Δx| printed).  cdgps runs its
+    compiled kernel (``cdgps_cli._ekfcore``) when it is built, and is also timed on its pure-numpy path
+    (``CDGPS_NO_KERNEL=1``); the report says which path the headline figure used.
 (b) Smoother: ``rts_smooth`` on the filtered arrays vs the forward filter time, and
     estimate(smooth=True) vs estimate(smooth=False).
 (c) One hour of 10 Hz data end to end (``cdgps estimate --smooth``: read RUN.mcap, filter, smooth,
@@ -15,7 +17,8 @@
     the stage breakdown (peak RSS is cumulative: the peak reached by the end of that stage).
 
 Targets (issue 4): (a) ≥ 4× FilterPy, (b) smoother ≤ 2× filter, (c) peak RSS < 500 MB.  Timings are
-best-of-``--repeat`` in this process (the machine may be shared).  Writes
+best-of-``--repeat`` in this process (the machine may be shared), with a single-threaded BLAS for
+every filter (cdgps's own default; set before numpy is imported).  Writes
 docs/benchmarks/estimate.json and prints a table.  Needs FilterPy (``pip install filterpy``)::
 
     python benchmarks/bench_estimate.py                 # full (≈ 2–3 min)
@@ -34,12 +37,18 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-import pandas as pd
+# the BLAS setting cdgps_cli applies on import, here before numpy is imported by anyone, so that
+# FilterPy and both cdgps paths run with the same (single-threaded) BLAS
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from cdgps_cli import ekf_kernel  # noqa: E402
 from cdgps_cli.config import load_config  # noqa: E402
 from cdgps_cli.dynamics import discrete_model  # noqa: E402
 from cdgps_cli.ekf import EstimateOptions, estimate, rts_smooth  # noqa: E402
@@ -60,6 +69,19 @@ def best_of(fn, repeat):
         out = fn()
         best = min(best, time.perf_counter() - t)
     return best, out
+
+
+def numpy_path(fn):
+    """Call fn with cdgps forced onto its pure-numpy path (CDGPS_NO_KERNEL=1)."""
+    old = os.environ.get("CDGPS_NO_KERNEL")
+    os.environ["CDGPS_NO_KERNEL"] = "1"
+    try:
+        return fn()
+    finally:
+        if old is None:
+            del os.environ["CDGPS_NO_KERNEL"]
+        else:
+            os.environ["CDGPS_NO_KERNEL"] = old
 
 
 def filterpy_run(cfg, init, Z, hmodel, precomputed=None):
@@ -110,9 +132,13 @@ def part_ab(minutes: float, repeat: int, seed: int) -> dict:
                          "force_n": pd.Series([], dtype=float)})
     run = Run("<bench>", cfg, sim.receiver.reset_index(drop=True), sim.gyro, acts, {})
     init = initialize(run, InitOptions(start_s=0.0, duration_s=60.0))
+    path = ekf_kernel.path_name()
     t_ours, res = best_of(lambda: estimate(run, init, EstimateOptions()), repeat)
     N = len(res.time_s)
     assert res.events == [], res.events
+    assert res.filter_path == path
+    t_np, res_np = numpy_path(lambda: best_of(lambda: estimate(run, init, EstimateOptions()), repeat))
+    assert res_np.filter_path == "numpy"
 
     # the same data for FilterPy: Z = λ·phase − bias, channels in the filter's order
     chans = res.channels
@@ -138,21 +164,31 @@ def part_ab(minutes: float, repeat: int, seed: int) -> dict:
     U_in = np.zeros((N, m.B.shape[1]))
     t_rts, _ = best_of(lambda: rts_smooth(m.A, m.Q, m.B, U_in, res.x, res.P), repeat)
     t_both, res_s = best_of(lambda: estimate(run, init, EstimateOptions(smooth=True)), repeat)
+    t_both_np, res_s_np = numpy_path(lambda: best_of(lambda: estimate(run, init, EstimateOptions(smooth=True)), repeat))
     return {
         "data": {"minutes": minutes, "epochs": N, "states": res.x.shape[1], "measurements_per_epoch": C,
                  "seed": seed, "phase_sigma_m": SIGMA},
         "forward_filter": {
+            "cdgps_path": path,
             "cdgps_s": t_ours, "cdgps_epochs_per_s": N / t_ours,
+            "cdgps_numpy_path_s": t_np, "cdgps_numpy_path_epochs_per_s": N / t_np,
+            "max_abs_state_difference_kernel_vs_numpy_path": float(np.max(np.abs(res.x - res_np.x))),
+            "max_abs_covariance_difference_kernel_vs_numpy_path": float(np.max(np.abs(res.P - res_np.P))),
             "filterpy_s": t_fp, "filterpy_epochs_per_s": N / t_fp,
             "ratio_cdgps_over_filterpy": t_fp / t_ours,
+            "ratio_cdgps_numpy_path_over_filterpy": t_fp / t_np,
             "filterpy_trivial_h_s": t_fp_triv, "filterpy_trivial_h_epochs_per_s": N / t_fp_triv,
             "measurement_model_only_epochs_per_s": N / t_model,
             "max_abs_state_difference_cdgps_vs_filterpy": float(np.max(np.abs(xs_fp - res.x))),
             "target_ratio": 4.0,
         },
         "smoother": {
+            "path": path,
             "rts_smooth_s": t_rts, "ratio_rts_over_filter": t_rts / t_ours,
             "estimate_smooth_s": t_both, "ratio_estimate_smooth_over_filter": t_both / t_ours,
+            "estimate_smooth_numpy_path_s": t_both_np,
+            "ratio_estimate_smooth_over_filter_numpy_path": t_both_np / t_np,
+            "max_abs_smoothed_state_difference_kernel_vs_numpy_path": float(np.max(np.abs(res_s.x - res_s_np.x))),
             "target_ratio": 2.0,
         },
     }
@@ -247,7 +283,7 @@ def part_c(hours: float, seed: int) -> dict:
             if ln.startswith("__STAGE__"):
                 parts = ln.split()
                 stages.append({"stage": " ".join(parts[1:-2]), "s": float(parts[-2]), "peak_rss_mib_so_far": float(parts[-1])})
-    return {"hours": hours, "epochs": epochs, "run_mcap_mib": round(run_mib, 1), "states_mcap_mib": round(states_mib, 1),
+    return {"hours": hours, "epochs": epochs, "path": ekf_kernel.path_name(), "run_mcap_mib": round(run_mib, 1), "states_mcap_mib": round(states_mib, 1),
             "estimate_smooth_wall_s": wall, "estimate_smooth_peak_rss_mib": rss, "setup_s": setup_s,
             "stages": stages, "target_peak_rss_mib": 500}
 
@@ -279,16 +315,21 @@ def main() -> None:
     dd = res["data"]
     print(f"(a) forward filter, testbed, {dd['epochs']} epochs ({dd['minutes']:g} min), {dd['states']} states, "
           f"{dd['measurements_per_epoch']} measurements/epoch")
-    print(f"    {'cdgps estimate (filter only)':38s} {f['cdgps_epochs_per_s']:9.0f} epochs/s  ({f['cdgps_s']:.2f} s)")
+    print(f"    {'cdgps estimate (filter only), ' + f['cdgps_path'] + ' path':38s} {f['cdgps_epochs_per_s']:9.0f} epochs/s  "
+          f"({f['cdgps_s']:.3f} s)")
+    print(f"    {'cdgps estimate (filter only), numpy path':38s} {f['cdgps_numpy_path_epochs_per_s']:9.0f} epochs/s  "
+          f"({f['cdgps_numpy_path_s']:.3f} s; max |Δx| vs {f['cdgps_path']} "
+          f"{f['max_abs_state_difference_kernel_vs_numpy_path']:.1e})")
     print(f"    {'FilterPy EKF, EpochPhaseModel h/H':38s} {f['filterpy_epochs_per_s']:9.0f} epochs/s  ({f['filterpy_s']:.2f} s)")
     print(f"    {'FilterPy EKF, precomputed h/H':38s} {f['filterpy_trivial_h_epochs_per_s']:9.0f} epochs/s")
     print(f"    {'measurement model alone':38s} {f['measurement_model_only_epochs_per_s']:9.0f} epochs/s")
-    print(f"    ratio cdgps / FilterPy = {f['ratio_cdgps_over_filterpy']:.2f}× (target ≥ 4×: "
+    print(f"    ratio cdgps ({f['cdgps_path']} path) / FilterPy = {f['ratio_cdgps_over_filterpy']:.2f}× (target ≥ 4×: "
           f"{'met' if f['ratio_cdgps_over_filterpy'] >= 4 else 'NOT met'}); max |Δx| = "
           f"{f['max_abs_state_difference_cdgps_vs_filterpy']:.1e}")
-    print(f"(b) smoother: rts_smooth {s['rts_smooth_s']:.2f} s = {s['ratio_rts_over_filter']:.2f}× the filter; "
-          f"estimate --smooth {s['ratio_estimate_smooth_over_filter']:.2f}× (target ≤ 2×: "
-          f"{'met' if s['ratio_estimate_smooth_over_filter'] <= 2 else 'NOT met'})")
+    print(f"(b) smoother ({s['path']} path): rts_smooth {s['rts_smooth_s']:.3f} s = {s['ratio_rts_over_filter']:.2f}× the "
+          f"filter; estimate --smooth {s['ratio_estimate_smooth_over_filter']:.2f}× (target ≤ 2×: "
+          f"{'met' if s['ratio_estimate_smooth_over_filter'] <= 2 else 'NOT met'}); numpy path "
+          f"{s['ratio_estimate_smooth_over_filter_numpy_path']:.2f}×")
     print(f"(c) {e['hours']:g} h end to end ({e['epochs']} epochs, RUN {e['run_mcap_mib']} MiB → STATES "
           f"{e['states_mcap_mib']} MiB): {e['estimate_smooth_wall_s']:.1f} s, peak RSS "
           f"{e['estimate_smooth_peak_rss_mib']:.0f} MiB (target < 500: "

@@ -13,6 +13,13 @@ restarts, or whose normalized innovation is an outlier, has its bias dropped and
 the filter's prediction over a short window (its integer re-fixed when the float value is
 unambiguous).  Persistent NIS failures trigger a batch re-initialization on a window after the
 event, as in the 1995 paper's Fig. 7.  Every event is logged (time, channel, kind, action).
+
+Speed: with fixed biases the steady-state epochs (no lock event, no channel being re-estimated, no
+outlier, no re-initialization) run in the compiled kernel of :mod:`cdgps_cli.ekf_kernel` (same
+arithmetic, sparse A, H non-zero only in the position columns), which returns here at the first
+epoch that needs the logic below; the smoother's pass is compiled too.  Without the extension (or
+with ``CDGPS_NO_KERNEL=1``) everything runs in the numpy loops of this module, with the same results
+to rounding.
 """
 
 from __future__ import annotations
@@ -27,6 +34,7 @@ from scipy.stats import chi2
 
 from .config import StructureConfig
 from .dynamics import discrete_model
+from . import ekf_kernel
 from .errors import CdgpsError
 from .measurement import EpochPhaseModel, channel_indices
 from .run import Run
@@ -49,6 +57,7 @@ class EstimateOptions:
     reinit_window_s: float = 30.0
     restart_sigma_cycles: float = 10.0  # biases="states": variance inflation at a lock restart
     keep_filtered_covariance: str = "full"  # with smooth: "full" (n×n) or "modal" (the n_m×n_m block the outputs use)
+    process_noise_scale: float = 1.0   # multiplies the config's process-noise sigma (Q × scale²), filter and smoother
     progress: object = None
 
     def echo(self) -> dict:
@@ -70,6 +79,7 @@ class EstimateResult:
     events: list = field(default_factory=list)
     biases: dict = field(default_factory=dict)   # channel → final bias (m)
     smoothed: bool = False
+    filter_path: str = "numpy"    # "c": steady-state epochs ran in the compiled kernel (ekf_kernel)
 
 
 _MASKS: dict = {}
@@ -167,6 +177,10 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
         raise CdgpsError(f"--sigma-m must be a positive number of metres, got {opt.sigma_m!r}")
     if opt.biases not in ("fixed", "states"):
         raise CdgpsError(f"--biases: expected fixed or states, got {opt.biases!r}")
+    pns = opt.process_noise_scale
+    if (isinstance(pns, bool) or not isinstance(pns, (int, float, np.integer, np.floating))
+            or not (np.isfinite(pns) and pns > 0)):
+        raise CdgpsError(f"--process-noise-scale must be a positive number, got {pns!r}")
     cfg = run.cfg
     t0, x0, P0, init_bias = load_init_state(init, cfg)
     sigma = opt.sigma_m if opt.sigma_m is not None else float(init.get("sigma_m") or cfg.measurement_sigma_m)
@@ -200,7 +214,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     LOCK = np.full((N, C), -1, dtype=np.int32)
     Y[k_of, c_of] = ph["phase_cycles"].to_numpy() * lam
     LOCK[k_of, c_of] = ph["lock"].to_numpy()
-    del k_of, c_of
+    del k_of, c_of, ph, keep                # the phase table copy is not needed any more (memory)
     ant, tx = channel_indices(cfg, [c[0] for c in chans], [c[1] for c in chans])
     line = cfg.antenna_line_bias_m[ant] - cfg.antenna_line_bias_m[cfg.master_index]
     hmodel = EpochPhaseModel(cfg, ant, tx)
@@ -222,7 +236,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     A = np.eye(p)
     A[:n, :n] = model.A
     Qd = np.zeros((p, p))
-    Qd[:n, :n] = model.Q
+    Qd[:n, :n] = model.Q * float(pns) ** 2
     if use_bias_states:
         Qd[n:, n:] = np.eye(C) * opt.bias_process_sigma_m**2
     Bu = np.zeros((p, model.B.shape[1]))
@@ -250,6 +264,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     rebias: dict[int, list] = {}           # channel → list of (k, y − h(x̄), var_h)
     extra_q: dict[int, list] = {}          # epoch → [(state index, added variance)] (bias states)
     EVENT = lock_events(Y, LOCK)
+    del LOCK
     new_states: list = []
     chi2_bound = {}
     fail_run = 0
@@ -277,8 +292,23 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
         rebias[c] = []
         log(k, c, kind, f"bias dropped; re-estimating over {opt.rebias_epochs} epochs")
 
+    # compiled steady-state epochs (fixed biases): the kernel writes xs, Ps, resid, nis, nis_dof and
+    # stops at the first epoch that needs the logic below, which then runs for that epoch only
+    kern = None
+    if not use_bias_states and ekf_kernel.available():
+        kern = ekf_kernel.ForwardKernel(cfg, ant, tx, A, Qd, Bu, sigma, opt.outlier_sigma, opt.nis_probability,
+                                        opt.reinit_after_epochs, Y, EVENT, U_in, xs, Ps, resid, nis, nis_dof)
+
     k = 0
     while k < N:
+        if kern is not None:
+            k0 = k
+            k, fail_run, x, P = kern.run(k0, x, P, bias, rebias, fail_run, k_reinit_block)
+            if N >= 3000:
+                for j in range(-(-k0 // report_every) * report_every, k, report_every):
+                    say(f"  filter {100 * j / N:3.0f}%")
+            if k >= N:
+                break
         if k > 0:
             x = A @ x + Bu @ U_in[k - 1]
             P = A @ P @ A.T + Qd
@@ -423,10 +453,13 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
             say(f"  filter {100 * k / N:3.0f}%")
         k += 1
 
+    filter_path = "c" if kern is not None else "numpy"
+    del Y, EVENT, kern                      # free the (N, C) inputs before the smoother (memory)
     res = EstimateResult(cfg, grid, xs[:, :n] if p == n else xs[:, :n].copy(),
                          Ps if p == n else Ps[:, :n, :n].copy(), None, None, chans, resid, nis,
                          nis_dof, events, {chans[c]: (float(xs[-1, n + c]) if use_bias_states else float(bias[c]))
-                                           for c in range(C)})
+                                           for c in range(C)},
+                         filter_path=filter_path)
     if opt.smooth:
         # keep the filter's states and covariances, then smooth in place (one copy instead of three)
         res.x_filt = res.x.copy()
@@ -473,6 +506,11 @@ def rts_smooth(A, Q, B, U_in, xf, Pf, extra_q=None, no_link=None, in_place=False
     N = xf.shape[0]
     xs = xf if in_place else xf.copy()
     Ps = Pf if in_place else Pf.copy()
+    if (ekf_kernel.available() and xs.dtype == np.float64 and Ps.dtype == np.float64
+            and xs.flags.c_contiguous and Ps.flags.c_contiguous and xs.flags.writeable and Ps.flags.writeable):
+        # compiled pass on xs, Ps (= xf, Pf or their copies): epoch k is read before it is replaced
+        ekf_kernel.rts(A, Q, B, U_in, xs, Ps, xs, Ps, extra_q, no_link)
+        return xs, Ps
     for k in range(N - 2, -1, -1):
         if no_link is not None and no_link[k]:
             continue                      # a re-initialization boundary or batch-filled epoch

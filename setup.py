@@ -1,0 +1,28 @@
+"""Build of the optional C kernel ``cdgps_cli._ekfcore`` (project metadata lives in pyproject.toml).
+
+The extension is plain C against the CPython API and the buffer protocol: no numpy headers, so
+``pip install -e .`` needs only a C compiler and the Python headers.  It is ``optional``: where it
+cannot be compiled the install still succeeds and cdgps_cli.ekf uses its pure-numpy path (slower,
+same results).  -O3 without -march=native, so a wheel or build runs on any machine of its
+architecture.
+"""
+
+import sys
+
+from setuptools import Extension, setup
+
+if sys.platform == "win32":
+    compile_args = ["/O2"]
+else:
+    compile_args = ["-O3", "-std=c99"]
+
+setup(
+    ext_modules=[
+        Extension(
+            "cdgps_cli._ekfcore",
+            sources=["cdgps_cli/_ekfcore.c"],
+            extra_compile_args=compile_args,
+            optional=True,
+        )
+    ]
+)
