@@ -114,6 +114,16 @@ class BaselineOptions:
         is at most this (the last minutes of the GEONET hour have 5 satellites and PDOP > 20).
     kinematic_series : bool
         Include the per-epoch kinematic positions in the result.
+    motion : {"static", "random_walk"}
+        Rover motion assumed by the float solution that feeds LAMBDA: one position for the whole
+        span (batch least squares), or a position per epoch that random-walks with
+        ``random_walk_sigma`` m/√s per east/north/up component (:func:`_float_random_walk`).
+        The fixed solution reported is the static one in both cases.
+    random_walk_sigma : tuple of 3 floats
+        Random-walk rate of the rover's E/N/U position, m/√s (``motion="random_walk"``).
+    initial_sigma_m : float
+        Prior σ of the first epoch's position about the static float solution, m
+        (``motion="random_walk"``).
     """
 
     mask_deg: float = 15.0
@@ -131,6 +141,9 @@ class BaselineOptions:
     min_sats_kinematic: int = 4
     kinematic_max_pdop: float = 10.0
     kinematic_series: bool = True
+    motion: str = "static"
+    random_walk_sigma: tuple = (0.001, 0.001, 0.001)
+    initial_sigma_m: float = 1.0
 
     def validate(self) -> None:
         """Raise :class:`CdgpsError` listing every invalid setting."""
@@ -157,6 +170,13 @@ class BaselineOptions:
             p.append(f"max_gap_s must be > 0 s, got {self.max_gap_s!r}")
         if not (math.isfinite(self.kinematic_max_pdop) and self.kinematic_max_pdop > 0):
             p.append(f"kinematic_max_pdop must be > 0, got {self.kinematic_max_pdop!r}")
+        if self.motion not in ("static", "random_walk"):
+            p.append(f"motion must be 'static' or 'random_walk', got {self.motion!r}")
+        rw = tuple(self.random_walk_sigma) if isinstance(self.random_walk_sigma, (tuple, list)) else ()
+        if len(rw) != 3 or not all(isinstance(v, (int, float)) and math.isfinite(v) and v > 0 for v in rw):
+            p.append(f"random_walk_sigma must be three positive numbers (m/√s), got {self.random_walk_sigma!r}")
+        if not (math.isfinite(self.initial_sigma_m) and self.initial_sigma_m > 0):
+            p.append(f"initial_sigma_m must be > 0, got {self.initial_sigma_m!r}")
         if not (isinstance(self.min_sats_kinematic, int) and self.min_sats_kinematic >= 4):
             p.append(f"min_sats_kinematic must be an integer >= 4, got {self.min_sats_kinematic!r}")
         if p:
@@ -214,6 +234,8 @@ class _Data(NamedTuple):
     az_rover: np.ndarray
     slip: np.ndarray           # (N,) LLI bit 0 at either receiver
     half: np.ndarray           # (N,) LLI bit 1 at either receiver
+    slip_rover: np.ndarray     # (N,) LLI bit 0 at the rover
+    slip_base: np.ndarray      # (N,) LLI bit 0 at the master
     reset_epochs: np.ndarray
     interval_s: float
     info: dict
@@ -308,6 +330,8 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
         az_rover=gr["az_rad"][sel],
         slip=((lli_r & 1) | (lli_b & 1)).astype(bool),
         half=((lli_r & 2) | (lli_b & 2)).astype(bool),
+        slip_rover=(lli_r & 1).astype(bool),
+        slip_base=(lli_b & 1).astype(bool),
         reset_epochs=np.array(sorted(reset), dtype=np.int64),
         interval_s=interval,
         info={
@@ -402,8 +426,101 @@ def _quad(blocks, r) -> tuple[float, int]:
     return s, m
 
 
+def _float_random_walk(d: _Data, blocks_ph, blocks_code, g, r_ph, r_cd, col, n_amb: int, opt: BaselineOptions):
+    """Float ambiguities (and covariance) for a rover whose position random-walks.
+
+    Model per epoch k (SD rows, DD weights P_k of :func:`~cdgps_cli.dd.dd_weight_blocks`; phase
+    and code): ``r = G δx_k + λ E_k a + ε`` with ``δx_k = δx_{k−1} + w_k``,
+    ``w_k ~ N(0, diag(σ²)·Δt)`` and constant ambiguities ``a``.  The positions are eliminated by a
+    Kalman filter run *conditionally on a*: its estimate is affine in a (``m_k + M_k a``), its
+    covariance does not depend on a, and the prediction-error decomposition of the likelihood
+    accumulates ``aᵀJa − 2hᵀa``, so ``â = J⁻¹h`` and ``Cov(â) = J⁻¹`` are the float ambiguities
+    of the exact joint (positions + ambiguities) least-squares problem.  Per epoch the innovation
+    weight is ``W = P − PG(P⁻¹_pred + GᵀPG)⁻¹GᵀP`` (Woodbury); everything is expressed through
+    GᵀPG, GᵀPr and the active ambiguity columns, so an epoch costs O(n_amb²).
+
+    ``r_ph``/``r_cd``/``g`` are the residuals and design at the static float solution (the
+    linearization point), ``col`` the parameter index (≥ 3) of each row's ambiguity or −1.
+
+    Returns
+    -------
+    da : ndarray (n_amb,)
+        Correction to the ambiguities behind ``r_ph``, cycles.
+    q_aa : ndarray (n_amb, n_amb)
+        Their covariance, cycles².
+    """
+    lam = LAMBDA_L1
+    n_ep = d.t_label.size
+    N = np.zeros((n_ep, 3, 3))
+    b = np.zeros((n_ep, 3))
+    has = np.zeros(n_ep, dtype=bool)
+    ph = {}
+    for rows, p in blocks_ph:
+        ep = d.epoch[rows[:, 0]]
+        gk, rk = g[rows], r_ph[rows]
+        pg = np.einsum("kij,kjc->kic", p, gk)
+        pr = np.einsum("kij,kj->ki", p, rk)
+        N[ep] += np.einsum("kic,kid->kcd", gk, pg)
+        b[ep] += np.einsum("kic,ki->kc", gk, pr)
+        has[ep] = True
+        cc = col[rows] - 3
+        for i in range(rows.shape[0]):
+            a_ok = cc[i] >= 0
+            if a_ok.any():
+                ph[int(ep[i])] = (cc[i][a_ok], lam * pg[i][a_ok].T, lam * pr[i][a_ok], lam * lam * p[i][np.ix_(a_ok, a_ok)])
+    for rows, p in blocks_code:
+        ep = d.epoch[rows[:, 0]]
+        gk, rk = g[rows], r_cd[rows]
+        pg = np.einsum("kij,kjc->kic", p, gk)
+        N[ep] += np.einsum("kic,kid->kcd", gk, pg)
+        b[ep] += np.einsum("kic,kij,kj->kc", gk, p, rk)
+        has[ep] = True
+    q = np.asarray(opt.random_walk_sigma, dtype=np.float64) ** 2
+    m = np.zeros(3)
+    M = np.zeros((3, n_amb))
+    P = np.eye(3) * opt.initial_sigma_m**2
+    J = np.zeros((n_amb, n_amb))
+    h = np.zeros(n_amb)
+    t = d.t_label
+    inv = np.linalg.inv
+    for k in range(n_ep):
+        if k:
+            P = P + np.diag(q * max(t[k] - t[k - 1], 0.0))
+        if not has[k]:
+            continue
+        Nk = N[k]
+        Pn = inv(inv(P) + Nk)
+        gpu = b[k] - Nk @ m
+        gpb = Nk @ M
+        bpu = M.T @ gpu
+        bpb = M.T @ gpb
+        a = ph.get(k)
+        if a is not None:
+            cols, cr, fr, lr = a
+            gpb[:, cols] += cr
+            mtc = M.T @ cr
+            bpb[:, cols] += mtc
+            bpb[cols, :] += mtc.T
+            bpb[np.ix_(cols, cols)] += lr
+            bpu[cols] += fr - cr.T @ m
+        T = Pn @ gpb
+        J += bpb - gpb.T @ T
+        h += bpu - T.T @ gpu
+        m = m + Pn @ gpu
+        M = M - T
+        P = 0.5 * (Pn + Pn.T)
+    J = 0.5 * (J + J.T)
+    try:
+        cf = cho_factor(J, lower=False, check_finite=True)
+    except np.linalg.LinAlgError:
+        raise CdgpsError("random-walk float solution: the ambiguities are not separable from the rover's motion "
+                         "(too few epochs per lock segment for the random-walk rate); lower random_walk sigma") from None
+    return cho_solve(cf, h), cho_solve(cf, np.eye(n_amb))
+
+
 def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, options: BaselineOptions | None = None,
-                          *, master_xyz=None, rover_xyz=None) -> dict:
+                          *, master_xyz=None, rover_xyz=None, integers: dict | None = None,
+                          keep_work: bool = False) -> dict:
     """Static baseline from two receivers' RINEX observations (see the module docstring).
 
     Parameters
@@ -418,6 +535,14 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
     rover_xyz : array_like, shape (3,), optional
         Rover a priori position, ECEF m; the ENU frame and the displacement states refer to it
         (default: its header position, else a pseudorange single-point position).
+    integers : dict, optional
+        Integer DD ambiguities to use instead of resolving them (e.g. from ``cdgps init``):
+        ``{(sat, first_epoch_gps_s): integer or None}`` per SD segment as listed in the result's
+        ``ambiguities.segments`` (``sat``, ``first_gps_s``, ``integer``); the segments and datum
+        pivots of these data must be the same (else :class:`CdgpsError`).  None: LAMBDA.
+    keep_work : bool
+        Also return the internal arrays under ``"_work"`` (not JSON: SD rows, geometry,
+        ambiguities, weights, single-epoch solutions), for the GNSS pipeline's estimators.
 
     Returns
     -------
@@ -526,14 +651,41 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
     t0 = time.perf_counter()
     a_float = a_seg[free].copy()
     q_aa = q_float[3:, 3:]
+    if opt.motion == "random_walk" and free.size:
+        da, q_aa = _float_random_walk(d, blocks_ph, blocks_code, g, r_ph, r_cd, col, n_par - 3, opt)
+        a_float = a_float + da
+        float_block["motion"] = "random_walk"
+        float_block["random_walk_sigma_m_per_sqrt_s"] = list(opt.random_walk_sigma)
     fixable = ~seg_half[free]
     fixed_mask = np.zeros(free.size, dtype=bool)
-    integers = np.zeros(free.size, dtype=np.int64)
+    integers_fix = np.zeros(free.size, dtype=np.int64)
     ratio = None
     ratio_full = None
     accepted = False
     partial_used = False
-    if opt.fix and fixable.sum() >= 1:
+    if integers is not None:
+        given = {(str(k[0]), round(float(k[1]), 3)): v for k, v in integers.items()}
+        keys = [(d.sat_names[int(segtab["sat"][k])], round(float(d.t_label[segtab["first_epoch"][k]]), 3)) for k in range(n_seg)]
+        unknown = [f"{k[0]} from {gps_time_str(k[1])}" for k in keys if k not in given]
+        extra = [f"{k[0]} from {gps_time_str(k[1])}" for k in given if k not in set(keys)]
+        if unknown or extra:
+            raise CdgpsError(f"the given integers do not match the ambiguity segments of these data ({n_seg} segments): "
+                             + (f"no integer for {', '.join(unknown[:5])}" if unknown else "")
+                             + ("; " if unknown and extra else "")
+                             + (f"integers for segments these data do not have: {', '.join(extra[:5])}" if extra else ""))
+        for k in range(n_seg):
+            v = given[keys[k]]
+            if is_pivot[k]:
+                if v not in (0, None):
+                    raise CdgpsError(f"the given integers use another datum: segment {keys[k][0]} from "
+                                     f"{gps_time_str(keys[k][1])} is a pivot (0) here, given {v}")
+                continue
+            j = par_of_seg[k] - 3
+            if v is not None:
+                fixed_mask[j] = True
+                integers_fix[j] = int(v)
+        accepted = bool(fixed_mask.any())
+    elif opt.fix and fixable.sum() >= 1:
         fi = np.flatnonzero(fixable)
         try:
             cands, norms = lambda_search(a_float[fi], q_aa[np.ix_(fi, fi)], candidates=2)
@@ -541,7 +693,7 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
             ratio = ratio_full
             if accepted:
                 fixed_mask[fi] = True
-                integers[fi] = cands[0]
+                integers_fix[fi] = cands[0]
             elif opt.partial and fi.size > 1:
                 pf = partial_fix(a_float[fi], q_aa[np.ix_(fi, fi)], threshold=opt.ratio_threshold)
                 if pf["n_fixed"] > 0:
@@ -549,7 +701,7 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
                     accepted = True
                     ratio = pf["ratio"]
                     fixed_mask[fi[pf["fixed_mask"]]] = True
-                    integers[fi[pf["fixed_mask"]]] = pf["integers"][pf["fixed_mask"]]
+                    integers_fix[fi[pf["fixed_mask"]]] = pf["integers"][pf["fixed_mask"]]
         except AmbiguityError as exc:
             warnings.append(f"integer ambiguity resolution failed: {exc}")
     t_lambda = time.perf_counter() - t0
@@ -562,7 +714,7 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
     known_seg = is_pivot.copy()
     if n_fixed:
         fsegs = free[fixed_mask]
-        a_fix[fsegs] = integers[fixed_mask]
+        a_fix[fsegs] = integers_fix[fixed_mask]
         known_seg[fsegs] = True
         unk = np.flatnonzero(~known_seg)
         par2 = np.full(n_seg, -1, dtype=np.int64)
@@ -623,27 +775,30 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
         usable = known_seg[seg]
         ref_k = select_reference(d.ptr, d.sat, d.el_rover, d.slip, usable=usable)
         blocks_k = dd_weight_blocks(d.ptr, var_ph, ref_k, usable=usable)
-        ep_list, enu_list, ns_list, pdop_list = [], [], [], []
+        ep_list, enu_list, ns_list, pdop_list, cov_list = [], [], [], [], []
         for rows, p in blocks_k:
             if rows.shape[1] < opt.min_sats_kinematic:
                 continue
             gk, rk = g[rows], r_ph[rows]
             nk = np.einsum("kic,kij,kjd->kcd", gk, p, gk)
             bk = np.einsum("kic,kij,kj->kc", gk, p, rk)
-            dk = np.linalg.solve(nk, bk[..., None])[..., 0]
+            ck = np.linalg.inv(nk)
+            dk = np.einsum("kcd,kd->kc", ck, bk)
             gc = gk - gk.mean(axis=1, keepdims=True)       # geometry with the clock eliminated
             pdop = np.sqrt(np.trace(np.linalg.inv(np.einsum("kic,kid->kcd", gc, gc)), axis1=1, axis2=2))
             ep_list.append(d.epoch[rows[:, 0]])
             enu_list.append(x_final + dk)
             ns_list.append(np.full(rows.shape[0], rows.shape[1]))
             pdop_list.append(pdop)
+            cov_list.append(ck)
         if ep_list:
             ep_k = np.concatenate(ep_list)
             enu_k = np.concatenate(enu_list)
             ns_k = np.concatenate(ns_list)
             pd_k = np.concatenate(pdop_list)
+            cov_k = np.concatenate(cov_list)
             o = np.argsort(ep_k)
-            ep_k, enu_k, ns_k, pd_k = ep_k[o], enu_k[o], ns_k[o], pd_k[o]
+            ep_k, enu_k, ns_k, pd_k, cov_k = ep_k[o], enu_k[o], ns_k[o], pd_k[o], cov_k[o]
             dev = enu_k - x_final
 
             def _stats(m):
@@ -698,7 +853,9 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
             "float_cycles": None if is_pivot[k] else float(a_float[p_idx]),
             "sigma_cycles": None if is_pivot[k] else float(math.sqrt(q_aa[p_idx, p_idx])),
             "fixed": bool(is_pivot[k] or (p_idx >= 0 and fixed_mask[p_idx])),
-            "integer": (0 if is_pivot[k] else (int(integers[p_idx]) if fixed_mask[p_idx] else None)),
+            "integer": (0 if is_pivot[k] else (int(integers_fix[p_idx]) if fixed_mask[p_idx] else None)),
+            "first_gps_s": float(d.t_label[segtab["first_epoch"][k]]),
+            "last_gps_s": float(d.t_label[segtab["last_epoch"][k]]),
         })
     sats_info = []
     for s, nm in enumerate(d.sat_names):
@@ -749,6 +906,16 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
         "timing_s": {"prepare": t_prep, "float": t_float, "lambda": t_lambda, "fixed": t_fixed, "kinematic": t_kin,
                      "total": total},
     }
+    if keep_work:
+        kin_arrays = None
+        if kin is not None:
+            kin_arrays = {"epoch": ep_k, "enu_m": enu_k, "cov_m2": cov_k, "n_sat": ns_k, "pdop": pd_k}
+        result["_work"] = {
+            "data": d, "seg": seg, "segtab": segtab, "is_pivot": is_pivot, "seg_half": seg_half,
+            "known_seg": known_seg if n_fixed else is_pivot.copy(), "a_seg": a_fix if n_fixed else a_seg,
+            "var_ph": var_ph, "ref_ph": ref_ph, "xr0": xr0, "xm": xm, "r_enu": r_enu, "x_final": np.asarray(x_final),
+            "q_final": (q_fix[:3, :3] if n_fixed else q_float[:3, :3]), "r_ph": r_ph, "g": g, "kinematic": kin_arrays,
+        }
     return result
 
 
@@ -773,9 +940,11 @@ def load_stations(rinex: dict, nav_paths) -> tuple[dict, pd.DataFrame]:
     return stations, nav
 
 
-def baseline_from_files(rinex: dict, nav_paths, master: str, options: BaselineOptions | None = None) -> dict:
+def baseline_from_files(rinex: dict, nav_paths, master: str, options: BaselineOptions | None = None,
+                        positions: dict | None = None) -> dict:
     """Read the files and solve (:func:`solve_static_baseline`); ``rinex`` maps exactly two station
-    names to observation files, ``master`` is one of them."""
+    names to observation files, ``master`` is one of them; ``positions`` optionally gives
+    ``{name: ECEF m}`` instead of the RINEX header positions."""
     if len(rinex) != 2:
         raise CdgpsError(f"a baseline needs exactly two RINEX observation files (NAME=PATH), got {len(rinex)}: "
                          f"{', '.join(rinex) or 'none'}")
@@ -784,7 +953,9 @@ def baseline_from_files(rinex: dict, nav_paths, master: str, options: BaselineOp
     (options or BaselineOptions()).validate()
     stations, nav = load_stations(rinex, nav_paths)
     rover = next(n for n in rinex if n != master)
-    res = solve_static_baseline(stations[master], stations[rover], nav, options)
+    pos = positions or {}
+    res = solve_static_baseline(stations[master], stations[rover], nav, options, master_xyz=pos.get(master),
+                                rover_xyz=pos.get(rover))
     res["inputs"] = {"rinex": {k: str(v) for k, v in rinex.items()}, "nav": [str(p) for p in nav_paths]}
     return res
 
@@ -797,15 +968,17 @@ _JOB_KEYS = {
 
 
 def load_baseline_job(path) -> dict:
-    """Read a baseline job file (TOML with one ``[baseline]`` table; format in docs/geonet.md).
+    """Read a baseline job file: a GNSS run config (``[gnss]`` table, docs/gnss-pipeline.md) with
+    two RINEX antennas, or the older form with one ``[baseline]`` table (docs/geonet.md).
 
     Relative file paths are taken relative to the job file's directory.
 
     Returns
     -------
     dict
-        ``name``, ``master``, ``rinex`` ({name: Path}), ``nav`` ([Path]) and ``options``
-        (:class:`BaselineOptions`).
+        ``name``, ``master``, ``rinex`` ({name: Path}), ``nav`` ([Path]), ``options``
+        (:class:`BaselineOptions`) and ``positions`` ({name: ECEF m} given in the file; the
+        others come from the RINEX headers).
 
     Raises
     ------
@@ -814,18 +987,21 @@ def load_baseline_job(path) -> dict:
     """
     p = Path(path)
     try:
-        doc = tomllib.loads(p.read_text())
+        text = p.read_text()
+        doc = tomllib.loads(text)
     except OSError as exc:
         raise CdgpsError(f"{p}: cannot read: {exc.strerror or exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise CdgpsError(f"{p}: not valid TOML: {exc}") from None
+    if "gnss" in doc:
+        return _job_from_gnss_config(p, text)
     problems = []
     extra = sorted(set(doc) - {"baseline"})
     if extra:
         problems.append(f"unknown top-level key(s) {', '.join(extra)} (a baseline job has one [baseline] table)")
     b = doc.get("baseline")
     if not isinstance(b, dict):
-        raise CdgpsError(join_problems(f"{p}: invalid baseline job", problems + ["missing [baseline] table"]))
+        raise CdgpsError(join_problems(f"{p}: invalid baseline job", problems + ["missing [baseline] table (or a [gnss] table)"]))
     for k, v in b.items():
         t = _JOB_KEYS.get(k)
         if t is None:
@@ -869,7 +1045,36 @@ def load_baseline_job(path) -> dict:
         opt.validate()
     except CdgpsError as exc:
         raise CdgpsError(f"{p}: {exc}") from None
-    return {"name": b.get("name", p.stem), "master": b["master"], "rinex": rinex, "nav": nav, "options": opt}
+    return {"name": b.get("name", p.stem), "master": b["master"], "rinex": rinex, "nav": nav, "options": opt,
+            "positions": {}}
+
+
+def _job_from_gnss_config(p: Path, text: str) -> dict:
+    """A baseline job from a GNSS run config: exactly two antennas with RINEX files."""
+    from .config import parse_gnss_config  # noqa: PLC0415
+
+    cfg = parse_gnss_config(text, str(p), base_dir=p.resolve().parent)
+    problems = []
+    if not cfg.master:
+        problems.append("gnss.master: required for a baseline")
+    if len(cfg.antennas) != 2:
+        problems.append(f"gnss.antennas: a baseline needs exactly two antennas, got {len(cfg.antennas)}")
+    for a in cfg.antennas:
+        if not a.rinex:
+            problems.append(f"gnss.antennas.{a.name}: 'cdgps baseline' needs a rinex observation file"
+                            + (" (UBX logs go through 'cdgps ingest')" if a.ubx else ""))
+    if not cfg.nav:
+        problems.append("gnss.nav: at least one navigation file is needed")
+    if problems:
+        raise CdgpsError(join_problems(f"{p}: not usable as a baseline job", problems))
+    opt = cfg.baseline_options(motion="static")        # 'cdgps baseline' is the static solution
+    try:
+        opt.validate()
+    except CdgpsError as exc:
+        raise CdgpsError(f"{p}: {exc}") from None
+    return {"name": cfg.name, "master": cfg.master, "rinex": {a.name: Path(a.rinex) for a in cfg.antennas},
+            "nav": [Path(n) for n in cfg.nav], "options": opt,
+            "positions": {a.name: a.position_ecef_m for a in cfg.antennas if a.position_ecef_m is not None}}
 
 
 def starter_job_toml(rinex: dict, nav_paths, master: str | None = None, *, relative_to: Path | None = None) -> str:

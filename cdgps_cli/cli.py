@@ -85,15 +85,46 @@ def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_s
 
 
 @main.command()
-@click.argument("receiver_csv", type=click.Path(dir_okay=False))
+@click.argument("receiver_csv", required=False, type=click.Path(dir_okay=False))
 @click.argument("gyro_csv", required=False, type=click.Path(dir_okay=False))
 @click.option("--actuators", "actuator_csv", type=click.Path(dir_okay=False), help="Thruster command log CSV.")
-@click.option("--config", "config", required=True, type=click.Path(dir_okay=False), help="Structure config TOML.")
+@click.option("--config", "config", type=click.Path(dir_okay=False),
+              help="Structure config TOML (CSV logs), or a GNSS run config (RINEX/UBX; docs/gnss-pipeline.md).")
+@click.option("--rinex", "rinex", multiple=True, metavar="ANTENNA=FILE",
+              help="GNSS: RINEX 2.1x/3.x observation file of an antenna (plain, gzip, Hatanaka); repeatable.")
+@click.option("--ubx", "ubx", multiple=True, metavar="ANTENNA=FILE", help="GNSS: u-blox UBX log with RXM-RAWX; repeatable.")
+@click.option("--nav", "nav", multiple=True, type=click.Path(dir_okay=False), help="GNSS: RINEX GPS navigation file; repeatable.")
+@click.option("--master", "master", default=None, help="GNSS: the reference antenna at a known position.")
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="RUN.mcap to write.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
-def ingest(ctx, receiver_csv, gyro_csv, actuator_csv, config, output, as_json):
-    """Validate native CSV logs and write one self-contained RUN.mcap."""
+def ingest(ctx, receiver_csv, gyro_csv, actuator_csv, config, rinex, ubx, nav, master, output, as_json):
+    """Validate logs and write one self-contained RUN.mcap.
+
+    \b
+    Structure runs:  cdgps ingest receiver.csv [gyro.csv] --config STRUCTURE.toml -o RUN.mcap
+    GNSS runs:       cdgps ingest --rinex A=a.obs --rinex B=b.obs --nav brdc.nav [--ubx C=c.ubx]
+                                  [--master A] [--config GNSS.toml] -o RUN.mcap
+                     cdgps ingest --config GNSS.toml -o RUN.mcap   (files listed in the config)
+    """
+    gnss = bool(rinex or ubx or nav or master)
+    if not gnss and config and receiver_csv is None:
+        from .config import config_kind
+
+        try:
+            gnss = config_kind(Path(config).read_text(errors="replace")) == "gnss"
+        except OSError as exc:
+            raise CdgpsError(f"{config}: cannot read config: {exc.strerror}") from None
+    if gnss:
+        if receiver_csv or gyro_csv or actuator_csv:
+            raise CdgpsError("CSV logs and GNSS receiver files (--rinex/--ubx/--nav/--master, or a GNSS config) cannot be "
+                             "mixed in one ingest")
+        _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json)
+        return
+    if receiver_csv is None:
+        raise click.UsageError("Missing argument 'RECEIVER_CSV' (or give GNSS files with --rinex/--ubx).")
+    if config is None:
+        raise click.UsageError("Missing option '--config'.")
     from .config import load_config
     from .run import write_run
 
@@ -104,6 +135,51 @@ def ingest(ctx, receiver_csv, gyro_csv, actuator_csv, config, output, as_json):
               f"{s['channels']} channels, {len(s['gaps'])} gaps, {s['lock_restarts']} lock restarts")
     for g in s["gaps"][:10]:
         _say(ctx, f"  gap {g['start_s']:g}–{g['end_s']:g} s ({g['missing_epochs']} epochs missing)")
+    if as_json:
+        _emit_json(s)
+
+
+def _parse_named(items, option: str) -> dict:
+    out = {}
+    for it in items:
+        name, sep, path = it.partition("=")
+        if not sep or not name.strip() or not path.strip():
+            raise CdgpsError(f"{option} expects ANTENNA=FILE (e.g. 3040=30400920.05o), got {it!r}")
+        if name.strip() in out:
+            raise CdgpsError(f"{option}: antenna {name.strip()!r} given twice")
+        out[name.strip()] = path.strip()
+    return out
+
+
+def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json):
+    from .config import load_gnss_config, parse_gnss_config
+    from .gnss_run import default_config_text, ingest_gnss
+
+    rx, ub = _parse_named(rinex, "--rinex"), _parse_named(ubx, "--ubx")
+    if config:
+        cfg = load_gnss_config(config)
+    else:
+        if not (rx or ub):
+            raise CdgpsError("give receiver files with --rinex/--ubx ANTENNA=FILE, or a GNSS config (--config) listing them")
+        files = {n: ("rinex", p) for n, p in rx.items()} | {n: ("ubx", p) for n, p in ub.items()}
+        if master is None and len(files) > 1:
+            raise CdgpsError(f"--master is required: which of {', '.join(files)} is the reference receiver at a known "
+                             f"position (or give a --config naming it)")
+        if master is not None and master not in files:
+            raise CdgpsError(f"master {master!r} is not one of the receivers given: {', '.join(files)}")
+        cfg = parse_gnss_config(default_config_text(files, list(nav), master), "<generated config>")
+    s = ingest_gnss(cfg, output, rinex=rx or None, ubx=ub or None, nav_paths=list(nav) if nav else None, master=master,
+                    progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
+    _say(ctx, f"wrote {output}: GNSS run {s['config']}, master {s['master']}, {len(s['receivers'])} receiver(s), "
+              f"{s['ephemerides']} ephemerides, {cfg.displacement} displacement model")
+    for r in s["receivers"]:
+        _say(ctx, f"  {r['name']:<8} {r['format']:<5} {r['file']}: {r['epochs']} epochs {r['first']} – {r['last']} "
+                  f"({r['interval_s']:g} s), {r['satellites']} satellites, {r['phase_rows']} phases, {r['slips']} slips, "
+                  f"{r['half_cycle_rows']} half-cycle rows")
+    for n, c in s["common_epochs"].items():
+        _say(ctx, f"  {n}: {c['common_epochs']} epochs in common with {s['master']}")
+    for w in s["warnings"]:
+        _say(ctx, f"  warning: {w}")
     if as_json:
         _emit_json(s)
 
@@ -130,9 +206,21 @@ def _write_json_atomic(path: str, data: dict) -> None:
 @click.pass_context
 def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, ratio_threshold, no_partial,
              starts, max_iterations, sigma_m, output, as_json):
-    """Batch bias initialization (Eq. 9-15) with LAMBDA integer fixing → INIT.json."""
+    """Batch bias initialization (Eq. 9-15) with LAMBDA integer fixing → INIT.json.
+
+    On a GNSS run (RINEX/UBX receivers): float DD solution, LAMBDA integers (ratio test, partial
+    fixing) and the fixed static displacement of every rover → INIT.json (docs/gnss-pipeline.md).
+    """
     import hashlib
 
+    from .gnss_run import run_kind
+
+    if run_kind(run_mcap) == "gnss":
+        _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, as_json,
+                   structure_only={"--start": start_s is not None, "--duration": duration_s is not None,
+                                   "--no-process-noise": no_process_noise, "--sigma-m": sigma_m is not None,
+                                   "--starts": starts != 8, "--max-iterations": max_iterations != 30})
+        return
     from .init import InitOptions, initialize
     from .run import read_run
 
@@ -162,11 +250,28 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
 @click.option("--sigma-m", type=float, default=None, help="Measurement noise, m (default: INIT's).")
 @click.option("--nis-probability", type=float, default=0.999, show_default=True, help="Chi-square level of the NIS test.")
 @click.option("--outlier-sigma", type=float, default=6.0, show_default=True, help="Innovation outlier threshold (sigmas).")
+@click.option("--process-noise-scale", type=float, default=1.0, show_default=True,
+              help="Multiplies the config's process-noise standard deviations (Q x scale^2): below 1 for a "
+                   "structure at rest or only lightly disturbed (static survey), above 1 for stronger excitation.")
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="STATES.mcap to write.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
-def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability, outlier_sigma, output, as_json):
-    """Extended Kalman filter (Eq. 16-23) [+ RTS smoother] over a RUN from INIT → STATES.mcap."""
+def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability, outlier_sigma, process_noise_scale,
+             output, as_json):
+    """Extended Kalman filter (Eq. 16-23) [+ RTS smoother] over a RUN from INIT → STATES.mcap.
+
+    On a GNSS run: per-epoch rover displacement states <ant>_e/_n/_u with 1σ from INIT's
+    integers (static: the batch solution; random_walk: Kalman filter [+ RTS smoother]), plus
+    single-epoch solutions, DD residuals and slip/reference events (docs/gnss-pipeline.md).
+    """
+    from .gnss_run import run_kind
+
+    if run_kind(run_mcap) == "gnss":
+        _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json,
+                       structure_only={"--biases": biases != "fixed", "--sigma-m": sigma_m is not None,
+                                       "--nis-probability": nis_probability != 0.999, "--outlier-sigma": outlier_sigma != 6.0,
+                                       "--process-noise-scale": process_noise_scale != 1.0})
+        return
     from .ekf import EstimateOptions, estimate as run_ekf
     from .run import read_run
     from .states import write_states
@@ -186,10 +291,12 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
         raise CdgpsError(f"{init_json}: expected a JSON object from 'cdgps init'")
     run = read_run(run_mcap)
     opt = EstimateOptions(biases=biases, smooth=smooth, sigma_m=sigma_m, nis_probability=nis_probability,
-                          outlier_sigma=outlier_sigma, keep_filtered_covariance="modal",
+                          outlier_sigma=outlier_sigma, process_noise_scale=process_noise_scale,
+                          keep_filtered_covariance="modal",
                           progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
     _say(ctx, f"estimating {run_mcap} from {init_json} (biases {biases}{', smoothing' if smooth else ''}) …")
     res = run_ekf(run, init, opt)
+    del run                                  # the phase table is not needed for writing (memory)
     s = write_states(res, run_mcap, init, init_text, output, opt.echo())
     _say(ctx, f"wrote {output}: {s['epochs']} epochs ({s['start_s']:g}–{s['end_s']:g} s), "
               f"mean NIS/dof {s['mean_nis_per_dof']:.3f}, {s['events']} events")
@@ -205,13 +312,20 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
 @main.command()
 @click.argument("states_mcap", type=click.Path(dir_okay=False))
 @click.option("--csv", "out_csv", required=True, type=click.Path(dir_okay=False), help="CSV to write.")
+@click.option("--kinematic", is_flag=True,
+              help="GNSS STATES only: export the single-epoch (kinematic) solutions instead of the states.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
-def export(ctx, states_mcap, out_csv, as_json):
+def export(ctx, states_mcap, out_csv, kinematic, as_json):
     """Export estimated coordinates and their 1-sigma to CSV (columns line up with truth.csv)."""
     from .states import export_csv
 
-    s = export_csv(states_mcap, out_csv)
+    if kinematic:
+        from .gnss_pipeline import export_kinematic_csv
+
+        s = export_kinematic_csv(states_mcap, out_csv)
+    else:
+        s = export_csv(states_mcap, out_csv)
     _say(ctx, f"wrote {s['rows']} rows to {out_csv}")
     if as_json:
         _emit_json(s)
@@ -376,10 +490,28 @@ def info(ctx, mcap_file, as_json):
             out.append(f"    lock restart {sl['antenna']}/{sl['transmitter']} at {sl['time_s']:g} s")
         if len(s["slips"]) > 20:
             out.append(f"    … {len(s['slips']) - 20} more")
+    if "gnss" in s:
+        out.extend(_gnss_info_lines(s["gnss"]))
     for name, md in s["metadata"].items():
         out.append(f"  metadata {name}: " + ", ".join(f"{k}={v if len(v) <= 60 else v[:57] + '…'}"
                                                      for k, v in sorted(md.items()) if not k.endswith("sha256")))
     click.echo("\n".join(out))
+
+
+def _gnss_info_lines(g: dict) -> list:
+    c = g["config"]
+    out = [f"  GNSS run: config {c['name']} (sha256 {c['config_sha256'][:12]}…), master {g['master']}, rovers "
+           f"{', '.join(g['rovers']) or 'none'}, displacement {c['displacement']}; coordinates {', '.join(g['coordinates']) or '-'}"]
+    for r in g["receivers"]:
+        out.append(f"    {r['name']:<8} {r['format']:<5} {r['file']}: {r['epochs']} epochs {r['first']} – {r['last']} "
+                   f"({r['interval_s']:g} s), {r['satellites']} satellites, {r['phase_rows']} phases; lock: {r['arcs']} arcs, "
+                   f"{r['slips']} slips, {r['half_cycle_rows']} half-cycle rows; position: {r['position_source'] or 'none'}")
+    for n, k in g["common_epochs"].items():
+        out.append(f"    {n}: {k} epochs in common with {g['master']}")
+    toe = g["ephemeris_toe"]
+    out.append(f"    ephemerides: {g['ephemerides']} records of {g['ephemeris_satellites']} satellites"
+               + (f", toe {toe[0]} – {toe[1]}" if toe else " (none: ingest with --nav before 'cdgps init')"))
+    return out
 
 
 # ----------------------------------------------------------------------------------------------
@@ -436,9 +568,11 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, weight
 
     from .baseline import BaselineOptions, baseline_from_files, format_summary, json_safe, load_baseline_job
 
+    positions = {}
     if job:
         cfg = load_baseline_job(job)
         stations, navs, mst, opt = cfg["rinex"], cfg["nav"], cfg["master"], cfg["options"]
+        positions = cfg.get("positions", {})
     else:
         stations, navs, mst, opt = {}, [], None, BaselineOptions()
     if rinex:
@@ -470,7 +604,8 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, weight
     opt = dataclasses.replace(opt, **changes)
     rover = next(n for n in stations if n != mst)
     _say(ctx, f"baseline {mst} → {rover}: {len(navs)} navigation file(s), mask {opt.mask_deg:g}°, ratio {opt.ratio_threshold:g} …")
-    res = json_safe(baseline_from_files(stations, navs, mst, opt))
+    res = json_safe(baseline_from_files(stations, navs, mst, opt,
+                                        positions={k: v for k, v in positions.items() if k in stations}))
     if job:
         res["inputs"]["config"] = str(job)
     _write_json_atomic(output, res)
@@ -480,6 +615,32 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, weight
         _emit_json(res)
 
 
+@main.command("config")
+@click.option("--rinex", "rinex", multiple=True, metavar="ANTENNA=FILE", help="RINEX observation file of an antenna.")
+@click.option("--ubx", "ubx", multiple=True, metavar="ANTENNA=FILE", help="u-blox UBX log (RXM-RAWX) of an antenna.")
+@click.option("--nav", "nav", multiple=True, type=click.Path(dir_okay=False), help="RINEX GPS navigation file.")
+@click.option("--master", default=None, help="Reference antenna (default: the first RINEX one with a header position).")
+@click.option("--displacement", type=click.Choice(["static", "random_walk"]), default="static", show_default=True,
+              help="Rover displacement model.")
+@click.option("--sigma", "sigma", type=float, default=None, help="random_walk process noise, m/√s per component [0.001].")
+@click.option("--name", default=None, help="Run name (default: the antenna names).")
+@click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="Config TOML to write.")
+@click.pass_context
+def config_cmd(ctx, rinex, ubx, nav, master, displacement, sigma, name, output):
+    """Write a starter GNSS run config from the receiver files' headers (for ingest and baseline)."""
+    from .gnss_run import starter_gnss_config
+
+    if sigma is not None and displacement != "random_walk":
+        raise CdgpsError("--sigma is the random-walk process noise: use it with --displacement random_walk")
+    if sigma is not None and not sigma > 0:
+        raise CdgpsError(f"--sigma must be positive (m/√s), got {sigma:g}")
+    text = starter_gnss_config(_parse_named(rinex, "--rinex"), _parse_named(ubx, "--ubx"), list(nav), master,
+                               displacement=displacement, sigma_m_per_sqrt_s=sigma,
+                               relative_to=Path(output).resolve().parent, name=name)
+    _write_text_atomic(output, text)
+    _say(ctx, f"wrote {output}")
+
+
 @main.command("baseline-config")
 @click.option("--rinex", "rinex", multiple=True, required=True, metavar="NAME=PATH", help="RINEX observation file (give two).")
 @click.option("--nav", "nav", multiple=True, required=True, type=click.Path(dir_okay=False), help="RINEX GPS navigation file.")
@@ -487,14 +648,148 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, weight
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="Job TOML to write.")
 @click.pass_context
 def baseline_config_cmd(ctx, rinex, nav, master, output):
-    """Write a starter baseline job TOML for 'cdgps baseline --config' (headers summarised in comments)."""
-    from .baseline import load_baseline_job, starter_job_toml
+    """Write a starter baseline job TOML for 'cdgps baseline --config' (headers summarised in comments).
+
+    The file is a GNSS run config (docs/gnss-pipeline.md), so it also serves 'cdgps ingest'.
+    """
+    from .baseline import load_baseline_job
+    from .gnss_run import starter_gnss_config
 
     stations = _parse_stations(rinex)
-    text = starter_job_toml(stations, list(nav), master, relative_to=Path(output).resolve().parent)
+    if len(stations) != 2:
+        raise CdgpsError(f"a baseline job needs exactly two RINEX observation files (NAME=PATH), got {len(stations)}")
+    master = master or next(iter(stations))
+    text = starter_gnss_config(stations, {}, list(nav), master, relative_to=Path(output).resolve().parent)
     _write_text_atomic(output, text)
     load_baseline_job(output)  # the written job must load
     _say(ctx, f"wrote {output}")
+
+
+# ----------------------------------------------------------------------------------------------
+# GNSS pipeline from real (or simulated) receiver files: docs/gnss-pipeline.md
+
+
+def _reject_structure_options(given: dict, what: str) -> None:
+    used = [k for k, v in given.items() if v]
+    if used:
+        raise CdgpsError(f"{', '.join(used)}: structure-run option(s), not used by {what} on a GNSS run "
+                         f"(see docs/gnss-pipeline.md)")
+
+
+def _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, as_json, structure_only):
+    import hashlib
+
+    from click.core import ParameterSource
+
+    from .gnss_pipeline import gnss_init
+    from .gnss_run import read_gnss_run
+
+    _reject_structure_options(structure_only, "'cdgps init'")
+    run = read_gnss_run(run_mcap)
+    over = {}
+    if ctx.get_parameter_source("ratio_threshold") != ParameterSource.DEFAULT:
+        over["ratio_threshold"] = ratio_threshold
+    if no_partial:
+        over["partial"] = False
+    if float_only:
+        over["fix"] = False
+    res = gnss_init(run, options=over, progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
+    res["run_sha256"] = hashlib.sha256(Path(run_mcap).read_bytes()).hexdigest()
+    _write_json_atomic(output, res)
+    for r, v in res["rovers"].items():
+        ratio = v["ratio"] if v["ratio"] is None or isinstance(v["ratio"], str) else f"{v['ratio']:.1f}"
+        st = ", ".join(f"{k} {x:+.4f} ± {v['sigma'][k]:.4f}" for k, x in v["states"].items())
+        _say(ctx, f"INIT {run.master} → {r}: {v['solution']}, {v['n_fixed']} of {v['n_estimated']} integers fixed, "
+                  f"ratio {ratio} (threshold {v['ratio_threshold']:g}); static displacement (m): {st}")
+    _say(ctx, f"wrote {output}")
+    if as_json:
+        _emit_json(res)
+
+
+def _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json, structure_only):
+    from .gnss_pipeline import gnss_estimate
+    from .gnss_run import read_gnss_run
+
+    _reject_structure_options(structure_only, "'cdgps estimate'")
+    try:
+        init_text = Path(init_json).read_text()
+        init = json.loads(init_text)
+    except OSError as exc:
+        raise CdgpsError(f"{init_json}: cannot read: {exc.strerror}") from None
+    except json.JSONDecodeError as exc:
+        raise CdgpsError(f"{init_json}, line {exc.lineno}: not valid JSON: {exc.msg}") from None
+    run = read_gnss_run(run_mcap)
+    _say(ctx, f"estimating {run_mcap} from {init_json} ({run.cfg.displacement} displacement"
+              f"{', smoothing' if smooth and run.cfg.displacement == 'random_walk' else ''}) …")
+    s = gnss_estimate(run, init, init_text, output, smooth=smooth,
+                      progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
+    _say(ctx, f"wrote {output}: {s['epochs']} epochs ({s['start']} – {s['end']}), {s['kinematic_epochs']} single-epoch "
+              f"solutions, {s['events']} events")
+    for r, v in s["rovers"].items():
+        st = ", ".join(f"{k} {x:+.4f}" for k, x in v["static_enu_m"].items())
+        _say(ctx, f"  {r}: {v['solution']} ({v['n_fixed']}/{v['n_estimated']} integers), static (m) {st}")
+        k = v["kinematic_rms_m"]
+        if k:
+            _say(ctx, f"    single-epoch scatter about static over {v['kinematic_epochs']} epochs: RMS E {k['e'] * 1e3:.1f} "
+                      f"N {k['n'] * 1e3:.1f} U {k['u'] * 1e3:.1f} mm")
+    for ev in s["event_list"][:20]:
+        _say(ctx, f"  {_gps_time(ev['time_s'])} {ev['antenna']}/{ev['transmitter']}: {ev['kind']} → {ev['action']}")
+    if len(s["event_list"]) > 20:
+        _say(ctx, f"  … {len(s['event_list']) - 20} more events (topic /cdgps/events)")
+    if as_json:
+        s = dict(s)
+        _emit_json(s)
+
+
+def _gps_time(t: float) -> str:
+    from .rinex import gps_time_str
+
+    return gps_time_str(t)
+
+
+@main.command("simulate-gnss")
+@click.option("--duration", "duration_s", type=float, default=3600.0, show_default=True, help="Seconds to simulate.")
+@click.option("--rate-hz", type=float, default=1.0, show_default=True, help="Epochs per second.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed (same seed → identical files).")
+@click.option("--start", "start", default=None,
+              help="First epoch, GPS time YYYY-MM-DD[THH:MM:SS] [2024-01-01, or the first hour of --nav].")
+@click.option("--nav", "nav", multiple=True, type=click.Path(dir_okay=False),
+              help="Real RINEX navigation file(s) to simulate with [a synthetic 36-satellite constellation].")
+@click.option("--master", "master", default="base", show_default=True, help="Master antenna name.")
+@click.option("--rover", "rover", default="rover", show_default=True, help="Rover antenna name.")
+@click.option("--master-xyz", default=None, metavar="X,Y,Z", help="Master ECEF position, m [GEONET 3040].")
+@click.option("--rover-xyz", default=None, metavar="X,Y,Z", help="Rover NOMINAL ECEF position, m [GEONET 0759, 3.3 km away].")
+@click.option("--displacement", "displacement", default="0.031,-0.022,0.017", show_default=True, metavar="E,N,U",
+              help="Rover's true displacement from its nominal position, m.")
+@click.option("--random-walk", "random_walk", type=float, default=None, metavar="SIGMA",
+              help="Rover also random-walks with SIGMA m/√s per component (config model random_walk).")
+@click.option("--slips", "n_slips", type=int, default=0, show_default=True, help="Random LLI-flagged cycle slips.")
+@click.option("--phase-noise-m", type=float, default=0.002, show_default=True, help="Undifferenced phase noise, m.")
+@click.option("--code-noise-m", type=float, default=0.5, show_default=True, help="Undifferenced pseudorange noise, m.")
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output directory.")
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
+@click.pass_context
+def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover, master_xyz, rover_xyz, displacement,
+                      random_walk, n_slips, phase_noise_m, code_noise_m, out_dir, as_json):
+    """Simulate a master + rover GPS L1 pair → RINEX 3 obs/nav files, truth.csv/json, config.toml.
+
+    The rover antenna is displaced from its nominal (header) position by --displacement (plus a
+    random walk with --random-walk); the files feed 'cdgps ingest --config DIR/config.toml'.
+    """
+    from .gnss_sim import DEFAULT_MASTER_XYZ, DEFAULT_ROVER_XYZ, parse_start, parse_vector, simulate_gnss_pair
+
+    s = simulate_gnss_pair(
+        out_dir, duration_s=duration_s, rate_hz=rate_hz, seed=seed,
+        start_gps_s=parse_start(start) if start else None, nav_paths=list(nav), master=master, rover=rover,
+        master_xyz=parse_vector(master_xyz, "--master-xyz") if master_xyz else DEFAULT_MASTER_XYZ,
+        rover_xyz=parse_vector(rover_xyz, "--rover-xyz") if rover_xyz else DEFAULT_ROVER_XYZ,
+        displacement_enu_m=parse_vector(displacement, "--displacement"), random_walk_sigma=random_walk,
+        n_slips=n_slips, phase_sigma_m=phase_noise_m, code_sigma_m=code_noise_m,
+        progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
+    _say(ctx, f"wrote {', '.join(s['files'])} to {out_dir}/: {s['epochs']} epochs, {s['satellites']} satellites, "
+              f"{s['slips']} slips, {s['displacement_model']} rover")
+    if as_json:
+        _emit_json(s)
 
 
 if __name__ == "__main__":  # pragma: no cover

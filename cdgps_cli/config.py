@@ -586,3 +586,323 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
         thruster_max_force_n=ro(u_max),
         simulation=sim,
     )
+
+
+# ============================================================================================
+# GNSS run configs (real receivers: RINEX / UBX files, a master, rover displacement states)
+# Format: docs/gnss-pipeline.md.  Additive: the structure-model schema above is unchanged.
+# ============================================================================================
+
+GNSS_DISPLACEMENT_MODELS = ("static", "random_walk")
+GNSS_WEIGHTINGS = ("elevation", "equal")
+
+_GNSS_KEYS = {
+    "name": "string", "description": "string", "master": "string", "nav": "list of file paths",
+    "mask_deg": "number", "ratio": "number", "partial": "bool", "fix": "bool", "weighting": "string",
+    "sigma_a_m": "number", "sigma_b_m": "number", "code_ratio": "number", "troposphere": "bool",
+    "max_gap_s": "number", "sync_tol_s": "number", "antennas": "table", "displacement": "table",
+}
+_GNSS_ANTENNA_KEYS = {"rinex", "ubx", "position_ecef_m", "description"}
+_GNSS_DISPLACEMENT_KEYS = {"model", "sigma_m_per_sqrt_s", "initial_sigma_m"}
+
+
+@dataclass(frozen=True)
+class GnssAntenna:
+    """One receiver antenna of a GNSS run config.
+
+    Attributes
+    ----------
+    name : str
+        Antenna name; the rover coordinates are ``<name>_e``, ``<name>_n``, ``<name>_u``.
+    rinex, ubx : str or None
+        Observation file (RINEX or u-blox UBX), resolved against the config file's directory;
+        None when the files come from the command line.
+    position_ecef_m : tuple of 3 floats or None
+        Nominal (a priori) antenna position, ECEF m; None: the RINEX header APPROX POSITION XYZ
+        (a rover without one gets a pseudorange single-point position).
+    description : str
+    """
+
+    name: str
+    rinex: str | None = None
+    ubx: str | None = None
+    position_ecef_m: tuple | None = None
+    description: str = ""
+
+
+@dataclass(frozen=True)
+class GnssConfig:
+    """A validated GNSS run config (``[gnss]`` table; docs/gnss-pipeline.md).
+
+    The processing settings mirror :class:`~cdgps_cli.baseline.BaselineOptions` (see
+    :meth:`baseline_options`); the displacement model says how the rover states evolve:
+    ``static`` (one E/N/U displacement per rover for the whole run) or ``random_walk`` (E/N/U
+    displacements that wander with white-noise rates of ``random_walk_sigma`` m/√s).
+    """
+
+    path: str
+    text: str
+    sha256: str
+    name: str
+    description: str
+    master: str | None
+    antennas: tuple
+    nav: tuple
+    mask_deg: float = 15.0
+    ratio: float = 3.0
+    partial: bool = True
+    fix: bool = True
+    weighting: str = "elevation"
+    sigma_a_m: float = 0.003
+    sigma_b_m: float = 0.003
+    code_ratio: float = 100.0
+    troposphere: bool = True
+    max_gap_s: float | None = None
+    sync_tol_s: float = 0.025
+    displacement: str = "static"
+    random_walk_sigma: tuple = (0.001, 0.001, 0.001)
+    initial_sigma_m: float = 1.0
+
+    def antenna(self, name: str) -> GnssAntenna | None:
+        return next((a for a in self.antennas if a.name == name), None)
+
+    @property
+    def antenna_names(self) -> tuple:
+        return tuple(a.name for a in self.antennas)
+
+    def baseline_options(self, **overrides):
+        """The solver settings as :class:`~cdgps_cli.baseline.BaselineOptions`."""
+        from .baseline import BaselineOptions  # noqa: PLC0415 (baseline imports the GNSS stack)
+
+        kw = dict(mask_deg=self.mask_deg, ratio_threshold=self.ratio, partial=self.partial, fix=self.fix,
+                  weighting=self.weighting, sigma_a_m=self.sigma_a_m, sigma_b_m=self.sigma_b_m,
+                  code_ratio=self.code_ratio, troposphere=self.troposphere, max_gap_s=self.max_gap_s,
+                  sync_tol_s=self.sync_tol_s, motion=self.displacement, random_walk_sigma=tuple(self.random_walk_sigma),
+                  initial_sigma_m=self.initial_sigma_m)
+        kw.update(overrides)
+        return BaselineOptions(**kw)
+
+    def summary(self) -> dict:
+        return {
+            "name": self.name, "path": self.path, "config_sha256": self.sha256, "master": self.master,
+            "antennas": list(self.antenna_names), "nav": list(self.nav), "displacement": self.displacement,
+            "random_walk_sigma_m_per_sqrt_s": list(self.random_walk_sigma) if self.displacement == "random_walk" else None,
+            "mask_deg": self.mask_deg, "ratio": self.ratio,
+        }
+
+
+def config_kind(text: str) -> str:
+    """``"gnss"`` for a GNSS run config (``[gnss]`` table) or a baseline job (``[baseline]``),
+    ``"structure"`` otherwise (also for text that is not valid TOML: its loader reports that)."""
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError:
+        return "structure"
+    return "gnss" if ("gnss" in doc or "baseline" in doc) and "model" not in doc else "structure"
+
+
+def load_gnss_config(path: str | Path) -> GnssConfig:
+    """Load and validate a GNSS run config file (relative file paths: against its directory)."""
+    p = Path(path)
+    try:
+        raw = p.read_bytes()
+    except OSError as exc:
+        raise CdgpsError(f"{p}: cannot read config: {exc.strerror}") from None
+    return parse_gnss_config(raw.decode("utf-8", errors="replace"), str(p), base_dir=p.resolve().parent)
+
+
+def parse_gnss_config(text: str, path: str = "<config>", base_dir: str | Path | None = None) -> GnssConfig:
+    """Validate a GNSS run config given as text; every problem is listed with its key.
+
+    ``base_dir`` resolves relative file paths (None: kept as written, e.g. for a config read
+    back from a RUN.mcap, whose data are in the file).
+    """
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise CdgpsError(f"{path}: not valid TOML: {exc}") from None
+    chk = _Checker(path)
+    for k in sorted(set(doc) - {"gnss"}):
+        hint = " (a [baseline] job: only 'cdgps baseline' reads it; see docs/gnss-pipeline.md for the [gnss] form)" \
+            if k == "baseline" else " (a GNSS run config has one [gnss] table)"
+        chk.add(k, "unknown top-level key" + hint)
+    g = doc.get("gnss")
+    if not isinstance(g, dict):
+        chk.add("gnss", "missing [gnss] table")
+        raise CdgpsError(join_problems(f"{path}: invalid GNSS config", chk.problems))
+    for k in sorted(set(g) - set(_GNSS_KEYS)):
+        chk.add(f"gnss.{k}", f"unknown key (allowed: {', '.join(sorted(_GNSS_KEYS))})")
+
+    def resolve(v: str) -> str:
+        if base_dir is None or Path(v).is_absolute():
+            return v
+        import os  # noqa: PLC0415
+
+        return os.path.normpath(str(Path(base_dir) / v))
+
+    def flag(name, default):
+        v = g.get(name, default)
+        if not isinstance(v, bool):
+            chk.add(f"gnss.{name}", f"expected true or false, got {v!r}")
+            return default
+        return v
+
+    name = chk.string(g, "gnss", "name", Path(path).stem if path and not path.startswith("<") else "gnss-run")
+    description = chk.string(g, "gnss", "description", "")
+    master = chk.string(g, "gnss", "master", None)
+    nav = []
+    if "nav" in g:
+        v = g["nav"]
+        if isinstance(v, str):
+            v = [v]
+        if not isinstance(v, list):
+            chk.add("gnss.nav", f"expected a list of navigation file paths, got {v!r}")
+        else:
+            for i, e in enumerate(v):
+                if not isinstance(e, str) or not e:
+                    chk.add(f"gnss.nav[{i}]", f"expected a file path string, got {e!r}")
+                else:
+                    nav.append(resolve(e))
+    mask = chk.number(g, "gnss", "mask_deg", 15.0)
+    if mask is not None and not 0.0 <= mask < 90.0:
+        chk.add("gnss.mask_deg", f"expected an elevation mask in [0, 90) degrees, got {mask!r}")
+    ratio = chk.number(g, "gnss", "ratio", 3.0)
+    if ratio is not None and ratio < 1.0:
+        chk.add("gnss.ratio", f"expected a ratio-test threshold >= 1, got {ratio!r}")
+    weighting = chk.string(g, "gnss", "weighting", "elevation")
+    if weighting not in GNSS_WEIGHTINGS:
+        chk.add("gnss.weighting", f"expected one of {', '.join(GNSS_WEIGHTINGS)}, got {weighting!r}")
+    sa = chk.number(g, "gnss", "sigma_a_m", 0.003, nonneg=True)
+    sb = chk.number(g, "gnss", "sigma_b_m", 0.003, nonneg=True)
+    if sa == 0 and sb == 0:
+        chk.add("gnss.sigma_a_m", "sigma_a_m and sigma_b_m cannot both be 0")
+    code_ratio = chk.number(g, "gnss", "code_ratio", 100.0, positive=True)
+    max_gap = chk.number(g, "gnss", "max_gap_s", None, positive=True)
+    sync = chk.number(g, "gnss", "sync_tol_s", 0.025, positive=True)
+    if sync is not None and sync > 1.0:
+        chk.add("gnss.sync_tol_s", f"expected at most 1 s, got {sync!r}")
+
+    # [gnss.displacement]
+    disp = g.get("displacement", {})
+    model, rw, init_sigma = "static", (0.001, 0.001, 0.001), 1.0
+    if not isinstance(disp, dict):
+        chk.add("gnss.displacement", "expected a table ([gnss.displacement])")
+        disp = {}
+    for k in sorted(set(disp) - _GNSS_DISPLACEMENT_KEYS):
+        chk.add(f"gnss.displacement.{k}", f"unknown key (allowed: {', '.join(sorted(_GNSS_DISPLACEMENT_KEYS))})")
+    model = disp.get("model", "static")
+    if model not in GNSS_DISPLACEMENT_MODELS:
+        chk.add("gnss.displacement.model", f"expected one of {', '.join(repr(m) for m in GNSS_DISPLACEMENT_MODELS)}, got {model!r}")
+        model = "static"
+    if "sigma_m_per_sqrt_s" in disp:
+        v = disp["sigma_m_per_sqrt_s"]
+        if isinstance(v, (int, float)) and not isinstance(v, bool):
+            v = [v, v, v]
+        arr = chk.vector({"s": v}, "gnss.displacement", "s", 3, None)
+        if arr is None:
+            chk.problems[-1] = chk.problems[-1].replace("gnss.displacement.s:", "gnss.displacement.sigma_m_per_sqrt_s:")
+        elif np.any(arr <= 0):
+            chk.add("gnss.displacement.sigma_m_per_sqrt_s", f"expected positive values (m/√s), got {v!r}")
+        else:
+            rw = tuple(float(x) for x in arr)
+        if disp.get("model", "static") == "static":
+            chk.add("gnss.displacement.sigma_m_per_sqrt_s", "only used with model = \"random_walk\" (a static displacement has no process noise)")
+    init_sigma = chk.number(disp, "gnss.displacement", "initial_sigma_m", 1.0, positive=True)
+
+    # [gnss.antennas.NAME]
+    ants = []
+    at = g.get("antennas", {})
+    if not isinstance(at, dict):
+        chk.add("gnss.antennas", "expected tables [gnss.antennas.NAME]")
+        at = {}
+    for an, a in at.items():
+        key = f"gnss.antennas.{an}"
+        if not isinstance(a, dict):
+            chk.add(key, "expected a table (rinex/ubx file, position_ecef_m)")
+            continue
+        for k in sorted(set(a) - _GNSS_ANTENNA_KEYS):
+            chk.add(f"{key}.{k}", f"unknown key (allowed: {', '.join(sorted(_GNSS_ANTENNA_KEYS))})")
+        rinex = chk.string(a, key, "rinex", None)
+        ubx = chk.string(a, key, "ubx", None)
+        if rinex and ubx:
+            chk.add(key, "give one observation file: rinex or ubx, not both")
+        pos = chk.vector(a, key, "position_ecef_m", 3, None)
+        if pos is not None and np.linalg.norm(pos) < 6.0e6:
+            chk.add(f"{key}.position_ecef_m", f"expected an ECEF position near the Earth's surface (m), got {a['position_ecef_m']!r}")
+            pos = None
+        ants.append(GnssAntenna(str(an), resolve(rinex) if rinex else None, resolve(ubx) if ubx else None,
+                                tuple(float(x) for x in pos) if pos is not None else None,
+                                a.get("description", "") if isinstance(a.get("description", ""), str) else ""))
+    if master is not None and ants and master not in [a.name for a in ants]:
+        chk.add("gnss.master", f"{master!r} is not one of gnss.antennas ({', '.join(a.name for a in ants)})")
+
+    if chk.problems:
+        raise CdgpsError(join_problems(f"{path}: invalid GNSS config", chk.problems))
+    return GnssConfig(
+        path=path, text=text, sha256=hashlib.sha256(text.encode("utf-8")).hexdigest(), name=name,
+        description=description or "", master=master, antennas=tuple(ants), nav=tuple(nav),
+        mask_deg=mask, ratio=ratio, partial=flag("partial", True), fix=flag("fix", True), weighting=weighting,
+        sigma_a_m=sa, sigma_b_m=sb, code_ratio=code_ratio, troposphere=flag("troposphere", True),
+        max_gap_s=max_gap, sync_tol_s=sync, displacement=model, random_walk_sigma=rw, initial_sigma_m=init_sigma,
+    )
+
+
+def _toml_str(s: str) -> str:
+    return '"' + str(s).replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+def gnss_config_toml(antennas: dict, nav=(), master: str | None = None, *, name: str | None = None,
+                     description: str = "", displacement: str = "static", sigma_m_per_sqrt_s=None,
+                     positions: dict | None = None, comments=(), options: dict | None = None) -> str:
+    """Text of a GNSS run config (the format :func:`parse_gnss_config` reads).
+
+    Parameters
+    ----------
+    antennas : dict
+        ``{name: (kind, path)}`` with kind ``"rinex"`` or ``"ubx"`` (path None: no file entry).
+    nav : sequence of str
+        Navigation file paths, written as given.
+    master : str, optional
+        Default: the first antenna.
+    positions : dict, optional
+        ``{name: (x, y, z)}`` nominal ECEF positions to write (others: from the RINEX header).
+    comments : sequence of str
+        Comment lines written at the top.
+    options : dict, optional
+        Extra ``[gnss]`` keys (mask_deg, ratio, …), written in this order.
+    """
+    master = master or next(iter(antennas), None)
+    out = [f"# {c}" if c else "#" for c in comments]
+    if out:
+        out.append("")
+    out += ["[gnss]", f"name = {_toml_str(name or '-'.join(antennas) or 'gnss-run')}"]
+    if description:
+        out.append(f"description = {_toml_str(description)}")
+    if master:
+        out.append(f"master = {_toml_str(master)}")
+    out.append("nav = [" + ", ".join(_toml_str(p) for p in nav) + "]")
+    opts = {"mask_deg": 15.0, "ratio": 3.0, "partial": True, "weighting": "elevation", "troposphere": True}
+    opts.update(options or {})
+    notes = {"mask_deg": "elevation mask at every receiver, degrees", "ratio": "LAMBDA ratio-test threshold",
+             "partial": "partial fixing when the full set fails the ratio test",
+             "weighting": 'phase variance a^2 + b^2/sin^2(el) ("elevation") or a^2 + b^2 ("equal")',
+             "troposphere": "a priori hydrostatic troposphere (Saastamoinen x Niell), as RTKLIB"}
+    for k, v in opts.items():
+        val = ("true" if v else "false") if isinstance(v, bool) else (_toml_str(v) if isinstance(v, str) else repr(float(v)))
+        out.append(f"{k} = {val}" + (f"    # {notes[k]}" if k in notes else ""))
+    out += ["", "[gnss.displacement]",
+            f"model = {_toml_str(displacement)}    # \"static\" or \"random_walk\" E/N/U displacement of each rover"]
+    if displacement == "random_walk":
+        sig = sigma_m_per_sqrt_s if sigma_m_per_sqrt_s is not None else 0.001
+        sig_txt = repr(float(sig)) if np.isscalar(sig) else "[" + ", ".join(repr(float(x)) for x in sig) + "]"
+        out.append(f"sigma_m_per_sqrt_s = {sig_txt}    # random-walk process noise per component, m/sqrt(s)")
+    for an, (kind, path) in antennas.items():
+        out += ["", f"[gnss.antennas.{_toml_str(an)}]"]
+        if path is not None:
+            out.append(f"{kind} = {_toml_str(path)}")
+        pos = (positions or {}).get(an)
+        if pos is not None:
+            out.append("position_ecef_m = [" + ", ".join(f"{float(x):.4f}" for x in pos) + "]")
+        elif kind == "rinex":
+            out.append("# position_ecef_m = [x, y, z]    # default: the RINEX header APPROX POSITION XYZ")
+    return "\n".join(out) + "\n"

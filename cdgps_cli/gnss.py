@@ -16,6 +16,8 @@ epoch matching, per-receiver reception geometry, and a simulator of two static r
   (the receivers here steer their clocks in 1 ms steps, so tags drift by a few ms).
 * :func:`reception_geometry` — satellite position (Sagnac-corrected), clock, range, azimuth and
   elevation, troposphere for the rows of one receiver at their true reception times.
+* :func:`synthetic_gps_nav` — broadcast ephemerides of a nominal 30-satellite GPS-like
+  constellation for any date (simulations without a real navigation file).
 * :func:`simulate_static_pair` — L1 phase and pseudorange of two static receivers from broadcast
   ephemerides with integer ambiguities, receiver clocks, slips and noise, as tables in the format
   of :func:`~cdgps_cli.rinex.read_rinex_obs` (for tests and benchmarks).
@@ -33,10 +35,13 @@ import numpy as np
 import pandas as pd
 
 from .ephemeris import (
+    GM_GPS,
     MAX_EPHEMERIS_AGE_S,
+    OMEGA_E_GPS,
     SPEED_OF_LIGHT,
     azimuth_elevation,
     ecef_to_geodetic,
+    enu_matrix,
     sat_position_at_reception,
 )
 from .errors import CdgpsError
@@ -56,6 +61,7 @@ __all__ = [
     "match_epochs",
     "reception_geometry",
     "simulate_static_pair",
+    "synthetic_gps_nav",
 ]
 
 L1_WAVELENGTH_M = GPS_L1_WAVELENGTH_M
@@ -221,16 +227,25 @@ def ephemeris_coverage(nav: pd.DataFrame, sats, t_gps_s, *, max_age_s: float = M
     ok = np.zeros(t.shape, dtype=bool)
     healthy = nav[nav["sv_health"] == 0]
     toes = {s: np.sort(g["toe_gps_s"].to_numpy()) for s, g in healthy.groupby("sat")}
-    for s in np.unique(sats):
+    for s, sel in _groups(sats):
         toe = toes.get(s)
         if toe is None or toe.size == 0:
             continue
-        sel = np.flatnonzero(sats == s)
         k = np.searchsorted(toe, t[sel])
         before = toe[np.clip(k - 1, 0, toe.size - 1)]
         after = toe[np.clip(k, 0, toe.size - 1)]
         ok[sel] = np.minimum(np.abs(t[sel] - before), np.abs(t[sel] - after)) <= max_age_s
     return ok
+
+
+def _groups(sats) -> list:
+    """(satellite, row indices) for each distinct satellite, sorted by name; rows keep their order.
+    One hash pass and one sort instead of a string comparison over all rows per satellite."""
+    codes, names = pd.factorize(np.asarray(sats, dtype=object), sort=True)
+    order = np.argsort(codes, kind="stable")
+    counts = np.bincount(codes[codes >= 0], minlength=len(names))
+    cuts = np.r_[0, np.cumsum(counts)]
+    return [(names[i], order[cuts[i]:cuts[i + 1]]) for i in range(len(names))]
 
 
 def _rows_geometry(nav, sats, t_label, t_true, rx_ecef, *, troposphere: bool):
@@ -241,8 +256,7 @@ def _rows_geometry(nav, sats, t_label, t_true, rx_ecef, *, troposphere: bool):
     rng = np.empty(n)
     rx = np.asarray(rx_ecef, dtype=np.float64)
     per_row = rx.ndim == 2
-    for s in np.unique(sats):
-        idx = np.flatnonzero(sats == s)
+    for s, idx in _groups(sats):
         g = sat_position_at_reception(nav, s, t_label[idx], rx[idx] if per_row else rx,
                                       rx_clock_s=t_label[idx] - t_true[idx])
         xyz[idx], clk[idx], rng[idx] = g.xyz_m, g.clock_s, g.range_m
@@ -549,6 +563,7 @@ def simulate_static_pair(
     slips: tuple = (),
     seed: int = 0,
     troposphere: bool = True,
+    rover_offset_enu_m=None,
 ) -> dict:
     """Synthesize L1 observations of a static base and rover from broadcast ephemerides.
 
@@ -584,6 +599,9 @@ def simulate_static_pair(
         Random seed.
     troposphere : bool
         Add the hydrostatic troposphere model to both receivers' observables.
+    rover_offset_enu_m : array_like, shape (n_epochs, 3), optional
+        A moving rover: its antenna at nominal epoch k is ``rover_ecef_m`` plus this east/north/up
+        offset (m, in the local frame at ``rover_ecef_m``); default static.
 
     Returns
     -------
@@ -600,6 +618,13 @@ def simulate_static_pair(
     if sats is None:
         sats = sorted(nav["sat"].unique().tolist())
     stations = {"base": np.asarray(base_ecef_m, float), "rover": np.asarray(rover_ecef_m, float)}
+    track = {}
+    if rover_offset_enu_m is not None:
+        off = np.asarray(rover_offset_enu_m, dtype=np.float64)
+        if off.shape != (n_ep, 3):
+            raise ValueError(f"rover_offset_enu_m must have shape ({n_ep}, 3), got {off.shape}")
+        lat_r, lon_r, _ = ecef_to_geodetic(stations["rover"])
+        track["rover"] = stations["rover"] + off @ enu_matrix(lat_r, lon_r)
     clock, tag, t_true = {}, {}, {}
     for j, name in enumerate(stations):
         clock[name] = clock_drift_ms[j] * 1e-3 * (t_nom - t_start_s) / max(duration_s, 1e-9)
@@ -613,8 +638,9 @@ def simulate_static_pair(
         geo = {}
         vis = np.ones(idx.size, dtype=bool)
         for name, x in stations.items():
-            g = sat_position_at_reception(nav, s, t_nom[idx], x, rx_clock_s=t_nom[idx] - t_true[name][idx])
-            el = azimuth_elevation(x, g.xyz_m)[1]
+            xs = track[name][idx] if name in track else x
+            g = sat_position_at_reception(nav, s, t_nom[idx], xs, rx_clock_s=t_nom[idx] - t_true[name][idx])
+            el = azimuth_elevation(xs, g.xyz_m)[1]
             vis &= el > mask_rad
             geo[name] = (g.range_m, g.clock_s, el)
         if vis.any():
@@ -675,3 +701,69 @@ def simulate_static_pair(
         "frac_bias_cycles": fracs,
         "clock_s": clock,
     }
+
+
+# ----------------------------------------------------------------------------------------------
+# a synthetic constellation (broadcast-ephemeris records of nominal Keplerian orbits)
+# ----------------------------------------------------------------------------------------------
+
+
+def synthetic_gps_nav(t_start_s: float, duration_s: float, *, planes: int = 6, per_plane: int = 6,
+                      seed: int = 0, record_interval_s: float = 7200.0) -> pd.DataFrame:
+    """Broadcast ephemerides of a nominal GPS-like constellation covering a span.
+
+    ``planes × per_plane`` satellites ``G01…`` (default 36, G01–G36: more than GPS's 32 PRNs, so
+    that at least 5 are above 15° everywhere at all times) on near-circular orbits (semi-major
+    axis 26 559.7 km, inclination 55°, eccentricity 0.002–0.012, nodes 360°/planes apart,
+    satellites evenly spaced in each plane, node regression
+    −8·10⁻⁹ rad/s), with small satellite clock offsets and drifts.  One record per satellite
+    every ``record_interval_s`` (on even multiples of it in GPS time) from 2 h before the span to
+    2 h after it, each the exact continuation of the same Keplerian orbit, so
+    :func:`~cdgps_cli.ephemeris.sat_position_ecef` is continuous across record changes.  The
+    harmonic corrections (Cuc … Cis) are zero.  Not real orbits: for simulations only.
+
+    Returns
+    -------
+    DataFrame
+        Columns :data:`~cdgps_cli.rinex.NAV_COLUMNS` (``line`` = 0), healthy (``sv_health`` 0).
+    """
+    gen = np.random.default_rng(seed)
+    a = 26_559_700.0
+    n0 = math.sqrt(GM_GPS / a**3)
+    omega_dot = -8.0e-9
+    step = float(record_interval_s)
+    t_ref = math.floor(t_start_s / step) * step
+    toes = np.arange(t_ref - step, t_start_s + duration_s + 2 * step, step)
+    rows = []
+    prn = 0
+    for p in range(planes):
+        node = 2 * math.pi * p / planes + gen.uniform(-0.02, 0.02)
+        for q in range(per_plane):
+            prn += 1
+            m_ref = 2 * math.pi * q / per_plane + gen.uniform(-0.05, 0.05)
+            ecc = gen.uniform(0.002, 0.012)
+            argp = gen.uniform(-math.pi, math.pi)
+            inc = math.radians(55.0) + gen.uniform(-0.01, 0.01)
+            af0, af1, tgd = gen.uniform(-2e-4, 2e-4), gen.uniform(-5e-12, 5e-12), gen.uniform(-1e-8, 1e-8)
+            for k, toe in enumerate(toes):
+                week = int(toe // 604800)
+                sow = float(toe - week * 604800)
+                dt_ = toe - t_ref
+                m0 = math.remainder(m_ref + n0 * dt_, 2 * math.pi)
+                om0 = math.remainder(node + omega_dot * dt_ - OMEGA_E_GPS * dt_ + OMEGA_E_GPS * sow, 2 * math.pi)
+                iod = int((k + 7 * prn) % 256)
+                rows.append({
+                    "sat": f"G{prn:02d}", "toc_gps_s": float(toe), "af0_s": af0 + af1 * dt_, "af1_s_per_s": af1,
+                    "af2_s_per_s2": 0.0, "iode": iod, "crs_m": 0.0, "delta_n_rad_per_s": 0.0, "m0_rad": m0,
+                    "cuc_rad": 0.0, "e": ecc, "cus_rad": 0.0, "sqrt_a_sqrt_m": math.sqrt(a), "toe_sow_s": sow,
+                    "cic_rad": 0.0, "omega0_rad": om0, "cis_rad": 0.0, "i0_rad": inc, "crc_m": 0.0,
+                    "omega_rad": argp, "omega_dot_rad_per_s": omega_dot, "idot_rad_per_s": 0.0, "codes_l2": 1,
+                    "week": week, "l2p_data_flag": 0, "sv_accuracy_m": 2.0, "sv_health": 0, "tgd_s": tgd,
+                    "iodc": iod, "transmit_sow_s": sow - 3600.0 if sow >= 3600.0 else sow,
+                    "fit_interval_h": 4.0, "toe_gps_s": float(toe),
+                    "transmit_gps_s": float(toe - 3600.0 if sow >= 3600.0 else toe), "line": 0,
+                })
+    df = pd.DataFrame(rows)
+    from .rinex import NAV_COLUMNS  # noqa: PLC0415
+
+    return df[list(NAV_COLUMNS)].sort_values(["sat", "toe_gps_s"], kind="stable").reset_index(drop=True)

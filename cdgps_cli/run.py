@@ -178,6 +178,9 @@ def read_run(path: str | Path, phase: bool = True) -> Run:
     """
     want_phase = phase
     c = read_mcap(path, topics=None if want_phase else [ACTUATOR_TOPIC])
+    if c.metadata.get(INGEST_METADATA, {}).get("kind") == "gnss":
+        raise CdgpsError(f"{path}: this is a GNSS run (RINEX/UBX receivers, docs/gnss-pipeline.md), not a structure run; "
+                         f"it is processed by 'cdgps init' and 'cdgps estimate' into displacement states")
     if CONFIG_ATTACHMENT not in c.attachments:
         raise CdgpsError(f"{path}: no {CONFIG_ATTACHMENT} attachment; is this a RUN.mcap from 'cdgps ingest'?")
     if want_phase and PHASE_TOPIC not in c.topics:
@@ -217,6 +220,10 @@ def run_info(path: str | Path) -> dict:
             "start_s": float(t[0]) if t.size else None, "end_s": float(t[-1]) if t.size else None,
             "median_period_s": float(np.median(dt)) if dt.size else None,
         })
+    from .gnss_run import gnss_run_info, is_gnss_run  # noqa: PLC0415 (GNSS runs: docs/gnss-pipeline.md)
+
+    if is_gnss_run(c):
+        info["gnss"] = gnss_run_info(path, c)
     if PHASE_TOPIC in c.topics and CONFIG_ATTACHMENT in c.attachments:
         cfg = parse_config(c.attachments[CONFIG_ATTACHMENT].decode("utf-8"), f"{path}:{CONFIG_ATTACHMENT}")
         phase = c.topics[PHASE_TOPIC].table(PHASE_ARRAYS, ["master"])

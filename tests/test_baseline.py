@@ -401,3 +401,28 @@ def test_cli_errors(tmp_path):
                                   "--nav", str(DATA / "07590920.05n"), "--master", "a", "-o", str(out)])
     assert r.exit_code == 2 and "missing.o: cannot read" in r.stderr
     assert not out.exists()
+
+
+def test_old_baseline_job_form_still_loads_and_gnss_positions_are_used(tmp_path):
+    obs = [shared("30400920.05o"), shared("07590920.05o")]
+    old = tmp_path / "old.toml"
+    old.write_text(f'[baseline]\nmaster = "3040"\nnav = ["{shared("30400920.05n")}"]\nratio = 4.0\n'
+                   f'[baseline.rinex]\n"3040" = "{obs[0]}"\n"0759" = "{obs[1]}"\n')
+    job = load_baseline_job(old)
+    assert job["master"] == "3040" and job["options"].ratio_threshold == 4.0 and job["positions"] == {}
+    # a [gnss] config: position_ecef_m replaces the header position (here the rover's, moved 1 m up)
+    up = ROVER_XYZ + enu_matrix(*ecef_to_geodetic(ROVER_XYZ)[:2]).T @ np.array([0.0, 0.0, 1.0])
+    new = tmp_path / "new.toml"
+    new.write_text(f'[gnss]\nmaster = "3040"\nnav = ["{shared("30400920.05n")}"]\n'
+                   f'[gnss.antennas."3040"]\nrinex = "{obs[0]}"\n'
+                   f'[gnss.antennas."0759"]\nrinex = "{obs[1]}"\nposition_ecef_m = [{float(up[0])!r}, {float(up[1])!r}, {float(up[2])!r}]\n')
+    job = load_baseline_job(new)
+    assert set(job["positions"]) == {"0759"}
+    r = baseline_from_files(job["rinex"], job["nav"], job["master"], job["options"], positions=job["positions"])
+    assert r["rover_apriori_source"] == "given"
+    np.testing.assert_allclose(r["rover_ecef_m"], [-3976219.6636, 3382372.5422, 3652513.0576], atol=1e-3)
+    assert abs(r["states"]["0759_u"] - (0.12545 - 1.0)) < 1e-3
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[gnss]\nmaster = "a"\n[gnss.antennas.a]\nubx = "a.ubx"\n')
+    with pytest.raises(CdgpsError, match=r"not usable as a baseline job: 3 problems"):
+        load_baseline_job(bad)

@@ -596,3 +596,78 @@ def test_gps_time_helpers():
     assert gps_seconds(1980, 1, 6) == 0.0
     assert gps_seconds(2005, 4, 2) == 1316 * 604800 + 6 * 86400
     assert gps_time_str(gps_seconds(2019, 1, 1, 21, 10, 15.25)) == "2019-01-01 21:10:15.250 GPST"
+
+
+# ----------------------------------------------------------------------------------------------
+# RINEX 3 records are parsed in bulk; the record-by-record path stays for errors and oddities
+# ----------------------------------------------------------------------------------------------
+
+
+def _rinex3_records(path: Path):
+    """The record-by-record parse of a RINEX 3 file (the reference for the bulk parser)."""
+    from cdgps_cli import rinex as rx
+
+    h, o = read_rinex_obs(path)
+    lines = rx._read_lines(path)[0]
+    rows = rx._new_rows()
+    end = next(i for i, ln in enumerate(lines) if ln[60:80].strip() == "END OF HEADER")
+    hdr = rx._ObsHeader(path, h["version"], False)
+    for i in range(1, end + 1):
+        hdr.apply(lines[i], i + 1)
+    cols = rx._GpsL1Columns(hdr, end + 1)
+    i = end + 1
+    while i < len(lines):
+        ln = lines[i]
+        if not ln.strip():
+            i += 1
+            continue
+        flag = int(ln[31:32].strip() or 0)
+        if 2 <= flag <= 6:
+            i += 1 + int(ln[32:35])
+            continue
+        n = int(ln[32:35])
+        t = gps_seconds(int(ln[2:6]), int(ln[7:9]), int(ln[10:12]), int(ln[13:15]), int(ln[16:18]), float(ln[18:29]))
+        clk = float(ln[35:]) if ln[35:].strip() else math.nan
+        for rec in lines[i + 1:i + 1 + n]:
+            if rec[0] == "G":
+                f = (rx._obs_field(rec, cols.i_phase, 3), rx._obs_field(rec, cols.i_code, 3)[0] if cols.i_code >= 0 else None,
+                     rx._obs_field(rec, cols.i_snr, 3)[0] if cols.i_snr >= 0 else None)
+                rx._append_row(rows, t, rx._sat_id(rec[:3], 3.0), f, cols, clk, flag)
+        i += 1 + n
+    ref = pd.DataFrame({"time_gps_s": rows["t"], "sat": rows["sat"], "phase_l1_cycles": rows["phase"],
+                        "lli_l1": rows["lli"], "ssi_l1": rows["ssi"], "pseudorange_l1_m": rows["code"],
+                        "snr_l1_dbhz": rows["snr"]})
+    return o, ref.sort_values(["time_gps_s", "sat"], kind="stable").reset_index(drop=True)
+
+
+@pytest.mark.parametrize("name", ["demo3.10o", "P433_lli_subset.crx"])
+def test_rinex3_bulk_parser_equals_record_by_record(name):
+    o, ref = _rinex3_records(DATA / name)
+    cols = list(ref.columns)
+    pd.testing.assert_frame_equal(o[cols].reset_index(drop=True), ref, check_dtype=False)
+
+
+def test_rinex3_bulk_parser_fallback_and_errors(tmp_path):
+    lines = (DATA / "demo3.10o").read_text().splitlines()
+    end = next(i for i, ln in enumerate(lines) if "END OF HEADER" in ln)
+    k = next(i for i, ln in enumerate(lines) if i > end and ln.startswith("G") and ln[3:17].strip())
+    # a Fortran D exponent in the L1C phase (first type): the record-by-record path takes over
+    v = float(lines[k][3:17])
+    d = f"{v / 1e8:.9f}D8".rjust(14)
+    p = tmp_path / "d.10o"
+    p.write_text("\n".join(lines[:k] + [lines[k][:3] + d + lines[k][17:]] + lines[k + 1:]) + "\n")
+    _, a = read_rinex_obs(DATA / "demo3.10o")
+    _, b = read_rinex_obs(p)
+    np.testing.assert_allclose(b["phase_l1_cycles"].to_numpy(), a["phase_l1_cycles"].to_numpy(), rtol=1e-9, equal_nan=True)
+    pd.testing.assert_frame_equal(a.drop(columns="phase_l1_cycles"), b.drop(columns="phase_l1_cycles"))
+    # a malformed value or flag digit names its line
+    for bad in (lines[k][:3] + "   12x45.678  " + lines[k][17:], lines[k][:17] + "x" + lines[k][18:]):
+        q = tmp_path / "bad.10o"
+        q.write_text("\n".join(lines[:k] + [bad] + lines[k + 1:]) + "\n")
+        with pytest.raises(CdgpsError, match=rf"bad\.10o, line {k + 1}: malformed observation record for G"):
+            read_rinex_obs(q)
+    # a satellite record where an epoch line stands, and a malformed satellite identifier
+    q = tmp_path / "sat.10o"
+    q.write_text("\n".join(lines[:k] + ["X?? " + lines[k][4:]] + lines[k + 1:]) + "\n")
+    with pytest.raises(CdgpsError, match=rf"sat\.10o, line {k + 1}: malformed satellite identifier"):
+        read_rinex_obs(q)
