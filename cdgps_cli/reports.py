@@ -10,12 +10,13 @@ import base64
 import html
 import io
 import json
+import re
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from .atomic import write_atomic, write_bytes_atomic
+from .atomic import write_bytes_atomic
 from .errors import CdgpsError
 from .expressions import parse_expression
 from .kinematics import gyro_matrix
@@ -33,6 +34,17 @@ def _mpl():
 
 
 _atomic_bytes = write_bytes_atomic
+
+
+def float_csv(df: pd.DataFrame, float_format: str = "%.7g") -> str:
+    """CSV text of an all-numeric frame: the same bytes as ``df.to_csv(index=False,
+    lineterminator="\\n", float_format=...)`` (NaN written as an empty field), about 4× faster."""
+    a = df.to_numpy(dtype=float)
+    row = ",".join([float_format] * a.shape[1]) + "\n"
+    body = "".join(row % tuple(r) for r in a.tolist())
+    if np.isnan(a).any():
+        body = re.sub(r"(?<![^,\n])nan(?![^,\n])", "", body)
+    return ",".join(map(str, df.columns)) + "\n" + body
 
 
 def _save_fig(fig, path: Path) -> bytes:
@@ -105,7 +117,7 @@ def run_spectra(states, run, opt, out_dir: str | Path) -> dict:
         df[col] = v
     for i in range(res["fdd_sv"].shape[1]):
         df[f"fdd_singular_value_{i + 1}_1_hz"] = res["fdd_sv"][:, i]      # of the standardized CSD
-    write_atomic(out / "psd.csv", lambda p: df.to_csv(p, index=False, lineterminator="\n", float_format="%.7g"))
+    _atomic_bytes(out / "psd.csv", float_csv(df, "%.7g").encode())
     peaks = _json_clean({"modes": res["modes"], "settings": res["settings"], "states": str(states.path),
                          "config": cfg.name, "config_sha256": cfg.sha256, "gyros": gnames})
     _atomic_bytes(out / "peaks.json", (json.dumps(peaks, indent=2) + "\n").encode())

@@ -265,10 +265,16 @@ def sdof_whittle_fit(y: np.ndarray, fs: float, f0_hz: float, zeta0: float, half_
     m = k.size
     zmax = 0.9
 
+    z0 = float(min(max(zeta0, 1e-3), 0.5))
+    peak = float(np.max(sdof_expected_periodogram(n, fs, k, 1.0, f0_hz, z0)))
+    # a floor below 1e-8 of the peak changes nothing: clamping it there keeps the likelihood exactly
+    # flat in that direction (instead of creeping towards −∞), so the simplex converges
+    floor_lo = np.log(1e-8 * peak)
+
     def shape(th):
         # unit-variance mode plus a floor relative to it; the scale is profiled out below
         z = zmax / (1.0 + np.exp(-th[1]))               # ζ in (0, zmax)
-        return sdof_expected_periodogram(n, fs, k, 1.0, th[0], z, np.exp(th[2]))
+        return sdof_expected_periodogram(n, fs, k, 1.0, th[0], z, np.exp(max(th[2], floor_lo)))
 
     def nll(th):
         # Whittle negative log-likelihood with the scale s at its optimum ŝ = mean(I / shape)
@@ -282,15 +288,16 @@ def sdof_whittle_fit(y: np.ndarray, fs: float, f0_hz: float, zeta0: float, half_
     def logit(z):
         return np.log(z / (zmax - z))
 
-    z0 = float(min(max(zeta0, 1e-3), 0.5))
-    peak = float(np.max(sdof_expected_periodogram(n, fs, k, 1.0, f0_hz, z0)))
-    rel_floor0 = np.log(max(float(np.median(II)) / max(float(np.max(II)), 1e-300), 1e-12) * 0.1 * peak)
+    rel_floor0 = max(np.log(max(float(np.median(II)) / max(float(np.max(II)), 1e-300), 1e-12) * 0.1 * peak),
+                     floor_lo + 2.0)
     best = None
-    for f_start in dict.fromkeys((float(f0_hz), float(fk[int(np.argmax(II))]))):
+    f_peak = float(fk[int(np.argmax(II))])
+    starts = [float(f0_hz)] + ([f_peak] if abs(f_peak - f0_hz) > 0.25 * half_width_hz else [])
+    for f_start in starts:
         th = np.array([f_start, logit(z0), rel_floor0])
         simplex = np.vstack([th, th + [0.2 * half_width_hz, 0, 0], th + [0, 0.7, 0], th + [0, 0, 2.0]])
         r = minimize(nll, th, method="Nelder-Mead",
-                     options={"xatol": 1e-9, "fatol": 1e-9, "maxiter": 2000, "maxfev": 4000, "initial_simplex": simplex})
+                     options={"xatol": 1e-7, "fatol": 1e-7, "maxiter": 2000, "maxfev": 4000, "initial_simplex": simplex})
         if np.isfinite(r.fun) and (best is None or r.fun < best.fun):
             best = r
     if best is None:
@@ -299,7 +306,7 @@ def sdof_whittle_fit(y: np.ndarray, fs: float, f0_hz: float, zeta0: float, half_
     scale = float(np.mean(II / shape(th)))
     fn = float(th[0])
     zeta = float(zmax / (1.0 + np.exp(-th[1])))
-    floor = scale * float(np.exp(th[2]))
+    floor = scale * float(np.exp(max(th[2], floor_lo)))
     th = np.array([np.log(scale), fn, th[1], np.log(floor)])
     # Fisher information by central differences of log E (parameters: log σ², fn, ζ, log floor)
     p = np.array([th[0], fn, zeta, th[3]])

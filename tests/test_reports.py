@@ -334,3 +334,16 @@ def test_cli_bad_spectra_inputs(free_run, static_run, tmp_path):
     assert r.exit_code == 2 and "STATES.mcap" in r.stderr
     r = cli(["spectra", tmp_path / "missing.mcap", "-o", tmp_path / "d"])
     assert r.exit_code == 2 and "Traceback" not in r.output
+
+
+def test_float_csv_matches_pandas_to_csv():
+    """psd.csv is written by a fast formatter: the same bytes as pandas' to_csv (NaN → empty field)."""
+    from cdgps_cli.reports import float_csv
+
+    rng = np.random.default_rng(0)
+    a = rng.standard_normal((400, 6)) * 10.0 ** rng.integers(-12, 12, (400, 6))
+    a[0, 0] = a[3, 2] = a[399, 5] = np.nan
+    a[7, 1], a[8, 1] = np.inf, -np.inf
+    a[9] = 0.0
+    df = pd.DataFrame(a, columns=["frequency_hz", "gps_q1_m2_hz", "nan_col", "c", "d", "coherence_g1"])
+    assert float_csv(df) == df.to_csv(index=False, lineterminator="\n", float_format="%.7g")
