@@ -764,7 +764,9 @@ def _gps_time(t: float) -> str:
 @click.option("--random-walk", "random_walk", type=float, default=None, metavar="SIGMA",
               help="Rover also random-walks with SIGMA m/√s per component (config model random_walk).")
 @click.option("--slips", "n_slips", type=int, default=0, show_default=True, help="Random LLI-flagged cycle slips.")
-@click.option("--phase-noise-m", type=float, default=0.002, show_default=True, help="Undifferenced phase noise, m.")
+@click.option("--phase-noise-m", type=float, default=None,
+              help="Undifferenced white phase noise, m [default: the elevation model sigma^2 = a^2 + b^2/sin^2(el), "
+                   "a = b = 3 mm per receiver, the estimator's default weighting].")
 @click.option("--code-noise-m", type=float, default=0.5, show_default=True, help="Undifferenced pseudorange noise, m.")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output directory.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")

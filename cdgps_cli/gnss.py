@@ -19,7 +19,7 @@ epoch matching, per-receiver reception geometry, and a simulator of two static r
 * :func:`synthetic_gps_nav` — broadcast ephemerides of a nominal 30-satellite GPS-like
   constellation for any date (simulations without a real navigation file).
 * :func:`simulate_static_pair` — L1 phase and pseudorange of two static receivers from broadcast
-  ephemerides with integer ambiguities, receiver clocks, slips and noise, as tables in the format
+  ephemerides with integer ambiguities, receiver clocks, slips, noise and C/N0, as tables in the format
   of :func:`~cdgps_cli.rinex.read_rinex_obs` (for tests and benchmarks).
 
 Units: positions ECEF (WGS-84) m; angles rad; times GPS seconds since 1980-01-06; clocks s;
@@ -557,13 +557,16 @@ def simulate_static_pair(
     *,
     sats=None,
     mask_rad: float = math.radians(5.0),
-    phase_sigma_m: float = 0.002,
-    code_sigma_m: float = 0.5,
+    phase_sigma_m: float | tuple = 0.002,
+    code_sigma_m: float | tuple = 0.5,
     clock_drift_ms: tuple[float, float] = (-4.0, 5.0),
     slips: tuple = (),
     seed: int = 0,
     troposphere: bool = True,
     rover_offset_enu_m=None,
+    random_slips: int = 0,
+    slip_mask_rad: float | None = None,
+    slip_min_epochs: int = 10,
 ) -> dict:
     """Synthesize L1 observations of a static base and rover from broadcast ephemerides.
 
@@ -574,6 +577,10 @@ def simulate_static_pair(
     ``P = ρ + c·(dt − dt_sat) + T + ε_P`` and ``L = (ρ + c·(dt − dt_sat) + T + ε_L)/λ + N + f``,
     with ρ, dt_sat at the measurement instant, N an integer per satellite and lock segment (a new
     one after each gap in visibility) and f a fractional phase bias common to the receiver.
+    ε_L, ε_P are white, either with one σ or with the elevation model σ² = a² + b²/sin²el of each
+    receiver's own elevation (the estimator's default weighting, RTKLIB's).  Each record also
+    carries a C/N0 of :data:`CN0_MODEL` ``35 + 15·sin el`` dB-Hz (noise-free, so deterministic); the
+    RINEX writer turns it into the signal-strength digit.
 
     Parameters
     ----------
@@ -587,14 +594,23 @@ def simulate_static_pair(
         Satellites to simulate (default: all in ``nav``).
     mask_rad : float
         Simulated tracking mask at both receivers, rad.
-    phase_sigma_m, code_sigma_m : float
-        White noise of undifferenced phase and code, m.
+    phase_sigma_m, code_sigma_m : float or (float, float)
+        White noise of undifferenced phase and code, m: a number σ (the same at all elevations) or
+        a pair (a, b) for σ² = a² + b²/sin²el (el of that receiver and satellite).
     clock_drift_ms : (float, float)
         Base and rover clock offset at the end of the span, ms.
     slips : sequence of (receiver, sat, t_gps_s, cycles)
         Cycle slips (receiver ``"base"`` or ``"rover"``): from the first record at or after
         nominal time ``t_gps_s`` to the end of its lock segment, the phase is shifted by
         ``cycles``; that first record carries LLI = 1.
+    random_slips : int
+        Further slips drawn at random (own generator from ``seed``, so the noise does not change)
+        among the records that are tracked at both receivers above ``slip_mask_rad`` (default
+        ``mask_rad``) with at least ``slip_min_epochs`` consecutive such epochs before and after
+        the slip in the same arc, inside 5–95 % of the span, and at least ``slip_min_epochs``
+        epochs from any other random slip of the satellite; receiver and record uniform among
+        those, size a non-zero integer in [−50, 49].  Fewer when there are not enough such
+        records (the returned ``slips`` say how many were made).
     seed : int
         Random seed.
     troposphere : bool
@@ -610,7 +626,9 @@ def simulate_static_pair(
         ``base_header``, ``rover_header``: dicts with ``approx_position_xyz_m``, ``interval_s``,
         ``marker_name``, ``path``; ``ambiguities``: DataFrame (receiver, sat, t_from_s, n_cycles)
         of the integer part of each lock segment and of each slip; ``frac_bias_cycles``:
-        {receiver: f}; ``clock_s``: {receiver: dt per nominal epoch}.
+        {receiver: f}; ``clock_s``: {receiver: dt per nominal epoch}; ``slips``: list of dicts
+        (``receiver``, ``sat``, ``time_gps_s`` nominal epoch of the flagged record, ``cycles``,
+        ``elevation_deg`` there, ``random``) of the slips applied, explicit ones first.
     """
     gen = np.random.default_rng(seed)
     n_ep = int(math.floor(duration_s / interval_s - 1e-9)) + 1
@@ -645,6 +663,10 @@ def simulate_static_pair(
             geo[name] = (g.range_m, g.clock_s, el)
         if vis.any():
             per_sat.append((s, idx, vis, geo))
+    drawn = _draw_random_slips(per_sat, t_nom, int(random_slips), mask_rad if slip_mask_rad is None else slip_mask_rad,
+                               max(int(slip_min_epochs), 1), np.random.default_rng(seed + 104_729))
+    slips = [(*sl, False) for sl in slips] + [(*sl, True) for sl in drawn]
+    applied = []
     frames = {}
     amb_rows = []
     fracs = {}
@@ -665,7 +687,7 @@ def simulate_static_pair(
             for j in np.flatnonzero(seg_start):
                 amb_rows.append((name, s, "lock", float(t_nom[idx[j]]), int(n_int[seg_id[j]])))
             lli = np.zeros(idx.size, dtype=np.int64)
-            for rx_name, sl_sat, sl_t, cyc in slips:
+            for rx_name, sl_sat, sl_t, cyc, rnd in slips:
                 if rx_name != name or sl_sat != s:
                     continue
                 after = t_nom[idx] >= sl_t
@@ -675,15 +697,18 @@ def simulate_static_pair(
                     amb = amb + np.where(hit, float(cyc), 0.0)
                     lli[j0] |= 1
                     amb_rows.append((name, s, "slip", float(t_nom[idx[j0]]), int(cyc)))
+                    applied.append({"receiver": name, "sat": s, "time_gps_s": float(t_nom[idx[j0]]), "cycles": int(cyc),
+                                    "elevation_deg": round(math.degrees(float(el[j0])), 3), "random": rnd})
             common = rho + SPEED_OF_LIGHT * (clock[name][idx] - dts) + trop
             recs.append(pd.DataFrame({
                 "time_gps_s": tag[name][idx],
                 "sat": s,
-                "phase_l1_cycles": (common + gen.normal(0.0, phase_sigma_m, idx.size)) / L1_WAVELENGTH_M + amb + frac,
+                "phase_l1_cycles": (common + gen.normal(0.0, _noise_sigma(phase_sigma_m, el), idx.size)) / L1_WAVELENGTH_M
+                + amb + frac,
                 "lli_l1": lli,
                 "ssi_l1": np.zeros(idx.size, dtype=np.int64),
-                "pseudorange_l1_m": common + gen.normal(0.0, code_sigma_m, idx.size),
-                "snr_l1_dbhz": np.nan,
+                "pseudorange_l1_m": common + gen.normal(0.0, _noise_sigma(code_sigma_m, el), idx.size),
+                "snr_l1_dbhz": CN0_MODEL[0] + CN0_MODEL[1] * np.sin(el),
                 "rx_clock_offset_s": np.nan,
                 "epoch_flag": np.zeros(idx.size, dtype=np.int64),
             }))
@@ -700,7 +725,58 @@ def simulate_static_pair(
         "ambiguities": pd.DataFrame(amb_rows, columns=["receiver", "sat", "kind", "t_from_s", "n_cycles"]),
         "frac_bias_cycles": fracs,
         "clock_s": clock,
+        "slips": sorted(applied, key=lambda d: d["random"]),
     }
+
+
+CN0_MODEL = (35.0, 15.0)
+"""Simulated C/N0 = CN0_MODEL[0] + CN0_MODEL[1]·sin(el), dB-Hz (35 at the horizon, 50 at the zenith)."""
+
+
+def _noise_sigma(spec, el_rad):
+    """σ of each row: a number → that σ; a pair (a, b) → √(a² + b²/sin²el) (sin el ≥ 0.001)."""
+    if np.ndim(spec) == 0:
+        return float(spec)
+    a, b = (float(v) for v in spec)
+    sin_el = np.maximum(np.sin(np.asarray(el_rad, dtype=np.float64)), 1e-3)
+    return np.sqrt(a * a + (b / sin_el) ** 2)
+
+
+def _draw_random_slips(per_sat, t_nom, n, mask_rad, min_epochs, gen) -> list:
+    """``n`` random slips (receiver, sat, nominal time, cycles) on well-tracked records (see
+    :func:`simulate_static_pair`); fewer if there are not enough candidates."""
+    if n <= 0:
+        return []
+    n_ep = t_nom.size
+    lo, hi = 0.05 * (n_ep - 1), 0.95 * (n_ep - 1)
+    cand_sat, cand_ep = [], []
+    for k, (s, idx_all, vis, geo) in enumerate(per_sat):
+        ep = idx_all[vis]
+        ok = (geo["base"][2][vis] > mask_rad) & (geo["rover"][2][vis] > mask_rad)
+        # runs of consecutive epochs tracked above the mask at both receivers
+        start = ok & np.concatenate([[True], ~ok[:-1] | (np.diff(ep) != 1)])
+        run = np.cumsum(start)
+        for r in np.unique(run[ok]):
+            j = np.flatnonzero(ok & (run == r))
+            pos = np.arange(j.size)
+            good = (pos >= min_epochs) & (j.size - pos >= min_epochs)
+            e = ep[j[good]]
+            e = e[(e >= lo) & (e <= hi)]
+            cand_sat.append(np.full(e.size, k))
+            cand_ep.append(e)
+    if not cand_ep:
+        return []
+    cand_sat, cand_ep = np.concatenate(cand_sat), np.concatenate(cand_ep)
+    out, taken = [], {}
+    for c in gen.permutation(2 * cand_ep.size):
+        if len(out) == n:
+            break
+        k, e = int(cand_sat[c // 2]), int(cand_ep[c // 2])
+        if any(abs(e - x) < min_epochs for x in taken.get(k, ())):
+            continue
+        taken.setdefault(k, []).append(e)
+        out.append(("base" if c % 2 == 0 else "rover", per_sat[k][0], float(t_nom[e]), int(gen.integers(-50, 50)) or 1))
+    return out
 
 
 # ----------------------------------------------------------------------------------------------

@@ -436,6 +436,10 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
         receivers[n] = read_receiver_file(n, kind, p)
     # master first, then the others in the given order
     receivers = {master: receivers[master], **{n: r for n, r in receivers.items() if n != master}}
+    for n, rx in receivers.items():
+        w = _missing_code_warning(n, files[n][1], rx)
+        if w:
+            warnings.append(w)
 
     nav = None
     if nav_list:
@@ -538,6 +542,24 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
         "messages": n_msg, "warnings": warnings,
     }
     return summary
+
+
+def _missing_code_warning(name: str, path: str, rx: GnssReceiver) -> str | None:
+    """A warning when a receiver has L1 phase but no L1 pseudorange at all (``cdgps init`` needs them)."""
+    raw = rx.raw
+    ph = np.isfinite(raw["phase_cycles"].to_numpy())
+    if np.isfinite(raw["pseudorange_m"].to_numpy()[ph]).any():
+        return None
+    types = (rx.header.get("l1_obs_types") or {}) if rx.format == "rinex" else {}
+    if rx.format == "rinex" and not types.get("pseudorange"):
+        what = f"no GPS L1 pseudorange observation type (C1C/C1/P1/…) in its header (L1 phase: {types.get('phase') or 'L1'})"
+    elif rx.format == "rinex":
+        what = f"its L1 pseudorange column ({types['pseudorange']}) is empty wherever there is L1 phase"
+    else:
+        what = "no valid pseudorange (prValid) with any L1 phase"
+    return (f"{name} ({path}): L1 carrier phase but no L1 pseudoranges — {what}; ingested, but 'cdgps init' needs "
+            f"L1 pseudoranges at every receiver (its clock offset per epoch, i.e. the true reception times) and will "
+            f"refuse this run")
 
 
 def _receiver_summary(n, rx: GnssReceiver, lock: dict, pos) -> dict:

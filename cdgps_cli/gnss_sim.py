@@ -2,7 +2,8 @@
 
 :func:`simulate_gnss_pair` runs :func:`~cdgps_cli.gnss.simulate_static_pair` (receiver clocks with
 millisecond-stepped time tags, troposphere, integer ambiguities with a fractional receiver bias,
-cycle slips flagged by LLI, white phase and code noise) for a master at a known position and a
+cycle slips flagged by LLI on tracked arcs, phase noise following the estimator's default
+elevation weighting, white code noise, C/N0 35 + 15·sin el dB-Hz) for a master at a known position and a
 rover whose antenna is displaced from its nominal position — a constant displacement (static) or
 a constant plus a random walk — and writes into one directory:
 
@@ -31,7 +32,7 @@ import pandas as pd
 
 from . import __version__
 from .atomic import write_atomic, write_bytes_atomic
-from .config import gnss_config_toml
+from .config import GnssConfig, gnss_config_toml
 from .ephemeris import ecef_to_geodetic, enu_matrix
 from .errors import CdgpsError
 from .gnss import simulate_static_pair, synthetic_gps_nav
@@ -73,7 +74,7 @@ def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_
                        start_gps_s: float | None = None, nav_paths=(), master: str = "base", rover: str = "rover",
                        master_xyz=DEFAULT_MASTER_XYZ, rover_xyz=DEFAULT_ROVER_XYZ,
                        displacement_enu_m=(0.031, -0.022, 0.017), random_walk_sigma: float | None = None,
-                       n_slips: int = 0, phase_sigma_m: float = 0.002, code_sigma_m: float = 0.5,
+                       n_slips: int = 0, phase_sigma_m: float | None = None, code_sigma_m: float = 0.5,
                        mask_deg: float = 10.0, progress=None) -> dict:
     """Simulate a master and a (displaced) rover and write RINEX, truth and config files.
 
@@ -100,9 +101,18 @@ def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_
     random_walk_sigma : float, optional
         If given, the rover also random-walks with this white-noise rate per component, m/√s.
     n_slips : int
-        Random cycle slips (either receiver, random satellite, time and size; LLI-flagged).
-    phase_sigma_m, code_sigma_m : float
-        Undifferenced white noise, m.
+        Random cycle slips (LLI-flagged), each at a random receiver and record among those the
+        run's config will use — satellite tracked at both receivers above the config's mask
+        (``max(mask_deg, GnssConfig.mask_deg)``) for ≥ 10 epochs before and after, inside
+        5–95 % of the span — with a random size; all ``n_slips`` are made unless there are too
+        few such records (then truth.json ``slips_note`` and the progress output say so).
+    phase_sigma_m : float, optional
+        Undifferenced white phase noise, m.  Default: the elevation model of the estimator's
+        default weighting, σ² = a² + b²/sin²el per receiver with a = b = 3 mm
+        (``GnssConfig.sigma_a_m``/``sigma_b_m``), so that NIS/NEES of the default run are ≈ 1.
+    code_sigma_m : float
+        Undifferenced white pseudorange noise, m (the estimator weights code as
+        ``code_ratio`` = 100 × the phase σ: 0.42 m at the zenith, 1.2 m at 15°).
     mask_deg : float
         Tracking mask of the simulated receivers, degrees.
 
@@ -150,17 +160,31 @@ def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_
         steps = gen.normal(0.0, random_walk_sigma * math.sqrt(interval), size=(n_ep, 3))
         steps[0] = 0.0
         offsets = offsets + np.cumsum(steps, axis=0)
-    sats = sorted(nav["sat"].unique().tolist())
-    slips = [(str(gen.choice(["base", "rover"])), str(gen.choice(sats)),
-              float(start_gps_s + gen.uniform(0.05, 0.95) * duration_s), int(gen.integers(-50, 50)) or 1)
-             for _ in range(n_slips)]
+    if phase_sigma_m is None:
+        phase_noise = (GnssConfig.sigma_a_m, GnssConfig.sigma_b_m)
+        phase_model = (f"elevation: sigma^2 = a^2 + b^2/sin^2(el) per receiver, a = {phase_noise[0]:g} m, "
+                       f"b = {phase_noise[1]:g} m (the estimator's default weighting)")
+    else:
+        if not (phase_sigma_m >= 0 and math.isfinite(phase_sigma_m)):
+            raise CdgpsError(f"--phase-noise-m must be >= 0, got {phase_sigma_m!r}")
+        phase_noise = float(phase_sigma_m)
+        phase_model = f"white: sigma = {phase_noise:g} m at every elevation"
+    slip_mask_deg = max(float(mask_deg), GnssConfig.mask_deg)
     say(f"simulating {n_ep} epochs at {rate_hz:g} Hz from {gps_time_str(start_gps_s)} …")
     sim = simulate_static_pair(nav, np.asarray(master_xyz, float), np.asarray(rover_xyz, float), start_gps_s, duration_s,
-                               interval, slips=slips, seed=seed, mask_rad=math.radians(mask_deg),
-                               phase_sigma_m=phase_sigma_m, code_sigma_m=code_sigma_m,
-                               rover_offset_enu_m=None if random_walk_sigma is None and not disp.any() else offsets)
+                               interval, seed=seed, mask_rad=math.radians(mask_deg),
+                               phase_sigma_m=phase_noise, code_sigma_m=code_sigma_m,
+                               rover_offset_enu_m=None if random_walk_sigma is None and not disp.any() else offsets,
+                               random_slips=n_slips, slip_mask_rad=math.radians(slip_mask_deg), slip_min_epochs=10)
     if len(sim["base"]) == 0 or len(sim["rover"]) == 0:
         raise CdgpsError("no satellite is visible in the simulated span (check the positions and the navigation data)")
+    slips = sim["slips"]
+    slip_note = None
+    if len(slips) < n_slips:
+        slip_note = (f"{n_slips} slips requested, {len(slips)} simulated: slips are placed only on records tracked at "
+                     f"both receivers above {slip_mask_deg:g} deg with >= 10 such epochs before and after, 5-95 % into "
+                     f"the span, >= 10 epochs apart per satellite, and there are not enough of those")
+        say(f"warning: {slip_note}")
     say(f"writing RINEX: {len(sim['base'])} + {len(sim['rover'])} satellite-epoch records …")
     y, mo, d, hh, mi, ss = rinex_calendar(start_gps_s)
     stamp = f"{y:04d}{mo:02d}{d:02d} {hh:02d}{mi:02d}{int(ss):02d} UTC"     # reproducible files
@@ -194,10 +218,18 @@ def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_
         "random_walk_sigma_m_per_sqrt_s": random_walk_sigma,
         "rover_mean_ecef_m": (np.asarray(rover_xyz, float) + enu_matrix(lat, lon).T @ offsets.mean(axis=0)).tolist(),
         "coordinates": names,
-        "phase_sigma_m": phase_sigma_m, "code_sigma_m": code_sigma_m, "mask_deg": mask_deg,
+        "phase_sigma_m": list(phase_noise) if isinstance(phase_noise, tuple) else phase_noise,
+        "phase_noise_model": phase_model,
+        "code_sigma_m": code_sigma_m, "code_noise_model": "white",
+        "cn0_model": "C/N0 = 35 + 15 sin(el) dB-Hz (no noise); RINEX S1C and the L1C signal-strength digit from it",
+        "mask_deg": mask_deg,
         "navigation": nav_source,
-        "cycle_slips": [{"receiver": master if r == "base" else rover, "sat": s, "time_gps_s": t, "cycles": c}
-                  for r, s, t, c in slips],
+        "slips_requested": n_slips,
+        "slip_mask_deg": slip_mask_deg,
+        "cycle_slips": [{"receiver": master if d["receiver"] == "base" else rover, "sat": d["sat"],
+                         "time_gps_s": d["time_gps_s"], "cycles": d["cycles"], "elevation_deg": d["elevation_deg"]}
+                        for d in slips],
+        **({"slips_note": slip_note} if slip_note else {}),
         "ambiguities": [{"receiver": master if r["receiver"] == "base" else rover, "sat": r["sat"], "kind": r["kind"],
                          "from_gps_s": float(r["t_from_s"]), "cycles": int(r["n_cycles"])} for _, r in amb.iterrows()],
         "frac_bias_cycles": {master if k == "base" else rover: v for k, v in sim["frac_bias_cycles"].items()},
@@ -221,6 +253,6 @@ def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_
         "output": str(out), "files": sorted([*files.values(), "nav.rnx", "truth.csv", "truth.json", "config.toml"]),
         "epochs": n_ep, "records": {master: int(len(sim["base"])), rover: int(len(sim["rover"]))},
         "satellites": int(pd.concat([sim["base"]["sat"], sim["rover"]["sat"]]).nunique()),
-        "slips": int((amb["kind"] == "slip").sum()), "start": gps_time_str(start_gps_s),
+        "slips": int((amb["kind"] == "slip").sum()), "slips_requested": n_slips, "start": gps_time_str(start_gps_s),
         "displacement_model": truth_json["displacement_model"], "displacement_enu_m": disp.tolist(),
     }

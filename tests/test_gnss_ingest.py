@@ -252,6 +252,34 @@ def test_obs_without_carrier_phase(simdir, tmp_path):
     assert _no_output(tmp_path)
 
 
+def test_obs_with_phase_but_no_pseudorange_warns_at_ingest(simdir, tmp_path):
+    """L1 phase without C1: ingested with a warning naming the file (init needs the pseudoranges)."""
+    text = (simdir / "rover.rnx").read_text()
+    head, body = text.split("END OF HEADER", 1)
+    body = body.split("\n")
+    (tmp_path / "nocode.rnx").write_text(head.replace("G    3 C1C L1C S1C", "G    2 L1C S1C    ") + "END OF HEADER"
+                                         + "\n".join(ln[:3] + ln[19:] if ln.startswith("G") else ln for ln in body))
+    (tmp_path / "blankcode.rnx").write_text(head + "END OF HEADER" + "\n".join(
+        ln[:3] + " " * 16 + ln[19:] if ln.startswith("G") else ln for ln in body))
+    for f, what in (("nocode.rnx", "no GPS L1 pseudorange observation type"), ("blankcode.rnx", "column (C1C) is empty")):
+        out = tmp_path / f"{f}.mcap"
+        r = run_cli("ingest", "--rinex", f"m={simdir / 'base.rnx'}", "--rinex", f"r={tmp_path / f}",
+                    "--nav", simdir / "nav.rnx", "--master", "m", "-o", out, "--json")
+        assert r.exit_code == 0, r.output
+        _, o = read_rinex_obs(tmp_path / f)
+        assert o["pseudorange_l1_m"].isna().all() and o["phase_l1_cycles"].notna().all()
+        warn = [w for w in json.loads(r.stdout)["warnings"] if "pseudorange" in w]
+        assert len(warn) == 1 and warn[0].startswith(f"r ({tmp_path / f}): L1 carrier phase but no L1 pseudoranges")
+        assert what in warn[0] and "'cdgps init' needs" in warn[0]
+        assert "warning: r (" in r.stderr and f in r.stderr                 # on stderr, like the other warnings
+        r = run_cli("init", out, "-o", tmp_path / "i.json")
+        assert r.exit_code == 2 and "no L1 pseudoranges" in r.stderr
+    # the master's complete file gives no such warning
+    r = run_cli("ingest", "--rinex", f"m={simdir / 'base.rnx'}", "--nav", simdir / "nav.rnx", "-o", tmp_path / "ok.mcap",
+                "--json")
+    assert r.exit_code == 0 and not any("pseudorange" in w for w in json.loads(r.stdout)["warnings"])
+
+
 def test_nav_not_covering_the_observations(simdir, tmp_path):
     r = run_cli("ingest", "--rinex", f"m={simdir / 'base.rnx'}", "--rinex", f"r={simdir / 'rover.rnx'}",
                 "--nav", DATA / "brdc1820_subset.10n", "--master", "m", "-o", tmp_path / "o.mcap")

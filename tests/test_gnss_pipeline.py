@@ -210,6 +210,21 @@ def test_random_walk_rover_filter_and_smoother(rw_sim):
     assert truth["rover_u"].max() - truth["rover_u"].min() > 0.03                      # it really wanders
 
 
+def test_default_simulation_is_consistent_with_the_default_weighting(tmp_path):
+    """The simulator's default phase noise is the estimator's default weighting (σ² = a² + b²/sin²el,
+    a = b = 3 mm per receiver): NIS per dof ≈ 1 and NEES ≈ its dof (with 2 mm white noise they
+    were ≈ 0.11 and ≈ 0.2 of 3)."""
+    from cdgps_cli.gnss_sim import simulate_gnss_pair
+
+    simulate_gnss_pair(tmp_path, duration_s=1200.0, seed=7, n_slips=3, random_walk_sigma=0.0005)
+    pipeline(tmp_path, tmp_path / "config.toml", "--smooth")
+    r = run_cli("evaluate", "--truth", tmp_path, "--estimate", tmp_path / "states.mcap", "--json")
+    assert r.exit_code == 0, r.output
+    ev = json.loads(r.stdout)
+    assert 0.9 < ev["nis"]["mean_per_dof"] < 1.1 and ev["nis"]["fraction_in_interval95"] > 0.9
+    assert 1.5 < ev["nees"]["mean"] < 4.5 and ev["within_3sigma_fraction"] > 0.95
+
+
 def test_random_walk_float_reduces_to_static_and_fixes_a_wandering_rover():
     t0 = gps_seconds(2024, 1, 1)
     nav = synthetic_gps_nav(t0, 3600.0)

@@ -18,7 +18,7 @@ from click.testing import CliRunner
 from cdgps_cli.cli import main
 from cdgps_cli.ephemeris import azimuth_elevation, sat_position_ecef
 from cdgps_cli.errors import CdgpsError
-from cdgps_cli.gnss import simulate_static_pair, synthetic_gps_nav
+from cdgps_cli.gnss import L1_WAVELENGTH_M, simulate_static_pair, synthetic_gps_nav
 from cdgps_cli.rinex import NAV_COLUMNS, gps_seconds, read_rinex_nav, read_rinex_obs
 from cdgps_cli.rinex_write import write_rinex_nav, write_rinex_obs
 
@@ -163,3 +163,62 @@ def test_simulate_gnss_command_files_truth_and_determinism(tmp_path):
     r4 = CliRunner().invoke(main, ["simulate-gnss", "--nav", str(DATA / "07590920.05n"), "--start", "2010-01-01",
                                    "--out", str(tmp_path / "d")])
     assert r4.exit_code == 2 and "do not cover" in r4.stderr and not (tmp_path / "d").exists()
+
+
+def test_noise_follows_the_elevation_model_and_cn0_is_simulated(nav, tmp_path):
+    kw = dict(seed=5, code_sigma_m=0.0)
+    a = simulate_static_pair(nav, MASTER, ROVER, T0, 600.0, 1.0, phase_sigma_m=0.0, **kw)
+    b = simulate_static_pair(nav, MASTER, ROVER, T0, 600.0, 1.0, phase_sigma_m=(0.003, 0.003), **kw)
+    for rx in ("base", "rover"):
+        snr = b[rx]["snr_l1_dbhz"].to_numpy()
+        np.testing.assert_array_equal(snr, a[rx]["snr_l1_dbhz"].to_numpy())       # deterministic, noise-free
+        sin_el = (snr - 35.0) / 15.0                                               # C/N0 = 35 + 15 sin(el)
+        assert 35 < snr.min() and snr.max() < 50 and sin_el.min() < 0.3 and sin_el.max() > 0.8
+        eps = (b[rx]["phase_l1_cycles"] - a[rx]["phase_l1_cycles"]).to_numpy() * L1_WAVELENGTH_M
+        z = eps / np.sqrt(0.003**2 + 0.003**2 / sin_el**2)                        # σ² = a² + b²/sin²el
+        assert abs(np.std(z) - 1.0) < 0.05 and abs(np.mean(z)) < 0.05
+        low = sin_el < 0.5
+        assert np.std(eps[low]) > 1.5 * np.std(eps[~low])                         # noisier at low elevation
+    # written as S1C with the signal-strength digit derived from it, read back
+    write_rinex_obs(tmp_path / "b.rnx", b["rover"], {"marker_name": "R"}, created="20050402 000000 UTC")
+    _, back = read_rinex_obs(tmp_path / "b.rnx")
+    o = b["rover"].sort_values(["time_gps_s", "sat"]).reset_index(drop=True)
+    np.testing.assert_allclose(back["snr_l1_dbhz"], o["snr_l1_dbhz"], atol=5e-4, rtol=0)
+    np.testing.assert_array_equal(back["ssi_l1"], np.floor(o["snr_l1_dbhz"] / 6.0).astype(int))
+
+
+def _gnss_sim(tmp_path, name, **kw):
+    from cdgps_cli.gnss_sim import simulate_gnss_pair
+
+    s = simulate_gnss_pair(tmp_path / name, **kw)
+    return s, json.loads((tmp_path / name / "truth.json").read_text())
+
+
+def test_requested_slips_are_all_simulated_on_tracked_satellites(tmp_path):
+    # the reviewer's case (`--slips 5 --seed 7 --duration 1800 --random-walk 0.0005` gave 2 slips)
+    s, tj = _gnss_sim(tmp_path, "a", duration_s=1800.0, seed=7, n_slips=5, random_walk_sigma=0.0005)
+    assert s["slips"] == s["slips_requested"] == 5 and len(tj["cycle_slips"]) == 5 and "slips_note" not in tj
+    assert sum(a["kind"] == "slip" for a in tj["ambiguities"]) == 5 and tj["slip_mask_deg"] == 15.0
+    obs = {n: read_rinex_obs(tmp_path / "a" / f"{n}.rnx")[1] for n in ("base", "rover")}
+    t0 = tj["start_gps_s"]
+    for sl in tj["cycle_slips"]:
+        assert sl["elevation_deg"] > 15.0 and t0 + 90 <= sl["time_gps_s"] <= t0 + 1710
+        for n, o in obs.items():                                  # tracked at both receivers, before and after
+            g = o[(o["sat"] == sl["sat"]) & (np.abs(o["time_gps_s"] - sl["time_gps_s"]) < 10.5)]
+            assert len(g) == 21, (sl, n)
+        o = obs[sl["receiver"]]
+        rec = o[(o["sat"] == sl["sat"]) & (np.abs(o["time_gps_s"] - sl["time_gps_s"]) < 0.01)]
+        assert len(rec) == 1 and int(rec["lli_l1"].iloc[0]) & 1                  # LLI-flagged
+    # too short a span for any well-tracked slip: fewer, and truth.json says why
+    s, tj = _gnss_sim(tmp_path, "b", duration_s=15.0, seed=7, n_slips=3)
+    assert s["slips"] == 0 and s["slips_requested"] == 3 and tj["cycle_slips"] == []
+    assert "3 slips requested, 0 simulated" in tj["slips_note"]
+
+
+def test_default_noise_model_is_the_estimators_weighting(tmp_path):
+    s, tj = _gnss_sim(tmp_path, "d", duration_s=30.0, seed=1)
+    assert tj["phase_sigma_m"] == [0.003, 0.003] and tj["phase_noise_model"].startswith("elevation")
+    _, tw = _gnss_sim(tmp_path, "w", duration_s=30.0, seed=1, phase_sigma_m=0.002)
+    assert tw["phase_sigma_m"] == 0.002 and tw["phase_noise_model"].startswith("white")
+    with pytest.raises(CdgpsError, match="phase-noise-m"):
+        _gnss_sim(tmp_path, "x", duration_s=30.0, phase_sigma_m=-1.0)
