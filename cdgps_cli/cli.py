@@ -531,18 +531,9 @@ def _parse_stations(items) -> dict:
 
 
 def _write_text_atomic(path: str, text: str) -> None:
-    import os
-    p = Path(path)
-    tmp = p.with_name(f".{p.name}.tmp{os.getpid()}")
-    try:
-        p.parent.mkdir(parents=True, exist_ok=True)
-        tmp.write_text(text)
-        os.replace(tmp, p)
-    except OSError as exc:
-        raise CdgpsError(f"{p}: cannot write: {exc.strerror}") from None
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    from .atomic import write_atomic
+
+    write_atomic(path, lambda tmp: Path(tmp).write_text(text))
 
 
 @main.command("baseline")

@@ -24,7 +24,6 @@ Layout (format details in docs/gnss-pipeline.md):
 
 from __future__ import annotations
 
-import hashlib
 import io
 import json
 import math
@@ -35,6 +34,7 @@ import numpy as np
 import pandas as pd
 
 from . import __version__
+from .atomic import file_sha256
 from .config import GnssConfig, gnss_config_toml, parse_gnss_config
 from .errors import CdgpsError
 from .gnss import ephemeris_coverage, match_epochs, nominal_interval_s
@@ -327,13 +327,6 @@ def _nullable(values: np.ndarray) -> list:
     return lst
 
 
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
 
 def default_config_text(files: dict, nav_paths, master: str | None) -> str:
     """A GNSS run config for files given only on the command line (static model, defaults)."""
@@ -508,10 +501,10 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
             "master": master, "receivers": ",".join(receivers), "displacement_model": cfg.displacement}
     for n, (kind, p) in files.items():
         meta[f"{kind}:{n}"] = Path(p).name
-        meta[f"{kind}:{n}_sha256"] = _sha256(Path(p))
+        meta[f"{kind}:{n}_sha256"] = file_sha256(Path(p))
     for i, p in enumerate(nav_list):
         meta[f"nav[{i}]"] = Path(p).name
-        meta[f"nav[{i}]_sha256"] = _sha256(Path(p))
+        meta[f"nav[{i}]_sha256"] = file_sha256(Path(p))
     rx_json = []
     for n, rx in receivers.items():
         rx_json.append({"name": n, "format": rx.format, "file": rx.file, "header": rx.header, "info": rx.info,

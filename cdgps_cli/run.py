@@ -6,7 +6,6 @@ into tables plus the embedded structure config (later stages need no ``--config`
 
 from __future__ import annotations
 
-import hashlib
 import io
 import json
 from dataclasses import dataclass
@@ -16,6 +15,7 @@ import numpy as np
 import pandas as pd
 
 from . import __version__
+from .atomic import file_sha256
 from .config import StructureConfig, parse_config
 from .errors import CdgpsError
 from .logs import read_actuator_log, read_gyro_log, read_receiver_log
@@ -66,13 +66,6 @@ class Run:
     actuators: pd.DataFrame
     metadata: dict
 
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def epoch_gaps(time_s: np.ndarray, period_s: float) -> list[dict]:
@@ -139,7 +132,7 @@ def write_run(cfg: StructureConfig, receiver_csv: str | Path, out_path: str | Pa
             "sample_period_s": repr(cfg.sample_period_s)}
     for k, p in sources.items():
         meta[k] = p.name
-        meta[k + "_sha256"] = _sha256(p)
+        meta[k + "_sha256"] = file_sha256(p)
     with McapOut(out_path) as out:
         ch = out.channel(PHASE_TOPIC, PHASE_SCHEMA, {"units": "cycles", "wavelength_m": repr(cfg.wavelength_m)})
         n_phase = out.write_table(ch, phase, PHASE_ARRAYS, ["master"])
