@@ -219,8 +219,8 @@ def static_seed(seed: int) -> dict:
     rest = [s for s in sim.truth["segments"] if s["kind"] == "rest"][0]
     out = {}
     U = np.asarray(TB.mode_shapes)
-    for label, sm in (("default", None), ("2mm", 0.002)):
-        r = estimate(run, init, EstimateOptions(sigma_m=sm))
+    for label, sm, smooth in (("default", None, False), ("2mm", 0.002, False), ("smoothed", None, True)):
+        r = estimate(run, init, EstimateOptions(sigma_m=sm, smooth=smooth))
         q = r.x[:, :9] @ U.T
         sel = (r.time_s >= rest["start_s"] - 1e-9) & (r.time_s <= rest["end_s"] + 1e-9)
         ang = np.degrees(q[sel, 5] + q[sel, 9])
@@ -340,6 +340,8 @@ def main() -> None:
         summary_row("std q6+q10 (deg), filter σ 2 cm", col(st, "default_std"), ".4f"),
         summary_row("mean q6+q10 (deg), filter σ 2 mm", col(st, "2mm_mean"), ".4f"),
         summary_row("std q6+q10 (deg), filter σ 2 mm", col(st, "2mm_std"), ".4f"),
+        summary_row("mean q6+q10 (deg), smoothed (--smooth), σ 2 cm", col(st, "smoothed_mean"), ".4f"),
+        summary_row("std q6+q10 (deg), smoothed (--smooth), σ 2 cm", col(st, "smoothed_std"), ".4f"),
     ]))
     md.append(f"\nPaper: mean −1.48° (survey −1.4°, within 0.1°), noise < 0.02° rms. The mean is met (errors "
               f"of a few thousandths of a degree); the noise figure is **not** reached with "
@@ -349,7 +351,13 @@ def main() -> None:
               f"squares from the 36 measurements gives {single_epoch_ls_csv_std(0.002):.4f}° — the config's "
               f"pseudolite geometry and its 0.5 modal process noise (which keeps the filter close to single-epoch) "
               f"set the floor. Reaching 0.02° needs about 10× less process-noise variance relative to R "
-              f"(a tuning/geometry matter, not a code defect).\n")
+              f"(a tuning/geometry matter, not a code defect). The RTS smoother (`--smooth`, post-processing, "
+              f"as the static report is usually run) averages both ways: "
+              f"{np.mean(col(st, 'smoothed_std')):.4f}° on average, "
+              f"{sum(v < 0.02 for v in col(st, 'smoothed_std'))} of {len(st)} seeds below 0.02°. Lowering the "
+              f"process noise for the whole run (`--process-noise-scale`) does not help here: the filter then cannot "
+              f"follow the settling motion before the rest segment and rings (tried 0.1–0.2 with σ 2 cm, "
+              f"0.01–0.05 with σ 2 mm).\n")
 
     md.append(f"## Cycle slip {SLIP} (after the INIT window)\n")
     md.append(table(hdr, [
