@@ -4,9 +4,12 @@
 In one process:
 
 (a) testbed free-vibration runs of 60 s (601 epochs) and 600 s (6001 epochs), 1 cm phase noise:
-    ``initialize`` end to end with ``starts=8`` (default) and ``starts=1``, and the core solver
-    alone (:func:`srif_solve` on one linearization of the whole window); ratio 6001/601 epochs
-    (target ≤ 12×, i.e. linear) and the 601-epoch full-init target (< 1 s);
+    ``initialize`` end to end with ``starts=8`` (default) and ``starts=1`` (best of ``--repeat``
+    runs, of 2 for the long run), and the core solver alone (:func:`srif_solve` on one
+    linearization of the whole window, default form and square-root form); ratio 6001/601 epochs
+    (target ≤ 12×, i.e. linear) and the 601-epoch full-init target (< 1 s).  ``…_full_window_iterations``
+    counts the Gauss–Newton iterations after the start stage: finalists, the re-solve with the
+    integers fixed, and on the 6001-epoch run also the finalists' intermediate 801-epoch window;
 (b) the dense Eq. 13–15 formulation (:func:`dense_solve`: Θ with N·36 rows × 18+9(N−1)+36 columns,
     normal equations) against the SRIF on the same linearization for N = 150, 300, 600 (Θ of 0.06,
     0.23 and 0.9 GiB; peak memory ≈ 2.5 GB at N = 600), with their agreement and speed ratio.
@@ -89,6 +92,7 @@ def main(argv=None) -> None:
     lengths = [float(v) for v in args.lengths.split(",")]
     dense_sizes = [int(v) for v in args.dense.split(",") if v.strip()]
     t_all = time.perf_counter()
+    load0 = os.getloadavg()[0]              # the machine may be shared: recorded with the results
 
     # ---- (a) end to end and core solver, 60 s and 600 s
     runs = {}
@@ -100,7 +104,7 @@ def main(argv=None) -> None:
         N = len(sim.time_s)
         row = {"duration_s": L, "epochs": N}
         for starts in (8, 1):
-            reps = args.repeat if N <= 1000 else 1
+            reps = args.repeat if N <= 1000 else min(args.repeat, 2)
             t, res = best_of(lambda: initialize(run, InitOptions(start_s=0.0, duration_s=L, starts=starts)), reps)
             wrong, nfix = check_integers(res, sim)
             full_it = res["iterations"] - sum(s_["iterations"] for s_ in res["starts"])
@@ -114,6 +118,8 @@ def main(argv=None) -> None:
         t, sol = best_of(lambda: srif_solve(lp), args.repeat)
         row["srif_s"] = round(t, 4)
         row["srif_us_per_epoch"] = round(1e6 * t / N, 1)
+        t, _ = best_of(lambda: srif_solve(lp, square_root=True), args.repeat)
+        row["srif_square_root_form_s"] = round(t, 4)
         init_rows.append(row)
         print(f"  {L:6g} s ({N} epochs): init starts=8 {row['init_starts8_s']:.2f} s, starts=1 "
               f"{row['init_starts1_s']:.2f} s, srif {row['srif_s'] * 1e3:.1f} ms", flush=True)
@@ -166,7 +172,9 @@ def main(argv=None) -> None:
                         "init_601_epochs_under_1s_starts1": ref["init_starts1_s"] < 1.0},
         "total_s": round(time.perf_counter() - t_all, 1),
         "machine": {"python": platform.python_version(), "numpy": np.__version__, "cpus": os.cpu_count(),
-                    "platform": platform.platform()},
+                    "platform": platform.platform(),
+                    "openblas_num_threads": os.environ.get("OPENBLAS_NUM_THREADS", "default"),
+                    "load_average_1min_start_end": [round(load0, 2), round(os.getloadavg()[0], 2)]},
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(res, indent=2) + "\n")
@@ -178,7 +186,7 @@ def main(argv=None) -> None:
               f"{r_['srif_s'] * 1e3:>7.1f} ms {r_['srif_us_per_epoch']:>9.1f}")
     print(f"ratio {scaling['epochs_ratio']}× epochs: init(8) ×{scaling['init_starts8_ratio']}, "
           f"init(1) ×{scaling['init_starts1_ratio']}, srif ×{scaling['srif_ratio']} (target ≤ 12)")
-    print(f"full-window Gauss–Newton iterations (8 starts / 1 start): "
+    print(f"Gauss–Newton iterations after the start stage (8 starts / 1 start): "
           + ", ".join(f"{r_['epochs']} epochs {r_['init_starts8_full_window_iterations']}/{r_['init_starts1_full_window_iterations']}"
                       for r_ in init_rows)
           + f"; time per iteration ratio: init(8) ×{scaling['init_starts8_per_iteration_ratio']}, "

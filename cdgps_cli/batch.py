@@ -8,10 +8,13 @@ The linearized batch problem of Eq. (13)–(15) is
 
 (E_k selects the biases of the channels present at epoch k).  Forming Θ of Eq. (13) costs
 O(N²) memory and O(N³) time.  :func:`srif_solve` solves the same problem with a square-root
-information filter (Bierman) over the augmented state z_k = [x_k; b] followed by the
-Dyer–McReynolds smoother: a QR per epoch, so O(N) time and memory, and numerically stable with
-zero prior information (X₁⁻¹ = 𝓑⁻¹ = 0 is allowed, as in the paper).  :func:`dense_solve` is the
-literal Eq. (13)–(15) reference used by the tests on short windows.
+information filter (Bierman) over x_k, the constant biases carried as extra columns, followed by
+the Dyer–McReynolds smoother: one QR per epoch (time and measurement update fused), so O(N) time
+and memory, with zero prior information allowed (X₁⁻¹ = 𝓑⁻¹ = 0, as in the paper).  Each row
+touches one bias, and the measurement rows of an epoch that the state cannot explain (C channels,
+fewer state directions) involve only the biases: they are pooled outside the recursion, as a Gram
+matrix when the result is well conditioned, in square-root form otherwise.  :func:`dense_solve`
+is the literal Eq. (13)–(15) reference used by the tests on short windows.
 
 Both work in absolute variables: given pseudo-measurements ỹ_k = y_k − h(x̂_k) + H_k x̂_k they
 return the trajectory x_k, the process-noise sequence w_k and the biases b that minimize the
@@ -20,11 +23,13 @@ linearized cost (one Gauss–Newton step).  Priors are given as means and square
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import solve_triangular
-from scipy.linalg.lapack import dgeqrf, dtrtrs
+from scipy.linalg.blas import dtrmm
+from scipy.linalg.lapack import dgeqrf, dpotrf, dtrcon
 
 _MASKS: dict = {}
 
@@ -40,14 +45,6 @@ def _qr_r(M: np.ndarray) -> np.ndarray:
     if mask is None:
         mask = _MASKS[shape] = np.triu(np.ones(shape))
     return qr[:k] * mask
-
-
-def _tri_solve(R: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Solve R x = b for upper-triangular R (LAPACK dtrtrs, no checks)."""
-    x, info = dtrtrs(R, b)
-    if info > 0:
-        raise np.linalg.LinAlgError("singular triangular factor")
-    return x
 
 
 @dataclass
@@ -99,73 +96,274 @@ class LinearSolution:
     rank_deficient: bool
 
 
-def srif_solve(prob: LinearProblem) -> LinearSolution:
+def _qr_inplace(M: np.ndarray) -> np.ndarray:
+    """Householder QR of a Fortran-ordered M in place (LAPACK dgeqrf): R on and above the diagonal,
+    reflectors below it (callers read only the upper triangle)."""
+    qr, _, _, info = dgeqrf(M, overwrite_a=1)
+    if info != 0:  # pragma: no cover - LAPACK argument error
+        raise RuntimeError(f"dgeqrf failed (info={info})")
+    if qr is not M:  # pragma: no cover - f2py made a copy (M not Fortran-contiguous)
+        M[...] = qr
+    return M
+
+
+class _BiasRows:
+    """Accumulates rows [b | y] that involve only the biases (width m+1).
+
+    ``square_root``: the rows are kept as a triangular factor, compressed by a QR about every
+    thousand rows (numerically stable).  Otherwise only their Gram matrix Σ rowsᵀrows is kept (cheaper; its
+    square root is taken once at the end), which squares the condition number — :func:`srif_solve`
+    uses it when the result is well conditioned and redoes the solve in square-root form otherwise.
+    """
+
+    def __init__(self, m: int, square_root: bool):
+        self.m = m
+        self.square_root = square_root
+        self.gram = None if square_root else np.zeros((m + 1, m + 1))
+        self.blocks: list = []
+        self.rows = 0
+
+    def add(self, rows: np.ndarray) -> None:
+        if rows.shape[0] == 0:
+            return
+        if not self.square_root:
+            self.gram += _gram(rows)
+            return
+        for i in range(0, rows.shape[0], 1024):           # QRs of at most ~1000 rows (see _gram)
+            piece = rows[i:i + 1024]
+            if self.rows + piece.shape[0] > 1024 + self.m + 1:
+                self._compress()
+            self.blocks.append(piece)
+            self.rows += piece.shape[0]
+
+    def add_gram(self, gram: np.ndarray) -> None:
+        self.gram += gram
+
+    def _compress(self) -> None:
+        if len(self.blocks) > 1 or self.rows > self.m + 1:
+            T = _qr_r(np.asfortranarray(np.vstack(self.blocks)))
+            self.blocks = [T]
+            self.rows = T.shape[0]
+
+    def sqrt(self) -> np.ndarray | None:
+        """Rows S with SᵀS = the accumulated information; None if the Gram's bias block is singular."""
+        m = self.m
+        if self.square_root:
+            self._compress()
+            return self.blocks[0] if self.blocks else np.zeros((0, m + 1))
+        G = self.gram
+        S = np.zeros((m + 1, m + 1))
+        if m:
+            U, info = dpotrf(G[:m, :m], lower=0, clean=1)
+            if info != 0:
+                return None
+            S[:m, :m] = U
+            S[:m, m] = solve_triangular(U, G[:m, m], trans="T")
+        S[m, m] = math.sqrt(max(G[m, m] - float(S[:m, m] @ S[:m, m]), 0.0))
+        return S
+
+
+def _gram(rows: np.ndarray, chunk: int = 64) -> np.ndarray:
+    """rowsᵀ rows as a sum of small products: OpenBLAS multithreads a single large GEMM, and on a
+    busy machine waiting for its threads costs far more than the product itself."""
+    R, c = rows.shape
+    full = R - R % chunk
+    X = rows[:full].reshape(-1, chunk, c)
+    G = np.matmul(X.transpose(0, 2, 1), X).sum(axis=0) if full else np.zeros((c, c))
+    if full < R:
+        G += rows[full:].T @ rows[full:]
+    return G
+
+
+def _measurement_rows(prob: LinearProblem, r: int, pool: _BiasRows) -> np.ndarray:
+    """Per-epoch compression of the measurement rows (vectorized over epochs).
+
+    The rows of epoch k are [H_k | E_k | y_k] / σ (E_k: one 1 per row, in the column of the
+    channel's bias).  H_k is non-zero only in the columns J (for a modal model: the positions,
+    not the rates).  With C channels and |J| < C, a QR H_k[:, J] = Q₁ R₁ splits the rows
+    orthogonally into |J| rows Q₁ᵀ[H_k | E_k | y_k] that involve the state, returned for the
+    filter, and C − |J| rows Q₂ᵀ[E_k | y_k] that involve only the biases, added to ``pool``: in
+    square-root form, or as their Gram matrix Σ [E|y]ᵀ[E|y] − Σ (Q₁ᵀ[E|y])ᵀ(Q₁ᵀ[E|y]), whose first
+    term is diagonal (plus the y column) because each row touches one bias.
+
+    Returns (N, q, r+n+m+1): the filter's rows in its column layout [ω | x | b | y] (zero in ω).
+    """
+    N, C, n = prob.H.shape
+    m = prob.n_bias
+    s = 1.0 / prob.sigma_m
+    present = ~np.isnan(prob.y)
+    all_present = bool(present.all())
+    ys = (prob.y if all_present else np.where(present, prob.y, 0.0)) * s
+    bi = prob.bias_index if all_present else np.where(present, prob.bias_index, -1)
+    J = np.flatnonzero(prob.H.reshape(-1, n).any(axis=0))
+    w = r + n
+    reduce = 0 < J.size < C
+    q = J.size if reduce else C
+    meas = np.zeros((N, q, w + m + 1))
+    if not reduce:
+        meas[:, :, r:w] = prob.H if all_present else np.where(present[..., None], prob.H, 0.0)
+        meas[:, :, r:w] *= s
+        meas[:, :, -1] = ys
+        for c in range(C):
+            ks = np.flatnonzero(bi[:, c] >= 0)
+            if ks.size:
+                meas[ks, c, w + bi[ks, c]] += s
+        return meas
+    HJ = prob.H[:, :, J]
+    if not all_present:
+        HJ[~present] = 0.0
+    xcols = slice(r + J[0], r + J[-1] + 1) if J[-1] - J[0] + 1 == J.size else r + J
+    # the usual case: every epoch has the same channels, each with its own bias → Qᵀ E is a
+    # permutation of Qᵀ's columns (no products needed), often the identity
+    ok0 = bi[0] >= 0
+    chan0, bias0 = np.flatnonzero(ok0), bi[0, ok0]
+    permutation = bool((bi == bi[0]).all()) and np.unique(bias0).size == bias0.size
+    identity = permutation and C == m and np.array_equal(bias0, np.arange(m))
+
+    def rows_of(Q, k0, out):
+        """out[k] = Qₖᵀ [E_k | y_k] for epochs k0 … k0+len(Q)−1 (out zero on entry), Q (·, C, j)."""
+        if identity:
+            np.multiply(Q.transpose(0, 2, 1), s, out=out[:, :, :m])
+        elif permutation:
+            out[:, :, bias0] = s * Q[:, chan0, :].transpose(0, 2, 1)
+        else:
+            for c in range(C):
+                ks = np.flatnonzero(bi[k0:k0 + len(Q), c] >= 0)
+                if ks.size:
+                    out[ks, :, bi[k0 + ks, c]] += s * Q[ks, c, :]
+        np.einsum("kcj,kc->kj", Q, ys[k0:k0 + len(Q)], out=out[:, :, m])
+
+    step = 1024
+    for k0 in range(0, N, step):
+        k1 = min(N, k0 + step)
+        if pool.square_root:
+            Q, R1 = np.linalg.qr(HJ[k0:k1], mode="complete")
+            meas[k0:k1, :, xcols] = R1[:, :q] * s
+            rows_of(Q[:, :, :q], k0, meas[k0:k1, :, w:])
+            other = np.zeros((k1 - k0, C - q, m + 1))
+            rows_of(Q[:, :, q:], k0, other)
+            pool.add(other.reshape(-1, m + 1))
+        else:
+            Q1, R1 = np.linalg.qr(HJ[k0:k1])
+            R1 *= s
+            meas[k0:k1, :, xcols] = R1
+            rows_of(Q1, k0, meas[k0:k1, :, w:])
+    if not pool.square_root:
+        # Σ [E|y]ᵀ[E|y]: diagonal counts, per-bias sums of y, Σ y²; minus the part kept for the filter
+        ok = bi >= 0
+        gram = np.zeros((m + 1, m + 1))
+        idx = np.arange(m)
+        gram[idx, idx] = s * s * np.bincount(bi[ok], minlength=m)
+        gram[idx, m] = gram[m, idx] = s * np.bincount(bi[ok], weights=ys[ok], minlength=m)
+        gram[m, m] = float(np.einsum("kc,kc->", ys, ys))
+        gram -= _gram(meas[:, :, w:].reshape(N * q, m + 1))
+        pool.add_gram(gram)
+    return meas
+
+
+# below this reciprocal condition number (1-norm) of R_end the Gram form of the bias-only rows is
+# not accurate enough (it squares the condition number): the solve is redone in square-root form
+_RCOND_GRAM = 1e-4
+
+
+def srif_solve(prob: LinearProblem, square_root: bool | None = None) -> LinearSolution:
     """Solve a :class:`LinearProblem` with a square-root information filter and smoother.
 
-    Cost O(N (n+m)² (n+m+C)) time and O(N r (r+n+m)) memory.
+    The filter's unknowns are the state x_k; the biases are carried as extra columns of its
+    information array [R_x | R_xb | d] (they are constant, so they need no time update).  Each
+    epoch is one QR of the fused time and measurement update
+
+        [ I            0          0       0      ]   prior on ω_{k−1}
+        [ −R_x A⁻¹G    R_x A⁻¹    R_xb    d      ]   x_{k−1} = A⁻¹(x_k − G ω_{k−1})
+        [ 0            Q₁ᵀH_k     Q₁ᵀE_k  Q₁ᵀy_k ]   measurements of epoch k (:func:`_measurement_rows`)
+
+    triangular in the ω_{k−1} and x_k columns: its first rows are kept for the smoother
+    (Dyer–McReynolds), the next ones are the new [R_x | R_xb | d], and the remaining rows involve
+    only the biases; they are pooled with the bias-only measurement rows (:class:`_BiasRows`) and
+    factored once at the end.  Cost O(N (r+n+q)² (r+n+m)) time, O(N r (r+n+m)) memory.
+
+    ``square_root``: None (default) pools the bias-only rows as a Gram matrix and repeats the solve
+    in square-root form if R_end is ill-conditioned (reciprocal condition < 1e-4) or singular —
+    e.g. a linearization about a motionless trajectory (H_k the same at every epoch: a constant
+    state offset is then indistinguishable from a bias pattern), which goes to the square-root form
+    directly; True/False forces one form.
     """
+    if square_root is None and _constant_jacobian(prob.H):
+        square_root = True              # linearized about a motionless trajectory: singular (see above)
+    if square_root is None:
+        sol = _srif(prob, square_root=False)
+        if sol is not None and not sol.rank_deficient and dtrcon(sol.R_end, norm="1")[0] >= _RCOND_GRAM:
+            return sol
+        return _srif(prob, square_root=True)
+    sol = _srif(prob, square_root=square_root)
+    if sol is None:
+        raise np.linalg.LinAlgError("bias information not positive definite in Gram form")
+    return sol
+
+
+def _constant_jacobian(H: np.ndarray) -> bool:
+    """H_k the same at every epoch (cheap test on three epochs first)."""
+    N = H.shape[0]
+    if N < 2 or not (np.array_equal(H[0], H[-1]) and np.array_equal(H[0], H[N // 2])):
+        return False
+    return not np.any(H[1:] != H[:-1])
+
+
+def _srif(prob: LinearProblem, square_root: bool) -> LinearSolution | None:
     A, G = prob.A, prob.Bw_L
     N, C, n = prob.H.shape
     m = prob.n_bias
     r = G.shape[1]
     p = n + m
+    w = r + n
+    ncol = w + m + 1
     Ainv = np.linalg.inv(A)
-    AinvG = Ainv @ G
-    inv_sigma = 1.0 / prob.sigma_m
-    # prior information array [R | d] on z_1
+    AG = np.asfortranarray(np.hstack([-(Ainv @ G), Ainv]))  # x_{k−1} = AG @ [ω_{k−1}; x_k]
+    pool = _BiasRows(m, square_root)
+    meas = _measurement_rows(prob, r, pool)
+    q = meas.shape[1]
+    # prior on b: bias-only rows
+    pool.add(np.hstack([prob.b_sqrt_info, (prob.b_sqrt_info @ prob.b_mean)[:, None]]))
+    # epoch 0: prior on x₁ and the first measurements, columns [x | b | y]
+    M0 = np.zeros((n + q, p + 1), order="F")
+    M0[:n, :n] = prob.x1_sqrt_info
+    M0[:n, p] = prob.x1_sqrt_info @ prob.x1_mean
+    M0[n:, :] = meas[0, :, r:]
+    T0 = _qr_r(M0)
+    pool.add(T0[n:, n:])
+    # the filter's work array, columns [ω | x | b | y]; rows [0, r): prior on ω, [r, w): x, [w, w+q): data
+    M = np.zeros((w + q, ncol), order="F")
+    M[r:w, r:w] = T0[:n, :n]
+    M[r:w, w:] = T0[:n, n:]
+    top = np.zeros((r, ncol))
+    top[:, :r] = np.eye(r)
+    smooth = np.empty((max(N - 1, 0), r, ncol))             # ω rows for the smoother
+    left = np.empty((max(N - 1, 0), q, m + 1))              # bias-only rows left by each update
+    for k in range(1, N):
+        M[r:w, :w] = dtrmm(1.0, M[r:w, r:w], AG)            # R_x A⁻¹[−G | I]; R_xb and d stay in place
+        M[:r] = top
+        M[w:] = meas[k]
+        _qr_inplace(M)
+        smooth[k - 1] = M[:r]
+        left[k - 1] = M[w:, w:]
+    if N > 1 and q:
+        left *= np.triu(np.ones((q, m + 1)))                # reflectors below the diagonal
+        pool.add(left.reshape(-1, m + 1))
+    S = pool.sqrt()
+    if S is None:
+        return None
+    # the state rows at epoch N over the pooled bias rows → R_end, d_end and the residual
+    F = np.zeros((n + S.shape[0], p + 1), order="F")
+    F[:n, :n] = np.triu(M[r:w, r:w])
+    F[:n, n:] = M[r:w, w:]
+    F[n:, n:] = S
+    T = _qr_r(F)
     R = np.zeros((p, p))
     d = np.zeros(p)
-    R[:n, :n] = prob.x1_sqrt_info
-    d[:n] = prob.x1_sqrt_info @ prob.x1_mean
-    R[n:, n:] = prob.b_sqrt_info
-    d[n:] = prob.b_sqrt_info @ prob.b_mean
-    cost = 0.0
-    store_R_w = np.empty((max(N - 1, 0), r, r))
-    store_R_wz = np.empty((max(N - 1, 0), r, p))
-    store_d_w = np.empty((max(N - 1, 0), r))
-    for k in range(N):
-        # measurement update
-        ok = ~np.isnan(prob.y[k])
-        if ok.any():
-            Hk = prob.H[k, ok] * inv_sigma
-            c = Hk.shape[0]
-            M = np.zeros((p + c, p + 1), order="F")
-            M[:p, :p] = R
-            M[:p, p] = d
-            M[p:, :n] = Hk
-            bi = prob.bias_index[k, ok]
-            known = bi >= 0
-            M[p + np.flatnonzero(known), n + bi[known]] = inv_sigma
-            M[p:, p] = prob.y[k, ok] * inv_sigma
-            T = _qr_r(M)
-            R = T[:p, :p]
-            d = T[:p, p]
-            if T.shape[0] > p:
-                cost += T[p, p] ** 2
-        if k == N - 1:
-            break
-        # time update: eliminate z_k = F⁻¹ (z_{k+1} − G ω_k)
-        M = np.zeros((r + n, r + p + 1), order="F")
-        M[:r, :r] = np.eye(r)
-        Rxx = R[:n, :n]
-        M[r:, :r] = -Rxx @ AinvG
-        M[r:, r:r + n] = Rxx @ Ainv
-        M[r:, r + n:r + p] = R[:n, n:]
-        M[r:, r + p] = d[:n]
-        T = _qr_r(M)
-        store_R_w[k] = T[:r, :r]
-        store_R_wz[k] = T[:r, r:r + p]
-        store_d_w[k] = T[:r, r + p]
-        Rn = np.zeros((p, p))
-        dn = np.zeros(p)
-        rows = min(T.shape[0] - r, n)
-        Rn[:rows, :] = T[r:r + rows, r:r + p]
-        dn[:rows] = T[r:r + rows, r + p]
-        # bias rows are untouched by the time update (b is constant)
-        Rn[n:, n:] = R[n:, n:]
-        dn[n:] = d[n:]
-        # re-triangularize (the x rows may now have entries left of the diagonal only if rows < n)
-        R, d = Rn, dn
+    kk = min(T.shape[0], p)
+    R[:kk] = T[:kk, :p]
+    d[:kk] = T[:kk, p]
+    cost = float(T[p, p] ** 2) if T.shape[0] > p else 0.0
     # final estimate
     diag = np.abs(np.diag(R))
     scale = max(diag.max(initial=0.0), 1e-300)
@@ -177,16 +375,22 @@ def srif_solve(prob: LinearProblem) -> LinearSolution:
         z = solve_triangular(R, d)
         Rinv = solve_triangular(R, np.eye(p))
         P = Rinv @ Rinv.T
+    # smoother: ω_{k−1} = R_w⁻¹ (d_w − R_wx x_k − R_wb b), x_{k−1} = A⁻¹(x_k − G ω_{k−1})
     xs = np.empty((N, n))
     ws = np.zeros((max(N - 1, 0), r))
     xs[-1] = z[:n]
     b = z[n:]
-    for k in range(N - 2, -1, -1):
-        zk1 = np.concatenate([xs[k + 1], b])
-        if r:
-            ws[k] = _tri_solve(store_R_w[k], store_d_w[k] - store_R_wz[k] @ zk1)
-            xs[k] = Ainv @ (xs[k + 1] - G @ ws[k])
-        else:
+    if N > 1 and r:
+        Rw_inv = np.linalg.inv(np.triu(smooth[:, :, :r]))   # well conditioned: unit prior on ω
+        K = Rw_inv @ smooth[:, :, r:w]                       # (N−1, r, n)
+        c = np.einsum("kij,kj->ki", Rw_inv, smooth[:, :, -1] - np.einsum("kij,j->ki", smooth[:, :, w:w + m], b))
+        Fk = AG[:, r:] - AG[:, :r] @ K                       # x_{k−1} = F x_k + g
+        gk = np.einsum("ij,kj->ki", AG[:, :r], c)
+        for k in range(N - 2, -1, -1):
+            xs[k] = Fk[k] @ xs[k + 1] + gk[k]
+        ws[:] = c - np.einsum("kij,kj->ki", K, xs[1:])
+    elif N > 1:
+        for k in range(N - 2, -1, -1):
             xs[k] = Ainv @ xs[k + 1]
     return LinearSolution(xs, ws, b, float(cost), R, P, rank_deficient)
 

@@ -9,7 +9,13 @@ Flow (Teague, How & Parkinson 1998 Sec. IV.A; Teague et al. 1995 batch estimator
 3. For several initial guesses of the large rigid-body angle (cold start), iterate Gauss–Newton:
    linearize h about the current trajectory, solve the linear batch problem of Eq. (13)–(15) in
    O(N) with :func:`cdgps_cli.batch.srif_solve`, accept the step if the nonlinear cost decreases
-   (Levenberg–Marquardt damping on x₁ and b otherwise).  The start with the lowest cost wins.
+   (Levenberg–Marquardt damping on x₁ and b otherwise).  The starts are compared after a few
+   iterations on the first part of the window; the best few (finalists) are continued on the whole
+   window, one iteration each in turn, and the lowest cost wins.  A finalist that has settled in a
+   minimum far worse than the best cost so far, or in the same minimum as another finalist, is
+   abandoned (:func:`_race`).  On a window more than STAGE_GROWTH times longer than the first part,
+   the finalists first converge on intermediate windows (each at most STAGE_GROWTH times longer
+   than the previous one) so that they reach the long window nearly converged.
 4. If line biases are calibrated, fix b = line bias + λ·n with LAMBDA and the ratio test (partial
    fixing of a subset if the whole set fails), then re-solve the states with the integers fixed.
 5. Report the biases, the filter's initial state and covariance at the window end, residuals.
@@ -22,7 +28,7 @@ import time as _time
 from dataclasses import dataclass, field
 
 import numpy as np
-
+import pandas as pd
 from scipy.stats import chi2
 
 from .ambiguity import lambda_search, partial_fix, ratio_test
@@ -83,21 +89,30 @@ def phase_matrix(run: Run, t0: float, t1: float):
     cfg = run.cfg
     T = cfg.sample_period_s
     ph = run.phase
-    sel = ph[(ph["time_s"] >= t0 - 1e-9) & (ph["time_s"] <= t1 + 1e-9)]
-    if len(sel) == 0:
+    t_all = ph["time_s"].to_numpy()
+    keep = (t_all >= t0 - 1e-9) & (t_all <= t1 + 1e-9)
+    if not keep.any():
         raise CdgpsError(f"{run.path}: no phase data between {t0:g} s and {t1:g} s")
-    tmin, tmax = sel["time_s"].min(), sel["time_s"].max()
+    t = t_all[keep]
+    tmin, tmax = t.min(), t.max()
     n = int(round((tmax - tmin) / T)) + 1
     grid = tmin + np.arange(n) * T
-    k = np.rint((sel["time_s"].to_numpy() - tmin) / T).astype(int)
-    chans = sorted(set(zip(sel["antenna"], sel["transmitter"])),
-                   key=lambda c: (cfg.antenna_names.index(c[0]), cfg.transmitter_names.index(c[1])))
-    cidx = {c: i for i, c in enumerate(chans)}
-    ci = np.array([cidx[c] for c in zip(sel["antenna"], sel["transmitter"])])
+    k = np.rint((t - tmin) / T).astype(int)
+    # channels in config order (antenna, then transmitter)
+    ai = pd.Index(cfg.antenna_names).get_indexer(ph["antenna"].to_numpy()[keep])
+    ti = pd.Index(cfg.transmitter_names).get_indexer(ph["transmitter"].to_numpy()[keep])
+    if (ai < 0).any() or (ti < 0).any():
+        bad = sorted({str(a) for a, i in zip(ph["antenna"].to_numpy()[keep], ai) if i < 0}
+                     | {str(x) for x, i in zip(ph["transmitter"].to_numpy()[keep], ti) if i < 0})
+        raise CdgpsError(f"{run.path}: antenna/transmitter not in the config: {', '.join(bad)}")
+    key = ai * len(cfg.transmitter_names) + ti
+    ukey, ci = np.unique(key, return_inverse=True)
+    chans = [(cfg.antenna_names[u // len(cfg.transmitter_names)], cfg.transmitter_names[u % len(cfg.transmitter_names)])
+             for u in ukey.tolist()]
     y = np.full((n, len(chans)), np.nan)
     lock = np.full((n, len(chans)), -1, dtype=np.int64)
-    y[k, ci] = sel["phase_cycles"].to_numpy() * cfg.wavelength_m
-    lock[k, ci] = sel["lock"].to_numpy()
+    y[k, ci] = ph["phase_cycles"].to_numpy()[keep] * cfg.wavelength_m
+    lock[k, ci] = ph["lock"].to_numpy()[keep]
     return grid, y, lock, chans
 
 
@@ -107,23 +122,22 @@ def window_data(run: Run, t0: float, t1: float) -> WindowData:
     seg = np.full((n, C), -1, dtype=np.int64)
     segments = []
     for c in range(C):
-        present = ~np.isnan(y[:, c])
-        current = -1
-        prev_present = False
-        prev_lock = -1
-        for k in np.flatnonzero(present):
-            new = (current < 0) or (lock[k, c] == 0) or (lock[k, c] < prev_lock) or \
-                (not present[k - 1] and lock[k, c] != prev_lock + (k - last_k))
-            if new:
-                current = len(segments)
-                segments.append({"antenna": chans[c][0], "transmitter": chans[c][1], "channel": c,
-                                 "start_s": float(grid[k]), "end_s": float(grid[k])})
-            segments[current]["end_s"] = float(grid[k])
-            seg[k, c] = current
-            prev_lock = lock[k, c]
-            last_k = k
-            prev_present = True
-        del prev_present
+        # a new lock segment starts at the first sample, at a re-lock (lock count 0 or decreasing),
+        # and after a gap unless the lock count advanced by exactly the gap
+        ks = np.flatnonzero(~np.isnan(y[:, c]))
+        if ks.size == 0:
+            continue
+        L = lock[ks, c]
+        dk = np.diff(ks)
+        new = np.ones(ks.size, dtype=bool)
+        new[1:] = (L[1:] == 0) | (L[1:] < L[:-1]) | ((dk > 1) & (L[1:] != L[:-1] + dk))
+        sid = np.cumsum(new) - 1 + len(segments)
+        seg[ks, c] = sid
+        starts = np.flatnonzero(new)
+        ends = np.append(starts[1:], ks.size) - 1
+        for i0, i1 in zip(starts.tolist(), ends.tolist()):
+            segments.append({"antenna": chans[c][0], "transmitter": chans[c][1], "channel": c,
+                             "start_s": float(grid[ks[i0]]), "end_s": float(grid[ks[i1]])})
     ant, tx = channel_indices(run.cfg, [c[0] for c in chans], [c[1] for c in chans])
     return WindowData(grid, y, chans, ant, tx, seg, segments)
 
@@ -173,6 +187,9 @@ class GNResult:
     history: list = field(default_factory=list)
 
 
+_MODEL_CHUNK = 1024             # epochs per call of the measurement model
+
+
 class _Problem:
     """Nonlinear batch problem on a window (model, data, bias parametrization)."""
 
@@ -205,7 +222,21 @@ class _Problem:
         return out
 
     def predict(self, x: np.ndarray, jacobian: bool = False):
-        return phase_model(self.cfg, x, self.wd.ant, self.wd.tx, jacobian=jacobian)
+        N = len(x)
+        if N <= _MODEL_CHUNK:
+            return phase_model(self.cfg, x, self.wd.ant, self.wd.tx, jacobian=jacobian)
+        # in blocks of epochs: the Jacobian's temporaries (epochs × channels × 3 × coordinates)
+        # then stay cache-sized and the cost per epoch does not grow with the window
+        C = len(self.wd.ant)
+        h = np.empty((N, C))
+        H = np.empty((N, C, x.shape[1])) if jacobian else None
+        for k0 in range(0, N, _MODEL_CHUNK):
+            part = phase_model(self.cfg, x[k0:k0 + _MODEL_CHUNK], self.wd.ant, self.wd.tx, jacobian=jacobian)
+            if jacobian:
+                h[k0:k0 + _MODEL_CHUNK], H[k0:k0 + _MODEL_CHUNK] = part
+            else:
+                h[k0:k0 + _MODEL_CHUNK] = part
+        return (h, H) if jacobian else h
 
     def residual(self, x: np.ndarray, b_free: np.ndarray) -> np.ndarray:
         h = self.predict(x)
@@ -236,59 +267,112 @@ class _Problem:
     def initial_biases(self, x: np.ndarray) -> np.ndarray:
         """Bias guess per free parameter: mean residual of its segment along trajectory x."""
         r = self.y - self.predict(x)
-        out = np.zeros(self.free.size)
-        for j in range(self.free.size):
-            sel = self.bias_index == j
-            out[j] = np.nanmean(r[sel]) if np.isfinite(r[sel]).any() else 0.0
-        return out
+        ok = np.isfinite(r) & (self.bias_index >= 0)
+        m = self.free.size
+        total = np.bincount(self.bias_index[ok], weights=r[ok], minlength=m)
+        count = np.bincount(self.bias_index[ok], minlength=m)
+        return np.where(count > 0, total / np.maximum(count, 1), 0.0)
 
     def gauss_newton(self, x_init: np.ndarray, b_init: np.ndarray, max_iter: int, opt: InitOptions,
-                     w_init: np.ndarray | None = None, max_retries: int = 12) -> GNResult:
-        """Gauss–Newton with Levenberg–Marquardt step control on x₁ and b.
+                     w_init: np.ndarray | None = None, max_retries: int = 12, information: bool = True) -> GNResult:
+        """Gauss–Newton with Levenberg–Marquardt step control on x₁ and b (see :class:`GaussNewton`).
 
-        Each iteration first tries the step with the damping reduced tenfold (undamped once it is
-        small); a step that raises the nonlinear cost is retried with ten times more damping.
-        """
-        x, b = x_init, b_init
-        w = np.zeros((len(x) - 1, self.G.shape[1])) if w_init is None else w_init
-        J = self.cost(x, b, w)
-        lam = 0.0
-        hist = [J]
-        converged = False
-        lin = None
-        it = 0
-        for it in range(1, max_iter + 1):
-            accepted = False
-            for _ in range(max_retries):
-                sw = lam / self.sigma          # square-root weight of the damping prior
-                lin = srif_solve(self.linear_problem(x, sw, x[0], sw, b))
-                # backtracking along the Gauss–Newton step before adding damping
-                for alpha in (1.0, 0.5, 0.25, 0.1):
-                    xt = x + alpha * (lin.x - x)
-                    bt = b + alpha * (lin.b - b)
-                    wt = w + alpha * (lin.w - w)
-                    Jn = self.cost(xt, bt, wt)
-                    if np.isfinite(Jn) and Jn <= J * (1 + 1e-12):
-                        accepted = True
-                        break
-                if accepted:
+        ``information=False``: the result's ``lin`` (information at the window end) is not needed,
+        so it is not recomputed at the last iterate (None unless the run converged undamped)."""
+        gn = GaussNewton(self, x_init, b_init, max_iter, opt, w_init=w_init, max_retries=max_retries)
+        while gn.step():
+            pass
+        return gn.result(information)
+
+
+class GaussNewton:
+    """Gauss–Newton on a :class:`_Problem`, one iteration per :meth:`step` (so that several runs can
+    be advanced in turn), with Levenberg–Marquardt step control on x₁ and b.
+
+    Each iteration first tries the step with the damping reduced tenfold (undamped once it is
+    small), backtracking along it (α = 1, ½, ¼, 1/10) before a step that raises the nonlinear cost
+    is retried with ten times more damping.  Converged when the step (largest change of a bias or
+    of a state) is below ``step_tol_m``, when the cost changes by less than ``cost_rtol`` without
+    damping, or when two successive full undamped steps contract so fast (ratio r ≤ ½) that the
+    steps still to come, about r/(1 − r) × the last one, are below ``step_tol_m``.
+    """
+
+    def __init__(self, prob: _Problem, x_init: np.ndarray, b_init: np.ndarray, max_iter: int, opt: InitOptions,
+                 w_init: np.ndarray | None = None, max_retries: int = 12):
+        self.prob, self.opt = prob, opt
+        self.max_iter, self.max_retries = max_iter, max_retries
+        self.x, self.b = x_init, b_init
+        self.w = np.zeros((len(x_init) - 1, prob.G.shape[1])) if w_init is None else w_init
+        self.J = prob.cost(self.x, self.b, self.w)
+        self.lam = 0.0
+        self.hist = [self.J]
+        self.converged = False
+        self.lin = None
+        self.it = 0
+        self.done = False
+        self.last = None              # last iteration: (cost decrease, predicted decrease, full undamped step)
+        self._prev_full_step = None
+
+    def step(self) -> bool:
+        """One iteration; False once finished (converged, failed, or out of iterations)."""
+        if self.done or self.it >= self.max_iter:
+            self.done = True
+            return False
+        prob, opt = self.prob, self.opt
+        x, b, w, J = self.x, self.b, self.w, self.J
+        self.it += 1
+        accepted = False
+        for _ in range(self.max_retries):
+            sw = self.lam / prob.sigma          # square-root weight of the damping prior
+            lin = srif_solve(prob.linear_problem(x, sw, x[0], sw, b))
+            self.lin = lin
+            # backtracking along the Gauss–Newton step before adding damping
+            for alpha in (1.0, 0.5, 0.25, 0.1):
+                xt = x + alpha * (lin.x - x)
+                bt = b + alpha * (lin.b - b)
+                wt = w + alpha * (lin.w - w)
+                Jn = prob.cost(xt, bt, wt)
+                if np.isfinite(Jn) and Jn <= J * (1 + 1e-12):
+                    accepted = True
                     break
-                lam = max(lam * 10.0, 1e-2)
-            if not accepted:
+            if accepted:
                 break
-            if alpha != 1.0:
-                lin = LinearSolutionView(xt, wt, bt, lin)
-            step = max(np.max(np.abs(lin.b - b), initial=0.0), np.max(np.abs(lin.x - x), initial=0.0))
-            rel = (J - Jn) / max(J, 1e-300)
-            x, b, w, J = lin.x, lin.b, lin.w, Jn
-            hist.append(J)
-            lam = lam / 10.0 if lam > 1e-2 else 0.0
-            if step < opt.step_tol_m or (rel < opt.cost_rtol and lam == 0.0):
-                converged = True
-                break
-        if lin is None or lam != 0.0 or not converged:
-            lin = srif_solve(self.linear_problem(x, 0.0, x[0], 0.0, b))
-        return GNResult(x, b, w, J, it, converged, lin, hist)
+            self.lam = max(self.lam * 10.0, 1e-2)
+        if not accepted:
+            self.done = True
+            return False
+        full = alpha == 1.0 and sw == 0.0
+        self.last = (J - Jn, J - lin.cost, full)
+        if alpha != 1.0:
+            lin = self.lin = LinearSolutionView(xt, wt, bt, lin)
+        step = max(np.max(np.abs(lin.b - b), initial=0.0), np.max(np.abs(lin.x - x), initial=0.0))
+        rel = (J - Jn) / max(J, 1e-300)
+        self.x, self.b, self.w, self.J = lin.x, lin.b, lin.w, Jn
+        self.hist.append(Jn)
+        self.lam = self.lam / 10.0 if self.lam > 1e-2 else 0.0
+        prev, self._prev_full_step = self._prev_full_step, (step if full else None)
+        ratio = step / prev if (full and prev) else 1.0
+        if step < opt.step_tol_m or (rel < opt.cost_rtol and self.lam == 0.0) or \
+                (ratio <= 0.5 and step * ratio / (1.0 - ratio) < opt.step_tol_m):
+            self.converged = True
+            self.done = True
+        elif self.it >= self.max_iter:
+            self.done = True
+        return not self.done
+
+    def settled(self) -> bool:
+        """The last iteration was a full undamped step whose cost decrease matched the linearized
+        model's prediction (within a factor 2): the run is in the quadratic region of its minimum."""
+        if self.last is None:
+            return False
+        dJ, pred, full = self.last
+        return full and pred > 0 and 0.5 <= dJ / pred <= 2.0
+
+    def result(self, information: bool = True) -> GNResult:
+        prob = self.prob
+        if self.lin is None or self.lam != 0.0 or not self.converged:
+            self.lin = srif_solve(prob.linear_problem(self.x, 0.0, self.x[0], 0.0, self.b)) if information else None
+        return GNResult(self.x, self.b, self.w, self.J, self.it, self.converged, self.lin, self.hist)
 
 
 class LinearSolutionView:
@@ -297,6 +381,58 @@ class LinearSolutionView:
     def __init__(self, x, w, b, base):
         self.x, self.w, self.b = x, w, b
         self.cost, self.R_end, self.P_end, self.rank_deficient = base.cost, base.R_end, base.P_end, base.rank_deficient
+
+
+# a finalist is abandoned when it has settled in a basin whose cost exceeds the best current cost by
+# more than this many standard deviations of the chi-square cost (after allowing ABANDON_TAIL × its
+# last cost decrease for the iterations it would still make)
+ABANDON_SIGMAS = 10.0
+ABANDON_TAIL = 100.0
+SAME_SOLUTION_M = 1e-3          # two finalists whose biases agree to 1 mm have found the same minimum
+STAGE_GROWTH = 8                # longest window growth from the start window to the next one
+
+
+def _race(runs: list, prob: _Problem, results: list, opt: InitOptions) -> dict:
+    """Advance the finalists' Gauss–Newton runs in turn, one iteration each per round.
+
+    Every run's cost only decreases, so the lowest current cost J_ref bounds the winner's final
+    cost from above.  A run that has *settled* (:meth:`GaussNewton.settled`: a full step that did
+    what the linearized model predicted) in a worse basin — its cost minus ABANDON_TAIL × its last
+    decrease still above J_ref by ABANDON_SIGMAS standard deviations of the cost — cannot win and
+    is abandoned; so is a settled run whose biases agree within SAME_SOLUTION_M with a settled or
+    converged run of lower cost (the same minimum, reached twice).  Runs still approaching their
+    minimum (backtracking, damping, or a model that mispredicts the decrease) are never abandoned,
+    whatever their cost: a run far above the others can still end in the best basin.
+
+    Returns {start index: "converged" | "not converged" | "abandoned: …"}.
+    """
+    n_obs = int(np.isfinite(prob.y).sum())
+    dof = max(n_obs - prob.n - prob.free.size, 1)
+    outcome = {}
+    active = list(runs)
+    while active:
+        for _, gn in active:
+            gn.step()
+        J_ref = min(gn.J for i, gn in runs if not outcome.get(i, "").startswith("abandoned"))
+        margin = ABANDON_SIGMAS * math.sqrt(2.0 * dof) * J_ref / dof
+        still = []
+        for i, gn in active:
+            if gn.done:
+                outcome[i] = "converged" if gn.converged else "not converged"
+                continue
+            if gn.settled():
+                if gn.J - ABANDON_TAIL * gn.last[0] > J_ref + margin:
+                    outcome[i] = "abandoned: worse minimum"
+                    continue
+                twin = next((j for j, o in runs if j != i and not outcome.get(j, "").startswith("abandoned")
+                             and (o.settled() or o.converged) and (o.J, j) < (gn.J, i)
+                             and np.max(np.abs(o.b - gn.b), initial=0.0) < SAME_SOLUTION_M), None)
+                if twin is not None:
+                    outcome[i] = f"abandoned: same minimum as {results[twin][0]}"
+                    continue
+            still.append((i, gn))
+        active = still
+    return outcome
 
 
 def _start_guesses(cfg: StructureConfig, n_starts: int) -> list[tuple[str, np.ndarray]]:
@@ -359,29 +495,46 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
     results = []
     for label, x1 in _start_guesses(cfg, opt.starts):
         xs = sub.propagate(x1)
-        g = sub.gauss_newton(xs, sub.initial_biases(xs), opt.start_iterations, opt, max_retries=3)
+        g = sub.gauss_newton(xs, sub.initial_biases(xs), opt.start_iterations, opt, max_retries=3, information=False)
         results.append((label, g))
         _say(opt, f"  start {label}: cost {g.cost:.4g} after {g.iterations} iterations on the first {n_sub} epochs")
     # the most promising starts (lowest short-window cost) are continued on the whole window; the
     # lowest full-window cost wins (a short window can prefer a mirror solution ~180° away)
     order = list(np.argsort([g.cost for _, g in results]))[: max(1, min(opt.finalists, len(results)))]
-    finals = []
-    for i in order:
-        _, g0 = results[i]
-        x_init = np.empty((N, prob.n))
-        x_init[:len(g0.x)] = g0.x
-        for k in range(len(g0.x), N):
-            x_init[k] = prob.A @ x_init[k - 1]
-        w_init = np.zeros((N - 1, prob.G.shape[1]))
-        w_init[:len(g0.w)] = g0.w
-        gi = prob.gauss_newton(x_init, prob.initial_biases(x_init), opt.max_iterations, opt, w_init=w_init)
-        finals.append((i, gi))
-        _say(opt, f"  continued {results[i][0]} on the whole window: cost {gi.cost:.6g} after {gi.iterations} iterations")
-    best_i, g = min(finals, key=lambda t: t[1].cost)
-    best_i = int(best_i)
-    label = results[best_i][0]
-    final_costs = {i: gi.cost for i, gi in finals}
-    total_iter = sum(r.iterations for _, r in results) + sum(gi.iterations for _, gi in finals)
+    # on a long window the finalists first go through intermediate windows, each at most
+    # STAGE_GROWTH times longer than the previous one (from a converged shorter solution the
+    # extrapolation to the next window is good, and the long window needs few iterations)
+    stages = [n_sub]
+    while stages[-1] < N:
+        stages.append(min(N, STAGE_GROWTH * (stages[-1] - 1) + 1))
+    survivors = [(int(i), results[i][1]) for i in order]
+    outcome, final_costs, total_iter = {}, {}, sum(r.iterations for _, r in results)
+    for n_stage in stages[1:] or [N]:
+        last = n_stage == N
+        sp = prob if last else _Problem(cfg, window_data(run, float(wd.time_s[0]), float(wd.time_s[n_stage - 1])),
+                                        sigma, opt.process_noise)
+        runs = []
+        for i, g0 in survivors:
+            x_init = np.empty((n_stage, sp.n))
+            x_init[:len(g0.x)] = g0.x
+            for k in range(len(g0.x), n_stage):
+                x_init[k] = sp.A @ x_init[k - 1]
+            w_init = np.zeros((n_stage - 1, sp.G.shape[1]))
+            w_init[:len(g0.w)] = g0.w
+            runs.append((i, GaussNewton(sp, x_init, sp.initial_biases(x_init), opt.max_iterations, opt, w_init=w_init)))
+        stage_outcome = _race(runs, sp, results, opt)
+        total_iter += sum(gn.it for _, gn in runs)
+        where = "the whole window" if last else f"the first {n_stage} epochs"
+        for i, gn in runs:
+            _say(opt, f"  continued {results[i][0]} on {where}: cost {gn.J:.6g} after {gn.it} iterations, "
+                      f"{stage_outcome[i]}")
+            if last:
+                outcome[i], final_costs[i] = stage_outcome[i], gn.J
+            elif stage_outcome[i].startswith("abandoned"):
+                outcome[i] = stage_outcome[i].replace("abandoned", f"abandoned on the first {n_stage} epochs", 1)
+        survivors = [(i, gn) for i, gn in runs if not stage_outcome[i].startswith("abandoned")]
+    best_i, best_run = min(((i, gn) for i, gn in runs if not outcome[i].startswith("abandoned")), key=lambda t: t[1].J)
+    g = best_run.result()
     lin = g.lin
     m = len(wd.segments)
     n = prob.n
@@ -505,7 +658,8 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
         "iterations": int(total_iter),
         "converged": True,
         "starts": [{"label": lab, "cost": float(r.cost), "iterations": r.iterations, "won": i == best_i,
-                    "full_window_cost": (float(final_costs[i]) if i in final_costs else None)}
+                    "full_window_cost": (float(final_costs[i]) if i in final_costs else None),
+                    "full_window": outcome.get(i)}
                    for i, (lab, r) in enumerate(results)],
         "cost": float(J_final),
         "cost_per_dof": float(J_final / dof),

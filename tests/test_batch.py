@@ -5,6 +5,7 @@
   linearization of the testbed;
 * the SRIF's covariance of z_N = [x_N; b] against the inverse of the dense information matrix,
   built here independently of :mod:`cdgps_cli.batch` and marginalized onto z_N;
+* both forms of pooling the bias-only rows (Gram / square root) and the fallback between them;
 * the O(N) structure (QR count and sizes, memory) without timing asserts.
 """
 
@@ -30,17 +31,22 @@ def _rel(a, b) -> float:
     return float(np.linalg.norm(a - b) / max(np.linalg.norm(b), 1e-300))
 
 
-def random_problem(rng, n=5, r=2, C=4, N=12, prior=False, nan_frac=0.1, known=True, shared=True, slip=True):
+def random_problem(rng, n=5, r=2, C=4, N=12, prior=False, nan_frac=0.1, known=True, shared=True, slip=True,
+                   h_cols=None):
     """A well-posed random LinearProblem.
 
     Channel c has bias ``chan_bias[c]``: some channels share one bias, one may be known (−1), and one
     channel may start a new bias parameter half way (a slip).  ~nan_frac of the measurements are
     absent.  A is a slightly damped rotation-like matrix so that A^N stays well conditioned.
+    ``h_cols``: H is non-zero only in its first h_cols columns (as the modal model, whose phases do
+    not depend on the rates), which lets the SRIF split off bias-only rows when C > h_cols.
     """
     S = rng.standard_normal((n, n))
     A = expm(0.3 * (S - S.T) - 0.02 * np.eye(n) + 0.02 * rng.standard_normal((n, n)))
     G = 0.3 * rng.standard_normal((n, r))
     H = rng.standard_normal((N, C, n))
+    if h_cols is not None:
+        H[:, :, h_cols:] = 0.0
     chan_bias = list(range(C))
     if shared and C >= 3:
         chan_bias[2] = chan_bias[1]                 # channels 1 and 2 share a bias
@@ -135,6 +141,38 @@ def test_srif_matches_dense_random(seed, n, r, C, N, prior):
     Lam, eta, T = dense_information(prob)
     v = np.linalg.solve(Lam, eta)
     np.testing.assert_allclose(T @ v, np.concatenate([s.x[-1], s.b]), rtol=0, atol=1e-8 * np.abs(T @ v).max())
+
+
+# more channels than state columns seen by the measurements (the testbed: 36 channels, 9 of 18
+# states): each epoch's rows split into state rows and bias-only rows (pooled as Gram or square root)
+WIDE_CASES = [(seed, n, r, C, N, hc, prior, nan, slip)
+              for seed, (n, r, C, N, hc) in enumerate([(6, 2, 9, 15, 3), (4, 1, 7, 30, 2), (6, 0, 8, 12, 3),
+                                                       (5, 2, 12, 40, 1)])
+              for prior in (False, True) for nan, slip in ((0.0, False), (0.15, True))]
+
+
+@pytest.mark.parametrize("seed,n,r,C,N,hc,prior,nan,slip", WIDE_CASES)
+@pytest.mark.parametrize("square_root", [None, False, True])
+def test_srif_matches_dense_more_channels_than_states(seed, n, r, C, N, hc, prior, nan, slip, square_root):
+    rng = np.random.default_rng(2000 + seed)
+    prob = random_problem(rng, n=n, r=r, C=C, N=N, prior=prior, nan_frac=nan, h_cols=hc, slip=slip,
+                          shared=slip, known=slip)
+    s = srif_solve(prob, square_root=square_root)
+    d = dense_solve(prob)
+    assert not s.rank_deficient
+    _assert_agree(s, d)
+    Lam, _, T = dense_information(prob)
+    P_ref = T @ np.linalg.solve(Lam, T.T)
+    assert _rel(s.P_end, P_ref) < 1e-8, _rel(s.P_end, P_ref)
+
+
+@pytest.mark.parametrize("square_root", [False, True])
+@pytest.mark.parametrize("seed,n,r,C,N,prior", CASES[::3])
+def test_srif_forms_agree(seed, n, r, C, N, prior, square_root):
+    """The Gram and the square-root pooling of the bias-only rows give the same solution."""
+    rng = np.random.default_rng(1000 + seed)
+    prob = random_problem(rng, n=n, r=r, C=C, N=N, prior=prior)
+    _assert_agree(srif_solve(prob, square_root=square_root), dense_solve(prob))
 
 
 @pytest.mark.parametrize("seed,n,r,C,N,prior", CASES)
@@ -260,33 +298,70 @@ def test_testbed_linearization_srif_matches_dense(testbed_lin):
     assert np.max(np.abs(s.b - truth_b) / sig) < 5.0
 
 
+def test_motionless_linearization_falls_back_to_square_root(testbed_cfg):
+    """About a motionless trajectory (a cold start's first iterate) a constant rigid-angle offset and
+    a bias pattern are indistinguishable: R_end is singular.  The Gram pooling of the bias-only rows
+    cannot show that (its condition number is squared); the default solve notices the ill
+    conditioning and repeats the solve in square-root form, which flags the rank deficiency."""
+    sim = simulate(testbed_cfg, SimOptions(duration_s=3.0, seed=1, phase_sigma_m=0.01))
+    run = Run("<memory>", testbed_cfg, sim.receiver.reset_index(drop=True), sim.gyro, None, {})
+    wd = window_data(run, 0.0, 3.0)
+    prob = _Problem(testbed_cfg, wd, 0.02, True)
+    x = prob.propagate(np.zeros(prob.n))
+    lp = prob.linear_problem(x, 0.0, x[0], 0.0, prob.initial_biases(x))
+    ref = srif_solve(lp, square_root=True)
+    assert ref.rank_deficient and ref.P_end is None
+    s = srif_solve(lp)
+    assert s.rank_deficient
+    np.testing.assert_allclose(s.x, ref.x, rtol=0, atol=1e-9 * np.abs(ref.x).max())
+    np.testing.assert_allclose(s.b, ref.b, rtol=0, atol=1e-9 * np.abs(ref.b).max())
+    try:
+        g = srif_solve(lp, square_root=False)
+    except np.linalg.LinAlgError:
+        return
+    assert not g.rank_deficient                      # the Gram form misses it: hence the fallback
+
+
 # ---------------------------------------------------------------------------------------------
 # O(N) structure, no timing
 
 
 def _count_qr(monkeypatch):
-    shapes = []
-    orig = batch._qr_r
+    shapes = {"epoch": [], "other": []}
+    orig_r, orig_inplace = batch._qr_r, batch._qr_inplace
 
-    def spy(M):
-        shapes.append(M.shape)
-        return orig(M)
+    def spy_r(M):
+        shapes["other"].append(M.shape)
+        return orig_r(M)
 
-    monkeypatch.setattr(batch, "_qr_r", spy)
+    def spy_inplace(M):
+        shapes["epoch"].append(M.shape)
+        return orig_inplace(M)
+
+    monkeypatch.setattr(batch, "_qr_r", spy_r)
+    monkeypatch.setattr(batch, "_qr_inplace", spy_inplace)
     return shapes
 
 
-def test_linear_structure_qr_count_and_size(monkeypatch):
-    """One measurement QR and one time-update QR per epoch, of a size independent of N."""
+@pytest.mark.parametrize("square_root", [False, True])
+@pytest.mark.parametrize("C,h_cols", [(5, None), (12, 3)])
+def test_linear_structure_qr_count_and_size(monkeypatch, square_root, C, h_cols):
+    """One fused time + measurement QR per epoch after the first, of a size independent of N; the
+    other QRs (first epoch, final assembly, and in square-root form the compressions of the
+    bias-only rows, about one per thousand rows) have a bounded size too."""
     sizes = {}
     for N in (20, 200):
         shapes = _count_qr(monkeypatch)
         rng = np.random.default_rng(9)
-        prob = random_problem(rng, n=6, r=2, C=5, N=N, nan_frac=0.0)
-        srif_solve(prob)
+        prob = random_problem(rng, n=6, r=2, C=C, N=N, nan_frac=0.0, h_cols=h_cols)
+        srif_solve(prob, square_root=square_root)
         monkeypatch.undo()
-        assert len(shapes) == 2 * N - 1
-        sizes[N] = max(a * b for a, b in shapes)
+        assert len(shapes["epoch"]) == N - 1
+        assert len(shapes["other"]) <= 3 + (N * C) // 1000
+        assert max(a for a, _ in shapes["other"]) <= 1024 + 2 * C + prob.n_bias + 6
+        q = C if h_cols is None else h_cols
+        assert set(shapes["epoch"]) == {(2 + 6 + q, 2 + 6 + prob.n_bias + 1)}
+        sizes[N] = max(a * b for a, b in shapes["epoch"])
     assert sizes[20] == sizes[200]
 
 
