@@ -253,11 +253,18 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
 @click.option("--process-noise-scale", type=float, default=1.0, show_default=True,
               help="Multiplies the config's process-noise standard deviations (Q x scale^2): below 1 for a "
                    "structure at rest or only lightly disturbed (static survey), above 1 for stronger excitation.")
+@click.option("--structure", "structure", default=None, type=click.Path(dir_okay=False),
+              help="GNSS runs: a structure config (docs/config-format.md) whose modal model is estimated from the "
+                   "double differences instead of the rover displacements (docs/gnss-pipeline.md).")
+@click.option("--x-axis-azimuth-deg", "x_axis_azimuth_deg", type=float, default=90.0, show_default=True,
+              help="With --structure: azimuth of the structure x axis, degrees clockwise from north (90: x east, y north).")
+@click.option("--receiver", "receiver_map", multiple=True, metavar="ANTENNA=RECEIVER",
+              help="With --structure: the receiver of a structure antenna (repeatable; default: the same name).")
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="STATES.mcap to write.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
 def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability, outlier_sigma, process_noise_scale,
-             output, as_json):
+             output, as_json, structure=None, x_axis_azimuth_deg=90.0, receiver_map=()):
     """Extended Kalman filter (Eq. 16-23) [+ RTS smoother] over a RUN from INIT → STATES.mcap.
 
     On a GNSS run: per-epoch rover displacement states <ant>_e/_n/_u with 1σ from INIT's
@@ -270,8 +277,12 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
         _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json,
                        structure_only={"--biases": biases != "fixed", "--sigma-m": sigma_m is not None,
                                        "--nis-probability": nis_probability != 0.999, "--outlier-sigma": outlier_sigma != 6.0,
-                                       "--process-noise-scale": process_noise_scale != 1.0})
+                                       "--process-noise-scale": process_noise_scale != 1.0},
+                       structure=structure, x_axis_azimuth_deg=x_axis_azimuth_deg, receiver_map=receiver_map)
         return
+    if structure is not None or receiver_map:
+        raise CdgpsError("--structure/--receiver apply to GNSS runs (from 'cdgps ingest --rinex/--ubx'); a structure "
+                         "run already has its config")
     from .ekf import EstimateOptions, estimate as run_ekf
     from .run import read_run
     from .states import write_states
@@ -697,7 +708,8 @@ def _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, a
         _emit_json(res)
 
 
-def _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json, structure_only):
+def _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json, structure_only, structure=None,
+                   x_axis_azimuth_deg=90.0, receiver_map=()):
     from .gnss_pipeline import gnss_estimate
     from .gnss_run import read_gnss_run
 
@@ -710,6 +722,10 @@ def _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json, structure_
     except json.JSONDecodeError as exc:
         raise CdgpsError(f"{init_json}, line {exc.lineno}: not valid JSON: {exc.msg}") from None
     run = read_gnss_run(run_mcap)
+    if structure is not None or receiver_map:
+        _estimate_gnss_modal(ctx, run, init, init_text, output, as_json, smooth, structure, x_axis_azimuth_deg,
+                             receiver_map)
+        return
     _say(ctx, f"estimating {run_mcap} from {init_json} ({run.cfg.displacement} displacement"
               f"{', smoothing' if smooth and run.cfg.displacement == 'random_walk' else ''}) …")
     s = gnss_estimate(run, init, init_text, output, smooth=smooth,
@@ -729,6 +745,39 @@ def _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json, structure_
         _say(ctx, f"  … {len(s['event_list']) - 20} more events (topic /cdgps/events)")
     if as_json:
         s = dict(s)
+        _emit_json(s)
+
+
+def _estimate_gnss_modal(ctx, run, init, init_text, output, as_json, smooth, structure, x_axis_azimuth_deg,
+                         receiver_map):
+    """``cdgps estimate RUN --init INIT --structure STRUCT.toml``: the modal model on the DDs (gnss_modal.py)."""
+    from .config import load_config
+    from .gnss_modal import gnss_modal_estimate
+
+    if structure is None:
+        raise CdgpsError("--receiver needs --structure (a structure config)")
+    if not -360.0 <= x_axis_azimuth_deg <= 360.0:
+        raise CdgpsError(f"--x-axis-azimuth-deg must be in [-360, 360], got {x_axis_azimuth_deg:g}")
+    cfg = load_config(structure)
+    mapping = {}
+    for it in receiver_map:
+        a, sep, r = it.partition("=")
+        if not sep or not a.strip() or not r.strip():
+            raise CdgpsError(f"--receiver expects ANTENNA=RECEIVER, got {it!r}")
+        if a.strip() not in cfg.antenna_names:
+            raise CdgpsError(f"--receiver {it!r}: {a.strip()!r} is not an antenna of {structure} "
+                             f"({', '.join(cfg.antenna_names)})")
+        mapping[a.strip()] = r.strip()
+    _say(ctx, f"estimating the modal model of {cfg.name} from {run.path} and its INIT"
+              f"{' (smoothing)' if smooth else ''} …")
+    s = gnss_modal_estimate(run, init, init_text, cfg, output, receivers=mapping, x_axis_azimuth_deg=x_axis_azimuth_deg,
+                            smooth=smooth, progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
+    _say(ctx, f"wrote {output}: {s['epochs']} epochs, coordinates {', '.join(s['coordinates'])}, mean NIS/dof "
+              f"{s['mean_nis_per_dof']:.3f}, {s['events']} events")
+    for a, v in s["integers"].items():
+        _say(ctx, f"  {a} ({s['receivers'][a]}): {v['fixed']}/{v['estimated']} integers fixed; nominal position "
+                  f"{s['nominal_mismatch_m'][a] * 1e3:.1f} mm from the structure's")
+    if as_json:
         _emit_json(s)
 
 
