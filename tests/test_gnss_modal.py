@@ -198,3 +198,16 @@ def test_float_only_init_is_refused(tower, tmp_path):
                 "-o", tmp_path / "x.mcap")
     assert r.exit_code != 0 and "no fixed integers" in r.output
     assert not (tmp_path / "x.mcap").exists()
+
+
+def test_simulate_gnss_structure_command_is_deterministic(tmp_path):
+    """The simulator as a command: RINEX per antenna + nav + truth + config; same seed → same bytes."""
+    for d in ("a", "b"):
+        r = run_cli("-q", "simulate-gnss-structure", TOWER, "--duration", "60", "--seed", "5", "--out", tmp_path / d)
+        assert r.exit_code == 0, r.output
+    files = sorted(p.name for p in (tmp_path / "a").iterdir())
+    assert {"truth.csv", "truth.json", "config.toml"} <= set(files) and any(f.endswith(".rnx") for f in files)
+    for f in files:
+        assert (tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes(), f
+    r = run_cli("simulate-gnss-structure", TOWER, "--duration", "-1", "--out", tmp_path / "c")
+    assert r.exit_code == 2 and "--duration must be positive" in r.output and not (tmp_path / "c").exists()
