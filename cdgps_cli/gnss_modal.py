@@ -46,7 +46,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -55,7 +55,6 @@ import pandas as pd
 from scipy.linalg import cho_factor, cho_solve, solve_triangular
 
 from . import __version__
-from .baseline import BaselineOptions, solve_static_baseline
 from .config import StructureConfig
 from .dd import dd_operator, sd_variance, select_reference
 from .dynamics import discrete_model
@@ -161,22 +160,10 @@ def joint_dd_covariance(var_rover: list, var_master: list, sats: list, refs: lis
 
 
 def _rover_tables(run, init, r, stations, progress):
-    from .gnss_pipeline import _events, _integers_from_init, _position_args  # noqa: PLC0415
+    from .gnss_pipeline import _events, solve_with_init_integers  # noqa: PLC0415
 
-    rov = init["rovers"][r]
-    o = dict(rov.get("options") or {})
-    try:
-        opt = BaselineOptions(**{k: v for k, v in o.items() if k in BaselineOptions.__dataclass_fields__})
-    except TypeError as exc:
-        raise CdgpsError(f"INIT.json: bad options for {r}: {exc}") from None
-    opt = BaselineOptions(**{**asdict(opt), "kinematic_series": False})
     progress(f"baseline {run.master} → {r}: DDs with INIT's integers …")
-    res = solve_static_baseline(stations[run.master], stations[r], run.nav, opt,
-                                master_xyz=_position_args(run, run.master), rover_xyz=_position_args(run, r),
-                                integers=_integers_from_init(rov), keep_work=True)
-    w = res.pop("_work")
-    if not np.allclose(w["xr0"], rov["nominal_ecef_m"], atol=1e-6):
-        raise CdgpsError(f"INIT.json: the nominal position of {r} differs from this run's")
+    res, w, _, opt = solve_with_init_integers(run, init, r, stations)
     d = w["data"]
     n_fixed = res["ambiguities"]["n_fixed"]
     # only segments with a known integer (fixed, or the datum pivot of its set) enter; a rover without

@@ -252,6 +252,29 @@ def _integers_from_init(rov: dict) -> dict:
 # estimate
 
 
+
+def solve_with_init_integers(run, init: dict, r: str, stations: dict):
+    """Rover ``r``'s baseline solved again with INIT's options and integers (no kinematic series).
+
+    Returns (baseline result, its working data ``_work``, INIT's rover entry, the BaselineOptions); raises CdgpsError when
+    INIT's options are not valid or its nominal position is not this run's.
+    """
+    rov = init["rovers"][r]
+    o = dict(rov.get("options") or {})
+    try:
+        opt = BaselineOptions(**{k: v for k, v in o.items() if k in BaselineOptions.__dataclass_fields__})
+    except TypeError as exc:
+        raise CdgpsError(f"INIT.json: bad options for {r}: {exc}") from None
+    opt = BaselineOptions(**{**asdict(opt), "kinematic_series": False})
+    res = solve_static_baseline(stations[run.master], stations[r], run.nav, opt,
+                                master_xyz=_position_args(run, run.master), rover_xyz=_position_args(run, r),
+                                integers=_integers_from_init(rov), keep_work=True)
+    w = res.pop("_work")
+    if not np.allclose(w["xr0"], rov["nominal_ecef_m"], atol=1e-6):
+        raise CdgpsError(f"INIT.json: the nominal position of {r} differs from this run's")
+    return res, w, rov, opt
+
+
 def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path, *, smooth: bool = False,
                   progress=None) -> dict:
     """Per-epoch displacement states of every rover from INIT's integers → STATES.mcap."""
@@ -270,20 +293,8 @@ def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path
     per = {}
     events: list[dict] = []
     for r in run.rovers:
-        rov = init["rovers"][r]
-        o = dict(rov.get("options") or {})
-        try:
-            opt = BaselineOptions(**{k: v for k, v in o.items() if k in BaselineOptions.__dataclass_fields__})
-        except TypeError as exc:
-            raise CdgpsError(f"INIT.json: bad options for {r}: {exc}") from None
-        opt = BaselineOptions(**{**asdict(opt), "kinematic_series": False})
         say(f"baseline {run.master} → {r}: fixed solution with INIT's integers, {model} states …")
-        res = solve_static_baseline(stations[run.master], stations[r], run.nav, opt,
-                                    master_xyz=_position_args(run, run.master), rover_xyz=_position_args(run, r),
-                                    integers=_integers_from_init(rov), keep_work=True)
-        w = res.pop("_work")
-        if not np.allclose(w["xr0"], rov["nominal_ecef_m"], atol=1e-6):
-            raise CdgpsError(f"INIT.json: the nominal position of {r} differs from this run's")
+        res, w, rov, _ = solve_with_init_integers(run, init, r, stations)
         per[r] = (res, w, rov)
         events.extend(_events(r, run.master, res, w))
     # common time axis: every matched epoch of any rover
