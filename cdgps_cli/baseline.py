@@ -42,6 +42,7 @@ import pandas as pd
 from scipy.linalg import cho_factor, cho_solve
 
 from .ambiguity import AmbiguityError, lambda_search, partial_fix, ratio_test
+from .config import GNSS_DEFAULTS, GNSS_WEIGHTINGS
 from .dd import (
     ambiguity_datum,
     ambiguity_segments,
@@ -126,24 +127,24 @@ class BaselineOptions:
         (``motion="random_walk"``).
     """
 
-    mask_deg: float = 15.0
-    ratio_threshold: float = 3.0
+    mask_deg: float = GNSS_DEFAULTS["mask_deg"]
+    ratio_threshold: float = GNSS_DEFAULTS["ratio"]
     partial: bool = True
     fix: bool = True
-    weighting: str = "elevation"
-    sigma_a_m: float = 0.003
-    sigma_b_m: float = 0.003
-    code_ratio: float = 100.0
+    weighting: str = GNSS_DEFAULTS["weighting"]
+    sigma_a_m: float = GNSS_DEFAULTS["sigma_a_m"]
+    sigma_b_m: float = GNSS_DEFAULTS["sigma_b_m"]
+    code_ratio: float = GNSS_DEFAULTS["code_ratio"]
     troposphere: bool = True
     max_iterations: int = 10
-    sync_tol_s: float = 0.025
+    sync_tol_s: float = GNSS_DEFAULTS["sync_tol_s"]
     max_gap_s: float | None = None
     min_sats_kinematic: int = 4
     kinematic_max_pdop: float = 10.0
     kinematic_series: bool = True
     motion: str = "static"
-    random_walk_sigma: tuple = (0.001, 0.001, 0.001)
-    initial_sigma_m: float = 1.0
+    random_walk_sigma: tuple = GNSS_DEFAULTS["random_walk_sigma"]
+    initial_sigma_m: float = GNSS_DEFAULTS["initial_sigma_m"]
 
     def validate(self) -> None:
         """Raise :class:`CdgpsError` listing every invalid setting."""
@@ -152,7 +153,7 @@ class BaselineOptions:
             p.append(f"mask_deg must be in [0, 90) degrees, got {self.mask_deg!r}")
         if not (math.isfinite(self.ratio_threshold) and self.ratio_threshold >= 1.0):
             p.append(f"ratio threshold must be a number >= 1, got {self.ratio_threshold!r}")
-        if self.weighting not in ("elevation", "equal"):
+        if self.weighting not in GNSS_WEIGHTINGS:
             p.append(f"weighting must be 'elevation' or 'equal', got {self.weighting!r}")
         for k in ("sigma_a_m", "sigma_b_m"):
             v = getattr(self, k)

@@ -595,6 +595,11 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
 
 GNSS_DISPLACEMENT_MODELS = ("static", "random_walk")
 GNSS_WEIGHTINGS = ("elevation", "equal")
+# defaults of the GNSS solver settings: the [gnss] parser, GnssConfig and baseline.BaselineOptions all
+# take them from here (RTKLIB-comparable: 15° mask, ratio 3, a = b = 3 mm, code/phase ratio 100, DTTOL)
+GNSS_DEFAULTS = {"mask_deg": 15.0, "ratio": 3.0, "weighting": "elevation", "sigma_a_m": 0.003,
+                 "sigma_b_m": 0.003, "code_ratio": 100.0, "sync_tol_s": 0.025,
+                 "random_walk_sigma": (0.001, 0.001, 0.001), "initial_sigma_m": 1.0}
 
 _GNSS_KEYS = {
     "name": "string", "description": "string", "master": "string", "nav": "list of file paths",
@@ -648,20 +653,20 @@ class GnssConfig:
     master: str | None
     antennas: tuple
     nav: tuple
-    mask_deg: float = 15.0
-    ratio: float = 3.0
+    mask_deg: float = GNSS_DEFAULTS["mask_deg"]
+    ratio: float = GNSS_DEFAULTS["ratio"]
     partial: bool = True
     fix: bool = True
-    weighting: str = "elevation"
-    sigma_a_m: float = 0.003
-    sigma_b_m: float = 0.003
-    code_ratio: float = 100.0
+    weighting: str = GNSS_DEFAULTS["weighting"]
+    sigma_a_m: float = GNSS_DEFAULTS["sigma_a_m"]
+    sigma_b_m: float = GNSS_DEFAULTS["sigma_b_m"]
+    code_ratio: float = GNSS_DEFAULTS["code_ratio"]
     troposphere: bool = True
     max_gap_s: float | None = None
-    sync_tol_s: float = 0.025
+    sync_tol_s: float = GNSS_DEFAULTS["sync_tol_s"]
     displacement: str = "static"
-    random_walk_sigma: tuple = (0.001, 0.001, 0.001)
-    initial_sigma_m: float = 1.0
+    random_walk_sigma: tuple = GNSS_DEFAULTS["random_walk_sigma"]
+    initial_sigma_m: float = GNSS_DEFAULTS["initial_sigma_m"]
 
     def antenna(self, name: str) -> GnssAntenna | None:
         return next((a for a in self.antennas if a.name == name), None)
@@ -763,28 +768,28 @@ def parse_gnss_config(text: str, path: str = "<config>", base_dir: str | Path | 
                     chk.add(f"gnss.nav[{i}]", f"expected a file path string, got {e!r}")
                 else:
                     nav.append(resolve(e))
-    mask = chk.number(g, "gnss", "mask_deg", 15.0)
+    mask = chk.number(g, "gnss", "mask_deg", GNSS_DEFAULTS["mask_deg"])
     if mask is not None and not 0.0 <= mask < 90.0:
         chk.add("gnss.mask_deg", f"expected an elevation mask in [0, 90) degrees, got {mask!r}")
-    ratio = chk.number(g, "gnss", "ratio", 3.0)
+    ratio = chk.number(g, "gnss", "ratio", GNSS_DEFAULTS["ratio"])
     if ratio is not None and ratio < 1.0:
         chk.add("gnss.ratio", f"expected a ratio-test threshold >= 1, got {ratio!r}")
-    weighting = chk.string(g, "gnss", "weighting", "elevation")
+    weighting = chk.string(g, "gnss", "weighting", GNSS_DEFAULTS["weighting"])
     if weighting not in GNSS_WEIGHTINGS:
         chk.add("gnss.weighting", f"expected one of {', '.join(GNSS_WEIGHTINGS)}, got {weighting!r}")
-    sa = chk.number(g, "gnss", "sigma_a_m", 0.003, nonneg=True)
-    sb = chk.number(g, "gnss", "sigma_b_m", 0.003, nonneg=True)
+    sa = chk.number(g, "gnss", "sigma_a_m", GNSS_DEFAULTS["sigma_a_m"], nonneg=True)
+    sb = chk.number(g, "gnss", "sigma_b_m", GNSS_DEFAULTS["sigma_b_m"], nonneg=True)
     if sa == 0 and sb == 0:
         chk.add("gnss.sigma_a_m", "sigma_a_m and sigma_b_m cannot both be 0")
-    code_ratio = chk.number(g, "gnss", "code_ratio", 100.0, positive=True)
+    code_ratio = chk.number(g, "gnss", "code_ratio", GNSS_DEFAULTS["code_ratio"], positive=True)
     max_gap = chk.number(g, "gnss", "max_gap_s", None, positive=True)
-    sync = chk.number(g, "gnss", "sync_tol_s", 0.025, positive=True)
+    sync = chk.number(g, "gnss", "sync_tol_s", GNSS_DEFAULTS["sync_tol_s"], positive=True)
     if sync is not None and sync > 1.0:
         chk.add("gnss.sync_tol_s", f"expected at most 1 s, got {sync!r}")
 
     # [gnss.displacement]
     disp = g.get("displacement", {})
-    model, rw, init_sigma = "static", (0.001, 0.001, 0.001), 1.0
+    model, rw, init_sigma = "static", GNSS_DEFAULTS["random_walk_sigma"], GNSS_DEFAULTS["initial_sigma_m"]
     if not isinstance(disp, dict):
         chk.add("gnss.displacement", "expected a table ([gnss.displacement])")
         disp = {}
