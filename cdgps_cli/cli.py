@@ -811,6 +811,8 @@ def simulate_gnss_structure_cmd(ctx, config, duration_s, seed, x_axis_azimuth_de
 
     if not duration_s > 0:
         raise CdgpsError(f"--duration must be positive, got {duration_s:g}")
+    if not -360.0 <= x_axis_azimuth_deg <= 360.0:
+        raise CdgpsError(f"--x-axis-azimuth-deg must be in [-360, 360], got {x_axis_azimuth_deg:g}")
     cfg = load_config(config)
     s = simulate_structure_gnss(
         out_dir, cfg, master_ecef_m=parse_vector(master_xyz, "--master-xyz") if master_xyz else DEFAULT_MASTER_XYZ,

@@ -468,6 +468,16 @@ def simulate_structure_gnss(out_dir, cfg: StructureConfig, *, master_ecef_m=(-39
     from .simulate import SimOptions, simulate  # noqa: PLC0415
 
     say = progress or (lambda m: None)
+    problems = []
+    if not (np.isfinite(duration_s) and duration_s > 0):
+        problems.append(f"duration_s must be a positive number of seconds, got {duration_s!r}")
+    if not (np.isfinite(x_axis_azimuth_deg) and -360.0 <= x_axis_azimuth_deg <= 360.0):
+        problems.append(f"x_axis_azimuth_deg must be in [-360, 360] degrees, got {x_axis_azimuth_deg!r}")
+    xm = np.asarray(master_ecef_m, dtype=float)
+    if xm.shape != (3,) or not np.all(np.isfinite(xm)) or not 6.0e6 < np.linalg.norm(xm) < 7.0e6:
+        problems.append(f"master_ecef_m must be 3 finite ECEF coordinates near the Earth's surface, got {master_ecef_m!r}")
+    if problems:
+        raise CdgpsError("simulate-gnss-structure: " + "; ".join(problems))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     mapping = {a: (receivers or {}).get(a, a) for a in cfg.antenna_names}

@@ -211,3 +211,14 @@ def test_simulate_gnss_structure_command_is_deterministic(tmp_path):
         assert (tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes(), f
     r = run_cli("simulate-gnss-structure", TOWER, "--duration", "-1", "--out", tmp_path / "c")
     assert r.exit_code == 2 and "--duration must be positive" in r.output and not (tmp_path / "c").exists()
+
+
+@pytest.mark.parametrize("args,message", [
+    (("--x-axis-azimuth-deg", "nan"), "--x-axis-azimuth-deg must be in [-360, 360]"),
+    (("--master-xyz", "0,0,0"), "master_ecef_m must be 3 finite ECEF coordinates"),
+])
+def test_simulate_gnss_structure_bad_input_leaves_nothing(tmp_path, args, message):
+    out = tmp_path / "sim"
+    r = run_cli("simulate-gnss-structure", TOWER, "--duration", "30", *args, "--out", out)
+    assert r.exit_code == 2 and message in r.output, r.output
+    assert not out.exists()
