@@ -15,7 +15,8 @@ temporary directory where ``evaluate`` is used):
   (deg, after 1 s) with biases fixed and as states;
 * static test (Fig. 7) — scenario static, 2 mm noise, INIT on 0–60 s: mean and std of q6+q10 over the
   rest segment, with the filter σ from INIT (2 cm) and with σ = 2 mm, next to the steady-state
-  prediction of the filter's own model;
+  prediction of the filter's own model; smoothed; in static mode (``--rest`` from the rest start,
+  forward and smoothed; and declared 10 s early, during settling);
 * cycle slip a3:PL2 +3 cycles at 80 s (same seed, so the INIT applies): time back within 3σ,
   time to the bias re-fix, final bias error (fixed and states); the same jump without a lock-counter
   reset (caught by the innovation test);
@@ -219,14 +220,22 @@ def static_seed(seed: int) -> dict:
     rest = [s for s in sim.truth["segments"] if s["kind"] == "rest"][0]
     out = {}
     U = np.asarray(TB.mode_shapes)
-    for label, sm, smooth in (("default", None, False), ("2mm", 0.002, False), ("smoothed", None, True)):
-        r = estimate(run, init, EstimateOptions(sigma_m=sm, smooth=smooth))
-        q = r.x[:, :9] @ U.T
+    t_rest = rest["start_s"]
+    c = U[5] + U[9]
+    for label, sm, smooth, segs in (("default", None, False, ()), ("2mm", 0.002, False, ()),
+                                    ("smoothed", None, True, ()),
+                                    ("rest", None, False, ((t_rest, np.inf),)),
+                                    ("rest_smoothed", None, True, ((t_rest, np.inf),)),
+                                    ("rest_early", None, False, ((t_rest - 10.0, np.inf),))):
+        r = estimate(run, init, EstimateOptions(sigma_m=sm, smooth=smooth, rest_segments_s=segs))
         sel = (r.time_s >= rest["start_s"] - 1e-9) & (r.time_s <= rest["end_s"] + 1e-9)
-        ang = np.degrees(q[sel, 5] + q[sel, 9])
+        ang = np.degrees(r.x[sel, :9] @ c)
+        sig = np.degrees(np.sqrt(np.einsum("i,nij,j->n", c, r.P[sel][:, :9, :9], c)))
         out[f"{label}_mean"] = float(ang.mean())
         out[f"{label}_std"] = float(ang.std())
+        out[f"{label}_within_3sigma"] = float(np.mean(np.abs(ang + 1.4) < 3 * sig))
         out[f"{label}_events"] = len(r.events)
+        out[f"{label}_broken"] = sum(e["kind"] == "rest segment broken" for e in r.events)
     return out
 
 
@@ -342,10 +351,23 @@ def main() -> None:
         summary_row("std q6+q10 (deg), filter σ 2 mm", col(st, "2mm_std"), ".4f"),
         summary_row("mean q6+q10 (deg), smoothed (--smooth), σ 2 cm", col(st, "smoothed_mean"), ".4f"),
         summary_row("std q6+q10 (deg), smoothed (--smooth), σ 2 cm", col(st, "smoothed_std"), ".4f"),
+        summary_row("**static mode** (--rest 80:) mean q6+q10 (deg), forward filter", col(st, "rest_mean"), ".4f"),
+        summary_row("**static mode** std q6+q10 (deg), forward filter", col(st, "rest_std"), ".4f"),
+        summary_row("static mode: share of epochs with |error| < 3σ (filter's own σ)", col(st, "rest_within_3sigma"), ".3f"),
+        summary_row("static mode + --smooth: mean q6+q10 (deg)", col(st, "rest_smoothed_mean"), ".4f"),
+        summary_row("static mode + --smooth: std q6+q10 (deg)", col(st, "rest_smoothed_std"), ".4f"),
+        summary_row("rest declared 10 s early (--rest 70:): std q6+q10 (deg), forward", col(st, "rest_early_std"), ".4f"),
+        summary_row("rest declared 10 s early: 'rest segment broken' events", [float(v) for v in col(st, "rest_early_broken")], ".0f"),
     ]))
     md.append(f"\nPaper: mean −1.48° (survey −1.4°, within 0.1°), noise < 0.02° rms. The mean is met (errors "
-              f"of a few thousandths of a degree); the noise figure is **not** reached with "
-              f"`configs/testbed-1998.toml`, and the filter does what its model predicts: the steady-state "
+              f"of a few thousandths of a degree) in every mode. **In static mode** (`--rest 80:`: zero-velocity "
+              f"update entering the rest segment, process noise × 0.05² inside it) the forward filter's noise is "
+              f"{np.mean(col(st, 'rest_std')):.4f}° on average (max {np.max(col(st, 'rest_std')):.4f}°, "
+              f"{sum(v < 0.02 for v in col(st, 'rest_std'))} of {len(st)} seeds below 0.02°), with errors inside "
+              f"the filter's own 3σ in {100 * np.mean(col(st, 'rest_within_3sigma')):.1f} % of epochs; a rest "
+              f"declared 10 s too early (during settling) is broken by the data and retried, and ends at "
+              f"{np.mean(col(st, 'rest_early_std')):.4f}°. The kinematic filter (no `--rest`) does not reach the "
+              f"figure with `configs/testbed-1998.toml`, and does what its model predicts: the steady-state "
               f"std of q6+q10 predicted from the filter's own gain (DARE) with a structure at rest and 2 mm "
               f"white noise is {p20:.4f}° with σ = 2 cm and {p2:.4f}° with σ = 2 mm, and a single-epoch least "
               f"squares from the 36 measurements gives {single_epoch_ls_csv_std(0.002):.4f}° — the config's "

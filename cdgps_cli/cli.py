@@ -253,6 +253,15 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
 @click.option("--process-noise-scale", type=float, default=1.0, show_default=True,
               help="Multiplies the config's process-noise standard deviations (Q x scale^2): below 1 for a "
                    "structure at rest or only lightly disturbed (static survey), above 1 for stronger excitation.")
+@click.option("--rest", "rest", multiple=True, metavar="START:END",
+              help="Static mode: the structure is declared at rest from START to END seconds (END may be left "
+                   "out: to the end of the log); there the process noise is further multiplied by "
+                   "--rest-process-noise-scale, so the filter averages instead of following. Repeatable.")
+@click.option("--rest-process-noise-scale", type=float, default=0.05, show_default=True,
+              help="Process-noise standard-deviation factor inside --rest segments.")
+@click.option("--rest-retry-s", type=float, default=5.0, show_default=True,
+              help="When the data show motion inside a --rest segment, the filter leaves static mode and tries "
+                   "it again this many seconds later (0: not again in that segment).")
 @click.option("--structure", "structure", default=None, type=click.Path(dir_okay=False),
               help="GNSS runs: a structure config (docs/config-format.md) whose modal model is estimated from the "
                    "double differences instead of the rover displacements (docs/gnss-pipeline.md).")
@@ -264,7 +273,8 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
 def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability, outlier_sigma, process_noise_scale,
-             output, as_json, structure=None, x_axis_azimuth_deg=90.0, receiver_map=()):
+             output, as_json, rest=(), rest_process_noise_scale=0.05, rest_retry_s=5.0, structure=None, x_axis_azimuth_deg=90.0,
+             receiver_map=()):
     """Extended Kalman filter (Eq. 16-23) [+ RTS smoother] over a RUN from INIT → STATES.mcap.
 
     On a GNSS run: per-epoch rover displacement states <ant>_e/_n/_u with 1σ from INIT's
@@ -277,13 +287,16 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
         _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json,
                        structure_only={"--biases": biases != "fixed", "--sigma-m": sigma_m is not None,
                                        "--nis-probability": nis_probability != 0.999, "--outlier-sigma": outlier_sigma != 6.0,
-                                       "--process-noise-scale": process_noise_scale != 1.0},
+                                       "--process-noise-scale": process_noise_scale != 1.0,
+                                       "--rest": bool(rest),
+                                       "--rest-process-noise-scale": rest_process_noise_scale != 0.05,
+                                       "--rest-retry-s": rest_retry_s != 5.0},
                        structure=structure, x_axis_azimuth_deg=x_axis_azimuth_deg, receiver_map=receiver_map)
         return
     if structure is not None or receiver_map:
         raise CdgpsError("--structure/--receiver apply to GNSS runs (from 'cdgps ingest --rinex/--ubx'); a structure "
                          "run already has its config")
-    from .ekf import EstimateOptions, estimate as run_ekf
+    from .ekf import EstimateOptions, estimate as run_ekf, validate_rest_segments
     from .run import read_run
     from .states import write_states
 
@@ -300,9 +313,13 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
         raise CdgpsError(f"{init_json}, line {exc.lineno}: not valid JSON: {exc.msg}") from None
     if not isinstance(init, dict):
         raise CdgpsError(f"{init_json}: expected a JSON object from 'cdgps init'")
+    rest_segments = tuple(_parse_rest(r) for r in rest)
+    validate_rest_segments(rest_segments, rest_process_noise_scale, rest_retry_s)
     run = read_run(run_mcap)
     opt = EstimateOptions(biases=biases, smooth=smooth, sigma_m=sigma_m, nis_probability=nis_probability,
                           outlier_sigma=outlier_sigma, process_noise_scale=process_noise_scale,
+                          rest_segments_s=rest_segments, rest_process_noise_scale=rest_process_noise_scale,
+                          rest_retry_s=rest_retry_s,
                           keep_filtered_covariance="modal",
                           progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
     _say(ctx, f"estimating {run_mcap} from {init_json} (biases {biases}{', smoothing' if smooth else ''}) …")
@@ -318,6 +335,19 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
         _say(ctx, f"  … {len(s['event_list']) - 20} more events (topic /cdgps/events)")
     if as_json:
         _emit_json(s)
+
+
+def _parse_rest(text: str) -> tuple[float, float]:
+    """'START:END' (seconds; END may be empty: to the end of the log) → (start_s, end_s)."""
+    a, sep, b = text.partition(":")
+    try:
+        if not sep:
+            raise ValueError
+        start = float(a)
+        end = float(b) if b.strip() else float("inf")
+    except ValueError:
+        raise CdgpsError(f"--rest {text!r}: expected START:END in seconds, e.g. 80:140 or 80:") from None
+    return start, end
 
 
 @main.command()

@@ -58,10 +58,16 @@ class EstimateOptions:
     restart_sigma_cycles: float = 10.0  # biases="states": variance inflation at a lock restart
     keep_filtered_covariance: str = "full"  # with smooth: "full" (n×n) or "modal" (the n_m×n_m block the outputs use)
     process_noise_scale: float = 1.0   # multiplies the config's process-noise sigma (Q × scale²), filter and smoother
+    rest_segments_s: tuple = ()        # ((start_s, end_s), …): the structure is declared at rest (static mode)
+    rest_process_noise_scale: float = 0.05  # … and there the process-noise sigma is further multiplied by this
+    rest_retry_s: float = 5.0          # after the data contradict a rest segment, try rest again this much later (0: never)
     progress: object = None
 
     def echo(self) -> dict:
-        return {k: v for k, v in self.__dict__.items() if k != "progress"}
+        d = {k: v for k, v in self.__dict__.items() if k != "progress"}
+        # JSON has no infinity: an open-ended rest segment is echoed with end null
+        d["rest_segments_s"] = [[float(a), None if np.isinf(float(b)) else float(b)] for a, b in self.rest_segments_s]
+        return d
 
 
 @dataclass
@@ -181,6 +187,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     if (isinstance(pns, bool) or not isinstance(pns, (int, float, np.integer, np.floating))
             or not (np.isfinite(pns) and pns > 0)):
         raise CdgpsError(f"--process-noise-scale must be a positive number, got {pns!r}")
+    rest = validate_rest_segments(opt.rest_segments_s, opt.rest_process_noise_scale, opt.rest_retry_s)
     cfg = run.cfg
     t0, x0, P0, init_bias = load_init_state(init, cfg)
     sigma = opt.sigma_m if opt.sigma_m is not None else float(init.get("sigma_m") or cfg.measurement_sigma_m)
@@ -239,6 +246,16 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     Qd[:n, :n] = model.Q * float(pns) ** 2
     if use_bias_states:
         Qd[n:, n:] = np.eye(C) * opt.bias_process_sigma_m**2
+    # static mode: the prediction into epoch k inside a declared rest segment uses Q_rest
+    Qd_rest = Qd.copy()
+    Qd_rest[:n, :n] *= float(opt.rest_process_noise_scale) ** 2
+    at_rest = rest_mask(grid, rest)
+    q_bounds = np.flatnonzero(np.diff(at_rest.astype(np.int8))) + 1     # epochs where the Q in use changes
+    rest_stretch_end = -1                  # end (exclusive) of the rest stretch being run
+    rest_fail = 0                          # consecutive NIS failures inside a rest stretch
+    # entering a rest stretch the modal velocities are observed as zero (a zero-velocity update, as in
+    # inertial navigation), with the sigma of one step of the rest process noise on each velocity
+    zupt_var = np.maximum(np.diag(Qd_rest)[nm:n], 1e-30)
     Bu = np.zeros((p, model.B.shape[1]))
     Bu[:n] = model.B
 
@@ -301,9 +318,17 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
 
     k = 0
     while k < N:
-        if kern is not None:
+        # the first epoch of a rest stretch (and the first after one) runs below, in Python
+        edge = (at_rest[k] and k >= rest_stretch_end) or (k > 0 and at_rest[k - 1] and not at_rest[k])
+        if kern is not None and not edge:
             k0 = k
-            k, fail_run, x, P = kern.run(k0, x, P, bias, rebias, fail_run, k_reinit_block)
+            kern.Q = ekf_kernel._f64(Qd_rest if at_rest[k] else Qd)
+            kern.reinit_after = 1 if at_rest[k] else opt.reinit_after_epochs   # rest: hand back any NIS failure
+            nxt = q_bounds[q_bounds > k]
+            k, fail_run, x, P = kern.run(k0, x, P, bias, rebias, 0 if at_rest[k] else fail_run,
+                                         -1 if at_rest[k] else k_reinit_block, int(nxt[0]) if nxt.size else None)
+            if k > k0:
+                rest_fail = 0                   # the kernel's epochs passed the NIS test
             if N >= 3000:
                 for j in range(-(-k0 // report_every) * report_every, k, report_every):
                     say(f"  filter {100 * j / N:3.0f}%")
@@ -311,7 +336,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                 break
         if k > 0:
             x = A @ x + Bu @ U_in[k - 1]
-            P = A @ P @ A.T + Qd
+            P = A @ P @ A.T + (Qd_rest if at_rest[k] else Qd)
         y = Y[k]
         present = ~np.isnan(y)
         # lock restarts (slips, re-acquisitions) and first sightings (precomputed, rare)
@@ -324,6 +349,48 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                     new_states.append(c)
             else:
                 drop_bias(k, c, "lock restart" if EVENT[k, c] == 2 else "re-acquisition")
+        if at_rest[k]:
+            k_end = k + (int(np.argmin(at_rest[k:])) if not at_rest[k:].all() else N - k)   # stretch end (excl.)
+            if k >= rest_stretch_end:          # entering a stretch (also after a re-initialization inside it)
+                rest_stretch_end = k_end
+                # the kinematic prior, kept in case the structure turns out not to be at rest
+                x_kin, P_kin = x.copy(), (P.copy() if k == 0 else A @ Ps[k - 1] @ A.T + Qd)
+                x, P = zero_velocity_update(x, P, nm, zupt_var)
+                log(k, None, "rest segment", "modal velocities set to zero (zero-velocity update); process noise "
+                    f"× {opt.rest_process_noise_scale:g}² until {grid[k_end - 1]:g} s")
+            else:
+                x_kin = x.copy()
+            why, nis_failed = rest_motion(x, P, hmodel, y=Y[k], bias=bias, usable=present & ~np.isnan(bias), n=n,
+                                          use_bias_states=use_bias_states, sigma=sigma,
+                                          outlier_sigma=opt.outlier_sigma,
+                                          bound=lambda m: chi2.ppf(opt.nis_probability, m))
+            rest_fail = rest_fail + 1 if nis_failed else 0
+            if nis_failed and rest_fail < REST_NIS_FAILURES:
+                why = ""                        # one NIS failure can be chance (1 − nis_probability)
+            elif nis_failed:
+                why += f" ({REST_NIS_FAILURES} epochs in a row)"
+            if why:
+                rest_fail = 0
+                # the data say the structure moves: leave static mode for the rest of this stretch,
+                # from the kinematic prior covariance of the stretch's entry
+                k_back = k_end if opt.rest_retry_s <= 0 else min(k + max(int(round(opt.rest_retry_s / T)), 1), k_end)
+                at_rest[k:k_back] = False                  # retried after rest_retry_s, within the segment
+                rest_stretch_end = -1
+                q_bounds = np.flatnonzero(np.diff(at_rest.astype(np.int8))) + 1
+                x = x_kin
+                if k == 0:
+                    P = P_kin.copy()
+                else:
+                    # the kinematic prediction, its variances raised to the entry's kinematic prior; the
+                    # raise is recorded as extra process noise so that the smoother stays exact
+                    P = A @ Ps[k - 1] @ A.T + Qd
+                    d = np.maximum(np.diag(P_kin) - np.diag(P), 0.0)
+                    P[np.diag_indices_from(P)] += d
+                    extra_q.setdefault(k, []).extend((int(i), float(d[i])) for i in np.flatnonzero(d))
+                log(k, None, "rest segment broken", f"{why}: the structure moves; kinematic process noise"
+                    + (f", rest tried again at {grid[k_back]:g} s" if k_back < k_end else " to the segment's end"))
+        elif k > 0 and at_rest[k - 1]:
+            log(k, None, "rest segment end", "process noise back to the kinematic model")
         xq = x[:n]
         h, Hx = hmodel(xq)
         for c in new_states:
@@ -465,11 +532,113 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
         res.x_filt = res.x.copy()
         res.P_filt = res.P.copy() if opt.keep_filtered_covariance == "full" else res.P[:, :nm, :nm].copy()
         res.P = None
-        rts_smooth(A, Qd, Bu, U_in, xs, Ps, extra_q, no_link, in_place=True)
+        rts_smooth(A, Qd, Bu, U_in, xs, Ps, extra_q, no_link, in_place=True,
+                   q_segments=_q_segments(at_rest, Qd, Qd_rest))
         res.x = xs[:, :n] if p == n else xs[:, :n].copy()
         res.P = Ps if p == n else Ps[:, :n, :n].copy()
         res.smoothed = True
     return res
+
+
+def validate_rest_segments(segments, scale, retry_s=0.0) -> list[tuple[float, float]]:
+    """Check ``rest_segments_s``, ``rest_process_noise_scale`` and ``rest_retry_s``; returns the
+    segments as floats.
+
+    Raises CdgpsError naming every bad segment (not finite, or end before start)."""
+    if (isinstance(scale, bool) or not isinstance(scale, (int, float, np.integer, np.floating))
+            or not (np.isfinite(scale) and scale > 0)):
+        raise CdgpsError(f"--rest-process-noise-scale must be a positive number, got {scale!r}")
+    if (isinstance(retry_s, bool) or not isinstance(retry_s, (int, float, np.integer, np.floating))
+            or not (np.isfinite(retry_s) and retry_s >= 0)):
+        raise CdgpsError(f"--rest-retry-s must be a number of seconds >= 0, got {retry_s!r}")
+    out, bad = [], []
+    for seg in segments or ():
+        try:
+            a, b = (float(v) for v in seg)
+        except (TypeError, ValueError):
+            bad.append(f"{seg!r} (expected START:END in seconds)")
+            continue
+        if np.isnan(a) or np.isnan(b) or a == np.inf or b == -np.inf:
+            bad.append(f"{seg!r} (not a finite interval)")
+        elif b <= a:
+            bad.append(f"{a:g}:{b:g} (END must be after START)")
+        else:
+            out.append((a, b))
+    if bad:
+        raise CdgpsError("--rest: " + "; ".join(bad))
+    return out
+
+
+def zero_velocity_update(x: np.ndarray, P: np.ndarray, nm: int, var: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Kalman update with the pseudo-measurement "modal velocities = 0" (variances ``var``, (nm,)).
+
+    x (p,), P (p, p) with the modal velocities at x[nm:2nm]; Joseph form, so P stays symmetric
+    positive definite.  Returns the updated (x, P) (new arrays)."""
+    v = slice(nm, 2 * nm)
+    S = P[v, v] + np.diag(var)
+    K = cho_solve(cho_factor(S, check_finite=False), P[v, :], check_finite=False).T     # (p, nm)
+    x = x - K @ x[v]
+    IKH = np.eye(len(x))
+    IKH[:, v] -= K
+    P = IKH @ P @ IKH.T + (K * var) @ K.T
+    return x, 0.5 * (P + P.T)
+
+
+REST_NIS_FAILURES = 3                      # NIS failures in a row that break a rest segment
+
+
+def rest_motion(x, P, hmodel, y, bias, usable, n, use_bias_states, sigma, outlier_sigma, bound) -> tuple[str, bool]:
+    """Does an epoch's data contradict "the structure is at rest"?  Returns (reason, nis_failed).
+
+    The reason is non-empty when two or more channels fail the innovation outlier test (one alone
+    is a slip, handled as such); ``nis_failed`` when the normalized innovation squared of the other
+    channels exceeds ``bound(m)`` (the caller breaks the segment after several in a row)."""
+    idx = np.flatnonzero(usable)
+    if idx.size == 0:
+        return "", False
+    h, Hx = hmodel(x[:n])
+    p = len(x)
+    H = np.zeros((idx.size, p))
+    H[:, :n] = Hx[idx]
+    if use_bias_states:
+        H[np.arange(idx.size), n + idx] = 1.0
+        b = x[n + idx]
+    else:
+        b = bias[idx]
+    rho = y[idx] - h[idx] - b
+    S = H @ P @ H.T + sigma**2 * np.eye(idx.size)
+    z = rho / np.sqrt(np.diag(S))
+    out = np.abs(z) > outlier_sigma
+    if out.sum() >= 2:
+        return f"{int(out.sum())} channels beyond {outlier_sigma:g} sigma", False
+    keep = ~out
+    if keep.sum() == 0:
+        return "", False
+    Sk = S[np.ix_(keep, keep)]
+    nis = float(rho[keep] @ cho_solve(cho_factor(Sk, check_finite=False), rho[keep], check_finite=False))
+    if nis > bound(int(keep.sum())):
+        return f"NIS {nis:.1f} over {int(keep.sum())} channels", True
+    return "", False
+
+
+def rest_mask(time_s: np.ndarray, segments) -> np.ndarray:
+    """(N,) bool: epoch inside any rest segment [start_s, end_s] (both ends included, 1 ns tolerance)."""
+    m = np.zeros(len(time_s), dtype=bool)
+    for a, b in segments:
+        m |= (time_s >= a - 1e-9) & (time_s <= b + 1e-9)
+    return m
+
+
+def _q_segments(at_rest: np.ndarray, Q: np.ndarray, Q_rest: np.ndarray) -> list[tuple[int, int, np.ndarray]]:
+    """Smoother transitions k → k+1 grouped by the process noise of the prediction into k+1:
+    [(k_lo, k_hi, Q)] covering k_lo ≤ k < k_hi, in time order."""
+    N = len(at_rest)
+    if N < 2:
+        return []
+    into = at_rest[1:]                     # transition k → k+1 uses the Q of epoch k+1
+    cuts = np.flatnonzero(np.diff(into.astype(np.int8))) + 1
+    edges = np.r_[0, cuts, N - 1]
+    return [(int(a), int(b), Q_rest if into[a] else Q) for a, b in zip(edges[:-1], edges[1:])]
 
 
 def lock_events(Y: np.ndarray, LOCK: np.ndarray) -> np.ndarray:
@@ -492,25 +661,46 @@ def lock_events(Y: np.ndarray, LOCK: np.ndarray) -> np.ndarray:
     return ev
 
 
-def rts_smooth(A, Q, B, U_in, xf, Pf, extra_q=None, no_link=None, in_place=False):
+def rts_smooth(A, Q, B, U_in, xf, Pf, extra_q=None, no_link=None, in_place=False, q_segments=None):
     """Rauch–Tung–Striebel smoother over filtered states (N, p) and covariances (N, p, p).
 
     The priors are recomputed from the filtered values (x̄ = A x + B u, P̄ = A P Aᵀ + Q_k) so that
     only the filtered arrays are stored; ``extra_q`` {epoch: [(index, variance)]} adds the
     variance inflations the filter applied at that epoch; ``no_link[k]`` leaves epoch k as it is
-    (re-initialization boundaries and batch-filled epochs).  Returns smoothed states and covariances;
-    with ``in_place`` they overwrite ``xf`` and ``Pf`` (epoch k is read before it is replaced, and
-    epoch k+1 is already smoothed when k is processed, so this is exact and saves two copies).
+    (re-initialization boundaries and batch-filled epochs).  ``q_segments`` [(k_lo, k_hi, Q_seg)]
+    replaces Q by Q_seg for the transitions k → k+1 with k_lo ≤ k < k_hi (a process noise that changes
+    over the record, e.g. rest segments); by default Q throughout.  Returns smoothed states and
+    covariances; with ``in_place`` they overwrite ``xf`` and ``Pf`` (epoch k is read before it is
+    replaced, and epoch k+1 is already smoothed when k is processed, so this is exact and saves two
+    copies).
     """
     extra_q = extra_q or {}
     N = xf.shape[0]
     xs = xf if in_place else xf.copy()
     Ps = Pf if in_place else Pf.copy()
+    if q_segments and not (len(q_segments) == 1 and q_segments[0][2] is Q):
+        # piecewise-constant Q: one pass per stretch, latest first; each stretch ends on an epoch the
+        # later pass has already smoothed, which is exactly what the recursion reads as "k+1"
+        for k_lo, k_hi, Qs in sorted(q_segments, reverse=True, key=lambda t: t[0]):
+            if k_hi <= k_lo:
+                continue
+            sub_q = {k - k_lo: v for k, v in extra_q.items() if k_lo < k <= k_hi}
+            sub_nl = None if no_link is None else np.asarray(no_link)[k_lo:k_hi + 1]
+            _rts_pass(A, Qs, B, U_in[k_lo:k_hi + 1], xs[k_lo:k_hi + 1], Ps[k_lo:k_hi + 1], sub_q, sub_nl)
+        return xs, Ps
+    _rts_pass(A, Q, B, U_in, xs, Ps, extra_q, no_link)
+    return xs, Ps
+
+
+def _rts_pass(A, Q, B, U_in, xs, Ps, extra_q, no_link) -> None:
+    """One RTS pass with a constant Q, in place on (xs, Ps) = filtered values (N, p), (N, p, p)."""
+    N = xs.shape[0]
+    xf, Pf = xs, Ps
     if (ekf_kernel.available() and xs.dtype == np.float64 and Ps.dtype == np.float64
             and xs.flags.c_contiguous and Ps.flags.c_contiguous and xs.flags.writeable and Ps.flags.writeable):
         # compiled pass on xs, Ps (= xf, Pf or their copies): epoch k is read before it is replaced
         ekf_kernel.rts(A, Q, B, U_in, xs, Ps, xs, Ps, extra_q, no_link)
-        return xs, Ps
+        return
     for k in range(N - 2, -1, -1):
         if no_link is not None and no_link[k]:
             continue                      # a re-initialization boundary or batch-filled epoch
@@ -523,7 +713,6 @@ def rts_smooth(A, Q, B, U_in, xf, Pf, extra_q=None, no_link=None, in_place=False
         xs[k] = xf[k] + G @ (xs[k + 1] - xp)
         Pk = Pf[k] + G @ (Ps[k + 1] - Pp) @ G.T
         Ps[k] = 0.5 * (Pk + Pk.T)
-    return xs, Ps
 
 
 def _reinitialize(run, grid, k, opt, sigma, chans, bias, line, x, P, n, use_bias_states, log):

@@ -14,7 +14,8 @@ echo "-- 1. static sensor test on the bundled testbed run (data/testbed-static: 
     --config configs/testbed-1998.toml -o "$OUT/static/run.mcap"
 "$CDGPS" info "$OUT/static/run.mcap"
 "$CDGPS" init "$OUT/static/run.mcap" -o "$OUT/static/init.json"
-"$CDGPS" estimate "$OUT/static/run.mcap" --init "$OUT/static/init.json" --smooth -o "$OUT/static/states.mcap"
+# the structure was brought to rest at 80 s: static mode from there (--rest 80:), smoothed
+"$CDGPS" estimate "$OUT/static/run.mcap" --init "$OUT/static/init.json" --rest 80: --smooth -o "$OUT/static/states.mcap"
 "$CDGPS" evaluate --truth data/testbed-static --estimate "$OUT/static/states.mcap"
 "$CDGPS" report static "$OUT/static/states.mcap" --gyro "$OUT/static/run.mcap" --angle "q6+q10" \
     --survey-deg -1.4 -o "$OUT/static/report"

@@ -537,10 +537,10 @@ def test_static_angle_mean_and_noise(tb, static_run, sigma_m):
 
 
 @pytest.mark.xfail(strict=True, reason=(
-    "paper figure (< 0.02° rms at 2 mm noise) not reachable with configs/testbed-1998.toml: its "
-    "pseudolite geometry gives a single-epoch least-squares std of 0.052° for q6+q10 and the 0.5 "
-    "modal process noise keeps the filter close to single-epoch (steady state 0.032° with σ=2 cm, "
-    "0.046° with σ=2 mm); a configuration/tuning limit, not a code defect"))
+    "the kinematic filter (no --rest) does not reach the paper's < 0.02° rms at 2 mm noise with "
+    "configs/testbed-1998.toml: its pseudolite geometry gives a single-epoch least-squares std of "
+    "0.052° for q6+q10 and the 0.5 modal process noise keeps the filter close to single-epoch (steady "
+    "state 0.032° with σ=2 cm, 0.046° with σ=2 mm); static mode (--rest, tests/test_ekf_rest.py) does"))
 def test_static_angle_noise_paper_figure(tb, static_run):
     res = estimate(static_run["run"], static_run["init"], EstimateOptions())
     assert _csv_angle_stats(tb, res, static_run["rest"])[1] < 0.02

@@ -37,8 +37,9 @@ STATIC_KEYS = {"mean_deg", "survey_deg", "error_deg", "noise_rms_deg", "drift_de
 MODE_KEYS = {"mode", "model_hz", "gps_hz", "gyro_hz", "error_pct", "damping", "seen"}
 
 
-def pipeline(d: Path, sim_opt: SimOptions) -> dict:
-    """The whole chain through the library, files as the CLI writes them."""
+def pipeline(d: Path, sim_opt: SimOptions, rest_from_truth: bool = False) -> dict:
+    """The whole chain through the library, files as the CLI writes them; ``rest_from_truth``:
+    estimate in static mode from the rest time the experimenter knows (``--rest START:``)."""
     cfg = load_config(TESTBED)
     sim = simulate(cfg, sim_opt)
     write_simulation(sim, d / "sim")
@@ -48,7 +49,8 @@ def pipeline(d: Path, sim_opt: SimOptions) -> dict:
     init.pop("elapsed_s", None)
     text = json.dumps(init, indent=2) + "\n"
     (d / "init.json").write_text(text)
-    opt = EstimateOptions(smooth=True)
+    rest = [(s["start_s"], float("inf")) for s in sim.truth["segments"] if s["kind"] == "rest"] if rest_from_truth else []
+    opt = EstimateOptions(smooth=True, rest_segments_s=tuple(rest))
     res = estimate(run, json.loads(text), opt)
     write_states(res, d / "run.mcap", json.loads(text), text, d / "states.mcap", opt.echo())
     return {"dir": d, "truth": sim.truth, "states": d / "states.mcap", "run": d / "run.mcap"}
@@ -56,9 +58,10 @@ def pipeline(d: Path, sim_opt: SimOptions) -> dict:
 
 @pytest.fixture(scope="module")
 def static_run(tmp_path_factory):
-    """200 s static scenario (1 min motion, 20 s settling, rest at q10 = −1.4°), 2 mm phase noise."""
+    """200 s static scenario (1 min motion, 20 s settling, rest at q10 = −1.4°), 2 mm phase noise,
+    estimated in static mode from the rest start (as the demo does)."""
     return pipeline(tmp_path_factory.mktemp("static"),
-                    SimOptions(duration_s=200, seed=2, scenario="static", phase_sigma_m=0.002))
+                    SimOptions(duration_s=200, seed=2, scenario="static", phase_sigma_m=0.002), rest_from_truth=True)
 
 
 @pytest.fixture(scope="module")

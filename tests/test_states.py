@@ -292,6 +292,11 @@ BAD_ESTIMATE = {
     "run not mcap": ("run:text", "not a valid MCAP"),
     "nis probability 2": ("opt:--nis-probability=2", "--nis-probability must be in (0.5, 1)"),
     "outlier sigma 0": ("opt:--outlier-sigma=0", "--outlier-sigma must be positive"),
+    "rest not an interval": ("opt:--rest=abc", "--rest 'abc': expected START:END"),
+    "rest end before start": ("opt:--rest=90:80", "END must be after START"),
+    "rest nan": ("opt:--rest=nan:90", "not a finite interval"),
+    "rest scale negative": ("opt:--rest-process-noise-scale=-1", "--rest-process-noise-scale must be a positive"),
+    "rest retry nan": ("opt:--rest-retry-s=nan", "--rest-retry-s must be a number of seconds"),
 }
 
 
