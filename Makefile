@@ -36,6 +36,7 @@ studies: venv
 	$(PY) benchmarks/init_success.py
 	$(PY) benchmarks/estimate_accuracy.py
 	$(PY) benchmarks/oma_crosscheck.py
+	$(PY) benchmarks/record_length.py
 
 clean:
 	rm -rf build $(VENV)
