@@ -283,12 +283,20 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--first-seed", type=int, default=1)
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "estimate-accuracy.md")
+    ap.add_argument("--static-seeds", type=int, default=30,
+                    help="extra seeds (after the others) for the static-mode distribution (0: none)")
     a = ap.parse_args()
     seeds = list(range(a.first_seed, a.first_seed + a.seeds))
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as d:
         tbr = [testbed_seed(s, Path(d)) for s in seeds]
     st = [static_seed(s) for s in seeds]
+    st_extra, st_refused = [], []
+    for s_ in range(seeds[-1] + 1, seeds[-1] + 1 + a.static_seeds):
+        try:
+            st_extra.append(static_seed(s_))
+        except Exception as exc:  # noqa: BLE001 - an INIT refusal is reported, not a crash
+            st_refused.append((s_, str(exc).split(":")[0]))
     d2 = [dof2_seed(s) for s in seeds]
     elapsed = time.perf_counter() - t0
     hdr = ["figure", *[f"seed {s}" for s in seeds], "mean", "min", "max"]
@@ -361,10 +369,11 @@ def main() -> None:
     ]))
     md.append(f"\nPaper: mean −1.48° (survey −1.4°, within 0.1°), noise < 0.02° rms. The mean is met (errors "
               f"of a few thousandths of a degree) in every mode. **In static mode** (`--rest 80:`: zero-velocity "
-              f"update entering the rest segment, process noise × 0.05² inside it) the forward filter's noise is "
+              f"update and position-variance raise entering the rest segment, process noise × 0.05² inside it) the forward filter's noise is "
               f"{np.mean(col(st, 'rest_std')):.4f}° on average (max {np.max(col(st, 'rest_std')):.4f}°, "
               f"{sum(v < 0.02 for v in col(st, 'rest_std'))} of {len(st)} seeds below 0.02°), with errors inside "
-              f"the filter's own 3σ in {100 * np.mean(col(st, 'rest_within_3sigma')):.1f} % of epochs; a rest "
+              f"the filter's own 3σ in {100 * np.mean(col(st, 'rest_within_3sigma')):.1f} % of epochs (its σ is "
+              f"conservative here: it weights the data at INIT's 2 cm, the data have 2 mm); a rest "
               f"declared 10 s too early (during settling) is refused or broken by the data and retried, and ends at "
               f"{np.mean(col(st, 'rest_early_std')):.4f}°. The kinematic filter (no `--rest`) does not reach the "
               f"figure with `configs/testbed-1998.toml`, and does what its model predicts: the steady-state "
@@ -380,6 +389,24 @@ def main() -> None:
               f"process noise for the whole run (`--process-noise-scale`) does not help here: the filter then cannot "
               f"follow the settling motion before the rest segment and rings (tried 0.1–0.2 with σ 2 cm, "
               f"0.01–0.05 with σ 2 mm).\n")
+
+    if a.static_seeds:
+        ex = seeds[-1] + 1
+        md.append(f"### Static mode over {a.static_seeds} more seeds ({ex}–{ex + a.static_seeds - 1})\n")
+        md.append("| figure | runs | mean | max | runs below 0.02° |\n|---|---|---|---|---|")
+        for label, key in (("kinematic forward filter", "default_std"), ("kinematic + --smooth", "smoothed_std"),
+                           ("static mode (--rest 80:), forward", "rest_std"),
+                           ("static mode + --smooth", "rest_smoothed_std"),
+                           ("rest declared 10 s early (--rest 70:), forward", "rest_early_std")):
+            v = np.array(col(st_extra, key))
+            md.append(f"| std q6+q10 (deg), {label} | {v.size} | {v.mean():.4f} | {v.max():.4f} | {int((v < 0.02).sum())} |")
+        md.append("\nMean q6+q10 error, static mode: max |mean + 1.4°| = "
+                  f"{np.max(np.abs(np.array(col(st_extra, 'rest_mean')) + 1.4)):.4f}°. "
+                  + (f"INIT refused (biases not observable: too little motion in 0–60 s) on seed(s) "
+                     f"{', '.join(str(s_) for s_, _ in st_refused)}. " if st_refused else "")
+                  + "A declaration made 10 s early is mostly refused until the estimated modal velocities pass "
+                  "their test; on the slowest settling runs the velocities pass while a slow creep remains "
+                  "(below the filter's 2 cm sigma), hence the larger maxima in that row.\n")
 
     md.append(f"## Cycle slip {SLIP} (after the INIT window)\n")
     md.append(table(hdr, [

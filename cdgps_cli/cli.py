@@ -259,7 +259,7 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
                    "--rest-process-noise-scale, so the filter averages instead of following. Repeatable.")
 @click.option("--rest-process-noise-scale", type=float, default=0.05, show_default=True,
               help="Process-noise standard-deviation factor inside --rest segments.")
-@click.option("--rest-retry-s", type=float, default=5.0, show_default=True,
+@click.option("--rest-retry-s", type=float, default=1.0, show_default=True,
               help="When the data show motion inside a --rest segment, the filter leaves static mode and tries "
                    "it again this many seconds later (0: not again in that segment).")
 @click.option("--structure", "structure", default=None, type=click.Path(dir_okay=False),
@@ -273,7 +273,7 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
 def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability, outlier_sigma, process_noise_scale,
-             output, as_json, rest=(), rest_process_noise_scale=0.05, rest_retry_s=5.0, structure=None, x_axis_azimuth_deg=90.0,
+             output, as_json, rest=(), rest_process_noise_scale=0.05, rest_retry_s=1.0, structure=None, x_axis_azimuth_deg=90.0,
              receiver_map=()):
     """Extended Kalman filter (Eq. 16-23) [+ RTS smoother] over a RUN from INIT → STATES.mcap.
 
@@ -290,7 +290,7 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
                                        "--process-noise-scale": process_noise_scale != 1.0,
                                        "--rest": bool(rest),
                                        "--rest-process-noise-scale": rest_process_noise_scale != 0.05,
-                                       "--rest-retry-s": rest_retry_s != 5.0},
+                                       "--rest-retry-s": rest_retry_s != 1.0},
                        structure=structure, x_axis_azimuth_deg=x_axis_azimuth_deg, receiver_map=receiver_map)
         return
     if structure is not None or receiver_map:

@@ -60,7 +60,7 @@ class EstimateOptions:
     process_noise_scale: float = 1.0   # multiplies the config's process-noise sigma (Q × scale²), filter and smoother
     rest_segments_s: tuple = ()        # ((start_s, end_s), …): the structure is declared at rest (static mode)
     rest_process_noise_scale: float = 0.05  # … and there the process-noise sigma is further multiplied by this
-    rest_retry_s: float = 5.0          # after the data contradict a rest segment, try rest again this much later (0: never)
+    rest_retry_s: float = 1.0          # after the data contradict a rest segment, try rest again this much later (0: never)
     progress: object = None
 
     def echo(self) -> dict:
@@ -89,6 +89,11 @@ class EstimateResult:
 
 
 _MASKS: dict = {}
+
+# Test hook: when a dict, ``estimate`` records in it the prior covariance of every numpy-path
+# measurement update ("prior": {k: P̄}), the epochs with a zero-velocity update ("zupt"), and the
+# smoother's inputs (A, Q, Q_rest, at_rest, extra_q, no_link, filtered P).  None in normal use.
+_TRACE: dict | None = None
 
 
 def _chol_inv(M: np.ndarray) -> np.ndarray:
@@ -250,9 +255,9 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     Qd_rest = Qd.copy()
     Qd_rest[:n, :n] *= float(opt.rest_process_noise_scale) ** 2
     at_rest = rest_mask(grid, rest)
+    rest_outside = [(a, b) for a, b in rest if not rest_mask(grid, [(a, b)]).any()]   # no epoch of the run
     q_bounds = np.flatnonzero(np.diff(at_rest.astype(np.int8))) + 1     # epochs where the Q in use changes
     rest_stretch_end = -1                  # end (exclusive) of the rest stretch being run
-    rest_declared_at = set(np.flatnonzero(at_rest & ~np.r_[False, at_rest[:-1]]).tolist())   # declared starts
     rest_fail = 0                          # consecutive NIS failures inside a rest stretch
     # entering a rest stretch the modal velocities are observed as zero (a zero-velocity update, as in
     # inertial navigation), with the sigma of one step of the rest process noise on each velocity
@@ -310,6 +315,10 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
         rebias[c] = []
         log(k, c, kind, f"bias dropped; re-estimating over {opt.rebias_epochs} epochs")
 
+    for a, b in rest_outside:
+        log(0, None, "rest segment ignored", f"no epoch of the estimate in {a:g}–{b:g} s "
+            f"(the estimate runs {grid[0]:g}–{grid[-1]:g} s)")
+
     # compiled steady-state epochs (fixed biases): the kernel writes xs, Ps, resid, nis, nis_dof and
     # stops at the first epoch that needs the logic below, which then runs for that epoch only
     kern = None
@@ -326,10 +335,13 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
             kern.Q = ekf_kernel._f64(Qd_rest if at_rest[k] else Qd)
             kern.reinit_after = 1 if at_rest[k] else opt.reinit_after_epochs   # rest: hand back any NIS failure
             nxt = q_bounds[q_bounds > k]
-            k, fail_run, x, P = kern.run(k0, x, P, bias, rebias, 0 if at_rest[k] else fail_run,
-                                         -1 if at_rest[k] else k_reinit_block, int(nxt[0]) if nxt.size else None)
-            if k > k0:
-                rest_fail = 0                   # the kernel's epochs passed the NIS test
+            in_rest = bool(at_rest[k0])
+            k, fr, x, P = kern.run(k0, x, P, bias, rebias, 0 if in_rest else fail_run,
+                                   -1 if in_rest else k_reinit_block, int(nxt[0]) if nxt.size else None)
+            if not in_rest:
+                fail_run = fr
+            elif k > k0:
+                fail_run = rest_fail = 0        # the kernel's epochs passed the NIS test
             if N >= 3000:
                 for j in range(-(-k0 // report_every) * report_every, k, report_every):
                     say(f"  filter {100 * j / N:3.0f}%")
@@ -351,19 +363,30 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
             else:
                 drop_bias(k, c, "lock restart" if EVENT[k, c] == 2 else "re-acquisition")
         if at_rest[k]:
-            k_end = k + (int(np.argmin(at_rest[k:])) if not at_rest[k:].all() else N - k)   # stretch end (excl.)
-            if k >= rest_stretch_end:          # entering a stretch (also after a re-initialization inside it)
-                rest_stretch_end = k_end
+            q_events = list(extra_q.get(k, ()))    # variance raised at this epoch by its lock events
+            entering = k >= rest_stretch_end       # (also after a re-initialization inside a stretch)
+            if entering:
+                off = np.flatnonzero(~at_rest[k:])
+                rest_stretch_end = k + (int(off[0]) if off.size else N - k)
+                rest_fail = 0
+            k_end = rest_stretch_end               # end of this stretch (exclusive)
+            if entering:
                 # the kinematic prior, kept in case the structure turns out not to be at rest
                 x_kin, P_kin = x.copy(), (P.copy() if k == 0 else A @ Ps[k - 1] @ A.T + Qd)
                 # the zero-velocity update's own test: are the estimated modal velocities zero?
                 vel_nis = velocity_nis(x_kin, P_kin, nm, zupt_var)
-                # at the declared start the kinematic filter still lags a structure that has just stopped,
-                # so its velocities are tested loosely (REST_ENTRY_SLACK × the bound); a retry after
-                # the data broke the declaration must pass the plain chi-square test
-                vel_bound = chi2.ppf(opt.nis_probability, nm) * (REST_ENTRY_SLACK if k in rest_declared_at else 1.0)
+                vel_bound = chi2.ppf(opt.nis_probability, nm)
                 if vel_nis <= vel_bound:
+                    # the rest position is re-estimated from the data: the modal position variances of
+                    # the prior are raised REST_ENTRY_POSITION_INFLATION-fold (recorded as extra process
+                    # noise, so the smoother stays exact), so that an estimate lagging the structure's
+                    # last motion is not carried into the average; then the zero-velocity update
+                    d = REST_ENTRY_POSITION_INFLATION * np.diag(P)[:nm]
+                    P[np.arange(nm), np.arange(nm)] += d
+                    extra_q.setdefault(k, []).extend((i, float(d[i])) for i in range(nm))
                     x, P = zero_velocity_update(x, P, nm, zupt_var)
+                    if _TRACE is not None:
+                        _TRACE.setdefault("zupt", set()).add(k)
                     log(k, None, "rest segment", "modal velocities set to zero (zero-velocity update); process "
                         f"noise × {opt.rest_process_noise_scale:g}² until {grid[k_end - 1]:g} s")
                     events[-1]["velocity_nis"] = vel_nis
@@ -393,13 +416,18 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                 x = x_kin
                 if k == 0:
                     P = P_kin.copy()
+                    extra_q.pop(0, None)           # (the smoother reads no prior at the first epoch)
+                    if q_events:
+                        extra_q[0] = q_events
                 else:
                     # the kinematic prediction, its variances raised to the entry's kinematic prior; the
                     # raise is recorded as extra process noise so that the smoother stays exact
                     P = A @ Ps[k - 1] @ A.T + Qd
-                    d = np.maximum(np.diag(P_kin) - np.diag(P), 0.0)
-                    P[np.diag_indices_from(P)] += d
-                    extra_q.setdefault(k, []).extend((int(i), float(d[i])) for i in np.flatnonzero(d))
+                    for i, q in q_events:
+                        P[i, i] += q
+                    d = np.maximum(np.diag(P_kin)[:n] - np.diag(P)[:n], 0.0)   # structure states only
+                    P[np.arange(n), np.arange(n)] += d
+                    extra_q[k] = q_events + [(int(i), float(d[i])) for i in np.flatnonzero(d)]
                 refused = vel_nis > vel_bound
                 log(k, None, "rest segment refused" if refused else "rest segment broken",
                     f"{why}: the structure moves; kinematic process noise"
@@ -407,6 +435,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                 if refused:
                     events[-1]["velocity_nis"] = vel_nis
         elif k > 0 and at_rest[k - 1]:
+            rest_fail = 0
             log(k, None, "rest segment end", "process noise back to the kinematic model")
         xq = x[:n]
         h, Hx = hmodel(xq)
@@ -477,6 +506,8 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                     keep = np.setdiff1d(np.arange(idx.size), worst)
                     idx, H, rho = idx[keep], H[keep], rho[keep]
             if idx.size:
+                if _TRACE is not None:
+                    _TRACE.setdefault("prior", {})[k] = P.copy()
                 Pinv = _chol_inv(P)
                 Y_info = Pinv + inv_r * (H.T @ H)
                 try:
@@ -528,6 +559,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                     x[n:] = np.nan_to_num(bias)
                     P[n:, n:] = np.eye(C) * 1e-8
                 k_reinit_block = kk + opt.reinit_after_epochs
+                rest_stretch_end, rest_fail = -1, 0    # a rest stretch in progress is entered afresh
                 xs[kk] = x
                 Ps[kk] = P
                 k = kk + 1
@@ -537,6 +569,9 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
             say(f"  filter {100 * k / N:3.0f}%")
         k += 1
 
+    if _TRACE is not None:
+        _TRACE.update(A=A, Q=Qd, Q_rest=Qd_rest, at_rest=at_rest.copy(), no_link=no_link.copy(), Pf=Ps.copy(),
+                      extra_q={kk_: list(v) for kk_, v in extra_q.items()})
     filter_path = "c" if kern is not None else "numpy"
     del Y, EVENT, kern                      # free the (N, C) inputs before the smoother (memory)
     res = EstimateResult(cfg, grid, xs[:, :n] if p == n else xs[:, :n].copy(),
@@ -575,8 +610,8 @@ def validate_rest_segments(segments, scale, retry_s=0.0) -> list[tuple[float, fl
         except (TypeError, ValueError):
             bad.append(f"{seg!r} (expected START:END in seconds)")
             continue
-        if np.isnan(a) or np.isnan(b) or a == np.inf or b == -np.inf:
-            bad.append(f"{seg!r} (not a finite interval)")
+        if not np.isfinite(a) or np.isnan(b) or b == -np.inf:
+            bad.append(f"{seg!r} (START must be a finite time, END finite or open)")
         elif b <= a:
             bad.append(f"{a:g}:{b:g} (END must be after START)")
         else:
@@ -602,7 +637,7 @@ def zero_velocity_update(x: np.ndarray, P: np.ndarray, nm: int, var: np.ndarray)
 
 
 REST_NIS_FAILURES = 3                      # NIS failures in a row that break a rest segment
-REST_ENTRY_SLACK = 10.0                    # velocity-NIS bound factor at a segment's declared start
+REST_ENTRY_POSITION_INFLATION = 100.0      # entering rest: modal position variances × (1 + this)
 
 
 def velocity_nis(x: np.ndarray, P: np.ndarray, nm: int, var: np.ndarray) -> float:

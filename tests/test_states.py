@@ -294,7 +294,7 @@ BAD_ESTIMATE = {
     "outlier sigma 0": ("opt:--outlier-sigma=0", "--outlier-sigma must be positive"),
     "rest not an interval": ("opt:--rest=abc", "--rest 'abc': expected START:END"),
     "rest end before start": ("opt:--rest=90:80", "END must be after START"),
-    "rest nan": ("opt:--rest=nan:90", "not a finite interval"),
+    "rest nan": ("opt:--rest=nan:90", "START must be a finite time"),
     "rest scale negative": ("opt:--rest-process-noise-scale=-1", "--rest-process-noise-scale must be a positive"),
     "rest retry nan": ("opt:--rest-retry-s=nan", "--rest-retry-s must be a number of seconds"),
 }
