@@ -33,7 +33,7 @@ from cdgps_cli.measurement import all_channels, phase_model
 from cdgps_cli.run import Run
 from cdgps_cli.simulate import SimOptions, simulate
 
-from test_ekf import LINEAR_CONFIG, LIN_SIGMA, ROOT, memory_run
+from test_ekf import LINEAR_CONFIG, LIN_SIGMA, ROOT, _rel, memory_run, textbook_rts
 from test_ekf_kernel import COMPILED, NO_ACTUATORS, kernel
 
 REST = ((8.0, 16.0), (24.0, float("inf")))
@@ -94,19 +94,6 @@ def textbook_rest_kf(A, Q, Q_rest, H, R, z, x0, P0, at_rest, zupt_var, nm, infla
             P = IKH @ P @ IKH.T + K @ Rk @ K.T
         xf[k], Pf[k] = x, P
     return xf, Pf, xp, Pp
-
-
-def textbook_rts(A, xf, Pf, xp, Pp):
-    xs, Ps = xf.copy(), Pf.copy()
-    for k in range(len(xf) - 2, -1, -1):
-        G = Pf[k] @ A.T @ np.linalg.inv(Pp[k + 1])
-        xs[k] = xf[k] + G @ (xs[k + 1] - xp[k + 1])
-        Ps[k] = Pf[k] + G @ (Ps[k + 1] - Pp[k + 1]) @ G.T
-    return xs, Ps
-
-
-def _rel(a, b):
-    return float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300))
 
 
 @pytest.mark.parametrize("path", ["c", "numpy"])
