@@ -91,7 +91,7 @@ class EstimateResult:
 _MASKS: dict = {}
 
 # Test hook: when a dict, ``estimate`` records in it the prior covariance of every numpy-path
-# measurement update ("prior": {k: P̄}), the epochs with a zero-velocity update ("zupt"), and the
+# measurement update ("prior": {k: P̄}), the prior of every zero-velocity update ("zupt": {k: P̄}), and the
 # smoother's inputs (A, Q, Q_rest, at_rest, extra_q, no_link, filtered P).  None in normal use.
 _TRACE: dict | None = None
 
@@ -340,8 +340,8 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                                    -1 if in_rest else k_reinit_block, int(nxt[0]) if nxt.size else None)
             if not in_rest:
                 fail_run = fr
-            elif k > k0:
-                fail_run = rest_fail = 0        # the kernel's epochs passed the NIS test
+            elif (nis_dof[k0:k] > 0).any():
+                fail_run = rest_fail = 0        # the kernel's epochs with data passed the NIS test
             if N >= 3000:
                 for j in range(-(-k0 // report_every) * report_every, k, report_every):
                     say(f"  filter {100 * j / N:3.0f}%")
@@ -384,9 +384,9 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                     d = REST_ENTRY_POSITION_INFLATION * np.diag(P)[:nm]
                     P[np.arange(nm), np.arange(nm)] += d
                     extra_q.setdefault(k, []).extend((i, float(d[i])) for i in range(nm))
-                    x, P = zero_velocity_update(x, P, nm, zupt_var)
                     if _TRACE is not None:
-                        _TRACE.setdefault("zupt", set()).add(k)
+                        _TRACE.setdefault("zupt", {})[k] = P.copy()     # the prior (after the raise)
+                    x, P = zero_velocity_update(x, P, nm, zupt_var)
                     log(k, None, "rest segment", "modal velocities set to zero (zero-velocity update); process "
                         f"noise × {opt.rest_process_noise_scale:g}² until {grid[k_end - 1]:g} s")
                     events[-1]["velocity_nis"] = vel_nis
@@ -400,7 +400,10 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                                               n=n, use_bias_states=use_bias_states, sigma=sigma,
                                               outlier_sigma=opt.outlier_sigma,
                                               bound=lambda m: chi2.ppf(opt.nis_probability, m))
-            rest_fail = rest_fail + 1 if nis_failed else 0
+            if nis_failed:
+                rest_fail += 1
+            elif (present & ~np.isnan(bias)).any():
+                rest_fail = 0                        # (an epoch without data leaves the count as it is)
             if nis_failed and rest_fail < REST_NIS_FAILURES:
                 why = ""                        # one NIS failure can be chance (1 − nis_probability)
             elif nis_failed:
@@ -409,7 +412,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                 rest_fail = 0
                 # the data say the structure moves: leave static mode for the rest of this stretch,
                 # from the kinematic prior covariance of the stretch's entry
-                k_back = k_end if opt.rest_retry_s <= 0 else min(k + max(int(round(opt.rest_retry_s / T)), 1), k_end)
+                k_back = k_end if opt.rest_retry_s <= 0 else min(k + max(int(round(min(opt.rest_retry_s / T, N))), 1), k_end)
                 at_rest[k:k_back] = False                  # retried after rest_retry_s, within the segment
                 rest_stretch_end = -1
                 q_bounds = np.flatnonzero(np.diff(at_rest.astype(np.int8))) + 1
@@ -428,6 +431,8 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                     d = np.maximum(np.diag(P_kin)[:n] - np.diag(P)[:n], 0.0)   # structure states only
                     P[np.arange(n), np.arange(n)] += d
                     extra_q[k] = q_events + [(int(i), float(d[i])) for i in np.flatnonzero(d)]
+                if _TRACE is not None:
+                    _TRACE.get("zupt", {}).pop(k, None)     # this epoch's prior is the rebuilt one
                 refused = vel_nis > vel_bound
                 log(k, None, "rest segment refused" if refused else "rest segment broken",
                     f"{why}: the structure moves; kinematic process noise"
@@ -443,11 +448,12 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
             # a channel INIT did not know: its bias state starts from the prediction with a wide prior
             q_new = opt.restart_sigma_cycles**2 * lam**2
             x[n + c] = y[c] - h[c]
+            q_was = float(P[n + c, n + c])          # never measured: no cross terms to drop
             P[n + c, :] = 0.0
             P[:, n + c] = 0.0
             P[n + c, n + c] = q_new
             bias[c] = x[n + c]
-            extra_q.setdefault(k, []).append((n + c, q_new))
+            extra_q.setdefault(k, []).append((n + c, q_new - q_was))    # the smoother's prior = the filter's
             log(k, c, "new channel", f"bias state initialized from the prediction (sigma {opt.restart_sigma_cycles:g} cycles)")
         new_states = []
         if use_bias_states:
@@ -611,7 +617,7 @@ def validate_rest_segments(segments, scale, retry_s=0.0) -> list[tuple[float, fl
             bad.append(f"{seg!r} (expected START:END in seconds)")
             continue
         if not np.isfinite(a) or np.isnan(b) or b == -np.inf:
-            bad.append(f"{seg!r} (START must be a finite time, END finite or open)")
+            bad.append(f"{a:g}:{b:g} (START must be a finite time, END finite or open)")
         elif b <= a:
             bad.append(f"{a:g}:{b:g} (END must be after START)")
         else:
