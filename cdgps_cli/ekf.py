@@ -259,6 +259,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     q_bounds = np.flatnonzero(np.diff(at_rest.astype(np.int8))) + 1     # epochs where the Q in use changes
     rest_stretch_end = -1                  # end (exclusive) of the rest stretch being run
     rest_fail = 0                          # consecutive NIS failures inside a rest stretch
+    hx_at = None                           # state at which h, Hx were last evaluated in this epoch
     # entering a rest stretch the modal velocities are observed as zero (a zero-velocity update, as in
     # inertial navigation), with the sigma of one step of the rest process noise on each velocity
     zupt_var = np.maximum(np.diag(Qd_rest)[nm:n], 1e-30)
@@ -332,16 +333,14 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
         edge = (at_rest[k] and k >= rest_stretch_end) or (k > 0 and at_rest[k - 1] and not at_rest[k])
         if kern is not None and not edge:
             k0 = k
-            kern.Q = ekf_kernel._f64(Qd_rest if at_rest[k] else Qd)
-            kern.reinit_after = 1 if at_rest[k] else opt.reinit_after_epochs   # rest: hand back any NIS failure
-            nxt = q_bounds[q_bounds > k]
             in_rest = bool(at_rest[k0])
-            k, fr, x, P = kern.run(k0, x, P, bias, rebias, 0 if in_rest else fail_run,
-                                   -1 if in_rest else k_reinit_block, int(nxt[0]) if nxt.size else None)
-            if not in_rest:
-                fail_run = fr
-            elif (nis_dof[k0:k] > 0).any():
-                fail_run = rest_fail = 0        # the kernel's epochs with data passed the NIS test
+            nxt = q_bounds[q_bounds > k]         # the span ends where the process noise changes
+            # in rest, every NIS failure comes back here (to the rest checks below)
+            k, fail_run, x, P = kern.run(k0, x, P, bias, rebias, fail_run, k_reinit_block,
+                                         int(nxt[0]) if nxt.size else None, Q=Qd_rest if in_rest else Qd,
+                                         stop_on_nis_failure=in_rest)
+            if in_rest and (nis_dof[k0:k] > 0).any():
+                rest_fail = 0                   # an epoch with data passed the NIS test
             if N >= 3000:
                 for j in range(-(-k0 // report_every) * report_every, k, report_every):
                     say(f"  filter {100 * j / N:3.0f}%")
@@ -396,7 +395,9 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
             if vel_nis > vel_bound:
                 why, nis_failed = f"modal velocities not zero (NIS {vel_nis:.1f} > {vel_bound:.1f})", False
             else:
-                why, nis_failed = rest_motion(x, P, hmodel, y=Y[k], bias=bias, usable=present & ~np.isnan(bias),
+                hx_at = x[:n].copy()
+                h, Hx = hmodel(hx_at)
+                why, nis_failed = rest_motion(x, P, h, Hx, y=Y[k], bias=bias, usable=present & ~np.isnan(bias),
                                               n=n, use_bias_states=use_bias_states, sigma=sigma,
                                               outlier_sigma=opt.outlier_sigma,
                                               bound=lambda m: chi2.ppf(opt.nis_probability, m))
@@ -443,7 +444,9 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
             rest_fail = 0
             log(k, None, "rest segment end", "process noise back to the kinematic model")
         xq = x[:n]
-        h, Hx = hmodel(xq)
+        if hx_at is None or not np.array_equal(hx_at, xq):    # (the rest checks evaluated it already)
+            h, Hx = hmodel(xq)
+        hx_at = None
         for c in new_states:
             # a channel INIT did not know: its bias state starts from the prediction with a wide prior
             q_new = opt.restart_sigma_cycles**2 * lam**2
@@ -654,8 +657,10 @@ def velocity_nis(x: np.ndarray, P: np.ndarray, nm: int, var: np.ndarray) -> floa
     return float(v @ cho_solve(cho_factor(S, check_finite=False), v, check_finite=False))
 
 
-def rest_motion(x, P, hmodel, y, bias, usable, n, use_bias_states, sigma, outlier_sigma, bound) -> tuple[str, bool]:
+def rest_motion(x, P, h, Hx, y, bias, usable, n, use_bias_states, sigma, outlier_sigma, bound) -> tuple[str, bool]:
     """Does an epoch's data contradict "the structure is at rest"?  Returns (reason, nis_failed).
+
+    ``h, Hx``: the measurement model and its Jacobian at x[:n].
 
     The reason is non-empty when two or more channels fail the innovation outlier test (one alone
     is a slip, handled as such); ``nis_failed`` when the normalized innovation squared of the other
@@ -663,7 +668,6 @@ def rest_motion(x, P, hmodel, y, bias, usable, n, use_bias_states, sigma, outlie
     idx = np.flatnonzero(usable)
     if idx.size == 0:
         return "", False
-    h, Hx = hmodel(x[:n])
     p = len(x)
     H = np.zeros((idx.size, p))
     H[:, :n] = Hx[idx]

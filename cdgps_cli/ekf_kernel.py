@@ -146,23 +146,35 @@ class ForwardKernel:
         self.epochs = 0                  # epochs run in C (statistics)
         self.stops: dict = {}            # stop reason → count
 
-    def run(self, k0, x, P, bias, rebias, fail_run, k_reinit_block, k1=None):
-        """Run epochs k0, k0+1, … from the state (x, P) entering k0 until an epoch needs Python.
+    def run(self, k0, x, P, bias, rebias, fail_run, k_reinit_block, k1=None, Q=None, stop_on_nis_failure=False):
+        """Run epochs k0, k0+1, … (up to k1, excluded) from the state (x, P) entering k0 until an
+        epoch needs Python.
 
-        ``bias`` (C,) current biases (NaN: unknown), ``rebias``: channels being re-estimated.
+        ``bias`` (C,) current biases (NaN: unknown), ``rebias``: channels being re-estimated;
+        ``Q``: the process noise of this span (default: the constructor's); ``stop_on_nis_failure``:
+        hand back the first epoch whose NIS fails its bound (instead of counting failures towards a
+        re-initialization; ``fail_run`` is then returned as given, or 0 once an epoch with data passed).
         Returns (k_stop, fail_run, x, P): epochs k0 … k_stop−1 are done (outputs written) and
         (x, P) are the state entering k_stop; fail_run is the NIS failure count after k_stop−1.
         """
+        if stop_on_nis_failure:
+            k, _, x, P = self._span(k0, x, P, bias, rebias, 0, 1, -1, k1, Q)
+            passed = bool((self.nis_dof[k0:k] > 0).any())
+            return k, (0 if passed else int(fail_run)), x, P
+        return self._span(k0, x, P, bias, rebias, fail_run, self.reinit_after, k_reinit_block, k1, Q)
+
+    def _span(self, k0, x, P, bias, rebias, fail_run, reinit_after, k_reinit_block, k1, Q):
         x = np.array(x, dtype=np.float64)              # copies: the kernel updates them in place
         P = np.array(P, dtype=np.float64)
         mask = np.zeros(self.C, dtype=np.uint8)
         if rebias:
             mask[list(rebias)] = 1
         k_stop, fail_run, reason = _ekfcore.filter_span(
-            self.gi, self.gf, *self.A, self.Q, self.B, self.chi2, self.Y, self.EVENT, _f64(bias), mask, self.U_in,
+            self.gi, self.gf, *self.A, self.Q if Q is None else _f64(Q), self.B, self.chi2, self.Y, self.EVENT,
+            _f64(bias), mask, self.U_in,
             x, P, self.xs, self.Ps, self.resid, self.nis, self.nis_dof,
             self.N, self.n, self.nu, int(k0), self.N if k1 is None else int(k1), int(fail_run),
-            self.reinit_after, int(k_reinit_block), self.sigma, self.outlier_sigma)
+            int(reinit_after), int(k_reinit_block), self.sigma, self.outlier_sigma)
         self.epochs += k_stop - k0
         key = STOP_REASONS.get(reason, str(reason))
         self.stops[key] = self.stops.get(key, 0) + 1
