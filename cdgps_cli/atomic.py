@@ -53,3 +53,15 @@ def file_sha256(path: str | Path) -> str:
         for block in iter(lambda: fh.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()
+
+
+def path_for_config(path: str | Path, relative_to: str | Path | None) -> str:
+    """How a config file written into ``relative_to`` names ``path``: relative to that directory
+    when possible (another drive on Windows: not), else absolute."""
+    path = Path(path).resolve()
+    if relative_to is not None:
+        try:
+            return os.path.relpath(path, Path(relative_to).resolve())
+        except ValueError:
+            pass
+    return str(path)

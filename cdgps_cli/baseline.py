@@ -42,6 +42,7 @@ import pandas as pd
 from scipy.linalg import cho_factor, cho_solve
 
 from .ambiguity import AmbiguityError, lambda_search, partial_fix, ratio_test
+from .atomic import path_for_config
 from .config import GNSS_DEFAULTS, GNSS_WEIGHTINGS
 from .dd import (
     ambiguity_datum,
@@ -1091,14 +1092,7 @@ def starter_job_toml(rinex: dict, nav_paths, master: str | None = None, *, relat
         raise CdgpsError(f"master {master!r} is not one of the stations given: {', '.join(rinex)}")
 
     def rel(pth):
-        pth = Path(pth).resolve()
-        if relative_to is not None:
-            try:
-                import os
-                return os.path.relpath(pth, Path(relative_to).resolve())
-            except ValueError:
-                pass
-        return str(pth)
+        return path_for_config(pth, relative_to)
 
     lines = ["# cdgps baseline job (format: docs/geonet.md); run:  cdgps baseline --config THIS_FILE -o OUT.json", ""]
     for name, path in rinex.items():

@@ -139,14 +139,15 @@ def ingest(ctx, receiver_csv, gyro_csv, actuator_csv, config, rinex, ubx, nav, m
         _emit_json(s)
 
 
-def _parse_named(items, option: str) -> dict:
+def _parse_named(items, option: str, what: str = "antenna", form: str = "ANTENNA=FILE") -> dict:
+    """NAME=FILE options (--rinex/--ubx) → {name: path}; ``what`` and ``form`` word the messages."""
     out = {}
     for it in items:
         name, sep, path = it.partition("=")
         if not sep or not name.strip() or not path.strip():
-            raise CdgpsError(f"{option} expects ANTENNA=FILE (e.g. 3040=30400920.05o), got {it!r}")
+            raise CdgpsError(f"{option} expects {form} (e.g. 3040=30400920.05o), got {it!r}")
         if name.strip() in out:
-            raise CdgpsError(f"{option}: antenna {name.strip()!r} given twice")
+            raise CdgpsError(f"{option}: {what} {name.strip()!r} given twice")
         out[name.strip()] = path.strip()
     return out
 
@@ -559,18 +560,6 @@ def _gnss_info_lines(g: dict) -> list:
 # static baseline from real receiver logs (RINEX + broadcast ephemeris): docs/geonet.md
 
 
-def _parse_stations(items) -> dict:
-    out = {}
-    for it in items:
-        name, sep, path = it.partition("=")
-        if not sep or not name.strip() or not path.strip():
-            raise CdgpsError(f"--rinex expects NAME=PATH (e.g. 3040=30400920.05o), got {it!r}")
-        if name.strip() in out:
-            raise CdgpsError(f"--rinex: station {name.strip()!r} given twice")
-        out[name.strip()] = path.strip()
-    return out
-
-
 def _write_text_atomic(path: str, text: str) -> None:
     from .atomic import write_atomic
 
@@ -608,7 +597,7 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, weight
     else:
         stations, navs, mst, opt = {}, [], None, BaselineOptions()
     if rinex:
-        stations = _parse_stations(rinex)
+        stations = _parse_named(rinex, "--rinex", "station", "NAME=PATH")
     if nav:
         navs = list(nav)
     mst = master or mst
@@ -687,7 +676,7 @@ def baseline_config_cmd(ctx, rinex, nav, master, output):
     from .baseline import load_baseline_job
     from .gnss_run import starter_gnss_config
 
-    stations = _parse_stations(rinex)
+    stations = _parse_named(rinex, "--rinex", "station", "NAME=PATH")
     if len(stations) != 2:
         raise CdgpsError(f"a baseline job needs exactly two RINEX observation files (NAME=PATH), got {len(stations)}")
     master = master or next(iter(stations))

@@ -34,7 +34,7 @@ import numpy as np
 import pandas as pd
 
 from . import __version__
-from .atomic import file_sha256
+from .atomic import file_sha256, path_for_config
 from .config import GnssConfig, gnss_config_toml, parse_gnss_config
 from .errors import CdgpsError
 from .gnss import ephemeris_coverage, match_epochs, nominal_interval_s
@@ -698,8 +698,6 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
     """Text of a GNSS run config for the given files; the headers are read and summarised in
     comments (marker, receiver, antenna, span, header position).  The master defaults to the first
     RINEX antenna with a header position; paths are written relative to ``relative_to``."""
-    import os
-
     ubx = ubx or {}
     if not rinex and not ubx:
         raise CdgpsError("give at least one receiver file (--rinex/--ubx ANTENNA=FILE)")
@@ -708,13 +706,7 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
         raise CdgpsError(f"antenna(s) {', '.join(sorted(both))} given both as --rinex and --ubx")
 
     def rel(p):
-        p = Path(p).resolve()
-        if relative_to is not None:
-            try:
-                return os.path.relpath(p, Path(relative_to).resolve())
-            except ValueError:
-                pass
-        return str(p)
+        return path_for_config(p, relative_to)
 
     comments = ["GNSS run config (format: docs/gnss-pipeline.md), written by 'cdgps config' from the files' headers.",
                 "Run:  cdgps ingest --config THIS_FILE -o run.mcap && cdgps init run.mcap -o init.json &&",
