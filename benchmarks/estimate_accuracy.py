@@ -41,7 +41,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 from scipy.linalg import solve_discrete_are, solve_discrete_lyapunov
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -52,20 +51,14 @@ from cdgps_cli.dynamics import discrete_model  # noqa: E402
 from cdgps_cli.ekf import EstimateOptions, estimate  # noqa: E402
 from cdgps_cli.init import InitOptions, initialize  # noqa: E402
 from cdgps_cli.measurement import all_channels, phase_model  # noqa: E402
-from cdgps_cli.run import Run, write_run  # noqa: E402
+from cdgps_cli.run import memory_run, write_run  # noqa: E402
 from cdgps_cli.simulate import SimOptions, parse_outage, parse_slip, simulate, write_simulation  # noqa: E402
 from cdgps_cli.states import evaluate, write_states  # noqa: E402
 
 TB = load_config(ROOT / "configs" / "testbed-1998.toml")
 D2 = load_config(ROOT / "configs" / "teague-1995-2dof.toml")
-ACT = pd.DataFrame({"time_s": pd.Series([], dtype=float), "actuator": pd.Series([], dtype=object),
-                    "force_n": pd.Series([], dtype=float)})
 SLIP = "a3:PL2:80.0:+3"
 OUTAGE = "PL4:70:10"
-
-
-def mem_run(cfg, receiver):
-    return Run("<memory>", cfg, receiver.reset_index(drop=True), pd.DataFrame(), ACT, {})
 
 
 def errors(cfg, sim, res):
@@ -105,7 +98,7 @@ def testbed_seed(seed: int, d: Path) -> dict:
     out = {}
     kw = dict(duration_s=120.0, seed=seed, phase_sigma_m=0.02, disturbance_scale=1.0)
     sim = simulate(TB, SimOptions(**kw))
-    run = mem_run(TB, sim.receiver)
+    run = memory_run(TB, sim.receiver)
     init = initialize(run, InitOptions(start_s=0.0, duration_s=60.0))
     out["init_fixed"] = init["n_fixed"]
     res = estimate(run, init, EstimateOptions())
@@ -143,7 +136,7 @@ def testbed_seed(seed: int, d: Path) -> dict:
     # cycle slip (same seed: identical data before 80 s, so the INIT applies)
     sl = parse_slip(SLIP)
     sim_s = simulate(TB, SimOptions(**kw, slips=[sl]))
-    run_s = mem_run(TB, sim_s.receiver)
+    run_s = memory_run(TB, sim_s.receiver)
     tb_s = truth_bias(sim_s)
     for mode in ("fixed", "states"):
         r = estimate(run_s, init, EstimateOptions(biases=mode))
@@ -159,7 +152,7 @@ def testbed_seed(seed: int, d: Path) -> dict:
     rec = sim.receiver.copy()
     sel = (rec["time_s"] >= 90.0 - 1e-9) & (rec["antenna"] == "a5") & (rec["transmitter"] == "PL3")
     rec.loc[sel, "phase_cycles"] += 2
-    r = estimate(mem_run(TB, rec), init, EstimateOptions())
+    r = estimate(memory_run(TB, rec), init, EstimateOptions())
     mine = [ev for ev in r.events if (ev["antenna"], ev["transmitter"]) == ("a5", "PL3")]
     out["unflagged_detected_s"] = (mine[0]["time_s"] - 90.0) if mine and mine[0]["kind"] == "innovation outlier" else float("nan")
     out["unflagged_bias_mm"] = 1000 * (r.biases[("a5", "PL3")] - tb[("a5", "PL3")] - 2 * TB.wavelength_m)
@@ -168,7 +161,7 @@ def testbed_seed(seed: int, d: Path) -> dict:
     # outage
     o = parse_outage(OUTAGE)
     sim_o = simulate(TB, SimOptions(**kw, outages=[o]))
-    run_o = mem_run(TB, sim_o.receiver)
+    run_o = memory_run(TB, sim_o.receiver)
     tb_o = truth_bias(sim_o)
     t_back = o.start_s + o.duration_s
     for mode in ("fixed", "states"):
@@ -215,7 +208,7 @@ def single_epoch_ls_csv_std(sigma: float) -> float:
 
 def static_seed(seed: int) -> dict:
     sim = simulate(TB, SimOptions(duration_s=140.0, seed=seed, scenario="static", phase_sigma_m=0.002))
-    run = mem_run(TB, sim.receiver)
+    run = memory_run(TB, sim.receiver)
     init = initialize(run, InitOptions(start_s=0.0, duration_s=60.0))
     rest = [s for s in sim.truth["segments"] if s["kind"] == "rest"][0]
     out = {}
@@ -241,7 +234,7 @@ def static_seed(seed: int) -> dict:
 
 def dof2_seed(seed: int) -> dict:
     sim = simulate(D2, SimOptions(duration_s=60.0, seed=seed, phase_sigma_m=0.01))
-    run = mem_run(D2, sim.receiver)
+    run = memory_run(D2, sim.receiver)
     out = {}
     try:
         init = initialize(run, InitOptions(start_s=0.0, duration_s=2.4, process_noise=False))
@@ -304,7 +297,7 @@ def main() -> None:
     def col(rows, key):
         return [r.get(key, float("nan")) for r in rows]
 
-    md = [f"# Accuracy of `cdgps estimate` on simulated truth\n",
+    md = ["# Accuracy of `cdgps estimate` on simulated truth\n",
           f"Produced by `python benchmarks/estimate_accuracy.py --seeds {a.seeds}` on {datetime.date.today()} "
           f"({elapsed:.0f} s, Python {platform.python_version()}); seeds {seeds[0]}–{seeds[-1]}. Every run is "
           "simulated, initialized with `initialize` (batch + LAMBDA) on its own data and filtered with "

@@ -68,6 +68,16 @@ class Run:
 
 
 
+def memory_run(cfg: StructureConfig, phase: pd.DataFrame, gyro: pd.DataFrame | None = None,
+               actuators: pd.DataFrame | None = None, name: str = "<memory>") -> Run:
+    """A :class:`Run` from tables already in memory (e.g. ``simulate(...).receiver``), without files:
+    what :func:`read_run` returns for the same data.  Missing gyro/actuator tables are empty."""
+    if actuators is None:
+        actuators = pd.DataFrame({"time_s": pd.Series([], dtype=float), "actuator": pd.Series([], dtype=object),
+                                  "force_n": pd.Series([], dtype=float)})
+    return Run(name, cfg, phase.reset_index(drop=True), pd.DataFrame() if gyro is None else gyro, actuators, {})
+
+
 def epoch_gaps(time_s: np.ndarray, period_s: float) -> list[dict]:
     """Gaps between consecutive distinct epochs longer than 1.5 sample periods."""
     t = np.unique(time_s)

@@ -34,7 +34,7 @@ from cdgps_cli.ekf import EstimateOptions, estimate, lock_events
 from cdgps_cli.init import InitOptions, initialize
 from cdgps_cli.kinematics import EpochGeometry, antenna_positions
 from cdgps_cli.measurement import EpochPhaseModel, all_channels, phase_model
-from cdgps_cli.run import Run, read_run, write_run
+from cdgps_cli.run import memory_run, read_run, write_run
 from cdgps_cli.simulate import SimOptions, parse_outage, parse_slip, simulate, write_simulation
 from cdgps_cli.states import write_states, evaluate
 
@@ -42,17 +42,11 @@ ROOT = Path(__file__).resolve().parent.parent
 TESTBED_PATH = ROOT / "configs" / "testbed-1998.toml"
 DOF2_PATH = ROOT / "configs" / "teague-1995-2dof.toml"
 
-NO_ACTUATORS = pd.DataFrame({"time_s": pd.Series([], dtype=float), "actuator": pd.Series([], dtype=object),
-                             "force_n": pd.Series([], dtype=float)})
-
 
 # --------------------------------------------------------------------------------------------
 # helpers
 
 
-def memory_run(cfg, receiver: pd.DataFrame) -> Run:
-    """A Run built from a simulated receiver table (what read_run would return, without files)."""
-    return Run("<memory>", cfg, receiver.reset_index(drop=True), pd.DataFrame(), NO_ACTUATORS, {})
 
 
 def file_run(cfg, sim, out_dir):

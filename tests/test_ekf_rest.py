@@ -19,7 +19,6 @@ contradict the declaration the filter leaves static mode and tries again ``rest_
 from __future__ import annotations
 
 import numpy as np
-import pandas as pd
 import pytest
 from scipy.stats import chi2
 
@@ -30,11 +29,11 @@ from cdgps_cli.ekf import (REST_ENTRY_POSITION_INFLATION, EstimateOptions, estim
 from cdgps_cli.errors import CdgpsError
 from cdgps_cli.init import InitOptions, initialize
 from cdgps_cli.measurement import all_channels, phase_model
-from cdgps_cli.run import Run
+from cdgps_cli.run import memory_run
 from cdgps_cli.simulate import SimOptions, simulate
 
-from test_ekf import LINEAR_CONFIG, LIN_SIGMA, ROOT, _rel, memory_run, textbook_rts
-from test_ekf_kernel import COMPILED, NO_ACTUATORS, kernel
+from test_ekf import LINEAR_CONFIG, LIN_SIGMA, ROOT, _rel, textbook_rts
+from test_ekf_kernel import COMPILED, kernel
 
 REST = ((8.0, 16.0), (24.0, float("inf")))
 
@@ -61,7 +60,7 @@ def linear_rest():
     N = len(sim.time_s)
     Y = (sim.receiver["phase_cycles"].to_numpy() * cfg.wavelength_m).reshape(N, len(ant))
     b0 = np.array([b["bias_m"] for b in init["biases"]])
-    run = Run("<linear at rest>", cfg, sim.receiver.reset_index(drop=True), pd.DataFrame(), NO_ACTUATORS, {})
+    run = memory_run(cfg, sim.receiver, name="<linear at rest>")
     return {"cfg": cfg, "sim": sim, "init": init, "run": run, "x0": x0, "P0": P0, "z": Y - b0 - h0[0], "H": H[0]}
 
 
