@@ -746,7 +746,6 @@ def rts_smooth(A, Q, B, U_in, xf, Pf, extra_q=None, no_link=None, in_place=False
     copies).
     """
     extra_q = extra_q or {}
-    N = xf.shape[0]
     xs = xf if in_place else xf.copy()
     Ps = Pf if in_place else Pf.copy()
     if q_segments and not (len(q_segments) == 1 and q_segments[0][2] is Q):

@@ -242,7 +242,7 @@ def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_
         description=f"cdgps simulate-gnss: {duration_s:g} s at {rate_hz:g} Hz, seed {seed}",
         displacement="random_walk" if random_walk_sigma is not None else "static",
         sigma_m_per_sqrt_s=random_walk_sigma,
-        comments=[f"GNSS run config written by cdgps simulate-gnss (format: docs/gnss-pipeline.md).",
+        comments=["GNSS run config written by cdgps simulate-gnss (format: docs/gnss-pipeline.md).",
                   f"{master}: master at its true position; {rover}: nominal position in its header,",
                   "true displacement in truth.csv.  Run:",
                   "  cdgps ingest --config config.toml -o run.mcap && cdgps init run.mcap -o init.json",

@@ -79,7 +79,6 @@ def point_positions(cfg: StructureConfig, q: np.ndarray, section: np.ndarray, po
             continue
         sec = cfg.sections[s]
         rel = r - sec.pivot_m
-        R = np.broadcast_to(np.eye(3), (n, 3, 3))
         mats = []
         for axis in (2, 1, 0):          # Rz @ Ry @ Rx
             j = next((jj for ax, jj in sec.rotation if ax == axis), None)

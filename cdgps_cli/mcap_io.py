@@ -20,7 +20,6 @@ import io
 import json
 import os
 import struct
-import sys
 import zlib
 from array import array
 from dataclasses import dataclass

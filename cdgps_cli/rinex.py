@@ -798,7 +798,7 @@ def _records_v3_bulk(lines, hdr: _ObsHeader, group, rows, summary) -> None:
 
     def field(k):
         c = 3 + 16 * k
-        f = np.ascontiguousarray(chars[:, c:c + 14]).view(f"U14").ravel()
+        f = np.ascontiguousarray(chars[:, c:c + 14]).view("U14").ravel()
         return f
 
     def to_float(f):
