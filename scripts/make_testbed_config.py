@@ -31,6 +31,8 @@ Run ``python scripts/make_testbed_config.py`` to regenerate; tests check the fil
 
 from __future__ import annotations
 
+import math
+import re
 import sys
 from pathlib import Path
 
@@ -100,8 +102,7 @@ def elastic_modes():
     modes = basis @ V                     # mass-normalized: Vᵀ (BᵀMB) V = I
     out = []
     for i in range(modes.shape[1]):
-        v = modes[:, i]
-        v = v * np.sign(v[np.argmax(np.abs(v))])
+        v = clean_shape(modes[:, i])
         twist_energy = sum(v[3 * k + 1] ** 2 * I_XX for k in range(3))
         out.append((np.sqrt(max(w2[i], 0)) / 2 / np.pi, v, twist_energy > 0.5))
     twist = [m for m in out if m[2]]
@@ -120,8 +121,56 @@ def elastic_modes():
     return names, M
 
 
+# Mode shapes are written machine-independently: eigenvector entries below SHAPE_ZERO_REL of the
+# largest one are LAPACK round-off (their value and sign depend on the BLAS kernel) and become 0,
+# and the sign is fixed on the *last* component within SHAPE_TIE_REL of the largest magnitude, so
+# that two entries of equal size and opposite sign cannot flip the shape from one machine to another.
+SHAPE_ZERO_REL = 1e-9
+SHAPE_TIE_REL = 1e-6
+SIGNIFICANT_DIGITS = 6
+# --check compares numbers to this relative tolerance (the file keeps 6 significant digits)
+CHECK_REL_TOL = 1e-5
+CHECK_ABS_TOL = 1e-12
+
+
+def clean_shape(v):
+    """Round-off below SHAPE_ZERO_REL·max|v| set to 0; sign fixed on the last near-largest entry."""
+    v = np.asarray(v, dtype=float).copy()
+    big = np.max(np.abs(v))
+    v[np.abs(v) < SHAPE_ZERO_REL * big] = 0.0
+    lead = np.flatnonzero(np.abs(v) >= (1.0 - SHAPE_TIE_REL) * big)[-1]
+    return v * np.sign(v[lead])
+
+
+def fmt_number(x):
+    """A float with SIGNIFICANT_DIGITS significant digits; never '-0'."""
+    return f"{float(x) + 0.0:.{SIGNIFICANT_DIGITS}g}"
+
+
 def fmt(v):
-    return "[" + ", ".join(f"{x:.6g}" for x in v) + "]"
+    return "[" + ", ".join(fmt_number(x) for x in v) + "]"
+
+
+NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
+
+
+def first_difference(expected: str, actual: str):
+    """First line where two renderings differ beyond CHECK_REL_TOL, as (line number, expected,
+    actual), or None.  Text outside numbers must match exactly."""
+    exp_lines, act_lines = expected.splitlines(), actual.splitlines()
+    for n, (e, a) in enumerate(zip(exp_lines, act_lines), start=1):
+        if e == a:
+            continue
+        if NUMBER.sub("#", e) != NUMBER.sub("#", a):
+            return n, e, a
+        for x, y in zip(NUMBER.findall(e), NUMBER.findall(a)):
+            if not math.isclose(float(x), float(y), rel_tol=CHECK_REL_TOL, abs_tol=CHECK_ABS_TOL):
+                return n, e, a
+    if len(exp_lines) != len(act_lines):
+        n = min(len(exp_lines), len(act_lines)) + 1
+        pick = lambda lines: lines[n - 1] if n <= len(lines) else "<end of file>"  # noqa: E731
+        return n, pick(exp_lines), pick(act_lines)
+    return None
 
 
 def render() -> str:
@@ -257,7 +306,15 @@ if __name__ == "__main__":
     out = Path(__file__).resolve().parent.parent / "configs" / "testbed-1998.toml"
     text = render()
     if "--check" in sys.argv:
-        sys.exit(0 if out.read_text() == text else 1)
+        diff = first_difference(text, out.read_text())
+        if diff is not None:
+            n, want, got = diff
+            print(f"{out}:{n}: differs from what {Path(__file__).name} renders\n"
+                  f"  rendered: {want}\n  in file:  {got}\n"
+                  f"(numbers are compared to a relative tolerance of {CHECK_REL_TOL:g}; "
+                  f"run python scripts/make_testbed_config.py to regenerate)", file=sys.stderr)
+            sys.exit(1)
+        sys.exit(0)
     out.write_text(text)
     names, _ = elastic_modes()
     for n in ORDER[:-1]:

@@ -19,8 +19,7 @@ TESTBED_PSEUDO_PATH = "configs/" + TESTBED_NAME
 
 # The bending-1 mode (modes[2]) of the testbed, as written by the generator.
 BENDING1_FREQ = "frequency_hz = 0.132\n"
-BENDING1_SHAPE = ("shape = [-0.0512905, -2.027e-17, 0.0664222, 0.102581, -1.13312e-17, "
-                  "2.88118e-17, -0.0512905, 4.53247e-17, -0.0664222, 0]")
+BENDING1_SHAPE = "shape = [-0.0512905, 0, 0.0664222, 0.102581, 0, 0, -0.0512905, 0, -0.0664222, 0]"
 A1_SECTION = 'name = "a1"\nsection = "C1"\n'
 
 
@@ -103,6 +102,45 @@ def test_generated_testbed_config_in_sync(repo_root):
     r = subprocess.run([sys.executable, "scripts/make_testbed_config.py", "--check"], cwd=repo_root,
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
+
+
+def _run_check_on(repo_root, tmp_path, config_text):
+    """Run a copy of the generator's --check against ``config_text`` as the shipped config."""
+    (tmp_path / "scripts").mkdir(exist_ok=True)
+    (tmp_path / "configs").mkdir(exist_ok=True)
+    shutil.copy(repo_root / "scripts" / "make_testbed_config.py", tmp_path / "scripts")
+    (tmp_path / "configs" / TESTBED_NAME).write_text(config_text)
+    return subprocess.run([sys.executable, "scripts/make_testbed_config.py", "--check"], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=60)
+
+
+def test_generated_shapes_have_no_round_off(testbed_text):
+    """Shapes are written machine-independently: no LAPACK round-off (|x| < 1e-9 of the largest
+    entry) and no negative zero, which would make the file's bytes depend on the BLAS kernel."""
+    shapes = re.findall(r"^shape = \[(.*)\]$", testbed_text, flags=re.M)
+    assert len(shapes) == 9
+    for line in shapes:
+        assert "-0," not in line + "," and "e-" not in line, line
+        v = np.array([float(x) for x in line.split(",")])
+        small = v[v != 0]
+        assert np.all(np.abs(small) > 1e-6 * np.abs(v).max()), line
+
+
+def test_generator_check_tolerates_last_digit_round_off(repo_root, testbed_text, tmp_path):
+    """Another machine's BLAS may move the 6th significant digit: --check compares numbers with a
+    tolerance, not bytes."""
+    text = _replace_once(testbed_text, "0.102581,", "0.1025811,")
+    r = _run_check_on(repo_root, tmp_path, text)
+    assert r.returncode == 0, r.stderr
+
+
+def test_generator_check_prints_first_difference(repo_root, testbed_text, tmp_path):
+    text = _replace_once(testbed_text, BENDING1_SHAPE, BENDING1_SHAPE.replace("0.102581", "0.1031"))
+    r = _run_check_on(repo_root, tmp_path, text)
+    assert r.returncode == 1
+    line_no = testbed_text.splitlines().index(BENDING1_SHAPE) + 1
+    assert f"{TESTBED_NAME}:{line_no}:" in r.stderr, r.stderr
+    assert "0.1031" in r.stderr and "0.102581" in r.stderr, r.stderr
 
 
 def test_generator_check_detects_drift(repo_root, testbed_text, tmp_path):
