@@ -4,6 +4,7 @@ u-blox lock-time slips, and every real file of ../shared/data (ingested or refus
 
 from __future__ import annotations
 
+import fnmatch
 import json
 from pathlib import Path
 
@@ -349,18 +350,35 @@ REFUSED = {
     "rinex/07590920.05n": "this is a RINEX navigation file, not an observation file",
     "rinex/30400920.05n": "this is a RINEX navigation file, not an observation file",
     "rinex/14601736.18n": "this is a RINEX navigation file, not an observation file",
+    "rinex-ge/RINEX_GN_Spirent.23N": "this is a RINEX navigation file, not an observation file",
+    "rinex-ge/RINEX_EN_Spirent.23L": "this is a RINEX navigation file, not an observation file",
     "ubx/pygpsdata-ESF.log": "no RXM-RAWX messages (found: ESF-MEAS",
     "ubx/ubx_20080526.ubx": "legacy u-blox raw log with 242 RXM-RAW messages",
 }
+# files in ../shared/data that are not receiver logs: licences, READMEs, the simulator's true
+# trajectory (CSV) and raw IF samples for the tracking loops (read by other tests)
+NOT_RECEIVER_LOGS = ("README.md", "LICENSE-*", "*.csv", "if/*")
+NAV_PAIRS = (("rinex/14601736.18o", "rinex/14601736.18n"), ("rinex/07590920.05o", "rinex/07590920.05n"),
+             ("rinex/30400920.05o", "rinex/30400920.05n"),
+             ("rinex-ge/Base-static_MO_Spirent.obs", "rinex-ge/RINEX_GN_Spirent.23N"))
+
+
+def _receiver_logs(root):
+    """Every receiver log below ``root`` (relative POSIX paths), found by walking the folder so that
+    a file added to ../shared/data is tried too."""
+    def skip(rel):
+        return any(fnmatch.fnmatch(rel, pat) or fnmatch.fnmatch(rel.rsplit("/", 1)[-1], pat)
+                   for pat in NOT_RECEIVER_LOGS)
+    rels = sorted(p.relative_to(root).as_posix() for p in root.rglob("*") if p.is_file())
+    return [r for r in rels if not skip(r)]
 
 
 def test_every_real_file_ingests_or_is_refused(tmp_path):
     root = shared("README.md").parent
-    files = sorted(p for p in root.rglob("*") if p.is_file() and p.name != "README.md")
-    assert len(files) == 12
-    seen = []
-    for p in files:
-        rel = p.relative_to(root).as_posix()
+    files = _receiver_logs(root)
+    assert set(REFUSED) <= set(files) and len(files) >= 15, files
+    for rel in files:
+        p = root / rel
         opt = "--ubx" if rel.startswith("ubx/") else "--rinex"
         out = tmp_path / "one.mcap"
         r = run_cli("-q", "ingest", opt, f"a={p}", "-o", out)
@@ -373,11 +391,8 @@ def test_every_real_file_ingests_or_is_refused(tmp_path):
             run = read_gnss_run(out)
             assert np.isfinite(run.receivers["a"].raw["phase_cycles"]).any()
             out.unlink()
-        seen.append(rel)
     # the navigation files are read as --nav with their observation files
-    for obs, nav in (("rinex/14601736.18o", "rinex/14601736.18n"), ("rinex/07590920.05o", "rinex/07590920.05n"),
-                     ("rinex/30400920.05o", "rinex/30400920.05n")):
+    for obs, nav in NAV_PAIRS:
         r = run_cli("-q", "ingest", "--rinex", f"a={root / obs}", "--nav", root / nav, "-o", tmp_path / "n.mcap")
         assert r.exit_code == 0, (obs, r.output)
         assert len(read_gnss_run(tmp_path / "n.mcap").nav) > 0
-    assert len(seen) == 12
