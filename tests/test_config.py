@@ -344,3 +344,15 @@ def test_fe_style_config_bad_displacement_reference():
     assert "fe-plate.toml" in msg
     assert "antennas[1].displacement_m.xi3" in msg
     assert "expected the name of a coordinate" in msg and "expected 3 finite numbers" in msg
+
+
+@pytest.mark.parametrize("sample,config", [("testbed-free", "testbed-1998.toml"), ("testbed-static", "testbed-1998.toml"),
+                                           ("teague-1995", "teague-1995-2dof.toml")])
+def test_bundled_samples_match_their_config(repo_root, sample, config):
+    """The demo evaluates the bundled samples against their truth.json, which refuses a config other
+    than the one simulated: regenerating a config (scripts/make_testbed_config.py) must come with
+    scripts/make_samples.sh, or `make demo` fails at 'evaluate'."""
+    import json
+    truth = json.loads((repo_root / "data" / sample / "truth.json").read_text())
+    assert truth["config_sha256"] == load_config(repo_root / "configs" / config).sha256, (
+        f"data/{sample}/truth.json was simulated with another configs/{config}: run scripts/make_samples.sh")
