@@ -129,6 +129,10 @@ def _opt_text(v) -> str:
     if v is None:
         return "default"
     if isinstance(v, (list, tuple)):
+        if not v:
+            return "none"
+        if any(isinstance(x, (list, tuple, dict)) for x in v):
+            return json.dumps(v)
         return ",".join(map(str, v))
     return str(v)
 

@@ -587,6 +587,14 @@ def spectrum_report(states, run, opt, out_dir: str | Path, date: str | None = No
             f"to the modal filter's periodogram, with 1-σ uncertainties; FDD/PSD segment {st['segment_s']:.0f} s, "
             f"resolution {st['resolution_hz']:.4f} Hz; {st['duration_s']:.0f} s of data).")
     note = _SPECTRUM_NOTE.format(pct=opt.seen_pct, mac=opt.min_mac)
+    shared = {}
+    for m in modes:
+        if m["gyro_hz"] is not None:
+            shared.setdefault((m["gyro"], round(m["gyro_hz"], 6)), []).append(str(m["number"]))
+    shared = [f"modes {', '.join(v)} ({k[1]:.4f} Hz, gyro {k[0]})" for k, v in shared.items() if len(v) > 1]
+    if shared:
+        note += (" The gyro found one peak for " + "; ".join(shared) + ": these modes are closer together than "
+                 "the search band, and the gyro column gives no separate frequency for each.")
     md = f"# Spectrum sensor test\n\n{text}\n\n{_md_table(rows, header)}\n\n{note}\n"
     data = {"modes": modes, "settings": st, "seen": seen, "summary": text, "provenance": prov}
     _write_report(out, "Spectrum sensor test", md, data,
