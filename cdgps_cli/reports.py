@@ -412,7 +412,7 @@ def plot_static(t, a, sig, survey_deg, angle: str, g_angle=None, gyro_names=()):
     return fig
 
 
-def _static_caption(data: dict, smoothed: bool | None) -> str:
+def _static_caption(data: dict, smoothed: bool | None, no_gyro: str = "no gyro") -> str:
     how = {"detected": "detected", "given": "given (--start/--end)"}[data["segment"]]
     kind = {True: "smoothed", False: "forward-filter"}.get(smoothed, "")
     text = (f"Static sensor test (1998 paper Fig. 7): the {data['angle']} angle on the {how} rest segment "
@@ -434,7 +434,7 @@ def _static_caption(data: dict, smoothed: bool | None) -> str:
                  f"estimate by {data['drift_deg_per_min']:+.4f}°/min.")
     else:
         text += (f"Bottom: the GPS estimate minus its linear fit (drift {data['drift_deg_per_min']:+.4f}°/min): "
-                 f"the noise whose RMS is in the table (no gyro along this angle was given).")
+                 f"the noise whose RMS is in the table (gyro: {no_gyro}).")
     return text
 
 
@@ -517,12 +517,13 @@ def static_report(states, run, angle: str, survey_deg: float | None, out_dir: st
             ["GPS drift", f"{data['drift_deg_per_min']:.4f}°/min"],
             ["gyro drift", "–" if data["gyro_drift_deg_per_min"] is None else f"{data['gyro_drift_deg_per_min']:.4f}°/min"],
             ["segment", f"{data['start_s']:.1f}–{data['end_s']:.1f} s ({how}, {data['samples']} samples)"]]
-    note = (f"Gyro(s): {', '.join(data['gyro']) if data['gyro'] else 'none matching the angle'}. Mean, noise and "
+    no_gyro = "no gyro log given (--gyro)" if run is None else "none whose axis matches the angle"
+    note = (f"Gyro(s): {', '.join(data['gyro']) if data['gyro'] else no_gyro}. Mean, noise and "
             f"drift are of the GPS estimate on the segment; noise RMS is the scatter about a straight-line fit "
             f"(drift = its slope), to compare with the estimated σ the estimator reports; gyro drift is the slope "
             f"of the gyro-integrated angle.")
     md = f"# Static sensor test: `{angle}`\n\n{_md_table(rows, ['quantity', 'value'])}\n\n{note}\n"
-    caps = {"static.png": _static_caption(data, smoothed)}
+    caps = {"static.png": _static_caption(data, smoothed, no_gyro)}
     _write_report(out, f"Static sensor test: {angle}", md, data,
                   [("Result", _html_table(rows, ["quantity", "value"]) + f"<p class='note'>{html.escape(note)}</p>")],
                   {"static.png": png}, caps)
@@ -587,6 +588,8 @@ def spectrum_report(states, run, opt, out_dir: str | Path, date: str | None = No
             f"to the modal filter's periodogram, with 1-σ uncertainties; FDD/PSD segment {st['segment_s']:.0f} s, "
             f"resolution {st['resolution_hz']:.4f} Hz; {st['duration_s']:.0f} s of data).")
     note = _SPECTRUM_NOTE.format(pct=opt.seen_pct, mac=opt.min_mac)
+    if not s["gyros"]:
+        note += " No gyro log was given (--gyro), so the gyro column is empty."
     shared = {}
     for m in modes:
         if m["gyro_hz"] is not None:
