@@ -471,14 +471,16 @@ def report():
 @click.option("--start", "start_s", type=float, default=None, help="Rest segment start, s (default: detected).")
 @click.option("--end", "end_s", type=float, default=None, help="Rest segment end, s (default: detected).")
 @click.option("--gyro-name", default=None, help="Gyro to integrate (default: the one whose axis matches the angle).")
+@click.option("--date", "date", default=None, metavar="ISO_DATE",
+              help="Date printed in the report (default: $SOURCE_DATE_EPOCH, else the newest input's modification time).")
 @click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False), help="Output directory.")
 @click.option("--json", "as_json", is_flag=True, help="Print report.json on stdout.")
 @click.pass_context
-def report_static(ctx, states_mcap, gyro_mcap, angle, survey_deg, start_s, end_s, gyro_name, out_dir, as_json):
+def report_static(ctx, states_mcap, gyro_mcap, angle, survey_deg, start_s, end_s, gyro_name, out_dir, as_json, date):
     """Static sensor test (1998 paper Fig. 7): mean vs survey, noise, GPS and gyro drift."""
     from .reports import static_report
     st, run = _states_and_gyro(states_mcap, gyro_mcap)
-    d = static_report(st, run, angle, survey_deg, out_dir, start_s, end_s, gyro_name)
+    d = static_report(st, run, angle, survey_deg, out_dir, start_s, end_s, gyro_name, date=date)
     err = "" if d["error_deg"] is None else f", error {d['error_deg']:+.4f}°"
     gd = "" if d["gyro_drift_deg_per_min"] is None else f", gyro drift {d['gyro_drift_deg_per_min']:+.4f}°/min"
     _say(ctx, f"{angle}: mean {d['mean_deg']:.4f}°{err}, noise {d['noise_rms_deg']:.4f}° RMS, "
@@ -491,14 +493,16 @@ def report_static(ctx, states_mcap, gyro_mcap, angle, survey_deg, start_s, end_s
 @report.command("spectrum")
 @click.argument("states_mcap", type=click.Path(dir_okay=False))
 @_with(_spectra_opts)
+@click.option("--date", "date", default=None, metavar="ISO_DATE",
+              help="Date printed in the report (default: $SOURCE_DATE_EPOCH, else the newest input's modification time).")
 @click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False), help="Output directory.")
 @click.option("--json", "as_json", is_flag=True, help="Print report.json on stdout.")
 @click.pass_context
-def report_spectrum(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad, out_dir, as_json):
+def report_spectrum(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad, out_dir, as_json, date):
     """Dynamic sensor test (1998 paper Fig. 8): PSDs vs gyros and identified modes vs the model."""
     from .reports import spectrum_report
     st, run = _states_and_gyro(states_mcap, gyro_mcap)
-    d = spectrum_report(st, run, _spectra_options(coords, segment_s, overlap, pad), out_dir)
+    d = spectrum_report(st, run, _spectra_options(coords, segment_s, overlap, pad), out_dir, date=date)
     _say(ctx, d["summary"])
     _say(ctx, f"report: {Path(out_dir) / 'report.html'}")
     if as_json:

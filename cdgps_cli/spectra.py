@@ -414,7 +414,7 @@ def compute_spectra(cfg: StructureConfig, time_s: np.ndarray, q: np.ndarray,
         if fm <= 0:
             continue
         zeta_model = 1.0 / (2 * np.pi * fm * tau)
-        entry = {"mode": mname, "model_hz": float(fm), "model_damping": float(zeta_model), "gps_hz": None,
+        entry = {"mode": mname, "number": j + 1, "model_hz": float(fm), "model_damping": float(zeta_model), "gps_hz": None,
                  "gyro_hz": None, "error_pct": None, "damping": None, "damping_resolution_limited": None,
                  "mac": None, "singular_value": None, "fdd_peak_hz": None, "seen": False, "gyro": None}
         phi = Um[:, j]

@@ -350,3 +350,181 @@ def test_float_csv_matches_pandas_to_csv():
     a[9] = 0.0
     df = pd.DataFrame(a, columns=["frequency_hz", "gps_q1_m2_hz", "nan_col", "c", "d", "coherence_g1"])
     assert float_csv(df) == df.to_csv(index=False, lineterminator="\n", float_format="%.7g")
+
+
+# ----------------------------------------------------------------------------- item 10: reports a reader can trust
+
+VOID = {"meta", "img", "br", "hr", "link", "input", "col", "source", "wbr"}
+
+
+def assert_well_formed(text: str) -> None:
+    """Every non-void element closed in order, one html/head/body, nothing after </html>."""
+    from html.parser import HTMLParser
+
+    class P(HTMLParser):
+        def __init__(self):
+            super().__init__(convert_charrefs=True)
+            self.stack, self.seen, self.errors = [], [], []
+
+        def handle_starttag(self, tag, attrs):
+            self.seen.append(tag)
+            if tag not in VOID:
+                self.stack.append(tag)
+
+        def handle_endtag(self, tag):
+            if tag in VOID:
+                return
+            if not self.stack or self.stack[-1] != tag:
+                self.errors.append(f"</{tag}> closes <{self.stack[-1] if self.stack else None}>")
+            else:
+                self.stack.pop()
+
+    p = P()
+    p.feed(text)
+    p.close()
+    assert not p.errors, p.errors[:5]
+    assert p.stack == [], p.stack
+    assert [p.seen.count(t) for t in ("html", "head", "body", "title")] == [1, 1, 1, 1]
+
+
+def sha(path) -> str:
+    import hashlib
+
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def test_html_checker_can_fail():
+    with pytest.raises(AssertionError):
+        assert_well_formed("<!doctype html><html><head><title>x</title></head><body><table><tr><td>1</tr></table></body></html>")
+    assert_well_formed("<!doctype html><html><head><meta charset='utf-8'><title>x</title></head><body><p>a</p></body></html>")
+
+
+@pytest.mark.parametrize("which", ["static", "spectrum"])
+def test_report_provenance_is_the_actual_inputs(which, static_run, free_run, static_out, spectrum_out):
+    run_ = static_run if which == "static" else free_run
+    out = (static_out if which == "static" else spectrum_out)[1]
+    rep = json.loads((out / "report.json").read_text())
+    p = rep["provenance"]
+    from cdgps_cli import __version__
+
+    assert p["command"] == f"cdgps report {which}"
+    assert [(i["role"], i["path"], i["sha256"], i["bytes"]) for i in p["inputs"]] == [
+        ("STATES.mcap", str(run_["states"]), sha(run_["states"]), run_["states"].stat().st_size),
+        ("RUN.mcap (--gyro)", str(run_["run"]), sha(run_["run"]), run_["run"].stat().st_size)]
+    # the chain recorded inside STATES: the RUN it was estimated from is the --gyro RUN here
+    assert p["estimated_from"]["run_sha256"] == sha(run_["run"]) and p["gyro_run_is_estimate_run"] is True
+    assert p["estimated_from"]["init_sha256"] == sha(run_["dir"] / "init.json")
+    assert p["estimated_from"]["config_sha256"] == load_config(TESTBED).sha256
+    assert p["estimated_from"]["options"]["smooth"] is True
+    ing = p["gyro_run_ingested_from"]
+    assert ing["receiver_csv"]["sha256"] == sha(run_["dir"] / "sim" / "receiver.csv")
+    assert ing["gyro_csv"]["sha256"] == sha(run_["dir"] / "sim" / "gyro.csv")
+    assert p["software"]["cdgps"] == __version__ and p["software"]["numpy"] == np.__version__
+    if which == "static":
+        assert p["options"]["--angle"] == "q6+q10" and p["options"]["--survey-deg"] == -1.4
+        assert {"--start", "--end", "--gyro-name", "--gyro", "--date"} <= set(p["options"])
+    else:
+        assert {"--coords", "--segment-s", "--overlap", "--pad", "--gyro", "band_pct", "seen_pct", "min_mac"} <= set(p["options"])
+    newest = max(run_["states"].stat().st_mtime, run_["run"].stat().st_mtime)
+    from datetime import datetime, timezone
+    assert p["date"] == datetime.fromtimestamp(int(newest), tz=timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")
+    assert p["date_source"] == "modification time of the newest input"
+    md = (out / "report.md").read_text()
+    page = (out / "report.html").read_text()
+    for text in (md, page):
+        assert "Provenance" in text and p["date"] in text and f"cdgps {__version__}" in text
+        for i in p["inputs"]:
+            assert i["sha256"] in text
+        assert sha(run_["dir"] / "init.json") in text
+    assert f"cdgps report {which} {run_['states']}" in md
+
+
+def test_report_date_sources(static_run, tmp_path, monkeypatch):
+    from cdgps_cli.provenance import report_date
+
+    f = [static_run["states"]]
+    monkeypatch.delenv("SOURCE_DATE_EPOCH", raising=False)
+    assert report_date(f, "2026-12-01") == {"date": "2026-12-01", "source": "--date"}
+    assert report_date(f, "2026-12-01T23:30:00+01:00")["date"] == "2026-12-01 22:30:00 UTC"
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "1764633600")
+    assert report_date(f) == {"date": "2025-12-02 00:00:00 UTC", "source": "SOURCE_DATE_EPOCH"}
+    assert report_date(f, "2026-01-02")["source"] == "--date"                 # the option wins
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "yesterday")
+    with pytest.raises(CdgpsError, match="SOURCE_DATE_EPOCH"):
+        report_date(f)
+    monkeypatch.delenv("SOURCE_DATE_EPOCH")
+    out = tmp_path / "o"
+    r = cli(["report", "static", static_run["states"], "--angle", "q6+q10", "--date", "1st of May", "-o", out])
+    assert r.exit_code == 2 and "--date" in r.stderr and "Traceback" not in r.output
+    assert not out.exists()
+    r = cli(["report", "static", static_run["states"], "--angle", "q6+q10", "--date", "2026-12-01", "-o", out, "--json"])
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["provenance"]["date"] == "2026-12-01"
+    assert "| date | 2026-12-01 (--date) |" in (out / "report.md").read_text()
+
+
+def test_spectrum_table_sorted_with_mode_numbers_and_zeta(spectrum_out, testbed_cfg):
+    d, out = spectrum_out
+    md = (out / "report.md").read_text()
+    lines = [ln for ln in md.splitlines() if ln.startswith("| ")]
+    header = [c.strip() for c in lines[0].strip("|").split("|")]
+    assert header[:3] == ["#", "mode", "model Hz"]
+    assert {"ζ", "σ ζ", "model ζ"} <= set(header) and not any("damping" in h for h in header)
+    rows = [[c.strip() for c in ln.strip("|").split("|")] for ln in lines[1:9]]
+    hz = [float(r[2]) for r in rows]
+    assert hz == sorted(hz) and len(rows) == 8
+    number = {n: i + 1 for i, n in enumerate(testbed_cfg.mode_names)}          # the config's = Table 1's numbers
+    assert all(int(r[0]) == number[r[1]] for r in rows)
+    assert [m["number"] for m in d["modes"]] == [int(r[0]) for r in rows]       # report.json in table order
+    peaks = json.loads((out / "peaks.json").read_text())
+    assert all(m["number"] == number[m["mode"]] for m in peaks["modes"])
+    # the figures' key under the panels uses the same numbers, in frequency order
+    from cdgps_cli.reports import _mode_key
+    key = _mode_key(testbed_cfg, {"modes": peaks["modes"]})
+    assert key == "model modes: " + ", ".join(f"{r[0]} {r[1]} ({float(r[2]):g} Hz)" for r in rows)
+    page = (out / "report.html").read_text()
+    assert "<th>ζ</th>" in page and "<th>model ζ</th>" in page
+
+
+@pytest.mark.parametrize("which", ["static", "spectrum"])
+def test_every_figure_has_a_caption(which, static_out, spectrum_out):
+    out = (static_out if which == "static" else spectrum_out)[1]
+    names = ["static.png"] if which == "static" else ["psd.png", "fdd.png"]
+    rep = json.loads((out / "report.json").read_text())
+    assert list(rep["captions"]) == names and all(len(c) > 80 for c in rep["captions"].values())
+    page = (out / "report.html").read_text()
+    md = (out / "report.md").read_text()
+    caps = re.findall(r"<figcaption>(.*?)</figcaption>", page, re.S)
+    assert len(caps) == len(names) == page.count("<figure>")
+    import html as _html
+    for i, (name, cap) in enumerate(zip(names, caps), 1):
+        text = _html.unescape(re.sub(r"<[^>]+>", "", cap))
+        assert text == f"Figure {i} ({name}). {rep['captions'][name]}"
+        assert f"![{name}]({name})\n\n*Figure {i} ({name}). {rep['captions'][name]}*" in md
+    assert_well_formed(page)
+
+
+def test_static_caption_and_sigma_reported(static_out):
+    d, out = static_out
+    cap = json.loads((out / "report.json").read_text())["captions"]["static.png"]
+    assert f"{d['start_s']:.1f}–{d['end_s']:.1f} s" in cap and "g4, g5" in cap and "survey -1.4°" in cap
+    assert d["estimated_sigma_deg"] is not None and f"{d['estimated_sigma_deg']:.4f}°" in (out / "report.md").read_text()
+
+
+def test_static_figure_gps_on_its_own_scale():
+    """The GPS panel's scale is the estimate's (and the survey's), whatever the gyro drifts or the
+    σ band spans; the gyro difference is on the second panel."""
+    from cdgps_cli.reports import plot_static
+
+    t = np.arange(0, 100, 0.1)
+    a = -1.4 + 0.01 * np.sin(t)                             # 0.01° of scatter
+    g = a - 0.01 * t                                        # a 1° gyro drift
+    fig = plot_static(t, a, np.full(t.size, 0.1), -1.4, "q6+q10", g, ["g4"])
+    ax1, ax2 = fig.axes[:2]
+    lo, hi = ax1.get_ylim()
+    assert lo < a.min() and hi > a.max() and hi - lo < 0.1      # not flattened by the gyro or the band
+    lo2, hi2 = ax2.get_ylim()
+    assert lo2 <= -0.99 and hi2 >= 0                         # gyro − GPS on its own axis
+    assert "beyond this axis" in " ".join(t.get_text() for t in ax1.get_legend().get_texts())
+    import matplotlib.pyplot as plt
+    plt.close(fig)
