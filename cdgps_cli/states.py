@@ -115,15 +115,20 @@ def _write_angles(out: McapOut, cfg: StructureConfig, time_s, q: np.ndarray, P_x
         return
     A = np.array([c for _, _, c in angles])                   # (n_angles, n_q)
     AU = A @ np.asarray(cfg.mode_shapes)                      # (n_angles, n_m)
-    deg = np.degrees(q @ A.T).tolist()
-    sig = np.degrees(np.sqrt(np.maximum(np.einsum("ai,nij,aj->na", AU, P_xi, AU), 0.0))).tolist()
     names = [n for n, _, _ in angles]
+    sig_names = ["sigma_" + n for n in names]
     ch = out.channel(ANGLES_TOPIC, _angles_schema(angles),
                      {"units": "deg", "angles": json.dumps({n: e for n, e, _ in angles})})
-    for k, t in enumerate(time_s):
-        msg = dict(zip(names, deg[k]))
-        msg.update(zip(["sigma_" + n for n in names], sig[k]))
-        out.write(ch, t, msg)
+    times = np.asarray(time_s, dtype=float)
+    for a in range(0, times.size, 1024):                      # blocks: no full-length temporaries
+        b = min(a + 1024, times.size)
+        deg = np.degrees(q[a:b] @ A.T).tolist()
+        var = np.einsum("ai,nij,aj->na", AU, P_xi[a:b], AU)
+        sig = np.degrees(np.sqrt(np.maximum(var, 0.0))).tolist()
+        for k, t in enumerate(times[a:b].tolist()):
+            msg = dict(zip(names, deg[k]))
+            msg.update(zip(sig_names, sig[k]))
+            out.write(ch, t, msg)
 
 
 def coordinate_sigma(cfg: StructureConfig, P_xi: np.ndarray) -> np.ndarray:
