@@ -17,6 +17,8 @@ restated here from reading that decoder (no code taken from it):
   arrays, item type lists and missing items are refused.
 
 A message is decoded with JavaScript's ``JSON.parse``, which refuses ``NaN`` and ``Infinity``.
+Panels such as Plot address a field by a message path (``/cdgps/angles_deg.C2_z``) whose names
+are letters, digits, ``_`` and ``-`` (:func:`path_name_problems`).
 
 :func:`check_mcap` applies these rules to every channel of a file read with the official ``mcap``
 reader (CRCs validated), validates every message against its channel's schema with the
@@ -28,6 +30,7 @@ reader (CRCs validated), validates every message against its channel's schema wi
 from __future__ import annotations
 
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -99,6 +102,24 @@ def _field_problems(fs: dict, path: str) -> list[str]:
     return [f"{path}: unsupported type {json.dumps(t)}"]
 
 
+_PATH_ID = re.compile(r"[A-Za-z0-9_-]+")
+
+
+def path_name_problems(schema: dict, name: str = "") -> list[str]:
+    """Field names a Foxglove message path (``/topic.field.sub``) cannot spell: its identifiers are
+    letters, digits, ``_`` and ``-`` only (Plot panels address fields by these paths)."""
+    out = []
+    for k, fs in (schema.get("properties") or {}).items() if isinstance(schema, dict) else ():
+        path = f"{name}.{k}" if name else k
+        if not _PATH_ID.fullmatch(k):
+            out.append(f"{path}: name cannot be written in a message path (letters, digits, _ and - only)")
+        if isinstance(fs, dict) and fs.get("type") == "object":
+            out += path_name_problems(fs, path)
+        elif isinstance(fs, dict) and fs.get("type") == "array" and isinstance(fs.get("items"), dict):
+            out += path_name_problems(fs["items"], path)
+    return out
+
+
 def undeclared_fields(schema: dict, msg, name: str = "") -> list[str]:
     """Message members that the schema does not declare (Foxglove's panels would not list them)."""
     out = []
@@ -155,7 +176,7 @@ def check_mcap(path: str | Path, validate: bool = True, max_problems: int = 20) 
                                               f"{sc.encoding if sc else None!r}: expected json / jsonschema")
                 continue
             schema = json.loads(sc.data)
-            rec["schema_problems"] += foxglove_schema_problems(schema)
+            rec["schema_problems"] += foxglove_schema_problems(schema) + path_name_problems(schema)
             scale = ch.metadata.get("time_scale")
             if scale not in TIME_SCALES:
                 rec["schema_problems"].append(f"channel metadata time_scale {scale!r}: expected one of {TIME_SCALES}")

@@ -25,7 +25,7 @@ from mcap.reader import make_reader
 from cdgps_cli.cli import main
 from cdgps_cli.config import load_config
 from cdgps_cli.expressions import parse_expression
-from cdgps_cli.mcap_check import check_mcap, foxglove_schema_problems
+from cdgps_cli.mcap_check import check_mcap, foxglove_schema_problems, path_name_problems
 from cdgps_cli.mcap_io import McapOut, array_schema, read_mcap
 from cdgps_cli.rinex import read_rinex_nav, read_rinex_obs
 from cdgps_cli.run import read_run
@@ -86,6 +86,10 @@ def test_foxglove_rules_refuse_what_the_decoder_refuses():
         nested = foxglove_schema_problems({"type": "object", "properties": {"o": {"type": "object", "properties": {"x": fs}}}})
         assert len(nested) == 1 and nested[0].startswith("o.x:"), (what, nested)
     assert foxglove_schema_problems({"type": "array"})                       # the root must be an object
+    assert path_name_problems(ok) == []
+    assert path_name_problems({"type": "object", "properties": {"o": {"type": "object", "properties": {
+        "q6+q10": {"type": "number"}, "0759_e": {"type": "number"}}}}}) == [
+        "o.q6+q10: name cannot be written in a message path (letters, digits, _ and - only)"]
     assert foxglove_schema_problems({"properties": {}})
 
 
