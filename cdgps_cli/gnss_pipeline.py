@@ -47,9 +47,9 @@ from .dd import dd_weight_blocks, select_reference
 from .errors import CdgpsError
 from .gnss import L1_WAVELENGTH_M
 from .gnss_run import GnssRun, processing_obs
-from .mcap_io import CONFIG_ATTACHMENT, McapOut, array_schema, read_mcap
+from .mcap_io import NULLABLE, CONFIG_ATTACHMENT, McapOut, array_schema, read_mcap
 from .rinex import gps_time_str
-from .states import (ESTIMATE_METADATA, EVENT_SCHEMA, EVENT_TOPIC, INIT_ATTACHMENT, RESIDUAL_SCHEMA, RESIDUAL_TOPIC,
+from .states import (ESTIMATE_METADATA, EVENT_TOPIC, event_schema, INIT_ATTACHMENT, RESIDUAL_SCHEMA, RESIDUAL_TOPIC,
                      STATE_FILTERED_TOPIC, STATE_TOPIC)
 
 __all__ = ["gnss_init", "gnss_estimate", "displacement_structure_config", "export_kinematic_csv", "KINEMATIC_TOPIC",
@@ -479,8 +479,9 @@ def _npy(arr) -> bytes:
 
 def _state_schema(title: str, names) -> dict:
     obj = {"type": "object", "properties": {n: {"type": "number"} for n in names}}
-    s = array_schema(title, {"xi": "number", "xidot": "number", "P_xi": "number"}, {"smoothed": "boolean"})
-    s["properties"]["q"] = dict(obj, description="displacement from the nominal position, m (E, N, U per rover)")
+    s = array_schema(title, {"xi": NULLABLE, "xidot": "number", "P_xi": "number"}, {"smoothed": "boolean"})
+    s["properties"]["q"] = dict(obj, description="displacement from the nominal position, m (E, N, U per rover); "
+                                "a coordinate without a solution at this epoch is left out")
     s["properties"]["sigma_q"] = dict(obj, description="1-sigma of q, m")
     return s
 
@@ -509,7 +510,7 @@ def _write_gnss_states(run, init, init_text, out_path, names, t, q, P, qf, Pf, k
             "coordinates": ",".join(names), "master": run.master,
             "rovers": json.dumps(json_safe(meta_extra["rovers"]), sort_keys=True)}
     sig = np.sqrt(np.maximum(np.einsum("nii->ni", P), 0.0))
-    with McapOut(out_path) as out:
+    with McapOut(out_path, time_scale="gps") as out:
         series = [(STATE_TOPIC, q, P, sig, smoothed)]
         if qf is not None:
             series.append((STATE_FILTERED_TOPIC, qf, Pf, np.sqrt(np.maximum(np.einsum("nii->ni", Pf), 0.0)), False))
@@ -539,7 +540,7 @@ def _write_gnss_states(run, init, init_text, out_path, names, t, q, P, qf, Pf, k
             out.write(ch, tk, {"antenna": [a for a, u in zip(ants, used) if u],
                                "transmitter": [x for x, u in zip(txs, used) if u], "residual_m": rk[used].tolist(),
                                "nis": None if np.isnan(nis[k]) else float(nis[k]), "nis_dof": int(nis_dof[k])})
-        ch = out.channel(EVENT_TOPIC, EVENT_SCHEMA)
+        ch = out.channel(EVENT_TOPIC, event_schema(events))
         for ev in events:
             out.write(ch, ev["time_s"], {k: v for k, v in ev.items() if k != "time_s"})
         out.attach(CONFIG_ATTACHMENT, struct_text.encode(), "application/toml")

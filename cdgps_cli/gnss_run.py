@@ -10,11 +10,14 @@ lock times and half-cycle flags converted to LLI bits).
 
 Layout (format details in docs/gnss-pipeline.md):
 
-* topic ``/cdgps/gnss/obs`` — one JSON message per receiver and epoch (log time = the receiver's
-  time tag, GPS seconds since 1980-01-06 as nanoseconds): ``receiver``, ``epoch_flag``,
-  ``clock_offset_s`` and per satellite ``sat``, ``phase_cycles``, ``pseudorange_m``,
-  ``snr_dbhz``, ``doppler_hz``, ``lli``, ``half_cycle``, ``lock_time_ms``;
-* topic ``/cdgps/gnss/ephemeris`` — one message per broadcast ephemeris record (log time = toc);
+* topic ``/cdgps/gnss/obs`` — one JSON message per receiver and epoch (``time_s`` = the receiver's
+  time tag, GPS seconds since 1980-01-06; log time = the same instant in UTC, Unix ns, see
+  :mod:`cdgps_cli.timescales`): ``receiver``, ``epoch_flag``, ``clock_offset_s`` (left out when
+  the epoch has none) and per satellite ``sat``, ``phase_cycles``, ``pseudorange_m``,
+  ``snr_dbhz``, ``doppler_hz`` (each with its boolean ``<field>_valid`` array: 0 and false where
+  the observation is missing), ``lli``, ``half_cycle``, ``lock_time_ms``;
+* topic ``/cdgps/gnss/ephemeris`` — one message per broadcast ephemeris record (time_s = toc,
+  GPS s; fields the record lacks, e.g. a blank fit interval, are left out);
 * attachments ``gnss/receivers.json`` (names, formats, source files, headers, read summaries),
   ``gnss/obs/<receiver>.npz.zst`` (the raw table as zstd-compressed numpy arrays: the fast path
   every later stage reads), ``gnss/ephemeris.json`` (the ephemeris table), ``config.toml`` (the
@@ -38,7 +41,7 @@ from .atomic import file_sha256, path_for_config
 from .config import GnssConfig, gnss_config_toml, parse_gnss_config
 from .errors import CdgpsError
 from .gnss import ephemeris_coverage, match_epochs, nominal_interval_s
-from .mcap_io import CONFIG_ATTACHMENT, McapOut, array_schema, read_mcap
+from .mcap_io import CONFIG_ATTACHMENT, McapOut, array_schema, message_schema, read_mcap
 from .rinex import NAV_COLUMNS, OBS_COLUMNS, gps_time_str, read_rinex_nav, read_rinex_obs
 
 __all__ = [
@@ -85,9 +88,9 @@ OBS_SCHEMA = array_schema(
      "doppler_hz": "number|null", "lli": "integer", "half_cycle": "integer", "lock_time_ms": "integer"},
     {"receiver": "string", "epoch_flag": "integer", "clock_offset_s": "number|null"},
 )
-EPHEMERIS_SCHEMA = {"title": "cdgps.GpsEphemeris", "type": "object", "properties": {
-    "timestamp": {"type": "object"}, "time_s": {"type": "number", "description": "toc, GPS s"},
-    **{c: {"type": "string" if c == "sat" else "number"} for c in NAV_COLUMNS}}}
+EPHEMERIS_SCHEMA = message_schema("cdgps.GpsEphemeris", {
+    **{c: {"type": "string" if c == "sat" else "number"} for c in NAV_COLUMNS}},
+    "one broadcast ephemeris record (RINEX nav); time_s = toc, GPS s; fields the record lacks are left out")
 
 
 @dataclass
@@ -510,7 +513,7 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
         rx_json.append({"name": n, "format": rx.format, "file": rx.file, "header": rx.header, "info": rx.info,
                         "position_source": pos_src[n][0], "position_ecef_m": pos_src[n][1]})
     lock = {n: lock_summary(rx) for n, rx in receivers.items()}
-    with McapOut(out_path) as out:
+    with McapOut(out_path, time_scale="gps") as out:
         n_eph = 0
         if nav is not None:
             ch_e = out.channel(GNSS_EPHEMERIS_TOPIC, EPHEMERIS_SCHEMA, {"source": ",".join(Path(p).name for p in nav_list)})

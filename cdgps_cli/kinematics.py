@@ -263,3 +263,46 @@ class EpochGeometry:
         else:
             p = local + self.origin
         return (p, J) if jacobian else p
+
+
+def section_angles(cfg: StructureConfig) -> list[tuple[str, str, np.ndarray]]:
+    """The angles reports speak of, as small-angle sums of rotation coordinates.
+
+    One angle per section and body axis the section rotates about (its own coordinate, plus the
+    rigid-body rotation about the vertical for the z axis: ``C2_z`` = q6+q10 on the testbed), and
+    ``body_z`` for the rigid-body rotation itself.
+
+    Returns
+    -------
+    list of (name, expression, coefficients)
+        ``name`` is a plain identifier (letters, digits, ``_``) usable as a field name; the
+        expression is the sum as text (``"q6+q10"``); coefficients has shape (n_q,), rad per
+        coordinate unit.
+    """
+    out, used = [], set()
+
+    def add(label: str, coef: np.ndarray) -> None:
+        name = "".join(ch if ch.isascii() and (ch.isalnum() or ch == "_") else "_" for ch in label)
+        if not name or name[0].isdigit():
+            name = "s_" + name
+        base, i = name, 2
+        while name in used:
+            name, i = f"{base}_{i}", i + 1
+        used.add(name)
+        expr = "+".join(cfg.coord_names[j] for j in np.flatnonzero(coef))
+        out.append((name, expr, coef))
+
+    if cfg.rigid_index is not None:
+        c = np.zeros(cfg.n_q)
+        c[cfg.rigid_index] = 1.0
+        add("body_z", c)
+    for s in cfg.sections:
+        for axis in sorted({a for a, _ in s.rotation}):
+            c = np.zeros(cfg.n_q)
+            for a, j in s.rotation:
+                if a == axis:
+                    c[j] += 1.0
+            if axis == 2 and cfg.rigid_index is not None:
+                c[cfg.rigid_index] += 1.0
+            add(f"{s.name}_{'xyz'[axis]}", c)
+    return out

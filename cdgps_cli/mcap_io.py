@@ -5,7 +5,14 @@ Layout written by :class:`McapOut`:
 * zstd-compressed chunks, chunk and data-section CRCs, full summary and indexes;
 * JSON-schema channels (schema encoding ``jsonschema``, message encoding ``json``) so Foxglove can
   open the file; one message per epoch per topic, the epoch's channels as arrays, with a
-  ``timestamp {sec, nsec}`` field (log time = publish time = that timestamp);
+  ``timestamp {sec, nsec}`` field (log time = publish time = that timestamp, Unix time: see
+  :mod:`cdgps_cli.timescales`) and ``time_s`` in the file's own time scale (GPS s or run s);
+* every schema is one Foxglove's JSON-schema decoder accepts (one ``type`` per property: boolean,
+  string, number, integer, object, or an array of one of those) and every message is valid
+  against it: no ``null`` anywhere.  A missing number in an array (a satellite without C/N0) is
+  written as 0 with ``false`` at its place in the parallel boolean array ``<field>_valid``; a
+  missing scalar or object member is left out of the message (:meth:`McapOut.write` does both
+  for the fields the schema declares that way; readers turn them back into NaN);
 * attachments (e.g. the structure config ``config.toml``; large ``.npy`` arrays are streamed to
   the file by :meth:`McapOut.attach_npy` instead of being built in memory) and metadata records.
 
@@ -35,23 +42,83 @@ from mcap.writer import CompressionType, IndexType, Writer
 
 from .atomic import temporary_name
 from .errors import CdgpsError
+from .timescales import RELATIVE_EPOCH_UTC, TIME_SCALES, unix_ns
 
 PHASE_TOPIC = "/cdgps/phase"
 GYRO_TOPIC = "/cdgps/gyro"
 ACTUATOR_TOPIC = "/cdgps/actuators"
 CONFIG_ATTACHMENT = "config.toml"
 
-_TS = {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}}
+TIMESTAMP_SCHEMA = {"type": "object", "description": "log time, UTC (Unix time)",
+                    "properties": {"sec": {"type": "integer", "minimum": 0, "description": "s since 1970-01-01"},
+                                   "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999}},
+                    "required": ["sec", "nsec"]}
+_TS = TIMESTAMP_SCHEMA
+NULLABLE = "number|null"
+"""Field type of :func:`array_schema` for a number that may be missing (NaN): in an array, a
+``number`` array plus its boolean ``<field>_valid`` array; as a scalar, a ``number`` that is left
+out of the messages where it is missing."""
+VALID_SUFFIX = "_valid"
+
+
+def message_schema(title: str, properties: dict, description: str | None = None) -> dict:
+    """JSON schema of a message: ``timestamp``, ``time_s`` and ``properties``, both required."""
+    props = {"timestamp": TIMESTAMP_SCHEMA,
+             "time_s": {"type": "number", "description": "seconds in the file's time scale (channel metadata time_scale)"}}
+    props.update(properties)
+    s = {"title": title, "type": "object", "properties": props, "required": ["timestamp", "time_s"]}
+    if description:
+        s["description"] = description
+    return s
 
 
 def array_schema(title: str, fields: dict[str, str], scalars: dict[str, str] | None = None) -> dict:
-    """JSON schema of an epoch message: ``timestamp``, ``time_s``, scalars and per-channel arrays."""
-    props = {"timestamp": _TS, "time_s": {"type": "number", "description": "seconds"}}
+    """JSON schema of an epoch message: ``timestamp``, ``time_s``, scalars and per-channel arrays.
+
+    Types are JSON-schema type names; :data:`NULLABLE` (``"number|null"``) marks a number that may be
+    missing (an array field then gets its ``<field>_valid`` companion, see :meth:`McapOut.write`).
+    """
+    props = {}
     for k, t in (scalars or {}).items():
-        props[k] = {"type": t}
+        props[k] = {"type": "number", "description": "left out where missing"} if t == NULLABLE else {"type": t}
     for k, t in fields.items():
-        props[k] = {"type": "array", "items": {"type": t} if t != "number|null" else {"type": ["number", "null"]}}
-    return {"title": title, "type": "object", "properties": props}
+        props[k] = {"type": "array", "items": {"type": "number" if t == NULLABLE else t}}
+        if t == NULLABLE:
+            props[k]["description"] = f"0 where {k}{VALID_SUFFIX} is false (missing)"
+            props[k + VALID_SUFFIX] = {"type": "array", "items": {"type": "boolean"},
+                                       "description": f"whether {k} holds a value at this index"}
+    return message_schema(title, props)
+
+
+def _nullable_fields(schema: dict) -> tuple[frozenset, frozenset]:
+    """(array fields with a ``_valid`` companion, all other number / object fields) of a schema."""
+    props = schema.get("properties", {})
+    arrays = frozenset(k for k in props if k + VALID_SUFFIX in props and props[k].get("type") == "array")
+    others = frozenset(k for k, v in props.items()
+                       if k not in arrays and v.get("type") in ("number", "integer", "object", "string", "boolean"))
+    return arrays, others
+
+
+def _drop_missing(v):
+    """An object member / scalar without its NaN or None entries (objects recursively)."""
+    if isinstance(v, dict):
+        return {k: _drop_missing(x) for k, x in v.items() if not _missing(x)}
+    return v
+
+
+def _missing(v) -> bool:
+    return v is None or (isinstance(v, float) and v != v)
+
+
+def _with_validity(payload: dict, field: str) -> None:
+    """Replace missing elements of ``payload[field]`` by 0 and set ``payload[field + '_valid']``."""
+    vals = payload.get(field)
+    if vals is None:
+        return
+    vals = vals.tolist() if isinstance(vals, np.ndarray) else list(vals)
+    valid = [not _missing(x) for x in vals]
+    payload[field] = [x if ok else 0.0 for x, ok in zip(vals, valid)]
+    payload[field + VALID_SUFFIX] = valid
 
 
 PHASE_SCHEMA = array_schema(
@@ -64,13 +131,13 @@ GYRO_SCHEMA = array_schema("cdgps.RateGyro", {"gyro": "string", "rate_rad_s": "n
 ACTUATOR_SCHEMA = array_schema("cdgps.ThrusterCommand", {"actuator": "string", "force_n": "number"})
 
 
-def time_ns(time_s: float) -> int:
-    """Seconds → integer nanoseconds (log time); rounds to the nearest nanosecond."""
-    return int(round(float(time_s) * 1e9))
+def time_ns(time_s: float, time_scale: str = "relative") -> int:
+    """Payload seconds → log time, integer Unix nanoseconds (:func:`cdgps_cli.timescales.unix_ns`)."""
+    return unix_ns(time_s, time_scale)
 
 
-def timestamp(time_s: float) -> dict:
-    ns = time_ns(time_s)
+def timestamp(time_s: float, time_scale: str = "relative") -> dict:
+    ns = time_ns(time_s, time_scale)
     return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
 
 
@@ -87,11 +154,6 @@ def _streaming_supported(writer: Writer, fh) -> bool:
     return writer._Writer__stream is fh and hasattr(writer._Writer__statistics, "attachment_count")
 
 
-def _clean(v):
-    """JSON-safe scalar (NaN → null)."""
-    return None if isinstance(v, float) and v != v else v
-
-
 class McapOut:
     """Atomic MCAP writer (context manager).
 
@@ -102,12 +164,16 @@ class McapOut:
     ...     out.write(ch, 0.1, {"phase_cycles": [0.25]})
     """
 
-    def __init__(self, path: str | Path, profile: str = "cdgps"):
+    def __init__(self, path: str | Path, profile: str = "cdgps", time_scale: str = "relative"):
+        if time_scale not in TIME_SCALES:
+            raise ValueError(f"time_scale {time_scale!r}: expected one of {', '.join(TIME_SCALES)}")
         self.path = Path(path)
         self.tmp = temporary_name(self.path)
         self.profile = profile
+        self.time_scale = time_scale
         self._schemas: dict[str, int] = {}
         self._seq: dict[int, int] = {}
+        self._nullable: dict[int, tuple] = {}
 
     def __enter__(self) -> "McapOut":
         try:
@@ -121,20 +187,52 @@ class McapOut:
         return self
 
     def channel(self, topic: str, schema: dict, metadata: dict | None = None) -> int:
+        """Register a channel; its metadata also records the time scale (``time_scale``,
+        ``time_origin_utc`` for relative runs) and that log times are Unix time."""
         title = schema["title"]
+        data = json.dumps(schema, sort_keys=True).encode()
         if title not in self._schemas:
-            self._schemas[title] = self.writer.register_schema(
-                name=title, encoding="jsonschema", data=json.dumps(schema, sort_keys=True).encode())
+            self._schemas[title] = (self.writer.register_schema(name=title, encoding="jsonschema", data=data), data)
+        elif self._schemas[title][1] != data:
+            raise ValueError(f"schema {title!r} registered twice with different contents")
+        meta = {"time_scale": self.time_scale, "log_time": "UTC, ns since 1970-01-01 (Unix time)"}
+        if self.time_scale == "relative":
+            meta["time_origin_utc"] = RELATIVE_EPOCH_UTC
+        meta.update(metadata or {})
         cid = self.writer.register_channel(topic=topic, message_encoding="json",
-                                           schema_id=self._schemas[title], metadata=metadata or {})
+                                           schema_id=self._schemas[title][0], metadata=meta)
         self._seq[cid] = 0
+        self._nullable[cid] = _nullable_fields(schema)
         return cid
 
     def write(self, channel_id: int, time_s: float, payload: dict) -> None:
-        ns = time_ns(time_s)
+        """Write one message at payload time ``time_s`` (the file's time scale; log time in Unix ns).
+
+        Missing values (None or NaN) are encoded as the channel's schema says: arrays with a
+        ``<field>_valid`` companion get 0 there and ``false`` in the companion; scalars and object
+        members are left out.  Anything else that is missing is an error (no ``null`` is written).
+        """
+        ns = time_ns(time_s, self.time_scale)
         msg = {"timestamp": {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}, "time_s": float(time_s)}
-        msg.update(payload)
-        data = json.dumps(msg, separators=(",", ":"), allow_nan=False).encode()
+        arrays, others = self._nullable[channel_id]
+        for k, v in payload.items():
+            if k in arrays:
+                msg[k] = v
+                _with_validity(msg, k)
+            elif k in others or not isinstance(v, list):
+                if not _missing(v):
+                    msg[k] = _drop_missing(v)
+            else:
+                if None in v:
+                    raise ValueError(f"message at {time_s!r} s: missing values in array field {k!r} whose schema "
+                                     f"has no {VALID_SUFFIX} companion")
+                msg[k] = v
+        try:
+            data = json.dumps(msg, separators=(",", ":"), allow_nan=False).encode()
+        except ValueError:
+            bad = [k for k, v in msg.items() if isinstance(v, list) and any(_missing(x) for x in v)]
+            raise ValueError(f"message at {time_s!r} s: missing values in array field(s) {', '.join(bad) or '?'} "
+                             f"whose schema has no {VALID_SUFFIX} companion") from None
         self.writer.add_message(channel_id=channel_id, log_time=ns, publish_time=ns, data=data,
                                 sequence=self._seq[channel_id])
         self._seq[channel_id] += 1
@@ -150,12 +248,7 @@ class McapOut:
         t = df["time_s"].to_numpy()
         cuts = np.flatnonzero(np.r_[True, t[1:] != t[:-1], True])
         cols = {c: df[c].to_numpy() for c in array_columns}
-        lists = {}
-        for c, v in cols.items():
-            if v.dtype.kind == "f" and np.isnan(v).any():
-                lists[c] = [_clean(x) for x in v.tolist()]
-            else:
-                lists[c] = v.tolist()
+        lists = {c: v.tolist() for c, v in cols.items()}      # NaN: encoded by write() per the schema
         scal = {c: df[c].to_numpy() for c in scalar_columns}
         for a, b in zip(cuts[:-1], cuts[1:]):
             payload = {c: scal[c][a] for c in scalar_columns}
@@ -332,7 +425,11 @@ class TopicColumns:
         return np.asarray(self.scalars.get("time_s", []), dtype=float)
 
     def column(self, name: str) -> np.ndarray:
-        """Concatenation of an array field over all messages (object array for strings)."""
+        """Concatenation of an array field over all messages (object array for strings).
+
+        Numbers whose ``<name>_valid`` companion is false come back as NaN (as ``null`` elements
+        of files written before the companions did).
+        """
         buf = self._buf.get(name)
         if not buf:
             return np.array([], dtype=float)
@@ -341,7 +438,13 @@ class TopicColumns:
             for w, i in self._vocab[name].items():
                 words[i] = w
             return words[np.frombuffer(buf, dtype=np.int32)]
-        return np.frombuffer(buf, dtype=float).copy()        # a copy: the buffer may still grow
+        out = np.frombuffer(buf, dtype=float).copy()          # a copy: the buffer may still grow
+        valid = self._buf.get(name + VALID_SUFFIX)
+        if valid is not None and name + VALID_SUFFIX not in self._vocab:
+            if len(valid) != out.size:
+                raise ValueError(f"field {name!r}: {out.size} values but {len(valid)} {name}{VALID_SUFFIX} flags")
+            out[np.frombuffer(valid, dtype=float) == 0.0] = np.nan
+        return out
 
     def table(self, array_columns: list[str], scalar_columns: list[str] = ()) -> pd.DataFrame:
         """Long table: one row per array element, scalars repeated (inverse of write_table)."""

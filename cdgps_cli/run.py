@@ -143,7 +143,7 @@ def write_run(cfg: StructureConfig, receiver_csv: str | Path, out_path: str | Pa
     for k, p in sources.items():
         meta[k] = p.name
         meta[k + "_sha256"] = file_sha256(p)
-    with McapOut(out_path) as out:
+    with McapOut(out_path, time_scale="relative") as out:     # time_s: run seconds (cdgps_cli.timescales)
         ch = out.channel(PHASE_TOPIC, PHASE_SCHEMA, {"units": "cycles", "wavelength_m": repr(cfg.wavelength_m)})
         n_phase = out.write_table(ch, phase, PHASE_ARRAYS, ["master"])
         n_gyro = n_act = 0

@@ -6,8 +6,19 @@ Topics (JSON schema / JSON, one message per epoch, ``timestamp {sec, nsec}``):
   keyed by coordinate name (so Foxglove plots ``/cdgps/state.q.q10`` directly), the modal state
   ``xi``, ``xidot``, the modal-position covariance ``P_xi`` (row-major n_m×n_m), ``smoothed``;
 * ``/cdgps/state_filtered`` — the forward filter, only when smoothing;
-* ``/cdgps/residuals`` — per channel post-fit residual (m), the epoch's NIS and its dof;
+* ``/cdgps/angles_deg`` — the section angles reports speak of, in degrees, as flat numbers with
+  plain names so Foxglove's Plot panel plots ``/cdgps/angles_deg.C2_z`` (q6+q10 on the testbed)
+  by name: one per section and axis it rotates about (small-angle sum of its rotation coordinate
+  and, about z, the rigid-body rotation), ``body_z`` for the rigid-body rotation, each with its
+  1-sigma ``sigma_<name>``; the expressions are in the schema's descriptions and the channel's
+  metadata (:func:`cdgps_cli.kinematics.section_angles`); absent when the model has no rotations;
+* ``/cdgps/residuals`` — per channel post-fit residual (m), the epoch's NIS (left out where
+  there is none) and its dof;
 * ``/cdgps/events`` — slips, re-acquisitions, outliers, integrity failures and their actions.
+
+``time_s`` is the run's time scale (run seconds, or GPS s for a structure on a GNSS run); log
+times are Unix time (:mod:`cdgps_cli.timescales`).  No message holds ``null``
+(:mod:`cdgps_cli.mcap_io`).
 
 Attachments: ``config.toml``, ``init.json``.  Metadata ``cdgps.estimate``: RUN and INIT sha256,
 options, final biases.
@@ -26,7 +37,7 @@ from . import __version__
 from .config import StructureConfig, parse_config
 from .atomic import write_atomic
 from .errors import CdgpsError
-from .mcap_io import CONFIG_ATTACHMENT, McapOut, array_schema, read_mcap
+from .mcap_io import NULLABLE, CONFIG_ATTACHMENT, McapOut, array_schema, message_schema, read_mcap
 
 STATE_TOPIC = "/cdgps/state"
 STATE_FILTERED_TOPIC = "/cdgps/state_filtered"
@@ -34,6 +45,7 @@ RESIDUAL_TOPIC = "/cdgps/residuals"
 EVENT_TOPIC = "/cdgps/events"
 INIT_ATTACHMENT = "init.json"
 ESTIMATE_METADATA = "cdgps.estimate"
+ANGLES_TOPIC = "/cdgps/angles_deg"
 
 
 def _state_schema(cfg: StructureConfig) -> dict:
@@ -45,11 +57,78 @@ def _state_schema(cfg: StructureConfig) -> dict:
     return s
 
 
-RESIDUAL_SCHEMA = array_schema("cdgps.Residuals", {"antenna": "string", "transmitter": "string", "residual_m": "number|null"},
-                               {"nis": "number|null", "nis_dof": "integer"})
-EVENT_SCHEMA = {"title": "cdgps.Event", "type": "object", "properties": {
-    "timestamp": {"type": "object"}, "time_s": {"type": "number"}, "antenna": {"type": "string"},
-    "transmitter": {"type": "string"}, "kind": {"type": "string"}, "action": {"type": "string"}}}
+RESIDUAL_SCHEMA = array_schema("cdgps.Residuals", {"antenna": "string", "transmitter": "string", "residual_m": "number"},
+                               {"nis": NULLABLE, "nis_dof": "integer"})
+_EVENT_FIELDS = {"antenna": {"type": "string"}, "transmitter": {"type": "string"}, "kind": {"type": "string"},
+                 "action": {"type": "string"},
+                 "velocity_nis": {"type": "number", "description": "rest test statistic (rest events only)"}}
+EVENT_SCHEMA = message_schema("cdgps.Event", _EVENT_FIELDS)
+
+
+def _json_type(v) -> str | None:
+    if isinstance(v, (bool, np.bool_)):
+        return "boolean"
+    if isinstance(v, (int, np.integer)):
+        return "integer"
+    if isinstance(v, (float, np.floating)):
+        return "number"
+    if isinstance(v, str):
+        return "string"
+    return None
+
+
+def event_schema(events: list[dict]) -> dict:
+    """:data:`EVENT_SCHEMA` plus any further detail field the events carry (its JSON type from the
+    values: number when integers and floats mix), so every field is declared for Foxglove."""
+    extra: dict[str, set] = {}
+    for ev in events:
+        for k, v in ev.items():
+            if k != "time_s" and k not in _EVENT_FIELDS and v is not None and not (isinstance(v, float) and v != v):
+                extra.setdefault(k, set()).add(_json_type(v))
+    if not extra:
+        return EVENT_SCHEMA
+    props = dict(_EVENT_FIELDS)
+    for k, types in sorted(extra.items()):
+        if None in types:
+            raise ValueError(f"event field {k!r}: values of an unsupported type")
+        t = types.pop() if len(types) == 1 else ("number" if types <= {"integer", "number"} else None)
+        if t is None:
+            raise ValueError(f"event field {k!r}: values of mixed types {sorted(types)}")
+        props[k] = {"type": t}
+    return message_schema("cdgps.Event", props)
+
+
+def _angles_schema(angles) -> dict:
+    props = {}
+    for name, expr, _ in angles:
+        props[name] = {"type": "number", "description": f"{expr}, degrees"}
+        props["sigma_" + name] = {"type": "number", "description": f"1-sigma of {expr}, degrees"}
+    return message_schema("cdgps.AnglesDeg", props, "section angles in degrees (small-angle sums of coordinates)")
+
+
+def _write_angles(out: McapOut, cfg: StructureConfig, time_s, q: np.ndarray, P_xi: np.ndarray) -> None:
+    """The :data:`ANGLES_TOPIC` messages: section angles and their 1-sigma, degrees."""
+    from .kinematics import section_angles  # noqa: PLC0415
+
+    angles = section_angles(cfg)
+    if not angles:
+        return
+    A = np.array([c for _, _, c in angles])                   # (n_angles, n_q)
+    AU = A @ np.asarray(cfg.mode_shapes)                      # (n_angles, n_m)
+    names = [n for n, _, _ in angles]
+    sig_names = ["sigma_" + n for n in names]
+    ch = out.channel(ANGLES_TOPIC, _angles_schema(angles),
+                     {"units": "deg", "angles": json.dumps({n: e for n, e, _ in angles})})
+    times = np.asarray(time_s, dtype=float)
+    for a in range(0, times.size, 1024):                      # blocks: no full-length temporaries
+        b = min(a + 1024, times.size)
+        deg = np.degrees(q[a:b] @ A.T).tolist()
+        var = np.einsum("ai,nij,aj->na", AU, P_xi[a:b], AU)
+        sig = np.degrees(np.sqrt(np.maximum(var, 0.0))).tolist()
+        for k, t in enumerate(times[a:b].tolist()):
+            msg = dict(zip(names, deg[k]))
+            msg.update(zip(sig_names, sig[k]))
+            out.write(ch, t, msg)
 
 
 def coordinate_sigma(cfg: StructureConfig, P_xi: np.ndarray) -> np.ndarray:
@@ -79,7 +158,9 @@ def write_states(res, run_path: str | Path, init: dict, init_text: str,
             "final_biases": json.dumps([{"antenna": a, "transmitter": t, "bias_m": b}
                                         for (a, t), b in res.biases.items()]),
             "smoothed": str(res.smoothed).lower()}
-    with McapOut(out_path) as out:
+    from .gnss_run import run_kind  # noqa: PLC0415 (a structure estimated on a GNSS run: GPS time)
+
+    with McapOut(out_path, time_scale="gps" if run_kind(run_path) == "gnss" else "relative") as out:
         schema = _state_schema(cfg)
         series = [(STATE_TOPIC, res.x, res.P, res.smoothed)]
         if res.smoothed:
@@ -99,6 +180,8 @@ def write_states(res, run_path: str | Path, init: dict, init_text: str,
             for name, arr in (("time_s", res.time_s), ("q", q), ("sigma_q", sq), ("xi", X[:, :nm]),
                               ("P_xi", P_xi)):
                 out.attach_npy(f"arrays{topic}/{name}.npy", np.asarray(arr, dtype=float))
+            if topic == STATE_TOPIC:
+                _write_angles(out, cfg, res.time_s, q, P_xi)
             del q, sq, P_xi
         ch = out.channel(RESIDUAL_TOPIC, RESIDUAL_SCHEMA)
         ants = [c[0] for c in res.channels]
@@ -111,7 +194,7 @@ def write_states(res, run_path: str | Path, init: dict, init_text: str,
                               "residual_m": r[used].tolist(),
                               "nis": None if np.isnan(res.nis[k]) else float(res.nis[k]),
                               "nis_dof": int(res.nis_dof[k])})
-        ch = out.channel(EVENT_TOPIC, EVENT_SCHEMA)
+        ch = out.channel(EVENT_TOPIC, event_schema(res.events))
         for ev in res.events:
             body = {k: v for k, v in ev.items() if k != "time_s"}
             out.write(ch, ev["time_s"], body)
@@ -151,8 +234,9 @@ class States:
                 raise CdgpsError(f"{path}: no {topic} messages; is this a STATES.mcap from 'cdgps estimate'?")
             self.time_s = tc.times()
             names = list(self.cfg.coord_names)
-            self.q = np.array([[m[n] for n in names] for m in tc.scalars["q"]], dtype=float)
-            self.sigma_q = np.array([[m[n] for n in names] for m in tc.scalars["sigma_q"]], dtype=float)
+            nan = float("nan")                            # a coordinate left out (no solution): NaN
+            self.q = np.array([[_num(m.get(n, nan)) for n in names] for m in tc.scalars["q"]], dtype=float)
+            self.sigma_q = np.array([[_num(m.get(n, nan)) for n in names] for m in tc.scalars["sigma_q"]], dtype=float)
             N = len(self.time_s)
             self.xi = tc.column("xi").reshape(N, nm)
             self.P_xi = tc.column("P_xi").reshape(N, nm, nm)
@@ -165,6 +249,10 @@ class States:
         if ev:
             for i, t in enumerate(ev.times()):
                 self.events.append({"time_s": float(t), **{k: ev.scalars[k][i] for k in ev.scalars if k != "time_s"}})
+
+
+def _num(v) -> float:
+    return float("nan") if v is None else v
 
 
 def export_csv(states_path: str | Path, out_csv: str | Path) -> dict:
