@@ -28,6 +28,59 @@ from .units import GPS_L1_WAVELENGTH_M
 
 AXES = ("x", "y", "z")
 COORD_KINDS = {"translation": "m", "rotation": "rad", "modal": "1"}
+COORD_UNIT_LABELS = {"translation": "m", "rotation": "rad", "modal": "modal amplitude"}
+# a covariance is accepted as symmetric / positive semi-definite within these relative tolerances
+COV_SYMMETRY_REL_TOL = 1e-9
+COV_PSD_REL_TOL = 1e-10
+
+
+def covariance_factor(W: np.ndarray) -> np.ndarray:
+    """Square factor L with L Lᵀ = W for a symmetric positive semi-definite W (n, n).
+
+    Cholesky when W is positive definite; otherwise V·sqrt(max(λ, 0)) from its eigen-decomposition.
+    """
+    W = np.asarray(W, dtype=float)
+    try:
+        return np.linalg.cholesky(W)
+    except np.linalg.LinAlgError:
+        lam, V = np.linalg.eigh(0.5 * (W + W.T))
+        return V * np.sqrt(np.maximum(lam, 0.0))
+
+
+def channel_sigma_m(cfg: "StructureConfig", channels) -> np.ndarray:
+    """Prior carrier-phase noise σ (m, 1-σ) of each channel, from the config.
+
+    The one place that turns the config's noise keys into per-channel values.  Precedence per
+    channel: its ``[[channel_sigma]]`` entry, else the rover antenna's ``sigma_m``, else the
+    transmitter's ``sigma_m``, else ``[model] measurement_sigma_m``.
+
+    Parameters
+    ----------
+    cfg : StructureConfig
+    channels : sequence of (antenna, transmitter) name pairs, length C
+
+    Returns
+    -------
+    ndarray, shape (C,), metres
+    """
+    over = {(a, t): s for a, t, s in cfg.channel_sigma_overrides}
+    ant = {n: i for i, n in enumerate(cfg.antenna_names)}
+    tx = {n: i for i, n in enumerate(cfg.transmitter_names)}
+    sa = cfg.antenna_sigma_m if cfg.antenna_sigma_m is not None else np.full(len(ant), np.nan)
+    st = cfg.transmitter_sigma_m if cfg.transmitter_sigma_m is not None else np.full(len(tx), np.nan)
+    out = np.empty(len(channels))
+    for c, (a, t) in enumerate(channels):
+        if a not in ant or t not in tx:
+            raise CdgpsError(f"channel {a}/{t}: not an antenna/transmitter pair of config {cfg.name!r}")
+        if (a, t) in over:
+            out[c] = over[(a, t)]
+        elif np.isfinite(sa[ant[a]]):
+            out[c] = sa[ant[a]]
+        elif np.isfinite(st[tx[t]]):
+            out[c] = st[tx[t]]
+        else:
+            out[c] = cfg.measurement_sigma_m
+    return out
 
 
 @dataclass(frozen=True)
@@ -88,7 +141,7 @@ class StructureConfig:
     mode_time_constant_s: np.ndarray     # (n_m,)
     mode_shapes: np.ndarray              # (n_q, n_m) = U
     process_noise_space: str             # "modal" or "coordinates"
-    process_noise_sigma: np.ndarray
+    process_noise_sigma: np.ndarray      # (n_w,) sqrt of the diagonal of W
     gyro_names: tuple
     gyro_section: np.ndarray             # (n_g,)
     gyro_axis: np.ndarray                # (n_g, 3) unit vector in the section frame
@@ -98,6 +151,18 @@ class StructureConfig:
     thruster_direction: np.ndarray       # (n_u, 3) unit force direction in B
     thruster_max_force_n: np.ndarray     # (n_u,)
     simulation: dict = field(default_factory=dict)
+    # FE-model extensions (defaults keep configs built in code working)
+    coord_unit_labels: tuple = ()        # (n_q,) human unit label per coordinate ("" = from the kind)
+    mode_damping_ratio: np.ndarray | None = None   # (n_m,) ζ as given or derived (NaN for rigid modes)
+    process_noise_covariance: np.ndarray | None = None   # (n_w, n_w) W; None = diag(sigma²)
+    gyro_rotation: np.ndarray | None = None   # (n_g, 3, n_q) rotation vector of the gyro mount per unit coordinate
+    antenna_sigma_m: np.ndarray | None = None        # (n_a,) NaN = not given
+    transmitter_sigma_m: np.ndarray | None = None    # (n_t,) NaN = not given
+    channel_sigma_overrides: tuple = ()   # ((antenna, transmitter, sigma_m), ...)
+    point_names: tuple = ()              # named points ([[points]]) for 'export --points'
+    point_section: np.ndarray | None = None        # (n_p,) int
+    point_position_m: np.ndarray | None = None     # (n_p, 3)
+    point_displacement: np.ndarray | None = None   # (n_p, 3, n_q)
 
     @property
     def n_q(self) -> int:
@@ -126,7 +191,30 @@ class StructureConfig:
         return [(a, t) for a in self.rover_names for t in self.transmitter_names]
 
     def coord_unit(self, name: str) -> str:
+        """Short unit code of a coordinate's kind: ``"m"``, ``"rad"`` or ``"1"`` (modal)."""
         return COORD_KINDS[self.coord_kinds[self.coord_names.index(name)]]
+
+    def coord_unit_label(self, name: str) -> str:
+        """Unit of a coordinate for people: its ``unit`` key, else ``m``, ``rad`` or, for a modal
+        coordinate, ``modal amplitude`` (the scale of its mode shape, e.g. m at the antenna where
+        the shape is 1)."""
+        i = self.coord_names.index(name)
+        label = self.coord_unit_labels[i] if i < len(self.coord_unit_labels) else ""
+        return label or COORD_UNIT_LABELS[self.coord_kinds[i]]
+
+    @property
+    def process_noise_W(self) -> np.ndarray:
+        """Process-noise covariance W (n_w, n_w): the config's full matrix or diag(sigma²)."""
+        if self.process_noise_covariance is not None:
+            return np.array(self.process_noise_covariance, dtype=float)
+        return np.diag(np.asarray(self.process_noise_sigma, dtype=float) ** 2)
+
+    @property
+    def process_noise_factor(self) -> np.ndarray:
+        """A square factor L of W = L Lᵀ (n_w, n_w): diag(sigma), or Cholesky / eigen factor."""
+        if self.process_noise_covariance is None:
+            return np.diag(np.asarray(self.process_noise_sigma, dtype=float))
+        return covariance_factor(self.process_noise_W)
 
     def summary(self) -> dict:
         """A JSON-ready echo of the model's key settings (for outputs and ``--json``)."""
@@ -245,6 +333,145 @@ class _Checker:
         return arr
 
 
+def _mode_damping(chk: _Checker, m: dict, key: str, rigid: bool, f_hz: float) -> tuple[float, float]:
+    """Envelope time constant τ (s) and damping ratio ζ of a [[modes]] entry (exactly one given).
+
+    τ = 1/(ζ ω) with ω = 2π f (Table 1 of the 1998 paper); a rigid mode (f = 0) needs τ, the
+    decay time constant of its rate, and has ζ = NaN.
+    """
+    has_tau, has_zeta = "time_constant_s" in m, "damping_ratio" in m
+    if has_tau == has_zeta:
+        chk.add(key, "give exactly one of time_constant_s (envelope time constant τ, s) or damping_ratio "
+                     "(ζ, with τ = 1/(ζ·2π·frequency_hz))" + (", not both" if has_tau else ""))
+        return 1e9, float("nan")
+    omega = 2 * np.pi * f_hz
+    if has_tau:
+        tau = chk.number(m, key, "time_constant_s", 1e9, positive=True)
+        return tau, (float("nan") if rigid else 1.0 / (omega * tau))
+    if rigid:
+        chk.add(f"{key}.damping_ratio", "a rigid-body mode has no damping ratio (frequency 0); give time_constant_s, the decay time constant of its rate")
+        return 1e9, float("nan")
+    zeta = chk.number(m, key, "damping_ratio", None, positive=True)
+    if zeta is None:
+        return 1e9, float("nan")
+    if zeta >= 1.0:
+        chk.add(f"{key}.damping_ratio", f"expected 0 < ζ < 1 (an underdamped mode), got {zeta!r}")
+        return 1e9, float("nan")
+    return 1.0 / (zeta * omega), zeta
+
+
+def _square_matrix(chk: _Checker, tbl: dict, key: str, size: int):
+    """A size×size list of lists of finite numbers, or None (with a problem recorded)."""
+    v = tbl[key.rsplit(".", 1)[1]]
+    ok = (isinstance(v, list) and len(v) == size and all(
+        isinstance(r, list) and len(r) == size and all(
+            isinstance(e, (int, float)) and not isinstance(e, bool) and np.isfinite(e) for e in r) for r in v))
+    if not ok:
+        got = f"{len(v)} rows" if isinstance(v, list) else repr(v)
+        chk.add(key, f"expected a {size}×{size} matrix (a list of {size} rows of {size} finite numbers), got {got}")
+        return None
+    return np.array(v, dtype=float)
+
+
+def _process_noise(chk: _Checker, pn: dict, size: int, space: str):
+    """(sigma (size,), covariance (size, size) or None) from [process_noise]: sigma | covariance | cholesky."""
+    given = [k for k in ("sigma", "covariance", "cholesky") if k in pn]
+    what = "modes" if space == "modal" else "coordinates"
+    if len(given) != 1:
+        chk.add("process_noise", "give exactly one of sigma (diagonal W, one σ per %s), covariance (full W, "
+                "%d×%d) or cholesky (lower-triangular L with W = L·Lᵀ)%s" % (what, size, size,
+                                                                           f"; got {', '.join(given)}" if given else ""))
+        return np.zeros(size), None
+    if given[0] == "sigma":
+        sig = chk.vector(pn, "process_noise", "sigma", size, np.zeros(size))
+        if sig is not None and np.any(sig < 0):
+            chk.add("process_noise.sigma", "expected non-negative values")
+        return sig, None
+    key = f"process_noise.{given[0]}"
+    M = _square_matrix(chk, pn, key, size)
+    if M is None:
+        return np.zeros(size), None
+    scale = max(float(np.max(np.abs(M))), 1e-300)
+    if given[0] == "cholesky":
+        upper = np.triu(M, 1)
+        if np.any(upper != 0):
+            i, j = np.argwhere(upper != 0)[0]
+            chk.add(key, f"expected a lower-triangular factor L (W = L·Lᵀ); entry [{i}][{j}] above the diagonal is {M[i, j]!r}")
+            return np.zeros(size), None
+        W = M @ M.T
+    else:
+        W = M
+        asym = np.abs(W - W.T)
+        if np.max(asym) > COV_SYMMETRY_REL_TOL * scale:
+            i, j = np.unravel_index(np.argmax(asym), W.shape)
+            chk.add(key, f"expected a symmetric matrix; [{i}][{j}] = {W[i, j]!r} but [{j}][{i}] = {W[j, i]!r}")
+            return np.zeros(size), None
+        lam = np.linalg.eigvalsh(0.5 * (W + W.T))
+        if lam.min() < -COV_PSD_REL_TOL * scale:
+            chk.add(key, f"expected a positive semi-definite covariance; its smallest eigenvalue is {lam.min():.6g}")
+            return np.zeros(size), None
+        W = 0.5 * (W + W.T)
+    return np.sqrt(np.maximum(np.diag(W), 0.0)), W
+
+
+def gyro_rate_map(sections, gyro_section, gyro_axis, gyro_rotation, rigid_index, n_q) -> np.ndarray:
+    """Small-angle rate-gyro map G, shape (n_g, n_q): rate_rad_s = G @ dq/dt.
+
+    A single-axis gyro with unit axis a reads a · ω, where ω (rad/s) is the sum of its section's
+    rotation rates about the section axes, its own mode-shape rotations ``rotation_rad`` (rotation
+    vector per unit coordinate, body frame) times the coordinate rates, and the rigid-body rate
+    about the vertical.
+    """
+    G = np.zeros((len(gyro_axis), n_q))
+    for g, (s, a) in enumerate(zip(gyro_section, gyro_axis)):
+        if s >= 0:
+            for axis, j in sections[s].rotation:
+                G[g, j] += a[axis]
+        if gyro_rotation is not None and len(gyro_rotation):
+            G[g] += np.asarray(a) @ np.asarray(gyro_rotation[g])
+        if rigid_index is not None:
+            G[g, rigid_index] += a[2]
+    return G
+
+
+def _check_gyros_observe(chk, sections, g_sec, g_axis, g_rot, rigid_index, U, coord_names, mode_names):
+    """Refuse gyros that read nothing (all-zero row of G) or no mode (zero row of G·U)."""
+    G = gyro_rate_map(sections, g_sec, g_axis, g_rot, rigid_index, len(coord_names))
+    for g in range(G.shape[0]):
+        key = f"gyros[{g}]"
+        if not np.any(np.abs(G[g]) > 1e-12):
+            if g_sec[g] >= 0 and not sections[g_sec[g]].rotation and not np.any(g_rot[g]):
+                why = f"section {sections[g_sec[g]].name!r} has no rotation coordinates and no rotation_rad is given"
+            else:
+                why = "its axis is perpendicular to every rotation of its section / rotation_rad"
+            chk.add(key, f"the gyro reads nothing ({why}); expected a section with rotation = {{axis = coordinate}} "
+                         "or rotation_rad = {coordinate = [rx, ry, rz]} with a component along the gyro's axis")
+        elif U.size and not np.any(np.abs(G[g] @ U) > 1e-12 * np.abs(G[g]).max() * np.abs(U).max()):
+            chk.add(key, f"the gyro senses none of the modes ({', '.join(mode_names)}): the coordinates it reads "
+                         "do not move in any mode shape")
+
+
+def _channel_sigma(chk: _Checker, doc: dict, a_names, masters, t_names) -> list:
+    """[[channel_sigma]] entries → [(antenna, transmitter, sigma_m)]."""
+    out, seen = [], set()
+    master = a_names[masters[0]] if len(masters) == 1 else None
+    for i, e in enumerate(_table_list(chk, doc, "channel_sigma", False)):
+        key = f"channel_sigma[{i}]"
+        chk.keys(e, key, {"antenna", "transmitter", "sigma_m"}, {"description"})
+        a, t = e.get("antenna"), e.get("transmitter")
+        if "antenna" in e and (a not in a_names or a == master):
+            chk.add(f"{key}.antenna", f"expected a rover antenna ({', '.join(n for n in a_names if n != master)}), got {a!r}")
+        if "transmitter" in e and t not in t_names:
+            chk.add(f"{key}.transmitter", f"expected a transmitter ({', '.join(t_names)}), got {t!r}")
+        sig = chk.number(e, key, "sigma_m", None, positive=True)
+        if (a, t) in seen:
+            chk.add(key, f"channel {a}/{t} is given twice")
+        seen.add((a, t))
+        if sig is not None and a in a_names and t in t_names and a != master:
+            out.append((a, t, sig))
+    return out
+
+
 def _table_list(chk: _Checker, doc: dict, name: str, required: bool) -> list:
     v = doc.get(name, [])
     if not isinstance(v, list) or not all(isinstance(e, dict) for e in v):
@@ -297,7 +524,7 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
         raise CdgpsError(f"{path}: not valid TOML: {exc}") from None
     chk = _Checker(path)
     top_allowed = {"model", "body", "coordinates", "sections", "antennas", "transmitters", "modes",
-                   "process_noise", "gyros", "thrusters", "simulation"}
+                   "process_noise", "gyros", "thrusters", "simulation", "channel_sigma", "points"}
     chk.keys(doc, "", {"model", "coordinates", "antennas", "transmitters", "modes", "process_noise"},
              top_allowed - {"model", "coordinates", "antennas", "transmitters", "modes", "process_noise"})
 
@@ -317,11 +544,12 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
 
     # [[coordinates]]
     coords = _table_list(chk, doc, "coordinates", True)
-    coord_names, coord_kinds = [], []
+    coord_names, coord_kinds, coord_units = [], [], []
     for i, c in enumerate(coords):
         key = f"coordinates[{i}]"
-        chk.keys(c, key, {"name", "kind"}, {"description"})
+        chk.keys(c, key, {"name", "kind"}, {"description", "unit"})
         coord_names.append(chk.string(c, key, "name", f"?{i}"))
+        coord_units.append(chk.string(c, key, "unit", ""))
         kind = c.get("kind", "modal")
         if kind not in COORD_KINDS:
             chk.add(f"{key}.kind", f"expected one of {sorted(COORD_KINDS)}, got {kind!r}")
@@ -391,10 +619,24 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
 
     # [[antennas]]
     ants = _table_list(chk, doc, "antennas", True)
-    a_names, a_sec, a_pos, a_disp, a_rx, a_lb, masters = [], [], [], [], [], [], []
+    a_names, a_sec, a_pos, a_disp, a_rx, a_lb, masters, a_sig = [], [], [], [], [], [], [], []
+
+    def per_coordinate_vectors(tbl, key, name, what):
+        """A {coordinate = [x, y, z]} table → (3, n_q) array (zeros where not given)."""
+        out = np.zeros((3, n_q))
+        dtbl = tbl.get(name, {})
+        if not isinstance(dtbl, dict):
+            chk.add(f"{key}.{name}", f"expected a table {what}")
+            return out
+        for ref in dtbl:
+            j = coord_ref(ref, f"{key}.{name}.{ref}")
+            v = chk.vector(dtbl, f"{key}.{name}", ref, 3)
+            if j is not None and v is not None:
+                out[:, j] = v
+        return out
     for i, a in enumerate(ants):
         key = f"antennas[{i}]"
-        chk.keys(a, key, {"name", "position_m"}, {"section", "receiver", "master", "line_bias_m", "displacement_m"})
+        chk.keys(a, key, {"name", "position_m"}, {"section", "receiver", "master", "line_bias_m", "displacement_m", "sigma_m"})
         a_names.append(chk.string(a, key, "name", f"?{i}"))
         a_sec.append(section_ref(a, key))
         a_pos.append(chk.vector(a, key, "position_m", 3, np.zeros(3)))
@@ -405,17 +647,11 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
             chk.add(f"{key}.master", f"expected true or false, got {m!r}")
         elif m:
             masters.append(i)
-        disp = np.zeros((3, n_q))
-        dtbl = a.get("displacement_m", {})
-        if not isinstance(dtbl, dict):
-            chk.add(f"{key}.displacement_m", "expected a table {coordinate = [dx, dy, dz]}")
-            dtbl = {}
-        for ref, vec in dtbl.items():
-            j = coord_ref(ref, f"{key}.displacement_m.{ref}")
-            v = chk.vector(dtbl, f"{key}.displacement_m", ref, 3)
-            if j is not None and v is not None:
-                disp[:, j] = v
-        a_disp.append(disp)
+        a_sig.append(chk.number(a, key, "sigma_m", np.nan, positive=True))
+        if m is True and "sigma_m" in a:
+            chk.add(f"{key}.sigma_m", "the master is in every channel; give sigma_m on the rover antennas, "
+                                      "transmitters or [[channel_sigma]] entries instead")
+        a_disp.append(per_coordinate_vectors(a, key, "displacement_m", "{coordinate = [dx, dy, dz]} (m per unit coordinate)"))
     _unique(chk, a_names, "antennas")
     if len(masters) != 1:
         chk.add("antennas", f"exactly one antenna must have master = true, found {len(masters)}")
@@ -424,11 +660,12 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
 
     # [[transmitters]]
     txs = _table_list(chk, doc, "transmitters", True)
-    t_names, t_pos, far = [], [], []
+    t_names, t_pos, far, t_sig = [], [], [], []
     for i, t in enumerate(txs):
         key = f"transmitters[{i}]"
-        chk.keys(t, key, {"name"}, {"position_m", "direction", "description"})
+        chk.keys(t, key, {"name"}, {"position_m", "direction", "description", "sigma_m"})
         t_names.append(chk.string(t, key, "name", f"?{i}"))
+        t_sig.append(chk.number(t, key, "sigma_m", np.nan, positive=True))
         if ("position_m" in t) == ("direction" in t):
             chk.add(key, "give exactly one of position_m (near field, metres in the lab frame) or direction (far field, unit vector toward the source)")
             t_pos.append(np.zeros(3))
@@ -445,10 +682,10 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
 
     # [[modes]]
     modes = _table_list(chk, doc, "modes", True)
-    m_names, m_f, m_tau, shapes = [], [], [], []
+    m_names, m_f, m_tau, m_zeta, shapes = [], [], [], [], []
     for i, m in enumerate(modes):
         key = f"modes[{i}]"
-        chk.keys(m, key, {"name", "frequency_hz", "time_constant_s", "shape"}, {"description", "rigid"})
+        chk.keys(m, key, {"name", "frequency_hz", "shape"}, {"description", "rigid", "time_constant_s", "damping_ratio"})
         m_names.append(chk.string(m, key, "name", f"?{i}"))
         rigid = m.get("rigid", False)
         if not isinstance(rigid, bool):
@@ -463,7 +700,9 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
             if "frequency_hz" in m and m["frequency_hz"] == 0:
                 chk.problems[-1] += " (set rigid = true for a rigid-body mode)"
         m_f.append(f if f is not None else 1.0)
-        m_tau.append(chk.number(m, key, "time_constant_s", 1e9, positive=True))
+        tau, zeta = _mode_damping(chk, m, key, rigid, m_f[-1])
+        m_tau.append(tau)
+        m_zeta.append(zeta)
         shapes.append(chk.vector(m, key, "shape", n_q, np.zeros(n_q)))
     _unique(chk, m_names, "modes")
     U = np.array(shapes).T if shapes else np.zeros((n_q, 0))
@@ -474,24 +713,25 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
 
     # [process_noise]
     pn = doc.get("process_noise", {})
-    chk.keys(pn, "process_noise", {"space", "sigma"}, set())
+    chk.keys(pn, "process_noise", {"space"}, {"sigma", "covariance", "cholesky"})
     pn = pn if isinstance(pn, dict) else {}
     space = pn.get("space", "modal")
     if space not in ("modal", "coordinates"):
         chk.add("process_noise.space", f"expected \"modal\" or \"coordinates\", got {space!r}")
         space = "modal"
     size = len(m_names) if space == "modal" else n_q
-    pn_sigma = chk.vector(pn, "process_noise", "sigma", size, np.zeros(size))
-    if pn_sigma is not None and np.any(pn_sigma < 0):
-        chk.add("process_noise.sigma", "expected non-negative values")
+    pn_sigma, pn_cov = _process_noise(chk, pn, size, space)
 
     # [[gyros]]
-    g_names, g_sec, g_axis = [], [], []
+    g_names, g_sec, g_axis, g_rot = [], [], [], []
     for i, g in enumerate(_table_list(chk, doc, "gyros", False)):
         key = f"gyros[{i}]"
-        chk.keys(g, key, {"name", "section", "axis"}, {"description"})
+        chk.keys(g, key, {"name", "axis"}, {"description", "section", "rotation_rad"})
         g_names.append(chk.string(g, key, "name", f"?{i}"))
         g_sec.append(section_ref(g, key))
+        g_rot.append(per_coordinate_vectors(g, key, "rotation_rad", "{coordinate = [rx, ry, rz]} (rad per unit coordinate)"))
+        if "section" not in g and "rotation_rad" not in g:
+            chk.add(key, "a gyro needs a section (with rotation coordinates) or rotation_rad = {coordinate = [rx, ry, rz]} (its mount's rotation per unit of each coordinate, e.g. FE mode-shape rotations)")
         ax = g.get("axis")
         if ax in AXES:
             g_axis.append(np.eye(3)[AXES.index(ax)])
@@ -501,6 +741,22 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
                 chk.add(f"{key}.axis", f"expected x, y, z or a 3-vector, got {ax!r}")
             g_axis.append(v if v is not None else np.array([0.0, 0.0, 1.0]))
     _unique(chk, g_names, "gyros")
+    if g_names and not chk.problems:
+        _check_gyros_observe(chk, sections, g_sec, g_axis, g_rot, rigid_index, U, coord_names, m_names)
+
+    channel_over = _channel_sigma(chk, doc, a_names, masters, t_names)
+    p_names, p_sec, p_pos, p_disp = [], [], [], []
+    for i, pt in enumerate(_table_list(chk, doc, "points", False)):
+        key = f"points[{i}]"
+        chk.keys(pt, key, {"name", "position_m"}, {"section", "displacement_m", "description"})
+        p_names.append(chk.string(pt, key, "name", f"?{i}"))
+        p_sec.append(section_ref(pt, key))
+        p_pos.append(chk.vector(pt, key, "position_m", 3, np.zeros(3)))
+        p_disp.append(per_coordinate_vectors(pt, key, "displacement_m", "{coordinate = [dx, dy, dz]} (m per unit coordinate)"))
+    _unique(chk, p_names, "points")
+    for i, n in enumerate(p_names):
+        if n in a_names:
+            chk.add(f"points[{i}].name", f"{n!r} is already an antenna name (antennas are points too)")
 
     # [[thrusters]]
     u_names, u_sec, u_pos, u_dir, u_max = [], [], [], [], []
@@ -576,6 +832,17 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
         mode_shapes=ro(U),
         process_noise_space=space,
         process_noise_sigma=ro(pn_sigma),
+        process_noise_covariance=None if pn_cov is None else ro(pn_cov),
+        coord_unit_labels=tuple(coord_units),
+        mode_damping_ratio=ro(m_zeta),
+        gyro_rotation=ro(np.reshape(g_rot, (-1, 3, n_q))),
+        antenna_sigma_m=ro(a_sig),
+        transmitter_sigma_m=ro(t_sig),
+        channel_sigma_overrides=tuple(channel_over),
+        point_names=tuple(p_names),
+        point_section=ro(p_sec, int),
+        point_position_m=ro(np.reshape(p_pos, (-1, 3))),
+        point_displacement=ro(np.reshape(p_disp, (-1, 3, n_q))),
         gyro_names=tuple(g_names),
         gyro_section=ro(g_sec, int),
         gyro_axis=ro(np.reshape(g_axis, (-1, 3))),

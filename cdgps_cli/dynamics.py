@@ -77,5 +77,5 @@ def discrete_model(cfg: StructureConfig, T: float | None = None) -> DiscreteMode
     nu = Bc.shape[1]
     A, BB = zoh(Ac, np.hstack([Bc, Bwc]), T)
     B, Bw = BB[:, :nu], BB[:, nu:]
-    W = np.diag(np.asarray(cfg.process_noise_sigma, dtype=float) ** 2)
+    W = cfg.process_noise_W                 # diag(sigma²) or the config's full covariance
     return DiscreteModel(A=A, B=B, Bw=Bw, W=W, Q=Bw @ W @ Bw.T, T=T)

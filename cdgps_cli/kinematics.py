@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .config import StructureConfig
+from .config import StructureConfig, gyro_rate_map
 
 
 def _rot(axis: int, angle: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -132,17 +132,11 @@ def antenna_positions(cfg: StructureConfig, q: np.ndarray, jacobian: bool = Fals
 def gyro_matrix(cfg: StructureConfig) -> np.ndarray:
     """Small-angle rate-gyro map G, shape (n_g, n_q): rate_rad_s = G @ dq/dt.
 
-    A single-axis gyro on section s with axis a (section frame) reads a · ω, where ω is the sum of
-    the section's rotation rates about its axes plus the rigid-body rate about the vertical.
+    A single-axis gyro with axis a reads a · ω, where ω is the sum of its section's rotation rates
+    about its axes, its mode-shape rotations (``rotation_rad``) and the rigid-body rate about the
+    vertical (see :func:`cdgps_cli.config.gyro_rate_map`).
     """
-    G = np.zeros((len(cfg.gyro_names), cfg.n_q))
-    for g, (s, a) in enumerate(zip(cfg.gyro_section, cfg.gyro_axis)):
-        if s >= 0:
-            for axis, j in cfg.sections[s].rotation:
-                G[g, j] += a[axis]
-        if cfg.rigid_index is not None:
-            G[g, cfg.rigid_index] += a[2]
-    return G
+    return gyro_rate_map(cfg.sections, cfg.gyro_section, cfg.gyro_axis, cfg.gyro_rotation, cfg.rigid_index, cfg.n_q)
 
 
 def thruster_forcing(cfg: StructureConfig) -> np.ndarray:

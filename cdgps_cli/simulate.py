@@ -161,7 +161,11 @@ def simulate(cfg: StructureConfig, opt: SimOptions) -> Simulation:
     # ---- inputs: disturbance and thruster commands
     n_w = model.Bw.shape[1]
     dscale = sim["disturbance_scale"] if opt.disturbance_scale is None else opt.disturbance_scale
-    w = rng.standard_normal((n, n_w)) * (dscale * np.asarray(cfg.process_noise_sigma))
+    w = rng.standard_normal((n, n_w))
+    if cfg.process_noise_covariance is None:
+        w *= dscale * np.asarray(cfg.process_noise_sigma)
+    else:                                   # correlated forcing: w = L z with W = L Lᵀ
+        w = w @ (dscale * cfg.process_noise_factor).T
     n_u = len(cfg.thruster_names)
     u = np.zeros((n, n_u))
     actuators = None
