@@ -234,9 +234,10 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
     res["run_sha256"] = hashlib.sha256(Path(run_mcap).read_bytes()).hexdigest()
     res.pop("elapsed_s", None)          # keep INIT.json byte-identical across runs
     _write_json_atomic(output, res)
-    cur = [b for b in res["biases"] if b["current"]]
+    n_seg = len(res["biases"])                      # one bias (and integer) per lock segment
+    n_ch = sum(1 for b in res["biases"] if b["current"])
     ratio = res["ratio"] if isinstance(res["ratio"], str) or res["ratio"] is None else f"{res['ratio']:.2f}"
-    _say(ctx, f"INIT: {len(cur)} channel biases, {res['n_fixed']} integers fixed, ratio {ratio}, "
+    _say(ctx, f"INIT: {n_ch} channels, {n_seg} bias segments, {res['n_fixed']} of {n_seg} segment integers fixed, ratio {ratio}, "
               f"{res['iterations']} iterations, cost/dof {res['cost_per_dof']:.3f} → {output}")
     if as_json:
         _emit_json(res)
@@ -356,9 +357,12 @@ def _parse_rest(text: str) -> tuple[float, float]:
 @click.option("--csv", "out_csv", required=True, type=click.Path(dir_okay=False), help="CSV to write.")
 @click.option("--kinematic", is_flag=True,
               help="GNSS STATES only: export the single-epoch (kinematic) solutions instead of the states.")
+@click.option("--points", "points", default=None, metavar="LIST",
+              help="Also export displacements and 1-sigma (J P Jᵀ) of points: antennas, points (the config's "
+                   "[[points]]), all, or comma-separated names.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
-def export(ctx, states_mcap, out_csv, kinematic, as_json):
+def export(ctx, states_mcap, out_csv, kinematic, points, as_json):
     """Export estimated coordinates and their 1-sigma to CSV (columns line up with truth.csv)."""
     from .states import export_csv
 
@@ -367,8 +371,8 @@ def export(ctx, states_mcap, out_csv, kinematic, as_json):
 
         s = export_kinematic_csv(states_mcap, out_csv)
     else:
-        s = export_csv(states_mcap, out_csv)
-    _say(ctx, f"wrote {s['rows']} rows to {out_csv}")
+        s = export_csv(states_mcap, out_csv, points=points)
+    _say(ctx, f"wrote {s['rows']} rows to {out_csv}" + (f" ({len(s['points'])} points)" if s.get("points") else ""))
     if as_json:
         _emit_json(s)
 

@@ -83,6 +83,15 @@ def channel_sigma_m(cfg: "StructureConfig", channels) -> np.ndarray:
     return out
 
 
+def scalar_sigma_m(sigma_m: np.ndarray) -> float:
+    """One σ (m) for estimators that weight every channel alike: the value itself when all channels
+    agree (bit-identical to the config's ``measurement_sigma_m``), else the RMS over the channels."""
+    sigma_m = np.asarray(sigma_m, dtype=float)
+    if np.all(sigma_m == sigma_m[0]):
+        return float(sigma_m[0])
+    return float(np.sqrt(np.mean(sigma_m**2)))
+
+
 @dataclass(frozen=True)
 class Section:
     """A rigid section of the structure.

@@ -32,7 +32,7 @@ from scipy.linalg import cho_factor, cho_solve
 from scipy.linalg.lapack import dpotrf, dpotri
 from scipy.stats import chi2
 
-from .config import StructureConfig
+from .config import StructureConfig, channel_sigma_m, scalar_sigma_m
 from .dynamics import discrete_model
 from . import ekf_kernel
 from .errors import CdgpsError
@@ -195,7 +195,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     rest = validate_rest_segments(opt.rest_segments_s, opt.rest_process_noise_scale, opt.rest_retry_s)
     cfg = run.cfg
     t0, x0, P0, init_bias = load_init_state(init, cfg)
-    sigma = opt.sigma_m if opt.sigma_m is not None else float(init.get("sigma_m") or cfg.measurement_sigma_m)
+    sigma = opt.sigma_m if opt.sigma_m is not None else float(init.get("sigma_m") or scalar_sigma_m(channel_sigma_m(cfg, cfg.channels)))
     model = discrete_model(cfg)
     T = cfg.sample_period_s
     lam = cfg.wavelength_m

@@ -33,7 +33,7 @@ from scipy.stats import chi2
 
 from .ambiguity import lambda_search, partial_fix, ratio_test
 from .batch import LinearProblem, srif_solve
-from .config import StructureConfig
+from .config import StructureConfig, channel_sigma_m, scalar_sigma_m
 from .dynamics import discrete_model
 from .errors import CdgpsError
 from .measurement import channel_indices, phase_model
@@ -472,7 +472,7 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
     t_start = _time.perf_counter()
     if opt.sigma_m is not None and not (np.isfinite(opt.sigma_m) and opt.sigma_m > 0):
         raise CdgpsError(f"--sigma-m must be a positive number of metres, got {opt.sigma_m!r}")
-    sigma = opt.sigma_m if opt.sigma_m is not None else cfg.measurement_sigma_m
+    sigma = opt.sigma_m if opt.sigma_m is not None else scalar_sigma_m(channel_sigma_m(cfg, cfg.channels))
     if opt.ratio_threshold <= 1.0:
         raise CdgpsError(f"--ratio must be greater than 1, got {opt.ratio_threshold:g}")
     if opt.starts < 1 or opt.max_iterations < 1:

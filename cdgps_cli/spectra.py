@@ -328,6 +328,17 @@ def sdof_whittle_fit(y: np.ndarray, fs: float, f0_hz: float, zeta0: float, half_
     return fn, zeta, s_f, s_z
 
 
+def _refuse_blind_gyros(cfg, G: np.ndarray) -> None:
+    """A gyro whose rate map G (or G·U) is zero would give an all-zero GPS curve: refuse it."""
+    GU = G @ np.asarray(cfg.mode_shapes)
+    tol = 1e-12 * max(float(np.abs(GU).max()) if GU.size else 0.0, 1e-300)
+    blind = [n for n, row in zip(cfg.gyro_names, GU) if not np.any(np.abs(row) > tol)]
+    if blind:
+        raise CdgpsError(f"gyro(s) {', '.join(blind)} of config {cfg.name!r} sense none of the modes (their row of "
+                         "G·U is zero: no section rotation or rotation_rad along the gyro axis), so the GPS-derived "
+                         "angle would be an all-zero curve; fix the config's [[gyros]] (docs/config-format.md)")
+
+
 def compute_spectra(cfg: StructureConfig, time_s: np.ndarray, q: np.ndarray,
                     gyro_time_s: np.ndarray | None = None, gyro_rate: np.ndarray | None = None,
                     opt: SpectraOptions | None = None) -> dict:
@@ -396,6 +407,7 @@ def compute_spectra(cfg: StructureConfig, time_s: np.ndarray, q: np.ndarray,
     gy = None
     if gyro_rate is not None and gyro_rate.size and len(cfg.gyro_names):
         Gm = gyro_matrix(cfg)
+        _refuse_blind_gyros(cfg, Gm)
         gy = {"names": list(cfg.gyro_names), "G": Gm}
         rates = np.column_stack([np.interp(time_s, gyro_time_s, gyro_rate[:, g]) for g in range(gyro_rate.shape[1])])
         gps_ang = q @ Gm.T

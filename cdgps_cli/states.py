@@ -255,17 +255,30 @@ def _num(v) -> float:
     return float("nan") if v is None else v
 
 
-def export_csv(states_path: str | Path, out_csv: str | Path) -> dict:
-    """Write time_s, one column per coordinate and sigma_<name> for each (lines up with truth.csv)."""
+def export_csv(states_path: str | Path, out_csv: str | Path, points: str | None = None) -> dict:
+    """Write time_s, one column per coordinate and sigma_<name> for each (lines up with truth.csv).
+
+    ``points`` (e.g. ``"antennas"``, ``"all"``, ``"a120,top"``; see
+    :func:`cdgps_cli.points.select_points`) adds the lab-frame displacement of those points and its
+    1-σ from J U P_ξ Uᵀ Jᵀ: columns ``<point>_d{x,y,z}_m`` and ``sigma_<point>_d{x,y,z}_m``.
+    """
     st = States(states_path)
     names = list(st.cfg.coord_names)
+    pts = None
+    if points is not None:
+        from .points import point_columns, select_points
+
+        pts = select_points(st.cfg, points)          # before writing: a bad name leaves no file
     df = pd.DataFrame(st.q, columns=names)
     for i, n in enumerate(names):
         df["sigma_" + n] = st.sigma_q[:, i]
+    if pts is not None:
+        df = pd.concat([df, pd.DataFrame(point_columns(st.cfg, pts, st.xi, st.P_xi))], axis=1)
     df.insert(0, "time_s", np.round(st.time_s, 9))
     out = Path(out_csv)
     write_atomic(out, lambda p: df.to_csv(p, index=False, lineterminator="\n"))
-    return {"output": str(out), "rows": int(len(df)), "columns": list(df.columns)}
+    return {"output": str(out), "rows": int(len(df)), "columns": list(df.columns),
+            "points": list(pts.names) if pts is not None else []}
 
 
 def evaluate(truth_dir: str | Path, states_path: str | Path, converge_s: float = 1.0) -> dict:
@@ -327,7 +340,7 @@ def evaluate(truth_dir: str | Path, states_path: str | Path, converge_s: float =
     out = {
         "epochs": int(common.size), "start_s": float(time[0]), "end_s": float(time[-1]),
         "rms_error": {n: float(v) for n, v in zip(names, rms)},
-        "rms_error_units": {n: cfg.coord_unit(n) for n in names},
+        "rms_error_units": {n: cfg.coord_unit_label(n) for n in names},
         "rms_error_deg": {n: float(np.degrees(v)) for n, v in zip(names, rms) if cfg.coord_unit(n) == "rad"},
         "within_3sigma_fraction": float(np.mean(inside[after])),
         "convergence_definition": "first time from which the NEES stays below its 99.9% chi-square bound for 1 s",
