@@ -424,6 +424,14 @@ def test_tower_export_points_sigma(tower_chain, tower):
     # the top point moves like the top antenna horizontally (σ too); its σ is a few mm at most
     np.testing.assert_allclose(df["sigma_top_dy_m"], df["sigma_a120_dy_m"], rtol=1e-9)
     assert 0 < df["sigma_top_dx_m"].median() < 0.005
+    # the σ is a promise: the true top displacement (truth q through the same shapes) lies within
+    # 2σ at about 95 % of the epochs
+    truth = pd.read_csv(d / "sim" / "truth.csv").set_index(np.round(pd.read_csv(d / "sim" / "truth.csv")["time_s"], 6))
+    qt = truth.loc[np.round(df["time_s"], 6), list(tower.coord_names)].to_numpy()
+    Dt = tower.point_displacement[tower.point_names.index("top")]
+    for a, ax in enumerate("xy"):
+        z = (df[f"top_d{ax}_m"].to_numpy() - qt @ Dt[a]) / df[f"sigma_top_d{ax}_m"].to_numpy()
+        assert 0.90 <= np.mean(np.abs(z) <= 2.0) <= 0.99, (ax, np.mean(np.abs(z) <= 2.0))
     bad = d / "bad.csv"
     r = run_cli("export", d / "states.mcap", "--csv", bad, "--points", "roof")
     assert r.exit_code == 2 and "roof" in r.output and not bad.exists()
