@@ -405,7 +405,7 @@ def _process_noise(chk: _Checker, pn: dict, size: int, space: str):
         upper = np.triu(M, 1)
         if np.any(upper != 0):
             i, j = np.argwhere(upper != 0)[0]
-            chk.add(key, f"expected a lower-triangular factor L (W = L·Lᵀ); entry [{i}][{j}] above the diagonal is {M[i, j]!r}")
+            chk.add(key, f"expected a lower-triangular factor L (W = L·Lᵀ); entry [{i}][{j}] above the diagonal is {float(M[i, j])!r}")
             return np.zeros(size), None
         W = M @ M.T
     else:
@@ -413,7 +413,7 @@ def _process_noise(chk: _Checker, pn: dict, size: int, space: str):
         asym = np.abs(W - W.T)
         if np.max(asym) > COV_SYMMETRY_REL_TOL * scale:
             i, j = np.unravel_index(np.argmax(asym), W.shape)
-            chk.add(key, f"expected a symmetric matrix; [{i}][{j}] = {W[i, j]!r} but [{j}][{i}] = {W[j, i]!r}")
+            chk.add(key, f"expected a symmetric matrix; [{i}][{j}] = {float(W[i, j])!r} but [{j}][{i}] = {float(W[j, i])!r}")
             return np.zeros(size), None
         lam = np.linalg.eigvalsh(0.5 * (W + W.T))
         if lam.min() < -COV_PSD_REL_TOL * scale:

@@ -228,7 +228,7 @@ def test_semidefinite_covariance_gets_a_factor():
 
 
 @pytest.mark.parametrize("noise, expect", [
-    ("covariance = [[0.01, 0.002], [-0.004, 0.04]]", "process_noise.covariance: expected a symmetric matrix; [0][1]"),
+    ("covariance = [[0.01, 0.002], [-0.004, 0.04]]", "process_noise.covariance: expected a symmetric matrix; [0][1] = 0.002 but [1][0] = -0.004"),
     ("covariance = [[0.01, 0.05], [0.05, 0.04]]", "process_noise.covariance: expected a positive semi-definite"),
     ("covariance = [[0.01, 0.0, 0.0], [0.0, 0.04, 0.0], [0.0, 0.0, 1.0]]", "process_noise.covariance: expected a 2×2 matrix"),
     ("covariance = [[0.01], [0.0, 0.04]]", "expected a 2×2 matrix"),
