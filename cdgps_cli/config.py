@@ -236,7 +236,8 @@ class StructureConfig:
             "measurement_sigma_m": self.measurement_sigma_m,
             "coordinates": list(self.coord_names),
             "modes": [
-                {"name": n, "frequency_hz": float(f), "time_constant_s": float(t)}
+                {"name": n, "frequency_hz": float(f), "time_constant_s": float(t),
+                 "damping_ratio": None if f == 0 else float(1.0 / (2 * np.pi * f * t))}
                 for n, f, t in zip(self.mode_names, self.mode_frequency_hz, self.mode_time_constant_s)
             ],
             "antennas": list(self.antenna_names),
