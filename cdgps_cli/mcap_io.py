@@ -33,6 +33,7 @@ from mcap.opcode import Opcode
 from mcap.records import AttachmentIndex
 from mcap.writer import CompressionType, IndexType, Writer
 
+from . import progress
 from .atomic import temporary_name
 from .errors import CdgpsError
 
@@ -157,7 +158,7 @@ class McapOut:
             else:
                 lists[c] = v.tolist()
         scal = {c: df[c].to_numpy() for c in scalar_columns}
-        for a, b in zip(cuts[:-1], cuts[1:]):
+        for a, b in progress.iterate(zip(cuts[:-1], cuts[1:]), f"writing {self.path.name}", len(cuts) - 1, "msg"):
             payload = {c: scal[c][a] for c in scalar_columns}
             payload.update({c: lists[c][a:b] for c in array_columns})
             self.write(channel_id, t[a], payload)
@@ -379,6 +380,17 @@ def _check_attachment_crcs(fh, summary, path) -> None:
             raise CdgpsError(f"{path}: attachment {idx.name!r} fails its CRC check (corrupt file)")
 
 
+def _message_count(summary, topics) -> int | None:
+    """Messages of ``topics`` (None: all) from the summary's statistics (for progress only)."""
+    st = summary.statistics
+    if st is None or topics == []:
+        return None if st is None else 0
+    if topics is None:
+        return int(st.message_count)
+    want = {cid for cid, ch in summary.channels.items() if ch.topic in topics}
+    return int(sum(n for cid, n in st.channel_message_counts.items() if cid in want))
+
+
 def read_mcap(path: str | Path, topics: list[str] | None = None) -> McapContents:
     """Read an MCAP file with CRC validation.
 
@@ -398,7 +410,9 @@ def read_mcap(path: str | Path, topics: list[str] | None = None) -> McapContents
             summary = reader.get_summary()
             if summary is None:
                 raise CdgpsError(f"{p}: MCAP file has no summary section (truncated or not written by a complete run)")
-            for schema, channel, message in (reader.iter_messages(topics=topics) if topics != [] else ()):
+            messages = reader.iter_messages(topics=topics) if topics != [] else ()
+            for schema, channel, message in progress.iterate(messages, f"reading {p.name}",
+                                                              _message_count(summary, topics), "msg"):
                 acc = cols.get(channel.topic)
                 if acc is None:
                     acc = cols[channel.topic] = TopicColumns()
