@@ -22,7 +22,7 @@ import os
 import struct
 import zlib
 from array import array
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -365,6 +365,7 @@ class McapContents:
     metadata: dict          # name → dict[str, str]
     schemas: dict           # topic → (schema name, encoding)
     message_encoding: dict  # topic → encoding
+    channel_metadata: dict = field(default_factory=dict)  # topic → dict[str, str] (e.g. time_scale)
 
 
 def _check_attachment_crcs(fh, summary, path) -> None:
@@ -403,7 +404,7 @@ def read_mcap(path: str | Path, topics: list[str] | None = None) -> McapContents
     if not p.is_file():
         raise CdgpsError(f"{p}: no such file")
     cols: dict = {}
-    schemas, encodings = {}, {}
+    schemas, encodings, chan_meta = {}, {}, {}
     try:
         with open(p, "rb") as fh:
             reader = make_reader(fh, validate_crcs=True)
@@ -418,6 +419,7 @@ def read_mcap(path: str | Path, topics: list[str] | None = None) -> McapContents
                     acc = cols[channel.topic] = TopicColumns()
                     schemas[channel.topic] = (schema.name if schema else "", schema.encoding if schema else "")
                     encodings[channel.topic] = channel.message_encoding
+                    chan_meta[channel.topic] = dict(channel.metadata or {})
                 acc.add(json.loads(message.data))
             _check_attachment_crcs(fh, summary, p)
             attachments = {a.name: bytes(a.data) for a in reader.iter_attachments()}
@@ -426,4 +428,4 @@ def read_mcap(path: str | Path, topics: list[str] | None = None) -> McapContents
         raise
     except (McapError, EOFError, ValueError, KeyError, struct.error, OSError, UnicodeDecodeError) as exc:
         raise CdgpsError(f"{p}: not a valid MCAP file (truncated or corrupt): {type(exc).__name__}: {exc}") from None
-    return McapContents(str(p), cols, attachments, metadata, schemas, encodings)
+    return McapContents(str(p), cols, attachments, metadata, schemas, encodings, chan_meta)
