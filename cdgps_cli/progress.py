@@ -44,12 +44,16 @@ _active: list = []
 _lock = threading.Lock()
 
 
-def configure(enabled: bool | None = None, *, stream=None) -> None:
-    """Turn progress output on or off, and choose its stream (default: ``sys.stderr`` at the time a
-    bar opens, so test runners that replace stderr capture it)."""
+_KEEP = object()
+
+
+def configure(enabled: bool | None = None, *, stream=_KEEP) -> None:
+    """Turn progress output on or off (None: leave as is), and choose its stream (None:
+    ``sys.stderr`` at the time a bar opens, so test runners that replace stderr capture it)."""
     if enabled is not None:
         _state["enabled"] = bool(enabled)
-    _state["stream"] = stream
+    if stream is not _KEEP:
+        _state["stream"] = stream
 
 
 def enabled() -> bool:
