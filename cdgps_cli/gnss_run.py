@@ -710,7 +710,7 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
 
     comments = ["GNSS run config (format: docs/gnss-pipeline.md), written by 'cdgps config' from the files' headers.",
                 "Run:  cdgps ingest --config THIS_FILE -o run.mcap && cdgps init run.mcap -o init.json &&",
-                "      cdgps estimate run.mcap --init init.json -o states.mcap && cdgps export states.mcap --csv states.csv", ""]
+                "      cdgps estimate run.mcap --init init.json -o states.mcap && cdgps export states.mcap -o states.csv", ""]
     files = {}
     with_pos = []
     for n, p in rinex.items():
