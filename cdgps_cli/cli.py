@@ -131,7 +131,9 @@ def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_s
                      outages=[parse_outage(o) for o in outages], random_slips=random_slips,
                      disturbance_scale=disturbance_scale)
     _say(ctx, f"simulating {cfg.name}: {scenario}, {duration_s:g} s, seed {seed} …")
-    summary = write_simulation(run_sim(cfg, opt), out_dir)
+    with progress.stage("simulating"):
+        sim = run_sim(cfg, opt)
+    summary = write_simulation(sim, out_dir)
     _say(ctx, f"wrote {summary['receiver_rows']} phase rows, {summary['gyro_rows']} gyro rows, "
               f"{summary['slips']} slip/relock events to {out_dir}/")
     if as_json:

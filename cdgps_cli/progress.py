@@ -27,6 +27,7 @@ without it.  The command line turns it on with :func:`configure` (``enabled=not 
 
 from __future__ import annotations
 
+import io
 import sys
 import threading
 import time
@@ -71,6 +72,18 @@ def _isatty(stream) -> bool:
         return False
 
 
+def _sized(stream) -> bool:
+    """Whether the terminal reports its size (the bar then follows it).  A pseudo-terminal without
+    one (0 × 0, e.g. under ``script``) gets 80 × 24: with 0 rows tqdm would hide the bar."""
+    import os
+
+    try:
+        size = os.get_terminal_size(stream.fileno())
+    except (AttributeError, ValueError, OSError, io.UnsupportedOperation):
+        return False
+    return size.columns > 0 and size.lines > 0
+
+
 class Bar:
     """A progress counter for one stage (use :func:`bar`); a no-op when progress is disabled.
 
@@ -97,8 +110,10 @@ class Bar:
         if _isatty(stream):
             from tqdm import tqdm
 
+            sized = _sized(stream)
             self._tqdm = tqdm(total=self.total, desc=desc, unit=unit, file=stream, leave=False, delay=BAR_DELAY_S,
-                              mininterval=0.2, dynamic_ncols=True, unit_scale=(self.total or 0) >= 100_000)
+                              mininterval=0.2, dynamic_ncols=sized, ncols=None if sized else 80,
+                              nrows=None if sized else 24, unit_scale=(self.total or 0) >= 100_000)
         else:
             self._plain = stream
             self._last_line = self._t0
