@@ -100,7 +100,7 @@ def _read_table(path: str | Path, columns: tuple, numeric: tuple, optional_numer
     if len(df) == 0:
         raise CdgpsError(f"{p}: no data rows after the header")
     out = {}
-    for c in columns:
+    for c in progress.iterate(columns, f"checking {p.name}", unit="column"):
         col = df[c].str.strip() if df[c].dtype == object else df[c]
         if c in numeric or c in optional_numeric:
             empty = col.to_numpy() == ""
