@@ -265,7 +265,7 @@ def part_c(hours: float, seed: int) -> dict:
         d = Path(d)
         t0 = time.perf_counter()
         run_measured(cli_code(["--quiet", "simulate", str(CONFIG), "--duration", str(3600 * hours), "--seed", str(seed),
-                               "--noise-m", str(SIGMA), "--disturbance-scale", "1", "--out", str(d / "sim")]))
+                               "--noise-m", str(SIGMA), "--disturbance-scale", "1", "-o", str(d / "sim")]))
         run_measured(cli_code(["--quiet", "ingest", str(d / "sim" / "receiver.csv"), "--config", str(CONFIG),
                                "-o", str(d / "run.mcap")]))
         run_measured(cli_code(["--quiet", "init", str(d / "run.mcap"), "--start", "0", "--duration", "60",

@@ -46,7 +46,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as d:
         d = Path(d)
         sim_s, sim_mb = run_measured(["--quiet", "simulate", str(CONFIG), "--duration", str(3600 * hours),
-                                      "--seed", "1", "--out", str(d / "sim")])
+                                      "--seed", "1", "-o", str(d / "sim")])
         rows = sum(1 for _ in open(d / "sim" / "receiver.csv")) - 1
         ing_s, ing_mb = run_measured(["--quiet", "ingest", str(d / "sim" / "receiver.csv"), str(d / "sim" / "gyro.csv"),
                                       "--config", str(CONFIG), "-o", str(d / "run.mcap")])

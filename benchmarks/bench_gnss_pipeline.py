@@ -86,7 +86,7 @@ def main() -> int:
         shutil.rmtree(w)
     w.mkdir(parents=True)
     sim_args = ["simulate-gnss", "--duration", a.hours * 3600.0, "--rate-hz", a.rate_hz, "--slips", a.slips,
-                "--seed", a.seed, "--out", w]
+                "--seed", a.seed, "-o", w]
     if a.model == "random_walk":
         sim_args += ["--random-walk", "0.0005"]
     load0 = os.getloadavg()

@@ -87,7 +87,7 @@ def setup(d: Path, hours: float, seed: int) -> dict:
         return json.loads(tag.read_text())
     t0 = time.perf_counter()
     _cli(["simulate", str(CONFIG), "--duration", str(3600 * hours), "--seed", str(seed), "--noise-m", "0.02",
-          "--disturbance-scale", "1", "--out", str(d / "sim")])
+          "--disturbance-scale", "1", "-o", str(d / "sim")])
     _cli(["ingest", str(d / "sim" / "receiver.csv"), "--config", str(CONFIG), "-o", str(d / "run.mcap")])
     _cli(["init", str(d / "run.mcap"), "--start", "0", "--duration", "60", "-o", str(d / "init.json")])
     info = {"hours": hours, "seed": seed, "setup_s": time.perf_counter() - t0}

@@ -69,7 +69,7 @@ def setup_chain(work: Path, scenario: str, seconds: float, seed: int, extra: lis
     stages = {}
     for name, args in [
         ("simulate", ["simulate", CONFIG, "--duration", seconds, "--seed", seed, "--scenario", scenario, *extra,
-                      "--out", d / "sim"]),
+                      "-o", d / "sim"]),
         ("ingest", ["ingest", d / "sim" / "receiver.csv", d / "sim" / "gyro.csv", "--config", CONFIG, "-o", d / "run.mcap"]),
         ("init", ["init", d / "run.mcap", "-o", d / "init.json"]),
         ("estimate", ["estimate", d / "run.mcap", "--init", d / "init.json", "--smooth", "-o", states]),

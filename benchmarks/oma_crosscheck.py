@@ -77,7 +77,7 @@ def cdgps(*args) -> str:
 def pipeline(d: Path, seed: int, duration: float) -> dict:
     d.mkdir(parents=True, exist_ok=True)
     if not (d / "spectra" / "peaks.json").exists():
-        cdgps("simulate", CONFIG, "--duration", duration, "--seed", seed, "--scenario", "free", "--out", d / "sim")
+        cdgps("simulate", CONFIG, "--duration", duration, "--seed", seed, "--scenario", "free", "-o", d / "sim")
         cdgps("ingest", d / "sim" / "receiver.csv", d / "sim" / "gyro.csv", "--config", CONFIG, "-o", d / "run.mcap")
         cdgps("init", d / "run.mcap", "-o", d / "init.json")
         cdgps("estimate", d / "run.mcap", "--init", d / "init.json", "--smooth", "-o", d / "states.mcap")
@@ -412,7 +412,7 @@ For each seed ({seeds}): a {args.duration / 60:g}-minute free-vibration run of t
 random modal initial conditions) through the whole pipeline as a user runs it, each stage a `cdgps` subprocess:
 
 ```sh
-cdgps simulate configs/testbed-1998.toml --duration {args.duration:g} --seed SEED --scenario free --out sim
+cdgps simulate configs/testbed-1998.toml --duration {args.duration:g} --seed SEED --scenario free -o sim
 cdgps ingest sim/receiver.csv sim/gyro.csv --config configs/testbed-1998.toml -o run.mcap
 cdgps init run.mcap -o init.json
 cdgps estimate run.mcap --init init.json --smooth -o states.mcap

@@ -13,22 +13,74 @@ from pathlib import Path
 
 import click
 
-from . import __version__
+from . import __version__, progress
 from .errors import CdgpsError
 
 
+def _quiet_after_command(ctx, param, value):
+    """``-q`` given after a subcommand: the same as ``cdgps -q``."""
+    if value:
+        ctx.ensure_object(dict)["quiet"] = True
+        progress.configure(enabled=False)
+
+
+_QUIET_HELP = "No progress or human summaries on stderr (also accepted before the command)."
+
+
+class _Command(click.Command):
+    """A subcommand that also accepts ``-q/--quiet`` after its name (``cdgps info X -q``)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.params.append(click.Option(["-q", "--quiet"], is_flag=True, expose_value=False, is_eager=True,
+                                        callback=_quiet_after_command, help=_QUIET_HELP))
+
+
 class _Group(click.Group):
+    command_class = _Command
+    group_class = type                     # subgroups (``report``) are _Group too
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        if not any(p.name == "quiet" for p in self.params):
+            self.params.append(click.Option(["-q", "--quiet"], is_flag=True, expose_value=False, is_eager=True,
+                                            callback=_quiet_after_command, help=_QUIET_HELP))
+
     def invoke(self, ctx):
         try:
             return super().invoke(ctx)
         except CdgpsError as exc:
+            progress.close_all()
             click.echo(f"cdgps: error: {exc}", err=True)
             ctx.exit(2)
 
 
 def _say(ctx, msg: str) -> None:
     if not ctx.obj.get("quiet"):
-        click.echo(msg, err=True)
+        progress.write(msg)
+
+
+def _output_option(dest: str, help: str, *, directory: bool = False, old: tuple = ()):
+    """The one spelling of every output, ``-o/--output``; ``old`` spellings (``--out``, ``--csv``)
+    are still accepted for older scripts and named in the help text, not listed as options."""
+    return click.option("-o", "--output", *old, dest, cls=_AliasedOption, aliases=old, required=True,
+                        type=click.Path(file_okay=False) if directory else click.Path(dir_okay=False),
+                        help=help.rstrip(".") + (f" (older spelling {', '.join(old)} still accepted)." if old else "."))
+
+
+class _AliasedOption(click.Option):
+    """An option whose older spellings parse but do not show in the usage line and help."""
+
+    def __init__(self, *args, aliases=(), **kwargs):
+        super().__init__(*args, **kwargs)
+        self.aliases = tuple(aliases)
+
+    def get_help_record(self, ctx):
+        shown, self.opts = self.opts, [o for o in self.opts if o not in self.aliases]
+        try:
+            return super().get_help_record(ctx)
+        finally:
+            self.opts = shown
 
 
 def _emit_json(data: dict) -> None:
@@ -47,9 +99,11 @@ def main(ctx, quiet):
     """
     ctx.ensure_object(dict)
     ctx.obj["quiet"] = quiet
+    progress.configure(enabled=not quiet)
+    ctx.call_on_close(lambda: progress.configure(enabled=False))   # library use stays silent
 
 
-@main.command()
+@main.command(short_help="Simulate a structure run → receiver/gyro/truth CSV")
 @click.argument("config", type=click.Path(dir_okay=False))
 @click.option("--duration", "duration_s", type=float, default=60.0, show_default=True, help="Seconds to simulate.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed (same seed → identical files).")
@@ -62,7 +116,7 @@ def main(ctx, quiet):
 @click.option("--random-slips", type=int, default=0, show_default=True, help="Number of random cycle slips to inject.")
 @click.option("--disturbance-scale", type=float, default=None,
               help="True disturbance as a fraction of the config's process noise (default: config; 1 = filter model).")
-@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output directory.")
+@_output_option("out_dir", "Output directory.", directory=True, old=("--out",))
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
 def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_sigma_m, slips, outages,
@@ -77,14 +131,16 @@ def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_s
                      outages=[parse_outage(o) for o in outages], random_slips=random_slips,
                      disturbance_scale=disturbance_scale)
     _say(ctx, f"simulating {cfg.name}: {scenario}, {duration_s:g} s, seed {seed} …")
-    summary = write_simulation(run_sim(cfg, opt), out_dir)
+    with progress.stage("simulating"):
+        sim = run_sim(cfg, opt)
+    summary = write_simulation(sim, out_dir)
     _say(ctx, f"wrote {summary['receiver_rows']} phase rows, {summary['gyro_rows']} gyro rows, "
               f"{summary['slips']} slip/relock events to {out_dir}/")
     if as_json:
         _emit_json(summary)
 
 
-@main.command()
+@main.command(short_help="Validate logs and write one RUN.mcap")
 @click.argument("receiver_csv", required=False, type=click.Path(dir_okay=False))
 @click.argument("gyro_csv", required=False, type=click.Path(dir_okay=False))
 @click.option("--actuators", "actuator_csv", type=click.Path(dir_okay=False), help="Thruster command log CSV.")
@@ -191,7 +247,7 @@ def _write_json_atomic(path: str, data: dict) -> None:
     write_bytes_atomic(path, (json.dumps(data, indent=2) + "\n").encode())
 
 
-@main.command("init")
+@main.command("init", short_help="Batch bias init and LAMBDA integers → INIT.json")
 @click.argument("run_mcap", type=click.Path(dir_okay=False))
 @click.option("--start", "start_s", type=float, default=None, help="Window start, s (default: automatic).")
 @click.option("--duration", "duration_s", type=float, default=None, help="Window length, s (default: 60 s).")
@@ -243,7 +299,7 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
         _emit_json(res)
 
 
-@main.command()
+@main.command(short_help="EKF (Eq. 16-23) [+ RTS smoother] → STATES.mcap")
 @click.argument("run_mcap", type=click.Path(dir_okay=False))
 @click.option("--init", "init_json", required=True, type=click.Path(dir_okay=False), help="INIT.json from 'cdgps init'.")
 @click.option("--smooth", is_flag=True, help="Add a Rauch-Tung-Striebel smoothing pass (post-processing).")
@@ -352,9 +408,9 @@ def _parse_rest(text: str) -> tuple[float, float]:
     return start, end
 
 
-@main.command()
+@main.command(short_help="Export coordinates and their 1σ to CSV")
 @click.argument("states_mcap", type=click.Path(dir_okay=False))
-@click.option("--csv", "out_csv", required=True, type=click.Path(dir_okay=False), help="CSV to write.")
+@_output_option("out_csv", "CSV to write.", old=("--csv",))
 @click.option("--kinematic", is_flag=True,
               help="GNSS STATES only: export the single-epoch (kinematic) solutions instead of the states.")
 @click.option("--points", "points", default=None, metavar="LIST",
@@ -377,7 +433,7 @@ def export(ctx, states_mcap, out_csv, kinematic, points, as_json):
         _emit_json(s)
 
 
-@main.command()
+@main.command(short_help="Errors vs simulator truth: RMS, NEES, NIS")
 @click.option("--truth", "truth_dir", required=True, type=click.Path(file_okay=False), help="Simulator output directory.")
 @click.option("--estimate", "states_mcap", required=True, type=click.Path(dir_okay=False), help="STATES.mcap.")
 @click.option("--converge-s", type=float, default=1.0, show_default=True, help="Seconds after the start excluded from RMS.")
@@ -441,7 +497,7 @@ def _with(opts):
     return deco
 
 
-@main.command()
+@main.command(short_help="PSDs vs gyros, FDD modes → psd.csv, peaks.json")
 @click.argument("states_mcap", type=click.Path(dir_okay=False))
 @_with(_spectra_opts)
 @click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False), help="Output directory.")
@@ -451,7 +507,8 @@ def spectra(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad, out_di
     """Welch PSDs vs gyros, FDD modal identification → psd.csv, peaks.json, psd.png, fdd.png."""
     from .reports import run_spectra
     st, run = _states_and_gyro(states_mcap, gyro_mcap)
-    s = run_spectra(st, run, _spectra_options(coords, segment_s, overlap, pad), out_dir)
+    with progress.stage("spectra, mode fits and figures"):
+        s = run_spectra(st, run, _spectra_options(coords, segment_s, overlap, pad), out_dir)
     seen = sum(1 for m in s["modes"] if m["seen"])
     _say(ctx, f"wrote {', '.join(s['files'])} to {out_dir}/: {seen} of {len(s['modes'])} modes identified")
     for m in s["modes"]:
@@ -462,12 +519,12 @@ def spectra(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad, out_di
         _emit_json({"modes": s["modes"], "settings": s["settings"]})
 
 
-@main.group()
+@main.group(short_help="Sensor-test reports (markdown, JSON, HTML)")
 def report():
     """Sensor-test reports (markdown, JSON and a self-contained HTML page)."""
 
 
-@report.command("static")
+@report.command("static", short_help="Static sensor test (1998 Fig. 7): mean, noise")
 @click.argument("states_mcap", type=click.Path(dir_okay=False))
 @click.option("--gyro", "gyro_mcap", type=click.Path(dir_okay=False), help="RUN.mcap with the gyro log.")
 @click.option("--angle", required=True, help='Angle expression, e.g. "q6+q10" (see README).')
@@ -484,7 +541,8 @@ def report_static(ctx, states_mcap, gyro_mcap, angle, survey_deg, start_s, end_s
     """Static sensor test (1998 paper Fig. 7): mean vs survey, noise, GPS and gyro drift."""
     from .reports import static_report
     st, run = _states_and_gyro(states_mcap, gyro_mcap)
-    d = static_report(st, run, angle, survey_deg, out_dir, start_s, end_s, gyro_name, date=date)
+    with progress.stage("static report"):
+        d = static_report(st, run, angle, survey_deg, out_dir, start_s, end_s, gyro_name, date=date)
     err = "" if d["error_deg"] is None else f", error {d['error_deg']:+.4f}°"
     gd = "" if d["gyro_drift_deg_per_min"] is None else f", gyro drift {d['gyro_drift_deg_per_min']:+.4f}°/min"
     _say(ctx, f"{angle}: mean {d['mean_deg']:.4f}°{err}, noise {d['noise_rms_deg']:.4f}° RMS, "
@@ -494,7 +552,7 @@ def report_static(ctx, states_mcap, gyro_mcap, angle, survey_deg, start_s, end_s
         _emit_json(d)
 
 
-@report.command("spectrum")
+@report.command("spectrum", short_help="Dynamic sensor test (1998 Fig. 8): PSDs, modes")
 @click.argument("states_mcap", type=click.Path(dir_okay=False))
 @_with(_spectra_opts)
 @click.option("--date", "date", default=None, metavar="ISO_DATE",
@@ -506,20 +564,22 @@ def report_spectrum(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad
     """Dynamic sensor test (1998 paper Fig. 8): PSDs vs gyros and identified modes vs the model."""
     from .reports import spectrum_report
     st, run = _states_and_gyro(states_mcap, gyro_mcap)
-    d = spectrum_report(st, run, _spectra_options(coords, segment_s, overlap, pad), out_dir, date=date)
+    with progress.stage("spectra, mode fits and figures"):
+        d = spectrum_report(st, run, _spectra_options(coords, segment_s, overlap, pad), out_dir, date=date)
     _say(ctx, d["summary"])
     _say(ctx, f"report: {Path(out_dir) / 'report.html'}")
     if as_json:
         _emit_json(d)
 
 
-@main.command()
+@main.command(short_help="Topics, dates, sampling, gaps, slips of an MCAP")
 @click.argument("mcap_file", type=click.Path(dir_okay=False))
 @click.option("--json", "as_json", is_flag=True, help="Print the full summary as JSON on stdout.")
 @click.pass_context
 def info(ctx, mcap_file, as_json):
     """Topics, counts, time span, sampling, gaps, channels and slips of an MCAP file."""
     from .run import run_info
+    from .time_format import format_period
 
     s = run_info(mcap_file)
     if as_json:
@@ -527,8 +587,7 @@ def info(ctx, mcap_file, as_json):
         return
     out = [f"{s['file']}"]
     for t in s["topics"]:
-        per = f"{t['median_period_s']:g} s" if t["median_period_s"] else "-"
-        out.append(f"  {t['topic']:<22} {t['messages']:>8} msgs  {t['start_s']:g}–{t['end_s']:g} s  period {per}"
+        out.append(f"  {t['topic']:<22} {t['messages']:>8} msgs  {_span(t)}  period {format_period(t['median_period_s'])}"
                    f"  ({t['schema']}, {t['message_encoding']})")
     if "config" in s:
         c = s["config"]
@@ -546,6 +605,15 @@ def info(ctx, mcap_file, as_json):
         out.append(f"  metadata {name}: " + ", ".join(f"{k}={v if len(v) <= 60 else v[:57] + '…'}"
                                                      for k, v in sorted(md.items()) if not k.endswith("sha256")))
     click.echo("\n".join(out))
+
+
+def _span(t: dict) -> str:
+    """A topic's time span for ``info``: ``0–3600 s`` (run seconds) or two calendar dates."""
+    if t["start_s"] is None:
+        return "-"
+    if t.get("time_scale", "relative") == "relative":
+        return f"{t['start_s']:g}–{t['end_s']:g} s"
+    return t["start"] if t["start"] == t["end"] else f"{t['start']} – {t['end']}"
 
 
 def _gnss_info_lines(g: dict) -> list:
@@ -574,7 +642,7 @@ def _write_text_atomic(path: str, text: str) -> None:
     write_atomic(path, lambda tmp: Path(tmp).write_text(text))
 
 
-@main.command("baseline")
+@main.command("baseline", short_help="Static baseline of two RINEX receivers → JSON")
 @click.option("--config", "job", type=click.Path(dir_okay=False), default=None,
               help="Baseline job TOML (files, master, options; see docs/geonet.md). Options below override it.")
 @click.option("--rinex", "rinex", multiple=True, metavar="NAME=PATH", help="RINEX observation file of a station (give two).")
@@ -644,7 +712,7 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, weight
         _emit_json(res)
 
 
-@main.command("config")
+@main.command("config", short_help="Starter GNSS run config from receiver headers")
 @click.option("--rinex", "rinex", multiple=True, metavar="ANTENNA=FILE", help="RINEX observation file of an antenna.")
 @click.option("--ubx", "ubx", multiple=True, metavar="ANTENNA=FILE", help="u-blox UBX log (RXM-RAWX) of an antenna.")
 @click.option("--nav", "nav", multiple=True, type=click.Path(dir_okay=False), help="RINEX GPS navigation file.")
@@ -670,7 +738,7 @@ def config_cmd(ctx, rinex, ubx, nav, master, displacement, sigma, name, output):
     _say(ctx, f"wrote {output}")
 
 
-@main.command("baseline-config")
+@main.command("baseline-config", short_help="Starter baseline job TOML from RINEX headers")
 @click.option("--rinex", "rinex", multiple=True, required=True, metavar="NAME=PATH", help="RINEX observation file (give two).")
 @click.option("--nav", "nav", multiple=True, required=True, type=click.Path(dir_okay=False), help="RINEX GPS navigation file.")
 @click.option("--master", default=None, help="Reference station (default: the first --rinex).")
@@ -814,14 +882,14 @@ def _gps_time(t: float) -> str:
     return gps_time_str(t)
 
 
-@main.command("simulate-gnss-structure")
+@main.command("simulate-gnss-structure", short_help="Simulate a structure seen by GPS L1 → RINEX")
 @click.argument("config", type=click.Path(dir_okay=False))
 @click.option("--duration", "duration_s", type=float, default=1200.0, show_default=True, help="Seconds to simulate.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed (same seed → identical files).")
 @click.option("--x-axis-azimuth-deg", "x_axis_azimuth_deg", type=float, default=90.0, show_default=True,
               help="Azimuth of the structure x axis, degrees clockwise from north (90: x east, y north).")
 @click.option("--master-xyz", default=None, metavar="X,Y,Z", help="ECEF position of the master antenna, m [GEONET 3040].")
-@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output directory.")
+@_output_option("out_dir", "Output directory.", directory=True, old=("--out",))
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
 def simulate_gnss_structure_cmd(ctx, config, duration_s, seed, x_axis_azimuth_deg, master_xyz, out_dir, as_json):
@@ -850,7 +918,7 @@ def simulate_gnss_structure_cmd(ctx, config, duration_s, seed, x_axis_azimuth_de
         _emit_json(s)
 
 
-@main.command("simulate-gnss")
+@main.command("simulate-gnss", short_help="Simulate a GPS L1 master + rover pair → RINEX")
 @click.option("--duration", "duration_s", type=float, default=3600.0, show_default=True, help="Seconds to simulate.")
 @click.option("--rate-hz", type=float, default=1.0, show_default=True, help="Epochs per second.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed (same seed → identical files).")
@@ -871,7 +939,7 @@ def simulate_gnss_structure_cmd(ctx, config, duration_s, seed, x_axis_azimuth_de
               help="Undifferenced white phase noise, m [default: the elevation model sigma^2 = a^2 + b^2/sin^2(el), "
                    "a = b = 3 mm per receiver, the estimator's default weighting].")
 @click.option("--code-noise-m", type=float, default=0.5, show_default=True, help="Undifferenced pseudorange noise, m.")
-@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output directory.")
+@_output_option("out_dir", "Output directory.", directory=True, old=("--out",))
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
 def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover, master_xyz, rover_xyz, displacement,

@@ -34,7 +34,7 @@ from scipy.stats import chi2
 
 from .config import StructureConfig, channel_sigma_m, scalar_sigma_m
 from .dynamics import discrete_model
-from . import ekf_kernel
+from . import ekf_kernel, progress
 from .errors import CdgpsError
 from .measurement import EpochPhaseModel, channel_indices
 from .run import Run
@@ -294,8 +294,6 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     fail_run = 0
     k_reinit_block = -1
     no_link = np.zeros(N, dtype=bool)      # smoother: epoch k is not linked to k+1 (re-init boundary)
-    say = opt.progress or (lambda m: None)
-    report_every = max(N // 10, 1)
 
     def log(k, c, kind, action, **detail):
         ev = {"time_s": float(grid[k]), "antenna": chans[c][0] if c is not None else "",
@@ -328,6 +326,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                                         opt.reinit_after_epochs, Y, EVENT, U_in, xs, Ps, resid, nis, nis_dof)
 
     k = 0
+    bar = progress.bar(N, "filter", "epoch")
     while k < N:
         # the first epoch of a rest stretch (and the first after one) runs below, in Python
         edge = (at_rest[k] and k >= rest_stretch_end) or (k > 0 and at_rest[k - 1] and not at_rest[k])
@@ -341,9 +340,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                                          stop_on_nis_failure=in_rest)
             if in_rest and (nis_dof[k0:k] > 0).any():
                 rest_fail = 0                   # an epoch with data passed the NIS test
-            if N >= 3000:
-                for j in range(-(-k0 // report_every) * report_every, k, report_every):
-                    say(f"  filter {100 * j / N:3.0f}%")
+            bar.update_to(k)
             if k >= N:
                 break
         if k > 0:
@@ -574,9 +571,9 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                 k = kk + 1
                 continue
             k_reinit_block = k + int(opt.reinit_window_s / T)
-        if N >= 3000 and k % report_every == 0:
-            say(f"  filter {100 * k / N:3.0f}%")
         k += 1
+        bar.update_to(k)
+    bar.close()
 
     if _TRACE is not None:
         _TRACE.update(A=A, Q=Qd, Q_rest=Qd_rest, at_rest=at_rest.copy(), no_link=no_link.copy(), Pf=Ps.copy(),
@@ -593,8 +590,9 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
         res.x_filt = res.x.copy()
         res.P_filt = res.P.copy() if opt.keep_filtered_covariance == "full" else res.P[:, :nm, :nm].copy()
         res.P = None
-        rts_smooth(A, Qd, Bu, U_in, xs, Ps, extra_q, no_link, in_place=True,
-                   q_segments=_q_segments(at_rest, Qd, Qd_rest))
+        with progress.stage("smoothing"):
+            rts_smooth(A, Qd, Bu, U_in, xs, Ps, extra_q, no_link, in_place=True,
+                       q_segments=_q_segments(at_rest, Qd, Qd_rest))
         res.x = xs[:, :n] if p == n else xs[:, :n].copy()
         res.P = Ps if p == n else Ps[:, :n, :n].copy()
         res.smoothed = True

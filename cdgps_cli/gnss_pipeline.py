@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from . import __version__
+from . import __version__, progress
 from .atomic import write_atomic
 from .baseline import BaselineOptions, Station, json_safe, solve_static_baseline
 from .config import parse_config
@@ -517,7 +517,7 @@ def _write_gnss_states(run, init, init_text, out_path, names, t, q, P, qf, Pf, k
         for topic, X, PP, S, sm in series:
             ch = out.channel(topic, _state_schema("cdgps.DisplacementState", names))
             Xl, Sl, Pl = X.tolist(), S.tolist(), PP.reshape(len(t), -1).tolist()
-            for k, tk in enumerate(t.tolist()):
+            for k, tk in progress.iterate(enumerate(t.tolist()), f"writing {Path(out_path).name} {topic}", len(t), "msg"):
                 out.write(ch, tk, {"q": _obj(names, Xl[k]), "sigma_q": _obj(names, Sl[k]), "xi": _nn(Xl[k]),
                                    "xidot": [], "P_xi": Pl[k], "smoothed": sm})
             for nm, arr in (("time_s", t), ("q", X), ("sigma_q", S), ("xi", X), ("P_xi", PP)):
@@ -534,7 +534,7 @@ def _write_gnss_states(run, init, init_text, out_path, names, t, q, P, qf, Pf, k
         ch = out.channel(RESIDUAL_TOPIC, RESIDUAL_SCHEMA)
         ants = [c[0] for c in res_cols]
         txs = [c[1] for c in res_cols]
-        for k, tk in enumerate(t.tolist()):
+        for k, tk in progress.iterate(enumerate(t.tolist()), f"writing {Path(out_path).name} {RESIDUAL_TOPIC}", len(t), "msg"):
             rk = residual_m[k]
             used = ~np.isnan(rk)
             out.write(ch, tk, {"antenna": [a for a, u in zip(ants, used) if u],

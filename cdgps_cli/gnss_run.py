@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from . import __version__
+from . import __version__, progress
 from .atomic import file_sha256, path_for_config
 from .config import GnssConfig, gnss_config_toml, parse_gnss_config
 from .errors import CdgpsError
@@ -588,7 +588,7 @@ def _write_obs_messages(out: McapOut, ch: int, receivers: dict) -> int:
         clk = r["clock_offset_s"].to_numpy()
         per.append((n, t, cuts, cols, flag, clk))
     order = sorted(((float(p[1][a]), i, k) for i, p in enumerate(per) for k, a in enumerate(p[2][:-1])))
-    for _, i, k in order:
+    for _, i, k in progress.iterate(order, f"writing {out.path.name}", unit="msg"):
         n, t, cuts, cols, flag, clk = per[i]
         a, b = int(cuts[k]), int(cuts[k + 1])
         payload = {"receiver": n, "epoch_flag": int(flag[a]), "clock_offset_s": None if not np.isfinite(clk[a]) else float(clk[a])}
@@ -713,7 +713,7 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
 
     comments = ["GNSS run config (format: docs/gnss-pipeline.md), written by 'cdgps config' from the files' headers.",
                 "Run:  cdgps ingest --config THIS_FILE -o run.mcap && cdgps init run.mcap -o init.json &&",
-                "      cdgps estimate run.mcap --init init.json -o states.mcap && cdgps export states.mcap --csv states.csv", ""]
+                "      cdgps estimate run.mcap --init init.json -o states.mcap && cdgps export states.mcap -o states.csv", ""]
     files = {}
     with_pos = []
     for n, p in rinex.items():

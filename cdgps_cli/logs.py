@@ -20,11 +20,13 @@ from __future__ import annotations
 import bz2
 import gzip
 import lzma
+from contextlib import nullcontext
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from . import progress
 from .config import StructureConfig
 from .errors import CdgpsError
 
@@ -86,7 +88,8 @@ def _read_table(path: str | Path, columns: tuple, numeric: tuple, optional_numer
             msg.append(f"duplicate column(s) {', '.join(dup)}")
         raise CdgpsError(f"{p}, line 1: " + "; ".join(msg) + f"; expected the header {','.join(columns)}")
     try:
-        df = pd.read_csv(p, dtype=str, keep_default_na=False, na_filter=False, engine="c")
+        with progress.reading(p) as raw, (nullcontext(raw) if opener is open else opener(raw, "rb")) as fh:
+            df = pd.read_csv(fh, dtype=str, keep_default_na=False, na_filter=False, engine="c")
     except pd.errors.ParserError as exc:
         raise CdgpsError(f"{p}: malformed CSV: {exc}") from None
     except UnicodeDecodeError:
@@ -97,7 +100,7 @@ def _read_table(path: str | Path, columns: tuple, numeric: tuple, optional_numer
     if len(df) == 0:
         raise CdgpsError(f"{p}: no data rows after the header")
     out = {}
-    for c in columns:
+    for c in progress.iterate(columns, f"checking {p.name}", unit="column"):
         col = df[c].str.strip() if df[c].dtype == object else df[c]
         if c in numeric or c in optional_numeric:
             empty = col.to_numpy() == ""

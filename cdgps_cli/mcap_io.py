@@ -29,7 +29,7 @@ import os
 import struct
 import zlib
 from array import array
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -40,6 +40,7 @@ from mcap.opcode import Opcode
 from mcap.records import AttachmentIndex
 from mcap.writer import CompressionType, IndexType, Writer
 
+from . import progress
 from .atomic import temporary_name
 from .errors import CdgpsError
 from .timescales import RELATIVE_EPOCH_UTC, TIME_SCALES, unix_ns
@@ -250,7 +251,7 @@ class McapOut:
         cols = {c: df[c].to_numpy() for c in array_columns}
         lists = {c: v.tolist() for c, v in cols.items()}      # NaN: encoded by write() per the schema
         scal = {c: df[c].to_numpy() for c in scalar_columns}
-        for a, b in zip(cuts[:-1], cuts[1:]):
+        for a, b in progress.iterate(zip(cuts[:-1], cuts[1:]), f"writing {self.path.name}", len(cuts) - 1, "msg"):
             payload = {c: scal[c][a] for c in scalar_columns}
             payload.update({c: lists[c][a:b] for c in array_columns})
             self.write(channel_id, t[a], payload)
@@ -467,6 +468,7 @@ class McapContents:
     metadata: dict          # name → dict[str, str]
     schemas: dict           # topic → (schema name, encoding)
     message_encoding: dict  # topic → encoding
+    channel_metadata: dict = field(default_factory=dict)  # topic → dict[str, str] (e.g. time_scale)
 
 
 def _check_attachment_crcs(fh, summary, path) -> None:
@@ -482,6 +484,17 @@ def _check_attachment_crcs(fh, summary, path) -> None:
             raise CdgpsError(f"{path}: attachment {idx.name!r} fails its CRC check (corrupt file)")
 
 
+def _message_count(summary, topics) -> int | None:
+    """Messages of ``topics`` (None: all) from the summary's statistics (for progress only)."""
+    st = summary.statistics
+    if st is None or topics == []:
+        return None if st is None else 0
+    if topics is None:
+        return int(st.message_count)
+    want = {cid for cid, ch in summary.channels.items() if ch.topic in topics}
+    return int(sum(n for cid, n in st.channel_message_counts.items() if cid in want))
+
+
 def read_mcap(path: str | Path, topics: list[str] | None = None) -> McapContents:
     """Read an MCAP file with CRC validation.
 
@@ -494,19 +507,22 @@ def read_mcap(path: str | Path, topics: list[str] | None = None) -> McapContents
     if not p.is_file():
         raise CdgpsError(f"{p}: no such file")
     cols: dict = {}
-    schemas, encodings = {}, {}
+    schemas, encodings, chan_meta = {}, {}, {}
     try:
         with open(p, "rb") as fh:
             reader = make_reader(fh, validate_crcs=True)
             summary = reader.get_summary()
             if summary is None:
                 raise CdgpsError(f"{p}: MCAP file has no summary section (truncated or not written by a complete run)")
-            for schema, channel, message in (reader.iter_messages(topics=topics) if topics != [] else ()):
+            messages = reader.iter_messages(topics=topics) if topics != [] else ()
+            for schema, channel, message in progress.iterate(messages, f"reading {p.name}",
+                                                              _message_count(summary, topics), "msg"):
                 acc = cols.get(channel.topic)
                 if acc is None:
                     acc = cols[channel.topic] = TopicColumns()
                     schemas[channel.topic] = (schema.name if schema else "", schema.encoding if schema else "")
                     encodings[channel.topic] = channel.message_encoding
+                    chan_meta[channel.topic] = dict(channel.metadata or {})
                 acc.add(json.loads(message.data))
             _check_attachment_crcs(fh, summary, p)
             attachments = {a.name: bytes(a.data) for a in reader.iter_attachments()}
@@ -515,4 +531,4 @@ def read_mcap(path: str | Path, topics: list[str] | None = None) -> McapContents
         raise
     except (McapError, EOFError, ValueError, KeyError, struct.error, OSError, UnicodeDecodeError) as exc:
         raise CdgpsError(f"{p}: not a valid MCAP file (truncated or corrupt): {type(exc).__name__}: {exc}") from None
-    return McapContents(str(p), cols, attachments, metadata, schemas, encodings)
+    return McapContents(str(p), cols, attachments, metadata, schemas, encodings, chan_meta)

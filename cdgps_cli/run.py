@@ -18,6 +18,7 @@ from . import __version__
 from .atomic import file_sha256
 from .config import StructureConfig, parse_config
 from .errors import CdgpsError
+from .time_format import format_time, median_spacing_s, time_scale
 from .logs import read_actuator_log, read_gyro_log, read_receiver_log
 from .mcap_io import (ACTUATOR_SCHEMA, ACTUATOR_TOPIC, CONFIG_ATTACHMENT, GYRO_SCHEMA, GYRO_TOPIC,
                       PHASE_SCHEMA, PHASE_TOPIC, McapOut, TopicColumns, read_mcap)
@@ -216,12 +217,14 @@ def run_info(path: str | Path) -> dict:
             "attachments": sorted(c.attachments)}
     for topic, msgs in sorted(c.topics.items()):
         t = msgs.times()
-        dt = np.diff(t)
+        scale = time_scale(c, topic, t)
+        start, end = (float(np.min(t)), float(np.max(t))) if t.size else (None, None)
         info["topics"].append({
             "topic": topic, "schema": c.schemas[topic][0], "schema_encoding": c.schemas[topic][1],
             "message_encoding": c.message_encoding[topic], "messages": len(msgs),
-            "start_s": float(t[0]) if t.size else None, "end_s": float(t[-1]) if t.size else None,
-            "median_period_s": float(np.median(dt)) if dt.size else None,
+            "start_s": start, "end_s": end, "time_scale": scale,
+            "start": format_time(start, scale), "end": format_time(end, scale),
+            "median_period_s": median_spacing_s(t, msgs.scalars.get("receiver")),
         })
     from .gnss_run import gnss_run_info, is_gnss_run  # noqa: PLC0415 (GNSS runs: docs/gnss-pipeline.md)
 

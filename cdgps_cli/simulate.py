@@ -35,6 +35,7 @@ import numpy as np
 import pandas as pd
 from scipy.signal import lfilter
 
+from . import progress
 from .config import StructureConfig
 from .dynamics import discrete_model
 from .atomic import write_atomic
@@ -371,7 +372,7 @@ def write_simulation(result: Simulation, out_dir: str | Path) -> dict:
     files = {}
 
     def csv(df, name):
-        _write_atomic(out / name, lambda p: df.to_csv(p, index=False, lineterminator="\n"))
+        _write_atomic(out / name, lambda p: progress.to_csv(df, p, f"writing {name}", index=False, lineterminator="\n"))
         files[name] = str(out / name)
 
     csv(result.receiver, "receiver.csv")

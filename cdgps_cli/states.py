@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from . import __version__
+from . import __version__, progress
 from .config import StructureConfig, parse_config
 from .atomic import write_atomic
 from .errors import CdgpsError
@@ -160,7 +160,10 @@ def write_states(res, run_path: str | Path, init: dict, init_text: str,
             "smoothed": str(res.smoothed).lower()}
     from .gnss_run import run_kind  # noqa: PLC0415 (a structure estimated on a GNSS run: GPS time)
 
-    with McapOut(out_path, time_scale="gps" if run_kind(run_path) == "gnss" else "relative") as out:
+    n_msgs = len(res.time_s) * (3 if res.smoothed else 2) + len(res.events)
+    time_scale = "gps" if run_kind(run_path) == "gnss" else "relative"
+    with McapOut(out_path, time_scale=time_scale) as out, \
+            progress.bar(n_msgs, f"writing {Path(out_path).name}", "msg") as bar:
         schema = _state_schema(cfg)
         series = [(STATE_TOPIC, res.x, res.P, res.smoothed)]
         if res.smoothed:
@@ -175,6 +178,7 @@ def write_states(res, run_path: str | Path, init: dict, init_text: str,
                     "q": dict(zip(names, q[k].tolist())), "sigma_q": dict(zip(names, sq[k].tolist())),
                     "xi": X[k, :nm].tolist(), "xidot": X[k, nm:].tolist(),
                     "P_xi": P_xi[k].ravel().tolist(), "smoothed": smoothed})
+                bar.update()
             # the same series as .npy arrays, for fast machine reading (spectra, reports, evaluate),
             # streamed to the file a few rows at a time (the bytes of np.save, never built in memory)
             for name, arr in (("time_s", res.time_s), ("q", q), ("sigma_q", sq), ("xi", X[:, :nm]),
@@ -194,6 +198,7 @@ def write_states(res, run_path: str | Path, init: dict, init_text: str,
                               "residual_m": r[used].tolist(),
                               "nis": None if np.isnan(res.nis[k]) else float(res.nis[k]),
                               "nis_dof": int(res.nis_dof[k])})
+            bar.update()
         ch = out.channel(EVENT_TOPIC, event_schema(res.events))
         for ev in res.events:
             body = {k: v for k, v in ev.items() if k != "time_s"}

@@ -23,13 +23,13 @@ echo "-- 1. static sensor test on the bundled testbed run (data/testbed-static: 
 echo "-- 2. dynamic sensor test: simulate 20 minutes of free vibration of the testbed, then the whole chain"
 # noise and disturbance as the filter assumes (2 cm, full process noise), so NEES/NIS are meaningful
 "$CDGPS" -q simulate configs/testbed-1998.toml --duration 1200 --seed 7 --scenario free --noise-m 0.02 \
-    --disturbance-scale 1 --out "$OUT/free/sim"
+    --disturbance-scale 1 -o "$OUT/free/sim"
 "$CDGPS" ingest "$OUT/free/sim/receiver.csv" "$OUT/free/sim/gyro.csv" --config configs/testbed-1998.toml \
     -o "$OUT/free/run.mcap"
 "$CDGPS" init "$OUT/free/run.mcap" -o "$OUT/free/init.json"
 "$CDGPS" estimate "$OUT/free/run.mcap" --init "$OUT/free/init.json" --smooth -o "$OUT/free/states.mcap"
 "$CDGPS" evaluate --truth "$OUT/free/sim" --estimate "$OUT/free/states.mcap"
-"$CDGPS" export "$OUT/free/states.mcap" --csv "$OUT/free/states.csv"
+"$CDGPS" export "$OUT/free/states.mcap" -o "$OUT/free/states.csv"
 "$CDGPS" report spectrum "$OUT/free/states.mcap" --gyro "$OUT/free/run.mcap" -o "$OUT/free/report"
 
 echo "-- 3. the 1995 two-degree-of-freedom model: batch initialization on 20 epochs (2.4 s), biases as states"
