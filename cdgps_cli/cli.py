@@ -80,6 +80,8 @@ def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_s
     summary = write_simulation(run_sim(cfg, opt), out_dir)
     _say(ctx, f"wrote {summary['receiver_rows']} phase rows, {summary['gyro_rows']} gyro rows, "
               f"{summary['slips']} slip/relock events to {out_dir}/")
+    if not cfg.gyro_names:
+        _say(ctx, "  the config declares no gyros: gyro.csv has the header only (ingest accepts it as it is)")
     if as_json:
         _emit_json(summary)
 
@@ -133,6 +135,8 @@ def ingest(ctx, receiver_csv, gyro_csv, actuator_csv, config, rinex, ubx, nav, m
     s = write_run(cfg, receiver_csv, output, gyro_csv, actuator_csv)
     _say(ctx, f"wrote {output}: {s['phase_messages']} epochs ({s['start_s']:g}–{s['end_s']:g} s), "
               f"{s['channels']} channels, {len(s['gaps'])} gaps, {s['lock_restarts']} lock restarts")
+    if gyro_csv and s["gyro_rows"] == 0:
+        _say(ctx, f"  {gyro_csv}: header only (the config declares no gyros): no gyro topic")
     for g in s["gaps"][:10]:
         _say(ctx, f"  gap {g['start_s']:g}–{g['end_s']:g} s ({g['missing_epochs']} epochs missing)")
     if as_json:
