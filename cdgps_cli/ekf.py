@@ -610,7 +610,15 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
         res.smoothed = True
     if win is not None:
         say(f"  batch solution over INIT's window {win[0]:g}–{win[1]:g} s …")
-        _join_window(res, window_states(run, init, win, x0, P0), x0, P0, opt)
+        try:
+            ws = window_states(run, init, win, x0, P0)
+        except CdgpsError as exc:          # e.g. an INIT edited by hand: the filter part is still right
+            ws = None
+            res.events.insert(0, {"time_s": float(grid[0]), "antenna": "", "transmitter": "",
+                                  "kind": "batch window", "action": f"window epochs not recomputed: {exc}; "
+                                  f"STATES start at the window end"})
+        if ws is not None:
+            _join_window(res, ws, x0, P0, opt)
     return res
 
 
@@ -647,7 +655,8 @@ def _join_window(res: EstimateResult, ws, x0: np.ndarray, P0: np.ndarray, opt: E
     res.nis_dof = np.concatenate([np.zeros(nw, dtype=res.nis_dof.dtype), res.nis_dof])
     res.window = {"start_s": float(ws.time_s[0]), "end_s": float(ws.time_s[-1]), "epochs": int(nw + 1),
                   "source": "batch solution (INIT's window, recomputed from RUN + INIT)",
-                  "iterations": int(ws.iterations), "free_biases": int(ws.n_free_biases)}
+                  "iterations": int(ws.iterations), "free_biases": int(ws.n_free_biases),
+                  "segments_without_init_bias": list(ws.segments_without_bias)}
 
 
 def validate_rest_segments(segments, scale, retry_s=0.0) -> list[tuple[float, float]]:

@@ -64,6 +64,7 @@ class WindowStates:
     residual_m: np.ndarray      # (N, C) post-fit residual Δφ − h(x) − b (NaN where absent)
     iterations: int
     n_free_biases: int
+    segments_without_bias: list     # window lock segments INIT has no bias for (their data left out)
 
 
 def batch_window(init: dict, t0: float) -> tuple[float, float] | None:
@@ -98,14 +99,16 @@ def _segment_biases(init: dict, wd) -> tuple[np.ndarray, np.ndarray]:
         key = (s["antenna"], s["transmitter"], round(float(s["start_s"]), 6))
         if key not in table:
             missing.append(f"{s['antenna']}/{s['transmitter']} from {s['start_s']:g} s")
+            vals.append(np.nan)            # data of a segment INIT has no bias for are left out
+            fixed.append(True)
             continue
         vals.append(table[key][0])
         fixed.append(table[key][1])
-    if missing:
+    if len(missing) > len(wd.segments) // 2:
         raise CdgpsError("INIT.json does not match this RUN's window data: no INIT bias for the lock segment(s) "
                          + ", ".join(missing[:5]) + (f" (+{len(missing) - 5} more)" if len(missing) > 5 else "")
                          + "; was INIT made from this RUN?")
-    return np.asarray(vals, dtype=float), np.asarray(fixed, dtype=bool)
+    return np.asarray(vals, dtype=float), np.asarray(fixed, dtype=bool), missing
 
 
 def _measurements(cfg, wd, x_lin, seg_bias, seg_free):
@@ -229,7 +232,10 @@ def window_states(run: Run, init: dict, window: tuple[float, float], x_end: np.n
     if abs(float(wd.time_s[-1]) - window[1]) > 1e-6 or abs(float(wd.time_s[0]) - window[0]) > 1e-6:
         raise CdgpsError(f"INIT.json's window {window[0]:g}–{window[1]:g} s is not in this RUN's phase data "
                          f"({wd.time_s[0]:g}–{wd.time_s[-1]:g} s there); was INIT made from this RUN?")
-    seg_bias, seg_fixed = _segment_biases(init, wd)
+    seg_bias, seg_fixed, missing = _segment_biases(init, wd)
+    if missing:                            # (an INIT edited by hand): those segments' data are not used
+        drop = np.isnan(seg_bias)[np.maximum(wd.segment, 0)] & (wd.segment >= 0)
+        wd.y_m[drop] = np.nan
     seg_free = ~seg_fixed
     sigma = float(init.get("sigma_m") or cfg.measurement_sigma_m)
     model = discrete_model(cfg)
@@ -268,7 +274,7 @@ def window_states(run: Run, init: dict, window: tuple[float, float], x_end: np.n
         resid[k0:k0 + _CHUNK] = wd.y_m[k0:k0 + _CHUNK] - phase_model(cfg, x_lin[k0:k0 + _CHUNK], wd.ant, wd.tx)
     resid -= np.where(wd.segment >= 0, b[np.maximum(wd.segment, 0)], np.nan)
     return WindowStates(wd.time_s, z[:, :n].copy(), Pz[:, :n, :n].copy(), z, Pz, Ybar, A, Q, list(wd.channels),
-                        resid, it, mf)
+                        resid, it, mf, missing)
 
 
 def extend_smoothing(ws: WindowStates, x_next: np.ndarray, P_next: np.ndarray,
