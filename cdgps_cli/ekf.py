@@ -621,10 +621,10 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
             _join_window(res, ws, x0, P0, opt)
     t_first = float(run.phase["time_s"].min())
     if res.time_s[0] > t_first + 1e-6:
+        where = "INIT's window start" if res.window else "INIT's state time"
         res.events.insert(0, {"time_s": float(res.time_s[0]), "antenna": "", "transmitter": "",
                               "kind": "epochs not estimated",
-                              "action": f"the run starts at {t_first:g} s, STATES at {res.time_s[0]:g} s "
-                                        f"({'INIT' + chr(39) + 's window start' if res.window else 'INIT' + chr(39) + 's state time'}); "
+                              "action": f"the run starts at {t_first:g} s, STATES at {res.time_s[0]:g} s ({where}); "
                                         "initialize from the run start (cdgps init --start) to cover it"})
     return res
 
