@@ -620,7 +620,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
         if ws is not None:
             _join_window(res, ws, x0, P0, opt)
     t_first = float(run.phase["time_s"].min())
-    if res.time_s[0] > t_first + 1e-6:
+    if win is not None and res.time_s[0] > t_first + 1e-6:     # (a hand-made INIT is a prior where it says)
         where = "INIT's window start" if res.window else "INIT's state time"
         res.events.insert(0, {"time_s": float(res.time_s[0]), "antenna": "", "transmitter": "",
                               "kind": "epochs not estimated",
