@@ -116,11 +116,12 @@ def main() -> None:
         f"| σ at 60.1 s / INIT's σ | {rng('ratio_t1', 'before')} | {rng('ratio_t1', 'after')} | ≈ 1 (one step of process noise, one epoch of data) |",
         f"| (error/σ)² at the first filter output (60 s before, 60.1 s after), mean over coordinates and seeds "
         f"| {mean('z2_first_output', 'before')} | {mean('z2_first_output', 'after')} | 1 |",
+        f"| (error/σ)² at 60 s (INIT's state, the window end) | {mean('z2_t0', 'before')} | {mean('z2_t0', 'after')} | 1 |",
         f"| (error/σ)² over the window's epochs (0–60 s) | – | {mean('z2_window', 'after')} | 1 |",
         f"| modal NEES / dof over the window's epochs | – | {mean('nees_window', 'after')} | 1 |",
         "",
         f"(error/σ)² at the first output pools {len(rs) * cfg.n_q} values (10 coordinates × {a.seeds} "
-        "seeds), so its sampling scatter is about ±0.1 around 1 for independent draws (less independent "
+        "seeds) per row, so its sampling scatter is about ±0.1 around 1 for independent draws (less independent "
         "here: the coordinates' errors are correlated).",
     ]
     Path(a.out).write_text("\n".join(lines) + "\n")
