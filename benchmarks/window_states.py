@@ -123,6 +123,11 @@ def main() -> None:
         f"(error/σ)² at the first output pools {len(rs) * cfg.n_q} values (10 coordinates × {a.seeds} "
         "seeds) per row, so its sampling scatter is about ±0.1 around 1 for independent draws (less independent "
         "here: the coordinates' errors are correlated).",
+        "",
+        "Independent check of the same property (tests/test_window_states.py): on a linear model the window's "
+        "states and covariances, every filter epoch and the whole smoothed record equal a dense normal-equation "
+        "batch solution over the corresponding epochs (relative difference < 1e-8), on the compiled-kernel "
+        "and the numpy path; in particular the first post-window σ is the batch's propagated σ.",
     ]
     Path(a.out).write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
