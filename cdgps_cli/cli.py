@@ -333,7 +333,7 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
     s = write_states(res, run_mcap, init, init_text, output, opt.echo())
     nis_text = "no filter epoch with data" if s["mean_nis_per_dof"] is None else f"mean NIS/dof {s['mean_nis_per_dof']:.3f}"
     w = s.get("window")
-    src = (f" — {w['start_s']:g}–{w['end_s']:g} s from the batch solution, the filter after it" if w else "")
+    src = (f"; {w['start_s']:g}–{w['end_s']:g} s from INIT's batch solution, then the filter" if w else "")
     _say(ctx, f"wrote {output}: {s['epochs']} epochs ({s['start_s']:g}–{s['end_s']:g} s{src}), "
               f"{nis_text}, {s['events']} events")
     for ev in s["event_list"][:20]:

@@ -61,7 +61,7 @@ def test_readme_chain_as_written(tmp_path, repo_root, monkeypatch):
     outputs = [_cdgps(*line.split()[1:]) for line in README_CHAIN.strip().splitlines()]
     truth = pd.read_csv("run1/truth.csv")
     # STATES cover every epoch of the 60 s run (the init window from the batch, the filter after it)
-    assert "601 epochs (0–60 s" in outputs[4]
+    assert "601 epochs (0–60 s; 0–60 s from INIT" in outputs[4]
     ev = json.loads(_cdgps("evaluate", "--truth", "run1", "--estimate", "run1/states.mcap", "--json"))
     assert ev["epochs"] == len(truth) == 601
     assert all(np.isfinite(v) and v > 0 for v in ev["rms_error"].values())
