@@ -81,7 +81,7 @@ def test_readme_chain_as_written(tmp_path, repo_root, monkeypatch):
 
 
 def _short_states(tmp_path, dof2_cfg, N):
-    """A hand-made STATES of N epochs (1995 model) and a truth dir.
+    """A hand-made STATES of N epochs (1995 model) and a truth dir."""
     from cdgps_cli.ekf import EstimateResult
     from cdgps_cli.states import write_states
 
