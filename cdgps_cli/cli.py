@@ -136,6 +136,8 @@ def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_s
     summary = write_simulation(sim, out_dir)
     _say(ctx, f"wrote {summary['receiver_rows']} phase rows, {summary['gyro_rows']} gyro rows, "
               f"{summary['slips']} slip/relock events to {out_dir}/")
+    if not cfg.gyro_names:
+        _say(ctx, "  the config declares no gyros: gyro.csv has the header only (ingest accepts it as it is)")
     if as_json:
         _emit_json(summary)
 
@@ -189,6 +191,8 @@ def ingest(ctx, receiver_csv, gyro_csv, actuator_csv, config, rinex, ubx, nav, m
     s = write_run(cfg, receiver_csv, output, gyro_csv, actuator_csv)
     _say(ctx, f"wrote {output}: {s['phase_messages']} epochs ({s['start_s']:g}–{s['end_s']:g} s), "
               f"{s['channels']} channels, {len(s['gaps'])} gaps, {s['lock_restarts']} lock restarts")
+    if gyro_csv and s["gyro_rows"] == 0:
+        _say(ctx, f"  {gyro_csv}: header only (the config declares no gyros): no gyro topic")
     for g in s["gaps"][:10]:
         _say(ctx, f"  gap {g['start_s']:g}–{g['end_s']:g} s ({g['missing_epochs']} epochs missing)")
     if as_json:
@@ -384,8 +388,11 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
     res = run_ekf(run, init, opt)
     del run                                  # the phase table is not needed for writing (memory)
     s = write_states(res, run_mcap, init, init_text, output, opt.echo())
-    _say(ctx, f"wrote {output}: {s['epochs']} epochs ({s['start_s']:g}–{s['end_s']:g} s), "
-              f"mean NIS/dof {s['mean_nis_per_dof']:.3f}, {s['events']} events")
+    nis_text = "no filter epoch with data" if s["mean_nis_per_dof"] is None else f"mean NIS/dof {s['mean_nis_per_dof']:.3f}"
+    w = s.get("window")
+    src = (f"; {w['start_s']:g}–{w['end_s']:g} s from INIT's batch solution, then the filter" if w else "")
+    _say(ctx, f"wrote {output}: {s['epochs']} epochs ({s['start_s']:g}–{s['end_s']:g} s{src}), "
+              f"{nis_text}, {s['events']} events")
     for ev in s["event_list"][:20]:
         ch = f" {ev['antenna']}/{ev['transmitter']}" if ev["antenna"] else ""
         _say(ctx, f"  {ev['time_s']:8.2f} s{ch}: {ev['kind']} → {ev['action']}")
@@ -455,7 +462,7 @@ def evaluate(ctx, truth_dir, states_mcap, converge_s, as_json):
     ne = r["nees"]
     lines.append(f"  NEES (dof {ne['dof']}): mean {ne['mean']:.2f}, 95% interval {ne['interval95_single'][0]:.2f}–"
                  f"{ne['interval95_single'][1]:.2f}, {100 * ne['fraction_in_interval']:.1f}% of epochs inside")
-    if "nis" in r:
+    if r.get("nis"):
         lines.append(f"  NIS: mean per dof {r['nis']['mean_per_dof']:.3f}, {100 * r['nis']['fraction_in_interval95']:.1f}% in 95% interval")
     lines.append(f"  within 3 sigma: {100 * r['within_3sigma_fraction']:.1f}% of epochs; converged after "
                  f"{'never' if r['convergence_s'] is None else format(r['convergence_s'], '.2f') + ' s'} (NEES below its 99.9% bound for 1 s)")

@@ -38,6 +38,7 @@ from . import ekf_kernel, progress
 from .errors import CdgpsError
 from .measurement import EpochPhaseModel, channel_indices
 from .run import Run
+from .window_states import batch_window, extend_smoothing, window_states
 
 
 @dataclass
@@ -86,6 +87,7 @@ class EstimateResult:
     biases: dict = field(default_factory=dict)   # channel → final bias (m)
     smoothed: bool = False
     filter_path: str = "numpy"    # "c": steady-state epochs ran in the compiled kernel (ekf_kernel)
+    window: dict | None = None    # INIT's batch window when its epochs come from the batch solution
 
 
 _MASKS: dict = {}
@@ -195,6 +197,10 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     rest = validate_rest_segments(opt.rest_segments_s, opt.rest_process_noise_scale, opt.rest_retry_s)
     cfg = run.cfg
     t0, x0, P0, init_bias = load_init_state(init, cfg)
+    # INIT from 'cdgps init': its state is the batch solution at the window end, which used that
+    # epoch's data; the filter starts from it without using them again, and the window's epochs
+    # take the batch solution (window_states)
+    win = batch_window(init, t0)
     sigma = opt.sigma_m if opt.sigma_m is not None else float(init.get("sigma_m") or scalar_sigma_m(channel_sigma_m(cfg, cfg.channels)))
     model = discrete_model(cfg)
     T = cfg.sample_period_s
@@ -289,6 +295,10 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     extra_q: dict[int, list] = {}          # epoch → [(state index, added variance)] (bias states)
     EVENT = lock_events(Y, LOCK)
     del LOCK
+    if win is not None:
+        for c, key in enumerate(chans):
+            if key in init_bias:
+                Y[0, c] = np.nan           # already in INIT's state (the batch's last epoch)
     new_states: list = []
     chi2_bound = {}
     fail_run = 0
@@ -596,7 +606,62 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
         res.x = xs[:, :n] if p == n else xs[:, :n].copy()
         res.P = Ps if p == n else Ps[:, :n, :n].copy()
         res.smoothed = True
+    if win is not None:
+        try:
+            with progress.stage(f"batch solution over INIT's window {win[0]:g}–{win[1]:g} s"):
+                ws = window_states(run, init, win, x0, P0)
+        except CdgpsError as exc:          # e.g. an INIT edited by hand: the filter part is still right
+            ws = None
+            res.events.insert(0, {"time_s": float(grid[0]), "antenna": "", "transmitter": "",
+                                  "kind": "batch window", "action": f"window epochs not recomputed: {exc}; "
+                                  f"STATES start at the window end"})
+        if ws is not None:
+            _join_window(res, ws, x0, P0, opt)
+    t_first = float(run.phase["time_s"].min())
+    if win is not None and res.time_s[0] > t_first + 1e-6:     # (a hand-made INIT is a prior where it says)
+        where = "INIT's window start" if res.window else "INIT's state time"
+        res.events.insert(0, {"time_s": float(res.time_s[0]), "antenna": "", "transmitter": "",
+                              "kind": "epochs not estimated",
+                              "action": f"the run starts at {t_first:g} s, STATES at {res.time_s[0]:g} s ({where}); "
+                                        "initialize from the run start (cdgps init --start) to cover it"})
     return res
+
+
+def _join_window(res: EstimateResult, ws, x0: np.ndarray, P0: np.ndarray, opt: EstimateOptions) -> None:
+    """Put the window's batch solution before the filter's epochs (in place on ``res``).
+
+    ``res`` starts at the window end with INIT's state (x0, P0) as its first filtered value; with
+    smoothing the pass is carried into the window (:func:`cdgps_cli.window_states.extend_smoothing`)."""
+    nw = len(ws.time_s) - 1                   # window epochs before its end (the end is res's first)
+    nm = res.cfg.n_modes
+    if nw < 0 or abs(float(ws.time_s[-1]) - float(res.time_s[0])) > 1e-6:
+        raise CdgpsError("INIT's window does not end where the filter starts")
+    if res.smoothed:
+        xw, Pw = extend_smoothing(ws, res.x[0], res.P[0], x0, P0)
+        res.x_filt = np.concatenate([ws.x[:-1], res.x_filt])
+        Pf = ws.P[:-1] if res.P_filt.shape[1] == ws.P.shape[1] else ws.P[:-1, :nm, :nm]
+        res.P_filt = np.concatenate([Pf, res.P_filt])
+    else:
+        xw, Pw = ws.x[:-1], ws.P[:-1]
+    res.x = np.concatenate([xw, res.x])
+    res.P = np.concatenate([Pw, res.P])
+    res.time_s = np.concatenate([ws.time_s[:-1], res.time_s])
+    C = len(res.channels)
+    resid = np.full((nw + 1, C), np.nan)
+    col = {c: i for i, c in enumerate(res.channels)}
+    for j, c in enumerate(ws.channels):
+        if c in col:
+            resid[:, col[c]] = ws.residual_m[:, j]
+    first = resid[-1]
+    res.residual_m = np.concatenate([resid[:-1], res.residual_m])
+    row0 = res.residual_m[nw]
+    row0[np.isnan(row0)] = first[np.isnan(row0)]   # the window end: the batch's residuals
+    res.nis = np.concatenate([np.full(nw, np.nan), res.nis])
+    res.nis_dof = np.concatenate([np.zeros(nw, dtype=res.nis_dof.dtype), res.nis_dof])
+    res.window = {"start_s": float(ws.time_s[0]), "end_s": float(ws.time_s[-1]), "epochs": int(nw + 1),
+                  "source": "batch solution (INIT's window, recomputed from RUN + INIT)",
+                  "iterations": int(ws.iterations), "free_biases": int(ws.n_free_biases),
+                  "segments_without_init_bias": list(ws.segments_without_bias)}
 
 
 def validate_rest_segments(segments, scale, retry_s=0.0) -> list[tuple[float, float]]:

@@ -61,7 +61,8 @@ class _Problems:
             raise CdgpsError(head + "\n  - " + "\n  - ".join(self.items))
 
 
-def _read_table(path: str | Path, columns: tuple, numeric: tuple, optional_numeric: tuple = ()) -> tuple[pd.DataFrame, _Problems]:
+def _read_table(path: str | Path, columns: tuple, numeric: tuple, optional_numeric: tuple = (),
+                allow_empty: bool = False) -> tuple[pd.DataFrame, _Problems]:
     p = Path(path)
     probs = _Problems(str(p))
     opener = {".gz": gzip.open, ".xz": lzma.open, ".bz2": bz2.open}.get(p.suffix, open)
@@ -97,7 +98,7 @@ def _read_table(path: str | Path, columns: tuple, numeric: tuple, optional_numer
     except (EOFError, OSError, lzma.LZMAError) as exc:
         raise CdgpsError(f"{p}: cannot read: {exc}") from None
     df.columns = [c.strip() for c in df.columns]
-    if len(df) == 0:
+    if len(df) == 0 and not allow_empty:
         raise CdgpsError(f"{p}: no data rows after the header")
     out = {}
     for c in progress.iterate(columns, f"checking {p.name}", unit="column"):
@@ -166,10 +167,12 @@ def read_receiver_log(path: str | Path, cfg: StructureConfig) -> pd.DataFrame:
     return df
 
 
-def _read_named_series(path, columns: tuple, value: str, allowed: list, what: str) -> pd.DataFrame:
-    """A ``time_s,<name>,<value>`` log: times in order, names from the config, no duplicate rows."""
+def _read_named_series(path, columns: tuple, value: str, allowed: list, what: str,
+                       allow_empty: bool = False) -> pd.DataFrame:
+    """A ``time_s,<name>,<value>`` log: times in order, names from the config, no duplicate rows
+    (``allow_empty``: a header without rows is an empty table instead of an error)."""
     name = columns[1]
-    df, probs = _read_table(path, columns, ("time_s", value))
+    df, probs = _read_table(path, columns, ("time_s", value), allow_empty=allow_empty)
     _check_time(df, probs)
     _check_names(df, name, allowed, probs, what)
     probs.rows(df.duplicated(["time_s", name]).to_numpy(), f"duplicate row (same time_s and {name} as an earlier row)")
@@ -178,8 +181,12 @@ def _read_named_series(path, columns: tuple, value: str, allowed: list, what: st
 
 
 def read_gyro_log(path: str | Path, cfg: StructureConfig) -> pd.DataFrame:
-    """Read and validate a gyro log (``time_s,gyro,rate_rad_s``)."""
-    return _read_named_series(path, GYRO_COLUMNS, "rate_rad_s", list(cfg.gyro_names), "gyro")
+    """Read and validate a gyro log (``time_s,gyro,rate_rad_s``).
+
+    A header-only log (what ``cdgps simulate`` writes for a structure without gyros) is accepted,
+    as an empty table, when the config declares no gyros; with gyros in the config it is an error."""
+    return _read_named_series(path, GYRO_COLUMNS, "rate_rad_s", list(cfg.gyro_names), "gyro",
+                              allow_empty=not cfg.gyro_names)
 
 
 def read_actuator_log(path: str | Path, cfg: StructureConfig) -> pd.DataFrame:

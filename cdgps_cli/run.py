@@ -148,7 +148,7 @@ def write_run(cfg: StructureConfig, receiver_csv: str | Path, out_path: str | Pa
         ch = out.channel(PHASE_TOPIC, PHASE_SCHEMA, {"units": "cycles", "wavelength_m": repr(cfg.wavelength_m)})
         n_phase = out.write_table(ch, phase, PHASE_ARRAYS, ["master"])
         n_gyro = n_act = 0
-        if gyro is not None:
+        if gyro is not None and len(gyro):          # (a header-only log of a config without gyros: no topic)
             n_gyro = out.write_table(out.channel(GYRO_TOPIC, GYRO_SCHEMA, {"units": "rad/s"}), gyro, ["gyro", "rate_rad_s"])
             # the gyro log also as .npy arrays (fast reading by spectra and reports)
             codes, names = pd.factorize(gyro["gyro"])

@@ -158,6 +158,10 @@ def write_states(res, run_path: str | Path, init: dict, init_text: str,
             "final_biases": json.dumps([{"antenna": a, "transmitter": t, "bias_m": b}
                                         for (a, t), b in res.biases.items()]),
             "smoothed": str(res.smoothed).lower()}
+    window = getattr(res, "window", None)
+    if window:
+        # epochs start_s … end_s come from INIT's batch solution (not from the filter)
+        meta["window"] = json.dumps(window, sort_keys=True)
     from .gnss_run import run_kind  # noqa: PLC0415 (a structure estimated on a GNSS run: GPS time)
 
     n_msgs = len(res.time_s) * (3 if res.smoothed else 2) + len(res.events)
@@ -209,6 +213,7 @@ def write_states(res, run_path: str | Path, init: dict, init_text: str,
     nis_ok = res.nis_dof > 0
     return {"output": str(out_path), "epochs": int(len(res.time_s)), "start_s": float(res.time_s[0]),
             "end_s": float(res.time_s[-1]), "smoothed": res.smoothed, "events": len(res.events),
+            "window": window or None,
             "mean_nis_per_dof": float(np.nanmean(res.nis[nis_ok] / res.nis_dof[nis_ok])) if nis_ok.any() else None,
             "event_list": res.events}
 
@@ -269,6 +274,10 @@ def export_csv(states_path: str | Path, out_csv: str | Path, points: str | None 
     """
     st = States(states_path)
     names = list(st.cfg.coord_names)
+    bad = ~np.isfinite(st.q).all(axis=1) | ~np.isfinite(st.sigma_q).all(axis=1)
+    if bad.any():
+        raise CdgpsError(f"{states_path}: {int(bad.sum())} of {len(bad)} epoch(s) with non-finite states or sigmas "
+                         f"(first at {st.time_s[np.flatnonzero(bad)[0]]:g} s); nothing written")
     pts = None
     if points is not None:
         from .points import point_columns, select_points
@@ -323,6 +332,14 @@ def evaluate(truth_dir: str | Path, states_path: str | Path, converge_s: float =
     time = st.time_s[ie]
     err = qe - qt
     after = time >= time[0] + converge_s - 1e-9
+    if after.sum() < 2:
+        raise CdgpsError(f"{states_path}: {common.size} epoch(s) in common with the truth "
+                         f"({time[0]:g}–{time[-1]:g} s), {int(after.sum())} after the first {converge_s:g} s "
+                         "(--converge-s): too short to evaluate; estimate a longer run")
+    bad = ~np.isfinite(qe).all(axis=1) | ~np.isfinite(se).all(axis=1)
+    if bad.any():
+        raise CdgpsError(f"{states_path}: {int(bad.sum())} epoch(s) with non-finite states or sigmas "
+                         f"(first at {time[np.flatnonzero(bad)[0]]:g} s)")
     rms = np.sqrt(np.mean(err[after] ** 2, axis=0))
     U = np.asarray(cfg.mode_shapes)
     xi_t = qt @ np.linalg.pinv(U).T
@@ -354,7 +371,7 @@ def evaluate(truth_dir: str | Path, states_path: str | Path, converge_s: float =
                  "fraction_in_interval": float(np.mean((nees[after] >= lo) & (nees[after] <= hi))),
                  "interval95_mean_if_independent": [float(mlo), float(mhi)]},
     }
-    if st.nis is not None:
+    if st.nis is not None and ((st.nis_dof > 0) & np.isfinite(st.nis)).any():
         ok = (st.nis_dof > 0) & np.isfinite(st.nis)
         r = st.nis[ok] / st.nis_dof[ok]
         inside_nis = (st.nis[ok] >= chi2.ppf(0.025, st.nis_dof[ok])) & (st.nis[ok] <= chi2.ppf(0.975, st.nis_dof[ok]))

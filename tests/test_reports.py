@@ -66,7 +66,7 @@ def static_run(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def free_run(tmp_path_factory):
-    """300 s free vibration (the filter starts after the 60 s INIT window: 240 s of states)."""
+    """300 s free vibration (states over the whole record: the 60 s INIT window, the filter after it)."""
     return pipeline(tmp_path_factory.mktemp("free"), SimOptions(duration_s=300, seed=7))
 
 
@@ -206,14 +206,16 @@ def test_spectrum_report_files(spectrum_out, testbed_cfg):
 
 
 def test_spectrum_report_identifies_modes_from_estimates(spectrum_out, record_property):
-    """240 s of smoothed estimates (60 s segments, 0.024 Hz resolution): the well-separated modes
-    are found within 5 %; the 0.132/0.135/0.138 Hz cluster is not resolved by FDD at this length."""
+    """300 s of smoothed estimates (the whole record: INIT's window and the filter after it; 75 s
+    segments): the well-separated modes are found within 5 %; of the 0.132/0.135/0.138 Hz cluster
+    FDD resolves two at this length (bending-1, bending-2; twist-2's singular vector has MAC 0.14)."""
     d, _ = spectrum_out
     modes = {m["mode"]: m for m in d["modes"]}
-    for name in ("swing", "twist-1", "twist-2", "bending-3", "bending-4"):
+    for name in ("pendulum", "swing", "twist-1", "bending-3", "bending-4"):
         assert modes[name]["seen"], modes[name]
         assert abs(modes[name]["error_pct"]) < 5
-    assert d["seen"] >= 5
+    assert sum(modes[n]["seen"] for n in ("bending-1", "bending-2", "twist-2")) >= 2
+    assert d["seen"] >= 7
     record_property("seen", d["seen"])
     for name, m in modes.items():
         record_property(f"{name}_error_pct", None if m["error_pct"] is None else round(m["error_pct"], 2))

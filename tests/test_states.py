@@ -64,7 +64,9 @@ def test_cli_estimate_smooth_json(chain):
     r = chain["estimate_result"]
     s = json.loads(r.stdout)
     assert s["output"] == str(chain["dir"] / "states.mcap")
-    assert s["epochs"] == 101 and s["start_s"] == 20.0 and s["end_s"] == 30.0
+    # every epoch of the run: the init window 0–20 s from the batch solution, the filter after it
+    assert s["epochs"] == 301 and s["start_s"] == 0.0 and s["end_s"] == 30.0
+    assert s["window"]["start_s"] == 0.0 and s["window"]["end_s"] == 20.0 and s["window"]["epochs"] == 201
     assert s["smoothed"] is True and s["events"] == 0 and s["event_list"] == []
     # simulated noise 1 cm, filter sigma 2 cm → NIS/dof ≈ 1/4
     assert 0.15 < s["mean_nis_per_dof"] < 0.35
@@ -81,14 +83,14 @@ def test_cli_export_columns_line_up_with_truth(chain):
     s = json.loads(r.stdout)
     names = list(cfg.coord_names)
     expected = ["time_s", *names, *[f"sigma_{n}" for n in names]]
-    assert s["columns"] == expected and s["rows"] == 101
+    assert s["columns"] == expected and s["rows"] == 301
     est = pd.read_csv(d / "est.csv")
     truth = pd.read_csv(d / "sim" / "truth.csv")
     assert list(est.columns) == expected
     assert list(truth.columns) == ["time_s", *names]
     merged = est.merge(truth, on="time_s", suffixes=("", "_truth"))
     assert len(merged) == len(est)                       # every estimate time is a truth.csv time
-    np.testing.assert_array_equal(merged["time_s"], np.round(np.arange(200, 301) * 0.1, 9))
+    np.testing.assert_array_equal(merged["time_s"], np.round(np.arange(0, 301) * 0.1, 9))
     assert (est[[f"sigma_{n}" for n in names]].to_numpy() > 0).all()
     # the estimate tracks the truth within a few sigma
     err = merged[names].to_numpy() - merged[[f"{n}_truth" for n in names]].to_numpy()
@@ -101,7 +103,7 @@ def test_cli_evaluate_json_and_text(chain):
     r = cli("evaluate", "--truth", d / "sim", "--estimate", d / "states.mcap", "--json")
     assert r.exit_code == 0, r.output
     ev = json.loads(r.stdout)
-    assert ev["epochs"] == 101 and ev["nees"]["dof"] == 9
+    assert ev["epochs"] == 301 and ev["nees"]["dof"] == 9
     assert set(ev["rms_error"]) == set(chain["cfg"].coord_names)
     assert set(ev["rms_error_deg"]) == {"q2", "q3", "q5", "q6", "q8", "q9", "q10"}
     assert ev["bias_error"]["wrong_integers"] == 0 and ev["bias_error"]["channels"] == 36
