@@ -252,7 +252,10 @@ class States:
             self.P_xi = tc.column("P_xi").reshape(N, nm, nm)
         self.metadata = c.metadata.get(ESTIMATE_METADATA, {})
         res = c.topics.get(RESIDUAL_TOPIC)
-        self.nis = np.array([np.nan if v is None else v for v in res.scalars["nis"]], dtype=float) if res else None
+        # NIS is left out of a message without one (the window's epochs): all of them on a run that is
+        # one INIT window, so the column may be missing altogether
+        nis = res.scalars.get("nis") or [None] * len(res.scalars["nis_dof"]) if res else None
+        self.nis = np.array([np.nan if v is None else v for v in nis], dtype=float) if res else None
         self.nis_dof = np.asarray(res.scalars["nis_dof"], dtype=float) if res else None
         ev = c.topics.get(EVENT_TOPIC)
         self.events = []
