@@ -257,12 +257,17 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
 @click.option("--rest", "rest", multiple=True, metavar="START:END",
               help="Static mode: the structure is declared at rest from START to END seconds (END may be left "
                    "out: to the end of the log); there the process noise is further multiplied by "
-                   "--rest-process-noise-scale, so the filter averages instead of following. Repeatable.")
+                   "--rest-process-noise-scale, so the filter averages instead of following. Repeatable. "
+                   "'--rest auto': segments found from the data (zero-velocity test on the modal velocities).")
 @click.option("--rest-process-noise-scale", type=float, default=0.05, show_default=True,
               help="Process-noise standard-deviation factor inside --rest segments.")
 @click.option("--rest-retry-s", type=float, default=1.0, show_default=True,
               help="When the data show motion inside a --rest segment, the filter leaves static mode and tries "
                    "it again this many seconds later (0: not again in that segment).")
+@click.option("--rest-window-s", type=float, default=3.0, show_default=True,
+              help="--rest auto: sliding window of the zero-velocity chi-square test, s.")
+@click.option("--rest-dwell-s", type=float, default=2.0, show_default=True,
+              help="--rest auto: the test must pass this long before rest is entered, s.")
 @click.option("--structure", "structure", default=None, type=click.Path(dir_okay=False),
               help="GNSS runs: a structure config (docs/config-format.md) whose modal model is estimated from the "
                    "double differences instead of the rover displacements (docs/gnss-pipeline.md).")
@@ -275,7 +280,7 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
 @click.pass_context
 def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability, outlier_sigma, process_noise_scale,
              output, as_json, rest=(), rest_process_noise_scale=0.05, rest_retry_s=1.0, structure=None, x_axis_azimuth_deg=90.0,
-             receiver_map=()):
+             receiver_map=(), rest_window_s=3.0, rest_dwell_s=2.0):
     """Extended Kalman filter (Eq. 16-23) [+ RTS smoother] over a RUN from INIT → STATES.mcap.
 
     On a GNSS run: per-epoch rover displacement states <ant>_e/_n/_u with 1σ from INIT's
@@ -291,7 +296,8 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
                                        "--process-noise-scale": process_noise_scale != 1.0,
                                        "--rest": bool(rest),
                                        "--rest-process-noise-scale": rest_process_noise_scale != 0.05,
-                                       "--rest-retry-s": rest_retry_s != 1.0},
+                                       "--rest-retry-s": rest_retry_s != 1.0,
+                                       "--rest-window-s": rest_window_s != 3.0, "--rest-dwell-s": rest_dwell_s != 2.0},
                        structure=structure, x_axis_azimuth_deg=x_axis_azimuth_deg, receiver_map=receiver_map)
         return
     if structure is not None or receiver_map:
@@ -314,13 +320,21 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
         raise CdgpsError(f"{init_json}, line {exc.lineno}: not valid JSON: {exc.msg}") from None
     if not isinstance(init, dict):
         raise CdgpsError(f"{init_json}: expected a JSON object from 'cdgps init'")
-    rest_segments = tuple(_parse_rest(r) for r in rest)
+    rest_auto = any(r.strip().lower() == "auto" for r in rest)
+    if rest_auto and len(rest) > 1:
+        raise CdgpsError("--rest auto cannot be combined with declared --rest START:END segments")
+    rest_segments = () if rest_auto else tuple(_parse_rest(r) for r in rest)
     validate_rest_segments(rest_segments, rest_process_noise_scale, rest_retry_s)
+    if rest_auto:
+        from .rest_detect import validate_detector
+
+        validate_detector(rest_window_s, rest_dwell_s, 1.0)
     run = read_run(run_mcap)
     opt = EstimateOptions(biases=biases, smooth=smooth, sigma_m=sigma_m, nis_probability=nis_probability,
                           outlier_sigma=outlier_sigma, process_noise_scale=process_noise_scale,
                           rest_segments_s=rest_segments, rest_process_noise_scale=rest_process_noise_scale,
-                          rest_retry_s=rest_retry_s,
+                          rest_retry_s=rest_retry_s, rest_auto=rest_auto, rest_window_s=rest_window_s,
+                          rest_dwell_s=rest_dwell_s,
                           keep_filtered_covariance="modal",
                           progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
     _say(ctx, f"estimating {run_mcap} from {init_json} (biases {biases}{', smoothing' if smooth else ''}) …")
@@ -347,7 +361,7 @@ def _parse_rest(text: str) -> tuple[float, float]:
         start = float(a)
         end = float(b) if b.strip() else float("inf")
     except ValueError:
-        raise CdgpsError(f"--rest {text!r}: expected START:END in seconds, e.g. 80:140 or 80:") from None
+        raise CdgpsError(f"--rest {text!r}: expected START:END in seconds, e.g. 80:140 or 80:, or auto") from None
     return start, end
 
 

@@ -157,7 +157,10 @@ def write_states(res, run_path: str | Path, init: dict, init_text: str,
             "options": json.dumps(options, sort_keys=True),
             "final_biases": json.dumps([{"antenna": a, "transmitter": t, "bias_m": b}
                                         for (a, t), b in res.biases.items()]),
-            "smoothed": str(res.smoothed).lower()}
+            "smoothed": str(res.smoothed).lower(),
+            # where the filter ran in static mode (report static says when its segment did not)
+            "rest_active_s": json.dumps(getattr(res, "rest_active_s", [])),
+            "rest_detection": json.dumps(getattr(res, "rest_detection", None))}
     from .gnss_run import run_kind  # noqa: PLC0415 (a structure estimated on a GNSS run: GPS time)
 
     with McapOut(out_path, time_scale="gps" if run_kind(run_path) == "gnss" else "relative") as out:
