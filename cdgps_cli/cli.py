@@ -214,8 +214,10 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
     """
     import hashlib
 
+    from .file_checks import RUNS, require_kind
     from .gnss_run import run_kind
 
+    require_kind(run_mcap, RUNS, "RUN_MCAP")
     if run_kind(run_mcap) == "gnss":
         _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, as_json,
                    structure_only={"--start": start_s is not None, "--duration": duration_s is not None,
@@ -268,6 +270,9 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
               help="--rest auto: sliding window of the zero-velocity chi-square test, s.")
 @click.option("--rest-dwell-s", type=float, default=2.0, show_default=True,
               help="--rest auto: the test must pass this long before rest is entered, s.")
+@click.option("--allow-other-run", is_flag=True,
+              help="Use an INIT.json made from another run than RUN_MCAP (its run_sha256 differs); echoed in the "
+                   "summary and the STATES metadata. Without it such a pairing is refused.")
 @click.option("--structure", "structure", default=None, type=click.Path(dir_okay=False),
               help="GNSS runs: a structure config (docs/config-format.md) whose modal model is estimated from the "
                    "double differences instead of the rover displacements (docs/gnss-pipeline.md).")
@@ -280,15 +285,17 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
 @click.pass_context
 def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability, outlier_sigma, process_noise_scale,
              output, as_json, rest=(), rest_process_noise_scale=0.05, rest_retry_s=1.0, structure=None, x_axis_azimuth_deg=90.0,
-             receiver_map=(), rest_window_s=3.0, rest_dwell_s=2.0):
+             receiver_map=(), rest_window_s=3.0, rest_dwell_s=2.0, allow_other_run=False):
     """Extended Kalman filter (Eq. 16-23) [+ RTS smoother] over a RUN from INIT → STATES.mcap.
 
     On a GNSS run: per-epoch rover displacement states <ant>_e/_n/_u with 1σ from INIT's
     integers (static: the batch solution; random_walk: Kalman filter [+ RTS smoother]), plus
     single-epoch solutions, DD residuals and slip/reference events (docs/gnss-pipeline.md).
     """
+    from .file_checks import RUNS, require_kind
     from .gnss_run import run_kind
 
+    require_kind(run_mcap, RUNS, "RUN_MCAP")
     if run_kind(run_mcap) == "gnss":
         _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json,
                        structure_only={"--biases": biases != "fixed", "--sigma-m": sigma_m is not None,
@@ -298,7 +305,8 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
                                        "--rest-process-noise-scale": rest_process_noise_scale != 0.05,
                                        "--rest-retry-s": rest_retry_s != 1.0,
                                        "--rest-window-s": rest_window_s != 3.0, "--rest-dwell-s": rest_dwell_s != 2.0},
-                       structure=structure, x_axis_azimuth_deg=x_axis_azimuth_deg, receiver_map=receiver_map)
+                       structure=structure, x_axis_azimuth_deg=x_axis_azimuth_deg, receiver_map=receiver_map,
+                       allow_other_run=allow_other_run)
         return
     if structure is not None or receiver_map:
         raise CdgpsError("--structure/--receiver apply to GNSS runs (from 'cdgps ingest --rinex/--ubx'); a structure "
@@ -320,6 +328,7 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
         raise CdgpsError(f"{init_json}, line {exc.lineno}: not valid JSON: {exc.msg}") from None
     if not isinstance(init, dict):
         raise CdgpsError(f"{init_json}: expected a JSON object from 'cdgps init'")
+    pairing = _check_pairing(ctx, init, init_json, run_mcap, allow_other_run)
     rest_auto = any(r.strip().lower() == "auto" for r in rest)
     if rest_auto and len(rest) > 1:
         raise CdgpsError("--rest auto cannot be combined with declared --rest START:END segments")
@@ -340,7 +349,11 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
     _say(ctx, f"estimating {run_mcap} from {init_json} (biases {biases}{', smoothing' if smooth else ''}) …")
     res = run_ekf(run, init, opt)
     del run                                  # the phase table is not needed for writing (memory)
-    s = write_states(res, run_mcap, init, init_text, output, opt.echo())
+    options = opt.echo()
+    if allow_other_run:
+        options.update(allow_other_run=True, init_run_sha256=pairing["init_run_sha256"])
+    s = write_states(res, run_mcap, init, init_text, output, options)
+    s["init_run"] = pairing
     _say(ctx, f"wrote {output}: {s['epochs']} epochs ({s['start_s']:g}–{s['end_s']:g} s), "
               f"mean NIS/dof {s['mean_nis_per_dof']:.3f}, {s['events']} events")
     for ev in s["event_list"][:20]:
@@ -350,6 +363,19 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
         _say(ctx, f"  … {len(s['event_list']) - 20} more events (topic /cdgps/events)")
     if as_json:
         _emit_json(s)
+
+
+def _check_pairing(ctx, init: dict, init_json, run_mcap, allow_other_run: bool) -> dict:
+    """INIT.json's run_sha256 against RUN_MCAP (file_checks.check_init_run), with the warnings."""
+    from .file_checks import check_init_run
+
+    pairing = check_init_run(init, init_json, run_mcap, allow_other_run)
+    if pairing["allowed"]:
+        _say(ctx, f"warning: {init_json} was made from another run (run_sha256 {pairing['init_run_sha256'][:12]}…) "
+                  f"than {run_mcap} ({pairing['run_sha256'][:12]}…); used anyway (--allow-other-run)")
+    elif pairing["matches"] is None:
+        _say(ctx, f"warning: {init_json} records no run_sha256: whether it comes from {run_mcap} is not checked")
+    return pairing
 
 
 def _parse_rest(text: str) -> tuple[float, float]:
@@ -374,8 +400,10 @@ def _parse_rest(text: str) -> tuple[float, float]:
 @click.pass_context
 def export(ctx, states_mcap, out_csv, kinematic, as_json):
     """Export estimated coordinates and their 1-sigma to CSV (columns line up with truth.csv)."""
+    from .file_checks import GNSS_STATES, STATES, require_kind
     from .states import export_csv
 
+    require_kind(states_mcap, GNSS_STATES if kinematic else STATES, "STATES_MCAP")
     if kinematic:
         from .gnss_pipeline import export_kinematic_csv
 
@@ -395,8 +423,10 @@ def export(ctx, states_mcap, out_csv, kinematic, as_json):
 @click.pass_context
 def evaluate(ctx, truth_dir, states_mcap, converge_s, as_json):
     """Errors of an estimate against simulator truth: RMS per coordinate, NEES, NIS, biases."""
+    from .file_checks import STATES, require_kind
     from .states import evaluate as run_eval
 
+    require_kind(states_mcap, STATES, "--estimate")
     r = run_eval(truth_dir, states_mcap, converge_s)
     if as_json:
         _emit_json(r)
@@ -421,9 +451,13 @@ def evaluate(ctx, truth_dir, states_mcap, converge_s, as_json):
 
 def _states_and_gyro(states_mcap, gyro_mcap):
     """STATES.mcap (state series only) and, optionally, the gyro log of a RUN.mcap."""
+    from .file_checks import STATES, STRUCTURE_RUN, require_kind
     from .run import read_run
     from .states import States
 
+    require_kind(states_mcap, STATES, "STATES_MCAP")
+    if gyro_mcap:
+        require_kind(gyro_mcap, STRUCTURE_RUN, "--gyro")
     return States(states_mcap, diagnostics=False), (read_run(gyro_mcap, phase=False) if gyro_mcap else None)
 
 
@@ -746,7 +780,7 @@ def _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, a
 
 
 def _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json, structure_only, structure=None,
-                   x_axis_azimuth_deg=90.0, receiver_map=()):
+                   x_axis_azimuth_deg=90.0, receiver_map=(), allow_other_run=False):
     from .gnss_pipeline import gnss_estimate
     from .gnss_run import read_gnss_run
 
@@ -758,15 +792,20 @@ def _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json, structure_
         raise CdgpsError(f"{init_json}: cannot read: {exc.strerror}") from None
     except json.JSONDecodeError as exc:
         raise CdgpsError(f"{init_json}, line {exc.lineno}: not valid JSON: {exc.msg}") from None
+    if not isinstance(init, dict):
+        raise CdgpsError(f"{init_json}: expected a JSON object from 'cdgps init'")
+    pairing = _check_pairing(ctx, init, init_json, run_mcap, allow_other_run)
+    extra = {"allow_other_run": True, "init_run_sha256": pairing["init_run_sha256"]} if allow_other_run else None
     run = read_gnss_run(run_mcap)
     if structure is not None or receiver_map:
         _estimate_gnss_modal(ctx, run, init, init_text, output, as_json, smooth, structure, x_axis_azimuth_deg,
-                             receiver_map)
+                             receiver_map, extra, pairing)
         return
     _say(ctx, f"estimating {run_mcap} from {init_json} ({run.cfg.displacement} displacement"
               f"{', smoothing' if smooth and run.cfg.displacement == 'random_walk' else ''}) …")
     s = gnss_estimate(run, init, init_text, output, smooth=smooth,
-                      progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
+                      progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)), extra_options=extra)
+    s["init_run"] = pairing
     _say(ctx, f"wrote {output}: {s['epochs']} epochs ({s['start']} – {s['end']}), {s['kinematic_epochs']} single-epoch "
               f"solutions, {s['events']} events")
     for r, v in s["rovers"].items():
@@ -786,7 +825,7 @@ def _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json, structure_
 
 
 def _estimate_gnss_modal(ctx, run, init, init_text, output, as_json, smooth, structure, x_axis_azimuth_deg,
-                         receiver_map):
+                         receiver_map, extra=None, pairing=None):
     """``cdgps estimate RUN --init INIT --structure STRUCT.toml``: the modal model on the DDs (gnss_modal.py)."""
     from .config import load_config
     from .gnss_modal import gnss_modal_estimate
@@ -808,7 +847,9 @@ def _estimate_gnss_modal(ctx, run, init, init_text, output, as_json, smooth, str
     _say(ctx, f"estimating the modal model of {cfg.name} from {run.path} and its INIT"
               f"{' (smoothing)' if smooth else ''} …")
     s = gnss_modal_estimate(run, init, init_text, cfg, output, receivers=mapping, x_axis_azimuth_deg=x_axis_azimuth_deg,
-                            smooth=smooth, progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
+                            smooth=smooth, progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)),
+                            extra_options=extra)
+    s["init_run"] = pairing
     _say(ctx, f"wrote {output}: {s['epochs']} epochs, coordinates {', '.join(s['coordinates'])}, mean NIS/dof "
               f"{s['mean_nis_per_dof']:.3f}, {s['events']} events")
     for a, v in s["integers"].items():

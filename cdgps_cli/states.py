@@ -217,6 +217,8 @@ class States:
     def __init__(self, path: str | Path, topic: str = STATE_TOPIC, diagnostics: bool = True):
         c = read_mcap(path, topics=[RESIDUAL_TOPIC, EVENT_TOPIC] if diagnostics else [])
         self.path = str(path)
+        if "cdgps.ingest" in c.metadata:
+            raise CdgpsError(f"{path}: this is a RUN.mcap (from 'cdgps ingest'), not a STATES.mcap from 'cdgps estimate'")
         if CONFIG_ATTACHMENT not in c.attachments:
             raise CdgpsError(f"{path}: no config attachment; is this a STATES.mcap from 'cdgps estimate'?")
         self.cfg = parse_config(c.attachments[CONFIG_ATTACHMENT].decode(), f"{path}:{CONFIG_ATTACHMENT}")
