@@ -533,6 +533,8 @@ def report_static(ctx, states_mcap, gyro_mcap, angle, survey_deg, start_s, end_s
     gd = "" if d["gyro_drift_deg_per_min"] is None else f", gyro drift {d['gyro_drift_deg_per_min']:+.4f}°/min"
     _say(ctx, f"{angle}: mean {d['mean_deg']:.4f}°{err}, noise {d['noise_rms_deg']:.4f}° RMS, "
               f"drift {d['drift_deg_per_min']:+.4f}°/min{gd} on {d['start_s']:.1f}–{d['end_s']:.1f} s")
+    if d["static_mode"]["active_fraction"] != 1.0:
+        _say(ctx, f"warning: {d['static_mode']['statement']}")
     _say(ctx, f"report: {Path(out_dir) / 'report.html'}")
     if as_json:
         _emit_json(d)

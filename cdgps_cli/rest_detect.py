@@ -204,3 +204,58 @@ def estimate_auto_rest(run, init: dict, opt):
                           "sigma_m": s_det,
                           "segments_s": [[a, None if np.isinf(b) else b] for a, b in segments]}
     return res
+
+
+def static_mode_coverage(metadata: dict, time_s: np.ndarray) -> dict:
+    """Did the estimate run in static mode on the epochs ``time_s`` (a report's segment)?
+
+    ``metadata``: STATES.mcap's ``cdgps.estimate`` record (``rest_active_s``: where static mode ran;
+    ``options``: the ``--rest`` options).  Returns ``{"active_fraction", "active_s", "rest_option",
+    "statement"}``; ``active_fraction`` is None when the file does not say (written by an older cdgps
+    or by a GNSS estimate)."""
+    import json
+
+    t = np.asarray(time_s, dtype=float)
+    try:
+        opts = json.loads(metadata.get("options") or "{}")
+    except (TypeError, ValueError):
+        opts = {}
+    declared = opts.get("rest_segments_s") or []
+    option = "auto" if opts.get("rest_auto") else ("declared" if declared else "none")
+    raw = metadata.get("rest_active_s")
+    try:
+        active = json.loads(raw) if raw is not None else None
+    except (TypeError, ValueError):
+        active = None
+    span = f"{t[0]:.1f}–{t[-1]:.1f} s" if t.size else "the segment"
+    if active is None:
+        if option == "none" and "options" in metadata and "rest_segments_s" in opts:
+            active = []                      # an older STATES without --rest: kinematic throughout
+        else:
+            return {"active_fraction": None, "active_s": None, "rest_option": option,
+                    "statement": f"Static mode: the STATES metadata do not record where static mode ran "
+                                 f"(--rest {option}); it is not known whether {span} was estimated at rest."}
+    on = np.zeros(t.size, dtype=bool)
+    for a, b in active:
+        on |= (t >= float(a) - 1e-9) & (t <= float(b) + 1e-9)
+    frac = float(on.mean()) if t.size else 0.0
+    inside = [[float(max(a, t[0])), float(min(b, t[-1]))] for a, b in active
+              if t.size and b >= t[0] - 1e-9 and a <= t[-1] + 1e-9]
+    how = {"auto": "--rest auto: segments found from the data", "declared": "--rest START:END",
+           "none": "no --rest"}[option]
+    if option == "none":
+        st = (f"Without static mode: the STATES were estimated without --rest, so {span} is the kinematic "
+              f"filter's estimate (for a static test estimate with --rest auto or --rest START:).")
+    elif frac == 0.0:
+        st = (f"Without static mode on this segment: the estimate ran with {how}, but static mode was not "
+              f"active anywhere in {span}" + (f" (it ran on {_spans(active)})." if active else " (never entered)."))
+    elif frac < 1.0:
+        st = (f"Static mode on {100 * frac:.0f} % of this segment only ({_spans(inside)}; {how}); the rest "
+              f"of {span} is the kinematic filter's estimate.")
+    else:
+        st = f"Static mode on the whole segment {span} ({how})."
+    return {"active_fraction": frac, "active_s": inside, "rest_option": option, "statement": st}
+
+
+def _spans(iv) -> str:
+    return ", ".join(f"{a:.1f}–{b:.1f} s" for a, b in iv)
