@@ -25,6 +25,7 @@ GNSS_STATES = "GNSS STATES.mcap (from 'cdgps estimate' of a GNSS run)"
 RUNS = (STRUCTURE_RUN, GNSS_RUN)
 STATES = (STRUCTURE_STATES, GNSS_STATES)
 
+NOT_MCAP = "not a valid MCAP file (it does not start with the MCAP magic bytes)"
 _MAGIC = b"\x89MCAP0\r\n"
 _INGEST, _ESTIMATE = "cdgps.ingest", "cdgps.estimate"
 
@@ -36,10 +37,12 @@ def mcap_kind(path: str | Path) -> str | None:
     own reader then reports the problem.  Raises CdgpsError when the file cannot be opened."""
     from mcap.reader import make_reader  # noqa: PLC0415
 
+    if not Path(path).is_file():
+        raise CdgpsError(f"{path}: no such file")
     try:
         with open(path, "rb") as fh:
             if fh.read(len(_MAGIC)) != _MAGIC:
-                return "not an MCAP file"
+                return NOT_MCAP
             fh.seek(0)
             try:
                 meta = {m.name: dict(m.metadata) for m in make_reader(fh).iter_metadata()}

@@ -18,7 +18,7 @@ from click.testing import CliRunner
 
 from cdgps_cli.cli import main
 from cdgps_cli.config import load_config
-from cdgps_cli.file_checks import (GNSS_RUN, GNSS_STATES, STRUCTURE_RUN, STRUCTURE_STATES, check_init_run,
+from cdgps_cli.file_checks import (GNSS_RUN, GNSS_STATES, NOT_MCAP, STRUCTURE_RUN, STRUCTURE_STATES, check_init_run,
                                    mcap_kind)
 from cdgps_cli.errors import CdgpsError
 from cdgps_cli.mcap_io import read_mcap
@@ -54,8 +54,8 @@ def two_runs(tmp_path_factory):
 def test_kinds(two_runs):
     assert mcap_kind(two_runs / "a" / "run.mcap") == STRUCTURE_RUN
     assert mcap_kind(two_runs / "a" / "states.mcap") == STRUCTURE_STATES
-    assert mcap_kind(two_runs / "a" / "receiver.csv") == "not an MCAP file"
-    with pytest.raises(CdgpsError, match="cannot read"):
+    assert mcap_kind(two_runs / "a" / "receiver.csv") == NOT_MCAP
+    with pytest.raises(CdgpsError, match="no such file"):
         mcap_kind(two_runs / "missing.mcap")
 
 
@@ -107,7 +107,7 @@ def test_matching_and_unrecorded_pairings(two_runs):
     (lambda d: ("estimate", d / "a" / "states.mcap", "--init", d / "a" / "init.json", "-o", d / "o.mcap"), "o.mcap",
      f"RUN_MCAP {{a}}/states.mcap: expected a {STRUCTURE_RUN} or a {GNSS_RUN}; this file is a {STRUCTURE_STATES}"),
     (lambda d: ("init", d / "a" / "states.mcap", "-o", d / "o.json"), "o.json", f"this file is a {STRUCTURE_STATES}"),
-    (lambda d: ("spectra", d / "a" / "receiver.csv", "-o", d / "o"), "o", "this file is not an MCAP file"),
+    (lambda d: ("spectra", d / "a" / "receiver.csv", "-o", d / "o"), "o", f"this file is {NOT_MCAP}"),
 ])
 def test_wrong_kind_refused(two_runs, make_args, out, fragment):
     d = two_runs
