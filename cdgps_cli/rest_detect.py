@@ -125,8 +125,11 @@ def detect_rest(time_s: np.ndarray, d: np.ndarray, nm: int, window: int, dwell: 
     win_s = window * (float(t[1] - t[0]) if len(t) > 1 else 0.0)
 
     def ev(k, kind, action, bound):
-        events.append({"time_s": float(t[k]), "antenna": "", "transmitter": "", "kind": kind, "action": action,
-                       "velocity_chi2": float(D[k]), "dof": int(dof), "bound": bound})
+        e = {"time_s": float(t[k]), "antenna": "", "transmitter": "", "kind": kind, "action": action,
+             "velocity_chi2": float(D[k]), "dof": int(dof), "bound": bound}
+        if not np.isfinite(D[k]):
+            del e["velocity_chi2"]           # (JSON has no infinity: a non-finite statistic is left out)
+        events.append(e)
 
     k, N = 0, len(t)
     while k < N:

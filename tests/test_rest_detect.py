@@ -258,3 +258,12 @@ def test_report_static_says_without_static_mode(tmp_path, testbed):
     # 30 s of free vibration: the rest declaration is refused/broken by the data wherever it moves
     assert d["rest_option"] == "declared" and d["active_fraction"] is not None
     assert ("Without static mode" in r.stderr) == (d["active_fraction"] == 0.0)
+
+
+def test_non_finite_statistic_leaves_rest():
+    d = np.r_[np.zeros(20), np.inf, np.zeros(3)]        # e.g. a covariance that is not positive definite
+    t = _t(len(d))
+    segs, ev = detect_rest(t, d, NM, 1, 5)
+    assert segs == [(t[0], t[19])] and ev[1]["kind"] == "rest ended" and ev[1]["time_s"] == t[20]
+    assert "velocity_chi2" not in ev[1] and "velocity_chi2" in ev[0]          # JSON has no infinity
+
