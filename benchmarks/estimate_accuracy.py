@@ -34,6 +34,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
+import re
 import platform
 import sys
 import tempfile
@@ -434,6 +435,11 @@ def main() -> None:
     md.append("## Raw numbers\n\n```json\n" + json.dumps({"seeds": seeds, "testbed": tbr, "static": st, "dof2": d2},
                                                          indent=1, default=float) + "\n```\n")
     a.out.parent.mkdir(parents=True, exist_ok=True)
+    # sections written by other benchmarks (between their markers, e.g. rest_detection.py) are kept
+    if a.out.exists():
+        old = a.out.read_text()
+        for m in re.finditer(r"<!-- (\S+): begin -->.*?<!-- \1: end -->\n", old, re.S):
+            md.insert(len(md) - 1, m.group(0))
     a.out.write_text("\n".join(md))
     print("\n".join(md[:-1]))
     print(f"wrote {a.out}")

@@ -274,8 +274,10 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
     """
     import hashlib
 
+    from .file_checks import RUNS, require_kind
     from .gnss_run import run_kind
 
+    require_kind(run_mcap, RUNS, "RUN_MCAP")
     if run_kind(run_mcap) == "gnss":
         _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, as_json,
                    structure_only={"--start": start_s is not None, "--duration": duration_s is not None,
@@ -318,12 +320,20 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
 @click.option("--rest", "rest", multiple=True, metavar="START:END",
               help="Static mode: the structure is declared at rest from START to END seconds (END may be left "
                    "out: to the end of the log); there the process noise is further multiplied by "
-                   "--rest-process-noise-scale, so the filter averages instead of following. Repeatable.")
+                   "--rest-process-noise-scale, so the filter averages instead of following. Repeatable. "
+                   "'--rest auto': segments found from the data (zero-velocity test on the modal velocities).")
 @click.option("--rest-process-noise-scale", type=float, default=0.05, show_default=True,
               help="Process-noise standard-deviation factor inside --rest segments.")
 @click.option("--rest-retry-s", type=float, default=1.0, show_default=True,
               help="When the data show motion inside a --rest segment, the filter leaves static mode and tries "
                    "it again this many seconds later (0: not again in that segment).")
+@click.option("--rest-window-s", type=float, default=3.0, show_default=True,
+              help="--rest auto: sliding window of the zero-velocity chi-square test, s.")
+@click.option("--rest-dwell-s", type=float, default=2.0, show_default=True,
+              help="--rest auto: the test must pass this long before rest is entered, s.")
+@click.option("--allow-other-run", is_flag=True,
+              help="Use an INIT.json made from another run than RUN_MCAP (its run_sha256 differs); echoed in the "
+                   "summary and the STATES metadata. Without it such a pairing is refused.")
 @click.option("--structure", "structure", default=None, type=click.Path(dir_okay=False),
               help="GNSS runs: a structure config (docs/config-format.md) whose modal model is estimated from the "
                    "double differences instead of the rover displacements (docs/gnss-pipeline.md).")
@@ -336,15 +346,17 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
 @click.pass_context
 def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability, outlier_sigma, process_noise_scale,
              output, as_json, rest=(), rest_process_noise_scale=0.05, rest_retry_s=1.0, structure=None, x_axis_azimuth_deg=90.0,
-             receiver_map=()):
+             receiver_map=(), rest_window_s=3.0, rest_dwell_s=2.0, allow_other_run=False):
     """Extended Kalman filter (Eq. 16-23) [+ RTS smoother] over a RUN from INIT → STATES.mcap.
 
     On a GNSS run: per-epoch rover displacement states <ant>_e/_n/_u with 1σ from INIT's
     integers (static: the batch solution; random_walk: Kalman filter [+ RTS smoother]), plus
     single-epoch solutions, DD residuals and slip/reference events (docs/gnss-pipeline.md).
     """
+    from .file_checks import RUNS, require_kind
     from .gnss_run import run_kind
 
+    require_kind(run_mcap, RUNS, "RUN_MCAP")
     if run_kind(run_mcap) == "gnss":
         _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json,
                        structure_only={"--biases": biases != "fixed", "--sigma-m": sigma_m is not None,
@@ -352,8 +364,10 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
                                        "--process-noise-scale": process_noise_scale != 1.0,
                                        "--rest": bool(rest),
                                        "--rest-process-noise-scale": rest_process_noise_scale != 0.05,
-                                       "--rest-retry-s": rest_retry_s != 1.0},
-                       structure=structure, x_axis_azimuth_deg=x_axis_azimuth_deg, receiver_map=receiver_map)
+                                       "--rest-retry-s": rest_retry_s != 1.0,
+                                       "--rest-window-s": rest_window_s != 3.0, "--rest-dwell-s": rest_dwell_s != 2.0},
+                       structure=structure, x_axis_azimuth_deg=x_axis_azimuth_deg, receiver_map=receiver_map,
+                       allow_other_run=allow_other_run)
         return
     if structure is not None or receiver_map:
         raise CdgpsError("--structure/--receiver apply to GNSS runs (from 'cdgps ingest --rinex/--ubx'); a structure "
@@ -375,19 +389,32 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
         raise CdgpsError(f"{init_json}, line {exc.lineno}: not valid JSON: {exc.msg}") from None
     if not isinstance(init, dict):
         raise CdgpsError(f"{init_json}: expected a JSON object from 'cdgps init'")
-    rest_segments = tuple(_parse_rest(r) for r in rest)
+    pairing = _check_pairing(ctx, init, init_json, run_mcap, allow_other_run)
+    rest_auto = any(r.strip().lower() == "auto" for r in rest)
+    if rest_auto and len(rest) > 1:
+        raise CdgpsError("--rest auto cannot be combined with declared --rest START:END segments")
+    rest_segments = () if rest_auto else tuple(_parse_rest(r) for r in rest)
     validate_rest_segments(rest_segments, rest_process_noise_scale, rest_retry_s)
+    if rest_auto:
+        from .rest_detect import validate_detector
+
+        validate_detector(rest_window_s, rest_dwell_s, 1.0)
     run = read_run(run_mcap)
     opt = EstimateOptions(biases=biases, smooth=smooth, sigma_m=sigma_m, nis_probability=nis_probability,
                           outlier_sigma=outlier_sigma, process_noise_scale=process_noise_scale,
                           rest_segments_s=rest_segments, rest_process_noise_scale=rest_process_noise_scale,
-                          rest_retry_s=rest_retry_s,
+                          rest_retry_s=rest_retry_s, rest_auto=rest_auto, rest_window_s=rest_window_s,
+                          rest_dwell_s=rest_dwell_s,
                           keep_filtered_covariance="modal",
                           progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
     _say(ctx, f"estimating {run_mcap} from {init_json} (biases {biases}{', smoothing' if smooth else ''}) …")
     res = run_ekf(run, init, opt)
     del run                                  # the phase table is not needed for writing (memory)
-    s = write_states(res, run_mcap, init, init_text, output, opt.echo())
+    options = opt.echo()
+    if allow_other_run:
+        options.update(allow_other_run=True, init_run_sha256=pairing["init_run_sha256"])
+    s = write_states(res, run_mcap, init, init_text, output, options)
+    s["init_run"] = pairing
     nis_text = "no filter epoch with data" if s["mean_nis_per_dof"] is None else f"mean NIS/dof {s['mean_nis_per_dof']:.3f}"
     w = s.get("window")
     src = (f"; {w['start_s']:g}–{w['end_s']:g} s from INIT's batch solution, then the filter" if w else "")
@@ -402,6 +429,19 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
         _emit_json(s)
 
 
+def _check_pairing(ctx, init: dict, init_json, run_mcap, allow_other_run: bool) -> dict:
+    """INIT.json's run_sha256 against RUN_MCAP (file_checks.check_init_run), with the warnings."""
+    from .file_checks import check_init_run
+
+    pairing = check_init_run(init, init_json, run_mcap, allow_other_run)
+    if pairing["allowed"]:
+        _say(ctx, f"warning: {init_json} was made from another run (run_sha256 {pairing['init_run_sha256'][:12]}…) "
+                  f"than {run_mcap} ({pairing['run_sha256'][:12]}…); used anyway (--allow-other-run)")
+    elif pairing["matches"] is None:
+        _say(ctx, f"warning: {init_json} records no run_sha256: whether it comes from {run_mcap} is not checked")
+    return pairing
+
+
 def _parse_rest(text: str) -> tuple[float, float]:
     """'START:END' (seconds; END may be empty: to the end of the log) → (start_s, end_s)."""
     a, sep, b = text.partition(":")
@@ -411,7 +451,7 @@ def _parse_rest(text: str) -> tuple[float, float]:
         start = float(a)
         end = float(b) if b.strip() else float("inf")
     except ValueError:
-        raise CdgpsError(f"--rest {text!r}: expected START:END in seconds, e.g. 80:140 or 80:") from None
+        raise CdgpsError(f"--rest {text!r}: expected START:END in seconds, e.g. 80:140 or 80:, or auto") from None
     return start, end
 
 
@@ -427,8 +467,10 @@ def _parse_rest(text: str) -> tuple[float, float]:
 @click.pass_context
 def export(ctx, states_mcap, out_csv, kinematic, points, as_json):
     """Export estimated coordinates and their 1-sigma to CSV (columns line up with truth.csv)."""
+    from .file_checks import GNSS_STATES, STATES, require_kind
     from .states import export_csv
 
+    require_kind(states_mcap, GNSS_STATES if kinematic else STATES, "STATES_MCAP")
     if kinematic:
         from .gnss_pipeline import export_kinematic_csv
 
@@ -448,8 +490,10 @@ def export(ctx, states_mcap, out_csv, kinematic, points, as_json):
 @click.pass_context
 def evaluate(ctx, truth_dir, states_mcap, converge_s, as_json):
     """Errors of an estimate against simulator truth: RMS per coordinate, NEES, NIS, biases."""
+    from .file_checks import STATES, require_kind
     from .states import evaluate as run_eval
 
+    require_kind(states_mcap, STATES, "--estimate")
     r = run_eval(truth_dir, states_mcap, converge_s)
     if as_json:
         _emit_json(r)
@@ -474,9 +518,13 @@ def evaluate(ctx, truth_dir, states_mcap, converge_s, as_json):
 
 def _states_and_gyro(states_mcap, gyro_mcap):
     """STATES.mcap (state series only) and, optionally, the gyro log of a RUN.mcap."""
+    from .file_checks import STATES, STRUCTURE_RUN, require_kind
     from .run import read_run
     from .states import States
 
+    require_kind(states_mcap, STATES, "STATES_MCAP")
+    if gyro_mcap:
+        require_kind(gyro_mcap, STRUCTURE_RUN, "--gyro")
     return States(states_mcap, diagnostics=False), (read_run(gyro_mcap, phase=False) if gyro_mcap else None)
 
 
@@ -554,6 +602,8 @@ def report_static(ctx, states_mcap, gyro_mcap, angle, survey_deg, start_s, end_s
     gd = "" if d["gyro_drift_deg_per_min"] is None else f", gyro drift {d['gyro_drift_deg_per_min']:+.4f}°/min"
     _say(ctx, f"{angle}: mean {d['mean_deg']:.4f}°{err}, noise {d['noise_rms_deg']:.4f}° RMS, "
               f"drift {d['drift_deg_per_min']:+.4f}°/min{gd} on {d['start_s']:.1f}–{d['end_s']:.1f} s")
+    if d["static_mode"]["active_fraction"] != 1.0:
+        _say(ctx, f"warning: {d['static_mode']['statement']}")
     _say(ctx, f"report: {Path(out_dir) / 'report.html'}")
     if as_json:
         _emit_json(d)
@@ -811,7 +861,7 @@ def _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, a
 
 
 def _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json, structure_only, structure=None,
-                   x_axis_azimuth_deg=90.0, receiver_map=()):
+                   x_axis_azimuth_deg=90.0, receiver_map=(), allow_other_run=False):
     from .gnss_pipeline import gnss_estimate
     from .gnss_run import read_gnss_run
 
@@ -823,15 +873,20 @@ def _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json, structure_
         raise CdgpsError(f"{init_json}: cannot read: {exc.strerror}") from None
     except json.JSONDecodeError as exc:
         raise CdgpsError(f"{init_json}, line {exc.lineno}: not valid JSON: {exc.msg}") from None
+    if not isinstance(init, dict):
+        raise CdgpsError(f"{init_json}: expected a JSON object from 'cdgps init'")
+    pairing = _check_pairing(ctx, init, init_json, run_mcap, allow_other_run)
+    extra = {"allow_other_run": True, "init_run_sha256": pairing["init_run_sha256"]} if allow_other_run else None
     run = read_gnss_run(run_mcap)
     if structure is not None or receiver_map:
         _estimate_gnss_modal(ctx, run, init, init_text, output, as_json, smooth, structure, x_axis_azimuth_deg,
-                             receiver_map)
+                             receiver_map, extra, pairing)
         return
     _say(ctx, f"estimating {run_mcap} from {init_json} ({run.cfg.displacement} displacement"
               f"{', smoothing' if smooth and run.cfg.displacement == 'random_walk' else ''}) …")
     s = gnss_estimate(run, init, init_text, output, smooth=smooth,
-                      progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
+                      progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)), extra_options=extra)
+    s["init_run"] = pairing
     _say(ctx, f"wrote {output}: {s['epochs']} epochs ({s['start']} – {s['end']}), {s['kinematic_epochs']} single-epoch "
               f"solutions, {s['events']} events")
     for r, v in s["rovers"].items():
@@ -851,7 +906,7 @@ def _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json, structure_
 
 
 def _estimate_gnss_modal(ctx, run, init, init_text, output, as_json, smooth, structure, x_axis_azimuth_deg,
-                         receiver_map):
+                         receiver_map, extra=None, pairing=None):
     """``cdgps estimate RUN --init INIT --structure STRUCT.toml``: the modal model on the DDs (gnss_modal.py)."""
     from .config import load_config
     from .gnss_modal import gnss_modal_estimate
@@ -873,7 +928,9 @@ def _estimate_gnss_modal(ctx, run, init, init_text, output, as_json, smooth, str
     _say(ctx, f"estimating the modal model of {cfg.name} from {run.path} and its INIT"
               f"{' (smoothing)' if smooth else ''} …")
     s = gnss_modal_estimate(run, init, init_text, cfg, output, receivers=mapping, x_axis_azimuth_deg=x_axis_azimuth_deg,
-                            smooth=smooth, progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
+                            smooth=smooth, progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)),
+                            extra_options=extra)
+    s["init_run"] = pairing
     _say(ctx, f"wrote {output}: {s['epochs']} epochs, coordinates {', '.join(s['coordinates'])}, mean NIS/dof "
               f"{s['mean_nis_per_dof']:.3f}, {s['events']} events")
     for a, v in s["integers"].items():

@@ -62,6 +62,9 @@ class EstimateOptions:
     rest_segments_s: tuple = ()        # ((start_s, end_s), …): the structure is declared at rest (static mode)
     rest_process_noise_scale: float = 0.05  # … and there the process-noise sigma is further multiplied by this
     rest_retry_s: float = 1.0          # after the data contradict a rest segment, try rest again this much later (0: never)
+    rest_auto: bool = False            # rest segments found from the data (zero-velocity test, :mod:`cdgps_cli.rest_detect`)
+    rest_window_s: float = 3.0         # … its sliding window
+    rest_dwell_s: float = 2.0          # … and how long it must pass before rest is entered
     progress: object = None
 
     def echo(self) -> dict:
@@ -88,6 +91,8 @@ class EstimateResult:
     smoothed: bool = False
     filter_path: str = "numpy"    # "c": steady-state epochs ran in the compiled kernel (ekf_kernel)
     window: dict | None = None    # INIT's batch window when its epochs come from the batch solution
+    rest_active_s: list = field(default_factory=list)   # [[start_s, end_s]]: epochs that ran in static mode
+    rest_detection: dict | None = None   # --rest auto: detector settings, sigma and segments (rest_detect)
 
 
 _MASKS: dict = {}
@@ -186,6 +191,10 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     EstimateResult
     """
     opt = opt or EstimateOptions()
+    if opt.rest_auto:
+        from .rest_detect import estimate_auto_rest
+
+        return estimate_auto_rest(run, init, opt)
     if opt.sigma_m is not None and not (np.isfinite(opt.sigma_m) and opt.sigma_m > 0):
         raise CdgpsError(f"--sigma-m must be a positive number of metres, got {opt.sigma_m!r}")
     if opt.biases not in ("fixed", "states"):
@@ -595,6 +604,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                          nis_dof, events, {chans[c]: (float(xs[-1, n + c]) if use_bias_states else float(bias[c]))
                                            for c in range(C)},
                          filter_path=filter_path)
+    res.rest_active_s = [[float(grid[a]), float(grid[b - 1])] for a, b in _true_runs(at_rest)]
     if opt.smooth:
         # keep the filter's states and covariances, then smooth in place (one copy instead of three)
         res.x_filt = res.x.copy()
@@ -753,6 +763,13 @@ def rest_motion(x, P, h, Hx, y, bias, usable, n, use_bias_states, sigma, outlier
     if nis > bound(int(keep.sum())):
         return f"NIS {nis:.1f} over {int(keep.sum())} channels", True
     return "", False
+
+
+def _true_runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """[(start, end_exclusive)] of the runs of True in a bool array."""
+    m = np.r_[False, np.asarray(mask, dtype=bool), False].astype(np.int8)
+    e = np.flatnonzero(np.diff(m))
+    return list(zip(e[::2].tolist(), e[1::2].tolist()))
 
 
 def rest_mask(time_s: np.ndarray, segments) -> np.ndarray:

@@ -251,7 +251,7 @@ def _h_and_H(geo: EpochGeometry, U, xi, m_idx, ant_idx, slot, srows, d_hdr):
 def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, out_path, *,
                         receivers: dict | None = None, x_axis_azimuth_deg: float = 90.0, smooth: bool = False,
                         initial_sigma_xi: float = 1.0, initial_sigma_xidot: float = 1.0,
-                        max_iterations: int = 5, progress=None) -> dict:
+                        max_iterations: int = 5, progress=None, extra_options: dict | None = None) -> dict:
     """Modal states of a structure from a GNSS RUN and its INIT (integers) → STATES.mcap.
 
     Parameters
@@ -426,7 +426,7 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
     options = {"model": "gnss-modal", "smooth": bool(smooth), "x_axis_azimuth_deg": float(x_axis_azimuth_deg),
                "master_ecef_m": list(map(float, xm)), "receivers": mapping,
                "initial_sigma_xi": initial_sigma_xi, "initial_sigma_xidot": initial_sigma_xidot,
-               "dd_covariance": "D Σ Dᵀ jointly over the rovers (common master)"}
+               "dd_covariance": "D Σ Dᵀ jointly over the rovers (common master)", **(extra_options or {})}
     say(f"writing {out_path} …")
     out = write_states(res, run.path, init, init_text, out_path, options)
     out.update({

@@ -276,7 +276,7 @@ def solve_with_init_integers(run, init: dict, r: str, stations: dict):
 
 
 def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path, *, smooth: bool = False,
-                  progress=None) -> dict:
+                  progress=None, extra_options: dict | None = None) -> dict:
     """Per-epoch displacement states of every rover from INIT's integers → STATES.mcap."""
     say = progress or (lambda m: None)
     if not is_gnss_init(init):
@@ -377,7 +377,7 @@ def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path
     nis_tot = np.where(dof_tot > 0, nis_sum, np.nan)
     events.sort(key=lambda e: (e["time_s"], e["antenna"], e["transmitter"], e["kind"]))
     say(f"writing {out_path} …")
-    meta_extra = {"rovers": summary_rovers}
+    meta_extra = {"rovers": summary_rovers, "options": extra_options or {}}
     out = _write_gnss_states(run, init, init_text, out_path, names, t_all, q, P, qf, Pf, kq, kP, kin_n, kin_pdop,
                              res_cols, residual_m, nis_tot, dof_tot, events, smooth and model == "random_walk",
                              meta_extra)
@@ -504,7 +504,8 @@ def _write_gnss_states(run, init, init_text, out_path, names, t, q, P, qf, Pf, k
             "config_sha256": run.cfg.sha256, "run": Path(run.path).name, "run_sha256": run_sha,
             "init_sha256": hashlib.sha256(init_text.encode()).hexdigest(),
             "options": json.dumps({"smooth": bool(smoothed), "displacement_model": model,
-                                   "random_walk_sigma_m_per_sqrt_s": list(run.cfg.random_walk_sigma) if model == "random_walk" else None},
+                                   "random_walk_sigma_m_per_sqrt_s": list(run.cfg.random_walk_sigma) if model == "random_walk" else None,
+                                   **meta_extra.get("options", {})},
                                   sort_keys=True),
             "final_biases": json.dumps(biases), "smoothed": str(bool(smoothed)).lower(), "displacement_model": model,
             "coordinates": ",".join(names), "master": run.master,

@@ -479,6 +479,9 @@ def static_report(states, run, angle: str, survey_deg: float | None, out_dir: st
             "estimated_sigma_deg": None if sig is None else float(np.mean(sig)),
             "gyro": None, "gyro_drift_deg_per_min": None, "gyro_noise_rms_deg": None,
             "config": cfg.name, "states": str(states.path)}
+    from .rest_detect import static_mode_coverage
+
+    data["static_mode"] = static_mode_coverage(getattr(states, "metadata", {}) or {}, t)
     g_angle = None
     if run is not None and len(run.gyro):
         G = gyro_matrix(cfg)
@@ -522,10 +525,16 @@ def static_report(states, run, angle: str, survey_deg: float | None, out_dir: st
             f"drift are of the GPS estimate on the segment; noise RMS is the scatter about a straight-line fit "
             f"(drift = its slope), to compare with the estimated σ the estimator reports; gyro drift is the slope "
             f"of the gyro-integrated angle.")
-    md = f"# Static sensor test: `{angle}`\n\n{_md_table(rows, ['quantity', 'value'])}\n\n{note}\n"
+    sm_line = data["static_mode"]["statement"]
+    sm_warn = data["static_mode"]["active_fraction"] != 1.0        # not on the whole segment, or not known
+    md = (f"# Static sensor test: `{angle}`\n\n" + (f"> **{sm_line}**\n\n" if sm_warn else f"{sm_line}\n\n")
+          + f"{_md_table(rows, ['quantity', 'value'])}\n\n{note}\n")
     caps = {"static.png": _static_caption(data, smoothed, no_gyro)}
+    sm_html = (f"<p class='bad'><strong>{html.escape(sm_line)}</strong></p>" if sm_warn
+               else f"<p>{html.escape(sm_line)}</p>")
     _write_report(out, f"Static sensor test: {angle}", md, data,
-                  [("Result", _html_table(rows, ["quantity", "value"]) + f"<p class='note'>{html.escape(note)}</p>")],
+                  [("Static mode", sm_html),
+                   ("Result", _html_table(rows, ["quantity", "value"]) + f"<p class='note'>{html.escape(note)}</p>")],
                   {"static.png": png}, caps)
     return data
 

@@ -185,6 +185,8 @@ def read_run(path: str | Path, phase: bool = True) -> Run:
     if c.metadata.get(INGEST_METADATA, {}).get("kind") == "gnss":
         raise CdgpsError(f"{path}: this is a GNSS run (RINEX/UBX receivers, docs/gnss-pipeline.md), not a structure run; "
                          f"it is processed by 'cdgps init' and 'cdgps estimate' into displacement states")
+    if "cdgps.estimate" in c.metadata:
+        raise CdgpsError(f"{path}: this is a STATES.mcap (from 'cdgps estimate'), not a RUN.mcap from 'cdgps ingest'")
     if CONFIG_ATTACHMENT not in c.attachments:
         raise CdgpsError(f"{path}: no {CONFIG_ATTACHMENT} attachment; is this a RUN.mcap from 'cdgps ingest'?")
     if want_phase and PHASE_TOPIC not in c.topics:

@@ -157,7 +157,10 @@ def write_states(res, run_path: str | Path, init: dict, init_text: str,
             "options": json.dumps(options, sort_keys=True),
             "final_biases": json.dumps([{"antenna": a, "transmitter": t, "bias_m": b}
                                         for (a, t), b in res.biases.items()]),
-            "smoothed": str(res.smoothed).lower()}
+            "smoothed": str(res.smoothed).lower(),
+            # where the filter ran in static mode (report static says when its segment did not)
+            "rest_active_s": json.dumps(getattr(res, "rest_active_s", [])),
+            "rest_detection": json.dumps(getattr(res, "rest_detection", None))}
     window = getattr(res, "window", None)
     if window:
         # epochs start_s … end_s come from INIT's batch solution (not from the filter)
@@ -224,6 +227,8 @@ class States:
     def __init__(self, path: str | Path, topic: str = STATE_TOPIC, diagnostics: bool = True):
         c = read_mcap(path, topics=[RESIDUAL_TOPIC, EVENT_TOPIC] if diagnostics else [])
         self.path = str(path)
+        if "cdgps.ingest" in c.metadata:
+            raise CdgpsError(f"{path}: this is a RUN.mcap (from 'cdgps ingest'), not a STATES.mcap from 'cdgps estimate'")
         if CONFIG_ATTACHMENT not in c.attachments:
             raise CdgpsError(f"{path}: no config attachment; is this a STATES.mcap from 'cdgps estimate'?")
         self.cfg = parse_config(c.attachments[CONFIG_ATTACHMENT].decode(), f"{path}:{CONFIG_ATTACHMENT}")

@@ -156,7 +156,7 @@ def test_write_states_round_trip(chain, tmp_path):
     import hashlib
     assert md["init_sha256"] == hashlib.sha256(init_text.encode()).hexdigest()
     assert md["run_sha256"] == hashlib.sha256((d / "run.mcap").read_bytes()).hexdigest()
-    with pytest.raises(CdgpsError, match="no /cdgps/state messages"):
+    with pytest.raises(CdgpsError, match="this is a RUN.mcap .from .cdgps ingest.., not a STATES.mcap"):
         States(d / "run.mcap")
     # export_csv writes the smoothed topic's q and sigma_q
     out = export_csv(tmp_path / "st.mcap", tmp_path / "st.csv")
@@ -335,7 +335,7 @@ def test_cli_export_and_evaluate_bad_input(chain, tmp_path):
     r = cli("export", tmp_path / "nope.mcap", "--csv", tmp_path / "o.csv")
     assert r.exit_code == 2 and "no such file" in r.output and no_leftovers(tmp_path, "o.csv")
     r = cli("export", d / "run.mcap", "--csv", tmp_path / "o.csv")
-    assert r.exit_code == 2 and "is this a STATES.mcap" in r.output and no_leftovers(tmp_path, "o.csv")
+    assert r.exit_code == 2 and "this file is a structure RUN.mcap" in r.output and no_leftovers(tmp_path, "o.csv")
     r = cli("evaluate", "--truth", tmp_path, "--estimate", d / "states.mcap")
     assert r.exit_code == 2 and "cannot read truth.csv" in r.output
     r = cli("evaluate", "--truth", d / "sim", "--estimate", tmp_path / "nope.mcap")
