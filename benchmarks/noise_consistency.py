@@ -32,7 +32,8 @@ from cdgps_cli.simulate import SimOptions, simulate, write_simulation  # noqa: E
 from cdgps_cli.states import evaluate, write_states  # noqa: E402
 
 CONFIGS = {"testbed-1998": ROOT / "configs" / "testbed-1998.toml",
-           "teague-1995-2dof": ROOT / "configs" / "teague-1995-2dof.toml"}
+           "teague-1995-2dof": ROOT / "configs" / "teague-1995-2dof.toml",
+           "fe-mast-noise": ROOT / "configs" / "fe-mast-noise.toml"}
 WHITE = [0.002, 0.01, 0.02]
 MULTIPATH = [(0.002, 0.015)]
 

@@ -201,7 +201,8 @@ def _write_json_atomic(path: str, data: dict) -> None:
 @click.option("--no-partial", is_flag=True, help="Do not try partial integer fixing when the full set fails.")
 @click.option("--starts", type=int, default=8, show_default=True, help="Initial guesses of the rigid angle (cold start).")
 @click.option("--max-iterations", type=int, default=30, show_default=True, help="Gauss-Newton iteration cap.")
-@click.option("--sigma-m", type=float, default=None, help="Measurement noise, m (default: config).")
+@click.option("--sigma-m", type=float, default=None,
+              help="Measurement noise for every channel, m (default: estimated per channel from the data, prior from the config).")
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="INIT.json to write.")
 @click.option("--json", "as_json", is_flag=True, help="Also print INIT.json on stdout.")
 @click.pass_context
@@ -237,7 +238,10 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
     cur = [b for b in res["biases"] if b["current"]]
     ratio = res["ratio"] if isinstance(res["ratio"], str) or res["ratio"] is None else f"{res['ratio']:.2f}"
     _say(ctx, f"INIT: {len(cur)} channel biases, {res['n_fixed']} integers fixed, ratio {ratio}, "
-              f"{res['iterations']} iterations, cost/dof {res['cost_per_dof']:.3f} → {output}")
+              f"{res['iterations']} iterations, cost/dof {res['cost_per_dof']:.3f}, "
+              f"σ {res['sigma_m'] * 1000:.2f} mm ({res['noise']['source'].split(' (')[0]}) → {output}")
+    for w in res["noise"].get("warnings", []):
+        click.echo(f"WARNING: {w}", err=True)
     if as_json:
         _emit_json(res)
 
@@ -329,11 +333,15 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
     s = write_states(res, run_mcap, init, init_text, output, opt.echo())
     _say(ctx, f"wrote {output}: {s['epochs']} epochs ({s['start_s']:g}–{s['end_s']:g} s), "
               f"mean NIS/dof {s['mean_nis_per_dof']:.3f}, {s['events']} events")
+    if res.noise:
+        _say(ctx, f"  measurement σ {res.noise['sigma_m'] * 1000:.2f} mm ({res.noise['source']}); innovation-based "
+                  f"estimate {res.noise.get('innovation_sigma_m', float('nan')) * 1000:.2f} mm")
     for ev in s["event_list"][:20]:
         ch = f" {ev['antenna']}/{ev['transmitter']}" if ev["antenna"] else ""
         _say(ctx, f"  {ev['time_s']:8.2f} s{ch}: {ev['kind']} → {ev['action']}")
     if len(s["event_list"]) > 20:
         _say(ctx, f"  … {len(s['event_list']) - 20} more events (topic /cdgps/events)")
+    s["measurement_noise"] = res.noise
     if as_json:
         _emit_json(s)
 

@@ -47,6 +47,7 @@ class EstimateOptions:
     biases: str = "fixed"              # "fixed" (from INIT) or "states" (estimated in the filter)
     smooth: bool = False               # Rauch–Tung–Striebel pass after the filter
     sigma_m: float | None = None       # measurement noise (default: INIT's, else config)
+    adapt_sigma: bool = True           # innovation-based σ: re-run once with it when the NIS disagrees
     bias_process_sigma_m: float = 1e-4  # per-epoch random walk of bias states (biases="states")
     nis_probability: float = 0.999     # chi-square test level of the per-epoch NIS
     outlier_sigma: float = 6.0         # |ν_i| / sqrt(S_ii) above this → suspected slip on channel i
@@ -86,6 +87,7 @@ class EstimateResult:
     biases: dict = field(default_factory=dict)   # channel → final bias (m)
     smoothed: bool = False
     filter_path: str = "numpy"    # "c": steady-state epochs ran in the compiled kernel (ekf_kernel)
+    noise: dict = field(default_factory=dict)    # σ used, its source, the innovation-based estimate
 
 
 _MASKS: dict = {}
@@ -598,7 +600,33 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
         res.x = xs[:, :n] if p == n else xs[:, :n].copy()
         res.P = Ps if p == n else Ps[:, :n, :n].copy()
         res.smoothed = True
+    res.noise = _innovation_noise(res, sigma, "--sigma-m" if opt.sigma_m is not None else
+                                  ("INIT (estimated)" if "noise" in init and init.get("sigma_m") else "INIT/config"))
+    if opt.adapt_sigma and opt.sigma_m is None and res.noise.get("adapt"):
+        from dataclasses import replace
+        first = res.noise
+        res = estimate(run, init, replace(opt, sigma_m=first["innovation_sigma_m"], adapt_sigma=False))
+        res.noise = dict(res.noise, source="innovation-adapted (second pass)", first_pass=first)
     return res
+
+
+# innovation-based adaptation: the filter is re-run with σ·sqrt(NIS/dof) when the mean NIS/dof is
+# outside this band and outside its own 99.9 % interval (independent epochs)
+ADAPT_NIS_BAND = (0.8, 1.25)
+
+
+def _innovation_noise(res: EstimateResult, sigma: float, source: str) -> dict:
+    """σ used and the innovation-based estimate σ̂ = σ·sqrt(mean NIS/dof) (pooled over channels)."""
+    ok = res.nis_dof > 0
+    out = {"sigma_m": float(sigma), "source": source}
+    if not ok.any():
+        return out
+    dof = float(res.nis_dof[ok].sum())
+    f = float(res.nis[ok].sum()) / dof
+    half = 3.3 * np.sqrt(2.0 / dof)
+    out.update(mean_nis_per_dof=f, innovation_sigma_m=float(sigma * np.sqrt(max(f, 1e-6))),
+               adapt=bool((f < ADAPT_NIS_BAND[0] or f > ADAPT_NIS_BAND[1]) and abs(f - 1.0) > half))
+    return out
 
 
 def validate_rest_segments(segments, scale, retry_s=0.0) -> list[tuple[float, float]]:
