@@ -152,3 +152,21 @@ def test_unflagged_slip_in_window_is_refused_naming_the_channel(testbed_cfg):
     rx.loc[sel, "phase_cycles"] += 3.0                # a 3-cycle slip, lock counter untouched
     with pytest.raises(CdgpsError, match=f"inconsistent.*{ant}/{tx}"):
         initialize(memory_run(cfg, rx), InitOptions(start_s=0.0, duration_s=20.0))
+
+
+def test_filter_adapts_sigma_from_innovations(testbed_cfg):
+    """INIT made with a σ 4× too large (--sigma-m 2 cm on 5 mm data): the filter's innovation-based
+    estimate finds ≈ 5 mm and its second pass is consistent (NIS/dof ≈ 1, was ≈ 1/16)."""
+    cfg = testbed_cfg
+    sim = simulate(cfg, SimOptions(duration_s=40.0, seed=8, phase_sigma_m=0.005))
+    run = memory_run(cfg, sim.receiver)
+    init = initialize(run, InitOptions(start_s=0.0, duration_s=20.0, sigma_m=0.02))
+    res = estimate(run, init, EstimateOptions())
+    first = res.noise["first_pass"]
+    assert first["mean_nis_per_dof"] < 0.15 and first["adapt"]
+    assert first["innovation_sigma_m"] == pytest.approx(0.005, rel=0.15)
+    assert res.noise["source"].startswith("innovation-adapted")
+    assert 0.8 < res.noise["mean_nis_per_dof"] < 1.25 and not res.noise["adapt"]
+    # given explicitly, σ is used as is
+    fixed = estimate(run, init, EstimateOptions(sigma_m=0.02))
+    assert fixed.noise["source"] == "--sigma-m" and "first_pass" not in fixed.noise
