@@ -35,16 +35,19 @@ def prior_sigma_m(cfg, channels, override_m: float | None = None) -> np.ndarray:
     override_m : float, optional
         An explicit σ (``--sigma-m``) for every channel.
 
-    The config's ``measurement_sigma_m`` for every channel; a config may refine it per antenna,
-    transmitter or channel through ``cfg.channel_sigma_m(antenna, transmitter)`` when it has one.
+    The config's ``measurement_sigma_m`` for every channel, or, where the config module has it,
+    ``config.channel_sigma_m(cfg, channels)`` (per antenna / transmitter / channel keys, item 13).
     """
     if override_m is not None:
         if not (np.isfinite(override_m) and override_m > 0):
             raise CdgpsError(f"--sigma-m must be a positive number of metres, got {override_m!r}")
         return np.full(len(channels), float(override_m))
-    per = getattr(cfg, "channel_sigma_m", None)
-    if callable(per):
-        out = np.array([float(per(a, t)) for a, t in channels], dtype=float)
+    try:                        # item 13's config keys (σ per antenna/transmitter/channel), when merged
+        from .config import channel_sigma_m
+    except ImportError:
+        channel_sigma_m = None
+    if channel_sigma_m is not None:
+        out = np.asarray(channel_sigma_m(cfg, list(channels)), dtype=float).reshape(len(channels))
     else:
         out = np.full(len(channels), float(cfg.measurement_sigma_m))
     if not np.all(np.isfinite(out) & (out > 0)):
