@@ -261,7 +261,8 @@ def _write_json_atomic(path: str, data: dict) -> None:
 @click.option("--no-partial", is_flag=True, help="Do not try partial integer fixing when the full set fails.")
 @click.option("--starts", type=int, default=8, show_default=True, help="Initial guesses of the rigid angle (cold start).")
 @click.option("--max-iterations", type=int, default=30, show_default=True, help="Gauss-Newton iteration cap.")
-@click.option("--sigma-m", type=float, default=None, help="Measurement noise, m (default: config).")
+@click.option("--sigma-m", type=float, default=None,
+              help="Measurement noise for every channel, m (default: estimated per channel from the data, prior from the config).")
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="INIT.json to write.")
 @click.option("--json", "as_json", is_flag=True, help="Also print INIT.json on stdout.")
 @click.pass_context
@@ -300,7 +301,10 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
     n_ch = sum(1 for b in res["biases"] if b["current"])
     ratio = res["ratio"] if isinstance(res["ratio"], str) or res["ratio"] is None else f"{res['ratio']:.2f}"
     _say(ctx, f"INIT: {n_ch} channels, {n_seg} bias segments, {res['n_fixed']} of {n_seg} segment integers fixed, ratio {ratio}, "
-              f"{res['iterations']} iterations, cost/dof {res['cost_per_dof']:.3f} → {output}")
+              f"{res['iterations']} iterations, cost/dof {res['cost_per_dof']:.3f}, "
+              f"σ {res['sigma_m'] * 1000:.2f} mm ({res['noise']['source'].split(' (')[0]}) → {output}")
+    for w in res["noise"].get("warnings", []):
+        click.echo(f"WARNING: {w}", err=True)
     if as_json:
         _emit_json(res)
 
@@ -322,7 +326,7 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
                    "out: to the end of the log); there the process noise is further multiplied by "
                    "--rest-process-noise-scale, so the filter averages instead of following. Repeatable. "
                    "'--rest auto': segments found from the data (zero-velocity test on the modal velocities).")
-@click.option("--rest-process-noise-scale", type=float, default=0.05, show_default=True,
+@click.option("--rest-process-noise-scale", type=float, default=0.02, show_default=True,
               help="Process-noise standard-deviation factor inside --rest segments.")
 @click.option("--rest-retry-s", type=float, default=1.0, show_default=True,
               help="When the data show motion inside a --rest segment, the filter leaves static mode and tries "
@@ -345,7 +349,7 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
 def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability, outlier_sigma, process_noise_scale,
-             output, as_json, rest=(), rest_process_noise_scale=0.05, rest_retry_s=1.0, structure=None, x_axis_azimuth_deg=90.0,
+             output, as_json, rest=(), rest_process_noise_scale=0.02, rest_retry_s=1.0, structure=None, x_axis_azimuth_deg=90.0,
              receiver_map=(), rest_window_s=3.0, rest_dwell_s=2.0, allow_other_run=False):
     """Extended Kalman filter (Eq. 16-23) [+ RTS smoother] over a RUN from INIT → STATES.mcap.
 
@@ -363,7 +367,7 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
                                        "--nis-probability": nis_probability != 0.999, "--outlier-sigma": outlier_sigma != 6.0,
                                        "--process-noise-scale": process_noise_scale != 1.0,
                                        "--rest": bool(rest),
-                                       "--rest-process-noise-scale": rest_process_noise_scale != 0.05,
+                                       "--rest-process-noise-scale": rest_process_noise_scale != 0.02,
                                        "--rest-retry-s": rest_retry_s != 1.0,
                                        "--rest-window-s": rest_window_s != 3.0, "--rest-dwell-s": rest_dwell_s != 2.0},
                        structure=structure, x_axis_azimuth_deg=x_axis_azimuth_deg, receiver_map=receiver_map,
@@ -420,11 +424,15 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
     src = (f"; {w['start_s']:g}–{w['end_s']:g} s from INIT's batch solution, then the filter" if w else "")
     _say(ctx, f"wrote {output}: {s['epochs']} epochs ({s['start_s']:g}–{s['end_s']:g} s{src}), "
               f"{nis_text}, {s['events']} events")
+    if res.noise:
+        _say(ctx, f"  measurement σ {res.noise['sigma_m'] * 1000:.2f} mm ({res.noise['source']}); innovation-based "
+                  f"estimate {res.noise.get('innovation_sigma_m', float('nan')) * 1000:.2f} mm")
     for ev in s["event_list"][:20]:
         ch = f" {ev['antenna']}/{ev['transmitter']}" if ev["antenna"] else ""
         _say(ctx, f"  {ev['time_s']:8.2f} s{ch}: {ev['kind']} → {ev['action']}")
     if len(s["event_list"]) > 20:
         _say(ctx, f"  … {len(s['event_list']) - 20} more events (topic /cdgps/events)")
+    s["measurement_noise"] = res.noise
     if as_json:
         _emit_json(s)
 

@@ -48,6 +48,7 @@ class EstimateOptions:
     biases: str = "fixed"              # "fixed" (from INIT) or "states" (estimated in the filter)
     smooth: bool = False               # Rauch–Tung–Striebel pass after the filter
     sigma_m: float | None = None       # measurement noise (default: INIT's, else config)
+    adapt_sigma: bool = True           # innovation-based σ: re-run once with it when the NIS disagrees
     bias_process_sigma_m: float = 1e-4  # per-epoch random walk of bias states (biases="states")
     nis_probability: float = 0.999     # chi-square test level of the per-epoch NIS
     outlier_sigma: float = 6.0         # |ν_i| / sqrt(S_ii) above this → suspected slip on channel i
@@ -60,7 +61,7 @@ class EstimateOptions:
     keep_filtered_covariance: str = "full"  # with smooth: "full" (n×n) or "modal" (the n_m×n_m block the outputs use)
     process_noise_scale: float = 1.0   # multiplies the config's process-noise sigma (Q × scale²), filter and smoother
     rest_segments_s: tuple = ()        # ((start_s, end_s), …): the structure is declared at rest (static mode)
-    rest_process_noise_scale: float = 0.05  # … and there the process-noise sigma is further multiplied by this
+    rest_process_noise_scale: float = 0.02  # … and there the process-noise sigma is further multiplied by this
     rest_retry_s: float = 1.0          # after the data contradict a rest segment, try rest again this much later (0: never)
     rest_auto: bool = False            # rest segments found from the data (zero-velocity test, :mod:`cdgps_cli.rest_detect`)
     rest_window_s: float = 3.0         # … its sliding window
@@ -93,6 +94,7 @@ class EstimateResult:
     window: dict | None = None    # INIT's batch window when its epochs come from the batch solution
     rest_active_s: list = field(default_factory=list)   # [[start_s, end_s]]: epochs that ran in static mode
     rest_detection: dict | None = None   # --rest auto: detector settings, sigma and segments (rest_detect)
+    noise: dict = field(default_factory=dict)    # σ used, its source, the innovation-based estimate
 
 
 _MASKS: dict = {}
@@ -634,6 +636,13 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                               "kind": "epochs not estimated",
                               "action": f"the run starts at {t_first:g} s, STATES at {res.time_s[0]:g} s ({where}); "
                                         "initialize from the run start (cdgps init --start) to cover it"})
+    res.noise = _innovation_noise(res, sigma, "--sigma-m" if opt.sigma_m is not None else
+                                  ("INIT (estimated)" if "noise" in init and init.get("sigma_m") else "INIT/config"))
+    if opt.adapt_sigma and opt.sigma_m is None and res.noise.get("adapt"):
+        from dataclasses import replace
+        first = res.noise
+        res = estimate(run, init, replace(opt, sigma_m=first["innovation_sigma_m"], adapt_sigma=False))
+        res.noise = dict(res.noise, source="innovation-adapted (second pass)", first_pass=first)
     return res
 
 
@@ -672,6 +681,25 @@ def _join_window(res: EstimateResult, ws, x0: np.ndarray, P0: np.ndarray, opt: E
                   "source": "batch solution (INIT's window, recomputed from RUN + INIT)",
                   "iterations": int(ws.iterations), "free_biases": int(ws.n_free_biases),
                   "segments_without_init_bias": list(ws.segments_without_bias)}
+
+
+# innovation-based adaptation: the filter is re-run with σ·sqrt(NIS/dof) when the mean NIS/dof is
+# outside this band and outside its own 99.9 % interval (independent epochs)
+ADAPT_NIS_BAND = (0.8, 1.25)
+
+
+def _innovation_noise(res: EstimateResult, sigma: float, source: str) -> dict:
+    """σ used and the innovation-based estimate σ̂ = σ·sqrt(mean NIS/dof) (pooled over channels)."""
+    ok = res.nis_dof > 0
+    out = {"sigma_m": float(sigma), "source": source}
+    if not ok.any():
+        return out
+    dof = float(res.nis_dof[ok].sum())
+    f = float(res.nis[ok].sum()) / dof
+    half = 3.3 * np.sqrt(2.0 / dof)
+    out.update(mean_nis_per_dof=f, innovation_sigma_m=float(sigma * np.sqrt(max(f, 1e-6))),
+               adapt=bool((f < ADAPT_NIS_BAND[0] or f > ADAPT_NIS_BAND[1]) and abs(f - 1.0) > half))
+    return out
 
 
 def validate_rest_segments(segments, scale, retry_s=0.0) -> list[tuple[float, float]]:

@@ -32,11 +32,12 @@ import pandas as pd
 from scipy.stats import chi2
 
 from .ambiguity import lambda_search, partial_fix, ratio_test
-from .batch import LinearProblem, srif_solve
+from .batch import LinearProblem, LinearSolution, srif_solve
 from .config import StructureConfig, channel_sigma_m, scalar_sigma_m
 from .dynamics import discrete_model
 from .errors import CdgpsError
 from .measurement import channel_indices, phase_model
+from .noise_model import leverage_per_channel, prior_sigma_m, variance_factors
 from .run import Run
 
 
@@ -59,7 +60,9 @@ class InitOptions:
     max_iterations: int = 30
     step_tol_m: float = 1e-5            # convergence: max bias / position step (m)
     cost_rtol: float = 1e-9             # convergence: relative cost change
-    sigma_m: float | None = None        # measurement noise (default: config)
+    sigma_m: float | None = None        # measurement noise for every channel (default: config, then estimated)
+    estimate_sigma: bool = True         # per-channel σ from the batch's variance factors (off with sigma_m)
+    sigma_refuse_ratio: float = 4.0     # refuse when one channel's σ̂ exceeds the others' median this many times
     max_bias_sigma_cycles: float = 0.25  # observability limit on the float biases' sigma
     min_motion_ratio: float = 2.0       # automatic window: phase motion RMS / noise
     progress: object = None             # callable(str) for progress messages
@@ -197,7 +200,9 @@ class _Problem:
                  known_bias: np.ndarray | None = None):
         self.cfg = cfg
         self.wd = wd
-        self.sigma = sigma_m
+        # per-channel σ (m); self.sigma (a scalar) only scales the damping prior
+        self.sig_c = np.broadcast_to(np.asarray(sigma_m, dtype=float), (len(wd.channels),)).copy()
+        self.sigma = float(np.sqrt(np.mean(self.sig_c**2)))
         model = discrete_model(cfg)
         self.A = model.A
         L = np.sqrt(np.diag(model.W))
@@ -215,6 +220,8 @@ class _Problem:
         self.bias_index = np.where(wd.segment >= 0, remap[wd.segment], -1)
         kb = np.where(wd.segment >= 0, np.nan_to_num(self.known, nan=0.0)[np.maximum(wd.segment, 0)], 0.0)
         self.y = wd.y_m - kb                     # measurement minus known biases
+        chan_of_seg = np.array([sg["channel"] for sg in wd.segments], dtype=np.int64)
+        self.free_sig = self.sig_c[chan_of_seg[free]] if free.size else np.zeros(0)
 
     def full_bias(self, b_free: np.ndarray) -> np.ndarray:
         out = self.known.copy()
@@ -245,7 +252,7 @@ class _Problem:
 
     def cost(self, x, b_free, w) -> float:
         r = self.residual(x, b_free)
-        return float(np.nansum(r**2) / self.sigma**2 + np.sum(w**2))
+        return float(np.nansum((r / self.sig_c) ** 2) + np.sum(w**2))
 
     def propagate(self, x1: np.ndarray) -> np.ndarray:
         N = len(self.wd.time_s)
@@ -256,13 +263,46 @@ class _Problem:
         return xs
 
     def linear_problem(self, x: np.ndarray, damp_x1: float, x1_ref, damp_b: float, b_ref) -> LinearProblem:
+        """The linearized problem, whitened per channel: rows divided by σ_c, each free bias
+        parameter in units of its channel's σ (b' = b / σ_c), solved with σ = 1."""
         h, H = self.predict(x, jacobian=True)
         ytil = self.y - h + np.einsum("nci,ni->nc", H, x)
         m = self.free.size
+        w = 1.0 / self.sig_c
+        fs = self.free_sig
         return LinearProblem(
-            A=self.A, Bw_L=self.G, H=H, y=ytil, bias_index=self.bias_index, n_bias=m, sigma_m=self.sigma,
-            x1_mean=x1_ref, x1_sqrt_info=np.eye(self.n) * damp_x1,
-            b_mean=b_ref, b_sqrt_info=np.eye(m) * damp_b)
+            A=self.A, Bw_L=self.G, H=H * w[None, :, None], y=ytil * w, bias_index=self.bias_index, n_bias=m,
+            sigma_m=1.0, x1_mean=x1_ref, x1_sqrt_info=np.eye(self.n) * damp_x1,
+            b_mean=np.asarray(b_ref, dtype=float) / fs, b_sqrt_info=np.diag(np.full(m, damp_b) * fs))
+
+    def solve(self, lp: LinearProblem) -> LinearSolution:
+        """:func:`srif_solve` on a whitened problem, biases and their information back in metres."""
+        sol = srif_solve(lp)
+        fs = self.free_sig
+        if not fs.size:
+            return sol
+        n = self.n
+        d = np.r_[np.ones(n), fs]
+        P = None if sol.P_end is None else sol.P_end * d[:, None] * d[None, :]
+        return LinearSolution(sol.x, sol.w, sol.b * fs, sol.cost, sol.R_end / d[None, :], P, sol.rank_deficient)
+
+    def leverage(self, x: np.ndarray) -> np.ndarray:
+        """Σ_k h_kc per channel of the linearization about x (no damping; Hutchinson probes)."""
+        lp0 = self.linear_problem(x, 0.0, x[0], 0.0, np.zeros(self.free.size))
+        H = lp0.H
+        present = np.isfinite(self.y)
+
+        def fitted(eps):
+            lp = LinearProblem(A=lp0.A, Bw_L=lp0.Bw_L, H=H, y=eps, bias_index=lp0.bias_index, n_bias=lp0.n_bias,
+                               sigma_m=1.0, x1_mean=np.zeros(self.n), x1_sqrt_info=lp0.x1_sqrt_info,
+                               b_mean=np.zeros(lp0.n_bias), b_sqrt_info=lp0.b_sqrt_info)
+            sol = srif_solve(lp)
+            f = np.einsum("nci,ni->nc", H, sol.x)
+            if sol.b.size:
+                f = f + np.where(self.bias_index >= 0, sol.b[np.maximum(self.bias_index, 0)], 0.0)
+            return f
+
+        return leverage_per_channel(fitted, present)
 
     def initial_biases(self, x: np.ndarray) -> np.ndarray:
         """Bias guess per free parameter: mean residual of its segment along trajectory x."""
@@ -324,7 +364,7 @@ class GaussNewton:
         accepted = False
         for _ in range(self.max_retries):
             sw = self.lam / prob.sigma          # square-root weight of the damping prior
-            lin = srif_solve(prob.linear_problem(x, sw, x[0], sw, b))
+            lin = prob.solve(prob.linear_problem(x, sw, x[0], sw, b))
             self.lin = lin
             # backtracking along the Gauss–Newton step before adding damping
             for alpha in (1.0, 0.5, 0.25, 0.1):
@@ -371,7 +411,7 @@ class GaussNewton:
     def result(self, information: bool = True) -> GNResult:
         prob = self.prob
         if self.lin is None or self.lam != 0.0 or not self.converged:
-            self.lin = srif_solve(prob.linear_problem(self.x, 0.0, self.x[0], 0.0, self.b)) if information else None
+            self.lin = prob.solve(prob.linear_problem(self.x, 0.0, self.x[0], 0.0, self.b)) if information else None
         return GNResult(self.x, self.b, self.w, self.J, self.it, self.converged, self.lin, self.hist)
 
 
@@ -535,6 +575,15 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
         survivors = [(i, gn) for i, gn in runs if not stage_outcome[i].startswith("abandoned")]
     best_i, best_run = min(((i, gn) for i, gn in runs if not outcome[i].startswith("abandoned")), key=lambda t: t[1].J)
     g = best_run.result()
+    prior = prior_sigma_m(cfg, wd.channels, opt.sigma_m)
+    if opt.sigma_m is None and not np.allclose(prior, sigma):
+        prob = _Problem(cfg, wd, prior, opt.process_noise)       # per-channel prior σ from the config
+        g = prob.gauss_newton(g.x, g.b, opt.max_iterations, opt, w_init=g.w)
+    noise = {"source": "--sigma-m" if opt.sigma_m is not None else "config", "warnings": []}
+    if opt.estimate_sigma and opt.sigma_m is None:
+        prob, g, noise = _estimate_noise(cfg, wd, prob, g, prior, opt)
+    sig_c = prob.sig_c
+    sigma = float(np.sqrt(np.mean(sig_c**2)))
     lin = g.lin
     m = len(wd.segments)
     n = prob.n
@@ -586,7 +635,7 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
     if fixed.any():
         known = np.full(m, np.nan)
         known[fixed] = line[fixed] + lam * integers[fixed]
-        prob_f = _Problem(cfg, wd, sigma, opt.process_noise, known_bias=known)
+        prob_f = _Problem(cfg, wd, sig_c, opt.process_noise, known_bias=known)
         gf = prob_f.gauss_newton(g.x, g.b[~fixed], opt.max_iterations, opt, w_init=g.w)
         total_iter += gf.iterations
         final_b = prob_f.full_bias(gf.b)
@@ -668,12 +717,83 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
         "n_fixed": int(fixed.sum()),
         "residual_rms_m": res_rms,
         "sigma_m": sigma,
+        "sigma_m_per_channel": {f"{a}/{t}": float(v) for (a, t), v in zip(wd.channels, sig_c)},
+        "noise": noise,
         "options": opt.echo(),
         "elapsed_s": elapsed,
     }
     if return_trajectory:
         return out, {"time_s": wd.time_s, "x": x_traj}
     return out
+
+
+NOISE_ITERATIONS = 2            # re-weightings of the batch with the estimated per-channel σ
+SIGMA_WARN_FACTOR = 1.5         # estimated σ this much above/below the prior → warning
+CHANNEL_WARN_RATIO = 2.0        # a channel's σ̂ this much above the median of all → warning
+
+
+def _estimate_noise(cfg, wd, prob, g, prior, opt):
+    """Per-channel σ from the batch's variance factors (redundancy numbers), re-weighted
+    NOISE_ITERATIONS times; a channel far beyond the others (an unflagged slip, a broken
+    channel) is refused.  Returns (problem, solution, noise report for INIT.json)."""
+    sig = prior.copy()
+    for _ in range(NOISE_ITERATIONS):
+        lev = prob.leverage(g.x)
+        resid = prob.residual(g.x, g.b)
+        vf = variance_factors(resid, prob.sig_c, lev)
+        new = np.where(vf["n_obs"] > 0, vf["sigma_m"], sig)
+        sig = np.maximum(new, 1e-5)
+        prob = _Problem(cfg, wd, sig, opt.process_noise)
+        g = prob.gauss_newton(g.x, g.b, opt.max_iterations, opt, w_init=g.w)
+    names = [f"{a}/{t}" for a, t in wd.channels]
+    med = float(np.median(sig))
+    rms_est, rms_prior = float(np.sqrt(np.mean(sig**2))), float(np.sqrt(np.mean(prior**2)))
+    warnings = []
+    f = rms_est / rms_prior
+    if f > SIGMA_WARN_FACTOR or f < 1 / SIGMA_WARN_FACTOR:
+        warnings.append(f"measurement noise estimated from the data is {rms_est * 1000:.2f} mm, {f:.2f} × the "
+                        f"config's {rms_prior * 1000:.2f} mm: the estimate is used (--sigma-m to override)")
+    ratio = sig / med
+    bad = np.flatnonzero(ratio > CHANNEL_WARN_RATIO)
+    resid = prob.residual(g.x, g.b)
+    if bad.size and len(sig) >= 3:
+        worst = bad[np.argsort(-ratio[bad])]
+        detail = ", ".join(f"{names[c]} {sig[c] * 1000:.1f} mm ({ratio[c]:.1f}×){_step_note(wd, resid, c)}"
+                           for c in worst[:6])
+        if ratio[worst[0]] > opt.sigma_refuse_ratio:
+            raise CdgpsError(
+                f"batch fit inconsistent in the window {wd.time_s[0]:g}–{wd.time_s[-1]:g} s: channel residuals far "
+                f"beyond the others' noise (median {med * 1000:.2f} mm): {detail}. This is not measurement "
+                f"noise (an unflagged cycle slip or a broken channel?); initialize on another window "
+                f"(--start/--duration) or give --sigma-m to accept it")
+        warnings.append(f"channels with noise well above the others (median {med * 1000:.2f} mm): {detail}")
+    per = [{"channel": names[c], "sigma_m": float(sig[c]), "prior_sigma_m": float(prior[c]),
+            "variance_factor": float(vf["variance_factor"][c]), "redundancy": float(vf["redundancy"][c]),
+            "observations": int(vf["n_obs"][c]), "residual_rms_m": float(vf["rms_m"][c])}
+           for c in range(len(sig))]
+    for w in warnings:
+        _say(opt, f"  WARNING: {w}")
+    return prob, g, {"source": "estimated (batch variance factors with redundancy numbers)",
+                     "sigma_m": rms_est, "prior_sigma_m": rms_prior, "median_sigma_m": med,
+                     "iterations": NOISE_ITERATIONS, "per_channel": per, "warnings": warnings}
+
+
+def _step_note(wd, resid, c) -> str:
+    """' step 4.1 cm at 23.4 s' when the channel's residuals have a step larger than their spread."""
+    e = resid[:, c]
+    ok = np.flatnonzero(np.isfinite(e))
+    if ok.size < 20:
+        return ""
+    v = e[ok]
+    cs = np.cumsum(v)
+    k = np.arange(5, v.size - 5)
+    d = cs[-1] / v.size
+    diff = cs[k - 1] / k - (cs[-1] - cs[k - 1]) / (v.size - k)
+    j = int(np.argmax(np.abs(diff)))
+    step = float(diff[j])
+    if abs(step) < 3 * float(np.std(v - d)) * 0.5:
+        return ""
+    return f", residual step {abs(step) * 100:.1f} cm at {wd.time_s[ok[k[j]]]:g} s"
 
 
 def _unobservable_msg(t0, t1, motion, sigma, bias_sigma, lam, opt, motion_only=False) -> str:

@@ -155,6 +155,7 @@ def write_states(res, run_path: str | Path, init: dict, init_text: str,
             "run_sha256": hashlib.sha256(Path(run_path).read_bytes()).hexdigest(),
             "init_sha256": hashlib.sha256(init_text.encode()).hexdigest(),
             "options": json.dumps(options, sort_keys=True),
+            "measurement_noise": json.dumps(getattr(res, "noise", {}) or {}, sort_keys=True),
             "final_biases": json.dumps([{"antenna": a, "transmitter": t, "bias_m": b}
                                         for (a, t), b in res.biases.items()]),
             "smoothed": str(res.smoothed).lower(),

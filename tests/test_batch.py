@@ -270,11 +270,11 @@ def testbed_lin(testbed_cfg):
     x = sim.x[:N] + 1e-3 * rng.standard_normal(sim.x[:N].shape)
     tb = {(b["antenna"], b["transmitter"]): b["bias_m"] for b in sim.truth["biases"]}
     b = np.array([tb[(s["antenna"], s["transmitter"])] for s in wd.segments]) + 0.01 * rng.standard_normal(len(wd.segments))
-    return prob.linear_problem(x, 0, x[0], 0, b), sim, wd
+    return prob.linear_problem(x, 0, x[0], 0, b), sim, wd, prob
 
 
 def test_testbed_linearization_srif_matches_dense(testbed_lin):
-    lp, sim, wd = testbed_lin
+    lp, sim, wd, prob = testbed_lin
     N, C, n = lp.H.shape
     assert (N, C, n) == (31, 36, 18) and lp.Bw_L.shape == (18, 9)
     assert lp.n_bias == 37                           # 36 channels + the slip's second segment
@@ -294,8 +294,11 @@ def test_testbed_linearization_srif_matches_dense(testbed_lin):
     assert (wd.segments[later[0]]["antenna"], wd.segments[later[0]]["transmitter"]) == ("a5", "PL6")
     truth_b[later[0]] = slip["bias_m"]
     # 3 s is a short window (float biases good to a few cm): check the errors against P_end
-    sig = np.sqrt(np.diag(s.P_end)[n:])
-    assert np.max(np.abs(s.b - truth_b) / sig) < 5.0
+    # (the problem is whitened per channel: biases in units of their channel's σ; prob.solve → metres)
+    sm = prob.solve(lp)
+    np.testing.assert_allclose(sm.b, s.b * prob.free_sig, rtol=1e-12)
+    sig = np.sqrt(np.diag(sm.P_end)[n:])
+    assert np.max(np.abs(sm.b - truth_b) / sig) < 5.0
 
 
 def test_motionless_linearization_falls_back_to_square_root(testbed_cfg):

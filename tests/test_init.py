@@ -367,7 +367,11 @@ def test_abandoning_finalists_keeps_the_result(which, seed, duration, testbed_cf
     with monkeypatch.context() as mp:
         _no_abandon(mp)
         full = initialize(run, opt)
-    assert [s["won"] for s in fast["starts"]] == [s["won"] for s in full["starts"]]
+    # the same start wins, or (a tie at rounding level) another start in the same minimum
+    won_f = next(s for s in fast["starts"] if s["won"])
+    won_a = next(s for s in full["starts"] if s["won"])
+    assert won_f["label"] == won_a["label"] or abs(won_f["full_window_cost"] - won_a["full_window_cost"]) \
+        <= 1e-9 * won_a["full_window_cost"]
     assert fast["n_fixed"] == full["n_fixed"] and fast["integer_fixing"] == full["integer_fixing"]
     np.testing.assert_allclose([b["float_bias_m"] for b in fast["biases"]],
                                [b["float_bias_m"] for b in full["biases"]], rtol=0, atol=1e-6)
