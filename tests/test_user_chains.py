@@ -76,8 +76,11 @@ def test_readme_chain_as_written(tmp_path, repo_root, monkeypatch):
     err = est[names].to_numpy() - truth[names].to_numpy()
     sig = est[["sigma_" + n for n in names]].to_numpy()
     assert np.all(np.isfinite(err)) and np.all(sig > 0)
-    # the errors are within the states' σ: RMS error ≤ RMS σ per coordinate, ≥ 99 % of values within 3σ
-    assert np.all(np.sqrt(np.mean(err**2, axis=0)) <= np.sqrt(np.mean(sig**2, axis=0)))
+    # the errors are explained by the states' σ (honest, not inflated): per coordinate the RMS of
+    # error/σ lies in [0.5, 1.5] (one 60 s run: its epochs are strongly correlated, so wider than
+    # a chi-square band over independent draws), ≥ 99 % of values within 3σ
+    ratio = np.sqrt(np.mean((err / sig) ** 2, axis=0))
+    assert np.all((ratio > 0.5) & (ratio < 1.5)), dict(zip(names, ratio.round(3)))
     assert np.mean(np.abs(err) <= 3 * sig) >= 0.99
     peaks = json.loads(open("run1/spectra/peaks.json").read())
     assert any(m["seen"] for m in peaks["modes"])
