@@ -771,8 +771,7 @@ def _estimate_noise(cfg, wd, prob, g, prior, opt):
             "variance_factor": float(vf["variance_factor"][c]), "redundancy": float(vf["redundancy"][c]),
             "observations": int(vf["n_obs"][c]), "residual_rms_m": float(vf["rms_m"][c])}
            for c in range(len(sig))]
-    for w in warnings:
-        _say(opt, f"  WARNING: {w}")
+    # the warnings travel in the result (INIT.json "noise"); the CLI prints them once
     return prob, g, {"source": "estimated (batch variance factors with redundancy numbers)",
                      "sigma_m": rms_est, "prior_sigma_m": rms_prior, "median_sigma_m": med,
                      "iterations": NOISE_ITERATIONS, "per_channel": per, "warnings": warnings}
