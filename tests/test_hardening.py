@@ -15,7 +15,7 @@ ROW = b"0.0,rx1,master,a1,PL1,0.797688,0,46.5\n"
 
 def _ten_mb(kind: str) -> bytes:
     if kind == "cr_only":
-        return (HEADER + ROW * 160_000).replace(b"\n", b"\r")
+        return (HEADER + ROW * 270_000).replace(b"\n", b"\r")
     if kind == "long_line":
         return b"x" * 10_000_000
     return b"time_s," * 1_430_000 + b"\n" + ROW      # huge header
