@@ -633,8 +633,10 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, weight
                                         positions={k: v for k, v in positions.items() if k in stations}))
     if job:
         res["inputs"]["config"] = str(job)
+    timing = res.pop("timing_s", {})        # wall-clock: stderr only, so the file is byte-identical across runs
     _write_json_atomic(output, res)
     _say(ctx, format_summary(res))
+    _say(ctx, "timing (s): " + ", ".join(f"{k} {v:.2f}" for k, v in timing.items()))
     _say(ctx, f"wrote {output}")
     if as_json:
         _emit_json(res)
