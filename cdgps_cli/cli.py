@@ -15,9 +15,13 @@ import click
 
 from . import __version__
 from .errors import CdgpsError
+from .validate import GuardedCommand
 
 
 class _Group(click.Group):
+    command_class = GuardedCommand      # finite floats; outputs never an input (validate.py)
+    group_class = type                  # subgroups are _Group too
+
     def invoke(self, ctx):
         try:
             return super().invoke(ctx)
