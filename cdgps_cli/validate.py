@@ -118,3 +118,20 @@ class GuardedCommand(click.Command):
         outputs, inputs = command_paths(self, ctx.params)
         refuse_input_overwrite(outputs, inputs)
         return super().invoke(ctx)
+
+
+def is_json_number(value) -> bool:
+    """True for an int or float that is not a bool (JSON ``true`` is not 1.0)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def has_bool(value) -> bool:
+    """True if ``value`` is, or a nested list holds, a JSON boolean (iterative: no recursion limit)."""
+    stack = [value]
+    while stack:
+        v = stack.pop()
+        if isinstance(v, bool):
+            return True
+        if isinstance(v, list):
+            stack.extend(v)
+    return False
