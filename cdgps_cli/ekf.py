@@ -192,9 +192,8 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     EstimateResult
     """
     opt = opt or EstimateOptions()
-    for name in ("outlier_sigma", "process_noise_scale", "sigma_m"):
+    for name in ("outlier_sigma", "nis_probability"):     # process_noise_scale, sigma_m: checked below
         require_finite(getattr(opt, name), f"EstimateOptions.{name}", positive=True)
-    require_finite(opt.nis_probability, "EstimateOptions.nis_probability", positive=True)
     if opt.sigma_m is not None and not (np.isfinite(opt.sigma_m) and opt.sigma_m > 0):
         raise CdgpsError(f"--sigma-m must be a positive number of metres, got {opt.sigma_m!r}")
     if opt.biases not in ("fixed", "states"):
