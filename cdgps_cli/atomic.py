@@ -102,5 +102,5 @@ def refuse_input_overwrite(outputs, inputs) -> None:
             inside = is_dir and out_id is not None and any(_identity(d) == out_id for d in in_path.resolve().parents)
             if same or inside:
                 how = "is the same file as" if same else "is a folder containing"
-                raise CdgpsError(f"{out_opt} {out_path} {how} the input {in_opt} {in_path}: refusing to overwrite an "
-                                 f"input; choose another output path")
+                raise CdgpsError(f"{out_opt} {out_path} {how} the input {in_opt} {in_path}: writing it would overwrite an "
+                                 f"input (refused, nothing written); choose another output path")
