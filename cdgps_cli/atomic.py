@@ -65,3 +65,42 @@ def path_for_config(path: str | Path, relative_to: str | Path | None) -> str:
         except ValueError:
             pass
     return str(path)
+
+
+def _identity(path: Path) -> tuple | None:
+    try:
+        st = path.stat()
+    except (OSError, ValueError):
+        return None
+    return st.st_dev, st.st_ino
+
+
+def refuse_input_overwrite(outputs, inputs) -> None:
+    """Refuse to write any output that is, or (an output directory) contains, one of the inputs.
+
+    Parameters
+    ----------
+    outputs, inputs : iterable of (option, path, is_directory)
+        ``option`` names where the path came from (e.g. ``-o``, ``RUN_MCAP``) for the message.
+        The same file is recognised however it is spelt (``d/./f``, ``..``, a symlink, a hard link:
+        same device and inode).  A directory output refuses every input inside it, since the
+        command may replace any file there.
+
+    Raises
+    ------
+    CdgpsError
+        Naming the option and both paths; nothing has been written.
+    """
+    ins = [(opt, Path(p), _identity(Path(p))) for opt, p, _ in inputs]
+    for out_opt, out_path, is_dir in outputs:
+        out = Path(out_path)
+        out_id = _identity(out)
+        for in_opt, in_path, in_id in ins:
+            if in_id is None:
+                continue
+            same = out_id is not None and out_id == in_id
+            inside = is_dir and out_id is not None and any(_identity(d) == out_id for d in in_path.resolve().parents)
+            if same or inside:
+                how = "is the same file as" if same else "is a folder containing"
+                raise CdgpsError(f"{out_opt} {out_path} {how} the input {in_opt} {in_path}: writing it would overwrite an "
+                                 f"input (refused, nothing written); choose another output path")

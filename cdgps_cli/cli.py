@@ -15,6 +15,7 @@ import click
 
 from . import __version__, progress
 from .errors import CdgpsError
+from .validate import GuardedCommand
 
 
 def _quiet_after_command(ctx, param, value):
@@ -27,8 +28,9 @@ def _quiet_after_command(ctx, param, value):
 _QUIET_HELP = "No progress or human summaries on stderr (also accepted before the command)."
 
 
-class _Command(click.Command):
-    """A subcommand that also accepts ``-q/--quiet`` after its name (``cdgps info X -q``)."""
+class _Command(GuardedCommand):
+    """A subcommand that also accepts ``-q/--quiet`` after its name (``cdgps info X -q``); finite
+    floats and outputs that are never an input (:class:`cdgps_cli.validate.GuardedCommand`)."""
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
@@ -770,8 +772,10 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, weight
                                         positions={k: v for k, v in positions.items() if k in stations}))
     if job:
         res["inputs"]["config"] = str(job)
+    timing = res.pop("timing_s", {})        # wall-clock: stderr only, so the file is byte-identical across runs
     _write_json_atomic(output, res)
     _say(ctx, format_summary(res))
+    _say(ctx, "timing (s): " + ", ".join(f"{k} {v:.2f}" for k, v in timing.items()))
     _say(ctx, f"wrote {output}")
     if as_json:
         _emit_json(res)

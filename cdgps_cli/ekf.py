@@ -36,6 +36,7 @@ from .config import StructureConfig, channel_sigma_m, scalar_sigma_m
 from .dynamics import discrete_model
 from . import ekf_kernel, progress
 from .errors import CdgpsError
+from .validate import has_bool, is_json_number, require_finite
 from .measurement import EpochPhaseModel, channel_indices
 from .run import Run
 from .window_states import batch_window, extend_smoothing, window_states
@@ -141,6 +142,8 @@ def load_init_state(init: dict, cfg: StructureConfig) -> tuple[float, np.ndarray
         t0 = float(st["time_s"])
     except (KeyError, TypeError, ValueError) as exc:
         raise CdgpsError(f"INIT.json: state: expected time_s, x ({n} numbers) and P ({n}×{n}): {exc}") from None
+    if has_bool(st["x"]) or has_bool(st["P"]) or isinstance(st["time_s"], bool):
+        raise CdgpsError("INIT.json: state: time_s, x and P must be numbers, not true/false")
     if x.shape != (n,) or P.shape != (n, n) or not np.all(np.isfinite(P)) or not np.all(np.isfinite(x)):
         raise CdgpsError(f"INIT.json: state: expected x of {n} numbers and P of {n}×{n} finite numbers")
     P = 0.5 * (P + P.T)
@@ -158,9 +161,12 @@ def load_init_state(init: dict, cfg: StructureConfig) -> tuple[float, np.ndarray
             continue
         try:
             key = (str(b["antenna"]), str(b["transmitter"]))
+            if not is_json_number(b["bias_m"]) or not isinstance(b.get("current", True), bool):
+                raise TypeError
             val = float(b["bias_m"])
         except (KeyError, TypeError, ValueError):
-            problems.append(f"biases[{i}]: expected antenna, transmitter and a numeric bias_m")
+            problems.append(f"biases[{i}]: expected antenna, transmitter, a numeric bias_m (not true/false) and a "
+                            f"boolean current")
             continue
         if key[0] not in cfg.rover_names:
             problems.append(f"biases[{i}]: antenna {key[0]!r} is not a rover antenna of the config")
@@ -168,6 +174,8 @@ def load_init_state(init: dict, cfg: StructureConfig) -> tuple[float, np.ndarray
             problems.append(f"biases[{i}]: transmitter {key[1]!r} is not in the config")
         elif not np.isfinite(val):
             problems.append(f"biases[{i}]: bias_m is not finite")
+        elif b.get("current", True) and key in biases:
+            problems.append(f"biases[{i}]: a second current bias for {key[0]}/{key[1]} (one per channel)")
         elif b.get("current", True):
             biases[key] = val
     if problems:
@@ -193,6 +201,8 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     EstimateResult
     """
     opt = opt or EstimateOptions()
+    for name in ("outlier_sigma", "nis_probability"):     # process_noise_scale, sigma_m: checked below
+        require_finite(getattr(opt, name), f"EstimateOptions.{name}", positive=True)
     if opt.rest_auto:
         from .rest_detect import estimate_auto_rest
 
@@ -726,6 +736,8 @@ def validate_rest_segments(segments, scale, retry_s=0.0) -> list[tuple[float, fl
             bad.append(f"{a:g}:{b:g} (END must be after START)")
         else:
             out.append((a, b))
+    srt = sorted(out)
+    bad += [f"{a0:g}:{b0:g} and {a1:g}:{b1:g} overlap" for (a0, b0), (a1, b1) in zip(srt, srt[1:]) if a1 < b0]
     if bad:
         raise CdgpsError("--rest: " + "; ".join(bad))
     return out

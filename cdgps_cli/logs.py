@@ -20,6 +20,7 @@ from __future__ import annotations
 import bz2
 import gzip
 import lzma
+from collections import Counter
 from contextlib import nullcontext
 from pathlib import Path
 
@@ -34,6 +35,18 @@ RECEIVER_COLUMNS = ("time_s", "receiver", "master", "antenna", "transmitter", "p
 GYRO_COLUMNS = ("time_s", "gyro", "rate_rad_s")
 ACTUATOR_COLUMNS = ("time_s", "actuator", "force_n")
 _MAX_LINES_PER_PROBLEM = 5
+_MAX_LOCK = 2.0 ** 53       # epochs since lock: exact as float64 and as int64
+_MAX_HEADER_BYTES = 4096    # a header of the known columns is < 100 bytes; longer is not a log of ours
+
+
+def _check_header_line(p: Path, raw: bytes, columns: tuple) -> None:
+    """Refuse, in time linear in ``raw`` (at most ``_MAX_HEADER_BYTES + 1`` bytes), a first line that
+    cannot be a header: CR-only line endings (the whole file would read as one line) or no line end."""
+    expected = f"expected the header {','.join(columns)}"
+    if b"\r" in raw.rstrip(b"\r\n"):
+        raise CdgpsError(f"{p}, line 1: line endings are CR only (classic Mac); convert to LF or CRLF; {expected}")
+    if len(raw) > _MAX_HEADER_BYTES:
+        raise CdgpsError(f"{p}, line 1: first line longer than {_MAX_HEADER_BYTES} bytes, not a header; {expected}")
 
 
 class _Problems:
@@ -68,17 +81,20 @@ def _read_table(path: str | Path, columns: tuple, numeric: tuple, optional_numer
     opener = {".gz": gzip.open, ".xz": lzma.open, ".bz2": bz2.open}.get(p.suffix, open)
     try:
         with opener(p, "rb") as fh:
-            head = fh.readline().decode("utf-8", errors="replace").strip().lstrip("\ufeff")
+            raw = fh.readline(_MAX_HEADER_BYTES + 1)
     except OSError as exc:
         raise CdgpsError(f"{p}: cannot read: {exc.strerror or exc}") from None
     except (EOFError, lzma.LZMAError):
         raise CdgpsError(f"{p}: truncated or corrupt compressed file") from None
+    _check_header_line(p, raw, columns)
+    head = raw.decode("utf-8", errors="replace").strip().lstrip("\ufeff")
     if not head:
         raise CdgpsError(f"{p}, line 1: empty file; expected the header {','.join(columns)}")
     header = [h.strip() for h in head.split(",")]
-    missing = [c for c in columns if c not in header]
-    unknown = [c for c in header if c not in columns]
-    dup = sorted({c for c in header if header.count(c) > 1})
+    counts = Counter(header)
+    missing = [c for c in columns if c not in counts]
+    unknown = [c for c in header if c not in columns][:_MAX_LINES_PER_PROBLEM]
+    dup = sorted(c for c, k in counts.items() if k > 1)
     if missing or unknown or dup:
         msg = []
         if missing:
@@ -154,8 +170,8 @@ def read_receiver_log(path: str | Path, cfg: StructureConfig) -> pd.DataFrame:
     ph = df["phase_cycles"].to_numpy()
     probs.rows(np.isinf(ph), "column phase_cycles: infinite phase")
     lock = df["lock"].to_numpy()
-    badlock = np.isfinite(lock) & ((lock < 0) | (lock != np.round(lock)))
-    probs.rows(badlock, "column lock: expected a non-negative integer", lock)
+    badlock = ~np.isnan(lock) & ~((lock >= 0) & (lock <= _MAX_LOCK) & (lock == np.round(lock)))
+    probs.rows(badlock, f"column lock: expected a non-negative integer up to {_MAX_LOCK:.0f}", lock)
     _check_names(df, "antenna", list(cfg.rover_names), probs, "antenna")
     _check_names(df, "transmitter", list(cfg.transmitter_names), probs, "transmitter")
     master = cfg.antenna_names[cfg.master_index]

@@ -444,6 +444,10 @@ def static_report(states, run, angle: str, survey_deg: float | None, out_dir: st
     """The static sensor test (1998 paper Sec. VI.A, Fig. 7) on the rest segment.
 
     ``date`` is the report's date (``--date``; see :mod:`cdgps_cli.provenance` for the default)."""
+    from .validate import require_finite
+
+    for name, v in (("survey_deg", survey_deg), ("start_s", start_s), ("end_s", end_s)):
+        require_finite(v, name)
     cfg = states.cfg
     coef = parse_expression(angle, cfg.coord_names)
     a_all = states.q @ coef

@@ -82,16 +82,27 @@ class SimOptions:
 
 def parse_slip(text: str) -> SlipSpec:
     m = re.fullmatch(r"([^:]+):([^:]+):([0-9.eE+-]+):([+-]?\d+)", text.strip())
-    if not m or int(m.group(4)) == 0:
-        raise CdgpsError(f"--slip {text!r}: expected ANTENNA:TRANSMITTER:TIME_S:CYCLES with non-zero integer CYCLES, e.g. a3:PL2:30.0:+3")
-    return SlipSpec(m.group(1), m.group(2), float(m.group(3)), int(m.group(4)))
+    t = _float_or_nan(m.group(3)) if m else float("nan")
+    if not m or int(m.group(4)) == 0 or not (np.isfinite(t) and t >= 0):
+        raise CdgpsError(f"--slip {text!r}: expected ANTENNA:TRANSMITTER:TIME_S:CYCLES with a finite TIME_S >= 0 and "
+                         f"non-zero integer CYCLES, e.g. a3:PL2:30.0:+3")
+    return SlipSpec(m.group(1), m.group(2), t, int(m.group(4)))
+
+
+def _float_or_nan(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        return float("nan")
 
 
 def parse_outage(text: str) -> OutageSpec:
     m = re.fullmatch(r"([^:]+):([0-9.eE+-]+):([0-9.eE+-]+)", text.strip())
-    if not m or float(m.group(3)) <= 0:
-        raise CdgpsError(f"--outage {text!r}: expected TRANSMITTER:START_S:DURATION_S with positive duration, e.g. PL4:40:10")
-    return OutageSpec(m.group(1), float(m.group(2)), float(m.group(3)))
+    start, dur = (_float_or_nan(m.group(2)), _float_or_nan(m.group(3))) if m else (float("nan"),) * 2
+    if not m or not (np.isfinite(start) and start >= 0 and np.isfinite(dur) and dur > 0):
+        raise CdgpsError(f"--outage {text!r}: expected TRANSMITTER:START_S:DURATION_S with a finite START_S >= 0 and a "
+                         f"positive duration, e.g. PL4:40:10")
+    return OutageSpec(m.group(1), start, dur)
 
 
 @dataclass
@@ -122,9 +133,13 @@ def _validate(cfg: StructureConfig, opt: SimOptions) -> None:
             problems.append(f"--slip: unknown rover antenna {s.antenna!r} (known: {', '.join(cfg.rover_names)})")
         if s.transmitter not in cfg.transmitter_names:
             problems.append(f"--slip: unknown transmitter {s.transmitter!r}")
+        if not (np.isfinite(s.time_s) and s.time_s >= 0):
+            problems.append(f"slips time_s: expected a finite time >= 0 s, got {s.time_s}")
     for o in opt.outages:
         if o.transmitter not in cfg.transmitter_names:
             problems.append(f"--outage: unknown transmitter {o.transmitter!r} (known: {', '.join(cfg.transmitter_names)})")
+        if not (np.isfinite(o.start_s) and o.start_s >= 0 and np.isfinite(o.duration_s) and o.duration_s > 0):
+            problems.append(f"outages: expected start_s >= 0 and duration_s > 0 (finite), got {o.start_s}, {o.duration_s}")
     for name in ("phase_sigma_m", "multipath_sigma_m", "disturbance_scale"):
         v = getattr(opt, name)
         if v is not None and not (v >= 0 and np.isfinite(v)):

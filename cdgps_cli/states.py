@@ -312,6 +312,9 @@ def evaluate(truth_dir: str | Path, states_path: str | Path, converge_s: float =
     """
     from scipy.stats import chi2
 
+    from .validate import require_finite
+
+    require_finite(converge_s, "converge_s", nonnegative=True)
     truth_dir = Path(truth_dir)
     csv = truth_dir / "truth.csv"
     for alt in ("truth.csv.xz", "truth.csv.gz"):

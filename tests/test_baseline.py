@@ -133,6 +133,11 @@ def test_geonet_cli_with_job_file(tmp_path):
     assert res["solution"] == "fixed" and res["inputs"]["config"] == str(JOB)
     assert "6 of 6 fixed" in r.stderr and "wrote" in r.stderr and r.stdout == ""
     assert [p.name for p in out.parent.iterdir()] == ["baseline.json"]        # atomic: no temporary left
+    # deterministic (issue 12): no wall-clock in the file (timings on stderr), a second run is byte-identical
+    assert "timing_s" not in res and "timing (s): " in r.stderr
+    again = tmp_path / "again.json"
+    assert CliRunner().invoke(main, ["-q", "baseline", "--config", str(JOB), "-o", str(again)]).exit_code == 0
+    assert again.read_bytes() == out.read_bytes()
     # command-line files and options override; --json echoes the result; --float-only
     r2 = CliRunner().invoke(main, ["-q", "baseline", "--rinex", f"3040={SHARED / '30400920.05o'}", "--rinex",
                                    f"0759={SHARED / '07590920.05o'}", "--nav", str(SHARED / "07590920.05n"),

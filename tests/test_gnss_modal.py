@@ -214,7 +214,7 @@ def test_simulate_gnss_structure_command_is_deterministic(tmp_path):
 
 
 @pytest.mark.parametrize("args,message", [
-    (("--x-axis-azimuth-deg", "nan"), "--x-axis-azimuth-deg must be in [-360, 360]"),
+    (("--x-axis-azimuth-deg", "nan"), "--x-axis-azimuth-deg': 'nan' is not a finite number"),   # issue 12: the CLI float type
     (("--master-xyz", "0,0,0"), "master_ecef_m must be 3 finite ECEF coordinates"),
 ])
 def test_simulate_gnss_structure_bad_input_leaves_nothing(tmp_path, args, message):
