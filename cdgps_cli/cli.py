@@ -328,7 +328,7 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
                    "out: to the end of the log); there the process noise is further multiplied by "
                    "--rest-process-noise-scale, so the filter averages instead of following. Repeatable. "
                    "'--rest auto': segments found from the data (zero-velocity test on the modal velocities).")
-@click.option("--rest-process-noise-scale", type=float, default=0.02, show_default=True,
+@click.option("--rest-process-noise-scale", type=float, default=0.005, show_default=True,
               help="Process-noise standard-deviation factor inside --rest segments.")
 @click.option("--rest-retry-s", type=float, default=1.0, show_default=True,
               help="When the data show motion inside a --rest segment, the filter leaves static mode and tries "
@@ -351,7 +351,7 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
 def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability, outlier_sigma, process_noise_scale,
-             output, as_json, rest=(), rest_process_noise_scale=0.02, rest_retry_s=1.0, structure=None, x_axis_azimuth_deg=90.0,
+             output, as_json, rest=(), rest_process_noise_scale=0.005, rest_retry_s=1.0, structure=None, x_axis_azimuth_deg=90.0,
              receiver_map=(), rest_window_s=3.0, rest_dwell_s=2.0, allow_other_run=False):
     """Extended Kalman filter (Eq. 16-23) [+ RTS smoother] over a RUN from INIT → STATES.mcap.
 
@@ -369,7 +369,7 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
                                        "--nis-probability": nis_probability != 0.999, "--outlier-sigma": outlier_sigma != 6.0,
                                        "--process-noise-scale": process_noise_scale != 1.0,
                                        "--rest": bool(rest),
-                                       "--rest-process-noise-scale": rest_process_noise_scale != 0.02,
+                                       "--rest-process-noise-scale": rest_process_noise_scale != 0.005,
                                        "--rest-retry-s": rest_retry_s != 1.0,
                                        "--rest-window-s": rest_window_s != 3.0, "--rest-dwell-s": rest_dwell_s != 2.0},
                        structure=structure, x_axis_azimuth_deg=x_axis_azimuth_deg, receiver_map=receiver_map,

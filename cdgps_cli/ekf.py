@@ -62,7 +62,7 @@ class EstimateOptions:
     keep_filtered_covariance: str = "full"  # with smooth: "full" (n×n) or "modal" (the n_m×n_m block the outputs use)
     process_noise_scale: float = 1.0   # multiplies the config's process-noise sigma (Q × scale²), filter and smoother
     rest_segments_s: tuple = ()        # ((start_s, end_s), …): the structure is declared at rest (static mode)
-    rest_process_noise_scale: float = 0.02  # … and there the process-noise sigma is further multiplied by this
+    rest_process_noise_scale: float = 0.005 # … and there the process-noise sigma is further multiplied by this
     rest_retry_s: float = 1.0          # after the data contradict a rest segment, try rest again this much later (0: never)
     rest_auto: bool = False            # rest segments found from the data (zero-velocity test, :mod:`cdgps_cli.rest_detect`)
     rest_window_s: float = 3.0         # … its sliding window
