@@ -302,20 +302,27 @@ def render() -> str:
     return "\n".join(lines) + "\n"
 
 
+def check_or_write(out: Path, text: str, check: bool) -> None:
+    """Write ``text`` to ``out``, or with ``check`` exit 1 (first difference on stderr) when the file
+    differs from it beyond CHECK_REL_TOL, exit 0 when it matches.  Shared by the config generators."""
+    if not check:
+        out.write_text(text)
+        return
+    diff = first_difference(text, out.read_text())
+    if diff is not None:
+        n, want, got = diff
+        print(f"{out}:{n}: differs from what {Path(sys.argv[0]).name} renders\n"
+              f"  rendered: {want}\n  in file:  {got}\n"
+              f"(numbers are compared to a relative tolerance of {CHECK_REL_TOL:g}; "
+              f"run python scripts/{Path(sys.argv[0]).name} to regenerate)", file=sys.stderr)
+        sys.exit(1)
+    sys.exit(0)
+
+
 if __name__ == "__main__":
     out = Path(__file__).resolve().parent.parent / "configs" / "testbed-1998.toml"
     text = render()
-    if "--check" in sys.argv:
-        diff = first_difference(text, out.read_text())
-        if diff is not None:
-            n, want, got = diff
-            print(f"{out}:{n}: differs from what {Path(__file__).name} renders\n"
-                  f"  rendered: {want}\n  in file:  {got}\n"
-                  f"(numbers are compared to a relative tolerance of {CHECK_REL_TOL:g}; "
-                  f"run python scripts/make_testbed_config.py to regenerate)", file=sys.stderr)
-            sys.exit(1)
-        sys.exit(0)
-    out.write_text(text)
+    check_or_write(out, text, "--check" in sys.argv)
     names, _ = elastic_modes()
     for n in ORDER[:-1]:
         print(f"{n:10s} lumped {names[n][0]:.4f} Hz -> Table 1 {TABLE1[n][0]} Hz")

@@ -36,7 +36,7 @@ import numpy as np
 import scipy.linalg
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from make_testbed_config import CHECK_REL_TOL, first_difference, fmt_number  # noqa: E402
+from make_testbed_config import check_or_write, fmt_number  # noqa: E402
 
 HEIGHT_M = 120.0
 N_ELEMENTS = 12
@@ -241,17 +241,7 @@ def render() -> str:
 if __name__ == "__main__":
     out = Path(__file__).resolve().parent.parent / "configs" / "tower-120m-fe.toml"
     text = render()
-    if "--check" in sys.argv:
-        diff = first_difference(text, out.read_text())
-        if diff is not None:
-            n, want, got = diff
-            print(f"{out}:{n}: differs from what {Path(__file__).name} renders\n"
-                  f"  rendered: {want}\n  in file:  {got}\n"
-                  f"(numbers are compared to a relative tolerance of {CHECK_REL_TOL:g}; "
-                  f"run python scripts/make_tower_config.py to regenerate)", file=sys.stderr)
-            sys.exit(1)
-        sys.exit(0)
-    out.write_text(text)
+    check_or_write(out, text, "--check" in sys.argv)
     modes, _, W = tower_model()
     for m in modes:
         print(f"{m[0]:9s} {m[1]:.4f} Hz  zeta {DAMPING[m[0]]}")
