@@ -6,6 +6,7 @@ existing file is replaced only by a complete new one.
 
 from __future__ import annotations
 
+import errno
 import os
 from pathlib import Path
 from typing import Callable
@@ -16,6 +17,25 @@ from .errors import CdgpsError
 def temporary_name(path: Path) -> Path:
     """The hidden temporary sibling used while ``path`` is being written."""
     return path.with_name(f".{path.name}.tmp{os.getpid()}")
+
+
+#: errno of a write that failed for lack of room, not for a wrong path or permission
+_NO_ROOM = {errno.ENOSPC: "no space left on the device",
+            errno.EFBIG: "file too large (the file system's or this process's file-size limit, ulimit -f)",
+            errno.EDQUOT: "disk quota exceeded"}
+
+
+def is_no_room(exc: OSError) -> bool:
+    """Whether an OSError is a full device, a file-size limit or an exhausted quota."""
+    return exc.errno in _NO_ROOM
+
+
+def output_error(path: str | Path, exc: OSError) -> CdgpsError:
+    """The user-facing error of a failed write of ``path`` (the full-disk cases explained)."""
+    if exc.errno in _NO_ROOM:
+        return CdgpsError(f"{path}: cannot write: {_NO_ROOM[exc.errno]}; nothing was written there "
+                          f"(free some space or choose another output)")
+    return CdgpsError(f"{path}: cannot write: {exc.strerror or exc}")
 
 
 def write_atomic(path: str | Path, writer: Callable[[Path], None]) -> None:
@@ -33,7 +53,7 @@ def write_atomic(path: str | Path, writer: Callable[[Path], None]) -> None:
         writer(tmp)
         os.replace(tmp, path)
     except OSError as exc:
-        raise CdgpsError(f"{path}: cannot write: {exc.strerror or exc}") from None
+        raise output_error(path, exc) from None
     finally:
         if tmp.exists():
             tmp.unlink()

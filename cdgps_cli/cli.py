@@ -52,9 +52,56 @@ class _Group(click.Group):
         try:
             return super().invoke(ctx)
         except CdgpsError as exc:
-            progress.close_all()
-            click.echo(f"cdgps: error: {exc}", err=True)
-            ctx.exit(2)
+            _fail(ctx, str(exc))
+        except BrokenPipeError:                 # stdout read by `| head` that has exited
+            _quiet_broken_pipe(ctx)
+        except MemoryError:                     # last line of defence (inputs are bounded first)
+            _fail(ctx, "out of memory: the inputs or options ask for more memory than this machine has "
+                       "(a shorter --duration or a smaller input)")
+        except OSError as exc:                  # last line of defence: a full device while writing
+            from .atomic import is_no_room, output_error
+
+            if not is_no_room(exc):
+                raise
+            _fail(ctx, str(output_error(exc.filename or "an output", exc)))
+
+
+def _fail(ctx, message: str) -> None:
+    """Print a user error (no traceback) and exit with status 2."""
+    progress.close_all()
+    click.echo(f"cdgps: error: {message}", err=True)
+    ctx.exit(2)
+
+
+#: exit status after stdout was closed by its reader: 128 + SIGPIPE, as a shell reports a program
+#: killed by SIGPIPE (``cdgps info X --json | head -1``); nothing is printed
+BROKEN_PIPE_EXIT = 141
+
+
+def _quiet_broken_pipe(ctx) -> None:
+    """Exit quietly when the reader of stdout has gone; stdout points to /dev/null afterwards so the
+    interpreter's final flush does not complain either."""
+    import os
+
+    progress.close_all()
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):              # no real stdout (library use, test runner)
+        pass
+    ctx.exit(BROKEN_PIPE_EXIT)
+
+
+def _echo(text: str) -> None:
+    """Print command output on stdout; a full device there is a user error naming stdout."""
+    try:
+        click.echo(text)
+        sys.stdout.flush()
+    except BrokenPipeError:
+        raise
+    except OSError as exc:
+        raise CdgpsError(f"standard output: cannot write: {exc.strerror or exc} (is it redirected to a full "
+                         f"device?)") from None
 
 
 def _say(ctx, msg: str) -> None:
@@ -86,7 +133,7 @@ class _AliasedOption(click.Option):
 
 
 def _emit_json(data: dict) -> None:
-    click.echo(json.dumps(data, indent=2, sort_keys=False))
+    _echo(json.dumps(data, indent=2, sort_keys=False))
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
@@ -386,15 +433,9 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
         raise CdgpsError(f"--nis-probability must be in (0.5, 1), got {nis_probability:g}")
     if outlier_sigma <= 0:
         raise CdgpsError(f"--outlier-sigma must be positive, got {outlier_sigma:g}")
-    try:
-        init_text = Path(init_json).read_text()
-        init = json.loads(init_text)
-    except OSError as exc:
-        raise CdgpsError(f"{init_json}: cannot read: {exc.strerror}") from None
-    except json.JSONDecodeError as exc:
-        raise CdgpsError(f"{init_json}, line {exc.lineno}: not valid JSON: {exc.msg}") from None
-    if not isinstance(init, dict):
-        raise CdgpsError(f"{init_json}: expected a JSON object from 'cdgps init'")
+    from .file_checks import read_init_json
+
+    init, init_text = read_init_json(init_json)
     pairing = _check_pairing(ctx, init, init_json, run_mcap, allow_other_run)
     rest_auto = any(r.strip().lower() == "auto" for r in rest)
     if rest_auto and len(rest) > 1:
@@ -523,7 +564,7 @@ def evaluate(ctx, truth_dir, states_mcap, converge_s, as_json):
     if "bias_error" in r:
         b = r["bias_error"]
         lines.append(f"  final biases: RMS error {b['rms_m'] * 1000:.2f} mm, {b['wrong_integers']} wrong integers of {b['channels']}")
-    click.echo("\n".join(lines))
+    _echo("\n".join(lines))
 
 
 def _states_and_gyro(states_mcap, gyro_mcap):
@@ -671,7 +712,7 @@ def info(ctx, mcap_file, as_json):
     for name, md in s["metadata"].items():
         out.append(f"  metadata {name}: " + ", ".join(f"{k}={v if len(v) <= 60 else v[:57] + '…'}"
                                                      for k, v in sorted(md.items()) if not k.endswith("sha256")))
-    click.echo("\n".join(out))
+    _echo("\n".join(out))
 
 
 def _span(t: dict) -> str:
@@ -878,15 +919,9 @@ def _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json, structure_
     from .gnss_run import read_gnss_run
 
     _reject_structure_options(structure_only, "'cdgps estimate'")
-    try:
-        init_text = Path(init_json).read_text()
-        init = json.loads(init_text)
-    except OSError as exc:
-        raise CdgpsError(f"{init_json}: cannot read: {exc.strerror}") from None
-    except json.JSONDecodeError as exc:
-        raise CdgpsError(f"{init_json}, line {exc.lineno}: not valid JSON: {exc.msg}") from None
-    if not isinstance(init, dict):
-        raise CdgpsError(f"{init_json}: expected a JSON object from 'cdgps init'")
+    from .file_checks import read_init_json
+
+    init, init_text = read_init_json(init_json)
     pairing = _check_pairing(ctx, init, init_json, run_mcap, allow_other_run)
     extra = {"allow_other_run": True, "init_run_sha256": pairing["init_run_sha256"]} if allow_other_run else None
     run = read_gnss_run(run_mcap)

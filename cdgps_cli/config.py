@@ -25,6 +25,7 @@ import numpy as np
 
 from .errors import CdgpsError, join_problems
 from .units import GPS_L1_WAVELENGTH_M
+from .limits import config_range_problems
 
 AXES = ("x", "y", "z")
 COORD_KINDS = {"translation": "m", "rotation": "rad", "modal": "1"}
@@ -533,6 +534,8 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
     except tomllib.TOMLDecodeError as exc:
         raise CdgpsError(f"{path}: not valid TOML: {exc}") from None
     chk = _Checker(path)
+    ranges = config_range_problems(doc)                 # plausible bounds (limits.py), first so that
+    chk.problems += ranges                              # later checks guarded by `not chk.problems` skip
     top_allowed = {"model", "body", "coordinates", "sections", "antennas", "transmitters", "modes",
                    "process_noise", "gyros", "thrusters", "simulation", "channel_sigma", "points"}
     chk.keys(doc, "", {"model", "coordinates", "antennas", "transmitters", "modes", "process_noise"},
@@ -561,7 +564,7 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
         coord_names.append(chk.string(c, key, "name", f"?{i}"))
         coord_units.append(chk.string(c, key, "unit", ""))
         kind = c.get("kind", "modal")
-        if kind not in COORD_KINDS:
+        if not isinstance(kind, str) or kind not in COORD_KINDS:
             chk.add(f"{key}.kind", f"expected one of {sorted(COORD_KINDS)}, got {kind!r}")
             kind = "modal"
         coord_kinds.append(kind)
@@ -622,7 +625,7 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
         if "section" not in tbl:
             return -1
         v = tbl["section"]
-        if v not in sindex:
+        if not isinstance(v, str) or v not in sindex:
             chk.add(f"{key}.section", f"expected the name of a section ({', '.join(sindex) or 'none defined'}), got {v!r}")
             return -1
         return sindex[v]
@@ -804,7 +807,9 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
             sim[k] = v
 
     if chk.problems:
-        raise CdgpsError(join_problems(f"{path}: invalid config", chk.problems))
+        own = {q.split(":")[0] for q in chk.problems[len(ranges):]}    # a key the checker refused itself
+        kept = [q for q in ranges if q.split(":")[0] not in own] + chk.problems[len(ranges):]
+        raise CdgpsError(join_problems(f"{path}: invalid config", kept))
 
     def ro(a, dtype=float):
         arr = np.array(a, dtype=dtype)

@@ -36,6 +36,7 @@ from .config import StructureConfig, channel_sigma_m, scalar_sigma_m
 from .dynamics import discrete_model
 from . import ekf_kernel, progress
 from .errors import CdgpsError
+from .limits import OPTION_BOUNDS
 from .validate import has_bool, is_json_number, require_finite
 from .measurement import EpochPhaseModel, channel_indices
 from .run import Run
@@ -183,6 +184,8 @@ def load_init_state(init: dict, cfg: StructureConfig) -> tuple[float, np.ndarray
     sig = init.get("sigma_m")
     if sig is not None and (isinstance(sig, bool) or not isinstance(sig, (int, float)) or not sig > 0):
         raise CdgpsError(f"INIT.json: sigma_m: expected a positive number, got {sig!r}")
+    if sig is not None and not OPTION_BOUNDS["sigma_m"].contains(sig):
+        raise CdgpsError(f"INIT.json: sigma_m = {sig!r} m is outside the plausible range {OPTION_BOUNDS['sigma_m'].text()}")
     return t0, x, P, biases
 
 
@@ -229,7 +232,11 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     nm = cfg.n_modes
     n = cfg.n_states
 
-    # epoch grid from INIT time to the end
+    # epoch grid from INIT time to the end (an INIT time before the run would size it from INIT)
+    t_first = float(run.phase["time_s"].min()) if len(run.phase) else t0
+    if t0 < t_first - T:
+        raise CdgpsError(f"INIT.json: state.time_s = {t0:g} s is before the first epoch of {run.path} "
+                         f"({t_first:g} s): expected the INIT.json of this run (its batch window end)")
     keep = run.phase["time_s"].to_numpy() >= t0 - 1e-9
     ph = run.phase if keep.all() else run.phase[keep]
     if len(ph) == 0:

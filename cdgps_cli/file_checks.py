@@ -13,6 +13,8 @@ outlier events later.
 
 from __future__ import annotations
 
+import json
+import re
 from pathlib import Path
 
 from .atomic import file_sha256
@@ -88,3 +90,59 @@ def check_init_run(init: dict, init_path: str | Path, run_path: str | Path, allo
                          f"from {run_path} (or --allow-other-run to use this one anyway)")
     return {"run_sha256": run_sha, "init_run_sha256": rec, "matches": matches,
             "allowed": bool(matches is False and allow_other_run)}
+
+
+#: deepest nesting of arrays/objects accepted in INIT.json (cdgps writes at most 3: P's rows)
+MAX_JSON_DEPTH = 64
+
+
+def read_init_json(path: str | Path) -> tuple[dict, str]:
+    """(INIT.json as a dict, its text), or a CdgpsError naming the file and the line.
+
+    Refuses an unreadable file, bytes that are not UTF-8, invalid JSON, nesting deeper than
+    :data:`MAX_JSON_DEPTH` (checked before parsing: no recursion limit is reached) and a document
+    that is not an object."""
+    try:
+        raw = Path(path).read_bytes()
+    except OSError as exc:
+        raise CdgpsError(f"{path}: cannot read: {exc.strerror}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        raise CdgpsError(f"{path}, line {line}: not UTF-8 text (byte {raw[exc.start]:#04x} at offset {exc.start}); "
+                         f"expected the INIT.json written by 'cdgps init'") from None
+    depth = _json_depth_exceeded(text)
+    if depth is not None:
+        raise CdgpsError(f"{path}, line {text.count(chr(10), 0, depth) + 1}: JSON nested deeper than "
+                         f"{MAX_JSON_DEPTH} levels; expected the INIT.json written by 'cdgps init'")
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise CdgpsError(f"{path}, line {exc.lineno}: not valid JSON: {exc.msg}") from None
+    if not isinstance(doc, dict):
+        raise CdgpsError(f"{path}: expected a JSON object from 'cdgps init'")
+    return doc, text
+
+
+def _json_depth_exceeded(text: str) -> int | None:
+    """Offset where the bracket nesting first exceeds :data:`MAX_JSON_DEPTH` (strings skipped), or None.
+    Linear: one pass over the openers, closers and quotes."""
+    depth, in_str = 0, False
+    for m in _JSON_TOKENS.finditer(text):
+        tok = m.group()
+        if in_str:
+            if tok == '"':
+                in_str = False
+        elif tok == '"':
+            in_str = True
+        elif tok in "[{":
+            depth += 1
+            if depth > MAX_JSON_DEPTH:
+                return m.start()
+        elif tok in "]}":
+            depth -= 1
+    return None
+
+
+_JSON_TOKENS = re.compile(r'\\.|["\[\]{}]')

@@ -30,6 +30,7 @@ import pandas as pd
 from . import progress
 from .config import StructureConfig
 from .errors import CdgpsError
+from .limits import LOG_BOUNDS
 
 RECEIVER_COLUMNS = ("time_s", "receiver", "master", "antenna", "transmitter", "phase_cycles", "lock", "snr_dbhz")
 GYRO_COLUMNS = ("time_s", "gyro", "rate_rad_s")
@@ -128,12 +129,27 @@ def _read_table(path: str | Path, columns: tuple, numeric: tuple, optional_numer
             if c in numeric:
                 probs.rows(empty, f"column {c}: empty value")
                 probs.rows(literal_nan, f"column {c}: NaN value")
+            _check_bounds(c, vals, col.to_numpy(), probs)
             out[c] = vals
         else:
             v = col.to_numpy()
             probs.rows(v == "", f"column {c}: empty value")
             out[c] = v
     return pd.DataFrame(out, columns=list(columns)), probs
+
+
+def _check_bounds(c: str, vals: np.ndarray, text: np.ndarray, probs: _Problems) -> None:
+    """Rows whose column ``c`` is infinite or outside its plausible range (limits.LOG_BOUNDS); for
+    ``time_s`` only the upper bound (infinite and negative times have their own messages)."""
+    b = LOG_BOUNDS.get(c)
+    if b is None:
+        return
+    with np.errstate(invalid="ignore"):
+        if c == "time_s":
+            bad = np.isfinite(vals) & (vals > b.hi)
+        else:
+            bad = np.isinf(vals) | (np.isfinite(vals) & ((vals < b.lo) | (vals > b.hi)))
+    probs.rows(bad, f"column {c}: outside the plausible range {b.text()}", text)
 
 
 def _check_time(df: pd.DataFrame, probs: _Problems) -> None:

@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import zstandard
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.opcode import Opcode
@@ -41,7 +42,7 @@ from mcap.records import AttachmentIndex
 from mcap.writer import CompressionType, IndexType, Writer
 
 from . import progress
-from .atomic import temporary_name
+from .atomic import is_no_room, output_error, temporary_name
 from .errors import CdgpsError
 from .timescales import RELATIVE_EPOCH_UTC, TIME_SCALES, unix_ns
 
@@ -354,9 +355,13 @@ class McapOut:
             self._fh.close()
             if exc_type is None:
                 os.replace(self.tmp, self.path)
+        except OSError as err:                  # full disk, file-size limit while finishing
+            raise output_error(self.path, err) from None
         finally:
             if self.tmp.exists():
                 self.tmp.unlink()
+        if isinstance(exc, OSError) and is_no_room(exc):   # the same while writing messages
+            raise output_error(self.path, exc) from None
 
 
 class TopicColumns:
@@ -495,6 +500,36 @@ def _message_count(summary, topics) -> int | None:
     return int(sum(n for cid, n in st.channel_message_counts.items() if cid in want))
 
 
+class _InputBoundedFile:
+    """A read-only view of an open file whose ``read(n)`` never asks for more than the bytes left.
+
+    The mcap reader allocates a record from its length field; a flipped length (2**63) then asks
+    for exabytes (MemoryError / OverflowError).  Clamped to the file size, such a read comes back
+    short and the reader reports the truncation it sees."""
+
+    def __init__(self, fh):
+        self._fh = fh
+        self._size = os.fstat(fh.fileno()).st_size
+
+    def __getattr__(self, name):                  # seek, tell, seekable, ...: the file's own
+        return getattr(self._fh, name)
+
+    def read(self, n: int = -1) -> bytes:
+        left = max(self._size - self._fh.tell(), 0)
+        return self._fh.read(left if n is None or n < 0 else min(n, left))
+
+    def readinto(self, b) -> int:
+        data = self.read(len(b))
+        b[:len(data)] = data
+        return len(data)
+
+
+#: what the mcap reader and its decompressors raise on damaged bytes (zstd/lz4 data errors,
+#: lengths past the file, a decompressed size that cannot be allocated)
+_CORRUPT_MCAP_ERRORS = (McapError, EOFError, ValueError, KeyError, IndexError, struct.error, OSError,
+                        UnicodeDecodeError, MemoryError, OverflowError, zstandard.ZstdError)
+
+
 def read_mcap(path: str | Path, topics: list[str] | None = None) -> McapContents:
     """Read an MCAP file with CRC validation.
 
@@ -509,7 +544,8 @@ def read_mcap(path: str | Path, topics: list[str] | None = None) -> McapContents
     cols: dict = {}
     schemas, encodings, chan_meta = {}, {}, {}
     try:
-        with open(p, "rb") as fh:
+        with open(p, "rb") as raw:
+            fh = _InputBoundedFile(raw)
             reader = make_reader(fh, validate_crcs=True)
             summary = reader.get_summary()
             if summary is None:
@@ -529,6 +565,7 @@ def read_mcap(path: str | Path, topics: list[str] | None = None) -> McapContents
             metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
     except CdgpsError:
         raise
-    except (McapError, EOFError, ValueError, KeyError, struct.error, OSError, UnicodeDecodeError) as exc:
-        raise CdgpsError(f"{p}: not a valid MCAP file (truncated or corrupt): {type(exc).__name__}: {exc}") from None
+    except _CORRUPT_MCAP_ERRORS as exc:
+        raise CdgpsError(f"{p}: not a valid MCAP file (truncated or corrupt): {type(exc).__name__}: "
+                         f"{str(exc)[:200]}") from None
     return McapContents(str(p), cols, attachments, metadata, schemas, encodings, chan_meta)

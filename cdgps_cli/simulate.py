@@ -40,6 +40,7 @@ from .config import StructureConfig
 from .dynamics import discrete_model
 from .atomic import write_atomic
 from .errors import CdgpsError
+from .limits import check_table_size
 from .kinematics import gyro_matrix
 from .measurement import all_channels, phase_model_q
 
@@ -148,6 +149,13 @@ def _validate(cfg: StructureConfig, opt: SimOptions) -> None:
         problems.append("random slips: expected a non-negative count")
     if problems:
         raise CdgpsError("invalid simulation options:\n  - " + "\n  - ".join(problems))
+    check_table_size(opt.duration_s / cfg.sample_period_s + 1, len(cfg.channels), SIM_BYTES_PER_VALUE,
+                     "the simulated phase log", f"--duration {opt.duration_s:g} s")
+
+
+#: memory per epoch and channel while simulating (phase, lock, noise, geometry arrays and the
+#: receiver-log table), bytes: for the bound of :func:`cdgps_cli.limits.check_table_size`
+SIM_BYTES_PER_VALUE = 200
 
 
 def simulate(cfg: StructureConfig, opt: SimOptions) -> Simulation:

@@ -115,6 +115,10 @@ class GuardedCommand(click.Command):
     def invoke(self, ctx):
         from .atomic import refuse_input_overwrite
 
+        from .limits import check_option
+
+        for p in self.params:
+            check_option(p.name, _spelling(p), ctx.params.get(p.name))   # plausible ranges (limits.py)
         outputs, inputs = command_paths(self, ctx.params)
         refuse_input_overwrite(outputs, inputs)
         return super().invoke(ctx)
