@@ -36,7 +36,7 @@ from .config import StructureConfig, channel_sigma_m, scalar_sigma_m
 from .dynamics import discrete_model
 from . import ekf_kernel, progress
 from .errors import CdgpsError
-from .limits import OPTION_BOUNDS
+from .limits import INIT_BOUNDS, OPTION_BOUNDS
 from .validate import has_bool, is_json_number, require_finite
 from .measurement import EpochPhaseModel, channel_indices
 from .run import Run
@@ -147,6 +147,11 @@ def load_init_state(init: dict, cfg: StructureConfig) -> tuple[float, np.ndarray
         raise CdgpsError("INIT.json: state: time_s, x and P must be numbers, not true/false")
     if x.shape != (n,) or P.shape != (n, n) or not np.all(np.isfinite(P)) or not np.all(np.isfinite(x)):
         raise CdgpsError(f"INIT.json: state: expected x of {n} numbers and P of {n}×{n} finite numbers")
+    for name, v in (("state.x", x), ("state.P", P)):
+        b = INIT_BOUNDS[name]
+        if not np.all((v >= b.lo) & (v <= b.hi)):
+            raise CdgpsError(f"INIT.json: {name}: values outside the plausible range {b.text()} "
+                             f"(largest magnitude {float(np.max(np.abs(v))):g})")
     P = 0.5 * (P + P.T)
     try:
         np.linalg.cholesky(P)

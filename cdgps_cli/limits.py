@@ -10,7 +10,7 @@ docs/config-format.md ("Bounds").
   of an array of tables or of a vector; ``*`` for any key of a table);
 * :data:`OPTION_BOUNDS`: command-line options (Python parameter name → bounds), checked for every
   command by :class:`cdgps_cli.validate.GuardedCommand`;
-* :data:`LOG_BOUNDS`: CSV log columns;
+* :data:`LOG_BOUNDS`: CSV log columns; :data:`INIT_BOUNDS`: the INIT.json state;
 * :data:`MAX_TABLE_BYTES`: the largest table a run may need in memory (epochs × channels), see
   :func:`check_table_size`.
 """
@@ -128,6 +128,13 @@ LOG_BOUNDS: dict[str, Bound] = {
     "snr_dbhz": Bound(-100.0, 200.0, "dB-Hz"),
     "rate_rad_s": Bound(-1e4, 1e4, "rad/s"),
     "force_n": Bound(-1e9, 1e9, "N"),
+}
+
+#: INIT.json state (ekf.load_init_state): modal coordinates, angles (rad), translations (m) and
+#: their velocities, and the covariance entries
+INIT_BOUNDS: dict[str, Bound] = {
+    "state.x": Bound(-1e6, 1e6),
+    "state.P": Bound(-1e12, 1e12),
 }
 
 #: largest in-memory table a command may build (epochs × channels × bytes per value), bytes

@@ -185,7 +185,12 @@ class McapOut:
             raise CdgpsError(f"{self.path}: cannot write: {exc.strerror}") from None
         self.writer = Writer(self._fh, compression=CompressionType.ZSTD, enable_crcs=True,
                              enable_data_crcs=True, chunk_size=1 << 20)
-        self.writer.start(profile=self.profile, library="cdgps")
+        try:
+            self.writer.start(profile=self.profile, library="cdgps")
+        except OSError as err:                  # full disk already at the header
+            self._fh.close()
+            self.tmp.unlink(missing_ok=True)
+            raise output_error(self.path, err) from None
         return self
 
     def channel(self, topic: str, schema: dict, metadata: dict | None = None) -> int:
