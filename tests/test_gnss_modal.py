@@ -210,7 +210,7 @@ def test_simulate_gnss_structure_command_is_deterministic(tmp_path):
     for f in files:
         assert (tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes(), f
     r = run_cli("simulate-gnss-structure", TOWER, "--duration", "-1", "--out", tmp_path / "c")
-    assert r.exit_code == 2 and "--duration must be positive" in r.output and not (tmp_path / "c").exists()
+    assert r.exit_code == 2 and "--duration" in r.output and "Traceback" not in r.output and not (tmp_path / "c").exists()
 
 
 @pytest.mark.parametrize("args,message", [
