@@ -389,7 +389,10 @@ def evaluate(truth_dir: str | Path, states_path: str | Path, converge_s: float =
         inside_nis = (st.nis[ok] >= chi2.ppf(0.025, st.nis_dof[ok])) & (st.nis[ok] <= chi2.ppf(0.975, st.nis_dof[ok]))
         out["nis"] = {"mean_per_dof": float(np.mean(r)), "fraction_in_interval95": float(np.mean(inside_nis))}
     # bias errors: final biases vs truth (latest segment per channel)
-    fb = json.loads(st.metadata.get("final_biases", "[]"))
+    try:
+        fb = json.loads(st.metadata.get("final_biases", "[]"))
+    except json.JSONDecodeError as exc:
+        raise CdgpsError(f"{states_path}: metadata final_biases is not valid JSON ({exc.msg}): corrupt file") from None
     tb = {(b["antenna"], b["transmitter"]): b["bias_m"] for b in tj.get("biases", [])}
     for s in tj.get("slips", []):
         if s["time_s"] <= time[-1] + 1e-9:

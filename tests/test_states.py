@@ -295,11 +295,11 @@ BAD_ESTIMATE = {
     "run missing": ("run:nope", "no such file"),
     "run not mcap": ("run:text", "not a valid MCAP"),
     "nis probability 2": ("opt:--nis-probability=2", "--nis-probability must be in (0.5, 1)"),
-    "outlier sigma 0": ("opt:--outlier-sigma=0", "--outlier-sigma must be positive"),
+    "outlier sigma 0": ("opt:--outlier-sigma=0", "--outlier-sigma 0: outside the plausible range"),
     "rest not an interval": ("opt:--rest=abc", "--rest 'abc': expected START:END"),
     "rest end before start": ("opt:--rest=90:80", "END must be after START"),
     "rest nan": ("opt:--rest=nan:90", "START must be a finite time"),
-    "rest scale negative": ("opt:--rest-process-noise-scale=-1", "--rest-process-noise-scale must be a positive"),
+    "rest scale negative": ("opt:--rest-process-noise-scale=-1", "--rest-process-noise-scale -1: outside the plausible range"),
     "rest retry nan": ("opt:--rest-retry-s=nan", "Invalid value for '--rest-retry-s': 'nan' is not a finite number"),
 }
 
