@@ -95,7 +95,7 @@ OPTION_BOUNDS: dict[str, Bound] = {
     "multipath_sigma_m": Bound(0.0, 100.0, "m"),
     "disturbance_scale": Bound(0.0, 1e3),
     "random_slips": Bound(0, 1_000_000),
-    "ratio_threshold": Bound(1.0, 1e6),
+    "ratio_threshold": Bound(1.0, 1e12),
     "starts": Bound(1, 10_000),
     "max_iterations": Bound(1, 100_000),
     "sigma_m": Bound(1e-6, 100.0, "m"),

@@ -249,9 +249,9 @@ def test_cli_init_deterministic(cli_mcap, tmp_path):
     assert len(data["run_sha256"]) == 64 and "elapsed_s" not in data
 
 
-@pytest.mark.parametrize("args,what", [(["--ratio", "0.5"], "--ratio must be greater than 1"),
+@pytest.mark.parametrize("args,what", [(["--ratio", "0.5"], "--ratio 0.5: outside the plausible range"),
                                        (["--starts", "0"], "--starts"),
-                                       (["--duration", "-5"], "--duration must be positive"),
+                                       (["--duration", "-5"], "--duration -5: outside the plausible range"),
                                        (["--start", "1000"], "outside the recording")])
 def test_cli_bad_option(cli_mcap, tmp_path, args, what):
     mcap = cli_mcap
