@@ -431,8 +431,6 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
 
     if not 0.5 < nis_probability < 1.0:
         raise CdgpsError(f"--nis-probability must be in (0.5, 1), got {nis_probability:g}")
-    if outlier_sigma <= 0:
-        raise CdgpsError(f"--outlier-sigma must be positive, got {outlier_sigma:g}")
     from .file_checks import read_init_json
 
     init, init_text = read_init_json(init_json)
@@ -839,8 +837,6 @@ def config_cmd(ctx, rinex, ubx, nav, master, displacement, sigma, name, output):
 
     if sigma is not None and displacement != "random_walk":
         raise CdgpsError("--sigma is the random-walk process noise: use it with --displacement random_walk")
-    if sigma is not None and not sigma > 0:
-        raise CdgpsError(f"--sigma must be positive (m/√s), got {sigma:g}")
     text = starter_gnss_config(_parse_named(rinex, "--rinex"), _parse_named(ubx, "--ubx"), list(nav), master,
                                displacement=displacement, sigma_m_per_sqrt_s=sigma,
                                relative_to=Path(output).resolve().parent, name=name)

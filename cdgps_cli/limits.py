@@ -43,6 +43,8 @@ class Bound:
 _LENGTH = Bound(-1e7, 1e7, "m")          # a structure in a lab or on Earth: within 10,000 km
 _SIGMA = Bound(0.0, 100.0, "m", lo_open=True)
 _DURATION = Bound(0.0, 1e9, "s")         # 31.7 years
+_NOISE = Bound(0.0, 100.0, "m")          # a simulated noise or multipath σ (0 = none)
+_SCALE = Bound(0.0, 1e3)                 # a simulated disturbance scale
 
 #: structure-config keys (docs/config-format.md)
 CONFIG_BOUNDS: dict[str, Bound] = {
@@ -68,13 +70,13 @@ CONFIG_BOUNDS: dict[str, Bound] = {
     "gyros[].rotation_rad.*[]": Bound(-1e4, 1e4, "rad per unit coordinate"),
     "points[].position_m[]": _LENGTH,
     "points[].displacement_m.*[]": Bound(-1e4, 1e4, "m per unit coordinate"),
-    "simulation.phase_sigma_m": Bound(0.0, 100.0, "m"),
-    "simulation.multipath_sigma_m": Bound(0.0, 100.0, "m"),
+    "simulation.phase_sigma_m": _NOISE,
+    "simulation.multipath_sigma_m": _NOISE,
     "simulation.multipath_time_constant_s": Bound(1e-3, 1e9, "s"),
     "simulation.snr_dbhz": Bound(0.0, 100.0, "dB-Hz"),
     "simulation.initial_modal_sigma": Bound(0.0, 1e6),
     "simulation.initial_rigid_sigma_rad": Bound(0.0, 1e3, "rad"),
-    "simulation.disturbance_scale": Bound(0.0, 1e3),
+    "simulation.disturbance_scale": _SCALE,
     "simulation.gyro_noise_rad_s": Bound(0.0, 1e3, "rad/s"),
     "simulation.gyro_bias_sigma_rad_s": Bound(0.0, 1e3, "rad/s"),
     "simulation.gyro_bias_drift_rad_s_per_sqrt_s": Bound(0.0, 1e3, "rad/s/√s"),
@@ -90,10 +92,10 @@ CONFIG_BOUNDS: dict[str, Bound] = {
 #: command-line options, by Python parameter name (the same bound wherever the option appears)
 OPTION_BOUNDS: dict[str, Bound] = {
     "seed": Bound(0, 2**63 - 1),
-    "duration_s": Bound(0.0, 1e9, "s"),
-    "phase_sigma_m": Bound(0.0, 100.0, "m"),
-    "multipath_sigma_m": Bound(0.0, 100.0, "m"),
-    "disturbance_scale": Bound(0.0, 1e3),
+    "duration_s": _DURATION,
+    "phase_sigma_m": _NOISE,
+    "multipath_sigma_m": _NOISE,
+    "disturbance_scale": _SCALE,
     "random_slips": Bound(0, 1_000_000),
     "ratio_threshold": Bound(1.0, 1e12),
     "starts": Bound(1, 10_000),
@@ -114,7 +116,7 @@ OPTION_BOUNDS: dict[str, Bound] = {
     "mask_deg": Bound(-90.0, 90.0, "deg"),
     "rate_hz": Bound(0.0, 1000.0, "Hz", lo_open=True),
     "random_walk": Bound(0.0, 10.0, "m/√s"),
-    "phase_noise_m": Bound(0.0, 100.0, "m"),
+    "phase_noise_m": _NOISE,
     "code_noise_m": Bound(0.0, 1e4, "m"),
     "n_slips": Bound(0, 1_000_000),
     "sigma": Bound(0.0, 10.0, "m/√s", lo_open=True),
