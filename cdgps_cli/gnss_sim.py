@@ -36,6 +36,7 @@ from .config import GnssConfig, gnss_config_toml
 from .ephemeris import ecef_to_geodetic, enu_matrix
 from .errors import CdgpsError
 from .gnss import simulate_static_pair, synthetic_gps_nav
+from .limits import check_table_size
 from .rinex import gps_seconds, gps_time_str, read_rinex_nav
 from .rinex_write import rinex_calendar, write_rinex_nav, write_rinex_obs
 
@@ -68,6 +69,13 @@ def parse_start(text: str) -> float:
         except ValueError:
             continue
     raise CdgpsError(f"--start expects a GPS date/time YYYY-MM-DD or YYYY-MM-DDTHH:MM:SS, got {text!r}")
+
+
+#: satellites a simulated receiver may track at once (GPS PRN 1-32), for the memory bound
+GPS_PRN_SLOTS = 32
+#: memory per epoch and receiver-satellite pair while simulating (geometry, observables, RINEX text),
+#: bytes: an upper estimate for :func:`cdgps_cli.limits.check_table_size`
+PAIR_BYTES_PER_VALUE = 100
 
 
 def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_hz: float = 1.0, seed: int = 0,
@@ -134,6 +142,8 @@ def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_
         raise CdgpsError(f"--slips must be >= 0, got {n_slips}")
     out = Path(out_dir)
     interval = 1.0 / rate_hz
+    check_table_size(duration_s * rate_hz + 1, 2 * GPS_PRN_SLOTS, PAIR_BYTES_PER_VALUE,
+                     "the simulated observation tables", f"--duration {duration_s:g} s at --rate-hz {rate_hz:g}")
     if nav_paths:
         navs = [read_rinex_nav(p) for p in nav_paths]
         nav = pd.concat(navs, ignore_index=True).drop_duplicates(subset=["sat", "toe_gps_s", "iode", "af0_s"])

@@ -263,6 +263,8 @@ def test_implausible_init_state_is_refused(base, tmp_path):
     (["simulate", "{cfg}", "--seed", "-1"], ["--seed", "outside the plausible range"]),
     (["simulate", "{cfg}", "--duration", "1e12"], ["--duration", "outside the plausible range"]),
     (["simulate", "{cfg}", "--duration", "1e9"], ["--duration", "would need about", "TiB"]),
+    (["simulate-gnss", "--duration", "1e9"], ["--duration", "would need about", "TiB"]),
+    (["simulate-gnss", "--duration", "86400", "--rate-hz", "100"], ["--rate-hz 100", "would need about", "GiB"]),
     (["init", "{run}", "--ratio", "nan"], ["--ratio", "not a finite number"]),
     (["init", "{run}", "--starts", "1000000000"], ["--starts", "outside the plausible range"]),
     (["spectra", "{run}", "--segment-s", "inf"], ["--segment-s", "not a finite number"]),
