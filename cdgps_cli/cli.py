@@ -1072,5 +1072,67 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
         _emit_json(s)
 
 
+
+@main.group(short_help="LQR gain design for the thrusters (1998 Sec. V)")
+def control():
+    """Control with GPS in the loop: discrete LQR design on the modal model (1998 paper, Sec. V)."""
+
+
+def _weights_option(text: str | None, name: str):
+    """--qx / --qu: one number or a comma-separated diagonal (the library checks the length)."""
+    if text is None:
+        return None
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise CdgpsError(f"{name} {text!r}: expected a number or comma-separated numbers, e.g. 5000 or 1,1,0.5") from None
+    return values[0] if len(values) == 1 else values
+
+
+@control.command("design", short_help="Discrete LQR gain → GAINS.json (+ z-plane figure)")
+@click.argument("config", type=click.Path(dir_okay=False))
+@click.option("--qx", default=None, metavar="W|LIST",
+              help="State weight: one number replaces the paper's 5000 in Qx* = W·diag(1,…,1,0.01), "
+                   "Qx = diag(Qx*, 0.01·Qx*); or the whole diagonal of Qx (amplitudes, then rates) "
+                   "[paper's weights].")
+@click.option("--qu", default=None, metavar="R|LIST",
+              help="Input weight: one number (times I) or one per thruster [I, the paper's].")
+@_output_option("out_json", "GAINS.json to write.")
+@click.option("--figure", "figure_png", default=None, type=click.Path(dir_okay=False),
+              help="Also write the z-plane pole figure (Fig. 6 style) to this PNG.")
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (poles, settling times) on stdout.")
+@click.pass_context
+def control_design(ctx, config, qx, qu, out_json, figure_png, as_json):
+    """Discrete LQR u = −K x on the config's modal model (Eq. 4, 24) with the paper's weights by default.
+
+    Writes the model A, B the gain was designed on, the weights, K, and the open- and closed-loop poles
+    (z and s planes, frequency, damping, 2 % settling time per mode).  The thruster force model Υ is
+    derived from the config's thruster geometry (the paper's is not published).
+    """
+    from .config import load_config
+    from .control.design import design_for_structure, state_names
+    from .gains_file import gains_record, write_gains
+
+    cfg = load_config(config)
+    opts = {"qx": qx, "qu": qu}
+    design, poles = design_for_structure(cfg, _weights_option(qx, "--qx"), _weights_option(qu, "--qu"))
+    rec = gains_record(design, poles, config_path=config, state_names=state_names(cfg),
+                       thruster_names=cfg.thruster_names, options=opts)
+    write_gains(out_json, rec)
+    if figure_png:
+        from .control_figures import pole_figure
+
+        pole_figure(poles, figure_png, f"{cfg.name}: LQR poles at {1 / design.sample_period_s:g} Hz")
+    settle = poles["settling_time_s"]["closed_loop"]
+    _say(ctx, f"wrote {out_json}: K {design.K.shape[0]}×{design.K.shape[1]}, Riccati residual "
+              f"{design.riccati_residual:.1e}" + (f", figure {figure_png}" if figure_png else ""))
+    for mode, t in settle.items():
+        t0 = poles["settling_time_s"]["open_loop"][mode]
+        _say(ctx, f"  {mode:<12} 2% settling: open loop {'∞' if t0 is None else f'{t0:.1f} s':>9}, "
+                  f"closed loop {'∞' if t is None else f'{t:.1f} s':>9}")
+    if as_json:
+        _emit_json({"output": out_json, "riccati_residual": design.riccati_residual,
+                    "settling_time_s": poles["settling_time_s"], "poles": poles})
+
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())

@@ -1,0 +1,85 @@
+"""`cdgps control design`: GAINS.json contents, figure, determinism and bad input."""
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from cdgps_cli.atomic import file_sha256
+from cdgps_cli.cli import main
+from cdgps_cli.control.design import design_for_structure
+from cdgps_cli.errors import CdgpsError
+from cdgps_cli.gains_file import read_gains
+
+
+def _run(*args):
+    return CliRunner().invoke(main, ["-q", *map(str, args)])
+
+
+def _clean_error(r, *words):
+    assert r.exit_code == 2, r.output
+    assert isinstance(r.exception, SystemExit) and "Traceback" not in r.output
+    for w in words:
+        assert w in r.output, r.output
+
+
+@pytest.fixture(scope="module")
+def gains(tmp_path_factory, testbed_path):
+    d = tmp_path_factory.mktemp("gains")
+    r = _run("control", "design", testbed_path, "-o", d / "gains.json", "--figure", d / "poles.png", "--json")
+    assert r.exit_code == 0, r.output
+    return d, json.loads(r.stdout)
+
+
+def test_gains_json_holds_the_design(gains, testbed_path, testbed_cfg):
+    d, summary = gains
+    doc = read_gains(d / "gains.json", testbed_path)
+    ref, poles = design_for_structure(testbed_cfg)
+    for key in ("A", "B", "Qx", "Qu", "K"):
+        np.testing.assert_array_equal(doc[key], getattr(ref, key))
+    assert doc["config"]["sha256"] == file_sha256(testbed_path)
+    assert len(doc["poles"]["closed_loop"]) == testbed_cfg.n_modes
+    assert summary["settling_time_s"]["closed_loop"]["rigid-body"] == pytest.approx(
+        poles["settling_time_s"]["closed_loop"]["rigid-body"])
+    assert (d / "poles.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_same_inputs_same_bytes(gains, testbed_path, tmp_path):
+    d, _ = gains
+    assert _run("control", "design", testbed_path, "-o", tmp_path / "g.json", "--figure", tmp_path / "p.png").exit_code == 0
+    assert (tmp_path / "g.json").read_bytes() == (d / "gains.json").read_bytes()
+    assert (tmp_path / "p.png").read_bytes() == (d / "poles.png").read_bytes()
+
+
+def test_gain_for_another_config_is_refused(gains, dof2_path):
+    d, _ = gains
+    with pytest.raises(CdgpsError, match="designed for config"):
+        read_gains(d / "gains.json", dof2_path)
+
+
+@pytest.mark.parametrize("args,words", [
+    (["--qx", "nan"], ["Qx: every entry must be a finite"]),
+    (["--qx", "-5"], ["Qx: must be positive semi-definite"]),
+    (["--qx", "a,b"], ["--qx 'a,b': expected a number"]),
+    (["--qu", "0"], ["Qu: must be positive definite"]),
+    (["--qx", "1,2"], ["qx: expected one number or 18 numbers"]),
+    (["--qx", ",".join(["5000"] * 8 + ["0"] + ["50"] * 8 + ["0"])], ["rigid-body", "undetectable"]),
+])
+def test_bad_weights_exit_2_and_write_nothing(testbed_path, tmp_path, args, words):
+    r = _run("control", "design", testbed_path, *args, "-o", tmp_path / "g.json", "--figure", tmp_path / "p.png")
+    _clean_error(r, *words)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_config_without_thrusters_is_refused(dof2_path, tmp_path):
+    _clean_error(_run("control", "design", dof2_path, "-o", tmp_path / "g.json"), "no [[thrusters]]")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_corrupt_gains_file_is_named(tmp_path):
+    p = tmp_path / "g.json"
+    p.write_text('{"format": "cdgps-gains", "version": 1, "state_names": ["a"], "thruster_names": ["t"], '
+                 '"A": [[1]], "B": [[1]], "Qx": [[1]], "Qu": [[1]], "K": [["x"]], "config": {}}')
+    with pytest.raises(CdgpsError, match="key 'K'"):
+        read_gains(p)
