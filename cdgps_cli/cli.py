@@ -156,8 +156,9 @@ def main(ctx, quiet):
 @click.argument("config", type=click.Path(dir_okay=False))
 @click.option("--duration", "duration_s", type=float, default=60.0, show_default=True, help="Seconds to simulate.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed (same seed → identical files).")
-@click.option("--scenario", type=click.Choice(["free", "static", "pulse"]), default="free", show_default=True,
-              help="free vibration; static (motion, then rest at the surveyed angle); pulse (Fig. 9 thruster pulse).")
+@click.option("--scenario", type=click.Choice(["free", "static", "pulse", "slew"]), default="free", show_default=True,
+              help="free vibration; static (motion, then rest at the surveyed angle); pulse (Fig. 9 thruster pulse); "
+                   "slew (Fig. 11, needs --controller).")
 @click.option("--noise-m", "phase_sigma_m", type=float, default=None, help="White phase noise, metres (default: config [simulation]).")
 @click.option("--multipath-m", "multipath_sigma_m", type=float, default=None, help="Slow multipath sigma, metres (default: config).")
 @click.option("--slip", "slips", multiple=True, metavar="ANT:TX:TIME_S:CYCLES", help="Inject a cycle slip (repeatable).")
@@ -165,11 +166,18 @@ def main(ctx, quiet):
 @click.option("--random-slips", type=int, default=0, show_default=True, help="Number of random cycle slips to inject.")
 @click.option("--disturbance-scale", type=float, default=None,
               help="True disturbance as a fraction of the config's process noise (default: config; 1 = filter model).")
+@click.option("--controller", "gains_json", default=None, type=click.Path(dir_okay=False),
+              help="Close the loop with this GAINS.json (from `cdgps control design`): EKF on the carrier phase, "
+                   "LQR, PWPF modulators, on/off thrusters (pulse or slew scenario).")
+@click.option("--no-vibration-control", is_flag=True,
+              help="With --controller: the rigid-body-only regulator of Fig. 12 (vibration poles left open loop).")
+@click.option("--feedback", type=click.Choice(["gps", "truth"]), default="gps", show_default=True,
+              help="With --controller: feed back the EKF's estimate, or the true state (full-state feedback).")
 @_output_option("out_dir", "Output directory.", directory=True, old=("--out",))
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
 def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_sigma_m, slips, outages,
-             random_slips, disturbance_scale, out_dir, as_json):
+             random_slips, disturbance_scale, gains_json, no_vibration_control, feedback, out_dir, as_json):
     """Simulate a structure run: receiver.csv, gyro.csv, truth.csv, truth.json (+ actuators.csv)."""
     from .config import load_config
     from .simulate import SimOptions, parse_outage, parse_slip, simulate as run_sim, write_simulation
@@ -180,8 +188,17 @@ def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_s
                      outages=[parse_outage(o) for o in outages], random_slips=random_slips,
                      disturbance_scale=disturbance_scale)
     _say(ctx, f"simulating {cfg.name}: {scenario}, {duration_s:g} s, seed {seed} …")
+    if gains_json is None and (no_vibration_control or feedback != "gps"):
+        raise CdgpsError("--no-vibration-control and --feedback need --controller GAINS.json")
     with progress.stage("simulating"):
-        sim = run_sim(cfg, opt)
+        if gains_json is None:
+            sim = run_sim(cfg, opt)
+        else:
+            from .control.closed_loop import simulate_closed_loop
+            from .gains_file import read_gains
+
+            sim, _ = simulate_closed_loop(cfg, opt, read_gains(gains_json, config),
+                                          vibration_control=not no_vibration_control, feedback=feedback)
     summary = write_simulation(sim, out_dir)
     _say(ctx, f"wrote {summary['receiver_rows']} phase rows, {summary['gyro_rows']} gyro rows, "
               f"{summary['slips']} slip/relock events to {out_dir}/")

@@ -273,7 +273,14 @@ _SIM_DEFAULTS = {
     "pulse_duration_s": 1.0,
     "pulse_thrusters": [],
     "pulse_force_n": 1.4,
+    "slew_from_deg": 14.0,
+    "slew_to_deg": -22.0,
+    "slew_time_s": 5.0,
 }
+
+
+#: [simulation] numbers that may be negative (angles)
+_SIGNED_SIM_KEYS = {"static_angle_deg", "slew_from_deg", "slew_to_deg"}
 
 
 class _Checker:
@@ -803,7 +810,7 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
                     chk.add(f"simulation.{k}", f"expected a list of thruster names ({', '.join(u_names) or 'none defined'})")
                     continue
             else:
-                v = chk.number(st, "simulation", k, d, nonneg=(k != "static_angle_deg"))
+                v = chk.number(st, "simulation", k, d, nonneg=(k not in _SIGNED_SIM_KEYS))
             sim[k] = v
 
     if chk.problems:

@@ -87,6 +87,9 @@ CONFIG_BOUNDS: dict[str, Bound] = {
     "simulation.pulse_time_s": _DURATION,
     "simulation.pulse_duration_s": _DURATION,
     "simulation.pulse_force_n": Bound(-1e9, 1e9, "N"),
+    "simulation.slew_from_deg": Bound(-360.0, 360.0, "deg"),
+    "simulation.slew_to_deg": Bound(-360.0, 360.0, "deg"),
+    "simulation.slew_time_s": _DURATION,
 }
 
 #: command-line options, by Python parameter name (the same bound wherever the option appears)

@@ -26,6 +26,7 @@ removes rows and re-acquires with a new integer.  Gyros read G·q̇ + bias + dri
 
 from __future__ import annotations
 
+import copy
 import json
 import re
 from dataclasses import dataclass, field
@@ -44,7 +45,7 @@ from .limits import check_table_size
 from .kinematics import gyro_matrix
 from .measurement import all_channels, phase_model_q
 
-SCENARIOS = ("free", "static", "pulse")
+SCENARIOS = ("free", "static", "pulse", "slew")
 
 
 @dataclass
@@ -119,10 +120,11 @@ class Simulation:
     gyro: pd.DataFrame
     actuators: pd.DataFrame | None
     truth: dict
+    tables: dict = field(default_factory=dict)    # further CSV files by name (closed loop: controller.csv)
 
 
-def _validate(cfg: StructureConfig, opt: SimOptions) -> None:
-    problems = []
+def _validate(cfg: StructureConfig, opt: SimOptions, closed_loop: bool = False) -> None:
+    problems = _closed_loop_problems(cfg, opt, closed_loop)
     if opt.scenario not in SCENARIOS:
         problems.append(f"scenario: expected one of {', '.join(SCENARIOS)}, got {opt.scenario!r}")
     if not (opt.duration_s > 0 and np.isfinite(opt.duration_s)):
@@ -153,24 +155,43 @@ def _validate(cfg: StructureConfig, opt: SimOptions) -> None:
                      "the simulated phase log", f"--duration {opt.duration_s:g} s")
 
 
+def _closed_loop_problems(cfg: StructureConfig, opt: SimOptions, closed_loop: bool) -> list[str]:
+    if not closed_loop:
+        return ["scenario slew: needs a controller (--controller GAINS.json)"] if opt.scenario == "slew" else []
+    problems = []
+    if opt.scenario not in ("pulse", "slew"):
+        problems.append(f"--controller: runs the pulse or slew scenario, not {opt.scenario!r}")
+    if opt.slips or opt.outages or opt.random_slips:
+        problems.append("--controller: slips and outages are not simulated in the closed loop (its estimator "
+                        "sees every channel with known biases)")
+    if opt.scenario == "slew" and cfg.rigid_index is None:
+        problems.append("scenario slew: the config has no rigid-body coordinate to slew")
+    return problems
+
+
 #: memory per epoch and channel while simulating (phase, lock, noise, geometry arrays and the
 #: receiver-log table), bytes: for the bound of :func:`cdgps_cli.limits.check_table_size`
 SIM_BYTES_PER_VALUE = 200
 
 
-def simulate(cfg: StructureConfig, opt: SimOptions) -> Simulation:
+def simulate(cfg: StructureConfig, opt: SimOptions, trajectory=None) -> Simulation:
     """Run a simulation (pure computation, no I/O).
 
     Parameters
     ----------
     cfg : StructureConfig
     opt : SimOptions
+    trajectory : callable, optional
+        Replaces the open-loop propagation (the closed loop of :mod:`cdgps_cli.control`):
+        ``trajectory(time_s, x0, w, noise_m) -> (x, actuators, extra)`` with the true modal states
+        (N, 2 n_m), the actuator log as fired (or None) and a dict merged into truth.json;
+        ``noise_m`` (N, C) is the carrier-phase error the receiver log will carry.
 
     Returns
     -------
     Simulation
     """
-    _validate(cfg, opt)
+    _validate(cfg, opt, closed_loop=trajectory is not None)
     sim = cfg.simulation
     rng = np.random.default_rng(opt.seed)
     model = discrete_model(cfg)
@@ -204,11 +225,13 @@ def simulate(cfg: StructureConfig, opt: SimOptions) -> Simulation:
             x0[:nm][rigid_mode] = rng.standard_normal(rigid_mode.sum()) * sim["initial_rigid_sigma_rad"] / scale
     else:
         x0[:nm] = rng.standard_normal(nm) * amp * 0.02       # nearly at rest
+        if opt.scenario == "slew":
+            x0[:nm][rigid_mode] = np.radians(sim["slew_from_deg"]) / U[cfg.rigid_index, rigid_mode]
         names = list(cfg.thruster_names)
         t0, dur, f = sim["pulse_time_s"], sim["pulse_duration_s"], sim["pulse_force_n"]
         on = (time_s >= t0 - 1e-9) & (time_s < t0 + dur - 1e-9)
         rows = []
-        for tname in sim["pulse_thrusters"]:
+        for tname in (sim["pulse_thrusters"] if opt.scenario == "pulse" else []):
             k = names.index(tname)
             u[on, k] = f
             rows.append((t0, tname, f))
@@ -216,13 +239,18 @@ def simulate(cfg: StructureConfig, opt: SimOptions) -> Simulation:
         rows.sort(key=lambda r: (r[0], names.index(r[1])))
         actuators = pd.DataFrame(rows, columns=["time_s", "actuator", "force_n"])
 
-    # ---- propagate the modal state (ZOH on u and w)
-    x = np.empty((n, 2 * nm))
-    x[0] = x0
-    drive = u @ model.B.T + w @ model.Bw.T
-    A_T = model.A.T
-    for k in range(1, n):
-        x[k] = x[k - 1] @ A_T + drive[k - 1]
+    # ---- propagate the modal state (ZOH on u and w), or run the closed loop
+    extra = {}
+    if trajectory is not None:
+        noise_m = _phase_noise(cfg, opt, copy.deepcopy(rng), n, len(all_channels(cfg)[0]))
+        x, actuators, extra = trajectory(time_s, x0, w, noise_m)
+    else:
+        x = np.empty((n, 2 * nm))
+        x[0] = x0
+        drive = u @ model.B.T + w @ model.Bw.T
+        A_T = model.A.T
+        for k in range(1, n):
+            x[k] = x[k - 1] @ A_T + drive[k - 1]
     q = x[:, :nm] @ U.T
     qdot = x[:, nm:] @ U.T
 
@@ -256,7 +284,13 @@ def simulate(cfg: StructureConfig, opt: SimOptions) -> Simulation:
                      "end_s": float(sim["pulse_time_s"] + sim["pulse_duration_s"]),
                      "thrusters": list(sim["pulse_thrusters"]), "force_n": float(sim["pulse_force_n"])},
                     {"kind": "free", "start_s": float(sim["pulse_time_s"] + sim["pulse_duration_s"]), "end_s": float(time_s[-1])}]
+    elif opt.scenario == "slew":
+        segments = [{"kind": "rest", "start_s": 0.0, "end_s": float(sim["slew_time_s"]),
+                     "rigid_angle_deg": float(sim["slew_from_deg"])},
+                    {"kind": "slew", "start_s": float(sim["slew_time_s"]), "end_s": float(time_s[-1]),
+                     "command_deg": float(sim["slew_to_deg"])}]
     truth["segments"] = segments
+    truth.update(extra)
 
     receiver, bias_records, slip_records = _phase_log(cfg, opt, rng, time_s, q)
     truth["biases"] = bias_records
@@ -274,14 +308,7 @@ def _phase_log(cfg, opt, rng, time_s, q):
     ant, tx = all_channels(cfg)
     C = len(ant)
     h = phase_model_q(cfg, q, ant, tx)                          # (N, C)
-    sigma = sim["phase_sigma_m"] if opt.phase_sigma_m is None else opt.phase_sigma_m
-    mp_sigma = sim["multipath_sigma_m"] if opt.multipath_sigma_m is None else opt.multipath_sigma_m
-    noise = rng.standard_normal((n, C)) * sigma
-    if mp_sigma > 0:
-        a = np.exp(-T / sim["multipath_time_constant_s"])
-        e = rng.standard_normal((n, C)) * mp_sigma * np.sqrt(1 - a * a)
-        e[0] = rng.standard_normal(C) * mp_sigma
-        noise += lfilter([1.0], [1.0, -a], e, axis=0)
+    noise = _phase_noise(cfg, opt, rng, n, C)
     line_bias = cfg.antenna_line_bias_m[ant] - cfg.antenna_line_bias_m[cfg.master_index]
     ant_names = np.array(cfg.antenna_names, dtype=object)[ant]
     tx_names = np.array(cfg.transmitter_names, dtype=object)[tx]
@@ -354,6 +381,21 @@ def _phase_log(cfg, opt, rng, time_s, q):
     return df, bias_records, slip_records
 
 
+def _phase_noise(cfg, opt, rng, n, C):
+    """Carrier-phase error of every channel, m, shape (n, C): white noise plus first-order
+    Gauss–Markov multipath (the config's [simulation] values unless the options override them)."""
+    sim = cfg.simulation
+    sigma = sim["phase_sigma_m"] if opt.phase_sigma_m is None else opt.phase_sigma_m
+    mp_sigma = sim["multipath_sigma_m"] if opt.multipath_sigma_m is None else opt.multipath_sigma_m
+    noise = rng.standard_normal((n, C)) * sigma
+    if mp_sigma > 0:
+        a = np.exp(-cfg.sample_period_s / sim["multipath_time_constant_s"])
+        e = rng.standard_normal((n, C)) * mp_sigma * np.sqrt(1 - a * a)
+        e[0] = rng.standard_normal(C) * mp_sigma
+        noise += lfilter([1.0], [1.0, -a], e, axis=0)
+    return noise
+
+
 def _gyro_log(cfg, rng, time_s, qdot):
     sim = cfg.simulation
     ng = len(cfg.gyro_names)
@@ -403,6 +445,8 @@ def write_simulation(result: Simulation, out_dir: str | Path) -> dict:
     truth_df = pd.DataFrame(np.round(result.q, 12), columns=list(cfg.coord_names))
     truth_df.insert(0, "time_s", result.time_s)
     csv(truth_df, "truth.csv")
+    for name, df in result.tables.items():
+        csv(df, name)
     if result.actuators is not None:
         csv(result.actuators, "actuators.csv")
     else:

@@ -8,7 +8,7 @@ import numpy as np
 from ..config import StructureConfig
 from ..dynamics import discrete_model
 from ..errors import CdgpsError
-from .lqr import LqrDesign, design_lqr, paper_weights
+from .lqr import PAPER_RATE_FACTOR, LqrDesign, design_lqr, paper_weights
 from .poles import pole_table, slowest_settling_by_mode
 
 
@@ -71,3 +71,41 @@ def design_for_structure(cfg: StructureConfig, qx=None, qu=None) -> tuple[LqrDes
     return d, {"open_loop": ol, "closed_loop": cl,
                "settling_time_s": {"open_loop": slowest_settling_by_mode(ol),
                                    "closed_loop": slowest_settling_by_mode(cl)}}
+
+
+def rigid_only_gain(cfg: StructureConfig, A: np.ndarray, B: np.ndarray, target_settling_s: float) -> np.ndarray:
+    """The low-bandwidth regulator of the paper's Fig. 12: feedback of the rigid-body mode only.
+
+    An LQR on the rigid-body amplitude and rate alone (weights w·diag(1, 0.01), Q_u = I), with w chosen
+    by bisection so that the rigid-body pole settles (2 %) in ``target_settling_s``; the gain has zero
+    columns for every elastic state, so A − B K is block triangular and the vibration poles stay
+    where they are open loop.
+
+    Returns
+    -------
+    ndarray, shape (m, n)
+    """
+    from .poles import pole_table
+
+    rigid = [i for i, f in enumerate(cfg.mode_frequency_hz) if f == 0.0]
+    if len(rigid) != 1:
+        raise CdgpsError("--no-vibration-control: needs exactly one rigid-body mode (frequency 0) in the config")
+    nm = cfg.n_modes
+    idx = [rigid[0], nm + rigid[0]]
+    Ar, Br = A[np.ix_(idx, idx)], B[idx]
+    T = cfg.sample_period_s
+
+    def settle(w):
+        d = design_lqr(Ar, Br, w * np.diag([1.0, PAPER_RATE_FACTOR]), np.eye(B.shape[1]), T)
+        t = max(r["settling_time_s"] or np.inf for r in pole_table(d.closed_loop, T, ["rigid"]))
+        return t, d.K
+
+    lo, hi = -8.0, 8.0                                   # log10 of the weight
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        t, _ = settle(10.0**mid)
+        lo, hi = (mid, hi) if t > target_settling_s else (lo, mid)
+    _, Kr = settle(10.0**hi)
+    K = np.zeros((B.shape[1], A.shape[0]))
+    K[:, idx] = Kr
+    return K

@@ -1,0 +1,188 @@
+"""Closed loop: exact pulse response, the Kalman step, open-loop equivalence, estimator consistency,
+pulse rejection, the rigid-only regulator, and the `simulate --controller` command."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+from scipy.linalg import expm
+
+from cdgps_cli.cli import main
+from cdgps_cli.control.closed_loop import Disturbance, run_closed_loop, simulate_closed_loop
+from cdgps_cli.control.design import design_for_structure, rigid_only_gain
+from cdgps_cli.control.propagation import PulseResponse
+from cdgps_cli.dynamics import continuous_model, discrete_model, zoh
+from cdgps_cli.estimation.kalman import predict, update
+from cdgps_cli.measurement import all_channels
+from cdgps_cli.simulate import SimOptions, simulate
+
+
+@pytest.fixture(scope="module")
+def design(testbed_cfg):
+    return design_for_structure(testbed_cfg, qx=50.0)
+
+
+def test_full_period_pulse_is_the_zoh_input_matrix(testbed_cfg):
+    Ac, Bc, _ = continuous_model(testbed_cfg)
+    T = testbed_cfg.sample_period_s
+    _, B = zoh(Ac, Bc, T)
+    resp = PulseResponse(Ac, Bc, T)
+    for j in (0, 7, 23):
+        np.testing.assert_allclose(resp([j], [0.0], [T], [1.0]), B[:, j], rtol=0, atol=1e-12 * np.abs(B).max())
+
+
+def test_partial_pulse_matches_matrix_exponential(testbed_cfg):
+    """A pulse on [a, b] inside the period: e^{A_c (T − b)} · (ZOH input over b − a) · F (independent)."""
+    Ac, Bc, _ = continuous_model(testbed_cfg)
+    T, a, b, F = 0.1, 0.0231, 0.0817, 1.4
+    _, Bab = zoh(Ac, Bc, b - a)
+    ref = expm(Ac * (T - b)) @ Bab[:, 5] * F + expm(Ac * (T - 0.05)) @ zoh(Ac, Bc, 0.05)[1][:, 11] * 0.7
+    got = PulseResponse(Ac, Bc, T)([5, 11], [a, 0.0], [b, 0.05], [F, 0.7])
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+
+
+def test_kalman_update_matches_the_textbook_covariance_form():
+    g = np.random.default_rng(4)
+    n, p = 5, 8
+    M = g.normal(size=(n, n))
+    Pb = M @ M.T + np.eye(n)
+    xb, H, r, s = g.normal(size=n), g.normal(size=(p, n)), g.normal(size=p), 0.5 + g.random(p)
+    R = np.diag(s**2)
+    S = H @ Pb @ H.T + R
+    K = Pb @ H.T @ np.linalg.inv(S)
+    x_ref, P_ref = xb + K @ r, (np.eye(n) - K @ H) @ Pb
+    x, P, nis = update(xb, Pb, r, H, s)
+    np.testing.assert_allclose(x, x_ref, atol=1e-12)
+    np.testing.assert_allclose(P, P_ref, atol=1e-12)
+    assert nis == pytest.approx(r @ np.linalg.solve(S, r), rel=1e-10)
+    x2, P2, nis2 = update(xb, Pb, r, H, noise_chol=np.diag(s))          # full-noise path, same R
+    np.testing.assert_allclose(x2, x, atol=1e-12)
+    assert nis2 == pytest.approx(nis, rel=1e-12)
+    A, Q = np.eye(n) * 0.9, np.eye(n) * 0.1
+    xp, Pp = predict(x, P, A, Q, np.ones(n))
+    np.testing.assert_allclose(xp, A @ x + 1)
+    np.testing.assert_allclose(Pp, A @ P @ A.T + Q)
+
+
+def _inputs(cfg, N, seed=1, sigma=0.01):
+    g = np.random.default_rng(seed)
+    C = len(all_channels(cfg)[0])
+    return g.standard_normal((N, C)) * sigma, np.zeros((N, discrete_model(cfg).Bw.shape[1]))
+
+
+def test_zero_gain_reproduces_the_open_loop_simulator(testbed_cfg):
+    """K = 0 with the Fig. 9 pulse: the loop's exact pulse propagation equals simulate()'s ZOH one."""
+    opt = SimOptions(duration_s=12.0, scenario="pulse", disturbance_scale=0.0, seed=3)
+    ref = simulate(testbed_cfg, opt)
+    sim = testbed_cfg.simulation
+    noise, w = _inputs(testbed_cfg, len(ref.time_s))
+    pulse = Disturbance(tuple(sim["pulse_thrusters"]), sim["pulse_time_s"],
+                        sim["pulse_time_s"] + sim["pulse_duration_s"], sim["pulse_force_n"])
+    n = ref.x.shape[1]
+    r = run_closed_loop(testbed_cfg, np.zeros((24, n)), ref.x[0], w, noise, np.zeros((len(ref.time_s), n)), pulse)
+    np.testing.assert_allclose(r.x_true, ref.x, rtol=0, atol=1e-12 * np.abs(ref.x).max())
+
+
+def test_estimator_in_the_loop_is_consistent(testbed_cfg, design):
+    """NEES of the in-loop EKF near its dof, NIS per dof near 1, when the true measurement noise and
+    disturbance are the filter's own (σ and W of the config)."""
+    N = 300
+    sigma = testbed_cfg.measurement_sigma_m
+    noise, w = _inputs(testbed_cfg, N, seed=7, sigma=sigma)
+    w = np.random.default_rng(8).standard_normal(w.shape) * np.asarray(testbed_cfg.process_noise_sigma)
+    d, _ = design
+    n = d.A.shape[0]
+    x0 = np.zeros(n)
+    x0[:9] = 0.05
+    r = run_closed_loop(testbed_cfg, d.K, x0, w, noise, np.zeros((N, n)))
+    e = (r.x_true - r.x_hat) / r.sigma_hat
+    assert 0.6 < np.mean(e[50:] ** 2) < 1.5              # per-state normalized error (diagonal NEES)
+    assert 0.8 < np.mean(r.nis[50:]) / noise.shape[1] < 1.2
+
+
+def test_closed_loop_rejects_the_pulse(testbed_cfg, design):
+    sim = testbed_cfg.simulation
+    N = 120
+    noise, w = _inputs(testbed_cfg, N)
+    pulse = Disturbance(tuple(sim["pulse_thrusters"]), 5.0, 6.0, 1.4)
+    d, _ = design
+    n = d.A.shape[0]
+    U = np.asarray(testbed_cfg.mode_shapes)
+    cols = [list(testbed_cfg.coord_names).index(c) for c in ("q5", "q8")]
+    peaks = []
+    for K in (np.zeros_like(d.K), d.K):
+        r = run_closed_loop(testbed_cfg, K, np.zeros(n), w, noise, np.zeros((N, n)), pulse)
+        peaks.append(np.abs(r.x_true[:, :9] @ U.T[:, cols]).max())
+        firings = r.firings
+    assert peaks[1] < 0.5 * peaks[0]
+    assert all(f <= 1.4 for *_, f, _src in firings)
+
+
+def test_rigid_only_gain_leaves_vibration_poles_open_loop(testbed_cfg, design):
+    d, poles = design
+    target = poles["settling_time_s"]["closed_loop"]["rigid-body"]
+    K = rigid_only_gain(testbed_cfg, d.A, d.B, target)
+    cl = np.sort_complex(np.linalg.eigvals(d.A - d.B @ K))
+    elastic = [i for i, f in enumerate(testbed_cfg.mode_frequency_hz) if f > 0]
+    idx = elastic + [9 + i for i in elastic]
+    ol = np.linalg.eigvals(d.A[np.ix_(idx, idx)])
+    for z in ol:
+        assert np.min(np.abs(cl - z)) < 1e-9
+    from cdgps_cli.control.poles import pole_table
+
+    rows = [r for r in pole_table(d.A - d.B @ K, 0.1, list(testbed_cfg.mode_names)) if r["mode"] == "rigid-body"]
+    assert max(r["settling_time_s"] for r in rows) == pytest.approx(target, rel=1e-3)
+
+
+# ---- the command ---------------------------------------------------------------------------------
+
+
+def _run(*args):
+    return CliRunner().invoke(main, ["-q", *map(str, args)])
+
+
+@pytest.fixture(scope="module")
+def gains_path(tmp_path_factory, testbed_path):
+    p = tmp_path_factory.mktemp("cl") / "gains.json"
+    assert _run("control", "design", testbed_path, "--qx", "50", "-o", p).exit_code == 0
+    return p
+
+
+def test_simulate_with_controller_writes_native_logs(gains_path, testbed_path, testbed_cfg, tmp_path):
+    args = ["simulate", testbed_path, "--scenario", "slew", "--controller", gains_path, "--duration", "8"]
+    r = _run(*args, "-o", tmp_path / "a")
+    assert r.exit_code == 0, r.output
+    files = sorted(p.name for p in (tmp_path / "a").iterdir())
+    assert files == ["actuators.csv", "controller.csv", "gyro.csv", "receiver.csv", "truth.csv", "truth.json"]
+    act = pd.read_csv(tmp_path / "a" / "actuators.csv")
+    assert set(act["actuator"]) <= set(testbed_cfg.thruster_names) and act["force_n"].max() <= 1.4
+    ctrl = pd.read_csv(tmp_path / "a" / "controller.csv")
+    assert {"time_s", "q10_hat", "q10_ref", "nis"} <= set(ctrl.columns)
+    truth = json.loads((tmp_path / "a" / "truth.json").read_text())
+    assert truth["controller"]["feedback"] == "gps" and truth["segments"][1]["kind"] == "slew"
+    assert _run(*args, "-o", tmp_path / "b").exit_code == 0
+    for f in files:
+        assert (tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes(), f
+
+
+@pytest.mark.parametrize("extra,words", [
+    (["--scenario", "slew"], "needs a controller"),
+    (["--no-vibration-control"], "need --controller"),
+    (["--scenario", "free", "--controller", "{gains}"], "runs the pulse or slew scenario"),
+    (["--scenario", "pulse", "--controller", "{gains}", "--random-slips", "2"], "slips and outages"),
+])
+def test_bad_closed_loop_options(gains_path, testbed_path, tmp_path, extra, words):
+    extra = [str(gains_path) if e == "{gains}" else e for e in extra]
+    r = _run("simulate", testbed_path, *extra, "--duration", "2", "-o", tmp_path / "o")
+    assert r.exit_code == 2 and words in r.output, r.output
+    assert not (tmp_path / "o").exists()
+
+
+def test_gains_of_another_config_are_refused(gains_path, tmp_path, testbed_text):
+    other = tmp_path / "other.toml"
+    other.write_text(testbed_text.replace('pulse_force_n = 1.4', 'pulse_force_n = 1.3'))
+    r = _run("simulate", other, "--scenario", "pulse", "--controller", gains_path, "--duration", "2", "-o", tmp_path / "o")
+    assert r.exit_code == 2 and "designed for config" in r.output
+    assert not (tmp_path / "o").exists()
