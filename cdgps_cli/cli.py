@@ -173,11 +173,14 @@ def main(ctx, quiet):
               help="With --controller: the rigid-body-only regulator of Fig. 12 (vibration poles left open loop).")
 @click.option("--feedback", type=click.Choice(["gps", "truth"]), default="gps", show_default=True,
               help="With --controller: feed back the EKF's estimate, or the true state (full-state feedback).")
+@click.option("--slew-reference", type=click.Choice(["profile", "step"]), default="profile", show_default=True,
+              help="With --controller, slew: a bang-bang angle profile with feed-forward thrust, or the paper's step command.")
 @_output_option("out_dir", "Output directory.", directory=True, old=("--out",))
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
 def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_sigma_m, slips, outages,
-             random_slips, disturbance_scale, gains_json, no_vibration_control, feedback, out_dir, as_json):
+             random_slips, disturbance_scale, gains_json, no_vibration_control, feedback, slew_reference, out_dir,
+             as_json):
     """Simulate a structure run: receiver.csv, gyro.csv, truth.csv, truth.json (+ actuators.csv)."""
     from .config import load_config
     from .simulate import SimOptions, parse_outage, parse_slip, simulate as run_sim, write_simulation
@@ -188,8 +191,8 @@ def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_s
                      outages=[parse_outage(o) for o in outages], random_slips=random_slips,
                      disturbance_scale=disturbance_scale)
     _say(ctx, f"simulating {cfg.name}: {scenario}, {duration_s:g} s, seed {seed} …")
-    if gains_json is None and (no_vibration_control or feedback != "gps"):
-        raise CdgpsError("--no-vibration-control and --feedback need --controller GAINS.json")
+    if gains_json is None and (no_vibration_control or feedback != "gps" or slew_reference != "profile"):
+        raise CdgpsError("--no-vibration-control, --feedback and --slew-reference need --controller GAINS.json")
     with progress.stage("simulating"):
         if gains_json is None:
             sim = run_sim(cfg, opt)
@@ -197,8 +200,13 @@ def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_s
             from .control.closed_loop import simulate_closed_loop
             from .gains_file import read_gains
 
-            sim, _ = simulate_closed_loop(cfg, opt, read_gains(gains_json, config),
-                                          vibration_control=not no_vibration_control, feedback=feedback)
+            sim, loop = simulate_closed_loop(cfg, opt, read_gains(gains_json, config),
+                                             vibration_control=not no_vibration_control, feedback=feedback,
+                                             slew_reference_kind=slew_reference)
+            if loop.saturated_fraction > 0.2:
+                progress.write(f"cdgps: warning: the jets were asked for more than their maximum force in "
+                               f"{100 * loop.saturated_fraction:.0f}% of jet-periods; the gain asks for more authority "
+                               f"than the thrusters have (a smaller --qx in `cdgps control design`, docs/control.md)")
     summary = write_simulation(sim, out_dir)
     _say(ctx, f"wrote {summary['receiver_rows']} phase rows, {summary['gyro_rows']} gyro rows, "
               f"{summary['slips']} slip/relock events to {out_dir}/")
@@ -675,6 +683,34 @@ def report_static(ctx, states_mcap, gyro_mcap, angle, survey_deg, start_s, end_s
         _emit_json(d)
 
 
+@report.command("control", short_help="Control experiments (1998 Figs. 6, 10-12)")
+@click.argument("gains_json", type=click.Path(dir_okay=False))
+@click.option("--closed", "closed_dir", required=True, type=click.Path(file_okay=False),
+              help="`cdgps simulate --controller` folder (closed loop on the GPS estimate).")
+@click.option("--open", "open_dir", type=click.Path(file_okay=False),
+              help="Open-loop `cdgps simulate` folder of the same scenario (required for pulse).")
+@click.option("--full-state", "full_state_dir", type=click.Path(file_okay=False),
+              help="Closed loop with --feedback truth (what the estimator costs).")
+@click.option("--no-vibration", "no_vibration_dir", type=click.Path(file_okay=False),
+              help="Closed loop with --no-vibration-control (Fig. 12).")
+@click.option("--date", "date", default=None, metavar="ISO_DATE",
+              help="Date printed in the report (default: $SOURCE_DATE_EPOCH, else the newest input's modification time).")
+@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False), help="Output directory.")
+@click.option("--json", "as_json", is_flag=True, help="Print report.json on stdout.")
+@click.pass_context
+def report_control(ctx, gains_json, closed_dir, open_dir, full_state_dir, no_vibration_dir, date, out_dir, as_json):
+    """Pulse rejection (Fig. 10) or slew (Figs. 11-12) with the design's poles (Fig. 6)."""
+    from .control_report import control_report
+
+    runs = {k: v for k, v in (("closed", closed_dir), ("open", open_dir), ("full_state", full_state_dir),
+                              ("no_vibration", no_vibration_dir)) if v}
+    with progress.stage("control report"):
+        d = control_report(gains_json, runs, out_dir, date=date)
+    _say(ctx, f"{d['scenario']} report: {Path(out_dir) / 'report.html'}")
+    if as_json:
+        _emit_json(d)
+
+
 @report.command("spectrum", short_help="Dynamic sensor test (1998 Fig. 8): PSDs, modes")
 @click.argument("states_mcap", type=click.Path(dir_okay=False))
 @_with(_spectra_opts)
@@ -1114,12 +1150,16 @@ def _weights_option(text: str | None, name: str):
                    "[paper's weights].")
 @click.option("--qu", default=None, metavar="R|LIST",
               help="Input weight: one number (times I) or one per thruster [I, the paper's].")
+@click.option("--rigid-factor", type=float, default=0.01, show_default=True,
+              help="Weight of the rigid-body mode relative to the others in Qx* (the paper's 0.01).")
+@click.option("--rate-factor", type=float, default=0.01, show_default=True,
+              help="Weight of the modal rates relative to the amplitudes, Qx = diag(Qx*, f·Qx*) (the paper's 0.01).")
 @_output_option("out_json", "GAINS.json to write.")
 @click.option("--figure", "figure_png", default=None, type=click.Path(dir_okay=False),
               help="Also write the z-plane pole figure (Fig. 6 style) to this PNG.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (poles, settling times) on stdout.")
 @click.pass_context
-def control_design(ctx, config, qx, qu, out_json, figure_png, as_json):
+def control_design(ctx, config, qx, qu, rigid_factor, rate_factor, out_json, figure_png, as_json):
     """Discrete LQR u = −K x on the config's modal model (Eq. 4, 24) with the paper's weights by default.
 
     Writes the model A, B the gain was designed on, the weights, K, and the open- and closed-loop poles
@@ -1131,8 +1171,9 @@ def control_design(ctx, config, qx, qu, out_json, figure_png, as_json):
     from .gains_file import gains_record, write_gains
 
     cfg = load_config(config)
-    opts = {"qx": qx, "qu": qu}
-    design, poles = design_for_structure(cfg, _weights_option(qx, "--qx"), _weights_option(qu, "--qu"))
+    opts = {"qx": qx, "qu": qu, "rigid_factor": rigid_factor, "rate_factor": rate_factor}
+    design, poles = design_for_structure(cfg, _weights_option(qx, "--qx"), _weights_option(qu, "--qu"),
+                                         rigid_factor, rate_factor)
     rec = gains_record(design, poles, config_path=config, state_names=state_names(cfg),
                        thruster_names=cfg.thruster_names, options=opts)
     write_gains(out_json, rec)

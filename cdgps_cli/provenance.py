@@ -159,16 +159,17 @@ def provenance_rows(p: dict) -> list[list[str]]:
     rows.append(["options", "; ".join(f"{k} = {_opt_text(v)}" for k, v in p["options"].items())])
     for f in p["inputs"]:
         rows.append([f"input {f['role']}", f"{f['path']} ({f['bytes']} bytes), sha256 {f['sha256']}"])
-    e = p["estimated_from"]
-    rows.append(["STATES estimated from",
-                 f"RUN {e['run']} sha256 {e['run_sha256']}; INIT sha256 {e['init_sha256']}; config {e['config']} "
-                 f"sha256 {e['config_sha256']}; cdgps {e['cdgps_version']}"])
-    if isinstance(e["options"], dict):
-        rows.append(["estimate options", "; ".join(f"{k} = {_opt_text(v)}" for k, v in sorted(e["options"].items()))])
-    if p["gyro_run_ingested_from"]:
+    e = p.get("estimated_from")                 # reports on STATES only
+    if e is not None:
+        rows.append(["STATES estimated from",
+                     f"RUN {e['run']} sha256 {e['run_sha256']}; INIT sha256 {e['init_sha256']}; config {e['config']} "
+                     f"sha256 {e['config_sha256']}; cdgps {e['cdgps_version']}"])
+        if isinstance(e["options"], dict):
+            rows.append(["estimate options", "; ".join(f"{k} = {_opt_text(v)}" for k, v in sorted(e["options"].items()))])
+    if p.get("gyro_run_ingested_from"):
         rows.append(["gyro RUN ingested from", "; ".join(f"{v['file']} sha256 {v['sha256']}"
                                                         for v in p["gyro_run_ingested_from"].values())])
-    if p["gyro_run_is_estimate_run"] is not None:
+    if p.get("gyro_run_is_estimate_run") is not None:
         rows.append(["gyro RUN = the estimate's RUN", "yes (sha256 equal)" if p["gyro_run_is_estimate_run"]
                      else "NO: the gyro log is from another RUN.mcap than the one the states were estimated from"])
     return rows

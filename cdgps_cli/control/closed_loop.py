@@ -65,7 +65,7 @@ class ClosedLoopResult:
 
 def run_closed_loop(cfg: StructureConfig, K: np.ndarray, x0: np.ndarray, disturbance_w: np.ndarray,
                     noise_m: np.ndarray, x_ref: np.ndarray, pulse: Disturbance | None = None, *,
-                    pwpf: PwpfParams | None = None, estimator: str = "gps") -> ClosedLoopResult:
+                    pwpf: PwpfParams | None = None, estimator: str = "gps", u_ff=None) -> ClosedLoopResult:
     """Simulate the closed loop for N = len(noise_m) epochs.
 
     Parameters
@@ -85,6 +85,8 @@ def run_closed_loop(cfg: StructureConfig, K: np.ndarray, x0: np.ndarray, disturb
     pwpf : PwpfParams, optional
     estimator : {"gps", "truth"}
         Feed back the EKF's estimate, or the true state (full-state feedback).
+    u_ff : ndarray, shape (N, m), optional
+        Feed-forward signed thruster commands added to −K (x̂ − x_ref), N (a slew profile's thrust).
     """
     if estimator not in ("gps", "truth"):
         raise CdgpsError(f"estimator: expected 'gps' or 'truth', got {estimator!r}")
@@ -117,7 +119,8 @@ def run_closed_loop(cfg: StructureConfig, K: np.ndarray, x0: np.ndarray, disturb
         xh, P, nis = update(xb, Pb, h_true + noise_m[k] - h_bar, H, sigma)
         out.x_true[k], out.x_hat[k], out.sigma_hat[k], out.nis[k] = x, xh, np.sqrt(np.diag(P)), nis
         feedback = xh if estimator == "gps" else x
-        request = realize_forces(-K @ (feedback - x_ref[k]), pairs)
+        u = -K @ (feedback - x_ref[k]) if u_ff is None else u_ff[k] - K @ (feedback - x_ref[k])
+        request = realize_forces(u, pairs)
         t0 = k * T
         dist = _pulse_intervals(pulse, pulse_jets, t0, T)
         for j, _a, _b, _f in dist:                       # jets firing the disturbance leave the loop
@@ -182,7 +185,8 @@ def merge_firings(firings) -> list:
 
 
 def closed_loop_trajectory(cfg: StructureConfig, scenario: str, gains: dict, *, vibration_control: bool = True,
-                           feedback: str = "gps", pwpf: PwpfParams | None = None, record: dict | None = None):
+                           feedback: str = "gps", pwpf: PwpfParams | None = None, record: dict | None = None,
+                           slew_reference_kind: str = "profile"):
     """The ``trajectory`` hook of :func:`cdgps_cli.simulate.simulate` for a closed-loop run.
 
     Parameters
@@ -198,6 +202,8 @@ def closed_loop_trajectory(cfg: StructureConfig, scenario: str, gains: dict, *, 
     pwpf : PwpfParams, optional
     record : dict, optional
         Receives ``result`` (the :class:`ClosedLoopResult`) for the caller's logs.
+    slew_reference_kind : {"profile", "step"}
+        See :func:`slew_reference`.
     """
     from .design import rigid_only_gain
 
@@ -208,6 +214,9 @@ def closed_loop_trajectory(cfg: StructureConfig, scenario: str, gains: dict, *, 
     K = gains["K"]
     if not vibration_control:
         target = gains["poles"]["settling_time_s"]["closed_loop"].get(_rigid_name(cfg))
+        if target is None:
+            raise CdgpsError("--no-vibration-control: the gain's rigid-body pole does not settle, so there is "
+                             "no rigid-body pole to match")
         K = rigid_only_gain(cfg, model.A, model.B, float(target))
     sim = cfg.simulation
     pwpf = PwpfParams() if pwpf is None else pwpf
@@ -215,19 +224,17 @@ def closed_loop_trajectory(cfg: StructureConfig, scenario: str, gains: dict, *, 
     def trajectory(time_s, x0, w, noise_m):
         n = model.A.shape[0]
         x_ref = np.zeros((len(time_s), n))
-        pulse = None
+        pulse, u_ff = None, None
         if scenario == "slew":
-            rigid = list(cfg.mode_frequency_hz).index(0.0)
-            amp = np.radians(sim["slew_to_deg"]) / cfg.mode_shapes[cfg.rigid_index, rigid]
-            x_ref[time_s >= sim["slew_time_s"] - 1e-9, rigid] = amp
-            x_ref[time_s < sim["slew_time_s"] - 1e-9, rigid] = x0[rigid]
+            x_ref, u_ff = slew_reference(cfg, time_s, x0, slew_reference_kind)
         else:
             pulse = Disturbance(tuple(sim["pulse_thrusters"]), sim["pulse_time_s"],
                                 sim["pulse_time_s"] + sim["pulse_duration_s"], sim["pulse_force_n"])
-        r = run_closed_loop(cfg, K, x0, w, noise_m, x_ref, pulse, pwpf=pwpf, estimator=feedback)
+        r = run_closed_loop(cfg, K, x0, w, noise_m, x_ref, pulse, pwpf=pwpf, estimator=feedback, u_ff=u_ff)
         if record is not None:
             record["result"], record["x_ref"] = r, x_ref
         extra = {"controller": {"feedback": feedback, "vibration_control": vibration_control,
+                                **({"slew_reference": slew_reference_kind} if scenario == "slew" else {}),
                                 "gains_config_sha256": gains["config"]["sha256"],
                                 "pwpf": {"gain": pwpf.gain, "time_constant_s": pwpf.time_constant_s,
                                          "u_on": pwpf.u_on, "u_off": pwpf.u_off},
@@ -239,6 +246,68 @@ def closed_loop_trajectory(cfg: StructureConfig, scenario: str, gains: dict, *, 
         return r.x_true, actuator_log(cfg, r.firings), extra
 
     return trajectory
+
+
+#: fraction of the jets' rigid-body authority a slew profile may use (the rest is left to the feedback)
+SLEW_AUTHORITY_FRACTION = 0.7
+
+
+def rigid_authority(cfg: StructureConfig, direction: float = 1.0) -> tuple[int, np.ndarray, float]:
+    """The rigid-body mode's index, its generalized force per newton of each jet (Uᵀ Υ row, shape (m,))
+    and the largest modal acceleration the jets can give it in ``direction`` (sign), each jet at its
+    maximum force where it pushes that way and one jet of each opposing pair firing."""
+    from ..kinematics import thruster_forcing
+
+    rigid = list(cfg.mode_frequency_hz).index(0.0)
+    g = (np.asarray(cfg.mode_shapes).T @ thruster_forcing(cfg))[rigid]
+    push = np.clip(np.sign(direction) * g, 0.0, None) * np.asarray(cfg.thruster_max_force_n, dtype=float)
+    return rigid, g, float(push.sum())
+
+
+def slew_reference(cfg: StructureConfig, time_s, x0, kind: str = "profile"):
+    """Reference states (N, n) and feed-forward signed commands (N, m) or None for a slew from the
+    initial angle to ``[simulation] slew_to_deg`` commanded at ``slew_time_s``.
+
+    ``"step"``: the paper's command, the reference jumps to the target (no feed-forward).
+    ``"profile"``: a bang-bang (accelerate, then decelerate) rigid-body angle and rate profile at
+    :data:`SLEW_AUTHORITY_FRACTION` of the jets' rigid authority, with the feed-forward thrust that
+    produces it (minimum-norm over the jets, including the rate damping of the rigid mode).
+    """
+    sim = cfg.simulation
+    nm = cfg.n_modes
+    rigid = list(cfg.mode_frequency_hz).index(0.0)
+    scale = cfg.mode_shapes[cfg.rigid_index, rigid]
+    a0, a1 = float(x0[rigid]), np.radians(sim["slew_to_deg"]) / scale
+    _, g, acc_max = rigid_authority(cfg, a1 - a0)
+    t = np.asarray(time_s) - sim["slew_time_s"]
+    x_ref = np.zeros((len(t), 2 * nm))
+    if kind == "step":
+        x_ref[:, rigid] = np.where(t >= -1e-9, a1, a0)
+        return x_ref, None
+    if kind != "profile":
+        raise CdgpsError(f"slew reference: expected 'profile' or 'step', got {kind!r}")
+    acc = SLEW_AUTHORITY_FRACTION * acc_max * np.sign(a1 - a0)
+    half = np.sqrt(abs(a1 - a0) / max(abs(acc), 1e-300))
+    tt = np.clip(t, 0.0, 2 * half)
+    first = tt <= half
+    amp = np.where(first, a0 + 0.5 * acc * tt**2, a1 - 0.5 * acc * (2 * half - tt) ** 2)
+    rate = np.where(first, acc * tt, acc * (2 * half - tt))
+    accel = np.where((t > 0) & (t < 2 * half), np.where(first, acc, -acc), 0.0)
+    x_ref[:, rigid], x_ref[:, nm + rigid] = amp, rate
+    from ..dynamics import modal_damping
+
+    force = accel + modal_damping(cfg)[rigid] * rate          # ξ̈ + c ξ̇ = g·u
+    u_ff = np.outer(force, g / (g @ g))
+    # the elastic modes' reference is the model's own response to the feed-forward thrust, so the
+    # feedback damps deviations from the planned motion instead of fighting the plan
+    model = discrete_model(cfg)
+    elastic = np.ones(2 * nm, dtype=bool)
+    elastic[[rigid, nm + rigid]] = False
+    xe = np.zeros(2 * nm)
+    for k in range(len(t)):
+        x_ref[k, elastic] = xe[elastic]
+        xe = model.A @ xe + model.B @ u_ff[k]
+    return x_ref, u_ff
 
 
 def _rigid_name(cfg: StructureConfig) -> str:
@@ -279,14 +348,15 @@ def controller_log(cfg: StructureConfig, result: ClosedLoopResult, x_ref: np.nda
 
 
 def simulate_closed_loop(cfg: StructureConfig, opt, gains: dict, *, vibration_control: bool = True,
-                         feedback: str = "gps", pwpf: PwpfParams | None = None):
+                         feedback: str = "gps", pwpf: PwpfParams | None = None, slew_reference_kind: str = "profile"):
     """:func:`cdgps_cli.simulate.simulate` with the closed loop in place of the open-loop propagation;
     the Simulation gains ``controller.csv`` (:func:`controller_log`)."""
     from ..simulate import simulate
 
     record: dict = {}
     hook = closed_loop_trajectory(cfg, opt.scenario, gains, vibration_control=vibration_control,
-                                  feedback=feedback, pwpf=pwpf, record=record)
+                                  feedback=feedback, pwpf=pwpf, record=record,
+                                  slew_reference_kind=slew_reference_kind)
     sim = simulate(cfg, opt, trajectory=hook)
     sim.tables["controller.csv"] = controller_log(cfg, record["result"], record["x_ref"])
     return sim, record["result"]

@@ -8,11 +8,12 @@ import numpy as np
 from ..config import StructureConfig
 from ..dynamics import discrete_model
 from ..errors import CdgpsError
-from .lqr import PAPER_RATE_FACTOR, LqrDesign, design_lqr, paper_weights
+from .lqr import PAPER_RATE_FACTOR, PAPER_RIGID_FACTOR, LqrDesign, design_lqr, paper_weights
 from .poles import pole_table, slowest_settling_by_mode
 
 
-def weights_for(cfg: StructureConfig, qx=None, qu=None) -> tuple[np.ndarray, np.ndarray]:
+def weights_for(cfg: StructureConfig, qx=None, qu=None, rigid_factor: float = PAPER_RIGID_FACTOR,
+                rate_factor: float = PAPER_RATE_FACTOR) -> tuple[np.ndarray, np.ndarray]:
     """Q_x and Q_u from the options.
 
     Parameters
@@ -23,15 +24,21 @@ def weights_for(cfg: StructureConfig, qx=None, qu=None) -> tuple[np.ndarray, np.
         5000.  A sequence: the whole diagonal of Q_x, length 2 n_m (amplitudes, then rates).
     qu : None, float or sequence of float
         None: I.  One number: that multiple of I.  A sequence: the diagonal, one entry per thruster.
+    rigid_factor, rate_factor : float
+        The paper's form's 0.01 on the rigid-body mode and 0.01 on the rates (ignored for a full diagonal).
     """
     n, m = 2 * cfg.n_modes, len(cfg.thruster_names)
     if m == 0:
         raise CdgpsError("the config defines no [[thrusters]]: there is nothing to control with")
-    Qx, Qu = paper_weights(cfg.mode_frequency_hz, m)
+    for name, v in (("rigid_factor", rigid_factor), ("rate_factor", rate_factor)):
+        if not (np.isfinite(v) and v >= 0):
+            raise CdgpsError(f"{name}: expected a finite number >= 0, got {v!r}")
+    Qx, Qu = paper_weights(cfg.mode_frequency_hz, m, rigid_factor=rigid_factor, rate_factor=rate_factor)
     if qx is not None:
         q = np.atleast_1d(np.asarray(qx, dtype=float))
         if q.size == 1:
-            Qx, _ = paper_weights(cfg.mode_frequency_hz, m, state_weight=float(q[0]))
+            Qx, _ = paper_weights(cfg.mode_frequency_hz, m, state_weight=float(q[0]), rigid_factor=rigid_factor,
+                                  rate_factor=rate_factor)
         elif q.size == n:
             Qx = np.diag(q)
         else:
@@ -53,7 +60,8 @@ def state_names(cfg: StructureConfig) -> list[str]:
     return [*cfg.mode_names, *(f"{n} rate" for n in cfg.mode_names)]
 
 
-def design_for_structure(cfg: StructureConfig, qx=None, qu=None) -> tuple[LqrDesign, dict]:
+def design_for_structure(cfg: StructureConfig, qx=None, qu=None, rigid_factor: float = PAPER_RIGID_FACTOR,
+                         rate_factor: float = PAPER_RATE_FACTOR) -> tuple[LqrDesign, dict]:
     """LQR design on the config's model discretized at its sample period.
 
     Returns
@@ -64,7 +72,7 @@ def design_for_structure(cfg: StructureConfig, qx=None, qu=None) -> tuple[LqrDes
         ``settling_time_s`` per mode, open and closed loop.
     """
     model = discrete_model(cfg)
-    Qx, Qu = weights_for(cfg, qx, qu)
+    Qx, Qu = weights_for(cfg, qx, qu, rigid_factor, rate_factor)
     d = design_lqr(model.A, model.B, Qx, Qu, model.T, state_names(cfg))
     names = list(cfg.mode_names)
     ol, cl = pole_table(d.A, d.sample_period_s, names), pole_table(d.closed_loop, d.sample_period_s, names)

@@ -1,0 +1,87 @@
+"""Figures of merit on closed-form signals, and `cdgps report control` end to end."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from cdgps_cli.cli import main
+from cdgps_cli.control.metrics import first_peak_deg, pulse_metrics, settle_time_s, slew_metrics
+
+
+def test_first_peak_of_a_damped_sine():
+    t = np.linspace(0, 20, 20001)
+    a = 10 * np.exp(-t / 5) * np.sin(2 * np.pi * 0.25 * t)          # first lobe peaks near t = 0.86 s
+    tp = math.atan(2 * np.pi * 0.25 * 5) / (2 * np.pi * 0.25)
+    assert first_peak_deg(t, a, 0.0) == pytest.approx(10 * math.exp(-tp / 5) * math.sin(2 * np.pi * 0.25 * tp), rel=1e-6)
+
+
+def test_settle_time_of_an_exponential():
+    t = np.linspace(0, 30, 30001)
+    assert settle_time_s(t, 5 * np.exp(-t / 4), 0.5, 0.0) == pytest.approx(4 * math.log(10), abs=2e-3)
+    assert settle_time_s(t, np.ones_like(t), 0.5, 0.0) is None
+
+
+def test_pulse_and_slew_metrics_on_synthetic_runs():
+    t = np.linspace(0, 30, 3001)
+    after = np.clip(t - 5, 0, None)
+    open_ = {"q5": 10 * np.sin(2 * np.pi * 0.2 * after)}
+    closed = {"q5": 3 * np.exp(-after) * np.sin(2 * np.pi * 0.2 * after)}
+    m = pulse_metrics(t, open_, closed, 5.0, 6.0)["q5"]
+    assert m["open_first_peak_deg"] == pytest.approx(10, rel=1e-3)
+    assert m["peak_ratio"] == pytest.approx(np.abs(closed["q5"]).max() / 10, rel=1e-3)
+    assert m["open_tail_peak_to_peak_deg"] == pytest.approx(20, rel=1e-3)
+    rigid = np.where(t < 5, 14.0, -22 + 36 * np.exp(-(t - 5) / 3))
+    s = slew_metrics(t, rigid, {"q2": 0.5 * np.sin(t)}, -22.0, 5.0)
+    assert s["arrived_s_after_command"] == pytest.approx(3 * math.log(36 / 0.5), abs=0.02)
+    assert s["internal_max_deg"]["q2"] == pytest.approx(0.5, rel=1e-3)
+
+
+def _run(*args):
+    return CliRunner().invoke(main, ["-q", *map(str, args)])
+
+
+@pytest.fixture(scope="module")
+def pulse_runs(tmp_path_factory, testbed_path):
+    d = tmp_path_factory.mktemp("ctl")
+    assert _run("control", "design", testbed_path, "--qx", "100", "--rigid-factor", "0.3", "--rate-factor", "0.1",
+                "-o", d / "g.json").exit_code == 0
+    common = ["--scenario", "pulse", "--duration", "12", "--seed", "2", "--disturbance-scale", "0.05"]
+    assert _run("simulate", testbed_path, *common, "-o", d / "open").exit_code == 0
+    assert _run("simulate", testbed_path, *common, "--controller", d / "g.json", "-o", d / "closed").exit_code == 0
+    return d
+
+
+def test_pulse_report(pulse_runs, tmp_path):
+    d = pulse_runs
+    r = _run("report", "control", d / "g.json", "--open", d / "open", "--closed", d / "closed", "-o", tmp_path / "rep",
+             "--date", "2026-12-02", "--json")
+    assert r.exit_code == 0, r.output
+    data = json.loads(r.stdout)
+    assert data["scenario"] == "pulse"
+    assert data["metrics"]["closed"]["q5"]["peak_ratio"] < 0.5
+    names = sorted(p.name for p in (tmp_path / "rep").iterdir())
+    assert names == ["poles.png", "pulse.png", "report.html", "report.json", "report.md"]
+    html = (tmp_path / "rep" / "report.html").read_text()
+    assert "Provenance" in html and "sha256" in html and "Figure 1" in html
+    r2 = _run("report", "control", d / "g.json", "--open", d / "open", "--closed", d / "closed", "-o", tmp_path / "rep2",
+              "--date", "2026-12-02")
+    for n in names:
+        assert (tmp_path / "rep" / n).read_bytes() == (tmp_path / "rep2" / n).read_bytes(), n
+
+
+@pytest.mark.parametrize("args,words", [
+    (["--closed", "{closed}"], "--open: the pulse report compares"),
+    (["--closed", "{open}"], "expected a closed-loop run"),
+    (["--closed", "{closed}", "--open", "{closed}"], "expected an open-loop run"),
+    (["--closed", "{nowhere}"], "not a `cdgps simulate` folder"),
+])
+def test_report_refuses_wrong_inputs(pulse_runs, tmp_path, args, words):
+    d = pulse_runs
+    args = [a.replace("{closed}", str(d / "closed")).replace("{open}", str(d / "open"))
+            .replace("{nowhere}", str(tmp_path / "none")) for a in args]
+    r = _run("report", "control", d / "g.json", *args, "-o", tmp_path / "rep")
+    assert r.exit_code == 2 and words in r.output, r.output
+    assert not (tmp_path / "rep").exists()
