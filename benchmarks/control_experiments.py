@@ -157,7 +157,7 @@ def main() -> None:
         shutil.copy(t / "rs" / "poles.png", figs / "control-poles-tuned.png")
 
     (ROOT / "docs" / "control-experiments.json").write_text(json.dumps(out, indent=2, default=float) + "\n")
-    print("\n| pulse run | peak ratio (worst of q5, q8), mean [min–max] | back within 1° after the pulse (s), median [max] |")
+    print("\n| pulse run | peak ratio (worst of q5, q8), mean [min–max] | back within 10% of the open-loop peak after the pulse (s), median [max] |")
     print("|---|---|---|")
     for k, v in rows.items():
         r, b = np.array(v["ratio_max"]), np.array(v["back_s_max"])

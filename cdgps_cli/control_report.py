@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .control.metrics import ARRIVED_WITHIN_DEG, BACK_WITHIN_DEG, pulse_metrics, slew_metrics
+from .control.metrics import ARRIVED_WITHIN_DEG, BACK_FRACTION, pulse_metrics, slew_metrics
 from .errors import CdgpsError
 from .provenance import _file, report_date, software
 from .reports import _fmt, _html_table, _md_table, _mpl, _out_dir, _save_fig, _write_report
@@ -122,7 +122,7 @@ def _pulse_section(sims):
                          _fmt(v["peak_ratio"], ".3f"), _fmt(v["closed_back_within_s_after_pulse"], ".1f"),
                          f"{v['open_tail_peak_to_peak_deg']:.1f}"])
     header = ["feedback", "angle", "open-loop first peak (°)", "closed-loop peak (°)", "ratio",
-              f"back within {BACK_WITHIN_DEG:g}° (s after pulse)", "open-loop p-p, last 10 s (°)"]
+              f"back within {100 * BACK_FRACTION:g}% of the open-loop peak (s after pulse)", "open-loop p-p, last 10 s (°)"]
     plt = _mpl()
     fig, axes = plt.subplots(1, 1 + len(metrics), figsize=(5 * (1 + len(metrics)), 3.8), sharey=True)
     for ax, role in zip(np.atleast_1d(axes), ["open", *metrics]):
@@ -139,7 +139,8 @@ def _pulse_section(sims):
     data = {"pulse": seg, "metrics": metrics,
             "definitions": "Open-loop first peak: the largest |angle| up to the first zero crossing after the pulse "
                            "starts; closed-loop peak: the largest |angle| after the pulse starts; back: from when the "
-                           f"angle stays within {BACK_WITHIN_DEG:g}° to the end. Angles are the simulator's truth."}
+                           f"angle stays within {100 * BACK_FRACTION:g}% of its open-loop first peak to the end. "
+                           "Angles are the simulator's truth."}
     return data, rows, header, {"pulse.png": fig}, caps
 
 

@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
-#: an internal angle is "back" when it stays within this many degrees (pulse experiment)
-BACK_WITHIN_DEG = 1.0
+#: an internal angle is "back" when it stays within this fraction of its open-loop first peak
+#: (pulse experiment; about the resolution of the paper's Fig. 10 at its 10° scale)
+BACK_FRACTION = 0.1
 #: the slew has "arrived" when the rigid-body angle stays within this many degrees of the command
 ARRIVED_WITHIN_DEG = 0.5
 
@@ -44,14 +45,15 @@ def settle_time_s(time_s, error_deg, within_deg: float, after_s: float) -> float
 def pulse_metrics(time_s, open_deg: dict, closed_deg: dict, pulse_start_s: float, pulse_end_s: float) -> dict:
     """Pulse rejection (Fig. 10): per angle the open-loop first peak, the closed-loop peak, their
     ratio, the open-loop peak-to-peak over the last 10 s (persisting oscillation), and when the
-    closed-loop angle is back within :data:`BACK_WITHIN_DEG` for good (s after the pulse end)."""
+    closed-loop angle is back within :data:`BACK_FRACTION` of the open-loop first peak for good (s after
+    the pulse end)."""
     t = np.asarray(time_s)
     out = {}
     for name in closed_deg:
         o, c = np.asarray(open_deg[name]), np.asarray(closed_deg[name])
         po = first_peak_deg(t, o, pulse_start_s)
         pc = float(np.abs(c[t >= pulse_start_s]).max())
-        back = settle_time_s(t, c, BACK_WITHIN_DEG, pulse_start_s)
+        back = settle_time_s(t, c, BACK_FRACTION * po, pulse_start_s)
         tail = t >= t[-1] - 10.0
         out[name] = {"open_first_peak_deg": po, "closed_peak_deg": pc,
                      "peak_ratio": pc / po if po > 0 else None,
