@@ -1192,5 +1192,42 @@ def control_design(ctx, config, qx, qu, rigid_factor, rate_factor, out_json, fig
         _emit_json({"output": out_json, "riccati_residual": design.riccati_residual,
                     "settling_time_s": poles["settling_time_s"], "poles": poles})
 
+
+@main.command("track", short_help="Track GPS L1 C/A in raw IF samples → TRACK.mcap")
+@click.argument("iq_file", type=click.Path(dir_okay=False))
+@click.option("--format", "fmt", required=True, type=click.Choice(["int8-iq", "int16-iq", "int8-real", "int16-real"]),
+              help="Sample format: interleaved signed I,Q (complex) or real samples, 8 or 16 bit.")
+@click.option("--iq-sign", type=click.Choice(["minus", "plus"]), default="minus", show_default=True,
+              help="Complex formats: read I − jQ (Pocket SDR convention) or I + jQ.")
+@click.option("--fs", "fs_hz", type=float, required=True, help="Sample rate, Hz.")
+@click.option("--if", "if_hz", type=float, default=0.0, show_default=True, help="Intermediate frequency, Hz (0: baseband).")
+@click.option("--prn", "prns", type=int, multiple=True, help="Track only these PRNs (repeatable; default: every one acquired).")
+@click.option("--duration", "duration_s", type=float, default=None, help="Seconds of the file to use (default: all).")
+@click.option("--pll-bn", "pll_bn_hz", type=float, default=15.0, show_default=True, help="PLL noise bandwidth, Hz.")
+@click.option("--pull-in", "pull_in_s", type=float, default=0.1, show_default=True, help="FLL pull-in before the PLL, s.")
+@_output_option("out_mcap", "TRACK.mcap to write.")
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (satellites with prn, doppler_hz, "
+              "code_phase_chips, cn0_dbhz, phase_lock) on stdout.")
+@click.pass_context
+def track_cmd(ctx, iq_file, fmt, iq_sign, fs_hz, if_hz, prns, duration_s, pll_bn_hz, pull_in_s, out_mcap, as_json):
+    """Acquire every GPS L1 C/A satellite strong enough in a raw sample file and track it (FLL pull-in,
+    Costas PLL, carrier-aided DLL): Doppler, code phase, carrier phase, C/N0 and lock per millisecond."""
+    from .track_file import track_file
+    from .tracking.channel import TrackOptions
+
+    opt = TrackOptions(pll_bn_hz=pll_bn_hz, pull_in_s=pull_in_s)
+    with progress.stage("tracking"):
+        s = track_file(iq_file, out_mcap, fmt=fmt, fs_hz=fs_hz, if_hz=if_hz, iq_sign=iq_sign,
+                       prns=list(prns) or None, duration_s=duration_s, opt=opt,
+                       progress=None if ctx.obj.get("quiet") else progress.write)
+    for sat in s["satellites"]:
+        cn0 = "–" if sat["cn0_dbhz"] is None else f"{sat['cn0_dbhz']:.1f}"
+        _say(ctx, f"  PRN {sat['prn']:>2}: {sat['doppler_hz']:+8.1f} Hz, code {sat['code_phase_chips']:7.2f} chips, "
+                  f"C/N0 {cn0} dB-Hz, phase lock {'yes' if sat['phase_lock'] else 'no'} "
+                  f"({100 * sat['phase_lock_fraction']:.0f}% of windows)")
+    _say(ctx, f"wrote {out_mcap}: {len(s['satellites'])} satellites, {s['duration_s']:.3f} s")
+    if as_json:
+        _emit_json({k: v for k, v in s.items() if k != "acquisition"})
+
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())

@@ -1,0 +1,118 @@
+"""Parallel code-phase acquisition of GPS L1 C/A signals by FFT (circular correlation).
+
+For each Doppler bin the samples are carrier-wiped, cut into 1 ms blocks and correlated with the
+sampled code in the frequency domain (x ⊛ c = IFFT(FFT(x)·conj(FFT(c)))); |·|² is summed over
+``noncoherent_ms`` blocks.  The detection metric is the peak over the largest correlation at least
+one chip away from it (the "peak-to-second-peak" ratio); a satellite is acquired when the ratio
+exceeds ``threshold``.  A second, finer Doppler search around the peak follows.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import CdgpsError
+from .ca_code import CHIP_RATE_HZ, CODE_LENGTH, sampled_code
+
+#: default search: ±5 kHz of Doppler (a static receiver sees at most about ±4.5 kHz) in 250 Hz bins
+DOPPLER_MAX_HZ = 5000.0
+DOPPLER_STEP_HZ = 250.0
+#: default detection threshold on the peak-to-second-peak ratio
+THRESHOLD = 2.0
+#: fine Doppler search: coherent block length (ms; a navigation bit lasts 20) and step (Hz)
+FINE_BLOCK_MS = 5
+FINE_STEP_HZ = 10.0
+
+
+@dataclass(frozen=True)
+class Acquisition:
+    """One PRN's acquisition result."""
+
+    prn: int
+    acquired: bool
+    doppler_hz: float          # carrier Doppler of the peak (after the fine search when acquired)
+    code_phase_chips: float    # code phase at the first sample, chips in [0, 1023)
+    code_phase_samples: int    # same, in samples of the input
+    peak_ratio: float          # peak over second peak (≥ 1 chip away)
+
+
+def _blocks(x: np.ndarray, n: int, k: int) -> np.ndarray:
+    if x.size < n * k:
+        raise CdgpsError(f"acquisition needs {k} ms of samples ({n * k}), the input has {x.size}")
+    return x[: n * k].reshape(k, n)
+
+
+def _search(x, fs, prns, dopplers, k, block_ms: int = 1):
+    """|correlation|² of ``block_ms`` ms blocks summed over k blocks: array (len(prns), len(dopplers), n)."""
+    n = int(round(fs * 1e-3 * block_ms))
+    x = _blocks(x, n, k).ravel()
+    t = np.arange(n * k) / fs
+    blocks_f = np.empty((len(dopplers), k, n), dtype=np.complex128)
+    for i, fd in enumerate(dopplers):
+        blocks_f[i] = np.fft.fft((x * np.exp(-2j * np.pi * fd * t)).reshape(k, n), axis=1)
+    out = np.empty((len(prns), len(dopplers), n))
+    for j, prn in enumerate(prns):
+        c = np.conj(np.fft.fft(sampled_code(prn, fs, n)))
+        out[j] = np.sum(np.abs(np.fft.ifft(blocks_f * c, axis=2)) ** 2, axis=1)
+    return out
+
+
+def _peak(corr: np.ndarray, samples_per_chip: float):
+    """(doppler index, sample index, ratio) of the largest value of one PRN's (bins, n) surface."""
+    d, s = np.unravel_index(int(np.argmax(corr)), corr.shape)
+    row = corr[d]
+    n = row.size
+    dist = np.abs((np.arange(n) - s + n // 2) % n - n // 2)
+    second = row[dist > samples_per_chip].max()
+    return int(d), int(s), float(row[s] / second) if second > 0 else float("inf")
+
+
+def acquire(samples: np.ndarray, fs_hz: float, prns=range(1, 33), *, if_hz: float = 0.0,
+            doppler_max_hz: float = DOPPLER_MAX_HZ, doppler_step_hz: float = DOPPLER_STEP_HZ,
+            noncoherent_ms: int = 10, threshold: float = THRESHOLD) -> list[Acquisition]:
+    """Search every PRN; returns one :class:`Acquisition` per PRN in the order given.
+
+    Parameters
+    ----------
+    samples : ndarray, complex, shape (N,)
+        Baseband (or IF) samples, at least ``noncoherent_ms`` ms of them.
+    fs_hz : float
+        Sample rate, Hz.
+    prns : iterable of int
+        (The fine search correlates 5 ms blocks coherently, so its Doppler is good to about ±10 Hz.)
+    if_hz : float
+        Intermediate frequency of the samples, Hz (0 for complex baseband).
+    doppler_max_hz, doppler_step_hz : float
+        Search range ±max and bin spacing, Hz.
+    noncoherent_ms : int
+        1 ms blocks summed non-coherently.
+    threshold : float
+        Peak-to-second-peak ratio above which a PRN counts as acquired.
+    """
+    x = np.asarray(samples)
+    if not np.iscomplexobj(x):
+        x = x.astype(np.complex128)
+    if not (np.isfinite(fs_hz) and fs_hz >= 2.1 * CHIP_RATE_HZ):
+        raise CdgpsError(f"fs: expected a sample rate of at least 2.1 × the chip rate (2.15 MHz), got {fs_hz!r} Hz")
+    prns = list(prns)
+    k = int(noncoherent_ms)
+    n = int(round(fs_hz * 1e-3))
+    seg = x[: n * k]
+    coarse = if_hz + np.arange(-doppler_max_hz, doppler_max_hz + 1e-9, doppler_step_hz)
+    surf = _search(seg, fs_hz, prns, coarse, k)
+    spc = fs_hz / CHIP_RATE_HZ
+    out = []
+    for j, prn in enumerate(prns):
+        d, s, ratio = _peak(surf[j], spc)
+        fd = coarse[d]
+        if ratio > threshold and k >= FINE_BLOCK_MS:
+            fine = fd + np.arange(-doppler_step_hz / 2, doppler_step_hz / 2 + 1e-9, FINE_STEP_HZ)
+            surf_f = _search(seg, fs_hz, [prn], fine, k // FINE_BLOCK_MS, FINE_BLOCK_MS)[0]
+            d2 = int(np.argmax(surf_f.max(axis=1)))
+            fd = fine[d2]
+        phase = (-s / spc) % CODE_LENGTH if s else 0.0
+        out.append(Acquisition(prn=prn, acquired=bool(ratio > threshold), doppler_hz=float(fd - if_hz),
+                               code_phase_chips=float(phase), code_phase_samples=int(s), peak_ratio=ratio))
+    return out

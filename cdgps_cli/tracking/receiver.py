@@ -1,0 +1,63 @@
+"""Acquire and track every satellite strong enough in a block of samples (a multi-channel receiver)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import CdgpsError
+from .acquisition import THRESHOLD, acquire
+from .channel import PHASE_LOCK_THRESHOLD, WINDOW, TrackOptions, track
+
+#: fraction of the PLL's 20 ms windows (after one settling window) whose lock indicator must pass
+#: for a satellite to count as in phase lock
+LOCKED_FRACTION = 0.9
+
+
+def track_all(samples: np.ndarray, fs_hz: float, prns=None, *, if_hz: float = 0.0, threshold: float = THRESHOLD,
+              opt: TrackOptions | None = None, progress=None) -> dict:
+    """Acquire ``prns`` (default 1–32) and track each acquired one.
+
+    Returns
+    -------
+    dict
+        ``acquisition`` (every PRN searched), ``satellites`` (summary per tracked PRN: ``prn``,
+        ``doppler_hz`` (mean of the last 100 ms), ``code_phase_chips`` (acquisition, at the first sample),
+        ``cn0_dbhz`` (median of the last five 20 ms windows), ``phase_lock`` (bool) and
+        ``phase_lock_fraction``) and ``tracks`` (per PRN, the arrays of :func:`cdgps_cli.tracking.channel.track`).
+    """
+    opt = TrackOptions() if opt is None else opt
+    wanted = list(range(1, 33)) if prns is None else list(prns)
+    say = progress or (lambda m: None)
+    acq = acquire(samples, fs_hz, wanted, if_hz=if_hz, threshold=threshold)
+    found = [a for a in acq if a.acquired]
+    if prns is not None:
+        missing = [a for a in acq if not a.acquired]
+        if missing:
+            raise CdgpsError("not acquired: " + ", ".join(f"PRN {a.prn} (peak ratio {a.peak_ratio:.2f} ≤ {threshold:g})"
+                                                        for a in missing))
+    if not found:
+        best = sorted(acq, key=lambda a: -a.peak_ratio)[:3]
+        raise CdgpsError("no satellite acquired (peak-to-second-peak threshold "
+                         f"{threshold:g}); strongest peaks: "
+                         + ", ".join(f"PRN {a.prn} ratio {a.peak_ratio:.2f} at {a.doppler_hz:+.0f} Hz" for a in best)
+                         + ". Check --format, --iq-sign, --fs and --if")
+    baseband = samples if if_hz == 0 else samples * np.exp(-2j * np.pi * if_hz * np.arange(samples.size) / fs_hz)
+    tracks, sats = {}, []
+    for a in found:
+        say(f"tracking PRN {a.prn} ({a.doppler_hz:+.0f} Hz, ratio {a.peak_ratio:.1f}) …")
+        r = track(baseband, fs_hz, a.prn, a.doppler_hz, a.code_phase_chips, opt)
+        tracks[a.prn] = r
+        sats.append(_summary(a, r))
+    return {"acquisition": [a.__dict__ for a in acq], "satellites": sats, "tracks": tracks}
+
+
+def _summary(a, r: dict) -> dict:
+    pll = np.flatnonzero(r["pll"])
+    start = (pll[0] + WINDOW) if pll.size else len(r["pll"])
+    pli = r["phase_lock"][start::WINDOW]
+    frac = float(np.mean(pli > PHASE_LOCK_THRESHOLD)) if pli.size else 0.0
+    cn0 = r["cn0_dbhz"][::WINDOW][-5:]
+    return {"prn": a.prn, "doppler_hz": float(np.mean(r["doppler_hz"][-100:])),
+            "code_phase_chips": a.code_phase_chips, "acquisition_peak_ratio": a.peak_ratio,
+            "cn0_dbhz": float(np.nanmedian(cn0)) if np.isfinite(cn0).any() else None,
+            "phase_lock": bool(pli.size and frac >= LOCKED_FRACTION), "phase_lock_fraction": frac}

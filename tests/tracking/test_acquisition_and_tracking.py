@@ -1,0 +1,127 @@
+"""Acquisition and tracking on synthetic signals of known Doppler, code phase and C/N0, an
+independent time-domain correlation on the real Pocket SDR samples, and `cdgps track` end to end."""
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from cdgps_cli.cli import main
+from cdgps_cli.iq_samples import read_samples
+from cdgps_cli.tracking.acquisition import acquire
+from cdgps_cli.tracking.ca_code import CHIP_RATE_HZ, sampled_code
+from cdgps_cli.tracking.channel import L1_HZ, track
+
+FS = 4e6
+IQ_FILE = Path(__file__).resolve().parents[3] / "shared" / "data" / "if" / "L1_20211202_084700_4MHz_IQ.bin"
+needs_if = pytest.mark.skipif(not IQ_FILE.exists(), reason="../shared/data/if not present")
+
+
+def _signal(prn, doppler_hz, code_phase_chips, cn0_dbhz, seconds, seed=0, doppler_rate_hz_s=0.0, bits=True):
+    """Complex baseband C/A signal (unit amplitude) plus complex white noise at the given C/N0."""
+    g = np.random.default_rng(seed)
+    n = int(FS * seconds)
+    t = np.arange(n) / FS
+    fd = doppler_hz + doppler_rate_hz_s * t
+    phase = 2 * np.pi * (doppler_hz * t + 0.5 * doppler_rate_hz_s * t * t)
+    chips = code_phase_chips + t * CHIP_RATE_HZ + np.cumsum(fd / L1_HZ * CHIP_RATE_HZ / FS)
+    code = sampled_code(prn, 1.0, n, 0.0, 0.0)                     # placeholder, replaced below
+    code = np.asarray(sampled_code(prn, FS, n, code_phase_chips))
+    idx = np.floor(chips).astype(np.int64) % 1023
+    from cdgps_cli.tracking.ca_code import ca_code
+
+    code = ca_code(prn)[idx].astype(float)
+    data = np.where((np.floor(t / 0.02).astype(int) % 3) == 1, -1.0, 1.0) if bits else 1.0
+    noise_var = FS / 10 ** (cn0_dbhz / 10)                         # per complex sample, for unit carrier power
+    noise = g.normal(0, math.sqrt(noise_var / 2), n) + 1j * g.normal(0, math.sqrt(noise_var / 2), n)
+    return code * data * np.exp(1j * (phase + 0.7)) + noise, phase + 0.7
+
+
+def test_acquisition_finds_a_synthetic_satellite():
+    x, _ = _signal(7, 1234.0, 345.6, 45.0, 0.012)
+    res = {a.prn: a for a in acquire(x, FS, [7, 8])}
+    a = res[7]
+    assert a.acquired and abs(a.doppler_hz - 1234.0) <= 25.0
+    assert abs((a.code_phase_chips - 345.6 + 511.5) % 1023 - 511.5) < 0.5
+    assert not res[8].acquired
+
+
+def test_tracking_a_synthetic_satellite_recovers_doppler_phase_and_cn0():
+    x, phase = _signal(11, -1800.0, 100.2, 45.0, 0.4, seed=3, doppler_rate_hz_s=5.0)
+    a = next(a for a in acquire(x, FS, [11]) if a.acquired)
+    r = track(x, FS, 11, a.doppler_hz, a.code_phase_chips)
+    tail = slice(300, None)
+    t = r["time_s"][tail]
+    assert np.abs(r["doppler_hz"][tail] - (-1800.0 + 5.0 * t)).max() < 3.0
+    # carrier phase at block starts = the signal's phase, modulo the Costas half cycle
+    err = (r["carrier_phase_cycles"][tail] - phase[(t * FS).astype(int)] / (2 * np.pi)) * 2
+    err = (err - np.round(np.median(err))) / 2                                        # cycles
+    assert np.abs(err - np.median(err)).max() < 0.05
+    assert np.nanmedian(r["cn0_dbhz"][tail]) == pytest.approx(45.0, abs=2.0)
+    assert np.mean(r["phase_lock"][tail] > 0.8) > 0.95
+    assert np.abs((r["code_phase_chips"][-1] - (100.2 + t[-1] * CHIP_RATE_HZ * (1 + (-1800 + 2.5 * t[-1]) / L1_HZ))
+                   + 511.5) % 1023 - 511.5) < 0.1
+
+
+@needs_if
+def test_acquisition_agrees_with_a_time_domain_correlation_on_real_samples():
+    """Independent check: direct correlation over every half-chip code phase at the found Doppler."""
+    x = read_samples(IQ_FILE, "int8-iq", max_samples=int(FS * 0.01))
+    a = next(a for a in acquire(x, FS, [26]) if a.acquired)
+    t = np.arange(x.size) / FS
+    wiped = x * np.exp(-2j * np.pi * a.doppler_hz * t)
+    phases = np.arange(0, 1023, 0.5)
+    power = np.empty(phases.size)
+    for i, p in enumerate(phases):
+        c = sampled_code(26, FS, x.size, p)
+        blocks = (wiped * c).reshape(10, -1).sum(axis=1)
+        power[i] = np.sum(np.abs(blocks) ** 2)
+    best = phases[int(np.argmax(power))]
+    assert abs((best - a.code_phase_chips + 511.5) % 1023 - 511.5) <= 0.5
+
+
+def _run(*args):
+    return CliRunner().invoke(main, ["-q", *map(str, args)])
+
+
+@needs_if
+def test_track_command_on_the_real_file(tmp_path):
+    out = tmp_path / "track.mcap"
+    r = _run("track", IQ_FILE, "--format", "int8-iq", "--fs", "4000000", "--if", "0", "-o", out, "--json")
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.stdout)
+    locked = [x for x in s["satellites"] if x["phase_lock"]]
+    assert len(locked) >= 3
+    for x in s["satellites"]:
+        assert {"prn", "doppler_hz", "code_phase_chips", "cn0_dbhz", "phase_lock"} <= set(x)
+        assert abs(x["doppler_hz"]) < 5000 and 30 < x["cn0_dbhz"] < 60
+    from cdgps_cli.mcap_io import read_mcap
+
+    m = read_mcap(out)
+    assert "/cdgps/track" in m.topics
+
+
+@pytest.mark.parametrize("setup,args,words", [
+    ("odd", ["--format", "int8-iq", "--fs", "4000000"], "not a whole number of int8-iq samples"),
+    ("noise", ["--format", "int8-iq", "--fs", "4000000"], "no satellite acquired"),
+    ("noise", ["--format", "int8-iq", "--fs", "1000"], "--fs"),
+    ("short", ["--format", "int8-iq", "--fs", "4000000"], "at least 20 ms"),
+])
+def test_bad_input_is_named(tmp_path, setup, args, words):
+    f = tmp_path / "x.bin"
+    g = np.random.default_rng(0)
+    n = {"odd": 80001, "noise": 2 * 40000 * 2, "short": 2 * 40000}[setup]
+    f.write_bytes(g.integers(-3, 4, n).astype(np.int8).tobytes())
+    r = _run("track", f, *args, "-o", tmp_path / "t.mcap")
+    assert r.exit_code == 2 and words in r.output, r.output
+    assert not (tmp_path / "t.mcap").exists()
+
+
+@needs_if
+def test_a_prn_that_is_not_visible_is_named(tmp_path):
+    r = _run("track", IQ_FILE, "--format", "int8-iq", "--fs", "4000000", "--prn", "1", "--duration", "0.05",
+             "-o", tmp_path / "t.mcap")
+    assert r.exit_code == 2 and "not acquired: PRN 1" in r.output, r.output
