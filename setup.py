@@ -1,4 +1,5 @@
-"""Build of the optional C kernel ``cdgps_cli._ekfcore`` (project metadata lives in pyproject.toml).
+"""Build of the optional C kernels ``cdgps_cli._ekfcore`` and ``cdgps_cli._trackcore`` (project metadata lives in
+pyproject.toml).
 
 The extension is plain C against the CPython API and the buffer protocol: no numpy headers, so
 ``pip install -e .`` needs only a C compiler and the Python headers.  It is ``optional``: where it
@@ -23,6 +24,12 @@ setup(
             sources=["cdgps_cli/_ekfcore.c"],
             extra_compile_args=compile_args,
             optional=True,
-        )
+        ),
+        Extension(
+            "cdgps_cli._trackcore",
+            sources=["cdgps_cli/_trackcore.c"],
+            extra_compile_args=compile_args,
+            optional=True,
+        ),
     ]
 )

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .ca_code import CHIP_RATE_HZ, CODE_LENGTH, ca_code
+from .correlator import correlate
 from .loops import LoopFilter
 
 #: L1 carrier frequency and its ratio to the chip rate
@@ -85,11 +86,10 @@ def track(samples: np.ndarray, fs_hz: float, prn: int, doppler_hz: float, code_p
     n = int(round(fs_hz * 1e-3))
     T = n / fs_hz
     m = samples.size // n
-    code = ca_code(prn).astype(np.float64)
+    code = ca_code(prn)
     pll = LoopFilter(opt.pll_bn_hz, T, order=opt.pll_order)
     fll = LoopFilter(opt.fll_bn_hz, T, order=1)
     dll = LoopFilter(opt.dll_bn_hz, T, order=1)
-    t_blk = np.arange(n) / fs_hz
     out = {k: np.zeros(m) for k in ("time_s", "doppler_hz", "carrier_phase_cycles", "code_phase_chips",
                                     "i_prompt", "q_prompt", "cn0_dbhz", "phase_lock")}
     out["pll"] = np.zeros(m, dtype=bool)
@@ -103,11 +103,7 @@ def track(samples: np.ndarray, fs_hz: float, prn: int, doppler_hz: float, code_p
         aid = 0.0 if aid_doppler_hz is None else float(aid_doppler_hz[k])
         f_now = f_carr + aid
         code_rate = CHIP_RATE_HZ * (1.0 + f_now / L1_HZ)
-        base = x * np.exp(-2j * np.pi * (phase_cyc + f_now * t_blk))
-        chips = code_phase + t_blk * code_rate
-        e = base @ code[np.floor(chips + half).astype(np.int64) % CODE_LENGTH]
-        p = base @ code[np.floor(chips).astype(np.int64) % CODE_LENGTH]
-        late = base @ code[np.floor(chips - half).astype(np.int64) % CODE_LENGTH]
+        e, p, late = correlate(x, code, phase_cyc, f_now, fs_hz, code_phase, code_rate, half)
         out["time_s"][k], out["doppler_hz"][k] = k * T, f_now
         out["carrier_phase_cycles"][k], out["code_phase_chips"][k] = phase_cyc, code_phase % CODE_LENGTH
         out["i_prompt"][k], out["q_prompt"][k] = p.real, p.imag

@@ -94,3 +94,17 @@ def test_loop_filter_refuses_bad_settings():
         LoopFilter(10.0, 1e-3, 4)
     with pytest.raises(CdgpsError, match="positive"):
         LoopFilter(-1.0, 1e-3, 2)
+
+
+def test_compiled_correlator_equals_numpy():
+    from cdgps_cli.tracking import correlator
+
+    if not correlator.kernel_available():
+        pytest.skip("cdgps_cli._trackcore not built")
+    g = np.random.default_rng(1)
+    x = g.normal(size=4000) + 1j * g.normal(size=4000)
+    code = ca_code(5)
+    for args in ((0.3, 1234.5, 4e6, 100.25, 1.023e6 * (1 + 1e-6), 0.25), (-7.9, -4321.0, 4e6, 1022.9, 1.023e6, 0.5)):
+        got = correlator.correlate(x, code, *args)
+        ref = correlator.correlate_numpy(x, code, *args)
+        np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-9 * np.abs(ref).max())
