@@ -147,3 +147,14 @@ def test_pole_table_recovers_a_known_continuous_pole():
     assert r["damping_ratio"] == pytest.approx(zeta, rel=1e-10)
     assert r["settling_time_s"] == pytest.approx(math.log(50) / (zeta * wn), rel=1e-10)
     assert complex(r["z_re"], r["z_im"]) == pytest.approx(np.exp(s * T), abs=1e-12)
+
+
+def test_darex_example_1_published_solution():
+    """Benner, Laub & Mehrmann (1995), 'A collection of benchmark examples for the numerical solution of
+    algebraic Riccati equations II: discrete-time case', Example 1: X = (1 + √5)/2 · Q."""
+    A = np.array([[4.0, 3.0], [-4.5, -3.5]])
+    B = np.array([[1.0], [-1.0]])
+    Q = np.array([[9.0, 6.0], [6.0, 4.0]])
+    d = design_lqr(A, B, Q, np.eye(1), 1.0)
+    np.testing.assert_allclose(d.P, (1 + math.sqrt(5)) / 2 * Q, rtol=1e-12)
+    assert d.riccati_residual < 1e-13
