@@ -46,6 +46,11 @@ class TrackOptions:
     pull_in_s: float = 0.1
     spacing_chips: float = 0.5
     pll_order: int = 2
+    #: a PLL narrower than ``wide_pll_hz`` first runs at that bandwidth for this long after the FLL,
+    #: then narrows (the integrator — the frequency — carries over): a narrow loop's pull-in range is
+    #: smaller than the FLL's residual frequency error
+    wide_pll_s: float = 0.1
+    wide_pll_hz: float = 15.0
 
 
 def _m2m4_cn0(i: np.ndarray, q: np.ndarray, T: float) -> float:
@@ -87,7 +92,9 @@ def track(samples: np.ndarray, fs_hz: float, prn: int, doppler_hz: float, code_p
     T = n / fs_hz
     m = samples.size // n
     code = ca_code(prn)
-    pll = LoopFilter(opt.pll_bn_hz, T, order=opt.pll_order)
+    staged = opt.pll_bn_hz < opt.wide_pll_hz
+    pll = LoopFilter(opt.wide_pll_hz if staged else opt.pll_bn_hz, T, order=opt.pll_order)
+    narrow_at = int(round((opt.pull_in_s + opt.wide_pll_s) / T)) if staged else 0
     fll = LoopFilter(opt.fll_bn_hz, T, order=1)
     dll = LoopFilter(opt.dll_bn_hz, T, order=1)
     out = {k: np.zeros(m) for k in ("time_s", "doppler_hz", "carrier_phase_cycles", "code_phase_chips",
@@ -118,6 +125,8 @@ def track(samples: np.ndarray, fs_hz: float, prn: int, doppler_hz: float, code_p
             f_base = f_carr
         else:
             out["pll"][k] = True
+            if staged and k == narrow_at:
+                pll.bn_hz = opt.pll_bn_hz
             err = math.atan(p.imag / p.real) if p.real != 0 else 0.0
             f_carr = f_base + pll.update(err) / (2 * math.pi)
         prev = p

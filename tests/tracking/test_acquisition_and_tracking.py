@@ -20,22 +20,19 @@ IQ_FILE = Path(__file__).resolve().parents[3] / "shared" / "data" / "if" / "L1_2
 needs_if = pytest.mark.skipif(not IQ_FILE.exists(), reason="../shared/data/if not present")
 
 
-def _signal(prn, doppler_hz, code_phase_chips, cn0_dbhz, seconds, seed=0, doppler_rate_hz_s=0.0, bits=True):
+def _signal(prn, doppler_hz, code_phase_chips, cn0_dbhz, seconds, seed=0, doppler_rate_hz_s=0.0, bits=True, fs=FS):
     """Complex baseband C/A signal (unit amplitude) plus complex white noise at the given C/N0."""
-    g = np.random.default_rng(seed)
-    n = int(FS * seconds)
-    t = np.arange(n) / FS
-    fd = doppler_hz + doppler_rate_hz_s * t
-    phase = 2 * np.pi * (doppler_hz * t + 0.5 * doppler_rate_hz_s * t * t)
-    chips = code_phase_chips + t * CHIP_RATE_HZ + np.cumsum(fd / L1_HZ * CHIP_RATE_HZ / FS)
-    code = sampled_code(prn, 1.0, n, 0.0, 0.0)                     # placeholder, replaced below
-    code = np.asarray(sampled_code(prn, FS, n, code_phase_chips))
-    idx = np.floor(chips).astype(np.int64) % 1023
     from cdgps_cli.tracking.ca_code import ca_code
 
-    code = ca_code(prn)[idx].astype(float)
+    g = np.random.default_rng(seed)
+    n = int(fs * seconds)
+    t = np.arange(n) / fs
+    phase = 2 * np.pi * (doppler_hz * t + 0.5 * doppler_rate_hz_s * t * t)
+    fd = doppler_hz + doppler_rate_hz_s * t
+    chips = code_phase_chips + t * CHIP_RATE_HZ + np.cumsum(fd / L1_HZ * CHIP_RATE_HZ / fs)
+    code = ca_code(prn)[np.floor(chips).astype(np.int64) % 1023].astype(float)
     data = np.where((np.floor(t / 0.02).astype(int) % 3) == 1, -1.0, 1.0) if bits else 1.0
-    noise_var = FS / 10 ** (cn0_dbhz / 10)                         # per complex sample, for unit carrier power
+    noise_var = fs / 10 ** (cn0_dbhz / 10)                         # per complex sample, for unit carrier power
     noise = g.normal(0, math.sqrt(noise_var / 2), n) + 1j * g.normal(0, math.sqrt(noise_var / 2), n)
     return code * data * np.exp(1j * (phase + 0.7)) + noise, phase + 0.7
 
@@ -125,3 +122,26 @@ def test_a_prn_that_is_not_visible_is_named(tmp_path):
     r = _run("track", IQ_FILE, "--format", "int8-iq", "--fs", "4000000", "--prn", "1", "--duration", "0.05",
              "-o", tmp_path / "t.mcap")
     assert r.exit_code == 2 and "not acquired: PRN 1" in r.output, r.output
+
+
+def test_aiding_keeps_a_narrow_loop_locked_through_dynamics():
+    """Alban et al. 2003: with the line-of-sight Doppler fed forward, a 3 Hz loop holds lock through
+    a 0.5 g, 2 Hz line-of-sight acceleration that the same loop unaided cannot follow."""
+    from cdgps_cli.tracking.channel import TrackOptions
+
+    fs = 2.2e6                                                        # 2.15 chips per sample
+    x, _ = _signal(9, 900.0, 50.0, 48.0, 1.2, seed=5, bits=False, fs=fs)   # a 3 Hz loop settles in ~1 s
+    t = np.arange(x.size) / fs
+    acc, w = 0.5 * 9.80665, 2 * np.pi * 2.0
+    phi = 2 * np.pi * (-acc / w**2 * np.sin(w * t)) * L1_HZ / 299792458.0
+    vel = -acc / w * np.cos(w * t)
+    upd = np.arange(int(x.size / 2200)) * 1e-3
+    aid = np.interp(upd + 5e-4, t, vel) * L1_HZ / 299792458.0
+    moved = x * np.exp(1j * phi)
+    a = next(a for a in acquire(x, fs, [9]) if a.acquired)
+    opt = TrackOptions(pll_bn_hz=3.0, pull_in_s=0.1)
+    aided = track(moved, fs, 9, a.doppler_hz, a.code_phase_chips, opt, aid_doppler_hz=aid)
+    unaided = track(moved, fs, 9, a.doppler_hz, a.code_phase_chips, opt)
+    after = slice(800, None, 20)
+    assert np.mean(aided["phase_lock"][after] > 0.8) == 1.0
+    assert np.mean(unaided["phase_lock"][after] > 0.8) < 0.6
