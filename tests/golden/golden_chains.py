@@ -296,16 +296,21 @@ def run_demo(work: Path, reports: bool = True) -> Numbers:
     return g
 
 
+def _gnss_ingest_init_estimate(d: str, config, *estimate_args) -> dict:
+    """`cdgps ingest --config` → init → estimate [estimate_args] into directory d; the INIT dict."""
+    cdgps("ingest", "--config", config, "-o", f"{d}/run.mcap")
+    cdgps("init", f"{d}/run.mcap", "-o", f"{d}/init.json")
+    cdgps("estimate", f"{d}/run.mcap", "--init", f"{d}/init.json", *estimate_args, "-o", f"{d}/states.mcap")
+    return json.loads(Path(f"{d}/init.json").read_text())
+
+
 def run_gnss(work: Path) -> Numbers:
     """GEONET 3040 → 0759 (init/estimate/baseline) and a simulated random-walk rover with slips."""
     g = Numbers()
     geonet = CONFIGS / "geonet-0759-3040.toml"
     with _cwd(work):
-        cdgps("ingest", "--config", geonet, "-o", "geonet/run.mcap")
-        cdgps("init", "geonet/run.mcap", "-o", "geonet/init.json")
-        cdgps("estimate", "geonet/run.mcap", "--init", "geonet/init.json", "-o", "geonet/states.mcap")
+        init = _gnss_ingest_init_estimate("geonet", geonet)
         cdgps("baseline", "--config", geonet, "-o", "geonet/baseline.json")
-        init = json.loads(Path("geonet/init.json").read_text())
         add_gnss_rover(g, "geonet/init/0759", init["rovers"]["0759"])
         add_states(g, "geonet/states", "geonet/states.mcap")
         add_states(g, "geonet/kinematic", "geonet/states.mcap", topic="/cdgps/kinematic")
@@ -316,11 +321,9 @@ def run_gnss(work: Path) -> Numbers:
         g.close("geonet/baseline/kinematic_rms_m", [kin["rms_about_static_m"][c] for c in "enu"], "m")
 
         cdgps("simulate-gnss", "--duration", 240, "--seed", 5, "--random-walk", 0.001, "--slips", 2, "-o", "rw")
-        cdgps("ingest", "--config", "rw/config.toml", "-o", "rw/run.mcap")
-        cdgps("init", "rw/run.mcap", "-o", "rw/init.json")
-        cdgps("estimate", "rw/run.mcap", "--init", "rw/init.json", "--smooth", "-o", "rw/states.mcap")
+        init = _gnss_ingest_init_estimate("rw", "rw/config.toml", "--smooth")
         ev = json.loads(cdgps("evaluate", "--truth", "rw", "--estimate", "rw/states.mcap", "--json"))
-        add_gnss_rover(g, "rw/init/rover", json.loads(Path("rw/init.json").read_text())["rovers"]["rover"])
+        add_gnss_rover(g, "rw/init/rover", init["rovers"]["rover"])
         add_states(g, "rw/smoothed", "rw/states.mcap")
         add_states(g, "rw/filtered", "rw/states.mcap", topic="/cdgps/state_filtered")
         add_evaluation(g, "rw/evaluate", ev)
@@ -333,13 +336,9 @@ def run_gnss_structure(work: Path) -> Numbers:
     tower = CONFIGS / "gnss-tower.toml"
     with _cwd(work):
         cdgps("simulate-gnss-structure", tower, "--duration", 60, "--seed", 3, "-o", "tw")
-        cdgps("ingest", "--config", "tw/config.toml", "-o", "tw/run.mcap")
-        cdgps("init", "tw/run.mcap", "-o", "tw/init.json")
-        cdgps("estimate", "tw/run.mcap", "--init", "tw/init.json", "--structure", tower, "--smooth",
-              "-o", "tw/states.mcap")
+        init = _gnss_ingest_init_estimate("tw", "tw/config.toml", "--structure", tower, "--smooth")
         ev = json.loads(cdgps("evaluate", "--truth", "tw", "--estimate", "tw/states.mcap", "--json",
                               "--converge-s", 10))
-        init = json.loads(Path("tw/init.json").read_text())
         for name in sorted(init["rovers"]):
             add_gnss_rover(g, f"tw/init/{name}", init["rovers"][name])
         add_states(g, "tw/smoothed", "tw/states.mcap")
