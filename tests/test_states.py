@@ -350,6 +350,8 @@ BAD_INIT_CONTENT = {
     "biases not a list": lambda i: i.update(biases={"a1": 0.1}),
     "covariance not positive definite": lambda i: i["state"]["P"][0].__setitem__(0, -1.0),
     "sigma_m not a number": lambda i: i.update(sigma_m="2 cm"),
+    "config_sha256 null": lambda i: i.update(config_sha256=None),        # found by tests/fuzz (TypeError)
+    "window start_s null": lambda i: i["window"].update(start_s=None),   # tests/fuzz: message lacked the file
 }
 
 

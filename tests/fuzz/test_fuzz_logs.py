@@ -15,6 +15,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from cdgps_cli.config import load_config
+from cdgps_cli.errors import CdgpsError
 from cdgps_cli.logs import read_actuator_log, read_gyro_log, read_receiver_log
 
 from conftest import ANY_TEXT, DOF2, NUMBER_TEXT, TESTBED, byte_mutation, check_command, check_reader, cli, \
@@ -113,3 +114,13 @@ def test_ingest_of_a_mutated_log(base, data):
         before = {f: sha256(f), DOF2: sha256(DOF2)}
         r = cli("ingest", f, "--config", DOF2, "-o", out)
         check_command(r, before, [out], str(f))
+
+
+def test_unclosed_quote_names_the_line(base, tmp_path):
+    """Found by this suite: pandas' tokenizer message ("EOF inside string starting at row 1") gave
+    no line; the quote is on line 2 of the file (the first data row)."""
+    lines = (base / "tsim" / "gyro.csv").read_text().splitlines(keepends=True)
+    f = tmp_path / "gyro.csv"
+    f.write_text(lines[0] + '"' + "".join(lines[1:]))
+    with pytest.raises(CdgpsError, match=rf"{f}, line 2: malformed CSV"):
+        read_gyro_log(f, _testbed_cfg())

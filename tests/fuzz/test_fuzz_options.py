@@ -138,3 +138,18 @@ def test_real_commands_with_numeric_options(base, data):
         r = cli(*argv, *extra, *(["-o", out] if out_kind is not None else []))
         names = [_spelling(p) for p in chosen] + [str(f) for f in inputs] + ["--"]
         check_command(r, before, [out] if out_kind is not None else [], *names)
+
+
+@pytest.mark.parametrize("argv,words", [
+    (["simulate", DOF2, "--duration", "0"], ["--duration"]),
+    (["spectra", "{states}", "--overlap", "-1"], ["--overlap -1: expected a fraction in [0, 1)"]),
+])
+def test_found_messages_name_the_option(base, tmp_path, argv, words):
+    """Found by this suite: 'duration: expected …' (simulate's field name) and spectra's one combined
+    'segment must be positive, pad ≥ 1, 0 ≤ overlap < 1'."""
+    argv = [str(a).replace("{states}", str(base / "STATES.mcap")) for a in argv]
+    r = cli(*argv, "-o", tmp_path / "out")
+    assert r.exit_code == 2 and isinstance(r.exception, SystemExit), r.output
+    for w in words:
+        assert w in r.output, r.output
+    assert not (tmp_path / "out").exists()
