@@ -346,6 +346,35 @@ def references(cases: list[Case], p: dict, work: Path) -> dict:
     return refs
 
 
+def reader_flips(p: dict, work: Path, rng: random.Random, n: int) -> list[dict]:
+    """``n`` single-byte flips of each of RUN, STATES and GNSS RUN read in-process by read_mcap:
+    ``clean`` (refused), ``ok`` (the same contents) or ``ok`` + ``silent`` (different contents)."""
+    from cdgps_cli.errors import CdgpsError
+    from cdgps_cli.mcap_io import read_mcap
+
+    def contents(path):
+        c = read_mcap(path)
+        return pickle.dumps({k: v for k, v in vars(c).items() if k != "path"}, protocol=4)
+
+    out = []
+    m = work / "reader-flip.mcap"
+    for key in ("run", "states", "grun"):
+        raw = p[key].read_bytes()
+        ref = contents(p[key])
+        for name, data in sweep.flips(raw, n, rng):
+            m.write_bytes(data)
+            try:
+                same = contents(m) == ref
+                kind, flags, msg = "ok", ([] if same else ["silent"]), ""
+            except CdgpsError as exc:
+                kind, flags, msg = "clean", [], str(exc).splitlines()[0][:200]
+            except Exception as exc:               # noqa: BLE001 — a reader traceback is a finding
+                kind, flags, msg = "traceback", [], f"{type(exc).__name__}: {exc}"[:200]
+            out.append({"family": f"read_mcap {p[key].name}", "name": name, "argv": "read_mcap", "kind": kind,
+                        "flags": flags, "rc": 0, "elapsed_s": 0.0, "message": msg})
+    return out
+
+
 # ---- report -------------------------------------------------------------------------------------
 
 
@@ -370,9 +399,10 @@ def table(counts: dict) -> str:
     return "\n".join(lines)
 
 
-def write_markdown(path: Path, counts: dict, findings: list[dict], command: str, runtime_s: float) -> None:
-    """Replace (or append) the self-contained "Fault campaign" section of ``path``."""
-    lines = ["## Fault campaign", "",
+def write_markdown(path: Path, counts: dict, findings: list[dict], command: str, runtime_s: float,
+                   section: str = "Fault campaign") -> None:
+    """Replace (or append) the self-contained ``## <section>`` of ``path``."""
+    lines = [f"## {section}", "",
              f"`{command}` — {runtime_s:.0f} s on this machine (2 cores shared with other jobs).", "",
              "Each case is one `cdgps` process (benchmarks/fault_campaign.py: outcomes and flags defined in its "
              "docstring). *silent*: a damaged MCAP or UBX input accepted with a different result and no warning; "
@@ -389,14 +419,15 @@ def write_markdown(path: Path, counts: dict, findings: list[dict], command: str,
             lines.append(f"- {r['family']}: `{r['argv']} {r['name'][:80]}` → {r['kind']}"
                          f"{' [' + ', '.join(r['flags']) + ']' if r['flags'] else ''}: {r['message'][:160]}")
         lines.append("")
-    section = "\n".join(lines)
+    body = "\n".join(lines)
     text = path.read_text() if path.exists() else "# Hardening\n\n"
-    start = text.find("## Fault campaign")
-    if start >= 0:
+    head = f"## {section}\n"
+    start = 0 if text.startswith(head) else text.find("\n" + head) + 1
+    if start > 0 or text.startswith(head):
         end = text.find("\n## ", start + 3)
-        text = text[:start] + section + (text[end + 1:] if end >= 0 else "")
+        text = text[:start] + body + (text[end + 1:] if end >= 0 else "")
     else:
-        text = text.rstrip("\n") + "\n\n" + section
+        text = text.rstrip("\n") + "\n\n" + body
     path.write_text(text)
 
 
@@ -411,6 +442,9 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=1, help="Seed of the mutations, kill times and the sample [1].")
     ap.add_argument("--jobs", type=int, default=1, help="Cases run at once [1].")
     ap.add_argument("--only", default=None, help="Comma-separated families (csv, ubx, killed, overwrite, ...).")
+    ap.add_argument("--reader-flips", type=int, default=0,
+                    help="Also N single-byte flips of each MCAP read in-process (silent acceptances) [0].")
+    ap.add_argument("--section", default="Fault campaign", help="Section title in the --markdown file.")
     ap.add_argument("--json", default=None, help="Write every case's result as JSON to this file.")
     ap.add_argument("--markdown", default=None, help="Write the counts into this file's 'Fault campaign' section.")
     args = ap.parse_args(argv)
@@ -434,6 +468,8 @@ def main(argv=None) -> int:
         print(f"{len(cases)} cases, {args.jobs} at once …", file=sys.stderr)
         with ThreadPoolExecutor(max(1, args.jobs)) as pool:
             results = list(pool.map(lambda ic: run_case(ic[1], work, ic[0], refs), enumerate(cases)))
+        if args.reader_flips:
+            results += reader_flips(p, work, random.Random(args.seed), args.reader_flips)
     finally:
         if not args.workdir:
             shutil.rmtree(work, ignore_errors=True)
@@ -449,7 +485,7 @@ def main(argv=None) -> int:
                                                "counts": {k: dict(v) for k, v in counts.items()},
                                                "results": results}, indent=1) + "\n")
     if args.markdown:
-        write_markdown(Path(args.markdown), counts, findings, command.strip(), runtime)
+        write_markdown(Path(args.markdown), counts, findings, command.strip(), runtime, args.section)
     return 0
 
 
