@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import sys
+from contextlib import contextmanager
 from pathlib import Path
 
 import click
@@ -436,16 +437,17 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
 
     require_kind(run_mcap, RUNS, "RUN_MCAP")
     if run_kind(run_mcap) == "gnss":
-        _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json,
-                       structure_only={"--biases": biases != "fixed", "--sigma-m": sigma_m is not None,
-                                       "--nis-probability": nis_probability != 0.999, "--outlier-sigma": outlier_sigma != 6.0,
-                                       "--process-noise-scale": process_noise_scale != 1.0,
-                                       "--rest": bool(rest),
-                                       "--rest-process-noise-scale": rest_process_noise_scale != 0.005,
-                                       "--rest-retry-s": rest_retry_s != 1.0,
-                                       "--rest-window-s": rest_window_s != 3.0, "--rest-dwell-s": rest_dwell_s != 2.0},
-                       structure=structure, x_axis_azimuth_deg=x_axis_azimuth_deg, receiver_map=receiver_map,
-                       allow_other_run=allow_other_run)
+        with _init_named(init_json):
+            _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json,
+                           structure_only={"--biases": biases != "fixed", "--sigma-m": sigma_m is not None,
+                                           "--nis-probability": nis_probability != 0.999, "--outlier-sigma": outlier_sigma != 6.0,
+                                           "--process-noise-scale": process_noise_scale != 1.0,
+                                           "--rest": bool(rest),
+                                           "--rest-process-noise-scale": rest_process_noise_scale != 0.005,
+                                           "--rest-retry-s": rest_retry_s != 1.0,
+                                           "--rest-window-s": rest_window_s != 3.0, "--rest-dwell-s": rest_dwell_s != 2.0},
+                           structure=structure, x_axis_azimuth_deg=x_axis_azimuth_deg, receiver_map=receiver_map,
+                           allow_other_run=allow_other_run)
         return
     if structure is not None or receiver_map:
         raise CdgpsError("--structure/--receiver apply to GNSS runs (from 'cdgps ingest --rinex/--ubx'); a structure "
@@ -478,7 +480,8 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
                           keep_filtered_covariance="modal",
                           progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
     _say(ctx, f"estimating {run_mcap} from {init_json} (biases {biases}{', smoothing' if smooth else ''}) …")
-    res = run_ekf(run, init, opt)
+    with _init_named(init_json):
+        res = run_ekf(run, init, opt)
     del run                                  # the phase table is not needed for writing (memory)
     options = opt.echo()
     if allow_other_run:
@@ -501,6 +504,18 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
     s["measurement_noise"] = res.noise
     if as_json:
         _emit_json(s)
+
+
+@contextmanager
+def _init_named(init_json):
+    """The library names INIT problems ``INIT.json: …``; on the command line, name the file given."""
+    try:
+        yield
+    except CdgpsError as exc:
+        msg = str(exc)
+        if msg.startswith("INIT.json"):
+            raise CdgpsError(f"{init_json}{msg[len('INIT.json'):]}") from None
+        raise
 
 
 def _check_pairing(ctx, init: dict, init_json, run_mcap, allow_other_run: bool) -> dict:

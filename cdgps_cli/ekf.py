@@ -132,6 +132,8 @@ def load_init_state(init: dict, cfg: StructureConfig) -> tuple[float, np.ndarray
             problems.append(f"missing key {key!r}")
     if problems:
         raise CdgpsError("INIT.json: " + "; ".join(problems))
+    if not isinstance(init["config_sha256"], str):
+        raise CdgpsError(f"INIT.json: config_sha256: expected the config's sha256 as text, got {init['config_sha256']!r}")
     if init["config_sha256"] != cfg.sha256:
         raise CdgpsError("INIT.json was made with a different structure config than the RUN "
                          f"(INIT config_sha256 {init['config_sha256'][:12]}…, RUN {cfg.sha256[:12]}…)")

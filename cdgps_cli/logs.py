@@ -20,6 +20,7 @@ from __future__ import annotations
 import bz2
 import gzip
 import lzma
+import re
 from collections import Counter
 from contextlib import nullcontext
 from pathlib import Path
@@ -75,6 +76,15 @@ class _Problems:
             raise CdgpsError(head + "\n  - " + "\n  - ".join(self.items))
 
 
+def _parser_error_line(msg: str) -> str:
+    """``", line N"`` (1-based, header = line 1) from a pandas tokenizer message, which counts
+    ``line N`` from 1 but ``row N`` (an unclosed quote) from 0; empty if it names neither."""
+    m = re.search(r"\b(line|row) (\d+)", msg)
+    if not m:
+        return ""
+    return f", line {int(m.group(2)) + (1 if m.group(1) == 'row' else 0)}"
+
+
 def _read_table(path: str | Path, columns: tuple, numeric: tuple, optional_numeric: tuple = (),
                 allow_empty: bool = False) -> tuple[pd.DataFrame, _Problems]:
     p = Path(path)
@@ -109,7 +119,7 @@ def _read_table(path: str | Path, columns: tuple, numeric: tuple, optional_numer
         with progress.reading(p) as raw, (nullcontext(raw) if opener is open else opener(raw, "rb")) as fh:
             df = pd.read_csv(fh, dtype=str, keep_default_na=False, na_filter=False, engine="c")
     except pd.errors.ParserError as exc:
-        raise CdgpsError(f"{p}: malformed CSV: {exc}") from None
+        raise CdgpsError(f"{p}{_parser_error_line(str(exc))}: malformed CSV: {str(exc).strip()}") from None
     except UnicodeDecodeError:
         raise CdgpsError(f"{p}: not a UTF-8 text file") from None
     except (EOFError, OSError, lzma.LZMAError) as exc:

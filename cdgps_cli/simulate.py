@@ -128,7 +128,7 @@ def _validate(cfg: StructureConfig, opt: SimOptions, closed_loop: bool = False) 
     if opt.scenario not in SCENARIOS:
         problems.append(f"scenario: expected one of {', '.join(SCENARIOS)}, got {opt.scenario!r}")
     if not (opt.duration_s > 0 and np.isfinite(opt.duration_s)):
-        problems.append(f"duration: expected a positive number of seconds, got {opt.duration_s}")
+        problems.append(f"--duration (duration_s): expected a positive number of seconds, got {opt.duration_s}")
     if opt.scenario == "pulse" and not cfg.simulation["pulse_thrusters"]:
         problems.append("scenario pulse: the config's [simulation] pulse_thrusters is empty")
     for s in opt.slips:
@@ -137,18 +137,19 @@ def _validate(cfg: StructureConfig, opt: SimOptions, closed_loop: bool = False) 
         if s.transmitter not in cfg.transmitter_names:
             problems.append(f"--slip: unknown transmitter {s.transmitter!r}")
         if not (np.isfinite(s.time_s) and s.time_s >= 0):
-            problems.append(f"slips time_s: expected a finite time >= 0 s, got {s.time_s}")
+            problems.append(f"--slip (slips time_s): expected a finite time >= 0 s, got {s.time_s}")
     for o in opt.outages:
         if o.transmitter not in cfg.transmitter_names:
             problems.append(f"--outage: unknown transmitter {o.transmitter!r} (known: {', '.join(cfg.transmitter_names)})")
         if not (np.isfinite(o.start_s) and o.start_s >= 0 and np.isfinite(o.duration_s) and o.duration_s > 0):
-            problems.append(f"outages: expected start_s >= 0 and duration_s > 0 (finite), got {o.start_s}, {o.duration_s}")
-    for name in ("phase_sigma_m", "multipath_sigma_m", "disturbance_scale"):
+            problems.append(f"--outage (outages): expected start_s >= 0 and duration_s > 0 (finite), got {o.start_s}, {o.duration_s}")
+    for name, spelling in (("phase_sigma_m", "--noise-m"), ("multipath_sigma_m", "--multipath-m"),
+                           ("disturbance_scale", "--disturbance-scale")):
         v = getattr(opt, name)
         if v is not None and not (v >= 0 and np.isfinite(v)):
-            problems.append(f"{name}: expected a non-negative number, got {v}")
+            problems.append(f"{spelling} ({name}): expected a non-negative number, got {v}")
     if opt.random_slips < 0:
-        problems.append("random slips: expected a non-negative count")
+        problems.append("--random-slips (random_slips): expected a non-negative count")
     if problems:
         raise CdgpsError("invalid simulation options:\n  - " + "\n  - ".join(problems))
     check_table_size(opt.duration_s / cfg.sample_period_s + 1, len(cfg.channels), SIM_BYTES_PER_VALUE,

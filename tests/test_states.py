@@ -350,6 +350,8 @@ BAD_INIT_CONTENT = {
     "biases not a list": lambda i: i.update(biases={"a1": 0.1}),
     "covariance not positive definite": lambda i: i["state"]["P"][0].__setitem__(0, -1.0),
     "sigma_m not a number": lambda i: i.update(sigma_m="2 cm"),
+    "config_sha256 null": lambda i: i.update(config_sha256=None),        # found by tests/fuzz (TypeError)
+    "window start_s null": lambda i: i["window"].update(start_s=None),   # tests/fuzz: message lacked the file
 }
 
 
@@ -363,7 +365,7 @@ def test_cli_estimate_bad_init_content(case, chain, tmp_path):
     p.write_text(json.dumps(init))
     r = cli("estimate", d / "run.mcap", "--init", p, "-o", tmp_path / "states.mcap")
     assert no_leftovers(tmp_path, "states.mcap")
-    assert r.exit_code == 2 and "cdgps: error: " in r.output and "INIT" in r.output, (r.exit_code, r.exception)
+    assert r.exit_code == 2 and "cdgps: error: " in r.output and str(p) in r.output, (r.exit_code, r.exception, r.output)
     assert "Traceback" not in r.output
 
 
