@@ -55,6 +55,10 @@ def _required_args(cmd: click.Command, d) -> list[str]:
             value = f"A={d / f'in{i}'}"
         elif isinstance(p.type, click.Path):
             value = str(d / f"in{i}")
+        elif isinstance(p.type, click.Choice):
+            value = str(p.type.choices[0])
+        elif p.type.name in ("float", "integer", "finite float"):
+            value = "1"
         else:
             value = "x"
         args += [value] if isinstance(p, click.Argument) else [p.opts[0], value]
