@@ -21,6 +21,8 @@ resolution — and slips are flagged only by a per-epoch LLI.
 from __future__ import annotations
 
 import gzip
+import re
+import struct
 import zlib
 from pathlib import Path
 
@@ -29,7 +31,7 @@ import pandas as pd
 
 from .errors import CdgpsError
 
-__all__ = ["UBX_OBS_COLUMNS", "read_ubx_rawx"]
+__all__ = ["INTEGRITY_COUNTS", "UBX_OBS_COLUMNS", "integrity_line", "integrity_problems", "integrity_record", "read_ubx_rawx"]
 
 UBX_OBS_COLUMNS = (
     "time_gps_s",
@@ -82,6 +84,33 @@ def _signal_name(gnss: int, sig: int) -> str:
     return f"{_GNSS.get(gnss, f'gnss{gnss}')} {s or f'sig{sig}'}"
 
 
+_NMEA = re.compile(rb"\$[A-Z][A-Z0-9]{1,5},[\x20-\x7e]{0,79}?\*([0-9A-Fa-f]{2})\r?\n")
+
+INTEGRITY_COUNTS = {
+    "n_frames": "frames read",
+    "bad_checksum_frames": "failing the checksum",
+    "undecodable_frames": "RXM-RAWX frames with a valid checksum but undecodable",
+    "skipped_bytes": "bytes skipped between frames",
+    "truncated_tail_bytes": "bytes of a truncated frame at the end",
+}
+"""The integrity counters of a UBX log (keys of the reader's ``info``) and how they are worded.
+All but ``n_frames`` mean lost data: they are reported at ingest, kept in the RUN and shown by
+``cdgps info``; ``cdgps ingest --strict`` refuses a log where any is non-zero."""
+
+
+def _nmea_bytes(seg: bytes) -> int:
+    """Bytes of ``seg`` that are complete NMEA 0183 sentences with a correct checksum."""
+    n = 0
+    for m in _NMEA.finditer(seg):
+        body = m.group(0)[1 : m.start(1) - m.start(0) - 1]
+        x = 0
+        for c in body:
+            x ^= c
+        if x == int(m.group(1), 16):
+            n += m.end() - m.start()
+    return n
+
+
 def _frames(data: bytes):
     """Split a log into checksum-valid UBX frames.
 
@@ -89,19 +118,30 @@ def _frames(data: bytes):
     -------
     frames : list of (offset, class, id, frame bytes)
     stats : dict
-        ``bad_checksum_frames``, ``bad_frame_offsets``, ``truncated_tail_bytes``, ``skipped_bytes``.
+        ``bad_checksum_frames``, ``bad_frame_offsets``, ``truncated_tail_bytes``;
+        ``nmea_bytes`` (complete NMEA sentences between frames, checksums correct) and
+        ``skipped_bytes`` (every other byte outside valid frames: noise, RTCM, corrupt frames).
     """
-    stats = {"bad_checksum_frames": 0, "bad_frame_offsets": [], "truncated_tail_bytes": 0, "skipped_bytes": 0}
+    stats = {"bad_checksum_frames": 0, "bad_frame_offsets": [], "truncated_tail_bytes": 0, "skipped_bytes": 0,
+             "nmea_bytes": 0}
     n = len(data)
-    pos = 0
+    pos = 0        # first byte not yet accounted for
+    scan = 0       # where the search for the next sync resumes
     frames = []
+
+    def skip(a: int, b: int) -> None:
+        if b > a:
+            nm = _nmea_bytes(data[a:b]) if b"$" in data[a:b] else 0
+            stats["nmea_bytes"] += nm
+            stats["skipped_bytes"] += b - a - nm
+
     while True:
-        k = data.find(_SYNC, pos)
+        k = data.find(_SYNC, scan)
         if k < 0:
-            stats["skipped_bytes"] += n - pos
+            skip(pos, n)
             break
-        stats["skipped_bytes"] += k - pos
         if k + 6 > n:
+            skip(pos, k)
             stats["truncated_tail_bytes"] = n - k
             break
         length = int.from_bytes(data[k + 4 : k + 6], "little")
@@ -109,23 +149,58 @@ def _frames(data: bytes):
         if end > n:
             # either a frame cut by the end of the log, or a corrupt length: look for a later
             # sync; if none gives a valid frame the rest is a truncated tail
-            rest = data.find(_SYNC, k + 2)
-            if rest < 0:
+            if data.find(_SYNC, k + 2) < 0:
+                skip(pos, k)
                 stats["truncated_tail_bytes"] = n - k
                 break
             stats["bad_checksum_frames"] += 1
             stats["bad_frame_offsets"].append(k)
-            pos = k + 2
+            scan = k + 2
             continue
         body = data[k + 2 : k + 6 + length]
         if _checksum(body) != data[k + 6 + length : end]:
             stats["bad_checksum_frames"] += 1
             stats["bad_frame_offsets"].append(k)
-            pos = k + 2
+            scan = k + 2
             continue
+        skip(pos, k)
         frames.append((k, data[k + 2], data[k + 3], data[k:end]))
-        pos = end
+        pos = scan = end
     return frames, stats
+
+
+def integrity_problems(info: dict) -> list[str]:
+    """The non-zero loss counters of a UBX read summary, worded (empty: nothing was lost).
+
+    ``info`` is the ``info`` of :func:`read_ubx_rawx` (also as stored in a RUN); counters it
+    lacks count as zero.
+    """
+    out = []
+    offsets = {"bad_checksum_frames": "bad_frame_offsets", "undecodable_frames": "undecodable_frame_offsets"}
+    for key, word in INTEGRITY_COUNTS.items():
+        v = int(info.get(key) or 0)
+        if key == "n_frames" or not v:
+            continue
+        text = f"{v} {word}"
+        if key == "bad_checksum_frames":
+            text = f"{v} frame(s) failing the checksum"
+        elif key == "undecodable_frames":
+            text = f"{v} RXM-RAWX frame(s) with a valid checksum but undecodable"
+        offs = list(info.get(offsets.get(key, ""), None) or [])
+        if offs:
+            text += f" (byte offsets {', '.join(map(str, offs))}{' …' if v > len(offs) else ''})"
+        out.append(text)
+    return out
+
+
+def integrity_line(info: dict) -> str:
+    """One line of counters for ``cdgps info``: ``14 frames read, 0 failing the checksum, …``."""
+    return ", ".join(f"{int(info.get(k) or 0)} {w}" for k, w in INTEGRITY_COUNTS.items())
+
+
+def integrity_record(info: dict) -> str:
+    """The counters as one metadata value: ``n_frames=14 bad_checksum_frames=0 …``."""
+    return " ".join(f"{k}={int(info.get(k) or 0)}" for k in INTEGRITY_COUNTS)
 
 
 def read_ubx_rawx(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.DataFrame]:
@@ -136,8 +211,10 @@ def read_ubx_rawx(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.D
     path : str or Path
         A binary UBX log (may also contain NMEA/RTCM; may be gzip-compressed).
     strict : bool, default False
-        Raise on any corrupt frame (checksum failure, impossible length, undecodable payload)
-        instead of skipping it and counting it in ``info``.
+        Raise when any integrity counter but ``n_frames`` is non-zero (a frame failing the
+        checksum or with an impossible length, an undecodable RXM-RAWX payload, bytes skipped
+        between frames, a truncated tail) instead of skipping the data and counting it in
+        ``info``; the message names the file and every count.
 
     Returns
     -------
@@ -146,10 +223,15 @@ def read_ubx_rawx(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.D
         ``n_frames``; ``n_epochs`` (RXM-RAWX messages); ``week`` (first epoch's GPS week);
         ``leap_seconds`` (GPS−UTC from the receiver, None if never marked valid);
         ``signal_counts`` (e.g. ``{"GPS L1_C/A": 62, "Galileo E1_C": 70, …}``);
-        ``gps_satellites``; ``n_clock_resets``; ``bad_checksum_frames`` and ``bad_frame_offsets``
-        (byte offsets, first few) of skipped corrupt frames; ``undecodable_frames``;
-        ``truncated_tail_bytes`` (an incomplete frame cut by the end of the log, skipped);
-        ``skipped_bytes`` (bytes outside valid frames: NMEA/RTCM or other non-UBX data, and the bytes of corrupt frames).
+        ``gps_satellites``; ``n_clock_resets``; and the integrity counters
+        (:data:`INTEGRITY_COUNTS`, :func:`integrity_problems`): ``bad_checksum_frames`` and
+        ``bad_frame_offsets`` (byte offsets, first few) of skipped corrupt frames;
+        ``undecodable_frames`` and ``undecodable_frame_offsets`` (RXM-RAWX frames whose checksum
+        is valid but whose payload cannot be decoded, e.g. a measurement count longer than the
+        frame); ``truncated_tail_bytes`` (an incomplete frame cut by the end of the log, skipped);
+        ``skipped_bytes`` (bytes outside valid frames that are not NMEA sentences: noise, RTCM,
+        and the bytes of corrupt frames); ``nmea_bytes`` (NMEA sentences with correct checksums
+        between frames: expected in a receiver's output, not a loss).
     obs : DataFrame
         One row per RXM-RAWX epoch and GPS satellite tracked on L1 C/A, sorted by time then
         satellite; columns :data:`UBX_OBS_COLUMNS`:
@@ -183,13 +265,6 @@ def read_ubx_rawx(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.D
     if not data:
         raise CdgpsError(f"{p}: empty file; expected a u-blox UBX binary log")
     frames, stats = _frames(data)
-    if strict and (stats["bad_checksum_frames"] or stats["truncated_tail_bytes"]):
-        offs = ", ".join(str(o) for o in stats["bad_frame_offsets"][:_MAX_SHOWN])
-        raise CdgpsError(
-            f"{p}: corrupt UBX data: {stats['bad_checksum_frames']} frame(s) failing the checksum"
-            + (f" (byte offsets {offs}{' …' if len(stats['bad_frame_offsets']) > _MAX_SHOWN else ''})" if offs else "")
-            + (f", and a truncated frame of {stats['truncated_tail_bytes']} bytes at the end" if stats["truncated_tail_bytes"] else "")
-        )
     counts: dict[str, int] = {}
     for _, cls, mid, _ in frames:
         name = _msg_name(cls, mid)
@@ -199,8 +274,10 @@ def read_ubx_rawx(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.D
         raise CdgpsError(f"{p}: no valid UBX frames found in {len(data)} bytes{extra}; expected a u-blox UBX binary log with RXM-RAWX messages")
     rawx = [(off, fr) for off, cls, mid, fr in frames if (cls, mid) == _RAWX]
     found = ", ".join(f"{k} ×{v}" for k, v in sorted(counts.items(), key=lambda kv: -kv[1]))
+    if stats["nmea_bytes"]:
+        found += f", and {stats['nmea_bytes']} bytes of NMEA sentences"
     if stats["skipped_bytes"]:
-        found += f", and {stats['skipped_bytes']} bytes of non-UBX data (NMEA/RTCM)"
+        found += f", and {stats['skipped_bytes']} bytes of other non-UBX data"
     if not rawx:
         if counts.get("RXM-RAW"):
             raise CdgpsError(
@@ -218,6 +295,8 @@ def read_ubx_rawx(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.D
     cols: dict[str, list] = {c: [] for c in UBX_OBS_COLUMNS}
     signals: dict[str, int] = {}
     undecodable = 0
+    undecodable_offsets: list[int] = []
+    undecodable_reasons: list[str] = []
     n_resets = 0
     leap = None
     week0 = None
@@ -227,10 +306,11 @@ def read_ubx_rawx(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.D
     for off, fr in rawx:
         try:
             msg = UBXReader.parse(fr)
-        except (UBXParseError, UBXMessageError, UBXTypeError, ValueError, IndexError) as exc:
-            if strict:
-                raise CdgpsError(f"{p}, byte {off}: undecodable RXM-RAWX message: {exc}") from None
+        except (UBXParseError, UBXMessageError, UBXTypeError, ValueError, IndexError, struct.error) as exc:
             undecodable += 1
+            undecodable_offsets.append(off)
+            if len(undecodable_reasons) < _MAX_SHOWN:
+                undecodable_reasons.append(f"byte {off}: {exc}")
             continue
         t = float(msg.week) * 604800.0 + float(msg.rcvTow)
         if t < last_t:
@@ -267,8 +347,14 @@ def read_ubx_rawx(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.D
             cols["pr_std_m"].append(0.01 * 2.0 ** int(getattr(msg, "prStd" + sfx)))
             cols["cp_std_cycles"].append(0.004 * int(getattr(msg, "cpStd" + sfx)))
             cols["clock_reset"].append(reset)
+    if strict:
+        problems = integrity_problems(dict(stats, undecodable_frames=undecodable,
+                                               undecodable_frame_offsets=undecodable_offsets[:_MAX_SHOWN]))
+        if problems:
+            why = f"; undecodable: {'; '.join(undecodable_reasons)}" if undecodable_reasons else ""
+            raise CdgpsError(f"{p}: corrupt UBX data: {', '.join(problems)}{why} (refused by --strict)")
     if n_epochs == 0:
-        raise CdgpsError(f"{p}: none of the {len(rawx)} RXM-RAWX messages could be decoded")
+        raise CdgpsError(f"{p}: none of the {len(rawx)} RXM-RAWX messages could be decoded ({'; '.join(undecodable_reasons)})")
     obs = pd.DataFrame(
         {
             "time_gps_s": np.asarray(cols["time_gps_s"], dtype=np.float64),
@@ -309,7 +395,9 @@ def read_ubx_rawx(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.D
         "bad_checksum_frames": stats["bad_checksum_frames"],
         "bad_frame_offsets": stats["bad_frame_offsets"][:_MAX_SHOWN],
         "undecodable_frames": undecodable,
+        "undecodable_frame_offsets": undecodable_offsets[:_MAX_SHOWN],
         "truncated_tail_bytes": stats["truncated_tail_bytes"],
         "skipped_bytes": stats["skipped_bytes"],
+        "nmea_bytes": stats["nmea_bytes"],
     }
     return info, obs
