@@ -1,0 +1,168 @@
+"""Generators of large reader inputs (about ``size`` bytes each) for tests/test_reader_scaling.py.
+
+Each generator writes a file into a folder and returns its path; the inputs are valid where a
+valid file of that size exists (the reader's normal path), or adversarial (the error path a
+corrupted file takes).  All are deterministic.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import struct
+from pathlib import Path
+
+import numpy as np
+
+SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+RECEIVER_HEADER = "time_s,receiver,master,antenna,transmitter,phase_cycles,lock,snr_dbhz"
+
+
+def receiver_csv(folder: Path, size: int, cfg, *, eol: str = "\n") -> Path:
+    """A valid receiver log for ``cfg`` (every rover × transmitter each epoch); ``eol="\\r"`` gives
+    CR-only line endings."""
+    master = cfg.antenna_names[cfg.master_index]
+    pairs = [(a, t) for a in cfg.rover_names for t in cfg.transmitter_names]
+    row = len(f"123.456,rx,{master},{pairs[0][0]},{pairs[0][1]},-12345.678901,12345,45.0") + 1
+    n_ep = max(1, size // (row * len(pairs)))
+    t = np.repeat(np.arange(n_ep) * 0.1, len(pairs))
+    k = np.tile(np.arange(len(pairs)), n_ep)
+    ph = np.sin(t * 0.7 + k) * 1000.0
+    lines = [RECEIVER_HEADER]
+    lines += [f"{ti:.3f},rx,{master},{pairs[ki][0]},{pairs[ki][1]},{pi:.6f},{i // len(pairs)},45.0"
+              for i, (ti, ki, pi) in enumerate(zip(t.tolist(), k.tolist(), ph.tolist()))]
+    p = folder / "receiver.csv"
+    p.write_bytes((eol.join(lines) + eol).encode())
+    return p
+
+
+def gyro_csv(folder: Path, size: int, cfg) -> Path:
+    g = cfg.gyro_names
+    row = len("123.456,g1,-0.00012345") + 1
+    n = max(1, size // row)
+    lines = ["time_s,gyro,rate_rad_s"] + [f"{(i // len(g)) * 0.01:.3f},{g[i % len(g)]},{1e-4 * np.sin(i):.8f}" for i in range(n)]
+    p = folder / "gyro.csv"
+    p.write_text("\n".join(lines) + "\n")
+    return p
+
+
+def rinex2_obs(folder: Path, size: int) -> Path:
+    """The real GEONET 0759 RINEX 2.10 file's epochs repeated (times shifted) up to ``size`` bytes."""
+    lines = (SHARED / "rinex" / "07590920.05o").read_text().splitlines()
+    h = next(i for i, ln in enumerate(lines) if "END OF HEADER" in ln) + 1
+    blocks, cur = [], []
+    for ln in lines[h:]:
+        if len(ln) > 28 and ln[28] in "01" and ln[:3].strip().isdigit() and ln[3:6].strip().isdigit() and ln[26:29].strip() in "01":
+            if cur:
+                blocks.append(cur)
+            cur = [ln]
+        elif cur:
+            cur.append(ln)
+    blocks.append(cur)
+    out = lines[:h]
+    t0 = dt.datetime(2005, 4, 2)
+    nbytes, k = 0, 0
+    while nbytes < size:
+        b = blocks[k % len(blocks)]
+        t = t0 + dt.timedelta(seconds=30 * k)
+        epoch = f" {t.year % 100:02d}{t.month:3d}{t.day:3d}{t.hour:3d}{t.minute:3d}{t.second:11.7f}" + b[0][26:]
+        out.append(epoch)
+        out.extend(b[1:])
+        nbytes += sum(len(x) + 1 for x in b)
+        k += 1
+    p = folder / "big.05o"
+    p.write_text("\n".join(out) + "\n")
+    return p
+
+
+def rinex_nav(folder: Path, size: int) -> Path:
+    """The real GEONET navigation file's records repeated with toc/toe shifted by 2 h each copy."""
+    lines = (SHARED / "rinex" / "07590920.05n").read_text().splitlines()
+    h = next(i for i, ln in enumerate(lines) if "END OF HEADER" in ln) + 1
+    recs = [lines[i:i + 8] for i in range(h, len(lines) - 7, 8)]
+    out = lines[:h]
+    nbytes, k = 0, 0
+    while nbytes < size:
+        r = recs[k % len(recs)]
+        day = 2 + (k // len(recs)) // 12
+        hour = (k // len(recs)) % 12 * 2
+        first = r[0][:2] + f" 05{4:3d}{day:3d}{hour:3d}{0:3d}{0.0:5.1f}" + r[0][22:]
+        out.append(first)
+        out.extend(r[1:])
+        nbytes += sum(len(x) + 1 for x in r)
+        k += 1
+    p = folder / "big.05n"
+    p.write_text("\n".join(out) + "\n")
+    return p
+
+
+def _fletcher(body: bytes) -> bytes:
+    a = np.frombuffer(body, dtype=np.uint8).astype(np.int64)
+    return bytes((int(a.sum()) & 0xFF, int(np.dot(np.arange(a.size, 0, -1), a)) & 0xFF))
+
+
+def ubx_rawx(folder: Path, size: int) -> Path:
+    """The real RXM-RAWX log's frames repeated with rcvTow advancing 1 s per frame (checksums
+    recomputed)."""
+    data = (SHARED / "ubx" / "pygpsdata-RXMRAWX.log").read_bytes()
+    frames, k = [], 0
+    while k < len(data):
+        n = struct.unpack_from("<H", data, k + 4)[0]
+        frames.append(bytearray(data[k:k + 8 + n]))
+        k += 8 + n
+    tow0 = struct.unpack_from("<d", frames[0], 6)[0]
+    out, nbytes, i = [], 0, 0
+    while nbytes < size:
+        f = bytearray(frames[i % len(frames)])
+        struct.pack_into("<d", f, 6, tow0 + i)
+        f[-2:] = _fletcher(bytes(f[2:-2]))
+        out.append(bytes(f))
+        nbytes += len(f)
+        i += 1
+    p = folder / "big.ubx"
+    p.write_bytes(b"".join(out))
+    return p
+
+
+def ubx_sync_noise(folder: Path, size: int) -> Path:
+    """Adversarial: the sync word every 8 bytes, each announcing a long frame whose checksum
+    fails, then one valid log at the end."""
+    junk = b"\xb5\x62\x02\x15\xf0\xff\x00\x00" * (size // 8)
+    p = folder / "noise.ubx"
+    p.write_bytes(junk + (SHARED / "ubx" / "pygpsdata-RXMRAWX.log").read_bytes())
+    return p
+
+
+def toml_config(folder: Path, size: int, base: Path) -> Path:
+    """A shipped structure config with ``size`` bytes of comment lines appended."""
+    text = base.read_text()
+    line = "# " + "x" * 76 + "\n"
+    p = folder / "big.toml"
+    p.write_text(text + line * max(1, size // len(line)))
+    return p
+
+
+def init_json(folder: Path, size: int) -> Path:
+    """A JSON object with a long list of numbers (read_init_json: decoding, depth check, parse)."""
+    n = max(1, size // 22)
+    doc = {"time_s": 0.0, "note": "scaling", "x": np.linspace(0.0, 1.0, n).tolist()}
+    p = folder / "init.json"
+    p.write_text(json.dumps(doc))
+    return p
+
+
+def mcap_file(folder: Path, size: int) -> Path:
+    """A RUN-like MCAP with JSON messages on one channel (about ``size`` bytes uncompressed)."""
+    from cdgps_cli.mcap_io import McapOut, message_schema
+
+    schema = message_schema("cdgps.Scaling", {"v": {"type": "array", "items": {"type": "number"}}})
+    p = folder / "big.mcap"
+    rng = np.random.default_rng(0)
+    per = 40
+    n = max(1, size // (per * 20))
+    with McapOut(p) as out:
+        ch = out.channel("/scaling", schema)
+        for i in range(n):
+            out.write(ch, i * 0.1, {"v": rng.standard_normal(per).round(6).tolist()})
+        out.metadata("cdgps.ingest", {"kind": "scaling"})
+    return p
