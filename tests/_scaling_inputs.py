@@ -8,7 +8,6 @@ corrupted file takes).  All are deterministic.
 from __future__ import annotations
 
 import datetime as dt
-import json
 import struct
 from pathlib import Path
 
@@ -124,10 +123,11 @@ def ubx_rawx(folder: Path, size: int) -> Path:
     return p
 
 
-def ubx_sync_noise(folder: Path, size: int) -> Path:
-    """Adversarial: the sync word every 8 bytes, each announcing a long frame whose checksum
-    fails, then one valid log at the end."""
-    junk = b"\xb5\x62\x02\x15\xf0\xff\x00\x00" * (size // 8)
+def ubx_sync_noise(folder: Path, size: int, every: int = 8) -> Path:
+    """Adversarial: the sync word every ``every`` bytes (at least 8), each announcing a 65 KB
+    frame whose checksum fails, then one valid log at the end."""
+    unit = b"\xb5\x62\x02\x15\xf0\xff" + b"\x00" * (every - 6)
+    junk = unit * (size // every)
     p = folder / "noise.ubx"
     p.write_bytes(junk + (SHARED / "ubx" / "pygpsdata-RXMRAWX.log").read_bytes())
     return p
@@ -144,10 +144,35 @@ def toml_config(folder: Path, size: int, base: Path) -> Path:
 
 def init_json(folder: Path, size: int) -> Path:
     """A JSON object with a long list of numbers (read_init_json: decoding, depth check, parse)."""
-    n = max(1, size // 22)
-    doc = {"time_s": 0.0, "note": "scaling", "x": np.linspace(0.0, 1.0, n).tolist()}
+    n = max(1, size // 20)
     p = folder / "init.json"
-    p.write_text(json.dumps(doc))
+    p.write_text('{"time_s": 0.0, "note": "scaling", "x": [' + ",".join(["0.1234567890123456"] * n) + "]}")
+    return p
+
+
+def rinex3_obs(folder: Path, size: int) -> Path:
+    """A RINEX 3.04 observation file: the header cdgps writes (rinex_write) for 10 GPS
+    satellites, then ``size`` bytes of 1 s epochs formatted here (the writer is slower than the
+    reader; the records have its layout)."""
+    import pandas as pd
+
+    from cdgps_cli.rinex_write import write_rinex_obs
+
+    sats = [f"G{k:02d}" for k in range(1, 11)]
+    t0 = dt.datetime(2014, 11, 14, 11, 33, 4)
+    obs = pd.DataFrame({"time_gps_s": 1.1e9, "sat": sats, "phase_l1_cycles": 1.0e8, "pseudorange_l1_m": 2.2e7,
+                        "snr_l1_dbhz": 45.0})
+    p = folder / "big.obs"
+    write_rinex_obs(p, obs, {"approx_position_xyz_m": [-3976219.5, 3382372.6, 3652513.0]}, created="20260101 000000 UTC")
+    lines = p.read_text().splitlines()
+    out = lines[: next(i for i, ln in enumerate(lines) if "END OF HEADER" in ln) + 1]
+    n_ep = max(1, size // (36 + 10 * 50))
+    for k in range(n_ep):
+        t = t0 + dt.timedelta(seconds=k)
+        out.append(f"> {t.year} {t.month:02d} {t.day:02d} {t.hour:02d} {t.minute:02d} {t.second:10.7f}  0 10")
+        out.extend(f"{s}{22000000.0 + 190.0 * k:14.3f}  {1.0e8 + 1e6 * j + 1000.0 * k:14.3f} 7        45.000"
+                   for j, s in enumerate(sats))
+    p.write_text("\n".join(out) + "\n")
     return p
 
 
@@ -159,7 +184,7 @@ def mcap_file(folder: Path, size: int) -> Path:
     p = folder / "big.mcap"
     rng = np.random.default_rng(0)
     per = 40
-    n = max(1, size // (per * 20))
+    n = max(1, size // (per * 20))      # about size bytes of JSON payload (zstd makes the file smaller)
     with McapOut(p) as out:
         ch = out.channel("/scaling", schema)
         for i in range(n):
