@@ -990,6 +990,7 @@ def load_baseline_job(path) -> dict:
     p = Path(path)
     try:
         text = p.read_text()
+        text = text[1:] if text.startswith("\ufeff") else text     # a UTF-8 byte-order mark
         doc = tomllib.loads(text)
     except OSError as exc:
         raise CdgpsError(f"{p}: cannot read: {exc.strerror or exc}") from None

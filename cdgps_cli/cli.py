@@ -460,7 +460,7 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
                           rest_segments_s=rest_segments, rest_process_noise_scale=rest_process_noise_scale,
                           rest_retry_s=rest_retry_s, rest_auto=rest_auto, rest_window_s=rest_window_s,
                           rest_dwell_s=rest_dwell_s,
-                          keep_filtered_covariance="modal",
+                          keep_filtered_covariance="modal", init_source=str(init_json),
                           progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
     _say(ctx, f"estimating {run_mcap} from {init_json} (biases {biases}{', smoothing' if smooth else ''}) …")
     res = run_ekf(run, init, opt)
