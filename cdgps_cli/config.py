@@ -1035,7 +1035,7 @@ def parse_gnss_config(text: str, path: str = "<config>", base_dir: str | Path | 
     except tomllib.TOMLDecodeError as exc:
         raise CdgpsError(f"{path}: not valid TOML: {exc}") from None
     chk = _Checker(path)
-    chk.problems += _description_problems(doc)
+    chk.problems += [q for q in _description_problems(doc) if not q.startswith("gnss.description:")]  # checked below
     for k in sorted(set(doc) - {"gnss"}):
         hint = " (a [baseline] job: only 'cdgps baseline' reads it; see docs/gnss-pipeline.md for the [gnss] form)" \
             if k == "baseline" else " (a GNSS run config has one [gnss] table)"
