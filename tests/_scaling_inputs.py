@@ -35,64 +35,57 @@ def receiver_csv(folder: Path, size: int, cfg, *, eol: str = "\n") -> Path:
     return p
 
 
-def gyro_csv(folder: Path, size: int, cfg) -> Path:
-    g = cfg.gyro_names
-    row = len("123.456,g1,-0.00012345") + 1
-    n = max(1, size // row)
-    lines = ["time_s,gyro,rate_rad_s"] + [f"{(i // len(g)) * 0.01:.3f},{g[i % len(g)]},{1e-4 * np.sin(i):.8f}" for i in range(n)]
-    p = folder / "gyro.csv"
-    p.write_text("\n".join(lines) + "\n")
-    return p
+def _repeat(lines: list[str], h: int, blocks: list[list[str]], size: int, first_line, name: Path) -> Path:
+    """Header ``lines[:h]``, then ``blocks`` repeated until ``size`` bytes, the first line of the
+    k-th copy rewritten by ``first_line(k, line)``."""
+    out, nbytes, k = lines[:h], 0, 0
+    while nbytes < size:
+        b = blocks[k % len(blocks)]
+        out.append(first_line(k, b[0]))
+        out.extend(b[1:])
+        nbytes += sum(len(x) + 1 for x in b)
+        k += 1
+    name.write_text("\n".join(out) + "\n")
+    return name
+
+
+def _header_end(lines: list[str]) -> int:
+    return next(i for i, ln in enumerate(lines) if "END OF HEADER" in ln) + 1
 
 
 def rinex2_obs(folder: Path, size: int) -> Path:
     """The real GEONET 0759 RINEX 2.10 file's epochs repeated (times shifted) up to ``size`` bytes."""
     lines = (SHARED / "rinex" / "07590920.05o").read_text().splitlines()
-    h = next(i for i, ln in enumerate(lines) if "END OF HEADER" in ln) + 1
+    h = _header_end(lines)
     blocks, cur = [], []
     for ln in lines[h:]:
-        if len(ln) > 28 and ln[28] in "01" and ln[:3].strip().isdigit() and ln[3:6].strip().isdigit() and ln[26:29].strip() in "01":
+        if len(ln) > 28 and ln[:3].strip().isdigit() and ln[3:6].strip().isdigit() and ln[26:29].strip() in "01":
             if cur:
                 blocks.append(cur)
             cur = [ln]
         elif cur:
             cur.append(ln)
     blocks.append(cur)
-    out = lines[:h]
     t0 = dt.datetime(2005, 4, 2)
-    nbytes, k = 0, 0
-    while nbytes < size:
-        b = blocks[k % len(blocks)]
+
+    def epoch(k, line):
         t = t0 + dt.timedelta(seconds=30 * k)
-        epoch = f" {t.year % 100:02d}{t.month:3d}{t.day:3d}{t.hour:3d}{t.minute:3d}{t.second:11.7f}" + b[0][26:]
-        out.append(epoch)
-        out.extend(b[1:])
-        nbytes += sum(len(x) + 1 for x in b)
-        k += 1
-    p = folder / "big.05o"
-    p.write_text("\n".join(out) + "\n")
-    return p
+        return f" {t.year % 100:02d}{t.month:3d}{t.day:3d}{t.hour:3d}{t.minute:3d}{t.second:11.7f}" + line[26:]
+
+    return _repeat(lines, h, blocks, size, epoch, folder / "big.05o")
 
 
 def rinex_nav(folder: Path, size: int) -> Path:
-    """The real GEONET navigation file's records repeated with toc/toe shifted by 2 h each copy."""
+    """The real GEONET navigation file's records repeated, each copy's toc 2 h later."""
     lines = (SHARED / "rinex" / "07590920.05n").read_text().splitlines()
-    h = next(i for i, ln in enumerate(lines) if "END OF HEADER" in ln) + 1
+    h = _header_end(lines)
     recs = [lines[i:i + 8] for i in range(h, len(lines) - 7, 8)]
-    out = lines[:h]
-    nbytes, k = 0, 0
-    while nbytes < size:
-        r = recs[k % len(recs)]
-        day = 2 + (k // len(recs)) // 12
-        hour = (k // len(recs)) % 12 * 2
-        first = r[0][:2] + f" 05{4:3d}{day:3d}{hour:3d}{0:3d}{0.0:5.1f}" + r[0][22:]
-        out.append(first)
-        out.extend(r[1:])
-        nbytes += sum(len(x) + 1 for x in r)
-        k += 1
-    p = folder / "big.05n"
-    p.write_text("\n".join(out) + "\n")
-    return p
+
+    def toc(k, line):
+        copy = k // len(recs)
+        return line[:2] + f" 05{4:3d}{2 + copy // 12:3d}{copy % 12 * 2:3d}{0:3d}{0.0:5.1f}" + line[22:]
+
+    return _repeat(lines, h, recs, size, toc, folder / "big.05n")
 
 
 def _fletcher(body: bytes) -> bytes:
