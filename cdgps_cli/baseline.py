@@ -990,6 +990,7 @@ def load_baseline_job(path) -> dict:
     p = Path(path)
     try:
         text = p.read_text()
+        text = text[1:] if text.startswith("\ufeff") else text     # a UTF-8 byte-order mark
         doc = tomllib.loads(text)
     except OSError as exc:
         raise CdgpsError(f"{p}: cannot read: {exc.strerror or exc}") from None
@@ -1138,9 +1139,10 @@ def format_summary(res: dict) -> str:
     amb = res["ambiguities"]
     st = res["states"]
     rv = res["rover"]
+    iv = "one epoch: no interval" if ep["interval_s"] is None else f"{ep['interval_s']:g} s"
     lines = [
         f"baseline {res['master']} → {rv}: {ep['n_epochs_used']} of {ep['n_epochs_common']} common epochs "
-        f"({ep['first_epoch']} – {ep['last_epoch']}, {ep['interval_s']:g} s), {len(res['satellites'])} satellites, "
+        f"({ep['first_epoch']} – {ep['last_epoch']}, {iv}), {len(res['satellites'])} satellites, "
         f"{res['residuals']['n_dd_phase']} DD phases, {ep['n_reference_changes']} reference changes",
     ]
     r = amb["ratio"]

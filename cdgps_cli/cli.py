@@ -228,10 +228,13 @@ def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_s
 @click.option("--ubx", "ubx", multiple=True, metavar="ANTENNA=FILE", help="GNSS: u-blox UBX log with RXM-RAWX; repeatable.")
 @click.option("--nav", "nav", multiple=True, type=click.Path(dir_okay=False), help="GNSS: RINEX GPS navigation file; repeatable.")
 @click.option("--master", "master", default=None, help="GNSS: the reference antenna at a known position.")
+@click.option("--strict", is_flag=True,
+              help="GNSS: refuse a UBX log with lost data (frames failing the checksum, undecodable RXM-RAWX, bytes "
+                   "skipped between frames, a truncated tail) instead of reporting it with a warning.")
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="RUN.mcap to write.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
-def ingest(ctx, receiver_csv, gyro_csv, actuator_csv, config, rinex, ubx, nav, master, output, as_json):
+def ingest(ctx, receiver_csv, gyro_csv, actuator_csv, config, rinex, ubx, nav, master, strict, output, as_json):
     """Validate logs and write one self-contained RUN.mcap.
 
     \b
@@ -252,8 +255,10 @@ def ingest(ctx, receiver_csv, gyro_csv, actuator_csv, config, rinex, ubx, nav, m
         if receiver_csv or gyro_csv or actuator_csv:
             raise CdgpsError("CSV logs and GNSS receiver files (--rinex/--ubx/--nav/--master, or a GNSS config) cannot be "
                              "mixed in one ingest")
-        _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json)
+        _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict)
         return
+    if strict:
+        raise click.UsageError("--strict applies to GNSS receiver files (UBX logs given with --ubx or in a GNSS config)")
     if receiver_csv is None:
         raise click.UsageError("Missing argument 'RECEIVER_CSV' (or give GNSS files with --rinex/--ubx).")
     if config is None:
@@ -287,7 +292,7 @@ def _parse_named(items, option: str, what: str = "antenna", form: str = "ANTENNA
     return out
 
 
-def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json):
+def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict=False):
     from .config import load_gnss_config, parse_gnss_config
     from .gnss_run import default_config_text, ingest_gnss
 
@@ -305,7 +310,12 @@ def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json):
             raise CdgpsError(f"master {master!r} is not one of the receivers given: {', '.join(files)}")
         cfg = parse_gnss_config(default_config_text(files, list(nav), master), "<generated config>")
     s = ingest_gnss(cfg, output, rinex=rx or None, ubx=ub or None, nav_paths=list(nav) if nav else None, master=master,
-                    progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
+                    progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)), strict=strict)
+    for n, g in s["integrity"].items():        # lost data is reported even with --quiet
+        if g["problems"]:
+            click.echo(f"cdgps: WARNING: {g['file']} ({n}): corrupt UBX data, skipped: {', '.join(g['problems'])}; "
+                       f"{g['n_frames']} frames read (the run lacks what was lost; 'ingest --strict' refuses such a log)",
+                       err=True)
     _say(ctx, f"wrote {output}: GNSS run {s['config']}, master {s['master']}, {len(s['receivers'])} receiver(s), "
               f"{s['ephemerides']} ephemerides, {cfg.displacement} displacement model")
     for r in s["receivers"]:
@@ -477,7 +487,7 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
                           rest_segments_s=rest_segments, rest_process_noise_scale=rest_process_noise_scale,
                           rest_retry_s=rest_retry_s, rest_auto=rest_auto, rest_window_s=rest_window_s,
                           rest_dwell_s=rest_dwell_s,
-                          keep_filtered_covariance="modal",
+                          keep_filtered_covariance="modal", init_source=str(init_json),
                           progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
     _say(ctx, f"estimating {run_mcap} from {init_json} (biases {biases}{', smoothing' if smooth else ''}) …")
     with _init_named(init_json):
@@ -777,7 +787,7 @@ def info(ctx, mcap_file, as_json):
         out.extend(_gnss_info_lines(s["gnss"]))
     for name, md in s["metadata"].items():
         out.append(f"  metadata {name}: " + ", ".join(f"{k}={v if len(v) <= 60 else v[:57] + '…'}"
-                                                     for k, v in sorted(md.items()) if not k.endswith("sha256")))
+                                                     for k, v in sorted(md.items()) if not k.endswith(("sha256", "_integrity"))))
     _echo("\n".join(out))
 
 
@@ -798,6 +808,10 @@ def _gnss_info_lines(g: dict) -> list:
         out.append(f"    {r['name']:<8} {r['format']:<5} {r['file']}: {r['epochs']} epochs {r['first']} – {r['last']} "
                    f"({r['interval_s']:g} s), {r['satellites']} satellites, {r['phase_rows']} phases; lock: {r['arcs']} arcs, "
                    f"{r['slips']} slips, {r['half_cycle_rows']} half-cycle rows; position: {r['position_source'] or 'none'}")
+        if "integrity" in r:
+            from .ubx import integrity_line
+
+            out.append(f"      integrity: {integrity_line(r['integrity'])}")
     for n, k in g["common_epochs"].items():
         out.append(f"    {n}: {k} epochs in common with {g['master']}")
     toe = g["ephemeris_toe"]

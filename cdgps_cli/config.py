@@ -534,8 +534,32 @@ def load_config(path: str | Path) -> StructureConfig:
     return parse_config(raw.decode("utf-8", errors="replace"), str(p))
 
 
+def _strip_bom(text: str) -> str:
+    """TOML text without a leading UTF-8 byte-order mark (editors on Windows write one; TOML
+    parsers refuse it as an invalid statement at line 1)."""
+    return text[1:] if text.startswith("\ufeff") else text
+
+
+def _description_problems(node, key: str = "") -> list[str]:
+    """``KEY: expected a string`` for every ``description`` in the document that is not a string
+    (a description is free text, never read as a number, list or table)."""
+    out = []
+    if isinstance(node, dict):
+        for k, v in node.items():
+            full = f"{key}.{k}" if key else k
+            if k == "description" and not isinstance(v, str):
+                out.append(f"{full}: expected a string (free text in quotes), got {v!r}")
+            else:
+                out += _description_problems(v, full)
+    elif isinstance(node, list):
+        for i, v in enumerate(node):
+            out += _description_problems(v, f"{key}[{i}]")
+    return out
+
+
 def parse_config(text: str, path: str = "<config>") -> StructureConfig:
     """Validate a structure-model TOML document given as text (see :func:`load_config`)."""
+    text = _strip_bom(text)
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -543,6 +567,7 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
     chk = _Checker(path)
     ranges = config_range_problems(doc)                 # plausible bounds (limits.py), first so that
     chk.problems += ranges                              # later checks guarded by `not chk.problems` skip
+    chk.problems += _description_problems(doc)
     top_allowed = {"model", "body", "coordinates", "sections", "antennas", "transmitters", "modes",
                    "process_noise", "gyros", "thrusters", "simulation", "channel_sigma", "points"}
     chk.keys(doc, "", {"model", "coordinates", "antennas", "transmitters", "modes", "process_noise"},
@@ -989,7 +1014,7 @@ def config_kind(text: str) -> str:
     """``"gnss"`` for a GNSS run config (``[gnss]`` table) or a baseline job (``[baseline]``),
     ``"structure"`` otherwise (also for text that is not valid TOML: its loader reports that)."""
     try:
-        doc = tomllib.loads(text)
+        doc = tomllib.loads(_strip_bom(text))
     except tomllib.TOMLDecodeError:
         return "structure"
     return "gnss" if ("gnss" in doc or "baseline" in doc) and "model" not in doc else "structure"
@@ -1011,11 +1036,13 @@ def parse_gnss_config(text: str, path: str = "<config>", base_dir: str | Path | 
     ``base_dir`` resolves relative file paths (None: kept as written, e.g. for a config read
     back from a RUN.mcap, whose data are in the file).
     """
+    text = _strip_bom(text)
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise CdgpsError(f"{path}: not valid TOML: {exc}") from None
     chk = _Checker(path)
+    chk.problems += [q for q in _description_problems(doc) if not q.startswith("gnss.description:")]  # checked below
     for k in sorted(set(doc) - {"gnss"}):
         hint = " (a [baseline] job: only 'cdgps baseline' reads it; see docs/gnss-pipeline.md for the [gnss] form)" \
             if k == "baseline" else " (a GNSS run config has one [gnss] table)"

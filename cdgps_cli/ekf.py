@@ -24,6 +24,7 @@ to rounding.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -69,9 +70,10 @@ class EstimateOptions:
     rest_window_s: float = 3.0         # … its sliding window
     rest_dwell_s: float = 2.0          # … and how long it must pass before rest is entered
     progress: object = None
+    init_source: str = "INIT.json"     # how messages name the INIT (its path); not echoed in outputs
 
     def echo(self) -> dict:
-        d = {k: v for k, v in self.__dict__.items() if k != "progress"}
+        d = {k: v for k, v in self.__dict__.items() if k not in ("progress", "init_source")}
         # JSON has no infinity: an open-ended rest segment is echoed with end null
         d["rest_segments_s"] = [[float(a), None if np.isinf(float(b)) else float(b)] for a, b in self.rest_segments_s]
         return d
@@ -124,18 +126,21 @@ def _chol_inv(M: np.ndarray) -> np.ndarray:
     return inv * masks[0] + (inv * masks[1]).T
 
 
-def load_init_state(init: dict, cfg: StructureConfig) -> tuple[float, np.ndarray, np.ndarray, dict]:
-    """Initial time, state, covariance and per-channel biases (current segments) from INIT.json."""
+def load_init_state(init: dict, cfg: StructureConfig, source: str = "INIT.json") -> tuple[float, np.ndarray, np.ndarray, dict]:
+    """Initial time, state, covariance and per-channel biases (current segments) from INIT.json.
+
+    ``source`` names the INIT file in the messages (its path).
+    """
     problems = []
     for key in ("state", "biases", "config_sha256"):
         if key not in init:
             problems.append(f"missing key {key!r}")
     if problems:
-        raise CdgpsError("INIT.json: " + "; ".join(problems))
+        raise CdgpsError(f"{source}: " + "; ".join(problems))
     if not isinstance(init["config_sha256"], str):
-        raise CdgpsError(f"INIT.json: config_sha256: expected the config's sha256 as text, got {init['config_sha256']!r}")
+        raise CdgpsError(f"{source}: config_sha256: expected the config's sha256 as text, got {init['config_sha256']!r}")
     if init["config_sha256"] != cfg.sha256:
-        raise CdgpsError("INIT.json was made with a different structure config than the RUN "
+        raise CdgpsError(f"{source} was made with a different structure config than the RUN "
                          f"(INIT config_sha256 {init['config_sha256'][:12]}…, RUN {cfg.sha256[:12]}…)")
     st = init["state"]
     n = cfg.n_states
@@ -144,23 +149,25 @@ def load_init_state(init: dict, cfg: StructureConfig) -> tuple[float, np.ndarray
         P = np.asarray(st["P"], dtype=float)
         t0 = float(st["time_s"])
     except (KeyError, TypeError, ValueError) as exc:
-        raise CdgpsError(f"INIT.json: state: expected time_s, x ({n} numbers) and P ({n}×{n}): {exc}") from None
+        raise CdgpsError(f"{source}: state: expected time_s, x ({n} numbers) and P ({n}×{n}): {exc}") from None
+    if not math.isfinite(t0):
+        raise CdgpsError(f"{source}: state.time_s: expected a finite time in seconds, got {st['time_s']!r}")
     if has_bool(st["x"]) or has_bool(st["P"]) or isinstance(st["time_s"], bool):
-        raise CdgpsError("INIT.json: state: time_s, x and P must be numbers, not true/false")
+        raise CdgpsError(f"{source}: state: time_s, x and P must be numbers, not true/false")
     if x.shape != (n,) or P.shape != (n, n) or not np.all(np.isfinite(P)) or not np.all(np.isfinite(x)):
-        raise CdgpsError(f"INIT.json: state: expected x of {n} numbers and P of {n}×{n} finite numbers")
+        raise CdgpsError(f"{source}: state: expected x of {n} numbers and P of {n}×{n} finite numbers")
     for name, v in (("state.x", x), ("state.P", P)):
         b = INIT_BOUNDS[name]
         if not np.all((v >= b.lo) & (v <= b.hi)):
-            raise CdgpsError(f"INIT.json: {name}: values outside the plausible range {b.text()} "
+            raise CdgpsError(f"{source}: {name}: values outside the plausible range {b.text()} "
                              f"(largest magnitude {float(np.max(np.abs(v))):g})")
     P = 0.5 * (P + P.T)
     try:
         np.linalg.cholesky(P)
     except np.linalg.LinAlgError:
-        raise CdgpsError("INIT.json: state.P is not positive definite") from None
+        raise CdgpsError(f"{source}: state.P is not positive definite") from None
     if not isinstance(init["biases"], list):
-        raise CdgpsError("INIT.json: biases: expected a list of objects {antenna, transmitter, bias_m, …}")
+        raise CdgpsError(f"{source}: biases: expected a list of objects {{antenna, transmitter, bias_m, …}}")
     biases = {}
     problems = []
     for i, b in enumerate(init["biases"]):
@@ -187,12 +194,12 @@ def load_init_state(init: dict, cfg: StructureConfig) -> tuple[float, np.ndarray
         elif b.get("current", True):
             biases[key] = val
     if problems:
-        raise CdgpsError("INIT.json: " + "; ".join(problems[:10]) + (f" (+{len(problems) - 10} more)" if len(problems) > 10 else ""))
+        raise CdgpsError(f"{source}: " + "; ".join(problems[:10]) + (f" (+{len(problems) - 10} more)" if len(problems) > 10 else ""))
     sig = init.get("sigma_m")
     if sig is not None and (isinstance(sig, bool) or not isinstance(sig, (int, float)) or not sig > 0):
-        raise CdgpsError(f"INIT.json: sigma_m: expected a positive number, got {sig!r}")
+        raise CdgpsError(f"{source}: sigma_m: expected a positive number, got {sig!r}")
     if sig is not None and not OPTION_BOUNDS["sigma_m"].contains(sig):
-        raise CdgpsError(f"INIT.json: sigma_m = {sig!r} m is outside the plausible range {OPTION_BOUNDS['sigma_m'].text()}")
+        raise CdgpsError(f"{source}: sigma_m = {sig!r} m is outside the plausible range {OPTION_BOUNDS['sigma_m'].text()}")
     return t0, x, P, biases
 
 
@@ -227,11 +234,11 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
         raise CdgpsError(f"--process-noise-scale must be a positive number, got {pns!r}")
     rest = validate_rest_segments(opt.rest_segments_s, opt.rest_process_noise_scale, opt.rest_retry_s)
     cfg = run.cfg
-    t0, x0, P0, init_bias = load_init_state(init, cfg)
+    t0, x0, P0, init_bias = load_init_state(init, cfg, opt.init_source)
     # INIT from 'cdgps init': its state is the batch solution at the window end, which used that
     # epoch's data; the filter starts from it without using them again, and the window's epochs
     # take the batch solution (window_states)
-    win = batch_window(init, t0)
+    win = batch_window(init, t0, opt.init_source)
     sigma = opt.sigma_m if opt.sigma_m is not None else float(init.get("sigma_m") or scalar_sigma_m(channel_sigma_m(cfg, cfg.channels)))
     model = discrete_model(cfg)
     T = cfg.sample_period_s
@@ -242,12 +249,14 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     # epoch grid from INIT time to the end (an INIT time before the run would size it from INIT)
     t_first = float(run.phase["time_s"].min()) if len(run.phase) else t0
     if t0 < t_first - T:
-        raise CdgpsError(f"INIT.json: state.time_s = {t0:g} s is before the first epoch of {run.path} "
+        raise CdgpsError(f"{opt.init_source}: state.time_s = {t0:g} s is before the first epoch of {run.path} "
                          f"({t_first:g} s): expected the INIT.json of this run (its batch window end)")
     keep = run.phase["time_s"].to_numpy() >= t0 - 1e-9
     ph = run.phase if keep.all() else run.phase[keep]
     if len(ph) == 0:
-        raise CdgpsError(f"{run.path}: no phase data after INIT's state time {t0:g} s")
+        raise CdgpsError(f"{opt.init_source}: state.time_s = {t0:g} s is after the last epoch of {run.path} "
+                         f"({float(run.phase['time_s'].max()) if len(run.phase) else float('nan'):g} s): no phase data to "
+                         f"filter; expected the INIT.json of this run")
     t_end = float(ph["time_s"].max())
     N = int(round((t_end - t0) / T)) + 1
     grid = t0 + np.arange(N) * T

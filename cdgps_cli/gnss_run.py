@@ -43,6 +43,7 @@ from .errors import CdgpsError
 from .gnss import ephemeris_coverage, match_epochs, nominal_interval_s
 from .mcap_io import CONFIG_ATTACHMENT, McapOut, array_schema, message_schema, read_mcap
 from .rinex import NAV_COLUMNS, OBS_COLUMNS, gps_time_str, read_rinex_nav, read_rinex_obs
+from .ubx import INTEGRITY_COUNTS, integrity_problems, integrity_record
 
 __all__ = [
     "GNSS_OBS_TOPIC", "GNSS_EPHEMERIS_TOPIC", "RAW_COLUMNS", "GnssReceiver", "GnssRun", "is_gnss_run",
@@ -185,8 +186,11 @@ def _raw_from_ubx(obs: pd.DataFrame) -> pd.DataFrame:
     })
 
 
-def read_receiver_file(name: str, kind: str, path: str | Path) -> GnssReceiver:
+def read_receiver_file(name: str, kind: str, path: str | Path, *, strict: bool = False) -> GnssReceiver:
     """Read one RINEX observation file or UBX log into a :class:`GnssReceiver` (raw table).
+
+    ``strict``: a UBX log with any corrupt or skipped data is an error (see
+    :func:`~cdgps_cli.ubx.read_ubx_rawx`); without it the losses are counted in ``info``.
 
     Raises
     ------
@@ -206,7 +210,7 @@ def read_receiver_file(name: str, kind: str, path: str | Path) -> GnssReceiver:
     elif kind == "ubx":
         from .ubx import read_ubx_rawx  # noqa: PLC0415
 
-        info_u, obs = read_ubx_rawx(p)
+        info_u, obs = read_ubx_rawx(p, strict=strict)
         raw = _raw_from_ubx(obs)
         info = _json_safe(info_u)
         header = {"path": str(p), "format": "UBX RXM-RAWX", "marker_name": name, "approx_position_xyz_m": None,
@@ -362,7 +366,7 @@ def _header_position(h: dict):
 
 
 def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = None, ubx: dict | None = None,
-                nav_paths=None, master: str | None = None, progress=None) -> dict:
+                nav_paths=None, master: str | None = None, progress=None, strict: bool = False) -> dict:
     """Read receiver files and navigation data, check them, and write a GNSS RUN.mcap.
 
     Parameters
@@ -379,11 +383,15 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
         ``cdgps init`` then needs a run ingested with navigation data).
     master : str, optional
         Master antenna (default: the config's, or the only antenna).
+    strict : bool, default False
+        Refuse a UBX log with corrupt or skipped data (checksum failures, undecodable RXM-RAWX,
+        bytes skipped between frames, a truncated tail) instead of counting and reporting it.
 
     Returns
     -------
     dict
-        Summary (receivers, epochs, spans, common epochs, slips, ephemerides, warnings).
+        Summary (receivers, epochs, spans, common epochs, slips, ephemerides, warnings, and
+        ``integrity``: per UBX receiver its file, counters and the worded losses, ``problems``).
 
     Raises
     ------
@@ -429,9 +437,10 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
     receivers = {}
     for n, (kind, p) in files.items():
         say(f"reading {kind.upper()} {p} ({n}) …")
-        receivers[n] = read_receiver_file(n, kind, p)
+        receivers[n] = read_receiver_file(n, kind, p, strict=strict)
     # master first, then the others in the given order
     receivers = {master: receivers[master], **{n: r for n, r in receivers.items() if n != master}}
+    integrity = _ubx_integrity(receivers, files)
     for n, rx in receivers.items():
         w = _missing_code_warning(n, files[n][1], rx)
         if w:
@@ -505,6 +514,8 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
     for n, (kind, p) in files.items():
         meta[f"{kind}:{n}"] = Path(p).name
         meta[f"{kind}:{n}_sha256"] = file_sha256(Path(p))
+        if n in integrity:
+            meta[f"{kind}:{n}_integrity"] = integrity_record(receivers[n].info)
     for i, p in enumerate(nav_list):
         meta[f"nav[{i}]"] = Path(p).name
         meta[f"nav[{i}]_sha256"] = file_sha256(Path(p))
@@ -535,9 +546,21 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
         "receivers": [_receiver_summary(n, rx, lock[n], pos_src[n]) for n, rx in receivers.items()],
         "common_epochs": common,
         "ephemerides": n_eph, "ephemeris_satellites": int(nav["sat"].nunique()) if nav is not None else 0,
-        "messages": n_msg, "warnings": warnings,
+        "messages": n_msg, "warnings": warnings, "integrity": integrity,
     }
     return summary
+
+
+def _ubx_integrity(receivers: dict, files: dict) -> dict:
+    """Per UBX receiver: ``file`` (as given), the integrity counters of its read summary and
+    ``problems`` (the worded losses; empty for a clean log)."""
+    out = {}
+    for n, rx in receivers.items():
+        if rx.format != "ubx":
+            continue
+        out[n] = {"file": files[n][1], **{k: int(rx.info.get(k) or 0) for k in INTEGRITY_COUNTS},
+                  "problems": integrity_problems(rx.info)}
+    return out
 
 
 def _missing_code_warning(name: str, path: str, rx: GnssReceiver) -> str | None:
@@ -673,6 +696,9 @@ def gnss_run_info(path: str | Path, contents) -> dict:
         pos = (r.info.get("position_source"), r.info.get("position_ecef_m"))
         s = _receiver_summary(n, r, lock, pos)
         s["lock"] = lock
+        if r.format == "ubx":
+            s["integrity"] = {**{k: int(r.info.get(k) or 0) for k in INTEGRITY_COUNTS},
+                              "problems": integrity_problems(r.info)}
         rx.append(s)
     tm = np.unique(run.receivers[run.master].raw["time_gps_s"].to_numpy())
     common = {}

@@ -51,6 +51,32 @@ def _check_header_line(p: Path, raw: bytes, columns: tuple) -> None:
         raise CdgpsError(f"{p}, line 1: first line longer than {_MAX_HEADER_BYTES} bytes, not a header; {expected}")
 
 
+def _not_utf8(p: Path, opener) -> str:
+    """The message for a log that is not UTF-8: the line and byte offset of the first invalid byte
+    (of the decompressed text), found in one pass over the file."""
+    import codecs  # noqa: PLC0415
+
+    dec = codecs.getincrementaldecoder("utf-8")()
+    line, offset = 1, 0
+    try:
+        with opener(p, "rb") as fh:
+            while chunk := fh.read(1 << 20):
+                try:
+                    dec.decode(chunk)
+                except UnicodeDecodeError as exc:
+                    pending = len(exc.object) - len(chunk)      # bytes the decoder held back from before
+                    at = exc.start - pending
+                    line += chunk.count(b"\n", 0, max(at, 0))
+                    bad = exc.object[exc.start]
+                    return (f"{p}, line {line}: not UTF-8 text (byte {bad:#04x} at offset {offset + at}); "
+                            f"expected a UTF-8 (or ASCII) CSV log")
+                line += chunk.count(b"\n")
+                offset += len(chunk)
+    except (OSError, EOFError, lzma.LZMAError):
+        pass
+    return f"{p}: not a UTF-8 text file"
+
+
 class _Problems:
     def __init__(self, path):
         self.path = path
@@ -98,7 +124,10 @@ def _read_table(path: str | Path, columns: tuple, numeric: tuple, optional_numer
     except (EOFError, lzma.LZMAError):
         raise CdgpsError(f"{p}: truncated or corrupt compressed file") from None
     _check_header_line(p, raw, columns)
-    head = raw.decode("utf-8", errors="replace").strip().lstrip("\ufeff")
+    try:
+        head = raw.decode("utf-8").strip().lstrip("\ufeff")
+    except UnicodeDecodeError:
+        raise CdgpsError(_not_utf8(p, opener)) from None
     if not head:
         raise CdgpsError(f"{p}, line 1: empty file; expected the header {','.join(columns)}")
     header = [h.strip() for h in head.split(",")]
@@ -121,7 +150,7 @@ def _read_table(path: str | Path, columns: tuple, numeric: tuple, optional_numer
     except pd.errors.ParserError as exc:
         raise CdgpsError(f"{p}{_parser_error_line(str(exc))}: malformed CSV: {str(exc).strip()}") from None
     except UnicodeDecodeError:
-        raise CdgpsError(f"{p}: not a UTF-8 text file") from None
+        raise CdgpsError(_not_utf8(p, opener)) from None
     except (EOFError, OSError, lzma.LZMAError) as exc:
         raise CdgpsError(f"{p}: cannot read: {exc}") from None
     df.columns = [c.strip() for c in df.columns]
@@ -129,7 +158,7 @@ def _read_table(path: str | Path, columns: tuple, numeric: tuple, optional_numer
         raise CdgpsError(f"{p}: no data rows after the header")
     out = {}
     for c in progress.iterate(columns, f"checking {p.name}", unit="column"):
-        col = df[c].str.strip() if df[c].dtype == object else df[c]
+        col = df[c].astype(str).str.strip()     # every column is text (dtype=str): object or pandas>=3 str dtype
         if c in numeric or c in optional_numeric:
             empty = col.to_numpy() == ""
             vals = pd.to_numeric(col.where(~empty, "nan"), errors="coerce").to_numpy(dtype=float)

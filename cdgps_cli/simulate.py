@@ -123,33 +123,41 @@ class Simulation:
     tables: dict = field(default_factory=dict)    # further CSV files by name (closed loop: controller.csv)
 
 
+#: the command-line option of each :class:`SimOptions` field (messages name what the user typed)
+SIM_OPTION_NAMES = {"scenario": "--scenario", "duration_s": "--duration", "phase_sigma_m": "--noise-m",
+                    "multipath_sigma_m": "--multipath-m", "disturbance_scale": "--disturbance-scale",
+                    "random_slips": "--random-slips", "slips": "--slip", "outages": "--outage"}
+
+
 def _validate(cfg: StructureConfig, opt: SimOptions, closed_loop: bool = False) -> None:
+    """Refuse options out of range, each problem named by its option (:data:`SIM_OPTION_NAMES`)."""
+    on = SIM_OPTION_NAMES
     problems = _closed_loop_problems(cfg, opt, closed_loop)
     if opt.scenario not in SCENARIOS:
-        problems.append(f"scenario: expected one of {', '.join(SCENARIOS)}, got {opt.scenario!r}")
+        problems.append(f"{on['scenario']}: expected one of {', '.join(SCENARIOS)}, got {opt.scenario!r}")
     if not (opt.duration_s > 0 and np.isfinite(opt.duration_s)):
-        problems.append(f"--duration (duration_s): expected a positive number of seconds, got {opt.duration_s}")
+        problems.append(f"{on['duration_s']} {opt.duration_s:g}: expected a positive number of seconds")
     if opt.scenario == "pulse" and not cfg.simulation["pulse_thrusters"]:
-        problems.append("scenario pulse: the config's [simulation] pulse_thrusters is empty")
+        problems.append(f"--scenario pulse: {cfg.path}: [simulation] pulse_thrusters is empty; list the thrusters "
+                        f"to pulse (known: {', '.join(cfg.thruster_names) or 'none: the config has no [[thrusters]]'})")
     for s in opt.slips:
         if s.antenna not in cfg.rover_names:
             problems.append(f"--slip: unknown rover antenna {s.antenna!r} (known: {', '.join(cfg.rover_names)})")
         if s.transmitter not in cfg.transmitter_names:
             problems.append(f"--slip: unknown transmitter {s.transmitter!r}")
         if not (np.isfinite(s.time_s) and s.time_s >= 0):
-            problems.append(f"--slip (slips time_s): expected a finite time >= 0 s, got {s.time_s}")
+            problems.append(f"--slip: TIME_S: expected a finite time >= 0 s, got {s.time_s}")
     for o in opt.outages:
         if o.transmitter not in cfg.transmitter_names:
             problems.append(f"--outage: unknown transmitter {o.transmitter!r} (known: {', '.join(cfg.transmitter_names)})")
         if not (np.isfinite(o.start_s) and o.start_s >= 0 and np.isfinite(o.duration_s) and o.duration_s > 0):
-            problems.append(f"--outage (outages): expected start_s >= 0 and duration_s > 0 (finite), got {o.start_s}, {o.duration_s}")
-    for name, spelling in (("phase_sigma_m", "--noise-m"), ("multipath_sigma_m", "--multipath-m"),
-                           ("disturbance_scale", "--disturbance-scale")):
+            problems.append(f"--outage: expected START_S >= 0 and DURATION_S > 0 (finite), got {o.start_s}, {o.duration_s}")
+    for name in ("phase_sigma_m", "multipath_sigma_m", "disturbance_scale"):
         v = getattr(opt, name)
         if v is not None and not (v >= 0 and np.isfinite(v)):
-            problems.append(f"{spelling} ({name}): expected a non-negative number, got {v}")
+            problems.append(f"{on[name]} {v:g}: expected a non-negative number")
     if opt.random_slips < 0:
-        problems.append("--random-slips (random_slips): expected a non-negative count")
+        problems.append(f"{on['random_slips']} {opt.random_slips}: expected a non-negative count")
     if problems:
         raise CdgpsError("invalid simulation options:\n  - " + "\n  - ".join(problems))
     check_table_size(opt.duration_s / cfg.sample_period_s + 1, len(cfg.channels), SIM_BYTES_PER_VALUE,

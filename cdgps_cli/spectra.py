@@ -386,9 +386,13 @@ def compute_spectra(cfg: StructureConfig, time_s: np.ndarray, q: np.ndarray,
     fs = 1.0 / T
     duration = N * T
     seg_s = opt.segment_s or min(duration / 4.0, 600.0)
-    problems = ([f"--segment-s {seg_s:g}: expected a positive segment length, s"] if not seg_s > 0 else []) + \
-        ([f"--pad {opt.pad}: expected a zero-padding factor >= 1"] if not opt.pad >= 1 else []) + \
-        ([f"--overlap {opt.overlap:g}: expected a fraction in [0, 1)"] if not 0 <= opt.overlap < 1 else [])
+    problems = []
+    if not seg_s > 0:
+        problems.append(f"--segment-s {seg_s:g}: expected a positive segment length in seconds")
+    if not opt.pad >= 1:
+        problems.append(f"--pad {opt.pad:g}: expected an FFT zero-padding factor >= 1")
+    if not 0 <= opt.overlap < 1:
+        problems.append(f"--overlap {opt.overlap:g}: expected a fraction of a segment in [0, 1)")
     if problems:
         raise CdgpsError("; ".join(problems))
     nperseg = int(min(N, max(16, round(seg_s * fs))))

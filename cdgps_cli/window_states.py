@@ -69,18 +69,20 @@ class WindowStates:
     segments_without_bias: list     # window lock segments INIT has no bias for (their data left out)
 
 
-def batch_window(init: dict, t0: float) -> tuple[float, float] | None:
+def batch_window(init: dict, t0: float, source: str = "INIT.json") -> tuple[float, float] | None:
     """(start_s, end_s) of INIT's batch window when INIT's state is the batch solution at its end
-    (INIT.json from ``cdgps init``), else None (a hand-made INIT: its state is a prior at t0)."""
+    (INIT.json from ``cdgps init``), else None (a hand-made INIT: its state is a prior at t0).
+    ``source`` names the INIT file in the messages."""
     w = init.get("window")
     if not isinstance(w, dict):
         return None
     try:
         a, b = float(w["start_s"]), float(w["end_s"])
     except (KeyError, TypeError, ValueError):
-        raise CdgpsError("INIT.json: window: expected start_s and end_s in seconds") from None
+        raise CdgpsError(f"{source}: window: expected start_s and end_s in seconds") from None
     if not (np.isfinite(a) and np.isfinite(b) and a <= b):
-        raise CdgpsError(f"INIT.json: window: start_s {a!r} and end_s {b!r} are not a time span")
+        raise CdgpsError(f"{source}: window.start_s {a!r} and window.end_s {b!r}: expected finite times in seconds, "
+                         f"start_s <= end_s")
     if abs(b - t0) > 1e-6:
         return None
     return a, b

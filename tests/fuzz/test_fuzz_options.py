@@ -146,7 +146,7 @@ def test_real_commands_with_numeric_options(base, data):
 
 @pytest.mark.parametrize("argv,words", [
     (["simulate", DOF2, "--duration", "0"], ["--duration"]),
-    (["spectra", "{states}", "--overlap", "-1"], ["--overlap -1: expected a fraction in [0, 1)"]),
+    (["spectra", "{states}", "--overlap", "-1"], ["--overlap -1: expected a fraction of a segment in [0, 1)"]),
 ])
 def test_found_messages_name_the_option(base, tmp_path, argv, words):
     """Found by this suite: 'duration: expected …' (simulate's field name) and spectra's one combined
