@@ -217,29 +217,33 @@ def speed(d: Path) -> dict:
         out[name] = {"mib": round(mib, 1), "verify_best_s": round(min(times), 4),
                      "mib_per_s": round(mib / min(times), 0)}
     real = mcap_io.verify_file
-    calls = []
+    spent = []
 
-    def counted(fh, path):
-        calls.append(str(path))
-        return real(fh, path)
+    def timed(fh, path):
+        t = time.perf_counter()
+        try:
+            return real(fh, path)
+        finally:
+            spent.append(time.perf_counter() - t)
 
-    walls = {"with_check": [], "without_check": []}
-    for rep in range(2):
-        for arm in ("with_check", "without_check"):
-            if arm == "with_check":
-                mcap_io.verify_file = counted
-            else:                               # no magic / footer / CRC checks at all
-                mcap_io.verify_file = lambda fh, path: Integrity("cdgps", True, True)
-            calls.clear()
-            t = time.perf_counter()
-            r = cli("estimate", d / "BIG_RUN.mcap", "--init", d / "BIG_INIT.json", "--smooth", "-o", d / "S2.mcap")
-            walls[arm].append(time.perf_counter() - t)
-            if arm == "with_check":
-                out["verifications_per_estimate"] = len(calls)
-            mcap_io.verify_file = real
-            assert r.exit_code == 0, r.output
-    out["estimate_smooth_s"] = {k: [round(x, 2) for x in v] for k, v in walls.items()}
-    out["estimate_overhead_pct"] = round(100 * (min(walls["with_check"]) / min(walls["without_check"]) - 1), 1)
+    walls = {}
+    for arm in ("with_check", "without_check"):
+        # without: no magic / footer / CRC checks at all (the A/B is noisy on a shared machine;
+        # the time spent inside the checks, measured directly, is the figure that counts)
+        mcap_io.verify_file = timed if arm == "with_check" else (lambda fh, path: Integrity("cdgps", True, True))
+        t = time.perf_counter()
+        r = cli("estimate", d / "BIG_RUN.mcap", "--init", d / "BIG_INIT.json", "--smooth", "-o", d / "S2.mcap")
+        walls[arm] = round(time.perf_counter() - t, 2)
+        mcap_io.verify_file = real
+        assert r.exit_code == 0, r.output
+    out["estimate_smooth_wall_s"] = walls
+    out["verifications_per_estimate"] = len(spent)
+    out["verify_s_in_estimate"] = round(sum(spent), 4)
+    out["verify_fraction_of_estimate_pct"] = round(100 * sum(spent) / walls["with_check"], 3)
+    t = time.perf_counter()
+    r = cli("evaluate", "--truth", d / "big", "--estimate", d / "BIG_STATES.mcap", "--json")
+    out["evaluate_big_states_wall_s"] = round(time.perf_counter() - t, 2)
+    assert r.exit_code == 0, r.output
     return out
 
 

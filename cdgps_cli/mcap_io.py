@@ -2,7 +2,7 @@
 
 Layout written by :class:`McapOut`:
 
-* zstd-compressed chunks, chunk and data-section CRCs, full summary and indexes;
+* zstd-compressed chunks, chunk, attachment, data-section and summary CRCs, full summary and indexes;
 * JSON-schema channels (schema encoding ``jsonschema``, message encoding ``json``) so Foxglove can
   open the file; one message per epoch per topic, the epoch's channels as arrays, with a
   ``timestamp {sec, nsec}`` field (log time = publish time = that timestamp, Unix time: see
@@ -17,8 +17,11 @@ Layout written by :class:`McapOut`:
   the file by :meth:`McapOut.attach_npy` instead of being built in memory) and metadata records.
 
 Files are written under a temporary name in the target directory and renamed when complete, so a
-failed run never leaves a half-written output.  Readers always validate CRCs and turn any
-corruption or truncation into a :class:`CdgpsError`.
+failed run never leaves a half-written output.  Every metadata record carries its own
+``record_sha256``.  Readers go through :func:`open_verified`: summary and data-section CRCs
+(:mod:`cdgps_cli.mcap_integrity`), chunk and attachment CRCs and the records' checksums are
+verified before any value is used, and any corruption or truncation is a :class:`CdgpsError`
+naming the file.
 """
 
 from __future__ import annotations
