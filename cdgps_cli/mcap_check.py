@@ -21,8 +21,9 @@ Panels such as Plot address a field by a message path (``/cdgps/angles_deg.C2_z`
 are letters, digits, ``_`` and ``-`` (:func:`path_name_problems`).
 
 :func:`check_mcap` applies these rules to every channel of a file read with the official ``mcap``
-reader after the file's integrity is checked (:func:`cdgps_cli.mcap_io.open_verified`: summary and
-data-section CRCs, metadata checksums; failures listed under ``integrity``), validates every message against its channel's schema with the
+reader after the file's integrity is checked (:func:`cdgps_cli.mcap_io.open_verified`: summary
+and data-section CRCs, metadata checksums; failures listed under ``integrity``), validates every
+message against its channel's schema with the
 ``jsonschema`` package (when installed: it is a test dependency), and checks the time fields:
 ``timestamp`` equal to the log and publish times, which are Unix time for the channel's
 ``time_scale`` (:mod:`cdgps_cli.timescales`).  Usage: ``python -m cdgps_cli.mcap_check FILE…``.
@@ -156,7 +157,8 @@ def check_mcap(path: str | Path, validate: bool = True, max_problems: int = 20) 
     -------
     dict
         ``file``, ``messages``, ``failures`` (messages with any problem plus refused schemas plus
-        integrity failures), ``integrity`` (messages of failed CRC / checksum checks) and per topic ``channels[topic] = {schema, messages, failures, schema_problems, problems}``.
+        integrity failures), ``integrity`` (messages of failed CRC / checksum checks) and per
+        topic ``channels[topic] = {schema, messages, failures, schema_problems, problems}``.
     """
     from mcap.reader import make_reader  # noqa: PLC0415
 
