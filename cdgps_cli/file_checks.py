@@ -4,7 +4,8 @@ Every command that reads a cdgps MCAP says which kinds it takes; :func:`require_
 other with a message naming the file, what was expected and what it is (a STATES.mcap given as
 ``--gyro``, a RUN.mcap given to ``export``, …) before anything is written.  The kind is read from
 the metadata records that ``ingest`` (``cdgps.ingest``) and ``estimate`` (``cdgps.estimate``) write,
-without decoding any message.
+without decoding any message, after the file's CRCs and the records' own checksums are verified
+(:mod:`cdgps_cli.mcap_integrity`).
 
 :func:`check_init_run` compares INIT.json's ``run_sha256`` (the RUN it was made from) with the
 RUN being estimated: an INIT from another run fits biases of the wrong run, which shows only as
@@ -32,12 +33,13 @@ _MAGIC = b"\x89MCAP0\r\n"
 _INGEST, _ESTIMATE = "cdgps.ingest", "cdgps.estimate"
 
 
-def mcap_kind(path: str | Path) -> str | None:
+def mcap_kind(path: str | Path) -> str:
     """One of the kinds above, or a description of what else the file is.
 
-    Returns None when the file is an MCAP whose metadata cannot be read (damaged): the command's
-    own reader then reports the problem.  Raises CdgpsError when the file cannot be opened."""
-    from mcap.reader import make_reader  # noqa: PLC0415
+    The metadata is read through :func:`cdgps_cli.mcap_integrity.read_metadata`, after the file's
+    CRCs are checked: a damaged MCAP is a CdgpsError naming the file and the failing region, as is
+    a file that cannot be opened."""
+    from .mcap_integrity import read_metadata  # noqa: PLC0415
 
     if not Path(path).is_file():
         raise CdgpsError(f"{path}: no such file")
@@ -45,13 +47,9 @@ def mcap_kind(path: str | Path) -> str | None:
         with open(path, "rb") as fh:
             if fh.read(len(_MAGIC)) != _MAGIC:
                 return NOT_MCAP
-            fh.seek(0)
-            try:
-                meta = {m.name: dict(m.metadata) for m in make_reader(fh).iter_metadata()}
-            except Exception:  # noqa: BLE001 - damaged: let the regular reader explain
-                return None
     except OSError as exc:
         raise CdgpsError(f"{path}: cannot read: {exc.strerror}") from None
+    meta = read_metadata(path)
     if _ESTIMATE in meta:
         return GNSS_STATES if meta[_ESTIMATE].get("kind") == "gnss" else STRUCTURE_STATES
     if _INGEST in meta:
@@ -59,14 +57,14 @@ def mcap_kind(path: str | Path) -> str | None:
     return "an MCAP file without cdgps metadata (not written by 'cdgps ingest' or 'cdgps estimate')"
 
 
-def require_kind(path: str | Path, expected: tuple[str, ...] | str, role: str) -> str | None:
+def require_kind(path: str | Path, expected: tuple[str, ...] | str, role: str) -> str:
     """Refuse ``path`` unless it is of one of the ``expected`` kinds.
 
     ``role`` names the argument in the message (e.g. ``"--gyro"``, ``"STATES_MCAP"``).  Returns the
-    kind (None for a damaged MCAP, left to the command's reader)."""
+    kind; a damaged MCAP is a CdgpsError (:func:`mcap_kind`)."""
     expected = (expected,) if isinstance(expected, str) else tuple(expected)
     kind = mcap_kind(path)
-    if kind is None or kind in expected:
+    if kind in expected:
         return kind
     want = " or ".join(f"a {e}" for e in expected)
     got = kind if kind.startswith(("not ", "an ")) else f"a {kind}"

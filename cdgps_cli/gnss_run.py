@@ -625,19 +625,12 @@ def _write_obs_messages(out: McapOut, ch: int, receivers: dict) -> int:
 
 
 def run_kind(path: str | Path) -> str | None:
-    """``"gnss"`` if an MCAP file's ingest metadata says it is a GNSS run, else None (also for
-    files that cannot be read: the normal reader then reports the problem).  Reads only the
-    metadata records."""
-    from mcap.reader import make_reader  # noqa: PLC0415
+    """``"gnss"`` if an MCAP file's ingest metadata says it is a GNSS run, else None.  Reads only
+    the metadata records, through :func:`cdgps_cli.mcap_integrity.read_metadata` (CRCs and the
+    records' checksums verified: a damaged file is a CdgpsError naming it)."""
+    from .mcap_integrity import read_metadata  # noqa: PLC0415
 
-    try:
-        with open(path, "rb") as fh:
-            for m in make_reader(fh).iter_metadata():
-                if m.name == INGEST_METADATA:
-                    return "gnss" if dict(m.metadata).get("kind") == "gnss" else None
-    except Exception:  # noqa: BLE001 - any problem: let the regular reader explain it
-        return None
-    return None
+    return "gnss" if read_metadata(path).get(INGEST_METADATA, {}).get("kind") == "gnss" else None
 
 
 def is_gnss_run(contents) -> bool:
@@ -659,7 +652,10 @@ def read_gnss_run(path: str | Path, contents=None) -> GnssRun:
         rx_json = json.loads(c.attachments[RECEIVERS_ATTACHMENT])
     except ValueError as exc:
         raise CdgpsError(f"{path}: damaged {RECEIVERS_ATTACHMENT}: {exc}") from None
-    meta = c.metadata.get(INGEST_METADATA, {})
+    meta = c.require_metadata(INGEST_METADATA, "GNSS RUN.mcap from 'cdgps ingest'")
+    if any(k.startswith("nav[") for k in meta) and EPHEMERIS_ATTACHMENT not in c.attachments:
+        raise CdgpsError(f"{path}: no {EPHEMERIS_ATTACHMENT} attachment although the run was ingested with "
+                         f"navigation files (damaged file)")
     receivers = {}
     for i, rj in enumerate(rx_json):
         key = OBS_ATTACHMENT.format(i)

@@ -21,7 +21,9 @@ Panels such as Plot address a field by a message path (``/cdgps/angles_deg.C2_z`
 are letters, digits, ``_`` and ``-`` (:func:`path_name_problems`).
 
 :func:`check_mcap` applies these rules to every channel of a file read with the official ``mcap``
-reader (CRCs validated), validates every message against its channel's schema with the
+reader after the file's integrity is checked (:func:`cdgps_cli.mcap_io.open_verified`: summary
+and data-section CRCs, metadata checksums; failures listed under ``integrity``), validates every
+message against its channel's schema with the
 ``jsonschema`` package (when installed: it is a test dependency), and checks the time fields:
 ``timestamp`` equal to the log and publish times, which are Unix time for the channel's
 ``time_scale`` (:mod:`cdgps_cli.timescales`).  Usage: ``python -m cdgps_cli.mcap_check FILE…``.
@@ -154,11 +156,20 @@ def check_mcap(path: str | Path, validate: bool = True, max_problems: int = 20) 
     Returns
     -------
     dict
-        ``file``, ``messages``, ``failures`` (messages with any problem plus refused schemas) and
-        per topic ``channels[topic] = {schema, messages, failures, schema_problems, problems}``.
+        ``file``, ``messages``, ``failures`` (messages with any problem plus refused schemas plus
+        integrity failures), ``integrity`` (messages of failed CRC / checksum checks) and per
+        topic ``channels[topic] = {schema, messages, failures, schema_problems, problems}``.
     """
     from mcap.reader import make_reader  # noqa: PLC0415
 
+    from .errors import CdgpsError  # noqa: PLC0415
+    from .mcap_io import open_verified  # noqa: PLC0415
+
+    try:
+        with open_verified(path):                    # summary and data-section CRCs, metadata checksums
+            integrity = []
+    except CdgpsError as exc:
+        integrity = [str(exc)]
     validators = {}
     if validate:
         from jsonschema import validators as jsv  # noqa: PLC0415
@@ -217,7 +228,8 @@ def check_mcap(path: str | Path, validate: bool = True, max_problems: int = 20) 
                 failures += 1
                 if len(rec["problems"]) < max_problems:
                     rec["problems"].append(f"message {message.sequence} ({message.log_time} ns): " + "; ".join(probs[:3]))
-    return {"file": str(path), "messages": total, "failures": failures, "channels": channels}
+    return {"file": str(path), "messages": total, "failures": failures + len(integrity), "channels": channels,
+            "integrity": integrity}
 
 
 def _time_problems(msg: dict, message, scale) -> list[str]:
@@ -240,6 +252,8 @@ def main(argv=None) -> int:
     for p in (argv if argv is not None else sys.argv[1:]):
         r = check_mcap(p)
         print(f"{p}: {r['messages']} messages, {r['failures']} failures")
+        for line in r["integrity"]:
+            print(f"  integrity: {line}")
         for topic, c in r["channels"].items():
             print(f"  {topic} ({c['schema']}): {c['messages']} messages, {c['failures']} failures")
             for line in c["schema_problems"] + c["problems"]:

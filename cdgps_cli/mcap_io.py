@@ -2,7 +2,7 @@
 
 Layout written by :class:`McapOut`:
 
-* zstd-compressed chunks, chunk and data-section CRCs, full summary and indexes;
+* zstd-compressed chunks, chunk, attachment, data-section and summary CRCs, full summary and indexes;
 * JSON-schema channels (schema encoding ``jsonschema``, message encoding ``json``) so Foxglove can
   open the file; one message per epoch per topic, the epoch's channels as arrays, with a
   ``timestamp {sec, nsec}`` field (log time = publish time = that timestamp, Unix time: see
@@ -17,12 +17,16 @@ Layout written by :class:`McapOut`:
   the file by :meth:`McapOut.attach_npy` instead of being built in memory) and metadata records.
 
 Files are written under a temporary name in the target directory and renamed when complete, so a
-failed run never leaves a half-written output.  Readers always validate CRCs and turn any
-corruption or truncation into a :class:`CdgpsError`.
+failed run never leaves a half-written output.  Every metadata record carries its own
+``record_sha256``.  Readers go through :func:`open_verified`: summary and data-section CRCs
+(:mod:`cdgps_cli.mcap_integrity`), chunk and attachment CRCs and the records' checksums are
+verified before any value is used, and any corruption or truncation is a :class:`CdgpsError`
+naming the file.
 """
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import os
@@ -44,6 +48,7 @@ from mcap.writer import CompressionType, IndexType, Writer
 from . import progress
 from .atomic import is_no_room, output_error, temporary_name
 from .errors import CdgpsError
+from .mcap_integrity import RECORD_SHA256_KEY, check_records, record_sha256, verify_file, warn_once
 from .timescales import RELATIVE_EPOCH_UTC, TIME_SCALES, unix_ns
 
 PHASE_TOPIC = "/cdgps/phase"
@@ -351,7 +356,13 @@ class McapOut:
                 name=name, media_type=media_type))
 
     def metadata(self, name: str, data: dict) -> None:
-        self.writer.add_metadata(name=name, data={k: str(v) for k, v in data.items()})
+        """Write a metadata record (values as strings) with its own ``record_sha256``
+        (:func:`cdgps_cli.mcap_integrity.record_sha256`: MCAP metadata records have no CRC)."""
+        if RECORD_SHA256_KEY in data:
+            raise ValueError(f"metadata {name!r}: the key {RECORD_SHA256_KEY!r} is reserved")
+        rec = {str(k): str(v) for k, v in data.items()}
+        rec[RECORD_SHA256_KEY] = record_sha256(name, rec)
+        self.writer.add_metadata(name=name, data=rec)
 
     def __exit__(self, exc_type, exc, tb) -> None:
         try:
@@ -479,10 +490,26 @@ class McapContents:
     schemas: dict           # topic → (schema name, encoding)
     message_encoding: dict  # topic → encoding
     channel_metadata: dict = field(default_factory=dict)  # topic → dict[str, str] (e.g. time_scale)
+    channels: frozenset = frozenset()   # every topic registered in the file (also those without messages)
+
+    def require_channels(self, *topics: str, what: str = "cdgps file") -> None:
+        """Refuse the file unless every topic in ``topics`` has a channel (a CdgpsError naming them)."""
+        missing = [t for t in topics if t not in self.channels]
+        if missing:
+            raise CdgpsError(f"{self.path}: no {', '.join(missing)} channel; expected in a {what} "
+                             f"(damaged or not written by cdgps)")
+
+    def require_metadata(self, name: str, what: str = "cdgps file") -> dict:
+        """The metadata record ``name``, or a CdgpsError naming the file and the record."""
+        if name not in self.metadata:
+            raise CdgpsError(f"{self.path}: no {name!r} metadata record; expected in a {what} "
+                             f"(damaged or not written by cdgps)")
+        return self.metadata[name]
 
 
-def _check_attachment_crcs(fh, summary, path) -> None:
-    """Validate every attachment's CRC-32 (the mcap library writes it but does not check it)."""
+def _check_attachment_crcs(fh, summary, path, zero_ok: bool = True) -> None:
+    """Validate every attachment's CRC-32 (the mcap library writes it but does not check it);
+    a CRC of 0 ("not computed") is refused unless ``zero_ok`` (the data-section CRC covered it)."""
     for idx in summary.attachment_indexes:
         fh.seek(idx.offset)
         raw = fh.read(idx.length)
@@ -490,6 +517,9 @@ def _check_attachment_crcs(fh, summary, path) -> None:
             raise CdgpsError(f"{path}: attachment {idx.name!r} is truncated")
         content = raw[9:]                      # opcode (1) + record length (8)
         stored = struct.unpack("<I", content[-4:])[0]
+        if stored == 0 and not zero_ok:
+            raise CdgpsError(f"{path}: attachment {idx.name!r} has no CRC and the file no data-section CRC: "
+                             f"its bytes cannot be checked")
         if stored != 0 and zlib.crc32(content[:-4]) != stored:
             raise CdgpsError(f"{path}: attachment {idx.name!r} fails its CRC check (corrupt file)")
 
@@ -535,42 +565,61 @@ _CORRUPT_MCAP_ERRORS = (McapError, EOFError, ValueError, KeyError, IndexError, s
                         UnicodeDecodeError, MemoryError, OverflowError, zstandard.ZstdError)
 
 
-def read_mcap(path: str | Path, topics: list[str] | None = None) -> McapContents:
-    """Read an MCAP file with CRC validation.
+@contextlib.contextmanager
+def open_verified(path: str | Path):
+    """Open an MCAP file for reading after checking its integrity
+    (:func:`cdgps_cli.mcap_integrity.verify_file`: magic, footer, summary and data-section CRCs).
 
-    Raises
-    ------
-    CdgpsError
-        If the file is missing, not an MCAP file, truncated or fails a CRC check.
+    Yields ``(reader, fh, integrity, summary)``; ``integrity.metadata`` holds the metadata records,
+    each verified (:func:`~cdgps_cli.mcap_integrity.check_records`).  Any damage met inside the
+    block, or while opening, becomes a CdgpsError naming the file.
     """
     p = Path(path)
     if not p.is_file():
         raise CdgpsError(f"{p}: no such file")
-    cols: dict = {}
-    schemas, encodings, chan_meta = {}, {}, {}
     try:
         with open(p, "rb") as raw:
             fh = _InputBoundedFile(raw)
+            info = verify_file(fh, p)
+            warn_once(info)
+            fh.seek(0)
             reader = make_reader(fh, validate_crcs=True)
             summary = reader.get_summary()
             if summary is None:
                 raise CdgpsError(f"{p}: MCAP file has no summary section (truncated or not written by a complete run)")
-            messages = reader.iter_messages(topics=topics) if topics != [] else ()
-            for schema, channel, message in progress.iterate(messages, f"reading {p.name}",
-                                                              _message_count(summary, topics), "msg"):
-                acc = cols.get(channel.topic)
-                if acc is None:
-                    acc = cols[channel.topic] = TopicColumns()
-                    schemas[channel.topic] = (schema.name if schema else "", schema.encoding if schema else "")
-                    encodings[channel.topic] = channel.message_encoding
-                    chan_meta[channel.topic] = dict(channel.metadata or {})
-                acc.add(json.loads(message.data))
-            _check_attachment_crcs(fh, summary, p)
-            attachments = {a.name: bytes(a.data) for a in reader.iter_attachments()}
-            metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+            info.metadata = check_records(reader.iter_metadata(), info, p)
+            yield reader, fh, info, summary
     except CdgpsError:
         raise
     except _CORRUPT_MCAP_ERRORS as exc:
         raise CdgpsError(f"{p}: not a valid MCAP file (truncated or corrupt): {type(exc).__name__}: "
                          f"{str(exc)[:200]}") from None
-    return McapContents(str(p), cols, attachments, metadata, schemas, encodings, chan_meta)
+
+
+def read_mcap(path: str | Path, topics: list[str] | None = None) -> McapContents:
+    """Read an MCAP file, every byte checked before any value is used (:func:`open_verified`,
+    chunk and attachment CRCs, each metadata record's ``record_sha256``).
+
+    Raises
+    ------
+    CdgpsError
+        If the file is missing, not an MCAP file, truncated or fails a check.
+    """
+    p = Path(path)
+    cols: dict = {}
+    schemas, encodings, chan_meta = {}, {}, {}
+    with open_verified(p) as (reader, fh, info, summary):
+        messages = reader.iter_messages(topics=topics) if topics != [] else ()
+        for schema, channel, message in progress.iterate(messages, f"reading {p.name}",
+                                                          _message_count(summary, topics), "msg"):
+            acc = cols.get(channel.topic)
+            if acc is None:
+                acc = cols[channel.topic] = TopicColumns()
+                schemas[channel.topic] = (schema.name if schema else "", schema.encoding if schema else "")
+                encodings[channel.topic] = channel.message_encoding
+                chan_meta[channel.topic] = dict(channel.metadata or {})
+            acc.add(json.loads(message.data))
+        _check_attachment_crcs(fh, summary, p, zero_ok=info.data_section_crc_checked)
+        attachments = {a.name: bytes(a.data) for a in reader.iter_attachments()}
+        channels = frozenset(ch.topic for ch in summary.channels.values())
+    return McapContents(str(p), cols, attachments, info.metadata, schemas, encodings, chan_meta, channels)

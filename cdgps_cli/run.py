@@ -182,6 +182,8 @@ def read_run(path: str | Path, phase: bool = True) -> Run:
     """
     want_phase = phase
     c = read_mcap(path, topics=None if want_phase else [ACTUATOR_TOPIC])
+    if "cdgps.estimate" not in c.metadata:
+        c.require_metadata(INGEST_METADATA, "RUN.mcap from 'cdgps ingest'")
     if c.metadata.get(INGEST_METADATA, {}).get("kind") == "gnss":
         raise CdgpsError(f"{path}: this is a GNSS run (RINEX/UBX receivers, docs/gnss-pipeline.md), not a structure run; "
                          f"it is processed by 'cdgps init' and 'cdgps estimate' into displacement states")
@@ -189,6 +191,7 @@ def read_run(path: str | Path, phase: bool = True) -> Run:
         raise CdgpsError(f"{path}: this is a STATES.mcap (from 'cdgps estimate'), not a RUN.mcap from 'cdgps ingest'")
     if CONFIG_ATTACHMENT not in c.attachments:
         raise CdgpsError(f"{path}: no {CONFIG_ATTACHMENT} attachment; is this a RUN.mcap from 'cdgps ingest'?")
+    c.require_channels(PHASE_TOPIC, what="RUN.mcap from 'cdgps ingest'")
     if want_phase and PHASE_TOPIC not in c.topics:
         raise CdgpsError(f"{path}: no {PHASE_TOPIC} messages; is this a RUN.mcap from 'cdgps ingest'?")
     cfg = parse_config(c.attachments[CONFIG_ATTACHMENT].decode("utf-8"), f"{path}:{CONFIG_ATTACHMENT}")

@@ -232,6 +232,10 @@ class States:
             raise CdgpsError(f"{path}: this is a RUN.mcap (from 'cdgps ingest'), not a STATES.mcap from 'cdgps estimate'")
         if CONFIG_ATTACHMENT not in c.attachments:
             raise CdgpsError(f"{path}: no config attachment; is this a STATES.mcap from 'cdgps estimate'?")
+        what = "STATES.mcap from 'cdgps estimate'"
+        c.require_metadata(ESTIMATE_METADATA, what)
+        if diagnostics:
+            c.require_channels(RESIDUAL_TOPIC, EVENT_TOPIC, what=what)
         self.cfg = parse_config(c.attachments[CONFIG_ATTACHMENT].decode(), f"{path}:{CONFIG_ATTACHMENT}")
         nm = self.cfg.n_modes
         key = f"arrays{topic}/"
@@ -256,8 +260,11 @@ class States:
             N = len(self.time_s)
             self.xi = tc.column("xi").reshape(N, nm)
             self.P_xi = tc.column("P_xi").reshape(N, nm, nm)
-        self.metadata = c.metadata.get(ESTIMATE_METADATA, {})
+        self.metadata = c.metadata[ESTIMATE_METADATA]
         res = c.topics.get(RESIDUAL_TOPIC)
+        if diagnostics and len(res or ()) != len(self.time_s):
+            raise CdgpsError(f"{path}: {len(res or ())} {RESIDUAL_TOPIC} message(s) for {len(self.time_s)} epoch(s); "
+                             f"'cdgps estimate' writes one per epoch (damaged file)")
         # NIS is left out of a message without one (the window's epochs): all of them on a run that is
         # one INIT window, so the column may be missing altogether
         nis = res.scalars.get("nis") or [None] * len(res.scalars["nis_dof"]) if res else None
@@ -389,8 +396,11 @@ def evaluate(truth_dir: str | Path, states_path: str | Path, converge_s: float =
         inside_nis = (st.nis[ok] >= chi2.ppf(0.025, st.nis_dof[ok])) & (st.nis[ok] <= chi2.ppf(0.975, st.nis_dof[ok]))
         out["nis"] = {"mean_per_dof": float(np.mean(r)), "fraction_in_interval95": float(np.mean(inside_nis))}
     # bias errors: final biases vs truth (latest segment per channel)
+    if "final_biases" not in st.metadata:
+        raise CdgpsError(f"{states_path}: metadata {ESTIMATE_METADATA!r} has no final_biases (damaged or not a "
+                         f"STATES.mcap from 'cdgps estimate')")
     try:
-        fb = json.loads(st.metadata.get("final_biases", "[]"))
+        fb = json.loads(st.metadata["final_biases"])
     except json.JSONDecodeError as exc:
         raise CdgpsError(f"{states_path}: metadata final_biases is not valid JSON ({exc.msg}): corrupt file") from None
     tb = {(b["antenna"], b["transmitter"]): b["bias_m"] for b in tj.get("biases", [])}

@@ -315,7 +315,7 @@ def test_old_files_with_nulls_still_read(tmp_path):
             ("lock", "integer"), ("snr_dbhz", ["number", "null"]))}}}
     p = tmp_path / "old.mcap"
     with open(p, "wb") as fh:
-        w = Writer(fh)
+        w = Writer(fh, enable_data_crcs=True)          # as cdgps always wrote: data-section CRC
         w.start(profile="cdgps", library="cdgps")
         sid = w.register_schema("cdgps.DifferentialPhase", "jsonschema", json.dumps(old_schema).encode())
         cid = w.register_channel("/cdgps/phase", "json", sid, {})
@@ -326,6 +326,7 @@ def test_old_files_with_nulls_still_read(tmp_path):
                     "phase_cycles": [1.5, 2.5], "lock": [k, k], "snr_dbhz": [None, 44.0]}
             w.add_message(cid, log_time=round(t * 1e9), data=json.dumps(body).encode(), publish_time=round(t * 1e9))
         w.add_attachment(0, 0, "config.toml", "application/toml", cfg.text.encode())
+        w.add_metadata("cdgps.ingest", {"created_by": "cdgps ingest"})   # older files: no record_sha256
         w.finish()
     run = read_run(p)
     np.testing.assert_array_equal(run.phase["snr_dbhz"].to_numpy(), [np.nan, 44.0] * 3)

@@ -68,6 +68,18 @@ def _chunk_data_offset(path: Path) -> int:
     return ci.chunk_start_offset + 1 + 8 + 8 + 8 + 8 + 4 + 4 + len(comp) + 8
 
 
+def _recompute_crcs(data: bytearray) -> bytearray:
+    """The file with its data-section and summary CRCs recomputed, so that the damage reaches the
+    readers behind them (as in a file of another tool that writes no data-section CRC)."""
+    import zlib
+
+    summary_start, = struct.unpack("<Q", data[-8 - 4 - 8 - 8:-8 - 4 - 8])
+    data_end = summary_start - 13
+    data[data_end + 9:data_end + 13] = struct.pack("<I", zlib.crc32(bytes(data[:data_end])))
+    data[-8 - 4:-8] = struct.pack("<I", zlib.crc32(bytes(data[summary_start:-8 - 4])))
+    return data
+
+
 def test_corrupt_zstd_chunk_is_a_clean_error(base, tmp_path):
     data = bytearray((base / "RUN.mcap").read_bytes())
     off = _chunk_data_offset(base / "RUN.mcap")
@@ -75,6 +87,9 @@ def test_corrupt_zstd_chunk_is_a_clean_error(base, tmp_path):
         data[i] ^= 0x5A
     bad = tmp_path / "run.mcap"
     bad.write_bytes(bytes(data))
+    with pytest.raises(CdgpsError, match="data section fails its CRC check"):
+        read_mcap(bad)
+    bad.write_bytes(bytes(_recompute_crcs(data)))           # behind the CRC: the decompressor's error
     with pytest.raises(CdgpsError, match="corrupt"):
         read_mcap(bad)
     for cmd in (["info", bad, "--json"], ["init", bad, "-o", tmp_path / "i.json"]):
@@ -89,6 +104,9 @@ def test_flipped_record_length_is_bounded_by_the_file_size(base, tmp_path):
     data[summary_start + 1:summary_start + 9] = struct.pack("<Q", 2**62)
     bad = tmp_path / "run.mcap"
     bad.write_bytes(bytes(data))
+    with pytest.raises(CdgpsError, match="summary section fails its CRC check"):
+        read_mcap(bad)
+    bad.write_bytes(bytes(_recompute_crcs(data)))           # behind the CRC: bounded by the file size
     with pytest.raises(CdgpsError, match="not a valid MCAP file"):
         read_mcap(bad)
     assert_clean_error(_run("info", bad), bad)

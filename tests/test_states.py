@@ -24,6 +24,7 @@ from cdgps_cli.cli import main
 from cdgps_cli.config import load_config
 from cdgps_cli.ekf import EstimateOptions, EstimateResult, estimate
 from cdgps_cli.errors import CdgpsError
+from cdgps_cli.mcap_io import McapOut
 from cdgps_cli.run import read_run, write_run
 from cdgps_cli.simulate import SimOptions, simulate, write_simulation
 from cdgps_cli.states import States, evaluate, export_csv, write_states
@@ -203,7 +204,8 @@ def test_evaluate_against_hand_computation(tmp_path):
                          events=[{"time_s": 0.24, "antenna": "s3", "transmitter": "S2", "kind": "lock restart",
                                   "action": "bias dropped"}],
                          biases={("s2", "S1"): 2 * lam + 0.003, ("s3", "S2"): after_slip + lam})
-    (tmp_path / "run.mcap").write_bytes(b"stand-in for the RUN file")
+    with McapOut(tmp_path / "run.mcap") as out:               # stand-in RUN: only its ingest record
+        out.metadata("cdgps.ingest", {"kind": "structure"})
     write_states(res, tmp_path / "run.mcap", {}, "{}", tmp_path / "st.mcap", {})
     truth_dir = tmp_path / "truth"
     truth_dir.mkdir()
@@ -493,7 +495,8 @@ def test_write_states_makes_no_full_size_copies(tmp_path):
     chans = [("a1", "PL1"), ("a2", "PL2")]
     res = EstimateResult(cfg, t, x, P, x.copy(), P_filt, chans, rng.normal(size=(N, 2)) * 1e-3,
                          np.ones(N), np.full(N, 2), smoothed=True, biases={c: 0.0 for c in chans})
-    (tmp_path / "run.mcap").write_bytes(b"stand-in")
+    with McapOut(tmp_path / "run.mcap") as out:               # stand-in RUN: only its ingest record
+        out.metadata("cdgps.ingest", {"kind": "structure"})
     tracemalloc.start()
     try:
         write_states(res, tmp_path / "run.mcap", {}, "{}", tmp_path / "st.mcap", {})

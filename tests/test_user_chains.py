@@ -89,6 +89,7 @@ def test_readme_chain_as_written(tmp_path, repo_root, monkeypatch):
 def _short_states(tmp_path, dof2_cfg, N):
     """A hand-made STATES of N epochs (1995 model) and a truth dir."""
     from cdgps_cli.ekf import EstimateResult
+    from cdgps_cli.mcap_io import McapOut
     from cdgps_cli.states import write_states
 
     T = dof2_cfg.sample_period_s
@@ -97,7 +98,8 @@ def _short_states(tmp_path, dof2_cfg, N):
     P = np.broadcast_to(np.eye(4) * 1e-4, (N, 4, 4)).copy()
     res = EstimateResult(dof2_cfg, t, x, P, None, None, [("s2", "S1")], np.full((N, 1), np.nan),
                          np.full(N, np.nan), np.zeros(N, dtype=int))
-    (tmp_path / "run.mcap").write_bytes(b"stand-in")
+    with McapOut(tmp_path / "run.mcap") as out:               # stand-in RUN: only its ingest record
+        out.metadata("cdgps.ingest", {"kind": "structure"})
     write_states(res, tmp_path / "run.mcap", {}, "{}", tmp_path / "st.mcap", {})
     (tmp_path / "truth").mkdir(exist_ok=True)
     pd.DataFrame({"time_s": t, "q1": 0.0, "q2": 0.0}).to_csv(tmp_path / "truth" / "truth.csv", index=False)
