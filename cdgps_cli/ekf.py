@@ -20,6 +20,13 @@ arithmetic, sparse A, H non-zero only in the position columns), which returns he
 epoch that needs the logic below; the smoother's pass is compiled too.  Without the extension (or
 with ``CDGPS_NO_KERNEL=1``) everything runs in the numpy loops of this module, with the same results
 to rounding.
+
+Multipath: when INIT.json has a ``multipath`` model (:mod:`cdgps_cli.multipath`, from ``[model]
+multipath_sigma_m`` or ``init --multipath-sigma-m``), each channel gets a first-order Gauss–Markov
+state after the structure (and bias) states — transition exp(−T/τ), process noise σ²(1 − exp(−2T/τ)),
+started from INIT's window-end estimate with its covariance and cross-covariance — that enters its
+phase additively; those runs use the numpy path (the compiled kernel has no such states), the
+others keep the kernel.
 """
 
 from __future__ import annotations
