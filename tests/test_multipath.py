@@ -266,3 +266,28 @@ def test_model_bounds_and_bad_init_records(tower, tmp_path):
     assert model_from(cfg) == MultipathModel(0.015, 20.0)
     assert cfg.summary()["multipath_sigma_m"] == 0.015
     assert "multipath_sigma_m" not in tower.summary()
+
+
+def test_cli_init_option_echoed_and_estimate_uses_it(tower, tmp_path):
+    from click.testing import CliRunner
+
+    from cdgps_cli.cli import main
+    from cdgps_cli.run import write_run
+    from cdgps_cli.simulate import write_simulation
+
+    sim = simulate(tower, SimOptions(duration_s=25.0, seed=6, phase_sigma_m=0.002, multipath_sigma_m=0.015))
+    write_simulation(sim, tmp_path)
+    mcap = tmp_path / "run.mcap"
+    write_run(tower, tmp_path / "receiver.csv", mcap, tmp_path / "gyro.csv" if tower.gyro_names else None)
+    out = tmp_path / "INIT.json"
+    r = CliRunner().invoke(main, ["init", str(mcap), "--starts", "2", "--multipath-sigma-m", "0.015",
+                                  "--multipath-tau-s", "30", "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    assert "multipath Gauss–Markov σ 15.00 mm τ 30 s" in r.output
+    init = json.loads(out.read_text())
+    assert init["multipath"]["sigma_m"] == 0.015 and init["options"]["multipath_time_constant_s"] == 30.0
+    r = CliRunner().invoke(main, ["estimate", str(mcap), "--init", str(out), "-o", str(tmp_path / "s.mcap")])
+    assert r.exit_code == 0, r.output
+    assert "multipath: Gauss–Markov state per channel, σ 15.00 mm, τ 30 s" in r.output
+    r = CliRunner().invoke(main, ["init", str(mcap), "--multipath-tau-s", "0", "-o", str(tmp_path / "x.json")])
+    assert r.exit_code == 2 and "--multipath-tau-s" in r.output and "Traceback" not in r.output
