@@ -348,11 +348,17 @@ def _write_json_atomic(path: str, data: dict) -> None:
 @click.option("--max-iterations", type=int, default=30, show_default=True, help="Gauss-Newton iteration cap.")
 @click.option("--sigma-m", type=float, default=None,
               help="Measurement noise for every channel, m (default: estimated per channel from the data, prior from the config).")
+@click.option("--multipath-sigma-m", "multipath_sigma_m", type=float, default=None,
+              help="Multipath modelled as a first-order Gauss-Markov state per channel with this sigma, m "
+                   "(default: the config's [model] multipath_sigma_m; 0 = not modelled). Recorded in INIT.json "
+                   "and used by estimate.")
+@click.option("--multipath-tau-s", "multipath_time_constant_s", type=float, default=None,
+              help="Time constant of that multipath, s (default: the config's [model] multipath_time_constant_s).")
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="INIT.json to write.")
 @click.option("--json", "as_json", is_flag=True, help="Also print INIT.json on stdout.")
 @click.pass_context
 def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, ratio_threshold, no_partial,
-             starts, max_iterations, sigma_m, output, as_json):
+             starts, max_iterations, sigma_m, multipath_sigma_m, multipath_time_constant_s, output, as_json):
     """Batch bias initialization (Eq. 9-15) with LAMBDA integer fixing → INIT.json.
 
     On a GNSS run (RINEX/UBX receivers): float DD solution, LAMBDA integers (ratio test, partial
@@ -368,7 +374,9 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
         _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, as_json,
                    structure_only={"--start": start_s is not None, "--duration": duration_s is not None,
                                    "--no-process-noise": no_process_noise, "--sigma-m": sigma_m is not None,
-                                   "--starts": starts != 8, "--max-iterations": max_iterations != 30})
+                                   "--starts": starts != 8, "--max-iterations": max_iterations != 30,
+                                   "--multipath-sigma-m": multipath_sigma_m is not None,
+                                   "--multipath-tau-s": multipath_time_constant_s is not None})
         return
     from .init import InitOptions, initialize
     from .run import read_run
@@ -377,6 +385,7 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
     opt = InitOptions(start_s=start_s, duration_s=duration_s, process_noise=not no_process_noise,
                       fix_integers=not float_only, ratio_threshold=ratio_threshold, partial=not no_partial,
                       starts=starts, max_iterations=max_iterations, sigma_m=sigma_m,
+                      multipath_sigma_m=multipath_sigma_m, multipath_time_constant_s=multipath_time_constant_s,
                       progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
     res = initialize(run, opt)
     res["run_sha256"] = hashlib.sha256(Path(run_mcap).read_bytes()).hexdigest()
@@ -387,7 +396,9 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
     ratio = res["ratio"] if isinstance(res["ratio"], str) or res["ratio"] is None else f"{res['ratio']:.2f}"
     _say(ctx, f"INIT: {n_ch} channels, {n_seg} bias segments, {res['n_fixed']} of {n_seg} segment integers fixed, ratio {ratio}, "
               f"{res['iterations']} iterations, cost/dof {res['cost_per_dof']:.3f}, "
-              f"σ {res['sigma_m'] * 1000:.2f} mm ({res['noise']['source'].split(' (')[0]}) → {output}")
+              f"σ {res['sigma_m'] * 1000:.2f} mm ({res['noise']['source'].split(' (')[0]})"
+              + (f", multipath Gauss–Markov σ {res['multipath']['sigma_m'] * 1000:.2f} mm τ "
+                 f"{res['multipath']['time_constant_s']:g} s" if "multipath" in res else "") + f" → {output}")
     for w in res["noise"].get("warnings", []):
         click.echo(f"WARNING: {w}", err=True)
     if as_json:
@@ -506,6 +517,10 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
     if res.noise:
         _say(ctx, f"  measurement σ {res.noise['sigma_m'] * 1000:.2f} mm ({res.noise['source']}); innovation-based "
                   f"estimate {res.noise.get('innovation_sigma_m', float('nan')) * 1000:.2f} mm")
+        mpn = res.noise.get("multipath")
+        if mpn:
+            _say(ctx, f"  multipath: Gauss–Markov state per channel, σ {mpn['sigma_m'] * 1000:.2f} mm, τ "
+                      f"{mpn['time_constant_s']:g} s (from INIT.json; filter on the numpy path)")
     for ev in s["event_list"][:20]:
         ch = f" {ev['antenna']}/{ev['transmitter']}" if ev["antenna"] else ""
         _say(ctx, f"  {ev['time_s']:8.2f} s{ch}: {ev['kind']} → {ev['action']}")

@@ -130,6 +130,8 @@ class StructureConfig:
     sample_period_s: float
     wavelength_m: float
     measurement_sigma_m: float
+    multipath_sigma_m: float             # first-order Gauss–Markov phase error per channel (0 = not modelled)
+    multipath_time_constant_s: float     # … its correlation time
     line_bias_calibrated: bool
     coord_names: tuple
     coord_kinds: tuple
@@ -247,7 +249,9 @@ class StructureConfig:
             "far_field": self.transmitter_far_field,
             "gyros": list(self.gyro_names),
             "thrusters": len(self.thruster_names),
-        }
+        } | ({"multipath_sigma_m": self.multipath_sigma_m,          # only when modelled (outputs
+              "multipath_time_constant_s": self.multipath_time_constant_s}  # without it stay as they were)
+             if self.multipath_sigma_m > 0 else {})
 
 
 # --------------------------------------------------------------------------------------------
@@ -576,12 +580,15 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
     # [model]
     model = doc.get("model", {}) if isinstance(doc.get("model", {}), dict) else {}
     chk.keys(model, "model", {"name", "sample_period_s", "measurement_sigma_m"},
-             {"description", "wavelength_m", "line_bias_calibrated"})
+             {"description", "wavelength_m", "line_bias_calibrated", "multipath_sigma_m",
+              "multipath_time_constant_s"})
     name = chk.string(model, "model", "name", "unnamed")
     description = model.get("description", "") if isinstance(model.get("description", ""), str) else ""
     dt = chk.number(model, "model", "sample_period_s", 0.1, positive=True)
     wavelength = chk.number(model, "model", "wavelength_m", GPS_L1_WAVELENGTH_M, positive=True)
     sigma = chk.number(model, "model", "measurement_sigma_m", 0.01, positive=True)
+    mp_sigma = chk.number(model, "model", "multipath_sigma_m", 0.0, nonneg=True)
+    mp_tau = chk.number(model, "model", "multipath_time_constant_s", 30.0, positive=True)
     lbc = model.get("line_bias_calibrated", True)
     if not isinstance(lbc, bool):
         chk.add("model.line_bias_calibrated", f"expected true or false, got {lbc!r}")
@@ -857,6 +864,8 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
         sample_period_s=dt,
         wavelength_m=wavelength,
         measurement_sigma_m=sigma,
+        multipath_sigma_m=mp_sigma,
+        multipath_time_constant_s=mp_tau,
         line_bias_calibrated=lbc,
         coord_names=tuple(coord_names),
         coord_kinds=tuple(coord_kinds),

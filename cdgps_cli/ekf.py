@@ -20,6 +20,13 @@ arithmetic, sparse A, H non-zero only in the position columns), which returns he
 epoch that needs the logic below; the smoother's pass is compiled too.  Without the extension (or
 with ``CDGPS_NO_KERNEL=1``) everything runs in the numpy loops of this module, with the same results
 to rounding.
+
+Multipath: when INIT.json has a ``multipath`` model (:mod:`cdgps_cli.multipath`, from ``[model]
+multipath_sigma_m`` or ``init --multipath-sigma-m``), each channel gets a first-order Gauss–Markov
+state after the structure (and bias) states — transition exp(−T/τ), process noise σ²(1 − exp(−2T/τ)),
+started from INIT's window-end estimate with its covariance and cross-covariance — that enters its
+phase additively; those runs use the numpy path (the compiled kernel has no such states), the
+others keep the kernel.
 """
 
 from __future__ import annotations
@@ -40,6 +47,7 @@ from .errors import CdgpsError
 from .limits import INIT_BOUNDS, OPTION_BOUNDS
 from .validate import has_bool, is_json_number, require_finite
 from .measurement import EpochPhaseModel, channel_indices
+from . import multipath
 from .run import Run
 from .window_states import batch_window, extend_smoothing, window_states
 
@@ -294,13 +302,19 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
 
     # state layout
     use_bias_states = opt.biases == "states"
-    p = n + (C if use_bias_states else 0)
+    # INIT's multipath model: a Gauss–Markov state per channel after the bias states (numpy path only)
+    mp = multipath.from_init(init)
+    mp0 = n + (C if use_bias_states else 0) if mp.active else None
+    p = n + (C if use_bias_states else 0) + (C if mp.active else 0)
     A = np.eye(p)
     A[:n, :n] = model.A
     Qd = np.zeros((p, p))
     Qd[:n, :n] = model.Q * float(pns) ** 2
     if use_bias_states:
-        Qd[n:, n:] = np.eye(C) * opt.bias_process_sigma_m**2
+        Qd[n:n + C, n:n + C] = np.eye(C) * opt.bias_process_sigma_m**2
+    if mp.active:
+        A[mp0:, mp0:] = np.eye(C) * mp.transition(T)
+        Qd[mp0:, mp0:] = np.eye(C) * mp.process_variance_m2(T)
     # static mode: the prediction into epoch k inside a declared rest segment uses Q_rest
     Qd_rest = Qd.copy()
     Qd_rest[:n, :n] *= float(opt.rest_process_noise_scale) ** 2
@@ -325,8 +339,11 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     P = np.zeros((p, p))
     P[:n, :n] = P0
     if use_bias_states:
-        x[n:] = np.nan_to_num(bias)
-        P[n:, n:] = np.eye(C) * (sigma**2)
+        x[n:n + C] = np.nan_to_num(bias)
+        P[n:n + C, n:n + C] = np.eye(C) * (sigma**2)
+    if mp.active:
+        x[mp0:], P[mp0:, mp0:], P[:n, mp0:] = multipath.init_states(init, chans, n, mp)
+        P[mp0:, :n] = P[:n, mp0:].T
     inv_r = 1.0 / sigma**2
 
     xs = np.empty((N, p))
@@ -375,7 +392,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     # compiled steady-state epochs (fixed biases): the kernel writes xs, Ps, resid, nis, nis_dof and
     # stops at the first epoch that needs the logic below, which then runs for that epoch only
     kern = None
-    if not use_bias_states and ekf_kernel.available():
+    if not use_bias_states and not mp.active and ekf_kernel.available():
         kern = ekf_kernel.ForwardKernel(cfg, ant, tx, A, Qd, Bu, sigma, opt.outlier_sigma, opt.nis_probability,
                                         opt.reinit_after_epochs, Y, EVENT, U_in, xs, Ps, resid, nis, nis_dof)
 
@@ -448,7 +465,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
             else:
                 hx_at = x[:n].copy()
                 h, Hx = hmodel(hx_at)
-                why, nis_failed = rest_motion(x, P, h, Hx, y=Y[k], bias=bias, usable=present & ~np.isnan(bias),
+                why, nis_failed = rest_motion(x, P, h, Hx, y=Y[k], bias=bias, usable=present & ~np.isnan(bias), mp0=mp0,
                                               n=n, use_bias_states=use_bias_states, sigma=sigma,
                                               outlier_sigma=opt.outlier_sigma,
                                               bound=lambda m: chi2.ppf(opt.nis_probability, m))
@@ -519,7 +536,11 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
             if not present[c]:
                 continue
             var_h = float(Hx[c] @ P[:n, :n] @ Hx[c])
-            rebias[c].append((y[c] - h[c], var_h))
+            m_c = 0.0
+            if mp0 is not None:                # the channel's multipath state is predicted, not a bias
+                m_c = float(x[mp0 + c])
+                var_h += float(P[mp0 + c, mp0 + c] + 2.0 * Hx[c] @ P[:n, mp0 + c])
+            rebias[c].append((y[c] - h[c] - m_c, var_h))
             if len(rebias[c]) >= opt.rebias_epochs:
                 vals = np.array([v for v, _ in rebias[c]])
                 est = float(vals.mean())
@@ -542,14 +563,10 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                 log(k, c, "bias re-estimated", action)
         idx = np.flatnonzero(usable)
         if idx.size:
-            if use_bias_states:
-                H = np.zeros((idx.size, p))
-                H[:, :n] = Hx[idx]
-                H[np.arange(idx.size), n + idx] = 1.0
-                b_used = x[n + idx]
-            else:
-                H = Hx[idx]
-                b_used = bias[idx]
+            H = _rows(Hx, idx, p, n, use_bias_states, mp0)
+            b_used = x[n + idx] if use_bias_states else bias[idx]
+            if mp0 is not None:
+                b_used = b_used + x[mp0 + idx]
             rho = y[idx] - h[idx] - b_used
             # per-channel outlier test on the innovation
             S_diag = np.sum((H @ P) * H, axis=1) + sigma**2
@@ -581,6 +598,8 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                 x = x + Pn @ g
                 P = Pn
                 resid[k, idx] = y[idx] - (h[idx] + Hx[idx] @ (x[:n] - xq)) - (x[n + idx] if use_bias_states else bias[idx])
+                if mp0 is not None:
+                    resid[k, idx] -= x[mp0 + idx]
                 bound = chi2_bound.get(idx.size)
                 if bound is None:
                     bound = chi2_bound[idx.size] = chi2.ppf(opt.nis_probability, idx.size)
@@ -591,7 +610,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
         xs[k] = x
         Ps[k] = P
         if fail_run >= opt.reinit_after_epochs and k > k_reinit_block:
-            k_new = _reinitialize(run, grid, k, opt, sigma, chans, bias, line, x, P, n, use_bias_states, log)
+            k_new = _reinitialize(run, grid, k, opt, sigma, chans, bias, line, x, P, n, use_bias_states, log, mp)
             fail_run = 0
             if k_new is not None:
                 kk, xr, Pr, new_bias, traj_t, traj_x = k_new
@@ -601,12 +620,14 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                     ti = int(np.argmin(np.abs(traj_t - grid[j])))
                     xj[:n] = traj_x[ti]
                     if use_bias_states:
-                        xj[n:] = xs[k, n:]
+                        xj[n:n + C] = xs[k, n:n + C]
                     xs[j] = xj
                     Ps[j] = np.zeros((p, p))
                     Ps[j][:n, :n] = Pr
                     if use_bias_states:
-                        Ps[j][n:, n:] = Ps[k][n:, n:]
+                        Ps[j][n:n + C, n:n + C] = Ps[k][n:n + C, n:n + C]
+                    if mp.active:
+                        Ps[j][mp0:, mp0:] = np.eye(C) * mp.sigma_m**2
                 no_link[k:kk] = True
                 for c, b in new_bias.items():
                     bias[c] = b
@@ -616,8 +637,10 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                 P = np.zeros((p, p))
                 P[:n, :n] = Pr
                 if use_bias_states:
-                    x[n:] = np.nan_to_num(bias)
-                    P[n:, n:] = np.eye(C) * 1e-8
+                    x[n:n + C] = np.nan_to_num(bias)
+                    P[n:n + C, n:n + C] = np.eye(C) * 1e-8
+                if mp.active:                  # the multipath states restart from their stationary prior
+                    P[mp0:, mp0:] = np.eye(C) * mp.sigma_m**2
                 k_reinit_block = kk + opt.reinit_after_epochs
                 rest_stretch_end, rest_fail = -1, 0    # a rest stretch in progress is entered afresh
                 xs[kk] = x
@@ -671,6 +694,8 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                                         "initialize from the run start (cdgps init --start) to cover it"})
     res.noise = _innovation_noise(res, sigma, "--sigma-m" if opt.sigma_m is not None else
                                   ("INIT (estimated)" if "noise" in init and init.get("sigma_m") else "INIT/config"))
+    if mp.active:
+        res.noise["multipath"] = dict(mp.echo(), source="INIT.json", filter_path="numpy (kernel has no multipath states)")
     if opt.adapt_sigma and opt.sigma_m is None and res.noise.get("adapt"):
         from dataclasses import replace
         first = res.noise
@@ -793,7 +818,24 @@ def velocity_nis(x: np.ndarray, P: np.ndarray, nm: int, var: np.ndarray) -> floa
     return float(v @ cho_solve(cho_factor(S, check_finite=False), v, check_finite=False))
 
 
-def rest_motion(x, P, h, Hx, y, bias, usable, n, use_bias_states, sigma, outlier_sigma, bound) -> tuple[str, bool]:
+def _rows(Hx: np.ndarray, idx: np.ndarray, p: int, n: int, use_bias_states: bool, mp0: int | None) -> np.ndarray:
+    """Measurement Jacobian (len(idx), p) of channels ``idx`` over the filter's state: the structure's
+    Hx (C, n), a 1 on the channel's bias state (``use_bias_states``) and on its multipath state (at
+    ``mp0`` + channel, when modelled).  Without either it is Hx[idx] itself (p = n)."""
+    if not use_bias_states and mp0 is None:
+        return Hx[idx]
+    H = np.zeros((idx.size, p))
+    H[:, :n] = Hx[idx]
+    rows = np.arange(idx.size)
+    if use_bias_states:
+        H[rows, n + idx] = 1.0
+    if mp0 is not None:
+        H[rows, mp0 + idx] = 1.0
+    return H
+
+
+def rest_motion(x, P, h, Hx, y, bias, usable, n, use_bias_states, sigma, outlier_sigma, bound,
+                mp0=None) -> tuple[str, bool]:
     """Does an epoch's data contradict "the structure is at rest"?  Returns (reason, nis_failed).
 
     ``h, Hx``: the measurement model and its Jacobian at x[:n].
@@ -804,14 +846,10 @@ def rest_motion(x, P, h, Hx, y, bias, usable, n, use_bias_states, sigma, outlier
     idx = np.flatnonzero(usable)
     if idx.size == 0:
         return "", False
-    p = len(x)
-    H = np.zeros((idx.size, p))
-    H[:, :n] = Hx[idx]
-    if use_bias_states:
-        H[np.arange(idx.size), n + idx] = 1.0
-        b = x[n + idx]
-    else:
-        b = bias[idx]
+    H = _rows(Hx, idx, len(x), n, use_bias_states, mp0)
+    b = x[n + idx] if use_bias_states else bias[idx]
+    if mp0 is not None:
+        b = b + x[mp0 + idx]
     rho = y[idx] - h[idx] - b
     S = H @ P @ H.T + sigma**2 * np.eye(idx.size)
     z = rho / np.sqrt(np.diag(S))
@@ -928,7 +966,7 @@ def _rts_pass(A, Q, B, U_in, xs, Ps, extra_q, no_link) -> None:
         Ps[k] = 0.5 * (Pk + Pk.T)
 
 
-def _reinitialize(run, grid, k, opt, sigma, chans, bias, line, x, P, n, use_bias_states, log):
+def _reinitialize(run, grid, k, opt, sigma, chans, bias, line, x, P, n, use_bias_states, log, mp=None):
     """Batch re-initialization on a window after epoch k (1995 paper, Fig. 7)."""
     from .init import InitOptions, initialize
 
@@ -939,7 +977,8 @@ def _reinitialize(run, grid, k, opt, sigma, chans, bias, line, x, P, n, use_bias
         log(k, None, "re-initialization", "skipped: not enough data left")
         return None
     try:
-        res, traj = initialize(run, InitOptions(start_s=t0, duration_s=t1 - t0, sigma_m=sigma, starts=8),
+        mp_opt = {} if mp is None else {"multipath_sigma_m": mp.sigma_m, "multipath_time_constant_s": mp.time_constant_s}
+        res, traj = initialize(run, InitOptions(start_s=t0, duration_s=t1 - t0, sigma_m=sigma, starts=8, **mp_opt),
                                return_trajectory=True)
     except CdgpsError as exc:
         log(k, None, "re-initialization", f"failed: {exc}")

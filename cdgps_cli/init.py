@@ -37,6 +37,7 @@ from .config import StructureConfig, channel_sigma_m, scalar_sigma_m
 from .dynamics import discrete_model
 from .errors import CdgpsError
 from .measurement import channel_indices, phase_model
+from .multipath import MultipathModel, augment, model_from
 from .noise_model import leverage_per_channel, prior_sigma_m, variance_factors
 from .run import Run
 
@@ -65,10 +66,14 @@ class InitOptions:
     sigma_refuse_ratio: float = 4.0     # refuse when one channel's σ̂ exceeds the others' median this many times
     max_bias_sigma_cycles: float = 0.25  # observability limit on the float biases' sigma
     min_motion_ratio: float = 2.0       # automatic window: phase motion RMS / noise
+    multipath_sigma_m: float | None = None        # Gauss–Markov multipath σ (default: config; 0 = off)
+    multipath_time_constant_s: float | None = None  # … and its time constant (default: config)
     progress: object = None             # callable(str) for progress messages
 
     def echo(self) -> dict:
-        return {k: v for k, v in self.__dict__.items() if k != "progress"}
+        # the multipath overrides are echoed only when given (INIT.json without them is unchanged)
+        return {k: v for k, v in self.__dict__.items()
+                if k != "progress" and not (k.startswith("multipath_") and v is None)}
 
 
 @dataclass
@@ -197,9 +202,10 @@ class _Problem:
     """Nonlinear batch problem on a window (model, data, bias parametrization)."""
 
     def __init__(self, cfg: StructureConfig, wd: WindowData, sigma_m: float, process_noise: bool,
-                 known_bias: np.ndarray | None = None):
+                 known_bias: np.ndarray | None = None, mp: MultipathModel | None = None):
         self.cfg = cfg
         self.wd = wd
+        self.mp = mp if mp is not None and mp.active else None
         # per-channel σ (m); self.sigma (a scalar) only scales the damping prior
         self.sig_c = np.broadcast_to(np.asarray(sigma_m, dtype=float), (len(wd.channels),)).copy()
         self.sigma = float(np.sqrt(np.mean(self.sig_c**2)))
@@ -209,7 +215,13 @@ class _Problem:
         G = model.Bw * L
         keep = L > 0
         self.G = G[:, keep] if process_noise else np.zeros((model.A.shape[0], 0))
-        self.n = model.A.shape[0]
+        self.n_dyn = self.n = model.A.shape[0]     # structure states; n with the multipath states
+        if self.mp is not None:                    # one Gauss–Markov state per channel (cdgps_cli.multipath)
+            self.A, self.G = augment(self.A, self.G, len(wd.channels), self.mp, cfg.sample_period_s)
+            self.n = self.A.shape[0]
+        # with multipath the Gram form of the bias-only rows is mostly too ill-conditioned (measured:
+        # 30 of 74 solves redone), so the square-root form is used directly
+        self._square_root = True if self.mp is not None else None
         # bias parametrization: fixed values (known_bias[s] finite) are moved into y
         nseg = len(wd.segments)
         self.known = np.full(nseg, np.nan) if known_bias is None else known_bias
@@ -229,6 +241,21 @@ class _Problem:
         return out
 
     def predict(self, x: np.ndarray, jacobian: bool = False):
+        """h(x) (N, C) and with ``jacobian`` H (N, C, n): the structure's phase model on x[:, :n_dyn]
+        plus, with multipath, each channel's Gauss–Markov state."""
+        if self.mp is None:
+            return self._predict(x, jacobian)
+        nd, C = self.n_dyn, len(self.wd.channels)
+        out = self._predict(np.ascontiguousarray(x[:, :nd]), jacobian)
+        h = (out[0] if jacobian else out) + x[:, nd:]
+        if not jacobian:
+            return h
+        H = np.zeros((len(x), C, self.n))
+        H[:, :, :nd] = out[1]
+        H[:, np.arange(C), nd + np.arange(C)] = 1.0
+        return h, H
+
+    def _predict(self, x: np.ndarray, jacobian: bool = False):
         N = len(x)
         if N <= _MODEL_CHUNK:
             return phase_model(self.cfg, x, self.wd.ant, self.wd.tx, jacobian=jacobian)
@@ -252,12 +279,14 @@ class _Problem:
 
     def cost(self, x, b_free, w) -> float:
         r = self.residual(x, b_free)
-        return float(np.nansum((r / self.sig_c) ** 2) + np.sum(w**2))
+        prior = 0.0 if self.mp is None else float(np.sum((x[0, self.n_dyn:] / self.mp.sigma_m) ** 2))
+        return float(np.nansum((r / self.sig_c) ** 2) + np.sum(w**2)) + prior
 
     def propagate(self, x1: np.ndarray) -> np.ndarray:
         N = len(self.wd.time_s)
         xs = np.empty((N, self.n))
-        xs[0] = x1
+        xs[0] = 0.0
+        xs[0, :len(x1)] = x1                     # (multipath states of a structure-only x1: 0)
         for k in range(1, N):
             xs[k] = self.A @ xs[k - 1]
         return xs
@@ -270,14 +299,27 @@ class _Problem:
         m = self.free.size
         w = 1.0 / self.sig_c
         fs = self.free_sig
+        x1_mean, x1_info = self.x1_prior(damp_x1, x1_ref)
         return LinearProblem(
             A=self.A, Bw_L=self.G, H=H * w[None, :, None], y=ytil * w, bias_index=self.bias_index, n_bias=m,
-            sigma_m=1.0, x1_mean=x1_ref, x1_sqrt_info=np.eye(self.n) * damp_x1,
+            sigma_m=1.0, x1_mean=x1_mean, x1_sqrt_info=x1_info,
             b_mean=np.asarray(b_ref, dtype=float) / fs, b_sqrt_info=np.diag(np.full(m, damp_b) * fs))
+
+    def x1_prior(self, damp: float, x1_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Prior on the first state: the damping (square-root weight ``damp`` about ``x1_ref``) and,
+        with multipath, the stationary N(0, σ_mp²) of each Gauss–Markov state combined with it."""
+        info = np.full(self.n, damp)
+        mean = np.array(x1_ref, dtype=float)
+        if self.mp is not None:
+            nd, s2 = self.n_dyn, self.mp.sigma_m**-2
+            tot = damp**2 + s2
+            mean[nd:] = damp**2 * mean[nd:] / tot
+            info[nd:] = np.sqrt(tot)
+        return mean, np.diag(info)
 
     def solve(self, lp: LinearProblem) -> LinearSolution:
         """:func:`srif_solve` on a whitened problem, biases and their information back in metres."""
-        sol = srif_solve(lp)
+        sol = srif_solve(lp, square_root=self._square_root)
         fs = self.free_sig
         if not fs.size:
             return sol
@@ -296,7 +338,7 @@ class _Problem:
             lp = LinearProblem(A=lp0.A, Bw_L=lp0.Bw_L, H=H, y=eps, bias_index=lp0.bias_index, n_bias=lp0.n_bias,
                                sigma_m=1.0, x1_mean=np.zeros(self.n), x1_sqrt_info=lp0.x1_sqrt_info,
                                b_mean=np.zeros(lp0.n_bias), b_sqrt_info=lp0.b_sqrt_info)
-            sol = srif_solve(lp)
+            sol = srif_solve(lp, square_root=self._square_root)
             f = np.einsum("nci,ni->nc", H, sol.x)
             if sol.b.size:
                 f = f + np.where(self.bias_index >= 0, sol.b[np.maximum(self.bias_index, 0)], 0.0)
@@ -447,7 +489,7 @@ def _race(runs: list, prob: _Problem, results: list, opt: InitOptions) -> dict:
     Returns {start index: "converged" | "not converged" | "abandoned: …"}.
     """
     n_obs = int(np.isfinite(prob.y).sum())
-    dof = max(n_obs - prob.n - prob.free.size, 1)
+    dof = max(n_obs - prob.n_dyn - prob.free.size, 1)
     outcome = {}
     active = list(runs)
     while active:
@@ -527,11 +569,16 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
         raise CdgpsError(f"window {t0:g}–{t1:g} s has only {N} epochs; need at least 3")
     if motion < opt.min_motion_ratio * sigma:
         raise CdgpsError(_unobservable_msg(t0, t1, motion, sigma, None, cfg.wavelength_m, opt, motion_only=True))
-    prob = _Problem(cfg, wd, sigma, opt.process_noise)
+    mp = model_from(cfg, opt.multipath_sigma_m, opt.multipath_time_constant_s)
+    if mp.active:
+        _say(opt, f"  multipath: a Gauss–Markov state per channel (σ {mp.sigma_m * 1000:.2f} mm, "
+                  f"τ {mp.time_constant_s:g} s)")
+    prob = _Problem(cfg, wd, sigma, opt.process_noise, mp=mp)
 
     # --- cold start: several initial guesses, each tried on the first part of the window
     n_sub = min(N, max(int(round(opt.start_window_s / cfg.sample_period_s)) + 1, 3))
-    sub = _Problem(cfg, window_data(run, float(wd.time_s[0]), float(wd.time_s[n_sub - 1])), sigma, opt.process_noise)
+    sub = _Problem(cfg, window_data(run, float(wd.time_s[0]), float(wd.time_s[n_sub - 1])), sigma, opt.process_noise,
+                   mp=mp)
     results = []
     for label, x1 in _start_guesses(cfg, opt.starts):
         xs = sub.propagate(x1)
@@ -552,7 +599,7 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
     for n_stage in stages[1:] or [N]:
         last = n_stage == N
         sp = prob if last else _Problem(cfg, window_data(run, float(wd.time_s[0]), float(wd.time_s[n_stage - 1])),
-                                        sigma, opt.process_noise)
+                                        sigma, opt.process_noise, mp=mp)
         runs = []
         for i, g0 in survivors:
             x_init = np.empty((n_stage, sp.n))
@@ -577,7 +624,7 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
     g = best_run.result()
     prior = prior_sigma_m(cfg, wd.channels, opt.sigma_m)
     if opt.sigma_m is None and not np.allclose(prior, sigma):
-        prob = _Problem(cfg, wd, prior, opt.process_noise)       # per-channel prior σ from the config
+        prob = _Problem(cfg, wd, prior, opt.process_noise, mp=mp)   # per-channel prior σ from the config
         g = prob.gauss_newton(g.x, g.b, opt.max_iterations, opt, w_init=g.w)
     noise = {"source": "--sigma-m" if opt.sigma_m is not None else "config", "warnings": []}
     if opt.estimate_sigma and opt.sigma_m is None:
@@ -635,7 +682,7 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
     if fixed.any():
         known = np.full(m, np.nan)
         known[fixed] = line[fixed] + lam * integers[fixed]
-        prob_f = _Problem(cfg, wd, sig_c, opt.process_noise, known_bias=known)
+        prob_f = _Problem(cfg, wd, sig_c, opt.process_noise, known_bias=known, mp=mp)
         gf = prob_f.gauss_newton(g.x, g.b[~fixed], opt.max_iterations, opt, w_init=g.w)
         total_iter += gf.iterations
         final_b = prob_f.full_bias(gf.b)
@@ -643,7 +690,7 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
         # validation: with the right integers the cost rises by about a chi-square(n_fixed) amount
         # (scaled by the float solution's cost per degree of freedom)
         n_obs = int(np.isfinite(prob.y).sum())
-        dof_f = max(n_obs - n - m, 1)
+        dof_f = max(n_obs - prob.n_dyn - m, 1)     # (the multipath states have their own prior)
         scale = max(g.cost / dof_f, 1e-12)
         dJ = (J_final - g.cost) / scale
         limit = opt.fix_validation_margin * float(chi2.ppf(opt.fix_validation_probability, int(fixed.sum())))
@@ -664,7 +711,8 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
     res_rms = {f"{a}/{t}": float(np.sqrt(np.nanmean(resid[:, c] ** 2))) if np.isfinite(resid[:, c]).any() else None
                for c, (a, t) in enumerate(wd.channels)}
     P = lin_final.P_end
-    Pxx = P[:n, :n] if P is not None else None
+    nd = prob.n_dyn
+    Pxx = P[:nd, :nd] if P is not None else None
     free_sigma = np.full(m, 0.0)
     if P is not None and prob_final.free.size:
         free_sigma[prob_final.free] = np.sqrt(np.diag(P[n:, n:]))
@@ -685,10 +733,11 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
         })
     nm = cfg.n_modes
     U = np.asarray(cfg.mode_shapes)
-    x_end = x_traj[-1]
+    x_end = x_traj[-1][:nd]
+    mp_out = _multipath_record(mp, wd, x_traj[-1], P, nd)
     q_end = U @ x_end[:nm]
     elapsed = _time.perf_counter() - t_start
-    dof = max(int(np.isfinite(resid).sum()) - n - int(prob_final.free.size), 1)
+    dof = max(int(np.isfinite(resid).sum()) - nd - int(prob_final.free.size), 1)
     out = {
         "format": "cdgps.init/1",
         "config": cfg.name,
@@ -719,12 +768,27 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
         "sigma_m": sigma,
         "sigma_m_per_channel": {f"{a}/{t}": float(v) for (a, t), v in zip(wd.channels, sig_c)},
         "noise": noise,
+        **({"multipath": mp_out} if mp_out is not None else {}),
         "options": opt.echo(),
         "elapsed_s": elapsed,
     }
     if return_trajectory:
-        return out, {"time_s": wd.time_s, "x": x_traj}
+        return out, {"time_s": wd.time_s, "x": x_traj[:, :nd]}
     return out
+
+
+def _multipath_record(mp: MultipathModel, wd: WindowData, z_end: np.ndarray, P, nd: int) -> dict | None:
+    """INIT.json's ``multipath`` object: the model and, at the window end, each channel's
+    Gauss–Markov state (m), its covariance (m²) and its cross-covariance with the structure state."""
+    if not mp.active:
+        return None
+    C = len(wd.channels)
+    rec = dict(mp.echo(), model="first-order Gauss–Markov per channel",
+               channels=[f"{a}/{t}" for a, t in wd.channels], x_m=[float(v) for v in z_end[nd:nd + C]])
+    if P is not None:
+        rec["P_m2"] = [[float(v) for v in row] for row in P[nd:nd + C, nd:nd + C]]
+        rec["cross_P"] = [[float(v) for v in row] for row in P[:nd, nd:nd + C]]
+    return rec
 
 
 NOISE_ITERATIONS = 2            # re-weightings of the batch with the estimated per-channel σ
@@ -743,7 +807,7 @@ def _estimate_noise(cfg, wd, prob, g, prior, opt):
         vf = variance_factors(resid, prob.sig_c, lev)
         new = np.where(vf["n_obs"] > 0, vf["sigma_m"], sig)
         sig = np.maximum(new, 1e-5)
-        prob = _Problem(cfg, wd, sig, opt.process_noise)
+        prob = _Problem(cfg, wd, sig, opt.process_noise, mp=prob.mp)
         g = prob.gauss_newton(g.x, g.b, opt.max_iterations, opt, w_init=g.w)
     names = [f"{a}/{t}" for a, t in wd.channels]
     med = float(np.median(sig))

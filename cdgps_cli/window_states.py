@@ -40,6 +40,7 @@ from scipy.linalg import cho_factor, cho_solve
 from .dynamics import discrete_model
 from .errors import CdgpsError
 from .measurement import EpochPhaseModel, phase_model
+from . import multipath
 from .run import Run
 
 _CHUNK = 1024                       # epochs per vectorized call of the measurement model
@@ -132,28 +133,36 @@ def _measurements(cfg, wd, x_lin, seg_bias, seg_free):
     return H, ytil, col
 
 
-def _information_rows(H, ytil, col, sigma, n, p):
-    """Per epoch the measurement information H̃ᵀH̃/σ² (N, p, p) and H̃ᵀỹ/σ² (N, p), vectorized."""
+def _information_rows(H, ytil, col, sigma, n, p, n_mp=0):
+    """Per epoch the measurement information H̃ᵀH̃/σ² (N, p, p) and H̃ᵀỹ/σ² (N, p), vectorized.
+
+    z = [x (n); multipath (n_mp = 0 or C, one per channel); free biases]."""
     N, C, _ = H.shape
     present = ~np.isnan(ytil)
     Ht = np.zeros((N, C, p))
     Ht[:, :, :n] = np.where(present[..., None], H, 0.0)
+    if n_mp:
+        Ht[:, np.arange(C), n + np.arange(C)] = present
     kk, cc = np.nonzero((col >= 0) & present)
-    Ht[kk, cc, n + col[kk, cc]] = 1.0
+    Ht[kk, cc, n + n_mp + col[kk, cc]] = 1.0
     yv = np.where(present, ytil, 0.0)
     w = 1.0 / sigma**2
     return w * np.einsum("kci,kcj->kij", Ht, Ht), w * np.einsum("kci,kc->ki", Ht, yv)
 
 
-def _forward(A_inv, G, H, ytil, col, sigma, n, p):
-    """Information filter from zero information; returns the priors (Ȳ, ȳ) and the last posterior."""
-    N = H.shape[0]
-    info, infv = _information_rows(H, ytil, col, sigma, n, p)
+def _forward(A_inv, G, H, ytil, col, sigma, n, p, mp=None):
+    """Information filter from zero information (but the multipath states' stationary prior);
+    returns the priors (Ȳ, ȳ) and the last posterior."""
+    N, C = H.shape[:2]
+    n_mp = C if mp is not None else 0
+    info, infv = _information_rows(H, ytil, col, sigma, n, p, n_mp)
     Ybar = np.zeros((N, p, p))
     ybar = np.zeros((N, p))
     r = G.shape[1]
     I_r = np.eye(r)
     Y = np.zeros((p, p))
+    if n_mp:
+        Y[n:n + n_mp, n:n + n_mp] = np.eye(n_mp) / mp.sigma_m**2
     yv = np.zeros(p)
     for k in range(N):
         if k:
@@ -251,16 +260,22 @@ def window_states(run: Run, init: dict, window: tuple[float, float], x_end: np.n
     model = discrete_model(cfg)
     n = model.A.shape[0]
     mf = int(seg_free.sum())
-    p = n + mf
     L = np.sqrt(np.diag(model.W))
     process_noise = bool((init.get("options") or {}).get("process_noise", True))
     Gx = (model.Bw * L)[:, L > 0] if process_noise else np.zeros((n, 0))
+    mp = multipath.from_init(init)
+    mp = mp if mp.active else None
+    Ax = model.A
+    if mp is not None:                     # INIT's Gauss–Markov state per channel, after the structure's
+        Ax, Gx = multipath.augment(Ax, Gx, len(wd.channels), mp, cfg.sample_period_s)
+    nz = Ax.shape[0]                       # structure (+ multipath) states
+    p = nz + mf
     A = np.eye(p)
-    A[:n, :n] = model.A
+    A[:nz, :nz] = Ax
     A_inv = np.eye(p)
-    A_inv[:n, :n] = np.linalg.inv(model.A)
+    A_inv[:nz, :nz] = np.linalg.inv(Ax)
     G = np.zeros((p, Gx.shape[1]))
-    G[:n] = Gx
+    G[:nz] = Gx
     Q = G @ G.T
 
     x_lin = _backward_ekf(cfg, wd, A_inv[:n, :n], Q, np.asarray(x_end, float), np.asarray(P_end, float),
@@ -269,7 +284,7 @@ def window_states(run: Run, init: dict, window: tuple[float, float], x_end: np.n
     while True:
         it += 1
         H, ytil, col = _measurements(cfg, wd, x_lin, seg_bias, seg_free)
-        Ybar, ybar, Y_end, y_end = _forward(A_inv, G, H, ytil, col, sigma, n, p)
+        Ybar, ybar, Y_end, y_end = _forward(A_inv, G, H, ytil, col, sigma, n, p, mp)
         z, Pz = _backward(A_inv, Q, Ybar, ybar, Y_end, y_end)
         # h depends on the modal positions only: converged when their step is a small fraction of σ
         nm = cfg.n_modes
@@ -281,11 +296,13 @@ def window_states(run: Run, init: dict, window: tuple[float, float], x_end: np.n
     del H, ytil
     # post-fit residuals with every bias (fixed: INIT's; free: re-estimated)
     b = seg_bias.copy()
-    b[seg_free] = z[-1, n:]
+    b[seg_free] = z[-1, nz:]
     resid = np.empty(wd.y_m.shape)
     for k0 in range(0, len(wd.time_s), _CHUNK):
         resid[k0:k0 + _CHUNK] = wd.y_m[k0:k0 + _CHUNK] - phase_model(cfg, x_lin[k0:k0 + _CHUNK], wd.ant, wd.tx)
     resid -= np.where(wd.segment >= 0, b[np.maximum(wd.segment, 0)], np.nan)
+    if mp is not None:
+        resid -= z[:, n:nz]
     return WindowStates(wd.time_s, z[:, :n].copy(), Pz[:, :n, :n].copy(), z, Pz, Ybar, A, Q, list(wd.channels),
                         resid, it, mf, missing)
 
