@@ -165,20 +165,22 @@ def main(ctx, quiet):
 @click.option("--random-slips", type=int, default=0, show_default=True, help="Number of random cycle slips to inject.")
 @click.option("--disturbance-scale", type=float, default=None,
               help="True disturbance as a fraction of the config's process noise (default: config; 1 = filter model).")
+@click.option("--noise-scale", "noise_scales", multiple=True, metavar="NAME:FACTOR",
+              help="Multiply the white phase noise of every channel of a rover antenna or transmitter (repeatable).")
 @_output_option("out_dir", "Output directory.", directory=True, old=("--out",))
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
 def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_sigma_m, slips, outages,
-             random_slips, disturbance_scale, out_dir, as_json):
+             random_slips, disturbance_scale, noise_scales, out_dir, as_json):
     """Simulate a structure run: receiver.csv, gyro.csv, truth.csv, truth.json (+ actuators.csv)."""
     from .config import load_config
-    from .simulate import SimOptions, parse_outage, parse_slip, simulate as run_sim, write_simulation
+    from .simulate import SimOptions, parse_noise_scale, parse_outage, parse_slip, simulate as run_sim, write_simulation
 
     cfg = load_config(config)
     opt = SimOptions(duration_s=duration_s, seed=seed, scenario=scenario, phase_sigma_m=phase_sigma_m,
                      multipath_sigma_m=multipath_sigma_m, slips=[parse_slip(s) for s in slips],
                      outages=[parse_outage(o) for o in outages], random_slips=random_slips,
-                     disturbance_scale=disturbance_scale)
+                     disturbance_scale=disturbance_scale, noise_scale=dict(parse_noise_scale(t) for t in noise_scales))
     _say(ctx, f"simulating {cfg.name}: {scenario}, {duration_s:g} s, seed {seed} …")
     with progress.stage("simulating"):
         sim = run_sim(cfg, opt)
