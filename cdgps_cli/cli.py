@@ -468,8 +468,14 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
     _say(ctx, f"wrote {output}: {s['epochs']} epochs ({s['start_s']:g}–{s['end_s']:g} s{src}), "
               f"{nis_text}, {s['events']} events")
     if res.noise:
-        _say(ctx, f"  measurement σ {res.noise['sigma_m'] * 1000:.2f} mm ({res.noise['source']}); innovation-based "
-                  f"estimate {res.noise.get('innovation_sigma_m', float('nan')) * 1000:.2f} mm")
+        nz = res.noise
+        rng_txt = (f", {nz['sigma_m_min'] * 1000:.2f}–{nz['sigma_m_max'] * 1000:.2f} mm per channel"
+                   if nz.get("sigma_m_max", 0) > nz.get("sigma_m_min", 0) else "")
+        worst = nz.get("worst_channel")
+        _say(ctx, f"  measurement σ {nz['sigma_m'] * 1000:.2f} mm RMS{rng_txt} ({nz['source']}); innovation-based "
+                  f"estimate {nz.get('innovation_sigma_m', float('nan')) * 1000:.2f} mm"
+                  + (f"; {worst['channel']} still {worst['relative_variance']:.2f}× the others' variance ratio"
+                     if worst else ""))
     for ev in s["event_list"][:20]:
         ch = f" {ev['antenna']}/{ev['transmitter']}" if ev["antenna"] else ""
         _say(ctx, f"  {ev['time_s']:8.2f} s{ch}: {ev['kind']} → {ev['action']}")
