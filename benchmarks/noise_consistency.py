@@ -8,6 +8,9 @@ Reported: integers fixed / total and wrong fixes, the batch's estimated σ, the 
 NIS/dof means and the share of epochs inside their 95 % chi-square intervals.
 
 Usage: ``python benchmarks/noise_consistency.py [--seeds 5] [--cases white|multipath|all] [--out FILE.json]``
+(one process).  ``--table FILE.json`` prints the markdown table of a saved run (mean and min–max over
+seeds per cell, each marked against the targets NEES/dof and NIS/dof in [0.7, 1.4], 95 % coverage in
+[90 %, 98 %]) without running anything.
 """
 
 from __future__ import annotations
@@ -73,13 +76,50 @@ def one(cfg, white_m, mp_m, seed, d: Path) -> dict:
     return out
 
 
+TARGET_PER_DOF = (0.7, 1.4)
+TARGET_COVERAGE = (0.90, 0.98)
+
+
+def _cell(runs, key, lo, hi, pct=False) -> str:
+    """'mean (min–max) ✓' over the seeds that initialized; ✗ when the mean or any seed is off target."""
+    v = np.array([r[key] for r in runs if r.get(key) is not None], dtype=float)
+    if v.size == 0:
+        return "–"
+    f = (lambda x: f"{100 * x:.1f} %") if pct else (lambda x: f"{x:.2f}")
+    ok_mean = lo <= v.mean() <= hi
+    n_out = int(np.sum((v < lo) | (v > hi)))
+    mark = "in" if ok_mean else "**OUT**"
+    seeds = f"; {n_out} seed{'s' if n_out != 1 else ''} out" if n_out else ""
+    return f"{f(v.mean())} ({f(v.min())}–{f(v.max())}) {mark}{seeds}"
+
+
+def table(rows) -> str:
+    """Markdown table of :func:`main`'s rows: per cell mean (min–max over seeds), in/out of target."""
+    out = ["| config | white noise | seeds (refused) | σ̂ INIT (mm) | integers all fixed / wrong | NEES/dof | "
+           "NEES in 95 % | NIS/dof | NIS in 95 % |", "|---|---|---|---|---|---|---|---|---|"]
+    for row in rows:
+        ok = [r for r in row["runs"] if "init_error" not in r]
+        sig = np.array([1000 * r["sigma_hat_m"] for r in ok])
+        out.append(f"| {row['config']} | {1000 * row['white_m']:g} mm"
+                   + (f" + {1000 * row['multipath_m']:g} mm multipath" if row["multipath_m"] else "")
+                   + f" | {row['seeds']} ({row['init_refused']}) | {sig.mean():.2f} ({sig.min():.2f}–{sig.max():.2f}) | "
+                   f"{row['all_fixed_runs']}/{len(ok)} / {row['wrong_fixes']} | "
+                   f"{_cell(ok, 'nees_per_dof', *TARGET_PER_DOF)} | {_cell(ok, 'nees_in95', *TARGET_COVERAGE, pct=True)} | "
+                   f"{_cell(ok, 'nis_per_dof', *TARGET_PER_DOF)} | {_cell(ok, 'nis_in95', *TARGET_COVERAGE, pct=True)} |")
+    return "\n".join(out)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
+    ap.add_argument("--table", default=None, help="print the markdown table of a saved --out JSON and exit")
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--cases", default="all", choices=("white", "multipath", "all"))
     ap.add_argument("--configs", default=",".join(CONFIGS))
     ap.add_argument("--out", default=None)
     a = ap.parse_args()
+    if a.table:
+        print(table(json.loads(Path(a.table).read_text())))
+        return
     cases = ([(w, 0.0) for w in WHITE] if a.cases in ("white", "all") else []) + \
             (MULTIPATH if a.cases in ("multipath", "all") else [])
     rows = []
@@ -106,6 +146,7 @@ def main() -> None:
                       f"NIS/dof {row['nis_per_dof']:.2f} ({100 * row['nis_in95']:.0f}% in 95%)", flush=True)
     if a.out:
         Path(a.out).write_text(json.dumps(rows, indent=1))
+    print(table(rows))
 
 
 if __name__ == "__main__":

@@ -29,7 +29,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#define KERNEL_API 1
+#define KERNEL_API 2
 
 /* stop reasons of filter_span */
 enum { STOP_END = 0, STOP_EVENT = 1, STOP_REBIAS = 2, STOP_OUTLIER = 3, STOP_REINIT = 4, STOP_CHOLESKY = 5 };
@@ -505,22 +505,23 @@ static int get_csr(PyObject *orow, PyObject *ocol, PyObject *oval, Buf *b, int n
 
 /*
  * filter_span(gi, gf, A_row, A_col, A_val, Q, B, chi2, Y, EVENT, bias, rebias, U_in,
- *             x, P, xs, Ps, resid, nis, nis_dof,
- *             N, n, nu, k0, k1, fail_run, reinit_after, k_reinit_block, sigma, outlier_sigma)
+ *             x, P, xs, Ps, resid, nis, nis_dof, r_var,
+ *             N, n, nu, k0, k1, fail_run, reinit_after, k_reinit_block, outlier_sigma)
  *   -> (k_stop, fail_run, reason)
+ * r_var (C,): the measurement variance of each channel (m^2), R = diag(r_var) over the used rows.
  */
 static PyObject *py_filter_span(PyObject *self, PyObject *args)
 {
-    enum { NB = 20 };
+    enum { NB = 21 };
     PyObject *o[NB];
     Buf b[NB];
     memset(b, 0, sizeof(b));
     Py_ssize_t N, n, nu, k0, k1, fail_run, reinit_after, k_reinit_block;
-    double sigma, outlier_sigma;
-    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOOOOOOOOOOnnnnnnnndd", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5],
+    double outlier_sigma;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOOOOOOOOOOOnnnnnnnnd", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5],
                           &o[6], &o[7], &o[8], &o[9], &o[10], &o[11], &o[12], &o[13], &o[14], &o[15], &o[16],
-                          &o[17], &o[18], &o[19], &N, &n, &nu, &k0, &k1, &fail_run, &reinit_after,
-                          &k_reinit_block, &sigma, &outlier_sigma))
+                          &o[17], &o[18], &o[19], &o[20], &N, &n, &nu, &k0, &k1, &fail_run, &reinit_after,
+                          &k_reinit_block, &outlier_sigma))
         return NULL;
     PyObject *ret = NULL;
     double *work = NULL;
@@ -540,7 +541,7 @@ static PyObject *py_filter_span(PyObject *self, PyObject *args)
         || get_buf(o[13], &b[13], 'd', n, 1, "x") || get_buf(o[14], &b[14], 'd', nn, 1, "P")
         || get_buf(o[15], &b[15], 'd', N * n, 1, "xs") || get_buf(o[16], &b[16], 'd', N * nn, 1, "Ps")
         || get_buf(o[17], &b[17], 'd', N * C, 1, "resid") || get_buf(o[18], &b[18], 'd', N, 1, "nis")
-        || get_buf(o[19], &b[19], 'q', N, 1, "nis_dof"))
+        || get_buf(o[19], &b[19], 'q', N, 1, "nis_dof") || get_buf(o[20], &b[20], 'd', C, 0, "r_var"))
         goto done;
 
     const double *Q = b[5].view.buf, *B = b[6].view.buf, *chi2 = b[7].view.buf, *Y = b[8].view.buf;
@@ -551,11 +552,17 @@ static PyObject *py_filter_span(PyObject *self, PyObject *args)
     double *x = b[13].view.buf, *P = b[14].view.buf, *xs = b[15].view.buf, *Ps = b[16].view.buf;
     double *resid = b[17].view.buf, *nis = b[18].view.buf;
     int64_t *dof = b[19].view.buf;
+    const double *r_var = b[20].view.buf;
     const int nm = g.nm, ni = (int)n;
+    for (Py_ssize_t c = 0; c < C; c++)
+        if (!(r_var[c] > 0.0) || !isfinite(r_var[c])) {
+            PyErr_SetString(PyExc_ValueError, "_ekfcore.filter_span: r_var must be positive and finite");
+            goto done;
+        }
 
     /* scratch */
     Py_ssize_t wm = model_work_size(&g);
-    Py_ssize_t total = wm + 2 * n + 6 * nn + n + C + C * nm + C + nm + C * nm;
+    Py_ssize_t total = wm + 2 * n + 6 * nn + n + C + C * nm + C + nm + C * nm + C;
     work = malloc(sizeof(double) * (total + 1));
     int *used = malloc(sizeof(int) * (C + 1));
     if (!work || !used) {
@@ -568,9 +575,7 @@ static PyObject *py_filter_span(PyObject *self, PyObject *args)
     double *Pp = xn + n, *AP = Pp + nn, *Yi = AP + nn, *Pn = Yi + nn;    /* prior, A P, information, posterior */
     double *cw = Pn + nn;                       /* 2 nn + n: chol_inv work */
     double *h = cw + 2 * nn + n, *Hm = h + C;
-    double *rho = Hm + C * nm, *grad = rho + C, *Hu = grad + nm;
-
-    const double sig2 = sigma * sigma, inv_r = 1.0 / sig2;
+    double *rho = Hm + C * nm, *grad = rho + C, *Hu = grad + nm, *wr = Hu + C * nm;   /* wr: 1/R of used rows */
     Py_ssize_t k = k0, fr = fail_run;
     int reason = STOP_END;
 
@@ -597,7 +602,7 @@ static PyObject *py_filter_span(PyObject *self, PyObject *args)
         int m = 0;
         for (Py_ssize_t c = 0; c < C; c++)
             if (!isnan(y[c]) && !isnan(bias[c])) used[m++] = (int)c;
-        /* innovations and the per-channel outlier test: S_ii = H_i Pmm H_i^T + sigma^2 */
+        /* innovations and the per-channel outlier test: S_ii = H_i Pmm H_i^T + R_i */
         int outlier = 0;
         for (int i = 0; i < m; i++) {
             int c = used[i];
@@ -610,7 +615,8 @@ static PyObject *py_filter_span(PyObject *self, PyObject *args)
                 for (int bb = 0; bb < nm; bb++) t += Pa[bb] * Hc[bb];
                 s += t * Hc[a];
             }
-            s += sig2;
+            s += r_var[c];
+            wr[i] = 1.0 / r_var[c];
             if (fabs(rho[i] / sqrt(s)) > outlier_sigma) { outlier = 1; break; }
         }
         if (outlier) { reason = STOP_OUTLIER; break; }
@@ -618,26 +624,25 @@ static PyObject *py_filter_span(PyObject *self, PyObject *args)
         Py_ssize_t fr_k = fr;
         double *Pk = Pp, *xk = xp;
         if (m > 0) {
-            /* information form: Pn = (Pp^-1 + H^T H / sigma^2)^-1, H^T H only in the n_m block */
+            /* information form: Pn = (Pp^-1 + H^T R^-1 H)^-1, H^T R^-1 H only in the n_m block */
             if (chol_inv(Pp, Yi, cw, ni)) { reason = STOP_CHOLESKY; break; }
             /* Hu: the used rows of H, contiguous */
             for (int i = 0; i < m; i++) memcpy(Hu + i * nm, Hm + used[i] * nm, sizeof(double) * nm);
             double rr = 0.0;
-            for (int i = 0; i < m; i++) rr += rho[i] * rho[i];
+            for (int i = 0; i < m; i++) rr += wr[i] * rho[i] * rho[i];
             for (int a = 0; a < nm; a++) {
                 double ga = 0.0;
-                for (int i = 0; i < m; i++) ga += Hu[i * nm + a] * rho[i];
-                grad[a] = inv_r * ga;
+                for (int i = 0; i < m; i++) ga += Hu[i * nm + a] * (wr[i] * rho[i]);
+                grad[a] = ga;
                 for (int bb = a; bb < nm; bb++) {
-                    double kab = 0.0;
-                    for (int i = 0; i < m; i++) kab += Hu[i * nm + a] * Hu[i * nm + bb];
-                    double v = inv_r * kab;
+                    double v = 0.0;
+                    for (int i = 0; i < m; i++) v += Hu[i * nm + a] * (wr[i] * Hu[i * nm + bb]);
                     Yi[a * n + bb] += v;
                     if (bb != a) Yi[bb * n + a] += v;
                 }
             }
             if (chol_inv(Yi, Pn, cw, ni)) { reason = STOP_CHOLESKY; break; }
-            /* NIS = rho^T S^-1 rho = rho^T rho / sigma^2 - g^T Pn g (Woodbury); x = xp + Pn g */
+            /* NIS = rho^T S^-1 rho = rho^T R^-1 rho - g^T Pn g (Woodbury), g = H^T R^-1 rho; x = xp + Pn g */
             for (int i = 0; i < ni; i++) xn[i] = 0.0;
             for (int bb = 0; bb < nm; bb++) {
                 double gb = grad[bb];
@@ -646,7 +651,7 @@ static PyObject *py_filter_span(PyObject *self, PyObject *args)
             }
             double gPg = 0.0;
             for (int a = 0; a < nm; a++) gPg += grad[a] * xn[a];
-            nis_k = inv_r * rr - gPg;
+            nis_k = rr - gPg;
             for (int i = 0; i < ni; i++) xn[i] += xp[i];
             xk = xn;
             Pk = Pn;

@@ -176,21 +176,23 @@ def main(ctx, quiet):
               help="With --controller: feed back the EKF's estimate, or the true state (full-state feedback).")
 @click.option("--slew-reference", type=click.Choice(["profile", "step"]), default="profile", show_default=True,
               help="With --controller, slew: a bang-bang angle profile with feed-forward thrust, or the paper's step command.")
+@click.option("--noise-scale", "noise_scales", multiple=True, metavar="NAME:FACTOR",
+              help="Multiply the white phase noise of every channel of a rover antenna or transmitter (repeatable).")
 @_output_option("out_dir", "Output directory.", directory=True, old=("--out",))
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
 def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_sigma_m, slips, outages,
-             random_slips, disturbance_scale, gains_json, no_vibration_control, feedback, slew_reference, out_dir,
-             as_json):
+             random_slips, disturbance_scale, noise_scales, gains_json, no_vibration_control, feedback,
+             slew_reference, out_dir, as_json):
     """Simulate a structure run: receiver.csv, gyro.csv, truth.csv, truth.json (+ actuators.csv)."""
     from .config import load_config
-    from .simulate import SimOptions, parse_outage, parse_slip, simulate as run_sim, write_simulation
+    from .simulate import SimOptions, parse_noise_scale, parse_outage, parse_slip, simulate as run_sim, write_simulation
 
     cfg = load_config(config)
     opt = SimOptions(duration_s=duration_s, seed=seed, scenario=scenario, phase_sigma_m=phase_sigma_m,
                      multipath_sigma_m=multipath_sigma_m, slips=[parse_slip(s) for s in slips],
                      outages=[parse_outage(o) for o in outages], random_slips=random_slips,
-                     disturbance_scale=disturbance_scale)
+                     disturbance_scale=disturbance_scale, noise_scale=dict(parse_noise_scale(t) for t in noise_scales))
     _say(ctx, f"simulating {cfg.name}: {scenario}, {duration_s:g} s, seed {seed} …")
     if gains_json is None and (no_vibration_control or feedback != "gps" or slew_reference != "profile"):
         raise CdgpsError("--no-vibration-control, --feedback and --slew-reference need --controller GAINS.json")
@@ -515,8 +517,14 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
     _say(ctx, f"wrote {output}: {s['epochs']} epochs ({s['start_s']:g}–{s['end_s']:g} s{src}), "
               f"{nis_text}, {s['events']} events")
     if res.noise:
-        _say(ctx, f"  measurement σ {res.noise['sigma_m'] * 1000:.2f} mm ({res.noise['source']}); innovation-based "
-                  f"estimate {res.noise.get('innovation_sigma_m', float('nan')) * 1000:.2f} mm")
+        nz = res.noise
+        rng_txt = (f", {nz['sigma_m_min'] * 1000:.2f}–{nz['sigma_m_max'] * 1000:.2f} mm per channel"
+                   if nz.get("sigma_m_max", 0) > nz.get("sigma_m_min", 0) else "")
+        worst = nz.get("worst_channel")
+        _say(ctx, f"  measurement σ {nz['sigma_m'] * 1000:.2f} mm RMS{rng_txt} ({nz['source']}); innovation-based "
+                  f"estimate {nz.get('innovation_sigma_m', float('nan')) * 1000:.2f} mm"
+                  + (f"; {worst['channel']} still {worst['relative_variance']:.2f}× the others' variance ratio"
+                     if worst else ""))
         mpn = res.noise.get("multipath")
         if mpn:
             _say(ctx, f"  multipath: Gauss–Markov state per channel, σ {mpn['sigma_m'] * 1000:.2f} mm, τ "

@@ -1,6 +1,8 @@
 """Extended Kalman filter and Rauch–Tung–Striebel smoother of the structure's modal state.
 
-Teague, How & Parkinson (1998) Eq. 16–23, in information form with diagonal R:
+Teague, How & Parkinson (1998) Eq. 16–23, in information form with diagonal R = diag(σ_c²), one σ
+per channel (antenna, transmitter): INIT's per-channel estimate (the batch's variance factors), or
+``--sigma-m`` for all:
 
     time update        x̄_k = A x_{k−1} + B u_{k−1},   P̄_k = A P_{k−1} Aᵀ + B_w W B_wᵀ
     measurement update P_k = (P̄_k⁻¹ + H_kᵀ R⁻¹ H_k)⁻¹            (Eq. 20, by Cholesky: stays SPD)
@@ -40,14 +42,15 @@ from scipy.linalg import cho_factor, cho_solve
 from scipy.linalg.lapack import dpotrf, dpotri
 from scipy.stats import chi2
 
-from .config import StructureConfig, channel_sigma_m, scalar_sigma_m
+from .config import StructureConfig
 from .dynamics import discrete_model
 from . import ekf_kernel, progress
 from .errors import CdgpsError
 from .limits import INIT_BOUNDS, OPTION_BOUNDS
 from .validate import has_bool, is_json_number, require_finite
-from .measurement import EpochPhaseModel, channel_indices
+from .measurement import EpochPhaseModel, channel_indices, phase_model
 from . import multipath
+from .noise_model import filter_sigma_estimate, init_channel_sigma_m
 from .run import Run
 from .window_states import batch_window, extend_smoothing, window_states
 
@@ -58,7 +61,8 @@ class EstimateOptions:
 
     biases: str = "fixed"              # "fixed" (from INIT) or "states" (estimated in the filter)
     smooth: bool = False               # Rauch–Tung–Striebel pass after the filter
-    sigma_m: float | None = None       # measurement noise (default: INIT's, else config)
+    sigma_m: float | None = None       # measurement noise of every channel (default: INIT's per channel, else config)
+    channel_sigma_m: dict | None = None  # {(antenna, transmitter): σ (m)}: per-channel σ (overrides INIT's; not with sigma_m)
     adapt_sigma: bool = True           # innovation-based σ: re-run once with it when the NIS disagrees
     bias_process_sigma_m: float = 1e-4  # per-epoch random walk of bias states (biases="states")
     nis_probability: float = 0.999     # chi-square test level of the per-epoch NIS
@@ -84,6 +88,8 @@ class EstimateOptions:
         d = {k: v for k, v in self.__dict__.items() if k not in ("progress", "init_source")}
         # JSON has no infinity: an open-ended rest segment is echoed with end null
         d["rest_segments_s"] = [[float(a), None if np.isinf(float(b)) else float(b)] for a, b in self.rest_segments_s]
+        if self.channel_sigma_m:
+            d["channel_sigma_m"] = {f"{a}/{t}": float(v) for (a, t), v in self.channel_sigma_m.items()}
         return d
 
 
@@ -106,7 +112,7 @@ class EstimateResult:
     window: dict | None = None    # INIT's batch window when its epochs come from the batch solution
     rest_active_s: list = field(default_factory=list)   # [[start_s, end_s]]: epochs that ran in static mode
     rest_detection: dict | None = None   # --rest auto: detector settings, sigma and segments (rest_detect)
-    noise: dict = field(default_factory=dict)    # σ used, its source, the innovation-based estimate
+    noise: dict = field(default_factory=dict)    # σ used (RMS and per channel), its source, the innovation-based estimates
 
 
 _MASKS: dict = {}
@@ -247,7 +253,6 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     # epoch's data; the filter starts from it without using them again, and the window's epochs
     # take the batch solution (window_states)
     win = batch_window(init, t0, opt.init_source)
-    sigma = opt.sigma_m if opt.sigma_m is not None else float(init.get("sigma_m") or scalar_sigma_m(channel_sigma_m(cfg, cfg.channels)))
     model = discrete_model(cfg)
     T = cfg.sample_period_s
     lam = cfg.wavelength_m
@@ -277,6 +282,9 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                    key=lambda c: (cfg.antenna_names.index(c[0]), cfg.transmitter_names.index(c[1])))
     cidx = {c: i for i, c in enumerate(chans)}
     C = len(chans)
+    sig_c, sigma_source = filter_sigma(init, cfg, chans, opt)
+    r_var = sig_c**2                        # R = diag(σ_c²)
+    sigma = float(np.sqrt(np.mean(r_var)))  # their RMS: the re-initialization's batch σ, the summary
     k_of = np.rint((ph["time_s"].to_numpy() - t0) / T).astype(np.int32)
     c_of = np.array([cidx[c] for c in seen], dtype=np.int32)[inverse]
     del inverse, pair_code, a_codes, t_codes
@@ -340,11 +348,11 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     P[:n, :n] = P0
     if use_bias_states:
         x[n:n + C] = np.nan_to_num(bias)
-        P[n:n + C, n:n + C] = np.eye(C) * (sigma**2)
+        P[n:n + C, n:n + C] = np.diag(r_var)
     if mp.active:
         x[mp0:], P[mp0:, mp0:], P[:n, mp0:] = multipath.init_states(init, chans, n, mp)
         P[mp0:, :n] = P[:n, mp0:].T
-    inv_r = 1.0 / sigma**2
+    inv_r = 1.0 / r_var                     # (C,) per channel
 
     xs = np.empty((N, p))
     Ps = np.empty((N, p, p))
@@ -393,7 +401,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     # stops at the first epoch that needs the logic below, which then runs for that epoch only
     kern = None
     if not use_bias_states and not mp.active and ekf_kernel.available():
-        kern = ekf_kernel.ForwardKernel(cfg, ant, tx, A, Qd, Bu, sigma, opt.outlier_sigma, opt.nis_probability,
+        kern = ekf_kernel.ForwardKernel(cfg, ant, tx, A, Qd, Bu, sig_c, opt.outlier_sigma, opt.nis_probability,
                                         opt.reinit_after_epochs, Y, EVENT, U_in, xs, Ps, resid, nis, nis_dof)
 
     k = 0
@@ -466,7 +474,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                 hx_at = x[:n].copy()
                 h, Hx = hmodel(hx_at)
                 why, nis_failed = rest_motion(x, P, h, Hx, y=Y[k], bias=bias, usable=present & ~np.isnan(bias), mp0=mp0,
-                                              n=n, use_bias_states=use_bias_states, sigma=sigma,
+                                              n=n, use_bias_states=use_bias_states, r_var=r_var,
                                               outlier_sigma=opt.outlier_sigma,
                                               bound=lambda m: chi2.ppf(opt.nis_probability, m))
             if nis_failed:
@@ -544,7 +552,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
             if len(rebias[c]) >= opt.rebias_epochs:
                 vals = np.array([v for v, _ in rebias[c]])
                 est = float(vals.mean())
-                s_b = float(np.sqrt(sigma**2 / len(vals) + np.mean([v for _, v in rebias[c]])))
+                s_b = float(np.sqrt(r_var[c] / len(vals) + np.mean([v for _, v in rebias[c]])))
                 a = (est - line[c]) / lam
                 nint = int(np.rint(a))
                 if (cfg.line_bias_calibrated and s_b / lam < opt.refix_max_sigma_cycles
@@ -569,7 +577,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                 b_used = b_used + x[mp0 + idx]
             rho = y[idx] - h[idx] - b_used
             # per-channel outlier test on the innovation
-            S_diag = np.sum((H @ P) * H, axis=1) + sigma**2
+            S_diag = np.sum((H @ P) * H, axis=1) + r_var[idx]
             z = rho / np.sqrt(S_diag)
             out = np.flatnonzero(np.abs(z) > opt.outlier_sigma)
             if out.size and out.size < idx.size // 2 + 1:
@@ -578,7 +586,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                     drop_bias(k, int(idx[j]), "innovation outlier")
                     events[-1]["normalized_innovation"] = float(z[j])
                 if use_bias_states:
-                    S_diag = np.sum((H @ P) * H, axis=1) + sigma**2
+                    S_diag = np.sum((H @ P) * H, axis=1) + r_var[idx]
                 else:
                     keep = np.setdiff1d(np.arange(idx.size), worst)
                     idx, H, rho = idx[keep], H[keep], rho[keep]
@@ -586,14 +594,15 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                 if _TRACE is not None:
                     _TRACE.setdefault("prior", {})[k] = P.copy()
                 Pinv = _chol_inv(P)
-                Y_info = Pinv + inv_r * (H.T @ H)
+                w = inv_r[idx]
+                Y_info = Pinv + H.T @ (w[:, None] * H)
                 try:
                     Pn = _chol_inv(Y_info)
                 except np.linalg.LinAlgError:
                     raise CdgpsError(f"filter covariance lost positive definiteness at {grid[k]:g} s") from None
-                g = inv_r * (H.T @ rho)
+                g = H.T @ (w * rho)
                 # NIS = ρᵀ S⁻¹ ρ with S⁻¹ = R⁻¹ − R⁻¹ H P Hᵀ R⁻¹ (Woodbury)
-                nis[k] = float(inv_r * rho @ rho - g @ Pn @ g)
+                nis[k] = float(rho @ (w * rho) - g @ Pn @ g)
                 nis_dof[k] = idx.size
                 x = x + Pn @ g
                 P = Pn
@@ -663,6 +672,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                                            for c in range(C)},
                          filter_path=filter_path)
     res.rest_active_s = [[float(grid[a]), float(grid[b - 1])] for a, b in _true_runs(at_rest)]
+    chan_est = _channel_noise_estimate(cfg, ant, tx, xs[:, :n], Ps, resid, n)   # (the filtered P, before smoothing)
     if opt.smooth:
         # keep the filter's states and covariances, then smooth in place (one copy instead of three)
         res.x_filt = res.x.copy()
@@ -692,15 +702,18 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                               "kind": "epochs not estimated",
                               "action": f"the run starts at {t_first:g} s, STATES at {res.time_s[0]:g} s ({where}); "
                                         "initialize from the run start (cdgps init --start) to cover it"})
-    res.noise = _innovation_noise(res, sigma, "--sigma-m" if opt.sigma_m is not None else
-                                  ("INIT (estimated)" if "noise" in init and init.get("sigma_m") else "INIT/config"))
+    res.noise = _innovation_noise(res, sig_c, sigma_source, chan_est)
     if mp.active:
         res.noise["multipath"] = dict(mp.echo(), source="INIT.json", filter_path="numpy (kernel has no multipath states)")
     if opt.adapt_sigma and opt.sigma_m is None and res.noise.get("adapt"):
         from dataclasses import replace
         first = res.noise
-        res = estimate(run, init, replace(opt, sigma_m=first["innovation_sigma_m"], adapt_sigma=False))
-        res.noise = dict(res.noise, source="innovation-adapted (second pass)", first_pass=first)
+        for npass in range(2, ADAPT_MAX_PASSES + 1):
+            new = {ch: float(v["adapted_sigma_m"]) for ch, v in zip(res.channels, res.noise["per_channel"])}
+            res = estimate(run, init, replace(opt, channel_sigma_m=new, adapt_sigma=False))
+            if not res.noise.get("adapt"):
+                break
+        res.noise = dict(res.noise, source=f"innovation-adapted per channel (pass {npass})", first_pass=first)
     return res
 
 
@@ -741,22 +754,100 @@ def _join_window(res: EstimateResult, ws, x0: np.ndarray, P0: np.ndarray, opt: E
                   "segments_without_init_bias": list(ws.segments_without_bias)}
 
 
-# innovation-based adaptation: the filter is re-run with σ·sqrt(NIS/dof) when the mean NIS/dof is
-# outside this band and outside its own 99.9 % interval (independent epochs)
+# innovation-based adaptation: the filter is re-run with the adapted σ per channel when the mean
+# NIS/dof, or one channel's variance ratio σ̂_c²/σ_c², is outside this band and outside its own
+# 3.3-σ interval (independent epochs: relative std of a variance estimate from m values is √(2/m))
 ADAPT_NIS_BAND = (0.8, 1.25)
+ADAPT_MAX_PASSES = 4           # filter passes at most (the first + re-runs with the adapted σ)
+ADAPT_MIN_EPOCHS = 50          # a channel with fewer post-fit residuals keeps the pooled factor
 
 
-def _innovation_noise(res: EstimateResult, sigma: float, source: str) -> dict:
-    """σ used and the innovation-based estimate σ̂ = σ·sqrt(mean NIS/dof) (pooled over channels)."""
+def filter_sigma(init: dict, cfg, chans, opt: EstimateOptions) -> tuple[np.ndarray, str]:
+    """The filter's per-channel σ (m), shape (C,), and where it comes from: ``opt.sigma_m`` for every
+    channel, else ``opt.channel_sigma_m`` (listed channels; the others as below), else INIT's per
+    channel (:func:`cdgps_cli.noise_model.init_channel_sigma_m`)."""
+    if opt.sigma_m is not None and opt.channel_sigma_m:
+        raise CdgpsError("--sigma-m and a per-channel sigma cannot be combined")
+    sig, source = init_channel_sigma_m(init, cfg, chans, opt.sigma_m)
+    if opt.sigma_m is None and opt.channel_sigma_m:
+        over = {tuple(k): v for k, v in opt.channel_sigma_m.items()}
+        for c, key in enumerate(chans):
+            if key in over:
+                v = over[key]
+                if isinstance(v, bool) or not (np.isfinite(v) and OPTION_BOUNDS["sigma_m"].contains(v)):
+                    raise CdgpsError(f"channel sigma {key[0]}/{key[1]} = {v!r}: expected a number of metres in "
+                                     f"{OPTION_BOUNDS['sigma_m'].text()}")
+                sig[c] = float(v)
+        source = "per-channel sigma (option)"
+    return sig, source
+
+
+def _channel_noise_estimate(cfg, ant, tx, xs: np.ndarray, Ps: np.ndarray, resid: np.ndarray, n: int) -> tuple:
+    """Residual-based σ̂_c of every channel (:func:`cdgps_cli.noise_model.filter_sigma_estimate`):
+    H_c P⁺ H_cᵀ from the filtered covariances (N, p, p) (Jacobian at the filtered state xs (N, n);
+    with bias states, p > n, the row also has a 1 in the channel's bias column), in chunks of epochs.
+    Returns (σ̂ (C,), count (C,))."""
+    N, C = resid.shape
+    nm = cfg.n_modes
+    hph = np.full((N, C), np.nan)
+    rows = np.flatnonzero(np.isfinite(resid).any(axis=1))
+    bias_states = Ps.shape[1] > n
+    for j in range(0, rows.size, 500):
+        k = rows[j:j + 500]
+        _, H = phase_model(cfg, xs[k], ant, tx, jacobian=True)          # (m, C, 2 n_m)
+        Hm = H[:, :, :nm]
+        hph[k] = np.einsum("kci,kij,kcj->kc", Hm, Ps[k, :nm, :nm], Hm)
+        if bias_states:
+            cb = n + np.arange(C)
+            hph[k] += Ps[k][:, cb, cb] + 2.0 * np.einsum("kci,kic->kc", Hm, Ps[k][:, :nm, cb])
+    return filter_sigma_estimate(resid, hph)
+
+
+def _innovation_noise(res: EstimateResult, sig_c: np.ndarray, source: str, chan_est: tuple) -> dict:
+    """σ used (RMS and per channel) and the innovation-based estimates; ``adapt`` when one is outside
+    the band (``ADAPT_NIS_BAND``) and its own sampling interval.
+
+    The scale comes from the pooled NIS: f = mean NIS/dof, σ·√f.  The channels' relative noise comes
+    from the residual-based σ̂_c² = mean(e_c² + H_c P⁺ H_cᵀ): its ratio r_c = σ̂_c²/σ_c² is exact for a
+    consistent filter but biased, differently for each channel's geometry, when σ is far off (P⁺ is
+    then wrong too).  So only a channel whose relative ratio rel_c = r_c / r̄ (r̄: the
+    residual-weighted mean) is off the band and its sampling interval takes it: adapted
+    σ_c = σ_c·√(f·rel_c); the others keep their pattern, σ_c·√f.  The caller re-runs the filter
+    with the adapted σ until nothing is off (at most ``ADAPT_MAX_PASSES`` passes): a fixed-point
+    iteration that converges in 2–4 passes when σ starts 4× off or one antenna is 5× noisier than
+    one σ assumed."""
     ok = res.nis_dof > 0
-    out = {"sigma_m": float(sigma), "source": source}
+    sigma = float(np.sqrt(np.mean(sig_c**2)))
+    out = {"sigma_m": sigma, "source": source,
+           "sigma_m_min": float(sig_c.min()), "sigma_m_max": float(sig_c.max())}
     if not ok.any():
         return out
     dof = float(res.nis_dof[ok].sum())
     f = float(res.nis[ok].sum()) / dof
     half = 3.3 * np.sqrt(2.0 / dof)
-    out.update(mean_nis_per_dof=f, innovation_sigma_m=float(sigma * np.sqrt(max(f, 1e-6))),
-               adapt=bool((f < ADAPT_NIS_BAND[0] or f > ADAPT_NIS_BAND[1]) and abs(f - 1.0) > half))
+    scale_off = bool((f < ADAPT_NIS_BAND[0] or f > ADAPT_NIS_BAND[1]) and abs(f - 1.0) > half)
+    adapt = scale_off
+    s_hat, cnt = chan_est
+    enough = cnt >= ADAPT_MIN_EPOCHS
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r = np.where(cnt > 0, s_hat**2 / sig_c**2, np.nan)
+    r_bar = float(np.sum(np.where(enough, r * cnt, 0.0)) / np.sum(np.where(enough, cnt, 0))) if enough.any() else 1.0
+    per, worst = [], None
+    for c, (a, t) in enumerate(res.channels):
+        rel = float(r[c] / r_bar) if enough[c] else 1.0          # this channel's noise relative to the others
+        off = bool(enough[c] and (rel < ADAPT_NIS_BAND[0] or rel > ADAPT_NIS_BAND[1])
+                   and abs(rel - 1.0) > 3.3 * np.sqrt(2.0 / cnt[c]))
+        adapt |= off
+        per.append({"channel": f"{a}/{t}", "sigma_m": float(sig_c[c]),
+                    "residual_sigma_m": float(s_hat[c]) if cnt[c] > 0 else None, "residuals": int(cnt[c]),
+                    "variance_ratio": float(r[c]) if cnt[c] > 0 else None, "relative_variance": rel,
+                    "adapted_sigma_m": float(sig_c[c] * np.sqrt(max(f * (rel if off else 1.0), 1e-6)))})
+        if off and (worst is None or abs(np.log(rel)) > abs(np.log(worst[1]))):
+            worst = (f"{a}/{t}", rel)
+    out.update(mean_nis_per_dof=f, innovation_sigma_m=float(sigma * np.sqrt(max(f, 1e-6))), adapt=adapt,
+               per_channel=per)
+    if worst:
+        out["worst_channel"] = {"channel": worst[0], "relative_variance": worst[1]}
     return out
 
 
@@ -834,11 +925,12 @@ def _rows(Hx: np.ndarray, idx: np.ndarray, p: int, n: int, use_bias_states: bool
     return H
 
 
-def rest_motion(x, P, h, Hx, y, bias, usable, n, use_bias_states, sigma, outlier_sigma, bound,
+def rest_motion(x, P, h, Hx, y, bias, usable, n, use_bias_states, r_var, outlier_sigma, bound,
                 mp0=None) -> tuple[str, bool]:
     """Does an epoch's data contradict "the structure is at rest"?  Returns (reason, nis_failed).
 
-    ``h, Hx``: the measurement model and its Jacobian at x[:n].
+    ``h, Hx``: the measurement model and its Jacobian at x[:n]; ``r_var`` (C,): each channel's
+    measurement variance (m²).
 
     The reason is non-empty when two or more channels fail the innovation outlier test (one alone
     is a slip, handled as such); ``nis_failed`` when the normalized innovation squared of the other
@@ -851,7 +943,7 @@ def rest_motion(x, P, h, Hx, y, bias, usable, n, use_bias_states, sigma, outlier
     if mp0 is not None:
         b = b + x[mp0 + idx]
     rho = y[idx] - h[idx] - b
-    S = H @ P @ H.T + sigma**2 * np.eye(idx.size)
+    S = H @ P @ H.T + np.diag(r_var[idx])
     z = rho / np.sqrt(np.diag(S))
     out = np.abs(z) > outlier_sigma
     if out.sum() >= 2:

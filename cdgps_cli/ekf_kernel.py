@@ -6,7 +6,7 @@ hands back to ``ekf.estimate`` the first epoch that needs its Python logic (lock
 re-estimation, innovation outliers, re-initialization); :func:`rts` is the smoother's pass.  Both
 use the structure of the modal model: A (ZOH of 2×2 blocks per mode) as a sparse CSR matrix, and H
 non-zero only in the n_m position columns.  The arithmetic is that of the numpy path (information
-form with R = σ² I, Cholesky inverses, NIS by Woodbury), so both paths agree to rounding.
+form with a diagonal R = diag(σ_c²) per channel, Cholesky inverses, NIS by Woodbury), so both paths agree to rounding.
 
 The extension is optional: :func:`available` is false when it was not compiled, when its API does
 not match this module, or when the environment variable ``CDGPS_NO_KERNEL`` is set to anything but
@@ -24,7 +24,7 @@ try:
 except ImportError:                      # not compiled (no C compiler at install time)
     _ekfcore = None
 
-API = 1
+API = 2                                 # 2: per-channel measurement variance (R = diag(r_var))
 STOP_REASONS = {0: "end", 1: "lock event", 2: "re-bias", 3: "outlier", 4: "re-initialization", 5: "cholesky"}
 
 
@@ -112,7 +112,8 @@ class ForwardKernel:
     """Forward EKF with fixed biases over steady-state epochs, writing into estimate's arrays.
 
     Parameters are those of the filter (A, Q, B: state transition, process noise, input matrix;
-    σ, outlier threshold, NIS probability, re-initialization count) and its per-epoch arrays:
+    sigma: the measurement σ (m) of each channel, shape (C,) (a scalar is broadcast); outlier
+    threshold, NIS probability, re-initialization count) and its per-epoch arrays:
     Y (N, C) phases in metres (NaN absent), EVENT (N, C) int8 from ``lock_events``, U_in (N, n_u),
     and the outputs xs (N, n), Ps (N, n, n), resid (N, C), nis (N,), nis_dof (N,) int64.
     """
@@ -130,7 +131,10 @@ class ForwardKernel:
         C = len(ant)
         # the NIS bound per number of channels used (index 0 unused)
         self.chi2 = _f64(np.r_[np.nan, chi2.ppf(nis_probability, np.arange(1, C + 1))])
-        self.sigma = float(sigma)
+        sig = np.broadcast_to(np.asarray(sigma, dtype=np.float64), (C,))
+        if not np.all(np.isfinite(sig) & (sig > 0)):
+            raise ValueError("ForwardKernel: sigma must be positive and finite for every channel")
+        self.r_var = _f64(sig**2)                # R = diag(σ_c²)
         self.outlier_sigma = float(outlier_sigma)
         self.reinit_after = int(reinit_after)
         self.Y = _f64(Y)
@@ -172,9 +176,9 @@ class ForwardKernel:
         k_stop, fail_run, reason = _ekfcore.filter_span(
             self.gi, self.gf, *self.A, self.Q if Q is None else _f64(Q), self.B, self.chi2, self.Y, self.EVENT,
             _f64(bias), mask, self.U_in,
-            x, P, self.xs, self.Ps, self.resid, self.nis, self.nis_dof,
+            x, P, self.xs, self.Ps, self.resid, self.nis, self.nis_dof, self.r_var,
             self.N, self.n, self.nu, int(k0), self.N if k1 is None else int(k1), int(fail_run),
-            int(reinit_after), int(k_reinit_block), self.sigma, self.outlier_sigma)
+            int(reinit_after), int(k_reinit_block), self.outlier_sigma)
         self.epochs += k_stop - k0
         key = STOP_REASONS.get(reason, str(reason))
         self.stops[key] = self.stops.get(key, 0) + 1

@@ -822,9 +822,11 @@ def _estimate_noise(cfg, wd, prob, g, prior, opt):
     resid = prob.residual(g.x, g.b)
     if bad.size and len(sig) >= 3:
         worst = bad[np.argsort(-ratio[bad])]
-        detail = ", ".join(f"{names[c]} {sig[c] * 1000:.1f} mm ({ratio[c]:.1f}×){_step_note(wd, resid, c)}"
-                           for c in worst[:6])
-        if ratio[worst[0]] > opt.sigma_refuse_ratio:
+        own = _unshared_ratio(wd.channels, sig)
+        detail = ", ".join(f"{names[c]} {sig[c] * 1000:.1f} mm ({ratio[c]:.1f}×"
+                           f"{'' if own[c] > CHANNEL_WARN_RATIO else ', shared by its antenna or transmitter'})"
+                           f"{_step_note(wd, resid, c)}" for c in worst[:6])
+        if own[worst].max() > opt.sigma_refuse_ratio:
             raise CdgpsError(
                 f"batch fit inconsistent in the window {wd.time_s[0]:g}–{wd.time_s[-1]:g} s: channel residuals far "
                 f"beyond the others' noise (median {med * 1000:.2f} mm): {detail}. This is not measurement "
@@ -839,6 +841,30 @@ def _estimate_noise(cfg, wd, prob, g, prior, opt):
     return prob, g, {"source": "estimated (batch variance factors with redundancy numbers)",
                      "sigma_m": rms_est, "prior_sigma_m": rms_prior, "median_sigma_m": med,
                      "iterations": NOISE_ITERATIONS, "per_channel": per, "warnings": warnings}
+
+
+def _unshared_ratio(channels, sig: np.ndarray) -> np.ndarray:
+    """(C,) each channel's σ̂ over the larger of the medians of the other channels of its antenna and of
+    its transmitter (and never above its ratio to the median of all channels).
+
+    Noise that a whole antenna (or transmitter) shares is noise — an antenna 5× noisier than the
+    others has all its channels high, so each is ≈ 1× its antenna's others.  A single channel far
+    above both of its groups is not explained by per-antenna or per-transmitter noise (an
+    unflagged slip, a broken channel): that is what init refuses."""
+    sig = np.asarray(sig, dtype=float)
+    ant = np.array([a for a, _ in channels], dtype=object)
+    tx = np.array([t for _, t in channels], dtype=object)
+    med = float(np.median(sig))
+    out = sig / med
+    for c in range(len(sig)):
+        ref = med
+        for same in (ant == ant[c], tx == tx[c]):
+            others = same.copy()
+            others[c] = False
+            if others.sum() >= 2:
+                ref = max(ref, float(np.median(sig[others])))
+        out[c] = sig[c] / ref
+    return out
 
 
 def _step_note(wd, resid, c) -> str:

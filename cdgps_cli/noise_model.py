@@ -123,3 +123,51 @@ def filter_sigma_estimate(resid_m: np.ndarray, hph_m2: np.ndarray) -> tuple[np.n
     with np.errstate(invalid="ignore", divide="ignore"):
         s = np.sqrt(tot / cnt)
     return np.where(cnt > 0, s, np.nan), cnt
+
+
+def init_channel_sigma_m(init: dict, cfg, channels, override_m: float | None = None) -> tuple[np.ndarray, str]:
+    """Per-channel measurement σ (m) of the filter and of INIT's window states, shape (C,).
+
+    Parameters
+    ----------
+    init : dict
+        INIT.json contents: ``sigma_m_per_channel`` {"antenna/transmitter": σ} (the batch's per-channel
+        estimate) and ``sigma_m`` (their RMS) when present.
+    cfg : StructureConfig
+    channels : list of (antenna, transmitter)
+    override_m : float, optional
+        An explicit σ (``--sigma-m``) for every channel.
+
+    Returns
+    -------
+    (sigma_m (C,), source): ``--sigma-m``; else INIT's per-channel σ (a channel INIT does not list
+    takes INIT's ``sigma_m``); else INIT's ``sigma_m`` for every channel; else the config's
+    per-channel prior (:func:`prior_sigma_m`).
+
+    Raises CdgpsError naming the INIT.json key when ``sigma_m_per_channel`` is malformed.
+    """
+    from .limits import OPTION_BOUNDS
+
+    C = len(channels)
+    if override_m is not None:
+        return prior_sigma_m(cfg, channels, override_m), "--sigma-m"
+    per = init.get("sigma_m_per_channel")
+    s0 = init.get("sigma_m")
+    if per is None:
+        if s0:
+            return np.full(C, float(s0)), "INIT (one σ)"
+        return prior_sigma_m(cfg, channels), "config"
+    if not isinstance(per, dict):
+        raise CdgpsError("INIT.json: sigma_m_per_channel: expected an object {\"antenna/transmitter\": sigma_m}")
+    known = {f"{a}/{t}" for a, t in cfg.channels}
+    bound = OPTION_BOUNDS["sigma_m"]
+    for key, v in per.items():
+        if key not in known:
+            raise CdgpsError(f"INIT.json: sigma_m_per_channel: {key!r} is not a channel (antenna/transmitter) "
+                             f"of the config")
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (np.isfinite(v) and bound.contains(v)):
+            raise CdgpsError(f"INIT.json: sigma_m_per_channel[{key!r}] = {v!r}: expected a number of metres "
+                             f"in {bound.text()}")
+    fallback = float(s0) if s0 else float(np.sqrt(np.mean(np.square(list(per.values()) or [cfg.measurement_sigma_m]))))
+    out = np.array([float(per.get(f"{a}/{t}", fallback)) for a, t in channels])
+    return out, "INIT (estimated per channel)" if "noise" in init else "INIT (per channel)"

@@ -80,6 +80,30 @@ class SimOptions:
     outages: list = field(default_factory=list)
     random_slips: int = 0
     disturbance_scale: float | None = None
+    noise_scale: dict = field(default_factory=dict)   # {antenna or transmitter name: factor on the white noise σ}
+
+
+def parse_noise_scale(text: str) -> tuple[str, float]:
+    """``NAME:FACTOR`` (``--noise-scale a3:5``) → (name, factor): the white phase noise of every channel
+    of antenna or transmitter NAME is multiplied by FACTOR (> 0)."""
+    name, _, val = text.strip().rpartition(":")
+    f = _float_or_nan(val)
+    if not name or not (np.isfinite(f) and f > 0):
+        raise CdgpsError(f"--noise-scale {text!r}: expected NAME:FACTOR with an antenna or transmitter NAME and a "
+                         f"positive FACTOR, e.g. a3:5")
+    return name, f
+
+
+def noise_scale_per_channel(cfg: StructureConfig, scale: dict, ant: np.ndarray, tx: np.ndarray) -> np.ndarray:
+    """(C,) factor on the white noise σ of each channel: the product of its antenna's and its
+    transmitter's factors in ``scale`` (1 where not given)."""
+    f = np.ones(len(ant))
+    for name, v in scale.items():
+        if name in cfg.antenna_names:
+            f[ant == cfg.antenna_names.index(name)] *= v
+        if name in cfg.transmitter_names:
+            f[tx == cfg.transmitter_names.index(name)] *= v
+    return f
 
 
 def parse_slip(text: str) -> SlipSpec:
@@ -158,6 +182,12 @@ def _validate(cfg: StructureConfig, opt: SimOptions, closed_loop: bool = False) 
             problems.append(f"{on[name]} {v:g}: expected a non-negative number")
     if opt.random_slips < 0:
         problems.append(f"{on['random_slips']} {opt.random_slips}: expected a non-negative count")
+    for name, v in (opt.noise_scale or {}).items():
+        if name not in cfg.rover_names and name not in cfg.transmitter_names:
+            problems.append(f"--noise-scale: {name!r} is not a rover antenna or a transmitter of the config "
+                            f"(rovers: {', '.join(cfg.rover_names)}; transmitters: {', '.join(cfg.transmitter_names)})")
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (np.isfinite(v) and v > 0):
+            problems.append(f"--noise-scale {name}: expected a positive factor, got {v!r}")
     if problems:
         raise CdgpsError("invalid simulation options:\n  - " + "\n  - ".join(problems))
     check_table_size(opt.duration_s / cfg.sample_period_s + 1, len(cfg.channels), SIM_BYTES_PER_VALUE,
@@ -304,6 +334,13 @@ def simulate(cfg: StructureConfig, opt: SimOptions, trajectory=None) -> Simulati
     receiver, bias_records, slip_records = _phase_log(cfg, opt, rng, time_s, q)
     truth["biases"] = bias_records
     truth["slips"] = slip_records
+    if opt.noise_scale:
+        ant, tx = all_channels(cfg)
+        s0 = cfg.simulation["phase_sigma_m"] if opt.phase_sigma_m is None else opt.phase_sigma_m
+        f = noise_scale_per_channel(cfg, opt.noise_scale, ant, tx)
+        truth["noise_scale"] = dict(opt.noise_scale)
+        truth["phase_sigma_m_per_channel"] = {f"{cfg.antenna_names[a]}/{cfg.transmitter_names[t]}": float(s0 * v)
+                                              for a, t, v in zip(ant, tx, f)}
     gyro, gyro_truth = _gyro_log(cfg, rng, time_s, qdot)
     truth["gyros"] = gyro_truth
     return Simulation(cfg, opt, time_s, q, x, receiver, gyro, actuators, truth)
@@ -397,6 +434,9 @@ def _phase_noise(cfg, opt, rng, n, C):
     sigma = sim["phase_sigma_m"] if opt.phase_sigma_m is None else opt.phase_sigma_m
     mp_sigma = sim["multipath_sigma_m"] if opt.multipath_sigma_m is None else opt.multipath_sigma_m
     noise = rng.standard_normal((n, C)) * sigma
+    if opt.noise_scale:
+        ant, tx = all_channels(cfg)
+        noise *= noise_scale_per_channel(cfg, opt.noise_scale, ant, tx)
     if mp_sigma > 0:
         a = np.exp(-cfg.sample_period_s / sim["multipath_time_constant_s"])
         e = rng.standard_normal((n, C)) * mp_sigma * np.sqrt(1 - a * a)

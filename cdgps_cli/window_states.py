@@ -42,6 +42,7 @@ from .errors import CdgpsError
 from .measurement import EpochPhaseModel, phase_model
 from . import multipath
 from .run import Run
+from .noise_model import init_channel_sigma_m
 
 _CHUNK = 1024                       # epochs per vectorized call of the measurement model
 MAX_ITERATIONS = 10
@@ -134,7 +135,8 @@ def _measurements(cfg, wd, x_lin, seg_bias, seg_free):
 
 
 def _information_rows(H, ytil, col, sigma, n, p, n_mp=0):
-    """Per epoch the measurement information H̃ᵀH̃/σ² (N, p, p) and H̃ᵀỹ/σ² (N, p), vectorized.
+    """Per epoch the measurement information H̃ᵀR⁻¹H̃ (N, p, p) and H̃ᵀR⁻¹ỹ (N, p), vectorized;
+    R = diag(σ_c²), ``sigma`` (C,) per channel (m).
 
     z = [x (n); multipath (n_mp = 0 or C, one per channel); free biases]."""
     N, C, _ = H.shape
@@ -146,8 +148,8 @@ def _information_rows(H, ytil, col, sigma, n, p, n_mp=0):
     kk, cc = np.nonzero((col >= 0) & present)
     Ht[kk, cc, n + n_mp + col[kk, cc]] = 1.0
     yv = np.where(present, ytil, 0.0)
-    w = 1.0 / sigma**2
-    return w * np.einsum("kci,kcj->kij", Ht, Ht), w * np.einsum("kci,kc->ki", Ht, yv)
+    w = 1.0 / np.broadcast_to(np.asarray(sigma, dtype=float), (C,))**2
+    return np.einsum("kci,c,kcj->kij", Ht, w, Ht), np.einsum("kci,c,kc->ki", Ht, w, yv)
 
 
 def _forward(A_inv, G, H, ytil, col, sigma, n, p, mp=None):
@@ -208,6 +210,7 @@ def _backward_ekf(cfg, wd, A_inv, Q, x_end, P_end, seg_bias, sigma):
     n = len(x_end)
     model = EpochPhaseModel(cfg, wd.ant, wd.tx)
     b = np.where(wd.segment >= 0, seg_bias[np.maximum(wd.segment, 0)], np.nan)
+    sig_c = np.broadcast_to(np.asarray(sigma, dtype=float), (C,))
     xs = np.empty((N, n))
     x, P = x_end.copy(), P_end.copy()
     xs[-1] = x
@@ -220,9 +223,10 @@ def _backward_ekf(cfg, wd, A_inv, Q, x_end, P_end, seg_bias, sigma):
             h, Hx = model(x)
             Hk = Hx[ok]
             rho = wd.y_m[k, ok] - h[ok] - b[k, ok]
-            P = np.linalg.inv(np.linalg.inv(P) + (Hk.T @ Hk) / sigma**2)
+            w = 1.0 / sig_c[ok]**2
+            P = np.linalg.inv(np.linalg.inv(P) + Hk.T @ (w[:, None] * Hk))
             P = 0.5 * (P + P.T)
-            x = x + P @ (Hk.T @ rho) / sigma**2
+            x = x + P @ (Hk.T @ (w * rho))
         xs[k] = x
     return xs
 
@@ -236,7 +240,8 @@ def window_states(run: Run, init: dict, window: tuple[float, float], x_end: np.n
     run : Run
         The RUN INIT was made from.
     init : dict
-        INIT.json (``sigma_m``, ``biases`` with ``segment_start_s`` and ``fixed``, ``options.process_noise``).
+        INIT.json (``sigma_m_per_channel`` / ``sigma_m``, ``biases`` with ``segment_start_s`` and ``fixed``,
+        ``options.process_noise``).
     window : (start_s, end_s)
         From :func:`batch_window`.
     x_end, P_end : (n,), (n, n)
@@ -256,7 +261,7 @@ def window_states(run: Run, init: dict, window: tuple[float, float], x_end: np.n
         drop = np.isnan(seg_bias)[np.maximum(wd.segment, 0)] & (wd.segment >= 0)
         wd.y_m[drop] = np.nan
     seg_free = ~seg_fixed
-    sigma = float(init.get("sigma_m") or cfg.measurement_sigma_m)
+    sigma, _ = init_channel_sigma_m(init, cfg, wd.channels)     # (C,) the batch's per-channel σ
     model = discrete_model(cfg)
     n = model.A.shape[0]
     mf = int(seg_free.sum())
