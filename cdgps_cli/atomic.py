@@ -318,8 +318,9 @@ class OutputSet:
 
     def path(self, name: str) -> Path:
         """Staging path of output file ``name`` (a plain file name)."""
-        if not name or "/" in name or os.sep in name or name.startswith("."):
-            raise ValueError(f"output set member {name!r}: expected a plain, visible file name")
+        if not name or "/" in name or os.sep in name or name.startswith(".") or name in (SET_JOURNAL,):
+            raise CdgpsError(f"{self.out}: cannot write {name!r} there: an output file name must be a plain, "
+                             f"visible file name (no folder, not starting with a dot)")
         return self.staging / name
 
     def final(self, name: str) -> Path:
@@ -375,11 +376,14 @@ def output_set(out_dir: str | Path, replaces=()):
     with sigterm_raises():
         try:
             out.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise CdgpsError(f"{out}: cannot create output directory: {exc.strerror or exc}") from None
+        try:
             with _folder_lock(out):
                 recover_output_folder(out)
             staging = Path(tempfile.mkdtemp(prefix=f"{_STAGING}{os.getpid()}-", dir=out))
         except OSError as exc:
-            raise CdgpsError(f"{out}: cannot create output directory: {exc.strerror or exc}") from None
+            raise CdgpsError(f"{out}: cannot write into the output directory: {exc.strerror or exc}") from None
         s = OutputSet(out, staging)
         ok = False
         try:
