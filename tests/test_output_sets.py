@@ -307,3 +307,11 @@ def test_sigterm_during_single_file_write_leaves_no_temporary(tmp_path):
     assert p.returncode != 0
     assert _hidden(tmp_path) == []
     assert target.read_text() == "the earlier file\n"
+
+
+@pytest.mark.parametrize("name", ["a/b.rnx", ".hidden", "", SET_JOURNAL])
+def test_output_names_outside_the_folder_are_a_clean_error(tmp_path, name):
+    with pytest.raises(CdgpsError, match="plain, visible file name"):
+        with output_set(tmp_path / "o") as dest:
+            dest.path(name)
+    assert list(tmp_path.iterdir()) == []
