@@ -185,8 +185,8 @@ def signals_deferred():
         yield
         return
     pending: list[int] = []
-    sigs = (signal.SIGINT, signal.SIGTERM)
-    saved = {s: signal.getsignal(s) for s in sigs}
+    saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    sigs = [s for s, h in saved.items() if h is not None]     # None: a handler not set from Python, left alone
     for s in sigs:
         signal.signal(s, lambda signum, frame: pending.append(signum))
     try:
