@@ -15,6 +15,7 @@ from pathlib import Path
 import click
 
 from . import __version__, progress
+from .atomic import TERMINATED_EXIT, Terminated, sigterm_raises
 from .errors import CdgpsError
 from .validate import GuardedCommand
 
@@ -56,6 +57,10 @@ class _Group(click.Group):
             _fail(ctx, str(exc))
         except BrokenPipeError:                 # stdout read by `| head` that has exited
             _quiet_broken_pipe(ctx)
+        except Terminated:                      # SIGTERM: temporaries already removed on the way up
+            progress.close_all()
+            click.echo("cdgps: terminated (SIGTERM); no partial output left", err=True)
+            ctx.exit(TERMINATED_EXIT)
         except MemoryError:                     # last line of defence (inputs are bounded first)
             _fail(ctx, "out of memory: the inputs or options ask for more memory than this machine has "
                        "(a shorter --duration or a smaller input)")
@@ -151,6 +156,7 @@ def main(ctx, quiet):
     ctx.obj["quiet"] = quiet
     progress.configure(enabled=not quiet)
     ctx.call_on_close(lambda: progress.configure(enabled=False))   # library use stays silent
+    ctx.with_resource(sigterm_raises())     # SIGTERM cleans up as SIGINT does (cdgps_cli.atomic)
 
 
 @main.command(short_help="Simulate a structure run → receiver/gyro/truth CSV")

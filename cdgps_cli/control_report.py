@@ -17,12 +17,16 @@ import pandas as pd
 from .control.metrics import ARRIVED_WITHIN_DEG, BACK_FRACTION, pulse_metrics, slew_metrics
 from .errors import CdgpsError
 from .provenance import _file, report_date, software
-from .reports import _fmt, _html_table, _md_table, _mpl, _out_dir, _save_fig, _write_report
+from .atomic import output_set
+from .gains_file import read_gains
+from .reports import REPORT_FILES, _fmt, _html_table, _md_table, _mpl, _save_fig, _write_report
 
 #: internal angles plotted and measured (the sections' vertical-axis rotations, Figs. 10–12)
 INTERNAL_ANGLES = ("q2", "q5", "q8")
 RIGID_ANGLE = "q10"
 ROLES = ("open", "closed", "full_state", "no_vibration")
+#: every file the report may write (replaced as one set, cdgps_cli.atomic.output_set)
+CONTROL_REPORT_FILES = (*REPORT_FILES, "poles.png", "pulse.png", "slew.png")
 ROLE_LABEL = {"open": "open loop", "closed": "closed loop (GPS estimate)",
               "full_state": "closed loop (true state)", "no_vibration": "no vibration control (GPS estimate)"}
 
@@ -66,7 +70,7 @@ def control_report(gains_path: str | Path, runs: dict, out_dir: str | Path, date
     """Write the report; ``runs`` maps a role (:data:`ROLES`) to a simulation folder."""
     if "closed" not in runs:
         raise CdgpsError("--closed: the closed-loop run (simulate --controller) is required")
-    gains = json.loads(Path(gains_path).read_text(encoding="utf-8"))
+    gains = read_gains(gains_path)
     sims = {role: read_simulation(folder, role) for role, folder in runs.items()}
     scenario = _scenario(sims)
     for role, s in sims.items():
@@ -79,13 +83,9 @@ def control_report(gains_path: str | Path, runs: dict, out_dir: str | Path, date
         data, rows, header, figures, captions = _slew_section(sims)
     else:
         raise CdgpsError(f"the runs are of scenario {scenario!r}; the control report covers pulse and slew")
-    out = _out_dir(out_dir)
     plt = _mpl()
     from .control_figures import pole_figure
 
-    pole_figure(gains["poles"], out / "poles.png", "LQR poles (Fig. 6 style)")
-    figures = {"poles.png": (out / "poles.png").read_bytes(), **{k: _save_fig(f, out / k) for k, f in figures.items()}}
-    plt.close("all")
     captions["poles.png"] = ("Open-loop (×) and closed-loop (+) poles of the design in the z plane, with a zoom "
                              "near z = 1 (from GAINS.json).")
     inputs = [_file("GAINS.json", gains_path)]
@@ -99,8 +99,14 @@ def control_report(gains_path: str | Path, runs: dict, out_dir: str | Path, date
         "inputs": inputs, "software": software(), "date": when["date"], "date_source": when["source"]}})
     title = f"Control experiment: {scenario}"
     md = f"# {title}\n\n{_md_table(rows, header)}\n\n{data['definitions']}\n"
-    _write_report(out, title, md, data, [("Result", _html_table(rows, header) + f"<p class='note'>{data['definitions']}</p>")],
-                  figures, captions)
+    with output_set(out_dir, replaces=CONTROL_REPORT_FILES) as dest:
+        pole_figure(gains["poles"], dest.path("poles.png"), "LQR poles (Fig. 6 style)")
+        figures = {"poles.png": dest.path("poles.png").read_bytes(),
+                   **{k: _save_fig(f, dest.path(k)) for k, f in figures.items()}}
+        plt.close("all")
+        _write_report(dest, title, md, data,
+                      [("Result", _html_table(rows, header) + f"<p class='note'>{data['definitions']}</p>")],
+                      figures, captions)
     return data
 
 

@@ -461,7 +461,8 @@ def simulate_structure_gnss(out_dir, cfg: StructureConfig, *, master_ecef_m=(-39
     ``random_walk_sigma`` for the init).  Returns a summary.
     """
     from .config import gnss_config_toml  # noqa: PLC0415
-    from .atomic import write_atomic, write_bytes_atomic  # noqa: PLC0415
+    from .atomic import output_set, write_atomic, write_bytes_atomic  # noqa: PLC0415
+    from .gnss_sim import previous_simulation_files  # noqa: PLC0415
     from .gnss import simulate_static_pair, synthetic_gps_nav  # noqa: PLC0415
     from .rinex import gps_seconds  # noqa: PLC0415
     from .rinex_write import rinex_calendar, write_rinex_nav, write_rinex_obs  # noqa: PLC0415
@@ -479,7 +480,6 @@ def simulate_structure_gnss(out_dir, cfg: StructureConfig, *, master_ecef_m=(-39
     if problems:
         raise CdgpsError("simulate-gnss-structure: " + "; ".join(problems))
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     mapping = {a: (receivers or {}).get(a, a) for a in cfg.antenna_names}
     T = cfg.sample_period_s
     sim = simulate(cfg, SimOptions(duration_s=duration_s, seed=seed, scenario="free"))
@@ -494,45 +494,46 @@ def simulate_structure_gnss(out_dir, cfg: StructureConfig, *, master_ecef_m=(-39
     nominal = nominal_receiver_positions(cfg, placement)
     y, mo, d, hh, mi, ss = rinex_calendar(start_gps_s)
     stamp = f"{y:04d}{mo:02d}{d:02d} {hh:02d}{mi:02d}{int(ss):02d} UTC"
-    files = {}
-    integers = {}
-    say(f"simulating {n} epochs of {len(mapping)} receivers …")
-    p0 = antenna_positions(cfg, np.zeros((1, cfg.n_q)))[0]
-    for i, a in enumerate(cfg.antenna_names):
-        xa = nominal[a]
-        lat, lon, _ = ecef_to_geodetic(xa)
-        off_ecef = (p[:, i, :] - p0[i]) @ R.T                # displacement from the nominal position, ECEF
-        off_enu = off_ecef @ enu_matrix(lat, lon).T
-        s = simulate_static_pair(nav, np.asarray(master_ecef_m, float), xa, start_gps_s, n * T, T,
-                                 seed=seed * 1000 + 17 * (i + 1), mask_rad=math.radians(mask_deg),
-                                 phase_sigma_m=(0.003, 0.003), code_sigma_m=code_sigma_m,
-                                 clock_drift_ms=(0.0, 5.0 - 2.0 * i), rover_offset_enu_m=off_enu)
-        rx = mapping[a]
-        hdr = {"marker_name": rx, "observer": "cdgps gnss_modal simulation", "agency": "simulated",
-               "receiver_type": "CDGPS SIMULATOR", "receiver_version": __version__, "antenna_type": "SIMULATED",
-               "approx_position_xyz_m": tuple(float(v) for v in xa), "interval_s": T,
-               "comments": [f"structure {cfg.name}, antenna {a}: nominal position (q = 0)"]}
-        write_rinex_obs(out / f"{rx}.rnx", s["rover"], hdr, created=stamp)
-        files[rx] = f"{rx}.rnx"
-        amb = s["ambiguities"]
-        integers[rx] = {r_["sat"]: int(r_["n_cycles"]) for _, r_ in amb[amb["receiver"] == "rover"].iterrows()}
-    write_rinex_nav(out / "nav.rnx", nav, comments=[f"synthetic ephemerides (seed {seed})"], created=stamp)
-    truth = pd.DataFrame({"time_s": t_gps, **{c: sim.q[:, j] for j, c in enumerate(cfg.coord_names)}})
-    write_atomic(out / "truth.csv", lambda pth: truth.to_csv(pth, index=False, lineterminator="\n", float_format="%.9f"))
-    master_rx = mapping[cfg.antenna_names[cfg.master_index]]
-    tj = {"kind": "cdgps gnss structure simulation", "cdgps_version": __version__, "config": cfg.name,
-          "config_sha256": cfg.sha256, "seed": seed, "start_gps_s": start_gps_s, "start": gps_time_str(start_gps_s),
-          "duration_s": float(sim.time_s[-1]), "interval_s": T, "epochs": int(n), "master": master_rx,
-          "receivers": mapping, "master_ecef_m": list(map(float, master_ecef_m)),
-          "x_axis_azimuth_deg": float(x_axis_azimuth_deg),
-          "nominal_ecef_m": {mapping[a]: list(map(float, v)) for a, v in nominal.items()},
-          "coordinates": list(cfg.coord_names), "x0": sim.x[0].tolist(),
-          "phase_noise": "sigma^2 = a^2 + b^2/sin^2(el) per receiver, a = b = 0.003 m", "code_sigma_m": code_sigma_m}
-    write_bytes_atomic(out / "truth.json", (json.dumps(tj, indent=2) + "\n").encode())
-    text = gnss_config_toml({mapping[a]: ("rinex", files[mapping[a]]) for a in cfg.antenna_names}, ["nav.rnx"], master_rx,
-                            name=f"simulated-{cfg.name}", description=f"structure {cfg.name} simulated by cdgps_cli.gnss_modal",
-                            displacement="random_walk", sigma_m_per_sqrt_s=random_walk_sigma)
-    write_bytes_atomic(out / "config.toml", text.encode())
+    with output_set(out, replaces=previous_simulation_files(out, "cdgps gnss structure simulation")) as dest:
+        files = {}
+        integers = {}
+        say(f"simulating {n} epochs of {len(mapping)} receivers …")
+        p0 = antenna_positions(cfg, np.zeros((1, cfg.n_q)))[0]
+        for i, a in enumerate(cfg.antenna_names):
+            xa = nominal[a]
+            lat, lon, _ = ecef_to_geodetic(xa)
+            off_ecef = (p[:, i, :] - p0[i]) @ R.T                # displacement from the nominal position, ECEF
+            off_enu = off_ecef @ enu_matrix(lat, lon).T
+            s = simulate_static_pair(nav, np.asarray(master_ecef_m, float), xa, start_gps_s, n * T, T,
+                                     seed=seed * 1000 + 17 * (i + 1), mask_rad=math.radians(mask_deg),
+                                     phase_sigma_m=(0.003, 0.003), code_sigma_m=code_sigma_m,
+                                     clock_drift_ms=(0.0, 5.0 - 2.0 * i), rover_offset_enu_m=off_enu)
+            rx = mapping[a]
+            hdr = {"marker_name": rx, "observer": "cdgps gnss_modal simulation", "agency": "simulated",
+                   "receiver_type": "CDGPS SIMULATOR", "receiver_version": __version__, "antenna_type": "SIMULATED",
+                   "approx_position_xyz_m": tuple(float(v) for v in xa), "interval_s": T,
+                   "comments": [f"structure {cfg.name}, antenna {a}: nominal position (q = 0)"]}
+            write_rinex_obs(dest.path(f"{rx}.rnx"), s["rover"], hdr, created=stamp)
+            files[rx] = f"{rx}.rnx"
+            amb = s["ambiguities"]
+            integers[rx] = {r_["sat"]: int(r_["n_cycles"]) for _, r_ in amb[amb["receiver"] == "rover"].iterrows()}
+        write_rinex_nav(dest.path("nav.rnx"), nav, comments=[f"synthetic ephemerides (seed {seed})"], created=stamp)
+        truth = pd.DataFrame({"time_s": t_gps, **{c: sim.q[:, j] for j, c in enumerate(cfg.coord_names)}})
+        write_atomic(dest.path("truth.csv"), lambda pth: truth.to_csv(pth, index=False, lineterminator="\n", float_format="%.9f"))
+        master_rx = mapping[cfg.antenna_names[cfg.master_index]]
+        tj = {"kind": "cdgps gnss structure simulation", "cdgps_version": __version__, "config": cfg.name,
+              "config_sha256": cfg.sha256, "seed": seed, "start_gps_s": start_gps_s, "start": gps_time_str(start_gps_s),
+              "duration_s": float(sim.time_s[-1]), "interval_s": T, "epochs": int(n), "master": master_rx,
+              "receivers": mapping, "master_ecef_m": list(map(float, master_ecef_m)),
+              "x_axis_azimuth_deg": float(x_axis_azimuth_deg),
+              "nominal_ecef_m": {mapping[a]: list(map(float, v)) for a, v in nominal.items()},
+              "coordinates": list(cfg.coord_names), "x0": sim.x[0].tolist(),
+              "phase_noise": "sigma^2 = a^2 + b^2/sin^2(el) per receiver, a = b = 0.003 m", "code_sigma_m": code_sigma_m}
+        write_bytes_atomic(dest.path("truth.json"), (json.dumps(tj, indent=2) + "\n").encode())
+        text = gnss_config_toml({mapping[a]: ("rinex", files[mapping[a]]) for a in cfg.antenna_names}, ["nav.rnx"], master_rx,
+                                name=f"simulated-{cfg.name}", description=f"structure {cfg.name} simulated by cdgps_cli.gnss_modal",
+                                displacement="random_walk", sigma_m_per_sqrt_s=random_walk_sigma)
+        write_bytes_atomic(dest.path("config.toml"), text.encode())
     return {"output": str(out), "epochs": int(n), "files": files, "master": master_rx, "receivers": mapping,
             "placement": {"master_ecef_m": list(map(float, master_ecef_m)), "x_axis_azimuth_deg": float(x_axis_azimuth_deg)},
             "q_range": {c: [float(sim.q[:, j].min()), float(sim.q[:, j].max())] for j, c in enumerate(cfg.coord_names)},

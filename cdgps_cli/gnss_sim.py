@@ -31,7 +31,7 @@ import numpy as np
 import pandas as pd
 
 from . import __version__
-from .atomic import write_atomic, write_bytes_atomic
+from .atomic import output_set, write_atomic, write_bytes_atomic
 from .config import GnssConfig, gnss_config_toml
 from .ephemeris import ecef_to_geodetic, enu_matrix
 from .errors import CdgpsError
@@ -76,6 +76,29 @@ GPS_PRN_SLOTS = 32
 #: memory per epoch and receiver-satellite pair while simulating (geometry, observables, RINEX text),
 #: bytes: an upper estimate for :func:`cdgps_cli.limits.check_table_size`
 PAIR_BYTES_PER_VALUE = 100
+
+
+#: the files every GNSS simulation writes besides one RINEX observation file per receiver
+GNSS_SIMULATION_FILES = ("nav.rnx", "truth.csv", "truth.json", "config.toml")
+
+
+def previous_simulation_files(out_dir: str | Path, kind: str) -> tuple[str, ...]:
+    """The output set of an earlier GNSS simulation of ``kind`` in ``out_dir``, which a new one
+    replaces as a whole: the fixed files and the RINEX files its truth.json names (another
+    ``--master``/``--rover`` or receiver mapping wrote other ones)."""
+    try:
+        tj = json.loads((Path(out_dir) / "truth.json").read_text())
+    except (OSError, ValueError):
+        return GNSS_SIMULATION_FILES
+    if not isinstance(tj, dict) or tj.get("kind") != kind:
+        return GNSS_SIMULATION_FILES
+    names = (tj.get("files") or {}).get("rinex") or {}
+    names = list(names.values()) if isinstance(names, dict) else []
+    receivers = tj.get("receivers")
+    if isinstance(receivers, dict):
+        names += [f"{v}.rnx" for v in receivers.values()]
+    plain = [n for n in names if isinstance(n, str) and n and "/" not in n and not n.startswith(".")]
+    return (*GNSS_SIMULATION_FILES, *plain)
 
 
 def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_hz: float = 1.0, seed: int = 0,
@@ -198,67 +221,68 @@ def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_
     say(f"writing RINEX: {len(sim['base'])} + {len(sim['rover'])} satellite-epoch records …")
     y, mo, d, hh, mi, ss = rinex_calendar(start_gps_s)
     stamp = f"{y:04d}{mo:02d}{d:02d} {hh:02d}{mi:02d}{int(ss):02d} UTC"     # reproducible files
-    files = {}
-    for who, name, df in (("base", master, sim["base"]), ("rover", rover, sim["rover"])):
-        hdr = {"marker_name": name, "observer": "cdgps simulate-gnss", "agency": "simulated",
-               "receiver_type": "CDGPS SIMULATOR", "receiver_version": __version__, "antenna_type": "SIMULATED",
-               "approx_position_xyz_m": (master_xyz if who == "base" else rover_xyz), "interval_s": interval,
-               "comments": [f"simulated by cdgps {__version__}, seed {seed}",
-                            "master: true position" if who == "base" else "rover: NOMINAL position (truth.csv: displacement)"]}
-        f = out / f"{name}.rnx"
-        write_rinex_obs(f, df, hdr, created=stamp)
-        files[name] = f.name
-    write_rinex_nav(out / "nav.rnx", nav, comments=[f"ephemerides used by cdgps simulate-gnss (seed {seed})"],
-                    created=stamp)
-    names = [f"{rover}_{c}" for c in "enu"]
-    truth = pd.DataFrame({"time_s": t_nom, names[0]: offsets[:, 0], names[1]: offsets[:, 1], names[2]: offsets[:, 2]})
-    write_atomic(out / "truth.csv", lambda p: truth.to_csv(p, index=False, lineterminator="\n", float_format="%.6f"))
-    lat, lon, _ = ecef_to_geodetic(np.asarray(rover_xyz, float))
-    amb = sim["ambiguities"]
-    truth_json = {
-        "kind": "cdgps gnss simulation",
-        "cdgps_version": __version__,
-        "seed": seed, "start_gps_s": start_gps_s, "start": gps_time_str(start_gps_s), "duration_s": duration_s,
-        "rate_hz": rate_hz, "epochs": n_ep,
-        "master": master, "rover": rover,
-        "master_ecef_m": list(map(float, master_xyz)),
-        "rover_nominal_ecef_m": list(map(float, rover_xyz)),
-        "displacement_model": "random_walk" if random_walk_sigma is not None else "static",
-        "displacement_enu_m": disp.tolist(),
-        "random_walk_sigma_m_per_sqrt_s": random_walk_sigma,
-        "rover_mean_ecef_m": (np.asarray(rover_xyz, float) + enu_matrix(lat, lon).T @ offsets.mean(axis=0)).tolist(),
-        "coordinates": names,
-        "phase_sigma_m": list(phase_noise) if isinstance(phase_noise, tuple) else phase_noise,
-        "phase_noise_model": phase_model,
-        "code_sigma_m": code_sigma_m, "code_noise_model": "white",
-        "cn0_model": "C/N0 = 35 + 15 sin(el) dB-Hz (no noise); RINEX S1C and the L1C signal-strength digit from it",
-        "mask_deg": mask_deg,
-        "navigation": nav_source,
-        "slips_requested": n_slips,
-        "slip_mask_deg": slip_mask_deg,
-        "cycle_slips": [{"receiver": master if d["receiver"] == "base" else rover, "sat": d["sat"],
-                         "time_gps_s": d["time_gps_s"], "cycles": d["cycles"], "elevation_deg": d["elevation_deg"]}
-                        for d in slips],
-        **({"slips_note": slip_note} if slip_note else {}),
-        "ambiguities": [{"receiver": master if r["receiver"] == "base" else rover, "sat": r["sat"], "kind": r["kind"],
-                         "from_gps_s": float(r["t_from_s"]), "cycles": int(r["n_cycles"])} for _, r in amb.iterrows()],
-        "frac_bias_cycles": {master if k == "base" else rover: v for k, v in sim["frac_bias_cycles"].items()},
-        "files": {"rinex": files, "nav": "nav.rnx", "truth": "truth.csv", "config": "config.toml"},
-    }
-    write_bytes_atomic(out / "truth.json", (json.dumps(truth_json, indent=2) + "\n").encode())
-    cfg = gnss_config_toml(
-        {master: ("rinex", files[master]), rover: ("rinex", files[rover])}, ["nav.rnx"], master,
-        name=f"simulated-{master}-{rover}",
-        description=f"cdgps simulate-gnss: {duration_s:g} s at {rate_hz:g} Hz, seed {seed}",
-        displacement="random_walk" if random_walk_sigma is not None else "static",
-        sigma_m_per_sqrt_s=random_walk_sigma,
-        comments=["GNSS run config written by cdgps simulate-gnss (format: docs/gnss-pipeline.md).",
-                  f"{master}: master at its true position; {rover}: nominal position in its header,",
-                  "true displacement in truth.csv.  Run:",
-                  "  cdgps ingest --config config.toml -o run.mcap && cdgps init run.mcap -o init.json",
-                  "  cdgps estimate run.mcap --init init.json -o states.mcap && cdgps evaluate --truth . --estimate states.mcap"],
-    )
-    write_bytes_atomic(out / "config.toml", cfg.encode())
+    with output_set(out, replaces=previous_simulation_files(out, "cdgps gnss simulation")) as dest:
+        files = {}
+        for who, name, df in (("base", master, sim["base"]), ("rover", rover, sim["rover"])):
+            hdr = {"marker_name": name, "observer": "cdgps simulate-gnss", "agency": "simulated",
+                   "receiver_type": "CDGPS SIMULATOR", "receiver_version": __version__, "antenna_type": "SIMULATED",
+                   "approx_position_xyz_m": (master_xyz if who == "base" else rover_xyz), "interval_s": interval,
+                   "comments": [f"simulated by cdgps {__version__}, seed {seed}",
+                                "master: true position" if who == "base" else "rover: NOMINAL position (truth.csv: displacement)"]}
+            f = dest.path(f"{name}.rnx")
+            write_rinex_obs(f, df, hdr, created=stamp)
+            files[name] = f.name
+        write_rinex_nav(dest.path("nav.rnx"), nav, comments=[f"ephemerides used by cdgps simulate-gnss (seed {seed})"],
+                        created=stamp)
+        names = [f"{rover}_{c}" for c in "enu"]
+        truth = pd.DataFrame({"time_s": t_nom, names[0]: offsets[:, 0], names[1]: offsets[:, 1], names[2]: offsets[:, 2]})
+        write_atomic(dest.path("truth.csv"), lambda p: truth.to_csv(p, index=False, lineterminator="\n", float_format="%.6f"))
+        lat, lon, _ = ecef_to_geodetic(np.asarray(rover_xyz, float))
+        amb = sim["ambiguities"]
+        truth_json = {
+            "kind": "cdgps gnss simulation",
+            "cdgps_version": __version__,
+            "seed": seed, "start_gps_s": start_gps_s, "start": gps_time_str(start_gps_s), "duration_s": duration_s,
+            "rate_hz": rate_hz, "epochs": n_ep,
+            "master": master, "rover": rover,
+            "master_ecef_m": list(map(float, master_xyz)),
+            "rover_nominal_ecef_m": list(map(float, rover_xyz)),
+            "displacement_model": "random_walk" if random_walk_sigma is not None else "static",
+            "displacement_enu_m": disp.tolist(),
+            "random_walk_sigma_m_per_sqrt_s": random_walk_sigma,
+            "rover_mean_ecef_m": (np.asarray(rover_xyz, float) + enu_matrix(lat, lon).T @ offsets.mean(axis=0)).tolist(),
+            "coordinates": names,
+            "phase_sigma_m": list(phase_noise) if isinstance(phase_noise, tuple) else phase_noise,
+            "phase_noise_model": phase_model,
+            "code_sigma_m": code_sigma_m, "code_noise_model": "white",
+            "cn0_model": "C/N0 = 35 + 15 sin(el) dB-Hz (no noise); RINEX S1C and the L1C signal-strength digit from it",
+            "mask_deg": mask_deg,
+            "navigation": nav_source,
+            "slips_requested": n_slips,
+            "slip_mask_deg": slip_mask_deg,
+            "cycle_slips": [{"receiver": master if d["receiver"] == "base" else rover, "sat": d["sat"],
+                             "time_gps_s": d["time_gps_s"], "cycles": d["cycles"], "elevation_deg": d["elevation_deg"]}
+                            for d in slips],
+            **({"slips_note": slip_note} if slip_note else {}),
+            "ambiguities": [{"receiver": master if r["receiver"] == "base" else rover, "sat": r["sat"], "kind": r["kind"],
+                             "from_gps_s": float(r["t_from_s"]), "cycles": int(r["n_cycles"])} for _, r in amb.iterrows()],
+            "frac_bias_cycles": {master if k == "base" else rover: v for k, v in sim["frac_bias_cycles"].items()},
+            "files": {"rinex": files, "nav": "nav.rnx", "truth": "truth.csv", "config": "config.toml"},
+        }
+        write_bytes_atomic(dest.path("truth.json"), (json.dumps(truth_json, indent=2) + "\n").encode())
+        cfg = gnss_config_toml(
+            {master: ("rinex", files[master]), rover: ("rinex", files[rover])}, ["nav.rnx"], master,
+            name=f"simulated-{master}-{rover}",
+            description=f"cdgps simulate-gnss: {duration_s:g} s at {rate_hz:g} Hz, seed {seed}",
+            displacement="random_walk" if random_walk_sigma is not None else "static",
+            sigma_m_per_sqrt_s=random_walk_sigma,
+            comments=["GNSS run config written by cdgps simulate-gnss (format: docs/gnss-pipeline.md).",
+                      f"{master}: master at its true position; {rover}: nominal position in its header,",
+                      "true displacement in truth.csv.  Run:",
+                      "  cdgps ingest --config config.toml -o run.mcap && cdgps init run.mcap -o init.json",
+                      "  cdgps estimate run.mcap --init init.json -o states.mcap && cdgps evaluate --truth . --estimate states.mcap"],
+        )
+        write_bytes_atomic(dest.path("config.toml"), cfg.encode())
     return {
         "output": str(out), "files": sorted([*files.values(), "nav.rnx", "truth.csv", "truth.json", "config.toml"]),
         "epochs": n_ep, "records": {master: int(len(sim["base"])), rover: int(len(sim["rover"]))},

@@ -46,7 +46,7 @@ from mcap.records import AttachmentIndex
 from mcap.writer import CompressionType, IndexType, Writer
 
 from . import progress
-from .atomic import is_no_room, output_error, temporary_name
+from .atomic import is_no_room, output_error, remove_stale_temporaries, temporary_name
 from .errors import CdgpsError
 from .mcap_integrity import RECORD_SHA256_KEY, check_records, record_sha256, verify_file, warn_once
 from .timescales import RELATIVE_EPOCH_UTC, TIME_SCALES, unix_ns
@@ -185,6 +185,7 @@ class McapOut:
     def __enter__(self) -> "McapOut":
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
+            remove_stale_temporaries(self.path)         # left by a SIGKILLed writer
             self._fh = open(self.tmp, "wb")
         except OSError as exc:
             raise CdgpsError(f"{self.path}: cannot write: {exc.strerror}") from None

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .atomic import write_bytes_atomic
+from .atomic import OutputSet, output_set, write_bytes_atomic
 from .errors import CdgpsError
 from .expressions import parse_expression
 from .kinematics import gyro_matrix
@@ -48,21 +48,16 @@ def float_csv(df: pd.DataFrame, float_format: str = "%.7g") -> str:
     return ",".join(map(str, df.columns)) + "\n" + body
 
 
-def _save_fig(fig, path: Path) -> bytes:
+def _png(fig) -> bytes:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", metadata={"Software": None})
-    data = buf.getvalue()
+    return buf.getvalue()
+
+
+def _save_fig(fig, path: Path) -> bytes:
+    data = _png(fig)
     _atomic_bytes(path, data)
     return data
-
-
-def _out_dir(out: str | Path) -> Path:
-    p = Path(out)
-    try:
-        p.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise CdgpsError(f"{p}: cannot create output directory: {exc.strerror}") from None
-    return p
 
 
 def _json_clean(o):
@@ -91,8 +86,18 @@ def _gyro_table(run) -> tuple[np.ndarray, np.ndarray, list]:
 
 # ----------------------------------------------------------------------------- spectra
 
-def run_spectra(states, run, opt, out_dir: str | Path) -> dict:
-    """Compute spectra and write psd.csv, peaks.json, psd.png, fdd.png into ``out_dir``."""
+#: every file each command may write (its output set, replaced as a whole: cdgps_cli.atomic.output_set)
+SPECTRA_FILES = ("psd.csv", "peaks.json", "psd.png", "fdd.png")
+REPORT_FILES = ("report.md", "report.json", "report.html")
+STATIC_REPORT_FILES = (*REPORT_FILES, "static.png")
+SPECTRUM_REPORT_FILES = (*SPECTRA_FILES, *REPORT_FILES)
+
+
+def run_spectra(states, run, opt, out_dir: str | Path, dest: OutputSet | None = None) -> dict:
+    """Compute spectra and write psd.csv, peaks.json, psd.png, fdd.png into ``out_dir``.
+
+    The four files replace an earlier set there as a whole (:func:`cdgps_cli.atomic.output_set`),
+    or go into ``dest``, the output set of a larger command (the spectrum report)."""
     from .spectra import compute_spectra
 
     cfg = states.cfg
@@ -104,7 +109,14 @@ def run_spectra(states, run, opt, out_dir: str | Path) -> dict:
         if len(gnames) != len(cfg.gyro_names):
             gr = None if not gnames else gr
     res = compute_spectra(cfg, states.time_s, states.q, gt if gr is not None else None, gr, opt)
-    out = _out_dir(out_dir)
+    if dest is None:
+        with output_set(out_dir, replaces=SPECTRA_FILES) as own:
+            return _write_spectra(states, res, gnames, own)
+    return _write_spectra(states, res, gnames, dest)
+
+
+def _write_spectra(states, res: dict, gnames: list, dest: OutputSet) -> dict:
+    cfg = states.cfg
     f = res["f_hz"]
     df = pd.DataFrame({"frequency_hz": f})
     units = {"rad": "_rad2_hz", "m": "_m2_hz", "1": "_1_hz"}
@@ -118,16 +130,16 @@ def run_spectra(states, run, opt, out_dir: str | Path) -> dict:
         df[col] = v
     for i in range(res["fdd_sv"].shape[1]):
         df[f"fdd_singular_value_{i + 1}_1_hz"] = res["fdd_sv"][:, i]      # of the standardized CSD
-    _atomic_bytes(out / "psd.csv", float_csv(df, "%.7g").encode())
+    _atomic_bytes(dest.path("psd.csv"), float_csv(df, "%.7g").encode())
     peaks = _json_clean({"modes": res["modes"], "settings": res["settings"], "states": str(states.path),
                          "config": cfg.name, "config_sha256": cfg.sha256, "gyros": gnames})
-    _atomic_bytes(out / "peaks.json", (json.dumps(peaks, indent=2) + "\n").encode())
+    _atomic_bytes(dest.path("peaks.json"), (json.dumps(peaks, indent=2) + "\n").encode())
     plt = _mpl()
     pngs = {}
     for name, fig in (("psd.png", plot_psd(res, cfg, gnames)), ("fdd.png", plot_fdd(res, cfg))):
-        pngs[name] = _save_fig(fig, out / name)
+        pngs[name] = _save_fig(fig, dest.path(name))
         plt.close(fig)
-    return {"out_dir": str(out), "files": ["psd.csv", "peaks.json", *pngs], "modes": peaks["modes"],
+    return {"out_dir": str(dest.out), "files": ["psd.csv", "peaks.json", *pngs], "modes": peaks["modes"],
             "settings": peaks["settings"], "pngs": pngs, "gyros": gnames}
 
 
@@ -318,7 +330,7 @@ def _fmt(v, spec=".4f"):
     return "–" if v is None else format(v, spec)
 
 
-def _write_report(out: Path, title: str, md: str, data: dict, sections, figures, captions=None) -> None:
+def _write_report(dest: OutputSet, title: str, md: str, data: dict, sections, figures, captions=None) -> None:
     """report.md (``md`` + figure captions + provenance), report.json (``data``, with its
     ``provenance`` and ``captions``) and report.html."""
     captions = captions or {}
@@ -329,9 +341,9 @@ def _write_report(out: Path, title: str, md: str, data: dict, sections, figures,
         md += "\n" + _provenance_md(prov)
         after.append(("Provenance", _provenance_html(prov)))
     data["captions"] = dict(captions)
-    _atomic_bytes(out / "report.md", md.encode())
-    _atomic_bytes(out / "report.json", (json.dumps(_json_clean(data), indent=2) + "\n").encode())
-    _atomic_bytes(out / "report.html", _html_page(title, sections, figures, captions, after).encode())
+    _atomic_bytes(dest.path("report.md"), md.encode())
+    _atomic_bytes(dest.path("report.json"), (json.dumps(_json_clean(data), indent=2) + "\n").encode())
+    _atomic_bytes(dest.path("report.html"), _html_page(title, sections, figures, captions, after).encode())
 
 
 # ----------------------------------------------------------------------------- static report
@@ -512,10 +524,9 @@ def static_report(states, run, angle: str, survey_deg: float | None, out_dir: st
                                 "--gyro": None if run is None else run.path, "--gyro-name": gyro, "--date": date},
         states, run, date)
     smoothed = {"true": True, "false": False}.get(getattr(states, "metadata", {}).get("smoothed"))
-    out = _out_dir(out_dir)
     plt = _mpl()
     fig = plot_static(t, a, sig, survey_deg, angle, g_angle, data["gyro"] or ())
-    png = _save_fig(fig, out / "static.png")
+    png = _png(fig)
     plt.close(fig)
     rows = [["mean (GPS)", f"{mean:.4f}°"], ["survey", "–" if survey_deg is None else f"{survey_deg:.4f}°"],
             ["error", _fmt(data["error_deg"]) + ("°" if data["error_deg"] is not None else "")],
@@ -536,10 +547,12 @@ def static_report(states, run, angle: str, survey_deg: float | None, out_dir: st
     caps = {"static.png": _static_caption(data, smoothed, no_gyro)}
     sm_html = (f"<p class='bad'><strong>{html.escape(sm_line)}</strong></p>" if sm_warn
                else f"<p>{html.escape(sm_line)}</p>")
-    _write_report(out, f"Static sensor test: {angle}", md, data,
-                  [("Static mode", sm_html),
-                   ("Result", _html_table(rows, ["quantity", "value"]) + f"<p class='note'>{html.escape(note)}</p>")],
-                  {"static.png": png}, caps)
+    with output_set(out_dir, replaces=STATIC_REPORT_FILES) as dest:
+        _atomic_bytes(dest.path("static.png"), png)
+        _write_report(dest, f"Static sensor test: {angle}", md, data,
+                      [("Static mode", sm_html),
+                       ("Result", _html_table(rows, ["quantity", "value"]) + f"<p class='note'>{html.escape(note)}</p>")],
+                      {"static.png": png}, caps)
     return data
 
 
@@ -584,36 +597,36 @@ def spectrum_report(states, run, opt, out_dir: str | Path, date: str | None = No
             "--overlap": opt.overlap, "--pad": opt.pad, "--date": date,
             **{k: v for k, v in opt.echo().items() if k not in ("coords", "segment_s", "overlap", "pad")}}
     prov = report_provenance("cdgps report spectrum", opts, states, run, date)     # checks --date first
-    s = run_spectra(states, run, opt, out_dir)        # validates and computes before creating out_dir
-    out = Path(out_dir)
-    pngs = s["pngs"]
-    rows = []
-    modes = sorted(s["modes"], key=lambda m: (m["model_hz"], m["number"]))
-    for m in modes:
-        rows.append([m["number"], m["mode"], f"{m['model_hz']:.4f}", _fmt(m["gps_hz"]), _fmt(m.get("gps_hz_sigma")),
-                     _fmt(m["gyro_hz"]), _fmt(m["error_pct"], "+.2f"), _fmt(m["damping"]), _fmt(m.get("damping_sigma")),
-                     f"{m['model_damping']:.4f}", _fmt(m["mac"], ".2f"), "yes" if m["seen"] else "no"])
-    header = ["#", "mode", "model Hz", "GPS Hz", "σ Hz", "gyro Hz", "error %", "ζ", "σ ζ", "model ζ", "MAC", "seen"]
-    seen = sum(1 for m in s["modes"] if m["seen"])
-    st = s["settings"]
-    text = (f"{seen} of {len(s['modes'])} elastic modes identified within {opt.seen_pct:g}% of the model "
-            f"(frequency and damping ratio ζ by a maximum-likelihood single-mode fit "
-            f"to the modal filter's periodogram, with 1-σ uncertainties; FDD/PSD segment {st['segment_s']:.0f} s, "
-            f"resolution {st['resolution_hz']:.4f} Hz; {st['duration_s']:.0f} s of data).")
-    note = _SPECTRUM_NOTE.format(pct=opt.seen_pct, mac=opt.min_mac)
-    if not s["gyros"]:
-        note += " No gyro log was given (--gyro), so the gyro column is empty."
-    shared = {}
-    for m in modes:
-        if m["gyro_hz"] is not None:
-            shared.setdefault((m["gyro"], round(m["gyro_hz"], 6)), []).append(str(m["number"]))
-    shared = [f"modes {', '.join(v)} ({k[1]:.4f} Hz, gyro {k[0]})" for k, v in shared.items() if len(v) > 1]
-    if shared:
-        note += (" The gyro found one peak for " + "; ".join(shared) + ": these modes are closer together than "
-                 "the search band, and the gyro column gives no separate frequency for each.")
-    md = f"# Spectrum sensor test\n\n{text}\n\n{_md_table(rows, header)}\n\n{note}\n"
-    data = {"modes": modes, "settings": st, "seen": seen, "summary": text, "provenance": prov}
-    _write_report(out, "Spectrum sensor test", md, data,
-                  [("Identified modes", f"<p>{html.escape(text)}</p>" + _html_table(rows, header)
-                    + f"<p class='note'>{html.escape(note)}</p>")], pngs, _spectrum_captions(s, states.cfg))
+    with output_set(out_dir, replaces=SPECTRUM_REPORT_FILES) as dest:      # one set: spectra and report
+        s = run_spectra(states, run, opt, out_dir, dest=dest)
+        pngs = s["pngs"]
+        rows = []
+        modes = sorted(s["modes"], key=lambda m: (m["model_hz"], m["number"]))
+        for m in modes:
+            rows.append([m["number"], m["mode"], f"{m['model_hz']:.4f}", _fmt(m["gps_hz"]), _fmt(m.get("gps_hz_sigma")),
+                         _fmt(m["gyro_hz"]), _fmt(m["error_pct"], "+.2f"), _fmt(m["damping"]), _fmt(m.get("damping_sigma")),
+                         f"{m['model_damping']:.4f}", _fmt(m["mac"], ".2f"), "yes" if m["seen"] else "no"])
+        header = ["#", "mode", "model Hz", "GPS Hz", "σ Hz", "gyro Hz", "error %", "ζ", "σ ζ", "model ζ", "MAC", "seen"]
+        seen = sum(1 for m in s["modes"] if m["seen"])
+        st = s["settings"]
+        text = (f"{seen} of {len(s['modes'])} elastic modes identified within {opt.seen_pct:g}% of the model "
+                f"(frequency and damping ratio ζ by a maximum-likelihood single-mode fit "
+                f"to the modal filter's periodogram, with 1-σ uncertainties; FDD/PSD segment {st['segment_s']:.0f} s, "
+                f"resolution {st['resolution_hz']:.4f} Hz; {st['duration_s']:.0f} s of data).")
+        note = _SPECTRUM_NOTE.format(pct=opt.seen_pct, mac=opt.min_mac)
+        if not s["gyros"]:
+            note += " No gyro log was given (--gyro), so the gyro column is empty."
+        shared = {}
+        for m in modes:
+            if m["gyro_hz"] is not None:
+                shared.setdefault((m["gyro"], round(m["gyro_hz"], 6)), []).append(str(m["number"]))
+        shared = [f"modes {', '.join(v)} ({k[1]:.4f} Hz, gyro {k[0]})" for k, v in shared.items() if len(v) > 1]
+        if shared:
+            note += (" The gyro found one peak for " + "; ".join(shared) + ": these modes are closer together than "
+                     "the search band, and the gyro column gives no separate frequency for each.")
+        md = f"# Spectrum sensor test\n\n{text}\n\n{_md_table(rows, header)}\n\n{note}\n"
+        data = {"modes": modes, "settings": st, "seen": seen, "summary": text, "provenance": prov}
+        _write_report(dest, "Spectrum sensor test", md, data,
+                      [("Identified modes", f"<p>{html.escape(text)}</p>" + _html_table(rows, header)
+                        + f"<p class='note'>{html.escape(note)}</p>")], pngs, _spectrum_captions(s, states.cfg))
     return data

@@ -39,7 +39,7 @@ from scipy.signal import lfilter
 from . import progress
 from .config import StructureConfig
 from .dynamics import discrete_model
-from .atomic import write_atomic
+from .atomic import output_set, write_atomic
 from .errors import CdgpsError
 from .limits import check_table_size
 from .kinematics import gyro_matrix
@@ -471,40 +471,39 @@ def _gyro_log(cfg, rng, time_s, qdot):
 
 _write_atomic = write_atomic
 
+#: every file ``write_simulation`` may write (its output set: replaced as a whole)
+SIMULATION_FILES = ("receiver.csv", "gyro.csv", "truth.csv", "truth.json", "actuators.csv", "controller.csv")
+
 
 def write_simulation(result: Simulation, out_dir: str | Path) -> dict:
     """Write receiver.csv, gyro.csv, truth.csv, truth.json (and actuators.csv) into ``out_dir``.
 
-    Each file is written under a temporary name and renamed when complete.  Returns a summary.
+    The files replace an earlier simulation there as a set (:func:`cdgps_cli.atomic.output_set`):
+    a failed or interrupted write leaves the earlier files untouched, a successful one leaves
+    exactly the new set (a stale ``actuators.csv`` or ``controller.csv`` is removed; other files are kept).
+    ``result.tables`` adds files to the set (the closed loop's controller.csv).  Returns a summary.
     """
     out = Path(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise CdgpsError(f"{out}: cannot create output directory: {exc.strerror}") from None
     cfg = result.cfg
     files = {}
+    with output_set(out, replaces=SIMULATION_FILES) as dest:
+        def csv(df, name):
+            _write_atomic(dest.path(name), lambda p: progress.to_csv(df, p, f"writing {name}", index=False,
+                                                                     lineterminator="\n"))
+            files[name] = str(out / name)
 
-    def csv(df, name):
-        _write_atomic(out / name, lambda p: progress.to_csv(df, p, f"writing {name}", index=False, lineterminator="\n"))
-        files[name] = str(out / name)
-
-    csv(result.receiver, "receiver.csv")
-    csv(result.gyro, "gyro.csv")
-    truth_df = pd.DataFrame(np.round(result.q, 12), columns=list(cfg.coord_names))
-    truth_df.insert(0, "time_s", result.time_s)
-    csv(truth_df, "truth.csv")
-    for name, df in result.tables.items():
-        csv(df, name)
-    if result.actuators is not None:
-        csv(result.actuators, "actuators.csv")
-    else:
-        stale = out / "actuators.csv"
-        if stale.exists():
-            stale.unlink()
-    text = json.dumps(result.truth, indent=2, sort_keys=False) + "\n"
-    _write_atomic(out / "truth.json", lambda p: p.write_text(text))
-    files["truth.json"] = str(out / "truth.json")
+        csv(result.receiver, "receiver.csv")
+        csv(result.gyro, "gyro.csv")
+        truth_df = pd.DataFrame(np.round(result.q, 12), columns=list(cfg.coord_names))
+        truth_df.insert(0, "time_s", result.time_s)
+        csv(truth_df, "truth.csv")
+        for name, df in result.tables.items():
+            csv(df, name)
+        if result.actuators is not None:
+            csv(result.actuators, "actuators.csv")
+        text = json.dumps(result.truth, indent=2, sort_keys=False) + "\n"
+        _write_atomic(dest.path("truth.json"), lambda p: p.write_text(text))
+        files["truth.json"] = str(out / "truth.json")
     return {"out_dir": str(out), "files": files, "epochs": int(len(result.time_s)),
             "receiver_rows": int(len(result.receiver)), "gyro_rows": int(len(result.gyro)),
             "slips": len(result.truth["slips"]), "scenario": result.options.scenario,
