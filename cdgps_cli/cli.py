@@ -1212,12 +1212,12 @@ def _weights_option(text: str | None, name: str):
               help="Weight of the rigid-body mode relative to the others in Qx* (the paper's 0.01).")
 @click.option("--rate-factor", type=float, default=0.01, show_default=True,
               help="Weight of the modal rates relative to the amplitudes, Qx = diag(Qx*, f·Qx*) (the paper's 0.01).")
-@_output_option("out_json", "GAINS.json to write.")
+@_output_option("output", "GAINS.json to write.")
 @click.option("--figure", "figure_png", default=None, type=click.Path(dir_okay=False),
               help="Also write the z-plane pole figure (Fig. 6 style) to this PNG.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (poles, settling times) on stdout.")
 @click.pass_context
-def control_design(ctx, config, qx, qu, rigid_factor, rate_factor, out_json, figure_png, as_json):
+def control_design(ctx, config, qx, qu, rigid_factor, rate_factor, output, figure_png, as_json):
     """Discrete LQR u = −K x on the config's modal model (Eq. 4, 24) with the paper's weights by default.
 
     Writes the model A, B the gain was designed on, the weights, K, and the open- and closed-loop poles
@@ -1234,20 +1234,20 @@ def control_design(ctx, config, qx, qu, rigid_factor, rate_factor, out_json, fig
                                          rigid_factor, rate_factor)
     rec = gains_record(design, poles, config_path=config, state_names=state_names(cfg),
                        thruster_names=cfg.thruster_names, options=opts)
-    write_gains(out_json, rec)
+    write_gains(output, rec)
     if figure_png:
         from .control_figures import pole_figure
 
         pole_figure(poles, figure_png, f"{cfg.name}: LQR poles at {1 / design.sample_period_s:g} Hz")
     settle = poles["settling_time_s"]["closed_loop"]
-    _say(ctx, f"wrote {out_json}: K {design.K.shape[0]}×{design.K.shape[1]}, Riccati residual "
+    _say(ctx, f"wrote {output}: K {design.K.shape[0]}×{design.K.shape[1]}, Riccati residual "
               f"{design.riccati_residual:.1e}" + (f", figure {figure_png}" if figure_png else ""))
     for mode, t in settle.items():
         t0 = poles["settling_time_s"]["open_loop"][mode]
         _say(ctx, f"  {mode:<12} 2% settling: open loop {'∞' if t0 is None else f'{t0:.1f} s':>9}, "
                   f"closed loop {'∞' if t is None else f'{t:.1f} s':>9}")
     if as_json:
-        _emit_json({"output": out_json, "riccati_residual": design.riccati_residual,
+        _emit_json({"output": output, "riccati_residual": design.riccati_residual,
                     "settling_time_s": poles["settling_time_s"], "poles": poles})
 
 
@@ -1263,11 +1263,11 @@ def control_design(ctx, config, qx, qu, rigid_factor, rate_factor, out_json, fig
 @click.option("--duration", "duration_s", type=float, default=None, help="Seconds of the file to use (default: all).")
 @click.option("--pll-bn", "pll_bn_hz", type=float, default=15.0, show_default=True, help="PLL noise bandwidth, Hz.")
 @click.option("--pull-in", "pull_in_s", type=float, default=0.1, show_default=True, help="FLL pull-in before the PLL, s.")
-@_output_option("out_mcap", "TRACK.mcap to write.")
+@_output_option("output", "TRACK.mcap to write.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (satellites with prn, doppler_hz, "
               "code_phase_chips, cn0_dbhz, phase_lock) on stdout.")
 @click.pass_context
-def track_cmd(ctx, iq_file, fmt, iq_sign, fs_hz, if_hz, prns, duration_s, pll_bn_hz, pull_in_s, out_mcap, as_json):
+def track_cmd(ctx, iq_file, fmt, iq_sign, fs_hz, if_hz, prns, duration_s, pll_bn_hz, pull_in_s, output, as_json):
     """Acquire every GPS L1 C/A satellite strong enough in a raw sample file and track it (FLL pull-in,
     Costas PLL, carrier-aided DLL): Doppler, code phase, carrier phase, C/N0 and lock per millisecond."""
     from .track_file import track_file
@@ -1275,7 +1275,7 @@ def track_cmd(ctx, iq_file, fmt, iq_sign, fs_hz, if_hz, prns, duration_s, pll_bn
 
     opt = TrackOptions(pll_bn_hz=pll_bn_hz, pull_in_s=pull_in_s)
     with progress.stage("tracking"):
-        s = track_file(iq_file, out_mcap, fmt=fmt, fs_hz=fs_hz, if_hz=if_hz, iq_sign=iq_sign,
+        s = track_file(iq_file, output, fmt=fmt, fs_hz=fs_hz, if_hz=if_hz, iq_sign=iq_sign,
                        prns=list(prns) or None, duration_s=duration_s, opt=opt,
                        progress=None if ctx.obj.get("quiet") else progress.write)
     for sat in s["satellites"]:
@@ -1283,7 +1283,7 @@ def track_cmd(ctx, iq_file, fmt, iq_sign, fs_hz, if_hz, prns, duration_s, pll_bn
         _say(ctx, f"  PRN {sat['prn']:>2}: {sat['doppler_hz']:+8.1f} Hz, code {sat['code_phase_chips']:7.2f} chips, "
                   f"C/N0 {cn0} dB-Hz, phase lock {'yes' if sat['phase_lock'] else 'no'} "
                   f"({100 * sat['phase_lock_fraction']:.0f}% of windows)")
-    _say(ctx, f"wrote {out_mcap}: {len(s['satellites'])} satellites, {s['duration_s']:.3f} s")
+    _say(ctx, f"wrote {output}: {len(s['satellites'])} satellites, {s['duration_s']:.3f} s")
     if as_json:
         _emit_json({k: v for k, v in s.items() if k != "acquisition"})
 

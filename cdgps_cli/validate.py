@@ -18,7 +18,7 @@ import click
 from .errors import CdgpsError
 
 #: parameter names (the Python names, not the spellings) of every command's outputs
-OUTPUT_PARAMS = ("output", "out_dir", "out_csv")
+OUTPUT_PARAMS = ("output", "out_dir", "out_csv", "figure_png")
 
 
 class FiniteFloat(click.ParamType):

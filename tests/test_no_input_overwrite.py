@@ -41,7 +41,7 @@ def _invocation(cmd: click.Command, tmp_path, spell: str):
     args, first, out_param = [], None, None
     for i, p in enumerate(cmd.params):
         if p.name in OUTPUT_PARAMS:
-            out_param = p
+            out_param = out_param or p            # the command's first output (-o); others stay unset
             continue
         f = tmp_path / "in" / f"input{i}.dat"
         f.parent.mkdir(exist_ok=True)
@@ -50,6 +50,10 @@ def _invocation(cmd: click.Command, tmp_path, spell: str):
             value = str(f.parent if not p.type.file_okay else f)
         elif _is_named_files(p):
             value = f"A={f}"
+        elif p.required and isinstance(p.type, click.Choice):
+            value = str(p.type.choices[0])
+        elif p.required and p.type.name in ("float", "integer", "finite float"):
+            value = "1"
         elif p.required:
             value = "x"
         else:
