@@ -199,19 +199,22 @@ def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_s
                      multipath_sigma_m=multipath_sigma_m, slips=[parse_slip(s) for s in slips],
                      outages=[parse_outage(o) for o in outages], random_slips=random_slips,
                      disturbance_scale=disturbance_scale, noise_scale=dict(parse_noise_scale(t) for t in noise_scales))
-    _say(ctx, f"simulating {cfg.name}: {scenario}, {duration_s:g} s, seed {seed} …")
     if gains_json is None and (no_vibration_control or feedback != "gps" or slew_reference != "profile"):
         raise CdgpsError("--no-vibration-control, --feedback and --slew-reference need --controller GAINS.json")
+    gains = None
+    if gains_json is not None:
+        from .gains_file import read_gains
+
+        gains = read_gains(gains_json, config)          # checked before any work
+    _say(ctx, f"simulating {cfg.name}: {scenario}, {duration_s:g} s, seed {seed} …")
     with progress.stage("simulating"):
-        if gains_json is None:
+        if gains is None:
             sim = run_sim(cfg, opt)
         else:
             from .control.closed_loop import simulate_closed_loop
-            from .gains_file import read_gains
 
-            sim, loop = simulate_closed_loop(cfg, opt, read_gains(gains_json, config),
-                                             vibration_control=not no_vibration_control, feedback=feedback,
-                                             slew_reference_kind=slew_reference)
+            sim, loop = simulate_closed_loop(cfg, opt, gains, vibration_control=not no_vibration_control,
+                                             feedback=feedback, slew_reference_kind=slew_reference)
             if loop.saturated_fraction > 0.2:
                 progress.write(f"cdgps: warning: the jets were asked for more than their maximum force in "
                                f"{100 * loop.saturated_fraction:.0f}% of jet-periods; the gain asks for more authority "

@@ -11,8 +11,6 @@
 
 from __future__ import annotations
 
-import os
-from contextlib import contextmanager
 
 import numpy as np
 import pytest
@@ -25,6 +23,8 @@ from cdgps_cli.init import InitOptions, initialize
 from cdgps_cli.measurement import EpochPhaseModel, channel_indices
 from cdgps_cli.run import memory_run
 from cdgps_cli.simulate import SimOptions, parse_noise_scale, simulate
+
+from _shared import kernel
 
 NOISY = "a3"
 
@@ -95,19 +95,6 @@ def test_one_sigma_for_all_channels_is_flagged_and_adapted_per_channel(noisy_ant
 # independent check: a textbook covariance-form EKF with the same per-row R
 
 
-@contextmanager
-def _kernel(on: bool):
-    old = os.environ.get("CDGPS_NO_KERNEL")
-    os.environ["CDGPS_NO_KERNEL"] = "0" if on else "1"
-    try:
-        yield
-    finally:
-        if old is None:
-            os.environ.pop("CDGPS_NO_KERNEL", None)
-        else:
-            os.environ["CDGPS_NO_KERNEL"] = old
-
-
 def _textbook_ekf(cfg, sim, init, channels, sig):
     """x, P per epoch from INIT's state: predict x̄ = A x, P̄ = A P Aᵀ + Q; update with
     K = P̄Hᵀ(HP̄Hᵀ + R)⁻¹, x = x̄ + K(y − h(x̄) − b), P = (I − KH)P̄(I − KH)ᵀ + K R Kᵀ."""
@@ -160,7 +147,7 @@ def test_filter_equals_textbook_kf_with_per_row_r(testbed_cfg, compiled):
             "state": {"time_s": 0.0, "x": (sim.x[0] + 0.002).tolist(), "P": (1e-3 * (M @ M.T / n + np.eye(n))).tolist()},
             "biases": [{"antenna": b["antenna"], "transmitter": b["transmitter"], "bias_m": b["bias_m"]}
                        for b in sim.truth["biases"]]}
-    with _kernel(compiled):
+    with kernel(compiled):
         res = estimate(run, init, EstimateOptions(adapt_sigma=False))
     assert res.filter_path == ("c" if compiled else "numpy")
     assert res.noise["source"] == "INIT (per channel)" and not res.events
@@ -170,7 +157,7 @@ def test_filter_equals_textbook_kf_with_per_row_r(testbed_cfg, compiled):
     np.testing.assert_allclose(res.x, xs, rtol=0, atol=1e-9 * max(1.0, np.abs(xs).max()))
     np.testing.assert_allclose(res.P, Ps, rtol=0, atol=1e-9 * np.abs(Ps).max())
     # and the same filter with one σ on every row differs (the per-row R is really used)
-    with _kernel(compiled):
+    with kernel(compiled):
         one = estimate(run, init, EstimateOptions(adapt_sigma=False, sigma_m=init["sigma_m"]))
     assert np.abs(one.P - Ps).max() > 1e-3 * np.abs(Ps).max()
 

@@ -18,7 +18,6 @@ was not); the comparisons switch paths with the environment variable, whatever t
 
 from __future__ import annotations
 
-import contextlib
 import os
 
 import numpy as np
@@ -38,25 +37,10 @@ from test_ekf import LINEAR_CONFIG, LIN_SIGMA
 
 COMPILED = ekf_kernel._ekfcore is not None and getattr(ekf_kernel._ekfcore, "API", None) == ekf_kernel.API
 needs_kernel = pytest.mark.skipif(not COMPILED, reason="cdgps_cli._ekfcore is not compiled")
+from _shared import kernel  # noqa: E402
+
 NO_ACTUATORS = pd.DataFrame({"time_s": pd.Series([], dtype=float), "actuator": pd.Series([], dtype=object),
                              "force_n": pd.Series([], dtype=float)})
-
-
-@contextlib.contextmanager
-def kernel(enabled: bool):
-    """Force the C (enabled) or the numpy path, restoring the caller's environment."""
-    old = os.environ.get("CDGPS_NO_KERNEL")
-    if enabled:
-        os.environ.pop("CDGPS_NO_KERNEL", None)
-    else:
-        os.environ["CDGPS_NO_KERNEL"] = "1"
-    try:
-        yield
-    finally:
-        if old is None:
-            os.environ.pop("CDGPS_NO_KERNEL", None)
-        else:
-            os.environ["CDGPS_NO_KERNEL"] = old
 
 
 def both_paths(run, init, opt):

@@ -16,18 +16,12 @@ from click.testing import CliRunner
 from cdgps_cli.cli import main
 from cdgps_cli.validate import OUTPUT_PARAMS, _is_named_files
 
+from _shared import cli_commands
+
 NO_OUTPUT = {"info", "evaluate"}
 
 
-def _commands(group: click.Group, prefix=()):
-    for name, cmd in sorted(group.commands.items()):
-        if isinstance(cmd, click.Group):
-            yield from _commands(cmd, prefix + (name,))
-        else:
-            yield prefix + (name,), cmd
-
-
-COMMANDS = list(_commands(main))
+COMMANDS = list(cli_commands(main))
 
 
 def test_every_command_is_guarded_and_known():

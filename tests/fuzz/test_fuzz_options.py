@@ -25,22 +25,15 @@ from cdgps_cli.cli import main
 from cdgps_cli.limits import OPTION_BOUNDS
 from cdgps_cli.validate import OUTPUT_PARAMS, _is_named_files, _spelling
 
+from _shared import cli_commands
 from conftest import DOF2, NUMBER_TEXT, check_command, cli, fuzz_settings, scratch, sha256
-
-
-def _commands(group: click.Group, prefix=()):
-    for name, cmd in sorted(group.commands.items()):
-        if isinstance(cmd, click.Group):
-            yield from _commands(cmd, prefix + (name,))
-        else:
-            yield prefix + (name,), cmd
 
 
 def _is_numeric(p: click.Parameter) -> bool:
     return isinstance(p, click.Option) and not p.is_flag and p.type.name in ("float", "integer")
 
 
-NUMERIC = [(path, cmd, p) for path, cmd in _commands(main) for p in cmd.params if _is_numeric(p)]
+NUMERIC = [(path, cmd, p) for path, cmd in cli_commands(main) for p in cmd.params if _is_numeric(p)]
 
 
 def _required_args(cmd: click.Command, d) -> list[str]:

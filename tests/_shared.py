@@ -1,0 +1,34 @@
+"""Helpers shared by test files (imported as ``_shared``; pytest puts tests/ on sys.path)."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+
+import click
+
+
+def cli_commands(group: click.Group, prefix=()):
+    """Every leaf command of a Click group, as (path tuple, command), sorted by name."""
+    for name, cmd in sorted(group.commands.items()):
+        if isinstance(cmd, click.Group):
+            yield from cli_commands(cmd, prefix + (name,))
+        else:
+            yield prefix + (name,), cmd
+
+
+@contextlib.contextmanager
+def kernel(enabled: bool):
+    """Force the compiled (enabled) or the numpy filter path, restoring the caller's environment."""
+    old = os.environ.get("CDGPS_NO_KERNEL")
+    if enabled:
+        os.environ.pop("CDGPS_NO_KERNEL", None)
+    else:
+        os.environ["CDGPS_NO_KERNEL"] = "1"
+    try:
+        yield
+    finally:
+        if old is None:
+            os.environ.pop("CDGPS_NO_KERNEL", None)
+        else:
+            os.environ["CDGPS_NO_KERNEL"] = old
