@@ -1,9 +1,9 @@
-"""Build of the optional C kernels ``cdgps_cli._ekfcore`` and ``cdgps_cli._trackcore`` (project metadata lives in
+"""Build of the optional C kernels ``cdgps_cli.estimation._ekfcore`` and ``cdgps_cli.tracking._trackcore`` (project metadata lives in
 pyproject.toml).
 
 The extension is plain C against the CPython API and the buffer protocol: no numpy headers, so
 ``pip install -e .`` needs only a C compiler and the Python headers.  It is ``optional``: where it
-cannot be compiled the install still succeeds and cdgps_cli.ekf uses its pure-numpy path (slower,
+cannot be compiled the install still succeeds and cdgps_cli.estimation.filter uses its pure-numpy path (slower,
 same results).  -O3 without -march=native, so a wheel or build runs on any machine of its
 architecture.
 """
@@ -20,14 +20,14 @@ else:
 setup(
     ext_modules=[
         Extension(
-            "cdgps_cli._ekfcore",
-            sources=["cdgps_cli/_ekfcore.c"],
+            "cdgps_cli.estimation._ekfcore",
+            sources=["cdgps_cli/estimation/_ekfcore.c"],
             extra_compile_args=compile_args,
             optional=True,
         ),
         Extension(
-            "cdgps_cli._trackcore",
-            sources=["cdgps_cli/_trackcore.c"],
+            "cdgps_cli.tracking._trackcore",
+            sources=["cdgps_cli/tracking/_trackcore.c"],
             extra_compile_args=compile_args,
             optional=True,
         ),

@@ -8,7 +8,7 @@
     state; the model is evaluated once and h is cached, so both filters evaluate it once per epoch).
     Also FilterPy with a trivial precomputed h/H (the filter mechanics alone) and the measurement
     model alone.  Both filters run on the same data and must agree (max |Δx| printed).  cdgps runs its
-    compiled kernel (``cdgps_cli._ekfcore``) when it is built, and is also timed on its pure-numpy path
+    compiled kernel (``cdgps_cli.estimation._ekfcore``) when it is built, and is also timed on its pure-numpy path
     (``CDGPS_NO_KERNEL=1``); the report says which path the headline figure used.
 (b) Smoother: ``rts_smooth`` on the filtered arrays vs the forward filter time, and
     estimate(smooth=True) vs estimate(smooth=False).
@@ -48,14 +48,14 @@ import pandas as pd  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from cdgps_cli import ekf_kernel  # noqa: E402
-from cdgps_cli.config import load_config  # noqa: E402
-from cdgps_cli.dynamics import discrete_model  # noqa: E402
-from cdgps_cli.ekf import EstimateOptions, estimate, rts_smooth  # noqa: E402
-from cdgps_cli.init import InitOptions, initialize  # noqa: E402
-from cdgps_cli.measurement import EpochPhaseModel, channel_indices  # noqa: E402
-from cdgps_cli.run import Run  # noqa: E402
-from cdgps_cli.simulate import SimOptions, simulate  # noqa: E402
+from cdgps_cli.estimation import kernel as ekf_kernel  # noqa: E402
+from cdgps_cli.config.structure import load_config  # noqa: E402
+from cdgps_cli.model.dynamics import discrete_model  # noqa: E402
+from cdgps_cli.estimation.filter import EstimateOptions, estimate, rts_smooth  # noqa: E402
+from cdgps_cli.estimation.initializer import InitOptions, initialize  # noqa: E402
+from cdgps_cli.measurement.phase import EpochPhaseModel, channel_indices  # noqa: E402
+from cdgps_cli.io.run import Run  # noqa: E402
+from cdgps_cli.sim.structure import SimOptions, simulate  # noqa: E402
 
 CONFIG = ROOT / "configs" / "testbed-1998.toml"
 SIGMA = 0.02          # the config's measurement sigma; simulated with the same noise
@@ -235,7 +235,7 @@ def run_measured(code: str) -> tuple[float, float, str]:
 
 
 def cli_code(args: list[str]) -> str:
-    return f"from cdgps_cli.cli import main\nmain({args!r}, standalone_mode=False)"
+    return f"from cdgps_cli.cli.commands import main\nmain({args!r}, standalone_mode=False)"
 
 
 STAGES = """
@@ -245,9 +245,9 @@ def mark(name, t0):
     return time.perf_counter()
 t = time.perf_counter()
 t = mark('python start', __t)
-from cdgps_cli.ekf import EstimateOptions, estimate
-from cdgps_cli.run import read_run
-from cdgps_cli.states import write_states
+from cdgps_cli.estimation.filter import EstimateOptions, estimate
+from cdgps_cli.io.run import read_run
+from cdgps_cli.io.states import write_states
 t = mark('import', t)
 run = read_run({run!r})
 t = mark('read RUN.mcap', t)

@@ -26,7 +26,7 @@ def run_measured(args: list[str]) -> tuple[float, float]:
     code = (
         "import resource, sys, time, runpy\n"
         "t = time.perf_counter()\n"
-        "from cdgps_cli.cli import main\n"
+        "from cdgps_cli.cli.commands import main\n"
         "try:\n"
         f"    main({args!r}, standalone_mode=False)\n"
         "finally:\n"

@@ -4,7 +4,7 @@
 (a) The real GEONET pair 3040 → 0759 (``../shared/data/rinex``, 120 epochs at 30 s): reading the
     four RINEX files and solving, best of ``--repeat``; the solution, ratio, integers fixed,
     kinematic scatter, and the agreement with RTKLIB 2.4.3's fixed solution (numbers from
-    docs/geonet.md / tests/test_baseline.py).
+    docs/geonet.md / tests/estimation/test_baseline.py).
 (b) A synthetic two-receiver case from the same broadcast ephemeris: ``--hours`` (default 24) at
     ``--rate-hz`` (default 1), with random cycle slips, receiver clocks drifting by ms, 2 mm phase /
     0.5 m code noise; simulate, then solve (target < 2 min), check every integer against the truth
@@ -32,10 +32,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from cdgps_cli.baseline import BaselineOptions, Station, baseline_from_files, solve_static_baseline  # noqa: E402
-from cdgps_cli.ephemeris import ecef_to_enu, ecef_to_geodetic, enu_matrix  # noqa: E402
-from cdgps_cli.gnss import simulate_static_pair  # noqa: E402
-from cdgps_cli.rinex import gps_seconds, read_rinex_nav  # noqa: E402
+from cdgps_cli.estimation.baseline import BaselineOptions, Station, baseline_from_files, solve_static_baseline  # noqa: E402
+from cdgps_cli.model.gps.orbits import ecef_to_enu, ecef_to_geodetic, enu_matrix  # noqa: E402
+from cdgps_cli.model.gps.positioning import simulate_static_pair  # noqa: E402
+from cdgps_cli.io.rinex import gps_seconds, read_rinex_nav  # noqa: E402
 
 SHARED = ROOT.parent / "shared" / "data" / "rinex"
 NAV_TESTS = ROOT / "tests" / "data" / "07590920.05n"

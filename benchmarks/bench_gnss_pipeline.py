@@ -29,7 +29,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-CDGPS = [sys.executable, "-m", "cdgps_cli.cli"]
+CDGPS = [sys.executable, "-m", "cdgps_cli.cli.commands"]
 
 
 def peak_mib_of(args: list, cwd: Path) -> tuple[float, float, str]:

@@ -33,11 +33,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from cdgps_cli.batch import dense_solve, srif_solve  # noqa: E402
-from cdgps_cli.config import load_config  # noqa: E402
-from cdgps_cli.init import InitOptions, _Problem, initialize, window_data  # noqa: E402
-from cdgps_cli.run import Run  # noqa: E402
-from cdgps_cli.simulate import SimOptions, simulate  # noqa: E402
+from cdgps_cli.estimation.batch_solver import dense_solve, srif_solve  # noqa: E402
+from cdgps_cli.config.structure import load_config  # noqa: E402
+from cdgps_cli.estimation.initializer import InitOptions, _Problem, initialize, window_data  # noqa: E402
+from cdgps_cli.io.run import Run  # noqa: E402
+from cdgps_cli.sim.structure import SimOptions, simulate  # noqa: E402
 
 CONFIG = ROOT / "configs" / "testbed-1998.toml"
 

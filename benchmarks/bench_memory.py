@@ -40,7 +40,7 @@ def _status(key):
 CLI = RSS + """
 import sys, time
 t = time.perf_counter()
-from cdgps_cli.cli import main
+from cdgps_cli.cli.commands import main
 main({args!r}, standalone_mode=False)
 print('__BENCH__', time.perf_counter() - t, _status('VmHWM'), file=sys.stderr)
 """
@@ -51,9 +51,9 @@ def mark(name, t0):
     print('__STAGE__', json.dumps([name, time.perf_counter() - t0, _status('VmRSS'), _status('VmHWM')]), file=sys.stderr)
     return time.perf_counter()
 t = time.perf_counter()
-from cdgps_cli.ekf import EstimateOptions, estimate
-from cdgps_cli.run import read_run
-from cdgps_cli.states import write_states
+from cdgps_cli.estimation.filter import EstimateOptions, estimate
+from cdgps_cli.io.run import read_run
+from cdgps_cli.io.states import write_states
 t = mark('import', t)
 run = read_run({run!r})
 t = mark('read RUN.mcap', t)

@@ -41,7 +41,7 @@ TARGET_TOTAL_S = 10.0
 RUNNER = r"""
 import json, resource, sys, time
 t0 = time.perf_counter()
-from cdgps_cli.cli import main
+from cdgps_cli.cli.commands import main
 try:
     main(sys.argv[1:], standalone_mode=False)
 finally:
@@ -51,7 +51,7 @@ finally:
 
 
 def cdgps(*args, quiet=True) -> subprocess.CompletedProcess:
-    cmd = [sys.executable, "-m", "cdgps_cli.cli", *(["--quiet"] if quiet else []), *map(str, args)]
+    cmd = [sys.executable, "-m", "cdgps_cli.cli.commands", *(["--quiet"] if quiet else []), *map(str, args)]
     p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
     if p.returncode != 0:
         raise SystemExit(f"failed: {' '.join(cmd)}\n{p.stderr}")
@@ -83,7 +83,7 @@ def setup_chain(work: Path, scenario: str, seconds: float, seed: int, extra: lis
 
 
 def timed(args: list, repeat: int) -> dict:
-    """Best-of-repeat wall time of `python -m cdgps_cli.cli ARGS` (plain), plus inner time and peak RSS."""
+    """Best-of-repeat wall time of `python -m cdgps_cli.cli.commands ARGS` (plain), plus inner time and peak RSS."""
     best = float("inf")
     for _ in range(repeat):
         t = time.perf_counter()
@@ -99,10 +99,10 @@ def timed(args: list, repeat: int) -> dict:
 def breakdown(free: dict, static: dict, out: Path) -> dict:
     """In-process stage split (one pass, after the subprocess timings)."""
     sys.path.insert(0, str(ROOT))
-    from cdgps_cli import reports
-    from cdgps_cli.run import read_run
-    from cdgps_cli.spectra import SpectraOptions, compute_spectra
-    from cdgps_cli.states import States
+    from cdgps_cli.report import sensor_reports as reports
+    from cdgps_cli.io.run import read_run
+    from cdgps_cli.analysis.spectra import SpectraOptions, compute_spectra
+    from cdgps_cli.io.states import States
 
     res = {}
     t = time.perf_counter()
@@ -165,7 +165,7 @@ def main(argv=None) -> None:
         timings[name] = timed(a, args.repeat)
         print(f"  {name:<16} {timings[name]['wall_s']:6.2f} s wall (inner {timings[name]['inner_s']:.2f} s), "
               f"peak RSS {timings[name]['peak_rss_mib']:.0f} MiB", flush=True)
-    p = subprocess.run([sys.executable, "-c", "import time; t=time.perf_counter(); import cdgps_cli.cli, cdgps_cli.reports, "
+    p = subprocess.run([sys.executable, "-c", "import time; t=time.perf_counter(); import cdgps_cli.cli.commands, cdgps_cli.report.sensor_reports, "
                         "matplotlib.pyplot, scipy.signal, pandas; print(time.perf_counter()-t)"],
                        capture_output=True, text=True, cwd=ROOT)
     import_s = float(p.stdout.strip() or "nan")

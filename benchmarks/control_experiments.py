@@ -28,11 +28,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from cdgps_cli.config import load_config  # noqa: E402
+from cdgps_cli.config.structure import load_config  # noqa: E402
 from cdgps_cli.control.closed_loop import simulate_closed_loop  # noqa: E402
 from cdgps_cli.control.design import design_for_structure  # noqa: E402
 from cdgps_cli.control.metrics import pulse_metrics, slew_metrics  # noqa: E402
-from cdgps_cli.simulate import SimOptions, simulate  # noqa: E402
+from cdgps_cli.sim.structure import SimOptions, simulate  # noqa: E402
 
 CONFIG = ROOT / "configs" / "testbed-1998.toml"
 #: our weights for our thruster model (the paper's Υ is unpublished; see docs/control.md)
@@ -129,7 +129,7 @@ def main() -> None:
 
     with tempfile.TemporaryDirectory() as tmp:
         t = Path(tmp)
-        cdgps = [sys.executable, "-m", "cdgps_cli.cli", "-q"]
+        cdgps = [sys.executable, "-m", "cdgps_cli.cli.commands", "-q"]
         tq = ["--qx", str(TUNED["qx"]), "--rigid-factor", str(TUNED["rigid_factor"]), "--rate-factor", str(TUNED["rate_factor"])]
         subprocess.run([*cdgps, "control", "design", str(CONFIG), *tq, "-o", str(t / "g.json")], check=True)
         t0, r0 = time.perf_counter(), resource.getrusage(resource.RUSAGE_CHILDREN)

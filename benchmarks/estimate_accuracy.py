@@ -47,14 +47,14 @@ from scipy.linalg import solve_discrete_are, solve_discrete_lyapunov
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from cdgps_cli.config import load_config  # noqa: E402
-from cdgps_cli.dynamics import discrete_model  # noqa: E402
-from cdgps_cli.ekf import EstimateOptions, estimate  # noqa: E402
-from cdgps_cli.init import InitOptions, initialize  # noqa: E402
-from cdgps_cli.measurement import all_channels, phase_model  # noqa: E402
-from cdgps_cli.run import memory_run, write_run  # noqa: E402
-from cdgps_cli.simulate import SimOptions, parse_outage, parse_slip, simulate, write_simulation  # noqa: E402
-from cdgps_cli.states import evaluate, write_states  # noqa: E402
+from cdgps_cli.config.structure import load_config  # noqa: E402
+from cdgps_cli.model.dynamics import discrete_model  # noqa: E402
+from cdgps_cli.estimation.filter import EstimateOptions, estimate  # noqa: E402
+from cdgps_cli.estimation.initializer import InitOptions, initialize  # noqa: E402
+from cdgps_cli.measurement.phase import all_channels, phase_model  # noqa: E402
+from cdgps_cli.io.run import memory_run, write_run  # noqa: E402
+from cdgps_cli.sim.structure import SimOptions, parse_outage, parse_slip, simulate, write_simulation  # noqa: E402
+from cdgps_cli.io.states import evaluate, write_states  # noqa: E402
 
 TB = load_config(ROOT / "configs" / "testbed-1998.toml")
 D2 = load_config(ROOT / "configs" / "teague-1995-2dof.toml")

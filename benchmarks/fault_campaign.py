@@ -58,7 +58,7 @@ import traceback_sweep as sweep  # noqa: E402
 ROOT = sweep.ROOT
 TIMEOUT_S = 120
 CDGPS = [str(Path(sys.executable).parent / "cdgps")] if (Path(sys.executable).parent / "cdgps").exists() \
-    else [sys.executable, "-m", "cdgps_cli.cli"]
+    else [sys.executable, "-m", "cdgps_cli.cli.commands"]
 #: families whose corruption must be detected (checksummed formats): a different result is "silent"
 DETECT = {"run_mcap", "states_mcap", "gnss_run_mcap", "ubx"}
 WARNING_WORDS = ("warning", "corrupt", "checksum", "skipped", "truncated")
@@ -132,7 +132,7 @@ def _result_digest(out: Path | None, stdout: bytes, d: Path, shas: list[str]) ->
     parts = [stdout]
     snap = _snapshot(out)
     if isinstance(snap, bytes) and out.suffix == ".mcap":
-        from cdgps_cli.mcap_io import read_mcap
+        from cdgps_cli.io.mcap import read_mcap
 
         c = read_mcap(out)
         snap = pickle.dumps({k: v for k, v in vars(c).items() if k != "path"}, protocol=4)
@@ -350,8 +350,8 @@ def references(cases: list[Case], p: dict, work: Path) -> dict:
 def reader_flips(p: dict, work: Path, rng: random.Random, n: int) -> list[dict]:
     """``n`` single-byte flips of each of RUN, STATES and GNSS RUN read in-process by read_mcap:
     ``clean`` (refused), ``ok`` (the same contents) or ``ok`` + ``silent`` (different contents)."""
-    from cdgps_cli.errors import CdgpsError
-    from cdgps_cli.mcap_io import read_mcap
+    from cdgps_cli.core.errors import CdgpsError
+    from cdgps_cli.io.mcap import read_mcap
 
     def contents(path):
         c = read_mcap(path)

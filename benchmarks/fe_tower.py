@@ -36,13 +36,13 @@ from scipy.stats import chi2
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from cdgps_cli.config import load_config  # noqa: E402
-from cdgps_cli.ekf import EstimateOptions, estimate  # noqa: E402
-from cdgps_cli.init import InitOptions, initialize  # noqa: E402
-from cdgps_cli.points import point_displacements, select_points  # noqa: E402
-from cdgps_cli.run import memory_run  # noqa: E402
-from cdgps_cli.simulate import SimOptions, simulate  # noqa: E402
-from cdgps_cli.spectra import SpectraOptions, compute_spectra  # noqa: E402
+from cdgps_cli.config.structure import load_config  # noqa: E402
+from cdgps_cli.estimation.filter import EstimateOptions, estimate  # noqa: E402
+from cdgps_cli.estimation.initializer import InitOptions, initialize  # noqa: E402
+from cdgps_cli.model.points import point_displacements, select_points  # noqa: E402
+from cdgps_cli.io.run import memory_run  # noqa: E402
+from cdgps_cli.sim.structure import SimOptions, simulate  # noqa: E402
+from cdgps_cli.analysis.spectra import SpectraOptions, compute_spectra  # noqa: E402
 
 CFG = load_config(ROOT / "configs" / "tower-120m-fe.toml")
 

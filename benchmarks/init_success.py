@@ -47,11 +47,11 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from cdgps_cli.config import load_config  # noqa: E402
-from cdgps_cli.errors import CdgpsError  # noqa: E402
-from cdgps_cli.init import InitOptions, initialize  # noqa: E402
-from cdgps_cli.run import Run  # noqa: E402
-from cdgps_cli.simulate import SimOptions, simulate  # noqa: E402
+from cdgps_cli.config.structure import load_config  # noqa: E402
+from cdgps_cli.core.errors import CdgpsError  # noqa: E402
+from cdgps_cli.estimation.initializer import InitOptions, initialize  # noqa: E402
+from cdgps_cli.io.run import Run  # noqa: E402
+from cdgps_cli.sim.structure import SimOptions, simulate  # noqa: E402
 
 CONFIGS = {"testbed": ROOT / "configs" / "testbed-1998.toml",
            "dof2": ROOT / "configs" / "teague-1995-2dof.toml"}

@@ -6,7 +6,7 @@ For each command (simulate, simulate-gnss, simulate-gnss-structure, spectra, rep
 report spectrum) the script builds the *old* set (one run into a folder) and the *new* set (the
 same command with other options into a fresh folder), timing the new run.  Then, for each of
 SIGTERM, SIGINT and SIGKILL and ``--cases`` moments, it copies the old folder, starts the new run
-over it as a subprocess of the installed ``cdgps`` (``python -m cdgps_cli.cli``), sends the signal
+over it as a subprocess of the installed ``cdgps`` (``python -m cdgps_cli.cli.commands``), sends the signal
 after the chosen delay and classifies what is left:
 
 * ``old`` / ``new``: the visible files are byte for byte the old / the new set;
@@ -64,7 +64,7 @@ RUN = {"env": dict(os.environ, PYTHONPATH=str(ROOT)), "cwd": "/", "preexec_fn": 
 
 
 def cdgps(*args, check=True, **kw):
-    cmd = [sys.executable, "-m", "cdgps_cli.cli", "-q", *map(str, args)]
+    cmd = [sys.executable, "-m", "cdgps_cli.cli.commands", "-q", *map(str, args)]
     p = subprocess.run(cmd, capture_output=True, text=True, **RUN, **kw)
     if check and p.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)} failed: {p.stderr}")
@@ -126,7 +126,7 @@ def wait_for_writing(p: subprocess.Popen, out: Path, limit_s: float = 120.0) -> 
 def timed_run(args_new, out: Path) -> tuple[float, float]:
     """(whole run, writing phase) of one uninterrupted run, s."""
     t0 = time.monotonic()
-    p = subprocess.Popen([sys.executable, "-m", "cdgps_cli.cli", "-q", *map(str, args_new), "-o", str(out)],
+    p = subprocess.Popen([sys.executable, "-m", "cdgps_cli.cli.commands", "-q", *map(str, args_new), "-o", str(out)],
                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, **RUN)
     start = wait_for_writing(p, out)
     p.wait()
@@ -144,7 +144,7 @@ def one_case(args_new, old_dir: Path, work: Path, sig: int, moment: tuple, sets:
         shutil.rmtree(out.parent)
     out.parent.mkdir(parents=True)
     shutil.copytree(old_dir, out)
-    p = subprocess.Popen([sys.executable, "-m", "cdgps_cli.cli", "-q", *map(str, args_new), "-o", str(out)],
+    p = subprocess.Popen([sys.executable, "-m", "cdgps_cli.cli.commands", "-q", *map(str, args_new), "-o", str(out)],
                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, **RUN)
     if moment[0] == "writing":
         wait_for_writing(p, out)

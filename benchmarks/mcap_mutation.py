@@ -45,13 +45,13 @@ from pathlib import Path
 import numpy as np
 from click.testing import CliRunner
 
-from cdgps_cli import mcap_io
-from cdgps_cli.cli import main
-from cdgps_cli.errors import CdgpsError
-from cdgps_cli.gnss_run import read_gnss_run
-from cdgps_cli.mcap_integrity import Integrity, verify_file
-from cdgps_cli.run import read_run
-from cdgps_cli.states import States
+from cdgps_cli.io import mcap as mcap_io
+from cdgps_cli.cli.commands import main
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.io.gnss_run import read_gnss_run
+from cdgps_cli.io.mcap_integrity import Integrity, verify_file
+from cdgps_cli.io.run import read_run
+from cdgps_cli.io.states import States
 
 REPO = Path(__file__).resolve().parent.parent
 DOF2 = REPO / "configs" / "teague-1995-2dof.toml"

@@ -26,13 +26,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from cdgps_cli.config import load_config  # noqa: E402
-from cdgps_cli.ekf import EstimateOptions, estimate  # noqa: E402
-from cdgps_cli.errors import CdgpsError  # noqa: E402
-from cdgps_cli.init import InitOptions, initialize  # noqa: E402
-from cdgps_cli.run import memory_run, write_run  # noqa: E402
-from cdgps_cli.simulate import SimOptions, simulate, write_simulation  # noqa: E402
-from cdgps_cli.states import evaluate, write_states  # noqa: E402
+from cdgps_cli.config.structure import load_config  # noqa: E402
+from cdgps_cli.estimation.filter import EstimateOptions, estimate  # noqa: E402
+from cdgps_cli.core.errors import CdgpsError  # noqa: E402
+from cdgps_cli.estimation.initializer import InitOptions, initialize  # noqa: E402
+from cdgps_cli.io.run import memory_run, write_run  # noqa: E402
+from cdgps_cli.sim.structure import SimOptions, simulate, write_simulation  # noqa: E402
+from cdgps_cli.io.states import evaluate, write_states  # noqa: E402
 
 CONFIGS = {"testbed-1998": ROOT / "configs" / "testbed-1998.toml",
            "teague-1995-2dof": ROOT / "configs" / "teague-1995-2dof.toml",

@@ -51,9 +51,9 @@ import pandas as pd  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from cdgps_cli.config import load_config  # noqa: E402
-from cdgps_cli.spectra import mac  # noqa: E402
-from cdgps_cli.states import States  # noqa: E402
+from cdgps_cli.config.structure import load_config  # noqa: E402
+from cdgps_cli.analysis.spectra import mac  # noqa: E402
+from cdgps_cli.io.states import States  # noqa: E402
 
 CONFIG = ROOT / "configs" / "testbed-1998.toml"
 DECIMATE = 5
@@ -67,7 +67,7 @@ DEFAULT_SYNTHETIC = 10
 
 
 def cdgps(*args) -> str:
-    cmd = [sys.executable, "-m", "cdgps_cli.cli", "--quiet", *map(str, args)]
+    cmd = [sys.executable, "-m", "cdgps_cli.cli.commands", "--quiet", *map(str, args)]
     p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
     if p.returncode != 0:
         raise SystemExit(f"failed: {' '.join(cmd)}\n{p.stderr}")
@@ -155,7 +155,7 @@ def stationary_modes(cfg, n: int, rng) -> np.ndarray:
 
 def synthetic_check(cfg, runs: int, n: int) -> dict:
     """cdgps compute_spectra and pyOMA2 SSI-cov on the same exact stationary data (known f, ζ)."""
-    from cdgps_cli.spectra import SpectraOptions, compute_spectra
+    from cdgps_cli.analysis.spectra import SpectraOptions, compute_spectra
 
     rng = np.random.default_rng(2024)
     sel = [i for i in range(cfg.n_q) if i != cfg.rigid_index]

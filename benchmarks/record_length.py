@@ -35,8 +35,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from cdgps_cli.config import load_config  # noqa: E402
-from cdgps_cli.spectra import SpectraOptions, compute_spectra  # noqa: E402
+from cdgps_cli.config.structure import load_config  # noqa: E402
+from cdgps_cli.analysis.spectra import SpectraOptions, compute_spectra  # noqa: E402
 
 CONFIG = ROOT / "configs" / "testbed-1998.toml"
 

@@ -67,7 +67,7 @@ def _on_alarm(signum, frame):
 def _cli(args: list[str]):
     from click.testing import CliRunner
 
-    from cdgps_cli.cli import main
+    from cdgps_cli.cli.commands import main
 
     return CliRunner().invoke(main, ["-q", *args], catch_exceptions=True)
 
@@ -321,7 +321,7 @@ def run_case(argv: list[str], work: Path, idx: int, data: bytes | None, suffix: 
 def stream_cases(p: dict, work: Path) -> list[tuple[str, str, str, str]]:
     """Subprocess cases: stdout to /dev/full and a closed pipe, an output size limit (RLIMIT_FSIZE)."""
     script = Path(sys.executable).parent / "cdgps"
-    exe = [str(script)] if script.exists() else [sys.executable, "-m", "cdgps_cli.cli"]
+    exe = [str(script)] if script.exists() else [sys.executable, "-m", "cdgps_cli.cli.commands"]
     run, init, sim, cfg = str(p["run"]), str(p["init"]), p["sim"], str(p["config"])
     specs = [("stdout /dev/full", exe + ["info", run, "--json"], "full", None),
              ("stdout /dev/full (text)", exe + ["info", run], "full", None),

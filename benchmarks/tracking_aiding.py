@@ -24,7 +24,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from cdgps_cli.iq_samples import read_samples  # noqa: E402
+from cdgps_cli.io.iq_samples import read_samples  # noqa: E402
 from cdgps_cli.tracking.acquisition import acquire  # noqa: E402
 from cdgps_cli.tracking.channel import L1_HZ, TrackOptions, track  # noqa: E402
 

@@ -36,12 +36,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from cdgps_cli.config import load_config  # noqa: E402
-from cdgps_cli.ekf import EstimateOptions, estimate  # noqa: E402
-from cdgps_cli.init import InitOptions, initialize  # noqa: E402
-from cdgps_cli.run import memory_run  # noqa: E402
-from cdgps_cli.simulate import SimOptions, simulate  # noqa: E402
-from cdgps_cli.states import coordinate_sigma  # noqa: E402
+from cdgps_cli.config.structure import load_config  # noqa: E402
+from cdgps_cli.estimation.filter import EstimateOptions, estimate  # noqa: E402
+from cdgps_cli.estimation.initializer import InitOptions, initialize  # noqa: E402
+from cdgps_cli.io.run import memory_run  # noqa: E402
+from cdgps_cli.sim.structure import SimOptions, simulate  # noqa: E402
+from cdgps_cli.io.states import coordinate_sigma  # noqa: E402
 
 
 def one_seed(cfg, seed: int) -> dict:
@@ -124,7 +124,7 @@ def main() -> None:
         "seeds) per row, so its sampling scatter is about ±0.1 around 1 for independent draws (less independent "
         "here: the coordinates' errors are correlated).",
         "",
-        "Independent check of the same property (tests/test_window_states.py): on a linear model the window's "
+        "Independent check of the same property (tests/estimation/test_window_smoother.py): on a linear model the window's "
         "states and covariances, every filter epoch and the whole smoothed record equal a dense normal-equation "
         "batch solution over the corresponding epochs (relative difference < 1e-8), on the compiled-kernel "
         "and the numpy path; in particular the first post-window σ is the batch's propagated σ.",

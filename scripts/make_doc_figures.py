@@ -25,8 +25,8 @@ import pandas as pd
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from cdgps_cli.reports import _mpl  # noqa: E402  (the reports' plot settings)
-from cdgps_cli.states import States  # noqa: E402
+from cdgps_cli.report.sensor_reports import _mpl  # noqa: E402  (the reports' plot settings)
+from cdgps_cli.io.states import States  # noqa: E402
 
 WIDTH_PX = 900
 

@@ -1,4 +1,4 @@
-"""Generators of large reader inputs (about ``size`` bytes each) for tests/test_reader_scaling.py.
+"""Generators of large reader inputs (about ``size`` bytes each) for tests/io/test_reader_scaling.py.
 
 Each generator writes a file into a folder and returns its path; the inputs are valid where a
 valid file of that size exists (the reader's normal path), or adversarial (the error path a
@@ -149,7 +149,7 @@ def rinex3_obs(folder: Path, size: int) -> Path:
     reader; the records have its layout)."""
     import pandas as pd
 
-    from cdgps_cli.rinex_write import write_rinex_obs
+    from cdgps_cli.io.rinex_write import write_rinex_obs
 
     sats = [f"G{k:02d}" for k in range(1, 11)]
     t0 = dt.datetime(2014, 11, 14, 11, 33, 4)
@@ -171,7 +171,7 @@ def rinex3_obs(folder: Path, size: int) -> Path:
 
 def mcap_file(folder: Path, size: int) -> Path:
     """A RUN-like MCAP with JSON messages on one channel (about ``size`` bytes uncompressed)."""
-    from cdgps_cli.mcap_io import McapOut, message_schema
+    from cdgps_cli.io.mcap import McapOut, message_schema
 
     schema = message_schema("cdgps.Scaling", {"v": {"type": "array", "items": {"type": "number"}}})
     p = folder / "big.mcap"

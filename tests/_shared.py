@@ -1,4 +1,5 @@
-"""Helpers shared by test files (imported as ``_shared``; pytest puts tests/ on sys.path)."""
+"""Helpers shared by test files (imported as ``_shared``; pytest puts tests/ on sys.path: the root
+conftest.py lives there)."""
 
 from __future__ import annotations
 
@@ -6,6 +7,15 @@ import contextlib
 import os
 
 import click
+
+from pathlib import Path
+
+from cdgps_cli.estimation import kernel as _ekf_kernel
+
+#: the repository root (tests/ is one level below it)
+REPO_ROOT = Path(__file__).resolve().parent.parent
+#: True when the compiled EKF kernel of this build is importable and of the API this code expects
+COMPILED = _ekf_kernel._ekfcore is not None and getattr(_ekf_kernel._ekfcore, "API", None) == _ekf_kernel.API
 
 
 def cli_commands(group: click.Group, prefix=()):

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cdgps_cli.config import load_config
+from cdgps_cli.config.structure import load_config
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 TESTBED_PATH = REPO_ROOT / "configs" / "testbed-1998.toml"

@@ -1,8 +1,8 @@
 """The import contract of cdgps_cli (.importlinter), in REPORT-ONLY mode.
 
 The target layout (../shared/design/architecture.md) makes imports point one way: numerics never
-touch files, io never imports numerics, only the CLI imports click.  The package is still flat, so
-.importlinter names today's modules grouped by their target folder (docs/architecture-map.md).  This
+touch files, io never imports numerics, only the CLI imports click.  The modules live in their
+subpackages (issue 13 step 2, docs/architecture-map.md) and .importlinter states the rules on them.  This
 test runs import-linter through its Python API, prints every broken contract with its import chains,
 asserts the contracts that already hold (so they cannot regress while code moves), and marks the
 others xfail (non-strict) with the chain that breaks them today.  Step 4 of "Moving without
@@ -23,17 +23,17 @@ from importlinter.application.use_cases import create_report, read_user_options 
 CONFIG = Path(__file__).resolve().parents[1] / ".importlinter"
 
 # contracts that hold today: asserted
-KEPT_TODAY = ("library-never-imports-cli", "numerics-never-render", "readers-never-import-estimation",
-              "core-numerics-are-pure", "new-numerics-are-pure", "target-layers")
-# target rules broken today, with the reason (the chain that breaks them); xfail until the moves
+KEPT_TODAY = ("library-never-imports-cli", "only-cli-imports-click", "numerics-never-render",
+              "readers-never-import-estimation", "core-numerics-are-pure")
+# target rules broken today, with the reason (the chain that breaks them); xfail until step 3 splits them
 NOT_YET = {
-    "only-cli-imports-click": "validate.py (option checks) imports click, and ekf, states, gnss_modal, "
-                              "gnss_pipeline import validate",
-    "numerics-never-touch-files": "config (GnssConfig.baseline_options) imports baseline, which imports rinex and "
-                                  "atomic; gnss and ephemeris import the RINEX parser for GPS time",
-    "io-never-imports-numerics": "states imports kinematics/points (σ at named points), run/gnss_run/states/logs "
-                                 "reach gnss through config → baseline",
-    "config-below-numerics": "config.GnssConfig.baseline_options imports baseline (BaselineOptions)",
+    "numerics-never-touch-files": "estimation.filter/initializer/window_smoother import io.run (RunData); "
+                                  "estimation.baseline reads RINEX; model.gps takes GPS time from io.rinex; "
+                                  "everything reaches io through config.structure → estimation.baseline",
+    "io-never-imports-numerics": "io.states imports model.kinematics/points (σ at named points); io.gnss_run "
+                                 "imports model.gps.positioning; io reaches estimation through config",
+    "config-below-numerics": "config.structure (GnssConfig.baseline_options) imports estimation.baseline",
+    "target-layers": "config → estimation.baseline; estimation.filter → analysis.rest (rest mode)",
 }
 
 

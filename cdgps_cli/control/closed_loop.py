@@ -25,14 +25,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..config import StructureConfig, channel_sigma_m
-from ..dynamics import continuous_model, discrete_model
-from ..errors import CdgpsError
-from ..estimation.kalman import predict, update
-from ..measurement import EpochPhaseModel, all_channels
-from .allocation import opposing_pairs, realize_forces
-from .modulation import PwpfParams, pwpf_interval
-from .propagation import PulseResponse
+from cdgps_cli.config.structure import StructureConfig, channel_sigma_m
+from cdgps_cli.model.dynamics import continuous_model, discrete_model
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.estimation.kalman import predict, update
+from cdgps_cli.measurement.phase import EpochPhaseModel, all_channels
+from cdgps_cli.control.allocation import opposing_pairs, realize_forces
+from cdgps_cli.control.modulation import PwpfParams, pwpf_interval
+from cdgps_cli.control.propagation import PulseResponse
 
 #: prior σ of the estimator's initial modal state, per unit of ξ and ξ̇ (the loop starts from a
 #: converged initialization: the estimate starts at the truth with this small covariance)
@@ -187,14 +187,14 @@ def merge_firings(firings) -> list:
 def closed_loop_trajectory(cfg: StructureConfig, scenario: str, gains: dict, *, vibration_control: bool = True,
                            feedback: str = "gps", pwpf: PwpfParams | None = None, record: dict | None = None,
                            slew_reference_kind: str = "profile"):
-    """The ``trajectory`` hook of :func:`cdgps_cli.simulate.simulate` for a closed-loop run.
+    """The ``trajectory`` hook of :func:`cdgps_cli.sim.structure.simulate` for a closed-loop run.
 
     Parameters
     ----------
     cfg : StructureConfig
     scenario : {"pulse", "slew"}
     gains : dict
-        A GAINS record (:func:`cdgps_cli.gains_file.read_gains`) designed on this config.
+        A GAINS record (:func:`cdgps_cli.io.gains_file.read_gains`) designed on this config.
     vibration_control : bool
         False: the rigid-body-only regulator of Fig. 12 (:func:`rigid_only_gain`), its rigid pole
         matched to the gain's.
@@ -205,7 +205,7 @@ def closed_loop_trajectory(cfg: StructureConfig, scenario: str, gains: dict, *, 
     slew_reference_kind : {"profile", "step"}
         See :func:`slew_reference`.
     """
-    from .design import rigid_only_gain
+    from cdgps_cli.control.design import rigid_only_gain
 
     model = discrete_model(cfg)
     if gains["A"].shape != model.A.shape or not (np.allclose(gains["A"], model.A, rtol=0, atol=1e-9)
@@ -256,7 +256,7 @@ def rigid_authority(cfg: StructureConfig, direction: float = 1.0) -> tuple[int, 
     """The rigid-body mode's index, its generalized force per newton of each jet (Uᵀ Υ row, shape (m,))
     and the largest modal acceleration the jets can give it in ``direction`` (sign), each jet at its
     maximum force where it pushes that way and one jet of each opposing pair firing."""
-    from ..kinematics import thruster_forcing
+    from cdgps_cli.model.kinematics import thruster_forcing
 
     rigid = list(cfg.mode_frequency_hz).index(0.0)
     g = (np.asarray(cfg.mode_shapes).T @ thruster_forcing(cfg))[rigid]
@@ -294,7 +294,7 @@ def slew_reference(cfg: StructureConfig, time_s, x0, kind: str = "profile"):
     rate = np.where(first, acc * tt, acc * (2 * half - tt))
     accel = np.where((t > 0) & (t < 2 * half), np.where(first, acc, -acc), 0.0)
     x_ref[:, rigid], x_ref[:, nm + rigid] = amp, rate
-    from ..dynamics import modal_damping
+    from cdgps_cli.model.dynamics import modal_damping
 
     force = accel + modal_damping(cfg)[rigid] * rate          # ξ̈ + c ξ̇ = g·u
     u_ff = np.outer(force, g / (g @ g))
@@ -349,9 +349,9 @@ def controller_log(cfg: StructureConfig, result: ClosedLoopResult, x_ref: np.nda
 
 def simulate_closed_loop(cfg: StructureConfig, opt, gains: dict, *, vibration_control: bool = True,
                          feedback: str = "gps", pwpf: PwpfParams | None = None, slew_reference_kind: str = "profile"):
-    """:func:`cdgps_cli.simulate.simulate` with the closed loop in place of the open-loop propagation;
+    """:func:`cdgps_cli.sim.structure.simulate` with the closed loop in place of the open-loop propagation;
     the Simulation gains ``controller.csv`` (:func:`controller_log`)."""
-    from ..simulate import simulate
+    from cdgps_cli.sim.structure import simulate
 
     record: dict = {}
     hook = closed_loop_trajectory(cfg, opt.scenario, gains, vibration_control=vibration_control,

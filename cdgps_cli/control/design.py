@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..config import StructureConfig
-from ..dynamics import discrete_model
-from ..errors import CdgpsError
-from .lqr import PAPER_RATE_FACTOR, PAPER_RIGID_FACTOR, LqrDesign, design_lqr, paper_weights
-from .poles import pole_table, slowest_settling_by_mode
+from cdgps_cli.config.structure import StructureConfig
+from cdgps_cli.model.dynamics import discrete_model
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.control.lqr import PAPER_RATE_FACTOR, PAPER_RIGID_FACTOR, LqrDesign, design_lqr, paper_weights
+from cdgps_cli.control.poles import pole_table, slowest_settling_by_mode
 
 
 def weights_for(cfg: StructureConfig, qx=None, qu=None, rigid_factor: float = PAPER_RIGID_FACTOR,
@@ -93,7 +93,7 @@ def rigid_only_gain(cfg: StructureConfig, A: np.ndarray, B: np.ndarray, target_s
     -------
     ndarray, shape (m, n)
     """
-    from .poles import pole_table
+    from cdgps_cli.control.poles import pole_table
 
     rigid = [i for i, f in enumerate(cfg.mode_frequency_hz) if f == 0.0]
     if len(rigid) != 1:

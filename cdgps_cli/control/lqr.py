@@ -12,7 +12,7 @@ equation (scipy.linalg.solve_discrete_are).
 The paper's weights are Q_x* = 5000 diag(1, …, 1, 0.01) (0.01 on the rigid-body mode),
 Q_x = diag(Q_x*, 0.01 Q_x*) and Q_u = I (:func:`paper_weights`).  Its thruster force model Υ is not
 published; B here comes from the config's thruster geometry by virtual work
-(:func:`cdgps_cli.kinematics.thruster_forcing`).
+(:func:`cdgps_cli.model.kinematics.thruster_forcing`).
 
 Functions are pure: arrays in, arrays and records out, no files.
 """
@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import solve_discrete_are
 
-from ..errors import CdgpsError
+from cdgps_cli.core.errors import CdgpsError
 
 #: the paper's state weight on every elastic mode's amplitude (Sec. V)
 PAPER_STATE_WEIGHT = 5000.0

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import CdgpsError
+from cdgps_cli.core.errors import CdgpsError
 
 
 @dataclass(frozen=True)

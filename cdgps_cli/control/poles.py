@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from .lqr import SETTLING_FRACTION
+from cdgps_cli.control.lqr import SETTLING_FRACTION
 
 
 def pole_table(M, sample_period_s: float, mode_names) -> list[dict]:

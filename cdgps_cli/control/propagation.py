@@ -7,7 +7,7 @@ force F on thruster j during [a, b] ⊂ [0, T] is
 
 A_c is diagonalizable for modal damping (distinct eigenvalues per mode), so with A_c = V Λ V⁻¹,
 Γ(τ) = V diag(φ(λ, τ)) V⁻¹ and φ(λ, τ) = (e^{λτ} − 1)/λ (τ for λ = 0).  A pulse over the whole
-period gives the zero-order-hold B (tested against :func:`cdgps_cli.dynamics.zoh`).
+period gives the zero-order-hold B (tested against :func:`cdgps_cli.model.dynamics.zoh`).
 """
 
 from __future__ import annotations

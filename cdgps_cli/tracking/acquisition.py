@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import CdgpsError
-from .ca_code import CHIP_RATE_HZ, CODE_LENGTH, sampled_code
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.tracking.ca_code import CHIP_RATE_HZ, CODE_LENGTH, sampled_code
 
 #: default search: ±5 kHz of Doppler (a static receiver sees at most about ±4.5 kHz) in 250 Hz bins
 DOPPLER_MAX_HZ = 5000.0

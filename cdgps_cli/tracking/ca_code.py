@@ -11,7 +11,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..errors import CdgpsError
+from cdgps_cli.core.errors import CdgpsError
 
 #: chips per code period and chipping rate, Hz
 CODE_LENGTH = 1023

@@ -23,9 +23,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .ca_code import CHIP_RATE_HZ, CODE_LENGTH, ca_code
-from .correlator import correlate
-from .loops import LoopFilter
+from cdgps_cli.tracking.ca_code import CHIP_RATE_HZ, CODE_LENGTH, ca_code
+from cdgps_cli.tracking.correlator import correlate
+from cdgps_cli.tracking.loops import LoopFilter
 
 #: L1 carrier frequency and its ratio to the chip rate
 L1_HZ = 1575.42e6

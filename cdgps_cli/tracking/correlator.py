@@ -1,5 +1,5 @@
 """Early, prompt and late correlations of one block of samples: the compiled kernel
-(``cdgps_cli._trackcore``) when it is built, else numpy (same sums; tested against each other).
+(``cdgps_cli.tracking._trackcore``) when it is built, else numpy (same sums; tested against each other).
 
 Each correlation is Σ_k x_k e^{−j2π(φ + f_D t_k)} c(θ + r t_k + δ) over the block, t_k = k/f_s, with
 δ = +half (early), 0 (prompt), −half (late) chips.
@@ -11,17 +11,17 @@ import os
 
 import numpy as np
 
-from .ca_code import CODE_LENGTH
+from cdgps_cli.tracking.ca_code import CODE_LENGTH
 
 try:
-    from .. import _trackcore
+    from cdgps_cli.tracking import _trackcore
 except ImportError:                     # optional extension not built
     _trackcore = None
 
 
 def kernel_available() -> bool:
     """True when the compiled correlator is importable and not disabled by CDGPS_NO_KERNEL."""
-    if os.environ.get("CDGPS_NO_KERNEL", "") not in ("", "0"):      # the rule of cdgps_cli.ekf_kernel.available
+    if os.environ.get("CDGPS_NO_KERNEL", "") not in ("", "0"):      # the rule of cdgps_cli.estimation.kernel.available
         return False
     return _trackcore is not None and getattr(_trackcore, "API", None) == 1
 

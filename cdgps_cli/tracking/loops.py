@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from ..errors import CdgpsError
+from cdgps_cli.core.errors import CdgpsError
 
 #: damping of the second-order loops
 ZETA = 1.0 / math.sqrt(2.0)

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import CdgpsError
-from .acquisition import THRESHOLD, acquire
-from .channel import PHASE_LOCK_THRESHOLD, WINDOW, TrackOptions, track
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.tracking.acquisition import THRESHOLD, acquire
+from cdgps_cli.tracking.channel import PHASE_LOCK_THRESHOLD, WINDOW, TrackOptions, track
 
 #: fraction of the PLL's 20 ms windows (after one settling window) whose lock indicator must pass
 #: for a satellite to count as in phase lock

@@ -9,14 +9,14 @@ import pytest
 from click.testing import CliRunner
 from scipy.linalg import expm
 
-from cdgps_cli.cli import main
+from cdgps_cli.cli.commands import main
 from cdgps_cli.control.closed_loop import Disturbance, run_closed_loop, simulate_closed_loop
 from cdgps_cli.control.design import design_for_structure, rigid_only_gain
 from cdgps_cli.control.propagation import PulseResponse
-from cdgps_cli.dynamics import continuous_model, discrete_model, zoh
+from cdgps_cli.model.dynamics import continuous_model, discrete_model, zoh
 from cdgps_cli.estimation.kalman import predict, update
-from cdgps_cli.measurement import all_channels
-from cdgps_cli.simulate import SimOptions, simulate
+from cdgps_cli.measurement.phase import all_channels
+from cdgps_cli.sim.structure import SimOptions, simulate
 
 
 @pytest.fixture(scope="module")

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from cdgps_cli.atomic import file_sha256
-from cdgps_cli.cli import main
+from cdgps_cli.io.atomic import file_sha256
+from cdgps_cli.cli.commands import main
 from cdgps_cli.control.design import design_for_structure
-from cdgps_cli.errors import CdgpsError
-from cdgps_cli.gains_file import read_gains
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.io.gains_file import read_gains
 
 
 def _run(*args):

@@ -5,11 +5,11 @@ import math
 import numpy as np
 import pytest
 
-from cdgps_cli.config import load_config
+from cdgps_cli.config.structure import load_config
 from cdgps_cli.control.design import design_for_structure, weights_for
 from cdgps_cli.control.lqr import check_weights, design_lqr, paper_weights
 from cdgps_cli.control.poles import pole_table
-from cdgps_cli.errors import CdgpsError
+from cdgps_cli.core.errors import CdgpsError
 
 
 @pytest.fixture(scope="module")

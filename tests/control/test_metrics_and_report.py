@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from cdgps_cli.cli import main
+from cdgps_cli.cli.commands import main
 from cdgps_cli.control.metrics import first_peak_deg, pulse_metrics, settle_time_s, slew_metrics
 
 

@@ -6,12 +6,12 @@ import math
 import numpy as np
 import pytest
 
-from cdgps_cli.config import load_config
+from cdgps_cli.config.structure import load_config
 from cdgps_cli.control.allocation import opposing_pairs, realize_forces
 from cdgps_cli.control.modulation import (PwpfParams, dead_zone, duty_cycle, minimum_pulse_s, modulate,
                                           off_time_s, on_time_s, pwpf_interval, saturation_level)
-from cdgps_cli.errors import CdgpsError
-from cdgps_cli.kinematics import thruster_forcing
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.model.kinematics import thruster_forcing
 
 P = PwpfParams()
 

@@ -1,7 +1,7 @@
 """Shared pieces of the fuzz suite (issue 12 item 10): settings, base files, mutations, the property.
 
 Every test here states one property over generated inputs: a reader or a command given any input
-returns a valid result or raises the project's own :class:`~cdgps_cli.errors.CdgpsError` whose
+returns a valid result or raises the project's own :class:`~cdgps_cli.core.errors.CdgpsError` whose
 message names the file (and the line, key or option where it can), never another exception; the
 input files are byte-identical afterwards (sha256); and nothing is left at an output path after an
 error.  Runs are bounded and deterministic (``derandomize=True``, no example database): the
@@ -22,8 +22,8 @@ from click.testing import CliRunner
 from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
 
-from cdgps_cli.cli import main
-from cdgps_cli.errors import CdgpsError
+from cdgps_cli.cli.commands import main
+from cdgps_cli.core.errors import CdgpsError
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 DATA = REPO_ROOT / "tests" / "data"

@@ -14,9 +14,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from cdgps_cli.config import load_config, load_gnss_config
-from cdgps_cli.errors import CdgpsError
-from cdgps_cli.simulate import SimOptions, simulate
+from cdgps_cli.config.structure import load_config, load_gnss_config
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.sim.structure import SimOptions, simulate
 
 from conftest import DOF2, TESTBED, byte_mutation, check_reader, fuzz_settings, scratch
 

@@ -1,4 +1,4 @@
-"""Fuzz: receiver, gyro and actuator CSV logs (cdgps_cli/logs.py).
+"""Fuzz: receiver, gyro and actuator CSV logs (cdgps_cli/io/logs.py).
 
 Property: any mutation of a valid log gives a validated table or a CdgpsError naming the file (a
 value problem also names the line); the file is never modified.  Plus one end-to-end property:
@@ -14,9 +14,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from cdgps_cli.config import load_config
-from cdgps_cli.errors import CdgpsError
-from cdgps_cli.logs import read_actuator_log, read_gyro_log, read_receiver_log
+from cdgps_cli.config.structure import load_config
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.io.logs import read_actuator_log, read_gyro_log, read_receiver_log
 
 from conftest import ANY_TEXT, DOF2, NUMBER_TEXT, TESTBED, byte_mutation, check_command, check_reader, cli, \
     fuzz_settings, scratch, sha256

@@ -16,11 +16,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cdgps_cli.errors import CdgpsError
-from cdgps_cli.gnss_run import read_gnss_run
-from cdgps_cli.mcap_io import read_mcap
-from cdgps_cli.run import read_run, run_info
-from cdgps_cli.states import export_csv
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.io.gnss_run import read_gnss_run
+from cdgps_cli.io.mcap import read_mcap
+from cdgps_cli.io.run import read_run, run_info
+from cdgps_cli.io.states import export_csv
 
 from conftest import byte_mutation, check_reader, fuzz_settings, scratch, sha256
 

@@ -21,9 +21,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from cdgps_cli.cli import main
-from cdgps_cli.limits import OPTION_BOUNDS
-from cdgps_cli.validate import OUTPUT_PARAMS, _is_named_files, _spelling
+from cdgps_cli.cli.commands import main
+from cdgps_cli.config.limits import OPTION_BOUNDS
+from cdgps_cli.cli.guard import OUTPUT_PARAMS, _is_named_files, _spelling
 
 from _shared import cli_commands
 from conftest import DOF2, NUMBER_TEXT, check_command, cli, fuzz_settings, scratch, sha256

@@ -17,9 +17,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from cdgps_cli.errors import CdgpsError
-from cdgps_cli.rinex import read_rinex_nav, read_rinex_obs
-from cdgps_cli.ubx import read_ubx_rawx
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
+from cdgps_cli.io.ubx import read_ubx_rawx
 
 from conftest import DATA, byte_mutation, check_reader, fuzz_settings, scratch
 

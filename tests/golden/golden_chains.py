@@ -45,8 +45,8 @@ from pathlib import Path
 import numpy as np
 from click.testing import CliRunner
 
-from cdgps_cli.cli import main
-from cdgps_cli.states import States
+from cdgps_cli.cli.commands import main
+from cdgps_cli.io.states import States
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 CONFIGS = REPO_ROOT / "configs"

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from cdgps_cli.cli import main
-from cdgps_cli.iq_samples import read_samples
+from cdgps_cli.cli.commands import main
+from cdgps_cli.io.iq_samples import read_samples
 from cdgps_cli.tracking.acquisition import acquire
 from cdgps_cli.tracking.ca_code import CHIP_RATE_HZ, sampled_code
 from cdgps_cli.tracking.channel import L1_HZ, track
@@ -95,7 +95,7 @@ def test_track_command_on_the_real_file(tmp_path):
     for x in s["satellites"]:
         assert {"prn", "doppler_hz", "code_phase_chips", "cn0_dbhz", "phase_lock"} <= set(x)
         assert abs(x["doppler_hz"]) < 5000 and 30 < x["cn0_dbhz"] < 60
-    from cdgps_cli.mcap_io import read_mcap
+    from cdgps_cli.io.mcap import read_mcap
 
     m = read_mcap(out)
     assert "/cdgps/track" in m.topics

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from cdgps_cli.errors import CdgpsError
+from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.tracking.ca_code import ca_code, first_chips_octal, sampled_code
 from cdgps_cli.tracking.loops import A3, B3, BN_OVER_W0_3, LoopFilter, pll2_bandwidth_hz, pll2_gains
 
@@ -100,7 +100,7 @@ def test_compiled_correlator_equals_numpy():
     from cdgps_cli.tracking import correlator
 
     if not correlator.kernel_available():
-        pytest.skip("cdgps_cli._trackcore not built")
+        pytest.skip("cdgps_cli.tracking._trackcore not built")
     g = np.random.default_rng(1)
     x = g.normal(size=4000) + 1j * g.normal(size=4000)
     code = ca_code(5)

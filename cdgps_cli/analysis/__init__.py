@@ -1,0 +1,1 @@
+"""Analysis of estimates: spectra and modal identification, rest detection."""

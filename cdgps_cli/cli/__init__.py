@@ -1,0 +1,1 @@
+"""The Click command line: option parsing and printing only (``cdgps`` = :func:`main`)."""

@@ -1,0 +1,1 @@
+"""Configuration files and option bounds: structure TOML, GNSS run config, limits."""

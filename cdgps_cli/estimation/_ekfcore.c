@@ -1,0 +1,906 @@
+/*
+ * _ekfcore: compiled inner loops of cdgps_cli.estimation.filter (forward EKF with fixed biases, RTS smoother)
+ * and the single-epoch carrier-phase measurement model they need.
+ *
+ * The Python side (cdgps_cli/estimation/kernel.py) packs the configuration into flat arrays and calls
+ *
+ *   phase_model(gi, gf, x, h, H)                      h(x) and H = dh/dx[:, :n_m] of one state
+ *   filter_span(...) -> (k_stop, fail_run, reason)    steady-state epochs k0 .. k_stop-1
+ *   rts(...) -> -1 or failing epoch                   RTS pass over filtered arrays
+ *
+ * filter_span stops, without touching the outputs of that epoch, at the first epoch that needs the
+ * Python logic of ekf.estimate (a lock event, a channel being re-biased, an innovation outlier, a
+ * re-initialization, a Cholesky failure); x and P then hold the state entering that epoch and the
+ * Python loop handles it exactly as the pure-numpy path does.
+ *
+ * Why a plain CPython extension with the buffer protocol (not the numpy C API): nothing here needs
+ * numpy at build time, so `pip install -e .` compiles it with only a C compiler and the Python
+ * headers (no numpy in [build-system] requires, no ABI coupling to the numpy version).  Every array
+ * is checked for C-contiguity, element type and size before use.
+ *
+ * All matrices are row-major.  Dimensions are small (n <= ~100) so everything is plain loops.
+ */
+
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define KERNEL_API 2
+
+/* stop reasons of filter_span */
+enum { STOP_END = 0, STOP_EVENT = 1, STOP_REBIAS = 2, STOP_OUTLIER = 3, STOP_REINIT = 4, STOP_CHOLESKY = 5 };
+
+/* ------------------------------------------------------------------------------------------ */
+/* buffers */
+
+typedef struct {
+    Py_buffer view;
+    int held;
+} Buf;
+
+/* kind: 'd' float64, 'q' int64, 'b' one-byte integer (int8 / uint8 / bool) */
+static int get_buf(PyObject *obj, Buf *b, char kind, Py_ssize_t count, int writable, const char *name)
+{
+    int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0);
+    if (PyObject_GetBuffer(obj, &b->view, flags) != 0) {
+        PyErr_Format(PyExc_TypeError, "_ekfcore: %s: expected a C-contiguous%s array",
+                     name, writable ? " writable" : "");
+        return -1;
+    }
+    b->held = 1;
+    const char *f = b->view.format ? b->view.format : "B";
+    if (*f == '@' || *f == '=') {
+        f++;
+    } else if (*f == '<' || *f == '>' || *f == '!') {
+        const uint16_t one = 1;
+        int little = *(const uint8_t *)&one == 1;
+        if ((*f == '<') == little) f++;          /* explicit byte order: accepted when native */
+    }
+    int ok = 0;
+    switch (kind) {
+    case 'd': ok = (f[0] == 'd' && f[1] == 0 && b->view.itemsize == 8); break;
+    case 'q': ok = ((f[0] == 'q' || f[0] == 'l') && f[1] == 0 && b->view.itemsize == 8); break;
+    case 'b': ok = ((f[0] == 'b' || f[0] == 'B' || f[0] == '?') && f[1] == 0 && b->view.itemsize == 1); break;
+    }
+    if (!ok) {
+        PyErr_Format(PyExc_TypeError, "_ekfcore: %s: wrong element type (format %s)", name, b->view.format);
+        return -1;
+    }
+    if (b->view.len != count * b->view.itemsize) {
+        PyErr_Format(PyExc_ValueError, "_ekfcore: %s: expected %zd elements, got %zd", name, count,
+                     (Py_ssize_t)(b->view.len / b->view.itemsize));
+        return -1;
+    }
+    return 0;
+}
+
+static void release_all(Buf *bufs, int n)
+{
+    for (int i = 0; i < n; i++)
+        if (bufs[i].held) {
+            PyBuffer_Release(&bufs[i].view);
+            bufs[i].held = 0;
+        }
+}
+
+/* ------------------------------------------------------------------------------------------ */
+/* geometry: packed by ekf_kernel.pack_geometry
+ *
+ * gi (int64): nq, nm, na, nc, ns, master, far, rigid, has_D, ntr,
+ *             sec[na], rot_idx[ns*3], ch_ant[nc], trans[ntr*3] (antenna, axis, coordinate)
+ * gf (float64): origin[3], pivot[na*3], rel[na*3], D[na*3*nq], U[nq*nm], tpos[nc*3]
+ */
+
+#define GI_HEAD 10
+
+typedef struct {
+    int nq, nm, na, nc, ns, master, far, rigid, has_D, ntr;
+    const int64_t *sec, *rot_idx, *ch_ant, *trans;
+    const double *origin, *pivot, *rel, *D, *U, *tpos;
+} Geom;
+
+/* validates the packed geometry; gi_len / gf_len are element counts */
+static int geom_parse(const int64_t *gi, Py_ssize_t gi_len, const double *gf, Py_ssize_t gf_len, Geom *g)
+{
+    if (gi_len < GI_HEAD) goto bad;
+    for (int i = 0; i < GI_HEAD; i++)
+        if (gi[i] < -1 || gi[i] > 1000000) goto bad;
+    g->nq = (int)gi[0]; g->nm = (int)gi[1]; g->na = (int)gi[2]; g->nc = (int)gi[3]; g->ns = (int)gi[4];
+    g->master = (int)gi[5]; g->far = (int)gi[6]; g->rigid = (int)gi[7]; g->has_D = (int)gi[8]; g->ntr = (int)gi[9];
+    if (g->nq < 1 || g->nm < 1 || g->na < 1 || g->nc < 0 || g->ns < 0 || g->ntr < 0) goto bad;
+    if (g->master < 0 || g->master >= g->na || g->rigid < -1 || g->rigid >= g->nq) goto bad;
+    Py_ssize_t need_i = GI_HEAD + g->na + 3 * (Py_ssize_t)g->ns + g->nc + 3 * (Py_ssize_t)g->ntr;
+    Py_ssize_t need_f = 3 + 6 * (Py_ssize_t)g->na + 3 * (Py_ssize_t)g->na * g->nq + (Py_ssize_t)g->nq * g->nm
+                        + 3 * (Py_ssize_t)g->nc;
+    if (gi_len != need_i || gf_len != need_f) goto bad;
+    const int64_t *p = gi + GI_HEAD;
+    g->sec = p; p += g->na;
+    g->rot_idx = p; p += 3 * g->ns;
+    g->ch_ant = p; p += g->nc;
+    g->trans = p;
+    for (int a = 0; a < g->na; a++)
+        if (g->sec[a] < -1 || g->sec[a] >= g->ns) goto bad;
+    for (int i = 0; i < 3 * g->ns; i++)
+        if (g->rot_idx[i] < -1 || g->rot_idx[i] >= g->nq) goto bad;
+    for (int c = 0; c < g->nc; c++)
+        if (g->ch_ant[c] < 0 || g->ch_ant[c] >= g->na) goto bad;
+    for (int t = 0; t < g->ntr; t++) {
+        const int64_t *tr = g->trans + 3 * t;
+        if (tr[0] < 0 || tr[0] >= g->na || tr[1] < 0 || tr[1] > 2 || tr[2] < 0 || tr[2] >= g->nq) goto bad;
+    }
+    const double *f = gf;
+    g->origin = f; f += 3;
+    g->pivot = f; f += 3 * g->na;
+    g->rel = f; f += 3 * g->na;
+    g->D = f; f += 3 * (Py_ssize_t)g->na * g->nq;
+    g->U = f; f += (Py_ssize_t)g->nq * g->nm;
+    g->tpos = f;
+    return 0;
+bad:
+    PyErr_SetString(PyExc_ValueError, "_ekfcore: inconsistent packed geometry");
+    return -1;
+}
+
+/* scratch doubles needed by model_eval */
+static Py_ssize_t model_work_size(const Geom *g)
+{
+    return g->nq + 36 * (Py_ssize_t)g->ns + 6 * (Py_ssize_t)g->na + 3 * (Py_ssize_t)g->na * g->nq
+           + 3 * (Py_ssize_t)g->na * g->nm;
+}
+
+static void mm3(const double *a, const double *b, double *out)
+{
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            out[3 * i + j] = a[3 * i] * b[j] + a[3 * i + 1] * b[3 + j] + a[3 * i + 2] * b[6 + j];
+}
+
+/* elementary rotation about `axis` (right-handed, plane (i, j)) and its derivative */
+static void rot_elem(int axis, double c, double s, double *E, double *dE)
+{
+    int i = (axis + 1) % 3, j = (axis + 2) % 3;
+    memset(E, 0, 9 * sizeof(double));
+    memset(dE, 0, 9 * sizeof(double));
+    E[4 * axis] = 1.0;
+    E[4 * i] = c;
+    E[4 * j] = c;
+    E[3 * i + j] = -s;
+    E[3 * j + i] = s;
+    dE[4 * i] = -s;
+    dE[4 * j] = -s;
+    dE[3 * i + j] = -c;
+    dE[3 * j + i] = c;
+}
+
+/*
+ * h (nc) and Hm (nc x nm): the Jacobian's non-zero block, dh/dxi = (dh/dq) U.
+ * Same model as kinematics.EpochGeometry.positions + measurement.EpochPhaseModel.
+ */
+static void model_eval(const Geom *g, const double *x, double *h, double *Hm, double *work)
+{
+    const int nq = g->nq, nm = g->nm, na = g->na;
+    double *q = work;
+    double *R = q + nq;                 /* ns * 9 */
+    double *dR = R + 9 * g->ns;         /* ns * 27: d/dθx, d/dθy, d/dθz */
+    double *loc = dR + 27 * g->ns;      /* na * 3 */
+    double *pos = loc + 3 * na;         /* na * 3 */
+    double *J = pos + 3 * na;           /* na * 3 * nq */
+    double *G = J + 3 * na * nq;        /* na * 3 * nm */
+
+    for (int i = 0; i < nq; i++) {
+        double s = 0.0;
+        for (int j = 0; j < nm; j++) s += g->U[i * nm + j] * x[j];
+        q[i] = s;
+    }
+    for (int s = 0; s < g->ns; s++) {
+        double E[3][9], dE[3][9], RzRy[9], t[9];
+        for (int ax = 0; ax < 3; ax++) {
+            int64_t j = g->rot_idx[3 * s + ax];
+            double ang = j >= 0 ? q[j] : 0.0;
+            rot_elem(ax, cos(ang), sin(ang), E[ax], dE[ax]);
+        }
+        mm3(E[2], E[1], RzRy);
+        mm3(RzRy, E[0], R + 9 * s);
+        mm3(RzRy, dE[0], dR + 27 * s);
+        mm3(E[2], dE[1], t);
+        mm3(t, E[0], dR + 27 * s + 9);
+        mm3(dE[2], E[1], t);
+        mm3(t, E[0], dR + 27 * s + 18);
+    }
+    memcpy(J, g->D, sizeof(double) * 3 * na * nq);
+    for (int a = 0; a < na; a++) {
+        double *l = loc + 3 * a;
+        const double *rel = g->rel + 3 * a;
+        for (int i = 0; i < 3; i++) {
+            double v = g->pivot[3 * a + i];
+            if (g->has_D) {
+                const double *Di = g->D + (3 * a + i) * nq;
+                double s = 0.0;
+                for (int j = 0; j < nq; j++) s += Di[j] * q[j];
+                v += s;
+            }
+            l[i] = v;
+        }
+        int s = (int)g->sec[a];
+        if (s >= 0) {
+            const double *Rs = R + 9 * s;
+            for (int i = 0; i < 3; i++)
+                l[i] += Rs[3 * i] * rel[0] + Rs[3 * i + 1] * rel[1] + Rs[3 * i + 2] * rel[2];
+        } else {
+            for (int i = 0; i < 3; i++) l[i] += rel[i];
+        }
+    }
+    for (int t = 0; t < g->ntr; t++) {
+        const int64_t *tr = g->trans + 3 * t;
+        loc[3 * tr[0] + tr[1]] += q[tr[2]];
+        J[(3 * tr[0] + tr[1]) * nq + tr[2]] += 1.0;
+    }
+    for (int a = 0; a < na; a++) {
+        int s = (int)g->sec[a];
+        if (s < 0) continue;
+        const double *rel = g->rel + 3 * a;
+        for (int ax = 0; ax < 3; ax++) {
+            int64_t j = g->rot_idx[3 * s + ax];
+            if (j < 0) continue;
+            const double *M = dR + 27 * s + 9 * ax;
+            for (int i = 0; i < 3; i++)
+                J[(3 * a + i) * nq + j] += M[3 * i] * rel[0] + M[3 * i + 1] * rel[1] + M[3 * i + 2] * rel[2];
+        }
+    }
+    if (g->rigid >= 0) {
+        double psi = q[g->rigid], c = cos(psi), s = sin(psi);
+        for (int a = 0; a < na; a++) {
+            const double *l = loc + 3 * a;
+            double *p = pos + 3 * a;
+            p[0] = (l[0] * c + l[1] * -s + l[2] * 0.0) + g->origin[0];
+            p[1] = (l[0] * s + l[1] * c + l[2] * 0.0) + g->origin[1];
+            p[2] = (l[0] * 0.0 + l[1] * 0.0 + l[2]) + g->origin[2];
+            double *J0 = J + (3 * a) * nq, *J1 = J0 + nq;
+            for (int j = 0; j < nq; j++) {
+                double a0 = J0[j], a1 = J1[j];
+                J0[j] = c * a0 - s * a1;
+                J1[j] = s * a0 + c * a1;
+            }
+            J0[g->rigid] += -s * l[0] - c * l[1];
+            J1[g->rigid] += c * l[0] - s * l[1];
+        }
+    } else {
+        for (int a = 0; a < na; a++)
+            for (int i = 0; i < 3; i++) pos[3 * a + i] = loc[3 * a + i] + g->origin[i];
+    }
+    /* G_a = J_a U  (3 x nm) */
+    for (int r = 0; r < 3 * na; r++) {
+        const double *Jr = J + r * nq;
+        double *Gr = G + r * nm;
+        for (int j = 0; j < nm; j++) Gr[j] = 0.0;
+        for (int k = 0; k < nq; k++) {
+            double v = Jr[k];
+            if (v == 0.0) continue;
+            const double *Uk = g->U + k * nm;
+            for (int j = 0; j < nm; j++) Gr[j] += v * Uk[j];
+        }
+    }
+    const int m = g->master;
+    const double *pm = pos + 3 * m, *Gm = G + 3 * m * nm;
+    for (int c = 0; c < g->nc; c++) {
+        int a = (int)g->ch_ant[c];
+        const double *pa = pos + 3 * a, *Ga = G + 3 * a * nm, *t = g->tpos + 3 * c;
+        double *Hc = Hm + c * nm;
+        if (g->far) {
+            h[c] = -(t[0] * (pa[0] - pm[0]) + t[1] * (pa[1] - pm[1]) + t[2] * (pa[2] - pm[2]));
+            for (int j = 0; j < nm; j++)
+                Hc[j] = -(t[0] * (Ga[j] - Gm[j]) + t[1] * (Ga[nm + j] - Gm[nm + j]) + t[2] * (Ga[2 * nm + j] - Gm[2 * nm + j]));
+        } else {
+            double va[3], vm[3];
+            for (int i = 0; i < 3; i++) {
+                va[i] = t[i] - pa[i];
+                vm[i] = t[i] - pm[i];
+            }
+            double da = sqrt(va[0] * va[0] + va[1] * va[1] + va[2] * va[2]);
+            double dm = sqrt(vm[0] * vm[0] + vm[1] * vm[1] + vm[2] * vm[2]);
+            h[c] = da - dm;
+            for (int i = 0; i < 3; i++) {
+                va[i] /= da;
+                vm[i] /= dm;
+            }
+            for (int j = 0; j < nm; j++)
+                Hc[j] = (vm[0] * Gm[j] + vm[1] * Gm[nm + j] + vm[2] * Gm[2 * nm + j])
+                        - (va[0] * Ga[j] + va[1] * Ga[nm + j] + va[2] * Ga[2 * nm + j]);
+        }
+    }
+}
+
+/* ------------------------------------------------------------------------------------------ */
+/* dense helpers (n x n, row-major) */
+
+/*
+ * Upper Cholesky factor R of the SPD matrix M (M = R^T R; reads M's upper triangle, as LAPACK's
+ * dpotrf with uplo="U" that the numpy path uses).  Right-looking, row-contiguous updates.  R's
+ * strictly lower triangle is left undefined.  Returns 0, or -1 when M is not positive definite.
+ */
+static int cholesky_upper(const double *restrict M, double *restrict R, int n)
+{
+    for (int i = 0; i < n; i++) memcpy(R + i * n + i, M + i * n + i, sizeof(double) * (n - i));
+    for (int i = 0; i < n; i++) {
+        double *Ri = R + i * n;
+        double d = Ri[i];
+        if (!(d > 0.0)) return -1;          /* also catches NaN */
+        double r = sqrt(d), ir = 1.0 / r;
+        Ri[i] = r;
+        for (int j = i + 1; j < n; j++) Ri[j] *= ir;
+        for (int k = i + 1; k < n; k++) {
+            double a = Ri[k];
+            double *Rk = R + k * n;
+            for (int j = k; j < n; j++) Rk[j] -= a * Ri[j];
+        }
+    }
+    return 0;
+}
+
+/* V = R^-1 (upper triangular; row i solves V[i, :] R = e_i); V's strictly lower triangle is zeroed.
+   d: n scratch doubles (reciprocal diagonal, so that no division sits on a dependency chain).  The
+   rows are independent: step k advances every started row, which interleaves their chains. */
+static void upper_inverse(const double *restrict R, double *restrict V, double *restrict d, int n)
+{
+    for (int k = 0; k < n; k++) d[k] = 1.0 / R[k * n + k];
+    memset(V, 0, sizeof(double) * n * n);               /* row i accumulates -sum_k V[i,k] R[k,j] */
+    for (int k = 0; k < n; k++) {
+        const double *Rk = R + k * n;
+        for (int i = 0; i <= k; i++) {
+            double *Vi = V + i * n;
+            double v = ((k == i ? 1.0 : 0.0) + Vi[k]) * d[k];
+            Vi[k] = v;
+            for (int j = k + 1; j < n; j++) Vi[j] -= v * Rk[j];
+        }
+    }
+}
+
+/* inverse of an SPD matrix by Cholesky: out = R^-1 R^-T (exactly symmetric); work: 2 n^2 + n */
+static int chol_inv(const double *restrict M, double *restrict out, double *restrict work, int n)
+{
+    double *R = work, *V = work + n * n;
+    if (cholesky_upper(M, R, n) != 0) return -1;
+    upper_inverse(R, V, V + n * n, n);
+    /* out[i][j] = sum_{k >= j} V[i][k] V[j][k] (j >= i): row-contiguous dot products */
+    for (int i = 0; i < n; i++) {
+        const double *Vi = V + i * n;
+        for (int j = i; j < n; j++) {
+            const double *Vj = V + j * n;
+            double s = 0.0;
+            for (int k = j; k < n; k++) s += Vi[k] * Vj[k];
+            out[i * n + j] = s;
+            out[j * n + i] = s;
+        }
+    }
+    return 0;
+}
+
+/* sparse A in CSR form */
+typedef struct {
+    const int64_t *row, *col;
+    const double *val;
+} Csr;
+
+static int csr_check(const Csr *A, int n, Py_ssize_t nnz)
+{
+    if (A->row[0] != 0 || A->row[n] != nnz) return -1;
+    for (int i = 0; i < n; i++)
+        if (A->row[i + 1] < A->row[i]) return -1;
+    for (Py_ssize_t z = 0; z < nnz; z++)
+        if (A->col[z] < 0 || A->col[z] >= n) return -1;
+    return 0;
+}
+
+/* xo = A x + B u (B: n x nu) */
+static void predict_x(const Csr *A, const double *B, const double *u, int nu, const double *x, double *xo, int n)
+{
+    for (int i = 0; i < n; i++) {
+        double s = 0.0;
+        for (int64_t z = A->row[i]; z < A->row[i + 1]; z++) s += A->val[z] * x[A->col[z]];
+        xo[i] = s;
+    }
+    int any = 0;
+    for (int j = 0; j < nu; j++) any |= (u[j] != 0.0);
+    if (any) {                          /* B u (thrusters off: exactly zero, skipped) */
+        for (int i = 0; i < n; i++) {
+            double s = 0.0;
+            const double *Bi = B + i * nu;
+            for (int j = 0; j < nu; j++) s += Bi[j] * u[j];
+            xo[i] += s;
+        }
+    }
+}
+
+/* AP = A P;  Po = AP A^T + Q (exactly symmetric) */
+static void predict_P(const Csr *A, const double *Q, const double *P, double *AP, double *Po, int n)
+{
+    for (int i = 0; i < n; i++) {
+        double *r = AP + i * n;
+        for (int j = 0; j < n; j++) r[j] = 0.0;
+        for (int64_t z = A->row[i]; z < A->row[i + 1]; z++) {
+            double a = A->val[z];
+            const double *Pr = P + A->col[z] * n;
+            for (int j = 0; j < n; j++) r[j] += a * Pr[j];
+        }
+    }
+    for (int i = 0; i < n; i++) {
+        const double *r = AP + i * n;
+        for (int l = i; l < n; l++) {
+            double s = 0.0;
+            for (int64_t z = A->row[l]; z < A->row[l + 1]; z++) s += r[A->col[z]] * A->val[z];
+            s += Q[i * n + l];
+            Po[i * n + l] = s;
+            Po[l * n + i] = s;
+        }
+    }
+}
+
+/* ------------------------------------------------------------------------------------------ */
+/* Python entry points */
+
+static int get_geom(PyObject *ogi, PyObject *ogf, Buf *bgi, Buf *bgf, Geom *g);
+
+static PyObject *py_phase_model(PyObject *self, PyObject *args)
+{
+    PyObject *o[5];
+    Buf b[5];
+    memset(b, 0, sizeof(b));
+    if (!PyArg_ParseTuple(args, "OOOOO", &o[0], &o[1], &o[2], &o[3], &o[4])) return NULL;
+    PyObject *ret = NULL;
+    double *work = NULL;
+    Geom g;
+    if (get_geom(o[0], o[1], &b[0], &b[1], &g)) goto done;
+    if (get_buf(o[2], &b[2], 'd', 2 * g.nm, 0, "x") || get_buf(o[3], &b[3], 'd', g.nc, 1, "h")
+        || get_buf(o[4], &b[4], 'd', (Py_ssize_t)g.nc * g.nm, 1, "H"))
+        goto done;
+    work = malloc(sizeof(double) * (model_work_size(&g) + 1));
+    if (!work) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    model_eval(&g, b[2].view.buf, b[3].view.buf, b[4].view.buf, work);
+    ret = Py_NewRef(Py_None);
+done:
+    free(work);
+    release_all(b, 5);
+    return ret;
+}
+
+/* shared geometry + CSR buffer acquisition for filter_span / rts */
+static int get_geom(PyObject *ogi, PyObject *ogf, Buf *bgi, Buf *bgf, Geom *g)
+{
+    if (PyObject_GetBuffer(ogi, &bgi->view, PyBUF_SIMPLE) != 0) return -1;
+    Py_ssize_t gi_len = bgi->view.len / 8;
+    PyBuffer_Release(&bgi->view);
+    if (PyObject_GetBuffer(ogf, &bgf->view, PyBUF_SIMPLE) != 0) return -1;
+    Py_ssize_t gf_len = bgf->view.len / 8;
+    PyBuffer_Release(&bgf->view);
+    if (get_buf(ogi, bgi, 'q', gi_len, 0, "gi") || get_buf(ogf, bgf, 'd', gf_len, 0, "gf")) return -1;
+    return geom_parse(bgi->view.buf, gi_len, bgf->view.buf, gf_len, g);
+}
+
+static int get_csr(PyObject *orow, PyObject *ocol, PyObject *oval, Buf *b, int n, Csr *A)
+{
+    if (get_buf(orow, &b[0], 'q', n + 1, 0, "A_row")) return -1;
+    const int64_t *row = b[0].view.buf;
+    Py_ssize_t nnz = row[n];
+    if (nnz < 0 || nnz > (Py_ssize_t)n * n) {
+        PyErr_SetString(PyExc_ValueError, "_ekfcore: bad CSR row pointer");
+        return -1;
+    }
+    if (get_buf(ocol, &b[1], 'q', nnz, 0, "A_col") || get_buf(oval, &b[2], 'd', nnz, 0, "A_val")) return -1;
+    A->row = row;
+    A->col = b[1].view.buf;
+    A->val = b[2].view.buf;
+    if (csr_check(A, n, nnz)) {
+        PyErr_SetString(PyExc_ValueError, "_ekfcore: bad CSR matrix");
+        return -1;
+    }
+    return 0;
+}
+
+/*
+ * filter_span(gi, gf, A_row, A_col, A_val, Q, B, chi2, Y, EVENT, bias, rebias, U_in,
+ *             x, P, xs, Ps, resid, nis, nis_dof, r_var,
+ *             N, n, nu, k0, k1, fail_run, reinit_after, k_reinit_block, outlier_sigma)
+ *   -> (k_stop, fail_run, reason)
+ * r_var (C,): the measurement variance of each channel (m^2), R = diag(r_var) over the used rows.
+ */
+static PyObject *py_filter_span(PyObject *self, PyObject *args)
+{
+    enum { NB = 21 };
+    PyObject *o[NB];
+    Buf b[NB];
+    memset(b, 0, sizeof(b));
+    Py_ssize_t N, n, nu, k0, k1, fail_run, reinit_after, k_reinit_block;
+    double outlier_sigma;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOOOOOOOOOOOnnnnnnnnd", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5],
+                          &o[6], &o[7], &o[8], &o[9], &o[10], &o[11], &o[12], &o[13], &o[14], &o[15], &o[16],
+                          &o[17], &o[18], &o[19], &o[20], &N, &n, &nu, &k0, &k1, &fail_run, &reinit_after,
+                          &k_reinit_block, &outlier_sigma))
+        return NULL;
+    PyObject *ret = NULL;
+    double *work = NULL;
+    Geom g;
+    Csr A;
+    if (get_geom(o[0], o[1], &b[0], &b[1], &g)) goto done;
+    if (n < 2 * g.nm || n > 4096 || N < 0 || nu < 0 || k0 < 0 || k1 > N || k0 > k1) {
+        PyErr_SetString(PyExc_ValueError, "_ekfcore.filter_span: bad dimensions");
+        goto done;
+    }
+    const Py_ssize_t C = g.nc, nn = n * n;
+    if (get_csr(o[2], o[3], o[4], b + 2, (int)n, &A)
+        || get_buf(o[5], &b[5], 'd', nn, 0, "Q") || get_buf(o[6], &b[6], 'd', n * nu, 0, "B")
+        || get_buf(o[7], &b[7], 'd', C + 1, 0, "chi2") || get_buf(o[8], &b[8], 'd', N * C, 0, "Y")
+        || get_buf(o[9], &b[9], 'b', N * C, 0, "EVENT") || get_buf(o[10], &b[10], 'd', C, 0, "bias")
+        || get_buf(o[11], &b[11], 'b', C, 0, "rebias") || get_buf(o[12], &b[12], 'd', N * nu, 0, "U_in")
+        || get_buf(o[13], &b[13], 'd', n, 1, "x") || get_buf(o[14], &b[14], 'd', nn, 1, "P")
+        || get_buf(o[15], &b[15], 'd', N * n, 1, "xs") || get_buf(o[16], &b[16], 'd', N * nn, 1, "Ps")
+        || get_buf(o[17], &b[17], 'd', N * C, 1, "resid") || get_buf(o[18], &b[18], 'd', N, 1, "nis")
+        || get_buf(o[19], &b[19], 'q', N, 1, "nis_dof") || get_buf(o[20], &b[20], 'd', C, 0, "r_var"))
+        goto done;
+
+    const double *Q = b[5].view.buf, *B = b[6].view.buf, *chi2 = b[7].view.buf, *Y = b[8].view.buf;
+    const int8_t *EV = b[9].view.buf;
+    const double *bias = b[10].view.buf;
+    const uint8_t *rebias = b[11].view.buf;
+    const double *U_in = b[12].view.buf;
+    double *x = b[13].view.buf, *P = b[14].view.buf, *xs = b[15].view.buf, *Ps = b[16].view.buf;
+    double *resid = b[17].view.buf, *nis = b[18].view.buf;
+    int64_t *dof = b[19].view.buf;
+    const double *r_var = b[20].view.buf;
+    const int nm = g.nm, ni = (int)n;
+    for (Py_ssize_t c = 0; c < C; c++)
+        if (!(r_var[c] > 0.0) || !isfinite(r_var[c])) {
+            PyErr_SetString(PyExc_ValueError, "_ekfcore.filter_span: r_var must be positive and finite");
+            goto done;
+        }
+
+    /* scratch */
+    Py_ssize_t wm = model_work_size(&g);
+    Py_ssize_t total = wm + 2 * n + 6 * nn + n + C + C * nm + C + nm + C * nm + C;
+    work = malloc(sizeof(double) * (total + 1));
+    int *used = malloc(sizeof(int) * (C + 1));
+    if (!work || !used) {
+        free(used);
+        PyErr_NoMemory();
+        goto done;
+    }
+    double *mw = work;
+    double *xp = mw + wm, *xn = xp + n;
+    double *Pp = xn + n, *AP = Pp + nn, *Yi = AP + nn, *Pn = Yi + nn;    /* prior, A P, information, posterior */
+    double *cw = Pn + nn;                       /* 2 nn + n: chol_inv work */
+    double *h = cw + 2 * nn + n, *Hm = h + C;
+    double *rho = Hm + C * nm, *grad = rho + C, *Hu = grad + nm, *wr = Hu + C * nm;   /* wr: 1/R of used rows */
+    Py_ssize_t k = k0, fr = fail_run;
+    int reason = STOP_END;
+
+    Py_BEGIN_ALLOW_THREADS
+    for (; k < k1; k++) {
+        const double *y = Y + k * C;
+        const int8_t *ev = EV + k * C;
+        int stop = 0;
+        for (Py_ssize_t c = 0; c < C; c++)
+            if (ev[c] != 0) { stop = STOP_EVENT; break; }
+        if (!stop)
+            for (Py_ssize_t c = 0; c < C; c++)
+                if (rebias[c] && !isnan(y[c])) { stop = STOP_REBIAS; break; }
+        if (stop) { reason = stop; break; }
+        /* time update (none at the grid's first epoch) */
+        if (k > 0) {
+            predict_x(&A, B, U_in + (k - 1) * nu, (int)nu, x, xp, ni);
+            predict_P(&A, Q, P, AP, Pp, ni);
+        } else {
+            memcpy(xp, x, sizeof(double) * n);
+            memcpy(Pp, P, sizeof(double) * nn);
+        }
+        model_eval(&g, xp, h, Hm, mw);
+        int m = 0;
+        for (Py_ssize_t c = 0; c < C; c++)
+            if (!isnan(y[c]) && !isnan(bias[c])) used[m++] = (int)c;
+        /* innovations and the per-channel outlier test: S_ii = H_i Pmm H_i^T + R_i */
+        int outlier = 0;
+        for (int i = 0; i < m; i++) {
+            int c = used[i];
+            const double *Hc = Hm + c * nm;
+            rho[i] = y[c] - h[c] - bias[c];
+            double s = 0.0;
+            for (int a = 0; a < nm; a++) {
+                const double *Pa = Pp + a * n;
+                double t = 0.0;
+                for (int bb = 0; bb < nm; bb++) t += Pa[bb] * Hc[bb];
+                s += t * Hc[a];
+            }
+            s += r_var[c];
+            wr[i] = 1.0 / r_var[c];
+            if (fabs(rho[i] / sqrt(s)) > outlier_sigma) { outlier = 1; break; }
+        }
+        if (outlier) { reason = STOP_OUTLIER; break; }
+        double nis_k = NAN;
+        Py_ssize_t fr_k = fr;
+        double *Pk = Pp, *xk = xp;
+        if (m > 0) {
+            /* information form: Pn = (Pp^-1 + H^T R^-1 H)^-1, H^T R^-1 H only in the n_m block */
+            if (chol_inv(Pp, Yi, cw, ni)) { reason = STOP_CHOLESKY; break; }
+            /* Hu: the used rows of H, contiguous */
+            for (int i = 0; i < m; i++) memcpy(Hu + i * nm, Hm + used[i] * nm, sizeof(double) * nm);
+            double rr = 0.0;
+            for (int i = 0; i < m; i++) rr += wr[i] * rho[i] * rho[i];
+            for (int a = 0; a < nm; a++) {
+                double ga = 0.0;
+                for (int i = 0; i < m; i++) ga += Hu[i * nm + a] * (wr[i] * rho[i]);
+                grad[a] = ga;
+                for (int bb = a; bb < nm; bb++) {
+                    double v = 0.0;
+                    for (int i = 0; i < m; i++) v += Hu[i * nm + a] * (wr[i] * Hu[i * nm + bb]);
+                    Yi[a * n + bb] += v;
+                    if (bb != a) Yi[bb * n + a] += v;
+                }
+            }
+            if (chol_inv(Yi, Pn, cw, ni)) { reason = STOP_CHOLESKY; break; }
+            /* NIS = rho^T S^-1 rho = rho^T R^-1 rho - g^T Pn g (Woodbury), g = H^T R^-1 rho; x = xp + Pn g */
+            for (int i = 0; i < ni; i++) xn[i] = 0.0;
+            for (int bb = 0; bb < nm; bb++) {
+                double gb = grad[bb];
+                const double *Pb = Pn + bb * n;           /* column bb of the symmetric Pn */
+                for (int i = 0; i < ni; i++) xn[i] += gb * Pb[i];
+            }
+            double gPg = 0.0;
+            for (int a = 0; a < nm; a++) gPg += grad[a] * xn[a];
+            nis_k = rr - gPg;
+            for (int i = 0; i < ni; i++) xn[i] += xp[i];
+            xk = xn;
+            Pk = Pn;
+            fr_k = (nis_k > chi2[m]) ? fr + 1 : 0;
+        }
+        if (fr_k >= reinit_after && k > k_reinit_block) { reason = STOP_REINIT; break; }
+        /* commit epoch k */
+        if (m > 0) {
+            double *rk = resid + k * C;
+            for (int i = 0; i < m; i++) {
+                int c = used[i];
+                const double *Hc = Hm + c * nm;
+                double t = 0.0;
+                for (int a = 0; a < nm; a++) t += Hc[a] * (xk[a] - xp[a]);
+                rk[c] = y[c] - (h[c] + t) - bias[c];
+            }
+            nis[k] = nis_k;
+            dof[k] = m;
+        }
+        memcpy(x, xk, sizeof(double) * n);
+        memcpy(P, Pk, sizeof(double) * nn);
+        memcpy(xs + k * n, x, sizeof(double) * n);
+        memcpy(Ps + k * nn, P, sizeof(double) * nn);
+        fr = fr_k;
+    }
+    Py_END_ALLOW_THREADS
+
+    free(used);
+    ret = Py_BuildValue("nni", k, fr, reason);
+done:
+    free(work);
+    release_all(b, NB);
+    return ret;
+}
+
+/*
+ * C = C0 + op(A) B for p x p row-major matrices, op(A) = A (trans = 0) or A^T (trans = 1); C0 may be
+ * NULL (zero).  Register-blocked in 2 x 4 tiles (the p = 18 matrices of the testbed are too small
+ * for anything cleverer, too large for naive row updates to run at full speed).
+ */
+static void gemm_small(int p, int trans, const double *restrict A, const double *restrict B,
+                       const double *restrict C0, double *restrict C)
+{
+#define AEL(i, q) (trans ? A[(q) * p + (i)] : A[(i) * p + (q)])
+    int i = 0;
+    for (; i + 1 < p; i += 2) {
+        int j = 0;
+        for (; j + 3 < p; j += 4) {
+            double c00 = 0, c01 = 0, c02 = 0, c03 = 0, c10 = 0, c11 = 0, c12 = 0, c13 = 0;
+            for (int q = 0; q < p; q++) {
+                const double *b = B + q * p + j;
+                double a0 = AEL(i, q), a1 = AEL(i + 1, q);
+                c00 += a0 * b[0]; c01 += a0 * b[1]; c02 += a0 * b[2]; c03 += a0 * b[3];
+                c10 += a1 * b[0]; c11 += a1 * b[1]; c12 += a1 * b[2]; c13 += a1 * b[3];
+            }
+            double *r0 = C + i * p + j, *r1 = r0 + p;
+            if (C0) {
+                const double *s0 = C0 + i * p + j, *s1 = s0 + p;
+                r0[0] = s0[0] + c00; r0[1] = s0[1] + c01; r0[2] = s0[2] + c02; r0[3] = s0[3] + c03;
+                r1[0] = s1[0] + c10; r1[1] = s1[1] + c11; r1[2] = s1[2] + c12; r1[3] = s1[3] + c13;
+            } else {
+                r0[0] = c00; r0[1] = c01; r0[2] = c02; r0[3] = c03;
+                r1[0] = c10; r1[1] = c11; r1[2] = c12; r1[3] = c13;
+            }
+        }
+        for (; j < p; j++) {
+            double c0 = 0, c1 = 0;
+            for (int q = 0; q < p; q++) {
+                double b = B[q * p + j];
+                c0 += AEL(i, q) * b;
+                c1 += AEL(i + 1, q) * b;
+            }
+            C[i * p + j] = (C0 ? C0[i * p + j] : 0.0) + c0;
+            C[(i + 1) * p + j] = (C0 ? C0[(i + 1) * p + j] : 0.0) + c1;
+        }
+    }
+    for (; i < p; i++)
+        for (int j = 0; j < p; j++) {
+            double c = 0;
+            for (int q = 0; q < p; q++) c += AEL(i, q) * B[q * p + j];
+            C[i * p + j] = (C0 ? C0[i * p + j] : 0.0) + c;
+        }
+#undef AEL
+}
+
+/*
+ * One RTS step: from the filtered xk, Pk of epoch k, their prediction xp, Pp (= A Pk A^T + Q) and
+ * AP = A Pk, and the smoothed xn, Pn of epoch k+1, write the smoothed xo, Po of epoch k:
+ *   G = Pk A^T Pp^-1,  xo = xk + G (xn - xp),  Po = Pk + G (Pn - Pp) G^T  (symmetrized, as in numpy).
+ * Pp is overwritten; R, X, T: p^2 scratch each.  Returns -1 when Pp is not positive definite.
+ */
+static int rts_epoch(int p, const double *restrict xk, const double *restrict Pk, const double *restrict xp,
+                     const double *restrict AP, double *restrict Pp, const double *restrict xn,
+                     const double *restrict Pn, double *restrict xo, double *restrict Po,
+                     double *restrict R, double *restrict X, double *restrict T)
+{
+    if (cholesky_upper(Pp, R, p)) return -1;
+    /* X = Pp^-1 AP = G^T with Pp = R^T R: R^T Z = AP (forward), R X = Z (backward), row-wise in X */
+    for (int i = 0; i < p; i++) {
+        double *Xi = X + i * p;
+        memcpy(Xi, AP + i * p, sizeof(double) * p);
+        for (int q = 0; q < i; q++) {
+            double r = R[q * p + i];
+            const double *Xq = X + q * p;
+            for (int j = 0; j < p; j++) Xi[j] -= r * Xq[j];
+        }
+        double inv = 1.0 / R[i * p + i];
+        for (int j = 0; j < p; j++) Xi[j] *= inv;
+    }
+    for (int i = p - 1; i >= 0; i--) {
+        double *Xi = X + i * p;
+        const double *Ri = R + i * p;
+        for (int q = i + 1; q < p; q++) {
+            double r = Ri[q];
+            const double *Xq = X + q * p;
+            for (int j = 0; j < p; j++) Xi[j] -= r * Xq[j];
+        }
+        double inv = 1.0 / Ri[i];
+        for (int j = 0; j < p; j++) Xi[j] *= inv;
+    }
+    /* xo = xk + X^T (xn - xp) */
+    for (int i = 0; i < p; i++) xo[i] = 0.0;
+    for (int j = 0; j < p; j++) {
+        double d = xn[j] - xp[j];
+        const double *Xj = X + j * p;
+        for (int i = 0; i < p; i++) xo[i] += d * Xj[i];
+    }
+    for (int i = 0; i < p; i++) xo[i] += xk[i];
+    /* D = Pn - Pp (into Pp);  T = D X;  Po = Pk + X^T T, symmetrized as 0.5 (Po + Po^T) */
+    for (int z = 0; z < p * p; z++) Pp[z] = Pn[z] - Pp[z];
+    gemm_small(p, 0, Pp, X, NULL, T);
+    gemm_small(p, 1, X, T, Pk, Po);
+    for (int i = 0; i < p; i++)
+        for (int l = i + 1; l < p; l++) {
+            double v = 0.5 * (Po[i * p + l] + Po[l * p + i]);
+            Po[i * p + l] = v;
+            Po[l * p + i] = v;
+        }
+    return 0;
+}
+
+/*
+ * rts(A_row, A_col, A_val, Q, B, U_in, xf, Pf, xs, Ps, eq_k, eq_i, eq_q, no_link, N, p, nu) -> int
+ *   Smoothed states into xs, Ps (which may be xf, Pf themselves).  eq_*: extra process noise
+ *   (epoch, index, variance) sorted by epoch; no_link: N bytes or empty.  Returns -1, or the epoch
+ *   whose predicted covariance is not positive definite.
+ */
+static PyObject *py_rts(PyObject *self, PyObject *args)
+{
+    enum { NB = 14 };
+    PyObject *o[NB];
+    Buf b[NB];
+    memset(b, 0, sizeof(b));
+    Py_ssize_t N, p, nu;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOOOOnnn", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &o[6], &o[7],
+                          &o[8], &o[9], &o[10], &o[11], &o[12], &o[13], &N, &p, &nu))
+        return NULL;
+    PyObject *ret = NULL;
+    double *work = NULL;
+    Csr A;
+    if (N < 0 || p < 1 || p > 4096 || nu < 0) {
+        PyErr_SetString(PyExc_ValueError, "_ekfcore.rts: bad dimensions");
+        return NULL;
+    }
+    const Py_ssize_t pp = p * p;
+    Py_ssize_t ne = 0;
+    {
+        Py_buffer v;
+        if (PyObject_GetBuffer(o[10], &v, PyBUF_SIMPLE) != 0) return NULL;
+        ne = v.len / 8;
+        PyBuffer_Release(&v);
+        if (PyObject_GetBuffer(o[13], &v, PyBUF_SIMPLE) != 0) return NULL;
+        Py_ssize_t nl = v.len;
+        PyBuffer_Release(&v);
+        if (nl != 0 && nl != N) {
+            PyErr_SetString(PyExc_ValueError, "_ekfcore.rts: no_link: expected N or 0 bytes");
+            return NULL;
+        }
+        if (get_buf(o[13], &b[13], 'b', nl, 0, "no_link")) goto done;
+    }
+    if (get_csr(o[0], o[1], o[2], b, (int)p, &A)
+        || get_buf(o[3], &b[3], 'd', pp, 0, "Q") || get_buf(o[4], &b[4], 'd', p * nu, 0, "B")
+        || get_buf(o[5], &b[5], 'd', N * nu, 0, "U_in")
+        || get_buf(o[6], &b[6], 'd', N * p, 0, "xf") || get_buf(o[7], &b[7], 'd', N * pp, 0, "Pf")
+        || get_buf(o[8], &b[8], 'd', N * p, 1, "xs") || get_buf(o[9], &b[9], 'd', N * pp, 1, "Ps")
+        || get_buf(o[10], &b[10], 'q', ne, 0, "eq_k") || get_buf(o[11], &b[11], 'q', ne, 0, "eq_i")
+        || get_buf(o[12], &b[12], 'd', ne, 0, "eq_q"))
+        goto done;
+    const double *Q = b[3].view.buf, *B = b[4].view.buf, *U_in = b[5].view.buf;
+    const double *xf = b[6].view.buf, *Pf = b[7].view.buf;
+    double *xs = b[8].view.buf, *Ps = b[9].view.buf;
+    const int64_t *eqk = b[10].view.buf, *eqi = b[11].view.buf;
+    const double *eqq = b[12].view.buf;
+    const uint8_t *nolink = b[13].view.len ? b[13].view.buf : NULL;
+    for (Py_ssize_t e = 0; e < ne; e++)
+        if (eqi[e] < 0 || eqi[e] >= p || (e > 0 && eqk[e] < eqk[e - 1])) {
+            PyErr_SetString(PyExc_ValueError, "_ekfcore.rts: bad extra process noise list");
+            goto done;
+        }
+    work = malloc(sizeof(double) * (2 * p + 6 * pp + 1));
+    if (!work) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    double *xk = work, *xp = xk + p, *Pk = xp + p, *AP = Pk + pp, *Pp = AP + pp, *L = Pp + pp, *X = L + pp,
+           *T = X + pp;
+    const int pi = (int)p;
+    Py_ssize_t fail = -1;
+    Py_BEGIN_ALLOW_THREADS
+    Py_ssize_t e = ne - 1;
+    for (Py_ssize_t k = N - 2; k >= 0; k--) {
+        if (nolink && nolink[k]) continue;
+        memcpy(xk, xf + k * p, sizeof(double) * p);
+        memcpy(Pk, Pf + k * pp, sizeof(double) * pp);
+        predict_x(&A, B, U_in + k * nu, (int)nu, xk, xp, pi);
+        predict_P(&A, Q, Pk, AP, Pp, pi);
+        while (e >= 0 && eqk[e] > k + 1) e--;
+        for (Py_ssize_t f = e; f >= 0 && eqk[f] == k + 1; f--) Pp[eqi[f] * p + eqi[f]] += eqq[f];
+        if (rts_epoch(pi, xk, Pk, xp, AP, Pp, xs + (k + 1) * p, Ps + (k + 1) * pp, xs + k * p, Ps + k * pp, L, X, T)) {
+            fail = k;
+            break;
+        }
+    }
+    Py_END_ALLOW_THREADS
+    ret = PyLong_FromSsize_t(fail);
+done:
+    free(work);
+    release_all(b, NB);
+    return ret;
+}
+
+static PyMethodDef methods[] = {
+    {"phase_model", py_phase_model, METH_VARARGS, "phase_model(gi, gf, x, h, H): h(x) and H[:, :n_m] of one state."},
+    {"filter_span", py_filter_span, METH_VARARGS, "Forward EKF (fixed biases) over steady-state epochs."},
+    {"rts", py_rts, METH_VARARGS, "Rauch-Tung-Striebel smoother pass."},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef moddef = {
+    PyModuleDef_HEAD_INIT, "_ekfcore", "Compiled inner loops of cdgps_cli.estimation.filter (see cdgps_cli/estimation/kernel.py).", -1,
+    methods, NULL, NULL, NULL, NULL,
+};
+
+PyMODINIT_FUNC PyInit__ekfcore(void)
+{
+    PyObject *m = PyModule_Create(&moddef);
+    if (m && PyModule_AddIntConstant(m, "API", KERNEL_API) != 0) {
+        Py_DECREF(m);
+        return NULL;
+    }
+    return m;
+}

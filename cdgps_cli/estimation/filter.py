@@ -1,0 +1,1087 @@
+"""Extended Kalman filter and Rauch–Tung–Striebel smoother of the structure's modal state.
+
+Teague, How & Parkinson (1998) Eq. 16–23, in information form with diagonal R = diag(σ_c²), one σ
+per channel (antenna, transmitter): INIT's per-channel estimate (the batch's variance factors), or
+``--sigma-m`` for all:
+
+    time update        x̄_k = A x_{k−1} + B u_{k−1},   P̄_k = A P_{k−1} Aᵀ + B_w W B_wᵀ
+    measurement update P_k = (P̄_k⁻¹ + H_kᵀ R⁻¹ H_k)⁻¹            (Eq. 20, by Cholesky: stays SPD)
+                       ρ_k = Δφ_k − h(x̄_k) − b,  K = P_k H_kᵀ R⁻¹,  x_k = x̄_k + K ρ_k   (Eq. 21–23)
+
+Biases come from INIT.json (``biases="fixed"``) or are carried in the state with a small fictitious
+process noise (``biases="states"``, the 1995 paper's variant).  Integrity: each epoch's normalized
+innovation squared (NIS) is tested against its chi-square bound; a channel whose lock counter
+restarts, or whose normalized innovation is an outlier, has its bias dropped and re-estimated from
+the filter's prediction over a short window (its integer re-fixed when the float value is
+unambiguous).  Persistent NIS failures trigger a batch re-initialization on a window after the
+event, as in the 1995 paper's Fig. 7.  Every event is logged (time, channel, kind, action).
+
+Speed: with fixed biases the steady-state epochs (no lock event, no channel being re-estimated, no
+outlier, no re-initialization) run in the compiled kernel of :mod:`cdgps_cli.estimation.kernel` (same
+arithmetic, sparse A, H non-zero only in the position columns), which returns here at the first
+epoch that needs the logic below; the smoother's pass is compiled too.  Without the extension (or
+with ``CDGPS_NO_KERNEL=1``) everything runs in the numpy loops of this module, with the same results
+to rounding.
+
+Multipath: when INIT.json has a ``multipath`` model (:mod:`cdgps_cli.measurement.multipath`, from ``[model]
+multipath_sigma_m`` or ``init --multipath-sigma-m``), each channel gets a first-order Gauss–Markov
+state after the structure (and bias) states — transition exp(−T/τ), process noise σ²(1 − exp(−2T/τ)),
+started from INIT's window-end estimate with its covariance and cross-covariance — that enters its
+phase additively; those runs use the numpy path (the compiled kernel has no such states), the
+others keep the kernel.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+from scipy.linalg import cho_factor, cho_solve
+from scipy.linalg.lapack import dpotrf, dpotri
+from scipy.stats import chi2
+
+from cdgps_cli.config.structure import StructureConfig
+from cdgps_cli.model.dynamics import discrete_model
+from cdgps_cli.estimation import kernel as ekf_kernel
+from cdgps_cli.core import progress
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.config.limits import INIT_BOUNDS, OPTION_BOUNDS
+from cdgps_cli.core.checks import has_bool, is_json_number, require_finite
+from cdgps_cli.measurement.phase import EpochPhaseModel, channel_indices, phase_model
+from cdgps_cli.measurement import multipath
+from cdgps_cli.measurement.noise import filter_sigma_estimate, init_channel_sigma_m
+from cdgps_cli.io.run import Run
+from cdgps_cli.estimation.window_smoother import batch_window, extend_smoothing, window_states
+
+
+@dataclass
+class EstimateOptions:
+    """Options of :func:`estimate` (all echoed in STATES.mcap metadata)."""
+
+    biases: str = "fixed"              # "fixed" (from INIT) or "states" (estimated in the filter)
+    smooth: bool = False               # Rauch–Tung–Striebel pass after the filter
+    sigma_m: float | None = None       # measurement noise of every channel (default: INIT's per channel, else config)
+    channel_sigma_m: dict | None = None  # {(antenna, transmitter): σ (m)}: per-channel σ (overrides INIT's; not with sigma_m)
+    adapt_sigma: bool = True           # innovation-based σ: re-run once with it when the NIS disagrees
+    bias_process_sigma_m: float = 1e-4  # per-epoch random walk of bias states (biases="states")
+    nis_probability: float = 0.999     # chi-square test level of the per-epoch NIS
+    outlier_sigma: float = 6.0         # |ν_i| / sqrt(S_ii) above this → suspected slip on channel i
+    rebias_epochs: int = 10            # epochs used to re-estimate a dropped channel's bias
+    refix_max_sigma_cycles: float = 0.1   # re-fix the integer when the float's sigma is below this
+    refix_max_offset_cycles: float = 0.25  # … and it is this close to an integer
+    reinit_after_epochs: int = 20      # consecutive NIS failures → batch re-initialization
+    reinit_window_s: float = 30.0
+    restart_sigma_cycles: float = 10.0  # biases="states": variance inflation at a lock restart
+    keep_filtered_covariance: str = "full"  # with smooth: "full" (n×n) or "modal" (the n_m×n_m block the outputs use)
+    process_noise_scale: float = 1.0   # multiplies the config's process-noise sigma (Q × scale²), filter and smoother
+    rest_segments_s: tuple = ()        # ((start_s, end_s), …): the structure is declared at rest (static mode)
+    rest_process_noise_scale: float = 0.005 # … and there the process-noise sigma is further multiplied by this
+    rest_retry_s: float = 1.0          # after the data contradict a rest segment, try rest again this much later (0: never)
+    rest_auto: bool = False            # rest segments found from the data (zero-velocity test, :mod:`cdgps_cli.analysis.rest`)
+    rest_window_s: float = 3.0         # … its sliding window
+    rest_dwell_s: float = 2.0          # … and how long it must pass before rest is entered
+    progress: object = None
+    init_source: str = "INIT.json"     # how messages name the INIT (its path); not echoed in outputs
+
+    def echo(self) -> dict:
+        d = {k: v for k, v in self.__dict__.items() if k not in ("progress", "init_source")}
+        # JSON has no infinity: an open-ended rest segment is echoed with end null
+        d["rest_segments_s"] = [[float(a), None if np.isinf(float(b)) else float(b)] for a, b in self.rest_segments_s]
+        if self.channel_sigma_m:
+            d["channel_sigma_m"] = {f"{a}/{t}": float(v) for (a, t), v in self.channel_sigma_m.items()}
+        return d
+
+
+@dataclass
+class EstimateResult:
+    cfg: StructureConfig
+    time_s: np.ndarray            # (N,)
+    x: np.ndarray                 # (N, n) filtered (or smoothed) modal state
+    P: np.ndarray                 # (N, n, n)
+    x_filt: np.ndarray | None
+    P_filt: np.ndarray | None
+    channels: list                # [(antenna, transmitter)]
+    residual_m: np.ndarray        # (N, C) post-fit residual (NaN where not used)
+    nis: np.ndarray               # (N,)
+    nis_dof: np.ndarray           # (N,) int
+    events: list = field(default_factory=list)
+    biases: dict = field(default_factory=dict)   # channel → final bias (m)
+    smoothed: bool = False
+    filter_path: str = "numpy"    # "c": steady-state epochs ran in the compiled kernel (ekf_kernel)
+    window: dict | None = None    # INIT's batch window when its epochs come from the batch solution
+    rest_active_s: list = field(default_factory=list)   # [[start_s, end_s]]: epochs that ran in static mode
+    rest_detection: dict | None = None   # --rest auto: detector settings, sigma and segments (rest_detect)
+    noise: dict = field(default_factory=dict)    # σ used (RMS and per channel), its source, the innovation-based estimates
+
+
+_MASKS: dict = {}
+
+# Test hook: when a dict, ``estimate`` records in it the prior covariance of every numpy-path
+# measurement update ("prior": {k: P̄}), the prior of every zero-velocity update ("zupt": {k: P̄}), and the
+# smoother's inputs (A, Q, Q_rest, at_rest, extra_q, no_link, filtered P).  None in normal use.
+_TRACE: dict | None = None
+
+
+def _chol_inv(M: np.ndarray) -> np.ndarray:
+    """Inverse of a symmetric positive definite matrix by Cholesky (LAPACK dpotrf/dpotri).
+
+    Raises numpy.linalg.LinAlgError when M is not positive definite.  Returns a symmetric matrix.
+    """
+    c, info = dpotrf(M, lower=0, clean=0)
+    if info != 0:
+        raise np.linalg.LinAlgError("matrix is not positive definite")
+    inv, info = dpotri(c, lower=0)
+    if info != 0:
+        raise np.linalg.LinAlgError("matrix is singular")
+    masks = _MASKS.get(M.shape[0])
+    if masks is None:
+        masks = _MASKS[M.shape[0]] = (np.triu(np.ones(M.shape)), np.triu(np.ones(M.shape), 1))
+    return inv * masks[0] + (inv * masks[1]).T
+
+
+def load_init_state(init: dict, cfg: StructureConfig, source: str = "INIT.json") -> tuple[float, np.ndarray, np.ndarray, dict]:
+    """Initial time, state, covariance and per-channel biases (current segments) from INIT.json.
+
+    ``source`` names the INIT file in the messages (its path).
+    """
+    problems = []
+    for key in ("state", "biases", "config_sha256"):
+        if key not in init:
+            problems.append(f"missing key {key!r}")
+    if problems:
+        raise CdgpsError(f"{source}: " + "; ".join(problems))
+    if not isinstance(init["config_sha256"], str):
+        raise CdgpsError(f"{source}: config_sha256: expected the config's sha256 as text, got {init['config_sha256']!r}")
+    if init["config_sha256"] != cfg.sha256:
+        raise CdgpsError(f"{source} was made with a different structure config than the RUN "
+                         f"(INIT config_sha256 {init['config_sha256'][:12]}…, RUN {cfg.sha256[:12]}…)")
+    st = init["state"]
+    n = cfg.n_states
+    try:
+        x = np.asarray(st["x"], dtype=float)
+        P = np.asarray(st["P"], dtype=float)
+        t0 = float(st["time_s"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CdgpsError(f"{source}: state: expected time_s, x ({n} numbers) and P ({n}×{n}): {exc}") from None
+    if not math.isfinite(t0):
+        raise CdgpsError(f"{source}: state.time_s: expected a finite time in seconds, got {st['time_s']!r}")
+    if has_bool(st["x"]) or has_bool(st["P"]) or isinstance(st["time_s"], bool):
+        raise CdgpsError(f"{source}: state: time_s, x and P must be numbers, not true/false")
+    if x.shape != (n,) or P.shape != (n, n) or not np.all(np.isfinite(P)) or not np.all(np.isfinite(x)):
+        raise CdgpsError(f"{source}: state: expected x of {n} numbers and P of {n}×{n} finite numbers")
+    for name, v in (("state.x", x), ("state.P", P)):
+        b = INIT_BOUNDS[name]
+        if not np.all((v >= b.lo) & (v <= b.hi)):
+            raise CdgpsError(f"{source}: {name}: values outside the plausible range {b.text()} "
+                             f"(largest magnitude {float(np.max(np.abs(v))):g})")
+    P = 0.5 * (P + P.T)
+    try:
+        np.linalg.cholesky(P)
+    except np.linalg.LinAlgError:
+        raise CdgpsError(f"{source}: state.P is not positive definite") from None
+    if not isinstance(init["biases"], list):
+        raise CdgpsError(f"{source}: biases: expected a list of objects {{antenna, transmitter, bias_m, …}}")
+    biases = {}
+    problems = []
+    for i, b in enumerate(init["biases"]):
+        if not isinstance(b, dict):
+            problems.append(f"biases[{i}]: expected an object")
+            continue
+        try:
+            key = (str(b["antenna"]), str(b["transmitter"]))
+            if not is_json_number(b["bias_m"]) or not isinstance(b.get("current", True), bool):
+                raise TypeError
+            val = float(b["bias_m"])
+        except (KeyError, TypeError, ValueError):
+            problems.append(f"biases[{i}]: expected antenna, transmitter, a numeric bias_m (not true/false) and a "
+                            f"boolean current")
+            continue
+        if key[0] not in cfg.rover_names:
+            problems.append(f"biases[{i}]: antenna {key[0]!r} is not a rover antenna of the config")
+        elif key[1] not in cfg.transmitter_names:
+            problems.append(f"biases[{i}]: transmitter {key[1]!r} is not in the config")
+        elif not np.isfinite(val):
+            problems.append(f"biases[{i}]: bias_m is not finite")
+        elif b.get("current", True) and key in biases:
+            problems.append(f"biases[{i}]: a second current bias for {key[0]}/{key[1]} (one per channel)")
+        elif b.get("current", True):
+            biases[key] = val
+    if problems:
+        raise CdgpsError(f"{source}: " + "; ".join(problems[:10]) + (f" (+{len(problems) - 10} more)" if len(problems) > 10 else ""))
+    sig = init.get("sigma_m")
+    if sig is not None and (isinstance(sig, bool) or not isinstance(sig, (int, float)) or not sig > 0):
+        raise CdgpsError(f"{source}: sigma_m: expected a positive number, got {sig!r}")
+    if sig is not None and not OPTION_BOUNDS["sigma_m"].contains(sig):
+        raise CdgpsError(f"{source}: sigma_m = {sig!r} m is outside the plausible range {OPTION_BOUNDS['sigma_m'].text()}")
+    return t0, x, P, biases
+
+
+def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> EstimateResult:
+    """Run the EKF (and optionally the RTS smoother) over a RUN from INIT's state.
+
+    Parameters
+    ----------
+    run : Run
+    init : dict
+        INIT.json contents (from :func:`cdgps_cli.estimation.initializer.initialize`).
+    opt : EstimateOptions
+
+    Returns
+    -------
+    EstimateResult
+    """
+    opt = opt or EstimateOptions()
+    for name in ("outlier_sigma", "nis_probability"):     # process_noise_scale, sigma_m: checked below
+        require_finite(getattr(opt, name), f"EstimateOptions.{name}", positive=True)
+    if opt.rest_auto:
+        from cdgps_cli.analysis.rest import estimate_auto_rest
+
+        return estimate_auto_rest(run, init, opt)
+    if opt.sigma_m is not None and not (np.isfinite(opt.sigma_m) and opt.sigma_m > 0):
+        raise CdgpsError(f"--sigma-m must be a positive number of metres, got {opt.sigma_m!r}")
+    if opt.biases not in ("fixed", "states"):
+        raise CdgpsError(f"--biases: expected fixed or states, got {opt.biases!r}")
+    pns = opt.process_noise_scale
+    if (isinstance(pns, bool) or not isinstance(pns, (int, float, np.integer, np.floating))
+            or not (np.isfinite(pns) and pns > 0)):
+        raise CdgpsError(f"--process-noise-scale must be a positive number, got {pns!r}")
+    rest = validate_rest_segments(opt.rest_segments_s, opt.rest_process_noise_scale, opt.rest_retry_s)
+    cfg = run.cfg
+    t0, x0, P0, init_bias = load_init_state(init, cfg, opt.init_source)
+    # INIT from 'cdgps init': its state is the batch solution at the window end, which used that
+    # epoch's data; the filter starts from it without using them again, and the window's epochs
+    # take the batch solution (window_states)
+    win = batch_window(init, t0, opt.init_source)
+    model = discrete_model(cfg)
+    T = cfg.sample_period_s
+    lam = cfg.wavelength_m
+    nm = cfg.n_modes
+    n = cfg.n_states
+
+    # epoch grid from INIT time to the end (an INIT time before the run would size it from INIT)
+    t_first = float(run.phase["time_s"].min()) if len(run.phase) else t0
+    if t0 < t_first - T:
+        raise CdgpsError(f"{opt.init_source}: state.time_s = {t0:g} s is before the first epoch of {run.path} "
+                         f"({t_first:g} s): expected the INIT.json of this run (its batch window end)")
+    keep = run.phase["time_s"].to_numpy() >= t0 - 1e-9
+    ph = run.phase if keep.all() else run.phase[keep]
+    if len(ph) == 0:
+        raise CdgpsError(f"{opt.init_source}: state.time_s = {t0:g} s is after the last epoch of {run.path} "
+                         f"({float(run.phase['time_s'].max()) if len(run.phase) else float('nan'):g} s): no phase data to "
+                         f"filter; expected the INIT.json of this run")
+    t_end = float(ph["time_s"].max())
+    N = int(round((t_end - t0) / T)) + 1
+    grid = t0 + np.arange(N) * T
+    a_codes, a_names = pd.factorize(ph["antenna"], sort=True)
+    t_codes, t_names = pd.factorize(ph["transmitter"], sort=True)
+    pair_code = a_codes.astype(np.int64) * len(t_names) + t_codes
+    pairs, inverse = np.unique(pair_code, return_inverse=True)
+    seen = [(a_names[pc // len(t_names)], t_names[pc % len(t_names)]) for pc in pairs]
+    chans = sorted(set(seen) | set(init_bias),
+                   key=lambda c: (cfg.antenna_names.index(c[0]), cfg.transmitter_names.index(c[1])))
+    cidx = {c: i for i, c in enumerate(chans)}
+    C = len(chans)
+    sig_c, sigma_source = filter_sigma(init, cfg, chans, opt)
+    r_var = sig_c**2                        # R = diag(σ_c²)
+    sigma = float(np.sqrt(np.mean(r_var)))  # their RMS: the re-initialization's batch σ, the summary
+    k_of = np.rint((ph["time_s"].to_numpy() - t0) / T).astype(np.int32)
+    c_of = np.array([cidx[c] for c in seen], dtype=np.int32)[inverse]
+    del inverse, pair_code, a_codes, t_codes
+    Y = np.full((N, C), np.nan)
+    LOCK = np.full((N, C), -1, dtype=np.int32)
+    Y[k_of, c_of] = ph["phase_cycles"].to_numpy() * lam
+    LOCK[k_of, c_of] = ph["lock"].to_numpy()
+    del k_of, c_of, ph, keep                # the phase table copy is not needed any more (memory)
+    ant, tx = channel_indices(cfg, [c[0] for c in chans], [c[1] for c in chans])
+    line = cfg.antenna_line_bias_m[ant] - cfg.antenna_line_bias_m[cfg.master_index]
+    hmodel = EpochPhaseModel(cfg, ant, tx)
+
+    # thruster commands (zero-order hold), per epoch
+    U_in = np.zeros((N, len(cfg.thruster_names)))
+    if len(run.actuators):
+        names = list(cfg.thruster_names)
+        for tname, grp in run.actuators.groupby("actuator"):
+            j = names.index(tname)
+            times = grp["time_s"].to_numpy()
+            forces = grp["force_n"].to_numpy()
+            idx = np.searchsorted(times, grid + 1e-9, side="right") - 1
+            U_in[:, j] = np.where(idx >= 0, forces[np.maximum(idx, 0)], 0.0)
+
+    # state layout
+    use_bias_states = opt.biases == "states"
+    # INIT's multipath model: a Gauss–Markov state per channel after the bias states (numpy path only)
+    mp = multipath.from_init(init)
+    mp0 = n + (C if use_bias_states else 0) if mp.active else None
+    p = n + (C if use_bias_states else 0) + (C if mp.active else 0)
+    A = np.eye(p)
+    A[:n, :n] = model.A
+    Qd = np.zeros((p, p))
+    Qd[:n, :n] = model.Q * float(pns) ** 2
+    if use_bias_states:
+        Qd[n:n + C, n:n + C] = np.eye(C) * opt.bias_process_sigma_m**2
+    if mp.active:
+        A[mp0:, mp0:] = np.eye(C) * mp.transition(T)
+        Qd[mp0:, mp0:] = np.eye(C) * mp.process_variance_m2(T)
+    # static mode: the prediction into epoch k inside a declared rest segment uses Q_rest
+    Qd_rest = Qd.copy()
+    Qd_rest[:n, :n] *= float(opt.rest_process_noise_scale) ** 2
+    at_rest = rest_mask(grid, rest)
+    rest_outside = [(a, b) for a, b in rest if not rest_mask(grid, [(a, b)]).any()]   # no epoch of the run
+    q_bounds = np.flatnonzero(np.diff(at_rest.astype(np.int8))) + 1     # epochs where the Q in use changes
+    rest_stretch_end = -1                  # end (exclusive) of the rest stretch being run
+    rest_fail = 0                          # consecutive NIS failures inside a rest stretch
+    hx_at = None                           # state at which h, Hx were last evaluated in this epoch
+    # entering a rest stretch the modal velocities are observed as zero (a zero-velocity update, as in
+    # inertial navigation), with the sigma of one step of the rest process noise on each velocity
+    zupt_var = np.maximum(np.diag(Qd_rest)[nm:n], 1e-30)
+    Bu = np.zeros((p, model.B.shape[1]))
+    Bu[:n] = model.B
+
+    bias = np.full(C, np.nan)
+    for c, key in enumerate(chans):
+        if key in init_bias:
+            bias[c] = init_bias[key]
+    x = np.zeros(p)
+    x[:n] = x0
+    P = np.zeros((p, p))
+    P[:n, :n] = P0
+    if use_bias_states:
+        x[n:n + C] = np.nan_to_num(bias)
+        P[n:n + C, n:n + C] = np.diag(r_var)
+    if mp.active:
+        x[mp0:], P[mp0:, mp0:], P[:n, mp0:] = multipath.init_states(init, chans, n, mp)
+        P[mp0:, :n] = P[:n, mp0:].T
+    inv_r = 1.0 / r_var                     # (C,) per channel
+
+    xs = np.empty((N, p))
+    Ps = np.empty((N, p, p))
+    resid = np.full((N, C), np.nan)
+    nis = np.full(N, np.nan)
+    nis_dof = np.zeros(N, dtype=np.int64)
+    events: list = []
+    rebias: dict[int, list] = {}           # channel → list of (k, y − h(x̄), var_h)
+    extra_q: dict[int, list] = {}          # epoch → [(state index, added variance)] (bias states)
+    EVENT = lock_events(Y, LOCK)
+    del LOCK
+    if win is not None:
+        for c, key in enumerate(chans):
+            if key in init_bias:
+                Y[0, c] = np.nan           # already in INIT's state (the batch's last epoch)
+    new_states: list = []
+    chi2_bound = {}
+    fail_run = 0
+    k_reinit_block = -1
+    no_link = np.zeros(N, dtype=bool)      # smoother: epoch k is not linked to k+1 (re-init boundary)
+
+    def log(k, c, kind, action, **detail):
+        ev = {"time_s": float(grid[k]), "antenna": chans[c][0] if c is not None else "",
+              "transmitter": chans[c][1] if c is not None else "", "kind": kind, "action": action}
+        ev.update(detail)
+        events.append(ev)
+
+    def drop_bias(k, c, kind):
+        if use_bias_states:
+            # the 1995 variant: the bias state absorbs the jump; its variance is inflated as extra
+            # process noise at this epoch (recorded so that the smoother stays exact)
+            q = opt.restart_sigma_cycles**2 * lam**2
+            P[n + c, n + c] += q
+            extra_q.setdefault(k, []).append((n + c, q))
+            log(k, c, kind, f"bias state variance inflated by ({opt.restart_sigma_cycles:g} cycles)²")
+            return
+        bias[c] = np.nan
+        rebias[c] = []
+        log(k, c, kind, f"bias dropped; re-estimating over {opt.rebias_epochs} epochs")
+
+    for a, b in rest_outside:
+        log(0, None, "rest segment ignored", f"no epoch of the estimate in {a:g}–{b:g} s "
+            f"(the estimate runs {grid[0]:g}–{grid[-1]:g} s)")
+
+    # compiled steady-state epochs (fixed biases): the kernel writes xs, Ps, resid, nis, nis_dof and
+    # stops at the first epoch that needs the logic below, which then runs for that epoch only
+    kern = None
+    if not use_bias_states and not mp.active and ekf_kernel.available():
+        kern = ekf_kernel.ForwardKernel(cfg, ant, tx, A, Qd, Bu, sig_c, opt.outlier_sigma, opt.nis_probability,
+                                        opt.reinit_after_epochs, Y, EVENT, U_in, xs, Ps, resid, nis, nis_dof)
+
+    k = 0
+    bar = progress.bar(N, "filter", "epoch")
+    while k < N:
+        # the first epoch of a rest stretch (and the first after one) runs below, in Python
+        edge = (at_rest[k] and k >= rest_stretch_end) or (k > 0 and at_rest[k - 1] and not at_rest[k])
+        if kern is not None and not edge:
+            k0 = k
+            in_rest = bool(at_rest[k0])
+            nxt = q_bounds[q_bounds > k]         # the span ends where the process noise changes
+            # in rest, every NIS failure comes back here (to the rest checks below)
+            k, fail_run, x, P = kern.run(k0, x, P, bias, rebias, fail_run, k_reinit_block,
+                                         int(nxt[0]) if nxt.size else None, Q=Qd_rest if in_rest else Qd,
+                                         stop_on_nis_failure=in_rest)
+            if in_rest and (nis_dof[k0:k] > 0).any():
+                rest_fail = 0                   # an epoch with data passed the NIS test
+            bar.update_to(k)
+            if k >= N:
+                break
+        if k > 0:
+            x = A @ x + Bu @ U_in[k - 1]
+            P = A @ P @ A.T + (Qd_rest if at_rest[k] else Qd)
+        y = Y[k]
+        present = ~np.isnan(y)
+        # lock restarts (slips, re-acquisitions) and first sightings (precomputed, rare)
+        for c in np.flatnonzero(EVENT[k]):
+            if EVENT[k, c] == 1:
+                if np.isnan(bias[c]) and not use_bias_states:
+                    rebias.setdefault(c, [])
+                    log(k, c, "new channel", "no INIT bias; estimating")
+                elif np.isnan(bias[c]) and use_bias_states:
+                    new_states.append(c)
+            else:
+                drop_bias(k, c, "lock restart" if EVENT[k, c] == 2 else "re-acquisition")
+        if at_rest[k]:
+            q_events = list(extra_q.get(k, ()))    # variance raised at this epoch by its lock events
+            entering = k >= rest_stretch_end       # (also after a re-initialization inside a stretch)
+            if entering:
+                off = np.flatnonzero(~at_rest[k:])
+                rest_stretch_end = k + (int(off[0]) if off.size else N - k)
+                rest_fail = 0
+            k_end = rest_stretch_end               # end of this stretch (exclusive)
+            if entering:
+                # the kinematic prior, kept in case the structure turns out not to be at rest
+                x_kin, P_kin = x.copy(), (P.copy() if k == 0 else A @ Ps[k - 1] @ A.T + Qd)
+                # the zero-velocity update's own test: are the estimated modal velocities zero?
+                vel_nis = velocity_nis(x_kin, P_kin, nm, zupt_var)
+                vel_bound = chi2.ppf(opt.nis_probability, nm)
+                if vel_nis <= vel_bound:
+                    # the rest position is re-estimated from the data: the modal position variances of
+                    # the prior are raised REST_ENTRY_POSITION_INFLATION-fold (recorded as extra process
+                    # noise, so the smoother stays exact), so that an estimate lagging the structure's
+                    # last motion is not carried into the average; then the zero-velocity update
+                    d = REST_ENTRY_POSITION_INFLATION * np.diag(P)[:nm]
+                    P[np.arange(nm), np.arange(nm)] += d
+                    extra_q.setdefault(k, []).extend((i, float(d[i])) for i in range(nm))
+                    if _TRACE is not None:
+                        _TRACE.setdefault("zupt", {})[k] = P.copy()     # the prior (after the raise)
+                    x, P = zero_velocity_update(x, P, nm, zupt_var)
+                    log(k, None, "rest segment", "modal velocities set to zero (zero-velocity update); process "
+                        f"noise × {opt.rest_process_noise_scale:g}² until {grid[k_end - 1]:g} s")
+                    events[-1]["velocity_nis"] = vel_nis
+            else:
+                x_kin = x.copy()
+                vel_nis, vel_bound = 0.0, 1.0
+            if vel_nis > vel_bound:
+                why, nis_failed = f"modal velocities not zero (NIS {vel_nis:.1f} > {vel_bound:.1f})", False
+            else:
+                hx_at = x[:n].copy()
+                h, Hx = hmodel(hx_at)
+                why, nis_failed = rest_motion(x, P, h, Hx, y=Y[k], bias=bias, usable=present & ~np.isnan(bias), mp0=mp0,
+                                              n=n, use_bias_states=use_bias_states, r_var=r_var,
+                                              outlier_sigma=opt.outlier_sigma,
+                                              bound=lambda m: chi2.ppf(opt.nis_probability, m))
+            if nis_failed:
+                rest_fail += 1
+            elif (present & ~np.isnan(bias)).any():
+                rest_fail = 0                        # (an epoch without data leaves the count as it is)
+            if nis_failed and rest_fail < REST_NIS_FAILURES:
+                why = ""                        # one NIS failure can be chance (1 − nis_probability)
+            elif nis_failed:
+                why += f" ({REST_NIS_FAILURES} epochs in a row)"
+            if why:
+                rest_fail = 0
+                # the data say the structure moves: leave static mode for the rest of this stretch,
+                # from the kinematic prior covariance of the stretch's entry
+                k_back = k_end if opt.rest_retry_s <= 0 else min(k + max(int(round(min(opt.rest_retry_s / T, N))), 1), k_end)
+                at_rest[k:k_back] = False                  # retried after rest_retry_s, within the segment
+                rest_stretch_end = -1
+                q_bounds = np.flatnonzero(np.diff(at_rest.astype(np.int8))) + 1
+                x = x_kin
+                if k == 0:
+                    P = P_kin.copy()
+                    extra_q.pop(0, None)           # (the smoother reads no prior at the first epoch)
+                    if q_events:
+                        extra_q[0] = q_events
+                else:
+                    # the kinematic prediction, its variances raised to the entry's kinematic prior; the
+                    # raise is recorded as extra process noise so that the smoother stays exact
+                    P = A @ Ps[k - 1] @ A.T + Qd
+                    for i, q in q_events:
+                        P[i, i] += q
+                    d = np.maximum(np.diag(P_kin)[:n] - np.diag(P)[:n], 0.0)   # structure states only
+                    P[np.arange(n), np.arange(n)] += d
+                    extra_q[k] = q_events + [(int(i), float(d[i])) for i in np.flatnonzero(d)]
+                if _TRACE is not None:
+                    _TRACE.get("zupt", {}).pop(k, None)     # this epoch's prior is the rebuilt one
+                refused = vel_nis > vel_bound
+                log(k, None, "rest segment refused" if refused else "rest segment broken",
+                    f"{why}: the structure moves; kinematic process noise"
+                    + (f", rest tried again at {grid[k_back]:g} s" if k_back < k_end else " to the segment's end"))
+                if refused:
+                    events[-1]["velocity_nis"] = vel_nis
+        elif k > 0 and at_rest[k - 1]:
+            rest_fail = 0
+            log(k, None, "rest segment end", "process noise back to the kinematic model")
+        xq = x[:n]
+        if hx_at is None or not np.array_equal(hx_at, xq):    # (the rest checks evaluated it already)
+            h, Hx = hmodel(xq)
+        hx_at = None
+        for c in new_states:
+            # a channel INIT did not know: its bias state starts from the prediction with a wide prior
+            q_new = opt.restart_sigma_cycles**2 * lam**2
+            x[n + c] = y[c] - h[c]
+            q_was = float(P[n + c, n + c])          # never measured: no cross terms to drop
+            P[n + c, :] = 0.0
+            P[:, n + c] = 0.0
+            P[n + c, n + c] = q_new
+            bias[c] = x[n + c]
+            extra_q.setdefault(k, []).append((n + c, q_new - q_was))    # the smoother's prior = the filter's
+            log(k, c, "new channel", f"bias state initialized from the prediction (sigma {opt.restart_sigma_cycles:g} cycles)")
+        new_states = []
+        if use_bias_states:
+            usable = present.copy()
+        else:
+            usable = present & ~np.isnan(bias)
+        # channels being re-biased: collect y − h(x̄)
+        for c in list(rebias):
+            if not present[c]:
+                continue
+            var_h = float(Hx[c] @ P[:n, :n] @ Hx[c])
+            m_c = 0.0
+            if mp0 is not None:                # the channel's multipath state is predicted, not a bias
+                m_c = float(x[mp0 + c])
+                var_h += float(P[mp0 + c, mp0 + c] + 2.0 * Hx[c] @ P[:n, mp0 + c])
+            rebias[c].append((y[c] - h[c] - m_c, var_h))
+            if len(rebias[c]) >= opt.rebias_epochs:
+                vals = np.array([v for v, _ in rebias[c]])
+                est = float(vals.mean())
+                s_b = float(np.sqrt(r_var[c] / len(vals) + np.mean([v for _, v in rebias[c]])))
+                a = (est - line[c]) / lam
+                nint = int(np.rint(a))
+                if (cfg.line_bias_calibrated and s_b / lam < opt.refix_max_sigma_cycles
+                        and abs(a - nint) < min(opt.refix_max_offset_cycles, 3.0 * s_b / lam)):
+                    est = line[c] + lam * nint
+                    action = f"integer re-fixed: {nint} cycles (float {a:.3f}, sigma {s_b / lam:.3f} cycle)"
+                else:
+                    action = f"float bias {est:.4f} m (sigma {s_b / lam:.3f} cycle)"
+                bias[c] = est
+                if use_bias_states:
+                    x[n + c] = est
+                    P[n + c, :] = 0.0
+                    P[:, n + c] = 0.0
+                    P[n + c, n + c] = s_b**2
+                del rebias[c]
+                log(k, c, "bias re-estimated", action)
+        idx = np.flatnonzero(usable)
+        if idx.size:
+            H = _rows(Hx, idx, p, n, use_bias_states, mp0)
+            b_used = x[n + idx] if use_bias_states else bias[idx]
+            if mp0 is not None:
+                b_used = b_used + x[mp0 + idx]
+            rho = y[idx] - h[idx] - b_used
+            # per-channel outlier test on the innovation
+            S_diag = np.sum((H @ P) * H, axis=1) + r_var[idx]
+            z = rho / np.sqrt(S_diag)
+            out = np.flatnonzero(np.abs(z) > opt.outlier_sigma)
+            if out.size and out.size < idx.size // 2 + 1:
+                worst = out[np.argsort(-np.abs(z[out]))]
+                for j in worst:
+                    drop_bias(k, int(idx[j]), "innovation outlier")
+                    events[-1]["normalized_innovation"] = float(z[j])
+                if use_bias_states:
+                    S_diag = np.sum((H @ P) * H, axis=1) + r_var[idx]
+                else:
+                    keep = np.setdiff1d(np.arange(idx.size), worst)
+                    idx, H, rho = idx[keep], H[keep], rho[keep]
+            if idx.size:
+                if _TRACE is not None:
+                    _TRACE.setdefault("prior", {})[k] = P.copy()
+                Pinv = _chol_inv(P)
+                w = inv_r[idx]
+                Y_info = Pinv + H.T @ (w[:, None] * H)
+                try:
+                    Pn = _chol_inv(Y_info)
+                except np.linalg.LinAlgError:
+                    raise CdgpsError(f"filter covariance lost positive definiteness at {grid[k]:g} s") from None
+                g = H.T @ (w * rho)
+                # NIS = ρᵀ S⁻¹ ρ with S⁻¹ = R⁻¹ − R⁻¹ H P Hᵀ R⁻¹ (Woodbury)
+                nis[k] = float(rho @ (w * rho) - g @ Pn @ g)
+                nis_dof[k] = idx.size
+                x = x + Pn @ g
+                P = Pn
+                resid[k, idx] = y[idx] - (h[idx] + Hx[idx] @ (x[:n] - xq)) - (x[n + idx] if use_bias_states else bias[idx])
+                if mp0 is not None:
+                    resid[k, idx] -= x[mp0 + idx]
+                bound = chi2_bound.get(idx.size)
+                if bound is None:
+                    bound = chi2_bound[idx.size] = chi2.ppf(opt.nis_probability, idx.size)
+                if nis[k] > bound:
+                    fail_run += 1
+                else:
+                    fail_run = 0
+        xs[k] = x
+        Ps[k] = P
+        if fail_run >= opt.reinit_after_epochs and k > k_reinit_block:
+            k_new = _reinitialize(run, grid, k, opt, sigma, chans, bias, line, x, P, n, use_bias_states, log, mp)
+            fail_run = 0
+            if k_new is not None:
+                kk, xr, Pr, new_bias, traj_t, traj_x = k_new
+                # epochs k+1 … kk−1 take the batch solution (smoothed over the re-init window)
+                for j in range(k + 1, kk):
+                    xj = np.zeros(p)
+                    ti = int(np.argmin(np.abs(traj_t - grid[j])))
+                    xj[:n] = traj_x[ti]
+                    if use_bias_states:
+                        xj[n:n + C] = xs[k, n:n + C]
+                    xs[j] = xj
+                    Ps[j] = np.zeros((p, p))
+                    Ps[j][:n, :n] = Pr
+                    if use_bias_states:
+                        Ps[j][n:n + C, n:n + C] = Ps[k][n:n + C, n:n + C]
+                    if mp.active:
+                        Ps[j][mp0:, mp0:] = np.eye(C) * mp.sigma_m**2
+                no_link[k:kk] = True
+                for c, b in new_bias.items():
+                    bias[c] = b
+                    rebias.pop(c, None)
+                x = np.zeros(p)
+                x[:n] = xr
+                P = np.zeros((p, p))
+                P[:n, :n] = Pr
+                if use_bias_states:
+                    x[n:n + C] = np.nan_to_num(bias)
+                    P[n:n + C, n:n + C] = np.eye(C) * 1e-8
+                if mp.active:                  # the multipath states restart from their stationary prior
+                    P[mp0:, mp0:] = np.eye(C) * mp.sigma_m**2
+                k_reinit_block = kk + opt.reinit_after_epochs
+                rest_stretch_end, rest_fail = -1, 0    # a rest stretch in progress is entered afresh
+                xs[kk] = x
+                Ps[kk] = P
+                k = kk + 1
+                continue
+            k_reinit_block = k + int(opt.reinit_window_s / T)
+        k += 1
+        bar.update_to(k)
+    bar.close()
+
+    if _TRACE is not None:
+        _TRACE.update(A=A, Q=Qd, Q_rest=Qd_rest, at_rest=at_rest.copy(), no_link=no_link.copy(), Pf=Ps.copy(),
+                      extra_q={kk_: list(v) for kk_, v in extra_q.items()})
+    filter_path = "c" if kern is not None else "numpy"
+    del Y, EVENT, kern                      # free the (N, C) inputs before the smoother (memory)
+    res = EstimateResult(cfg, grid, xs[:, :n] if p == n else xs[:, :n].copy(),
+                         Ps if p == n else Ps[:, :n, :n].copy(), None, None, chans, resid, nis,
+                         nis_dof, events, {chans[c]: (float(xs[-1, n + c]) if use_bias_states else float(bias[c]))
+                                           for c in range(C)},
+                         filter_path=filter_path)
+    res.rest_active_s = [[float(grid[a]), float(grid[b - 1])] for a, b in _true_runs(at_rest)]
+    chan_est = _channel_noise_estimate(cfg, ant, tx, xs[:, :n], Ps, resid, n)   # (the filtered P, before smoothing)
+    if opt.smooth:
+        # keep the filter's states and covariances, then smooth in place (one copy instead of three)
+        res.x_filt = res.x.copy()
+        res.P_filt = res.P.copy() if opt.keep_filtered_covariance == "full" else res.P[:, :nm, :nm].copy()
+        res.P = None
+        with progress.stage("smoothing"):
+            rts_smooth(A, Qd, Bu, U_in, xs, Ps, extra_q, no_link, in_place=True,
+                       q_segments=_q_segments(at_rest, Qd, Qd_rest))
+        res.x = xs[:, :n] if p == n else xs[:, :n].copy()
+        res.P = Ps if p == n else Ps[:, :n, :n].copy()
+        res.smoothed = True
+    if win is not None:
+        try:
+            with progress.stage(f"batch solution over INIT's window {win[0]:g}–{win[1]:g} s"):
+                ws = window_states(run, init, win, x0, P0)
+        except CdgpsError as exc:          # e.g. an INIT edited by hand: the filter part is still right
+            ws = None
+            res.events.insert(0, {"time_s": float(grid[0]), "antenna": "", "transmitter": "",
+                                  "kind": "batch window", "action": f"window epochs not recomputed: {exc}; "
+                                  f"STATES start at the window end"})
+        if ws is not None:
+            _join_window(res, ws, x0, P0, opt)
+    t_first = float(run.phase["time_s"].min())
+    if win is not None and res.time_s[0] > t_first + 1e-6:     # (a hand-made INIT is a prior where it says)
+        where = "INIT's window start" if res.window else "INIT's state time"
+        res.events.insert(0, {"time_s": float(res.time_s[0]), "antenna": "", "transmitter": "",
+                              "kind": "epochs not estimated",
+                              "action": f"the run starts at {t_first:g} s, STATES at {res.time_s[0]:g} s ({where}); "
+                                        "initialize from the run start (cdgps init --start) to cover it"})
+    res.noise = _innovation_noise(res, sig_c, sigma_source, chan_est)
+    if mp.active:
+        res.noise["multipath"] = dict(mp.echo(), source="INIT.json", filter_path="numpy (kernel has no multipath states)")
+    if opt.adapt_sigma and opt.sigma_m is None and res.noise.get("adapt"):
+        from dataclasses import replace
+        first = res.noise
+        for npass in range(2, ADAPT_MAX_PASSES + 1):
+            new = {ch: float(v["adapted_sigma_m"]) for ch, v in zip(res.channels, res.noise["per_channel"])}
+            res = estimate(run, init, replace(opt, channel_sigma_m=new, adapt_sigma=False))
+            if not res.noise.get("adapt"):
+                break
+        res.noise = dict(res.noise, source=f"innovation-adapted per channel (pass {npass})", first_pass=first)
+    return res
+
+
+def _join_window(res: EstimateResult, ws, x0: np.ndarray, P0: np.ndarray, opt: EstimateOptions) -> None:
+    """Put the window's batch solution before the filter's epochs (in place on ``res``).
+
+    ``res`` starts at the window end with INIT's state (x0, P0) as its first filtered value; with
+    smoothing the pass is carried into the window (:func:`cdgps_cli.estimation.window_smoother.extend_smoothing`)."""
+    nw = len(ws.time_s) - 1                   # window epochs before its end (the end is res's first)
+    nm = res.cfg.n_modes
+    if nw < 0 or abs(float(ws.time_s[-1]) - float(res.time_s[0])) > 1e-6:
+        raise CdgpsError("INIT's window does not end where the filter starts")
+    if res.smoothed:
+        xw, Pw = extend_smoothing(ws, res.x[0], res.P[0], x0, P0)
+        res.x_filt = np.concatenate([ws.x[:-1], res.x_filt])
+        Pf = ws.P[:-1] if res.P_filt.shape[1] == ws.P.shape[1] else ws.P[:-1, :nm, :nm]
+        res.P_filt = np.concatenate([Pf, res.P_filt])
+    else:
+        xw, Pw = ws.x[:-1], ws.P[:-1]
+    res.x = np.concatenate([xw, res.x])
+    res.P = np.concatenate([Pw, res.P])
+    res.time_s = np.concatenate([ws.time_s[:-1], res.time_s])
+    C = len(res.channels)
+    resid = np.full((nw + 1, C), np.nan)
+    col = {c: i for i, c in enumerate(res.channels)}
+    for j, c in enumerate(ws.channels):
+        if c in col:
+            resid[:, col[c]] = ws.residual_m[:, j]
+    first = resid[-1]
+    res.residual_m = np.concatenate([resid[:-1], res.residual_m])
+    row0 = res.residual_m[nw]
+    row0[np.isnan(row0)] = first[np.isnan(row0)]   # the window end: the batch's residuals
+    res.nis = np.concatenate([np.full(nw, np.nan), res.nis])
+    res.nis_dof = np.concatenate([np.zeros(nw, dtype=res.nis_dof.dtype), res.nis_dof])
+    res.window = {"start_s": float(ws.time_s[0]), "end_s": float(ws.time_s[-1]), "epochs": int(nw + 1),
+                  "source": "batch solution (INIT's window, recomputed from RUN + INIT)",
+                  "iterations": int(ws.iterations), "free_biases": int(ws.n_free_biases),
+                  "segments_without_init_bias": list(ws.segments_without_bias)}
+
+
+# innovation-based adaptation: the filter is re-run with the adapted σ per channel when the mean
+# NIS/dof, or one channel's variance ratio σ̂_c²/σ_c², is outside this band and outside its own
+# 3.3-σ interval (independent epochs: relative std of a variance estimate from m values is √(2/m))
+ADAPT_NIS_BAND = (0.8, 1.25)
+ADAPT_MAX_PASSES = 4           # filter passes at most (the first + re-runs with the adapted σ)
+ADAPT_MIN_EPOCHS = 50          # a channel with fewer post-fit residuals keeps the pooled factor
+
+
+def filter_sigma(init: dict, cfg, chans, opt: EstimateOptions) -> tuple[np.ndarray, str]:
+    """The filter's per-channel σ (m), shape (C,), and where it comes from: ``opt.sigma_m`` for every
+    channel, else ``opt.channel_sigma_m`` (listed channels; the others as below), else INIT's per
+    channel (:func:`cdgps_cli.measurement.noise.init_channel_sigma_m`)."""
+    if opt.sigma_m is not None and opt.channel_sigma_m:
+        raise CdgpsError("--sigma-m and a per-channel sigma cannot be combined")
+    sig, source = init_channel_sigma_m(init, cfg, chans, opt.sigma_m)
+    if opt.sigma_m is None and opt.channel_sigma_m:
+        over = {tuple(k): v for k, v in opt.channel_sigma_m.items()}
+        for c, key in enumerate(chans):
+            if key in over:
+                v = over[key]
+                if isinstance(v, bool) or not (np.isfinite(v) and OPTION_BOUNDS["sigma_m"].contains(v)):
+                    raise CdgpsError(f"channel sigma {key[0]}/{key[1]} = {v!r}: expected a number of metres in "
+                                     f"{OPTION_BOUNDS['sigma_m'].text()}")
+                sig[c] = float(v)
+        source = "per-channel sigma (option)"
+    return sig, source
+
+
+def _channel_noise_estimate(cfg, ant, tx, xs: np.ndarray, Ps: np.ndarray, resid: np.ndarray, n: int) -> tuple:
+    """Residual-based σ̂_c of every channel (:func:`cdgps_cli.measurement.noise.filter_sigma_estimate`):
+    H_c P⁺ H_cᵀ from the filtered covariances (N, p, p) (Jacobian at the filtered state xs (N, n);
+    with bias states, p > n, the row also has a 1 in the channel's bias column), in chunks of epochs.
+    Returns (σ̂ (C,), count (C,))."""
+    N, C = resid.shape
+    nm = cfg.n_modes
+    hph = np.full((N, C), np.nan)
+    rows = np.flatnonzero(np.isfinite(resid).any(axis=1))
+    bias_states = Ps.shape[1] > n
+    for j in range(0, rows.size, 500):
+        k = rows[j:j + 500]
+        _, H = phase_model(cfg, xs[k], ant, tx, jacobian=True)          # (m, C, 2 n_m)
+        Hm = H[:, :, :nm]
+        hph[k] = np.einsum("kci,kij,kcj->kc", Hm, Ps[k, :nm, :nm], Hm)
+        if bias_states:
+            cb = n + np.arange(C)
+            hph[k] += Ps[k][:, cb, cb] + 2.0 * np.einsum("kci,kic->kc", Hm, Ps[k][:, :nm, cb])
+    return filter_sigma_estimate(resid, hph)
+
+
+def _innovation_noise(res: EstimateResult, sig_c: np.ndarray, source: str, chan_est: tuple) -> dict:
+    """σ used (RMS and per channel) and the innovation-based estimates; ``adapt`` when one is outside
+    the band (``ADAPT_NIS_BAND``) and its own sampling interval.
+
+    The scale comes from the pooled NIS: f = mean NIS/dof, σ·√f.  The channels' relative noise comes
+    from the residual-based σ̂_c² = mean(e_c² + H_c P⁺ H_cᵀ): its ratio r_c = σ̂_c²/σ_c² is exact for a
+    consistent filter but biased, differently for each channel's geometry, when σ is far off (P⁺ is
+    then wrong too).  So only a channel whose relative ratio rel_c = r_c / r̄ (r̄: the
+    residual-weighted mean) is off the band and its sampling interval takes it: adapted
+    σ_c = σ_c·√(f·rel_c); the others keep their pattern, σ_c·√f.  The caller re-runs the filter
+    with the adapted σ until nothing is off (at most ``ADAPT_MAX_PASSES`` passes): a fixed-point
+    iteration that converges in 2–4 passes when σ starts 4× off or one antenna is 5× noisier than
+    one σ assumed."""
+    ok = res.nis_dof > 0
+    sigma = float(np.sqrt(np.mean(sig_c**2)))
+    out = {"sigma_m": sigma, "source": source,
+           "sigma_m_min": float(sig_c.min()), "sigma_m_max": float(sig_c.max())}
+    if not ok.any():
+        return out
+    dof = float(res.nis_dof[ok].sum())
+    f = float(res.nis[ok].sum()) / dof
+    half = 3.3 * np.sqrt(2.0 / dof)
+    scale_off = bool((f < ADAPT_NIS_BAND[0] or f > ADAPT_NIS_BAND[1]) and abs(f - 1.0) > half)
+    adapt = scale_off
+    s_hat, cnt = chan_est
+    enough = cnt >= ADAPT_MIN_EPOCHS
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r = np.where(cnt > 0, s_hat**2 / sig_c**2, np.nan)
+    r_bar = float(np.sum(np.where(enough, r * cnt, 0.0)) / np.sum(np.where(enough, cnt, 0))) if enough.any() else 1.0
+    per, worst = [], None
+    for c, (a, t) in enumerate(res.channels):
+        rel = float(r[c] / r_bar) if enough[c] else 1.0          # this channel's noise relative to the others
+        off = bool(enough[c] and (rel < ADAPT_NIS_BAND[0] or rel > ADAPT_NIS_BAND[1])
+                   and abs(rel - 1.0) > 3.3 * np.sqrt(2.0 / cnt[c]))
+        adapt |= off
+        per.append({"channel": f"{a}/{t}", "sigma_m": float(sig_c[c]),
+                    "residual_sigma_m": float(s_hat[c]) if cnt[c] > 0 else None, "residuals": int(cnt[c]),
+                    "variance_ratio": float(r[c]) if cnt[c] > 0 else None, "relative_variance": rel,
+                    "adapted_sigma_m": float(sig_c[c] * np.sqrt(max(f * (rel if off else 1.0), 1e-6)))})
+        if off and (worst is None or abs(np.log(rel)) > abs(np.log(worst[1]))):
+            worst = (f"{a}/{t}", rel)
+    out.update(mean_nis_per_dof=f, innovation_sigma_m=float(sigma * np.sqrt(max(f, 1e-6))), adapt=adapt,
+               per_channel=per)
+    if worst:
+        out["worst_channel"] = {"channel": worst[0], "relative_variance": worst[1]}
+    return out
+
+
+def validate_rest_segments(segments, scale, retry_s=0.0) -> list[tuple[float, float]]:
+    """Check ``rest_segments_s``, ``rest_process_noise_scale`` and ``rest_retry_s``; returns the
+    segments as floats.
+
+    Raises CdgpsError naming every bad segment (not finite, or end before start)."""
+    if (isinstance(scale, bool) or not isinstance(scale, (int, float, np.integer, np.floating))
+            or not (np.isfinite(scale) and scale > 0)):
+        raise CdgpsError(f"--rest-process-noise-scale must be a positive number, got {scale!r}")
+    if (isinstance(retry_s, bool) or not isinstance(retry_s, (int, float, np.integer, np.floating))
+            or not (np.isfinite(retry_s) and retry_s >= 0)):
+        raise CdgpsError(f"--rest-retry-s must be a number of seconds >= 0, got {retry_s!r}")
+    out, bad = [], []
+    for seg in segments or ():
+        try:
+            a, b = (float(v) for v in seg)
+        except (TypeError, ValueError):
+            bad.append(f"{seg!r} (expected START:END in seconds)")
+            continue
+        if not np.isfinite(a) or np.isnan(b) or b == -np.inf:
+            bad.append(f"{a:g}:{b:g} (START must be a finite time, END finite or open)")
+        elif b <= a:
+            bad.append(f"{a:g}:{b:g} (END must be after START)")
+        else:
+            out.append((a, b))
+    srt = sorted(out)
+    bad += [f"{a0:g}:{b0:g} and {a1:g}:{b1:g} overlap" for (a0, b0), (a1, b1) in zip(srt, srt[1:]) if a1 < b0]
+    if bad:
+        raise CdgpsError("--rest: " + "; ".join(bad))
+    return out
+
+
+def zero_velocity_update(x: np.ndarray, P: np.ndarray, nm: int, var: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Kalman update with the pseudo-measurement "modal velocities = 0" (variances ``var``, (nm,)).
+
+    x (p,), P (p, p) with the modal velocities at x[nm:2nm]; Joseph form, so P stays symmetric
+    positive definite.  Returns the updated (x, P) (new arrays)."""
+    v = slice(nm, 2 * nm)
+    S = P[v, v] + np.diag(var)
+    K = cho_solve(cho_factor(S, check_finite=False), P[v, :], check_finite=False).T     # (p, nm)
+    x = x - K @ x[v]
+    IKH = np.eye(len(x))
+    IKH[:, v] -= K
+    P = IKH @ P @ IKH.T + (K * var) @ K.T
+    return x, 0.5 * (P + P.T)
+
+
+REST_NIS_FAILURES = 3                      # NIS failures in a row that break a rest segment
+REST_ENTRY_POSITION_INFLATION = 100.0      # entering rest: modal position variances × (1 + this)
+
+
+def velocity_nis(x: np.ndarray, P: np.ndarray, nm: int, var: np.ndarray) -> float:
+    """Normalized innovation squared of the zero-velocity pseudo-measurement: v̂ᵀ (P_vv + diag var)⁻¹ v̂
+    with v̂ = x[nm:2nm] (chi-square with nm dof when the structure is at rest)."""
+    v = x[nm:2 * nm]
+    S = P[nm:2 * nm, nm:2 * nm] + np.diag(var)
+    return float(v @ cho_solve(cho_factor(S, check_finite=False), v, check_finite=False))
+
+
+def _rows(Hx: np.ndarray, idx: np.ndarray, p: int, n: int, use_bias_states: bool, mp0: int | None) -> np.ndarray:
+    """Measurement Jacobian (len(idx), p) of channels ``idx`` over the filter's state: the structure's
+    Hx (C, n), a 1 on the channel's bias state (``use_bias_states``) and on its multipath state (at
+    ``mp0`` + channel, when modelled).  Without either it is Hx[idx] itself (p = n)."""
+    if not use_bias_states and mp0 is None:
+        return Hx[idx]
+    H = np.zeros((idx.size, p))
+    H[:, :n] = Hx[idx]
+    rows = np.arange(idx.size)
+    if use_bias_states:
+        H[rows, n + idx] = 1.0
+    if mp0 is not None:
+        H[rows, mp0 + idx] = 1.0
+    return H
+
+
+def rest_motion(x, P, h, Hx, y, bias, usable, n, use_bias_states, r_var, outlier_sigma, bound,
+                mp0=None) -> tuple[str, bool]:
+    """Does an epoch's data contradict "the structure is at rest"?  Returns (reason, nis_failed).
+
+    ``h, Hx``: the measurement model and its Jacobian at x[:n]; ``r_var`` (C,): each channel's
+    measurement variance (m²).
+
+    The reason is non-empty when two or more channels fail the innovation outlier test (one alone
+    is a slip, handled as such); ``nis_failed`` when the normalized innovation squared of the other
+    channels exceeds ``bound(m)`` (the caller breaks the segment after several in a row)."""
+    idx = np.flatnonzero(usable)
+    if idx.size == 0:
+        return "", False
+    H = _rows(Hx, idx, len(x), n, use_bias_states, mp0)
+    b = x[n + idx] if use_bias_states else bias[idx]
+    if mp0 is not None:
+        b = b + x[mp0 + idx]
+    rho = y[idx] - h[idx] - b
+    S = H @ P @ H.T + np.diag(r_var[idx])
+    z = rho / np.sqrt(np.diag(S))
+    out = np.abs(z) > outlier_sigma
+    if out.sum() >= 2:
+        return f"{int(out.sum())} channels beyond {outlier_sigma:g} sigma", False
+    keep = ~out
+    if keep.sum() == 0:
+        return "", False
+    Sk = S[np.ix_(keep, keep)]
+    nis = float(rho[keep] @ cho_solve(cho_factor(Sk, check_finite=False), rho[keep], check_finite=False))
+    if nis > bound(int(keep.sum())):
+        return f"NIS {nis:.1f} over {int(keep.sum())} channels", True
+    return "", False
+
+
+def _true_runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """[(start, end_exclusive)] of the runs of True in a bool array."""
+    m = np.r_[False, np.asarray(mask, dtype=bool), False].astype(np.int8)
+    e = np.flatnonzero(np.diff(m))
+    return list(zip(e[::2].tolist(), e[1::2].tolist()))
+
+
+def rest_mask(time_s: np.ndarray, segments) -> np.ndarray:
+    """(N,) bool: epoch inside any rest segment [start_s, end_s] (both ends included, 1 ns tolerance)."""
+    m = np.zeros(len(time_s), dtype=bool)
+    for a, b in segments:
+        m |= (time_s >= a - 1e-9) & (time_s <= b + 1e-9)
+    return m
+
+
+def _q_segments(at_rest: np.ndarray, Q: np.ndarray, Q_rest: np.ndarray) -> list[tuple[int, int, np.ndarray]]:
+    """Smoother transitions k → k+1 grouped by the process noise of the prediction into k+1:
+    [(k_lo, k_hi, Q)] covering k_lo ≤ k < k_hi, in time order."""
+    N = len(at_rest)
+    if N < 2:
+        return []
+    into = at_rest[1:]                     # transition k → k+1 uses the Q of epoch k+1
+    cuts = np.flatnonzero(np.diff(into.astype(np.int8))) + 1
+    edges = np.r_[0, cuts, N - 1]
+    return [(int(a), int(b), Q_rest if into[a] else Q) for a, b in zip(edges[:-1], edges[1:])]
+
+
+def lock_events(Y: np.ndarray, LOCK: np.ndarray) -> np.ndarray:
+    """Per (epoch, channel): 1 = first sighting, 2 = lock restart (slip), 3 = re-acquisition after a
+    gap with a lock counter that does not continue; 0 otherwise.  Y, LOCK: (N, C), NaN / −1 = absent."""
+    N, C = Y.shape
+    ev = np.zeros((N, C), dtype=np.int8)
+    for c in range(C):
+        k = np.flatnonzero(~np.isnan(Y[:, c]))
+        if k.size == 0:
+            continue
+        ev[k[0], c] = 1
+        lk = LOCK[k, c]
+        dk = np.diff(k)
+        restart = (lk[1:] == 0) | (lk[1:] < lk[:-1])
+        gap = dk > 1
+        reacq = gap & (lk[1:] != lk[:-1] + dk) & ~restart
+        ev[k[1:][restart], c] = np.where(gap[restart], 3, 2)
+        ev[k[1:][reacq], c] = 3
+    return ev
+
+
+def rts_smooth(A, Q, B, U_in, xf, Pf, extra_q=None, no_link=None, in_place=False, q_segments=None):
+    """Rauch–Tung–Striebel smoother over filtered states (N, p) and covariances (N, p, p).
+
+    The priors are recomputed from the filtered values (x̄ = A x + B u, P̄ = A P Aᵀ + Q_k) so that
+    only the filtered arrays are stored; ``extra_q`` {epoch: [(index, variance)]} adds the
+    variance inflations the filter applied at that epoch; ``no_link[k]`` leaves epoch k as it is
+    (re-initialization boundaries and batch-filled epochs).  ``q_segments`` [(k_lo, k_hi, Q_seg)]
+    replaces Q by Q_seg for the transitions k → k+1 with k_lo ≤ k < k_hi (a process noise that changes
+    over the record, e.g. rest segments); by default Q throughout.  Returns smoothed states and
+    covariances; with ``in_place`` they overwrite ``xf`` and ``Pf`` (epoch k is read before it is
+    replaced, and epoch k+1 is already smoothed when k is processed, so this is exact and saves two
+    copies).
+    """
+    extra_q = extra_q or {}
+    xs = xf if in_place else xf.copy()
+    Ps = Pf if in_place else Pf.copy()
+    if q_segments and not (len(q_segments) == 1 and q_segments[0][2] is Q):
+        # piecewise-constant Q: one pass per stretch, latest first; each stretch ends on an epoch the
+        # later pass has already smoothed, which is exactly what the recursion reads as "k+1"
+        for k_lo, k_hi, Qs in sorted(q_segments, reverse=True, key=lambda t: t[0]):
+            if k_hi <= k_lo:
+                continue
+            sub_q = {k - k_lo: v for k, v in extra_q.items() if k_lo < k <= k_hi}
+            sub_nl = None if no_link is None else np.asarray(no_link)[k_lo:k_hi + 1]
+            _rts_pass(A, Qs, B, U_in[k_lo:k_hi + 1], xs[k_lo:k_hi + 1], Ps[k_lo:k_hi + 1], sub_q, sub_nl)
+        return xs, Ps
+    _rts_pass(A, Q, B, U_in, xs, Ps, extra_q, no_link)
+    return xs, Ps
+
+
+def _rts_pass(A, Q, B, U_in, xs, Ps, extra_q, no_link) -> None:
+    """One RTS pass with a constant Q, in place on (xs, Ps) = filtered values (N, p), (N, p, p)."""
+    N = xs.shape[0]
+    xf, Pf = xs, Ps
+    if (ekf_kernel.available() and xs.dtype == np.float64 and Ps.dtype == np.float64
+            and xs.flags.c_contiguous and Ps.flags.c_contiguous and xs.flags.writeable and Ps.flags.writeable):
+        # compiled pass on xs, Ps (= xf, Pf or their copies): epoch k is read before it is replaced
+        ekf_kernel.rts(A, Q, B, U_in, xs, Ps, xs, Ps, extra_q, no_link)
+        return
+    for k in range(N - 2, -1, -1):
+        if no_link is not None and no_link[k]:
+            continue                      # a re-initialization boundary or batch-filled epoch
+        xp = A @ xf[k] + B @ U_in[k]
+        Pp = A @ Pf[k] @ A.T + Q
+        for i, q in extra_q.get(k + 1, ()):
+            Pp[i, i] += q
+        c = cho_factor(Pp, check_finite=False)
+        G = cho_solve(c, A @ Pf[k], check_finite=False).T      # P_k Aᵀ P̄⁻¹
+        xs[k] = xf[k] + G @ (xs[k + 1] - xp)
+        Pk = Pf[k] + G @ (Ps[k + 1] - Pp) @ G.T
+        Ps[k] = 0.5 * (Pk + Pk.T)
+
+
+def _reinitialize(run, grid, k, opt, sigma, chans, bias, line, x, P, n, use_bias_states, log, mp=None):
+    """Batch re-initialization on a window after epoch k (1995 paper, Fig. 7)."""
+    from cdgps_cli.estimation.initializer import InitOptions, initialize
+
+    t0 = float(grid[k])
+    t1 = min(t0 + opt.reinit_window_s, float(grid[-1]))
+    log(k, None, "integrity failure", f"{opt.reinit_after_epochs} consecutive NIS failures; batch re-initialization on {t0:g}–{t1:g} s")
+    if t1 - t0 < 5.0:
+        log(k, None, "re-initialization", "skipped: not enough data left")
+        return None
+    try:
+        mp_opt = {} if mp is None else {"multipath_sigma_m": mp.sigma_m, "multipath_time_constant_s": mp.time_constant_s}
+        res, traj = initialize(run, InitOptions(start_s=t0, duration_s=t1 - t0, sigma_m=sigma, starts=8, **mp_opt),
+                               return_trajectory=True)
+    except CdgpsError as exc:
+        log(k, None, "re-initialization", f"failed: {exc}")
+        return None
+    kk = int(round((res["state"]["time_s"] - grid[0]) / (grid[1] - grid[0]))) if len(grid) > 1 else k
+    new_bias = {}
+    cidx = {c: i for i, c in enumerate(chans)}
+    for b in res["biases"]:
+        if b["current"] and (b["antenna"], b["transmitter"]) in cidx:
+            new_bias[cidx[(b["antenna"], b["transmitter"])]] = b["bias_m"]
+    log(kk, None, "re-initialization", f"filter restarted at {grid[kk]:g} s from the batch solution "
+        f"({res['n_fixed']} integers fixed)")
+    return kk, np.asarray(res["state"]["x"]), np.asarray(res["state"]["P"]), new_bias, traj["time_s"], traj["x"]

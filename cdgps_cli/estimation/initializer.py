@@ -1,0 +1,898 @@
+"""Bias initialization (``cdgps init``): iterated batch dynamic least squares + integer fixing.
+
+Flow (Teague, How & Parkinson 1998 Sec. IV.A; Teague et al. 1995 batch estimator):
+
+1. Pick a window of epochs recorded while the structure moves (automatic by default: the first
+   window whose phase motion is well above the noise).
+2. Give every channel one bias parameter per lock segment (a slip or re-lock inside the window
+   starts a new segment, so the window is split at the slip rather than corrupted by it).
+3. For several initial guesses of the large rigid-body angle (cold start), iterate Gauss–Newton:
+   linearize h about the current trajectory, solve the linear batch problem of Eq. (13)–(15) in
+   O(N) with :func:`cdgps_cli.estimation.batch_solver.srif_solve`, accept the step if the nonlinear cost decreases
+   (Levenberg–Marquardt damping on x₁ and b otherwise).  The starts are compared after a few
+   iterations on the first part of the window; the best few (finalists) are continued on the whole
+   window, one iteration each in turn, and the lowest cost wins.  A finalist that has settled in a
+   minimum far worse than the best cost so far, or in the same minimum as another finalist, is
+   abandoned (:func:`_race`).  On a window more than STAGE_GROWTH times longer than the first part,
+   the finalists first converge on intermediate windows (each at most STAGE_GROWTH times longer
+   than the previous one) so that they reach the long window nearly converged.
+4. If line biases are calibrated, fix b = line bias + λ·n with LAMBDA and the ratio test (partial
+   fixing of a subset if the whole set fails), then re-solve the states with the integers fixed.
+5. Report the biases, the filter's initial state and covariance at the window end, residuals.
+"""
+
+from __future__ import annotations
+
+import math
+import time as _time
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+from scipy.stats import chi2
+
+from cdgps_cli.estimation.ambiguity import lambda_search, partial_fix, ratio_test
+from cdgps_cli.estimation.batch_solver import LinearProblem, LinearSolution, srif_solve
+from cdgps_cli.config.structure import StructureConfig, channel_sigma_m, scalar_sigma_m
+from cdgps_cli.model.dynamics import discrete_model
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.measurement.phase import channel_indices, phase_model
+from cdgps_cli.measurement.multipath import MultipathModel, augment, model_from
+from cdgps_cli.measurement.noise import leverage_per_channel, prior_sigma_m, variance_factors
+from cdgps_cli.io.run import Run
+
+
+@dataclass
+class InitOptions:
+    """Options of :func:`initialize` (all echoed in INIT.json)."""
+
+    start_s: float | None = None        # window start (default: automatic)
+    duration_s: float | None = None     # window length (default: automatic, up to 60 s)
+    process_noise: bool = True          # False: the 1995 variant (no process noise)
+    fix_integers: bool = True           # LAMBDA + ratio test when line biases are calibrated
+    ratio_threshold: float = 3.0
+    partial: bool = True                # partial fixing when the full set fails
+    starts: int = 8                     # initial guesses of the rigid angle (or lowest mode)
+    start_iterations: int = 3           # Gauss–Newton iterations per start before choosing
+    start_window_s: float = 10.0        # starts are compared on this first part of the window
+    finalists: int = 3                  # best starts continued on the whole window
+    fix_validation_probability: float = 0.999  # chi-square test of the cost increase caused by fixing
+    fix_validation_margin: float = 10.0  # … times this margin for model error (e.g. no process noise)
+    max_iterations: int = 30
+    step_tol_m: float = 1e-5            # convergence: max bias / position step (m)
+    cost_rtol: float = 1e-9             # convergence: relative cost change
+    sigma_m: float | None = None        # measurement noise for every channel (default: config, then estimated)
+    estimate_sigma: bool = True         # per-channel σ from the batch's variance factors (off with sigma_m)
+    sigma_refuse_ratio: float = 4.0     # refuse when one channel's σ̂ exceeds the others' median this many times
+    max_bias_sigma_cycles: float = 0.25  # observability limit on the float biases' sigma
+    min_motion_ratio: float = 2.0       # automatic window: phase motion RMS / noise
+    multipath_sigma_m: float | None = None        # Gauss–Markov multipath σ (default: config; 0 = off)
+    multipath_time_constant_s: float | None = None  # … and its time constant (default: config)
+    progress: object = None             # callable(str) for progress messages
+
+    def echo(self) -> dict:
+        # the multipath overrides are echoed only when given (INIT.json without them is unchanged)
+        return {k: v for k, v in self.__dict__.items()
+                if k != "progress" and not (k.startswith("multipath_") and v is None)}
+
+
+@dataclass
+class WindowData:
+    time_s: np.ndarray          # (N,) regular grid
+    y_m: np.ndarray             # (N, C) λ·phase, NaN where absent
+    channels: list              # [(antenna, transmitter)]
+    ant: np.ndarray
+    tx: np.ndarray
+    segment: np.ndarray         # (N, C) bias parameter index, -1 where absent
+    segments: list              # per parameter: dict(antenna, transmitter, start_s, end_s, channel)
+
+
+def _say(opt: InitOptions, msg: str) -> None:
+    if opt.progress:
+        opt.progress(msg)
+
+
+def phase_matrix(run: Run, t0: float, t1: float):
+    """Epoch grid and (N, C) matrices of phase (metres) and lock over [t0, t1]."""
+    cfg = run.cfg
+    T = cfg.sample_period_s
+    ph = run.phase
+    t_all = ph["time_s"].to_numpy()
+    keep = (t_all >= t0 - 1e-9) & (t_all <= t1 + 1e-9)
+    if not keep.any():
+        raise CdgpsError(f"{run.path}: no phase data between {t0:g} s and {t1:g} s")
+    t = t_all[keep]
+    tmin, tmax = t.min(), t.max()
+    n = int(round((tmax - tmin) / T)) + 1
+    grid = tmin + np.arange(n) * T
+    k = np.rint((t - tmin) / T).astype(int)
+    # channels in config order (antenna, then transmitter)
+    ai = pd.Index(cfg.antenna_names).get_indexer(ph["antenna"].to_numpy()[keep])
+    ti = pd.Index(cfg.transmitter_names).get_indexer(ph["transmitter"].to_numpy()[keep])
+    if (ai < 0).any() or (ti < 0).any():
+        bad = sorted({str(a) for a, i in zip(ph["antenna"].to_numpy()[keep], ai) if i < 0}
+                     | {str(x) for x, i in zip(ph["transmitter"].to_numpy()[keep], ti) if i < 0})
+        raise CdgpsError(f"{run.path}: antenna/transmitter not in the config: {', '.join(bad)}")
+    key = ai * len(cfg.transmitter_names) + ti
+    ukey, ci = np.unique(key, return_inverse=True)
+    chans = [(cfg.antenna_names[u // len(cfg.transmitter_names)], cfg.transmitter_names[u % len(cfg.transmitter_names)])
+             for u in ukey.tolist()]
+    y = np.full((n, len(chans)), np.nan)
+    lock = np.full((n, len(chans)), -1, dtype=np.int64)
+    y[k, ci] = ph["phase_cycles"].to_numpy()[keep] * cfg.wavelength_m
+    lock[k, ci] = ph["lock"].to_numpy()[keep]
+    return grid, y, lock, chans
+
+
+def window_data(run: Run, t0: float, t1: float) -> WindowData:
+    grid, y, lock, chans = phase_matrix(run, t0, t1)
+    n, C = y.shape
+    seg = np.full((n, C), -1, dtype=np.int64)
+    segments = []
+    for c in range(C):
+        # a new lock segment starts at the first sample, at a re-lock (lock count 0 or decreasing),
+        # and after a gap unless the lock count advanced by exactly the gap
+        ks = np.flatnonzero(~np.isnan(y[:, c]))
+        if ks.size == 0:
+            continue
+        L = lock[ks, c]
+        dk = np.diff(ks)
+        new = np.ones(ks.size, dtype=bool)
+        new[1:] = (L[1:] == 0) | (L[1:] < L[:-1]) | ((dk > 1) & (L[1:] != L[:-1] + dk))
+        sid = np.cumsum(new) - 1 + len(segments)
+        seg[ks, c] = sid
+        starts = np.flatnonzero(new)
+        ends = np.append(starts[1:], ks.size) - 1
+        for i0, i1 in zip(starts.tolist(), ends.tolist()):
+            segments.append({"antenna": chans[c][0], "transmitter": chans[c][1], "channel": c,
+                             "start_s": float(grid[ks[i0]]), "end_s": float(grid[ks[i1]])})
+    ant, tx = channel_indices(run.cfg, [c[0] for c in chans], [c[1] for c in chans])
+    return WindowData(grid, y, chans, ant, tx, seg, segments)
+
+
+def motion_rms_m(y: np.ndarray, segment: np.ndarray) -> float:
+    """RMS over channels of the standard deviation of the phase within each lock segment (m)."""
+    vals = []
+    for s in np.unique(segment[segment >= 0]):
+        v = y[segment == s]
+        if v.size > 2:
+            vals.append(np.var(v))
+    return float(np.sqrt(np.mean(vals))) if vals else 0.0
+
+
+def choose_window(run: Run, opt: InitOptions, sigma_m: float) -> tuple[float, float, str]:
+    """Window [t0, t1] for initialization; automatic: first 60 s span with enough motion."""
+    ph_t = run.phase["time_s"].to_numpy()
+    first, last = float(ph_t[0]), float(ph_t[-1])
+    if opt.start_s is not None or opt.duration_s is not None:
+        t0 = first if opt.start_s is None else float(opt.start_s)
+        dur = 60.0 if opt.duration_s is None else float(opt.duration_s)
+        if dur <= 0:
+            raise CdgpsError(f"--duration must be positive, got {dur:g}")
+        if t0 < first - 1e-9 or t0 > last:
+            raise CdgpsError(f"--start {t0:g} s is outside the recording ({first:g}–{last:g} s)")
+        return t0, min(t0 + dur, last), "given"
+    dur = min(60.0, last - first)
+    step = max(dur / 2, 10.0)
+    t0 = first
+    while t0 + dur <= last + 1e-9:
+        wd = window_data(run, t0, t0 + dur)
+        if motion_rms_m(wd.y_m, wd.segment) >= opt.min_motion_ratio * sigma_m:
+            return t0, t0 + dur, "automatic"
+        t0 += step
+    return first, first + dur, "automatic (no window with enough motion found; using the first)"
+
+
+@dataclass
+class GNResult:
+    x: np.ndarray
+    b: np.ndarray
+    w: np.ndarray
+    cost: float
+    iterations: int
+    converged: bool
+    lin: object = None
+    history: list = field(default_factory=list)
+
+
+_MODEL_CHUNK = 1024             # epochs per call of the measurement model
+
+
+class _Problem:
+    """Nonlinear batch problem on a window (model, data, bias parametrization)."""
+
+    def __init__(self, cfg: StructureConfig, wd: WindowData, sigma_m: float, process_noise: bool,
+                 known_bias: np.ndarray | None = None, mp: MultipathModel | None = None):
+        self.cfg = cfg
+        self.wd = wd
+        self.mp = mp if mp is not None and mp.active else None
+        # per-channel σ (m); self.sigma (a scalar) only scales the damping prior
+        self.sig_c = np.broadcast_to(np.asarray(sigma_m, dtype=float), (len(wd.channels),)).copy()
+        self.sigma = float(np.sqrt(np.mean(self.sig_c**2)))
+        model = discrete_model(cfg)
+        self.A = model.A
+        L = np.sqrt(np.diag(model.W))
+        G = model.Bw * L
+        keep = L > 0
+        self.G = G[:, keep] if process_noise else np.zeros((model.A.shape[0], 0))
+        self.n_dyn = self.n = model.A.shape[0]     # structure states; n with the multipath states
+        if self.mp is not None:                    # one Gauss–Markov state per channel (cdgps_cli.measurement.multipath)
+            self.A, self.G = augment(self.A, self.G, len(wd.channels), self.mp, cfg.sample_period_s)
+            self.n = self.A.shape[0]
+        # with multipath the Gram form of the bias-only rows is mostly too ill-conditioned (measured:
+        # 30 of 74 solves redone), so the square-root form is used directly
+        self._square_root = True if self.mp is not None else None
+        # bias parametrization: fixed values (known_bias[s] finite) are moved into y
+        nseg = len(wd.segments)
+        self.known = np.full(nseg, np.nan) if known_bias is None else known_bias
+        free = np.flatnonzero(np.isnan(self.known))
+        self.free = free
+        remap = np.full(nseg + 1, -1, dtype=np.int64)
+        remap[free] = np.arange(free.size)
+        self.bias_index = np.where(wd.segment >= 0, remap[wd.segment], -1)
+        kb = np.where(wd.segment >= 0, np.nan_to_num(self.known, nan=0.0)[np.maximum(wd.segment, 0)], 0.0)
+        self.y = wd.y_m - kb                     # measurement minus known biases
+        chan_of_seg = np.array([sg["channel"] for sg in wd.segments], dtype=np.int64)
+        self.free_sig = self.sig_c[chan_of_seg[free]] if free.size else np.zeros(0)
+
+    def full_bias(self, b_free: np.ndarray) -> np.ndarray:
+        out = self.known.copy()
+        out[self.free] = b_free
+        return out
+
+    def predict(self, x: np.ndarray, jacobian: bool = False):
+        """h(x) (N, C) and with ``jacobian`` H (N, C, n): the structure's phase model on x[:, :n_dyn]
+        plus, with multipath, each channel's Gauss–Markov state."""
+        if self.mp is None:
+            return self._predict(x, jacobian)
+        nd, C = self.n_dyn, len(self.wd.channels)
+        out = self._predict(np.ascontiguousarray(x[:, :nd]), jacobian)
+        h = (out[0] if jacobian else out) + x[:, nd:]
+        if not jacobian:
+            return h
+        H = np.zeros((len(x), C, self.n))
+        H[:, :, :nd] = out[1]
+        H[:, np.arange(C), nd + np.arange(C)] = 1.0
+        return h, H
+
+    def _predict(self, x: np.ndarray, jacobian: bool = False):
+        N = len(x)
+        if N <= _MODEL_CHUNK:
+            return phase_model(self.cfg, x, self.wd.ant, self.wd.tx, jacobian=jacobian)
+        # in blocks of epochs: the Jacobian's temporaries (epochs × channels × 3 × coordinates)
+        # then stay cache-sized and the cost per epoch does not grow with the window
+        C = len(self.wd.ant)
+        h = np.empty((N, C))
+        H = np.empty((N, C, x.shape[1])) if jacobian else None
+        for k0 in range(0, N, _MODEL_CHUNK):
+            part = phase_model(self.cfg, x[k0:k0 + _MODEL_CHUNK], self.wd.ant, self.wd.tx, jacobian=jacobian)
+            if jacobian:
+                h[k0:k0 + _MODEL_CHUNK], H[k0:k0 + _MODEL_CHUNK] = part
+            else:
+                h[k0:k0 + _MODEL_CHUNK] = part
+        return (h, H) if jacobian else h
+
+    def residual(self, x: np.ndarray, b_free: np.ndarray) -> np.ndarray:
+        h = self.predict(x)
+        bb = np.where(self.bias_index >= 0, b_free[np.maximum(self.bias_index, 0)] if b_free.size else 0.0, 0.0)
+        return self.y - h - bb
+
+    def cost(self, x, b_free, w) -> float:
+        r = self.residual(x, b_free)
+        prior = 0.0 if self.mp is None else float(np.sum((x[0, self.n_dyn:] / self.mp.sigma_m) ** 2))
+        return float(np.nansum((r / self.sig_c) ** 2) + np.sum(w**2)) + prior
+
+    def propagate(self, x1: np.ndarray) -> np.ndarray:
+        N = len(self.wd.time_s)
+        xs = np.empty((N, self.n))
+        xs[0] = 0.0
+        xs[0, :len(x1)] = x1                     # (multipath states of a structure-only x1: 0)
+        for k in range(1, N):
+            xs[k] = self.A @ xs[k - 1]
+        return xs
+
+    def linear_problem(self, x: np.ndarray, damp_x1: float, x1_ref, damp_b: float, b_ref) -> LinearProblem:
+        """The linearized problem, whitened per channel: rows divided by σ_c, each free bias
+        parameter in units of its channel's σ (b' = b / σ_c), solved with σ = 1."""
+        h, H = self.predict(x, jacobian=True)
+        ytil = self.y - h + np.einsum("nci,ni->nc", H, x)
+        m = self.free.size
+        w = 1.0 / self.sig_c
+        fs = self.free_sig
+        x1_mean, x1_info = self.x1_prior(damp_x1, x1_ref)
+        return LinearProblem(
+            A=self.A, Bw_L=self.G, H=H * w[None, :, None], y=ytil * w, bias_index=self.bias_index, n_bias=m,
+            sigma_m=1.0, x1_mean=x1_mean, x1_sqrt_info=x1_info,
+            b_mean=np.asarray(b_ref, dtype=float) / fs, b_sqrt_info=np.diag(np.full(m, damp_b) * fs))
+
+    def x1_prior(self, damp: float, x1_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Prior on the first state: the damping (square-root weight ``damp`` about ``x1_ref``) and,
+        with multipath, the stationary N(0, σ_mp²) of each Gauss–Markov state combined with it."""
+        info = np.full(self.n, damp)
+        mean = np.array(x1_ref, dtype=float)
+        if self.mp is not None:
+            nd, s2 = self.n_dyn, self.mp.sigma_m**-2
+            tot = damp**2 + s2
+            mean[nd:] = damp**2 * mean[nd:] / tot
+            info[nd:] = np.sqrt(tot)
+        return mean, np.diag(info)
+
+    def solve(self, lp: LinearProblem) -> LinearSolution:
+        """:func:`srif_solve` on a whitened problem, biases and their information back in metres."""
+        sol = srif_solve(lp, square_root=self._square_root)
+        fs = self.free_sig
+        if not fs.size:
+            return sol
+        n = self.n
+        d = np.r_[np.ones(n), fs]
+        P = None if sol.P_end is None else sol.P_end * d[:, None] * d[None, :]
+        return LinearSolution(sol.x, sol.w, sol.b * fs, sol.cost, sol.R_end / d[None, :], P, sol.rank_deficient)
+
+    def leverage(self, x: np.ndarray) -> np.ndarray:
+        """Σ_k h_kc per channel of the linearization about x (no damping; Hutchinson probes)."""
+        lp0 = self.linear_problem(x, 0.0, x[0], 0.0, np.zeros(self.free.size))
+        H = lp0.H
+        present = np.isfinite(self.y)
+
+        def fitted(eps):
+            lp = LinearProblem(A=lp0.A, Bw_L=lp0.Bw_L, H=H, y=eps, bias_index=lp0.bias_index, n_bias=lp0.n_bias,
+                               sigma_m=1.0, x1_mean=np.zeros(self.n), x1_sqrt_info=lp0.x1_sqrt_info,
+                               b_mean=np.zeros(lp0.n_bias), b_sqrt_info=lp0.b_sqrt_info)
+            sol = srif_solve(lp, square_root=self._square_root)
+            f = np.einsum("nci,ni->nc", H, sol.x)
+            if sol.b.size:
+                f = f + np.where(self.bias_index >= 0, sol.b[np.maximum(self.bias_index, 0)], 0.0)
+            return f
+
+        return leverage_per_channel(fitted, present)
+
+    def initial_biases(self, x: np.ndarray) -> np.ndarray:
+        """Bias guess per free parameter: mean residual of its segment along trajectory x."""
+        r = self.y - self.predict(x)
+        ok = np.isfinite(r) & (self.bias_index >= 0)
+        m = self.free.size
+        total = np.bincount(self.bias_index[ok], weights=r[ok], minlength=m)
+        count = np.bincount(self.bias_index[ok], minlength=m)
+        return np.where(count > 0, total / np.maximum(count, 1), 0.0)
+
+    def gauss_newton(self, x_init: np.ndarray, b_init: np.ndarray, max_iter: int, opt: InitOptions,
+                     w_init: np.ndarray | None = None, max_retries: int = 12, information: bool = True) -> GNResult:
+        """Gauss–Newton with Levenberg–Marquardt step control on x₁ and b (see :class:`GaussNewton`).
+
+        ``information=False``: the result's ``lin`` (information at the window end) is not needed,
+        so it is not recomputed at the last iterate (None unless the run converged undamped)."""
+        gn = GaussNewton(self, x_init, b_init, max_iter, opt, w_init=w_init, max_retries=max_retries)
+        while gn.step():
+            pass
+        return gn.result(information)
+
+
+class GaussNewton:
+    """Gauss–Newton on a :class:`_Problem`, one iteration per :meth:`step` (so that several runs can
+    be advanced in turn), with Levenberg–Marquardt step control on x₁ and b.
+
+    Each iteration first tries the step with the damping reduced tenfold (undamped once it is
+    small), backtracking along it (α = 1, ½, ¼, 1/10) before a step that raises the nonlinear cost
+    is retried with ten times more damping.  Converged when the step (largest change of a bias or
+    of a state) is below ``step_tol_m``, when the cost changes by less than ``cost_rtol`` without
+    damping, or when two successive full undamped steps contract so fast (ratio r ≤ ½) that the
+    steps still to come, about r/(1 − r) × the last one, are below ``step_tol_m``.
+    """
+
+    def __init__(self, prob: _Problem, x_init: np.ndarray, b_init: np.ndarray, max_iter: int, opt: InitOptions,
+                 w_init: np.ndarray | None = None, max_retries: int = 12):
+        self.prob, self.opt = prob, opt
+        self.max_iter, self.max_retries = max_iter, max_retries
+        self.x, self.b = x_init, b_init
+        self.w = np.zeros((len(x_init) - 1, prob.G.shape[1])) if w_init is None else w_init
+        self.J = prob.cost(self.x, self.b, self.w)
+        self.lam = 0.0
+        self.hist = [self.J]
+        self.converged = False
+        self.lin = None
+        self.it = 0
+        self.done = False
+        self.last = None              # last iteration: (cost decrease, predicted decrease, full undamped step)
+        self._prev_full_step = None
+
+    def step(self) -> bool:
+        """One iteration; False once finished (converged, failed, or out of iterations)."""
+        if self.done or self.it >= self.max_iter:
+            self.done = True
+            return False
+        prob, opt = self.prob, self.opt
+        x, b, w, J = self.x, self.b, self.w, self.J
+        self.it += 1
+        accepted = False
+        for _ in range(self.max_retries):
+            sw = self.lam / prob.sigma          # square-root weight of the damping prior
+            lin = prob.solve(prob.linear_problem(x, sw, x[0], sw, b))
+            self.lin = lin
+            # backtracking along the Gauss–Newton step before adding damping
+            for alpha in (1.0, 0.5, 0.25, 0.1):
+                xt = x + alpha * (lin.x - x)
+                bt = b + alpha * (lin.b - b)
+                wt = w + alpha * (lin.w - w)
+                Jn = prob.cost(xt, bt, wt)
+                if np.isfinite(Jn) and Jn <= J * (1 + 1e-12):
+                    accepted = True
+                    break
+            if accepted:
+                break
+            self.lam = max(self.lam * 10.0, 1e-2)
+        if not accepted:
+            self.done = True
+            return False
+        full = alpha == 1.0 and sw == 0.0
+        self.last = (J - Jn, J - lin.cost, full)
+        if alpha != 1.0:
+            lin = self.lin = LinearSolutionView(xt, wt, bt, lin)
+        step = max(np.max(np.abs(lin.b - b), initial=0.0), np.max(np.abs(lin.x - x), initial=0.0))
+        rel = (J - Jn) / max(J, 1e-300)
+        self.x, self.b, self.w, self.J = lin.x, lin.b, lin.w, Jn
+        self.hist.append(Jn)
+        self.lam = self.lam / 10.0 if self.lam > 1e-2 else 0.0
+        prev, self._prev_full_step = self._prev_full_step, (step if full else None)
+        ratio = step / prev if (full and prev) else 1.0
+        if step < opt.step_tol_m or (rel < opt.cost_rtol and self.lam == 0.0) or \
+                (ratio <= 0.5 and step * ratio / (1.0 - ratio) < opt.step_tol_m):
+            self.converged = True
+            self.done = True
+        elif self.it >= self.max_iter:
+            self.done = True
+        return not self.done
+
+    def settled(self) -> bool:
+        """The last iteration was a full undamped step whose cost decrease matched the linearized
+        model's prediction (within a factor 2): the run is in the quadratic region of its minimum."""
+        if self.last is None:
+            return False
+        dJ, pred, full = self.last
+        return full and pred > 0 and 0.5 <= dJ / pred <= 2.0
+
+    def result(self, information: bool = True) -> GNResult:
+        prob = self.prob
+        if self.lin is None or self.lam != 0.0 or not self.converged:
+            self.lin = prob.solve(prob.linear_problem(self.x, 0.0, self.x[0], 0.0, self.b)) if information else None
+        return GNResult(self.x, self.b, self.w, self.J, self.it, self.converged, self.lin, self.hist)
+
+
+class LinearSolutionView:
+    """A partial (line-search) step: trajectory and biases replaced, information kept."""
+
+    def __init__(self, x, w, b, base):
+        self.x, self.w, self.b = x, w, b
+        self.cost, self.R_end, self.P_end, self.rank_deficient = base.cost, base.R_end, base.P_end, base.rank_deficient
+
+
+# a finalist is abandoned when it has settled in a basin whose cost exceeds the best current cost by
+# more than this many standard deviations of the chi-square cost (after allowing ABANDON_TAIL × its
+# last cost decrease for the iterations it would still make)
+ABANDON_SIGMAS = 10.0
+ABANDON_TAIL = 100.0
+SAME_SOLUTION_M = 1e-3          # two finalists whose biases agree to 1 mm have found the same minimum
+STAGE_GROWTH = 8                # longest window growth from the start window to the next one
+
+
+def _race(runs: list, prob: _Problem, results: list, opt: InitOptions) -> dict:
+    """Advance the finalists' Gauss–Newton runs in turn, one iteration each per round.
+
+    Every run's cost only decreases, so the lowest current cost J_ref bounds the winner's final
+    cost from above.  A run that has *settled* (:meth:`GaussNewton.settled`: a full step that did
+    what the linearized model predicted) in a worse basin — its cost minus ABANDON_TAIL × its last
+    decrease still above J_ref by ABANDON_SIGMAS standard deviations of the cost — cannot win and
+    is abandoned; so is a settled run whose biases agree within SAME_SOLUTION_M with a settled or
+    converged run of lower cost (the same minimum, reached twice).  Runs still approaching their
+    minimum (backtracking, damping, or a model that mispredicts the decrease) are never abandoned,
+    whatever their cost: a run far above the others can still end in the best basin.
+
+    Returns {start index: "converged" | "not converged" | "abandoned: …"}.
+    """
+    n_obs = int(np.isfinite(prob.y).sum())
+    dof = max(n_obs - prob.n_dyn - prob.free.size, 1)
+    outcome = {}
+    active = list(runs)
+    while active:
+        for _, gn in active:
+            gn.step()
+        J_ref = min(gn.J for i, gn in runs if not outcome.get(i, "").startswith("abandoned"))
+        margin = ABANDON_SIGMAS * math.sqrt(2.0 * dof) * J_ref / dof
+        still = []
+        for i, gn in active:
+            if gn.done:
+                outcome[i] = "converged" if gn.converged else "not converged"
+                continue
+            if gn.settled():
+                if gn.J - ABANDON_TAIL * gn.last[0] > J_ref + margin:
+                    outcome[i] = "abandoned: worse minimum"
+                    continue
+                twin = next((j for j, o in runs if j != i and not outcome.get(j, "").startswith("abandoned")
+                             and (o.settled() or o.converged) and (o.J, j) < (gn.J, i)
+                             and np.max(np.abs(o.b - gn.b), initial=0.0) < SAME_SOLUTION_M), None)
+                if twin is not None:
+                    outcome[i] = f"abandoned: same minimum as {results[twin][0]}"
+                    continue
+            still.append((i, gn))
+        active = still
+    return outcome
+
+
+def _start_guesses(cfg: StructureConfig, n_starts: int) -> list[tuple[str, np.ndarray]]:
+    """Initial modal states: rigid angle spread over the circle, or ± lowest-mode amplitudes."""
+    nm = cfg.n_modes
+    U = np.asarray(cfg.mode_shapes)
+    rigid = np.flatnonzero(np.asarray(cfg.mode_frequency_hz) == 0.0)
+    starts = []
+    if rigid.size and cfg.rigid_index is not None and n_starts > 1:
+        j = rigid[0]
+        for a in np.linspace(-np.pi, np.pi, n_starts, endpoint=False):
+            x = np.zeros(2 * nm)
+            x[j] = a / U[cfg.rigid_index, j]
+            starts.append((f"rigid angle {math.degrees(a):+.0f} deg", x))
+        return starts
+    starts.append(("zero state", np.zeros(2 * nm)))
+    if n_starts > 1:
+        amps = np.linspace(-0.6, 0.6, n_starts - 1 if (n_starts - 1) % 2 == 0 else n_starts)
+        amps = amps[amps != 0][: n_starts - 1]
+        for a in amps:
+            x = np.zeros(2 * nm)
+            qmax = np.max(np.abs(U[:, 0])) or 1.0
+            x[0] = a / qmax
+            starts.append((f"mode {cfg.mode_names[0]} amplitude {a:+.2f}", x))
+    return starts
+
+
+def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool = False):
+    """Estimate channel biases and the filter's initial state from a window of a RUN.
+
+    Returns the INIT.json dictionary (see the README); with ``return_trajectory`` also
+    ``{"time_s", "x"}``, the smoothed batch trajectory over the window.  Raises :class:`CdgpsError` when the window
+    does not make the biases observable or Gauss–Newton does not converge.
+    """
+    opt = opt or InitOptions()
+    cfg = run.cfg
+    t_start = _time.perf_counter()
+    if opt.sigma_m is not None and not (np.isfinite(opt.sigma_m) and opt.sigma_m > 0):
+        raise CdgpsError(f"--sigma-m must be a positive number of metres, got {opt.sigma_m!r}")
+    sigma = opt.sigma_m if opt.sigma_m is not None else scalar_sigma_m(channel_sigma_m(cfg, cfg.channels))
+    if opt.ratio_threshold <= 1.0:
+        raise CdgpsError(f"--ratio must be greater than 1, got {opt.ratio_threshold:g}")
+    if opt.starts < 1 or opt.max_iterations < 1:
+        raise CdgpsError("--starts and --max-iterations must be at least 1")
+    t0, t1, how = choose_window(run, opt, sigma)
+    wd = window_data(run, t0, t1)
+    N = len(wd.time_s)
+    motion = motion_rms_m(wd.y_m, wd.segment)
+    _say(opt, f"window {t0:g}–{t1:g} s ({how}): {N} epochs, {len(wd.channels)} channels, "
+              f"{len(wd.segments)} bias segments, phase motion RMS {motion * 100:.2f} cm")
+    if N < 3:
+        raise CdgpsError(f"window {t0:g}–{t1:g} s has only {N} epochs; need at least 3")
+    if motion < opt.min_motion_ratio * sigma:
+        raise CdgpsError(_unobservable_msg(t0, t1, motion, sigma, None, cfg.wavelength_m, opt, motion_only=True))
+    mp = model_from(cfg, opt.multipath_sigma_m, opt.multipath_time_constant_s)
+    if mp.active:
+        _say(opt, f"  multipath: a Gauss–Markov state per channel (σ {mp.sigma_m * 1000:.2f} mm, "
+                  f"τ {mp.time_constant_s:g} s)")
+    prob = _Problem(cfg, wd, sigma, opt.process_noise, mp=mp)
+
+    # --- cold start: several initial guesses, each tried on the first part of the window
+    n_sub = min(N, max(int(round(opt.start_window_s / cfg.sample_period_s)) + 1, 3))
+    sub = _Problem(cfg, window_data(run, float(wd.time_s[0]), float(wd.time_s[n_sub - 1])), sigma, opt.process_noise,
+                   mp=mp)
+    results = []
+    for label, x1 in _start_guesses(cfg, opt.starts):
+        xs = sub.propagate(x1)
+        g = sub.gauss_newton(xs, sub.initial_biases(xs), opt.start_iterations, opt, max_retries=3, information=False)
+        results.append((label, g))
+        _say(opt, f"  start {label}: cost {g.cost:.4g} after {g.iterations} iterations on the first {n_sub} epochs")
+    # the most promising starts (lowest short-window cost) are continued on the whole window; the
+    # lowest full-window cost wins (a short window can prefer a mirror solution ~180° away)
+    order = list(np.argsort([g.cost for _, g in results]))[: max(1, min(opt.finalists, len(results)))]
+    # on a long window the finalists first go through intermediate windows, each at most
+    # STAGE_GROWTH times longer than the previous one (from a converged shorter solution the
+    # extrapolation to the next window is good, and the long window needs few iterations)
+    stages = [n_sub]
+    while stages[-1] < N:
+        stages.append(min(N, STAGE_GROWTH * (stages[-1] - 1) + 1))
+    survivors = [(int(i), results[i][1]) for i in order]
+    outcome, final_costs, total_iter = {}, {}, sum(r.iterations for _, r in results)
+    for n_stage in stages[1:] or [N]:
+        last = n_stage == N
+        sp = prob if last else _Problem(cfg, window_data(run, float(wd.time_s[0]), float(wd.time_s[n_stage - 1])),
+                                        sigma, opt.process_noise, mp=mp)
+        runs = []
+        for i, g0 in survivors:
+            x_init = np.empty((n_stage, sp.n))
+            x_init[:len(g0.x)] = g0.x
+            for k in range(len(g0.x), n_stage):
+                x_init[k] = sp.A @ x_init[k - 1]
+            w_init = np.zeros((n_stage - 1, sp.G.shape[1]))
+            w_init[:len(g0.w)] = g0.w
+            runs.append((i, GaussNewton(sp, x_init, sp.initial_biases(x_init), opt.max_iterations, opt, w_init=w_init)))
+        stage_outcome = _race(runs, sp, results, opt)
+        total_iter += sum(gn.it for _, gn in runs)
+        where = "the whole window" if last else f"the first {n_stage} epochs"
+        for i, gn in runs:
+            _say(opt, f"  continued {results[i][0]} on {where}: cost {gn.J:.6g} after {gn.it} iterations, "
+                      f"{stage_outcome[i]}")
+            if last:
+                outcome[i], final_costs[i] = stage_outcome[i], gn.J
+            elif stage_outcome[i].startswith("abandoned"):
+                outcome[i] = stage_outcome[i].replace("abandoned", f"abandoned on the first {n_stage} epochs", 1)
+        survivors = [(i, gn) for i, gn in runs if not stage_outcome[i].startswith("abandoned")]
+    best_i, best_run = min(((i, gn) for i, gn in runs if not outcome[i].startswith("abandoned")), key=lambda t: t[1].J)
+    g = best_run.result()
+    prior = prior_sigma_m(cfg, wd.channels, opt.sigma_m)
+    if opt.sigma_m is None and not np.allclose(prior, sigma):
+        prob = _Problem(cfg, wd, prior, opt.process_noise, mp=mp)   # per-channel prior σ from the config
+        g = prob.gauss_newton(g.x, g.b, opt.max_iterations, opt, w_init=g.w)
+    noise = {"source": "--sigma-m" if opt.sigma_m is not None else "config", "warnings": []}
+    if opt.estimate_sigma and opt.sigma_m is None:
+        prob, g, noise = _estimate_noise(cfg, wd, prob, g, prior, opt)
+    sig_c = prob.sig_c
+    sigma = float(np.sqrt(np.mean(sig_c**2)))
+    lin = g.lin
+    m = len(wd.segments)
+    n = prob.n
+    if lin.P_end is None:
+        raise CdgpsError(_unobservable_msg(t0, t1, motion, sigma, None, cfg.wavelength_m, opt))
+    Pbb = lin.P_end[n:, n:]
+    bias_sigma = np.sqrt(np.diag(Pbb))
+    if bias_sigma.max() > opt.max_bias_sigma_cycles * cfg.wavelength_m:
+        raise CdgpsError(_unobservable_msg(t0, t1, motion, sigma, bias_sigma.max(), cfg.wavelength_m, opt))
+    if not g.converged:
+        raise CdgpsError(f"batch initialization did not converge in {opt.max_iterations} iterations "
+                         f"(window {t0:g}–{t1:g} s, cost {g.cost:.4g}); try another window (--start/--duration) "
+                         f"or more iterations (--max-iterations)")
+    b_float = g.b.copy()
+
+    # --- integers
+    lam = cfg.wavelength_m
+    line = np.array([cfg.antenna_line_bias_m[cfg.antenna_names.index(s["antenna"])]
+                     - cfg.antenna_line_bias_m[cfg.master_index] for s in wd.segments])
+    a_float = (b_float - line) / lam
+    fixed = np.zeros(m, dtype=bool)
+    integers = np.rint(a_float).astype(np.int64)
+    ratio = None
+    fix_note = "integer fixing off"
+    if opt.fix_integers and cfg.line_bias_calibrated:
+        Qa = Pbb / lam**2
+        Qa = 0.5 * (Qa + Qa.T)
+        cands, norms = lambda_search(a_float, Qa, candidates=2)
+        ok, ratio = ratio_test(norms, opt.ratio_threshold)
+        if ok:
+            fixed[:] = True
+            integers = cands[0]
+            fix_note = f"all {m} integers fixed (ratio {ratio:.2f} ≥ {opt.ratio_threshold:g})"
+        elif opt.partial:
+            pf = partial_fix(a_float, Qa, threshold=opt.ratio_threshold)
+            fixed = np.asarray(pf["fixed_mask"], dtype=bool)
+            if fixed.any():
+                integers = np.where(fixed, pf["integers"], integers)
+                fix_note = f"{int(fixed.sum())} of {m} integers fixed by partial fixing (full-set ratio {ratio:.2f})"
+            else:
+                fix_note = f"integers not fixed: ratio {ratio:.2f} < {opt.ratio_threshold:g}"
+        else:
+            fix_note = f"integers not fixed: ratio {ratio:.2f} < {opt.ratio_threshold:g}"
+    elif not cfg.line_bias_calibrated:
+        fix_note = "line biases not calibrated: float biases only"
+    _say(opt, f"  {fix_note}")
+
+    final_b = b_float.copy()
+    if fixed.any():
+        known = np.full(m, np.nan)
+        known[fixed] = line[fixed] + lam * integers[fixed]
+        prob_f = _Problem(cfg, wd, sig_c, opt.process_noise, known_bias=known, mp=mp)
+        gf = prob_f.gauss_newton(g.x, g.b[~fixed], opt.max_iterations, opt, w_init=g.w)
+        total_iter += gf.iterations
+        final_b = prob_f.full_bias(gf.b)
+        x_traj, lin_final, prob_final, J_final = gf.x, gf.lin, prob_f, gf.cost
+        # validation: with the right integers the cost rises by about a chi-square(n_fixed) amount
+        # (scaled by the float solution's cost per degree of freedom)
+        n_obs = int(np.isfinite(prob.y).sum())
+        dof_f = max(n_obs - prob.n_dyn - m, 1)     # (the multipath states have their own prior)
+        scale = max(g.cost / dof_f, 1e-12)
+        dJ = (J_final - g.cost) / scale
+        limit = opt.fix_validation_margin * float(chi2.ppf(opt.fix_validation_probability, int(fixed.sum())))
+        if dJ > limit:
+            _say(opt, f"  integer fix rejected by validation: cost increase {dJ:.1f} > {limit:.1f} "
+                      f"(chi-square {opt.fix_validation_probability:g}, {int(fixed.sum())} dof, margin {opt.fix_validation_margin:g})")
+            fix_note = (f"integer fix rejected by validation (cost increase {dJ:.1f} > {limit:.1f}); "
+                        f"float biases kept")
+            fixed[:] = False
+            integers = np.rint(a_float).astype(np.int64)
+            final_b = b_float.copy()
+            x_traj, lin_final, prob_final, J_final = g.x, lin, prob, g.cost
+    else:
+        x_traj, lin_final, prob_final, J_final = g.x, lin, prob, g.cost
+
+    # --- outputs
+    resid = prob_final.residual(x_traj, final_b[prob_final.free] if prob_final.free.size else np.zeros(0))
+    res_rms = {f"{a}/{t}": float(np.sqrt(np.nanmean(resid[:, c] ** 2))) if np.isfinite(resid[:, c]).any() else None
+               for c, (a, t) in enumerate(wd.channels)}
+    P = lin_final.P_end
+    nd = prob.n_dyn
+    Pxx = P[:nd, :nd] if P is not None else None
+    free_sigma = np.full(m, 0.0)
+    if P is not None and prob_final.free.size:
+        free_sigma[prob_final.free] = np.sqrt(np.diag(P[n:, n:]))
+    biases = []
+    last_seg = {}
+    for s_i, s in enumerate(wd.segments):
+        last_seg[(s["antenna"], s["transmitter"])] = s_i
+    for s_i, s in enumerate(wd.segments):
+        biases.append({
+            "antenna": s["antenna"], "transmitter": s["transmitter"],
+            "bias_m": float(final_b[s_i]),
+            "sigma_m": float(free_sigma[s_i] if not fixed[s_i] else 0.0),
+            "float_bias_m": float(b_float[s_i]), "float_sigma_m": float(bias_sigma[s_i]),
+            "integer_cycles": int(integers[s_i]), "float_cycles": float(a_float[s_i]),
+            "line_bias_m": float(line[s_i]), "fixed": bool(fixed[s_i]),
+            "segment_start_s": s["start_s"], "segment_end_s": s["end_s"],
+            "current": last_seg[(s["antenna"], s["transmitter"])] == s_i,
+        })
+    nm = cfg.n_modes
+    U = np.asarray(cfg.mode_shapes)
+    x_end = x_traj[-1][:nd]
+    mp_out = _multipath_record(mp, wd, x_traj[-1], P, nd)
+    q_end = U @ x_end[:nm]
+    elapsed = _time.perf_counter() - t_start
+    dof = max(int(np.isfinite(resid).sum()) - nd - int(prob_final.free.size), 1)
+    out = {
+        "format": "cdgps.init/1",
+        "config": cfg.name,
+        "config_sha256": cfg.sha256,
+        "run": run.path,
+        "window": {"start_s": float(wd.time_s[0]), "end_s": float(wd.time_s[-1]), "epochs": N, "selection": how,
+                   "motion_rms_m": motion, "channels": len(wd.channels), "bias_segments": m},
+        "biases": biases,
+        "state": {
+            "time_s": float(wd.time_s[-1]),
+            "state_names": [f"xi_{k}" for k in cfg.mode_names] + [f"xidot_{k}" for k in cfg.mode_names],
+            "x": [float(v) for v in x_end],
+            "P": [[float(v) for v in row] for row in Pxx] if Pxx is not None else None,
+            "q": {name: float(v) for name, v in zip(cfg.coord_names, q_end)},
+        },
+        "iterations": int(total_iter),
+        "converged": True,
+        "starts": [{"label": lab, "cost": float(r.cost), "iterations": r.iterations, "won": i == best_i,
+                    "full_window_cost": (float(final_costs[i]) if i in final_costs else None),
+                    "full_window": outcome.get(i)}
+                   for i, (lab, r) in enumerate(results)],
+        "cost": float(J_final),
+        "cost_per_dof": float(J_final / dof),
+        "ratio": None if ratio is None else (float(ratio) if np.isfinite(ratio) else "inf"),
+        "integer_fixing": fix_note,
+        "n_fixed": int(fixed.sum()),
+        "residual_rms_m": res_rms,
+        "sigma_m": sigma,
+        "sigma_m_per_channel": {f"{a}/{t}": float(v) for (a, t), v in zip(wd.channels, sig_c)},
+        "noise": noise,
+        **({"multipath": mp_out} if mp_out is not None else {}),
+        "options": opt.echo(),
+        "elapsed_s": elapsed,
+    }
+    if return_trajectory:
+        return out, {"time_s": wd.time_s, "x": x_traj[:, :nd]}
+    return out
+
+
+def _multipath_record(mp: MultipathModel, wd: WindowData, z_end: np.ndarray, P, nd: int) -> dict | None:
+    """INIT.json's ``multipath`` object: the model and, at the window end, each channel's
+    Gauss–Markov state (m), its covariance (m²) and its cross-covariance with the structure state."""
+    if not mp.active:
+        return None
+    C = len(wd.channels)
+    rec = dict(mp.echo(), model="first-order Gauss–Markov per channel",
+               channels=[f"{a}/{t}" for a, t in wd.channels], x_m=[float(v) for v in z_end[nd:nd + C]])
+    if P is not None:
+        rec["P_m2"] = [[float(v) for v in row] for row in P[nd:nd + C, nd:nd + C]]
+        rec["cross_P"] = [[float(v) for v in row] for row in P[:nd, nd:nd + C]]
+    return rec
+
+
+NOISE_ITERATIONS = 2            # re-weightings of the batch with the estimated per-channel σ
+SIGMA_WARN_FACTOR = 1.5         # estimated σ this much above/below the prior → warning
+CHANNEL_WARN_RATIO = 2.0        # a channel's σ̂ this much above the median of all → warning
+
+
+def _estimate_noise(cfg, wd, prob, g, prior, opt):
+    """Per-channel σ from the batch's variance factors (redundancy numbers), re-weighted
+    NOISE_ITERATIONS times; a channel far beyond the others (an unflagged slip, a broken
+    channel) is refused.  Returns (problem, solution, noise report for INIT.json)."""
+    sig = prior.copy()
+    for _ in range(NOISE_ITERATIONS):
+        lev = prob.leverage(g.x)
+        resid = prob.residual(g.x, g.b)
+        vf = variance_factors(resid, prob.sig_c, lev)
+        new = np.where(vf["n_obs"] > 0, vf["sigma_m"], sig)
+        sig = np.maximum(new, 1e-5)
+        prob = _Problem(cfg, wd, sig, opt.process_noise, mp=prob.mp)
+        g = prob.gauss_newton(g.x, g.b, opt.max_iterations, opt, w_init=g.w)
+    names = [f"{a}/{t}" for a, t in wd.channels]
+    med = float(np.median(sig))
+    rms_est, rms_prior = float(np.sqrt(np.mean(sig**2))), float(np.sqrt(np.mean(prior**2)))
+    warnings = []
+    f = rms_est / rms_prior
+    if f > SIGMA_WARN_FACTOR or f < 1 / SIGMA_WARN_FACTOR:
+        warnings.append(f"measurement noise estimated from the data is {rms_est * 1000:.2f} mm, {f:.2f} × the "
+                        f"config's {rms_prior * 1000:.2f} mm: the estimate is used (--sigma-m to override)")
+    ratio = sig / med
+    bad = np.flatnonzero(ratio > CHANNEL_WARN_RATIO)
+    resid = prob.residual(g.x, g.b)
+    if bad.size and len(sig) >= 3:
+        worst = bad[np.argsort(-ratio[bad])]
+        own = _unshared_ratio(wd.channels, sig)
+        detail = ", ".join(f"{names[c]} {sig[c] * 1000:.1f} mm ({ratio[c]:.1f}×"
+                           f"{'' if own[c] > CHANNEL_WARN_RATIO else ', shared by its antenna or transmitter'})"
+                           f"{_step_note(wd, resid, c)}" for c in worst[:6])
+        if own[worst].max() > opt.sigma_refuse_ratio:
+            raise CdgpsError(
+                f"batch fit inconsistent in the window {wd.time_s[0]:g}–{wd.time_s[-1]:g} s: channel residuals far "
+                f"beyond the others' noise (median {med * 1000:.2f} mm): {detail}. This is not measurement "
+                f"noise (an unflagged cycle slip or a broken channel?); initialize on another window "
+                f"(--start/--duration) or give --sigma-m to accept it")
+        warnings.append(f"channels with noise well above the others (median {med * 1000:.2f} mm): {detail}")
+    per = [{"channel": names[c], "sigma_m": float(sig[c]), "prior_sigma_m": float(prior[c]),
+            "variance_factor": float(vf["variance_factor"][c]), "redundancy": float(vf["redundancy"][c]),
+            "observations": int(vf["n_obs"][c]), "residual_rms_m": float(vf["rms_m"][c])}
+           for c in range(len(sig))]
+    # the warnings travel in the result (INIT.json "noise"); the CLI prints them once
+    return prob, g, {"source": "estimated (batch variance factors with redundancy numbers)",
+                     "sigma_m": rms_est, "prior_sigma_m": rms_prior, "median_sigma_m": med,
+                     "iterations": NOISE_ITERATIONS, "per_channel": per, "warnings": warnings}
+
+
+def _unshared_ratio(channels, sig: np.ndarray) -> np.ndarray:
+    """(C,) each channel's σ̂ over the larger of the medians of the other channels of its antenna and of
+    its transmitter (and never above its ratio to the median of all channels).
+
+    Noise that a whole antenna (or transmitter) shares is noise — an antenna 5× noisier than the
+    others has all its channels high, so each is ≈ 1× its antenna's others.  A single channel far
+    above both of its groups is not explained by per-antenna or per-transmitter noise (an
+    unflagged slip, a broken channel): that is what init refuses."""
+    sig = np.asarray(sig, dtype=float)
+    ant = np.array([a for a, _ in channels], dtype=object)
+    tx = np.array([t for _, t in channels], dtype=object)
+    med = float(np.median(sig))
+    out = sig / med
+    for c in range(len(sig)):
+        ref = med
+        for same in (ant == ant[c], tx == tx[c]):
+            others = same.copy()
+            others[c] = False
+            if others.sum() >= 2:
+                ref = max(ref, float(np.median(sig[others])))
+        out[c] = sig[c] / ref
+    return out
+
+
+def _step_note(wd, resid, c) -> str:
+    """' step 4.1 cm at 23.4 s' when the channel's residuals have a step larger than their spread."""
+    e = resid[:, c]
+    ok = np.flatnonzero(np.isfinite(e))
+    if ok.size < 20:
+        return ""
+    v = e[ok]
+    cs = np.cumsum(v)
+    k = np.arange(5, v.size - 5)
+    d = cs[-1] / v.size
+    diff = cs[k - 1] / k - (cs[-1] - cs[k - 1]) / (v.size - k)
+    j = int(np.argmax(np.abs(diff)))
+    step = float(diff[j])
+    if abs(step) < 3 * float(np.std(v - d)) * 0.5:
+        return ""
+    return f", residual step {abs(step) * 100:.1f} cm at {wd.time_s[ok[k[j]]]:g} s"
+
+
+def _unobservable_msg(t0, t1, motion, sigma, bias_sigma, lam, opt, motion_only=False) -> str:
+    if motion_only:
+        detail = (f"phase motion RMS {motion * 100:.2f} cm is below {opt.min_motion_ratio:g} × the "
+                  f"{sigma * 100:.2f} cm measurement noise")
+    else:
+        s = "singular (some bias has no information)" if bias_sigma is None else f"{bias_sigma * 100:.1f} cm"
+        detail = (f"phase motion RMS {motion * 100:.2f} cm against {sigma * 100:.2f} cm noise, largest "
+                  f"float-bias sigma {s} (limit {opt.max_bias_sigma_cycles:g} cycle = "
+                  f"{opt.max_bias_sigma_cycles * lam * 100:.1f} cm)")
+    return (f"biases not observable in the window {t0:g}–{t1:g} s: {detail}. "
+            f"Initialize on a window where the structure moves (--start/--duration).")

@@ -1,0 +1,405 @@
+"""Atomic file output: write under a temporary name in the target directory, rename when complete.
+
+A failed or interrupted command therefore never leaves a half-written output behind, and an
+existing file is replaced only by a complete new one.  Commands that write several files replace
+them as a set (:func:`output_set`); SIGTERM cleans up like SIGINT (:func:`sigterm_raises`).
+See docs/hardening.md, "Output sets".
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import shutil
+import signal
+import tempfile
+import threading
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Callable
+
+from cdgps_cli.core.errors import CdgpsError
+
+
+def temporary_name(path: Path) -> Path:
+    """The hidden temporary sibling used while ``path`` is being written."""
+    return path.with_name(f".{path.name}.tmp{os.getpid()}")
+
+
+#: errno of a write that failed for lack of room, not for a wrong path or permission
+_NO_ROOM = {errno.ENOSPC: "no space left on the device",
+            errno.EFBIG: "file too large (the file system's or this process's file-size limit, ulimit -f)",
+            errno.EDQUOT: "disk quota exceeded"}
+
+
+def is_no_room(exc: OSError) -> bool:
+    """Whether an OSError is a full device, a file-size limit or an exhausted quota."""
+    return exc.errno in _NO_ROOM
+
+
+def output_error(path: str | Path, exc: OSError) -> CdgpsError:
+    """The user-facing error of a failed write of ``path`` (the full-disk cases explained)."""
+    if exc.errno in _NO_ROOM:
+        return CdgpsError(f"{path}: cannot write: {_NO_ROOM[exc.errno]}; nothing was written there "
+                          f"(free some space or choose another output)")
+    return CdgpsError(f"{path}: cannot write: {exc.strerror or exc}")
+
+
+def write_atomic(path: str | Path, writer: Callable[[Path], None]) -> None:
+    """Call ``writer(tmp_path)``, then rename the temporary file to ``path``.
+
+    Raises
+    ------
+    CdgpsError
+        If the directory cannot be created or the file cannot be written.
+    """
+    path = Path(path)
+    tmp = temporary_name(path)
+    with sigterm_raises():
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            remove_stale_temporaries(path)
+            writer(tmp)
+            os.replace(tmp, path)
+        except OSError as exc:
+            raise output_error(path, exc) from None
+        finally:
+            if tmp.exists():
+                tmp.unlink()
+
+
+def write_bytes_atomic(path: str | Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically."""
+    write_atomic(path, lambda p: p.write_bytes(data))
+
+
+def file_sha256(path: str | Path) -> str:
+    """Hex sha256 of a file's bytes, read in 1 MiB blocks."""
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def path_for_config(path: str | Path, relative_to: str | Path | None) -> str:
+    """How a config file written into ``relative_to`` names ``path``: relative to that directory
+    when possible (another drive on Windows: not), else absolute."""
+    path = Path(path).resolve()
+    if relative_to is not None:
+        try:
+            return os.path.relpath(path, Path(relative_to).resolve())
+        except ValueError:
+            pass
+    return str(path)
+
+
+def _identity(path: Path) -> tuple | None:
+    try:
+        st = path.stat()
+    except (OSError, ValueError):
+        return None
+    return st.st_dev, st.st_ino
+
+
+def refuse_input_overwrite(outputs, inputs) -> None:
+    """Refuse to write any output that is, or (an output directory) contains, one of the inputs.
+
+    Parameters
+    ----------
+    outputs, inputs : iterable of (option, path, is_directory)
+        ``option`` names where the path came from (e.g. ``-o``, ``RUN_MCAP``) for the message.
+        The same file is recognised however it is spelt (``d/./f``, ``..``, a symlink, a hard link:
+        same device and inode).  A directory output refuses every input inside it, since the
+        command may replace any file there.
+
+    Raises
+    ------
+    CdgpsError
+        Naming the option and both paths; nothing has been written.
+    """
+    ins = [(opt, Path(p), _identity(Path(p))) for opt, p, _ in inputs]
+    for out_opt, out_path, is_dir in outputs:
+        out = Path(out_path)
+        out_id = _identity(out)
+        for in_opt, in_path, in_id in ins:
+            if in_id is None:
+                continue
+            same = out_id is not None and out_id == in_id
+            inside = is_dir and out_id is not None and any(_identity(d) == out_id for d in in_path.resolve().parents)
+            if same or inside:
+                how = "is the same file as" if same else "is a folder containing"
+                raise CdgpsError(f"{out_opt} {out_path} {how} the input {in_opt} {in_path}: writing it would overwrite an "
+                                 f"input (refused, nothing written); choose another output path")
+
+
+# ----------------------------------------------------------------------------- signals
+#
+# SIGINT raises KeyboardInterrupt, so the ``finally`` blocks below remove every hidden temporary.
+# SIGTERM kills at once by default and left them behind; while cdgps writes, it raises
+# :class:`Terminated` instead, through the same cleanup path.  SIGKILL cannot be caught: what it
+# leaves is a hidden temporary named with the dead process's id, removed by the next write there.
+
+
+class Terminated(BaseException):
+    """Raised by SIGTERM while cdgps handles it (a BaseException, like KeyboardInterrupt, so that
+    ``except Exception`` does not swallow it)."""
+
+
+#: exit status of a command ended by SIGTERM (128 + 15, as a shell reports a killed program)
+TERMINATED_EXIT = 143
+
+
+def _raise_terminated(signum, frame):
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)      # a second SIGTERM kills at once
+    raise Terminated()
+
+
+def _in_main_thread() -> bool:
+    return threading.current_thread() is threading.main_thread()
+
+
+@contextmanager
+def sigterm_raises():
+    """While active, SIGTERM raises :class:`Terminated` (in the main thread, and only if SIGTERM
+    still has its default action: a handler of an embedding program is left alone)."""
+    installed = False
+    if _in_main_thread() and signal.getsignal(signal.SIGTERM) == signal.SIG_DFL:
+        signal.signal(signal.SIGTERM, _raise_terminated)
+        installed = True
+    try:
+        yield
+    finally:
+        if installed and signal.getsignal(signal.SIGTERM) is _raise_terminated:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+@contextmanager
+def signals_deferred():
+    """SIGINT and SIGTERM that arrive inside the block take effect when it ends (main thread only;
+    elsewhere Python handlers never interrupt the block anyway)."""
+    if not _in_main_thread():
+        yield
+        return
+    pending: list[int] = []
+    saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    sigs = [s for s, h in saved.items() if h is not None]     # None: a handler not set from Python, left alone
+    for s in sigs:
+        signal.signal(s, lambda signum, frame: pending.append(signum))
+    try:
+        yield
+    finally:
+        for s in sigs:
+            signal.signal(s, saved[s])
+        for s in pending:
+            signal.raise_signal(s)
+
+
+# ----------------------------------------------------------------------------- stale temporaries
+
+def _pid_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, OSError):
+        return True                      # another user's process (or not ours to judge): leave it
+    return True
+
+
+def remove_stale_temporaries(path: str | Path) -> None:
+    """Remove ``.<name>.tmp<pid>`` siblings of ``path`` whose process no longer exists (left by
+    SIGKILL or a power cut); those of running processes are left alone."""
+    path = Path(path)
+    prefix = f".{path.name}.tmp"
+    try:
+        entries = list(path.parent.iterdir()) if path.parent.is_dir() else []
+    except OSError:
+        return
+    for p in entries:
+        tail = p.name[len(prefix):]
+        if p.name.startswith(prefix) and tail.isdigit() and not _pid_alive(int(tail)):
+            try:
+                p.unlink()
+            except OSError:
+                pass
+
+
+# ----------------------------------------------------------------------------- output sets
+#
+# A command that writes several files writes them all into a hidden staging folder inside the
+# output folder (``.cdgps-new-<pid>-<random>``: same file system, so every move is a rename).  Only
+# when every file is complete does it commit, with SIGINT/SIGTERM deferred and the folder locked
+# (flock) against another cdgps committing there:
+#
+# 1. the staging folder is renamed ``.cdgps-commit-<pid>-<random>`` and holds a journal
+#    (``.cdgps-set.json``: the new files and the old files to remove);
+# 2. old files of the command's set that the new set does not have are removed;
+# 3. each new file is renamed over its old version;
+# 4. the emptied commit folder is removed.
+#
+# An exception or SIGINT/SIGTERM before step 1 removes the staging folder: the old set is left
+# untouched.  SIGKILL before step 1 leaves the staging folder; SIGKILL during steps 2-4 (a few
+# renames) leaves the commit folder with its journal: the next cdgps write of a set into that
+# folder removes the former and finishes (rolls forward) the latter, so the folder then holds the
+# complete new set.  Files that are not in the command's set (a user's notes, another command's
+# outputs) are never touched.
+
+SET_JOURNAL = ".cdgps-set.json"
+_STAGING = ".cdgps-new-"
+_COMMIT = ".cdgps-commit-"
+
+
+@contextmanager
+def _folder_lock(folder: Path):
+    try:
+        import fcntl
+    except ImportError:                                   # not POSIX: no lock
+        yield
+        return
+    fd = os.open(folder, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)
+
+
+def _roll_forward(out: Path, commit: Path) -> None:
+    """Steps 2-4 of a commit (idempotent: a commit interrupted anywhere can be run again)."""
+    try:
+        journal = json.loads((commit / SET_JOURNAL).read_text())
+    except (OSError, ValueError):                         # no journal: step 4 was under way
+        shutil.rmtree(commit, ignore_errors=True)
+        return
+    for name in journal["remove"]:
+        p = out / name
+        if p.is_symlink() or p.is_file():
+            p.unlink()
+    for name in journal["files"]:
+        if (commit / name).exists():
+            os.replace(commit / name, out / name)
+    shutil.rmtree(commit, ignore_errors=True)
+
+
+def recover_output_folder(out: str | Path) -> list[str]:
+    """Clean up after a killed cdgps in ``out``: finish interrupted commits, remove the staging
+    folders of processes that no longer exist.  Call with the folder locked.  Returns what was done."""
+    out = Path(out)
+    done = []
+    try:
+        entries = sorted(out.iterdir())
+    except OSError:
+        return done
+    for p in entries:
+        if p.name.startswith(_COMMIT) and p.is_dir():     # a committer holds the lock: none is running
+            _roll_forward(out, p)
+            done.append(f"finished {p.name}")
+        elif p.name.startswith(_STAGING) and p.is_dir():
+            pid = p.name[len(_STAGING):].split("-")[0]
+            if pid.isdigit() and not _pid_alive(int(pid)):
+                shutil.rmtree(p, ignore_errors=True)
+                done.append(f"removed {p.name}")
+    return done
+
+
+class OutputSet:
+    """Where the files of one output set are written: :meth:`path` gives the staging path of a
+    file, :attr:`out` the folder it ends up in."""
+
+    def __init__(self, out: Path, staging: Path):
+        self.out = out
+        self.staging = staging
+
+    def path(self, name: str) -> Path:
+        """Staging path of output file ``name`` (a plain file name)."""
+        if not name or "/" in name or os.sep in name or name.startswith(".") or name in (SET_JOURNAL,):
+            raise CdgpsError(f"{self.out}: cannot write {name!r} there: an output file name must be a plain, "
+                             f"visible file name (no folder, not starting with a dot)")
+        return self.staging / name
+
+    def final(self, name: str) -> Path:
+        """Where ``name`` will be once the set is committed."""
+        return self.out / name
+
+    def names(self) -> list[str]:
+        """The files written so far (visible regular files in the staging folder)."""
+        return sorted(p.name for p in self.staging.iterdir() if p.is_file() and not p.name.startswith("."))
+
+
+def _commit(s: OutputSet, replaces) -> None:
+    new = s.names()
+    for name in new:
+        if (s.out / name).is_dir() and not (s.out / name).is_symlink():
+            raise CdgpsError(f"{s.out / name}: is a folder, where this command writes a file; nothing was "
+                             f"replaced (move the folder or choose another output)")
+    remove = sorted(set(replaces) - set(new))
+    (s.staging / SET_JOURNAL).write_text(json.dumps({"files": new, "remove": remove}) + "\n")
+    with _folder_lock(s.out), signals_deferred():
+        commit = s.staging.with_name(_COMMIT + s.staging.name[len(_STAGING):])
+        os.replace(s.staging, commit)
+        _roll_forward(s.out, commit)
+
+
+@contextmanager
+def output_set(out_dir: str | Path, replaces=()):
+    """Write a set of files into ``out_dir`` as a whole (see the comment above).
+
+    Parameters
+    ----------
+    out_dir : path
+        Output folder (created, with its parents, if missing; removed again if the command fails
+        and it is still empty).
+    replaces : iterable of str
+        Every file name the command may write.  On success, those the new set lacks are removed
+        from ``out_dir`` (e.g. ``actuators.csv`` of an earlier pulse simulation); files with any
+        other name are kept untouched.
+
+    Yields
+    ------
+    OutputSet
+        Write each file at ``OutputSet.path(name)``.
+
+    Raises
+    ------
+    CdgpsError
+        If the folder cannot be created or a file cannot be written (the message names the file's
+        final path); the earlier set is then untouched.
+    """
+    out = Path(out_dir)
+    created = not out.exists()
+    with sigterm_raises():
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise CdgpsError(f"{out}: cannot create output directory: {exc.strerror or exc}") from None
+        try:
+            with _folder_lock(out):
+                recover_output_folder(out)
+            staging = Path(tempfile.mkdtemp(prefix=f"{_STAGING}{os.getpid()}-", dir=out))
+        except OSError as exc:
+            raise CdgpsError(f"{out}: cannot write into the output directory: {exc.strerror or exc}") from None
+        s = OutputSet(out, staging)
+        ok = False
+        try:
+            yield s
+            _commit(s, replaces)
+            ok = True
+        except CdgpsError as exc:
+            raise CdgpsError(str(exc).replace(str(staging), str(out))) from None
+        except OSError as exc:
+            name = Path(exc.filename).name if exc.filename else "an output"
+            raise output_error(out / name, exc) from None
+        finally:
+            if staging.exists():
+                shutil.rmtree(staging, ignore_errors=True)
+            if created and not ok:
+                try:
+                    out.rmdir()                        # only if still empty
+                except OSError:
+                    pass

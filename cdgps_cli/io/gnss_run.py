@@ -1,0 +1,771 @@
+"""GNSS RUN.mcap: raw receiver observations (RINEX / u-blox UBX) and broadcast ephemerides.
+
+:func:`ingest_gnss` is the library form of ``cdgps ingest --rinex/--ubx … --nav …``; it reads and
+checks the files and writes one self-contained RUN.mcap (atomic, zstd chunks, CRCs, the GNSS run
+config attached, sha256 of every input in the metadata).  Differencing is a processing step
+(``cdgps init`` / ``cdgps estimate``): the run stores the observations *as recorded*, per
+receiver, satellite and epoch.  :func:`read_gnss_run` loads it back; :func:`processing_obs`
+turns a receiver's raw table into the observation table of the solvers (RINEX LLI kept, u-blox
+lock times and half-cycle flags converted to LLI bits).
+
+Layout (format details in docs/gnss-pipeline.md):
+
+* topic ``/cdgps/gnss/obs`` — one JSON message per receiver and epoch (``time_s`` = the receiver's
+  time tag, GPS seconds since 1980-01-06; log time = the same instant in UTC, Unix ns, see
+  :mod:`cdgps_cli.core.timescales`): ``receiver``, ``epoch_flag``, ``clock_offset_s`` (left out when
+  the epoch has none) and per satellite ``sat``, ``phase_cycles``, ``pseudorange_m``,
+  ``snr_dbhz``, ``doppler_hz`` (each with its boolean ``<field>_valid`` array: 0 and false where
+  the observation is missing), ``lli``, ``half_cycle``, ``lock_time_ms``;
+* topic ``/cdgps/gnss/ephemeris`` — one message per broadcast ephemeris record (time_s = toc,
+  GPS s; fields the record lacks, e.g. a blank fit interval, are left out);
+* attachments ``gnss/receivers.json`` (names, formats, source files, headers, read summaries),
+  ``gnss/obs/<receiver>.npz.zst`` (the raw table as zstd-compressed numpy arrays: the fast path
+  every later stage reads), ``gnss/ephemeris.json`` (the ephemeris table), ``config.toml`` (the
+  GNSS run config);
+* metadata ``cdgps.ingest`` with ``kind = gnss``, the master, the inputs and their sha256.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from cdgps_cli import __version__
+from cdgps_cli.core import progress
+from cdgps_cli.io.atomic import file_sha256, path_for_config
+from cdgps_cli.config.structure import GnssConfig, gnss_config_toml, parse_gnss_config
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.model.gps.positioning import ephemeris_coverage, match_epochs, nominal_interval_s
+from cdgps_cli.io.mcap import CONFIG_ATTACHMENT, McapOut, array_schema, message_schema, read_mcap
+from cdgps_cli.io.rinex import NAV_COLUMNS, OBS_COLUMNS, gps_time_str, read_rinex_nav, read_rinex_obs
+from cdgps_cli.io.ubx import INTEGRITY_COUNTS, integrity_problems, integrity_record
+
+__all__ = [
+    "GNSS_OBS_TOPIC", "GNSS_EPHEMERIS_TOPIC", "RAW_COLUMNS", "GnssReceiver", "GnssRun", "is_gnss_run",
+    "ingest_gnss", "read_gnss_run", "run_kind", "processing_obs", "gnss_run_info", "default_config_text",
+]
+
+GNSS_OBS_TOPIC = "/cdgps/gnss/obs"
+GNSS_EPHEMERIS_TOPIC = "/cdgps/gnss/ephemeris"
+RECEIVERS_ATTACHMENT = "gnss/receivers.json"
+EPHEMERIS_ATTACHMENT = "gnss/ephemeris.json"
+OBS_ATTACHMENT = "gnss/obs/{}.npz.zst"
+INGEST_METADATA = "cdgps.ingest"
+LOCK_TIME_CAP_MS = 64500.0
+
+RAW_COLUMNS = {
+    "time_gps_s": "receiver time tag, GPS s",
+    "sat": "satellite (G05)",
+    "phase_cycles": "L1 carrier phase, cycles (NaN: none)",
+    "pseudorange_m": "L1 C/A pseudorange, m (NaN: none)",
+    "snr_dbhz": "C/N0, dB-Hz (NaN: none)",
+    "doppler_hz": "Doppler, Hz (UBX; NaN in RINEX)",
+    "lli": "RINEX loss-of-lock indicator (bit 0 slip, bit 1 half-cycle); -1: not recorded (UBX)",
+    "ssi": "RINEX signal-strength digit 0-9 (0: blank)",
+    "half_cycle": "1: half-cycle ambiguity unresolved (UBX trkStat) / flagged (RINEX LLI bit 1), else 0",
+    "sub_half": "UBX: half a cycle subtracted from the phase (1/0); -1 in RINEX",
+    "lock_time_ms": "UBX carrier lock time, ms (capped at 64500); -1: not recorded (RINEX)",
+    "cp_std_cycles": "UBX carrier-phase standard deviation, cycles (NaN in RINEX)",
+    "pr_std_m": "UBX pseudorange standard deviation, m (NaN in RINEX)",
+    "epoch_flag": "RINEX epoch flag (0 OK, 1 power failure); 0 for UBX",
+    "clock_offset_s": "receiver clock offset from the RINEX epoch line, s (NaN: none)",
+    "clock_reset": "UBX recStat clkReset of the epoch (1/0); -1 in RINEX",
+}
+"""Columns of a receiver's raw table (:attr:`GnssReceiver.raw`) and what they hold."""
+
+_DTYPES = {"time_gps_s": np.float64, "phase_cycles": np.float64, "pseudorange_m": np.float64,
+           "snr_dbhz": np.float32, "doppler_hz": np.float32, "lli": np.int8, "ssi": np.int8, "half_cycle": np.int8,
+           "sub_half": np.int8, "lock_time_ms": np.int32, "cp_std_cycles": np.float32, "pr_std_m": np.float32,
+           "epoch_flag": np.int8, "clock_offset_s": np.float64, "clock_reset": np.int8}
+
+OBS_SCHEMA = array_schema(
+    "cdgps.GnssObservations",
+    {"sat": "string", "phase_cycles": "number|null", "pseudorange_m": "number|null", "snr_dbhz": "number|null",
+     "doppler_hz": "number|null", "lli": "integer", "half_cycle": "integer", "lock_time_ms": "integer"},
+    {"receiver": "string", "epoch_flag": "integer", "clock_offset_s": "number|null"},
+)
+EPHEMERIS_SCHEMA = message_schema("cdgps.GpsEphemeris", {
+    **{c: {"type": "string" if c == "sat" else "number"} for c in NAV_COLUMNS}},
+    "one broadcast ephemeris record (RINEX nav); time_s = toc, GPS s; fields the record lacks are left out")
+
+
+@dataclass
+class GnssReceiver:
+    """One receiver of a GNSS run: ``format`` (rinex/ubx), ``file`` (name), ``header`` (RINEX
+    header dict, or a minimal one for UBX), ``raw`` (:data:`RAW_COLUMNS`), ``info`` (read summary)."""
+
+    name: str
+    format: str
+    file: str
+    header: dict
+    raw: pd.DataFrame
+    info: dict
+
+
+@dataclass
+class GnssRun:
+    """A GNSS RUN.mcap read back."""
+
+    path: str
+    cfg: GnssConfig
+    master: str
+    receivers: dict
+    nav: pd.DataFrame
+    metadata: dict
+
+    @property
+    def rovers(self) -> list:
+        return [n for n in self.receivers if n != self.master]
+
+
+# ----------------------------------------------------------------------------------------------
+# reading receiver files into raw tables
+
+
+def _json_safe(v):
+    if isinstance(v, dict):
+        return {str(k): _json_safe(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_json_safe(x) for x in v]
+    if isinstance(v, (np.integer,)):
+        return int(v)
+    if isinstance(v, (float, np.floating)):
+        return None if not math.isfinite(float(v)) else float(v)
+    if isinstance(v, np.bool_):
+        return bool(v)
+    return v
+
+
+def _raw_from_rinex(obs: pd.DataFrame) -> pd.DataFrame:
+    n = len(obs)
+    lli = obs["lli_l1"].to_numpy(dtype=np.int64)
+    return pd.DataFrame({
+        "time_gps_s": obs["time_gps_s"].to_numpy(dtype=np.float64),
+        "sat": obs["sat"].to_numpy(dtype=object),
+        "phase_cycles": obs["phase_l1_cycles"].to_numpy(dtype=np.float64),
+        "pseudorange_m": obs["pseudorange_l1_m"].to_numpy(dtype=np.float64),
+        "snr_dbhz": obs["snr_l1_dbhz"].to_numpy(dtype=np.float64),
+        "doppler_hz": np.full(n, np.nan),
+        "lli": lli,
+        "ssi": obs["ssi_l1"].to_numpy(dtype=np.int64),
+        "half_cycle": ((lli >> 1) & 1).astype(np.int64),
+        "sub_half": np.full(n, -1, dtype=np.int64),
+        "lock_time_ms": np.full(n, -1, dtype=np.int64),
+        "cp_std_cycles": np.full(n, np.nan),
+        "pr_std_m": np.full(n, np.nan),
+        "epoch_flag": obs["epoch_flag"].to_numpy(dtype=np.int64),
+        "clock_offset_s": obs["rx_clock_offset_s"].to_numpy(dtype=np.float64),
+        "clock_reset": np.full(n, -1, dtype=np.int64),
+    })
+
+
+def _raw_from_ubx(obs: pd.DataFrame) -> pd.DataFrame:
+    n = len(obs)
+    return pd.DataFrame({
+        "time_gps_s": obs["time_gps_s"].to_numpy(dtype=np.float64),
+        "sat": obs["sat"].to_numpy(dtype=object),
+        "phase_cycles": obs["phase_l1_cycles"].to_numpy(dtype=np.float64),
+        "pseudorange_m": obs["pseudorange_l1_m"].to_numpy(dtype=np.float64),
+        "snr_dbhz": obs["snr_l1_dbhz"].to_numpy(dtype=np.float64),
+        "doppler_hz": obs["doppler_l1_hz"].to_numpy(dtype=np.float64),
+        "lli": np.full(n, -1, dtype=np.int64),
+        "ssi": np.zeros(n, dtype=np.int64),
+        "half_cycle": (~obs["half_cycle_resolved"].to_numpy(dtype=bool)).astype(np.int64),
+        "sub_half": obs["sub_half_subtracted"].to_numpy(dtype=bool).astype(np.int64),
+        "lock_time_ms": obs["lock_time_ms"].to_numpy(dtype=np.int64),
+        "cp_std_cycles": obs["cp_std_cycles"].to_numpy(dtype=np.float64),
+        "pr_std_m": obs["pr_std_m"].to_numpy(dtype=np.float64),
+        "epoch_flag": np.zeros(n, dtype=np.int64),
+        "clock_offset_s": np.full(n, np.nan),
+        "clock_reset": obs["clock_reset"].to_numpy(dtype=bool).astype(np.int64),
+    })
+
+
+def read_receiver_file(name: str, kind: str, path: str | Path, *, strict: bool = False) -> GnssReceiver:
+    """Read one RINEX observation file or UBX log into a :class:`GnssReceiver` (raw table).
+
+    ``strict``: a UBX log with any corrupt or skipped data is an error (see
+    :func:`~cdgps_cli.io.ubx.read_ubx_rawx`); without it the losses are counted in ``info``.
+
+    Raises
+    ------
+    CdgpsError
+        The reader's errors (file and line), and a file without any GPS L1 carrier phase.
+    """
+    p = Path(path)
+    if kind == "rinex":
+        hdr, obs = read_rinex_obs(p)
+        if hdr.get("file_type") not in (None, "O"):
+            raise CdgpsError(f"{p}: not an observation file")
+        raw = _raw_from_rinex(obs)
+        header = _json_safe(hdr)
+        info = {k: header.get(k) for k in ("version", "marker_name", "receiver_type", "antenna_type", "interval_s",
+                                           "n_epochs", "n_epochs_power_failure", "gps_satellites",
+                                           "satellites_by_system", "l1_obs_types")}
+    elif kind == "ubx":
+        from cdgps_cli.io.ubx import read_ubx_rawx  # noqa: PLC0415
+
+        info_u, obs = read_ubx_rawx(p, strict=strict)
+        raw = _raw_from_ubx(obs)
+        info = _json_safe(info_u)
+        header = {"path": str(p), "format": "UBX RXM-RAWX", "marker_name": name, "approx_position_xyz_m": None,
+                  "receiver_type": "u-blox (RXM-RAWX)", "interval_s": nominal_interval_s(raw["time_gps_s"].to_numpy())}
+        header = _json_safe(header)
+    else:  # pragma: no cover - the CLI only passes these two
+        raise ValueError(kind)
+    if len(raw) == 0 or not np.isfinite(raw["phase_cycles"].to_numpy()).any():
+        what = "a valid carrier phase (cpValid) in any RXM-RAWX epoch" if kind == "ubx" else \
+            f"a value in its L1 phase column ({(header.get('l1_obs_types') or {}).get('phase', 'L1')})"
+        raise CdgpsError(f"{p}: no GPS L1 carrier-phase observations: no satellite has {what}; carrier-phase "
+                         f"differential GPS needs L1 phase at every receiver")
+    return GnssReceiver(name, kind, p.name, header, raw, info)
+
+
+# ----------------------------------------------------------------------------------------------
+# slips from the receivers' own flags
+
+
+def processing_obs(rx: GnssReceiver, interval_s: float | None = None) -> pd.DataFrame:
+    """The receiver's observations as the solvers' table (:data:`~cdgps_cli.io.rinex.OBS_COLUMNS`).
+
+    Loss-of-lock bits come from the receiver's own flags:
+
+    * RINEX: the LLI as recorded (bit 0 slip, bit 1 half-cycle);
+    * UBX: bit 0 (a new ambiguity) where the carrier lock time restarted — it is shorter than
+      the previous lock time plus the time since that observation, less half an epoch interval
+      (lock time is capped at 64.5 s) — and where the half-cycle ambiguity became resolved
+      (the receiver then shifts the phase by half a cycle); bit 1 while it is unresolved.
+      Rows without a valid phase keep NaN phase.
+    """
+    r = rx.raw
+    lli = r["lli"].to_numpy(dtype=np.int64).copy()
+    if rx.format == "ubx":
+        lli[:] = 0
+        t = r["time_gps_s"].to_numpy()
+        sat = r["sat"].to_numpy()
+        lock = r["lock_time_ms"].to_numpy(dtype=np.float64)
+        half = r["half_cycle"].to_numpy(dtype=np.int64) == 1
+        ok = np.isfinite(r["phase_cycles"].to_numpy())
+        dt_nom = interval_s if interval_s else nominal_interval_s(t)
+        tol_ms = 0.5 * 1e3 * (dt_nom if math.isfinite(dt_nom) else 1.0)
+        order = np.lexsort((t, sat))
+        o_ok = order[ok[order]]
+        s_o, t_o, l_o, h_o = sat[o_ok], t[o_ok], lock[o_ok], half[o_ok]
+        same = np.r_[False, s_o[1:] == s_o[:-1]]
+        prev_l = np.r_[np.nan, l_o[:-1]]
+        prev_t = np.r_[np.nan, t_o[:-1]]
+        expected = np.minimum(prev_l + (t_o - prev_t) * 1e3, LOCK_TIME_CAP_MS)
+        restart = same & (l_o < expected - tol_ms)
+        resolved_now = same & ~h_o & np.r_[False, h_o[:-1]]
+        bits = np.where(restart | resolved_now, 1, 0) | np.where(h_o, 2, 0)
+        lli[o_ok] = bits
+    return pd.DataFrame({
+        "time_gps_s": r["time_gps_s"].to_numpy(dtype=np.float64),
+        "sat": r["sat"].to_numpy(dtype=object),
+        "phase_l1_cycles": r["phase_cycles"].to_numpy(dtype=np.float64),
+        "lli_l1": lli,
+        "ssi_l1": r["ssi"].to_numpy(dtype=np.int64),
+        "pseudorange_l1_m": r["pseudorange_m"].to_numpy(dtype=np.float64),
+        "snr_l1_dbhz": r["snr_dbhz"].to_numpy(dtype=np.float64),
+        "rx_clock_offset_s": r["clock_offset_s"].to_numpy(dtype=np.float64),
+        "epoch_flag": r["epoch_flag"].to_numpy(dtype=np.int64),
+    }, columns=list(OBS_COLUMNS))
+
+
+def lock_summary(rx: GnssReceiver, obs: pd.DataFrame | None = None) -> dict:
+    """Lock counters of a receiver: per satellite the phase rows, slips (LLI bit 0 after the
+    first row: RINEX flags or u-blox lock-time restarts), half-cycle-flagged rows and arcs."""
+    o = processing_obs(rx) if obs is None else obs
+    o = o[np.isfinite(o["phase_l1_cycles"].to_numpy())]
+    out = {}
+    interval = nominal_interval_s(o["time_gps_s"].to_numpy())
+    for s, g in o.groupby("sat", sort=True):
+        t = g["time_gps_s"].to_numpy()
+        lli = g["lli_l1"].to_numpy()
+        slips = int(np.sum((lli[1:] & 1) != 0))
+        gaps = int(np.sum(np.diff(t) > 1.5 * interval)) if math.isfinite(interval) else 0
+        out[s] = {"rows": int(len(g)), "slips": slips, "half_cycle_rows": int(np.sum((lli & 2) != 0)),
+                  "arcs": 1 + slips + gaps}
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# writing
+
+
+def _npz_zst(raw: pd.DataFrame) -> bytes:
+    import zstandard  # noqa: PLC0415
+
+    codes, names = pd.factorize(raw["sat"], sort=True)
+    arrays = {"sat_index": codes.astype(np.int16), "sat_names": np.array(list(names), dtype="U8")}
+    for c, dt in _DTYPES.items():
+        arrays[c] = raw[c].to_numpy().astype(dt)
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    return zstandard.ZstdCompressor(level=3).compress(buf.getvalue())
+
+
+def _raw_from_npz_zst(data: bytes, what: str) -> pd.DataFrame:
+    import zstandard  # noqa: PLC0415
+
+    try:
+        z = np.load(io.BytesIO(zstandard.ZstdDecompressor().decompress(data)), allow_pickle=False)
+        names = np.asarray(z["sat_names"], dtype=object)
+        df = {"time_gps_s": z["time_gps_s"].astype(np.float64), "sat": names[z["sat_index"].astype(np.int64)]}
+        for c in _DTYPES:
+            if c == "time_gps_s":
+                continue
+            a = z[c]
+            df[c] = a.astype(np.float64) if a.dtype.kind == "f" else a.astype(np.int64)
+    except (KeyError, ValueError, OSError, zstandard.ZstdError) as exc:
+        raise CdgpsError(f"{what}: damaged observation arrays: {exc}") from None
+    return pd.DataFrame(df, columns=list(RAW_COLUMNS))
+
+
+def _nullable(values: np.ndarray) -> list:
+    lst = values.tolist()
+    if values.dtype.kind == "f" and np.isnan(values).any():
+        return [None if x != x else x for x in lst]
+    return lst
+
+
+
+def default_config_text(files: dict, nav_paths, master: str | None) -> str:
+    """A GNSS run config for files given only on the command line (static model, defaults)."""
+    return gnss_config_toml({n: (k, None) for n, (k, _) in files.items()}, [], master,
+                            comments=["GNSS run config generated by 'cdgps ingest' (no --config given): defaults,",
+                                      "static rover displacements; files and navigation data came from the command line."])
+
+
+def merge_nav(nav_paths) -> pd.DataFrame:
+    """Read and merge navigation files (exact duplicates removed), as ``cdgps baseline`` does."""
+    navs = [read_rinex_nav(p) for p in nav_paths]
+    nav = pd.concat(navs, ignore_index=True)
+    nav = nav.drop_duplicates(subset=["sat", "toe_gps_s", "iode", "af0_s"], keep="first")
+    return nav.sort_values(["sat", "toe_gps_s", "transmit_gps_s"], kind="stable").reset_index(drop=True)
+
+
+def _span(t) -> str:
+    t = np.asarray(t, dtype=np.float64)
+    return f"{gps_time_str(float(t.min()))} – {gps_time_str(float(t.max()))}" if t.size else "no epochs"
+
+
+def _header_position(h: dict):
+    pos = h.get("approx_position_xyz_m")
+    if pos is None:
+        return None
+    pos = np.asarray(pos, dtype=np.float64)
+    if pos.shape != (3,) or not np.all(np.isfinite(pos)) or np.linalg.norm(pos) < 6.0e6:
+        return None
+    return pos
+
+
+def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = None, ubx: dict | None = None,
+                nav_paths=None, master: str | None = None, progress=None, strict: bool = False) -> dict:
+    """Read receiver files and navigation data, check them, and write a GNSS RUN.mcap.
+
+    Parameters
+    ----------
+    cfg : GnssConfig
+        The run config (attached to the run).  Its antenna files and navigation files are used
+        unless ``rinex``/``ubx`` or ``nav_paths`` are given (the command line overrides the file).
+    out_path : path
+        RUN.mcap to write (atomically).
+    rinex, ubx : dict, optional
+        ``{antenna: path}`` observation files.
+    nav_paths : list of path, optional
+        RINEX navigation files (merged).  None: the config's; empty: no ephemeris (a warning:
+        ``cdgps init`` then needs a run ingested with navigation data).
+    master : str, optional
+        Master antenna (default: the config's, or the only antenna).
+    strict : bool, default False
+        Refuse a UBX log with corrupt or skipped data (checksum failures, undecodable RXM-RAWX,
+        bytes skipped between frames, a truncated tail) instead of counting and reporting it.
+
+    Returns
+    -------
+    dict
+        Summary (receivers, epochs, spans, common epochs, slips, ephemerides, warnings, and
+        ``integrity``: per UBX receiver its file, counters and the worded losses, ``problems``).
+
+    Raises
+    ------
+    CdgpsError
+        Missing or unreadable files, a file without L1 carrier phase, navigation data that do not
+        cover a receiver's observations, receivers without common epochs, a master without a
+        position while there are rovers, an output that would overwrite an input.
+    """
+    say = progress or (lambda m: None)
+    files: dict = {}
+    if rinex or ubx:
+        for kind, d in (("rinex", rinex or {}), ("ubx", ubx or {})):
+            for n, p in d.items():
+                if n in files:
+                    raise CdgpsError(f"antenna {n!r} is given twice (--rinex/--ubx)")
+                files[n] = (kind, str(p))
+    else:
+        for a in cfg.antennas:
+            if a.rinex or a.ubx:
+                files[a.name] = ("rinex", a.rinex) if a.rinex else ("ubx", a.ubx)
+        missing = [a.name for a in cfg.antennas if not (a.rinex or a.ubx)]
+        if missing:
+            raise CdgpsError(f"{cfg.path}: no observation file for antenna(s) {', '.join(missing)}; give rinex/ubx in "
+                             f"[gnss.antennas.NAME] or --rinex/--ubx NAME=FILE")
+    if not files:
+        raise CdgpsError("no receiver files: give --rinex NAME=FILE / --ubx NAME=FILE, or list them in the config's "
+                         "[gnss.antennas.NAME] tables")
+    master = master or cfg.master or (next(iter(files)) if len(files) == 1 else None)
+    if not master:
+        raise CdgpsError(f"--master is required: which of {', '.join(files)} is the reference receiver at a known position")
+    if master not in files:
+        raise CdgpsError(f"master {master!r} is not one of the receivers given: {', '.join(files)}")
+    nav_list = list(cfg.nav) if nav_paths is None else [str(p) for p in nav_paths]
+    out_path = Path(out_path)
+    for n, (_, p) in files.items():
+        if Path(p).resolve() == out_path.resolve():
+            raise CdgpsError(f"{out_path}: the output would overwrite the input file of {n}")
+    for p in nav_list:
+        if Path(p).resolve() == out_path.resolve():
+            raise CdgpsError(f"{out_path}: the output would overwrite the navigation file {p}")
+    warnings: list[str] = []
+
+    receivers = {}
+    for n, (kind, p) in files.items():
+        say(f"reading {kind.upper()} {p} ({n}) …")
+        receivers[n] = read_receiver_file(n, kind, p, strict=strict)
+    # master first, then the others in the given order
+    receivers = {master: receivers[master], **{n: r for n, r in receivers.items() if n != master}}
+    integrity = _ubx_integrity(receivers, files)
+    for n, rx in receivers.items():
+        w = _missing_code_warning(n, files[n][1], rx)
+        if w:
+            warnings.append(w)
+
+    nav = None
+    if nav_list:
+        say(f"reading {len(nav_list)} navigation file(s) …")
+        nav = merge_nav(nav_list)
+        for n, rx in receivers.items():
+            r = rx.raw[np.isfinite(rx.raw["phase_cycles"].to_numpy())]
+            cov = ephemeris_coverage(nav, r["sat"].to_numpy(), r["time_gps_s"].to_numpy())
+            if not cov.any():
+                tn = nav["toe_gps_s"].to_numpy()
+                raise CdgpsError(
+                    f"the navigation data do not cover the observations of {n} ({files[n][1]}): observations "
+                    f"{_span(r['time_gps_s'])}, broadcast ephemerides with toe {_span(tn)} (each is used within ±2 h of "
+                    f"its toe, healthy satellites only); give the navigation file(s) of that day")
+            if not cov.all():
+                miss = pd.Series(r["sat"].to_numpy()[~cov]).value_counts()
+                warnings.append(f"{n}: {int(miss.sum())} of {len(r)} phase observations ({', '.join(sorted(miss.index)[:8])}"
+                                f"{' …' if len(miss) > 8 else ''}) have no healthy ephemeris within ±2 h; they will not be used")
+    else:
+        warnings.append("no navigation file: the run has no ephemerides, and 'cdgps init' needs them "
+                        "(ingest again with --nav, or list nav files in the config)")
+
+    # positions and common epochs
+    pos_src = {}
+    for n, rx in receivers.items():
+        a = cfg.antenna(n)
+        if a is not None and a.position_ecef_m is not None:
+            pos_src[n] = ("config position_ecef_m", list(a.position_ecef_m))
+        elif _header_position(rx.header) is not None:
+            pos_src[n] = ("RINEX header APPROX POSITION XYZ", _header_position(rx.header).tolist())
+        else:
+            pos_src[n] = (None, None)
+    rovers = [n for n in receivers if n != master]
+    if pos_src[master][0] is None:
+        msg = (f"master {master} ({files[master][1]}) has no position: no usable RINEX header APPROX POSITION XYZ and no "
+               f"position_ecef_m in [gnss.antennas.\"{master}\"]; the master must be at a known position")
+        if rovers:
+            raise CdgpsError(msg)
+        warnings.append(msg + " (needed once rovers are added)")
+    for n in rovers:
+        if pos_src[n][0] is None:
+            warnings.append(f"{n}: no nominal position (header or config); 'cdgps init' uses a pseudorange single-point "
+                            f"position, and the displacement states refer to it")
+    tm = np.unique(receivers[master].raw["time_gps_s"].to_numpy())
+    interval_m = nominal_interval_s(tm)
+    common = {}
+    for n in rovers:
+        tr = np.unique(receivers[n].raw["time_gps_s"].to_numpy())
+        iv = nominal_interval_s(tr)
+        tol = min(cfg.sync_tol_s, (min(interval_m, iv) if math.isfinite(min(interval_m, iv)) else 1.0) / 3.0)
+        im, _ = match_epochs(tm, tr, tol_s=tol)
+        if im.size == 0:
+            raise CdgpsError(
+                f"no common epochs: master {master} ({files[master][1]}) has {tm.size} epochs ({_span(tm)}), rover {n} "
+                f"({files[n][1]}) has {tr.size} ({_span(tr)}); time tags must agree within {tol * 1e3:g} ms")
+        common[n] = {"common_epochs": int(im.size), "master_epochs": int(tm.size), "rover_epochs": int(tr.size),
+                     "tolerance_ms": tol * 1e3}
+        if im.size < max(tm.size, tr.size):
+            warnings.append(f"{n}: {im.size} epochs in common with the master (master {tm.size}, {n} {tr.size}); only "
+                            f"common epochs are differenced")
+
+    # ---- write ----
+    say(f"writing {out_path} …")
+    meta = {"cdgps_version": __version__, "created_by": "cdgps ingest", "kind": "gnss", "config_name": cfg.name,
+            "config_sha256": cfg.sha256, "config_path": Path(cfg.path).name if not cfg.path.startswith("<") else cfg.path,
+            "master": master, "receivers": ",".join(receivers), "displacement_model": cfg.displacement}
+    for n, (kind, p) in files.items():
+        meta[f"{kind}:{n}"] = Path(p).name
+        meta[f"{kind}:{n}_sha256"] = file_sha256(Path(p))
+        if n in integrity:
+            meta[f"{kind}:{n}_integrity"] = integrity_record(receivers[n].info)
+    for i, p in enumerate(nav_list):
+        meta[f"nav[{i}]"] = Path(p).name
+        meta[f"nav[{i}]_sha256"] = file_sha256(Path(p))
+    rx_json = []
+    for n, rx in receivers.items():
+        rx_json.append({"name": n, "format": rx.format, "file": rx.file, "header": rx.header, "info": rx.info,
+                        "position_source": pos_src[n][0], "position_ecef_m": pos_src[n][1]})
+    lock = {n: lock_summary(rx) for n, rx in receivers.items()}
+    with McapOut(out_path, time_scale="gps") as out:
+        n_eph = 0
+        if nav is not None:
+            ch_e = out.channel(GNSS_EPHEMERIS_TOPIC, EPHEMERIS_SCHEMA, {"source": ",".join(Path(p).name for p in nav_list)})
+            for rec in nav.to_dict(orient="records"):
+                out.write(ch_e, float(rec["toc_gps_s"]), {k: _json_safe(v) for k, v in rec.items()})
+                n_eph += 1
+            tab = {c: _json_safe(nav[c].tolist()) for c in NAV_COLUMNS}
+            out.attach(EPHEMERIS_ATTACHMENT, json.dumps(tab).encode(), "application/json")
+        ch = out.channel(GNSS_OBS_TOPIC, OBS_SCHEMA, {"units": "cycles, m, dB-Hz, Hz, ms"})
+        n_msg = _write_obs_messages(out, ch, receivers)
+        for i, (n, rx) in enumerate(receivers.items()):
+            out.attach(OBS_ATTACHMENT.format(i), _npz_zst(rx.raw), "application/x-npz+zstd")
+        out.attach(RECEIVERS_ATTACHMENT, json.dumps(_json_safe(rx_json), indent=1).encode(), "application/json")
+        out.attach(CONFIG_ATTACHMENT, cfg.text.encode("utf-8"), "application/toml")
+        out.metadata(INGEST_METADATA, meta)
+    summary = {
+        "output": str(out_path), "kind": "gnss", "config": cfg.name, "config_sha256": cfg.sha256, "master": master,
+        "displacement_model": cfg.displacement,
+        "receivers": [_receiver_summary(n, rx, lock[n], pos_src[n]) for n, rx in receivers.items()],
+        "common_epochs": common,
+        "ephemerides": n_eph, "ephemeris_satellites": int(nav["sat"].nunique()) if nav is not None else 0,
+        "messages": n_msg, "warnings": warnings, "integrity": integrity,
+    }
+    return summary
+
+
+def _ubx_integrity(receivers: dict, files: dict) -> dict:
+    """Per UBX receiver: ``file`` (as given), the integrity counters of its read summary and
+    ``problems`` (the worded losses; empty for a clean log)."""
+    out = {}
+    for n, rx in receivers.items():
+        if rx.format != "ubx":
+            continue
+        out[n] = {"file": files[n][1], **{k: int(rx.info.get(k) or 0) for k in INTEGRITY_COUNTS},
+                  "problems": integrity_problems(rx.info)}
+    return out
+
+
+def _missing_code_warning(name: str, path: str, rx: GnssReceiver) -> str | None:
+    """A warning when a receiver has L1 phase but no L1 pseudorange at all (``cdgps init`` needs them)."""
+    raw = rx.raw
+    ph = np.isfinite(raw["phase_cycles"].to_numpy())
+    if np.isfinite(raw["pseudorange_m"].to_numpy()[ph]).any():
+        return None
+    types = (rx.header.get("l1_obs_types") or {}) if rx.format == "rinex" else {}
+    if rx.format == "rinex" and not types.get("pseudorange"):
+        what = f"no GPS L1 pseudorange observation type (C1C/C1/P1/…) in its header (L1 phase: {types.get('phase') or 'L1'})"
+    elif rx.format == "rinex":
+        what = f"its L1 pseudorange column ({types['pseudorange']}) is empty wherever there is L1 phase"
+    else:
+        what = "no valid pseudorange (prValid) with any L1 phase"
+    return (f"{name} ({path}): L1 carrier phase but no L1 pseudoranges — {what}; ingested, but 'cdgps init' needs "
+            f"L1 pseudoranges at every receiver (its clock offset per epoch, i.e. the true reception times) and will "
+            f"refuse this run")
+
+
+def _receiver_summary(n, rx: GnssReceiver, lock: dict, pos) -> dict:
+    t = rx.raw["time_gps_s"].to_numpy()
+    ph = np.isfinite(rx.raw["phase_cycles"].to_numpy())
+    tu = np.unique(t)
+    return {"name": n, "format": rx.format, "file": rx.file, "epochs": int(tu.size),
+            "first": gps_time_str(float(tu[0])), "last": gps_time_str(float(tu[-1])),
+            "first_gps_s": float(tu[0]), "last_gps_s": float(tu[-1]),
+            "interval_s": nominal_interval_s(tu), "satellites": int(rx.raw["sat"].nunique()),
+            "rows": int(len(t)), "phase_rows": int(ph.sum()),
+            "slips": int(sum(v["slips"] for v in lock.values())),
+            "half_cycle_rows": int(sum(v["half_cycle_rows"] for v in lock.values())),
+            "arcs": int(sum(v["arcs"] for v in lock.values())),
+            "position_source": pos[0], "position_ecef_m": pos[1]}
+
+
+def _write_obs_messages(out: McapOut, ch: int, receivers: dict) -> int:
+    """One message per receiver and epoch, in time order across receivers."""
+    per = []
+    for n, rx in receivers.items():
+        r = rx.raw
+        t = r["time_gps_s"].to_numpy()
+        cuts = np.flatnonzero(np.r_[True, t[1:] != t[:-1], True])
+        cols = {c: _nullable(r[c].to_numpy()) for c in ("phase_cycles", "pseudorange_m", "snr_dbhz", "doppler_hz")}
+        for c in ("lli", "half_cycle", "lock_time_ms"):
+            cols[c] = r[c].to_numpy().tolist()
+        cols["sat"] = r["sat"].tolist()
+        flag = r["epoch_flag"].to_numpy()
+        clk = r["clock_offset_s"].to_numpy()
+        per.append((n, t, cuts, cols, flag, clk))
+    order = sorted(((float(p[1][a]), i, k) for i, p in enumerate(per) for k, a in enumerate(p[2][:-1])))
+    for _, i, k in progress.iterate(order, f"writing {out.path.name}", unit="msg"):
+        n, t, cuts, cols, flag, clk = per[i]
+        a, b = int(cuts[k]), int(cuts[k + 1])
+        payload = {"receiver": n, "epoch_flag": int(flag[a]), "clock_offset_s": None if not np.isfinite(clk[a]) else float(clk[a])}
+        payload.update({c: v[a:b] for c, v in cols.items()})
+        out.write(ch, float(t[a]), payload)
+    return len(order)
+
+
+# ----------------------------------------------------------------------------------------------
+# reading back
+
+
+def run_kind(path: str | Path) -> str | None:
+    """``"gnss"`` if an MCAP file's ingest metadata says it is a GNSS run, else None.  Reads only
+    the metadata records, through :func:`cdgps_cli.io.mcap_integrity.read_metadata` (CRCs and the
+    records' checksums verified: a damaged file is a CdgpsError naming it)."""
+    from cdgps_cli.io.mcap_integrity import read_metadata  # noqa: PLC0415
+
+    return "gnss" if read_metadata(path).get(INGEST_METADATA, {}).get("kind") == "gnss" else None
+
+
+def is_gnss_run(contents) -> bool:
+    """Whether MCAP contents (:func:`~cdgps_cli.io.mcap.read_mcap`) are a GNSS RUN."""
+    return contents.metadata.get(INGEST_METADATA, {}).get("kind") == "gnss" or RECEIVERS_ATTACHMENT in contents.attachments
+
+
+def read_gnss_run(path: str | Path, contents=None) -> GnssRun:
+    """Read a GNSS RUN.mcap written by :func:`ingest_gnss` (CRCs validated; attachments only)."""
+    c = contents if contents is not None else read_mcap(path, topics=[])
+    if not is_gnss_run(c):
+        raise CdgpsError(f"{path}: not a GNSS RUN.mcap (no {RECEIVERS_ATTACHMENT}); is this a run from "
+                         f"'cdgps ingest --rinex/--ubx'?")
+    for k in (CONFIG_ATTACHMENT, RECEIVERS_ATTACHMENT):
+        if k not in c.attachments:
+            raise CdgpsError(f"{path}: no {k} attachment; is this a GNSS RUN.mcap from 'cdgps ingest'?")
+    cfg = parse_gnss_config(c.attachments[CONFIG_ATTACHMENT].decode("utf-8"), f"{path}:{CONFIG_ATTACHMENT}")
+    try:
+        rx_json = json.loads(c.attachments[RECEIVERS_ATTACHMENT])
+    except ValueError as exc:
+        raise CdgpsError(f"{path}: damaged {RECEIVERS_ATTACHMENT}: {exc}") from None
+    meta = c.require_metadata(INGEST_METADATA, "GNSS RUN.mcap from 'cdgps ingest'")
+    if any(k.startswith("nav[") for k in meta) and EPHEMERIS_ATTACHMENT not in c.attachments:
+        raise CdgpsError(f"{path}: no {EPHEMERIS_ATTACHMENT} attachment although the run was ingested with "
+                         f"navigation files (damaged file)")
+    receivers = {}
+    for i, rj in enumerate(rx_json):
+        key = OBS_ATTACHMENT.format(i)
+        if key not in c.attachments:
+            raise CdgpsError(f"{path}: no {key} attachment (observations of {rj.get('name')})")
+        raw = _raw_from_npz_zst(c.attachments[key], f"{path}:{key}")
+        receivers[rj["name"]] = GnssReceiver(rj["name"], rj["format"], rj["file"], rj["header"], raw,
+                                             dict(rj.get("info") or {}, position_source=rj.get("position_source"),
+                                                  position_ecef_m=rj.get("position_ecef_m")))
+    nav = pd.DataFrame(columns=list(NAV_COLUMNS))
+    if EPHEMERIS_ATTACHMENT in c.attachments:
+        try:
+            tab = json.loads(c.attachments[EPHEMERIS_ATTACHMENT])
+            nav = pd.DataFrame({k: tab[k] for k in NAV_COLUMNS})
+        except (ValueError, KeyError) as exc:
+            raise CdgpsError(f"{path}: damaged {EPHEMERIS_ATTACHMENT}: {exc}") from None
+        for col in ("iode", "codes_l2", "l2p_data_flag", "sv_health", "iodc", "week", "line"):
+            nav[col] = nav[col].fillna(-1).astype(np.int64)
+        for col in NAV_COLUMNS:
+            if col not in ("sat", "iode", "codes_l2", "l2p_data_flag", "sv_health", "iodc", "week", "line"):
+                nav[col] = nav[col].astype(np.float64)
+    master = meta.get("master") or cfg.master or next(iter(receivers))
+    if master not in receivers:
+        raise CdgpsError(f"{path}: the master {master!r} has no observations in the run")
+    return GnssRun(str(path), cfg, master, receivers, nav, meta)
+
+
+def gnss_run_info(path: str | Path, contents) -> dict:
+    """The GNSS part of ``cdgps info``: config, master, receivers with lock counters, ephemerides."""
+    run = read_gnss_run(path, contents)
+    rx = []
+    for n, r in run.receivers.items():
+        lock = lock_summary(r)
+        pos = (r.info.get("position_source"), r.info.get("position_ecef_m"))
+        s = _receiver_summary(n, r, lock, pos)
+        s["lock"] = lock
+        if r.format == "ubx":
+            s["integrity"] = {**{k: int(r.info.get(k) or 0) for k in INTEGRITY_COUNTS},
+                              "problems": integrity_problems(r.info)}
+        rx.append(s)
+    tm = np.unique(run.receivers[run.master].raw["time_gps_s"].to_numpy())
+    common = {}
+    for n in run.rovers:
+        tr = np.unique(run.receivers[n].raw["time_gps_s"].to_numpy())
+        iv = min(nominal_interval_s(tm), nominal_interval_s(tr))
+        im, _ = match_epochs(tm, tr, tol_s=min(run.cfg.sync_tol_s, (iv if math.isfinite(iv) else 1.0) / 3.0))
+        common[n] = int(im.size)
+    nav = run.nav
+    return {
+        "config": run.cfg.summary(), "master": run.master, "rovers": run.rovers,
+        "coordinates": [f"{r}_{c}" for r in run.rovers for c in "enu"],
+        "receivers": rx, "common_epochs": common,
+        "ephemerides": int(len(nav)), "ephemeris_satellites": int(nav["sat"].nunique()) if len(nav) else 0,
+        "ephemeris_toe": [gps_time_str(float(nav["toe_gps_s"].min())), gps_time_str(float(nav["toe_gps_s"].max()))] if len(nav) else None,
+    }
+
+
+# ----------------------------------------------------------------------------------------------
+# starter configs from the files' headers
+
+
+def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), master: str | None = None, *,
+                        displacement: str = "static", sigma_m_per_sqrt_s=None, relative_to: Path | None = None,
+                        name: str | None = None) -> str:
+    """Text of a GNSS run config for the given files; the headers are read and summarised in
+    comments (marker, receiver, antenna, span, header position).  The master defaults to the first
+    RINEX antenna with a header position; paths are written relative to ``relative_to``."""
+    ubx = ubx or {}
+    if not rinex and not ubx:
+        raise CdgpsError("give at least one receiver file (--rinex/--ubx ANTENNA=FILE)")
+    both = set(rinex) & set(ubx)
+    if both:
+        raise CdgpsError(f"antenna(s) {', '.join(sorted(both))} given both as --rinex and --ubx")
+
+    def rel(p):
+        return path_for_config(p, relative_to)
+
+    comments = ["GNSS run config (format: docs/gnss-pipeline.md), written by 'cdgps config' from the files' headers.",
+                "Run:  cdgps ingest --config THIS_FILE -o run.mcap && cdgps init run.mcap -o init.json &&",
+                "      cdgps estimate run.mcap --init init.json -o states.mcap && cdgps export states.mcap -o states.csv", ""]
+    files = {}
+    with_pos = []
+    for n, p in rinex.items():
+        rx = read_receiver_file(n, "rinex", p)
+        h = rx.header
+        t = np.unique(rx.raw["time_gps_s"].to_numpy())
+        pos = _header_position(h)
+        if pos is not None:
+            with_pos.append(n)
+        comments.append(f"{n}: {Path(p).name}, RINEX {float(h.get('version') or 0):.2f}, marker {h.get('marker_name') or '?'}, receiver "
+                        f"{h.get('receiver_type') or '?'}, antenna {h.get('antenna_type') or '?'}, {t.size} epochs "
+                        f"{_span(t)} every {nominal_interval_s(t):g} s,")
+        comments.append(f"    header position {('(' + ', '.join(f'{v:.4f}' for v in pos) + ')') if pos is not None else 'none'}")
+        files[n] = ("rinex", rel(p))
+    for n, p in ubx.items():
+        rx = read_receiver_file(n, "ubx", p)
+        t = np.unique(rx.raw["time_gps_s"].to_numpy())
+        comments.append(f"{n}: {Path(p).name}, u-blox RXM-RAWX, {t.size} epochs {_span(t)}, GPS satellites "
+                        f"{', '.join(rx.info.get('gps_satellites') or [])}; no position in the log (give position_ecef_m "
+                        f"for a master)")
+        files[n] = ("ubx", rel(p))
+    for p in nav_paths:
+        nav = read_rinex_nav(p)
+        comments.append(f"nav {Path(p).name}: {len(nav)} GPS ephemerides of {nav['sat'].nunique()} satellites, toe "
+                        f"{_span(nav['toe_gps_s'])}")
+    master = master or (with_pos[0] if with_pos else next(iter(files)))
+    if master not in files:
+        raise CdgpsError(f"master {master!r} is not one of the receivers given: {', '.join(files)}")
+    text = gnss_config_toml(files, [rel(p) for p in nav_paths], master, name=name or "-".join(files),
+                            displacement=displacement, sigma_m_per_sqrt_s=sigma_m_per_sqrt_s, comments=comments)
+    parse_gnss_config(text, "<starter config>")               # it must load
+    return text

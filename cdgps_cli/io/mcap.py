@@ -1,0 +1,626 @@
+"""MCAP containers shared by every stage (RUN.mcap from ingest, later STATES.mcap).
+
+Layout written by :class:`McapOut`:
+
+* zstd-compressed chunks, chunk, attachment, data-section and summary CRCs, full summary and indexes;
+* JSON-schema channels (schema encoding ``jsonschema``, message encoding ``json``) so Foxglove can
+  open the file; one message per epoch per topic, the epoch's channels as arrays, with a
+  ``timestamp {sec, nsec}`` field (log time = publish time = that timestamp, Unix time: see
+  :mod:`cdgps_cli.core.timescales`) and ``time_s`` in the file's own time scale (GPS s or run s);
+* every schema is one Foxglove's JSON-schema decoder accepts (one ``type`` per property: boolean,
+  string, number, integer, object, or an array of one of those) and every message is valid
+  against it: no ``null`` anywhere.  A missing number in an array (a satellite without C/N0) is
+  written as 0 with ``false`` at its place in the parallel boolean array ``<field>_valid``; a
+  missing scalar or object member is left out of the message (:meth:`McapOut.write` does both
+  for the fields the schema declares that way; readers turn them back into NaN);
+* attachments (e.g. the structure config ``config.toml``; large ``.npy`` arrays are streamed to
+  the file by :meth:`McapOut.attach_npy` instead of being built in memory) and metadata records.
+
+Files are written under a temporary name in the target directory and renamed when complete, so a
+failed run never leaves a half-written output.  Every metadata record carries its own
+``record_sha256``.  Readers go through :func:`open_verified`: summary and data-section CRCs
+(:mod:`cdgps_cli.io.mcap_integrity`), chunk and attachment CRCs and the records' checksums are
+verified before any value is used, and any corruption or truncation is a :class:`CdgpsError`
+naming the file.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import os
+import struct
+import zlib
+from array import array
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import zstandard
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap.opcode import Opcode
+from mcap.records import AttachmentIndex
+from mcap.writer import CompressionType, IndexType, Writer
+
+from cdgps_cli.core import progress
+from cdgps_cli.io.atomic import is_no_room, output_error, remove_stale_temporaries, temporary_name
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.io.mcap_integrity import RECORD_SHA256_KEY, check_records, record_sha256, verify_file, warn_once
+from cdgps_cli.core.timescales import RELATIVE_EPOCH_UTC, TIME_SCALES, unix_ns
+
+PHASE_TOPIC = "/cdgps/phase"
+GYRO_TOPIC = "/cdgps/gyro"
+ACTUATOR_TOPIC = "/cdgps/actuators"
+CONFIG_ATTACHMENT = "config.toml"
+
+TIMESTAMP_SCHEMA = {"type": "object", "description": "log time, UTC (Unix time)",
+                    "properties": {"sec": {"type": "integer", "minimum": 0, "description": "s since 1970-01-01"},
+                                   "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999}},
+                    "required": ["sec", "nsec"]}
+_TS = TIMESTAMP_SCHEMA
+NULLABLE = "number|null"
+"""Field type of :func:`array_schema` for a number that may be missing (NaN): in an array, a
+``number`` array plus its boolean ``<field>_valid`` array; as a scalar, a ``number`` that is left
+out of the messages where it is missing."""
+VALID_SUFFIX = "_valid"
+
+
+def message_schema(title: str, properties: dict, description: str | None = None) -> dict:
+    """JSON schema of a message: ``timestamp``, ``time_s`` and ``properties``, both required."""
+    props = {"timestamp": TIMESTAMP_SCHEMA,
+             "time_s": {"type": "number", "description": "seconds in the file's time scale (channel metadata time_scale)"}}
+    props.update(properties)
+    s = {"title": title, "type": "object", "properties": props, "required": ["timestamp", "time_s"]}
+    if description:
+        s["description"] = description
+    return s
+
+
+def array_schema(title: str, fields: dict[str, str], scalars: dict[str, str] | None = None) -> dict:
+    """JSON schema of an epoch message: ``timestamp``, ``time_s``, scalars and per-channel arrays.
+
+    Types are JSON-schema type names; :data:`NULLABLE` (``"number|null"``) marks a number that may be
+    missing (an array field then gets its ``<field>_valid`` companion, see :meth:`McapOut.write`).
+    """
+    props = {}
+    for k, t in (scalars or {}).items():
+        props[k] = {"type": "number", "description": "left out where missing"} if t == NULLABLE else {"type": t}
+    for k, t in fields.items():
+        props[k] = {"type": "array", "items": {"type": "number" if t == NULLABLE else t}}
+        if t == NULLABLE:
+            props[k]["description"] = f"0 where {k}{VALID_SUFFIX} is false (missing)"
+            props[k + VALID_SUFFIX] = {"type": "array", "items": {"type": "boolean"},
+                                       "description": f"whether {k} holds a value at this index"}
+    return message_schema(title, props)
+
+
+def _nullable_fields(schema: dict) -> tuple[frozenset, frozenset]:
+    """(array fields with a ``_valid`` companion, all other number / object fields) of a schema."""
+    props = schema.get("properties", {})
+    arrays = frozenset(k for k in props if k + VALID_SUFFIX in props and props[k].get("type") == "array")
+    others = frozenset(k for k, v in props.items()
+                       if k not in arrays and v.get("type") in ("number", "integer", "object", "string", "boolean"))
+    return arrays, others
+
+
+def _drop_missing(v):
+    """An object member / scalar without its NaN or None entries (objects recursively)."""
+    if isinstance(v, dict):
+        return {k: _drop_missing(x) for k, x in v.items() if not _missing(x)}
+    return v
+
+
+def _missing(v) -> bool:
+    return v is None or (isinstance(v, float) and v != v)
+
+
+def _with_validity(payload: dict, field: str) -> None:
+    """Replace missing elements of ``payload[field]`` by 0 and set ``payload[field + '_valid']``."""
+    vals = payload.get(field)
+    if vals is None:
+        return
+    vals = vals.tolist() if isinstance(vals, np.ndarray) else list(vals)
+    valid = [not _missing(x) for x in vals]
+    payload[field] = [x if ok else 0.0 for x, ok in zip(vals, valid)]
+    payload[field + VALID_SUFFIX] = valid
+
+
+PHASE_SCHEMA = array_schema(
+    "cdgps.DifferentialPhase",
+    {"receiver": "string", "antenna": "string", "transmitter": "string", "phase_cycles": "number",
+     "lock": "integer", "snr_dbhz": "number|null"},
+    {"master": "string"},
+)
+GYRO_SCHEMA = array_schema("cdgps.RateGyro", {"gyro": "string", "rate_rad_s": "number"})
+ACTUATOR_SCHEMA = array_schema("cdgps.ThrusterCommand", {"actuator": "string", "force_n": "number"})
+
+
+def time_ns(time_s: float, time_scale: str = "relative") -> int:
+    """Payload seconds → log time, integer Unix nanoseconds (:func:`cdgps_cli.core.timescales.unix_ns`)."""
+    return unix_ns(time_s, time_scale)
+
+
+def timestamp(time_s: float, time_scale: str = "relative") -> dict:
+    ns = time_ns(time_s, time_scale)
+    return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
+
+
+_OPCODE_ATTACHMENT = int(Opcode.ATTACHMENT)
+_WRITER_INTERNALS = ("flush", "stream", "enable_data_crcs", "data_section_crc", "statistics",
+                     "index_types", "attachment_indexes")
+
+
+def _streaming_supported(writer: Writer, fh) -> bool:
+    """Whether :meth:`McapOut.attach_stream` can write past the mcap Writer (its private state is as
+    expected: mcap-python ≥ 1.1, writing to our own file handle)."""
+    if not all(hasattr(writer, "_Writer__" + a) for a in _WRITER_INTERNALS):
+        return False
+    return writer._Writer__stream is fh and hasattr(writer._Writer__statistics, "attachment_count")
+
+
+class McapOut:
+    """Atomic MCAP writer (context manager).
+
+    Examples
+    --------
+    >>> with McapOut("run.mcap") as out:                        # doctest: +SKIP
+    ...     ch = out.channel("/cdgps/phase", PHASE_SCHEMA)
+    ...     out.write(ch, 0.1, {"phase_cycles": [0.25]})
+    """
+
+    def __init__(self, path: str | Path, profile: str = "cdgps", time_scale: str = "relative"):
+        if time_scale not in TIME_SCALES:
+            raise ValueError(f"time_scale {time_scale!r}: expected one of {', '.join(TIME_SCALES)}")
+        self.path = Path(path)
+        self.tmp = temporary_name(self.path)
+        self.profile = profile
+        self.time_scale = time_scale
+        self._schemas: dict[str, int] = {}
+        self._seq: dict[int, int] = {}
+        self._nullable: dict[int, tuple] = {}
+
+    def __enter__(self) -> "McapOut":
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            remove_stale_temporaries(self.path)         # left by a SIGKILLed writer
+            self._fh = open(self.tmp, "wb")
+        except OSError as exc:
+            raise CdgpsError(f"{self.path}: cannot write: {exc.strerror}") from None
+        self.writer = Writer(self._fh, compression=CompressionType.ZSTD, enable_crcs=True,
+                             enable_data_crcs=True, chunk_size=1 << 20)
+        try:
+            self.writer.start(profile=self.profile, library="cdgps")
+        except OSError as err:                  # full disk already at the header
+            self._fh.close()
+            self.tmp.unlink(missing_ok=True)
+            raise output_error(self.path, err) from None
+        return self
+
+    def channel(self, topic: str, schema: dict, metadata: dict | None = None) -> int:
+        """Register a channel; its metadata also records the time scale (``time_scale``,
+        ``time_origin_utc`` for relative runs) and that log times are Unix time."""
+        title = schema["title"]
+        data = json.dumps(schema, sort_keys=True).encode()
+        if title not in self._schemas:
+            self._schemas[title] = (self.writer.register_schema(name=title, encoding="jsonschema", data=data), data)
+        elif self._schemas[title][1] != data:
+            raise ValueError(f"schema {title!r} registered twice with different contents")
+        meta = {"time_scale": self.time_scale, "log_time": "UTC, ns since 1970-01-01 (Unix time)"}
+        if self.time_scale == "relative":
+            meta["time_origin_utc"] = RELATIVE_EPOCH_UTC
+        meta.update(metadata or {})
+        cid = self.writer.register_channel(topic=topic, message_encoding="json",
+                                           schema_id=self._schemas[title][0], metadata=meta)
+        self._seq[cid] = 0
+        self._nullable[cid] = _nullable_fields(schema)
+        return cid
+
+    def write(self, channel_id: int, time_s: float, payload: dict) -> None:
+        """Write one message at payload time ``time_s`` (the file's time scale; log time in Unix ns).
+
+        Missing values (None or NaN) are encoded as the channel's schema says: arrays with a
+        ``<field>_valid`` companion get 0 there and ``false`` in the companion; scalars and object
+        members are left out.  Anything else that is missing is an error (no ``null`` is written).
+        """
+        ns = time_ns(time_s, self.time_scale)
+        msg = {"timestamp": {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}, "time_s": float(time_s)}
+        arrays, others = self._nullable[channel_id]
+        for k, v in payload.items():
+            if k in arrays:
+                msg[k] = v
+                _with_validity(msg, k)
+            elif k in others or not isinstance(v, list):
+                if not _missing(v):
+                    msg[k] = _drop_missing(v)
+            else:
+                if None in v:
+                    raise ValueError(f"message at {time_s!r} s: missing values in array field {k!r} whose schema "
+                                     f"has no {VALID_SUFFIX} companion")
+                msg[k] = v
+        try:
+            data = json.dumps(msg, separators=(",", ":"), allow_nan=False).encode()
+        except ValueError:
+            bad = [k for k, v in msg.items() if isinstance(v, list) and any(_missing(x) for x in v)]
+            raise ValueError(f"message at {time_s!r} s: missing values in array field(s) {', '.join(bad) or '?'} "
+                             f"whose schema has no {VALID_SUFFIX} companion") from None
+        self.writer.add_message(channel_id=channel_id, log_time=ns, publish_time=ns, data=data,
+                                sequence=self._seq[channel_id])
+        self._seq[channel_id] += 1
+
+    def write_table(self, channel_id: int, df: pd.DataFrame, array_columns: list[str],
+                    scalar_columns: list[str] = ()) -> int:
+        """Write a long table (sorted by ``time_s``) as one message per distinct time.
+
+        Returns the number of messages written.
+        """
+        if len(df) == 0:
+            return 0
+        t = df["time_s"].to_numpy()
+        cuts = np.flatnonzero(np.r_[True, t[1:] != t[:-1], True])
+        cols = {c: df[c].to_numpy() for c in array_columns}
+        lists = {c: v.tolist() for c, v in cols.items()}      # NaN: encoded by write() per the schema
+        scal = {c: df[c].to_numpy() for c in scalar_columns}
+        for a, b in progress.iterate(zip(cuts[:-1], cuts[1:]), f"writing {self.path.name}", len(cuts) - 1, "msg"):
+            payload = {c: scal[c][a] for c in scalar_columns}
+            payload.update({c: lists[c][a:b] for c in array_columns})
+            self.write(channel_id, t[a], payload)
+        return len(cuts) - 1
+
+    def attach(self, name: str, data: bytes, media_type: str = "text/plain") -> None:
+        self.writer.add_attachment(create_time=0, log_time=0, name=name, media_type=media_type, data=data)
+
+    def attach_npy(self, name: str, arr: np.ndarray, media_type: str = "application/x-npy",
+                   chunk_bytes: int = 1 << 20) -> None:
+        """Attach ``arr`` in ``.npy`` format (the bytes of ``np.save``), streamed to the file.
+
+        Neither the ``.npy`` bytes nor the attachment record are built in memory: the array is
+        written in pieces of about ``chunk_bytes`` (a C-ordered copy of a few rows at a time when it
+        is not contiguous), so a large (N, n, n) slice costs no full-size copy.  The file is the same,
+        byte for byte, as ``attach(name, <np.save bytes>, media_type)``.
+        """
+        arr = np.asanyarray(arr)
+        if arr.dtype.hasobject:
+            raise ValueError("object arrays cannot be attached as .npy")
+        d = np.lib.format.header_data_from_array_1_0(arr)
+        head = io.BytesIO()
+        try:
+            np.lib.format.write_array_header_1_0(head, d)
+        except ValueError:                                   # header too long for format 1.0
+            np.lib.format.write_array_header_2_0(head, d)
+        src = arr.T if d["fortran_order"] else arr           # np.save writes Fortran arrays as-is
+        n_rows = src.shape[0] if src.ndim else 1
+        row_bytes = max(src.nbytes // max(n_rows, 1), 1)
+        step = max(chunk_bytes // row_bytes, 1)
+
+        def pieces():
+            yield head.getvalue()
+            if src.ndim == 0:
+                yield src.tobytes()
+                return
+            for i in range(0, n_rows, step):
+                block = np.ascontiguousarray(src[i:i + step])
+                if block.nbytes:
+                    yield memoryview(block).cast("B")
+
+        self.attach_stream(name, len(head.getvalue()) + src.nbytes, pieces(), media_type)
+
+    def attach_stream(self, name: str, size: int, pieces, media_type: str = "text/plain") -> None:
+        """Attach ``size`` bytes given as an iterable of bytes-like ``pieces``, written as they come.
+
+        Writes the same attachment record, CRCs and index entry as :meth:`attach`, without holding
+        the data: the mcap library builds every record in memory (several copies of an attachment),
+        so large attachments go straight to the file here.  Falls back to :meth:`attach` when the
+        installed mcap writer does not have the internals this relies on.
+        """
+        w = self.writer
+        if not _streaming_supported(w, self._fh):
+            data = b"".join(bytes(p) for p in pieces)
+            if len(data) != size:
+                raise ValueError(f"attachment {name!r}: expected {size} bytes, got {len(data)}")
+            self.attach(name, data, media_type)
+            return
+        w._Writer__flush()                     # records built so far go out first (as add_attachment does)
+        fh = self._fh
+        offset = fh.tell()
+        name_b, media_b = name.encode(), media_type.encode()
+        body_len = 8 + 8 + 4 + len(name_b) + 4 + len(media_b) + 8 + size + 4
+        head = (struct.pack("<BQ", _OPCODE_ATTACHMENT, body_len) + struct.pack("<QQ", 0, 0)
+                + struct.pack("<I", len(name_b)) + name_b + struct.pack("<I", len(media_b)) + media_b
+                + struct.pack("<Q", size))
+        data_crcs = bool(w._Writer__enable_data_crcs)
+        section_crc = w._Writer__data_section_crc
+
+        def put(b):
+            nonlocal section_crc
+            fh.write(b)
+            if data_crcs:
+                section_crc = zlib.crc32(b, section_crc)
+
+        put(head)
+        crc = zlib.crc32(head[9:])
+        written = 0
+        for p in pieces:
+            crc = zlib.crc32(p, crc)
+            put(p)
+            written += len(p)
+        if written != size:
+            raise ValueError(f"attachment {name!r}: expected {size} bytes, got {written}")
+        put(struct.pack("<I", crc))
+        w._Writer__data_section_crc = section_crc
+        w._Writer__statistics.attachment_count += 1
+        if w._Writer__index_types & IndexType.ATTACHMENT:
+            w._Writer__attachment_indexes.append(AttachmentIndex(
+                offset=offset, length=9 + body_len, create_time=0, log_time=0, data_size=size,
+                name=name, media_type=media_type))
+
+    def metadata(self, name: str, data: dict) -> None:
+        """Write a metadata record (values as strings) with its own ``record_sha256``
+        (:func:`cdgps_cli.io.mcap_integrity.record_sha256`: MCAP metadata records have no CRC)."""
+        if RECORD_SHA256_KEY in data:
+            raise ValueError(f"metadata {name!r}: the key {RECORD_SHA256_KEY!r} is reserved")
+        rec = {str(k): str(v) for k, v in data.items()}
+        rec[RECORD_SHA256_KEY] = record_sha256(name, rec)
+        self.writer.add_metadata(name=name, data=rec)
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        try:
+            if exc_type is None:
+                self.writer.finish()
+            self._fh.close()
+            if exc_type is None:
+                os.replace(self.tmp, self.path)
+        except OSError as err:                  # full disk, file-size limit while finishing
+            raise output_error(self.path, err) from None
+        finally:
+            if self.tmp.exists():
+                self.tmp.unlink()
+        if isinstance(exc, OSError) and is_no_room(exc):   # the same while writing messages
+            raise output_error(self.path, exc) from None
+
+
+class TopicColumns:
+    """Messages of one topic accumulated column-wise while reading (memory-lean).
+
+    ``scalars[name]`` holds one value per message (None where a message lacks the key);
+    array fields are appended to one flat growing buffer per field (8-byte floats, None → NaN;
+    strings as 4-byte integer codes into a per-field vocabulary), so a million elements cost
+    8 MB and no per-message objects; :meth:`column` returns their concatenation as numpy;
+    ``counts`` is the array length of each message.
+    """
+
+    def __init__(self):
+        self.scalars: dict[str, list] = {}
+        self._buf: dict[str, array] = {}
+        self._vocab: dict[str, dict] = {}
+        self.counts: list[int] = []
+
+    def add(self, msg: dict) -> None:
+        n = None
+        count = len(self.counts)
+        for k, v in msg.items():
+            if isinstance(v, list):
+                n = len(v) if n is None else n
+                if not v:
+                    continue
+                buf = self._buf.get(k)
+                if isinstance(v[0], str):
+                    if buf is None:
+                        buf = self._buf[k] = array("i")
+                        self._vocab[k] = {}
+                    elif k not in self._vocab:
+                        raise ValueError(f"field {k!r}: strings after numbers")
+                    vocab = self._vocab[k]
+                    try:
+                        buf.extend([vocab.setdefault(e, len(vocab)) for e in v])
+                    except TypeError:                         # unhashable element
+                        raise ValueError(f"field {k!r}: mixed array elements") from None
+                else:
+                    if buf is None:
+                        buf = self._buf[k] = array("d")
+                    elif k in self._vocab:
+                        raise ValueError(f"field {k!r}: numbers after strings")
+                    size = len(buf)
+                    try:
+                        buf.extend(v)
+                    except TypeError:                         # None (→ NaN), nested or mixed lists
+                        del buf[size:]                        # extend stops part way: undo
+                        vals = np.array(v, dtype=float)
+                        if vals.ndim != 1:
+                            raise ValueError(f"field {k!r}: nested arrays are not supported") from None
+                        buf.frombytes(vals.tobytes())
+            elif k != "timestamp":
+                col = self.scalars.get(k)
+                if col is None:
+                    col = self.scalars[k] = [None] * count      # a key first seen now: backfill
+                col.append(v)
+        for k, col in self.scalars.items():
+            if len(col) == count:                             # a key this message lacks
+                col.append(None)
+        self.counts.append(0 if n is None else n)
+
+    def __len__(self) -> int:
+        return len(self.counts)
+
+    def times(self) -> np.ndarray:
+        return np.asarray(self.scalars.get("time_s", []), dtype=float)
+
+    def column(self, name: str) -> np.ndarray:
+        """Concatenation of an array field over all messages (object array for strings).
+
+        Numbers whose ``<name>_valid`` companion is false come back as NaN (as ``null`` elements
+        of files written before the companions did).
+        """
+        buf = self._buf.get(name)
+        if not buf:
+            return np.array([], dtype=float)
+        if name in self._vocab:
+            words = np.empty(len(self._vocab[name]), dtype=object)
+            for w, i in self._vocab[name].items():
+                words[i] = w
+            return words[np.frombuffer(buf, dtype=np.int32)]
+        out = np.frombuffer(buf, dtype=float).copy()          # a copy: the buffer may still grow
+        valid = self._buf.get(name + VALID_SUFFIX)
+        if valid is not None and name + VALID_SUFFIX not in self._vocab:
+            if len(valid) != out.size:
+                raise ValueError(f"field {name!r}: {out.size} values but {len(valid)} {name}{VALID_SUFFIX} flags")
+            out[np.frombuffer(valid, dtype=float) == 0.0] = np.nan
+        return out
+
+    def table(self, array_columns: list[str], scalar_columns: list[str] = ()) -> pd.DataFrame:
+        """Long table: one row per array element, scalars repeated (inverse of write_table)."""
+        counts = np.asarray(self.counts, dtype=np.int64)
+        out = {"time_s": np.repeat(self.times(), counts)}
+        for c in scalar_columns:
+            out[c] = np.repeat(np.array(self.scalars.get(c, []), dtype=object), counts)
+        for c in array_columns:
+            out[c] = self.column(c)
+        return pd.DataFrame(out)
+
+
+@dataclass
+class McapContents:
+    """What :func:`read_mcap` returns: messages per topic (column-wise), attachments and metadata."""
+
+    path: str
+    topics: dict            # topic → TopicColumns (log-time order)
+    attachments: dict       # name → bytes
+    metadata: dict          # name → dict[str, str]
+    schemas: dict           # topic → (schema name, encoding)
+    message_encoding: dict  # topic → encoding
+    channel_metadata: dict = field(default_factory=dict)  # topic → dict[str, str] (e.g. time_scale)
+    channels: frozenset = frozenset()   # every topic registered in the file (also those without messages)
+
+    def require_channels(self, *topics: str, what: str = "cdgps file") -> None:
+        """Refuse the file unless every topic in ``topics`` has a channel (a CdgpsError naming them)."""
+        missing = [t for t in topics if t not in self.channels]
+        if missing:
+            raise CdgpsError(f"{self.path}: no {', '.join(missing)} channel; expected in a {what} "
+                             f"(damaged or not written by cdgps)")
+
+    def require_metadata(self, name: str, what: str = "cdgps file") -> dict:
+        """The metadata record ``name``, or a CdgpsError naming the file and the record."""
+        if name not in self.metadata:
+            raise CdgpsError(f"{self.path}: no {name!r} metadata record; expected in a {what} "
+                             f"(damaged or not written by cdgps)")
+        return self.metadata[name]
+
+
+def _check_attachment_crcs(fh, summary, path, zero_ok: bool = True) -> None:
+    """Validate every attachment's CRC-32 (the mcap library writes it but does not check it);
+    a CRC of 0 ("not computed") is refused unless ``zero_ok`` (the data-section CRC covered it)."""
+    for idx in summary.attachment_indexes:
+        fh.seek(idx.offset)
+        raw = fh.read(idx.length)
+        if len(raw) != idx.length or len(raw) < 13:
+            raise CdgpsError(f"{path}: attachment {idx.name!r} is truncated")
+        content = raw[9:]                      # opcode (1) + record length (8)
+        stored = struct.unpack("<I", content[-4:])[0]
+        if stored == 0 and not zero_ok:
+            raise CdgpsError(f"{path}: attachment {idx.name!r} has no CRC and the file no data-section CRC: "
+                             f"its bytes cannot be checked")
+        if stored != 0 and zlib.crc32(content[:-4]) != stored:
+            raise CdgpsError(f"{path}: attachment {idx.name!r} fails its CRC check (corrupt file)")
+
+
+def _message_count(summary, topics) -> int | None:
+    """Messages of ``topics`` (None: all) from the summary's statistics (for progress only)."""
+    st = summary.statistics
+    if st is None or topics == []:
+        return None if st is None else 0
+    if topics is None:
+        return int(st.message_count)
+    want = {cid for cid, ch in summary.channels.items() if ch.topic in topics}
+    return int(sum(n for cid, n in st.channel_message_counts.items() if cid in want))
+
+
+class _InputBoundedFile:
+    """A read-only view of an open file whose ``read(n)`` never asks for more than the bytes left.
+
+    The mcap reader allocates a record from its length field; a flipped length (2**63) then asks
+    for exabytes (MemoryError / OverflowError).  Clamped to the file size, such a read comes back
+    short and the reader reports the truncation it sees."""
+
+    def __init__(self, fh):
+        self._fh = fh
+        self._size = os.fstat(fh.fileno()).st_size
+
+    def __getattr__(self, name):                  # seek, tell, seekable, ...: the file's own
+        return getattr(self._fh, name)
+
+    def read(self, n: int = -1) -> bytes:
+        left = max(self._size - self._fh.tell(), 0)
+        return self._fh.read(left if n is None or n < 0 else min(n, left))
+
+    def readinto(self, b) -> int:
+        data = self.read(len(b))
+        b[:len(data)] = data
+        return len(data)
+
+
+#: what the mcap reader and its decompressors raise on damaged bytes (zstd/lz4 data errors,
+#: lengths past the file, a decompressed size that cannot be allocated)
+_CORRUPT_MCAP_ERRORS = (McapError, EOFError, ValueError, KeyError, IndexError, struct.error, OSError,
+                        UnicodeDecodeError, MemoryError, OverflowError, zstandard.ZstdError)
+
+
+@contextlib.contextmanager
+def open_verified(path: str | Path):
+    """Open an MCAP file for reading after checking its integrity
+    (:func:`cdgps_cli.io.mcap_integrity.verify_file`: magic, footer, summary and data-section CRCs).
+
+    Yields ``(reader, fh, integrity, summary)``; ``integrity.metadata`` holds the metadata records,
+    each verified (:func:`~cdgps_cli.io.mcap_integrity.check_records`).  Any damage met inside the
+    block, or while opening, becomes a CdgpsError naming the file.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise CdgpsError(f"{p}: no such file")
+    try:
+        with open(p, "rb") as raw:
+            fh = _InputBoundedFile(raw)
+            info = verify_file(fh, p)
+            warn_once(info)
+            fh.seek(0)
+            reader = make_reader(fh, validate_crcs=True)
+            summary = reader.get_summary()
+            if summary is None:
+                raise CdgpsError(f"{p}: MCAP file has no summary section (truncated or not written by a complete run)")
+            info.metadata = check_records(reader.iter_metadata(), info, p)
+            yield reader, fh, info, summary
+    except CdgpsError:
+        raise
+    except _CORRUPT_MCAP_ERRORS as exc:
+        raise CdgpsError(f"{p}: not a valid MCAP file (truncated or corrupt): {type(exc).__name__}: "
+                         f"{str(exc)[:200]}") from None
+
+
+def read_mcap(path: str | Path, topics: list[str] | None = None) -> McapContents:
+    """Read an MCAP file, every byte checked before any value is used (:func:`open_verified`,
+    chunk and attachment CRCs, each metadata record's ``record_sha256``).
+
+    Raises
+    ------
+    CdgpsError
+        If the file is missing, not an MCAP file, truncated or fails a check.
+    """
+    p = Path(path)
+    cols: dict = {}
+    schemas, encodings, chan_meta = {}, {}, {}
+    with open_verified(p) as (reader, fh, info, summary):
+        messages = reader.iter_messages(topics=topics) if topics != [] else ()
+        for schema, channel, message in progress.iterate(messages, f"reading {p.name}",
+                                                          _message_count(summary, topics), "msg"):
+            acc = cols.get(channel.topic)
+            if acc is None:
+                acc = cols[channel.topic] = TopicColumns()
+                schemas[channel.topic] = (schema.name if schema else "", schema.encoding if schema else "")
+                encodings[channel.topic] = channel.message_encoding
+                chan_meta[channel.topic] = dict(channel.metadata or {})
+            acc.add(json.loads(message.data))
+        _check_attachment_crcs(fh, summary, p, zero_ok=info.data_section_crc_checked)
+        attachments = {a.name: bytes(a.data) for a in reader.iter_attachments()}
+        channels = frozenset(ch.topic for ch in summary.channels.values())
+    return McapContents(str(p), cols, attachments, info.metadata, schemas, encodings, chan_meta, channels)

@@ -1,0 +1,248 @@
+"""RUN.mcap: the ingested, validated recording that every later stage reads.
+
+:func:`write_run` is the library form of ``cdgps ingest``; :func:`read_run` loads a RUN.mcap back
+into tables plus the embedded structure config (later stages need no ``--config``).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from cdgps_cli import __version__
+from cdgps_cli.io.atomic import file_sha256
+from cdgps_cli.config.structure import StructureConfig, parse_config
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.core.time_format import format_time, median_spacing_s, time_scale
+from cdgps_cli.io.logs import read_actuator_log, read_gyro_log, read_receiver_log
+from cdgps_cli.io.mcap import (ACTUATOR_SCHEMA, ACTUATOR_TOPIC, CONFIG_ATTACHMENT, GYRO_SCHEMA, GYRO_TOPIC,
+                      PHASE_SCHEMA, PHASE_TOPIC, McapOut, TopicColumns, read_mcap)
+
+PHASE_ARRAYS = ["receiver", "antenna", "transmitter", "phase_cycles", "lock", "snr_dbhz"]
+GYRO_ARRAYS = "arrays/cdgps/gyro/"
+
+
+def _npy(arr: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, arr, allow_pickle=False)
+    return buf.getvalue()
+
+
+def _gyro_from_attachments(att: dict) -> pd.DataFrame | None:
+    try:
+        t = np.load(io.BytesIO(att[GYRO_ARRAYS + "time_s.npy"]), allow_pickle=False)
+        r = np.load(io.BytesIO(att[GYRO_ARRAYS + "rate_rad_s.npy"]), allow_pickle=False)
+        i = np.load(io.BytesIO(att[GYRO_ARRAYS + "gyro_index.npy"]), allow_pickle=False)
+        names = np.array(json.loads(att[GYRO_ARRAYS + "gyro_names.json"]), dtype=object)
+    except (KeyError, ValueError, OSError):
+        return None
+    return pd.DataFrame({"time_s": t, "gyro": names[i], "rate_rad_s": r})
+INGEST_METADATA = "cdgps.ingest"
+
+
+@dataclass
+class Run:
+    """An ingested recording.
+
+    Attributes
+    ----------
+    cfg : StructureConfig
+        The structure config embedded in the file.
+    phase : DataFrame
+        Long table time_s, master, receiver, antenna, transmitter, phase_cycles, lock, snr_dbhz.
+    gyro, actuators : DataFrame
+        Long tables (possibly empty).
+    metadata : dict
+    """
+
+    path: str
+    cfg: StructureConfig
+    phase: pd.DataFrame
+    gyro: pd.DataFrame
+    actuators: pd.DataFrame
+    metadata: dict
+
+
+
+def memory_run(cfg: StructureConfig, phase: pd.DataFrame, gyro: pd.DataFrame | None = None,
+               actuators: pd.DataFrame | None = None, name: str = "<memory>") -> Run:
+    """A :class:`Run` from tables already in memory (e.g. ``simulate(...).receiver``), without files:
+    what :func:`read_run` returns for the same data.  Missing gyro/actuator tables are empty."""
+    if actuators is None:
+        actuators = pd.DataFrame({"time_s": pd.Series([], dtype=float), "actuator": pd.Series([], dtype=object),
+                                  "force_n": pd.Series([], dtype=float)})
+    return Run(name, cfg, phase.reset_index(drop=True), pd.DataFrame() if gyro is None else gyro, actuators, {})
+
+
+def epoch_gaps(time_s: np.ndarray, period_s: float) -> list[dict]:
+    """Gaps between consecutive distinct epochs longer than 1.5 sample periods."""
+    t = np.unique(time_s)
+    if t.size < 2:
+        return []
+    dt = np.diff(t)
+    idx = np.flatnonzero(dt > 1.5 * period_s)
+    return [{"start_s": float(t[i]), "end_s": float(t[i + 1]), "missing_epochs": int(round(dt[i] / period_s)) - 1}
+            for i in idx]
+
+
+def channel_summary(phase: pd.DataFrame) -> list[dict]:
+    """Per channel: rows, first/last time, lock (re)starts after the first epoch (slips/relocks)."""
+    out = []
+    if len(phase) == 0:
+        return out
+    g = phase.groupby(["antenna", "transmitter"], sort=True)
+    first = g["time_s"].min()
+    last = g["time_s"].max()
+    rows = g.size()
+    relock = phase[(phase["lock"] == 0)].groupby(["antenna", "transmitter"])["time_s"].apply(list)
+    for key in rows.index:
+        starts = relock.get(key, [])
+        out.append({"antenna": key[0], "transmitter": key[1], "rows": int(rows[key]),
+                    "first_s": float(first[key]), "last_s": float(last[key]),
+                    "lock_restarts_s": [float(t) for t in starts if t > first[key]]})
+    return out
+
+
+def write_run(cfg: StructureConfig, receiver_csv: str | Path, out_path: str | Path,
+              gyro_csv: str | Path | None = None, actuator_csv: str | Path | None = None) -> dict:
+    """Validate native CSV logs and write one self-contained RUN.mcap.
+
+    Parameters
+    ----------
+    cfg : StructureConfig
+        Structure model the logs refer to (embedded as an attachment).
+    receiver_csv, gyro_csv, actuator_csv : path
+        Native logs (see :mod:`cdgps_cli.io.logs`); gyro and actuator logs are optional.
+    out_path : path
+        Output MCAP; written atomically.
+
+    Returns
+    -------
+    dict
+        Summary: counts, time span, gaps, channels.
+    """
+    sources = {"receiver_csv": Path(receiver_csv)}
+    if gyro_csv:
+        sources["gyro_csv"] = Path(gyro_csv)
+    if actuator_csv:
+        sources["actuator_csv"] = Path(actuator_csv)
+    out_path = Path(out_path)
+    for k, p in sources.items():
+        if p.resolve() == out_path.resolve():
+            raise CdgpsError(f"{out_path}: the output would overwrite the input {k}")
+    phase = read_receiver_log(sources["receiver_csv"], cfg)
+    gyro = read_gyro_log(sources["gyro_csv"], cfg) if gyro_csv else None
+    act = read_actuator_log(sources["actuator_csv"], cfg) if actuator_csv else None
+    meta = {"cdgps_version": __version__, "created_by": "cdgps ingest", "config_name": cfg.name,
+            "config_sha256": cfg.sha256, "config_path": Path(cfg.path).name,
+            "sample_period_s": repr(cfg.sample_period_s)}
+    for k, p in sources.items():
+        meta[k] = p.name
+        meta[k + "_sha256"] = file_sha256(p)
+    with McapOut(out_path, time_scale="relative") as out:     # time_s: run seconds (cdgps_cli.core.timescales)
+        ch = out.channel(PHASE_TOPIC, PHASE_SCHEMA, {"units": "cycles", "wavelength_m": repr(cfg.wavelength_m)})
+        n_phase = out.write_table(ch, phase, PHASE_ARRAYS, ["master"])
+        n_gyro = n_act = 0
+        if gyro is not None and len(gyro):          # (a header-only log of a config without gyros: no topic)
+            n_gyro = out.write_table(out.channel(GYRO_TOPIC, GYRO_SCHEMA, {"units": "rad/s"}), gyro, ["gyro", "rate_rad_s"])
+            # the gyro log also as .npy arrays (fast reading by spectra and reports)
+            codes, names = pd.factorize(gyro["gyro"])
+            out.attach(GYRO_ARRAYS + "time_s.npy", _npy(gyro["time_s"].to_numpy(dtype=float)), "application/x-npy")
+            out.attach(GYRO_ARRAYS + "rate_rad_s.npy", _npy(gyro["rate_rad_s"].to_numpy(dtype=float)), "application/x-npy")
+            out.attach(GYRO_ARRAYS + "gyro_index.npy", _npy(codes.astype(np.int64)), "application/x-npy")
+            out.attach(GYRO_ARRAYS + "gyro_names.json", json.dumps(list(names)).encode(), "application/json")
+        if act is not None:
+            n_act = out.write_table(out.channel(ACTUATOR_TOPIC, ACTUATOR_SCHEMA, {"units": "N"}), act, ["actuator", "force_n"])
+        out.attach(CONFIG_ATTACHMENT, cfg.text.encode("utf-8"), "application/toml")
+        out.metadata(INGEST_METADATA, meta)
+    t = phase["time_s"].to_numpy()
+    return {
+        "output": str(out_path),
+        "config": cfg.name,
+        "config_sha256": cfg.sha256,
+        "phase_rows": int(len(phase)), "phase_messages": n_phase,
+        "gyro_rows": int(0 if gyro is None else len(gyro)), "gyro_messages": n_gyro,
+        "actuator_rows": int(0 if act is None else len(act)), "actuator_messages": n_act,
+        "start_s": float(t[0]), "end_s": float(t[-1]),
+        "gaps": epoch_gaps(t, cfg.sample_period_s),
+        "channels": int(phase.groupby(["antenna", "transmitter"]).ngroups),
+        "lock_restarts": int(((phase["lock"] == 0) & (t > t[0])).sum()),
+    }
+
+
+def read_run(path: str | Path, phase: bool = True) -> Run:
+    """Read a RUN.mcap written by :func:`write_run` (CRCs validated).
+
+    With ``phase=False`` only the gyro and actuator topics are decoded (the phase table is empty).
+    """
+    want_phase = phase
+    c = read_mcap(path, topics=None if want_phase else [ACTUATOR_TOPIC])
+    if "cdgps.estimate" not in c.metadata:
+        c.require_metadata(INGEST_METADATA, "RUN.mcap from 'cdgps ingest'")
+    if c.metadata.get(INGEST_METADATA, {}).get("kind") == "gnss":
+        raise CdgpsError(f"{path}: this is a GNSS run (RINEX/UBX receivers, docs/gnss-pipeline.md), not a structure run; "
+                         f"it is processed by 'cdgps init' and 'cdgps estimate' into displacement states")
+    if "cdgps.estimate" in c.metadata:
+        raise CdgpsError(f"{path}: this is a STATES.mcap (from 'cdgps estimate'), not a RUN.mcap from 'cdgps ingest'")
+    if CONFIG_ATTACHMENT not in c.attachments:
+        raise CdgpsError(f"{path}: no {CONFIG_ATTACHMENT} attachment; is this a RUN.mcap from 'cdgps ingest'?")
+    c.require_channels(PHASE_TOPIC, what="RUN.mcap from 'cdgps ingest'")
+    if want_phase and PHASE_TOPIC not in c.topics:
+        raise CdgpsError(f"{path}: no {PHASE_TOPIC} messages; is this a RUN.mcap from 'cdgps ingest'?")
+    cfg = parse_config(c.attachments[CONFIG_ATTACHMENT].decode("utf-8"), f"{path}:{CONFIG_ATTACHMENT}")
+    phase = c.topics.get(PHASE_TOPIC, TopicColumns()).table(PHASE_ARRAYS, ["master"])
+    for col in ("receiver", "master", "antenna", "transmitter", "phase_cycles", "lock", "snr_dbhz"):
+        if col not in phase:
+            phase[col] = np.array([], dtype=float)
+    phase = phase[["time_s", "receiver", "master", "antenna", "transmitter", "phase_cycles", "lock", "snr_dbhz"]]
+    for col in ("receiver", "master", "antenna", "transmitter"):
+        if len(phase):
+            phase[col] = phase[col].astype("category")       # a few names repeated 1e6 times
+    phase["lock"] = phase["lock"].astype(np.int64)
+    phase["snr_dbhz"] = phase["snr_dbhz"].astype(float)
+    gyro = _gyro_from_attachments(c.attachments) if not want_phase else None
+    if gyro is None:
+        if not want_phase and GYRO_TOPIC not in c.topics:
+            c2 = read_mcap(path, topics=[GYRO_TOPIC])        # an older RUN.mcap without arrays
+            c.topics.update(c2.topics)
+        gyro = c.topics.get(GYRO_TOPIC, TopicColumns()).table(["gyro", "rate_rad_s"])
+    act = c.topics.get(ACTUATOR_TOPIC, TopicColumns()).table(["actuator", "force_n"])
+    return Run(str(path), cfg, phase, gyro, act, c.metadata.get(INGEST_METADATA, {}))
+
+
+def run_info(path: str | Path) -> dict:
+    """Summary of a RUN.mcap for ``cdgps info``: topics, counts, span, sampling, gaps, channels, slips."""
+    c = read_mcap(path)
+    info = {"file": str(path), "topics": [], "metadata": c.metadata,
+            "attachments": sorted(c.attachments)}
+    for topic, msgs in sorted(c.topics.items()):
+        t = msgs.times()
+        scale = time_scale(c, topic, t)
+        start, end = (float(np.min(t)), float(np.max(t))) if t.size else (None, None)
+        info["topics"].append({
+            "topic": topic, "schema": c.schemas[topic][0], "schema_encoding": c.schemas[topic][1],
+            "message_encoding": c.message_encoding[topic], "messages": len(msgs),
+            "start_s": start, "end_s": end, "time_scale": scale,
+            "start": format_time(start, scale), "end": format_time(end, scale),
+            "median_period_s": median_spacing_s(t, msgs.scalars.get("receiver")),
+        })
+    from cdgps_cli.io.gnss_run import gnss_run_info, is_gnss_run  # noqa: PLC0415 (GNSS runs: docs/gnss-pipeline.md)
+
+    if is_gnss_run(c):
+        info["gnss"] = gnss_run_info(path, c)
+    if PHASE_TOPIC in c.topics and CONFIG_ATTACHMENT in c.attachments:
+        cfg = parse_config(c.attachments[CONFIG_ATTACHMENT].decode("utf-8"), f"{path}:{CONFIG_ATTACHMENT}")
+        phase = c.topics[PHASE_TOPIC].table(PHASE_ARRAYS, ["master"])
+        info["config"] = cfg.summary()
+        info["gaps"] = epoch_gaps(phase["time_s"].to_numpy(), cfg.sample_period_s)
+        chans = channel_summary(phase)
+        info["channels"] = chans
+        info["slips"] = [{"antenna": ch["antenna"], "transmitter": ch["transmitter"], "time_s": t}
+                         for ch in chans for t in ch["lock_restarts_s"]]
+        info["slips"].sort(key=lambda r: (r["time_s"], r["antenna"], r["transmitter"]))
+    return info

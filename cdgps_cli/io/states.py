@@ -1,0 +1,418 @@
+"""STATES.mcap (output of ``cdgps estimate``), CSV export and evaluation against simulator truth.
+
+Topics (JSON schema / JSON, one message per epoch, ``timestamp {sec, nsec}``):
+
+* ``/cdgps/state`` — the estimate (smoothed when ``--smooth``): ``q`` and ``sigma_q`` as objects
+  keyed by coordinate name (so Foxglove plots ``/cdgps/state.q.q10`` directly), the modal state
+  ``xi``, ``xidot``, the modal-position covariance ``P_xi`` (row-major n_m×n_m), ``smoothed``;
+* ``/cdgps/state_filtered`` — the forward filter, only when smoothing;
+* ``/cdgps/angles_deg`` — the section angles reports speak of, in degrees, as flat numbers with
+  plain names so Foxglove's Plot panel plots ``/cdgps/angles_deg.C2_z`` (q6+q10 on the testbed)
+  by name: one per section and axis it rotates about (small-angle sum of its rotation coordinate
+  and, about z, the rigid-body rotation), ``body_z`` for the rigid-body rotation, each with its
+  1-sigma ``sigma_<name>``; the expressions are in the schema's descriptions and the channel's
+  metadata (:func:`cdgps_cli.model.kinematics.section_angles`); absent when the model has no rotations;
+* ``/cdgps/residuals`` — per channel post-fit residual (m), the epoch's NIS (left out where
+  there is none) and its dof;
+* ``/cdgps/events`` — slips, re-acquisitions, outliers, integrity failures and their actions.
+
+``time_s`` is the run's time scale (run seconds, or GPS s for a structure on a GNSS run); log
+times are Unix time (:mod:`cdgps_cli.core.timescales`).  No message holds ``null``
+(:mod:`cdgps_cli.io.mcap`).
+
+Attachments: ``config.toml``, ``init.json``.  Metadata ``cdgps.estimate``: RUN and INIT sha256,
+options, final biases.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from cdgps_cli import __version__
+from cdgps_cli.core import progress
+from cdgps_cli.config.structure import StructureConfig, parse_config
+from cdgps_cli.io.atomic import write_atomic
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.io.mcap import NULLABLE, CONFIG_ATTACHMENT, McapOut, array_schema, message_schema, read_mcap
+
+STATE_TOPIC = "/cdgps/state"
+STATE_FILTERED_TOPIC = "/cdgps/state_filtered"
+RESIDUAL_TOPIC = "/cdgps/residuals"
+EVENT_TOPIC = "/cdgps/events"
+INIT_ATTACHMENT = "init.json"
+ESTIMATE_METADATA = "cdgps.estimate"
+ANGLES_TOPIC = "/cdgps/angles_deg"
+
+
+def _state_schema(cfg: StructureConfig) -> dict:
+    obj = {"type": "object", "properties": {n: {"type": "number"} for n in cfg.coord_names}}
+    s = array_schema("cdgps.StructureState", {"xi": "number", "xidot": "number", "P_xi": "number"},
+                     {"smoothed": "boolean"})
+    s["properties"]["q"] = dict(obj, description="generalized coordinates (m or rad)")
+    s["properties"]["sigma_q"] = dict(obj, description="1-sigma of q")
+    return s
+
+
+RESIDUAL_SCHEMA = array_schema("cdgps.Residuals", {"antenna": "string", "transmitter": "string", "residual_m": "number"},
+                               {"nis": NULLABLE, "nis_dof": "integer"})
+_EVENT_FIELDS = {"antenna": {"type": "string"}, "transmitter": {"type": "string"}, "kind": {"type": "string"},
+                 "action": {"type": "string"},
+                 "velocity_nis": {"type": "number", "description": "rest test statistic (rest events only)"}}
+EVENT_SCHEMA = message_schema("cdgps.Event", _EVENT_FIELDS)
+
+
+def _json_type(v) -> str | None:
+    if isinstance(v, (bool, np.bool_)):
+        return "boolean"
+    if isinstance(v, (int, np.integer)):
+        return "integer"
+    if isinstance(v, (float, np.floating)):
+        return "number"
+    if isinstance(v, str):
+        return "string"
+    return None
+
+
+def event_schema(events: list[dict]) -> dict:
+    """:data:`EVENT_SCHEMA` plus any further detail field the events carry (its JSON type from the
+    values: number when integers and floats mix), so every field is declared for Foxglove."""
+    extra: dict[str, set] = {}
+    for ev in events:
+        for k, v in ev.items():
+            if k != "time_s" and k not in _EVENT_FIELDS and v is not None and not (isinstance(v, float) and v != v):
+                extra.setdefault(k, set()).add(_json_type(v))
+    if not extra:
+        return EVENT_SCHEMA
+    props = dict(_EVENT_FIELDS)
+    for k, types in sorted(extra.items()):
+        if None in types:
+            raise ValueError(f"event field {k!r}: values of an unsupported type")
+        t = types.pop() if len(types) == 1 else ("number" if types <= {"integer", "number"} else None)
+        if t is None:
+            raise ValueError(f"event field {k!r}: values of mixed types {sorted(types)}")
+        props[k] = {"type": t}
+    return message_schema("cdgps.Event", props)
+
+
+def _angles_schema(angles) -> dict:
+    props = {}
+    for name, expr, _ in angles:
+        props[name] = {"type": "number", "description": f"{expr}, degrees"}
+        props["sigma_" + name] = {"type": "number", "description": f"1-sigma of {expr}, degrees"}
+    return message_schema("cdgps.AnglesDeg", props, "section angles in degrees (small-angle sums of coordinates)")
+
+
+def _write_angles(out: McapOut, cfg: StructureConfig, time_s, q: np.ndarray, P_xi: np.ndarray) -> None:
+    """The :data:`ANGLES_TOPIC` messages: section angles and their 1-sigma, degrees."""
+    from cdgps_cli.model.kinematics import section_angles  # noqa: PLC0415
+
+    angles = section_angles(cfg)
+    if not angles:
+        return
+    A = np.array([c for _, _, c in angles])                   # (n_angles, n_q)
+    AU = A @ np.asarray(cfg.mode_shapes)                      # (n_angles, n_m)
+    names = [n for n, _, _ in angles]
+    sig_names = ["sigma_" + n for n in names]
+    ch = out.channel(ANGLES_TOPIC, _angles_schema(angles),
+                     {"units": "deg", "angles": json.dumps({n: e for n, e, _ in angles})})
+    times = np.asarray(time_s, dtype=float)
+    for a in range(0, times.size, 1024):                      # blocks: no full-length temporaries
+        b = min(a + 1024, times.size)
+        deg = np.degrees(q[a:b] @ A.T).tolist()
+        var = np.einsum("ai,nij,aj->na", AU, P_xi[a:b], AU)
+        sig = np.degrees(np.sqrt(np.maximum(var, 0.0))).tolist()
+        for k, t in enumerate(times[a:b].tolist()):
+            msg = dict(zip(names, deg[k]))
+            msg.update(zip(sig_names, sig[k]))
+            out.write(ch, t, msg)
+
+
+def coordinate_sigma(cfg: StructureConfig, P_xi: np.ndarray) -> np.ndarray:
+    """1-σ of q = U ξ from the modal-position covariances (N, n_m, n_m) → (N, n_q)."""
+    U = np.asarray(cfg.mode_shapes)
+    return np.sqrt(np.maximum(np.einsum("qi,nij,qj->nq", U, P_xi, U), 0.0))
+
+
+def _npy_load(data: bytes) -> np.ndarray:
+    import io
+
+    return np.load(io.BytesIO(data), allow_pickle=False)
+
+
+def write_states(res, run_path: str | Path, init: dict, init_text: str,
+                 out_path: str | Path, options: dict) -> dict:
+    """Write STATES.mcap atomically; returns a summary."""
+    cfg = res.cfg
+    nm = cfg.n_modes
+    U = np.asarray(cfg.mode_shapes)
+    names = list(cfg.coord_names)
+    meta = {"cdgps_version": __version__, "created_by": "cdgps estimate", "config_name": cfg.name,
+            "config_sha256": cfg.sha256, "run": Path(run_path).name,
+            "run_sha256": hashlib.sha256(Path(run_path).read_bytes()).hexdigest(),
+            "init_sha256": hashlib.sha256(init_text.encode()).hexdigest(),
+            "options": json.dumps(options, sort_keys=True),
+            "measurement_noise": json.dumps(getattr(res, "noise", {}) or {}, sort_keys=True),
+            "final_biases": json.dumps([{"antenna": a, "transmitter": t, "bias_m": b}
+                                        for (a, t), b in res.biases.items()]),
+            "smoothed": str(res.smoothed).lower(),
+            # where the filter ran in static mode (report static says when its segment did not)
+            "rest_active_s": json.dumps(getattr(res, "rest_active_s", [])),
+            "rest_detection": json.dumps(getattr(res, "rest_detection", None))}
+    window = getattr(res, "window", None)
+    if window:
+        # epochs start_s … end_s come from INIT's batch solution (not from the filter)
+        meta["window"] = json.dumps(window, sort_keys=True)
+    from cdgps_cli.io.gnss_run import run_kind  # noqa: PLC0415 (a structure estimated on a GNSS run: GPS time)
+
+    n_msgs = len(res.time_s) * (3 if res.smoothed else 2) + len(res.events)
+    time_scale = "gps" if run_kind(run_path) == "gnss" else "relative"
+    with McapOut(out_path, time_scale=time_scale) as out, \
+            progress.bar(n_msgs, f"writing {Path(out_path).name}", "msg") as bar:
+        schema = _state_schema(cfg)
+        series = [(STATE_TOPIC, res.x, res.P, res.smoothed)]
+        if res.smoothed:
+            series.append((STATE_FILTERED_TOPIC, res.x_filt, res.P_filt, False))
+        for topic, X, P, smoothed in series:
+            ch = out.channel(topic, schema)
+            P_xi = P[:, :nm, :nm]                  # views: nothing below copies the (N, n, n) series
+            q = X[:, :nm] @ U.T                    # (N, n_q): small
+            sq = coordinate_sigma(cfg, P_xi)
+            for k, t in enumerate(res.time_s):
+                out.write(ch, t, {
+                    "q": dict(zip(names, q[k].tolist())), "sigma_q": dict(zip(names, sq[k].tolist())),
+                    "xi": X[k, :nm].tolist(), "xidot": X[k, nm:].tolist(),
+                    "P_xi": P_xi[k].ravel().tolist(), "smoothed": smoothed})
+                bar.update()
+            # the same series as .npy arrays, for fast machine reading (spectra, reports, evaluate),
+            # streamed to the file a few rows at a time (the bytes of np.save, never built in memory)
+            for name, arr in (("time_s", res.time_s), ("q", q), ("sigma_q", sq), ("xi", X[:, :nm]),
+                              ("P_xi", P_xi)):
+                out.attach_npy(f"arrays{topic}/{name}.npy", np.asarray(arr, dtype=float))
+            if topic == STATE_TOPIC:
+                _write_angles(out, cfg, res.time_s, q, P_xi)
+            del q, sq, P_xi
+        ch = out.channel(RESIDUAL_TOPIC, RESIDUAL_SCHEMA)
+        ants = [c[0] for c in res.channels]
+        txs = [c[1] for c in res.channels]
+        for k, t in enumerate(res.time_s):
+            r = res.residual_m[k]
+            used = ~np.isnan(r)
+            out.write(ch, t, {"antenna": [a for a, u in zip(ants, used) if u],
+                              "transmitter": [x for x, u in zip(txs, used) if u],
+                              "residual_m": r[used].tolist(),
+                              "nis": None if np.isnan(res.nis[k]) else float(res.nis[k]),
+                              "nis_dof": int(res.nis_dof[k])})
+            bar.update()
+        ch = out.channel(EVENT_TOPIC, event_schema(res.events))
+        for ev in res.events:
+            body = {k: v for k, v in ev.items() if k != "time_s"}
+            out.write(ch, ev["time_s"], body)
+        out.attach(CONFIG_ATTACHMENT, cfg.text.encode(), "application/toml")
+        out.attach(INIT_ATTACHMENT, init_text.encode(), "application/json")
+        out.metadata(ESTIMATE_METADATA, meta)
+    nis_ok = res.nis_dof > 0
+    return {"output": str(out_path), "epochs": int(len(res.time_s)), "start_s": float(res.time_s[0]),
+            "end_s": float(res.time_s[-1]), "smoothed": res.smoothed, "events": len(res.events),
+            "window": window or None,
+            "mean_nis_per_dof": float(np.nanmean(res.nis[nis_ok] / res.nis_dof[nis_ok])) if nis_ok.any() else None,
+            "event_list": res.events}
+
+
+class States:
+    """A STATES.mcap read back: config, times, q, sigma_q, modal state, covariances, events."""
+
+    def __init__(self, path: str | Path, topic: str = STATE_TOPIC, diagnostics: bool = True):
+        c = read_mcap(path, topics=[RESIDUAL_TOPIC, EVENT_TOPIC] if diagnostics else [])
+        self.path = str(path)
+        if "cdgps.ingest" in c.metadata:
+            raise CdgpsError(f"{path}: this is a RUN.mcap (from 'cdgps ingest'), not a STATES.mcap from 'cdgps estimate'")
+        if CONFIG_ATTACHMENT not in c.attachments:
+            raise CdgpsError(f"{path}: no config attachment; is this a STATES.mcap from 'cdgps estimate'?")
+        what = "STATES.mcap from 'cdgps estimate'"
+        c.require_metadata(ESTIMATE_METADATA, what)
+        if diagnostics:
+            c.require_channels(RESIDUAL_TOPIC, EVENT_TOPIC, what=what)
+        self.cfg = parse_config(c.attachments[CONFIG_ATTACHMENT].decode(), f"{path}:{CONFIG_ATTACHMENT}")
+        nm = self.cfg.n_modes
+        key = f"arrays{topic}/"
+        if key + "time_s.npy" in c.attachments:          # fast path: the .npy attachments
+            try:
+                self.time_s = _npy_load(c.attachments[key + "time_s.npy"])
+                self.q = _npy_load(c.attachments[key + "q.npy"])
+                self.sigma_q = _npy_load(c.attachments[key + "sigma_q.npy"])
+                self.xi = _npy_load(c.attachments[key + "xi.npy"])
+                self.P_xi = _npy_load(c.attachments[key + "P_xi.npy"])
+            except (KeyError, ValueError, OSError) as exc:
+                raise CdgpsError(f"{path}: damaged state arrays attachment: {exc}") from None
+        else:                                             # messages only (older files)
+            tc = read_mcap(path, topics=[topic]).topics.get(topic)
+            if tc is None:
+                raise CdgpsError(f"{path}: no {topic} messages; is this a STATES.mcap from 'cdgps estimate'?")
+            self.time_s = tc.times()
+            names = list(self.cfg.coord_names)
+            nan = float("nan")                            # a coordinate left out (no solution): NaN
+            self.q = np.array([[_num(m.get(n, nan)) for n in names] for m in tc.scalars["q"]], dtype=float)
+            self.sigma_q = np.array([[_num(m.get(n, nan)) for n in names] for m in tc.scalars["sigma_q"]], dtype=float)
+            N = len(self.time_s)
+            self.xi = tc.column("xi").reshape(N, nm)
+            self.P_xi = tc.column("P_xi").reshape(N, nm, nm)
+        self.metadata = c.metadata[ESTIMATE_METADATA]
+        res = c.topics.get(RESIDUAL_TOPIC)
+        if diagnostics and len(res or ()) != len(self.time_s):
+            raise CdgpsError(f"{path}: {len(res or ())} {RESIDUAL_TOPIC} message(s) for {len(self.time_s)} epoch(s); "
+                             f"'cdgps estimate' writes one per epoch (damaged file)")
+        # NIS is left out of a message without one (the window's epochs): all of them on a run that is
+        # one INIT window, so the column may be missing altogether
+        nis = res.scalars.get("nis") or [None] * len(res.scalars["nis_dof"]) if res else None
+        self.nis = np.array([np.nan if v is None else v for v in nis], dtype=float) if res else None
+        self.nis_dof = np.asarray(res.scalars["nis_dof"], dtype=float) if res else None
+        ev = c.topics.get(EVENT_TOPIC)
+        self.events = []
+        if ev:
+            for i, t in enumerate(ev.times()):
+                self.events.append({"time_s": float(t), **{k: ev.scalars[k][i] for k in ev.scalars if k != "time_s"}})
+
+
+def _num(v) -> float:
+    return float("nan") if v is None else v
+
+
+def export_csv(states_path: str | Path, out_csv: str | Path, points: str | None = None) -> dict:
+    """Write time_s, one column per coordinate and sigma_<name> for each (lines up with truth.csv).
+
+    ``points`` (e.g. ``"antennas"``, ``"all"``, ``"a120,top"``; see
+    :func:`cdgps_cli.model.points.select_points`) adds the lab-frame displacement of those points and its
+    1-σ from J U P_ξ Uᵀ Jᵀ: columns ``<point>_d{x,y,z}_m`` and ``sigma_<point>_d{x,y,z}_m``.
+    """
+    st = States(states_path)
+    names = list(st.cfg.coord_names)
+    bad = ~np.isfinite(st.q).all(axis=1) | ~np.isfinite(st.sigma_q).all(axis=1)
+    if bad.any():
+        raise CdgpsError(f"{states_path}: {int(bad.sum())} of {len(bad)} epoch(s) with non-finite states or sigmas "
+                         f"(first at {st.time_s[np.flatnonzero(bad)[0]]:g} s); nothing written")
+    pts = None
+    if points is not None:
+        from cdgps_cli.model.points import point_columns, select_points
+
+        pts = select_points(st.cfg, points)          # before writing: a bad name leaves no file
+    df = pd.DataFrame(st.q, columns=names)
+    for i, n in enumerate(names):
+        df["sigma_" + n] = st.sigma_q[:, i]
+    if pts is not None:
+        df = pd.concat([df, pd.DataFrame(point_columns(st.cfg, pts, st.xi, st.P_xi))], axis=1)
+    df.insert(0, "time_s", np.round(st.time_s, 9))
+    out = Path(out_csv)
+    write_atomic(out, lambda p: df.to_csv(p, index=False, lineterminator="\n"))
+    return {"output": str(out), "rows": int(len(df)), "columns": list(df.columns),
+            "points": list(pts.names) if pts is not None else []}
+
+
+def evaluate(truth_dir: str | Path, states_path: str | Path, converge_s: float = 1.0) -> dict:
+    """Compare a STATES.mcap with simulator truth (truth.csv, truth.json).
+
+    Returns RMS error per coordinate (after ``converge_s`` from the first estimate), NEES on the
+    modal positions with its chi-square 95% interval, NIS statistics, convergence time and bias errors.
+    """
+    from scipy.stats import chi2
+
+    from cdgps_cli.core.checks import require_finite
+
+    require_finite(converge_s, "converge_s", nonnegative=True)
+    truth_dir = Path(truth_dir)
+    csv = truth_dir / "truth.csv"
+    for alt in ("truth.csv.xz", "truth.csv.gz"):
+        if not csv.exists() and (truth_dir / alt).exists():
+            csv = truth_dir / alt
+    try:
+        truth = pd.read_csv(csv)
+        tj = json.loads((truth_dir / "truth.json").read_text())
+    except (OSError, ValueError) as exc:
+        raise CdgpsError(f"{truth_dir}: cannot read truth.csv / truth.json: {exc}") from None
+    st = States(states_path)
+    cfg = st.cfg
+    names = list(cfg.coord_names)
+    missing = [n for n in ["time_s", *names] if n not in truth.columns]
+    if missing:
+        raise CdgpsError(f"{truth_dir / 'truth.csv'}: missing column(s) {', '.join(missing)}")
+    if tj.get("config_sha256") and tj["config_sha256"] != cfg.sha256:
+        raise CdgpsError("truth.json was simulated with a different config than the estimate's")
+    tt = np.rint(truth["time_s"].to_numpy() * 1e6).astype(np.int64)
+    te = np.rint(st.time_s * 1e6).astype(np.int64)
+    common, it, ie = np.intersect1d(tt, te, return_indices=True)
+    if common.size == 0:
+        raise CdgpsError("no common epochs between truth and estimate")
+    qt = truth[names].to_numpy()[it]
+    qe = st.q[ie]
+    se = st.sigma_q[ie]
+    time = st.time_s[ie]
+    err = qe - qt
+    after = time >= time[0] + converge_s - 1e-9
+    if after.sum() < 2:
+        raise CdgpsError(f"{states_path}: {common.size} epoch(s) in common with the truth "
+                         f"({time[0]:g}–{time[-1]:g} s), {int(after.sum())} after the first {converge_s:g} s "
+                         "(--converge-s): too short to evaluate; estimate a longer run")
+    bad = ~np.isfinite(qe).all(axis=1) | ~np.isfinite(se).all(axis=1)
+    if bad.any():
+        raise CdgpsError(f"{states_path}: {int(bad.sum())} epoch(s) with non-finite states or sigmas "
+                         f"(first at {time[np.flatnonzero(bad)[0]]:g} s)")
+    rms = np.sqrt(np.mean(err[after] ** 2, axis=0))
+    U = np.asarray(cfg.mode_shapes)
+    xi_t = qt @ np.linalg.pinv(U).T
+    d = st.xi[ie] - xi_t
+    nm = cfg.n_modes
+    nees = np.einsum("ni,ni->n", d, np.linalg.solve(st.P_xi[ie], d[..., None])[..., 0])
+    lo, hi = chi2.ppf(0.025, nm), chi2.ppf(0.975, nm)
+    na = int(after.sum())
+    # time-averaged NEES: 95% interval of the mean of na chi2(nm) samples (if independent)
+    mlo, mhi = chi2.ppf(0.025, na * nm) / na, chi2.ppf(0.975, na * nm) / na
+    inside = np.all(np.abs(err) <= 3 * se + 1e-12, axis=1)
+    # convergence: first epoch from which the NEES stays below its 99.9% bound for a full second
+    bound = chi2.ppf(0.999, nm)
+    T = float(np.median(np.diff(time))) if time.size > 1 else 1.0
+    w = max(int(round(1.0 / T)), 1)
+    ok = nees <= bound
+    run_ok = np.convolve(ok.astype(int), np.ones(w, dtype=int), mode="valid") == w
+    first = np.flatnonzero(run_ok)
+    conv_t = float(time[first[0]] - time[0]) if first.size else None
+    out = {
+        "epochs": int(common.size), "start_s": float(time[0]), "end_s": float(time[-1]),
+        "rms_error": {n: float(v) for n, v in zip(names, rms)},
+        "rms_error_units": {n: cfg.coord_unit_label(n) for n in names},
+        "rms_error_deg": {n: float(np.degrees(v)) for n, v in zip(names, rms) if cfg.coord_unit(n) == "rad"},
+        "within_3sigma_fraction": float(np.mean(inside[after])),
+        "convergence_definition": "first time from which the NEES stays below its 99.9% chi-square bound for 1 s",
+        "convergence_s": conv_t,
+        "nees": {"dof": nm, "mean": float(np.mean(nees[after])), "interval95_single": [float(lo), float(hi)],
+                 "fraction_in_interval": float(np.mean((nees[after] >= lo) & (nees[after] <= hi))),
+                 "interval95_mean_if_independent": [float(mlo), float(mhi)]},
+    }
+    if st.nis is not None and ((st.nis_dof > 0) & np.isfinite(st.nis)).any():
+        ok = (st.nis_dof > 0) & np.isfinite(st.nis)
+        r = st.nis[ok] / st.nis_dof[ok]
+        inside_nis = (st.nis[ok] >= chi2.ppf(0.025, st.nis_dof[ok])) & (st.nis[ok] <= chi2.ppf(0.975, st.nis_dof[ok]))
+        out["nis"] = {"mean_per_dof": float(np.mean(r)), "fraction_in_interval95": float(np.mean(inside_nis))}
+    # bias errors: final biases vs truth (latest segment per channel)
+    if "final_biases" not in st.metadata:
+        raise CdgpsError(f"{states_path}: metadata {ESTIMATE_METADATA!r} has no final_biases (damaged or not a "
+                         f"STATES.mcap from 'cdgps estimate')")
+    try:
+        fb = json.loads(st.metadata["final_biases"])
+    except json.JSONDecodeError as exc:
+        raise CdgpsError(f"{states_path}: metadata final_biases is not valid JSON ({exc.msg}): corrupt file") from None
+    tb = {(b["antenna"], b["transmitter"]): b["bias_m"] for b in tj.get("biases", [])}
+    for s in tj.get("slips", []):
+        if s["time_s"] <= time[-1] + 1e-9:
+            tb[(s["antenna"], s["transmitter"])] = s["bias_m"]
+    errs = [(b["antenna"], b["transmitter"], b["bias_m"] - tb[(b["antenna"], b["transmitter"])])
+            for b in fb if (b["antenna"], b["transmitter"]) in tb and b["bias_m"] is not None and np.isfinite(b["bias_m"])]
+    if errs:
+        e = np.array([x[2] for x in errs])
+        out["bias_error"] = {"rms_m": float(np.sqrt(np.mean(e**2))), "max_abs_m": float(np.max(np.abs(e))),
+                             "wrong_integers": int(np.sum(np.abs(e) > cfg.wavelength_m / 2)), "channels": len(errs)}
+    out["events"] = len(st.events)
+    return out

@@ -1,0 +1,434 @@
+"""u-blox UBX binary logs: GPS L1 C/A carrier phase from RXM-RAWX messages.
+
+:func:`read_ubx_rawx` frames the log itself (sync ``0xB5 0x62``, length, 8-bit Fletcher
+checksum), so that a corrupt frame costs only that frame: after a checksum failure the search for
+the next frame resumes two bytes on, not after the (possibly corrupt) announced length; checksums
+come from prefix sums, so a log full of false sync words stays linear.  RXM-RAWX frames that
+pass the checksum are decoded in one vectorised numpy pass (:data:`_RAWX_MEAS`; a 10 MB log in
+about 1 s, against 80 s with a per-frame decoder); the tests check the values against
+`pyubx2 <https://pypi.org/project/pyubx2/>`_, the reference Python implementation of the UBX
+protocol, which also names the messages and signals.  Bytes between frames (NMEA sentences,
+RTCM 3 messages, noise) are skipped and counted.
+
+RXM-RAWX (u-blox 8 / M8T, F9P/F9T and later) carries, per signal: pseudorange, carrier phase,
+Doppler, C/N0, lock time and the tracking status bits (pseudorange valid, carrier phase valid,
+half-cycle valid, half-cycle subtracted).  Only GPS L1 C/A (gnssId 0, sigId 0) rows are returned;
+the other signals are counted in ``info``.
+
+The legacy RXM-RAW message (u-blox 4/5/6, e.g. LEA-4T/LEA-6T) is refused: it has no lock time and
+no half-cycle status, so a carrier phase that still carries the navigation-bit half-cycle
+ambiguity cannot be told from a resolved one — a silent half-cycle error breaks integer ambiguity
+resolution — and slips are flagged only by a per-epoch LLI.
+"""
+
+from __future__ import annotations
+
+import gzip
+import re
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from cdgps_cli.core.errors import CdgpsError
+
+__all__ = ["INTEGRITY_COUNTS", "UBX_OBS_COLUMNS", "integrity_line", "integrity_problems", "integrity_record", "read_ubx_rawx"]
+
+UBX_OBS_COLUMNS = (
+    "time_gps_s",
+    "sat",
+    "phase_l1_cycles",
+    "pseudorange_l1_m",
+    "doppler_l1_hz",
+    "snr_l1_dbhz",
+    "lock_time_ms",
+    "cp_valid",
+    "pr_valid",
+    "half_cycle_resolved",
+    "sub_half_subtracted",
+    "pr_std_m",
+    "cp_std_cycles",
+    "clock_reset",
+)
+"""Columns of the table returned by :func:`read_ubx_rawx`."""
+
+_SYNC = b"\xb5\x62"
+_RAWX = (0x02, 0x15)
+_GNSS = {0: "GPS", 1: "SBAS", 2: "Galileo", 3: "BeiDou", 4: "IMES", 5: "QZSS", 6: "GLONASS", 7: "NavIC"}
+_MAX_SHOWN = 5
+
+
+class _Fletcher:
+    """UBX 8-bit Fletcher checksums of any byte range of a log, each in O(1).
+
+    With prefix sums (mod 256) S_i = Σ_{j<i} x_j and T_i = Σ_{j<i} j·x_j, the checksum over
+    bytes a..b−1 is CK_A = S_b − S_a and CK_B = Σ (b−j)·x_j = b·CK_A − (T_b − T_a) (mod 256), so a
+    log full of false sync words announcing long frames costs O(1) per candidate, not O(length).
+    Memory: two uint8 arrays of the log's length.
+    """
+
+    def __init__(self, data: bytes):
+        x = np.frombuffer(data, dtype=np.uint8)
+        idx = np.resize(np.arange(256, dtype=np.uint8), x.size)
+        self._s = b"\0" + np.cumsum(x, dtype=np.uint8).tobytes()          # bytes: fast int indexing
+        self._t = b"\0" + np.cumsum(idx * x, dtype=np.uint8).tobytes()
+
+    def __call__(self, a: int, b: int) -> bytes:
+        """Checksum over ``data[a:b]`` (class, id, length and payload of a frame)."""
+        ck_a = (self._s[b] - self._s[a]) & 0xFF
+        ck_b = (b * ck_a - (self._t[b] - self._t[a])) & 0xFF
+        return bytes((ck_a, ck_b))
+
+
+def _msg_name(cls: int, mid: int) -> str:
+    try:
+        from pyubx2 import UBX_MSGIDS  # noqa: PLC0415
+
+        return UBX_MSGIDS.get(bytes((cls, mid)), f"UBX-0x{cls:02X}-0x{mid:02X}")
+    except ImportError:  # pragma: no cover
+        return f"UBX-0x{cls:02X}-0x{mid:02X}"
+
+
+def _signal_name(gnss: int, sig: int) -> str:
+    try:
+        from pyubx2 import SIGID  # noqa: PLC0415
+
+        s = SIGID.get((gnss, sig))
+    except ImportError:  # pragma: no cover
+        s = None
+    return f"{_GNSS.get(gnss, f'gnss{gnss}')} {s or f'sig{sig}'}"
+
+
+_NMEA = re.compile(rb"\$[A-Z][A-Z0-9]{1,5},[\x20-\x7e]{0,79}?\*([0-9A-Fa-f]{2})\r?\n")
+
+INTEGRITY_COUNTS = {
+    "n_frames": "frames read",
+    "bad_checksum_frames": "failing the checksum",
+    "undecodable_frames": "RXM-RAWX frames with a valid checksum but undecodable",
+    "skipped_bytes": "bytes skipped between frames",
+    "truncated_tail_bytes": "bytes of a truncated frame at the end",
+}
+"""The integrity counters of a UBX log (keys of the reader's ``info``) and how they are worded.
+All but ``n_frames`` mean lost data: they are reported at ingest, kept in the RUN and shown by
+``cdgps info``; ``cdgps ingest --strict`` refuses a log where any is non-zero."""
+
+
+def _nmea_bytes(seg: bytes) -> int:
+    """Bytes of ``seg`` that are complete NMEA 0183 sentences with a correct checksum."""
+    n = 0
+    for m in _NMEA.finditer(seg):
+        body = m.group(0)[1 : m.start(1) - m.start(0) - 1]
+        x = 0
+        for c in body:
+            x ^= c
+        if x == int(m.group(1), 16):
+            n += m.end() - m.start()
+    return n
+
+
+def _frames(data: bytes):
+    """Split a log into checksum-valid UBX frames.
+
+    Returns
+    -------
+    frames : list of (offset, class, id, frame bytes)
+    stats : dict
+        ``bad_checksum_frames``, ``bad_frame_offsets``, ``truncated_tail_bytes``;
+        ``nmea_bytes`` (complete NMEA sentences between frames, checksums correct) and
+        ``skipped_bytes`` (every other byte outside valid frames: noise, RTCM, corrupt frames).
+    """
+    stats = {"bad_checksum_frames": 0, "bad_frame_offsets": [], "truncated_tail_bytes": 0, "skipped_bytes": 0,
+             "nmea_bytes": 0}
+    n = len(data)
+    pos = 0        # first byte not yet accounted for
+    scan = 0       # where the search for the next sync resumes
+    frames = []
+    checksum = _Fletcher(data)
+
+    def skip(a: int, b: int) -> None:
+        if b > a:
+            nm = _nmea_bytes(data[a:b]) if b"$" in data[a:b] else 0
+            stats["nmea_bytes"] += nm
+            stats["skipped_bytes"] += b - a - nm
+
+    while True:
+        k = data.find(_SYNC, scan)
+        if k < 0:
+            skip(pos, n)
+            break
+        if k + 6 > n:
+            skip(pos, k)
+            stats["truncated_tail_bytes"] = n - k
+            break
+        length = int.from_bytes(data[k + 4 : k + 6], "little")
+        end = k + 8 + length
+        if end > n:
+            # either a frame cut by the end of the log, or a corrupt length: look for a later
+            # sync; if none gives a valid frame the rest is a truncated tail
+            if data.find(_SYNC, k + 2) < 0:
+                skip(pos, k)
+                stats["truncated_tail_bytes"] = n - k
+                break
+            stats["bad_checksum_frames"] += 1
+            if len(stats["bad_frame_offsets"]) < _MAX_SHOWN:
+                stats["bad_frame_offsets"].append(k)
+            scan = k + 2
+            continue
+        if checksum(k + 2, k + 6 + length) != data[k + 6 + length : end]:
+            stats["bad_checksum_frames"] += 1
+            if len(stats["bad_frame_offsets"]) < _MAX_SHOWN:
+                stats["bad_frame_offsets"].append(k)
+            scan = k + 2
+            continue
+        skip(pos, k)
+        frames.append((k, data[k + 2], data[k + 3], data[k:end]))
+        pos = scan = end
+    return frames, stats
+
+
+def integrity_problems(info: dict) -> list[str]:
+    """The non-zero loss counters of a UBX read summary, worded (empty: nothing was lost).
+
+    ``info`` is the ``info`` of :func:`read_ubx_rawx` (also as stored in a RUN); counters it
+    lacks count as zero.
+    """
+    out = []
+    offsets = {"bad_checksum_frames": "bad_frame_offsets", "undecodable_frames": "undecodable_frame_offsets"}
+    for key, word in INTEGRITY_COUNTS.items():
+        v = int(info.get(key) or 0)
+        if key == "n_frames" or not v:
+            continue
+        text = f"{v} {word}"
+        if key == "bad_checksum_frames":
+            text = f"{v} frame(s) failing the checksum"
+        elif key == "undecodable_frames":
+            text = f"{v} RXM-RAWX frame(s) with a valid checksum but undecodable"
+        offs = list(info.get(offsets.get(key, ""), None) or [])
+        if offs:
+            text += f" (byte offsets {', '.join(map(str, offs))}{' …' if v > len(offs) else ''})"
+        out.append(text)
+    return out
+
+
+def integrity_line(info: dict) -> str:
+    """One line of counters for ``cdgps info``: ``14 frames read, 0 failing the checksum, …``."""
+    return ", ".join(f"{int(info.get(k) or 0)} {w}" for k, w in INTEGRITY_COUNTS.items())
+
+
+def integrity_record(info: dict) -> str:
+    """The counters as one metadata value: ``n_frames=14 bad_checksum_frames=0 …``."""
+    return " ".join(f"{k}={int(info.get(k) or 0)}" for k in INTEGRITY_COUNTS)
+
+
+_RAWX_HEAD = np.dtype([("rcvTow", "<f8"), ("week", "<u2"), ("leapS", "i1"), ("numMeas", "u1"), ("recStat", "u1"),
+                       ("version", "u1"), ("reserved1", "u1", 2)])
+_RAWX_MEAS = np.dtype([("prMes", "<f8"), ("cpMes", "<f8"), ("doMes", "<f4"), ("gnssId", "u1"), ("svId", "u1"),
+                       ("sigId", "u1"), ("freqId", "u1"), ("locktime", "<u2"), ("cno", "u1"), ("prStdev", "u1"),
+                       ("cpStdev", "u1"), ("doStdev", "u1"), ("trkStat", "u1"), ("reserved3", "u1")])
+"""RXM-RAWX payload layout (u-blox M8 receiver description UBX-13003221 §32.18.1 and the F9
+interface descriptions): a 16-byte header, then ``numMeas`` blocks of 32 bytes, little-endian.
+``recStat`` bit 0 leap seconds valid, bit 1 clock reset; ``trkStat`` bit 0 pseudorange valid,
+bit 1 carrier phase valid, bit 2 half cycle valid, bit 3 half cycle subtracted; the low 4 bits
+of ``prStdev``/``cpStdev`` are the standard deviation indices."""
+
+
+def _decode_rawx(rawx: list) -> tuple[np.ndarray, np.ndarray, list]:
+    """Decode RXM-RAWX frames (offset, frame bytes) in one vectorised pass.
+
+    Returns
+    -------
+    epochs : structured array, one per decoded frame
+        :data:`_RAWX_HEAD` fields plus ``offset`` (byte offset of the frame in the log).
+    meas : structured array, one per measurement
+        :data:`_RAWX_MEAS` fields plus ``epoch`` (index into ``epochs``).
+    undecodable : list of int
+        Byte offsets of checksum-valid frames whose payload is not 16 + 32·numMeas bytes long.
+    """
+    heads, blocks, offsets, undecodable = [], [], [], []
+    for off, fr in rawx:
+        pl = fr[6:-2]
+        if len(pl) < 16 or len(pl) != 16 + 32 * pl[11]:
+            undecodable.append(off)
+            continue
+        heads.append(pl[:16])
+        blocks.append(pl[16:])
+        offsets.append(off)
+    head = np.frombuffer(b"".join(heads), dtype=_RAWX_HEAD)
+    epochs = np.empty(len(head), dtype=_RAWX_HEAD.descr + [("offset", "<i8")])
+    for f in _RAWX_HEAD.names:
+        epochs[f] = head[f]
+    epochs["offset"] = offsets
+    raw = np.frombuffer(b"".join(blocks), dtype=_RAWX_MEAS)
+    meas = np.empty(len(raw), dtype=_RAWX_MEAS.descr + [("epoch", "<i8")])
+    for f in _RAWX_MEAS.names:
+        meas[f] = raw[f]
+    meas["epoch"] = np.repeat(np.arange(len(head)), head["numMeas"].astype(np.int64))
+    return epochs, meas, undecodable
+
+
+def read_ubx_rawx(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.DataFrame]:
+    """Read GPS L1 C/A raw measurements from the RXM-RAWX messages of a u-blox UBX log.
+
+    Parameters
+    ----------
+    path : str or Path
+        A binary UBX log (may also contain NMEA/RTCM; may be gzip-compressed).
+    strict : bool, default False
+        Raise when any integrity counter but ``n_frames`` is non-zero (a frame failing the
+        checksum or with an impossible length, an undecodable RXM-RAWX payload, bytes skipped
+        between frames, a truncated tail) instead of skipping the data and counting it in
+        ``info``; the message names the file and every count.
+
+    Returns
+    -------
+    info : dict
+        ``path``; ``message_counts`` (UBX message name → count, e.g. ``{"RXM-RAWX": 14}``);
+        ``n_frames``; ``n_epochs`` (RXM-RAWX messages); ``week`` (first epoch's GPS week);
+        ``leap_seconds`` (GPS−UTC from the receiver, None if never marked valid);
+        ``signal_counts`` (e.g. ``{"GPS L1_C/A": 62, "Galileo E1_C": 70, …}``);
+        ``gps_satellites``; ``n_clock_resets``; and the integrity counters
+        (:data:`INTEGRITY_COUNTS`, :func:`integrity_problems`): ``bad_checksum_frames`` and
+        ``bad_frame_offsets`` (byte offsets, first few) of skipped corrupt frames;
+        ``undecodable_frames`` and ``undecodable_frame_offsets`` (RXM-RAWX frames whose checksum
+        is valid but whose payload cannot be decoded, e.g. a measurement count longer than the
+        frame); ``truncated_tail_bytes`` (an incomplete frame cut by the end of the log, skipped);
+        ``skipped_bytes`` (bytes outside valid frames that are not NMEA sentences: noise, RTCM,
+        and the bytes of corrupt frames); ``nmea_bytes`` (NMEA sentences with correct checksums
+        between frames: expected in a receiver's output, not a loss).
+    obs : DataFrame
+        One row per RXM-RAWX epoch and GPS satellite tracked on L1 C/A, sorted by time then
+        satellite; columns :data:`UBX_OBS_COLUMNS`:
+
+        ``time_gps_s`` (float64, week·604800 + rcvTow: the receiver's local time tag, GPS s since
+        1980-01-06), ``sat`` ("G05"), ``phase_l1_cycles`` (cpMes, float64; NaN unless
+        ``cp_valid``), ``pseudorange_l1_m`` (prMes; NaN unless ``pr_valid``), ``doppler_l1_hz``
+        (doMes), ``snr_l1_dbhz`` (cno, float64), ``lock_time_ms`` (locktime, int64: carrier phase
+        lock time, capped at 64500 ms), ``cp_valid``, ``pr_valid``, ``half_cycle_resolved``
+        (trkStat "half cycle valid"), ``sub_half_subtracted`` (trkStat "half cycle subtracted
+        from phase") — bools —, ``pr_std_m`` (0.01·2^prStd m), ``cp_std_cycles``
+        (0.004·cpStd cycles), ``clock_reset`` (bool, recStat clkReset of the epoch).
+
+    Raises
+    ------
+    CdgpsError
+        Unreadable file; no UBX frames; no RXM-RAWX messages (the message lists what the log
+        contains, and explains why legacy RXM-RAW logs are refused); RXM-RAWX without any GPS L1
+        C/A measurement; epochs going backwards; with ``strict``, any corrupt frame.
+    """
+    p = Path(path)
+    try:
+        data = p.read_bytes()
+    except OSError as exc:
+        raise CdgpsError(f"{p}: cannot read: {exc.strerror or exc}") from None
+    if data[:2] == b"\x1f\x8b":
+        try:
+            data = gzip.decompress(data)
+        except (OSError, EOFError, zlib.error) as exc:
+            raise CdgpsError(f"{p}: cannot decompress this gzip file: {exc}") from None
+    if not data:
+        raise CdgpsError(f"{p}: empty file; expected a u-blox UBX binary log")
+    frames, stats = _frames(data)
+    counts: dict[str, int] = {}
+    for _, cls, mid, _ in frames:
+        name = _msg_name(cls, mid)
+        counts[name] = counts.get(name, 0) + 1
+    if not frames:
+        extra = f" ({stats['bad_checksum_frames']} candidate frames failed the checksum)" if stats["bad_checksum_frames"] else ""
+        raise CdgpsError(f"{p}: no valid UBX frames found in {len(data)} bytes{extra}; expected a u-blox UBX binary log with RXM-RAWX messages")
+    rawx = [(off, fr) for off, cls, mid, fr in frames if (cls, mid) == _RAWX]
+    found = ", ".join(f"{k} ×{v}" for k, v in sorted(counts.items(), key=lambda kv: -kv[1]))
+    if stats["nmea_bytes"]:
+        found += f", and {stats['nmea_bytes']} bytes of NMEA sentences"
+    if stats["skipped_bytes"]:
+        found += f", and {stats['skipped_bytes']} bytes of other non-UBX data"
+    if not rawx:
+        if counts.get("RXM-RAW"):
+            raise CdgpsError(
+                f"{p}: no RXM-RAWX messages; this is a legacy u-blox raw log with {counts['RXM-RAW']} RXM-RAW messages "
+                f"(u-blox 4/5/6 receivers; found: {found}). RXM-RAW is not supported: it has no carrier lock time and no "
+                "half-cycle status, so a phase still carrying the half-cycle ambiguity cannot be told from a resolved one "
+                "(a silent half-cycle error breaks integer ambiguity resolution) and slips are flagged only by a per-epoch "
+                "LLI. Record RXM-RAWX with a u-blox M8T, F9P/F9T or later receiver."
+            )
+        raise CdgpsError(f"{p}: no RXM-RAWX messages (found: {found}); carrier-phase logging needs RXM-RAWX enabled on the receiver")
+
+    epochs, meas, undecodable_offsets = _decode_rawx(rawx)
+    undecodable = len(undecodable_offsets)
+    if strict:
+        problems = integrity_problems(dict(stats, undecodable_frames=undecodable,
+                                           undecodable_frame_offsets=undecodable_offsets[:_MAX_SHOWN]))
+        if problems:
+            raise CdgpsError(f"{p}: corrupt UBX data: {', '.join(problems)} (refused by --strict)")
+    n_epochs = len(epochs)
+    if n_epochs == 0:
+        raise CdgpsError(f"{p}: none of the {len(rawx)} RXM-RAWX messages could be decoded (each payload must "
+                         f"be 16 + 32·numMeas bytes)")
+    t = epochs["week"].astype(np.float64) * 604800.0 + epochs["rcvTow"]
+    back = np.flatnonzero(t[1:] < t[:-1])
+    if back.size:
+        i = int(back[0]) + 1
+        raise CdgpsError(f"{p}, byte {epochs['offset'][i]}: RXM-RAWX epoch (week {epochs['week'][i]}, rcvTow "
+                         f"{epochs['rcvTow'][i]} s) is earlier than the previous one (byte {epochs['offset'][i - 1]}); "
+                         "epochs must be in time order")
+    week0 = int(epochs["week"][0])
+    leap_ok = (epochs["recStat"] & 1) != 0
+    leap = int(epochs["leapS"][np.flatnonzero(leap_ok)[-1]]) if leap_ok.any() else None
+    reset = (epochs["recStat"] & 2) != 0
+    n_resets = int(reset.sum())
+    gnss, sig = meas["gnssId"].astype(np.int64), meas["sigId"].astype(np.int64)
+    pairs, n_pair = np.unique(gnss * 256 + sig, return_counts=True)
+    signals = {}
+    for code, c in zip(pairs.tolist(), n_pair.tolist()):
+        name = _signal_name(code // 256, code % 256)
+        signals[name] = signals.get(name, 0) + int(c)
+    m = meas[(gnss == 0) & (sig == 0)]
+    trk = m["trkStat"]
+    cp_ok, pr_ok = (trk & 2) != 0, (trk & 1) != 0
+    obs = pd.DataFrame(
+        {
+            "time_gps_s": t[m["epoch"]],
+            "sat": np.array([f"G{v:02d}" for v in m["svId"].tolist()], dtype=object),
+            "phase_l1_cycles": np.where(cp_ok, m["cpMes"], np.nan),
+            "pseudorange_l1_m": np.where(pr_ok, m["prMes"], np.nan),
+            "doppler_l1_hz": m["doMes"].astype(np.float64),
+            "snr_l1_dbhz": m["cno"].astype(np.float64),
+            "lock_time_ms": m["locktime"].astype(np.int64),
+            "cp_valid": cp_ok,
+            "pr_valid": pr_ok,
+            "half_cycle_resolved": (trk & 4) != 0,
+            "sub_half_subtracted": (trk & 8) != 0,
+            "pr_std_m": 0.01 * 2.0 ** (m["prStdev"] & 15).astype(np.int64),
+            "cp_std_cycles": 0.004 * (m["cpStdev"] & 15).astype(np.int64),
+            "clock_reset": reset[m["epoch"]],
+        },
+        columns=list(UBX_OBS_COLUMNS),
+    )
+    if obs.empty:
+        sig = ", ".join(f"{k} ×{v}" for k, v in sorted(signals.items(), key=lambda kv: -kv[1]))
+        raise CdgpsError(f"{p}: {n_epochs} RXM-RAWX epochs but no GPS L1 C/A measurements (signals found: {sig or 'none'})")
+    dup = obs.duplicated(["time_gps_s", "sat"])
+    if dup.any():
+        r = obs[dup].iloc[0]
+        raise CdgpsError(f"{p}: GPS satellite {r['sat']} appears twice in the RXM-RAWX epoch at GPS time {r['time_gps_s']:.3f} s")
+    obs = obs.sort_values(["time_gps_s", "sat"], kind="stable").reset_index(drop=True)
+    info = {
+        "path": str(p),
+        "message_counts": dict(sorted(counts.items())),
+        "n_frames": len(frames),
+        "n_epochs": n_epochs,
+        "week": week0,
+        "leap_seconds": leap,
+        "signal_counts": dict(sorted(signals.items())),
+        "gps_satellites": sorted(obs["sat"].unique().tolist()),
+        "n_clock_resets": int(n_resets),
+        "bad_checksum_frames": stats["bad_checksum_frames"],
+        "bad_frame_offsets": stats["bad_frame_offsets"][:_MAX_SHOWN],
+        "undecodable_frames": undecodable,
+        "undecodable_frame_offsets": undecodable_offsets[:_MAX_SHOWN],
+        "truncated_tail_bytes": stats["truncated_tail_bytes"],
+        "skipped_bytes": stats["skipped_bytes"],
+        "nmea_bytes": stats["nmea_bytes"],
+    }
+    return info, obs

@@ -1,0 +1,1 @@
+"""Measurement models: phase models, noise, single/double differencing, multipath."""

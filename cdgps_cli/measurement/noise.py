@@ -1,0 +1,173 @@
+"""Measurement-noise model: the per-channel prior σ and its estimation from the data.
+
+One source of truth for the σ of each carrier-phase channel (antenna, transmitter):
+
+* :func:`prior_sigma_m` — the σ the config (or an explicit ``--sigma-m``) promises, one value per
+  channel.  Config keys for σ per antenna / transmitter / channel fill this same vector.
+* :func:`variance_factors` — the a-posteriori variance factor of a batch least-squares solution per
+  channel, σ̂_c² = Σ_k e_kc² / Σ_k r_kc, with the redundancy numbers r_kc = 1 − h_kc (h: the
+  diagonal of the hat matrix, i.e. the leverage of each observation).  Σ_k h_kc is found with
+  Hutchinson's trace estimator (random ±1 probes solved through the same O(N) batch solver), so
+  the cost is a few linear solves, never an N×N matrix.  With the redundancy the estimate is
+  unbiased even when the fit absorbs a large part of a channel's data (short windows, many
+  biases), where the naive residual RMS is too small.
+* :func:`filter_sigma_estimate` — the same idea in the filter: E[e_i²] = σ_i² − H_i P⁺ H_iᵀ for the
+  post-fit residual, so σ̂_i² = mean(e_i² + H_i P⁺ H_iᵀ) (residual-based adaptive estimation).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.config.structure import channel_sigma_m
+
+HUTCHINSON_PROBES = 8        # random probes of the leverage trace per channel
+HUTCHINSON_SEED = 20260601   # fixed: same data → same estimate (byte-identical outputs)
+
+
+def prior_sigma_m(cfg, channels, override_m: float | None = None) -> np.ndarray:
+    """Per-channel prior measurement σ (m), shape (C,).
+
+    Parameters
+    ----------
+    cfg : StructureConfig
+    channels : list of (antenna, transmitter)
+    override_m : float, optional
+        An explicit σ (``--sigma-m``) for every channel.
+
+    Otherwise :func:`cdgps_cli.config.structure.channel_sigma_m` (the config's per channel / antenna /
+    transmitter ``sigma_m`` keys, falling back to ``measurement_sigma_m``).
+    """
+    if override_m is not None:
+        if not (np.isfinite(override_m) and override_m > 0):
+            raise CdgpsError(f"--sigma-m must be a positive number of metres, got {override_m!r}")
+        return np.full(len(channels), float(override_m))
+    out = np.asarray(channel_sigma_m(cfg, list(channels)), dtype=float).reshape(len(channels))
+    if not np.all(np.isfinite(out) & (out > 0)):
+        raise CdgpsError(f"{cfg.name}: measurement sigma must be positive for every channel")
+    return out
+
+
+def leverage_per_channel(solve_fitted, present: np.ndarray, probes: int = HUTCHINSON_PROBES,
+                         seed: int = HUTCHINSON_SEED) -> np.ndarray:
+    """Σ_k h_kc per channel by Hutchinson's estimator.
+
+    Parameters
+    ----------
+    solve_fitted : callable
+        ``solve_fitted(eps) -> fitted``: the whitened fitted values (N, C) of the linear LS problem
+        whose whitened data are ``eps`` (N, C; NaN where absent), priors at zero mean.  Linear in eps.
+    present : (N, C) bool
+        Observations that exist.
+    probes : int
+        Number of random ±1 probes (E[εᵀ D_c Ĥ ε] = tr(D_c Ĥ) for each).
+
+    Returns
+    -------
+    (C,) estimated sum of leverages of each channel's observations.
+    """
+    rng = np.random.default_rng(seed)
+    acc = np.zeros(present.shape[1])
+    for _ in range(probes):
+        eps = np.where(present, rng.choice((-1.0, 1.0), size=present.shape), np.nan)
+        fit = solve_fitted(eps)
+        acc += np.nansum(np.where(present, eps * fit, 0.0), axis=0)
+    return acc / probes
+
+
+def variance_factors(resid_m: np.ndarray, sigma_m: np.ndarray, leverage: np.ndarray) -> dict:
+    """Per-channel a-posteriori σ from residuals and redundancy numbers.
+
+    Parameters
+    ----------
+    resid_m : (N, C)
+        Residuals of the converged solution (m), NaN where absent.
+    sigma_m : (C,)
+        σ the solution was weighted with (m).
+    leverage : (C,)
+        Σ_k h_kc (:func:`leverage_per_channel`).
+
+    Returns
+    -------
+    dict with ``sigma_m`` (C,) the estimate, ``redundancy`` (C,) Σ_k (1 − h_kc), ``n_obs`` (C,),
+    ``variance_factor`` (C,) σ̂²/σ² and ``rms_m`` (C,) the naive residual RMS.
+    """
+    ok = np.isfinite(resid_m)
+    n_obs = ok.sum(axis=0)
+    ss = np.where(ok, resid_m, 0.0) ** 2
+    ss = ss.sum(axis=0)
+    red = np.maximum(n_obs - leverage, 0.5)
+    var = ss / red
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rms = np.sqrt(ss / np.maximum(n_obs, 1))
+    return {"sigma_m": np.sqrt(var), "redundancy": red, "n_obs": n_obs,
+            "variance_factor": var / sigma_m**2, "rms_m": rms}
+
+
+def filter_sigma_estimate(resid_m: np.ndarray, hph_m2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Residual-based σ per channel in the filter: σ̂² = mean(e² + H P⁺ Hᵀ).
+
+    Parameters
+    ----------
+    resid_m : (N, C) post-fit residuals (m), NaN where the channel was not used.
+    hph_m2 : (N, C) H_i P⁺ H_iᵀ per epoch and channel (m²).
+
+    Returns
+    -------
+    (sigma_m (C,), count (C,)): NaN where a channel has no residual.
+    """
+    ok = np.isfinite(resid_m) & np.isfinite(hph_m2)
+    cnt = ok.sum(axis=0)
+    tot = np.where(ok, resid_m**2 + hph_m2, 0.0).sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        s = np.sqrt(tot / cnt)
+    return np.where(cnt > 0, s, np.nan), cnt
+
+
+def init_channel_sigma_m(init: dict, cfg, channels, override_m: float | None = None) -> tuple[np.ndarray, str]:
+    """Per-channel measurement σ (m) of the filter and of INIT's window states, shape (C,).
+
+    Parameters
+    ----------
+    init : dict
+        INIT.json contents: ``sigma_m_per_channel`` {"antenna/transmitter": σ} (the batch's per-channel
+        estimate) and ``sigma_m`` (their RMS) when present.
+    cfg : StructureConfig
+    channels : list of (antenna, transmitter)
+    override_m : float, optional
+        An explicit σ (``--sigma-m``) for every channel.
+
+    Returns
+    -------
+    (sigma_m (C,), source): ``--sigma-m``; else INIT's per-channel σ (a channel INIT does not list
+    takes INIT's ``sigma_m``); else INIT's ``sigma_m`` for every channel; else the config's
+    per-channel prior (:func:`prior_sigma_m`).
+
+    Raises CdgpsError naming the INIT.json key when ``sigma_m_per_channel`` is malformed.
+    """
+    from cdgps_cli.config.limits import OPTION_BOUNDS
+
+    C = len(channels)
+    if override_m is not None:
+        return prior_sigma_m(cfg, channels, override_m), "--sigma-m"
+    per = init.get("sigma_m_per_channel")
+    s0 = init.get("sigma_m")
+    if per is None:
+        if s0:
+            return np.full(C, float(s0)), "INIT (one σ)"
+        return prior_sigma_m(cfg, channels), "config"
+    if not isinstance(per, dict):
+        raise CdgpsError("INIT.json: sigma_m_per_channel: expected an object {\"antenna/transmitter\": sigma_m}")
+    known = {f"{a}/{t}" for a, t in cfg.channels}
+    bound = OPTION_BOUNDS["sigma_m"]
+    for key, v in per.items():
+        if key not in known:
+            raise CdgpsError(f"INIT.json: sigma_m_per_channel: {key!r} is not a channel (antenna/transmitter) "
+                             f"of the config")
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (np.isfinite(v) and bound.contains(v)):
+            raise CdgpsError(f"INIT.json: sigma_m_per_channel[{key!r}] = {v!r}: expected a number of metres "
+                             f"in {bound.text()}")
+    fallback = float(s0) if s0 else float(np.sqrt(np.mean(np.square(list(per.values()) or [cfg.measurement_sigma_m]))))
+    out = np.array([float(per.get(f"{a}/{t}", fallback)) for a, t in channels])
+    return out, "INIT (estimated per channel)" if "noise" in init else "INIT (per channel)"

@@ -1,0 +1,1 @@
+"""GPS physics: broadcast orbits and frames, troposphere, receiver clocks, geometry."""

@@ -1,0 +1,430 @@
+"""GPS satellite positions and clocks from broadcast ephemerides, and local geometry.
+
+* :func:`sat_position_ecef` — the IS-GPS-200 user algorithm (IS-GPS-200N, Table 20-IV: Kepler
+  orbit with harmonic corrections, Earth-fixed at the given time) and the satellite clock
+  correction (Section 20.3.3.3.3.1: polynomial, relativistic eccentricity term, optional T_GD),
+  vectorized over times (and, with a table of ephemerides, over records).
+* :func:`select_ephemeris` — the healthy ephemeris with the nearest toe within ±2 h (the
+  convention of RTKLIB and most receivers), or an error naming what is missing.
+* :func:`sat_position_at_reception` — light-time iteration with the Earth-rotation (Sagnac)
+  correction: satellite position at transmission, expressed in the ECEF frame at reception.
+* :func:`ecef_to_geodetic`, :func:`geodetic_to_ecef` (WGS-84), :func:`enu_matrix`,
+  :func:`ecef_to_enu`, :func:`azimuth_elevation`.
+
+All positions are ECEF (WGS-84), m; angles rad; times GPS seconds since 1980-01-06 (see
+:mod:`cdgps_cli.io.rinex`); clock corrections s (positive: the satellite clock is ahead, so
+``t_gps = t_sv - clock_s``).  Functions are pure and take numpy arrays.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import NamedTuple
+
+import numpy as np
+import pandas as pd
+
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.io.rinex import gps_time_str
+
+__all__ = [
+    "GM_GPS",
+    "OMEGA_E_GPS",
+    "SPEED_OF_LIGHT",
+    "F_RELATIVISTIC",
+    "WGS84_A",
+    "WGS84_F",
+    "MAX_EPHEMERIS_AGE_S",
+    "sat_position_ecef",
+    "select_ephemeris",
+    "sat_position_at_reception",
+    "ReceptionGeometry",
+    "ecef_to_geodetic",
+    "geodetic_to_ecef",
+    "enu_matrix",
+    "ecef_to_enu",
+    "azimuth_elevation",
+]
+
+GM_GPS = 3.986005e14
+"""WGS-84 Earth gravitational constant as fixed by IS-GPS-200, m³/s²."""
+OMEGA_E_GPS = 7.2921151467e-5
+"""WGS-84 Earth rotation rate as fixed by IS-GPS-200, rad/s."""
+SPEED_OF_LIGHT = 299792458.0
+"""Speed of light in vacuum, m/s."""
+F_RELATIVISTIC = -4.442807633e-10
+"""IS-GPS-200 relativistic clock constant F = −2·√GM / c², s/√m."""
+WGS84_A = 6378137.0
+"""WGS-84 semi-major axis, m."""
+WGS84_F = 1.0 / 298.257223563
+"""WGS-84 flattening."""
+MAX_EPHEMERIS_AGE_S = 7200.0
+"""Largest |t − toe| for which a broadcast ephemeris is used, s (±2 h; the nominal fit interval is 4 h)."""
+
+_ORBIT_FIELDS = (
+    "toe_gps_s",
+    "toe_sow_s",
+    "toc_gps_s",
+    "sqrt_a_sqrt_m",
+    "e",
+    "m0_rad",
+    "delta_n_rad_per_s",
+    "omega_rad",
+    "cuc_rad",
+    "cus_rad",
+    "crc_m",
+    "crs_m",
+    "cic_rad",
+    "cis_rad",
+    "i0_rad",
+    "idot_rad_per_s",
+    "omega0_rad",
+    "omega_dot_rad_per_s",
+    "af0_s",
+    "af1_s_per_s",
+    "af2_s_per_s2",
+    "tgd_s",
+)
+
+
+def _params(eph) -> dict[str, np.ndarray]:
+    """The orbit fields of one ephemeris (Series / mapping) or many (DataFrame) as float arrays."""
+    if isinstance(eph, pd.DataFrame):
+        missing = [f for f in _ORBIT_FIELDS if f not in eph.columns]
+        get = lambda f: eph[f].to_numpy(dtype=np.float64)  # noqa: E731
+    elif isinstance(eph, (pd.Series, Mapping)):
+        missing = [f for f in _ORBIT_FIELDS if f not in eph]
+        get = lambda f: np.float64(eph[f])  # noqa: E731
+    else:
+        raise TypeError(f"expected an ephemeris row (pandas Series or mapping) or a DataFrame, got {type(eph).__name__}")
+    if missing:
+        raise ValueError(f"ephemeris lacks field(s) {', '.join(missing)} (as produced by read_rinex_nav)")
+    return {f: get(f) for f in _ORBIT_FIELDS}
+
+
+def _eccentric_anomaly(m: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """Solve Kepler's equation E − e·sin E = M by Newton iteration (converges to 1e-15 rad)."""
+    ecc = np.asarray(e, dtype=np.float64)
+    big_e = np.array(m, dtype=np.float64, copy=True)
+    for _ in range(30):
+        d = (big_e - ecc * np.sin(big_e) - m) / (1.0 - ecc * np.cos(big_e))
+        big_e = big_e - d
+        if np.all(np.abs(d) < 1e-15):
+            break
+    return big_e
+
+
+def sat_position_ecef(eph, t_gps_s, *, apply_tgd: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Satellite antenna position (ECEF at time ``t``) and clock correction from a broadcast ephemeris.
+
+    Implements the IS-GPS-200 user algorithm for ephemeris determination (Table 20-IV) and the
+    SV clock correction Δt_sv = af0 + af1·(t−toc) + af2·(t−toc)² + F·e·√A·sin E_k, minus T_GD for
+    a single-frequency L1 user (Section 20.3.3.3.3.2).
+
+    Parameters
+    ----------
+    eph : pandas.Series, mapping or DataFrame
+        One ephemeris (a row of :func:`~cdgps_cli.io.rinex.read_rinex_nav`), applied at every time;
+        or a DataFrame with one ephemeris per element of ``t_gps_s`` (same length).
+    t_gps_s : float or array_like
+        GPS system time(s) of signal transmission, GPS seconds since 1980-01-06.
+    apply_tgd : bool, default True
+        Subtract T_GD from the clock correction (correct for L1 C/A or P(Y) pseudoranges; leave
+        False for the ionosphere-free combination, to which af0 refers).
+
+    Returns
+    -------
+    xyz_m : ndarray, shape ``np.shape(t_gps_s) + (3,)``
+        Satellite antenna phase centre, ECEF (WGS-84) at time ``t``, m.
+    clock_s : ndarray, shape ``np.shape(t_gps_s)``
+        Satellite clock correction Δt_sv, s (t_gps = t_sv − Δt_sv).
+
+    Notes
+    -----
+    t − toe and t − toc are computed from continuous GPS seconds, so no week crossover handling is
+    needed.  Accuracy is that of the broadcast message (about 1 m orbit, a few ns clock).
+    """
+    p = _params(eph)
+    t = np.asarray(t_gps_s, dtype=np.float64)
+    if isinstance(eph, pd.DataFrame) and eph.shape[0] != t.size:
+        raise ValueError(f"a DataFrame of ephemerides must have one row per time ({eph.shape[0]} rows, {t.size} times)")
+    if isinstance(eph, pd.DataFrame):
+        p = {k: v.reshape(t.shape) for k, v in p.items()}
+    a = p["sqrt_a_sqrt_m"] ** 2
+    n0 = np.sqrt(GM_GPS / a**3)
+    tk = t - p["toe_gps_s"]
+    n = n0 + p["delta_n_rad_per_s"]
+    mk = p["m0_rad"] + n * tk
+    e = p["e"]
+    ek = _eccentric_anomaly(mk, e)
+    sin_e, cos_e = np.sin(ek), np.cos(ek)
+    nu = np.arctan2(np.sqrt(1.0 - e * e) * sin_e, cos_e - e)
+    phi = nu + p["omega_rad"]
+    s2, c2 = np.sin(2.0 * phi), np.cos(2.0 * phi)
+    u = phi + p["cus_rad"] * s2 + p["cuc_rad"] * c2
+    r = a * (1.0 - e * cos_e) + p["crs_m"] * s2 + p["crc_m"] * c2
+    inc = p["i0_rad"] + p["idot_rad_per_s"] * tk + p["cis_rad"] * s2 + p["cic_rad"] * c2
+    xp, yp = r * np.cos(u), r * np.sin(u)
+    om = p["omega0_rad"] + (p["omega_dot_rad_per_s"] - OMEGA_E_GPS) * tk - OMEGA_E_GPS * p["toe_sow_s"]
+    cos_om, sin_om, cos_i = np.cos(om), np.sin(om), np.cos(inc)
+    xyz = np.stack([xp * cos_om - yp * cos_i * sin_om, xp * sin_om + yp * cos_i * cos_om, yp * np.sin(inc)], axis=-1)
+    dt = t - p["toc_gps_s"]
+    clock = p["af0_s"] + p["af1_s_per_s"] * dt + p["af2_s_per_s2"] * dt * dt + F_RELATIVISTIC * e * p["sqrt_a_sqrt_m"] * sin_e
+    if apply_tgd:
+        clock = clock - p["tgd_s"]
+    return xyz, clock
+
+
+def select_ephemeris(nav: pd.DataFrame, sat: str, t_gps_s, *, max_age_s: float = MAX_EPHEMERIS_AGE_S) -> pd.DataFrame | pd.Series:
+    """Pick, for each time, the healthy ephemeris of ``sat`` whose toe is nearest.
+
+    Parameters
+    ----------
+    nav : DataFrame
+        Ephemerides from :func:`~cdgps_cli.io.rinex.read_rinex_nav`.
+    sat : str
+        Satellite, e.g. ``"G05"``.
+    t_gps_s : float or array_like
+        Time(s), GPS seconds.
+    max_age_s : float, default 7200
+        Largest accepted |t − toe|, s.
+
+    Returns
+    -------
+    Series or DataFrame
+        For a scalar time the chosen row; for an array one row per time (index 0…N−1).  Ties in
+        |t − toe| (duplicate uploads) go to the latest transmission time.
+
+    Raises
+    ------
+    CdgpsError
+        When ``sat`` has no ephemeris at all, or no healthy one (``sv_health`` = 0) with
+        |t − toe| ≤ ``max_age_s`` for some of the times; the message lists the uncovered times
+        and the toe/health of the records the file has for that satellite.
+    """
+    t = np.asarray(t_gps_s, dtype=np.float64)
+    scalar = t.ndim == 0
+    t1 = np.atleast_1d(t).ravel()
+    recs = nav[nav["sat"] == sat]
+    if recs.empty:
+        have = sorted(nav["sat"].unique().tolist())
+        raise CdgpsError(f"no broadcast ephemeris for {sat} in the navigation data (satellites present: {' '.join(have) or 'none'})")
+    healthy = recs[recs["sv_health"] == 0]
+    chosen = np.full(t1.shape, -1, dtype=np.int64)
+    if not healthy.empty:
+        if "transmit_gps_s" in healthy.columns:
+            # argmin keeps the first of equal ages: order by latest transmission first
+            healthy = healthy.sort_values("transmit_gps_s", ascending=False, na_position="last", kind="stable")
+        toe = healthy["toe_gps_s"].to_numpy()
+        age = np.abs(t1[:, None] - toe[None, :])
+        best = np.argmin(age, axis=1)
+        ok = age[np.arange(t1.size), best] <= max_age_s
+        chosen = np.where(ok, best, -1)
+    bad = chosen < 0
+    if bad.any():
+        idx = np.flatnonzero(bad)
+        shown = ", ".join(gps_time_str(x) for x in t1[idx[:3]]) + (" …" if idx.size > 3 else "")
+        toes = recs.sort_values("toe_gps_s")
+        lst = "; ".join(
+            f"toe {gps_time_str(r.toe_gps_s)}" + ("" if r.sv_health == 0 else f" (unhealthy, sv_health={r.sv_health})")
+            for r in toes.itertuples()
+        )
+        if len(toes) > 8:
+            lst = "; ".join(lst.split("; ")[:8]) + f"; … ({len(toes)} records)"
+        raise CdgpsError(
+            f"no healthy broadcast ephemeris for {sat} within ±{max_age_s / 3600:g} h of {idx.size} of {t1.size} requested time(s) "
+            f"({shown}); the navigation data has for {sat}: {lst}"
+        )
+    out = healthy.iloc[chosen].reset_index(drop=True)
+    if scalar:
+        return out.iloc[0]
+    return out
+
+
+class ReceptionGeometry(NamedTuple):
+    """Result of :func:`sat_position_at_reception` (arrays over the reception times)."""
+
+    xyz_m: np.ndarray
+    """Satellite position at transmission, in the ECEF frame of the reception instant, m, shape (N, 3)."""
+    clock_s: np.ndarray
+    """Satellite clock correction at transmission (T_GD applied), s, shape (N,)."""
+    range_m: np.ndarray
+    """Geometric range |xyz_m − rx_ecef|, m, shape (N,)."""
+    travel_time_s: np.ndarray
+    """Signal travel time range_m / c, s, shape (N,)."""
+
+
+def sat_position_at_reception(
+    nav: pd.DataFrame,
+    sat: str,
+    t_rx_gps_s,
+    rx_ecef_m,
+    *,
+    rx_clock_s=0.0,
+    apply_tgd: bool = True,
+    max_age_s: float = MAX_EPHEMERIS_AGE_S,
+) -> ReceptionGeometry:
+    """Satellite position for signals received at ``t_rx``: light time and Earth rotation.
+
+    Iterates τ = |R₃(ω_E τ)·x_sat(t_rx − dt_rx − τ) − x_rx| / c until τ changes by less than
+    1 ps, where R₃(ω_E τ) rotates the satellite position from the ECEF frame at transmission to
+    the ECEF frame at reception (the Sagnac correction, up to ~30 m in range).
+
+    Parameters
+    ----------
+    nav : DataFrame
+        Ephemerides from :func:`~cdgps_cli.io.rinex.read_rinex_nav`.
+    sat : str
+        Satellite, e.g. ``"G05"``.
+    t_rx_gps_s : float or array_like
+        Receiver time tags of reception, GPS seconds, shape (N,).
+    rx_ecef_m : array_like, shape (3,) or (N, 3)
+        Receiver antenna position, ECEF, m.
+    rx_clock_s : float or array_like, default 0
+        Receiver clock offset (time tag − GPS time), s; the true reception time is
+        ``t_rx − rx_clock_s``.  A receiver clock error of δ s moves the satellite by up to
+        ~0.8 m per ms along the line of sight (range rate ≤ 800 m/s).
+    apply_tgd : bool, default True
+        See :func:`sat_position_ecef`.
+    max_age_s : float, default 7200
+        See :func:`select_ephemeris`.  The ephemeris is chosen by the reception tag ``t_rx``, so two
+        receivers sharing an epoch use the same ephemeris (required for double differences).
+
+    Returns
+    -------
+    ReceptionGeometry
+        ``xyz_m`` (N, 3), ``clock_s`` (N,), ``range_m`` (N,), ``travel_time_s`` (N,).
+
+    Raises
+    ------
+    CdgpsError
+        From :func:`select_ephemeris` when the satellite is not covered.
+    """
+    t_rx = np.atleast_1d(np.asarray(t_rx_gps_s, dtype=np.float64)).ravel()
+    rx = np.asarray(rx_ecef_m, dtype=np.float64)
+    if rx.shape != (3,) and rx.shape != (t_rx.size, 3):
+        raise ValueError(f"rx_ecef_m must have shape (3,) or ({t_rx.size}, 3), got {rx.shape}")
+    eph = select_ephemeris(nav, sat, t_rx, max_age_s=max_age_s)
+    t_true = t_rx - np.asarray(rx_clock_s, dtype=np.float64)
+    tau = np.full(t_rx.shape, 0.075)
+    for _ in range(10):
+        xyz, clk = sat_position_ecef(eph, t_true - tau, apply_tgd=apply_tgd)
+        theta = OMEGA_E_GPS * tau
+        c, s = np.cos(theta), np.sin(theta)
+        rot = np.stack([c * xyz[:, 0] + s * xyz[:, 1], -s * xyz[:, 0] + c * xyz[:, 1], xyz[:, 2]], axis=-1)
+        rng = np.linalg.norm(rot - rx, axis=-1)
+        new_tau = rng / SPEED_OF_LIGHT
+        done = np.max(np.abs(new_tau - tau)) < 1e-12
+        tau = new_tau
+        if done:
+            break
+    return ReceptionGeometry(rot, clk, rng, tau)
+
+
+# ----------------------------------------------------------------------------------------------
+# coordinates
+# ----------------------------------------------------------------------------------------------
+
+
+def ecef_to_geodetic(xyz_m) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """ECEF → WGS-84 geodetic latitude, longitude and ellipsoidal height.
+
+    Parameters
+    ----------
+    xyz_m : array_like, shape (..., 3)
+        ECEF coordinates, m.
+
+    Returns
+    -------
+    lat_rad, lon_rad, h_m : ndarray, shape (...)
+        Geodetic latitude and longitude, rad; height above the ellipsoid, m.  Iterated to
+        below 1e-12 rad / 0.1 mm; the poles and the origin are handled (lon 0 on the axis).
+    """
+    xyz = np.asarray(xyz_m, dtype=np.float64)
+    x, y, z = xyz[..., 0], xyz[..., 1], xyz[..., 2]
+    e2 = WGS84_F * (2.0 - WGS84_F)
+    r2 = x * x + y * y
+    zk = np.zeros_like(z)
+    zz = np.array(z, copy=True)
+    v = np.full_like(z, WGS84_A)
+    for _ in range(30):
+        zk = zz
+        sinp = zz / np.sqrt(np.maximum(r2 + zz * zz, 1e-300))
+        v = WGS84_A / np.sqrt(1.0 - e2 * sinp * sinp)
+        zz = z + v * e2 * sinp
+        if np.all(np.abs(zz - zk) < 1e-5):
+            break
+    lat = np.where(r2 > 1e-12, np.arctan(zz / np.sqrt(np.maximum(r2, 1e-300))), np.where(z > 0, np.pi / 2, np.where(z < 0, -np.pi / 2, 0.0)))
+    lon = np.where(r2 > 1e-12, np.arctan2(y, x), 0.0)
+    h = np.sqrt(r2 + zz * zz) - v
+    return lat, lon, h
+
+
+def geodetic_to_ecef(lat_rad, lon_rad, h_m) -> np.ndarray:
+    """WGS-84 geodetic latitude, longitude (rad) and height (m) → ECEF, m, shape (..., 3)."""
+    lat = np.asarray(lat_rad, dtype=np.float64)
+    lon = np.asarray(lon_rad, dtype=np.float64)
+    h = np.asarray(h_m, dtype=np.float64)
+    e2 = WGS84_F * (2.0 - WGS84_F)
+    sinp, cosp = np.sin(lat), np.cos(lat)
+    v = WGS84_A / np.sqrt(1.0 - e2 * sinp * sinp)
+    return np.stack(np.broadcast_arrays((v + h) * cosp * np.cos(lon), (v + h) * cosp * np.sin(lon), (v * (1.0 - e2) + h) * sinp), axis=-1)
+
+
+def enu_matrix(lat_rad, lon_rad) -> np.ndarray:
+    """Rotation from ECEF to local east-north-up axes at a geodetic latitude/longitude.
+
+    Parameters
+    ----------
+    lat_rad, lon_rad : float or array_like
+        Geodetic latitude and longitude, rad.
+
+    Returns
+    -------
+    ndarray, shape (..., 3, 3)
+        R with rows (east, north, up), so that ``enu = R @ (xyz − xyz_ref)``.
+    """
+    lat = np.asarray(lat_rad, dtype=np.float64)
+    lon = np.asarray(lon_rad, dtype=np.float64)
+    sp, cp, sl, cl = np.sin(lat), np.cos(lat), np.sin(lon), np.cos(lon)
+    zero = np.zeros(np.broadcast(lat, lon).shape)
+    rows = [
+        np.stack(np.broadcast_arrays(-sl, cl, zero), axis=-1),
+        np.stack(np.broadcast_arrays(-sp * cl, -sp * sl, cp), axis=-1),
+        np.stack(np.broadcast_arrays(cp * cl, cp * sl, sp), axis=-1),
+    ]
+    return np.stack(rows, axis=-2)
+
+
+def ecef_to_enu(xyz_m, ref_ecef_m) -> np.ndarray:
+    """Vectors from a reference point to ECEF points in the reference's local ENU frame, m, shape (..., 3)."""
+    ref = np.asarray(ref_ecef_m, dtype=np.float64)
+    lat, lon, _ = ecef_to_geodetic(ref)
+    r = enu_matrix(lat, lon)
+    d = np.asarray(xyz_m, dtype=np.float64) - ref
+    return np.einsum("...ij,...j->...i", r, d)
+
+
+def azimuth_elevation(rx_ecef_m, sat_ecef_m) -> tuple[np.ndarray, np.ndarray]:
+    """Azimuth (from north, clockwise, in [0, 2π)) and elevation (rad) of satellites seen from a receiver.
+
+    Parameters
+    ----------
+    rx_ecef_m : array_like, shape (3,) or (..., 3)
+        Receiver position, ECEF, m.
+    sat_ecef_m : array_like, shape (..., 3)
+        Satellite positions, ECEF, m.
+
+    Returns
+    -------
+    az_rad, el_rad : ndarray, shape (...)
+    """
+    rx = np.asarray(rx_ecef_m, dtype=np.float64)
+    lat, lon, _ = ecef_to_geodetic(rx)
+    r = enu_matrix(lat, lon)
+    d = np.asarray(sat_ecef_m, dtype=np.float64) - rx
+    enu = np.einsum("...ij,...j->...i", r, d)
+    e, n, u = enu[..., 0], enu[..., 1], enu[..., 2]
+    az = np.mod(np.arctan2(e, n), 2.0 * np.pi)
+    el = np.arctan2(u, np.hypot(e, n))
+    return az, el

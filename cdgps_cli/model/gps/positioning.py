@@ -1,0 +1,845 @@
+"""GPS measurement models shared by the static-baseline solver: troposphere, receiver clocks,
+epoch matching, per-receiver reception geometry, and a simulator of two static receivers.
+
+* :func:`tropo_zenith_hydrostatic_m`, :func:`niell_hydrostatic_mapping`, :func:`tropo_hydrostatic_m`
+  — Saastamoinen zenith hydrostatic delay under the standard atmosphere, mapped with the Niell
+  (1996) hydrostatic mapping function.  This is the a priori troposphere that RTKLIB 2.4.3 applies
+  to every undifferenced range in relative positioning (``zdres`` in ``rtkpos.c``), so that both
+  programs model the same thing; over a short baseline it largely cancels in the double
+  differences (GEONET 3040–0759: 5.6 m of height difference, about 2 mm zenith; leaving it out
+  moves that solution by 2–5 mm).
+* :func:`estimate_receiver_clock` — receiver clock offset per epoch from L1 pseudoranges at a known
+  position, so that geometry can be computed at each receiver's *true* reception time.
+* :func:`spp_static` — static single-point position (all epochs, one clock per epoch), used when
+  a RINEX header has no APPROX POSITION.
+* :func:`match_epochs` — pair two receivers' epochs whose time tags differ by less than a tolerance
+  (the receivers here steer their clocks in 1 ms steps, so tags drift by a few ms).
+* :func:`reception_geometry` — satellite position (Sagnac-corrected), clock, range, azimuth and
+  elevation, troposphere for the rows of one receiver at their true reception times.
+* :func:`synthetic_gps_nav` — broadcast ephemerides of a nominal 30-satellite GPS-like
+  constellation for any date (simulations without a real navigation file).
+* :func:`simulate_static_pair` — L1 phase and pseudorange of two static receivers from broadcast
+  ephemerides with integer ambiguities, receiver clocks, slips, noise and C/N0, as tables in the format
+  of :func:`~cdgps_cli.io.rinex.read_rinex_obs` (for tests and benchmarks).
+
+Units: positions ECEF (WGS-84) m; angles rad; times GPS seconds since 1980-01-06; clocks s;
+phases cycles of the L1 carrier; pseudoranges and delays m.  Functions are pure.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import math
+
+import numpy as np
+import pandas as pd
+
+from cdgps_cli.model.gps.orbits import (
+    GM_GPS,
+    MAX_EPHEMERIS_AGE_S,
+    OMEGA_E_GPS,
+    SPEED_OF_LIGHT,
+    azimuth_elevation,
+    ecef_to_geodetic,
+    enu_matrix,
+    sat_position_at_reception,
+)
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.io.rinex import GPS_EPOCH, OBS_COLUMNS
+from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
+
+__all__ = [
+    "L1_WAVELENGTH_M",
+    "day_of_year",
+    "tropo_zenith_hydrostatic_m",
+    "niell_hydrostatic_mapping",
+    "tropo_hydrostatic_m",
+    "ephemeris_coverage",
+    "estimate_receiver_clock",
+    "spp_static",
+    "nominal_interval_s",
+    "match_epochs",
+    "reception_geometry",
+    "simulate_static_pair",
+    "synthetic_gps_nav",
+]
+
+L1_WAVELENGTH_M = GPS_L1_WAVELENGTH_M
+"""GPS L1 carrier wavelength c / 1575.42 MHz, m."""
+
+
+# ----------------------------------------------------------------------------------------------
+# troposphere (a priori, hydrostatic)
+# ----------------------------------------------------------------------------------------------
+
+
+def day_of_year(t_gps_s) -> np.ndarray:
+    """Fractional day of year of GPS times (1.0 at January 1, 00:00), as RTKLIB's ``time2doy``.
+
+    Parameters
+    ----------
+    t_gps_s : float or array_like
+        GPS seconds since 1980-01-06.
+
+    Returns
+    -------
+    ndarray
+        Day of year, days (leap seconds ignored: the NMF seasonal term varies over months).
+    """
+    t = np.asarray(t_gps_s, dtype=np.float64)
+    flat = t.ravel()
+    out = np.empty_like(flat)
+    # one calendar conversion per distinct day (times of one file span a day or two)
+    days = np.floor(flat / 86400.0)
+    for d in np.unique(days):
+        date = GPS_EPOCH + dt.timedelta(days=float(d))
+        jan1 = dt.datetime(date.year, 1, 1)
+        start_s = (jan1 - GPS_EPOCH).total_seconds()
+        sel = days == d
+        out[sel] = (flat[sel] - start_s) / 86400.0 + 1.0
+    return out.reshape(t.shape)
+
+
+def tropo_zenith_hydrostatic_m(lat_rad, h_m) -> np.ndarray:
+    """Saastamoinen zenith hydrostatic delay with the standard atmosphere, m.
+
+    Pressure ``P = 1013.25·(1 − 2.2557e-5·h)^5.2568`` hPa (h clipped at 0) and
+    ``ZHD = 0.0022768·P / (1 − 0.00266·cos 2φ − 0.00028·h/km)`` (Saastamoinen 1972; the form of
+    RTKLIB's ``tropmodel`` with zero humidity).  Heights outside −100 m … 10 km give 0.
+
+    Parameters
+    ----------
+    lat_rad : float or array_like
+        Geodetic latitude, rad.
+    h_m : float or array_like
+        Ellipsoidal height, m.
+
+    Returns
+    -------
+    ndarray
+        Zenith hydrostatic delay, m (about 2.3 m at sea level).
+    """
+    lat = np.asarray(lat_rad, dtype=np.float64)
+    h = np.asarray(h_m, dtype=np.float64)
+    hc = np.maximum(h, 0.0)
+    pres = 1013.25 * np.power(1.0 - 2.2557e-5 * hc, 5.2568)
+    zhd = 0.0022768 * pres / (1.0 - 0.00266 * np.cos(2.0 * lat) - 0.00028 * hc / 1e3)
+    return np.where((h < -100.0) | (h > 1e4), 0.0, zhd)
+
+
+# Niell (1996), Table 3: hydrostatic a, b, c (average and amplitude) at latitudes 15, 30, 45, 60, 75°
+_NMF_AVG = np.array([
+    [1.2769934e-3, 1.2683230e-3, 1.2465397e-3, 1.2196049e-3, 1.2045996e-3],
+    [2.9153695e-3, 2.9152299e-3, 2.9288445e-3, 2.9022565e-3, 2.9024912e-3],
+    [62.610505e-3, 62.837393e-3, 63.721774e-3, 63.824265e-3, 64.258455e-3],
+])
+_NMF_AMP = np.array([
+    [0.0, 1.2709626e-5, 2.6523662e-5, 3.4000452e-5, 4.1202191e-5],
+    [0.0, 2.1414979e-5, 3.0160779e-5, 7.2562722e-5, 11.723375e-5],
+    [0.0, 9.0128400e-5, 4.3497037e-5, 84.795348e-5, 170.37206e-5],
+])
+_NMF_HEIGHT = (2.53e-5, 5.49e-3, 1.14e-3)
+
+
+def _marini(sin_el, a, b, c):
+    """Marini continued fraction normalised to 1 at zenith."""
+    return (1.0 + a / (1.0 + b / (1.0 + c))) / (sin_el + a / (sin_el + b / (sin_el + c)))
+
+
+def niell_hydrostatic_mapping(el_rad, lat_rad, h_m, doy) -> np.ndarray:
+    """Niell (1996) hydrostatic mapping function with its height correction.
+
+    Parameters
+    ----------
+    el_rad : array_like
+        Elevation, rad (≤ 0 gives 0).
+    lat_rad : float or array_like
+        Geodetic latitude, rad (the seasonal phase is shifted by half a year in the south).
+    h_m : float or array_like
+        Ellipsoidal height, m (used for the height correction, as RTKLIB does).
+    doy : float or array_like
+        Fractional day of year (:func:`day_of_year`).
+
+    Returns
+    -------
+    ndarray
+        Hydrostatic mapping factor (1 at zenith, about 3.8 at 15° elevation).
+    """
+    el = np.asarray(el_rad, dtype=np.float64)
+    lat_deg = np.degrees(np.asarray(lat_rad, dtype=np.float64))
+    h = np.asarray(h_m, dtype=np.float64)
+    y = (np.asarray(doy, dtype=np.float64) - 28.0) / 365.25 + np.where(lat_deg < 0.0, 0.5, 0.0)
+    cosy = np.cos(2.0 * np.pi * y)
+    alat = np.abs(lat_deg)
+    grid = np.array([15.0, 30.0, 45.0, 60.0, 75.0])
+    coef = [np.interp(alat, grid, _NMF_AVG[k]) - np.interp(alat, grid, _NMF_AMP[k]) * cosy for k in range(3)]
+    sin_el = np.sin(np.maximum(el, 1e-6))
+    m = _marini(sin_el, *coef)
+    dm = (1.0 / sin_el - _marini(sin_el, *_NMF_HEIGHT)) * h / 1e3
+    return np.where(el > 0.0, m + dm, 0.0)
+
+
+def tropo_hydrostatic_m(el_rad, lat_rad, h_m, t_gps_s) -> np.ndarray:
+    """Slant hydrostatic troposphere delay: Saastamoinen zenith delay × Niell mapping, m.
+
+    Parameters
+    ----------
+    el_rad : array_like
+        Elevation, rad.
+    lat_rad, h_m : float or array_like
+        Receiver geodetic latitude (rad) and ellipsoidal height (m).
+    t_gps_s : float or array_like
+        Time, GPS seconds (for the seasonal term of the mapping function).
+
+    Returns
+    -------
+    ndarray
+        Slant delay, m (0 for elevations ≤ 0).
+    """
+    return tropo_zenith_hydrostatic_m(lat_rad, h_m) * niell_hydrostatic_mapping(el_rad, lat_rad, h_m, day_of_year(t_gps_s))
+
+
+# ----------------------------------------------------------------------------------------------
+# ephemeris coverage, receiver clock, single-point position
+# ----------------------------------------------------------------------------------------------
+
+
+def ephemeris_coverage(nav: pd.DataFrame, sats, t_gps_s, *, max_age_s: float = MAX_EPHEMERIS_AGE_S) -> np.ndarray:
+    """Which (satellite, time) pairs have a healthy broadcast ephemeris within ``max_age_s`` of toe.
+
+    Parameters
+    ----------
+    nav : DataFrame
+        Ephemerides (:func:`~cdgps_cli.io.rinex.read_rinex_nav`).
+    sats : array_like of str, shape (N,)
+        Satellite of each row ("G05").
+    t_gps_s : array_like, shape (N,)
+        Time of each row, GPS s.
+    max_age_s : float
+        Largest accepted |t − toe|, s (the rule of :func:`~cdgps_cli.model.gps.orbits.select_ephemeris`).
+
+    Returns
+    -------
+    ndarray of bool, shape (N,)
+    """
+    sats = np.asarray(sats, dtype=object)
+    t = np.asarray(t_gps_s, dtype=np.float64)
+    ok = np.zeros(t.shape, dtype=bool)
+    healthy = nav[nav["sv_health"] == 0]
+    toes = {s: np.sort(g["toe_gps_s"].to_numpy()) for s, g in healthy.groupby("sat")}
+    for s, sel in _groups(sats):
+        toe = toes.get(s)
+        if toe is None or toe.size == 0:
+            continue
+        k = np.searchsorted(toe, t[sel])
+        before = toe[np.clip(k - 1, 0, toe.size - 1)]
+        after = toe[np.clip(k, 0, toe.size - 1)]
+        ok[sel] = np.minimum(np.abs(t[sel] - before), np.abs(t[sel] - after)) <= max_age_s
+    return ok
+
+
+def _groups(sats) -> list:
+    """(satellite, row indices) for each distinct satellite, sorted by name; rows keep their order.
+    One hash pass and one sort instead of a string comparison over all rows per satellite."""
+    codes, names = pd.factorize(np.asarray(sats, dtype=object), sort=True)
+    order = np.argsort(codes, kind="stable")
+    counts = np.bincount(codes[codes >= 0], minlength=len(names))
+    cuts = np.r_[0, np.cumsum(counts)]
+    return [(names[i], order[cuts[i]:cuts[i + 1]]) for i in range(len(names))]
+
+
+def _rows_geometry(nav, sats, t_label, t_true, rx_ecef, *, troposphere: bool):
+    """Satellite geometry for rows: returns xyz (N,3), clock (N,), range (N,), az, el, trop (N,)."""
+    n = t_label.size
+    xyz = np.empty((n, 3))
+    clk = np.empty(n)
+    rng = np.empty(n)
+    rx = np.asarray(rx_ecef, dtype=np.float64)
+    per_row = rx.ndim == 2
+    for s, idx in _groups(sats):
+        g = sat_position_at_reception(nav, s, t_label[idx], rx[idx] if per_row else rx,
+                                      rx_clock_s=t_label[idx] - t_true[idx])
+        xyz[idx], clk[idx], rng[idx] = g.xyz_m, g.clock_s, g.range_m
+    az, el = azimuth_elevation(rx, xyz)
+    if troposphere:
+        lat, _, h = ecef_to_geodetic(rx)
+        trop = tropo_hydrostatic_m(el, lat, h, t_true)
+    else:
+        trop = np.zeros(n)
+    return xyz, clk, rng, az, el, trop
+
+
+def estimate_receiver_clock(
+    epoch_index,
+    sats,
+    t_tag_s,
+    pseudorange_m,
+    nav: pd.DataFrame,
+    rx_ecef_m,
+    *,
+    n_epochs: int | None = None,
+    mask_rad: float = math.radians(10.0),
+    troposphere: bool = True,
+    iterations: int = 3,
+    what: str = "receiver",
+) -> np.ndarray:
+    """Receiver clock offset per epoch from L1 pseudoranges at a known receiver position.
+
+    The clock is the median over the satellites above ``mask_rad`` of
+    ``P − (ρ − c·dt_sat + T)`` / c, iterated so that ρ is computed at the true reception time
+    ``t_tag − dt_rx`` (a 5 ms clock error moves a satellite by up to 4 m).  Epochs without a
+    usable pseudorange take the clock interpolated linearly in time from their neighbours.
+
+    Parameters
+    ----------
+    epoch_index : array_like of int, shape (N,)
+        Epoch of each row, 0 … n_epochs−1.
+    sats : array_like of str, shape (N,)
+        Satellite of each row.
+    t_tag_s : array_like, shape (N,)
+        Receiver time tag of each row, GPS s.
+    pseudorange_m : array_like, shape (N,)
+        L1 pseudorange, m (NaN if absent).
+    nav : DataFrame
+        Broadcast ephemerides; rows must be covered (:func:`ephemeris_coverage`).
+    rx_ecef_m : array_like, shape (3,)
+        Receiver position, ECEF m (metre-level is enough: 1 km of error gives < 4 µs).
+    n_epochs : int, optional
+        Number of epochs (default ``max(epoch_index) + 1``).
+    mask_rad : float
+        Elevation cutoff for the clock estimate, rad.
+    troposphere : bool
+        Subtract the a priori hydrostatic troposphere.
+    iterations : int
+        Passes (≥ 2 needed for the reception-time effect).
+    what : str
+        Name used in error messages.
+
+    Returns
+    -------
+    ndarray, shape (n_epochs,)
+        Receiver clock offset dt_rx (time tag − GPS time), s.
+
+    Raises
+    ------
+    CdgpsError
+        If no epoch has a usable pseudorange.
+    """
+    ep = np.asarray(epoch_index, dtype=np.int64)
+    sats = np.asarray(sats, dtype=object)
+    t = np.asarray(t_tag_s, dtype=np.float64)
+    pr = np.asarray(pseudorange_m, dtype=np.float64)
+    ne = int(ep.max()) + 1 if n_epochs is None else int(n_epochs)
+    have = np.isfinite(pr)
+    if not have.any():
+        raise CdgpsError(f"{what}: no L1 pseudoranges; they are needed to find the receiver clock offset "
+                         f"(true reception time) of each epoch")
+    clk = np.zeros(ne)
+    idx = np.flatnonzero(have)
+    ep_t = np.full(ne, np.nan)
+    ep_t[ep] = t
+    for _ in range(max(1, iterations)):
+        _, dts, rng, _, el, trop = _rows_geometry(nav, sats[idx], t[idx], t[idx] - clk[ep[idx]], rx_ecef_m,
+                                                   troposphere=troposphere)
+        res = (pr[idx] - (rng - SPEED_OF_LIGHT * dts + trop)) / SPEED_OF_LIGHT
+        use = el > mask_rad
+        if not use.any():
+            use = el > 0.0
+        df = pd.DataFrame({"ep": ep[idx][use], "r": res[use]})
+        med = df.groupby("ep")["r"].median()
+        new = np.full(ne, np.nan)
+        new[med.index.to_numpy()] = med.to_numpy()
+        good = np.isfinite(new)
+        if not good.any():
+            raise CdgpsError(f"{what}: no pseudorange from a satellite above the horizon; cannot find the receiver clock")
+        if not good.all():
+            tt = np.where(np.isfinite(ep_t), ep_t, np.interp(np.arange(ne), np.flatnonzero(np.isfinite(ep_t)),
+                                                              ep_t[np.isfinite(ep_t)]))
+            new[~good] = np.interp(tt[~good], tt[good], new[good])
+        clk = new
+    return clk
+
+
+def spp_static(
+    epoch_index,
+    sats,
+    t_tag_s,
+    pseudorange_m,
+    nav: pd.DataFrame,
+    *,
+    x0_ecef_m=None,
+    mask_rad: float = math.radians(10.0),
+    max_iterations: int = 12,
+    what: str = "receiver",
+) -> tuple[np.ndarray, np.ndarray]:
+    """Static single-point position from L1 pseudoranges: one position, one clock per epoch.
+
+    Gauss-Newton on ``P = |x_sat − x| + c·dt_rx(epoch) − c·dt_sat + T``; the clocks are eliminated
+    epoch by epoch (each epoch's residuals are centred), so the cost is linear in the epochs.
+
+    Parameters
+    ----------
+    epoch_index, sats, t_tag_s, pseudorange_m
+        As in :func:`estimate_receiver_clock`.
+    nav : DataFrame
+        Broadcast ephemerides.
+    x0_ecef_m : array_like, shape (3,), optional
+        Starting position (default: the Earth's centre).
+    mask_rad : float
+        Elevation cutoff once the position is known to 10 km, rad.
+    max_iterations : int
+        Iteration cap.
+    what : str
+        Name used in error messages.
+
+    Returns
+    -------
+    x_ecef_m : ndarray, shape (3,)
+        Position, ECEF m (a few metres: no ionosphere model).
+    clock_s : ndarray, shape (n_epochs,)
+        Receiver clock per epoch, s.
+
+    Raises
+    ------
+    CdgpsError
+        Too few pseudoranges, or no convergence.
+    """
+    ep = np.asarray(epoch_index, dtype=np.int64)
+    sats = np.asarray(sats, dtype=object)
+    t = np.asarray(t_tag_s, dtype=np.float64)
+    pr = np.asarray(pseudorange_m, dtype=np.float64)
+    have = np.isfinite(pr)
+    if have.sum() < 6:
+        raise CdgpsError(f"{what}: too few L1 pseudoranges ({int(have.sum())}) for a single-point position")
+    ep, sats, t, pr = ep[have], sats[have], t[have], pr[have]
+    ne = int(ep.max()) + 1
+    x = np.zeros(3) if x0_ecef_m is None else np.asarray(x0_ecef_m, dtype=np.float64).copy()
+    clk = np.zeros(ne)
+    for it in range(max_iterations):
+        near = np.linalg.norm(x) > 6.3e6
+        xyz, dts, rng, _, el, trop = _rows_geometry(nav, sats, t, t - clk[ep], x, troposphere=near)
+        use = (el > mask_rad) if near and np.linalg.norm(x) < 6.5e6 else np.ones(el.size, dtype=bool)
+        res = pr - (rng - SPEED_OF_LIGHT * dts + trop)
+        g = -(xyz - x) / rng[:, None]
+        w = use.astype(float)
+        cnt = np.bincount(ep, weights=w, minlength=ne)
+        ok_ep = cnt >= 4
+        w = w * ok_ep[ep]
+        cnt = np.bincount(ep, weights=w, minlength=ne)
+        safe = np.maximum(cnt, 1.0)
+        rbar = np.bincount(ep, weights=w * res, minlength=ne) / safe
+        gbar = np.stack([np.bincount(ep, weights=w * g[:, k], minlength=ne) / safe for k in range(3)], axis=1)
+        gc = g - gbar[ep]
+        rc = res - rbar[ep]
+        nmat = (gc * w[:, None]).T @ gc
+        if np.linalg.cond(nmat) > 1e12:
+            raise CdgpsError(f"{what}: single-point position is not solvable (fewer than 4 satellites per epoch)")
+        dx = np.linalg.solve(nmat, (gc * w[:, None]).T @ rc)
+        x = x + dx
+        clk = (rbar - gbar @ dx) / SPEED_OF_LIGHT
+        clk[~ok_ep] = np.nan
+        if np.isnan(clk).any():
+            good = np.isfinite(clk)
+            if not good.any():
+                raise CdgpsError(f"{what}: no epoch with 4 satellites for a single-point position")
+            clk[~good] = np.interp(np.flatnonzero(~good), np.flatnonzero(good), clk[good])
+        if np.linalg.norm(dx) < 1e-3 and it >= 2:
+            return x, clk
+    raise CdgpsError(f"{what}: single-point position did not converge in {max_iterations} iterations")
+
+
+# ----------------------------------------------------------------------------------------------
+# epochs
+# ----------------------------------------------------------------------------------------------
+
+
+def nominal_interval_s(t_s) -> float:
+    """Median spacing of distinct epoch times (rounded to 1 ms), s; NaN for fewer than 2 epochs."""
+    u = np.unique(np.asarray(t_s, dtype=np.float64))
+    if u.size < 2:
+        return math.nan
+    return float(np.round(np.median(np.diff(u)), 3))
+
+
+def match_epochs(t_a_s, t_b_s, *, tol_s: float = 0.025) -> tuple[np.ndarray, np.ndarray]:
+    """Pair the epochs of two receivers whose time tags differ by at most ``tol_s``.
+
+    Each epoch of ``a`` is paired with the nearest epoch of ``b``; pairs farther apart than
+    ``tol_s`` are dropped, and each epoch of ``b`` is used at most once (the nearest wins).
+
+    Parameters
+    ----------
+    t_a_s, t_b_s : array_like
+        Distinct, increasing epoch time tags of receivers a and b, GPS s.
+    tol_s : float
+        Largest tag difference accepted, s (RTKLIB's DTTOL is 0.025 s).
+
+    Returns
+    -------
+    ia, ib : ndarray of int
+        Indices into ``t_a_s`` and ``t_b_s`` of the matched epochs, increasing.
+    """
+    ta = np.asarray(t_a_s, dtype=np.float64)
+    tb = np.asarray(t_b_s, dtype=np.float64)
+    if ta.size == 0 or tb.size == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    k = np.clip(np.searchsorted(tb, ta), 1, max(tb.size - 1, 1))
+    if tb.size == 1:
+        k = np.zeros(ta.size, dtype=np.int64)
+        near = k
+    else:
+        left, right = k - 1, k
+        near = np.where(np.abs(ta - tb[left]) <= np.abs(ta - tb[right]), left, right)
+    d = np.abs(ta - tb[near])
+    ok = d <= tol_s
+    ia = np.flatnonzero(ok)
+    ib = near[ok]
+    # one a per b: keep the nearest
+    order = np.lexsort((d[ia], ib))
+    ia, ib = ia[order], ib[order]
+    first = np.ones(ib.size, dtype=bool)
+    first[1:] = ib[1:] != ib[:-1]
+    ia, ib = ia[first], ib[first]
+    srt = np.argsort(ia)
+    return ia[srt].astype(np.int64), ib[srt].astype(np.int64)
+
+
+# ----------------------------------------------------------------------------------------------
+# reception geometry
+# ----------------------------------------------------------------------------------------------
+
+
+def reception_geometry(nav: pd.DataFrame, sats, t_label_s, t_true_s, rx_ecef_m, *, troposphere: bool = True) -> dict:
+    """Satellite geometry for observation rows of one receiver at their true reception times.
+
+    Parameters
+    ----------
+    nav : DataFrame
+        Broadcast ephemerides.
+    sats : array_like of str, shape (N,)
+        Satellite of each row.
+    t_label_s : array_like, shape (N,)
+        Nominal epoch time shared by the receivers, GPS s: it selects the ephemeris, so both
+        receivers of a double difference use the same one even when their tags straddle a switch.
+    t_true_s : array_like, shape (N,)
+        True (GPS-time) reception instant of each row: time tag − receiver clock, s.
+    rx_ecef_m : array_like, shape (3,) or (N, 3)
+        Receiver position, ECEF m.
+    troposphere : bool
+        Compute the hydrostatic troposphere (else zeros).
+
+    Returns
+    -------
+    dict
+        ``sat_xyz_m`` (N, 3) satellite position at transmission in the ECEF frame of reception;
+        ``sat_clock_s`` (N,); ``range_m`` (N,) geometric range; ``az_rad``, ``el_rad`` (N,);
+        ``trop_m`` (N,) slant hydrostatic delay.
+    """
+    sats = np.asarray(sats, dtype=object)
+    tl = np.asarray(t_label_s, dtype=np.float64)
+    tt = np.asarray(t_true_s, dtype=np.float64)
+    xyz, clk, rng, az, el, trop = _rows_geometry(nav, sats, tl, tt, rx_ecef_m, troposphere=troposphere)
+    return {"sat_xyz_m": xyz, "sat_clock_s": clk, "range_m": rng, "az_rad": az, "el_rad": el, "trop_m": trop}
+
+
+# ----------------------------------------------------------------------------------------------
+# simulation of two static receivers
+# ----------------------------------------------------------------------------------------------
+
+
+def simulate_static_pair(
+    nav: pd.DataFrame,
+    base_ecef_m,
+    rover_ecef_m,
+    t_start_s: float,
+    duration_s: float,
+    interval_s: float,
+    *,
+    sats=None,
+    mask_rad: float = math.radians(5.0),
+    phase_sigma_m: float | tuple = 0.002,
+    code_sigma_m: float | tuple = 0.5,
+    clock_drift_ms: tuple[float, float] = (-4.0, 5.0),
+    slips: tuple = (),
+    seed: int = 0,
+    troposphere: bool = True,
+    rover_offset_enu_m=None,
+    random_slips: int = 0,
+    slip_mask_rad: float | None = None,
+    slip_min_epochs: int = 10,
+) -> dict:
+    """Synthesize L1 observations of a static base and rover from broadcast ephemerides.
+
+    Each receiver's clock offset dt drifts linearly from 0 to ``clock_drift_ms`` over the span;
+    its time tags are the nominal epochs plus dt rounded to 1 ms (as the GEONET receivers write
+    them), and the measurement instant is ``tag − dt``.  For each satellite above ``mask_rad`` at
+    both receivers and covered by a healthy ephemeris:
+    ``P = ρ + c·(dt − dt_sat) + T + ε_P`` and ``L = (ρ + c·(dt − dt_sat) + T + ε_L)/λ + N + f``,
+    with ρ, dt_sat at the measurement instant, N an integer per satellite and lock segment (a new
+    one after each gap in visibility) and f a fractional phase bias common to the receiver.
+    ε_L, ε_P are white, either with one σ or with the elevation model σ² = a² + b²/sin²el of each
+    receiver's own elevation (the estimator's default weighting, RTKLIB's).  Each record also
+    carries a C/N0 of :data:`CN0_MODEL` ``35 + 15·sin el`` dB-Hz (noise-free, so deterministic); the
+    RINEX writer turns it into the signal-strength digit.
+
+    Parameters
+    ----------
+    nav : DataFrame
+        Broadcast ephemerides (they define the truth and are reused by the solver).
+    base_ecef_m, rover_ecef_m : array_like, shape (3,)
+        True antenna positions, ECEF m.
+    t_start_s, duration_s, interval_s : float
+        Nominal epochs ``t_start + k·interval`` for ``0 ≤ k·interval < duration``, GPS s.
+    sats : list of str, optional
+        Satellites to simulate (default: all in ``nav``).
+    mask_rad : float
+        Simulated tracking mask at both receivers, rad.
+    phase_sigma_m, code_sigma_m : float or (float, float)
+        White noise of undifferenced phase and code, m: a number σ (the same at all elevations) or
+        a pair (a, b) for σ² = a² + b²/sin²el (el of that receiver and satellite).
+    clock_drift_ms : (float, float)
+        Base and rover clock offset at the end of the span, ms.
+    slips : sequence of (receiver, sat, t_gps_s, cycles)
+        Cycle slips (receiver ``"base"`` or ``"rover"``): from the first record at or after
+        nominal time ``t_gps_s`` to the end of its lock segment, the phase is shifted by
+        ``cycles``; that first record carries LLI = 1.
+    random_slips : int
+        Further slips drawn at random (own generator from ``seed``, so the noise does not change)
+        among the records that are tracked at both receivers above ``slip_mask_rad`` (default
+        ``mask_rad``) with at least ``slip_min_epochs`` consecutive such epochs before and after
+        the slip in the same arc, inside 5–95 % of the span, and at least ``slip_min_epochs``
+        epochs from any other random slip of the satellite; receiver and record uniform among
+        those, size a non-zero integer in [−50, 49].  Fewer when there are not enough such
+        records (the returned ``slips`` say how many were made).
+    seed : int
+        Random seed.
+    troposphere : bool
+        Add the hydrostatic troposphere model to both receivers' observables.
+    rover_offset_enu_m : array_like, shape (n_epochs, 3), optional
+        A moving rover: its antenna at nominal epoch k is ``rover_ecef_m`` plus this east/north/up
+        offset (m, in the local frame at ``rover_ecef_m``); default static.
+
+    Returns
+    -------
+    dict
+        ``base``, ``rover``: DataFrames with :data:`~cdgps_cli.io.rinex.OBS_COLUMNS`;
+        ``base_header``, ``rover_header``: dicts with ``approx_position_xyz_m``, ``interval_s``,
+        ``marker_name``, ``path``; ``ambiguities``: DataFrame (receiver, sat, t_from_s, n_cycles)
+        of the integer part of each lock segment and of each slip; ``frac_bias_cycles``:
+        {receiver: f}; ``clock_s``: {receiver: dt per nominal epoch}; ``slips``: list of dicts
+        (``receiver``, ``sat``, ``time_gps_s`` nominal epoch of the flagged record, ``cycles``,
+        ``elevation_deg`` there, ``random``) of the slips applied, explicit ones first.
+    """
+    gen = np.random.default_rng(seed)
+    n_ep = int(math.floor(duration_s / interval_s - 1e-9)) + 1
+    t_nom = t_start_s + np.arange(n_ep) * interval_s
+    if sats is None:
+        sats = sorted(nav["sat"].unique().tolist())
+    stations = {"base": np.asarray(base_ecef_m, float), "rover": np.asarray(rover_ecef_m, float)}
+    track = {}
+    if rover_offset_enu_m is not None:
+        off = np.asarray(rover_offset_enu_m, dtype=np.float64)
+        if off.shape != (n_ep, 3):
+            raise ValueError(f"rover_offset_enu_m must have shape ({n_ep}, 3), got {off.shape}")
+        lat_r, lon_r, _ = ecef_to_geodetic(stations["rover"])
+        track["rover"] = stations["rover"] + off @ enu_matrix(lat_r, lon_r)
+    clock, tag, t_true = {}, {}, {}
+    for j, name in enumerate(stations):
+        clock[name] = clock_drift_ms[j] * 1e-3 * (t_nom - t_start_s) / max(duration_s, 1e-9)
+        tag[name] = t_nom + np.round(clock[name] * 1e3) * 1e-3
+        t_true[name] = tag[name] - clock[name]
+    per_sat = []
+    for s in sats:
+        idx = np.flatnonzero(ephemeris_coverage(nav, np.full(n_ep, s, dtype=object), t_nom))
+        if idx.size == 0:
+            continue
+        geo = {}
+        vis = np.ones(idx.size, dtype=bool)
+        for name, x in stations.items():
+            xs = track[name][idx] if name in track else x
+            g = sat_position_at_reception(nav, s, t_nom[idx], xs, rx_clock_s=t_nom[idx] - t_true[name][idx])
+            el = azimuth_elevation(xs, g.xyz_m)[1]
+            vis &= el > mask_rad
+            geo[name] = (g.range_m, g.clock_s, el)
+        if vis.any():
+            per_sat.append((s, idx, vis, geo))
+    drawn = _draw_random_slips(per_sat, t_nom, int(random_slips), mask_rad if slip_mask_rad is None else slip_mask_rad,
+                               max(int(slip_min_epochs), 1), np.random.default_rng(seed + 104_729))
+    slips = [(*sl, False) for sl in slips] + [(*sl, True) for sl in drawn]
+    applied = []
+    frames = {}
+    amb_rows = []
+    fracs = {}
+    for name, x in stations.items():
+        frac = float(gen.uniform(-0.5, 0.5))
+        fracs[name] = frac
+        lat, _, h = ecef_to_geodetic(x)
+        recs = []
+        for s, idx_all, vis, geo in per_sat:
+            idx = idx_all[vis]
+            rho, dts, el = (a[vis] for a in geo[name])
+            tt = t_true[name][idx]
+            trop = tropo_hydrostatic_m(el, lat, h, tt) if troposphere else np.zeros(idx.size)
+            seg_start = np.concatenate([[True], np.diff(idx) > 1])
+            seg_id = np.cumsum(seg_start) - 1
+            n_int = gen.integers(-2_000_000, 2_000_000, size=int(seg_id.max()) + 1)
+            amb = n_int[seg_id].astype(np.float64)
+            for j in np.flatnonzero(seg_start):
+                amb_rows.append((name, s, "lock", float(t_nom[idx[j]]), int(n_int[seg_id[j]])))
+            lli = np.zeros(idx.size, dtype=np.int64)
+            for rx_name, sl_sat, sl_t, cyc, rnd in slips:
+                if rx_name != name or sl_sat != s:
+                    continue
+                after = t_nom[idx] >= sl_t
+                if after.any():  # the slip shifts the rest of the lock segment it falls in
+                    j0 = int(np.argmax(after))
+                    hit = after & (seg_id == seg_id[j0])
+                    amb = amb + np.where(hit, float(cyc), 0.0)
+                    lli[j0] |= 1
+                    amb_rows.append((name, s, "slip", float(t_nom[idx[j0]]), int(cyc)))
+                    applied.append({"receiver": name, "sat": s, "time_gps_s": float(t_nom[idx[j0]]), "cycles": int(cyc),
+                                    "elevation_deg": round(math.degrees(float(el[j0])), 3), "random": rnd})
+            common = rho + SPEED_OF_LIGHT * (clock[name][idx] - dts) + trop
+            recs.append(pd.DataFrame({
+                "time_gps_s": tag[name][idx],
+                "sat": s,
+                "phase_l1_cycles": (common + gen.normal(0.0, _noise_sigma(phase_sigma_m, el), idx.size)) / L1_WAVELENGTH_M
+                + amb + frac,
+                "lli_l1": lli,
+                "ssi_l1": np.zeros(idx.size, dtype=np.int64),
+                "pseudorange_l1_m": common + gen.normal(0.0, _noise_sigma(code_sigma_m, el), idx.size),
+                "snr_l1_dbhz": CN0_MODEL[0] + CN0_MODEL[1] * np.sin(el),
+                "rx_clock_offset_s": np.nan,
+                "epoch_flag": np.zeros(idx.size, dtype=np.int64),
+            }))
+        df = pd.concat(recs, ignore_index=True) if recs else pd.DataFrame(columns=list(OBS_COLUMNS))
+        frames[name] = df.sort_values(["time_gps_s", "sat"], kind="stable").reset_index(drop=True)[list(OBS_COLUMNS)]
+    headers = {
+        name: {"approx_position_xyz_m": tuple(float(v) for v in stations[name]), "interval_s": float(interval_s),
+               "marker_name": name.upper(), "path": f"<simulated {name}>"}
+        for name in stations
+    }
+    return {
+        "base": frames["base"], "rover": frames["rover"],
+        "base_header": headers["base"], "rover_header": headers["rover"],
+        "ambiguities": pd.DataFrame(amb_rows, columns=["receiver", "sat", "kind", "t_from_s", "n_cycles"]),
+        "frac_bias_cycles": fracs,
+        "clock_s": clock,
+        "slips": sorted(applied, key=lambda d: d["random"]),
+    }
+
+
+CN0_MODEL = (35.0, 15.0)
+"""Simulated C/N0 = CN0_MODEL[0] + CN0_MODEL[1]·sin(el), dB-Hz (35 at the horizon, 50 at the zenith)."""
+
+
+def _noise_sigma(spec, el_rad):
+    """σ of each row: a number → that σ; a pair (a, b) → √(a² + b²/sin²el) (sin el ≥ 0.001)."""
+    if np.ndim(spec) == 0:
+        return float(spec)
+    a, b = (float(v) for v in spec)
+    sin_el = np.maximum(np.sin(np.asarray(el_rad, dtype=np.float64)), 1e-3)
+    return np.sqrt(a * a + (b / sin_el) ** 2)
+
+
+def _draw_random_slips(per_sat, t_nom, n, mask_rad, min_epochs, gen) -> list:
+    """``n`` random slips (receiver, sat, nominal time, cycles) on well-tracked records (see
+    :func:`simulate_static_pair`); fewer if there are not enough candidates."""
+    if n <= 0:
+        return []
+    n_ep = t_nom.size
+    lo, hi = 0.05 * (n_ep - 1), 0.95 * (n_ep - 1)
+    cand_sat, cand_ep = [], []
+    for k, (s, idx_all, vis, geo) in enumerate(per_sat):
+        ep = idx_all[vis]
+        ok = (geo["base"][2][vis] > mask_rad) & (geo["rover"][2][vis] > mask_rad)
+        # runs of consecutive epochs tracked above the mask at both receivers
+        start = ok & np.concatenate([[True], ~ok[:-1] | (np.diff(ep) != 1)])
+        run = np.cumsum(start)
+        for r in np.unique(run[ok]):
+            j = np.flatnonzero(ok & (run == r))
+            pos = np.arange(j.size)
+            good = (pos >= min_epochs) & (j.size - pos >= min_epochs)
+            e = ep[j[good]]
+            e = e[(e >= lo) & (e <= hi)]
+            cand_sat.append(np.full(e.size, k))
+            cand_ep.append(e)
+    if not cand_ep:
+        return []
+    cand_sat, cand_ep = np.concatenate(cand_sat), np.concatenate(cand_ep)
+    out, taken = [], {}
+    for c in gen.permutation(2 * cand_ep.size):
+        if len(out) == n:
+            break
+        k, e = int(cand_sat[c // 2]), int(cand_ep[c // 2])
+        if any(abs(e - x) < min_epochs for x in taken.get(k, ())):
+            continue
+        taken.setdefault(k, []).append(e)
+        out.append(("base" if c % 2 == 0 else "rover", per_sat[k][0], float(t_nom[e]), int(gen.integers(-50, 50)) or 1))
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# a synthetic constellation (broadcast-ephemeris records of nominal Keplerian orbits)
+# ----------------------------------------------------------------------------------------------
+
+
+def synthetic_gps_nav(t_start_s: float, duration_s: float, *, planes: int = 6, per_plane: int = 6,
+                      seed: int = 0, record_interval_s: float = 7200.0) -> pd.DataFrame:
+    """Broadcast ephemerides of a nominal GPS-like constellation covering a span.
+
+    ``planes × per_plane`` satellites ``G01…`` (default 36, G01–G36: more than GPS's 32 PRNs, so
+    that at least 5 are above 15° everywhere at all times) on near-circular orbits (semi-major
+    axis 26 559.7 km, inclination 55°, eccentricity 0.002–0.012, nodes 360°/planes apart,
+    satellites evenly spaced in each plane, node regression
+    −8·10⁻⁹ rad/s), with small satellite clock offsets and drifts.  One record per satellite
+    every ``record_interval_s`` (on even multiples of it in GPS time) from 2 h before the span to
+    2 h after it, each the exact continuation of the same Keplerian orbit, so
+    :func:`~cdgps_cli.model.gps.orbits.sat_position_ecef` is continuous across record changes.  The
+    harmonic corrections (Cuc … Cis) are zero.  Not real orbits: for simulations only.
+
+    Returns
+    -------
+    DataFrame
+        Columns :data:`~cdgps_cli.io.rinex.NAV_COLUMNS` (``line`` = 0), healthy (``sv_health`` 0).
+    """
+    gen = np.random.default_rng(seed)
+    a = 26_559_700.0
+    n0 = math.sqrt(GM_GPS / a**3)
+    omega_dot = -8.0e-9
+    step = float(record_interval_s)
+    t_ref = math.floor(t_start_s / step) * step
+    toes = np.arange(t_ref - step, t_start_s + duration_s + 2 * step, step)
+    rows = []
+    prn = 0
+    for p in range(planes):
+        node = 2 * math.pi * p / planes + gen.uniform(-0.02, 0.02)
+        for q in range(per_plane):
+            prn += 1
+            m_ref = 2 * math.pi * q / per_plane + gen.uniform(-0.05, 0.05)
+            ecc = gen.uniform(0.002, 0.012)
+            argp = gen.uniform(-math.pi, math.pi)
+            inc = math.radians(55.0) + gen.uniform(-0.01, 0.01)
+            af0, af1, tgd = gen.uniform(-2e-4, 2e-4), gen.uniform(-5e-12, 5e-12), gen.uniform(-1e-8, 1e-8)
+            for k, toe in enumerate(toes):
+                week = int(toe // 604800)
+                sow = float(toe - week * 604800)
+                dt_ = toe - t_ref
+                m0 = math.remainder(m_ref + n0 * dt_, 2 * math.pi)
+                om0 = math.remainder(node + omega_dot * dt_ - OMEGA_E_GPS * dt_ + OMEGA_E_GPS * sow, 2 * math.pi)
+                iod = int((k + 7 * prn) % 256)
+                rows.append({
+                    "sat": f"G{prn:02d}", "toc_gps_s": float(toe), "af0_s": af0 + af1 * dt_, "af1_s_per_s": af1,
+                    "af2_s_per_s2": 0.0, "iode": iod, "crs_m": 0.0, "delta_n_rad_per_s": 0.0, "m0_rad": m0,
+                    "cuc_rad": 0.0, "e": ecc, "cus_rad": 0.0, "sqrt_a_sqrt_m": math.sqrt(a), "toe_sow_s": sow,
+                    "cic_rad": 0.0, "omega0_rad": om0, "cis_rad": 0.0, "i0_rad": inc, "crc_m": 0.0,
+                    "omega_rad": argp, "omega_dot_rad_per_s": omega_dot, "idot_rad_per_s": 0.0, "codes_l2": 1,
+                    "week": week, "l2p_data_flag": 0, "sv_accuracy_m": 2.0, "sv_health": 0, "tgd_s": tgd,
+                    "iodc": iod, "transmit_sow_s": sow - 3600.0 if sow >= 3600.0 else sow,
+                    "fit_interval_h": 4.0, "toe_gps_s": float(toe),
+                    "transmit_gps_s": float(toe - 3600.0 if sow >= 3600.0 else toe), "line": 0,
+                })
+    df = pd.DataFrame(rows)
+    from cdgps_cli.io.rinex import NAV_COLUMNS  # noqa: PLC0415
+
+    return df[list(NAV_COLUMNS)].sort_values(["sat", "toe_gps_s"], kind="stable").reset_index(drop=True)

@@ -1,0 +1,1 @@
+"""Stage functions that tie files, models and estimators together (GNSS paths)."""

@@ -1,0 +1,599 @@
+"""``cdgps init`` / ``cdgps estimate`` / ``cdgps export`` on a GNSS RUN (docs/gnss-pipeline.md).
+
+The unknowns are each rover antenna's east/north/up displacement from its nominal position
+(``<rover>_e``, ``<rover>_n``, ``<rover>_u``, m, in the local frame at the nominal position), with
+the master held at its known position.  Each rover is processed as one baseline from the master
+with the static-baseline machinery of :mod:`cdgps_cli.estimation.baseline` (single differences, double
+differences against a reference satellite with the correlated covariance ``D Σ Dᵀ``, reference
+changes, one SD ambiguity per lock segment, LAMBDA with the ratio test and partial fixing);
+correlations between the baselines of several rovers through the common master are neglected.
+
+* :func:`gnss_init` — float DD solution (phase + code), LAMBDA integers, the fixed static
+  solution → INIT.json (integers per ambiguity segment, ratio, static solution).
+* :func:`gnss_estimate` — per-epoch displacement states with 1σ, using INIT's integers:
+
+  - ``static``: the batch (fixed) solution at every epoch (its 1σ from the batch covariance);
+  - ``random_walk``: a Kalman filter over the epochs on the DD phases with the fixed integers,
+    state = displacement, process noise ``σ²·Δt`` per component; ``--smooth`` adds the
+    Rauch-Tung-Striebel pass;
+
+  plus, for both, the single-epoch (kinematic) solutions with the fixed integers (attachments
+  ``arrays/cdgps/kinematic/*.npy``, readable as ``States(path, topic="/cdgps/kinematic")`` and
+  exported by ``cdgps export --kinematic``), DD residuals, NIS, and events (slips from LLI / half-cycle flags /
+  lock-time restarts, gaps, reference-satellite changes, unfixed ambiguities) → STATES.mcap.
+
+STATES.mcap has the layout of :mod:`cdgps_cli.io.states` (``/cdgps/state`` with ``q`` and
+``sigma_q`` keyed by coordinate, the ``arrays/cdgps/state/*.npy`` attachments, residuals, events)
+so that ``cdgps export`` and ``cdgps evaluate`` read it: its ``config.toml`` attachment is the
+displacement model written in the structure-config form (one rigid unit-shape "mode" per
+coordinate), and the GNSS run config is attached as ``gnss_config.toml``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from cdgps_cli import __version__
+from cdgps_cli.core import progress
+from cdgps_cli.io.atomic import write_atomic
+from cdgps_cli.estimation.baseline import BaselineOptions, Station, json_safe, solve_static_baseline
+from cdgps_cli.config.structure import parse_config
+from cdgps_cli.measurement.differencing import dd_weight_blocks, select_reference
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.model.gps.positioning import L1_WAVELENGTH_M
+from cdgps_cli.io.gnss_run import GnssRun, processing_obs
+from cdgps_cli.io.mcap import NULLABLE, CONFIG_ATTACHMENT, McapOut, array_schema, read_mcap
+from cdgps_cli.io.rinex import gps_time_str
+from cdgps_cli.io.states import (ESTIMATE_METADATA, EVENT_TOPIC, event_schema, INIT_ATTACHMENT, RESIDUAL_SCHEMA, RESIDUAL_TOPIC,
+                     STATE_FILTERED_TOPIC, STATE_TOPIC)
+
+__all__ = ["gnss_init", "gnss_estimate", "displacement_structure_config", "export_kinematic_csv", "KINEMATIC_TOPIC",
+           "is_gnss_states"]
+
+KINEMATIC_TOPIC = "/cdgps/kinematic"
+GNSS_CONFIG_ATTACHMENT = "gnss_config.toml"
+INIT_KIND = "cdgps gnss init"
+
+
+# ----------------------------------------------------------------------------------------------
+# stations from the run
+
+
+def _stations(run: GnssRun):
+    if len(run.nav) == 0:
+        raise CdgpsError(f"{run.path}: the run has no broadcast ephemerides; ingest it again with --nav NAVFILE "
+                         f"(or nav = [...] in the config)")
+    if not run.rovers:
+        raise CdgpsError(f"{run.path}: the run has only the master receiver {run.master!r}; a displacement solution "
+                         f"needs at least one rover receiver (ingest two or more --rinex/--ubx files)")
+    stations = {}
+    for n, rx in run.receivers.items():
+        stations[n] = Station(n, dict(rx.header, path=rx.file), processing_obs(rx))
+    return stations
+
+
+def _position_args(run: GnssRun, name: str):
+    """Explicit position for the solver (None: let it take the header, or SPP for a rover)."""
+    rx = run.receivers[name]
+    src, pos = rx.info.get("position_source"), rx.info.get("position_ecef_m")
+    a = run.cfg.antenna(name)
+    if a is not None and a.position_ecef_m is not None:
+        return np.asarray(a.position_ecef_m, dtype=np.float64)
+    if src == "config position_ecef_m" and pos is not None:
+        return np.asarray(pos, dtype=np.float64)
+    return None
+
+
+def _check_master_position(run: GnssRun):
+    if _position_args(run, run.master) is None:
+        h = run.receivers[run.master].header.get("approx_position_xyz_m")
+        if h is None or np.linalg.norm(np.asarray(h, dtype=float)) < 6.0e6:
+            raise CdgpsError(f"{run.path}: master {run.master} has no position (no RINEX header APPROX POSITION XYZ, no "
+                             f"position_ecef_m in the config); the master must be at a known position")
+
+
+# ----------------------------------------------------------------------------------------------
+# init
+
+
+def gnss_init(run: GnssRun, *, options: dict | None = None, progress=None) -> dict:
+    """Float solution, LAMBDA integers and fixed static solution of every rover → INIT dict.
+
+    ``options`` overrides :class:`~cdgps_cli.estimation.baseline.BaselineOptions` fields of the run config
+    (e.g. ``ratio_threshold``, ``partial``, ``fix``).
+    """
+    say = progress or (lambda m: None)
+    stations = _stations(run)
+    _check_master_position(run)
+    opt = run.cfg.baseline_options(kinematic_series=False, **(options or {}))
+    opt.validate()
+    rovers = {}
+    for r in run.rovers:
+        say(f"baseline {run.master} → {r}: float, LAMBDA, fixed …")
+        res = solve_static_baseline(stations[run.master], stations[r], run.nav, opt,
+                                    master_xyz=_position_args(run, run.master), rover_xyz=_position_args(run, r))
+        res = json_safe(res)
+        sol = res["fixed"] or res["float"]
+        amb = res["ambiguities"]
+        names = list(res["states"])
+        rovers[r] = {
+            "solution": res["solution"],
+            "states": res["states"],
+            "sigma": dict(zip(names, sol["sigma_enu_m"])),
+            "nominal_ecef_m": res["rover_apriori_ecef_m"],
+            "nominal_source": res["rover_apriori_source"],
+            "rover_ecef_m": res["rover_ecef_m"],
+            "baseline_enu_from_master_m": res["baseline_enu_from_master_m"],
+            "baseline_length_m": res["baseline_length_m"],
+            "float": res["float"], "fixed": res["fixed"],
+            "ratio": amb["ratio"], "ratio_full_set": amb["ratio_full_set"], "ratio_threshold": amb["ratio_threshold"],
+            "accepted": amb["accepted"], "partial": amb["partial"], "n_segments": amb["n_segments"],
+            "n_fixed": amb["n_fixed"], "n_estimated": amb["n_estimated"],
+            "n_half_cycle_excluded": amb["n_half_cycle_excluded"],
+            "ambiguities": amb["segments"],
+            "residuals": res["residuals"], "kinematic": res["kinematic"], "epochs": res["epochs"],
+            "satellites": res["satellites"], "warnings": res["warnings"], "options": res["options"],
+        }
+    states = {k: v for r in rovers.values() for k, v in r["states"].items()}
+    sigma = {k: v for r in rovers.values() for k, v in r["sigma"].items()}
+    ratios = [r["ratio"] for r in rovers.values() if isinstance(r["ratio"], (int, float))]
+    return {
+        "kind": INIT_KIND,
+        "cdgps_version": __version__,
+        "run": Path(run.path).name,
+        "config_name": run.cfg.name,
+        "config_sha256": run.cfg.sha256,
+        "displacement_model": run.cfg.displacement,
+        "master": run.master,
+        "master_ecef_m": _master_xyz(run).tolist(),
+        "coordinates": list(states),
+        "states": states,
+        "sigma": sigma,
+        "solution": {r: v["solution"] for r, v in rovers.items()},
+        "n_fixed": int(sum(v["n_fixed"] for v in rovers.values())),
+        "n_estimated": int(sum(v["n_estimated"] for v in rovers.values())),
+        "ratio": min(ratios) if ratios else None,
+        "rovers": rovers,
+        "options": json_safe(asdict(opt)),
+    }
+
+
+def _master_xyz(run: GnssRun) -> np.ndarray:
+    p = _position_args(run, run.master)
+    if p is None:
+        p = np.asarray(run.receivers[run.master].header["approx_position_xyz_m"], dtype=np.float64)
+    return p
+
+
+def is_gnss_init(init: dict) -> bool:
+    return isinstance(init, dict) and init.get("kind") == INIT_KIND
+
+
+# ----------------------------------------------------------------------------------------------
+# per-epoch information of the DD phases with the fixed integers
+
+
+def _epoch_information(w: dict, use: np.ndarray):
+    """Per epoch with ≥ 2 usable rows: N = GᵀPG, b = GᵀPr, c = rᵀPr, dof, rows, weights."""
+    d = w["data"]
+    ref = select_reference(d.ptr, d.sat, d.el_rover, d.slip, usable=use)
+    blocks = dd_weight_blocks(d.ptr, w["var_ph"], ref, usable=use)
+    n_ep = d.t_label.size
+    N = np.zeros((n_ep, 3, 3))
+    b = np.zeros((n_ep, 3))
+    c = np.zeros(n_ep)
+    dof = np.zeros(n_ep, dtype=np.int64)
+    has = np.zeros(n_ep, dtype=bool)
+    g, r = w["g"], w["r_ph"]
+    for rows, p in blocks:
+        ep = d.epoch[rows[:, 0]]
+        gk, rk = g[rows], r[rows]
+        pg = np.einsum("kij,kjc->kic", p, gk)
+        N[ep] = np.einsum("kic,kid->kcd", gk, pg)
+        b[ep] = np.einsum("kic,ki->kc", pg, rk)
+        c[ep] = np.einsum("ki,kij,kj->k", rk, p, rk)
+        dof[ep] = rows.shape[1] - 1
+        has[ep] = True
+    return N, b, c, dof, has, ref, blocks
+
+
+def _random_walk(t: np.ndarray, N, b, c, dof, has, sigma_rw, p0_sigma: float, smooth: bool):
+    """Kalman filter (+ RTS smoother) for δx (displacement − static solution), F = I, Q = diag(σ²)Δt."""
+    n = t.size
+    q = np.asarray(sigma_rw, dtype=np.float64) ** 2
+    xf = np.zeros((n, 3))
+    pf = np.zeros((n, 3, 3))
+    pp = np.zeros((n, 3, 3))
+    xp = np.zeros((n, 3))
+    nis = np.full(n, np.nan)
+    x = np.zeros(3)
+    P = np.eye(3) * p0_sigma**2
+    for k in range(n):
+        if k:
+            P = P + np.diag(q * max(t[k] - t[k - 1], 0.0))
+        xp[k], pp[k] = x, P
+        if has[k]:
+            Pi = np.linalg.inv(P)
+            info = Pi + N[k]
+            Pn = np.linalg.inv(info)
+            v = b[k] - N[k] @ x                       # Gᵀ P (r − G x_pred)
+            nis[k] = c[k] - 2.0 * x @ b[k] + x @ N[k] @ x - v @ Pn @ v
+            x = x + Pn @ v
+            P = 0.5 * (Pn + Pn.T)
+        xf[k], pf[k] = x, P
+    if not smooth:
+        return xf, pf, xf, pf, nis
+    xs = xf.copy()
+    ps = pf.copy()
+    for k in range(n - 2, -1, -1):
+        C = pf[k] @ np.linalg.inv(pp[k + 1])
+        xs[k] = xf[k] + C @ (xs[k + 1] - xp[k + 1])
+        ps[k] = pf[k] + C @ (ps[k + 1] - pp[k + 1]) @ C.T
+        ps[k] = 0.5 * (ps[k] + ps[k].T)
+    return xs, ps, xf, pf, nis
+
+
+def _integers_from_init(rov: dict) -> dict:
+    out = {}
+    for s in rov.get("ambiguities", []):
+        try:
+            out[(str(s["sat"]), float(s["first_gps_s"]))] = s.get("integer") if s.get("fixed") or s.get("pivot") else None
+        except (KeyError, TypeError, ValueError):
+            raise CdgpsError("INIT.json: malformed ambiguity segment (needs sat, first_gps_s, integer)") from None
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# estimate
+
+
+
+def solve_with_init_integers(run, init: dict, r: str, stations: dict):
+    """Rover ``r``'s baseline solved again with INIT's options and integers (no kinematic series).
+
+    Returns (baseline result, its working data ``_work``, INIT's rover entry, the BaselineOptions); raises CdgpsError when
+    INIT's options are not valid or its nominal position is not this run's.
+    """
+    rov = init["rovers"][r]
+    o = dict(rov.get("options") or {})
+    try:
+        opt = BaselineOptions(**{k: v for k, v in o.items() if k in BaselineOptions.__dataclass_fields__})
+    except TypeError as exc:
+        raise CdgpsError(f"INIT.json: bad options for {r}: {exc}") from None
+    opt = BaselineOptions(**{**asdict(opt), "kinematic_series": False})
+    res = solve_static_baseline(stations[run.master], stations[r], run.nav, opt,
+                                master_xyz=_position_args(run, run.master), rover_xyz=_position_args(run, r),
+                                integers=_integers_from_init(rov), keep_work=True)
+    w = res.pop("_work")
+    if not np.allclose(w["xr0"], rov["nominal_ecef_m"], atol=1e-6):
+        raise CdgpsError(f"INIT.json: the nominal position of {r} differs from this run's")
+    return res, w, rov, opt
+
+
+def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path, *, smooth: bool = False,
+                  progress=None, extra_options: dict | None = None) -> dict:
+    """Per-epoch displacement states of every rover from INIT's integers → STATES.mcap."""
+    say = progress or (lambda m: None)
+    if not is_gnss_init(init):
+        raise CdgpsError("INIT.json is not from 'cdgps init' on a GNSS run (kind "
+                         f"{init.get('kind') if isinstance(init, dict) else None!r})")
+    if init.get("config_sha256") != run.cfg.sha256 or set(init.get("rovers", {})) != set(run.rovers) \
+            or init.get("master") != run.master:
+        raise CdgpsError(f"INIT.json was made from another run (config {init.get('config_name')!r}, master "
+                         f"{init.get('master')!r}, rovers {', '.join(init.get('rovers', {}))}) than {run.path} "
+                         f"(config {run.cfg.name!r}, master {run.master!r}, rovers {', '.join(run.rovers)})")
+    stations = _stations(run)
+    _check_master_position(run)
+    model = run.cfg.displacement
+    per = {}
+    events: list[dict] = []
+    for r in run.rovers:
+        say(f"baseline {run.master} → {r}: fixed solution with INIT's integers, {model} states …")
+        res, w, rov, _ = solve_with_init_integers(run, init, r, stations)
+        per[r] = (res, w, rov)
+        events.extend(_events(r, run.master, res, w))
+    # common time axis: every matched epoch of any rover
+    t_all = np.unique(np.concatenate([w["data"].t_label for _, w, _ in per.values()]))
+    names = [f"{r}_{c}" for r in run.rovers for c in "enu"]
+    nq = len(names)
+    n = t_all.size
+    q = np.full((n, nq), np.nan)
+    P = np.zeros((n, nq, nq))
+    qf = np.full((n, nq), np.nan) if (model == "random_walk" and smooth) else None
+    Pf = np.zeros((n, nq, nq)) if qf is not None else None
+    kq = np.full((n, nq), np.nan)
+    kP = np.zeros((n, nq, nq))
+    kin_n = np.zeros((n, len(run.rovers)), dtype=np.int64)
+    kin_pdop = np.full((n, len(run.rovers)), np.nan)
+    res_cols = []
+    res_vals = []
+    nis_sum = np.zeros(n)
+    dof_tot = np.zeros(n, dtype=np.int64)
+    summary_rovers = {}
+    for j, r in enumerate(run.rovers):
+        res, w, rov = per[r]
+        d = w["data"]
+        sl = slice(3 * j, 3 * j + 3)
+        idx = np.searchsorted(t_all, d.t_label)
+        x_fin = w["x_final"]
+        fixed_any = res["ambiguities"]["n_fixed"] > 0
+        use = w["known_seg"][w["seg"]] if fixed_any else np.ones(w["seg"].size, dtype=bool)
+        N, b, c, dof, has, ref, _ = _epoch_information(w, use)
+        if model == "static":
+            q[idx, sl] = x_fin
+            P[idx, sl, sl] = w["q_final"]
+            dx = np.zeros((d.t_label.size, 3))
+            nis = np.where(has, c, np.nan)
+        else:
+            xs, ps, xf, pf, nis = _random_walk(d.t_label, N, b, c, dof, has, run.cfg.random_walk_sigma,
+                                               run.cfg.initial_sigma_m, smooth)
+            q[idx, sl] = x_fin + xs
+            P[idx, sl, sl] = ps
+            dx = xs
+            if qf is not None:
+                qf[idx, sl] = x_fin + xf
+                Pf[idx, sl, sl] = pf
+        dof_tot[idx] += np.where(has, dof, 0)
+        nis_sum[idx] += np.where(has, np.nan_to_num(nis), 0.0)
+        # DD residuals (m) of the reported estimate, per satellite, against the epoch's reference
+        e = w["r_ph"] - np.einsum("ic,ic->i", w["g"], dx[d.epoch])
+        ref_row = ref[d.epoch]
+        ok = use & (ref_row >= 0) & (np.arange(e.size) != ref_row)
+        dd = np.where(ok, e - e[np.maximum(ref_row, 0)], np.nan)
+        sats = np.array(d.sat_names, dtype=object)
+        tab = np.full((d.t_label.size, len(d.sat_names)), np.nan)
+        tab[d.epoch[ok], d.sat[ok]] = dd[ok]
+        for s_i, s in enumerate(sats):
+            res_cols.append((r, s))
+            col = np.full(n, np.nan)
+            col[idx] = tab[:, s_i]
+            res_vals.append(col)
+        # kinematic
+        ka = w["kinematic"]
+        if ka is not None:
+            ki = idx[ka["epoch"]]
+            kq[ki, sl] = ka["enu_m"]
+            kP[ki, sl, sl] = ka["cov_m2"]
+            kin_n[ki, j] = ka["n_sat"]
+            kin_pdop[ki, j] = ka["pdop"]
+        kin = res["kinematic"]
+        summary_rovers[r] = {
+            "solution": res["solution"], "n_fixed": res["ambiguities"]["n_fixed"],
+            "n_estimated": res["ambiguities"]["n_estimated"],
+            "static_enu_m": dict(zip(names[sl], x_fin.tolist())),
+            "static_sigma_m": dict(zip(names[sl], np.sqrt(np.diag(w["q_final"])).tolist())),
+            "kinematic_rms_m": kin["rms_about_static_m"] if kin else None,
+            "kinematic_rms_pdop_le_max_m": (kin.get("pdop_le_max") or {}).get("rms_about_static_m") if kin else None,
+            "kinematic_epochs": kin["n_epochs"] if kin else 0,
+            "dd_phase_rms_m": res["residuals"]["dd_phase_rms_m"],
+            "reference_changes": res["epochs"]["n_reference_changes"],
+        }
+    residual_m = np.column_stack(res_vals) if res_vals else np.zeros((n, 0))
+    nis_tot = np.where(dof_tot > 0, nis_sum, np.nan)
+    events.sort(key=lambda e: (e["time_s"], e["antenna"], e["transmitter"], e["kind"]))
+    say(f"writing {out_path} …")
+    meta_extra = {"rovers": summary_rovers, "options": extra_options or {}}
+    out = _write_gnss_states(run, init, init_text, out_path, names, t_all, q, P, qf, Pf, kq, kP, kin_n, kin_pdop,
+                             res_cols, residual_m, nis_tot, dof_tot, events, smooth and model == "random_walk",
+                             meta_extra)
+    out.update({"displacement_model": model, "rovers": summary_rovers, "coordinates": names})
+    return out
+
+
+def _events(rover: str, master: str, res: dict, w: dict) -> list:
+    """Slips (LLI, half-cycle, lock-time restarts), gaps, resets, reference changes, float ambiguities."""
+    d = w["data"]
+    seg, segtab = w["seg"], w["segtab"]
+    segs = res["ambiguities"]["segments"]
+    ev = []
+    _, first_idx = np.unique(seg, return_index=True)          # rows are in epoch order
+    first_row = dict(zip(np.unique(seg).tolist(), first_idx.tolist()))
+    reset = set(d.reset_epochs.tolist())
+    seen_sat = set()
+    order = np.lexsort((segtab["first_epoch"], segtab["sat"]))
+    for k in order:
+        k = int(k)
+        s_name = d.sat_names[int(segtab["sat"][k])]
+        t0 = float(d.t_label[segtab["first_epoch"][k]])
+        info = segs[k]
+        fix_txt = ("datum (pivot)" if info["pivot"] else
+                   (f"fixed to {info['integer']}" if info["fixed"] else "float (not fixed)"))
+        if s_name in seen_sat:
+            i0 = first_row[k]
+            if d.slip_rover[i0] or d.slip_base[i0]:
+                who = rover if d.slip_rover[i0] else master
+                if d.slip_rover[i0] and d.slip_base[i0]:
+                    who = f"{rover}+{master}"
+                kind = "slip (LLI bit 0 / lock-time restart)"
+            elif int(segtab["first_epoch"][k]) in reset:
+                who, kind = rover, "receiver reset (epoch flag 1)"
+            else:
+                who, kind = rover, "tracking gap / below mask"
+            ev.append({"time_s": t0, "antenna": who, "transmitter": s_name, "kind": kind,
+                       "action": f"new ambiguity, {fix_txt}"})
+        elif not (info["fixed"] or info["pivot"]):
+            ev.append({"time_s": t0, "antenna": rover, "transmitter": s_name, "kind": "ambiguity not fixed",
+                       "action": "float ambiguity (phase used, integer unknown)"})
+        seen_sat.add(s_name)
+        if info["half_cycle_flag"]:
+            ev.append({"time_s": t0, "antenna": rover, "transmitter": s_name, "kind": "half-cycle unresolved (LLI bit 1)",
+                       "action": "ambiguity kept float"})
+    ref = w["ref_ph"]
+    ok = np.flatnonzero(ref >= 0)
+    if ok.size:
+        rs = d.sat[ref[ok]]
+        ch = np.flatnonzero(np.r_[True, rs[1:] != rs[:-1]])
+        for i in ch:
+            e = ok[i]
+            ev.append({"time_s": float(d.t_label[e]), "antenna": rover, "transmitter": d.sat_names[int(rs[i])],
+                       "kind": "reference satellite" if i == 0 else "reference change",
+                       "action": f"DDs against {d.sat_names[int(rs[i])]}"})
+    return ev
+
+
+# ----------------------------------------------------------------------------------------------
+# STATES.mcap
+
+
+def displacement_structure_config(name: str, master: str, rovers, sample_period_s: float, sigma_rw=None) -> str:
+    """The displacement states as a structure-config TOML (for every STATES.mcap reader)."""
+    coords = [f"{r}_{c}" for r in rovers for c in "enu"]
+    lines = [
+        "# Displacement states of a GNSS run, written by 'cdgps estimate' (docs/gnss-pipeline.md) in the",
+        "# structure-config form so that every STATES.mcap reader works: coordinate <rover>_e/_n/_u is the",
+        "# rover antenna's east/north/up displacement (m) from its nominal position, local frame x=E y=N z=U;",
+        "# one rigid unit-shape mode per coordinate (the modal state is the displacement itself).",
+        "[model]", f"name = \"{name}-displacement\"",
+        f"description = \"E/N/U displacement of {', '.join(rovers)} from the nominal positions, master {master}\"",
+        f"sample_period_s = {float(sample_period_s)!r}", "measurement_sigma_m = 0.003", "",
+    ]
+    for c in coords:
+        lines += ["[[coordinates]]", f"name = \"{c}\"", "kind = \"translation\"", ""]
+    lines += ["[[antennas]]", f"name = \"{master}\"", "position_m = [0.0, 0.0, 0.0]", "master = true", ""]
+    for r in rovers:
+        lines += ["[[antennas]]", f"name = \"{r}\"", "position_m = [0.0, 0.0, 0.0]",
+                  f"displacement_m = {{\"{r}_e\" = [1.0, 0.0, 0.0], \"{r}_n\" = [0.0, 1.0, 0.0], \"{r}_u\" = [0.0, 0.0, 1.0]}}", ""]
+    lines += ["[[transmitters]]", "name = \"GPS\"", "direction = [0.0, 0.0, 1.0]", "description = \"GPS satellites\"", ""]
+    for i, c in enumerate(coords):
+        shape = ["0.0"] * len(coords)
+        shape[i] = "1.0"
+        lines += ["[[modes]]", f"name = \"{c}\"", "rigid = true", "frequency_hz = 0.0", "time_constant_s = 1e9",
+                  f"shape = [{', '.join(shape)}]", ""]
+    sig = [0.0] * len(coords) if sigma_rw is None else [float(v) for _ in rovers for v in sigma_rw]
+    lines += ["[process_noise]", "space = \"coordinates\"", f"sigma = [{', '.join(repr(v) for v in sig)}]"]
+    return "\n".join(lines) + "\n"
+
+
+def _npy(arr) -> bytes:
+    import io
+
+    buf = io.BytesIO()
+    np.save(buf, np.asarray(arr, dtype=float), allow_pickle=False)
+    return buf.getvalue()
+
+
+def _state_schema(title: str, names) -> dict:
+    obj = {"type": "object", "properties": {n: {"type": "number"} for n in names}}
+    s = array_schema(title, {"xi": NULLABLE, "xidot": "number", "P_xi": "number"}, {"smoothed": "boolean"})
+    s["properties"]["q"] = dict(obj, description="displacement from the nominal position, m (E, N, U per rover); "
+                                "a coordinate without a solution at this epoch is left out")
+    s["properties"]["sigma_q"] = dict(obj, description="1-sigma of q, m")
+    return s
+
+
+def _write_gnss_states(run, init, init_text, out_path, names, t, q, P, qf, Pf, kq, kP, kin_n, kin_pdop,
+                       res_cols, residual_m, nis, nis_dof, events, smoothed, meta_extra) -> dict:
+    model = run.cfg.displacement
+    interval = float(np.median(np.diff(t))) if t.size > 1 else 1.0
+    struct_text = displacement_structure_config(run.cfg.name, run.master, run.rovers, interval,
+                                                run.cfg.random_walk_sigma if model == "random_walk" else None)
+    parse_config(struct_text, "<displacement model>")         # must be readable by States
+    run_sha = hashlib.sha256(Path(run.path).read_bytes()).hexdigest()
+    biases = []
+    for r in run.rovers:
+        for s in init["rovers"][r]["ambiguities"]:
+            if s["fixed"] and s["integer"] is not None:
+                biases.append({"antenna": r, "transmitter": s["sat"], "bias_m": L1_WAVELENGTH_M * s["integer"],
+                               "from_gps_s": s["first_gps_s"]})
+    meta = {"cdgps_version": __version__, "created_by": "cdgps estimate", "kind": "gnss", "config_name": run.cfg.name,
+            "config_sha256": run.cfg.sha256, "run": Path(run.path).name, "run_sha256": run_sha,
+            "init_sha256": hashlib.sha256(init_text.encode()).hexdigest(),
+            "options": json.dumps({"smooth": bool(smoothed), "displacement_model": model,
+                                   "random_walk_sigma_m_per_sqrt_s": list(run.cfg.random_walk_sigma) if model == "random_walk" else None,
+                                   **meta_extra.get("options", {})},
+                                  sort_keys=True),
+            "final_biases": json.dumps(biases), "smoothed": str(bool(smoothed)).lower(), "displacement_model": model,
+            "coordinates": ",".join(names), "master": run.master,
+            "rovers": json.dumps(json_safe(meta_extra["rovers"]), sort_keys=True)}
+    sig = np.sqrt(np.maximum(np.einsum("nii->ni", P), 0.0))
+    with McapOut(out_path, time_scale="gps") as out:
+        series = [(STATE_TOPIC, q, P, sig, smoothed)]
+        if qf is not None:
+            series.append((STATE_FILTERED_TOPIC, qf, Pf, np.sqrt(np.maximum(np.einsum("nii->ni", Pf), 0.0)), False))
+        for topic, X, PP, S, sm in series:
+            ch = out.channel(topic, _state_schema("cdgps.DisplacementState", names))
+            Xl, Sl, Pl = X.tolist(), S.tolist(), PP.reshape(len(t), -1).tolist()
+            for k, tk in progress.iterate(enumerate(t.tolist()), f"writing {Path(out_path).name} {topic}", len(t), "msg"):
+                out.write(ch, tk, {"q": _obj(names, Xl[k]), "sigma_q": _obj(names, Sl[k]), "xi": _nn(Xl[k]),
+                                   "xidot": [], "P_xi": Pl[k], "smoothed": sm})
+            for nm, arr in (("time_s", t), ("q", X), ("sigma_q", S), ("xi", X), ("P_xi", PP)):
+                out.attach(f"arrays{topic}/{nm}.npy", _npy(arr), "application/x-npy")
+        # single-epoch (kinematic) solutions with the fixed integers
+        ks = np.sqrt(np.maximum(np.einsum("nii->ni", kP), 0.0))
+        ks = np.where(np.isnan(kq), np.nan, ks)
+        # (arrays only: 86 400 more JSON messages would cost ~4 s per day of 1 Hz data)
+        have = ~np.all(np.isnan(kq), axis=1)
+        for nm, arr in (("time_s", t[have]), ("q", kq[have]), ("sigma_q", ks[have]), ("xi", kq[have]), ("P_xi", kP[have]),
+                        ("n_sat", kin_n[have]), ("pdop", kin_pdop[have])):
+            out.attach(f"arrays{KINEMATIC_TOPIC}/{nm}.npy", _npy(arr), "application/x-npy")
+        # residuals
+        ch = out.channel(RESIDUAL_TOPIC, RESIDUAL_SCHEMA)
+        ants = [c[0] for c in res_cols]
+        txs = [c[1] for c in res_cols]
+        for k, tk in progress.iterate(enumerate(t.tolist()), f"writing {Path(out_path).name} {RESIDUAL_TOPIC}", len(t), "msg"):
+            rk = residual_m[k]
+            used = ~np.isnan(rk)
+            out.write(ch, tk, {"antenna": [a for a, u in zip(ants, used) if u],
+                               "transmitter": [x for x, u in zip(txs, used) if u], "residual_m": rk[used].tolist(),
+                               "nis": None if np.isnan(nis[k]) else float(nis[k]), "nis_dof": int(nis_dof[k])})
+        ch = out.channel(EVENT_TOPIC, event_schema(events))
+        for ev in events:
+            out.write(ch, ev["time_s"], {k: v for k, v in ev.items() if k != "time_s"})
+        out.attach(CONFIG_ATTACHMENT, struct_text.encode(), "application/toml")
+        out.attach(GNSS_CONFIG_ATTACHMENT, run.cfg.text.encode(), "application/toml")
+        out.attach(INIT_ATTACHMENT, init_text.encode(), "application/json")
+        out.metadata(ESTIMATE_METADATA, meta)
+    ok = nis_dof > 0
+    return {"output": str(out_path), "epochs": int(t.size), "start_s": float(t[0]), "end_s": float(t[-1]),
+            "start": gps_time_str(float(t[0])), "end": gps_time_str(float(t[-1])), "smoothed": bool(smoothed),
+            "events": len(events),
+            "mean_nis_per_dof": float(np.nanmean(nis[ok] / nis_dof[ok])) if ok.any() else None,
+            "kinematic_epochs": int(have.sum()), "event_list": events}
+
+
+def _nn(v):
+    return [None if x != x else x for x in v]
+
+
+def _obj(names, vals):
+    return {n: (None if v != v else v) for n, v in zip(names, vals)}
+
+
+def is_gnss_states(path: str | Path) -> bool:
+    c = read_mcap(path, topics=[])
+    return c.metadata.get(ESTIMATE_METADATA, {}).get("kind") == "gnss"
+
+
+def export_kinematic_csv(states_path: str | Path, out_csv: str | Path) -> dict:
+    """The single-epoch (kinematic) solutions of a GNSS STATES.mcap as CSV: time_s, coordinates,
+    sigma_<name>, n_sat_<rover>, pdop_<rover>."""
+    from cdgps_cli.io.states import States  # noqa: PLC0415
+
+    c = read_mcap(states_path, topics=[])
+    if c.metadata.get(ESTIMATE_METADATA, {}).get("kind") != "gnss":
+        raise CdgpsError(f"{states_path}: --kinematic needs a STATES.mcap from 'cdgps estimate' on a GNSS run")
+    st = States(states_path, topic=KINEMATIC_TOPIC, diagnostics=False)
+    names = list(st.cfg.coord_names)
+    df = pd.DataFrame(st.q, columns=names)
+    for i, nm in enumerate(names):
+        df["sigma_" + nm] = st.sigma_q[:, i]
+    rovers = st.cfg.rover_names
+    key = f"arrays{KINEMATIC_TOPIC}/"
+    try:
+        ns = np.load(__import__("io").BytesIO(c.attachments[key + "n_sat.npy"]))
+        pd_ = np.load(__import__("io").BytesIO(c.attachments[key + "pdop.npy"]))
+    except (KeyError, ValueError) as exc:
+        raise CdgpsError(f"{states_path}: damaged kinematic arrays: {exc}") from None
+    for j, r in enumerate(rovers):
+        df[f"n_sat_{r}"] = ns[:, j].astype(int)
+        df[f"pdop_{r}"] = pd_[:, j]
+    df.insert(0, "time_s", np.round(st.time_s, 9))
+    out = Path(out_csv)
+    write_atomic(out, lambda p: df.to_csv(p, index=False, lineterminator="\n"))
+    return {"output": str(out), "rows": int(len(df)), "columns": list(df.columns)}

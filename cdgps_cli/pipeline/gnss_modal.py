@@ -1,0 +1,540 @@
+"""A modal structure model on GNSS double differences (docs/gnss-pipeline.md, "Modal structure
+model on a GNSS run").
+
+The structure path (``configs/*.toml``, docs/config-format.md) describes a structure by its
+coordinates q = U ξ, its sections and antennas, and the modal dynamics of x = [ξ, ξ̇].  This module
+runs that model on a GNSS RUN (RINEX/UBX receivers, broadcast ephemerides):
+
+* **placement** — the structure frame is put on the Earth by :class:`StructurePlacement`: the
+  master antenna's nominal structure position p_M(0) is the master receiver's position (ECEF), and
+  the structure axes are the local east/north/up axes at the master turned about the vertical so
+  that x points to ``x_axis_azimuth_deg`` (clockwise from north; the default 90° gives x = east,
+  y = north, z = up);
+* **integers** — fixed by the existing GNSS init (``cdgps init``: one baseline per rover receiver,
+  random-walk or static float solution, LAMBDA), read from INIT.json; segments left float are not
+  used, nor is a rover without any fixed integer (event ``no integer fixed``);
+* **measurements** — for every rover antenna a, satellite j and the epoch's reference satellite r
+  (chosen per rover among its fixed segments), the L1 DD with the integers removed,
+  ``z = λ·DD − λ·N − (DD of the geometric ranges at the receivers' nominal positions)``, modelled in
+  the far field (planar wavefront) as
+
+      z = −(s_j − s_r)ᵀ [(p_a(q) − p_M(q)) − d_a] + ν
+
+  where s are unit vectors from the master to the satellites in the structure frame at that epoch
+  (from the broadcast ephemerides, time-varying) and d_a = the receiver's nominal (RINEX header /
+  config) position relative to the master, in the structure frame (so a header position that is
+  not exactly the structure's nominal position is accounted for).  Cov(ν) = D Σ Dᵀ per epoch over
+  all rovers jointly: Σ has each receiver's undifferenced phase variance (the run's weighting,
+  a² + b²/sin²el) and the master's variance enters every rover's single difference of the same
+  satellite, so the DDs of different rovers are correlated through the common master;
+* **filter** — an extended Kalman filter of x over the epochs (the discrete model of
+  :mod:`cdgps_cli.model.dynamics` at the epoch spacing, process noise scaled to keep the config's noise
+  density), measurement update in information form on the DDs whitened by the Cholesky factor of
+  their covariance (R = I), iterated (Gauss-Newton) while the correction is large; prior x = 0 with
+  a broad covariance (``initial_sigma_xi``, ``initial_sigma_xidot``); optional
+  Rauch-Tung-Striebel smoother;
+* **output** — STATES.mcap through :func:`cdgps_cli.io.states.write_states` (coordinates = the
+  structure's q names, so ``cdgps export`` / ``cdgps evaluate`` work), DD residuals per antenna and
+  satellite, NIS, and the GNSS events (slips, gaps, reference changes, unfixed ambiguities).
+
+:func:`simulate_structure_gnss` simulates the structure's free motion (:func:`cdgps_cli.sim.structure.simulate`)
+and the GPS L1 observations of every antenna's receiver (:func:`cdgps_cli.model.gps.positioning.simulate_static_pair`,
+one independent receiver per antenna, the master moving too) as RINEX files with truth.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pandas as pd
+from scipy.linalg import cho_factor, cho_solve, solve_triangular
+
+from cdgps_cli import __version__
+from cdgps_cli.config.structure import StructureConfig
+from cdgps_cli.measurement.differencing import dd_operator, sd_variance, select_reference
+from cdgps_cli.model.dynamics import discrete_model
+from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.model.gps.positioning import L1_WAVELENGTH_M
+from cdgps_cli.model.kinematics import EpochGeometry, antenna_positions
+from cdgps_cli.io.rinex import gps_time_str
+
+__all__ = ["StructurePlacement", "structure_to_ecef", "nominal_receiver_positions", "gnss_modal_estimate",
+           "simulate_structure_gnss", "joint_dd_covariance"]
+
+
+# ----------------------------------------------------------------------------------------------
+# placement of the structure frame
+
+
+@dataclass(frozen=True)
+class StructurePlacement:
+    """Where the structure frame is on the Earth.
+
+    Attributes
+    ----------
+    master_ecef_m : tuple of 3 floats
+        ECEF position of the master antenna's nominal position p_M(0), m.
+    x_axis_azimuth_deg : float
+        Azimuth of the structure x axis, degrees clockwise from north (90: x = east, y = north);
+        z is the local vertical (up) at the master.
+    """
+
+    master_ecef_m: tuple
+    x_axis_azimuth_deg: float = 90.0
+
+    def rotation(self) -> np.ndarray:
+        """R (3, 3): ECEF vector = R @ structure-frame vector."""
+        lat, lon, _ = ecef_to_geodetic(np.asarray(self.master_ecef_m, dtype=np.float64))
+        E = enu_matrix(lat, lon)                                  # rows: east, north, up in ECEF
+        az = math.radians(self.x_axis_azimuth_deg)
+        x_enu = np.array([math.sin(az), math.cos(az), 0.0])
+        y_enu = np.array([-math.cos(az), math.sin(az), 0.0])
+        R_enu = np.column_stack([x_enu, y_enu, [0.0, 0.0, 1.0]])  # structure → ENU
+        return E.T @ R_enu
+
+
+def structure_to_ecef(cfg: StructureConfig, placement: StructurePlacement, p_struct: np.ndarray) -> np.ndarray:
+    """ECEF positions (…, 3) of structure-frame points (…, 3) under ``placement``."""
+    p0 = antenna_positions(cfg, np.zeros((1, cfg.n_q)))[0]
+    pm0 = p0[cfg.master_index]
+    return np.asarray(placement.master_ecef_m, float) + (np.asarray(p_struct, float) - pm0) @ placement.rotation().T
+
+
+def nominal_receiver_positions(cfg: StructureConfig, placement: StructurePlacement) -> dict:
+    """{antenna name: ECEF position at q = 0}."""
+    p0 = antenna_positions(cfg, np.zeros((1, cfg.n_q)))[0]
+    x = structure_to_ecef(cfg, placement, p0)
+    return {n: x[i] for i, n in enumerate(cfg.antenna_names)}
+
+
+# ----------------------------------------------------------------------------------------------
+# DD covariance over several rovers with a common master
+
+
+def joint_dd_covariance(var_rover: list, var_master: list, sats: list, refs: list) -> np.ndarray:
+    """Covariance of the DDs of one epoch of several rovers against one master, m².
+
+    Parameters
+    ----------
+    var_rover, var_master : list of array (n_a,)
+        Per rover a: undifferenced phase variance of each of its satellites at the rover and at
+        the master, m².
+    sats : list of sequence (n_a,)
+        Satellite names of each rover's single differences.
+    refs : list of int
+        Position of each rover's reference satellite among its SDs.
+
+    Returns
+    -------
+    ndarray (Σ (n_a − 1), Σ (n_a − 1))
+        ``D Σ_SD Dᵀ`` with D block-diagonal (:func:`cdgps_cli.measurement.differencing.dd_operator` per rover) and
+        ``Cov(SD_a,j, SD_b,k) = δ_ab δ_jk σ²_a,j + [j = k] σ²_M,j``.  For one rover this is
+        :func:`cdgps_cli.measurement.differencing.dd_covariance` of ``σ²_a + σ²_M``.
+    """
+    sizes = [len(s) for s in sats]
+    n = sum(sizes)
+    off = np.cumsum([0] + sizes)
+    S = np.zeros((n, n))
+    names = [s for ss in sats for s in ss]
+    vm = np.concatenate([np.asarray(v, float) for v in var_master])
+    vr = np.concatenate([np.asarray(v, float) for v in var_rover])
+    same = np.equal.outer(np.array(names, dtype=object), np.array(names, dtype=object))
+    S[same] = np.sqrt(np.outer(vm, vm))[same]            # the master's noise, common to every rover
+    S[np.diag_indices(n)] += vr
+    D = np.zeros((n - len(sizes), n))
+    r0 = 0
+    for a, k in enumerate(sizes):
+        D[r0:r0 + k - 1, off[a]:off[a] + k] = dd_operator(k, refs[a])
+        r0 += k - 1
+    return D @ S @ D.T
+
+
+# ----------------------------------------------------------------------------------------------
+# per-rover measurement tables from the GNSS machinery
+
+
+def _rover_tables(run, init, r, stations, progress):
+    from cdgps_cli.pipeline.gnss import _events, solve_with_init_integers  # noqa: PLC0415
+
+    progress(f"baseline {run.master} → {r}: DDs with INIT's integers …")
+    res, w, _, opt = solve_with_init_integers(run, init, r, stations)
+    d = w["data"]
+    n_fixed = res["ambiguities"]["n_fixed"]
+    # only segments with a known integer (fixed, or the datum pivot of its set) enter; a rover without
+    # any fixed integer is not used (its float ambiguities would bias the modal states)
+    use = w["known_seg"][w["seg"]] if n_fixed else np.zeros(w["seg"].size, dtype=bool)
+    # SD residual at the nominal rover position with the (fixed; else float) integers removed, m
+    los = d.rover_sat_xyz - w["xr0"]
+    rng = np.linalg.norm(los, axis=1)
+    r0 = d.y_phase_m - (rng + d.rover_clk_trop_m - d.base_model_m) - L1_WAVELENGTH_M * w["a_seg"][w["seg"]]
+    # remove each epoch's mean over the usable rows (receiver clock difference; cancels in the DDs)
+    cnt = np.bincount(d.epoch, weights=use.astype(float), minlength=d.t_label.size)
+    mean = np.bincount(d.epoch, weights=np.where(use, r0, 0.0), minlength=d.t_label.size) / np.maximum(cnt, 1.0)
+    r0 = r0 - mean[d.epoch]
+    # undifferenced variances of each receiver (the run's weighting): σ²(el) = sd_variance(el, el) / 2
+    va = 0.5 * sd_variance(d.el_rover, d.el_rover, sigma_a_m=opt.sigma_a_m, sigma_b_m=opt.sigma_b_m, weighting=opt.weighting)
+    vm = 0.5 * sd_variance(d.el_base, d.el_base, sigma_a_m=opt.sigma_a_m, sigma_b_m=opt.sigma_b_m, weighting=opt.weighting)
+    ref = select_reference(d.ptr, d.sat, d.el_rover, d.slip, usable=use)
+    ev = _events(r, run.master, res, w)
+    if not n_fixed:
+        ev.append({"time_s": float(d.t_label[0]), "antenna": r, "transmitter": "", "kind": "no integer fixed",
+                   "action": "receiver not used"})
+    return {"res": res, "w": w, "d": d, "use": use, "r0": r0, "var_rover": va, "var_master": vm, "ref": ref,
+            "events": ev, "n_fixed": int(n_fixed), "n_estimated": int(res["ambiguities"]["n_estimated"]),
+            "xr0": np.asarray(w["xr0"], float), "xm": np.asarray(w["xm"], float)}
+
+
+# ----------------------------------------------------------------------------------------------
+# the filter
+
+
+def _process(cfg: StructureConfig, dt: float, cache: dict):
+    key = round(float(dt), 6)
+    if key not in cache:
+        dm = discrete_model(cfg, T=dt)
+        # the config's noise is held over its sample period: keep its density at another spacing
+        cache[key] = (dm.A, dm.Q * (cfg.sample_period_s / dt))
+    return cache[key]
+
+
+def _epoch_measurements(tabs, k_of, k, R_struct):
+    """Stacked DDs of every rover at common epoch k: z (m), s-difference rows (m, 3), antenna
+    slot per DD, channel labels, covariance."""
+    z, sd_rows, slot, labels = [], [], [], []
+    vr, vm, sats, refs = [], [], [], []
+    for a, tb in enumerate(tabs):
+        ke = k_of[a][k]
+        if ke < 0:
+            continue
+        d = tb["d"]
+        ref = tb["ref"][ke]
+        if ref < 0:
+            continue
+        rows = np.arange(d.ptr[ke], d.ptr[ke + 1])
+        rows = rows[tb["use"][rows]]
+        if rows.size < 2:
+            continue
+        pos = int(np.flatnonzero(rows == ref)[0])
+        u = (d.rover_sat_xyz[rows] - tb["xm"]) @ R_struct        # structure-frame directions from the master
+        u /= np.linalg.norm(u, axis=1, keepdims=True)
+        others = np.delete(np.arange(rows.size), pos)
+        z.append(tb["r0"][rows[others]] - tb["r0"][ref])
+        sd_rows.append(u[others] - u[pos])
+        slot.extend([a] * others.size)
+        labels.extend([(a, d.sat_names[int(d.sat[i])]) for i in rows[others]])
+        vr.append(tb["var_rover"][rows])
+        vm.append(tb["var_master"][rows])
+        sats.append([d.sat_names[int(d.sat[i])] for i in rows])
+        refs.append(pos)
+    if not z:
+        return None
+    C = joint_dd_covariance(vr, vm, sats, refs)
+    return np.concatenate(z), np.vstack(sd_rows), np.asarray(slot), labels, C
+
+
+def _h_and_H(geo: EpochGeometry, U, xi, m_idx, ant_idx, slot, srows, d_hdr):
+    q = U @ xi
+    p, J = geo.positions(q)
+    rel = p[ant_idx] - p[m_idx] - d_hdr                         # (n_rov, 3)
+    Jr = J[ant_idx] - J[m_idx]                                  # (n_rov, 3, nq)
+    h = -np.einsum("mi,mi->m", srows, rel[slot])
+    Hq = -np.einsum("mi,miq->mq", srows, Jr[slot])
+    return h, Hq @ U
+
+
+def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, out_path, *,
+                        receivers: dict | None = None, x_axis_azimuth_deg: float = 90.0, smooth: bool = False,
+                        initial_sigma_xi: float = 1.0, initial_sigma_xidot: float = 1.0,
+                        max_iterations: int = 5, progress=None, extra_options: dict | None = None) -> dict:
+    """Modal states of a structure from a GNSS RUN and its INIT (integers) → STATES.mcap.
+
+    Parameters
+    ----------
+    run : GnssRun
+        From :func:`cdgps_cli.io.gnss_run.read_gnss_run`.
+    init : dict
+        INIT.json of ``cdgps init`` on that run (its integers are used; float segments are not).
+    init_text : str
+        Its text (hashed into the output).
+    cfg : StructureConfig
+        The structure model (its transmitters are not used: the satellites replace them).
+    out_path : path
+        STATES.mcap to write.
+    receivers : dict, optional
+        ``{structure antenna name: receiver name}``; default: the same names.  The master
+        antenna's receiver must be the run's master; every other antenna needs a rover receiver.
+    x_axis_azimuth_deg : float
+        Placement of the structure frame (:class:`StructurePlacement`); the master's position is
+        the run's master position.
+    smooth : bool
+        Add the Rauch-Tung-Striebel smoother (``/cdgps/state``: smoothed, ``/cdgps/state_filtered``).
+    initial_sigma_xi, initial_sigma_xidot : float
+        Prior 1σ of the modal positions and rates about x = 0 at the first epoch (config units).
+    max_iterations : int
+        Gauss-Newton iterations of the measurement update (while the correction exceeds 1e-9 of
+        the state).
+
+    Returns
+    -------
+    dict
+        The :func:`cdgps_cli.io.states.write_states` summary plus the placement, the antenna mapping,
+        the nominal-position mismatches and the integer counts.
+    """
+    from cdgps_cli.pipeline.gnss import INIT_KIND, _check_master_position, _master_xyz, _stations  # noqa: PLC0415
+    from cdgps_cli.io.states import write_states  # noqa: PLC0415
+
+    say = progress or (lambda m: None)
+    if not (isinstance(init, dict) and init.get("kind") == INIT_KIND):
+        raise CdgpsError("INIT.json is not from 'cdgps init' on a GNSS run")
+    if init.get("config_sha256") != run.cfg.sha256 or set(init.get("rovers", {})) != set(run.rovers) \
+            or init.get("master") != run.master:
+        raise CdgpsError(f"INIT.json was made from another run than {run.path}")
+    mapping = {a: (receivers or {}).get(a, a) for a in cfg.antenna_names}
+    master_ant = cfg.antenna_names[cfg.master_index]
+    if mapping[master_ant] != run.master:
+        raise CdgpsError(f"the structure's master antenna {master_ant!r} maps to receiver {mapping[master_ant]!r}, "
+                         f"but the run's master is {run.master!r}")
+    rover_ants = [a for a in cfg.antenna_names if a != master_ant]
+    missing = [f"{a} → {mapping[a]}" for a in rover_ants if mapping[a] not in run.rovers]
+    if missing:
+        raise CdgpsError(f"structure antenna(s) without a rover receiver in {run.path}: {', '.join(missing)} "
+                         f"(rovers: {', '.join(run.rovers)})")
+    unused = [r for r in run.rovers if r not in {mapping[a] for a in rover_ants}]
+    stations = _stations(run)
+    _check_master_position(run)
+    xm = _master_xyz(run)
+    placement = StructurePlacement(tuple(float(v) for v in xm), float(x_axis_azimuth_deg))
+    R = placement.rotation()
+    tabs = [_rover_tables(run, init, mapping[a], stations, say) for a in rover_ants]
+    if not any(tb["n_fixed"] for tb in tabs):
+        raise CdgpsError(f"INIT.json has no fixed integers for any rover ({', '.join(mapping[a] for a in rover_ants)}); "
+                         f"the modal model needs fixed DD integers (run 'cdgps init' without --float-only, or with a "
+                         f"longer span / random_walk displacement model)")
+    ant_idx = np.array([cfg.antenna_names.index(a) for a in rover_ants])
+    m_idx = cfg.master_index
+    # nominal receiver positions relative to the master, in the structure frame; mismatch to the model's
+    p0 = antenna_positions(cfg, np.zeros((1, cfg.n_q)))[0]
+    d_hdr = np.array([(tb["xr0"] - xm) @ R for tb in tabs])
+    mismatch = {a: float(np.linalg.norm(d_hdr[i] - (p0[ant_idx[i]] - p0[m_idx]))) for i, a in enumerate(rover_ants)}
+
+    # common time axis
+    t_all = np.unique(np.concatenate([tb["d"].t_label for tb in tabs]))
+    n = t_all.size
+    k_of = []
+    for tb in tabs:
+        m = np.full(n, -1, dtype=np.int64)
+        m[np.searchsorted(t_all, tb["d"].t_label)] = np.arange(tb["d"].t_label.size)
+        k_of.append(m)
+
+    nm = cfg.n_modes
+    ns = 2 * nm
+    U = np.asarray(cfg.mode_shapes)
+    geo = EpochGeometry(cfg)
+    cache: dict = {}
+    xf = np.zeros((n, ns))
+    Pf = np.zeros((n, ns, ns))
+    As = np.zeros((n, ns, ns))
+    Qs = np.zeros((n, ns, ns))
+    nis = np.full(n, np.nan)
+    nis_dof = np.zeros(n, dtype=np.int64)
+    meas = [None] * n
+    x = np.zeros(ns)
+    P = np.diag(np.r_[np.full(nm, initial_sigma_xi**2), np.full(nm, initial_sigma_xidot**2)])
+    say(f"modal EKF over {n} epochs, {len(rover_ants)} rover antenna(s), {nm} modes …")
+    for k in range(n):
+        if k:
+            A, Q = _process(cfg, float(t_all[k] - t_all[k - 1]), cache)
+            As[k], Qs[k] = A, Q
+            x = A @ x
+            P = A @ P @ A.T + Q
+        mk = _epoch_measurements(tabs, k_of, k, R)
+        if mk is not None:
+            z, srows, slot, labels, C = mk
+            meas[k] = (z, srows, slot, labels, C)
+            L = np.linalg.cholesky(C)
+            zw = solve_triangular(L, z, lower=True)
+            xbar, Pbar = x, P
+            Pinv = np.linalg.inv(Pbar)
+            xi = xbar.copy()
+            for it in range(max(int(max_iterations), 1)):
+                h, Hxi = _h_and_H(geo, U, xi[:nm], m_idx, ant_idx, slot, srows, d_hdr)
+                H = np.zeros((z.size, ns))
+                H[:, :nm] = solve_triangular(L, Hxi, lower=True)
+                hw = solve_triangular(L, h, lower=True)
+                info = Pinv + H.T @ H
+                cf = cho_factor(info)
+                v = zw - hw - H @ (xbar - xi)               # whitened innovation at the iterate
+                if it == 0:
+                    # NIS with the prior linearization: νᵀ(HPHᵀ + I)⁻¹ν = νᵀν − νᵀH(P⁻¹ + HᵀH)⁻¹Hᵀν
+                    hv = H.T @ v
+                    nis[k] = float(v @ v - hv @ cho_solve(cf, hv))
+                    nis_dof[k] = z.size
+                x_new = xbar + cho_solve(cf, H.T @ v)
+                step = np.max(np.abs(x_new - xi))
+                xi = x_new
+                if step <= 1e-9 * max(1.0, float(np.max(np.abs(xi)))):
+                    break
+            x = xi
+            P = cho_solve(cf, np.eye(ns))
+            P = 0.5 * (P + P.T)
+        xf[k], Pf[k] = x, P
+    if smooth:
+        xs, Ps = xf.copy(), Pf.copy()
+        for k in range(n - 2, -1, -1):
+            A, Q = As[k + 1], Qs[k + 1]
+            Pp = A @ Pf[k] @ A.T + Q
+            G = cho_solve(cho_factor(Pp), A @ Pf[k]).T
+            xs[k] = xf[k] + G @ (xs[k + 1] - A @ xf[k])
+            Pk = Pf[k] + G @ (Ps[k + 1] - Pp) @ G.T
+            Ps[k] = 0.5 * (Pk + Pk.T)
+    else:
+        xs, Ps = xf, Pf
+
+    # DD residuals of the reported estimate, per (antenna, satellite) channel
+    chans = sorted({(rover_ants[a], s) for mk in meas if mk is not None for a, s in mk[3]})
+    cidx = {c: i for i, c in enumerate(chans)}
+    resid = np.full((n, len(chans)), np.nan)
+    for k, mk in enumerate(meas):
+        if mk is None:
+            continue
+        z, srows, slot, labels, _ = mk
+        h, _ = _h_and_H(geo, U, xs[k, :nm], m_idx, ant_idx, slot, srows, d_hdr)
+        cols = [cidx[(rover_ants[a], s)] for a, s in labels]
+        resid[k, cols] = z - h
+
+    events = []
+    for i, tb in enumerate(tabs):
+        for ev in tb["events"]:
+            e = dict(ev)
+            if e["antenna"] == mapping[rover_ants[i]]:
+                e["antenna"] = rover_ants[i]
+            events.append(e)
+    events.sort(key=lambda e: (e["time_s"], e["antenna"], e["transmitter"], e["kind"]))
+    biases = {}
+    for i, a in enumerate(rover_ants):
+        for s in sorted(init["rovers"][mapping[a]]["ambiguities"], key=lambda s: s["first_gps_s"]):
+            if s.get("fixed") and s.get("integer") is not None:
+                biases[(a, s["sat"])] = L1_WAVELENGTH_M * s["integer"]
+    res = SimpleNamespace(cfg=cfg, x=xs, P=Ps, smoothed=bool(smooth), x_filt=xf, P_filt=Pf, time_s=t_all,
+                          channels=chans, residual_m=resid, nis=nis, nis_dof=nis_dof, events=events, biases=biases)
+    options = {"model": "gnss-modal", "smooth": bool(smooth), "x_axis_azimuth_deg": float(x_axis_azimuth_deg),
+               "master_ecef_m": list(map(float, xm)), "receivers": mapping,
+               "initial_sigma_xi": initial_sigma_xi, "initial_sigma_xidot": initial_sigma_xidot,
+               "dd_covariance": "D Σ Dᵀ jointly over the rovers (common master)", **(extra_options or {})}
+    say(f"writing {out_path} …")
+    out = write_states(res, run.path, init, init_text, out_path, options)
+    out.update({
+        "placement": {"master_ecef_m": list(map(float, xm)), "x_axis_azimuth_deg": float(x_axis_azimuth_deg)},
+        "receivers": mapping, "unused_receivers": unused,
+        "nominal_mismatch_m": mismatch,
+        "integers": {a: {"fixed": tabs[i]["n_fixed"], "estimated": tabs[i]["n_estimated"]} for i, a in enumerate(rover_ants)},
+        "coordinates": list(cfg.coord_names),
+    })
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# simulation: a vibrating structure seen by GPS receivers
+
+
+def simulate_structure_gnss(out_dir, cfg: StructureConfig, *, master_ecef_m=(-3978242.4348, 3382841.1715, 3649902.7667),
+                            x_axis_azimuth_deg: float = 90.0, receivers: dict | None = None, duration_s: float = 1200.0,
+                            seed: int = 0, start_gps_s: float | None = None, random_walk_sigma: float = 0.01,
+                            mask_deg: float = 10.0, code_sigma_m: float = 0.5, progress=None) -> dict:
+    """Simulate the structure's free motion and one GPS L1 receiver per antenna → RINEX + truth.
+
+    The motion is :func:`cdgps_cli.sim.structure.simulate` (scenario ``free``) at the config's sample
+    period, which is also the receivers' epoch interval; every antenna (the master too) carries
+    its own receiver (own clock, integers, fractional bias, elevation-dependent noise σ² = a² +
+    b²/sin²el with a = b = 3 mm, white code noise), simulated by
+    :func:`cdgps_cli.model.gps.positioning.simulate_static_pair` with the antenna's track as its moving rover.
+
+    Writes ``<receiver>.rnx`` (header position = the antenna's nominal position), ``nav.rnx`` (a
+    synthetic constellation), ``truth.csv`` (``time_s`` in GPS s and the structure's coordinates),
+    ``truth.json`` and ``config.toml`` (a GNSS run config, random-walk displacement with
+    ``random_walk_sigma`` for the init).  Returns a summary.
+    """
+    from cdgps_cli.config.structure import gnss_config_toml  # noqa: PLC0415
+    from cdgps_cli.io.atomic import output_set, write_atomic, write_bytes_atomic  # noqa: PLC0415
+    from cdgps_cli.sim.gnss import previous_simulation_files  # noqa: PLC0415
+    from cdgps_cli.model.gps.positioning import simulate_static_pair, synthetic_gps_nav  # noqa: PLC0415
+    from cdgps_cli.io.rinex import gps_seconds  # noqa: PLC0415
+    from cdgps_cli.io.rinex_write import rinex_calendar, write_rinex_nav, write_rinex_obs  # noqa: PLC0415
+    from cdgps_cli.sim.structure import SimOptions, simulate  # noqa: PLC0415
+
+    say = progress or (lambda m: None)
+    problems = []
+    if not (np.isfinite(duration_s) and duration_s > 0):
+        problems.append(f"duration_s must be a positive number of seconds, got {duration_s!r}")
+    if not (np.isfinite(x_axis_azimuth_deg) and -360.0 <= x_axis_azimuth_deg <= 360.0):
+        problems.append(f"x_axis_azimuth_deg must be in [-360, 360] degrees, got {x_axis_azimuth_deg!r}")
+    xm = np.asarray(master_ecef_m, dtype=float)
+    if xm.shape != (3,) or not np.all(np.isfinite(xm)) or not 6.0e6 < np.linalg.norm(xm) < 7.0e6:
+        problems.append(f"master_ecef_m must be 3 finite ECEF coordinates near the Earth's surface, got {master_ecef_m!r}")
+    if problems:
+        raise CdgpsError("simulate-gnss-structure: " + "; ".join(problems))
+    out = Path(out_dir)
+    mapping = {a: (receivers or {}).get(a, a) for a in cfg.antenna_names}
+    T = cfg.sample_period_s
+    sim = simulate(cfg, SimOptions(duration_s=duration_s, seed=seed, scenario="free"))
+    n = sim.time_s.size
+    if start_gps_s is None:
+        start_gps_s = gps_seconds(2024, 1, 1)
+    t_gps = start_gps_s + sim.time_s
+    nav = synthetic_gps_nav(start_gps_s, float(sim.time_s[-1]) + T, seed=seed)
+    placement = StructurePlacement(tuple(float(v) for v in master_ecef_m), float(x_axis_azimuth_deg))
+    R = placement.rotation()
+    p = antenna_positions(cfg, sim.q)                         # (n, A, 3) structure frame
+    nominal = nominal_receiver_positions(cfg, placement)
+    y, mo, d, hh, mi, ss = rinex_calendar(start_gps_s)
+    stamp = f"{y:04d}{mo:02d}{d:02d} {hh:02d}{mi:02d}{int(ss):02d} UTC"
+    with output_set(out, replaces=previous_simulation_files(out, "cdgps gnss structure simulation")) as dest:
+        files = {}
+        integers = {}
+        say(f"simulating {n} epochs of {len(mapping)} receivers …")
+        p0 = antenna_positions(cfg, np.zeros((1, cfg.n_q)))[0]
+        for i, a in enumerate(cfg.antenna_names):
+            xa = nominal[a]
+            lat, lon, _ = ecef_to_geodetic(xa)
+            off_ecef = (p[:, i, :] - p0[i]) @ R.T                # displacement from the nominal position, ECEF
+            off_enu = off_ecef @ enu_matrix(lat, lon).T
+            s = simulate_static_pair(nav, np.asarray(master_ecef_m, float), xa, start_gps_s, n * T, T,
+                                     seed=seed * 1000 + 17 * (i + 1), mask_rad=math.radians(mask_deg),
+                                     phase_sigma_m=(0.003, 0.003), code_sigma_m=code_sigma_m,
+                                     clock_drift_ms=(0.0, 5.0 - 2.0 * i), rover_offset_enu_m=off_enu)
+            rx = mapping[a]
+            hdr = {"marker_name": rx, "observer": "cdgps gnss_modal simulation", "agency": "simulated",
+                   "receiver_type": "CDGPS SIMULATOR", "receiver_version": __version__, "antenna_type": "SIMULATED",
+                   "approx_position_xyz_m": tuple(float(v) for v in xa), "interval_s": T,
+                   "comments": [f"structure {cfg.name}, antenna {a}: nominal position (q = 0)"]}
+            write_rinex_obs(dest.path(f"{rx}.rnx"), s["rover"], hdr, created=stamp)
+            files[rx] = f"{rx}.rnx"
+            amb = s["ambiguities"]
+            integers[rx] = {r_["sat"]: int(r_["n_cycles"]) for _, r_ in amb[amb["receiver"] == "rover"].iterrows()}
+        write_rinex_nav(dest.path("nav.rnx"), nav, comments=[f"synthetic ephemerides (seed {seed})"], created=stamp)
+        truth = pd.DataFrame({"time_s": t_gps, **{c: sim.q[:, j] for j, c in enumerate(cfg.coord_names)}})
+        write_atomic(dest.path("truth.csv"), lambda pth: truth.to_csv(pth, index=False, lineterminator="\n", float_format="%.9f"))
+        master_rx = mapping[cfg.antenna_names[cfg.master_index]]
+        tj = {"kind": "cdgps gnss structure simulation", "cdgps_version": __version__, "config": cfg.name,
+              "config_sha256": cfg.sha256, "seed": seed, "start_gps_s": start_gps_s, "start": gps_time_str(start_gps_s),
+              "duration_s": float(sim.time_s[-1]), "interval_s": T, "epochs": int(n), "master": master_rx,
+              "receivers": mapping, "master_ecef_m": list(map(float, master_ecef_m)),
+              "x_axis_azimuth_deg": float(x_axis_azimuth_deg),
+              "nominal_ecef_m": {mapping[a]: list(map(float, v)) for a, v in nominal.items()},
+              "coordinates": list(cfg.coord_names), "x0": sim.x[0].tolist(),
+              "phase_noise": "sigma^2 = a^2 + b^2/sin^2(el) per receiver, a = b = 0.003 m", "code_sigma_m": code_sigma_m}
+        write_bytes_atomic(dest.path("truth.json"), (json.dumps(tj, indent=2) + "\n").encode())
+        text = gnss_config_toml({mapping[a]: ("rinex", files[mapping[a]]) for a in cfg.antenna_names}, ["nav.rnx"], master_rx,
+                                name=f"simulated-{cfg.name}", description=f"structure {cfg.name} simulated by cdgps_cli.pipeline.gnss_modal",
+                                displacement="random_walk", sigma_m_per_sqrt_s=random_walk_sigma)
+        write_bytes_atomic(dest.path("config.toml"), text.encode())
+    return {"output": str(out), "epochs": int(n), "files": files, "master": master_rx, "receivers": mapping,
+            "placement": {"master_ecef_m": list(map(float, master_ecef_m)), "x_axis_azimuth_deg": float(x_axis_azimuth_deg)},
+            "q_range": {c: [float(sim.q[:, j].min()), float(sim.q[:, j].max())] for j, c in enumerate(cfg.coord_names)},
+            "integers": integers}

@@ -1,0 +1,1 @@
+"""Figures and md/json/html reports, with their provenance."""

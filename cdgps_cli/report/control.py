@@ -1,0 +1,197 @@
+"""`cdgps report control`: the 1998 paper's control experiments (Figs. 6, 10, 11, 12) as a report.
+
+Reads the GAINS.json of the design and simulation folders written by ``cdgps simulate`` (open loop,
+and with ``--controller``: closed loop on the GPS estimate, optionally with full-state feedback and
+without vibration control), computes the figures of merit of :mod:`cdgps_cli.control.metrics` and
+writes report.md, report.json and a self-contained report.html with the figures.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from cdgps_cli.control.metrics import ARRIVED_WITHIN_DEG, BACK_FRACTION, pulse_metrics, slew_metrics
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.io.provenance import _file, report_date, software
+from cdgps_cli.io.atomic import output_set
+from cdgps_cli.io.gains_file import read_gains
+from cdgps_cli.report.sensor_reports import REPORT_FILES, _fmt, _html_table, _md_table, _mpl, _save_fig, _write_report
+
+#: internal angles plotted and measured (the sections' vertical-axis rotations, Figs. 10–12)
+INTERNAL_ANGLES = ("q2", "q5", "q8")
+RIGID_ANGLE = "q10"
+ROLES = ("open", "closed", "full_state", "no_vibration")
+#: every file the report may write (replaced as one set, cdgps_cli.io.atomic.output_set)
+CONTROL_REPORT_FILES = (*REPORT_FILES, "poles.png", "pulse.png", "slew.png")
+ROLE_LABEL = {"open": "open loop", "closed": "closed loop (GPS estimate)",
+              "full_state": "closed loop (true state)", "no_vibration": "no vibration control (GPS estimate)"}
+
+
+def read_simulation(folder: str | Path, role: str) -> dict:
+    """truth.json, truth.csv (and controller.csv when closed loop) of a ``cdgps simulate`` folder."""
+    d = Path(folder)
+    try:
+        truth = json.loads((d / "truth.json").read_text(encoding="utf-8"))
+        q = pd.read_csv(d / "truth.csv")
+    except (OSError, ValueError) as exc:
+        raise CdgpsError(f"--{role.replace('_', '-')} {d}: not a `cdgps simulate` folder ({exc})") from None
+    files = [d / "truth.json", d / "truth.csv"]
+    ctrl = None
+    if (d / "controller.csv").exists():
+        ctrl = pd.read_csv(d / "controller.csv")
+        files.append(d / "controller.csv")
+    closed = "controller" in truth
+    if (role == "open") == closed:
+        want = "an open-loop run (simulate without --controller)" if role == "open" else \
+            "a closed-loop run (simulate with --controller)"
+        raise CdgpsError(f"--{role.replace('_', '-')} {d}: expected {want}")
+    missing = [c for c in ("time_s", RIGID_ANGLE, *INTERNAL_ANGLES) if c not in q.columns]
+    if missing:
+        raise CdgpsError(f"{d / 'truth.csv'}: missing columns {', '.join(missing)}")
+    return {"folder": str(d), "truth": truth, "q": q, "controller": ctrl, "files": [str(f) for f in files]}
+
+
+def _scenario(runs: dict) -> str:
+    kinds = {r["truth"]["scenario"] for r in runs.values()}
+    if len(kinds) != 1:
+        raise CdgpsError(f"the runs are of different scenarios: {', '.join(sorted(kinds))}")
+    return kinds.pop()
+
+
+def _deg(run: dict, name: str) -> np.ndarray:
+    return np.degrees(run["q"][name].to_numpy())
+
+
+def control_report(gains_path: str | Path, runs: dict, out_dir: str | Path, date: str | None = None) -> dict:
+    """Write the report; ``runs`` maps a role (:data:`ROLES`) to a simulation folder."""
+    if "closed" not in runs:
+        raise CdgpsError("--closed: the closed-loop run (simulate --controller) is required")
+    gains = read_gains(gains_path)
+    sims = {role: read_simulation(folder, role) for role, folder in runs.items()}
+    scenario = _scenario(sims)
+    for role, s in sims.items():
+        if s["truth"]["config_sha256"] != gains.get("config", {}).get("sha256"):
+            raise CdgpsError(f"--{role.replace('_', '-')} {s['folder']}: simulated with another config than "
+                             f"{gains_path} was designed for")
+    if scenario == "pulse":
+        data, rows, header, figures, captions = _pulse_section(sims)
+    elif scenario == "slew":
+        data, rows, header, figures, captions = _slew_section(sims)
+    else:
+        raise CdgpsError(f"the runs are of scenario {scenario!r}; the control report covers pulse and slew")
+    plt = _mpl()
+    from cdgps_cli.report.control_figures import pole_figure
+
+    captions["poles.png"] = ("Open-loop (×) and closed-loop (+) poles of the design in the z plane, with a zoom "
+                             "near z = 1 (from GAINS.json).")
+    inputs = [_file("GAINS.json", gains_path)]
+    for role, s in sims.items():
+        inputs += [_file(f"--{role.replace('_', '-')}", f) for f in s["files"]]
+    when = report_date([i["path"] for i in inputs], date)
+    data.update({"scenario": scenario, "provenance": {
+        "command": "cdgps report control", "options": {"gains": str(gains_path), **{f"--{r.replace('_', '-')}": str(v)
+                                                                                    for r, v in runs.items()},
+                                                       "--date": date},
+        "inputs": inputs, "software": software(), "date": when["date"], "date_source": when["source"]}})
+    title = f"Control experiment: {scenario}"
+    md = f"# {title}\n\n{_md_table(rows, header)}\n\n{data['definitions']}\n"
+    with output_set(out_dir, replaces=CONTROL_REPORT_FILES) as dest:
+        pole_figure(gains["poles"], dest.path("poles.png"), "LQR poles (Fig. 6 style)")
+        figures = {"poles.png": dest.path("poles.png").read_bytes(),
+                   **{k: _save_fig(f, dest.path(k)) for k, f in figures.items()}}
+        plt.close("all")
+        _write_report(dest, title, md, data,
+                      [("Result", _html_table(rows, header) + f"<p class='note'>{data['definitions']}</p>")],
+                      figures, captions)
+    return data
+
+
+def _pulse_section(sims):
+    if "open" not in sims:
+        raise CdgpsError("--open: the pulse report compares with the open-loop run (simulate --scenario pulse)")
+    seg = next(s for s in sims["closed"]["truth"]["segments"] if s["kind"] == "pulse")
+    t = sims["closed"]["q"]["time_s"].to_numpy()
+    opened = {k: _deg(sims["open"], k) for k in INTERNAL_ANGLES}
+    metrics = {}
+    for role in ("closed", "full_state"):
+        if role in sims:
+            metrics[role] = pulse_metrics(t, opened, {k: _deg(sims[role], k) for k in INTERNAL_ANGLES},
+                                          seg["start_s"], seg["end_s"])
+    rows = []
+    for role, m in metrics.items():
+        for k, v in m.items():
+            rows.append([ROLE_LABEL[role], k, f"{v['open_first_peak_deg']:.2f}", f"{v['closed_peak_deg']:.2f}",
+                         _fmt(v["peak_ratio"], ".3f"), _fmt(v["closed_back_within_s_after_pulse"], ".1f"),
+                         f"{v['open_tail_peak_to_peak_deg']:.1f}"])
+    header = ["feedback", "angle", "open-loop first peak (°)", "closed-loop peak (°)", "ratio",
+              f"back within {100 * BACK_FRACTION:g}% of the open-loop peak (s after pulse)", "open-loop p-p, last 10 s (°)"]
+    plt = _mpl()
+    fig, axes = plt.subplots(1, 1 + len(metrics), figsize=(5 * (1 + len(metrics)), 3.8), sharey=True)
+    for ax, role in zip(np.atleast_1d(axes), ["open", *metrics]):
+        for k in INTERNAL_ANGLES:
+            ax.plot(t, _deg(sims[role], k), lw=1, label=k)
+        ax.axvspan(seg["start_s"], seg["end_s"], color="0.85", label="pulse")
+        ax.set_title(ROLE_LABEL[role])
+        ax.set_xlabel("time (s)")
+    np.atleast_1d(axes)[0].set_ylabel("angle (deg)")
+    np.atleast_1d(axes)[0].legend(fontsize=8)
+    fig.tight_layout()
+    caps = {"pulse.png": f"Longitudinal-twist angles q2, q5, q8 (true) after the zero-momentum pulse "
+                         f"({', '.join(seg['thrusters'])}, {seg['force_n']:g} N, shaded), open and closed loop (Fig. 10)."}
+    data = {"pulse": seg, "metrics": metrics,
+            "definitions": "Open-loop first peak: the largest |angle| up to the first zero crossing after the pulse "
+                           "starts; closed-loop peak: the largest |angle| after the pulse starts; back: from when the "
+                           f"angle stays within {100 * BACK_FRACTION:g}% of its open-loop first peak to the end. "
+                           "Angles are the simulator's truth."}
+    return data, rows, header, {"pulse.png": fig}, caps
+
+
+def _slew_section(sims):
+    seg = next(s for s in sims["closed"]["truth"]["segments"] if s["kind"] == "slew")
+    cmd, t0 = seg["command_deg"], seg["start_s"]
+    metrics, rows = {}, []
+    for role in ("closed", "full_state", "no_vibration"):
+        if role not in sims:
+            continue
+        s = sims[role]
+        m = slew_metrics(s["q"]["time_s"].to_numpy(), _deg(s, RIGID_ANGLE), {k: _deg(s, k) for k in INTERNAL_ANGLES}, cmd, t0)
+        metrics[role] = m
+        rows.append([ROLE_LABEL[role], _fmt(m["arrived_s_after_command"], ".1f"), f"{m['final_error_deg']:+.3f}",
+                     f"{m['final_peak_to_peak_deg']:.3f}", *(f"{m['internal_max_deg'][k]:.2f}" for k in INTERNAL_ANGLES)])
+    header = ["run", f"within {ARRIVED_WITHIN_DEG:g}° of the command (s after it)", "final error (°)",
+              "final p-p, last 10 s (°)", *(f"largest {k} (°, absolute)" for k in INTERNAL_ANGLES)]
+    plt = _mpl()
+    shown = [r for r in ("closed", "no_vibration") if r in sims]
+    fig, axes = plt.subplots(2, len(shown), figsize=(5.5 * len(shown), 6.5), squeeze=False, sharex=True)
+    for j, role in enumerate(shown):
+        s = sims[role]
+        t = s["q"]["time_s"].to_numpy()
+        ax = axes[0, j]
+        ax.plot(t, _deg(s, RIGID_ANGLE), lw=1.2, label="q10 (true)")
+        if s["controller"] is not None:
+            c = s["controller"]
+            ax.plot(c["time_s"], np.degrees(c["q10_hat"]), lw=0.8, ls="--", label="q10 (GPS estimate)")
+            ax.plot(c["time_s"], np.degrees(c["q10_ref"]), lw=0.8, color="0.4", label="reference")
+        ax.axhspan(cmd - ARRIVED_WITHIN_DEG, cmd + ARRIVED_WITHIN_DEG, color="0.9")
+        ax.set_title(ROLE_LABEL[role])
+        ax.set_ylabel("rigid-body angle (deg)")
+        ax.legend(fontsize=8)
+        for k in INTERNAL_ANGLES:
+            axes[1, j].plot(t, _deg(s, k), lw=1, label=k)
+        axes[1, j].set_ylabel("internal angles (deg)")
+        axes[1, j].set_xlabel("time (s)")
+        axes[1, j].legend(fontsize=8)
+    fig.tight_layout()
+    caps = {"slew.png": f"Slew from {sims['closed']['truth']['segments'][0].get('rigid_angle_deg', 0):g}° to {cmd:g}° "
+                        f"commanded at {t0:g} s: rigid-body angle (top; band ±{ARRIVED_WITHIN_DEG:g}° about the command) "
+                        f"and the sections' vertical-axis rotations (bottom), with and without vibration control "
+                        f"(Figs. 11–12)."}
+    data = {"slew": seg, "metrics": metrics,
+            "definitions": f"Within: from when the true rigid-body angle stays within {ARRIVED_WITHIN_DEG:g}° of the "
+                           f"command to the end; final error and peak-to-peak over the last 10 s; internal maxima "
+                           f"after the command. Angles are the simulator's truth."}
+    return data, rows, header, {"slew.png": fig}, caps

@@ -1,0 +1,1 @@
+"""Simulators: the structure with its antennas, GNSS receiver pairs (RINEX out)."""

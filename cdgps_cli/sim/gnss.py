@@ -1,0 +1,292 @@
+"""``cdgps simulate-gnss``: a synthetic two-receiver GPS L1 recording written as RINEX files.
+
+:func:`simulate_gnss_pair` runs :func:`~cdgps_cli.model.gps.positioning.simulate_static_pair` (receiver clocks with
+millisecond-stepped time tags, troposphere, integer ambiguities with a fractional receiver bias,
+cycle slips flagged by LLI on tracked arcs, phase noise following the estimator's default
+elevation weighting, white code noise, C/N0 35 + 15·sin el dB-Hz) for a master at a known position and a
+rover whose antenna is displaced from its nominal position — a constant displacement (static) or
+a constant plus a random walk — and writes into one directory:
+
+* ``<master>.rnx``, ``<rover>.rnx`` — RINEX 3.04 observation files (C1C L1C S1C), the header
+  APPROX POSITION XYZ being the master's true and the rover's *nominal* position;
+* ``nav.rnx`` — RINEX 3.04 GPS navigation file (the ephemerides the data were made with: a
+  synthetic constellation, or the records of ``--nav``);
+* ``truth.csv`` — ``time_s`` (GPS s of the nominal epochs) and the rover's true displacement
+  ``<rover>_e``, ``<rover>_n``, ``<rover>_u`` (m, local east/north/up at the nominal position);
+  the column names match the estimate's, so ``cdgps evaluate --truth DIR --estimate STATES.mcap``
+  compares them;
+* ``truth.json`` — positions, displacement model, slips, the integer ambiguities, settings;
+* ``config.toml`` — a GNSS run config for the pair (``cdgps ingest --config DIR/config.toml``).
+
+Same seed and settings → byte-identical files.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from cdgps_cli import __version__
+from cdgps_cli.io.atomic import output_set, write_atomic, write_bytes_atomic
+from cdgps_cli.config.structure import GnssConfig, gnss_config_toml
+from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.model.gps.positioning import simulate_static_pair, synthetic_gps_nav
+from cdgps_cli.config.limits import check_table_size
+from cdgps_cli.io.rinex import gps_seconds, gps_time_str, read_rinex_nav
+from cdgps_cli.io.rinex_write import rinex_calendar, write_rinex_nav, write_rinex_obs
+
+__all__ = ["DEFAULT_MASTER_XYZ", "DEFAULT_ROVER_XYZ", "simulate_gnss_pair", "parse_start", "parse_vector"]
+
+# the GEONET pair of docs/geonet.md (3.3 km apart): realistic positions for the default scenario
+DEFAULT_MASTER_XYZ = (-3978242.4348, 3382841.1715, 3649902.7667)
+DEFAULT_ROVER_XYZ = (-3976219.5082, 3382372.5671, 3652512.9849)
+
+
+def parse_vector(text: str, what: str, n: int = 3) -> tuple:
+    """"a,b,c" → floats (CdgpsError naming ``what`` if malformed)."""
+    try:
+        v = tuple(float(x) for x in str(text).split(","))
+    except ValueError:
+        v = ()
+    if len(v) != n or not all(math.isfinite(x) for x in v):
+        raise CdgpsError(f"{what} expects {n} comma-separated numbers, got {text!r}")
+    return v
+
+
+def parse_start(text: str) -> float:
+    """``YYYY-MM-DD[THH:MM[:SS]]`` (GPS time) → GPS seconds."""
+    import datetime as dt
+
+    for fmt in ("%Y-%m-%dT%H:%M:%S", "%Y-%m-%dT%H:%M", "%Y-%m-%d %H:%M:%S", "%Y-%m-%d"):
+        try:
+            d = dt.datetime.strptime(text, fmt)
+            return gps_seconds(d.year, d.month, d.day, d.hour, d.minute, d.second)
+        except ValueError:
+            continue
+    raise CdgpsError(f"--start expects a GPS date/time YYYY-MM-DD or YYYY-MM-DDTHH:MM:SS, got {text!r}")
+
+
+#: satellites a simulated receiver may track at once (GPS PRN 1-32), for the memory bound
+GPS_PRN_SLOTS = 32
+#: memory per epoch and receiver-satellite pair while simulating (geometry, observables, RINEX text),
+#: bytes: an upper estimate for :func:`cdgps_cli.config.limits.check_table_size`
+PAIR_BYTES_PER_VALUE = 100
+
+
+#: the files every GNSS simulation writes besides one RINEX observation file per receiver
+GNSS_SIMULATION_FILES = ("nav.rnx", "truth.csv", "truth.json", "config.toml")
+
+
+def previous_simulation_files(out_dir: str | Path, kind: str) -> tuple[str, ...]:
+    """The output set of an earlier GNSS simulation of ``kind`` in ``out_dir``, which a new one
+    replaces as a whole: the fixed files and the RINEX files its truth.json names (another
+    ``--master``/``--rover`` or receiver mapping wrote other ones)."""
+    try:
+        tj = json.loads((Path(out_dir) / "truth.json").read_text())
+    except (OSError, ValueError):
+        return GNSS_SIMULATION_FILES
+    if not isinstance(tj, dict) or tj.get("kind") != kind:
+        return GNSS_SIMULATION_FILES
+    names = (tj.get("files") or {}).get("rinex") or {}
+    names = list(names.values()) if isinstance(names, dict) else []
+    receivers = tj.get("receivers")
+    if isinstance(receivers, dict):
+        names += [f"{v}.rnx" for v in receivers.values()]
+    plain = [n for n in names if isinstance(n, str) and n and "/" not in n and not n.startswith(".")]
+    return (*GNSS_SIMULATION_FILES, *plain)
+
+
+def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_hz: float = 1.0, seed: int = 0,
+                       start_gps_s: float | None = None, nav_paths=(), master: str = "base", rover: str = "rover",
+                       master_xyz=DEFAULT_MASTER_XYZ, rover_xyz=DEFAULT_ROVER_XYZ,
+                       displacement_enu_m=(0.031, -0.022, 0.017), random_walk_sigma: float | None = None,
+                       n_slips: int = 0, phase_sigma_m: float | None = None, code_sigma_m: float = 0.5,
+                       mask_deg: float = 10.0, progress=None) -> dict:
+    """Simulate a master and a (displaced) rover and write RINEX, truth and config files.
+
+    Parameters
+    ----------
+    out_dir : path
+        Output directory (created).
+    duration_s, rate_hz : float
+        Span and sampling rate (epochs ``start + k/rate``).
+    seed : int
+        Random seed (noise, ambiguities, slips, random walk, synthetic orbits' clocks).
+    start_gps_s : float, optional
+        First epoch, GPS s (default: 2024-01-01 00:00 GPST with the synthetic constellation, or the
+        first whole hour of ``nav_paths``).
+    nav_paths : sequence of path
+        Real RINEX navigation files to simulate with (default: a synthetic 36-satellite
+        constellation, :func:`~cdgps_cli.model.gps.positioning.synthetic_gps_nav`).
+    master, rover : str
+        Antenna names (files ``<name>.rnx``, coordinates ``<rover>_e/_n/_u``).
+    master_xyz, rover_xyz : 3 floats
+        Master (true) and rover nominal positions, ECEF m.
+    displacement_enu_m : 3 floats
+        Rover's constant displacement from its nominal position, m (E, N, U).
+    random_walk_sigma : float, optional
+        If given, the rover also random-walks with this white-noise rate per component, m/√s.
+    n_slips : int
+        Random cycle slips (LLI-flagged), each at a random receiver and record among those the
+        run's config will use — satellite tracked at both receivers above the config's mask
+        (``max(mask_deg, GnssConfig.mask_deg)``) for ≥ 10 epochs before and after, inside
+        5–95 % of the span — with a random size; all ``n_slips`` are made unless there are too
+        few such records (then truth.json ``slips_note`` and the progress output say so).
+    phase_sigma_m : float, optional
+        Undifferenced white phase noise, m.  Default: the elevation model of the estimator's
+        default weighting, σ² = a² + b²/sin²el per receiver with a = b = 3 mm
+        (``GnssConfig.sigma_a_m``/``sigma_b_m``), so that NIS/NEES of the default run are ≈ 1.
+    code_sigma_m : float
+        Undifferenced white pseudorange noise, m (the estimator weights code as
+        ``code_ratio`` = 100 × the phase σ: 0.42 m at the zenith, 1.2 m at 15°).
+    mask_deg : float
+        Tracking mask of the simulated receivers, degrees.
+
+    Returns
+    -------
+    dict
+        Summary: files, epochs, rows, slips, positions, displacement model.
+    """
+    say = progress or (lambda m: None)
+    if not (duration_s > 0 and math.isfinite(duration_s)):
+        raise CdgpsError(f"--duration must be positive, got {duration_s!r}")
+    if not (rate_hz > 0 and math.isfinite(rate_hz)) or rate_hz > 100:
+        raise CdgpsError(f"--rate-hz must be in (0, 100], got {rate_hz!r}")
+    if master == rover:
+        raise CdgpsError("the master and rover names must differ")
+    if random_walk_sigma is not None and not random_walk_sigma > 0:
+        raise CdgpsError(f"--random-walk must be a positive rate (m/√s), got {random_walk_sigma!r}")
+    if n_slips < 0:
+        raise CdgpsError(f"--slips must be >= 0, got {n_slips}")
+    out = Path(out_dir)
+    interval = 1.0 / rate_hz
+    check_table_size(duration_s * rate_hz + 1, 2 * GPS_PRN_SLOTS, PAIR_BYTES_PER_VALUE,
+                     "the simulated observation tables", f"--duration {duration_s:g} s at --rate-hz {rate_hz:g}")
+    if nav_paths:
+        navs = [read_rinex_nav(p) for p in nav_paths]
+        nav = pd.concat(navs, ignore_index=True).drop_duplicates(subset=["sat", "toe_gps_s", "iode", "af0_s"])
+        nav = nav.sort_values(["sat", "toe_gps_s"], kind="stable").reset_index(drop=True)
+        if start_gps_s is None:
+            start_gps_s = math.ceil(float(nav["toe_gps_s"].min()) / 3600.0) * 3600.0
+        lo, hi = float(nav["toe_gps_s"].min()) - 7200.0, float(nav["toe_gps_s"].max()) + 7200.0
+        if start_gps_s < lo or start_gps_s + duration_s > hi:
+            raise CdgpsError(f"the navigation data ({gps_time_str(lo)} – {gps_time_str(hi)} with ±2 h validity) do not cover "
+                             f"the simulated span {gps_time_str(start_gps_s)} – {gps_time_str(start_gps_s + duration_s)}; "
+                             f"choose --start/--duration inside it or omit --nav (synthetic constellation)")
+        nav_source = [str(p) for p in nav_paths]
+    else:
+        if start_gps_s is None:
+            start_gps_s = gps_seconds(2024, 1, 1)
+        nav = synthetic_gps_nav(start_gps_s, duration_s, seed=seed)
+        nav_source = "synthetic constellation (cdgps_cli.model.gps.positioning.synthetic_gps_nav)"
+    n_ep = int(math.floor(duration_s / interval - 1e-9)) + 1
+    t_nom = start_gps_s + np.arange(n_ep) * interval
+    gen = np.random.default_rng(seed + 7919)
+    disp = np.asarray(displacement_enu_m, dtype=np.float64)
+    offsets = np.tile(disp, (n_ep, 1))
+    if random_walk_sigma is not None:
+        steps = gen.normal(0.0, random_walk_sigma * math.sqrt(interval), size=(n_ep, 3))
+        steps[0] = 0.0
+        offsets = offsets + np.cumsum(steps, axis=0)
+    if phase_sigma_m is None:
+        phase_noise = (GnssConfig.sigma_a_m, GnssConfig.sigma_b_m)
+        phase_model = (f"elevation: sigma^2 = a^2 + b^2/sin^2(el) per receiver, a = {phase_noise[0]:g} m, "
+                       f"b = {phase_noise[1]:g} m (the estimator's default weighting)")
+    else:
+        if not (phase_sigma_m >= 0 and math.isfinite(phase_sigma_m)):
+            raise CdgpsError(f"--phase-noise-m must be >= 0, got {phase_sigma_m!r}")
+        phase_noise = float(phase_sigma_m)
+        phase_model = f"white: sigma = {phase_noise:g} m at every elevation"
+    slip_mask_deg = max(float(mask_deg), GnssConfig.mask_deg)
+    say(f"simulating {n_ep} epochs at {rate_hz:g} Hz from {gps_time_str(start_gps_s)} …")
+    sim = simulate_static_pair(nav, np.asarray(master_xyz, float), np.asarray(rover_xyz, float), start_gps_s, duration_s,
+                               interval, seed=seed, mask_rad=math.radians(mask_deg),
+                               phase_sigma_m=phase_noise, code_sigma_m=code_sigma_m,
+                               rover_offset_enu_m=None if random_walk_sigma is None and not disp.any() else offsets,
+                               random_slips=n_slips, slip_mask_rad=math.radians(slip_mask_deg), slip_min_epochs=10)
+    if len(sim["base"]) == 0 or len(sim["rover"]) == 0:
+        raise CdgpsError("no satellite is visible in the simulated span (check the positions and the navigation data)")
+    slips = sim["slips"]
+    slip_note = None
+    if len(slips) < n_slips:
+        slip_note = (f"{n_slips} slips requested, {len(slips)} simulated: slips are placed only on records tracked at "
+                     f"both receivers above {slip_mask_deg:g} deg with >= 10 such epochs before and after, 5-95 % into "
+                     f"the span, >= 10 epochs apart per satellite, and there are not enough of those")
+        say(f"warning: {slip_note}")
+    say(f"writing RINEX: {len(sim['base'])} + {len(sim['rover'])} satellite-epoch records …")
+    y, mo, d, hh, mi, ss = rinex_calendar(start_gps_s)
+    stamp = f"{y:04d}{mo:02d}{d:02d} {hh:02d}{mi:02d}{int(ss):02d} UTC"     # reproducible files
+    with output_set(out, replaces=previous_simulation_files(out, "cdgps gnss simulation")) as dest:
+        files = {}
+        for who, name, df in (("base", master, sim["base"]), ("rover", rover, sim["rover"])):
+            hdr = {"marker_name": name, "observer": "cdgps simulate-gnss", "agency": "simulated",
+                   "receiver_type": "CDGPS SIMULATOR", "receiver_version": __version__, "antenna_type": "SIMULATED",
+                   "approx_position_xyz_m": (master_xyz if who == "base" else rover_xyz), "interval_s": interval,
+                   "comments": [f"simulated by cdgps {__version__}, seed {seed}",
+                                "master: true position" if who == "base" else "rover: NOMINAL position (truth.csv: displacement)"]}
+            f = dest.path(f"{name}.rnx")
+            write_rinex_obs(f, df, hdr, created=stamp)
+            files[name] = f.name
+        write_rinex_nav(dest.path("nav.rnx"), nav, comments=[f"ephemerides used by cdgps simulate-gnss (seed {seed})"],
+                        created=stamp)
+        names = [f"{rover}_{c}" for c in "enu"]
+        truth = pd.DataFrame({"time_s": t_nom, names[0]: offsets[:, 0], names[1]: offsets[:, 1], names[2]: offsets[:, 2]})
+        write_atomic(dest.path("truth.csv"), lambda p: truth.to_csv(p, index=False, lineterminator="\n", float_format="%.6f"))
+        lat, lon, _ = ecef_to_geodetic(np.asarray(rover_xyz, float))
+        amb = sim["ambiguities"]
+        truth_json = {
+            "kind": "cdgps gnss simulation",
+            "cdgps_version": __version__,
+            "seed": seed, "start_gps_s": start_gps_s, "start": gps_time_str(start_gps_s), "duration_s": duration_s,
+            "rate_hz": rate_hz, "epochs": n_ep,
+            "master": master, "rover": rover,
+            "master_ecef_m": list(map(float, master_xyz)),
+            "rover_nominal_ecef_m": list(map(float, rover_xyz)),
+            "displacement_model": "random_walk" if random_walk_sigma is not None else "static",
+            "displacement_enu_m": disp.tolist(),
+            "random_walk_sigma_m_per_sqrt_s": random_walk_sigma,
+            "rover_mean_ecef_m": (np.asarray(rover_xyz, float) + enu_matrix(lat, lon).T @ offsets.mean(axis=0)).tolist(),
+            "coordinates": names,
+            "phase_sigma_m": list(phase_noise) if isinstance(phase_noise, tuple) else phase_noise,
+            "phase_noise_model": phase_model,
+            "code_sigma_m": code_sigma_m, "code_noise_model": "white",
+            "cn0_model": "C/N0 = 35 + 15 sin(el) dB-Hz (no noise); RINEX S1C and the L1C signal-strength digit from it",
+            "mask_deg": mask_deg,
+            "navigation": nav_source,
+            "slips_requested": n_slips,
+            "slip_mask_deg": slip_mask_deg,
+            "cycle_slips": [{"receiver": master if d["receiver"] == "base" else rover, "sat": d["sat"],
+                             "time_gps_s": d["time_gps_s"], "cycles": d["cycles"], "elevation_deg": d["elevation_deg"]}
+                            for d in slips],
+            **({"slips_note": slip_note} if slip_note else {}),
+            "ambiguities": [{"receiver": master if r["receiver"] == "base" else rover, "sat": r["sat"], "kind": r["kind"],
+                             "from_gps_s": float(r["t_from_s"]), "cycles": int(r["n_cycles"])} for _, r in amb.iterrows()],
+            "frac_bias_cycles": {master if k == "base" else rover: v for k, v in sim["frac_bias_cycles"].items()},
+            "files": {"rinex": files, "nav": "nav.rnx", "truth": "truth.csv", "config": "config.toml"},
+        }
+        write_bytes_atomic(dest.path("truth.json"), (json.dumps(truth_json, indent=2) + "\n").encode())
+        cfg = gnss_config_toml(
+            {master: ("rinex", files[master]), rover: ("rinex", files[rover])}, ["nav.rnx"], master,
+            name=f"simulated-{master}-{rover}",
+            description=f"cdgps simulate-gnss: {duration_s:g} s at {rate_hz:g} Hz, seed {seed}",
+            displacement="random_walk" if random_walk_sigma is not None else "static",
+            sigma_m_per_sqrt_s=random_walk_sigma,
+            comments=["GNSS run config written by cdgps simulate-gnss (format: docs/gnss-pipeline.md).",
+                      f"{master}: master at its true position; {rover}: nominal position in its header,",
+                      "true displacement in truth.csv.  Run:",
+                      "  cdgps ingest --config config.toml -o run.mcap && cdgps init run.mcap -o init.json",
+                      "  cdgps estimate run.mcap --init init.json -o states.mcap && cdgps evaluate --truth . --estimate states.mcap"],
+        )
+        write_bytes_atomic(dest.path("config.toml"), cfg.encode())
+    return {
+        "output": str(out), "files": sorted([*files.values(), "nav.rnx", "truth.csv", "truth.json", "config.toml"]),
+        "epochs": n_ep, "records": {master: int(len(sim["base"])), rover: int(len(sim["rover"]))},
+        "satellites": int(pd.concat([sim["base"]["sat"], sim["rover"]["sat"]]).nunique()),
+        "slips": int((amb["kind"] == "slip").sum()), "slips_requested": n_slips, "start": gps_time_str(start_gps_s),
+        "displacement_model": truth_json["displacement_model"], "displacement_enu_m": disp.tolist(),
+    }

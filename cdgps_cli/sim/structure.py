@@ -1,0 +1,510 @@
+"""Simulator of the papers' tests: structure truth, carrier-phase log, gyro log, actuator log.
+
+Scenarios
+---------
+``free``
+    Free vibration that excites every mode: random modal initial conditions (amplitude
+    ``initial_modal_sigma`` per elastic mode, ``initial_rigid_sigma_rad`` on a rigid-body mode)
+    plus a small white modal-acceleration disturbance (``disturbance_scale`` × the config's
+    process-noise sigma).
+``static``
+    Free vibration for ``static_rest_after_s`` seconds (for bias initialization), then the structure
+    is brought smoothly to rest over ``static_settle_s`` seconds and held at the surveyed
+    configuration: every coordinate zero except ``static_angle_coordinate`` =
+    ``static_angle_deg``.  ``truth.json`` gives the segments.
+``pulse``
+    Structure at rest, then the zero-net-momentum thruster pulse of Fig. 9 (thrusters
+    ``pulse_thrusters`` at ``pulse_force_n`` from ``pulse_time_s`` for ``pulse_duration_s``); the
+    thruster commands are written to ``actuators.csv``.
+
+Measurement model: λ·phase_cycles = h(q) + bias + white noise + multipath, bias = line bias
++ λ·integer, where the integer makes the phase reported at lock lie in [0, 1) cycle and is kept
+while lock is held; a cycle slip adds an integer and resets the lock counter; a signal outage
+removes rows and re-acquires with a new integer.  Gyros read G·q̇ + bias + drift (random walk)
++ white noise.  Same seed → byte-identical files.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from scipy.signal import lfilter
+
+from cdgps_cli.core import progress
+from cdgps_cli.config.structure import StructureConfig
+from cdgps_cli.model.dynamics import discrete_model
+from cdgps_cli.io.atomic import output_set, write_atomic
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.config.limits import check_table_size
+from cdgps_cli.model.kinematics import gyro_matrix
+from cdgps_cli.measurement.phase import all_channels, phase_model_q
+
+SCENARIOS = ("free", "static", "pulse", "slew")
+
+
+@dataclass
+class SlipSpec:
+    """A cycle slip on one channel: ``antenna:transmitter:time_s:cycles``."""
+
+    antenna: str
+    transmitter: str
+    time_s: float
+    cycles: int
+
+
+@dataclass
+class OutageSpec:
+    """A loss of one transmitter (all its channels): ``transmitter:start_s:duration_s``."""
+
+    transmitter: str
+    start_s: float
+    duration_s: float
+
+
+@dataclass
+class SimOptions:
+    """Simulation options; ``None`` means "use the config's [simulation] value"."""
+
+    duration_s: float = 60.0
+    seed: int = 0
+    scenario: str = "free"
+    phase_sigma_m: float | None = None
+    multipath_sigma_m: float | None = None
+    slips: list = field(default_factory=list)
+    outages: list = field(default_factory=list)
+    random_slips: int = 0
+    disturbance_scale: float | None = None
+    noise_scale: dict = field(default_factory=dict)   # {antenna or transmitter name: factor on the white noise σ}
+
+
+def parse_noise_scale(text: str) -> tuple[str, float]:
+    """``NAME:FACTOR`` (``--noise-scale a3:5``) → (name, factor): the white phase noise of every channel
+    of antenna or transmitter NAME is multiplied by FACTOR (> 0)."""
+    name, _, val = text.strip().rpartition(":")
+    f = _float_or_nan(val)
+    if not name or not (np.isfinite(f) and f > 0):
+        raise CdgpsError(f"--noise-scale {text!r}: expected NAME:FACTOR with an antenna or transmitter NAME and a "
+                         f"positive FACTOR, e.g. a3:5")
+    return name, f
+
+
+def noise_scale_per_channel(cfg: StructureConfig, scale: dict, ant: np.ndarray, tx: np.ndarray) -> np.ndarray:
+    """(C,) factor on the white noise σ of each channel: the product of its antenna's and its
+    transmitter's factors in ``scale`` (1 where not given)."""
+    f = np.ones(len(ant))
+    for name, v in scale.items():
+        if name in cfg.antenna_names:
+            f[ant == cfg.antenna_names.index(name)] *= v
+        if name in cfg.transmitter_names:
+            f[tx == cfg.transmitter_names.index(name)] *= v
+    return f
+
+
+def parse_slip(text: str) -> SlipSpec:
+    m = re.fullmatch(r"([^:]+):([^:]+):([0-9.eE+-]+):([+-]?\d+)", text.strip())
+    t = _float_or_nan(m.group(3)) if m else float("nan")
+    if not m or int(m.group(4)) == 0 or not (np.isfinite(t) and t >= 0):
+        raise CdgpsError(f"--slip {text!r}: expected ANTENNA:TRANSMITTER:TIME_S:CYCLES with a finite TIME_S >= 0 and "
+                         f"non-zero integer CYCLES, e.g. a3:PL2:30.0:+3")
+    return SlipSpec(m.group(1), m.group(2), t, int(m.group(4)))
+
+
+def _float_or_nan(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        return float("nan")
+
+
+def parse_outage(text: str) -> OutageSpec:
+    m = re.fullmatch(r"([^:]+):([0-9.eE+-]+):([0-9.eE+-]+)", text.strip())
+    start, dur = (_float_or_nan(m.group(2)), _float_or_nan(m.group(3))) if m else (float("nan"),) * 2
+    if not m or not (np.isfinite(start) and start >= 0 and np.isfinite(dur) and dur > 0):
+        raise CdgpsError(f"--outage {text!r}: expected TRANSMITTER:START_S:DURATION_S with a finite START_S >= 0 and a "
+                         f"positive duration, e.g. PL4:40:10")
+    return OutageSpec(m.group(1), start, dur)
+
+
+@dataclass
+class Simulation:
+    """Everything a simulation produced (arrays in memory; :func:`write_simulation` saves them)."""
+
+    cfg: StructureConfig
+    options: SimOptions
+    time_s: np.ndarray            # (N,)
+    q: np.ndarray                 # (N, n_q) truth coordinates
+    x: np.ndarray                 # (N, 2 n_m) truth modal state
+    receiver: pd.DataFrame
+    gyro: pd.DataFrame
+    actuators: pd.DataFrame | None
+    truth: dict
+    tables: dict = field(default_factory=dict)    # further CSV files by name (closed loop: controller.csv)
+
+
+#: the command-line option of each :class:`SimOptions` field (messages name what the user typed)
+SIM_OPTION_NAMES = {"scenario": "--scenario", "duration_s": "--duration", "phase_sigma_m": "--noise-m",
+                    "multipath_sigma_m": "--multipath-m", "disturbance_scale": "--disturbance-scale",
+                    "random_slips": "--random-slips", "slips": "--slip", "outages": "--outage"}
+
+
+def _validate(cfg: StructureConfig, opt: SimOptions, closed_loop: bool = False) -> None:
+    """Refuse options out of range, each problem named by its option (:data:`SIM_OPTION_NAMES`)."""
+    on = SIM_OPTION_NAMES
+    problems = _closed_loop_problems(cfg, opt, closed_loop)
+    if opt.scenario not in SCENARIOS:
+        problems.append(f"{on['scenario']}: expected one of {', '.join(SCENARIOS)}, got {opt.scenario!r}")
+    if not (opt.duration_s > 0 and np.isfinite(opt.duration_s)):
+        problems.append(f"{on['duration_s']} {opt.duration_s:g}: expected a positive number of seconds")
+    if opt.scenario == "pulse" and not cfg.simulation["pulse_thrusters"]:
+        problems.append(f"--scenario pulse: {cfg.path}: [simulation] pulse_thrusters is empty; list the thrusters "
+                        f"to pulse (known: {', '.join(cfg.thruster_names) or 'none: the config has no [[thrusters]]'})")
+    for s in opt.slips:
+        if s.antenna not in cfg.rover_names:
+            problems.append(f"--slip: unknown rover antenna {s.antenna!r} (known: {', '.join(cfg.rover_names)})")
+        if s.transmitter not in cfg.transmitter_names:
+            problems.append(f"--slip: unknown transmitter {s.transmitter!r}")
+        if not (np.isfinite(s.time_s) and s.time_s >= 0):
+            problems.append(f"--slip: TIME_S: expected a finite time >= 0 s, got {s.time_s}")
+    for o in opt.outages:
+        if o.transmitter not in cfg.transmitter_names:
+            problems.append(f"--outage: unknown transmitter {o.transmitter!r} (known: {', '.join(cfg.transmitter_names)})")
+        if not (np.isfinite(o.start_s) and o.start_s >= 0 and np.isfinite(o.duration_s) and o.duration_s > 0):
+            problems.append(f"--outage: expected START_S >= 0 and DURATION_S > 0 (finite), got {o.start_s}, {o.duration_s}")
+    for name in ("phase_sigma_m", "multipath_sigma_m", "disturbance_scale"):
+        v = getattr(opt, name)
+        if v is not None and not (v >= 0 and np.isfinite(v)):
+            problems.append(f"{on[name]} {v:g}: expected a non-negative number")
+    if opt.random_slips < 0:
+        problems.append(f"{on['random_slips']} {opt.random_slips}: expected a non-negative count")
+    for name, v in (opt.noise_scale or {}).items():
+        if name not in cfg.rover_names and name not in cfg.transmitter_names:
+            problems.append(f"--noise-scale: {name!r} is not a rover antenna or a transmitter of the config "
+                            f"(rovers: {', '.join(cfg.rover_names)}; transmitters: {', '.join(cfg.transmitter_names)})")
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (np.isfinite(v) and v > 0):
+            problems.append(f"--noise-scale {name}: expected a positive factor, got {v!r}")
+    if problems:
+        raise CdgpsError("invalid simulation options:\n  - " + "\n  - ".join(problems))
+    check_table_size(opt.duration_s / cfg.sample_period_s + 1, len(cfg.channels), SIM_BYTES_PER_VALUE,
+                     "the simulated phase log", f"--duration {opt.duration_s:g} s")
+
+
+def _closed_loop_problems(cfg: StructureConfig, opt: SimOptions, closed_loop: bool) -> list[str]:
+    if not closed_loop:
+        return ["scenario slew: needs a controller (--controller GAINS.json)"] if opt.scenario == "slew" else []
+    problems = []
+    if opt.scenario not in ("pulse", "slew"):
+        problems.append(f"--controller: runs the pulse or slew scenario, not {opt.scenario!r}")
+    if opt.slips or opt.outages or opt.random_slips:
+        problems.append("--controller: slips and outages are not simulated in the closed loop (its estimator "
+                        "sees every channel with known biases)")
+    if opt.scenario == "slew" and cfg.rigid_index is None:
+        problems.append("scenario slew: the config has no rigid-body coordinate to slew")
+    return problems
+
+
+#: memory per epoch and channel while simulating (phase, lock, noise, geometry arrays and the
+#: receiver-log table), bytes: for the bound of :func:`cdgps_cli.config.limits.check_table_size`
+SIM_BYTES_PER_VALUE = 200
+
+
+def simulate(cfg: StructureConfig, opt: SimOptions, trajectory=None) -> Simulation:
+    """Run a simulation (pure computation, no I/O).
+
+    Parameters
+    ----------
+    cfg : StructureConfig
+    opt : SimOptions
+    trajectory : callable, optional
+        Replaces the open-loop propagation (the closed loop of :mod:`cdgps_cli.control`):
+        ``trajectory(time_s, x0, w, noise_m) -> (x, actuators, extra)`` with the true modal states
+        (N, 2 n_m), the actuator log as fired (or None) and a dict merged into truth.json;
+        ``noise_m`` (N, C) is the carrier-phase error the receiver log will carry.
+
+    Returns
+    -------
+    Simulation
+    """
+    _validate(cfg, opt, closed_loop=trajectory is not None)
+    sim = cfg.simulation
+    rng = np.random.default_rng(opt.seed)
+    model = discrete_model(cfg)
+    T = cfg.sample_period_s
+    n = int(round(opt.duration_s / T)) + 1
+    time_s = np.round(np.arange(n) * T, 9)
+    nm = cfg.n_modes
+    U = np.asarray(cfg.mode_shapes)
+    rigid_mode = np.asarray(cfg.mode_frequency_hz) == 0.0
+    omega = 2 * np.pi * np.asarray(cfg.mode_frequency_hz)
+
+    # ---- inputs: disturbance and thruster commands
+    n_w = model.Bw.shape[1]
+    dscale = sim["disturbance_scale"] if opt.disturbance_scale is None else opt.disturbance_scale
+    w = rng.standard_normal((n, n_w))
+    if cfg.process_noise_covariance is None:
+        w *= dscale * np.asarray(cfg.process_noise_sigma)
+    else:                                   # correlated forcing: w = L z with W = L Lᵀ
+        w = w @ (dscale * cfg.process_noise_factor).T
+    n_u = len(cfg.thruster_names)
+    u = np.zeros((n, n_u))
+    actuators = None
+    x0 = np.zeros(2 * nm)
+    amp = np.where(rigid_mode, 0.0, sim["initial_modal_sigma"])
+    if opt.scenario in ("free", "static"):
+        x0[:nm] = rng.standard_normal(nm) * amp
+        x0[nm:] = rng.standard_normal(nm) * amp * omega
+        if rigid_mode.any() and cfg.rigid_index is not None:
+            # rigid-body angle: q_rigid = U[rigid, j] ξ_j
+            scale = U[cfg.rigid_index, rigid_mode]
+            x0[:nm][rigid_mode] = rng.standard_normal(rigid_mode.sum()) * sim["initial_rigid_sigma_rad"] / scale
+    else:
+        x0[:nm] = rng.standard_normal(nm) * amp * 0.02       # nearly at rest
+        if opt.scenario == "slew":
+            x0[:nm][rigid_mode] = np.radians(sim["slew_from_deg"]) / U[cfg.rigid_index, rigid_mode]
+        names = list(cfg.thruster_names)
+        t0, dur, f = sim["pulse_time_s"], sim["pulse_duration_s"], sim["pulse_force_n"]
+        on = (time_s >= t0 - 1e-9) & (time_s < t0 + dur - 1e-9)
+        rows = []
+        for tname in (sim["pulse_thrusters"] if opt.scenario == "pulse" else []):
+            k = names.index(tname)
+            u[on, k] = f
+            rows.append((t0, tname, f))
+            rows.append((t0 + dur, tname, 0.0))
+        rows.sort(key=lambda r: (r[0], names.index(r[1])))
+        actuators = pd.DataFrame(rows, columns=["time_s", "actuator", "force_n"])
+
+    # ---- propagate the modal state (ZOH on u and w), or run the closed loop
+    extra = {}
+    if trajectory is not None:
+        noise_m = _phase_noise(cfg, opt, copy.deepcopy(rng), n, len(all_channels(cfg)[0]))
+        x, actuators, extra = trajectory(time_s, x0, w, noise_m)
+    else:
+        x = np.empty((n, 2 * nm))
+        x[0] = x0
+        drive = u @ model.B.T + w @ model.Bw.T
+        A_T = model.A.T
+        for k in range(1, n):
+            x[k] = x[k - 1] @ A_T + drive[k - 1]
+    q = x[:, :nm] @ U.T
+    qdot = x[:, nm:] @ U.T
+
+    truth = {"scenario": opt.scenario, "seed": opt.seed, "duration_s": float(time_s[-1]),
+             "sample_period_s": T, "config": cfg.name, "config_sha256": cfg.sha256}
+    segments = [{"kind": "motion", "start_s": 0.0, "end_s": float(time_s[-1])}]
+    if opt.scenario == "static":
+        t_rest, t_settle = sim["static_rest_after_s"], sim["static_settle_s"]
+        target = np.zeros(cfg.n_q)
+        if sim["static_angle_coordinate"]:
+            target[cfg.coord_names.index(sim["static_angle_coordinate"])] = np.radians(sim["static_angle_deg"])
+        s = np.clip((time_s - t_rest) / max(t_settle, 1e-9), 0.0, 1.0)
+        blend = 0.5 - 0.5 * np.cos(np.pi * s)                 # smooth 0 → 1
+        dblend = np.where((s > 0) & (s < 1), 0.5 * np.pi * np.sin(np.pi * s) / max(t_settle, 1e-9), 0.0)
+        q_free = q
+        q = (1 - blend)[:, None] * q_free + blend[:, None] * target
+        qdot = (1 - blend)[:, None] * qdot + dblend[:, None] * (target - q_free)
+        Uinv = np.linalg.pinv(U)
+        x = np.hstack([q @ Uinv.T, qdot @ Uinv.T])
+        end = float(time_s[-1])
+        rest_start = t_rest + t_settle
+        segments = [{"kind": "motion", "start_s": 0.0, "end_s": float(min(t_rest, end))}]
+        if t_rest < end:
+            segments.append({"kind": "settling", "start_s": float(t_rest), "end_s": float(min(rest_start, end))})
+        if rest_start < end:
+            segments.append({"kind": "rest", "start_s": float(rest_start), "end_s": end,
+                             "q": {nme: float(v) for nme, v in zip(cfg.coord_names, target)}})
+    elif opt.scenario == "pulse":
+        segments = [{"kind": "rest", "start_s": 0.0, "end_s": float(sim["pulse_time_s"])},
+                    {"kind": "pulse", "start_s": float(sim["pulse_time_s"]),
+                     "end_s": float(sim["pulse_time_s"] + sim["pulse_duration_s"]),
+                     "thrusters": list(sim["pulse_thrusters"]), "force_n": float(sim["pulse_force_n"])},
+                    {"kind": "free", "start_s": float(sim["pulse_time_s"] + sim["pulse_duration_s"]), "end_s": float(time_s[-1])}]
+    elif opt.scenario == "slew":
+        segments = [{"kind": "rest", "start_s": 0.0, "end_s": float(sim["slew_time_s"]),
+                     "rigid_angle_deg": float(sim["slew_from_deg"])},
+                    {"kind": "slew", "start_s": float(sim["slew_time_s"]), "end_s": float(time_s[-1]),
+                     "command_deg": float(sim["slew_to_deg"])}]
+    truth["segments"] = segments
+    truth.update(extra)
+
+    receiver, bias_records, slip_records = _phase_log(cfg, opt, rng, time_s, q)
+    truth["biases"] = bias_records
+    truth["slips"] = slip_records
+    if opt.noise_scale:
+        ant, tx = all_channels(cfg)
+        s0 = cfg.simulation["phase_sigma_m"] if opt.phase_sigma_m is None else opt.phase_sigma_m
+        f = noise_scale_per_channel(cfg, opt.noise_scale, ant, tx)
+        truth["noise_scale"] = dict(opt.noise_scale)
+        truth["phase_sigma_m_per_channel"] = {f"{cfg.antenna_names[a]}/{cfg.transmitter_names[t]}": float(s0 * v)
+                                              for a, t, v in zip(ant, tx, f)}
+    gyro, gyro_truth = _gyro_log(cfg, rng, time_s, qdot)
+    truth["gyros"] = gyro_truth
+    return Simulation(cfg, opt, time_s, q, x, receiver, gyro, actuators, truth)
+
+
+def _phase_log(cfg, opt, rng, time_s, q):
+    sim = cfg.simulation
+    lam = cfg.wavelength_m
+    T = cfg.sample_period_s
+    n = len(time_s)
+    ant, tx = all_channels(cfg)
+    C = len(ant)
+    h = phase_model_q(cfg, q, ant, tx)                          # (N, C)
+    noise = _phase_noise(cfg, opt, rng, n, C)
+    line_bias = cfg.antenna_line_bias_m[ant] - cfg.antenna_line_bias_m[cfg.master_index]
+    ant_names = np.array(cfg.antenna_names, dtype=object)[ant]
+    tx_names = np.array(cfg.transmitter_names, dtype=object)[tx]
+
+    visible = np.ones((n, C), dtype=bool)
+    for o in opt.outages:
+        j = cfg.transmitter_names.index(o.transmitter)
+        off = (time_s >= o.start_s - 1e-9) & (time_s < o.start_s + o.duration_s - 1e-9)
+        visible[np.ix_(off, tx == j)] = False
+    # cycle slips: explicit plus random ones (random channel, time, ±1..5 cycles)
+    slips = [(s.time_s, cfg.rover_names.index(s.antenna) * len(cfg.transmitter_names)
+              + cfg.transmitter_names.index(s.transmitter), s.cycles) for s in opt.slips]
+    for _ in range(opt.random_slips):
+        c = int(rng.integers(C))
+        k = int(rng.integers(max(n // 10, 1), n))
+        cyc = int(rng.integers(1, 6)) * (1 if rng.random() < 0.5 else -1)
+        slips.append((float(time_s[k]), c, cyc))
+    slip_at = {}
+    for t, c, cyc in slips:
+        k = int(np.searchsorted(time_s, t - 1e-9))
+        if 0 < k < n:
+            slip_at.setdefault(c, []).append((k, cyc))
+
+    phase = np.empty((n, C))
+    lock = np.zeros((n, C), dtype=np.int64)
+    bias_records, slip_records = [], []
+    idx = np.arange(n)
+    for c in range(C):
+        # lock segments: contiguous visible runs; a slip splits a run without losing signal
+        vis = visible[:, c]
+        starts = list(np.flatnonzero(vis & ~np.r_[False, vis[:-1]]))
+        events = sorted([(k, "reacquisition", 0) for k in starts[1:]] + [(k, "slip", cyc) for k, cyc in slip_at.get(c, []) if vis[k]])
+        k0 = starts[0] if starts else 0
+        y0 = h[k0, c] + line_bias[c] + noise[k0, c]
+        integer = -int(np.floor(np.round(y0 / lam, 6)))   # phase at lock, as written, in [0, 1)
+        bias_records.append({"antenna": ant_names[c], "transmitter": tx_names[c],
+                             "bias_m": float(line_bias[c] + lam * integer), "integer_cycles": integer,
+                             "line_bias_m": float(line_bias[c])})
+        integers = np.full(n, integer, dtype=np.int64)
+        lock_start = np.full(n, k0)
+        for k, kind, cyc in events:
+            before = int(integers[k])
+            if kind == "slip":
+                new = before + cyc
+            else:
+                y = h[k, c] + line_bias[c] + noise[k, c]
+                new = -int(np.floor(np.round(y / lam, 6)))
+            integers[k:] = new
+            lock_start[k:] = k
+            slip_records.append({"time_s": float(time_s[k]), "antenna": ant_names[c], "transmitter": tx_names[c],
+                                 "kind": kind, "integer_cycles_before": before, "integer_cycles_after": new,
+                                 "bias_m": float(line_bias[c] + lam * new)})
+        phase[:, c] = (h[:, c] + line_bias[c] + noise[:, c]) / lam + integers
+        lock[:, c] = idx - lock_start
+    slip_records.sort(key=lambda r: (r["time_s"], r["antenna"], r["transmitter"]))
+
+    snr = np.round(sim["snr_dbhz"] + rng.standard_normal((n, C)), 1)
+    rx_of = {a: cfg.antenna_receiver[i] for i, a in enumerate(cfg.antenna_names)}
+    mask = visible.ravel()
+    df = pd.DataFrame({
+        "time_s": np.repeat(time_s, C)[mask],
+        "receiver": np.tile(np.array([rx_of[a] for a in ant_names], dtype=object), n)[mask],
+        "master": cfg.antenna_names[cfg.master_index],
+        "antenna": np.tile(ant_names, n)[mask],
+        "transmitter": np.tile(tx_names, n)[mask],
+        "phase_cycles": np.round(phase.ravel()[mask], 6),
+        "lock": lock.ravel()[mask],
+        "snr_dbhz": snr.ravel()[mask],
+    })
+    return df, bias_records, slip_records
+
+
+def _phase_noise(cfg, opt, rng, n, C):
+    """Carrier-phase error of every channel, m, shape (n, C): white noise plus first-order
+    Gauss–Markov multipath (the config's [simulation] values unless the options override them)."""
+    sim = cfg.simulation
+    sigma = sim["phase_sigma_m"] if opt.phase_sigma_m is None else opt.phase_sigma_m
+    mp_sigma = sim["multipath_sigma_m"] if opt.multipath_sigma_m is None else opt.multipath_sigma_m
+    noise = rng.standard_normal((n, C)) * sigma
+    if opt.noise_scale:
+        ant, tx = all_channels(cfg)
+        noise *= noise_scale_per_channel(cfg, opt.noise_scale, ant, tx)
+    if mp_sigma > 0:
+        a = np.exp(-cfg.sample_period_s / sim["multipath_time_constant_s"])
+        e = rng.standard_normal((n, C)) * mp_sigma * np.sqrt(1 - a * a)
+        e[0] = rng.standard_normal(C) * mp_sigma
+        noise += lfilter([1.0], [1.0, -a], e, axis=0)
+    return noise
+
+
+def _gyro_log(cfg, rng, time_s, qdot):
+    sim = cfg.simulation
+    ng = len(cfg.gyro_names)
+    if ng == 0:
+        return pd.DataFrame({"time_s": [], "gyro": [], "rate_rad_s": []}), []
+    n = len(time_s)
+    G = gyro_matrix(cfg)
+    rate = qdot @ G.T
+    T = cfg.sample_period_s
+    bias0 = rng.standard_normal(ng) * sim["gyro_bias_sigma_rad_s"]
+    drift = np.cumsum(rng.standard_normal((n, ng)) * sim["gyro_bias_drift_rad_s_per_sqrt_s"] * np.sqrt(T), axis=0)
+    drift -= drift[0]
+    bias = bias0 + drift
+    meas = rate + bias + rng.standard_normal((n, ng)) * sim["gyro_noise_rad_s"]
+    df = pd.DataFrame({
+        "time_s": np.repeat(time_s, ng),
+        "gyro": np.tile(np.array(cfg.gyro_names, dtype=object), n),
+        "rate_rad_s": np.round(meas.ravel(), 9),
+    })
+    info = [{"gyro": g, "bias_rad_s": float(bias0[i]), "final_bias_rad_s": float(bias[-1, i])}
+            for i, g in enumerate(cfg.gyro_names)]
+    return df, info
+
+
+_write_atomic = write_atomic
+
+#: every file ``write_simulation`` may write (its output set: replaced as a whole)
+SIMULATION_FILES = ("receiver.csv", "gyro.csv", "truth.csv", "truth.json", "actuators.csv", "controller.csv")
+
+
+def write_simulation(result: Simulation, out_dir: str | Path) -> dict:
+    """Write receiver.csv, gyro.csv, truth.csv, truth.json (and actuators.csv) into ``out_dir``.
+
+    The files replace an earlier simulation there as a set (:func:`cdgps_cli.io.atomic.output_set`):
+    a failed or interrupted write leaves the earlier files untouched, a successful one leaves
+    exactly the new set (a stale ``actuators.csv`` or ``controller.csv`` is removed; other files are kept).
+    ``result.tables`` adds files to the set (the closed loop's controller.csv).  Returns a summary.
+    """
+    out = Path(out_dir)
+    cfg = result.cfg
+    files = {}
+    with output_set(out, replaces=SIMULATION_FILES) as dest:
+        def csv(df, name):
+            _write_atomic(dest.path(name), lambda p: progress.to_csv(df, p, f"writing {name}", index=False,
+                                                                     lineterminator="\n"))
+            files[name] = str(out / name)
+
+        csv(result.receiver, "receiver.csv")
+        csv(result.gyro, "gyro.csv")
+        truth_df = pd.DataFrame(np.round(result.q, 12), columns=list(cfg.coord_names))
+        truth_df.insert(0, "time_s", result.time_s)
+        csv(truth_df, "truth.csv")
+        for name, df in result.tables.items():
+            csv(df, name)
+        if result.actuators is not None:
+            csv(result.actuators, "actuators.csv")
+        text = json.dumps(result.truth, indent=2, sort_keys=False) + "\n"
+        _write_atomic(dest.path("truth.json"), lambda p: p.write_text(text))
+        files["truth.json"] = str(out / "truth.json")
+    return {"out_dir": str(out), "files": files, "epochs": int(len(result.time_s)),
+            "receiver_rows": int(len(result.receiver)), "gyro_rows": int(len(result.gyro)),
+            "slips": len(result.truth["slips"]), "scenario": result.options.scenario,
+            "seed": result.options.seed, "config_sha256": cfg.sha256}

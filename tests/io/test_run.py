@@ -1,0 +1,173 @@
+"""Ingest → RUN.mcap round trip, bad-input handling and the CLI contract (issue 2)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+
+from cdgps_cli.cli.commands import main
+from cdgps_cli.config.structure import load_config
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.io.run import read_run, run_info, write_run
+from cdgps_cli.sim.structure import SimOptions, parse_outage, parse_slip, simulate, write_simulation
+
+ROOT = Path(__file__).resolve().parents[2]
+TESTBED = ROOT / "configs" / "testbed-1998.toml"
+
+
+@pytest.fixture(scope="module")
+def sim_dir(tmp_path_factory):
+    cfg = load_config(TESTBED)
+    d = tmp_path_factory.mktemp("sim")
+    res = simulate(cfg, SimOptions(duration_s=8.0, seed=5, scenario="pulse",
+                                   slips=[parse_slip("a2:PL3:2.0:-2")], outages=[parse_outage("PL6:3:1")]))
+    write_simulation(res, d)
+    return d
+
+
+@pytest.fixture(scope="module")
+def run_file(sim_dir, tmp_path_factory):
+    cfg = load_config(TESTBED)
+    out = tmp_path_factory.mktemp("run") / "run.mcap"
+    write_run(cfg, sim_dir / "receiver.csv", out, sim_dir / "gyro.csv", sim_dir / "actuators.csv")
+    return out
+
+
+def test_round_trip_every_row(sim_dir, run_file):
+    run = read_run(run_file)
+    src = pd.read_csv(sim_dir / "receiver.csv")
+    assert len(run.phase) == len(src)
+    got = run.phase.reset_index(drop=True)
+    for c in ("time_s", "phase_cycles", "lock", "snr_dbhz"):
+        np.testing.assert_array_equal(got[c].to_numpy(), src[c].to_numpy(), err_msg=c)
+    for c in ("receiver", "master", "antenna", "transmitter"):
+        assert list(got[c]) == list(src[c]), c
+    gy = pd.read_csv(sim_dir / "gyro.csv")
+    np.testing.assert_array_equal(run.gyro["rate_rad_s"].to_numpy(), gy["rate_rad_s"].to_numpy())
+    act = pd.read_csv(sim_dir / "actuators.csv")
+    assert list(run.actuators["actuator"]) == list(act["actuator"])
+    assert run.cfg.sha256 == load_config(TESTBED).sha256
+    assert run.metadata["receiver_csv_sha256"]
+
+
+def test_mcap_layout_foxglove_ready(run_file):
+    from mcap.reader import make_reader
+    with open(run_file, "rb") as fh:
+        r = make_reader(fh, validate_crcs=True)
+        summary = r.get_summary()
+        topics = {c.topic for c in summary.channels.values()}
+        assert any("phase" in t for t in topics)
+        for s in summary.schemas.values():
+            assert s.encoding == "jsonschema"
+            json.loads(s.data)
+        for c in summary.channels.values():
+            assert c.message_encoding == "json"
+        assert all(ci.compression == "zstd" for ci in summary.chunk_indexes)
+        _, ch, msg = next(iter(r.iter_messages(topics=["/cdgps/phase"])))
+        body = json.loads(msg.data)
+        assert set(body["timestamp"]) == {"sec", "nsec"}
+        assert msg.log_time == body["timestamp"]["sec"] * 10**9 + body["timestamp"]["nsec"]
+        assert len(body["phase_cycles"]) == len(body["antenna"]) == 36
+
+
+def test_info_reports_slips_and_channels(run_file):
+    info = run_info(run_file)
+    slips = {(s["antenna"], s["transmitter"], s["time_s"]) for s in info["slips"]}
+    assert ("a2", "PL3", 2.0) in slips
+    assert ("a1", "PL6", 4.0) in slips           # reacquisition after the outage
+    assert len(info["channels"]) == 36
+    assert info["gaps"] == []
+
+
+def test_epoch_gap_is_reported_not_error(sim_dir, tmp_path):
+    cfg = load_config(TESTBED)
+    df = pd.read_csv(sim_dir / "receiver.csv")
+    df = df[(df.time_s < 3.0) | (df.time_s >= 4.0)]
+    p = tmp_path / "gap.csv"
+    df.to_csv(p, index=False)
+    s = write_run(cfg, p, tmp_path / "gap.mcap")
+    assert len(s["gaps"]) == 1 and s["gaps"][0]["missing_epochs"] == 10
+
+
+def _corrupt(sim_dir, tmp_path, edit):
+    lines = (sim_dir / "receiver.csv").read_text().splitlines()
+    lines = edit(lines)
+    p = tmp_path / "bad.csv"
+    p.write_text("\n".join(lines) + "\n")
+    return p
+
+
+BAD_CASES = {
+    "missing column": (lambda L: [L[0].replace(",snr_dbhz", "")] + [x.rsplit(",", 1)[0] for x in L[1:]], "line 1", "missing column(s) snr_dbhz"),
+    "unknown column": (lambda L: [L[0] + ",extra"] + [x + ",1" for x in L[1:]], "line 1", "unknown column(s) extra"),
+    "non-numeric": (lambda L: L[:5] + [L[5].replace(L[5].split(",")[5], "abc")] + L[6:], "line 6", "phase_cycles: not a number"),
+    "time backwards": (lambda L: L[:1] + L[40:41] + L[1:40] + L[41:], "line 3", "time goes backwards"),
+    "duplicate": (lambda L: L[:3] + [L[2]] + L[3:], "line 4", "duplicate row"),
+    "nan phase": (lambda L: L[:7] + [L[7].replace(L[7].split(",")[5], "nan")] + L[8:], "line 8", "NaN value"),
+    "unknown antenna": (lambda L: L[:9] + [",".join(L[9].split(",")[:3] + ["zz"] + L[9].split(",")[4:])] + L[10:], "line 10", "antenna not in the config"),
+    "unknown transmitter": (lambda L: L[:2] + [L[2].replace(",PL2,", ",PL9,")] + L[3:], "line 3", "transmitter not in the config"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_CASES))
+def test_bad_input_cli(case, sim_dir, tmp_path):
+    edit, where, what = BAD_CASES[case]
+    bad = _corrupt(sim_dir, tmp_path, edit)
+    out = tmp_path / "out.mcap"
+    r = CliRunner().invoke(main, ["ingest", str(bad), "--config", str(TESTBED), "-o", str(out)])
+    assert r.exit_code == 2, r.output
+    assert "Traceback" not in r.output
+    assert str(bad) in r.output and where in r.output and what in r.output, r.output
+    assert not out.exists()
+    assert list(tmp_path.glob(".out.mcap*")) == []
+
+
+def test_missing_input_file(tmp_path):
+    r = CliRunner().invoke(main, ["ingest", str(tmp_path / "nope.csv"), "--config", str(TESTBED), "-o", str(tmp_path / "o.mcap")])
+    assert r.exit_code == 2 and "cannot read" in r.output
+
+
+def test_truncated_mcap_clear_error(run_file, tmp_path):
+    data = run_file.read_bytes()
+    for cut in (len(data) // 2, len(data) - 20, 10):
+        p = tmp_path / f"trunc{cut}.mcap"
+        p.write_bytes(data[:cut])
+        with pytest.raises(CdgpsError, match="truncated or corrupt|no summary"):
+            read_run(p)
+        r = CliRunner().invoke(main, ["info", str(p)])
+        assert r.exit_code == 2 and "Traceback" not in r.output
+
+
+def test_crc_corruption_detected(run_file, tmp_path):
+    data = bytearray(run_file.read_bytes())
+    mid = len(data) // 3
+    data[mid] ^= 0xFF
+    p = tmp_path / "flip.mcap"
+    p.write_bytes(bytes(data))
+    with pytest.raises(CdgpsError):
+        read_run(p)
+
+
+def test_inputs_never_modified_and_deterministic(sim_dir, tmp_path):
+    cfg = load_config(TESTBED)
+    before = (sim_dir / "receiver.csv").read_bytes()
+    write_run(cfg, sim_dir / "receiver.csv", tmp_path / "a.mcap", sim_dir / "gyro.csv")
+    write_run(cfg, sim_dir / "receiver.csv", tmp_path / "b.mcap", sim_dir / "gyro.csv")
+    assert (sim_dir / "receiver.csv").read_bytes() == before
+    assert (tmp_path / "a.mcap").read_bytes() == (tmp_path / "b.mcap").read_bytes()
+
+
+def test_cli_json_and_quiet(sim_dir, tmp_path):
+    out = tmp_path / "r.mcap"
+    r = CliRunner().invoke(main, ["--quiet", "ingest", str(sim_dir / "receiver.csv"), "--config", str(TESTBED),
+                                  "-o", str(out), "--json"])
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.stdout)
+    assert s["channels"] == 36 and s["phase_rows"] > 0
+    r = CliRunner().invoke(main, ["info", str(out), "--json"])
+    assert json.loads(r.stdout)["topics"][0]["topic"] == "/cdgps/phase"

@@ -1,0 +1,263 @@
+"""The GNSS pipeline: ingest → init → estimate → export on GNSS runs (cdgps_cli.pipeline.gnss).
+
+* GEONET 3040 → 0759 (real data, ../shared/data): integers fixed, the static displacement equal to
+  `cdgps baseline`'s (which agrees with RTKLIB within 0.2 mm, tests/estimation/test_baseline.py), the
+  single-epoch scatter, CSV export;
+* simulated pairs written as RINEX (static and random-walk rovers): the truth is recovered,
+  NEES consistent, slips become events, INIT's integers are the ones used;
+* the random-walk float solution reduces to the static one for a vanishing walk, and fixes a
+  wandering rover that the static float cannot;
+* errors: mismatched INIT, structure-only options, runs without a rover.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+
+from cdgps_cli.estimation.baseline import BaselineOptions, Station, solve_static_baseline
+from cdgps_cli.cli.commands import main
+from cdgps_cli.model.gps.orbits import ecef_to_enu
+from cdgps_cli.model.gps.positioning import simulate_static_pair, synthetic_gps_nav
+from cdgps_cli.pipeline.gnss import KINEMATIC_TOPIC
+from cdgps_cli.io.rinex import gps_seconds
+from cdgps_cli.io.states import States
+
+ROOT = Path(__file__).resolve().parents[2]
+SHARED = ROOT.parent / "shared" / "data" / "rinex"
+GEONET = ROOT / "configs" / "geonet-0759-3040.toml"
+ROVER_XYZ = np.array([-3976219.5082, 3382372.5671, 3652512.9849])
+MASTER_XYZ = np.array([-3978242.4348, 3382841.1715, 3649902.7667])
+RTKLIB_FIX_AND_HOLD = (-3976219.6637, 3382372.5422, 3652513.0576)     # docs/geonet.md, tests/estimation/test_baseline.py
+
+
+def run_cli(*args):
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def pipeline(tmp: Path, config: Path, *estimate_args) -> dict:
+    for args in (("ingest", "--config", config, "-o", tmp / "run.mcap"),
+                 ("init", tmp / "run.mcap", "-o", tmp / "init.json"),
+                 ("estimate", tmp / "run.mcap", "--init", tmp / "init.json", "-o", tmp / "states.mcap", *estimate_args),
+                 ("export", tmp / "states.mcap", "--csv", tmp / "states.csv"),
+                 ("export", tmp / "states.mcap", "--csv", tmp / "kinematic.csv", "--kinematic")):
+        r = run_cli("-q", *args)
+        assert r.exit_code == 0, (args, r.output)
+    return json.loads((tmp / "init.json").read_text())
+
+
+# ----------------------------------------------------------------------------------------------
+# GEONET
+
+
+@pytest.fixture(scope="module")
+def geonet(tmp_path_factory):
+    if not (SHARED / "30400920.05o").exists():
+        pytest.skip(f"shared test data not available: {SHARED}")
+    tmp = tmp_path_factory.mktemp("geonet")
+    init = pipeline(tmp, GEONET)
+    r = run_cli("-q", "baseline", "--config", GEONET, "-o", tmp / "baseline.json")
+    assert r.exit_code == 0, r.output
+    return tmp, init, json.loads((tmp / "baseline.json").read_text())
+
+
+def test_geonet_pipeline_equals_baseline_and_rtklib(geonet):
+    tmp, init, bl = geonet
+    rov = init["rovers"]["0759"]
+    assert init["kind"] == "cdgps gnss init" and init["master"] == "3040" and init["coordinates"] == ["0759_e", "0759_n", "0759_u"]
+    assert rov["solution"] == "fixed" and rov["n_fixed"] == rov["n_estimated"] == 6 and rov["ratio"] > 100
+    # the same numbers as `cdgps baseline` (to the last bit: same data, same code)
+    assert init["states"] == bl["states"]
+    assert [s["integer"] for s in rov["ambiguities"]] == [s["integer"] for s in bl["ambiguities"]["segments"]]
+    # and so within 0.2 mm of RTKLIB's fixed solution (the requirement is 1 cm)
+    rtk = ecef_to_enu(np.array(RTKLIB_FIX_AND_HOLD), ROVER_XYZ)
+    ours = np.array([init["states"][f"0759_{c}"] for c in "enu"])
+    assert np.all(np.abs(ours - rtk) < 0.0003), (ours - rtk)
+    # STATES: the static solution at every epoch, its 1σ, the single-epoch solutions
+    csv = pd.read_csv(tmp / "states.csv")
+    assert list(csv.columns) == ["time_s", "0759_e", "0759_n", "0759_u", "sigma_0759_e", "sigma_0759_n", "sigma_0759_u"]
+    assert len(csv) == 120
+    np.testing.assert_allclose(csv[["0759_e", "0759_n", "0759_u"]].to_numpy(), np.tile(ours, (120, 1)), atol=1e-12)
+    np.testing.assert_allclose(csv.iloc[0, 4:].to_numpy(), [init["sigma"][f"0759_{c}"] for c in "enu"], rtol=1e-9)
+    kin = pd.read_csv(tmp / "kinematic.csv")
+    assert len(kin) == 120 and set(kin["n_sat_0759"]) <= {5, 6, 7}
+    good = kin["pdop_0759"] <= 10
+    rms = np.sqrt(((kin.loc[good, ["0759_e", "0759_n", "0759_u"]].to_numpy() - ours) ** 2).mean(axis=0))
+    assert good.sum() == 114 and np.all(rms < [0.005, 0.006, 0.012]), rms
+    assert np.allclose(rms, [bl["kinematic"]["pdop_le_max"]["rms_about_static_m"][c] for c in "enu"], atol=1e-9)
+
+
+def test_geonet_states_file(geonet):
+    tmp = geonet[0]
+    st = States(tmp / "states.mcap")
+    assert st.cfg.coord_names == ("0759_e", "0759_n", "0759_u") and st.q.shape == (120, 3)
+    assert st.metadata["kind"] == "gnss" and st.metadata["displacement_model"] == "static"
+    kinds = {e["kind"] for e in st.events}
+    assert "reference satellite" in kinds
+    assert st.nis is not None and np.isfinite(st.nis).all()
+    k = States(tmp / "states.mcap", topic=KINEMATIC_TOPIC)
+    assert k.q.shape == (120, 3)
+    r = run_cli("info", tmp / "states.mcap")
+    assert r.exit_code == 0 and "/cdgps/state" in r.stdout and "/cdgps/residuals" in r.stdout
+
+
+# ----------------------------------------------------------------------------------------------
+# simulated pairs
+
+
+@pytest.fixture(scope="module")
+def static_sim(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("static")
+    r = run_cli("-q", "simulate-gnss", "--duration", "900", "--seed", "11", "--slips", "4", "--out", tmp)
+    assert r.exit_code == 0, r.output
+    init = pipeline(tmp, tmp / "config.toml")
+    return tmp, init
+
+
+def test_static_simulation_recovers_the_truth(static_sim):
+    tmp, init = static_sim
+    truth = json.loads((tmp / "truth.json").read_text())
+    rov = init["rovers"]["rover"]
+    assert rov["solution"] == "fixed" and rov["n_fixed"] == rov["n_estimated"]
+    est = np.array([init["states"][f"rover_{c}"] for c in "enu"])
+    assert np.all(np.abs(est - truth["displacement_enu_m"]) < 0.002), est
+    r = run_cli("evaluate", "--truth", tmp, "--estimate", tmp / "states.mcap", "--json")
+    assert r.exit_code == 0, r.output
+    ev = json.loads(r.stdout)
+    assert max(ev["rms_error"].values()) < 0.002 and ev["within_3sigma_fraction"] == 1.0
+    # every simulated slip on a tracked arc became an event
+    st = States(tmp / "states.mcap")
+    slips = [e for e in st.events if e["kind"].startswith("slip")]
+    tracked = [a for a in truth["ambiguities"] if a["kind"] == "slip"]
+    assert len(slips) == len(tracked) and all(e["action"].startswith("new ambiguity, fixed") for e in slips)
+
+
+def test_estimate_uses_the_integers_of_init(static_sim, tmp_path):
+    tmp, init = static_sim
+    bad = json.loads(json.dumps(init))
+    seg = next(s for s in bad["rovers"]["rover"]["ambiguities"] if not s["pivot"])
+    seg["integer"] += 1
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
+    r = run_cli("-q", "estimate", tmp / "run.mcap", "--init", tmp_path / "bad.json", "-o", tmp_path / "s.mcap")
+    assert r.exit_code == 0, r.output
+    q = States(tmp_path / "s.mcap").q[0]
+    good = np.array([init["states"][f"rover_{c}"] for c in "enu"])
+    assert np.linalg.norm(q - good) > 0.002                            # a wrong integer moves the solution
+    # an INIT whose segments do not match, or from another run: clear errors, no output
+    bad["rovers"]["rover"]["ambiguities"] = bad["rovers"]["rover"]["ambiguities"][1:]
+    (tmp_path / "bad2.json").write_text(json.dumps(bad))
+    r = run_cli("estimate", tmp / "run.mcap", "--init", tmp_path / "bad2.json", "-o", tmp_path / "s2.mcap")
+    assert r.exit_code == 2 and "do not match the ambiguity segments" in r.stderr
+    other = dict(init, config_sha256="0" * 64)
+    (tmp_path / "other.json").write_text(json.dumps(other))
+    r = run_cli("estimate", tmp / "run.mcap", "--init", tmp_path / "other.json", "-o", tmp_path / "s3.mcap")
+    assert r.exit_code == 2 and "made from another run" in r.stderr
+    r = run_cli("estimate", tmp / "run.mcap", "--init", tmp_path / "other.json", "--biases", "states", "-o", tmp_path / "s3.mcap")
+    assert r.exit_code == 2 and "--biases: structure-run option" in r.stderr
+    r = run_cli("init", tmp / "run.mcap", "--start", "10", "-o", tmp_path / "i.json")
+    assert r.exit_code == 2 and "--start" in r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.json", "bad2.json", "other.json", "s.mcap"]
+
+
+def test_init_options_float_only_and_ratio(static_sim, tmp_path):
+    tmp, init = static_sim
+    r = run_cli("-q", "init", tmp / "run.mcap", "--float-only", "-o", tmp_path / "f.json")
+    assert r.exit_code == 0, r.output
+    f = json.loads((tmp_path / "f.json").read_text())
+    assert f["rovers"]["rover"]["solution"] == "float" and f["n_fixed"] == 0
+    r = run_cli("-q", "init", tmp / "run.mcap", "--ratio", "1e9", "--no-partial", "-o", tmp_path / "r.json")
+    assert r.exit_code == 0, r.output
+    assert json.loads((tmp_path / "r.json").read_text())["rovers"]["rover"]["solution"] == "float"
+    # INIT.json is reproducible
+    r = run_cli("-q", "init", tmp / "run.mcap", "-o", tmp_path / "again.json")
+    assert (tmp_path / "again.json").read_text() == (tmp / "init.json").read_text()
+
+
+@pytest.fixture(scope="module")
+def rw_sim(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("rw")
+    r = run_cli("-q", "simulate-gnss", "--duration", "1200", "--seed", "5", "--random-walk", "0.002", "--slips", "3",
+                "--out", tmp)
+    assert r.exit_code == 0, r.output
+    init = pipeline(tmp, tmp / "config.toml", "--smooth")
+    r = run_cli("-q", "estimate", tmp / "run.mcap", "--init", tmp / "init.json", "-o", tmp / "filtered.mcap")
+    assert r.exit_code == 0, r.output
+    return tmp, init
+
+
+def test_random_walk_rover_filter_and_smoother(rw_sim):
+    tmp, init = rw_sim
+    rov = init["rovers"]["rover"]
+    assert rov["solution"] == "fixed" and rov["n_fixed"] == rov["n_estimated"] and rov["float"]["motion"] == "random_walk"
+    res = {}
+    for name in ("states", "filtered"):
+        r = run_cli("evaluate", "--truth", tmp, "--estimate", tmp / f"{name}.mcap", "--json", "--converge-s", "30")
+        assert r.exit_code == 0, r.output
+        res[name] = json.loads(r.stdout)
+    sm, fi = res["states"], res["filtered"]
+    assert max(sm["rms_error"].values()) < 0.006 and max(fi["rms_error"].values()) < 0.008
+    assert all(sm["rms_error"][k] < fi["rms_error"][k] for k in sm["rms_error"])       # smoothing helps
+    assert 0.3 < sm["nees"]["mean"] < 4.5 and sm["within_3sigma_fraction"] > 0.97       # honest 1σ
+    st = States(tmp / "states.mcap")
+    assert st.metadata["smoothed"] == "true" and st.metadata["displacement_model"] == "random_walk"
+    assert States(tmp / "states.mcap", topic="/cdgps/state_filtered").q.shape == st.q.shape
+    truth = pd.read_csv(tmp / "truth.csv")
+    assert truth["rover_u"].max() - truth["rover_u"].min() > 0.03                      # it really wanders
+
+
+def test_default_simulation_is_consistent_with_the_default_weighting(tmp_path):
+    """The simulator's default phase noise is the estimator's default weighting (σ² = a² + b²/sin²el,
+    a = b = 3 mm per receiver): NIS per dof ≈ 1 and NEES ≈ its dof (with 2 mm white noise they
+    were ≈ 0.11 and ≈ 0.2 of 3)."""
+    from cdgps_cli.sim.gnss import simulate_gnss_pair
+
+    simulate_gnss_pair(tmp_path, duration_s=1200.0, seed=7, n_slips=3, random_walk_sigma=0.0005)
+    pipeline(tmp_path, tmp_path / "config.toml", "--smooth")
+    r = run_cli("evaluate", "--truth", tmp_path, "--estimate", tmp_path / "states.mcap", "--json")
+    assert r.exit_code == 0, r.output
+    ev = json.loads(r.stdout)
+    assert 0.9 < ev["nis"]["mean_per_dof"] < 1.1 and ev["nis"]["fraction_in_interval95"] > 0.9
+    assert 1.5 < ev["nees"]["mean"] < 4.5 and ev["within_3sigma_fraction"] > 0.95
+
+
+def test_random_walk_float_reduces_to_static_and_fixes_a_wandering_rover():
+    t0 = gps_seconds(2024, 1, 1)
+    nav = synthetic_gps_nav(t0, 3600.0)
+    n = 1800
+    gen = np.random.default_rng(1)
+    off = np.cumsum(gen.normal(0, 0.002, size=(n, 3)), axis=0)        # wanders ~8 cm in 30 min
+    off[0] = 0
+    out = {}
+    for label, offs in (("static", None), ("moving", off)):
+        sim = simulate_static_pair(nav, MASTER_XYZ, ROVER_XYZ, t0, float(n), 1.0, seed=2, rover_offset_enu_m=offs,
+                                   slips=[("rover", "G05", t0 + 900, 3)])
+        for motion, sig in (("static", (1e-3,) * 3), ("random_walk", (1e-9,) * 3), ("random_walk", (2e-3,) * 3)):
+            r = solve_static_baseline(Station("B", sim["base_header"], sim["base"]), Station("R", sim["rover_header"], sim["rover"]),
+                                      nav, BaselineOptions(motion=motion, random_walk_sigma=sig, kinematic_series=False))
+            out[(label, motion, sig[0])] = r["ambiguities"]
+    a, b = out[("static", "static", 1e-3)], out[("static", "random_walk", 1e-9)]
+    fa = [s["float_cycles"] for s in a["segments"] if not s["pivot"]]
+    fb = [s["float_cycles"] for s in b["segments"] if not s["pivot"]]
+    np.testing.assert_allclose(fb, fa, atol=1e-4)                       # a vanishing walk = the static float
+    def ints(amb):
+        return [s["integer"] for s in amb["segments"]]
+
+    # the wandering rover (same seed: same integers as the static one): the static float model gets
+    # some wrong or leaves some unfixed; the random-walk float fixes all, correctly
+    ms, mr = out[("moving", "static", 1e-3)], out[("moving", "random_walk", 2e-3)]
+    assert ints(ms) != ints(a)
+    assert mr["n_fixed"] == mr["n_estimated"] and mr["ratio"] > 10 and ints(mr) == ints(a)
+
+
+def test_single_receiver_run_is_refused_by_init(tmp_path):
+    d = tmp_path / "s"
+    assert run_cli("-q", "simulate-gnss", "--duration", "60", "--out", d).exit_code == 0
+    r = run_cli("-q", "ingest", "--rinex", f"b={d / 'base.rnx'}", "--nav", d / "nav.rnx", "-o", tmp_path / "one.mcap")
+    assert r.exit_code == 0, r.output
+    r = run_cli("init", tmp_path / "one.mcap", "-o", tmp_path / "i.json")
+    assert r.exit_code == 2 and "only the master receiver 'b'" in r.stderr and not (tmp_path / "i.json").exists()
