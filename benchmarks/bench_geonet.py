@@ -35,7 +35,8 @@ sys.path.insert(0, str(ROOT))
 from cdgps_cli.estimation.baseline import BaselineOptions, Station, baseline_from_files, solve_static_baseline  # noqa: E402
 from cdgps_cli.model.gps.orbits import ecef_to_enu, ecef_to_geodetic, enu_matrix  # noqa: E402
 from cdgps_cli.model.gps.positioning import simulate_static_pair  # noqa: E402
-from cdgps_cli.io.rinex import gps_seconds, read_rinex_nav  # noqa: E402
+from cdgps_cli.core.gps_time import gps_seconds  # noqa: E402
+from cdgps_cli.io.rinex import read_rinex_nav
 
 SHARED = ROOT.parent / "shared" / "data" / "rinex"
 NAV_TESTS = ROOT / "tests" / "data" / "07590920.05n"

@@ -40,7 +40,7 @@ from cdgps_cli.config.structure import load_config  # noqa: E402
 from cdgps_cli.estimation.filter import EstimateOptions, estimate  # noqa: E402
 from cdgps_cli.estimation.initializer import InitOptions, initialize  # noqa: E402
 from cdgps_cli.model.points import point_displacements, select_points  # noqa: E402
-from cdgps_cli.io.run import memory_run  # noqa: E402
+from cdgps_cli.core.records import memory_run  # noqa: E402
 from cdgps_cli.sim.structure import SimOptions, simulate  # noqa: E402
 from cdgps_cli.analysis.spectra import SpectraOptions, compute_spectra  # noqa: E402
 

@@ -33,9 +33,9 @@ sys.path.insert(0, str(ROOT))
 from cdgps_cli.config.structure import load_config  # noqa: E402
 from cdgps_cli.estimation.filter import EstimateOptions, estimate  # noqa: E402
 from cdgps_cli.estimation.initializer import InitOptions, initialize  # noqa: E402
-from cdgps_cli.analysis.rest import (REST_ENTER_PROBABILITY, detection_sigma_m, velocity_nis_series,  # noqa: E402
+from cdgps_cli.estimation.rest import (REST_ENTER_PROBABILITY, detection_sigma_m, velocity_nis_series,  # noqa: E402
                                    window_sums)
-from cdgps_cli.io.run import memory_run  # noqa: E402
+from cdgps_cli.core.records import memory_run  # noqa: E402
 from cdgps_cli.sim.structure import SimOptions, simulate  # noqa: E402
 
 TB = load_config(ROOT / "configs" / "testbed-1998.toml")

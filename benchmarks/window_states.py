@@ -39,7 +39,7 @@ sys.path.insert(0, str(ROOT))
 from cdgps_cli.config.structure import load_config  # noqa: E402
 from cdgps_cli.estimation.filter import EstimateOptions, estimate  # noqa: E402
 from cdgps_cli.estimation.initializer import InitOptions, initialize  # noqa: E402
-from cdgps_cli.io.run import memory_run  # noqa: E402
+from cdgps_cli.core.records import memory_run  # noqa: E402
 from cdgps_cli.sim.structure import SimOptions, simulate  # noqa: E402
 from cdgps_cli.io.states import coordinate_sigma  # noqa: E402
 

@@ -501,7 +501,7 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
     rest_segments = () if rest_auto else tuple(_parse_rest(r) for r in rest)
     validate_rest_segments(rest_segments, rest_process_noise_scale, rest_retry_s)
     if rest_auto:
-        from cdgps_cli.analysis.rest import validate_detector
+        from cdgps_cli.estimation.rest import validate_detector
 
         validate_detector(rest_window_s, rest_dwell_s, 1.0)
     run = read_run(run_mcap)
@@ -1099,7 +1099,7 @@ def _estimate_gnss_modal(ctx, run, init, init_text, output, as_json, smooth, str
 
 
 def _gps_time(t: float) -> str:
-    from cdgps_cli.io.rinex import gps_time_str
+    from cdgps_cli.core.gps_time import gps_time_str
 
     return gps_time_str(t)
 

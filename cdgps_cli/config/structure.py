@@ -963,7 +963,7 @@ class GnssConfig:
     """A validated GNSS run config (``[gnss]`` table; docs/gnss-pipeline.md).
 
     The processing settings mirror :class:`~cdgps_cli.estimation.baseline.BaselineOptions` (see
-    :meth:`baseline_options`); the displacement model says how the rover states evolve:
+    :meth:`cdgps_cli.estimation.baseline.BaselineOptions.from_gnss_config`); the displacement model says how the rover states evolve:
     ``static`` (one E/N/U displacement per rover for the whole run) or ``random_walk`` (E/N/U
     displacements that wander with white-noise rates of ``random_walk_sigma`` m/√s).
     """
@@ -997,18 +997,6 @@ class GnssConfig:
     @property
     def antenna_names(self) -> tuple:
         return tuple(a.name for a in self.antennas)
-
-    def baseline_options(self, **overrides):
-        """The solver settings as :class:`~cdgps_cli.estimation.baseline.BaselineOptions`."""
-        from cdgps_cli.estimation.baseline import BaselineOptions  # noqa: PLC0415 (baseline imports the GNSS stack)
-
-        kw = dict(mask_deg=self.mask_deg, ratio_threshold=self.ratio, partial=self.partial, fix=self.fix,
-                  weighting=self.weighting, sigma_a_m=self.sigma_a_m, sigma_b_m=self.sigma_b_m,
-                  code_ratio=self.code_ratio, troposphere=self.troposphere, max_gap_s=self.max_gap_s,
-                  sync_tol_s=self.sync_tol_s, motion=self.displacement, random_walk_sigma=tuple(self.random_walk_sigma),
-                  initial_sigma_m=self.initial_sigma_m)
-        kw.update(overrides)
-        return BaselineOptions(**kw)
 
     def summary(self) -> dict:
         return {

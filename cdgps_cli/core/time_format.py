@@ -62,7 +62,7 @@ def format_time(t: float | None, scale: str) -> str:
     if t is None or not math.isfinite(t):
         return "-"
     if scale == "gps":
-        from cdgps_cli.io.rinex import gps_time_str
+        from cdgps_cli.core.gps_time import gps_time_str
 
         return gps_time_str(t)
     if scale == "utc":

@@ -64,7 +64,8 @@ from cdgps_cli.model.gps.positioning import (
     reception_geometry,
     spp_static,
 )
-from cdgps_cli.io.rinex import gps_time_str, read_rinex_nav, read_rinex_obs
+from cdgps_cli.core.gps_time import gps_time_str
+from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
 
 __all__ = [
     "BaselineOptions",
@@ -146,6 +147,18 @@ class BaselineOptions:
     motion: str = "static"
     random_walk_sigma: tuple = GNSS_DEFAULTS["random_walk_sigma"]
     initial_sigma_m: float = GNSS_DEFAULTS["initial_sigma_m"]
+
+    @classmethod
+    def from_gnss_config(cls, cfg, **overrides) -> "BaselineOptions":
+        """The solver settings of a GNSS run config (:class:`~cdgps_cli.config.structure.GnssConfig`),
+        with ``overrides`` (field name → value) on top."""
+        kw = dict(mask_deg=cfg.mask_deg, ratio_threshold=cfg.ratio, partial=cfg.partial, fix=cfg.fix,
+                  weighting=cfg.weighting, sigma_a_m=cfg.sigma_a_m, sigma_b_m=cfg.sigma_b_m,
+                  code_ratio=cfg.code_ratio, troposphere=cfg.troposphere, max_gap_s=cfg.max_gap_s,
+                  sync_tol_s=cfg.sync_tol_s, motion=cfg.displacement, random_walk_sigma=tuple(cfg.random_walk_sigma),
+                  initial_sigma_m=cfg.initial_sigma_m)
+        kw.update(overrides)
+        return cls(**kw)
 
     def validate(self) -> None:
         """Raise :class:`CdgpsError` listing every invalid setting."""
@@ -1070,7 +1083,7 @@ def _job_from_gnss_config(p: Path, text: str) -> dict:
         problems.append("gnss.nav: at least one navigation file is needed")
     if problems:
         raise CdgpsError(join_problems(f"{p}: not usable as a baseline job", problems))
-    opt = cfg.baseline_options(motion="static")        # 'cdgps baseline' is the static solution
+    opt = BaselineOptions.from_gnss_config(cfg, motion="static")        # 'cdgps baseline' is the static solution
     try:
         opt.validate()
     except CdgpsError as exc:

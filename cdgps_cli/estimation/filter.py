@@ -52,7 +52,7 @@ from cdgps_cli.core.checks import has_bool, is_json_number, require_finite
 from cdgps_cli.measurement.phase import EpochPhaseModel, channel_indices, phase_model
 from cdgps_cli.measurement import multipath
 from cdgps_cli.measurement.noise import filter_sigma_estimate, init_channel_sigma_m
-from cdgps_cli.io.run import Run
+from cdgps_cli.core.records import Run
 from cdgps_cli.estimation.window_smoother import batch_window, extend_smoothing, window_states
 
 
@@ -79,7 +79,7 @@ class EstimateOptions:
     rest_segments_s: tuple = ()        # ((start_s, end_s), …): the structure is declared at rest (static mode)
     rest_process_noise_scale: float = 0.005 # … and there the process-noise sigma is further multiplied by this
     rest_retry_s: float = 1.0          # after the data contradict a rest segment, try rest again this much later (0: never)
-    rest_auto: bool = False            # rest segments found from the data (zero-velocity test, :mod:`cdgps_cli.analysis.rest`)
+    rest_auto: bool = False            # rest segments found from the data (zero-velocity test, :mod:`cdgps_cli.estimation.rest`)
     rest_window_s: float = 3.0         # … its sliding window
     rest_dwell_s: float = 2.0          # … and how long it must pass before rest is entered
     progress: object = None
@@ -236,7 +236,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     for name in ("outlier_sigma", "nis_probability"):     # process_noise_scale, sigma_m: checked below
         require_finite(getattr(opt, name), f"EstimateOptions.{name}", positive=True)
     if opt.rest_auto:
-        from cdgps_cli.analysis.rest import estimate_auto_rest
+        from cdgps_cli.estimation.rest import estimate_auto_rest
 
         return estimate_auto_rest(run, init, opt)
     if opt.sigma_m is not None and not (np.isfinite(opt.sigma_m) and opt.sigma_m > 0):

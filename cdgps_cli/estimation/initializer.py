@@ -39,7 +39,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.phase import channel_indices, phase_model
 from cdgps_cli.measurement.multipath import MultipathModel, augment, model_from
 from cdgps_cli.measurement.noise import leverage_per_channel, prior_sigma_m, variance_factors
-from cdgps_cli.io.run import Run
+from cdgps_cli.core.records import Run
 
 
 @dataclass

@@ -41,7 +41,7 @@ from cdgps_cli.model.dynamics import discrete_model
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.phase import EpochPhaseModel, phase_model
 from cdgps_cli.measurement import multipath
-from cdgps_cli.io.run import Run
+from cdgps_cli.core.records import Run
 from cdgps_cli.measurement.noise import init_channel_sigma_m
 
 _CHUNK = 1024                       # epochs per vectorized call of the measurement model

@@ -43,7 +43,9 @@ from cdgps_cli.config.structure import GnssConfig, gnss_config_toml, parse_gnss_
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.model.gps.positioning import ephemeris_coverage, match_epochs, nominal_interval_s
 from cdgps_cli.io.mcap import CONFIG_ATTACHMENT, McapOut, array_schema, message_schema, read_mcap
-from cdgps_cli.io.rinex import NAV_COLUMNS, OBS_COLUMNS, gps_time_str, read_rinex_nav, read_rinex_obs
+from cdgps_cli.core.gps_time import gps_time_str
+from cdgps_cli.core.records import NAV_COLUMNS, OBS_COLUMNS
+from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
 from cdgps_cli.io.ubx import INTEGRITY_COUNTS, integrity_problems, integrity_record
 
 __all__ = [

@@ -22,7 +22,6 @@ resolves 0.24 µs, so epochs are exact to well below a millisecond).
 
 from __future__ import annotations
 
-import datetime as _dt
 import math
 import zlib
 from pathlib import Path
@@ -31,6 +30,8 @@ import numpy as np
 import pandas as pd
 
 from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.core.gps_time import GPS_EPOCH, SECONDS_PER_WEEK, gps_seconds, gps_time_str  # noqa: F401  (__all__)
+from cdgps_cli.core.records import NAV_COLUMNS, OBS_COLUMNS  # noqa: F401  (__all__)
 
 __all__ = [
     "GPS_EPOCH",
@@ -43,66 +44,9 @@ __all__ = [
     "read_rinex_nav",
 ]
 
-GPS_EPOCH = _dt.datetime(1980, 1, 6)
-SECONDS_PER_WEEK = 604800
-_GPS_EPOCH_ORDINAL = GPS_EPOCH.toordinal()
-
-OBS_COLUMNS = (
-    "time_gps_s",
-    "sat",
-    "phase_l1_cycles",
-    "lli_l1",
-    "ssi_l1",
-    "pseudorange_l1_m",
-    "snr_l1_dbhz",
-    "rx_clock_offset_s",
-    "epoch_flag",
-)
-"""Columns of the table returned by :func:`read_rinex_obs`."""
-
 # GPS L1 tracking modes in order of preference (RINEX 3 attribute letters): C/A first, since the
 # project's receivers track C/A; then the semi-codeless P(Y) variants and the L1C signal.
 _L1_ATTRIBUTES = "CWPYXSLMN"
-
-
-# ----------------------------------------------------------------------------------------------
-# time helpers
-# ----------------------------------------------------------------------------------------------
-
-
-def gps_seconds(year: int, month: int, day: int, hour: int = 0, minute: int = 0, second: float = 0.0) -> float:
-    """GPS seconds since 1980-01-06 00:00:00 for a calendar date and time (in GPS time).
-
-    Parameters
-    ----------
-    year, month, day, hour, minute : int
-        Calendar date and time of day (GPS time scale, no leap seconds).
-    second : float
-        Seconds of the minute, s.
-
-    Returns
-    -------
-    float
-        GPS seconds, s.  The whole-second part is computed in integers, so the result is as exact
-        as a float64 allows (0.24 µs around 2020).
-    """
-    days = _dt.date(int(year), int(month), int(day)).toordinal() - _GPS_EPOCH_ORDINAL
-    return float(days * 86400 + int(hour) * 3600 + int(minute) * 60) + float(second)
-
-
-def gps_time_str(t_gps_s: float) -> str:
-    """Format GPS seconds as ``YYYY-MM-DD hh:mm:ss.sss GPST`` (for messages)."""
-    if not np.isfinite(t_gps_s):
-        return "NaN"
-    whole = math.floor(t_gps_s)
-    frac = t_gps_s - whole
-    d = GPS_EPOCH + _dt.timedelta(seconds=int(whole))
-    ms = int(round(frac * 1000))
-    if ms == 1000:
-        d += _dt.timedelta(seconds=1)
-        ms = 0
-    s = d.strftime("%Y-%m-%d %H:%M:%S")
-    return f"{s}.{ms:03d} GPST" if ms else f"{s} GPST"
 
 
 # ----------------------------------------------------------------------------------------------
@@ -863,50 +807,6 @@ def _records_v3_bulk(lines, hdr: _ObsHeader, group, rows, summary) -> None:
 # navigation files
 # ----------------------------------------------------------------------------------------------
 
-NAV_COLUMNS = (
-    "sat",
-    "toc_gps_s",
-    "af0_s",
-    "af1_s_per_s",
-    "af2_s_per_s2",
-    "iode",
-    "crs_m",
-    "delta_n_rad_per_s",
-    "m0_rad",
-    "cuc_rad",
-    "e",
-    "cus_rad",
-    "sqrt_a_sqrt_m",
-    "toe_sow_s",
-    "cic_rad",
-    "omega0_rad",
-    "cis_rad",
-    "i0_rad",
-    "crc_m",
-    "omega_rad",
-    "omega_dot_rad_per_s",
-    "idot_rad_per_s",
-    "codes_l2",
-    "week",
-    "l2p_data_flag",
-    "sv_accuracy_m",
-    "sv_health",
-    "tgd_s",
-    "iodc",
-    "transmit_sow_s",
-    "fit_interval_h",
-    "toe_gps_s",
-    "transmit_gps_s",
-    "line",
-)
-"""Columns of the table returned by :func:`read_rinex_nav`.
-
-The 29 broadcast-orbit values in RINEX order (clock: ``af0_s``, ``af1_s_per_s``,
-``af2_s_per_s2``; orbit: ``iode`` … ``idot_rad_per_s``; ``codes_l2``, ``week`` (GPS week of toe,
-continuous), ``l2p_data_flag``, ``sv_accuracy_m``, ``sv_health`` (0 = healthy), ``tgd_s``,
-``iodc``, ``transmit_sow_s`` (seconds of week of the message), ``fit_interval_h``); derived
-``toc_gps_s`` (clock reference time), ``toe_gps_s`` (= week·604800 + toe_sow_s) and
-``transmit_gps_s`` in GPS seconds; ``line`` is the first line of the record in the file."""
 
 _NAV_VALUES = NAV_COLUMNS[2:31]  # the 29 values after toc, in file order
 # clock and orbit terms, week, health and TGD must be present; codes on L2, L2 P flag, IODC,

@@ -28,7 +28,8 @@ import pandas as pd
 from cdgps_cli import __version__
 from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.io.rinex import GPS_EPOCH, NAV_COLUMNS
+from cdgps_cli.core.gps_time import GPS_EPOCH
+from cdgps_cli.core.records import NAV_COLUMNS
 
 __all__ = ["write_rinex_obs", "write_rinex_nav", "rinex_calendar"]
 

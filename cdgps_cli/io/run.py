@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import io
 import json
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +17,7 @@ from cdgps_cli import __version__
 from cdgps_cli.io.atomic import file_sha256
 from cdgps_cli.config.structure import StructureConfig, parse_config
 from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.core.records import Run, memory_run  # noqa: F401  (read_run returns a Run)
 from cdgps_cli.core.time_format import format_time, median_spacing_s, time_scale
 from cdgps_cli.io.logs import read_actuator_log, read_gyro_log, read_receiver_log
 from cdgps_cli.io.mcap import (ACTUATOR_SCHEMA, ACTUATOR_TOPIC, CONFIG_ATTACHMENT, GYRO_SCHEMA, GYRO_TOPIC,
@@ -45,38 +45,7 @@ def _gyro_from_attachments(att: dict) -> pd.DataFrame | None:
 INGEST_METADATA = "cdgps.ingest"
 
 
-@dataclass
-class Run:
-    """An ingested recording.
-
-    Attributes
-    ----------
-    cfg : StructureConfig
-        The structure config embedded in the file.
-    phase : DataFrame
-        Long table time_s, master, receiver, antenna, transmitter, phase_cycles, lock, snr_dbhz.
-    gyro, actuators : DataFrame
-        Long tables (possibly empty).
-    metadata : dict
-    """
-
-    path: str
-    cfg: StructureConfig
-    phase: pd.DataFrame
-    gyro: pd.DataFrame
-    actuators: pd.DataFrame
-    metadata: dict
-
-
-
-def memory_run(cfg: StructureConfig, phase: pd.DataFrame, gyro: pd.DataFrame | None = None,
-               actuators: pd.DataFrame | None = None, name: str = "<memory>") -> Run:
-    """A :class:`Run` from tables already in memory (e.g. ``simulate(...).receiver``), without files:
-    what :func:`read_run` returns for the same data.  Missing gyro/actuator tables are empty."""
-    if actuators is None:
-        actuators = pd.DataFrame({"time_s": pd.Series([], dtype=float), "actuator": pd.Series([], dtype=object),
-                                  "force_n": pd.Series([], dtype=float)})
-    return Run(name, cfg, phase.reset_index(drop=True), pd.DataFrame() if gyro is None else gyro, actuators, {})
+INGEST_METADATA = "cdgps.ingest"
 
 
 def epoch_gaps(time_s: np.ndarray, period_s: float) -> list[dict]:

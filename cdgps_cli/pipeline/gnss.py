@@ -49,7 +49,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.model.gps.positioning import L1_WAVELENGTH_M
 from cdgps_cli.io.gnss_run import GnssRun, processing_obs
 from cdgps_cli.io.mcap import NULLABLE, CONFIG_ATTACHMENT, McapOut, array_schema, read_mcap
-from cdgps_cli.io.rinex import gps_time_str
+from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.io.states import (ESTIMATE_METADATA, EVENT_TOPIC, event_schema, INIT_ATTACHMENT, RESIDUAL_SCHEMA, RESIDUAL_TOPIC,
                      STATE_FILTERED_TOPIC, STATE_TOPIC)
 
@@ -111,7 +111,7 @@ def gnss_init(run: GnssRun, *, options: dict | None = None, progress=None) -> di
     say = progress or (lambda m: None)
     stations = _stations(run)
     _check_master_position(run)
-    opt = run.cfg.baseline_options(kinematic_series=False, **(options or {}))
+    opt = BaselineOptions.from_gnss_config(run.cfg, kinematic_series=False, **(options or {}))
     opt.validate()
     rovers = {}
     for r in run.rovers:

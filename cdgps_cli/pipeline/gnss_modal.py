@@ -62,7 +62,7 @@ from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.model.gps.positioning import L1_WAVELENGTH_M
 from cdgps_cli.model.kinematics import EpochGeometry, antenna_positions
-from cdgps_cli.io.rinex import gps_time_str
+from cdgps_cli.core.gps_time import gps_time_str
 
 __all__ = ["StructurePlacement", "structure_to_ecef", "nominal_receiver_positions", "gnss_modal_estimate",
            "simulate_structure_gnss", "joint_dd_covariance"]
@@ -464,7 +464,7 @@ def simulate_structure_gnss(out_dir, cfg: StructureConfig, *, master_ecef_m=(-39
     from cdgps_cli.io.atomic import output_set, write_atomic, write_bytes_atomic  # noqa: PLC0415
     from cdgps_cli.sim.gnss import previous_simulation_files  # noqa: PLC0415
     from cdgps_cli.model.gps.positioning import simulate_static_pair, synthetic_gps_nav  # noqa: PLC0415
-    from cdgps_cli.io.rinex import gps_seconds  # noqa: PLC0415
+    from cdgps_cli.core.gps_time import gps_seconds  # noqa: PLC0415
     from cdgps_cli.io.rinex_write import rinex_calendar, write_rinex_nav, write_rinex_obs  # noqa: PLC0415
     from cdgps_cli.sim.structure import SimOptions, simulate  # noqa: PLC0415
 

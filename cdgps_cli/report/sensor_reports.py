@@ -495,7 +495,7 @@ def static_report(states, run, angle: str, survey_deg: float | None, out_dir: st
             "estimated_sigma_deg": None if sig is None else float(np.mean(sig)),
             "gyro": None, "gyro_drift_deg_per_min": None, "gyro_noise_rms_deg": None,
             "config": cfg.name, "states": str(states.path)}
-    from cdgps_cli.analysis.rest import static_mode_coverage
+    from cdgps_cli.estimation.rest import static_mode_coverage
 
     data["static_mode"] = static_mode_coverage(getattr(states, "metadata", {}) or {}, t)
     g_angle = None

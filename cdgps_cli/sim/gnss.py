@@ -37,7 +37,8 @@ from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.model.gps.positioning import simulate_static_pair, synthetic_gps_nav
 from cdgps_cli.config.limits import check_table_size
-from cdgps_cli.io.rinex import gps_seconds, gps_time_str, read_rinex_nav
+from cdgps_cli.core.gps_time import gps_seconds, gps_time_str
+from cdgps_cli.io.rinex import read_rinex_nav
 from cdgps_cli.io.rinex_write import rinex_calendar, write_rinex_nav, write_rinex_obs
 
 __all__ = ["DEFAULT_MASTER_XYZ", "DEFAULT_ROVER_XYZ", "simulate_gnss_pair", "parse_start", "parse_vector"]

@@ -33,7 +33,8 @@ from cdgps_cli.model.gps.positioning import (
     simulate_static_pair,
     tropo_zenith_hydrostatic_m,
 )
-from cdgps_cli.io.rinex import gps_seconds, read_rinex_nav
+from cdgps_cli.core.gps_time import gps_seconds
+from cdgps_cli.io.rinex import read_rinex_nav
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "tests" / "data"

@@ -20,7 +20,7 @@ from scipy.linalg import expm
 from cdgps_cli.estimation import batch_solver as batch
 from cdgps_cli.estimation.batch_solver import LinearProblem, dense_solve, srif_solve
 from cdgps_cli.estimation.initializer import _Problem, window_data
-from cdgps_cli.io.run import Run
+from cdgps_cli.core.records import Run
 from cdgps_cli.sim.structure import SimOptions, parse_slip, simulate
 
 RTOL = 1e-8

@@ -21,7 +21,7 @@ from cdgps_cli.estimation.filter import EstimateOptions, estimate
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.estimation.initializer import InitOptions, initialize
 from cdgps_cli.measurement.phase import EpochPhaseModel, channel_indices
-from cdgps_cli.io.run import memory_run
+from cdgps_cli.core.records import memory_run
 from cdgps_cli.sim.structure import SimOptions, parse_noise_scale, simulate
 
 from _shared import kernel

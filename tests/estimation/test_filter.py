@@ -34,7 +34,8 @@ from cdgps_cli.estimation.filter import EstimateOptions, estimate, lock_events
 from cdgps_cli.estimation.initializer import InitOptions, initialize
 from cdgps_cli.model.kinematics import EpochGeometry, antenna_positions
 from cdgps_cli.measurement.phase import EpochPhaseModel, all_channels, phase_model
-from cdgps_cli.io.run import memory_run, read_run, write_run
+from cdgps_cli.core.records import memory_run
+from cdgps_cli.io.run import read_run, write_run
 from cdgps_cli.sim.structure import SimOptions, parse_outage, parse_slip, simulate, write_simulation
 from cdgps_cli.io.states import write_states, evaluate
 

@@ -29,7 +29,7 @@ from cdgps_cli.estimation.filter import (REST_ENTRY_POSITION_INFLATION, Estimate
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.estimation.initializer import InitOptions, initialize
 from cdgps_cli.measurement.phase import all_channels, phase_model
-from cdgps_cli.io.run import memory_run
+from cdgps_cli.core.records import memory_run
 from cdgps_cli.sim.structure import SimOptions, simulate
 
 from _linear_case import LINEAR_CONFIG, LIN_SIGMA, _rel, textbook_rts

@@ -22,7 +22,8 @@ from cdgps_cli.config.structure import parse_config
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.estimation import initializer as init_mod
 from cdgps_cli.estimation.initializer import InitOptions, initialize, phase_matrix, window_data
-from cdgps_cli.io.run import Run, read_run, write_run
+from cdgps_cli.core.records import Run
+from cdgps_cli.io.run import read_run, write_run
 from cdgps_cli.sim.structure import SimOptions, parse_outage, parse_slip, simulate, write_simulation
 
 ROOT = Path(__file__).resolve().parents[2]

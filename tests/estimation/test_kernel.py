@@ -30,7 +30,7 @@ from cdgps_cli.estimation.filter import EstimateOptions, estimate, rts_smooth
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.estimation.initializer import InitOptions, initialize
 from cdgps_cli.measurement.phase import EpochPhaseModel, all_channels
-from cdgps_cli.io.run import Run
+from cdgps_cli.core.records import Run
 from cdgps_cli.sim.structure import SimOptions, parse_outage, parse_slip, simulate
 
 from _linear_case import LINEAR_CONFIG, LIN_SIGMA

@@ -28,7 +28,7 @@ from cdgps_cli.config.structure import parse_config
 from cdgps_cli.model.dynamics import discrete_model
 from cdgps_cli.estimation.filter import EstimateOptions, estimate
 from cdgps_cli.measurement.phase import all_channels, phase_model
-from cdgps_cli.io.run import memory_run
+from cdgps_cli.core.records import memory_run
 from cdgps_cli.sim.structure import SimOptions, simulate
 
 from _linear_case import LINEAR_CONFIG, LIN_SIGMA

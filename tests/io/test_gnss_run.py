@@ -16,6 +16,7 @@ from click.testing import CliRunner
 from cdgps_cli.cli.commands import main
 from cdgps_cli.config.structure import config_kind, load_gnss_config, parse_gnss_config
 from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.estimation.baseline import BaselineOptions
 from cdgps_cli.io.gnss_run import (GnssReceiver, RAW_COLUMNS, lock_summary, processing_obs, read_gnss_run,
                                 read_receiver_file)
 from cdgps_cli.io.mcap import read_mcap
@@ -88,10 +89,10 @@ def test_geonet_config_loads_for_both_commands():
     assert cfg.displacement == "static" and cfg.mask_deg == 15.0 and cfg.ratio == 3.0
     assert cfg.antenna("0759").rinex.endswith("07590920.05o") and Path(cfg.antenna("0759").rinex).is_absolute()
     assert config_kind(GEONET.read_text()) == "gnss" and config_kind((ROOT / "configs" / "testbed-1998.toml").read_text()) == "structure"
-    opt = cfg.baseline_options()
+    opt = BaselineOptions.from_gnss_config(cfg)
     assert opt.ratio_threshold == 3.0 and opt.motion == "static"
     rw = parse_gnss_config('[gnss]\nmaster = "a"\n[gnss.displacement]\nmodel = "random_walk"\nsigma_m_per_sqrt_s = [0.001, 0.001, 0.002]\n')
-    assert rw.random_walk_sigma == (0.001, 0.001, 0.002) and rw.baseline_options().motion == "random_walk"
+    assert rw.random_walk_sigma == (0.001, 0.001, 0.002) and BaselineOptions.from_gnss_config(rw).motion == "random_walk"
 
 
 # ----------------------------------------------------------------------------------------------

@@ -15,7 +15,9 @@ import pandas as pd
 import pytest
 
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.io.rinex import NAV_COLUMNS, OBS_COLUMNS, gps_seconds, gps_time_str, read_rinex_nav, read_rinex_obs
+from cdgps_cli.core.gps_time import gps_seconds, gps_time_str
+from cdgps_cli.core.records import NAV_COLUMNS, OBS_COLUMNS
+from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 SHARED = Path(__file__).resolve().parents[2].parent / "shared" / "data"

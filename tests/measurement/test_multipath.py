@@ -24,7 +24,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.estimation.initializer import InitOptions, _Problem, initialize, window_data
 from cdgps_cli.measurement.phase import EpochPhaseModel, channel_indices
 from cdgps_cli.measurement.multipath import MultipathModel, from_init, model_from
-from cdgps_cli.io.run import memory_run
+from cdgps_cli.core.records import memory_run
 from cdgps_cli.sim.structure import SimOptions, simulate
 
 from _shared import REPO_ROOT

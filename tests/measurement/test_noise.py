@@ -113,7 +113,7 @@ def test_prior_sigma_vector_and_override(testbed_cfg):
 
 from cdgps_cli.estimation.filter import EstimateOptions, estimate  # noqa: E402
 from cdgps_cli.estimation.initializer import InitOptions, initialize  # noqa: E402
-from cdgps_cli.io.run import memory_run  # noqa: E402
+from cdgps_cli.core.records import memory_run  # noqa: E402
 from cdgps_cli.sim.structure import SimOptions, simulate  # noqa: E402
 
 

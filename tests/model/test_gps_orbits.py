@@ -37,7 +37,8 @@ from cdgps_cli.model.gps.orbits import (
     select_ephemeris,
 )
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.io.rinex import gps_seconds, read_rinex_nav, read_rinex_obs
+from cdgps_cli.core.gps_time import gps_seconds
+from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 SHARED = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "rinex"

@@ -25,7 +25,7 @@ from cdgps_cli.cli.commands import main
 from cdgps_cli.model.gps.orbits import ecef_to_enu
 from cdgps_cli.model.gps.positioning import simulate_static_pair, synthetic_gps_nav
 from cdgps_cli.pipeline.gnss import KINEMATIC_TOPIC
-from cdgps_cli.io.rinex import gps_seconds
+from cdgps_cli.core.gps_time import gps_seconds
 from cdgps_cli.io.states import States
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -19,7 +19,9 @@ from cdgps_cli.cli.commands import main
 from cdgps_cli.model.gps.orbits import azimuth_elevation, sat_position_ecef
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.model.gps.positioning import L1_WAVELENGTH_M, simulate_static_pair, synthetic_gps_nav
-from cdgps_cli.io.rinex import NAV_COLUMNS, gps_seconds, read_rinex_nav, read_rinex_obs
+from cdgps_cli.core.gps_time import gps_seconds
+from cdgps_cli.core.records import NAV_COLUMNS
+from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
 from cdgps_cli.io.rinex_write import write_rinex_nav, write_rinex_obs
 
 DATA = Path(__file__).resolve().parents[1] / "data"

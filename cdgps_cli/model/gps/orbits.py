@@ -25,7 +25,7 @@ import numpy as np
 import pandas as pd
 
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.io.rinex import gps_time_str
+from cdgps_cli.core.gps_time import gps_time_str
 
 __all__ = [
     "GM_GPS",

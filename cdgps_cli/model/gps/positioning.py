@@ -45,7 +45,8 @@ from cdgps_cli.model.gps.orbits import (
     sat_position_at_reception,
 )
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.io.rinex import GPS_EPOCH, OBS_COLUMNS
+from cdgps_cli.core.gps_time import GPS_EPOCH
+from cdgps_cli.core.records import OBS_COLUMNS
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 
 __all__ = [
@@ -840,6 +841,6 @@ def synthetic_gps_nav(t_start_s: float, duration_s: float, *, planes: int = 6, p
                     "transmit_gps_s": float(toe - 3600.0 if sow >= 3600.0 else toe), "line": 0,
                 })
     df = pd.DataFrame(rows)
-    from cdgps_cli.io.rinex import NAV_COLUMNS  # noqa: PLC0415
+    from cdgps_cli.core.records import NAV_COLUMNS  # noqa: PLC0415
 
     return df[list(NAV_COLUMNS)].sort_values(["sat", "toe_gps_s"], kind="stable").reset_index(drop=True)

@@ -1,4 +1,4 @@
-"""Rest segments found from the data (``estimate --rest auto``, :mod:`cdgps_cli.analysis.rest`).
+"""Rest segments found from the data (``estimate --rest auto``, :mod:`cdgps_cli.estimation.rest`).
 
 * the per-epoch statistic and the window sums against brute force;
 * the detector on synthetic sequences with analytic answers: entry exactly after the dwell (and not
@@ -24,9 +24,10 @@ from cdgps_cli.config.structure import load_config
 from cdgps_cli.estimation.filter import EstimateOptions, estimate
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.estimation.initializer import InitOptions, initialize
-from cdgps_cli.analysis.rest import (REST_ENTER_PROBABILITY, REST_LEAVE_PROBABILITY, detect_rest,
+from cdgps_cli.estimation.rest import (REST_ENTER_PROBABILITY, REST_LEAVE_PROBABILITY, detect_rest,
                                    static_mode_coverage, validate_detector, velocity_nis_series, window_sums)
-from cdgps_cli.io.run import memory_run, write_run
+from cdgps_cli.core.records import memory_run
+from cdgps_cli.io.run import write_run
 from cdgps_cli.sim.structure import SimOptions, simulate, write_simulation
 
 from _shared import REPO_ROOT as ROOT

@@ -1,0 +1,109 @@
+"""Records passed between the stages: data, not files (the readers and writers are in :mod:`cdgps_cli.io`).
+
+* :data:`OBS_COLUMNS`, :data:`NAV_COLUMNS` — the columns of the observation and broadcast-ephemeris
+  tables that the RINEX/UBX readers return and the GNSS models take.
+* :class:`Run` — an ingested recording (what :func:`cdgps_cli.io.run.read_run` returns, or
+  :func:`memory_run` builds from tables in memory).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import pandas as pd
+
+if TYPE_CHECKING:                     # a type only: core imports nothing above it at run time
+    from cdgps_cli.config.structure import StructureConfig
+
+
+@dataclass
+class Run:
+    """An ingested recording.
+
+    Attributes
+    ----------
+    cfg : StructureConfig
+        The structure config embedded in the file.
+    phase : DataFrame
+        Long table time_s, master, receiver, antenna, transmitter, phase_cycles, lock, snr_dbhz.
+    gyro, actuators : DataFrame
+        Long tables (possibly empty).
+    metadata : dict
+    """
+
+    path: str
+    cfg: StructureConfig
+    phase: pd.DataFrame
+    gyro: pd.DataFrame
+    actuators: pd.DataFrame
+    metadata: dict
+
+
+
+def memory_run(cfg: StructureConfig, phase: pd.DataFrame, gyro: pd.DataFrame | None = None,
+               actuators: pd.DataFrame | None = None, name: str = "<memory>") -> Run:
+    """A :class:`Run` from tables already in memory (e.g. ``simulate(...).receiver``), without files:
+    what :func:`read_run` returns for the same data.  Missing gyro/actuator tables are empty."""
+    if actuators is None:
+        actuators = pd.DataFrame({"time_s": pd.Series([], dtype=float), "actuator": pd.Series([], dtype=object),
+                                  "force_n": pd.Series([], dtype=float)})
+    return Run(name, cfg, phase.reset_index(drop=True), pd.DataFrame() if gyro is None else gyro, actuators, {})
+
+
+OBS_COLUMNS = (
+    "time_gps_s",
+    "sat",
+    "phase_l1_cycles",
+    "lli_l1",
+    "ssi_l1",
+    "pseudorange_l1_m",
+    "snr_l1_dbhz",
+    "rx_clock_offset_s",
+    "epoch_flag",
+)
+"""Columns of the table returned by :func:`cdgps_cli.io.rinex.read_rinex_obs`."""
+NAV_COLUMNS = (
+    "sat",
+    "toc_gps_s",
+    "af0_s",
+    "af1_s_per_s",
+    "af2_s_per_s2",
+    "iode",
+    "crs_m",
+    "delta_n_rad_per_s",
+    "m0_rad",
+    "cuc_rad",
+    "e",
+    "cus_rad",
+    "sqrt_a_sqrt_m",
+    "toe_sow_s",
+    "cic_rad",
+    "omega0_rad",
+    "cis_rad",
+    "i0_rad",
+    "crc_m",
+    "omega_rad",
+    "omega_dot_rad_per_s",
+    "idot_rad_per_s",
+    "codes_l2",
+    "week",
+    "l2p_data_flag",
+    "sv_accuracy_m",
+    "sv_health",
+    "tgd_s",
+    "iodc",
+    "transmit_sow_s",
+    "fit_interval_h",
+    "toe_gps_s",
+    "transmit_gps_s",
+    "line",
+)
+"""Columns of the table returned by :func:`read_rinex_nav`.
+
+The 29 broadcast-orbit values in RINEX order (clock: ``af0_s``, ``af1_s_per_s``,
+``af2_s_per_s2``; orbit: ``iode`` … ``idot_rad_per_s``; ``codes_l2``, ``week`` (GPS week of toe,
+continuous), ``l2p_data_flag``, ``sv_accuracy_m``, ``sv_health`` (0 = healthy), ``tgd_s``,
+``iodc``, ``transmit_sow_s`` (seconds of week of the message), ``fit_interval_h``); derived
+``toc_gps_s`` (clock reference time), ``toe_gps_s`` (= week·604800 + toe_sow_s) and
+``transmit_gps_s`` in GPS seconds; ``line`` is the first line of the record in the file."""
