@@ -453,15 +453,15 @@ def test_model_in_blocks_equals_whole(free60, monkeypatch):
 
 
 def test_long_window_staged_like_direct(testbed_cfg, monkeypatch):
-    """A 150 s window (1501 epochs, > 8 × the 101-epoch start window) is reached through an
+    """A 100 s window (1001 epochs, > 8 × the 101-epoch start window) is reached through an
     801-epoch window; the result is that of continuing the finalists on the whole window at once."""
-    sim = simulate(testbed_cfg, SimOptions(duration_s=150.0, seed=2, phase_sigma_m=0.01))
+    sim = simulate(testbed_cfg, SimOptions(duration_s=100.0, seed=2, phase_sigma_m=0.01))
     run = Run("<memory>", testbed_cfg, sim.receiver.reset_index(drop=True), sim.gyro, None, {})
     msgs = []
-    staged = initialize(run, InitOptions(start_s=0.0, duration_s=150.0, progress=msgs.append))
+    staged = initialize(run, InitOptions(start_s=0.0, duration_s=100.0, progress=msgs.append))
     assert any("on the first 801 epochs" in s for s in msgs)
     monkeypatch.setattr(init_mod, "STAGE_GROWTH", 10**6)
-    direct = initialize(run, InitOptions(start_s=0.0, duration_s=150.0))
+    direct = initialize(run, InitOptions(start_s=0.0, duration_s=100.0))
     assert [s["won"] for s in staged["starts"]] == [s["won"] for s in direct["starts"]]
     assert staged["n_fixed"] == direct["n_fixed"] == 36
     assert [b["integer_cycles"] for b in staged["biases"]] == [b["integer_cycles"] for b in direct["biases"]]

@@ -236,7 +236,9 @@ def test_random_walk_float_reduces_to_static_and_fixes_a_wandering_rover():
     for label, offs in (("static", None), ("moving", off)):
         sim = simulate_static_pair(nav, MASTER_XYZ, ROVER_XYZ, t0, float(n), 1.0, seed=2, rover_offset_enu_m=offs,
                                    slips=[("rover", "G05", t0 + 900, 3)])
-        for motion, sig in (("static", (1e-3,) * 3), ("random_walk", (1e-9,) * 3), ("random_walk", (2e-3,) * 3)):
+        runs = ((("static", (1e-3,) * 3), ("random_walk", (1e-9,) * 3)) if offs is None else
+                (("static", (1e-3,) * 3), ("random_walk", (2e-3,) * 3)))       # the four solves compared below
+        for motion, sig in runs:
             r = solve_static_baseline(Station("B", sim["base_header"], sim["base"]), Station("R", sim["rover_header"], sim["rover"]),
                                       nav, BaselineOptions(motion=motion, random_walk_sigma=sig, kinematic_series=False))
             out[(label, motion, sig[0])] = r["ambiguities"]
