@@ -221,6 +221,11 @@ def load_init_state(init: dict, cfg: StructureConfig, source: str = "INIT.json")
 def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> EstimateResult:
     """Run the EKF (and optionally the RTS smoother) over a RUN from INIT's state.
 
+    One forward filter (:class:`_ForwardPass`: predict, information-form update, NIS) with its
+    integrity as hooks called in a fixed order each epoch — lock events, rest mode, new bias states,
+    re-bias, the outlier gate inside the update, batch re-initialization — then the smoother, the
+    INIT window's states and the noise estimates (:func:`_finish`).
+
     Parameters
     ----------
     run : Run
@@ -233,479 +238,14 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
     EstimateResult
     """
     opt = opt or EstimateOptions()
-    for name in ("outlier_sigma", "nis_probability"):     # process_noise_scale, sigma_m: checked below
-        require_finite(getattr(opt, name), f"EstimateOptions.{name}", positive=True)
+    _check_options(opt)
     if opt.rest_auto:
         from cdgps_cli.estimation.rest import estimate_auto_rest
 
         return estimate_auto_rest(run, init, opt)
-    if opt.sigma_m is not None and not (np.isfinite(opt.sigma_m) and opt.sigma_m > 0):
-        raise CdgpsError(f"--sigma-m must be a positive number of metres, got {opt.sigma_m!r}")
-    if opt.biases not in ("fixed", "states"):
-        raise CdgpsError(f"--biases: expected fixed or states, got {opt.biases!r}")
-    pns = opt.process_noise_scale
-    if (isinstance(pns, bool) or not isinstance(pns, (int, float, np.integer, np.floating))
-            or not (np.isfinite(pns) and pns > 0)):
-        raise CdgpsError(f"--process-noise-scale must be a positive number, got {pns!r}")
-    rest = validate_rest_segments(opt.rest_segments_s, opt.rest_process_noise_scale, opt.rest_retry_s)
-    cfg = run.cfg
-    t0, x0, P0, init_bias = load_init_state(init, cfg, opt.init_source)
-    # INIT from 'cdgps init': its state is the batch solution at the window end, which used that
-    # epoch's data; the filter starts from it without using them again, and the window's epochs
-    # take the batch solution (window_states)
-    win = batch_window(init, t0, opt.init_source)
-    model = discrete_model(cfg)
-    T = cfg.sample_period_s
-    lam = cfg.wavelength_m
-    nm = cfg.n_modes
-    n = cfg.n_states
-
-    # epoch grid from INIT time to the end (an INIT time before the run would size it from INIT)
-    t_first = float(run.phase["time_s"].min()) if len(run.phase) else t0
-    if t0 < t_first - T:
-        raise CdgpsError(f"{opt.init_source}: state.time_s = {t0:g} s is before the first epoch of {run.path} "
-                         f"({t_first:g} s): expected the INIT.json of this run (its batch window end)")
-    keep = run.phase["time_s"].to_numpy() >= t0 - 1e-9
-    ph = run.phase if keep.all() else run.phase[keep]
-    if len(ph) == 0:
-        raise CdgpsError(f"{opt.init_source}: state.time_s = {t0:g} s is after the last epoch of {run.path} "
-                         f"({float(run.phase['time_s'].max()) if len(run.phase) else float('nan'):g} s): no phase data to "
-                         f"filter; expected the INIT.json of this run")
-    t_end = float(ph["time_s"].max())
-    N = int(round((t_end - t0) / T)) + 1
-    grid = t0 + np.arange(N) * T
-    a_codes, a_names = pd.factorize(ph["antenna"], sort=True)
-    t_codes, t_names = pd.factorize(ph["transmitter"], sort=True)
-    pair_code = a_codes.astype(np.int64) * len(t_names) + t_codes
-    pairs, inverse = np.unique(pair_code, return_inverse=True)
-    seen = [(a_names[pc // len(t_names)], t_names[pc % len(t_names)]) for pc in pairs]
-    chans = sorted(set(seen) | set(init_bias),
-                   key=lambda c: (cfg.antenna_names.index(c[0]), cfg.transmitter_names.index(c[1])))
-    cidx = {c: i for i, c in enumerate(chans)}
-    C = len(chans)
-    sig_c, sigma_source = filter_sigma(init, cfg, chans, opt)
-    r_var = sig_c**2                        # R = diag(σ_c²)
-    sigma = float(np.sqrt(np.mean(r_var)))  # their RMS: the re-initialization's batch σ, the summary
-    k_of = np.rint((ph["time_s"].to_numpy() - t0) / T).astype(np.int32)
-    c_of = np.array([cidx[c] for c in seen], dtype=np.int32)[inverse]
-    del inverse, pair_code, a_codes, t_codes
-    Y = np.full((N, C), np.nan)
-    LOCK = np.full((N, C), -1, dtype=np.int32)
-    Y[k_of, c_of] = ph["phase_cycles"].to_numpy() * lam
-    LOCK[k_of, c_of] = ph["lock"].to_numpy()
-    del k_of, c_of, ph, keep                # the phase table copy is not needed any more (memory)
-    ant, tx = channel_indices(cfg, [c[0] for c in chans], [c[1] for c in chans])
-    line = cfg.antenna_line_bias_m[ant] - cfg.antenna_line_bias_m[cfg.master_index]
-    hmodel = EpochPhaseModel(cfg, ant, tx)
-
-    # thruster commands (zero-order hold), per epoch
-    U_in = np.zeros((N, len(cfg.thruster_names)))
-    if len(run.actuators):
-        names = list(cfg.thruster_names)
-        for tname, grp in run.actuators.groupby("actuator"):
-            j = names.index(tname)
-            times = grp["time_s"].to_numpy()
-            forces = grp["force_n"].to_numpy()
-            idx = np.searchsorted(times, grid + 1e-9, side="right") - 1
-            U_in[:, j] = np.where(idx >= 0, forces[np.maximum(idx, 0)], 0.0)
-
-    # state layout
-    use_bias_states = opt.biases == "states"
-    # INIT's multipath model: a Gauss–Markov state per channel after the bias states (numpy path only)
-    mp = multipath.from_init(init)
-    mp0 = n + (C if use_bias_states else 0) if mp.active else None
-    p = n + (C if use_bias_states else 0) + (C if mp.active else 0)
-    A = np.eye(p)
-    A[:n, :n] = model.A
-    Qd = np.zeros((p, p))
-    Qd[:n, :n] = model.Q * float(pns) ** 2
-    if use_bias_states:
-        Qd[n:n + C, n:n + C] = np.eye(C) * opt.bias_process_sigma_m**2
-    if mp.active:
-        A[mp0:, mp0:] = np.eye(C) * mp.transition(T)
-        Qd[mp0:, mp0:] = np.eye(C) * mp.process_variance_m2(T)
-    # static mode: the prediction into epoch k inside a declared rest segment uses Q_rest
-    Qd_rest = Qd.copy()
-    Qd_rest[:n, :n] *= float(opt.rest_process_noise_scale) ** 2
-    at_rest = rest_mask(grid, rest)
-    rest_outside = [(a, b) for a, b in rest if not rest_mask(grid, [(a, b)]).any()]   # no epoch of the run
-    q_bounds = np.flatnonzero(np.diff(at_rest.astype(np.int8))) + 1     # epochs where the Q in use changes
-    rest_stretch_end = -1                  # end (exclusive) of the rest stretch being run
-    rest_fail = 0                          # consecutive NIS failures inside a rest stretch
-    hx_at = None                           # state at which h, Hx were last evaluated in this epoch
-    # entering a rest stretch the modal velocities are observed as zero (a zero-velocity update, as in
-    # inertial navigation), with the sigma of one step of the rest process noise on each velocity
-    zupt_var = np.maximum(np.diag(Qd_rest)[nm:n], 1e-30)
-    Bu = np.zeros((p, model.B.shape[1]))
-    Bu[:n] = model.B
-
-    bias = np.full(C, np.nan)
-    for c, key in enumerate(chans):
-        if key in init_bias:
-            bias[c] = init_bias[key]
-    x = np.zeros(p)
-    x[:n] = x0
-    P = np.zeros((p, p))
-    P[:n, :n] = P0
-    if use_bias_states:
-        x[n:n + C] = np.nan_to_num(bias)
-        P[n:n + C, n:n + C] = np.diag(r_var)
-    if mp.active:
-        x[mp0:], P[mp0:, mp0:], P[:n, mp0:] = multipath.init_states(init, chans, n, mp)
-        P[mp0:, :n] = P[:n, mp0:].T
-    inv_r = 1.0 / r_var                     # (C,) per channel
-
-    xs = np.empty((N, p))
-    Ps = np.empty((N, p, p))
-    resid = np.full((N, C), np.nan)
-    nis = np.full(N, np.nan)
-    nis_dof = np.zeros(N, dtype=np.int64)
-    events: list = []
-    rebias: dict[int, list] = {}           # channel → list of (k, y − h(x̄), var_h)
-    extra_q: dict[int, list] = {}          # epoch → [(state index, added variance)] (bias states)
-    EVENT = lock_events(Y, LOCK)
-    del LOCK
-    if win is not None:
-        for c, key in enumerate(chans):
-            if key in init_bias:
-                Y[0, c] = np.nan           # already in INIT's state (the batch's last epoch)
-    new_states: list = []
-    chi2_bound = {}
-    fail_run = 0
-    k_reinit_block = -1
-    no_link = np.zeros(N, dtype=bool)      # smoother: epoch k is not linked to k+1 (re-init boundary)
-
-    def log(k, c, kind, action, **detail):
-        ev = {"time_s": float(grid[k]), "antenna": chans[c][0] if c is not None else "",
-              "transmitter": chans[c][1] if c is not None else "", "kind": kind, "action": action}
-        ev.update(detail)
-        events.append(ev)
-
-    def drop_bias(k, c, kind):
-        if use_bias_states:
-            # the 1995 variant: the bias state absorbs the jump; its variance is inflated as extra
-            # process noise at this epoch (recorded so that the smoother stays exact)
-            q = opt.restart_sigma_cycles**2 * lam**2
-            P[n + c, n + c] += q
-            extra_q.setdefault(k, []).append((n + c, q))
-            log(k, c, kind, f"bias state variance inflated by ({opt.restart_sigma_cycles:g} cycles)²")
-            return
-        bias[c] = np.nan
-        rebias[c] = []
-        log(k, c, kind, f"bias dropped; re-estimating over {opt.rebias_epochs} epochs")
-
-    for a, b in rest_outside:
-        log(0, None, "rest segment ignored", f"no epoch of the estimate in {a:g}–{b:g} s "
-            f"(the estimate runs {grid[0]:g}–{grid[-1]:g} s)")
-
-    # compiled steady-state epochs (fixed biases): the kernel writes xs, Ps, resid, nis, nis_dof and
-    # stops at the first epoch that needs the logic below, which then runs for that epoch only
-    kern = None
-    if not use_bias_states and not mp.active and ekf_kernel.available():
-        kern = ekf_kernel.ForwardKernel(cfg, ant, tx, A, Qd, Bu, sig_c, opt.outlier_sigma, opt.nis_probability,
-                                        opt.reinit_after_epochs, Y, EVENT, U_in, xs, Ps, resid, nis, nis_dof)
-
-    k = 0
-    bar = progress.bar(N, "filter", "epoch")
-    while k < N:
-        # the first epoch of a rest stretch (and the first after one) runs below, in Python
-        edge = (at_rest[k] and k >= rest_stretch_end) or (k > 0 and at_rest[k - 1] and not at_rest[k])
-        if kern is not None and not edge:
-            k0 = k
-            in_rest = bool(at_rest[k0])
-            nxt = q_bounds[q_bounds > k]         # the span ends where the process noise changes
-            # in rest, every NIS failure comes back here (to the rest checks below)
-            k, fail_run, x, P = kern.run(k0, x, P, bias, rebias, fail_run, k_reinit_block,
-                                         int(nxt[0]) if nxt.size else None, Q=Qd_rest if in_rest else Qd,
-                                         stop_on_nis_failure=in_rest)
-            if in_rest and (nis_dof[k0:k] > 0).any():
-                rest_fail = 0                   # an epoch with data passed the NIS test
-            bar.update_to(k)
-            if k >= N:
-                break
-        if k > 0:
-            x = A @ x + Bu @ U_in[k - 1]
-            P = A @ P @ A.T + (Qd_rest if at_rest[k] else Qd)
-        y = Y[k]
-        present = ~np.isnan(y)
-        # lock restarts (slips, re-acquisitions) and first sightings (precomputed, rare)
-        for c in np.flatnonzero(EVENT[k]):
-            if EVENT[k, c] == 1:
-                if np.isnan(bias[c]) and not use_bias_states:
-                    rebias.setdefault(c, [])
-                    log(k, c, "new channel", "no INIT bias; estimating")
-                elif np.isnan(bias[c]) and use_bias_states:
-                    new_states.append(c)
-            else:
-                drop_bias(k, c, "lock restart" if EVENT[k, c] == 2 else "re-acquisition")
-        if at_rest[k]:
-            q_events = list(extra_q.get(k, ()))    # variance raised at this epoch by its lock events
-            entering = k >= rest_stretch_end       # (also after a re-initialization inside a stretch)
-            if entering:
-                off = np.flatnonzero(~at_rest[k:])
-                rest_stretch_end = k + (int(off[0]) if off.size else N - k)
-                rest_fail = 0
-            k_end = rest_stretch_end               # end of this stretch (exclusive)
-            if entering:
-                # the kinematic prior, kept in case the structure turns out not to be at rest
-                x_kin, P_kin = x.copy(), (P.copy() if k == 0 else A @ Ps[k - 1] @ A.T + Qd)
-                # the zero-velocity update's own test: are the estimated modal velocities zero?
-                vel_nis = velocity_nis(x_kin, P_kin, nm, zupt_var)
-                vel_bound = chi2.ppf(opt.nis_probability, nm)
-                if vel_nis <= vel_bound:
-                    # the rest position is re-estimated from the data: the modal position variances of
-                    # the prior are raised REST_ENTRY_POSITION_INFLATION-fold (recorded as extra process
-                    # noise, so the smoother stays exact), so that an estimate lagging the structure's
-                    # last motion is not carried into the average; then the zero-velocity update
-                    d = REST_ENTRY_POSITION_INFLATION * np.diag(P)[:nm]
-                    P[np.arange(nm), np.arange(nm)] += d
-                    extra_q.setdefault(k, []).extend((i, float(d[i])) for i in range(nm))
-                    if _TRACE is not None:
-                        _TRACE.setdefault("zupt", {})[k] = P.copy()     # the prior (after the raise)
-                    x, P = zero_velocity_update(x, P, nm, zupt_var)
-                    log(k, None, "rest segment", "modal velocities set to zero (zero-velocity update); process "
-                        f"noise × {opt.rest_process_noise_scale:g}² until {grid[k_end - 1]:g} s")
-                    events[-1]["velocity_nis"] = vel_nis
-            else:
-                x_kin = x.copy()
-                vel_nis, vel_bound = 0.0, 1.0
-            if vel_nis > vel_bound:
-                why, nis_failed = f"modal velocities not zero (NIS {vel_nis:.1f} > {vel_bound:.1f})", False
-            else:
-                hx_at = x[:n].copy()
-                h, Hx = hmodel(hx_at)
-                why, nis_failed = rest_motion(x, P, h, Hx, y=Y[k], bias=bias, usable=present & ~np.isnan(bias), mp0=mp0,
-                                              n=n, use_bias_states=use_bias_states, r_var=r_var,
-                                              outlier_sigma=opt.outlier_sigma,
-                                              bound=lambda m: chi2.ppf(opt.nis_probability, m))
-            if nis_failed:
-                rest_fail += 1
-            elif (present & ~np.isnan(bias)).any():
-                rest_fail = 0                        # (an epoch without data leaves the count as it is)
-            if nis_failed and rest_fail < REST_NIS_FAILURES:
-                why = ""                        # one NIS failure can be chance (1 − nis_probability)
-            elif nis_failed:
-                why += f" ({REST_NIS_FAILURES} epochs in a row)"
-            if why:
-                rest_fail = 0
-                # the data say the structure moves: leave static mode for the rest of this stretch,
-                # from the kinematic prior covariance of the stretch's entry
-                k_back = k_end if opt.rest_retry_s <= 0 else min(k + max(int(round(min(opt.rest_retry_s / T, N))), 1), k_end)
-                at_rest[k:k_back] = False                  # retried after rest_retry_s, within the segment
-                rest_stretch_end = -1
-                q_bounds = np.flatnonzero(np.diff(at_rest.astype(np.int8))) + 1
-                x = x_kin
-                if k == 0:
-                    P = P_kin.copy()
-                    extra_q.pop(0, None)           # (the smoother reads no prior at the first epoch)
-                    if q_events:
-                        extra_q[0] = q_events
-                else:
-                    # the kinematic prediction, its variances raised to the entry's kinematic prior; the
-                    # raise is recorded as extra process noise so that the smoother stays exact
-                    P = A @ Ps[k - 1] @ A.T + Qd
-                    for i, q in q_events:
-                        P[i, i] += q
-                    d = np.maximum(np.diag(P_kin)[:n] - np.diag(P)[:n], 0.0)   # structure states only
-                    P[np.arange(n), np.arange(n)] += d
-                    extra_q[k] = q_events + [(int(i), float(d[i])) for i in np.flatnonzero(d)]
-                if _TRACE is not None:
-                    _TRACE.get("zupt", {}).pop(k, None)     # this epoch's prior is the rebuilt one
-                refused = vel_nis > vel_bound
-                log(k, None, "rest segment refused" if refused else "rest segment broken",
-                    f"{why}: the structure moves; kinematic process noise"
-                    + (f", rest tried again at {grid[k_back]:g} s" if k_back < k_end else " to the segment's end"))
-                if refused:
-                    events[-1]["velocity_nis"] = vel_nis
-        elif k > 0 and at_rest[k - 1]:
-            rest_fail = 0
-            log(k, None, "rest segment end", "process noise back to the kinematic model")
-        xq = x[:n]
-        if hx_at is None or not np.array_equal(hx_at, xq):    # (the rest checks evaluated it already)
-            h, Hx = hmodel(xq)
-        hx_at = None
-        for c in new_states:
-            # a channel INIT did not know: its bias state starts from the prediction with a wide prior
-            q_new = opt.restart_sigma_cycles**2 * lam**2
-            x[n + c] = y[c] - h[c]
-            q_was = float(P[n + c, n + c])          # never measured: no cross terms to drop
-            P[n + c, :] = 0.0
-            P[:, n + c] = 0.0
-            P[n + c, n + c] = q_new
-            bias[c] = x[n + c]
-            extra_q.setdefault(k, []).append((n + c, q_new - q_was))    # the smoother's prior = the filter's
-            log(k, c, "new channel", f"bias state initialized from the prediction (sigma {opt.restart_sigma_cycles:g} cycles)")
-        new_states = []
-        if use_bias_states:
-            usable = present.copy()
-        else:
-            usable = present & ~np.isnan(bias)
-        # channels being re-biased: collect y − h(x̄)
-        for c in list(rebias):
-            if not present[c]:
-                continue
-            var_h = float(Hx[c] @ P[:n, :n] @ Hx[c])
-            m_c = 0.0
-            if mp0 is not None:                # the channel's multipath state is predicted, not a bias
-                m_c = float(x[mp0 + c])
-                var_h += float(P[mp0 + c, mp0 + c] + 2.0 * Hx[c] @ P[:n, mp0 + c])
-            rebias[c].append((y[c] - h[c] - m_c, var_h))
-            if len(rebias[c]) >= opt.rebias_epochs:
-                vals = np.array([v for v, _ in rebias[c]])
-                est = float(vals.mean())
-                s_b = float(np.sqrt(r_var[c] / len(vals) + np.mean([v for _, v in rebias[c]])))
-                a = (est - line[c]) / lam
-                nint = int(np.rint(a))
-                if (cfg.line_bias_calibrated and s_b / lam < opt.refix_max_sigma_cycles
-                        and abs(a - nint) < min(opt.refix_max_offset_cycles, 3.0 * s_b / lam)):
-                    est = line[c] + lam * nint
-                    action = f"integer re-fixed: {nint} cycles (float {a:.3f}, sigma {s_b / lam:.3f} cycle)"
-                else:
-                    action = f"float bias {est:.4f} m (sigma {s_b / lam:.3f} cycle)"
-                bias[c] = est
-                if use_bias_states:
-                    x[n + c] = est
-                    P[n + c, :] = 0.0
-                    P[:, n + c] = 0.0
-                    P[n + c, n + c] = s_b**2
-                del rebias[c]
-                log(k, c, "bias re-estimated", action)
-        idx = np.flatnonzero(usable)
-        if idx.size:
-            H = _rows(Hx, idx, p, n, use_bias_states, mp0)
-            b_used = x[n + idx] if use_bias_states else bias[idx]
-            if mp0 is not None:
-                b_used = b_used + x[mp0 + idx]
-            rho = y[idx] - h[idx] - b_used
-            # per-channel outlier test on the innovation
-            S_diag = np.sum((H @ P) * H, axis=1) + r_var[idx]
-            z = rho / np.sqrt(S_diag)
-            out = np.flatnonzero(np.abs(z) > opt.outlier_sigma)
-            if out.size and out.size < idx.size // 2 + 1:
-                worst = out[np.argsort(-np.abs(z[out]))]
-                for j in worst:
-                    drop_bias(k, int(idx[j]), "innovation outlier")
-                    events[-1]["normalized_innovation"] = float(z[j])
-                if use_bias_states:
-                    S_diag = np.sum((H @ P) * H, axis=1) + r_var[idx]
-                else:
-                    keep = np.setdiff1d(np.arange(idx.size), worst)
-                    idx, H, rho = idx[keep], H[keep], rho[keep]
-            if idx.size:
-                if _TRACE is not None:
-                    _TRACE.setdefault("prior", {})[k] = P.copy()
-                Pinv = _chol_inv(P)
-                w = inv_r[idx]
-                Y_info = Pinv + H.T @ (w[:, None] * H)
-                try:
-                    Pn = _chol_inv(Y_info)
-                except np.linalg.LinAlgError:
-                    raise CdgpsError(f"filter covariance lost positive definiteness at {grid[k]:g} s") from None
-                g = H.T @ (w * rho)
-                # NIS = ρᵀ S⁻¹ ρ with S⁻¹ = R⁻¹ − R⁻¹ H P Hᵀ R⁻¹ (Woodbury)
-                nis[k] = float(rho @ (w * rho) - g @ Pn @ g)
-                nis_dof[k] = idx.size
-                x = x + Pn @ g
-                P = Pn
-                resid[k, idx] = y[idx] - (h[idx] + Hx[idx] @ (x[:n] - xq)) - (x[n + idx] if use_bias_states else bias[idx])
-                if mp0 is not None:
-                    resid[k, idx] -= x[mp0 + idx]
-                bound = chi2_bound.get(idx.size)
-                if bound is None:
-                    bound = chi2_bound[idx.size] = chi2.ppf(opt.nis_probability, idx.size)
-                if nis[k] > bound:
-                    fail_run += 1
-                else:
-                    fail_run = 0
-        xs[k] = x
-        Ps[k] = P
-        if fail_run >= opt.reinit_after_epochs and k > k_reinit_block:
-            k_new = _reinitialize(run, grid, k, opt, sigma, chans, bias, line, x, P, n, use_bias_states, log, mp)
-            fail_run = 0
-            if k_new is not None:
-                kk, xr, Pr, new_bias, traj_t, traj_x = k_new
-                # epochs k+1 … kk−1 take the batch solution (smoothed over the re-init window)
-                for j in range(k + 1, kk):
-                    xj = np.zeros(p)
-                    ti = int(np.argmin(np.abs(traj_t - grid[j])))
-                    xj[:n] = traj_x[ti]
-                    if use_bias_states:
-                        xj[n:n + C] = xs[k, n:n + C]
-                    xs[j] = xj
-                    Ps[j] = np.zeros((p, p))
-                    Ps[j][:n, :n] = Pr
-                    if use_bias_states:
-                        Ps[j][n:n + C, n:n + C] = Ps[k][n:n + C, n:n + C]
-                    if mp.active:
-                        Ps[j][mp0:, mp0:] = np.eye(C) * mp.sigma_m**2
-                no_link[k:kk] = True
-                for c, b in new_bias.items():
-                    bias[c] = b
-                    rebias.pop(c, None)
-                x = np.zeros(p)
-                x[:n] = xr
-                P = np.zeros((p, p))
-                P[:n, :n] = Pr
-                if use_bias_states:
-                    x[n:n + C] = np.nan_to_num(bias)
-                    P[n:n + C, n:n + C] = np.eye(C) * 1e-8
-                if mp.active:                  # the multipath states restart from their stationary prior
-                    P[mp0:, mp0:] = np.eye(C) * mp.sigma_m**2
-                k_reinit_block = kk + opt.reinit_after_epochs
-                rest_stretch_end, rest_fail = -1, 0    # a rest stretch in progress is entered afresh
-                xs[kk] = x
-                Ps[kk] = P
-                k = kk + 1
-                continue
-            k_reinit_block = k + int(opt.reinit_window_s / T)
-        k += 1
-        bar.update_to(k)
-    bar.close()
-
-    if _TRACE is not None:
-        _TRACE.update(A=A, Q=Qd, Q_rest=Qd_rest, at_rest=at_rest.copy(), no_link=no_link.copy(), Pf=Ps.copy(),
-                      extra_q={kk_: list(v) for kk_, v in extra_q.items()})
-    filter_path = "c" if kern is not None else "numpy"
-    del Y, EVENT, kern                      # free the (N, C) inputs before the smoother (memory)
-    res = EstimateResult(cfg, grid, xs[:, :n] if p == n else xs[:, :n].copy(),
-                         Ps if p == n else Ps[:, :n, :n].copy(), None, None, chans, resid, nis,
-                         nis_dof, events, {chans[c]: (float(xs[-1, n + c]) if use_bias_states else float(bias[c]))
-                                           for c in range(C)},
-                         filter_path=filter_path)
-    res.rest_active_s = [[float(grid[a]), float(grid[b - 1])] for a, b in _true_runs(at_rest)]
-    chan_est = _channel_noise_estimate(cfg, ant, tx, xs[:, :n], Ps, resid, n)   # (the filtered P, before smoothing)
-    if opt.smooth:
-        # keep the filter's states and covariances, then smooth in place (one copy instead of three)
-        res.x_filt = res.x.copy()
-        res.P_filt = res.P.copy() if opt.keep_filtered_covariance == "full" else res.P[:, :nm, :nm].copy()
-        res.P = None
-        with progress.stage("smoothing"):
-            rts_smooth(A, Qd, Bu, U_in, xs, Ps, extra_q, no_link, in_place=True,
-                       q_segments=_q_segments(at_rest, Qd, Qd_rest))
-        res.x = xs[:, :n] if p == n else xs[:, :n].copy()
-        res.P = Ps if p == n else Ps[:, :n, :n].copy()
-        res.smoothed = True
-    if win is not None:
-        try:
-            with progress.stage(f"batch solution over INIT's window {win[0]:g}–{win[1]:g} s"):
-                ws = window_states(run, init, win, x0, P0)
-        except CdgpsError as exc:          # e.g. an INIT edited by hand: the filter part is still right
-            ws = None
-            res.events.insert(0, {"time_s": float(grid[0]), "antenna": "", "transmitter": "",
-                                  "kind": "batch window", "action": f"window epochs not recomputed: {exc}; "
-                                  f"STATES start at the window end"})
-        if ws is not None:
-            _join_window(res, ws, x0, P0, opt)
-    t_first = float(run.phase["time_s"].min())
-    if win is not None and res.time_s[0] > t_first + 1e-6:     # (a hand-made INIT is a prior where it says)
-        where = "INIT's window start" if res.window else "INIT's state time"
-        res.events.insert(0, {"time_s": float(res.time_s[0]), "antenna": "", "transmitter": "",
-                              "kind": "epochs not estimated",
-                              "action": f"the run starts at {t_first:g} s, STATES at {res.time_s[0]:g} s ({where}); "
-                                        "initialize from the run start (cdgps init --start) to cover it"})
-    res.noise = _innovation_noise(res, sig_c, sigma_source, chan_est)
-    if mp.active:
-        res.noise["multipath"] = dict(mp.echo(), source="INIT.json", filter_path="numpy (kernel has no multipath states)")
+    fp = _ForwardPass(run, init, opt)
+    fp.run()
+    res = _finish(fp)
     if opt.adapt_sigma and opt.sigma_m is None and res.noise.get("adapt"):
         from dataclasses import replace
         first = res.noise
@@ -716,6 +256,593 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                 break
         res.noise = dict(res.noise, source=f"innovation-adapted per channel (pass {npass})", first_pass=first)
     return res
+
+
+def _check_options(opt: EstimateOptions) -> None:
+    """Refuse options the filter cannot use, naming each (EstimateOptions' own field names)."""
+    for name in ("outlier_sigma", "nis_probability"):
+        require_finite(getattr(opt, name), f"EstimateOptions.{name}", positive=True)
+    if opt.sigma_m is not None and not (np.isfinite(opt.sigma_m) and opt.sigma_m > 0):
+        raise CdgpsError(f"--sigma-m must be a positive number of metres, got {opt.sigma_m!r}")
+    if opt.biases not in ("fixed", "states"):
+        raise CdgpsError(f"--biases: expected fixed or states, got {opt.biases!r}")
+    pns = opt.process_noise_scale
+    if (isinstance(pns, bool) or not isinstance(pns, (int, float, np.integer, np.floating))
+            or not (np.isfinite(pns) and pns > 0)):
+        raise CdgpsError(f"--process-noise-scale must be a positive number, got {pns!r}")
+
+
+class _ForwardPass:
+    """The forward filter over one run, its working state, and its integrity hooks.
+
+    Each epoch k runs, in this order: the compiled kernel over the span no hook claims (fixed
+    biases, no multipath states), then :meth:`predict`; :meth:`lock_event_hook` (first sightings,
+    restarts, re-acquisitions); :meth:`rest_hook` (entering, keeping or leaving static mode);
+    :meth:`new_bias_states_hook`; :meth:`rebias_hook` (channels whose bias is re-estimated);
+    :meth:`update` (outlier gate, information-form update, NIS test); the epoch is stored; then
+    :meth:`reinit_hook` (batch re-initialization after persistent NIS failures, 1995 Fig. 7).
+    """
+
+    def __init__(self, run: Run, init: dict, opt: EstimateOptions):
+        self.run_, self.init, self.opt = run, init, opt
+        self.rest = validate_rest_segments(opt.rest_segments_s, opt.rest_process_noise_scale, opt.rest_retry_s)
+        cfg = self.cfg = run.cfg
+        self.t0, self.x0, self.P0, self.init_bias = load_init_state(init, cfg, opt.init_source)
+        # INIT from 'cdgps init': its state is the batch solution at the window end, which used that
+        # epoch's data; the filter starts from it without using them again, and the window's epochs
+        # take the batch solution (window_states)
+        self.win = batch_window(init, self.t0, opt.init_source)
+        self.model = discrete_model(cfg)
+        self.T, self.lam, self.nm, self.n = cfg.sample_period_s, cfg.wavelength_m, cfg.n_modes, cfg.n_states
+        self._epoch_data()
+        self._thruster_inputs()
+        self._state_layout()
+        self._initial_state()
+        self._working_records()
+
+    # ------------------------------------------------------------------------------------------
+    # set-up
+
+    def _epoch_data(self) -> None:
+        """Epoch grid from INIT time to the end; Y (N, C) phase in metres and LOCK; the channels."""
+        run, cfg, opt, T, t0 = self.run_, self.cfg, self.opt, self.T, self.t0
+        t_first = float(run.phase["time_s"].min()) if len(run.phase) else t0
+        if t0 < t_first - T:
+            raise CdgpsError(f"{opt.init_source}: state.time_s = {t0:g} s is before the first epoch of {run.path} "
+                             f"({t_first:g} s): expected the INIT.json of this run (its batch window end)")
+        keep = run.phase["time_s"].to_numpy() >= t0 - 1e-9
+        ph = run.phase if keep.all() else run.phase[keep]
+        if len(ph) == 0:
+            raise CdgpsError(f"{opt.init_source}: state.time_s = {t0:g} s is after the last epoch of {run.path} "
+                             f"({float(run.phase['time_s'].max()) if len(run.phase) else float('nan'):g} s): no phase data to "
+                             f"filter; expected the INIT.json of this run")
+        N = self.N = int(round((float(ph["time_s"].max()) - t0) / T)) + 1
+        self.grid = t0 + np.arange(N) * T
+        a_codes, a_names = pd.factorize(ph["antenna"], sort=True)
+        t_codes, t_names = pd.factorize(ph["transmitter"], sort=True)
+        pair_code = a_codes.astype(np.int64) * len(t_names) + t_codes
+        pairs, inverse = np.unique(pair_code, return_inverse=True)
+        seen = [(a_names[pc // len(t_names)], t_names[pc % len(t_names)]) for pc in pairs]
+        chans = self.chans = sorted(set(seen) | set(self.init_bias),
+                                    key=lambda c: (cfg.antenna_names.index(c[0]), cfg.transmitter_names.index(c[1])))
+        cidx = {c: i for i, c in enumerate(chans)}
+        C = self.C = len(chans)
+        self.sig_c, self.sigma_source = filter_sigma(self.init, cfg, chans, opt)
+        self.r_var = self.sig_c**2                          # R = diag(σ_c²)
+        self.inv_r = 1.0 / self.r_var                       # (C,) per channel
+        self.sigma = float(np.sqrt(np.mean(self.r_var)))    # their RMS: the re-initialization's batch σ
+        k_of = np.rint((ph["time_s"].to_numpy() - t0) / T).astype(np.int32)
+        c_of = np.array([cidx[c] for c in seen], dtype=np.int32)[inverse]
+        del inverse, pair_code, a_codes, t_codes
+        self.Y = np.full((N, C), np.nan)
+        LOCK = np.full((N, C), -1, dtype=np.int32)
+        self.Y[k_of, c_of] = ph["phase_cycles"].to_numpy() * self.lam
+        LOCK[k_of, c_of] = ph["lock"].to_numpy()
+        del k_of, c_of, ph, keep                # the phase table copy is not needed any more (memory)
+        self.EVENT = lock_events(self.Y, LOCK)
+        self.ant, self.tx = channel_indices(cfg, [c[0] for c in chans], [c[1] for c in chans])
+        self.line = cfg.antenna_line_bias_m[self.ant] - cfg.antenna_line_bias_m[cfg.master_index]
+        self.hmodel = EpochPhaseModel(cfg, self.ant, self.tx)
+
+    def _thruster_inputs(self) -> None:
+        """U_in (N, n_thrusters): thruster commands held over each epoch (zero-order hold)."""
+        cfg, run = self.cfg, self.run_
+        self.U_in = np.zeros((self.N, len(cfg.thruster_names)))
+        if len(run.actuators):
+            names = list(cfg.thruster_names)
+            for tname, grp in run.actuators.groupby("actuator"):
+                j = names.index(tname)
+                times = grp["time_s"].to_numpy()
+                forces = grp["force_n"].to_numpy()
+                idx = np.searchsorted(times, self.grid + 1e-9, side="right") - 1
+                self.U_in[:, j] = np.where(idx >= 0, forces[np.maximum(idx, 0)], 0.0)
+
+    def _state_layout(self) -> None:
+        """x = [structure (n), bias states (C, biases="states"), multipath states (C, INIT's model)]: A, Q, B."""
+        opt, n, C, T, model = self.opt, self.n, self.C, self.T, self.model
+        self.use_bias_states = opt.biases == "states"
+        # INIT's multipath model: a Gauss–Markov state per channel after the bias states (numpy path only)
+        mp = self.mp = multipath.from_init(self.init)
+        self.mp0 = n + (C if self.use_bias_states else 0) if mp.active else None
+        p = self.p = n + (C if self.use_bias_states else 0) + (C if mp.active else 0)
+        self.A = np.eye(p)
+        self.A[:n, :n] = model.A
+        self.Qd = np.zeros((p, p))
+        self.Qd[:n, :n] = model.Q * float(opt.process_noise_scale) ** 2
+        if self.use_bias_states:
+            self.Qd[n:n + C, n:n + C] = np.eye(C) * opt.bias_process_sigma_m**2
+        if mp.active:
+            self.A[self.mp0:, self.mp0:] = np.eye(C) * mp.transition(T)
+            self.Qd[self.mp0:, self.mp0:] = np.eye(C) * mp.process_variance_m2(T)
+        # static mode: the prediction into epoch k inside a declared rest segment uses Q_rest
+        self.Qd_rest = self.Qd.copy()
+        self.Qd_rest[:n, :n] *= float(opt.rest_process_noise_scale) ** 2
+        self.at_rest = rest_mask(self.grid, self.rest)
+        self.rest_outside = [(a, b) for a, b in self.rest if not rest_mask(self.grid, [(a, b)]).any()]
+        self.q_bounds = np.flatnonzero(np.diff(self.at_rest.astype(np.int8))) + 1   # where the Q in use changes
+        # entering a rest stretch the modal velocities are observed as zero (a zero-velocity update, as in
+        # inertial navigation), with the sigma of one step of the rest process noise on each velocity
+        self.zupt_var = np.maximum(np.diag(self.Qd_rest)[self.nm:n], 1e-30)
+        self.Bu = np.zeros((p, model.B.shape[1]))
+        self.Bu[:n] = model.B
+
+    def _initial_state(self) -> None:
+        """x, P at INIT's time; the biases INIT fixed (NaN where it has none)."""
+        n, C, p, mp0 = self.n, self.C, self.p, self.mp0
+        self.bias = np.full(C, np.nan)
+        for c, key in enumerate(self.chans):
+            if key in self.init_bias:
+                self.bias[c] = self.init_bias[key]
+        self.x = np.zeros(p)
+        self.x[:n] = self.x0
+        self.P = np.zeros((p, p))
+        self.P[:n, :n] = self.P0
+        if self.use_bias_states:
+            self.x[n:n + C] = np.nan_to_num(self.bias)
+            self.P[n:n + C, n:n + C] = np.diag(self.r_var)
+        if self.mp.active:
+            self.x[mp0:], self.P[mp0:, mp0:], self.P[:n, mp0:] = multipath.init_states(self.init, self.chans, n, self.mp)
+            self.P[mp0:, :n] = self.P[:n, mp0:].T
+        if self.win is not None:
+            for c, key in enumerate(self.chans):
+                if key in self.init_bias:
+                    self.Y[0, c] = np.nan          # already in INIT's state (the batch's last epoch)
+
+    def _working_records(self) -> None:
+        """Outputs (xs, Ps, residuals, NIS), the event log and the hooks' bookkeeping."""
+        N, p, C = self.N, self.p, self.C
+        self.xs = np.empty((N, p))
+        self.Ps = np.empty((N, p, p))
+        self.resid = np.full((N, C), np.nan)
+        self.nis = np.full(N, np.nan)
+        self.nis_dof = np.zeros(N, dtype=np.int64)
+        self.events: list = []
+        self.rebias: dict[int, list] = {}           # channel → list of (k, y − h(x̄), var_h)
+        self.extra_q: dict[int, list] = {}          # epoch → [(state index, added variance)]
+        self.new_states: list = []
+        self.chi2_bound: dict = {}
+        self.fail_run = 0                           # consecutive NIS failures
+        self.k_reinit_block = -1                    # no re-initialization before this epoch
+        self.no_link = np.zeros(N, dtype=bool)      # smoother: epoch k is not linked to k+1 (re-init boundary)
+        self.rest_stretch_end = -1                  # end (exclusive) of the rest stretch being run
+        self.rest_fail = 0                          # consecutive NIS failures inside a rest stretch
+        self.hx_at = None                           # state at which h, Hx were last evaluated in this epoch
+        self.P_kin = None                           # kinematic prior covariance at the current rest stretch's entry
+        for a, b in self.rest_outside:
+            self.log(0, None, "rest segment ignored", f"no epoch of the estimate in {a:g}–{b:g} s "
+                     f"(the estimate runs {self.grid[0]:g}–{self.grid[-1]:g} s)")
+        # compiled steady-state epochs (fixed biases): the kernel writes xs, Ps, resid, nis, nis_dof and
+        # stops at the first epoch that needs the hooks, which then run for that epoch only
+        self.kern = None
+        if not self.use_bias_states and not self.mp.active and ekf_kernel.available():
+            opt = self.opt
+            self.kern = ekf_kernel.ForwardKernel(self.cfg, self.ant, self.tx, self.A, self.Qd, self.Bu, self.sig_c,
+                                                 opt.outlier_sigma, opt.nis_probability, opt.reinit_after_epochs,
+                                                 self.Y, self.EVENT, self.U_in, self.xs, self.Ps, self.resid,
+                                                 self.nis, self.nis_dof)
+
+    # ------------------------------------------------------------------------------------------
+    # the epoch loop
+
+    def log(self, k, c, kind, action, **detail) -> None:
+        ev = {"time_s": float(self.grid[k]), "antenna": self.chans[c][0] if c is not None else "",
+              "transmitter": self.chans[c][1] if c is not None else "", "kind": kind, "action": action}
+        ev.update(detail)
+        self.events.append(ev)
+
+    def drop_bias(self, k, c, kind) -> None:
+        """A channel's bias is no longer trusted (restart, outlier): re-estimate it, or inflate its state."""
+        opt = self.opt
+        if self.use_bias_states:
+            # the 1995 variant: the bias state absorbs the jump; its variance is inflated as extra
+            # process noise at this epoch (recorded so that the smoother stays exact)
+            q = opt.restart_sigma_cycles**2 * self.lam**2
+            self.P[self.n + c, self.n + c] += q
+            self.extra_q.setdefault(k, []).append((self.n + c, q))
+            self.log(k, c, kind, f"bias state variance inflated by ({opt.restart_sigma_cycles:g} cycles)²")
+            return
+        self.bias[c] = np.nan
+        self.rebias[c] = []
+        self.log(k, c, kind, f"bias dropped; re-estimating over {opt.rebias_epochs} epochs")
+
+    def run(self) -> None:
+        """All epochs, in order (the kernel's spans, then the hooks at the epochs they claim)."""
+        N, k = self.N, 0
+        bar = progress.bar(N, "filter", "epoch")
+        while k < N:
+            k = self._kernel_span(k, bar)
+            if k >= N:
+                break
+            self.predict(k)
+            y = self.Y[k]
+            present = ~np.isnan(y)
+            self.lock_event_hook(k)
+            if self.at_rest[k]:
+                self.rest_hook(k, y, present)
+            elif k > 0 and self.at_rest[k - 1]:
+                self.rest_fail = 0
+                self.log(k, None, "rest segment end", "process noise back to the kinematic model")
+            xq = self.x[:self.n]
+            if self.hx_at is None or not np.array_equal(self.hx_at, xq):    # (the rest checks evaluated it already)
+                self.h, self.Hx = self.hmodel(xq)
+            self.hx_at = None
+            self.new_bias_states_hook(k, y)
+            usable = present.copy() if self.use_bias_states else present & ~np.isnan(self.bias)
+            self.rebias_hook(k, y, present)
+            self.update(k, y, usable, xq)
+            self.xs[k] = self.x
+            self.Ps[k] = self.P
+            k = self.reinit_hook(k)
+            bar.update_to(k)
+        bar.close()
+
+    def _kernel_span(self, k: int, bar) -> int:
+        """Run the compiled kernel from epoch k until an epoch that needs a hook; returns that epoch."""
+        at_rest = self.at_rest
+        # the first epoch of a rest stretch (and the first after one) runs in Python
+        edge = (at_rest[k] and k >= self.rest_stretch_end) or (k > 0 and at_rest[k - 1] and not at_rest[k])
+        if self.kern is None or edge:
+            return k
+        k0, in_rest = k, bool(at_rest[k])
+        nxt = self.q_bounds[self.q_bounds > k]         # the span ends where the process noise changes
+        # in rest, every NIS failure comes back here (to the rest checks)
+        k, self.fail_run, self.x, self.P = self.kern.run(
+            k0, self.x, self.P, self.bias, self.rebias, self.fail_run, self.k_reinit_block,
+            int(nxt[0]) if nxt.size else None, Q=self.Qd_rest if in_rest else self.Qd, stop_on_nis_failure=in_rest)
+        if in_rest and (self.nis_dof[k0:k] > 0).any():
+            self.rest_fail = 0                   # an epoch with data passed the NIS test
+        bar.update_to(k)
+        return k
+
+    def predict(self, k: int) -> None:
+        """Time update into epoch k (the rest process noise inside a rest stretch)."""
+        if k > 0:
+            self.x = self.A @ self.x + self.Bu @ self.U_in[k - 1]
+            self.P = self.A @ self.P @ self.A.T + (self.Qd_rest if self.at_rest[k] else self.Qd)
+
+    def lock_event_hook(self, k: int) -> None:
+        """Lock restarts (slips, re-acquisitions) and first sightings (precomputed, rare)."""
+        for c in np.flatnonzero(self.EVENT[k]):
+            if self.EVENT[k, c] == 1:
+                if np.isnan(self.bias[c]) and not self.use_bias_states:
+                    self.rebias.setdefault(c, [])
+                    self.log(k, c, "new channel", "no INIT bias; estimating")
+                elif np.isnan(self.bias[c]) and self.use_bias_states:
+                    self.new_states.append(c)
+            else:
+                self.drop_bias(k, c, "lock restart" if self.EVENT[k, c] == 2 else "re-acquisition")
+
+    def rest_hook(self, k: int, y, present) -> None:
+        """Static mode at epoch k: enter (zero-velocity update), keep, or leave when the data say it moves."""
+        q_events = list(self.extra_q.get(k, ()))    # variance raised at this epoch by its lock events
+        entering = k >= self.rest_stretch_end       # (also after a re-initialization inside a stretch)
+        if entering:
+            off = np.flatnonzero(~self.at_rest[k:])
+            self.rest_stretch_end = k + (int(off[0]) if off.size else self.N - k)
+            self.rest_fail = 0
+        k_end = self.rest_stretch_end               # end of this stretch (exclusive)
+        if entering:
+            x_kin, vel_nis, vel_bound = self._enter_rest(k, k_end)
+        else:
+            x_kin = self.x.copy()
+            vel_nis, vel_bound = 0.0, 1.0
+        why = self._rest_contradiction(k, y, present, vel_nis, vel_bound)
+        if why:
+            # (P_kin: the kinematic prior covariance of this stretch's entry)
+            self._leave_rest(k, k_end, why, x_kin, self.P_kin, q_events, refused=vel_nis > vel_bound, vel_nis=vel_nis)
+
+    def _enter_rest(self, k: int, k_end: int):
+        """The kinematic prior (kept in case the structure moves), the velocity test, the zero-velocity update."""
+        opt, nm, A = self.opt, self.nm, self.A
+        x_kin = self.x.copy()
+        P_kin = self.P_kin = self.P.copy() if k == 0 else A @ self.Ps[k - 1] @ A.T + self.Qd
+        # the zero-velocity update's own test: are the estimated modal velocities zero?
+        vel_nis = velocity_nis(x_kin, P_kin, nm, self.zupt_var)
+        vel_bound = chi2.ppf(opt.nis_probability, nm)
+        if vel_nis <= vel_bound:
+            # the rest position is re-estimated from the data: the modal position variances of
+            # the prior are raised REST_ENTRY_POSITION_INFLATION-fold (recorded as extra process
+            # noise, so the smoother stays exact), so that an estimate lagging the structure's
+            # last motion is not carried into the average; then the zero-velocity update
+            d = REST_ENTRY_POSITION_INFLATION * np.diag(self.P)[:nm]
+            self.P[np.arange(nm), np.arange(nm)] += d
+            self.extra_q.setdefault(k, []).extend((i, float(d[i])) for i in range(nm))
+            if _TRACE is not None:
+                _TRACE.setdefault("zupt", {})[k] = self.P.copy()     # the prior (after the raise)
+            self.x, self.P = zero_velocity_update(self.x, self.P, nm, self.zupt_var)
+            self.log(k, None, "rest segment", "modal velocities set to zero (zero-velocity update); process "
+                     f"noise × {opt.rest_process_noise_scale:g}² until {self.grid[k_end - 1]:g} s")
+            self.events[-1]["velocity_nis"] = vel_nis
+        return x_kin, vel_nis, vel_bound
+
+    def _rest_contradiction(self, k: int, y, present, vel_nis: float, vel_bound: float) -> str:
+        """Why the data contradict rest at epoch k ('' when they do not)."""
+        opt = self.opt
+        if vel_nis > vel_bound:
+            return f"modal velocities not zero (NIS {vel_nis:.1f} > {vel_bound:.1f})"
+        self.hx_at = self.x[:self.n].copy()
+        self.h, self.Hx = self.hmodel(self.hx_at)
+        usable = present & ~np.isnan(self.bias)
+        why, nis_failed = rest_motion(self.x, self.P, self.h, self.Hx, y=y, bias=self.bias, usable=usable,
+                                      mp0=self.mp0, n=self.n, use_bias_states=self.use_bias_states, r_var=self.r_var,
+                                      outlier_sigma=opt.outlier_sigma, bound=lambda m: chi2.ppf(opt.nis_probability, m))
+        if nis_failed:
+            self.rest_fail += 1
+        elif usable.any():
+            self.rest_fail = 0                        # (an epoch without data leaves the count as it is)
+        if nis_failed and self.rest_fail < REST_NIS_FAILURES:
+            return ""                                 # one NIS failure can be chance (1 − nis_probability)
+        if nis_failed:
+            why += f" ({REST_NIS_FAILURES} epochs in a row)"
+        return why
+
+    def _leave_rest(self, k, k_end, why, x_kin, P_kin, q_events, refused: bool, vel_nis: float) -> None:
+        """The data say the structure moves: kinematic for the rest of this stretch (or until the retry),
+        from the kinematic prior of the stretch's entry."""
+        opt, A, n, N = self.opt, self.A, self.n, self.N
+        self.rest_fail = 0
+        k_back = k_end if opt.rest_retry_s <= 0 else min(k + max(int(round(min(opt.rest_retry_s / self.T, N))), 1), k_end)
+        self.at_rest[k:k_back] = False                  # retried after rest_retry_s, within the segment
+        self.rest_stretch_end = -1
+        self.q_bounds = np.flatnonzero(np.diff(self.at_rest.astype(np.int8))) + 1
+        self.x = x_kin
+        if k == 0:
+            self.P = P_kin.copy()
+            self.extra_q.pop(0, None)           # (the smoother reads no prior at the first epoch)
+            if q_events:
+                self.extra_q[0] = q_events
+        else:
+            # the kinematic prediction, its variances raised to the entry's kinematic prior; the
+            # raise is recorded as extra process noise so that the smoother stays exact
+            self.P = A @ self.Ps[k - 1] @ A.T + self.Qd
+            for i, q in q_events:
+                self.P[i, i] += q
+            d = np.maximum(np.diag(P_kin)[:n] - np.diag(self.P)[:n], 0.0)   # structure states only
+            self.P[np.arange(n), np.arange(n)] += d
+            self.extra_q[k] = q_events + [(int(i), float(d[i])) for i in np.flatnonzero(d)]
+        if _TRACE is not None:
+            _TRACE.get("zupt", {}).pop(k, None)     # this epoch's prior is the rebuilt one
+        self.log(k, None, "rest segment refused" if refused else "rest segment broken",
+                 f"{why}: the structure moves; kinematic process noise"
+                 + (f", rest tried again at {self.grid[k_back]:g} s" if k_back < k_end else " to the segment's end"))
+        if refused:
+            self.events[-1]["velocity_nis"] = vel_nis
+
+    def new_bias_states_hook(self, k: int, y) -> None:
+        """A channel INIT did not know (biases="states"): its bias state starts from the prediction."""
+        opt, n, lam = self.opt, self.n, self.lam
+        for c in self.new_states:
+            q_new = opt.restart_sigma_cycles**2 * lam**2
+            self.x[n + c] = y[c] - self.h[c]
+            q_was = float(self.P[n + c, n + c])          # never measured: no cross terms to drop
+            self.P[n + c, :] = 0.0
+            self.P[:, n + c] = 0.0
+            self.P[n + c, n + c] = q_new
+            self.bias[c] = self.x[n + c]
+            self.extra_q.setdefault(k, []).append((n + c, q_new - q_was))    # the smoother's prior = the filter's
+            self.log(k, c, "new channel", f"bias state initialized from the prediction (sigma {opt.restart_sigma_cycles:g} cycles)")
+        self.new_states = []
+
+    def rebias_hook(self, k: int, y, present) -> None:
+        """Channels being re-biased: collect y − h(x̄); after rebias_epochs, set the bias (re-fix the integer
+        when the float is unambiguous)."""
+        n, mp0, P, x = self.n, self.mp0, self.P, self.x
+        for c in list(self.rebias):
+            if not present[c]:
+                continue
+            var_h = float(self.Hx[c] @ P[:n, :n] @ self.Hx[c])
+            m_c = 0.0
+            if mp0 is not None:                # the channel's multipath state is predicted, not a bias
+                m_c = float(x[mp0 + c])
+                var_h += float(P[mp0 + c, mp0 + c] + 2.0 * self.Hx[c] @ P[:n, mp0 + c])
+            self.rebias[c].append((y[c] - self.h[c] - m_c, var_h))
+            if len(self.rebias[c]) >= self.opt.rebias_epochs:
+                self._set_rebiased(k, c)
+
+    def _set_rebiased(self, k: int, c: int) -> None:
+        opt, cfg, lam, n = self.opt, self.cfg, self.lam, self.n
+        vals = np.array([v for v, _ in self.rebias[c]])
+        est = float(vals.mean())
+        s_b = float(np.sqrt(self.r_var[c] / len(vals) + np.mean([v for _, v in self.rebias[c]])))
+        a = (est - self.line[c]) / lam
+        nint = int(np.rint(a))
+        if (cfg.line_bias_calibrated and s_b / lam < opt.refix_max_sigma_cycles
+                and abs(a - nint) < min(opt.refix_max_offset_cycles, 3.0 * s_b / lam)):
+            est = self.line[c] + lam * nint
+            action = f"integer re-fixed: {nint} cycles (float {a:.3f}, sigma {s_b / lam:.3f} cycle)"
+        else:
+            action = f"float bias {est:.4f} m (sigma {s_b / lam:.3f} cycle)"
+        self.bias[c] = est
+        if self.use_bias_states:
+            self.x[n + c] = est
+            self.P[n + c, :] = 0.0
+            self.P[:, n + c] = 0.0
+            self.P[n + c, n + c] = s_b**2
+        del self.rebias[c]
+        self.log(k, c, "bias re-estimated", action)
+
+    def update(self, k: int, y, usable, xq) -> None:
+        """Measurement update of epoch k on the usable channels, after the per-channel outlier gate."""
+        idx = np.flatnonzero(usable)
+        if not idx.size:
+            return
+        n, mp0, x, h, Hx = self.n, self.mp0, self.x, self.h, self.Hx
+        H = _rows(Hx, idx, self.p, n, self.use_bias_states, mp0)
+        b_used = x[n + idx] if self.use_bias_states else self.bias[idx]
+        if mp0 is not None:
+            b_used = b_used + x[mp0 + idx]
+        rho = y[idx] - h[idx] - b_used
+        idx, H, rho = self._outlier_gate(k, idx, H, rho)
+        if not idx.size:
+            return
+        if _TRACE is not None:
+            _TRACE.setdefault("prior", {})[k] = self.P.copy()
+        Pinv = _chol_inv(self.P)
+        w = self.inv_r[idx]
+        Y_info = Pinv + H.T @ (w[:, None] * H)
+        try:
+            Pn = _chol_inv(Y_info)
+        except np.linalg.LinAlgError:
+            raise CdgpsError(f"filter covariance lost positive definiteness at {self.grid[k]:g} s") from None
+        g = H.T @ (w * rho)
+        # NIS = ρᵀ S⁻¹ ρ with S⁻¹ = R⁻¹ − R⁻¹ H P Hᵀ R⁻¹ (Woodbury)
+        self.nis[k] = float(rho @ (w * rho) - g @ Pn @ g)
+        self.nis_dof[k] = idx.size
+        self.x = x = x + Pn @ g
+        self.P = Pn
+        self.resid[k, idx] = (y[idx] - (h[idx] + Hx[idx] @ (x[:n] - xq))
+                              - (x[n + idx] if self.use_bias_states else self.bias[idx]))
+        if mp0 is not None:
+            self.resid[k, idx] -= x[mp0 + idx]
+        bound = self.chi2_bound.get(idx.size)
+        if bound is None:
+            bound = self.chi2_bound[idx.size] = chi2.ppf(self.opt.nis_probability, idx.size)
+        self.fail_run = self.fail_run + 1 if self.nis[k] > bound else 0
+
+    def _outlier_gate(self, k, idx, H, rho):
+        """Per-channel test of the normalized innovation: outliers (fewer than half the rows) drop their bias."""
+        S_diag = np.sum((H @ self.P) * H, axis=1) + self.r_var[idx]
+        z = rho / np.sqrt(S_diag)
+        out = np.flatnonzero(np.abs(z) > self.opt.outlier_sigma)
+        if not (out.size and out.size < idx.size // 2 + 1):
+            return idx, H, rho
+        worst = out[np.argsort(-np.abs(z[out]))]
+        for j in worst:
+            self.drop_bias(k, int(idx[j]), "innovation outlier")
+            self.events[-1]["normalized_innovation"] = float(z[j])
+        if self.use_bias_states:
+            return idx, H, rho
+        keep = np.setdiff1d(np.arange(idx.size), worst)
+        return idx[keep], H[keep], rho[keep]
+
+    def reinit_hook(self, k: int) -> int:
+        """After reinit_after_epochs NIS failures in a row, a batch re-initialization on a window after k
+        (1995 Fig. 7); returns the next epoch to run."""
+        opt = self.opt
+        if not (self.fail_run >= opt.reinit_after_epochs and k > self.k_reinit_block):
+            return k + 1
+        k_new = _reinitialize(self.run_, self.grid, k, opt, self.sigma, self.chans, self.bias, self.line, self.x,
+                              self.P, self.n, self.use_bias_states, self.log, self.mp)
+        self.fail_run = 0
+        if k_new is None:
+            self.k_reinit_block = k + int(opt.reinit_window_s / self.T)
+            return k + 1
+        kk, xr, Pr, new_bias, traj_t, traj_x = k_new
+        self._fill_reinit_window(k, kk, Pr, traj_t, traj_x)
+        for c, b in new_bias.items():
+            self.bias[c] = b
+            self.rebias.pop(c, None)
+        n, C, p, mp0 = self.n, self.C, self.p, self.mp0
+        self.x = np.zeros(p)
+        self.x[:n] = xr
+        self.P = np.zeros((p, p))
+        self.P[:n, :n] = Pr
+        if self.use_bias_states:
+            self.x[n:n + C] = np.nan_to_num(self.bias)
+            self.P[n:n + C, n:n + C] = np.eye(C) * 1e-8
+        if self.mp.active:                  # the multipath states restart from their stationary prior
+            self.P[mp0:, mp0:] = np.eye(C) * self.mp.sigma_m**2
+        self.k_reinit_block = kk + opt.reinit_after_epochs
+        self.rest_stretch_end, self.rest_fail = -1, 0    # a rest stretch in progress is entered afresh
+        self.xs[kk] = self.x
+        self.Ps[kk] = self.P
+        return kk + 1
+
+    def _fill_reinit_window(self, k, kk, Pr, traj_t, traj_x) -> None:
+        """Epochs k+1 … kk−1 take the batch solution (smoothed over the re-initialization window)."""
+        n, C, p, mp0 = self.n, self.C, self.p, self.mp0
+        for j in range(k + 1, kk):
+            xj = np.zeros(p)
+            ti = int(np.argmin(np.abs(traj_t - self.grid[j])))
+            xj[:n] = traj_x[ti]
+            if self.use_bias_states:
+                xj[n:n + C] = self.xs[k, n:n + C]
+            self.xs[j] = xj
+            self.Ps[j] = np.zeros((p, p))
+            self.Ps[j][:n, :n] = Pr
+            if self.use_bias_states:
+                self.Ps[j][n:n + C, n:n + C] = self.Ps[k][n:n + C, n:n + C]
+            if self.mp.active:
+                self.Ps[j][mp0:, mp0:] = np.eye(C) * self.mp.sigma_m**2
+        self.no_link[k:kk] = True
+
+
+def _finish(fp: _ForwardPass) -> EstimateResult:
+    """The forward pass's result; the smoother; INIT's window epochs; the noise estimates."""
+    cfg, opt, n, nm, p, grid = fp.cfg, fp.opt, fp.n, fp.nm, fp.p, fp.grid
+    xs, Ps = fp.xs, fp.Ps
+    if _TRACE is not None:
+        _TRACE.update(A=fp.A, Q=fp.Qd, Q_rest=fp.Qd_rest, at_rest=fp.at_rest.copy(), no_link=fp.no_link.copy(),
+                      Pf=Ps.copy(), extra_q={kk_: list(v) for kk_, v in fp.extra_q.items()})
+    filter_path = "c" if fp.kern is not None else "numpy"
+    fp.Y = fp.EVENT = fp.kern = None        # free the (N, C) inputs before the smoother (memory)
+    C = fp.C
+    res = EstimateResult(cfg, grid, xs[:, :n] if p == n else xs[:, :n].copy(),
+                         Ps if p == n else Ps[:, :n, :n].copy(), None, None, fp.chans, fp.resid, fp.nis,
+                         fp.nis_dof, fp.events, {fp.chans[c]: (float(xs[-1, n + c]) if fp.use_bias_states
+                                                               else float(fp.bias[c])) for c in range(C)},
+                         filter_path=filter_path)
+    res.rest_active_s = [[float(grid[a]), float(grid[b - 1])] for a, b in _true_runs(fp.at_rest)]
+    chan_est = _channel_noise_estimate(cfg, fp.ant, fp.tx, xs[:, :n], Ps, fp.resid, n)   # (filtered P, before smoothing)
+    if opt.smooth:
+        # keep the filter's states and covariances, then smooth in place (one copy instead of three)
+        res.x_filt = res.x.copy()
+        res.P_filt = res.P.copy() if opt.keep_filtered_covariance == "full" else res.P[:, :nm, :nm].copy()
+        res.P = None
+        with progress.stage("smoothing"):
+            rts_smooth(fp.A, fp.Qd, fp.Bu, fp.U_in, xs, Ps, fp.extra_q, fp.no_link, in_place=True,
+                       q_segments=_q_segments(fp.at_rest, fp.Qd, fp.Qd_rest))
+        res.x = xs[:, :n] if p == n else xs[:, :n].copy()
+        res.P = Ps if p == n else Ps[:, :n, :n].copy()
+        res.smoothed = True
+    _window_epochs(fp, res)
+    res.noise = _innovation_noise(res, fp.sig_c, fp.sigma_source, chan_est)
+    if fp.mp.active:
+        res.noise["multipath"] = dict(fp.mp.echo(), source="INIT.json", filter_path="numpy (kernel has no multipath states)")
+    return res
+
+
+def _window_epochs(fp: _ForwardPass, res: EstimateResult) -> None:
+    """INIT's window epochs from the batch solution (window_states); say where STATES start if not at the run's start."""
+    run, win, grid = fp.run_, fp.win, fp.grid
+    if win is not None:
+        try:
+            with progress.stage(f"batch solution over INIT's window {win[0]:g}–{win[1]:g} s"):
+                ws = window_states(run, fp.init, win, fp.x0, fp.P0)
+        except CdgpsError as exc:          # e.g. an INIT edited by hand: the filter part is still right
+            ws = None
+            res.events.insert(0, {"time_s": float(grid[0]), "antenna": "", "transmitter": "",
+                                  "kind": "batch window", "action": f"window epochs not recomputed: {exc}; "
+                                  f"STATES start at the window end"})
+        if ws is not None:
+            _join_window(res, ws, fp.x0, fp.P0, fp.opt)
+    t_first = float(run.phase["time_s"].min())
+    if win is not None and res.time_s[0] > t_first + 1e-6:     # (a hand-made INIT is a prior where it says)
+        where = "INIT's window start" if res.window else "INIT's state time"
+        res.events.insert(0, {"time_s": float(res.time_s[0]), "antenna": "", "transmitter": "",
+                              "kind": "epochs not estimated",
+                              "action": f"the run starts at {t_first:g} s, STATES at {res.time_s[0]:g} s ({where}); "
+                                        "initialize from the run start (cdgps init --start) to cover it"})
 
 
 def _join_window(res: EstimateResult, ws, x0: np.ndarray, P0: np.ndarray, opt: EstimateOptions) -> None:
