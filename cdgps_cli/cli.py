@@ -180,8 +180,8 @@ def main(ctx, quiet):
               help="With --controller: the rigid-body-only regulator of Fig. 12 (vibration poles left open loop).")
 @click.option("--feedback", type=click.Choice(["gps", "truth"]), default="gps", show_default=True,
               help="With --controller: feed back the EKF's estimate, or the true state (full-state feedback).")
-@click.option("--slew-reference", type=click.Choice(["profile", "step"]), default="profile", show_default=True,
-              help="With --controller, slew: a bang-bang angle profile with feed-forward thrust, or the paper's step command.")
+@click.option("--slew-reference", type=click.Choice(["profile", "shaped-step", "step"]), default="profile", show_default=True,
+              help="With --controller, slew: a bang-bang angle profile with feed-forward thrust, the paper's step command through the controller's rate- and acceleration-limited command filter (no feed-forward), or the raw step.")
 @click.option("--noise-scale", "noise_scales", multiple=True, metavar="NAME:FACTOR",
               help="Multiply the white phase noise of every channel of a rover antenna or transmitter (repeatable).")
 @_output_option("out_dir", "Output directory.", directory=True, old=("--out",))

@@ -159,9 +159,11 @@ def test_simulate_with_controller_writes_native_logs(gains_path, testbed_path, t
     act = pd.read_csv(tmp_path / "a" / "actuators.csv")
     assert set(act["actuator"]) <= set(testbed_cfg.thruster_names) and act["force_n"].max() <= 1.4
     ctrl = pd.read_csv(tmp_path / "a" / "controller.csv")
-    assert {"time_s", "q10_hat", "q10_ref", "nis"} <= set(ctrl.columns)
+    assert {"time_s", "q10_hat", "q10_hat_sigma", "q10_ref", "nis"} <= set(ctrl.columns)
+    assert (ctrl["q10_hat_sigma"] > 0).all()
     truth = json.loads((tmp_path / "a" / "truth.json").read_text())
     assert truth["controller"]["feedback"] == "gps" and truth["segments"][1]["kind"] == "slew"
+    assert truth["controller"]["estimator_process_noise_scale"] >= 1.0
     assert _run(*args, "-o", tmp_path / "b").exit_code == 0
     for f in files:
         assert (tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes(), f
@@ -186,3 +188,17 @@ def test_gains_of_another_config_are_refused(gains_path, tmp_path, testbed_text)
     r = _run("simulate", other, "--scenario", "pulse", "--controller", gains_path, "--duration", "2", "-o", tmp_path / "o")
     assert r.exit_code == 2 and "designed for config" in r.output
     assert not (tmp_path / "o").exists()
+
+
+def test_shaped_step_is_the_profiles_rigid_shape_without_feed_forward(testbed_cfg):
+    from cdgps_cli.control.closed_loop import slew_reference
+
+    t = np.arange(600) * 0.1
+    x0 = np.zeros(18)
+    x0[8] = np.radians(14.0) / testbed_cfg.mode_shapes[9, 8]
+    prof, ff = slew_reference(testbed_cfg, t, x0, "profile")
+    shaped, none = slew_reference(testbed_cfg, t, x0, "shaped-step")
+    assert none is None and ff is not None
+    np.testing.assert_array_equal(shaped[:, [8, 17]], prof[:, [8, 17]])
+    others = [i for i in range(18) if i not in (8, 17)]
+    assert not shaped[:, others].any() and prof[:, others].any()
