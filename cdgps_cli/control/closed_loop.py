@@ -62,12 +62,13 @@ class ClosedLoopResult:
     firings: list               # (thruster index, on_s, off_s, force_n, source) absolute times
     saturated_fraction: float   # fraction of jet-periods whose request exceeded the jet's max force
     sigma_q_hat: np.ndarray = None  # (N, n_coords) 1σ of the estimated coordinates q = U ξ̂ (rad or m)
+    x_ref: np.ndarray = None        # (N, n) the reference the regulator used (as planned in the loop)
 
 
 def run_closed_loop(cfg: StructureConfig, K: np.ndarray, x0: np.ndarray, disturbance_w: np.ndarray,
                     noise_m: np.ndarray, x_ref: np.ndarray, pulse: Disturbance | None = None, *,
                     pwpf: PwpfParams | None = None, estimator: str = "gps", u_ff=None,
-                    process_noise_scale: float = 1.0) -> ClosedLoopResult:
+                    process_noise_scale: float = 1.0, planner=None, plan_epochs=()) -> ClosedLoopResult:
     """Simulate the closed loop for N = len(noise_m) epochs.
 
     Parameters
@@ -92,6 +93,12 @@ def run_closed_loop(cfg: StructureConfig, K: np.ndarray, x0: np.ndarray, disturb
     process_noise_scale : float
         The EKF predicts with this multiple of the config's process noise (the separation rule of
         :mod:`cdgps_cli.control.estimator_design`; 1: the config's W).
+    planner : callable, optional
+        ``planner(x_fb) -> (x_ref, u_ff)``, both for all N epochs: at each epoch of ``plan_epochs``,
+        after the update, the reference and feed-forward from that epoch on are replaced by the plan
+        made from the state the controller feeds back (the estimate, or the truth with
+        ``estimator="truth"``) — a slew planned when it is commanded, from what the controller knows.
+    plan_epochs : iterable of int
     """
     if estimator not in ("gps", "truth"):
         raise CdgpsError(f"estimator: expected 'gps' or 'truth', got {estimator!r}")
@@ -116,6 +123,9 @@ def run_closed_loop(cfg: StructureConfig, K: np.ndarray, x0: np.ndarray, disturb
     U = np.asarray(cfg.mode_shapes)
     nm = U.shape[1]
 
+    x_ref = np.array(x_ref, dtype=float)
+    u_ff = None if u_ff is None else np.array(u_ff, dtype=float)
+    plan_epochs = set(plan_epochs)
     out = ClosedLoopResult(time_s=np.round(np.arange(N) * T, 9), x_true=np.empty((N, n)), x_hat=np.empty((N, n)),
                            sigma_hat=np.empty((N, n)), nis=np.empty(N), command_n=np.zeros((N, m)), firings=[],
                            saturated_fraction=0.0, sigma_q_hat=np.empty((N, U.shape[0])))
@@ -129,7 +139,16 @@ def run_closed_loop(cfg: StructureConfig, K: np.ndarray, x0: np.ndarray, disturb
         xh, P, nis = update(xb, Pb, h_true + noise_m[k] - h_bar, H, sigma)
         out.x_true[k], out.x_hat[k], out.sigma_hat[k], out.nis[k] = x, xh, np.sqrt(np.diag(P)), nis
         out.sigma_q_hat[k] = np.sqrt(np.einsum("ij,jk,ik->i", U, P[:nm, :nm], U))
-        error = (xh if estimator == "gps" else x) - x_ref[k]
+        fb = xh if estimator == "gps" else x
+        if planner is not None and k in plan_epochs:
+            ref, ff = planner(fb)
+            x_ref[k:] = ref[k:]
+            if ff is not None:
+                u_ff = np.zeros((N, m)) if u_ff is None else u_ff
+                u_ff[k:] = ff[k:]
+            elif u_ff is not None:
+                u_ff[k:] = 0.0
+        error = fb - x_ref[k]
         u = -K @ error if u_ff is None else u_ff[k] - K @ error
         request = realize_forces(u, pairs)
         t0 = k * T
@@ -145,6 +164,7 @@ def run_closed_loop(cfg: StructureConfig, K: np.ndarray, x0: np.ndarray, disturb
         x = model.A @ x + known + response(*_columns(dist)) + model.Bw @ disturbance_w[k]
         xb, Pb = predict(xh, P, model.A, Q_loop, known)
     out.saturated_fraction = saturated / max(N * m, 1)
+    out.x_ref = x_ref
     return out
 
 
@@ -240,16 +260,18 @@ def closed_loop_trajectory(cfg: StructureConfig, scenario: str, gains: dict, *, 
     def trajectory(time_s, x0, w, noise_m):
         n = model.A.shape[0]
         x_ref = np.zeros((len(time_s), n))
-        pulse, u_ff = None, None
+        pulse, planner, epochs = None, None, ()
         if scenario == "slew":
-            x_ref, u_ff = slew_reference(cfg, time_s, x0, slew_reference_kind)
+            # held at the initial estimate, then planned from the estimate when the step is commanded
+            planner = lambda x_fb: slew_reference(cfg, time_s, x_fb, slew_reference_kind)  # noqa: E731
+            epochs = (0, int(np.searchsorted(np.asarray(time_s), sim["slew_time_s"] - 1e-9)))
         else:
             pulse = Disturbance(tuple(sim["pulse_thrusters"]), sim["pulse_time_s"],
                                 sim["pulse_time_s"] + sim["pulse_duration_s"], sim["pulse_force_n"])
-        r = run_closed_loop(cfg, K, x0, w, noise_m, x_ref, pulse, pwpf=pwpf, estimator=feedback, u_ff=u_ff,
-                            process_noise_scale=est["scale"])
+        r = run_closed_loop(cfg, K, x0, w, noise_m, x_ref, pulse, pwpf=pwpf, estimator=feedback,
+                            process_noise_scale=est["scale"], planner=planner, plan_epochs=epochs)
         if record is not None:
-            record["result"], record["x_ref"] = r, x_ref
+            record["result"], record["x_ref"] = r, r.x_ref
         extra = {"controller": {"feedback": feedback, "vibration_control": vibration_control,
                                 **({"slew_reference": slew_reference_kind} if scenario == "slew" else {}),
                                 "gains_config_sha256": gains["config"]["sha256"],

@@ -202,3 +202,26 @@ def test_shaped_step_is_the_profiles_rigid_shape_without_feed_forward(testbed_cf
     np.testing.assert_array_equal(shaped[:, [8, 17]], prof[:, [8, 17]])
     others = [i for i in range(18) if i not in (8, 17)]
     assert not shaped[:, others].any() and prof[:, others].any()
+
+
+@pytest.mark.parametrize("feedback", ["gps", "truth"])
+def test_slew_is_planned_from_the_state_the_controller_feeds_back(testbed_cfg, design, feedback):
+    """The planner sees the estimate (or, with full-state feedback, the truth) at the planning epochs,
+    and the reference from those epochs on is its plan."""
+    N, n = 30, 18
+    noise, w = _inputs(testbed_cfg, N)
+    seen = {}
+
+    def planner(x_fb):
+        k = len(seen)
+        seen[k] = x_fb.copy()
+        ref = np.full((N, n), float(k + 1))
+        return ref, None
+
+    d, _ = design
+    r = run_closed_loop(testbed_cfg, d.K, np.zeros(n), w, noise, np.zeros((N, n)), estimator=feedback,
+                        planner=planner, plan_epochs=(0, 12))
+    want = r.x_hat if feedback == "gps" else r.x_true
+    np.testing.assert_array_equal(seen[0], want[0])
+    np.testing.assert_array_equal(seen[1], want[12])
+    assert (r.x_ref[:12] == 1.0).all() and (r.x_ref[12:] == 2.0).all()
