@@ -219,6 +219,10 @@ def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_s
                 progress.write(f"cdgps: warning: the jets were asked for more than their maximum force in "
                                f"{100 * loop.saturated_fraction:.0f}% of jet-periods; the gain asks for more authority "
                                f"than the thrusters have (a smaller --qx in `cdgps control design`, docs/control.md)")
+            if loop.estimator.get("met") is False:
+                progress.write("cdgps: warning: the in-loop estimator cannot be made "
+                               f"{loop.estimator['separation']:g}x faster than this regulator ({loop.estimator['rule']}); "
+                               "the estimate lags the regulator (a smaller --qx in `cdgps control design`)")
     summary = write_simulation(sim, out_dir)
     _say(ctx, f"wrote {summary['receiver_rows']} phase rows, {summary['gyro_rows']} gyro rows, "
               f"{summary['slips']} slip/relock events to {out_dir}/")
