@@ -24,6 +24,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg import block_diag
 
 from ..config import StructureConfig, channel_sigma_m
 from ..dynamics import continuous_model, discrete_model
@@ -69,7 +70,8 @@ class ClosedLoopResult:
 def run_closed_loop(cfg: StructureConfig, K: np.ndarray, x0: np.ndarray, disturbance_w: np.ndarray,
                     noise_m: np.ndarray, x_ref: np.ndarray, pulse: Disturbance | None = None, *,
                     pwpf: PwpfParams | None = None, estimator: str = "gps", u_ff=None,
-                    process_noise_scale: float = 1.0, planner=None, plan_epochs=()) -> ClosedLoopResult:
+                    process_noise_scale: float = 1.0, planner=None, plan_epochs=(),
+                    multipath=None) -> ClosedLoopResult:
     """Simulate the closed loop for N = len(noise_m) epochs.
 
     Parameters
@@ -100,6 +102,10 @@ def run_closed_loop(cfg: StructureConfig, K: np.ndarray, x0: np.ndarray, disturb
         made from the state the controller feeds back (the estimate, or the truth with
         ``estimator="truth"``) — a slew planned when it is commanded, from what the controller knows.
     plan_epochs : iterable of int
+    multipath : MultipathModel, optional
+        When active, the filter carries one first-order Gauss–Markov phase-error state per channel
+        (:mod:`cdgps_cli.multipath`, stationary prior) beside the structure's, as the estimation
+        pipeline does with ``[model] multipath_sigma_m``.
     """
     if estimator not in ("gps", "truth"):
         raise CdgpsError(f"estimator: expected 'gps' or 'truth', got {estimator!r}")
@@ -120,7 +126,7 @@ def run_closed_loop(cfg: StructureConfig, K: np.ndarray, x0: np.ndarray, disturb
     pairs = opposing_pairs(cfg.thruster_section, cfg.thruster_position_m, cfg.thruster_direction)
     fmax = np.asarray(cfg.thruster_max_force_n, dtype=float)
     pulse_jets = [list(cfg.thruster_names).index(j) for j in pulse.thrusters] if pulse else []
-    Q_loop = process_noise_scale * model.Q
+    filt = _LoopFilter(model.A, process_noise_scale * model.Q, len(ant), multipath, T)
     U = np.asarray(cfg.mode_shapes)
     nm = U.shape[1]
 
@@ -131,13 +137,12 @@ def run_closed_loop(cfg: StructureConfig, K: np.ndarray, x0: np.ndarray, disturb
                            sigma_hat=np.empty((N, n)), nis=np.empty(N), command_n=np.zeros((N, m)), firings=[],
                            saturated_fraction=0.0, sigma_q_hat=np.empty((N, U.shape[0])))
     x = np.asarray(x0, dtype=float).copy()
-    xb, Pb = x.copy(), np.eye(n) * INITIAL_ESTIMATE_SIGMA**2
+    filt.start(x)
     f_state, on_state = np.zeros(m), np.zeros(m, dtype=bool)
     saturated = 0
     for k in range(N):
         h_true, _ = h_of(x)
-        h_bar, H = h_of(xb)
-        xh, P, nis = update(xb, Pb, h_true + noise_m[k] - h_bar, H, sigma)
+        xh, P, nis = filt.update(h_true + noise_m[k], h_of, sigma)
         out.x_true[k], out.x_hat[k], out.sigma_hat[k], out.nis[k] = x, xh, np.sqrt(np.diag(P)), nis
         out.sigma_q_hat[k] = np.sqrt(np.einsum("ij,jk,ik->i", U, P[:nm, :nm], U))
         fb = xh if estimator == "gps" else x
@@ -163,10 +168,42 @@ def run_closed_loop(cfg: StructureConfig, K: np.ndarray, x0: np.ndarray, disturb
                        [(j, t0 + a, t0 + b, f, "disturbance") for j, a, b, f in dist]
         known = response(*_columns(ctrl))
         x = model.A @ x + known + response(*_columns(dist)) + model.Bw @ disturbance_w[k]
-        xb, Pb = predict(xh, P, model.A, Q_loop, known)
+        filt.predict(known)
     out.saturated_fraction = saturated / max(N * m, 1)
     out.x_ref = x_ref
     return out
+
+
+class _LoopFilter:
+    """The loop's EKF: the structure's n states, plus C Gauss–Markov multipath states when modelled."""
+
+    def __init__(self, A, Q, C: int, multipath, T: float):
+        self.n = A.shape[0]
+        self.C = C if (multipath is not None and multipath.active) else 0
+        if self.C:                     # m_{k+1} = a m_k + √q ω_k per channel (cdgps_cli.multipath)
+            self.A = block_diag(A, np.eye(C) * multipath.transition(T))
+            self.Q = block_diag(Q, np.eye(C) * multipath.process_variance_m2(T))
+            self.prior_m = multipath.sigma_m
+        else:
+            self.A, self.Q = A, Q
+
+    def start(self, x0):
+        """Estimate at the truth with covariance (INITIAL_ESTIMATE_SIGMA)² I; multipath at its stationary prior."""
+        self.xb = np.concatenate([x0, np.zeros(self.C)])
+        self.Pb = np.diag(np.r_[np.full(self.n, INITIAL_ESTIMATE_SIGMA**2), np.full(self.C, self.prior_m**2 if self.C else 0.0)])
+
+    def update(self, z_m, h_of, sigma):
+        """The update with one epoch's phases z (m); the structure's estimate, covariance and the NIS."""
+        h_bar, H = h_of(self.xb[:self.n])
+        if self.C:
+            H = np.hstack([H, np.eye(self.C)])
+            h_bar = h_bar + self.xb[self.n:]
+        self.x, self.P, nis = update(self.xb, self.Pb, z_m - h_bar, H, sigma)
+        return self.x[:self.n], self.P[:self.n, :self.n], nis
+
+    def predict(self, known):
+        """Predict over one period with the state change of the firings commanded."""
+        self.xb, self.Pb = predict(self.x, self.P, self.A, self.Q, np.concatenate([known, np.zeros(self.C)]))
 
 
 def _columns(intervals):
@@ -255,6 +292,9 @@ def closed_loop_trajectory(cfg: StructureConfig, scenario: str, gains: dict, *, 
         K = rigid_only_gain(cfg, model.A, model.B, float(target))
     est = loop_estimator(cfg, K) if estimator_noise_scale is None else {"scale": float(estimator_noise_scale),
                                                                         "rule": "given", "met": None}
+    from ..multipath import model_from
+
+    mp = model_from(cfg)                     # the config's [model] multipath, as the pipeline's filter
     sim = cfg.simulation
     pwpf = PwpfParams() if pwpf is None else pwpf
 
@@ -270,7 +310,7 @@ def closed_loop_trajectory(cfg: StructureConfig, scenario: str, gains: dict, *, 
             pulse = Disturbance(tuple(sim["pulse_thrusters"]), sim["pulse_time_s"],
                                 sim["pulse_time_s"] + sim["pulse_duration_s"], sim["pulse_force_n"])
         r = run_closed_loop(cfg, K, x0, w, noise_m, x_ref, pulse, pwpf=pwpf, estimator=feedback,
-                            process_noise_scale=est["scale"], planner=planner, plan_epochs=epochs)
+                            process_noise_scale=est["scale"], planner=planner, plan_epochs=epochs, multipath=mp)
         r.estimator = est
         if record is not None:
             record["result"], record["x_ref"] = r, r.x_ref
@@ -285,6 +325,7 @@ def closed_loop_trajectory(cfg: StructureConfig, scenario: str, gains: dict, *, 
                                 "estimator_process_noise_scale": est["scale"],
                                 "estimator_rule": est.get("rule"),
                                 "estimator_rule_met": est.get("met"),
+                                **({"estimator_multipath": mp.echo()} if mp.active else {}),
                                 "initial_estimate": "the truth, covariance "
                                                     f"({INITIAL_ESTIMATE_SIGMA:g})² I; biases known exactly"}}
         return r.x_true, actuator_log(cfg, r.firings), extra
