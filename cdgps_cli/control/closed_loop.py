@@ -6,15 +6,18 @@ Per control period k (length T, the config's sample period):
 1. the carrier phase of every channel at t_k is h(x_k) + v_k (the simulator's noise and multipath,
    biases removed: they are known from an initialization, here exactly);
 2. the EKF updates its prediction with it (:func:`cdgps_cli.estimation.kalman.update`, the config's
-   σ per channel);
-3. the regulator commands u = −K (x̂_k − x_ref,k) (``estimator="truth"`` feeds back the true state
-   instead, to show what estimation costs), realized on opposing jets
+   σ per channel; with the config's ``[model] multipath_sigma_m``, one Gauss–Markov phase-error
+   state per channel beside the structure's);
+3. the regulator commands u = u_ff,k − K (x̂_k − x_ref,k) (``estimator="truth"`` feeds back the true
+   state instead, to show what estimation costs; a slew's reference and feed-forward are planned
+   from that fed-back state when commanded), realized on opposing jets
    (:func:`cdgps_cli.control.allocation.realize_forces`);
 4. each jet's PWPF modulator turns its held command into on/off firings inside the period (exact
    switching instants); jets that fire a disturbance pulse are taken from the controller meanwhile;
 5. the true state advances by the exact response to every firing (:class:`PulseResponse`) plus the
    simulator's disturbance; the EKF predicts with the response to the firings it commanded (known)
-   but not to the disturbance (unknown to it).
+   but not to the disturbance (unknown to it), with the config's process noise scaled by the
+   separation rule for the gain in use (:mod:`cdgps_cli.control.estimator_design`).
 
 Numerics only: arrays in, arrays out.
 """
