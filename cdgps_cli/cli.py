@@ -1239,8 +1239,13 @@ def control_design(ctx, config, qx, qu, rigid_factor, rate_factor, output, figur
     opts = {"qx": qx, "qu": qu, "rigid_factor": rigid_factor, "rate_factor": rate_factor}
     design, poles = design_for_structure(cfg, _weights_option(qx, "--qx"), _weights_option(qu, "--qu"),
                                          rigid_factor, rate_factor)
+    from .control.closed_loop import loop_estimator
+
     rec = gains_record(design, poles, config_path=config, state_names=state_names(cfg),
                        thruster_names=cfg.thruster_names, options=opts)
+    est = loop_estimator(cfg, design.K)       # informative: `simulate --controller` applies the same rule
+    rec["loop_estimator"] = {"process_noise_scale": est["scale"], "separation": est["separation"], "met": est["met"],
+                             "estimator_settling_s": est["estimator_settling_s"], "rule": est["rule"]}
     write_gains(output, rec)
     if figure_png:
         from .control_figures import pole_figure
@@ -1253,9 +1258,14 @@ def control_design(ctx, config, qx, qu, rigid_factor, rate_factor, output, figur
         t0 = poles["settling_time_s"]["open_loop"][mode]
         _say(ctx, f"  {mode:<12} 2% settling: open loop {'∞' if t0 is None else f'{t0:.1f} s':>9}, "
                   f"closed loop {'∞' if t is None else f'{t:.1f} s':>9}")
+    _say(ctx, f"  in-loop filter: {est['rule']}")
+    if not est["met"]:
+        progress.write(f"cdgps: warning: the in-loop estimator cannot be made {est['separation']:g}x faster than this "
+                       "regulator; in the closed loop the estimate will lag it (a smaller --qx, docs/control.md)")
     if as_json:
         _emit_json({"output": output, "riccati_residual": design.riccati_residual,
-                    "settling_time_s": poles["settling_time_s"], "poles": poles})
+                    "settling_time_s": poles["settling_time_s"], "poles": poles,
+                    "loop_estimator": rec["loop_estimator"]})
 
 
 @main.command("track", short_help="Track GPS L1 C/A in raw IF samples → TRACK.mcap")
