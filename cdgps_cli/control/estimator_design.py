@@ -52,14 +52,21 @@ def estimator_error_matrix(A: np.ndarray, Q: np.ndarray, H: np.ndarray, sigma_m)
     n = A.shape[0]
     R = np.diag(np.broadcast_to(np.asarray(sigma_m, dtype=float), (H.shape[0],)) ** 2)
     # a tiny floor keeps the DARE well posed for states the noise does not drive (rigid angle)
-    P = solve_discrete_are(A.T, H.T, Q + 1e-12 * np.eye(n), R)
-    L = P @ H.T @ np.linalg.inv(H @ P @ H.T + R)
+    try:
+        P = solve_discrete_are(A.T, H.T, Q + 1e-12 * np.eye(n), R)
+        L = P @ H.T @ np.linalg.inv(H @ P @ H.T + R)
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        raise CdgpsError(f"the in-loop filter has no steady state (a mode the measurements do not see?): {exc}") from None
     return A - A @ L @ H
 
 
 def _shortfall(A, Q, H, sigma_m, T, names, limits: dict) -> float:
-    """max over constrained modes of (estimator settling / allowed settling); ≤ 1 meets the rule."""
-    t = slowest_settling_by_mode(pole_table(estimator_error_matrix(A, Q, H, sigma_m), T, names))
+    """max over constrained modes of (estimator settling / allowed settling); ≤ 1 meets the rule
+    (infinite when the filter has no steady state at this Q)."""
+    try:
+        t = slowest_settling_by_mode(pole_table(estimator_error_matrix(A, Q, H, sigma_m), T, names))
+    except CdgpsError:
+        return math.inf
     worst = 0.0
     for mode, allowed in limits.items():
         if mode in t:
@@ -138,6 +145,9 @@ def loop_process_noise_scale(A: np.ndarray, B: np.ndarray, K: np.ndarray, Q: np.
             mid = 0.5 * (lo + hi)
             lo, hi = (lo, mid) if meets(10.0**mid) else (mid, hi)
         scale = 10.0**hi
-    t = slowest_settling_by_mode(pole_table(estimator_error_matrix(A, scale * Q, H, sigma_m), T, names))
+    try:
+        t = slowest_settling_by_mode(pole_table(estimator_error_matrix(A, scale * Q, H, sigma_m), T, names))
+    except CdgpsError:
+        t, met = {}, False
     return {"scale": float(scale), "separation": float(separation), "met": met, "limits_s": limits,
             "estimator_settling_s": t}

@@ -112,3 +112,15 @@ def test_simulate_warns_when_the_rule_cannot_be_met(testbed_path, tmp_path):
     r = CliRunner().invoke(main, ["simulate", str(testbed_path), "--scenario", "pulse", "--duration", "1",
                                   "--controller", str(g), "-o", str(tmp_path / "o")])
     assert r.exit_code == 0 and "in-loop estimator cannot be made 3x faster" in r.output, r.output
+
+
+def test_a_filter_without_steady_state_is_a_clear_error_or_not_met():
+    """A marginal mode the measurement does not see (H = 0 on a double integrator): the steady-state
+    filter does not exist; the error matrix says so by name and the rule reports 'not met'."""
+    A = np.array([[1.0, 0.1], [0.0, 1.0]])
+    B = np.array([[0.005], [0.1]])
+    H = np.zeros((1, 2))
+    with pytest.raises(CdgpsError, match="no steady state"):
+        estimator_error_matrix(A, np.eye(2) * 1e-4, H, 0.01)
+    out = loop_process_noise_scale(A, B, np.array([[1.0, 1.0]]), np.eye(2) * 1e-4, H, 0.01, 0.1, ["m"])
+    assert out["met"] is False
