@@ -181,8 +181,8 @@ def main(ctx, quiet):
               help="With --controller: the rigid-body-only regulator of Fig. 12 (vibration poles left open loop).")
 @click.option("--feedback", type=click.Choice(["gps", "truth"]), default="gps", show_default=True,
               help="With --controller: feed back the EKF's estimate, or the true state (full-state feedback).")
-@click.option("--slew-reference", type=click.Choice(["profile", "step"]), default="profile", show_default=True,
-              help="With --controller, slew: a bang-bang angle profile with feed-forward thrust, or the paper's step command.")
+@click.option("--slew-reference", type=click.Choice(["profile", "shaped-step", "step"]), default="profile", show_default=True,
+              help="With --controller, slew: a bang-bang angle profile with feed-forward thrust, the paper's step command through the controller's rate- and acceleration-limited command filter (no feed-forward), or the raw step.")
 @click.option("--noise-scale", "noise_scales", multiple=True, metavar="NAME:FACTOR",
               help="Multiply the white phase noise of every channel of a rover antenna or transmitter (repeatable).")
 @_output_option("out_dir", "Output directory.", directory=True, old=("--out",))
@@ -220,6 +220,10 @@ def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_s
                 progress.write(f"cdgps: warning: the jets were asked for more than their maximum force in "
                                f"{100 * loop.saturated_fraction:.0f}% of jet-periods; the gain asks for more authority "
                                f"than the thrusters have (a smaller --qx in `cdgps control design`, docs/control.md)")
+            if loop.estimator.get("met") is False:
+                progress.write("cdgps: warning: the in-loop estimator cannot be made "
+                               f"{loop.estimator['separation']:g}x faster than this regulator ({loop.estimator['rule']}); "
+                               "the estimate lags the regulator (a smaller --qx in `cdgps control design`)")
     summary = write_simulation(sim, out_dir)
     _say(ctx, f"wrote {summary['receiver_rows']} phase rows, {summary['gyro_rows']} gyro rows, "
               f"{summary['slips']} slip/relock events to {out_dir}/")
@@ -1236,8 +1240,13 @@ def control_design(ctx, config, qx, qu, rigid_factor, rate_factor, output, figur
     opts = {"qx": qx, "qu": qu, "rigid_factor": rigid_factor, "rate_factor": rate_factor}
     design, poles = design_for_structure(cfg, _weights_option(qx, "--qx"), _weights_option(qu, "--qu"),
                                          rigid_factor, rate_factor)
+    from cdgps_cli.control.closed_loop import loop_estimator
+
     rec = gains_record(design, poles, config_path=config, state_names=state_names(cfg),
                        thruster_names=cfg.thruster_names, options=opts)
+    est = loop_estimator(cfg, design.K)       # informative: `simulate --controller` applies the same rule
+    rec["loop_estimator"] = {"process_noise_scale": est["scale"], "separation": est["separation"], "met": est["met"],
+                             "estimator_settling_s": est["estimator_settling_s"], "rule": est["rule"]}
     write_gains(output, rec)
     if figure_png:
         from cdgps_cli.report.control_figures import pole_figure
@@ -1250,9 +1259,14 @@ def control_design(ctx, config, qx, qu, rigid_factor, rate_factor, output, figur
         t0 = poles["settling_time_s"]["open_loop"][mode]
         _say(ctx, f"  {mode:<12} 2% settling: open loop {'∞' if t0 is None else f'{t0:.1f} s':>9}, "
                   f"closed loop {'∞' if t is None else f'{t:.1f} s':>9}")
+    _say(ctx, f"  in-loop filter: {est['rule']}")
+    if not est["met"]:
+        progress.write(f"cdgps: warning: the in-loop estimator cannot be made {est['separation']:g}x faster than this "
+                       "regulator; in the closed loop the estimate will lag it (a smaller --qx, docs/control.md)")
     if as_json:
         _emit_json({"output": output, "riccati_residual": design.riccati_residual,
-                    "settling_time_s": poles["settling_time_s"], "poles": poles})
+                    "settling_time_s": poles["settling_time_s"], "poles": poles,
+                    "loop_estimator": rec["loop_estimator"]})
 
 
 @main.command("track", short_help="Track GPS L1 C/A in raw IF samples → TRACK.mcap")

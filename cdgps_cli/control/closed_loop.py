@@ -6,15 +6,18 @@ Per control period k (length T, the config's sample period):
 1. the carrier phase of every channel at t_k is h(x_k) + v_k (the simulator's noise and multipath,
    biases removed: they are known from an initialization, here exactly);
 2. the EKF updates its prediction with it (:func:`cdgps_cli.estimation.kalman.update`, the config's
-   σ per channel);
-3. the regulator commands u = −K (x̂_k − x_ref,k) (``estimator="truth"`` feeds back the true state
-   instead, to show what estimation costs), realized on opposing jets
+   σ per channel; with the config's ``[model] multipath_sigma_m``, one Gauss–Markov phase-error
+   state per channel beside the structure's);
+3. the regulator commands u = u_ff,k − K (x̂_k − x_ref,k) (``estimator="truth"`` feeds back the true
+   state instead, to show what estimation costs; a slew's reference and feed-forward are planned
+   from that fed-back state when commanded), realized on opposing jets
    (:func:`cdgps_cli.control.allocation.realize_forces`);
 4. each jet's PWPF modulator turns its held command into on/off firings inside the period (exact
    switching instants); jets that fire a disturbance pulse are taken from the controller meanwhile;
 5. the true state advances by the exact response to every firing (:class:`PulseResponse`) plus the
    simulator's disturbance; the EKF predicts with the response to the firings it commanded (known)
-   but not to the disturbance (unknown to it).
+   but not to the disturbance (unknown to it), with the config's process noise scaled by the
+   separation rule for the gain in use (:mod:`cdgps_cli.control.estimator_design`).
 
 Numerics only: arrays in, arrays out.
 """
@@ -24,6 +27,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg import block_diag
 
 from cdgps_cli.config.structure import StructureConfig, channel_sigma_m
 from cdgps_cli.model.dynamics import continuous_model, discrete_model
@@ -61,11 +65,16 @@ class ClosedLoopResult:
     command_n: np.ndarray       # (N, m) thrust requested from each jet's modulator, N
     firings: list               # (thruster index, on_s, off_s, force_n, source) absolute times
     saturated_fraction: float   # fraction of jet-periods whose request exceeded the jet's max force
+    sigma_q_hat: np.ndarray = None  # (N, n_coords) 1σ of the estimated coordinates q = U ξ̂ (rad or m)
+    x_ref: np.ndarray = None        # (N, n) the reference the regulator used (as planned in the loop)
+    estimator: dict = None          # the in-loop filter's process-noise choice (:func:`loop_estimator`)
 
 
 def run_closed_loop(cfg: StructureConfig, K: np.ndarray, x0: np.ndarray, disturbance_w: np.ndarray,
                     noise_m: np.ndarray, x_ref: np.ndarray, pulse: Disturbance | None = None, *,
-                    pwpf: PwpfParams | None = None, estimator: str = "gps", u_ff=None) -> ClosedLoopResult:
+                    pwpf: PwpfParams | None = None, estimator: str = "gps", u_ff=None,
+                    process_noise_scale: float = 1.0, planner=None, plan_epochs=(),
+                    multipath=None) -> ClosedLoopResult:
     """Simulate the closed loop for N = len(noise_m) epochs.
 
     Parameters
@@ -87,9 +96,24 @@ def run_closed_loop(cfg: StructureConfig, K: np.ndarray, x0: np.ndarray, disturb
         Feed back the EKF's estimate, or the true state (full-state feedback).
     u_ff : ndarray, shape (N, m), optional
         Feed-forward signed thruster commands added to −K (x̂ − x_ref), N (a slew profile's thrust).
+    process_noise_scale : float
+        The EKF predicts with this multiple of the config's process noise (the separation rule of
+        :mod:`cdgps_cli.control.estimator_design`; 1: the config's W).
+    planner : callable, optional
+        ``planner(x_fb) -> (x_ref, u_ff)``, both for all N epochs: at each epoch of ``plan_epochs``,
+        after the update, the reference and feed-forward from that epoch on are replaced by the plan
+        made from the state the controller feeds back (the estimate, or the truth with
+        ``estimator="truth"``) — a slew planned when it is commanded, from what the controller knows.
+    plan_epochs : iterable of int
+    multipath : MultipathModel, optional
+        When active, the filter carries one first-order Gauss–Markov phase-error state per channel
+        (:mod:`cdgps_cli.measurement.multipath`, stationary prior) beside the structure's, as the estimation
+        pipeline does with ``[model] multipath_sigma_m``.
     """
     if estimator not in ("gps", "truth"):
         raise CdgpsError(f"estimator: expected 'gps' or 'truth', got {estimator!r}")
+    if not (np.isfinite(process_noise_scale) and process_noise_scale > 0):
+        raise CdgpsError(f"process_noise_scale: expected a positive number, got {process_noise_scale!r}")
     pwpf = PwpfParams() if pwpf is None else pwpf
     model = discrete_model(cfg)
     Ac, Bc, _ = continuous_model(cfg)
@@ -105,21 +129,36 @@ def run_closed_loop(cfg: StructureConfig, K: np.ndarray, x0: np.ndarray, disturb
     pairs = opposing_pairs(cfg.thruster_section, cfg.thruster_position_m, cfg.thruster_direction)
     fmax = np.asarray(cfg.thruster_max_force_n, dtype=float)
     pulse_jets = [list(cfg.thruster_names).index(j) for j in pulse.thrusters] if pulse else []
+    filt = _LoopFilter(model.A, process_noise_scale * model.Q, len(ant), multipath, T)
+    U = np.asarray(cfg.mode_shapes)
+    nm = U.shape[1]
 
+    x_ref = np.array(x_ref, dtype=float)
+    u_ff = None if u_ff is None else np.array(u_ff, dtype=float)
+    plan_epochs = set(plan_epochs)
     out = ClosedLoopResult(time_s=np.round(np.arange(N) * T, 9), x_true=np.empty((N, n)), x_hat=np.empty((N, n)),
                            sigma_hat=np.empty((N, n)), nis=np.empty(N), command_n=np.zeros((N, m)), firings=[],
-                           saturated_fraction=0.0)
+                           saturated_fraction=0.0, sigma_q_hat=np.empty((N, U.shape[0])))
     x = np.asarray(x0, dtype=float).copy()
-    xb, Pb = x.copy(), np.eye(n) * INITIAL_ESTIMATE_SIGMA**2
+    filt.start(x)
     f_state, on_state = np.zeros(m), np.zeros(m, dtype=bool)
     saturated = 0
     for k in range(N):
         h_true, _ = h_of(x)
-        h_bar, H = h_of(xb)
-        xh, P, nis = update(xb, Pb, h_true + noise_m[k] - h_bar, H, sigma)
+        xh, P, nis = filt.update(h_true + noise_m[k], h_of, sigma)
         out.x_true[k], out.x_hat[k], out.sigma_hat[k], out.nis[k] = x, xh, np.sqrt(np.diag(P)), nis
-        feedback = xh if estimator == "gps" else x
-        u = -K @ (feedback - x_ref[k]) if u_ff is None else u_ff[k] - K @ (feedback - x_ref[k])
+        out.sigma_q_hat[k] = np.sqrt(np.einsum("ij,jk,ik->i", U, P[:nm, :nm], U))
+        fb = xh if estimator == "gps" else x
+        if planner is not None and k in plan_epochs:
+            ref, ff = planner(fb)
+            x_ref[k:] = ref[k:]
+            if ff is not None:
+                u_ff = np.zeros((N, m)) if u_ff is None else u_ff
+                u_ff[k:] = ff[k:]
+            elif u_ff is not None:
+                u_ff[k:] = 0.0
+        error = fb - x_ref[k]
+        u = -K @ error if u_ff is None else u_ff[k] - K @ error
         request = realize_forces(u, pairs)
         t0 = k * T
         dist = _pulse_intervals(pulse, pulse_jets, t0, T)
@@ -132,9 +171,42 @@ def run_closed_loop(cfg: StructureConfig, K: np.ndarray, x0: np.ndarray, disturb
                        [(j, t0 + a, t0 + b, f, "disturbance") for j, a, b, f in dist]
         known = response(*_columns(ctrl))
         x = model.A @ x + known + response(*_columns(dist)) + model.Bw @ disturbance_w[k]
-        xb, Pb = predict(xh, P, model.A, model.Q, known)
+        filt.predict(known)
     out.saturated_fraction = saturated / max(N * m, 1)
+    out.x_ref = x_ref
     return out
+
+
+class _LoopFilter:
+    """The loop's EKF: the structure's n states, plus C Gauss–Markov multipath states when modelled."""
+
+    def __init__(self, A, Q, C: int, multipath, T: float):
+        self.n = A.shape[0]
+        self.C = C if (multipath is not None and multipath.active) else 0
+        if self.C:                     # m_{k+1} = a m_k + √q ω_k per channel (cdgps_cli.measurement.multipath)
+            self.A = block_diag(A, np.eye(C) * multipath.transition(T))
+            self.Q = block_diag(Q, np.eye(C) * multipath.process_variance_m2(T))
+            self.prior_m = multipath.sigma_m
+        else:
+            self.A, self.Q = A, Q
+
+    def start(self, x0):
+        """Estimate at the truth with covariance (INITIAL_ESTIMATE_SIGMA)² I; multipath at its stationary prior."""
+        self.xb = np.concatenate([x0, np.zeros(self.C)])
+        self.Pb = np.diag(np.r_[np.full(self.n, INITIAL_ESTIMATE_SIGMA**2), np.full(self.C, self.prior_m**2 if self.C else 0.0)])
+
+    def update(self, z_m, h_of, sigma):
+        """The update with one epoch's phases z (m); the structure's estimate, covariance and the NIS."""
+        h_bar, H = h_of(self.xb[:self.n])
+        if self.C:
+            H = np.hstack([H, np.eye(self.C)])
+            h_bar = h_bar + self.xb[self.n:]
+        self.x, self.P, nis = update(self.xb, self.Pb, z_m - h_bar, H, sigma)
+        return self.x[:self.n], self.P[:self.n, :self.n], nis
+
+    def predict(self, known):
+        """Predict over one period with the state change of the firings commanded."""
+        self.xb, self.Pb = predict(self.x, self.P, self.A, self.Q, np.concatenate([known, np.zeros(self.C)]))
 
 
 def _columns(intervals):
@@ -186,7 +258,7 @@ def merge_firings(firings) -> list:
 
 def closed_loop_trajectory(cfg: StructureConfig, scenario: str, gains: dict, *, vibration_control: bool = True,
                            feedback: str = "gps", pwpf: PwpfParams | None = None, record: dict | None = None,
-                           slew_reference_kind: str = "profile"):
+                           slew_reference_kind: str = "profile", estimator_noise_scale: float | None = None):
     """The ``trajectory`` hook of :func:`cdgps_cli.sim.structure.simulate` for a closed-loop run.
 
     Parameters
@@ -204,6 +276,9 @@ def closed_loop_trajectory(cfg: StructureConfig, scenario: str, gains: dict, *, 
         Receives ``result`` (the :class:`ClosedLoopResult`) for the caller's logs.
     slew_reference_kind : {"profile", "step"}
         See :func:`slew_reference`.
+    estimator_noise_scale : float, optional
+        The in-loop EKF's process-noise scale; None: the separation rule for the gain in use
+        (:func:`loop_estimator`).
     """
     from cdgps_cli.control.design import rigid_only_gain
 
@@ -218,21 +293,30 @@ def closed_loop_trajectory(cfg: StructureConfig, scenario: str, gains: dict, *, 
             raise CdgpsError("--no-vibration-control: the gain's rigid-body pole does not settle, so there is "
                              "no rigid-body pole to match")
         K = rigid_only_gain(cfg, model.A, model.B, float(target))
+    est = loop_estimator(cfg, K) if estimator_noise_scale is None else {"scale": float(estimator_noise_scale),
+                                                                        "rule": "given", "met": None}
+    from cdgps_cli.measurement.multipath import model_from
+
+    mp = model_from(cfg)                     # the config's [model] multipath, as the pipeline's filter
     sim = cfg.simulation
     pwpf = PwpfParams() if pwpf is None else pwpf
 
     def trajectory(time_s, x0, w, noise_m):
         n = model.A.shape[0]
         x_ref = np.zeros((len(time_s), n))
-        pulse, u_ff = None, None
+        pulse, planner, epochs = None, None, ()
         if scenario == "slew":
-            x_ref, u_ff = slew_reference(cfg, time_s, x0, slew_reference_kind)
+            # held at the initial estimate, then planned from the estimate when the step is commanded
+            planner = lambda x_fb: slew_reference(cfg, time_s, x_fb, slew_reference_kind)  # noqa: E731
+            epochs = (0, int(np.searchsorted(np.asarray(time_s), sim["slew_time_s"] - 1e-9)))
         else:
             pulse = Disturbance(tuple(sim["pulse_thrusters"]), sim["pulse_time_s"],
                                 sim["pulse_time_s"] + sim["pulse_duration_s"], sim["pulse_force_n"])
-        r = run_closed_loop(cfg, K, x0, w, noise_m, x_ref, pulse, pwpf=pwpf, estimator=feedback, u_ff=u_ff)
+        r = run_closed_loop(cfg, K, x0, w, noise_m, x_ref, pulse, pwpf=pwpf, estimator=feedback,
+                            process_noise_scale=est["scale"], planner=planner, plan_epochs=epochs, multipath=mp)
+        r.estimator = est
         if record is not None:
-            record["result"], record["x_ref"] = r, x_ref
+            record["result"], record["x_ref"] = r, r.x_ref
         extra = {"controller": {"feedback": feedback, "vibration_control": vibration_control,
                                 **({"slew_reference": slew_reference_kind} if scenario == "slew" else {}),
                                 "gains_config_sha256": gains["config"]["sha256"],
@@ -241,6 +325,10 @@ def closed_loop_trajectory(cfg: StructureConfig, scenario: str, gains: dict, *, 
                                 "firings": len(merge_firings(r.firings)),
                                 "saturated_fraction": r.saturated_fraction,
                                 "estimator_nis_per_dof": float(np.mean(r.nis) / noise_m.shape[1]),
+                                "estimator_process_noise_scale": est["scale"],
+                                "estimator_rule": est.get("rule"),
+                                "estimator_rule_met": est.get("met"),
+                                **({"estimator_multipath": mp.echo()} if mp.active else {}),
                                 "initial_estimate": "the truth, covariance "
                                                     f"({INITIAL_ESTIMATE_SIGMA:g})² I; biases known exactly"}}
         return r.x_true, actuator_log(cfg, r.firings), extra
@@ -269,6 +357,10 @@ def slew_reference(cfg: StructureConfig, time_s, x0, kind: str = "profile"):
     initial angle to ``[simulation] slew_to_deg`` commanded at ``slew_time_s``.
 
     ``"step"``: the paper's command, the reference jumps to the target (no feed-forward).
+    ``"shaped-step"``: the paper's step command through the controller's command filter: the
+    reference angle and rate follow the profile's rigid-body shape below (acceleration and rate
+    limited), with no feed-forward thrust and no elastic reference — what a servo does with a step
+    its actuators cannot follow.
     ``"profile"``: a bang-bang (accelerate, then decelerate) rigid-body angle and rate profile at
     :data:`SLEW_AUTHORITY_FRACTION` of the jets' rigid authority, with the feed-forward thrust that
     produces it (minimum-norm over the jets, including the rate damping of the rigid mode).
@@ -284,8 +376,8 @@ def slew_reference(cfg: StructureConfig, time_s, x0, kind: str = "profile"):
     if kind == "step":
         x_ref[:, rigid] = np.where(t >= -1e-9, a1, a0)
         return x_ref, None
-    if kind != "profile":
-        raise CdgpsError(f"slew reference: expected 'profile' or 'step', got {kind!r}")
+    if kind not in ("profile", "shaped-step"):
+        raise CdgpsError(f"slew reference: expected 'profile', 'shaped-step' or 'step', got {kind!r}")
     acc = SLEW_AUTHORITY_FRACTION * acc_max * np.sign(a1 - a0)
     half = np.sqrt(abs(a1 - a0) / max(abs(acc), 1e-300))
     tt = np.clip(t, 0.0, 2 * half)
@@ -294,6 +386,8 @@ def slew_reference(cfg: StructureConfig, time_s, x0, kind: str = "profile"):
     rate = np.where(first, acc * tt, acc * (2 * half - tt))
     accel = np.where((t > 0) & (t < 2 * half), np.where(first, acc, -acc), 0.0)
     x_ref[:, rigid], x_ref[:, nm + rigid] = amp, rate
+    if kind == "shaped-step":
+        return x_ref, None
     from cdgps_cli.model.dynamics import modal_damping
 
     force = accel + modal_damping(cfg)[rigid] * rate          # ξ̈ + c ξ̇ = g·u
@@ -308,6 +402,23 @@ def slew_reference(cfg: StructureConfig, time_s, x0, kind: str = "profile"):
         x_ref[k, elastic] = xe[elastic]
         xe = model.A @ xe + model.B @ u_ff[k]
     return x_ref, u_ff
+
+
+def loop_estimator(cfg: StructureConfig, K: np.ndarray) -> dict:
+    """The in-loop EKF's process-noise scale for the regulator K by the separation rule
+    (:func:`cdgps_cli.control.estimator_design.loop_process_noise_scale`, linearized at rest), with a
+    ``rule`` sentence for the run's record."""
+    from cdgps_cli.control.estimator_design import loop_process_noise_scale
+
+    model = discrete_model(cfg)
+    ant, tx = all_channels(cfg)
+    _, H = EpochPhaseModel(cfg, ant, tx)(np.zeros(model.A.shape[0]))
+    sigma = channel_sigma_m(cfg, [(cfg.antenna_names[a], cfg.transmitter_names[t]) for a, t in zip(ant, tx)])
+    out = loop_process_noise_scale(model.A, model.B, K, model.Q, H, sigma, model.T, list(cfg.mode_names))
+    out["rule"] = (f"config W scaled by {out['scale']:.4g}: estimator poles {out['separation']:g}x faster than "
+                   "the regulator's, mode by mode" + ("" if out["met"] else
+                                                      " (NOT met: the closest the filter gets)"))
+    return out
 
 
 def _rigid_name(cfg: StructureConfig) -> str:
@@ -340,6 +451,8 @@ def controller_log(cfg: StructureConfig, result: ClosedLoopResult, x_ref: np.nda
     for i, c in enumerate(cfg.coord_names):
         cols[f"{c}_hat"] = np.round(q_hat[:, i], 12)
     for i, c in enumerate(cfg.coord_names):
+        cols[f"{c}_hat_sigma"] = np.round(result.sigma_q_hat[:, i], 12)
+    for i, c in enumerate(cfg.coord_names):
         cols[f"{c}_ref"] = np.round(x_ref[:, :nm] @ U[i], 12)
     cols["nis"] = np.round(result.nis, 6)
     for j, name in enumerate(cfg.thruster_names):
@@ -348,7 +461,8 @@ def controller_log(cfg: StructureConfig, result: ClosedLoopResult, x_ref: np.nda
 
 
 def simulate_closed_loop(cfg: StructureConfig, opt, gains: dict, *, vibration_control: bool = True,
-                         feedback: str = "gps", pwpf: PwpfParams | None = None, slew_reference_kind: str = "profile"):
+                         feedback: str = "gps", pwpf: PwpfParams | None = None, slew_reference_kind: str = "profile",
+                         estimator_noise_scale: float | None = None):
     """:func:`cdgps_cli.sim.structure.simulate` with the closed loop in place of the open-loop propagation;
     the Simulation gains ``controller.csv`` (:func:`controller_log`)."""
     from cdgps_cli.sim.structure import simulate
@@ -356,7 +470,8 @@ def simulate_closed_loop(cfg: StructureConfig, opt, gains: dict, *, vibration_co
     record: dict = {}
     hook = closed_loop_trajectory(cfg, opt.scenario, gains, vibration_control=vibration_control,
                                   feedback=feedback, pwpf=pwpf, record=record,
-                                  slew_reference_kind=slew_reference_kind)
+                                  slew_reference_kind=slew_reference_kind,
+                                  estimator_noise_scale=estimator_noise_scale)
     sim = simulate(cfg, opt, trajectory=hook)
     sim.tables["controller.csv"] = controller_log(cfg, record["result"], record["x_ref"])
     return sim, record["result"]

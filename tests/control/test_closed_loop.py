@@ -159,9 +159,11 @@ def test_simulate_with_controller_writes_native_logs(gains_path, testbed_path, t
     act = pd.read_csv(tmp_path / "a" / "actuators.csv")
     assert set(act["actuator"]) <= set(testbed_cfg.thruster_names) and act["force_n"].max() <= 1.4
     ctrl = pd.read_csv(tmp_path / "a" / "controller.csv")
-    assert {"time_s", "q10_hat", "q10_ref", "nis"} <= set(ctrl.columns)
+    assert {"time_s", "q10_hat", "q10_hat_sigma", "q10_ref", "nis"} <= set(ctrl.columns)
+    assert (ctrl["q10_hat_sigma"] > 0).all()
     truth = json.loads((tmp_path / "a" / "truth.json").read_text())
     assert truth["controller"]["feedback"] == "gps" and truth["segments"][1]["kind"] == "slew"
+    assert truth["controller"]["estimator_process_noise_scale"] >= 1.0
     assert _run(*args, "-o", tmp_path / "b").exit_code == 0
     for f in files:
         assert (tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes(), f
@@ -186,3 +188,67 @@ def test_gains_of_another_config_are_refused(gains_path, tmp_path, testbed_text)
     r = _run("simulate", other, "--scenario", "pulse", "--controller", gains_path, "--duration", "2", "-o", tmp_path / "o")
     assert r.exit_code == 2 and "designed for config" in r.output
     assert not (tmp_path / "o").exists()
+
+
+def test_shaped_step_is_the_profiles_rigid_shape_without_feed_forward(testbed_cfg):
+    from cdgps_cli.control.closed_loop import slew_reference
+
+    t = np.arange(600) * 0.1
+    x0 = np.zeros(18)
+    x0[8] = np.radians(14.0) / testbed_cfg.mode_shapes[9, 8]
+    prof, ff = slew_reference(testbed_cfg, t, x0, "profile")
+    shaped, none = slew_reference(testbed_cfg, t, x0, "shaped-step")
+    assert none is None and ff is not None
+    np.testing.assert_array_equal(shaped[:, [8, 17]], prof[:, [8, 17]])
+    others = [i for i in range(18) if i not in (8, 17)]
+    assert not shaped[:, others].any() and prof[:, others].any()
+
+
+@pytest.mark.parametrize("feedback", ["gps", "truth"])
+def test_slew_is_planned_from_the_state_the_controller_feeds_back(testbed_cfg, design, feedback):
+    """The planner sees the estimate (or, with full-state feedback, the truth) at the planning epochs,
+    and the reference from those epochs on is its plan."""
+    N, n = 30, 18
+    noise, w = _inputs(testbed_cfg, N)
+    seen = {}
+
+    def planner(x_fb):
+        k = len(seen)
+        seen[k] = x_fb.copy()
+        ref = np.full((N, n), float(k + 1))
+        return ref, None
+
+    d, _ = design
+    r = run_closed_loop(testbed_cfg, d.K, np.zeros(n), w, noise, np.zeros((N, n)), estimator=feedback,
+                        planner=planner, plan_epochs=(0, 12))
+    want = r.x_hat if feedback == "gps" else r.x_true
+    np.testing.assert_array_equal(seen[0], want[0])
+    np.testing.assert_array_equal(seen[1], want[12])
+    assert (r.x_ref[:12] == 1.0).all() and (r.x_ref[12:] == 2.0).all()
+
+
+def test_multipath_states_make_the_loop_filter_consistent(testbed_cfg, design):
+    """Phase errors with a 1.5 cm, 30 s Gauss–Markov part plus the config's white σ, disturbance the
+    filter's own W: with the multipath states the per-state normalized error and the NIS per dof are
+    near 1; without them the filter is overconfident (both well above 1)."""
+    from scipy.signal import lfilter
+
+    from cdgps_cli.measurement.multipath import MultipathModel
+
+    N, C = 400, len(all_channels(testbed_cfg)[0])
+    mp = MultipathModel(0.015, 30.0)
+    g = np.random.default_rng(1)
+    e = g.standard_normal((N, C)) * np.sqrt(mp.process_variance_m2(0.1))
+    e[0] = g.standard_normal(C) * mp.sigma_m
+    noise = lfilter([1.0], [1.0, -mp.transition(0.1)], e, axis=0) + \
+        g.standard_normal((N, C)) * testbed_cfg.measurement_sigma_m
+    w = g.standard_normal((N, 9)) * np.asarray(testbed_cfg.process_noise_sigma)
+    d, _ = design
+    x0 = np.zeros(18)
+    x0[:9] = 0.05
+    stats = {}
+    for model in (None, mp):
+        r = run_closed_loop(testbed_cfg, d.K, x0, w, noise, np.zeros((N, 18)), multipath=model)
+        stats[model is not None] = (np.mean(((r.x_true - r.x_hat) / r.sigma_hat)[50:] ** 2), np.mean(r.nis[50:]) / C)
+    assert 0.7 < stats[True][0] < 1.3 and 0.85 < stats[True][1] < 1.15
+    assert stats[False][0] > 1.6 and stats[False][1] > 1.25

@@ -83,3 +83,16 @@ def test_corrupt_gains_file_is_named(tmp_path):
                  '"A": [[1]], "B": [[1]], "Qx": [[1]], "Qu": [[1]], "K": [["x"]], "config": {}}')
     with pytest.raises(CdgpsError, match="key 'K'"):
         read_gains(p)
+
+
+def test_design_records_the_in_loop_filter_rule(testbed_path, tmp_path):
+    """GAINS.json says which process-noise scale the closed loop's filter will use (separation rule),
+    and the paper's weights, too fast for any filter on our Υ, are flagged at design time."""
+    out = tmp_path / "g.json"
+    r = CliRunner().invoke(main, ["-q", "control", "design", str(testbed_path), "--qx", "100", "--rigid-factor", "0.3",
+                                  "--rate-factor", "0.1", "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    le = json.loads(out.read_text())["loop_estimator"]
+    assert le["met"] is True and le["process_noise_scale"] == pytest.approx(30.2, rel=0.01)
+    r = CliRunner().invoke(main, ["control", "design", str(testbed_path), "-o", str(tmp_path / "p.json")])
+    assert r.exit_code == 0 and "cannot be made 3x faster" in r.output

@@ -62,6 +62,9 @@ def test_pulse_report(pulse_runs, tmp_path):
     data = json.loads(r.stdout)
     assert data["scenario"] == "pulse"
     assert data["metrics"]["closed"]["q5"]["peak_ratio"] < 0.5
+    assert data["controllers"]["closed"]["estimator_process_noise_scale"] > 1.0     # the separation rule
+    md = (tmp_path / "rep" / "report.md").read_text()
+    assert "## Controller" in md and "(met)" in md
     names = sorted(p.name for p in (tmp_path / "rep").iterdir())
     assert names == ["poles.png", "pulse.png", "report.html", "report.json", "report.md"]
     html = (tmp_path / "rep" / "report.html").read_text()
@@ -85,3 +88,22 @@ def test_report_refuses_wrong_inputs(pulse_runs, tmp_path, args, words):
     r = _run("report", "control", d / "g.json", *args, "-o", tmp_path / "rep")
     assert r.exit_code == 2 and words in r.output, r.output
     assert not (tmp_path / "rep").exists()
+
+
+def test_slew_report_gives_the_metrics_on_the_estimate_too(pulse_runs, testbed_path, tmp_path):
+    """The paper's Fig. 11 numbers are 'as measured by GPS': the report adds them, computed from the
+    controller.csv the closed loop wrote (checked against a direct computation)."""
+    import pandas as pd
+
+    d = pulse_runs
+    assert _run("simulate", testbed_path, "--scenario", "slew", "--duration", "10", "--seed", "2",
+                "--controller", d / "g.json", "-o", tmp_path / "slew").exit_code == 0
+    r = _run("report", "control", d / "g.json", "--closed", tmp_path / "slew", "-o", tmp_path / "rep",
+             "--date", "2026-12-02", "--json")
+    assert r.exit_code == 0, r.output
+    est = json.loads(r.stdout)["metrics"]["closed"]["estimated"]
+    c = pd.read_csv(tmp_path / "slew" / "controller.csv")
+    ref = slew_metrics(c["time_s"], np.degrees(c["q10_hat"]), {k: np.degrees(c[f"{k}_hat"]) for k in ("q2", "q5", "q8")},
+                       -22.0, 5.0)
+    assert est["internal_max_deg"] == pytest.approx(ref["internal_max_deg"], rel=1e-12)
+    assert "as estimated" in (tmp_path / "rep" / "report.md").read_text()
