@@ -2,6 +2,7 @@
 
 * :data:`OBS_COLUMNS`, :data:`NAV_COLUMNS` — the columns of the observation and broadcast-ephemeris
   tables that the RINEX/UBX readers return and the GNSS models take.
+* :data:`INIT_FORMAT` and :func:`init_kind` — the one INIT.json format for both kinds of run.
 * :class:`Run` — an ingested recording (what :func:`cdgps_cli.io.run.read_run` returns, or
   :func:`memory_run` builds from tables in memory).
 """
@@ -107,3 +108,26 @@ continuous), ``l2p_data_flag``, ``sv_accuracy_m``, ``sv_health`` (0 = healthy), 
 ``iodc``, ``transmit_sow_s`` (seconds of week of the message), ``fit_interval_h``); derived
 ``toc_gps_s`` (clock reference time), ``toe_gps_s`` (= week·604800 + toe_sow_s) and
 ``transmit_gps_s`` in GPS seconds; ``line`` is the first line of the record in the file."""
+
+
+#: INIT.json format written by ``cdgps init`` (both kinds).  Version 2 adds ``kind`` and gives a GNSS
+#: INIT the same ``biases`` list as a structure INIT: one entry per ambiguity segment, each with
+#: ``bias_m``, ``sigma_m`` (0 when fixed), ``integer_cycles`` (None when not fixed), ``fixed``,
+#: ``segment_start_s``, ``segment_end_s`` and the channel — ``antenna``/``transmitter`` for a
+#: structure, ``rover``/``satellite``/``reference`` (and ``master``) for satellite double differences.
+INIT_FORMAT = "cdgps.init/2"
+#: the GNSS INIT's ``kind`` before version 2 (no ``format``, no ``biases``): still read
+LEGACY_GNSS_INIT_KIND = "cdgps gnss init"
+
+
+def init_kind(init) -> str | None:
+    """``"structure"``, ``"gnss"`` or None (not an INIT cdgps wrote) for INIT.json contents, any version."""
+    if not isinstance(init, dict):
+        return None
+    kind = init.get("kind")
+    if kind == LEGACY_GNSS_INIT_KIND or (kind == "gnss" and init.get("format") == INIT_FORMAT):
+        return "gnss"
+    if kind == "structure" or init.get("format") == "cdgps.init/1" or "state" in init:
+        return "structure"
+    return None
+

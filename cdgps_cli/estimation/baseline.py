@@ -864,6 +864,7 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
             "last": gps_time_str(float(d.t_label[segtab["last_epoch"][k]])),
             "n_epochs": int(segtab["n_rows"][k]),
             "pivot": bool(is_pivot[k]),
+            "reference": d.sat_names[int(segtab["sat"][pivots[comp[k]]])],     # its connected set's datum
             "half_cycle_flag": bool(seg_half[k]),
             "float_cycles": None if is_pivot[k] else float(a_float[p_idx]),
             "sigma_cycles": None if is_pivot[k] else float(math.sqrt(q_aa[p_idx, p_idx])),

@@ -39,7 +39,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.phase import channel_indices, phase_model
 from cdgps_cli.measurement.multipath import MultipathModel, augment, model_from
 from cdgps_cli.measurement.noise import leverage_per_channel, prior_sigma_m, variance_factors
-from cdgps_cli.core.records import Run
+from cdgps_cli.core.records import INIT_FORMAT, Run
 
 
 @dataclass
@@ -739,7 +739,8 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
     elapsed = _time.perf_counter() - t_start
     dof = max(int(np.isfinite(resid).sum()) - nd - int(prob_final.free.size), 1)
     out = {
-        "format": "cdgps.init/1",
+        "format": INIT_FORMAT,
+        "kind": "structure",
         "config": cfg.name,
         "config_sha256": cfg.sha256,
         "run": run.path,

@@ -45,7 +45,9 @@ from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.estimation.baseline import BaselineOptions, Station, json_safe, solve_static_baseline
 from cdgps_cli.config.structure import parse_config
 from cdgps_cli.measurement.differencing import dd_weight_blocks, select_reference
+from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.core.records import INIT_FORMAT, init_kind
 from cdgps_cli.model.gps.positioning import L1_WAVELENGTH_M
 from cdgps_cli.io.gnss_run import GnssRun, processing_obs
 from cdgps_cli.io.mcap import NULLABLE, CONFIG_ATTACHMENT, McapOut, array_schema, read_mcap
@@ -58,7 +60,6 @@ __all__ = ["gnss_init", "gnss_estimate", "displacement_structure_config", "expor
 
 KINEMATIC_TOPIC = "/cdgps/kinematic"
 GNSS_CONFIG_ATTACHMENT = "gnss_config.toml"
-INIT_KIND = "cdgps gnss init"
 
 
 # ----------------------------------------------------------------------------------------------
@@ -144,7 +145,8 @@ def gnss_init(run: GnssRun, *, options: dict | None = None, progress=None) -> di
     sigma = {k: v for r in rovers.values() for k, v in r["sigma"].items()}
     ratios = [r["ratio"] for r in rovers.values() if isinstance(r["ratio"], (int, float))]
     return {
-        "kind": INIT_KIND,
+        "format": INIT_FORMAT,
+        "kind": "gnss",
         "cdgps_version": __version__,
         "run": Path(run.path).name,
         "config_name": run.cfg.name,
@@ -159,9 +161,29 @@ def gnss_init(run: GnssRun, *, options: dict | None = None, progress=None) -> di
         "n_fixed": int(sum(v["n_fixed"] for v in rovers.values())),
         "n_estimated": int(sum(v["n_estimated"] for v in rovers.values())),
         "ratio": min(ratios) if ratios else None,
+        "biases": [b for r, v in rovers.items() for b in gnss_biases(run.master, r, v["ambiguities"])],
         "rovers": rovers,
         "options": json_safe(asdict(opt)),
     }
+
+
+def gnss_biases(master: str, rover: str, segments: list) -> list:
+    """INIT's ``biases`` entries (:data:`cdgps_cli.core.records.INIT_FORMAT`) of one rover's ambiguity
+    segments: SD ambiguities (rover − master) relative to each connected set's reference (pivot)
+    segment, so that double differences against ``reference`` are integers; metres and cycles."""
+    lam = GPS_L1_WAVELENGTH_M
+    out = []
+    for s in segments:
+        fixed = bool(s["fixed"])
+        cycles = s["integer"] if fixed else s["float_cycles"]
+        out.append({
+            "master": master, "rover": rover, "satellite": s["sat"], "reference": s.get("reference"),
+            "bias_m": None if cycles is None else float(lam * cycles),
+            "sigma_m": 0.0 if fixed else (None if s["sigma_cycles"] is None else float(lam * s["sigma_cycles"])),
+            "integer_cycles": int(s["integer"]) if fixed else None, "fixed": fixed, "pivot": bool(s["pivot"]),
+            "segment_start_s": s["first_gps_s"], "segment_end_s": s["last_gps_s"],
+        })
+    return out
 
 
 def _master_xyz(run: GnssRun) -> np.ndarray:
@@ -172,7 +194,7 @@ def _master_xyz(run: GnssRun) -> np.ndarray:
 
 
 def is_gnss_init(init: dict) -> bool:
-    return isinstance(init, dict) and init.get("kind") == INIT_KIND
+    return init_kind(init) == "gnss"
 
 
 # ----------------------------------------------------------------------------------------------

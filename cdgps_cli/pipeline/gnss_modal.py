@@ -286,11 +286,11 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
         The :func:`cdgps_cli.io.states.write_states` summary plus the placement, the antenna mapping,
         the nominal-position mismatches and the integer counts.
     """
-    from cdgps_cli.pipeline.gnss import INIT_KIND, _check_master_position, _master_xyz, _stations  # noqa: PLC0415
+    from cdgps_cli.pipeline.gnss import _check_master_position, _master_xyz, _stations, is_gnss_init  # noqa: PLC0415
     from cdgps_cli.io.states import write_states  # noqa: PLC0415
 
     say = progress or (lambda m: None)
-    if not (isinstance(init, dict) and init.get("kind") == INIT_KIND):
+    if not is_gnss_init(init):
         raise CdgpsError("INIT.json is not from 'cdgps init' on a GNSS run")
     if init.get("config_sha256") != run.cfg.sha256 or set(init.get("rovers", {})) != set(run.rovers) \
             or init.get("master") != run.master:

@@ -22,7 +22,7 @@ from cdgps_cli.config.structure import parse_config
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.estimation import initializer as init_mod
 from cdgps_cli.estimation.initializer import InitOptions, initialize, phase_matrix, window_data
-from cdgps_cli.core.records import Run
+from cdgps_cli.core.records import Run, init_kind
 from cdgps_cli.io.run import read_run, write_run
 from cdgps_cli.sim.structure import SimOptions, parse_outage, parse_slip, simulate, write_simulation
 
@@ -133,8 +133,11 @@ def test_init_dict_contract(free60):
     for key in ("biases", "state", "window", "iterations", "residual_rms_m", "ratio", "config_sha256", "starts"):
         assert key in res, key
     assert res["config_sha256"] == cfg.sha256 and len(res["config_sha256"]) == 64
+    assert res["format"] == "cdgps.init/2" and res["kind"] == "structure" and init_kind(res) == "structure"
     for b in res["biases"]:
-        assert {"antenna", "transmitter", "bias_m", "sigma_m", "integer_cycles", "fixed"} <= set(b)
+        # the fields every INIT's biases share (a GNSS INIT's too: tests/pipeline/test_gnss.py)
+        assert {"antenna", "transmitter", "bias_m", "sigma_m", "integer_cycles", "fixed",
+                "segment_start_s", "segment_end_s"} <= set(b)
         assert isinstance(b["integer_cycles"], int) and isinstance(b["fixed"], bool)
     assert {(b["antenna"], b["transmitter"]) for b in res["biases"]} == \
         {(a, t) for a in cfg.rover_names for t in cfg.transmitter_names}

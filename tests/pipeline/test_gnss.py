@@ -25,6 +25,7 @@ from cdgps_cli.cli.commands import main
 from cdgps_cli.model.gps.orbits import ecef_to_enu
 from cdgps_cli.model.gps.positioning import simulate_static_pair, synthetic_gps_nav
 from cdgps_cli.pipeline.gnss import KINEMATIC_TOPIC
+from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli.core.gps_time import gps_seconds
 from cdgps_cli.io.states import States
 
@@ -69,7 +70,7 @@ def geonet(tmp_path_factory):
 def test_geonet_pipeline_equals_baseline_and_rtklib(geonet):
     tmp, init, bl = geonet
     rov = init["rovers"]["0759"]
-    assert init["kind"] == "cdgps gnss init" and init["master"] == "3040" and init["coordinates"] == ["0759_e", "0759_n", "0759_u"]
+    assert init["format"] == "cdgps.init/2" and init["kind"] == "gnss" and init["master"] == "3040" and init["coordinates"] == ["0759_e", "0759_n", "0759_u"]
     assert rov["solution"] == "fixed" and rov["n_fixed"] == rov["n_estimated"] == 6 and rov["ratio"] > 100
     # the same numbers as `cdgps baseline` (to the last bit: same data, same code)
     assert init["states"] == bl["states"]
@@ -90,6 +91,33 @@ def test_geonet_pipeline_equals_baseline_and_rtklib(geonet):
     rms = np.sqrt(((kin.loc[good, ["0759_e", "0759_n", "0759_u"]].to_numpy() - ours) ** 2).mean(axis=0))
     assert good.sum() == 114 and np.all(rms < [0.005, 0.006, 0.012]), rms
     assert np.allclose(rms, [bl["kinematic"]["pdop_le_max"]["rms_about_static_m"][c] for c in "enu"], atol=1e-9)
+
+
+BIAS_FIELDS = {"bias_m", "sigma_m", "integer_cycles", "fixed", "segment_start_s", "segment_end_s"}
+
+
+def test_geonet_init_biases_have_the_structure_init_fields(geonet, tmp_path):
+    """INIT v2: one ``biases`` entry per ambiguity segment, the same fields as a structure INIT's, the
+    channel named rover/satellite/reference; a fixed entry's bias is λ × its integer, the pivot's 0."""
+    tmp, init, _ = geonet
+    segs = init["rovers"]["0759"]["ambiguities"]
+    assert len(init["biases"]) == len(segs) == init["rovers"]["0759"]["n_segments"]
+    for b, s in zip(init["biases"], segs):
+        assert BIAS_FIELDS <= set(b) and (b["master"], b["rover"], b["satellite"]) == ("3040", "0759", s["sat"])
+        assert b["fixed"] and b["integer_cycles"] == s["integer"] and b["sigma_m"] == 0.0
+        assert b["bias_m"] == pytest.approx(GPS_L1_WAVELENGTH_M * s["integer"], rel=1e-15)
+        assert b["segment_start_s"] < b["segment_end_s"]
+    pivots = [b for b in init["biases"] if b["pivot"]]
+    assert len(pivots) == 1 and pivots[0]["integer_cycles"] == 0
+    assert {b["reference"] for b in init["biases"]} == {pivots[0]["satellite"]}
+    # an INIT of the earlier GNSS format (kind "cdgps gnss init", no format, no biases) is still read,
+    # and gives the same states
+    old = {k: v for k, v in init.items() if k not in ("format", "biases")}
+    old["kind"] = "cdgps gnss init"
+    (tmp_path / "old.json").write_text(json.dumps(old))
+    r = run_cli("-q", "estimate", tmp / "run.mcap", "--init", tmp_path / "old.json", "-o", tmp_path / "s.mcap")
+    assert r.exit_code == 0, r.output
+    np.testing.assert_array_equal(States(tmp_path / "s.mcap").q, States(tmp / "states.mcap").q)
 
 
 def test_geonet_states_file(geonet):
