@@ -41,7 +41,8 @@ import numpy as np
 import pandas as pd
 from scipy.linalg import cho_factor, cho_solve
 
-from .ambiguity import AmbiguityError, lambda_search, partial_fix, ratio_test
+from . import progress
+from .ambiguity import AmbiguityError, resolve
 from .atomic import path_for_config
 from .config import GNSS_DEFAULTS, GNSS_WEIGHTINGS
 from .dd import (
@@ -690,20 +691,18 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
     elif opt.fix and fixable.sum() >= 1:
         fi = np.flatnonzero(fixable)
         try:
-            cands, norms = lambda_search(a_float[fi], q_aa[np.ix_(fi, fi)], candidates=2)
-            accepted, ratio_full = ratio_test(norms, opt.ratio_threshold)
-            ratio = ratio_full
-            if accepted:
-                fixed_mask[fi] = True
-                integers_fix[fi] = cands[0]
-            elif opt.partial and fi.size > 1:
-                pf = partial_fix(a_float[fi], q_aa[np.ix_(fi, fi)], threshold=opt.ratio_threshold)
-                if pf["n_fixed"] > 0:
-                    partial_used = True
-                    accepted = True
-                    ratio = pf["ratio"]
-                    fixed_mask[fi[pf["fixed_mask"]]] = True
-                    integers_fix[fi[pf["fixed_mask"]]] = pf["integers"][pf["fixed_mask"]]
+            with progress.bar(fi.size if opt.partial else 1, "integer fixing (LAMBDA)", unit="subset") as bar:
+                pf = resolve(a_float[fi], q_aa[np.ix_(fi, fi)], opt.ratio_threshold, partial=opt.partial,
+                             progress=lambda done, total: bar.update_to(done))
+            ratio_full = None if math.isnan(pf["ratio_full_set"]) else pf["ratio_full_set"]
+            ratio = None if math.isnan(pf["ratio"]) else pf["ratio"]
+            accepted, partial_used = pf["accepted"], pf["partial"]
+            fixed_mask[fi[pf["fixed_mask"]]] = True
+            integers_fix[fi[pf["fixed_mask"]]] = pf["integers"][pf["fixed_mask"]]
+            if pf["limit_message"]:
+                warnings.append(f"integer ambiguity resolution: {pf['limit_message']} "
+                                f"({'partial fixing tried subsets' if opt.partial else 'no partial fixing'}); "
+                                f"{pf['n_fixed']} of {fi.size} fixed")
         except AmbiguityError as exc:
             warnings.append(f"integer ambiguity resolution failed: {exc}")
     t_lambda = time.perf_counter() - t0
