@@ -8,8 +8,10 @@ do.  The float DD ambiguities and their covariance handed to the integer fixing 
 then resolved again, timed, by
 
 * ``lambda_search`` + ``ratio_test`` (the full set),
-* ``partial_fix`` forced through its nested subsets (ratio threshold raised so that the full set
-  fails: the path that kept the real 150-segment init from finishing), and
+* ``partial_fix`` forced through its nested subsets (ratio threshold 1.5 × the full set's, so
+  that it fails and a few ambiguities are dropped: the path that kept the real 150-segment init
+  from finishing), and with a threshold nothing passes (every nested subset searched: the upper
+  bound of its cost), and
 * the pre-issue-14 pure-Python implementation (``tests/estimation/lambda_legacy.py``) on the same
   problems, for the speed-up and to check the answers agree (skipped where it would take minutes:
   ``--legacy-max``).
@@ -118,10 +120,14 @@ def main(argv=None) -> int:
         row = dict(r, n_ambiguities=int(n), t_lambda_s=t_full, full_ratio=ratio, forced_threshold=thr,
                    t_partial_forced_s=t_part, partial_n_fixed=pf["n_fixed"], partial_ratio=pf["ratio"],
                    partial_searches=pf["subsets_searched"], partial_limited=pf["search_limited"])
+        # every nested subset searched (nothing passes): the upper bound of partial fixing's cost
+        t_worst, pw = timed(lambda: ambiguity.partial_fix(a, Q, threshold=1e9), repeat=1)
+        row.update(t_partial_all_subsets_s=t_worst, all_subsets_searched=pw["subsets_searched"])
         if n <= args.legacy_max:
             t_old, (c_old, s_old) = timed(lambda: lambda_legacy.lambda_search(a, Q), repeat=1)
             t_old_p, pf_old = timed(lambda: lambda_legacy.partial_fix(a, Q, threshold=thr), repeat=1)
-            row.update(t_lambda_legacy_s=t_old, t_partial_forced_legacy_s=t_old_p,
+            t_old_w, _ = timed(lambda: lambda_legacy.partial_fix(a, Q, threshold=1e9), repeat=1)
+            row.update(t_lambda_legacy_s=t_old, t_partial_forced_legacy_s=t_old_p, t_partial_all_subsets_legacy_s=t_old_w,
                        same_full=bool(np.array_equal(c_old, c_full) and np.allclose(s_old, s_full, rtol=1e-9)),
                        same_partial=bool(np.array_equal(pf_old["fixed_mask"], pf["fixed_mask"])
                                          and np.array_equal(pf_old["integers"], pf["integers"])))
@@ -129,7 +135,7 @@ def main(argv=None) -> int:
         print(json.dumps({k: (round(v, 4) if isinstance(v, float) else v) for k, v in row.items()
                           if k != "solution"}), flush=True)
     # growth exponent between consecutive sizes (t ∝ n^p)
-    for key in ("t_init_s", "t_lambda_s", "t_partial_forced_s"):
+    for key in ("t_init_s", "t_fixing_in_init_s", "t_lambda_s", "t_partial_forced_s", "t_partial_all_subsets_s"):
         for r0, r1 in zip(rows, rows[1:]):
             p = np.log(r1[key] / r0[key]) / np.log(r1["n_ambiguities"] / r0["n_ambiguities"])
             print(f"{key}: {r0['n_ambiguities']} → {r1['n_ambiguities']} ambiguities: exponent {p:.2f}")

@@ -1,0 +1,1 @@
+"""GPS models: orbits from broadcast ephemerides, troposphere, receiver clocks and epoch alignment, SPP."""
