@@ -64,7 +64,7 @@ from .gnss import (
     reception_geometry,
     spp_static,
 )
-from .model.gps.epoch_align import ALIGN_MODES, align_receiver, carry_slips, pair_epochs
+from .epoch_align import ALIGN_MODES, align_receiver, carry_slips, pair_epochs
 from .rinex import gps_time_str, read_rinex_nav, read_rinex_obs
 
 __all__ = [
@@ -108,7 +108,7 @@ class BaselineOptions:
         Gauss-Newton iteration cap (float and fixed solutions each).
     sync_tol_s : float
         Largest offset of an epoch's time tag from its grid time of GPS seconds, s (epochs farther
-        away are dropped; :mod:`cdgps_cli.model.gps.epoch_align`).
+        away are dropped; :mod:`cdgps_cli.epoch_align`).
     epoch_alignment : {"geometry", "doppler"}
         Off-grid epochs modelled at their own reception instants, or their phase and range moved
         to the grid time by carrier-phase rate × offset.
@@ -262,7 +262,7 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
     tm = np.unique(master.obs["time_gps_s"].to_numpy())
     tr = np.unique(rover.obs["time_gps_s"].to_numpy())
     interval = nominal_interval_s(tm)
-    # epochs on the common grid of GPS times (model.gps.epoch_align): pairs at any rates
+    # epochs on the common grid of GPS times (epoch_align): pairs at any rates
     aligned, align_info = {}, {}
     for st in (master, rover):
         try:

@@ -41,7 +41,7 @@ from .atomic import file_sha256, path_for_config
 from .config import GnssConfig, gnss_config_toml, parse_gnss_config
 from .errors import CdgpsError
 from .gnss import ephemeris_coverage, nominal_interval_s
-from .model.gps.epoch_align import common_epochs
+from .epoch_align import common_epochs
 from .mcap_io import CONFIG_ATTACHMENT, McapOut, array_schema, message_schema, read_mcap
 from .rinex import NAV_COLUMNS, OBS_COLUMNS, gps_time_str, read_rinex_nav, read_rinex_obs
 from .ubx import INTEGRITY_COUNTS, integrity_problems, integrity_record

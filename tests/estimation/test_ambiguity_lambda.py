@@ -219,3 +219,20 @@ def test_every_tail_of_the_reduction_is_a_reduction_of_its_subset():
     all_ops = amb._reduce(L, d)[2]
     amb._reduce(L, d, on_tail=check)
     assert seen == list(range(Q.shape[0] - 1, 0, -1))
+
+
+def test_resolve_reports_the_cap_and_falls_back_to_subsets():
+    rng = np.random.default_rng(9)
+    a, Q, truth = dd_like_problem(30, seed=21, n_ep=80)
+    Qw = Q.copy()
+    weak = np.arange(12)
+    Qw[weak, weak] += 4.0                              # 12 hopeless ambiguities (±2 cycles each)
+    a = a.copy()
+    a[weak] += rng.uniform(-2, 2, weak.size)
+    full = amb.resolve(a, Qw, 3.0, partial=False, max_nodes=100)
+    assert full["limit_message"] and "stopped after 100 nodes" in full["limit_message"]
+    assert not full["accepted"] and np.isnan(full["ratio_full_set"])
+    part = amb.resolve(a, Qw, 3.0, partial=True, max_nodes=100)
+    assert part["limit_message"] and part["partial"] and part["n_fixed"] >= 15
+    np.testing.assert_array_equal(part["integers"][part["fixed_mask"]], truth[part["fixed_mask"]])
+    assert not part["fixed_mask"][weak].any()

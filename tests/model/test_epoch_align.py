@@ -14,7 +14,7 @@ import pytest
 from cdgps_cli.baseline import BaselineOptions, Station, solve_static_baseline
 from cdgps_cli.gnss import L1_WAVELENGTH_M, simulate_static_pair, synthetic_gps_nav
 from cdgps_cli.gnss_sim import DEFAULT_MASTER_XYZ, DEFAULT_ROVER_XYZ
-from cdgps_cli.model.gps.epoch_align import (
+from cdgps_cli.epoch_align import (
     align_receiver,
     carry_slips,
     common_epochs,

@@ -26,6 +26,11 @@ What happens to the observations of an off-grid epoch (:data:`ALIGN_MODES`):
 
 :func:`align_receiver` does one receiver, :func:`pair_epochs` pairs two aligned receivers;
 both report matched, corrected and dropped epochs.
+
+Target folder: ``model/gps/`` (architecture.md: receiver clocks).  The module is flat for now
+because ``config.GnssConfig.baseline_options`` imports :mod:`cdgps_cli.baseline`, which imports
+this module: inside ``model/`` that chain would make ``config`` import ``model`` and break the
+``target-layers`` import contract that holds today.
 """
 
 from __future__ import annotations

@@ -1,1 +1,0 @@
-"""Models of the physics (architecture.md): kinematics, dynamics, and gps/ (orbits, troposphere, clocks, SPP)."""

@@ -1,1 +1,0 @@
-"""GPS models: orbits from broadcast ephemerides, troposphere, receiver clocks and epoch alignment, SPP."""
