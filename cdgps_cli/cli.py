@@ -303,6 +303,17 @@ def _parse_named(items, option: str, what: str = "antenna", form: str = "ANTENNA
     return out
 
 
+def _grid_note(c: dict) -> str:
+    """' (… off the grid of GPS times within … ms, … dropped)' for an ingest pair, or ''."""
+    parts = []
+    for who in ("master", "rover"):
+        r = c.get(who) or {}
+        if r.get("off_grid") or r.get("dropped"):
+            parts.append(f"{who} {r.get('off_grid', 0)} off-grid epochs kept (≤ {r.get('max_offset_ms') or 0:.1f} ms)"
+                         + (f", {r['dropped']} dropped" if r.get("dropped") else ""))
+    return f" ({'; '.join(parts)}; tolerance {c.get('tolerance_ms', 0):g} ms)" if parts else ""
+
+
 def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict=False):
     from .config import load_gnss_config, parse_gnss_config
     from .gnss_run import default_config_text, ingest_gnss
@@ -334,7 +345,7 @@ def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict=F
                   f"({r['interval_s']:g} s), {r['satellites']} satellites, {r['phase_rows']} phases, {r['slips']} slips, "
                   f"{r['half_cycle_rows']} half-cycle rows")
     for n, c in s["common_epochs"].items():
-        _say(ctx, f"  {n}: {c['common_epochs']} epochs in common with {s['master']}")
+        _say(ctx, f"  {n}: {c['common_epochs']} epochs in common with {s['master']}" + _grid_note(c))
     for w in s["warnings"]:
         _say(ctx, f"  warning: {w}")
     if as_json:
