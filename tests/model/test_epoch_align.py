@@ -195,3 +195,21 @@ def test_simulate_gnss_raw_tags_and_master_rate(tmp_path):
     rover = (tmp_path / "rover.rnx").read_text()
     base = (tmp_path / "base.rnx").read_text()
     assert "23 59 59.992000" in rover and " 0.0000000" in base and " 5.0000000" in base and " 1.0000000" not in base
+
+
+def test_phase_rate_agrees_with_the_doppler_of_a_real_ublox_log(repo_root):
+    """Independent check of the rate (and of its sign, Φ̇ = −D) on real RXM-RAWX data."""
+    from cdgps_cli.epoch_align import phase_rate
+    from cdgps_cli.gnss_run import processing_obs, read_receiver_file
+
+    path = repo_root.parent / "shared" / "data" / "ubx" / "pygpsdata-RXMRAWX.log"
+    if not path.exists():
+        pytest.skip("../shared/data is not available")
+    rx = read_receiver_file("rx", "ubx", path)
+    o = processing_obs(rx)
+    rate = phase_rate(o["time_gps_s"], o["sat"], o["phase_l1_cycles"], o["lli_l1"], 1.0)
+    dop = rx.raw["doppler_hz"].to_numpy(dtype=float)
+    ok = np.isfinite(rate) & np.isfinite(dop)
+    assert ok.sum() >= 40
+    assert np.median(np.abs(rate[ok] + dop[ok])) < 0.5            # Hz, against rates of ±3000 Hz
+    assert np.max(np.abs(rate[ok] + dop[ok])) < 5.0
