@@ -308,6 +308,17 @@ def _parse_named(items, option: str, what: str = "antenna", form: str = "ANTENNA
     return out
 
 
+def _grid_note(c: dict) -> str:
+    """' (… off the grid of GPS times within … ms, … dropped)' for an ingest pair, or ''."""
+    parts = []
+    for who in ("master", "rover"):
+        r = c.get(who) or {}
+        if r.get("off_grid") or r.get("dropped"):
+            parts.append(f"{who} {r.get('off_grid', 0)} off-grid epochs kept (≤ {r.get('max_offset_ms') or 0:.1f} ms)"
+                         + (f", {r['dropped']} dropped" if r.get("dropped") else ""))
+    return f" ({'; '.join(parts)}; tolerance {c.get('tolerance_ms', 0):g} ms)" if parts else ""
+
+
 def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict=False):
     from cdgps_cli.config.structure import load_gnss_config, parse_gnss_config
     from cdgps_cli.io.gnss_run import default_config_text, ingest_gnss
@@ -339,7 +350,7 @@ def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict=F
                   f"({r['interval_s']:g} s), {r['satellites']} satellites, {r['phase_rows']} phases, {r['slips']} slips, "
                   f"{r['half_cycle_rows']} half-cycle rows")
     for n, c in s["common_epochs"].items():
-        _say(ctx, f"  {n}: {c['common_epochs']} epochs in common with {s['master']}")
+        _say(ctx, f"  {n}: {c['common_epochs']} epochs in common with {s['master']}" + _grid_note(c))
     for w in s["warnings"]:
         _say(ctx, f"  warning: {w}")
     if as_json:
@@ -1165,11 +1176,20 @@ def simulate_gnss_structure_cmd(ctx, config, duration_s, seed, x_axis_azimuth_de
               help="Undifferenced white phase noise, m [default: the elevation model sigma^2 = a^2 + b^2/sin^2(el), "
                    "a = b = 3 mm per receiver, the estimator's default weighting].")
 @click.option("--code-noise-m", type=float, default=0.5, show_default=True, help="Undifferenced pseudorange noise, m.")
+@click.option("--clock-offset-ms", "clock_offset", default="0,0", show_default=True, metavar="M,R",
+              help="Master and rover receiver-clock offset at the start, ms.")
+@click.option("--clock-drift-ms", "clock_drift", default="-4,5", show_default=True, metavar="M,R",
+              help="Change of the master and rover clock offsets over the span, ms.")
+@click.option("--raw-tags", is_flag=True,
+              help="Time tags = nominal epoch + clock offset, not rounded to 1 ms (u-blox-like epochs off whole seconds).")
+@click.option("--master-rate-hz", type=float, default=None,
+              help="The master records at this lower rate (a divisor of --rate-hz), e.g. 0.2 for a 5 s CORS receiver.")
 @_output_option("out_dir", "Output directory.", directory=True, old=("--out",))
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
 def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover, master_xyz, rover_xyz, displacement,
-                      random_walk, n_slips, phase_noise_m, code_noise_m, out_dir, as_json):
+                      random_walk, n_slips, phase_noise_m, code_noise_m, clock_offset, clock_drift, raw_tags,
+                      master_rate_hz, out_dir, as_json):
     """Simulate a master + rover GPS L1 pair → RINEX 3 obs/nav files, truth.csv/json, config.toml.
 
     The rover antenna is displaced from its nominal (header) position by --displacement (plus a
@@ -1184,6 +1204,9 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
         rover_xyz=parse_vector(rover_xyz, "--rover-xyz") if rover_xyz else DEFAULT_ROVER_XYZ,
         displacement_enu_m=parse_vector(displacement, "--displacement"), random_walk_sigma=random_walk,
         n_slips=n_slips, phase_sigma_m=phase_noise_m, code_sigma_m=code_noise_m,
+        clock_offset_ms=parse_vector(clock_offset, "--clock-offset-ms", 2),
+        clock_drift_ms=parse_vector(clock_drift, "--clock-drift-ms", 2), raw_tags=raw_tags,
+        master_rate_hz=master_rate_hz,
         progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
     _say(ctx, f"wrote {', '.join(s['files'])} to {out_dir}/: {s['epochs']} epochs, {s['satellites']} satellites, "
               f"{s['slips']} slips, {s['displacement_model']} rover")

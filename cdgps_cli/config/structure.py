@@ -921,14 +921,15 @@ GNSS_WEIGHTINGS = ("elevation", "equal")
 # defaults of the GNSS solver settings: the [gnss] parser, GnssConfig and baseline.BaselineOptions all
 # take them from here (RTKLIB-comparable: 15° mask, ratio 3, a = b = 3 mm, code/phase ratio 100, DTTOL)
 GNSS_DEFAULTS = {"mask_deg": 15.0, "ratio": 3.0, "weighting": "elevation", "sigma_a_m": 0.003,
-                 "sigma_b_m": 0.003, "code_ratio": 100.0, "sync_tol_s": 0.025,
+                 "sigma_b_m": 0.003, "code_ratio": 100.0, "sync_tol_s": 0.025, "epoch_alignment": "geometry",
                  "random_walk_sigma": (0.001, 0.001, 0.001), "initial_sigma_m": 1.0}
 
 _GNSS_KEYS = {
     "name": "string", "description": "string", "master": "string", "nav": "list of file paths",
     "mask_deg": "number", "ratio": "number", "partial": "bool", "fix": "bool", "weighting": "string",
     "sigma_a_m": "number", "sigma_b_m": "number", "code_ratio": "number", "troposphere": "bool",
-    "max_gap_s": "number", "sync_tol_s": "number", "antennas": "table", "displacement": "table",
+    "max_gap_s": "number", "sync_tol_s": "number", "epoch_alignment": "string", "antennas": "table",
+    "displacement": "table",
 }
 _GNSS_ANTENNA_KEYS = {"rinex", "ubx", "position_ecef_m", "description"}
 _GNSS_DISPLACEMENT_KEYS = {"model", "sigma_m_per_sqrt_s", "initial_sigma_m"}
@@ -987,6 +988,7 @@ class GnssConfig:
     troposphere: bool = True
     max_gap_s: float | None = None
     sync_tol_s: float = GNSS_DEFAULTS["sync_tol_s"]
+    epoch_alignment: str = GNSS_DEFAULTS["epoch_alignment"]
     displacement: str = "static"
     random_walk_sigma: tuple = GNSS_DEFAULTS["random_walk_sigma"]
     initial_sigma_m: float = GNSS_DEFAULTS["initial_sigma_m"]
@@ -1099,6 +1101,9 @@ def parse_gnss_config(text: str, path: str = "<config>", base_dir: str | Path | 
     sync = chk.number(g, "gnss", "sync_tol_s", GNSS_DEFAULTS["sync_tol_s"], positive=True)
     if sync is not None and sync > 1.0:
         chk.add("gnss.sync_tol_s", f"expected at most 1 s, got {sync!r}")
+    align = chk.string(g, "gnss", "epoch_alignment", GNSS_DEFAULTS["epoch_alignment"])
+    if align not in ("geometry", "doppler"):
+        chk.add("gnss.epoch_alignment", f"expected \"geometry\" or \"doppler\", got {align!r}")
 
     # [gnss.displacement]
     disp = g.get("displacement", {})
@@ -1161,7 +1166,7 @@ def parse_gnss_config(text: str, path: str = "<config>", base_dir: str | Path | 
         description=description or "", master=master, antennas=tuple(ants), nav=tuple(nav),
         mask_deg=mask, ratio=ratio, partial=flag("partial", True), fix=flag("fix", True), weighting=weighting,
         sigma_a_m=sa, sigma_b_m=sb, code_ratio=code_ratio, troposphere=flag("troposphere", True),
-        max_gap_s=max_gap, sync_tol_s=sync, displacement=model, random_walk_sigma=rw, initial_sigma_m=init_sigma,
+        max_gap_s=max_gap, sync_tol_s=sync, epoch_alignment=align, displacement=model, random_walk_sigma=rw, initial_sigma_m=init_sigma,
     )
 
 

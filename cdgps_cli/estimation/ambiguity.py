@@ -41,12 +41,14 @@ import numpy as np
 
 __all__ = [
     "AmbiguityError",
+    "SearchLimitError",
     "ld_factorize",
     "decorrelate",
     "search",
     "lambda_search",
     "ratio_test",
     "partial_fix",
+    "resolve",
 ]
 
 #: Relative tolerance used when checking that ``Q`` is symmetric: the
@@ -68,8 +70,33 @@ PERM_RTOL = 1e-6
 MAX_ABS_AMBIGUITY = 2.0**52
 
 
+#: Default cap on the nodes one integer search may visit (RTKLIB's LOOPMAX is 10000 loops of its
+#: search; a node here is one loop).  A decorrelated, well-determined set of 500 ambiguities
+#: needs about 1000-3000 nodes per search; a search that gets near the cap is enumerating a
+#: float solution too weak to fix, which is refused with :class:`SearchLimitError` instead of
+#: running for minutes.
+SEARCH_MAX_NODES = 200_000
+
+#: Levels of the search at or above this index update the conditional estimates with one numpy
+#: slice operation; below it, with a Python list (numpy's per-call overhead exceeds the work).
+SEARCH_NUMPY_LEVEL = 24
+
+
 class AmbiguityError(ValueError):
     """Invalid input to, or failure of, integer ambiguity resolution."""
+
+
+class SearchLimitError(AmbiguityError):
+    """The integer search exceeded its node cap (:data:`SEARCH_MAX_NODES` by default)."""
+
+
+def _check_cap(max_nodes):
+    """Validate a node cap (None: the default), return it as int."""
+    if max_nodes is None:
+        return SEARCH_MAX_NODES
+    if isinstance(max_nodes, bool) or not isinstance(max_nodes, numbers.Integral) or max_nodes < 1:
+        raise AmbiguityError(f"max_nodes must be an integer >= 1, got {max_nodes!r}")
+    return int(max_nodes)
 
 
 # ---------------------------------------------------------------------------
@@ -172,14 +199,32 @@ def ld_factorize(Q):
 # ---------------------------------------------------------------------------
 
 
-def _reduce(L, d):
-    """LAMBDA reduction on Python lists.
+def _reduce(L, d, *, z=None, on_tail=None):
+    """LAMBDA reduction (integer Gauss transformations and adjacent permutations), vectorized.
+
+    Parameters
+    ----------
+    L : array_like, shape (n, n)
+        Unit lower-triangular factor of ``Q = L^T diag(d) L`` (:func:`ld_factorize`).
+    d : array_like, shape (n,)
+        Conditional variances, cycles^2.
+    z : list of float, length n, optional
+        Float ambiguities, transformed in place along with ``L`` (``z <- Z^T z``).
+    on_tail : callable, optional
+        ``on_tail(k, L, d, z, n_ops)`` is called once for every ``k = n-1 … 1`` at the moment the
+        trailing block ``[k, n)`` is reduced, before the reduction goes on with index ``k - 1``
+        (the arrays are the working ones: read, do not keep or modify).  Every operation recorded
+        up to then involves only indices ``>= k``, so ``L[k:, k:]``, ``d[k:]``, ``z[k:]`` and
+        ``ops[:n_ops]`` are a complete reduction of the ambiguities ``k … n-1`` on their own
+        (without the final size-reduction pass, which changes neither ``d`` nor the integer
+        solution).  This is what lets :func:`partial_fix` resolve every nested subset from one
+        reduction.
 
     Returns
     -------
-    Lr : list of lists, shape (n, n)
-        Reduced factor, row-major (``Lr[r][c] == L[r, c]``).
-    dl : list of float, length n
+    Lr : ndarray, shape (n, n)
+        Reduced unit lower-triangular factor.
+    dl : ndarray, shape (n,)
         Reduced conditional variances.
     ops : list of (i, j, mu) tuples
         The transformation as a sequence of elementary operations on the
@@ -190,76 +235,77 @@ def _reduce(L, d):
 
     Notes
     -----
-    Pure-Python lists are used on purpose: the algorithm consists of many
-    tiny, sequentially dependent updates for which per-call numpy overhead
-    would dominate.  Recording the operations instead of updating ``Z``
-    (and ``Z^{-1}``) makes every operation O(1) in ``z``; ``Z`` is only
-    materialised when explicitly asked for (:func:`decorrelate`).
+    Strategy (as in MLAMBDA, and RTKLIB's ``reduction``): walk the adjacent pairs ``(k, k+1)``
+    from the end; before testing a pair only the sub-diagonal element ``L[k+1, k]`` is
+    size-reduced; after a swap the walk steps back one pair, since only the pairs ``k-1``, ``k``
+    and ``k+1`` are affected by the swap.  The other off-diagonal elements do not influence ``d``
+    and are reduced in a final pass, which keeps the search numerically well conditioned.
 
-    Strategy (as in MLAMBDA): walk the adjacent pairs ``(k, k+1)`` from the
-    end; before testing a pair only the sub-diagonal element ``L[k+1, k]``
-    is size-reduced; after a swap the walk steps back one pair, since only
-    the pairs ``k-1``, ``k`` and ``k+1`` are affected by the swap.  The
-    other off-diagonal elements do not influence ``d`` and are reduced in a
-    final pass, which keeps the search numerically well conditioned.
+    Each elementary step updates one row/column slice with numpy (O(n) work per call, no Python
+    loop over the elements); recording the operations instead of updating ``Z`` makes each O(1)
+    in ``z``, and ``Z`` is only materialised when asked for (:func:`decorrelate`).  The
+    arithmetic is element for element that of the former list implementation, so the results are
+    bit-identical to it.
     """
-    L = np.asarray(L, dtype=float)
-    d = np.asarray(d, dtype=float)
+    L = np.array(L, dtype=float)
+    d = np.array(d, dtype=float)
     n = d.shape[0]
     if d.ndim != 1 or L.shape != (n, n):
         raise AmbiguityError(
             f"L must have shape (n, n) matching d of shape (n,), got {L.shape} and {d.shape}"
         )
-    Lr = L.tolist()
-    dl = d.tolist()
     ops = []
     floor = math.floor
 
     def gauss(i, j):
         # integer Gauss transformation z_j <- z_j - mu z_i (i > j) making
         # |L[i, j]| <= 1/2; with G = I - mu e_i e_j^T:  L <- L G, Z <- Z G.
-        mu = floor(Lr[i][j] + 0.5)
+        mu = floor(L[i, j] + 0.5)
         if mu:
-            for r in range(i, n):
-                row = Lr[r]
-                row[j] -= mu * row[i]
+            L[i:, j] -= mu * L[i:, i]
             ops.append((i, j, mu))
+            if z is not None:
+                z[j] -= mu * z[i]
 
     k = n - 2
+    lowest = n - 1
     while k >= 0:
+        if on_tail is not None and k < lowest:
+            lowest = k
+            on_tail(k + 1, L, d, z, len(ops))
         gauss(k + 1, k)
-        rk = Lr[k]
-        rk1 = Lr[k + 1]
-        lk = rk1[k]
-        dk = dl[k]
-        dk1 = dl[k + 1]
+        lk = float(L[k + 1, k])
+        dk = float(d[k])
+        dk1 = float(d[k + 1])
         # conditional variance of the last of the pair after swapping
         delta = dk + lk * lk * dk1
         if delta < dk1 * (1.0 - PERM_RTOL):
             eta = dk / delta
             lam = dk1 * lk / delta
-            dl[k] = eta * dk1
-            dl[k + 1] = delta
+            d[k] = eta * dk1
+            d[k + 1] = delta
             if k:
-                old_k = rk[:k]
-                old_k1 = rk1[:k]
-                rk[:k] = [b - lk * a for a, b in zip(old_k, old_k1)]
-                rk1[:k] = [eta * a + lam * b for a, b in zip(old_k, old_k1)]
-            rk1[k] = lam
-            for r in range(k + 2, n):
-                row = Lr[r]
-                row[k], row[k + 1] = row[k + 1], row[k]
+                old_k = L[k, :k].copy()
+                old_k1 = L[k + 1, :k].copy()
+                L[k, :k] = old_k1 - lk * old_k
+                L[k + 1, :k] = eta * old_k + lam * old_k1
+            L[k + 1, k] = lam
+            if k + 2 < n:
+                L[k + 2:, [k, k + 1]] = L[k + 2:, [k + 1, k]]
             ops.append((k, k + 1, 0))
+            if z is not None:
+                z[k], z[k + 1] = z[k + 1], z[k]
             if k < n - 2:
                 k += 1
         else:
             k -= 1
 
-    # final full size reduction of the strictly lower triangle
+    # final full size reduction of the strictly lower triangle (only where it changes anything)
     for j in range(n - 2, -1, -1):
         for i in range(j + 2, n):
-            gauss(i, j)
-    return Lr, dl, ops
+            if abs(L[i, j]) > 0.5:
+                gauss(i, j)
+    return L, d, ops
 
 
 def _forward(ops, v):
@@ -327,8 +373,7 @@ def decorrelate(L, d):
     map back with ``a = Z^{-T} z`` (exactly, since ``Z^{-1}`` is integer).
     """
     Lr, dl, ops = _reduce(L, d)
-    n = len(dl)
-    return np.array(Lr, dtype=float).reshape(n, n), np.array(dl, dtype=float), _z_matrix(ops, n)
+    return Lr, dl, _z_matrix(ops, dl.shape[0])
 
 
 # ---------------------------------------------------------------------------
@@ -336,7 +381,7 @@ def decorrelate(L, d):
 # ---------------------------------------------------------------------------
 
 
-def search(L, d, zs, candidates):
+def search(L, d, zs, candidates, *, max_nodes=None):
     """Shrinking-ellipsoid integer least-squares search (MLAMBDA style).
 
     Finds the ``candidates`` integer vectors ``z`` with the smallest
@@ -352,6 +397,9 @@ def search(L, d, zs, candidates):
         Float ambiguities in the same space as ``L``/``d`` (cycles).
     candidates : int
         Number ``m >= 1`` of best integer vectors to return.
+    max_nodes : int, optional
+        Cap on the search loop (nodes of the enumeration tree visited); default
+        :data:`SEARCH_MAX_NODES`.  Exceeding it raises :class:`SearchLimitError`.
 
     Returns
     -------
@@ -359,6 +407,12 @@ def search(L, d, zs, candidates):
         Integer-valued candidate vectors, best first.
     s : ndarray, shape (m,), float64
         Their squared norms, ascending.
+
+    Raises
+    ------
+    SearchLimitError
+        The enumeration visited more than ``max_nodes`` nodes (the float solution is too weak
+        for these many ambiguities: partial fixing, a longer span or a float solution instead).
 
     Notes
     -----
@@ -368,7 +422,9 @@ def search(L, d, zs, candidates):
     are non-decreasing, which allows backtracking as soon as the partial
     distance exceeds the current radius.  The radius is infinite until
     ``m`` full candidates have been collected and then shrinks to the worst
-    retained one.
+    retained one.  The conditional-estimate update of a descent is one numpy
+    slice operation for levels ``>= SEARCH_NUMPY_LEVEL`` (a Python list
+    below, where numpy's per-call cost exceeds the work); the arithmetic is the same either way.
     """
     L = np.asarray(L, dtype=float)
     d = np.asarray(d, dtype=float)
@@ -387,15 +443,19 @@ def search(L, d, zs, candidates):
         raise AmbiguityError(f"candidates must be an integer >= 1, got {candidates!r}")
     if not np.all(d > 0):
         raise AmbiguityError("conditional variances d must all be > 0")
+    cap = _check_cap(max_nodes)
     m = int(candidates)
 
-    Lr = L.tolist()
+    T = min(SEARCH_NUMPY_LEVEL, n)
+    Ln = np.ascontiguousarray(L)
+    Lr = Ln[:T + 1, :T].tolist()       # rows used by the list updates (levels < T)
     dl = d.tolist()
     zsl = zs.tolist()
     floor = math.floor
     # S[k][:k+1] accumulates sum_{i>k} L[i, :k+1] * (z_i - zb_i); the
     # conditional estimate of component k is zb_k = zs_k + S[k][k].
-    S = [[0.0] * (k + 1) for k in range(n)]
+    S = [None] * n
+    S[n - 1] = np.zeros(n) if n > T else [0.0] * n
     dist = [0.0] * n
     zb = [0.0] * n
     z = [0.0] * n
@@ -405,6 +465,7 @@ def search(L, d, zs, candidates):
     out_s = []  # their squared norms
     maxdist = math.inf
     imax = 0
+    nodes = 0
 
     k = n - 1
     zb[k] = zsl[k]
@@ -412,16 +473,31 @@ def search(L, d, zs, candidates):
     y = zb[k] - z[k]
     step[k] = 1.0 if y > 0 else -1.0
     while True:
+        nodes += 1
+        if nodes > cap:
+            raise SearchLimitError(
+                f"LAMBDA search stopped after {cap} nodes for {n} ambiguities without completing "
+                f"({len(out_z)} of {m} candidates found): the float ambiguities are too weakly "
+                f"determined to enumerate (try partial fixing, a longer span, or a float solution)"
+            )
         newdist = dist[k] + y * y / dl[k]
         if newdist < maxdist:
             if k:
                 # descend one level: condition component k-1 on z[k:]
                 e = z[k] - zb[k]
-                lrow = Lr[k]
                 k -= 1
                 dist[k] = newdist
-                S[k] = Sk = [sv + e * lv for sv, lv in zip(S[k + 1], lrow)]
-                zb[k] = zbk = zsl[k] + Sk[k]
+                if k >= T:
+                    Sk = S[k + 1][:k + 1] + e * Ln[k + 1, :k + 1]
+                    sk = float(Sk[k])
+                else:
+                    src = S[k + 1]
+                    if k + 1 >= T:
+                        src = src[:k + 1].tolist()
+                    Sk = [sv + e * lv for sv, lv in zip(src, Lr[k + 1])]
+                    sk = Sk[k]
+                S[k] = Sk
+                zb[k] = zbk = zsl[k] + sk
                 z[k] = zk = floor(zbk + 0.5)
                 y = zbk - zk
                 step[k] = 1.0 if y > 0 else -1.0
@@ -518,7 +594,7 @@ def _validate(a, Q, candidates):
     return aa, 0.5 * (Qa + Qa.T), int(candidates)
 
 
-def lambda_search(a, Q, candidates=2):
+def lambda_search(a, Q, candidates=2, *, max_nodes=None):
     """Integer least-squares ambiguity estimation with LAMBDA.
 
     Parameters
@@ -533,6 +609,8 @@ def lambda_search(a, Q, candidates=2):
     candidates : int, optional
         Number ``m >= 1`` of best integer vectors to return (default 2, as
         needed by :func:`ratio_test`).
+    max_nodes : int, optional
+        Cap on the search loop (default :data:`SEARCH_MAX_NODES`).
 
     Returns
     -------
@@ -545,7 +623,8 @@ def lambda_search(a, Q, candidates=2):
     ------
     AmbiguityError
         On invalid input (all detected problems are listed in the message)
-        or if ``Q`` is not positive definite.
+        or if ``Q`` is not positive definite; :class:`SearchLimitError` (a
+        subclass) if the search exceeds ``max_nodes``.
 
     Examples
     --------
@@ -554,20 +633,27 @@ def lambda_search(a, Q, candidates=2):
     ([0, 0], 0.5)
     """
     aa, Qs, m = _validate(a, Q, candidates)
+    cap = _check_cap(max_nodes)
     offset = _round_half_up(aa)
     af = aa - offset  # exact for |a| < 2**52
     L, d = ld_factorize(Qs)
     Lr, dr, ops = _reduce(L, d)
     zs = _forward(ops, af.tolist())
-    zn, s = search(Lr, dr, zs, m)
-    # back-transform a = Z^{-T} z with exact (Python int) arithmetic
-    base = offset.astype(np.int64).tolist()
+    zn, s = search(Lr, dr, zs, m, max_nodes=cap)
+    return _to_original(ops, zn, offset), s
+
+
+def _to_original(ops, zn, offset):
+    """Back-transform integer candidates ``a = Z^{-T} z + offset`` with exact (Python int)
+    arithmetic; ``zn`` (m, n) float, ``offset`` (n,) → (m, n) int64."""
+    base = np.asarray(offset).astype(np.int64).tolist()
     rows = []
-    for zk in zn.tolist():
+    for zk in np.asarray(zn).tolist():
         ak = _backward(ops, [int(x) for x in zk])
         rows.append([x + b for x, b in zip(ak, base)])
-    cands = np.array(rows, dtype=np.int64).reshape(m, aa.shape[0])
-    return cands, s
+    if any(abs(x) >= 2**62 for r in rows for x in r):
+        raise AmbiguityError("integer candidates too large for int64: Q is numerically singular")
+    return np.array(rows, dtype=np.int64).reshape(len(rows), len(base))
 
 
 def ratio_test(squared_norms, threshold=3.0):
@@ -614,17 +700,24 @@ def ratio_test(squared_norms, threshold=3.0):
     return bool(ratio >= thr), ratio
 
 
-def partial_fix(a, Q, threshold=3.0, min_fixed=1):
-    """Partial ambiguity resolution by successive removal of ambiguities.
+def partial_fix(a, Q, threshold=3.0, min_fixed=1, *, max_nodes=None, progress=None):
+    """Partial ambiguity resolution: the largest subset, in order of decreasing variance, that
+    passes the ratio test — from one decomposition and one reduction.
 
-    The full set is resolved with :func:`lambda_search` and checked with
-    :func:`ratio_test`.  On failure the ambiguity with the largest
-    *marginal variance in the original space* (largest remaining ``Q[i, i]``;
-    ties broken by the lowest index) is dropped, and the remaining subset is
-    resolved again using its marginal covariance ``Q[np.ix_(sub, sub)]``.
-    This repeats until the ratio test passes or fewer than ``min_fixed``
-    ambiguities would remain.  Working in the original space keeps the
-    result expressible as a mask over the input ambiguities.
+    The full set is resolved first (:func:`lambda_search` and :func:`ratio_test`).  If it fails,
+    ambiguities are dropped by decreasing *marginal variance in the original space* (largest
+    ``Q[i, i]`` first; ties: the lowest index first) and the largest remaining subset that passes
+    is fixed, with its marginal covariance ``Q[np.ix_(sub, sub)]``.  Working in the original
+    space keeps the result a mask over the input ambiguities.
+
+    The subsets are not resolved one full LAMBDA each (O(n) decompositions and reductions, O(n^4)
+    in all, which is what kept a 150-segment init from finishing): with the ambiguities ordered
+    so that those dropped first come first, each subset is a *trailing* block, whose
+    ``L^T D L`` factor is the trailing block of the full one, and the reduction, which works
+    from the end, completes every trailing block on its way (see ``on_tail`` of
+    :func:`_reduce`).  So one factorization and one reduction serve all ``n`` subsets; each
+    subset only costs its search, run while the reduction passes it.  The answer is the one
+    the drop-one-and-redo loop gives (the largest passing subset of the same nested sequence).
 
     Parameters
     ----------
@@ -636,6 +729,13 @@ def partial_fix(a, Q, threshold=3.0, min_fixed=1):
         Ratio-test threshold (default 3.0).
     min_fixed : int, optional
         Smallest subset size that may be fixed, ``1 <= min_fixed <= n``.
+    max_nodes : int, optional
+        Node cap of each search (default :data:`SEARCH_MAX_NODES`).  A subset whose search
+        exceeds it counts as failed; larger subsets (which contain it) are then not searched.
+    progress : callable, optional
+        ``progress(done, total)`` after each subset searched (``total = n - min_fixed + 1``: the
+        full set, then the nested subsets of sizes ``min_fixed … n-1``; fewer when one passes or
+        a search hits the cap).
 
     Returns
     -------
@@ -647,9 +747,15 @@ def partial_fix(a, Q, threshold=3.0, min_fixed=1):
             meaningful there).
         ``ratio`` : float
             Ratio of the accepted subset; if no subset passed, the ratio of
-            the full set.
+            the full set (NaN if its search exceeded the cap).
+        ``ratio_full_set`` : float
+            Ratio of the full set (NaN if its search exceeded the cap).
         ``n_fixed`` : int
             Number of fixed ambiguities.
+        ``subsets_searched`` : int
+            Searches run (the full set included).
+        ``search_limited`` : int
+            Searches stopped by the node cap.
 
     Raises
     ------
@@ -663,32 +769,108 @@ def partial_fix(a, Q, threshold=3.0, min_fixed=1):
         raise AmbiguityError(f"min_fixed must be an integer, got {min_fixed!r}")
     if not 1 <= min_fixed <= n:
         raise AmbiguityError(f"min_fixed must be between 1 and n={n}, got {min_fixed}")
+    cap = _check_cap(max_nodes)
+    thr = float(threshold)
+    var = np.diag(Qs)
+    perm = np.array(sorted(range(n), key=lambda i: (-var[i], i)), dtype=np.int64)
+    ap = aa[perm]
+    offset = _round_half_up(ap)
+    L, d = ld_factorize(Qs[np.ix_(perm, perm)])
+    total = n - min_fixed + 1           # the full set, then the subsets of sizes min_fixed … n-1
+    st = {"done": 0, "limited": 0, "best": None, "stop": False}
+
+    def attempt(k, Lw, dw, zw, n_ops):
+        """Search the trailing block [k, n); remember it if it passes (larger blocks come later)."""
+        if n - k < min_fixed or st["stop"]:
+            return None
+        st["done"] += 1
+        try:
+            zn, s = search(Lw[k:, k:], dw[k:], zw[k:], 2, max_nodes=cap)
+        except SearchLimitError:
+            st["limited"] += 1
+            st["stop"] = k > 0          # larger subsets contain this one: do not search them
+            ratio = math.nan
+        else:
+            ok, ratio = ratio_test(s, thr)
+            if ok:
+                st["best"] = (k, zn[0].tolist(), n_ops, ratio)
+        if progress is not None:
+            progress(st["done"], total)
+        return ratio
+
+    # 1. the full set
+    Lr, dr, ops = _reduce(L, d)
+    zf = _forward(ops, (ap - offset).tolist())
+    full_ratio = attempt(0, Lr, dr, zf, len(ops))
+    # 2. the nested subsets, all from one more pass of the reduction
+    if st["best"] is None and n > 1:
+        st["stop"] = False
+        _, _, ops = _reduce(L, d, z=(ap - offset).tolist(), on_tail=attempt)
 
     fixed_mask = np.zeros(n, dtype=bool)
     integers = np.zeros(n, dtype=np.int64)
-    sub = list(range(n))
-    first_ratio = None
-    while len(sub) >= min_fixed:
-        idx = np.asarray(sub)
-        cands, s = lambda_search(aa[idx], Qs[np.ix_(idx, idx)], candidates=2)
-        ok, ratio = ratio_test(s, threshold)
-        if first_ratio is None:
-            first_ratio = ratio
-        if ok:
-            fixed_mask[idx] = True
-            integers[idx] = cands[0]
-            return {
-                "fixed_mask": fixed_mask,
-                "integers": integers,
-                "ratio": float(ratio),
-                "n_fixed": int(idx.size),
-            }
-        # drop the ambiguity with the largest marginal variance
-        var = np.diag(Qs)[idx]
-        sub.pop(int(np.argmax(var)))
-    return {
-        "fixed_mask": fixed_mask,
-        "integers": integers,
-        "ratio": float(first_ratio),
-        "n_fixed": 0,
-    }
+    result = {"fixed_mask": fixed_mask, "integers": integers, "ratio": float(full_ratio),
+              "ratio_full_set": float(full_ratio), "n_fixed": 0,
+              "subsets_searched": st["done"], "search_limited": st["limited"]}
+    if st["best"] is None:
+        return result
+    k, zbest, n_ops, ratio = st["best"]
+    # the operations recorded up to this block's completion involve indices >= k only
+    a_tail = _to_original(ops[:n_ops], [[0.0] * k + zbest], offset)[0]
+    fixed_mask[perm[k:]] = True
+    integers[perm[k:]] = a_tail[k:]
+    result.update(ratio=float(ratio), n_fixed=int(n - k))
+    return result
+
+
+def resolve(a, Q, threshold=3.0, *, partial=True, max_nodes=None, progress=None):
+    """The integer fixing of the solvers: the full set, then (``partial``) nested subsets.
+
+    :func:`partial_fix` when ``partial`` (its first step is the full set), else
+    :func:`lambda_search` + :func:`ratio_test`; a search over the node cap makes the set (or
+    subset) count as not fixable instead of raising.
+
+    Parameters
+    ----------
+    a, Q, threshold, max_nodes, progress
+        As for :func:`partial_fix`.
+    partial : bool
+        Try subsets when the full set fails.
+
+    Returns
+    -------
+    dict
+        The keys of :func:`partial_fix`, plus ``accepted`` (bool: something was fixed),
+        ``partial`` (bool: a proper subset was fixed) and ``limit_message`` (str or None: the
+        :class:`SearchLimitError` text when the full set's search hit the cap).
+    """
+    n = np.asarray(a).shape[0] if np.ndim(a) == 1 else 0
+    if partial and n > 1:
+        res = partial_fix(a, Q, threshold, max_nodes=max_nodes, progress=progress)
+        limit = None
+        if math.isnan(res["ratio_full_set"]):
+            limit = (f"the LAMBDA search of the full set of {n} ambiguities exceeded "
+                     f"{_check_cap(max_nodes)} nodes")
+    else:
+        mask = np.zeros(n, dtype=bool)
+        ints = np.zeros(n, dtype=np.int64)
+        res = {"fixed_mask": mask, "integers": ints, "n_fixed": 0, "subsets_searched": 1, "search_limited": 0}
+        limit = None
+        try:
+            cands, s = lambda_search(a, Q, 2, max_nodes=max_nodes)
+        except SearchLimitError as exc:
+            res.update(ratio=math.nan, ratio_full_set=math.nan, search_limited=1)
+            limit = str(exc)
+        else:
+            ok, ratio = ratio_test(s, threshold)
+            res.update(ratio=float(ratio), ratio_full_set=float(ratio))
+            if ok:
+                mask[:] = True
+                ints[:] = cands[0]
+                res["n_fixed"] = n
+        if progress is not None:
+            progress(1, 1)
+    res["accepted"] = res["n_fixed"] > 0
+    res["partial"] = 0 < res["n_fixed"] < n
+    res["limit_message"] = limit
+    return res

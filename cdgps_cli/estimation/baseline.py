@@ -41,7 +41,8 @@ import numpy as np
 import pandas as pd
 from scipy.linalg import cho_factor, cho_solve
 
-from cdgps_cli.estimation.ambiguity import AmbiguityError, lambda_search, partial_fix, ratio_test
+from cdgps_cli.core import progress
+from cdgps_cli.estimation.ambiguity import AmbiguityError, resolve
 from cdgps_cli.io.atomic import path_for_config
 from cdgps_cli.config.structure import GNSS_DEFAULTS, GNSS_WEIGHTINGS
 from cdgps_cli.measurement.differencing import (
@@ -59,13 +60,13 @@ from cdgps_cli.model.gps.positioning import (
     L1_WAVELENGTH_M,
     ephemeris_coverage,
     estimate_receiver_clock,
-    match_epochs,
     nominal_interval_s,
     reception_geometry,
     spp_static,
 )
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
+from cdgps_cli.model.gps.epoch_align import ALIGN_MODES, align_receiver, carry_slips, pair_epochs
 
 __all__ = [
     "BaselineOptions",
@@ -107,7 +108,11 @@ class BaselineOptions:
     max_iterations : int
         Gauss-Newton iteration cap (float and fixed solutions each).
     sync_tol_s : float
-        Largest time-tag difference of matched epochs, s.
+        Largest offset of an epoch's time tag from its grid time of GPS seconds, s (epochs farther
+        away are dropped; :mod:`cdgps_cli.model.gps.epoch_align`).
+    epoch_alignment : {"geometry", "doppler"}
+        Off-grid epochs modelled at their own reception instants, or their phase and range moved
+        to the grid time by carrier-phase rate × offset.
     max_gap_s : float or None
         Largest gap within one ambiguity segment, s (None: 1.5 × the epoch interval).
     min_sats_kinematic : int
@@ -140,6 +145,7 @@ class BaselineOptions:
     troposphere: bool = True
     max_iterations: int = 10
     sync_tol_s: float = GNSS_DEFAULTS["sync_tol_s"]
+    epoch_alignment: str = GNSS_DEFAULTS["epoch_alignment"]
     max_gap_s: float | None = None
     min_sats_kinematic: int = 4
     kinematic_max_pdop: float = 10.0
@@ -155,7 +161,7 @@ class BaselineOptions:
         kw = dict(mask_deg=cfg.mask_deg, ratio_threshold=cfg.ratio, partial=cfg.partial, fix=cfg.fix,
                   weighting=cfg.weighting, sigma_a_m=cfg.sigma_a_m, sigma_b_m=cfg.sigma_b_m,
                   code_ratio=cfg.code_ratio, troposphere=cfg.troposphere, max_gap_s=cfg.max_gap_s,
-                  sync_tol_s=cfg.sync_tol_s, motion=cfg.displacement, random_walk_sigma=tuple(cfg.random_walk_sigma),
+                  sync_tol_s=cfg.sync_tol_s, epoch_alignment=cfg.epoch_alignment, motion=cfg.displacement, random_walk_sigma=tuple(cfg.random_walk_sigma),
                   initial_sigma_m=cfg.initial_sigma_m)
         kw.update(overrides)
         return cls(**kw)
@@ -181,6 +187,8 @@ class BaselineOptions:
             p.append(f"max_iterations must be an integer >= 1, got {self.max_iterations!r}")
         if not (math.isfinite(self.sync_tol_s) and 0.0 < self.sync_tol_s <= 1.0):
             p.append(f"sync_tol_s must be in (0, 1] s, got {self.sync_tol_s!r}")
+        if self.epoch_alignment not in ALIGN_MODES:
+            p.append(f"epoch_alignment must be one of {', '.join(ALIGN_MODES)}, got {self.epoch_alignment!r}")
         if self.max_gap_s is not None and not (math.isfinite(self.max_gap_s) and self.max_gap_s > 0):
             p.append(f"max_gap_s must be > 0 s, got {self.max_gap_s!r}")
         if not (math.isfinite(self.kinematic_max_pdop) and self.kinematic_max_pdop > 0):
@@ -267,22 +275,53 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
     tm = np.unique(master.obs["time_gps_s"].to_numpy())
     tr = np.unique(rover.obs["time_gps_s"].to_numpy())
     interval = nominal_interval_s(tm)
-    tol = opt.sync_tol_s if not math.isfinite(interval) else min(opt.sync_tol_s, interval / 3.0)
-    im, ir = match_epochs(tm, tr, tol_s=tol)
+    # epochs on the common grid of GPS times (epoch_align): pairs at any rates
+    aligned, align_info = {}, {}
+    for st in (master, rover):
+        try:
+            aligned[st.name], align_info[st.name] = align_receiver(st.obs, tol_s=opt.sync_tol_s,
+                                                                   mode=opt.epoch_alignment, what=_where(st))
+        except ValueError as exc:
+            raise CdgpsError(str(exc)) from None
+        a = align_info[st.name]
+        lost = a["dropped_off_grid"] + a["dropped_duplicate"]
+        if lost:
+            warnings.append(f"{st.name}: {lost} of {a['epochs']} epochs not used: more than {a['tolerance_ms']:g} ms from "
+                            f"the {a['grid_s']:.6g} s grid of GPS times ({a['dropped_off_grid']}) or a second epoch on "
+                            f"one grid time ({a['dropped_duplicate']})")
+        if a["rows_dropped_no_rate"]:
+            warnings.append(f"{st.name}: {a['rows_dropped_no_rate']} off-grid observations without a carrier-phase rate "
+                            f"(lock segments under 3 epochs) could not be moved to the grid and are not used")
+    gm = np.unique(aligned[master.name]["grid_gps_s"].to_numpy())
+    gr = np.unique(aligned[rover.name]["grid_gps_s"].to_numpy())
+    im, ir = pair_epochs(gm, gr)
     if im.size == 0:
+        tol = align_info[master.name]["tolerance_ms"]
         raise CdgpsError(f"no common epochs: master {master.name} has {tm.size} epochs ({_span(tm)}), rover {rover.name} "
-                         f"has {tr.size} ({_span(tr)}); time tags must agree within {tol * 1e3:g} ms")
+                         f"has {tr.size} ({_span(tr)}); no grid time of GPS seconds has an epoch of both within "
+                         f"{tol:g} ms (gnss.sync_tol_s)")
+    for st, n_m in ((master, im.size), (rover, ir.size)):
+        align_info[st.name]["matched"] = int(n_m)
     q = 10.0 ** math.floor(math.log10(interval)) / 10.0 if math.isfinite(interval) and interval > 0 else 1e-3
-    t_label = np.round(tm[im] / q) * q
+    t_label = np.round(gm[im] / q) * q
     n_ep = im.size
+    tag_of = {}
 
     # per receiver: rows in matched epochs with an ephemeris, epoch index, clocks
     per = {}
-    for st, t_all, idx in ((master, tm, im), (rover, tr, ir)):
-        o = st.obs
+    for st, t_all, idx in ((master, gm, im), (rover, gr, ir)):
+        o = aligned[st.name]
         ep_of_tag = np.full(t_all.size, -1, dtype=np.int64)
         ep_of_tag[idx] = np.arange(n_ep)
-        k = ep_of_tag[np.searchsorted(t_all, o["time_gps_s"].to_numpy())]
+        k = ep_of_tag[np.searchsorted(t_all, o["grid_gps_s"].to_numpy())]
+        tag_of[st.name] = np.full(n_ep, np.nan)
+        tag_of[st.name][k[k >= 0]] = o["tag_gps_s"].to_numpy()[k >= 0]
+        # slip flags of rows that are not differenced move to the satellite's next differenced row
+        used = np.zeros(len(st.obs), dtype=bool)
+        used[o["row"].to_numpy()[k >= 0]] = True
+        lli_all = carry_slips(st.obs["time_gps_s"].to_numpy(dtype=np.float64), st.obs["sat"].to_numpy(),
+                              st.obs["lli_l1"].to_numpy(dtype=np.int64), used)
+        o = o.assign(lli_l1=lli_all[o["row"].to_numpy()])
         o = o[k >= 0].copy()
         o["ep"] = k[k >= 0]
         cov = ephemeris_coverage(nav, o["sat"].to_numpy(), t_label[o["ep"].to_numpy()])
@@ -357,7 +396,8 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
             "interval_s": interval,
             "first_epoch": gps_time_str(float(t_label[0])),
             "last_epoch": gps_time_str(float(t_label[-1])),
-            "max_tag_difference_ms": float(np.max(np.abs(tm[im] - tr[ir])) * 1e3),
+            "max_tag_difference_ms": float(np.nanmax(np.abs(tag_of[master.name] - tag_of[rover.name])) * 1e3),
+            "epoch_alignment": align_info,
             "rx_clock_ms": {
                 master.name: [float(np.min(clk_m) * 1e3), float(np.max(clk_m) * 1e3)],
                 rover.name: [float(np.min(clk_r) * 1e3), float(np.max(clk_r) * 1e3)],
@@ -703,20 +743,18 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
     elif opt.fix and fixable.sum() >= 1:
         fi = np.flatnonzero(fixable)
         try:
-            cands, norms = lambda_search(a_float[fi], q_aa[np.ix_(fi, fi)], candidates=2)
-            accepted, ratio_full = ratio_test(norms, opt.ratio_threshold)
-            ratio = ratio_full
-            if accepted:
-                fixed_mask[fi] = True
-                integers_fix[fi] = cands[0]
-            elif opt.partial and fi.size > 1:
-                pf = partial_fix(a_float[fi], q_aa[np.ix_(fi, fi)], threshold=opt.ratio_threshold)
-                if pf["n_fixed"] > 0:
-                    partial_used = True
-                    accepted = True
-                    ratio = pf["ratio"]
-                    fixed_mask[fi[pf["fixed_mask"]]] = True
-                    integers_fix[fi[pf["fixed_mask"]]] = pf["integers"][pf["fixed_mask"]]
+            with progress.bar(fi.size if opt.partial else 1, "integer fixing (LAMBDA)", unit="subset") as bar:
+                pf = resolve(a_float[fi], q_aa[np.ix_(fi, fi)], opt.ratio_threshold, partial=opt.partial,
+                             progress=lambda done, total: bar.update_to(done))
+            ratio_full = None if math.isnan(pf["ratio_full_set"]) else pf["ratio_full_set"]
+            ratio = None if math.isnan(pf["ratio"]) else pf["ratio"]
+            accepted, partial_used = pf["accepted"], pf["partial"]
+            fixed_mask[fi[pf["fixed_mask"]]] = True
+            integers_fix[fi[pf["fixed_mask"]]] = pf["integers"][pf["fixed_mask"]]
+            if pf["limit_message"]:
+                warnings.append(f"integer ambiguity resolution: {pf['limit_message']} "
+                                f"({'partial fixing tried subsets' if opt.partial else 'no partial fixing'}); "
+                                f"{pf['n_fixed']} of {fi.size} fixed")
         except AmbiguityError as exc:
             warnings.append(f"integer ambiguity resolution failed: {exc}")
     t_lambda = time.perf_counter() - t0

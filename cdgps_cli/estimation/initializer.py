@@ -40,6 +40,8 @@ from cdgps_cli.measurement.phase import channel_indices, phase_model
 from cdgps_cli.measurement.multipath import MultipathModel, augment, model_from
 from cdgps_cli.measurement.noise import leverage_per_channel, prior_sigma_m, variance_factors
 from cdgps_cli.core.records import INIT_FORMAT, Run
+from cdgps_cli.core import progress
+from cdgps_cli.estimation.ambiguity import resolve
 
 
 @dataclass
@@ -658,22 +660,22 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
     if opt.fix_integers and cfg.line_bias_calibrated:
         Qa = Pbb / lam**2
         Qa = 0.5 * (Qa + Qa.T)
-        cands, norms = lambda_search(a_float, Qa, candidates=2)
-        ok, ratio = ratio_test(norms, opt.ratio_threshold)
-        if ok:
+        with progress.bar(m if opt.partial else 1, "integer fixing (LAMBDA)", unit="subset") as bar:
+            pf = resolve(a_float, Qa, opt.ratio_threshold, partial=opt.partial,
+                         progress=lambda done, total: bar.update_to(done))
+        ratio = None if math.isnan(pf["ratio_full_set"]) else pf["ratio_full_set"]
+        full_txt = pf["limit_message"] or f"ratio {ratio:.2f} < {opt.ratio_threshold:g}"
+        if pf["n_fixed"] == m:
             fixed[:] = True
-            integers = cands[0]
+            integers = pf["integers"]
             fix_note = f"all {m} integers fixed (ratio {ratio:.2f} ≥ {opt.ratio_threshold:g})"
-        elif opt.partial:
-            pf = partial_fix(a_float, Qa, threshold=opt.ratio_threshold)
+        elif pf["n_fixed"]:
             fixed = np.asarray(pf["fixed_mask"], dtype=bool)
-            if fixed.any():
-                integers = np.where(fixed, pf["integers"], integers)
-                fix_note = f"{int(fixed.sum())} of {m} integers fixed by partial fixing (full-set ratio {ratio:.2f})"
-            else:
-                fix_note = f"integers not fixed: ratio {ratio:.2f} < {opt.ratio_threshold:g}"
+            integers = np.where(fixed, pf["integers"], integers)
+            fix_note = (f"{int(fixed.sum())} of {m} integers fixed by partial fixing (full set: "
+                        f"{'ratio ' + format(ratio, '.2f') if ratio is not None else full_txt})")
         else:
-            fix_note = f"integers not fixed: ratio {ratio:.2f} < {opt.ratio_threshold:g}"
+            fix_note = f"integers not fixed: {full_txt}"
     elif not cfg.line_bias_calibrated:
         fix_note = "line biases not calibrated: float biases only"
     _say(opt, f"  {fix_note}")

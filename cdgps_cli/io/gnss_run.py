@@ -41,12 +41,13 @@ from cdgps_cli.core import progress
 from cdgps_cli.io.atomic import file_sha256, path_for_config
 from cdgps_cli.config.structure import GnssConfig, gnss_config_toml, parse_gnss_config
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.model.gps.positioning import ephemeris_coverage, match_epochs, nominal_interval_s
 from cdgps_cli.io.mcap import CONFIG_ATTACHMENT, McapOut, array_schema, message_schema, read_mcap
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.core.records import NAV_COLUMNS, OBS_COLUMNS
 from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
 from cdgps_cli.io.ubx import INTEGRITY_COUNTS, integrity_problems, integrity_record
+from cdgps_cli.model.gps.positioning import ephemeris_coverage, nominal_interval_s
+from cdgps_cli.model.gps.epoch_align import common_epochs
 
 __all__ = [
     "GNSS_OBS_TOPIC", "GNSS_EPHEMERIS_TOPIC", "RAW_COLUMNS", "GnssReceiver", "GnssRun", "is_gnss_run",
@@ -492,22 +493,26 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
             warnings.append(f"{n}: no nominal position (header or config); 'cdgps init' uses a pseudorange single-point "
                             f"position, and the displacement states refer to it")
     tm = np.unique(receivers[master].raw["time_gps_s"].to_numpy())
-    interval_m = nominal_interval_s(tm)
     common = {}
     for n in rovers:
         tr = np.unique(receivers[n].raw["time_gps_s"].to_numpy())
-        iv = nominal_interval_s(tr)
-        tol = min(cfg.sync_tol_s, (min(interval_m, iv) if math.isfinite(min(interval_m, iv)) else 1.0) / 3.0)
-        im, _ = match_epochs(tm, tr, tol_s=tol)
-        if im.size == 0:
+        ce = common_epochs(tm, tr, cfg.sync_tol_s)
+        n_common = ce["common_epochs"]
+        if n_common == 0:
             raise CdgpsError(
                 f"no common epochs: master {master} ({files[master][1]}) has {tm.size} epochs ({_span(tm)}), rover {n} "
-                f"({files[n][1]}) has {tr.size} ({_span(tr)}); time tags must agree within {tol * 1e3:g} ms")
-        common[n] = {"common_epochs": int(im.size), "master_epochs": int(tm.size), "rover_epochs": int(tr.size),
-                     "tolerance_ms": tol * 1e3}
-        if im.size < max(tm.size, tr.size):
-            warnings.append(f"{n}: {im.size} epochs in common with the master (master {tm.size}, {n} {tr.size}); only "
+                f"({files[n][1]}) has {tr.size} ({_span(tr)}); no grid time of GPS seconds has an epoch of both within "
+                f"{ce['tolerance_ms']:g} ms (gnss.sync_tol_s)")
+        common[n] = {"common_epochs": n_common, "master_epochs": int(tm.size), "rover_epochs": int(tr.size),
+                     "tolerance_ms": ce["tolerance_ms"], "master": ce["master"], "rover": ce["rover"]}
+        if n_common < max(tm.size, tr.size):
+            warnings.append(f"{n}: {n_common} epochs in common with the master (master {tm.size}, {n} {tr.size}); only "
                             f"common epochs are differenced")
+        for who, name in (("master", master), ("rover", n)):
+            if ce[who]["dropped"]:
+                warnings.append(f"{name}: {ce[who]['dropped']} of {ce[who]['epochs']} epochs more than "
+                                f"{ce['tolerance_ms']:g} ms off the {ce[who]['grid_s']:.6g} s grid of GPS times (or a "
+                                f"second epoch on one grid time) are not used")
 
     # ---- write ----
     say(f"writing {out_path} …")
@@ -703,9 +708,7 @@ def gnss_run_info(path: str | Path, contents) -> dict:
     common = {}
     for n in run.rovers:
         tr = np.unique(run.receivers[n].raw["time_gps_s"].to_numpy())
-        iv = min(nominal_interval_s(tm), nominal_interval_s(tr))
-        im, _ = match_epochs(tm, tr, tol_s=min(run.cfg.sync_tol_s, (iv if math.isfinite(iv) else 1.0) / 3.0))
-        common[n] = int(im.size)
+        common[n] = common_epochs(tm, tr, run.cfg.sync_tol_s)["common_epochs"]
     nav = run.nav
     return {
         "config": run.cfg.summary(), "master": run.master, "rovers": run.rovers,

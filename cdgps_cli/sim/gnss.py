@@ -107,7 +107,8 @@ def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_
                        master_xyz=DEFAULT_MASTER_XYZ, rover_xyz=DEFAULT_ROVER_XYZ,
                        displacement_enu_m=(0.031, -0.022, 0.017), random_walk_sigma: float | None = None,
                        n_slips: int = 0, phase_sigma_m: float | None = None, code_sigma_m: float = 0.5,
-                       mask_deg: float = 10.0, progress=None) -> dict:
+                       mask_deg: float = 10.0, clock_offset_ms=(0.0, 0.0), clock_drift_ms=(-4.0, 5.0),
+                       raw_tags: bool = False, master_rate_hz: float | None = None, progress=None) -> dict:
     """Simulate a master and a (displaced) rover and write RINEX, truth and config files.
 
     Parameters
@@ -147,6 +148,17 @@ def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_
         ``code_ratio`` = 100 × the phase σ: 0.42 m at the zenith, 1.2 m at 15°).
     mask_deg : float
         Tracking mask of the simulated receivers, degrees.
+    clock_offset_ms, clock_drift_ms : 2 floats
+        Master and rover receiver-clock offset at the start, and its change over the span, ms
+        (default 0 and −4 / +5 ms).
+    raw_tags : bool
+        Time tags are the nominal epochs plus the clock offset as it is (u-blox-like: off whole
+        seconds by the offset, e.g. .992 s for −8 ms); default: the offset rounded to 1 ms
+        (GEONET-like).  The receivers measure at the nominal GPS epochs in the first case, at
+        the tag minus the offset in both.
+    master_rate_hz : float, optional
+        The master records at this lower rate (``rate_hz`` a whole multiple of it), e.g. 0.2 for
+        a 5 s CORS receiver beside a 1 Hz rover.
 
     Returns
     -------
@@ -160,6 +172,16 @@ def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_
         raise CdgpsError(f"--rate-hz must be in (0, 100], got {rate_hz!r}")
     if master == rover:
         raise CdgpsError("the master and rover names must differ")
+    for what, v in (("--clock-offset-ms", clock_offset_ms), ("--clock-drift-ms", clock_drift_ms)):
+        if len(v) != 2 or not all(math.isfinite(x) and abs(x) <= 1000.0 for x in v):
+            raise CdgpsError(f"{what} expects two offsets (master, rover) within ±1000 ms, got {v!r}")
+    every = 1
+    if master_rate_hz is not None:
+        ratio = rate_hz / master_rate_hz if master_rate_hz > 0 and math.isfinite(master_rate_hz) else math.nan
+        if not (math.isfinite(ratio) and ratio >= 1 and abs(ratio - round(ratio)) < 1e-9):
+            raise CdgpsError(f"--master-rate-hz must divide --rate-hz {rate_hz:g} (rate / master rate a whole number "
+                             f">= 1), got {master_rate_hz!r}")
+        every = int(round(ratio))
     if random_walk_sigma is not None and not random_walk_sigma > 0:
         raise CdgpsError(f"--random-walk must be a positive rate (m/√s), got {random_walk_sigma!r}")
     if n_slips < 0:
@@ -209,7 +231,10 @@ def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_
                                interval, seed=seed, mask_rad=math.radians(mask_deg),
                                phase_sigma_m=phase_noise, code_sigma_m=code_sigma_m,
                                rover_offset_enu_m=None if random_walk_sigma is None and not disp.any() else offsets,
-                               random_slips=n_slips, slip_mask_rad=math.radians(slip_mask_deg), slip_min_epochs=10)
+                               random_slips=n_slips, slip_mask_rad=math.radians(slip_mask_deg), slip_min_epochs=10,
+                               clock_offset_ms=tuple(map(float, clock_offset_ms)),
+                               clock_drift_ms=tuple(map(float, clock_drift_ms)),
+                               tag_resolution_s=None if raw_tags else 1e-3, base_every=every)
     if len(sim["base"]) == 0 or len(sim["rover"]) == 0:
         raise CdgpsError("no satellite is visible in the simulated span (check the positions and the navigation data)")
     slips = sim["slips"]
@@ -227,7 +252,8 @@ def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_
         for who, name, df in (("base", master, sim["base"]), ("rover", rover, sim["rover"])):
             hdr = {"marker_name": name, "observer": "cdgps simulate-gnss", "agency": "simulated",
                    "receiver_type": "CDGPS SIMULATOR", "receiver_version": __version__, "antenna_type": "SIMULATED",
-                   "approx_position_xyz_m": (master_xyz if who == "base" else rover_xyz), "interval_s": interval,
+                   "approx_position_xyz_m": (master_xyz if who == "base" else rover_xyz),
+                   "interval_s": interval * (every if who == "base" else 1),
                    "comments": [f"simulated by cdgps {__version__}, seed {seed}",
                                 "master: true position" if who == "base" else "rover: NOMINAL position (truth.csv: displacement)"]}
             f = dest.path(f"{name}.rnx")
@@ -245,6 +271,10 @@ def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_
             "cdgps_version": __version__,
             "seed": seed, "start_gps_s": start_gps_s, "start": gps_time_str(start_gps_s), "duration_s": duration_s,
             "rate_hz": rate_hz, "epochs": n_ep,
+            **({"master_rate_hz": master_rate_hz} if every > 1 else {}),
+            "clock_offset_ms": {master: float(clock_offset_ms[0]), rover: float(clock_offset_ms[1])},
+            "clock_drift_ms": {master: float(clock_drift_ms[0]), rover: float(clock_drift_ms[1])},
+            "time_tags": "nominal epoch + clock offset" if raw_tags else "nominal epoch + clock offset rounded to 1 ms",
             "master": master, "rover": rover,
             "master_ecef_m": list(map(float, master_xyz)),
             "rover_nominal_ecef_m": list(map(float, rover_xyz)),

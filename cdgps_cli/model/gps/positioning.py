@@ -568,12 +568,16 @@ def simulate_static_pair(
     random_slips: int = 0,
     slip_mask_rad: float | None = None,
     slip_min_epochs: int = 10,
+    clock_offset_ms: tuple[float, float] = (0.0, 0.0),
+    tag_resolution_s: float | None = 1e-3,
+    base_every: int = 1,
 ) -> dict:
     """Synthesize L1 observations of a static base and rover from broadcast ephemerides.
 
-    Each receiver's clock offset dt drifts linearly from 0 to ``clock_drift_ms`` over the span;
-    its time tags are the nominal epochs plus dt rounded to 1 ms (as the GEONET receivers write
-    them), and the measurement instant is ``tag − dt``.  For each satellite above ``mask_rad`` at
+    Each receiver's clock offset dt drifts linearly from ``clock_offset_ms`` by ``clock_drift_ms``
+    over the span; its time tags are the nominal epochs plus dt rounded to ``tag_resolution_s``
+    (1 ms, as the GEONET receivers write them; unrounded for u-blox-like tags), and the
+    measurement instant is ``tag − dt``.  For each satellite above ``mask_rad`` at
     both receivers and covered by a healthy ephemeris:
     ``P = ρ + c·(dt − dt_sat) + T + ε_P`` and ``L = (ρ + c·(dt − dt_sat) + T + ε_L)/λ + N + f``,
     with ρ, dt_sat at the measurement instant, N an integer per satellite and lock segment (a new
@@ -599,7 +603,17 @@ def simulate_static_pair(
         White noise of undifferenced phase and code, m: a number σ (the same at all elevations) or
         a pair (a, b) for σ² = a² + b²/sin²el (el of that receiver and satellite).
     clock_drift_ms : (float, float)
-        Base and rover clock offset at the end of the span, ms.
+        Base and rover clock offset at the end of the span minus that at its start, ms.
+    clock_offset_ms : (float, float)
+        Base and rover clock offset at the start of the span, ms (default 0).
+    tag_resolution_s : float or None
+        Time tags are the nominal epochs plus the clock offset rounded to this, s (default 1 ms,
+        as GEONET receivers write them: measurement instants within 0.5 ms of the nominal
+        epochs); None: not rounded — the receiver measures at the nominal GPS epochs and stamps
+        them with its own clock (tags off whole seconds by the offset, as u-blox receivers do).
+    base_every : int
+        Keep the base's records of every ``base_every``-th nominal epoch only (a base at a lower
+        rate than the rover); a slip flag of a dropped record moves to the satellite's next kept one.
     slips : sequence of (receiver, sat, t_gps_s, cycles)
         Cycle slips (receiver ``"base"`` or ``"rover"``): from the first record at or after
         nominal time ``t_gps_s`` to the end of its lock segment, the phase is shifted by
@@ -646,8 +660,13 @@ def simulate_static_pair(
         track["rover"] = stations["rover"] + off @ enu_matrix(lat_r, lon_r)
     clock, tag, t_true = {}, {}, {}
     for j, name in enumerate(stations):
-        clock[name] = clock_drift_ms[j] * 1e-3 * (t_nom - t_start_s) / max(duration_s, 1e-9)
-        tag[name] = t_nom + np.round(clock[name] * 1e3) * 1e-3
+        clock[name] = clock_drift_ms[j] * 1e-3 * (t_nom - t_start_s) / max(duration_s, 1e-9) + clock_offset_ms[j] * 1e-3
+        if tag_resolution_s == 1e-3:
+            tag[name] = t_nom + np.round(clock[name] * 1e3) * 1e-3
+        elif tag_resolution_s:
+            tag[name] = t_nom + np.round(clock[name] / tag_resolution_s) * tag_resolution_s
+        else:
+            tag[name] = t_nom + clock[name]
         t_true[name] = tag[name] - clock[name]
     per_sat = []
     for s in sats:
@@ -712,8 +731,11 @@ def simulate_static_pair(
                 "snr_l1_dbhz": CN0_MODEL[0] + CN0_MODEL[1] * np.sin(el),
                 "rx_clock_offset_s": np.nan,
                 "epoch_flag": np.zeros(idx.size, dtype=np.int64),
+                "_k": idx,
             }))
-        df = pd.concat(recs, ignore_index=True) if recs else pd.DataFrame(columns=list(OBS_COLUMNS))
+        df = pd.concat(recs, ignore_index=True) if recs else pd.DataFrame(columns=[*OBS_COLUMNS, "_k"])
+        if name == "base" and base_every > 1:
+            df = _decimate(df, int(base_every))
         frames[name] = df.sort_values(["time_gps_s", "sat"], kind="stable").reset_index(drop=True)[list(OBS_COLUMNS)]
     headers = {
         name: {"approx_position_xyz_m": tuple(float(v) for v in stations[name]), "interval_s": float(interval_s),
@@ -728,6 +750,26 @@ def simulate_static_pair(
         "clock_s": clock,
         "slips": sorted(applied, key=lambda d: d["random"]),
     }
+
+
+def _decimate(df: pd.DataFrame, every: int) -> pd.DataFrame:
+    """Records of nominal epochs ``k % every == 0`` (column ``_k``); the LLI slip bit of a dropped
+    record is carried to the next kept record of the same satellite."""
+    df = df.sort_values(["sat", "_k"], kind="stable").reset_index(drop=True)
+    keep = (df["_k"].to_numpy() % every) == 0
+    lli = df["lli_l1"].to_numpy().copy()
+    sat = df["sat"].to_numpy()
+    carry = 0
+    for i in range(len(df)):
+        if i and sat[i] != sat[i - 1]:
+            carry = 0
+        if keep[i]:
+            lli[i] |= carry
+            carry = 0
+        else:
+            carry |= lli[i] & 1
+    df["lli_l1"] = lli
+    return df[keep]
 
 
 CN0_MODEL = (35.0, 15.0)

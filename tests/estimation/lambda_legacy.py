@@ -1,0 +1,698 @@
+"""Reference for the tests: the pure-Python LAMBDA of cdgps_cli/estimation/ambiguity.py before issue 14
+(list-based reduction and search, one full LAMBDA per partial-fixing subset), kept unchanged
+so that the vectorized implementation can be compared with it on random cases.
+
+Original docstring: integer ambiguity resolution with the LAMBDA method.
+
+This module solves the integer least-squares (ILS) problem
+
+.. math::
+
+    \\check{a} = \\arg\\min_{z \\in \\mathbb{Z}^n} (\\hat{a} - z)^T Q^{-1} (\\hat{a} - z)
+
+for a float ambiguity vector :math:`\\hat{a}` (cycles) with covariance
+:math:`Q` (cycles^2), following the Least-squares AMBiguity Decorrelation
+Adjustment of Teunissen (1993) with the shrinking-ellipsoid search of the
+modified LAMBDA method (Chang, Yang & Zhou, 2005).  The algorithmic
+structure mirrors the well known RTKLIB implementation (``lambda.c``):
+
+1. ``ld_factorize``: :math:`Q = L^T \\operatorname{diag}(d) L` with ``L``
+   unit lower triangular (note: *not* the usual :math:`L D L^T`; the
+   factorisation runs from the last ambiguity to the first so that the
+   search below conditions on the last component first).
+2. ``decorrelate``: integer Gauss transformations and adjacent
+   permutations (the LAMBDA "reduction") produce a unimodular integer
+   matrix ``Z`` such that :math:`z = Z^T a` has covariance
+   :math:`Z^T Q Z = L^T \\operatorname{diag}(d) L` with ``L`` (close to)
+   size reduced and ``d`` (close to) ordered.
+3. ``search``: depth-first Schnorr-Euchner enumeration whose radius
+   shrinks to the worst of the best ``m`` candidates found so far.
+
+The public entry points are :func:`lambda_search`, :func:`ratio_test` and
+:func:`partial_fix`.  All functions are pure: they never modify their
+array arguments.
+
+Units: ambiguities in cycles, covariances in cycles^2, squared norms are
+dimensionless (cycles^2 / cycles^2).
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+
+import numpy as np
+
+__all__ = [
+    "AmbiguityError",
+    "ld_factorize",
+    "decorrelate",
+    "search",
+    "lambda_search",
+    "ratio_test",
+    "partial_fix",
+]
+
+#: Relative tolerance used when checking that ``Q`` is symmetric: the
+#: largest asymmetry ``|Q - Q^T|`` must not exceed this times ``max|Q|``.
+SYMMETRY_RTOL = 1e-9
+
+#: A pivot ``d[i]`` of the L^T D L factorisation is considered non-positive
+#: (matrix not positive definite) when ``d[i] <= PIVOT_RTOL * n * max(diag Q)``.
+PIVOT_RTOL = np.finfo(float).eps
+
+#: The permutation step of the reduction is only taken when it reduces the
+#: conditional variance ``d[k+1]`` by more than this *relative* amount
+#: (prevents cycling on ties caused by rounding; relative so that the
+#: reduction does not depend on the scale of ``Q``).
+PERM_RTOL = 1e-6
+
+#: Largest accepted magnitude of a float ambiguity (cycles): beyond 2**52 a
+#: float64 cannot carry a fractional part any more.
+MAX_ABS_AMBIGUITY = 2.0**52
+
+
+class AmbiguityError(ValueError):
+    """Invalid input to, or failure of, integer ambiguity resolution."""
+
+
+# ---------------------------------------------------------------------------
+# helpers
+# ---------------------------------------------------------------------------
+
+
+def _round_half_up(x):
+    """Round to nearest integer with ties towards +inf (``floor(x + 0.5)``)."""
+    return np.floor(np.asarray(x, dtype=float) + 0.5)
+
+
+def _as_square_matrix(Q, name="Q"):
+    Qa = np.asarray(Q, dtype=float)
+    if Qa.ndim != 2 or Qa.shape[0] != Qa.shape[1]:
+        raise AmbiguityError(f"{name} must be a square 2-D matrix, got shape {Qa.shape}")
+    if Qa.shape[0] < 1:
+        raise AmbiguityError(f"{name} must be at least 1x1, got shape {Qa.shape}")
+    if not np.all(np.isfinite(Qa)):
+        raise AmbiguityError(f"{name} contains non-finite values (NaN or inf)")
+    return Qa
+
+
+def _asymmetry(Q):
+    """Return (max |Q - Q^T|, allowed tolerance)."""
+    scale = float(np.max(np.abs(Q))) if Q.size else 0.0
+    return float(np.max(np.abs(Q - Q.T))), SYMMETRY_RTOL * max(scale, np.finfo(float).tiny)
+
+
+# ---------------------------------------------------------------------------
+# 1. factorisation
+# ---------------------------------------------------------------------------
+
+
+def ld_factorize(Q):
+    """Factorise a covariance matrix as ``Q = L^T diag(d) L``.
+
+    Parameters
+    ----------
+    Q : array_like, shape (n, n)
+        Symmetric positive definite covariance of the float ambiguities
+        (cycles^2).  Asymmetry up to ``SYMMETRY_RTOL * max|Q|`` is tolerated
+        and removed by symmetrising.
+
+    Returns
+    -------
+    L : ndarray, shape (n, n), float64
+        Unit lower-triangular factor.
+    d : ndarray, shape (n,), float64
+        Positive diagonal (conditional variances, cycles^2); ``d[i]`` is the
+        variance of ambiguity ``i`` conditioned on ambiguities ``i+1..n-1``.
+
+    Raises
+    ------
+    AmbiguityError
+        If ``Q`` is not a finite, square, symmetric positive definite matrix.
+
+    Notes
+    -----
+    ``d[i]`` is the pivot obtained when eliminating from the last ambiguity
+    upwards.  It is computed as a Cholesky factorisation of the
+    index-reversed matrix: with ``J`` the reversal permutation,
+    ``J Q J = C C^T`` (``C`` lower) gives ``Q = U U^T`` with
+    ``U = J C J`` upper triangular, hence ``d = diag(U)**2`` and
+    ``L = (U / sqrt(d)).T``.  A pivot ``d[i] <= PIVOT_RTOL * n * max(diag Q)``
+    is treated as loss of positive definiteness.  Cost O(n^3) in LAPACK.
+    """
+    Qa = _as_square_matrix(Q)
+    asym, tol = _asymmetry(Qa)
+    if asym > tol:
+        raise AmbiguityError(
+            f"Q is not symmetric positive definite: not symmetric "
+            f"(max |Q - Q^T| = {asym:.3g} > tolerance {tol:.3g})"
+        )
+    n = Qa.shape[0]
+    A = 0.5 * (Qa + Qa.T)
+    try:
+        C = np.linalg.cholesky(A[::-1, ::-1])
+    except np.linalg.LinAlgError as exc:
+        raise AmbiguityError(
+            "Q is not symmetric positive definite (Cholesky factorisation failed)"
+        ) from exc
+    U = C[::-1, ::-1]
+    sq = np.diag(U).copy()
+    d = sq * sq
+    pivot_floor = PIVOT_RTOL * n * max(float(np.max(np.diag(A))), 0.0)
+    bad = np.flatnonzero(~(d > pivot_floor))
+    if bad.size:
+        i = int(bad[-1])
+        raise AmbiguityError(
+            f"Q is not symmetric positive definite: pivot d[{i}] = {d[i]:.6g} "
+            f"is not significantly positive in the L^T D L factorisation"
+        )
+    L = np.ascontiguousarray((U / sq).T)
+    return L, d
+
+
+# ---------------------------------------------------------------------------
+# 2. reduction (decorrelation)
+# ---------------------------------------------------------------------------
+
+
+def _reduce(L, d):
+    """LAMBDA reduction on Python lists.
+
+    Returns
+    -------
+    Lr : list of lists, shape (n, n)
+        Reduced factor, row-major (``Lr[r][c] == L[r, c]``).
+    dl : list of float, length n
+        Reduced conditional variances.
+    ops : list of (i, j, mu) tuples
+        The transformation as a sequence of elementary operations on the
+        ambiguity vector ``z``: ``mu != 0`` is the integer Gauss
+        transformation ``z_j <- z_j - mu z_i``; ``mu == 0`` swaps ``z_i``
+        and ``z_j`` (``j == i + 1``).  ``Z`` is the product of the
+        corresponding elementary matrices in order.
+
+    Notes
+    -----
+    Pure-Python lists are used on purpose: the algorithm consists of many
+    tiny, sequentially dependent updates for which per-call numpy overhead
+    would dominate.  Recording the operations instead of updating ``Z``
+    (and ``Z^{-1}``) makes every operation O(1) in ``z``; ``Z`` is only
+    materialised when explicitly asked for (:func:`decorrelate`).
+
+    Strategy (as in MLAMBDA): walk the adjacent pairs ``(k, k+1)`` from the
+    end; before testing a pair only the sub-diagonal element ``L[k+1, k]``
+    is size-reduced; after a swap the walk steps back one pair, since only
+    the pairs ``k-1``, ``k`` and ``k+1`` are affected by the swap.  The
+    other off-diagonal elements do not influence ``d`` and are reduced in a
+    final pass, which keeps the search numerically well conditioned.
+    """
+    L = np.asarray(L, dtype=float)
+    d = np.asarray(d, dtype=float)
+    n = d.shape[0]
+    if d.ndim != 1 or L.shape != (n, n):
+        raise AmbiguityError(
+            f"L must have shape (n, n) matching d of shape (n,), got {L.shape} and {d.shape}"
+        )
+    Lr = L.tolist()
+    dl = d.tolist()
+    ops = []
+    floor = math.floor
+
+    def gauss(i, j):
+        # integer Gauss transformation z_j <- z_j - mu z_i (i > j) making
+        # |L[i, j]| <= 1/2; with G = I - mu e_i e_j^T:  L <- L G, Z <- Z G.
+        mu = floor(Lr[i][j] + 0.5)
+        if mu:
+            for r in range(i, n):
+                row = Lr[r]
+                row[j] -= mu * row[i]
+            ops.append((i, j, mu))
+
+    k = n - 2
+    while k >= 0:
+        gauss(k + 1, k)
+        rk = Lr[k]
+        rk1 = Lr[k + 1]
+        lk = rk1[k]
+        dk = dl[k]
+        dk1 = dl[k + 1]
+        # conditional variance of the last of the pair after swapping
+        delta = dk + lk * lk * dk1
+        if delta < dk1 * (1.0 - PERM_RTOL):
+            eta = dk / delta
+            lam = dk1 * lk / delta
+            dl[k] = eta * dk1
+            dl[k + 1] = delta
+            if k:
+                old_k = rk[:k]
+                old_k1 = rk1[:k]
+                rk[:k] = [b - lk * a for a, b in zip(old_k, old_k1)]
+                rk1[:k] = [eta * a + lam * b for a, b in zip(old_k, old_k1)]
+            rk1[k] = lam
+            for r in range(k + 2, n):
+                row = Lr[r]
+                row[k], row[k + 1] = row[k + 1], row[k]
+            ops.append((k, k + 1, 0))
+            if k < n - 2:
+                k += 1
+        else:
+            k -= 1
+
+    # final full size reduction of the strictly lower triangle
+    for j in range(n - 2, -1, -1):
+        for i in range(j + 2, n):
+            gauss(i, j)
+    return Lr, dl, ops
+
+
+def _forward(ops, v):
+    """Apply the recorded transformation: ``v <- Z^T v`` (in place, list)."""
+    for i, j, mu in ops:
+        if mu:
+            v[j] -= mu * v[i]
+        else:
+            v[i], v[j] = v[j], v[i]
+    return v
+
+
+def _backward(ops, v):
+    """Apply the inverse transformation: ``v <- Z^{-T} v`` (in place, list)."""
+    for i, j, mu in reversed(ops):
+        if mu:
+            v[j] += mu * v[i]
+        else:
+            v[i], v[j] = v[j], v[i]
+    return v
+
+
+def _z_matrix(ops, n):
+    """Materialise ``Z`` (int64, shape (n, n)) from the recorded operations."""
+    cols = [[int(r == c) for r in range(n)] for c in range(n)]
+    for i, j, mu in ops:
+        if mu:
+            cols[j] = [x - mu * y for x, y in zip(cols[j], cols[i])]
+        else:
+            cols[i], cols[j] = cols[j], cols[i]
+    big = max((abs(x) for col in cols for x in col), default=0)
+    if big >= 2**62:
+        raise AmbiguityError("decorrelation produced integer entries too large for int64")
+    return np.array(cols, dtype=np.int64).T.copy()
+
+
+def decorrelate(L, d):
+    """Decorrelate ambiguities with integer Gauss transforms and permutations.
+
+    Parameters
+    ----------
+    L : array_like, shape (n, n)
+        Unit lower-triangular factor from :func:`ld_factorize`.
+    d : array_like, shape (n,)
+        Conditional variances from :func:`ld_factorize` (cycles^2).
+
+    Returns
+    -------
+    L : ndarray, shape (n, n), float64
+        Reduced unit lower-triangular factor (``|L[i, j]| <= 1/2`` below the
+        diagonal).
+    d : ndarray, shape (n,), float64
+        Reduced conditional variances; adjacent entries satisfy
+        ``d[k] + L[k+1, k]**2 * d[k+1] >= (1 - PERM_RTOL) * d[k+1]`` (no
+        swap would reduce ``d[k+1]`` noticeably).
+    Z : ndarray, shape (n, n), int64
+        Unimodular (``|det Z| = 1``) integer transformation.  If the input
+        factors satisfy ``Q = L^T diag(d) L`` then the transformed float
+        ambiguities ``z = Z^T a`` have covariance
+        ``Z^T Q Z = L_out^T diag(d_out) L_out``.
+
+    Notes
+    -----
+    The inputs are not modified.  Integer solutions in the transformed space
+    map back with ``a = Z^{-T} z`` (exactly, since ``Z^{-1}`` is integer).
+    """
+    Lr, dl, ops = _reduce(L, d)
+    n = len(dl)
+    return np.array(Lr, dtype=float).reshape(n, n), np.array(dl, dtype=float), _z_matrix(ops, n)
+
+
+# ---------------------------------------------------------------------------
+# 3. search
+# ---------------------------------------------------------------------------
+
+
+def search(L, d, zs, candidates):
+    """Shrinking-ellipsoid integer least-squares search (MLAMBDA style).
+
+    Finds the ``candidates`` integer vectors ``z`` with the smallest
+    ``(zs - z)^T (L^T diag(d) L)^{-1} (zs - z)``.
+
+    Parameters
+    ----------
+    L : array_like, shape (n, n)
+        Unit lower-triangular factor (normally the reduced one).
+    d : array_like, shape (n,)
+        Positive conditional variances (cycles^2).
+    zs : array_like, shape (n,)
+        Float ambiguities in the same space as ``L``/``d`` (cycles).
+    candidates : int
+        Number ``m >= 1`` of best integer vectors to return.
+
+    Returns
+    -------
+    zn : ndarray, shape (m, n), float64
+        Integer-valued candidate vectors, best first.
+    s : ndarray, shape (m,), float64
+        Their squared norms, ascending.
+
+    Notes
+    -----
+    Depth-first enumeration from the last component (conditioned on
+    nothing) to the first; at each level the integers are visited in
+    zig-zag order around the conditional estimate so that partial distances
+    are non-decreasing, which allows backtracking as soon as the partial
+    distance exceeds the current radius.  The radius is infinite until
+    ``m`` full candidates have been collected and then shrinks to the worst
+    retained one.
+    """
+    L = np.asarray(L, dtype=float)
+    d = np.asarray(d, dtype=float)
+    zs = np.asarray(zs, dtype=float)
+    n = d.shape[0]
+    if d.ndim != 1 or n < 1 or L.shape != (n, n) or zs.shape != (n,):
+        raise AmbiguityError(
+            f"inconsistent shapes: L {L.shape}, d {d.shape}, zs {zs.shape} "
+            "(need (n, n), (n,), (n,))"
+        )
+    if (
+        isinstance(candidates, bool)
+        or not isinstance(candidates, numbers.Integral)
+        or candidates < 1
+    ):
+        raise AmbiguityError(f"candidates must be an integer >= 1, got {candidates!r}")
+    if not np.all(d > 0):
+        raise AmbiguityError("conditional variances d must all be > 0")
+    m = int(candidates)
+
+    Lr = L.tolist()
+    dl = d.tolist()
+    zsl = zs.tolist()
+    floor = math.floor
+    # S[k][:k+1] accumulates sum_{i>k} L[i, :k+1] * (z_i - zb_i); the
+    # conditional estimate of component k is zb_k = zs_k + S[k][k].
+    S = [[0.0] * (k + 1) for k in range(n)]
+    dist = [0.0] * n
+    zb = [0.0] * n
+    z = [0.0] * n
+    step = [0.0] * n
+
+    out_z = []  # retained candidates (lists)
+    out_s = []  # their squared norms
+    maxdist = math.inf
+    imax = 0
+
+    k = n - 1
+    zb[k] = zsl[k]
+    z[k] = floor(zb[k] + 0.5)
+    y = zb[k] - z[k]
+    step[k] = 1.0 if y > 0 else -1.0
+    while True:
+        newdist = dist[k] + y * y / dl[k]
+        if newdist < maxdist:
+            if k:
+                # descend one level: condition component k-1 on z[k:]
+                e = z[k] - zb[k]
+                lrow = Lr[k]
+                k -= 1
+                dist[k] = newdist
+                S[k] = Sk = [sv + e * lv for sv, lv in zip(S[k + 1], lrow)]
+                zb[k] = zbk = zsl[k] + Sk[k]
+                z[k] = zk = floor(zbk + 0.5)
+                y = zbk - zk
+                step[k] = 1.0 if y > 0 else -1.0
+                continue
+            # a full candidate has been reached
+            if len(out_z) < m:
+                out_z.append(z[:])
+                out_s.append(newdist)
+                if len(out_z) == m:
+                    imax = max(range(m), key=out_s.__getitem__)
+                    maxdist = out_s[imax]
+            else:
+                out_z[imax] = z[:]
+                out_s[imax] = newdist
+                imax = max(range(m), key=out_s.__getitem__)
+                maxdist = out_s[imax]
+            # next integer at the bottom level (zig-zag around zb[0])
+            st = step[0]
+            z[0] += st
+            y = zb[0] - z[0]
+            step[0] = -st - (1.0 if st > 0 else -1.0)
+        else:
+            if k == n - 1:
+                break
+            # move up one level and on to the next integer there
+            k += 1
+            st = step[k]
+            z[k] += st
+            y = zb[k] - z[k]
+            step[k] = -st - (1.0 if st > 0 else -1.0)
+
+    order = sorted(range(len(out_s)), key=out_s.__getitem__)
+    zn = np.array([out_z[i] for i in order], dtype=float).reshape(len(order), n)
+    s = np.array([out_s[i] for i in order], dtype=float)
+    return zn, s
+
+
+# ---------------------------------------------------------------------------
+# public API
+# ---------------------------------------------------------------------------
+
+
+def _validate(a, Q, candidates):
+    """Validate and normalise inputs of :func:`lambda_search`."""
+    errors = []
+    try:
+        aa = np.asarray(a, dtype=float)
+    except (TypeError, ValueError):
+        aa = None
+        errors.append("a must be convertible to a float array")
+    try:
+        Qa = np.asarray(Q, dtype=float)
+    except (TypeError, ValueError):
+        Qa = None
+        errors.append("Q must be convertible to a float array")
+
+    if aa is not None:
+        if aa.ndim != 1:
+            errors.append(f"a must be 1-D, got shape {aa.shape}")
+        elif aa.shape[0] < 1:
+            errors.append("a must contain at least one ambiguity (n >= 1)")
+        if not np.all(np.isfinite(aa)):
+            errors.append("a contains non-finite values (NaN or inf)")
+        elif aa.size and float(np.max(np.abs(aa))) >= MAX_ABS_AMBIGUITY:
+            errors.append(
+                f"a has entries with magnitude >= 2**52 (max |a| = {np.max(np.abs(aa)):.6g})"
+            )
+    Q_shape_ok = False
+    if Qa is not None:
+        if Qa.ndim != 2 or Qa.shape[0] != Qa.shape[1]:
+            errors.append(f"Q must be a square (n, n) matrix, got shape {Qa.shape}")
+        else:
+            Q_shape_ok = True
+            if aa is not None and aa.ndim == 1 and Qa.shape[0] != aa.shape[0]:
+                errors.append(
+                    f"size mismatch: a has {aa.shape[0]} elements but Q is {Qa.shape}"
+                )
+        if not np.all(np.isfinite(Qa)):
+            errors.append("Q contains non-finite values (NaN or inf)")
+            Q_shape_ok = False
+        elif Q_shape_ok and Qa.size:
+            asym, tol = _asymmetry(Qa)
+            if asym > tol:
+                errors.append(
+                    f"Q is not symmetric (max |Q - Q^T| = {asym:.3g} > tolerance {tol:.3g})"
+                )
+    if isinstance(candidates, bool) or not isinstance(candidates, numbers.Integral):
+        errors.append(f"candidates must be an integer, got {candidates!r}")
+    elif candidates < 1:
+        errors.append(f"candidates must be >= 1, got {candidates}")
+
+    if errors:
+        raise AmbiguityError("invalid LAMBDA input: " + "; ".join(errors))
+    return aa, 0.5 * (Qa + Qa.T), int(candidates)
+
+
+def lambda_search(a, Q, candidates=2):
+    """Integer least-squares ambiguity estimation with LAMBDA.
+
+    Parameters
+    ----------
+    a : array_like, shape (n,)
+        Float ambiguities (cycles), ``n >= 1``, finite, ``|a| < 2**52``.
+        Large integer offsets are harmless: the search runs on
+        ``a - round(a)`` and the offset is added back exactly.
+    Q : array_like, shape (n, n)
+        Covariance of ``a`` (cycles^2); finite, symmetric (relative
+        tolerance ``SYMMETRY_RTOL``) and positive definite.
+    candidates : int, optional
+        Number ``m >= 1`` of best integer vectors to return (default 2, as
+        needed by :func:`ratio_test`).
+
+    Returns
+    -------
+    cands : ndarray, shape (m, n), int64
+        Integer ambiguity vectors in the original space, best first.
+    squared_norms : ndarray, shape (m,), float64
+        ``(a - cands[k])^T Q^{-1} (a - cands[k])``, ascending.
+
+    Raises
+    ------
+    AmbiguityError
+        On invalid input (all detected problems are listed in the message)
+        or if ``Q`` is not positive definite.
+
+    Examples
+    --------
+    >>> cands, s = lambda_search([0.1, -0.2], [[0.1, 0.0], [0.0, 0.1]])
+    >>> cands[0].tolist(), round(float(s[0]), 6)
+    ([0, 0], 0.5)
+    """
+    aa, Qs, m = _validate(a, Q, candidates)
+    offset = _round_half_up(aa)
+    af = aa - offset  # exact for |a| < 2**52
+    L, d = ld_factorize(Qs)
+    Lr, dr, ops = _reduce(L, d)
+    zs = _forward(ops, af.tolist())
+    zn, s = search(Lr, dr, zs, m)
+    # back-transform a = Z^{-T} z with exact (Python int) arithmetic
+    base = offset.astype(np.int64).tolist()
+    rows = []
+    for zk in zn.tolist():
+        ak = _backward(ops, [int(x) for x in zk])
+        rows.append([x + b for x, b in zip(ak, base)])
+    cands = np.array(rows, dtype=np.int64).reshape(m, aa.shape[0])
+    return cands, s
+
+
+def ratio_test(squared_norms, threshold=3.0):
+    """Ratio test for accepting the best integer candidate.
+
+    Parameters
+    ----------
+    squared_norms : array_like, shape (m,), m >= 2
+        Squared norms of the candidates, ascending (from
+        :func:`lambda_search`).
+    threshold : float, optional
+        Acceptance threshold on ``s[1] / s[0]`` (default 3.0).
+
+    Returns
+    -------
+    accepted : bool
+        ``ratio >= threshold``.
+    ratio : float
+        ``s[1] / s[0]``; ``inf`` when ``s[0] == 0 < s[1]`` and ``1.0`` when
+        both are zero (two equally good candidates).
+
+    Raises
+    ------
+    AmbiguityError
+        If fewer than two norms are given, they are negative/non-finite, or
+        not in ascending order in their first two entries, or the threshold
+        is not a finite number.
+    """
+    s = np.asarray(squared_norms, dtype=float).ravel()
+    if s.shape[0] < 2:
+        raise AmbiguityError("ratio_test needs at least two squared norms")
+    if not np.all(np.isfinite(s[:2])) or np.any(s[:2] < 0):
+        raise AmbiguityError(f"squared norms must be finite and >= 0, got {s[:2]}")
+    if s[1] < s[0]:
+        raise AmbiguityError(f"squared norms must be ascending, got {s[:2]}")
+    thr = float(threshold)
+    if not math.isfinite(thr):
+        raise AmbiguityError(f"threshold must be finite, got {threshold!r}")
+    s0, s1 = float(s[0]), float(s[1])
+    if s0 > 0:
+        ratio = s1 / s0
+    else:
+        ratio = math.inf if s1 > 0 else 1.0
+    return bool(ratio >= thr), ratio
+
+
+def partial_fix(a, Q, threshold=3.0, min_fixed=1):
+    """Partial ambiguity resolution by successive removal of ambiguities.
+
+    The full set is resolved with :func:`lambda_search` and checked with
+    :func:`ratio_test`.  On failure the ambiguity with the largest
+    *marginal variance in the original space* (largest remaining ``Q[i, i]``;
+    ties broken by the lowest index) is dropped, and the remaining subset is
+    resolved again using its marginal covariance ``Q[np.ix_(sub, sub)]``.
+    This repeats until the ratio test passes or fewer than ``min_fixed``
+    ambiguities would remain.  Working in the original space keeps the
+    result expressible as a mask over the input ambiguities.
+
+    Parameters
+    ----------
+    a : array_like, shape (n,)
+        Float ambiguities (cycles).
+    Q : array_like, shape (n, n)
+        Their covariance (cycles^2), symmetric positive definite.
+    threshold : float, optional
+        Ratio-test threshold (default 3.0).
+    min_fixed : int, optional
+        Smallest subset size that may be fixed, ``1 <= min_fixed <= n``.
+
+    Returns
+    -------
+    dict
+        ``fixed_mask`` : ndarray of bool, shape (n,)
+            True for fixed ambiguities (all False if nothing passed).
+        ``integers`` : ndarray of int64, shape (n,)
+            Fixed integer values where ``fixed_mask``; 0 elsewhere (not
+            meaningful there).
+        ``ratio`` : float
+            Ratio of the accepted subset; if no subset passed, the ratio of
+            the full set.
+        ``n_fixed`` : int
+            Number of fixed ambiguities.
+
+    Raises
+    ------
+    AmbiguityError
+        On invalid input (see :func:`lambda_search`) or invalid
+        ``min_fixed``.
+    """
+    aa, Qs, _ = _validate(a, Q, 2)
+    n = aa.shape[0]
+    if isinstance(min_fixed, bool) or not isinstance(min_fixed, numbers.Integral):
+        raise AmbiguityError(f"min_fixed must be an integer, got {min_fixed!r}")
+    if not 1 <= min_fixed <= n:
+        raise AmbiguityError(f"min_fixed must be between 1 and n={n}, got {min_fixed}")
+
+    fixed_mask = np.zeros(n, dtype=bool)
+    integers = np.zeros(n, dtype=np.int64)
+    sub = list(range(n))
+    first_ratio = None
+    while len(sub) >= min_fixed:
+        idx = np.asarray(sub)
+        cands, s = lambda_search(aa[idx], Qs[np.ix_(idx, idx)], candidates=2)
+        ok, ratio = ratio_test(s, threshold)
+        if first_ratio is None:
+            first_ratio = ratio
+        if ok:
+            fixed_mask[idx] = True
+            integers[idx] = cands[0]
+            return {
+                "fixed_mask": fixed_mask,
+                "integers": integers,
+                "ratio": float(ratio),
+                "n_fixed": int(idx.size),
+            }
+        # drop the ambiguity with the largest marginal variance
+        var = np.diag(Qs)[idx]
+        sub.pop(int(np.argmax(var)))
+    return {
+        "fixed_mask": fixed_mask,
+        "integers": integers,
+        "ratio": float(first_ratio),
+        "n_fixed": 0,
+    }
