@@ -54,13 +54,15 @@ class Oscillator:
         return np.sqrt(self.allan_variance(tau_s))
 
 
-_BROWN_HWANG = ("Brown & Hwang, Introduction to Random Signals and Applied Kalman Filtering, 3rd ed. (1997), "
-                "Ch. 9, table of typical timing-standard h coefficients")
-#: a temperature-compensated crystal (Brown & Hwang's "compensated crystal")
+_BROWN_HWANG = ("Brown & Hwang, Introduction to Random Signals and Applied Kalman Filtering, 4th ed. (2012), "
+                "Sec. 9.3, table of typical h coefficients")
+#: a low-quality temperature-compensated crystal (Brown & Hwang's "low quality TCXO")
 TCXO = Oscillator("TCXO", 2e-19, 7e-21, 2e-20, _BROWN_HWANG)
-#: an oven-controlled crystal (Brown & Hwang's "ovenized crystal")
-OCXO = Oscillator("OCXO", 8e-20, 2e-21, 4e-23, _BROWN_HWANG)
-OSCILLATORS = {o.name: o for o in (TCXO, OCXO)}
+#: a high-quality temperature-compensated crystal (Brown & Hwang's "high quality TCXO")
+TCXO_HQ = Oscillator("TCXO-HQ", 2e-21, 1e-22, 2e-20, _BROWN_HWANG)
+#: an oven-controlled crystal (Brown & Hwang's "OCXO")
+OCXO = Oscillator("OCXO", 2e-25, 7e-25, 6e-25, _BROWN_HWANG)
+OSCILLATORS = {o.name: o for o in (TCXO, TCXO_HQ, OCXO)}
 
 
 def _flicker(n: int, rng: np.random.Generator) -> np.ndarray:

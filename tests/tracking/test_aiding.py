@@ -16,14 +16,15 @@ from cdgps_cli.tracking.aiding import L1_WAVELENGTH_M, clock_drift_s_per_s, comm
 from cdgps_cli.tracking.channel import TrackOptions, track
 from cdgps_cli.tracking.inertial import (GRADES, accelerometer_doppler_aid_hz, gyro_antenna_velocity_m_s, low_pass,
                                          sense)
-from cdgps_cli.tracking.oscillator import (OCXO, TCXO, Oscillator, carrier_phase_noise_rad, overlapping_allan_deviation,
+from cdgps_cli.tracking.oscillator import (OCXO, TCXO, TCXO_HQ, Oscillator, carrier_phase_noise_rad, overlapping_allan_deviation,
                                            simulate_time_error)
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 
 
 @pytest.mark.parametrize("osc", [Oscillator("white FM", 2e-19, 0, 0), Oscillator("flicker FM", 0, 7e-21, 0),
-                                 Oscillator("random-walk FM", 0, 0, 2e-20), TCXO, OCXO], ids=lambda o: o.name)
+                                 Oscillator("random-walk FM", 0, 0, 2e-20), TCXO, TCXO_HQ, OCXO],
+                         ids=lambda o: o.name)
 def test_simulated_allan_deviation_matches_the_analytic_formula(osc):
     """σ_y(τ) of 2^19 simulated 1 ms samples at τ = 10 ms … 1 s within 8 % of
     sqrt(h0/(2τ) + 2 ln2 h−1 + (2π²/3) h−2 τ) — each noise type alone has its own slope (−1/2, 0, +1/2)."""
@@ -36,7 +37,9 @@ def test_simulated_allan_deviation_matches_the_analytic_formula(osc):
 def test_oscillator_values_and_phase_noise():
     # TCXO: σ_y(1 s) = sqrt(1e-19 + 9.7e-21 + 1.32e-19) ≈ 4.9e-10; the OCXO is quieter at every τ
     assert TCXO.allan_deviation(1.0) == pytest.approx(4.92e-10, rel=0.01)
-    assert np.all(OCXO.allan_deviation([0.01, 1, 100]) < TCXO.allan_deviation([0.01, 1, 100]))
+    taus = [0.01, 1, 100]
+    assert np.all(OCXO.allan_deviation(taus) < TCXO_HQ.allan_deviation(taus))
+    assert np.all(TCXO_HQ.allan_deviation(taus) <= TCXO.allan_deviation(taus))
     phi = carrier_phase_noise_rad(TCXO, 1e-3, 1000, np.random.default_rng(1))
     x = simulate_time_error(TCXO, 1e-3, 1000, np.random.default_rng(1))
     np.testing.assert_allclose(phi, 2 * math.pi * 1575.42e6 * x)
