@@ -15,10 +15,12 @@ Studies (``--only`` picks some):
   aided 3 Hz with a 30 Hz and a 100 Hz sensor — the aided loop's −3 dB tracking bandwidth;
 * ``oscillator``: jitter, slips and lock vs B_n with TCXO / high-quality TCXO / OCXO phase noise
   (2 seeds × 10 s), against thermal + ∫ S_φ(f)|1 − H(j2πf)|² df; the lowest bandwidth holding lock;
+* ``shared``: four satellites sharing one oscillator (TCXO, TCXO-HQ), narrow channel loops with a
+  shared clock loop (:mod:`cdgps_cli.tracking.shared_clock`) against independent loops;
 * ``slips``: cycle slips (half-cycle jumps of the 20 ms mean error) in 20 s vs B_n, aided and unaided,
   for 0.5 g line-of-sight dynamics at 2 Hz and at 0.5 Hz, 40 dB-Hz.
 
-    python benchmarks/tracking_paper.py [--only jitter,tones,oscillator,slips]
+    python benchmarks/tracking_paper.py [--only jitter,tones,oscillator,shared,slips]
 
 Writes docs/tracking-paper.json and docs/figures/tracking-*.png.
 """
@@ -43,6 +45,7 @@ from cdgps_cli.tracking.channel import L1_HZ, OUT_FIELDS, TrackOptions, initial_
 from cdgps_cli.tracking.inertial import GRADES, InertialGrade, accelerometer_doppler_aid_hz  # noqa: E402
 from cdgps_cli.tracking.loops import ZETA, pll2_gains  # noqa: E402
 from cdgps_cli.tracking.oscillator import OSCILLATORS, carrier_phase_noise_rad  # noqa: E402
+from cdgps_cli.tracking.shared_clock import SharedClockReceiver  # noqa: E402
 
 FS = 2.2e6                       # 2.15 samples per chip; 2200 per 1 ms update
 N_MS = 2200
@@ -304,6 +307,74 @@ def study_oscillator():
     return res
 
 
+SHARED_SATS = ((3, 1200.0, 100.0), (17, -2400.0, 600.0), (22, 300.0, 900.0), (28, 2900.0, 400.0))
+SHARED_CONFIGS = {
+    "TCXO-HQ": [("independent 3 Hz", 3.0, None), ("3 Hz + shared 15 Hz clock", 3.0, 15.0),
+                ("2 Hz + shared 15 Hz clock", 2.0, 15.0)],
+    "TCXO": [("independent 3 Hz", 3.0, None), ("independent 20 Hz", 20.0, None),
+             ("3 Hz + shared 30 Hz clock", 3.0, 30.0), ("3 Hz + shared 60 Hz clock", 3.0, 60.0)],
+}
+
+
+def study_shared():
+    """Four satellites, one oscillator: per channel jitter, slips and lock of each configuration."""
+    cn0, dur, settle, per = 45.0, 10.0, 2000, 500
+    res = {"cn0_dbhz": cn0, "duration_s": dur, "satellites": [s[0] for s in SHARED_SATS], "oscillators": []}
+    codes = [ca_code(p).astype(np.float64) for p, _, _ in SHARED_SATS]
+    sigma = math.sqrt(FS / 10 ** (cn0 / 10) / 2)
+    m = int(dur / T)
+    for name, configs in SHARED_CONFIGS.items():
+        osc = OSCILLATORS[name]
+        phase = carrier_phase_noise_rad(osc, 1e-4, int(dur / 1e-4) + 10, np.random.default_rng(200))
+        tgrid = np.arange(phase.size) * 1e-4
+        rng = np.random.default_rng(40)
+        starts = [(p, d + 2.0, c) for p, d, c in SHARED_SATS]
+        rxs, indep = {}, {}
+        for lab, bn, clk in configs:
+            opt = TrackOptions(pll_bn_hz=bn)
+            if clk is None:
+                indep[lab] = (opt, [initial_state(d, c) for _, d, c in starts])
+            else:
+                rxs[lab] = SharedClockReceiver(FS, starts, opt, clock_bn_hz=clk)
+        outs = {lab: [[] for _ in SHARED_SATS] for lab, _, _ in configs}
+        for k0 in range(0, m, per):
+            t = np.arange(k0 * N_MS, min(m, k0 + per) * N_MS) / FS
+            osc_t = np.interp(t, tgrid, phase)
+            x = sigma * rng.standard_normal(2 * t.size).view(np.complex128)
+            for code, (p, d, c) in zip(codes, SHARED_SATS):
+                chips = c + t * CHIP_RATE_HZ * (1 + d / L1_HZ)
+                x += code[np.floor(chips).astype(np.int64) % 1023] * np.exp(1j * (2 * np.pi * d * t + osc_t))
+            for lab, (opt, states) in indep.items():
+                for i, (p, _, _) in enumerate(SHARED_SATS):
+                    outs[lab][i].append(run_updates(x, FS, p, states[i], opt))
+            for lab, rx in rxs.items():
+                rows, _ = rx.run(x)
+                for i in range(len(SHARED_SATS)):
+                    outs[lab][i].append(rows[i])
+        tm = np.arange(m) * T + T / 2
+        osc_m = np.interp(tm, tgrid, phase)
+        table = []
+        for lab, bn, clk in configs:
+            jit, sl, lk = [], 0, []
+            for i, (p, d, c) in enumerate(SHARED_SATS):
+                o = np.vstack(outs[lab][i])
+                err = tracking_error_rad(o, 2 * np.pi * d * tm + osc_m)
+                jit.append(math.degrees(np.std(err[settle:])))
+                sl += slips(err, settle)
+                lk.append(lock_fraction(o, settle))
+            row = {"run": lab, "channel_bn_hz": bn, "clock_bn_hz": clk, "jitter_deg_max": max(jit),
+                   "jitter_deg_mean": float(np.mean(jit)), "slips": sl, "lock_fraction_min": min(lk)}
+            if clk is not None:
+                row["predicted_deg"] = math.degrees(math.sqrt(thermal_rad(bn, cn0) ** 2 + thermal_rad(clk, cn0) ** 2 / len(SHARED_SATS)
+                                                              + oscillator_jitter_rad(osc, clk) ** 2))
+            else:
+                row["predicted_deg"] = math.degrees(math.hypot(thermal_rad(bn, cn0), oscillator_jitter_rad(osc, bn)))
+            table.append(row)
+            print("shared", name, row, flush=True)
+        res["oscillators"].append({"name": name, "rows": table})
+    return res
+
+
 def study_slips():
     cn0, dur, settle = 40.0, 20.0, 2000
     res = {"cn0_dbhz": cn0, "duration_s": dur, "cases": []}
@@ -401,10 +472,11 @@ def figures(res, figdir: Path):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--only", default="jitter,tones,oscillator,slips")
+    ap.add_argument("--only", default="jitter,tones,oscillator,shared,slips")
     ap.add_argument("--figures-only", action="store_true", help="redraw the figures from docs/tracking-paper.json")
     args = ap.parse_args()
-    studies = {"jitter": study_jitter, "tones": study_tones, "oscillator": study_oscillator, "slips": study_slips}
+    studies = {"jitter": study_jitter, "tones": study_tones, "oscillator": study_oscillator, "shared": study_shared,
+               "slips": study_slips}
     path = ROOT / "docs" / "tracking-paper.json"
     res = json.loads(path.read_text()) if path.exists() else {}
     for name in ([] if args.figures_only else args.only.split(",")):

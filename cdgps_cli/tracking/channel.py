@@ -150,20 +150,30 @@ def _run_numpy(x, code, st, par, aid, out) -> None:
         st[3] += f_now * T
         st[4] += code_rate * T
         if k < pull_in:
-            if not math.isnan(st[5]):
-                cross = st[5] * p.imag - st[6] * p.real
-                dot = st[5] * p.real + st[6] * p.imag
-                st[1] += fll.update(math.atan(cross / dot) / (2 * math.pi * T) if dot != 0 else 0.0) * T
-            st[2] = st[1]
+            fll_step(st, p, fll, T)
         else:
             pll.bn_hz = bn_final if 0 <= narrow_at <= k else bn_first
             st[1] = st[2] + pll.update(err) / (2 * math.pi)
         st[5], st[6] = p.real, p.imag
-        ea, la = abs(e), abs(late)
-        if ea + la > 0:
-            st[4] += dll.update((ea - la) / (ea + la) * (2.0 - spacing) / 2.0) * T
+        dll_step(st, e, late, dll, spacing, T)
         st[0] = k + 1
     st[7:11] = pll._i1, pll._i2, pll._e1, pll._y1
+
+
+def fll_step(st: np.ndarray, p: complex, fll: LoopFilter, T: float) -> None:
+    """FLL pull-in update of the state: atan(cross/dot)/(2πT) between the previous prompt and ``p``."""
+    if not math.isnan(st[5]):
+        cross = st[5] * p.imag - st[6] * p.real
+        dot = st[5] * p.real + st[6] * p.imag
+        st[1] += fll.update(math.atan(cross / dot) / (2 * math.pi * T) if dot != 0 else 0.0) * T
+    st[2] = st[1]
+
+
+def dll_step(st: np.ndarray, early: complex, late: complex, dll: LoopFilter, spacing: float, T: float) -> None:
+    """DLL update of the code phase: normalized early-minus-late envelope through the (first-order) loop."""
+    ea, la = abs(early), abs(late)
+    if ea + la > 0:
+        st[4] += dll.update((ea - la) / (ea + la) * (2.0 - spacing) / 2.0) * T
 
 
 def track(samples: np.ndarray, fs_hz: float, prn: int, doppler_hz: float, code_phase_chips: float,

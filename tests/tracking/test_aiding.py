@@ -141,3 +141,21 @@ def test_a_shared_clock_loop_keeps_narrow_channel_loops_locked():
         assert np.abs(means(tr["doppler_hz"]) - means(dop - fa + truth)).max() < 1.0
         alone = track(x, fs, p, dop, c, opt)
         assert np.mean(alone["phase_lock"][400::20] > 0.8) < 0.5
+
+
+def test_shared_clock_in_pieces_equals_one_run_and_names_bad_input():
+    from cdgps_cli.tracking.shared_clock import SharedClockReceiver
+
+    fs = 2.2e6
+    sats = ((3, 1200.0, 100.0), (17, -2400.0, 600.0))
+    x = sum(ca_signal(p, d, c, 48.0, 0.15, seed=p, bits=False, fs=fs)[0] for p, d, c in sats)
+    opt = TrackOptions(pll_bn_hz=5.0, pull_in_s=0.03, wide_pll_s=0.03)
+    one = SharedClockReceiver(fs, sats, opt).run(x)
+    rx = SharedClockReceiver(fs, sats, opt)
+    parts = [rx.run(x[a:b]) for a, b in ((0, 22000 * 4), (22000 * 4, x.size))]
+    np.testing.assert_array_equal(one[0], np.concatenate([p[0] for p in parts], axis=1))
+    np.testing.assert_array_equal(one[1], np.concatenate([p[1] for p in parts]))
+    with pytest.raises(CdgpsError, match="weights"):
+        SharedClockReceiver(fs, sats, opt, weights=[1.0])
+    with pytest.raises(CdgpsError, match=r"aids\[1\]: expected one value per 1 ms update \(150\)"):
+        SharedClockReceiver(fs, sats, opt).run(x, [None, np.zeros(3)])
