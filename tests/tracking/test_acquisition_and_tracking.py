@@ -129,3 +129,24 @@ def test_aiding_keeps_a_narrow_loop_locked_through_dynamics():
     after = slice(800, None, 20)
     assert np.mean(aided["phase_lock"][after] > 0.8) == 1.0
     assert np.mean(unaided["phase_lock"][after] > 0.8) < 0.6
+
+
+@needs_if
+def test_receiver_takes_an_external_doppler_per_channel():
+    """track_all(aids={prn: …}): the channel starts from the acquired Doppler minus the first aid and
+    feeds the aid forward — the same run as track() given those; an aid for a PRN not acquired is named."""
+    from cdgps_cli.errors import CdgpsError
+    from cdgps_cli.tracking.receiver import track_all
+
+    x = read_samples(IQ_FILE, "int8-iq", max_samples=int(FS * 0.15))
+    m = x.size // 4000
+    aid = 3.0 + 2.0 * np.sin(np.arange(m) * 0.01)                        # Hz per update
+    t = np.arange(x.size) / FS
+    moved = x * np.exp(1j * 2 * np.pi * np.interp(t, np.arange(m) * 1e-3, np.cumsum(aid) * 1e-3))
+    res = track_all(moved, FS, [31], aids={31: aid})
+    a = next(a for a in res["acquisition"] if a["prn"] == 31)
+    ref = track(moved, FS, 31, a["doppler_hz"] - aid[0], a["code_phase_chips"], aid_doppler_hz=aid)
+    for k in ("doppler_hz", "carrier_phase_cycles", "i_prompt"):
+        np.testing.assert_array_equal(res["tracks"][31][k], ref[k])
+    with pytest.raises(CdgpsError, match=r"aids: given for PRN 5, not acquired \(acquired: 31\)"):
+        track_all(moved, FS, [31], aids={5: aid})
