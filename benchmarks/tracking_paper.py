@@ -35,7 +35,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-from scipy.integrate import quad
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -43,8 +42,8 @@ sys.path.insert(0, str(ROOT))
 from cdgps_cli.tracking.ca_code import CHIP_RATE_HZ, ca_code  # noqa: E402
 from cdgps_cli.tracking.channel import L1_HZ, OUT_FIELDS, TrackOptions, initial_state, run_updates  # noqa: E402
 from cdgps_cli.tracking.inertial import GRADES, InertialGrade, accelerometer_doppler_aid_hz  # noqa: E402
-from cdgps_cli.tracking.loops import ZETA, pll2_gains  # noqa: E402
-from cdgps_cli.tracking.oscillator import OSCILLATORS, carrier_phase_noise_rad  # noqa: E402
+from cdgps_cli.tracking.loops import pll2_response  # noqa: E402
+from cdgps_cli.tracking.oscillator import OSCILLATORS, carrier_phase_noise_rad, pll_jitter_rad  # noqa: E402
 from cdgps_cli.tracking.shared_clock import SharedClockReceiver  # noqa: E402
 
 FS = 2.2e6                       # 2.15 samples per chip; 2200 per 1 ms update
@@ -159,22 +158,6 @@ def effective_cn0_dbhz(out, cn0_dbhz):
     p2 = np.mean(out[:, COL["i_prompt"]] ** 2 + out[:, COL["q_prompt"]] ** 2)
     noise = N_MS * FS / 10 ** (cn0_dbhz / 10)
     return cn0_dbhz + 10 * math.log10((p2 - noise) / N_MS**2)
-
-
-def h_closed(f, bn):
-    """Continuous second-order closed loop H(j2πf) for B_n."""
-    k1, tau1 = pll2_gains(bn, ZETA)
-    s = 2j * np.pi * np.asarray(f, float)
-    return k1 * (tau1 * s + 1) / (s * s + k1 * tau1 * s + k1)
-
-
-def oscillator_jitter_rad(osc, bn):
-    """sqrt(∫ S_φ(f) |1 − H|² df), S_φ = f_L² (h0/f² + h−1/f³ + h−2/f⁴) (one-sided), up to 500 Hz."""
-    def integrand(logf):
-        f = math.exp(logf)
-        s_phi = L1_HZ**2 * (osc.h0 / f**2 + osc.h_m1 / f**3 + osc.h_m2 / f**4)
-        return s_phi * abs(1 - h_closed(f, bn)) ** 2 * f
-    return math.sqrt(quad(integrand, math.log(1e-4), math.log(500.0), limit=400)[0])
 
 
 def consumer_aid(motion, m, grade: InertialGrade, seed):
@@ -296,9 +279,9 @@ def study_oscillator():
         table = []
         for bn in OSC_BANDWIDTHS:
             r = rows[bn]
-            pred = math.degrees(math.hypot(thermal_rad(bn, cn0), oscillator_jitter_rad(osc, bn)))
+            pred = math.degrees(math.hypot(thermal_rad(bn, cn0), pll_jitter_rad(osc, bn)))
             table.append({"bn_hz": bn, "jitter_deg": float(np.mean(r["jitter_deg"])), "predicted_deg": pred,
-                          "oscillator_only_deg": math.degrees(oscillator_jitter_rad(osc, bn)),
+                          "oscillator_only_deg": math.degrees(pll_jitter_rad(osc, bn)),
                           "slips": r["slips"], "lock_fraction": float(np.min(r["lock"]))})
             print("oscillator", osc.name, table[-1], flush=True)
         holding = [row["bn_hz"] for row in table if row["slips"] == 0 and row["lock_fraction"] >= 0.9]
@@ -366,9 +349,9 @@ def study_shared():
                    "jitter_deg_mean": float(np.mean(jit)), "slips": sl, "lock_fraction_min": min(lk)}
             if clk is not None:
                 row["predicted_deg"] = math.degrees(math.sqrt(thermal_rad(bn, cn0) ** 2 + thermal_rad(clk, cn0) ** 2 / len(SHARED_SATS)
-                                                              + oscillator_jitter_rad(osc, clk) ** 2))
+                                                              + pll_jitter_rad(osc, clk) ** 2))
             else:
-                row["predicted_deg"] = math.degrees(math.hypot(thermal_rad(bn, cn0), oscillator_jitter_rad(osc, bn)))
+                row["predicted_deg"] = math.degrees(math.hypot(thermal_rad(bn, cn0), pll_jitter_rad(osc, bn)))
             table.append(row)
             print("shared", name, row, flush=True)
         res["oscillators"].append({"name": name, "rows": table})
@@ -430,9 +413,9 @@ def figures(res, figdir: Path):
         for r, mk in zip(t["runs"], "os^v"):
             ax.semilogx(t["tones_hz"], 20 * np.log10(r["gain"]), mk, label=r["run"])
         for bn in (3.0, 15.0):
-            ax.semilogx(f, 20 * np.log10(np.abs(h_closed(f, bn))), "k:", lw=0.8)
+            ax.semilogx(f, 20 * np.log10(np.abs(pll2_response(f, bn))), "k:", lw=0.8)
         for bw in (30.0, 100.0):
-            h = h_closed(f, 3.0)
+            h = pll2_response(f, 3.0)
             lp = 1 / (1 + 1j * f / bw)
             ax.semilogx(f, 20 * np.log10(np.abs(h + lp * (1 - h))), "k--", lw=0.8)
         ax.axhline(-3, color="grey", lw=0.6)

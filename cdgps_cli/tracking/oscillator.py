@@ -24,8 +24,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.integrate import quad
 
 from ..errors import CdgpsError
+from .loops import pll2_response
 
 
 @dataclass(frozen=True)
@@ -101,6 +103,18 @@ def carrier_phase_noise_rad(osc: Oscillator, dt_s: float, n: int, rng: np.random
                             carrier_hz: float = 1575.42e6) -> np.ndarray:
     """Carrier phase error 2π f_carrier x (rad) at n + 1 instants spaced ``dt_s``."""
     return 2 * math.pi * carrier_hz * simulate_time_error(osc, dt_s, n, rng)
+
+
+def pll_jitter_rad(osc: Oscillator, bn_hz: float, carrier_hz: float = 1575.42e6, f_max_hz: float = 500.0) -> float:
+    """Phase error (rad, 1σ) a second-order PLL of noise bandwidth ``bn_hz`` leaves from the oscillator:
+    sqrt(∫ S_φ(f) |1 − H(j2πf)|² df) with S_φ(f) = f_c² (h0/f² + h−1/f³ + h−2/f⁴) (one-sided, rad²/Hz),
+    from 1e-4 Hz to ``f_max_hz`` (half the 1 ms update rate).  For white FM alone this is
+    π² f_c² h0 / (2 ζ ω_n) (tested)."""
+    def integrand(log_f):
+        f = math.exp(log_f)
+        s_phi = carrier_hz**2 * (osc.h0 / f**2 + osc.h_m1 / f**3 + osc.h_m2 / f**4)
+        return s_phi * abs(1 - pll2_response(f, bn_hz)) ** 2 * f
+    return math.sqrt(quad(integrand, math.log(1e-4), math.log(f_max_hz), limit=400)[0])
 
 
 def overlapping_allan_deviation(x_s: np.ndarray, dt_s: float, m: np.ndarray) -> np.ndarray:

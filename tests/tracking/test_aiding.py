@@ -159,3 +159,30 @@ def test_shared_clock_in_pieces_equals_one_run_and_names_bad_input():
         SharedClockReceiver(fs, sats, opt, weights=[1.0])
     with pytest.raises(CdgpsError, match=r"aids\[1\]: expected one value per 1 ms update \(150\)"):
         SharedClockReceiver(fs, sats, opt).run(x, [None, np.zeros(3)])
+
+
+def test_oscillator_jitter_integral_closed_form_and_simulation():
+    """White FM alone: ∫ f_c² h0/f² |1 − H|² df = π² f_c² h0 / (2ζω_n) (closed form of the integral);
+    and a 10 Hz loop tracking simulated TCXO-HQ signals (4 × 2.5 s) shows the predicted thermal ⊕
+    oscillator jitter (3.6°) within 15 %."""
+    from _track_signals import nco_error_rad, track_pieces
+
+    from cdgps_cli.tracking.loops import ZETA, pll2_gains
+    from cdgps_cli.tracking.oscillator import pll_jitter_rad
+
+    white = Oscillator("white FM", 2e-21, 0, 0)
+    wn = math.sqrt(pll2_gains(10.0)[0])
+    closed = math.pi * 1575.42e6 * math.sqrt(white.h0 / (2 * ZETA * wn))
+    assert pll_jitter_rad(white, 10.0, f_max_hz=1e7) == pytest.approx(closed, rel=1e-3)
+
+    bn, cn0, seconds = 10.0, 50.0, 3.5
+    var = []
+    for seed in range(4):                          # the error's low-frequency content: average 4 runs
+        phase = carrier_phase_noise_rad(TCXO_HQ, 1e-4, int(seconds / 1e-4) + 10, np.random.default_rng(seed))
+        grid = np.arange(phase.size) * 1e-4
+        outs, truth = track_pieces(7, 1234.0, 200.0, cn0, seconds, [("pll", TrackOptions(pll_bn_hz=bn), None)],
+                                   phase_fn=lambda t, g=grid, p=phase: np.interp(t, g, p), seed=9 + seed)
+        var.append(np.var(nco_error_rad(outs["pll"], truth)[1000:]))
+    c = 10 ** (cn0 / 10)
+    predicted = math.hypot(math.sqrt(bn / c * (1 + 1 / (2e-3 * c))), pll_jitter_rad(TCXO_HQ, bn))
+    assert math.sqrt(np.mean(var)) == pytest.approx(predicted, rel=0.15)
