@@ -20,8 +20,9 @@ import numpy as np
 
 from ..ephemeris import SPEED_OF_LIGHT, sat_position_at_reception
 from ..errors import CdgpsError
+from .channel import L1_HZ
 
-L1_HZ = 1575.42e6
+#: L1 carrier wavelength, m
 L1_WAVELENGTH_M = SPEED_OF_LIGHT / L1_HZ
 
 

@@ -14,6 +14,10 @@ Per update (one 1 ms block of samples, not aligned to the code epoch):
 
 An optional external Doppler aid (Hz per update) is added to the carrier NCO before the PLL's own
 correction (Alban et al. 2003, Fig. 2): the PLL then tracks only the aiding error.
+
+The per-update loop runs compiled (``cdgps_cli._trackcore.track``) or in Python (:func:`_run_numpy`,
+the reference) on the same float64 state vector (:data:`STATE_FIELDS`), so a recording can be tracked
+in pieces (:func:`run_updates`); C/N0 and lock windows are computed afterwards (:func:`outputs_dict`).
 """
 
 from __future__ import annotations

@@ -27,6 +27,7 @@ import numpy as np
 from scipy.integrate import quad
 
 from ..errors import CdgpsError
+from .channel import L1_HZ
 from .loops import pll2_response
 
 
@@ -100,12 +101,12 @@ def simulate_time_error(osc: Oscillator, dt_s: float, n: int, rng: np.random.Gen
 
 
 def carrier_phase_noise_rad(osc: Oscillator, dt_s: float, n: int, rng: np.random.Generator,
-                            carrier_hz: float = 1575.42e6) -> np.ndarray:
+                            carrier_hz: float = L1_HZ) -> np.ndarray:
     """Carrier phase error 2π f_carrier x (rad) at n + 1 instants spaced ``dt_s``."""
     return 2 * math.pi * carrier_hz * simulate_time_error(osc, dt_s, n, rng)
 
 
-def pll_jitter_rad(osc: Oscillator, bn_hz: float, carrier_hz: float = 1575.42e6, f_max_hz: float = 500.0) -> float:
+def pll_jitter_rad(osc: Oscillator, bn_hz: float, carrier_hz: float = L1_HZ, f_max_hz: float = 500.0) -> float:
     """Phase error (rad, 1σ) a second-order PLL of noise bandwidth ``bn_hz`` leaves from the oscillator:
     sqrt(∫ S_φ(f) |1 − H(j2πf)|² df) with S_φ(f) = f_c² (h0/f² + h−1/f³ + h−2/f⁴) (one-sided, rad²/Hz),
     from 1e-4 Hz to ``f_max_hz`` (half the 1 ms update rate).  For white FM alone this is
