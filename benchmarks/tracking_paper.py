@@ -45,13 +45,14 @@ from cdgps_cli.tracking.inertial import GRADES, InertialGrade, accelerometer_dop
 from cdgps_cli.tracking.loops import pll2_response  # noqa: E402
 from cdgps_cli.tracking.oscillator import OSCILLATORS, carrier_phase_noise_rad, pll_jitter_rad  # noqa: E402
 from cdgps_cli.tracking.shared_clock import SharedClockReceiver  # noqa: E402
+from cdgps_cli.units import GPS_L1_WAVELENGTH_M, STANDARD_GRAVITY_M_S2  # noqa: E402
 
 FS = 2.2e6                       # 2.15 samples per chip; 2200 per 1 ms update
 N_MS = 2200
 T = 1e-3
 PRN, DOPPLER_HZ, CODE0 = 7, 1234.0, 200.0
-LAMBDA_M = 299792458.0 / L1_HZ
-G = 9.80665
+LAMBDA_M = GPS_L1_WAVELENGTH_M
+G = STANDARD_GRAVITY_M_S2
 BANDWIDTHS = (3.0, 5.0, 10.0, 15.0, 20.0)
 COL = {k: i for i, k in enumerate(OUT_FIELDS)}
 

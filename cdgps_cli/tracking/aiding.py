@@ -18,12 +18,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..ephemeris import SPEED_OF_LIGHT, sat_position_at_reception
+from ..ephemeris import sat_position_at_reception
 from ..errors import CdgpsError
+from ..units import GPS_L1_WAVELENGTH_M as L1_WAVELENGTH_M
 from .channel import L1_HZ
-
-#: L1 carrier wavelength, m
-L1_WAVELENGTH_M = SPEED_OF_LIGHT / L1_HZ
 
 
 def los_doppler_hz(nav, sat: str, t_rx_gps_s, rx_ecef_m, rx_velocity_ecef_m_s=0.0, *, step_s: float = 0.5,

@@ -28,12 +28,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import CdgpsError
+from ..units import GPS_L1_HZ
 from .ca_code import CHIP_RATE_HZ, CODE_LENGTH, ca_code
 from .correlator import _trackcore, correlate, kernel_available
 from .loops import LoopFilter
 
-#: L1 carrier frequency and its ratio to the chip rate
-L1_HZ = 1575.42e6
+#: L1 carrier frequency (cdgps_cli.units) and its ratio to the chip rate
+L1_HZ = GPS_L1_HZ
 CARRIER_PER_CHIP = L1_HZ / CHIP_RATE_HZ            # 1540
 #: phase-lock indicator threshold (cos 2φ)
 PHASE_LOCK_THRESHOLD = 0.8

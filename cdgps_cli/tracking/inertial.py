@@ -20,9 +20,9 @@ import numpy as np
 from scipy.signal import lfilter
 
 from ..errors import CdgpsError
+from ..units import STANDARD_GRAVITY_M_S2 as G0_M_S2
 from .aiding import L1_WAVELENGTH_M
 
-G0_M_S2 = 9.80665
 DEG_PER_HOUR = math.pi / 180 / 3600                 # rad/s
 DEG_PER_ROOT_HOUR = math.pi / 180 / 60              # rad/√s (angle random walk → rad/s/√Hz)
 MICRO_G_PER_ROOT_HZ = 1e-6 * G0_M_S2                # m/s²/√Hz
