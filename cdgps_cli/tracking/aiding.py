@@ -44,8 +44,12 @@ def los_doppler_hz(nav, sat: str, t_rx_gps_s, rx_ecef_m, rx_velocity_ecef_m_s=0.
         Add the satellite clock's frequency offset f_L1 · d(Δt_sv)/dt.
     """
     t = np.atleast_1d(np.asarray(t_rx_gps_s, dtype=float)).ravel()
-    rx = np.broadcast_to(np.asarray(rx_ecef_m, dtype=float), (t.size, 3))
-    v_rx = np.broadcast_to(np.asarray(rx_velocity_ecef_m_s, dtype=float), (t.size, 3))
+    try:
+        rx = np.broadcast_to(np.asarray(rx_ecef_m, dtype=float), (t.size, 3))
+        v_rx = np.broadcast_to(np.asarray(rx_velocity_ecef_m_s, dtype=float), (t.size, 3))
+    except ValueError:
+        raise CdgpsError(f"rx_ecef_m, rx_velocity_ecef_m_s: expected shape (3,) or ({t.size}, 3) for {t.size} "
+                         f"times, got {np.shape(rx_ecef_m)} and {np.shape(rx_velocity_ecef_m_s)}") from None
     if not (step_s > 0):
         raise CdgpsError(f"step_s: expected a positive time step, got {step_s!r}")
     g0 = sat_position_at_reception(nav, sat, t, rx)
@@ -75,7 +79,11 @@ def common_mode_hz(freq_error_hz: np.ndarray, weights=None) -> np.ndarray:
         The common mode; NaN where no channel has a value.
     """
     e = np.asarray(freq_error_hz, dtype=float)
-    w = np.ones(e.shape) if weights is None else np.broadcast_to(np.asarray(weights, dtype=float), e.shape)
+    try:
+        w = np.ones(e.shape) if weights is None else np.broadcast_to(np.asarray(weights, dtype=float), e.shape)
+    except ValueError:
+        raise CdgpsError(f"weights: expected one per channel ({e.shape[-1]}) or the shape {e.shape}, "
+                         f"got {np.shape(weights)}") from None
     if np.any(w < 0) or not np.all(np.isfinite(w)):
         raise CdgpsError("weights: expected finite values ≥ 0")
     ok = np.isfinite(e) & (w > 0)

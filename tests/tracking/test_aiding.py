@@ -112,6 +112,10 @@ def test_common_mode_weights_and_missing_channels():
     np.testing.assert_allclose(common_mode_hz(e, [1.0, 3.0, 5.0]), [2.5, np.nan])
     with pytest.raises(CdgpsError, match="weights"):
         common_mode_hz(e, [1.0, -1.0, 1.0])
+    with pytest.raises(CdgpsError, match=r"weights: expected one per channel \(3\)"):
+        common_mode_hz(e, [1.0, 2.0])
+    with pytest.raises(CdgpsError, match=r"expected shape \(3,\) or \(2, 3\)"):
+        los_doppler_hz(None, "G01", [0.0, 1.0], np.zeros(2))
 
 
 def test_a_shared_clock_loop_keeps_narrow_channel_loops_locked():
