@@ -45,17 +45,23 @@ def _blocks(x: np.ndarray, n: int, k: int) -> np.ndarray:
 
 
 def _search(x, fs, prns, dopplers, k, block_ms: int = 1):
-    """|correlation|² of ``block_ms`` ms blocks summed over k blocks: array (len(prns), len(dopplers), n)."""
+    """|correlation|² of ``block_ms`` ms blocks summed over k blocks: array (len(prns), len(dopplers), n).
+
+    Single precision (complex64 FFTs, float32 powers): the peak search needs relative precision far
+    coarser than 1e-7, and it halves the work (the search is most of a cold start's time)."""
     n = int(round(fs * 1e-3 * block_ms))
     x = _blocks(x, n, k).ravel()
     t = np.arange(n * k) / fs
-    blocks_f = np.empty((len(dopplers), k, n), dtype=np.complex128)
+    blocks_f = np.empty((len(dopplers), k, n), dtype=np.complex64)
     for i, fd in enumerate(dopplers):
-        blocks_f[i] = np.fft.fft((x * np.exp(-2j * np.pi * fd * t)).reshape(k, n), axis=1)
+        blocks_f[i] = np.fft.fft((x * np.exp(-2j * np.pi * fd * t)).astype(np.complex64).reshape(k, n), axis=1)
     out = np.empty((len(prns), len(dopplers), n))
+    prod = np.empty_like(blocks_f)
     for j, prn in enumerate(prns):
-        c = np.conj(np.fft.fft(sampled_code(prn, fs, n)))
-        out[j] = np.sum(np.abs(np.fft.ifft(blocks_f * c, axis=2)) ** 2, axis=1)
+        c = np.conj(np.fft.fft(sampled_code(prn, fs, n))).astype(np.complex64)
+        np.multiply(blocks_f, c, out=prod)
+        z = np.fft.ifft(prod, axis=2)
+        out[j] = np.sum(z.real ** 2 + z.imag ** 2, axis=1)
     return out
 
 

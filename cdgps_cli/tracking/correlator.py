@@ -23,7 +23,7 @@ def kernel_available() -> bool:
     """True when the compiled correlator is importable and not disabled by CDGPS_NO_KERNEL."""
     if os.environ.get("CDGPS_NO_KERNEL", "") not in ("", "0"):      # the rule of cdgps_cli.estimation.kernel.available
         return False
-    return _trackcore is not None and getattr(_trackcore, "API", None) == 1
+    return _trackcore is not None and getattr(_trackcore, "API", None) == 2
 
 
 def correlate_numpy(x, code, phase_cycles, doppler_hz, fs_hz, code_phase_chips, code_rate_hz, half_chips):

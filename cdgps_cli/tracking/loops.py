@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import numpy as np
 from cdgps_cli.core.errors import CdgpsError
 
 #: damping of the second-order loops
@@ -35,6 +36,13 @@ def pll2_gains(bn_hz: float, zeta: float = ZETA) -> tuple[float, float]:
 def pll2_bandwidth_hz(k1: float, tau1: float) -> float:
     """Noise bandwidth B_n (Hz) of the loop with F(s) = K1(τ1 s + 1)/s: (K1 τ1 + 1/τ1)/4."""
     return (k1 * tau1 + 1.0 / tau1) / 4.0
+
+
+def pll2_response(f_hz, bn_hz: float, zeta: float = ZETA) -> np.ndarray:
+    """Closed-loop response H(j2πf) = K1(τ1 s + 1)/(s² + K1τ1 s + K1) of the continuous second-order loop."""
+    k1, tau1 = pll2_gains(bn_hz, zeta)
+    s = 2j * np.pi * np.asarray(f_hz, dtype=float)
+    return k1 * (tau1 * s + 1) / (s * s + k1 * tau1 * s + k1)
 
 
 @dataclass

@@ -14,8 +14,13 @@ LOCKED_FRACTION = 0.9
 
 
 def track_all(samples: np.ndarray, fs_hz: float, prns=None, *, if_hz: float = 0.0, threshold: float = THRESHOLD,
-              opt: TrackOptions | None = None, progress=None) -> dict:
+              opt: TrackOptions | None = None, progress=None, aids=None) -> dict:
     """Acquire ``prns`` (default 1–32) and track each acquired one.
+
+    ``aids`` (optional) maps a PRN to its external Doppler per 1 ms update (Hz; e.g.
+    :func:`cdgps_cli.tracking.aiding.los_doppler_hz` at the update times, or a structure simulation's
+    line-of-sight velocity over λ): fed forward to that channel's NCO, its loop starting from the
+    acquired Doppler minus the first aid value.  An aid for a PRN that is not acquired is an error.
 
     Returns
     -------
@@ -41,11 +46,18 @@ def track_all(samples: np.ndarray, fs_hz: float, prns=None, *, if_hz: float = 0.
                          f"{threshold:g}); strongest peaks: "
                          + ", ".join(f"PRN {a.prn} ratio {a.peak_ratio:.2f} at {a.doppler_hz:+.0f} Hz" for a in best)
                          + ". Check --format, --iq-sign, --fs and --if")
+    aids = {} if aids is None else {int(k): v for k, v in aids.items()}
+    idle = sorted(set(aids) - {a.prn for a in found})
+    if idle:
+        raise CdgpsError("aids: given for PRN " + ", ".join(map(str, idle)) + ", not acquired (acquired: "
+                         + (", ".join(str(a.prn) for a in found)) + ")")
     baseband = samples if if_hz == 0 else samples * np.exp(-2j * np.pi * if_hz * np.arange(samples.size) / fs_hz)
     tracks, sats = {}, []
     for a in found:
         say(f"tracking PRN {a.prn} ({a.doppler_hz:+.0f} Hz, ratio {a.peak_ratio:.1f}) …")
-        r = track(baseband, fs_hz, a.prn, a.doppler_hz, a.code_phase_chips, opt)
+        aid = None if aids.get(a.prn) is None else np.asarray(aids[a.prn], dtype=float)
+        start_hz = a.doppler_hz - (float(aid.ravel()[0]) if aid is not None and aid.size else 0.0)
+        r = track(baseband, fs_hz, a.prn, start_hz, a.code_phase_chips, opt, aid_doppler_hz=aid)
         tracks[a.prn] = r
         sats.append(_summary(a, r))
     return {"acquisition": [a.__dict__ for a in acq], "satellites": sats, "tracks": tracks}

@@ -15,26 +15,10 @@ from cdgps_cli.tracking.acquisition import acquire
 from cdgps_cli.tracking.ca_code import CHIP_RATE_HZ, sampled_code
 from cdgps_cli.tracking.channel import L1_HZ, track
 
-FS = 4e6
+from _track_signals import FS, ca_signal as _signal
+
 IQ_FILE = Path(__file__).resolve().parents[3] / "shared" / "data" / "if" / "L1_20211202_084700_4MHz_IQ.bin"
 needs_if = pytest.mark.skipif(not IQ_FILE.exists(), reason="../shared/data/if not present")
-
-
-def _signal(prn, doppler_hz, code_phase_chips, cn0_dbhz, seconds, seed=0, doppler_rate_hz_s=0.0, bits=True, fs=FS):
-    """Complex baseband C/A signal (unit amplitude) plus complex white noise at the given C/N0."""
-    from cdgps_cli.tracking.ca_code import ca_code
-
-    g = np.random.default_rng(seed)
-    n = int(fs * seconds)
-    t = np.arange(n) / fs
-    phase = 2 * np.pi * (doppler_hz * t + 0.5 * doppler_rate_hz_s * t * t)
-    fd = doppler_hz + doppler_rate_hz_s * t
-    chips = code_phase_chips + t * CHIP_RATE_HZ + np.cumsum(fd / L1_HZ * CHIP_RATE_HZ / fs)
-    code = ca_code(prn)[np.floor(chips).astype(np.int64) % 1023].astype(float)
-    data = np.where((np.floor(t / 0.02).astype(int) % 3) == 1, -1.0, 1.0) if bits else 1.0
-    noise_var = fs / 10 ** (cn0_dbhz / 10)                         # per complex sample, for unit carrier power
-    noise = g.normal(0, math.sqrt(noise_var / 2), n) + 1j * g.normal(0, math.sqrt(noise_var / 2), n)
-    return code * data * np.exp(1j * (phase + 0.7)) + noise, phase + 0.7
 
 
 def test_acquisition_finds_a_synthetic_satellite():
@@ -145,3 +129,24 @@ def test_aiding_keeps_a_narrow_loop_locked_through_dynamics():
     after = slice(800, None, 20)
     assert np.mean(aided["phase_lock"][after] > 0.8) == 1.0
     assert np.mean(unaided["phase_lock"][after] > 0.8) < 0.6
+
+
+@needs_if
+def test_receiver_takes_an_external_doppler_per_channel():
+    """track_all(aids={prn: …}): the channel starts from the acquired Doppler minus the first aid and
+    feeds the aid forward — the same run as track() given those; an aid for a PRN not acquired is named."""
+    from cdgps_cli.core.errors import CdgpsError
+    from cdgps_cli.tracking.receiver import track_all
+
+    x = read_samples(IQ_FILE, "int8-iq", max_samples=int(FS * 0.15))
+    m = x.size // 4000
+    aid = 3.0 + 2.0 * np.sin(np.arange(m) * 0.01)                        # Hz per update
+    t = np.arange(x.size) / FS
+    moved = x * np.exp(1j * 2 * np.pi * np.interp(t, np.arange(m) * 1e-3, np.cumsum(aid) * 1e-3))
+    res = track_all(moved, FS, [31], aids={31: aid})
+    a = next(a for a in res["acquisition"] if a["prn"] == 31)
+    ref = track(moved, FS, 31, a["doppler_hz"] - aid[0], a["code_phase_chips"], aid_doppler_hz=aid)
+    for k in ("doppler_hz", "carrier_phase_cycles", "i_prompt"):
+        np.testing.assert_array_equal(res["tracks"][31][k], ref[k])
+    with pytest.raises(CdgpsError, match=r"aids: given for PRN 5, not acquired \(acquired: 31\)"):
+        track_all(moved, FS, [31], aids={5: aid})
