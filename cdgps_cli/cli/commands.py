@@ -19,6 +19,7 @@ from cdgps_cli.core import progress
 from cdgps_cli.io.atomic import TERMINATED_EXIT, Terminated, sigterm_raises
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.cli.guard import GuardedCommand
+from cdgps_cli.config.options import GNSS_DEFAULTS, INIT_MAX_ITERATIONS, INIT_STARTS, RATIO_THRESHOLD
 
 
 def _quiet_after_command(ctx, param, value):
@@ -369,10 +370,10 @@ def _write_json_atomic(path: str, data: dict) -> None:
 @click.option("--duration", "duration_s", type=float, default=None, help="Window length, s (default: 60 s).")
 @click.option("--no-process-noise", is_flag=True, help="1995 variant: no process noise in the batch.")
 @click.option("--float-only", is_flag=True, help="Do not fix integers (float biases only).")
-@click.option("--ratio", "ratio_threshold", type=float, default=3.0, show_default=True, help="Ratio-test threshold.")
+@click.option("--ratio", "ratio_threshold", type=float, default=RATIO_THRESHOLD, show_default=True, help="Ratio-test threshold.")
 @click.option("--no-partial", is_flag=True, help="Do not try partial integer fixing when the full set fails.")
-@click.option("--starts", type=int, default=8, show_default=True, help="Initial guesses of the rigid angle (cold start).")
-@click.option("--max-iterations", type=int, default=30, show_default=True, help="Gauss-Newton iteration cap.")
+@click.option("--starts", type=int, default=INIT_STARTS, show_default=True, help="Initial guesses of the rigid angle (cold start).")
+@click.option("--max-iterations", type=int, default=INIT_MAX_ITERATIONS, show_default=True, help="Gauss-Newton iteration cap.")
 @click.option("--sigma-m", type=float, default=None,
               help="Measurement noise for every channel, m (default: estimated per channel from the data, prior from the config).")
 @click.option("--multipath-sigma-m", "multipath_sigma_m", type=float, default=None,
@@ -401,7 +402,7 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
         _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, as_json,
                    structure_only={"--start": start_s is not None, "--duration": duration_s is not None,
                                    "--no-process-noise": no_process_noise, "--sigma-m": sigma_m is not None,
-                                   "--starts": starts != 8, "--max-iterations": max_iterations != 30,
+                                   "--starts": starts != INIT_STARTS, "--max-iterations": max_iterations != INIT_MAX_ITERATIONS,
                                    "--multipath-sigma-m": multipath_sigma_m is not None,
                                    "--multipath-tau-s": multipath_time_constant_s is not None})
         return
@@ -884,8 +885,8 @@ def _write_text_atomic(path: str, text: str) -> None:
 @click.option("--rinex", "rinex", multiple=True, metavar="NAME=PATH", help="RINEX observation file of a station (give two).")
 @click.option("--nav", "nav", multiple=True, type=click.Path(dir_okay=False), help="RINEX GPS navigation file (repeatable).")
 @click.option("--master", default=None, help="Station held at its RINEX header position (the reference).")
-@click.option("--mask-deg", type=float, default=None, help="Elevation mask, degrees [15].")
-@click.option("--ratio", "ratio_threshold", type=float, default=None, help="LAMBDA ratio-test threshold [3].")
+@click.option("--mask-deg", type=float, default=None, help=f"Elevation mask, degrees [{GNSS_DEFAULTS['mask_deg']:g}].")
+@click.option("--ratio", "ratio_threshold", type=float, default=None, help=f"LAMBDA ratio-test threshold [{GNSS_DEFAULTS['ratio']:g}].")
 @click.option("--weighting", type=click.Choice(["elevation", "equal"]), default=None,
               help="Phase weights: a²+b²/sin²(el) or equal [elevation].")
 @click.option("--no-partial", is_flag=True, help="Do not try partial fixing when the full set fails the ratio test.")

@@ -26,6 +26,7 @@ import numpy as np
 from cdgps_cli.core.errors import CdgpsError, join_problems
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli.config.limits import config_range_problems
+from cdgps_cli.config.options import GNSS_DEFAULTS, toml_value
 
 AXES = ("x", "y", "z")
 COORD_KINDS = {"translation": "m", "rotation": "rad", "modal": "1"}
@@ -920,9 +921,6 @@ GNSS_DISPLACEMENT_MODELS = ("static", "random_walk")
 GNSS_WEIGHTINGS = ("elevation", "equal")
 # defaults of the GNSS solver settings: the [gnss] parser, GnssConfig and baseline.BaselineOptions all
 # take them from here (RTKLIB-comparable: 15° mask, ratio 3, a = b = 3 mm, code/phase ratio 100, DTTOL)
-GNSS_DEFAULTS = {"mask_deg": 15.0, "ratio": 3.0, "weighting": "elevation", "sigma_a_m": 0.003,
-                 "sigma_b_m": 0.003, "code_ratio": 100.0, "sync_tol_s": 0.025, "epoch_alignment": "geometry",
-                 "random_walk_sigma": (0.001, 0.001, 0.001), "initial_sigma_m": 1.0}
 
 _GNSS_KEYS = {
     "name": "string", "description": "string", "master": "string", "nav": "list of file paths",
@@ -1204,7 +1202,7 @@ def gnss_config_toml(antennas: dict, nav=(), master: str | None = None, *, name:
     if master:
         out.append(f"master = {_toml_str(master)}")
     out.append("nav = [" + ", ".join(_toml_str(p) for p in nav) + "]")
-    opts = {"mask_deg": 15.0, "ratio": 3.0, "partial": True, "weighting": "elevation", "troposphere": True}
+    opts = {k: GNSS_DEFAULTS[k] for k in ("mask_deg", "ratio", "partial", "weighting", "troposphere")}
     opts.update(options or {})
     notes = {"mask_deg": "elevation mask at every receiver, degrees", "ratio": "LAMBDA ratio-test threshold",
              "partial": "partial fixing when the full set fails the ratio test",

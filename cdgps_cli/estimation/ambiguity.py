@@ -39,6 +39,8 @@ import numbers
 
 import numpy as np
 
+from cdgps_cli.config.options import RATIO_THRESHOLD
+
 __all__ = [
     "AmbiguityError",
     "SearchLimitError",
@@ -656,7 +658,7 @@ def _to_original(ops, zn, offset):
     return np.array(rows, dtype=np.int64).reshape(len(rows), len(base))
 
 
-def ratio_test(squared_norms, threshold=3.0):
+def ratio_test(squared_norms, threshold=RATIO_THRESHOLD):
     """Ratio test for accepting the best integer candidate.
 
     Parameters
@@ -665,7 +667,7 @@ def ratio_test(squared_norms, threshold=3.0):
         Squared norms of the candidates, ascending (from
         :func:`lambda_search`).
     threshold : float, optional
-        Acceptance threshold on ``s[1] / s[0]`` (default 3.0).
+        Acceptance threshold on ``s[1] / s[0]`` (default :data:`cdgps_cli.config.options.RATIO_THRESHOLD`, 3).
 
     Returns
     -------
@@ -700,7 +702,7 @@ def ratio_test(squared_norms, threshold=3.0):
     return bool(ratio >= thr), ratio
 
 
-def partial_fix(a, Q, threshold=3.0, min_fixed=1, *, max_nodes=None, progress=None):
+def partial_fix(a, Q, threshold=RATIO_THRESHOLD, min_fixed=1, *, max_nodes=None, progress=None):
     """Partial ambiguity resolution: the largest subset, in order of decreasing variance, that
     passes the ratio test — from one decomposition and one reduction.
 
@@ -726,7 +728,7 @@ def partial_fix(a, Q, threshold=3.0, min_fixed=1, *, max_nodes=None, progress=No
     Q : array_like, shape (n, n)
         Their covariance (cycles^2), symmetric positive definite.
     threshold : float, optional
-        Ratio-test threshold (default 3.0).
+        Ratio-test threshold (default :data:`cdgps_cli.config.options.RATIO_THRESHOLD`, 3).
     min_fixed : int, optional
         Smallest subset size that may be fixed, ``1 <= min_fixed <= n``.
     max_nodes : int, optional
@@ -823,7 +825,7 @@ def partial_fix(a, Q, threshold=3.0, min_fixed=1, *, max_nodes=None, progress=No
     return result
 
 
-def resolve(a, Q, threshold=3.0, *, partial=True, max_nodes=None, progress=None):
+def resolve(a, Q, threshold=RATIO_THRESHOLD, *, partial=True, max_nodes=None, progress=None):
     """The integer fixing of the solvers: the full set, then (``partial``) nested subsets.
 
     :func:`partial_fix` when ``partial`` (its first step is the full set), else

@@ -44,7 +44,8 @@ from scipy.linalg import cho_factor, cho_solve
 from cdgps_cli.core import progress
 from cdgps_cli.estimation.ambiguity import AmbiguityError, resolve
 from cdgps_cli.io.atomic import path_for_config
-from cdgps_cli.config.structure import GNSS_DEFAULTS, GNSS_WEIGHTINGS
+from cdgps_cli.config.options import GNSS_DEFAULTS, toml_value
+from cdgps_cli.config.structure import GNSS_WEIGHTINGS
 from cdgps_cli.measurement.differencing import (
     ambiguity_datum,
     ambiguity_segments,
@@ -1156,7 +1157,7 @@ def starter_job_toml(rinex: dict, nav_paths, master: str | None = None, *, relat
                      f"header position {pos if pos else 'none'}")
     lines += ["", "[baseline]", f'name = "{"-".join(rinex)}"', f'master = "{master}"',
               "nav = [" + ", ".join(f'"{rel(p)}"' for p in nav_paths) + "]",
-              "mask_deg = 15.0", "ratio = 3.0", "partial = true", 'weighting = "elevation"', "troposphere = true", "",
+              *(f"{k} = {toml_value(GNSS_DEFAULTS[k])}" for k in ("mask_deg", "ratio", "partial", "weighting", "troposphere")), "",
               "[baseline.rinex]"]
     lines += [f'"{n}" = "{rel(p)}"' for n, p in rinex.items()]
     return "\n".join(lines) + "\n"

@@ -33,6 +33,7 @@ from scipy.stats import chi2
 
 from cdgps_cli.estimation.ambiguity import lambda_search, partial_fix, ratio_test
 from cdgps_cli.estimation.batch_solver import LinearProblem, LinearSolution, srif_solve
+from cdgps_cli.config.options import INIT_MAX_ITERATIONS, INIT_STARTS, RATIO_THRESHOLD
 from cdgps_cli.config.structure import StructureConfig, channel_sigma_m, scalar_sigma_m
 from cdgps_cli.model.dynamics import discrete_model
 from cdgps_cli.core.errors import CdgpsError
@@ -52,15 +53,15 @@ class InitOptions:
     duration_s: float | None = None     # window length (default: automatic, up to 60 s)
     process_noise: bool = True          # False: the 1995 variant (no process noise)
     fix_integers: bool = True           # LAMBDA + ratio test when line biases are calibrated
-    ratio_threshold: float = 3.0
+    ratio_threshold: float = RATIO_THRESHOLD
     partial: bool = True                # partial fixing when the full set fails
-    starts: int = 8                     # initial guesses of the rigid angle (or lowest mode)
+    starts: int = INIT_STARTS                     # initial guesses of the rigid angle (or lowest mode)
     start_iterations: int = 3           # Gauss–Newton iterations per start before choosing
     start_window_s: float = 10.0        # starts are compared on this first part of the window
     finalists: int = 3                  # best starts continued on the whole window
     fix_validation_probability: float = 0.999  # chi-square test of the cost increase caused by fixing
     fix_validation_margin: float = 10.0  # … times this margin for model error (e.g. no process noise)
-    max_iterations: int = 30
+    max_iterations: int = INIT_MAX_ITERATIONS
     step_tol_m: float = 1e-5            # convergence: max bias / position step (m)
     cost_rtol: float = 1e-9             # convergence: relative cost change
     sigma_m: float | None = None        # measurement noise for every channel (default: config, then estimated)

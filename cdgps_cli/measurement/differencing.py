@@ -39,6 +39,8 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from cdgps_cli.config.options import PHASE_SIGMA_A_M, PHASE_SIGMA_B_M
+
 __all__ = [
     "epoch_pointers",
     "sd_variance",
@@ -79,7 +81,7 @@ def epoch_pointers(epoch, n_epochs: int | None = None) -> np.ndarray:
     return ptr
 
 
-def sd_variance(el_rover_rad, el_base_rad, *, sigma_a_m: float = 0.003, sigma_b_m: float = 0.003,
+def sd_variance(el_rover_rad, el_base_rad, *, sigma_a_m: float = PHASE_SIGMA_A_M, sigma_b_m: float = PHASE_SIGMA_B_M,
                 weighting: str = "elevation") -> np.ndarray:
     """Variance of single differences from undifferenced variances, m².
 

@@ -56,6 +56,7 @@ from scipy.linalg import cho_factor, cho_solve, solve_triangular
 
 from cdgps_cli import __version__
 from cdgps_cli.config.structure import StructureConfig
+from cdgps_cli.config.options import SIM_MASTER_ECEF_M
 from cdgps_cli.measurement.differencing import dd_operator, sd_variance, select_reference
 from cdgps_cli.model.dynamics import discrete_model
 from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
@@ -443,7 +444,7 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
 # simulation: a vibrating structure seen by GPS receivers
 
 
-def simulate_structure_gnss(out_dir, cfg: StructureConfig, *, master_ecef_m=(-3978242.4348, 3382841.1715, 3649902.7667),
+def simulate_structure_gnss(out_dir, cfg: StructureConfig, *, master_ecef_m=SIM_MASTER_ECEF_M,
                             x_axis_azimuth_deg: float = 90.0, receivers: dict | None = None, duration_s: float = 1200.0,
                             seed: int = 0, start_gps_s: float | None = None, random_walk_sigma: float = 0.01,
                             mask_deg: float = 10.0, code_sigma_m: float = 0.5, progress=None) -> dict:

@@ -37,6 +37,7 @@ from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.model.gps.positioning import simulate_static_pair, synthetic_gps_nav
 from cdgps_cli.config.limits import check_table_size
+from cdgps_cli.config.options import SIM_MASTER_ECEF_M
 from cdgps_cli.core.gps_time import gps_seconds, gps_time_str
 from cdgps_cli.io.rinex import read_rinex_nav
 from cdgps_cli.io.rinex_write import rinex_calendar, write_rinex_nav, write_rinex_obs
@@ -44,7 +45,7 @@ from cdgps_cli.io.rinex_write import rinex_calendar, write_rinex_nav, write_rine
 __all__ = ["DEFAULT_MASTER_XYZ", "DEFAULT_ROVER_XYZ", "simulate_gnss_pair", "parse_start", "parse_vector"]
 
 # the GEONET pair of docs/geonet.md (3.3 km apart): realistic positions for the default scenario
-DEFAULT_MASTER_XYZ = (-3978242.4348, 3382841.1715, 3649902.7667)
+DEFAULT_MASTER_XYZ = SIM_MASTER_ECEF_M
 DEFAULT_ROVER_XYZ = (-3976219.5082, 3382372.5671, 3652512.9849)
 
 

@@ -1,0 +1,37 @@
+"""Every option default in one place (as python-control's ``config.defaults``).
+
+The library's option classes (:class:`~cdgps_cli.estimation.initializer.InitOptions`,
+:class:`~cdgps_cli.estimation.baseline.BaselineOptions`, the GNSS run config), the LAMBDA functions
+and the command line all read their defaults from here, so a default is changed in one line and the
+help texts say the same number.  Plausible ranges of options are in :mod:`cdgps_cli.config.limits`.
+"""
+
+from __future__ import annotations
+
+#: LAMBDA ratio test (second-best over best squared norm) for accepting an integer set, init and GNSS
+RATIO_THRESHOLD = 3.0
+#: cold start of the structure initializer: initial guesses of the rigid angle (or lowest mode)
+INIT_STARTS = 8
+#: Gauss–Newton iteration cap of the structure initializer
+INIT_MAX_ITERATIONS = 30
+#: un-differenced phase σ = a + b / sin(elevation) (m), RTKLIB's form
+PHASE_SIGMA_A_M = 0.003
+PHASE_SIGMA_B_M = 0.003
+
+#: GNSS run config and baseline solver defaults (docs/gnss-pipeline.md)
+GNSS_DEFAULTS = {"mask_deg": 15.0, "ratio": RATIO_THRESHOLD, "partial": True, "weighting": "elevation",
+                 "troposphere": True, "sigma_a_m": PHASE_SIGMA_A_M, "sigma_b_m": PHASE_SIGMA_B_M,
+                 "code_ratio": 100.0, "sync_tol_s": 0.025, "epoch_alignment": "geometry",
+                 "random_walk_sigma": (0.001, 0.001, 0.001), "initial_sigma_m": 1.0}
+
+#: the simulators' master receiver, ECEF (m): GEONET 3040's position, so simulated runs look like the real pair
+SIM_MASTER_ECEF_M = (-3978242.4348, 3382841.1715, 3649902.7667)
+
+
+def toml_value(v) -> str:
+    """A default as TOML text (for the starter configs the commands write)."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return f'"{v}"'
+    return repr(float(v)) if isinstance(v, float) else str(v)
