@@ -41,6 +41,7 @@ import numpy as np
 import pandas as pd
 from scipy.linalg import cho_factor, cho_solve
 
+from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M, SPEED_OF_LIGHT_M_S
 from cdgps_cli.core import progress
 from cdgps_cli.estimation.ambiguity import AmbiguityError, resolve
 from cdgps_cli.io.atomic import path_for_config
@@ -55,10 +56,9 @@ from cdgps_cli.measurement.differencing import (
     sd_variance,
     select_reference,
 )
-from cdgps_cli.model.gps.orbits import SPEED_OF_LIGHT, ecef_to_geodetic, enu_matrix
+from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
 from cdgps_cli.core.errors import CdgpsError, join_problems
 from cdgps_cli.model.gps.positioning import (
-    L1_WAVELENGTH_M,
     ephemeris_coverage,
     estimate_receiver_clock,
     nominal_interval_s,
@@ -80,8 +80,6 @@ __all__ = [
     "starter_job_toml",
     "json_safe",
 ]
-
-LAMBDA_L1 = L1_WAVELENGTH_M
 
 
 @dataclass(frozen=True)
@@ -375,11 +373,11 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
         sat=np.array([sat_idx[s] for s in sat_r[sel]], dtype=np.int64),
         sat_names=names,
         t_label=t_label,
-        y_phase_m=LAMBDA_L1 * (j["phase_l1_cycles_r"].to_numpy()[sel] - j["phase_l1_cycles_b"].to_numpy()[sel]),
+        y_phase_m=GPS_L1_WAVELENGTH_M * (j["phase_l1_cycles_r"].to_numpy()[sel] - j["phase_l1_cycles_b"].to_numpy()[sel]),
         y_code_m=j["pseudorange_l1_m_r"].to_numpy()[sel] - j["pseudorange_l1_m_b"].to_numpy()[sel],
-        base_model_m=(gb["range_m"] - SPEED_OF_LIGHT * gb["sat_clock_s"] + gb["trop_m"])[sel],
+        base_model_m=(gb["range_m"] - SPEED_OF_LIGHT_M_S * gb["sat_clock_s"] + gb["trop_m"])[sel],
         rover_sat_xyz=gr["sat_xyz_m"][sel],
-        rover_clk_trop_m=(-SPEED_OF_LIGHT * gr["sat_clock_s"] + gr["trop_m"])[sel],
+        rover_clk_trop_m=(-SPEED_OF_LIGHT_M_S * gr["sat_clock_s"] + gr["trop_m"])[sel],
         el_rover=gr["el_rad"][sel],
         el_base=gb["el_rad"][sel],
         az_rover=gr["az_rad"][sel],
@@ -505,7 +503,7 @@ def _float_random_walk(d: _Data, blocks_ph, blocks_code, g, r_ph, r_cd, col, n_a
     q_aa : ndarray (n_amb, n_amb)
         Their covariance, cycles².
     """
-    lam = LAMBDA_L1
+    lam = GPS_L1_WAVELENGTH_M
     n_ep = d.t_label.size
     N = np.zeros((n_ep, 3, 3))
     b = np.zeros((n_ep, 3))
@@ -666,7 +664,7 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
 
     # ---- float solution (phase + code) ----
     # start the SD ambiguities from code-minus-phase (keeps the numbers small), relative to the pivots
-    cmp_ = np.where(code_ok, (d.y_phase_m - y_code) / LAMBDA_L1, np.nan)
+    cmp_ = np.where(code_ok, (d.y_phase_m - y_code) / GPS_L1_WAVELENGTH_M, np.nan)
     a0 = pd.Series(cmp_).groupby(seg).mean().reindex(range(n_seg)).fillna(0.0).to_numpy()
     a_seg = np.round(a0 - a0[pivots][comp])
     a_seg[is_pivot] = 0.0
@@ -677,10 +675,10 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
     for it_float in range(1, opt.max_iterations + 1):
         xr = xr0 + r_enu.T @ x_enu
         model, g = _rover_model(d, xr, r_enu)
-        r_ph = _center(d.epoch, d.y_phase_m - model - LAMBDA_L1 * a_seg[seg], n_ep)
+        r_ph = _center(d.epoch, d.y_phase_m - model - GPS_L1_WAVELENGTH_M * a_seg[seg], n_ep)
         r_cd = _center(d.epoch, y_code - model, n_ep, code_ok)
-        n1, b1 = _accumulate(blocks_ph, g, r_ph, col, n_par, LAMBDA_L1)
-        n2, b2 = _accumulate(blocks_code, g, r_cd, None, n_par, LAMBDA_L1)
+        n1, b1 = _accumulate(blocks_ph, g, r_ph, col, n_par, GPS_L1_WAVELENGTH_M)
+        n2, b2 = _accumulate(blocks_code, g, r_cd, None, n_par, GPS_L1_WAVELENGTH_M)
         nmat, rhs = n1 + n2, b1 + b2
         cf, dx = _solve(nmat, rhs, "float solution")
         x_enu = x_enu + dx[:3]
@@ -690,7 +688,7 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
     q_float = cho_solve(cf, np.eye(n_par))
     t_float = time.perf_counter() - t0
     model, g = _rover_model(d, xr0 + r_enu.T @ x_enu, r_enu)
-    r_ph = _center(d.epoch, d.y_phase_m - model - LAMBDA_L1 * a_seg[seg], n_ep)
+    r_ph = _center(d.epoch, d.y_phase_m - model - GPS_L1_WAVELENGTH_M * a_seg[seg], n_ep)
     r_cd = _center(d.epoch, y_code - model, n_ep, code_ok)
     sq_ph, n_dd_ph = _quad(blocks_ph, r_ph)
     sq_cd, n_dd_cd = _quad(blocks_code, r_cd)
@@ -780,8 +778,8 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
         for it_fix in range(1, opt.max_iterations + 1):
             xr = xr0 + r_enu.T @ x_fix
             model, g = _rover_model(d, xr, r_enu)
-            r_ph = _center(d.epoch, d.y_phase_m - model - LAMBDA_L1 * a_fix[seg], n_ep)
-            nmat, rhs = _accumulate(blocks_ph, g, r_ph, col2, n_par2, LAMBDA_L1)
+            r_ph = _center(d.epoch, d.y_phase_m - model - GPS_L1_WAVELENGTH_M * a_fix[seg], n_ep)
+            nmat, rhs = _accumulate(blocks_ph, g, r_ph, col2, n_par2, GPS_L1_WAVELENGTH_M)
             cf2, dx = _solve(nmat, rhs, "fixed solution")
             x_fix = x_fix + dx[:3]
             a_fix[unk] += dx[3:]
@@ -789,7 +787,7 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
                 break
         xr = xr0 + r_enu.T @ x_fix
         model, g = _rover_model(d, xr, r_enu)
-        r_ph = _center(d.epoch, d.y_phase_m - model - LAMBDA_L1 * a_fix[seg], n_ep)
+        r_ph = _center(d.epoch, d.y_phase_m - model - GPS_L1_WAVELENGTH_M * a_fix[seg], n_ep)
         q_fix = cho_solve(cf2, np.eye(n_par2))
         sq, n_dd = _quad(blocks_ph, r_ph)
         dof = n_dd - n_par2
@@ -804,7 +802,7 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
     else:
         xr = xr0 + r_enu.T @ x_float
         model, g = _rover_model(d, xr, r_enu)
-        r_ph = _center(d.epoch, d.y_phase_m - model - LAMBDA_L1 * a_seg[seg], n_ep)
+        r_ph = _center(d.epoch, d.y_phase_m - model - GPS_L1_WAVELENGTH_M * a_seg[seg], n_ep)
         x_final, final_kind = x_float, "float"
     t_fixed = time.perf_counter() - t0
 

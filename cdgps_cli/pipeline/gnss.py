@@ -48,7 +48,7 @@ from cdgps_cli.measurement.differencing import dd_weight_blocks, select_referenc
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.records import INIT_FORMAT, init_kind
-from cdgps_cli.model.gps.positioning import L1_WAVELENGTH_M
+
 from cdgps_cli.io.gnss_run import GnssRun, processing_obs
 from cdgps_cli.io.mcap import NULLABLE, CONFIG_ATTACHMENT, McapOut, array_schema, read_mcap
 from cdgps_cli.core.gps_time import gps_time_str
@@ -273,7 +273,6 @@ def _integers_from_init(rov: dict) -> dict:
 
 # ----------------------------------------------------------------------------------------------
 # estimate
-
 
 
 def solve_with_init_integers(run, init: dict, r: str, stations: dict):
@@ -521,7 +520,7 @@ def _write_gnss_states(run, init, init_text, out_path, names, t, q, P, qf, Pf, k
     for r in run.rovers:
         for s in init["rovers"][r]["ambiguities"]:
             if s["fixed"] and s["integer"] is not None:
-                biases.append({"antenna": r, "transmitter": s["sat"], "bias_m": L1_WAVELENGTH_M * s["integer"],
+                biases.append({"antenna": r, "transmitter": s["sat"], "bias_m": GPS_L1_WAVELENGTH_M * s["integer"],
                                "from_gps_s": s["first_gps_s"]})
     meta = {"cdgps_version": __version__, "created_by": "cdgps estimate", "kind": "gnss", "config_name": run.cfg.name,
             "config_sha256": run.cfg.sha256, "run": Path(run.path).name, "run_sha256": run_sha,

@@ -54,6 +54,7 @@ import numpy as np
 import pandas as pd
 from scipy.linalg import cho_factor, cho_solve, solve_triangular
 
+from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli import __version__
 from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.config.options import SIM_MASTER_ECEF_M
@@ -61,7 +62,7 @@ from cdgps_cli.measurement.differencing import dd_operator, sd_variance, select_
 from cdgps_cli.model.dynamics import discrete_model
 from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.model.gps.positioning import L1_WAVELENGTH_M
+
 from cdgps_cli.model.kinematics import EpochGeometry, antenna_positions
 from cdgps_cli.core.gps_time import gps_time_str
 
@@ -173,7 +174,7 @@ def _rover_tables(run, init, r, stations, progress):
     # SD residual at the nominal rover position with the (fixed; else float) integers removed, m
     los = d.rover_sat_xyz - w["xr0"]
     rng = np.linalg.norm(los, axis=1)
-    r0 = d.y_phase_m - (rng + d.rover_clk_trop_m - d.base_model_m) - L1_WAVELENGTH_M * w["a_seg"][w["seg"]]
+    r0 = d.y_phase_m - (rng + d.rover_clk_trop_m - d.base_model_m) - GPS_L1_WAVELENGTH_M * w["a_seg"][w["seg"]]
     # remove each epoch's mean over the usable rows (receiver clock difference; cancels in the DDs)
     cnt = np.bincount(d.epoch, weights=use.astype(float), minlength=d.t_label.size)
     mean = np.bincount(d.epoch, weights=np.where(use, r0, 0.0), minlength=d.t_label.size) / np.maximum(cnt, 1.0)
@@ -421,7 +422,7 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
     for i, a in enumerate(rover_ants):
         for s in sorted(init["rovers"][mapping[a]]["ambiguities"], key=lambda s: s["first_gps_s"]):
             if s.get("fixed") and s.get("integer") is not None:
-                biases[(a, s["sat"])] = L1_WAVELENGTH_M * s["integer"]
+                biases[(a, s["sat"])] = GPS_L1_WAVELENGTH_M * s["integer"]
     res = SimpleNamespace(cfg=cfg, x=xs, P=Ps, smoothed=bool(smooth), x_filt=xf, P_filt=Pf, time_s=t_all,
                           channels=chans, residual_m=resid, nis=nis, nis_dof=nis_dof, events=events, biases=biases)
     options = {"model": "gnss-modal", "smooth": bool(smooth), "x_axis_azimuth_deg": float(x_axis_azimuth_deg),

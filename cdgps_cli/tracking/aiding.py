@@ -20,7 +20,7 @@ import numpy as np
 
 from cdgps_cli.model.gps.orbits import sat_position_at_reception
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M as L1_WAVELENGTH_M
+from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli.tracking.channel import L1_HZ
 
 
@@ -57,7 +57,7 @@ def los_doppler_hz(nav, sat: str, t_rx_gps_s, rx_ecef_m, rx_velocity_ecef_m_s=0.
     gp = sat_position_at_reception(nav, sat, t + step_s, rx)
     v_sat = (gp.xyz_m - gm.xyz_m) / (2 * step_s)
     los = (g0.xyz_m - rx) / g0.range_m[:, None]
-    f = np.einsum("ij,ij->i", v_rx - v_sat, los) / L1_WAVELENGTH_M
+    f = np.einsum("ij,ij->i", v_rx - v_sat, los) / GPS_L1_WAVELENGTH_M
     if with_satellite_clock:
         f = f + L1_HZ * (gp.clock_s - gm.clock_s) / (2 * step_s)
     return f

@@ -19,9 +19,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
+from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.constants import STANDARD_GRAVITY_M_S2 as G0_M_S2
-from cdgps_cli.tracking.aiding import L1_WAVELENGTH_M
+
 
 DEG_PER_HOUR = math.pi / 180 / 3600                 # rad/s
 DEG_PER_ROOT_HOUR = math.pi / 180 / 60              # rad/√s (angle random walk → rad/s/√Hz)
@@ -78,7 +79,7 @@ def sense(true: np.ndarray, dt_s: float, bias: float, noise_per_rthz: float, ban
 
 def accelerometer_doppler_aid_hz(acc_los_m_s2: np.ndarray, dt_s: float, grade: InertialGrade,
                                  rng: np.random.Generator, v0_m_s: float = 0.0,
-                                 wavelength_m: float = L1_WAVELENGTH_M) -> np.ndarray:
+                                 wavelength_m: float = GPS_L1_WAVELENGTH_M) -> np.ndarray:
     """Doppler aid (Hz) from an accelerometer along the line of sight: the sensed acceleration
     integrated (trapezoid) from the known initial velocity ``v0_m_s`` (towards the satellite), over λ.
 

@@ -13,13 +13,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.ubx import UBX_OBS_COLUMNS, read_ubx_rawx
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 SHARED = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "ubx"
 RAWX = DATA / "pygpsdata-RXMRAWX.log"
-L1_WAVELENGTH_M = 299792458.0 / 1575.42e6
 
 
 def _frames(data: bytes):
@@ -89,7 +89,7 @@ def test_rawx_fields_are_sane(rawx):
     assert (obs["doppler_l1_hz"].abs() < 5000).all()
     # u-blox starts the phase near pseudorange / λ: the difference is small against 2e7 m, and
     # the phase moves with the Doppler (cycles per second, opposite sign convention in u-blox: +Doppler = approaching)
-    assert (np.abs(obs["phase_l1_cycles"] * L1_WAVELENGTH_M - obs["pseudorange_l1_m"]) < 1.0e3).all()
+    assert (np.abs(obs["phase_l1_cycles"] * GPS_L1_WAVELENGTH_M - obs["pseudorange_l1_m"]) < 1.0e3).all()
     for _, g in obs.groupby("sat"):
         dphi = np.diff(g["phase_l1_cycles"].to_numpy())
         dop = 0.5 * (g["doppler_l1_hz"].to_numpy()[1:] + g["doppler_l1_hz"].to_numpy()[:-1])

@@ -11,8 +11,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli.estimation.baseline import BaselineOptions, Station, solve_static_baseline
-from cdgps_cli.model.gps.positioning import L1_WAVELENGTH_M, simulate_static_pair, synthetic_gps_nav
+from cdgps_cli.model.gps.positioning import simulate_static_pair, synthetic_gps_nav
 from cdgps_cli.sim.gnss import DEFAULT_MASTER_XYZ, DEFAULT_ROVER_XYZ
 from cdgps_cli.model.gps.epoch_align import (
     align_receiver,
@@ -33,7 +34,7 @@ def table(t, sat, phase, lli=None, pr=None):
         "phase_l1_cycles": np.asarray(phase, dtype=float),
         "lli_l1": np.zeros(n, dtype=np.int64) if lli is None else np.asarray(lli, dtype=np.int64),
         "ssi_l1": np.zeros(n, dtype=np.int64),
-        "pseudorange_l1_m": np.asarray(phase, dtype=float) * L1_WAVELENGTH_M if pr is None else pr,
+        "pseudorange_l1_m": np.asarray(phase, dtype=float) * GPS_L1_WAVELENGTH_M if pr is None else pr,
         "snr_l1_dbhz": np.full(n, 45.0), "rx_clock_offset_s": np.full(n, np.nan),
         "epoch_flag": np.zeros(n, dtype=np.int64)}, columns=list(OBS_COLUMNS))
 
@@ -82,7 +83,7 @@ def test_doppler_mode_moves_phase_and_range_to_the_grid_time():
         err = o["phase_l1_cycles"].to_numpy() - exact
         np.testing.assert_allclose(err, -c * d**2, atol=1e-6)     # only the curvature term −½·Φ̈·δ² is left
         assert np.max(np.abs(err)) < 1e-4                         # 0.02 mm
-        np.testing.assert_allclose(o["pseudorange_l1_m"].to_numpy() / L1_WAVELENGTH_M - exact, -c * d**2, atol=1e-6)
+        np.testing.assert_allclose(o["pseudorange_l1_m"].to_numpy() / GPS_L1_WAVELENGTH_M - exact, -c * d**2, atol=1e-6)
     # an uncorrected phase would be off by δ·Φ̇: 3000 cycles/s × 8 ms = 24 cycles
     assert abs(obs["phase_l1_cycles"].iloc[0] - out["phase_l1_cycles"].iloc[0]) > 10
 

@@ -22,11 +22,11 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
+from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.model.gps.orbits import (
     F_RELATIVISTIC,
     GM_GPS,
     OMEGA_E_GPS,
-    SPEED_OF_LIGHT,
     azimuth_elevation,
     ecef_to_enu,
     ecef_to_geodetic,
@@ -100,7 +100,7 @@ def test_broadcast_clock_matches_igs_final_clock(brdc, sp3):
         eph = select_ephemeris(brdc, r.sat, r.t)
         xyz, clk = sat_position_ecef(eph, r.t, apply_tgd=False)  # IGS clocks refer to P1/P2 iono-free, like af0
         v = _velocity(eph, r.t)
-        rel_independent = -2.0 * np.dot(xyz, v) / SPEED_OF_LIGHT**2  # = F e √A sin E
+        rel_independent = -2.0 * np.dot(xyz, v) / SPEED_OF_LIGHT_M_S**2  # = F e √A sin E
         diffs.append((clk - rel_independent) - r.clock_s)
         # our relativistic term vs the −2 r·v / c² form
         a = eph["sqrt_a_sqrt_m"] ** 2
@@ -251,7 +251,7 @@ def test_light_time_and_sagnac(geonet_nav):
     assert g.xyz_m.shape == (20, 3) and g.range_m.shape == (20,)
     assert np.all((g.travel_time_s > 0.066) & (g.travel_time_s < 0.087))
     np.testing.assert_allclose(g.range_m, np.linalg.norm(g.xyz_m - rx, axis=1), rtol=0, atol=1e-6)
-    np.testing.assert_allclose(g.range_m, g.travel_time_s * SPEED_OF_LIGHT, rtol=0, atol=1e-3)  # converged
+    np.testing.assert_allclose(g.range_m, g.travel_time_s * SPEED_OF_LIGHT_M_S, rtol=0, atol=1e-3)  # converged
     # the returned position is the transmission-time position rotated by ω τ
     eph = select_ephemeris(geonet_nav, "G11", t)
     x_tx, clk = sat_position_ecef(eph, t - g.travel_time_s)
@@ -282,12 +282,12 @@ def _pseudorange_residuals(obs_path: Path, nav_path: Path):
             g = sat_position_at_reception(nav, sat, t[idx], rx, rx_clock_s=rx_clock[idx])
             rho[idx], dts[idx] = g.range_m, g.clock_s
             el[idx] = azimuth_elevation(rx, g.xyz_m)[1]
-        res = pr - (rho - SPEED_OF_LIGHT * dts)
+        res = pr - (rho - SPEED_OF_LIGHT_M_S * dts)
         use = el > 10 * D2R
         df = pd.DataFrame({"t": t, "res": res, "use": use, "el": el})
         clk_m = df[df["use"]].groupby("t")["res"].mean()
-        rx_clock = df["t"].map(clk_m).fillna(0.0).to_numpy() / SPEED_OF_LIGHT
-    r = res - rx_clock * SPEED_OF_LIGHT
+        rx_clock = df["t"].map(clk_m).fillna(0.0).to_numpy() / SPEED_OF_LIGHT_M_S
+    r = res - rx_clock * SPEED_OF_LIGHT_M_S
     return obs.assign(res=r, el=el, use=use, rx_clock_s=rx_clock), h
 
 

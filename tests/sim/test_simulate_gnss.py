@@ -15,10 +15,11 @@ import pandas as pd
 import pytest
 from click.testing import CliRunner
 
+from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli.cli.commands import main
 from cdgps_cli.model.gps.orbits import azimuth_elevation, sat_position_ecef
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.model.gps.positioning import L1_WAVELENGTH_M, simulate_static_pair, synthetic_gps_nav
+from cdgps_cli.model.gps.positioning import simulate_static_pair, synthetic_gps_nav
 from cdgps_cli.core.gps_time import gps_seconds
 from cdgps_cli.core.records import NAV_COLUMNS
 from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
@@ -176,7 +177,7 @@ def test_noise_follows_the_elevation_model_and_cn0_is_simulated(nav, tmp_path):
         np.testing.assert_array_equal(snr, a[rx]["snr_l1_dbhz"].to_numpy())       # deterministic, noise-free
         sin_el = (snr - 35.0) / 15.0                                               # C/N0 = 35 + 15 sin(el)
         assert 35 < snr.min() and snr.max() < 50 and sin_el.min() < 0.3 and sin_el.max() > 0.8
-        eps = (b[rx]["phase_l1_cycles"] - a[rx]["phase_l1_cycles"]).to_numpy() * L1_WAVELENGTH_M
+        eps = (b[rx]["phase_l1_cycles"] - a[rx]["phase_l1_cycles"]).to_numpy() * GPS_L1_WAVELENGTH_M
         z = eps / np.sqrt(0.003**2 + 0.003**2 / sin_el**2)                        # σ² = a² + b²/sin²el
         assert abs(np.std(z) - 1.0) < 0.05 and abs(np.mean(z)) < 0.05
         low = sin_el < 0.5

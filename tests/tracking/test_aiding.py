@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 from _track_signals import ca_signal
 
+from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
-from cdgps_cli.tracking.aiding import L1_WAVELENGTH_M, clock_drift_s_per_s, common_mode_hz, los_doppler_hz
+from cdgps_cli.tracking.aiding import clock_drift_s_per_s, common_mode_hz, los_doppler_hz
 from cdgps_cli.tracking.channel import TrackOptions, track
 from cdgps_cli.tracking.inertial import (GRADES, accelerometer_doppler_aid_hz, gyro_antenna_velocity_m_s, low_pass,
                                          sense)
@@ -75,7 +76,7 @@ def test_accelerometer_aid_drifts_with_the_bias_and_gyro_lever_arm():
     v_true = 4.9 / (2 * math.pi * 2.0) * (1 - np.cos(2 * math.pi * 2.0 * t))
     quiet = type(g)("biased", g.accel_bias_m_s2, 0.0, 0.0, 0.0, 1e4)            # wide, noise-free: bias only
     aid = accelerometer_doppler_aid_hz(acc, dt, quiet, np.random.default_rng(0))
-    np.testing.assert_allclose(aid * L1_WAVELENGTH_M - v_true, g.accel_bias_m_s2 * t, atol=2e-3)
+    np.testing.assert_allclose(aid * GPS_L1_WAVELENGTH_M - v_true, g.accel_bias_m_s2 * t, atol=2e-3)
     v = gyro_antenna_velocity_m_s(np.array([[0.0, 0.0, 0.1]]), np.array([2.0, 0.0, 0.0]))
     np.testing.assert_allclose(v, [[0.0, 0.2, 0.0]])
     with pytest.raises(CdgpsError, match="shape"):

@@ -40,7 +40,8 @@ import math
 import numpy as np
 import pandas as pd
 
-from cdgps_cli.model.gps.positioning import L1_WAVELENGTH_M, nominal_interval_s
+from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
+from cdgps_cli.model.gps.positioning import nominal_interval_s
 
 __all__ = ["ALIGN_MODES", "ON_GRID_S", "RATE_MAX_SPAN_INTERVALS", "grid_step_s", "align_receiver", "pair_epochs",
            "carry_slips", "common_epochs", "phase_rate"]
@@ -254,7 +255,7 @@ def align_receiver(obs: pd.DataFrame, *, tol_s: float, mode: str = ALIGN_MODES[0
         ph = out["phase_l1_cycles"].to_numpy(dtype=np.float64)
         pr = out["pseudorange_l1_m"].to_numpy(dtype=np.float64)
         out["phase_l1_cycles"] = ph - delta * rate
-        out["pseudorange_l1_m"] = pr - delta * L1_WAVELENGTH_M * rate
+        out["pseudorange_l1_m"] = pr - delta * GPS_L1_WAVELENGTH_M * rate
         out["time_gps_s"] = np.where(move, g_tag[kk], out["time_gps_s"].to_numpy(dtype=np.float64))
         summary["rows_dropped_no_rate"] = int(bad.sum())
         out = out.loc[~bad]

@@ -24,13 +24,13 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
+from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import gps_time_str
 
 __all__ = [
     "GM_GPS",
     "OMEGA_E_GPS",
-    "SPEED_OF_LIGHT",
     "F_RELATIVISTIC",
     "WGS84_A",
     "WGS84_F",
@@ -50,7 +50,6 @@ GM_GPS = 3.986005e14
 """WGS-84 Earth gravitational constant as fixed by IS-GPS-200, m³/s²."""
 OMEGA_E_GPS = 7.2921151467e-5
 """WGS-84 Earth rotation rate as fixed by IS-GPS-200, rad/s."""
-SPEED_OF_LIGHT = 299792458.0
 """Speed of light in vacuum, m/s."""
 F_RELATIVISTIC = -4.442807633e-10
 """IS-GPS-200 relativistic clock constant F = −2·√GM / c², s/√m."""
@@ -313,7 +312,7 @@ def sat_position_at_reception(
         c, s = np.cos(theta), np.sin(theta)
         rot = np.stack([c * xyz[:, 0] + s * xyz[:, 1], -s * xyz[:, 0] + c * xyz[:, 1], xyz[:, 2]], axis=-1)
         rng = np.linalg.norm(rot - rx, axis=-1)
-        new_tau = rng / SPEED_OF_LIGHT
+        new_tau = rng / SPEED_OF_LIGHT_M_S
         done = np.max(np.abs(new_tau - tau)) < 1e-12
         tau = new_tau
         if done:

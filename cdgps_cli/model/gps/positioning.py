@@ -34,11 +34,11 @@ import math
 import numpy as np
 import pandas as pd
 
+from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.model.gps.orbits import (
     GM_GPS,
     MAX_EPHEMERIS_AGE_S,
     OMEGA_E_GPS,
-    SPEED_OF_LIGHT,
     azimuth_elevation,
     ecef_to_geodetic,
     enu_matrix,
@@ -50,7 +50,6 @@ from cdgps_cli.core.records import OBS_COLUMNS
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 
 __all__ = [
-    "L1_WAVELENGTH_M",
     "day_of_year",
     "tropo_zenith_hydrostatic_m",
     "niell_hydrostatic_mapping",
@@ -65,7 +64,6 @@ __all__ = [
     "synthetic_gps_nav",
 ]
 
-L1_WAVELENGTH_M = GPS_L1_WAVELENGTH_M
 """GPS L1 carrier wavelength c / 1575.42 MHz, m."""
 
 
@@ -342,7 +340,7 @@ def estimate_receiver_clock(
     for _ in range(max(1, iterations)):
         _, dts, rng, _, el, trop = _rows_geometry(nav, sats[idx], t[idx], t[idx] - clk[ep[idx]], rx_ecef_m,
                                                    troposphere=troposphere)
-        res = (pr[idx] - (rng - SPEED_OF_LIGHT * dts + trop)) / SPEED_OF_LIGHT
+        res = (pr[idx] - (rng - SPEED_OF_LIGHT_M_S * dts + trop)) / SPEED_OF_LIGHT_M_S
         use = el > mask_rad
         if not use.any():
             use = el > 0.0
@@ -420,7 +418,7 @@ def spp_static(
         near = np.linalg.norm(x) > 6.3e6
         xyz, dts, rng, _, el, trop = _rows_geometry(nav, sats, t, t - clk[ep], x, troposphere=near)
         use = (el > mask_rad) if near and np.linalg.norm(x) < 6.5e6 else np.ones(el.size, dtype=bool)
-        res = pr - (rng - SPEED_OF_LIGHT * dts + trop)
+        res = pr - (rng - SPEED_OF_LIGHT_M_S * dts + trop)
         g = -(xyz - x) / rng[:, None]
         w = use.astype(float)
         cnt = np.bincount(ep, weights=w, minlength=ne)
@@ -437,7 +435,7 @@ def spp_static(
             raise CdgpsError(f"{what}: single-point position is not solvable (fewer than 4 satellites per epoch)")
         dx = np.linalg.solve(nmat, (gc * w[:, None]).T @ rc)
         x = x + dx
-        clk = (rbar - gbar @ dx) / SPEED_OF_LIGHT
+        clk = (rbar - gbar @ dx) / SPEED_OF_LIGHT_M_S
         clk[~ok_ep] = np.nan
         if np.isnan(clk).any():
             good = np.isfinite(clk)
@@ -719,11 +717,11 @@ def simulate_static_pair(
                     amb_rows.append((name, s, "slip", float(t_nom[idx[j0]]), int(cyc)))
                     applied.append({"receiver": name, "sat": s, "time_gps_s": float(t_nom[idx[j0]]), "cycles": int(cyc),
                                     "elevation_deg": round(math.degrees(float(el[j0])), 3), "random": rnd})
-            common = rho + SPEED_OF_LIGHT * (clock[name][idx] - dts) + trop
+            common = rho + SPEED_OF_LIGHT_M_S * (clock[name][idx] - dts) + trop
             recs.append(pd.DataFrame({
                 "time_gps_s": tag[name][idx],
                 "sat": s,
-                "phase_l1_cycles": (common + gen.normal(0.0, _noise_sigma(phase_sigma_m, el), idx.size)) / L1_WAVELENGTH_M
+                "phase_l1_cycles": (common + gen.normal(0.0, _noise_sigma(phase_sigma_m, el), idx.size)) / GPS_L1_WAVELENGTH_M
                 + amb + frac,
                 "lli_l1": lli,
                 "ssi_l1": np.zeros(idx.size, dtype=np.int64),
