@@ -272,6 +272,13 @@ class McapOut:
     def attach(self, name: str, data: bytes, media_type: str = "text/plain") -> None:
         self.writer.add_attachment(create_time=0, log_time=0, name=name, media_type=media_type, data=data)
 
+    def attach_packed(self, name: str, arr: np.ndarray) -> None:
+        """Attach ``arr`` as a packed array (:mod:`cdgps_cli.io.packed_arrays`: byte-shuffled,
+        zstd-compressed, lossless; media type ``application/x-cdgps-packed-array``)."""
+        from .io.packed_arrays import MEDIA_TYPE, pack  # noqa: PLC0415
+
+        self.attach(name, pack(arr), MEDIA_TYPE)
+
     def attach_npy(self, name: str, arr: np.ndarray, media_type: str = "application/x-npy",
                    chunk_bytes: int = 1 << 20) -> None:
         """Attach ``arr`` in ``.npy`` format (the bytes of ``np.save``), streamed to the file.
