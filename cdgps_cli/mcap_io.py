@@ -275,9 +275,10 @@ class McapOut:
     def attach_packed(self, name: str, arr: np.ndarray) -> None:
         """Attach ``arr`` as a packed array (:mod:`cdgps_cli.io.packed_arrays`: byte-shuffled,
         zstd-compressed, lossless; media type ``application/x-cdgps-packed-array``)."""
-        from .io.packed_arrays import MEDIA_TYPE, pack  # noqa: PLC0415
+        from .io.packed_arrays import MEDIA_TYPE, pack_pieces  # noqa: PLC0415
 
-        self.attach(name, pack(arr), MEDIA_TYPE)
+        pieces = pack_pieces(arr)
+        self.attach_stream(name, sum(len(p) for p in pieces), pieces, MEDIA_TYPE)
 
     def attach_npy(self, name: str, arr: np.ndarray, media_type: str = "application/x-npy",
                    chunk_bytes: int = 1 << 20) -> None:

@@ -33,15 +33,25 @@ _HEAD = struct.Struct("<I")
 _MAX_HEADER = 4096
 
 
-def _planes(arr: np.ndarray) -> np.ndarray:
-    """(itemsize, m, N) uint8 view-copy of arr as (N, m): byte planes, columns, epochs."""
+def _compressed_planes(arr: np.ndarray) -> list[bytes]:
+    """zstd frame of arr's bytes as (N, m) byte planes (see the module docstring), built one plane
+    at a time (no full-size copy of arr)."""
     n = arr.shape[0] if arr.ndim else 1
     cols = np.ascontiguousarray(arr).reshape(n, int(np.prod(arr.shape[1:], dtype=np.int64)))
-    return np.ascontiguousarray(cols.view(np.uint8).reshape(n, cols.shape[1], arr.dtype.itemsize).transpose(2, 1, 0))
+    octets = cols.view(np.uint8).reshape(n, cols.shape[1], arr.dtype.itemsize)
+    cobj = zstandard.ZstdCompressor(level=LEVEL).compressobj(size=cols.nbytes)
+    parts = [cobj.compress(np.ascontiguousarray(octets[:, :, b].T)) for b in range(arr.dtype.itemsize)]
+    parts.append(cobj.flush())
+    return parts
 
 
 def pack(arr: np.ndarray) -> bytes:
-    """The packed bytes of ``arr`` (see the module docstring).
+    """The packed bytes of ``arr`` (see the module docstring); ``b"".join(pack_pieces(arr))``."""
+    return b"".join(pack_pieces(arr))
+
+
+def pack_pieces(arr: np.ndarray) -> list[bytes]:
+    """The packed bytes of ``arr`` (see the module docstring) in pieces, to be written in order.
 
     Parameters
     ----------
@@ -51,7 +61,7 @@ def pack(arr: np.ndarray) -> bytes:
 
     Returns
     -------
-    bytes
+    list of bytes
     """
     arr = np.asarray(arr)
     if arr.dtype.kind not in "biuf":
@@ -59,8 +69,7 @@ def pack(arr: np.ndarray) -> bytes:
     arr = arr.astype(arr.dtype.newbyteorder("<"), copy=False)
     header = json.dumps({"dtype": arr.dtype.str, "filter": FILTER, "shape": list(arr.shape)},
                         sort_keys=True).encode()
-    body = zstandard.ZstdCompressor(level=LEVEL).compress(_planes(arr).tobytes())
-    return MAGIC + _HEAD.pack(len(header)) + header + body
+    return [MAGIC + _HEAD.pack(len(header)) + header, *_compressed_planes(arr)]
 
 
 def unpack(data: bytes, what: str = "packed array") -> np.ndarray:
