@@ -40,7 +40,7 @@ import numpy as np
 import pandas as pd
 from scipy.linalg import cho_factor, cho_solve
 from scipy.linalg.lapack import dpotrf, dpotri
-from scipy.stats import chi2
+from .estimation.chi2 import chi2_quantile
 
 from .config import StructureConfig
 from .dynamics import discrete_model
@@ -450,7 +450,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                 x_kin, P_kin = x.copy(), (P.copy() if k == 0 else A @ Ps[k - 1] @ A.T + Qd)
                 # the zero-velocity update's own test: are the estimated modal velocities zero?
                 vel_nis = velocity_nis(x_kin, P_kin, nm, zupt_var)
-                vel_bound = chi2.ppf(opt.nis_probability, nm)
+                vel_bound = chi2_quantile(opt.nis_probability, nm)
                 if vel_nis <= vel_bound:
                     # the rest position is re-estimated from the data: the modal position variances of
                     # the prior are raised REST_ENTRY_POSITION_INFLATION-fold (recorded as extra process
@@ -476,7 +476,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                 why, nis_failed = rest_motion(x, P, h, Hx, y=Y[k], bias=bias, usable=present & ~np.isnan(bias), mp0=mp0,
                                               n=n, use_bias_states=use_bias_states, r_var=r_var,
                                               outlier_sigma=opt.outlier_sigma,
-                                              bound=lambda m: chi2.ppf(opt.nis_probability, m))
+                                              bound=lambda m: chi2_quantile(opt.nis_probability, m))
             if nis_failed:
                 rest_fail += 1
             elif (present & ~np.isnan(bias)).any():
@@ -611,7 +611,7 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
                     resid[k, idx] -= x[mp0 + idx]
                 bound = chi2_bound.get(idx.size)
                 if bound is None:
-                    bound = chi2_bound[idx.size] = chi2.ppf(opt.nis_probability, idx.size)
+                    bound = chi2_bound[idx.size] = chi2_quantile(opt.nis_probability, idx.size)
                 if nis[k] > bound:
                     fail_run += 1
                 else:
