@@ -1,10 +1,14 @@
 """STATES.mcap (output of ``cdgps estimate``), CSV export and evaluation against simulator truth.
 
-Topics (JSON schema / JSON, one message per epoch, ``timestamp {sec, nsec}``):
+Every epoch of every series is stored as packed arrays (lossless, compact; the layout is in
+:mod:`cdgps_cli.io.states_layout`), which :class:`States` reads.  Beside them, the Foxglove
+channels (JSON schema / JSON, ``timestamp {sec, nsec}``) hold one message every
+``json_channels_every_epochs`` epochs (``--foxglove-rate-hz``, default 1 Hz; 0: every epoch):
 
 * ``/cdgps/state`` — the estimate (smoothed when ``--smooth``): ``q`` and ``sigma_q`` as objects
   keyed by coordinate name (so Foxglove plots ``/cdgps/state.q.q10`` directly), the modal state
-  ``xi``, ``xidot``, the modal-position covariance ``P_xi`` (row-major n_m×n_m), ``smoothed``;
+  ``xi``, ``xidot``, ``smoothed``, and with ``--covariance full`` the modal-position covariance
+  ``P_xi`` (row-major n_m×n_m);
 * ``/cdgps/state_filtered`` — the forward filter, only when smoothing;
 * ``/cdgps/angles_deg`` — the section angles reports speak of, in degrees, as flat numbers with
   plain names so Foxglove's Plot panel plots ``/cdgps/angles_deg.C2_z`` (q6+q10 on the testbed)
@@ -14,14 +18,17 @@ Topics (JSON schema / JSON, one message per epoch, ``timestamp {sec, nsec}``):
   metadata (:func:`cdgps_cli.kinematics.section_angles`); absent when the model has no rotations;
 * ``/cdgps/residuals`` — per channel post-fit residual (m), the epoch's NIS (left out where
   there is none) and its dof;
-* ``/cdgps/events`` — slips, re-acquisitions, outliers, integrity failures and their actions.
+* ``/cdgps/events`` — slips, re-acquisitions, outliers, integrity failures and their actions
+  (every event).
 
 ``time_s`` is the run's time scale (run seconds, or GPS s for a structure on a GNSS run); log
 times are Unix time (:mod:`cdgps_cli.timescales`).  No message holds ``null``
 (:mod:`cdgps_cli.mcap_io`).
 
-Attachments: ``config.toml``, ``init.json``.  Metadata ``cdgps.estimate``: RUN and INIT sha256,
-options, final biases.
+Attachments: ``config.toml``, ``init.json``, the packed arrays.  Metadata ``cdgps.estimate``: RUN
+and INIT sha256, options, final biases, ``covariance``, ``json_channels_every_epochs``.  Files
+of the earlier layouts (``.npy`` attachments with every epoch in JSON, or JSON messages only) are
+still read.
 """
 
 from __future__ import annotations
@@ -231,7 +238,9 @@ def _write_state_messages(out: McapOut, ch: int, names, sel, time_s, X, q, sq, P
 
 def _write_residuals(out: McapOut, res, sel) -> None:
     """Residuals, NIS and dof: every epoch packed, the JSON channel at the epochs ``sel``."""
-    out.attach_packed(RESIDUAL_PACKED + "residual_m", np.asarray(res.residual_m, dtype=float))
+    # float32 (7 significant digits: nm on cm-level residuals) keeps the file within its RUN's size;
+    # the JSON messages carry the float64 values
+    out.attach_packed(RESIDUAL_PACKED + "residual_m", np.asarray(res.residual_m, dtype=np.float32))
     out.attach_packed(RESIDUAL_PACKED + "nis", np.asarray(res.nis, dtype=float))
     out.attach_packed(RESIDUAL_PACKED + "nis_dof", np.asarray(res.nis_dof, dtype=np.int64))
     out.attach(RESIDUAL_PACKED + "channels.json", json.dumps([list(c) for c in res.channels]).encode(),
@@ -329,7 +338,18 @@ def write_states(res, run_path: str | Path, init: dict, init_text: str,
 
 
 class States:
-    """A STATES.mcap read back: config, times, q, sigma_q, modal state, covariances, events."""
+    """A STATES.mcap read back: config, times, q, sigma_q, modal state, covariances, events.
+
+    Attributes
+    ----------
+    time_s : (N,) s
+    q, sigma_q : (N, n_q) coordinate units (m or rad)
+    xi : (N, n_m); xidot : (N, n_m) or None (files before the packed arrays)
+    P_xi : (N, n_m, n_m) or None (the forward filter of a smoothed run, unless ``--covariance full``)
+    P : (N, n, n) or None (only with ``--covariance full``)
+    nis, nis_dof : (N,) or None (``diagnostics=False``)
+    events : list of dict; metadata : dict (``cdgps.estimate``)
+    """
 
     def __init__(self, path: str | Path, topic: str = STATE_TOPIC, diagnostics: bool = True):
         c = read_mcap(path, topics=[EVENT_TOPIC] if diagnostics else [])

@@ -12,7 +12,8 @@ reads:
   its 1-σ of q;
 * with ``--covariance full``: ``P`` (N, n, n), the whole state covariance of both series, and
   P_ξ of the forward filter too;
-* ``arrays/cdgps/residuals/``: ``residual_m`` (N, C, float64, NaN where the channel was not used),
+* ``arrays/cdgps/residuals/``: ``residual_m`` (N, C, float32 — 7 significant digits, nm on
+  cm-level residuals; NaN where the channel was not used),
   ``nis`` (N,, NaN where none), ``nis_dof`` (N,), and ``channels.json`` (the C
   ``[antenna, transmitter]`` pairs, the columns of ``residual_m``).
 
