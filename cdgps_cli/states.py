@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from . import __version__
+from . import __version__, progress
 from .config import StructureConfig, parse_config
 from .atomic import write_atomic
 from .errors import CdgpsError
@@ -306,11 +306,12 @@ def write_states(res, run_path: str | Path, init: dict, init_text: str,
 
     time_scale = "gps" if run_kind(run_path) == "gnss" else "relative"
     time_s = np.asarray(res.time_s, dtype=float)
-    with McapOut(out_path, time_scale=time_scale) as out:
+    series = [(STATE_TOPIC, res.x, res.P, res.smoothed)]
+    if res.smoothed:
+        series.append((STATE_FILTERED_TOPIC, res.x_filt, res.P_filt, False))
+    with McapOut(out_path, time_scale=time_scale) as out, \
+            progress.bar(len(series) + 1, f"writing {Path(out_path).name}", "series") as bar:
         schema = _state_schema(cfg, with_P=covariance == "full")
-        series = [(STATE_TOPIC, res.x, res.P, res.smoothed)]
-        if res.smoothed:
-            series.append((STATE_FILTERED_TOPIC, res.x_filt, res.P_filt, False))
         for topic, X, P, smoothed in series:
             P_xi = P[:, :nm, :nm]                                 # a view: no full-size copy
             q, sq = series_derived(cfg, X[:, :nm], P_xi)          # as the reader computes them
@@ -321,7 +322,9 @@ def write_states(res, run_path: str | Path, init: dict, init_text: str,
             if topic == STATE_TOPIC:
                 _write_angles(out, cfg, time_s[sel], q[sel], P_xi[sel])
             del q, sq, P_xi
+            bar.update()
         _write_residuals(out, res, sel)
+        bar.update()
         ch = out.channel(EVENT_TOPIC, event_schema(res.events))
         for ev in res.events:
             body = {k: v for k, v in ev.items() if k != "time_s"}
