@@ -28,6 +28,7 @@ bench: venv
 	$(PY) benchmarks/bench_estimate.py
 	$(PY) benchmarks/bench_spectra.py
 	$(PY) benchmarks/bench_memory.py
+	$(PY) benchmarks/bench_io.py
 	$(PY) benchmarks/bench_gnss_pipeline.py
 
 # long studies (tens of minutes on 2 cores): integer-fix success table, accuracy reports

@@ -8,18 +8,22 @@ progress go to stderr and are silenced by ``--quiet``.
 from __future__ import annotations
 
 import json
+import math
 import sys
 from contextlib import contextmanager
 from pathlib import Path
 
 import click
 
+from cdgps_cli.config.options import GNSS_DEFAULTS, INIT_MAX_ITERATIONS, INIT_STARTS, RATIO_THRESHOLD
 from cdgps_cli import __version__
 from cdgps_cli.core import progress
 from cdgps_cli.io.atomic import TERMINATED_EXIT, Terminated, sigterm_raises
 from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.io.states_layout import COVARIANCE_CHOICES as _STATES_COVARIANCE
+from cdgps_cli.io.states_layout import DEFAULT_COVARIANCE as _STATES_DEFAULT_COVARIANCE
+from cdgps_cli.io.states_layout import DEFAULT_PREVIEW_RATE_HZ as _STATES_PREVIEW_RATE_HZ
 from cdgps_cli.cli.guard import GuardedCommand
-from cdgps_cli.config.options import GNSS_DEFAULTS, INIT_MAX_ITERATIONS, INIT_STARTS, RATIO_THRESHOLD
 
 
 def _quiet_after_command(ctx, param, value):
@@ -469,12 +473,21 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
               help="With --structure: azimuth of the structure x axis, degrees clockwise from north (90: x east, y north).")
 @click.option("--receiver", "receiver_map", multiple=True, metavar="ANTENNA=RECEIVER",
               help="With --structure: the receiver of a structure antenna (repeatable; default: the same name).")
+@click.option("--covariance", type=click.Choice(_STATES_COVARIANCE), default=_STATES_DEFAULT_COVARIANCE,
+              show_default=True,
+              help="Covariances in STATES.mcap: modal = the modal-position covariance P_xi of the estimate per epoch "
+                   "(the forward filter of a --smooth run: its 1-sigma only); full = also the whole state "
+                   "covariance P of both series, and P_xi in the JSON messages.")
+@click.option("--foxglove-rate-hz", type=float, default=_STATES_PREVIEW_RATE_HZ, show_default=True,
+              help="Rate of the Foxglove JSON channels (/cdgps/state, angles_deg, residuals), Hz; 0: every epoch "
+                   "(slow to write, large). The packed arrays that cdgps reads hold every epoch.")
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="STATES.mcap to write.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
 def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability, outlier_sigma, process_noise_scale,
              output, as_json, rest=(), rest_process_noise_scale=0.005, rest_retry_s=1.0, structure=None, x_axis_azimuth_deg=90.0,
-             receiver_map=(), rest_window_s=3.0, rest_dwell_s=2.0, allow_other_run=False):
+             receiver_map=(), rest_window_s=3.0, rest_dwell_s=2.0, allow_other_run=False,
+             covariance=_STATES_DEFAULT_COVARIANCE, foxglove_rate_hz=_STATES_PREVIEW_RATE_HZ):
     """Extended Kalman filter (Eq. 16-23) [+ RTS smoother] over a RUN from INIT → STATES.mcap.
 
     On a GNSS run: per-epoch rover displacement states <ant>_e/_n/_u with 1σ from INIT's
@@ -498,6 +511,8 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
                            structure=structure, x_axis_azimuth_deg=x_axis_azimuth_deg, receiver_map=receiver_map,
                            allow_other_run=allow_other_run)
         return
+    if not (foxglove_rate_hz >= 0 and math.isfinite(foxglove_rate_hz)):
+        raise CdgpsError(f"--foxglove-rate-hz must be a finite rate >= 0 (0: every epoch), got {foxglove_rate_hz:g}")
     if structure is not None or receiver_map:
         raise CdgpsError("--structure/--receiver apply to GNSS runs (from 'cdgps ingest --rinex/--ubx'); a structure "
                          "run already has its config")
@@ -526,7 +541,8 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
                           rest_segments_s=rest_segments, rest_process_noise_scale=rest_process_noise_scale,
                           rest_retry_s=rest_retry_s, rest_auto=rest_auto, rest_window_s=rest_window_s,
                           rest_dwell_s=rest_dwell_s,
-                          keep_filtered_covariance="modal", init_source=str(init_json),
+                          keep_filtered_covariance="full" if covariance == "full" else "modal",
+                          init_source=str(init_json),
                           progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
     _say(ctx, f"estimating {run_mcap} from {init_json} (biases {biases}{', smoothing' if smooth else ''}) …")
     with _init_named(init_json):
@@ -535,7 +551,8 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
     options = opt.echo()
     if allow_other_run:
         options.update(allow_other_run=True, init_run_sha256=pairing["init_run_sha256"])
-    s = write_states(res, run_mcap, init, init_text, output, options)
+    s = write_states(res, run_mcap, init, init_text, output, options, covariance=covariance,
+                     preview_rate_hz=foxglove_rate_hz)
     s["init_run"] = pairing
     nis_text = "no filter epoch with data" if s["mean_nis_per_dof"] is None else f"mean NIS/dof {s['mean_nis_per_dof']:.3f}"
     w = s.get("window")

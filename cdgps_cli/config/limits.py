@@ -121,6 +121,7 @@ OPTION_BOUNDS: dict[str, Bound] = {
     "survey_deg": Bound(-360.0, 360.0, "deg"),
     "mask_deg": Bound(-90.0, 90.0, "deg"),
     "rate_hz": Bound(0.0, 1000.0, "Hz", lo_open=True),
+    "foxglove_rate_hz": Bound(0.0, 1e6, "Hz"),
     "random_walk": Bound(0.0, 10.0, "m/√s"),
     "phase_noise_m": _NOISE,
     "code_noise_m": Bound(0.0, 1e4, "m"),

@@ -40,7 +40,7 @@ import numpy as np
 import pandas as pd
 from scipy.linalg import cho_factor, cho_solve
 from scipy.linalg.lapack import dpotrf, dpotri
-from scipy.stats import chi2
+from cdgps_cli.estimation.chi2 import chi2_quantile
 
 from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.model.dynamics import discrete_model
@@ -558,7 +558,7 @@ class _ForwardPass:
         P_kin = self.P_kin = self.P.copy() if k == 0 else A @ self.Ps[k - 1] @ A.T + self.Qd
         # the zero-velocity update's own test: are the estimated modal velocities zero?
         vel_nis = velocity_nis(x_kin, P_kin, nm, self.zupt_var)
-        vel_bound = chi2.ppf(opt.nis_probability, nm)
+        vel_bound = chi2_quantile(opt.nis_probability, nm)
         if vel_nis <= vel_bound:
             # the rest position is re-estimated from the data: the modal position variances of
             # the prior are raised REST_ENTRY_POSITION_INFLATION-fold (recorded as extra process
@@ -585,7 +585,7 @@ class _ForwardPass:
         usable = present & ~np.isnan(self.bias)
         why, nis_failed = rest_motion(self.x, self.P, self.h, self.Hx, y=y, bias=self.bias, usable=usable,
                                       mp0=self.mp0, n=self.n, use_bias_states=self.use_bias_states, r_var=self.r_var,
-                                      outlier_sigma=opt.outlier_sigma, bound=lambda m: chi2.ppf(opt.nis_probability, m))
+                                      outlier_sigma=opt.outlier_sigma, bound=lambda m: chi2_quantile(opt.nis_probability, m))
         if nis_failed:
             self.rest_fail += 1
         elif usable.any():
@@ -716,7 +716,7 @@ class _ForwardPass:
             self.resid[k, idx] -= x[mp0 + idx]
         bound = self.chi2_bound.get(idx.size)
         if bound is None:
-            bound = self.chi2_bound[idx.size] = chi2.ppf(self.opt.nis_probability, idx.size)
+            bound = self.chi2_bound[idx.size] = chi2_quantile(self.opt.nis_probability, idx.size)
         self.fail_run = self.fail_run + 1 if self.nis[k] > bound else 0
 
     def _outlier_gate(self, k, idx, H, rho):

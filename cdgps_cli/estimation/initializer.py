@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
-from scipy.stats import chi2
+from cdgps_cli.estimation.chi2 import chi2_quantile
 
 from cdgps_cli.estimation.ambiguity import lambda_search, partial_fix, ratio_test
 from cdgps_cli.estimation.batch_solver import LinearProblem, LinearSolution, srif_solve
@@ -696,7 +696,7 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
         dof_f = max(n_obs - prob.n_dyn - m, 1)     # (the multipath states have their own prior)
         scale = max(g.cost / dof_f, 1e-12)
         dJ = (J_final - g.cost) / scale
-        limit = opt.fix_validation_margin * float(chi2.ppf(opt.fix_validation_probability, int(fixed.sum())))
+        limit = opt.fix_validation_margin * float(chi2_quantile(opt.fix_validation_probability, int(fixed.sum())))
         if dJ > limit:
             _say(opt, f"  integer fix rejected by validation: cost increase {dJ:.1f} > {limit:.1f} "
                       f"(chi-square {opt.fix_validation_probability:g}, {int(fixed.sum())} dof, margin {opt.fix_validation_margin:g})")

@@ -120,7 +120,7 @@ class ForwardKernel:
 
     def __init__(self, cfg, ant, tx, A, Q, B, sigma, outlier_sigma, nis_probability, reinit_after,
                  Y, EVENT, U_in, xs, Ps, resid, nis, nis_dof):
-        from scipy.stats import chi2
+        from cdgps_cli.estimation.chi2 import chi2_quantile
 
         self.gi, self.gf = pack_geometry(cfg, ant, tx)
         self.n = A.shape[0]
@@ -130,7 +130,7 @@ class ForwardKernel:
         self.nu = self.B.shape[1]
         C = len(ant)
         # the NIS bound per number of channels used (index 0 unused)
-        self.chi2 = _f64(np.r_[np.nan, chi2.ppf(nis_probability, np.arange(1, C + 1))])
+        self.chi2 = _f64(np.r_[np.nan, chi2_quantile(nis_probability, np.arange(1, C + 1))])
         sig = np.broadcast_to(np.asarray(sigma, dtype=np.float64), (C,))
         if not np.all(np.isfinite(sig) & (sig > 0)):
             raise ValueError("ForwardKernel: sigma must be positive and finite for every channel")

@@ -28,7 +28,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-from scipy.stats import chi2
+from cdgps_cli.estimation.chi2 import chi2_quantile
 
 from cdgps_cli.core.errors import CdgpsError
 
@@ -118,7 +118,7 @@ def detect_rest(time_s: np.ndarray, d: np.ndarray, nm: int, window: int, dwell: 
     t = np.asarray(time_s, dtype=float)
     D = window_sums(d, window)
     dof = window * nm
-    b_in, b_out = float(chi2.ppf(p_enter, dof)), float(chi2.ppf(p_leave, dof))
+    b_in, b_out = float(chi2_quantile(p_enter, dof)), float(chi2_quantile(p_leave, dof))
     passes = D <= b_in                       # NaN (no full window) → False
     fails = ~(D <= b_out) & ~np.isnan(D)     # inf or above the leave bound
     segments, events = [], []

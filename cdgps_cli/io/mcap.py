@@ -117,6 +117,17 @@ def _missing(v) -> bool:
     return v is None or (isinstance(v, float) and v != v)
 
 
+def _plain_json(msg: dict, payload: dict) -> bytes | None:
+    """``msg`` followed by ``payload`` as compact JSON when no value is missing (None or NaN at any
+    depth), else None: then :meth:`McapOut._encode` applies the schema's rules.  When it returns
+    bytes, they are the bytes ``_encode`` would give (nothing to drop or replace)."""
+    try:
+        data = json.dumps({**msg, **payload}, separators=(",", ":"), allow_nan=False).encode()
+    except ValueError:                                        # NaN or infinity somewhere
+        return None
+    return None if b"null" in data else data                  # a None somewhere (or the word in a string)
+
+
 def _with_validity(payload: dict, field: str) -> None:
     """Replace missing elements of ``payload[field]`` by 0 and set ``payload[field + '_valid']``."""
     vals = payload.get(field)
@@ -228,6 +239,16 @@ class McapOut:
         ns = time_ns(time_s, self.time_scale)
         msg = {"timestamp": {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}, "time_s": float(time_s)}
         arrays, others = self._nullable[channel_id]
+        data = None if arrays.intersection(payload) else _plain_json(msg, payload)
+        if data is None:
+            data = self._encode(msg, payload, arrays, others, time_s)
+        self.writer.add_message(channel_id=channel_id, log_time=ns, publish_time=ns, data=data,
+                                sequence=self._seq[channel_id])
+        self._seq[channel_id] += 1
+
+    @staticmethod
+    def _encode(msg: dict, payload: dict, arrays, others, time_s) -> bytes:
+        """The message's JSON with missing values encoded as the schema says (see :meth:`write`)."""
         for k, v in payload.items():
             if k in arrays:
                 msg[k] = v
@@ -246,9 +267,7 @@ class McapOut:
             bad = [k for k, v in msg.items() if isinstance(v, list) and any(_missing(x) for x in v)]
             raise ValueError(f"message at {time_s!r} s: missing values in array field(s) {', '.join(bad) or '?'} "
                              f"whose schema has no {VALID_SUFFIX} companion") from None
-        self.writer.add_message(channel_id=channel_id, log_time=ns, publish_time=ns, data=data,
-                                sequence=self._seq[channel_id])
-        self._seq[channel_id] += 1
+        return data
 
     def write_table(self, channel_id: int, df: pd.DataFrame, array_columns: list[str],
                     scalar_columns: list[str] = ()) -> int:
@@ -271,6 +290,14 @@ class McapOut:
 
     def attach(self, name: str, data: bytes, media_type: str = "text/plain") -> None:
         self.writer.add_attachment(create_time=0, log_time=0, name=name, media_type=media_type, data=data)
+
+    def attach_packed(self, name: str, arr: np.ndarray) -> None:
+        """Attach ``arr`` as a packed array (:mod:`cdgps_cli.io.packed_arrays`: byte-shuffled,
+        zstd-compressed, lossless; media type ``application/x-cdgps-packed-array``)."""
+        from cdgps_cli.io.packed_arrays import MEDIA_TYPE, pack_pieces  # noqa: PLC0415
+
+        pieces = pack_pieces(arr)
+        self.attach_stream(name, sum(len(p) for p in pieces), pieces, MEDIA_TYPE)
 
     def attach_npy(self, name: str, arr: np.ndarray, media_type: str = "application/x-npy",
                    chunk_bytes: int = 1 << 20) -> None:

@@ -25,6 +25,15 @@ from cdgps_cli.io.mcap import (ACTUATOR_SCHEMA, ACTUATOR_TOPIC, CONFIG_ATTACHMEN
 
 PHASE_ARRAYS = ["receiver", "antenna", "transmitter", "phase_cycles", "lock", "snr_dbhz"]
 GYRO_ARRAYS = "arrays/cdgps/gyro/"
+PHASE_PACKED = "arrays/cdgps/phase/"
+"""Attachment prefix of the phase table as packed arrays (:mod:`cdgps_cli.io.packed_arrays`), one
+per column, one row per table row: ``time_s`` (s), ``phase_cycles`` (cycles), ``lock`` (int64),
+``snr_dbhz`` (NaN where missing), and ``<name>_code`` (int32) for the name columns receiver,
+master, antenna and transmitter, indexing the sorted names listed in ``names.json``.  The same
+table as the ``/cdgps/phase`` messages, read without decoding them (files written before these
+attachments are read from the messages)."""
+PHASE_NAME_COLUMNS = ("receiver", "master", "antenna", "transmitter")
+PHASE_COLUMNS = ["time_s", "receiver", "master", "antenna", "transmitter", "phase_cycles", "lock", "snr_dbhz"]
 
 
 def _npy(arr: np.ndarray) -> bytes:
@@ -42,10 +51,54 @@ def _gyro_from_attachments(att: dict) -> pd.DataFrame | None:
     except (KeyError, ValueError, OSError):
         return None
     return pd.DataFrame({"time_s": t, "gyro": names[i], "rate_rad_s": r})
-INGEST_METADATA = "cdgps.ingest"
 
 
 INGEST_METADATA = "cdgps.ingest"
+
+
+def _attach_phase_packed(out: McapOut, phase: pd.DataFrame) -> None:
+    """The phase table as :data:`PHASE_PACKED` attachments."""
+    names = {}
+    for col in PHASE_NAME_COLUMNS:
+        codes, uniq = pd.factorize(phase[col], sort=True)
+        names[col] = [str(u) for u in uniq]
+        out.attach_packed(f"{PHASE_PACKED}{col}_code", codes.astype(np.int32))
+    out.attach(PHASE_PACKED + "names.json", json.dumps(names, sort_keys=True).encode(), "application/json")
+    out.attach_packed(PHASE_PACKED + "time_s", phase["time_s"].to_numpy(dtype=float))
+    out.attach_packed(PHASE_PACKED + "phase_cycles", phase["phase_cycles"].to_numpy(dtype=float))
+    out.attach_packed(PHASE_PACKED + "lock", phase["lock"].to_numpy(dtype=np.int64))
+    out.attach_packed(PHASE_PACKED + "snr_dbhz", phase["snr_dbhz"].to_numpy(dtype=float))
+
+
+def _phase_from_packed(att: dict, path) -> pd.DataFrame | None:
+    """The phase table from the :data:`PHASE_PACKED` attachments (None when the file has none)."""
+    from cdgps_cli.io.packed_arrays import unpack  # noqa: PLC0415
+
+    if PHASE_PACKED + "names.json" not in att:
+        return None
+    what = f"{path}: attachment {PHASE_PACKED}"
+    try:
+        names = json.loads(att[PHASE_PACKED + "names.json"])
+        cols = {c: unpack(att[PHASE_PACKED + c], what + c)
+                for c in ("time_s", "phase_cycles", "lock", "snr_dbhz", *(n + "_code" for n in PHASE_NAME_COLUMNS))}
+        n = cols["time_s"].shape
+        if any(v.shape != n for v in cols.values()) or len(n) != 1:
+            raise ValueError(f"{what}*: columns of different lengths {sorted({v.shape for v in cols.values()})}")
+        out = {"time_s": cols["time_s"].astype(float, copy=False)}
+        for c in PHASE_NAME_COLUMNS:
+            words = [str(w) for w in names[c]]
+            codes = cols[c + "_code"]
+            if len(words) != len(set(words)) or (codes.size and (codes.min() < 0 or codes.max() >= len(words))):
+                raise ValueError(f"{what}{c}_code: codes outside the {len(words)} names of names.json")
+            out[c] = pd.Categorical.from_codes(codes, categories=words) if codes.size else np.array([], dtype=float)
+        out["phase_cycles"] = cols["phase_cycles"].astype(float, copy=False)
+        out["lock"] = cols["lock"].astype(np.int64, copy=False)
+        out["snr_dbhz"] = cols["snr_dbhz"].astype(float, copy=False)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CdgpsError(f"{path}: damaged phase arrays ({PHASE_PACKED}*): {exc}") from None
+    return pd.DataFrame(out)[PHASE_COLUMNS]
+
+
 
 
 def epoch_gaps(time_s: np.ndarray, period_s: float) -> list[dict]:
@@ -116,6 +169,7 @@ def write_run(cfg: StructureConfig, receiver_csv: str | Path, out_path: str | Pa
     with McapOut(out_path, time_scale="relative") as out:     # time_s: run seconds (cdgps_cli.core.timescales)
         ch = out.channel(PHASE_TOPIC, PHASE_SCHEMA, {"units": "cycles", "wavelength_m": repr(cfg.wavelength_m)})
         n_phase = out.write_table(ch, phase, PHASE_ARRAYS, ["master"])
+        _attach_phase_packed(out, phase)                    # the same table, read without decoding
         n_gyro = n_act = 0
         if gyro is not None and len(gyro):          # (a header-only log of a config without gyros: no topic)
             n_gyro = out.write_table(out.channel(GYRO_TOPIC, GYRO_SCHEMA, {"units": "rad/s"}), gyro, ["gyro", "rate_rad_s"])
@@ -150,7 +204,7 @@ def read_run(path: str | Path, phase: bool = True) -> Run:
     With ``phase=False`` only the gyro and actuator topics are decoded (the phase table is empty).
     """
     want_phase = phase
-    c = read_mcap(path, topics=None if want_phase else [ACTUATOR_TOPIC])
+    c = read_mcap(path, topics=[ACTUATOR_TOPIC])
     if "cdgps.estimate" not in c.metadata:
         c.require_metadata(INGEST_METADATA, "RUN.mcap from 'cdgps ingest'")
     if c.metadata.get(INGEST_METADATA, {}).get("kind") == "gnss":
@@ -161,27 +215,35 @@ def read_run(path: str | Path, phase: bool = True) -> Run:
     if CONFIG_ATTACHMENT not in c.attachments:
         raise CdgpsError(f"{path}: no {CONFIG_ATTACHMENT} attachment; is this a RUN.mcap from 'cdgps ingest'?")
     c.require_channels(PHASE_TOPIC, what="RUN.mcap from 'cdgps ingest'")
-    if want_phase and PHASE_TOPIC not in c.topics:
-        raise CdgpsError(f"{path}: no {PHASE_TOPIC} messages; is this a RUN.mcap from 'cdgps ingest'?")
     cfg = parse_config(c.attachments[CONFIG_ATTACHMENT].decode("utf-8"), f"{path}:{CONFIG_ATTACHMENT}")
-    phase = c.topics.get(PHASE_TOPIC, TopicColumns()).table(PHASE_ARRAYS, ["master"])
+    phase = _phase_from_packed(c.attachments, path) if want_phase else None
+    gyro = _gyro_from_attachments(c.attachments)
+    wanted = ([PHASE_TOPIC] if want_phase and phase is None else []) + ([GYRO_TOPIC] if gyro is None else [])
+    if wanted:                                               # a RUN.mcap written before the packed arrays
+        c.topics.update(read_mcap(path, topics=wanted).topics)
+    if want_phase and phase is None and PHASE_TOPIC not in c.topics:
+        raise CdgpsError(f"{path}: no {PHASE_TOPIC} messages; is this a RUN.mcap from 'cdgps ingest'?")
+    if phase is None:
+        phase = _phase_table(c.topics.get(PHASE_TOPIC, TopicColumns()))
+    if gyro is None:
+        gyro = c.topics.get(GYRO_TOPIC, TopicColumns()).table(["gyro", "rate_rad_s"])
+    act = c.topics.get(ACTUATOR_TOPIC, TopicColumns()).table(["actuator", "force_n"])
+    return Run(str(path), cfg, phase, gyro, act, c.metadata.get(INGEST_METADATA, {}))
+
+
+def _phase_table(tc: TopicColumns) -> pd.DataFrame:
+    """The phase table from decoded ``/cdgps/phase`` messages (the columns of :class:`Run`)."""
+    phase = tc.table(PHASE_ARRAYS, ["master"])
     for col in ("receiver", "master", "antenna", "transmitter", "phase_cycles", "lock", "snr_dbhz"):
         if col not in phase:
             phase[col] = np.array([], dtype=float)
-    phase = phase[["time_s", "receiver", "master", "antenna", "transmitter", "phase_cycles", "lock", "snr_dbhz"]]
-    for col in ("receiver", "master", "antenna", "transmitter"):
+    phase = phase[PHASE_COLUMNS]
+    for col in PHASE_NAME_COLUMNS:
         if len(phase):
             phase[col] = phase[col].astype("category")       # a few names repeated 1e6 times
     phase["lock"] = phase["lock"].astype(np.int64)
     phase["snr_dbhz"] = phase["snr_dbhz"].astype(float)
-    gyro = _gyro_from_attachments(c.attachments) if not want_phase else None
-    if gyro is None:
-        if not want_phase and GYRO_TOPIC not in c.topics:
-            c2 = read_mcap(path, topics=[GYRO_TOPIC])        # an older RUN.mcap without arrays
-            c.topics.update(c2.topics)
-        gyro = c.topics.get(GYRO_TOPIC, TopicColumns()).table(["gyro", "rate_rad_s"])
-    act = c.topics.get(ACTUATOR_TOPIC, TopicColumns()).table(["actuator", "force_n"])
-    return Run(str(path), cfg, phase, gyro, act, c.metadata.get(INGEST_METADATA, {}))
+    return phase
 
 
 def run_info(path: str | Path) -> dict:

@@ -92,8 +92,13 @@ def test_corrupt_zstd_chunk_is_a_clean_error(base, tmp_path):
     bad.write_bytes(bytes(_recompute_crcs(data)))           # behind the CRC: the decompressor's error
     with pytest.raises(CdgpsError, match="corrupt"):
         read_mcap(bad)
-    for cmd in (["info", bad, "--json"], ["init", bad, "-o", tmp_path / "i.json"]):
-        assert_clean_error(_run(*cmd), bad, "not a valid MCAP file")
+    assert_clean_error(_run("info", bad, "--json"), bad, "not a valid MCAP file")    # decodes the messages
+    # init reads the phase table from its packed arrays (their own CRCs hold): the messages' damage
+    # does not reach it, and its solution is that of the intact file
+    r = _run("init", bad, "-o", tmp_path / "i.json")
+    assert r.exit_code == 0, r.output
+    got, want = json.loads((tmp_path / "i.json").read_text()), json.loads((base / "INIT.json").read_text())
+    assert got["biases"] == want["biases"] and got["state"] == want["state"]
 
 
 def test_flipped_record_length_is_bounded_by_the_file_size(base, tmp_path):

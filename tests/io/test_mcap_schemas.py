@@ -194,7 +194,10 @@ def pseudolite(tmp_path_factory):
     run_cli("simulate", TESTBED, "--duration", "8", "--seed", "4", "--scenario", "pulse", "--out", tmp / "pulse")
     run_cli("ingest", tmp / "pulse" / "receiver.csv", tmp / "pulse" / "gyro.csv", "--actuators",
             tmp / "pulse" / "actuators.csv", "--config", TESTBED, "-o", tmp / "pulse.mcap")
-    run_cli("estimate", tmp / "run.mcap", "--init", tmp / "init.json", "--smooth", "-o", tmp / "states.mcap")
+    # JSON channels at every epoch (checked message by message below), and at the default 1 Hz
+    run_cli("estimate", tmp / "run.mcap", "--init", tmp / "init.json", "--smooth", "--foxglove-rate-hz", "0",
+            "-o", tmp / "states.mcap")
+    run_cli("estimate", tmp / "run.mcap", "--init", tmp / "init.json", "--smooth", "-o", tmp / "states_1hz.mcap")
     return tmp, rx
 
 
@@ -205,6 +208,10 @@ def test_pseudolite_run_and_states_open_everywhere(pseudolite):
     s = assert_opens_everywhere(tmp / "states.mcap", ["/cdgps/state", "/cdgps/state_filtered", "/cdgps/residuals",
                                                       ANGLES_TOPIC])
     assert r["messages"] + s["messages"] > 1000
+    s1 = assert_opens_everywhere(tmp / "states_1hz.mcap", ["/cdgps/state", "/cdgps/state_filtered", "/cdgps/residuals",
+                                                           ANGLES_TOPIC])
+    n = len(States(tmp / "states.mcap").time_s)                   # 10 Hz: every 10th epoch, 4 topics + events
+    assert s1["messages"] == 4 * len(range(0, n, 10)) + len(States(tmp / "states.mcap").events)
     # the missing C/N0 come back as NaN, everything else as written
     run = read_run(tmp / "run.mcap")
     assert int(run.phase["snr_dbhz"].isna().sum()) == int(rx["snr_dbhz"].isna().sum()) > 0

@@ -27,7 +27,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.mcap import McapOut
 from cdgps_cli.io.run import read_run, write_run
 from cdgps_cli.sim.structure import SimOptions, simulate, write_simulation
-from cdgps_cli.io.states import States, evaluate, export_csv, write_states
+from cdgps_cli.io.states import coordinate_sigma, States, evaluate, export_csv, write_states
 
 ROOT = Path(__file__).resolve().parents[2]
 TESTBED_PATH = ROOT / "configs" / "testbed-1998.toml"
@@ -137,19 +137,30 @@ def test_write_states_round_trip(chain, tmp_path):
                        "action": "bias dropped; re-estimating over 10 epochs"})
     s = write_states(res, d / "run.mcap", init, init_text, tmp_path / "st.mcap", {"biases": "fixed"})
     assert s["epochs"] == len(res.time_s) and s["smoothed"] is True and s["events"] == 1
+    write_states(res, d / "run.mcap", init, init_text, tmp_path / "full.mcap", {"biases": "fixed"}, covariance="full")
     U = np.asarray(cfg.mode_shapes)
     nm = cfg.n_modes
-    for topic, X, P in (("/cdgps/state", res.x, res.P), ("/cdgps/state_filtered", res.x_filt, res.P_filt)):
-        st = States(tmp_path / "st.mcap", topic=topic)
+    for name, topic, X, P in (("st", "/cdgps/state", res.x, res.P), ("full", "/cdgps/state", res.x, res.P),
+                              ("st", "/cdgps/state_filtered", res.x_filt, res.P_filt),
+                              ("full", "/cdgps/state_filtered", res.x_filt, res.P_filt)):
+        st = States(tmp_path / f"{name}.mcap", topic=topic)
         np.testing.assert_array_equal(st.time_s, res.time_s)
         np.testing.assert_allclose(st.q, X[:, :nm] @ U.T, rtol=1e-15, atol=1e-15)
-        np.testing.assert_allclose(st.xi, X[:, :nm], rtol=1e-15, atol=0)
-        np.testing.assert_allclose(st.P_xi, P[:, :nm, :nm], rtol=1e-15, atol=0)
+        np.testing.assert_array_equal(st.xi, X[:, :nm])
+        np.testing.assert_array_equal(st.xidot, X[:, nm:2 * nm])
+        if name == "st" and topic == "/cdgps/state_filtered":      # the forward filter: its 1-σ only
+            assert st.P_xi is None
+        else:
+            np.testing.assert_array_equal(st.P_xi, P[:, :nm, :nm])
         sig = np.sqrt(np.einsum("qi,nij,qj->nq", U, P[:, :nm, :nm], U))
         np.testing.assert_allclose(st.sigma_q, sig, rtol=1e-12, atol=1e-15)
         np.testing.assert_allclose(st.nis, res.nis, rtol=1e-15)
         np.testing.assert_array_equal(st.nis_dof, res.nis_dof)
         assert st.events == res.events
+        if name == "full":                                           # the whole state covariance
+            np.testing.assert_array_equal(st.P, P)
+        else:
+            assert st.P is None
     assert not np.allclose(States(tmp_path / "st.mcap").q, States(tmp_path / "st.mcap", "/cdgps/state_filtered").q)
     md = st.metadata
     assert md["config_sha256"] == cfg.sha256 and md["smoothed"] == "true"
@@ -507,5 +518,7 @@ def test_write_states_makes_no_full_size_copies(tmp_path):
     assert peak < 2 * block, f"write_states peaked at {peak / 2**20:.1f} MiB (P_xi series {block / 2**20:.1f} MiB)"
     st = States(tmp_path / "st.mcap")
     np.testing.assert_array_equal(st.P_xi, P[:, :nm, :nm])
-    np.testing.assert_array_equal(States(tmp_path / "st.mcap", "/cdgps/state_filtered").P_xi, P_filt)
+    filt = States(tmp_path / "st.mcap", "/cdgps/state_filtered")     # the forward filter: its 1-σ only
+    assert filt.P_xi is None
+    np.testing.assert_allclose(filt.sigma_q, coordinate_sigma(cfg, P_filt), rtol=0, atol=0)
     np.testing.assert_array_equal(st.xi, x[:, :nm])

@@ -1,0 +1,87 @@
+"""Packed arrays (cdgps_cli/io/packed_arrays.py): lossless round trip, determinism, compression,
+and damaged bytes refused with the array named."""
+
+from __future__ import annotations
+
+import json
+import struct
+
+import numpy as np
+import pytest
+
+from cdgps_cli.io.packed_arrays import MAGIC, pack, pack_pieces, unpack
+
+
+def _same(a: np.ndarray, b: np.ndarray) -> bool:
+    """Same shape and the same bytes (NaN payloads included)."""
+    a = np.asarray(a, dtype=a.dtype.newbyteorder("<"))
+    return a.shape == b.shape and a.dtype == b.dtype and a.tobytes() == b.tobytes()
+
+
+@pytest.mark.parametrize("arr", [
+    np.random.default_rng(0).normal(size=(257, 3, 3)),
+    np.arange(7, dtype=np.int64),
+    np.array(3.25),
+    np.zeros((0, 4)),
+    np.zeros((3, 0)),
+    np.array([True, False, True]),
+    np.array([np.nan, -0.0, np.inf, 1e-310], dtype=">f8"),          # big-endian in, little-endian out
+    np.random.default_rng(1).normal(size=(9, 2)).astype(np.float32),
+    np.array([[1, -2], [3, 2**31 - 1]], dtype=np.int32),
+    np.asfortranarray(np.random.default_rng(2).normal(size=(5, 4))),  # any memory layout
+    np.random.default_rng(3).normal(size=(6, 8))[:, ::2],
+])
+def test_round_trip_is_bit_exact(arr):
+    assert _same(arr, unpack(pack(arr)))
+    assert b"".join(pack_pieces(arr)) == pack(arr)
+
+
+def test_nan_payload_bits_survive():
+    bits = np.array([0x7FF8000000000001, 0xFFF800000000BEEF], dtype=np.uint64)
+    back = unpack(pack(bits.view(np.float64)))
+    assert back.view(np.uint64).tolist() == bits.tolist()
+
+
+def test_deterministic_and_compact_on_slow_series():
+    t = np.round(np.arange(36_001) * 0.1, 9)                          # an hour of 10 Hz epochs
+    assert pack(t) == pack(t.copy())
+    assert len(pack(t)) < 0.02 * t.nbytes
+    noise = np.random.default_rng(4).normal(size=10_000)               # noise stays about its size
+    assert 0.7 * noise.nbytes < len(pack(noise)) < 1.01 * noise.nbytes
+
+
+def test_refuses_what_it_cannot_hold():
+    with pytest.raises(ValueError, match="bool, integer or float"):
+        pack(np.array(["a", "b"]))
+    with pytest.raises(ValueError, match="bool, integer or float"):
+        pack(np.array([1 + 2j]))
+
+
+def _header(data: bytes) -> tuple[dict, int]:
+    (n,) = struct.unpack("<I", data[8:12])
+    return json.loads(data[12:12 + n]), 12 + n
+
+
+@pytest.mark.parametrize("damage, message", [
+    (lambda d: b"NOTPACKD" + d[8:], "not a packed array"),
+    (lambda d: d[:10], "not a packed array"),
+    (lambda d: d[:8] + struct.pack("<I", 2**31) + d[12:], "header length"),
+    (lambda d: d[:12] + b"[" + d[13:], "damaged header"),
+    (lambda d: d[:-5], "damaged content|bytes of content"),
+    (lambda d: d[:-3] + bytes(3), "damaged content|bytes of content"),
+])
+def test_damaged_bytes_are_a_named_error(damage, message):
+    data = pack(np.random.default_rng(5).normal(size=(100, 3)))
+    with pytest.raises(ValueError, match=message) as exc:
+        unpack(damage(data), "STATES.mcap: attachment arrays/cdgps/state/xi")
+    assert str(exc.value).startswith("STATES.mcap: attachment arrays/cdgps/state/xi:")
+
+
+def test_header_and_content_must_agree():
+    data = pack(np.zeros((10, 3)))
+    head, end = _header(data)
+    for bad in ({**head, "shape": [10, 4]}, {**head, "dtype": "<U4"}, {**head, "filter": "none"},
+                {**head, "shape": [-1, 3]}):
+        h = json.dumps(bad).encode()
+        with pytest.raises(ValueError):
+            unpack(MAGIC + struct.pack("<I", len(h)) + h + data[end:], "x")
