@@ -52,16 +52,17 @@ from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
-from scipy.linalg import cho_factor, cho_solve, solve_triangular
 
 from cdgps_cli import __version__
 from cdgps_cli.config.structure import StructureConfig
-from cdgps_cli.measurement.differencing import dd_operator, sd_variance, select_reference
-from cdgps_cli.model.dynamics import discrete_model
+from cdgps_cli.measurement.differencing import joint_dd_covariance, sd_variance, select_reference
+from cdgps_cli.measurement.model import SatelliteDDModal, dd_modal_h_and_H
+from cdgps_cli.model.dynamics_models import ModalZOH
+from cdgps_cli.estimation.model_filter import filter_numpy, rts_smooth
 from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.model.gps.positioning import L1_WAVELENGTH_M
-from cdgps_cli.model.kinematics import EpochGeometry, antenna_positions
+from cdgps_cli.model.kinematics import antenna_positions
 from cdgps_cli.io.rinex import gps_time_str
 
 __all__ = ["StructurePlacement", "structure_to_ecef", "nominal_receiver_positions", "gnss_modal_estimate",
@@ -114,48 +115,6 @@ def nominal_receiver_positions(cfg: StructureConfig, placement: StructurePlaceme
 
 
 # ----------------------------------------------------------------------------------------------
-# DD covariance over several rovers with a common master
-
-
-def joint_dd_covariance(var_rover: list, var_master: list, sats: list, refs: list) -> np.ndarray:
-    """Covariance of the DDs of one epoch of several rovers against one master, m².
-
-    Parameters
-    ----------
-    var_rover, var_master : list of array (n_a,)
-        Per rover a: undifferenced phase variance of each of its satellites at the rover and at
-        the master, m².
-    sats : list of sequence (n_a,)
-        Satellite names of each rover's single differences.
-    refs : list of int
-        Position of each rover's reference satellite among its SDs.
-
-    Returns
-    -------
-    ndarray (Σ (n_a − 1), Σ (n_a − 1))
-        ``D Σ_SD Dᵀ`` with D block-diagonal (:func:`cdgps_cli.measurement.differencing.dd_operator` per rover) and
-        ``Cov(SD_a,j, SD_b,k) = δ_ab δ_jk σ²_a,j + [j = k] σ²_M,j``.  For one rover this is
-        :func:`cdgps_cli.measurement.differencing.dd_covariance` of ``σ²_a + σ²_M``.
-    """
-    sizes = [len(s) for s in sats]
-    n = sum(sizes)
-    off = np.cumsum([0] + sizes)
-    S = np.zeros((n, n))
-    names = [s for ss in sats for s in ss]
-    vm = np.concatenate([np.asarray(v, float) for v in var_master])
-    vr = np.concatenate([np.asarray(v, float) for v in var_rover])
-    same = np.equal.outer(np.array(names, dtype=object), np.array(names, dtype=object))
-    S[same] = np.sqrt(np.outer(vm, vm))[same]            # the master's noise, common to every rover
-    S[np.diag_indices(n)] += vr
-    D = np.zeros((n - len(sizes), n))
-    r0 = 0
-    for a, k in enumerate(sizes):
-        D[r0:r0 + k - 1, off[a]:off[a] + k] = dd_operator(k, refs[a])
-        r0 += k - 1
-    return D @ S @ D.T
-
-
-# ----------------------------------------------------------------------------------------------
 # per-rover measurement tables from the GNSS machinery
 
 
@@ -190,62 +149,7 @@ def _rover_tables(run, init, r, stations, progress):
             "xr0": np.asarray(w["xr0"], float), "xm": np.asarray(w["xm"], float)}
 
 
-# ----------------------------------------------------------------------------------------------
-# the filter
-
-
-def _process(cfg: StructureConfig, dt: float, cache: dict):
-    key = round(float(dt), 6)
-    if key not in cache:
-        dm = discrete_model(cfg, T=dt)
-        # the config's noise is held over its sample period: keep its density at another spacing
-        cache[key] = (dm.A, dm.Q * (cfg.sample_period_s / dt))
-    return cache[key]
-
-
-def _epoch_measurements(tabs, k_of, k, R_struct):
-    """Stacked DDs of every rover at common epoch k: z (m), s-difference rows (m, 3), antenna
-    slot per DD, channel labels, covariance."""
-    z, sd_rows, slot, labels = [], [], [], []
-    vr, vm, sats, refs = [], [], [], []
-    for a, tb in enumerate(tabs):
-        ke = k_of[a][k]
-        if ke < 0:
-            continue
-        d = tb["d"]
-        ref = tb["ref"][ke]
-        if ref < 0:
-            continue
-        rows = np.arange(d.ptr[ke], d.ptr[ke + 1])
-        rows = rows[tb["use"][rows]]
-        if rows.size < 2:
-            continue
-        pos = int(np.flatnonzero(rows == ref)[0])
-        u = (d.rover_sat_xyz[rows] - tb["xm"]) @ R_struct        # structure-frame directions from the master
-        u /= np.linalg.norm(u, axis=1, keepdims=True)
-        others = np.delete(np.arange(rows.size), pos)
-        z.append(tb["r0"][rows[others]] - tb["r0"][ref])
-        sd_rows.append(u[others] - u[pos])
-        slot.extend([a] * others.size)
-        labels.extend([(a, d.sat_names[int(d.sat[i])]) for i in rows[others]])
-        vr.append(tb["var_rover"][rows])
-        vm.append(tb["var_master"][rows])
-        sats.append([d.sat_names[int(d.sat[i])] for i in rows])
-        refs.append(pos)
-    if not z:
-        return None
-    C = joint_dd_covariance(vr, vm, sats, refs)
-    return np.concatenate(z), np.vstack(sd_rows), np.asarray(slot), labels, C
-
-
-def _h_and_H(geo: EpochGeometry, U, xi, m_idx, ant_idx, slot, srows, d_hdr):
-    q = U @ xi
-    p, J = geo.positions(q)
-    rel = p[ant_idx] - p[m_idx] - d_hdr                         # (n_rov, 3)
-    Jr = J[ant_idx] - J[m_idx]                                  # (n_rov, 3, nq)
-    h = -np.einsum("mi,mi->m", srows, rel[slot])
-    Hq = -np.einsum("mi,miq->mq", srows, Jr[slot])
-    return h, Hq @ U
+_h_and_H = dd_modal_h_and_H            # (the model's home: cdgps_cli.measurement.model)
 
 
 def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, out_path, *,
@@ -333,80 +237,26 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
         k_of.append(m)
 
     nm = cfg.n_modes
-    ns = 2 * nm
-    U = np.asarray(cfg.mode_shapes)
-    geo = EpochGeometry(cfg)
-    cache: dict = {}
-    xf = np.zeros((n, ns))
-    Pf = np.zeros((n, ns, ns))
-    As = np.zeros((n, ns, ns))
-    Qs = np.zeros((n, ns, ns))
-    nis = np.full(n, np.nan)
-    nis_dof = np.zeros(n, dtype=np.int64)
-    meas = [None] * n
-    x = np.zeros(ns)
-    P = np.diag(np.r_[np.full(nm, initial_sigma_xi**2), np.full(nm, initial_sigma_xidot**2)])
+    model = SatelliteDDModal(cfg, R, tabs, k_of, ant_idx, d_hdr)
+    dyn = ModalZOH(cfg)
+    x0 = np.zeros(2 * nm)
+    P0 = np.diag(np.r_[np.full(nm, initial_sigma_xi**2), np.full(nm, initial_sigma_xidot**2)])
     say(f"modal EKF over {n} epochs, {len(rover_ants)} rover antenna(s), {nm} modes …")
-    for k in range(n):
-        if k:
-            A, Q = _process(cfg, float(t_all[k] - t_all[k - 1]), cache)
-            As[k], Qs[k] = A, Q
-            x = A @ x
-            P = A @ P @ A.T + Q
-        mk = _epoch_measurements(tabs, k_of, k, R)
-        if mk is not None:
-            z, srows, slot, labels, C = mk
-            meas[k] = (z, srows, slot, labels, C)
-            L = np.linalg.cholesky(C)
-            zw = solve_triangular(L, z, lower=True)
-            xbar, Pbar = x, P
-            Pinv = np.linalg.inv(Pbar)
-            xi = xbar.copy()
-            for it in range(max(int(max_iterations), 1)):
-                h, Hxi = _h_and_H(geo, U, xi[:nm], m_idx, ant_idx, slot, srows, d_hdr)
-                H = np.zeros((z.size, ns))
-                H[:, :nm] = solve_triangular(L, Hxi, lower=True)
-                hw = solve_triangular(L, h, lower=True)
-                info = Pinv + H.T @ H
-                cf = cho_factor(info)
-                v = zw - hw - H @ (xbar - xi)               # whitened innovation at the iterate
-                if it == 0:
-                    # NIS with the prior linearization: νᵀ(HPHᵀ + I)⁻¹ν = νᵀν − νᵀH(P⁻¹ + HᵀH)⁻¹Hᵀν
-                    hv = H.T @ v
-                    nis[k] = float(v @ v - hv @ cho_solve(cf, hv))
-                    nis_dof[k] = z.size
-                x_new = xbar + cho_solve(cf, H.T @ v)
-                step = np.max(np.abs(x_new - xi))
-                xi = x_new
-                if step <= 1e-9 * max(1.0, float(np.max(np.abs(xi)))):
-                    break
-            x = xi
-            P = cho_solve(cf, np.eye(ns))
-            P = 0.5 * (P + P.T)
-        xf[k], Pf[k] = x, P
-    if smooth:
-        xs, Ps = xf.copy(), Pf.copy()
-        for k in range(n - 2, -1, -1):
-            A, Q = As[k + 1], Qs[k + 1]
-            Pp = A @ Pf[k] @ A.T + Q
-            G = cho_solve(cho_factor(Pp), A @ Pf[k]).T
-            xs[k] = xf[k] + G @ (xs[k + 1] - A @ xf[k])
-            Pk = Pf[k] + G @ (Ps[k + 1] - Pp) @ G.T
-            Ps[k] = 0.5 * (Pk + Pk.T)
-    else:
-        xs, Ps = xf, Pf
+    fr = filter_numpy(model, dyn, t_all, x0, P0, max_iterations)
+    xf, Pf, meas = fr["x"], fr["P"], fr["rows"]
+    xs, Ps = rts_smooth(xf, Pf, fr["A"], fr["Q"]) if smooth else (xf, Pf)
+    nis, nis_dof = fr["nis"], fr["nis_dof"]
 
     # DD residuals of the reported estimate, per (antenna, satellite) channel
-    chans = sorted({(rover_ants[a], s) for mk in meas if mk is not None for a, s in mk[3]})
+    chans = sorted({(rover_ants[a], s) for mk in meas if mk is not None for a, s in mk.labels})
     cidx = {c: i for i, c in enumerate(chans)}
     resid = np.full((n, len(chans)), np.nan)
     for k, mk in enumerate(meas):
         if mk is None:
             continue
-        z, srows, slot, labels, _ = mk
-        h, _ = _h_and_H(geo, U, xs[k, :nm], m_idx, ant_idx, slot, srows, d_hdr)
-        cols = [cidx[(rover_ants[a], s)] for a, s in labels]
-        resid[k, cols] = z - h
+        h, _ = model.predict(xs[k], mk)
+        cols = [cidx[(rover_ants[a], s)] for a, s in mk.labels]
+        resid[k, cols] = mk.z_m - h
 
     events = []
     for i, tb in enumerate(tabs):
