@@ -47,6 +47,7 @@ __all__ = [
     "lambda_search",
     "ratio_test",
     "partial_fix",
+    "fix_integers",
 ]
 
 #: Relative tolerance used when checking that ``Q`` is symmetric: the
@@ -692,3 +693,44 @@ def partial_fix(a, Q, threshold=3.0, min_fixed=1):
         "ratio": float(first_ratio),
         "n_fixed": 0,
     }
+
+
+def fix_integers(a, Q, ratio_threshold=3.0, partial=True):
+    """The integer-fixing policy of every initializer: LAMBDA on the full set with the ratio test,
+    then (``partial`` and more than one ambiguity) partial fixing of a subset (:func:`partial_fix`).
+
+    Parameters
+    ----------
+    a : array_like, shape (n,)
+        Float ambiguities (cycles).
+    Q : array_like, shape (n, n)
+        Their covariance (cycles²).
+    ratio_threshold : float
+    partial : bool
+
+    Returns
+    -------
+    dict
+        ``fixed_mask`` (n,) bool; ``integers`` (n,) int64 (fixed values where fixed, 0 elsewhere);
+        ``full_ratio`` the full set's ratio; ``ratio`` that of the accepted set (the full set's if
+        none); ``partial`` True when a subset was fixed by partial fixing.
+
+    Raises
+    ------
+    AmbiguityError
+        On invalid input (see :func:`lambda_search`).
+    """
+    n = np.asarray(a).shape[0]
+    cands, norms = lambda_search(a, Q, candidates=2)
+    ok, full_ratio = ratio_test(norms, ratio_threshold)
+    out = {"fixed_mask": np.zeros(n, dtype=bool), "integers": np.zeros(n, dtype=np.int64),
+           "full_ratio": full_ratio, "ratio": full_ratio, "partial": False}
+    if ok:
+        out["fixed_mask"][:] = True
+        out["integers"] = np.asarray(cands[0], dtype=np.int64)
+    elif partial and n > 1:
+        pf = partial_fix(a, Q, threshold=ratio_threshold)
+        if pf["n_fixed"] > 0:
+            out.update(fixed_mask=np.asarray(pf["fixed_mask"], dtype=bool), integers=pf["integers"],
+                       ratio=pf["ratio"], partial=True)
+    return out

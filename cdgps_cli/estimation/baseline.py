@@ -41,7 +41,7 @@ import numpy as np
 import pandas as pd
 from scipy.linalg import cho_factor, cho_solve
 
-from cdgps_cli.estimation.ambiguity import AmbiguityError, lambda_search, partial_fix, ratio_test
+from cdgps_cli.estimation.ambiguity import AmbiguityError, fix_integers
 from cdgps_cli.io.atomic import path_for_config
 from cdgps_cli.config.structure import GNSS_DEFAULTS, GNSS_WEIGHTINGS
 from cdgps_cli.measurement.differencing import (
@@ -690,20 +690,11 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
     elif opt.fix and fixable.sum() >= 1:
         fi = np.flatnonzero(fixable)
         try:
-            cands, norms = lambda_search(a_float[fi], q_aa[np.ix_(fi, fi)], candidates=2)
-            accepted, ratio_full = ratio_test(norms, opt.ratio_threshold)
-            ratio = ratio_full
-            if accepted:
-                fixed_mask[fi] = True
-                integers_fix[fi] = cands[0]
-            elif opt.partial and fi.size > 1:
-                pf = partial_fix(a_float[fi], q_aa[np.ix_(fi, fi)], threshold=opt.ratio_threshold)
-                if pf["n_fixed"] > 0:
-                    partial_used = True
-                    accepted = True
-                    ratio = pf["ratio"]
-                    fixed_mask[fi[pf["fixed_mask"]]] = True
-                    integers_fix[fi[pf["fixed_mask"]]] = pf["integers"][pf["fixed_mask"]]
+            fx = fix_integers(a_float[fi], q_aa[np.ix_(fi, fi)], opt.ratio_threshold, opt.partial)
+            ratio_full, ratio, partial_used = fx["full_ratio"], fx["ratio"], fx["partial"]
+            accepted = bool(fx["fixed_mask"].any())
+            fixed_mask[fi[fx["fixed_mask"]]] = True
+            integers_fix[fi[fx["fixed_mask"]]] = fx["integers"][fx["fixed_mask"]]
         except AmbiguityError as exc:
             warnings.append(f"integer ambiguity resolution failed: {exc}")
     t_lambda = time.perf_counter() - t0

@@ -31,7 +31,7 @@ import numpy as np
 import pandas as pd
 from scipy.stats import chi2
 
-from cdgps_cli.estimation.ambiguity import lambda_search, partial_fix, ratio_test
+from cdgps_cli.estimation.ambiguity import fix_integers
 from cdgps_cli.estimation.batch_solver import LinearProblem, LinearSolution, srif_solve
 from cdgps_cli.config.structure import StructureConfig, channel_sigma_m, scalar_sigma_m
 from cdgps_cli.model.dynamics import discrete_model
@@ -658,22 +658,10 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
     if opt.fix_integers and cfg.line_bias_calibrated:
         Qa = Pbb / lam**2
         Qa = 0.5 * (Qa + Qa.T)
-        cands, norms = lambda_search(a_float, Qa, candidates=2)
-        ok, ratio = ratio_test(norms, opt.ratio_threshold)
-        if ok:
-            fixed[:] = True
-            integers = cands[0]
-            fix_note = f"all {m} integers fixed (ratio {ratio:.2f} ≥ {opt.ratio_threshold:g})"
-        elif opt.partial:
-            pf = partial_fix(a_float, Qa, threshold=opt.ratio_threshold)
-            fixed = np.asarray(pf["fixed_mask"], dtype=bool)
-            if fixed.any():
-                integers = np.where(fixed, pf["integers"], integers)
-                fix_note = f"{int(fixed.sum())} of {m} integers fixed by partial fixing (full-set ratio {ratio:.2f})"
-            else:
-                fix_note = f"integers not fixed: ratio {ratio:.2f} < {opt.ratio_threshold:g}"
-        else:
-            fix_note = f"integers not fixed: ratio {ratio:.2f} < {opt.ratio_threshold:g}"
+        fx = fix_integers(a_float, Qa, opt.ratio_threshold, opt.partial)
+        fixed, ratio = fx["fixed_mask"], fx["full_ratio"]
+        integers = np.where(fixed, fx["integers"], integers)
+        fix_note = fix_note_text(fx, m, opt.ratio_threshold)
     elif not cfg.line_bias_calibrated:
         fix_note = "line biases not calibrated: float biases only"
     _say(opt, f"  {fix_note}")
@@ -690,10 +678,7 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
         # validation: with the right integers the cost rises by about a chi-square(n_fixed) amount
         # (scaled by the float solution's cost per degree of freedom)
         n_obs = int(np.isfinite(prob.y).sum())
-        dof_f = max(n_obs - prob.n_dyn - m, 1)     # (the multipath states have their own prior)
-        scale = max(g.cost / dof_f, 1e-12)
-        dJ = (J_final - g.cost) / scale
-        limit = opt.fix_validation_margin * float(chi2.ppf(opt.fix_validation_probability, int(fixed.sum())))
+        dJ, limit = fix_validation(g.cost, J_final, n_obs - prob.n_dyn - m, int(fixed.sum()), opt)
         if dJ > limit:
             _say(opt, f"  integer fix rejected by validation: cost increase {dJ:.1f} > {limit:.1f} "
                       f"(chi-square {opt.fix_validation_probability:g}, {int(fixed.sum())} dof, margin {opt.fix_validation_margin:g})")
@@ -789,6 +774,25 @@ def _multipath_record(mp: MultipathModel, wd: WindowData, z_end: np.ndarray, P, 
         rec["P_m2"] = [[float(v) for v in row] for row in P[nd:nd + C, nd:nd + C]]
         rec["cross_P"] = [[float(v) for v in row] for row in P[:nd, nd:nd + C]]
     return rec
+
+
+def fix_note_text(fx: dict, m: int, threshold: float) -> str:
+    """INIT.json's ``integer_fixing`` sentence for a :func:`~cdgps_cli.estimation.ambiguity.fix_integers` result."""
+    ratio, fixed = fx["full_ratio"], fx["fixed_mask"]
+    if fixed.all():
+        return f"all {m} integers fixed (ratio {ratio:.2f} ≥ {threshold:g})"
+    if fixed.any():
+        return f"{int(fixed.sum())} of {m} integers fixed by partial fixing (full-set ratio {ratio:.2f})"
+    return f"integers not fixed: ratio {ratio:.2f} < {threshold:g}"
+
+
+def fix_validation(cost_float: float, cost_fixed: float, dof_float: int, n_fixed: int, opt) -> tuple[float, float]:
+    """(ΔJ, limit) of the fix validation: with the right integers the cost rises by about a
+    chi-square(n_fixed) amount, scaled by the float solution's cost per degree of freedom; the fix is
+    rejected when ΔJ > limit = ``fix_validation_margin`` × χ²_p(n_fixed), p = ``fix_validation_probability``."""
+    scale = max(cost_float / max(dof_float, 1), 1e-12)
+    limit = opt.fix_validation_margin * float(chi2.ppf(opt.fix_validation_probability, n_fixed))
+    return (cost_fixed - cost_float) / scale, limit
 
 
 NOISE_ITERATIONS = 2            # re-weightings of the batch with the estimated per-channel σ

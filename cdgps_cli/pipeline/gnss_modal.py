@@ -128,25 +128,118 @@ def _rover_tables(run, init, r, stations, progress):
     # only segments with a known integer (fixed, or the datum pivot of its set) enter; a rover without
     # any fixed integer is not used (its float ambiguities would bias the modal states)
     use = w["known_seg"][w["seg"]] if n_fixed else np.zeros(w["seg"].size, dtype=bool)
-    # SD residual at the nominal rover position with the (fixed; else float) integers removed, m
+    # SD residual at the nominal rover position, m (the integers are removed by _set_integers)
     los = d.rover_sat_xyz - w["xr0"]
     rng = np.linalg.norm(los, axis=1)
-    r0 = d.y_phase_m - (rng + d.rover_clk_trop_m - d.base_model_m) - L1_WAVELENGTH_M * w["a_seg"][w["seg"]]
-    # remove each epoch's mean over the usable rows (receiver clock difference; cancels in the DDs)
-    cnt = np.bincount(d.epoch, weights=use.astype(float), minlength=d.t_label.size)
-    mean = np.bincount(d.epoch, weights=np.where(use, r0, 0.0), minlength=d.t_label.size) / np.maximum(cnt, 1.0)
-    r0 = r0 - mean[d.epoch]
+    r_raw = d.y_phase_m - (rng + d.rover_clk_trop_m - d.base_model_m)
     # undifferenced variances of each receiver (the run's weighting): σ²(el) = sd_variance(el, el) / 2
     va = 0.5 * sd_variance(d.el_rover, d.el_rover, sigma_a_m=opt.sigma_a_m, sigma_b_m=opt.sigma_b_m, weighting=opt.weighting)
     vm = 0.5 * sd_variance(d.el_base, d.el_base, sigma_a_m=opt.sigma_a_m, sigma_b_m=opt.sigma_b_m, weighting=opt.weighting)
-    ref = select_reference(d.ptr, d.sat, d.el_rover, d.slip, usable=use)
     ev = _events(r, run.master, res, w)
     if not n_fixed:
         ev.append({"time_s": float(d.t_label[0]), "antenna": r, "transmitter": "", "kind": "no integer fixed",
                    "action": "receiver not used"})
-    return {"res": res, "w": w, "d": d, "use": use, "r0": r0, "var_rover": va, "var_master": vm, "ref": ref,
-            "events": ev, "n_fixed": int(n_fixed), "n_estimated": int(res["ambiguities"]["n_estimated"]),
-            "xr0": np.asarray(w["xr0"], float), "xm": np.asarray(w["xm"], float)}
+    tb = {"res": res, "w": w, "d": d, "r_raw": r_raw, "seg": w["seg"], "var_rover": va, "var_master": vm,
+          "events": ev, "n_fixed": int(n_fixed), "n_estimated": int(res["ambiguities"]["n_estimated"]),
+          "xr0": np.asarray(w["xr0"], float), "xm": np.asarray(w["xm"], float)}
+    return _set_integers(tb, w["a_seg"], use)
+
+
+def _set_integers(tb: dict, a_seg: np.ndarray, use: np.ndarray) -> dict:
+    """The table's rows with the SD integers ``a_seg`` (cycles, per segment) removed: ``r0`` (m, each
+    epoch's mean over the usable rows removed — the receiver clock difference, which cancels in the
+    DDs), ``use`` (rows entering) and the reference row per epoch among them."""
+    d = tb["d"]
+    r0 = tb["r_raw"] - L1_WAVELENGTH_M * np.asarray(a_seg)[tb["seg"]]
+    cnt = np.bincount(d.epoch, weights=use.astype(float), minlength=d.t_label.size)
+    mean = np.bincount(d.epoch, weights=np.where(use, r0, 0.0), minlength=d.t_label.size) / np.maximum(cnt, 1.0)
+    ref = select_reference(d.ptr, d.sat, d.el_rover, d.slip, usable=use)
+    return dict(tb, r0=r0 - mean[d.epoch], use=use, ref=ref, a_seg=np.asarray(a_seg, float))
+
+
+INIT_WINDOW_S = 60.0            # default window of the modal batch initialization, s
+MIN_INIT_EPOCHS = 10
+
+
+def _init_window(t_all: np.ndarray, window_s: float) -> tuple[np.ndarray, float]:
+    """The first epochs within ``window_s`` of the start on a regular grid (stops at the first gap)."""
+    idx = np.flatnonzero(t_all < t_all[0] + window_s - 1e-9)
+    dt = np.diff(t_all[idx])
+    if dt.size == 0:
+        raise CdgpsError("modal batch initialization: fewer than two epochs in the window")
+    bad = np.flatnonzero(np.abs(dt - dt[0]) > 1e-6 * max(dt[0], 1.0))
+    if bad.size:
+        idx = idx[:bad[0] + 1]
+    if idx.size < MIN_INIT_EPOCHS:
+        raise CdgpsError(f"modal batch initialization: only {idx.size} regularly spaced epochs at the start "
+                         f"(need {MIN_INIT_EPOCHS})")
+    return idx, float(dt[0])
+
+
+def modal_batch_initialization(cfg: StructureConfig, R, tabs, k_of, ant_idx, d_hdr, t_all, *,
+                               window_s: float = INIT_WINDOW_S, options=None):
+    """Model-aided batch initialization of the modal state on the satellite DDs (the paper's method).
+
+    On the first ``window_s`` seconds, every rover's DDs with *float* ambiguities (one per pair of
+    satellite and reference segments, :class:`~cdgps_cli.measurement.model.SatelliteDDModal`) and
+    the modal dynamics are solved by :func:`cdgps_cli.estimation.model_init.model_batch_init`
+    (Gauss–Newton over [x₁, w, b], SRIF, LAMBDA + ratio + partial fixing, validation).  The fixed DD
+    integers replace INIT's in the window: per rover, a fixed DD ambiguity N of (satellite segment
+    s_j, reference segment s_r) sets a(s_j) = a(s_r) + N on INIT's datum.  Segments of INIT outside
+    the window are kept when the window's references are INIT-known segments (same datum).
+
+    Returns
+    -------
+    tabs : list of dict
+        The tables with the integers applied (:func:`_set_integers`).
+    x1 : ndarray (2 n_m,)
+        The batch trajectory's state at the first epoch (the filter's starting point).
+    record : dict
+        Window, counts, ratio, note, agreement with INIT's integers, per-segment floats/integers.
+    """
+    from cdgps_cli.estimation.initializer import InitOptions  # noqa: PLC0415
+    from cdgps_cli.estimation.model_init import model_batch_init  # noqa: PLC0415
+
+    idx, dt = _init_window(t_all, window_s)
+    raw = [dict(tb, r0=tb["r_raw"], use=np.ones(tb["seg"].size, dtype=bool),
+                ref=select_reference(tb["d"].ptr, tb["d"].sat, tb["d"].el_rover, tb["d"].slip)) for tb in tabs]
+    model = SatelliteDDModal(cfg, R, raw, k_of, ant_idx, d_hdr)
+    res = model_batch_init(model, ModalZOH(cfg), idx, dt, L1_WAVELENGTH_M, options or InitOptions())
+    a_new = [np.array(tb["a_seg"], dtype=float) for tb in tabs]
+    init_known = [np.asarray(tb["w"]["known_seg"], bool) & (tb["n_fixed"] > 0) for tb in tabs]
+    known = [np.zeros(a.size, dtype=bool) for a in a_new]
+    anchored = [True] * len(tabs)
+    segs, agree, n_cmp = [], 0, 0
+    for i, col in enumerate(res.columns):
+        a, sj, sr = model.segment_keys[col]
+        n_init = a_new[a][sj] - a_new[a][sr] if init_known[a][sj] and init_known[a][sr] else None
+        if res.fixed[i]:
+            a_new[a][sj] = np.asarray(tabs[a]["a_seg"], float)[sr] + res.integers[i]
+            known[a][sj] = known[a][sr] = True
+            anchored[a] = anchored[a] and bool(init_known[a][sr])
+            if n_init is not None:
+                n_cmp += 1
+                agree += int(round(n_init) == res.integers[i])
+        segs.append({"rover_slot": int(a), "satellite": tabs[a]["d"].sat_names[int(tabs[a]["d"].sat[np.flatnonzero(tabs[a]["seg"] == sj)[0]])],
+                     "reference": tabs[a]["d"].sat_names[int(tabs[a]["d"].sat[np.flatnonzero(tabs[a]["seg"] == sr)[0]])],
+                     "segment": int(sj), "reference_segment": int(sr), "float_cycles": float(res.float_bias_m[i] / L1_WAVELENGTH_M),
+                     "sigma_cycles": float(res.float_sigma_m[i] / L1_WAVELENGTH_M), "integer_cycles": int(res.integers[i]),
+                     "fixed": bool(res.fixed[i])})
+    out = []
+    for a, tb in enumerate(tabs):
+        in_window = np.zeros(a_new[a].size, dtype=bool)
+        in_window[[sg["segment"] for sg in segs if sg["rover_slot"] == a] + [sg["reference_segment"] for sg in segs
+                                                                                if sg["rover_slot"] == a]] = True
+        keep = known[a] | (init_known[a] & ~in_window & anchored[a])
+        out.append(_set_integers(tb, a_new[a], keep[tb["seg"]]))
+    record = {"method": "model-aided batch (Gauss–Newton over [x1, w, b] on the DDs, SRIF; LAMBDA, ratio, partial)",
+              "window": {"start_s": float(t_all[idx[0]]), "end_s": float(t_all[idx[-1]]), "epochs": int(idx.size),
+                         "interval_s": dt},
+              "n_segments": len(res.columns), "n_fixed": int(res.fixed.sum()),
+              "ratio": None if res.ratio is None else (float(res.ratio) if np.isfinite(res.ratio) else "inf"),
+              "integer_fixing": res.note, "cost_per_dof": float(res.cost_per_dof), "iterations": int(res.iterations),
+              "agree_with_init": {"compared": n_cmp, "equal": agree}, "segments": segs}
+    return out, res.x[0].copy(), record
 
 
 _h_and_H = dd_modal_h_and_H            # (the model's home: cdgps_cli.measurement.model)
@@ -155,7 +248,8 @@ _h_and_H = dd_modal_h_and_H            # (the model's home: cdgps_cli.measuremen
 def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, out_path, *,
                         receivers: dict | None = None, x_axis_azimuth_deg: float = 90.0, smooth: bool = False,
                         initial_sigma_xi: float = 1.0, initial_sigma_xidot: float = 1.0,
-                        max_iterations: int = 5, progress=None, extra_options: dict | None = None) -> dict:
+                        max_iterations: int = 5, progress=None, extra_options: dict | None = None,
+                        batch_init: bool = True, init_window_s: float = INIT_WINDOW_S) -> dict:
     """Modal states of a structure from a GNSS RUN and its INIT (integers) → STATES.mcap.
 
     Parameters
@@ -183,6 +277,11 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
     max_iterations : int
         Gauss-Newton iterations of the measurement update (while the correction exceeds 1e-9 of
         the state).
+    batch_init : bool
+        Model-aided batch initialization on the first ``init_window_s`` seconds
+        (:func:`modal_batch_initialization`): its DD integers replace INIT's in the window and the
+        filter starts from its state at the first epoch (with the broad prior covariance, so that
+        the window's data are not counted twice); False: INIT's integers and x = 0.
 
     Returns
     -------
@@ -216,7 +315,7 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
     placement = StructurePlacement(tuple(float(v) for v in xm), float(x_axis_azimuth_deg))
     R = placement.rotation()
     tabs = [_rover_tables(run, init, mapping[a], stations, say) for a in rover_ants]
-    if not any(tb["n_fixed"] for tb in tabs):
+    if not batch_init and not any(tb["n_fixed"] for tb in tabs):
         raise CdgpsError(f"INIT.json has no fixed integers for any rover ({', '.join(mapping[a] for a in rover_ants)}); "
                          f"the modal model needs fixed DD integers (run 'cdgps init' without --float-only, or with a "
                          f"longer span / random_walk displacement model)")
@@ -237,9 +336,24 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
         k_of.append(m)
 
     nm = cfg.n_modes
+    x0 = np.zeros(2 * nm)
+    init_record = None
+    if batch_init:
+        say(f"modal batch initialization on the first {init_window_s:g} s …")
+        try:
+            tabs, x0, init_record = modal_batch_initialization(cfg, R, tabs, k_of, ant_idx, d_hdr, t_all,
+                                                               window_s=init_window_s)
+        except CdgpsError as exc:
+            init_record = {"method": "INIT's integers (the modal batch initialization refused)", "refused": str(exc)}
+            say(f"  modal batch initialization refused ({exc}); INIT's integers are used")
+        else:
+            say(f"  {init_record['integer_fixing']}; {init_record['agree_with_init']['equal']} of "
+                f"{init_record['agree_with_init']['compared']} equal to INIT's")
+    if not any(tb["use"].any() for tb in tabs):
+        raise CdgpsError("no fixed DD integers for any rover (INIT.json's nor the modal batch initialization's); "
+                         "try a longer span or 'cdgps init' without --float-only")
     model = SatelliteDDModal(cfg, R, tabs, k_of, ant_idx, d_hdr)
     dyn = ModalZOH(cfg)
-    x0 = np.zeros(2 * nm)
     P0 = np.diag(np.r_[np.full(nm, initial_sigma_xi**2), np.full(nm, initial_sigma_xidot**2)])
     say(f"modal EKF over {n} epochs, {len(rover_ants)} rover antenna(s), {nm} modes …")
     fr = filter_numpy(model, dyn, t_all, x0, P0, max_iterations)
@@ -276,6 +390,7 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
     options = {"model": "gnss-modal", "smooth": bool(smooth), "x_axis_azimuth_deg": float(x_axis_azimuth_deg),
                "master_ecef_m": list(map(float, xm)), "receivers": mapping,
                "initial_sigma_xi": initial_sigma_xi, "initial_sigma_xidot": initial_sigma_xidot,
+               **({"batch_init_window_s": float(init_window_s)} if batch_init else {"batch_init": False}),
                "dd_covariance": "D Σ Dᵀ jointly over the rovers (common master)", **(extra_options or {})}
     say(f"writing {out_path} …")
     out = write_states(res, run.path, init, init_text, out_path, options)
@@ -285,6 +400,7 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
         "nominal_mismatch_m": mismatch,
         "integers": {a: {"fixed": tabs[i]["n_fixed"], "estimated": tabs[i]["n_estimated"]} for i, a in enumerate(rover_ants)},
         "coordinates": list(cfg.coord_names),
+        **({"modal_init": init_record} if init_record is not None else {}),
     })
     return out
 
