@@ -64,6 +64,17 @@ class Rows:
             return solve_triangular(self.chol_m, v, lower=True)
         return v / (self.sigma_m if v.ndim == 1 else self.sigma_m[:, None])
 
+    def subset(self, keep) -> "Rows":
+        """The rows ``keep`` (indices or mask), their noise the sub-block of the covariance."""
+        keep = np.flatnonzero(np.asarray(keep)) if np.asarray(keep).dtype == bool else np.asarray(keep, dtype=int)
+        ctx = self.context
+        ctx = tuple(np.asarray(c)[keep] for c in ctx) if isinstance(ctx, tuple) else (None if ctx is None else np.asarray(ctx)[keep])
+        if self.chol_m is not None:
+            C = self.covariance()[np.ix_(keep, keep)]
+            return Rows(self.z_m[keep], [self.labels[i] for i in keep], self.segment[keep], chol_m=np.linalg.cholesky(C),
+                        context=ctx)
+        return Rows(self.z_m[keep], [self.labels[i] for i in keep], self.segment[keep], sigma_m=self.sigma_m[keep], context=ctx)
+
     def covariance(self) -> np.ndarray:
         """C (m, m), m²."""
         if self.chol_m is not None:
@@ -250,3 +261,122 @@ class SatelliteDDModal(MeasurementModel):
         H = np.zeros((h.size, self.n_state))
         H[:, :self.nm] = Hxi
         return h, H
+
+
+@dataclass
+class PackedDD:
+    """Every epoch's DD rows of a :class:`SatelliteDDModal` in padded arrays (C = most rows of an epoch).
+
+    Attributes
+    ----------
+    m : ndarray (N,) int
+        Rows of each epoch (the first m of its C slots; the others are padding).
+    z_m : ndarray (N, C)
+        DD values, m (0 in padding).
+    zw : ndarray (N, C)
+        Whitened values L⁻¹ z.
+    Linv : ndarray (N, C, C)
+        Inverse Cholesky factor of each epoch's D Σ Dᵀ (identity in padding).
+    var_m2 : ndarray (N, C)
+        Diagonal of D Σ Dᵀ, m² (1 in padding).
+    srows : ndarray (N, C, 3)
+        s_j − s_r per row (structure frame; 0 in padding).
+    ant : ndarray (N, C) int
+        Structure antenna of each row (the master in padding).
+    hconst_m : ndarray (N, C)
+        (s_j − s_r)ᵀ d_a: the constant part of h, m.
+    slot : ndarray (N, C) int
+        Rover slot of each row (−1 in padding).
+    sat : ndarray (N, C) int
+        Satellite of each row (index into ``sat_names``).
+    segment : ndarray (N, C) int
+        Segment column of each row (−1 in padding).
+    """
+
+    m: np.ndarray
+    z_m: np.ndarray
+    zw: np.ndarray
+    Linv: np.ndarray
+    var_m2: np.ndarray
+    srows: np.ndarray
+    ant: np.ndarray
+    hconst_m: np.ndarray
+    slot: np.ndarray
+    sat: np.ndarray
+    segment: np.ndarray
+    sat_names: list
+
+
+def _dd_entries(model: "SatelliteDDModal", names: dict) -> dict:
+    """All DD rows of every slot as flat arrays (common epoch, slot, row, reference row, …)."""
+    cols = {k: [] for k in ("k", "slot", "z", "s", "vr", "vrr", "vm", "vmr", "sat", "satr", "seg")}
+    for a, tb in enumerate(model.tabs):
+        d = tb["d"]
+        common = np.full(len(d.ptr) - 1, -1, dtype=np.int64)
+        ok = model.k_of[a] >= 0
+        common[model.k_of[a][ok]] = np.flatnonzero(ok)
+        epoch = np.repeat(np.arange(len(d.ptr) - 1), np.diff(d.ptr))
+        ref = np.asarray(tb["ref"])[epoch]
+        cnt = np.bincount(epoch, weights=tb["use"].astype(float), minlength=len(d.ptr) - 1)[epoch]
+        rows = np.flatnonzero(tb["use"] & (ref >= 0) & (np.arange(epoch.size) != ref) & (common[epoch] >= 0) & (cnt >= 2))
+        rr = ref[rows]
+        u = d.rover_sat_xyz - tb["xm"]
+        u = u @ model.R
+        u /= np.linalg.norm(u, axis=1, keepdims=True)
+        gsat = np.array([names.setdefault(s, len(names)) for s in d.sat_names], dtype=np.int64)[np.asarray(d.sat, dtype=np.int64)]
+        sg = tb.get("seg")
+        cols["k"].append(common[epoch[rows]])
+        cols["slot"].append(np.full(rows.size, a))
+        cols["z"].append(tb["r0"][rows] - tb["r0"][rr])
+        cols["s"].append(u[rows] - u[rr])
+        for key, v in (("vr", tb["var_rover"]), ("vm", tb["var_master"]), ("sat", gsat)):
+            cols[key].append(v[rows])
+            cols[key + "r"].append(v[rr])
+        cols["seg"].append([model._column((a, int(sg[i]), int(sg[j]))) if sg is not None else -1 for i, j in zip(rows, rr)])
+    out = {k: np.concatenate([np.asarray(v) for v in val]) if val else np.zeros(0) for k, val in cols.items()}
+    order = np.lexsort((out["slot"], out["k"]))          # epoch, then slot, then row (stable)
+    return {k: v[order] for k, v in out.items()}
+
+
+def pack_dd(model: "SatelliteDDModal") -> PackedDD:
+    """:class:`PackedDD` of ``model`` (the rows of :meth:`SatelliteDDModal.rows`, vectorized over epochs)."""
+    names: dict = {}
+    e = _dd_entries(model, names)
+    N = model.n_epochs
+    k = e["k"].astype(np.int64)
+    m = np.bincount(k, minlength=N).astype(np.int64)
+    # an epoch needs two rows of one rover … every DD row has its reference, so any row counts
+    C = int(m.max(initial=0))
+    first = np.cumsum(m) - m
+    pos = np.arange(k.size) - first[k]
+
+    def grid(v, fill, dtype=float):
+        g = np.full((N, C) + np.shape(v)[1:], fill, dtype=dtype)
+        g[k, pos] = v
+        return g
+
+    slot, sat, satr = grid(e["slot"], -1, np.int64), grid(e["sat"], -1, np.int64), grid(e["satr"], -2, np.int64)
+    vr, vrr, vm, vmr = grid(e["vr"], 0.0), grid(e["vrr"], 0.0), grid(e["vm"], 0.0), grid(e["vmr"], 0.0)
+
+    def sd_cov(sx, vx, mx, sy, vy, my):
+        same_sat = sx[:, :, None] == sy[:, None, :]
+        same_slot = slot[:, :, None] == slot[:, None, :]
+        return (same_sat & same_slot) * vx[:, :, None] + same_sat * np.sqrt(mx[:, :, None] * my[:, None, :])
+
+    cov = (sd_cov(sat, vr, vm, sat, vr, vm) - sd_cov(sat, vr, vm, satr, vrr, vmr)
+           - sd_cov(satr, vrr, vmr, sat, vr, vm) + sd_cov(satr, vrr, vmr, satr, vrr, vmr))
+    pad = slot < 0
+    cov[pad] = 0.0
+    cov.transpose(0, 2, 1)[pad] = 0.0
+    cov[np.broadcast_to(np.eye(C, dtype=bool), cov.shape) & pad[:, :, None]] = 1.0
+    L = np.linalg.cholesky(cov)
+    Linv = np.linalg.inv(L)
+    Linv = np.tril(Linv)
+    z = grid(e["z"], 0.0)
+    srows = grid(e["s"], 0.0)
+    ant = np.where(slot >= 0, model.ant_idx[np.maximum(slot, 0)], model.cfg.master_index)
+    hconst = np.einsum("kci,kci->kc", srows, np.where(slot[..., None] >= 0, model.d_hdr[np.maximum(slot, 0)], 0.0))
+    inv_names = sorted(names, key=names.get)
+    return PackedDD(m=m, z_m=z, zw=np.einsum("kij,kj->ki", Linv, z), Linv=Linv, var_m2=np.diagonal(cov, axis1=1, axis2=2).copy(),
+                    srows=srows, ant=ant.astype(np.int64), hconst_m=hconst, slot=slot, sat=sat,
+                    segment=grid(np.asarray(e["seg"], dtype=np.int64), -1, np.int64), sat_names=inv_names)

@@ -58,7 +58,9 @@ from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.measurement.differencing import joint_dd_covariance, sd_variance, select_reference
 from cdgps_cli.measurement.model import SatelliteDDModal, dd_modal_h_and_H
 from cdgps_cli.model.dynamics_models import ModalZOH
-from cdgps_cli.estimation.model_filter import filter_numpy, rts_smooth
+from cdgps_cli.estimation import kernel
+from cdgps_cli.estimation.filter import EstimateOptions
+from cdgps_cli.estimation.model_filter import filter_dd_kernel, filter_numpy, outlier_gate, rts_smooth
 from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.model.gps.positioning import L1_WAVELENGTH_M
@@ -249,7 +251,8 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
                         receivers: dict | None = None, x_axis_azimuth_deg: float = 90.0, smooth: bool = False,
                         initial_sigma_xi: float = 1.0, initial_sigma_xidot: float = 1.0,
                         max_iterations: int = 5, progress=None, extra_options: dict | None = None,
-                        batch_init: bool = True, init_window_s: float = INIT_WINDOW_S) -> dict:
+                        batch_init: bool = True, init_window_s: float = INIT_WINDOW_S,
+                        outlier_sigma: float | None = None) -> dict:
     """Modal states of a structure from a GNSS RUN and its INIT (integers) → STATES.mcap.
 
     Parameters
@@ -282,6 +285,9 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
         (:func:`modal_batch_initialization`): its DD integers replace INIT's in the window and the
         filter starts from its state at the first epoch (with the broad prior covariance, so that
         the window's data are not counted twice); False: INIT's integers and x = 0.
+    outlier_sigma : float, optional
+        Outlier gate: a DD whose innovation exceeds this many σ is not used at that epoch (event
+        ``outlier``); default :class:`cdgps_cli.estimation.filter.EstimateOptions`'s.
 
     Returns
     -------
@@ -356,7 +362,13 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
     dyn = ModalZOH(cfg)
     P0 = np.diag(np.r_[np.full(nm, initial_sigma_xi**2), np.full(nm, initial_sigma_xidot**2)])
     say(f"modal EKF over {n} epochs, {len(rover_ants)} rover antenna(s), {nm} modes …")
-    fr = filter_numpy(model, dyn, t_all, x0, P0, max_iterations)
+    gate = EstimateOptions().outlier_sigma if outlier_sigma is None else float(outlier_sigma)
+    outliers: list = []
+    if kernel.available():
+        fr = filter_dd_kernel(model, dyn, t_all, x0, P0, max_iterations, outlier_sigma=gate, events=outliers)
+    else:
+        fr = filter_numpy(model, dyn, t_all, x0, P0, max_iterations,
+                          rows_hook=outlier_gate(model, gate, outliers, t_all))
     xf, Pf, meas = fr["x"], fr["P"], fr["rows"]
     xs, Ps = rts_smooth(xf, Pf, fr["A"], fr["Q"]) if smooth else (xf, Pf)
     nis, nis_dof = fr["nis"], fr["nis_dof"]
@@ -379,6 +391,9 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
             if e["antenna"] == mapping[rover_ants[i]]:
                 e["antenna"] = rover_ants[i]
             events.append(e)
+    for e in outliers:
+        events.append({"time_s": float(e["time_s"]), "antenna": rover_ants[e["label"][0]], "transmitter": e["label"][1],
+                       "kind": "outlier", "action": f"DD not used at this epoch ({e['sigmas']:.1f} σ)"})
     events.sort(key=lambda e: (e["time_s"], e["antenna"], e["transmitter"], e["kind"]))
     biases = {}
     for i, a in enumerate(rover_ants):
@@ -391,7 +406,7 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
                "master_ecef_m": list(map(float, xm)), "receivers": mapping,
                "initial_sigma_xi": initial_sigma_xi, "initial_sigma_xidot": initial_sigma_xidot,
                **({"batch_init_window_s": float(init_window_s)} if batch_init else {"batch_init": False}),
-               "dd_covariance": "D Σ Dᵀ jointly over the rovers (common master)", **(extra_options or {})}
+               "dd_covariance": "D Σ Dᵀ jointly over the rovers (common master)", "outlier_sigma": gate, **(extra_options or {})}
     say(f"writing {out_path} …")
     out = write_states(res, run.path, init, init_text, out_path, options)
     out.update({

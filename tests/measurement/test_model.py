@@ -113,3 +113,33 @@ def test_pseudolite_sd_jacobian_noise_and_segments():
     assert model.rows(0).segment.size == ant.size
     with pytest.raises(ValueError, match="sigma_m"):
         PseudoliteSD(cfg, y, ant, tx, np.zeros(ant.size))
+
+
+def test_packed_dd_rows_equal_the_per_epoch_rows():
+    """pack_dd (vectorized over epochs) = rows(k) of every epoch: values, noise, geometry, segments."""
+    from cdgps_cli.measurement.model import pack_dd
+
+    cfg = load_config(TOWER)
+    tabs, k_of, ant, d_hdr = _dd_tables(cfg, n_ep=4, slip_at=(2, 3))
+    tabs[1]["use"][3 * 5 + 2] = False                          # a row of slot 1 not usable at epoch 3
+    k_of[0] = np.array([0, 1, -1, 2])                          # slot 0 misses common epoch 2 …
+    tabs[0]["ref"] = np.r_[tabs[0]["ref"][:3], -1]             # … and has no reference at its last epoch
+    model = SatelliteDDModal(cfg, np.eye(3), tabs, k_of, ant, d_hdr)
+    pk = pack_dd(model)
+    x = np.random.default_rng(4).normal(scale=0.1, size=model.n_state)
+    for k in range(4):
+        rows = model.rows(k)
+        m = pk.m[k]
+        assert m == (0 if rows is None else rows.z_m.size)
+        if rows is None:
+            continue
+        np.testing.assert_allclose(pk.z_m[k, :m], rows.z_m, rtol=1e-15)
+        np.testing.assert_allclose(pk.Linv[k, :m, :m].T @ pk.Linv[k, :m, :m], np.linalg.inv(rows.covariance()), rtol=1e-9)
+        np.testing.assert_allclose(pk.zw[k, :m], rows.whiten(rows.z_m), rtol=1e-10)
+        np.testing.assert_array_equal(pk.segment[k, :m], rows.segment)
+        assert [(int(s), pk.sat_names[j]) for s, j in zip(pk.slot[k, :m], pk.sat[k, :m])] == rows.labels
+        h, _ = model.predict(x, rows)
+        slot, srows = rows.context
+        np.testing.assert_allclose(pk.srows[k, :m], srows, rtol=1e-15)
+        np.testing.assert_allclose(pk.hconst_m[k, :m], np.einsum("mi,mi->m", srows, d_hdr[slot]), rtol=1e-13)
+        assert np.all(pk.Linv[k, m:, m:] == np.eye(pk.Linv.shape[1] - m)) and np.all(pk.z_m[k, m:] == 0)
