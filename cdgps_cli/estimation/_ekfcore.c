@@ -689,13 +689,13 @@ done:
 }
 
 /*
- * dd_span(gi, gf, A_row, A_col, A_val, Q, Linv, ZW, Z, VAR, S, CHANT, HC, M, STOP, x, P, xs, Ps, nis, nis_dof,
+ * dd_span(gi, gf, A_row, A_col, A_val, Q, L, Z, VAR, S, CHANT, HC, M, STOP, x, P, xs, Ps, nis, nis_dof,
  *         N, n, C, k0, k1, max_iter, outlier_sigma) -> (k_stop, reason)
  *
  * The whitened full-noise path: the iterated EKF of cdgps_cli.estimation.model_filter on rows whose
  * noise is a full covariance C_k = L_k L_k^T (satellite double differences, D Sigma D^T), given per
- * epoch k as the first M[k] of C padded rows: Linv = L_k^-1 (C x C, lower), ZW = L_k^-1 z, Z = z,
- * VAR = diag C_k, and the far-field geometry of each row (S: s_j - s_r, CHANT: its antenna, HC: the
+ * epoch k as the first M[k] of C padded rows: L = L_k (C x C, lower; rows whitened by forward
+ * substitution), Z = z, VAR = diag C_k, and the far-field geometry of each row (S: s_j - s_r, CHANT: its antenna, HC: the
  * constant (s_j - s_r)^T d_a), so h = HC - S^T (p_a(q) - p_M(q)).  The update is in information form
  * on the whitened rows, iterated while the step exceeds 1e-9 of the state (max_iter at most); NIS
  * with the prior linearization.  It stops, without touching epoch k's outputs, where STOP[k] != 0
@@ -704,15 +704,15 @@ done:
  */
 static PyObject *py_dd_span(PyObject *self, PyObject *args)
 {
-    enum { NB = 21 };
+    enum { NB = 20 };
     PyObject *o[NB];
     Buf b[NB];
     memset(b, 0, sizeof(b));
     Py_ssize_t N, n, C, k0, k1, max_iter;
     double outlier_sigma;
-    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOOOOOOOOOOOnnnnnnd", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5],
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOOOOOOOOOOnnnnnnd", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5],
                           &o[6], &o[7], &o[8], &o[9], &o[10], &o[11], &o[12], &o[13], &o[14], &o[15], &o[16],
-                          &o[17], &o[18], &o[19], &o[20], &N, &n, &C, &k0, &k1, &max_iter, &outlier_sigma))
+                          &o[17], &o[18], &o[19], &N, &n, &C, &k0, &k1, &max_iter, &outlier_sigma))
         return NULL;
     PyObject *ret = NULL;
     double *work = NULL;
@@ -725,22 +725,28 @@ static PyObject *py_dd_span(PyObject *self, PyObject *args)
     }
     const Py_ssize_t nn = n * n, NC = N * C;
     if (get_csr(o[2], o[3], o[4], b + 2, (int)n, &A)
-        || get_buf(o[5], &b[5], 'd', nn, 0, "Q") || get_buf(o[6], &b[6], 'd', NC * C, 0, "Linv")
-        || get_buf(o[7], &b[7], 'd', NC, 0, "ZW") || get_buf(o[8], &b[8], 'd', NC, 0, "Z")
-        || get_buf(o[9], &b[9], 'd', NC, 0, "VAR") || get_buf(o[10], &b[10], 'd', NC * 3, 0, "S")
-        || get_buf(o[11], &b[11], 'q', NC, 0, "CHANT") || get_buf(o[12], &b[12], 'd', NC, 0, "HC")
-        || get_buf(o[13], &b[13], 'q', N, 0, "M") || get_buf(o[14], &b[14], 'b', N, 0, "STOP")
-        || get_buf(o[15], &b[15], 'd', n, 1, "x") || get_buf(o[16], &b[16], 'd', nn, 1, "P")
-        || get_buf(o[17], &b[17], 'd', N * n, 1, "xs") || get_buf(o[18], &b[18], 'd', N * nn, 1, "Ps")
-        || get_buf(o[19], &b[19], 'd', N, 1, "nis") || get_buf(o[20], &b[20], 'q', N, 1, "nis_dof"))
+        || get_buf(o[5], &b[5], 'd', nn, 0, "Q") || get_buf(o[6], &b[6], 'd', NC * C, 0, "L")
+        || get_buf(o[7], &b[7], 'd', NC, 0, "Z")
+        || get_buf(o[8], &b[8], 'd', NC, 0, "VAR") || get_buf(o[9], &b[9], 'd', NC * 3, 0, "S")
+        || get_buf(o[10], &b[10], 'q', NC, 0, "CHANT") || get_buf(o[11], &b[11], 'd', NC, 0, "HC")
+        || get_buf(o[12], &b[12], 'q', N, 0, "M") || get_buf(o[13], &b[13], 'b', N, 0, "STOP")
+        || get_buf(o[14], &b[14], 'd', n, 1, "x") || get_buf(o[15], &b[15], 'd', nn, 1, "P")
+        || get_buf(o[16], &b[16], 'd', N * n, 1, "xs") || get_buf(o[17], &b[17], 'd', N * nn, 1, "Ps")
+        || get_buf(o[18], &b[18], 'd', N, 1, "nis") || get_buf(o[19], &b[19], 'q', N, 1, "nis_dof"))
         goto done;
-    const double *Q = b[5].view.buf, *Linv = b[6].view.buf, *ZW = b[7].view.buf, *Z = b[8].view.buf;
-    const double *VAR = b[9].view.buf, *S = b[10].view.buf, *HC = b[12].view.buf;
-    const int64_t *CHANT = b[11].view.buf, *M = b[13].view.buf;
-    const int8_t *STOP = b[14].view.buf;
-    double *x = b[15].view.buf, *P = b[16].view.buf, *xs = b[17].view.buf, *Ps = b[18].view.buf;
-    double *nis = b[19].view.buf;
-    int64_t *dof = b[20].view.buf;
+    const double *Q = b[5].view.buf, *Lall = b[6].view.buf, *Z = b[7].view.buf;
+    const double *VAR = b[8].view.buf, *S = b[9].view.buf, *HC = b[11].view.buf;
+    const int64_t *CHANT = b[10].view.buf, *M = b[12].view.buf;
+    const int8_t *STOP = b[13].view.buf;
+    double *x = b[14].view.buf, *P = b[15].view.buf, *xs = b[16].view.buf, *Ps = b[17].view.buf;
+    double *nis = b[18].view.buf;
+    int64_t *dof = b[19].view.buf;
+    for (Py_ssize_t k = 0; k < N; k++)
+        for (Py_ssize_t i = 0; i < M[k] && i < C; i++)
+            if (!(Lall[(k * C + i) * C + i] > 0.0)) {
+                PyErr_SetString(PyExc_ValueError, "_ekfcore.dd_span: L must have a positive diagonal");
+                goto done;
+            }
     for (Py_ssize_t i = 0; i < NC; i++)
         if (CHANT[i] < 0 || CHANT[i] >= g.na) {
             PyErr_SetString(PyExc_ValueError, "_ekfcore.dd_span: CHANT out of range");
@@ -753,7 +759,7 @@ static PyObject *py_dd_span(PyObject *self, PyObject *args)
         }
     const int nm = g.nm, ni = (int)n;
     Py_ssize_t wm = model_work_size(&g) + 3 * (Py_ssize_t)g.na * g.nm;   /* model_eval's scratch */
-    Py_ssize_t total = wm + 4 * n + 6 * nn + n + 4 * C + 2 * C * nm + nm;
+    Py_ssize_t total = wm + 4 * n + 6 * nn + n + 5 * C + 2 * C * nm + nm;
     work = malloc(sizeof(double) * (total + 1));
     if (!work) {
         PyErr_NoMemory();
@@ -764,6 +770,7 @@ static PyObject *py_dd_span(PyObject *self, PyObject *args)
     double *Pp = dx + n, *AP = Pp + nn, *Pinv = AP + nn, *Yi = Pinv + nn;
     double *cw = Yi + nn;                                 /* 2 nn + n */
     double *h = cw + 2 * nn + n, *v = h + C, *hw = v + C, *Hm = hw + C, *Hw = Hm + C * nm, *grad = Hw + C * nm;
+    double *zw = grad + nm;
     double *Post = malloc(sizeof(double) * (nn + 1));
     if (!Post) {
         PyErr_NoMemory();
@@ -792,7 +799,13 @@ static PyObject *py_dd_span(PyObject *self, PyObject *args)
             gk.ch_ant = CHANT + k * C;
             gk.tpos = S + k * C * 3;
             gk.far = 1;
-            const double *L = Linv + k * C * C, *zw = ZW + k * C, *z = Z + k * C, *var = VAR + k * C, *hc = HC + k * C;
+            const double *L = Lall + k * C * C, *z = Z + k * C, *var = VAR + k * C, *hc = HC + k * C;
+            for (int i = 0; i < m; i++) {                 /* zw = L^-1 z (forward substitution) */
+                const double *Li = L + i * C;
+                double t = z[i];
+                for (int j = 0; j < i; j++) t -= Li[j] * zw[j];
+                zw[i] = t / Li[i];
+            }
             if (chol_inv(Pp, Pinv, cw, ni)) { reason = STOP_CHOLESKY; break; }
             memcpy(xi, xp, sizeof(double) * n);
             int outlier = 0, fail = 0;
@@ -815,18 +828,20 @@ static PyObject *py_dd_span(PyObject *self, PyObject *args)
                     if (outlier) break;
                 }
                 for (int a = 0; a < nm; a++) dx[a] = xp[a] - xi[a];
-                for (int i = 0; i < m; i++) {
+                for (int i = 0; i < m; i++) {             /* hw = L^-1 h, Hw = L^-1 Hm */
                     const double *Li = L + i * C;
-                    double sh = 0.0;
+                    double sh = h[i], il = 1.0 / Li[i];
                     double *Hwi = Hw + i * nm;
-                    for (int a = 0; a < nm; a++) Hwi[a] = 0.0;
-                    for (int j = 0; j <= i; j++) {
+                    for (int a = 0; a < nm; a++) Hwi[a] = Hm[i * nm + a];
+                    for (int j = 0; j < i; j++) {
                         double l = Li[j];
                         if (l == 0.0) continue;
-                        sh += l * h[j];
-                        const double *Hj = Hm + j * nm;
-                        for (int a = 0; a < nm; a++) Hwi[a] += l * Hj[a];
+                        sh -= l * hw[j];
+                        const double *Hj = Hw + j * nm;
+                        for (int a = 0; a < nm; a++) Hwi[a] -= l * Hj[a];
                     }
+                    sh *= il;
+                    for (int a = 0; a < nm; a++) Hwi[a] *= il;
                     hw[i] = sh;
                     double t = 0.0;
                     for (int a = 0; a < nm; a++) t += Hwi[a] * dx[a];

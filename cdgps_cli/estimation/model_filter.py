@@ -158,7 +158,7 @@ def filter_dd_kernel(model, dyn, time_s, x0, P0, max_iterations: int = 5, outlie
            "nis": np.full(N, np.nan), "nis_dof": np.zeros(N, dtype=np.int64), "rows": [None] * N}
     out["A"][1:], out["Q"][1:] = A, Q
     f, i64 = kernel._f64, kernel._i64
-    arrays = (f(pk.Linv), f(pk.zw), f(pk.z_m), f(pk.var_m2), f(pk.srows), i64(pk.ant), f(pk.hconst_m), i64(pk.m), stop)
+    arrays = (f(pk.L), f(pk.z_m), f(pk.var_m2), f(pk.srows), i64(pk.ant), f(pk.hconst_m), i64(pk.m), stop)
     x, P = np.array(x0, dtype=float), np.array(P0, dtype=float)
     hook = outlier_gate(model, outlier_sigma, events, time_s)
     k = 0

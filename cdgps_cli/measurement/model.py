@@ -273,10 +273,8 @@ class PackedDD:
         Rows of each epoch (the first m of its C slots; the others are padding).
     z_m : ndarray (N, C)
         DD values, m (0 in padding).
-    zw : ndarray (N, C)
-        Whitened values L⁻¹ z.
-    Linv : ndarray (N, C, C)
-        Inverse Cholesky factor of each epoch's D Σ Dᵀ (identity in padding).
+    L : ndarray (N, C, C)
+        Lower Cholesky factor of each epoch's D Σ Dᵀ (identity in padding), m.
     var_m2 : ndarray (N, C)
         Diagonal of D Σ Dᵀ, m² (1 in padding).
     srows : ndarray (N, C, 3)
@@ -295,8 +293,7 @@ class PackedDD:
 
     m: np.ndarray
     z_m: np.ndarray
-    zw: np.ndarray
-    Linv: np.ndarray
+    L: np.ndarray
     var_m2: np.ndarray
     srows: np.ndarray
     ant: np.ndarray
@@ -332,7 +329,17 @@ def _dd_entries(model: "SatelliteDDModal", names: dict) -> dict:
         for key, v in (("vr", tb["var_rover"]), ("vm", tb["var_master"]), ("sat", gsat)):
             cols[key].append(v[rows])
             cols[key + "r"].append(v[rr])
-        cols["seg"].append([model._column((a, int(sg[i]), int(sg[j]))) if sg is not None else -1 for i, j in zip(rows, rr)])
+        if sg is None:
+            cols["seg"].append(np.full(rows.size, -1, dtype=np.int64))
+        else:
+            pairs, inv = np.unique(np.stack([sg[rows], sg[rr]], axis=1), axis=0, return_inverse=True)
+            # columns in order of first appearance (as rows(k) assigns them epoch by epoch)
+            first = np.full(len(pairs), rows.size, dtype=np.int64)
+            np.minimum.at(first, inv.reshape(-1), np.arange(rows.size))
+            col = np.empty(len(pairs), dtype=np.int64)
+            for p_ in np.argsort(first, kind="stable"):
+                col[p_] = model._column((a, int(pairs[p_, 0]), int(pairs[p_, 1])))
+            cols["seg"].append(col[inv.reshape(-1)])
     out = {k: np.concatenate([np.asarray(v) for v in val]) if val else np.zeros(0) for k, val in cols.items()}
     order = np.lexsort((out["slot"], out["k"]))          # epoch, then slot, then row (stable)
     return {k: v[order] for k, v in out.items()}
@@ -358,25 +365,25 @@ def pack_dd(model: "SatelliteDDModal") -> PackedDD:
     slot, sat, satr = grid(e["slot"], -1, np.int64), grid(e["sat"], -1, np.int64), grid(e["satr"], -2, np.int64)
     vr, vrr, vm, vmr = grid(e["vr"], 0.0), grid(e["vrr"], 0.0), grid(e["vm"], 0.0), grid(e["vmr"], 0.0)
 
-    def sd_cov(sx, vx, mx, sy, vy, my):
-        same_sat = sx[:, :, None] == sy[:, None, :]
-        same_slot = slot[:, :, None] == slot[:, None, :]
-        return (same_sat & same_slot) * vx[:, :, None] + same_sat * np.sqrt(mx[:, :, None] * my[:, None, :])
+    sm, smr = np.sqrt(vm), np.sqrt(vmr)
+    same_slot = slot[:, :, None] == slot[:, None, :]
 
-    cov = (sd_cov(sat, vr, vm, sat, vr, vm) - sd_cov(sat, vr, vm, satr, vrr, vmr)
-           - sd_cov(satr, vrr, vmr, sat, vr, vm) + sd_cov(satr, vrr, vmr, satr, vrr, vmr))
+    def term(sx, vx, mx, sy, my):
+        """Cov(SD x, SD y): the rover's variance when they are one SD, the master's for one satellite."""
+        same = sx[:, :, None] == sy[:, None, :]
+        return same * (same_slot * vx[:, :, None] + mx[:, :, None] * my[:, None, :])
+
+    cov = term(sat, vr, sm, sat, sm) - term(sat, vr, sm, satr, smr) - term(satr, vrr, smr, sat, sm) + term(satr, vrr, smr, satr, smr)
     pad = slot < 0
     cov[pad] = 0.0
     cov.transpose(0, 2, 1)[pad] = 0.0
     cov[np.broadcast_to(np.eye(C, dtype=bool), cov.shape) & pad[:, :, None]] = 1.0
     L = np.linalg.cholesky(cov)
-    Linv = np.linalg.inv(L)
-    Linv = np.tril(Linv)
     z = grid(e["z"], 0.0)
     srows = grid(e["s"], 0.0)
     ant = np.where(slot >= 0, model.ant_idx[np.maximum(slot, 0)], model.cfg.master_index)
     hconst = np.einsum("kci,kci->kc", srows, np.where(slot[..., None] >= 0, model.d_hdr[np.maximum(slot, 0)], 0.0))
     inv_names = sorted(names, key=names.get)
-    return PackedDD(m=m, z_m=z, zw=np.einsum("kij,kj->ki", Linv, z), Linv=Linv, var_m2=np.diagonal(cov, axis1=1, axis2=2).copy(),
+    return PackedDD(m=m, z_m=z, L=L, var_m2=np.diagonal(cov, axis1=1, axis2=2).copy(),
                     srows=srows, ant=ant.astype(np.int64), hconst_m=hconst, slot=slot, sat=sat,
                     segment=grid(np.asarray(e["seg"], dtype=np.int64), -1, np.int64), sat_names=inv_names)
