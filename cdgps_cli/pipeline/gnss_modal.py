@@ -186,9 +186,10 @@ def modal_batch_initialization(cfg: StructureConfig, R, tabs, k_of, ant_idx, d_h
     satellite and reference segments, :class:`~cdgps_cli.measurement.model.SatelliteDDModal`) and
     the modal dynamics are solved by :func:`cdgps_cli.estimation.model_init.model_batch_init`
     (Gauss–Newton over [x₁, w, b], SRIF, LAMBDA + ratio + partial fixing, validation).  The fixed DD
-    integers replace INIT's in the window: per rover, a fixed DD ambiguity N of (satellite segment
-    s_j, reference segment s_r) sets a(s_j) = a(s_r) + N on INIT's datum.  Segments of INIT outside
-    the window are kept when the window's references are INIT-known segments (same datum).
+    integers replace INIT's: per rover, a fixed DD ambiguity N of (satellite segment s_j, reference
+    segment s_r) sets a(s_j) = a(s_r) + N on INIT's datum.  INIT's fixed segments that the window did
+    not fix (other segments, or a partial fix) are kept when the window's references are INIT-known
+    segments (the same datum).
 
     Returns
     -------
@@ -229,10 +230,8 @@ def modal_batch_initialization(cfg: StructureConfig, R, tabs, k_of, ant_idx, d_h
                      "fixed": bool(res.fixed[i])})
     out = []
     for a, tb in enumerate(tabs):
-        in_window = np.zeros(a_new[a].size, dtype=bool)
-        in_window[[sg["segment"] for sg in segs if sg["rover_slot"] == a] + [sg["reference_segment"] for sg in segs
-                                                                                if sg["rover_slot"] == a]] = True
-        keep = known[a] | (init_known[a] & ~in_window & anchored[a])
+        # INIT's integers where the window's did not decide, while on the same datum
+        keep = known[a] | (init_known[a] & anchored[a])
         out.append(_set_integers(tb, a_new[a], keep[tb["seg"]]))
     record = {"method": "model-aided batch (Gauss–Newton over [x1, w, b] on the DDs, SRIF; LAMBDA, ratio, partial)",
               "window": {"start_s": float(t_all[idx[0]]), "end_s": float(t_all[idx[-1]]), "epochs": int(idx.size),
