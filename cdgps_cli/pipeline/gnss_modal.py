@@ -67,7 +67,8 @@ from cdgps_cli.model.gps.positioning import L1_WAVELENGTH_M
 from cdgps_cli.model.kinematics import antenna_positions
 from cdgps_cli.io.rinex import gps_time_str
 
-__all__ = ["StructurePlacement", "structure_to_ecef", "nominal_receiver_positions", "gnss_modal_estimate",
+__all__ = ["StructurePlacement", "structure_to_ecef", "nominal_receiver_positions", "gnss_modal_estimate", "gnss_modal_init",
+           "modal_batch_initialization", "apply_modal_record",
            "simulate_structure_gnss", "joint_dd_covariance"]
 
 
@@ -208,42 +209,148 @@ def modal_batch_initialization(cfg: StructureConfig, R, tabs, k_of, ant_idx, d_h
                 ref=select_reference(tb["d"].ptr, tb["d"].sat, tb["d"].el_rover, tb["d"].slip)) for tb in tabs]
     model = SatelliteDDModal(cfg, R, raw, k_of, ant_idx, d_hdr)
     res = model_batch_init(model, ModalZOH(cfg), idx, dt, L1_WAVELENGTH_M, options or InitOptions())
-    a_new = [np.array(tb["a_seg"], dtype=float) for tb in tabs]
     init_known = [np.asarray(tb["w"]["known_seg"], bool) & (tb["n_fixed"] > 0) for tb in tabs]
-    known = [np.zeros(a.size, dtype=bool) for a in a_new]
-    anchored = [True] * len(tabs)
     segs, agree, n_cmp = [], 0, 0
     for i, col in enumerate(res.columns):
         a, sj, sr = model.segment_keys[col]
-        n_init = a_new[a][sj] - a_new[a][sr] if init_known[a][sj] and init_known[a][sr] else None
-        if res.fixed[i]:
-            a_new[a][sj] = np.asarray(tabs[a]["a_seg"], float)[sr] + res.integers[i]
-            known[a][sj] = known[a][sr] = True
-            anchored[a] = anchored[a] and bool(init_known[a][sr])
-            if n_init is not None:
-                n_cmp += 1
-                agree += int(round(n_init) == res.integers[i])
-        segs.append({"rover_slot": int(a), "satellite": tabs[a]["d"].sat_names[int(tabs[a]["d"].sat[np.flatnonzero(tabs[a]["seg"] == sj)[0]])],
-                     "reference": tabs[a]["d"].sat_names[int(tabs[a]["d"].sat[np.flatnonzero(tabs[a]["seg"] == sr)[0]])],
+        d, seg = tabs[a]["d"], tabs[a]["seg"]
+        if res.fixed[i] and init_known[a][sj] and init_known[a][sr]:
+            n_cmp += 1
+            agree += int(round(tabs[a]["a_seg"][sj] - tabs[a]["a_seg"][sr]) == res.integers[i])
+        segs.append({"rover_slot": int(a), "satellite": d.sat_names[int(d.sat[np.flatnonzero(seg == sj)[0]])],
+                     "reference": d.sat_names[int(d.sat[np.flatnonzero(seg == sr)[0]])],
                      "segment": int(sj), "reference_segment": int(sr), "float_cycles": float(res.float_bias_m[i] / L1_WAVELENGTH_M),
                      "sigma_cycles": float(res.float_sigma_m[i] / L1_WAVELENGTH_M), "integer_cycles": int(res.integers[i]),
                      "fixed": bool(res.fixed[i])})
-    out = []
-    for a, tb in enumerate(tabs):
-        # INIT's integers where the window's did not decide, while on the same datum
-        keep = known[a] | (init_known[a] & anchored[a])
-        out.append(_set_integers(tb, a_new[a], keep[tb["seg"]]))
     record = {"method": "model-aided batch (Gauss–Newton over [x1, w, b] on the DDs, SRIF; LAMBDA, ratio, partial)",
               "window": {"start_s": float(t_all[idx[0]]), "end_s": float(t_all[idx[-1]]), "epochs": int(idx.size),
                          "interval_s": dt},
               "n_segments": len(res.columns), "n_fixed": int(res.fixed.sum()),
               "ratio": None if res.ratio is None else (float(res.ratio) if np.isfinite(res.ratio) else "inf"),
               "integer_fixing": res.note, "cost_per_dof": float(res.cost_per_dof), "iterations": int(res.iterations),
-              "agree_with_init": {"compared": n_cmp, "equal": agree}, "segments": segs}
-    return out, res.x[0].copy(), record
+              "agree_with_init": {"compared": n_cmp, "equal": agree}, "x1": [float(v) for v in res.x[0]], "segments": segs}
+    return apply_modal_record(tabs, record), res.x[0].copy(), record
+
+
+def apply_modal_record(tabs: list, record: dict) -> list:
+    """The tables with a modal initialization's fixed DD integers applied (on INIT's datum: a fixed
+    N of (s_j, s_r) sets a(s_j) = a(s_r) + N); INIT's fixed segments the window did not fix are
+    kept while on the same datum (every window reference INIT-known)."""
+    a_new = [np.array(tb["a_seg"], dtype=float) for tb in tabs]
+    init_known = [np.asarray(tb["w"]["known_seg"], bool) & (tb["n_fixed"] > 0) for tb in tabs]
+    known = [np.zeros(a.size, dtype=bool) for a in a_new]
+    anchored = [True] * len(tabs)
+    for sg in record["segments"]:
+        a, sj, sr = sg["rover_slot"], sg["segment"], sg["reference_segment"]
+        if not (0 <= a < len(tabs) and 0 <= sj < a_new[a].size and 0 <= sr < a_new[a].size):
+            raise CdgpsError("INIT.json's modal_init does not match this run's lock segments")
+        if sg["fixed"]:
+            a_new[a][sj] = float(tabs[a]["a_seg"][sr]) + int(sg["integer_cycles"])
+            known[a][sj] = known[a][sr] = True
+            anchored[a] = anchored[a] and bool(init_known[a][sr])
+    out = []
+    for a, tb in enumerate(tabs):
+        # INIT's integers where the window's did not decide, while on the same datum
+        keep = known[a] | (init_known[a] & anchored[a])
+        out.append(_set_integers(tb, a_new[a], keep[tb["seg"]]))
+    return out
+
+
+def _stored_record(init: dict, cfg: StructureConfig, mapping: dict, x_axis_azimuth_deg: float):
+    """INIT.json's ``modal_init`` when it was made for this structure, mapping and placement, else None."""
+    rec = init.get("modal_init")
+    if not isinstance(rec, dict) or "segments" not in rec:
+        return None
+    if rec.get("structure_sha256") != cfg.sha256 or rec.get("receivers") != mapping \
+            or rec.get("x_axis_azimuth_deg") != float(x_axis_azimuth_deg):
+        return None
+    return rec
+
+
+def gnss_modal_init(run, init: dict, cfg: StructureConfig, *, receivers: dict | None = None,
+                    x_axis_azimuth_deg: float = 90.0, window_s: float = INIT_WINDOW_S, progress=None) -> dict:
+    """``cdgps init --structure`` on a GNSS run: the modal batch initialization as INIT.json's
+    ``modal_init`` (read back by :func:`gnss_modal_estimate` for the same structure, receiver mapping
+    and azimuth).
+
+    Parameters
+    ----------
+    run : GnssRun
+    init : dict
+        The GNSS INIT of :func:`cdgps_cli.pipeline.gnss.gnss_init` on that run (its datum and the
+        integers of segments outside the window).
+    cfg : StructureConfig
+    receivers, x_axis_azimuth_deg : as :func:`gnss_modal_estimate`
+    window_s : float
+        The window at the run's start, s.
+
+    Returns
+    -------
+    dict
+        The record (window, counts, ratio, note, per-segment floats and integers, x1 at the window's
+        first epoch) with ``structure``, ``structure_sha256``, ``receivers``, ``x_axis_azimuth_deg``;
+        ``refused`` (the reason) instead of the record when the window cannot be solved.
+    """
+    say = progress or (lambda m: None)
+    su = _modal_setup(run, init, cfg, receivers, x_axis_azimuth_deg, say)
+    say(f"modal batch initialization on the first {window_s:g} s …")
+    head = {"structure": cfg.name, "structure_sha256": cfg.sha256, "receivers": su.mapping,
+            "x_axis_azimuth_deg": float(x_axis_azimuth_deg)}
+    try:
+        _, _, rec = modal_batch_initialization(cfg, su.R, su.tabs, su.k_of, su.ant_idx, su.d_hdr, su.t_all, window_s=window_s)
+    except CdgpsError as exc:            # recorded, not fatal: estimate then uses the baselines' integers
+        return {**head, "refused": str(exc)}
+    return {**head, **rec}
 
 
 _h_and_H = dd_modal_h_and_H            # (the model's home: cdgps_cli.measurement.model)
+
+
+def _modal_setup(run, init: dict, cfg: StructureConfig, receivers, x_axis_azimuth_deg: float, say) -> SimpleNamespace:
+    """Checks of the run, INIT and antenna mapping; the placement, every rover's SD table (with INIT's
+    integers), the nominal offsets d_a and the common time axis."""
+    from cdgps_cli.pipeline.gnss import INIT_KIND, _check_master_position, _master_xyz, _stations  # noqa: PLC0415
+
+    if not (isinstance(init, dict) and init.get("kind") == INIT_KIND):
+        raise CdgpsError("INIT.json is not from 'cdgps init' on a GNSS run")
+    if init.get("config_sha256") != run.cfg.sha256 or set(init.get("rovers", {})) != set(run.rovers) \
+            or init.get("master") != run.master:
+        raise CdgpsError(f"INIT.json was made from another run than {run.path}")
+    mapping = {a: (receivers or {}).get(a, a) for a in cfg.antenna_names}
+    master_ant = cfg.antenna_names[cfg.master_index]
+    if mapping[master_ant] != run.master:
+        raise CdgpsError(f"the structure's master antenna {master_ant!r} maps to receiver {mapping[master_ant]!r}, "
+                         f"but the run's master is {run.master!r}")
+    rover_ants = [a for a in cfg.antenna_names if a != master_ant]
+    missing = [f"{a} → {mapping[a]}" for a in rover_ants if mapping[a] not in run.rovers]
+    if missing:
+        raise CdgpsError(f"structure antenna(s) without a rover receiver in {run.path}: {', '.join(missing)} "
+                         f"(rovers: {', '.join(run.rovers)})")
+    unused = [r for r in run.rovers if r not in {mapping[a] for a in rover_ants}]
+    stations = _stations(run)
+    _check_master_position(run)
+    xm = _master_xyz(run)
+    placement = StructurePlacement(tuple(float(v) for v in xm), float(x_axis_azimuth_deg))
+    R = placement.rotation()
+    tabs = [_rover_tables(run, init, mapping[a], stations, say) for a in rover_ants]
+    ant_idx = np.array([cfg.antenna_names.index(a) for a in rover_ants])
+    m_idx = cfg.master_index
+    # nominal receiver positions relative to the master, in the structure frame; mismatch to the model's
+    p0 = antenna_positions(cfg, np.zeros((1, cfg.n_q)))[0]
+    d_hdr = np.array([(tb["xr0"] - xm) @ R for tb in tabs])
+    mismatch = {a: float(np.linalg.norm(d_hdr[i] - (p0[ant_idx[i]] - p0[m_idx]))) for i, a in enumerate(rover_ants)}
+
+    # common time axis
+    t_all = np.unique(np.concatenate([tb["d"].t_label for tb in tabs]))
+    n = t_all.size
+    k_of = []
+    for tb in tabs:
+        m = np.full(n, -1, dtype=np.int64)
+        m[np.searchsorted(t_all, tb["d"].t_label)] = np.arange(tb["d"].t_label.size)
+        k_of.append(m)
+
+    return SimpleNamespace(mapping=mapping, rover_ants=rover_ants, unused=unused, xm=xm, R=R, tabs=tabs, ant_idx=ant_idx,
+                           d_hdr=d_hdr, mismatch=mismatch, t_all=t_all, k_of=k_of)
 
 
 def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, out_path, *,
@@ -294,56 +401,26 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
         The :func:`cdgps_cli.io.states.write_states` summary plus the placement, the antenna mapping,
         the nominal-position mismatches and the integer counts.
     """
-    from cdgps_cli.pipeline.gnss import INIT_KIND, _check_master_position, _master_xyz, _stations  # noqa: PLC0415
     from cdgps_cli.io.states import write_states  # noqa: PLC0415
 
     say = progress or (lambda m: None)
-    if not (isinstance(init, dict) and init.get("kind") == INIT_KIND):
-        raise CdgpsError("INIT.json is not from 'cdgps init' on a GNSS run")
-    if init.get("config_sha256") != run.cfg.sha256 or set(init.get("rovers", {})) != set(run.rovers) \
-            or init.get("master") != run.master:
-        raise CdgpsError(f"INIT.json was made from another run than {run.path}")
-    mapping = {a: (receivers or {}).get(a, a) for a in cfg.antenna_names}
-    master_ant = cfg.antenna_names[cfg.master_index]
-    if mapping[master_ant] != run.master:
-        raise CdgpsError(f"the structure's master antenna {master_ant!r} maps to receiver {mapping[master_ant]!r}, "
-                         f"but the run's master is {run.master!r}")
-    rover_ants = [a for a in cfg.antenna_names if a != master_ant]
-    missing = [f"{a} → {mapping[a]}" for a in rover_ants if mapping[a] not in run.rovers]
-    if missing:
-        raise CdgpsError(f"structure antenna(s) without a rover receiver in {run.path}: {', '.join(missing)} "
-                         f"(rovers: {', '.join(run.rovers)})")
-    unused = [r for r in run.rovers if r not in {mapping[a] for a in rover_ants}]
-    stations = _stations(run)
-    _check_master_position(run)
-    xm = _master_xyz(run)
-    placement = StructurePlacement(tuple(float(v) for v in xm), float(x_axis_azimuth_deg))
-    R = placement.rotation()
-    tabs = [_rover_tables(run, init, mapping[a], stations, say) for a in rover_ants]
+    su = _modal_setup(run, init, cfg, receivers, x_axis_azimuth_deg, say)
+    mapping, rover_ants, unused, xm, R, tabs = su.mapping, su.rover_ants, su.unused, su.xm, su.R, su.tabs
+    ant_idx, d_hdr, mismatch, t_all, k_of = su.ant_idx, su.d_hdr, su.mismatch, su.t_all, su.k_of
+    n = t_all.size
     if not batch_init and not any(tb["n_fixed"] for tb in tabs):
         raise CdgpsError(f"INIT.json has no fixed integers for any rover ({', '.join(mapping[a] for a in rover_ants)}); "
                          f"the modal model needs fixed DD integers (run 'cdgps init' without --float-only, or with a "
                          f"longer span / random_walk displacement model)")
-    ant_idx = np.array([cfg.antenna_names.index(a) for a in rover_ants])
-    m_idx = cfg.master_index
-    # nominal receiver positions relative to the master, in the structure frame; mismatch to the model's
-    p0 = antenna_positions(cfg, np.zeros((1, cfg.n_q)))[0]
-    d_hdr = np.array([(tb["xr0"] - xm) @ R for tb in tabs])
-    mismatch = {a: float(np.linalg.norm(d_hdr[i] - (p0[ant_idx[i]] - p0[m_idx]))) for i, a in enumerate(rover_ants)}
-
-    # common time axis
-    t_all = np.unique(np.concatenate([tb["d"].t_label for tb in tabs]))
-    n = t_all.size
-    k_of = []
-    for tb in tabs:
-        m = np.full(n, -1, dtype=np.int64)
-        m[np.searchsorted(t_all, tb["d"].t_label)] = np.arange(tb["d"].t_label.size)
-        k_of.append(m)
 
     nm = cfg.n_modes
     x0 = np.zeros(2 * nm)
     init_record = None
-    if batch_init:
+    stored = _stored_record(init, cfg, mapping, x_axis_azimuth_deg) if batch_init else None
+    if stored is not None:
+        say("modal batch initialization: INIT.json's (from 'cdgps init --structure')")
+        tabs, x0, init_record = apply_modal_record(tabs, stored), np.asarray(stored["x1"], float), stored
+    elif batch_init:
         say(f"modal batch initialization on the first {init_window_s:g} s …")
         try:
             tabs, x0, init_record = modal_batch_initialization(cfg, R, tabs, k_of, ant_idx, d_hdr, t_all,

@@ -235,3 +235,24 @@ def test_simulate_gnss_structure_bad_input_leaves_nothing(tmp_path, args, messag
     r = run_cli("simulate-gnss-structure", TOWER, "--duration", "30", *args, "--out", out)
     assert r.exit_code == 2 and message in r.output, r.output
     assert not out.exists()
+
+
+def test_init_with_structure_writes_the_modal_init_and_estimate_uses_it(tower, tmp_path):
+    """`cdgps init RUN --structure S` adds INIT.json's modal_init (the batch initialization on the
+    first 60 s); `estimate --structure S` applies it instead of solving the window again."""
+    tmp, cfg, sim, *_ = tower
+    r = run_cli("-q", "init", tmp / "run.mcap", "--structure", TOWER, "-o", tmp_path / "init.json")
+    assert r.exit_code == 0, r.output
+    init = json.loads((tmp_path / "init.json").read_text())
+    mi = init["modal_init"]
+    assert mi["structure_sha256"] == cfg.sha256 and mi["window"]["epochs"] == 60
+    assert mi["n_fixed"] == mi["n_segments"] >= 10 and mi["agree_with_init"]["equal"] == mi["agree_with_init"]["compared"]
+    text = (tmp_path / "init.json").read_text()
+    run = read_gnss_run(tmp / "run.mcap")
+    used = gnss_modal_estimate(run, init, text, cfg, tmp_path / "a.mcap")["modal_init"]
+    assert used is not None and used["segments"] == mi["segments"] and "structure_sha256" in used
+    # another azimuth: the stored record does not apply, the window is solved again
+    other = gnss_modal_estimate(run, init, text, cfg, tmp_path / "b.mcap", x_axis_azimuth_deg=80.0)["modal_init"]
+    assert "structure_sha256" not in other
+    r = run_cli("-q", "init", tmp / "run.mcap", "--receiver", "r1=r1", "-o", tmp_path / "bad.json")
+    assert r.exit_code == 2 and "--receiver needs --structure" in r.output and not (tmp_path / "bad.json").exists()
