@@ -348,6 +348,15 @@ def _write_json_atomic(path: str, data: dict) -> None:
     write_bytes_atomic(path, (json.dumps(data, indent=2) + "\n").encode())
 
 
+def _placement_options(f):
+    """--x-axis-azimuth-deg and --receiver of a GNSS run with --structure (init and estimate)."""
+    f = click.option("--receiver", "receiver_map", multiple=True, metavar="ANTENNA=RECEIVER",
+                     help="With --structure: the receiver of a structure antenna (repeatable; default: the same name).")(f)
+    return click.option("--x-axis-azimuth-deg", "x_axis_azimuth_deg", type=float, default=90.0, show_default=True,
+                        help="With --structure: azimuth of the structure x axis, degrees clockwise from north "
+                             "(90: x east, y north).")(f)
+
+
 @main.command("init", short_help="Batch bias init and LAMBDA integers → INIT.json")
 @click.argument("run_mcap", type=click.Path(dir_okay=False))
 @click.option("--start", "start_s", type=float, default=None, help="Window start, s (default: automatic).")
@@ -369,10 +378,7 @@ def _write_json_atomic(path: str, data: dict) -> None:
 @click.option("--structure", "structure", default=None, type=click.Path(dir_okay=False),
               help="GNSS runs: also the model-aided batch initialization of this structure's modal state on the "
                    "first 60 s of double differences (INIT.json 'modal_init', used by 'estimate --structure').")
-@click.option("--x-axis-azimuth-deg", "x_axis_azimuth_deg", type=float, default=90.0, show_default=True,
-              help="With --structure: azimuth of the structure x axis, degrees clockwise from north (90: x east, y north).")
-@click.option("--receiver", "receiver_map", multiple=True, metavar="ANTENNA=RECEIVER",
-              help="With --structure: the receiver of a structure antenna (repeatable; default: the same name).")
+@_placement_options
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="INIT.json to write.")
 @click.option("--json", "as_json", is_flag=True, help="Also print INIT.json on stdout.")
 @click.pass_context
@@ -461,10 +467,7 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
 @click.option("--structure", "structure", default=None, type=click.Path(dir_okay=False),
               help="GNSS runs: a structure config (docs/config-format.md) whose modal model is estimated from the "
                    "double differences instead of the rover displacements (docs/gnss-pipeline.md).")
-@click.option("--x-axis-azimuth-deg", "x_axis_azimuth_deg", type=float, default=90.0, show_default=True,
-              help="With --structure: azimuth of the structure x axis, degrees clockwise from north (90: x east, y north).")
-@click.option("--receiver", "receiver_map", multiple=True, metavar="ANTENNA=RECEIVER",
-              help="With --structure: the receiver of a structure antenna (repeatable; default: the same name).")
+@_placement_options
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="STATES.mcap to write.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context

@@ -440,6 +440,19 @@ static void predict_P(const Csr *A, const double *Q, const double *P, double *AP
     }
 }
 
+/* H P H^T of one measurement row H (non-zero in the first nm columns) and the n x n covariance P */
+static double quad_nm(const double *P, int n, const double *H, int nm)
+{
+    double s = 0.0;
+    for (int a = 0; a < nm; a++) {
+        const double *Pa = P + a * n;
+        double t = 0.0;
+        for (int bb = 0; bb < nm; bb++) t += Pa[bb] * H[bb];
+        s += t * H[a];
+    }
+    return s;
+}
+
 /* ------------------------------------------------------------------------------------------ */
 /* Python entry points */
 
@@ -609,14 +622,7 @@ static PyObject *py_filter_span(PyObject *self, PyObject *args)
             int c = used[i];
             const double *Hc = Hm + c * nm;
             rho[i] = y[c] - h[c] - bias[c];
-            double s = 0.0;
-            for (int a = 0; a < nm; a++) {
-                const double *Pa = Pp + a * n;
-                double t = 0.0;
-                for (int bb = 0; bb < nm; bb++) t += Pa[bb] * Hc[bb];
-                s += t * Hc[a];
-            }
-            s += r_var[c];
+            double s = quad_nm(Pp, (int)n, Hc, nm) + r_var[c];
             wr[i] = 1.0 / r_var[c];
             if (fabs(rho[i] / sqrt(s)) > outlier_sigma) { outlier = 1; break; }
         }
@@ -815,14 +821,7 @@ static PyObject *py_dd_span(PyObject *self, PyObject *args)
                 if (it == 0) {
                     for (int i = 0; i < m; i++) {
                         const double *Hc = Hm + i * nm;
-                        double s = 0.0;
-                        for (int a = 0; a < nm; a++) {
-                            const double *Pa = Pp + a * n;
-                            double t = 0.0;
-                            for (int bb = 0; bb < nm; bb++) t += Pa[bb] * Hc[bb];
-                            s += t * Hc[a];
-                        }
-                        s += var[i];
+                        double s = quad_nm(Pp, (int)n, Hc, nm) + var[i];
                         if (fabs((z[i] - h[i]) / sqrt(s)) > outlier_sigma) { outlier = 1; break; }
                     }
                     if (outlier) break;
