@@ -368,6 +368,15 @@ def _write_json_atomic(path: str, data: dict) -> None:
     write_bytes_atomic(path, (json.dumps(data, indent=2) + "\n").encode())
 
 
+def _placement_options(f):
+    """--x-axis-azimuth-deg and --receiver of a GNSS run with --structure (init and estimate)."""
+    f = click.option("--receiver", "receiver_map", multiple=True, metavar="ANTENNA=RECEIVER",
+                     help="With --structure: the receiver of a structure antenna (repeatable; default: the same name).")(f)
+    return click.option("--x-axis-azimuth-deg", "x_axis_azimuth_deg", type=float, default=90.0, show_default=True,
+                        help="With --structure: azimuth of the structure x axis, degrees clockwise from north "
+                             "(90: x east, y north).")(f)
+
+
 @main.command("init", short_help="Batch bias init and LAMBDA integers → INIT.json")
 @click.argument("run_mcap", type=click.Path(dir_okay=False))
 @click.option("--start", "start_s", type=float, default=None, help="Window start, s (default: automatic).")
@@ -386,11 +395,16 @@ def _write_json_atomic(path: str, data: dict) -> None:
                    "and used by estimate.")
 @click.option("--multipath-tau-s", "multipath_time_constant_s", type=float, default=None,
               help="Time constant of that multipath, s (default: the config's [model] multipath_time_constant_s).")
+@click.option("--structure", "structure", default=None, type=click.Path(dir_okay=False),
+              help="GNSS runs: also the model-aided batch initialization of this structure's modal state on the "
+                   "first 60 s of double differences (INIT.json 'modal_init', used by 'estimate --structure').")
+@_placement_options
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="INIT.json to write.")
 @click.option("--json", "as_json", is_flag=True, help="Also print INIT.json on stdout.")
 @click.pass_context
 def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, ratio_threshold, no_partial,
-             starts, max_iterations, sigma_m, multipath_sigma_m, multipath_time_constant_s, output, as_json):
+             starts, max_iterations, sigma_m, multipath_sigma_m, multipath_time_constant_s, output, as_json,
+             structure=None, x_axis_azimuth_deg=90.0, receiver_map=()):
     """Batch bias initialization (Eq. 9-15) with LAMBDA integer fixing → INIT.json.
 
     On a GNSS run (RINEX/UBX receivers): float DD solution, LAMBDA integers (ratio test, partial
@@ -404,6 +418,7 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
     require_kind(run_mcap, RUNS, "RUN_MCAP")
     if run_kind(run_mcap) == "gnss":
         _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, as_json,
+                   structure=(structure, x_axis_azimuth_deg, receiver_map) if (structure or receiver_map) else None,
                    structure_only={"--start": start_s is not None, "--duration": duration_s is not None,
                                    "--no-process-noise": no_process_noise, "--sigma-m": sigma_m is not None,
                                    "--starts": starts != INIT_STARTS, "--max-iterations": max_iterations != INIT_MAX_ITERATIONS,
@@ -413,6 +428,9 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
     from cdgps_cli.estimation.initializer import InitOptions, initialize
     from cdgps_cli.io.run import read_run
 
+    if structure is not None or receiver_map:
+        raise CdgpsError("--structure/--receiver apply to GNSS runs (from 'cdgps ingest --rinex/--ubx'); a structure "
+                         "run's RUN.mcap already names its structure config")
     run = read_run(run_mcap)
     opt = InitOptions(start_s=start_s, duration_s=duration_s, process_noise=not no_process_noise,
                       fix_integers=not float_only, ratio_threshold=ratio_threshold, partial=not no_partial,
@@ -469,10 +487,7 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
 @click.option("--structure", "structure", default=None, type=click.Path(dir_okay=False),
               help="GNSS runs: a structure config (docs/config-format.md) whose modal model is estimated from the "
                    "double differences instead of the rover displacements (docs/gnss-pipeline.md).")
-@click.option("--x-axis-azimuth-deg", "x_axis_azimuth_deg", type=float, default=90.0, show_default=True,
-              help="With --structure: azimuth of the structure x axis, degrees clockwise from north (90: x east, y north).")
-@click.option("--receiver", "receiver_map", multiple=True, metavar="ANTENNA=RECEIVER",
-              help="With --structure: the receiver of a structure antenna (repeatable; default: the same name).")
+@_placement_options
 @click.option("--covariance", type=click.Choice(_STATES_COVARIANCE), default=_STATES_DEFAULT_COVARIANCE,
               show_default=True,
               help="Covariances in STATES.mcap: modal = the modal-position covariance P_xi of the estimate per epoch "
@@ -1027,7 +1042,7 @@ def _reject_structure_options(given: dict, what: str) -> None:
                          f"(see docs/gnss-pipeline.md)")
 
 
-def _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, as_json, structure_only):
+def _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, as_json, structure_only, structure=None):
     import hashlib
 
     from click.core import ParameterSource
@@ -1044,7 +1059,14 @@ def _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, a
         over["partial"] = False
     if float_only:
         over["fix"] = False
-    res = gnss_init(run, options=over, progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
+    say = None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True))
+    modal = _structure_options(*structure) if structure is not None else None
+    res = gnss_init(run, options=over, progress=say)
+    if modal is not None:
+        from cdgps_cli.pipeline.gnss_modal import gnss_modal_init
+
+        res["modal_init"] = gnss_modal_init(run, res, modal[0], receivers=modal[1], x_axis_azimuth_deg=structure[1],
+                                            progress=say)
     res["run_sha256"] = hashlib.sha256(Path(run_mcap).read_bytes()).hexdigest()
     _write_json_atomic(output, res)
     for r, v in res["rovers"].items():
@@ -1052,6 +1074,13 @@ def _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, a
         st = ", ".join(f"{k} {x:+.4f} ± {v['sigma'][k]:.4f}" for k, x in v["states"].items())
         _say(ctx, f"INIT {run.master} → {r}: {v['solution']}, {v['n_fixed']} of {v['n_estimated']} integers fixed, "
                   f"ratio {ratio} (threshold {v['ratio_threshold']:g}); static displacement (m): {st}")
+    if "modal_init" in res:
+        mi = res["modal_init"]
+        if "refused" in mi:
+            _say(ctx, f"INIT modal ({mi['structure']}): refused ({mi['refused']}); estimate will use the baselines' integers")
+        else:
+            _say(ctx, f"INIT modal ({mi['structure']}, window {mi['window']['epochs']} epochs): {mi['integer_fixing']}, "
+                      f"{mi['agree_with_init']['equal']} of {mi['agree_with_init']['compared']} equal to the baselines'")
     _say(ctx, f"wrote {output}")
     if as_json:
         _emit_json(res)
@@ -1096,11 +1125,9 @@ def _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json, structure_
         _emit_json(s)
 
 
-def _estimate_gnss_modal(ctx, run, init, init_text, output, as_json, smooth, structure, x_axis_azimuth_deg,
-                         receiver_map, extra=None, pairing=None):
-    """``cdgps estimate RUN --init INIT --structure STRUCT.toml``: the modal model on the DDs (gnss_modal.py)."""
+def _structure_options(structure, x_axis_azimuth_deg, receiver_map):
+    """--structure / --x-axis-azimuth-deg / --receiver of a GNSS run → (StructureConfig, {antenna: receiver})."""
     from cdgps_cli.config.structure import load_config
-    from cdgps_cli.pipeline.gnss_modal import gnss_modal_estimate
 
     if structure is None:
         raise CdgpsError("--receiver needs --structure (a structure config)")
@@ -1116,6 +1143,15 @@ def _estimate_gnss_modal(ctx, run, init, init_text, output, as_json, smooth, str
             raise CdgpsError(f"--receiver {it!r}: {a.strip()!r} is not an antenna of {structure} "
                              f"({', '.join(cfg.antenna_names)})")
         mapping[a.strip()] = r.strip()
+    return cfg, mapping
+
+
+def _estimate_gnss_modal(ctx, run, init, init_text, output, as_json, smooth, structure, x_axis_azimuth_deg,
+                         receiver_map, extra=None, pairing=None):
+    """``cdgps estimate RUN --init INIT --structure STRUCT.toml``: the modal model on the DDs (gnss_modal.py)."""
+    from cdgps_cli.pipeline.gnss_modal import gnss_modal_estimate
+
+    cfg, mapping = _structure_options(structure, x_axis_azimuth_deg, receiver_map)
     _say(ctx, f"estimating the modal model of {cfg.name} from {run.path} and its INIT"
               f"{' (smoothing)' if smooth else ''} …")
     s = gnss_modal_estimate(run, init, init_text, cfg, output, receivers=mapping, x_axis_azimuth_deg=x_axis_azimuth_deg,

@@ -7,6 +7,7 @@
  *   phase_model(gi, gf, x, h, H)                      h(x) and H = dh/dx[:, :n_m] of one state
  *   filter_span(...) -> (k_stop, fail_run, reason)    steady-state epochs k0 .. k_stop-1
  *   rts(...) -> -1 or failing epoch                   RTS pass over filtered arrays
+ *   dd_span(...) -> (k_stop, reason)                  whitened full-noise (DD) iterated EKF span
  *
  * filter_span stops, without touching the outputs of that epoch, at the first epoch that needs the
  * Python logic of ekf.estimate (a lock event, a channel being re-biased, an innovation outlier, a
@@ -29,7 +30,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#define KERNEL_API 2
+#define KERNEL_API 3
 
 /* stop reasons of filter_span */
 enum { STOP_END = 0, STOP_EVENT = 1, STOP_REBIAS = 2, STOP_OUTLIER = 3, STOP_REINIT = 4, STOP_CHOLESKY = 5 };
@@ -439,6 +440,19 @@ static void predict_P(const Csr *A, const double *Q, const double *P, double *AP
     }
 }
 
+/* H P H^T of one measurement row H (non-zero in the first nm columns) and the n x n covariance P */
+static double quad_nm(const double *P, int n, const double *H, int nm)
+{
+    double s = 0.0;
+    for (int a = 0; a < nm; a++) {
+        const double *Pa = P + a * n;
+        double t = 0.0;
+        for (int bb = 0; bb < nm; bb++) t += Pa[bb] * H[bb];
+        s += t * H[a];
+    }
+    return s;
+}
+
 /* ------------------------------------------------------------------------------------------ */
 /* Python entry points */
 
@@ -608,14 +622,7 @@ static PyObject *py_filter_span(PyObject *self, PyObject *args)
             int c = used[i];
             const double *Hc = Hm + c * nm;
             rho[i] = y[c] - h[c] - bias[c];
-            double s = 0.0;
-            for (int a = 0; a < nm; a++) {
-                const double *Pa = Pp + a * n;
-                double t = 0.0;
-                for (int bb = 0; bb < nm; bb++) t += Pa[bb] * Hc[bb];
-                s += t * Hc[a];
-            }
-            s += r_var[c];
+            double s = quad_nm(Pp, (int)n, Hc, nm) + r_var[c];
             wr[i] = 1.0 / r_var[c];
             if (fabs(rho[i] / sqrt(s)) > outlier_sigma) { outlier = 1; break; }
         }
@@ -681,6 +688,218 @@ static PyObject *py_filter_span(PyObject *self, PyObject *args)
 
     free(used);
     ret = Py_BuildValue("nni", k, fr, reason);
+done:
+    free(work);
+    release_all(b, NB);
+    return ret;
+}
+
+/*
+ * dd_span(gi, gf, A_row, A_col, A_val, Q, L, Z, VAR, S, CHANT, HC, M, STOP, x, P, xs, Ps, nis, nis_dof,
+ *         N, n, C, k0, k1, max_iter, outlier_sigma) -> (k_stop, reason)
+ *
+ * The whitened full-noise path: the iterated EKF of cdgps_cli.estimation.model_filter on rows whose
+ * noise is a full covariance C_k = L_k L_k^T (satellite double differences, D Sigma D^T), given per
+ * epoch k as the first M[k] of C padded rows: L = L_k (C x C, lower; rows whitened by forward
+ * substitution), Z = z, VAR = diag C_k, and the far-field geometry of each row (S: s_j - s_r, CHANT: its antenna, HC: the
+ * constant (s_j - s_r)^T d_a), so h = HC - S^T (p_a(q) - p_M(q)).  The update is in information form
+ * on the whitened rows, iterated while the step exceeds 1e-9 of the state (max_iter at most); NIS
+ * with the prior linearization.  It stops, without touching epoch k's outputs, where STOP[k] != 0
+ * (an epoch Python handles: another spacing, a hook) or a row's innovation exceeds outlier_sigma
+ * standard deviations (S_ii = H_i P H_i^T + VAR_i).
+ */
+static PyObject *py_dd_span(PyObject *self, PyObject *args)
+{
+    enum { NB = 20 };
+    PyObject *o[NB];
+    Buf b[NB];
+    memset(b, 0, sizeof(b));
+    Py_ssize_t N, n, C, k0, k1, max_iter;
+    double outlier_sigma;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOOOOOOOOOOnnnnnnd", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5],
+                          &o[6], &o[7], &o[8], &o[9], &o[10], &o[11], &o[12], &o[13], &o[14], &o[15], &o[16],
+                          &o[17], &o[18], &o[19], &N, &n, &C, &k0, &k1, &max_iter, &outlier_sigma))
+        return NULL;
+    PyObject *ret = NULL;
+    double *work = NULL;
+    Geom g;
+    Csr A;
+    if (get_geom(o[0], o[1], &b[0], &b[1], &g)) goto done;
+    if (n < 2 * g.nm || n > 4096 || N < 0 || C < 0 || C > 4096 || k0 < 0 || k1 > N || k0 > k1 || max_iter < 1) {
+        PyErr_SetString(PyExc_ValueError, "_ekfcore.dd_span: bad dimensions");
+        goto done;
+    }
+    const Py_ssize_t nn = n * n, NC = N * C;
+    if (get_csr(o[2], o[3], o[4], b + 2, (int)n, &A)
+        || get_buf(o[5], &b[5], 'd', nn, 0, "Q") || get_buf(o[6], &b[6], 'd', NC * C, 0, "L")
+        || get_buf(o[7], &b[7], 'd', NC, 0, "Z")
+        || get_buf(o[8], &b[8], 'd', NC, 0, "VAR") || get_buf(o[9], &b[9], 'd', NC * 3, 0, "S")
+        || get_buf(o[10], &b[10], 'q', NC, 0, "CHANT") || get_buf(o[11], &b[11], 'd', NC, 0, "HC")
+        || get_buf(o[12], &b[12], 'q', N, 0, "M") || get_buf(o[13], &b[13], 'b', N, 0, "STOP")
+        || get_buf(o[14], &b[14], 'd', n, 1, "x") || get_buf(o[15], &b[15], 'd', nn, 1, "P")
+        || get_buf(o[16], &b[16], 'd', N * n, 1, "xs") || get_buf(o[17], &b[17], 'd', N * nn, 1, "Ps")
+        || get_buf(o[18], &b[18], 'd', N, 1, "nis") || get_buf(o[19], &b[19], 'q', N, 1, "nis_dof"))
+        goto done;
+    const double *Q = b[5].view.buf, *Lall = b[6].view.buf, *Z = b[7].view.buf;
+    const double *VAR = b[8].view.buf, *S = b[9].view.buf, *HC = b[11].view.buf;
+    const int64_t *CHANT = b[10].view.buf, *M = b[12].view.buf;
+    const int8_t *STOP = b[13].view.buf;
+    double *x = b[14].view.buf, *P = b[15].view.buf, *xs = b[16].view.buf, *Ps = b[17].view.buf;
+    double *nis = b[18].view.buf;
+    int64_t *dof = b[19].view.buf;
+    for (Py_ssize_t k = 0; k < N; k++)
+        for (Py_ssize_t i = 0; i < M[k] && i < C; i++)
+            if (!(Lall[(k * C + i) * C + i] > 0.0)) {
+                PyErr_SetString(PyExc_ValueError, "_ekfcore.dd_span: L must have a positive diagonal");
+                goto done;
+            }
+    for (Py_ssize_t i = 0; i < NC; i++)
+        if (CHANT[i] < 0 || CHANT[i] >= g.na) {
+            PyErr_SetString(PyExc_ValueError, "_ekfcore.dd_span: CHANT out of range");
+            goto done;
+        }
+    for (Py_ssize_t k = 0; k < N; k++)
+        if (M[k] < 0 || M[k] > C) {
+            PyErr_SetString(PyExc_ValueError, "_ekfcore.dd_span: M out of range");
+            goto done;
+        }
+    const int nm = g.nm, ni = (int)n;
+    Py_ssize_t wm = model_work_size(&g) + 3 * (Py_ssize_t)g.na * g.nm;   /* model_eval's scratch */
+    Py_ssize_t total = wm + 4 * n + 6 * nn + n + 5 * C + 2 * C * nm + nm;
+    work = malloc(sizeof(double) * (total + 1));
+    if (!work) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    double *mw = work;
+    double *xp = mw + wm, *xi = xp + n, *xn = xi + n, *dx = xn + n;
+    double *Pp = dx + n, *AP = Pp + nn, *Pinv = AP + nn, *Yi = Pinv + nn;
+    double *cw = Yi + nn;                                 /* 2 nn + n */
+    double *h = cw + 2 * nn + n, *v = h + C, *hw = v + C, *Hm = hw + C, *Hw = Hm + C * nm, *grad = Hw + C * nm;
+    double *zw = grad + nm;
+    double *Post = malloc(sizeof(double) * (nn + 1));
+    if (!Post) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    Py_ssize_t k = k0;
+    int reason = STOP_END;
+
+    Py_BEGIN_ALLOW_THREADS
+    for (; k < k1; k++) {
+        if (STOP[k]) { reason = STOP_EVENT; break; }
+        if (k > 0) {
+            double zero = 0.0;
+            predict_x(&A, NULL, &zero, 0, x, xp, ni);
+            predict_P(&A, Q, P, AP, Pp, ni);
+        } else {
+            memcpy(xp, x, sizeof(double) * n);
+            memcpy(Pp, P, sizeof(double) * nn);
+        }
+        const int m = (int)M[k];
+        double nis_k = NAN;
+        double *xk = xp, *Pk = Pp;
+        if (m > 0) {
+            Geom gk = g;
+            gk.nc = m;
+            gk.ch_ant = CHANT + k * C;
+            gk.tpos = S + k * C * 3;
+            gk.far = 1;
+            const double *L = Lall + k * C * C, *z = Z + k * C, *var = VAR + k * C, *hc = HC + k * C;
+            for (int i = 0; i < m; i++) {                 /* zw = L^-1 z (forward substitution) */
+                const double *Li = L + i * C;
+                double t = z[i];
+                for (int j = 0; j < i; j++) t -= Li[j] * zw[j];
+                zw[i] = t / Li[i];
+            }
+            if (chol_inv(Pp, Pinv, cw, ni)) { reason = STOP_CHOLESKY; break; }
+            memcpy(xi, xp, sizeof(double) * n);
+            int outlier = 0, fail = 0;
+            for (Py_ssize_t it = 0; it < max_iter; it++) {
+                model_eval(&gk, xi, h, Hm, mw);
+                for (int i = 0; i < m; i++) h[i] += hc[i];
+                if (it == 0) {
+                    for (int i = 0; i < m; i++) {
+                        const double *Hc = Hm + i * nm;
+                        double s = quad_nm(Pp, (int)n, Hc, nm) + var[i];
+                        if (fabs((z[i] - h[i]) / sqrt(s)) > outlier_sigma) { outlier = 1; break; }
+                    }
+                    if (outlier) break;
+                }
+                for (int a = 0; a < nm; a++) dx[a] = xp[a] - xi[a];
+                for (int i = 0; i < m; i++) {             /* hw = L^-1 h, Hw = L^-1 Hm */
+                    const double *Li = L + i * C;
+                    double sh = h[i], il = 1.0 / Li[i];
+                    double *Hwi = Hw + i * nm;
+                    for (int a = 0; a < nm; a++) Hwi[a] = Hm[i * nm + a];
+                    for (int j = 0; j < i; j++) {
+                        double l = Li[j];
+                        if (l == 0.0) continue;
+                        sh -= l * hw[j];
+                        const double *Hj = Hw + j * nm;
+                        for (int a = 0; a < nm; a++) Hwi[a] -= l * Hj[a];
+                    }
+                    sh *= il;
+                    for (int a = 0; a < nm; a++) Hwi[a] *= il;
+                    hw[i] = sh;
+                    double t = 0.0;
+                    for (int a = 0; a < nm; a++) t += Hwi[a] * dx[a];
+                    v[i] = zw[i] - sh - t;
+                }
+                memcpy(Yi, Pinv, sizeof(double) * nn);
+                double vv = 0.0;
+                for (int i = 0; i < m; i++) vv += v[i] * v[i];
+                for (int a = 0; a < nm; a++) {
+                    double ga = 0.0;
+                    for (int i = 0; i < m; i++) ga += Hw[i * nm + a] * v[i];
+                    grad[a] = ga;
+                    for (int bb = a; bb < nm; bb++) {
+                        double s = 0.0;
+                        for (int i = 0; i < m; i++) s += Hw[i * nm + a] * Hw[i * nm + bb];
+                        Yi[a * n + bb] += s;
+                        if (bb != a) Yi[bb * n + a] += s;
+                    }
+                }
+                if (chol_inv(Yi, Post, cw, ni)) { fail = 1; break; }
+                for (int i = 0; i < ni; i++) {
+                    double s = 0.0;
+                    const double *Pi = Post + i * n;
+                    for (int a = 0; a < nm; a++) s += Pi[a] * grad[a];
+                    xn[i] = xp[i] + s;
+                }
+                if (it == 0) {
+                    double gPg = 0.0;
+                    for (int a = 0; a < nm; a++) gPg += grad[a] * (xn[a] - xp[a]);
+                    nis_k = vv - gPg;
+                }
+                double step = 0.0, big = 1.0;
+                for (int i = 0; i < ni; i++) {
+                    double d = fabs(xn[i] - xi[i]);
+                    if (d > step) step = d;
+                }
+                memcpy(xi, xn, sizeof(double) * n);
+                for (int i = 0; i < ni; i++)
+                    if (fabs(xi[i]) > big) big = fabs(xi[i]);
+                if (step <= 1e-9 * big) break;
+            }
+            if (outlier) { reason = STOP_OUTLIER; break; }
+            if (fail) { reason = STOP_CHOLESKY; break; }
+            xk = xi;
+            Pk = Post;
+        }
+        if (m > 0) {
+            nis[k] = nis_k;
+            dof[k] = m;
+        }
+        memcpy(x, xk, sizeof(double) * n);
+        memcpy(P, Pk, sizeof(double) * nn);
+        memcpy(xs + k * n, x, sizeof(double) * n);
+        memcpy(Ps + k * nn, P, sizeof(double) * nn);
+    }
+    Py_END_ALLOW_THREADS
+
+    free(Post);
+    ret = Py_BuildValue("ni", k, reason);
 done:
     free(work);
     release_all(b, NB);
@@ -887,6 +1106,7 @@ static PyMethodDef methods[] = {
     {"phase_model", py_phase_model, METH_VARARGS, "phase_model(gi, gf, x, h, H): h(x) and H[:, :n_m] of one state."},
     {"filter_span", py_filter_span, METH_VARARGS, "Forward EKF (fixed biases) over steady-state epochs."},
     {"rts", py_rts, METH_VARARGS, "Rauch-Tung-Striebel smoother pass."},
+    {"dd_span", py_dd_span, METH_VARARGS, "Iterated EKF on whitened full-noise (DD) rows over steady-state epochs."},
     {NULL, NULL, 0, NULL},
 };
 

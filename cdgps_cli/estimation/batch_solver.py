@@ -70,6 +70,10 @@ class LinearProblem:
         Prior on x₁ (square-root information; zeros = no prior).
     b_mean, b_sqrt_info : (m,), (m, m)
         Prior on the biases.
+    E : ndarray (N, C, m), optional
+        A general bias incidence per row, for rows already whitened by a full noise covariance
+        (each row then mixes several biases; ``bias_index`` is ignored).  Rows whose y is NaN
+        are absent.
     """
 
     A: np.ndarray
@@ -83,6 +87,7 @@ class LinearProblem:
     x1_sqrt_info: np.ndarray
     b_mean: np.ndarray
     b_sqrt_info: np.ndarray
+    E: np.ndarray | None = None
 
 
 @dataclass
@@ -188,6 +193,8 @@ def _measurement_rows(prob: LinearProblem, r: int, pool: _BiasRows) -> np.ndarra
 
     Returns (N, q, r+n+m+1): the filter's rows in its column layout [ω | x | b | y] (zero in ω).
     """
+    if prob.E is not None:
+        return _measurement_rows_full(prob, r, pool)
     N, C, n = prob.H.shape
     m = prob.n_bias
     s = 1.0 / prob.sigma_m
@@ -258,6 +265,35 @@ def _measurement_rows(prob: LinearProblem, r: int, pool: _BiasRows) -> np.ndarra
         gram[m, m] = float(np.einsum("kc,kc->", ys, ys))
         gram -= _gram(meas[:, :, w:].reshape(N * q, m + 1))
         pool.add_gram(gram)
+    return meas
+
+
+def _measurement_rows_full(prob: LinearProblem, r: int, pool: _BiasRows) -> np.ndarray:
+    """:func:`_measurement_rows` for rows with a general bias incidence E_k (whitened full noise).
+
+    The same split: a QR H_k[:, J] = Q R₁ per epoch; the first |J| rows Qᵀ[H_k | E_k | y_k] go to the
+    filter, the other C − |J| rows Q₂ᵀ[E_k | y_k] (biases only) to ``pool``.
+    """
+    N, C, n = prob.H.shape
+    m = prob.n_bias
+    s = 1.0 / prob.sigma_m
+    present = np.isfinite(prob.y)
+    Hs = np.where(present[..., None], prob.H, 0.0) * s
+    EY = np.concatenate([np.where(present[..., None], prob.E, 0.0), np.where(present, prob.y, 0.0)[..., None]], axis=2) * s
+    J = np.flatnonzero(Hs.reshape(-1, n).any(axis=0))
+    w = r + n
+    if not 0 < J.size < C:
+        meas = np.zeros((N, C, w + m + 1))
+        meas[:, :, r:w] = Hs
+        meas[:, :, w:] = EY
+        return meas
+    q = J.size
+    Q, R1 = np.linalg.qr(Hs[:, :, J], mode="complete")
+    QtEY = np.matmul(Q.transpose(0, 2, 1), EY)
+    meas = np.zeros((N, q, w + m + 1))
+    meas[:, :, r + J] = R1[:, :q]
+    meas[:, :, w:] = QtEY[:, :q]
+    pool.add(np.ascontiguousarray(QtEY[:, q:]).reshape(-1, m + 1))
     return meas
 
 
@@ -418,7 +454,9 @@ def dense_solve(prob: LinearProblem) -> LinearSolution:
         for c in np.flatnonzero(ok):
             row = np.zeros(nv)
             row[:n + (N - 1) * r] = prob.H[k, c] @ Phi
-            if prob.bias_index[k, c] >= 0:
+            if prob.E is not None:
+                row[n + (N - 1) * r:] = prob.E[k, c]
+            elif prob.bias_index[k, c] >= 0:
                 row[n + (N - 1) * r + prob.bias_index[k, c]] = 1.0
             rows.append(row / prob.sigma_m)
             rhs.append(prob.y[k, c] / prob.sigma_m)

@@ -31,7 +31,6 @@ import numpy as np
 import pandas as pd
 from cdgps_cli.estimation.chi2 import chi2_quantile
 
-from cdgps_cli.estimation.ambiguity import lambda_search, partial_fix, ratio_test
 from cdgps_cli.estimation.batch_solver import LinearProblem, LinearSolution, srif_solve
 from cdgps_cli.config.options import INIT_MAX_ITERATIONS, INIT_STARTS, RATIO_THRESHOLD
 from cdgps_cli.config.structure import StructureConfig, channel_sigma_m, scalar_sigma_m
@@ -793,6 +792,26 @@ def _multipath_record(mp: MultipathModel, wd: WindowData, z_end: np.ndarray, P, 
         rec["P_m2"] = [[float(v) for v in row] for row in P[nd:nd + C, nd:nd + C]]
         rec["cross_P"] = [[float(v) for v in row] for row in P[:nd, nd:nd + C]]
     return rec
+
+
+def fix_note_text(fx: dict, m: int, threshold: float) -> str:
+    """INIT.json's ``integer_fixing`` sentence for a :func:`~cdgps_cli.estimation.ambiguity.fix_integers` result."""
+    ratio, fixed = fx["full_ratio"], fx["fixed_mask"]
+    rtxt = "n/a" if ratio is None else f"{ratio:.2f}"
+    if fixed.all():
+        return f"all {m} integers fixed (ratio {rtxt} ≥ {threshold:g})"
+    if fixed.any():
+        return f"{int(fixed.sum())} of {m} integers fixed by partial fixing (full-set ratio {rtxt})"
+    return fx.get("limit_message") or f"integers not fixed: ratio {rtxt} < {threshold:g}"
+
+
+def fix_validation(cost_float: float, cost_fixed: float, dof_float: int, n_fixed: int, opt) -> tuple[float, float]:
+    """(ΔJ, limit) of the fix validation: with the right integers the cost rises by about a
+    chi-square(n_fixed) amount, scaled by the float solution's cost per degree of freedom; the fix is
+    rejected when ΔJ > limit = ``fix_validation_margin`` × χ²_p(n_fixed), p = ``fix_validation_probability``."""
+    scale = max(cost_float / max(dof_float, 1), 1e-12)
+    limit = opt.fix_validation_margin * float(chi2_quantile(opt.fix_validation_probability, n_fixed))
+    return (cost_fixed - cost_float) / scale, limit
 
 
 NOISE_ITERATIONS = 2            # re-weightings of the batch with the estimated per-channel σ

@@ -24,7 +24,7 @@ try:
 except ImportError:                      # not compiled (no C compiler at install time)
     _ekfcore = None
 
-API = 2                                 # 2: per-channel measurement variance (R = diag(r_var))
+API = 3                                 # 2: per-channel measurement variance (R = diag(r_var)); 3: dd_span
 STOP_REASONS = {0: "end", 1: "lock event", 2: "re-bias", 3: "outlier", 4: "re-initialization", 5: "cholesky"}
 
 

@@ -43,6 +43,7 @@ from cdgps_cli.config.options import PHASE_SIGMA_A_M, PHASE_SIGMA_B_M
 
 __all__ = [
     "epoch_pointers",
+    "joint_dd_covariance",
     "sd_variance",
     "ambiguity_segments",
     "ambiguity_datum",
@@ -435,3 +436,41 @@ def double_differences(ptr, ref_rows, values, *, usable=None) -> dict:
     rows = np.flatnonzero(sel)
     rr = r[rows]
     return {"epoch": ep_of_row[rows], "row": rows, "ref_row": rr, "value": val[rows] - val[rr]}
+
+
+def joint_dd_covariance(var_rover: list, var_master: list, sats: list, refs: list) -> np.ndarray:
+    """Covariance of the DDs of one epoch of several rovers against one master, m².
+
+    Parameters
+    ----------
+    var_rover, var_master : list of array (n_a,)
+        Per rover a: undifferenced phase variance of each of its satellites at the rover and at
+        the master, m².
+    sats : list of sequence (n_a,)
+        Satellite names of each rover's single differences.
+    refs : list of int
+        Position of each rover's reference satellite among its SDs.
+
+    Returns
+    -------
+    ndarray (Σ (n_a − 1), Σ (n_a − 1))
+        ``D Σ_SD Dᵀ`` with D block-diagonal (:func:`dd_operator` per rover) and
+        ``Cov(SD_a,j, SD_b,k) = δ_ab δ_jk σ²_a,j + [j = k] σ²_M,j``.  For one rover this is
+        :func:`dd_covariance` of ``σ²_a + σ²_M``.
+    """
+    sizes = [len(s) for s in sats]
+    n = sum(sizes)
+    off = np.cumsum([0] + sizes)
+    S = np.zeros((n, n))
+    names = [s for ss in sats for s in ss]
+    vm = np.concatenate([np.asarray(v, float) for v in var_master])
+    vr = np.concatenate([np.asarray(v, float) for v in var_rover])
+    same = np.equal.outer(np.array(names, dtype=object), np.array(names, dtype=object))
+    S[same] = np.sqrt(np.outer(vm, vm))[same]            # the master's noise, common to every rover
+    S[np.diag_indices(n)] += vr
+    D = np.zeros((n - len(sizes), n))
+    r0 = 0
+    for a, k in enumerate(sizes):
+        D[r0:r0 + k - 1, off[a]:off[a] + k] = dd_operator(k, refs[a])
+        r0 += k - 1
+    return D @ S @ D.T

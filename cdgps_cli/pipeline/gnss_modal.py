@@ -52,21 +52,26 @@ from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
-from scipy.linalg import cho_factor, cho_solve, solve_triangular
 
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli import __version__
 from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.config.options import SIM_MASTER_ECEF_M
-from cdgps_cli.measurement.differencing import dd_operator, sd_variance, select_reference
 from cdgps_cli.model.dynamics import discrete_model
+
+from cdgps_cli.core.gps_time import gps_time_str
+from cdgps_cli.measurement.differencing import joint_dd_covariance, sd_variance, select_reference
+from cdgps_cli.measurement.model import SatelliteDDModal, dd_modal_h_and_H
+from cdgps_cli.model.dynamics_models import ModalZOH
+from cdgps_cli.estimation import kernel
+from cdgps_cli.estimation.filter import EstimateOptions
+from cdgps_cli.estimation.model_filter import filter_dd_kernel, filter_numpy, outlier_gate, rts_smooth
 from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
 from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.model.kinematics import antenna_positions
 
-from cdgps_cli.model.kinematics import EpochGeometry, antenna_positions
-from cdgps_cli.core.gps_time import gps_time_str
-
-__all__ = ["StructurePlacement", "structure_to_ecef", "nominal_receiver_positions", "gnss_modal_estimate",
+__all__ = ["StructurePlacement", "structure_to_ecef", "nominal_receiver_positions", "gnss_modal_estimate", "gnss_modal_init",
+           "modal_batch_initialization", "apply_modal_record",
            "simulate_structure_gnss", "joint_dd_covariance"]
 
 
@@ -116,48 +121,6 @@ def nominal_receiver_positions(cfg: StructureConfig, placement: StructurePlaceme
 
 
 # ----------------------------------------------------------------------------------------------
-# DD covariance over several rovers with a common master
-
-
-def joint_dd_covariance(var_rover: list, var_master: list, sats: list, refs: list) -> np.ndarray:
-    """Covariance of the DDs of one epoch of several rovers against one master, m².
-
-    Parameters
-    ----------
-    var_rover, var_master : list of array (n_a,)
-        Per rover a: undifferenced phase variance of each of its satellites at the rover and at
-        the master, m².
-    sats : list of sequence (n_a,)
-        Satellite names of each rover's single differences.
-    refs : list of int
-        Position of each rover's reference satellite among its SDs.
-
-    Returns
-    -------
-    ndarray (Σ (n_a − 1), Σ (n_a − 1))
-        ``D Σ_SD Dᵀ`` with D block-diagonal (:func:`cdgps_cli.measurement.differencing.dd_operator` per rover) and
-        ``Cov(SD_a,j, SD_b,k) = δ_ab δ_jk σ²_a,j + [j = k] σ²_M,j``.  For one rover this is
-        :func:`cdgps_cli.measurement.differencing.dd_covariance` of ``σ²_a + σ²_M``.
-    """
-    sizes = [len(s) for s in sats]
-    n = sum(sizes)
-    off = np.cumsum([0] + sizes)
-    S = np.zeros((n, n))
-    names = [s for ss in sats for s in ss]
-    vm = np.concatenate([np.asarray(v, float) for v in var_master])
-    vr = np.concatenate([np.asarray(v, float) for v in var_rover])
-    same = np.equal.outer(np.array(names, dtype=object), np.array(names, dtype=object))
-    S[same] = np.sqrt(np.outer(vm, vm))[same]            # the master's noise, common to every rover
-    S[np.diag_indices(n)] += vr
-    D = np.zeros((n - len(sizes), n))
-    r0 = 0
-    for a, k in enumerate(sizes):
-        D[r0:r0 + k - 1, off[a]:off[a] + k] = dd_operator(k, refs[a])
-        r0 += k - 1
-    return D @ S @ D.T
-
-
-# ----------------------------------------------------------------------------------------------
 # per-rover measurement tables from the GNSS machinery
 
 
@@ -171,89 +134,234 @@ def _rover_tables(run, init, r, stations, progress):
     # only segments with a known integer (fixed, or the datum pivot of its set) enter; a rover without
     # any fixed integer is not used (its float ambiguities would bias the modal states)
     use = w["known_seg"][w["seg"]] if n_fixed else np.zeros(w["seg"].size, dtype=bool)
-    # SD residual at the nominal rover position with the (fixed; else float) integers removed, m
+    # SD residual at the nominal rover position, m (the integers are removed by _set_integers)
     los = d.rover_sat_xyz - w["xr0"]
     rng = np.linalg.norm(los, axis=1)
-    r0 = d.y_phase_m - (rng + d.rover_clk_trop_m - d.base_model_m) - GPS_L1_WAVELENGTH_M * w["a_seg"][w["seg"]]
-    # remove each epoch's mean over the usable rows (receiver clock difference; cancels in the DDs)
-    cnt = np.bincount(d.epoch, weights=use.astype(float), minlength=d.t_label.size)
-    mean = np.bincount(d.epoch, weights=np.where(use, r0, 0.0), minlength=d.t_label.size) / np.maximum(cnt, 1.0)
-    r0 = r0 - mean[d.epoch]
+    r_raw = d.y_phase_m - (rng + d.rover_clk_trop_m - d.base_model_m)
     # undifferenced variances of each receiver (the run's weighting): σ²(el) = sd_variance(el, el) / 2
     va = 0.5 * sd_variance(d.el_rover, d.el_rover, sigma_a_m=opt.sigma_a_m, sigma_b_m=opt.sigma_b_m, weighting=opt.weighting)
     vm = 0.5 * sd_variance(d.el_base, d.el_base, sigma_a_m=opt.sigma_a_m, sigma_b_m=opt.sigma_b_m, weighting=opt.weighting)
-    ref = select_reference(d.ptr, d.sat, d.el_rover, d.slip, usable=use)
     ev = _events(r, run.master, res, w)
     if not n_fixed:
         ev.append({"time_s": float(d.t_label[0]), "antenna": r, "transmitter": "", "kind": "no integer fixed",
                    "action": "receiver not used"})
-    return {"res": res, "w": w, "d": d, "use": use, "r0": r0, "var_rover": va, "var_master": vm, "ref": ref,
-            "events": ev, "n_fixed": int(n_fixed), "n_estimated": int(res["ambiguities"]["n_estimated"]),
-            "xr0": np.asarray(w["xr0"], float), "xm": np.asarray(w["xm"], float)}
+    tb = {"res": res, "w": w, "d": d, "r_raw": r_raw, "seg": w["seg"], "var_rover": va, "var_master": vm,
+          "events": ev, "n_fixed": int(n_fixed), "n_estimated": int(res["ambiguities"]["n_estimated"]),
+          "xr0": np.asarray(w["xr0"], float), "xm": np.asarray(w["xm"], float)}
+    return _set_integers(tb, w["a_seg"], use)
 
 
-# ----------------------------------------------------------------------------------------------
-# the filter
+def _set_integers(tb: dict, a_seg: np.ndarray, use: np.ndarray) -> dict:
+    """The table's rows with the SD integers ``a_seg`` (cycles, per segment) removed: ``r0`` (m, each
+    epoch's mean over the usable rows removed — the receiver clock difference, which cancels in the
+    DDs), ``use`` (rows entering) and the reference row per epoch among them."""
+    d = tb["d"]
+    r0 = tb["r_raw"] - GPS_L1_WAVELENGTH_M * np.asarray(a_seg)[tb["seg"]]
+    cnt = np.bincount(d.epoch, weights=use.astype(float), minlength=d.t_label.size)
+    mean = np.bincount(d.epoch, weights=np.where(use, r0, 0.0), minlength=d.t_label.size) / np.maximum(cnt, 1.0)
+    ref = select_reference(d.ptr, d.sat, d.el_rover, d.slip, usable=use)
+    return dict(tb, r0=r0 - mean[d.epoch], use=use, ref=ref, a_seg=np.asarray(a_seg, float))
 
 
-def _process(cfg: StructureConfig, dt: float, cache: dict):
-    key = round(float(dt), 6)
-    if key not in cache:
-        dm = discrete_model(cfg, T=dt)
-        # the config's noise is held over its sample period: keep its density at another spacing
-        cache[key] = (dm.A, dm.Q * (cfg.sample_period_s / dt))
-    return cache[key]
+INIT_WINDOW_S = 60.0            # default window of the modal batch initialization, s
+MIN_INIT_EPOCHS = 10
 
 
-def _epoch_measurements(tabs, k_of, k, R_struct):
-    """Stacked DDs of every rover at common epoch k: z (m), s-difference rows (m, 3), antenna
-    slot per DD, channel labels, covariance."""
-    z, sd_rows, slot, labels = [], [], [], []
-    vr, vm, sats, refs = [], [], [], []
+def _init_window(t_all: np.ndarray, window_s: float) -> tuple[np.ndarray, float]:
+    """The first epochs within ``window_s`` of the start on a regular grid (stops at the first gap)."""
+    idx = np.flatnonzero(t_all < t_all[0] + window_s - 1e-9)
+    dt = np.diff(t_all[idx])
+    if dt.size == 0:
+        raise CdgpsError("modal batch initialization: fewer than two epochs in the window")
+    bad = np.flatnonzero(np.abs(dt - dt[0]) > 1e-6 * max(dt[0], 1.0))
+    if bad.size:
+        idx = idx[:bad[0] + 1]
+    if idx.size < MIN_INIT_EPOCHS:
+        raise CdgpsError(f"modal batch initialization: only {idx.size} regularly spaced epochs at the start "
+                         f"(need {MIN_INIT_EPOCHS})")
+    return idx, float(dt[0])
+
+
+def modal_batch_initialization(cfg: StructureConfig, R, tabs, k_of, ant_idx, d_hdr, t_all, *,
+                               window_s: float = INIT_WINDOW_S, options=None):
+    """Model-aided batch initialization of the modal state on the satellite DDs (the paper's method).
+
+    On the first ``window_s`` seconds, every rover's DDs with *float* ambiguities (one per pair of
+    satellite and reference segments, :class:`~cdgps_cli.measurement.model.SatelliteDDModal`) and
+    the modal dynamics are solved by :func:`cdgps_cli.estimation.model_init.model_batch_init`
+    (Gauss–Newton over [x₁, w, b], SRIF, LAMBDA + ratio + partial fixing, validation).  The fixed DD
+    integers replace INIT's: per rover, a fixed DD ambiguity N of (satellite segment s_j, reference
+    segment s_r) sets a(s_j) = a(s_r) + N on INIT's datum.  INIT's fixed segments that the window did
+    not fix (other segments, or a partial fix) are kept when the window's references are INIT-known
+    segments (the same datum).
+
+    Returns
+    -------
+    tabs : list of dict
+        The tables with the integers applied (:func:`_set_integers`).
+    x1 : ndarray (2 n_m,)
+        The batch trajectory's state at the first epoch (the filter's starting point).
+    record : dict
+        Window, counts, ratio, note, agreement with INIT's integers, per-segment floats/integers.
+    """
+    from cdgps_cli.estimation.initializer import InitOptions  # noqa: PLC0415
+    from cdgps_cli.estimation.model_init import model_batch_init  # noqa: PLC0415
+
+    idx, dt = _init_window(t_all, window_s)
+    raw = [dict(tb, r0=tb["r_raw"], use=np.ones(tb["seg"].size, dtype=bool),
+                ref=select_reference(tb["d"].ptr, tb["d"].sat, tb["d"].el_rover, tb["d"].slip)) for tb in tabs]
+    model = SatelliteDDModal(cfg, R, raw, k_of, ant_idx, d_hdr)
+    res = model_batch_init(model, ModalZOH(cfg), idx, dt, GPS_L1_WAVELENGTH_M, options or InitOptions())
+    init_known = [np.asarray(tb["w"]["known_seg"], bool) & (tb["n_fixed"] > 0) for tb in tabs]
+    segs, agree, n_cmp = [], 0, 0
+    for i, col in enumerate(res.columns):
+        a, sj, sr = model.segment_keys[col]
+        d, seg = tabs[a]["d"], tabs[a]["seg"]
+        if res.fixed[i] and init_known[a][sj] and init_known[a][sr]:
+            n_cmp += 1
+            agree += int(round(tabs[a]["a_seg"][sj] - tabs[a]["a_seg"][sr]) == res.integers[i])
+        segs.append({"rover_slot": int(a), "satellite": d.sat_names[int(d.sat[np.flatnonzero(seg == sj)[0]])],
+                     "reference": d.sat_names[int(d.sat[np.flatnonzero(seg == sr)[0]])],
+                     "segment": int(sj), "reference_segment": int(sr), "float_cycles": float(res.float_bias_m[i] / GPS_L1_WAVELENGTH_M),
+                     "sigma_cycles": float(res.float_sigma_m[i] / GPS_L1_WAVELENGTH_M), "integer_cycles": int(res.integers[i]),
+                     "fixed": bool(res.fixed[i])})
+    record = {"method": "model-aided batch (Gauss–Newton over [x1, w, b] on the DDs, SRIF; LAMBDA, ratio, partial)",
+              "window": {"start_s": float(t_all[idx[0]]), "end_s": float(t_all[idx[-1]]), "epochs": int(idx.size),
+                         "interval_s": dt},
+              "n_segments": len(res.columns), "n_fixed": int(res.fixed.sum()),
+              "ratio": None if res.ratio is None else (float(res.ratio) if np.isfinite(res.ratio) else "inf"),
+              "integer_fixing": res.note, "cost_per_dof": float(res.cost_per_dof), "iterations": int(res.iterations),
+              "agree_with_init": {"compared": n_cmp, "equal": agree}, "x1": [float(v) for v in res.x[0]], "segments": segs}
+    return apply_modal_record(tabs, record), res.x[0].copy(), record
+
+
+def apply_modal_record(tabs: list, record: dict) -> list:
+    """The tables with a modal initialization's fixed DD integers applied (on INIT's datum: a fixed
+    N of (s_j, s_r) sets a(s_j) = a(s_r) + N); INIT's fixed segments the window did not fix are
+    kept while on the same datum (every window reference INIT-known)."""
+    a_new = [np.array(tb["a_seg"], dtype=float) for tb in tabs]
+    init_known = [np.asarray(tb["w"]["known_seg"], bool) & (tb["n_fixed"] > 0) for tb in tabs]
+    known = [np.zeros(a.size, dtype=bool) for a in a_new]
+    anchored = [True] * len(tabs)
+    for sg in record["segments"]:
+        a, sj, sr = sg["rover_slot"], sg["segment"], sg["reference_segment"]
+        if not (0 <= a < len(tabs) and 0 <= sj < a_new[a].size and 0 <= sr < a_new[a].size):
+            raise CdgpsError("INIT.json's modal_init does not match this run's lock segments")
+        if sg["fixed"]:
+            a_new[a][sj] = float(tabs[a]["a_seg"][sr]) + int(sg["integer_cycles"])
+            known[a][sj] = known[a][sr] = True
+            anchored[a] = anchored[a] and bool(init_known[a][sr])
+    out = []
     for a, tb in enumerate(tabs):
-        ke = k_of[a][k]
-        if ke < 0:
-            continue
-        d = tb["d"]
-        ref = tb["ref"][ke]
-        if ref < 0:
-            continue
-        rows = np.arange(d.ptr[ke], d.ptr[ke + 1])
-        rows = rows[tb["use"][rows]]
-        if rows.size < 2:
-            continue
-        pos = int(np.flatnonzero(rows == ref)[0])
-        u = (d.rover_sat_xyz[rows] - tb["xm"]) @ R_struct        # structure-frame directions from the master
-        u /= np.linalg.norm(u, axis=1, keepdims=True)
-        others = np.delete(np.arange(rows.size), pos)
-        z.append(tb["r0"][rows[others]] - tb["r0"][ref])
-        sd_rows.append(u[others] - u[pos])
-        slot.extend([a] * others.size)
-        labels.extend([(a, d.sat_names[int(d.sat[i])]) for i in rows[others]])
-        vr.append(tb["var_rover"][rows])
-        vm.append(tb["var_master"][rows])
-        sats.append([d.sat_names[int(d.sat[i])] for i in rows])
-        refs.append(pos)
-    if not z:
+        # INIT's integers where the window's did not decide, while on the same datum
+        keep = known[a] | (init_known[a] & anchored[a])
+        out.append(_set_integers(tb, a_new[a], keep[tb["seg"]]))
+    return out
+
+
+def _stored_record(init: dict, cfg: StructureConfig, mapping: dict, x_axis_azimuth_deg: float):
+    """INIT.json's ``modal_init`` when it was made for this structure, mapping and placement, else None."""
+    rec = init.get("modal_init")
+    if not isinstance(rec, dict) or "segments" not in rec:
         return None
-    C = joint_dd_covariance(vr, vm, sats, refs)
-    return np.concatenate(z), np.vstack(sd_rows), np.asarray(slot), labels, C
+    if rec.get("structure_sha256") != cfg.sha256 or rec.get("receivers") != mapping \
+            or rec.get("x_axis_azimuth_deg") != float(x_axis_azimuth_deg):
+        return None
+    return rec
 
 
-def _h_and_H(geo: EpochGeometry, U, xi, m_idx, ant_idx, slot, srows, d_hdr):
-    q = U @ xi
-    p, J = geo.positions(q)
-    rel = p[ant_idx] - p[m_idx] - d_hdr                         # (n_rov, 3)
-    Jr = J[ant_idx] - J[m_idx]                                  # (n_rov, 3, nq)
-    h = -np.einsum("mi,mi->m", srows, rel[slot])
-    Hq = -np.einsum("mi,miq->mq", srows, Jr[slot])
-    return h, Hq @ U
+def gnss_modal_init(run, init: dict, cfg: StructureConfig, *, receivers: dict | None = None,
+                    x_axis_azimuth_deg: float = 90.0, window_s: float = INIT_WINDOW_S, progress=None) -> dict:
+    """``cdgps init --structure`` on a GNSS run: the modal batch initialization as INIT.json's
+    ``modal_init`` (read back by :func:`gnss_modal_estimate` for the same structure, receiver mapping
+    and azimuth).
+
+    Parameters
+    ----------
+    run : GnssRun
+    init : dict
+        The GNSS INIT of :func:`cdgps_cli.pipeline.gnss.gnss_init` on that run (its datum and the
+        integers of segments outside the window).
+    cfg : StructureConfig
+    receivers, x_axis_azimuth_deg : as :func:`gnss_modal_estimate`
+    window_s : float
+        The window at the run's start, s.
+
+    Returns
+    -------
+    dict
+        The record (window, counts, ratio, note, per-segment floats and integers, x1 at the window's
+        first epoch) with ``structure``, ``structure_sha256``, ``receivers``, ``x_axis_azimuth_deg``;
+        ``refused`` (the reason) instead of the record when the window cannot be solved.
+    """
+    say = progress or (lambda m: None)
+    su = _modal_setup(run, init, cfg, receivers, x_axis_azimuth_deg, say)
+    say(f"modal batch initialization on the first {window_s:g} s …")
+    head = {"structure": cfg.name, "structure_sha256": cfg.sha256, "receivers": su.mapping,
+            "x_axis_azimuth_deg": float(x_axis_azimuth_deg)}
+    try:
+        _, _, rec = modal_batch_initialization(cfg, su.R, su.tabs, su.k_of, su.ant_idx, su.d_hdr, su.t_all, window_s=window_s)
+    except CdgpsError as exc:            # recorded, not fatal: estimate then uses the baselines' integers
+        return {**head, "refused": str(exc)}
+    return {**head, **rec}
+
+
+_h_and_H = dd_modal_h_and_H            # (the model's home: cdgps_cli.measurement.model)
+
+
+def _modal_setup(run, init: dict, cfg: StructureConfig, receivers, x_axis_azimuth_deg: float, say) -> SimpleNamespace:
+    """Checks of the run, INIT and antenna mapping; the placement, every rover's SD table (with INIT's
+    integers), the nominal offsets d_a and the common time axis."""
+    from cdgps_cli.pipeline.gnss import _check_master_position, _master_xyz, _stations, is_gnss_init  # noqa: PLC0415
+
+    if not is_gnss_init(init):
+        raise CdgpsError("INIT.json is not from 'cdgps init' on a GNSS run")
+    if init.get("config_sha256") != run.cfg.sha256 or set(init.get("rovers", {})) != set(run.rovers) \
+            or init.get("master") != run.master:
+        raise CdgpsError(f"INIT.json was made from another run than {run.path}")
+    mapping = {a: (receivers or {}).get(a, a) for a in cfg.antenna_names}
+    master_ant = cfg.antenna_names[cfg.master_index]
+    if mapping[master_ant] != run.master:
+        raise CdgpsError(f"the structure's master antenna {master_ant!r} maps to receiver {mapping[master_ant]!r}, "
+                         f"but the run's master is {run.master!r}")
+    rover_ants = [a for a in cfg.antenna_names if a != master_ant]
+    missing = [f"{a} → {mapping[a]}" for a in rover_ants if mapping[a] not in run.rovers]
+    if missing:
+        raise CdgpsError(f"structure antenna(s) without a rover receiver in {run.path}: {', '.join(missing)} "
+                         f"(rovers: {', '.join(run.rovers)})")
+    unused = [r for r in run.rovers if r not in {mapping[a] for a in rover_ants}]
+    stations = _stations(run)
+    _check_master_position(run)
+    xm = _master_xyz(run)
+    placement = StructurePlacement(tuple(float(v) for v in xm), float(x_axis_azimuth_deg))
+    R = placement.rotation()
+    tabs = [_rover_tables(run, init, mapping[a], stations, say) for a in rover_ants]
+    ant_idx = np.array([cfg.antenna_names.index(a) for a in rover_ants])
+    m_idx = cfg.master_index
+    # nominal receiver positions relative to the master, in the structure frame; mismatch to the model's
+    p0 = antenna_positions(cfg, np.zeros((1, cfg.n_q)))[0]
+    d_hdr = np.array([(tb["xr0"] - xm) @ R for tb in tabs])
+    mismatch = {a: float(np.linalg.norm(d_hdr[i] - (p0[ant_idx[i]] - p0[m_idx]))) for i, a in enumerate(rover_ants)}
+
+    # common time axis
+    t_all = np.unique(np.concatenate([tb["d"].t_label for tb in tabs]))
+    n = t_all.size
+    k_of = []
+    for tb in tabs:
+        m = np.full(n, -1, dtype=np.int64)
+        m[np.searchsorted(t_all, tb["d"].t_label)] = np.arange(tb["d"].t_label.size)
+        k_of.append(m)
+
+    return SimpleNamespace(mapping=mapping, rover_ants=rover_ants, unused=unused, xm=xm, R=R, tabs=tabs, ant_idx=ant_idx,
+                           d_hdr=d_hdr, mismatch=mismatch, t_all=t_all, k_of=k_of)
 
 
 def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, out_path, *,
                         receivers: dict | None = None, x_axis_azimuth_deg: float = 90.0, smooth: bool = False,
                         initial_sigma_xi: float = 1.0, initial_sigma_xidot: float = 1.0,
-                        max_iterations: int = 5, progress=None, extra_options: dict | None = None) -> dict:
+                        max_iterations: int = 5, progress=None, extra_options: dict | None = None,
+                        batch_init: bool = True, init_window_s: float = INIT_WINDOW_S,
+                        outlier_sigma: float | None = None) -> dict:
     """Modal states of a structure from a GNSS RUN and its INIT (integers) → STATES.mcap.
 
     Parameters
@@ -281,6 +389,14 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
     max_iterations : int
         Gauss-Newton iterations of the measurement update (while the correction exceeds 1e-9 of
         the state).
+    batch_init : bool
+        Model-aided batch initialization on the first ``init_window_s`` seconds
+        (:func:`modal_batch_initialization`): its DD integers replace INIT's in the window and the
+        filter starts from its state at the first epoch (with the broad prior covariance, so that
+        the window's data are not counted twice); False: INIT's integers and x = 0.
+    outlier_sigma : float, optional
+        Outlier gate: a DD whose innovation exceeds this many σ is not used at that epoch (event
+        ``outlier``); default :class:`cdgps_cli.estimation.filter.EstimateOptions`'s.
 
     Returns
     -------
@@ -288,127 +404,64 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
         The :func:`cdgps_cli.io.states.write_states` summary plus the placement, the antenna mapping,
         the nominal-position mismatches and the integer counts.
     """
-    from cdgps_cli.pipeline.gnss import _check_master_position, _master_xyz, _stations, is_gnss_init  # noqa: PLC0415
     from cdgps_cli.io.states import write_states  # noqa: PLC0415
 
     say = progress or (lambda m: None)
-    if not is_gnss_init(init):
-        raise CdgpsError("INIT.json is not from 'cdgps init' on a GNSS run")
-    if init.get("config_sha256") != run.cfg.sha256 or set(init.get("rovers", {})) != set(run.rovers) \
-            or init.get("master") != run.master:
-        raise CdgpsError(f"INIT.json was made from another run than {run.path}")
-    mapping = {a: (receivers or {}).get(a, a) for a in cfg.antenna_names}
-    master_ant = cfg.antenna_names[cfg.master_index]
-    if mapping[master_ant] != run.master:
-        raise CdgpsError(f"the structure's master antenna {master_ant!r} maps to receiver {mapping[master_ant]!r}, "
-                         f"but the run's master is {run.master!r}")
-    rover_ants = [a for a in cfg.antenna_names if a != master_ant]
-    missing = [f"{a} → {mapping[a]}" for a in rover_ants if mapping[a] not in run.rovers]
-    if missing:
-        raise CdgpsError(f"structure antenna(s) without a rover receiver in {run.path}: {', '.join(missing)} "
-                         f"(rovers: {', '.join(run.rovers)})")
-    unused = [r for r in run.rovers if r not in {mapping[a] for a in rover_ants}]
-    stations = _stations(run)
-    _check_master_position(run)
-    xm = _master_xyz(run)
-    placement = StructurePlacement(tuple(float(v) for v in xm), float(x_axis_azimuth_deg))
-    R = placement.rotation()
-    tabs = [_rover_tables(run, init, mapping[a], stations, say) for a in rover_ants]
-    if not any(tb["n_fixed"] for tb in tabs):
+    su = _modal_setup(run, init, cfg, receivers, x_axis_azimuth_deg, say)
+    mapping, rover_ants, unused, xm, R, tabs = su.mapping, su.rover_ants, su.unused, su.xm, su.R, su.tabs
+    ant_idx, d_hdr, mismatch, t_all, k_of = su.ant_idx, su.d_hdr, su.mismatch, su.t_all, su.k_of
+    n = t_all.size
+    if not batch_init and not any(tb["n_fixed"] for tb in tabs):
         raise CdgpsError(f"INIT.json has no fixed integers for any rover ({', '.join(mapping[a] for a in rover_ants)}); "
                          f"the modal model needs fixed DD integers (run 'cdgps init' without --float-only, or with a "
                          f"longer span / random_walk displacement model)")
-    ant_idx = np.array([cfg.antenna_names.index(a) for a in rover_ants])
-    m_idx = cfg.master_index
-    # nominal receiver positions relative to the master, in the structure frame; mismatch to the model's
-    p0 = antenna_positions(cfg, np.zeros((1, cfg.n_q)))[0]
-    d_hdr = np.array([(tb["xr0"] - xm) @ R for tb in tabs])
-    mismatch = {a: float(np.linalg.norm(d_hdr[i] - (p0[ant_idx[i]] - p0[m_idx]))) for i, a in enumerate(rover_ants)}
-
-    # common time axis
-    t_all = np.unique(np.concatenate([tb["d"].t_label for tb in tabs]))
-    n = t_all.size
-    k_of = []
-    for tb in tabs:
-        m = np.full(n, -1, dtype=np.int64)
-        m[np.searchsorted(t_all, tb["d"].t_label)] = np.arange(tb["d"].t_label.size)
-        k_of.append(m)
 
     nm = cfg.n_modes
-    ns = 2 * nm
-    U = np.asarray(cfg.mode_shapes)
-    geo = EpochGeometry(cfg)
-    cache: dict = {}
-    xf = np.zeros((n, ns))
-    Pf = np.zeros((n, ns, ns))
-    As = np.zeros((n, ns, ns))
-    Qs = np.zeros((n, ns, ns))
-    nis = np.full(n, np.nan)
-    nis_dof = np.zeros(n, dtype=np.int64)
-    meas = [None] * n
-    x = np.zeros(ns)
-    P = np.diag(np.r_[np.full(nm, initial_sigma_xi**2), np.full(nm, initial_sigma_xidot**2)])
+    x0 = np.zeros(2 * nm)
+    init_record = None
+    stored = _stored_record(init, cfg, mapping, x_axis_azimuth_deg) if batch_init else None
+    if stored is not None:
+        say("modal batch initialization: INIT.json's (from 'cdgps init --structure')")
+        tabs, x0, init_record = apply_modal_record(tabs, stored), np.asarray(stored["x1"], float), stored
+    elif batch_init:
+        say(f"modal batch initialization on the first {init_window_s:g} s …")
+        try:
+            tabs, x0, init_record = modal_batch_initialization(cfg, R, tabs, k_of, ant_idx, d_hdr, t_all,
+                                                               window_s=init_window_s)
+        except CdgpsError as exc:
+            init_record = {"method": "INIT's integers (the modal batch initialization refused)", "refused": str(exc)}
+            say(f"  modal batch initialization refused ({exc}); INIT's integers are used")
+        else:
+            say(f"  {init_record['integer_fixing']}; {init_record['agree_with_init']['equal']} of "
+                f"{init_record['agree_with_init']['compared']} equal to INIT's")
+    if not any(tb["use"].any() for tb in tabs):
+        raise CdgpsError("no fixed DD integers for any rover (INIT.json's nor the modal batch initialization's); "
+                         "try a longer span or 'cdgps init' without --float-only")
+    model = SatelliteDDModal(cfg, R, tabs, k_of, ant_idx, d_hdr)
+    dyn = ModalZOH(cfg)
+    P0 = np.diag(np.r_[np.full(nm, initial_sigma_xi**2), np.full(nm, initial_sigma_xidot**2)])
     say(f"modal EKF over {n} epochs, {len(rover_ants)} rover antenna(s), {nm} modes …")
-    for k in range(n):
-        if k:
-            A, Q = _process(cfg, float(t_all[k] - t_all[k - 1]), cache)
-            As[k], Qs[k] = A, Q
-            x = A @ x
-            P = A @ P @ A.T + Q
-        mk = _epoch_measurements(tabs, k_of, k, R)
-        if mk is not None:
-            z, srows, slot, labels, C = mk
-            meas[k] = (z, srows, slot, labels, C)
-            L = np.linalg.cholesky(C)
-            zw = solve_triangular(L, z, lower=True)
-            xbar, Pbar = x, P
-            Pinv = np.linalg.inv(Pbar)
-            xi = xbar.copy()
-            for it in range(max(int(max_iterations), 1)):
-                h, Hxi = _h_and_H(geo, U, xi[:nm], m_idx, ant_idx, slot, srows, d_hdr)
-                H = np.zeros((z.size, ns))
-                H[:, :nm] = solve_triangular(L, Hxi, lower=True)
-                hw = solve_triangular(L, h, lower=True)
-                info = Pinv + H.T @ H
-                cf = cho_factor(info)
-                v = zw - hw - H @ (xbar - xi)               # whitened innovation at the iterate
-                if it == 0:
-                    # NIS with the prior linearization: νᵀ(HPHᵀ + I)⁻¹ν = νᵀν − νᵀH(P⁻¹ + HᵀH)⁻¹Hᵀν
-                    hv = H.T @ v
-                    nis[k] = float(v @ v - hv @ cho_solve(cf, hv))
-                    nis_dof[k] = z.size
-                x_new = xbar + cho_solve(cf, H.T @ v)
-                step = np.max(np.abs(x_new - xi))
-                xi = x_new
-                if step <= 1e-9 * max(1.0, float(np.max(np.abs(xi)))):
-                    break
-            x = xi
-            P = cho_solve(cf, np.eye(ns))
-            P = 0.5 * (P + P.T)
-        xf[k], Pf[k] = x, P
-    if smooth:
-        xs, Ps = xf.copy(), Pf.copy()
-        for k in range(n - 2, -1, -1):
-            A, Q = As[k + 1], Qs[k + 1]
-            Pp = A @ Pf[k] @ A.T + Q
-            G = cho_solve(cho_factor(Pp), A @ Pf[k]).T
-            xs[k] = xf[k] + G @ (xs[k + 1] - A @ xf[k])
-            Pk = Pf[k] + G @ (Ps[k + 1] - Pp) @ G.T
-            Ps[k] = 0.5 * (Pk + Pk.T)
+    gate = EstimateOptions().outlier_sigma if outlier_sigma is None else float(outlier_sigma)
+    outliers: list = []
+    if kernel.available():
+        fr = filter_dd_kernel(model, dyn, t_all, x0, P0, max_iterations, outlier_sigma=gate, events=outliers)
     else:
-        xs, Ps = xf, Pf
+        fr = filter_numpy(model, dyn, t_all, x0, P0, max_iterations,
+                          rows_hook=outlier_gate(model, gate, outliers, t_all))
+    xf, Pf, meas = fr["x"], fr["P"], fr["rows"]
+    xs, Ps = rts_smooth(xf, Pf, fr["A"], fr["Q"]) if smooth else (xf, Pf)
+    nis, nis_dof = fr["nis"], fr["nis_dof"]
 
     # DD residuals of the reported estimate, per (antenna, satellite) channel
-    chans = sorted({(rover_ants[a], s) for mk in meas if mk is not None for a, s in mk[3]})
+    chans = sorted({(rover_ants[a], s) for mk in meas if mk is not None for a, s in mk.labels})
     cidx = {c: i for i, c in enumerate(chans)}
     resid = np.full((n, len(chans)), np.nan)
     for k, mk in enumerate(meas):
         if mk is None:
             continue
-        z, srows, slot, labels, _ = mk
-        h, _ = _h_and_H(geo, U, xs[k, :nm], m_idx, ant_idx, slot, srows, d_hdr)
-        cols = [cidx[(rover_ants[a], s)] for a, s in labels]
-        resid[k, cols] = z - h
+        h, _ = model.predict(xs[k], mk)
+        cols = [cidx[(rover_ants[a], s)] for a, s in mk.labels]
+        resid[k, cols] = mk.z_m - h
 
     events = []
     for i, tb in enumerate(tabs):
@@ -417,6 +470,9 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
             if e["antenna"] == mapping[rover_ants[i]]:
                 e["antenna"] = rover_ants[i]
             events.append(e)
+    for e in outliers:
+        events.append({"time_s": float(e["time_s"]), "antenna": rover_ants[e["label"][0]], "transmitter": e["label"][1],
+                       "kind": "outlier", "action": f"DD not used at this epoch ({e['sigmas']:.1f} σ)"})
     events.sort(key=lambda e: (e["time_s"], e["antenna"], e["transmitter"], e["kind"]))
     biases = {}
     for i, a in enumerate(rover_ants):
@@ -428,7 +484,8 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
     options = {"model": "gnss-modal", "smooth": bool(smooth), "x_axis_azimuth_deg": float(x_axis_azimuth_deg),
                "master_ecef_m": list(map(float, xm)), "receivers": mapping,
                "initial_sigma_xi": initial_sigma_xi, "initial_sigma_xidot": initial_sigma_xidot,
-               "dd_covariance": "D Σ Dᵀ jointly over the rovers (common master)", **(extra_options or {})}
+               **({"batch_init_window_s": float(init_window_s)} if batch_init else {"batch_init": False}),
+               "dd_covariance": "D Σ Dᵀ jointly over the rovers (common master)", "outlier_sigma": gate, **(extra_options or {})}
     say(f"writing {out_path} …")
     out = write_states(res, run.path, init, init_text, out_path, options)
     out.update({
@@ -437,6 +494,7 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
         "nominal_mismatch_m": mismatch,
         "integers": {a: {"fixed": tabs[i]["n_fixed"], "estimated": tabs[i]["n_estimated"]} for i, a in enumerate(rover_ants)},
         "coordinates": list(cfg.coord_names),
+        **({"modal_init": init_record} if init_record is not None else {}),
     })
     return out
 

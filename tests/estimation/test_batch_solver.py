@@ -379,3 +379,33 @@ def test_linear_memory():
         peaks[N] = tracemalloc.get_traced_memory()[1]
         tracemalloc.stop()
     assert peaks[2000] / peaks[500] < 6.0, peaks
+
+
+def _with_incidence(prob: LinearProblem, mix: np.ndarray | None = None) -> LinearProblem:
+    """The same problem with its bias incidence as a general E (N, C, m); ``mix`` (C, C) mixes the
+    rows of every epoch (as whitening by a full noise covariance does)."""
+    N, C, _ = prob.H.shape
+    E = np.zeros((N, C, prob.n_bias))
+    k, c = np.nonzero(prob.bias_index >= 0)
+    E[k, c, prob.bias_index[k, c]] = 1.0
+    H, y = prob.H, prob.y
+    if mix is not None:
+        H = np.einsum("ij,kjn->kin", mix, H)
+        E = np.einsum("ij,kjm->kim", mix, E)
+        y = np.einsum("ij,kj->ki", mix, y)
+    return LinearProblem(A=prob.A, Bw_L=prob.Bw_L, H=H, y=y, bias_index=np.full((N, C), -1), n_bias=prob.n_bias,
+                         sigma_m=prob.sigma_m, x1_mean=prob.x1_mean, x1_sqrt_info=prob.x1_sqrt_info,
+                         b_mean=prob.b_mean, b_sqrt_info=prob.b_sqrt_info, E=E)
+
+
+@pytest.mark.parametrize("seed,h_cols,square_root", [(0, None, True), (1, 2, True), (2, 2, False), (3, 3, None)])
+def test_srif_general_incidence_matches_dense_and_one_hot(seed, h_cols, square_root):
+    """Rows with a general bias incidence E (whitened full noise): the SRIF equals the dense Θ
+    solve, and with E one-hot (no mixing) equals the bias_index path."""
+    rng = np.random.default_rng(100 + seed)
+    prob = random_problem(rng, n=4, r=1, C=5, N=14, prior=bool(seed % 2), nan_frac=0.0, h_cols=h_cols)
+    one_hot = _with_incidence(prob)
+    _assert_agree(srif_solve(one_hot, square_root=square_root), srif_solve(prob, square_root=square_root))
+    mix = np.tril(rng.standard_normal((5, 5))) + 3 * np.eye(5)
+    mixed = _with_incidence(prob, mix)
+    _assert_agree(srif_solve(mixed, square_root=square_root), dense_solve(mixed))

@@ -22,8 +22,10 @@ from cdgps_cli.cli.commands import main
 from cdgps_cli.config.structure import load_config
 from cdgps_cli.measurement.differencing import dd_covariance, dd_operator
 from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
-from cdgps_cli.pipeline.gnss_modal import (StructurePlacement, _h_and_H, joint_dd_covariance, nominal_receiver_positions,
-                                  simulate_structure_gnss)
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.io.gnss_run import read_gnss_run
+from cdgps_cli.pipeline.gnss_modal import (StructurePlacement, _h_and_H, gnss_modal_estimate, joint_dd_covariance,
+                                          nominal_receiver_positions, simulate_structure_gnss)
 from cdgps_cli.model.kinematics import EpochGeometry, antenna_positions
 from cdgps_cli.io.states import States
 
@@ -191,13 +193,24 @@ def test_cli_refuses_bad_structure_mappings(tower, tmp_path):
     assert not (tmp_path / "x.mcap").exists()
 
 
-def test_float_only_init_is_refused(tower, tmp_path):
-    tmp, *_ = tower
+def test_float_only_init_is_fixed_by_the_modal_batch_init(tower, tmp_path):
+    """A float-only INIT has no integers: the modal batch initialization fixes the window's own
+    (the same as the integer INIT's, which test_integers_fixed_and_right checks against the truth);
+    without it the estimate is refused."""
+    tmp, cfg, *_ = tower
     assert run_cli("-q", "init", tmp / "run.mcap", "--float-only", "-o", tmp_path / "float.json").exit_code == 0
-    r = run_cli("-q", "estimate", tmp / "run.mcap", "--init", tmp_path / "float.json", "--structure", TOWER,
-                "-o", tmp_path / "x.mcap")
-    assert r.exit_code != 0 and "no fixed integers" in r.output
+    text = (tmp_path / "float.json").read_text()
+    run = read_gnss_run(tmp / "run.mcap")
+    with pytest.raises(CdgpsError, match="no fixed integers"):
+        gnss_modal_estimate(run, json.loads(text), text, cfg, tmp_path / "x.mcap", batch_init=False)
     assert not (tmp_path / "x.mcap").exists()
+    out = gnss_modal_estimate(run, json.loads(text), text, cfg, tmp_path / "y.mcap", init_window_s=60.0)
+    mi = out["modal_init"]
+    assert mi["n_fixed"] == mi["n_segments"] >= 10 and mi["agree_with_init"]["compared"] == 0
+    good = json.loads((tmp / "init.json").read_text())
+    ref = gnss_modal_estimate(run, good, (tmp / "init.json").read_text(), cfg, tmp_path / "z.mcap")
+    assert ref["modal_init"]["agree_with_init"]["equal"] == ref["modal_init"]["agree_with_init"]["compared"] >= 10
+    assert [s["integer_cycles"] for s in mi["segments"]] == [s["integer_cycles"] for s in ref["modal_init"]["segments"]]
 
 
 def test_simulate_gnss_structure_command_is_deterministic(tmp_path):
@@ -222,3 +235,24 @@ def test_simulate_gnss_structure_bad_input_leaves_nothing(tmp_path, args, messag
     r = run_cli("simulate-gnss-structure", TOWER, "--duration", "30", *args, "--out", out)
     assert r.exit_code == 2 and message in r.output, r.output
     assert not out.exists()
+
+
+def test_init_with_structure_writes_the_modal_init_and_estimate_uses_it(tower, tmp_path):
+    """`cdgps init RUN --structure S` adds INIT.json's modal_init (the batch initialization on the
+    first 60 s); `estimate --structure S` applies it instead of solving the window again."""
+    tmp, cfg, sim, *_ = tower
+    r = run_cli("-q", "init", tmp / "run.mcap", "--structure", TOWER, "-o", tmp_path / "init.json")
+    assert r.exit_code == 0, r.output
+    init = json.loads((tmp_path / "init.json").read_text())
+    mi = init["modal_init"]
+    assert mi["structure_sha256"] == cfg.sha256 and mi["window"]["epochs"] == 60
+    assert mi["n_fixed"] == mi["n_segments"] >= 10 and mi["agree_with_init"]["equal"] == mi["agree_with_init"]["compared"]
+    text = (tmp_path / "init.json").read_text()
+    run = read_gnss_run(tmp / "run.mcap")
+    used = gnss_modal_estimate(run, init, text, cfg, tmp_path / "a.mcap")["modal_init"]
+    assert used is not None and used["segments"] == mi["segments"] and "structure_sha256" in used
+    # another azimuth: the stored record does not apply, the window is solved again
+    other = gnss_modal_estimate(run, init, text, cfg, tmp_path / "b.mcap", x_axis_azimuth_deg=80.0)["modal_init"]
+    assert "structure_sha256" not in other
+    r = run_cli("-q", "init", tmp / "run.mcap", "--receiver", "r1=r1", "-o", tmp_path / "bad.json")
+    assert r.exit_code == 2 and "--receiver needs --structure" in r.output and not (tmp_path / "bad.json").exists()

@@ -1,0 +1,186 @@
+"""Forward filter and RTS smoother over the engine's interfaces (a
+:class:`~cdgps_cli.measurement.model.MeasurementModel` and a :class:`~cdgps_cli.model.dynamics_models.Dynamics`).
+
+:func:`filter_numpy` is the reference path: an iterated extended Kalman filter whose measurement
+update is in information form on the rows whitened by their noise (diagonal σ or the Cholesky
+factor of a full covariance, so R = I after whitening).  Integrity is given to it as hooks on the
+rows of each epoch (:class:`Integrity`): new ambiguity segments and the innovation outlier gate.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.linalg import cho_factor, cho_solve
+
+__all__ = ["filter_numpy", "iterated_update", "rts_smooth"]
+
+
+def filter_numpy(model, dyn, time_s, x0, P0, max_iterations: int = 5, rows_hook=None) -> dict:
+    """Iterated EKF over the epochs of ``model`` (reference numpy path).
+
+    Each epoch: predict with ``dyn.transition(Δt)``, then the measurement update on the whitened
+    rows, iterated (Gauss–Newton) while the correction exceeds 1e-9 of the state, at most
+    ``max_iterations`` times.
+
+    Parameters
+    ----------
+    model : MeasurementModel
+    dyn : Dynamics
+    time_s : ndarray (N,)
+        Epoch times, s.
+    x0, P0 : ndarray (n,), (n, n)
+        Prior at the first epoch.
+    max_iterations : int
+    rows_hook : callable, optional
+        ``rows_hook(k, rows, x, P) -> rows or None``: integrity on the epoch's rows before the
+        update (drop rows, re-bias); None keeps them.
+
+    Returns
+    -------
+    dict
+        ``x`` (N, n), ``P`` (N, n, n) filtered; ``A``, ``Q`` (N, n, n) the transition into each
+        epoch (zero at k = 0); ``nis`` (N,), ``nis_dof`` (N,) int; ``rows`` (list of Rows or None).
+    """
+    n, ns = len(time_s), len(x0)
+    out = {"x": np.zeros((n, ns)), "P": np.zeros((n, ns, ns)), "A": np.zeros((n, ns, ns)), "Q": np.zeros((n, ns, ns)),
+           "nis": np.full(n, np.nan), "nis_dof": np.zeros(n, dtype=np.int64), "rows": [None] * n}
+    x, P = np.array(x0, dtype=float), np.array(P0, dtype=float)
+    for k in range(n):
+        if k:
+            A, _, Q = dyn.transition(float(time_s[k] - time_s[k - 1]))
+            out["A"][k], out["Q"][k] = A, Q
+            x = A @ x
+            P = A @ P @ A.T + Q
+        mk = model.rows(k)
+        if mk is not None and rows_hook is not None:
+            mk = rows_hook(k, mk, x, P)
+        if mk is not None:
+            out["rows"][k] = mk
+            x, P, out["nis"][k] = iterated_update(model, mk, x, P, max_iterations)
+            out["nis_dof"][k] = mk.z_m.size
+        out["x"][k], out["P"][k] = x, P
+    return out
+
+
+def iterated_update(model, mk, xbar, Pbar, max_iterations: int = 5):
+    """(x, P, NIS) of one iterated information-form update on the whitened rows ``mk``.
+
+    NIS uses the prior linearization: νᵀ(HPHᵀ + I)⁻¹ν = νᵀν − νᵀH(P⁻¹ + HᵀH)⁻¹Hᵀν (whitened ν, H).
+    """
+    zw = mk.whiten(mk.z_m)
+    Pinv = np.linalg.inv(Pbar)
+    xi = xbar.copy()
+    nis = np.nan
+    for it in range(max(int(max_iterations), 1)):
+        h, H = model.predict(xi, mk)
+        H = mk.whiten(H)
+        hw = mk.whiten(h)
+        cf = cho_factor(Pinv + H.T @ H)
+        v = zw - hw - H @ (xbar - xi)               # whitened innovation at the iterate
+        if it == 0:
+            hv = H.T @ v
+            nis = float(v @ v - hv @ cho_solve(cf, hv))
+        x_new = xbar + cho_solve(cf, H.T @ v)
+        step = np.max(np.abs(x_new - xi))
+        xi = x_new
+        if step <= 1e-9 * max(1.0, float(np.max(np.abs(xi)))):
+            break
+    P = cho_solve(cf, np.eye(len(xbar)))
+    return xi, 0.5 * (P + P.T), nis
+
+
+def rts_smooth(xf, Pf, As, Qs):
+    """Rauch–Tung–Striebel pass over filtered (xf, Pf) (N, n), (N, n, n) with the transitions
+    As[k], Qs[k] into epoch k; returns smoothed (xs, Ps)."""
+    xs, Ps = xf.copy(), Pf.copy()
+    for k in range(len(xf) - 2, -1, -1):
+        A, Q = As[k + 1], Qs[k + 1]
+        Pp = A @ Pf[k] @ A.T + Q
+        G = cho_solve(cho_factor(Pp), A @ Pf[k]).T
+        xs[k] = xf[k] + G @ (xs[k + 1] - A @ xf[k])
+        Pk = Pf[k] + G @ (Ps[k + 1] - Pp) @ G.T
+        Ps[k] = 0.5 * (Pk + Pk.T)
+    return xs, Ps
+
+
+def outlier_gate(model, outlier_sigma: float, events: list, time_s=None):
+    """A ``rows_hook`` of :func:`filter_numpy`: rows whose innovation at the predicted state exceeds
+    ``outlier_sigma`` standard deviations (S_ii = H_i P H_iᵀ + C_ii) are dropped, the worst first, one
+    at a time (a full noise covariance couples the others' statistics to it); each drop is appended
+    to ``events`` as ``{"epoch", "time_s", "label", "kind": "outlier", "sigmas"}``."""
+
+    def hook(k, rows, x, P):
+        while rows is not None and rows.z_m.size:
+            h, H = model.predict(x, rows)
+            S = np.einsum("ij,jk,ik->i", H, P, H) + np.diag(rows.covariance())
+            t = np.abs(rows.z_m - h) / np.sqrt(S)
+            i = int(np.argmax(t))
+            if not t[i] > outlier_sigma:
+                return rows
+            events.append({"epoch": int(k), "time_s": None if time_s is None else float(time_s[k]),
+                           "label": rows.labels[i], "kind": "outlier", "sigmas": float(t[i])})
+            keep = np.delete(np.arange(rows.z_m.size), i)
+            rows = rows.subset(keep) if keep.size else None
+        return rows
+
+    return hook
+
+
+def filter_dd_kernel(model, dyn, time_s, x0, P0, max_iterations: int = 5, outlier_sigma: float = np.inf,
+                     events: list | None = None) -> dict:
+    """:func:`filter_numpy` on a :class:`~cdgps_cli.measurement.model.SatelliteDDModal` through the
+    compiled kernel's whitened full-noise path (``_ekfcore.dd_span``).
+
+    The rows of every epoch are packed once (:func:`~cdgps_cli.measurement.model.pack_dd`, vectorized);
+    the kernel runs the epochs no hook claims and hands back the others to the numpy update of this
+    module: an epoch whose spacing differs from the first one's (another transition), and an epoch
+    with an innovation beyond ``outlier_sigma`` (:func:`outlier_gate` drops the rows).  Same outputs
+    as :func:`filter_numpy` (to rounding; tested), ``rows`` only where Python handled the epoch.
+    """
+    from cdgps_cli.estimation import kernel  # noqa: PLC0415
+    from cdgps_cli.measurement.model import pack_dd  # noqa: PLC0415
+
+    if not kernel.available():
+        raise RuntimeError("the compiled kernel is not available")
+    events = [] if events is None else events
+    pk = pack_dd(model)
+    N, ns, C = len(time_s), len(x0), pk.z_m.shape[1]
+    cfg = model.cfg
+    gi, gf = kernel.pack_geometry(cfg, np.full(C, cfg.master_index), np.zeros(C, dtype=int))
+    gi = gi.copy()
+    gi[6] = 1                                                  # far field: the rows carry s_j − s_r
+    dt = np.diff(np.asarray(time_s, float))
+    dt0 = float(dt[0]) if dt.size else 1.0
+    stop = np.zeros(N, dtype=np.int8)
+    stop[1:][np.abs(dt - dt0) > 1e-9 * max(dt0, 1.0)] = 1
+    A, _, Q = dyn.transition(dt0)
+    out = {"x": np.zeros((N, ns)), "P": np.zeros((N, ns, ns)), "A": np.zeros((N, ns, ns)), "Q": np.zeros((N, ns, ns)),
+           "nis": np.full(N, np.nan), "nis_dof": np.zeros(N, dtype=np.int64), "rows": [None] * N}
+    out["A"][1:], out["Q"][1:] = A, Q
+    f, i64 = kernel._f64, kernel._i64
+    arrays = (f(pk.L), f(pk.z_m), f(pk.var_m2), f(pk.srows), i64(pk.ant), f(pk.hconst_m), i64(pk.m), stop)
+    x, P = np.array(x0, dtype=float), np.array(P0, dtype=float)
+    hook = outlier_gate(model, outlier_sigma, events, time_s)
+    k = 0
+    while k < N:
+        k, reason = kernel._ekfcore.dd_span(gi, gf, *kernel.csr(A), f(Q), *arrays, x, P, out["x"], out["P"],
+                                            out["nis"], out["nis_dof"], N, ns, C, k, N, int(max_iterations),
+                                            float(outlier_sigma))
+        if k >= N:
+            break
+        if reason not in (1, 3):                               # a Cholesky failure: not a hook's epoch
+            raise np.linalg.LinAlgError(f"modal filter: covariance not positive definite at epoch {k}")
+        if k:
+            Ak, _, Qk = dyn.transition(float(time_s[k] - time_s[k - 1]))
+            out["A"][k], out["Q"][k] = Ak, Qk
+            x, P = Ak @ x, Ak @ P @ Ak.T + Qk
+        mk = model.rows(k)
+        mk = hook(k, mk, x, P) if mk is not None else None
+        if mk is not None:
+            out["rows"][k] = mk
+            x, P, out["nis"][k] = iterated_update(model, mk, x, P, max_iterations)
+            out["nis_dof"][k] = mk.z_m.size
+        out["x"][k], out["P"][k] = x, P
+        x, P = x.copy(), P.copy()
+        k += 1
+    return out

@@ -1,0 +1,227 @@
+"""Batch dynamic initialization over the engine's interfaces: Gauss–Newton over [x₁, w, b] on a
+window of any :class:`~cdgps_cli.measurement.model.MeasurementModel` (full or diagonal noise) with a
+:class:`~cdgps_cli.model.dynamics_models.Dynamics`, then the one integer-fixing policy.
+
+This is the structure path's initializer (:mod:`cdgps_cli.estimation.initializer`, Teague, How &
+Parkinson 1998 Sec. IV.A) generalized over the measurement model: :class:`ModelProblem` offers the
+interface :class:`~cdgps_cli.estimation.initializer.GaussNewton` runs on (cost, linearized problem,
+SRIF solve), the linearized problem being whitened per epoch by the rows' noise (so a full
+covariance such as D Σ Dᵀ of double differences is handled exactly: each whitened row then mixes
+several ambiguities, :class:`~cdgps_cli.estimation.batch_solver.LinearProblem` ``E``).  Integers:
+:func:`~cdgps_cli.estimation.ambiguity.fix_integers` (LAMBDA, ratio, partial fixing), then the fixed
+solution and its validation (:func:`~cdgps_cli.estimation.initializer.fix_validation`).
+
+With the modal dynamics and the satellite-DD model this is the paper's model-aided initialization on
+GNSS double differences (used by :mod:`cdgps_cli.pipeline.gnss_modal`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.estimation.ambiguity import AmbiguityError, fix_integers
+from cdgps_cli.estimation.batch_solver import LinearProblem, srif_solve
+from cdgps_cli.estimation.initializer import GaussNewton, InitOptions, fix_note_text, fix_validation
+
+__all__ = ["ModelProblem", "ModelInitResult", "model_batch_init"]
+
+
+class ModelProblem:
+    """The nonlinear batch problem of ``model`` on the regular window ``epochs`` (model epoch indices).
+
+    Parameters
+    ----------
+    model : MeasurementModel
+    dyn : Dynamics
+    epochs : sequence of int
+        Consecutive model epochs, spaced ``dt_s``.
+    dt_s : float
+        Epoch spacing, s.
+    known_bias : ndarray (n_seg,), optional
+        Per window segment (see ``columns``): the known bias (m), NaN = estimated.
+    rows : list of Rows, optional
+        The window's rows (default: ``model.rows(k)`` for k in ``epochs``).
+    """
+
+    def __init__(self, model, dyn, epochs, dt_s: float, known_bias=None, rows=None):
+        self.model = model
+        self.rows = [model.rows(k) for k in epochs] if rows is None else rows
+        self.A, _, _ = dyn.transition(dt_s)
+        self.G = dyn.noise_factor(dt_s)
+        self.n = self.n_dyn = self.A.shape[0]
+        N = len(self.rows)
+        C = max([r.z_m.size for r in self.rows if r is not None], default=0)
+        if C == 0:
+            raise CdgpsError("batch initialization: no measurements in the window")
+        cols = sorted({int(c) for r in self.rows if r is not None for c in r.segment if c >= 0})
+        self.columns = cols                                 # window segment i = model segment column cols[i]
+        local = {c: i for i, c in enumerate(cols)}
+        nseg = len(cols)
+        self.known = np.full(nseg, np.nan) if known_bias is None else np.asarray(known_bias, float)
+        self.free = np.flatnonzero(np.isnan(self.known))
+        remap = np.full(nseg, -1, dtype=np.int64)
+        remap[self.free] = np.arange(self.free.size)
+        self.z = np.full((N, C), np.nan)
+        self.Linv = np.zeros((N, C, C))
+        self.seg = np.full((N, C), -1, dtype=np.int64)      # window segment of each row
+        var = []
+        for k, r in enumerate(self.rows):
+            self.Linv[k] = np.eye(C)
+            if r is None:
+                continue
+            m = r.z_m.size
+            self.z[k, :m] = r.z_m
+            self.Linv[k, :m, :m] = r.whiten(np.eye(m))
+            self.seg[k, :m] = [local[int(c)] if c >= 0 else -1 for c in r.segment]
+            var.append(np.diag(r.covariance()))
+        self.present = np.isfinite(self.z)
+        self.sigma = float(np.sqrt(np.mean(np.concatenate(var))))
+        kb = np.where(self.seg >= 0, np.nan_to_num(self.known, nan=0.0)[np.maximum(self.seg, 0)], 0.0)
+        self.y = np.where(self.present, self.z - kb, np.nan)
+        self.bias_index = np.where(self.seg >= 0, remap[np.maximum(self.seg, 0)], -1)
+        self.E = np.zeros((N, C, self.free.size))
+        k, c = np.nonzero(self.bias_index >= 0)
+        self.E[k, c, self.bias_index[k, c]] = 1.0
+
+    def full_bias(self, b_free: np.ndarray) -> np.ndarray:
+        out = self.known.copy()
+        out[self.free] = b_free
+        return out
+
+    def predict(self, x: np.ndarray, jacobian: bool = False):
+        """h (N, C) and with ``jacobian`` H (N, C, n), zero on absent rows."""
+        N, C = self.z.shape
+        h = np.zeros((N, C))
+        H = np.zeros((N, C, self.n))
+        for k, r in enumerate(self.rows):
+            if r is not None:
+                hk, Hk = self.model.predict(x[k], r)
+                h[k, :hk.size], H[k, :hk.size] = hk, Hk
+        return (h, H) if jacobian else h
+
+    def _white(self, v: np.ndarray) -> np.ndarray:
+        return np.einsum("kij,kj...->ki...", self.Linv, v)
+
+    def residual(self, x: np.ndarray, b_free: np.ndarray) -> np.ndarray:
+        """z − known biases − h(x) − E b, m (N, C); NaN on absent rows."""
+        eb = self.E @ b_free if b_free.size else 0.0
+        return self.y - self.predict(x) - eb
+
+    def cost(self, x, b_free, w) -> float:
+        r = np.where(self.present, self.residual(x, b_free), 0.0)
+        return float(np.sum(self._white(r) ** 2) + np.sum(w**2))
+
+    def propagate(self, x1: np.ndarray) -> np.ndarray:
+        xs = np.empty((len(self.rows), self.n))
+        xs[0] = x1
+        for k in range(1, len(xs)):
+            xs[k] = self.A @ xs[k - 1]
+        return xs
+
+    def initial_biases(self, x: np.ndarray) -> np.ndarray:
+        """Bias guess per free parameter: mean residual of its rows along trajectory x."""
+        r = self.y - self.predict(x)
+        ok = self.present & (self.bias_index >= 0)
+        m = self.free.size
+        total = np.bincount(self.bias_index[ok], weights=r[ok], minlength=m)
+        count = np.bincount(self.bias_index[ok], minlength=m)
+        return np.where(count > 0, total / np.maximum(count, 1), 0.0)
+
+    def linear_problem(self, x, damp_x1, x1_ref, damp_b, b_ref) -> LinearProblem:
+        h, H = self.predict(x, jacobian=True)
+        ytil = np.where(self.present, self.y - h + np.einsum("kci,ki->kc", H, x), 0.0)
+        m = self.free.size
+        yw = np.where(self.present, self._white(ytil), np.nan)
+        return LinearProblem(A=self.A, Bw_L=self.G, H=self._white(H), y=yw, bias_index=self.bias_index, n_bias=m,
+                             sigma_m=1.0, x1_mean=np.asarray(x1_ref, float), x1_sqrt_info=np.eye(self.n) * damp_x1,
+                             b_mean=np.asarray(b_ref, float), b_sqrt_info=np.eye(m) * damp_b, E=self._white(self.E))
+
+    def solve(self, lp: LinearProblem):
+        return srif_solve(lp, square_root=True)
+
+    def gauss_newton(self, x_init, b_init, opt: InitOptions, w_init=None):
+        gn = GaussNewton(self, x_init, b_init, opt.max_iterations, opt, w_init=w_init)
+        while gn.step():
+            pass
+        return gn.result(True)
+
+
+@dataclass
+class ModelInitResult:
+    """Outcome of :func:`model_batch_init` (biases in metres, per window segment)."""
+
+    columns: list              # model segment column of each window segment
+    float_bias_m: np.ndarray   # (n_seg,)
+    float_sigma_m: np.ndarray  # (n_seg,)
+    bias_m: np.ndarray         # (n_seg,) final (fixed where fixed)
+    fixed: np.ndarray          # (n_seg,) bool
+    integers: np.ndarray       # (n_seg,) int64 (rounded float where not fixed)
+    ratio: float | None
+    note: str
+    x: np.ndarray              # (N, n) trajectory of the final solution
+    P_end: np.ndarray | None   # (n, n) state covariance at the window end
+    cost: float
+    cost_per_dof: float
+    iterations: int
+
+
+def model_batch_init(model, dyn, epochs, dt_s: float, wavelength_m: float, opt: InitOptions | None = None,
+                     x1: np.ndarray | None = None, max_bias_sigma_cycles: float | None = None) -> ModelInitResult:
+    """Batch initialization of ``model`` on ``epochs``: float solution, integers, fixed solution.
+
+    The biases are λ·(integer) (no line biases: double differences).  One start (``x1``, default 0)
+    — the modal amplitudes of a structure on GNSS are centimetres, well inside the basin of the
+    linearization.  Refuses (CdgpsError) when the float solution does not converge, its information
+    is singular, or (``max_bias_sigma_cycles`` given) a float bias has a larger σ.  Without that
+    limit a weak direction (e.g. a rigid yaw offset nearly constant over the window, which moves
+    every DD like a bias pattern) is left to LAMBDA: its ratio test decides, and the fix validation
+    checks the fixed solution.
+    """
+    opt = opt or InitOptions()
+    prob = ModelProblem(model, dyn, epochs, dt_s)
+    x = prob.propagate(np.zeros(prob.n) if x1 is None else np.asarray(x1, float))
+    g = prob.gauss_newton(x, prob.initial_biases(x), opt)
+    m, n = prob.free.size, prob.n
+    if not g.converged:
+        raise CdgpsError(f"batch initialization did not converge in {opt.max_iterations} iterations (cost {g.cost:.4g})")
+    P = g.lin.P_end
+    if P is None:
+        raise CdgpsError("batch initialization: the ambiguities are not observable in the window (singular information)")
+    Pbb = P[n:, n:]
+    sig = np.sqrt(np.diag(Pbb))
+    if max_bias_sigma_cycles is not None and sig.max(initial=0.0) > max_bias_sigma_cycles * wavelength_m:
+        raise CdgpsError(f"batch initialization: float ambiguity σ up to {sig.max() / wavelength_m:.2f} cycle "
+                         f"(limit {max_bias_sigma_cycles:g}): not observable in the window")
+    a = g.b / wavelength_m
+    integers = np.rint(a).astype(np.int64)
+    fixed = np.zeros(m, dtype=bool)
+    ratio, note = None, "integer fixing off"
+    if opt.fix_integers and m:
+        try:
+            fx = fix_integers(a, 0.5 * (Pbb + Pbb.T) / wavelength_m**2, opt.ratio_threshold, opt.partial)
+            fixed, ratio = fx["fixed_mask"], fx["full_ratio"]
+            integers = np.where(fixed, fx["integers"], integers)
+            note = fix_note_text(fx, m, opt.ratio_threshold)
+        except AmbiguityError as exc:
+            note = f"integer fixing failed: {exc}"
+    n_obs = int(prob.present.sum())
+    res = ModelInitResult(prob.columns, g.b.copy(), sig, g.b.copy(), fixed, integers, ratio, note, g.x,
+                          P[:n, :n], g.cost, g.cost / max(n_obs - n - m, 1), g.iterations)
+    if fixed.any():
+        known = np.where(fixed, wavelength_m * integers, np.nan)
+        pf = ModelProblem(model, dyn, epochs, dt_s, known_bias=known, rows=prob.rows)
+        gf = pf.gauss_newton(g.x, g.b[~fixed], opt, w_init=g.w)
+        dJ, limit = fix_validation(g.cost, gf.cost, n_obs - n - m, int(fixed.sum()), opt)
+        if gf.converged and dJ <= limit:
+            Pf = gf.lin.P_end
+            res.bias_m, res.x, res.cost = pf.full_bias(gf.b), gf.x, gf.cost
+            res.P_end = None if Pf is None else Pf[:n, :n]
+            res.cost_per_dof = gf.cost / max(n_obs - n - int((~fixed).sum()), 1)
+            res.iterations += gf.iterations
+        else:
+            res.note = f"integer fix rejected by validation (cost increase {dJ:.1f} > {limit:.1f}); float biases kept"
+            res.fixed = np.zeros(m, dtype=bool)
+    return res

@@ -1,0 +1,104 @@
+"""The dynamics interface of the estimation engine (../shared/design/architecture.md, "The engine").
+
+A dynamics model gives, for a step of ``dt_s`` seconds, the discrete transition of its state x:
+
+    x_{k+1} = A x_k + B u_k + w_k,     w_k ~ N(0, Q)
+
+through ``transition(dt_s) -> (A, B, Q)``.  Implementations:
+
+* :class:`ModalZOH` — the structure's modal model (Eq. 4–7, :func:`cdgps_cli.model.dynamics.discrete_model`)
+  held over ``dt_s`` (zero-order hold); the config's process noise is defined per its sample period,
+  so Q is scaled by ``sample_period_s / dt_s`` to keep its density at another spacing;
+* :class:`RandomWalk` — each of n coordinates walks with σ (units/√s): A = I, Q = σ² dt I;
+* :class:`Static` — A = I, Q = 0.
+
+``noise_factor(dt_s)`` gives G with G Gᵀ = Q (the square-root form the batch solver takes).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cdgps_cli.config.structure import StructureConfig
+from cdgps_cli.model.dynamics import discrete_model
+
+__all__ = ["Dynamics", "ModalZOH", "RandomWalk", "Static"]
+
+
+class Dynamics:
+    """Interface: ``n`` states, ``n_u`` inputs, ``transition(dt_s)`` and ``noise_factor(dt_s)``."""
+
+    n: int
+    n_u: int
+
+    def transition(self, dt_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
+        """(A (n, n), B (n, n_u), Q (n, n)) for a step of ``dt_s`` seconds."""
+        raise NotImplementedError
+
+    def noise_factor(self, dt_s: float) -> np.ndarray:
+        """G (n, r) with G Gᵀ = Q(dt_s), r ≤ n (columns of zero noise dropped)."""
+        _, _, Q = self.transition(dt_s)
+        vals, vecs = np.linalg.eigh(0.5 * (Q + Q.T))
+        keep = vals > 1e-300 * max(1.0, float(vals.max(initial=0.0)))
+        return vecs[:, keep] * np.sqrt(vals[keep])
+
+
+def _check_dt(dt_s: float) -> float:
+    dt = float(dt_s)
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt_s must be a positive number of seconds, got {dt_s!r}")
+    return dt
+
+
+class ModalZOH(Dynamics):
+    """The structure's modal model x = [ξ, ξ̇] (n = 2 n_m) discretized at dt_s (cached per spacing)."""
+
+    def __init__(self, cfg: StructureConfig):
+        self.cfg = cfg
+        self.n = 2 * cfg.n_modes
+        self._cache: dict = {}
+        self.n_u = discrete_model(cfg).B.shape[1]
+
+    def _model(self, dt_s: float):
+        key = round(_check_dt(dt_s), 9)
+        if key not in self._cache:
+            self._cache[key] = discrete_model(self.cfg, T=key)
+        return self._cache[key]
+
+    def transition(self, dt_s: float):
+        dm = self._model(dt_s)
+        return dm.A, dm.B, dm.Q * (self.cfg.sample_period_s / float(dt_s))
+
+    def noise_factor(self, dt_s: float) -> np.ndarray:
+        """G = B_w W^{1/2} √(T/dt) on the noise inputs with non-zero σ (W diagonal), else the generic factor."""
+        dm = self._model(dt_s)
+        W = np.asarray(dm.W, dtype=float)
+        if np.count_nonzero(W - np.diag(np.diag(W))):
+            return super().noise_factor(dt_s)
+        L = np.sqrt(np.diag(W))
+        keep = L > 0
+        return (dm.Bw * L)[:, keep] * np.sqrt(self.cfg.sample_period_s / float(dt_s))
+
+
+class RandomWalk(Dynamics):
+    """n coordinates, each a random walk of σ ``sigma_per_sqrt_s`` (units/√s)."""
+
+    def __init__(self, n: int, sigma_per_sqrt_s: float):
+        if not (np.isfinite(sigma_per_sqrt_s) and sigma_per_sqrt_s >= 0):
+            raise ValueError(f"sigma_per_sqrt_s must be ≥ 0, got {sigma_per_sqrt_s!r}")
+        self.n, self.n_u, self.sigma = int(n), 0, float(sigma_per_sqrt_s)
+
+    def transition(self, dt_s: float):
+        dt = _check_dt(dt_s)
+        return np.eye(self.n), np.zeros((self.n, 0)), np.eye(self.n) * self.sigma**2 * dt
+
+    def noise_factor(self, dt_s: float) -> np.ndarray:
+        dt = _check_dt(dt_s)
+        return np.eye(self.n) * self.sigma * np.sqrt(dt) if self.sigma > 0 else np.zeros((self.n, 0))
+
+
+class Static(RandomWalk):
+    """n constant coordinates (a random walk of σ = 0)."""
+
+    def __init__(self, n: int):
+        super().__init__(n, 0.0)

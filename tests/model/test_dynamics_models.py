@@ -1,0 +1,44 @@
+"""The dynamics interface (cdgps_cli/model/dynamics_models.py) against the discrete model it wraps."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cdgps_cli.config.structure import load_config
+from cdgps_cli.model.dynamics import discrete_model
+from cdgps_cli.model.dynamics_models import ModalZOH, RandomWalk, Static
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.mark.parametrize("name", ["gnss-tower.toml", "testbed-1998.toml"])
+def test_modal_zoh_is_the_discrete_model_with_density_kept(name):
+    cfg = load_config(ROOT / "configs" / name)
+    dyn = ModalZOH(cfg)
+    for dt in (cfg.sample_period_s, 2.5 * cfg.sample_period_s):
+        A, B, Q = dyn.transition(dt)
+        dm = discrete_model(cfg, T=dt)
+        np.testing.assert_array_equal(A, dm.A)
+        np.testing.assert_array_equal(B, dm.B)
+        np.testing.assert_allclose(Q, dm.Q * cfg.sample_period_s / dt, rtol=1e-14)
+        G = dyn.noise_factor(dt)
+        np.testing.assert_allclose(G @ G.T, Q, rtol=1e-12, atol=1e-15 * np.abs(Q).max())
+    with pytest.raises(ValueError, match="dt_s"):
+        dyn.transition(0.0)
+
+
+def test_random_walk_and_static():
+    A, B, Q = RandomWalk(3, 0.01).transition(4.0)
+    np.testing.assert_array_equal(A, np.eye(3))
+    assert B.shape == (3, 0)
+    np.testing.assert_allclose(Q, np.eye(3) * 4e-4)
+    G = RandomWalk(3, 0.01).noise_factor(4.0)
+    np.testing.assert_allclose(G @ G.T, Q)
+    A, _, Q = Static(2).transition(1.0)
+    np.testing.assert_array_equal(Q, np.zeros((2, 2)))
+    assert Static(2).noise_factor(1.0).shape == (2, 0)
+    with pytest.raises(ValueError, match="sigma"):
+        RandomWalk(2, -1.0)
