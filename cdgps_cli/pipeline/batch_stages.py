@@ -1,0 +1,131 @@
+"""The stage functions `cdgps batch` runs: each calls the library exactly as its command does
+(`cdgps ingest`, `init`, `estimate [--smooth]`, `spectra`, `report spectrum`), so that a batch writes
+the same bytes as the single commands of :func:`cdgps_cli.pipeline.batch.stage_argv`, and returns
+the few numbers the campaign summary needs.
+
+Structure runs only (receiver/gyro CSV logs or a structure RUN.mcap); a GNSS RUN.mcap is refused
+with a message.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+from cdgps_cli.errors import CdgpsError
+
+
+def run_stage(s, stage: str) -> dict:
+    """Run ``stage`` of session ``s`` (a :class:`cdgps_cli.pipeline.batch.Session`); returns its summary."""
+    return _STAGES[stage](s)
+
+
+def _ingest(s) -> dict:
+    from cdgps_cli.config import load_config
+    from cdgps_cli.run import write_run
+
+    cfg = load_config(s.inputs["config"])
+    r = write_run(cfg, s.inputs["receiver_csv"], s.path("ingest"), s.inputs.get("gyro_csv"), s.inputs.get("actuator_csv"))
+    return {"epochs": r["phase_messages"], "start_s": r["start_s"], "end_s": r["end_s"], "channels": r["channels"],
+            "gaps": len(r["gaps"]), "lock_restarts": r["lock_restarts"]}
+
+
+def _structure_run(path: str) -> None:
+    from cdgps_cli.file_checks import RUNS, require_kind
+    from cdgps_cli.gnss_run import run_kind
+
+    require_kind(path, RUNS, "RUN_MCAP")
+    if run_kind(path) == "gnss":
+        raise CdgpsError(f"{path}: a GNSS run; `cdgps batch` runs structure sessions only for now "
+                         f"(docs/batch.md)")
+
+
+def _init(s) -> dict:
+    from cdgps_cli.atomic import write_bytes_atomic
+    from cdgps_cli.init import InitOptions, initialize
+    from cdgps_cli.run import read_run
+
+    run_mcap, o = s.path("ingest"), s.options
+    _structure_run(run_mcap)
+    run = read_run(run_mcap)
+    opt = InitOptions(start_s=o["init_start_s"], duration_s=o["init_duration_s"], process_noise=True,
+                      fix_integers=not o["float_only"], ratio_threshold=o["ratio"], partial=True, starts=8,
+                      max_iterations=30, sigma_m=o["init_sigma_m"], multipath_sigma_m=None,
+                      multipath_time_constant_s=None, progress=None)
+    res = initialize(run, opt)
+    res["run_sha256"] = hashlib.sha256(Path(run_mcap).read_bytes()).hexdigest()
+    res.pop("elapsed_s", None)                      # as `cdgps init`: INIT.json byte-identical across runs
+    write_bytes_atomic(s.path("init"), (json.dumps(res, indent=2) + "\n").encode())
+    ratio = res["ratio"]
+    return {"integers_fixed": res["n_fixed"], "integers": len(res["biases"]),
+            "ratio": ratio if ratio is None or isinstance(ratio, str) else float(ratio),
+            "init_cost_per_dof": res["cost_per_dof"], "init_sigma_m": res["sigma_m"],
+            "warnings": list(res["noise"].get("warnings", []))}
+
+
+def _estimate(s) -> dict:
+    from cdgps_cli.ekf import EstimateOptions, estimate
+    from cdgps_cli.file_checks import check_init_run, read_init_json
+    from cdgps_cli.run import read_run
+    from cdgps_cli.states import write_states
+
+    run_mcap, init_json, o = s.path("ingest"), s.path("init"), s.options
+    _structure_run(run_mcap)
+    init, init_text = read_init_json(init_json)
+    check_init_run(init, init_json, run_mcap, False)
+    run = read_run(run_mcap)
+    opt = EstimateOptions(biases=o["biases"], smooth=o["smooth"], sigma_m=None, nis_probability=0.999,
+                          outlier_sigma=6.0, process_noise_scale=o["process_noise_scale"], rest_segments_s=(),
+                          rest_process_noise_scale=0.005, rest_retry_s=1.0, rest_auto=False, rest_window_s=3.0,
+                          rest_dwell_s=2.0, keep_filtered_covariance="modal", init_source=str(init_json),
+                          progress=None)
+    res = estimate(run, init, opt)
+    del run
+    w = write_states(res, run_mcap, init, init_text, s.path("estimate"), opt.echo())
+    nz = res.noise or {}
+    return {"nis_per_dof": w["mean_nis_per_dof"], "events": w["events"],
+            "noise_sigma_m": nz.get("sigma_m"), "innovation_sigma_m": nz.get("innovation_sigma_m")}
+
+
+def _states_and_gyro(s):
+    from cdgps_cli.file_checks import STATES, STRUCTURE_RUN, require_kind
+    from cdgps_cli.run import read_run
+    from cdgps_cli.states import States
+
+    require_kind(s.path("estimate"), STATES, "STATES_MCAP")
+    require_kind(s.path("ingest"), STRUCTURE_RUN, "--gyro")
+    return States(s.path("estimate"), diagnostics=False), read_run(s.path("ingest"), phase=False)
+
+
+def _spectra_options(s):
+    from cdgps_cli.spectra import SpectraOptions
+
+    c = s.options["coords"]
+    return SpectraOptions(coords=tuple(x.strip() for x in c.split(",") if x.strip()) if c else None,
+                          segment_s=s.options["segment_s"], overlap=0.5, pad=4)
+
+
+_MODE_KEYS = ("mode", "model_hz", "gps_hz", "gps_hz_sigma", "damping", "damping_sigma", "seen")
+
+
+def _modes(modes: list) -> dict:
+    return {"modes": [{k: m.get(k) for k in _MODE_KEYS} for m in modes]}
+
+
+def _spectra(s) -> dict:
+    from cdgps_cli.reports import run_spectra
+
+    st, run = _states_and_gyro(s)
+    return _modes(run_spectra(st, run, _spectra_options(s), s.path("spectra"))["modes"])
+
+
+def _report(s) -> dict:
+    from cdgps_cli.reports import spectrum_report
+
+    st, run = _states_and_gyro(s)
+    d = spectrum_report(st, run, _spectra_options(s), s.path("report"), date=s.options["date"])
+    return {**_modes(d["modes"]), "report": str(Path(s.path("report")) / "report.html")}
+
+
+_STAGES = {"ingest": _ingest, "init": _init, "estimate": _estimate, "spectra": _spectra, "report": _report}
