@@ -561,10 +561,11 @@ def forget_record(s: Session, stage: str) -> None:
 
 # --------------------------------------------------------------------------- one session-stage
 
-#: test hook (docs/batch.md, "Testing faults"): ``SESSION/STAGE:KIND:N:DIR[,…]`` makes the first N
-#: attempts of that session-stage fail (KIND "raise") or kill their worker process (KIND "kill");
-#: attempts are counted in files under DIR so that they survive the worker's death
-FAULT_ENV = "CDGPS_BATCH_FAULT"
+#: test hook (docs/batch.md, "Testing faults"): a folder; its file ``faults`` lists lines
+#: ``SESSION/STAGE KIND N``: the first N attempts of that session-stage fail (KIND ``raise``) or kill
+#: their worker process (KIND ``kill``).  Attempts are counted in files of that folder, so that the
+#: count survives the worker's death.  Unset (the normal case): nothing is read.
+FAULT_ENV = "CDGPS_BATCH_FAULTS"
 
 
 class InjectedFault(RuntimeError):
@@ -572,21 +573,25 @@ class InjectedFault(RuntimeError):
 
 
 def _inject_fault(session: str, stage: str) -> None:
-    spec = os.environ.get(FAULT_ENV)
-    if not spec:
+    folder = os.environ.get(FAULT_ENV)
+    if not folder:
         return
-    for item in spec.split(","):
-        target, kind, n, folder = item.split(":", 3)
+    try:
+        lines = (Path(folder) / "faults").read_text().splitlines()
+    except FileNotFoundError:
+        return
+    for line in lines:
+        target, kind, n = line.split()
         if target != f"{session}/{stage}":
             continue
         counter = Path(folder) / f"{session}-{stage}.attempts"
         with open(counter, "a") as fh:
             fh.write(f"{os.getpid()}\n")
-        if len(counter.read_text().split()) <= int(n):
+        attempt = len(counter.read_text().split())
+        if attempt <= int(n):
             if kind == "kill":
                 os.kill(os.getpid(), 9)
-            raise InjectedFault(f"injected failure of {session}/{stage} (attempt "
-                                f"{len(counter.read_text().split())} of {n} that fail)")
+            raise InjectedFault(f"injected failure of {session}/{stage} (attempt {attempt}; the first {n} fail)")
 
 
 def execute_stage(s: Session, stage: str, resume: bool, *upstream) -> dict:
@@ -662,7 +667,7 @@ def session_summary(s: Session, results: dict, errors: dict) -> dict:
         if st in results:
             r = results[st]
             stages[st] = {"status": r["status"], "started": r.get("started"), "elapsed_s": round(r["elapsed_s"], 3),
-                          "worker": r.get("worker")}
+                          "worker": r.get("worker"), "blas_threads": r.get("blas_threads")}
         elif st in errors and failed_at is None:
             failed_at = st
             stages[st] = {"status": "failed", "error": errors[st]}
