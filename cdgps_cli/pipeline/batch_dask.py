@@ -90,8 +90,8 @@ def run_batch(manifest: str | Path, outdir: str | Path, *, client=None, schedule
         raise CdgpsError(f"--workers must be ≥ 1, got {workers}")
     sessions = B.read_manifest(manifest)
     out = B.prepare_outdir(sessions, manifest, outdir)
-    cluster = None
-    if client is None:
+    cluster, own = None, client is None
+    if own:
         client, cluster = connect(scheduler, workers, dashboard)
     t0 = time.perf_counter()
     started = _now()
@@ -100,8 +100,9 @@ def run_batch(manifest: str | Path, outdir: str | Path, *, client=None, schedule
             len(client.scheduler_info()["workers"])
         results, errors = _submit_and_wait(client, sessions, resume, retries, progress)
     finally:
-        if cluster is not None:
+        if own:
             client.close()
+        if cluster is not None:
             cluster.close()
     entries = [B.session_summary(s, results.get(s.name, {}), errors.get(s.name, {})) for s in sessions]
     summary = {"manifest": str(Path(manifest).resolve()), "outdir": str(out), "started": started, "finished": _now(),
