@@ -1291,7 +1291,7 @@ def track_cmd(ctx, iq_file, fmt, iq_sign, fs_hz, if_hz, prns, duration_s, pll_bn
         _emit_json({k: v for k, v in s.items() if k != "acquisition"})
 
 
-@main.command("batch", short_help="Many sessions on Dask: ingest → init → estimate → spectra → report")
+@main.command("batch", short_help="Many sessions on Dask, resumable → batch.json")
 @click.argument("manifest", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", "outdir", required=True, type=click.Path(file_okay=False),
               help="Campaign folder: OUTDIR/<session>/ per session, OUTDIR/batch.json and OUTDIR/index.html.")
