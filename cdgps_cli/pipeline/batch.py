@@ -45,6 +45,8 @@ OUTPUT = {"ingest": "run.mcap", "init": "init.json", "estimate": "states.mcap", 
 INPUT_COLUMNS = ("receiver_csv", "gyro_csv", "actuator_csv", "config", "run_mcap")
 RECORD_DIR = ".batch"                 # OUTDIR/<session>/.batch/<stage>.json: the resume records
 CAMPAIGN_FILE = ".cdgps-batch.json"   # OUTDIR/.cdgps-batch.json: which manifest owns OUTDIR
+#: files of the campaign itself in OUTDIR: no session may be called so
+RESERVED = ("batch.json", "index.html", "trends.png")
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
 
 
@@ -297,6 +299,9 @@ def _session(line: int, values: dict, cols: dict, base: Path, probs: _Problems) 
         name = None
     elif not isinstance(name, str) or not _NAME.match(name):
         bad("session", f"{name!r} is not a usable folder name (letters, digits, '.', '_', '-'; at most 128)")
+        name = None
+    elif name in RESERVED:
+        bad("session", f"{name!r} is the name of a file the batch writes into OUTDIR; choose another name")
         name = None
     inputs = {}
     for k in INPUT_COLUMNS:

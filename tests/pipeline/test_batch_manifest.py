@@ -73,7 +73,8 @@ def test_csv_manifest_with_every_kind_of_mistake(folder):
         "s14,rx.csv,broken.toml,,,,,,,,\n"                            # 14: a broken config
         "s15,sub,cfg.toml,,,,,,,,\n"                                  # 15: a folder as a file
         "s16,rx.csv,cfg.toml\n"                                       # 16: too few fields
-        "s17,rx.csv,cfg.toml,,,,-1,,,,\n")                            # 17: ratio ≤ 0
+        "s17,rx.csv,cfg.toml,,,,-1,,,,\n"                            # 17: ratio ≤ 0
+        "index.html,rx.csv,cfg.toml,,,,,,,,\n")                      # 18: a name of the batch's own files
     p = _problems(folder / "m.csv")
     m = str(folder / "m.csv")
     want = [f"{m}:1:11: colour: unknown column",
@@ -96,7 +97,8 @@ def test_csv_manifest_with_every_kind_of_mistake(folder):
             f"{m}:14: config: {folder / 'broken.toml'}",
             f"{m}:15:2: receiver_csv: sub: is a folder",
             f"{m}:16: 3 fields where the header has 11",
-            f"{m}:17:7: ratio: must be > 0 (--ratio)"]
+            f"{m}:17:7: ratio: must be > 0 (--ratio)",
+            f"{m}:18:1: session: 'index.html' is the name of a file the batch writes"]
     for w in want:
         assert any(x.startswith(w) for x in p), f"{w!r} not in:\n" + "\n".join(p)
     assert len(p) == len(want), "\n".join(p)
