@@ -42,7 +42,11 @@ DEPENDS = {"ingest": (), "init": ("ingest",), "estimate": ("init",), "spectra": 
 #: what each stage writes into the session folder (a file or a folder of files)
 OUTPUT = {"ingest": "run.mcap", "init": "init.json", "estimate": "states.mcap", "spectra": "spectra",
           "report": "report"}
-INPUT_COLUMNS = ("receiver_csv", "gyro_csv", "actuator_csv", "config", "run_mcap")
+INPUT_COLUMNS = ("receiver_csv", "gyro_csv", "actuator_csv", "config", "gnss_config", "run_mcap")
+#: what a GNSS session (RINEX/UBX receivers) runs: no structure spectra on rover displacements
+GNSS_STAGES = ("ingest", "init", "estimate")
+#: the options a GNSS session takes (its other settings are its GNSS config's)
+GNSS_OPTIONS = ("float_only", "smooth")
 RECORD_DIR = ".batch"                 # OUTDIR/<session>/.batch/<stage>.json: the resume records
 CAMPAIGN_FILE = ".cdgps-batch.json"   # OUTDIR/.cdgps-batch.json: which manifest owns OUTDIR
 #: files of the campaign itself in OUTDIR: no session may be called so
@@ -101,6 +105,7 @@ class Session:
     stages: tuple
     options: dict
     folder: str = ""
+    kind: str = "structure"          # or "gnss": RINEX/UBX receivers (gnss_config, or a GNSS RUN.mcap)
 
     def path(self, stage: str) -> str:
         """Where ``stage``'s output is (RUN.mcap of the manifest when ingest is not run)."""
@@ -317,29 +322,46 @@ def _session(line: int, values: dict, cols: dict, base: Path, probs: _Problems) 
                    f"the manifest's folder, {base})")
             continue
         inputs[k] = str(p)
-    has_rx, has_run = "receiver_csv" in values, "run_mcap" in values
-    if has_rx and has_run:
-        bad("run_mcap", "give either receiver_csv (the logs, ingested here) or run_mcap (already ingested), not both")
-    elif not has_rx and not has_run:
-        bad("receiver_csv", "missing: give the receiver log (receiver_csv) or a RUN.mcap (run_mcap)")
-    if has_rx and "config" not in values:
+    has_rx, has_run, has_gnss = "receiver_csv" in values, "run_mcap" in values, "gnss_config" in values
+    given = [k for k, h in (("receiver_csv", has_rx), ("gnss_config", has_gnss), ("run_mcap", has_run)) if h]
+    if len(given) > 1:
+        bad(given[1], f"give one of receiver_csv (CSV logs), gnss_config (RINEX/UBX receivers listed in a GNSS "
+                      f"config) or run_mcap (already ingested), not {' and '.join(given)}")
+    elif not given:
+        bad("receiver_csv", "missing: give the receiver log (receiver_csv), a GNSS config (gnss_config) or a "
+                            "RUN.mcap (run_mcap)")
+    if given == ["receiver_csv"] and "config" not in values:
         bad("config", "missing: ingesting receiver_csv needs the structure config TOML")
-    if has_run:
-        for k in ("gyro_csv", "actuator_csv", "config"):
-            if k in values:
-                bad(k, "only with receiver_csv: a RUN.mcap already holds its logs and config")
-    stages = _stages(values.get("stages"), has_run, bad)
+    for k in ("gyro_csv", "actuator_csv", "config"):
+        if k in values and not has_rx and given:
+            bad(k, f"only with receiver_csv (structure logs), not with {given[0]}")
+    kind = "gnss" if has_gnss or (has_run and "run_mcap" in inputs and _is_gnss_run(inputs["run_mcap"])) else "structure"
+    stages = _stages(values.get("stages"), has_run, bad, kind)
     options = {}
     for k, o in OPTIONS.items():
         options[k] = _option(k, o, values.get(k), bad)
+        if kind == "gnss" and k not in GNSS_OPTIONS and values.get(k) is not None:
+            bad(k, f"not for a GNSS session (RINEX/UBX): {', '.join(GNSS_OPTIONS)} are; its other settings "
+                   f"are those of its GNSS config")
     time = _time(values.get("time"), bad)
     if name is None or stages is None:
         return None
-    return Session(name=name, where=f"{probs.path}:{line}", inputs=inputs, time=time, stages=stages, options=options)
+    return Session(name=name, where=f"{probs.path}:{line}", inputs=inputs, time=time, stages=stages, options=options,
+                   kind=kind)
 
 
-def _stages(v, has_run: bool, bad) -> tuple | None:
-    every = tuple(s for s in STAGES if not (has_run and s == "ingest"))
+def _is_gnss_run(path: str) -> bool:
+    from cdgps_cli.gnss_run import run_kind
+
+    try:
+        return run_kind(path) == "gnss"
+    except CdgpsError:            # not a readable MCAP: the init stage says so, naming the file
+        return False
+
+
+def _stages(v, has_run: bool, bad, kind: str = "structure") -> tuple | None:
+    allowed = GNSS_STAGES if kind == "gnss" else STAGES
+    every = tuple(s for s in allowed if not (has_run and s == "ingest"))
     if v is None:
         return every
     if isinstance(v, str):
@@ -356,6 +378,10 @@ def _stages(v, has_run: bool, bad) -> tuple | None:
         return None
     if has_run and "ingest" in items:
         bad("stages", "ingest with run_mcap: the RUN.mcap is already ingested")
+        return None
+    if kind == "gnss" and set(items) - set(GNSS_STAGES):
+        bad("stages", f"a GNSS session (RINEX/UBX) runs {' '.join(GNSS_STAGES)}; "
+                      f"{' '.join(sorted(set(items) - set(GNSS_STAGES)))} are for structure sessions")
         return None
     chosen = set(items)
     for s in items:
@@ -431,21 +457,22 @@ def _time(v, bad) -> str | None:
 
 def _check_configs(sessions: list, probs: _Problems) -> None:
     """Each distinct config is loaded once, up front: a broken config is a manifest problem."""
-    from cdgps_cli.config import load_config
+    from cdgps_cli.config import load_config, load_gnss_config
 
     seen = {}
     for s in sessions:
-        c = s.inputs.get("config")
-        if c is None:
-            continue
-        if c not in seen:
-            try:
-                load_config(c)
-                seen[c] = None
-            except CdgpsError as exc:
-                seen[c] = str(exc)
-        if seen[c] is not None:
-            probs.add(int(s.where.rsplit(":", 1)[1]) or None, None, "config", seen[c])
+        for key, load in (("config", load_config), ("gnss_config", load_gnss_config)):
+            c = s.inputs.get(key)
+            if c is None:
+                continue
+            if (key, c) not in seen:
+                try:
+                    load(c)
+                    seen[key, c] = None
+                except CdgpsError as exc:
+                    seen[key, c] = str(exc)
+            if seen[key, c] is not None:
+                probs.add(int(s.where.rsplit(":", 1)[1]) or None, None, key, seen[key, c])
 
 
 # --------------------------------------------------------------------------- the campaign folder
@@ -455,8 +482,8 @@ def manifest_identity(manifest: str | Path) -> dict:
     return {"manifest": str(Path(manifest).resolve())}
 
 
-def prepare_outdir(sessions: list, manifest: str | Path, outdir: str | Path) -> Path:
-    """Claim OUTDIR for this manifest and set each session's folder.
+def prepare_outdir(sessions: list, manifest: str | Path, outdir: str | Path, claim: bool = True) -> Path:
+    """Claim OUTDIR for this manifest and set each session's folder (``claim=False``: only check).
 
     Refuses a folder that holds another manifest's campaign, or other files (a batch never mixes
     its outputs with foreign ones).
@@ -483,7 +510,8 @@ def prepare_outdir(sessions: list, manifest: str | Path, outdir: str | Path) -> 
                          f"write a campaign into it (choose a new or empty -o OUTDIR)")
     from cdgps_cli.atomic import write_bytes_atomic
 
-    write_bytes_atomic(rec, (json.dumps(ident, indent=2) + "\n").encode())
+    if claim:
+        write_bytes_atomic(rec, (json.dumps(ident, indent=2) + "\n").encode())
     for s in sessions:
         s.folder = str(out / s.name)
     return out
@@ -499,6 +527,13 @@ def _sha256(path: str) -> str:
 
 def stage_inputs(s: Session, stage: str) -> dict:
     """{role: absolute path} of the files ``stage`` reads."""
+    if stage == "ingest" and s.kind == "gnss":
+        from cdgps_cli.config import load_gnss_config
+
+        cfg = load_gnss_config(s.inputs["gnss_config"])          # the receiver and navigation files it lists
+        files = {f"{a.name}": a.rinex or a.ubx for a in cfg.antennas if a.rinex or a.ubx}
+        files.update({f"nav{i}": str(n) for i, n in enumerate(cfg.nav)})
+        return {"gnss_config": s.inputs["gnss_config"], **files}
     if stage == "ingest":
         return {k: s.inputs[k] for k in ("receiver_csv", "gyro_csv", "actuator_csv", "config") if k in s.inputs}
     if stage == "init":
@@ -638,7 +673,8 @@ BLAS_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREAD
 
 def stage_argv(s: Session, stage: str) -> list:
     """The single command that writes the same bytes as ``stage`` of ``s`` (``cdgps`` omitted)."""
-    o = s.options
+    if stage == "ingest" and s.kind == "gnss":
+        return ["ingest", "--config", s.inputs["gnss_config"], "-o", s.path("ingest")]
     if stage == "ingest":
         argv = ["ingest", s.inputs["receiver_csv"]]
         if "gyro_csv" in s.inputs:

@@ -89,10 +89,18 @@ def run_batch(manifest: str | Path, outdir: str | Path, *, client=None, schedule
     if workers is not None and workers < 1:
         raise CdgpsError(f"--workers must be ≥ 1, got {workers}")
     sessions = B.read_manifest(manifest)
-    out = B.prepare_outdir(sessions, manifest, outdir)
+    B.prepare_outdir(sessions, manifest, outdir, claim=False)       # refused before any cluster starts
     cluster, own = None, client is None
     if own:
         client, cluster = connect(scheduler, workers, dashboard)
+    try:
+        out = B.prepare_outdir(sessions, manifest, outdir)           # nothing written if it cannot connect
+    except BaseException:
+        if own:
+            client.close()
+        if cluster is not None:
+            cluster.close()
+        raise
     t0 = time.perf_counter()
     started = _now()
     try:

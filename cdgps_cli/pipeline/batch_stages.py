@@ -3,8 +3,8 @@
 the same bytes as the single commands of :func:`cdgps_cli.pipeline.batch.stage_argv`, and returns
 the few numbers the campaign summary needs.
 
-Structure runs only (receiver/gyro CSV logs or a structure RUN.mcap); a GNSS RUN.mcap is refused
-with a message.
+Structure sessions (receiver/gyro CSV logs) run every stage; GNSS sessions (RINEX/UBX receivers listed
+in a GNSS run config, `cdgps ingest --config GNSS.toml`) run ingest, init and estimate [--smooth].
 """
 
 from __future__ import annotations
@@ -22,6 +22,8 @@ def run_stage(s, stage: str) -> dict:
 
 
 def _ingest(s) -> dict:
+    if s.kind == "gnss":
+        return _ingest_gnss(s)
     from cdgps_cli.config import load_config
     from cdgps_cli.run import write_run
 
@@ -31,14 +33,50 @@ def _ingest(s) -> dict:
             "gaps": len(r["gaps"]), "lock_restarts": r["lock_restarts"]}
 
 
-def _structure_run(path: str) -> None:
+def _ingest_gnss(s) -> dict:
+    from cdgps_cli.config import load_gnss_config
+    from cdgps_cli.gnss_run import ingest_gnss
+
+    cfg = load_gnss_config(s.inputs["gnss_config"])
+    r = ingest_gnss(cfg, s.path("ingest"), rinex=None, ubx=None, nav_paths=None, master=None, progress=None,
+                    strict=False)
+    lost = {n: g["problems"] for n, g in r["integrity"].items() if g["problems"]}
+    return {"receivers": len(r["receivers"]), "ephemerides": r["ephemerides"],
+            "warnings": list(r["warnings"]) + [f"{n}: corrupt UBX data skipped: {', '.join(p)}" for n, p in lost.items()]}
+
+
+def _run_kind(path: str) -> str:
     from cdgps_cli.file_checks import RUNS, require_kind
     from cdgps_cli.gnss_run import run_kind
 
     require_kind(path, RUNS, "RUN_MCAP")
-    if run_kind(path) == "gnss":
-        raise CdgpsError(f"{path}: a GNSS run; `cdgps batch` runs structure sessions only for now "
-                         f"(docs/batch.md)")
+    return run_kind(path) or "structure"
+
+
+def _init_gnss(s, run_mcap: str) -> dict:
+    from cdgps_cli.atomic import write_bytes_atomic
+    from cdgps_cli.gnss_pipeline import gnss_init
+    from cdgps_cli.gnss_run import read_gnss_run
+
+    run = read_gnss_run(run_mcap)
+    res = gnss_init(run, options={"fix": False} if s.options["float_only"] else {}, progress=None)
+    res["run_sha256"] = hashlib.sha256(Path(run_mcap).read_bytes()).hexdigest()
+    write_bytes_atomic(s.path("init"), (json.dumps(res, indent=2) + "\n").encode())     # as `cdgps init`
+    rov = res["rovers"].values()
+    return {"integers_fixed": sum(v["n_fixed"] for v in rov), "integers": sum(v["n_estimated"] for v in rov),
+            "ratio": {r: v["ratio"] for r, v in res["rovers"].items()}}
+
+
+def _estimate_gnss(s, run_mcap: str, init_json: str, init: dict, init_text: str) -> dict:
+    from cdgps_cli.gnss_pipeline import gnss_estimate
+    from cdgps_cli.gnss_run import read_gnss_run
+
+    run = read_gnss_run(run_mcap)
+    w = gnss_estimate(run, init, init_text, s.path("estimate"), smooth=s.options["smooth"], progress=None,
+                      extra_options=None)
+    return {"events": w["events"], "rovers": {r: {"solution": v["solution"], "static_enu_m": v["static_enu_m"],
+                                                  "kinematic_rms_m": v["kinematic_rms_m"]}
+                                              for r, v in w["rovers"].items()}}
 
 
 def _init(s) -> dict:
@@ -47,7 +85,8 @@ def _init(s) -> dict:
     from cdgps_cli.run import read_run
 
     run_mcap, o = s.path("ingest"), s.options
-    _structure_run(run_mcap)
+    if _run_kind(run_mcap) == "gnss":
+        return _init_gnss(s, run_mcap)
     run = read_run(run_mcap)
     opt = InitOptions(start_s=o["init_start_s"], duration_s=o["init_duration_s"], process_noise=True,
                       fix_integers=not o["float_only"], ratio_threshold=o["ratio"], partial=True, starts=8,
@@ -71,9 +110,11 @@ def _estimate(s) -> dict:
     from cdgps_cli.states import write_states
 
     run_mcap, init_json, o = s.path("ingest"), s.path("init"), s.options
-    _structure_run(run_mcap)
+    gnss = _run_kind(run_mcap) == "gnss"
     init, init_text = read_init_json(init_json)
     check_init_run(init, init_json, run_mcap, False)
+    if gnss:
+        return _estimate_gnss(s, run_mcap, init_json, init, init_text)
     run = read_run(run_mcap)
     opt = EstimateOptions(biases=o["biases"], smooth=o["smooth"], sigma_m=None, nis_probability=0.999,
                           outlier_sigma=6.0, process_noise_scale=o["process_noise_scale"], rest_segments_s=(),

@@ -188,6 +188,26 @@ def test_resume_skips_what_holds_and_redoes_what_changed(campaign, client):
     _set_aside(campaign, "run-2-workers")
 
 
+def test_a_gnss_session_gives_the_single_commands_bytes(campaign, client):
+    """RINEX receivers listed in a GNSS config: ingest → init → estimate --smooth."""
+    root = campaign["root"] / "gnss"
+    r = CliRunner().invoke(main, ["-q", "simulate-gnss", "--duration", "60", "--seed", "2", "-o", str(root / "pair")])
+    assert r.exit_code == 0, r.output
+    (root / "m.csv").write_text("session,gnss_config,smooth\npair,pair/config.toml,true\n")
+    o = root / "out" / "pair"
+    for argv in (["ingest", "--config", root / "pair/config.toml", "-o", o / "run.mcap"],
+                 ["init", o / "run.mcap", "-o", o / "init.json"],
+                 ["estimate", o / "run.mcap", "--init", o / "init.json", "--smooth", "-o", o / "states.mcap"]):
+        r = CliRunner().invoke(main, ["-q", *map(str, argv)])
+        assert r.exit_code == 0, (argv, r.output)
+    (root / "out").rename(root / "reference")
+    s = run_batch(root / "m.csv", root / "out", client=client)
+    assert s["counts"] == {"sessions": 1, "done": 1}, s["failures"]
+    (e,) = s["sessions"]
+    assert e["integers_fixed"] == e["integers"] > 0 and e["rovers"]["rover"]["solution"] == "fixed"
+    _assert_same_tree(root / "reference", root / "out", 3)
+
+
 def test_a_task_failing_more_than_retries_is_reported_not_dropped(campaign, client):
     _faults(campaign, "b/ingest raise 5")
     m = campaign["manifest"].with_name("failing.csv")
@@ -205,9 +225,13 @@ def test_a_task_failing_more_than_retries_is_reported_not_dropped(campaign, clie
     r = CliRunner().invoke(main, ["batch", str(m), "-o", str(out), "--resume", "--retries", "1",
                                   "--scheduler", client.scheduler.address])
     assert r.exit_code == 1 and "session b failed: ingest: InjectedFault: injected failure" in r.output
-    _faults(campaign)                          # the fault gone, --resume does the session
-    s = run_batch(m, out, client=client, resume=True)
-    assert s["counts"] == {"sessions": 1, "done": 1}
+    _faults(campaign)                          # the fault gone, --resume does the session (scheduler file)
+    client.write_scheduler_file(str(campaign["root"] / "scheduler.json"))
+    r = CliRunner().invoke(main, ["batch", str(m), "-o", str(out), "--resume", "--json",
+                                  "--scheduler", str(campaign["root"] / "scheduler.json")])
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.stdout)
+    assert s["counts"] == {"sessions": 1, "done": 1} and s["workers"] == 2
 
 
 @pytest.mark.slow

@@ -25,6 +25,9 @@ def folder(tmp_path):
     (tmp_path / "cfg.toml").write_text(CONFIG.read_text())
     (tmp_path / "broken.toml").write_text("[structure\n")
     (tmp_path / "sub").mkdir()
+    (tmp_path / "gnss.toml").write_text('[gnss]\nname = "pair"\nmaster = "base"\nnav = ["nav.rnx"]\n'
+                                        '[gnss.antennas."base"]\nrinex = "base.rnx"\n'
+                                        '[gnss.antennas."rover"]\nrinex = "rover.rnx"\n')
     return tmp_path
 
 
@@ -64,7 +67,7 @@ def test_csv_manifest_with_every_kind_of_mistake(folder):
         ",rx.csv,cfg.toml,,,,,,,,\n"                                  # 5: no name
         "s6,missing.csv,cfg.toml,,,,,,,,\n"                           # 6: no such file
         "s7,,cfg.toml,,,,,,,,\n"                                      # 7: no input
-        "s8,rx.csv,cfg.toml,run.mcap,,,,,,,\n"                        # 8: both inputs (and config with run)
+        "s8,rx.csv,cfg.toml,run.mcap,,,,,,,\n"                        # 8: two inputs
         "s9,rx.csv,,,,,,,,,\n"                                        # 9: no config
         "s10,rx.csv,cfg.toml,,maybe,,nan,yesterday,1 Dec,wobbly,\n"   # 10: five bad values
         "s11,rx.csv,cfg.toml,,,init estimate fly,,,,,\n"              # 11: unknown stage
@@ -83,8 +86,7 @@ def test_csv_manifest_with_every_kind_of_mistake(folder):
             f"{m}:5:1: session: missing",
             f"{m}:6:2: receiver_csv: missing.csv: no such file",
             f"{m}:7:2: receiver_csv: missing: give the receiver log",
-            f"{m}:8:4: run_mcap: give either receiver_csv",
-            f"{m}:8:3: config: only with receiver_csv",
+            f"{m}:8:4: run_mcap: give one of receiver_csv (CSV logs), gnss_config",
             f"{m}:9:3: config: missing: ingesting receiver_csv needs",
             f"{m}:10:5: smooth: expected true or false, got 'maybe'",
             f"{m}:10:7: ratio: expected a finite number (--ratio), got 'nan'",
@@ -102,6 +104,31 @@ def test_csv_manifest_with_every_kind_of_mistake(folder):
     for w in want:
         assert any(x.startswith(w) for x in p), f"{w!r} not in:\n" + "\n".join(p)
     assert len(p) == len(want), "\n".join(p)
+
+
+def test_gnss_sessions_and_their_mistakes(folder):
+    (folder / "m.csv").write_text("session,gnss_config,receiver_csv,gyro_csv,stages,smooth,biases\n"
+                                  "g1,gnss.toml,,,,true,\n"                       # 2: fine
+                                  "g2,gnss.toml,,,ingest init estimate spectra,,\n"   # 3: spectra
+                                  "g3,gnss.toml,,,,,states\n"                     # 4: structure-only option
+                                  "g4,gnss.toml,rx.csv,,,,\n"                     # 5: two inputs
+                                  "g5,gnss.toml,,gyro.csv,,,\n")                  # 6: gyro with GNSS
+    p = _problems(folder / "m.csv")
+    m = str(folder / "m.csv")
+    want = [f"{m}:3:5: stages: a GNSS session (RINEX/UBX) runs ingest init estimate; spectra are for structure",
+            f"{m}:4:7: biases: not for a GNSS session",
+            f"{m}:5:2: gnss_config: give one of receiver_csv",
+            f"{m}:6:4: gyro_csv: only with receiver_csv (structure logs), not with gnss_config"]
+    for w in want:
+        assert any(x.startswith(w) for x in p), f"{w!r} not in:\n" + "\n".join(p)
+    assert len(p) == len(want), "\n".join(p)
+    (folder / "m.csv").write_text("session,gnss_config,smooth\ng1,gnss.toml,true\n")
+    (g,) = B.read_manifest(folder / "m.csv")
+    assert g.kind == "gnss" and g.stages == B.GNSS_STAGES
+    B.prepare_outdir([g], folder / "m.csv", folder / "out")
+    assert B.stage_argv(g, "ingest") == ["ingest", "--config", str(folder / "gnss.toml"), "-o",
+                                         str(folder / "out/g1/run.mcap")]
+    assert B.stage_argv(g, "estimate")[-3:] == ["--smooth", "-o", str(folder / "out/g1/states.mcap")]
 
 
 def test_toml_manifest_and_its_mistakes(folder):
