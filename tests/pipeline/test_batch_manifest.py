@@ -39,6 +39,13 @@ def _problems(path) -> list[str]:
     return [ln.strip() for ln in lines[1:]]
 
 
+def _assert_exactly(problems: list[str], want: list[str]) -> None:
+    """Each wanted message begins one of the problems, and there are no others."""
+    for w in want:
+        assert any(x.startswith(w) for x in problems), f"{w!r} not in:\n" + "\n".join(problems)
+    assert len(problems) == len(want), "\n".join(problems)
+
+
 def test_good_csv_manifest(folder):
     (folder / "m.csv").write_text("session,receiver_csv,gyro_csv,config,time,smooth,stages,init_duration_s\n"
                                   "day1,rx.csv,gyro.csv,cfg.toml,2026-11-01T06:00:00+01:00,yes,,20\n"
@@ -101,9 +108,7 @@ def test_csv_manifest_with_every_kind_of_mistake(folder):
             f"{m}:16: 3 fields where the header has 11",
             f"{m}:17:7: ratio: must be > 0 (--ratio)",
             f"{m}:18:1: session: 'index.html' is the name of a file the batch writes"]
-    for w in want:
-        assert any(x.startswith(w) for x in p), f"{w!r} not in:\n" + "\n".join(p)
-    assert len(p) == len(want), "\n".join(p)
+    _assert_exactly(p, want)
 
 
 def test_gnss_sessions_and_their_mistakes(folder):
@@ -119,9 +124,7 @@ def test_gnss_sessions_and_their_mistakes(folder):
             f"{m}:4:7: biases: not for a GNSS session",
             f"{m}:5:2: gnss_config: give one of receiver_csv",
             f"{m}:6:4: gyro_csv: only with receiver_csv (structure logs), not with gnss_config"]
-    for w in want:
-        assert any(x.startswith(w) for x in p), f"{w!r} not in:\n" + "\n".join(p)
-    assert len(p) == len(want), "\n".join(p)
+    _assert_exactly(p, want)
     (folder / "m.csv").write_text("session,gnss_config,smooth\ng1,gnss.toml,true\n")
     (g,) = B.read_manifest(folder / "m.csv")
     assert g.kind == "gnss" and g.stages == B.GNSS_STAGES
