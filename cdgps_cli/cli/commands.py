@@ -1382,5 +1382,42 @@ def track_cmd(ctx, iq_file, fmt, iq_sign, fs_hz, if_hz, prns, duration_s, pll_bn
     if as_json:
         _emit_json({k: v for k, v in s.items() if k != "acquisition"})
 
+
+@main.command("batch", short_help="Many sessions on Dask, resumable → batch.json")
+@click.argument("manifest", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False),
+              help="Campaign folder: OUTDIR/<session>/ per session, OUTDIR/batch.json and OUTDIR/index.html.")
+@click.option("--scheduler", default=None, metavar="ADDRESS",
+              help="A running dask scheduler: tcp://HOST:PORT or a scheduler file (default: a LocalCluster).")
+@click.option("--workers", type=int, default=None,
+              help="LocalCluster worker processes, one thread each (default: the number of cores).")
+@click.option("--resume", is_flag=True,
+              help="Skip the stages already done whose inputs, options and outputs are unchanged (sha256).")
+@click.option("--retries", type=int, default=2, show_default=True, help="Times a failing task is tried again.")
+@click.option("--dashboard", is_flag=True, help="LocalCluster: serve the dask dashboard on :8787.")
+@click.option("--json", "as_json", is_flag=True, help="Print batch.json on stdout.")
+@click.pass_context
+def batch_cmd(ctx, manifest, out_dir, scheduler, workers, resume, retries, dashboard, as_json):
+    """Run every session of a MANIFEST (CSV or TOML, docs/batch.md) through the stage commands on
+    dask.distributed, one task per session-stage; same bytes as the single commands.
+
+    Exit status 1 when some session failed (listed in batch.json and on stderr), 2 on a bad manifest.
+    """
+    from cdgps_cli.pipeline.batch_dask import run_batch
+
+    if scheduler is not None and (workers is not None or dashboard):
+        raise click.UsageError("--workers and --dashboard configure the LocalCluster; not with --scheduler")
+    s = run_batch(manifest, out_dir, scheduler=scheduler, workers=workers, resume=resume, retries=retries,
+                  dashboard=dashboard, progress=None if ctx.obj.get("quiet") else progress.write)
+    c = s["counts"]
+    _say(ctx, f"batch: {c['sessions']} sessions: " + ", ".join(f"{v} {k}" for k, v in c.items() if k != "sessions")
+              + f" in {s['elapsed_s']:.1f} s on {s['workers']} workers → {Path(out_dir) / 'index.html'}")
+    for f in s["failures"]:
+        click.echo(f"cdgps: session {f['session']} failed: {f['error']}", err=True)
+    if as_json:
+        _emit_json(s)
+    if s["failures"]:
+        ctx.exit(1)
+
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())

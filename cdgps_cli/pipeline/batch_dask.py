@@ -1,0 +1,190 @@
+"""`cdgps batch` on dask.distributed: one task per session-stage, retries, survived worker deaths.
+
+:func:`run_batch` is the entry point (the CLI is a thin shell over it).  It takes an existing
+``distributed.Client`` (tests, notebooks), a scheduler address ``tcp://HOST:PORT`` or a scheduler
+file (a real cluster: ``dask scheduler --scheduler-file F`` and ``dask worker --scheduler-file F``),
+or starts a LocalCluster: one worker process per core, one thread each, BLAS pinned to one thread,
+dashboard off unless asked.
+
+Dask gives: dependencies between tasks (a stage waits for the one it reads), ``retries=K`` for a
+task that raises, and rescheduling of the tasks of a worker that died on another worker (up to
+``distributed.scheduler.allowed-failures`` deaths, then the task fails with KilledWorker, reported).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import time
+import uuid
+from datetime import datetime, timezone
+from pathlib import Path
+
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.pipeline import batch as B
+
+
+def local_cluster(workers: int | None = None, dashboard: bool = False):
+    """A LocalCluster of ``workers`` processes (default: the cores), one thread each, BLAS at one thread."""
+    from distributed import LocalCluster
+
+    n = workers or os.cpu_count() or 1
+    return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, silence_logs=logging.ERROR,
+                        dashboard_address=":8787" if dashboard else None, env=dict(B.BLAS_ENV))
+
+
+def connect(scheduler: str | None = None, workers: int | None = None, dashboard: bool = False):
+    """(client, cluster or None): to ``scheduler`` (address or scheduler file), else a new LocalCluster."""
+    from distributed import Client
+
+    try:
+        if scheduler is None:
+            cluster = local_cluster(workers, dashboard)
+            return Client(cluster), cluster
+        if os.path.isfile(scheduler):
+            return Client(scheduler_file=scheduler, timeout="20s"), None
+        return Client(scheduler, timeout="20s"), None
+    except (OSError, TimeoutError) as exc:
+        raise CdgpsError(f"--scheduler {scheduler}: cannot reach the dask scheduler: {exc}") from None
+
+
+def _error_text(fut) -> str:
+    exc = fut.exception()
+    if isinstance(exc, CdgpsError):
+        return str(exc)
+    name = type(exc).__name__
+    if name == "KilledWorker":
+        return (f"the worker running it died too often ({exc}); the session was given up "
+                f"(distributed.scheduler.allowed-failures)")
+    return f"{name}: {exc}"
+
+
+def run_batch(manifest: str | Path, outdir: str | Path, *, client=None, scheduler: str | None = None,
+              workers: int | None = None, resume: bool = False, retries: int = 2, dashboard: bool = False,
+              progress=None) -> dict:
+    """Run every session-stage of a manifest; write OUTDIR/batch.json and OUTDIR/index.html.
+
+    Parameters
+    ----------
+    manifest : path of the CSV or TOML manifest (:mod:`cdgps_cli.pipeline.batch`)
+    outdir : the campaign folder (one sub-folder per session)
+    client : an existing ``distributed.Client`` (then ``scheduler`` and ``workers`` are not used)
+    scheduler : ``tcp://HOST:PORT`` or a scheduler file; default a LocalCluster of ``workers``
+    resume : skip the stages whose record still holds (same inputs, options and outputs)
+    retries : how many times a task that raises is tried again
+    progress : callable(str) or None, told of sessions done / failed / running
+
+    Returns
+    -------
+    dict, the content of batch.json (``sessions``, ``trends``, ``failures``, ``counts`` …)
+
+    Raises
+    ------
+    CdgpsError
+        On a bad manifest (every problem listed), an OUTDIR of another campaign, an unreachable scheduler.
+    """
+    if retries < 0:
+        raise CdgpsError(f"--retries must be ≥ 0, got {retries}")
+    if workers is not None and workers < 1:
+        raise CdgpsError(f"--workers must be ≥ 1, got {workers}")
+    sessions = B.read_manifest(manifest)
+    B.prepare_outdir(sessions, manifest, outdir, claim=False)       # refused before any cluster starts
+    cluster, own = None, client is None
+    if own:
+        client, cluster = connect(scheduler, workers, dashboard)
+    try:
+        out = B.prepare_outdir(sessions, manifest, outdir)           # nothing written if it cannot connect
+    except BaseException:
+        if own:
+            client.close()
+        if cluster is not None:
+            cluster.close()
+        raise
+    t0 = time.perf_counter()
+    started = _now()
+    try:
+        n_workers = len(client.scheduler_info(n_workers=-1)["workers"]) if _has_n_workers(client) else \
+            len(client.scheduler_info()["workers"])
+        results, errors = _submit_and_wait(client, sessions, resume, retries, progress)
+    finally:
+        if own:
+            client.close()
+        if cluster is not None:
+            cluster.close()
+    entries = [B.session_summary(s, results.get(s.name, {}), errors.get(s.name, {})) for s in sessions]
+    summary = {"manifest": str(Path(manifest).resolve()), "outdir": str(out), "started": started, "finished": _now(),
+               "elapsed_s": round(time.perf_counter() - t0, 3), "workers": n_workers, "retries": retries,
+               "resume": resume, "counts": _counts(entries), "sessions": entries,
+               "trends": B.mode_trends([e for e in entries if "modes" in e]),
+               "failures": [{"session": e["session"], "error": e["error"]} for e in entries if "error" in e]}
+    from cdgps_cli.io.atomic import write_bytes_atomic
+    from cdgps_cli.report.batch_index import write_index
+
+    write_index(summary, out)
+    write_bytes_atomic(out / "batch.json", (json.dumps(summary, indent=2) + "\n").encode())
+    return summary
+
+
+def _has_n_workers(client) -> bool:
+    import inspect
+
+    return "n_workers" in inspect.signature(client.scheduler_info).parameters
+
+
+def _submit_and_wait(client, sessions, resume, retries, progress):
+    """Submit every session-stage; collect {session: {stage: result}} and {session: {stage: error}}."""
+    from distributed import as_completed
+
+    token = uuid.uuid4().hex[:8]
+    futs, owner = [], {}
+    for s in sessions:
+        mine = {}
+        for st in s.stages:
+            deps = [mine[d] for d in B.DEPENDS[st] if d in mine]
+            f = client.submit(B.execute_stage, s, st, resume, *deps, key=f"cdgps-batch-{s.name}-{st}-{token}",
+                              retries=retries, pure=False)
+            mine[st] = f
+            owner[f.key] = (s.name, st)
+            futs.append(f)
+    results, errors = {}, {}
+    left = {s.name: len(s.stages) for s in sessions}
+    failed, started, said = set(), set(), None
+    for f in as_completed(futs):
+        name, st = owner[f.key]
+        left[name] -= 1
+        started.add(name)
+        if f.status == "finished":
+            results.setdefault(name, {})[st] = f.result()
+        else:
+            errors.setdefault(name, {})[st] = _error_text(f)
+            failed.add(name)
+        if progress is not None:
+            done = {n for n, k in left.items() if k == 0} - failed
+            running = (started | _processing(client, owner)) - done - failed
+            line = (f"batch: {len(done)} of {len(sessions)} sessions done, {len(failed)} failed, "
+                    f"{len(running)} running")
+            if line != said:
+                progress(line)
+                said = line
+    return results, errors
+
+
+def _processing(client, owner) -> set:
+    """Sessions with a stage being processed by a worker right now."""
+    try:
+        keys = {k for ks in client.processing().values() for k in ks}
+    except Exception:              # progress only: never fail the batch over it
+        return set()
+    return {owner[k][0] for k in keys if k in owner}
+
+
+def _counts(entries) -> dict:
+    c = {"sessions": len(entries)}
+    for e in entries:
+        c[e["status"]] = c.get(e["status"], 0) + 1
+    return c
+
+
+def _now() -> str:
+    return datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")

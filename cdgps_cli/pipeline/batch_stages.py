@@ -1,0 +1,172 @@
+"""The stage functions `cdgps batch` runs: each calls the library exactly as its command does
+(`cdgps ingest`, `init`, `estimate [--smooth]`, `spectra`, `report spectrum`), so that a batch writes
+the same bytes as the single commands of :func:`cdgps_cli.pipeline.batch.stage_argv`, and returns
+the few numbers the campaign summary needs.
+
+Structure sessions (receiver/gyro CSV logs) run every stage; GNSS sessions (RINEX/UBX receivers listed
+in a GNSS run config, `cdgps ingest --config GNSS.toml`) run ingest, init and estimate [--smooth].
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+from cdgps_cli.core.errors import CdgpsError
+
+
+def run_stage(s, stage: str) -> dict:
+    """Run ``stage`` of session ``s`` (a :class:`cdgps_cli.pipeline.batch.Session`); returns its summary."""
+    return _STAGES[stage](s)
+
+
+def _ingest(s) -> dict:
+    if s.kind == "gnss":
+        return _ingest_gnss(s)
+    from cdgps_cli.config.structure import load_config
+    from cdgps_cli.io.run import write_run
+
+    cfg = load_config(s.inputs["config"])
+    r = write_run(cfg, s.inputs["receiver_csv"], s.path("ingest"), s.inputs.get("gyro_csv"), s.inputs.get("actuator_csv"))
+    return {"epochs": r["phase_messages"], "start_s": r["start_s"], "end_s": r["end_s"], "channels": r["channels"],
+            "gaps": len(r["gaps"]), "lock_restarts": r["lock_restarts"]}
+
+
+def _ingest_gnss(s) -> dict:
+    from cdgps_cli.config.structure import load_gnss_config
+    from cdgps_cli.io.gnss_run import ingest_gnss
+
+    cfg = load_gnss_config(s.inputs["gnss_config"])
+    r = ingest_gnss(cfg, s.path("ingest"), rinex=None, ubx=None, nav_paths=None, master=None, progress=None,
+                    strict=False)
+    lost = {n: g["problems"] for n, g in r["integrity"].items() if g["problems"]}
+    return {"receivers": len(r["receivers"]), "ephemerides": r["ephemerides"],
+            "warnings": list(r["warnings"]) + [f"{n}: corrupt UBX data skipped: {', '.join(p)}" for n, p in lost.items()]}
+
+
+def _run_kind(path: str) -> str:
+    from cdgps_cli.io.file_checks import RUNS, require_kind
+    from cdgps_cli.io.gnss_run import run_kind
+
+    require_kind(path, RUNS, "RUN_MCAP")
+    return run_kind(path) or "structure"
+
+
+def _init_gnss(s, run_mcap: str) -> dict:
+    from cdgps_cli.io.atomic import write_bytes_atomic
+    from cdgps_cli.pipeline.gnss import gnss_init
+    from cdgps_cli.io.gnss_run import read_gnss_run
+
+    run = read_gnss_run(run_mcap)
+    res = gnss_init(run, options={"fix": False} if s.options["float_only"] else {}, progress=None)
+    res["run_sha256"] = hashlib.sha256(Path(run_mcap).read_bytes()).hexdigest()
+    write_bytes_atomic(s.path("init"), (json.dumps(res, indent=2) + "\n").encode())     # as `cdgps init`
+    rov = res["rovers"].values()
+    return {"integers_fixed": sum(v["n_fixed"] for v in rov), "integers": sum(v["n_estimated"] for v in rov),
+            "ratio": {r: v["ratio"] for r, v in res["rovers"].items()}}
+
+
+def _estimate_gnss(s, run_mcap: str, init_json: str, init: dict, init_text: str) -> dict:
+    from cdgps_cli.pipeline.gnss import gnss_estimate
+    from cdgps_cli.io.gnss_run import read_gnss_run
+
+    run = read_gnss_run(run_mcap)
+    w = gnss_estimate(run, init, init_text, s.path("estimate"), smooth=s.options["smooth"], progress=None,
+                      extra_options=None)
+    return {"events": w["events"], "rovers": {r: {"solution": v["solution"], "static_enu_m": v["static_enu_m"],
+                                                  "kinematic_rms_m": v["kinematic_rms_m"]}
+                                              for r, v in w["rovers"].items()}}
+
+
+def _init(s) -> dict:
+    from cdgps_cli.io.atomic import write_bytes_atomic
+    from cdgps_cli.estimation.initializer import InitOptions, initialize
+    from cdgps_cli.io.run import read_run
+
+    run_mcap, o = s.path("ingest"), s.options
+    if _run_kind(run_mcap) == "gnss":
+        return _init_gnss(s, run_mcap)
+    run = read_run(run_mcap)
+    opt = InitOptions(start_s=o["init_start_s"], duration_s=o["init_duration_s"], process_noise=True,
+                      fix_integers=not o["float_only"], ratio_threshold=o["ratio"], partial=True, starts=8,
+                      max_iterations=30, sigma_m=o["init_sigma_m"], multipath_sigma_m=None,
+                      multipath_time_constant_s=None, progress=None)
+    res = initialize(run, opt)
+    res["run_sha256"] = hashlib.sha256(Path(run_mcap).read_bytes()).hexdigest()
+    res.pop("elapsed_s", None)                      # as `cdgps init`: INIT.json byte-identical across runs
+    write_bytes_atomic(s.path("init"), (json.dumps(res, indent=2) + "\n").encode())
+    ratio = res["ratio"]
+    return {"integers_fixed": res["n_fixed"], "integers": len(res["biases"]),
+            "ratio": ratio if ratio is None or isinstance(ratio, str) else float(ratio),
+            "init_cost_per_dof": res["cost_per_dof"], "init_sigma_m": res["sigma_m"],
+            "warnings": list(res["noise"].get("warnings", []))}
+
+
+def _estimate(s) -> dict:
+    from cdgps_cli.estimation.filter import EstimateOptions, estimate
+    from cdgps_cli.io.file_checks import check_init_run, read_init_json
+    from cdgps_cli.io.run import read_run
+    from cdgps_cli.io.states import write_states
+
+    run_mcap, init_json, o = s.path("ingest"), s.path("init"), s.options
+    gnss = _run_kind(run_mcap) == "gnss"
+    init, init_text = read_init_json(init_json)
+    check_init_run(init, init_json, run_mcap, False)
+    if gnss:
+        return _estimate_gnss(s, run_mcap, init_json, init, init_text)
+    run = read_run(run_mcap)
+    opt = EstimateOptions(biases=o["biases"], smooth=o["smooth"], sigma_m=None, nis_probability=0.999,
+                          outlier_sigma=6.0, process_noise_scale=o["process_noise_scale"], rest_segments_s=(),
+                          rest_process_noise_scale=0.005, rest_retry_s=1.0, rest_auto=False, rest_window_s=3.0,
+                          rest_dwell_s=2.0, keep_filtered_covariance="modal", init_source=str(init_json),
+                          progress=None)
+    res = estimate(run, init, opt)
+    del run
+    w = write_states(res, run_mcap, init, init_text, s.path("estimate"), opt.echo())
+    nz = res.noise or {}
+    return {"nis_per_dof": w["mean_nis_per_dof"], "events": w["events"],
+            "noise_sigma_m": nz.get("sigma_m"), "innovation_sigma_m": nz.get("innovation_sigma_m")}
+
+
+def _states_and_gyro(s):
+    from cdgps_cli.io.file_checks import STATES, STRUCTURE_RUN, require_kind
+    from cdgps_cli.io.run import read_run
+    from cdgps_cli.io.states import States
+
+    require_kind(s.path("estimate"), STATES, "STATES_MCAP")
+    require_kind(s.path("ingest"), STRUCTURE_RUN, "--gyro")
+    return States(s.path("estimate"), diagnostics=False), read_run(s.path("ingest"), phase=False)
+
+
+def _spectra_options(s):
+    from cdgps_cli.analysis.spectra import SpectraOptions
+
+    c = s.options["coords"]
+    return SpectraOptions(coords=tuple(x.strip() for x in c.split(",") if x.strip()) if c else None,
+                          segment_s=s.options["segment_s"], overlap=0.5, pad=4)
+
+
+_MODE_KEYS = ("mode", "model_hz", "gps_hz", "gps_hz_sigma", "damping", "damping_sigma", "seen")
+
+
+def _modes(modes: list) -> dict:
+    return {"modes": [{k: m.get(k) for k in _MODE_KEYS} for m in modes]}
+
+
+def _spectra(s) -> dict:
+    from cdgps_cli.report.sensor_reports import run_spectra
+
+    st, run = _states_and_gyro(s)
+    return _modes(run_spectra(st, run, _spectra_options(s), s.path("spectra"))["modes"])
+
+
+def _report(s) -> dict:
+    from cdgps_cli.report.sensor_reports import spectrum_report
+
+    st, run = _states_and_gyro(s)
+    d = spectrum_report(st, run, _spectra_options(s), s.path("report"), date=s.options["date"])
+    return {**_modes(d["modes"]), "report": str(Path(s.path("report")) / "report.html")}
+
+
+_STAGES = {"ingest": _ingest, "init": _init, "estimate": _estimate, "spectra": _spectra, "report": _report}

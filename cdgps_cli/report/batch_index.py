@@ -1,0 +1,99 @@
+"""The HTML index of a `cdgps batch` campaign: one row per session, mode trends with 1σ, failures.
+
+Written next to batch.json (its numbers, as a page): ``OUTDIR/index.html`` and, when some session
+identified modes, ``OUTDIR/trends.png`` (frequency and damping ratio of each mode against the
+session time, error bars 1σ; a stiffness change shows as a frequency drift).
+"""
+
+from __future__ import annotations
+
+import html
+from pathlib import Path
+
+from cdgps_cli.io.atomic import write_atomic, write_bytes_atomic
+
+
+def _f(v, fmt=".4f") -> str:
+    return "–" if v is None else (v if isinstance(v, str) else format(v, fmt))
+
+
+def write_index(summary: dict, out: Path) -> None:
+    """Write ``out/index.html`` (and ``out/trends.png``) from the batch.json content ``summary``."""
+    has_png = any(len(t["sessions"]) > 0 for t in summary["trends"])
+    if has_png:
+        write_atomic(out / "trends.png", lambda p: _trend_figure(summary["trends"], p))
+    write_bytes_atomic(out / "index.html", _page(summary, has_png, out).encode())
+
+
+def _trend_figure(trends: list, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax_f, ax_d) = plt.subplots(2, 1, figsize=(9, 7), sharex=True)
+    for t in trends:
+        pts = [p for p in t["sessions"] if p["gps_hz"] is not None]
+        x = [p["time"] or p["session"] for p in pts]
+        ax_f.errorbar(x, [p["gps_hz"] for p in pts], yerr=[p["gps_hz_sigma"] or 0 for p in pts], fmt="o-",
+                      capsize=3, label=f"{t['mode']} (model {t['model_hz']:.3f} Hz)")
+        dp = [p for p in pts if p["damping"] is not None]
+        ax_d.errorbar([p["time"] or p["session"] for p in dp], [p["damping"] for p in dp],
+                      yerr=[p["damping_sigma"] or 0 for p in dp], fmt="o-", capsize=3)
+    ax_f.set_ylabel("frequency (Hz)")
+    ax_d.set_ylabel("damping ratio ζ")
+    ax_d.set_xlabel("session time (UTC)")
+    ax_f.legend(fontsize=7, ncol=2)
+    ax_f.set_title("Identified modes across sessions (1σ error bars)")
+    fig.autofmt_xdate()
+    fig.tight_layout()
+    fig.savefig(path, format="png", dpi=90, metadata={"Software": None})
+    plt.close(fig)
+
+
+def _row(cells, tag="td") -> str:
+    return "<tr>" + "".join(f"<{tag}>{c}</{tag}>" for c in cells) + "</tr>"
+
+
+def _page(summary: dict, has_png: bool, out: Path) -> str:
+    e = html.escape
+    c = summary["counts"]
+    rows = []
+    for s in summary["sessions"]:
+        rep = Path(s["folder"]) / "report" / "report.html"
+        name = (f'<a href="{e(str(rep.relative_to(out)))}">{e(s["session"])}</a>' if rep.is_file() else e(s["session"]))
+        seen = [m for m in s.get("modes", []) if m["seen"]]
+        fixed = "–" if "integers_fixed" not in s else f"{s['integers_fixed']} of {s['integers']}"
+        noise = None if s.get("noise_sigma_m") is None else s["noise_sigma_m"] * 1000
+        modes = ", ".join(f"{e(m['mode'])} {m['gps_hz']:.4f}±{_f(m['gps_hz_sigma'])}" for m in seen) or "–"
+        rows.append(_row([name, e(s["time"] or "–"), e(s["status"]), f"{s['elapsed_s']:.1f}", fixed,
+                          _f(s.get("nis_per_dof"), ".3f"), _f(noise, ".2f"), modes, e(s.get("error", ""))]))
+    trend_rows = []
+    for t in summary["trends"]:
+        ft, dt = t["frequency_trend_hz"], t["damping_trend"]
+        trend_rows.append(_row([e(t["mode"]), f"{t['model_hz']:.4f}", str(len(t["sessions"])),
+                                "–" if ft is None else f"{ft['slope_per_day']:+.3g} ± {ft['slope_sigma_per_day']:.2g}",
+                                "–" if ft is None else f"{ft['chi2_per_dof']:.2f}",
+                                "–" if dt is None else f"{dt['slope_per_day']:+.3g} ± {dt['slope_sigma_per_day']:.2g}"]))
+    fail = "".join(f"<li><b>{e(f['session'])}</b>: <pre>{e(f['error'])}</pre></li>" for f in summary["failures"])
+    return f"""<!DOCTYPE html>
+<html><head><meta charset="utf-8"><title>cdgps batch: {e(Path(summary['manifest']).name)}</title>
+<style>body{{font-family:sans-serif;margin:2em}}table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;
+padding:3px 8px;font-size:13px}}pre{{white-space:pre-wrap;margin:0}}</style></head><body>
+<h1>cdgps batch</h1>
+<p>Manifest {e(summary['manifest'])}; {c['sessions']} sessions: {', '.join(f'{v} {e(k)}' for k, v in c.items() if k != 'sessions')};
+{summary['workers']} workers, {summary['elapsed_s']:.1f} s ({e(summary['started'])} – {e(summary['finished'])}).
+Numbers in <a href="batch.json">batch.json</a>.</p>
+<h2>Sessions</h2>
+<table>{_row(['session', 'time (UTC)', 'status', 'task time (s)', 'integers fixed', 'NIS/dof', 'noise σ (mm)',
+              'modes identified (Hz ± 1σ)', 'error'], 'th')}{''.join(rows)}</table>
+<h2>Mode trends</h2>
+<p>Weighted least-squares line through each mode's frequency (and damping ratio) against the session time,
+weights 1/σ²; the slope's σ is from those weights (χ²/dof ≫ 1: the scatter exceeds the stated σ).</p>
+<table>{_row(['mode', 'model Hz', 'sessions', 'frequency slope (Hz/day)', 'χ²/dof', 'damping slope (1/day)'], 'th')}
+{''.join(trend_rows)}</table>
+{'<p><img src="trends.png" alt="mode trends"></p>' if has_png else ''}
+<h2>Failures</h2>
+{f'<ul>{fail}</ul>' if fail else '<p>none</p>'}
+</body></html>
+"""
