@@ -1,0 +1,210 @@
+"""Simulated IF samples of a structure → tracking loops → differential carrier phase → receiver log
+(issue 16 item 4): ``cdgps simulate-if`` and ``cdgps track-structure``.
+
+:func:`simulate_if` writes one sample file per antenna (:mod:`cdgps_cli.sim.if_samples`, all
+antennas on one receiver oscillator) and the manifest ``if.json``.  :func:`track_structure` tracks
+every antenna's file with the loops of :mod:`cdgps_cli.tracking` (FFT acquisition, FLL pull-in,
+Costas PLL, carrier-aided DLL) and writes the native receiver log (:mod:`cdgps_cli.logs`) from
+the loops' NCO phases at the structure's epochs:
+
+* phase_cycles = −(φ̂_a − φ̂_M) + ½·p + n, the antenna's tracked carrier phase minus the master's for
+  the same transmitter, negated (the tracked baseband phase falls as the range grows,
+  φ = … − ρ/λ; the log's phase grows with it: λ·phase = ρ_a − ρ_M + bias, :mod:`cdgps_cli.measurement`).
+  The receiver clock and the transmitter clock are common to both and cancel.
+* p ∈ {0, 1}: the Costas loops leave each antenna's phase ambiguous by half a cycle; both antennas
+  receive the same navigation bits, so the signs of their prompt correlations agree when their
+  half cycles agree: p = 1 when the sign products over the epoch's 1 ms updates sum below zero.
+  A change of p inside a lock segment is a half-cycle slip: a new segment starts.
+* n: an integer per lock segment making the first phase of the segment lie in [0, 1) cycle
+  (the convention of ``cdgps simulate``); ``init`` resolves the true integer.
+* lock counts epochs since lock; a segment starts (lock 0) when the PLL has run for ``settle_s``
+  and the lock indicator of both antennas' channels passes in every 20 ms window since the last epoch;
+  it ends when one fails, or at a half-cycle slip.  Epochs without lock have no row.
+* snr_dbhz is the antenna's C/N0 (moments estimator over the 20 ms window).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .. import progress as _progress
+from ..atomic import file_sha256, write_atomic
+from ..config import StructureConfig
+from ..errors import CdgpsError
+from ..iq_samples import read_samples
+from ..logs import RECEIVER_COLUMNS
+from ..sim.if_samples import KNOT_S, MANIFEST_FORMAT, StructureIf, simulate_structure_if
+from ..tracking.ca_code import G2_TAPS, ca_code
+from ..tracking.channel import PHASE_LOCK_THRESHOLD, TrackOptions
+from ..tracking.receiver import track_all
+
+#: keys every if.json must have
+MANIFEST_KEYS = ("format", "sample_format", "iq_sign", "fs_hz", "if_hz", "samples", "start_s", "config_sha256",
+                 "master", "transmitters", "antennas")
+
+
+def simulate_if(cfg: StructureConfig, sim_dir: str | Path, out_dir: str | Path, spec: StructureIf | None = None,
+                progress=None) -> dict:
+    """:func:`cdgps_cli.sim.if_samples.simulate_structure_if` with the GPS C/A codes."""
+    return simulate_structure_if(cfg, sim_dir, out_dir, {p: ca_code(p) for p in G2_TAPS}, spec, progress)
+
+
+def read_manifest(path: str | Path) -> dict:
+    """The manifest ``if.json`` of :func:`simulate_if`, checked (keys, format, the files' sizes)."""
+    p = Path(path)
+    try:
+        man = json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise CdgpsError(f"{p}: cannot read the IF manifest: {exc}") from None
+    if not isinstance(man, dict) or man.get("format") != MANIFEST_FORMAT:
+        raise CdgpsError(f"{p}: not an IF manifest of `cdgps simulate-if` (format {MANIFEST_FORMAT!r})")
+    missing = [k for k in MANIFEST_KEYS if k not in man]
+    if missing:
+        raise CdgpsError(f"{p}: missing key(s) {', '.join(missing)}")
+    if man["sample_format"] != "int8-iq":
+        raise CdgpsError(f"{p}: sample_format {man['sample_format']!r}: expected 'int8-iq'")
+    for a in man["antennas"]:
+        f = p.parent / a["file"]
+        size = f.stat().st_size if f.exists() else -1
+        if size != 2 * man["samples"]:
+            raise CdgpsError(f"{f}: {'missing' if size < 0 else f'{size} bytes'}; the manifest {p} says "
+                             f"{2 * man['samples']} bytes ({man['samples']} int8 I/Q samples)")
+    return man
+
+
+@dataclass
+class ChainOptions:
+    """Loop settings and the logging rule of :func:`track_structure`."""
+
+    track: TrackOptions = field(default_factory=TrackOptions)
+    settle_s: float = 0.1           # PLL running this long (after any wide stage) before the phase is logged
+    verify_sha256: bool = True      # check each sample file against the manifest's digest
+
+
+def _track_antenna(path: Path, man: dict, prns: list, opt: ChainOptions, say) -> dict:
+    x = read_samples(path, "int8-iq", man["iq_sign"])
+    try:
+        res = track_all(x, man["fs_hz"], prns, if_hz=man["if_hz"], opt=opt.track)
+    except CdgpsError as exc:
+        raise CdgpsError(f"{path}: {exc}") from None
+    say(f"  {path.name}: " + ", ".join(f"PRN {s['prn']} {s['cn0_dbhz'] or float('nan'):.1f} dB-Hz"
+                                       for s in res["satellites"]))
+    return {"tracks": res["tracks"], "satellites": res["satellites"]}
+
+
+def _valid(r: dict, opt: ChainOptions, T: float) -> np.ndarray:
+    """Per 1 ms update: PLL running for settle_s (after the wide stage) and the window's lock indicator passes."""
+    pll = np.flatnonzero(r["pll"])
+    ok = np.zeros(r["pll"].size, dtype=bool)
+    if pll.size:
+        wide = opt.track.wide_pll_s if opt.track.pll_bn_hz < opt.track.wide_pll_hz else 0.0
+        ok[pll[0] + int(round((wide + opt.settle_s) / T)):] = True
+    return ok & (np.nan_to_num(r["phase_lock"], nan=-1.0) > PHASE_LOCK_THRESHOLD)
+
+
+def differential_phase(ra: dict, rm: dict, epochs: np.ndarray, opt: ChainOptions, T: float) -> dict:
+    """Differential phase of one channel at the epoch updates ``epochs`` (indices of 1 ms updates).
+
+    Returns ``ok`` (bool, a row), ``phase_cycles`` (with each segment's integer), ``lock`` (epochs since lock),
+    ``parity`` (the half cycle p), ``segments`` (count).
+    """
+    good = _valid(ra, opt, T) & _valid(rm, opt, T)
+    bad_cum = np.r_[0, np.cumsum(~good)]
+    agree = np.r_[0.0, np.cumsum(np.sign(ra["i_prompt"]) * np.sign(rm["i_prompt"]))]
+    prev = np.r_[-1, epochs[:-1]]
+    lo = np.maximum(prev + 1, 0)
+    hi = epochs + 1
+    ok = (bad_cum[hi] - bad_cum[lo] == 0) & good[epochs]
+    vote = agree[hi] - agree[lo]
+    ok &= np.abs(vote) >= 0.2 * (hi - lo)          # data-bit agreement clear (not a mixed epoch)
+    parity = (vote < 0).astype(int)
+    raw = -(ra["carrier_phase_cycles"][epochs] - rm["carrier_phase_cycles"][epochs]) + 0.5 * parity
+    phase = np.full(epochs.size, np.nan)
+    lock = np.zeros(epochs.size, dtype=np.int64)
+    segments, start, count = 0, None, 0
+    for i in range(epochs.size):
+        if not ok[i]:
+            start = None
+            continue
+        if start is None or parity[i] != parity[i - 1] or not ok[i - 1]:
+            start, count, segments = raw[i], 0, segments + 1
+            offset = -math.floor(start)
+        phase[i] = raw[i] + offset
+        lock[i] = count
+        count += 1
+    return {"ok": ok, "phase_cycles": phase, "lock": lock, "parity": parity, "segments": segments}
+
+
+def track_structure(manifest_path: str | Path, cfg: StructureConfig, out_csv: str | Path,
+                    opt: ChainOptions | None = None, progress=None) -> dict:
+    """Track every antenna's samples of an IF manifest and write the receiver log ``out_csv``.
+
+    Returns a summary: rows, epochs, per channel the rows, lock segments and C/N0, per antenna the
+    tracking summary of each satellite.  Nothing is written when a file or a PRN fails.
+    """
+    opt = opt or ChainOptions()
+    say = progress or (lambda m: None)
+    path = Path(manifest_path)
+    man = read_manifest(path)
+    if man["config_sha256"] != cfg.sha256:
+        raise CdgpsError(f"{path}: simulated with another config than {cfg.path} (config_sha256 differs)")
+    names = [a["name"] for a in man["antennas"]]
+    master = cfg.antenna_names[cfg.master_index]
+    if master not in names:
+        raise CdgpsError(f"{path}: no samples of the master antenna {master!r}")
+    tx_of = {int(t["prn"]): t["name"] for t in man["transmitters"]}
+    prns = sorted(tx_of)
+    T = round(man["fs_hz"] * KNOT_S) / man["fs_hz"]
+    per = {}
+    for a in man["antennas"]:
+        f = path.parent / a["file"]
+        if opt.verify_sha256 and file_sha256(f) != a["sha256"]:
+            raise CdgpsError(f"{f}: sha256 differs from the manifest's (the file was changed)")
+        say(f"tracking {a['name']} ({f.name}) …")
+        per[a["name"]] = _track_antenna(f, man, prns, opt, say)
+    n_upd = min(len(r["time_s"]) for p in per.values() for r in p["tracks"].values())
+    period = cfg.sample_period_s
+    t_end = man["start_s"] + n_upd * T
+    first = math.ceil(man["start_s"] / period - 1e-9)
+    epoch_t = np.arange(first, math.floor(t_end / period - 1e-9) + 1) * period
+    epochs = np.rint((epoch_t - man["start_s"]) / T).astype(np.int64)
+    keep = (epochs >= 0) & (epochs < n_upd)
+    epoch_t, epochs = np.round(epoch_t[keep], 9), epochs[keep]
+    rows, channels = [], []
+    rx_of = dict(zip(cfg.antenna_names, cfg.antenna_receiver))
+    for ant in cfg.rover_names:
+        if ant not in per:
+            continue
+        for tx in cfg.transmitter_names:
+            prn = next((p for p, n in tx_of.items() if n == tx), None)
+            if prn is None:
+                continue
+            ra, rm = per[ant]["tracks"][prn], per[master]["tracks"][prn]
+            d = differential_phase(ra, rm, epochs, opt, T)
+            cn0 = ra["cn0_dbhz"][epochs]
+            sel = np.flatnonzero(d["ok"])
+            rows.append(pd.DataFrame({"time_s": epoch_t[sel], "receiver": rx_of[ant], "master": master, "antenna": ant,
+                                      "transmitter": tx, "phase_cycles": np.round(d["phase_cycles"][sel], 6),
+                                      "lock": d["lock"][sel],
+                                      "snr_dbhz": np.where(np.isfinite(cn0[sel]), np.round(cn0[sel], 1), np.nan)}))
+            channels.append({"antenna": ant, "transmitter": tx, "prn": prn, "rows": int(sel.size),
+                             "segments": d["segments"],
+                             "cn0_dbhz": float(np.nanmedian(cn0)) if np.isfinite(cn0).any() else None})
+    if not rows or sum(len(r) for r in rows) == 0:
+        raise CdgpsError(f"{path}: no epoch with both the master and a rover antenna in phase lock; nothing written")
+    order = {n: i for i, n in enumerate(cfg.antenna_names)}, {n: i for i, n in enumerate(cfg.transmitter_names)}
+    df = pd.concat(rows, ignore_index=True)
+    df = df.assign(_a=df["antenna"].map(order[0]), _t=df["transmitter"].map(order[1]))
+    df = df.sort_values(["time_s", "_a", "_t"], kind="stable")[list(RECEIVER_COLUMNS)]
+    write_atomic(out_csv, lambda p: _progress.to_csv(df, p, "writing receiver log", index=False,
+                                                     lineterminator="\n", na_rep=""))
+    return {"output": str(out_csv), "manifest": str(path), "rows": int(len(df)), "epochs": int(epochs.size),
+            "start_s": float(epoch_t[0]) if epoch_t.size else None, "channels": channels,
+            "antennas": {n: p["satellites"] for n, p in per.items()}, "options": {**opt.track.__dict__,
+                                                                                   "settle_s": opt.settle_s}}
