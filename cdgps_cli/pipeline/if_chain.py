@@ -40,6 +40,7 @@ from ..errors import CdgpsError
 from ..iq_samples import read_samples
 from ..logs import RECEIVER_COLUMNS
 from ..sim.if_samples import KNOT_S, MANIFEST_FORMAT, StructureIf, simulate_structure_if
+from ..tracking.acquisition import acquire
 from ..tracking.ca_code import G2_TAPS, ca_code
 from ..tracking.channel import PHASE_LOCK_THRESHOLD, TrackOptions
 from ..tracking.receiver import track_all
@@ -88,14 +89,20 @@ class ChainOptions:
 
 
 def _track_antenna(path: Path, man: dict, prns: list, opt: ChainOptions, say) -> dict:
+    """Acquire the manifest's PRNs in one antenna's file and track those found (a PRN not acquired
+    gives its channels no rows and is listed under ``missing``)."""
     x = read_samples(path, "int8-iq", man["iq_sign"])
-    try:
-        res = track_all(x, man["fs_hz"], prns, if_hz=man["if_hz"], opt=opt.track)
-    except CdgpsError as exc:
-        raise CdgpsError(f"{path}: {exc}") from None
+    acq = acquire(x, man["fs_hz"], prns, if_hz=man["if_hz"])
+    found = [a.prn for a in acq if a.acquired]
+    missing = [{"prn": a.prn, "peak_ratio": a.peak_ratio} for a in acq if not a.acquired]
+    if not found:
+        raise CdgpsError(f"{path}: none of PRN {', '.join(map(str, prns))} acquired (peak ratios "
+                         + ", ".join(f"{m['peak_ratio']:.2f}" for m in missing) + ")")
+    res = track_all(x, man["fs_hz"], found, if_hz=man["if_hz"], opt=opt.track)
     say(f"  {path.name}: " + ", ".join(f"PRN {s['prn']} {s['cn0_dbhz'] or float('nan'):.1f} dB-Hz"
-                                       for s in res["satellites"]))
-    return {"tracks": res["tracks"], "satellites": res["satellites"]}
+                                       for s in res["satellites"])
+        + "".join(f", PRN {m['prn']} not acquired (peak ratio {m['peak_ratio']:.2f})" for m in missing))
+    return {"tracks": res["tracks"], "satellites": res["satellites"], "missing": missing}
 
 
 def _valid(r: dict, opt: ChainOptions, T: float) -> np.ndarray:
@@ -185,6 +192,10 @@ def track_structure(manifest_path: str | Path, cfg: StructureConfig, out_csv: st
             prn = next((p for p, n in tx_of.items() if n == tx), None)
             if prn is None:
                 continue
+            if prn not in per[ant]["tracks"] or prn not in per[master]["tracks"]:
+                channels.append({"antenna": ant, "transmitter": tx, "prn": prn, "rows": 0, "segments": 0,
+                                 "cn0_dbhz": None, "not_acquired": True})
+                continue
             ra, rm = per[ant]["tracks"][prn], per[master]["tracks"][prn]
             d = differential_phase(ra, rm, epochs, opt, T)
             cn0 = ra["cn0_dbhz"][epochs]
@@ -206,5 +217,57 @@ def track_structure(manifest_path: str | Path, cfg: StructureConfig, out_csv: st
                                                      lineterminator="\n", na_rep=""))
     return {"output": str(out_csv), "manifest": str(path), "rows": int(len(df)), "epochs": int(epochs.size),
             "start_s": float(epoch_t[0]) if epoch_t.size else None, "channels": channels,
-            "antennas": {n: p["satellites"] for n, p in per.items()}, "options": {**opt.track.__dict__,
+            "antennas": {n: {"satellites": p["satellites"], "not_acquired": p["missing"]} for n, p in per.items()},
+            "options": {**opt.track.__dict__,
                                                                                    "settle_s": opt.settle_s}}
+
+
+# ---------------------------------------------------------------------------------------------
+# command-line values (the messages name the options of `cdgps simulate-if`)
+
+
+def parse_cn0(texts) -> tuple[float | None, dict]:
+    """``--cn0`` values: ``DB`` for every transmitter, ``NAME:DB`` for one (repeatable) → (DB or None, {NAME: DB})."""
+    every, per = None, {}
+    for text in texts:
+        name, _, val = str(text).strip().rpartition(":")
+        try:
+            v = float(val)
+        except ValueError:
+            v = float("nan")
+        if not math.isfinite(v):
+            raise CdgpsError(f"--cn0 {text!r}: expected DB or TRANSMITTER:DB (dB-Hz), e.g. 45 or PL3:38")
+        if name:
+            per[name] = v
+        else:
+            every = v
+    return every, per
+
+
+def parse_prns(texts) -> dict:
+    """``--prn NAME:PRN`` (repeatable) → {transmitter: PRN}."""
+    out = {}
+    for text in texts:
+        name, _, val = str(text).strip().rpartition(":")
+        if not name or not val.isdigit():
+            raise CdgpsError(f"--prn {text!r}: expected TRANSMITTER:PRN, e.g. PL1:7")
+        out[name] = int(val)
+    return out
+
+
+def parse_oscillator(text: str, offset_ppm: float = 0.0):
+    """``--oscillator H0,H_1,H_2`` (fractional-frequency PSD coefficients) and ``--clock-offset-ppm``."""
+    from ..sim.if_samples import Oscillator
+
+    try:
+        h = [float(v) for v in str(text).split(",")]
+    except ValueError:
+        h = []
+    if len(h) != 3 or not all(math.isfinite(v) and v >= 0 for v in h):
+        raise CdgpsError(f"--oscillator {text!r}: expected three non-negative numbers H0,H-1,H-2, e.g. 1e-21,1e-22,1e-24")
+    osc = Oscillator(h[0], h[1], h[2], offset_ppm * 1e-6)
+    try:
+        osc.check()
+    except CdgpsError as exc:
+        raise CdgpsError(f"--clock-offset-ppm {offset_ppm:g}: {exc}") from None
+    return osc

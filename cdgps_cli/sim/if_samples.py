@@ -221,8 +221,8 @@ def _block(chans: list, k0: int, k1: int, spk: int, opt: IfOptions, rng: np.rand
     """Interleaved int8 I, Q of the samples of knots k0 … k1−1 (``spk`` samples per knot)."""
     nk = k1 - k0
     u32 = (np.arange(spk) / spk).astype(np.float32)
-    re = rng.standard_normal((nk, spk), dtype=np.float32)
-    im = rng.standard_normal((nk, spk), dtype=np.float32)
+    z = rng.standard_normal((nk, spk, 2), dtype=np.float32)          # one stream, whatever the blocking
+    re, im = z[..., 0], z[..., 1]
     two_pi = np.float32(2 * np.pi)
     for ch in chans:
         ang = two_pi * (ch.phase_base[k0:k1, None] + ch.phase_step[k0:k1, None] * u32)
@@ -313,16 +313,16 @@ def read_structure_truth(sim_dir: str | Path, cfg: StructureConfig) -> tuple[np.
     return t, q
 
 
-def structure_transmitters(cfg: StructureConfig, cn0_dbhz=45.0, prns: dict | None = None, seed: int = 0,
-                           max_offset_hz: float = 3000.0) -> list[Transmitter]:
+def structure_transmitters(cfg: StructureConfig, cn0_dbhz: float = 45.0, cn0_overrides: dict | None = None,
+                           prns: dict | None = None, seed: int = 0, max_offset_hz: float = 3000.0) -> list[Transmitter]:
     """The config's transmitters as :class:`Transmitter` s: PRN 1, 2, … in config order unless ``prns``
-    (name → PRN) says otherwise; C/N0 ``cn0_dbhz`` (a number, or name → number with the others at
-    45); frequency offsets uniform in ±``max_offset_hz`` (their clocks), code offsets and initial
-    carrier phases uniform, all drawn from ``seed``."""
+    (name → PRN) says otherwise; C/N0 ``cn0_dbhz`` (dB-Hz) unless ``cn0_overrides`` (name → dB-Hz)
+    says otherwise; frequency offsets uniform in ±``max_offset_hz`` (their clocks), code offsets
+    and initial carrier phases uniform, all drawn from ``seed``."""
     names = list(cfg.transmitter_names)
     prns = dict(prns or {})
-    cn0 = dict(cn0_dbhz) if isinstance(cn0_dbhz, dict) else {n: cn0_dbhz for n in names}
-    for what, given in (("PRN", prns), ("C/N0", cn0)):
+    cn0 = {n: cn0_dbhz for n in names} | dict(cn0_overrides or {})
+    for what, given in (("PRN", prns), ("C/N0", cn0_overrides or {})):
         unknown = sorted(set(given) - set(names))
         if unknown:
             raise CdgpsError(f"{what} given for unknown transmitter(s) {', '.join(unknown)} (known: {', '.join(names)})")
@@ -364,8 +364,9 @@ class StructureIf:
     duration_s: float = 1.0
     options: IfOptions = field(default_factory=IfOptions)
     oscillator: Oscillator = field(default_factory=Oscillator)
-    cn0_dbhz: object = 45.0             # a number, or {transmitter: dB-Hz}
-    prns: dict = field(default_factory=dict)
+    cn0_dbhz: float = 45.0
+    cn0_overrides: dict = field(default_factory=dict)    # {transmitter: dB-Hz}
+    prns: dict = field(default_factory=dict)             # {transmitter: PRN}
 
 
 def _window(t: np.ndarray, spec: StructureIf, fs_hz: float) -> int:
@@ -399,7 +400,7 @@ def simulate_structure_if(cfg: StructureConfig, sim_dir: str | Path, out_dir: st
     if 2 * n * n_ant > MAX_FILE_BYTES:
         raise CdgpsError(f"duration {spec.duration_s:g} s at {opt.fs_hz:g} Hz: {n_ant} files of {2 * n / 2**30:.3g} GiB "
                          f"exceed the {MAX_FILE_BYTES / 2**30:g} GiB limit; simulate a shorter stretch")
-    txs = structure_transmitters(cfg, spec.cn0_dbhz, spec.prns, opt.seed)
+    txs = structure_transmitters(cfg, spec.cn0_dbhz, spec.cn0_overrides, spec.prns, opt.seed)
     missing = sorted({tx.prn for tx in txs} - set(codes))
     if missing:
         raise CdgpsError(f"no spreading code given for PRN {', '.join(map(str, missing))}")
