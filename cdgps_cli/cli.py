@@ -1290,7 +1290,7 @@ def track_cmd(ctx, iq_file, fmt, iq_sign, fs_hz, if_hz, prns, duration_s, pll_bn
     if as_json:
         _emit_json({k: v for k, v in s.items() if k != "acquisition"})
 
-@main.command("simulate-if", short_help="Simulate GPS L1 C/A IF samples of a structure's antennas → one file each")
+@main.command("simulate-if", short_help="Simulate GPS IF samples of a structure's antennas")
 @click.argument("config", type=click.Path(dir_okay=False))
 @click.argument("sim_dir", type=click.Path(file_okay=False))
 @click.option("--start", "start_s", type=float, default=0.0, show_default=True,
@@ -1338,7 +1338,7 @@ def simulate_if_cmd(ctx, config, sim_dir, start_s, duration_s, fs_hz, if_hz, bit
         _emit_json(s)
 
 
-@main.command("track-structure", short_help="Track a structure's IF samples → differential-phase receiver log")
+@main.command("track-structure", short_help="Track a structure's IF samples → receiver log")
 @click.argument("if_json", type=click.Path(dir_okay=False))
 @click.option("--config", "config", required=True, type=click.Path(dir_okay=False),
               help="Structure config the samples were simulated for (its antennas, master, epochs).")
