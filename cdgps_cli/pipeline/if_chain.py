@@ -39,12 +39,13 @@ from ..config import StructureConfig
 from ..errors import CdgpsError
 from ..iq_samples import read_samples
 from ..logs import RECEIVER_COLUMNS
-from ..sim.if_samples import KNOT_S, MANIFEST_FORMAT, StructureIf, simulate_structure_if
+from ..sim.if_samples import C_M_S, KNOT_S, L1_HZ, MANIFEST_FORMAT, StructureIf, simulate_structure_if
 from ..tracking.acquisition import acquire
 from ..tracking.ca_code import G2_TAPS, ca_code
-from ..tracking.channel import PHASE_LOCK_THRESHOLD, TrackOptions
-from ..tracking.receiver import track_all
+from ..tracking.channel import PHASE_LOCK_THRESHOLD, WINDOW, TrackOptions, track
 
+#: external Doppler aids of :func:`track_structure`
+AIDS = ("none", "truth")
 #: keys every if.json must have
 MANIFEST_KEYS = ("format", "sample_format", "iq_sign", "fs_hz", "if_hz", "samples", "start_s", "config_sha256",
                  "master", "transmitters", "antennas")
@@ -86,23 +87,60 @@ class ChainOptions:
     track: TrackOptions = field(default_factory=TrackOptions)
     settle_s: float = 0.1           # PLL running this long (after any wide stage) before the phase is logged
     verify_sha256: bool = True      # check each sample file against the manifest's digest
+    aid: str = "none"               # "truth": feed each PLL the true line-of-sight Doppler (truth_aid_hz)
+
+    def check(self) -> None:
+        if self.aid not in AIDS:
+            raise CdgpsError(f"aid {self.aid!r}: expected one of {', '.join(AIDS)}")
+        if not (math.isfinite(self.settle_s) and self.settle_s >= 0):
+            raise CdgpsError(f"settle_s {self.settle_s!r}: expected a non-negative number of seconds")
 
 
-def _track_antenna(path: Path, man: dict, prns: list, opt: ChainOptions, say) -> dict:
+def truth_aid_hz(man: dict, antenna: str, transmitter: str, time_s: np.ndarray) -> np.ndarray:
+    """Line-of-sight Doppler −(dρ/dt)/λ (Hz) of one channel at ``time_s`` (s from the first sample),
+    from the manifest's true ranges at the structure's epochs (cubic spline): the aid of a perfect
+    inertial or structural-model prediction (no receiver or transmitter clock in it)."""
+    from scipy.interpolate import CubicSpline
+
+    t = np.asarray(man["truth"]["time_s"], dtype=float) - man["start_s"]
+    rho = np.asarray(man["truth"]["antennas"][antenna][transmitter]["range_m"], dtype=float)
+    if t.size < 4:
+        raise CdgpsError("aid: the manifest holds fewer than 4 truth epochs (a file shorter than 4 epochs)")
+    return -CubicSpline(t, rho)(np.clip(time_s, t[0], t[-1]), 1) / (C_M_S / L1_HZ)
+
+
+def _track_antenna(path: Path, man: dict, prns: list, opt: ChainOptions, say, antenna: str = "") -> dict:
     """Acquire the manifest's PRNs in one antenna's file and track those found (a PRN not acquired
-    gives its channels no rows and is listed under ``missing``)."""
+    gives its channels no rows and is listed under ``missing``); ``opt.aid == "truth"`` feeds each
+    loop the line-of-sight Doppler of :func:`truth_aid_hz`."""
     x = read_samples(path, "int8-iq", man["iq_sign"])
-    acq = acquire(x, man["fs_hz"], prns, if_hz=man["if_hz"])
-    found = [a.prn for a in acq if a.acquired]
+    fs, if_hz = man["fs_hz"], man["if_hz"]
+    acq = acquire(x, fs, prns, if_hz=if_hz)
+    found = [a for a in acq if a.acquired]
     missing = [{"prn": a.prn, "peak_ratio": a.peak_ratio} for a in acq if not a.acquired]
     if not found:
         raise CdgpsError(f"{path}: none of PRN {', '.join(map(str, prns))} acquired (peak ratios "
                          + ", ".join(f"{m['peak_ratio']:.2f}" for m in missing) + ")")
-    res = track_all(x, man["fs_hz"], found, if_hz=man["if_hz"], opt=opt.track)
+    if if_hz:
+        x = x * np.exp(-2j * np.pi * if_hz * np.arange(x.size) / fs)
+    tx_of = {int(t["prn"]): t["name"] for t in man["transmitters"]}
+    n = int(round(fs * KNOT_S))
+    tracks, sats = {}, []
+    for a in found:
+        aid = None
+        if opt.aid == "truth":
+            aid = truth_aid_hz(man, antenna, tx_of[a.prn], np.arange(x.size // n) * n / fs)
+        r = track(x, fs, a.prn, a.doppler_hz - (aid[0] if aid is not None else 0.0), a.code_phase_chips,
+                  opt.track, aid_doppler_hz=aid)
+        tracks[a.prn] = r
+        cn0 = r["cn0_dbhz"][::WINDOW][-5:]
+        sats.append({"prn": a.prn, "doppler_hz": float(np.mean(r["doppler_hz"][-100:])),
+                     "cn0_dbhz": float(np.nanmedian(cn0)) if np.isfinite(cn0).any() else None,
+                     "phase_lock_fraction": float(np.mean(_valid(r, opt, n / fs)))})
     say(f"  {path.name}: " + ", ".join(f"PRN {s['prn']} {s['cn0_dbhz'] or float('nan'):.1f} dB-Hz"
-                                       for s in res["satellites"])
+                                       for s in sats)
         + "".join(f", PRN {m['prn']} not acquired (peak ratio {m['peak_ratio']:.2f})" for m in missing))
-    return {"tracks": res["tracks"], "satellites": res["satellites"], "missing": missing}
+    return {"tracks": tracks, "satellites": sats, "missing": missing}
 
 
 def _valid(r: dict, opt: ChainOptions, T: float) -> np.ndarray:
@@ -156,6 +194,7 @@ def track_structure(manifest_path: str | Path, cfg: StructureConfig, out_csv: st
     tracking summary of each satellite.  Nothing is written when a file or a PRN fails.
     """
     opt = opt or ChainOptions()
+    opt.check()
     say = progress or (lambda m: None)
     path = Path(manifest_path)
     man = read_manifest(path)
@@ -174,7 +213,7 @@ def track_structure(manifest_path: str | Path, cfg: StructureConfig, out_csv: st
         if opt.verify_sha256 and file_sha256(f) != a["sha256"]:
             raise CdgpsError(f"{f}: sha256 differs from the manifest's (the file was changed)")
         say(f"tracking {a['name']} ({f.name}) …")
-        per[a["name"]] = _track_antenna(f, man, prns, opt, say)
+        per[a["name"]] = _track_antenna(f, man, prns, opt, say, a["name"])
     n_upd = min(len(r["time_s"]) for p in per.values() for r in p["tracks"].values())
     period = cfg.sample_period_s
     t_end = man["start_s"] + n_upd * T
@@ -219,7 +258,7 @@ def track_structure(manifest_path: str | Path, cfg: StructureConfig, out_csv: st
             "start_s": float(epoch_t[0]) if epoch_t.size else None, "channels": channels,
             "antennas": {n: {"satellites": p["satellites"], "not_acquired": p["missing"]} for n, p in per.items()},
             "options": {**opt.track.__dict__,
-                                                                                   "settle_s": opt.settle_s}}
+                                                                                   "settle_s": opt.settle_s, "aid": opt.aid}}
 
 
 # ---------------------------------------------------------------------------------------------
