@@ -17,9 +17,9 @@ the loops' NCO phases at the structure's epochs:
   A change of p inside a lock segment is a half-cycle slip: a new segment starts.
 * n: an integer per lock segment making the first phase of the segment lie in [0, 1) cycle
   (the convention of ``cdgps simulate``); ``init`` resolves the true integer.
-* lock counts epochs since lock; a segment starts (lock 0) when the PLL has run for ``settle_s``
-  and the lock indicator of both antennas' channels passes in every 20 ms window since the last epoch;
-  it ends when one fails, or at a half-cycle slip.  Epochs without lock have no row.
+* lock counts epochs since lock; a segment starts (lock 0) when both PLLs have run for ``settle_s``
+  and both pass the noise-corrected lock indicator (:func:`epoch_lock`) over the interval since the
+  last epoch; it ends when one fails, or at a half-cycle slip.  Epochs without lock have no row.
 * snr_dbhz is the antenna's C/N0 (moments estimator over the 20 ms window).
 """
 
@@ -40,12 +40,14 @@ from ..errors import CdgpsError
 from ..iq_samples import read_samples
 from ..logs import RECEIVER_COLUMNS
 from ..sim.if_samples import C_M_S, KNOT_S, L1_HZ, MANIFEST_FORMAT, StructureIf, simulate_structure_if
-from ..tracking.acquisition import acquire
-from ..tracking.ca_code import G2_TAPS, ca_code
+from ..tracking.acquisition import Acquisition, acquire
+from ..tracking.ca_code import CHIP_RATE_HZ, CODE_LENGTH, G2_TAPS, ca_code
 from ..tracking.channel import PHASE_LOCK_THRESHOLD, WINDOW, TrackOptions, track
 
 #: external Doppler aids of :func:`track_structure`
 AIDS = ("none", "truth")
+#: how the loops start: FFT search, or the manifest's truth (an assisted start)
+ACQUISITIONS = ("search", "truth")
 #: keys every if.json must have
 MANIFEST_KEYS = ("format", "sample_format", "iq_sign", "fs_hz", "if_hz", "samples", "start_s", "config_sha256",
                  "master", "transmitters", "antennas")
@@ -88,10 +90,13 @@ class ChainOptions:
     settle_s: float = 0.1           # PLL running this long (after any wide stage) before the phase is logged
     verify_sha256: bool = True      # check each sample file against the manifest's digest
     aid: str = "none"               # "truth": feed each PLL the true line-of-sight Doppler (truth_aid_hz)
+    acquisition: str = "search"     # "truth": start the loops from the manifest's true Doppler and code phase
 
     def check(self) -> None:
         if self.aid not in AIDS:
             raise CdgpsError(f"aid {self.aid!r}: expected one of {', '.join(AIDS)}")
+        if self.acquisition not in ACQUISITIONS:
+            raise CdgpsError(f"acquisition {self.acquisition!r}: expected one of {', '.join(ACQUISITIONS)}")
         if not (math.isfinite(self.settle_s) and self.settle_s >= 0):
             raise CdgpsError(f"settle_s {self.settle_s!r}: expected a non-negative number of seconds")
 
@@ -109,13 +114,28 @@ def truth_aid_hz(man: dict, antenna: str, transmitter: str, time_s: np.ndarray) 
     return -CubicSpline(t, rho)(np.clip(time_s, t[0], t[-1]), 1) / (C_M_S / L1_HZ)
 
 
+def _truth_start(man: dict, antenna: str, prns: list) -> list:
+    """Acquisition results from the manifest's truth at the first sample (an assisted start: Doppler
+    and code phase at the first truth epoch, the code phase carried back to the first sample)."""
+    tx_of = {int(t["prn"]): t["name"] for t in man["transmitters"]}
+    dt = man["truth"]["time_s"][0] - man["start_s"]
+    out = []
+    for prn in prns:
+        tr = man["truth"]["antennas"][antenna][tx_of[prn]]
+        dop = float(tr["doppler_hz"][0])
+        code = (tr["code_phase_chips"][0] - CHIP_RATE_HZ * (1 + dop / L1_HZ) * dt) % CODE_LENGTH
+        out.append(Acquisition(prn=prn, acquired=True, doppler_hz=dop, code_phase_chips=float(code),
+                               code_phase_samples=0, peak_ratio=float("inf")))
+    return out
+
+
 def _track_antenna(path: Path, man: dict, prns: list, opt: ChainOptions, say, antenna: str = "") -> dict:
     """Acquire the manifest's PRNs in one antenna's file and track those found (a PRN not acquired
     gives its channels no rows and is listed under ``missing``); ``opt.aid == "truth"`` feeds each
     loop the line-of-sight Doppler of :func:`truth_aid_hz`."""
     x = read_samples(path, "int8-iq", man["iq_sign"])
     fs, if_hz = man["fs_hz"], man["if_hz"]
-    acq = acquire(x, fs, prns, if_hz=if_hz)
+    acq = acquire(x, fs, prns, if_hz=if_hz) if opt.acquisition == "search" else _truth_start(man, antenna, prns)
     found = [a for a in acq if a.acquired]
     missing = [{"prn": a.prn, "peak_ratio": a.peak_ratio} for a in acq if not a.acquired]
     if not found:
@@ -136,36 +156,59 @@ def _track_antenna(path: Path, man: dict, prns: list, opt: ChainOptions, say, an
         cn0 = r["cn0_dbhz"][::WINDOW][-5:]
         sats.append({"prn": a.prn, "doppler_hz": float(np.mean(r["doppler_hz"][-100:])),
                      "cn0_dbhz": float(np.nanmedian(cn0)) if np.isfinite(cn0).any() else None,
-                     "phase_lock_fraction": float(np.mean(_valid(r, opt, n / fs)))})
+                     "phase_lock_fraction": float(np.mean(r["phase_lock"][::WINDOW] > PHASE_LOCK_THRESHOLD))})
     say(f"  {path.name}: " + ", ".join(f"PRN {s['prn']} {s['cn0_dbhz'] or float('nan'):.1f} dB-Hz"
                                        for s in sats)
         + "".join(f", PRN {m['prn']} not acquired (peak ratio {m['peak_ratio']:.2f})" for m in missing))
     return {"tracks": tracks, "satellites": sats, "missing": missing}
 
 
-def _valid(r: dict, opt: ChainOptions, T: float) -> np.ndarray:
-    """Per 1 ms update: PLL running for settle_s (after the wide stage) and the window's lock indicator passes."""
+def _running(r: dict, opt: ChainOptions, T: float) -> np.ndarray:
+    """Per 1 ms update: the PLL has run for settle_s (after its wide stage, if any)."""
     pll = np.flatnonzero(r["pll"])
     ok = np.zeros(r["pll"].size, dtype=bool)
     if pll.size:
         wide = opt.track.wide_pll_s if opt.track.pll_bn_hz < opt.track.wide_pll_hz else 0.0
         ok[pll[0] + int(round((wide + opt.settle_s) / T)):] = True
-    return ok & (np.nan_to_num(r["phase_lock"], nan=-1.0) > PHASE_LOCK_THRESHOLD)
+    return ok
+
+
+def epoch_lock(r: dict, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Noise-corrected phase-lock indicator per interval of updates [lo, hi): Σ(I² − Q²) over N times the
+    signal power P_d of the moments (M2M4) estimator.  The noise adds equally to I² and Q², so this is
+    an unbiased estimate of the mean cos 2φ (1 in lock, 0 for a rotating phase), usable at C/N0 where
+    the channel's 20 ms indicator (I² − Q²)/(I² + Q²) stays below its threshold (0.8 needs about 40 dB-Hz)."""
+    i, q = r["i_prompt"], r["q_prompt"]
+    p = i * i + q * q
+    c = [np.r_[0.0, np.cumsum(v)] for v in (i * i - q * q, p, p * p)]
+    n = np.maximum(hi - lo, 1)
+    m2, m4 = (c[1][hi] - c[1][lo]) / n, (c[2][hi] - c[2][lo]) / n
+    pd = np.sqrt(np.maximum(2 * m2 * m2 - m4, 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(pd > 0, (c[0][hi] - c[0][lo]) / n / pd, 0.0)
+
+
+#: epoch-level lock threshold on :func:`epoch_lock` (cos 2φ = 0.5 at a 30° phase error)
+EPOCH_LOCK_THRESHOLD = 0.5
 
 
 def differential_phase(ra: dict, rm: dict, epochs: np.ndarray, opt: ChainOptions, T: float) -> dict:
     """Differential phase of one channel at the epoch updates ``epochs`` (indices of 1 ms updates).
 
+    An epoch has a row when both loops run (settled) through the interval since the previous epoch,
+    both pass :func:`epoch_lock` over it and the data-bit vote on the half cycle is clear.
+
     Returns ``ok`` (bool, a row), ``phase_cycles`` (with each segment's integer), ``lock`` (epochs since lock),
     ``parity`` (the half cycle p), ``segments`` (count).
     """
-    good = _valid(ra, opt, T) & _valid(rm, opt, T)
+    good = _running(ra, opt, T) & _running(rm, opt, T)
     bad_cum = np.r_[0, np.cumsum(~good)]
     agree = np.r_[0.0, np.cumsum(np.sign(ra["i_prompt"]) * np.sign(rm["i_prompt"]))]
     prev = np.r_[-1, epochs[:-1]]
     lo = np.maximum(prev + 1, 0)
     hi = epochs + 1
     ok = (bad_cum[hi] - bad_cum[lo] == 0) & good[epochs]
+    ok &= (epoch_lock(ra, lo, hi) > EPOCH_LOCK_THRESHOLD) & (epoch_lock(rm, lo, hi) > EPOCH_LOCK_THRESHOLD)
     vote = agree[hi] - agree[lo]
     ok &= np.abs(vote) >= 0.2 * (hi - lo)          # data-bit agreement clear (not a mixed epoch)
     parity = (vote < 0).astype(int)
@@ -258,7 +301,7 @@ def track_structure(manifest_path: str | Path, cfg: StructureConfig, out_csv: st
             "start_s": float(epoch_t[0]) if epoch_t.size else None, "channels": channels,
             "antennas": {n: {"satellites": p["satellites"], "not_acquired": p["missing"]} for n, p in per.items()},
             "options": {**opt.track.__dict__,
-                                                                                   "settle_s": opt.settle_s, "aid": opt.aid}}
+                                                                                   "settle_s": opt.settle_s, "aid": opt.aid, "acquisition": opt.acquisition}}
 
 
 # ---------------------------------------------------------------------------------------------

@@ -156,3 +156,25 @@ def test_track_structure_bad_input(chain, tmp_path, testbed_cfg, dof2_cfg):
     r = _cli("track-structure", bad / "if.json", "--config", TESTBED, "-o", out)
     assert r.exit_code == 2 and "not an IF manifest" in r.output
     assert not out.exists()
+
+
+def test_epoch_lock_is_unbiased_by_noise():
+    """cos 2φ of a locked signal at 0 dB per-ms SNR (30 dB-Hz): about 1, where the channel's
+    20 ms indicator reads about 0.5; a phase rotating at 3 Hz reads about 0."""
+    from cdgps_cli.pipeline.if_chain import epoch_lock
+
+    g = np.random.default_rng(0)
+    n = 10_000
+    noise = g.normal(0, 1, n) + 1j * g.normal(0, 1, n)
+    amp = np.sqrt(2.0)                                  # A² / (2σ²) = 1
+    bits = np.repeat(g.choice([-1.0, 1.0], n // 20), 20)
+    lo, hi = np.arange(0, n, 100), np.arange(100, n + 1, 100)
+    locked = amp * bits * np.exp(0.2j) + noise          # 11° static error: cos 2φ = 0.92
+    rot = amp * bits * np.exp(2j * np.pi * 3 * np.arange(n) * 1e-3) + noise
+    lk = epoch_lock({"i_prompt": locked.real, "q_prompt": locked.imag}, lo, hi)
+    rt = epoch_lock({"i_prompt": rot.real, "q_prompt": rot.imag}, lo, hi)
+    assert abs(np.mean(lk) - np.cos(0.4)) < 0.05 and np.mean(lk > 0.5) > 0.9      # 100 ms at 30 dB-Hz: noisy
+    assert abs(np.mean(rt)) < 0.1 and np.mean(rt > 0.5) < 0.05
+    old = np.mean((locked.real**2 - locked.imag**2)[:2000].reshape(-1, 20).sum(1)
+                  / (np.abs(locked[:2000]) ** 2).reshape(-1, 20).sum(1))
+    assert old < 0.6                                    # the 20 ms (I² − Q²)/(I² + Q²) would call it unlocked
