@@ -177,7 +177,9 @@ def epoch_lock(r: dict, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """Noise-corrected phase-lock indicator per interval of updates [lo, hi): Σ(I² − Q²) over N times the
     signal power P_d of the moments (M2M4) estimator.  The noise adds equally to I² and Q², so this is
     an unbiased estimate of the mean cos 2φ (1 in lock, 0 for a rotating phase), usable at C/N0 where
-    the channel's 20 ms indicator (I² − Q²)/(I² + Q²) stays below its threshold (0.8 needs about 40 dB-Hz)."""
+    the channel's 20 ms indicator (I² − Q²)/(I² + Q²) stays below its threshold (0.8 needs about 40 dB-Hz).
+    A phase rotating by less than about half a cycle within the interval (a frequency error below
+    about 5 Hz over 100 ms) is not averaged out: such slips show as data-bit parity changes or not at all."""
     i, q = r["i_prompt"], r["q_prompt"]
     p = i * i + q * q
     c = [np.r_[0.0, np.cumsum(v)] for v in (i * i - q * q, p, p * p)]
