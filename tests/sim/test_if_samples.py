@@ -173,7 +173,7 @@ def test_quantizer_levels():
     assert np.all(S.quantize(x, 3) == -S.quantize(-x - 1e-12, 3))              # mid-rise: odd symmetric
 
 
-def test_two_bit_quantization_costs_about_half_a_db(tracked):
+def test_two_bit_quantization_costs_about_half_a_db():
     """Max's optimum 2-bit quantizer loses 0.55 dB of C/N0 (Gaussian input); measured on the prompt."""
     txs = _txs()[:1]
     pos = _moving(0.3)
