@@ -17,6 +17,7 @@ modelled here, and no clock aiding).  Measured per run:
 * estimate → evaluate: RMS error of the modal coordinates against truth after init.
 
     python benchmarks/tracking_chain.py [--quick]     # results: docs/benchmarks/tracking-chain.json
+    python benchmarks/tracking_chain.py --oscillator 0,0,0 --cn0 45 --out docs/benchmarks/tracking-chain-no-osc.json
 
 Slips "per hour" from runs of seconds are not meaningful statistics: the counts are given as they are.
 """
@@ -128,19 +129,26 @@ def one(work: Path, sim: Path, ifdir: Path, name: str, args: list, cfg) -> dict:
     return out
 
 
+def _arg(name, default):
+    return sys.argv[sys.argv.index(name) + 1] if name in sys.argv else default
+
+
 def main():
     quick = "--quick" in sys.argv
+    osc = _arg("--oscillator", OSCILLATOR)
+    cn0s = tuple(float(v) for v in _arg("--cn0", ",".join(map(str, CN0S))).split(","))
+    out = ROOT / _arg("--out", "docs/benchmarks/tracking-chain.json")
     cfg = load_config(CONFIG)
     rows = []
     with tempfile.TemporaryDirectory(prefix="tracking-chain-") as tmp:
         tmp = Path(tmp)
         sim = tmp / "sim"
         run("simulate", CONFIG, "--duration", DURATION_S + 1, "--seed", 1, "-o", sim)
-        for cn0 in (CN0S[:1] if quick else CN0S):
+        for cn0 in (cn0s[:1] if quick else cn0s):
             ifdir = tmp / f"if{cn0:g}"
             t0 = time.time()
             run("simulate-if", CONFIG, sim, "--duration", DURATION_S, "--fs", FS_HZ, "--cn0", cn0, "--seed", 2,
-                "--oscillator", OSCILLATOR, "-o", ifdir)
+                "--oscillator", osc, "-o", ifdir)
             print(f"C/N0 {cn0:g}: samples in {time.time() - t0:.1f} s", file=sys.stderr)
             for name, args in (LOOPS[:1] if quick else LOOPS):
                 t0 = time.time()
@@ -151,10 +159,9 @@ def main():
                       file=sys.stderr)
             for f in ifdir.glob("*.bin"):
                 f.unlink()
-    out = ROOT / "docs" / "benchmarks" / "tracking-chain.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"config": str(CONFIG.relative_to(ROOT)), "fs_hz": FS_HZ, "duration_s": DURATION_S,
-                               "init_s": INIT_S, "oscillator_h0_h1_h2": OSCILLATOR, "runs": rows}, indent=1) + "\n")
+                               "init_s": INIT_S, "oscillator_h0_h1_h2": osc, "acquisition": ACQUISITION, "runs": rows}, indent=1) + "\n")
     print(f"wrote {out}", file=sys.stderr)
 
 
