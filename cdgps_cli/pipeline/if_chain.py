@@ -34,7 +34,7 @@ import numpy as np
 import pandas as pd
 
 from .. import progress as _progress
-from ..atomic import file_sha256, write_atomic
+from ..atomic import file_sha256, refuse_input_overwrite, write_atomic
 from ..config import StructureConfig
 from ..errors import CdgpsError
 from ..iq_samples import read_samples
@@ -245,6 +245,8 @@ def track_structure(manifest_path: str | Path, cfg: StructureConfig, out_csv: st
     man = read_manifest(path)
     if man["config_sha256"] != cfg.sha256:
         raise CdgpsError(f"{path}: simulated with another config than {cfg.path} (config_sha256 differs)")
+    refuse_input_overwrite([("out_csv", out_csv, False)],
+                           [("manifest", path, False)] + [("sample file", path.parent / a["file"], False) for a in man["antennas"]])
     names = [a["name"] for a in man["antennas"]]
     master = cfg.antenna_names[cfg.master_index]
     if master not in names:

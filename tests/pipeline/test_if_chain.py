@@ -144,6 +144,10 @@ def test_track_structure_bad_input(chain, tmp_path, testbed_cfg, dof2_cfg):
     out = tmp_path / "rx.csv"
     with pytest.raises(CdgpsError, match="another config"):
         track_structure(bad / "if.json", dof2_cfg, out)
+    before = (bad / "a1.bin").read_bytes()
+    with pytest.raises(CdgpsError, match="overwrite"):
+        track_structure(bad / "if.json", testbed_cfg, bad / "a1.bin")
+    assert (bad / "a1.bin").read_bytes() == before
     raw = bytearray((bad / "a3.bin").read_bytes())
     raw[1000] ^= 0x40
     (bad / "a3.bin").write_bytes(bytes(raw))
