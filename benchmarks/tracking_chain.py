@@ -96,7 +96,8 @@ def true_integers(d: Path, rx: Path, cfg) -> dict:
                                                               - np.array(tr[master][t]["range_m"])[k])
         seg = np.cumsum(g["lock"].to_numpy() == 0)
         for s in np.unique(seg):
-            out[(a, t, float(g["time_s"].to_numpy()[seg == s][0]))] = int(np.round(np.median(e[seg == s]) / cfg.wavelength_m))
+            start = round(float(g["time_s"].to_numpy()[seg == s][0]), 6)     # INIT's start is tmin + k·T: round
+            out[(a, t, start)] = int(np.round(np.median(e[seg == s]) / cfg.wavelength_m))
     return out
 
 
@@ -116,7 +117,7 @@ def one(work: Path, sim: Path, ifdir: Path, name: str, args: list, cfg) -> dict:
     init = json.loads((work / "init.json").read_text())
     truth = true_integers(ifdir, rx, cfg)
     right = sum(1 for b in init["biases"] if b["fixed"]
-                and truth.get((b["antenna"], b["transmitter"], float(b["segment_start_s"]))) == b["integer_cycles"])
+                and truth.get((b["antenna"], b["transmitter"], round(float(b["segment_start_s"]), 6))) == b["integer_cycles"])
     out["init"] = {"segments": len(init["biases"]), "fixed": int(init["n_fixed"]), "fixed_right": right,
                    "ratio": init["ratio"], "sigma_mm": init["sigma_m"] * 1e3 if isinstance(init["sigma_m"], float) else None}
     r = run("estimate", work / "run.mcap", "--init", work / "init.json", "-o", work / "states.mcap", check=False)
