@@ -1419,5 +1419,86 @@ def batch_cmd(ctx, manifest, out_dir, scheduler, workers, resume, retries, dashb
     if s["failures"]:
         ctx.exit(1)
 
+@main.command("simulate-if", short_help="Simulate GPS IF samples of a structure's antennas")
+@click.argument("config", type=click.Path(dir_okay=False))
+@click.argument("sim_dir", type=click.Path(file_okay=False))
+@click.option("--start", "start_s", type=float, default=0.0, show_default=True,
+              help="Structure time of the first sample, s (inside the simulation SIM_DIR).")
+@click.option("--duration", "duration_s", type=float, default=1.0, show_default=True,
+              help="Seconds of samples (each antenna's file: 2 bytes × fs × duration).")
+@click.option("--fs", "fs_hz", type=float, default=4e6, show_default=True,
+              help="Sample rate, Hz (a whole number of samples per millisecond, at least 2.1 MHz).")
+@click.option("--if", "if_hz", type=float, default=0.0, show_default=True, help="Intermediate frequency, Hz (0: baseband).")
+@click.option("--bits", type=int, default=8, show_default=True, help="Quantizer bits per component, 1 to 8.")
+@click.option("--iq-sign", type=click.Choice(["minus", "plus"]), default="minus", show_default=True,
+              help="Write Q so that the samples read back as I − jQ (Pocket SDR convention) or I + jQ.")
+@click.option("--cn0", "cn0", multiple=True, metavar="DB|TX:DB",
+              help="C/N0 in dB-Hz of every transmitter (DB) or of one (TX:DB, repeatable) [45].")
+@click.option("--prn", "prns", multiple=True, metavar="TX:PRN",
+              help="PRN of a transmitter (repeatable; default PRN 1, 2, … in config order).")
+@click.option("--oscillator", default="0,0,0", show_default=True, metavar="H0,H-1,H-2",
+              help="Receiver oscillator (shared by every antenna): fractional-frequency PSD h0 + h-1/f + h-2/f².")
+@click.option("--clock-offset-ppm", type=float, default=0.0, show_default=True,
+              help="Receiver oscillator frequency offset, ppm (a Doppler common to every transmitter).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed (same seed → identical files).")
+@_output_option("out_dir", "Output directory (<antenna>.bin per antenna and the manifest if.json).", directory=True)
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
+@click.pass_context
+def simulate_if_cmd(ctx, config, sim_dir, start_s, duration_s, fs_hz, if_hz, bits, iq_sign, cn0, prns, oscillator,
+                    clock_offset_ppm, seed, out_dir, as_json):
+    """Simulate the GPS L1 C/A samples (int8 I/Q) each antenna of a structure receives, on the antenna
+    trajectories of a `cdgps simulate` folder: C/A codes, navigation bits, delays and carrier phases from
+    the geometry, thermal noise, one receiver oscillator for all antennas, quantization.
+    `cdgps track-structure OUT_DIR/if.json` turns them into a receiver log."""
+    from cdgps_cli.config.structure import load_config
+    from cdgps_cli.pipeline.if_chain import parse_cn0, parse_oscillator, parse_prns, simulate_if
+    from cdgps_cli.sim.if_samples import IfOptions, StructureIf
+
+    cfg = load_config(config)
+    every, per = parse_cn0(cn0)
+    spec = StructureIf(start_s=start_s, duration_s=duration_s, cn0_dbhz=45.0 if every is None else every,
+                       cn0_overrides=per, prns=parse_prns(prns), oscillator=parse_oscillator(oscillator, clock_offset_ppm),
+                       options=IfOptions(fs_hz=fs_hz, if_hz=if_hz, bits=bits, iq_sign=iq_sign, seed=seed))
+    with progress.stage("simulating IF samples"):
+        s = simulate_if(cfg, sim_dir, out_dir, spec, progress=None if ctx.obj.get("quiet") else progress.write)
+    _say(ctx, f"wrote {len(s['antennas'])} sample files of {s['duration_s']:g} s ({s['bytes'] / 2**20:.1f} MiB) and "
+              f"if.json to {out_dir}/")
+    if as_json:
+        _emit_json(s)
+
+
+@main.command("track-structure", short_help="Track a structure's IF samples → receiver log")
+@click.argument("if_json", type=click.Path(dir_okay=False))
+@click.option("--config", "config", required=True, type=click.Path(dir_okay=False),
+              help="Structure config the samples were simulated for (its antennas, master, epochs).")
+@click.option("--pll-bn", "pll_bn_hz", type=float, default=15.0, show_default=True, help="PLL noise bandwidth, Hz.")
+@click.option("--pull-in", "pull_in_s", type=float, default=0.1, show_default=True, help="FLL pull-in before the PLL, s.")
+@click.option("--aid", type=click.Choice(["none", "truth"]), default="none", show_default=True,
+              help="External Doppler aid of every PLL: none, or the true line-of-sight Doppler from IF_JSON's truth "
+                   "(a perfect inertial or structural-model prediction).")
+@click.option("--acquisition", type=click.Choice(["search", "truth"]), default="search", show_default=True,
+              help="Start the loops from an FFT search of each file, or from IF_JSON's true Doppler and code phase "
+                   "(an assisted start, to study the loops below the search's threshold).")
+@_output_option("output", "Receiver log CSV to write (time_s,receiver,master,antenna,transmitter,phase_cycles,lock,snr_dbhz).")
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (rows, channels, satellites per antenna) on stdout.")
+@click.pass_context
+def track_structure_cmd(ctx, if_json, config, pll_bn_hz, pull_in_s, aid, acquisition, output, as_json):
+    """Track every antenna's samples listed in IF_JSON (from `cdgps simulate-if`), difference each
+    antenna's carrier phase against the master's per transmitter (half cycles resolved by the data
+    bits) and write the native receiver log at the config's epochs, for `cdgps ingest`."""
+    from cdgps_cli.config.structure import load_config
+    from cdgps_cli.pipeline.if_chain import ChainOptions, track_structure
+    from cdgps_cli.tracking.channel import TrackOptions
+
+    cfg = load_config(config)
+    opt = ChainOptions(track=TrackOptions(pll_bn_hz=pll_bn_hz, pull_in_s=pull_in_s), aid=aid, acquisition=acquisition)
+    with progress.stage("tracking"):
+        s = track_structure(if_json, cfg, output, opt, progress=None if ctx.obj.get("quiet") else progress.write)
+    _say(ctx, f"wrote {output}: {s['rows']} rows, {s['epochs']} epochs, "
+              f"{sum(c['segments'] for c in s['channels'])} lock segments on {len(s['channels'])} channels")
+    if as_json:
+        _emit_json(s)
+
+
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())
