@@ -37,7 +37,7 @@ from cdgps_cli.config.structure import StructureConfig, channel_sigma_m, scalar_
 from cdgps_cli.model.dynamics import discrete_model
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.phase import channel_indices, phase_model
-from cdgps_cli.measurement.multipath import MultipathModel, augment, model_from
+from cdgps_cli.measurement.multipath import MultipathModel, augment, fit_autocovariance, model_from
 from cdgps_cli.measurement.noise import leverage_per_channel, prior_sigma_m, variance_factors
 from cdgps_cli.core.records import Run
 
@@ -629,6 +629,9 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
     noise = {"source": "--sigma-m" if opt.sigma_m is not None else "config", "warnings": []}
     if opt.estimate_sigma and opt.sigma_m is None:
         prob, g, noise = _estimate_noise(cfg, wd, prob, g, prior, opt)
+    auto_mp = None
+    if not mp.active and opt.multipath_sigma_m is None:
+        prob, g, noise, mp, auto_mp = _auto_multipath(cfg, wd, prob, g, prior, noise, opt)
     sig_c = prob.sig_c
     sigma = float(np.sqrt(np.mean(sig_c**2)))
     lin = g.lin
@@ -735,6 +738,9 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
     U = np.asarray(cfg.mode_shapes)
     x_end = x_traj[-1][:nd]
     mp_out = _multipath_record(mp, wd, x_traj[-1], P, nd)
+    if auto_mp is not None:
+        mp_out["source"] = "estimated from the white-noise fit's residual autocovariance (no multipath option given)"
+        mp_out["evidence"] = auto_mp
     q_end = U @ x_end[:nm]
     elapsed = _time.perf_counter() - t_start
     dof = max(int(np.isfinite(resid).sum()) - nd - int(prob_final.free.size), 1)
@@ -775,6 +781,42 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
     if return_trajectory:
         return out, {"time_s": wd.time_s, "x": x_traj[:, :nd]}
     return out
+
+
+def _auto_multipath(cfg, wd, prob, g, prior, noise, opt):
+    """With no multipath option (and none in the config), test the white-noise fit's residuals for
+    time correlation (:func:`~cdgps_cli.measurement.multipath.fit_autocovariance`: pooled Ljung–Box
+    and a Gauss–Markov + white autocovariance fit).  When detected, refit the whole window with the
+    fitted Gauss–Markov state per channel, from the white solution (no new cold start), and
+    re-estimate the white σ per channel with it.  Returns (problem, solution, noise report, model,
+    evidence for INIT.json or None)."""
+    off = MultipathModel(0.0)
+    fit = fit_autocovariance(prob.residual(g.x, g.b), wd.segment, cfg.sample_period_s)
+    if fit is None:
+        return prob, g, noise, off, None
+    _say(opt, f"  multipath check: Ljung–Box Q {fit['ljung_box_q']:.0f} (limit {fit['ljung_box_limit']:.0f}, "
+              f"{fit['ljung_box_dof']} dof), fitted Gauss–Markov σ {fit['raw_sigma_m'] * 1000:.2f} mm τ "
+              f"{fit['raw_time_constant_s']:.3g} s, white σ {fit['white_sigma_m'] * 1000:.2f} mm: "
+              f"{'time-correlated' if fit['detected'] else 'no multipath model'}")
+    if not fit["detected"]:
+        return prob, g, noise, off, None
+    mp = MultipathModel(fit["sigma_m"], fit["time_constant_s"])
+    N, C = g.x.shape[0], len(wd.channels)
+    p2 = _Problem(cfg, wd, prior, opt.process_noise, mp=mp)
+    x0 = np.hstack([g.x, np.zeros((N, C))])
+    w0 = np.hstack([g.w, np.zeros((N - 1, C))])
+    g2 = p2.gauss_newton(x0, g.b, opt.max_iterations, opt, w_init=w0)
+    if opt.estimate_sigma and opt.sigma_m is None:
+        p2, g2, noise = _estimate_noise(cfg, wd, p2, g2, prior, opt)
+    else:
+        noise = dict(noise, warnings=list(noise["warnings"]))
+    noise["warnings"].insert(0, (
+        f"time-correlated phase residuals (multipath?): pooled Ljung–Box Q = {fit['ljung_box_q']:.0f} > "
+        f"{fit['ljung_box_limit']:.0f} ({fit['ljung_box_dof']} dof, lags {', '.join(f'{v:g}' for v in fit['lags_s'])} s); "
+        f"modelled as a Gauss–Markov state per channel with σ {mp.sigma_m * 1000:.2f} mm, τ "
+        f"{mp.time_constant_s:.3g} s estimated from the residual autocovariance "
+        f"(--multipath-sigma-m 0 to switch it off, or give the values)"))
+    return p2, g2, noise, mp, fit
 
 
 def _multipath_record(mp: MultipathModel, wd: WindowData, z_end: np.ndarray, P, nd: int) -> dict | None:
