@@ -38,7 +38,7 @@ from cdgps_cli.model.dynamics import discrete_model
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.phase import channel_indices, phase_model
 from cdgps_cli.measurement.multipath import MultipathModel, augment, fit_autocovariance, model_from
-from cdgps_cli.measurement.noise import leverage_per_channel, prior_sigma_m, variance_factors
+from cdgps_cli.measurement.noise import leverage_per_channel, prior_sigma_m, snr_sigma_factor, variance_factors
 from cdgps_cli.core.records import Run
 
 
@@ -122,6 +122,22 @@ def phase_matrix(run: Run, t0: float, t1: float):
     y[k, ci] = ph["phase_cycles"].to_numpy()[keep] * cfg.wavelength_m
     lock[k, ci] = ph["lock"].to_numpy()[keep]
     return grid, y, lock, chans
+
+
+def window_snr_dbhz(run: Run, wd: WindowData) -> np.ndarray:
+    """Each window channel's mean C/N₀ (dB-Hz) over the window, (C,); NaN where none is reported."""
+    ph = run.phase
+    t = ph["time_s"].to_numpy()
+    keep = (t >= wd.time_s[0] - 1e-9) & (t <= wd.time_s[-1] + 1e-9)
+    snr = ph["snr_dbhz"].to_numpy(dtype=float)[keep]
+    ant, tx = ph["antenna"].to_numpy()[keep], ph["transmitter"].to_numpy()[keep]
+    out = np.full(len(wd.channels), np.nan)
+    for c, (a, x) in enumerate(wd.channels):
+        v = snr[(ant == a) & (tx == x)]
+        v = v[np.isfinite(v)]
+        if v.size:
+            out[c] = float(v.mean())
+    return out
 
 
 def window_data(run: Run, t0: float, t1: float) -> WindowData:
@@ -622,13 +638,23 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
         survivors = [(i, gn) for i, gn in runs if not stage_outcome[i].startswith("abandoned")]
     best_i, best_run = min(((i, gn) for i, gn in runs if not outcome[i].startswith("abandoned")), key=lambda t: t[1].J)
     g = best_run.result()
-    prior = prior_sigma_m(cfg, wd.channels, opt.sigma_m)
+    snr = window_snr_dbhz(run, wd)
+    prior = prior_sigma_m(cfg, wd.channels, opt.sigma_m, snr_dbhz=snr)
+    snr_f = snr_sigma_factor(snr) if opt.sigma_m is None else None
+    if snr_f is not None:
+        _say(opt, f"  SNR weighting: channel mean C/N₀ {np.nanmin(snr):.1f}–{np.nanmax(snr):.1f} dB-Hz, prior σ × "
+                  f"{snr_f.min():.2f}–{snr_f.max():.2f}")
     if opt.sigma_m is None and not np.allclose(prior, sigma):
         prob = _Problem(cfg, wd, prior, opt.process_noise, mp=mp)   # per-channel prior σ from the config
         g = prob.gauss_newton(g.x, g.b, opt.max_iterations, opt, w_init=g.w)
     noise = {"source": "--sigma-m" if opt.sigma_m is not None else "config", "warnings": []}
     if opt.estimate_sigma and opt.sigma_m is None:
         prob, g, noise = _estimate_noise(cfg, wd, prob, g, prior, opt)
+    if snr_f is not None:
+        noise["snr_weighting"] = {"model": "sigma^2 = sigma_config^2 * 10^((snr_ref - snr)/10) per channel (mean C/N0)",
+                                  "snr_ref_dbhz": float(np.nanmedian(snr)),
+                                  "snr_dbhz": {f"{a}/{t}": (float(v) if np.isfinite(v) else None)
+                                               for (a, t), v in zip(wd.channels, snr)}}
     auto_mp = None
     if not mp.active and opt.multipath_sigma_m is None:
         prob, g, noise, mp, auto_mp = _auto_multipath(cfg, wd, prob, g, prior, noise, opt)
