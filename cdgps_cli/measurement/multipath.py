@@ -139,6 +139,10 @@ DETECT_MIN_RATIO = 0.5
 FIT_LAGS_S = (0.0, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0)
 #: time constants tried by the fit (log grid across the clamp bounds)
 FIT_TAU_GRID = 61
+#: longest time constant fitted, as a fraction of the median stretch: beyond it a demeaned stretch
+#: shows only the drift σ²/τ of the process (σ and τ trade off), so the fit stops there and the
+#: equivalent (σ, τ) with that drift is used
+TAU_MAX_STRETCH_FRACTION = 0.5
 #: shortest contiguous run (epochs) of one channel's residuals used
 MIN_RUN = 20
 
@@ -206,7 +210,9 @@ def fit_autocovariance(resid: np.ndarray, segment: np.ndarray, dt_s: float) -> d
     first-order Gauss–Markov process plus white noise (:func:`_expected_sums`, exact for the
     demeaning) are linear in (σ_mp², σ_w²); those are fitted by non-negative least squares to
     Ŝ_k / n_k (n_k = pairs) and the τ of least misfit is kept, then σ_mp and τ are clamped to
-    ``AUTO_MULTIPATH_SIGMA`` / ``AUTO_MULTIPATH_TAU``.  What the batch's state trajectory absorbed of
+    ``AUTO_MULTIPATH_SIGMA`` / ``AUTO_MULTIPATH_TAU``.  The grid ends at
+    ``TAU_MAX_STRETCH_FRACTION`` × the median stretch: a longer τ is not identifiable from demeaned
+    stretches (only σ²/τ is), and the fit at that end gives the σ with the same drift.  What the batch's state trajectory absorbed of
     the multipath is not in the residuals, so σ_mp is if anything underestimated.
 
     Detection: the pooled Ljung–Box statistic Q = Σ_runs L(L+2) Σ_k ρ_k²/(L−k) at ``DETECT_LAGS_S``
@@ -227,7 +233,9 @@ def fit_autocovariance(resid: np.ndarray, segment: np.ndarray, dt_s: float) -> d
     use = n_pairs > 0
     gamma = s_hat[use] / n_pairs[use]
     best = None
-    for tau in np.geomspace(max(AUTO_MULTIPATH_TAU.lo, 2 * dt_s), AUTO_MULTIPATH_TAU.hi, FIT_TAU_GRID):
+    tau_lo = max(AUTO_MULTIPATH_TAU.lo, 2 * dt_s)
+    tau_hi = max(min(AUTO_MULTIPATH_TAU.hi, TAU_MAX_STRETCH_FRACTION * L_med * dt_s), tau_lo)
+    for tau in np.geomspace(tau_lo, tau_hi, FIT_TAU_GRID):
         gm, wh = _expected_sums(lengths, lags, math.exp(-dt_s / tau))
         M = np.column_stack([gm[use] / n_pairs[use], wh[use] / n_pairs[use]])
         coef, misfit = nnls(M, gamma)

@@ -103,3 +103,15 @@ def test_init_white_run_unchanged(tower):
     sim = simulate(tower, SimOptions(duration_s=30.0, seed=4, phase_sigma_m=0.002, multipath_sigma_m=0.0))
     run = memory_run(tower, sim.receiver)
     assert "multipath" not in initialize(run, InitOptions())
+
+
+def test_long_time_constant_fitted_at_the_stretch_limit_with_its_drift():
+    # τ = 600 s on 60 s stretches: only σ²/τ shows; the fit stops at τ = ½ × 60 s with that drift
+    rng = np.random.default_rng(7)
+    n, C = 600, 24
+    y = _gm(rng, n, C, 0.05, 600.0) + rng.normal(0, 0.002, (n, C))
+    fit = fit_autocovariance(y, np.zeros((n, C), dtype=int), DT)
+    assert fit["detected"]
+    assert fit["time_constant_s"] == pytest.approx(30.0, rel=1e-9)
+    drift = 0.05**2 / 600.0
+    assert fit["sigma_m"] ** 2 / fit["time_constant_s"] == pytest.approx(drift, rel=0.5)
