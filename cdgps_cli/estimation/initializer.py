@@ -648,16 +648,18 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
         prob = _Problem(cfg, wd, prior, opt.process_noise, mp=mp)   # per-channel prior σ from the config
         g = prob.gauss_newton(g.x, g.b, opt.max_iterations, opt, w_init=g.w)
     noise = {"source": "--sigma-m" if opt.sigma_m is not None else "config", "warnings": []}
-    if opt.estimate_sigma and opt.sigma_m is None:
+    auto_mp = None
+    if not mp.active and opt.multipath_sigma_m is None:
+        # (before the white σ estimation: when the residuals are time-correlated that is redone
+        # with the multipath model anyway, so it is skipped)
+        prob, g, noise, mp, auto_mp = _auto_multipath(cfg, wd, prob, g, prior, noise, opt)
+    if opt.estimate_sigma and opt.sigma_m is None and auto_mp is None:
         prob, g, noise = _estimate_noise(cfg, wd, prob, g, prior, opt)
     if snr_f is not None:
         noise["snr_weighting"] = {"model": "sigma^2 = sigma_config^2 * 10^((snr_ref - snr)/10) per channel (mean C/N0)",
                                   "snr_ref_dbhz": float(np.nanmedian(snr)),
                                   "snr_dbhz": {f"{a}/{t}": (float(v) if np.isfinite(v) else None)
                                                for (a, t), v in zip(wd.channels, snr)}}
-    auto_mp = None
-    if not mp.active and opt.multipath_sigma_m is None:
-        prob, g, noise, mp, auto_mp = _auto_multipath(cfg, wd, prob, g, prior, noise, opt)
     sig_c = prob.sig_c
     sigma = float(np.sqrt(np.mean(sig_c**2)))
     lin = g.lin
@@ -810,7 +812,8 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
 
 
 def _auto_multipath(cfg, wd, prob, g, prior, noise, opt):
-    """With no multipath option (and none in the config), test the white-noise fit's residuals for
+    """With no multipath option (and none in the config), test the white-noise fit's residuals (at the
+    prior σ) for
     time correlation (:func:`~cdgps_cli.measurement.multipath.fit_autocovariance`: pooled Ljung–Box
     and a Gauss–Markov + white autocovariance fit).  When detected, refit the whole window with the
     fitted Gauss–Markov state per channel, from the white solution (no new cold start), and
