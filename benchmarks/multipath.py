@@ -2,14 +2,16 @@
 
 Per config and seed: ``simulate`` 120 s of free vibration with first-order Gauss–Markov multipath
 (σ 1.5 cm, the config's τ = 30 s) on top of 2 mm white noise → ``init`` (automatic window, σ
-estimated) → ``estimate`` (defaults) → ``evaluate`` against the truth; once WITH the multipath model
-(``multipath_sigma_m`` = 1.5 cm, τ 30 s: the ``init --multipath-sigma-m/--multipath-tau-s`` options,
-recorded in INIT.json and used by ``estimate``) and once WITHOUT (today's white-noise model).
+estimated) → ``estimate`` (defaults) → ``evaluate`` against the truth; per case: ``auto`` = default
+options (init detects the time-correlated residuals and fits σ, τ itself), ``model`` = the true
+model given (``init --multipath-sigma-m 0.015 --multipath-tau-s 30``), ``off`` = white noise only
+(``--multipath-sigma-m 0``).
 Reported per case: runs with every integer fixed, integers fixed / total, wrong fixes (|bias − truth|
 > λ/4), NEES/dof of the modal positions, its 95 % coverage, NIS/dof and its 95 % coverage.
 
-Usage: ``python benchmarks/multipath.py [--seeds 20] [--configs testbed-1998,tower-120m-fe] [--out F.json]``
+Usage: ``python benchmarks/multipath.py [--seeds 20] [--configs testbed-1998,tower-120m-fe] [--cases auto,model,off] [--out F.json]``
 (single process; about 1.5–2 min per seed and config with the model on the testbed).
+``--multipath-m 0 --white-m 0.01 --cases auto``: white-noise runs, where the auto case must stay off.
 """
 
 from __future__ import annotations
@@ -39,14 +41,17 @@ CONFIGS = {"testbed-1998": ROOT / "configs" / "testbed-1998.toml",
 WHITE_M, MP_M, TAU_S = 0.002, 0.015, 30.0
 
 
-def one(cfg, seed: int, model: bool, d: Path) -> dict:
-    sim = simulate(cfg, SimOptions(duration_s=120.0, seed=seed, phase_sigma_m=WHITE_M, multipath_sigma_m=MP_M))
+CASES = {"auto": {}, "model": dict(multipath_sigma_m=MP_M, multipath_time_constant_s=TAU_S),
+         "off": dict(multipath_sigma_m=0.0)}
+
+
+def one(cfg, seed: int, case: str, d: Path, white_m: float = WHITE_M, mp_m: float = MP_M) -> dict:
+    sim = simulate(cfg, SimOptions(duration_s=120.0, seed=seed, phase_sigma_m=white_m, multipath_sigma_m=mp_m))
     run = memory_run(cfg, sim.receiver)
     out = {"seed": seed}
     t = time.perf_counter()
-    mp = dict(multipath_sigma_m=MP_M, multipath_time_constant_s=TAU_S) if model else {}
     try:
-        init = initialize(run, InitOptions(**mp))
+        init = initialize(run, InitOptions(**CASES[case]))
     except CdgpsError as exc:
         out["init_error"] = str(exc)
         return out
@@ -55,7 +60,9 @@ def one(cfg, seed: int, model: bool, d: Path) -> dict:
     out.update(n_bias=len(init["biases"]), n_fixed=len(fixed), ratio=init["ratio"],
                wrong=sum(abs(b["bias_m"] - truth[(b["antenna"], b["transmitter"])]) > 0.25 * cfg.wavelength_m
                          for b in fixed),
-               sigma_hat_m=init["sigma_m"], init_s=time.perf_counter() - t)
+               sigma_hat_m=init["sigma_m"], init_s=time.perf_counter() - t,
+               mp_sigma_m=init.get("multipath", {}).get("sigma_m"),
+               mp_tau_s=init.get("multipath", {}).get("time_constant_s"))
     res = estimate(run, init, EstimateOptions())
     sub = d / f"s{seed}"
     write_simulation(sim, sub)
@@ -69,7 +76,7 @@ def one(cfg, seed: int, model: bool, d: Path) -> dict:
     return out
 
 
-def summarize(cfg_name: str, model: bool, runs: list) -> dict:
+def summarize(cfg_name: str, model: str, runs: list) -> dict:
     ok = [r for r in runs if "init_error" not in r]
 
     def mean(key):
@@ -82,17 +89,30 @@ def summarize(cfg_name: str, model: bool, runs: list) -> dict:
             "wrong_fixes": sum(r["wrong"] for r in ok), "sigma_hat_mm": 1000 * mean("sigma_hat_m"),
             "nees_per_dof": mean("nees_per_dof"), "nees_in95": mean("nees_in95"),
             "nis_per_dof": mean("nis_per_dof"), "nis_in95": mean("nis_in95"),
+            "nees_per_dof_range": _range(ok, "nees_per_dof"), "nis_per_dof_range": _range(ok, "nis_per_dof"),
+            "mp_sigma_mm_range": [1000 * v for v in _range(ok, "mp_sigma_m")], "mp_tau_s_range": _range(ok, "mp_tau_s"),
+            "model_on_runs": sum(r.get("mp_sigma_m") is not None for r in ok),
             "seconds_per_run": mean("total_s"), "runs": runs}
+
+
+def _range(runs: list, key: str) -> list:
+    v = [r[key] for r in runs if r.get(key) is not None]
+    return [float(min(v)), float(max(v))] if v else []
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--configs", default=",".join(CONFIGS))
-    ap.add_argument("--cases", default="both", choices=("model", "none", "both"))
+    ap.add_argument("--cases", default="auto,model,off", help="comma-separated: auto, model, off")
+    ap.add_argument("--white-m", type=float, default=WHITE_M, help="simulated white phase noise, m")
+    ap.add_argument("--multipath-m", type=float, default=MP_M,
+                    help="simulated multipath σ, m (0: the false-positive check of the auto case)")
     ap.add_argument("--out", default=None)
     a = ap.parse_args()
-    models = {"model": [True], "none": [False], "both": [True, False]}[a.cases]
+    models = a.cases.split(",")
+    if not set(models) <= set(CASES):
+        ap.error(f"--cases: expected some of {', '.join(CASES)}")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for name in a.configs.split(","):
@@ -100,14 +120,14 @@ def main() -> None:
             for model in models:
                 runs = []
                 for s in range(1, a.seeds + 1):
-                    runs.append(one(cfg, s, model, Path(tmp) / f"{cfg.name}-{model}"))
+                    runs.append(one(cfg, s, model, Path(tmp) / f"{cfg.name}-{model}", a.white_m, a.multipath_m))
                     print(f"  {cfg.name} model={model} seed {s}: {json.dumps(runs[-1])}", flush=True)
                 row = summarize(cfg.name, model, runs)
                 rows.append(row)
-                print(f"{cfg.name:14s} {'GM model' if model else 'no model':8s}: refused {row['init_refused']}, all "
+                print(f"{cfg.name:14s} {model:5s}: model on {row['model_on_runs']}, refused {row['init_refused']}, all "
                       f"fixed {row['all_fixed_runs']}/{row['seeds']}, fixed {row['fixed']}/{row['biases']}, wrong "
                       f"{row['wrong_fixes']}, σ̂ {row['sigma_hat_mm']:.2f} mm, NEES/dof {row['nees_per_dof']:.2f} "
-                      f"({100 * row['nees_in95']:.1f}% in 95%), NIS/dof {row['nis_per_dof']:.2f} "
+                      f"({100 * row['nees_in95']:.1f}% in 95%, {row['nees_per_dof_range']}), NIS/dof {row['nis_per_dof']:.2f} "
                       f"({100 * row['nis_in95']:.1f}% in 95%), {row['seconds_per_run']:.0f} s/run", flush=True)
     if a.out:
         Path(a.out).write_text(json.dumps(rows, indent=1))

@@ -391,8 +391,9 @@ def _placement_options(f):
               help="Measurement noise for every channel, m (default: estimated per channel from the data, prior from the config).")
 @click.option("--multipath-sigma-m", "multipath_sigma_m", type=float, default=None,
               help="Multipath modelled as a first-order Gauss-Markov state per channel with this sigma, m "
-                   "(default: the config's [model] multipath_sigma_m; 0 = not modelled). Recorded in INIT.json "
-                   "and used by estimate.")
+                   "(default: the config's [model] multipath_sigma_m; when that is 0 too, switched on "
+                   "automatically with sigma and tau fitted to the residuals if they are time-correlated, with a "
+                   "WARNING; 0 = not modelled). Recorded in INIT.json and used by estimate.")
 @click.option("--multipath-tau-s", "multipath_time_constant_s", type=float, default=None,
               help="Time constant of that multipath, s (default: the config's [model] multipath_time_constant_s).")
 @click.option("--structure", "structure", default=None, type=click.Path(dir_okay=False),

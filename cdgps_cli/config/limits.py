@@ -94,6 +94,11 @@ CONFIG_BOUNDS: dict[str, Bound] = {
     "simulation.slew_time_s": _DURATION,
 }
 
+#: the multipath model ``init`` fits to its residuals when the data show time-correlated errors
+#: (cdgps_cli.measurement.multipath.fit_autocovariance): σ and τ are clamped to these
+AUTO_MULTIPATH_SIGMA = Bound(5e-4, 0.1, "m")
+AUTO_MULTIPATH_TAU = Bound(1.0, 600.0, "s")
+
 #: command-line options, by Python parameter name (the same bound wherever the option appears)
 OPTION_BOUNDS: dict[str, Bound] = {
     "seed": Bound(0, 2**63 - 1),

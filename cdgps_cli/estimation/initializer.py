@@ -37,11 +37,11 @@ from cdgps_cli.config.structure import StructureConfig, channel_sigma_m, scalar_
 from cdgps_cli.model.dynamics import discrete_model
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.phase import channel_indices, phase_model
-from cdgps_cli.measurement.multipath import MultipathModel, augment, model_from
-from cdgps_cli.measurement.noise import leverage_per_channel, prior_sigma_m, variance_factors
-from cdgps_cli.core.records import INIT_FORMAT, Run
 from cdgps_cli.core import progress
 from cdgps_cli.estimation.ambiguity import resolve
+from cdgps_cli.measurement.multipath import MultipathModel, augment, fit_autocovariance, model_from
+from cdgps_cli.measurement.noise import leverage_per_channel, prior_sigma_m, snr_sigma_factor, variance_factors
+from cdgps_cli.core.records import INIT_FORMAT, Run
 
 
 @dataclass
@@ -124,6 +124,22 @@ def phase_matrix(run: Run, t0: float, t1: float):
     y[k, ci] = ph["phase_cycles"].to_numpy()[keep] * cfg.wavelength_m
     lock[k, ci] = ph["lock"].to_numpy()[keep]
     return grid, y, lock, chans
+
+
+def window_snr_dbhz(run: Run, wd: WindowData) -> np.ndarray:
+    """Each window channel's mean C/N₀ (dB-Hz) over the window, (C,); NaN where none is reported."""
+    ph = run.phase
+    t = ph["time_s"].to_numpy()
+    keep = (t >= wd.time_s[0] - 1e-9) & (t <= wd.time_s[-1] + 1e-9)
+    snr = ph["snr_dbhz"].to_numpy(dtype=float)[keep]
+    ant, tx = ph["antenna"].to_numpy()[keep], ph["transmitter"].to_numpy()[keep]
+    out = np.full(len(wd.channels), np.nan)
+    for c, (a, x) in enumerate(wd.channels):
+        v = snr[(ant == a) & (tx == x)]
+        v = v[np.isfinite(v)]
+        if v.size:
+            out[c] = float(v.mean())
+    return out
 
 
 def window_data(run: Run, t0: float, t1: float) -> WindowData:
@@ -624,13 +640,28 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
         survivors = [(i, gn) for i, gn in runs if not stage_outcome[i].startswith("abandoned")]
     best_i, best_run = min(((i, gn) for i, gn in runs if not outcome[i].startswith("abandoned")), key=lambda t: t[1].J)
     g = best_run.result()
-    prior = prior_sigma_m(cfg, wd.channels, opt.sigma_m)
+    snr = window_snr_dbhz(run, wd)
+    prior = prior_sigma_m(cfg, wd.channels, opt.sigma_m, snr_dbhz=snr)
+    snr_f = snr_sigma_factor(snr) if opt.sigma_m is None else None
+    if snr_f is not None:
+        _say(opt, f"  SNR weighting: channel mean C/N₀ {np.nanmin(snr):.1f}–{np.nanmax(snr):.1f} dB-Hz, prior σ × "
+                  f"{snr_f.min():.2f}–{snr_f.max():.2f}")
     if opt.sigma_m is None and not np.allclose(prior, sigma):
         prob = _Problem(cfg, wd, prior, opt.process_noise, mp=mp)   # per-channel prior σ from the config
         g = prob.gauss_newton(g.x, g.b, opt.max_iterations, opt, w_init=g.w)
     noise = {"source": "--sigma-m" if opt.sigma_m is not None else "config", "warnings": []}
-    if opt.estimate_sigma and opt.sigma_m is None:
+    auto_mp = None
+    if not mp.active and opt.multipath_sigma_m is None:
+        # (before the white σ estimation: when the residuals are time-correlated that is redone
+        # with the multipath model anyway, so it is skipped)
+        prob, g, noise, mp, auto_mp = _auto_multipath(cfg, wd, prob, g, prior, noise, opt)
+    if opt.estimate_sigma and opt.sigma_m is None and auto_mp is None:
         prob, g, noise = _estimate_noise(cfg, wd, prob, g, prior, opt)
+    if snr_f is not None:
+        noise["snr_weighting"] = {"model": "sigma^2 = sigma_config^2 * 10^((snr_ref - snr)/10) per channel (mean C/N0)",
+                                  "snr_ref_dbhz": float(np.nanmedian(snr)),
+                                  "snr_dbhz": {f"{a}/{t}": (float(v) if np.isfinite(v) else None)
+                                               for (a, t), v in zip(wd.channels, snr)}}
     sig_c = prob.sig_c
     sigma = float(np.sqrt(np.mean(sig_c**2)))
     lin = g.lin
@@ -737,6 +768,9 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
     U = np.asarray(cfg.mode_shapes)
     x_end = x_traj[-1][:nd]
     mp_out = _multipath_record(mp, wd, x_traj[-1], P, nd)
+    if auto_mp is not None:
+        mp_out["source"] = "estimated from the white-noise fit's residual autocovariance (no multipath option given)"
+        mp_out["evidence"] = auto_mp
     q_end = U @ x_end[:nm]
     elapsed = _time.perf_counter() - t_start
     dof = max(int(np.isfinite(resid).sum()) - nd - int(prob_final.free.size), 1)
@@ -778,6 +812,43 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
     if return_trajectory:
         return out, {"time_s": wd.time_s, "x": x_traj[:, :nd]}
     return out
+
+
+def _auto_multipath(cfg, wd, prob, g, prior, noise, opt):
+    """With no multipath option (and none in the config), test the white-noise fit's residuals (at the
+    prior σ) for
+    time correlation (:func:`~cdgps_cli.measurement.multipath.fit_autocovariance`: pooled Ljung–Box
+    and a Gauss–Markov + white autocovariance fit).  When detected, refit the whole window with the
+    fitted Gauss–Markov state per channel, from the white solution (no new cold start), and
+    re-estimate the white σ per channel with it.  Returns (problem, solution, noise report, model,
+    evidence for INIT.json or None)."""
+    off = MultipathModel(0.0)
+    fit = fit_autocovariance(prob.residual(g.x, g.b), wd.segment, cfg.sample_period_s)
+    if fit is None:
+        return prob, g, noise, off, None
+    _say(opt, f"  multipath check: Ljung–Box Q {fit['ljung_box_q']:.0f} (limit {fit['ljung_box_limit']:.0f}, "
+              f"{fit['ljung_box_dof']} dof), fitted Gauss–Markov σ {fit['raw_sigma_m'] * 1000:.2f} mm τ "
+              f"{fit['raw_time_constant_s']:.3g} s, white σ {fit['white_sigma_m'] * 1000:.2f} mm: "
+              f"{'time-correlated' if fit['detected'] else 'no multipath model'}")
+    if not fit["detected"]:
+        return prob, g, noise, off, None
+    mp = MultipathModel(fit["sigma_m"], fit["time_constant_s"])
+    N, C = g.x.shape[0], len(wd.channels)
+    p2 = _Problem(cfg, wd, prior, opt.process_noise, mp=mp)
+    x0 = np.hstack([g.x, np.zeros((N, C))])
+    w0 = np.hstack([g.w, np.zeros((N - 1, C))])
+    g2 = p2.gauss_newton(x0, g.b, opt.max_iterations, opt, w_init=w0)
+    if opt.estimate_sigma and opt.sigma_m is None:
+        p2, g2, noise = _estimate_noise(cfg, wd, p2, g2, prior, opt)
+    else:
+        noise = dict(noise, warnings=list(noise["warnings"]))
+    noise["warnings"].insert(0, (
+        f"time-correlated phase residuals (multipath?): pooled Ljung–Box Q = {fit['ljung_box_q']:.0f} > "
+        f"{fit['ljung_box_limit']:.0f} ({fit['ljung_box_dof']} dof, lags {', '.join(f'{v:g}' for v in fit['lags_s'])} s); "
+        f"modelled as a Gauss–Markov state per channel with σ {mp.sigma_m * 1000:.2f} mm, τ "
+        f"{mp.time_constant_s:.3g} s estimated from the residual autocovariance "
+        f"(--multipath-sigma-m 0 to switch it off, or give the values)"))
+    return p2, g2, noise, mp, fit
 
 
 def _multipath_record(mp: MultipathModel, wd: WindowData, z_end: np.ndarray, P, nd: int) -> dict | None:

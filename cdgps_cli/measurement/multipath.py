@@ -124,3 +124,140 @@ def init_states(init: dict, chans: list, n: int, mp: MultipathModel) -> tuple[np
             if j2 >= 0:
                 P[c, c2] = Pm[j, j2]
     return x, P, X
+
+
+# --- detection and estimation from the residuals of a white-noise batch fit (``init`` by default)
+
+#: lags (s) of the pooled Ljung–Box test of the per-run residual autocorrelation
+DETECT_LAGS_S = (1.0, 2.0, 4.0)
+#: Ljung–Box false-alarm probability under white residuals (chi-square, C × lags dof)
+DETECT_PROBABILITY = 1e-6
+#: … and the fitted multipath σ must reach this fraction of the fitted white σ (a correlation that
+#: matters for the fix, not the few per cent the fit itself induces in white residuals)
+DETECT_MIN_RATIO = 0.5
+#: lags (s) of the autocovariance fit, up to a third of the typical run length
+FIT_LAGS_S = (0.0, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0)
+#: time constants tried by the fit (log grid across the clamp bounds)
+FIT_TAU_GRID = 61
+#: longest time constant fitted, as a fraction of the median stretch: beyond it a demeaned stretch
+#: shows only the drift σ²/τ of the process (σ and τ trade off), so the fit stops there and the
+#: equivalent (σ, τ) with that drift is used
+TAU_MAX_STRETCH_FRACTION = 0.5
+#: shortest contiguous run (epochs) of one channel's residuals used
+MIN_RUN = 20
+
+
+def residual_runs(resid: np.ndarray, segment: np.ndarray) -> list[np.ndarray]:
+    """Contiguous finite stretches of each channel's residuals within one bias segment, each with
+    its own mean removed (so that the expected autocovariance below is exact for it).
+
+    ``resid`` (N, C) m, NaN where missing; ``segment`` (N, C) bias-segment index (−1 = none)."""
+    runs = []
+    for c in range(resid.shape[1]):
+        ok = np.isfinite(resid[:, c]) & (segment[:, c] >= 0)
+        key = np.where(ok, segment[:, c], -1)
+        edges = np.flatnonzero(np.diff(np.r_[-1, key, -1]) != 0)
+        for a, b in zip(edges[:-1], edges[1:]):
+            if key[a] >= 0 and b - a >= MIN_RUN:
+                r = resid[a:b, c]
+                runs.append(r - r.mean())
+    return runs
+
+
+def _lagged_sums(runs: list, lags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Σ y_i y_{i+k} (m²) and the number of pairs, over all runs, per lag k (samples)."""
+    s = np.zeros(len(lags))
+    n = np.zeros(len(lags))
+    for r in runs:
+        for j, k in enumerate(lags):
+            if k < len(r):
+                s[j] += float(np.dot(r[:len(r) - k], r[k:]))
+                n[j] += len(r) - k
+    return s, n
+
+
+def _expected_sums(lengths: np.ndarray, lags: np.ndarray, a: float) -> tuple[np.ndarray, np.ndarray]:
+    """E[Σ y_i y_{i+k}] per unit σ_mp² and per unit σ_white² for demeaned runs of the given lengths.
+
+    A demeaned stretch y = (I − 11ᵀ/L) x of x with covariance σ² a^|i−j| has
+    E[y_i y_j] = σ² (a^|i−j| − r_i − r_j + r̄), r_i = (1/L) Σ_j a^|i−j| (a geometric sum), r̄ = mean r_i;
+    white noise gives σ_w² (δ_ij − 1/L).  Summed over the L − k pairs at lag k: O(L) per run."""
+    gm = np.zeros(len(lags))
+    wh = np.zeros(len(lags))
+    uniq, count = np.unique(np.asarray(lengths, dtype=np.int64), return_counts=True)
+    for L, n_runs in zip(uniq.tolist(), count.tolist()):
+        i = np.arange(L)
+        r = ((1 - a ** (i + 1)) + (1 - a ** (L - i))) / (1 - a) - 1.0
+        r /= L
+        cs = np.r_[0.0, np.cumsum(r)]
+        rbar = cs[-1] / L
+        for j, k in enumerate(lags):
+            if k >= L:
+                continue
+            m = L - k
+            gm[j] += n_runs * (m * a**k - cs[m] - (cs[L] - cs[k]) + m * rbar)
+            wh[j] += n_runs * m * ((1.0 if k == 0 else 0.0) - 1.0 / L)
+    return gm, wh
+
+
+def fit_autocovariance(resid: np.ndarray, segment: np.ndarray, dt_s: float) -> dict | None:
+    """Gauss–Markov σ, τ and white σ from the pooled residual autocovariance, and the detection test.
+
+    Estimator (moment matching): the residuals of each channel, per contiguous stretch of one bias
+    segment and demeaned, give the pooled sample autocovariance sums Ŝ_k = Σ y_i y_{i+k} at the lags
+    ``FIT_LAGS_S`` (below a third of the median stretch).  For each τ of a log grid over
+    :data:`~cdgps_cli.config.limits.AUTO_MULTIPATH_TAU`, the expected sums of a demeaned
+    first-order Gauss–Markov process plus white noise (:func:`_expected_sums`, exact for the
+    demeaning) are linear in (σ_mp², σ_w²); those are fitted by non-negative least squares to
+    Ŝ_k / n_k (n_k = pairs) and the τ of least misfit is kept, then σ_mp and τ are clamped to
+    ``AUTO_MULTIPATH_SIGMA`` / ``AUTO_MULTIPATH_TAU``.  The grid ends at
+    ``TAU_MAX_STRETCH_FRACTION`` × the median stretch: a longer τ is not identifiable from demeaned
+    stretches (only σ²/τ is), and the fit at that end gives the σ with the same drift.  What the batch's state trajectory absorbed of
+    the multipath is not in the residuals, so σ_mp is if anything underestimated.
+
+    Detection: the pooled Ljung–Box statistic Q = Σ_runs L(L+2) Σ_k ρ_k²/(L−k) at ``DETECT_LAGS_S``
+    above its chi-square (runs × lags) quantile 1 − ``DETECT_PROBABILITY``, and σ_mp ≥
+    ``DETECT_MIN_RATIO`` × σ_w.  Returns None when no stretch is long enough."""
+    from scipy.optimize import nnls
+    from scipy.stats import chi2
+    from cdgps_cli.config.limits import AUTO_MULTIPATH_SIGMA, AUTO_MULTIPATH_TAU
+
+    runs = residual_runs(resid, segment)
+    if not runs:
+        return None
+    lengths = np.array([len(r) for r in runs])
+    L_med = float(np.median(lengths))
+    lags = sorted({int(round(s / dt_s)) for s in FIT_LAGS_S if s / dt_s <= L_med / 3} | {0, 1})
+    lags = np.array(lags, dtype=np.int64)
+    s_hat, n_pairs = _lagged_sums(runs, lags)
+    use = n_pairs > 0
+    gamma = s_hat[use] / n_pairs[use]
+    best = None
+    tau_lo = max(AUTO_MULTIPATH_TAU.lo, 2 * dt_s)
+    tau_hi = max(min(AUTO_MULTIPATH_TAU.hi, TAU_MAX_STRETCH_FRACTION * L_med * dt_s), tau_lo)
+    for tau in np.geomspace(tau_lo, tau_hi, FIT_TAU_GRID):
+        gm, wh = _expected_sums(lengths, lags, math.exp(-dt_s / tau))
+        M = np.column_stack([gm[use] / n_pairs[use], wh[use] / n_pairs[use]])
+        coef, misfit = nnls(M, gamma)
+        if best is None or misfit < best[0]:
+            best = (misfit, tau, coef)
+    _, tau, (v_mp, v_w) = best
+    sigma_mp, sigma_w = math.sqrt(v_mp), math.sqrt(v_w)
+    # pooled Ljung–Box on the detection lags
+    q, dof = 0.0, 0
+    for r in runs:
+        L, den = len(r), float(np.dot(r, r))
+        for s in DETECT_LAGS_S:
+            k = int(round(s / dt_s))
+            if 0 < k < L and den > 0:
+                rho = float(np.dot(r[:L - k], r[k:])) / den
+                q += L * (L + 2) * rho**2 / (L - k)
+                dof += 1
+    q_limit = float(chi2.isf(DETECT_PROBABILITY, max(dof, 1)))
+    detected = dof > 0 and q > q_limit and sigma_mp >= DETECT_MIN_RATIO * sigma_w
+    return {"detected": bool(detected), "ljung_box_q": q, "ljung_box_dof": dof, "ljung_box_limit": q_limit,
+            "lags_s": [float(s) for s in DETECT_LAGS_S],
+            "sigma_m": float(min(max(sigma_mp, AUTO_MULTIPATH_SIGMA.lo), AUTO_MULTIPATH_SIGMA.hi)),
+            "time_constant_s": float(min(max(tau, AUTO_MULTIPATH_TAU.lo), AUTO_MULTIPATH_TAU.hi)),
+            "raw_sigma_m": sigma_mp, "raw_time_constant_s": float(tau), "white_sigma_m": sigma_w,
+            "runs": len(runs), "lag_samples": [int(k) for k in lags]}

@@ -4,6 +4,9 @@ One source of truth for the σ of each carrier-phase channel (antenna, transmitt
 
 * :func:`prior_sigma_m` — the σ the config (or an explicit ``--sigma-m``) promises, one value per
   channel.  Config keys for σ per antenna / transmitter / channel fill this same vector.
+* :func:`snr_sigma_factor` — where the run's channels differ in carrier-to-noise density, the prior
+  σ of each channel scaled by its mean C/N₀ (σ² = σ₀² · 10^((C/N₀_ref − C/N₀)/10), the usual
+  receiver / RTKLIB-style SNR weighting; ref = the median channel, which keeps the config's σ₀).
 * :func:`variance_factors` — the a-posteriori variance factor of a batch least-squares solution per
   channel, σ̂_c² = Σ_k e_kc² / Σ_k r_kc, with the redundancy numbers r_kc = 1 − h_kc (h: the
   diagonal of the hat matrix, i.e. the leverage of each observation).  Σ_k h_kc is found with
@@ -24,9 +27,24 @@ from cdgps_cli.config.structure import channel_sigma_m
 
 HUTCHINSON_PROBES = 8        # random probes of the leverage trace per channel
 HUTCHINSON_SEED = 20260601   # fixed: same data → same estimate (byte-identical outputs)
+SNR_SPREAD_MIN_DB = 3.0      # channel mean C/N₀ spread (max − min) below this: no SNR weighting
 
 
-def prior_sigma_m(cfg, channels, override_m: float | None = None) -> np.ndarray:
+def snr_sigma_factor(snr_dbhz) -> np.ndarray | None:
+    """Per-channel σ factor 10^((C/N₀_ref − C/N₀_c)/20) from each channel's mean C/N₀ (dB-Hz), (C,).
+
+    C/N₀_ref is the median of the channels' means (that channel keeps the config's σ).  None (no
+    weighting, the arithmetic unchanged) when fewer than two channels report C/N₀ or their means
+    span less than :data:`SNR_SPREAD_MIN_DB`; a channel without C/N₀ keeps factor 1."""
+    snr = np.asarray(snr_dbhz, dtype=float).ravel()
+    ok = np.isfinite(snr)
+    if ok.sum() < 2 or float(snr[ok].max() - snr[ok].min()) < SNR_SPREAD_MIN_DB:
+        return None
+    ref = float(np.median(snr[ok]))
+    return np.where(ok, 10.0 ** ((ref - np.where(ok, snr, ref)) / 20.0), 1.0)
+
+
+def prior_sigma_m(cfg, channels, override_m: float | None = None, snr_dbhz=None) -> np.ndarray:
     """Per-channel prior measurement σ (m), shape (C,).
 
     Parameters
@@ -34,7 +52,10 @@ def prior_sigma_m(cfg, channels, override_m: float | None = None) -> np.ndarray:
     cfg : StructureConfig
     channels : list of (antenna, transmitter)
     override_m : float, optional
-        An explicit σ (``--sigma-m``) for every channel.
+        An explicit σ (``--sigma-m``) for every channel (no SNR weighting then).
+    snr_dbhz : array (C,), optional
+        Each channel's mean C/N₀ (dB-Hz, NaN = none): scales the config's σ by
+        :func:`snr_sigma_factor` when the channels differ.
 
     Otherwise :func:`cdgps_cli.config.structure.channel_sigma_m` (the config's per channel / antenna /
     transmitter ``sigma_m`` keys, falling back to ``measurement_sigma_m``).
@@ -46,7 +67,8 @@ def prior_sigma_m(cfg, channels, override_m: float | None = None) -> np.ndarray:
     out = np.asarray(channel_sigma_m(cfg, list(channels)), dtype=float).reshape(len(channels))
     if not np.all(np.isfinite(out) & (out > 0)):
         raise CdgpsError(f"{cfg.name}: measurement sigma must be positive for every channel")
-    return out
+    f = None if snr_dbhz is None else snr_sigma_factor(snr_dbhz)
+    return out if f is None else out * f
 
 
 def leverage_per_channel(solve_fitted, present: np.ndarray, probes: int = HUTCHINSON_PROBES,

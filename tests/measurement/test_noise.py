@@ -170,3 +170,43 @@ def test_filter_adapts_sigma_from_innovations(testbed_cfg):
     # given explicitly, σ is used as is
     fixed = estimate(run, init, EstimateOptions(sigma_m=0.02))
     assert fixed.noise["source"] == "--sigma-m" and "first_pass" not in fixed.noise
+
+
+# --- SNR weighting of the prior σ (issue 11 item 5 b)
+
+def test_snr_factor_formula_and_threshold():
+    from cdgps_cli.measurement.noise import SNR_SPREAD_MIN_DB, snr_sigma_factor
+    # σ² ∝ 10^(−SNR/10): 10 dB less → σ × √10, relative to the median channel
+    f = snr_sigma_factor([45.0, 45.0, 35.0, np.nan, 48.0])
+    np.testing.assert_allclose(f, [1.0, 1.0, 10 ** 0.5, 1.0, 10 ** (-0.15)], rtol=1e-12)
+    assert snr_sigma_factor([45.0, 45.0 + SNR_SPREAD_MIN_DB / 2, 44.5]) is None     # equal enough: unchanged
+    assert snr_sigma_factor([np.nan, 30.0]) is None
+
+
+def test_init_prior_follows_snr_only_when_it_varies():
+    from cdgps_cli.config.structure import load_config
+    from cdgps_cli.core.records import memory_run
+    from cdgps_cli.estimation.initializer import InitOptions, initialize
+    from cdgps_cli.sim.structure import SimOptions, simulate
+    from _shared import REPO_ROOT
+
+    cfg = load_config(REPO_ROOT / "configs" / "tower-120m-fe.toml")
+    sim = simulate(cfg, SimOptions(duration_s=30.0, seed=2, phase_sigma_m=0.002))
+    base = initialize(memory_run(cfg, sim.receiver), InitOptions())
+    assert "snr_weighting" not in base["noise"]                 # simulated C/N₀: 45 ± 1 dB on every channel
+    ph = sim.receiver.copy()
+    ant = cfg.antenna_names[1]
+    low = ph["antenna"] == ant
+    rng = np.random.default_rng(0)
+    extra = 0.002 * np.sqrt(10.0 - 1.0)                          # total σ = 2 mm × √10 on that antenna
+    ph.loc[low, "phase_cycles"] += rng.normal(0, extra, int(low.sum())) / cfg.wavelength_m
+    ph.loc[low, "snr_dbhz"] -= 10.0
+    init = initialize(memory_run(cfg, ph), InitOptions())
+    sw = init["noise"]["snr_weighting"]
+    per = {p["channel"]: p for p in init["noise"]["per_channel"]}
+    for name, p in per.items():
+        ratio = p["prior_sigma_m"] / cfg.measurement_sigma_m
+        expect = 10 ** ((sw["snr_ref_dbhz"] - sw["snr_dbhz"][name]) / 20)
+        assert ratio == pytest.approx(expect, rel=1e-9)
+        # the estimated σ agrees with the SNR model's (independently: the noise added above)
+        assert p["sigma_m"] / (0.002 * (10 ** 0.5 if name.startswith(ant + "/") else 1.0)) == pytest.approx(1.0, abs=0.25)
