@@ -15,8 +15,9 @@ $(VENV)/.installed: pyproject.toml setup.py cdgps_cli/estimation/_ekfcore.c cdgp
 
 venv: $(VENV)/.installed
 
+# the suite on up to 4 cores (pytest-xdist; a test file stays on one worker, so its module fixtures run once)
 test: venv
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n logical --maxprocesses 4 --dist loadfile
 
 demo: venv
 	bash scripts/demo.sh $(CDGPS) $(DEMO)

@@ -277,7 +277,7 @@ def test_truth_1200s_modes_identified(truth_1200, record_property):
     modes = {m["mode"]: m for m in res["modes"]}
     assert len(modes) == 8 and "rigid-body" not in modes
     for name, m in modes.items():
-        record_property(f"{name}_error_pct", round(m["error_pct"], 3))
+        record_property(f"{name}_error_pct", float(round(m["error_pct"], 3)))
         if name == "pendulum":
             continue
         assert m["seen"], m

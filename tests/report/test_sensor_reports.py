@@ -117,7 +117,7 @@ def test_static_report_values(static_run, static_out, record_property):
     assert abs(d["gyro_drift_deg_per_min"]) > 5 * abs(d["drift_deg_per_min"])
     assert abs(d["gyro_minus_gps_end_deg"]) > 3 * d["noise_rms_deg"]
     for k in ("mean_deg", "error_deg", "noise_rms_deg", "drift_deg_per_min", "gyro_drift_deg_per_min"):
-        record_property(k, d[k])
+        record_property(k, d[k] if not hasattr(d[k], "item") else d[k].item())
 
 
 def test_static_report_files(static_out):
@@ -218,7 +218,7 @@ def test_spectrum_report_identifies_modes_from_estimates(spectrum_out, record_pr
     assert d["seen"] >= 7
     record_property("seen", d["seen"])
     for name, m in modes.items():
-        record_property(f"{name}_error_pct", None if m["error_pct"] is None else round(m["error_pct"], 2))
+        record_property(f"{name}_error_pct", None if m["error_pct"] is None else float(round(m["error_pct"], 2)))
 
 
 def test_gyro_frequency_within_its_search_band(spectrum_out):
