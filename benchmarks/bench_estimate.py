@@ -94,7 +94,7 @@ def filterpy_run(cfg, init, Z, hmodel, precomputed=None, sigma_m=SIGMA):
     f = ExtendedKalmanFilter(dim_x=n, dim_z=C)
     f.F = m.A
     f.Q = m.Q
-    f.R = sigma_m**2 * np.eye(C)
+    f.R = np.diag(np.broadcast_to(np.asarray(sigma_m, dtype=float) ** 2, (C,)).copy())   # scalar or per channel
     f.x = np.array(init["state"]["x"], dtype=float)
     f.P = np.array(init["state"]["P"], dtype=float)
     xs = np.empty((N, n))
@@ -154,7 +154,8 @@ def part_ab(minutes: float, repeat: int, seed: int) -> dict:
     ant, tx = channel_indices(cfg, [c[0] for c in chans], [c[1] for c in chans])
     hmodel = EpochPhaseModel(cfg, ant, tx)
 
-    sig = res.noise["sigma_m"]           # the σ cdgps used (INIT's estimate, or the innovation-based re-run's)
+    # the σ cdgps used, per channel (INIT's per-channel estimate, or the innovation-based re-run's)
+    sig = np.array([pc["sigma_m"] for pc in res.noise["per_channel"]])
     t_fp, xs_fp = best_of(lambda: filterpy_run(cfg, init, Z, hmodel, sigma_m=sig), repeat)
     pre = ([], [])
     for k in range(N):

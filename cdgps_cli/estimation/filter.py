@@ -924,7 +924,7 @@ def _channel_noise_estimate(cfg, ant, tx, xs: np.ndarray, Ps: np.ndarray, resid:
         k = rows[j:j + 500]
         _, H = phase_model(cfg, xs[k], ant, tx, jacobian=True)          # (m, C, 2 n_m)
         Hm = H[:, :, :nm]
-        hph[k] = np.einsum("kci,kij,kcj->kc", Hm, Ps[k, :nm, :nm], Hm)
+        hph[k] = np.sum(np.matmul(Hm, Ps[k, :nm, :nm]) * Hm, axis=2)     # diag(H P Hᵀ) per epoch
         if bias_states:
             cb = n + np.arange(C)
             hph[k] += Ps[k][:, cb, cb] + 2.0 * np.einsum("kci,kic->kc", Hm, Ps[k][:, :nm, cb])
