@@ -32,7 +32,8 @@ from cdgps_cli.config.structure import load_config  # noqa: E402
 from cdgps_cli.estimation.filter import EstimateOptions, estimate  # noqa: E402
 from cdgps_cli.core.errors import CdgpsError  # noqa: E402
 from cdgps_cli.estimation.initializer import InitOptions, initialize  # noqa: E402
-from cdgps_cli.io.run import memory_run, write_run  # noqa: E402
+from cdgps_cli.core.records import memory_run  # noqa: E402
+from cdgps_cli.io.run import write_run  # noqa: E402
 from cdgps_cli.sim.structure import SimOptions, simulate, write_simulation  # noqa: E402
 from cdgps_cli.io.states import evaluate, write_states  # noqa: E402
 

@@ -15,7 +15,6 @@ import math
 
 import click
 
-from cdgps_cli.core.checks import require_finite  # noqa: F401  (re-exported for the commands)
 from cdgps_cli.core.errors import CdgpsError
 
 #: parameter names (the Python names, not the spellings) of every command's outputs

@@ -26,7 +26,7 @@ import numpy as np
 from cdgps_cli.core.errors import CdgpsError, join_problems
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli.config.limits import config_range_problems
-from cdgps_cli.config.options import GNSS_DEFAULTS, toml_value
+from cdgps_cli.config.options import GNSS_DEFAULTS
 
 AXES = ("x", "y", "z")
 COORD_KINDS = {"translation": "m", "rotation": "rad", "modal": "1"}

@@ -51,7 +51,6 @@ __all__ = [
     "ratio_test",
     "partial_fix",
     "resolve",
-    "fix_integers",
 ]
 
 #: Relative tolerance used when checking that ``Q`` is symmetric: the
@@ -877,35 +876,3 @@ def resolve(a, Q, threshold=RATIO_THRESHOLD, *, partial=True, max_nodes=None, pr
     res["partial"] = 0 < res["n_fixed"] < n
     res["limit_message"] = limit
     return res
-
-
-def fix_integers(a, Q, ratio_threshold=RATIO_THRESHOLD, partial=True, *, progress=None):
-    """The integer-fixing policy of every initializer (structure, GNSS baseline, modal batch init):
-    :func:`resolve` — LAMBDA on the full set with the ratio test, then (``partial``) nested subsets
-    dropping the largest variances first — with the summary keys the initializers report.
-
-    Parameters
-    ----------
-    a : array_like, shape (n,)
-        Float ambiguities (cycles).
-    Q : array_like, shape (n, n)
-        Their covariance (cycles²).
-    ratio_threshold : float
-        Ratio-test threshold (:data:`cdgps_cli.config.options.RATIO_THRESHOLD`).
-    partial : bool
-        Try subsets when the full set fails.
-    progress : callable(done, total), optional
-
-    Returns
-    -------
-    dict
-        :func:`resolve`'s keys plus ``full_ratio`` (the full set's ratio, None when not computed)
-        and ``integers`` as int64 (fixed values where fixed, 0 elsewhere).
-    """
-    out = resolve(a, Q, ratio_threshold, partial=partial, progress=progress)
-    r = out["ratio_full_set"]
-    out["full_ratio"] = None if r is None or (isinstance(r, float) and math.isnan(r)) else float(r)
-    out["fixed_mask"] = np.asarray(out["fixed_mask"], dtype=bool)
-    out["integers"] = np.where(out["fixed_mask"], np.asarray(out["integers"]), 0).astype(np.int64)
-    return out
-

@@ -694,7 +694,7 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
         with progress.bar(m if opt.partial else 1, "integer fixing (LAMBDA)", unit="subset") as bar:
             pf = resolve(a_float, Qa, opt.ratio_threshold, partial=opt.partial,
                          progress=lambda done, total: bar.update_to(done))
-        ratio = None if math.isnan(pf["ratio_full_set"]) else pf["ratio_full_set"]
+        ratio = full_set_ratio(pf)
         full_txt = pf["limit_message"] or f"ratio {ratio:.2f} < {opt.ratio_threshold:g}"
         if pf["n_fixed"] == m:
             fixed[:] = True
@@ -865,9 +865,15 @@ def _multipath_record(mp: MultipathModel, wd: WindowData, z_end: np.ndarray, P, 
     return rec
 
 
+def full_set_ratio(fx: dict) -> float | None:
+    """The full set's ratio of a :func:`~cdgps_cli.estimation.ambiguity.resolve` result (None when not computed)."""
+    r = fx["ratio_full_set"]
+    return None if r is None or math.isnan(r) else float(r)
+
+
 def fix_note_text(fx: dict, m: int, threshold: float) -> str:
-    """INIT.json's ``integer_fixing`` sentence for a :func:`~cdgps_cli.estimation.ambiguity.fix_integers` result."""
-    ratio, fixed = fx["full_ratio"], fx["fixed_mask"]
+    """INIT.json's ``integer_fixing`` sentence for a :func:`~cdgps_cli.estimation.ambiguity.resolve` result."""
+    ratio, fixed = full_set_ratio(fx), np.asarray(fx["fixed_mask"], dtype=bool)
     rtxt = "n/a" if ratio is None else f"{ratio:.2f}"
     if fixed.all():
         return f"all {m} integers fixed (ratio {rtxt} ≥ {threshold:g})"

@@ -8,7 +8,7 @@ interface :class:`~cdgps_cli.estimation.initializer.GaussNewton` runs on (cost, 
 SRIF solve), the linearized problem being whitened per epoch by the rows' noise (so a full
 covariance such as D Σ Dᵀ of double differences is handled exactly: each whitened row then mixes
 several ambiguities, :class:`~cdgps_cli.estimation.batch_solver.LinearProblem` ``E``).  Integers:
-:func:`~cdgps_cli.estimation.ambiguity.fix_integers` (LAMBDA, ratio, partial fixing), then the fixed
+:func:`~cdgps_cli.estimation.ambiguity.resolve` (LAMBDA, ratio, partial fixing: the one policy of every initializer), then the fixed
 solution and its validation (:func:`~cdgps_cli.estimation.initializer.fix_validation`).
 
 With the modal dynamics and the satellite-DD model this is the paper's model-aided initialization on
@@ -22,9 +22,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.estimation.ambiguity import AmbiguityError, fix_integers
+from cdgps_cli.estimation.ambiguity import AmbiguityError, resolve
 from cdgps_cli.estimation.batch_solver import LinearProblem, srif_solve
-from cdgps_cli.estimation.initializer import GaussNewton, InitOptions, fix_note_text, fix_validation
+from cdgps_cli.estimation.initializer import GaussNewton, InitOptions, fix_note_text, fix_validation, full_set_ratio
 
 __all__ = ["ModelProblem", "ModelInitResult", "model_batch_init"]
 
@@ -201,8 +201,8 @@ def model_batch_init(model, dyn, epochs, dt_s: float, wavelength_m: float, opt: 
     ratio, note = None, "integer fixing off"
     if opt.fix_integers and m:
         try:
-            fx = fix_integers(a, 0.5 * (Pbb + Pbb.T) / wavelength_m**2, opt.ratio_threshold, opt.partial)
-            fixed, ratio = fx["fixed_mask"], fx["full_ratio"]
+            fx = resolve(a, 0.5 * (Pbb + Pbb.T) / wavelength_m**2, opt.ratio_threshold, partial=opt.partial)
+            fixed, ratio = np.asarray(fx["fixed_mask"], dtype=bool), full_set_ratio(fx)
             integers = np.where(fixed, fx["integers"], integers)
             note = fix_note_text(fx, m, opt.ratio_threshold)
         except AmbiguityError as exc:

@@ -17,7 +17,7 @@ from cdgps_cli import __version__
 from cdgps_cli.io.atomic import file_sha256
 from cdgps_cli.config.structure import StructureConfig, parse_config
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.core.records import Run, memory_run  # noqa: F401  (read_run returns a Run)
+from cdgps_cli.core.records import Run
 from cdgps_cli.core.time_format import format_time, median_spacing_s, time_scale
 from cdgps_cli.io.logs import read_actuator_log, read_gyro_log, read_receiver_log
 from cdgps_cli.io.mcap import (ACTUATOR_SCHEMA, ACTUATOR_TOPIC, CONFIG_ATTACHMENT, GYRO_SCHEMA, GYRO_TOPIC,

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import gzip
 import re
-import struct
 import zlib
 from pathlib import Path
 

@@ -13,7 +13,6 @@ import hashlib
 import json
 from pathlib import Path
 
-from cdgps_cli.core.errors import CdgpsError
 
 
 def run_stage(s, stage: str) -> dict:

@@ -349,7 +349,6 @@ def simulate(cfg: StructureConfig, opt: SimOptions, trajectory=None) -> Simulati
 def _phase_log(cfg, opt, rng, time_s, q):
     sim = cfg.simulation
     lam = cfg.wavelength_m
-    T = cfg.sample_period_s
     n = len(time_s)
     ant, tx = all_channels(cfg)
     C = len(ant)
