@@ -29,15 +29,16 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from cdgps_cli.config.options import CONTROL_RATE_FACTOR, CONTROL_RIGID_FACTOR, CONTROL_STATE_WEIGHT  # noqa: E402
 from cdgps_cli.config.structure import load_config  # noqa: E402
-from cdgps_cli.control.closed_loop import simulate_closed_loop  # noqa: E402
-from cdgps_cli.control.design import design_for_structure  # noqa: E402
+from cdgps_cli.pipeline.closed_loop import simulate_closed_loop  # noqa: E402
+from cdgps_cli.control.design import PAPER_WEIGHTS, design_for_structure  # noqa: E402
 from cdgps_cli.control.metrics import pulse_metrics, slew_metrics  # noqa: E402
 from cdgps_cli.sim.structure import SimOptions, simulate  # noqa: E402
 
 CONFIG = ROOT / "configs" / "testbed-1998.toml"
 #: our weights for our thruster model (the paper's Υ is unpublished; see docs/control.md)
-TUNED = {"qx": 100.0, "rigid_factor": 0.3, "rate_factor": 0.1}
+TUNED = {"qx": CONTROL_STATE_WEIGHT, "rigid_factor": CONTROL_RIGID_FACTOR, "rate_factor": CONTROL_RATE_FACTOR}
 #: the paper's weight form scaled to place our poles where Fig. 6 has them (rigid-body about 30 s,
 #: vibration about 5 s: 29.6 s and 3.3-4.9 s), for comparison
 PAPER_POLES = {"qx": 10.0, "rigid_factor": 0.04, "rate_factor": 0.1}
@@ -113,7 +114,7 @@ def main() -> None:
     seeds = range(1, 4) if args.quick else range(1, 11)
     cfg = load_config(CONFIG)
     tuned, tuned_poles = _gains(cfg, **TUNED)
-    paper, paper_poles = _gains(cfg)
+    paper, paper_poles = _gains(cfg, **PAPER_WEIGHTS)
     ppoles, ppoles_poles = _gains(cfg, **PAPER_POLES)
     out = {"weights": TUNED, "paper_pole_weights": PAPER_POLES, "disturbance_scale": DISTURBANCE, "seeds": list(seeds),
            "settling_s": {"tuned": tuned_poles["settling_time_s"], "paper": paper_poles["settling_time_s"],

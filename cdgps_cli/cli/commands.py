@@ -15,7 +15,8 @@ from pathlib import Path
 
 import click
 
-from cdgps_cli.config.options import GNSS_DEFAULTS, INIT_MAX_ITERATIONS, INIT_STARTS, RATIO_THRESHOLD
+from cdgps_cli.config.options import (CONTROL_RATE_FACTOR, CONTROL_RIGID_FACTOR, CONTROL_STATE_WEIGHT, GNSS_DEFAULTS,
+                                      INIT_MAX_ITERATIONS, INIT_STARTS, RATIO_THRESHOLD)
 from cdgps_cli import __version__
 from cdgps_cli.core import progress
 from cdgps_cli.io.atomic import TERMINATED_EXIT, Terminated, sigterm_raises
@@ -217,7 +218,7 @@ def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_s
         if gains is None:
             sim = run_sim(cfg, opt)
         else:
-            from cdgps_cli.control.closed_loop import simulate_closed_loop
+            from cdgps_cli.pipeline.closed_loop import simulate_closed_loop
 
             sim, loop = simulate_closed_loop(cfg, opt, gains, vibration_control=not no_vibration_control,
                                              feedback=feedback, slew_reference_kind=slew_reference)
@@ -1289,36 +1290,50 @@ def _weights_option(text: str | None, name: str):
 @control.command("design", short_help="Discrete LQR gain → GAINS.json (+ z-plane figure)")
 @click.argument("config", type=click.Path(dir_okay=False))
 @click.option("--qx", default=None, metavar="W|LIST",
-              help="State weight: one number replaces the paper's 5000 in Qx* = W·diag(1,…,1,0.01), "
-                   "Qx = diag(Qx*, 0.01·Qx*); or the whole diagonal of Qx (amplitudes, then rates) "
-                   "[paper's weights].")
+              help="State weight: one number W in the paper's form Qx* = W·diag(1,…,1,f_rigid), "
+                   "Qx = diag(Qx*, f_rate·Qx*); or the whole diagonal of Qx (amplitudes, then rates) "
+                   f"[{CONTROL_STATE_WEIGHT:g}].")
 @click.option("--qu", default=None, metavar="R|LIST",
               help="Input weight: one number (times I) or one per thruster [I, the paper's].")
-@click.option("--rigid-factor", type=float, default=0.01, show_default=True,
-              help="Weight of the rigid-body mode relative to the others in Qx* (the paper's 0.01).")
-@click.option("--rate-factor", type=float, default=0.01, show_default=True,
-              help="Weight of the modal rates relative to the amplitudes, Qx = diag(Qx*, f·Qx*) (the paper's 0.01).")
+@click.option("--rigid-factor", type=float, default=None,
+              help=f"Weight of the rigid-body mode relative to the others in Qx* [{CONTROL_RIGID_FACTOR:g}; the paper's 0.01].")
+@click.option("--rate-factor", type=float, default=None,
+              help="Weight of the modal rates relative to the amplitudes, Qx = diag(Qx*, f·Qx*) "
+                   f"[{CONTROL_RATE_FACTOR:g}; the paper's 0.01].")
+@click.option("--paper-weights", is_flag=True,
+              help="The paper's literal weights (W = 5000, 0.01, 0.01): unstable with the PWPF modulator on our "
+                   "thruster model (docs/control.md); the defaults are the paper's tuning rule applied to it.")
 @_output_option("output", "GAINS.json to write.")
 @click.option("--figure", "figure_png", default=None, type=click.Path(dir_okay=False),
               help="Also write the z-plane pole figure (Fig. 6 style) to this PNG.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (poles, settling times) on stdout.")
 @click.pass_context
-def control_design(ctx, config, qx, qu, rigid_factor, rate_factor, output, figure_png, as_json):
-    """Discrete LQR u = −K x on the config's modal model (Eq. 4, 24) with the paper's weights by default.
+def control_design(ctx, config, qx, qu, rigid_factor, rate_factor, paper_weights, output, figure_png, as_json):
+    """Discrete LQR u = −K x on the config's modal model (Eq. 4, 24) in the paper's weight form.
+
+    The default weights are the paper's tuning rule (the most authority that does not saturate the
+    jets) applied to our thruster model; --paper-weights gives the paper's numbers.
 
     Writes the model A, B the gain was designed on, the weights, K, and the open- and closed-loop poles
     (z and s planes, frequency, damping, 2 % settling time per mode).  The thruster force model Υ is
     derived from the config's thruster geometry (the paper's is not published).
     """
     from cdgps_cli.config.structure import load_config
-    from cdgps_cli.control.design import design_for_structure, state_names
+    from cdgps_cli.control.design import PAPER_WEIGHTS, design_for_structure, state_names
     from cdgps_cli.io.gains_file import gains_record, write_gains
 
+    if paper_weights and (qx is not None or rigid_factor is not None or rate_factor is not None):
+        raise CdgpsError("--paper-weights sets --qx, --rigid-factor and --rate-factor: give either, not both")
     cfg = load_config(config)
-    opts = {"qx": qx, "qu": qu, "rigid_factor": rigid_factor, "rate_factor": rate_factor}
+    if paper_weights:
+        qx, rigid_factor, rate_factor = str(PAPER_WEIGHTS["qx"]), PAPER_WEIGHTS["rigid_factor"], PAPER_WEIGHTS["rate_factor"]
+    rigid_factor = CONTROL_RIGID_FACTOR if rigid_factor is None else rigid_factor
+    rate_factor = CONTROL_RATE_FACTOR if rate_factor is None else rate_factor
+    opts = {"qx": qx, "qu": qu, "rigid_factor": rigid_factor, "rate_factor": rate_factor,
+            **({"paper_weights": True} if paper_weights else {})}
     design, poles = design_for_structure(cfg, _weights_option(qx, "--qx"), _weights_option(qu, "--qu"),
                                          rigid_factor, rate_factor)
-    from cdgps_cli.control.closed_loop import loop_estimator
+    from cdgps_cli.control.estimator_design import loop_estimator
 
     rec = gains_record(design, poles, config_path=config, state_names=state_names(cfg),
                        thruster_names=cfg.thruster_names, options=opts)

@@ -8,24 +8,33 @@ import numpy as np
 from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.model.dynamics import discrete_model
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.control.lqr import PAPER_RATE_FACTOR, PAPER_RIGID_FACTOR, LqrDesign, design_lqr, paper_weights
+from cdgps_cli.config.options import CONTROL_RATE_FACTOR, CONTROL_RIGID_FACTOR, CONTROL_STATE_WEIGHT
+from cdgps_cli.control.lqr import (PAPER_RATE_FACTOR, PAPER_RIGID_FACTOR, PAPER_STATE_WEIGHT, LqrDesign, design_lqr,
+                                  paper_weights)
 from cdgps_cli.control.poles import pole_table, slowest_settling_by_mode
 
+#: the paper's literal weights (Sec. V) as keyword arguments of :func:`design_for_structure`
+PAPER_WEIGHTS = {"qx": PAPER_STATE_WEIGHT, "rigid_factor": PAPER_RIGID_FACTOR, "rate_factor": PAPER_RATE_FACTOR}
 
-def weights_for(cfg: StructureConfig, qx=None, qu=None, rigid_factor: float = PAPER_RIGID_FACTOR,
-                rate_factor: float = PAPER_RATE_FACTOR) -> tuple[np.ndarray, np.ndarray]:
+
+def weights_for(cfg: StructureConfig, qx=None, qu=None, rigid_factor: float = CONTROL_RIGID_FACTOR,
+                rate_factor: float = CONTROL_RATE_FACTOR) -> tuple[np.ndarray, np.ndarray]:
     """Q_x and Q_u from the options.
 
     Parameters
     ----------
     cfg : StructureConfig
     qx : None, float or sequence of float
-        None: the paper's Q_x (Sec. V).  One number: the paper's form with that state weight in place of
-        5000.  A sequence: the whole diagonal of Q_x, length 2 n_m (amplitudes, then rates).
+        None: the paper's form with the default state weight
+        (:data:`cdgps_cli.config.options.CONTROL_STATE_WEIGHT`; the paper's is
+        :data:`cdgps_cli.control.lqr.PAPER_STATE_WEIGHT`).  One number: the paper's form with that
+        state weight in place of 5000.  A sequence: the whole diagonal of Q_x, length 2 n_m
+        (amplitudes, then rates).
     qu : None, float or sequence of float
         None: I.  One number: that multiple of I.  A sequence: the diagonal, one entry per thruster.
     rigid_factor, rate_factor : float
-        The paper's form's 0.01 on the rigid-body mode and 0.01 on the rates (ignored for a full diagonal).
+        The weight of the rigid-body mode and of the rates relative to the amplitudes (the paper's
+        0.01 and 0.01; defaults from :mod:`cdgps_cli.config.options`; ignored for a full diagonal).
     """
     n, m = 2 * cfg.n_modes, len(cfg.thruster_names)
     if m == 0:
@@ -33,7 +42,8 @@ def weights_for(cfg: StructureConfig, qx=None, qu=None, rigid_factor: float = PA
     for name, v in (("rigid_factor", rigid_factor), ("rate_factor", rate_factor)):
         if not (np.isfinite(v) and v >= 0):
             raise CdgpsError(f"{name}: expected a finite number >= 0, got {v!r}")
-    Qx, Qu = paper_weights(cfg.mode_frequency_hz, m, rigid_factor=rigid_factor, rate_factor=rate_factor)
+    Qx, Qu = paper_weights(cfg.mode_frequency_hz, m, state_weight=CONTROL_STATE_WEIGHT, rigid_factor=rigid_factor,
+                           rate_factor=rate_factor)
     if qx is not None:
         q = np.atleast_1d(np.asarray(qx, dtype=float))
         if q.size == 1:
@@ -60,8 +70,8 @@ def state_names(cfg: StructureConfig) -> list[str]:
     return [*cfg.mode_names, *(f"{n} rate" for n in cfg.mode_names)]
 
 
-def design_for_structure(cfg: StructureConfig, qx=None, qu=None, rigid_factor: float = PAPER_RIGID_FACTOR,
-                         rate_factor: float = PAPER_RATE_FACTOR) -> tuple[LqrDesign, dict]:
+def design_for_structure(cfg: StructureConfig, qx=None, qu=None, rigid_factor: float = CONTROL_RIGID_FACTOR,
+                         rate_factor: float = CONTROL_RATE_FACTOR) -> tuple[LqrDesign, dict]:
     """LQR design on the config's model discretized at its sample period.
 
     Returns

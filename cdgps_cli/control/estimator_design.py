@@ -26,8 +26,11 @@ import math
 import numpy as np
 from scipy.linalg import solve_discrete_are
 
-from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.config.structure import StructureConfig, channel_sigma_m
 from cdgps_cli.control.poles import pole_table, slowest_settling_by_mode
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.measurement.phase import EpochPhaseModel, all_channels
+from cdgps_cli.model.dynamics import discrete_model
 
 #: estimator poles settle at least this many times faster than the regulator's (Ref. 25: 2–6)
 ESTIMATOR_SEPARATION = 3.0
@@ -151,3 +154,18 @@ def loop_process_noise_scale(A: np.ndarray, B: np.ndarray, K: np.ndarray, Q: np.
         t, met = {}, False
     return {"scale": float(scale), "separation": float(separation), "met": met, "limits_s": limits,
             "estimator_settling_s": t}
+
+
+def loop_estimator(cfg: StructureConfig, K: np.ndarray) -> dict:
+    """The in-loop EKF's process-noise scale for the regulator K by the separation rule
+    (:func:`cdgps_cli.control.estimator_design.loop_process_noise_scale`, linearized at rest), with a
+    ``rule`` sentence for the run's record."""
+    model = discrete_model(cfg)
+    ant, tx = all_channels(cfg)
+    _, H = EpochPhaseModel(cfg, ant, tx)(np.zeros(model.A.shape[0]))
+    sigma = channel_sigma_m(cfg, [(cfg.antenna_names[a], cfg.transmitter_names[t]) for a, t in zip(ant, tx)])
+    out = loop_process_noise_scale(model.A, model.B, K, model.Q, H, sigma, model.T, list(cfg.mode_names))
+    out["rule"] = (f"config W scaled by {out['scale']:.4g}: estimator poles {out['separation']:g}x faster than "
+                   "the regulator's, mode by mode" + ("" if out["met"] else
+                                                      " (NOT met: the closest the filter gets)"))
+    return out

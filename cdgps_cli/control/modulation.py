@@ -203,3 +203,53 @@ def _on_time_in_period(was_on: bool, switches, period_s: float) -> float:
             total += b - a
         on = not on
     return total
+
+
+def modulate_period(e, f_state, on_state, T, pwpf, fmax):
+    """Advance every jet's modulator over one control period with its command held.
+
+    Parameters
+    ----------
+    e : ndarray, shape (m,)
+        Command of each jet divided by its maximum force (−).
+    f_state : ndarray, shape (m,)
+        Filter state of each jet, updated in place.
+    on_state : ndarray of bool, shape (m,)
+        Trigger output of each jet, updated in place.
+    T : float
+        Period, s.
+    pwpf : PwpfParams
+    fmax : ndarray, shape (m,)
+        Maximum force per jet, N.
+
+    Returns
+    -------
+    list of (int, float, float, float)
+        (jet, on_s, off_s, force_n) of every firing inside the period, times from its start.
+    """
+    firings = []
+    for j in range(len(e)):
+        was_on = bool(on_state[j])
+        f_state[j], on_state[j], switches = pwpf_interval(f_state[j], was_on, e[j], T, pwpf)
+        edges = [0.0, *switches, T]
+        on = was_on
+        for a, b in zip(edges[:-1], edges[1:]):
+            if on and b > a:
+                firings.append((j, a, b, float(fmax[j])))
+            on = not on
+    return firings
+
+
+def merge_firings(firings) -> list:
+    """Join a jet's firings that continue across period boundaries: (jet, on_s, off_s, force, source)."""
+    out: list = []
+    last: dict = {}
+    for j, a, b, f, src in sorted(firings, key=lambda r: (r[0], r[4], r[1])):
+        key = (j, src)
+        if key in last and abs(out[last[key]][2] - a) < 1e-9:
+            jj, aa, _, ff, ss = out[last[key]]
+            out[last[key]] = (jj, aa, b, ff, ss)
+        else:
+            last[key] = len(out)
+            out.append((j, a, b, f, src))
+    return sorted(out, key=lambda r: (r[1], r[0]))

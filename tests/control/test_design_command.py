@@ -94,5 +94,24 @@ def test_design_records_the_in_loop_filter_rule(testbed_path, tmp_path):
     assert r.exit_code == 0, r.output
     le = json.loads(out.read_text())["loop_estimator"]
     assert le["met"] is True and le["process_noise_scale"] == pytest.approx(30.2, rel=0.01)
-    r = CliRunner().invoke(main, ["control", "design", str(testbed_path), "-o", str(tmp_path / "p.json")])
+    r = CliRunner().invoke(main, ["control", "design", str(testbed_path), "--paper-weights", "-o", str(tmp_path / "p.json")])
     assert r.exit_code == 0 and "cannot be made 3x faster" in r.output
+
+
+def test_defaults_are_the_tuned_weights_and_paper_weights_is_a_flag(testbed_path, testbed_cfg, tmp_path):
+    from cdgps_cli.config.options import CONTROL_RATE_FACTOR, CONTROL_RIGID_FACTOR, CONTROL_STATE_WEIGHT
+    from cdgps_cli.control.design import PAPER_WEIGHTS
+    from cdgps_cli.control.lqr import paper_weights
+
+    m = len(testbed_cfg.thruster_names)
+    assert _run("control", "design", testbed_path, "-o", tmp_path / "d.json").exit_code == 0
+    Qx, _ = paper_weights(testbed_cfg.mode_frequency_hz, m, state_weight=CONTROL_STATE_WEIGHT,
+                          rigid_factor=CONTROL_RIGID_FACTOR, rate_factor=CONTROL_RATE_FACTOR)
+    np.testing.assert_array_equal(read_gains(tmp_path / "d.json", testbed_path)["Qx"], Qx)
+    assert _run("control", "design", testbed_path, "--paper-weights", "-o", tmp_path / "p.json").exit_code == 0
+    Qp, _ = paper_weights(testbed_cfg.mode_frequency_hz, m)
+    np.testing.assert_array_equal(read_gains(tmp_path / "p.json", testbed_path)["Qx"], Qp)
+    assert PAPER_WEIGHTS == {"qx": 5000.0, "rigid_factor": 0.01, "rate_factor": 0.01}
+    _clean_error(_run("control", "design", testbed_path, "--paper-weights", "--rate-factor", "0.1", "-o",
+                      tmp_path / "x.json"), "--paper-weights", "not both")
+    assert not (tmp_path / "x.json").exists()

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from cdgps_cli.config.structure import channel_sigma_m
-from cdgps_cli.control.closed_loop import Disturbance, loop_estimator, run_closed_loop
-from cdgps_cli.control.design import design_for_structure, rigid_only_gain
+from cdgps_cli.control.estimator_design import loop_estimator
+from cdgps_cli.pipeline.closed_loop import Disturbance, run_closed_loop
+from cdgps_cli.control.design import PAPER_WEIGHTS, design_for_structure, rigid_only_gain
 from cdgps_cli.control.estimator_design import estimator_error_matrix, separation_limits, _shortfall
 from cdgps_cli.model.dynamics import discrete_model
 from cdgps_cli.core.errors import CdgpsError
@@ -97,7 +98,7 @@ def test_faster_estimator_lowers_the_pulse_peak(testbed_cfg, tuned):
 def test_a_regulator_too_fast_for_the_filter_is_reported_not_refused(testbed_cfg):
     """The paper's weights on our Υ settle the vibration poles in 0.65 s: no process-noise scale makes
     the filter 3x faster, so the closest scale is returned with met = False (the CLI warns)."""
-    d, _ = design_for_structure(testbed_cfg)
+    d, _ = design_for_structure(testbed_cfg, **PAPER_WEIGHTS)
     est = loop_estimator(testbed_cfg, d.K)
     assert est["met"] is False and est["scale"] > 1.0 and "NOT met" in est["rule"]
 
@@ -108,7 +109,7 @@ def test_simulate_warns_when_the_rule_cannot_be_met(testbed_path, tmp_path):
     from cdgps_cli.cli.commands import main
 
     g = tmp_path / "paper.json"
-    assert CliRunner().invoke(main, ["-q", "control", "design", str(testbed_path), "-o", str(g)]).exit_code == 0
+    assert CliRunner().invoke(main, ["-q", "control", "design", str(testbed_path), "--paper-weights", "-o", str(g)]).exit_code == 0
     r = CliRunner().invoke(main, ["simulate", str(testbed_path), "--scenario", "pulse", "--duration", "1",
                                   "--controller", str(g), "-o", str(tmp_path / "o")])
     assert r.exit_code == 0 and "in-loop estimator cannot be made 3x faster" in r.output, r.output

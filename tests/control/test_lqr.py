@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from cdgps_cli.config.structure import load_config
-from cdgps_cli.control.design import design_for_structure, weights_for
+from cdgps_cli.control.design import PAPER_WEIGHTS, design_for_structure, weights_for
 from cdgps_cli.control.lqr import check_weights, design_lqr, paper_weights
 from cdgps_cli.control.poles import pole_table
 from cdgps_cli.core.errors import CdgpsError
@@ -87,7 +87,7 @@ def _simulated_cost(A, B, Q, R, K, x0):
 
 
 def test_closed_loop_is_stable_and_rigid_body_settles_in_tens_of_seconds(testbed):
-    d, poles = design_for_structure(testbed)
+    d, poles = design_for_structure(testbed, **PAPER_WEIGHTS)
     assert np.abs(np.linalg.eigvals(d.closed_loop)).max() < 1
     settle = poles["settling_time_s"]
     assert settle["open_loop"]["rigid-body"] is None            # the open-loop angle does not decay
@@ -129,7 +129,7 @@ def test_weight_options_are_checked(testbed):
         weights_for(testbed, qx=[1.0, 2.0])
     with pytest.raises(CdgpsError, match="qu: expected one number or 24"):
         weights_for(testbed, qu=[1.0, 2.0])
-    Qx, Qu = weights_for(testbed, qx=100.0, qu=2.0)
+    Qx, Qu = weights_for(testbed, qx=100.0, qu=2.0, rigid_factor=0.01)
     assert Qx[0, 0] == 100.0 and Qx[8, 8] == 1.0 and Qu[3, 3] == 2.0
 
 

@@ -10,7 +10,7 @@ from click.testing import CliRunner
 from scipy.linalg import expm
 
 from cdgps_cli.cli.commands import main
-from cdgps_cli.control.closed_loop import Disturbance, run_closed_loop, simulate_closed_loop
+from cdgps_cli.pipeline.closed_loop import Disturbance, run_closed_loop, simulate_closed_loop
 from cdgps_cli.control.design import design_for_structure, rigid_only_gain
 from cdgps_cli.control.propagation import PulseResponse
 from cdgps_cli.model.dynamics import continuous_model, discrete_model, zoh
@@ -191,7 +191,7 @@ def test_gains_of_another_config_are_refused(gains_path, tmp_path, testbed_text)
 
 
 def test_shaped_step_is_the_profiles_rigid_shape_without_feed_forward(testbed_cfg):
-    from cdgps_cli.control.closed_loop import slew_reference
+    from cdgps_cli.control.slew import slew_reference
 
     t = np.arange(600) * 0.1
     x0 = np.zeros(18)
@@ -252,3 +252,38 @@ def test_multipath_states_make_the_loop_filter_consistent(testbed_cfg, design):
         stats[model is not None] = (np.mean(((r.x_true - r.x_hat) / r.sigma_hat)[50:] ** 2), np.mean(r.nis[50:]) / C)
     assert 0.7 < stats[True][0] < 1.3 and 0.85 < stats[True][1] < 1.15
     assert stats[False][0] > 1.6 and stats[False][1] > 1.25
+
+
+def _pulse_peaks_deg(cfg, K, pwpf, duration_s=20.0):
+    """Largest |q2, q5, q8| (deg) in the first 10 s and the last 5 s of a pulse with full-state feedback."""
+    from cdgps_cli.control.modulation import PwpfParams
+    from cdgps_cli.measurement.phase import all_channels
+    from cdgps_cli.model.dynamics import discrete_model
+
+    sim, model = cfg.simulation, discrete_model(cfg)
+    N, n = int(round(duration_s / model.T)), model.A.shape[0]
+    pulse = Disturbance(tuple(sim["pulse_thrusters"]), sim["pulse_time_s"],
+                        sim["pulse_time_s"] + sim["pulse_duration_s"], sim["pulse_force_n"])
+    r = run_closed_loop(cfg, K, np.zeros(n), np.zeros((N, model.Bw.shape[1])),
+                        np.zeros((N, len(all_channels(cfg)[0]))), np.zeros((N, n)), pulse, estimator="truth",
+                        pwpf=PwpfParams(time_constant_s=pwpf))
+    idx = [list(cfg.coord_names).index(c) for c in ("q2", "q5", "q8")]
+    q = np.degrees(r.x_true[:, :cfg.n_modes] @ np.asarray(cfg.mode_shapes).T)[:, idx]
+    return np.abs(q[:100]).max(), np.abs(q[-50:]).max()
+
+
+def test_paper_weights_fail_through_the_modulator_lag_and_the_defaults_do_not(testbed_cfg):
+    """The paper's weights are stable as a linear loop (|z| < 1) and with the true state, but the PWPF's
+    0.85 s filter in the loop makes them diverge; with a 0.1 s filter they reject the pulse.  The
+    defaults of `control design` reject it with the 0.85 s modulator (docs/control.md)."""
+    from cdgps_cli.control.design import PAPER_WEIGHTS
+
+    paper, _ = design_for_structure(testbed_cfg, **PAPER_WEIGHTS)
+    assert np.abs(np.linalg.eigvals(paper.closed_loop)).max() < 1
+    _, late = _pulse_peaks_deg(testbed_cfg, paper.K, 0.85)
+    assert late > 20.0                                   # grows: open-loop peak is about 30 deg
+    first, late = _pulse_peaks_deg(testbed_cfg, paper.K, 0.1)
+    assert first < 5.0 and late < 0.5
+    default, _ = design_for_structure(testbed_cfg)
+    first, late = _pulse_peaks_deg(testbed_cfg, default.K, 0.85)
+    assert first < 10.0 and late < 1.0

@@ -5,7 +5,7 @@ Per control period k (length T, the config's sample period):
 
 1. the carrier phase of every channel at t_k is h(x_k) + v_k (the simulator's noise and multipath,
    biases removed: they are known from an initialization, here exactly);
-2. the EKF updates its prediction with it (:func:`cdgps_cli.estimation.kalman.update`, the config's
+2. the EKF updates its prediction with it (:class:`cdgps_cli.estimation.loop_filter.LoopFilter`, the config's
    σ per channel; with the config's ``[model] multipath_sigma_m``, one Gauss–Markov phase-error
    state per channel beside the structure's);
 3. the regulator commands u = u_ff,k − K (x̂_k − x_ref,k) (``estimator="truth"`` feeds back the true
@@ -19,7 +19,10 @@ Per control period k (length T, the config's sample period):
    but not to the disturbance (unknown to it), with the config's process noise scaled by the
    separation rule for the gain in use (:mod:`cdgps_cli.control.estimator_design`).
 
-Numerics only: arrays in, arrays out.
+The orchestration of the loop (here) is above the numerics it steps: the regulator, modulator,
+allocation and slew planning in :mod:`cdgps_cli.control`, the filter in
+:mod:`cdgps_cli.estimation.loop_filter`, the structure's response in :mod:`cdgps_cli.control.propagation`;
+:func:`simulate_closed_loop` runs it inside :func:`cdgps_cli.sim.structure.simulate`.
 """
 
 from __future__ import annotations
@@ -27,20 +30,20 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import block_diag
 
 from cdgps_cli.config.structure import StructureConfig, channel_sigma_m
-from cdgps_cli.model.dynamics import continuous_model, discrete_model
-from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.estimation.kalman import predict, update
-from cdgps_cli.measurement.phase import EpochPhaseModel, all_channels
 from cdgps_cli.control.allocation import opposing_pairs, realize_forces
-from cdgps_cli.control.modulation import PwpfParams, pwpf_interval
+from cdgps_cli.control.design import rigid_only_gain
+from cdgps_cli.control.estimator_design import loop_estimator
+from cdgps_cli.control.modulation import PwpfParams, merge_firings, modulate_period
 from cdgps_cli.control.propagation import PulseResponse
-
-#: prior σ of the estimator's initial modal state, per unit of ξ and ξ̇ (the loop starts from a
-#: converged initialization: the estimate starts at the truth with this small covariance)
-INITIAL_ESTIMATE_SIGMA = 1e-3
+from cdgps_cli.control.slew import slew_reference
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.estimation.loop_filter import INITIAL_ESTIMATE_SIGMA, LoopFilter
+from cdgps_cli.measurement.multipath import model_from
+from cdgps_cli.measurement.phase import EpochPhaseModel, all_channels
+from cdgps_cli.model.dynamics import continuous_model, discrete_model
+from cdgps_cli.sim.structure import simulate
 
 
 @dataclass(frozen=True)
@@ -129,7 +132,7 @@ def run_closed_loop(cfg: StructureConfig, K: np.ndarray, x0: np.ndarray, disturb
     pairs = opposing_pairs(cfg.thruster_section, cfg.thruster_position_m, cfg.thruster_direction)
     fmax = np.asarray(cfg.thruster_max_force_n, dtype=float)
     pulse_jets = [list(cfg.thruster_names).index(j) for j in pulse.thrusters] if pulse else []
-    filt = _LoopFilter(model.A, process_noise_scale * model.Q, len(ant), multipath, T)
+    filt = LoopFilter(model.A, process_noise_scale * model.Q, len(ant), multipath, T)
     U = np.asarray(cfg.mode_shapes)
     nm = U.shape[1]
 
@@ -166,7 +169,7 @@ def run_closed_loop(cfg: StructureConfig, K: np.ndarray, x0: np.ndarray, disturb
             request[j], f_state[j], on_state[j] = 0.0, 0.0, False
         out.command_n[k] = request
         saturated += int(np.sum(request > fmax))
-        ctrl = _modulate_period(request / fmax, f_state, on_state, T, pwpf, fmax)
+        ctrl = modulate_period(request / fmax, f_state, on_state, T, pwpf, fmax)
         out.firings += [(j, t0 + a, t0 + b, f, "control") for j, a, b, f in ctrl] + \
                        [(j, t0 + a, t0 + b, f, "disturbance") for j, a, b, f in dist]
         known = response(*_columns(ctrl))
@@ -175,38 +178,6 @@ def run_closed_loop(cfg: StructureConfig, K: np.ndarray, x0: np.ndarray, disturb
     out.saturated_fraction = saturated / max(N * m, 1)
     out.x_ref = x_ref
     return out
-
-
-class _LoopFilter:
-    """The loop's EKF: the structure's n states, plus C Gauss–Markov multipath states when modelled."""
-
-    def __init__(self, A, Q, C: int, multipath, T: float):
-        self.n = A.shape[0]
-        self.C = C if (multipath is not None and multipath.active) else 0
-        if self.C:                     # m_{k+1} = a m_k + √q ω_k per channel (cdgps_cli.measurement.multipath)
-            self.A = block_diag(A, np.eye(C) * multipath.transition(T))
-            self.Q = block_diag(Q, np.eye(C) * multipath.process_variance_m2(T))
-            self.prior_m = multipath.sigma_m
-        else:
-            self.A, self.Q = A, Q
-
-    def start(self, x0):
-        """Estimate at the truth with covariance (INITIAL_ESTIMATE_SIGMA)² I; multipath at its stationary prior."""
-        self.xb = np.concatenate([x0, np.zeros(self.C)])
-        self.Pb = np.diag(np.r_[np.full(self.n, INITIAL_ESTIMATE_SIGMA**2), np.full(self.C, self.prior_m**2 if self.C else 0.0)])
-
-    def update(self, z_m, h_of, sigma):
-        """The update with one epoch's phases z (m); the structure's estimate, covariance and the NIS."""
-        h_bar, H = h_of(self.xb[:self.n])
-        if self.C:
-            H = np.hstack([H, np.eye(self.C)])
-            h_bar = h_bar + self.xb[self.n:]
-        self.x, self.P, nis = update(self.xb, self.Pb, z_m - h_bar, H, sigma)
-        return self.x[:self.n], self.P[:self.n, :self.n], nis
-
-    def predict(self, known):
-        """Predict over one period with the state change of the firings commanded."""
-        self.xb, self.Pb = predict(self.x, self.P, self.A, self.Q, np.concatenate([known, np.zeros(self.C)]))
 
 
 def _columns(intervals):
@@ -224,36 +195,6 @@ def _pulse_intervals(pulse: Disturbance | None, jets, t0: float, T: float):
     if b - a <= 1e-12:
         return []
     return [(j, a, b, pulse.force_n) for j in jets]
-
-
-def _modulate_period(e, f_state, on_state, T, pwpf, fmax):
-    """Advance every jet's modulator one period (state arrays updated in place); its firings."""
-    firings = []
-    for j in range(len(e)):
-        was_on = bool(on_state[j])
-        f_state[j], on_state[j], switches = pwpf_interval(f_state[j], was_on, e[j], T, pwpf)
-        edges = [0.0, *switches, T]
-        on = was_on
-        for a, b in zip(edges[:-1], edges[1:]):
-            if on and b > a:
-                firings.append((j, a, b, float(fmax[j])))
-            on = not on
-    return firings
-
-
-def merge_firings(firings) -> list:
-    """Join a jet's firings that continue across period boundaries: (jet, on_s, off_s, force, source)."""
-    out: list = []
-    last: dict = {}
-    for j, a, b, f, src in sorted(firings, key=lambda r: (r[0], r[4], r[1])):
-        key = (j, src)
-        if key in last and abs(out[last[key]][2] - a) < 1e-9:
-            jj, aa, _, ff, ss = out[last[key]]
-            out[last[key]] = (jj, aa, b, ff, ss)
-        else:
-            last[key] = len(out)
-            out.append((j, a, b, f, src))
-    return sorted(out, key=lambda r: (r[1], r[0]))
 
 
 def closed_loop_trajectory(cfg: StructureConfig, scenario: str, gains: dict, *, vibration_control: bool = True,
@@ -280,8 +221,6 @@ def closed_loop_trajectory(cfg: StructureConfig, scenario: str, gains: dict, *, 
         The in-loop EKF's process-noise scale; None: the separation rule for the gain in use
         (:func:`loop_estimator`).
     """
-    from cdgps_cli.control.design import rigid_only_gain
-
     model = discrete_model(cfg)
     if gains["A"].shape != model.A.shape or not (np.allclose(gains["A"], model.A, rtol=0, atol=1e-9)
                                                  and np.allclose(gains["B"], model.B, rtol=0, atol=1e-9)):
@@ -295,8 +234,6 @@ def closed_loop_trajectory(cfg: StructureConfig, scenario: str, gains: dict, *, 
         K = rigid_only_gain(cfg, model.A, model.B, float(target))
     est = loop_estimator(cfg, K) if estimator_noise_scale is None else {"scale": float(estimator_noise_scale),
                                                                         "rule": "given", "met": None}
-    from cdgps_cli.measurement.multipath import model_from
-
     mp = model_from(cfg)                     # the config's [model] multipath, as the pipeline's filter
     sim = cfg.simulation
     pwpf = PwpfParams() if pwpf is None else pwpf
@@ -334,91 +271,6 @@ def closed_loop_trajectory(cfg: StructureConfig, scenario: str, gains: dict, *, 
         return r.x_true, actuator_log(cfg, r.firings), extra
 
     return trajectory
-
-
-#: fraction of the jets' rigid-body authority a slew profile may use (the rest is left to the feedback)
-SLEW_AUTHORITY_FRACTION = 0.7
-
-
-def rigid_authority(cfg: StructureConfig, direction: float = 1.0) -> tuple[int, np.ndarray, float]:
-    """The rigid-body mode's index, its generalized force per newton of each jet (Uᵀ Υ row, shape (m,))
-    and the largest modal acceleration the jets can give it in ``direction`` (sign), each jet at its
-    maximum force where it pushes that way and one jet of each opposing pair firing."""
-    from cdgps_cli.model.kinematics import thruster_forcing
-
-    rigid = list(cfg.mode_frequency_hz).index(0.0)
-    g = (np.asarray(cfg.mode_shapes).T @ thruster_forcing(cfg))[rigid]
-    push = np.clip(np.sign(direction) * g, 0.0, None) * np.asarray(cfg.thruster_max_force_n, dtype=float)
-    return rigid, g, float(push.sum())
-
-
-def slew_reference(cfg: StructureConfig, time_s, x0, kind: str = "profile"):
-    """Reference states (N, n) and feed-forward signed commands (N, m) or None for a slew from the
-    initial angle to ``[simulation] slew_to_deg`` commanded at ``slew_time_s``.
-
-    ``"step"``: the paper's command, the reference jumps to the target (no feed-forward).
-    ``"shaped-step"``: the paper's step command through the controller's command filter: the
-    reference angle and rate follow the profile's rigid-body shape below (acceleration and rate
-    limited), with no feed-forward thrust and no elastic reference — what a servo does with a step
-    its actuators cannot follow.
-    ``"profile"``: a bang-bang (accelerate, then decelerate) rigid-body angle and rate profile at
-    :data:`SLEW_AUTHORITY_FRACTION` of the jets' rigid authority, with the feed-forward thrust that
-    produces it (minimum-norm over the jets, including the rate damping of the rigid mode).
-    """
-    sim = cfg.simulation
-    nm = cfg.n_modes
-    rigid = list(cfg.mode_frequency_hz).index(0.0)
-    scale = cfg.mode_shapes[cfg.rigid_index, rigid]
-    a0, a1 = float(x0[rigid]), np.radians(sim["slew_to_deg"]) / scale
-    _, g, acc_max = rigid_authority(cfg, a1 - a0)
-    t = np.asarray(time_s) - sim["slew_time_s"]
-    x_ref = np.zeros((len(t), 2 * nm))
-    if kind == "step":
-        x_ref[:, rigid] = np.where(t >= -1e-9, a1, a0)
-        return x_ref, None
-    if kind not in ("profile", "shaped-step"):
-        raise CdgpsError(f"slew reference: expected 'profile', 'shaped-step' or 'step', got {kind!r}")
-    acc = SLEW_AUTHORITY_FRACTION * acc_max * np.sign(a1 - a0)
-    half = np.sqrt(abs(a1 - a0) / max(abs(acc), 1e-300))
-    tt = np.clip(t, 0.0, 2 * half)
-    first = tt <= half
-    amp = np.where(first, a0 + 0.5 * acc * tt**2, a1 - 0.5 * acc * (2 * half - tt) ** 2)
-    rate = np.where(first, acc * tt, acc * (2 * half - tt))
-    accel = np.where((t > 0) & (t < 2 * half), np.where(first, acc, -acc), 0.0)
-    x_ref[:, rigid], x_ref[:, nm + rigid] = amp, rate
-    if kind == "shaped-step":
-        return x_ref, None
-    from cdgps_cli.model.dynamics import modal_damping
-
-    force = accel + modal_damping(cfg)[rigid] * rate          # ξ̈ + c ξ̇ = g·u
-    u_ff = np.outer(force, g / (g @ g))
-    # the elastic modes' reference is the model's own response to the feed-forward thrust, so the
-    # feedback damps deviations from the planned motion instead of fighting the plan
-    model = discrete_model(cfg)
-    elastic = np.ones(2 * nm, dtype=bool)
-    elastic[[rigid, nm + rigid]] = False
-    xe = np.zeros(2 * nm)
-    for k in range(len(t)):
-        x_ref[k, elastic] = xe[elastic]
-        xe = model.A @ xe + model.B @ u_ff[k]
-    return x_ref, u_ff
-
-
-def loop_estimator(cfg: StructureConfig, K: np.ndarray) -> dict:
-    """The in-loop EKF's process-noise scale for the regulator K by the separation rule
-    (:func:`cdgps_cli.control.estimator_design.loop_process_noise_scale`, linearized at rest), with a
-    ``rule`` sentence for the run's record."""
-    from cdgps_cli.control.estimator_design import loop_process_noise_scale
-
-    model = discrete_model(cfg)
-    ant, tx = all_channels(cfg)
-    _, H = EpochPhaseModel(cfg, ant, tx)(np.zeros(model.A.shape[0]))
-    sigma = channel_sigma_m(cfg, [(cfg.antenna_names[a], cfg.transmitter_names[t]) for a, t in zip(ant, tx)])
-    out = loop_process_noise_scale(model.A, model.B, K, model.Q, H, sigma, model.T, list(cfg.mode_names))
-    out["rule"] = (f"config W scaled by {out['scale']:.4g}: estimator poles {out['separation']:g}x faster than "
-                   "the regulator's, mode by mode" + ("" if out["met"] else
-                                                      " (NOT met: the closest the filter gets)"))
-    return out
 
 
 def _rigid_name(cfg: StructureConfig) -> str:
@@ -465,8 +317,6 @@ def simulate_closed_loop(cfg: StructureConfig, opt, gains: dict, *, vibration_co
                          estimator_noise_scale: float | None = None):
     """:func:`cdgps_cli.sim.structure.simulate` with the closed loop in place of the open-loop propagation;
     the Simulation gains ``controller.csv`` (:func:`controller_log`)."""
-    from cdgps_cli.sim.structure import simulate
-
     record: dict = {}
     hook = closed_loop_trajectory(cfg, opt.scenario, gains, vibration_control=vibration_control,
                                   feedback=feedback, pwpf=pwpf, record=record,
