@@ -840,7 +840,9 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
                     chk.add(f"simulation.{k}", f"expected a coordinate name, got {v!r}")
             elif isinstance(d, list):
                 if not isinstance(v, list) or not all(isinstance(e, str) and e in u_names for e in v):
-                    chk.add(f"simulation.{k}", f"expected a list of thruster names ({', '.join(u_names) or 'none defined'})")
+                    bad = [e for e in v if not (isinstance(e, str) and e in u_names)] if isinstance(v, list) else v
+                    chk.add(f"simulation.{k}", f"unknown thruster name(s) {bad!r}: expected a list of thruster names "
+                                               f"({', '.join(u_names) or 'none defined'})")
                     continue
             else:
                 v = chk.number(st, "simulation", k, d, nonneg=(k not in _SIGNED_SIM_KEYS))

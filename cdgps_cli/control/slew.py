@@ -77,3 +77,21 @@ def slew_reference(cfg: StructureConfig, time_s, x0, kind: str = "profile"):
         x_ref[k, elastic] = xe[elastic]
         xe = model.A @ xe + model.B @ u_ff[k]
     return x_ref, u_ff
+
+
+def bang_bang_slew_time_s(cfg: StructureConfig, angle_rad: float, fraction: float = 1.0) -> float:
+    """Rest-to-rest time of a rigid-body slew by ``angle_rad`` with the jets' rigid-body authority
+    times ``fraction``: accelerate for half, decelerate for half, 2 √(|Δθ| / (fraction · α_max)), s.
+
+    α_max is the rigid-body angle's acceleration with every jet that turns the body that way at its
+    maximum force (:func:`rigid_authority`; on the testbed 6 jets × 1.4 N × 1 m over the rigid mode's
+    inertia).  The flexible modes, the rigid mode's rate damping and the modulator are ignored: this
+    is the physical lower bound the slew profile is planned against, not a prediction.
+    """
+    if not (np.isfinite(fraction) and 0 < fraction <= 1):
+        raise CdgpsError(f"fraction: expected a number in (0, 1], got {fraction!r}")
+    rigid = list(cfg.mode_frequency_hz).index(0.0)
+    scale = cfg.mode_shapes[cfg.rigid_index, rigid]                    # rad of the rigid angle per unit ξ
+    _, _, acc = rigid_authority(cfg, np.sign(angle_rad * scale) or 1.0)
+    alpha = acc * abs(scale)          # rad/s² of the rigid-body angle
+    return float(2.0 * np.sqrt(abs(angle_rad) / (fraction * alpha)))

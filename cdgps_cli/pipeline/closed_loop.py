@@ -225,6 +225,11 @@ def closed_loop_trajectory(cfg: StructureConfig, scenario: str, gains: dict, *, 
     if gains["A"].shape != model.A.shape or not (np.allclose(gains["A"], model.A, rtol=0, atol=1e-9)
                                                  and np.allclose(gains["B"], model.B, rtol=0, atol=1e-9)):
         raise CdgpsError("GAINS.json: its A and B are not this config's discrete model")
+    names = list(gains.get("thruster_names", cfg.thruster_names))
+    if names != list(cfg.thruster_names):
+        unknown = [t for t in names if t not in cfg.thruster_names]
+        raise CdgpsError("GAINS.json: key 'thruster_names' does not match the config's [[thrusters]] in order"
+                         + (f" (unknown: {', '.join(unknown)})" if unknown else " (same names, another order)"))
     K = gains["K"]
     if not vibration_control:
         target = gains["poles"]["settling_time_s"]["closed_loop"].get(_rigid_name(cfg))

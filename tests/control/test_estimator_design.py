@@ -125,3 +125,22 @@ def test_a_filter_without_steady_state_is_a_clear_error_or_not_met():
         estimator_error_matrix(A, np.eye(2) * 1e-4, H, 0.01)
     out = loop_process_noise_scale(A, B, np.array([[1.0, 1.0]]), np.eye(2) * 1e-4, H, 0.01, 0.1, ["m"])
     assert out["met"] is False
+
+
+def test_bang_bang_slew_time_from_torque_and_inertia(testbed_cfg):
+    """Independent check: the jets' torque about the vertical (r × F, arm 1 m) over the rigid mode's
+    inertia (1 / shape², mass-normalized modes) gives the same minimum slew time."""
+    from cdgps_cli.control.slew import bang_bang_slew_time_s
+
+    cfg = testbed_cfg
+    F = np.asarray(cfg.thruster_max_force_n, dtype=float)
+    tau = np.cross(np.asarray(cfg.thruster_position_m), np.asarray(cfg.thruster_direction) * F[:, None])[:, 2]
+    rigid = list(cfg.mode_frequency_hz).index(0.0)
+    inertia = 1.0 / cfg.mode_shapes[cfg.rigid_index, rigid] ** 2            # kg m²
+    for angle in (np.radians(-36.0), np.radians(36.0)):
+        push = np.clip(np.sign(angle) * tau, 0.0, None).sum()              # N m
+        expected = 2.0 * np.sqrt(abs(angle) / (push / inertia))
+        assert bang_bang_slew_time_s(cfg, angle) == pytest.approx(expected, rel=1e-9)
+    assert bang_bang_slew_time_s(cfg, np.radians(-36.0)) == pytest.approx(24.08, abs=0.01)
+    full = bang_bang_slew_time_s(cfg, np.radians(-36.0))
+    assert bang_bang_slew_time_s(cfg, np.radians(-36.0), 0.7) == pytest.approx(full / np.sqrt(0.7), rel=1e-12)

@@ -190,6 +190,26 @@ def test_gains_of_another_config_are_refused(gains_path, tmp_path, testbed_text)
     assert not (tmp_path / "o").exists()
 
 
+def test_gains_with_other_thruster_names_are_refused(gains_path, testbed_path, tmp_path):
+    doc = json.loads(gains_path.read_text())
+    doc["thruster_names"][0] = "zz1"
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(doc))
+    r = _run("simulate", testbed_path, "--scenario", "pulse", "--controller", bad, "--duration", "2", "-o", tmp_path / "o")
+    assert r.exit_code == 2 and "thruster_names" in r.output and "zz1" in r.output, r.output
+    assert "Traceback" not in r.output and not (tmp_path / "o").exists()
+
+
+def test_unknown_pulse_thruster_is_named(testbed_path, testbed_text, tmp_path):
+    import re
+
+    cfg = tmp_path / "unk.toml"
+    cfg.write_text(re.sub(r"pulse_thrusters = \[[^]]*\]", 'pulse_thrusters = ["zz9", "a4-z"]', testbed_text, count=1))
+    r = _run("control", "design", cfg, "-o", tmp_path / "g.json")
+    assert r.exit_code == 2 and "simulation.pulse_thrusters" in r.output and "zz9" in r.output, r.output
+    assert not (tmp_path / "g.json").exists()
+
+
 def test_shaped_step_is_the_profiles_rigid_shape_without_feed_forward(testbed_cfg):
     from cdgps_cli.control.slew import slew_reference
 
