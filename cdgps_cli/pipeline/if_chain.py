@@ -99,7 +99,7 @@ class ChainOptions:
         if self.aid not in AIDS:
             raise CdgpsError(f"aid {self.aid!r}: expected one of {', '.join(AIDS)}")
         if (self.aid in ("gyro", "model")) != (self.gyro_csv is not None):
-            raise CdgpsError("aids 'gyro' and 'model' need the gyro log (gyro_csv), and only they use it")
+            raise CdgpsError("aids 'gyro' and 'model' need the gyro log (--gyro, gyro_csv: gyro.csv of `cdgps simulate`), and only they use it")
         if self.acquisition not in ACQUISITIONS:
             raise CdgpsError(f"acquisition {self.acquisition!r}: expected one of {', '.join(ACQUISITIONS)}")
         if not (math.isfinite(self.settle_s) and self.settle_s >= 0):
