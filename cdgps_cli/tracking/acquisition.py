@@ -113,6 +113,19 @@ def _peak(corr: np.ndarray, samples_per_chip: float):
     return int(d), int(s), float(row[s] / second) if second > 0 else float("inf")
 
 
+def reject_cross_correlation(bins, peak_to_noise, hits) -> list[bool]:
+    """``hits`` with every detection dropped whose coarse Doppler bin is within one of a stronger
+    detection's and whose excess over the noise (peak_to_noise − 1) is below CROSS_CORRELATION_RATIO times
+    that detection's: the stronger satellite's cross-correlation, not a satellite."""
+    out = list(hits)
+    for j in range(len(bins)):
+        for i in range(len(bins)):
+            if (hits[j] and hits[i] and abs(bins[i] - bins[j]) <= 1 and peak_to_noise[i] > peak_to_noise[j]
+                    and peak_to_noise[j] - 1 < CROSS_CORRELATION_RATIO * (peak_to_noise[i] - 1)):
+                out[j] = False
+    return out
+
+
 def acquire(samples: np.ndarray, fs_hz: float, prns=range(1, 33), *, if_hz: float = 0.0,
             doppler_max_hz: float = DOPPLER_MAX_HZ, doppler_step_hz: float = DOPPLER_STEP_HZ,
             noncoherent_ms: int = NONCOHERENT_MS, false_alarm: float = FALSE_ALARM) -> list[Acquisition]:
@@ -156,11 +169,7 @@ def acquire(samples: np.ndarray, fs_hz: float, prns=range(1, 33), *, if_hz: floa
         gamma = detection_threshold(min(shape, float(k)), surf[j].size, false_alarm)
         pnr = float(surf[j][d, s] / mean) if mean > 0 else 0.0
         peaks.append((d, s, ratio, pnr, gamma))
-    hits = [p[3] > p[4] for p in peaks]
-    for j, (d, _, _, pnr, _) in enumerate(peaks):
-        if hits[j] and any(hits[i] and abs(peaks[i][0] - d) <= 1 and peaks[i][3] > pnr
-                           and pnr - 1 < CROSS_CORRELATION_RATIO * (peaks[i][3] - 1) for i in range(len(prns))):
-            hits[j] = False
+    hits = reject_cross_correlation([p[0] for p in peaks], [p[3] for p in peaks], [p[3] > p[4] for p in peaks])
     out = []
     for j, prn in enumerate(prns):
         d, s, ratio, pnr, gamma = peaks[j]

@@ -62,3 +62,13 @@ def test_the_real_file_read_in_a_wrong_format_finds_no_satellite_and_names_the_p
     assert r.exit_code == 2 and "no satellite acquired" in r.output and "strongest peaks: PRN" in r.output
     assert "× noise (threshold" in r.output and "Traceback" not in r.output
     assert not (tmp_path / "t.mcap").exists()
+
+
+def test_a_weak_peak_beside_a_strong_satellite_is_taken_for_its_cross_correlation():
+    from cdgps_cli.tracking.acquisition import reject_cross_correlation
+
+    # PRN slots: strong at bin 20; 12 dB below in the next bin (rejected); 6 dB below in the same bin
+    # (kept: a real weak satellite); 12 dB below two bins away (kept); a non-detection stays one
+    bins = [20, 21, 20, 22, 20]
+    pnr = [52.0, 4.3, 13.8, 4.3, 3.0]
+    assert reject_cross_correlation(bins, pnr, [True, True, True, True, False]) == [True, False, True, True, False]
