@@ -18,6 +18,11 @@ modelled here, and no clock aiding).  Measured per run:
 
     python benchmarks/tracking_chain.py [--quick]     # results: docs/benchmarks/tracking-chain.json
     python benchmarks/tracking_chain.py --oscillator 0,0,0 --cn0 45 --out docs/benchmarks/tracking-chain-no-osc.json
+    python benchmarks/tracking_chain.py --cn0 45,38 --loops 3,4 --out docs/benchmarks/tracking-chain-gyro.json
+
+Loops 3 and 4 are aided by the structure's simulated rate gyros (`cdgps simulate`'s gyro.csv: the config's
+gyro noise, bias and bias drift): through the kinematics (q̇ = G⁺ω) or through the mode shapes
+(q̇ = U(GU)⁺ω), then v = J q̇ and the known line of sight (`if_chain.gyro_aid_hz`).
 
 Slips "per hour" from runs of seconds are not meaningful statistics: the counts are given as they are.
 """
@@ -47,7 +52,9 @@ DURATION_S = 8.0
 INIT_S = 4.0
 OSCILLATOR = "1e-21,1e-22,1e-24"
 LOOPS = [("15 Hz unaided", ["--pll-bn", "15"]), ("3 Hz unaided", ["--pll-bn", "3"]),
-         ("3 Hz aided (truth LOS Doppler)", ["--pll-bn", "3", "--aid", "truth"])]
+         ("3 Hz aided (truth LOS Doppler)", ["--pll-bn", "3", "--aid", "truth"]),
+         ("3 Hz gyro-aided (kinematics)", ["--pll-bn", "3", "--aid", "gyro", "--gyro", "{sim}/gyro.csv"]),
+         ("3 Hz model-aided (gyros through mode shapes)", ["--pll-bn", "3", "--aid", "model", "--gyro", "{sim}/gyro.csv"])]
 CN0S = (45.0, 38.0, 33.0, 30.0)
 #: the loops start from the true Doppler and code phase (an assisted start): the FFT search of
 #: tracking/acquisition.py (1 ms coherent, 10 ms non-coherent, ratio 2) misses 38 dB-Hz signals already
@@ -103,6 +110,7 @@ def true_integers(d: Path, rx: Path, cfg) -> dict:
 
 def one(work: Path, sim: Path, ifdir: Path, name: str, args: list, cfg) -> dict:
     rx = work / "receiver.csv"
+    args = [str(a).format(sim=sim) for a in args]
     r = run("track-structure", ifdir / "if.json", "--config", CONFIG, "--acquisition", ACQUISITION, *args, "-o", rx,
             "--json", check=False)
     if r.returncode:
@@ -139,6 +147,7 @@ def main():
     osc = _arg("--oscillator", OSCILLATOR)
     cn0s = tuple(float(v) for v in _arg("--cn0", ",".join(map(str, CN0S))).split(","))
     out = ROOT / _arg("--out", "docs/benchmarks/tracking-chain.json")
+    loops = [LOOPS[int(i)] for i in _arg("--loops", ",".join(map(str, range(len(LOOPS))))).split(",")]
     cfg = load_config(CONFIG)
     rows = []
     with tempfile.TemporaryDirectory(prefix="tracking-chain-") as tmp:
@@ -151,7 +160,7 @@ def main():
             run("simulate-if", CONFIG, sim, "--duration", DURATION_S, "--fs", FS_HZ, "--cn0", cn0, "--seed", 2,
                 "--oscillator", osc, "-o", ifdir)
             print(f"C/N0 {cn0:g}: samples in {time.time() - t0:.1f} s", file=sys.stderr)
-            for name, args in (LOOPS[:1] if quick else LOOPS):
+            for name, args in (loops[:1] if quick else loops):
                 t0 = time.time()
                 r = one(tmp, sim, ifdir, name, args, cfg)
                 r["cn0_dbhz"] = cn0

@@ -1374,11 +1374,17 @@ def control_design(ctx, config, qx, qu, rigid_factor, rate_factor, paper_weights
 @click.option("--duration", "duration_s", type=float, default=None, help="Seconds of the file to use (default: all).")
 @click.option("--pll-bn", "pll_bn_hz", type=float, default=15.0, show_default=True, help="PLL noise bandwidth, Hz.")
 @click.option("--pull-in", "pull_in_s", type=float, default=0.1, show_default=True, help="FLL pull-in before the PLL, s.")
+@click.option("--noncoherent-ms", type=int, default=None,
+              help="Acquisition: 1 ms correlations summed non-coherently [10] (10 detects 38 dB-Hz, 20 36 dB-Hz, "
+                   "docs/tracking.md).")
+@click.option("--false-alarm", type=float, default=None,
+              help="Acquisition: probability that noise alone is taken for a satellite, per PRN searched [1e-4].")
 @_output_option("output", "TRACK.mcap to write.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (satellites with prn, doppler_hz, "
               "code_phase_chips, cn0_dbhz, phase_lock) on stdout.")
 @click.pass_context
-def track_cmd(ctx, iq_file, fmt, iq_sign, fs_hz, if_hz, prns, duration_s, pll_bn_hz, pull_in_s, output, as_json):
+def track_cmd(ctx, iq_file, fmt, iq_sign, fs_hz, if_hz, prns, duration_s, pll_bn_hz, pull_in_s, noncoherent_ms,
+              false_alarm, output, as_json):
     """Acquire every GPS L1 C/A satellite strong enough in a raw sample file and track it (FLL pull-in,
     Costas PLL, carrier-aided DLL): Doppler, code phase, carrier phase, C/N0 and lock per millisecond."""
     from cdgps_cli.pipeline.track import track_file
@@ -1387,8 +1393,8 @@ def track_cmd(ctx, iq_file, fmt, iq_sign, fs_hz, if_hz, prns, duration_s, pll_bn
     opt = TrackOptions(pll_bn_hz=pll_bn_hz, pull_in_s=pull_in_s)
     with progress.stage("tracking"):
         s = track_file(iq_file, output, fmt=fmt, fs_hz=fs_hz, if_hz=if_hz, iq_sign=iq_sign,
-                       prns=list(prns) or None, duration_s=duration_s, opt=opt,
-                       progress=None if ctx.obj.get("quiet") else progress.write)
+                       prns=list(prns) or None, duration_s=duration_s, opt=opt, noncoherent_ms=noncoherent_ms,
+                       false_alarm=false_alarm, progress=None if ctx.obj.get("quiet") else progress.write)
     for sat in s["satellites"]:
         cn0 = "–" if sat["cn0_dbhz"] is None else f"{sat['cn0_dbhz']:.1f}"
         _say(ctx, f"  PRN {sat['prn']:>2}: {sat['doppler_hz']:+8.1f} Hz, code {sat['code_phase_chips']:7.2f} chips, "
@@ -1489,16 +1495,20 @@ def simulate_if_cmd(ctx, config, sim_dir, start_s, duration_s, fs_hz, if_hz, bit
               help="Structure config the samples were simulated for (its antennas, master, epochs).")
 @click.option("--pll-bn", "pll_bn_hz", type=float, default=15.0, show_default=True, help="PLL noise bandwidth, Hz.")
 @click.option("--pull-in", "pull_in_s", type=float, default=0.1, show_default=True, help="FLL pull-in before the PLL, s.")
-@click.option("--aid", type=click.Choice(["none", "truth"]), default="none", show_default=True,
-              help="External Doppler aid of every PLL: none, or the true line-of-sight Doppler from IF_JSON's truth "
-                   "(a perfect inertial or structural-model prediction).")
+@click.option("--aid", type=click.Choice(["none", "truth", "gyro", "model"]), default="none", show_default=True,
+              help="External Doppler aid of every PLL: none; truth, the true line-of-sight Doppler from IF_JSON's truth "
+                   "(a perfect inertial or structural-model prediction); gyro, the Doppler of the antenna velocity "
+                   "derived from the structure's rate gyros (--gyro, with their biases and noise) through the kinematics; "
+                   "model, the same rates through the config's mode shapes.")
+@click.option("--gyro", "gyro_csv", type=click.Path(dir_okay=False, exists=True), default=None,
+              help="gyro.csv of `cdgps simulate` (needed by --aid gyro and --aid model).")
 @click.option("--acquisition", type=click.Choice(["search", "truth"]), default="search", show_default=True,
               help="Start the loops from an FFT search of each file, or from IF_JSON's true Doppler and code phase "
                    "(an assisted start, to study the loops below the search's threshold).")
 @_output_option("output", "Receiver log CSV to write (time_s,receiver,master,antenna,transmitter,phase_cycles,lock,snr_dbhz).")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (rows, channels, satellites per antenna) on stdout.")
 @click.pass_context
-def track_structure_cmd(ctx, if_json, config, pll_bn_hz, pull_in_s, aid, acquisition, output, as_json):
+def track_structure_cmd(ctx, if_json, config, pll_bn_hz, pull_in_s, aid, gyro_csv, acquisition, output, as_json):
     """Track every antenna's samples listed in IF_JSON (from `cdgps simulate-if`), difference each
     antenna's carrier phase against the master's per transmitter (half cycles resolved by the data
     bits) and write the native receiver log at the config's epochs, for `cdgps ingest`."""
@@ -1507,7 +1517,8 @@ def track_structure_cmd(ctx, if_json, config, pll_bn_hz, pull_in_s, aid, acquisi
     from cdgps_cli.tracking.channel import TrackOptions
 
     cfg = load_config(config)
-    opt = ChainOptions(track=TrackOptions(pll_bn_hz=pll_bn_hz, pull_in_s=pull_in_s), aid=aid, acquisition=acquisition)
+    opt = ChainOptions(track=TrackOptions(pll_bn_hz=pll_bn_hz, pull_in_s=pull_in_s), aid=aid, acquisition=acquisition,
+                       gyro_csv=gyro_csv)
     with progress.stage("tracking"):
         s = track_structure(if_json, cfg, output, opt, progress=None if ctx.obj.get("quiet") else progress.write)
     _say(ctx, f"wrote {output}: {s['rows']} rows, {s['epochs']} epochs, "

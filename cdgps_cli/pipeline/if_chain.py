@@ -45,7 +45,7 @@ from cdgps_cli.tracking.ca_code import CHIP_RATE_HZ, CODE_LENGTH, G2_TAPS, ca_co
 from cdgps_cli.tracking.channel import PHASE_LOCK_THRESHOLD, WINDOW, TrackOptions, track
 
 #: external Doppler aids of :func:`track_structure`
-AIDS = ("none", "truth")
+AIDS = ("none", "truth", "gyro", "model")
 #: how the loops start: FFT search, or the manifest's truth (an assisted start)
 ACQUISITIONS = ("search", "truth")
 #: keys every if.json must have
@@ -89,12 +89,17 @@ class ChainOptions:
     track: TrackOptions = field(default_factory=TrackOptions)
     settle_s: float = 0.1           # PLL running this long (after any wide stage) before the phase is logged
     verify_sha256: bool = True      # check each sample file against the manifest's digest
-    aid: str = "none"               # "truth": feed each PLL the true line-of-sight Doppler (truth_aid_hz)
+    aid: str = "none"               # "truth": feed each PLL the true line-of-sight Doppler (truth_aid_hz);
+                                    # "gyro" / "model": the Doppler of the gyro-derived antenna velocity
+                                    # through the kinematics / through the mode shapes (gyro_aid_hz)
+    gyro_csv: str | None = None     # gyro.csv of `cdgps simulate` (time_s, gyro, rate_rad_s), for those aids
     acquisition: str = "search"     # "truth": start the loops from the manifest's true Doppler and code phase
 
     def check(self) -> None:
         if self.aid not in AIDS:
             raise CdgpsError(f"aid {self.aid!r}: expected one of {', '.join(AIDS)}")
+        if (self.aid in ("gyro", "model")) != (self.gyro_csv is not None):
+            raise CdgpsError("aids 'gyro' and 'model' need the gyro log (--gyro, gyro_csv: gyro.csv of `cdgps simulate`), and only they use it")
         if self.acquisition not in ACQUISITIONS:
             raise CdgpsError(f"acquisition {self.acquisition!r}: expected one of {', '.join(ACQUISITIONS)}")
         if not (math.isfinite(self.settle_s) and self.settle_s >= 0):
@@ -114,6 +119,63 @@ def truth_aid_hz(man: dict, antenna: str, transmitter: str, time_s: np.ndarray) 
     return -CubicSpline(t, rho)(np.clip(time_s, t[0], t[-1]), 1) / (C_M_S / L1_HZ)
 
 
+def gyro_rates(cfg: StructureConfig, gyro_csv: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """(time_s (n,), rates (n, n_g) rad/s in ``cfg.gyro_names`` order) from a gyro log of ``cdgps simulate``."""
+    try:
+        df = pd.read_csv(gyro_csv)
+    except (OSError, ValueError) as exc:
+        raise CdgpsError(f"{gyro_csv}: cannot read the gyro log: {exc}") from None
+    need = {"time_s", "gyro", "rate_rad_s"}
+    if not need <= set(df.columns):
+        raise CdgpsError(f"{gyro_csv}: expected columns {', '.join(sorted(need))}, got {', '.join(df.columns)}")
+    wide = df.pivot_table(index="time_s", columns="gyro", values="rate_rad_s", aggfunc="first")
+    absent = [g for g in cfg.gyro_names if g not in wide.columns]
+    if absent or wide[list(cfg.gyro_names)].isna().any().any() or len(wide) < 2:
+        raise CdgpsError(f"{gyro_csv}: needs every epoch of gyro(s) {', '.join(cfg.gyro_names)} "
+                         f"(missing: {', '.join(absent) or 'some epochs'})")
+    return wide.index.to_numpy(dtype=float), wide[list(cfg.gyro_names)].to_numpy(dtype=float)
+
+
+def gyro_coordinate_map(cfg: StructureConfig, through_modes: bool = False) -> np.ndarray:
+    """(n_q, n_g) map from gyro rates to coordinate rates: G⁺ (kinematics only, minimum norm), or
+    U (G U)⁺ with the mode shapes U (the structural model: q̇ = U η̇, η̇ fitted to the gyros)."""
+    from cdgps_cli.model.kinematics import gyro_matrix
+
+    G = gyro_matrix(cfg)
+    if not through_modes:
+        return np.linalg.pinv(G)
+    U = np.asarray(cfg.mode_shapes, dtype=float)
+    return U @ np.linalg.pinv(G @ U)
+
+
+def gyro_aid_hz(cfg: StructureConfig, man: dict, gyro: tuple, antenna: str, transmitter: str,
+                time_s: np.ndarray, through_modes: bool = False) -> np.ndarray:
+    """Line-of-sight Doppler (Hz) of one channel from the structure's rate gyros, at ``time_s`` (s from
+    the first sample): the rates with their biases and noise, ω (n_g), give the coordinate rates
+    q̇ = M ω (M = :func:`gyro_coordinate_map`: G⁺ from ``kinematics.gyro_matrix``, or U (G U)⁺ through the
+    structural model's mode shapes), the antenna
+    velocity v = J_a q̇ (J_a = ∂p_a/∂q at q = 0, small motion) and the Doppler −u·v/λ with u = ∂ρ/∂p_a the
+    line of sight to the transmitter (known). Gyros measure rotation rates only: the motion of the
+    coordinates that no gyro sees (translations, rigid sway; the null space of G) is missing from v,
+    and a gyro bias b gives a velocity error J_a G⁺ b (a Doppler error, not a drift: the bias enters
+    the rate, not an integrated angle)."""
+    from cdgps_cli.model.kinematics import antenna_positions
+    from cdgps_cli.sim.if_samples import line_of_sight_range_m, Transmitter
+
+    t_g, w = gyro
+    qdot = w @ gyro_coordinate_map(cfg, through_modes).T                   # (n, n_q)
+    p0, J = antenna_positions(cfg, np.zeros((1, cfg.n_q)), jacobian=True)
+    a = list(cfg.antenna_names).index(antenna)
+    tx = next(t for t in man["transmitters"] if t["name"] == transmitter)
+    tr = Transmitter(**tx)
+    pa = p0[0, a]
+    h = 1e-4                                                                # central difference of ρ(p): u = ∂ρ/∂p
+    u = np.array([(line_of_sight_range_m(tr, pa + h * e) - line_of_sight_range_m(tr, pa - h * e)) / (2 * h)
+                  for e in np.eye(3)])
+    rho_dot = (qdot @ J[0, a].T) @ u                                        # (n,)
+    return -np.interp(np.asarray(time_s) + man["start_s"], t_g, rho_dot) / (C_M_S / L1_HZ)
+
+
 def _truth_start(man: dict, antenna: str, prns: list) -> list:
     """Acquisition results from the manifest's truth at the first sample (an assisted start: Doppler
     and code phase at the first truth epoch, the code phase carried back to the first sample)."""
@@ -129,7 +191,8 @@ def _truth_start(man: dict, antenna: str, prns: list) -> list:
     return out
 
 
-def _track_antenna(path: Path, man: dict, prns: list, opt: ChainOptions, say, antenna: str = "") -> dict:
+def _track_antenna(path: Path, man: dict, prns: list, opt: ChainOptions, say, antenna: str = "",
+                   gyro_aid=None) -> dict:
     """Acquire the manifest's PRNs in one antenna's file and track those found (a PRN not acquired
     gives its channels no rows and is listed under ``missing``); ``opt.aid == "truth"`` feeds each
     loop the line-of-sight Doppler of :func:`truth_aid_hz`."""
@@ -137,10 +200,11 @@ def _track_antenna(path: Path, man: dict, prns: list, opt: ChainOptions, say, an
     fs, if_hz = man["fs_hz"], man["if_hz"]
     acq = acquire(x, fs, prns, if_hz=if_hz) if opt.acquisition == "search" else _truth_start(man, antenna, prns)
     found = [a for a in acq if a.acquired]
-    missing = [{"prn": a.prn, "peak_ratio": a.peak_ratio} for a in acq if not a.acquired]
+    missing = [{"prn": a.prn, "peak_ratio": a.peak_ratio, "peak_to_noise": a.peak_to_noise, "threshold": a.threshold}
+               for a in acq if not a.acquired]
     if not found:
-        raise CdgpsError(f"{path}: none of PRN {', '.join(map(str, prns))} acquired (peak ratios "
-                         + ", ".join(f"{m['peak_ratio']:.2f}" for m in missing) + ")")
+        raise CdgpsError(f"{path}: none of PRN {', '.join(map(str, prns))} acquired (peak over noise, threshold: "
+                         + ", ".join(f"{m['peak_to_noise']:.2f}, {m['threshold']:.2f}" for m in missing) + ")")
     if if_hz:
         x = x * np.exp(-2j * np.pi * if_hz * np.arange(x.size) / fs)
     tx_of = {int(t["prn"]): t["name"] for t in man["transmitters"]}
@@ -150,6 +214,8 @@ def _track_antenna(path: Path, man: dict, prns: list, opt: ChainOptions, say, an
         aid = None
         if opt.aid == "truth":
             aid = truth_aid_hz(man, antenna, tx_of[a.prn], np.arange(x.size // n) * n / fs)
+        elif opt.aid in ("gyro", "model"):
+            aid = gyro_aid(antenna, tx_of[a.prn], np.arange(x.size // n) * n / fs)
         r = track(x, fs, a.prn, a.doppler_hz - (aid[0] if aid is not None else 0.0), a.code_phase_chips,
                   opt.track, aid_doppler_hz=aid)
         tracks[a.prn] = r
@@ -159,7 +225,7 @@ def _track_antenna(path: Path, man: dict, prns: list, opt: ChainOptions, say, an
                      "phase_lock_fraction": float(np.mean(r["phase_lock"][::WINDOW] > PHASE_LOCK_THRESHOLD))})
     say(f"  {path.name}: " + ", ".join(f"PRN {s['prn']} {s['cn0_dbhz'] or float('nan'):.1f} dB-Hz"
                                        for s in sats)
-        + "".join(f", PRN {m['prn']} not acquired (peak ratio {m['peak_ratio']:.2f})" for m in missing))
+        + "".join(f", PRN {m['prn']} not acquired (peak {m['peak_to_noise']:.2f} × noise, threshold {m['threshold']:.2f})" for m in missing))
     return {"tracks": tracks, "satellites": sats, "missing": missing}
 
 
@@ -254,13 +320,17 @@ def track_structure(manifest_path: str | Path, cfg: StructureConfig, out_csv: st
     tx_of = {int(t["prn"]): t["name"] for t in man["transmitters"]}
     prns = sorted(tx_of)
     T = round(man["fs_hz"] * KNOT_S) / man["fs_hz"]
+    gyro_aid = None
+    if opt.aid in ("gyro", "model"):
+        rates = gyro_rates(cfg, opt.gyro_csv)
+        gyro_aid = lambda ant, tx, t: gyro_aid_hz(cfg, man, rates, ant, tx, t, opt.aid == "model")  # noqa: E731
     per = {}
     for a in man["antennas"]:
         f = path.parent / a["file"]
         if opt.verify_sha256 and file_sha256(f) != a["sha256"]:
             raise CdgpsError(f"{f}: sha256 differs from the manifest's (the file was changed)")
         say(f"tracking {a['name']} ({f.name}) …")
-        per[a["name"]] = _track_antenna(f, man, prns, opt, say, a["name"])
+        per[a["name"]] = _track_antenna(f, man, prns, opt, say, a["name"], gyro_aid)
     n_upd = min(len(r["time_s"]) for p in per.values() for r in p["tracks"].values())
     period = cfg.sample_period_s
     t_end = man["start_s"] + n_upd * T

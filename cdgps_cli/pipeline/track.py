@@ -13,6 +13,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.iq_samples import FORMATS, read_samples
 from cdgps_cli.config.limits import check_table_size
 from cdgps_cli.io.mcap import NULLABLE, McapOut, array_schema
+from cdgps_cli.tracking.acquisition import FALSE_ALARM, NONCOHERENT_MS
 from cdgps_cli.tracking.channel import TrackOptions
 from cdgps_cli.tracking.receiver import track_all
 
@@ -26,14 +27,22 @@ BYTES_PER_SAMPLE = 48
 
 def track_file(path: str | Path, out_path: str | Path, *, fmt: str, fs_hz: float, if_hz: float = 0.0,
                iq_sign: str = "minus", prns=None, duration_s: float | None = None, opt: TrackOptions | None = None,
-               progress=None) -> dict:
-    """Track every satellite in a sample file; write TRACK.mcap; return the summary (no arrays)."""
+               noncoherent_ms: int | None = None, false_alarm: float | None = None, progress=None) -> dict:
+    """Track every satellite in a sample file; write TRACK.mcap; return the summary (no arrays).
+    ``noncoherent_ms``, ``false_alarm``: the acquisition's (None: its defaults, NONCOHERENT_MS, FALSE_ALARM)."""
+    noncoherent_ms = NONCOHERENT_MS if noncoherent_ms is None else noncoherent_ms
+    false_alarm = FALSE_ALARM if false_alarm is None else false_alarm
     if not (np.isfinite(fs_hz) and 2.1e6 <= fs_hz <= 1e9):
         raise CdgpsError(f"--fs {fs_hz!r}: expected a sample rate in Hz between 2.1e6 and 1e9")
     if not (np.isfinite(if_hz) and abs(if_hz) < fs_hz / 2):
         raise CdgpsError(f"--if {if_hz!r}: expected a frequency below half the sample rate")
     if duration_s is not None and not (np.isfinite(duration_s) and duration_s > 0):
         raise CdgpsError(f"--duration {duration_s!r}: expected a positive number of seconds")
+    if not (isinstance(noncoherent_ms, int) and 1 <= noncoherent_ms and noncoherent_ms * 1e-3 * fs_hz * 32 <= 4e8):
+        raise CdgpsError(f"--noncoherent-ms {noncoherent_ms!r}: expected a whole number of ms ≥ 1 "
+                         "(at most 4e8 / (32 × samples per ms))")
+    if not (np.isfinite(false_alarm) and 0 < false_alarm < 1):
+        raise CdgpsError(f"--false-alarm {false_alarm!r}: expected a probability between 0 and 1")
     if fmt not in FORMATS:
         raise CdgpsError(f"--format {fmt!r}: expected one of {', '.join(FORMATS)}")
     size = Path(path).stat().st_size if Path(path).exists() else 0
@@ -43,10 +52,14 @@ def track_file(path: str | Path, out_path: str | Path, *, fmt: str, fs_hz: float
     x = read_samples(path, fmt, iq_sign, max_samples=n)
     if x.size < fs_hz * 0.02:
         raise CdgpsError(f"{path}: {x.size / fs_hz * 1e3:.1f} ms of samples; tracking needs at least 20 ms")
-    res = track_all(x, fs_hz, prns, if_hz=if_hz, opt=opt, progress=progress)
+    if x.size < fs_hz * 1e-3 * noncoherent_ms:
+        raise CdgpsError(f"{path}: {x.size / fs_hz * 1e3:.1f} ms of samples; --noncoherent-ms {noncoherent_ms} needs more")
+    res = track_all(x, fs_hz, prns, if_hz=if_hz, opt=opt, progress=progress, noncoherent_ms=noncoherent_ms,
+                    false_alarm=false_alarm)
     summary = {"input": str(path), "input_sha256": file_sha256(path), "format": fmt, "iq_sign": iq_sign,
                "fs_hz": fs_hz, "if_hz": if_hz, "duration_s": x.size / fs_hz, "cdgps_version": __version__,
-               "options": (opt or TrackOptions()).__dict__, "acquisition": res["acquisition"],
+               "options": {**(opt or TrackOptions()).__dict__, "noncoherent_ms": noncoherent_ms,
+                           "false_alarm": false_alarm}, "acquisition": res["acquisition"],
                "satellites": res["satellites"]}
     _write_track(out_path, res["tracks"], summary)
     return summary

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.tracking.acquisition import THRESHOLD, acquire
+from cdgps_cli.tracking.acquisition import FALSE_ALARM, NONCOHERENT_MS, acquire
 from cdgps_cli.tracking.channel import PHASE_LOCK_THRESHOLD, WINDOW, TrackOptions, track
 
 #: fraction of the PLL's 20 ms windows (after one settling window) whose lock indicator must pass
@@ -13,7 +13,8 @@ from cdgps_cli.tracking.channel import PHASE_LOCK_THRESHOLD, WINDOW, TrackOption
 LOCKED_FRACTION = 0.9
 
 
-def track_all(samples: np.ndarray, fs_hz: float, prns=None, *, if_hz: float = 0.0, threshold: float = THRESHOLD,
+def track_all(samples: np.ndarray, fs_hz: float, prns=None, *, if_hz: float = 0.0, false_alarm: float = FALSE_ALARM,
+              noncoherent_ms: int = NONCOHERENT_MS,
               opt: TrackOptions | None = None, progress=None, aids=None) -> dict:
     """Acquire ``prns`` (default 1–32) and track each acquired one.
 
@@ -33,18 +34,19 @@ def track_all(samples: np.ndarray, fs_hz: float, prns=None, *, if_hz: float = 0.
     opt = TrackOptions() if opt is None else opt
     wanted = list(range(1, 33)) if prns is None else list(prns)
     say = progress or (lambda m: None)
-    acq = acquire(samples, fs_hz, wanted, if_hz=if_hz, threshold=threshold)
+    acq = acquire(samples, fs_hz, wanted, if_hz=if_hz, false_alarm=false_alarm, noncoherent_ms=noncoherent_ms)
     found = [a for a in acq if a.acquired]
     if prns is not None:
         missing = [a for a in acq if not a.acquired]
         if missing:
-            raise CdgpsError("not acquired: " + ", ".join(f"PRN {a.prn} (peak ratio {a.peak_ratio:.2f} ≤ {threshold:g})"
-                                                        for a in missing))
+            raise CdgpsError("not acquired: " + ", ".join(
+                f"PRN {a.prn} (peak {a.peak_to_noise:.2f} × noise ≤ threshold {a.threshold:.2f} at false-alarm "
+                f"probability {false_alarm:g})" for a in missing))
     if not found:
-        best = sorted(acq, key=lambda a: -a.peak_ratio)[:3]
-        raise CdgpsError("no satellite acquired (peak-to-second-peak threshold "
-                         f"{threshold:g}); strongest peaks: "
-                         + ", ".join(f"PRN {a.prn} ratio {a.peak_ratio:.2f} at {a.doppler_hz:+.0f} Hz" for a in best)
+        best = sorted(acq, key=lambda a: -a.peak_to_noise / a.threshold)[:3]
+        raise CdgpsError(f"no satellite acquired (false-alarm probability {false_alarm:g} per PRN); strongest peaks: "
+                         + ", ".join(f"PRN {a.prn} {a.peak_to_noise:.2f} × noise (threshold {a.threshold:.2f}, "
+                                     f"peak-to-second-peak {a.peak_ratio:.2f}) at {a.doppler_hz:+.0f} Hz" for a in best)
                          + ". Check --format, --iq-sign, --fs and --if")
     aids = {} if aids is None else {int(k): v for k, v in aids.items()}
     idle = sorted(set(aids) - {a.prn for a in found})
@@ -54,7 +56,7 @@ def track_all(samples: np.ndarray, fs_hz: float, prns=None, *, if_hz: float = 0.
     baseband = samples if if_hz == 0 else samples * np.exp(-2j * np.pi * if_hz * np.arange(samples.size) / fs_hz)
     tracks, sats = {}, []
     for a in found:
-        say(f"tracking PRN {a.prn} ({a.doppler_hz:+.0f} Hz, ratio {a.peak_ratio:.1f}) …")
+        say(f"tracking PRN {a.prn} ({a.doppler_hz:+.0f} Hz, peak {a.peak_to_noise:.1f} × noise) …")
         aid = None if aids.get(a.prn) is None else np.asarray(aids[a.prn], dtype=float)
         start_hz = a.doppler_hz - (float(aid.ravel()[0]) if aid is not None and aid.size else 0.0)
         r = track(baseband, fs_hz, a.prn, start_hz, a.code_phase_chips, opt, aid_doppler_hz=aid)
@@ -71,5 +73,6 @@ def _summary(a, r: dict) -> dict:
     cn0 = r["cn0_dbhz"][::WINDOW][-5:]
     return {"prn": a.prn, "doppler_hz": float(np.mean(r["doppler_hz"][-100:])),
             "code_phase_chips": a.code_phase_chips, "acquisition_peak_ratio": a.peak_ratio,
+            "acquisition_peak_to_noise": a.peak_to_noise,
             "cn0_dbhz": float(np.nanmedian(cn0)) if np.isfinite(cn0).any() else None,
             "phase_lock": bool(pli.size and frac >= LOCKED_FRACTION), "phase_lock_fraction": frac}

@@ -197,3 +197,44 @@ def test_far_field_sources_give_the_planar_differential_phase(tmp_path, dof2_cfg
     assert s["rows"] == len(df) == 2 * len(dof2_cfg.channels)             # epochs 0.36 and 0.48 s
     ints, res = _truth_integers(tmp_path, dof2_cfg, df)
     assert np.abs(res).max() < 6e-3
+
+
+def test_gyro_aid_is_the_line_of_sight_doppler_of_what_the_gyros_see(chain, testbed_cfg):
+    """The simulator's true line-of-sight Doppler (its ranges, full geometry) = −u·J(q) q̇/λ with J(q), u at
+    the true pose (the kinematics checked against the simulator); the gyro aid is that with q̇ replaced
+    by M ω (M = G⁺ or U(GU)⁺) and J, u at the rest pose q = 0 (small motion); the simulated gyros' errors
+    (bias, drift, noise of the config) move it little."""
+    from cdgps_cli.model.kinematics import antenna_positions, gyro_matrix
+    from cdgps_cli.pipeline.if_chain import (ChainOptions, gyro_aid_hz, gyro_coordinate_map, gyro_rates,
+                                             read_manifest, truth_aid_hz)
+
+    d, _ = chain
+    cfg = testbed_cfg
+    man = read_manifest(d / "if" / "if.json")
+    tr = pd.read_csv(d / "sim" / "truth.csv")
+    t_q = tr["time_s"].to_numpy()
+    q = tr[[f"q{i + 1}" for i in range(cfg.n_q)]].to_numpy()
+    qdot = np.gradient(q, t_q, axis=0, edge_order=2)
+    G = gyro_matrix(cfg)
+    ideal = (t_q, qdot @ G.T)
+    measured = gyro_rates(cfg, d / "sim" / "gyro.csv")
+    k = np.flatnonzero((t_q - man["start_s"] > 0.3) & (t_q - man["start_s"] < 2.5))
+    t = t_q[k] - man["start_s"]
+    lam = 299792458.0 / 1575.42e6
+    p, J = antenna_positions(cfg, q[k], jacobian=True)
+    p0, J0 = antenna_positions(cfg, np.zeros((1, cfg.n_q)), jacobian=True)
+    for a, tx in (("a3", "PL2"), ("a6", "PL5")):
+        ai = list(cfg.antenna_names).index(a)
+        pj = np.array(next(x for x in man["transmitters"] if x["name"] == tx)["position_m"])
+        u = (p[:, ai] - pj) / np.linalg.norm(p[:, ai] - pj, axis=1)[:, None]
+        truth = truth_aid_hz(man, a, tx, t)
+        kin = -np.einsum("ni,nij,nj->n", u, J[:, ai], qdot[k]) / lam
+        assert np.abs(kin - truth).max() < 0.03 * np.abs(truth).max()
+        u0 = (p0[0, ai] - pj) / np.linalg.norm(p0[0, ai] - pj)
+        for modes in (False, True):
+            M = gyro_coordinate_map(cfg, modes)
+            got = gyro_aid_hz(cfg, man, ideal, a, tx, t, modes)
+            assert got == pytest.approx(-(qdot[k] @ G.T @ M.T @ J0[0, ai].T) @ u0 / lam, abs=1e-9)
+            assert np.sqrt(np.mean((gyro_aid_hz(cfg, man, measured, a, tx, t, modes) - got) ** 2)) < 0.02
+    with pytest.raises(CdgpsError, match="gyro log"):
+        ChainOptions(aid="gyro").check()
