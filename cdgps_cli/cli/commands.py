@@ -348,6 +348,8 @@ def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict=F
             click.echo(f"cdgps: WARNING: {g['file']} ({n}): corrupt UBX data, skipped: {', '.join(g['problems'])}; "
                        f"{g['n_frames']} frames read (the run lacks what was lost; 'ingest --strict' refuses such a log)",
                        err=True)
+        if g.get("other_protocols"):
+            _say(ctx, f"  {g['file']} ({n}): skipped other protocols' frames between the UBX frames: {g['other_protocols']}")
     _say(ctx, f"wrote {output}: GNSS run {s['config']}, master {s['master']}, {len(s['receivers'])} receiver(s), "
               f"{s['ephemerides']} ephemerides, {cfg.displacement} displacement model")
     for r in s["receivers"]:

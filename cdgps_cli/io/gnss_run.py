@@ -45,7 +45,7 @@ from cdgps_cli.io.mcap import CONFIG_ATTACHMENT, McapOut, array_schema, message_
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.core.records import NAV_COLUMNS, OBS_COLUMNS
 from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
-from cdgps_cli.io.ubx import INTEGRITY_COUNTS, integrity_problems, integrity_record
+from cdgps_cli.io.ubx import INTEGRITY_COUNTS, integrity_problems, integrity_record, skipped_line
 from cdgps_cli.model.gps.positioning import ephemeris_coverage, nominal_interval_s
 from cdgps_cli.model.gps.epoch_align import common_epochs
 
@@ -567,7 +567,7 @@ def _ubx_integrity(receivers: dict, files: dict) -> dict:
         if rx.format != "ubx":
             continue
         out[n] = {"file": files[n][1], **{k: int(rx.info.get(k) or 0) for k in INTEGRITY_COUNTS},
-                  "problems": integrity_problems(rx.info)}
+                  "problems": integrity_problems(rx.info), "other_protocols": skipped_line(rx.info)}
     return out
 
 
