@@ -1003,10 +1003,13 @@ def config_cmd(ctx, rinex, ubx, nav, master, displacement, sigma, name, output):
 
     if sigma is not None and displacement != "random_walk":
         raise CdgpsError("--sigma is the random-walk process noise: use it with --displacement random_walk")
+    notes: list = []
     text = starter_gnss_config(_parse_named(rinex, "--rinex"), _parse_named(ubx, "--ubx"), list(nav), master,
                                displacement=displacement, sigma_m_per_sqrt_s=sigma,
-                               relative_to=Path(output).resolve().parent, name=name)
+                               relative_to=Path(output).resolve().parent, name=name, notes=notes)
     _write_text_atomic(output, text)
+    for n in notes:
+        click.echo(f"cdgps: note: {n}", err=True)
     _say(ctx, f"wrote {output}")
 
 

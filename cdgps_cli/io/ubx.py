@@ -31,7 +31,8 @@ import numpy as np
 import pandas as pd
 
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.io.ubx_frames import MAX_OFFSETS_SHOWN, split_stream
+from cdgps_cli.io.sfrbx import sfrbx_ephemerides
+from cdgps_cli.io.ubx_frames import MAX_OFFSETS_SHOWN, rtcm_station_arp, split_stream
 
 __all__ = ["INTEGRITY_COUNTS", "UBX_OBS_COLUMNS", "integrity_line", "integrity_problems", "integrity_record", "read_ubx_rawx",
            "skipped_line"]
@@ -192,6 +193,12 @@ def _decode_rawx(rawx: list) -> tuple[np.ndarray, np.ndarray, list]:
 
 
 def read_ubx_rawx(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.DataFrame]:
+    """``info`` and ``obs`` of :func:`read_ubx_log` (the GPS L1 C/A RXM-RAWX measurements)."""
+    info, obs, _ = read_ubx_log(path, strict=strict)
+    return info, obs
+
+
+def read_ubx_log(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.DataFrame, pd.DataFrame]:
     """Read GPS L1 C/A raw measurements from the RXM-RAWX messages of a u-blox UBX log.
 
     Parameters
@@ -220,6 +227,9 @@ def read_ubx_rawx(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.D
         ``skipped_bytes`` (bytes outside valid frames that are not NMEA sentences: noise, RTCM,
         and the bytes of corrupt frames); ``nmea_bytes`` (NMEA sentences with correct checksums
         between frames: expected in a receiver's output, not a loss).
+        ``sfrbx`` (the ephemeris decoder's counters, :func:`cdgps_cli.io.sfrbx.sfrbx_ephemerides`);
+        ``rtcm_base`` (the reference station ARP of RTCM 1005/1006,
+        :func:`cdgps_cli.io.ubx_frames.rtcm_station_arp`, or None).
     obs : DataFrame
         One row per RXM-RAWX epoch and GPS satellite tracked on L1 C/A, sorted by time then
         satellite; columns :data:`UBX_OBS_COLUMNS`:
@@ -232,6 +242,10 @@ def read_ubx_rawx(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.D
         (trkStat "half cycle valid"), ``sub_half_subtracted`` (trkStat "half cycle subtracted
         from phase") — bools —, ``pr_std_m`` (0.01·2^prStd m), ``cp_std_cycles``
         (0.004·cpStd cycles), ``clock_reset`` (bool, recStat clkReset of the epoch).
+
+    nav : DataFrame
+        GPS broadcast ephemerides decoded from the log's RXM-SFRBX / RXM-SFRB subframes, columns
+        :data:`cdgps_cli.core.records.NAV_COLUMNS` (empty when the log has none).
 
     Raises
     ------
@@ -275,7 +289,8 @@ def read_ubx_rawx(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.D
                 "(a silent half-cycle error breaks integer ambiguity resolution) and slips are flagged only by a per-epoch "
                 "LLI. Record RXM-RAWX with a u-blox M8T, F9P/F9T or later receiver."
             )
-        raise CdgpsError(f"{p}: no RXM-RAWX messages (found: {found}); carrier-phase logging needs RXM-RAWX enabled on the receiver")
+        raise CdgpsError(f"{p}: no RXM-RAWX messages (found: {found}); carrier-phase logging needs RXM-RAWX enabled on "
+                         f"the receiver (UBX-CFG-MSG class 0x02 id 0x15, or CFG-MSGOUT-UBX_RXM_RAWX on F9)")
 
     epochs, meas, undecodable_offsets = _decode_rawx(rawx)
     undecodable = len(undecodable_offsets)
@@ -359,4 +374,6 @@ def read_ubx_rawx(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.D
         "bad_crc_rtcm_frames": stats["bad_crc_rtcm_frames"],
         "bad_rtcm_offsets": stats["bad_rtcm_offsets"],
     }
-    return info, obs
+    nav, info["sfrbx"] = sfrbx_ephemerides(frames, week0)
+    info["rtcm_base"] = rtcm_station_arp(rtcm)
+    return info, obs, nav

@@ -215,3 +215,40 @@ def _plausible_rtcm_type(mtype: int) -> bool:
     candidate with such a type failing its CRC is counted as a corrupt RTCM frame; any other
     failing candidate is noise (a random 0xD3 byte)."""
     return 1001 <= mtype <= 1300 or 4001 <= mtype <= 4095
+
+
+def _bits(frame: bytes, start: int, n: int, signed: bool = False) -> int:
+    """Bits ``start`` … ``start+n−1`` (MSB first, 0 = first payload bit) of an RTCM 3 frame's payload."""
+    payload = frame[3:-3]
+    v = int.from_bytes(payload, "big") >> (8 * len(payload) - start - n)
+    v &= (1 << n) - 1
+    return v - (1 << n) if signed and v >> (n - 1) else v
+
+
+def rtcm_station_arp(rtcm: list) -> dict | None:
+    """The reference station's antenna reference point from RTCM 3 messages 1005/1006.
+
+    Parameters
+    ----------
+    rtcm : list of (offset, message type, frame bytes)
+        CRC-valid RTCM 3 frames (:func:`split_stream`).
+
+    Returns
+    -------
+    dict or None
+        From the last 1005/1006 message: ``message`` (1005 or 1006), ``station_id``,
+        ``arp_ecef_m`` ([x, y, z]: DF025–DF027, 38-bit signed, 0.0001 m), ``antenna_height_m``
+        (DF028, 1006 only, else None), ``count`` (1005/1006 messages in the log) and ``distinct``
+        (distinct positions among them); None when the log has neither message.
+    """
+    found = [(t, f) for _, t, f in rtcm if t in (1005, 1006) and len(f) - 6 >= (21 if t == 1006 else 19)]
+    if not found:
+        return None
+    positions = set()
+    for t, f in found:
+        positions.add(tuple(_bits(f, s, 38, True) for s in (34, 74, 114)))
+    t, f = found[-1]
+    xyz = [_bits(f, s, 38, True) * 1e-4 for s in (34, 74, 114)]
+    return {"message": int(t), "station_id": _bits(f, 12, 12), "arp_ecef_m": xyz,
+            "antenna_height_m": _bits(f, 152, 16) * 1e-4 if t == 1006 else None,
+            "count": len(found), "distinct": len(positions)}

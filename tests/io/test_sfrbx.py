@@ -220,3 +220,161 @@ def test_real_lea4t_subframes_explain_its_pseudoranges():
         resid = np.array(res) - np.array(rows) @ dx
         assert np.sqrt(np.mean(resid**2)) < 10.0, resid                # m (3.1-3.3 m: iono/tropo not modelled)
         assert abs(np.linalg.norm(x[:3]) - 6371e3) < 30e3                # on the Earth's surface
+
+
+# ---- a u-blox pair without a navigation file: ingest from SFRBX, `cdgps config` from RTCM 1005 ----
+
+RAWX_LOG = SHARED / "pygpsdata-RXMRAWX.log"           # week 2327, SOW 223793-223806, G06 G07 G11 G29
+ARP = (-3957199.1234, 3310205.5678, 3737711.0009)
+
+
+def _rtcm_1005(station: int, xyz_m) -> bytes:
+    fields = [(1005, 12), (station, 12), (0, 6), (1, 1), (0, 1), (0, 1), (0, 1)]
+    x, y, z = (int(round(v * 1e4)) for v in xyz_m)
+    fields += [(x & (2**38 - 1), 38), (0, 1), (0, 1), (y & (2**38 - 1), 38), (0, 2), (z & (2**38 - 1), 38)]
+    bits = "".join(format(v, f"0{n}b") for v, n in fields)
+    bits += "0" * (-len(bits) % 8)
+    payload = int(bits, 2).to_bytes(len(bits) // 8, "big")
+    head = bytes((0xD3, 0, len(payload))) + payload
+    crc = 0
+    for byte in head:                                       # CRC-24Q bit by bit
+        for i in range(7, -1, -1):
+            crc ^= ((byte >> i) & 1) << 23
+            crc = ((crc << 1) ^ 0x1864CFB) if crc & 0x800000 else crc << 1
+            crc &= 0xFFFFFF
+    return head + crc.to_bytes(3, "big")
+
+
+def _pair(tmp_path, *, base_rtcm=True, sfrbx=True):
+    if not RAWX_LOG.exists():
+        pytest.skip(f"shared test data not available: {RAWX_LOG}")
+    log = RAWX_LOG.read_bytes()
+    sub = b""
+    if sfrbx:
+        for k, sv in enumerate((6, 7, 11, 29)):
+            eph = dict(EPH, iode=10 + k, iodc=10 + k, week10=2327 % 1024, toe_sow_s=223200.0, toc_sow_s=223200.0,
+                       m0_sc=0.1 * k)
+            sub += _stream(eph, sv, 223200 // 6 + 3)
+    nmea = _nmea_line("GNGGA,123519,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,")
+    base = sub + (_rtcm_1005(17, ARP) if base_rtcm else b"") + nmea + b"\x00\xd3\x01garbage" + log
+    rover = sub + log
+    (tmp_path / "base.ubx").write_bytes(base)
+    (tmp_path / "rover.ubx").write_bytes(rover)
+    return tmp_path / "base.ubx", tmp_path / "rover.ubx"
+
+
+def _nmea_line(body: str) -> bytes:
+    x = 0
+    for c in body.encode():
+        x ^= c
+    return f"${body}*{x:02X}\r\n".encode()
+
+
+def test_config_and_ingest_of_a_ubx_pair_without_nav(tmp_path):
+    from click.testing import CliRunner
+
+    from cdgps_cli.cli.commands import main
+    from cdgps_cli.config.structure import load_gnss_config
+    from cdgps_cli.io.gnss_run import read_gnss_run
+
+    b, r = _pair(tmp_path)
+    cfg_path = tmp_path / "job.toml"
+    res = CliRunner().invoke(main, ["config", "--ubx", f"base={b}", "--ubx", f"rover={r}", "-o", str(cfg_path)])
+    assert res.exit_code == 0, res.output
+    text = cfg_path.read_text()
+    assert "RTCM 1005 antenna reference point of station 17" in text and 'master = "base"' in text
+    cfg = load_gnss_config(cfg_path)
+    assert np.allclose(cfg.antenna("base").position_ecef_m, ARP, atol=1e-4)
+    run = tmp_path / "run.mcap"
+    res = CliRunner().invoke(main, ["ingest", "--config", str(cfg_path), "-o", str(run)])
+    assert res.exit_code == 0, res.output
+    assert "1 NMEA sentences" in res.output and "1 RTCM 3 frames (1005 ×1" in res.output
+    g = read_gnss_run(run)
+    assert sorted(g.nav["sat"]) == ["G06", "G07", "G11", "G29"] and (g.nav["iode"] >= 10).all()
+    assert g.metadata["ephemeris_source"].startswith("RXM-SFRBX:")
+    assert "rtcm_1005=1" in g.metadata["ubx:base_integrity"] and "nmea_sentences=1" in g.metadata["ubx:base_integrity"]
+
+
+def test_ubx_pair_without_ephemerides_or_base_position_is_refused(tmp_path):
+    from click.testing import CliRunner
+
+    from cdgps_cli.cli.commands import main
+
+    b, r = _pair(tmp_path, base_rtcm=False, sfrbx=False)
+    out = tmp_path / "job.toml"
+    res = CliRunner().invoke(main, ["config", "--ubx", f"base={b}", "--ubx", f"rover={r}", "-o", str(out)])
+    assert res.exit_code == 2 and "Traceback" not in res.output and not out.exists()
+    assert "no RTCM 1005/1006 message" in res.output and "no RXM-SFRBX GPS subframes" in res.output
+    run = tmp_path / "run.mcap"
+    res = CliRunner().invoke(main, ["ingest", "--ubx", f"base={b}", "--ubx", f"rover={r}", "--master", "base",
+                                    "-o", str(run)])
+    assert res.exit_code == 2 and "Traceback" not in res.output and not run.exists()
+    assert "no broadcast ephemerides" in res.output or "no position" in res.output
+
+
+def _ubx_frame(cls: int, mid: int, payload: bytes) -> bytes:
+    body = bytes((cls, mid)) + struct.pack("<H", len(payload)) + payload
+    a = b = 0
+    for x in body:
+        a = (a + x) & 0xFF
+        b = (b + a) & 0xFF
+    return b"\xb5\x62" + body + bytes((a, b))
+
+
+def _lea4t_as_rawx(tmp_path) -> Path:
+    """The real LEA-4T log with each RXM-RAW epoch re-packed as an RXM-RAWX frame (same
+    pseudoranges, phases, Doppler, C/N0; lock time 30 s, pr/cp/half-cycle valid) after its own
+    RXM-SFRB subframes: a u-blox log with real ephemerides and no RTCM 1005."""
+    p = SHARED / "ubx_20080526.ubx"
+    if not p.exists():
+        pytest.skip(f"shared test data not available: {p}")
+    frames, _, _ = split_stream(p.read_bytes())
+    out = []
+    for _, cls, mid, fr in frames:
+        if (cls, mid) == (0x02, 0x11):
+            out.append(fr)
+        elif (cls, mid) == (0x02, 0x10):
+            pl = fr[6:-2]
+            itow, week, nsv = struct.unpack_from("<iHB", pl, 0)
+            meas = []
+            for k in range(nsv):
+                cp, pr, do, sv, qi, cno, _ = struct.unpack_from("<ddfBbbB", pl, 8 + 24 * k)
+                if 1 <= sv <= 32 and qi >= 4:
+                    meas.append(struct.pack("<ddfBBBBHBBBBBB", pr, cp, do, 0, sv, 0, 0, 30000, max(cno, 0), 3, 2, 2, 7, 0))
+            head = struct.pack("<dHbBBB2x", itow / 1000.0, week, 14, len(meas), 1, 1)
+            out.append(_ubx_frame(0x02, 0x15, head + b"".join(meas)))
+    path = tmp_path / "lea4t-rawx.ubx"
+    path.write_bytes(b"".join(out))
+    return path
+
+
+def test_ubx_master_without_rtcm_gets_its_single_point_position_said_so(tmp_path):
+    """Real ephemerides (RXM-SFRB) and real pseudoranges, no RTCM 1005: the starter config holds
+    the mean single-point position and says so; it agrees with the test's own Gauss-Newton
+    solution above (|r| = 6 371 850-851 m) to metres."""
+    from click.testing import CliRunner
+
+    from cdgps_cli.cli.commands import main
+    from cdgps_cli.config.structure import load_gnss_config
+
+    b = _lea4t_as_rawx(tmp_path)
+    out = tmp_path / "job.toml"
+    res = CliRunner().invoke(main, ["config", "--ubx", f"base={b}", "--ubx", f"rover={b}", "--master", "base",
+                                    "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    assert "NOT surveyed" in out.read_text() and "no RTCM 1005/1006 base position" in res.output
+    pos = np.array(load_gnss_config(out).antenna("base").position_ecef_m)
+    assert abs(np.linalg.norm(pos) - 6371850.7) < 15.0
+
+
+def test_log_without_rawx_is_refused_clearly(tmp_path):
+    from click.testing import CliRunner
+
+    from cdgps_cli.cli.commands import main
+
+    p = tmp_path / "nav-only.ubx"
+    p.write_bytes(_stream(EPH, 7, 35980) + _rtcm_1005(3, ARP))
+    run = tmp_path / "run.mcap"
+    res = CliRunner().invoke(main, ["ingest", "--ubx", f"a={p}", "-o", str(run)])
+    assert res.exit_code == 2 and "Traceback" not in res.output and not run.exists()
+    assert "no RXM-RAWX messages (found: RXM-SFRBX ×3" in res.output and "1 RTCM 3 frames" not in res.output
