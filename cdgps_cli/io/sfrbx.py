@@ -1,4 +1,4 @@
-"""GPS broadcast ephemerides from the navigation-message subframes a u-blox receiver logs.
+"""GPS and Galileo broadcast ephemerides from the navigation data a u-blox receiver logs.
 
 u-blox receivers log each navigation-data subframe they decode: RXM-SFRBX (class 0x02, id 0x13;
 u-blox 8 and later) and the legacy RXM-SFRB (0x02, 0x11; u-blox 5/6).  This module turns the GPS
@@ -14,7 +14,13 @@ separate navigation file.
 * RXM-SFRB (legacy), GPS: ten 32-bit words of 24 data bits (parity already removed by the
   receiver, so no parity check is possible).
 
-Subframes of one satellite are combined when subframes 2 and 3 carry the same IODE and it
+* RXM-SFRBX, Galileo (gnssId 2): an I/NAV page pair (E1-B or E5b-I) in eight words; word types
+  1–5 (ephemeris, clock, SISA, BGD, health, GST week) give one record, see
+  :func:`decode_galileo_words` for how its fields map onto the RINEX 3 Galileo layout.  A page
+  pair failing its CRC-24Q is dropped and counted.  BeiDou D1 (gnssId 3) is not decoded: its
+  frames are counted under ``other_systems``.
+
+GPS subframes of one satellite are combined when subframes 2 and 3 carry the same IODE and it
 equals the 8 LSBs of subframe 1's IODC (IS-GPS-200 §20.3.4.4: a consistent data set).  The
 10-bit week number is completed with the reference week given (the RXM-RAWX week of the log).
 """
@@ -26,7 +32,7 @@ import pandas as pd
 
 from cdgps_cli.core.records import NAV_COLUMNS
 
-__all__ = ["GPS_PI", "URA_M", "decode_gps_subframes", "gps_words_from_sfrbx", "parity_ok", "sfrbx_ephemerides"]
+__all__ = ["GPS_PI", "URA_M", "decode_galileo_words", "decode_gps_subframes", "inav_word", "gps_words_from_sfrbx", "parity_ok", "sfrbx_ephemerides"]
 
 GPS_PI = 3.1415926535898
 """The value of π IS-GPS-200 fixes for converting semicircles to radians."""
@@ -181,6 +187,121 @@ def decode_gps_subframes(sf1: list[int], sf2: list[int], sf3: list[int], sat: st
     return rec
 
 
+# ---------------------------------------------------------------------------------------------
+# Galileo I/NAV (E1-B or E5b-I): word types 1-5, Galileo OS SIS ICD §4.3.5
+
+def _sisa_m(index: int) -> float:
+    """Signal-in-space accuracy (m) of a SISA index (Galileo OS SIS ICD Table 89); NaN: no accuracy."""
+    if index < 50:
+        return index * 0.01
+    if index < 75:
+        return 0.5 + (index - 50) * 0.02
+    if index < 100:
+        return 1.0 + (index - 75) * 0.04
+    if index < 126:
+        return 2.0 + (index - 100) * 0.16
+    return float("nan")
+
+
+def inav_word(dwrd: list[int]) -> tuple[int, int] | None:
+    """The 128-bit I/NAV word of an RXM-SFRBX Galileo page pair, as (word type, int), or None.
+
+    u-blox delivers the even page in words 0-3 (bit 0 even/odd = 0, page type, 112 data bits,
+    6 tail bits, 8 pad bits) and the odd page in words 4-7 (even/odd = 1, page type, 16 data bits,
+    64 reserved/SAR/spare bits, CRC-24Q, …).  The pair is accepted when the even/odd flags are
+    right, neither page is an alert page and the CRC over even bits 0-113 + odd bits 0-81 holds.
+    """
+    from cdgps_cli.io.ubx_frames import crc24q  # noqa: PLC0415
+
+    if len(dwrd) < 8:
+        return None
+    v = 0
+    for w in dwrd[:8]:
+        v = (v << 32) | (w & 0xFFFFFFFF)
+    even, odd = v >> 128, v & ((1 << 128) - 1)
+
+    def bits(x, start, n):
+        return (x >> (128 - start - n)) & ((1 << n) - 1)
+
+    if bits(even, 0, 1) != 0 or bits(odd, 0, 1) != 1 or bits(even, 1, 1) or bits(odd, 1, 1):
+        return None
+    covered = (bits(even, 0, 114) << 82) | bits(odd, 0, 82)          # 196 bits, padded to 200 in front
+    if crc24q(covered.to_bytes(25, "big")) != bits(odd, 82, 24):
+        return None
+    word = (bits(even, 2, 112) << 16) | bits(odd, 2, 16)
+    return word >> 122, word
+
+
+class _Word:
+    """Fields of a 128-bit I/NAV word, numbered from 0 (the word type is bits 0-5)."""
+
+    def __init__(self, v: int):
+        self.v = v
+
+    def u(self, start: int, n: int) -> int:
+        return (self.v >> (128 - start - n)) & ((1 << n) - 1)
+
+    def s(self, start: int, n: int) -> int:
+        x = self.u(start, n)
+        return x - (1 << n) if x >> (n - 1) else x
+
+
+def decode_galileo_words(words: dict, sat: str, week_ref: int) -> dict | None:
+    """One Galileo broadcast ephemeris from I/NAV word types 1-5 of one satellite.
+
+    Parameters
+    ----------
+    words : dict
+        Word type (1…5) → 128-bit word (:func:`inav_word`).
+    sat : str
+        Satellite ("E11").
+    week_ref : int
+        A GPS week near the data (GST week = GPS week − 1024; the 12-bit WN is completed).
+
+    Returns
+    -------
+    dict or None
+        A record with the keys of :data:`NAV_COLUMNS`, in the RINEX 3 Galileo layout where it
+        fits: ``iode`` = IODnav, ``codes_l2`` = data sources (513: I/NAV, clock for E5b/E1),
+        ``week`` = GST week + 1024 (continuous with GPS weeks, as RINEX writes it),
+        ``sv_accuracy_m`` = SISA, ``sv_health`` = RINEX bit layout (E1-B DVS bit 0, E1-B HS bits
+        1-2, E5b DVS bit 6, E5b HS bits 7-8); **``tgd_s`` = BGD(E1, E5b)** — the group delay an E1
+        single-frequency user of the I/NAV clock subtracts, not RINEX's BGD(E1, E5a) slot —
+        and ``iodc`` = IODnav.  None when the IODnav of words 1-4 differ or a word is missing.
+    """
+    if not all(k in words for k in (1, 2, 3, 4, 5)):
+        return None
+    w1, w2, w3, w4, w5 = (_Word(words[k]) for k in (1, 2, 3, 4, 5))
+    iod = w1.u(6, 10)
+    if any(w.u(6, 10) != iod for w in (w2, w3, w4)):
+        return None
+    wn = w5.u(73, 12) + 1024
+    week = wn + 4096 * round((week_ref - wn) / 4096)
+    tow = w5.u(85, 20)
+    toe, toc = w1.u(16, 14) * 60.0, w4.u(54, 14) * 60.0
+    health = (w5.u(72, 1) | (w5.u(69, 2) << 1) | (w5.u(71, 1) << 6) | (w5.u(67, 2) << 7))
+    rec = {
+        "sat": sat, "af0_s": w4.s(68, 31) * 2.0**-34, "af1_s_per_s": w4.s(99, 21) * 2.0**-46,
+        "af2_s_per_s2": w4.s(120, 6) * 2.0**-59, "iode": iod,
+        "crs_m": w3.s(104, 16) * 2.0**-5, "delta_n_rad_per_s": w3.s(40, 16) * 2.0**-43 * GPS_PI,
+        "m0_rad": w1.s(30, 32) * 2.0**-31 * GPS_PI, "cuc_rad": w3.s(56, 16) * 2.0**-29,
+        "e": w1.u(62, 32) * 2.0**-33, "cus_rad": w3.s(72, 16) * 2.0**-29, "sqrt_a_sqrt_m": w1.u(94, 32) * 2.0**-19,
+        "toe_sow_s": toe, "cic_rad": w4.s(22, 16) * 2.0**-29, "omega0_rad": w2.s(16, 32) * 2.0**-31 * GPS_PI,
+        "cis_rad": w4.s(38, 16) * 2.0**-29, "i0_rad": w2.s(48, 32) * 2.0**-31 * GPS_PI,
+        "crc_m": w3.s(88, 16) * 2.0**-5, "omega_rad": w2.s(80, 32) * 2.0**-31 * GPS_PI,
+        "omega_dot_rad_per_s": w3.s(16, 24) * 2.0**-43 * GPS_PI, "idot_rad_per_s": w2.s(112, 14) * 2.0**-43 * GPS_PI,
+        "codes_l2": 513, "week": week, "l2p_data_flag": 0, "sv_accuracy_m": _sisa_m(w3.u(120, 8)),
+        "sv_health": health, "tgd_s": w5.s(57, 10) * 2.0**-32, "iodc": iod, "transmit_sow_s": float(tow),
+        "fit_interval_h": float("nan"), "line": -1,
+    }
+    base = week * SECONDS_PER_WEEK
+    t_tx = base + tow
+    rec["transmit_gps_s"] = t_tx
+    rec["toc_gps_s"] = base + toc + SECONDS_PER_WEEK * round((t_tx - base - toc) / SECONDS_PER_WEEK)
+    rec["toe_gps_s"] = base + toe + SECONDS_PER_WEEK * round((t_tx - base - toe) / SECONDS_PER_WEEK)
+    return rec
+
+
 _SFRBX = (0x02, 0x13)
 _SFRB = (0x02, 0x11)
 
@@ -204,7 +325,8 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None) -> tuple[pd.DataFrame,
         ``sfrbx_frames``, ``gps_subframes`` (1–3 decoded), ``parity_failures`` (subframes dropped),
         ``other_systems`` (gnssId → frames: not decoded here), ``ephemerides``.
     """
-    stats = {"sfrbx_frames": 0, "gps_subframes": 0, "parity_failures": 0, "other_systems": {}, "ephemerides": 0}
+    stats = {"sfrbx_frames": 0, "gps_subframes": 0, "parity_failures": 0, "galileo_words": 0, "galileo_bad_pages": 0,
+             "other_systems": {}, "ephemerides": 0}
     latest: dict[str, dict[int, list[int]]] = {}
     recs: dict[tuple, dict] = {}
     for _, cls, mid, fr in frames:
@@ -216,6 +338,22 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None) -> tuple[pd.DataFrame,
             if len(pl) < 8 or len(pl) != 8 + 4 * pl[4]:
                 continue
             gnss, sv = pl[0], pl[1]
+            if gnss == 2 and pl[4] >= 8 and week_ref is not None:
+                dw8 = np.frombuffer(pl[8:40], dtype="<u4").tolist()
+                got = inav_word(dw8)
+                if got is None:
+                    stats["galileo_bad_pages"] += 1
+                    continue
+                wtype, word = got
+                if 1 <= wtype <= 5 and 1 <= sv <= 36:
+                    stats["galileo_words"] += 1
+                    sat = f"E{sv:02d}"
+                    have = latest.setdefault(sat, {})
+                    have[wtype] = word
+                    rec = decode_galileo_words(have, sat, week_ref)
+                    if rec is not None and 0 <= rec["e"] < 1 and rec["sqrt_a_sqrt_m"] > 0:
+                        recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)
+                continue
             if gnss != 0:
                 stats["other_systems"][str(gnss)] = stats["other_systems"].get(str(gnss), 0) + 1
                 continue

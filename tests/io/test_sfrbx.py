@@ -378,3 +378,88 @@ def test_log_without_rawx_is_refused_clearly(tmp_path):
     res = CliRunner().invoke(main, ["ingest", "--ubx", f"a={p}", "-o", str(run)])
     assert res.exit_code == 2 and "Traceback" not in res.output and not run.exists()
     assert "no RXM-RAWX messages (found: RXM-SFRBX ×3" in res.output and "1 RTCM 3 frames" not in res.output
+
+
+# ---- Galileo I/NAV word types 1-5 (Galileo OS SIS ICD §4.3.5, Tables 40-44) ----
+
+# (word type, field, first bit after the 6-bit type (1-based ICD numbering of the 128-bit word), bits, scale, signed)
+INAV = [
+    (1, "iod", 7, 10, 1, False), (1, "toe_sow_s", 17, 14, 60, False), (1, "m0_sc", 31, 32, 2.0**-31, True),
+    (1, "e", 63, 32, 2.0**-33, False), (1, "sqrt_a_sqrt_m", 95, 32, 2.0**-19, False),
+    (2, "iod", 7, 10, 1, False), (2, "omega0_sc", 17, 32, 2.0**-31, True), (2, "i0_sc", 49, 32, 2.0**-31, True),
+    (2, "omega_sc", 81, 32, 2.0**-31, True), (2, "idot_sc", 113, 14, 2.0**-43, True),
+    (3, "iod", 7, 10, 1, False), (3, "omega_dot_sc", 17, 24, 2.0**-43, True), (3, "delta_n_sc", 41, 16, 2.0**-43, True),
+    (3, "cuc_rad", 57, 16, 2.0**-29, True), (3, "cus_rad", 73, 16, 2.0**-29, True), (3, "crc_m", 89, 16, 2.0**-5, True),
+    (3, "crs_m", 105, 16, 2.0**-5, True), (3, "sisa", 121, 8, 1, False),
+    (4, "iod", 7, 10, 1, False), (4, "svid", 17, 6, 1, False), (4, "cic_rad", 23, 16, 2.0**-29, True),
+    (4, "cis_rad", 39, 16, 2.0**-29, True), (4, "toc_sow_s", 55, 14, 60, False), (4, "af0_s", 69, 31, 2.0**-34, True),
+    (4, "af1_s_per_s", 100, 21, 2.0**-46, True), (4, "af2_s_per_s2", 121, 6, 2.0**-59, True),
+    (5, "bgd_e5a_s", 48, 10, 2.0**-32, True), (5, "bgd_e5b_s", 58, 10, 2.0**-32, True), (5, "e5b_hs", 68, 2, 1, False),
+    (5, "e1b_hs", 70, 2, 1, False), (5, "wn", 74, 12, 1, False), (5, "tow", 86, 20, 1, False),
+]
+
+GAL = {"iod": 77, "toe_sow_s": 216600.0, "m0_sc": 0.2468, "e": 0.000321, "sqrt_a_sqrt_m": 5440.61234,
+       "omega0_sc": -0.8642, "i0_sc": 0.3123, "omega_sc": 0.1357, "idot_sc": -2.1e-10 / math.pi,
+       "omega_dot_sc": -5.6e-9 / math.pi, "delta_n_sc": 3.1e-9 / math.pi, "cuc_rad": 1.1e-6, "cus_rad": 7.7e-6,
+       "crc_m": 190.5, "crs_m": 23.40625, "sisa": 107, "cic_rad": -4.1e-8, "cis_rad": 9.3e-8, "svid": 11, "toc_sow_s": 216600.0, "af0_s": -4.567e-4,
+       "af1_s_per_s": -7.1e-12, "af2_s_per_s2": 0.0, "bgd_e5a_s": 2.3e-9, "bgd_e5b_s": 2.6e-9, "e5b_hs": 0,
+       "e1b_hs": 0, "wn": 2345 - 1024, "tow": 216630}
+
+
+def _crc24q_bits(bits: str) -> int:
+    crc = 0
+    for ch in bits:
+        crc ^= int(ch) << 23
+        crc = ((crc << 1) ^ 0x1864CFB) if crc & 0x800000 else crc << 1
+        crc &= 0xFFFFFF
+    return crc
+
+
+def _inav_sfrbx(wtype: int, eph: dict, sv: int) -> bytes:
+    word = ["0"] * 128
+    word[0:6] = format(wtype, "06b")
+    for t, name, first, n, scale, signed in INAV:
+        if t == wtype:
+            q = int(round(eph[name] / scale))
+            word[first - 1 : first - 1 + n] = format(q & ((1 << n) - 1), f"0{n}b")
+    w = "".join(word)
+    even = "0" + "0" + w[:112] + "000000"                     # even/odd 0, nominal page, data 1, tail
+    odd_head = "1" + "0" + w[112:] + "0" * 64                 # even/odd 1, nominal, data 2, reserved/SAR/spare
+    crc = format(_crc24q_bits(even[:114] + odd_head), "024b")  # CRC over the 196 bits
+    odd = odd_head + crc + "0" * 8 + "000000"
+    bits = even + "0" * 8 + odd + "0" * 8                     # the two pages in 8 words, padded
+    dw = [int(bits[32 * k : 32 * k + 32], 2) for k in range(8)]
+    payload = bytes((2, sv, 1, 0, 8, 5, 2, 0)) + struct.pack("<8I", *dw)
+    return _ubx_frame(0x02, 0x13, payload)
+
+
+def test_galileo_inav_words_decode_within_quantisation():
+    data = b"".join(_inav_sfrbx(t, GAL, 11) for t in (1, 2, 3, 4, 5))
+    nav, st = sfrbx_ephemerides(split_stream(data)[0], week_ref=2345)
+    assert st["galileo_words"] == 5 and st["galileo_bad_pages"] == 0 and len(nav) == 1
+    r = nav.iloc[0]
+    assert r["sat"] == "E11" and r["week"] == 2345 and r["iode"] == 77 and r["codes_l2"] == 513
+    assert r["toe_gps_s"] == 2345 * 604800 + 216600 and r["transmit_gps_s"] == 2345 * 604800 + 216630
+    assert r["sv_accuracy_m"] == pytest.approx(2.0 + 7 * 0.16) and r["sv_health"] == 0
+    q = {name: scale for _, name, _, _, scale, _ in INAV}
+    for col, name in {"e": "e", "sqrt_a_sqrt_m": "sqrt_a_sqrt_m", "cuc_rad": "cuc_rad", "cus_rad": "cus_rad",
+                      "crc_m": "crc_m", "crs_m": "crs_m", "af0_s": "af0_s", "af1_s_per_s": "af1_s_per_s",
+                      "tgd_s": "bgd_e5b_s", "cic_rad": "cic_rad", "cis_rad": "cis_rad"}.items():
+        assert abs(r[col] - GAL[name]) <= 0.5 * q[name] * (1 + 1e-9), col
+    for col, name in {"m0_rad": "m0_sc", "omega0_rad": "omega0_sc", "i0_rad": "i0_sc", "omega_rad": "omega_sc",
+                      "idot_rad_per_s": "idot_sc", "omega_dot_rad_per_s": "omega_dot_sc",
+                      "delta_n_rad_per_s": "delta_n_sc"}.items():
+        assert abs(r[col] / GPS_PI - GAL[name]) <= 0.5 * q[name] * (1 + 1e-9), col
+
+
+def test_galileo_page_with_a_flipped_bit_fails_the_crc():
+    frames = [bytearray(_inav_sfrbx(t, GAL, 11)) for t in (1, 2, 3, 4, 5)]
+    fr = frames[2]
+    fr[6 + 8 + 5] ^= 0x01                                     # a data bit of word type 3's even page
+    a = b = 0
+    for x in fr[2:-2]:
+        a = (a + x) & 0xFF
+        b = (b + a) & 0xFF
+    fr[-2:] = bytes((a, b))
+    nav, st = sfrbx_ephemerides(split_stream(b"".join(map(bytes, frames)))[0], week_ref=2345)
+    assert st["galileo_bad_pages"] == 1 and len(nav) == 0
