@@ -463,3 +463,26 @@ def test_galileo_page_with_a_flipped_bit_fails_the_crc():
     fr[-2:] = bytes((a, b))
     nav, st = sfrbx_ephemerides(split_stream(b"".join(map(bytes, frames)))[0], week_ref=2345)
     assert st["galileo_bad_pages"] == 1 and len(nav) == 0
+
+
+def test_corrupt_rtcm_frame_is_a_loss_warned_and_refused_by_strict(tmp_path):
+    from click.testing import CliRunner
+
+    from cdgps_cli.cli.commands import main
+
+    b, r = _pair(tmp_path)
+    data = bytearray(b.read_bytes())
+    k = data.index(_rtcm_1005(17, ARP))
+    data[k + 8] ^= 0x20                                      # a bit of the ARP X: the CRC-24Q fails
+    b.write_bytes(bytes(data))
+    run = tmp_path / "run.mcap"
+    cfg = tmp_path / "job.toml"
+    cfg.write_text(f'[gnss]\nmaster = "base"\n[gnss.antennas.base]\nubx = "{b.name}"\nposition_ecef_m = {list(ARP)}\n'
+                   f'[gnss.antennas.rover]\nubx = "{r.name}"\n')
+    res = CliRunner().invoke(main, ["ingest", "--config", str(cfg), "-o", str(run)])
+    assert res.exit_code == 0, res.output
+    assert "WARNING" in res.output and "1 RTCM 3 frames failing the CRC-24Q" in res.output
+    run.unlink()
+    res = CliRunner().invoke(main, ["ingest", "--config", str(cfg), "-o", str(run), "--strict"])
+    assert res.exit_code == 2 and "RTCM 3 frames failing the CRC-24Q" in res.output and not run.exists()
+    assert "Traceback" not in res.output
