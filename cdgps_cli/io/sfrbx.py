@@ -93,21 +93,38 @@ def gps_words_from_sfrbx(dwrd: list[int]) -> list[int] | None:
     return out
 
 
-class _Bits:
-    """Fields of the 240 data bits of a subframe (ten words of 24 bits), numbered from 0."""
+def _dated(rec: dict, week: int, transmit_sow_s: float, toc_sow_s: float, toe_sow_s: float) -> dict:
+    """``rec`` with ``transmit_gps_s``, ``toc_gps_s``, ``toe_gps_s`` (GPS s): seconds of the week
+    of ``week``, toc and toe taken in the week nearest the transmission (a toe early in the next
+    week is sent at the end of this one)."""
+    base = week * SECONDS_PER_WEEK
+    t_tx = base + transmit_sow_s
+    rec["transmit_gps_s"] = t_tx
+    rec["toc_gps_s"] = base + toc_sow_s + SECONDS_PER_WEEK * round((t_tx - base - toc_sow_s) / SECONDS_PER_WEEK)
+    rec["toe_gps_s"] = base + toe_sow_s + SECONDS_PER_WEEK * round((t_tx - base - toe_sow_s) / SECONDS_PER_WEEK)
+    return rec
 
-    def __init__(self, words24: list[int]):
-        v = 0
-        for w in words24:
-            v = (v << 24) | (w & 0xFFFFFF)
-        self.v = v
+
+class _Fields:
+    """Unsigned/two's-complement fields of a ``width``-bit message held as an int, bits numbered from 0."""
+
+    def __init__(self, v: int, width: int):
+        self.v, self.width = v, width
 
     def u(self, start: int, n: int) -> int:
-        return (self.v >> (240 - start - n)) & ((1 << n) - 1)
+        return (self.v >> (self.width - start - n)) & ((1 << n) - 1)
 
     def s(self, start: int, n: int) -> int:
         x = self.u(start, n)
         return x - (1 << n) if x >> (n - 1) else x
+
+
+def _Bits(words24: list[int]) -> _Fields:
+    """The 240 data bits of a GPS subframe (ten words of 24 bits)."""
+    v = 0
+    for w in words24:
+        v = (v << 24) | (w & 0xFFFFFF)
+    return _Fields(v, 240)
 
 
 def subframe_id(words24: list[int]) -> int:
@@ -178,13 +195,7 @@ def decode_gps_subframes(sf1: list[int], sf2: list[int], sf3: list[int], sat: st
         "fit_interval_h": 4.0 if b2.u(232, 1) == 0 else 6.0,
         "line": -1,
     }
-    base = week * SECONDS_PER_WEEK
-    # toc/toe/transmission are seconds of the week of WN; a toe early in the next week is nearest
-    t_tx = base + tow_sf1
-    rec["transmit_gps_s"] = t_tx
-    rec["toc_gps_s"] = base + toc + SECONDS_PER_WEEK * round((t_tx - base - toc) / SECONDS_PER_WEEK)
-    rec["toe_gps_s"] = base + toe + SECONDS_PER_WEEK * round((t_tx - base - toe) / SECONDS_PER_WEEK)
-    return rec
+    return _dated(rec, week, tow_sf1, toc, toe)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -232,18 +243,9 @@ def inav_word(dwrd: list[int]) -> tuple[int, int] | None:
     return word >> 122, word
 
 
-class _Word:
-    """Fields of a 128-bit I/NAV word, numbered from 0 (the word type is bits 0-5)."""
-
-    def __init__(self, v: int):
-        self.v = v
-
-    def u(self, start: int, n: int) -> int:
-        return (self.v >> (128 - start - n)) & ((1 << n) - 1)
-
-    def s(self, start: int, n: int) -> int:
-        x = self.u(start, n)
-        return x - (1 << n) if x >> (n - 1) else x
+def _Word(v: int) -> _Fields:
+    """Fields of a 128-bit I/NAV word (the word type is bits 0-5)."""
+    return _Fields(v, 128)
 
 
 def decode_galileo_words(words: dict, sat: str, week_ref: int) -> dict | None:
@@ -294,12 +296,7 @@ def decode_galileo_words(words: dict, sat: str, week_ref: int) -> dict | None:
         "sv_health": health, "tgd_s": w5.s(57, 10) * 2.0**-32, "iodc": iod, "transmit_sow_s": float(tow),
         "fit_interval_h": float("nan"), "line": -1,
     }
-    base = week * SECONDS_PER_WEEK
-    t_tx = base + tow
-    rec["transmit_gps_s"] = t_tx
-    rec["toc_gps_s"] = base + toc + SECONDS_PER_WEEK * round((t_tx - base - toc) / SECONDS_PER_WEEK)
-    rec["toe_gps_s"] = base + toe + SECONDS_PER_WEEK * round((t_tx - base - toe) / SECONDS_PER_WEEK)
-    return rec
+    return _dated(rec, week, float(tow), toc, toe)
 
 
 _SFRBX = (0x02, 0x13)
