@@ -349,6 +349,8 @@ def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict=F
             click.echo(f"cdgps: WARNING: {g['file']} ({n}): corrupt UBX data, skipped: {', '.join(g['problems'])}; "
                        f"{g['n_frames']} frames read (the run lacks what was lost; 'ingest --strict' refuses such a log)",
                        err=True)
+        if g.get("other_protocols"):
+            _say(ctx, f"  {g['file']} ({n}): skipped other protocols' frames between the UBX frames: {g['other_protocols']}")
     _say(ctx, f"wrote {output}: GNSS run {s['config']}, master {s['master']}, {len(s['receivers'])} receiver(s), "
               f"{s['ephemerides']} ephemerides, {cfg.displacement} displacement model")
     for r in s["receivers"]:
@@ -1002,10 +1004,13 @@ def config_cmd(ctx, rinex, ubx, nav, master, displacement, sigma, name, output):
 
     if sigma is not None and displacement != "random_walk":
         raise CdgpsError("--sigma is the random-walk process noise: use it with --displacement random_walk")
+    notes: list = []
     text = starter_gnss_config(_parse_named(rinex, "--rinex"), _parse_named(ubx, "--ubx"), list(nav), master,
                                displacement=displacement, sigma_m_per_sqrt_s=sigma,
-                               relative_to=Path(output).resolve().parent, name=name)
+                               relative_to=Path(output).resolve().parent, name=name, notes=notes)
     _write_text_atomic(output, text)
+    for n in notes:
+        click.echo(f"cdgps: note: {n}", err=True)
     _say(ctx, f"wrote {output}")
 
 

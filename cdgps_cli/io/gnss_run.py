@@ -45,7 +45,7 @@ from cdgps_cli.io.mcap import CONFIG_ATTACHMENT, McapOut, array_schema, message_
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.core.records import NAV_COLUMNS, OBS_COLUMNS
 from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
-from cdgps_cli.io.ubx import INTEGRITY_COUNTS, integrity_problems, integrity_record
+from cdgps_cli.io.ubx import INTEGRITY_COUNTS, integrity_problems, integrity_record, skipped_line
 from cdgps_cli.model.gps.positioning import ephemeris_coverage, nominal_interval_s
 from cdgps_cli.model.gps.epoch_align import common_epochs
 
@@ -109,6 +109,8 @@ class GnssReceiver:
     header: dict
     raw: pd.DataFrame
     info: dict
+    nav: pd.DataFrame | None = None
+    """UBX: GPS ephemerides decoded from the log's RXM-SFRBX subframes (None for RINEX)."""
 
 
 @dataclass
@@ -212,12 +214,15 @@ def read_receiver_file(name: str, kind: str, path: str | Path, *, strict: bool =
                                            "n_epochs", "n_epochs_power_failure", "gps_satellites",
                                            "satellites_by_system", "l1_obs_types")}
     elif kind == "ubx":
-        from cdgps_cli.io.ubx import read_ubx_rawx  # noqa: PLC0415
+        from cdgps_cli.io.ubx import read_ubx_log  # noqa: PLC0415
 
-        info_u, obs = read_ubx_rawx(p, strict=strict)
+        info_u, obs, sf_nav = read_ubx_log(p, strict=strict)
         raw = _raw_from_ubx(obs)
         info = _json_safe(info_u)
-        header = {"path": str(p), "format": "UBX RXM-RAWX", "marker_name": name, "approx_position_xyz_m": None,
+        base = info_u.get("rtcm_base")
+        header = {"path": str(p), "format": "UBX RXM-RAWX", "marker_name": name,
+                  "approx_position_xyz_m": base["arp_ecef_m"] if base else None,
+                  "position_source": f"RTCM {base['message']} ARP (station {base['station_id']})" if base else None,
                   "receiver_type": "u-blox (RXM-RAWX)", "interval_s": nominal_interval_s(raw["time_gps_s"].to_numpy())}
         header = _json_safe(header)
     else:  # pragma: no cover - the CLI only passes these two
@@ -227,7 +232,7 @@ def read_receiver_file(name: str, kind: str, path: str | Path, *, strict: bool =
             f"a value in its L1 phase column ({(header.get('l1_obs_types') or {}).get('phase', 'L1')})"
         raise CdgpsError(f"{p}: no GPS L1 carrier-phase observations: no satellite has {what}; carrier-phase "
                          f"differential GPS needs L1 phase at every receiver")
-    return GnssReceiver(name, kind, p.name, header, raw, info)
+    return GnssReceiver(name, kind, p.name, header, raw, info, sf_nav if kind == "ubx" else None)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -348,10 +353,19 @@ def default_config_text(files: dict, nav_paths, master: str | None) -> str:
 
 def merge_nav(nav_paths) -> pd.DataFrame:
     """Read and merge navigation files (exact duplicates removed), as ``cdgps baseline`` does."""
-    navs = [read_rinex_nav(p) for p in nav_paths]
+    return _merge_nav_tables([read_rinex_nav(p) for p in nav_paths])
+
+
+def _merge_nav_tables(navs) -> pd.DataFrame:
+    """Ephemeris tables merged (exact duplicates removed), sorted as the RINEX reader's."""
     nav = pd.concat(navs, ignore_index=True)
     nav = nav.drop_duplicates(subset=["sat", "toe_gps_s", "iode", "af0_s"], keep="first")
     return nav.sort_values(["sat", "toe_gps_s", "transmit_gps_s"], kind="stable").reset_index(drop=True)
+
+
+def rovers_given(receivers: dict, master: str) -> bool:
+    """Whether any receiver but the master is in the run (a pair, which ``cdgps init`` can process)."""
+    return any(n != master for n in receivers)
 
 
 def _span(t) -> str:
@@ -451,9 +465,23 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
             warnings.append(w)
 
     nav = None
+    sf_navs = [rx.nav for rx in receivers.values() if rx.nav is not None and len(rx.nav)]
+    nav_source = ",".join(Path(p).name for p in nav_list)
+    if not nav_list and sf_navs:
+        say(f"using {sum(len(x) for x in sf_navs)} broadcast ephemerides decoded from the UBX logs' RXM-SFRBX subframes …")
+        nav = _merge_nav_tables(sf_navs)
+        nav_source = "RXM-SFRBX:" + ",".join(Path(files[n][1]).name for n, rx in receivers.items()
+                                             if rx.nav is not None and len(rx.nav))
+    elif not nav_list and rovers_given(receivers, master) and all(rx.format == "ubx" for rx in receivers.values()):
+        raise CdgpsError(
+            "no broadcast ephemerides: no navigation file was given and none of the UBX logs ("
+            + ", ".join(Path(files[n][1]).name for n in receivers) + ") has GPS RXM-SFRBX subframes 1-3 of a satellite "
+            "it observed; enable UBX-RXM-SFRBX output on the receivers, or give --nav with the RINEX navigation file "
+            "of that day")
     if nav_list:
         say(f"reading {len(nav_list)} navigation file(s) …")
         nav = merge_nav(nav_list)
+    if nav is not None:
         for n, rx in receivers.items():
             r = rx.raw[np.isfinite(rx.raw["phase_cycles"].to_numpy())]
             cov = ephemeris_coverage(nav, r["sat"].to_numpy(), r["time_gps_s"].to_numpy())
@@ -478,7 +506,8 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
         if a is not None and a.position_ecef_m is not None:
             pos_src[n] = ("config position_ecef_m", list(a.position_ecef_m))
         elif _header_position(rx.header) is not None:
-            pos_src[n] = ("RINEX header APPROX POSITION XYZ", _header_position(rx.header).tolist())
+            pos_src[n] = (rx.header.get("position_source") or "RINEX header APPROX POSITION XYZ",
+                          _header_position(rx.header).tolist())
         else:
             pos_src[n] = (None, None)
     rovers = [n for n in receivers if n != master]
@@ -524,6 +553,8 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
         meta[f"{kind}:{n}_sha256"] = file_sha256(Path(p))
         if n in integrity:
             meta[f"{kind}:{n}_integrity"] = integrity_record(receivers[n].info)
+    if nav is not None and not nav_list:
+        meta["ephemeris_source"] = nav_source
     for i, p in enumerate(nav_list):
         meta[f"nav[{i}]"] = Path(p).name
         meta[f"nav[{i}]_sha256"] = file_sha256(Path(p))
@@ -535,7 +566,7 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
     with McapOut(out_path, time_scale="gps") as out:
         n_eph = 0
         if nav is not None:
-            ch_e = out.channel(GNSS_EPHEMERIS_TOPIC, EPHEMERIS_SCHEMA, {"source": ",".join(Path(p).name for p in nav_list)})
+            ch_e = out.channel(GNSS_EPHEMERIS_TOPIC, EPHEMERIS_SCHEMA, {"source": nav_source})
             for rec in nav.to_dict(orient="records"):
                 out.write(ch_e, float(rec["toc_gps_s"]), {k: _json_safe(v) for k, v in rec.items()})
                 n_eph += 1
@@ -567,7 +598,7 @@ def _ubx_integrity(receivers: dict, files: dict) -> dict:
         if rx.format != "ubx":
             continue
         out[n] = {"file": files[n][1], **{k: int(rx.info.get(k) or 0) for k in INTEGRITY_COUNTS},
-                  "problems": integrity_problems(rx.info)}
+                  "problems": integrity_problems(rx.info), "other_protocols": skipped_line(rx.info)}
     return out
 
 
@@ -725,10 +756,13 @@ def gnss_run_info(path: str | Path, contents) -> dict:
 
 def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), master: str | None = None, *,
                         displacement: str = "static", sigma_m_per_sqrt_s=None, relative_to: Path | None = None,
-                        name: str | None = None) -> str:
+                        name: str | None = None, notes: list | None = None) -> str:
     """Text of a GNSS run config for the given files; the headers are read and summarised in
     comments (marker, receiver, antenna, span, header position).  The master defaults to the first
-    RINEX antenna with a header position; paths are written relative to ``relative_to``."""
+    RINEX antenna with a header position (or a UBX log with an RTCM 1005/1006 station position);
+    paths are written relative to ``relative_to``.  A UBX master's ``position_ecef_m`` is the
+    RTCM 1005/1006 antenna reference point, else the mean single-point position (said in the
+    comments and appended to ``notes``).  The text is parsed back and its positions checked."""
     ubx = ubx or {}
     if not rinex and not ubx:
         raise CdgpsError("give at least one receiver file (--rinex/--ubx ANTENNA=FILE)")
@@ -756,12 +790,23 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
                         f"{_span(t)} every {nominal_interval_s(t):g} s,")
         comments.append(f"    header position {('(' + ', '.join(f'{v:.4f}' for v in pos) + ')') if pos is not None else 'none'}")
         files[n] = ("rinex", rel(p))
+    positions: dict = {}
+    ubx_rx = {}
     for n, p in ubx.items():
-        rx = read_receiver_file(n, "ubx", p)
+        rx = ubx_rx[n] = read_receiver_file(n, "ubx", p)
         t = np.unique(rx.raw["time_gps_s"].to_numpy())
+        base = rx.info.get("rtcm_base")
+        sf = rx.info.get("sfrbx") or {}
         comments.append(f"{n}: {Path(p).name}, u-blox RXM-RAWX, {t.size} epochs {_span(t)}, GPS satellites "
-                        f"{', '.join(rx.info.get('gps_satellites') or [])}; no position in the log (give position_ecef_m "
-                        f"for a master)")
+                        f"{', '.join(rx.info.get('gps_satellites') or [])}; {int(sf.get('ephemerides') or 0)} GPS "
+                        f"ephemerides from RXM-SFRBX")
+        if base:
+            positions[n] = tuple(base["arp_ecef_m"])
+            with_pos.append(n)
+            extra = f", {base['distinct']} distinct positions in {base['count']} messages: the last is used" \
+                if base["distinct"] > 1 else ""
+            comments.append(f"    position: RTCM {base['message']} antenna reference point of station "
+                            f"{base['station_id']} ({', '.join(f'{v:.4f}' for v in base['arp_ecef_m'])}){extra}")
         files[n] = ("ubx", rel(p))
     for p in nav_paths:
         nav = read_rinex_nav(p)
@@ -770,7 +815,42 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
     master = master or (with_pos[0] if with_pos else next(iter(files)))
     if master not in files:
         raise CdgpsError(f"master {master!r} is not one of the receivers given: {', '.join(files)}")
+    if master in ubx_rx and master not in positions:
+        positions[master] = _spp_master_position(master, ubx[master], ubx_rx[master], nav_paths, ubx_rx)
+        comments.append(f"    {master} position: NOT surveyed — the log has no RTCM 1005/1006; the mean single-point "
+                        f"position from its L1 pseudoranges (metre level). Replace it by the surveyed position.")
+        if notes is not None:
+            notes.append(f"{master} ({Path(ubx[master]).name}): no RTCM 1005/1006 base position in the log; "
+                         f"position_ecef_m is the mean single-point position (metre level), not a surveyed one")
     text = gnss_config_toml(files, [rel(p) for p in nav_paths], master, name=name or "-".join(files),
-                            displacement=displacement, sigma_m_per_sqrt_s=sigma_m_per_sqrt_s, comments=comments)
-    parse_gnss_config(text, "<starter config>")               # it must load
+                            displacement=displacement, sigma_m_per_sqrt_s=sigma_m_per_sqrt_s, comments=comments,
+                            positions=positions or None)
+    cfg = parse_gnss_config(text, "<starter config>")         # it must load, and say what was written
+    for n, pos in positions.items():
+        back = cfg.antenna(n).position_ecef_m
+        if back is None or max(abs(a - b) for a, b in zip(back, pos)) > 5e-5:
+            raise CdgpsError(f"internal error: the starter config does not read back {n}'s position {pos} (got {back})")
     return text
+
+
+def _spp_master_position(name: str, path, rx: GnssReceiver, nav_paths, ubx_rx: dict) -> tuple:
+    """Mean single-point position of a UBX master without RTCM 1005/1006, from the nav files or
+    the logs' SFRBX ephemerides; an error naming both sources when there are no ephemerides."""
+    from cdgps_cli.model.gps.positioning import spp_static  # noqa: PLC0415
+
+    if nav_paths:
+        nav = merge_nav(nav_paths)
+    else:
+        navs = [r.nav for r in ubx_rx.values() if r.nav is not None and len(r.nav)]
+        if not navs:
+            raise CdgpsError(f"{path}: no base position for master {name}: the log has no RTCM 1005/1006 message, and "
+                             f"no ephemerides for a single-point position (no RXM-SFRBX GPS subframes in the UBX logs "
+                             f"and no --nav file); give --nav, or write position_ecef_m in the config yourself")
+        nav = _merge_nav_tables(navs)
+    r = rx.raw[np.isfinite(rx.raw["pseudorange_m"].to_numpy())]
+    cov = ephemeris_coverage(nav, r["sat"].to_numpy(), r["time_gps_s"].to_numpy())
+    r = r[cov]
+    t = r["time_gps_s"].to_numpy()
+    ep = np.unique(t, return_inverse=True)[1]
+    x, _ = spp_static(ep, r["sat"].to_numpy(), t, r["pseudorange_m"].to_numpy(), nav, what=f"{path} ({name})")
+    return tuple(float(v) for v in x)

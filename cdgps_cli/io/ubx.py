@@ -24,7 +24,6 @@ resolution — and slips are flagged only by a per-epoch LLI.
 from __future__ import annotations
 
 import gzip
-import re
 import zlib
 from pathlib import Path
 
@@ -32,8 +31,11 @@ import numpy as np
 import pandas as pd
 
 from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.io.sfrbx import sfrbx_ephemerides
+from cdgps_cli.io.ubx_frames import MAX_OFFSETS_SHOWN, rtcm_station_arp, split_stream
 
-__all__ = ["INTEGRITY_COUNTS", "UBX_OBS_COLUMNS", "integrity_line", "integrity_problems", "integrity_record", "read_ubx_rawx"]
+__all__ = ["INTEGRITY_COUNTS", "UBX_OBS_COLUMNS", "integrity_line", "integrity_problems", "integrity_record", "read_ubx_rawx",
+           "skipped_line"]
 
 UBX_OBS_COLUMNS = (
     "time_gps_s",
@@ -56,29 +58,7 @@ UBX_OBS_COLUMNS = (
 _SYNC = b"\xb5\x62"
 _RAWX = (0x02, 0x15)
 _GNSS = {0: "GPS", 1: "SBAS", 2: "Galileo", 3: "BeiDou", 4: "IMES", 5: "QZSS", 6: "GLONASS", 7: "NavIC"}
-_MAX_SHOWN = 5
-
-
-class _Fletcher:
-    """UBX 8-bit Fletcher checksums of any byte range of a log, each in O(1).
-
-    With prefix sums (mod 256) S_i = Σ_{j<i} x_j and T_i = Σ_{j<i} j·x_j, the checksum over
-    bytes a..b−1 is CK_A = S_b − S_a and CK_B = Σ (b−j)·x_j = b·CK_A − (T_b − T_a) (mod 256), so a
-    log full of false sync words announcing long frames costs O(1) per candidate, not O(length).
-    Memory: two uint8 arrays of the log's length.
-    """
-
-    def __init__(self, data: bytes):
-        x = np.frombuffer(data, dtype=np.uint8)
-        idx = np.resize(np.arange(256, dtype=np.uint8), x.size)
-        self._s = b"\0" + np.cumsum(x, dtype=np.uint8).tobytes()          # bytes: fast int indexing
-        self._t = b"\0" + np.cumsum(idx * x, dtype=np.uint8).tobytes()
-
-    def __call__(self, a: int, b: int) -> bytes:
-        """Checksum over ``data[a:b]`` (class, id, length and payload of a frame)."""
-        ck_a = (self._s[b] - self._s[a]) & 0xFF
-        ck_b = (b * ck_a - (self._t[b] - self._t[a])) & 0xFF
-        return bytes((ck_a, ck_b))
+_MAX_SHOWN = MAX_OFFSETS_SHOWN
 
 
 def _msg_name(cls: int, mid: int) -> str:
@@ -100,91 +80,17 @@ def _signal_name(gnss: int, sig: int) -> str:
     return f"{_GNSS.get(gnss, f'gnss{gnss}')} {s or f'sig{sig}'}"
 
 
-_NMEA = re.compile(rb"\$[A-Z][A-Z0-9]{1,5},[\x20-\x7e]{0,79}?\*([0-9A-Fa-f]{2})\r?\n")
-
 INTEGRITY_COUNTS = {
     "n_frames": "frames read",
     "bad_checksum_frames": "failing the checksum",
     "undecodable_frames": "RXM-RAWX frames with a valid checksum but undecodable",
     "skipped_bytes": "bytes skipped between frames",
     "truncated_tail_bytes": "bytes of a truncated frame at the end",
+    "bad_crc_rtcm_frames": "RTCM 3 frames failing the CRC-24Q",
 }
 """The integrity counters of a UBX log (keys of the reader's ``info``) and how they are worded.
 All but ``n_frames`` mean lost data: they are reported at ingest, kept in the RUN and shown by
 ``cdgps info``; ``cdgps ingest --strict`` refuses a log where any is non-zero."""
-
-
-def _nmea_bytes(seg: bytes) -> int:
-    """Bytes of ``seg`` that are complete NMEA 0183 sentences with a correct checksum."""
-    n = 0
-    for m in _NMEA.finditer(seg):
-        body = m.group(0)[1 : m.start(1) - m.start(0) - 1]
-        x = 0
-        for c in body:
-            x ^= c
-        if x == int(m.group(1), 16):
-            n += m.end() - m.start()
-    return n
-
-
-def _frames(data: bytes):
-    """Split a log into checksum-valid UBX frames.
-
-    Returns
-    -------
-    frames : list of (offset, class, id, frame bytes)
-    stats : dict
-        ``bad_checksum_frames``, ``bad_frame_offsets``, ``truncated_tail_bytes``;
-        ``nmea_bytes`` (complete NMEA sentences between frames, checksums correct) and
-        ``skipped_bytes`` (every other byte outside valid frames: noise, RTCM, corrupt frames).
-    """
-    stats = {"bad_checksum_frames": 0, "bad_frame_offsets": [], "truncated_tail_bytes": 0, "skipped_bytes": 0,
-             "nmea_bytes": 0}
-    n = len(data)
-    pos = 0        # first byte not yet accounted for
-    scan = 0       # where the search for the next sync resumes
-    frames = []
-    checksum = _Fletcher(data)
-
-    def skip(a: int, b: int) -> None:
-        if b > a:
-            nm = _nmea_bytes(data[a:b]) if b"$" in data[a:b] else 0
-            stats["nmea_bytes"] += nm
-            stats["skipped_bytes"] += b - a - nm
-
-    while True:
-        k = data.find(_SYNC, scan)
-        if k < 0:
-            skip(pos, n)
-            break
-        if k + 6 > n:
-            skip(pos, k)
-            stats["truncated_tail_bytes"] = n - k
-            break
-        length = int.from_bytes(data[k + 4 : k + 6], "little")
-        end = k + 8 + length
-        if end > n:
-            # either a frame cut by the end of the log, or a corrupt length: look for a later
-            # sync; if none gives a valid frame the rest is a truncated tail
-            if data.find(_SYNC, k + 2) < 0:
-                skip(pos, k)
-                stats["truncated_tail_bytes"] = n - k
-                break
-            stats["bad_checksum_frames"] += 1
-            if len(stats["bad_frame_offsets"]) < _MAX_SHOWN:
-                stats["bad_frame_offsets"].append(k)
-            scan = k + 2
-            continue
-        if checksum(k + 2, k + 6 + length) != data[k + 6 + length : end]:
-            stats["bad_checksum_frames"] += 1
-            if len(stats["bad_frame_offsets"]) < _MAX_SHOWN:
-                stats["bad_frame_offsets"].append(k)
-            scan = k + 2
-            continue
-        skip(pos, k)
-        frames.append((k, data[k + 2], data[k + 3], data[k:end]))
-        pos = scan = end
-    return frames, stats
 
 
 def integrity_problems(info: dict) -> list[str]:
@@ -194,7 +100,8 @@ def integrity_problems(info: dict) -> list[str]:
     lacks count as zero.
     """
     out = []
-    offsets = {"bad_checksum_frames": "bad_frame_offsets", "undecodable_frames": "undecodable_frame_offsets"}
+    offsets = {"bad_checksum_frames": "bad_frame_offsets", "undecodable_frames": "undecodable_frame_offsets",
+               "bad_crc_rtcm_frames": "bad_rtcm_offsets"}
     for key, word in INTEGRITY_COUNTS.items():
         v = int(info.get(key) or 0)
         if key == "n_frames" or not v:
@@ -217,8 +124,26 @@ def integrity_line(info: dict) -> str:
 
 
 def integrity_record(info: dict) -> str:
-    """The counters as one metadata value: ``n_frames=14 bad_checksum_frames=0 …``."""
-    return " ".join(f"{k}={int(info.get(k) or 0)}" for k in INTEGRITY_COUNTS)
+    """The counters as one metadata value: ``n_frames=14 bad_checksum_frames=0 … nmea_sentences=3
+    nmea_bytes=210 rtcm_bytes=0`` and one ``rtcm_<type>=<count>`` per RTCM 3 message type found
+    (the other protocols' frames skipped by the UBX reader: a receiver's normal output, not losses)."""
+    keys = (*INTEGRITY_COUNTS, "nmea_sentences", "nmea_bytes", "rtcm_bytes")
+    rtcm = info.get("rtcm_frames") or {}
+    return " ".join([*(f"{k}={int(info.get(k) or 0)}" for k in keys),
+                     *(f"rtcm_{t}={int(c)}" for t, c in sorted(rtcm.items(), key=lambda kv: int(kv[0])))])
+
+
+def skipped_line(info: dict) -> str:
+    """The other protocols' frames between the UBX frames, worded: ``3 NMEA sentences (210 bytes),
+    12 RTCM 3 frames (1005 ×2, 1077 ×10; 2400 bytes)``; empty when there are none."""
+    parts = []
+    if info.get("nmea_sentences"):
+        parts.append(f"{int(info['nmea_sentences'])} NMEA sentences ({int(info.get('nmea_bytes') or 0)} bytes)")
+    rtcm = info.get("rtcm_frames") or {}
+    if rtcm:
+        types = ", ".join(f"{t} ×{c}" for t, c in sorted(rtcm.items(), key=lambda kv: int(kv[0])))
+        parts.append(f"{sum(int(c) for c in rtcm.values())} RTCM 3 frames ({types}; {int(info.get('rtcm_bytes') or 0)} bytes)")
+    return ", ".join(parts)
 
 
 _RAWX_HEAD = np.dtype([("rcvTow", "<f8"), ("week", "<u2"), ("leapS", "i1"), ("numMeas", "u1"), ("recStat", "u1"),
@@ -268,6 +193,12 @@ def _decode_rawx(rawx: list) -> tuple[np.ndarray, np.ndarray, list]:
 
 
 def read_ubx_rawx(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.DataFrame]:
+    """``info`` and ``obs`` of :func:`read_ubx_log` (the GPS L1 C/A RXM-RAWX measurements)."""
+    info, obs, _ = read_ubx_log(path, strict=strict)
+    return info, obs
+
+
+def read_ubx_log(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.DataFrame, pd.DataFrame]:
     """Read GPS L1 C/A raw measurements from the RXM-RAWX messages of a u-blox UBX log.
 
     Parameters
@@ -296,6 +227,9 @@ def read_ubx_rawx(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.D
         ``skipped_bytes`` (bytes outside valid frames that are not NMEA sentences: noise, RTCM,
         and the bytes of corrupt frames); ``nmea_bytes`` (NMEA sentences with correct checksums
         between frames: expected in a receiver's output, not a loss).
+        ``sfrbx`` (the ephemeris decoder's counters, :func:`cdgps_cli.io.sfrbx.sfrbx_ephemerides`);
+        ``rtcm_base`` (the reference station ARP of RTCM 1005/1006,
+        :func:`cdgps_cli.io.ubx_frames.rtcm_station_arp`, or None).
     obs : DataFrame
         One row per RXM-RAWX epoch and GPS satellite tracked on L1 C/A, sorted by time then
         satellite; columns :data:`UBX_OBS_COLUMNS`:
@@ -308,6 +242,10 @@ def read_ubx_rawx(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.D
         (trkStat "half cycle valid"), ``sub_half_subtracted`` (trkStat "half cycle subtracted
         from phase") — bools —, ``pr_std_m`` (0.01·2^prStd m), ``cp_std_cycles``
         (0.004·cpStd cycles), ``clock_reset`` (bool, recStat clkReset of the epoch).
+
+    nav : DataFrame
+        GPS broadcast ephemerides decoded from the log's RXM-SFRBX / RXM-SFRB subframes, columns
+        :data:`cdgps_cli.core.records.NAV_COLUMNS` (empty when the log has none).
 
     Raises
     ------
@@ -328,7 +266,7 @@ def read_ubx_rawx(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.D
             raise CdgpsError(f"{p}: cannot decompress this gzip file: {exc}") from None
     if not data:
         raise CdgpsError(f"{p}: empty file; expected a u-blox UBX binary log")
-    frames, stats = _frames(data)
+    frames, rtcm, stats = split_stream(data)
     counts: dict[str, int] = {}
     for _, cls, mid, _ in frames:
         name = _msg_name(cls, mid)
@@ -351,7 +289,8 @@ def read_ubx_rawx(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.D
                 "(a silent half-cycle error breaks integer ambiguity resolution) and slips are flagged only by a per-epoch "
                 "LLI. Record RXM-RAWX with a u-blox M8T, F9P/F9T or later receiver."
             )
-        raise CdgpsError(f"{p}: no RXM-RAWX messages (found: {found}); carrier-phase logging needs RXM-RAWX enabled on the receiver")
+        raise CdgpsError(f"{p}: no RXM-RAWX messages (found: {found}); carrier-phase logging needs RXM-RAWX enabled on "
+                         f"the receiver (UBX-CFG-MSG class 0x02 id 0x15, or CFG-MSGOUT-UBX_RXM_RAWX on F9)")
 
     epochs, meas, undecodable_offsets = _decode_rawx(rawx)
     undecodable = len(undecodable_offsets)
@@ -429,5 +368,12 @@ def read_ubx_rawx(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.D
         "truncated_tail_bytes": stats["truncated_tail_bytes"],
         "skipped_bytes": stats["skipped_bytes"],
         "nmea_bytes": stats["nmea_bytes"],
+        "nmea_sentences": stats["nmea_sentences"],
+        "rtcm_bytes": stats["rtcm_bytes"],
+        "rtcm_frames": {str(k): v for k, v in stats["rtcm_frames"].items()},
+        "bad_crc_rtcm_frames": stats["bad_crc_rtcm_frames"],
+        "bad_rtcm_offsets": stats["bad_rtcm_offsets"],
     }
-    return info, obs
+    nav, info["sfrbx"] = sfrbx_ephemerides(frames, week0)
+    info["rtcm_base"] = rtcm_station_arp(rtcm)
+    return info, obs, nav

@@ -1,0 +1,388 @@
+"""GPS and Galileo broadcast ephemerides from the navigation data a u-blox receiver logs.
+
+u-blox receivers log each navigation-data subframe they decode: RXM-SFRBX (class 0x02, id 0x13;
+u-blox 8 and later) and the legacy RXM-SFRB (0x02, 0x11; u-blox 5/6).  This module turns the GPS
+LNAV subframes 1–3 (IS-GPS-200 §20.3.2–20.3.3) into the same broadcast-ephemeris record the RINEX
+navigation reader returns (:data:`cdgps_cli.core.records.NAV_COLUMNS`), so a u-blox pair needs no
+separate navigation file.
+
+* RXM-SFRBX, GPS (gnssId 0): ten 32-bit words, each holding one 30-bit navigation word in bits
+  29…0 (D1 at bit 29, D25–D30 the parity).  The data bits are taken as they come and also
+  complemented by the previous word's D30 (the IS-GPS-200 polarity rule); the one whose
+  parity (Table 20-XIV) holds is used, so both conventions a receiver may follow are read, and a
+  subframe with any word failing its parity is dropped and counted.
+* RXM-SFRB (legacy), GPS: ten 32-bit words of 24 data bits (parity already removed by the
+  receiver, so no parity check is possible).
+
+* RXM-SFRBX, Galileo (gnssId 2): an I/NAV page pair (E1-B or E5b-I) in eight words; word types
+  1–5 (ephemeris, clock, SISA, BGD, health, GST week) give one record, see
+  :func:`decode_galileo_words` for how its fields map onto the RINEX 3 Galileo layout.  A page
+  pair failing its CRC-24Q is dropped and counted.  BeiDou D1 (gnssId 3) is not decoded: its
+  frames are counted under ``other_systems``.
+
+GPS subframes of one satellite are combined when subframes 2 and 3 carry the same IODE and it
+equals the 8 LSBs of subframe 1's IODC (IS-GPS-200 §20.3.4.4: a consistent data set).  The
+10-bit week number is completed with the reference week given (the RXM-RAWX week of the log).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from cdgps_cli.core.records import NAV_COLUMNS
+
+__all__ = ["GPS_PI", "URA_M", "decode_galileo_words", "decode_gps_subframes", "inav_word", "gps_words_from_sfrbx", "parity_ok", "sfrbx_ephemerides"]
+
+GPS_PI = 3.1415926535898
+"""The value of π IS-GPS-200 fixes for converting semicircles to radians."""
+URA_M = (2.4, 3.4, 4.85, 6.85, 9.65, 13.65, 24.0, 48.0, 96.0, 192.0, 384.0, 768.0, 1536.0, 3072.0, 6144.0)
+"""Nominal user range accuracy (m) of URA index 0…14 (IS-GPS-200 §20.3.3.3.1.3); index 15: no accuracy."""
+PREAMBLE = 0x8B
+SECONDS_PER_WEEK = 604800.0
+
+# IS-GPS-200 Table 20-XIV: the data bits d1…d24 entering each parity bit D25…D30, and which of
+# the previous word's D29*/D30* enters it
+_PARITY = (
+    (29, (1, 2, 3, 5, 6, 10, 11, 12, 13, 14, 17, 18, 20, 23)),
+    (30, (2, 3, 4, 6, 7, 11, 12, 13, 14, 15, 18, 19, 21, 24)),
+    (29, (1, 3, 4, 5, 7, 8, 12, 13, 14, 15, 16, 19, 20, 22)),
+    (30, (2, 4, 5, 6, 8, 9, 13, 14, 15, 16, 17, 20, 21, 23)),
+    (30, (1, 3, 5, 6, 7, 9, 10, 14, 15, 16, 17, 18, 21, 22, 24)),
+    (29, (3, 5, 6, 8, 9, 10, 11, 13, 15, 19, 22, 23, 24)),
+)
+_PARITY_MASKS = tuple((prev, sum(1 << (24 - b) for b in bits)) for prev, bits in _PARITY)
+
+
+def parity_bits(data24: int, d29_prev: int, d30_prev: int) -> int:
+    """The six parity bits D25…D30 (as an int, D25 the MSB) of 24 source data bits d1…d24
+    (``data24``, d1 the MSB) after a word ending in D29*, D30*."""
+    out = 0
+    for prev, mask in _PARITY_MASKS:
+        bit = (d29_prev if prev == 29 else d30_prev) ^ (bin(data24 & mask).count("1") & 1)
+        out = (out << 1) | bit
+    return out
+
+
+def parity_ok(word30: int, d29_prev: int, d30_prev: int) -> int | None:
+    """The source data bits of a 30-bit word if its parity holds, else None.
+
+    Tries the bits as given and complemented by D30* (IS-GPS-200: transmitted d_i = source d_i ⊕ D30*).
+    """
+    d = (word30 >> 6) & 0xFFFFFF
+    p = word30 & 0x3F
+    for data in ((d ^ 0xFFFFFF) if d30_prev else d, d):
+        if parity_bits(data, d29_prev, d30_prev) == p:
+            return data
+    return None
+
+
+def gps_words_from_sfrbx(dwrd: list[int]) -> list[int] | None:
+    """The 24-bit source data words of an RXM-SFRBX GPS subframe (ten 30-bit words), or None when
+    a word fails its parity.  The word before word 1 is word 10 of the previous subframe, whose
+    D29/D30 are zero by design (IS-GPS-200 §20.3.5.2)."""
+    out = []
+    d29 = d30 = 0
+    for w in dwrd:
+        w &= 0x3FFFFFFF
+        data = parity_ok(w, d29, d30)
+        if data is None:
+            return None
+        out.append(data)
+        d29, d30 = (w >> 1) & 1, w & 1
+    return out
+
+
+def _dated(rec: dict, week: int, transmit_sow_s: float, toc_sow_s: float, toe_sow_s: float) -> dict:
+    """``rec`` with ``transmit_gps_s``, ``toc_gps_s``, ``toe_gps_s`` (GPS s): seconds of the week
+    of ``week``, toc and toe taken in the week nearest the transmission (a toe early in the next
+    week is sent at the end of this one)."""
+    base = week * SECONDS_PER_WEEK
+    t_tx = base + transmit_sow_s
+    rec["transmit_gps_s"] = t_tx
+    rec["toc_gps_s"] = base + toc_sow_s + SECONDS_PER_WEEK * round((t_tx - base - toc_sow_s) / SECONDS_PER_WEEK)
+    rec["toe_gps_s"] = base + toe_sow_s + SECONDS_PER_WEEK * round((t_tx - base - toe_sow_s) / SECONDS_PER_WEEK)
+    return rec
+
+
+class _Fields:
+    """Unsigned/two's-complement fields of a ``width``-bit message held as an int, bits numbered from 0."""
+
+    def __init__(self, v: int, width: int):
+        self.v, self.width = v, width
+
+    def u(self, start: int, n: int) -> int:
+        return (self.v >> (self.width - start - n)) & ((1 << n) - 1)
+
+    def s(self, start: int, n: int) -> int:
+        x = self.u(start, n)
+        return x - (1 << n) if x >> (n - 1) else x
+
+
+def _Bits(words24: list[int]) -> _Fields:
+    """The 240 data bits of a GPS subframe (ten words of 24 bits)."""
+    v = 0
+    for w in words24:
+        v = (v << 24) | (w & 0xFFFFFF)
+    return _Fields(v, 240)
+
+
+def subframe_id(words24: list[int]) -> int:
+    """The subframe ID of the HOW (word 2 bits 20–22), 0 when word 1 lacks the preamble."""
+    b = _Bits(words24)
+    return b.u(43, 3) if b.u(0, 8) == PREAMBLE else 0
+
+
+def decode_gps_subframes(sf1: list[int], sf2: list[int], sf3: list[int], sat: str, week_ref: int) -> dict | None:
+    """One broadcast ephemeris from the 24-bit data words of GPS LNAV subframes 1, 2 and 3.
+
+    Parameters
+    ----------
+    sf1, sf2, sf3 : list of 10 int
+        Source data bits d1…d24 of each word (d1 the MSB).
+    sat : str
+        Satellite ("G05").
+    week_ref : int
+        A full GPS week near the data (the 10-bit week number is completed to the nearest).
+
+    Returns
+    -------
+    dict or None
+        The record with the keys of :data:`NAV_COLUMNS` (``line`` = −1), in the RINEX reader's
+        units (s, m, rad, rad/s); None when the three subframes are not one data set (IODE/IODC).
+    """
+    b1, b2, b3 = _Bits(sf1), _Bits(sf2), _Bits(sf3)
+    iodc = (b1.u(70, 2) << 8) | b1.u(168, 8)
+    iode = b2.u(48, 8)
+    if b3.u(216, 8) != iode or (iodc & 0xFF) != iode:
+        return None
+    wn10 = b1.u(48, 10)
+    week = wn10 + 1024 * round((week_ref - wn10) / 1024)
+    tow_sf1 = b1.u(24, 17) * 6.0 - 6.0          # HOW: TOW of the next subframe's start
+    toc = b1.u(176, 16) * 16.0
+    toe = b2.u(216, 16) * 16.0
+    ura = b1.u(60, 4)
+    rec = {
+        "sat": sat,
+        "af0_s": b1.s(216, 22) * 2.0**-31,
+        "af1_s_per_s": b1.s(200, 16) * 2.0**-43,
+        "af2_s_per_s2": b1.s(192, 8) * 2.0**-55,
+        "iode": iode,
+        "crs_m": b2.s(56, 16) * 2.0**-5,
+        "delta_n_rad_per_s": b2.s(72, 16) * 2.0**-43 * GPS_PI,
+        "m0_rad": b2.s(88, 32) * 2.0**-31 * GPS_PI,
+        "cuc_rad": b2.s(120, 16) * 2.0**-29,
+        "e": b2.u(136, 32) * 2.0**-33,
+        "cus_rad": b2.s(168, 16) * 2.0**-29,
+        "sqrt_a_sqrt_m": b2.u(184, 32) * 2.0**-19,
+        "toe_sow_s": toe,
+        "cic_rad": b3.s(48, 16) * 2.0**-29,
+        "omega0_rad": b3.s(64, 32) * 2.0**-31 * GPS_PI,
+        "cis_rad": b3.s(96, 16) * 2.0**-29,
+        "i0_rad": b3.s(112, 32) * 2.0**-31 * GPS_PI,
+        "crc_m": b3.s(144, 16) * 2.0**-5,
+        "omega_rad": b3.s(160, 32) * 2.0**-31 * GPS_PI,
+        "omega_dot_rad_per_s": b3.s(192, 24) * 2.0**-43 * GPS_PI,
+        "idot_rad_per_s": b3.s(224, 14) * 2.0**-43 * GPS_PI,
+        "codes_l2": b1.u(58, 2),
+        "week": week,
+        "l2p_data_flag": b1.u(72, 1),
+        "sv_accuracy_m": URA_M[ura] if ura < len(URA_M) else 6144.0 * 2,
+        "sv_health": b1.u(64, 6),
+        "tgd_s": b1.s(160, 8) * 2.0**-31,
+        "iodc": iodc,
+        "transmit_sow_s": tow_sf1,
+        "fit_interval_h": 4.0 if b2.u(232, 1) == 0 else 6.0,
+        "line": -1,
+    }
+    return _dated(rec, week, tow_sf1, toc, toe)
+
+
+# ---------------------------------------------------------------------------------------------
+# Galileo I/NAV (E1-B or E5b-I): word types 1-5, Galileo OS SIS ICD §4.3.5
+
+def _sisa_m(index: int) -> float:
+    """Signal-in-space accuracy (m) of a SISA index (Galileo OS SIS ICD Table 89); NaN: no accuracy."""
+    if index < 50:
+        return index * 0.01
+    if index < 75:
+        return 0.5 + (index - 50) * 0.02
+    if index < 100:
+        return 1.0 + (index - 75) * 0.04
+    if index < 126:
+        return 2.0 + (index - 100) * 0.16
+    return float("nan")
+
+
+def inav_word(dwrd: list[int]) -> tuple[int, int] | None:
+    """The 128-bit I/NAV word of an RXM-SFRBX Galileo page pair, as (word type, int), or None.
+
+    u-blox delivers the even page in words 0-3 (bit 0 even/odd = 0, page type, 112 data bits,
+    6 tail bits, 8 pad bits) and the odd page in words 4-7 (even/odd = 1, page type, 16 data bits,
+    64 reserved/SAR/spare bits, CRC-24Q, …).  The pair is accepted when the even/odd flags are
+    right, neither page is an alert page and the CRC over even bits 0-113 + odd bits 0-81 holds.
+    """
+    from cdgps_cli.io.ubx_frames import crc24q  # noqa: PLC0415
+
+    if len(dwrd) < 8:
+        return None
+    v = 0
+    for w in dwrd[:8]:
+        v = (v << 32) | (w & 0xFFFFFFFF)
+    even, odd = v >> 128, v & ((1 << 128) - 1)
+
+    def bits(x, start, n):
+        return (x >> (128 - start - n)) & ((1 << n) - 1)
+
+    if bits(even, 0, 1) != 0 or bits(odd, 0, 1) != 1 or bits(even, 1, 1) or bits(odd, 1, 1):
+        return None
+    covered = (bits(even, 0, 114) << 82) | bits(odd, 0, 82)          # 196 bits, padded to 200 in front
+    if crc24q(covered.to_bytes(25, "big")) != bits(odd, 82, 24):
+        return None
+    word = (bits(even, 2, 112) << 16) | bits(odd, 2, 16)
+    return word >> 122, word
+
+
+def _Word(v: int) -> _Fields:
+    """Fields of a 128-bit I/NAV word (the word type is bits 0-5)."""
+    return _Fields(v, 128)
+
+
+def decode_galileo_words(words: dict, sat: str, week_ref: int) -> dict | None:
+    """One Galileo broadcast ephemeris from I/NAV word types 1-5 of one satellite.
+
+    Parameters
+    ----------
+    words : dict
+        Word type (1…5) → 128-bit word (:func:`inav_word`).
+    sat : str
+        Satellite ("E11").
+    week_ref : int
+        A GPS week near the data (GST week = GPS week − 1024; the 12-bit WN is completed).
+
+    Returns
+    -------
+    dict or None
+        A record with the keys of :data:`NAV_COLUMNS`, in the RINEX 3 Galileo layout where it
+        fits: ``iode`` = IODnav, ``codes_l2`` = data sources (513: I/NAV, clock for E5b/E1),
+        ``week`` = GST week + 1024 (continuous with GPS weeks, as RINEX writes it),
+        ``sv_accuracy_m`` = SISA, ``sv_health`` = RINEX bit layout (E1-B DVS bit 0, E1-B HS bits
+        1-2, E5b DVS bit 6, E5b HS bits 7-8); **``tgd_s`` = BGD(E1, E5b)** — the group delay an E1
+        single-frequency user of the I/NAV clock subtracts, not RINEX's BGD(E1, E5a) slot —
+        and ``iodc`` = IODnav.  None when the IODnav of words 1-4 differ or a word is missing.
+    """
+    if not all(k in words for k in (1, 2, 3, 4, 5)):
+        return None
+    w1, w2, w3, w4, w5 = (_Word(words[k]) for k in (1, 2, 3, 4, 5))
+    iod = w1.u(6, 10)
+    if any(w.u(6, 10) != iod for w in (w2, w3, w4)):
+        return None
+    wn = w5.u(73, 12) + 1024
+    week = wn + 4096 * round((week_ref - wn) / 4096)
+    tow = w5.u(85, 20)
+    toe, toc = w1.u(16, 14) * 60.0, w4.u(54, 14) * 60.0
+    health = (w5.u(72, 1) | (w5.u(69, 2) << 1) | (w5.u(71, 1) << 6) | (w5.u(67, 2) << 7))
+    rec = {
+        "sat": sat, "af0_s": w4.s(68, 31) * 2.0**-34, "af1_s_per_s": w4.s(99, 21) * 2.0**-46,
+        "af2_s_per_s2": w4.s(120, 6) * 2.0**-59, "iode": iod,
+        "crs_m": w3.s(104, 16) * 2.0**-5, "delta_n_rad_per_s": w3.s(40, 16) * 2.0**-43 * GPS_PI,
+        "m0_rad": w1.s(30, 32) * 2.0**-31 * GPS_PI, "cuc_rad": w3.s(56, 16) * 2.0**-29,
+        "e": w1.u(62, 32) * 2.0**-33, "cus_rad": w3.s(72, 16) * 2.0**-29, "sqrt_a_sqrt_m": w1.u(94, 32) * 2.0**-19,
+        "toe_sow_s": toe, "cic_rad": w4.s(22, 16) * 2.0**-29, "omega0_rad": w2.s(16, 32) * 2.0**-31 * GPS_PI,
+        "cis_rad": w4.s(38, 16) * 2.0**-29, "i0_rad": w2.s(48, 32) * 2.0**-31 * GPS_PI,
+        "crc_m": w3.s(88, 16) * 2.0**-5, "omega_rad": w2.s(80, 32) * 2.0**-31 * GPS_PI,
+        "omega_dot_rad_per_s": w3.s(16, 24) * 2.0**-43 * GPS_PI, "idot_rad_per_s": w2.s(112, 14) * 2.0**-43 * GPS_PI,
+        "codes_l2": 513, "week": week, "l2p_data_flag": 0, "sv_accuracy_m": _sisa_m(w3.u(120, 8)),
+        "sv_health": health, "tgd_s": w5.s(57, 10) * 2.0**-32, "iodc": iod, "transmit_sow_s": float(tow),
+        "fit_interval_h": float("nan"), "line": -1,
+    }
+    return _dated(rec, week, float(tow), toc, toe)
+
+
+_SFRBX = (0x02, 0x13)
+_SFRB = (0x02, 0x11)
+
+
+def sfrbx_ephemerides(frames: list, week_ref: int | None) -> tuple[pd.DataFrame, dict]:
+    """GPS ephemerides from the RXM-SFRBX / RXM-SFRB frames of a log.
+
+    Parameters
+    ----------
+    frames : list of (offset, class, id, frame bytes)
+        Checksum-valid UBX frames (:func:`cdgps_cli.io.ubx_frames.split_stream`), in log order.
+    week_ref : int or None
+        Full GPS week of the log (RXM-RAWX); None: ephemerides cannot be dated and none are returned.
+
+    Returns
+    -------
+    nav : DataFrame
+        Columns :data:`NAV_COLUMNS`, one row per distinct (sat, toe, IODE), sorted like the RINEX
+        reader's table.
+    stats : dict
+        ``sfrbx_frames``, ``gps_subframes`` (1–3 decoded), ``parity_failures`` (subframes dropped),
+        ``other_systems`` (gnssId → frames: not decoded here), ``ephemerides``.
+    """
+    stats = {"sfrbx_frames": 0, "gps_subframes": 0, "parity_failures": 0, "galileo_words": 0, "galileo_bad_pages": 0,
+             "other_systems": {}, "ephemerides": 0}
+    latest: dict[str, dict[int, list[int]]] = {}
+    recs: dict[tuple, dict] = {}
+    for _, cls, mid, fr in frames:
+        if (cls, mid) not in (_SFRBX, _SFRB):
+            continue
+        pl = fr[6:-2]
+        stats["sfrbx_frames"] += 1
+        if (cls, mid) == _SFRBX:
+            if len(pl) < 8 or len(pl) != 8 + 4 * pl[4]:
+                continue
+            gnss, sv = pl[0], pl[1]
+            if gnss == 2 and pl[4] >= 8 and week_ref is not None:
+                dw8 = np.frombuffer(pl[8:40], dtype="<u4").tolist()
+                got = inav_word(dw8)
+                if got is None:
+                    stats["galileo_bad_pages"] += 1
+                    continue
+                wtype, word = got
+                if 1 <= wtype <= 5 and 1 <= sv <= 36:
+                    stats["galileo_words"] += 1
+                    sat = f"E{sv:02d}"
+                    have = latest.setdefault(sat, {})
+                    have[wtype] = word
+                    rec = decode_galileo_words(have, sat, week_ref)
+                    if rec is not None and 0 <= rec["e"] < 1 and rec["sqrt_a_sqrt_m"] > 0:
+                        recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)
+                continue
+            if gnss != 0:
+                stats["other_systems"][str(gnss)] = stats["other_systems"].get(str(gnss), 0) + 1
+                continue
+            if pl[4] != 10:
+                continue
+            dw = list(np.frombuffer(pl[8:48], dtype="<u4").tolist())
+            words = gps_words_from_sfrbx(dw)
+            if words is None:
+                stats["parity_failures"] += 1
+                continue
+        else:
+            if len(pl) != 42:
+                continue
+            sv = pl[1]
+            if not 1 <= sv <= 32:
+                continue
+            words = [w & 0xFFFFFF for w in np.frombuffer(pl[2:42], dtype="<u4").tolist()]
+        sid = subframe_id(words)
+        if sid not in (1, 2, 3) or not 1 <= sv <= 32:
+            continue
+        stats["gps_subframes"] += 1
+        sat = f"G{sv:02d}"
+        have = latest.setdefault(sat, {})
+        have[sid] = words
+        if week_ref is not None and all(k in have for k in (1, 2, 3)):
+            rec = decode_gps_subframes(have[1], have[2], have[3], sat, week_ref)
+            if rec is not None and 0 <= rec["e"] < 1 and rec["sqrt_a_sqrt_m"] > 0:
+                recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)
+    nav = pd.DataFrame(list(recs.values()), columns=list(NAV_COLUMNS))
+    if len(nav):
+        for c in ("iode", "codes_l2", "l2p_data_flag", "sv_health", "iodc", "week", "line"):
+            nav[c] = nav[c].astype(np.int64)
+        nav = nav.sort_values(["sat", "toe_gps_s", "transmit_gps_s"], kind="stable").reset_index(drop=True)
+    stats["ephemerides"] = int(len(nav))
+    return nav, stats

@@ -1,0 +1,254 @@
+"""Framing of a receiver's byte stream: u-blox UBX frames, NMEA 0183 sentences, RTCM 3 frames.
+
+A u-blox log recorded from the receiver's port mixes the three protocols, and a serial link or a
+bad card adds corrupt bytes.  :func:`split_stream` walks the stream once, at each position taking
+the earliest candidate start of any of them and accepting it only when its own check passes:
+
+* UBX: sync ``0xB5 0x62``, class, id, 16-bit little-endian length, payload, 8-bit Fletcher
+  checksum over class … payload (u-blox interface description, "UBX checksum");
+* NMEA: ``$`` talker+sentence ``,`` … ``*hh`` CR LF, XOR checksum of the characters between ``$``
+  and ``*``, at most 82 characters (NMEA 0183);
+* RTCM 3: preamble ``0xD3``, 6 reserved bits (zero), 10-bit length, payload whose first 12 bits
+  are the message type, CRC-24Q over preamble … payload (RTCM 10403.x §4).
+
+A candidate that fails its check costs one byte (two for a UBX sync) and the search resumes; the
+bytes outside accepted frames are counted.  Every candidate's check is bounded (UBX checksums come
+from prefix sums in O(1), an RTCM CRC covers at most 1 029 bytes, an NMEA sentence 82), so the
+walk is linear in the stream's length whatever its content.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+__all__ = ["RTCM_MAX_PAYLOAD", "crc24q", "split_stream"]
+
+UBX_SYNC = b"\xb5\x62"
+RTCM_PREAMBLE = 0xD3
+RTCM_MAX_PAYLOAD = 1023
+MAX_OFFSETS_SHOWN = 5
+_NMEA = re.compile(rb"\$[A-Z][A-Z0-9]{1,5},[\x20-\x7e]{0,79}?\*([0-9A-Fa-f]{2})\r?\n")
+
+
+def _crc24q_table() -> list[int]:
+    poly = 0x1864CFB
+    table = []
+    for i in range(256):
+        c = i << 16
+        for _ in range(8):
+            c <<= 1
+            if c & 0x1000000:
+                c ^= poly
+        table.append(c & 0xFFFFFF)
+    return table
+
+
+_CRC24Q = _crc24q_table()
+
+
+def crc24q(data: bytes) -> int:
+    """CRC-24Q (polynomial 0x1864CFB, initial value 0, no reflection) of ``data``, as RTCM 3 uses."""
+    crc = 0
+    table = _CRC24Q
+    for b in data:
+        crc = ((crc << 8) & 0xFFFFFF) ^ table[(crc >> 16) ^ b]
+    return crc
+
+
+class _Fletcher:
+    """UBX 8-bit Fletcher checksums of any byte range of a stream, each in O(1).
+
+    With prefix sums (mod 256) S_i = Σ_{j<i} x_j and T_i = Σ_{j<i} j·x_j, the checksum over bytes
+    a..b−1 is CK_A = S_b − S_a and CK_B = Σ (b−j)·x_j = b·CK_A − (T_b − T_a) (mod 256), so a
+    stream full of false sync words announcing long frames costs O(1) per candidate.
+    """
+
+    def __init__(self, data: bytes):
+        x = np.frombuffer(data, dtype=np.uint8)
+        idx = np.resize(np.arange(256, dtype=np.uint8), x.size)
+        self._s = b"\0" + np.cumsum(x, dtype=np.uint8).tobytes()          # bytes: fast int indexing
+        self._t = b"\0" + np.cumsum(idx * x, dtype=np.uint8).tobytes()
+
+    def __call__(self, a: int, b: int) -> bytes:
+        """Checksum over ``data[a:b]`` (class, id, length and payload of a frame)."""
+        ck_a = (self._s[b] - self._s[a]) & 0xFF
+        ck_b = (b * ck_a - (self._t[b] - self._t[a])) & 0xFF
+        return bytes((ck_a, ck_b))
+
+
+def _nmea_at(data: bytes, k: int) -> int:
+    """End of a complete NMEA sentence with a correct checksum starting at ``data[k]`` (0: none)."""
+    m = _NMEA.match(data, k)
+    if m is None:
+        return 0
+    x = 0
+    for c in data[k + 1 : m.start(1) - 1]:
+        x ^= c
+    return m.end() if x == int(m.group(1), 16) else 0
+
+
+def _rtcm_at(data: bytes, k: int) -> tuple[int, int, bool]:
+    """An RTCM 3 frame at ``data[k]``: (end, message type, CRC correct); end 0 if not framed."""
+    n = len(data)
+    if k + 6 > n or data[k + 1] & 0xFC:
+        return 0, 0, False
+    length = ((data[k + 1] & 0x03) << 8) | data[k + 2]
+    end = k + 6 + length
+    if length < 2 or end > n:
+        return 0, 0, False
+    ok = crc24q(data[k : k + 3 + length]) == int.from_bytes(data[k + 3 + length : end], "big")
+    mtype = (data[k + 3] << 4) | (data[k + 4] >> 4)
+    return end, mtype, ok
+
+
+class _Next:
+    """Next occurrence of a marker at or after a position, cached (the stream is walked forward
+    only, so all finds together read the stream about once per marker)."""
+
+    def __init__(self, data: bytes, marker: bytes):
+        self.data, self.marker, self.at = data, marker, -1
+
+    def from_(self, pos: int) -> int:
+        if self.at < pos and self.at != len(self.data) + 1:
+            k = self.data.find(self.marker, pos)
+            self.at = len(self.data) + 1 if k < 0 else k
+        return self.at
+
+
+def split_stream(data: bytes) -> tuple[list, list, dict]:
+    """Split a receiver's byte stream into UBX frames, RTCM 3 frames and NMEA sentences.
+
+    Parameters
+    ----------
+    data : bytes
+        The whole log.
+
+    Returns
+    -------
+    ubx : list of (offset, class, id, frame bytes)
+        Checksum-valid UBX frames (frame bytes from the sync word to the checksum).
+    rtcm : list of (offset, message type, frame bytes)
+        CRC-valid RTCM 3 frames (preamble to CRC).
+    stats : dict
+        ``bad_checksum_frames`` and ``bad_frame_offsets`` (first few): UBX candidates failing the
+        checksum, or whose announced length runs past the end while a later sync follows;
+        ``truncated_tail_bytes`` (a UBX frame cut by the end of the stream); ``bad_crc_rtcm_frames``
+        and ``bad_rtcm_offsets``: RTCM 3 frames failing CRC-24Q; ``nmea_sentences``, ``nmea_bytes``
+        (complete sentences, checksums correct); ``rtcm_frames`` (dict message type → count) and
+        ``rtcm_bytes``; ``skipped_bytes``: every other byte outside accepted frames (noise, corrupt
+        frames, sentences with a wrong checksum).
+    """
+    n = len(data)
+    stats = {"bad_checksum_frames": 0, "bad_frame_offsets": [], "truncated_tail_bytes": 0, "skipped_bytes": 0,
+             "nmea_sentences": 0, "nmea_bytes": 0, "rtcm_frames": {}, "rtcm_bytes": 0, "bad_crc_rtcm_frames": 0,
+             "bad_rtcm_offsets": []}
+    ubx: list = []
+    rtcm: list = []
+    checksum = _Fletcher(data)
+    nxt = (_Next(data, UBX_SYNC), _Next(data, b"$"), _Next(data, bytes((RTCM_PREAMBLE,))))
+    pos = 0   # first byte not yet accounted for
+    scan = 0  # where the search for the next candidate resumes
+
+    def accept(k: int, end: int) -> None:
+        nonlocal pos, scan
+        stats["skipped_bytes"] += k - pos
+        pos = scan = end
+
+    def bad(key: str, okey: str, k: int) -> None:
+        stats[key] += 1
+        if len(stats[okey]) < MAX_OFFSETS_SHOWN:
+            stats[okey].append(k)
+
+    while True:
+        ku, kn, kr = (m.from_(scan) for m in nxt)
+        k = min(ku, kn, kr)
+        if k >= n:
+            stats["skipped_bytes"] += n - pos
+            break
+        if k == ku:
+            if k + 6 > n:
+                stats["skipped_bytes"] += k - pos
+                stats["truncated_tail_bytes"] = n - k
+                break
+            length = int.from_bytes(data[k + 4 : k + 6], "little")
+            end = k + 8 + length
+            if end > n:
+                if data.find(UBX_SYNC, k + 2) < 0:
+                    stats["skipped_bytes"] += k - pos
+                    stats["truncated_tail_bytes"] = n - k
+                    break
+                bad("bad_checksum_frames", "bad_frame_offsets", k)
+                scan = k + 2
+            elif checksum(k + 2, k + 6 + length) != data[k + 6 + length : end]:
+                bad("bad_checksum_frames", "bad_frame_offsets", k)
+                scan = k + 2
+            else:
+                ubx.append((k, data[k + 2], data[k + 3], data[k:end]))
+                accept(k, end)
+        elif k == kn:
+            end = _nmea_at(data, k)
+            if end:
+                stats["nmea_sentences"] += 1
+                stats["nmea_bytes"] += end - k
+                accept(k, end)
+            else:
+                scan = k + 1
+        else:
+            end, mtype, ok = _rtcm_at(data, k)
+            if end and ok:
+                stats["rtcm_frames"][mtype] = stats["rtcm_frames"].get(mtype, 0) + 1
+                stats["rtcm_bytes"] += end - k
+                rtcm.append((k, mtype, data[k:end]))
+                accept(k, end)
+            else:
+                if end and not ok and _plausible_rtcm_type(mtype):
+                    bad("bad_crc_rtcm_frames", "bad_rtcm_offsets", k)
+                scan = k + 1
+    stats["rtcm_frames"] = dict(sorted(stats["rtcm_frames"].items()))
+    return ubx, rtcm, stats
+
+
+def _plausible_rtcm_type(mtype: int) -> bool:
+    """Message numbers RTCM 10403 assigns (1001–1300) or leaves to vendors (4001–4095): a framed
+    candidate with such a type failing its CRC is counted as a corrupt RTCM frame; any other
+    failing candidate is noise (a random 0xD3 byte)."""
+    return 1001 <= mtype <= 1300 or 4001 <= mtype <= 4095
+
+
+def _bits(frame: bytes, start: int, n: int, signed: bool = False) -> int:
+    """Bits ``start`` … ``start+n−1`` (MSB first, 0 = first payload bit) of an RTCM 3 frame's payload."""
+    payload = frame[3:-3]
+    v = int.from_bytes(payload, "big") >> (8 * len(payload) - start - n)
+    v &= (1 << n) - 1
+    return v - (1 << n) if signed and v >> (n - 1) else v
+
+
+def rtcm_station_arp(rtcm: list) -> dict | None:
+    """The reference station's antenna reference point from RTCM 3 messages 1005/1006.
+
+    Parameters
+    ----------
+    rtcm : list of (offset, message type, frame bytes)
+        CRC-valid RTCM 3 frames (:func:`split_stream`).
+
+    Returns
+    -------
+    dict or None
+        From the last 1005/1006 message: ``message`` (1005 or 1006), ``station_id``,
+        ``arp_ecef_m`` ([x, y, z]: DF025–DF027, 38-bit signed, 0.0001 m), ``antenna_height_m``
+        (DF028, 1006 only, else None), ``count`` (1005/1006 messages in the log) and ``distinct``
+        (distinct positions among them); None when the log has neither message.
+    """
+    found = [(t, f) for _, t, f in rtcm if t in (1005, 1006) and len(f) - 6 >= (21 if t == 1006 else 19)]
+    if not found:
+        return None
+    positions = set()
+    for t, f in found:
+        positions.add(tuple(_bits(f, s, 38, True) for s in (34, 74, 114)))
+    t, f = found[-1]
+    xyz = [_bits(f, s, 38, True) * 1e-4 for s in (34, 74, 114)]
+    return {"message": int(t), "station_id": _bits(f, 12, 12), "arp_ecef_m": xyz,
+            "antenna_height_m": _bits(f, 152, 16) * 1e-4 if t == 1006 else None,
+            "count": len(found), "distinct": len(positions)}
