@@ -1534,3 +1534,24 @@ def track_structure_cmd(ctx, if_json, config, pll_bn_hz, pull_in_s, aid, gyro_cs
 
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())
+
+
+@main.command(short_help="Multi-GNSS, multi-frequency RTK of a pair → CSV")
+@click.option("--base", "base_file", required=True, type=click.Path(dir_okay=False), help="Base RINEX observation file.")
+@click.option("--rover", "rover_file", required=True, type=click.Path(dir_okay=False), help="Rover RINEX observation file.")
+@click.option("--nav", "nav_files", required=True, multiple=True, type=click.Path(dir_okay=False),
+              help="RINEX navigation file(s), GPS and/or Galileo (repeatable).")
+@click.option("--signals", default=",".join(__import__("cdgps_cli.config.options", fromlist=["x"]).MULTI_GNSS_DEFAULTS["signals"]),
+              show_default=True, help="Comma-separated signals (G:L1, G:L2, G:L5, E:E1, E:E5a, E:E5b, C:B1I, …).")
+@click.option("--mode", type=click.Choice(["kinematic", "static"]), default="kinematic", show_default=True,
+              help="kinematic: random-walk rover position, a solution per epoch; static: one position for the span.")
+@click.option("--base-xyz", nargs=3, type=float, default=None, help="Base ECEF position, m (default: its header).")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Output CSV.")
+def rtk(base_file, rover_file, nav_files, signals, mode, base_xyz, output):
+    """Double differences per constellation and frequency, integers by LAMBDA (docs/gnss-pipeline.md, "Multi-GNSS")."""
+    from cdgps_cli.pipeline.gnss_multi import rtk_from_files
+
+    s = rtk_from_files(base_file, rover_file, list(nav_files), output, base_xyz_m=base_xyz or None,
+                       options={"signals": tuple(x.strip() for x in signals.split(",") if x.strip()), "mode": mode})
+    click.echo(f"{output}: {s['epochs']} epochs, fixed {s['fixed_pct']:.1f} %, ionosphere {s['iono_model']}, "
+               f"signals {' '.join(s['signals'])}")

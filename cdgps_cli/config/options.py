@@ -43,3 +43,16 @@ def toml_value(v) -> str:
     if isinstance(v, str):
         return f'"{v}"'
     return repr(float(v)) if isinstance(v, float) else str(v)
+
+#: multi-GNSS dual-frequency RTK (estimation/rtk_multi.py, docs/gnss-pipeline.md "Multi-GNSS")
+MULTI_GNSS_DEFAULTS = {
+    "signals": ("G:L1", "G:L2", "G:L5", "E:E1", "E:E5a", "E:E5b"),
+    "mode": "kinematic",                   # "kinematic" (random-walk position) or "static"
+    "kinematic_sigma_m_per_sqrt_s": 30.0,  # random-walk rate of the kinematic rover position
+    "mask_deg": 15.0, "ratio": RATIO_THRESHOLD, "fix": True, "glonass_fix": False,
+    "sigma_a_m": PHASE_SIGMA_A_M, "sigma_b_m": PHASE_SIGMA_B_M, "code_ratio": 100.0,
+    "amb_sigma_cycles": 30.0, "troposphere": True,
+    "iono_threshold_km": 10.0,             # below: DD ionosphere neglected; above: estimated
+    "iono_sigma_m_per_km": 0.002,          # prior σ of the SD slant ionosphere per km of baseline
+    "iono_rw_m_per_sqrt_s": 0.0005,
+}

@@ -812,10 +812,13 @@ _NAV_VALUES = NAV_COLUMNS[2:31]  # the 29 values after toc, in file order
 # clock and orbit terms, week, health and TGD must be present; codes on L2, L2 P flag, IODC,
 # transmission time and fit interval may be blank in some writers' files
 _NAV_REQUIRED = tuple(range(20)) + (21, 24, 25)
+NAV_KEPLER_SYSTEMS = ("G", "E")
+"""Systems whose RINEX 3 ephemeris records :func:`read_rinex_nav` decodes (GPS-form Kepler elements;
+Galileo: IODnav in ``iode``, data sources in ``codes_l2``, BGD E5a/E1 in ``tgd_s``)."""
 _NAV_LINES = {"G": 8, "E": 8, "C": 8, "J": 8, "I": 8, "R": 4, "S": 4}
 
 
-def read_rinex_nav(path: str | Path) -> pd.DataFrame:
+def read_rinex_nav(path: str | Path, systems=("G",)) -> pd.DataFrame:
     """Read the GPS broadcast ephemerides of a RINEX 2 or 3 navigation file.
 
     Parameters
@@ -851,7 +854,11 @@ def read_rinex_nav(path: str | Path) -> pd.DataFrame:
         kind = "observation" if ftype == "O" else f"type {ftype!r}"
         raise CdgpsError(f"{p}: this is a RINEX {kind} file, not a navigation file (RINEX VERSION / TYPE says {ftype!r})")
     _check_version(version, p, "navigation")
-    if version >= 3 and system not in ("G", "M", " ", ""):
+    systems = tuple(systems)
+    bad_sys = [c for c in systems if c not in NAV_KEPLER_SYSTEMS]
+    if bad_sys:
+        raise CdgpsError(f"{p}: ephemerides of system(s) {', '.join(bad_sys)} cannot be read; supported: {', '.join(NAV_KEPLER_SYSTEMS)}")
+    if version >= 3 and system not in ("G", "M", " ", "") and system not in systems:
         raise CdgpsError(f"{p}: RINEX {version:.2f} navigation file for system {system!r}; GPS ('G') or mixed ('M') ephemerides are needed")
     attrs: dict = {"path": str(p), "version": version, "leap_seconds": None, "ion_alpha": None, "ion_beta": None, "comments": []}
     end = None
@@ -897,7 +904,7 @@ def read_rinex_nav(path: str | Path) -> pd.DataFrame:
             sysc = "G"
         nrec = _NAV_LINES[sysc]
         counts[sysc] = counts.get(sysc, 0) + 1
-        if sysc != "G":
+        if sysc not in systems:
             i += nrec
             continue
         if i + nrec > n:
@@ -934,7 +941,8 @@ def read_rinex_nav(path: str | Path) -> pd.DataFrame:
         i += nrec
     if not records:
         found = ", ".join(f"{k}: {v}" for k, v in sorted(counts.items())) or "none"
-        raise CdgpsError(f"{p}: no GPS ephemeris records (records found by system: {found})")
+        wanted = "GPS" if systems == ("G",) else "/".join(systems)
+        raise CdgpsError(f"{p}: no {wanted} ephemeris records (records found by system: {found})")
     df = pd.DataFrame(records, columns=["sat", "toc_gps_s", *_NAV_VALUES, "line"])
     week = df["week"].to_numpy(dtype=float)
     toc = df["toc_gps_s"].to_numpy()

@@ -30,6 +30,8 @@ from cdgps_cli.core.gps_time import gps_time_str
 
 __all__ = [
     "GM_GPS",
+    "GM_GALILEO",
+    "GM_BY_SYSTEM",
     "OMEGA_E_GPS",
     "F_RELATIVISTIC",
     "WGS84_A",
@@ -50,6 +52,12 @@ GM_GPS = 3.986005e14
 """WGS-84 Earth gravitational constant as fixed by IS-GPS-200, m³/s²."""
 OMEGA_E_GPS = 7.2921151467e-5
 """WGS-84 Earth rotation rate as fixed by IS-GPS-200, rad/s."""
+GM_GALILEO = 3.986004418e14
+"""Earth gravitational constant of the Galileo OS SIS ICD (Table 57, GTRF), m³/s²; Galileo's Earth
+rotation rate is the same 7.2921151467e-5 rad/s, and its Kepler model is the GPS one with GST
+(aligned to GPS time to a few ns, week numbers written as GPS weeks in RINEX 3 navigation files)."""
+GM_BY_SYSTEM = {"G": GM_GPS, "E": GM_GALILEO}
+"""Gravitational constant per satellite-system letter (systems with a GPS-form Kepler ephemeris)."""
 """Speed of light in vacuum, m/s."""
 F_RELATIVISTIC = -4.442807633e-10
 """IS-GPS-200 relativistic clock constant F = −2·√GM / c², s/√m."""
@@ -101,6 +109,17 @@ def _params(eph) -> dict[str, np.ndarray]:
     return {f: get(f) for f in _ORBIT_FIELDS}
 
 
+def _gm(eph, shape) -> np.ndarray | float:
+    """GM of each record's system (from its ``sat`` letter; GPS when absent), m³/s²."""
+    if isinstance(eph, pd.DataFrame):
+        if "sat" not in eph.columns:
+            return GM_GPS
+        letters = eph["sat"].astype(str).str[0].to_numpy()
+        return np.array([GM_BY_SYSTEM.get(c, GM_GPS) for c in letters], dtype=float).reshape(shape)
+    sat = eph.get("sat", "G") if isinstance(eph, (pd.Series, Mapping)) else "G"
+    return GM_BY_SYSTEM.get(str(sat)[:1], GM_GPS)
+
+
 def _eccentric_anomaly(m: np.ndarray, e: np.ndarray) -> np.ndarray:
     """Solve Kepler's equation E − e·sin E = M by Newton iteration (converges to 1e-15 rad)."""
     ecc = np.asarray(e, dtype=np.float64)
@@ -150,7 +169,8 @@ def sat_position_ecef(eph, t_gps_s, *, apply_tgd: bool = True) -> tuple[np.ndarr
     if isinstance(eph, pd.DataFrame):
         p = {k: v.reshape(t.shape) for k, v in p.items()}
     a = p["sqrt_a_sqrt_m"] ** 2
-    n0 = np.sqrt(GM_GPS / a**3)
+    gm = _gm(eph, t.shape)
+    n0 = np.sqrt(gm / a**3)
     tk = t - p["toe_gps_s"]
     n = n0 + p["delta_n_rad_per_s"]
     mk = p["m0_rad"] + n * tk
@@ -168,7 +188,7 @@ def sat_position_ecef(eph, t_gps_s, *, apply_tgd: bool = True) -> tuple[np.ndarr
     cos_om, sin_om, cos_i = np.cos(om), np.sin(om), np.cos(inc)
     xyz = np.stack([xp * cos_om - yp * cos_i * sin_om, xp * sin_om + yp * cos_i * cos_om, yp * np.sin(inc)], axis=-1)
     dt = t - p["toc_gps_s"]
-    clock = p["af0_s"] + p["af1_s_per_s"] * dt + p["af2_s_per_s2"] * dt * dt + F_RELATIVISTIC * e * p["sqrt_a_sqrt_m"] * sin_e
+    clock = p["af0_s"] + p["af1_s_per_s"] * dt + p["af2_s_per_s2"] * dt * dt + F_RELATIVISTIC * np.sqrt(gm / GM_GPS) * e * p["sqrt_a_sqrt_m"] * sin_e
     if apply_tgd:
         clock = clock - p["tgd_s"]
     return xyz, clock

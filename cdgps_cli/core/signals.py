@@ -1,0 +1,87 @@
+"""GNSS signals: one table of (system, frequency slot) → carrier frequency and RINEX 3 observation codes.
+
+Each signal has a name ``"<system letter>:<slot>"`` (``G:L1``, ``E:E5a`` …), its carrier frequency
+(Hz) and wavelength (m, c / f), and the RINEX 3 phase-type attributes tried in order of preference
+(the code type of the same attribute gives its pseudorange).  RINEX 2 files carry GPS ``L1``/``L2``
+(code ``C1``/``P1``, ``P2``/``C2``).  GLONASS is FDMA: its carrier depends on the satellite's
+frequency number k (``GLONASS SLOT / FRQ #``), f = f0 + k Δf, so its wavelength is per satellite.
+
+Sources: IS-GPS-200/705, Galileo OS SIS ICD, BeiDou ICD B1I/B2a, GLONASS ICD; RINEX 3.04 Table 4-7.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
+
+__all__ = ["Signal", "SIGNALS", "SYSTEM_NAMES", "signal", "wavelength_m", "glonass_frequency_hz"]
+
+
+@dataclass(frozen=True)
+class Signal:
+    """One frequency slot of one constellation."""
+
+    name: str
+    """``"G:L1"`` …"""
+    system: str
+    """RINEX system letter."""
+    band: str
+    """RINEX 3 band digit of the observation codes."""
+    attributes: str
+    """RINEX 3 tracking-mode attributes, most preferred first."""
+    frequency_hz: float
+    """Carrier frequency, Hz (GLONASS: f0 at k = 0)."""
+    rinex2: tuple = ()
+    """RINEX 2 (phase, code candidates…) types, GPS only."""
+    fdma_step_hz: float = 0.0
+    """GLONASS channel spacing Δf, Hz (0 for CDMA)."""
+
+    @property
+    def wavelength_m(self) -> float:
+        """c / f, m (GLONASS: at k = 0)."""
+        return SPEED_OF_LIGHT_M_S / self.frequency_hz
+
+
+_F0 = 10.23e6
+SIGNALS = {s.name: s for s in (
+    Signal("G:L1", "G", "1", "CSLXPWYM", 154 * _F0, ("L1", "C1", "P1")),
+    Signal("G:L2", "G", "2", "XLSCWPYDM", 120 * _F0, ("L2", "P2", "C2")),
+    Signal("G:L5", "G", "5", "QIX", 115 * _F0),
+    Signal("E:E1", "E", "1", "CBX", 154 * _F0),
+    Signal("E:E5a", "E", "5", "QIX", 115 * _F0),
+    Signal("E:E5b", "E", "7", "QIX", 118 * _F0),
+    Signal("C:B1I", "C", "2", "IQX", 152.6 * _F0),
+    Signal("C:B2I", "C", "7", "IQX", 118 * _F0),
+    Signal("C:B2a", "C", "5", "PDX", 115 * _F0),
+    Signal("R:G1", "R", "1", "CP", 1602.0e6, (), 0.5625e6),
+    Signal("R:G2", "R", "2", "CP", 1246.0e6, (), 0.4375e6),
+)}
+"""Every supported signal by name."""
+
+SYSTEM_NAMES = {"G": "GPS", "E": "Galileo", "C": "BeiDou", "R": "GLONASS"}
+
+
+def signal(name: str) -> Signal:
+    """The :class:`Signal` called ``name``; ValueError listing the known names otherwise."""
+    try:
+        return SIGNALS[name]
+    except KeyError:
+        raise ValueError(f"unknown signal {name!r}; known: {', '.join(SIGNALS)}") from None
+
+
+def glonass_frequency_hz(sig: Signal, k: int) -> float:
+    """Carrier of GLONASS frequency number k (−7 … 6) on ``sig``, Hz."""
+    if not -7 <= int(k) <= 6:
+        raise ValueError(f"GLONASS frequency number must be in −7…6, got {k}")
+    return sig.frequency_hz + int(k) * sig.fdma_step_hz
+
+
+def wavelength_m(name: str, k: int | None = None) -> float:
+    """Wavelength of signal ``name`` (GLONASS: of frequency number ``k``, required), m."""
+    sig = signal(name)
+    if sig.fdma_step_hz:
+        if k is None:
+            raise ValueError(f"{name} is FDMA: its wavelength needs the satellite's GLONASS frequency number")
+        return SPEED_OF_LIGHT_M_S / glonass_frequency_hz(sig, k)
+    return sig.wavelength_m

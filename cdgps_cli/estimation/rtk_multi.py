@@ -1,0 +1,244 @@
+"""Multi-GNSS, multi-frequency RTK baseline on the engine: static or random-walk rover position,
+per-group double differences (:mod:`cdgps_cli.measurement.dd_signals`), integers by the one
+policy :func:`cdgps_cli.estimation.ambiguity.resolve` (full set of all groups' DD ambiguities).
+
+State: rover ECEF offset (3, m; dynamics :class:`~cdgps_cli.model.dynamics_models.Static` or
+:class:`~cdgps_cli.model.dynamics_models.RandomWalk`), one SD ambiguity per (signal, satellite)
+lock arc (cycles; Static), and for long baselines one SD slant ionosphere per satellite (m at L1;
+RandomWalk).  Ionosphere model by baseline length: below ``iono_threshold_km`` (default 10 km) the
+DD ionosphere is neglected (short-baseline model: each frequency fixed directly); above it, it is
+estimated ("ionosphere-estimating", prior σ ``iono_sigma_m_per_km`` × length).  GLONASS (FDMA)
+groups are kept float unless ``glonass_fix`` (identical receivers only).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from cdgps_cli.config.options import MULTI_GNSS_DEFAULTS
+from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.core.signals import signal, SYSTEM_NAMES
+from cdgps_cli.estimation import kalman
+from cdgps_cli.estimation.ambiguity import resolve
+from cdgps_cli.measurement.dd_signals import epoch_rows
+from cdgps_cli.measurement.differencing import dd_operator
+from cdgps_cli.model.dynamics_models import RandomWalk, Static
+from cdgps_cli.model.gps.orbits import OMEGA_E_GPS, azimuth_elevation, ecef_to_geodetic, sat_position_ecef, select_ephemeris
+from cdgps_cli.model.gps.positioning import tropo_hydrostatic_m
+
+__all__ = ["receiver_geometry", "solve_rtk", "check_common_signals"]
+
+_F_L1 = signal("G:L1").frequency_hz
+
+
+def check_common_signals(base: pd.DataFrame, rover: pd.DataFrame, names, nav, where: dict) -> None:
+    """CdgpsError when a signal is not observed by both receivers or a system has no ephemeris."""
+    for name in names:
+        for who, df in (("base", base), ("rover", rover)):
+            if not (df["signal"] == name).any():
+                raise CdgpsError(f"{where[who]} ({who}): no {name} phase observations; the receivers must share "
+                                 f"every signal asked for (present: {', '.join(sorted(df['signal'].unique()))})")
+    have = set(nav["sat"].str[0])
+    for sysc in sorted({signal(n).system for n in names}):
+        if sysc not in have:
+            raise CdgpsError(f"the navigation data ({where['nav']}) have no {SYSTEM_NAMES[sysc]} ephemerides "
+                             f"('{sysc}' records); {SYSTEM_NAMES[sysc]} signals were asked for")
+
+
+def receiver_geometry(obs: pd.DataFrame, nav: pd.DataFrame, rx_xyz_m) -> pd.DataFrame:
+    """Satellite positions at transmission (ECEF of reception) per row, from the row's own pseudorange.
+
+    τ = P/c − clk_rx + dt_sat, clk_rx the epoch's median clock from the nominal position (so no
+    iteration on the receiver position is needed); adds ``sx, sy, sz`` (m), ``el_rad``.
+    """
+    df = obs[np.isfinite(obs["pseudorange_m"])].copy()
+    first = df.drop_duplicates(["time_gps_s", "sat"])
+    xyz = np.zeros((len(first), 3))
+    clk = np.zeros(len(first))
+    t = first["time_gps_s"].to_numpy()
+    tau = first["pseudorange_m"].to_numpy() / SPEED_OF_LIGHT_M_S
+    for sat, idx in first.groupby("sat").indices.items():
+        eph = select_ephemeris(nav, sat, t[idx])
+        for _ in range(2):
+            xyz[idx], clk[idx] = sat_position_ecef(eph, t[idx] - tau[idx] + clk[idx])
+    rx = np.asarray(rx_xyz_m, dtype=float)
+    rng = np.linalg.norm(xyz - rx, axis=1)
+    c_rx = pd.Series(first["pseudorange_m"].to_numpy() / SPEED_OF_LIGHT_M_S + clk - rng / SPEED_OF_LIGHT_M_S).groupby(t).transform("median").to_numpy()
+    tau = tau - c_rx + clk
+    for sat, idx in first.groupby("sat").indices.items():
+        eph = select_ephemeris(nav, sat, t[idx])
+        xyz[idx], _ = sat_position_ecef(eph, t[idx] - c_rx[idx] - tau[idx])
+    th = OMEGA_E_GPS * tau
+    c, s = np.cos(th), np.sin(th)
+    rot = np.stack([c * xyz[:, 0] + s * xyz[:, 1], -s * xyz[:, 0] + c * xyz[:, 1], xyz[:, 2]], axis=-1)
+    _, el = azimuth_elevation(rx, rot)
+    lat, _, h = ecef_to_geodetic(rx)
+    trop = tropo_hydrostatic_m(el, lat, h, t)
+    g = pd.DataFrame({"time_gps_s": t, "sat": first["sat"].to_numpy(), "sx": rot[:, 0], "sy": rot[:, 1], "sz": rot[:, 2],
+                      "el_rad": el, "trop_m": trop})
+    return df.merge(g, on=["time_gps_s", "sat"], how="left")
+
+
+def _epoch_groups(eb, er, opt, amb_key_col, iono_col):
+    groups = []
+    m = eb.merge(er[["sat", "signal", "phase_cycles", "pseudorange_m", "lli", "sx", "sy", "sz", "trop_m"]],
+                 on=["sat", "signal"], suffixes=("_b", "_r"))
+    m = m[m["el_rad"] >= np.radians(opt["mask_deg"])]
+    for name, g in m.groupby("signal", sort=True):
+        if len(g) < 2:
+            continue
+        lam = g["wavelength_m"].to_numpy()
+        el = g["el_rad"].to_numpy()
+        var = 2 * (opt["sigma_a_m"] ** 2 + opt["sigma_b_m"] ** 2 / np.sin(el) ** 2)
+        sats = g["sat"].to_numpy()
+        dtrop = g["trop_m_r"].to_numpy() - g["trop_m_b"].to_numpy() if opt["troposphere"] else 0.0
+        groups.append({
+            "signal": name, "sats": sats, "ref": int(np.argmax(el)), "lam_m": float(lam[0]),
+            "mu": (_F_L1 / signal(name).frequency_hz) ** 2,
+            "sat_xyz": g[["sx_r", "sy_r", "sz_r"]].to_numpy(), "sat_base_xyz": g[["sx_b", "sy_b", "sz_b"]].to_numpy(),
+            "phase_sd_m": lam * (g["phase_cycles_r"].to_numpy() - g["phase_cycles_b"].to_numpy()) - dtrop,
+            "code_sd_m": g["pseudorange_m_r"].to_numpy() - g["pseudorange_m_b"].to_numpy() - dtrop,
+            "slip": ((g["lli_r"].to_numpy() | g["lli_b"].to_numpy()) & 1) > 0,
+            "var_phase": var, "var_code": var * opt["code_ratio"] ** 2,
+        })
+    return groups
+
+
+class _State:
+    """Ambiguity / ionosphere columns appearing and vanishing with the satellites."""
+
+    def __init__(self, n_pos):
+        self.keys = [("pos", i) for i in range(n_pos)]
+        self.x = np.zeros(n_pos)
+        self.P = np.eye(n_pos) * 1e4
+
+    def keep(self, wanted):
+        idx = [i for i, k in enumerate(self.keys) if k[0] == "pos" or k in wanted]
+        self.keys = [self.keys[i] for i in idx]
+        self.x, self.P = self.x[idx], self.P[np.ix_(idx, idx)]
+
+    def add(self, key, value, var):
+        self.keys.append(key)
+        self.x = np.append(self.x, value)
+        n = len(self.x)
+        P = np.zeros((n, n))
+        P[:-1, :-1] = self.P
+        P[-1, -1] = var
+        self.P = P
+
+    def col(self, key):
+        return self.keys.index(key)
+
+
+def _prepare_state(st, groups, opt, iono):
+    wanted = set()
+    for g in groups:
+        for s in g["sats"]:
+            wanted.add(("N", g["signal"], s))
+            if iono:
+                wanted.add(("I", s))
+    for g in groups:
+        for s, slip in zip(g["sats"], g["slip"]):
+            if slip and ("N", g["signal"], s) in st.keys:
+                wanted.discard(("N", g["signal"], s))
+    st.keep(wanted)
+    for g in groups:
+        est = (g["phase_sd_m"] - g["code_sd_m"]) / g["lam_m"]
+        for j, s in enumerate(g["sats"]):
+            if ("N", g["signal"], s) not in st.keys:
+                st.add(("N", g["signal"], s), est[j], (opt["amb_sigma_cycles"]) ** 2)
+            if iono and ("I", s) not in st.keys:
+                st.add(("I", s), 0.0, iono ** 2)
+    for g in groups:
+        g["amb_col"] = np.array([st.col(("N", g["signal"], s)) for s in g["sats"]])
+        g["iono_col"] = np.array([st.col(("I", s)) if iono else -1 for s in g["sats"]])
+
+
+def _fix(st, groups, opt):
+    """DD ambiguities of every fixable group, resolved as one set; the fixed position or None."""
+    rows, dd = [], []
+    for g in groups:
+        if g["signal"].startswith("R:") and not opt["glonass_fix"]:
+            continue
+        D = dd_operator(len(g["sats"]), g["ref"])
+        T = np.zeros((len(D), len(st.x)))
+        T[:, g["amb_col"]] = D
+        rows.append(T)
+    if not rows:
+        return None, 0, np.nan
+    T = np.vstack(rows)
+    a = T @ st.x
+    Qa = T @ st.P @ T.T
+    res = resolve(a, 0.5 * (Qa + Qa.T), opt["ratio"], partial=False)
+    if not res["accepted"]:
+        return None, 0, res.get("ratio", np.nan)
+    Pxa = st.P[:3] @ T.T
+    dx = Pxa @ np.linalg.solve(Qa, a - res["integers"])
+    return st.x[:3] - dx, len(a), res.get("ratio", np.nan)
+
+
+def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m, *, options: dict | None = None,
+              progress=None) -> dict:
+    """Epoch-by-epoch multi-GNSS RTK (kinematic) or static solution.
+
+    Parameters
+    ----------
+    base, rover : DataFrame
+        :func:`receiver_geometry` tables (``time_gps_s``, ``sat``, ``signal``, ``phase_cycles``,
+        ``pseudorange_m``, ``lli``, ``wavelength_m``, ``sx/sy/sz``, ``el_rad``).
+    base_xyz_m, rover_xyz0_m : array_like (3,)
+        Known base position and the rover's a-priori position, ECEF m.
+    options : dict
+        Keys of :data:`cdgps_cli.config.options.MULTI_GNSS_DEFAULTS`.
+
+    Returns
+    -------
+    dict
+        ``time_gps_s`` (n,), ``float_xyz_m`` / ``fixed_xyz_m`` (n, 3; NaN rows where not fixed),
+        ``fixed`` (n,) bool, ``n_dd_ambiguities`` (n,), ``ratio`` (n,), ``iono_model``, ``static_xyz_m``
+        (the last epoch's fixed, else float, position — the static solution in static mode).
+    """
+    opt = {**MULTI_GNSS_DEFAULTS, **(options or {})}
+    base_xyz = np.asarray(base_xyz_m, float)
+    origin = np.asarray(rover_xyz0_m, float)
+    length_km = np.linalg.norm(origin - base_xyz) / 1e3
+    iono = opt["iono_sigma_m_per_km"] * length_km if length_km >= opt["iono_threshold_km"] else 0.0
+    pos_dyn = Static(3) if opt["mode"] == "static" else RandomWalk(3, opt["kinematic_sigma_m_per_sqrt_s"])
+    st = _State(3)
+    times = np.intersect1d(base["time_gps_s"].unique(), rover["time_gps_s"].unique())
+    bi, ri = base.groupby("time_gps_s").indices, rover.groupby("time_gps_s").indices
+    out = {k: [] for k in ("float", "fixed", "n", "ratio")}
+    t_prev = None
+    for k, t in enumerate(times):
+        groups = _epoch_groups(base.iloc[bi[t]], rover.iloc[ri[t]], opt, None, None)
+        if t_prev is not None:
+            A, _, Q = pos_dyn.transition(t - t_prev)
+            st.P[:3, :3] += Q
+            if iono:
+                ion = [i for i, key in enumerate(st.keys) if key[0] == "I"]
+                st.P[ion, ion] += opt["iono_rw_m_per_sqrt_s"] ** 2 * (t - t_prev)
+        t_prev = t
+        _prepare_state(st, groups, opt, iono)
+        if groups:
+            xb, Pb = st.x.copy(), st.P
+            xi = xb
+            for _ in range(2 if k else 4):   # iterated update (relinearized at the new estimate)
+                r, H, L = epoch_rows(xi, groups, base_xyz, origin, len(xb))
+                xi, P, _ = kalman.update(xb, Pb, r + H @ (xi - xb), H, noise_chol=L)
+            st.x, st.P = xi, P
+        fx, n, ratio = _fix(st, groups, opt) if (groups and opt["fix"]) else (None, 0, np.nan)
+        out["float"].append(origin + st.x[:3])
+        out["fixed"].append(origin + fx if fx is not None else np.full(3, np.nan))
+        out["n"].append(n)
+        out["ratio"].append(ratio)
+        if progress is not None:
+            progress(k + 1, len(times))
+    fixed = np.array(out["fixed"])
+    ok = np.isfinite(fixed[:, 0])
+    last = fixed[-1] if ok[-1] else np.array(out["float"])[-1]
+    return {"time_gps_s": times, "float_xyz_m": np.array(out["float"]), "fixed_xyz_m": fixed, "fixed": ok,
+            "n_dd_ambiguities": np.array(out["n"]), "ratio": np.array(out["ratio"]),
+            "iono_model": "estimated" if iono else "neglected (short baseline)", "baseline_km": length_km,
+            "static_xyz_m": last}

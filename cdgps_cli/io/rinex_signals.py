@@ -1,0 +1,217 @@
+"""Multi-GNSS, multi-frequency observations of a RINEX 2/3 file, one row per epoch, satellite and signal.
+
+:func:`read_rinex_signals` returns a long table with a ``signal`` column (names of
+:mod:`cdgps_cli.core.signals`): phase (cycles), pseudorange (m), LLI of the phase, and the wavelength
+of that row (m, per satellite for GLONASS), for the signals asked for.  The observation codes used
+for each signal are chosen per file from the header (the first attribute of the signal's preference
+list the file has) and reported in ``header["signal_codes"]``.  The header parser is the one of
+:mod:`cdgps_cli.io.rinex`.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.core.gps_time import gps_seconds
+from cdgps_cli.core.signals import SYSTEM_NAMES, glonass_frequency_hz, signal
+from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
+from cdgps_cli.io.rinex import _ObsHeader, _parse_version_line, _read_lines
+
+__all__ = ["read_rinex_signals", "SIGNAL_COLUMNS"]
+
+SIGNAL_COLUMNS = ("time_gps_s", "sat", "signal", "phase_cycles", "pseudorange_m", "lli", "wavelength_m")
+
+
+def _codes(types: list[str], name: str, v3: bool):
+    """(phase type, code type) of signal ``name`` among a system's ``types``, or None."""
+    sig = signal(name)
+    if not v3:
+        if not sig.rinex2 or sig.rinex2[0] not in types:
+            return None
+        code = next((c for c in sig.rinex2[1:] if c in types), None)
+        return sig.rinex2[0], code
+    for a in sig.attributes:
+        if f"L{sig.band}{a}" in types:
+            code = f"C{sig.band}{a}" if f"C{sig.band}{a}" in types else None
+            return f"L{sig.band}{a}", code
+    return None
+
+
+def _glonass_slots(lines, end) -> dict:
+    """'GLONASS SLOT / FRQ #' header lines → {"R01": k}."""
+    out = {}
+    for ln in lines[1:end]:
+        if ln[60:80].strip() == "GLONASS SLOT / FRQ #":
+            body = ln[4:60]
+            for j in range(0, len(body) - 6, 7):
+                f = body[j:j + 7]
+                if f.strip():
+                    out[f[:3].strip().replace(" ", "0")] = int(f[3:].strip())
+    return out
+
+
+def _columns(hdr: _ObsHeader, names, path) -> dict:
+    """{signal: (system key, phase index, code index)} for the signals of the request."""
+    v3 = hdr.version >= 3
+    out = {}
+    missing = []
+    for name in names:
+        sig = signal(name)
+        key = sig.system if v3 else "*"
+        types = hdr.info["obs_types"].get(key, [])
+        if not v3 and sig.system != "G":
+            types = []
+        pc = _codes(types, name, v3)
+        if pc is None:
+            missing.append(f"{name} ({SYSTEM_NAMES[sig.system]}: phase L{sig.band}{'/'.join(sig.attributes)}; "
+                           f"the file has {' '.join(types) or 'no ' + SYSTEM_NAMES[sig.system] + ' types'})")
+            continue
+        out[name] = (key, types.index(pc[0]), types.index(pc[1]) if pc[1] else -1, pc)
+    if missing:
+        raise CdgpsError(f"{path}: signal(s) asked for but absent from the observation types: " + "; ".join(missing))
+    return out
+
+
+def _value(rec: str, k: int, col0: int) -> tuple[float, int]:
+    c = col0 + 16 * k
+    f = rec[c:c + 14]
+    lli = rec[c + 14:c + 15]
+    v = float(f) if f.strip() else math.nan
+    return v, (int(lli) if lli.strip().isdigit() else 0)
+
+
+def read_rinex_signals(path: str | Path, signals) -> tuple[dict, pd.DataFrame]:
+    """Read the phases and ranges of ``signals`` (e.g. ``["G:L1", "G:L2", "E:E1", "E:E5a"]``).
+
+    Parameters
+    ----------
+    path : str or Path
+        RINEX 3.0x observation file (any system) or RINEX 2 (GPS L1/L2 only).
+    signals : sequence of str
+        Signal names of :data:`cdgps_cli.core.signals.SIGNALS`.
+
+    Returns
+    -------
+    header : dict
+        The RINEX header (as :func:`cdgps_cli.io.rinex.read_rinex_obs`) plus ``signal_codes``
+        ({signal: [phase type, code type]}) and ``glonass_slots`` ({sat: k}).
+    obs : DataFrame
+        Columns :data:`SIGNAL_COLUMNS`; rows with a phase value, epochs of flag 0/1 only.
+
+    Raises
+    ------
+    CdgpsError
+        A signal absent from the header (file, what was expected, what the file has), GLONASS
+        signals without ``GLONASS SLOT / FRQ #`` for an observed satellite, a malformed line.
+    """
+    p = Path(path)
+    lines, compressed = _read_lines(p)
+    version, ftype, _ = _parse_version_line(lines, p, compressed, "observation")
+    if ftype != "O":
+        raise CdgpsError(f"{p}: not a RINEX observation file (type {ftype!r})")
+    hdr = _ObsHeader(p, version, compressed)
+    end = next((i for i in range(1, len(lines)) if hdr.apply(lines[i], i + 1) == "END OF HEADER"), None)
+    if end is None:
+        raise CdgpsError(f"{p}: no 'END OF HEADER' line")
+    cols = _columns(hdr, list(signals), p)
+    slots = _glonass_slots(lines, end)
+    rows = _parse_v3(lines, end + 1, cols, p) if version >= 3 else _parse_v2(lines, end + 1, hdr, cols, p)
+    df = pd.DataFrame(rows, columns=list(SIGNAL_COLUMNS[:-1]))
+    df["wavelength_m"] = _wavelengths(df, slots, p)
+    info = dict(hdr.info)
+    info["signal_codes"] = {k: list(v[3]) for k, v in cols.items()}
+    info["glonass_slots"] = slots
+    return info, df.sort_values(["time_gps_s", "signal", "sat"], kind="stable").reset_index(drop=True)
+
+
+def _wavelengths(df: pd.DataFrame, slots: dict, path) -> np.ndarray:
+    lam = np.empty(len(df))
+    for name, idx in df.groupby("signal").indices.items():
+        sig = signal(name)
+        if not sig.fdma_step_hz:
+            lam[idx] = sig.wavelength_m
+            continue
+        sats = df["sat"].to_numpy()[idx]
+        absent = sorted(set(sats) - set(slots))
+        if absent:
+            raise CdgpsError(f"{path}: GLONASS frequency numbers absent for {' '.join(absent)} "
+                             "(header line 'GLONASS SLOT / FRQ #' expected); FDMA phases need them")
+        lam[idx] = [SPEED_OF_LIGHT_M_S / glonass_frequency_hz(sig, slots[s]) for s in sats]
+    return lam
+
+
+def _epoch_time(line: str, a: int, path, lineno) -> float:
+    try:
+        if a == 2:   # RINEX 3
+            y, mo, d, h, mi = (int(line[x:y_]) for x, y_ in ((2, 6), (7, 9), (10, 12), (13, 15), (16, 18)))
+            return gps_seconds(y, mo, d, h, mi, float(line[18:29]))
+        yy, mo, d, h, mi = (int(line[x:y_]) for x, y_ in ((1, 3), (4, 6), (7, 9), (10, 12), (13, 15)))
+        return gps_seconds(yy + (1900 if yy >= 80 else 2000), mo, d, h, mi, float(line[15:26]))
+    except ValueError:
+        raise CdgpsError(f"{path}:{lineno}: malformed epoch line {line[:60]!r}") from None
+
+
+def _parse_v3(lines, i, cols, path) -> list:
+    rows = []
+    while i < len(lines):
+        ln = lines[i]
+        if not ln.strip():
+            i += 1
+            continue
+        if not ln.startswith(">"):
+            raise CdgpsError(f"{path}:{i + 1}: expected an epoch line starting with '>', got {ln[:60]!r}")
+        flag, nsat = int(ln[31:32] or 0), int(ln[32:35])
+        if flag > 1:
+            i += 1 + nsat
+            continue
+        t = _epoch_time(ln, 2, path, i + 1)
+        for rec in lines[i + 1:i + 1 + nsat]:
+            sat = rec[0:3].replace(" ", "0")
+            for name, (key, ip, ic, _) in cols.items():
+                if sat[0] != key:
+                    continue
+                try:
+                    ph, lli = _value(rec, ip, 3)
+                    pr = _value(rec, ic, 3)[0] if ic >= 0 else math.nan
+                except ValueError:
+                    raise CdgpsError(f"{path}:{i + 2}: malformed observation record {rec[:40]!r}") from None
+                if not math.isnan(ph):
+                    rows.append((t, sat, name, ph, pr, lli))
+        i += 1 + nsat
+    return rows
+
+
+def _parse_v2(lines, i, hdr, cols, path) -> list:
+    n_types = len(hdr.info["obs_types"]["*"])
+    per = math.ceil(n_types / 5)
+    rows = []
+    while i < len(lines):
+        ln = lines[i]
+        if not ln.strip():
+            i += 1
+            continue
+        flag, nsat = int(ln[28:29] or 0), int(ln[29:32])
+        sats = "".join(lines[i + k][32:68] for k in range(math.ceil(nsat / 12)))
+        i += math.ceil(nsat / 12)
+        if flag > 1:
+            i += nsat
+            continue
+        t = _epoch_time(ln, 1, path, i)
+        for j in range(nsat):
+            sat = sats[3 * j:3 * j + 3].replace(" ", "0")
+            sat = "G" + sat[1:] if sat[0] in "0G" else sat
+            rec = "".join(lines[i + k].rstrip("\n").ljust(80) for k in range(per))
+            i += per
+            if sat[0] != "G":
+                continue
+            for name, (_, ip, ic, _) in cols.items():
+                ph, lli = _value(rec, ip, 0)
+                pr = _value(rec, ic, 0)[0] if ic >= 0 else math.nan
+                if not math.isnan(ph):
+                    rows.append((t, sat, name, ph, pr, lli))
+    return rows

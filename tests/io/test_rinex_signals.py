@@ -1,0 +1,49 @@
+"""Multi-signal RINEX reading (io/rinex_signals.py) and Galileo navigation records; bad input."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.io.rinex import read_rinex_nav
+from cdgps_cli.io.rinex_signals import read_rinex_signals
+from tests._shared import REPO_ROOT
+
+GE = REPO_ROOT / ".." / "shared" / "data" / "rinex-ge"
+HDR = """     3.04           OBSERVATION DATA    M: MIXED            RINEX VERSION / TYPE
+R    4 C1C L1C C2C L2C                                      SYS / # / OBS TYPES
+G    2 C1C L1C                                              SYS / # / OBS TYPES
+                                                            END OF HEADER
+> 2023 01 08 10 00  0.0000000  0  2
+R01  20028872.875 9 105252416.357 9  20028871.910 8  82014855.350 8
+G05  20028872.875 9 105252416.357 9
+"""
+
+
+def test_missing_signal_and_glonass_slots(tmp_path: Path):
+    p = tmp_path / "x.obs"
+    p.write_text(HDR)
+    with pytest.raises(CdgpsError, match=r"x.obs: signal\(s\) asked for but absent.*E:E1.*Galileo"):
+        read_rinex_signals(p, ["G:L1", "E:E1"])
+    with pytest.raises(CdgpsError, match="GLONASS frequency numbers absent for R01.*GLONASS SLOT / FRQ #"):
+        read_rinex_signals(p, ["R:G1"])
+    p.write_text(HDR.replace("                                                            END OF HEADER",
+                             f"{'  1 R01  1':<60}GLONASS SLOT / FRQ #\n"
+                             "                                                            END OF HEADER"))
+    _, df = read_rinex_signals(p, ["R:G1", "R:G2", "G:L1"])
+    lam = dict(zip(df["signal"] + df["sat"], df["wavelength_m"]))
+    assert abs(lam["R:G1R01"] - 299792458.0 / (1602e6 + 0.5625e6)) < 1e-12
+    assert abs(lam["R:G2R01"] - 299792458.0 / (1246e6 + 0.4375e6)) < 1e-12
+
+
+@pytest.mark.skipif(not GE.exists(), reason="../shared/data/rinex-ge absent")
+def test_galileo_nav_and_missing_system():
+    nav = read_rinex_nav(GE / "RINEX_EN_Spirent.23L", systems=("E",))
+    assert nav["sat"].str.startswith("E").all() and len(nav) > 10
+    with pytest.raises(CdgpsError, match=r"system 'E'; GPS \('G'\) or mixed"):
+        read_rinex_nav(GE / "RINEX_EN_Spirent.23L")
+    g = nav.iloc[0]
+    from cdgps_cli.model.gps.orbits import sat_position_ecef
+    xyz, _ = sat_position_ecef(g, g["toe_gps_s"])
+    assert 29.5e6 < np.linalg.norm(xyz) < 30.0e6   # Galileo orbit radius ≈ 29 600 km
