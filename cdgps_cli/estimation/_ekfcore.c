@@ -30,7 +30,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#define KERNEL_API 3
+#define KERNEL_API 4
 
 /* stop reasons of filter_span */
 enum { STOP_END = 0, STOP_EVENT = 1, STOP_REBIAS = 2, STOP_OUTLIER = 3, STOP_REINIT = 4, STOP_CHOLESKY = 5 };
@@ -519,22 +519,24 @@ static int get_csr(PyObject *orow, PyObject *ocol, PyObject *oval, Buf *b, int n
 
 /*
  * filter_span(gi, gf, A_row, A_col, A_val, Q, B, chi2, Y, EVENT, bias, rebias, U_in,
- *             x, P, xs, Ps, resid, nis, nis_dof, r_var,
+ *             x, P, xs, Ps, resid, nis, nis_dof, r_var, hph,
  *             N, n, nu, k0, k1, fail_run, reinit_after, k_reinit_block, outlier_sigma)
  *   -> (k_stop, fail_run, reason)
  * r_var (C,): the measurement variance of each channel (m^2), R = diag(r_var) over the used rows.
+ * hph (N, C): for each used channel c of a committed epoch k, H_c(x_k) P_k H_c(x_k)^T (m^2) with the
+ * Jacobian at the filtered state x_k and the filtered P_k (the residual noise estimate's term).
  */
 static PyObject *py_filter_span(PyObject *self, PyObject *args)
 {
-    enum { NB = 21 };
+    enum { NB = 22 };
     PyObject *o[NB];
     Buf b[NB];
     memset(b, 0, sizeof(b));
     Py_ssize_t N, n, nu, k0, k1, fail_run, reinit_after, k_reinit_block;
     double outlier_sigma;
-    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOOOOOOOOOOOnnnnnnnnd", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5],
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOOOOOOOOOOOOnnnnnnnnd", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5],
                           &o[6], &o[7], &o[8], &o[9], &o[10], &o[11], &o[12], &o[13], &o[14], &o[15], &o[16],
-                          &o[17], &o[18], &o[19], &o[20], &N, &n, &nu, &k0, &k1, &fail_run, &reinit_after,
+                          &o[17], &o[18], &o[19], &o[20], &o[21], &N, &n, &nu, &k0, &k1, &fail_run, &reinit_after,
                           &k_reinit_block, &outlier_sigma))
         return NULL;
     PyObject *ret = NULL;
@@ -555,7 +557,8 @@ static PyObject *py_filter_span(PyObject *self, PyObject *args)
         || get_buf(o[13], &b[13], 'd', n, 1, "x") || get_buf(o[14], &b[14], 'd', nn, 1, "P")
         || get_buf(o[15], &b[15], 'd', N * n, 1, "xs") || get_buf(o[16], &b[16], 'd', N * nn, 1, "Ps")
         || get_buf(o[17], &b[17], 'd', N * C, 1, "resid") || get_buf(o[18], &b[18], 'd', N, 1, "nis")
-        || get_buf(o[19], &b[19], 'q', N, 1, "nis_dof") || get_buf(o[20], &b[20], 'd', C, 0, "r_var"))
+        || get_buf(o[19], &b[19], 'q', N, 1, "nis_dof") || get_buf(o[20], &b[20], 'd', C, 0, "r_var")
+        || get_buf(o[21], &b[21], 'd', N * C, 1, "hph"))
         goto done;
 
     const double *Q = b[5].view.buf, *B = b[6].view.buf, *chi2 = b[7].view.buf, *Y = b[8].view.buf;
@@ -567,6 +570,7 @@ static PyObject *py_filter_span(PyObject *self, PyObject *args)
     double *resid = b[17].view.buf, *nis = b[18].view.buf;
     int64_t *dof = b[19].view.buf;
     const double *r_var = b[20].view.buf;
+    double *hph = b[21].view.buf;
     const int nm = g.nm, ni = (int)n;
     for (Py_ssize_t c = 0; c < C; c++)
         if (!(r_var[c] > 0.0) || !isfinite(r_var[c])) {
@@ -576,7 +580,7 @@ static PyObject *py_filter_span(PyObject *self, PyObject *args)
 
     /* scratch */
     Py_ssize_t wm = model_work_size(&g);
-    Py_ssize_t total = wm + 2 * n + 6 * nn + n + C + C * nm + C + nm + C * nm + C;
+    Py_ssize_t total = wm + 2 * n + 6 * nn + n + C + C * nm + C + nm + C * nm + C + C + C * nm;
     work = malloc(sizeof(double) * (total + 1));
     int *used = malloc(sizeof(int) * (C + 1));
     if (!work || !used) {
@@ -590,6 +594,7 @@ static PyObject *py_filter_span(PyObject *self, PyObject *args)
     double *cw = Pn + nn;                       /* 2 nn + n: chol_inv work */
     double *h = cw + 2 * nn + n, *Hm = h + C;
     double *rho = Hm + C * nm, *grad = rho + C, *Hu = grad + nm, *wr = Hu + C * nm;   /* wr: 1/R of used rows */
+    double *hf = wr + C, *Hf = hf + C;          /* the model at the filtered state (hph) */
     Py_ssize_t k = k0, fr = fail_run;
     int reason = STOP_END;
 
@@ -677,6 +682,13 @@ static PyObject *py_filter_span(PyObject *self, PyObject *args)
             }
             nis[k] = nis_k;
             dof[k] = m;
+            /* the residual noise estimate's H P H^T, Jacobian at the filtered state */
+            model_eval(&g, xk, hf, Hf, mw);
+            double *qk = hph + k * C;
+            for (int i = 0; i < m; i++) {
+                int c = used[i];
+                qk[c] = quad_nm(Pk, ni, Hf + c * nm, nm);
+            }
         }
         memcpy(x, xk, sizeof(double) * n);
         memcpy(P, Pk, sizeof(double) * nn);

@@ -310,18 +310,27 @@ class _ForwardPass:
         if t0 < t_first - T:
             raise CdgpsError(f"{opt.init_source}: state.time_s = {t0:g} s is before the first epoch of {run.path} "
                              f"({t_first:g} s): expected the INIT.json of this run (its batch window end)")
-        keep = run.phase["time_s"].to_numpy() >= t0 - 1e-9
-        ph = run.phase if keep.all() else run.phase[keep]
-        if len(ph) == 0:
+        time_s = run.phase["time_s"].to_numpy()
+        keep = time_s >= t0 - 1e-9
+        every = bool(keep.all())
+        if not keep.any():
             raise CdgpsError(f"{opt.init_source}: state.time_s = {t0:g} s is after the last epoch of {run.path} "
-                             f"({float(run.phase['time_s'].max()) if len(run.phase) else float('nan'):g} s): no phase data to "
+                             f"({float(time_s.max()) if len(time_s) else float('nan'):g} s): no phase data to "
                              f"filter; expected the INIT.json of this run")
-        N = self.N = int(round((float(ph["time_s"].max()) - t0) / T)) + 1
+
+        def kept(a: np.ndarray) -> np.ndarray:
+            return a if every else a[keep]
+
+        time_s = kept(time_s)
+        N = self.N = int(round((float(time_s.max()) - t0) / T)) + 1
         self.grid = t0 + np.arange(N) * T
-        a_codes, a_names = pd.factorize(ph["antenna"], sort=True)
-        t_codes, t_names = pd.factorize(ph["transmitter"], sort=True)
-        pair_code = a_codes.astype(np.int64) * len(t_names) + t_codes
-        pairs, inverse = np.unique(pair_code, return_inverse=True)
+        # channel codes on the whole columns, then the kept rows (no copy of the string columns); in
+        # order of appearance (the channels are put in the config's order below)
+        a_codes, a_names = pd.factorize(run.phase["antenna"].to_numpy(dtype=object))
+        t_codes, t_names = pd.factorize(run.phase["transmitter"].to_numpy(dtype=object))
+        n_pairs = len(a_names) * len(t_names)
+        pair_code = kept(a_codes).astype(np.int64) * len(t_names) + kept(t_codes)
+        pairs = np.flatnonzero(np.bincount(pair_code, minlength=n_pairs))     # the pairs present, ascending
         seen = [(a_names[pc // len(t_names)], t_names[pc % len(t_names)]) for pc in pairs]
         chans = self.chans = sorted(set(seen) | set(self.init_bias),
                                     key=lambda c: (cfg.antenna_names.index(c[0]), cfg.transmitter_names.index(c[1])))
@@ -331,14 +340,16 @@ class _ForwardPass:
         self.r_var = self.sig_c**2                          # R = diag(σ_c²)
         self.inv_r = 1.0 / self.r_var                       # (C,) per channel
         self.sigma = float(np.sqrt(np.mean(self.r_var)))    # their RMS: the re-initialization's batch σ
-        k_of = np.rint((ph["time_s"].to_numpy() - t0) / T).astype(np.int32)
-        c_of = np.array([cidx[c] for c in seen], dtype=np.int32)[inverse]
-        del inverse, pair_code, a_codes, t_codes
+        k_of = np.rint((time_s - t0) / T).astype(np.int32)
+        chan_of_pair = np.full(n_pairs, -1, dtype=np.int32)
+        chan_of_pair[pairs] = [cidx[c] for c in seen]
+        c_of = chan_of_pair[pair_code]
+        del pair_code, a_codes, t_codes
         self.Y = np.full((N, C), np.nan)
         LOCK = np.full((N, C), -1, dtype=np.int32)
-        self.Y[k_of, c_of] = ph["phase_cycles"].to_numpy() * self.lam
-        LOCK[k_of, c_of] = ph["lock"].to_numpy()
-        del k_of, c_of, ph, keep                # the phase table copy is not needed any more (memory)
+        self.Y[k_of, c_of] = kept(run.phase["phase_cycles"].to_numpy()) * self.lam
+        LOCK[k_of, c_of] = kept(run.phase["lock"].to_numpy())
+        del k_of, c_of, keep, time_s
         self.EVENT = lock_events(self.Y, LOCK)
         self.ant, self.tx = channel_indices(cfg, [c[0] for c in chans], [c[1] for c in chans])
         self.line = cfg.antenna_line_bias_m[self.ant] - cfg.antenna_line_bias_m[cfg.master_index]
@@ -416,6 +427,7 @@ class _ForwardPass:
         self.resid = np.full((N, C), np.nan)
         self.nis = np.full(N, np.nan)
         self.nis_dof = np.zeros(N, dtype=np.int64)
+        self.hph = np.full((N, C), np.nan)          # H P⁺ Hᵀ of the noise estimate (the kernel's epochs)
         self.events: list = []
         self.rebias: dict[int, list] = {}           # channel → list of (k, y − h(x̄), var_h)
         self.extra_q: dict[int, list] = {}          # epoch → [(state index, added variance)]
@@ -439,7 +451,7 @@ class _ForwardPass:
             self.kern = ekf_kernel.ForwardKernel(self.cfg, self.ant, self.tx, self.A, self.Qd, self.Bu, self.sig_c,
                                                  opt.outlier_sigma, opt.nis_probability, opt.reinit_after_epochs,
                                                  self.Y, self.EVENT, self.U_in, self.xs, self.Ps, self.resid,
-                                                 self.nis, self.nis_dof)
+                                                 self.nis, self.nis_dof, self.hph)
 
     # ------------------------------------------------------------------------------------------
     # the epoch loop
@@ -803,7 +815,7 @@ def _finish(fp: _ForwardPass) -> EstimateResult:
                                                                else float(fp.bias[c])) for c in range(C)},
                          filter_path=filter_path)
     res.rest_active_s = [[float(grid[a]), float(grid[b - 1])] for a, b in _true_runs(fp.at_rest)]
-    chan_est = _channel_noise_estimate(cfg, fp.ant, fp.tx, xs[:, :n], Ps, fp.resid, n)   # (filtered P, before smoothing)
+    chan_est = _channel_noise_estimate(cfg, fp.ant, fp.tx, xs[:, :n], Ps, fp.resid, n, fp.hph)   # (filtered P, before smoothing)
     if opt.smooth:
         # keep the filter's states and covariances, then smooth in place (one copy instead of three)
         res.x_filt = res.x.copy()
@@ -910,15 +922,22 @@ def filter_sigma(init: dict, cfg, chans, opt: EstimateOptions) -> tuple[np.ndarr
     return sig, source
 
 
-def _channel_noise_estimate(cfg, ant, tx, xs: np.ndarray, Ps: np.ndarray, resid: np.ndarray, n: int) -> tuple:
-    """Residual-based σ̂_c of every channel (:func:`cdgps_cli.measurement.noise.filter_sigma_estimate`):
-    H_c P⁺ H_cᵀ from the filtered covariances (N, p, p) (Jacobian at the filtered state xs (N, n);
-    with bias states, p > n, the row also has a 1 in the channel's bias column), in chunks of epochs.
-    Returns (σ̂ (C,), count (C,))."""
+def _channel_noise_estimate(cfg, ant, tx, xs: np.ndarray, Ps: np.ndarray, resid: np.ndarray, n: int,
+                            hph: np.ndarray | None = None) -> tuple:
+    """Residual-based σ̂_c of every channel (:func:`cdgps_cli.measurement.noise.filter_sigma_estimate`).
+
+    Its term H_c P⁺ H_cᵀ (m²) is taken from the filtered covariances Ps (N, p, p) with the Jacobian at
+    the filtered state xs (N, n) (with bias states, p > n, the row also has a 1 in the channel's bias
+    column).  ``hph`` (N, C), when given, holds that term already for the epochs the compiled kernel
+    ran (it is updated in place); the other epochs with a residual are computed here, in chunks.
+    Returns (σ̂ (C,), count (C,)).
+    """
     N, C = resid.shape
     nm = cfg.n_modes
-    hph = np.full((N, C), np.nan)
-    rows = np.flatnonzero(np.isfinite(resid).any(axis=1))
+    if hph is None:
+        hph = np.full((N, C), np.nan)
+    used = np.isfinite(resid)
+    rows = np.flatnonzero((used & ~np.isfinite(hph)).any(axis=1))
     bias_states = Ps.shape[1] > n
     for j in range(0, rows.size, 500):
         k = rows[j:j + 500]

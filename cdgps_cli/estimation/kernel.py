@@ -24,7 +24,8 @@ try:
 except ImportError:                      # not compiled (no C compiler at install time)
     _ekfcore = None
 
-API = 3                                 # 2: per-channel measurement variance (R = diag(r_var)); 3: dd_span
+API = 4                                 # 2: per-channel measurement variance (R = diag(r_var)); 3: dd_span;
+                                        # 4: filter_span writes H(x_k) P_k H(x_k)ᵀ per used channel (hph)
 STOP_REASONS = {0: "end", 1: "lock event", 2: "re-bias", 3: "outlier", 4: "re-initialization", 5: "cholesky"}
 
 
@@ -115,11 +116,14 @@ class ForwardKernel:
     sigma: the measurement σ (m) of each channel, shape (C,) (a scalar is broadcast); outlier
     threshold, NIS probability, re-initialization count) and its per-epoch arrays:
     Y (N, C) phases in metres (NaN absent), EVENT (N, C) int8 from ``lock_events``, U_in (N, n_u),
-    and the outputs xs (N, n), Ps (N, n, n), resid (N, C), nis (N,), nis_dof (N,) int64.
+    and the outputs xs (N, n), Ps (N, n, n), resid (N, C), nis (N,), nis_dof (N,) int64 and
+    hph (N, C): H_c(x_k) P_k H_c(x_k)ᵀ (m²) of each used channel c at each epoch k run here, with the
+    Jacobian at the filtered state x_k and the filtered covariance P_k (the term of the residual noise
+    estimate, :func:`cdgps_cli.measurement.noise.filter_sigma_estimate`); untouched elsewhere.
     """
 
     def __init__(self, cfg, ant, tx, A, Q, B, sigma, outlier_sigma, nis_probability, reinit_after,
-                 Y, EVENT, U_in, xs, Ps, resid, nis, nis_dof):
+                 Y, EVENT, U_in, xs, Ps, resid, nis, nis_dof, hph):
         from cdgps_cli.estimation.chi2 import chi2_quantile
 
         self.gi, self.gf = pack_geometry(cfg, ant, tx)
@@ -141,10 +145,10 @@ class ForwardKernel:
         self.EVENT = np.ascontiguousarray(EVENT, dtype=np.int8)
         self.U_in = _f64(U_in)
         for name, arr, dt in (("xs", xs, np.float64), ("Ps", Ps, np.float64), ("resid", resid, np.float64),
-                              ("nis", nis, np.float64), ("nis_dof", nis_dof, np.int64)):
+                              ("nis", nis, np.float64), ("nis_dof", nis_dof, np.int64), ("hph", hph, np.float64)):
             if arr.dtype != dt or not arr.flags.c_contiguous or not arr.flags.writeable:
                 raise ValueError(f"ForwardKernel: {name} must be a writable C-contiguous {np.dtype(dt)} array")
-        self.xs, self.Ps, self.resid, self.nis, self.nis_dof = xs, Ps, resid, nis, nis_dof
+        self.xs, self.Ps, self.resid, self.nis, self.nis_dof, self.hph = xs, Ps, resid, nis, nis_dof, hph
         self.N = len(self.Y)
         self.C = C
         self.epochs = 0                  # epochs run in C (statistics)
@@ -176,7 +180,7 @@ class ForwardKernel:
         k_stop, fail_run, reason = _ekfcore.filter_span(
             self.gi, self.gf, *self.A, self.Q if Q is None else _f64(Q), self.B, self.chi2, self.Y, self.EVENT,
             _f64(bias), mask, self.U_in,
-            x, P, self.xs, self.Ps, self.resid, self.nis, self.nis_dof, self.r_var,
+            x, P, self.xs, self.Ps, self.resid, self.nis, self.nis_dof, self.r_var, self.hph,
             self.N, self.n, self.nu, int(k0), self.N if k1 is None else int(k1), int(fail_run),
             int(reinit_after), int(k_reinit_block), self.outlier_sigma)
         self.epochs += k_stop - k0

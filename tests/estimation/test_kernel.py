@@ -86,7 +86,24 @@ def assert_same_result(rc, rn, tol=1e-9):
     assert rc.biases.keys() == rn.biases.keys()
     for c, b in rn.biases.items():
         assert (np.isnan(b) and np.isnan(rc.biases[c])) or rc.biases[c] == pytest.approx(b, rel=0, abs=tol)
+    _same_noise(rc.noise, rn.noise, tol)
     return d
+
+
+def _same_noise(a, b, tol):
+    """The noise reports (σ used, the residual-based estimates, the adaptation) agree: floats to tol."""
+    if isinstance(b, dict):
+        assert isinstance(a, dict) and a.keys() == b.keys(), (a, b)
+        for key in b:
+            _same_noise(a[key], b[key], tol)
+    elif isinstance(b, (list, tuple)):
+        assert len(a) == len(b)
+        for u, v in zip(a, b):
+            _same_noise(u, v, tol)
+    elif isinstance(b, float) and not isinstance(b, bool):
+        assert (np.isnan(b) and np.isnan(a)) or a == pytest.approx(b, rel=tol, abs=tol), (a, b)
+    else:
+        assert a == b, (a, b)
 
 
 # --------------------------------------------------------------------------------------------
@@ -200,6 +217,31 @@ def test_eventful_run_c_equals_numpy(eventful, smooth):
     assert {"new channel", "re-acquisition", "lock restart", "innovation outlier", "bias re-estimated"} <= kinds
     d = assert_same_result(rc, rn)
     print("\neventful run, C vs numpy: " + ", ".join(f"{k} {v:.1e}" for k, v in d.items()))
+
+
+@needs_kernel
+def test_kernel_hph_is_the_noise_estimates_term(eventful):
+    """The kernel's H(x_k) P_k H(x_k)ᵀ (API 4) is the residual noise estimate's term as numpy forms
+    it: the Jacobian at the filtered state (measurement.phase), the filtered covariance; written for
+    the channels with a residual at the epochs the kernel ran, and nowhere else."""
+    from cdgps_cli.estimation import filter as ekf_mod
+
+    fp = ekf_mod._ForwardPass(eventful["run"], eventful["init"], EstimateOptions())
+    fp.run()
+    assert fp.kern is not None and fp.kern.epochs > 0
+    kern = np.isfinite(fp.hph)
+    assert kern.any() and not (kern & ~np.isfinite(fp.resid)).any()
+    n_ker_rows = int(kern.any(axis=1).sum())
+    assert 0 < n_ker_rows < int(np.isfinite(fp.resid).any(axis=1).sum())     # some epochs ran in Python
+    ref = np.full_like(fp.hph, np.nan)
+    ekf_mod._channel_noise_estimate(fp.cfg, fp.ant, fp.tx, fp.xs[:, :fp.n], fp.Ps, fp.resid, fp.n, ref)
+    np.testing.assert_allclose(fp.hph[kern], ref[kern], rtol=1e-10, atol=0)
+    # and the estimate from the kernel's term equals the all-numpy one
+    sig_k, cnt_k = ekf_mod._channel_noise_estimate(fp.cfg, fp.ant, fp.tx, fp.xs[:, :fp.n], fp.Ps, fp.resid, fp.n,
+                                                   fp.hph.copy())
+    sig_n, cnt_n = ekf_mod._channel_noise_estimate(fp.cfg, fp.ant, fp.tx, fp.xs[:, :fp.n], fp.Ps, fp.resid, fp.n)
+    np.testing.assert_array_equal(cnt_k, cnt_n)
+    np.testing.assert_allclose(sig_k, sig_n, rtol=1e-12)
 
 
 @needs_kernel
