@@ -44,7 +44,8 @@ from cdgps_cli.estimation import ambiguity  # noqa: E402
 from cdgps_cli.estimation import baseline
 from cdgps_cli.config.structure import load_gnss_config  # noqa: E402
 from cdgps_cli.pipeline.gnss import gnss_init  # noqa: E402
-from cdgps_cli.io.gnss_run import ingest_gnss, read_gnss_run  # noqa: E402
+from cdgps_cli.io.gnss_run import read_gnss_run  # noqa: E402
+from cdgps_cli.pipeline.gnss_ingest import ingest_gnss  # noqa: E402
 from cdgps_cli.sim.gnss import simulate_gnss_pair  # noqa: E402
 
 #: lock segments the default 20-minute scenario has without slips (rising/setting satellites),

@@ -53,7 +53,7 @@ def mark(name, t0):
 t = time.perf_counter()
 from cdgps_cli.estimation.filter import EstimateOptions, estimate
 from cdgps_cli.io.run import read_run
-from cdgps_cli.io.states import write_states
+from cdgps_cli.pipeline.estimate_outputs import write_states
 t = mark('import', t)
 run = read_run({run!r})
 t = mark('read RUN.mcap', t)

@@ -55,7 +55,7 @@ from cdgps_cli.measurement.phase import all_channels, phase_model  # noqa: E402
 from cdgps_cli.core.records import memory_run  # noqa: E402
 from cdgps_cli.io.run import write_run  # noqa: E402
 from cdgps_cli.sim.structure import SimOptions, parse_outage, parse_slip, simulate, write_simulation  # noqa: E402
-from cdgps_cli.io.states import evaluate, write_states  # noqa: E402
+from cdgps_cli.pipeline.estimate_outputs import evaluate, write_states  # noqa: E402
 
 TB = load_config(ROOT / "configs" / "testbed-1998.toml")
 D2 = load_config(ROOT / "configs" / "teague-1995-2dof.toml")

@@ -35,7 +35,7 @@ from cdgps_cli.estimation.initializer import InitOptions, initialize  # noqa: E4
 from cdgps_cli.core.records import memory_run  # noqa: E402
 from cdgps_cli.io.run import write_run  # noqa: E402
 from cdgps_cli.sim.structure import SimOptions, simulate, write_simulation  # noqa: E402
-from cdgps_cli.io.states import evaluate, write_states  # noqa: E402
+from cdgps_cli.pipeline.estimate_outputs import evaluate, write_states  # noqa: E402
 
 CONFIGS = {"testbed-1998": ROOT / "configs" / "testbed-1998.toml",
            "tower-120m-fe": ROOT / "configs" / "tower-120m-fe.toml"}

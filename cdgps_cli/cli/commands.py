@@ -327,7 +327,8 @@ def _grid_note(c: dict) -> str:
 
 def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict=False):
     from cdgps_cli.config.structure import load_gnss_config, parse_gnss_config
-    from cdgps_cli.io.gnss_run import default_config_text, ingest_gnss
+    from cdgps_cli.io.gnss_run import default_config_text
+    from cdgps_cli.pipeline.gnss_ingest import ingest_gnss
 
     rx, ub = _parse_named(rinex, "--rinex"), _parse_named(ubx, "--ubx")
     if config:
@@ -537,7 +538,7 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
                          "run already has its config")
     from cdgps_cli.estimation.filter import EstimateOptions, estimate as run_ekf, validate_rest_segments
     from cdgps_cli.io.run import read_run
-    from cdgps_cli.io.states import write_states
+    from cdgps_cli.pipeline.estimate_outputs import write_states
 
     if not 0.5 < nis_probability < 1.0:
         raise CdgpsError(f"--nis-probability must be in (0.5, 1), got {nis_probability:g}")
@@ -652,7 +653,7 @@ def _parse_rest(text: str) -> tuple[float, float]:
 def export(ctx, states_mcap, out_csv, kinematic, points, as_json):
     """Export estimated coordinates and their 1-sigma to CSV (columns line up with truth.csv)."""
     from cdgps_cli.io.file_checks import GNSS_STATES, STATES, require_kind
-    from cdgps_cli.io.states import export_csv
+    from cdgps_cli.pipeline.estimate_outputs import export_csv
 
     require_kind(states_mcap, GNSS_STATES if kinematic else STATES, "STATES_MCAP")
     if kinematic:
@@ -675,7 +676,7 @@ def export(ctx, states_mcap, out_csv, kinematic, points, as_json):
 def evaluate(ctx, truth_dir, states_mcap, converge_s, as_json):
     """Errors of an estimate against simulator truth: RMS per coordinate, NEES, NIS, biases."""
     from cdgps_cli.io.file_checks import STATES, require_kind
-    from cdgps_cli.io.states import evaluate as run_eval
+    from cdgps_cli.pipeline.estimate_outputs import evaluate as run_eval
 
     require_kind(states_mcap, STATES, "--estimate")
     r = run_eval(truth_dir, states_mcap, converge_s)
@@ -847,7 +848,7 @@ def report_spectrum(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad
 @click.pass_context
 def info(ctx, mcap_file, as_json):
     """Topics, counts, time span, sampling, gaps, channels and slips of an MCAP file."""
-    from cdgps_cli.io.run import run_info
+    from cdgps_cli.pipeline.gnss_ingest import run_info
     from cdgps_cli.core.time_format import format_period
 
     s = run_info(mcap_file)
@@ -1000,7 +1001,7 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, weight
 @click.pass_context
 def config_cmd(ctx, rinex, ubx, nav, master, displacement, sigma, name, output):
     """Write a starter GNSS run config from the receiver files' headers (for ingest and baseline)."""
-    from cdgps_cli.io.gnss_run import starter_gnss_config
+    from cdgps_cli.pipeline.gnss_ingest import starter_gnss_config
 
     if sigma is not None and displacement != "random_walk":
         raise CdgpsError("--sigma is the random-walk process noise: use it with --displacement random_walk")
@@ -1026,7 +1027,7 @@ def baseline_config_cmd(ctx, rinex, nav, master, output):
     The file is a GNSS run config (docs/gnss-pipeline.md), so it also serves 'cdgps ingest'.
     """
     from cdgps_cli.estimation.baseline import load_baseline_job
-    from cdgps_cli.io.gnss_run import starter_gnss_config
+    from cdgps_cli.pipeline.gnss_ingest import starter_gnss_config
 
     stations = _parse_named(rinex, "--rinex", "station", "NAME=PATH")
     if len(stations) != 2:

@@ -49,3 +49,17 @@ def gps_time_str(t_gps_s: float) -> str:
         ms = 0
     s = d.strftime("%Y-%m-%d %H:%M:%S")
     return f"{s}.{ms:03d} GPST" if ms else f"{s} GPST"
+
+
+def nominal_interval_s(t_s) -> float:
+    """Median spacing of distinct epoch times (rounded to 1 ms), s; NaN for fewer than 2 epochs.
+
+    Parameters
+    ----------
+    t_s : array_like, shape (N,)
+        Epoch times, s (any order, repeats allowed).
+    """
+    u = np.unique(np.asarray(t_s, dtype=np.float64))
+    if u.size < 2:
+        return math.nan
+    return float(np.round(np.median(np.diff(u)), 3))

@@ -46,12 +46,11 @@ from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.core.records import NAV_COLUMNS, OBS_COLUMNS
 from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
 from cdgps_cli.io.ubx import INTEGRITY_COUNTS, integrity_problems, integrity_record, skipped_line
-from cdgps_cli.model.gps.positioning import ephemeris_coverage, nominal_interval_s
-from cdgps_cli.model.gps.epoch_align import common_epochs
+from cdgps_cli.core.gps_time import nominal_interval_s
 
 __all__ = [
     "GNSS_OBS_TOPIC", "GNSS_EPHEMERIS_TOPIC", "RAW_COLUMNS", "GnssReceiver", "GnssRun", "is_gnss_run",
-    "ingest_gnss", "read_gnss_run", "run_kind", "processing_obs", "gnss_run_info", "default_config_text",
+    "IngestInputs", "read_ingest_inputs", "nominal_positions", "write_gnss_run", "read_gnss_run", "run_kind", "processing_obs", "gnss_run_info", "default_config_text",
 ]
 
 GNSS_OBS_TOPIC = "/cdgps/gnss/obs"
@@ -368,7 +367,7 @@ def rovers_given(receivers: dict, master: str) -> bool:
     return any(n != master for n in receivers)
 
 
-def _span(t) -> str:
+def span_text(t) -> str:
     t = np.asarray(t, dtype=np.float64)
     return f"{gps_time_str(float(t.min()))} – {gps_time_str(float(t.max()))}" if t.size else "no epochs"
 
@@ -383,40 +382,33 @@ def _header_position(h: dict):
     return pos
 
 
-def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = None, ubx: dict | None = None,
-                nav_paths=None, master: str | None = None, progress=None, strict: bool = False) -> dict:
-    """Read receiver files and navigation data, check them, and write a GNSS RUN.mcap.
+@dataclass
+class IngestInputs:
+    """The inputs of a GNSS ingest, read and checked for what needs no model (:func:`read_ingest_inputs`).
 
-    Parameters
-    ----------
-    cfg : GnssConfig
-        The run config (attached to the run).  Its antenna files and navigation files are used
-        unless ``rinex``/``ubx`` or ``nav_paths`` are given (the command line overrides the file).
-    out_path : path
-        RUN.mcap to write (atomically).
-    rinex, ubx : dict, optional
-        ``{antenna: path}`` observation files.
-    nav_paths : list of path, optional
-        RINEX navigation files (merged).  None: the config's; empty: no ephemeris (a warning:
-        ``cdgps init`` then needs a run ingested with navigation data).
-    master : str, optional
-        Master antenna (default: the config's, or the only antenna).
-    strict : bool, default False
-        Refuse a UBX log with corrupt or skipped data (checksum failures, undecodable RXM-RAWX,
-        bytes skipped between frames, a truncated tail) instead of counting and reporting it.
+    ``files``: antenna → (kind ``"rinex"``/``"ubx"``, path); ``master``; ``nav_list``: navigation
+    file paths; ``receivers``: antenna → :class:`GnssReceiver` (master first); ``nav``: merged
+    ephemerides or None; ``integrity``: per UBX receiver; ``warnings``: list of str (appended to
+    by the later checks, in order).
+    """
 
-    Returns
-    -------
-    dict
-        Summary (receivers, epochs, spans, common epochs, slips, ephemerides, warnings, and
-        ``integrity``: per UBX receiver its file, counters and the worded losses, ``problems``).
+    files: dict
+    master: str
+    nav_list: list
+    receivers: dict
+    nav: pd.DataFrame | None
+    integrity: dict
+    warnings: list
+    nav_source: str = ""
 
-    Raises
-    ------
-    CdgpsError
-        Missing or unreadable files, a file without L1 carrier phase, navigation data that do not
-        cover a receiver's observations, receivers without common epochs, a master without a
-        position while there are rovers, an output that would overwrite an input.
+
+def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = None, ubx: dict | None = None,
+                       nav_paths=None, master: str | None = None, progress=None, strict: bool = False) -> IngestInputs:
+    """Resolve and read the receiver and navigation files of a GNSS ingest.
+
+    The stage is :func:`cdgps_cli.pipeline.gnss_ingest.ingest_gnss` (parameters documented there),
+    which then checks the ephemeris coverage and the common epochs (model computations) and
+    writes the run with :func:`write_gnss_run`.
     """
     say = progress or (lambda m: None)
     files: dict = {}
@@ -481,25 +473,17 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
     if nav_list:
         say(f"reading {len(nav_list)} navigation file(s) …")
         nav = merge_nav(nav_list)
-    if nav is not None:
-        for n, rx in receivers.items():
-            r = rx.raw[np.isfinite(rx.raw["phase_cycles"].to_numpy())]
-            cov = ephemeris_coverage(nav, r["sat"].to_numpy(), r["time_gps_s"].to_numpy())
-            if not cov.any():
-                tn = nav["toe_gps_s"].to_numpy()
-                raise CdgpsError(
-                    f"the navigation data do not cover the observations of {n} ({files[n][1]}): observations "
-                    f"{_span(r['time_gps_s'])}, broadcast ephemerides with toe {_span(tn)} (each is used within ±2 h of "
-                    f"its toe, healthy satellites only); give the navigation file(s) of that day")
-            if not cov.all():
-                miss = pd.Series(r["sat"].to_numpy()[~cov]).value_counts()
-                warnings.append(f"{n}: {int(miss.sum())} of {len(r)} phase observations ({', '.join(sorted(miss.index)[:8])}"
-                                f"{' …' if len(miss) > 8 else ''}) have no healthy ephemeris within ±2 h; they will not be used")
     else:
         warnings.append("no navigation file: the run has no ephemerides, and 'cdgps init' needs them "
                         "(ingest again with --nav, or list nav files in the config)")
+    return IngestInputs(files, master, nav_list, receivers, nav, integrity, warnings, nav_source)
 
-    # positions and common epochs
+
+def nominal_positions(cfg: GnssConfig, inp: IngestInputs) -> dict:
+    """Antenna → (source, ECEF position m as list) or (None, None): the config's ``position_ecef_m``,
+    else the RINEX header's APPROX POSITION XYZ.  Appends the warnings (and raises for a master
+    without a position while there are rovers)."""
+    receivers, master, files, warnings = inp.receivers, inp.master, inp.files, inp.warnings
     pos_src = {}
     for n, rx in receivers.items():
         a = cfg.antenna(n)
@@ -521,30 +505,18 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
         if pos_src[n][0] is None:
             warnings.append(f"{n}: no nominal position (header or config); 'cdgps init' uses a pseudorange single-point "
                             f"position, and the displacement states refer to it")
-    tm = np.unique(receivers[master].raw["time_gps_s"].to_numpy())
-    common = {}
-    for n in rovers:
-        tr = np.unique(receivers[n].raw["time_gps_s"].to_numpy())
-        ce = common_epochs(tm, tr, cfg.sync_tol_s)
-        n_common = ce["common_epochs"]
-        if n_common == 0:
-            raise CdgpsError(
-                f"no common epochs: master {master} ({files[master][1]}) has {tm.size} epochs ({_span(tm)}), rover {n} "
-                f"({files[n][1]}) has {tr.size} ({_span(tr)}); no grid time of GPS seconds has an epoch of both within "
-                f"{ce['tolerance_ms']:g} ms (gnss.sync_tol_s)")
-        common[n] = {"common_epochs": n_common, "master_epochs": int(tm.size), "rover_epochs": int(tr.size),
-                     "tolerance_ms": ce["tolerance_ms"], "master": ce["master"], "rover": ce["rover"]}
-        if n_common < max(tm.size, tr.size):
-            warnings.append(f"{n}: {n_common} epochs in common with the master (master {tm.size}, {n} {tr.size}); only "
-                            f"common epochs are differenced")
-        for who, name in (("master", master), ("rover", n)):
-            if ce[who]["dropped"]:
-                warnings.append(f"{name}: {ce[who]['dropped']} of {ce[who]['epochs']} epochs more than "
-                                f"{ce['tolerance_ms']:g} ms off the {ce[who]['grid_s']:.6g} s grid of GPS times (or a "
-                                f"second epoch on one grid time) are not used")
+    return pos_src
 
-    # ---- write ----
-    say(f"writing {out_path} …")
+
+def write_gnss_run(cfg: GnssConfig, out_path: str | Path, inp: IngestInputs, pos_src: dict, common: dict) -> dict:
+    """Write the GNSS RUN.mcap (atomically) of checked inputs; returns the ingest summary.
+
+    ``pos_src``: from :func:`nominal_positions`; ``common``: rover → its common-epoch counts with
+    the master (:func:`cdgps_cli.model.gps.epoch_align.common_epochs` plus the epoch counts).
+    """
+    files, master, nav_list, receivers, nav = inp.files, inp.master, inp.nav_list, inp.receivers, inp.nav
+    integrity, warnings, nav_source = inp.integrity, inp.warnings, inp.nav_source
+    out_path = Path(out_path)
     meta = {"cdgps_version": __version__, "created_by": "cdgps ingest", "kind": "gnss", "config_name": cfg.name,
             "config_sha256": cfg.sha256, "config_path": Path(cfg.path).name if not cfg.path.startswith("<") else cfg.path,
             "master": master, "receivers": ",".join(receivers), "displacement_model": cfg.displacement}
@@ -722,8 +694,12 @@ def read_gnss_run(path: str | Path, contents=None) -> GnssRun:
     return GnssRun(str(path), cfg, master, receivers, nav, meta)
 
 
-def gnss_run_info(path: str | Path, contents) -> dict:
-    """The GNSS part of ``cdgps info``: config, master, receivers with lock counters, ephemerides."""
+def gnss_run_info(path: str | Path, contents, common_epochs=None) -> dict:
+    """The GNSS part of ``cdgps info``: config, master, receivers with lock counters, ephemerides.
+
+    ``common_epochs``: a function of the :class:`GnssRun` giving rover → number of epochs in
+    common with the master (:func:`cdgps_cli.pipeline.gnss_ingest.run_info` passes it: epoch
+    alignment is a model computation); None: recorded as None."""
     run = read_gnss_run(path, contents)
     rx = []
     for n, r in run.receivers.items():
@@ -735,16 +711,11 @@ def gnss_run_info(path: str | Path, contents) -> dict:
             s["integrity"] = {**{k: int(r.info.get(k) or 0) for k in INTEGRITY_COUNTS},
                               "problems": integrity_problems(r.info)}
         rx.append(s)
-    tm = np.unique(run.receivers[run.master].raw["time_gps_s"].to_numpy())
-    common = {}
-    for n in run.rovers:
-        tr = np.unique(run.receivers[n].raw["time_gps_s"].to_numpy())
-        common[n] = common_epochs(tm, tr, run.cfg.sync_tol_s)["common_epochs"]
     nav = run.nav
     return {
         "config": run.cfg.summary(), "master": run.master, "rovers": run.rovers,
         "coordinates": [f"{r}_{c}" for r in run.rovers for c in "enu"],
-        "receivers": rx, "common_epochs": common,
+        "receivers": rx, "common_epochs": common_epochs(run) if common_epochs else None,
         "ephemerides": int(len(nav)), "ephemeris_satellites": int(nav["sat"].nunique()) if len(nav) else 0,
         "ephemeris_toe": [gps_time_str(float(nav["toe_gps_s"].min())), gps_time_str(float(nav["toe_gps_s"].max()))] if len(nav) else None,
     }
@@ -756,7 +727,7 @@ def gnss_run_info(path: str | Path, contents) -> dict:
 
 def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), master: str | None = None, *,
                         displacement: str = "static", sigma_m_per_sqrt_s=None, relative_to: Path | None = None,
-                        name: str | None = None, notes: list | None = None) -> str:
+                        name: str | None = None, notes: list | None = None, master_position=None) -> str:
     """Text of a GNSS run config for the given files; the headers are read and summarised in
     comments (marker, receiver, antenna, span, header position).  The master defaults to the first
     RINEX antenna with a header position (or a UBX log with an RTCM 1005/1006 station position);
@@ -787,7 +758,7 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
             with_pos.append(n)
         comments.append(f"{n}: {Path(p).name}, RINEX {float(h.get('version') or 0):.2f}, marker {h.get('marker_name') or '?'}, receiver "
                         f"{h.get('receiver_type') or '?'}, antenna {h.get('antenna_type') or '?'}, {t.size} epochs "
-                        f"{_span(t)} every {nominal_interval_s(t):g} s,")
+                        f"{span_text(t)} every {nominal_interval_s(t):g} s,")
         comments.append(f"    header position {('(' + ', '.join(f'{v:.4f}' for v in pos) + ')') if pos is not None else 'none'}")
         files[n] = ("rinex", rel(p))
     positions: dict = {}
@@ -797,7 +768,7 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
         t = np.unique(rx.raw["time_gps_s"].to_numpy())
         base = rx.info.get("rtcm_base")
         sf = rx.info.get("sfrbx") or {}
-        comments.append(f"{n}: {Path(p).name}, u-blox RXM-RAWX, {t.size} epochs {_span(t)}, GPS satellites "
+        comments.append(f"{n}: {Path(p).name}, u-blox RXM-RAWX, {t.size} epochs {span_text(t)}, GPS satellites "
                         f"{', '.join(rx.info.get('gps_satellites') or [])}; {int(sf.get('ephemerides') or 0)} GPS "
                         f"ephemerides from RXM-SFRBX")
         if base:
@@ -811,12 +782,15 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
     for p in nav_paths:
         nav = read_rinex_nav(p)
         comments.append(f"nav {Path(p).name}: {len(nav)} GPS ephemerides of {nav['sat'].nunique()} satellites, toe "
-                        f"{_span(nav['toe_gps_s'])}")
+                        f"{span_text(nav['toe_gps_s'])}")
     master = master or (with_pos[0] if with_pos else next(iter(files)))
     if master not in files:
         raise CdgpsError(f"master {master!r} is not one of the receivers given: {', '.join(files)}")
     if master in ubx_rx and master not in positions:
-        positions[master] = _spp_master_position(master, ubx[master], ubx_rx[master], nav_paths, ubx_rx)
+        if master_position is None:
+            raise CdgpsError(f"{ubx[master]}: no base position for master {master}: the log has no RTCM 1005/1006 "
+                             f"message; write position_ecef_m in the config yourself")
+        positions[master] = master_position(master, ubx[master], ubx_rx[master], nav_paths, ubx_rx)
         comments.append(f"    {master} position: NOT surveyed — the log has no RTCM 1005/1006; the mean single-point "
                         f"position from its L1 pseudoranges (metre level). Replace it by the surveyed position.")
         if notes is not None:
@@ -831,26 +805,3 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
         if back is None or max(abs(a - b) for a, b in zip(back, pos)) > 5e-5:
             raise CdgpsError(f"internal error: the starter config does not read back {n}'s position {pos} (got {back})")
     return text
-
-
-def _spp_master_position(name: str, path, rx: GnssReceiver, nav_paths, ubx_rx: dict) -> tuple:
-    """Mean single-point position of a UBX master without RTCM 1005/1006, from the nav files or
-    the logs' SFRBX ephemerides; an error naming both sources when there are no ephemerides."""
-    from cdgps_cli.model.gps.positioning import spp_static  # noqa: PLC0415
-
-    if nav_paths:
-        nav = merge_nav(nav_paths)
-    else:
-        navs = [r.nav for r in ubx_rx.values() if r.nav is not None and len(r.nav)]
-        if not navs:
-            raise CdgpsError(f"{path}: no base position for master {name}: the log has no RTCM 1005/1006 message, and "
-                             f"no ephemerides for a single-point position (no RXM-SFRBX GPS subframes in the UBX logs "
-                             f"and no --nav file); give --nav, or write position_ecef_m in the config yourself")
-        nav = _merge_nav_tables(navs)
-    r = rx.raw[np.isfinite(rx.raw["pseudorange_m"].to_numpy())]
-    cov = ephemeris_coverage(nav, r["sat"].to_numpy(), r["time_gps_s"].to_numpy())
-    r = r[cov]
-    t = r["time_gps_s"].to_numpy()
-    ep = np.unique(t, return_inverse=True)[1]
-    x, _ = spp_static(ep, r["sat"].to_numpy(), t, r["pseudorange_m"].to_numpy(), nav, what=f"{path} ({name})")
-    return tuple(float(v) for v in x)

@@ -246,8 +246,12 @@ def _phase_table(tc: TopicColumns) -> pd.DataFrame:
     return phase
 
 
-def run_info(path: str | Path) -> dict:
-    """Summary of a RUN.mcap for ``cdgps info``: topics, counts, span, sampling, gaps, channels, slips."""
+def run_info(path: str | Path, gnss_common_epochs=None) -> dict:
+    """Summary of a RUN.mcap for ``cdgps info``: topics, counts, span, sampling, gaps, channels, slips.
+
+    ``gnss_common_epochs``: for a GNSS run, the function giving each rover's epochs in common with
+    the master (see :func:`cdgps_cli.io.gnss_run.gnss_run_info`); the stage
+    :func:`cdgps_cli.pipeline.gnss_ingest.run_info` passes it."""
     c = read_mcap(path)
     info = {"file": str(path), "topics": [], "metadata": c.metadata,
             "attachments": sorted(c.attachments)}
@@ -265,7 +269,7 @@ def run_info(path: str | Path) -> dict:
     from cdgps_cli.io.gnss_run import gnss_run_info, is_gnss_run  # noqa: PLC0415 (GNSS runs: docs/gnss-pipeline.md)
 
     if is_gnss_run(c):
-        info["gnss"] = gnss_run_info(path, c)
+        info["gnss"] = gnss_run_info(path, c, gnss_common_epochs)
     if PHASE_TOPIC in c.topics and CONFIG_ATTACHMENT in c.attachments:
         cfg = parse_config(c.attachments[CONFIG_ATTACHMENT].decode("utf-8"), f"{path}:{CONFIG_ATTACHMENT}")
         phase = c.topics[PHASE_TOPIC].table(PHASE_ARRAYS, ["master"])

@@ -1,4 +1,6 @@
-"""STATES.mcap (output of ``cdgps estimate``), CSV export and evaluation against simulator truth.
+"""STATES.mcap (output of ``cdgps estimate``): the writer and the reader (no numerics: the stage
+functions — writing an estimate, CSV export, evaluation against truth — are in
+:mod:`cdgps_cli.pipeline.estimate_outputs`).
 
 Every epoch of every series is stored as packed arrays (lossless, compact; the layout is in
 :mod:`cdgps_cli.io.states_layout`), which :class:`States` reads.  Beside them, the Foxglove
@@ -15,7 +17,7 @@ channels (JSON schema / JSON, ``timestamp {sec, nsec}``) hold one message every
   by name: one per section and axis it rotates about (small-angle sum of its rotation coordinate
   and, about z, the rigid-body rotation), ``body_z`` for the rigid-body rotation, each with its
   1-sigma ``sigma_<name>``; the expressions are in the schema's descriptions and the channel's
-  metadata (:func:`cdgps_cli.model.kinematics.section_angles`); absent when the model has no rotations;
+  metadata (given by the caller: :func:`cdgps_cli.model.kinematics.section_angles`); absent when the model has no rotations;
 * ``/cdgps/residuals`` — per channel post-fit residual (m), the epoch's NIS (left out where
   there is none) and its dof;
 * ``/cdgps/events`` — slips, re-acquisitions, outliers, integrity failures and their actions
@@ -38,12 +40,10 @@ import json
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from cdgps_cli import __version__
 from cdgps_cli.core import progress
 from cdgps_cli.config.structure import StructureConfig, parse_config
-from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.states_layout import (COVARIANCE_CHOICES, DEFAULT_COVARIANCE, DEFAULT_PREVIEW_RATE_HZ, PACKED_PREFIX,
                                RESIDUAL_PACKED)
@@ -117,11 +117,11 @@ def _angles_schema(angles) -> dict:
     return message_schema("cdgps.AnglesDeg", props, "section angles in degrees (small-angle sums of coordinates)")
 
 
-def _write_angles(out: McapOut, cfg: StructureConfig, time_s, q: np.ndarray, P_xi: np.ndarray) -> None:
-    """The :data:`ANGLES_TOPIC` messages: section angles and their 1-sigma, degrees."""
-    from cdgps_cli.model.kinematics import section_angles  # noqa: PLC0415
+def _write_angles(out: McapOut, cfg: StructureConfig, angles, time_s, q: np.ndarray, P_xi: np.ndarray) -> None:
+    """The :data:`ANGLES_TOPIC` messages: section angles and their 1-sigma, degrees.
 
-    angles = section_angles(cfg)
+    ``angles``: list of (name, expression, coefficients (n_q,)) as
+    :func:`cdgps_cli.model.kinematics.section_angles` gives them (empty: no channel)."""
     if not angles:
         return
     A = np.array([c for _, _, c in angles])                   # (n_angles, n_q)
@@ -261,8 +261,11 @@ def _write_residuals(out: McapOut, res, sel) -> None:
 
 def write_states(res, run_path: str | Path, init: dict, init_text: str,
                  out_path: str | Path, options: dict, covariance: str = DEFAULT_COVARIANCE,
-                 preview_rate_hz: float = DEFAULT_PREVIEW_RATE_HZ) -> dict:
+                 preview_rate_hz: float = DEFAULT_PREVIEW_RATE_HZ, angles=()) -> dict:
     """Write STATES.mcap atomically; returns a summary.
+
+    The stage function is :func:`cdgps_cli.pipeline.estimate_outputs.write_states`, which gives
+    the section angles of the structure (this module imports no numerics).
 
     Parameters
     ----------
@@ -277,6 +280,9 @@ def write_states(res, run_path: str | Path, init: dict, init_text: str,
         kept whole), and P_ξ in the JSON messages.
     preview_rate_hz : float
         Rate of the Foxglove JSON channels, Hz (0: every epoch); see :data:`DEFAULT_PREVIEW_RATE_HZ`.
+    angles : list of (str, str, ndarray (n_q,))
+        The :data:`ANGLES_TOPIC` channel's angles: name, expression, coefficients (rad per
+        coordinate unit); empty: no such channel.
     """
     if covariance not in COVARIANCE_CHOICES:
         raise ValueError(f"covariance {covariance!r}: expected one of {', '.join(COVARIANCE_CHOICES)}")
@@ -321,7 +327,7 @@ def write_states(res, run_path: str | Path, init: dict, init_text: str,
             _write_state_messages(out, out.channel(topic, schema), names, sel, time_s, X, q, sq, P_xi, nm,
                                   smoothed, covariance == "full")
             if topic == STATE_TOPIC:
-                _write_angles(out, cfg, time_s[sel], q[sel], P_xi[sel])
+                _write_angles(out, cfg, angles, time_s[sel], q[sel], P_xi[sel])
             del q, sq, P_xi
             bar.update()
         _write_residuals(out, res, sel)
@@ -466,139 +472,3 @@ class States:
 
 def _num(v) -> float:
     return float("nan") if v is None else v
-
-
-def export_csv(states_path: str | Path, out_csv: str | Path, points: str | None = None) -> dict:
-    """Write time_s, one column per coordinate and sigma_<name> for each (lines up with truth.csv).
-
-    ``points`` (e.g. ``"antennas"``, ``"all"``, ``"a120,top"``; see
-    :func:`cdgps_cli.model.points.select_points`) adds the lab-frame displacement of those points and its
-    1-σ from J U P_ξ Uᵀ Jᵀ: columns ``<point>_d{x,y,z}_m`` and ``sigma_<point>_d{x,y,z}_m``.
-    """
-    st = States(states_path)
-    names = list(st.cfg.coord_names)
-    bad = ~np.isfinite(st.q).all(axis=1) | ~np.isfinite(st.sigma_q).all(axis=1)
-    if bad.any():
-        raise CdgpsError(f"{states_path}: {int(bad.sum())} of {len(bad)} epoch(s) with non-finite states or sigmas "
-                         f"(first at {st.time_s[np.flatnonzero(bad)[0]]:g} s); nothing written")
-    pts = None
-    if points is not None:
-        from cdgps_cli.model.points import point_columns, select_points
-
-        pts = select_points(st.cfg, points)          # before writing: a bad name leaves no file
-    df = pd.DataFrame(st.q, columns=names)
-    for i, n in enumerate(names):
-        df["sigma_" + n] = st.sigma_q[:, i]
-    if pts is not None:
-        df = pd.concat([df, pd.DataFrame(point_columns(st.cfg, pts, st.xi, st.P_xi))], axis=1)
-    df.insert(0, "time_s", np.round(st.time_s, 9))
-    out = Path(out_csv)
-    write_atomic(out, lambda p: df.to_csv(p, index=False, lineterminator="\n"))
-    return {"output": str(out), "rows": int(len(df)), "columns": list(df.columns),
-            "points": list(pts.names) if pts is not None else []}
-
-
-def evaluate(truth_dir: str | Path, states_path: str | Path, converge_s: float = 1.0) -> dict:
-    """Compare a STATES.mcap with simulator truth (truth.csv, truth.json).
-
-    Returns RMS error per coordinate (after ``converge_s`` from the first estimate), NEES on the
-    modal positions with its chi-square 95% interval, NIS statistics, convergence time and bias errors.
-    """
-    from scipy.stats import chi2
-
-    from cdgps_cli.core.checks import require_finite
-
-    require_finite(converge_s, "converge_s", nonnegative=True)
-    truth_dir = Path(truth_dir)
-    csv = truth_dir / "truth.csv"
-    for alt in ("truth.csv.xz", "truth.csv.gz"):
-        if not csv.exists() and (truth_dir / alt).exists():
-            csv = truth_dir / alt
-    try:
-        truth = pd.read_csv(csv)
-        tj = json.loads((truth_dir / "truth.json").read_text())
-    except (OSError, ValueError) as exc:
-        raise CdgpsError(f"{truth_dir}: cannot read truth.csv / truth.json: {exc}") from None
-    st = States(states_path)
-    cfg = st.cfg
-    names = list(cfg.coord_names)
-    missing = [n for n in ["time_s", *names] if n not in truth.columns]
-    if missing:
-        raise CdgpsError(f"{truth_dir / 'truth.csv'}: missing column(s) {', '.join(missing)}")
-    if tj.get("config_sha256") and tj["config_sha256"] != cfg.sha256:
-        raise CdgpsError("truth.json was simulated with a different config than the estimate's")
-    tt = np.rint(truth["time_s"].to_numpy() * 1e6).astype(np.int64)
-    te = np.rint(st.time_s * 1e6).astype(np.int64)
-    common, it, ie = np.intersect1d(tt, te, return_indices=True)
-    if common.size == 0:
-        raise CdgpsError("no common epochs between truth and estimate")
-    qt = truth[names].to_numpy()[it]
-    qe = st.q[ie]
-    se = st.sigma_q[ie]
-    time = st.time_s[ie]
-    err = qe - qt
-    after = time >= time[0] + converge_s - 1e-9
-    if after.sum() < 2:
-        raise CdgpsError(f"{states_path}: {common.size} epoch(s) in common with the truth "
-                         f"({time[0]:g}–{time[-1]:g} s), {int(after.sum())} after the first {converge_s:g} s "
-                         "(--converge-s): too short to evaluate; estimate a longer run")
-    bad = ~np.isfinite(qe).all(axis=1) | ~np.isfinite(se).all(axis=1)
-    if bad.any():
-        raise CdgpsError(f"{states_path}: {int(bad.sum())} epoch(s) with non-finite states or sigmas "
-                         f"(first at {time[np.flatnonzero(bad)[0]]:g} s)")
-    rms = np.sqrt(np.mean(err[after] ** 2, axis=0))
-    U = np.asarray(cfg.mode_shapes)
-    xi_t = qt @ np.linalg.pinv(U).T
-    d = st.xi[ie] - xi_t
-    nm = cfg.n_modes
-    nees = np.einsum("ni,ni->n", d, np.linalg.solve(st.P_xi[ie], d[..., None])[..., 0])
-    lo, hi = chi2.ppf(0.025, nm), chi2.ppf(0.975, nm)
-    na = int(after.sum())
-    # time-averaged NEES: 95% interval of the mean of na chi2(nm) samples (if independent)
-    mlo, mhi = chi2.ppf(0.025, na * nm) / na, chi2.ppf(0.975, na * nm) / na
-    inside = np.all(np.abs(err) <= 3 * se + 1e-12, axis=1)
-    # convergence: first epoch from which the NEES stays below its 99.9% bound for a full second
-    bound = chi2.ppf(0.999, nm)
-    T = float(np.median(np.diff(time))) if time.size > 1 else 1.0
-    w = max(int(round(1.0 / T)), 1)
-    ok = nees <= bound
-    run_ok = np.convolve(ok.astype(int), np.ones(w, dtype=int), mode="valid") == w
-    first = np.flatnonzero(run_ok)
-    conv_t = float(time[first[0]] - time[0]) if first.size else None
-    out = {
-        "epochs": int(common.size), "start_s": float(time[0]), "end_s": float(time[-1]),
-        "rms_error": {n: float(v) for n, v in zip(names, rms)},
-        "rms_error_units": {n: cfg.coord_unit_label(n) for n in names},
-        "rms_error_deg": {n: float(np.degrees(v)) for n, v in zip(names, rms) if cfg.coord_unit(n) == "rad"},
-        "within_3sigma_fraction": float(np.mean(inside[after])),
-        "convergence_definition": "first time from which the NEES stays below its 99.9% chi-square bound for 1 s",
-        "convergence_s": conv_t,
-        "nees": {"dof": nm, "mean": float(np.mean(nees[after])), "interval95_single": [float(lo), float(hi)],
-                 "fraction_in_interval": float(np.mean((nees[after] >= lo) & (nees[after] <= hi))),
-                 "interval95_mean_if_independent": [float(mlo), float(mhi)]},
-    }
-    if st.nis is not None and ((st.nis_dof > 0) & np.isfinite(st.nis)).any():
-        ok = (st.nis_dof > 0) & np.isfinite(st.nis)
-        r = st.nis[ok] / st.nis_dof[ok]
-        inside_nis = (st.nis[ok] >= chi2.ppf(0.025, st.nis_dof[ok])) & (st.nis[ok] <= chi2.ppf(0.975, st.nis_dof[ok]))
-        out["nis"] = {"mean_per_dof": float(np.mean(r)), "fraction_in_interval95": float(np.mean(inside_nis))}
-    # bias errors: final biases vs truth (latest segment per channel)
-    if "final_biases" not in st.metadata:
-        raise CdgpsError(f"{states_path}: metadata {ESTIMATE_METADATA!r} has no final_biases (damaged or not a "
-                         f"STATES.mcap from 'cdgps estimate')")
-    try:
-        fb = json.loads(st.metadata["final_biases"])
-    except json.JSONDecodeError as exc:
-        raise CdgpsError(f"{states_path}: metadata final_biases is not valid JSON ({exc.msg}): corrupt file") from None
-    tb = {(b["antenna"], b["transmitter"]): b["bias_m"] for b in tj.get("biases", [])}
-    for s in tj.get("slips", []):
-        if s["time_s"] <= time[-1] + 1e-9:
-            tb[(s["antenna"], s["transmitter"])] = s["bias_m"]
-    errs = [(b["antenna"], b["transmitter"], b["bias_m"] - tb[(b["antenna"], b["transmitter"])])
-            for b in fb if (b["antenna"], b["transmitter"]) in tb and b["bias_m"] is not None and np.isfinite(b["bias_m"])]
-    if errs:
-        e = np.array([x[2] for x in errs])
-        out["bias_error"] = {"rms_m": float(np.sqrt(np.mean(e**2))), "max_abs_m": float(np.max(np.abs(e))),
-                             "wrong_integers": int(np.sum(np.abs(e) > cfg.wavelength_m / 2)), "channels": len(errs)}
-    out["events"] = len(st.events)
-    return out

@@ -34,7 +34,7 @@ def _ingest(s) -> dict:
 
 def _ingest_gnss(s) -> dict:
     from cdgps_cli.config.structure import load_gnss_config
-    from cdgps_cli.io.gnss_run import ingest_gnss
+    from cdgps_cli.pipeline.gnss_ingest import ingest_gnss
 
     cfg = load_gnss_config(s.inputs["gnss_config"])
     r = ingest_gnss(cfg, s.path("ingest"), rinex=None, ubx=None, nav_paths=None, master=None, progress=None,
@@ -106,7 +106,7 @@ def _estimate(s) -> dict:
     from cdgps_cli.estimation.filter import EstimateOptions, estimate
     from cdgps_cli.io.file_checks import check_init_run, read_init_json
     from cdgps_cli.io.run import read_run
-    from cdgps_cli.io.states import write_states
+    from cdgps_cli.pipeline.estimate_outputs import write_states
 
     run_mcap, init_json, o = s.path("ingest"), s.path("init"), s.options
     gnss = _run_kind(run_mcap) == "gnss"

@@ -403,7 +403,7 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
         The :func:`cdgps_cli.io.states.write_states` summary plus the placement, the antenna mapping,
         the nominal-position mismatches and the integer counts.
     """
-    from cdgps_cli.io.states import write_states  # noqa: PLC0415
+    from cdgps_cli.pipeline.estimate_outputs import write_states  # noqa: PLC0415
 
     say = progress or (lambda m: None)
     su = _modal_setup(run, init, cfg, receivers, x_axis_azimuth_deg, say)

@@ -133,7 +133,7 @@ def test_every_float_option_is_finite_checked():
 
 
 def test_library_functions_check_their_own_floats():
-    from cdgps_cli.io.states import evaluate
+    from cdgps_cli.pipeline.estimate_outputs import evaluate
 
     with pytest.raises(CdgpsError, match="converge_s must be a finite number"):
         evaluate("no-such-dir", "no.mcap", float("nan"))

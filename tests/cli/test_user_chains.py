@@ -90,7 +90,7 @@ def _short_states(tmp_path, dof2_cfg, N):
     """A hand-made STATES of N epochs (1995 model) and a truth dir."""
     from cdgps_cli.estimation.filter import EstimateResult
     from cdgps_cli.io.mcap import McapOut
-    from cdgps_cli.io.states import write_states
+    from cdgps_cli.pipeline.estimate_outputs import write_states
 
     T = dof2_cfg.sample_period_s
     t = np.round(np.arange(N) * T, 9)

@@ -37,7 +37,7 @@ from cdgps_cli.measurement.phase import EpochPhaseModel, all_channels, phase_mod
 from cdgps_cli.core.records import memory_run
 from cdgps_cli.io.run import read_run, write_run
 from cdgps_cli.sim.structure import SimOptions, parse_outage, parse_slip, simulate, write_simulation
-from cdgps_cli.io.states import write_states, evaluate
+from cdgps_cli.pipeline.estimate_outputs import write_states, evaluate
 
 ROOT = Path(__file__).resolve().parents[2]
 from _linear_case import LIN_SIGMA, LIN_SLIP, LINEAR_CONFIG, _rel, textbook_kf, textbook_rts  # noqa: E402

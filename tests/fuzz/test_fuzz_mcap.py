@@ -20,7 +20,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.gnss_run import read_gnss_run
 from cdgps_cli.io.mcap import read_mcap
 from cdgps_cli.io.run import read_run, run_info
-from cdgps_cli.io.states import export_csv
+from cdgps_cli.pipeline.estimate_outputs import export_csv
 
 from conftest import byte_mutation, check_reader, fuzz_settings, scratch, sha256
 

@@ -22,7 +22,8 @@ from cdgps_cli.cli.commands import main
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.mcap_integrity import RECORD_SHA256_KEY, read_metadata, record_sha256
 from cdgps_cli.io.mcap import read_mcap
-from cdgps_cli.io.states import States, evaluate
+from cdgps_cli.io.states import States
+from cdgps_cli.pipeline.estimate_outputs import evaluate
 
 
 def _run(*args):

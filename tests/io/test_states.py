@@ -27,7 +27,8 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.mcap import McapOut
 from cdgps_cli.io.run import read_run, write_run
 from cdgps_cli.sim.structure import SimOptions, simulate, write_simulation
-from cdgps_cli.io.states import coordinate_sigma, States, evaluate, export_csv, write_states
+from cdgps_cli.io.states import coordinate_sigma, States
+from cdgps_cli.pipeline.estimate_outputs import evaluate, export_csv, write_states
 
 ROOT = Path(__file__).resolve().parents[2]
 TESTBED_PATH = ROOT / "configs" / "testbed-1998.toml"

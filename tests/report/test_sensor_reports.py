@@ -28,7 +28,8 @@ from cdgps_cli.report.sensor_reports import detect_rest, spectrum_report, static
 from cdgps_cli.io.run import read_run, write_run
 from cdgps_cli.sim.structure import SimOptions, simulate, write_simulation
 from cdgps_cli.analysis.spectra import SpectraOptions
-from cdgps_cli.io.states import States, write_states
+from cdgps_cli.io.states import States
+from cdgps_cli.pipeline.estimate_outputs import write_states
 
 ROOT = Path(__file__).resolve().parents[2]
 TESTBED = ROOT / "configs" / "testbed-1998.toml"

@@ -41,7 +41,7 @@ import numpy as np
 import pandas as pd
 
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
-from cdgps_cli.model.gps.positioning import nominal_interval_s
+from cdgps_cli.core.gps_time import nominal_interval_s
 
 __all__ = ["ALIGN_MODES", "ON_GRID_S", "RATE_MAX_SPAN_INTERVALS", "grid_step_s", "align_receiver", "pair_epochs",
            "carry_slips", "common_epochs", "phase_rate"]

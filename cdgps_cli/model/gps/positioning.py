@@ -45,7 +45,7 @@ from cdgps_cli.model.gps.orbits import (
     sat_position_at_reception,
 )
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.core.gps_time import GPS_EPOCH
+from cdgps_cli.core.gps_time import GPS_EPOCH, nominal_interval_s  # noqa: F401 (re-exported)
 from cdgps_cli.core.records import OBS_COLUMNS
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 
@@ -450,14 +450,6 @@ def spp_static(
 # ----------------------------------------------------------------------------------------------
 # epochs
 # ----------------------------------------------------------------------------------------------
-
-
-def nominal_interval_s(t_s) -> float:
-    """Median spacing of distinct epoch times (rounded to 1 ms), s; NaN for fewer than 2 epochs."""
-    u = np.unique(np.asarray(t_s, dtype=np.float64))
-    if u.size < 2:
-        return math.nan
-    return float(np.round(np.median(np.diff(u)), 3))
 
 
 def match_epochs(t_a_s, t_b_s, *, tol_s: float = 0.025) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,162 @@
+"""``cdgps ingest`` of GNSS receiver files (docs/gnss-pipeline.md): the stage around :mod:`cdgps_cli.io.gnss_run`.
+
+:mod:`cdgps_cli.io.gnss_run` reads the receiver and navigation files and writes the RUN.mcap; the
+checks that need the GPS model — every receiver's phases covered by a healthy broadcast ephemeris
+(:func:`cdgps_cli.model.gps.positioning.ephemeris_coverage`) and the epochs each rover has in
+common with the master (:func:`cdgps_cli.model.gps.epoch_align.common_epochs`) — are made here, so
+that ``io`` imports no numerics.  :func:`run_info` is ``cdgps info`` with the GNSS common-epoch
+counts.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from cdgps_cli.config.structure import GnssConfig
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.io import gnss_run
+from cdgps_cli.io.gnss_run import IngestInputs, span_text
+from cdgps_cli.model.gps.epoch_align import common_epochs
+from cdgps_cli.model.gps.positioning import ephemeris_coverage, spp_static
+
+__all__ = ["ingest_gnss", "run_info", "starter_gnss_config", "spp_master_position"]
+
+
+def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = None, ubx: dict | None = None,
+                nav_paths=None, master: str | None = None, progress=None, strict: bool = False) -> dict:
+    """Read receiver files and navigation data, check them, and write a GNSS RUN.mcap.
+
+    Parameters
+    ----------
+    cfg : GnssConfig
+        The run config (attached to the run).  Its antenna files and navigation files are used
+        unless ``rinex``/``ubx`` or ``nav_paths`` are given (the command line overrides the file).
+    out_path : path
+        RUN.mcap to write (atomically).
+    rinex, ubx : dict, optional
+        ``{antenna: path}`` observation files.
+    nav_paths : list of path, optional
+        RINEX navigation files (merged).  None: the config's; empty: no ephemeris (a warning:
+        ``cdgps init`` then needs a run ingested with navigation data).
+    master : str, optional
+        Master antenna (default: the config's, or the only antenna).
+    strict : bool, default False
+        Refuse a UBX log with corrupt or skipped data (checksum failures, undecodable RXM-RAWX,
+        bytes skipped between frames, a truncated tail) instead of counting and reporting it.
+
+    Returns
+    -------
+    dict
+        Summary (receivers, epochs, spans, common epochs, slips, ephemerides, warnings, and
+        ``integrity``: per UBX receiver its file, counters and the worded losses, ``problems``).
+
+    Raises
+    ------
+    CdgpsError
+        Missing or unreadable files, a file without L1 carrier phase, navigation data that do not
+        cover a receiver's observations, receivers without common epochs, a master without a
+        position while there are rovers, an output that would overwrite an input.
+    """
+    say = progress or (lambda m: None)
+    inp = gnss_run.read_ingest_inputs(cfg, out_path, rinex=rinex, ubx=ubx, nav_paths=nav_paths, master=master,
+                                      progress=progress, strict=strict)
+    if inp.nav is not None:
+        _check_coverage(inp)
+    pos_src = gnss_run.nominal_positions(cfg, inp)
+    common = _common_epochs(cfg, inp)
+    say(f"writing {out_path} …")
+    return gnss_run.write_gnss_run(cfg, out_path, inp, pos_src, common)
+
+
+def _check_coverage(inp: IngestInputs) -> None:
+    """Refuse a receiver none of whose phases has a healthy ephemeris; warn about the rows without one."""
+    receivers, nav, files, warnings = inp.receivers, inp.nav, inp.files, inp.warnings
+    for n, rx in receivers.items():
+        r = rx.raw[np.isfinite(rx.raw["phase_cycles"].to_numpy())]
+        cov = ephemeris_coverage(nav, r["sat"].to_numpy(), r["time_gps_s"].to_numpy())
+        if not cov.any():
+            tn = nav["toe_gps_s"].to_numpy()
+            raise CdgpsError(
+                f"the navigation data do not cover the observations of {n} ({files[n][1]}): observations "
+                f"{span_text(r['time_gps_s'])}, broadcast ephemerides with toe {span_text(tn)} (each is used within ±2 h of "
+                f"its toe, healthy satellites only); give the navigation file(s) of that day")
+        if not cov.all():
+            miss = pd.Series(r["sat"].to_numpy()[~cov]).value_counts()
+            warnings.append(f"{n}: {int(miss.sum())} of {len(r)} phase observations ({', '.join(sorted(miss.index)[:8])}"
+                            f"{' …' if len(miss) > 8 else ''}) have no healthy ephemeris within ±2 h; they will not be used")
+
+
+def _common_epochs(cfg: GnssConfig, inp: IngestInputs) -> dict:
+    """Rover → its common-epoch counts with the master; refuses a rover with none, warns about dropped epochs."""
+    receivers, master, files, warnings = inp.receivers, inp.master, inp.files, inp.warnings
+    rovers = [n for n in receivers if n != master]
+    tm = np.unique(receivers[master].raw["time_gps_s"].to_numpy())
+    common = {}
+    for n in rovers:
+        tr = np.unique(receivers[n].raw["time_gps_s"].to_numpy())
+        ce = common_epochs(tm, tr, cfg.sync_tol_s)
+        n_common = ce["common_epochs"]
+        if n_common == 0:
+            raise CdgpsError(
+                f"no common epochs: master {master} ({files[master][1]}) has {tm.size} epochs ({span_text(tm)}), rover {n} "
+                f"({files[n][1]}) has {tr.size} ({span_text(tr)}); no grid time of GPS seconds has an epoch of both within "
+                f"{ce['tolerance_ms']:g} ms (gnss.sync_tol_s)")
+        common[n] = {"common_epochs": n_common, "master_epochs": int(tm.size), "rover_epochs": int(tr.size),
+                     "tolerance_ms": ce["tolerance_ms"], "master": ce["master"], "rover": ce["rover"]}
+        if n_common < max(tm.size, tr.size):
+            warnings.append(f"{n}: {n_common} epochs in common with the master (master {tm.size}, {n} {tr.size}); only "
+                            f"common epochs are differenced")
+        for who, name in (("master", master), ("rover", n)):
+            if ce[who]["dropped"]:
+                warnings.append(f"{name}: {ce[who]['dropped']} of {ce[who]['epochs']} epochs more than "
+                                f"{ce['tolerance_ms']:g} ms off the {ce[who]['grid_s']:.6g} s grid of GPS times (or a "
+                                f"second epoch on one grid time) are not used")
+    return common
+
+
+def run_info(path: str | Path) -> dict:
+    """``cdgps info``: :func:`cdgps_cli.io.run.run_info` with, for a GNSS run, the epochs each rover
+    has in common with the master (``gnss.common_epochs``: rover → count)."""
+    from cdgps_cli.io.run import run_info as file_info  # noqa: PLC0415
+
+    return file_info(path, gnss_common_epochs=_run_common_epochs)
+
+
+def _run_common_epochs(run: gnss_run.GnssRun) -> dict:
+    """Rover → number of epochs in common with the master of a GNSS run read back."""
+    tm = np.unique(run.receivers[run.master].raw["time_gps_s"].to_numpy())
+    common = {}
+    for n in run.rovers:
+        tr = np.unique(run.receivers[n].raw["time_gps_s"].to_numpy())
+        common[n] = common_epochs(tm, tr, run.cfg.sync_tol_s)["common_epochs"]
+    return common
+
+
+def starter_gnss_config(*args, **kwargs) -> str:
+    """:func:`cdgps_cli.io.gnss_run.starter_gnss_config` with a single-point position for a UBX
+    master whose log has no RTCM 1005/1006 (:func:`spp_master_position`)."""
+    return gnss_run.starter_gnss_config(*args, master_position=spp_master_position, **kwargs)
+
+
+def spp_master_position(name: str, path, rx: "gnss_run.GnssReceiver", nav_paths, ubx_rx: dict) -> tuple:
+    """Mean single-point position of a UBX master without RTCM 1005/1006, from the nav files or
+    the logs' SFRBX ephemerides; an error naming both sources when there are no ephemerides."""
+    if nav_paths:
+        nav = gnss_run.merge_nav(nav_paths)
+    else:
+        navs = [r.nav for r in ubx_rx.values() if r.nav is not None and len(r.nav)]
+        if not navs:
+            raise CdgpsError(f"{path}: no base position for master {name}: the log has no RTCM 1005/1006 message, and "
+                             f"no ephemerides for a single-point position (no RXM-SFRBX GPS subframes in the UBX logs "
+                             f"and no --nav file); give --nav, or write position_ecef_m in the config yourself")
+        nav = gnss_run._merge_nav_tables(navs)
+    r = rx.raw[np.isfinite(rx.raw["pseudorange_m"].to_numpy())]
+    cov = ephemeris_coverage(nav, r["sat"].to_numpy(), r["time_gps_s"].to_numpy())
+    r = r[cov]
+    t = r["time_gps_s"].to_numpy()
+    ep = np.unique(t, return_inverse=True)[1]
+    x, _ = spp_static(ep, r["sat"].to_numpy(), t, r["pseudorange_m"].to_numpy(), nav, what=f"{path} ({name})")
+    return tuple(float(v) for v in x)
