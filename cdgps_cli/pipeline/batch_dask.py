@@ -25,13 +25,25 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.pipeline import batch as B
 
 
+#: dask's worker default ``MALLOC_TRIM_THRESHOLD_=65536`` (``distributed.nanny.pre-spawn-environ``) fixes
+#: glibc's mmap threshold at 128 kB: every array above it is then a fresh mmap, page-faulted anew at each
+#: allocation, and the stages ran ≈ 1.4× slower in a worker than in a plain process (docs/batch.md).  The
+#: batch drops that default (glibc's own adaptive thresholds, as in the serial loop) and returns a
+#: stage's freed memory itself once the stage is done (:func:`cdgps_cli.pipeline.batch.release_memory`).
+#: A value the user set in the environment is kept.
+TRIM_KEY = "MALLOC_TRIM_THRESHOLD_"
+
+
 def local_cluster(workers: int | None = None, dashboard: bool = False):
-    """A LocalCluster of ``workers`` processes (default: the cores), one thread each, BLAS at one thread."""
+    """A LocalCluster of ``workers`` processes (default: the cores), one thread each, BLAS at one thread,
+    without dask's fixed malloc trim threshold (see :data:`TRIM_KEY`)."""
+    import dask
     from distributed import LocalCluster
 
     n = workers or os.cpu_count() or 1
-    return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, silence_logs=logging.ERROR,
-                        dashboard_address=":8787" if dashboard else None, env=dict(B.BLAS_ENV))
+    with dask.config.set({f"distributed.nanny.pre-spawn-environ.{TRIM_KEY}": os.environ.get(TRIM_KEY)}):
+        return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, silence_logs=logging.ERROR,
+                            dashboard_address=":8787" if dashboard else None, env=dict(B.BLAS_ENV))
 
 
 def connect(scheduler: str | None = None, workers: int | None = None, dashboard: bool = False):
