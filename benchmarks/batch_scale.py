@@ -15,7 +15,9 @@ serial loop, in the same run, with CPU time, memory and load average beside ever
 5. repeated ``--repeat`` times in the order pinned, batch, default; the load average before and after
    every run (the machine may be shared: ``uptime``).
 
-Memory "bounded by one session": a worker's peak must not grow with the sessions it has processed —
+Memory "bounded by one session": a worker's peak must not grow with the sessions it has processed.  Two
+figures: ``flat`` — the peak of a worker's tasks in its last session is within 5 % of that in its second
+(the first carries the lazy imports); and the stricter
 ``worker_peak ≤ worker_idle + one_session_increment`` where ``one_session_increment`` is the peak of a
 fresh process running one session minus that process's resident memory before the session (its lazy
 imports included), and ``worker_idle`` the worker's resident memory after its start.
@@ -223,10 +225,14 @@ def main() -> None:
         for addr, w in r["workers"].items():
             limit = w["idle_rss_mb"] + one_increment
             peaks = [x["peak_rss_mb"] or 0.0 for x in w["sessions"]]
+            second, last = max(peaks[n_st:2 * n_st] or [0.0]), max(peaks[-n_st:] or [0.0])
             bound[f"{addr}#{len(bound)}"] = {"idle_rss_mb": w["idle_rss_mb"], "limit_mb": round(limit, 1),
                                              "peak_rss_mb": w["peak_rss_mb"], "bounded": w["peak_rss_mb"] <= limit,
                                              "task_peak_first_session_mb": max(peaks[:n_st] or [0.0]),
-                                             "task_peak_last_session_mb": max(peaks[-n_st:] or [0.0])}
+                                             "task_peak_second_session_mb": second,
+                                             "task_peak_last_session_mb": last,
+                                             "growth_second_to_last_mb": round(last - second, 1),
+                                             "flat": last <= 1.05 * second}
     best = {k: min(x["wall_s"] for x in v) for k, v in runs.items() if v}
     res = {
         "started": started, "sessions": a.sessions, "duration_s": 60.0 * a.minutes, "workers": a.workers,
@@ -272,8 +278,9 @@ def main() -> None:
     print(f"  per session: {res['per_session_s']}")
     print(f"  overhead per task {res['overhead_s_per_task']} s; cluster start {res['cluster_start_s']} s")
     print(f"  memory: one session alone {one['peak_rss_mb']} MB peak ({one_increment:.0f} MB over its start); "
-          + "; ".join(f"{k} idle {w['idle_rss_mb']} peak {w['peak_rss_mb']} ≤ {w['limit_mb']}: {w['bounded']}"
-                      for k, w in bound.items()))
+          + "; ".join(f"{k} idle {w['idle_rss_mb']} peak {w['peak_rss_mb']} ≤ {w['limit_mb']}: {w['bounded']}, "
+                      f"task peak 2nd session {w['task_peak_second_session_mb']} → last "
+                      f"{w['task_peak_last_session_mb']} (flat within 5 %: {w['flat']})" for k, w in bound.items()))
     print(f"  → {a.json}")
 
 

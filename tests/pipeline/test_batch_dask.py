@@ -28,7 +28,7 @@ from click.testing import CliRunner
 from cdgps_cli.cli.commands import main
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.pipeline import batch as B
-from cdgps_cli.pipeline.batch_dask import run_batch
+from cdgps_cli.pipeline.batch_dask import local_cluster, run_batch
 
 distributed = pytest.importorskip("distributed")
 
@@ -86,12 +86,11 @@ def campaign(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def client(campaign):
-    """A LocalCluster of 1, then 2 worker processes, one thread each, dashboard off, BLAS at one thread; the
-    fault hook's folder in the workers' environment (an empty folder: no faults)."""
+    """The batch's own LocalCluster (batch_dask.local_cluster) of 1, then 2 worker processes, one thread
+    each, dashboard off, BLAS at one thread; the fault hook's folder in the workers' environment (an
+    empty folder: no faults)."""
     campaign["faults"].mkdir()
-    env = {**B.BLAS_ENV, B.FAULT_ENV: str(campaign["faults"])}
-    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None,
-                                  env=env, silence_logs=40) as cluster, distributed.Client(cluster) as c:
+    with local_cluster(1, env={B.FAULT_ENV: str(campaign["faults"])}) as cluster, distributed.Client(cluster) as c:
         c.cluster = cluster          # the first test runs on 1 worker, then the cluster is scaled to 2
         yield c
 
@@ -131,6 +130,10 @@ def test_one_worker_gives_the_single_commands_bytes(campaign, client):
     s = run_batch(campaign["manifest"], campaign["out"], client=client, retries=0)
     assert s["workers"] == 1 and s["counts"] == {"sessions": 3, "done": 3}, s["failures"]
     _assert_same_tree(campaign["ref"], campaign["out"], CAMPAIGN_FILES)
+    # as many sessions in flight as worker threads (batch_dask._submit_and_wait): one worker, one session at a time
+    records = sorted(campaign["out"].glob(f"*/{B.RECORD_DIR}/*.json"), key=lambda p: p.stat().st_mtime_ns)
+    order = [p.parent.parent.name for p in records]
+    assert order == sorted(order), f"stages finished in the order {order}, not session by session"
     _set_aside(campaign, "run-1-worker")
     client.cluster.scale(2)
     client.wait_for_workers(2, timeout=120)
