@@ -25,25 +25,43 @@ def write_index(summary: dict, out: Path) -> None:
     write_bytes_atomic(out / "index.html", _page(summary, has_png, out).encode())
 
 
+def _session_axis(trends: list) -> dict:
+    """Session name → its x position: the session time as a datetime when every session has one (so
+    sessions are spaced as recorded), else the session name (evenly spaced, manifest order)."""
+    from datetime import datetime, timezone
+
+    def utc(text: str) -> datetime:          # naive UTC, so that dates and times with a zone mix
+        t = datetime.fromisoformat(text.replace("Z", "+00:00"))
+        return t.astimezone(timezone.utc).replace(tzinfo=None) if t.tzinfo else t
+
+    pts = [p for t in trends for p in t["sessions"]]
+    try:
+        return {p["session"]: utc(p["time"]) for p in pts}
+    except (AttributeError, TypeError, ValueError):
+        return {p["session"]: p["session"] for p in pts}
+
+
 def _trend_figure(trends: list, path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (ax_f, ax_d) = plt.subplots(2, 1, figsize=(9, 7), sharex=True)
+    fig, (ax_f, ax_d) = plt.subplots(2, 1, figsize=(11, 7), sharex=True)
+    when = _session_axis(trends)
     for t in trends:
         pts = [p for p in t["sessions"] if p["gps_hz"] is not None]
-        x = [p["time"] or p["session"] for p in pts]
-        ax_f.errorbar(x, [p["gps_hz"] for p in pts], yerr=[p["gps_hz_sigma"] or 0 for p in pts], fmt="o-",
-                      capsize=3, label=f"{t['mode']} (model {t['model_hz']:.3f} Hz)")
+        ax_f.errorbar([when[p["session"]] for p in pts], [p["gps_hz"] for p in pts],
+                      yerr=[p["gps_hz_sigma"] or 0 for p in pts], fmt="o-", capsize=3,
+                      label=f"{t['mode']} (model {t['model_hz']:.3f} Hz)")
         dp = [p for p in pts if p["damping"] is not None]
-        ax_d.errorbar([p["time"] or p["session"] for p in dp], [p["damping"] for p in dp],
+        ax_d.errorbar([when[p["session"]] for p in dp], [p["damping"] for p in dp],
                       yerr=[p["damping_sigma"] or 0 for p in dp], fmt="o-", capsize=3)
     ax_f.set_ylabel("frequency (Hz)")
     ax_d.set_ylabel("damping ratio ζ")
     ax_d.set_xlabel("session time (UTC)")
-    ax_f.legend(fontsize=7, ncol=2)
+    # beside the axes, not over the curves (the modes span the whole frequency axis)
+    ax_f.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     ax_f.set_title("Identified modes across sessions (1σ error bars)")
     fig.autofmt_xdate()
     fig.tight_layout()
