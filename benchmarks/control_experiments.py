@@ -29,7 +29,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from cdgps_cli.config.options import CONTROL_RATE_FACTOR, CONTROL_RIGID_FACTOR, CONTROL_STATE_WEIGHT  # noqa: E402
+from cdgps_cli.config.options import CONTROL_TUNED_WEIGHTS  # noqa: E402
 from cdgps_cli.config.structure import load_config  # noqa: E402
 from cdgps_cli.pipeline.closed_loop import simulate_closed_loop  # noqa: E402
 from cdgps_cli.control.design import PAPER_WEIGHTS, design_for_structure  # noqa: E402
@@ -37,8 +37,9 @@ from cdgps_cli.control.metrics import pulse_metrics, slew_metrics  # noqa: E402
 from cdgps_cli.sim.structure import SimOptions, simulate  # noqa: E402
 
 CONFIG = ROOT / "configs" / "testbed-1998.toml"
-#: our weights for our thruster model (the paper's Υ is unpublished; see docs/control.md)
-TUNED = {"qx": CONTROL_STATE_WEIGHT, "rigid_factor": CONTROL_RIGID_FACTOR, "rate_factor": CONTROL_RATE_FACTOR}
+#: our weights for our thruster model (`control design --weights tuned`; the paper's Υ is unpublished; see
+#: docs/control.md)
+TUNED = dict(CONTROL_TUNED_WEIGHTS)
 #: the paper's weight form scaled to place our poles where Fig. 6 has them (rigid-body about 30 s,
 #: vibration about 5 s: 29.6 s and 3.3-4.9 s), for comparison
 PAPER_POLES = {"qx": 10.0, "rigid_factor": 0.04, "rate_factor": 0.1}
@@ -180,7 +181,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         t = Path(tmp)
         cdgps = [sys.executable, "-m", "cdgps_cli.cli.commands", "-q"]
-        tq = ["--qx", str(TUNED["qx"]), "--rigid-factor", str(TUNED["rigid_factor"]), "--rate-factor", str(TUNED["rate_factor"])]
+        tq = ["--weights", "tuned"]
         subprocess.run([*cdgps, "control", "design", str(CONFIG), *tq, "-o", str(t / "g.json")], check=True)
         t0, r0 = time.perf_counter(), resource.getrusage(resource.RUSAGE_CHILDREN)
         subprocess.run([*cdgps, "simulate", str(CONFIG), "--scenario", "slew", "--duration", "60", "--controller",
