@@ -169,8 +169,8 @@ def loop_estimator(cfg: StructureConfig, K: np.ndarray) -> dict:
     _, H = EpochPhaseModel(cfg, ant, tx)(np.zeros(model.A.shape[0]))
     sigma = channel_sigma_m(cfg, [(cfg.antenna_names[a], cfg.transmitter_names[t]) for a, t in zip(ant, tx)])
     out = loop_process_noise_scale(model.A, model.B, K, model.Q, H, sigma, model.T, list(cfg.mode_names))
-    out["rule"] = (f"config W scaled by {out['scale']:.4g}: estimator poles {out['separation']:g}x faster than "
-                   "the regulator's, mode by mode" + ("" if out["met"] else
-                                                      f" (NOT met by any scale up to {MAX_PROCESS_NOISE_SCALE:g}, the "
-                                                      f"closest {out['closest_scale']:.4g}: the config's W is kept)"))
+    rule = f"estimator poles {out['separation']:g}x faster than the regulator's, mode by mode"
+    out["rule"] = (f"config W scaled by {out['scale']:.4g}: {rule}" if out["met"] else
+                   f"the config's W is kept (scale 1): the rule ({rule}) is NOT met by any scale up to "
+                   f"{MAX_PROCESS_NOISE_SCALE:g} (closest {out['closest_scale']:.4g})")
     return out
