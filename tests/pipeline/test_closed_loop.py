@@ -146,7 +146,7 @@ def _run(*args):
 @pytest.fixture(scope="module")
 def gains_path(tmp_path_factory, testbed_path):
     p = tmp_path_factory.mktemp("cl") / "gains.json"
-    assert _run("control", "design", testbed_path, "--qx", "50", "-o", p).exit_code == 0
+    assert _run("control", "design", testbed_path, "--weights", "tuned", "--qx", "50", "-o", p).exit_code == 0
     return p
 
 
@@ -167,6 +167,35 @@ def test_simulate_with_controller_writes_native_logs(gains_path, testbed_path, t
     assert _run(*args, "-o", tmp_path / "b").exit_code == 0
     for f in files:
         assert (tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes(), f
+
+
+def test_actuator_log_joins_a_jets_abutting_firings(testbed_cfg):
+    """A control firing that runs into the disturbance pulse on the same jet is one firing in the log
+    (one row per change of force); a change of force without a gap is one row with the new force."""
+    from cdgps_cli.pipeline.closed_loop import actuator_log
+
+    j, k = 4, 7
+    log = actuator_log(testbed_cfg, [(j, 4.95, 5.0, 1.4, "control"), (j, 5.0, 6.0, 1.4, "disturbance"),
+                                     (j, 6.0, 6.2, 1.4, "control"), (k, 1.0, 1.1, 1.4, "control"),
+                                     (k, 1.1, 1.3, 0.7, "disturbance"), (k, 2.0, 2.1, 1.4, "control")])
+    names = testbed_cfg.thruster_names
+    assert log.values.tolist() == [[1.0, names[k], 1.4], [1.1, names[k], 0.7], [1.3, names[k], 0.0],
+                                   [2.0, names[k], 1.4], [2.1, names[k], 0.0],
+                                   [4.95, names[j], 1.4], [6.2, names[j], 0.0]]
+
+
+def test_closed_loop_pulse_logs_are_ingested(testbed_path, tmp_path):
+    """The pulse's jets are often firing under control when the pulse takes them over (seed 1 of the
+    default design: a3+z and a4-z at 5.0 s); the logs must still pass `cdgps ingest`."""
+    out, gains = tmp_path / "p", tmp_path / "g.json"
+    assert _run("control", "design", testbed_path, "-o", gains).exit_code == 0
+    assert _run("simulate", testbed_path, "--scenario", "pulse", "--duration", "8", "--seed", "1",
+                "--disturbance-scale", "0.05", "--controller", gains, "-o", out).exit_code == 0
+    act = pd.read_csv(out / "actuators.csv")
+    assert not act.duplicated(["time_s", "actuator"]).any()
+    r = _run("ingest", out / "receiver.csv", out / "gyro.csv", "--actuators", out / "actuators.csv",
+             "--config", testbed_path, "-o", tmp_path / "run.mcap")
+    assert r.exit_code == 0, r.output
 
 
 @pytest.mark.parametrize("extra,words", [
