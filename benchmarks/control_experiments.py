@@ -1,10 +1,10 @@
 """The 1998 paper's control experiments on the testbed model, measured (issue 15 items 4-5).
 
-Runs, with the tuned weights below and the paper's weights for comparison:
+Runs, with the paper's weights (the design default), the tuned weights and a Fig. 6 pole placement:
   * pulse rejection (Fig. 9-10): open loop vs closed loop on the GPS estimate vs full-state feedback;
   * slew +14 -> -22 deg (Figs. 11-12): with and without vibration control, profile and step command;
-  * a sweep of phase noise and multipath (where control degrades);
-  * the wall time of a 60 s closed-loop `cdgps simulate` (target < 10 s).
+  * the wall time of a 60 s closed-loop `cdgps simulate` with the default design (target < 10 s).
+The noise and multipath sweep is benchmarks/control_sweep.py.
 Writes docs/control-experiments.json and the figures docs/figures/control-{pulse,slew}.png, and
 prints markdown tables for docs/control.md.
 
@@ -29,7 +29,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from cdgps_cli.config.options import CONTROL_RATE_FACTOR, CONTROL_RIGID_FACTOR, CONTROL_STATE_WEIGHT  # noqa: E402
+from cdgps_cli.config.options import CONTROL_TUNED_WEIGHTS  # noqa: E402
 from cdgps_cli.config.structure import load_config  # noqa: E402
 from cdgps_cli.pipeline.closed_loop import simulate_closed_loop  # noqa: E402
 from cdgps_cli.control.design import PAPER_WEIGHTS, design_for_structure  # noqa: E402
@@ -37,13 +37,17 @@ from cdgps_cli.control.metrics import pulse_metrics, slew_metrics  # noqa: E402
 from cdgps_cli.sim.structure import SimOptions, simulate  # noqa: E402
 
 CONFIG = ROOT / "configs" / "testbed-1998.toml"
-#: our weights for our thruster model (the paper's Υ is unpublished; see docs/control.md)
-TUNED = {"qx": CONTROL_STATE_WEIGHT, "rigid_factor": CONTROL_RIGID_FACTOR, "rate_factor": CONTROL_RATE_FACTOR}
+#: our weights for our thruster model (`control design --weights tuned`; the paper's Υ is unpublished; see
+#: docs/control.md)
+TUNED = dict(CONTROL_TUNED_WEIGHTS)
 #: the paper's weight form scaled to place our poles where Fig. 6 has them (rigid-body about 30 s,
 #: vibration about 5 s: 29.6 s and 3.3-4.9 s), for comparison
 PAPER_POLES = {"qx": 10.0, "rigid_factor": 0.04, "rate_factor": 0.1}
 #: the in-loop filter with the config's W (scale 1), i.e. without the separation rule
 CONFIG_W = 1.0
+#: the process-noise scale closest to the separation rule for the paper's weights (the rule cannot be
+#: met; the loop keeps the config's W, this row shows why)
+CLOSEST = 1000.0
 #: the 1998 testbed's multipath, 1.5 cm (1 sigma) per antenna (Sec. I), 30 s correlation
 PAPER_MP = 0.015
 #: true disturbance during the control experiments, as a fraction of the filter's fictitious process
@@ -109,27 +113,31 @@ def _fmt(v, spec=".2f"):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="3 seeds and a small sweep")
+    ap.add_argument("--quick", action="store_true", help="3 seeds")
     args = ap.parse_args()
     seeds = range(1, 4) if args.quick else range(1, 11)
     cfg = load_config(CONFIG)
     tuned, tuned_poles = _gains(cfg, **TUNED)
     paper, paper_poles = _gains(cfg, **PAPER_WEIGHTS)
     ppoles, ppoles_poles = _gains(cfg, **PAPER_POLES)
-    out = {"weights": TUNED, "paper_pole_weights": PAPER_POLES, "disturbance_scale": DISTURBANCE, "seeds": list(seeds),
+    out = {"weights": {"paper": PAPER_WEIGHTS, "tuned": TUNED}, "paper_pole_weights": PAPER_POLES,
+           "disturbance_scale": DISTURBANCE, "seeds": list(seeds),
            "settling_s": {"tuned": tuned_poles["settling_time_s"], "paper": paper_poles["settling_time_s"],
                           "paper_poles": ppoles_poles["settling_time_s"]}}
 
     rows = {}
-    for label, g, fb, ns, *mpk in (("tuned, GPS estimate (separation rule)", tuned, "gps", None),
-                             ("tuned, GPS estimate, the config's W", tuned, "gps", CONFIG_W),
-                             ("tuned, true state", tuned, "truth", None),
-                             ("Fig. 6 poles, GPS estimate (separation rule)", ppoles, "gps", None),
-                             ("Fig. 6 poles, true state", ppoles, "truth", None),
-                             ("paper weights, GPS estimate, the config's W", paper, "gps", CONFIG_W),
-                             ("paper weights, GPS estimate (closest to the rule)", paper, "gps", None),
-                             ("tuned, 1.5 cm multipath, modelled in the filter", tuned, "gps", None, PAPER_MP, True),
-                             ("tuned, 1.5 cm multipath, not modelled", tuned, "gps", None, PAPER_MP, False)):
+    for label, g, fb, ns, *mpk in (("paper weights, GPS estimate (the config's W: rule not met)", paper, "gps", None),
+                                   ("paper weights, true state", paper, "truth", None),
+                                   ("paper weights, GPS estimate, the rule's closest scale", paper, "gps", CLOSEST),
+                                   ("tuned, GPS estimate (separation rule)", tuned, "gps", None),
+                                   ("tuned, GPS estimate, the config's W", tuned, "gps", CONFIG_W),
+                                   ("tuned, true state", tuned, "truth", None),
+                                   ("Fig. 6 poles, GPS estimate (separation rule)", ppoles, "gps", None),
+                                   ("Fig. 6 poles, true state", ppoles, "truth", None),
+                                   ("paper weights, 1.5 cm multipath, modelled in the filter", paper, "gps", None,
+                                    PAPER_MP, True),
+                                   ("tuned, 1.5 cm multipath, modelled in the filter", tuned, "gps", None, PAPER_MP, True),
+                                   ("tuned, 1.5 cm multipath, not modelled", tuned, "gps", None, PAPER_MP, False)):
         mp, mm = mpk if mpk else (None, False)
         res = [pulse_case(cfg, g, s, feedback=fb, noise_scale=ns, multipath_m=mp, mp_model=mm) for s in seeds]
         rows[label] = {k: [r[k] for r in res] for k in ("ratio_max", "back_s_max", "saturated_fraction",
@@ -139,20 +147,25 @@ def main() -> None:
     out["pulse"] = rows
 
     srows = {}
-    for label, g, kw in (("vibration control, profile", tuned, {}),
-                         ("vibration control, profile, the config's W", tuned, {"noise_scale": CONFIG_W}),
-                         ("vibration control, true state", tuned, {"feedback": "truth"}),
-                         ("no vibration control, profile", tuned, {"vibration": False}),
-                         ("Fig. 6 poles, profile", ppoles, {}),
-                         ("vibration control, shaped step (no feed-forward)", tuned, {"reference": "shaped-step"}),
-                         ("no vibration control, shaped step", tuned, {"vibration": False, "reference": "shaped-step"}),
-                         ("vibration control, raw step into the LQR", tuned, {"reference": "step"}),
-                         ("no vibration control, raw step", tuned, {"vibration": False, "reference": "step"}),
-                         ("vibration control, profile, 1.5 cm multipath, modelled", tuned,
-                          {"multipath_m": PAPER_MP, "mp_model": True}),
-                         ("vibration control, profile, 1.5 cm multipath, not modelled", tuned, {"multipath_m": PAPER_MP}),
-                         ("no vibration control, profile, 1.5 cm multipath, modelled", tuned,
-                          {"vibration": False, "multipath_m": PAPER_MP, "mp_model": True})):
+    mp15 = {"multipath_m": PAPER_MP, "mp_model": True}
+    for label, g, kw in (("paper weights, vibration control, profile", paper, {}),
+                         ("paper weights, true state", paper, {"feedback": "truth"}),
+                         ("paper weights, no vibration control, profile", paper, {"vibration": False}),
+                         ("paper weights, shaped step (no feed-forward)", paper, {"reference": "shaped-step"}),
+                         ("paper weights, raw step into the LQR", paper, {"reference": "step"}),
+                         ("paper weights, 1.5 cm multipath, modelled", paper, mp15),
+                         ("tuned, vibration control, profile", tuned, {}),
+                         ("tuned, profile, the config's W", tuned, {"noise_scale": CONFIG_W}),
+                         ("tuned, true state", tuned, {"feedback": "truth"}),
+                         ("tuned, no vibration control, profile", tuned, {"vibration": False}),
+                         ("tuned, shaped step (no feed-forward)", tuned, {"reference": "shaped-step"}),
+                         ("tuned, no vibration control, shaped step", tuned, {"vibration": False, "reference": "shaped-step"}),
+                         ("tuned, raw step into the LQR", tuned, {"reference": "step"}),
+                         ("tuned, no vibration control, raw step", tuned, {"vibration": False, "reference": "step"}),
+                         ("tuned, 1.5 cm multipath, modelled", tuned, mp15),
+                         ("tuned, 1.5 cm multipath, not modelled", tuned, {"multipath_m": PAPER_MP}),
+                         ("tuned, no vibration control, 1.5 cm multipath, modelled", tuned, {"vibration": False, **mp15}),
+                         ("Fig. 6 poles, profile", ppoles, {})):
         res = [slew_case(cfg, g, s, **kw) for s in seeds]
         srows[label] = {k: [r[k] for r in res] for k in ("arrived_s_after_command", "final_error_deg",
                                                          "final_peak_to_peak_deg", "internal_max_all_deg",
@@ -162,25 +175,10 @@ def main() -> None:
         print(f"slew {label}: arrived {srows[label]['arrived_s_after_command']}", flush=True)
     out["slew"] = srows
 
-    sweep = []
-    noises = (0.002, 0.01, 0.02, 0.05) if not args.quick else (0.002, 0.02)
-    mps = (0.0, 0.005, 0.015) if not args.quick else (0.0, 0.015)
-    for ph in noises:
-        for mp, mm in [(m, flag) for m in mps for flag in ((False, True) if m > 0 else (False,))]:
-            p = pulse_case(cfg, tuned, 1, phase_m=ph, multipath_m=mp, mp_model=mm)
-            s = slew_case(cfg, tuned, 1, phase_m=ph, multipath_m=mp, mp_model=mm)
-            sweep.append({"phase_sigma_m": ph, "multipath_sigma_m": mp, "multipath_modelled": mm,
-                          "slew_estimated_internal_max_deg": s["estimated_internal_max_all_deg"],
-                          "pulse_ratio": p["ratio_max"],
-                          "pulse_back_s": p["back_s_max"], "slew_arrived_s": s["arrived_s_after_command"],
-                          "slew_internal_max_deg": s["internal_max_all_deg"], "slew_final_pp_deg": s["final_peak_to_peak_deg"]})
-            print(f"sweep {ph} {mp}: {sweep[-1]}", flush=True)
-    out["sweep"] = sweep
-
     with tempfile.TemporaryDirectory() as tmp:
         t = Path(tmp)
         cdgps = [sys.executable, "-m", "cdgps_cli.cli.commands", "-q"]
-        tq = ["--qx", str(TUNED["qx"]), "--rigid-factor", str(TUNED["rigid_factor"]), "--rate-factor", str(TUNED["rate_factor"])]
+        tq = []                                   # the default design: the paper's weights
         subprocess.run([*cdgps, "control", "design", str(CONFIG), *tq, "-o", str(t / "g.json")], check=True)
         t0, r0 = time.perf_counter(), resource.getrusage(resource.RUSAGE_CHILDREN)
         subprocess.run([*cdgps, "simulate", str(CONFIG), "--scenario", "slew", "--duration", "60", "--controller",
@@ -209,7 +207,7 @@ def main() -> None:
         figs = ROOT / "docs" / "figures"
         shutil.copy(t / "rp" / "pulse.png", figs / "control-pulse.png")
         shutil.copy(t / "rs" / "slew.png", figs / "control-slew.png")
-        shutil.copy(t / "rs" / "poles.png", figs / "control-poles-tuned.png")
+        shutil.copy(t / "rs" / "poles.png", figs / "control-poles-testbed.png")
 
     (ROOT / "docs" / "control-experiments.json").write_text(json.dumps(out, indent=2, default=float) + "\n")
     print("\n| pulse run | peak ratio (worst of q5, q8), mean [min–max] | seeds ≤ 1/3 | back within 10% of the open-loop peak after the pulse (s), median [max] | filter W scale |")
@@ -218,21 +216,16 @@ def main() -> None:
         r, b = np.array(v["ratio_max"]), np.array(v["back_s_max"])
         print(f"| {k} | {r.mean():.3f} [{r.min():.3f}–{r.max():.3f}] | {int(np.sum(r <= 1 / 3))}/{len(r)} | "
               f"{_fmt(np.median(b), '.1f')} [{_fmt(b.max(), '.1f')}] | {v['estimator_scale'][0]:.3g} |")
-    print("\n| slew run | within 0.5° (s after command), median [max] | largest internal angle (°), mean [max] | final p-p (°) | as estimated: within 0.5° (s), median; internal max (°), mean [max] |")
-    print("|---|---|---|---|---|")
+    print("\n| slew run | within 0.5° (s after command), median [max] | by 30 s | largest internal angle (°), mean [max] | within 1° | final p-p (°) | as estimated: within 0.5° (s), median; internal max (°), mean [max] |")
+    print("|---|---|---|---|---|---|---|")
     for k, v in srows.items():
         a = np.array([np.inf if x is None else x for x in v["arrived_s_after_command"]])
         i = np.array(v["internal_max_all_deg"])
         ae = np.array([np.inf if x is None else x for x in v["estimated_arrived_s_after_command"]])
         ie = np.array(v["estimated_internal_max_all_deg"])
-        print(f"| {k} | {_fmt(np.median(a), '.1f')} [{_fmt(a.max(), '.1f')}] | {i.mean():.2f} [{i.max():.2f}] | "
+        print(f"| {k} | {_fmt(np.median(a), '.1f')} [{_fmt(a.max(), '.1f')}] | {int(np.sum(a <= 30.0))}/{len(a)} | "
+              f"{i.mean():.2f} [{i.max():.2f}] | {int(np.sum(i <= 1.0))}/{len(i)} | "
               f"{np.mean(v['final_peak_to_peak_deg']):.3f} | {_fmt(np.median(ae), '.1f')}; {ie.mean():.2f} [{ie.max():.2f}] |")
-    print("\n| phase σ (m) | multipath σ (m) | modelled | pulse ratio | pulse back (s) | slew within 0.5° (s) | slew internal max (°) | as estimated (°) |")
-    print("|---|---|---|---|---|---|---|---|")
-    for s in sweep:
-        print(f"| {s['phase_sigma_m']:g} | {s['multipath_sigma_m']:g} | {'yes' if s['multipath_modelled'] else 'no'} | "
-              f"{s['pulse_ratio']:.3f} | {_fmt(s['pulse_back_s'], '.1f')} | "
-              f"{_fmt(s['slew_arrived_s'], '.1f')} | {s['slew_internal_max_deg']:.2f} | {s['slew_estimated_internal_max_deg']:.2f} |")
 
 
 if __name__ == "__main__":

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import click
 
-from cdgps_cli.config.options import (CONTROL_RATE_FACTOR, CONTROL_RIGID_FACTOR, CONTROL_STATE_WEIGHT, GNSS_DEFAULTS,
+from cdgps_cli.config.options import (CONTROL_TUNED_WEIGHTS, CONTROL_WEIGHTS, GNSS_DEFAULTS,
                                       INIT_MAX_ITERATIONS, INIT_STARTS, RATIO_THRESHOLD)
 from cdgps_cli import __version__
 from cdgps_cli.core import progress
@@ -225,11 +225,11 @@ def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_s
             if loop.saturated_fraction > 0.2:
                 progress.write(f"cdgps: warning: the jets were asked for more than their maximum force in "
                                f"{100 * loop.saturated_fraction:.0f}% of jet-periods; the gain asks for more authority "
-                               f"than the thrusters have (a smaller --qx in `cdgps control design`, docs/control.md)")
+                               f"than the thrusters have (`cdgps control design --weights tuned` or a smaller --qx, docs/control.md)")
             if loop.estimator.get("met") is False:
                 progress.write("cdgps: warning: the in-loop estimator cannot be made "
                                f"{loop.estimator['separation']:g}x faster than this regulator ({loop.estimator['rule']}); "
-                               "the estimate lags the regulator (a smaller --qx in `cdgps control design`)")
+                               "the estimate lags the regulator (`cdgps control design --weights tuned` or a smaller --qx)")
     summary = write_simulation(sim, out_dir)
     _say(ctx, f"wrote {summary['receiver_rows']} phase rows, {summary['gyro_rows']} gyro rows, "
               f"{summary['slips']} slip/relock events to {out_dir}/")
@@ -1295,54 +1295,49 @@ def _weights_option(text: str | None, name: str):
 
 @control.command("design", short_help="Discrete LQR gain → GAINS.json (+ z-plane figure)")
 @click.argument("config", type=click.Path(dir_okay=False))
+@click.option("--weights", "weight_set", type=click.Choice(["paper", "tuned"]), default=CONTROL_WEIGHTS,
+              show_default=True,
+              help="Named weights: the paper's Sec. V numbers (Qx* = 5000·diag(1,…,1,0.01), Qx = diag(Qx*, 0.01·Qx*), "
+                   "Qu = I), or the experiments' tuned ones (W = {qx:g}, f_rigid = {rigid_factor:g}, "
+                   "f_rate = {rate_factor:g}; docs/control.md).  --qx, --qu, --rigid-factor and --rate-factor change "
+                   "parts of it.".format(**CONTROL_TUNED_WEIGHTS))
 @click.option("--qx", default=None, metavar="W|LIST",
               help="State weight: one number W in the paper's form Qx* = W·diag(1,…,1,f_rigid), "
                    "Qx = diag(Qx*, f_rate·Qx*); or the whole diagonal of Qx (amplitudes, then rates) "
-                   f"[{CONTROL_STATE_WEIGHT:g}].")
+                   "[the --weights set's: 5000 for the paper's].")
 @click.option("--qu", default=None, metavar="R|LIST",
               help="Input weight: one number (times I) or one per thruster [I, the paper's].")
 @click.option("--rigid-factor", type=float, default=None,
-              help=f"Weight of the rigid-body mode relative to the others in Qx* [{CONTROL_RIGID_FACTOR:g}; the paper's 0.01].")
+              help="Weight of the rigid-body mode relative to the others in Qx* [the --weights set's: 0.01 for the paper's].")
 @click.option("--rate-factor", type=float, default=None,
               help="Weight of the modal rates relative to the amplitudes, Qx = diag(Qx*, f·Qx*) "
-                   f"[{CONTROL_RATE_FACTOR:g}; the paper's 0.01].")
-@click.option("--paper-weights", is_flag=True,
-              help="The paper's literal weights (W = 5000, 0.01, 0.01): unstable with the PWPF modulator on our "
-                   "thruster model (docs/control.md); the defaults are the paper's tuning rule applied to it.")
+                   "[the --weights set's: 0.01 for the paper's].")
 @_output_option("output", "GAINS.json to write.")
 @click.option("--figure", "figure_png", default=None, type=click.Path(dir_okay=False),
               help="Also write the z-plane pole figure (Fig. 6 style) to this PNG.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (poles, settling times) on stdout.")
 @click.pass_context
-def control_design(ctx, config, qx, qu, rigid_factor, rate_factor, paper_weights, output, figure_png, as_json):
-    """Discrete LQR u = −K x on the config's modal model (Eq. 4, 24) in the paper's weight form.
+def control_design(ctx, config, weight_set, qx, qu, rigid_factor, rate_factor, output, figure_png, as_json):
+    """Discrete LQR u = −K x on the config's modal model (Eq. 4, 24), by default with the paper's weights.
 
-    The default weights are the paper's tuning rule (the most authority that does not saturate the
-    jets) applied to our thruster model; --paper-weights gives the paper's numbers.
-
-    Writes the model A, B the gain was designed on, the weights, K, and the open- and closed-loop poles
-    (z and s planes, frequency, damping, 2 % settling time per mode).  The thruster force model Υ is
-    derived from the config's thruster geometry (the paper's is not published).
+    Writes the model A, B the gain was designed on, the weights (and which set they are: paper, tuned
+    or custom), K, and the open- and closed-loop poles (z and s planes, frequency, damping, 2 % settling
+    time per mode).  The thruster force model Υ is derived from the config's thruster geometry (the
+    paper's is not published).
     """
     from cdgps_cli.config.structure import load_config
-    from cdgps_cli.control.design import PAPER_WEIGHTS, design_for_structure, state_names
+    from cdgps_cli.control.design import design_for_structure, state_names, weight_set_name
     from cdgps_cli.io.gains_file import gains_record, write_gains
 
-    if paper_weights and (qx is not None or rigid_factor is not None or rate_factor is not None):
-        raise CdgpsError("--paper-weights sets --qx, --rigid-factor and --rate-factor: give either, not both")
     cfg = load_config(config)
-    if paper_weights:
-        qx, rigid_factor, rate_factor = str(PAPER_WEIGHTS["qx"]), PAPER_WEIGHTS["rigid_factor"], PAPER_WEIGHTS["rate_factor"]
-    rigid_factor = CONTROL_RIGID_FACTOR if rigid_factor is None else rigid_factor
-    rate_factor = CONTROL_RATE_FACTOR if rate_factor is None else rate_factor
-    opts = {"qx": qx, "qu": qu, "rigid_factor": rigid_factor, "rate_factor": rate_factor,
-            **({"paper_weights": True} if paper_weights else {})}
+    opts = {"weights": weight_set, "qx": qx, "qu": qu, "rigid_factor": rigid_factor, "rate_factor": rate_factor}
     design, poles = design_for_structure(cfg, _weights_option(qx, "--qx"), _weights_option(qu, "--qu"),
-                                         rigid_factor, rate_factor)
+                                         rigid_factor, rate_factor, weight_set)
     from cdgps_cli.control.estimator_design import loop_estimator
 
     rec = gains_record(design, poles, config_path=config, state_names=state_names(cfg),
-                       thruster_names=cfg.thruster_names, options=opts)
+                       thruster_names=cfg.thruster_names, options=opts,
+                       weight_set=weight_set_name(cfg, design.Qx, design.Qu))
     est = loop_estimator(cfg, design.K)       # informative: `simulate --controller` applies the same rule
     rec["loop_estimator"] = {"process_noise_scale": est["scale"], "separation": est["separation"], "met": est["met"],
                              "estimator_settling_s": est["estimator_settling_s"], "rule": est["rule"]}
@@ -1361,7 +1356,7 @@ def control_design(ctx, config, qx, qu, rigid_factor, rate_factor, paper_weights
     _say(ctx, f"  in-loop filter: {est['rule']}")
     if not est["met"]:
         progress.write(f"cdgps: warning: the in-loop estimator cannot be made {est['separation']:g}x faster than this "
-                       "regulator; in the closed loop the estimate will lag it (a smaller --qx, docs/control.md)")
+                       "regulator; in the closed loop the estimate will lag it (--weights tuned or a smaller --qx, docs/control.md)")
     if as_json:
         _emit_json({"output": output, "riccati_residual": design.riccati_residual,
                     "settling_time_s": poles["settling_time_s"], "poles": poles,

@@ -24,13 +24,13 @@ GNSS_DEFAULTS = {"mask_deg": 15.0, "ratio": RATIO_THRESHOLD, "partial": True, "w
                  "code_ratio": 100.0, "sync_tol_s": 0.025, "epoch_alignment": "geometry",
                  "random_walk_sigma": (0.001, 0.001, 0.001), "initial_sigma_m": 1.0}
 
-#: `cdgps control design` defaults: the paper's weight form (Sec. V) with the weights its own tuning rule
-#: ("the maximum control authority that could be applied without saturating the actuators") gives on
-#: our thruster model Υ; the paper's literal 5000, 0.01, 0.01 (--paper-weights) are unstable with the
-#: PWPF modulator in the loop (docs/control.md "Why the paper's weights fail on our model")
-CONTROL_STATE_WEIGHT = 100.0
-CONTROL_RIGID_FACTOR = 0.3
-CONTROL_RATE_FACTOR = 0.1
+#: `cdgps control design` weights by default: "paper", the 1998 paper's Sec. V numbers
+#: (Q_x* = 5000 diag(1, …, 1, 0.01), Q_x = diag(Q_x*, 0.01 Q_x*), Q_u = I; cdgps_cli.control.lqr.PAPER_*)
+CONTROL_WEIGHTS = "paper"
+#: `--weights tuned`: the paper's weight form with the numbers its tuning rule ("the maximum control
+#: authority that could be applied without saturating the actuators") gives on our thruster model Υ,
+#: used by the experiments (docs/control.md "Which weights")
+CONTROL_TUNED_WEIGHTS = {"qx": 100.0, "rigid_factor": 0.3, "rate_factor": 0.1}
 
 #: the simulators' master receiver, ECEF (m): GEONET 3040's position, so simulated runs look like the real pair
 SIM_MASTER_ECEF_M = (-3978242.4348, 3382841.1715, 3649902.7667)

@@ -8,52 +8,56 @@ import numpy as np
 from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.model.dynamics import discrete_model
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.config.options import CONTROL_RATE_FACTOR, CONTROL_RIGID_FACTOR, CONTROL_STATE_WEIGHT
+from cdgps_cli.config.options import CONTROL_TUNED_WEIGHTS, CONTROL_WEIGHTS
 from cdgps_cli.control.lqr import (PAPER_RATE_FACTOR, PAPER_RIGID_FACTOR, PAPER_STATE_WEIGHT, LqrDesign, design_lqr,
                                   paper_weights)
 from cdgps_cli.control.poles import pole_table, slowest_settling_by_mode
 
 #: the paper's literal weights (Sec. V) as keyword arguments of :func:`design_for_structure`
 PAPER_WEIGHTS = {"qx": PAPER_STATE_WEIGHT, "rigid_factor": PAPER_RIGID_FACTOR, "rate_factor": PAPER_RATE_FACTOR}
+#: the named weight sets of ``cdgps control design --weights`` (state weight W, f_rigid, f_rate; Q_u = I)
+WEIGHT_SETS = {"paper": PAPER_WEIGHTS, "tuned": dict(CONTROL_TUNED_WEIGHTS)}
 
 
-def weights_for(cfg: StructureConfig, qx=None, qu=None, rigid_factor: float = CONTROL_RIGID_FACTOR,
-                rate_factor: float = CONTROL_RATE_FACTOR) -> tuple[np.ndarray, np.ndarray]:
+def weights_for(cfg: StructureConfig, qx=None, qu=None, rigid_factor: float | None = None,
+                rate_factor: float | None = None, weights: str = CONTROL_WEIGHTS) -> tuple[np.ndarray, np.ndarray]:
     """Q_x and Q_u from the options.
 
     Parameters
     ----------
     cfg : StructureConfig
     qx : None, float or sequence of float
-        None: the paper's form with the default state weight
-        (:data:`cdgps_cli.config.options.CONTROL_STATE_WEIGHT`; the paper's is
-        :data:`cdgps_cli.control.lqr.PAPER_STATE_WEIGHT`).  One number: the paper's form with that
-        state weight in place of 5000.  A sequence: the whole diagonal of Q_x, length 2 n_m
-        (amplitudes, then rates).
+        None: the named set's state weight W in the paper's form Q_x* = W·diag(1, …, 1, f_rigid),
+        Q_x = diag(Q_x*, f_rate·Q_x*).  One number: that W.  A sequence: the whole diagonal of Q_x,
+        length 2 n_m (amplitudes, then rates).
     qu : None, float or sequence of float
         None: I.  One number: that multiple of I.  A sequence: the diagonal, one entry per thruster.
-    rigid_factor, rate_factor : float
-        The weight of the rigid-body mode and of the rates relative to the amplitudes (the paper's
-        0.01 and 0.01; defaults from :mod:`cdgps_cli.config.options`; ignored for a full diagonal).
+    rigid_factor, rate_factor : float, optional
+        f_rigid and f_rate (None: the named set's; ignored for a full diagonal).
+    weights : {"paper", "tuned"}
+        The named set (:data:`WEIGHT_SETS`) the other options start from; default
+        :data:`cdgps_cli.config.options.CONTROL_WEIGHTS`, the paper's.
     """
     n, m = 2 * cfg.n_modes, len(cfg.thruster_names)
     if m == 0:
         raise CdgpsError("the config defines no [[thrusters]]: there is nothing to control with")
+    if weights not in WEIGHT_SETS:
+        raise CdgpsError(f"weights: expected one of {', '.join(WEIGHT_SETS)}, got {weights!r}")
+    base = WEIGHT_SETS[weights]
+    rigid_factor = base["rigid_factor"] if rigid_factor is None else rigid_factor
+    rate_factor = base["rate_factor"] if rate_factor is None else rate_factor
     for name, v in (("rigid_factor", rigid_factor), ("rate_factor", rate_factor)):
         if not (np.isfinite(v) and v >= 0):
             raise CdgpsError(f"{name}: expected a finite number >= 0, got {v!r}")
-    Qx, Qu = paper_weights(cfg.mode_frequency_hz, m, state_weight=CONTROL_STATE_WEIGHT, rigid_factor=rigid_factor,
-                           rate_factor=rate_factor)
-    if qx is not None:
-        q = np.atleast_1d(np.asarray(qx, dtype=float))
-        if q.size == 1:
-            Qx, _ = paper_weights(cfg.mode_frequency_hz, m, state_weight=float(q[0]), rigid_factor=rigid_factor,
-                                  rate_factor=rate_factor)
-        elif q.size == n:
-            Qx = np.diag(q)
-        else:
-            raise CdgpsError(f"qx: expected one number or {n} numbers (the diagonal: {cfg.n_modes} amplitudes, "
-                             f"then {cfg.n_modes} rates), got {q.size}")
+    q = np.atleast_1d(np.asarray(base["qx"] if qx is None else qx, dtype=float))
+    if q.size == 1:
+        Qx, Qu = paper_weights(cfg.mode_frequency_hz, m, state_weight=float(q[0]), rigid_factor=rigid_factor,
+                               rate_factor=rate_factor)
+    elif q.size == n:
+        Qx, Qu = np.diag(q), np.eye(m)
+    else:
+        raise CdgpsError(f"qx: expected one number or {n} numbers (the diagonal: {cfg.n_modes} amplitudes, "
+                         f"then {cfg.n_modes} rates), got {q.size}")
     if qu is not None:
         q = np.atleast_1d(np.asarray(qu, dtype=float))
         if q.size == 1:
@@ -65,14 +69,24 @@ def weights_for(cfg: StructureConfig, qx=None, qu=None, rigid_factor: float = CO
     return Qx, Qu
 
 
+def weight_set_name(cfg: StructureConfig, Qx: np.ndarray, Qu: np.ndarray) -> str:
+    """The named set (:data:`WEIGHT_SETS`) whose Q_x and Q_u these are exactly, else ``"custom"``."""
+    for name in WEIGHT_SETS:
+        Qx_set, Qu_set = weights_for(cfg, weights=name)
+        if np.array_equal(Qx, Qx_set) and np.array_equal(Qu, Qu_set):
+            return name
+    return "custom"
+
+
 def state_names(cfg: StructureConfig) -> list[str]:
     """Names of x = [ξ, ξ̇]: the mode names, then ``<mode> rate``."""
     return [*cfg.mode_names, *(f"{n} rate" for n in cfg.mode_names)]
 
 
-def design_for_structure(cfg: StructureConfig, qx=None, qu=None, rigid_factor: float = CONTROL_RIGID_FACTOR,
-                         rate_factor: float = CONTROL_RATE_FACTOR) -> tuple[LqrDesign, dict]:
-    """LQR design on the config's model discretized at its sample period.
+def design_for_structure(cfg: StructureConfig, qx=None, qu=None, rigid_factor: float | None = None,
+                         rate_factor: float | None = None, weights: str = CONTROL_WEIGHTS) -> tuple[LqrDesign, dict]:
+    """LQR design on the config's model discretized at its sample period, with the weights of
+    :func:`weights_for` (by default the paper's).
 
     Returns
     -------
@@ -82,7 +96,7 @@ def design_for_structure(cfg: StructureConfig, qx=None, qu=None, rigid_factor: f
         ``settling_time_s`` per mode, open and closed loop.
     """
     model = discrete_model(cfg)
-    Qx, Qu = weights_for(cfg, qx, qu, rigid_factor, rate_factor)
+    Qx, Qu = weights_for(cfg, qx, qu, rigid_factor, rate_factor, weights)
     d = design_lqr(model.A, model.B, Qx, Qu, model.T, state_names(cfg))
     names = list(cfg.mode_names)
     ol, cl = pole_table(d.A, d.sample_period_s, names), pole_table(d.closed_loop, d.sample_period_s, names)

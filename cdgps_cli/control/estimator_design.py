@@ -116,9 +116,12 @@ def loop_process_noise_scale(A: np.ndarray, B: np.ndarray, K: np.ndarray, Q: np.
     Returns
     -------
     dict
-        ``scale`` (s ≥ 1), ``separation``, ``met`` (False: no scale up to
-        :data:`MAX_PROCESS_NOISE_SCALE` meets the rule, and ``scale`` is the one that comes closest),
-        ``limits_s`` (allowed estimator settling per mode) and ``estimator_settling_s`` (per mode, at s).
+        ``scale`` (s ≥ 1), ``separation``, ``met``, ``closest_scale`` (the scale that comes closest
+        to the rule), ``limits_s`` (allowed estimator settling per mode) and ``estimator_settling_s``
+        (per mode, at s).  When no scale up to :data:`MAX_PROCESS_NOISE_SCALE` meets the rule
+        (``met`` False) the filter keeps the config's W (s = 1): a faster filter cannot restore the
+        separation and only passes more measurement noise to the regulator (docs/control.md: the
+        paper's weights slew in 26 s with s = 1, in 50 s with the closest scale, 1000).
 
     Raises
     ------
@@ -138,8 +141,9 @@ def loop_process_noise_scale(A: np.ndarray, B: np.ndarray, K: np.ndarray, Q: np.
     short = [_shortfall(A, 10.0**g * Q, H, sigma_m, T, names, limits) for g in grid]
     ok = [i for i, v in enumerate(short) if v <= 1.0][:1]
     met = bool(ok)
-    if not ok:                                    # the closest the filter gets: reported, not refused
-        scale = 10.0 ** grid[int(np.argmin(short))]
+    closest = float(10.0 ** grid[int(np.argmin(short))])
+    if not ok:                                    # reported, not refused; the config's W is kept
+        scale = 1.0
     elif ok[0] == 0:
         scale = 1.0
     else:
@@ -152,8 +156,8 @@ def loop_process_noise_scale(A: np.ndarray, B: np.ndarray, K: np.ndarray, Q: np.
         t = slowest_settling_by_mode(pole_table(estimator_error_matrix(A, scale * Q, H, sigma_m), T, names))
     except CdgpsError:
         t, met = {}, False
-    return {"scale": float(scale), "separation": float(separation), "met": met, "limits_s": limits,
-            "estimator_settling_s": t}
+    return {"scale": float(scale), "separation": float(separation), "met": met,
+            "closest_scale": float(scale) if met else closest, "limits_s": limits, "estimator_settling_s": t}
 
 
 def loop_estimator(cfg: StructureConfig, K: np.ndarray) -> dict:
@@ -165,7 +169,8 @@ def loop_estimator(cfg: StructureConfig, K: np.ndarray) -> dict:
     _, H = EpochPhaseModel(cfg, ant, tx)(np.zeros(model.A.shape[0]))
     sigma = channel_sigma_m(cfg, [(cfg.antenna_names[a], cfg.transmitter_names[t]) for a, t in zip(ant, tx)])
     out = loop_process_noise_scale(model.A, model.B, K, model.Q, H, sigma, model.T, list(cfg.mode_names))
-    out["rule"] = (f"config W scaled by {out['scale']:.4g}: estimator poles {out['separation']:g}x faster than "
-                   "the regulator's, mode by mode" + ("" if out["met"] else
-                                                      " (NOT met: the closest the filter gets)"))
+    rule = f"estimator poles {out['separation']:g}x faster than the regulator's, mode by mode"
+    out["rule"] = (f"config W scaled by {out['scale']:.4g}: {rule}" if out["met"] else
+                   f"the config's W is kept (scale 1): the rule ({rule}) is NOT met by any scale up to "
+                   f"{MAX_PROCESS_NOISE_SCALE:g} (closest {out['closest_scale']:.4g})")
     return out

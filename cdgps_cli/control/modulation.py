@@ -20,6 +20,16 @@ Closed-form static characteristics for a constant e (used by the tests as the in
 * minimum pulse Δ = −T_m ln(1 − h / K_m) (59 ms with the defaults)
 
 The thrust is y times the thruster's maximum force, so it never exceeds that force.
+
+**Input limit (anti-windup).**  Above the saturation level the jet is already on all the time, and a
+larger command only charges the filter: on, f tends to K_m (e − 1), so a request of 14 × F_max (what
+a high-gain regulator asks for at times) drives f towards 58 and the jet stays on for
+T_m ln((f + K_m)/(U_off + K_m)) ≈ 2.2 s after the request has dropped to zero — a lag inside the
+loop that the regulator never designed for.  The command is therefore limited to
+e_max = 1 + U_on/K_m (1.1 with the defaults), above the saturation level, so a saturated jet stays on
+as before, and the filter never exceeds U_on: a jet turns off at most
+T_m ln((K_m + U_on)/(K_m + U_off)) (53 ms with the defaults) after its request drops to zero.
+``PwpfParams(anti_windup=False)`` keeps the unlimited textbook filter (for comparison only).
 """
 
 from __future__ import annotations
@@ -34,12 +44,14 @@ from cdgps_cli.core.errors import CdgpsError
 
 @dataclass(frozen=True)
 class PwpfParams:
-    """PWPF parameters: filter gain K_m (−), filter time constant T_m (s), trigger on/off levels (−)."""
+    """PWPF parameters: filter gain K_m (−), filter time constant T_m (s), trigger on/off levels (−),
+    and whether the command is limited to :attr:`input_limit` (anti-windup, module docstring)."""
 
     gain: float = 4.5
     time_constant_s: float = 0.85
     u_on: float = 0.45
     u_off: float = 0.15
+    anti_windup: bool = True
 
     def __post_init__(self):
         problems = []
@@ -58,6 +70,11 @@ class PwpfParams:
     def hysteresis(self) -> float:
         """h = U_on − U_off."""
         return self.u_on - self.u_off
+
+    @property
+    def input_limit(self) -> float:
+        """Largest normalized command the filter is driven with, 1 + U_on/K_m (inf without anti-windup)."""
+        return 1.0 + self.u_on / self.gain if self.anti_windup else math.inf
 
 
 def dead_zone(p: PwpfParams) -> float:
@@ -117,7 +134,8 @@ def pwpf_interval(f: float, on: bool, e: float, duration_s: float, p: PwpfParams
     on : bool
         Trigger output at the start.
     e : float
-        Normalized command over the interval (negative values count as 0).
+        Normalized command over the interval (negative values count as 0, values above
+        ``p.input_limit`` as that limit).
     duration_s : float
         Interval length, s.
     p : PwpfParams
@@ -129,7 +147,7 @@ def pwpf_interval(f: float, on: bool, e: float, duration_s: float, p: PwpfParams
     switches_s : list of float
         Switching instants from the start of the interval, s, ascending (each flips ``on``).
     """
-    e = max(float(e), 0.0)
+    e = min(max(float(e), 0.0), p.input_limit)
     t, switches = 0.0, []
     limit = int(duration_s / minimum_pulse_s(p)) * 2 + 4
     while len(switches) <= limit:

@@ -2,7 +2,8 @@
 
 Format (``format = "cdgps-gains"``, ``version = 1``): the discrete ``A`` and ``B`` the gain was
 designed on, the weights ``Qx`` and ``Qu``, the gain ``K`` (u = −K x, N per state unit), the
-sample period, state and thruster names, the open- and closed-loop pole tables, the Riccati
+sample period, state and thruster names, ``weight_set`` (which weights: ``"paper"``, the 1998
+paper's Sec. V numbers; ``"tuned"``, the experiments'; ``"custom"``), the open- and closed-loop pole tables, the Riccati
 residual, the config's path and sha256, the options and the software versions.  Matrices are lists
 of rows.  A reader checks the config's sha256 so a gain is never applied to another structure.
 """
@@ -22,15 +23,17 @@ FORMAT = "cdgps-gains"
 VERSION = 1
 
 
-def gains_record(design, poles: dict, *, config_path, state_names, thruster_names, options: dict) -> dict:
-    """The JSON-ready record of a design (see the module docstring)."""
+def gains_record(design, poles: dict, *, config_path, state_names, thruster_names, options: dict,
+                 weight_set: str = "custom") -> dict:
+    """The JSON-ready record of a design (see the module docstring); ``weight_set`` names the weights
+    (``"paper"``, ``"tuned"`` or ``"custom"``)."""
     return {
         "format": FORMAT, "version": VERSION,
         "config": {"path": str(config_path), "sha256": file_sha256(config_path)},
         "sample_period_s": design.sample_period_s,
         "state_names": list(state_names), "thruster_names": list(thruster_names),
         "A": design.A.tolist(), "B": design.B.tolist(), "Qx": design.Qx.tolist(), "Qu": design.Qu.tolist(),
-        "K": design.K.tolist(),
+        "K": design.K.tolist(), "weight_set": weight_set,
         "riccati_residual": design.riccati_residual,
         "poles": poles,
         "options": options,

@@ -262,8 +262,10 @@ def closed_loop_trajectory(cfg: StructureConfig, scenario: str, gains: dict, *, 
         extra = {"controller": {"feedback": feedback, "vibration_control": vibration_control,
                                 **({"slew_reference": slew_reference_kind} if scenario == "slew" else {}),
                                 "gains_config_sha256": gains["config"]["sha256"],
+                                "weight_set": gains.get("weight_set", "custom"),
                                 "pwpf": {"gain": pwpf.gain, "time_constant_s": pwpf.time_constant_s,
-                                         "u_on": pwpf.u_on, "u_off": pwpf.u_off},
+                                         "u_on": pwpf.u_on, "u_off": pwpf.u_off, "anti_windup": pwpf.anti_windup,
+                                         **({"input_limit": pwpf.input_limit} if pwpf.anti_windup else {})},
                                 "firings": len(merge_firings(r.firings)),
                                 "saturated_fraction": r.saturated_fraction,
                                 "estimator_nis_per_dof": float(np.mean(r.nis) / noise_m.shape[1]),
@@ -283,15 +285,29 @@ def _rigid_name(cfg: StructureConfig) -> str:
 
 
 def actuator_log(cfg: StructureConfig, firings):
-    """The native actuator log (time_s, actuator, force_n) of the firings: a row at each switch-on with
-    the jet's force and one at each switch-off with 0."""
+    """The native actuator log (time_s, actuator, force_n) of the firings: per jet a row at each change
+    of its force — the force at a switch-on, 0 at a switch-off.  Firings of one jet that abut (a
+    control firing running into the disturbance pulse on the same jet, or firings continued across
+    periods) are one level: no off-and-on pair at the same instant, which ``cdgps ingest`` would
+    refuse as a duplicate row."""
     import pandas as pd
 
     names = list(cfg.thruster_names)
+    spans: dict = {}
+    for j, a, b, f, _src in firings:
+        spans.setdefault(j, []).append((round(a, 9), round(b, 9), float(f)))
     rows = []
-    for j, a, b, f, _src in merge_firings(firings):
-        rows.append((round(a, 9), names[j], f))
-        rows.append((round(b, 9), names[j], 0.0))
+    for j, jet_spans in spans.items():
+        runs: list = []                                 # [start, end, force], contiguous equal forces joined
+        for a, b, f in sorted(jet_spans):
+            if runs and a <= runs[-1][1] + 1e-9 and f == runs[-1][2]:
+                runs[-1][1] = max(runs[-1][1], b)
+            else:
+                runs.append([a, b, f])
+        for k, (a, b, f) in enumerate(runs):
+            rows.append((a, names[j], f))
+            if k + 1 == len(runs) or runs[k + 1][0] > b + 1e-9:    # else the next run's row sets the force
+                rows.append((b, names[j], 0.0))
     rows.sort(key=lambda r: (r[0], names.index(r[1]), r[2]))
     return pd.DataFrame(rows, columns=["time_s", "actuator", "force_n"])
 

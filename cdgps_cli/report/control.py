@@ -116,7 +116,7 @@ def control_report(gains_path: str | Path, runs: dict, out_dir: str | Path, date
 
 def _controller_rows(sims):
     """One row per closed-loop run: what its truth.json says the controller was."""
-    header = ["run", "feedback", "vibration control", "slew reference", "filter W scale (rule)",
+    header = ["run", "weights", "feedback", "vibration control", "slew reference", "filter W scale (rule)",
               "multipath states", "saturated jet-periods", "NIS per dof"]
     rows = []
     for role, s in sims.items():
@@ -125,7 +125,7 @@ def _controller_rows(sims):
             continue
         scale = c.get("estimator_process_noise_scale")
         met = c.get("estimator_rule_met")
-        rows.append([ROLE_LABEL[role], c.get("feedback", "—"), "yes" if c.get("vibration_control", True) else "no",
+        rows.append([ROLE_LABEL[role], c.get("weight_set", "—"), c.get("feedback", "—"), "yes" if c.get("vibration_control", True) else "no",
                      c.get("slew_reference", "—"),
                      "—" if scale is None else f"{scale:.3g}" + ("" if met is None else (" (met)" if met else " (not met)")),
                      "yes" if c.get("estimator_multipath") else "no",

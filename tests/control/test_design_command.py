@@ -87,31 +87,42 @@ def test_corrupt_gains_file_is_named(tmp_path):
 
 def test_design_records_the_in_loop_filter_rule(testbed_path, tmp_path):
     """GAINS.json says which process-noise scale the closed loop's filter will use (separation rule),
-    and the paper's weights, too fast for any filter on our Υ, are flagged at design time."""
+    and the paper's weights (the default), too fast for any filter on our Υ, are flagged at design time."""
     out = tmp_path / "g.json"
-    r = CliRunner().invoke(main, ["-q", "control", "design", str(testbed_path), "--qx", "100", "--rigid-factor", "0.3",
-                                  "--rate-factor", "0.1", "-o", str(out)])
+    r = CliRunner().invoke(main, ["-q", "control", "design", str(testbed_path), "--weights", "tuned", "-o", str(out)])
     assert r.exit_code == 0, r.output
     le = json.loads(out.read_text())["loop_estimator"]
     assert le["met"] is True and le["process_noise_scale"] == pytest.approx(30.2, rel=0.01)
-    r = CliRunner().invoke(main, ["control", "design", str(testbed_path), "--paper-weights", "-o", str(tmp_path / "p.json")])
+    r = CliRunner().invoke(main, ["control", "design", str(testbed_path), "-o", str(tmp_path / "p.json")])
     assert r.exit_code == 0 and "cannot be made 3x faster" in r.output
 
 
-def test_defaults_are_the_tuned_weights_and_paper_weights_is_a_flag(testbed_path, testbed_cfg, tmp_path):
-    from cdgps_cli.config.options import CONTROL_RATE_FACTOR, CONTROL_RIGID_FACTOR, CONTROL_STATE_WEIGHT
-    from cdgps_cli.control.design import PAPER_WEIGHTS
-    from cdgps_cli.control.lqr import paper_weights
+def test_defaults_are_the_papers_weights_and_the_set_is_recorded(testbed_path, testbed_cfg, tmp_path):
+    """Issue 15 item 1: the paper's Q_x* = 5000 diag(1, …, 1, 0.01) (0.01 on the rigid-body mode),
+    Q_x = diag(Q_x*, 0.01 Q_x*), Q_u = I by default, written out here from the paper's text; the
+    experiments' tuned set by name; GAINS.json says which set it holds."""
+    from cdgps_cli.config.options import CONTROL_TUNED_WEIGHTS
 
     m = len(testbed_cfg.thruster_names)
+    rigid = np.asarray(testbed_cfg.mode_frequency_hz) == 0.0
+    assert rigid.sum() == 1
+    star = np.where(rigid, 5000.0 * 0.01, 5000.0)
     assert _run("control", "design", testbed_path, "-o", tmp_path / "d.json").exit_code == 0
-    Qx, _ = paper_weights(testbed_cfg.mode_frequency_hz, m, state_weight=CONTROL_STATE_WEIGHT,
-                          rigid_factor=CONTROL_RIGID_FACTOR, rate_factor=CONTROL_RATE_FACTOR)
-    np.testing.assert_array_equal(read_gains(tmp_path / "d.json", testbed_path)["Qx"], Qx)
-    assert _run("control", "design", testbed_path, "--paper-weights", "-o", tmp_path / "p.json").exit_code == 0
-    Qp, _ = paper_weights(testbed_cfg.mode_frequency_hz, m)
-    np.testing.assert_array_equal(read_gains(tmp_path / "p.json", testbed_path)["Qx"], Qp)
-    assert PAPER_WEIGHTS == {"qx": 5000.0, "rigid_factor": 0.01, "rate_factor": 0.01}
-    _clean_error(_run("control", "design", testbed_path, "--paper-weights", "--rate-factor", "0.1", "-o",
-                      tmp_path / "x.json"), "--paper-weights", "not both")
-    assert not (tmp_path / "x.json").exists()
+    doc = read_gains(tmp_path / "d.json", testbed_path)
+    np.testing.assert_array_equal(doc["Qx"], np.diag(np.concatenate([star, 0.01 * star])))
+    np.testing.assert_array_equal(doc["Qu"], np.eye(m))
+    assert doc["weight_set"] == "paper" and doc["options"]["weights"] == "paper"
+
+    assert _run("control", "design", testbed_path, "--weights", "tuned", "-o", tmp_path / "t.json").exit_code == 0
+    doc = read_gains(tmp_path / "t.json", testbed_path)
+    w = CONTROL_TUNED_WEIGHTS
+    star = np.where(rigid, w["qx"] * w["rigid_factor"], w["qx"])
+    np.testing.assert_array_equal(doc["Qx"], np.diag(np.concatenate([star, w["rate_factor"] * star])))
+    assert doc["weight_set"] == "tuned"
+    # the same numbers given one by one are still the named set; anything else is "custom"
+    for args, name in ((["--qx", "5000", "--rigid-factor", "0.01"], "paper"), (["--qx", "4000"], "custom"),
+                       (["--weights", "tuned", "--qu", "2"], "custom")):
+        assert _run("control", "design", testbed_path, *args, "-o", tmp_path / "c.json").exit_code == 0
+        assert read_gains(tmp_path / "c.json", testbed_path)["weight_set"] == name, args
+    r = _run("control", "design", testbed_path, "--weights", "mine", "-o", tmp_path / "x.json")
+    assert r.exit_code == 2 and "Traceback" not in r.output and not (tmp_path / "x.json").exists()

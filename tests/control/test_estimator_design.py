@@ -97,10 +97,13 @@ def test_faster_estimator_lowers_the_pulse_peak(testbed_cfg, tuned):
 
 def test_a_regulator_too_fast_for_the_filter_is_reported_not_refused(testbed_cfg):
     """The paper's weights on our Υ settle the vibration poles in 0.65 s: no process-noise scale makes
-    the filter 3x faster, so the closest scale is returned with met = False (the CLI warns)."""
+    the filter 3x faster, so met = False (the CLI warns), the closest scale is recorded and the filter
+    keeps the config's W (a faster one only passes more noise: the slew test in
+    tests/pipeline/test_closed_loop.py)."""
     d, _ = design_for_structure(testbed_cfg, **PAPER_WEIGHTS)
     est = loop_estimator(testbed_cfg, d.K)
-    assert est["met"] is False and est["scale"] > 1.0 and "NOT met" in est["rule"]
+    assert est["met"] is False and est["closest_scale"] > 1.0 and "NOT met" in est["rule"]
+    assert est["scale"] == 1.0 and "the config's W is kept" in est["rule"]
 
 
 def test_simulate_warns_when_the_rule_cannot_be_met(testbed_path, tmp_path):
@@ -109,7 +112,7 @@ def test_simulate_warns_when_the_rule_cannot_be_met(testbed_path, tmp_path):
     from cdgps_cli.cli.commands import main
 
     g = tmp_path / "paper.json"
-    assert CliRunner().invoke(main, ["-q", "control", "design", str(testbed_path), "--paper-weights", "-o", str(g)]).exit_code == 0
+    assert CliRunner().invoke(main, ["-q", "control", "design", str(testbed_path), "-o", str(g)]).exit_code == 0
     r = CliRunner().invoke(main, ["simulate", str(testbed_path), "--scenario", "pulse", "--duration", "1",
                                   "--controller", str(g), "-o", str(tmp_path / "o")])
     assert r.exit_code == 0 and "in-loop estimator cannot be made 3x faster" in r.output, r.output

@@ -111,6 +111,31 @@ def test_interval_is_additive():
     assert sw1 == pytest.approx(swa + [0.05 + s for s in swb], abs=1e-12)
 
 
+def test_a_saturated_request_does_not_wind_up_the_filter():
+    """5 s of a request 14 times the jet's force, then none: the jet switches off
+    T_m ln((K_m + U_on)/(K_m + U_off)) (53 ms) after the request drops (closed form: the input limit
+    1 + U_on/K_m holds the on-state filter at U_on).  The unlimited filter charges towards
+    K_m (14 − 1) = 58.5 and keeps the jet on for seconds (the lag that destabilized the paper's gain)."""
+    T, cmd = 0.1, np.r_[np.full(50, 14.0), np.zeros(40)][:, None]
+    pulses, _ = modulate(cmd, [1.0], T, P)
+    start = P.time_constant_s * math.log(P.input_limit * P.gain / (P.input_limit * P.gain - P.u_on))
+    stop = 5.0 + P.time_constant_s * math.log((P.gain + P.u_on) / (P.gain + P.u_off))
+    assert P.input_limit == pytest.approx(1.1) and stop - 5.0 == pytest.approx(0.0531, abs=1e-4)
+    assert len(pulses[0]) == 1
+    assert pulses[0][0] == pytest.approx((start, stop), abs=1e-12)
+    wound, _ = modulate(cmd, [1.0], T, PwpfParams(anti_windup=False))
+    assert len(wound[0]) == 1 and wound[0][0][1] - 5.0 > 1.5
+
+
+def test_filter_never_exceeds_the_on_level_with_the_input_limit():
+    g = np.random.default_rng(7)
+    f, on = 0.0, False
+    for e in np.abs(g.normal(0.0, 5.0, size=2000)):
+        f, on, _ = pwpf_interval(f, on, e, 0.1, P)
+        assert f <= P.u_on + 1e-12
+    assert not math.isfinite(PwpfParams(anti_windup=False).input_limit)
+
+
 @pytest.mark.parametrize("kw,words", [({"gain": 0}, "gain"), ({"u_off": 0.5}, "u_off: must be below u_on"),
                                       ({"time_constant_s": float("nan")}, "time_constant_s"),
                                       ({"u_off": -1}, "u_off")])
