@@ -152,6 +152,23 @@ def gyro_coordinate_map(cfg: StructureConfig, through_modes: bool = False) -> np
     return U @ np.linalg.pinv(G @ U)
 
 
+def gyro_observability_note(cfg: StructureConfig, through_modes: bool) -> str:
+    """A warning when the gyros do not determine the coordinate rates (rank of G, or of G U through the
+    mode shapes, below the count): the aid then guesses the unobserved motion (minimum norm) and can
+    be worse than no aid on the channels that see it.  Empty when they do."""
+    from cdgps_cli.model.kinematics import gyro_matrix
+
+    G = gyro_matrix(cfg)
+    A = G @ np.asarray(cfg.mode_shapes, dtype=float) if through_modes else G
+    rank, n = int(np.linalg.matrix_rank(A)), A.shape[1]
+    if rank >= n:
+        return ""
+    what = "modal" if through_modes else "coordinate"
+    return (f"note: the {len(cfg.gyro_names)} gyros determine {rank} of the {n} {what} rates; the aid takes the "
+            f"minimum-norm guess for the rest" + ("" if through_modes else
+                                                  " (--aid model resolves more through the mode shapes)"))
+
+
 def start_pose(cfg: StructureConfig, pose_csv: str | Path, time_s: float) -> np.ndarray:
     """The structure's coordinates (n_q,) at ``time_s`` (s), interpolated in a CSV with ``time_s`` and one
     column per coordinate of ``cfg`` (truth.csv of `cdgps simulate`, or the states CSV of `cdgps estimate`)."""
@@ -361,6 +378,9 @@ def track_structure(manifest_path: str | Path, cfg: StructureConfig, out_csv: st
     if opt.aid in ("gyro", "model"):
         rates = gyro_rates(cfg, opt.gyro_csv)
         q0 = None if opt.pose_csv is None else start_pose(cfg, opt.pose_csv, man["start_s"])
+        note = gyro_observability_note(cfg, opt.aid == "model")
+        if note:
+            say(note)
         gyro_aid = lambda ant, tx, t: gyro_aid_hz(cfg, man, rates, ant, tx, t, opt.aid == "model", q0)  # noqa: E731
     per = {}
     for a in man["antennas"]:

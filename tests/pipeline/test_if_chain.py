@@ -282,3 +282,13 @@ def test_start_pose_names_bad_files(tmp_path, testbed_cfg):
         ChainOptions(pose_csv=str(f)).check()
     with pytest.raises(CdgpsError, match="gyro log"):
         ChainOptions(aid="gyro").check()
+
+
+def test_gyro_observability_is_named(testbed_cfg):
+    """The testbed's six gyros determine 5 of its 10 coordinate rates (and 5 of its 9 modal rates): the
+    kinematics-only aid guesses the rest, which made it worse than no aid on some channels."""
+    from cdgps_cli.pipeline.if_chain import gyro_observability_note
+
+    assert "determine 5 of the 10 coordinate rates" in gyro_observability_note(testbed_cfg, False)
+    assert "--aid model" in gyro_observability_note(testbed_cfg, False)
+    assert "determine 5 of the 9 modal rates" in gyro_observability_note(testbed_cfg, True)
