@@ -43,6 +43,7 @@ from cdgps_cli.sim.if_samples import C_M_S, KNOT_S, L1_HZ, MANIFEST_FORMAT, Stru
 from cdgps_cli.tracking.acquisition import Acquisition, acquire
 from cdgps_cli.tracking.ca_code import CHIP_RATE_HZ, CODE_LENGTH, G2_TAPS, ca_code
 from cdgps_cli.tracking.channel import PHASE_LOCK_THRESHOLD, WINDOW, TrackOptions, track
+from cdgps_cli.tracking.shared_clock import track_shared_clock
 
 #: external Doppler aids of :func:`track_structure`
 AIDS = ("none", "truth", "gyro", "model")
@@ -96,6 +97,8 @@ class ChainOptions:
     pose_csv: str | None = None     # the structure's pose at the first sample for those aids (truth.csv or an
                                     # estimate's states CSV; default: the rest pose), integrated on by the gyros
     acquisition: str = "search"     # "truth": start the loops from the manifest's true Doppler and code phase
+    clock_bn_hz: float | None = None  # each antenna's channels share a clock loop of this bandwidth (Hz;
+                                      # tracking.shared_clock, Alban et al.'s clock-error frequency), or not
 
     def check(self) -> None:
         if self.aid not in AIDS:
@@ -106,6 +109,8 @@ class ChainOptions:
             raise CdgpsError("a start pose (--pose, pose_csv) is used by the aids 'gyro' and 'model' only")
         if self.acquisition not in ACQUISITIONS:
             raise CdgpsError(f"acquisition {self.acquisition!r}: expected one of {', '.join(ACQUISITIONS)}")
+        if self.clock_bn_hz is not None and not (math.isfinite(self.clock_bn_hz) and 0 < self.clock_bn_hz <= 100):
+            raise CdgpsError(f"clock loop bandwidth {self.clock_bn_hz!r}: expected a number of Hz in (0, 100]")
         if not (math.isfinite(self.settle_s) and self.settle_s >= 0):
             raise CdgpsError(f"settle_s {self.settle_s!r}: expected a non-negative number of seconds")
 
@@ -248,8 +253,9 @@ def _truth_start(man: dict, antenna: str, prns: list) -> list:
 def _track_antenna(path: Path, man: dict, prns: list, opt: ChainOptions, say, antenna: str = "",
                    gyro_aid=None) -> dict:
     """Acquire the manifest's PRNs in one antenna's file and track those found (a PRN not acquired
-    gives its channels no rows and is listed under ``missing``); ``opt.aid == "truth"`` feeds each
-    loop the line-of-sight Doppler of :func:`truth_aid_hz`."""
+    gives its channels no rows and is listed under ``missing``); ``opt.aid`` feeds each loop its
+    line-of-sight Doppler (:func:`truth_aid_hz`, or ``gyro_aid``); with ``opt.clock_bn_hz`` the channels
+    share a clock loop (:func:`cdgps_cli.tracking.shared_clock.track_shared_clock`)."""
     x = read_samples(path, "int8-iq", man["iq_sign"])
     fs, if_hz = man["fs_hz"], man["if_hz"]
     acq = acquire(x, fs, prns, if_hz=if_hz) if opt.acquisition == "search" else _truth_start(man, antenna, prns)
@@ -264,15 +270,24 @@ def _track_antenna(path: Path, man: dict, prns: list, opt: ChainOptions, say, an
     tx_of = {int(t["prn"]): t["name"] for t in man["transmitters"]}
     n = int(round(fs * KNOT_S))
     tracks, sats = {}, []
+    aids = {}
     for a in found:
         aid = None
         if opt.aid == "truth":
             aid = truth_aid_hz(man, antenna, tx_of[a.prn], np.arange(x.size // n) * n / fs)
         elif opt.aid in ("gyro", "model"):
             aid = gyro_aid(antenna, tx_of[a.prn], np.arange(x.size // n) * n / fs)
-        r = track(x, fs, a.prn, a.doppler_hz - (aid[0] if aid is not None else 0.0), a.code_phase_chips,
-                  opt.track, aid_doppler_hz=aid)
-        tracks[a.prn] = r
+        aids[a.prn] = aid
+    starts = [(a.prn, a.doppler_hz - (aids[a.prn][0] if aids[a.prn] is not None else 0.0), a.code_phase_chips)
+              for a in found]
+    if opt.clock_bn_hz is not None:                # the channels of this antenna share one clock loop
+        shared = track_shared_clock(x, fs, starts, opt.track, clock_bn_hz=opt.clock_bn_hz,
+                                    aids=[aids[a.prn] for a in found])
+        tracks = {a.prn: r for a, r in zip(found, shared["tracks"])}
+    for a, (_, start_hz, code) in zip(found, starts):
+        if opt.clock_bn_hz is None:
+            tracks[a.prn] = track(x, fs, a.prn, start_hz, code, opt.track, aid_doppler_hz=aids[a.prn])
+        r = tracks[a.prn]
         cn0 = r["cn0_dbhz"][::WINDOW][-5:]
         sats.append({"prn": a.prn, "doppler_hz": float(np.mean(r["doppler_hz"][-100:])),
                      "cn0_dbhz": float(np.nanmedian(cn0)) if np.isfinite(cn0).any() else None,
@@ -434,7 +449,7 @@ def track_structure(manifest_path: str | Path, cfg: StructureConfig, out_csv: st
             "antennas": {n: {"satellites": p["satellites"], "not_acquired": p["missing"]} for n, p in per.items()},
             "options": {**opt.track.__dict__,
                                                                                    "settle_s": opt.settle_s, "aid": opt.aid, "acquisition": opt.acquisition,
-                        "pose": opt.pose_csv}}
+                        "pose": opt.pose_csv, "clock_bn_hz": opt.clock_bn_hz}}
 
 
 # ---------------------------------------------------------------------------------------------
