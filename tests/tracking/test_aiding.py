@@ -241,3 +241,20 @@ def test_the_papers_condition_a_tcxo_holds_3_hz_loops_when_the_clock_frequency_i
         assert jit_alone > 3 * jit_shared, (p, jit_alone, jit_shared)
         lock = outputs_dict(sh, fs)["phase_lock"][settle::20]
         assert np.mean(lock > 0.8) >= 0.95
+
+
+def test_a_clock_loop_equal_to_the_channel_loops_changes_nothing():
+    """Linear algebra of the shared clock: with the clock loop's filter equal to the channel loops'
+    (same B_n, order, no narrowing), F(e_i − ē) + F(ē) = F(e_i), so every channel's NCO is that of an
+    independent loop (the compiled channel) — to rounding."""
+    from cdgps_cli.tracking.channel import run_updates, initial_state
+    from cdgps_cli.tracking.shared_clock import SharedClockReceiver
+
+    fs = 2.2e6
+    sats = ((3, 1200.0, 100.0), (17, -2400.0, 600.0), (22, 300.0, 900.0))
+    x = sum(ca_signal(p, d, c, 45.0, 0.4, seed=p, bits=True, fs=fs)[0] for p, d, c in sats)
+    opt = TrackOptions(pll_bn_hz=15.0)
+    rows, _ = SharedClockReceiver(fs, sats, opt, clock_bn_hz=15.0).run(x)
+    for i, (p, d, c) in enumerate(sats):
+        alone = run_updates(x, fs, p, initial_state(d, c), opt)
+        np.testing.assert_allclose(rows[i][:, 2], alone[:, 2], rtol=0, atol=1e-6)     # carrier phase, cycles
