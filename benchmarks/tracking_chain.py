@@ -22,7 +22,16 @@ modelled here, and no clock aiding).  Measured per run:
 
 Loops 3 and 4 are aided by the structure's simulated rate gyros (`cdgps simulate`'s gyro.csv: the config's
 gyro noise, bias and bias drift): through the kinematics (q̇ = G⁺ω) or through the mode shapes
-(q̇ = U(GU)⁺ω), then v = J q̇ and the known line of sight (`if_chain.gyro_aid_hz`).
+(q̇ = U(GU)⁺ω), then v = J q̇ and the known line of sight (`if_chain.gyro_aid_hz`), with J and the line of
+sight at the rest pose q = 0.  Loops 5 and 6 are the same with the geometry at the current pose: the true
+pose at the first sample (`--pose truth.csv`, an aligned start) carried on by the integrated gyro rates.
+
+    python benchmarks/tracking_chain.py --cn0 45,38 --loops 0,1,2,4,5,6 --out docs/benchmarks/tracking-chain-pose.json
+    python benchmarks/tracking_chain.py --cn0 35,33 --loops 0,6 --out docs/benchmarks/tracking-chain-pose-low.json
+
+Loop 7 adds the shared clock loop of tracking/shared_clock.py to each antenna's channels (`--clock-bn
+15`: the clock-error frequency estimated across the six channels, the paper's architecture); loop 8
+is the 15 Hz unaided loop with the same clock loop.
 
 Slips "per hour" from runs of seconds are not meaningful statistics: the counts are given as they are.
 """
@@ -54,7 +63,14 @@ OSCILLATOR = "1e-21,1e-22,1e-24"
 LOOPS = [("15 Hz unaided", ["--pll-bn", "15"]), ("3 Hz unaided", ["--pll-bn", "3"]),
          ("3 Hz aided (truth LOS Doppler)", ["--pll-bn", "3", "--aid", "truth"]),
          ("3 Hz gyro-aided (kinematics)", ["--pll-bn", "3", "--aid", "gyro", "--gyro", "{sim}/gyro.csv"]),
-         ("3 Hz model-aided (gyros through mode shapes)", ["--pll-bn", "3", "--aid", "model", "--gyro", "{sim}/gyro.csv"])]
+         ("3 Hz model-aided (gyros through mode shapes)", ["--pll-bn", "3", "--aid", "model", "--gyro", "{sim}/gyro.csv"]),
+         ("3 Hz gyro-aided (kinematics), pose integrated", ["--pll-bn", "3", "--aid", "gyro", "--gyro", "{sim}/gyro.csv",
+                                                           "--pose", "{sim}/truth.csv"]),
+         ("3 Hz model-aided, pose integrated", ["--pll-bn", "3", "--aid", "model", "--gyro", "{sim}/gyro.csv",
+                                               "--pose", "{sim}/truth.csv"]),
+         ("3 Hz model-aided, pose integrated, shared 15 Hz clock loop",
+          ["--pll-bn", "3", "--aid", "model", "--gyro", "{sim}/gyro.csv", "--pose", "{sim}/truth.csv", "--clock-bn", "15"]),
+         ("15 Hz unaided, shared 15 Hz clock loop", ["--pll-bn", "15", "--clock-bn", "15"])]
 CN0S = (45.0, 38.0, 33.0, 30.0)
 #: the loops start from the true Doppler and code phase (an assisted start): the FFT search of
 #: tracking/acquisition.py (1 ms coherent, 10 ms non-coherent, ratio 2) misses 38 dB-Hz signals already

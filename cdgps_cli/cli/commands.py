@@ -1503,13 +1503,21 @@ def simulate_if_cmd(ctx, config, sim_dir, start_s, duration_s, fs_hz, if_hz, bit
                    "model, the same rates through the config's mode shapes.")
 @click.option("--gyro", "gyro_csv", type=click.Path(dir_okay=False, exists=True), default=None,
               help="gyro.csv of `cdgps simulate` (needed by --aid gyro and --aid model).")
+@click.option("--pose", "pose_csv", type=click.Path(dir_okay=False, exists=True), default=None,
+              help="--aid gyro/model: the structure's pose at the first sample, from a CSV with time_s and the "
+                   "config's coordinates (truth.csv of `cdgps simulate`, or an estimate's states CSV); the gyros "
+                   "carry it on.  Default: the rest pose (all coordinates 0).")
+@click.option("--clock-bn", "clock_bn_hz", type=float, default=None,
+              help="Share one receiver-clock loop of this noise bandwidth (Hz) among each antenna's channels "
+                   "(the clock-error frequency estimated across channels; default: independent loops).")
 @click.option("--acquisition", type=click.Choice(["search", "truth"]), default="search", show_default=True,
               help="Start the loops from an FFT search of each file, or from IF_JSON's true Doppler and code phase "
                    "(an assisted start, to study the loops below the search's threshold).")
 @_output_option("output", "Receiver log CSV to write (time_s,receiver,master,antenna,transmitter,phase_cycles,lock,snr_dbhz).")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (rows, channels, satellites per antenna) on stdout.")
 @click.pass_context
-def track_structure_cmd(ctx, if_json, config, pll_bn_hz, pull_in_s, aid, gyro_csv, acquisition, output, as_json):
+def track_structure_cmd(ctx, if_json, config, pll_bn_hz, pull_in_s, aid, gyro_csv, pose_csv, clock_bn_hz, acquisition,
+                        output, as_json):
     """Track every antenna's samples listed in IF_JSON (from `cdgps simulate-if`), difference each
     antenna's carrier phase against the master's per transmitter (half cycles resolved by the data
     bits) and write the native receiver log at the config's epochs, for `cdgps ingest`."""
@@ -1519,7 +1527,7 @@ def track_structure_cmd(ctx, if_json, config, pll_bn_hz, pull_in_s, aid, gyro_cs
 
     cfg = load_config(config)
     opt = ChainOptions(track=TrackOptions(pll_bn_hz=pll_bn_hz, pull_in_s=pull_in_s), aid=aid, acquisition=acquisition,
-                       gyro_csv=gyro_csv)
+                       gyro_csv=gyro_csv, pose_csv=pose_csv, clock_bn_hz=clock_bn_hz)
     with progress.stage("tracking"):
         s = track_structure(if_json, cfg, output, opt, progress=None if ctx.obj.get("quiet") else progress.write)
     _say(ctx, f"wrote {output}: {s['rows']} rows, {s['epochs']} epochs, "

@@ -43,6 +43,7 @@ from cdgps_cli.sim.if_samples import C_M_S, KNOT_S, L1_HZ, MANIFEST_FORMAT, Stru
 from cdgps_cli.tracking.acquisition import Acquisition, acquire
 from cdgps_cli.tracking.ca_code import CHIP_RATE_HZ, CODE_LENGTH, G2_TAPS, ca_code
 from cdgps_cli.tracking.channel import PHASE_LOCK_THRESHOLD, WINDOW, TrackOptions, track
+from cdgps_cli.tracking.shared_clock import track_shared_clock
 
 #: external Doppler aids of :func:`track_structure`
 AIDS = ("none", "truth", "gyro", "model")
@@ -93,15 +94,23 @@ class ChainOptions:
                                     # "gyro" / "model": the Doppler of the gyro-derived antenna velocity
                                     # through the kinematics / through the mode shapes (gyro_aid_hz)
     gyro_csv: str | None = None     # gyro.csv of `cdgps simulate` (time_s, gyro, rate_rad_s), for those aids
+    pose_csv: str | None = None     # the structure's pose at the first sample for those aids (truth.csv or an
+                                    # estimate's states CSV; default: the rest pose), integrated on by the gyros
     acquisition: str = "search"     # "truth": start the loops from the manifest's true Doppler and code phase
+    clock_bn_hz: float | None = None  # each antenna's channels share a clock loop of this bandwidth (Hz;
+                                      # tracking.shared_clock, Alban et al.'s clock-error frequency), or not
 
     def check(self) -> None:
         if self.aid not in AIDS:
             raise CdgpsError(f"aid {self.aid!r}: expected one of {', '.join(AIDS)}")
         if (self.aid in ("gyro", "model")) != (self.gyro_csv is not None):
             raise CdgpsError("aids 'gyro' and 'model' need the gyro log (--gyro, gyro_csv: gyro.csv of `cdgps simulate`), and only they use it")
+        if self.pose_csv is not None and self.aid not in ("gyro", "model"):
+            raise CdgpsError("a start pose (--pose, pose_csv) is used by the aids 'gyro' and 'model' only")
         if self.acquisition not in ACQUISITIONS:
             raise CdgpsError(f"acquisition {self.acquisition!r}: expected one of {', '.join(ACQUISITIONS)}")
+        if self.clock_bn_hz is not None and not (math.isfinite(self.clock_bn_hz) and 0 < self.clock_bn_hz <= 100):
+            raise CdgpsError(f"clock loop bandwidth {self.clock_bn_hz!r}: expected a number of Hz in (0, 100]")
         if not (math.isfinite(self.settle_s) and self.settle_s >= 0):
             raise CdgpsError(f"settle_s {self.settle_s!r}: expected a non-negative number of seconds")
 
@@ -148,31 +157,81 @@ def gyro_coordinate_map(cfg: StructureConfig, through_modes: bool = False) -> np
     return U @ np.linalg.pinv(G @ U)
 
 
+def gyro_observability_note(cfg: StructureConfig, through_modes: bool) -> str:
+    """A warning when the gyros do not determine the coordinate rates (rank of G, or of G U through the
+    mode shapes, below the count): the aid then guesses the unobserved motion (minimum norm) and can
+    be worse than no aid on the channels that see it.  Empty when they do."""
+    from cdgps_cli.model.kinematics import gyro_matrix
+
+    G = gyro_matrix(cfg)
+    A = G @ np.asarray(cfg.mode_shapes, dtype=float) if through_modes else G
+    rank, n = int(np.linalg.matrix_rank(A)), A.shape[1]
+    if rank >= n:
+        return ""
+    what = "modal" if through_modes else "coordinate"
+    return (f"note: the {len(cfg.gyro_names)} gyros determine {rank} of the {n} {what} rates; the aid takes the "
+            f"minimum-norm guess for the rest" + ("" if through_modes else
+                                                  " (--aid model resolves more through the mode shapes)"))
+
+
+def start_pose(cfg: StructureConfig, pose_csv: str | Path, time_s: float) -> np.ndarray:
+    """The structure's coordinates (n_q,) at ``time_s`` (s), interpolated in a CSV with ``time_s`` and one
+    column per coordinate of ``cfg`` (truth.csv of `cdgps simulate`, or the states CSV of `cdgps estimate`)."""
+    try:
+        df = pd.read_csv(pose_csv)
+    except (OSError, ValueError) as exc:
+        raise CdgpsError(f"{pose_csv}: cannot read the pose file: {exc}") from None
+    need = ["time_s", *cfg.coord_names]
+    missing = [c for c in need if c not in df.columns]
+    if missing:
+        raise CdgpsError(f"{pose_csv}: missing column(s) {', '.join(missing)}; expected time_s and the coordinates "
+                         f"{', '.join(cfg.coord_names)} (truth.csv of `cdgps simulate` or the states CSV of `cdgps estimate`)")
+    t = df["time_s"].to_numpy(dtype=float)
+    if t.size == 0 or not (t[0] - 1e-9 <= time_s <= t[-1] + 1e-9):
+        span = f"{t[0]:g}–{t[-1]:g} s" if t.size else "no rows"
+        raise CdgpsError(f"{pose_csv}: the samples start at {time_s:g} s, outside the pose file's span ({span})")
+    return np.array([np.interp(time_s, t, df[c].to_numpy(dtype=float)) for c in cfg.coord_names])
+
+
+def gyro_pose(time_s: np.ndarray, qdot: np.ndarray, t0_s: float, q0: np.ndarray) -> np.ndarray:
+    """Coordinates (n, n_q) at the gyro epochs ``time_s`` (n,): ``q0`` at ``t0_s`` plus the trapezoidal
+    integral of the coordinate rates ``qdot`` (n, n_q) — dead reckoning of the pose from the gyros."""
+    steps = 0.5 * (qdot[1:] + qdot[:-1]) * np.diff(time_s)[:, None]
+    integral = np.vstack([np.zeros((1, qdot.shape[1])), np.cumsum(steps, axis=0)])
+    at_t0 = np.array([np.interp(t0_s, time_s, integral[:, j]) for j in range(qdot.shape[1])])
+    return q0 + integral - at_t0
+
+
 def gyro_aid_hz(cfg: StructureConfig, man: dict, gyro: tuple, antenna: str, transmitter: str,
-                time_s: np.ndarray, through_modes: bool = False) -> np.ndarray:
+                time_s: np.ndarray, through_modes: bool = False, q0: np.ndarray | None = None) -> np.ndarray:
     """Line-of-sight Doppler (Hz) of one channel from the structure's rate gyros, at ``time_s`` (s from
-    the first sample): the rates with their biases and noise, ω (n_g), give the coordinate rates
-    q̇ = M ω (M = :func:`gyro_coordinate_map`: G⁺ from ``kinematics.gyro_matrix``, or U (G U)⁺ through the
-    structural model's mode shapes), the antenna
-    velocity v = J_a q̇ (J_a = ∂p_a/∂q at q = 0, small motion) and the Doppler −u·v/λ with u = ∂ρ/∂p_a the
-    line of sight to the transmitter (known). Gyros measure rotation rates only: the motion of the
-    coordinates that no gyro sees (translations, rigid sway; the null space of G) is missing from v,
-    and a gyro bias b gives a velocity error J_a G⁺ b (a Doppler error, not a drift: the bias enters
-    the rate, not an integrated angle)."""
+    the first sample).
+
+    The rates with their biases and noise, ω (n_g), give the coordinate rates q̇ = M ω (M =
+    :func:`gyro_coordinate_map`: G⁺ from ``kinematics.gyro_matrix``, or U (G U)⁺ through the structural
+    model's mode shapes) and, integrated from the pose ``q0`` at the first sample (:func:`gyro_pose`;
+    default the rest pose q = 0), the pose q̂(t).  The antenna velocity is v = J_a(q̂) q̇ (J_a = ∂p_a/∂q at
+    the current pose: the rigid-body rotation of the testbed swings by tenths of a radian, so the rest
+    pose's Jacobian points the velocities wrongly) and the Doppler −u·v/λ with u = ∂ρ/∂p_a the line of sight
+    from the current antenna position to the transmitter (known).  Gyros measure rotation rates only: the
+    motion of the coordinates that no gyro sees (translations, rigid sway; the null space of G) is missing
+    from v; a gyro bias b gives a velocity error J_a M b and a pose drift M b t.
+    """
     from cdgps_cli.model.kinematics import antenna_positions
     from cdgps_cli.sim.if_samples import line_of_sight_range_m, Transmitter
 
     t_g, w = gyro
     qdot = w @ gyro_coordinate_map(cfg, through_modes).T                   # (n, n_q)
-    p0, J = antenna_positions(cfg, np.zeros((1, cfg.n_q)), jacobian=True)
+    q_hat = gyro_pose(t_g, qdot, man["start_s"], np.zeros(cfg.n_q) if q0 is None else np.asarray(q0, dtype=float))
+    p, J = antenna_positions(cfg, q_hat, jacobian=True)
     a = list(cfg.antenna_names).index(antenna)
     tx = next(t for t in man["transmitters"] if t["name"] == transmitter)
     tr = Transmitter(**tx)
-    pa = p0[0, a]
+    pa = p[:, a]                                                            # (n, 3)
     h = 1e-4                                                                # central difference of ρ(p): u = ∂ρ/∂p
-    u = np.array([(line_of_sight_range_m(tr, pa + h * e) - line_of_sight_range_m(tr, pa - h * e)) / (2 * h)
-                  for e in np.eye(3)])
-    rho_dot = (qdot @ J[0, a].T) @ u                                        # (n,)
+    u = np.stack([(line_of_sight_range_m(tr, pa + h * e) - line_of_sight_range_m(tr, pa - h * e)) / (2 * h)
+                  for e in np.eye(3)], axis=1)
+    rho_dot = np.einsum("ni,nij,nj->n", u, J[:, a], qdot)                  # (n,)
     return -np.interp(np.asarray(time_s) + man["start_s"], t_g, rho_dot) / (C_M_S / L1_HZ)
 
 
@@ -194,8 +253,9 @@ def _truth_start(man: dict, antenna: str, prns: list) -> list:
 def _track_antenna(path: Path, man: dict, prns: list, opt: ChainOptions, say, antenna: str = "",
                    gyro_aid=None) -> dict:
     """Acquire the manifest's PRNs in one antenna's file and track those found (a PRN not acquired
-    gives its channels no rows and is listed under ``missing``); ``opt.aid == "truth"`` feeds each
-    loop the line-of-sight Doppler of :func:`truth_aid_hz`."""
+    gives its channels no rows and is listed under ``missing``); ``opt.aid`` feeds each loop its
+    line-of-sight Doppler (:func:`truth_aid_hz`, or ``gyro_aid``); with ``opt.clock_bn_hz`` the channels
+    share a clock loop (:func:`cdgps_cli.tracking.shared_clock.track_shared_clock`)."""
     x = read_samples(path, "int8-iq", man["iq_sign"])
     fs, if_hz = man["fs_hz"], man["if_hz"]
     acq = acquire(x, fs, prns, if_hz=if_hz) if opt.acquisition == "search" else _truth_start(man, antenna, prns)
@@ -210,15 +270,24 @@ def _track_antenna(path: Path, man: dict, prns: list, opt: ChainOptions, say, an
     tx_of = {int(t["prn"]): t["name"] for t in man["transmitters"]}
     n = int(round(fs * KNOT_S))
     tracks, sats = {}, []
+    aids = {}
     for a in found:
         aid = None
         if opt.aid == "truth":
             aid = truth_aid_hz(man, antenna, tx_of[a.prn], np.arange(x.size // n) * n / fs)
         elif opt.aid in ("gyro", "model"):
             aid = gyro_aid(antenna, tx_of[a.prn], np.arange(x.size // n) * n / fs)
-        r = track(x, fs, a.prn, a.doppler_hz - (aid[0] if aid is not None else 0.0), a.code_phase_chips,
-                  opt.track, aid_doppler_hz=aid)
-        tracks[a.prn] = r
+        aids[a.prn] = aid
+    starts = [(a.prn, a.doppler_hz - (aids[a.prn][0] if aids[a.prn] is not None else 0.0), a.code_phase_chips)
+              for a in found]
+    if opt.clock_bn_hz is not None:                # the channels of this antenna share one clock loop
+        shared = track_shared_clock(x, fs, starts, opt.track, clock_bn_hz=opt.clock_bn_hz,
+                                    aids=[aids[a.prn] for a in found])
+        tracks = {a.prn: r for a, r in zip(found, shared["tracks"])}
+    for a, (_, start_hz, code) in zip(found, starts):
+        if opt.clock_bn_hz is None:
+            tracks[a.prn] = track(x, fs, a.prn, start_hz, code, opt.track, aid_doppler_hz=aids[a.prn])
+        r = tracks[a.prn]
         cn0 = r["cn0_dbhz"][::WINDOW][-5:]
         sats.append({"prn": a.prn, "doppler_hz": float(np.mean(r["doppler_hz"][-100:])),
                      "cn0_dbhz": float(np.nanmedian(cn0)) if np.isfinite(cn0).any() else None,
@@ -323,7 +392,11 @@ def track_structure(manifest_path: str | Path, cfg: StructureConfig, out_csv: st
     gyro_aid = None
     if opt.aid in ("gyro", "model"):
         rates = gyro_rates(cfg, opt.gyro_csv)
-        gyro_aid = lambda ant, tx, t: gyro_aid_hz(cfg, man, rates, ant, tx, t, opt.aid == "model")  # noqa: E731
+        q0 = None if opt.pose_csv is None else start_pose(cfg, opt.pose_csv, man["start_s"])
+        note = gyro_observability_note(cfg, opt.aid == "model")
+        if note:
+            say(note)
+        gyro_aid = lambda ant, tx, t: gyro_aid_hz(cfg, man, rates, ant, tx, t, opt.aid == "model", q0)  # noqa: E731
     per = {}
     for a in man["antennas"]:
         f = path.parent / a["file"]
@@ -375,7 +448,8 @@ def track_structure(manifest_path: str | Path, cfg: StructureConfig, out_csv: st
             "start_s": float(epoch_t[0]) if epoch_t.size else None, "channels": channels,
             "antennas": {n: {"satellites": p["satellites"], "not_acquired": p["missing"]} for n, p in per.items()},
             "options": {**opt.track.__dict__,
-                                                                                   "settle_s": opt.settle_s, "aid": opt.aid, "acquisition": opt.acquisition}}
+                                                                                   "settle_s": opt.settle_s, "aid": opt.aid, "acquisition": opt.acquisition,
+                        "pose": opt.pose_csv, "clock_bn_hz": opt.clock_bn_hz}}
 
 
 # ---------------------------------------------------------------------------------------------

@@ -6,6 +6,7 @@ import numpy as np
 
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.tracking.acquisition import FALSE_ALARM, NONCOHERENT_MS, acquire
+from cdgps_cli.tracking.bitsync import bit_sync
 from cdgps_cli.tracking.channel import PHASE_LOCK_THRESHOLD, WINDOW, TrackOptions, track
 
 #: fraction of the PLL's 20 ms windows (after one settling window) whose lock indicator must pass
@@ -29,7 +30,8 @@ def track_all(samples: np.ndarray, fs_hz: float, prns=None, *, if_hz: float = 0.
         ``acquisition`` (every PRN searched), ``satellites`` (summary per tracked PRN: ``prn``,
         ``doppler_hz`` (mean of the last 100 ms), ``code_phase_chips`` (acquisition, at the first sample),
         ``cn0_dbhz`` (median of the last five 20 ms windows), ``phase_lock`` (bool) and
-        ``phase_lock_fraction``) and ``tracks`` (per PRN, the arrays of :func:`cdgps_cli.tracking.channel.track`).
+        ``phase_lock_fraction``, the navigation-bit edge of :func:`cdgps_cli.tracking.bitsync.bit_sync`:
+        ``bit_edge_s``, ``bit_changes``, ``bit_sync_fraction``) and ``tracks`` (per PRN, the arrays of :func:`cdgps_cli.tracking.channel.track`).
     """
     opt = TrackOptions() if opt is None else opt
     wanted = list(range(1, 33)) if prns is None else list(prns)
@@ -75,4 +77,4 @@ def _summary(a, r: dict) -> dict:
             "code_phase_chips": a.code_phase_chips, "acquisition_peak_ratio": a.peak_ratio,
             "acquisition_peak_to_noise": a.peak_to_noise,
             "cn0_dbhz": float(np.nanmedian(cn0)) if np.isfinite(cn0).any() else None,
-            "phase_lock": bool(pli.size and frac >= LOCKED_FRACTION), "phase_lock_fraction": frac}
+            "phase_lock": bool(pli.size and frac >= LOCKED_FRACTION), "phase_lock_fraction": frac, **bit_sync(r)}

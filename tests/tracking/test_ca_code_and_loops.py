@@ -1,5 +1,6 @@
 """C/A codes against IS-GPS-200 Table 3-Ia and the Gold-code correlation property; loop filters
-against the closed-form noise bandwidth (numerical integration of |H|²) and their loop types."""
+against the closed-form noise bandwidth (numerical integration of |H|²), GNSS-SDR's published impulse
+responses (B_n = 5 Hz, T = 1 ms) and their loop types."""
 
 import math
 
@@ -52,6 +53,22 @@ def test_second_order_noise_bandwidth_by_integration(bn, zeta):
     assert pll2_bandwidth_hz(k1, tau1) == pytest.approx(bn, rel=1e-12)
     H2 = lambda f: abs(k1 * (tau1 * 2j * math.pi * f + 1) / ((2j * math.pi * f) ** 2 + k1 * tau1 * 2j * math.pi * f + k1)) ** 2  # noqa: E731
     assert quad(H2, 0, np.inf, limit=400)[0] == pytest.approx(bn, rel=1e-6)
+
+
+#: GNSS-SDR's unit test of its tracking loop filter (src/tests/unit-tests/signal-processing-blocks/tracking/
+#: tracking_loop_filter_test.cc, tests FirstOrderLoop, SecondOrderLoop, ThirdOrderLoop, the filter output
+#: without the NCO's integrator): B_n = 5 Hz, T = 1 ms, a unit impulse at the third update, outputs within 1e-4
+GNSS_SDR_IMPULSE = [0.0, 0.0, 1.0, 0.0, 0.0, 0.0]
+GNSS_SDR_EXPECTED = {1: [0.0, 0.0, 20.0, 0.0, 0.0, 0.0],
+                     2: [0.0, 0.0, 13.37778, 0.0889, 0.0889, 0.0889],
+                     3: [0.0, 0.0, 15.31877, 0.04494, 0.04520, 0.04546]}
+
+
+@pytest.mark.parametrize("order", [1, 2, 3])
+def test_loop_filters_reproduce_the_gnss_sdr_test_vectors(order):
+    filt = LoopFilter(5.0, 1e-3, order)
+    got = [filt.update(e) for e in GNSS_SDR_IMPULSE]
+    assert got == pytest.approx(GNSS_SDR_EXPECTED[order], abs=1e-4)
 
 
 def test_third_order_noise_bandwidth_by_integration():
