@@ -30,7 +30,7 @@ from cdgps_cli.model.gps.positioning import tropo_hydrostatic_m
 
 __all__ = ["receiver_geometry", "solve_rtk", "check_common_signals"]
 
-_F_L1 = signal("G:L1").frequency_hz
+_LAMBDA_L1 = signal("G:L1").wavelength_m
 
 
 def check_common_signals(base: pd.DataFrame, rover: pd.DataFrame, names, nav, where: dict) -> None:
@@ -95,8 +95,8 @@ def _epoch_groups(eb, er, opt, amb_key_col, iono_col):
         sats = g["sat"].to_numpy()
         dtrop = g["trop_m_r"].to_numpy() - g["trop_m_b"].to_numpy() if opt["troposphere"] else 0.0
         groups.append({
-            "signal": name, "sats": sats, "ref": int(np.argmax(el)), "lam_m": float(lam[0]),
-            "mu": (_F_L1 / signal(name).frequency_hz) ** 2,
+            "signal": name, "sats": sats, "ref": int(np.argmax(el)), "lam_m": lam,
+            "mu": (lam / _LAMBDA_L1) ** 2,        # (f_L1 / f)², per satellite (GLONASS FDMA)
             "sat_xyz": g[["sx_r", "sy_r", "sz_r"]].to_numpy(), "sat_base_xyz": g[["sx_b", "sy_b", "sz_b"]].to_numpy(),
             "phase_sd_m": lam * (g["phase_cycles_r"].to_numpy() - g["phase_cycles_b"].to_numpy()) - dtrop,
             "code_sd_m": g["pseudorange_m_r"].to_numpy() - g["pseudorange_m_b"].to_numpy() - dtrop,
