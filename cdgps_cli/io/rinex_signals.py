@@ -11,6 +11,7 @@ list the file has) and reported in ``header["signal_codes"]``.  The header parse
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -42,16 +43,21 @@ def _codes(types: list[str], name: str, v3: bool):
     return None
 
 
-def _glonass_slots(lines, end) -> dict:
-    """'GLONASS SLOT / FRQ #' header lines → {"R01": k}."""
+_SLOT = re.compile(r"R\s?(\d{1,2})\s*([+-]?\d{1,2})")
+
+
+def _glonass_slots(lines, end, path) -> dict:
+    """'GLONASS SLOT / FRQ #' header lines → {"R01": k}.  Entries are matched by pattern, not by
+    column, as some writers pack them without the separating blank ("R11 -5R19 +3")."""
     out = {}
-    for ln in lines[1:end]:
+    for i, ln in enumerate(lines[1:end], start=2):
         if ln[60:80].strip() == "GLONASS SLOT / FRQ #":
             body = ln[4:60]
-            for j in range(0, len(body) - 6, 7):
-                f = body[j:j + 7]
-                if f.strip():
-                    out[f[:3].strip().replace(" ", "0")] = int(f[3:].strip())
+            found = _SLOT.findall(body)
+            if body.strip() and not found:
+                raise CdgpsError(f"{path}:{i}: malformed 'GLONASS SLOT / FRQ #' line {ln[:60].rstrip()!r} "
+                                 "(expected entries like 'R01  1 R02 -4')")
+            out.update({f"R{int(prn):02d}": int(k) for prn, k in found})
     return out
 
 
@@ -119,7 +125,7 @@ def read_rinex_signals(path: str | Path, signals) -> tuple[dict, pd.DataFrame]:
     if end is None:
         raise CdgpsError(f"{p}: no 'END OF HEADER' line")
     cols = _columns(hdr, list(signals), p)
-    slots = _glonass_slots(lines, end)
+    slots = _glonass_slots(lines, end, p)
     rows = _parse_v3(lines, end + 1, cols, p) if version >= 3 else _parse_v2(lines, end + 1, hdr, cols, p)
     df = pd.DataFrame(rows, columns=list(SIGNAL_COLUMNS[:-1]))
     df["wavelength_m"] = _wavelengths(df, slots, p)

@@ -47,3 +47,12 @@ def test_galileo_nav_and_missing_system():
     from cdgps_cli.model.gps.orbits import sat_position_ecef
     xyz, _ = sat_position_ecef(g, g["toe_gps_s"])
     assert 29.5e6 < np.linalg.norm(xyz) < 30.0e6   # Galileo orbit radius ≈ 29 600 km
+
+
+def test_glonass_frequency_numbers_packed_without_blanks():
+    # demo3.10o (RINEX 3.01) writes "  3 R11 -5R19 +3R23 -6": entries found by pattern, not column
+    hdr, obs = read_rinex_signals(REPO_ROOT / "tests" / "data" / "demo3.10o", ["R:G1"])
+    assert hdr["glonass_slots"] == {"R11": -5, "R19": 3, "R23": -6}
+    assert set(obs["sat"]) <= {"R11", "R19", "R23"} and len(obs) > 0
+    lam = obs.groupby("sat")["wavelength_m"].first()
+    assert lam["R11"] == pytest.approx(299792458.0 / (1602e6 - 5 * 0.5625e6))
