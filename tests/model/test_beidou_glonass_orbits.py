@@ -171,3 +171,40 @@ def test_glonass_selection_window_and_mixed_tables(nav):
     for k in range(len(rows)):
         x1, c1 = sat_position_ecef(rows.iloc[k], t[k])
         assert np.allclose(xyz[k], x1, atol=1e-6) and np.isclose(clk[k], c1, atol=1e-15)
+
+
+def test_a_real_receivers_pseudoranges_are_explained():
+    """ESBC00DNK (Septentrio PolaRx5, 2020-06-25 00:30–00:31 GPST, 3 epochs) against the MOJN broadcast
+    records of the same day: after the satellite clock (TGD applied), a hydrostatic troposphere and one
+    receiver clock per signal, the pseudorange residuals are metres (ionosphere, multipath) for GPS,
+    BeiDou — the GEO C05 included — and GLONASS, and the receiver clocks of the three systems agree
+    to tens of nanoseconds: a wrong time scale (BDT's 14 s, GLONASS's UTC), GEO rotation or orbit
+    integration would leave kilometres."""
+    from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
+    from cdgps_cli.io.rinex_signals import read_rinex_signals
+    from cdgps_cli.model.gps.orbits import azimuth_elevation, sat_position_at_reception
+    from cdgps_cli.model.gps.positioning import tropo_hydrostatic_m
+
+    nav = read_rinex_nav(MOJN, systems=("G", "C", "R"))
+    hdr, obs = read_rinex_signals(DATA / "ESBC00DNK_R_20201770000_subset.rnx", ["G:L1", "C:B1I", "R:G1"])
+    rx = np.array(hdr["approx_position_xyz_m"])
+    lat, _, h = ecef_to_geodetic(rx)
+    rows = []
+    for (sat, sig), g in obs.groupby(["sat", "signal"]):
+        t = g["time_gps_s"].to_numpy()
+        if not (nav["sat"] == sat).any():
+            continue
+        geo = sat_position_at_reception(nav, sat, t, rx)
+        _, el = azimuth_elevation(rx, geo.xyz_m)
+        if el.min() < np.radians(3.0):
+            continue
+        res = g["pseudorange_m"].to_numpy() - geo.range_m + SPEED_OF_LIGHT_M_S * geo.clock_s - tropo_hydrostatic_m(el, lat, h, t)
+        rows.append(pd.DataFrame({"sat": sat, "signal": sig, "t": t, "res": res}))
+    df = pd.concat(rows, ignore_index=True)
+    df["clock_m"] = df.groupby(["signal", "t"])["res"].transform("median")
+    df["r"] = df["res"] - df["clock_m"]
+    per = df.groupby("signal").agg(sats=("sat", "nunique"), rms=("r", lambda x: float(np.sqrt(np.mean(x**2)))),
+                                   worst=("r", lambda x: float(np.abs(x).max())), clock_m=("clock_m", "mean"))
+    assert (per["sats"] >= 7).all() and (per["rms"] < 2.5).all() and (per["worst"] < 5.0).all(), per
+    assert np.ptp(per["clock_m"]) / SPEED_OF_LIGHT_M_S < 50e-9, per          # one receiver clock (ISB ~ 24 ns)
+    assert "C05" in set(df["sat"]) and np.abs(df.loc[df["sat"] == "C05", "r"]).max() < 5.0
