@@ -22,6 +22,7 @@ from cdgps_cli.core.gps_time import bdt_to_gps_s
 from cdgps_cli.io.sfrbx import GPS_PI, bch15_syndrome, sfrbx_ephemerides
 from cdgps_cli.io.ubx_frames import split_stream
 from cdgps_cli.model.gps.orbits import sat_position_ecef
+from tests.io.test_sfrbx import _ubx_frame
 
 # (field, bits) per word in transmission order; words 1: 26 data bits, 2-10: 22 data bits
 HEAD = [("pre", 11), ("rev", 4), ("fraid", 3), ("sow", 8)]
@@ -111,20 +112,17 @@ def _encode(fid: int, interleave: bool) -> list[int]:
 
 
 def _sfrbx(sv: int, words30: list[int]) -> bytes:
-    payload = bytes((3, sv, 0, 0, 10, 5, 2, 0)) + struct.pack("<10I", *words30)
-    body = bytes((0x02, 0x13)) + struct.pack("<H", len(payload)) + payload
-    a = b = 0
-    for x in body:
-        a = (a + x) & 0xFF
-        b = (b + a) & 0xFF
-    return b"\xb5\x62" + body + bytes((a, b))
+    return _ubx_frame(0x02, 0x13, bytes((3, sv, 0, 0, 10, 5, 2, 0)) + struct.pack("<10I", *words30))
 
 
-def _stream(sv: int, interleave: bool = False, invert: bool = False) -> bytes:
+def _stream(sv: int, interleave: bool = False, invert: bool = False, flip: tuple | None = None) -> bytes:
+    """Subframes 1-3 as RXM-SFRBX frames; ``flip`` = (subframe, word index, bit) inverts one bit."""
     out = b""
     for fid in (1, 2, 3):
-        w = _encode(fid, interleave)
-        out += _sfrbx(sv, [(x ^ 0x3FFFFFFF) if invert else x for x in w])
+        w = [(x ^ 0x3FFFFFFF) if invert else x for x in _encode(fid, interleave)]
+        if flip and flip[0] == fid:
+            w[flip[1]] ^= 1 << flip[2]
+        out += _sfrbx(sv, w)
     return out
 
 
@@ -158,15 +156,7 @@ def test_encoded_d1_decodes_within_quantisation(interleave, invert):
 
 
 def test_a_flipped_bit_fails_bch_and_drops_the_subframe():
-    data = bytearray(_stream(11))
-    data[6 + 8 + 4 * 4 + 1] ^= 0x04                        # a bit of word 5 of subframe 1
-    body = data[2:6 + 48]
-    a = b = 0
-    for x in body:
-        a = (a + x) & 0xFF
-        b = (b + a) & 0xFF
-    data[6 + 48: 8 + 48] = bytes((a, b))
-    frames, _, _ = split_stream(bytes(data))
+    frames, _, _ = split_stream(_stream(11, flip=(1, 4, 10)))       # a bit of word 5 of subframe 1
     nav, st = sfrbx_ephemerides(frames, week_ref=WN + 1356)
     assert st["beidou_bch_failures"] == 1 and st["beidou_subframes"] == 2 and len(nav) == 0
 
