@@ -1548,12 +1548,15 @@ if __name__ == "__main__":  # pragma: no cover
 @click.option("--mode", type=click.Choice(["kinematic", "static"]), default="kinematic", show_default=True,
               help="kinematic: random-walk rover position, a solution per epoch; static: one position for the span.")
 @click.option("--base-xyz", nargs=3, type=float, default=None, help="Base ECEF position, m (default: its header).")
+@click.option("--glonass-fix", is_flag=True, default=False,
+              help="Fix GLONASS (FDMA) integers too: only for identical base and rover receivers (default: float).")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Output CSV.")
-def rtk(base_file, rover_file, nav_files, signals, mode, base_xyz, output):
+def rtk(base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_fix, output):
     """Double differences per constellation and frequency, integers by LAMBDA (docs/gnss-pipeline.md, "Multi-GNSS")."""
     from cdgps_cli.pipeline.gnss_multi import rtk_from_files
 
     s = rtk_from_files(base_file, rover_file, list(nav_files), output, base_xyz_m=base_xyz or None,
-                       options={"signals": tuple(x.strip() for x in signals.split(",") if x.strip()), "mode": mode})
+                       options={"signals": tuple(x.strip() for x in signals.split(",") if x.strip()), "mode": mode,
+                                "glonass_fix": glonass_fix})
     click.echo(f"{output}: {s['epochs']} epochs, fixed {s['fixed_pct']:.1f} %, ionosphere {s['iono_model']}, "
                f"signals {' '.join(s['signals'])}")

@@ -6,7 +6,7 @@ pseudoranges from the geometric ranges at each receiver (light time, Earth rotat
 satellite clocks), integer ambiguities, GLONASS with its per-satellite wavelengths and a
 per-receiver fractional phase offset per channel (non-identical receivers), written as RINEX 3.04
 files.  The baseline is recovered to millimetres with GPS + BeiDou integers fixed and GLONASS float;
-GLONASS alone is never fixed.
+GLONASS alone is never fixed by default, and with ``glonass_fix`` only between identical receivers.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ ROVER = BASE + enu_matrix(LAT, LON).T @ np.array([300.0, 200.0, 0.0])
 CODES = {"G": [("C1C", "L1C", "G:L1")], "C": [("C2I", "L2I", "C:B1I"), ("C7I", "L7I", "C:B2I")], "R": [("C1C", "L1C", "R:G1")]}
 
 
-def _obs(nav, rx, clock_s, t, rng, offsets):
+def _obs(nav, rx, clock_s, t, rng, offsets, identical=False):
     rows = []
     for sat in sorted(nav["sat"].unique()):
         try:
@@ -47,7 +47,7 @@ def _obs(nav, rx, clock_s, t, rng, offsets):
             lam = SPEED_OF_LIGHT_M_S / f
             rho = g.range_m + SPEED_OF_LIGHT_M_S * (clock_s - g.clock_s)
             n_int = offsets.setdefault((sat, name, "N"), int(rng.integers(-50000, 50000)))
-            frac = offsets.setdefault((sat, name, id(rx)), rng.uniform(0, 1) if k is not None else 0.0)
+            frac = offsets.setdefault((sat, name, id(rx)), rng.uniform(0, 1) if k is not None and not identical else 0.0)
             rows.append(pd.DataFrame({"t": t, "sat": sat, "code": code, "phase": phase, "k": k,
                                       "C": rho + rng.normal(0, 0.3, t.size),
                                       "L": rho / lam + n_int + frac + rng.normal(0, 0.002, t.size) / lam}))
@@ -83,22 +83,25 @@ def _write_rinex(path, obs, rx):
     path.write_text("\n".join(lines) + "\n")
 
 
-@pytest.fixture(scope="module")
-def pair(tmp_path_factory):
-    d = tmp_path_factory.mktemp("bdsglo")
+def _make_pair(d, identical=False):
     nav = read_rinex_nav(NAV, systems=("G", "C", "R"))
     t = gps_seconds(2020, 6, 25, 0, 30, 0) + np.arange(0.0, 40.0)
     rng = np.random.default_rng(11)
     offsets: dict = {}
     for name, rx, clk in (("base", BASE, 2.1e-4), ("rover", ROVER, -3.7e-4)):
-        _write_rinex(d / f"{name}.obs", _obs(nav, rx, clk, t, rng, offsets), rx)
+        _write_rinex(d / f"{name}.obs", _obs(nav, rx, clk, t, rng, offsets, identical), rx)
     return d
 
 
-def _solve(pair, signals, mode="static"):
-    out = pair / f"rtk-{'-'.join(s.replace(':', '') for s in signals)}-{mode}.csv"
+@pytest.fixture(scope="module")
+def pair(tmp_path_factory):
+    return _make_pair(tmp_path_factory.mktemp("bdsglo"))
+
+
+def _solve(pair, signals, mode="static", **extra):
+    out = pair / f"rtk-{'-'.join(s.replace(':', '') for s in signals)}-{mode}-{len(extra)}.csv"
     s = rtk_from_files(pair / "base.obs", pair / "rover.obs", [NAV], out, base_xyz_m=BASE,
-                       options={"signals": tuple(signals), "mode": mode, "troposphere": False, "mask_deg": 20.0})
+                       options={"signals": tuple(signals), "mode": mode, "troposphere": False, "mask_deg": 20.0, **extra})
     return s, pd.read_csv(out, comment="#"), out.read_text()
 
 
@@ -123,3 +126,14 @@ def test_glonass_alone_stays_float_and_beidou_alone_fixes(pair):
     s, csv, _ = _solve(pair, ["C:B1I", "C:B2I"])
     assert s["fixed_pct"] > 90
     assert np.linalg.norm(ecef_to_enu(np.array(s["static_xyz_m"]), ROVER)) < 0.005
+
+
+def test_glonass_fix_only_between_identical_receivers(pair, tmp_path):
+    """glonass_fix (off by default): with identical receivers (no per-receiver phase offset per
+    channel) the FDMA integers fix and the baseline is at millimetres; with the offsets of
+    different receivers the ratio test refuses every fix (measured ratio ≤ 1.25)."""
+    s, csv, text = _solve(_make_pair(tmp_path, identical=True), ["R:G1"], glonass_fix=True)
+    assert "glonass fixed (glonass_fix" in text and s["fixed_pct"] > 50
+    assert np.linalg.norm(ecef_to_enu(np.array(s["static_xyz_m"]), ROVER)) < 0.005
+    s, csv, _ = _solve(pair, ["R:G1"], glonass_fix=True)
+    assert s["fixed_pct"] == 0 and csv["ratio"].max() < 3
