@@ -91,7 +91,7 @@ def _value(rec: str, k: int, col0: int) -> tuple[float, int]:
     return v, (int(lli) if lli.strip().isdigit() else 0)
 
 
-def read_rinex_signals(path: str | Path, signals) -> tuple[dict, pd.DataFrame]:
+def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None) -> tuple[dict, pd.DataFrame]:
     """Read the phases and ranges of ``signals`` (e.g. ``["G:L1", "G:L2", "E:E1", "E:E5a"]``).
 
     Parameters
@@ -100,6 +100,9 @@ def read_rinex_signals(path: str | Path, signals) -> tuple[dict, pd.DataFrame]:
         RINEX 3.0x observation file (any system) or RINEX 2 (GPS L1/L2 only).
     signals : sequence of str
         Signal names of :data:`cdgps_cli.core.signals.SIGNALS`.
+    glonass_k : dict, optional
+        GLONASS frequency numbers from elsewhere ({"R01": 1}, e.g. the navigation records'
+        ``glonass_k``), used for satellites the header's ``GLONASS SLOT / FRQ #`` lines do not list.
 
     Returns
     -------
@@ -125,7 +128,7 @@ def read_rinex_signals(path: str | Path, signals) -> tuple[dict, pd.DataFrame]:
     if end is None:
         raise CdgpsError(f"{p}: no 'END OF HEADER' line")
     cols = _columns(hdr, list(signals), p)
-    slots = _glonass_slots(lines, end, p)
+    slots = {**(glonass_k or {}), **_glonass_slots(lines, end, p)}
     rows = _parse_v3(lines, end + 1, cols, p) if version >= 3 else _parse_v2(lines, end + 1, hdr, cols, p)
     df = pd.DataFrame(rows, columns=list(SIGNAL_COLUMNS[:-1]))
     df["wavelength_m"] = _wavelengths(df, slots, p)
@@ -146,7 +149,8 @@ def _wavelengths(df: pd.DataFrame, slots: dict, path) -> np.ndarray:
         absent = sorted(set(sats) - set(slots))
         if absent:
             raise CdgpsError(f"{path}: GLONASS frequency numbers absent for {' '.join(absent)} "
-                             "(header line 'GLONASS SLOT / FRQ #' expected); FDMA phases need them")
+                             "(header line 'GLONASS SLOT / FRQ #' expected, or a GLONASS navigation record of "
+                             "the satellite); FDMA phases need them")
         lam[idx] = [SPEED_OF_LIGHT_M_S / glonass_frequency_hz(sig, slots[s]) for s in sats]
     return lam
 

@@ -54,7 +54,7 @@ def _obs(nav, rx, clock_s, t, rng, offsets, identical=False):
     return pd.concat(rows, ignore_index=True)
 
 
-def _write_rinex(path, obs, rx):
+def _write_rinex(path, obs, rx, slots_line=True):
     types = {s: [x for c, p, _ in v for x in (c, p)] for s, v in CODES.items()}
     glo = obs[obs["sat"].str[0] == "R"].drop_duplicates("sat")
     slots = [f"{s} {int(k):2d}" for s, k in zip(glo["sat"], glo["k"])]
@@ -64,7 +64,7 @@ def _write_rinex(path, obs, rx):
            "".join(f"{v:14.4f}" for v in rx).ljust(60) + "APPROX POSITION XYZ"]
     hdr += [f"{s}   {len(v):2d} {' '.join(v)}".ljust(60) + "SYS / # / OBS TYPES" for s, v in types.items()]
     hdr += [(f"{len(glo):3d} " if i == 0 else "    ") + " ".join(slots[i:i + 8]).ljust(56) + "GLONASS SLOT / FRQ #"
-            for i in range(0, len(slots), 8)]
+            for i in range(0, len(slots) if slots_line else 0, 8)]
     hdr += [
             "  2020    06    25    00    30    0.0000000     GPS".ljust(60) + "TIME OF FIRST OBS",
             "".ljust(60) + "END OF HEADER"]
@@ -137,3 +137,20 @@ def test_glonass_fix_only_between_identical_receivers(pair, tmp_path):
     assert np.linalg.norm(ecef_to_enu(np.array(s["static_xyz_m"]), ROVER)) < 0.005
     s, csv, _ = _solve(pair, ["R:G1"], glonass_fix=True)
     assert s["fixed_pct"] == 0 and csv["ratio"].max() < 3
+
+
+def test_glonass_frequency_numbers_from_the_navigation_records(pair, tmp_path):
+    """A rover file without 'GLONASS SLOT / FRQ #' takes k from the navigation records (glonass_k);
+    the same result as with the header line."""
+    import shutil
+    nav = read_rinex_nav(NAV, systems=("G", "C", "R"))
+    t = gps_seconds(2020, 6, 25, 0, 30, 0) + np.arange(0.0, 40.0)
+    rng = np.random.default_rng(11)
+    offsets: dict = {}
+    for name, rx, clk in (("base", BASE, 2.1e-4), ("rover", ROVER, -3.7e-4)):
+        _write_rinex(tmp_path / f"{name}.obs", _obs(nav, rx, clk, t, rng, offsets), rx, slots_line=(name == "base"))
+    assert "GLONASS SLOT" not in (tmp_path / "rover.obs").read_text()
+    s1, _, _ = _solve(tmp_path, ["G:L1", "R:G1"])
+    shutil.copy(pair / "rover.obs", tmp_path / "rover.obs")
+    s2, _, _ = _solve(tmp_path, ["G:L1", "R:G1"], mask_deg=20.0)
+    assert np.allclose(s1["static_xyz_m"], s2["static_xyz_m"], atol=1e-4)
