@@ -68,12 +68,17 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
         if c not in NAV_SYSTEMS:
             raise CdgpsError(f"signals of system {c} cannot be processed yet (broadcast ephemerides read for "
                              f"{', '.join(NAV_SYSTEMS)} only)")
-    nav = _nav(nav_paths, systems)
+    try:                  # read first for its GLONASS frequency numbers; the observation files' errors come first
+        nav, nav_error = _nav(nav_paths, systems), None
+    except CdgpsError as exc:
+        nav, nav_error = pd.DataFrame(), exc
     # GLONASS frequency numbers: the observation header's, else the navigation records'
     glo_k = ({sat: int(k) for sat, k in nav.dropna(subset=["glonass_k"]).groupby("sat")["glonass_k"].first().items()}
              if "glonass_k" in nav.columns else {})
     hb, b = read_rinex_signals(base_path, sigs, glo_k)
     hr, r = read_rinex_signals(rover_path, sigs, glo_k)
+    if nav_error is not None:
+        raise nav_error
     check_common_signals(b, r, sigs, nav, {"base": str(base_path), "rover": str(rover_path), "nav": ", ".join(map(str, nav_paths))})
     bx = np.asarray(base_xyz_m if base_xyz_m is not None else hb["approx_position_xyz_m"] or (), dtype=float)
     if bx.shape != (3,):
