@@ -1558,5 +1558,7 @@ def rtk(base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_fix, 
     s = rtk_from_files(base_file, rover_file, list(nav_files), output, base_xyz_m=base_xyz or None,
                        options={"signals": tuple(x.strip() for x in signals.split(",") if x.strip()), "mode": mode,
                                 "glonass_fix": glonass_fix})
+    for w in s["warnings"]:
+        click.echo(f"cdgps: WARNING: {w}", err=True)
     click.echo(f"{output}: {s['epochs']} epochs, fixed {s['fixed_pct']:.1f} %, ionosphere {s['iono_model']}, "
                f"signals {' '.join(s['signals'])}")

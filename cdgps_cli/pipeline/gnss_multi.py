@@ -84,7 +84,11 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
     if bx.shape != (3,):
         raise CdgpsError(f"{base_path}: the base has no position (no APPROX POSITION XYZ; give --base-xyz X Y Z)")
     rx = np.asarray(hr["approx_position_xyz_m"] or bx, dtype=float)
-    res = solve_rtk(receiver_geometry(b, nav, bx), receiver_geometry(r, nav, rx), bx, rx, options=opt)
+    gb, gr = receiver_geometry(b, nav, bx), receiver_geometry(r, nav, rx)
+    warnings = [f"{path} ({who}): observations of {len(d)} satellite(s) without a healthy ephemeris covering them "
+                f"dropped: " + ", ".join(f"{s} ({n} epochs)" for s, n in d.items())
+                for who, path, d in (("base", base_path, gb.attrs["dropped"]), ("rover", rover_path, gr.attrs["dropped"])) if d]
+    res = solve_rtk(gb, gr, bx, rx, options=opt)
     xyz = np.where(res["fixed"][:, None], res["fixed_xyz_m"], res["float_xyz_m"])
     buf = _io.StringIO()
     for s in sigs:
@@ -99,4 +103,5 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
                   "ratio": res["ratio"]}).to_csv(buf, index=False, float_format="%.4f")
     write_atomic(out_csv, lambda tmp: Path(tmp).write_text(buf.getvalue()))
     return {"epochs": int(len(res["time_gps_s"])), "fixed_pct": float(100 * res["fixed"].mean()),
-            "static_xyz_m": res["static_xyz_m"].tolist(), "iono_model": res["iono_model"], "signals": sigs}
+            "static_xyz_m": res["static_xyz_m"].tolist(), "iono_model": res["iono_model"], "signals": sigs,
+            "warnings": warnings}

@@ -154,3 +154,22 @@ def test_glonass_frequency_numbers_from_the_navigation_records(pair, tmp_path):
     shutil.copy(pair / "rover.obs", tmp_path / "rover.obs")
     s2, _, _ = _solve(tmp_path, ["G:L1", "R:G1"], mask_deg=20.0)
     assert np.allclose(s1["static_xyz_m"], s2["static_xyz_m"], atol=1e-4)
+
+
+def test_a_satellite_missing_from_the_navigation_file_is_dropped_with_a_warning(pair, tmp_path):
+    lines = NAV.read_text().splitlines()
+    keep, k = [], 0
+    while k < len(lines):                                  # drop the two C20 records (8 lines each)
+        if lines[k].startswith("C20 "):
+            k += 8
+            continue
+        keep.append(lines[k])
+        k += 1
+    nav = tmp_path / "nav-without-C20.rnx"
+    nav.write_text("\n".join(keep) + "\n")
+    out = tmp_path / "rtk.csv"
+    s = rtk_from_files(pair / "base.obs", pair / "rover.obs", [nav], out, base_xyz_m=BASE,
+                       options={"signals": ("G:L1", "C:B1I", "C:B2I"), "mode": "static", "troposphere": False, "mask_deg": 20.0})
+    assert len(s["warnings"]) == 2 and all("C20 (40 epochs)" in w for w in s["warnings"])
+    assert "base.obs (base)" in s["warnings"][0] and "rover.obs (rover)" in s["warnings"][1]
+    assert s["fixed_pct"] > 90 and np.linalg.norm(ecef_to_enu(np.array(s["static_xyz_m"]), ROVER)) < 0.005
