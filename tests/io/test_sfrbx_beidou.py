@@ -165,3 +165,24 @@ def test_geo_d2_frames_are_counted_not_decoded():
     frames, _, _ = split_stream(_stream(3))
     nav, st = sfrbx_ephemerides(frames, week_ref=WN + 1356)
     assert st["beidou_d2_frames"] == 3 and len(nav) == 0
+
+
+def test_beidou_records_reach_the_run_of_a_ubx_pair(tmp_path):
+    """A u-blox pair whose base log also carries BeiDou D1 subframes: ingest keeps the BeiDou record
+    in the run's ephemerides next to the GPS ones (the same NAV_COLUMNS record)."""
+    from click.testing import CliRunner
+
+    from cdgps_cli.cli.commands import main
+    from cdgps_cli.io.gnss_run import read_gnss_run
+    from tests.io.test_sfrbx import _pair
+
+    b, r = _pair(tmp_path)
+    b.write_bytes(_stream(11) + b.read_bytes())
+    run = tmp_path / "run.mcap"
+    res = CliRunner().invoke(main, ["ingest", "--ubx", f"base={b}", "--ubx", f"rover={r}", "--master", "base", "-o", str(run)])
+    assert res.exit_code == 0, res.output
+    nav = read_gnss_run(run).nav
+    assert sorted(nav["sat"]) == ["C11", "G06", "G07", "G11", "G29"]
+    c = nav[nav["sat"] == "C11"].iloc[0]
+    assert c["toe_gps_s"] == bdt_to_gps_s(WN, TOE) and c["week"] == WN and c["iode"] == AODE
+    assert abs(c["sqrt_a_sqrt_m"] - EPH["sqrta"]) <= 2.0**-20
