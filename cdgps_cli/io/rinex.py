@@ -1,12 +1,13 @@
-"""RINEX observation and GPS navigation files: reading and validation.
+"""RINEX observation and navigation files: reading and validation.
 
 Two readers, both returning plain pandas tables with units in the column names:
 
 * :func:`read_rinex_obs` — RINEX 2.10/2.11 and 3.0x observation files → one row per epoch and
   GPS satellite with the L1 carrier phase, its loss-of-lock indicator (LLI), the L1 pseudorange
   and the L1 signal strength.
-* :func:`read_rinex_nav` — RINEX 2 and 3 navigation files → one row per GPS broadcast ephemeris
-  (the IS-GPS-200 subframe 1–3 parameters, Fortran ``D`` exponents handled).
+* :func:`read_rinex_nav` — RINEX 2 and 3 navigation files → one row per broadcast ephemeris
+  (GPS, Galileo, BeiDou: the Kepler parameters of IS-GPS-200 subframes 1–3 and their equivalents;
+  GLONASS: state vectors), Fortran ``D`` exponents handled.
 
 Files may be plain, gzip (``.gz``), Unix-compress (``.Z``), bzip2 or zip compressed, and
 observation files may be Hatanaka-compressed (Compact RINEX, ``.crx`` / ``.??d``); compressed
