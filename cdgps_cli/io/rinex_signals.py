@@ -70,7 +70,7 @@ def _columns(hdr: _ObsHeader, names, path) -> dict:
         sig = signal(name)
         key = sig.system if v3 else "*"
         types = hdr.info["obs_types"].get(key, [])
-        if not v3 and sig.system != "G":
+        if not v3 and sig.system not in ("G", "R"):
             types = []
         pc = _codes(types, name, v3)
         if pc is None:
@@ -97,7 +97,8 @@ def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None)
     Parameters
     ----------
     path : str or Path
-        RINEX 3.0x observation file (any system) or RINEX 2 (GPS L1/L2 only).
+        RINEX 3.0x observation file (any system) or RINEX 2 (GPS and GLONASS L1/L2; GLONASS frequency
+        numbers then come from ``glonass_k``, RINEX 2 headers have none).
     signals : sequence of str
         Signal names of :data:`cdgps_cli.core.signals.SIGNALS`.
     glonass_k : dict, optional
@@ -217,9 +218,9 @@ def _parse_v2(lines, i, hdr, cols, path) -> list:
             sat = "G" + sat[1:] if sat[0] in "0G" else sat
             rec = "".join(lines[i + k].rstrip("\n").ljust(80) for k in range(per))
             i += per
-            if sat[0] != "G":
-                continue
             for name, (_, ip, ic, _) in cols.items():
+                if signal(name).system != sat[0]:
+                    continue
                 ph, lli = _value(rec, ip, 0)
                 pr = _value(rec, ic, 0)[0] if ic >= 0 else math.nan
                 if not math.isnan(ph):
