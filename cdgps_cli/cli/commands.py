@@ -1544,18 +1544,24 @@ if __name__ == "__main__":  # pragma: no cover
 @click.option("--base", "base_file", required=True, type=click.Path(dir_okay=False), help="Base RINEX observation file.")
 @click.option("--rover", "rover_file", required=True, type=click.Path(dir_okay=False), help="Rover RINEX observation file.")
 @click.option("--nav", "nav_files", required=True, multiple=True, type=click.Path(dir_okay=False),
-              help="RINEX navigation file(s), GPS and/or Galileo (repeatable).")
+              help="RINEX navigation file(s) with the GPS / Galileo / BeiDou / GLONASS ephemerides (repeatable).")
 @click.option("--signals", default=",".join(__import__("cdgps_cli.config.options", fromlist=["x"]).MULTI_GNSS_DEFAULTS["signals"]),
-              show_default=True, help="Comma-separated signals (G:L1, G:L2, G:L5, E:E1, E:E5a, E:E5b, C:B1I, …).")
+              show_default=True, help="Comma-separated signals (G:L1, G:L2, G:L5, E:E1, E:E5a, E:E5b, C:B1I, C:B2I, C:B2a, "
+                                       "R:G1, R:G2; GLONASS stays float).")
 @click.option("--mode", type=click.Choice(["kinematic", "static"]), default="kinematic", show_default=True,
               help="kinematic: random-walk rover position, a solution per epoch; static: one position for the span.")
 @click.option("--base-xyz", nargs=3, type=float, default=None, help="Base ECEF position, m (default: its header).")
+@click.option("--glonass-fix", is_flag=True, default=False,
+              help="Fix GLONASS (FDMA) integers too: only for identical base and rover receivers (default: float).")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Output CSV.")
-def rtk(base_file, rover_file, nav_files, signals, mode, base_xyz, output):
+def rtk(base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_fix, output):
     """Double differences per constellation and frequency, integers by LAMBDA (docs/gnss-pipeline.md, "Multi-GNSS")."""
     from cdgps_cli.pipeline.gnss_multi import rtk_from_files
 
     s = rtk_from_files(base_file, rover_file, list(nav_files), output, base_xyz_m=base_xyz or None,
-                       options={"signals": tuple(x.strip() for x in signals.split(",") if x.strip()), "mode": mode})
+                       options={"signals": tuple(x.strip() for x in signals.split(",") if x.strip()), "mode": mode,
+                                "glonass_fix": glonass_fix})
+    for w in s["warnings"]:
+        click.echo(f"cdgps: WARNING: {w}", err=True)
     click.echo(f"{output}: {s['epochs']} epochs, fixed {s['fixed_pct']:.1f} %, ionosphere {s['iono_model']}, "
                f"signals {' '.join(s['signals'])}")

@@ -63,3 +63,34 @@ def nominal_interval_s(t_s) -> float:
     if u.size < 2:
         return math.nan
     return float(np.round(np.median(np.diff(u)), 3))
+
+
+# ----------------------------------------------------------------------------------------------
+# BeiDou time (BDT) and GLONASS time (GLONASST)
+# ----------------------------------------------------------------------------------------------
+
+BDT_WEEK_OFFSET = 1356
+"""GPS week in which BDT week 0 starts (BDT epoch 2006-01-01 00:00:00 UTC; BDS-ICD-B1I §3.3)."""
+GPS_MINUS_BDT_S = 14.0
+"""GPST − BDT, s: the 14 leap seconds between 1980 and 2006 (BDT has no leap seconds)."""
+GLONASST_MINUS_UTC_S = 3 * 3600.0
+"""GLONASST − UTC(SU), s: GLONASS time is Moscow time (UTC + 3 h, with UTC's leap seconds)."""
+
+
+def bdt_to_gps_s(week_bdt, sow_bdt_s):
+    """GPS seconds (since 1980-01-06) of BDT week ``week_bdt`` and seconds of week ``sow_bdt_s``.
+
+    BDT = GPST − 14 s and BDT week 0 = GPS week 1356, so t_GPS = (week + 1356)·604800 + sow + 14.
+    Vectorized (array_like inputs broadcast).
+    """
+    return (np.asarray(week_bdt, dtype=np.float64) + BDT_WEEK_OFFSET) * SECONDS_PER_WEEK + np.asarray(sow_bdt_s, dtype=np.float64) + GPS_MINUS_BDT_S
+
+
+def glonasst_to_gps_s(t_glonasst_s, gps_minus_utc_s):
+    """GPS seconds of a GLONASS-time instant given as seconds of the same calendar count as
+    :func:`gps_seconds` (i.e. ``gps_seconds(y, m, d, h, mi, s)`` of the GLONASST date and time).
+
+    t_GPS = t_GLONASST − 3 h + (GPS − UTC); ``gps_minus_utc_s`` is the leap-second count in force
+    (:func:`cdgps_cli.core.timescales.gps_minus_utc_s`; 18 s since 2017).
+    """
+    return np.asarray(t_glonasst_s, dtype=np.float64) - GLONASST_MINUS_UTC_S + np.asarray(gps_minus_utc_s, dtype=np.float64)

@@ -109,6 +109,24 @@ continuous), ``l2p_data_flag``, ``sv_accuracy_m``, ``sv_health`` (0 = healthy), 
 ``toc_gps_s`` (clock reference time), ``toe_gps_s`` (= week·604800 + toe_sow_s) and
 ``transmit_gps_s`` in GPS seconds; ``line`` is the first line of the record in the file."""
 
+GLONASS_NAV_COLUMNS = (
+    "x_m",
+    "y_m",
+    "z_m",
+    "vx_m_per_s",
+    "vy_m_per_s",
+    "vz_m_per_s",
+    "ax_m_per_s2",
+    "ay_m_per_s2",
+    "az_m_per_s2",
+    "glonass_k",
+)
+"""Extra columns of the navigation table for GLONASS state-vector records (NaN on other rows):
+PZ-90 position, velocity and luni-solar acceleration at t_b (``toe_gps_s`` = ``toc_gps_s``), and the
+frequency number k.  On a GLONASS row of :data:`NAV_COLUMNS`, ``af0_s`` = −τ_n, ``af1_s_per_s`` =
+γ_n, ``af2_s_per_s2`` = 0, ``sv_health`` = the health flag, ``transmit_sow_s`` = the message frame
+time (GPS seconds of week), ``week`` = the GPS week of t_b; the Kepler elements are NaN."""
+
 
 #: INIT.json format written by ``cdgps init`` (both kinds).  Version 2 adds ``kind`` and gives a GNSS
 #: INIT the same ``biases`` list as a structure INIT: one entry per ambiguity segment, each with

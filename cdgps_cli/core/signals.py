@@ -2,8 +2,8 @@
 
 Each signal has a name ``"<system letter>:<slot>"`` (``G:L1``, ``E:E5a`` …), its carrier frequency
 (Hz) and wavelength (m, c / f), and the RINEX 3 phase-type attributes tried in order of preference
-(the code type of the same attribute gives its pseudorange).  RINEX 2 files carry GPS ``L1``/``L2``
-(code ``C1``/``P1``, ``P2``/``C2``).  GLONASS is FDMA: its carrier depends on the satellite's
+(the code type of the same attribute gives its pseudorange).  RINEX 2 files carry GPS and GLONASS
+``L1``/``L2`` (code ``C1``/``P1``, ``P2``/``C2``).  GLONASS is FDMA: its carrier depends on the satellite's
 frequency number k (``GLONASS SLOT / FRQ #``), f = f0 + k Δf, so its wavelength is per satellite.
 
 Sources: IS-GPS-200/705, Galileo OS SIS ICD, BeiDou ICD B1I/B2a, GLONASS ICD; RINEX 3.04 Table 4-7.
@@ -33,7 +33,7 @@ class Signal:
     frequency_hz: float
     """Carrier frequency, Hz (GLONASS: f0 at k = 0)."""
     rinex2: tuple = ()
-    """RINEX 2 (phase, code candidates…) types, GPS only."""
+    """RINEX 2 (phase, code candidates…) types (GPS and GLONASS)."""
     fdma_step_hz: float = 0.0
     """GLONASS channel spacing Δf, Hz (0 for CDMA)."""
 
@@ -54,8 +54,8 @@ SIGNALS = {s.name: s for s in (
     Signal("C:B1I", "C", "2", "IQX", 152.6 * _F0),
     Signal("C:B2I", "C", "7", "IQX", 118 * _F0),
     Signal("C:B2a", "C", "5", "PDX", 115 * _F0),
-    Signal("R:G1", "R", "1", "CP", 1602.0e6, (), 0.5625e6),
-    Signal("R:G2", "R", "2", "CP", 1246.0e6, (), 0.4375e6),
+    Signal("R:G1", "R", "1", "CP", 1602.0e6, ("L1", "C1", "P1"), 0.5625e6),
+    Signal("R:G2", "R", "2", "CP", 1246.0e6, ("L2", "P2", "C2"), 0.4375e6),
 )}
 """Every supported signal by name."""
 

@@ -26,11 +26,11 @@ from cdgps_cli.measurement.dd_signals import epoch_rows
 from cdgps_cli.measurement.differencing import dd_operator
 from cdgps_cli.model.dynamics_models import RandomWalk, Static
 from cdgps_cli.model.gps.orbits import OMEGA_E_GPS, azimuth_elevation, ecef_to_geodetic, sat_position_ecef, select_ephemeris
-from cdgps_cli.model.gps.positioning import tropo_hydrostatic_m
+from cdgps_cli.model.gps.positioning import ephemeris_coverage, tropo_hydrostatic_m
 
 __all__ = ["receiver_geometry", "solve_rtk", "check_common_signals"]
 
-_F_L1 = signal("G:L1").frequency_hz
+_LAMBDA_L1 = signal("G:L1").wavelength_m
 
 
 def check_common_signals(base: pd.DataFrame, rover: pd.DataFrame, names, nav, where: dict) -> None:
@@ -51,9 +51,17 @@ def receiver_geometry(obs: pd.DataFrame, nav: pd.DataFrame, rx_xyz_m) -> pd.Data
     """Satellite positions at transmission (ECEF of reception) per row, from the row's own pseudorange.
 
     τ = P/c − clk_rx + dt_sat, clk_rx the epoch's median clock from the nominal position (so no
-    iteration on the receiver position is needed); adds ``sx, sy, sz`` (m), ``el_rad``.
+    iteration on the receiver position is needed); adds ``sx, sy, sz`` (m), ``el_rad``.  Observations
+    of satellites without a healthy ephemeris covering them are dropped; ``attrs["dropped"]`` counts
+    them per satellite.  CdgpsError when none is left.
     """
     df = obs[np.isfinite(obs["pseudorange_m"])].copy()
+    covered = ephemeris_coverage(nav, df["sat"].to_numpy(), df["time_gps_s"].to_numpy())
+    dropped = df.loc[~covered].groupby("sat")["time_gps_s"].nunique().to_dict()
+    df = df[covered]
+    if df.empty:
+        raise CdgpsError(f"no observation is covered by the navigation data (satellites without a healthy "
+                         f"ephemeris covering their epochs: {' '.join(sorted(dropped)) or 'none'})")
     first = df.drop_duplicates(["time_gps_s", "sat"])
     xyz = np.zeros((len(first), 3))
     clk = np.zeros(len(first))
@@ -78,7 +86,9 @@ def receiver_geometry(obs: pd.DataFrame, nav: pd.DataFrame, rx_xyz_m) -> pd.Data
     trop = tropo_hydrostatic_m(el, lat, h, t)
     g = pd.DataFrame({"time_gps_s": t, "sat": first["sat"].to_numpy(), "sx": rot[:, 0], "sy": rot[:, 1], "sz": rot[:, 2],
                       "el_rad": el, "trop_m": trop})
-    return df.merge(g, on=["time_gps_s", "sat"], how="left")
+    out = df.merge(g, on=["time_gps_s", "sat"], how="left")
+    out.attrs["dropped"] = {k: int(v) for k, v in sorted(dropped.items())}
+    return out
 
 
 def _epoch_groups(eb, er, opt, amb_key_col, iono_col):
@@ -95,8 +105,8 @@ def _epoch_groups(eb, er, opt, amb_key_col, iono_col):
         sats = g["sat"].to_numpy()
         dtrop = g["trop_m_r"].to_numpy() - g["trop_m_b"].to_numpy() if opt["troposphere"] else 0.0
         groups.append({
-            "signal": name, "sats": sats, "ref": int(np.argmax(el)), "lam_m": float(lam[0]),
-            "mu": (_F_L1 / signal(name).frequency_hz) ** 2,
+            "signal": name, "sats": sats, "ref": int(np.argmax(el)), "lam_m": lam,
+            "mu": (lam / _LAMBDA_L1) ** 2,        # (f_L1 / f)², per satellite (GLONASS FDMA)
             "sat_xyz": g[["sx_r", "sy_r", "sz_r"]].to_numpy(), "sat_base_xyz": g[["sx_b", "sy_b", "sz_b"]].to_numpy(),
             "phase_sd_m": lam * (g["phase_cycles_r"].to_numpy() - g["phase_cycles_b"].to_numpy()) - dtrop,
             "code_sd_m": g["pseudorange_m_r"].to_numpy() - g["pseudorange_m_b"].to_numpy() - dtrop,

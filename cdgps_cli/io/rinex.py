@@ -1,12 +1,13 @@
-"""RINEX observation and GPS navigation files: reading and validation.
+"""RINEX observation and navigation files: reading and validation.
 
 Two readers, both returning plain pandas tables with units in the column names:
 
 * :func:`read_rinex_obs` — RINEX 2.10/2.11 and 3.0x observation files → one row per epoch and
   GPS satellite with the L1 carrier phase, its loss-of-lock indicator (LLI), the L1 pseudorange
   and the L1 signal strength.
-* :func:`read_rinex_nav` — RINEX 2 and 3 navigation files → one row per GPS broadcast ephemeris
-  (the IS-GPS-200 subframe 1–3 parameters, Fortran ``D`` exponents handled).
+* :func:`read_rinex_nav` — RINEX 2 and 3 navigation files → one row per broadcast ephemeris
+  (GPS, Galileo, BeiDou: the Kepler parameters of IS-GPS-200 subframes 1–3 and their equivalents;
+  GLONASS: state vectors), Fortran ``D`` exponents handled.
 
 Files may be plain, gzip (``.gz``), Unix-compress (``.Z``), bzip2 or zip compressed, and
 observation files may be Hatanaka-compressed (Compact RINEX, ``.crx`` / ``.??d``); compressed
@@ -31,7 +32,9 @@ import pandas as pd
 
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import GPS_EPOCH, SECONDS_PER_WEEK, gps_seconds, gps_time_str  # noqa: F401  (__all__)
-from cdgps_cli.core.records import NAV_COLUMNS, OBS_COLUMNS  # noqa: F401  (__all__)
+from cdgps_cli.core.gps_time import BDT_WEEK_OFFSET, GPS_MINUS_BDT_S
+from cdgps_cli.core.records import GLONASS_NAV_COLUMNS, NAV_COLUMNS, OBS_COLUMNS  # noqa: F401  (__all__)
+from cdgps_cli.core.timescales import gps_minus_utc_s
 
 __all__ = [
     "GPS_EPOCH",
@@ -812,26 +815,120 @@ _NAV_VALUES = NAV_COLUMNS[2:31]  # the 29 values after toc, in file order
 # clock and orbit terms, week, health and TGD must be present; codes on L2, L2 P flag, IODC,
 # transmission time and fit interval may be blank in some writers' files
 _NAV_REQUIRED = tuple(range(20)) + (21, 24, 25)
-NAV_KEPLER_SYSTEMS = ("G", "E")
-"""Systems whose RINEX 3 ephemeris records :func:`read_rinex_nav` decodes (GPS-form Kepler elements;
-Galileo: IODnav in ``iode``, data sources in ``codes_l2``, BGD E5a/E1 in ``tgd_s``)."""
+NAV_KEPLER_SYSTEMS = ("G", "E", "C")
+"""Systems whose RINEX 3 Kepler ephemeris records :func:`read_rinex_nav` decodes (GPS-form
+elements; Galileo: IODnav in ``iode``, data sources in ``codes_l2``, BGD E5a/E1 in ``tgd_s``;
+BeiDou: see :func:`read_rinex_nav`)."""
+NAV_SYSTEMS = NAV_KEPLER_SYSTEMS + ("R",)
+"""Every system :func:`read_rinex_nav` decodes: the Kepler systems and GLONASS state vectors."""
 _NAV_LINES = {"G": 8, "E": 8, "C": 8, "J": 8, "I": 8, "R": 4, "S": 4}
 
 
+def _kepler_table(records: list, p, compressed: bool) -> pd.DataFrame:
+    """The Kepler records (GPS, Galileo, BeiDou) as a :data:`NAV_COLUMNS` table: weeks unwrapped,
+    toe and transmission time in GPS seconds (BeiDou: from BDT), impossible orbits refused."""
+    df = pd.DataFrame(records, columns=["sat", "toc_gps_s", *_NAV_VALUES, "line"])
+    if df.empty:
+        return pd.DataFrame(columns=list(NAV_COLUMNS))
+    bds = (df["sat"].str[0] == "C").to_numpy()
+    # BeiDou: AODC is written where GPS has the fit interval, TGD2 where GPS has IODC
+    df.loc[bds, "iodc"] = df.loc[bds, "fit_interval_h"]
+    df.loc[bds, "fit_interval_h"] = np.nan
+    week_off = np.where(bds, BDT_WEEK_OFFSET, 0)
+    sec_off = np.where(bds, GPS_MINUS_BDT_S, 0.0)
+    week = df["week"].to_numpy(dtype=float)
+    toc = df["toc_gps_s"].to_numpy()
+    toe_gps = (week + week_off) * SECONDS_PER_WEEK + df["toe_sow_s"].to_numpy() + sec_off
+    # unwrap a week number written modulo 1024 (old receivers / converters): pick the one nearest toc
+    shift = np.round((toc - toe_gps) / (1024 * SECONDS_PER_WEEK))
+    week = week + 1024 * shift
+    toe_gps = (week + week_off) * SECONDS_PER_WEEK + df["toe_sow_s"].to_numpy() + sec_off
+    # toe may fall in the week next to toc's (toe is sent as seconds of week): nearest to toc
+    toe_gps = toe_gps + SECONDS_PER_WEEK * np.round((toc - toe_gps) / SECONDS_PER_WEEK)
+    df["week"] = week
+    df["toe_gps_s"] = toe_gps
+    tt = (week + week_off) * SECONDS_PER_WEEK + df["transmit_sow_s"].to_numpy() + sec_off
+    df["transmit_gps_s"] = tt + SECONDS_PER_WEEK * np.round((toc - tt) / SECONDS_PER_WEEK)
+    bad_e = (df["e"] < 0) | (df["e"] >= 1) | (df["sqrt_a_sqrt_m"] <= 0)
+    if bad_e.any():
+        r = df[bad_e].iloc[0]
+        raise CdgpsError(f"{_where(p, int(r['line']), compressed)}: ephemeris record of {r['sat']} has an impossible orbit (e={r['e']}, sqrt(A)={r['sqrt_a_sqrt_m']})")
+    for c in ("iode", "codes_l2", "l2p_data_flag", "sv_health", "iodc"):
+        df[c] = df[c].fillna(-1).round().astype(np.int64)
+    df["week"] = df["week"].astype(np.int64)
+    df = df[list(NAV_COLUMNS)]
+    df = df.drop_duplicates(subset=["sat", "toe_gps_s", "iode", "af0_s"], keep="first")
+    return df.sort_values(["sat", "toe_gps_s", "transmit_gps_s"], kind="stable").reset_index(drop=True)
+
+
+def _glonass_record(lines: list[str], i: int, v3: bool, p, compressed: bool) -> dict:
+    """One GLONASS state-vector record (RINEX 3 'R', or RINEX 2 type G) starting at line index ``i``.
+
+    First line: epoch t_b (UTC), −τ_n (s), γ_n, message frame time (s of the UTC week in RINEX 3,
+    of the UTC day in RINEX 2); then X, Ẋ, Ẍ, health / Y, Ẏ, Ÿ, frequency number / Z, Ż, Z̈, age
+    (km, km/s, km/s²).  t_b and the frame time are moved to GPS time with the leap seconds.
+    """
+    ln = lines[i]
+    try:
+        if v3:
+            sat = _sat_id(ln[0:3], 3.0)
+            y, mo, d, h, mi = (int(ln[a:b]) for a, b in ((4, 8), (9, 11), (12, 14), (15, 17), (18, 20)))
+            sec, vals, cont = float(ln[21:23]), [ln[23 + 19 * k: 42 + 19 * k] for k in range(3)], 4
+        else:
+            sat = f"R{int(ln[0:2]):02d}"
+            yy, mo, d, h, mi = (int(ln[a:b]) for a, b in ((3, 5), (6, 8), (9, 11), (12, 14), (15, 17)))
+            y = yy + (1900 if yy >= 80 else 2000) if yy < 100 else yy
+            sec, vals, cont = float(ln[17:22]), [ln[22 + 19 * k: 41 + 19 * k] for k in range(3)], 3
+        vals = [_float_field(x) for x in vals]
+        for k in range(1, 4):
+            cl = lines[i + k]
+            vals.extend(_float_field(cl[cont + 19 * q: cont + 19 * (q + 1)]) for q in range(4))
+    except (ValueError, IndexError):
+        raise CdgpsError(f"{_where(p, i + 1, compressed)}: malformed GLONASS ephemeris record: {ln.rstrip()!r}") from None
+    if len(vals) < 14 or any(math.isnan(v) for v in vals[:14]):
+        raise CdgpsError(f"{_where(p, i + 1, compressed)}: GLONASS ephemeris record of {sat} has blank required field(s)")
+    t_utc = gps_seconds(y, mo, d, h, mi, sec)
+    leap = gps_minus_utc_s(t_utc + 18.0)
+    toe = t_utc + leap
+    period = SECONDS_PER_WEEK if v3 else 86400.0
+    frame = math.floor(t_utc / period) * period + vals[2]
+    frame += period * round((t_utc - frame) / period)
+    rec = dict.fromkeys(NAV_COLUMNS, math.nan)
+    rec.update({
+        "sat": sat, "toc_gps_s": toe, "toe_gps_s": toe, "af0_s": vals[0], "af1_s_per_s": vals[1], "af2_s_per_s2": 0.0,
+        "iode": -1, "codes_l2": -1, "l2p_data_flag": -1, "iodc": -1, "tgd_s": 0.0, "sv_health": int(vals[6]),
+        "week": int(toe // SECONDS_PER_WEEK), "toe_sow_s": toe % SECONDS_PER_WEEK,
+        "transmit_gps_s": frame + leap, "transmit_sow_s": (frame + leap) % SECONDS_PER_WEEK, "line": i + 1,
+    })
+    km = {"x_m": 3, "vx_m_per_s": 4, "ax_m_per_s2": 5, "y_m": 7, "vy_m_per_s": 8, "ay_m_per_s2": 9,
+          "z_m": 11, "vz_m_per_s": 12, "az_m_per_s2": 13}
+    rec.update({c: 1e3 * vals[k] for c, k in km.items()})
+    rec["glonass_k"] = int(vals[10])
+    return rec
+
+
 def read_rinex_nav(path: str | Path, systems=("G",)) -> pd.DataFrame:
-    """Read the GPS broadcast ephemerides of a RINEX 2 or 3 navigation file.
+    """Read the broadcast ephemerides of a RINEX 2 or 3 navigation file.
 
     Parameters
     ----------
     path : str or Path
-        A RINEX 2 GPS navigation file (type ``N``) or a RINEX 3 navigation file (type ``N``,
-        system ``G`` or ``M``; records of other systems are skipped and counted).  Compressed
-        files are decompressed as in :func:`read_rinex_obs`.
+        A RINEX 2 GPS (type ``N``) or GLONASS (type ``G``) navigation file, or a RINEX 3
+        navigation file (type ``N``; records of systems not asked for are skipped and counted).
+        Compressed files are decompressed as in :func:`read_rinex_obs`.
+    systems : sequence of str, default ("G",)
+        System letters to read, among :data:`NAV_SYSTEMS`.  **BeiDou** records keep BDT's
+        seconds of week in ``toe_sow_s``/``transmit_sow_s`` and the BDT week in ``week`` (the user
+        algorithm needs them), while ``toc_gps_s``, ``toe_gps_s``, ``transmit_gps_s`` are GPS
+        time (BDT + 14 s, week + 1356); ``iode`` = AODE, ``iodc`` = AODC, ``tgd_s`` = TGD1 (B1I),
+        TGD2 is not kept.  **GLONASS** records (epoch in UTC, moved to GPS time with the leap
+        seconds) add the columns :data:`~cdgps_cli.core.records.GLONASS_NAV_COLUMNS` (m, m/s,
+        m/s²; NaN on other rows).
 
     Returns
     -------
     DataFrame
-        One row per GPS ephemeris record, sorted by satellite then toe, exact duplicates
+        One row per ephemeris record, sorted by satellite then toe, exact duplicates
         (same satellite, toe and IODE, as in merged broadcast files) removed; columns
         :data:`NAV_COLUMNS` (angles in rad, angular rates in rad/s, times in s, GPS seconds since
         1980-01-06 for ``toc_gps_s``/``toe_gps_s``/``transmit_gps_s``).  A RINEX 2 week number
@@ -848,16 +945,17 @@ def read_rinex_nav(path: str | Path, systems=("G",)) -> pd.DataFrame:
     p = Path(path)
     lines, compressed = _read_lines(p)
     version, ftype, system = _parse_version_line(lines, p, compressed, "navigation")
-    if version < 3 and ftype in ("G", "H"):
+    systems = tuple(systems)
+    glonass2 = version < 3 and ftype == "G" and "R" in systems
+    if version < 3 and ftype in ("G", "H") and not glonass2:
         raise CdgpsError(f"{p}: this is a RINEX {version:.2f} {'GLONASS' if ftype == 'G' else 'SBAS'} navigation file; GPS broadcast ephemerides (a type N file) are needed")
-    if ftype != "N":
+    if ftype != "N" and not glonass2:
         kind = "observation" if ftype == "O" else f"type {ftype!r}"
         raise CdgpsError(f"{p}: this is a RINEX {kind} file, not a navigation file (RINEX VERSION / TYPE says {ftype!r})")
     _check_version(version, p, "navigation")
-    systems = tuple(systems)
-    bad_sys = [c for c in systems if c not in NAV_KEPLER_SYSTEMS]
+    bad_sys = [c for c in systems if c not in NAV_SYSTEMS]
     if bad_sys:
-        raise CdgpsError(f"{p}: ephemerides of system(s) {', '.join(bad_sys)} cannot be read; supported: {', '.join(NAV_KEPLER_SYSTEMS)}")
+        raise CdgpsError(f"{p}: ephemerides of system(s) {', '.join(bad_sys)} cannot be read; supported: {', '.join(NAV_SYSTEMS)}")
     if version >= 3 and system not in ("G", "M", " ", "") and system not in systems:
         raise CdgpsError(f"{p}: RINEX {version:.2f} navigation file for system {system!r}; GPS ('G') or mixed ('M') ephemerides are needed")
     attrs: dict = {"path": str(p), "version": version, "leap_seconds": None, "ion_alpha": None, "ion_beta": None, "comments": []}
@@ -887,6 +985,7 @@ def read_rinex_nav(path: str | Path, systems=("G",)) -> pd.DataFrame:
     v3 = version >= 3
     cont_col = 4 if v3 else 3
     records: list[list] = []
+    glonass: list[dict] = []
     counts: dict[str, int] = {}
     i = end + 1
     n = len(lines)
@@ -901,14 +1000,19 @@ def read_rinex_nav(path: str | Path, systems=("G",)) -> pd.DataFrame:
             if sysc not in _NAV_LINES:
                 raise CdgpsError(f"{_where(p, lineno, compressed)}: expected the first line of an ephemeris record ('G01 YYYY MM DD hh mm ss …'), got {ln[:80]!r}")
         else:
-            sysc = "G"
-        nrec = _NAV_LINES[sysc]
+            sysc = "R" if glonass2 else "G"
+        # RINEX 3.05 adds a fourth broadcast-orbit line to GLONASS records
+        nrec = _NAV_LINES[sysc] + (1 if sysc == "R" and version >= 3.05 else 0)
         counts[sysc] = counts.get(sysc, 0) + 1
         if sysc not in systems:
             i += nrec
             continue
         if i + nrec > n:
             raise CdgpsError(f"{_where(p, lineno, compressed)}: ephemeris record truncated: {nrec} lines expected, the file ends after {n - i}")
+        if sysc == "R":
+            glonass.append(_glonass_record(lines, i, v3, p, compressed))
+            i += nrec
+            continue
         try:
             if v3:
                 sat = _sat_id(ln[0:3], version)
@@ -921,7 +1025,7 @@ def read_rinex_nav(path: str | Path, systems=("G",)) -> pd.DataFrame:
                 y = yy + (1900 if yy >= 80 else 2000) if yy < 100 else yy
                 sec = float(ln[17:22])
                 first_vals = [ln[22 + 19 * k : 41 + 19 * k] for k in range(3)]
-            toc = gps_seconds(y, mo, d, h, mi, sec)
+            toc = gps_seconds(y, mo, d, h, mi, sec) + (GPS_MINUS_BDT_S if sysc == "C" else 0.0)
             vals = [_float_field(s) for s in first_vals]
         except ValueError:
             raise CdgpsError(f"{_where(p, lineno, compressed)}: malformed first line of an ephemeris record: {ln.rstrip()!r}") from None
@@ -939,34 +1043,18 @@ def read_rinex_nav(path: str | Path, systems=("G",)) -> pd.DataFrame:
             raise CdgpsError(f"{_where(p, lineno, compressed)}: ephemeris record of {sat} has blank required field(s): {', '.join(missing)}")
         records.append([sat, toc, *vals, lineno])
         i += nrec
-    if not records:
+    if not records and not glonass:
         found = ", ".join(f"{k}: {v}" for k, v in sorted(counts.items())) or "none"
         wanted = "GPS" if systems == ("G",) else "/".join(systems)
         raise CdgpsError(f"{p}: no {wanted} ephemeris records (records found by system: {found})")
-    df = pd.DataFrame(records, columns=["sat", "toc_gps_s", *_NAV_VALUES, "line"])
-    week = df["week"].to_numpy(dtype=float)
-    toc = df["toc_gps_s"].to_numpy()
-    toe_gps = week * SECONDS_PER_WEEK + df["toe_sow_s"].to_numpy()
-    # unwrap a week number written modulo 1024 (old receivers / converters): pick the one nearest toc
-    shift = np.round((toc - toe_gps) / (1024 * SECONDS_PER_WEEK))
-    week = week + 1024 * shift
-    toe_gps = week * SECONDS_PER_WEEK + df["toe_sow_s"].to_numpy()
-    # toe may fall in the week next to toc's (toe is sent as seconds of week): nearest to toc
-    toe_gps = toe_gps + SECONDS_PER_WEEK * np.round((toc - toe_gps) / SECONDS_PER_WEEK)
-    df["week"] = week
-    df["toe_gps_s"] = toe_gps
-    tt = week * SECONDS_PER_WEEK + df["transmit_sow_s"].to_numpy()
-    df["transmit_gps_s"] = tt + SECONDS_PER_WEEK * np.round((toc - tt) / SECONDS_PER_WEEK)
-    bad_e = (df["e"] < 0) | (df["e"] >= 1) | (df["sqrt_a_sqrt_m"] <= 0)
-    if bad_e.any():
-        r = df[bad_e].iloc[0]
-        raise CdgpsError(f"{_where(p, int(r['line']), compressed)}: ephemeris record of {r['sat']} has an impossible orbit (e={r['e']}, sqrt(A)={r['sqrt_a_sqrt_m']})")
-    for c in ("iode", "codes_l2", "l2p_data_flag", "sv_health", "iodc"):
-        df[c] = df[c].fillna(-1).round().astype(np.int64)
-    df["week"] = df["week"].astype(np.int64)
-    df = df[list(NAV_COLUMNS)]
-    df = df.drop_duplicates(subset=["sat", "toe_gps_s", "iode", "af0_s"], keep="first")
-    df = df.sort_values(["sat", "toe_gps_s", "transmit_gps_s"], kind="stable").reset_index(drop=True)
+    df = _kepler_table(records, p, compressed)
+    if "R" in systems:
+        glo = pd.DataFrame(glonass, columns=[*NAV_COLUMNS, *GLONASS_NAV_COLUMNS])
+        df = pd.concat([d for d in (df.reindex(columns=glo.columns), glo) if len(d)], ignore_index=True)
+        for c in ("iode", "codes_l2", "l2p_data_flag", "sv_health", "iodc", "week", "line"):
+            df[c] = df[c].fillna(-1).round().astype(np.int64)
+        df = df.drop_duplicates(subset=["sat", "toe_gps_s", "iode", "af0_s"], keep="first")
+        df = df.sort_values(["sat", "toe_gps_s", "transmit_gps_s"], kind="stable").reset_index(drop=True)
     attrs["n_records_by_system"] = dict(sorted(counts.items()))
     df.attrs.update(attrs)
     return df

@@ -11,6 +11,7 @@ list the file has) and reported in ``header["signal_codes"]``.  The header parse
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -42,16 +43,21 @@ def _codes(types: list[str], name: str, v3: bool):
     return None
 
 
-def _glonass_slots(lines, end) -> dict:
-    """'GLONASS SLOT / FRQ #' header lines → {"R01": k}."""
+_SLOT = re.compile(r"R\s?(\d{1,2})\s*([+-]?\d{1,2})")
+
+
+def _glonass_slots(lines, end, path) -> dict:
+    """'GLONASS SLOT / FRQ #' header lines → {"R01": k}.  Entries are matched by pattern, not by
+    column, as some writers pack them without the separating blank ("R11 -5R19 +3")."""
     out = {}
-    for ln in lines[1:end]:
+    for i, ln in enumerate(lines[1:end], start=2):
         if ln[60:80].strip() == "GLONASS SLOT / FRQ #":
             body = ln[4:60]
-            for j in range(0, len(body) - 6, 7):
-                f = body[j:j + 7]
-                if f.strip():
-                    out[f[:3].strip().replace(" ", "0")] = int(f[3:].strip())
+            found = _SLOT.findall(body)
+            if body.strip() and not found:
+                raise CdgpsError(f"{path}:{i}: malformed 'GLONASS SLOT / FRQ #' line {ln[:60].rstrip()!r} "
+                                 "(expected entries like 'R01  1 R02 -4')")
+            out.update({f"R{int(prn):02d}": int(k) for prn, k in found})
     return out
 
 
@@ -64,7 +70,7 @@ def _columns(hdr: _ObsHeader, names, path) -> dict:
         sig = signal(name)
         key = sig.system if v3 else "*"
         types = hdr.info["obs_types"].get(key, [])
-        if not v3 and sig.system != "G":
+        if not v3 and sig.system not in ("G", "R"):
             types = []
         pc = _codes(types, name, v3)
         if pc is None:
@@ -85,15 +91,19 @@ def _value(rec: str, k: int, col0: int) -> tuple[float, int]:
     return v, (int(lli) if lli.strip().isdigit() else 0)
 
 
-def read_rinex_signals(path: str | Path, signals) -> tuple[dict, pd.DataFrame]:
+def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None) -> tuple[dict, pd.DataFrame]:
     """Read the phases and ranges of ``signals`` (e.g. ``["G:L1", "G:L2", "E:E1", "E:E5a"]``).
 
     Parameters
     ----------
     path : str or Path
-        RINEX 3.0x observation file (any system) or RINEX 2 (GPS L1/L2 only).
+        RINEX 3.0x observation file (any system) or RINEX 2 (GPS and GLONASS L1/L2; GLONASS frequency
+        numbers then come from ``glonass_k``, RINEX 2 headers have none).
     signals : sequence of str
         Signal names of :data:`cdgps_cli.core.signals.SIGNALS`.
+    glonass_k : dict, optional
+        GLONASS frequency numbers from elsewhere ({"R01": 1}, e.g. the navigation records'
+        ``glonass_k``), used for satellites the header's ``GLONASS SLOT / FRQ #`` lines do not list.
 
     Returns
     -------
@@ -119,7 +129,7 @@ def read_rinex_signals(path: str | Path, signals) -> tuple[dict, pd.DataFrame]:
     if end is None:
         raise CdgpsError(f"{p}: no 'END OF HEADER' line")
     cols = _columns(hdr, list(signals), p)
-    slots = _glonass_slots(lines, end)
+    slots = {**(glonass_k or {}), **_glonass_slots(lines, end, p)}
     rows = _parse_v3(lines, end + 1, cols, p) if version >= 3 else _parse_v2(lines, end + 1, hdr, cols, p)
     df = pd.DataFrame(rows, columns=list(SIGNAL_COLUMNS[:-1]))
     df["wavelength_m"] = _wavelengths(df, slots, p)
@@ -140,7 +150,8 @@ def _wavelengths(df: pd.DataFrame, slots: dict, path) -> np.ndarray:
         absent = sorted(set(sats) - set(slots))
         if absent:
             raise CdgpsError(f"{path}: GLONASS frequency numbers absent for {' '.join(absent)} "
-                             "(header line 'GLONASS SLOT / FRQ #' expected); FDMA phases need them")
+                             "(header line 'GLONASS SLOT / FRQ #' expected, or a GLONASS navigation record of "
+                             "the satellite); FDMA phases need them")
         lam[idx] = [SPEED_OF_LIGHT_M_S / glonass_frequency_hz(sig, slots[s]) for s in sats]
     return lam
 
@@ -207,9 +218,9 @@ def _parse_v2(lines, i, hdr, cols, path) -> list:
             sat = "G" + sat[1:] if sat[0] in "0G" else sat
             rec = "".join(lines[i + k].rstrip("\n").ljust(80) for k in range(per))
             i += per
-            if sat[0] != "G":
-                continue
             for name, (_, ip, ic, _) in cols.items():
+                if signal(name).system != sat[0]:
+                    continue
                 ph, lli = _value(rec, ip, 0)
                 pr = _value(rec, ic, 0)[0] if ic >= 0 else math.nan
                 if not math.isnan(ph):

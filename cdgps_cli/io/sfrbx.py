@@ -17,8 +17,17 @@ separate navigation file.
 * RXM-SFRBX, Galileo (gnssId 2): an I/NAV page pair (E1-B or E5b-I) in eight words; word types
   1–5 (ephemeris, clock, SISA, BGD, health, GST week) give one record, see
   :func:`decode_galileo_words` for how its fields map onto the RINEX 3 Galileo layout.  A page
-  pair failing its CRC-24Q is dropped and counted.  BeiDou D1 (gnssId 3) is not decoded: its
-  frames are counted under ``other_systems``.
+  pair failing its CRC-24Q is dropped and counted.
+* RXM-SFRBX, BeiDou (gnssId 3): ten words, each one 30-bit D1 word in bits 29…0 (the two MSBs are
+  padding; u-blox integration manuals, "BeiDou": words in the order received, secondary code
+  removed).  Words are read in the ICD's logical layout — 22 information bits, then the 4 parity
+  bits of each BCH(15,11) codeword — and, when that fails the check, as transmitted (the two
+  codewords interleaved bit by bit), so either convention is read; inverted bits are recognised
+  by the inverted preamble.  A subframe with a codeword failing BCH(15,11) (g(X) = X⁴ + X + 1) is
+  dropped and counted (no single-bit correction: a corrupted word is never turned into a wrong
+  value).  Subframes 1–3 of the D1 message (MEO/IGSO satellites) of one 30-s frame (SOW, SOW + 6,
+  SOW + 12) give one record, :func:`decode_beidou_d1`.  GEO satellites broadcast D2 (other page
+  layout), which is counted, not decoded.
 
 GPS subframes of one satellite are combined when subframes 2 and 3 carry the same IODE and it
 equals the 8 LSBs of subframe 1's IODC (IS-GPS-200 §20.3.4.4: a consistent data set).  The
@@ -30,9 +39,11 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from cdgps_cli.core.gps_time import bdt_to_gps_s
 from cdgps_cli.core.records import NAV_COLUMNS
 
-__all__ = ["GPS_PI", "URA_M", "decode_galileo_words", "decode_gps_subframes", "inav_word", "gps_words_from_sfrbx", "parity_ok", "sfrbx_ephemerides"]
+__all__ = ["GPS_PI", "URA_M", "BDS_PREAMBLE", "bch15_syndrome", "beidou_words_from_sfrbx", "decode_beidou_d1",
+           "decode_galileo_words", "decode_gps_subframes", "inav_word", "gps_words_from_sfrbx", "parity_ok", "sfrbx_ephemerides"]
 
 GPS_PI = 3.1415926535898
 """The value of π IS-GPS-200 fixes for converting semicircles to radians."""
@@ -299,12 +310,170 @@ def decode_galileo_words(words: dict, sat: str, week_ref: int) -> dict | None:
     return _dated(rec, week, float(tow), toc, toe)
 
 
+# ---------------------------------------------------------------------------------------------
+# BeiDou D1 (B1I, MEO/IGSO): subframes 1-3, BDS-ICD-B1I 3.0 §5.2
+
+BDS_PREAMBLE = 0b11100010010
+"""The 11-bit preamble of every BeiDou D1/D2 subframe."""
+_BDS_GEO = frozenset((1, 2, 3, 4, 5, 59, 60, 61, 62, 63))
+_URAI_M = (2.4, 3.4, 4.85, 6.85, 9.65, 13.65, 24.0, 48.0, 96.0, 192.0, 384.0, 768.0, 1536.0, 3072.0, 6144.0)
+
+
+def bch15_syndrome(codeword15: int) -> int:
+    """Remainder of a 15-bit codeword (first bit = coefficient of X¹⁴) divided by g(X) = X⁴ + X + 1;
+    0 for a valid BCH(15,11) codeword."""
+    r = codeword15 & 0x7FFF
+    for k in range(14, 3, -1):
+        if r >> k & 1:
+            r ^= 0b10011 << (k - 4)
+    return r
+
+
+def _bch_ok(word30: int, first: bool) -> bool:
+    """The codeword(s) of one word in the logical layout pass BCH(15,11)."""
+    if first:
+        return bch15_syndrome(word30 & 0x7FFF) == 0
+    cw1 = ((word30 >> 19) & 0x7FF) << 4 | ((word30 >> 4) & 0xF)
+    cw2 = ((word30 >> 8) & 0x7FF) << 4 | (word30 & 0xF)
+    return bch15_syndrome(cw1) == 0 and bch15_syndrome(cw2) == 0
+
+
+def _deinterleave(word30: int) -> int:
+    """Transmitted order (codeword bits alternating, first codeword first) → logical layout
+    (11 + 11 information bits, 4 + 4 parity bits)."""
+    bits = [(word30 >> (29 - k)) & 1 for k in range(30)]
+    c1, c2 = bits[0::2], bits[1::2]
+    out = 0
+    for b in c1[:11] + c2[:11] + c1[11:] + c2[11:]:
+        out = out << 1 | b
+    return out
+
+
+def beidou_words_from_sfrbx(dwrd: list[int]) -> list[int] | None:
+    """The ten 30-bit D1/D2 words of an RXM-SFRBX BeiDou subframe in the logical layout, or None
+    when the preamble is absent or a BCH(15,11) codeword fails (in both word layouts)."""
+    if len(dwrd) < 10:
+        return None
+    words = [w & 0x3FFFFFFF for w in dwrd[:10]]
+    if words[0] >> 19 == BDS_PREAMBLE ^ 0x7FF:
+        words = [w ^ 0x3FFFFFFF for w in words]
+    if words[0] >> 19 != BDS_PREAMBLE or not _bch_ok(words[0], True):
+        return None
+    out = [words[0]]
+    for w in words[1:]:
+        if not _bch_ok(w, False):
+            w = _deinterleave(w)
+            if not _bch_ok(w, False):
+                return None
+        out.append(w)
+    return out
+
+
+class _D1(_Fields):
+    """Fields of a 300-bit D1 subframe; ``u2``/``s2`` join a field split over two words."""
+
+    def __init__(self, words30: list[int]):
+        v = 0
+        for w in words30:
+            v = (v << 30) | w
+        super().__init__(v, 300)
+
+    def u2(self, a: int, na: int, b: int, nb: int) -> int:
+        return self.u(a, na) << nb | self.u(b, nb)
+
+    def s2(self, a: int, na: int, b: int, nb: int) -> int:
+        x = self.u2(a, na, b, nb)
+        n = na + nb
+        return x - (1 << n) if x >> (n - 1) else x
+
+
+def d1_subframe_id(words30: list[int]) -> tuple[int, int]:
+    """(FraID, SOW s) of a D1 subframe in the logical layout."""
+    f = _D1(words30)
+    return f.u(15, 3), f.u2(18, 8, 30, 12)
+
+
+def decode_beidou_d1(sf1: list[int], sf2: list[int], sf3: list[int], sat: str) -> dict | None:
+    """One BeiDou broadcast ephemeris from D1 subframes 1, 2, 3 (BDS-ICD-B1I 3.0 §5.2.4).
+
+    Parameters
+    ----------
+    sf1, sf2, sf3 : list of 10 int
+        30-bit words in the logical layout (:func:`beidou_words_from_sfrbx`).
+    sat : str
+        Satellite ("C11").
+
+    Returns
+    -------
+    dict or None
+        The record with the keys of :data:`NAV_COLUMNS` in the RINEX reader's BeiDou layout
+        (BDT week and seconds of week in ``week``/``toe_sow_s``/``transmit_sow_s``; GPS seconds in
+        ``toc_gps_s``/``toe_gps_s``/``transmit_gps_s``; ``iode`` = AODE, ``iodc`` = AODC,
+        ``tgd_s`` = TGD1, ``sv_health`` = SatH1), or None when the subframes are not 1, 2, 3 of
+        one frame (SOW, SOW + 6, SOW + 12).
+    """
+    b1, b2, b3 = _D1(sf1), _D1(sf2), _D1(sf3)
+    ids = [d1_subframe_id(w) for w in (sf1, sf2, sf3)]
+    sow = ids[0][1]
+    if [i for i, _ in ids] != [1, 2, 3] or ids[1][1] != sow + 6 or ids[2][1] != sow + 12:
+        return None
+    week = b1.u(60, 13)
+    toc = b1.u2(73, 9, 90, 8) * 8.0
+    toe = (b2.u(290, 2) << 15 | b3.u2(42, 10, 60, 5)) * 8.0
+    urai = b1.u(48, 4)
+    pi = GPS_PI
+    rec = {
+        "sat": sat, "af0_s": b1.s2(225, 7, 240, 17) * 2.0**-33, "af1_s_per_s": b1.s2(257, 5, 270, 17) * 2.0**-50,
+        "af2_s_per_s2": b1.s(214, 11) * 2.0**-66, "iode": b1.u(287, 5),
+        "crs_m": b2.s2(224, 8, 240, 10) * 2.0**-6, "delta_n_rad_per_s": b2.s2(42, 10, 60, 6) * 2.0**-43 * pi,
+        "m0_rad": b2.s2(92, 20, 120, 12) * 2.0**-31 * pi, "cuc_rad": b2.s2(66, 16, 90, 2) * 2.0**-31,
+        "e": b2.u2(132, 10, 150, 22) * 2.0**-33, "cus_rad": b2.s(180, 18) * 2.0**-31,
+        "sqrt_a_sqrt_m": b2.u2(250, 12, 270, 20) * 2.0**-19, "toe_sow_s": toe,
+        "cic_rad": b3.s2(105, 7, 120, 11) * 2.0**-31, "omega0_rad": b3.s2(211, 21, 240, 11) * 2.0**-31 * pi,
+        "cis_rad": b3.s2(163, 9, 180, 9) * 2.0**-31, "i0_rad": b3.s2(65, 17, 90, 15) * 2.0**-31 * pi,
+        "crc_m": b2.s2(198, 4, 210, 14) * 2.0**-6, "omega_rad": b3.s2(251, 11, 270, 21) * 2.0**-31 * pi,
+        "omega_dot_rad_per_s": b3.s2(131, 11, 150, 13) * 2.0**-43 * pi,
+        "idot_rad_per_s": b3.s2(189, 13, 210, 1) * 2.0**-43 * pi,
+        "codes_l2": -1, "week": week, "l2p_data_flag": -1, "sv_accuracy_m": _URAI_M[urai] if urai < 15 else 12288.0,
+        "sv_health": b1.u(42, 1), "tgd_s": b1.s(98, 10) * 1e-10, "iodc": b1.u(43, 5), "transmit_sow_s": float(sow),
+        "fit_interval_h": float("nan"), "line": -1,
+    }
+    t_tx = float(bdt_to_gps_s(week, sow))
+    rec["transmit_gps_s"] = t_tx
+    for key, sow_v in (("toc_gps_s", toc), ("toe_gps_s", toe)):
+        t = float(bdt_to_gps_s(week, sow_v))
+        rec[key] = t + SECONDS_PER_WEEK * round((t_tx - t) / SECONDS_PER_WEEK)
+    return rec
+
+
+def _beidou_frame(pl: bytes, sv: int, latest: dict, recs: dict, stats: dict) -> None:
+    """One RXM-SFRBX BeiDou payload: check, keep the subframe, decode when 1-3 of a frame are in."""
+    if sv in _BDS_GEO:
+        stats["beidou_d2_frames"] += 1
+        return
+    words = beidou_words_from_sfrbx(np.frombuffer(pl[8:48], dtype="<u4").tolist()) if pl[4] >= 10 else None
+    if words is None:
+        stats["beidou_bch_failures"] += 1
+        return
+    fid, _ = d1_subframe_id(words)
+    if fid not in (1, 2, 3):
+        return
+    stats["beidou_subframes"] += 1
+    sat = f"C{sv:02d}"
+    have = latest.setdefault(sat, {})
+    have[fid] = words
+    if fid == 3 and all(k in have for k in (1, 2)):
+        rec = decode_beidou_d1(have[1], have[2], have[3], sat)
+        if rec is not None and 0 <= rec["e"] < 1 and rec["sqrt_a_sqrt_m"] > 0:
+            recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)
+
+
 _SFRBX = (0x02, 0x13)
 _SFRB = (0x02, 0x11)
 
 
 def sfrbx_ephemerides(frames: list, week_ref: int | None) -> tuple[pd.DataFrame, dict]:
-    """GPS ephemerides from the RXM-SFRBX / RXM-SFRB frames of a log.
+    """GPS, Galileo and BeiDou (D1) ephemerides from the RXM-SFRBX / RXM-SFRB frames of a log.
 
     Parameters
     ----------
@@ -320,10 +489,12 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None) -> tuple[pd.DataFrame,
         reader's table.
     stats : dict
         ``sfrbx_frames``, ``gps_subframes`` (1–3 decoded), ``parity_failures`` (subframes dropped),
+        ``galileo_words``, ``galileo_bad_pages``, ``beidou_subframes`` (D1 1–3 kept),
+        ``beidou_bch_failures`` (subframes dropped), ``beidou_d2_frames`` (GEO, not decoded),
         ``other_systems`` (gnssId → frames: not decoded here), ``ephemerides``.
     """
     stats = {"sfrbx_frames": 0, "gps_subframes": 0, "parity_failures": 0, "galileo_words": 0, "galileo_bad_pages": 0,
-             "other_systems": {}, "ephemerides": 0}
+             "beidou_subframes": 0, "beidou_bch_failures": 0, "beidou_d2_frames": 0, "other_systems": {}, "ephemerides": 0}
     latest: dict[str, dict[int, list[int]]] = {}
     recs: dict[tuple, dict] = {}
     for _, cls, mid, fr in frames:
@@ -350,6 +521,9 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None) -> tuple[pd.DataFrame,
                     rec = decode_galileo_words(have, sat, week_ref)
                     if rec is not None and 0 <= rec["e"] < 1 and rec["sqrt_a_sqrt_m"] > 0:
                         recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)
+                continue
+            if gnss == 3:
+                _beidou_frame(pl, sv, latest, recs, stats)
                 continue
             if gnss != 0:
                 stats["other_systems"][str(gnss)] = stats["other_systems"].get(str(gnss), 0) + 1

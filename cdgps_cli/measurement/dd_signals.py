@@ -4,11 +4,13 @@ For one epoch and one signal group g (a constellation and a frequency slot, e.g.
 satellites s = 1…m common to base and rover and reference r (highest elevation at the base), the
 rows are
 
-    λ_g ∇Δφ_s = ∇Δρ_s(x) + λ_g (N_s − N_r) − μ_g ∇ΔI_s + ε,       ∇ΔP_s = ∇Δρ_s(x) + μ_g ∇ΔI_s + e
+    ∇Δ(λφ)_s = ∇Δρ_s(x) + λ_s N_s − λ_r N_r − ∇Δ(μ I)_s + ε,       ∇ΔP_s = ∇Δρ_s(x) + ∇Δ(μ I)_s + e
 
 with x the rover ECEF offset from its linearization origin (m), N the single-difference
 ambiguities of the group (cycles), I optional single-difference slant ionosphere at L1 (m,
-μ_g = (f_L1/f_g)²).  Receiver clocks cancel in the DD; inter-system and inter-frequency biases
+μ = (f_L1/f)²).  λ and μ are per satellite: equal within a CDMA group (so the ambiguity term is
+λ_g (N_s − N_r)), different for GLONASS (FDMA, f = f₀ + k Δf), whose DD ambiguity λ_s N_s − λ_r N_r
+is not an integer times one wavelength — those groups are kept float.  Receiver clocks cancel in the DD; inter-system and inter-frequency biases
 cancel because every group has its own reference satellite (no inter-system DD is formed).  The
 noise is D Σ Dᵀ per group, Σ the SD variances (a² + b²/sin²el, doubled for the two receivers).
 :func:`epoch_rows` gives (z − h(x), H, L) for a linearization point, :func:`dd_range` the model.
@@ -41,7 +43,7 @@ def epoch_rows(x, groups, base_xyz_m, origin_xyz_m, n_state: int):
         State: [rover offset (3, m), ambiguities (cycles), ionosphere (m)…].
     groups : list of dict
         One per signal group: ``sat_xyz`` (m, 3) for the rover's transmission times, ``sat_base_xyz``
-        (m, 3) for the base's, ``ref`` (int), ``lam_m``, ``mu``,
+        (m, 3) for the base's, ``ref`` (int), ``lam_m`` (m,) or scalar, ``mu`` (m,) or scalar,
         ``phase_sd_m`` (m,), ``code_sd_m`` (m,), ``var_phase`` / ``var_code`` (m,) m²,
         ``amb_col`` (m,) state columns of N, ``iono_col`` (m,) columns of I or −1.
     base_xyz_m, origin_xyz_m : ndarray (3,)
@@ -66,16 +68,18 @@ def epoch_rows(x, groups, base_xyz_m, origin_xyz_m, n_state: int):
         Hg[:, :3] = -(D @ e)
         Hc = Hg.copy()
         amb = g["amb_col"]
-        Hg[:, amb] += g["lam_m"] * D
+        lam = np.broadcast_to(np.asarray(g["lam_m"], dtype=float), (m,))
+        mu = np.broadcast_to(np.asarray(g["mu"], dtype=float), (m,))
+        Hg[:, amb] += D * lam
         n_amb = x[amb]
         iono = g["iono_col"]
         ion = np.zeros(m)
         if np.all(iono >= 0):
             ion = x[iono]
-            Hg[:, iono] -= g["mu"] * D
-            Hc[:, iono] += g["mu"] * D
-        rs.append(D @ g["phase_sd_m"] - (geo + g["lam_m"] * (D @ n_amb) - g["mu"] * (D @ ion)))
-        rs.append(D @ g["code_sd_m"] - (geo + g["mu"] * (D @ ion)))
+            Hg[:, iono] -= D * mu
+            Hc[:, iono] += D * mu
+        rs.append(D @ g["phase_sd_m"] - (geo + D @ (lam * n_amb) - D @ (mu * ion)))
+        rs.append(D @ g["code_sd_m"] - (geo + D @ (mu * ion)))
         Hs += [Hg, Hc]
         Cs += [dd_covariance(g["var_phase"], ref), dd_covariance(g["var_code"], ref)]
     p = sum(c.shape[0] for c in Cs)

@@ -41,3 +41,19 @@ def test_constellation_not_shared_and_unknown_signal(tmp_path):
     assert "30400920.05o" in msg and "E:E1 (Galileo" in msg
     msg = _run(tmp_path, "--base", BASE, "--rover", BASE, "--nav", str(GE / "RINEX_GN_Spirent.23N"), "--signals", "G:L7")
     assert "unknown signal 'G:L7'" in msg
+
+
+def test_beidou_glonass_signals_are_accepted_and_refusals_name_what_is_missing(tmp_path):
+    data = REPO_ROOT / "tests" / "data"
+    p433 = str(data / "P433_lli_subset.crx")                       # real Septentrio file: G E S R C, 2019-01-01
+    # a navigation file of another day: BeiDou/GLONASS are read, the coverage check names the gap
+    msg = _run(tmp_path, "--base", p433, "--rover", p433, "--nav", str(data / "MOJN00DNK_R_20201770000_subset.rnx"),
+               "--signals", "C:B1I,C:B2I,R:G1")
+    assert "no observation is covered by the navigation data" in msg and "C08 C19" in msg
+    # a navigation file without BeiDou
+    msg = _run(tmp_path, "--base", p433, "--rover", p433, "--nav", str(data / "BRDM00DLR_R_20130010000_01D_MN.rnx"),
+               "--signals", "C:B1I")
+    assert "BRDM00DLR_R_20130010000_01D_MN.rnx" in msg and "C" in msg
+    # rinex-ge has no BeiDou observation types
+    msg = _run(tmp_path, "--base", BASE, "--rover", BASE, "--nav", str(GE / "RINEX_GN_Spirent.23N"), "--signals", "C:B1I")
+    assert "C:B1I (BeiDou" in msg and "absent from the observation types" in msg

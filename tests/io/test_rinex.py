@@ -673,3 +673,15 @@ def test_rinex3_bulk_parser_fallback_and_errors(tmp_path):
     q.write_text("\n".join(lines[:k] + ["X?? " + lines[k][4:]] + lines[k + 1:]) + "\n")
     with pytest.raises(CdgpsError, match=rf"sat\.10o, line {k + 1}: malformed satellite identifier"):
         read_rinex_obs(q)
+
+
+def test_rinex_305_mixed_navigation_with_five_line_glonass_records():
+    # RINEX 3.05 GLONASS records have a fourth broadcast-orbit line: skipping them by four lines
+    # broke the GPS reading of such files ("expected the first line of an ephemeris record")
+    from tests._shared import REPO_ROOT
+    path = REPO_ROOT / "tests" / "data" / "MOJN00DNK_R_20201770000_subset.rnx"
+    gps = read_rinex_nav(path)
+    assert len(gps) == 15 and set(gps["sat"].str[0]) == {"G"}
+    assert gps.attrs["n_records_by_system"] == {"C": 28, "G": 15, "R": 20}
+    allsys = read_rinex_nav(path, systems=("G", "C", "R"))
+    assert len(allsys) == 15 + 28 + 20 and allsys["glonass_k"].notna().sum() == 20

@@ -47,3 +47,29 @@ def test_galileo_nav_and_missing_system():
     from cdgps_cli.model.gps.orbits import sat_position_ecef
     xyz, _ = sat_position_ecef(g, g["toe_gps_s"])
     assert 29.5e6 < np.linalg.norm(xyz) < 30.0e6   # Galileo orbit radius ≈ 29 600 km
+
+
+def test_glonass_frequency_numbers_packed_without_blanks():
+    # demo3.10o (RINEX 3.01) writes "  3 R11 -5R19 +3R23 -6": entries found by pattern, not column
+    hdr, obs = read_rinex_signals(REPO_ROOT / "tests" / "data" / "demo3.10o", ["R:G1"])
+    assert hdr["glonass_slots"] == {"R11": -5, "R19": 3, "R23": -6}
+    assert set(obs["sat"]) <= {"R11", "R19", "R23"} and len(obs) > 0
+    lam = obs.groupby("sat")["wavelength_m"].first()
+    assert lam["R11"] == pytest.approx(299792458.0 / (1602e6 - 5 * 0.5625e6))
+
+
+def test_rinex2_glonass_observations_with_frequency_numbers_from_elsewhere():
+    path = REPO_ROOT / "tests" / "data" / "demo.10o"         # RINEX 2.11, G R S, no frequency numbers
+    with pytest.raises(CdgpsError, match=r"GLONASS frequency numbers absent for R\d\d"):
+        read_rinex_signals(path, ["R:G1"])
+    k = {f"R{n:02d}": (n % 13) - 7 for n in range(1, 25)}
+    hdr, obs = read_rinex_signals(path, ["G:L1", "R:G1"], glonass_k=k)
+    assert hdr["signal_codes"]["R:G1"] == ["L1", "C1"] and set(obs["sat"].str[0]) == {"G", "R"}
+    r = obs[obs["signal"] == "R:G1"]
+    lam = 299792458.0 / (1602e6 + r["sat"].map(k).to_numpy() * 0.5625e6)
+    assert np.allclose(r["wavelength_m"], lam) and r["pseudorange_m"].notna().all()
+    # the same GLONASS satellites and epochs as the RINEX 3.01 version of the file
+    _, r3 = read_rinex_signals(REPO_ROOT / "tests" / "data" / "demo3.10o", ["R:G1"])
+    m = r.merge(r3, on=["time_gps_s", "sat"])
+    assert len(m) == len(r) == len(r3) and (m["phase_cycles_x"] == m["phase_cycles_y"]).all()
+    assert (m["pseudorange_m_x"] == m["pseudorange_m_y"]).all()

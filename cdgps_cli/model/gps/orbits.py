@@ -1,9 +1,13 @@
-"""GPS satellite positions and clocks from broadcast ephemerides, and local geometry.
+"""GNSS satellite positions and clocks from broadcast ephemerides, and local geometry.
 
 * :func:`sat_position_ecef` — the IS-GPS-200 user algorithm (IS-GPS-200N, Table 20-IV: Kepler
   orbit with harmonic corrections, Earth-fixed at the given time) and the satellite clock
   correction (Section 20.3.3.3.3.1: polynomial, relativistic eccentricity term, optional T_GD),
-  vectorized over times (and, with a table of ephemerides, over records).
+  vectorized over times (and, with a table of ephemerides, over records).  Galileo uses the same
+  algorithm with its GM; BeiDou (BDS-ICD-B1I §5.2.4.12) its GM and Earth rotation rate, and for
+  the GEO satellites (PRN 1–5, 59–63) the orbit in the inertial-like frame of t_oe rotated by −5°
+  about X and then by ω_e·t_k about Z; GLONASS state-vector records are integrated
+  (:mod:`cdgps_cli.model.gps.glonass_orbit`).
 * :func:`select_ephemeris` — the healthy ephemeris with the nearest toe within ±2 h (the
   convention of RTKLIB and most receivers), or an error naming what is missing.
 * :func:`sat_position_at_reception` — light-time iteration with the Earth-rotation (Sagnac)
@@ -27,17 +31,26 @@ import pandas as pd
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import gps_time_str
+from cdgps_cli.core.records import GLONASS_NAV_COLUMNS
+from cdgps_cli.model.gps.glonass_orbit import glonass_position
 
 __all__ = [
     "GM_GPS",
     "GM_GALILEO",
     "GM_BY_SYSTEM",
+    "GM_BEIDOU",
     "OMEGA_E_GPS",
+    "OMEGA_E_BEIDOU",
+    "OMEGA_E_BY_SYSTEM",
+    "BEIDOU_GEO_PRNS",
+    "BEIDOU_GEO_TILT_RAD",
+    "MAX_EPHEMERIS_AGE_GLONASS_S",
     "F_RELATIVISTIC",
     "WGS84_A",
     "WGS84_F",
     "MAX_EPHEMERIS_AGE_S",
     "sat_position_ecef",
+    "beidou_geo_rotation",
     "select_ephemeris",
     "sat_position_at_reception",
     "ReceptionGeometry",
@@ -56,9 +69,18 @@ GM_GALILEO = 3.986004418e14
 """Earth gravitational constant of the Galileo OS SIS ICD (Table 57, GTRF), m³/s²; Galileo's Earth
 rotation rate is the same 7.2921151467e-5 rad/s, and its Kepler model is the GPS one with GST
 (aligned to GPS time to a few ns, week numbers written as GPS weeks in RINEX 3 navigation files)."""
-GM_BY_SYSTEM = {"G": GM_GPS, "E": GM_GALILEO}
+GM_BEIDOU = 3.986004418e14
+"""Earth gravitational constant of CGCS2000 (BDS-ICD-B1I §5.2.4.11), m³/s²."""
+OMEGA_E_BEIDOU = 7.2921150e-5
+"""Earth rotation rate of CGCS2000 (BDS-ICD-B1I §5.2.4.11), rad/s."""
+GM_BY_SYSTEM = {"G": GM_GPS, "E": GM_GALILEO, "C": GM_BEIDOU}
 """Gravitational constant per satellite-system letter (systems with a GPS-form Kepler ephemeris)."""
-"""Speed of light in vacuum, m/s."""
+OMEGA_E_BY_SYSTEM = {"G": OMEGA_E_GPS, "E": OMEGA_E_GPS, "C": OMEGA_E_BEIDOU}
+"""Earth rotation rate of each Kepler system's user algorithm, rad/s (Galileo: the GPS value)."""
+BEIDOU_GEO_PRNS = frozenset((1, 2, 3, 4, 5, 59, 60, 61, 62, 63))
+"""BeiDou PRNs of geostationary satellites (BDS-ICD-B1I 3.0 §5.2.4.12; BDS-3 GEOs are 59–63)."""
+BEIDOU_GEO_TILT_RAD = np.radians(-5.0)
+"""Rotation about X applied to a BeiDou GEO orbit before the Earth rotation (BDS-ICD-B1I §5.2.4.12)."""
 F_RELATIVISTIC = -4.442807633e-10
 """IS-GPS-200 relativistic clock constant F = −2·√GM / c², s/√m."""
 WGS84_A = 6378137.0
@@ -67,6 +89,9 @@ WGS84_F = 1.0 / 298.257223563
 """WGS-84 flattening."""
 MAX_EPHEMERIS_AGE_S = 7200.0
 """Largest |t − toe| for which a broadcast ephemeris is used, s (±2 h; the nominal fit interval is 4 h)."""
+MAX_EPHEMERIS_AGE_GLONASS_S = 1800.0
+"""Largest |t − t_b| for a GLONASS state-vector record, s (records come every 30 min; the ICD's
+simplified integration is specified for 15 min)."""
 
 _ORBIT_FIELDS = (
     "toe_gps_s",
@@ -109,15 +134,38 @@ def _params(eph) -> dict[str, np.ndarray]:
     return {f: get(f) for f in _ORBIT_FIELDS}
 
 
-def _gm(eph, shape) -> np.ndarray | float:
-    """GM of each record's system (from its ``sat`` letter; GPS when absent), m³/s²."""
+def _sats(eph, shape) -> np.ndarray:
+    """Satellite ids of the records ("G05" when absent), broadcast to ``shape``."""
     if isinstance(eph, pd.DataFrame):
         if "sat" not in eph.columns:
-            return GM_GPS
-        letters = eph["sat"].astype(str).str[0].to_numpy()
-        return np.array([GM_BY_SYSTEM.get(c, GM_GPS) for c in letters], dtype=float).reshape(shape)
-    sat = eph.get("sat", "G") if isinstance(eph, (pd.Series, Mapping)) else "G"
-    return GM_BY_SYSTEM.get(str(sat)[:1], GM_GPS)
+            return np.full(shape, "G00", dtype=object)
+        return eph["sat"].astype(str).to_numpy().reshape(shape)
+    sat = eph.get("sat", "G00") if isinstance(eph, (pd.Series, Mapping)) else "G00"
+    return np.full(shape, str(sat), dtype=object)
+
+
+def _system_constants(sats: np.ndarray):
+    """(GM m³/s², ω_e rad/s, BeiDou-GEO flag, GLONASS flag) per record, arrays shaped like ``sats``
+    (evaluated once per distinct satellite)."""
+    codes, uniq = pd.factorize(sats.ravel())
+    gm = np.array([GM_BY_SYSTEM.get(s[:1], GM_GPS) for s in uniq], dtype=float)
+    we = np.array([OMEGA_E_BY_SYSTEM.get(s[:1], OMEGA_E_GPS) for s in uniq], dtype=float)
+    geo = np.array([s[:1] == "C" and s[1:].isdigit() and int(s[1:]) in BEIDOU_GEO_PRNS for s in uniq], dtype=bool)
+    glo = np.array([s[:1] == "R" for s in uniq], dtype=bool)
+    return tuple(v[codes].reshape(sats.shape) for v in (gm, we, geo, glo))
+
+
+def beidou_geo_rotation(xyz_gk_m: np.ndarray, we_tk_rad) -> np.ndarray:
+    """R_Z(ω_e t_k) · R_X(−5°) · x_GK for BeiDou GEO satellites (BDS-ICD-B1I §5.2.4.12), m, shape (..., 3).
+
+    R_X(φ) = [[1, 0, 0], [0, cos φ, sin φ], [0, −sin φ, cos φ]] and R_Z(φ) = [[cos φ, sin φ, 0],
+    [−sin φ, cos φ, 0], [0, 0, 1]], written out component by component.
+    """
+    x, y, z = xyz_gk_m[..., 0], xyz_gk_m[..., 1], xyz_gk_m[..., 2]
+    ct, st = np.cos(BEIDOU_GEO_TILT_RAD), np.sin(BEIDOU_GEO_TILT_RAD)
+    y1, z1 = ct * y + st * z, -st * y + ct * z
+    c, s = np.cos(we_tk_rad), np.sin(we_tk_rad)
+    return np.stack([c * x + s * y1, -s * x + c * y1, z1], axis=-1)
 
 
 def _eccentric_anomaly(m: np.ndarray, e: np.ndarray) -> np.ndarray:
@@ -162,14 +210,35 @@ def sat_position_ecef(eph, t_gps_s, *, apply_tgd: bool = True) -> tuple[np.ndarr
     t − toe and t − toc are computed from continuous GPS seconds, so no week crossover handling is
     needed.  Accuracy is that of the broadcast message (about 1 m orbit, a few ns clock).
     """
-    p = _params(eph)
     t = np.asarray(t_gps_s, dtype=np.float64)
     if isinstance(eph, pd.DataFrame) and eph.shape[0] != t.size:
         raise ValueError(f"a DataFrame of ephemerides must have one row per time ({eph.shape[0]} rows, {t.size} times)")
+    sats = _sats(eph, t.shape)
+    glo = _system_constants(sats)[3]
+    if not glo.any():
+        return _kepler_position(eph, t, sats, apply_tgd)
+    if glo.all():
+        return _glonass_record_position(eph, t)
+    # a table mixing GLONASS and Kepler records: each part by its own algorithm
+    xyz, clock = np.empty(t.shape + (3,)), np.empty(t.shape)
+    flat_g = glo.ravel()
+    for mask in (flat_g, ~flat_g):
+        rows = np.flatnonzero(mask)
+        part = eph.iloc[rows]
+        tp = t.ravel()[rows]
+        x, c = (_glonass_record_position(part, tp) if mask is flat_g
+                else _kepler_position(part, tp, sats.ravel()[rows], apply_tgd))
+        xyz.reshape(-1, 3)[rows], clock.reshape(-1)[rows] = x, c
+    return xyz, clock
+
+
+def _kepler_position(eph, t: np.ndarray, sats: np.ndarray, apply_tgd: bool) -> tuple[np.ndarray, np.ndarray]:
+    """The Kepler user algorithm of :func:`sat_position_ecef` (GPS, Galileo, BeiDou incl. GEO)."""
+    p = _params(eph)
     if isinstance(eph, pd.DataFrame):
         p = {k: v.reshape(t.shape) for k, v in p.items()}
     a = p["sqrt_a_sqrt_m"] ** 2
-    gm = _gm(eph, t.shape)
+    gm, we, geo, _ = _system_constants(sats)
     n0 = np.sqrt(gm / a**3)
     tk = t - p["toe_gps_s"]
     n = n0 + p["delta_n_rad_per_s"]
@@ -184,9 +253,12 @@ def sat_position_ecef(eph, t_gps_s, *, apply_tgd: bool = True) -> tuple[np.ndarr
     r = a * (1.0 - e * cos_e) + p["crs_m"] * s2 + p["crc_m"] * c2
     inc = p["i0_rad"] + p["idot_rad_per_s"] * tk + p["cis_rad"] * s2 + p["cic_rad"] * c2
     xp, yp = r * np.cos(u), r * np.sin(u)
-    om = p["omega0_rad"] + (p["omega_dot_rad_per_s"] - OMEGA_E_GPS) * tk - OMEGA_E_GPS * p["toe_sow_s"]
+    # GEO: the node stays in the frame of t_oe (no −ω_e·t_k); the Earth rotation comes after the tilt
+    om = p["omega0_rad"] + (p["omega_dot_rad_per_s"] - np.where(geo, 0.0, we)) * tk - we * p["toe_sow_s"]
     cos_om, sin_om, cos_i = np.cos(om), np.sin(om), np.cos(inc)
     xyz = np.stack([xp * cos_om - yp * cos_i * sin_om, xp * sin_om + yp * cos_i * cos_om, yp * np.sin(inc)], axis=-1)
+    if np.any(geo):
+        xyz = np.where(geo[..., None], beidou_geo_rotation(xyz, we * tk), xyz)
     dt = t - p["toc_gps_s"]
     clock = p["af0_s"] + p["af1_s_per_s"] * dt + p["af2_s_per_s2"] * dt * dt + F_RELATIVISTIC * np.sqrt(gm / GM_GPS) * e * p["sqrt_a_sqrt_m"] * sin_e
     if apply_tgd:
@@ -194,7 +266,26 @@ def sat_position_ecef(eph, t_gps_s, *, apply_tgd: bool = True) -> tuple[np.ndarr
     return xyz, clock
 
 
-def select_ephemeris(nav: pd.DataFrame, sat: str, t_gps_s, *, max_age_s: float = MAX_EPHEMERIS_AGE_S) -> pd.DataFrame | pd.Series:
+def _glonass_record_position(eph, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Position and clock of GLONASS state-vector records (:data:`GLONASS_NAV_COLUMNS`) at GPS times ``t``."""
+    fields = GLONASS_NAV_COLUMNS[:9] + ("toe_gps_s", "af0_s", "af1_s_per_s")
+    missing = [f for f in fields if f not in (eph.columns if isinstance(eph, pd.DataFrame) else eph)]
+    if missing:
+        raise ValueError(f"GLONASS ephemeris lacks field(s) {', '.join(missing)} (as produced by read_rinex_nav with 'R')")
+    flat = t.reshape(-1)
+    if isinstance(eph, pd.DataFrame):
+        v = {f: eph[f].to_numpy(dtype=np.float64) for f in fields}
+    else:
+        v = {f: np.full(flat.shape, float(eph[f])) for f in fields}
+    state0 = np.column_stack([v[f] for f in GLONASS_NAV_COLUMNS[:6]])
+    accel = np.column_stack([v[f] for f in GLONASS_NAV_COLUMNS[6:9]])
+    dt = flat - v["toe_gps_s"]
+    state = glonass_position(state0, accel, dt)
+    clock = v["af0_s"] + v["af1_s_per_s"] * dt
+    return state[:, :3].reshape(t.shape + (3,)), clock.reshape(t.shape)
+
+
+def select_ephemeris(nav: pd.DataFrame, sat: str, t_gps_s, *, max_age_s: float | None = None) -> pd.DataFrame | pd.Series:
     """Pick, for each time, the healthy ephemeris of ``sat`` whose toe is nearest.
 
     Parameters
@@ -205,8 +296,9 @@ def select_ephemeris(nav: pd.DataFrame, sat: str, t_gps_s, *, max_age_s: float =
         Satellite, e.g. ``"G05"``.
     t_gps_s : float or array_like
         Time(s), GPS seconds.
-    max_age_s : float, default 7200
-        Largest accepted |t − toe|, s.
+    max_age_s : float, optional
+        Largest accepted |t − toe|, s; default :data:`MAX_EPHEMERIS_AGE_S` (7200), for GLONASS
+        :data:`MAX_EPHEMERIS_AGE_GLONASS_S` (1800).
 
     Returns
     -------
@@ -221,6 +313,8 @@ def select_ephemeris(nav: pd.DataFrame, sat: str, t_gps_s, *, max_age_s: float =
         |t − toe| ≤ ``max_age_s`` for some of the times; the message lists the uncovered times
         and the toe/health of the records the file has for that satellite.
     """
+    if max_age_s is None:
+        max_age_s = MAX_EPHEMERIS_AGE_GLONASS_S if str(sat).startswith("R") else MAX_EPHEMERIS_AGE_S
     t = np.asarray(t_gps_s, dtype=np.float64)
     scalar = t.ndim == 0
     t1 = np.atleast_1d(t).ravel()
@@ -281,7 +375,7 @@ def sat_position_at_reception(
     *,
     rx_clock_s=0.0,
     apply_tgd: bool = True,
-    max_age_s: float = MAX_EPHEMERIS_AGE_S,
+    max_age_s: float | None = None,
 ) -> ReceptionGeometry:
     """Satellite position for signals received at ``t_rx``: light time and Earth rotation.
 
@@ -305,8 +399,8 @@ def sat_position_at_reception(
         ~0.8 m per ms along the line of sight (range rate ≤ 800 m/s).
     apply_tgd : bool, default True
         See :func:`sat_position_ecef`.
-    max_age_s : float, default 7200
-        See :func:`select_ephemeris`.  The ephemeris is chosen by the reception tag ``t_rx``, so two
+    max_age_s : float, optional
+        See :func:`select_ephemeris` (default by system).  The ephemeris is chosen by the reception tag ``t_rx``, so two
         receivers sharing an epoch use the same ephemeris (required for double differences).
 
     Returns

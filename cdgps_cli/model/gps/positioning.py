@@ -37,6 +37,7 @@ import pandas as pd
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.model.gps.orbits import (
     GM_GPS,
+    MAX_EPHEMERIS_AGE_GLONASS_S,
     MAX_EPHEMERIS_AGE_S,
     OMEGA_E_GPS,
     azimuth_elevation,
@@ -203,7 +204,7 @@ def tropo_hydrostatic_m(el_rad, lat_rad, h_m, t_gps_s) -> np.ndarray:
 # ----------------------------------------------------------------------------------------------
 
 
-def ephemeris_coverage(nav: pd.DataFrame, sats, t_gps_s, *, max_age_s: float = MAX_EPHEMERIS_AGE_S) -> np.ndarray:
+def ephemeris_coverage(nav: pd.DataFrame, sats, t_gps_s, *, max_age_s: float | None = None) -> np.ndarray:
     """Which (satellite, time) pairs have a healthy broadcast ephemeris within ``max_age_s`` of toe.
 
     Parameters
@@ -214,8 +215,9 @@ def ephemeris_coverage(nav: pd.DataFrame, sats, t_gps_s, *, max_age_s: float = M
         Satellite of each row ("G05").
     t_gps_s : array_like, shape (N,)
         Time of each row, GPS s.
-    max_age_s : float
-        Largest accepted |t − toe|, s (the rule of :func:`~cdgps_cli.model.gps.orbits.select_ephemeris`).
+    max_age_s : float, optional
+        Largest accepted |t − toe|, s (the rule of :func:`~cdgps_cli.model.gps.orbits.select_ephemeris`;
+        default per system: 7200, GLONASS 1800).
 
     Returns
     -------
@@ -233,7 +235,8 @@ def ephemeris_coverage(nav: pd.DataFrame, sats, t_gps_s, *, max_age_s: float = M
         k = np.searchsorted(toe, t[sel])
         before = toe[np.clip(k - 1, 0, toe.size - 1)]
         after = toe[np.clip(k, 0, toe.size - 1)]
-        ok[sel] = np.minimum(np.abs(t[sel] - before), np.abs(t[sel] - after)) <= max_age_s
+        age = max_age_s if max_age_s is not None else (MAX_EPHEMERIS_AGE_GLONASS_S if str(s).startswith("R") else MAX_EPHEMERIS_AGE_S)
+        ok[sel] = np.minimum(np.abs(t[sel] - before), np.abs(t[sel] - after)) <= age
     return ok
 
 
