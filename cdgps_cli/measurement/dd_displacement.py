@@ -26,7 +26,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import block_diag
 
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli.measurement.differencing import dd_operator_batches
@@ -108,7 +107,7 @@ class SatelliteDDDisplacement(MeasurementModel):
         else:
             z, labels, col, col_ref, L, Hx = (np.concatenate([p[0] for p in parts]), sum((p[1] for p in parts), []),
                                               np.concatenate([p[2] for p in parts]),
-                                              np.concatenate([p[3] for p in parts]), block_diag(*[p[4] for p in parts]),
+                                              np.concatenate([p[3] for p in parts]), _block_diagonal([p[4] for p in parts]),
                                               np.concatenate([p[5] for p in parts]))
         H = Hx
         if self.n_state > Hx.shape[1]:
@@ -162,3 +161,14 @@ def _epoch_part(kd: dict, k: int, names: list):
     col = np.full(m, -1, dtype=np.int64) if bt["col"] is None else bt["col"][i]
     col_ref = np.full(m, -1, dtype=np.int64) if bt["col_ref"] is None else np.full(m, bt["col_ref"][i])
     return bt["z"][i], labels, col, col_ref, bt["L"][i], bt["H"][i]
+
+
+def _block_diagonal(blocks: list) -> np.ndarray:
+    """The square blocks on the diagonal of one matrix (scipy's block_diag costs ~0.5 ms a call)."""
+    m = sum(b.shape[0] for b in blocks)
+    out = np.zeros((m, m))
+    i = 0
+    for b in blocks:
+        out[i:i + b.shape[0], i:i + b.shape[0]] = b
+        i += b.shape[0]
+    return out
