@@ -49,7 +49,8 @@ from cdgps_cli.core import progress
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.config.limits import INIT_BOUNDS, OPTION_BOUNDS
 from cdgps_cli.core.checks import has_bool, is_json_number, require_finite
-from cdgps_cli.measurement.phase import EpochPhaseModel, channel_indices, phase_model
+from cdgps_cli.measurement.model import PseudoliteSD, Rows
+from cdgps_cli.measurement.phase import channel_indices, phase_model
 from cdgps_cli.measurement import multipath
 from cdgps_cli.measurement.noise import filter_sigma_estimate, init_channel_sigma_m
 from cdgps_cli.core.records import Run
@@ -354,7 +355,10 @@ class _ForwardPass:
         self.EVENT = lock_events(self.Y, LOCK)
         self.ant, self.tx = channel_indices(cfg, [c[0] for c in chans], [c[1] for c in chans])
         self.line = cfg.antenna_line_bias_m[self.ant] - cfg.antenna_line_bias_m[cfg.master_index]
-        self.hmodel = EpochPhaseModel(cfg, self.ant, self.tx)
+        # h(x), H of every channel through the measurement-model interface (the compiled kernel has its own copy)
+        self.meas = PseudoliteSD(cfg, self.Y, self.ant, self.tx, self.sig_c)
+        self.all_channels = Rows(np.zeros(C), chans, np.full(C, -1, dtype=np.int64), sigma_m=self.sig_c,
+                                 context=np.arange(C))
 
     def _thruster_inputs(self) -> None:
         """U_in (N, n_thrusters): thruster commands held over each epoch (zero-order hold)."""
@@ -497,7 +501,7 @@ class _ForwardPass:
                 self.log(k, None, "rest segment end", "process noise back to the kinematic model")
             xq = self.x[:self.n]
             if self.hx_at is None or not np.array_equal(self.hx_at, xq):    # (the rest checks evaluated it already)
-                self.h, self.Hx = self.hmodel(xq)
+                self.h, self.Hx = self.meas.predict(xq, self.all_channels)
             self.hx_at = None
             self.new_bias_states_hook(k, y)
             usable = present.copy() if self.use_bias_states else present & ~np.isnan(self.bias)
@@ -594,7 +598,7 @@ class _ForwardPass:
         if vel_nis > vel_bound:
             return f"modal velocities not zero (NIS {vel_nis:.1f} > {vel_bound:.1f})"
         self.hx_at = self.x[:self.n].copy()
-        self.h, self.Hx = self.hmodel(self.hx_at)
+        self.h, self.Hx = self.meas.predict(self.hx_at, self.all_channels)
         usable = present & ~np.isnan(self.bias)
         why, nis_failed = rest_motion(self.x, self.P, self.h, self.Hx, y=y, bias=self.bias, usable=usable,
                                       mp0=self.mp0, n=self.n, use_bias_states=self.use_bias_states, r_var=self.r_var,
