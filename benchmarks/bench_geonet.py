@@ -32,7 +32,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from cdgps_cli.estimation.baseline import BaselineOptions, Station, baseline_from_files, solve_static_baseline  # noqa: E402
+from cdgps_cli.estimation.baseline import BaselineOptions, Station, solve_static_baseline  # noqa: E402
+from cdgps_cli.pipeline.baseline_job import baseline_from_files  # noqa: E402
 from cdgps_cli.model.gps.orbits import ecef_to_enu, ecef_to_geodetic, enu_matrix  # noqa: E402
 from cdgps_cli.model.gps.positioning import simulate_static_pair  # noqa: E402
 from cdgps_cli.core.gps_time import gps_seconds  # noqa: E402

@@ -1,12 +1,11 @@
-"""The import contract of cdgps_cli (.importlinter), in REPORT-ONLY mode.
+"""The import contract of cdgps_cli (.importlinter), enforcing.
 
 The target layout (../shared/design/architecture.md) makes imports point one way: numerics never
 touch files, io never imports numerics, only the CLI imports click.  The modules live in their
-subpackages (issue 13 step 2, docs/architecture-map.md) and .importlinter states the rules on them.  This
-test runs import-linter through its Python API, prints every broken contract with its import chains,
-asserts the contracts that already hold (so they cannot regress while code moves), and marks the
-others xfail (non-strict) with the chain that breaks them today.  Step 4 of "Moving without
-breaking" turns every contract to enforcing.
+subpackages (issue 13, docs/architecture-map.md) and .importlinter states the rules on them.  This
+test runs import-linter through its Python API and asserts every contract, printing the import
+chains of a broken one.  (The last report-only contract, numerics-never-touch-files, became
+enforcing when the baseline's job-file and RINEX loading moved to pipeline/baseline_job.py.)
 """
 
 from __future__ import annotations
@@ -22,15 +21,10 @@ from importlinter.application.use_cases import create_report, read_user_options 
 
 CONFIG = Path(__file__).resolve().parents[1] / ".importlinter"
 
-# contracts that hold today: asserted
-KEPT_TODAY = ("library-never-imports-cli", "only-cli-imports-click", "numerics-never-render",
-              "readers-never-import-estimation", "core-numerics-are-pure", "config-below-numerics", "target-layers",
-              "control-is-numerics", "io-never-imports-numerics")
-# target rules broken today, with the reason (the chain that breaks them); xfail until step 3 splits them
-NOT_YET = {
-    "numerics-never-touch-files": "estimation.baseline still holds its job-file and RINEX loading (→ io.atomic, "
-                                  "io.rinex)",
-}
+# every contract of .importlinter, asserted
+CONTRACTS = ("library-never-imports-cli", "only-cli-imports-click", "numerics-never-render",
+             "readers-never-import-estimation", "core-numerics-are-pure", "config-below-numerics", "target-layers",
+             "control-is-numerics", "io-never-imports-numerics", "numerics-never-touch-files")
 
 
 @pytest.fixture(scope="module")
@@ -53,20 +47,11 @@ def _broken_text(check) -> str:
     return "\n".join(lines) or f"  {check.metadata}"
 
 
-def test_every_contract_is_classified(checks):
-    assert sorted(checks) == sorted(KEPT_TODAY + tuple(NOT_YET))
+def test_every_contract_is_listed(checks):
+    assert sorted(checks) == sorted(CONTRACTS)
 
 
-@pytest.mark.parametrize("cid", KEPT_TODAY)
-def test_contract_that_holds_today(checks, cid):
+@pytest.mark.parametrize("cid", CONTRACTS)
+def test_contract_holds(checks, cid):
     contract, check = checks[cid]
     assert check.kept, f"{contract.name} is broken:\n{_broken_text(check)}"
-
-
-@pytest.mark.parametrize("cid", [pytest.param(c, marks=pytest.mark.xfail(strict=False, reason=r))
-                                 for c, r in NOT_YET.items()])
-def test_target_contract_report_only(checks, cid):
-    contract, check = checks[cid]
-    if not check.kept:
-        print(f"BROKEN (report-only): {contract.name}\n{_broken_text(check)}")
-    assert check.kept, f"{contract.name} is broken (report-only until the moves)"

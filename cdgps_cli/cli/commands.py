@@ -937,7 +937,8 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, weight
     """Static baseline from two receivers' RINEX L1 phase: float, LAMBDA integers, fixed → JSON."""
     import dataclasses
 
-    from cdgps_cli.estimation.baseline import BaselineOptions, baseline_from_files, format_summary, json_safe, load_baseline_job
+    from cdgps_cli.estimation.baseline import BaselineOptions, format_summary, json_safe
+    from cdgps_cli.pipeline.baseline_job import baseline_from_files, load_baseline_job
 
     positions = {}
     if job:
@@ -1026,7 +1027,7 @@ def baseline_config_cmd(ctx, rinex, nav, master, output):
 
     The file is a GNSS run config (docs/gnss-pipeline.md), so it also serves 'cdgps ingest'.
     """
-    from cdgps_cli.estimation.baseline import load_baseline_job
+    from cdgps_cli.pipeline.baseline_job import load_baseline_job
     from cdgps_cli.pipeline.gnss_ingest import starter_gnss_config
 
     stations = _parse_named(rinex, "--rinex", "station", "NAME=PATH")

@@ -52,7 +52,7 @@ def _listed_files(name: str, path: str) -> list[tuple[str, str]]:
     out = []
     try:
         if name == "job":
-            from cdgps_cli.estimation.baseline import load_baseline_job
+            from cdgps_cli.pipeline.baseline_job import load_baseline_job
 
             job = load_baseline_job(path)
             out += [(f"{path} rinex {k}", str(v)) for k, v in job["rinex"].items()]

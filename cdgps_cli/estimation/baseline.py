@@ -32,9 +32,7 @@ from __future__ import annotations
 
 import math
 import time
-import tomllib
 from dataclasses import asdict, dataclass
-from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
@@ -44,8 +42,10 @@ from scipy.linalg import cho_factor, cho_solve
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M, SPEED_OF_LIGHT_M_S
 from cdgps_cli.core import progress
 from cdgps_cli.estimation.ambiguity import AmbiguityError, resolve
-from cdgps_cli.io.atomic import path_for_config
-from cdgps_cli.config.options import GNSS_DEFAULTS, toml_value
+from cdgps_cli.estimation.model_filter import filter_numpy
+from cdgps_cli.measurement.dd_displacement import SatelliteDDDisplacement, SDObservations
+from cdgps_cli.model.dynamics_models import RandomWalk, WithConstants
+from cdgps_cli.config.options import GNSS_DEFAULTS
 from cdgps_cli.config.structure import GNSS_WEIGHTINGS
 from cdgps_cli.measurement.differencing import (
     ambiguity_datum,
@@ -66,20 +66,20 @@ from cdgps_cli.model.gps.positioning import (
     spp_static,
 )
 from cdgps_cli.core.gps_time import gps_time_str
-from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
 from cdgps_cli.model.gps.epoch_align import ALIGN_MODES, align_receiver, carry_slips, pair_epochs
 
 __all__ = [
     "BaselineOptions",
     "Station",
     "solve_static_baseline",
-    "load_stations",
-    "baseline_from_files",
-    "load_baseline_job",
     "format_summary",
-    "starter_job_toml",
     "json_safe",
 ]
+
+
+# prior σ of the ambiguity corrections in the random-walk float filter, cycles (removed exactly afterwards;
+# large against any correction, small enough to keep the filter's covariance well conditioned)
+AMBIGUITY_PRIOR_SIGMA_CYCLES = 100.0
 
 
 @dataclass(frozen=True)
@@ -263,9 +263,36 @@ class _Data(NamedTuple):
     info: dict
 
 
-def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOptions,
-             master_xyz, rover_xyz, warnings: list) -> _Data:
-    mask = math.radians(opt.mask_deg)
+class _Epochs(NamedTuple):
+    """The common epochs of the pair on the grid of GPS times."""
+
+    aligned: dict              # receiver name → its observations on the grid (epoch_align)
+    align_info: dict           # receiver name → alignment summary
+    grid: dict                 # receiver name → (its grid times, index of each common epoch among them)
+    t_label: np.ndarray        # (n_ep,) common epoch times, GPS s
+    interval_s: float
+    n_tags: dict               # receiver name → number of distinct time tags
+
+
+def _align(st: Station, opt: BaselineOptions, warnings: list):
+    """One receiver's observations on the grid of GPS times (warnings for what is not used)."""
+    try:
+        aligned, a = align_receiver(st.obs, tol_s=opt.sync_tol_s, mode=opt.epoch_alignment, what=_where(st))
+    except ValueError as exc:
+        raise CdgpsError(str(exc)) from None
+    lost = a["dropped_off_grid"] + a["dropped_duplicate"]
+    if lost:
+        warnings.append(f"{st.name}: {lost} of {a['epochs']} epochs not used: more than {a['tolerance_ms']:g} ms from "
+                        f"the {a['grid_s']:.6g} s grid of GPS times ({a['dropped_off_grid']}) or a second epoch on "
+                        f"one grid time ({a['dropped_duplicate']})")
+    if a["rows_dropped_no_rate"]:
+        warnings.append(f"{st.name}: {a['rows_dropped_no_rate']} off-grid observations without a carrier-phase rate "
+                        f"(lock segments under 3 epochs) could not be moved to the grid and are not used")
+    return aligned, a
+
+
+def _common_epochs(master: Station, rover: Station, opt: BaselineOptions, warnings: list) -> _Epochs:
+    """Epochs of both receivers on the common grid of GPS times (pairs at any rates)."""
     for st in (master, rover):
         o = st.obs
         if len(o) == 0 or not np.isfinite(o["phase_l1_cycles"].to_numpy(dtype=float)).any():
@@ -274,23 +301,9 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
     tm = np.unique(master.obs["time_gps_s"].to_numpy())
     tr = np.unique(rover.obs["time_gps_s"].to_numpy())
     interval = nominal_interval_s(tm)
-    # epochs on the common grid of GPS times (epoch_align): pairs at any rates
     aligned, align_info = {}, {}
     for st in (master, rover):
-        try:
-            aligned[st.name], align_info[st.name] = align_receiver(st.obs, tol_s=opt.sync_tol_s,
-                                                                   mode=opt.epoch_alignment, what=_where(st))
-        except ValueError as exc:
-            raise CdgpsError(str(exc)) from None
-        a = align_info[st.name]
-        lost = a["dropped_off_grid"] + a["dropped_duplicate"]
-        if lost:
-            warnings.append(f"{st.name}: {lost} of {a['epochs']} epochs not used: more than {a['tolerance_ms']:g} ms from "
-                            f"the {a['grid_s']:.6g} s grid of GPS times ({a['dropped_off_grid']}) or a second epoch on "
-                            f"one grid time ({a['dropped_duplicate']})")
-        if a["rows_dropped_no_rate"]:
-            warnings.append(f"{st.name}: {a['rows_dropped_no_rate']} off-grid observations without a carrier-phase rate "
-                            f"(lock segments under 3 epochs) could not be moved to the grid and are not used")
+        aligned[st.name], align_info[st.name] = _align(st, opt, warnings)
     gm = np.unique(aligned[master.name]["grid_gps_s"].to_numpy())
     gr = np.unique(aligned[rover.name]["grid_gps_s"].to_numpy())
     im, ir = pair_epochs(gm, gr)
@@ -303,46 +316,57 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
         align_info[st.name]["matched"] = int(n_m)
     q = 10.0 ** math.floor(math.log10(interval)) / 10.0 if math.isfinite(interval) and interval > 0 else 1e-3
     t_label = np.round(gm[im] / q) * q
-    n_ep = im.size
-    tag_of = {}
+    return _Epochs(aligned, align_info, {master.name: (gm, im), rover.name: (gr, ir)}, t_label, interval,
+                   {master.name: tm.size, rover.name: tr.size})
 
-    # per receiver: rows in matched epochs with an ephemeris, epoch index, clocks
-    per = {}
-    for st, t_all, idx in ((master, gm, im), (rover, gr, ir)):
-        o = aligned[st.name]
-        ep_of_tag = np.full(t_all.size, -1, dtype=np.int64)
-        ep_of_tag[idx] = np.arange(n_ep)
-        k = ep_of_tag[np.searchsorted(t_all, o["grid_gps_s"].to_numpy())]
-        tag_of[st.name] = np.full(n_ep, np.nan)
-        tag_of[st.name][k[k >= 0]] = o["tag_gps_s"].to_numpy()[k >= 0]
-        # slip flags of rows that are not differenced move to the satellite's next differenced row
-        used = np.zeros(len(st.obs), dtype=bool)
-        used[o["row"].to_numpy()[k >= 0]] = True
-        lli_all = carry_slips(st.obs["time_gps_s"].to_numpy(dtype=np.float64), st.obs["sat"].to_numpy(),
-                              st.obs["lli_l1"].to_numpy(dtype=np.int64), used)
-        o = o.assign(lli_l1=lli_all[o["row"].to_numpy()])
-        o = o[k >= 0].copy()
-        o["ep"] = k[k >= 0]
-        cov = ephemeris_coverage(nav, o["sat"].to_numpy(), t_label[o["ep"].to_numpy()])
-        if not cov.any():
-            tn = nav["toe_gps_s"].to_numpy()
-            raise CdgpsError(f"the navigation data does not cover the observations of {_where(st)}: observations "
-                             f"{_span(t_label)}, broadcast ephemerides with toe {_span(tn)} "
-                             f"(each is used within ±2 h of its toe); give the navigation file(s) of that day")
-        dropped = o.loc[~cov, "sat"].value_counts()
-        if len(dropped):
-            warnings.append(f"{st.name}: {int(dropped.sum())} observations of {', '.join(sorted(dropped.index))} have no "
-                            f"healthy broadcast ephemeris within ±2 h and are not used")
-        o = o[cov]
-        ep = o["ep"].to_numpy()
-        pos = master_xyz if st is master else rover_xyz
-        clk = estimate_receiver_clock(ep, o["sat"].to_numpy(), o["time_gps_s"].to_numpy(),
-                                      o["pseudorange_l1_m"].to_numpy(), nav, pos, n_epochs=n_ep,
-                                      troposphere=opt.troposphere, what=_where(st))
-        o["t_true"] = o["time_gps_s"].to_numpy() - clk[ep]
-        per[st.name] = (o, clk)
-    om, clk_m = per[master.name]
-    orv, clk_r = per[rover.name]
+
+def _receiver_rows(st: Station, ce: _Epochs, nav: pd.DataFrame, pos, opt: BaselineOptions, warnings: list):
+    """One receiver's rows in the common epochs with an ephemeris, their epoch index and true
+    reception times; its clock per epoch, s; its time tag per epoch (NaN: none), GPS s."""
+    t_all, idx = ce.grid[st.name]
+    t_label = ce.t_label
+    n_ep = t_label.size
+    o = ce.aligned[st.name]
+    ep_of_tag = np.full(t_all.size, -1, dtype=np.int64)
+    ep_of_tag[idx] = np.arange(n_ep)
+    k = ep_of_tag[np.searchsorted(t_all, o["grid_gps_s"].to_numpy())]
+    tag = np.full(n_ep, np.nan)
+    tag[k[k >= 0]] = o["tag_gps_s"].to_numpy()[k >= 0]
+    # slip flags of rows that are not differenced move to the satellite's next differenced row
+    used = np.zeros(len(st.obs), dtype=bool)
+    used[o["row"].to_numpy()[k >= 0]] = True
+    lli_all = carry_slips(st.obs["time_gps_s"].to_numpy(dtype=np.float64), st.obs["sat"].to_numpy(),
+                          st.obs["lli_l1"].to_numpy(dtype=np.int64), used)
+    o = o.assign(lli_l1=lli_all[o["row"].to_numpy()])
+    o = o[k >= 0].copy()
+    o["ep"] = k[k >= 0]
+    cov = ephemeris_coverage(nav, o["sat"].to_numpy(), t_label[o["ep"].to_numpy()])
+    if not cov.any():
+        tn = nav["toe_gps_s"].to_numpy()
+        raise CdgpsError(f"the navigation data does not cover the observations of {_where(st)}: observations "
+                         f"{_span(t_label)}, broadcast ephemerides with toe {_span(tn)} "
+                         f"(each is used within ±2 h of its toe); give the navigation file(s) of that day")
+    dropped = o.loc[~cov, "sat"].value_counts()
+    if len(dropped):
+        warnings.append(f"{st.name}: {int(dropped.sum())} observations of {', '.join(sorted(dropped.index))} have no "
+                        f"healthy broadcast ephemeris within ±2 h and are not used")
+    o = o[cov]
+    ep = o["ep"].to_numpy()
+    clk = estimate_receiver_clock(ep, o["sat"].to_numpy(), o["time_gps_s"].to_numpy(),
+                                  o["pseudorange_l1_m"].to_numpy(), nav, pos, n_epochs=n_ep,
+                                  troposphere=opt.troposphere, what=_where(st))
+    o["t_true"] = o["time_gps_s"].to_numpy() - clk[ep]
+    return o, clk, tag
+
+
+def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOptions,
+             master_xyz, rover_xyz, warnings: list) -> _Data:
+    """The pair's single differences in the common epochs above the mask, with geometry and clocks."""
+    mask = math.radians(opt.mask_deg)
+    ce = _common_epochs(master, rover, opt, warnings)
+    t_label, n_ep = ce.t_label, ce.t_label.size
+    om, clk_m, tag_m = _receiver_rows(master, ce, nav, master_xyz, opt, warnings)
+    orv, clk_r, tag_r = _receiver_rows(rover, ce, nav, rover_xyz, opt, warnings)
     om = om[np.isfinite(om["phase_l1_cycles"].to_numpy())]
     orv = orv[np.isfinite(orv["phase_l1_cycles"].to_numpy())]
     j = pd.merge(orv, om, on=["ep", "sat"], suffixes=("_r", "_b"), how="inner", sort=True)
@@ -361,14 +385,36 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
         raise CdgpsError(f"no double differences: fewer than two common satellites above the {opt.mask_deg:g}° mask "
                          f"at every common epoch ({n_ep} epochs, {_span(t_label)})")
     sel = np.flatnonzero(keep)
+    info = {
+        "n_epochs_master": int(ce.n_tags[master.name]),
+        "n_epochs_rover": int(ce.n_tags[rover.name]),
+        "n_epochs_common": int(n_ep),
+        "n_epochs_used": int(np.unique(ep[sel]).size),
+        "interval_s": ce.interval_s,
+        "first_epoch": gps_time_str(float(t_label[0])),
+        "last_epoch": gps_time_str(float(t_label[-1])),
+        "max_tag_difference_ms": float(np.nanmax(np.abs(tag_m - tag_r)) * 1e3),
+        "epoch_alignment": ce.align_info,
+        "rx_clock_ms": {
+            master.name: [float(np.min(clk_m) * 1e3), float(np.max(clk_m) * 1e3)],
+            rover.name: [float(np.min(clk_r) * 1e3), float(np.max(clk_r) * 1e3)],
+        },
+        "below_mask_sd_rows": {str(k): int(v) for k, v in below.items()},
+    }
+    return _sd_data(j, sel, gb, gr, t_label, ce.interval_s, info)
+
+
+def _sd_data(j: pd.DataFrame, sel, gb: dict, gr: dict, t_label, interval: float, info: dict) -> _Data:
+    """The selected rows ``sel`` of the merged rover/master table ``j`` as the solver's :class:`_Data`."""
+    sat_r = j["sat"].to_numpy()
+    ep_sel = j["ep"].to_numpy()[sel]
     names = sorted(set(sat_r[sel].tolist()))
     sat_idx = {s: i for i, s in enumerate(names)}
     lli_r = j["lli_l1_r"].to_numpy()[sel]
     lli_b = j["lli_l1_b"].to_numpy()[sel]
     reset = set(np.unique(j["ep"].to_numpy()[(j["epoch_flag_r"].to_numpy() == 1) | (j["epoch_flag_b"].to_numpy() == 1)]).tolist())
-    ep_sel = ep[sel]
-    data = _Data(
-        ptr=epoch_pointers(ep_sel, n_ep),
+    return _Data(
+        ptr=epoch_pointers(ep_sel, t_label.size),
         epoch=ep_sel,
         sat=np.array([sat_idx[s] for s in sat_r[sel]], dtype=np.int64),
         sat_names=names,
@@ -387,24 +433,8 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
         slip_base=(lli_b & 1).astype(bool),
         reset_epochs=np.array(sorted(reset), dtype=np.int64),
         interval_s=interval,
-        info={
-            "n_epochs_master": int(tm.size),
-            "n_epochs_rover": int(tr.size),
-            "n_epochs_common": int(n_ep),
-            "n_epochs_used": int(np.unique(ep_sel).size),
-            "interval_s": interval,
-            "first_epoch": gps_time_str(float(t_label[0])),
-            "last_epoch": gps_time_str(float(t_label[-1])),
-            "max_tag_difference_ms": float(np.nanmax(np.abs(tag_of[master.name] - tag_of[rover.name])) * 1e3),
-            "epoch_alignment": align_info,
-            "rx_clock_ms": {
-                master.name: [float(np.min(clk_m) * 1e3), float(np.max(clk_m) * 1e3)],
-                rover.name: [float(np.min(clk_r) * 1e3), float(np.max(clk_r) * 1e3)],
-            },
-            "below_mask_sd_rows": {str(k): int(v) for k, v in below.items()},
-        },
+        info=info,
     )
-    return data
 
 
 # ----------------------------------------------------------------------------------------------
@@ -480,96 +510,485 @@ def _quad(blocks, r) -> tuple[float, int]:
     return s, m
 
 
-def _float_random_walk(d: _Data, blocks_ph, blocks_code, g, r_ph, r_cd, col, n_amb: int, opt: BaselineOptions):
-    """Float ambiguities (and covariance) for a rover whose position random-walks.
+def _float_random_walk(d: _Data, sg: "_Segments", w: "_Weights", fl: "_Float", opt: BaselineOptions):
+    """Float ambiguities (and covariance) for a rover whose position random-walks, by the engine.
 
-    Model per epoch k (SD rows, DD weights P_k of :func:`~cdgps_cli.measurement.differencing.dd_weight_blocks`; phase
-    and code): ``r = G δx_k + λ E_k a + ε`` with ``δx_k = δx_{k−1} + w_k``,
-    ``w_k ~ N(0, diag(σ²)·Δt)`` and constant ambiguities ``a``.  The positions are eliminated by a
-    Kalman filter run *conditionally on a*: its estimate is affine in a (``m_k + M_k a``), its
-    covariance does not depend on a, and the prediction-error decomposition of the likelihood
-    accumulates ``aᵀJa − 2hᵀa``, so ``â = J⁻¹h`` and ``Cov(â) = J⁻¹`` are the float ambiguities
-    of the exact joint (positions + ambiguities) least-squares problem.  Per epoch the innovation
-    weight is ``W = P − PG(P⁻¹_pred + GᵀPG)⁻¹GᵀP`` (Woodbury); everything is expressed through
-    GᵀPG, GᵀPr and the active ambiguity columns, so an epoch costs O(n_amb²).
-
-    ``r_ph``/``r_cd``/``g`` are the residuals and design at the static float solution (the
-    linearization point), ``col`` the parameter index (≥ 3) of each row's ambiguity or −1.
+    Model per epoch k (phase and code DDs, :class:`~cdgps_cli.measurement.dd_displacement.SatelliteDDDisplacement`
+    linearized at the static float solution): ``z_k = D G δx_k + λ D E_k a + ν_k`` with
+    ``δx_k = δx_{k−1} + w_k``, ``w_k ~ N(0, diag(σ²)·Δt)``, δx_1 ~ N(0, ``initial_sigma_m``²) and
+    constant ambiguity corrections ``a`` (cycles).  The engine's forward filter
+    (:func:`~cdgps_cli.estimation.model_filter.filter_numpy`, one update per epoch: the model is
+    linear) runs on x = [δx, a] (:class:`~cdgps_cli.model.dynamics_models.WithConstants`) from a
+    prior a ~ N(0, σ_a² I); a is constant, so its estimate and covariance at the last epoch are its
+    posterior given every epoch, whose information is J + σ_a⁻² I with J the information of the
+    exact joint (positions + ambiguities) least-squares problem.  The prior is removed exactly:
+    ``Cov(â) = J⁻¹``, ``â = J⁻¹ (J + σ_a⁻² I) â_post``.
 
     Returns
     -------
     da : ndarray (n_amb,)
-        Correction to the ambiguities behind ``r_ph``, cycles.
+        Correction to the ambiguities behind ``fl.r_ph``, cycles.
     q_aa : ndarray (n_amb, n_amb)
         Their covariance, cycles².
     """
-    lam = GPS_L1_WAVELENGTH_M
-    n_ep = d.t_label.size
-    N = np.zeros((n_ep, 3, 3))
-    b = np.zeros((n_ep, 3))
-    has = np.zeros(n_ep, dtype=bool)
-    ph = {}
-    for rows, p in blocks_ph:
-        ep = d.epoch[rows[:, 0]]
-        gk, rk = g[rows], r_ph[rows]
-        pg = np.einsum("kij,kjc->kic", p, gk)
-        pr = np.einsum("kij,kj->ki", p, rk)
-        N[ep] += np.einsum("kic,kid->kcd", gk, pg)
-        b[ep] += np.einsum("kic,ki->kc", gk, pr)
-        has[ep] = True
-        cc = col[rows] - 3
-        for i in range(rows.shape[0]):
-            a_ok = cc[i] >= 0
-            if a_ok.any():
-                ph[int(ep[i])] = (cc[i][a_ok], lam * pg[i][a_ok].T, lam * pr[i][a_ok], lam * lam * p[i][np.ix_(a_ok, a_ok)])
-    for rows, p in blocks_code:
-        ep = d.epoch[rows[:, 0]]
-        gk, rk = g[rows], r_cd[rows]
-        pg = np.einsum("kij,kjc->kic", p, gk)
-        N[ep] += np.einsum("kic,kid->kcd", gk, pg)
-        b[ep] += np.einsum("kic,kij,kj->kc", gk, p, rk)
-        has[ep] = True
-    q = np.asarray(opt.random_walk_sigma, dtype=np.float64) ** 2
-    m = np.zeros(3)
-    M = np.zeros((3, n_amb))
-    P = np.eye(3) * opt.initial_sigma_m**2
-    J = np.zeros((n_amb, n_amb))
-    h = np.zeros(n_amb)
-    t = d.t_label
-    inv = np.linalg.inv
-    for k in range(n_ep):
-        if k:
-            P = P + np.diag(q * max(t[k] - t[k - 1], 0.0))
-        if not has[k]:
-            continue
-        Nk = N[k]
-        Pn = inv(inv(P) + Nk)
-        gpu = b[k] - Nk @ m
-        gpb = Nk @ M
-        bpu = M.T @ gpu
-        bpb = M.T @ gpb
-        a = ph.get(k)
-        if a is not None:
-            cols, cr, fr, lr = a
-            gpb[:, cols] += cr
-            mtc = M.T @ cr
-            bpb[:, cols] += mtc
-            bpb[cols, :] += mtc.T
-            bpb[np.ix_(cols, cols)] += lr
-            bpu[cols] += fr - cr.T @ m
-        T = Pn @ gpb
-        J += bpb - gpb.T @ T
-        h += bpu - T.T @ gpu
-        m = m + Pn @ gpu
-        M = M - T
-        P = 0.5 * (Pn + Pn.T)
+    n_amb = sg.n_par - 3
+    par = sg.par_of_seg[sg.seg]
+    obs = [SDObservations(fl.r_ph, w.var_ph, w.ref_ph, ambiguity_col=np.where(par >= 0, par - 3, -1)),
+           SDObservations(fl.r_cd, w.var_code, w.ref_code, usable=w.code_ok, kind="code")]
+    model = SatelliteDDDisplacement(d.ptr, d.sat, d.sat_names, fl.g, obs, n_ambiguities=n_amb)
+    dyn = WithConstants(RandomWalk(3, opt.random_walk_sigma), n_amb)
+    P0 = np.diag(np.r_[np.full(3, opt.initial_sigma_m**2), np.full(n_amb, AMBIGUITY_PRIOR_SIGMA_CYCLES**2)])
+    fr = filter_numpy(model, dyn, d.t_label, np.zeros(3 + n_amb), P0, max_iterations=1, history=False)
+    post = np.linalg.inv(fr["P"][3:, 3:])
+    J = post - np.eye(n_amb) / AMBIGUITY_PRIOR_SIGMA_CYCLES**2
     J = 0.5 * (J + J.T)
     try:
         cf = cho_factor(J, lower=False, check_finite=True)
     except np.linalg.LinAlgError:
         raise CdgpsError("random-walk float solution: the ambiguities are not separable from the rover's motion "
                          "(too few epochs per lock segment for the random-walk rate); lower random_walk sigma") from None
-    return cho_solve(cf, h), cho_solve(cf, np.eye(n_amb))
+    return cho_solve(cf, post @ fr["x"][3:]), cho_solve(cf, np.eye(n_amb))
+
+
+class _Segments(NamedTuple):
+    """Ambiguity segments of the SD rows and their parametrization (one datum pivot per connected set)."""
+
+    seg: np.ndarray            # (N,) segment of each SD row
+    segtab: dict               # per segment: sat, first_epoch, last_epoch, n_rows
+    n_seg: int
+    pivots: np.ndarray         # datum segments
+    comp: np.ndarray           # (n_seg,) connected set of each segment
+    is_pivot: np.ndarray       # (n_seg,) bool
+    seg_half: np.ndarray       # (n_seg,) bool: a half-cycle flag in the segment
+    free: np.ndarray           # segments that are parameters (not pivots)
+    par_of_seg: np.ndarray     # (n_seg,) parameter index (≥ 3) of each segment, −1 for pivots
+    n_par: int                 # 3 + free.size
+
+
+class _Weights(NamedTuple):
+    """SD variances, reference rows and DD weight blocks of the phase and code rows."""
+
+    var_ph: np.ndarray
+    ref_ph: np.ndarray
+    blocks_ph: list
+    code_ok: np.ndarray
+    var_code: np.ndarray
+    ref_code: np.ndarray
+    blocks_code: list
+    y_code: np.ndarray         # SD pseudorange, 0 where missing
+
+
+class _Float(NamedTuple):
+    x: np.ndarray              # ENU displacement, m
+    a_seg: np.ndarray          # SD ambiguities, cycles (pivots 0)
+    q: np.ndarray              # covariance of [x, free ambiguities]
+    block: dict                # the result's "float" block
+    g: np.ndarray              # (N, 3) design at x
+    r_ph: np.ndarray           # SD phase residuals at x, m
+    r_cd: np.ndarray           # SD code residuals at x, m
+    n_dd_code: int
+
+
+class _Fix(NamedTuple):
+    a_float: np.ndarray        # float ambiguities of the free segments, cycles
+    q_aa: np.ndarray           # their covariance, cycles²
+    fixed_mask: np.ndarray     # (free.size,) bool
+    integers: np.ndarray       # (free.size,) int
+    ratio: float | None
+    ratio_full: float | None
+    accepted: bool
+    partial: bool
+
+
+class _Final(NamedTuple):
+    block: dict | None         # the result's "fixed" block (None: nothing fixed)
+    x: np.ndarray              # reported ENU displacement, m
+    kind: str                  # "fixed", "partially fixed" or "float"
+    a_seg: np.ndarray          # SD ambiguities of the reported solution, cycles
+    known_seg: np.ndarray      # (n_seg,) bool: ambiguity known (pivot or fixed)
+    q3: np.ndarray             # (3, 3) covariance of x
+    g: np.ndarray
+    r_ph: np.ndarray
+
+
+def _a_priori_positions(master: Station, rover: Station, nav, master_xyz, rover_xyz, warnings: list):
+    """Master position (given or header) and the rover's a priori position with its source."""
+    xm = _header_position(master) if master_xyz is None else np.asarray(master_xyz, dtype=np.float64)
+    if xm is None:
+        raise CdgpsError(f"{_where(master)}: the RINEX header has no usable APPROX POSITION XYZ; the master (reference) "
+                         f"receiver must be at a known position")
+    xr0 = _header_position(rover) if rover_xyz is None else np.asarray(rover_xyz, dtype=np.float64)
+    rover_pos_source = "RINEX header APPROX POSITION XYZ" if rover_xyz is None else "given"
+    if xr0 is None:
+        o = rover.obs
+        tt = o["time_gps_s"].to_numpy()
+        _, ep = np.unique(tt, return_inverse=True)
+        ok = ephemeris_coverage(nav, o["sat"].to_numpy(), tt)
+        xr0, _ = spp_static(ep[ok], o["sat"].to_numpy()[ok], tt[ok], o["pseudorange_l1_m"].to_numpy()[ok], nav,
+                            x0_ecef_m=xm, what=_where(rover))
+        rover_pos_source = "pseudorange single-point position (no header position)"
+        warnings.append(f"{rover.name}: no APPROX POSITION XYZ in the header; a priori position from pseudoranges")
+    return xm, xr0, rover_pos_source
+
+
+def _segments(d: _Data, opt: BaselineOptions) -> _Segments:
+    """Ambiguity segments, datum pivots and the parameter index of every free segment."""
+    seg, segtab = ambiguity_segments(d.epoch, d.sat, d.slip, epoch_time_s=d.t_label, max_gap_s=opt.max_gap_s,
+                                     reset_epochs=d.reset_epochs)
+    n_seg = segtab["sat"].size
+    pivots, comp = ambiguity_datum(d.epoch, seg, n_seg)
+    is_pivot = np.zeros(n_seg, dtype=bool)
+    is_pivot[pivots] = True
+    seg_half = np.bincount(seg, weights=d.half.astype(float), minlength=n_seg) > 0
+    free = np.flatnonzero(~is_pivot)                   # parameters: segments that are not pivots
+    par_of_seg = np.full(n_seg, -1, dtype=np.int64)
+    par_of_seg[free] = 3 + np.arange(free.size)
+    return _Segments(seg, segtab, n_seg, pivots, comp, is_pivot, seg_half, free, par_of_seg, 3 + free.size)
+
+
+def _weights(d: _Data, opt: BaselineOptions) -> _Weights:
+    """SD variances and DD weights of the phase rows and of the code rows (its own references)."""
+    var_ph = sd_variance(d.el_rover, d.el_base, sigma_a_m=opt.sigma_a_m, sigma_b_m=opt.sigma_b_m, weighting=opt.weighting)
+    var_code = var_ph * opt.code_ratio**2
+    ref_ph = select_reference(d.ptr, d.sat, d.el_rover, d.slip)
+    blocks_ph = dd_weight_blocks(d.ptr, var_ph, ref_ph)
+    code_ok = np.isfinite(d.y_code_m)
+    ref_code = select_reference(d.ptr, d.sat, d.el_rover, usable=code_ok)
+    blocks_code = dd_weight_blocks(d.ptr, var_code, ref_code, usable=code_ok)
+    return _Weights(var_ph, ref_ph, blocks_ph, code_ok, var_code, ref_code, blocks_code, np.where(code_ok, d.y_code_m, 0.0))
+
+
+def _residuals(d: _Data, xr, r_enu, a_seg, seg, w: _Weights, code: bool = True):
+    """Design g (N, 3) at rover position xr and the epoch-centred SD phase (and code) residuals, m."""
+    n_ep = d.t_label.size
+    model, g = _rover_model(d, xr, r_enu)
+    r_ph = _center(d.epoch, d.y_phase_m - model - GPS_L1_WAVELENGTH_M * a_seg[seg], n_ep)
+    r_cd = _center(d.epoch, w.y_code - model, n_ep, w.code_ok) if code else None
+    return g, r_ph, r_cd
+
+
+def _float_solution(d: _Data, sg: _Segments, w: _Weights, xr0, r_enu, opt: BaselineOptions) -> _Float:
+    """Float solution from phase and code DDs: Gauss–Newton on [δx, free SD ambiguities]."""
+    # start the SD ambiguities from code-minus-phase (keeps the numbers small), relative to the pivots
+    cmp_ = np.where(w.code_ok, (d.y_phase_m - w.y_code) / GPS_L1_WAVELENGTH_M, np.nan)
+    a0 = pd.Series(cmp_).groupby(sg.seg).mean().reindex(range(sg.n_seg)).fillna(0.0).to_numpy()
+    a_seg = np.round(a0 - a0[sg.pivots][sg.comp])
+    a_seg[sg.is_pivot] = 0.0
+    x_enu = np.zeros(3)
+    col = sg.par_of_seg[sg.seg]
+    it_float = 0
+    for it_float in range(1, opt.max_iterations + 1):
+        g, r_ph, r_cd = _residuals(d, xr0 + r_enu.T @ x_enu, r_enu, a_seg, sg.seg, w)
+        n1, b1 = _accumulate(w.blocks_ph, g, r_ph, col, sg.n_par, GPS_L1_WAVELENGTH_M)
+        n2, b2 = _accumulate(w.blocks_code, g, r_cd, None, sg.n_par, GPS_L1_WAVELENGTH_M)
+        nmat, rhs = n1 + n2, b1 + b2
+        cf, dx = _solve(nmat, rhs, "float solution")
+        x_enu = x_enu + dx[:3]
+        a_seg[sg.free] += dx[3:]
+        if np.max(np.abs(dx[:3])) < 1e-5 and (dx.size == 3 or np.max(np.abs(dx[3:])) < 1e-4):
+            break
+    q_float = cho_solve(cf, np.eye(sg.n_par))
+    g, r_ph, r_cd = _residuals(d, xr0 + r_enu.T @ x_enu, r_enu, a_seg, sg.seg, w)
+    sq_ph, n_dd_ph = _quad(w.blocks_ph, r_ph)
+    sq_cd, n_dd_cd = _quad(w.blocks_code, r_cd)
+    dof_float = n_dd_ph + n_dd_cd - sg.n_par
+    block = {
+        "enu_m": x_enu.tolist(),
+        "sigma_enu_m": np.sqrt(np.diag(q_float)[:3]).tolist(),
+        "iterations": it_float,
+        "unit_variance": (sq_ph + sq_cd) / dof_float if dof_float > 0 else None,
+    }
+    return _Float(x_enu.copy(), a_seg, q_float, block, g, r_ph, r_cd, n_dd_cd)
+
+
+def _given_integers(integers: dict, d: _Data, sg: _Segments, fixed_mask, integers_fix) -> None:
+    """Apply integers given per (satellite, first epoch) of each segment (e.g. INIT's), checking that
+    they name exactly these data's segments and datum; fills ``fixed_mask`` / ``integers_fix``."""
+    given = {(str(k[0]), round(float(k[1]), 3)): v for k, v in integers.items()}
+    keys = [(d.sat_names[int(sg.segtab["sat"][k])], round(float(d.t_label[sg.segtab["first_epoch"][k]]), 3))
+            for k in range(sg.n_seg)]
+    unknown = [f"{k[0]} from {gps_time_str(k[1])}" for k in keys if k not in given]
+    extra = [f"{k[0]} from {gps_time_str(k[1])}" for k in given if k not in set(keys)]
+    if unknown or extra:
+        raise CdgpsError(f"the given integers do not match the ambiguity segments of these data ({sg.n_seg} segments): "
+                         + (f"no integer for {', '.join(unknown[:5])}" if unknown else "")
+                         + ("; " if unknown and extra else "")
+                         + (f"integers for segments these data do not have: {', '.join(extra[:5])}" if extra else ""))
+    for k in range(sg.n_seg):
+        v = given[keys[k]]
+        if sg.is_pivot[k]:
+            if v not in (0, None):
+                raise CdgpsError(f"the given integers use another datum: segment {keys[k][0]} from "
+                                 f"{gps_time_str(keys[k][1])} is a pivot (0) here, given {v}")
+            continue
+        j = sg.par_of_seg[k] - 3
+        if v is not None:
+            fixed_mask[j] = True
+            integers_fix[j] = int(v)
+
+
+def _lambda_fix(a_float, q_aa, fixable, opt: BaselineOptions, fixed_mask, integers_fix, warnings: list):
+    """LAMBDA with the ratio test and partial fixing on the fixable ambiguities; fills ``fixed_mask`` /
+    ``integers_fix`` and returns (ratio, ratio of the full set, accepted, partial)."""
+    fi = np.flatnonzero(fixable)
+    try:
+        with progress.bar(fi.size if opt.partial else 1, "integer fixing (LAMBDA)", unit="subset") as bar:
+            pf = resolve(a_float[fi], q_aa[np.ix_(fi, fi)], opt.ratio_threshold, partial=opt.partial,
+                         progress=lambda done, total: bar.update_to(done))
+    except AmbiguityError as exc:
+        warnings.append(f"integer ambiguity resolution failed: {exc}")
+        return None, None, False, False
+    fixed_mask[fi[pf["fixed_mask"]]] = True
+    integers_fix[fi[pf["fixed_mask"]]] = pf["integers"][pf["fixed_mask"]]
+    if pf["limit_message"]:
+        warnings.append(f"integer ambiguity resolution: {pf['limit_message']} "
+                        f"({'partial fixing tried subsets' if opt.partial else 'no partial fixing'}); "
+                        f"{pf['n_fixed']} of {fi.size} fixed")
+    return (None if math.isnan(pf["ratio"]) else pf["ratio"],
+            None if math.isnan(pf["ratio_full_set"]) else pf["ratio_full_set"], pf["accepted"], pf["partial"])
+
+
+def _integer_fix(d: _Data, sg: _Segments, w: _Weights, fl: _Float, opt: BaselineOptions, integers, warnings) -> _Fix:
+    """Float ambiguities (static, or under a random-walking rover) and their integers: given, or LAMBDA."""
+    a_float = fl.a_seg[sg.free].copy()
+    q_aa = fl.q[3:, 3:]
+    if opt.motion == "random_walk" and sg.free.size:
+        da, q_aa = _float_random_walk(d, sg, w, fl, opt)
+        a_float = a_float + da
+        fl.block["motion"] = "random_walk"
+        fl.block["random_walk_sigma_m_per_sqrt_s"] = list(opt.random_walk_sigma)
+    fixable = ~sg.seg_half[sg.free]
+    fixed_mask = np.zeros(sg.free.size, dtype=bool)
+    integers_fix = np.zeros(sg.free.size, dtype=np.int64)
+    ratio, ratio_full, accepted, partial_used = None, None, False, False
+    if integers is not None:
+        _given_integers(integers, d, sg, fixed_mask, integers_fix)
+        accepted = bool(fixed_mask.any())
+    elif opt.fix and fixable.sum() >= 1:
+        ratio, ratio_full, accepted, partial_used = _lambda_fix(a_float, q_aa, fixable, opt, fixed_mask, integers_fix,
+                                                                warnings)
+    return _Fix(a_float, q_aa, fixed_mask, integers_fix, ratio, ratio_full, accepted, partial_used)
+
+
+def _fixed_solution(d: _Data, sg: _Segments, w: _Weights, fl: _Float, fx: _Fix, xr0, r_enu,
+                    opt: BaselineOptions) -> _Final:
+    """The fixed solution from the L1 phase only (fixed integers removed from the unknowns, the others
+    float), iterated to convergence; the float solution when nothing is fixed."""
+    n_fixed = int(fx.fixed_mask.sum())
+    if not n_fixed:
+        return _Final(None, fl.x, "float", fl.a_seg.copy(), sg.is_pivot.copy(), fl.q[:3, :3], fl.g, fl.r_ph)
+    a_fix = fl.a_seg.copy()
+    known_seg = sg.is_pivot.copy()
+    fsegs = sg.free[fx.fixed_mask]
+    a_fix[fsegs] = fx.integers[fx.fixed_mask]
+    known_seg[fsegs] = True
+    unk = np.flatnonzero(~known_seg)
+    par2 = np.full(sg.n_seg, -1, dtype=np.int64)
+    par2[unk] = 3 + np.arange(unk.size)
+    n_par2 = 3 + unk.size
+    col2 = par2[sg.seg]
+    x_fix = fl.x.copy()
+    it_fix = 0
+    for it_fix in range(1, opt.max_iterations + 1):
+        g, r_ph, _ = _residuals(d, xr0 + r_enu.T @ x_fix, r_enu, a_fix, sg.seg, w, code=False)
+        nmat, rhs = _accumulate(w.blocks_ph, g, r_ph, col2, n_par2, GPS_L1_WAVELENGTH_M)
+        cf2, dx = _solve(nmat, rhs, "fixed solution")
+        x_fix = x_fix + dx[:3]
+        a_fix[unk] += dx[3:]
+        if np.max(np.abs(dx[:3])) < 1e-6 and (dx.size == 3 or np.max(np.abs(dx[3:])) < 1e-5):
+            break
+    g, r_ph, _ = _residuals(d, xr0 + r_enu.T @ x_fix, r_enu, a_fix, sg.seg, w, code=False)
+    q_fix = cho_solve(cf2, np.eye(n_par2))
+    sq, n_dd = _quad(w.blocks_ph, r_ph)
+    dof = n_dd - n_par2
+    block = {
+        "enu_m": x_fix.tolist(),
+        "sigma_enu_m": np.sqrt(np.diag(q_fix)[:3]).tolist(),
+        "iterations": it_fix,
+        "unit_variance": sq / dof if dof > 0 else None,
+        "observations": "L1 carrier phase only",
+    }
+    kind = "fixed" if n_fixed == sg.free.size else "partially fixed"
+    return _Final(block, x_fix, kind, a_fix, known_seg, q_fix[:3, :3], g, r_ph)
+
+
+def _residual_summary(d: _Data, ref_ph, r_ph, n_dd_code: int) -> dict:
+    """DD phase residuals of the reported solution: RMS, largest, per satellite."""
+    dd_res = double_differences(d.ptr, ref_ph, r_ph)
+    res_v = dd_res["value"]
+    return {
+        "dd_phase_rms_m": float(np.sqrt(np.mean(res_v**2))) if res_v.size else None,
+        "dd_phase_max_abs_m": float(np.max(np.abs(res_v))) if res_v.size else None,
+        "n_dd_phase": int(res_v.size),
+        "n_dd_code": int(n_dd_code),
+        "per_satellite_rms_m": {
+            d.sat_names[s]: float(np.sqrt(np.mean(res_v[d.sat[dd_res["row"]] == s] ** 2)))
+            for s in np.unique(d.sat[dd_res["row"]])
+        },
+    }
+
+
+def _single_epoch_positions(d: _Data, w: _Weights, fin: _Final, seg, opt: BaselineOptions):
+    """Every epoch solved alone from its phase DDs with the known ambiguities → (epoch, ENU m, n_sat,
+    PDOP, covariance m²) sorted by epoch, or None when no epoch has enough satellites."""
+    usable = fin.known_seg[seg]
+    ref_k = select_reference(d.ptr, d.sat, d.el_rover, d.slip, usable=usable)
+    blocks_k = dd_weight_blocks(d.ptr, w.var_ph, ref_k, usable=usable)
+    ep_list, enu_list, ns_list, pdop_list, cov_list = [], [], [], [], []
+    for rows, p in blocks_k:
+        if rows.shape[1] < opt.min_sats_kinematic:
+            continue
+        gk, rk = fin.g[rows], fin.r_ph[rows]
+        nk = np.einsum("kic,kij,kjd->kcd", gk, p, gk)
+        bk = np.einsum("kic,kij,kj->kc", gk, p, rk)
+        ck = np.linalg.inv(nk)
+        dk = np.einsum("kcd,kd->kc", ck, bk)
+        gc = gk - gk.mean(axis=1, keepdims=True)       # geometry with the clock eliminated
+        pdop = np.sqrt(np.trace(np.linalg.inv(np.einsum("kic,kid->kcd", gc, gc)), axis1=1, axis2=2))
+        ep_list.append(d.epoch[rows[:, 0]])
+        enu_list.append(fin.x + dk)
+        ns_list.append(np.full(rows.shape[0], rows.shape[1]))
+        pdop_list.append(pdop)
+        cov_list.append(ck)
+    if not ep_list:
+        return None
+    arrays = [np.concatenate(v) for v in (ep_list, enu_list, ns_list, pdop_list, cov_list)]
+    o = np.argsort(arrays[0])
+    return {"epoch": arrays[0][o], "enu_m": arrays[1][o], "n_sat": arrays[2][o], "pdop": arrays[3][o],
+            "cov_m2": arrays[4][o]}
+
+
+def _kinematic_summary(d: _Data, ka: dict, x_final, opt: BaselineOptions) -> dict:
+    """Scatter of the single-epoch positions about the static solution (all, and PDOP ≤ the maximum)."""
+    ep_k, enu_k, ns_k, pd_k = ka["epoch"], ka["enu_m"], ka["n_sat"], ka["pdop"]
+    dev = enu_k - x_final
+
+    def _stats(m):
+        dv = dev[m]
+        return {
+            "n_epochs": int(m.sum()),
+            "rms_about_static_m": dict(zip(("e", "n", "u"), np.sqrt(np.mean(dv**2, axis=0)).tolist())),
+            "std_m": dict(zip(("e", "n", "u"), np.std(enu_k[m], axis=0).tolist())),
+            "mean_minus_static_m": dict(zip(("e", "n", "u"), np.mean(dv, axis=0).tolist())),
+            "max_abs_deviation_m": dict(zip(("e", "n", "u"), np.max(np.abs(dv), axis=0).tolist())),
+        }
+
+    kin = _stats(np.ones(ep_k.size, dtype=bool))
+    kin["min_satellites"] = opt.min_sats_kinematic
+    kin["pdop_range"] = [float(pd_k.min()), float(pd_k.max())]
+    good = pd_k <= opt.kinematic_max_pdop
+    if good.any() and not good.all():
+        kin["pdop_le_max"] = dict(_stats(good), max_pdop=opt.kinematic_max_pdop)
+    if opt.kinematic_series:
+        kin["epochs"] = [
+            {"time": gps_time_str(float(d.t_label[e])), "time_gps_s": float(d.t_label[e]), "n_sat": int(n),
+             "pdop": float(pp), "e_m": float(v[0]), "n_m": float(v[1]), "u_m": float(v[2])}
+            for e, v, n, pp in zip(ep_k, enu_k, ns_k, pd_k)
+        ]
+    return kin
+
+
+def _segment_table(d: _Data, sg: _Segments, fx: _Fix) -> list:
+    """One row per SD ambiguity segment: satellite, span, datum, float value, integer."""
+    rows = []
+    for k in range(sg.n_seg):
+        p_idx = sg.par_of_seg[k] - 3
+        piv = sg.is_pivot[k]
+        rows.append({
+            "sat": d.sat_names[int(sg.segtab["sat"][k])],
+            "first": gps_time_str(float(d.t_label[sg.segtab["first_epoch"][k]])),
+            "last": gps_time_str(float(d.t_label[sg.segtab["last_epoch"][k]])),
+            "n_epochs": int(sg.segtab["n_rows"][k]),
+            "pivot": bool(piv),
+            "reference": d.sat_names[int(sg.segtab["sat"][sg.pivots[sg.comp[k]]])],     # its connected set's datum
+            "half_cycle_flag": bool(sg.seg_half[k]),
+            "float_cycles": None if piv else float(fx.a_float[p_idx]),
+            "sigma_cycles": None if piv else float(math.sqrt(fx.q_aa[p_idx, p_idx])),
+            "fixed": bool(piv or (p_idx >= 0 and fx.fixed_mask[p_idx])),
+            "integer": (0 if piv else (int(fx.integers[p_idx]) if fx.fixed_mask[p_idx] else None)),
+            "first_gps_s": float(d.t_label[sg.segtab["first_epoch"][k]]),
+            "last_gps_s": float(d.t_label[sg.segtab["last_epoch"][k]]),
+        })
+    return rows
+
+
+def _satellite_table(d: _Data, sg: _Segments) -> list:
+    out = []
+    for s, nm in enumerate(d.sat_names):
+        m = d.sat == s
+        out.append({"sat": nm, "n_epochs": int(m.sum()),
+                    "elevation_deg": [float(np.degrees(d.el_rover[m].min())), float(np.degrees(d.el_rover[m].max()))],
+                    "slips": int(d.slip[m].sum()), "segments": int(np.sum(sg.segtab["sat"] == s))})
+    return out
+
+
+def _reference_satellites(d: _Data, ref_ph) -> tuple[list, int]:
+    """The reference satellites in time order (satellite, from) and the number of changes."""
+    ref_ep = np.flatnonzero(ref_ph >= 0)
+    ref_sat = d.sat[ref_ph[ref_ep]]
+    starts = np.flatnonzero(np.r_[True, np.diff(ref_sat) != 0])
+    ref_list = [{"sat": d.sat_names[int(ref_sat[i])], "from": gps_time_str(float(d.t_label[ref_ep[i]]))} for i in starts]
+    return ref_list, (int(starts.size - 1) if starts.size else 0)
+
+
+def _ambiguity_summary(sg: _Segments, fx: _Fix, opt: BaselineOptions, seg_rows: list) -> dict:
+    return {
+        "n_segments": int(sg.n_seg),
+        "n_pivots": int(sg.pivots.size),
+        "n_estimated": int(sg.free.size),
+        "n_fixed": int(fx.fixed_mask.sum()),
+        "n_half_cycle_excluded": int(np.sum(sg.seg_half[sg.free])),
+        "ratio": fx.ratio,
+        "ratio_full_set": fx.ratio_full,
+        "ratio_threshold": opt.ratio_threshold,
+        "accepted": bool(fx.accepted),
+        "partial": fx.partial,
+        "segments": seg_rows,
+    }
+
+
+def _result(master: Station, rover: Station, xm, xr0, source: str, r_enu, fl: _Float, fin: _Final) -> dict:
+    """The result's solution part: states, positions, baseline, float and fixed blocks."""
+    names = [f"{rover.name}_{c}" for c in ("e", "n", "u")]
+    xr_final = xr0 + r_enu.T @ fin.x
+    latm, lonm, _ = ecef_to_geodetic(xm)
+    base_enu = enu_matrix(latm, lonm) @ (xr_final - xm)
+
+    def _block(b, x):
+        if b is None:
+            return None
+        xx = xr0 + r_enu.T @ np.asarray(x)
+        b = dict(b)
+        b["states"] = dict(zip(names, b["enu_m"]))
+        b["rover_ecef_m"] = xx.tolist()
+        return b
+
+    return {
+        "kind": "cdgps static baseline",
+        "master": master.name,
+        "rover": rover.name,
+        "solution": fin.kind,
+        "states": dict(zip(names, fin.x.tolist())),
+        "state_units": "m (rover displacement from its a priori position, local east/north/up at that position)",
+        "master_ecef_m": xm.tolist(),
+        "rover_apriori_ecef_m": xr0.tolist(),
+        "rover_apriori_source": source,
+        "rover_ecef_m": xr_final.tolist(),
+        "baseline_enu_from_master_m": base_enu.tolist(),
+        "baseline_length_m": float(np.linalg.norm(xr_final - xm)),
+        "float": _block(fl.block, fl.x),
+        "fixed": _block(fin.block, fin.x) if fin.block else None,
+    }
+
+
+def _work(d: _Data, sg: _Segments, w: _Weights, fin: _Final, xr0, xm, r_enu, kin_arrays) -> dict:
+    """The solver's working arrays for the GNSS pipeline's estimators (``keep_work``)."""
+    return {
+        "data": d, "seg": sg.seg, "segtab": sg.segtab, "is_pivot": sg.is_pivot, "seg_half": sg.seg_half,
+        "known_seg": fin.known_seg, "a_seg": fin.a_seg, "var_ph": w.var_ph, "ref_ph": w.ref_ph, "xr0": xr0, "xm": xm,
+        "r_enu": r_enu, "x_final": np.asarray(fin.x), "q_final": fin.q3, "r_ph": fin.r_ph, "g": fin.g,
+        "kinematic": kin_arrays,
+    }
 
 
 def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, options: BaselineOptions | None = None,
@@ -618,547 +1037,48 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
     opt = options or BaselineOptions()
     opt.validate()
     warnings: list[str] = []
-    xm = _header_position(master) if master_xyz is None else np.asarray(master_xyz, dtype=np.float64)
-    if xm is None:
-        raise CdgpsError(f"{_where(master)}: the RINEX header has no usable APPROX POSITION XYZ; the master (reference) "
-                         f"receiver must be at a known position")
-    xr0 = _header_position(rover) if rover_xyz is None else np.asarray(rover_xyz, dtype=np.float64)
-    rover_pos_source = "RINEX header APPROX POSITION XYZ" if rover_xyz is None else "given"
-    if xr0 is None:
-        o = rover.obs
-        tt = o["time_gps_s"].to_numpy()
-        _, ep = np.unique(tt, return_inverse=True)
-        ok = ephemeris_coverage(nav, o["sat"].to_numpy(), tt)
-        xr0, _ = spp_static(ep[ok], o["sat"].to_numpy()[ok], tt[ok], o["pseudorange_l1_m"].to_numpy()[ok], nav,
-                            x0_ecef_m=xm, what=_where(rover))
-        rover_pos_source = "pseudorange single-point position (no header position)"
-        warnings.append(f"{rover.name}: no APPROX POSITION XYZ in the header; a priori position from pseudoranges")
-    t0 = time.perf_counter()
+    xm, xr0, source = _a_priori_positions(master, rover, nav, master_xyz, rover_xyz, warnings)
+    clock = [time.perf_counter()]
+
+    def lap() -> float:
+        clock.append(time.perf_counter())
+        return clock[-1] - clock[-2]
+
     d = _prepare(master, rover, nav, opt, xm, xr0, warnings)
-    t_prep = time.perf_counter() - t0
-
-    lat, lon, _ = ecef_to_geodetic(xr0)
-    r_enu = enu_matrix(lat, lon)
-    n_ep = d.t_label.size
-
-    # ambiguities: segments, datum, reference satellites, weights
-    seg, segtab = ambiguity_segments(d.epoch, d.sat, d.slip, epoch_time_s=d.t_label, max_gap_s=opt.max_gap_s,
-                                     reset_epochs=d.reset_epochs)
-    n_seg = segtab["sat"].size
-    pivots, comp = ambiguity_datum(d.epoch, seg, n_seg)
-    is_pivot = np.zeros(n_seg, dtype=bool)
-    is_pivot[pivots] = True
-    seg_half = np.bincount(seg, weights=d.half.astype(float), minlength=n_seg) > 0
-    free = np.flatnonzero(~is_pivot)                   # parameters: segments that are not pivots
-    par_of_seg = np.full(n_seg, -1, dtype=np.int64)
-    par_of_seg[free] = 3 + np.arange(free.size)
-    n_par = 3 + free.size
-    var_ph = sd_variance(d.el_rover, d.el_base, sigma_a_m=opt.sigma_a_m, sigma_b_m=opt.sigma_b_m, weighting=opt.weighting)
-    var_code = var_ph * opt.code_ratio**2
-    ref_ph = select_reference(d.ptr, d.sat, d.el_rover, d.slip)
-    blocks_ph = dd_weight_blocks(d.ptr, var_ph, ref_ph)
-    code_ok = np.isfinite(d.y_code_m)
-    ref_code = select_reference(d.ptr, d.sat, d.el_rover, usable=code_ok)
-    blocks_code = dd_weight_blocks(d.ptr, var_code, ref_code, usable=code_ok)
-    y_code = np.where(code_ok, d.y_code_m, 0.0)
-
-    # ---- float solution (phase + code) ----
-    # start the SD ambiguities from code-minus-phase (keeps the numbers small), relative to the pivots
-    cmp_ = np.where(code_ok, (d.y_phase_m - y_code) / GPS_L1_WAVELENGTH_M, np.nan)
-    a0 = pd.Series(cmp_).groupby(seg).mean().reindex(range(n_seg)).fillna(0.0).to_numpy()
-    a_seg = np.round(a0 - a0[pivots][comp])
-    a_seg[is_pivot] = 0.0
-    x_enu = np.zeros(3)
-    col = par_of_seg[seg]
-    it_float = 0
-    t0 = time.perf_counter()
-    for it_float in range(1, opt.max_iterations + 1):
-        xr = xr0 + r_enu.T @ x_enu
-        model, g = _rover_model(d, xr, r_enu)
-        r_ph = _center(d.epoch, d.y_phase_m - model - GPS_L1_WAVELENGTH_M * a_seg[seg], n_ep)
-        r_cd = _center(d.epoch, y_code - model, n_ep, code_ok)
-        n1, b1 = _accumulate(blocks_ph, g, r_ph, col, n_par, GPS_L1_WAVELENGTH_M)
-        n2, b2 = _accumulate(blocks_code, g, r_cd, None, n_par, GPS_L1_WAVELENGTH_M)
-        nmat, rhs = n1 + n2, b1 + b2
-        cf, dx = _solve(nmat, rhs, "float solution")
-        x_enu = x_enu + dx[:3]
-        a_seg[free] += dx[3:]
-        if np.max(np.abs(dx[:3])) < 1e-5 and (dx.size == 3 or np.max(np.abs(dx[3:])) < 1e-4):
-            break
-    q_float = cho_solve(cf, np.eye(n_par))
-    t_float = time.perf_counter() - t0
-    model, g = _rover_model(d, xr0 + r_enu.T @ x_enu, r_enu)
-    r_ph = _center(d.epoch, d.y_phase_m - model - GPS_L1_WAVELENGTH_M * a_seg[seg], n_ep)
-    r_cd = _center(d.epoch, y_code - model, n_ep, code_ok)
-    sq_ph, n_dd_ph = _quad(blocks_ph, r_ph)
-    sq_cd, n_dd_cd = _quad(blocks_code, r_cd)
-    dof_float = n_dd_ph + n_dd_cd - n_par
-    float_block = {
-        "enu_m": x_enu.tolist(),
-        "sigma_enu_m": np.sqrt(np.diag(q_float)[:3]).tolist(),
-        "iterations": it_float,
-        "unit_variance": (sq_ph + sq_cd) / dof_float if dof_float > 0 else None,
-    }
-    x_float = x_enu.copy()
-
-    # ---- integer ambiguity resolution ----
-    t0 = time.perf_counter()
-    a_float = a_seg[free].copy()
-    q_aa = q_float[3:, 3:]
-    if opt.motion == "random_walk" and free.size:
-        da, q_aa = _float_random_walk(d, blocks_ph, blocks_code, g, r_ph, r_cd, col, n_par - 3, opt)
-        a_float = a_float + da
-        float_block["motion"] = "random_walk"
-        float_block["random_walk_sigma_m_per_sqrt_s"] = list(opt.random_walk_sigma)
-    fixable = ~seg_half[free]
-    fixed_mask = np.zeros(free.size, dtype=bool)
-    integers_fix = np.zeros(free.size, dtype=np.int64)
-    ratio = None
-    ratio_full = None
-    accepted = False
-    partial_used = False
-    if integers is not None:
-        given = {(str(k[0]), round(float(k[1]), 3)): v for k, v in integers.items()}
-        keys = [(d.sat_names[int(segtab["sat"][k])], round(float(d.t_label[segtab["first_epoch"][k]]), 3)) for k in range(n_seg)]
-        unknown = [f"{k[0]} from {gps_time_str(k[1])}" for k in keys if k not in given]
-        extra = [f"{k[0]} from {gps_time_str(k[1])}" for k in given if k not in set(keys)]
-        if unknown or extra:
-            raise CdgpsError(f"the given integers do not match the ambiguity segments of these data ({n_seg} segments): "
-                             + (f"no integer for {', '.join(unknown[:5])}" if unknown else "")
-                             + ("; " if unknown and extra else "")
-                             + (f"integers for segments these data do not have: {', '.join(extra[:5])}" if extra else ""))
-        for k in range(n_seg):
-            v = given[keys[k]]
-            if is_pivot[k]:
-                if v not in (0, None):
-                    raise CdgpsError(f"the given integers use another datum: segment {keys[k][0]} from "
-                                     f"{gps_time_str(keys[k][1])} is a pivot (0) here, given {v}")
-                continue
-            j = par_of_seg[k] - 3
-            if v is not None:
-                fixed_mask[j] = True
-                integers_fix[j] = int(v)
-        accepted = bool(fixed_mask.any())
-    elif opt.fix and fixable.sum() >= 1:
-        fi = np.flatnonzero(fixable)
-        try:
-            with progress.bar(fi.size if opt.partial else 1, "integer fixing (LAMBDA)", unit="subset") as bar:
-                pf = resolve(a_float[fi], q_aa[np.ix_(fi, fi)], opt.ratio_threshold, partial=opt.partial,
-                             progress=lambda done, total: bar.update_to(done))
-            ratio_full = None if math.isnan(pf["ratio_full_set"]) else pf["ratio_full_set"]
-            ratio = None if math.isnan(pf["ratio"]) else pf["ratio"]
-            accepted, partial_used = pf["accepted"], pf["partial"]
-            fixed_mask[fi[pf["fixed_mask"]]] = True
-            integers_fix[fi[pf["fixed_mask"]]] = pf["integers"][pf["fixed_mask"]]
-            if pf["limit_message"]:
-                warnings.append(f"integer ambiguity resolution: {pf['limit_message']} "
-                                f"({'partial fixing tried subsets' if opt.partial else 'no partial fixing'}); "
-                                f"{pf['n_fixed']} of {fi.size} fixed")
-        except AmbiguityError as exc:
-            warnings.append(f"integer ambiguity resolution failed: {exc}")
-    t_lambda = time.perf_counter() - t0
-    n_fixed = int(fixed_mask.sum())
-
-    # ---- fixed solution (L1 phase only) ----
-    t0 = time.perf_counter()
-    fixed_block = None
-    a_fix = a_seg.copy()
-    known_seg = is_pivot.copy()
-    if n_fixed:
-        fsegs = free[fixed_mask]
-        a_fix[fsegs] = integers_fix[fixed_mask]
-        known_seg[fsegs] = True
-        unk = np.flatnonzero(~known_seg)
-        par2 = np.full(n_seg, -1, dtype=np.int64)
-        par2[unk] = 3 + np.arange(unk.size)
-        n_par2 = 3 + unk.size
-        col2 = par2[seg]
-        x_fix = x_float.copy()
-        it_fix = 0
-        for it_fix in range(1, opt.max_iterations + 1):
-            xr = xr0 + r_enu.T @ x_fix
-            model, g = _rover_model(d, xr, r_enu)
-            r_ph = _center(d.epoch, d.y_phase_m - model - GPS_L1_WAVELENGTH_M * a_fix[seg], n_ep)
-            nmat, rhs = _accumulate(blocks_ph, g, r_ph, col2, n_par2, GPS_L1_WAVELENGTH_M)
-            cf2, dx = _solve(nmat, rhs, "fixed solution")
-            x_fix = x_fix + dx[:3]
-            a_fix[unk] += dx[3:]
-            if np.max(np.abs(dx[:3])) < 1e-6 and (dx.size == 3 or np.max(np.abs(dx[3:])) < 1e-5):
-                break
-        xr = xr0 + r_enu.T @ x_fix
-        model, g = _rover_model(d, xr, r_enu)
-        r_ph = _center(d.epoch, d.y_phase_m - model - GPS_L1_WAVELENGTH_M * a_fix[seg], n_ep)
-        q_fix = cho_solve(cf2, np.eye(n_par2))
-        sq, n_dd = _quad(blocks_ph, r_ph)
-        dof = n_dd - n_par2
-        fixed_block = {
-            "enu_m": x_fix.tolist(),
-            "sigma_enu_m": np.sqrt(np.diag(q_fix)[:3]).tolist(),
-            "iterations": it_fix,
-            "unit_variance": sq / dof if dof > 0 else None,
-            "observations": "L1 carrier phase only",
-        }
-        x_final, final_kind = x_fix, ("fixed" if n_fixed == free.size else "partially fixed")
-    else:
-        xr = xr0 + r_enu.T @ x_float
-        model, g = _rover_model(d, xr, r_enu)
-        r_ph = _center(d.epoch, d.y_phase_m - model - GPS_L1_WAVELENGTH_M * a_seg[seg], n_ep)
-        x_final, final_kind = x_float, "float"
-    t_fixed = time.perf_counter() - t0
-
-    # DD phase residuals of the reported solution
-    dd_res = double_differences(d.ptr, ref_ph, r_ph)
-    res_v = dd_res["value"]
-    residuals = {
-        "dd_phase_rms_m": float(np.sqrt(np.mean(res_v**2))) if res_v.size else None,
-        "dd_phase_max_abs_m": float(np.max(np.abs(res_v))) if res_v.size else None,
-        "n_dd_phase": int(res_v.size),
-        "n_dd_code": int(n_dd_cd),
-        "per_satellite_rms_m": {
-            d.sat_names[s]: float(np.sqrt(np.mean(res_v[d.sat[dd_res["row"]] == s] ** 2)))
-            for s in np.unique(d.sat[dd_res["row"]])
-        },
-    }
-
-    # ---- single-epoch (kinematic) positions with the fixed integers ----
-    t0 = time.perf_counter()
-    kin = None
-    if n_fixed:
-        usable = known_seg[seg]
-        ref_k = select_reference(d.ptr, d.sat, d.el_rover, d.slip, usable=usable)
-        blocks_k = dd_weight_blocks(d.ptr, var_ph, ref_k, usable=usable)
-        ep_list, enu_list, ns_list, pdop_list, cov_list = [], [], [], [], []
-        for rows, p in blocks_k:
-            if rows.shape[1] < opt.min_sats_kinematic:
-                continue
-            gk, rk = g[rows], r_ph[rows]
-            nk = np.einsum("kic,kij,kjd->kcd", gk, p, gk)
-            bk = np.einsum("kic,kij,kj->kc", gk, p, rk)
-            ck = np.linalg.inv(nk)
-            dk = np.einsum("kcd,kd->kc", ck, bk)
-            gc = gk - gk.mean(axis=1, keepdims=True)       # geometry with the clock eliminated
-            pdop = np.sqrt(np.trace(np.linalg.inv(np.einsum("kic,kid->kcd", gc, gc)), axis1=1, axis2=2))
-            ep_list.append(d.epoch[rows[:, 0]])
-            enu_list.append(x_final + dk)
-            ns_list.append(np.full(rows.shape[0], rows.shape[1]))
-            pdop_list.append(pdop)
-            cov_list.append(ck)
-        if ep_list:
-            ep_k = np.concatenate(ep_list)
-            enu_k = np.concatenate(enu_list)
-            ns_k = np.concatenate(ns_list)
-            pd_k = np.concatenate(pdop_list)
-            cov_k = np.concatenate(cov_list)
-            o = np.argsort(ep_k)
-            ep_k, enu_k, ns_k, pd_k, cov_k = ep_k[o], enu_k[o], ns_k[o], pd_k[o], cov_k[o]
-            dev = enu_k - x_final
-
-            def _stats(m):
-                dv = dev[m]
-                return {
-                    "n_epochs": int(m.sum()),
-                    "rms_about_static_m": dict(zip(("e", "n", "u"), np.sqrt(np.mean(dv**2, axis=0)).tolist())),
-                    "std_m": dict(zip(("e", "n", "u"), np.std(enu_k[m], axis=0).tolist())),
-                    "mean_minus_static_m": dict(zip(("e", "n", "u"), np.mean(dv, axis=0).tolist())),
-                    "max_abs_deviation_m": dict(zip(("e", "n", "u"), np.max(np.abs(dv), axis=0).tolist())),
-                }
-
-            kin = _stats(np.ones(ep_k.size, dtype=bool))
-            kin["min_satellites"] = opt.min_sats_kinematic
-            kin["pdop_range"] = [float(pd_k.min()), float(pd_k.max())]
-            good = pd_k <= opt.kinematic_max_pdop
-            if good.any() and not good.all():
-                kin["pdop_le_max"] = dict(_stats(good), max_pdop=opt.kinematic_max_pdop)
-            if opt.kinematic_series:
-                kin["epochs"] = [
-                    {"time": gps_time_str(float(d.t_label[e])), "time_gps_s": float(d.t_label[e]), "n_sat": int(n),
-                     "pdop": float(pp), "e_m": float(v[0]), "n_m": float(v[1]), "u_m": float(v[2])}
-                    for e, v, n, pp in zip(ep_k, enu_k, ns_k, pd_k)
-                ]
-    t_kin = time.perf_counter() - t0
-
-    # ---- report ----
-    names = [f"{rover.name}_{c}" for c in ("e", "n", "u")]
-    xr_final = xr0 + r_enu.T @ x_final
-    latm, lonm, _ = ecef_to_geodetic(xm)
-    base_enu = enu_matrix(latm, lonm) @ (xr_final - xm)
-
-    def _block(b, x):
-        if b is None:
-            return None
-        xx = xr0 + r_enu.T @ np.asarray(x)
-        b = dict(b)
-        b["states"] = dict(zip(names, b["enu_m"]))
-        b["rover_ecef_m"] = xx.tolist()
-        return b
-
-    seg_rows = []
-    for k in range(n_seg):
-        p_idx = par_of_seg[k] - 3
-        seg_rows.append({
-            "sat": d.sat_names[int(segtab["sat"][k])],
-            "first": gps_time_str(float(d.t_label[segtab["first_epoch"][k]])),
-            "last": gps_time_str(float(d.t_label[segtab["last_epoch"][k]])),
-            "n_epochs": int(segtab["n_rows"][k]),
-            "pivot": bool(is_pivot[k]),
-            "reference": d.sat_names[int(segtab["sat"][pivots[comp[k]]])],     # its connected set's datum
-            "half_cycle_flag": bool(seg_half[k]),
-            "float_cycles": None if is_pivot[k] else float(a_float[p_idx]),
-            "sigma_cycles": None if is_pivot[k] else float(math.sqrt(q_aa[p_idx, p_idx])),
-            "fixed": bool(is_pivot[k] or (p_idx >= 0 and fixed_mask[p_idx])),
-            "integer": (0 if is_pivot[k] else (int(integers_fix[p_idx]) if fixed_mask[p_idx] else None)),
-            "first_gps_s": float(d.t_label[segtab["first_epoch"][k]]),
-            "last_gps_s": float(d.t_label[segtab["last_epoch"][k]]),
-        })
-    sats_info = []
-    for s, nm in enumerate(d.sat_names):
-        m = d.sat == s
-        sats_info.append({"sat": nm, "n_epochs": int(m.sum()),
-                          "elevation_deg": [float(np.degrees(d.el_rover[m].min())), float(np.degrees(d.el_rover[m].max()))],
-                          "slips": int(d.slip[m].sum()), "segments": int(np.sum(segtab["sat"] == s))})
-    ref_ep = np.flatnonzero(ref_ph >= 0)
-    ref_sat = d.sat[ref_ph[ref_ep]]
-    starts = np.flatnonzero(np.r_[True, np.diff(ref_sat) != 0])
-    ref_list = [{"sat": d.sat_names[int(ref_sat[i])], "from": gps_time_str(float(d.t_label[ref_ep[i]]))} for i in starts]
-    n_ref_changes = int(starts.size - 1) if starts.size else 0
-    total = time.perf_counter() - t_start
-    result = {
-        "kind": "cdgps static baseline",
-        "master": master.name,
-        "rover": rover.name,
-        "solution": final_kind,
-        "states": dict(zip(names, x_final.tolist())),
-        "state_units": "m (rover displacement from its a priori position, local east/north/up at that position)",
-        "master_ecef_m": xm.tolist(),
-        "rover_apriori_ecef_m": xr0.tolist(),
-        "rover_apriori_source": rover_pos_source,
-        "rover_ecef_m": xr_final.tolist(),
-        "baseline_enu_from_master_m": base_enu.tolist(),
-        "baseline_length_m": float(np.linalg.norm(xr_final - xm)),
-        "float": _block(float_block, x_float),
-        "fixed": _block(fixed_block, x_final) if fixed_block else None,
-        "ambiguities": {
-            "n_segments": int(n_seg),
-            "n_pivots": int(pivots.size),
-            "n_estimated": int(free.size),
-            "n_fixed": n_fixed,
-            "n_half_cycle_excluded": int(np.sum(seg_half[free])),
-            "ratio": ratio,
-            "ratio_full_set": ratio_full,
-            "ratio_threshold": opt.ratio_threshold,
-            "accepted": bool(accepted),
-            "partial": partial_used,
-            "segments": seg_rows,
-        },
+    t_prep = lap()
+    r_enu = enu_matrix(*ecef_to_geodetic(xr0)[:2])
+    sg, w = _segments(d, opt), _weights(d, opt)
+    fl = _float_solution(d, sg, w, xr0, r_enu, opt)
+    t_float = lap()
+    fx = _integer_fix(d, sg, w, fl, opt, integers, warnings)
+    t_lambda = lap()
+    fin = _fixed_solution(d, sg, w, fl, fx, xr0, r_enu, opt)
+    t_fixed = lap()
+    residuals = _residual_summary(d, w.ref_ph, fin.r_ph, fl.n_dd_code)
+    ka = _single_epoch_positions(d, w, fin, sg.seg, opt) if fx.fixed_mask.any() else None
+    kin = None if ka is None else _kinematic_summary(d, ka, fin.x, opt)
+    t_kin = lap()
+    ref_list, n_ref_changes = _reference_satellites(d, w.ref_ph)
+    result = _result(master, rover, xm, xr0, source, r_enu, fl, fin)
+    result.update({
+        "ambiguities": _ambiguity_summary(sg, fx, opt, _segment_table(d, sg, fx)),
         "residuals": residuals,
         "kinematic": kin,
         "epochs": dict(d.info, n_reference_changes=n_ref_changes, reference_satellites=ref_list),
-        "satellites": sats_info,
+        "satellites": _satellite_table(d, sg),
         "warnings": warnings,
         "options": asdict(opt),
         "timing_s": {"prepare": t_prep, "float": t_float, "lambda": t_lambda, "fixed": t_fixed, "kinematic": t_kin,
-                     "total": total},
-    }
+                     "total": time.perf_counter() - t_start},
+    })
     if keep_work:
-        kin_arrays = None
-        if kin is not None:
-            kin_arrays = {"epoch": ep_k, "enu_m": enu_k, "cov_m2": cov_k, "n_sat": ns_k, "pdop": pd_k}
-        result["_work"] = {
-            "data": d, "seg": seg, "segtab": segtab, "is_pivot": is_pivot, "seg_half": seg_half,
-            "known_seg": known_seg if n_fixed else is_pivot.copy(), "a_seg": a_fix if n_fixed else a_seg,
-            "var_ph": var_ph, "ref_ph": ref_ph, "xr0": xr0, "xm": xm, "r_enu": r_enu, "x_final": np.asarray(x_final),
-            "q_final": (q_fix[:3, :3] if n_fixed else q_float[:3, :3]), "r_ph": r_ph, "g": g, "kinematic": kin_arrays,
-        }
+        result["_work"] = _work(d, sg, w, fin, xr0, xm, r_enu, ka if kin is not None else None)
     return result
 
 
 # ----------------------------------------------------------------------------------------------
-# files, job configs, summaries
+# summaries
 # ----------------------------------------------------------------------------------------------
-
-
-def load_stations(rinex: dict, nav_paths) -> tuple[dict, pd.DataFrame]:
-    """Read RINEX observation files (``{name: path}``) and navigation files into Stations and one
-    ephemeris table (duplicates across files removed)."""
-    if not nav_paths:
-        raise CdgpsError("no navigation file given (--nav): GPS broadcast ephemerides are needed for satellite positions")
-    stations = {}
-    for name, path in rinex.items():
-        h, o = read_rinex_obs(path)
-        stations[name] = Station(name, h, o)
-    navs = [read_rinex_nav(p) for p in nav_paths]
-    nav = pd.concat(navs, ignore_index=True)
-    nav = nav.drop_duplicates(subset=["sat", "toe_gps_s", "iode", "af0_s"], keep="first")
-    nav = nav.sort_values(["sat", "toe_gps_s", "transmit_gps_s"], kind="stable").reset_index(drop=True)
-    return stations, nav
-
-
-def baseline_from_files(rinex: dict, nav_paths, master: str, options: BaselineOptions | None = None,
-                        positions: dict | None = None) -> dict:
-    """Read the files and solve (:func:`solve_static_baseline`); ``rinex`` maps exactly two station
-    names to observation files, ``master`` is one of them; ``positions`` optionally gives
-    ``{name: ECEF m}`` instead of the RINEX header positions."""
-    if len(rinex) != 2:
-        raise CdgpsError(f"a baseline needs exactly two RINEX observation files (NAME=PATH), got {len(rinex)}: "
-                         f"{', '.join(rinex) or 'none'}")
-    if master not in rinex:
-        raise CdgpsError(f"master {master!r} is not one of the stations given: {', '.join(rinex)}")
-    (options or BaselineOptions()).validate()
-    stations, nav = load_stations(rinex, nav_paths)
-    rover = next(n for n in rinex if n != master)
-    pos = positions or {}
-    res = solve_static_baseline(stations[master], stations[rover], nav, options, master_xyz=pos.get(master),
-                                rover_xyz=pos.get(rover))
-    res["inputs"] = {"rinex": {k: str(v) for k, v in rinex.items()}, "nav": [str(p) for p in nav_paths]}
-    return res
-
-
-_JOB_KEYS = {
-    "name": str, "description": str, "master": str, "nav": list, "rinex": dict, "mask_deg": (int, float),
-    "ratio": (int, float), "partial": bool, "weighting": str, "troposphere": bool, "sigma_a_m": (int, float),
-    "sigma_b_m": (int, float), "code_ratio": (int, float), "max_gap_s": (int, float),
-}
-
-
-def load_baseline_job(path) -> dict:
-    """Read a baseline job file: a GNSS run config (``[gnss]`` table, docs/gnss-pipeline.md) with
-    two RINEX antennas, or the older form with one ``[baseline]`` table (docs/geonet.md).
-
-    Relative file paths are taken relative to the job file's directory.
-
-    Returns
-    -------
-    dict
-        ``name``, ``master``, ``rinex`` ({name: Path}), ``nav`` ([Path]), ``options``
-        (:class:`BaselineOptions`) and ``positions`` ({name: ECEF m} given in the file; the
-        others come from the RINEX headers).
-
-    Raises
-    ------
-    CdgpsError
-        Unreadable file, TOML syntax error, unknown or mistyped keys (all listed at once).
-    """
-    p = Path(path)
-    try:
-        text = p.read_text()
-        text = text[1:] if text.startswith("\ufeff") else text     # a UTF-8 byte-order mark
-        doc = tomllib.loads(text)
-    except OSError as exc:
-        raise CdgpsError(f"{p}: cannot read: {exc.strerror or exc}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise CdgpsError(f"{p}: not valid TOML: {exc}") from None
-    if "gnss" in doc:
-        return _job_from_gnss_config(p, text)
-    problems = []
-    extra = sorted(set(doc) - {"baseline"})
-    if extra:
-        problems.append(f"unknown top-level key(s) {', '.join(extra)} (a baseline job has one [baseline] table)")
-    b = doc.get("baseline")
-    if not isinstance(b, dict):
-        raise CdgpsError(join_problems(f"{p}: invalid baseline job", problems + ["missing [baseline] table (or a [gnss] table)"]))
-    for k, v in b.items():
-        t = _JOB_KEYS.get(k)
-        if t is None:
-            problems.append(f"baseline.{k}: unknown key (known: {', '.join(sorted(_JOB_KEYS))})")
-        elif not isinstance(v, t) or (t == (int, float) and isinstance(v, bool)):
-            problems.append(f"baseline.{k}: expected {getattr(t, '__name__', 'a number')}, got {v!r}")
-    for k in ("master", "rinex", "nav"):
-        if k not in b:
-            problems.append(f"baseline.{k}: required")
-    base = p.parent
-    rinex = {}
-    if isinstance(b.get("rinex"), dict):
-        for n, v in b["rinex"].items():
-            if not isinstance(v, str):
-                problems.append(f"baseline.rinex.{n}: expected a file path string, got {v!r}")
-            else:
-                rinex[str(n)] = (base / v) if not Path(v).is_absolute() else Path(v)
-        if len(rinex) != 2:
-            problems.append(f"baseline.rinex: expected exactly two stations, got {len(b['rinex'])}")
-    nav = []
-    if isinstance(b.get("nav"), list):
-        for i, v in enumerate(b["nav"]):
-            if not isinstance(v, str):
-                problems.append(f"baseline.nav[{i}]: expected a file path string, got {v!r}")
-            else:
-                nav.append((base / v) if not Path(v).is_absolute() else Path(v))
-        if not nav:
-            problems.append("baseline.nav: at least one navigation file is needed")
-    if isinstance(b.get("master"), str) and rinex and b["master"] not in rinex:
-        problems.append(f"baseline.master: {b['master']!r} is not one of baseline.rinex ({', '.join(rinex)})")
-    if problems:
-        raise CdgpsError(join_problems(f"{p}: invalid baseline job", problems))
-    kw = {}
-    for k_job, k_opt in (("mask_deg", "mask_deg"), ("ratio", "ratio_threshold"), ("partial", "partial"),
-                         ("weighting", "weighting"), ("troposphere", "troposphere"), ("sigma_a_m", "sigma_a_m"),
-                         ("sigma_b_m", "sigma_b_m"), ("code_ratio", "code_ratio"), ("max_gap_s", "max_gap_s")):
-        if k_job in b:
-            kw[k_opt] = float(b[k_job]) if isinstance(b[k_job], (int, float)) and not isinstance(b[k_job], bool) else b[k_job]
-    opt = BaselineOptions(**kw)
-    try:
-        opt.validate()
-    except CdgpsError as exc:
-        raise CdgpsError(f"{p}: {exc}") from None
-    return {"name": b.get("name", p.stem), "master": b["master"], "rinex": rinex, "nav": nav, "options": opt,
-            "positions": {}}
-
-
-def _job_from_gnss_config(p: Path, text: str) -> dict:
-    """A baseline job from a GNSS run config: exactly two antennas with RINEX files."""
-    from cdgps_cli.config.structure import parse_gnss_config  # noqa: PLC0415
-
-    cfg = parse_gnss_config(text, str(p), base_dir=p.resolve().parent)
-    problems = []
-    if not cfg.master:
-        problems.append("gnss.master: required for a baseline")
-    if len(cfg.antennas) != 2:
-        problems.append(f"gnss.antennas: a baseline needs exactly two antennas, got {len(cfg.antennas)}")
-    for a in cfg.antennas:
-        if not a.rinex:
-            problems.append(f"gnss.antennas.{a.name}: 'cdgps baseline' needs a rinex observation file"
-                            + (" (UBX logs go through 'cdgps ingest')" if a.ubx else ""))
-    if not cfg.nav:
-        problems.append("gnss.nav: at least one navigation file is needed")
-    if problems:
-        raise CdgpsError(join_problems(f"{p}: not usable as a baseline job", problems))
-    opt = BaselineOptions.from_gnss_config(cfg, motion="static")        # 'cdgps baseline' is the static solution
-    try:
-        opt.validate()
-    except CdgpsError as exc:
-        raise CdgpsError(f"{p}: {exc}") from None
-    return {"name": cfg.name, "master": cfg.master, "rinex": {a.name: Path(a.rinex) for a in cfg.antennas},
-            "nav": [Path(n) for n in cfg.nav], "options": opt,
-            "positions": {a.name: a.position_ecef_m for a in cfg.antennas if a.position_ecef_m is not None}}
-
-
-def starter_job_toml(rinex: dict, nav_paths, master: str | None = None, *, relative_to: Path | None = None) -> str:
-    """Text of a starter baseline job for the given files (headers are read for the comments).
-
-    The master defaults to the first station; paths are written relative to ``relative_to``
-    (the job file's directory) when possible.
-    """
-    if len(rinex) != 2:
-        raise CdgpsError(f"a baseline job needs exactly two RINEX observation files (NAME=PATH), got {len(rinex)}")
-    master = master or next(iter(rinex))
-    if master not in rinex:
-        raise CdgpsError(f"master {master!r} is not one of the stations given: {', '.join(rinex)}")
-
-    def rel(pth):
-        return path_for_config(pth, relative_to)
-
-    lines = ["# cdgps baseline job (format: docs/geonet.md); run:  cdgps baseline --config THIS_FILE -o OUT.json", ""]
-    for name, path in rinex.items():
-        h, o = read_rinex_obs(path)
-        pos = h.get("approx_position_xyz_m")
-        lines.append(f"# {name}: {h.get('marker_name') or '?'}, {h.get('receiver_type') or '?'}, "
-                     f"{h.get('n_epochs')} epochs {_span(np.unique(o['time_gps_s']))}, "
-                     f"header position {pos if pos else 'none'}")
-    lines += ["", "[baseline]", f'name = "{"-".join(rinex)}"', f'master = "{master}"',
-              "nav = [" + ", ".join(f'"{rel(p)}"' for p in nav_paths) + "]",
-              *(f"{k} = {toml_value(GNSS_DEFAULTS[k])}" for k in ("mask_deg", "ratio", "partial", "weighting", "troposphere")), "",
-              "[baseline.rinex]"]
-    lines += [f'"{n}" = "{rel(p)}"' for n, p in rinex.items()]
-    return "\n".join(lines) + "\n"
 
 
 def json_safe(obj):

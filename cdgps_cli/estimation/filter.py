@@ -49,11 +49,13 @@ from cdgps_cli.core import progress
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.config.limits import INIT_BOUNDS, OPTION_BOUNDS
 from cdgps_cli.core.checks import has_bool, is_json_number, require_finite
-from cdgps_cli.measurement.phase import EpochPhaseModel, channel_indices, phase_model
+from cdgps_cli.measurement.model import PseudoliteSD, Rows
+from cdgps_cli.measurement.phase import channel_indices, phase_model
 from cdgps_cli.measurement import multipath
 from cdgps_cli.measurement.noise import filter_sigma_estimate, init_channel_sigma_m
 from cdgps_cli.core.records import Run
 from cdgps_cli.estimation.window_smoother import batch_window, extend_smoothing, window_states
+from cdgps_cli.estimation.smoother import rts_smooth
 
 
 @dataclass
@@ -353,7 +355,10 @@ class _ForwardPass:
         self.EVENT = lock_events(self.Y, LOCK)
         self.ant, self.tx = channel_indices(cfg, [c[0] for c in chans], [c[1] for c in chans])
         self.line = cfg.antenna_line_bias_m[self.ant] - cfg.antenna_line_bias_m[cfg.master_index]
-        self.hmodel = EpochPhaseModel(cfg, self.ant, self.tx)
+        # h(x), H of every channel through the measurement-model interface (the compiled kernel has its own copy)
+        self.meas = PseudoliteSD(cfg, self.Y, self.ant, self.tx, self.sig_c)
+        self.all_channels = Rows(np.zeros(C), chans, np.full(C, -1, dtype=np.int64), sigma_m=self.sig_c,
+                                 context=np.arange(C))
 
     def _thruster_inputs(self) -> None:
         """U_in (N, n_thrusters): thruster commands held over each epoch (zero-order hold)."""
@@ -496,7 +501,7 @@ class _ForwardPass:
                 self.log(k, None, "rest segment end", "process noise back to the kinematic model")
             xq = self.x[:self.n]
             if self.hx_at is None or not np.array_equal(self.hx_at, xq):    # (the rest checks evaluated it already)
-                self.h, self.Hx = self.hmodel(xq)
+                self.h, self.Hx = self.meas.predict(xq, self.all_channels)
             self.hx_at = None
             self.new_bias_states_hook(k, y)
             usable = present.copy() if self.use_bias_states else present & ~np.isnan(self.bias)
@@ -593,7 +598,7 @@ class _ForwardPass:
         if vel_nis > vel_bound:
             return f"modal velocities not zero (NIS {vel_nis:.1f} > {vel_bound:.1f})"
         self.hx_at = self.x[:self.n].copy()
-        self.h, self.Hx = self.hmodel(self.hx_at)
+        self.h, self.Hx = self.meas.predict(self.hx_at, self.all_channels)
         usable = present & ~np.isnan(self.bias)
         why, nis_failed = rest_motion(self.x, self.P, self.h, self.Hx, y=y, bias=self.bias, usable=usable,
                                       mp0=self.mp0, n=self.n, use_bias_states=self.use_bias_states, r_var=self.r_var,
@@ -1150,59 +1155,6 @@ def lock_events(Y: np.ndarray, LOCK: np.ndarray) -> np.ndarray:
         ev[k[1:][restart], c] = np.where(gap[restart], 3, 2)
         ev[k[1:][reacq], c] = 3
     return ev
-
-
-def rts_smooth(A, Q, B, U_in, xf, Pf, extra_q=None, no_link=None, in_place=False, q_segments=None):
-    """Rauch–Tung–Striebel smoother over filtered states (N, p) and covariances (N, p, p).
-
-    The priors are recomputed from the filtered values (x̄ = A x + B u, P̄ = A P Aᵀ + Q_k) so that
-    only the filtered arrays are stored; ``extra_q`` {epoch: [(index, variance)]} adds the
-    variance inflations the filter applied at that epoch; ``no_link[k]`` leaves epoch k as it is
-    (re-initialization boundaries and batch-filled epochs).  ``q_segments`` [(k_lo, k_hi, Q_seg)]
-    replaces Q by Q_seg for the transitions k → k+1 with k_lo ≤ k < k_hi (a process noise that changes
-    over the record, e.g. rest segments); by default Q throughout.  Returns smoothed states and
-    covariances; with ``in_place`` they overwrite ``xf`` and ``Pf`` (epoch k is read before it is
-    replaced, and epoch k+1 is already smoothed when k is processed, so this is exact and saves two
-    copies).
-    """
-    extra_q = extra_q or {}
-    xs = xf if in_place else xf.copy()
-    Ps = Pf if in_place else Pf.copy()
-    if q_segments and not (len(q_segments) == 1 and q_segments[0][2] is Q):
-        # piecewise-constant Q: one pass per stretch, latest first; each stretch ends on an epoch the
-        # later pass has already smoothed, which is exactly what the recursion reads as "k+1"
-        for k_lo, k_hi, Qs in sorted(q_segments, reverse=True, key=lambda t: t[0]):
-            if k_hi <= k_lo:
-                continue
-            sub_q = {k - k_lo: v for k, v in extra_q.items() if k_lo < k <= k_hi}
-            sub_nl = None if no_link is None else np.asarray(no_link)[k_lo:k_hi + 1]
-            _rts_pass(A, Qs, B, U_in[k_lo:k_hi + 1], xs[k_lo:k_hi + 1], Ps[k_lo:k_hi + 1], sub_q, sub_nl)
-        return xs, Ps
-    _rts_pass(A, Q, B, U_in, xs, Ps, extra_q, no_link)
-    return xs, Ps
-
-
-def _rts_pass(A, Q, B, U_in, xs, Ps, extra_q, no_link) -> None:
-    """One RTS pass with a constant Q, in place on (xs, Ps) = filtered values (N, p), (N, p, p)."""
-    N = xs.shape[0]
-    xf, Pf = xs, Ps
-    if (ekf_kernel.available() and xs.dtype == np.float64 and Ps.dtype == np.float64
-            and xs.flags.c_contiguous and Ps.flags.c_contiguous and xs.flags.writeable and Ps.flags.writeable):
-        # compiled pass on xs, Ps (= xf, Pf or their copies): epoch k is read before it is replaced
-        ekf_kernel.rts(A, Q, B, U_in, xs, Ps, xs, Ps, extra_q, no_link)
-        return
-    for k in range(N - 2, -1, -1):
-        if no_link is not None and no_link[k]:
-            continue                      # a re-initialization boundary or batch-filled epoch
-        xp = A @ xf[k] + B @ U_in[k]
-        Pp = A @ Pf[k] @ A.T + Q
-        for i, q in extra_q.get(k + 1, ()):
-            Pp[i, i] += q
-        c = cho_factor(Pp, check_finite=False)
-        G = cho_solve(c, A @ Pf[k], check_finite=False).T      # P_k Aᵀ P̄⁻¹
-        xs[k] = xf[k] + G @ (xs[k + 1] - xp)
-        Pk = Pf[k] + G @ (Ps[k + 1] - Pp) @ G.T
-        Ps[k] = 0.5 * (Pk + Pk.T)
 
 
 def _reinitialize(run, grid, k, opt, sigma, chans, bias, line, x, P, n, use_bias_states, log, mp=None):

@@ -53,6 +53,7 @@ __all__ = [
     "dd_weight",
     "projected_weight",
     "dd_weight_blocks",
+    "dd_operator_batches",
     "double_differences",
 ]
 
@@ -369,10 +370,43 @@ def dd_weight_blocks(ptr, var_sd, ref_rows, *, usable=None) -> list[tuple[np.nda
         formed explicitly from its operator (``D Σ Dᵀ``, Cholesky-solved in batch), so the cost
         is linear in the number of epochs.
     """
-    ptr = np.asarray(ptr, dtype=np.int64)
     var = np.asarray(var_sd, dtype=np.float64)
+    out = []
+    for _, rows, d in dd_operator_batches(ptr, ref_rows, var.size, usable=usable):
+        v = var[rows]  # (K, n)
+        c = np.einsum("kin,kn,kjn->kij", d, v, d)
+        p = np.einsum("kai,kab->kib", d, np.linalg.solve(c, d))
+        p = 0.5 * (p + np.swapaxes(p, 1, 2))
+        out.append((rows, p))
+    return out
+
+
+def dd_operator_batches(ptr, ref_rows, n_rows: int, *, usable=None):
+    """The DD operators of all epochs, batched by the number of usable rows.
+
+    Parameters
+    ----------
+    ptr : array_like of int, shape (n_epochs + 1,)
+        Epoch pointers.
+    ref_rows : array_like of int, shape (n_epochs,)
+        Reference row of each epoch, −1 to skip the epoch; one of the epoch's usable rows.
+    n_rows : int
+        Number of SD rows N.
+    usable : array_like of bool, shape (N,), optional
+        Rows that enter the DDs (default all).
+
+    Yields
+    ------
+    eps : ndarray (K,) int
+        The K epochs with n usable rows (n ≥ 2), in increasing order.
+    rows : ndarray (K, n) int
+        Their usable row indices (reference included), in row order.
+    d : ndarray (K, n − 1, n)
+        DD operator of each epoch (:func:`dd_operator`: +1 on each non-reference row, −1 on the
+        reference), acting on ``values[rows]``.
+    """
+    ptr = np.asarray(ptr, dtype=np.int64)
     refs = np.asarray(ref_rows, dtype=np.int64)
-    n_rows = var.size
     ok = np.ones(n_rows, dtype=bool) if usable is None else np.asarray(usable, dtype=bool)
     ne = ptr.size - 1
     ep_of_row = np.repeat(np.arange(ne), np.diff(ptr))
@@ -380,7 +414,6 @@ def dd_weight_blocks(ptr, var_sd, ref_rows, *, usable=None) -> list[tuple[np.nda
     rows_all = np.flatnonzero(keep)
     ep_k = ep_of_row[rows_all]
     cnt = np.bincount(ep_k, minlength=ne)
-    out = []
     for n in np.unique(cnt[cnt >= 2]):
         eps = np.flatnonzero(cnt == n)
         sel = np.isin(ep_k, eps)
@@ -389,7 +422,6 @@ def dd_weight_blocks(ptr, var_sd, ref_rows, *, usable=None) -> list[tuple[np.nda
         pos = np.argmax(rows == ref[:, None], axis=1)
         if not np.all(rows[np.arange(eps.size), pos] == ref):
             raise ValueError("a reference row is not among its epoch's usable rows")
-        v = var[rows]  # (K, n)
         # DD operator per epoch: identity without the reference column, minus ones in it
         k_idx = np.arange(eps.size)
         j = np.arange(n - 1)[None, :]
@@ -397,11 +429,7 @@ def dd_weight_blocks(ptr, var_sd, ref_rows, *, usable=None) -> list[tuple[np.nda
         d = np.zeros((eps.size, n - 1, n))
         d[k_idx[:, None], np.arange(n - 1)[None, :], others] = 1.0
         d[k_idx, :, pos] = -1.0
-        c = np.einsum("kin,kn,kjn->kij", d, v, d)
-        p = np.einsum("kai,kab->kib", d, np.linalg.solve(c, d))
-        p = 0.5 * (p + np.swapaxes(p, 1, 2))
-        out.append((rows, p))
-    return out
+        yield eps, rows, d
 
 
 def double_differences(ptr, ref_rows, values, *, usable=None) -> dict:

@@ -61,7 +61,7 @@ class Rows:
         """C^{-1/2} v for v (m,) or (m, p): L⁻¹ v (full noise) or v / σ (diagonal)."""
         v = np.asarray(v, dtype=float)
         if self.chol_m is not None:
-            return solve_triangular(self.chol_m, v, lower=True)
+            return solve_triangular(self.chol_m, v, lower=True, check_finite=False)
         return v / (self.sigma_m if v.ndim == 1 else self.sigma_m[:, None])
 
     def subset(self, keep) -> "Rows":

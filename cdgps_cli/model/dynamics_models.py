@@ -9,8 +9,11 @@ through ``transition(dt_s) -> (A, B, Q)``.  Implementations:
 * :class:`ModalZOH` — the structure's modal model (Eq. 4–7, :func:`cdgps_cli.model.dynamics.discrete_model`)
   held over ``dt_s`` (zero-order hold); the config's process noise is defined per its sample period,
   so Q is scaled by ``sample_period_s / dt_s`` to keep its density at another spacing;
-* :class:`RandomWalk` — each of n coordinates walks with σ (units/√s): A = I, Q = σ² dt I;
-* :class:`Static` — A = I, Q = 0.
+* :class:`RandomWalk` — each of n coordinates walks with σ (units/√s, one or per coordinate):
+  A = I, Q = diag(σ²) dt;
+* :class:`Static` — A = I, Q = 0;
+* :class:`WithConstants` — another model's states followed by constants (e.g. ambiguities):
+  A = diag(A_d, I), B = [B_d; 0], Q = diag(Q_d, 0).
 
 ``noise_factor(dt_s)`` gives G with G Gᵀ = Q (the square-root form the batch solver takes).
 """
@@ -22,7 +25,7 @@ import numpy as np
 from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.model.dynamics import discrete_model
 
-__all__ = ["Dynamics", "ModalZOH", "RandomWalk", "Static"]
+__all__ = ["Dynamics", "ModalZOH", "RandomWalk", "Static", "WithConstants"]
 
 
 class Dynamics:
@@ -81,12 +84,15 @@ class ModalZOH(Dynamics):
 
 
 class RandomWalk(Dynamics):
-    """n coordinates, each a random walk of σ ``sigma_per_sqrt_s`` (units/√s)."""
+    """n coordinates, each a random walk of σ ``sigma_per_sqrt_s`` (units/√s): one σ for all, or one
+    per coordinate (shape (n,), e.g. east/north/up of a GNSS rover)."""
 
-    def __init__(self, n: int, sigma_per_sqrt_s: float):
-        if not (np.isfinite(sigma_per_sqrt_s) and sigma_per_sqrt_s >= 0):
-            raise ValueError(f"sigma_per_sqrt_s must be ≥ 0, got {sigma_per_sqrt_s!r}")
-        self.n, self.n_u, self.sigma = int(n), 0, float(sigma_per_sqrt_s)
+    def __init__(self, n: int, sigma_per_sqrt_s):
+        s = np.asarray(sigma_per_sqrt_s, dtype=float)
+        if s.ndim > 1 or (s.ndim == 1 and s.size != int(n)) or not np.all(np.isfinite(s) & (s >= 0)):
+            raise ValueError(f"sigma_per_sqrt_s must be ≥ 0 (one number or {int(n)}), got {sigma_per_sqrt_s!r}")
+        self.n, self.n_u = int(n), 0
+        self.sigma = float(s) if s.ndim == 0 else s.copy()
 
     def transition(self, dt_s: float):
         dt = _check_dt(dt_s)
@@ -94,7 +100,8 @@ class RandomWalk(Dynamics):
 
     def noise_factor(self, dt_s: float) -> np.ndarray:
         dt = _check_dt(dt_s)
-        return np.eye(self.n) * self.sigma * np.sqrt(dt) if self.sigma > 0 else np.zeros((self.n, 0))
+        G = np.eye(self.n) * self.sigma * np.sqrt(dt)
+        return G[:, np.broadcast_to(np.asarray(self.sigma) > 0, (self.n,))]
 
 
 class Static(RandomWalk):
@@ -102,3 +109,22 @@ class Static(RandomWalk):
 
     def __init__(self, n: int):
         super().__init__(n, 0.0)
+
+
+class WithConstants(Dynamics):
+    """The states of ``dyn`` followed by ``n_const`` constants (e.g. ambiguities estimated with them)."""
+
+    def __init__(self, dyn: Dynamics, n_const: int):
+        self.dyn, self.n_const = dyn, int(n_const)
+        self.n, self.n_u = dyn.n + self.n_const, dyn.n_u
+
+    def transition(self, dt_s: float):
+        A, B, Q = self.dyn.transition(dt_s)
+        n, m = self.n, self.dyn.n
+        Aa, Qa = np.eye(n), np.zeros((n, n))
+        Aa[:m, :m], Qa[:m, :m] = A, Q
+        return Aa, np.vstack([B, np.zeros((self.n_const, B.shape[1]))]), Qa
+
+    def noise_factor(self, dt_s: float) -> np.ndarray:
+        G = self.dyn.noise_factor(dt_s)
+        return np.vstack([G, np.zeros((self.n_const, G.shape[1]))])

@@ -13,8 +13,9 @@ correlations between the baselines of several rovers through the common master a
 * :func:`gnss_estimate` — per-epoch displacement states with 1σ, using INIT's integers:
 
   - ``static``: the batch (fixed) solution at every epoch (its 1σ from the batch covariance);
-  - ``random_walk``: a Kalman filter over the epochs on the DD phases with the fixed integers,
-    state = displacement, process noise ``σ²·Δt`` per component; ``--smooth`` adds the
+  - ``random_walk``: the engine's forward filter over the epochs on the DD phases with the fixed
+    integers (:class:`~cdgps_cli.measurement.dd_displacement.SatelliteDDDisplacement`, random-walk
+    dynamics, process noise ``σ²·Δt`` per component); ``--smooth`` adds the engine's
     Rauch-Tung-Striebel pass;
 
   plus, for both, the single-epoch (kinematic) solutions with the fixed integers (attachments
@@ -43,6 +44,10 @@ from cdgps_cli import __version__
 from cdgps_cli.core import progress
 from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.estimation.baseline import BaselineOptions, Station, json_safe, solve_static_baseline
+from cdgps_cli.estimation.model_filter import filter_numpy
+from cdgps_cli.estimation.smoother import rts_smooth_transitions
+from cdgps_cli.measurement.dd_displacement import SatelliteDDDisplacement, SDObservations
+from cdgps_cli.model.dynamics_models import RandomWalk
 from cdgps_cli.config.structure import parse_config
 from cdgps_cli.measurement.differencing import dd_weight_blocks, select_reference
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
@@ -202,63 +207,38 @@ def is_gnss_init(init: dict) -> bool:
 
 
 def _epoch_information(w: dict, use: np.ndarray):
-    """Per epoch with ≥ 2 usable rows: N = GᵀPG, b = GᵀPr, c = rᵀPr, dof, rows, weights."""
+    """Per epoch: c = rᵀPr of the DD phases at the static solution (its NIS), dof, whether it has
+    DDs, and its reference row (−1: fewer than two usable rows)."""
     d = w["data"]
     ref = select_reference(d.ptr, d.sat, d.el_rover, d.slip, usable=use)
-    blocks = dd_weight_blocks(d.ptr, w["var_ph"], ref, usable=use)
     n_ep = d.t_label.size
-    N = np.zeros((n_ep, 3, 3))
-    b = np.zeros((n_ep, 3))
     c = np.zeros(n_ep)
     dof = np.zeros(n_ep, dtype=np.int64)
     has = np.zeros(n_ep, dtype=bool)
-    g, r = w["g"], w["r_ph"]
-    for rows, p in blocks:
+    r = w["r_ph"]
+    for rows, p in dd_weight_blocks(d.ptr, w["var_ph"], ref, usable=use):
         ep = d.epoch[rows[:, 0]]
-        gk, rk = g[rows], r[rows]
-        pg = np.einsum("kij,kjc->kic", p, gk)
-        N[ep] = np.einsum("kic,kid->kcd", gk, pg)
-        b[ep] = np.einsum("kic,ki->kc", pg, rk)
+        rk = r[rows]
         c[ep] = np.einsum("ki,kij,kj->k", rk, p, rk)
         dof[ep] = rows.shape[1] - 1
         has[ep] = True
-    return N, b, c, dof, has, ref, blocks
+    return c, dof, has, ref
 
 
-def _random_walk(t: np.ndarray, N, b, c, dof, has, sigma_rw, p0_sigma: float, smooth: bool):
-    """Kalman filter (+ RTS smoother) for δx (displacement − static solution), F = I, Q = diag(σ²)Δt."""
-    n = t.size
-    q = np.asarray(sigma_rw, dtype=np.float64) ** 2
-    xf = np.zeros((n, 3))
-    pf = np.zeros((n, 3, 3))
-    pp = np.zeros((n, 3, 3))
-    xp = np.zeros((n, 3))
-    nis = np.full(n, np.nan)
-    x = np.zeros(3)
-    P = np.eye(3) * p0_sigma**2
-    for k in range(n):
-        if k:
-            P = P + np.diag(q * max(t[k] - t[k - 1], 0.0))
-        xp[k], pp[k] = x, P
-        if has[k]:
-            Pi = np.linalg.inv(P)
-            info = Pi + N[k]
-            Pn = np.linalg.inv(info)
-            v = b[k] - N[k] @ x                       # Gᵀ P (r − G x_pred)
-            nis[k] = c[k] - 2.0 * x @ b[k] + x @ N[k] @ x - v @ Pn @ v
-            x = x + Pn @ v
-            P = 0.5 * (Pn + Pn.T)
-        xf[k], pf[k] = x, P
+def _random_walk(model: SatelliteDDDisplacement, t: np.ndarray, sigma_rw, p0_sigma: float, smooth: bool):
+    """δx (displacement − static solution) by the engine: the forward filter
+    (:func:`~cdgps_cli.estimation.model_filter.filter_numpy`, one update per epoch: the model is linear)
+    with random-walk dynamics (A = I, Q = diag(σ²)Δt) from δx = 0 ± ``p0_sigma``, and the RTS
+    smoother (:func:`~cdgps_cli.estimation.smoother.rts_smooth_transitions`) when ``smooth``.
+
+    Returns smoothed (or filtered) x (N, 3), P (N, 3, 3), filtered x, P, and NIS (N,) (NaN: no DDs).
+    """
+    fr = filter_numpy(model, RandomWalk(3, sigma_rw), t, np.zeros(3), np.eye(3) * p0_sigma**2, max_iterations=1)
+    xf, pf = fr["x"], fr["P"]
     if not smooth:
-        return xf, pf, xf, pf, nis
-    xs = xf.copy()
-    ps = pf.copy()
-    for k in range(n - 2, -1, -1):
-        C = pf[k] @ np.linalg.inv(pp[k + 1])
-        xs[k] = xf[k] + C @ (xs[k + 1] - xp[k + 1])
-        ps[k] = pf[k] + C @ (ps[k + 1] - pp[k + 1]) @ C.T
-        ps[k] = 0.5 * (ps[k] + ps[k].T)
-    return xs, ps, xf, pf, nis
+        return xf, pf, xf, pf, fr["nis"]
+    xs, ps = rts_smooth_transitions(xf, pf, fr["A"], fr["Q"])
+    return xs, ps, xf, pf, fr["nis"]
 
 
 def _integers_from_init(rov: dict) -> dict:
@@ -345,15 +325,15 @@ def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path
         x_fin = w["x_final"]
         fixed_any = res["ambiguities"]["n_fixed"] > 0
         use = w["known_seg"][w["seg"]] if fixed_any else np.ones(w["seg"].size, dtype=bool)
-        N, b, c, dof, has, ref, _ = _epoch_information(w, use)
+        c, dof, has, ref = _epoch_information(w, use)
         if model == "static":
             q[idx, sl] = x_fin
             P[idx, sl, sl] = w["q_final"]
             dx = np.zeros((d.t_label.size, 3))
             nis = np.where(has, c, np.nan)
         else:
-            xs, ps, xf, pf, nis = _random_walk(d.t_label, N, b, c, dof, has, run.cfg.random_walk_sigma,
-                                               run.cfg.initial_sigma_m, smooth)
+            dd = SatelliteDDDisplacement(d.ptr, d.sat, d.sat_names, w["g"], [SDObservations(w["r_ph"], w["var_ph"], ref, usable=use)])
+            xs, ps, xf, pf, nis = _random_walk(dd, d.t_label, run.cfg.random_walk_sigma, run.cfg.initial_sigma_m, smooth)
             q[idx, sl] = x_fin + xs
             P[idx, sl, sl] = ps
             dx = xs

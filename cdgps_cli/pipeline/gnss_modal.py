@@ -64,7 +64,8 @@ from cdgps_cli.measurement.model import SatelliteDDModal, dd_modal_h_and_H
 from cdgps_cli.model.dynamics_models import ModalZOH
 from cdgps_cli.estimation import kernel
 from cdgps_cli.estimation.filter import EstimateOptions
-from cdgps_cli.estimation.model_filter import filter_dd_kernel, filter_numpy, outlier_gate, rts_smooth
+from cdgps_cli.estimation.model_filter import filter_dd_kernel, filter_numpy, outlier_gate
+from cdgps_cli.estimation.smoother import rts_smooth_transitions
 from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.model.kinematics import antenna_positions
@@ -448,7 +449,7 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
         fr = filter_numpy(model, dyn, t_all, x0, P0, max_iterations,
                           rows_hook=outlier_gate(model, gate, outliers, t_all))
     xf, Pf, meas = fr["x"], fr["P"], fr["rows"]
-    xs, Ps = rts_smooth(xf, Pf, fr["A"], fr["Q"]) if smooth else (xf, Pf)
+    xs, Ps = rts_smooth_transitions(xf, Pf, fr["A"], fr["Q"]) if smooth else (xf, Pf)
     nis, nis_dof = fr["nis"], fr["nis_dof"]
 
     # DD residuals of the reported estimate, per (antenna, satellite) channel

@@ -20,7 +20,8 @@ import pytest
 from click.testing import CliRunner
 
 from cdgps_cli.estimation import baseline as bl
-from cdgps_cli.estimation.baseline import BaselineOptions, Station, baseline_from_files, load_baseline_job, solve_static_baseline
+from cdgps_cli.estimation.baseline import BaselineOptions, Station, solve_static_baseline
+from cdgps_cli.pipeline.baseline_job import baseline_from_files
 from cdgps_cli.cli.commands import main
 from cdgps_cli.model.gps.orbits import ecef_to_enu, ecef_to_geodetic, enu_matrix
 from cdgps_cli.core.errors import CdgpsError
@@ -147,24 +148,6 @@ def test_geonet_cli_with_job_file(tmp_path):
     echoed = json.loads(r2.stdout)
     assert echoed["solution"] == "float" and echoed["options"]["mask_deg"] == 20.0 and r2.stderr == ""
     assert json.loads(out.read_text()) == echoed
-
-
-def test_geonet_job_file_loads():
-    job = load_baseline_job(JOB)
-    assert job["master"] == "3040" and set(job["rinex"]) == {"3040", "0759"}
-    assert job["rinex"]["0759"].name == "07590920.05o" and len(job["nav"]) == 2
-    assert job["options"].mask_deg == 15.0 and job["options"].ratio_threshold == 3.0
-
-
-def test_baseline_config_writer_round_trip(tmp_path):
-    obs = [shared("30400920.05o"), shared("07590920.05o")]
-    out = tmp_path / "job.toml"
-    r = CliRunner().invoke(main, ["baseline-config", "--rinex", f"3040={obs[0]}", "--rinex", f"0759={obs[1]}",
-                                  "--nav", str(shared("30400920.05n")), "-o", str(out)])
-    assert r.exit_code == 0, r.output
-    job = load_baseline_job(out)
-    assert job["master"] == "3040" and job["rinex"]["3040"].resolve() == obs[0].resolve()
-    assert "TRIMBLE 5700" in out.read_text()
 
 
 # ----------------------------------------------------------------------------------------------
@@ -376,22 +359,6 @@ def test_error_no_satellite_above_mask(small, nav):
         _solve(small, nav, options=BaselineOptions(mask_deg=89.0))
 
 
-def test_job_file_errors(tmp_path):
-    p = tmp_path / "job.toml"
-    p.write_text('[baseline]\nmaster = "A"\nnav = []\nmask_deg = "x"\ncolour = 1\n[baseline.rinex]\nA = "a.o"\n')
-    with pytest.raises(CdgpsError) as e:
-        load_baseline_job(p)
-    msg = str(e.value)
-    for part in ("invalid baseline job", "baseline.mask_deg", "baseline.colour: unknown key", "exactly two stations",
-                 "at least one navigation file"):
-        assert part in msg, msg
-    p.write_text("[baseline\n")
-    with pytest.raises(CdgpsError, match="not valid TOML"):
-        load_baseline_job(p)
-    with pytest.raises(CdgpsError, match="cannot read"):
-        load_baseline_job(tmp_path / "missing.toml")
-
-
 def test_cli_errors(tmp_path):
     out = tmp_path / "x.json"
     r = CliRunner().invoke(main, ["baseline", "--rinex", "nope", "--nav", "n", "--master", "a", "-o", str(out)])
@@ -409,26 +376,68 @@ def test_cli_errors(tmp_path):
     assert not out.exists()
 
 
-def test_old_baseline_job_form_still_loads_and_gnss_positions_are_used(tmp_path):
-    obs = [shared("30400920.05o"), shared("07590920.05o")]
-    old = tmp_path / "old.toml"
-    old.write_text(f'[baseline]\nmaster = "3040"\nnav = ["{shared("30400920.05n")}"]\nratio = 4.0\n'
-                   f'[baseline.rinex]\n"3040" = "{obs[0]}"\n"0759" = "{obs[1]}"\n')
-    job = load_baseline_job(old)
-    assert job["master"] == "3040" and job["options"].ratio_threshold == 4.0 and job["positions"] == {}
-    # a [gnss] config: position_ecef_m replaces the header position (here the rover's, moved 1 m up)
-    up = ROVER_XYZ + enu_matrix(*ecef_to_geodetic(ROVER_XYZ)[:2]).T @ np.array([0.0, 0.0, 1.0])
-    new = tmp_path / "new.toml"
-    new.write_text(f'[gnss]\nmaster = "3040"\nnav = ["{shared("30400920.05n")}"]\n'
-                   f'[gnss.antennas."3040"]\nrinex = "{obs[0]}"\n'
-                   f'[gnss.antennas."0759"]\nrinex = "{obs[1]}"\nposition_ecef_m = [{float(up[0])!r}, {float(up[1])!r}, {float(up[2])!r}]\n')
-    job = load_baseline_job(new)
-    assert set(job["positions"]) == {"0759"}
-    r = baseline_from_files(job["rinex"], job["nav"], job["master"], job["options"], positions=job["positions"])
-    assert r["rover_apriori_source"] == "given"
-    np.testing.assert_allclose(r["rover_ecef_m"], [-3976219.6636, 3382372.5422, 3652513.0576], atol=1e-3)
-    assert abs(r["states"]["0759_u"] - (0.12545 - 1.0)) < 1e-3
-    bad = tmp_path / "bad.toml"
-    bad.write_text('[gnss]\nmaster = "a"\n[gnss.antennas.a]\nubx = "a.ubx"\n')
-    with pytest.raises(CdgpsError, match=r"not usable as a baseline job: 3 problems"):
-        load_baseline_job(bad)
+
+
+def test_random_walk_float_ambiguities_equal_the_dense_joint_least_squares():
+    """bl._float_random_walk (the engine's forward filter on [δx, a], prior on a removed) against the
+    joint least-squares problem over every epoch's position and the ambiguities, solved densely
+    (positions eliminated by the Schur complement) with DDs formed epoch by epoch from dd_operator."""
+    from types import SimpleNamespace
+
+    from cdgps_cli.measurement.differencing import dd_operator, epoch_pointers, select_reference
+
+    gen = np.random.default_rng(11)
+    n_ep, n_sat = 30, 6
+    t = np.arange(n_ep, dtype=float) * 2.0
+    t[20:] += 6.0
+    epoch = np.repeat(np.arange(n_ep), n_sat)
+    sat = np.tile(np.arange(n_sat), n_ep)
+    slip_seg = (sat == 3) & (epoch >= 15)                        # satellite 3 slips: a second segment
+    seg = np.where(slip_seg, n_sat, sat)
+    par = np.where(seg == 0, -1, 2 + seg)                          # segment 0 is the datum; parameters 3…
+    n_amb = n_sat
+    N = sat.size
+    ptr = epoch_pointers(epoch, n_ep)
+    g = gen.normal(size=(N, 3))
+    el = gen.uniform(0.3, 1.5, N)
+    ref_ph = select_reference(ptr, sat, el)
+    code_ok = np.ones(N, dtype=bool)
+    code_ok[gen.choice(N, 20, replace=False)] = False
+    code_ok[ptr[:-1]] = code_ok[ptr[:-1] + 1] = True
+    ref_cd = select_reference(ptr, sat, el, usable=code_ok)
+    var = gen.uniform(1e-5, 3e-5, N)
+    r_ph, r_cd = gen.normal(size=N) * 0.01, gen.normal(size=N)
+    opt = BaselineOptions(motion="random_walk", random_walk_sigma=(0.002, 0.003, 0.004), initial_sigma_m=0.5)
+    d = SimpleNamespace(ptr=ptr, sat=sat, sat_names=[f"G{i:02d}" for i in range(n_sat)], t_label=t, epoch=epoch)
+    sg = SimpleNamespace(n_par=3 + n_amb, par_of_seg=np.r_[-1, 3 + np.arange(n_amb)], seg=seg)
+    w = SimpleNamespace(var_ph=var, ref_ph=ref_ph, var_code=var * 1e4, ref_code=ref_cd, code_ok=code_ok)
+    fl = SimpleNamespace(g=g, r_ph=r_ph, r_cd=r_cd)
+    da, q_aa = bl._float_random_walk(d, sg, w, fl, opt)
+
+    lam = bl.GPS_L1_WAVELENGTH_M
+    nx = 3 * n_ep
+    Lam, eta = np.zeros((nx + n_amb,) * 2), np.zeros(nx + n_amb)
+    Lam[:3, :3] += np.eye(3) / opt.initial_sigma_m**2
+    q = np.asarray(opt.random_walk_sigma) ** 2
+    for k in range(1, n_ep):
+        T = np.zeros((3, nx + n_amb))
+        T[:, 3 * k:3 * k + 3], T[:, 3 * k - 3:3 * k] = np.eye(3), -np.eye(3)
+        Lam += T.T @ np.diag(1.0 / (q * (t[k] - t[k - 1]))) @ T
+    for k in range(n_ep):
+        rows = np.arange(ptr[k], ptr[k + 1])
+        for rr, ref, res, v, amb in ((rows, ref_ph[k], r_ph, var, True),
+                                     (rows[code_ok[rows]], ref_cd[k], r_cd, var * 1e4, False)):
+            D = dd_operator(rr.size, int(np.flatnonzero(rr == ref)[0]))
+            H = np.zeros((rr.size, nx + n_amb))
+            H[:, 3 * k:3 * k + 3] = g[rr]
+            if amb:
+                c = par[rr] - 3
+                H[np.flatnonzero(c >= 0), nx + c[c >= 0]] = lam
+            Hd, W = D @ H, np.linalg.inv((D * v[rr]) @ D.T)
+            Lam += Hd.T @ W @ Hd
+            eta += Hd.T @ W @ (D @ res[rr])
+    Lxx, Lxa, Laa = Lam[:nx, :nx], Lam[:nx, nx:], Lam[nx:, nx:]
+    J = Laa - Lxa.T @ np.linalg.solve(Lxx, Lxa)
+    h = eta[nx:] - Lxa.T @ np.linalg.solve(Lxx, eta[:nx])
+    np.testing.assert_allclose(q_aa, np.linalg.inv(J), rtol=1e-7, atol=1e-12)
+    np.testing.assert_allclose(da, np.linalg.solve(J, h), rtol=1e-7, atol=1e-9)

@@ -11,7 +11,8 @@ import pytest
 
 from cdgps_cli.config.structure import load_config
 from cdgps_cli.estimation import kernel
-from cdgps_cli.estimation.model_filter import filter_dd_kernel, filter_numpy, outlier_gate, rts_smooth
+from cdgps_cli.estimation.model_filter import filter_dd_kernel, filter_numpy, outlier_gate
+from cdgps_cli.estimation.smoother import rts_smooth_transitions as rts_smooth
 from cdgps_cli.measurement.model import SatelliteDDModal
 from cdgps_cli.model.dynamics_models import ModalZOH
 

@@ -177,7 +177,7 @@ def test_starter_config_command(tmp_path):
     assert cfg.master == "3040" and cfg.displacement == "random_walk" and cfg.random_walk_sigma == (0.002,) * 3
     assert Path(cfg.antenna("3040").rinex).resolve() == obs[0].resolve()
     # 'cdgps baseline --config' reads it too; baseline-config writes the same format
-    from cdgps_cli.estimation.baseline import load_baseline_job
+    from cdgps_cli.pipeline.baseline_job import load_baseline_job
 
     assert load_baseline_job(out)["master"] == "3040"
     r = run_cli("config", "--rinex", f"a={obs[0]}", "--sigma", "0.1", "-o", tmp_path / "x.toml")

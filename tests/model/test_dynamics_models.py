@@ -9,7 +9,7 @@ import pytest
 
 from cdgps_cli.config.structure import load_config
 from cdgps_cli.model.dynamics import discrete_model
-from cdgps_cli.model.dynamics_models import ModalZOH, RandomWalk, Static
+from cdgps_cli.model.dynamics_models import ModalZOH, RandomWalk, Static, WithConstants
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -42,3 +42,28 @@ def test_random_walk_and_static():
     assert Static(2).noise_factor(1.0).shape == (2, 0)
     with pytest.raises(ValueError, match="sigma"):
         RandomWalk(2, -1.0)
+
+
+def test_random_walk_with_one_sigma_per_coordinate():
+    dyn = RandomWalk(3, (0.001, 0.002, 0.0))
+    _, _, Q = dyn.transition(2.0)
+    np.testing.assert_allclose(Q, np.diag([2e-6, 8e-6, 0.0]), rtol=1e-15)
+    G = dyn.noise_factor(2.0)
+    assert G.shape == (3, 2)                                   # the zero-noise coordinate has no column
+    np.testing.assert_allclose(G @ G.T, Q, rtol=1e-15, atol=1e-20)
+    with pytest.raises(ValueError, match="sigma"):
+        RandomWalk(3, (0.001, 0.002))
+    with pytest.raises(ValueError, match="sigma"):
+        RandomWalk(2, (0.001, float("nan")))
+
+
+def test_with_constants_appends_constant_states():
+    dyn = WithConstants(RandomWalk(3, (0.001, 0.002, 0.003)), 4)
+    A, B, Q = dyn.transition(3.0)
+    A0, _, Q0 = RandomWalk(3, (0.001, 0.002, 0.003)).transition(3.0)
+    assert dyn.n == 7 and B.shape == (7, 0)
+    np.testing.assert_array_equal(A, np.eye(7))
+    np.testing.assert_array_equal(Q[:3, :3], Q0)
+    assert not Q[3:].any() and not Q[:, 3:].any()
+    G = dyn.noise_factor(3.0)
+    np.testing.assert_allclose(G @ G.T, Q, rtol=1e-15, atol=1e-20)

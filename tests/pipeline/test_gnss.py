@@ -238,6 +238,75 @@ def test_random_walk_rover_filter_and_smoother(rw_sim):
     assert truth["rover_u"].max() - truth["rover_u"].min() > 0.03                      # it really wanders
 
 
+def _information_kf_oracle(t, N, b, c, has, sigma_rw, p0_sigma):
+    """The random-walk displacement filter + RTS as the pipeline ran it before the engine (textbook
+    information form on N = GᵀPG, b = GᵀPr, c = rᵀPr; inverse-gain RTS): the reference."""
+    q = np.asarray(sigma_rw) ** 2
+    n = t.size
+    xf, pf, xp, pp = np.zeros((n, 3)), np.zeros((n, 3, 3)), np.zeros((n, 3)), np.zeros((n, 3, 3))
+    nis = np.full(n, np.nan)
+    x, P = np.zeros(3), np.eye(3) * p0_sigma**2
+    for k in range(n):
+        if k:
+            P = P + np.diag(q * (t[k] - t[k - 1]))
+        xp[k], pp[k] = x, P
+        if has[k]:
+            Pn = np.linalg.inv(np.linalg.inv(P) + N[k])
+            v = b[k] - N[k] @ x
+            nis[k] = c[k] - 2.0 * x @ b[k] + x @ N[k] @ x - v @ Pn @ v
+            x, P = x + Pn @ v, Pn
+        xf[k], pf[k] = x, P
+    xs, ps = xf.copy(), pf.copy()
+    for k in range(n - 2, -1, -1):
+        C = pf[k] @ np.linalg.inv(pp[k + 1])
+        xs[k] = xf[k] + C @ (xs[k + 1] - xp[k + 1])
+        ps[k] = pf[k] + C @ (ps[k + 1] - pp[k + 1]) @ C.T
+    return xs, ps, xf, pf, nis
+
+
+def test_random_walk_displacement_is_the_engine_and_equals_the_information_filter():
+    """pipeline.gnss._random_walk (engine: SatelliteDDDisplacement + RandomWalk + filter_numpy +
+    rts_smooth_transitions) against the information-form filter it replaced, on DD rows with gaps
+    (two spacings: the smoother runs in stretches) and epochs without DDs."""
+    from cdgps_cli.measurement.dd_displacement import SatelliteDDDisplacement, SDObservations
+    from cdgps_cli.measurement.differencing import dd_weight_blocks, epoch_pointers, select_reference
+    from cdgps_cli.pipeline.gnss import _random_walk
+
+    gen = np.random.default_rng(4)
+    n_ep = 60
+    t = np.arange(n_ep, dtype=float)
+    t[30:] += 4.0                                             # a gap
+    counts = gen.integers(4, 9, n_ep)
+    counts[[10, 11, 40]] = 1                                  # no DDs there
+    epoch = np.repeat(np.arange(n_ep), counts)
+    sat = np.concatenate([np.sort(gen.choice(12, c, replace=False)) for c in counts]).astype(np.int64)
+    ptr = epoch_pointers(epoch, n_ep)
+    el = gen.uniform(0.3, 1.5, sat.size)
+    ref = select_reference(ptr, sat, el)
+    g = gen.normal(size=(sat.size, 3))
+    truth = np.cumsum(gen.normal(0, 0.002, (n_ep, 3)), axis=0)
+    var = gen.uniform(1e-5, 3e-5, sat.size)
+    r = np.einsum("ic,ic->i", g, truth[epoch]) + gen.normal(size=sat.size) * np.sqrt(var) + 3.0
+    N, b, c = np.zeros((n_ep, 3, 3)), np.zeros((n_ep, 3)), np.zeros(n_ep)
+    has = np.zeros(n_ep, dtype=bool)
+    for rows, P in dd_weight_blocks(ptr, var, ref):
+        ep = epoch[rows[:, 0]]
+        N[ep] = np.einsum("kic,kij,kjd->kcd", g[rows], P, g[rows])
+        b[ep] = np.einsum("kic,kij,kj->kc", g[rows], P, r[rows])
+        c[ep] = np.einsum("ki,kij,kj->k", r[rows], P, r[rows])
+        has[ep] = True
+    sig = (0.002, 0.003, 0.004)
+    want = _information_kf_oracle(t, N, b, c, has, sig, 0.05)
+    model = SatelliteDDDisplacement(ptr, sat, [f"G{i:02d}" for i in range(12)], g, [SDObservations(r, var, ref)])
+    got = _random_walk(model, t, sig, 0.05, smooth=True)
+    for name, a, e in zip(("xs", "Ps", "xf", "Pf"), got[:4], want[:4]):
+        np.testing.assert_allclose(a, e, rtol=1e-9, atol=1e-9 * np.abs(e).max(), err_msg=name)
+    np.testing.assert_allclose(got[4], want[4], rtol=1e-8, atol=1e-8, equal_nan=True)
+    assert np.isnan(got[4][[10, 11, 40]]).all() and np.isfinite(got[4][has]).all()
+    filt = _random_walk(model, t, sig, 0.05, smooth=False)
+    np.testing.assert_array_equal(filt[0], got[2])
+
+
 def test_default_simulation_is_consistent_with_the_default_weighting(tmp_path):
     """The simulator's default phase noise is the estimator's default weighting (σ² = a² + b²/sin²el,
     a = b = 3 mm per receiver): NIS per dof ≈ 1 and NEES ≈ its dof (with 2 mm white noise they

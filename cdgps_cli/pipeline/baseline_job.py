@@ -1,0 +1,174 @@
+"""``cdgps baseline``'s inputs: baseline job files and the RINEX files they name.
+
+The static baseline itself is numerics (:func:`cdgps_cli.estimation.baseline.solve_static_baseline`,
+which never reads a file); this stage reads a job file (a GNSS run config with two RINEX antennas,
+or the older ``[baseline]`` table of docs/geonet.md), the RINEX observation and navigation files,
+and hands the solver its :class:`~cdgps_cli.estimation.baseline.Station` records and ephemerides.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+import pandas as pd
+
+from cdgps_cli.core.errors import CdgpsError, join_problems
+from cdgps_cli.estimation.baseline import BaselineOptions, Station, solve_static_baseline
+from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
+
+__all__ = ["load_stations", "baseline_from_files", "load_baseline_job"]
+
+
+def load_stations(rinex: dict, nav_paths) -> tuple[dict, pd.DataFrame]:
+    """Read RINEX observation files (``{name: path}``) and navigation files into Stations and one
+    ephemeris table (duplicates across files removed)."""
+    if not nav_paths:
+        raise CdgpsError("no navigation file given (--nav): GPS broadcast ephemerides are needed for satellite positions")
+    stations = {}
+    for name, path in rinex.items():
+        h, o = read_rinex_obs(path)
+        stations[name] = Station(name, h, o)
+    navs = [read_rinex_nav(p) for p in nav_paths]
+    nav = pd.concat(navs, ignore_index=True)
+    nav = nav.drop_duplicates(subset=["sat", "toe_gps_s", "iode", "af0_s"], keep="first")
+    nav = nav.sort_values(["sat", "toe_gps_s", "transmit_gps_s"], kind="stable").reset_index(drop=True)
+    return stations, nav
+
+
+def baseline_from_files(rinex: dict, nav_paths, master: str, options: BaselineOptions | None = None,
+                        positions: dict | None = None) -> dict:
+    """Read the files and solve (:func:`solve_static_baseline`); ``rinex`` maps exactly two station
+    names to observation files, ``master`` is one of them; ``positions`` optionally gives
+    ``{name: ECEF m}`` instead of the RINEX header positions."""
+    if len(rinex) != 2:
+        raise CdgpsError(f"a baseline needs exactly two RINEX observation files (NAME=PATH), got {len(rinex)}: "
+                         f"{', '.join(rinex) or 'none'}")
+    if master not in rinex:
+        raise CdgpsError(f"master {master!r} is not one of the stations given: {', '.join(rinex)}")
+    (options or BaselineOptions()).validate()
+    stations, nav = load_stations(rinex, nav_paths)
+    rover = next(n for n in rinex if n != master)
+    pos = positions or {}
+    res = solve_static_baseline(stations[master], stations[rover], nav, options, master_xyz=pos.get(master),
+                                rover_xyz=pos.get(rover))
+    res["inputs"] = {"rinex": {k: str(v) for k, v in rinex.items()}, "nav": [str(p) for p in nav_paths]}
+    return res
+
+
+_JOB_KEYS = {
+    "name": str, "description": str, "master": str, "nav": list, "rinex": dict, "mask_deg": (int, float),
+    "ratio": (int, float), "partial": bool, "weighting": str, "troposphere": bool, "sigma_a_m": (int, float),
+    "sigma_b_m": (int, float), "code_ratio": (int, float), "max_gap_s": (int, float),
+}
+
+
+def load_baseline_job(path) -> dict:
+    """Read a baseline job file: a GNSS run config (``[gnss]`` table, docs/gnss-pipeline.md) with
+    two RINEX antennas, or the older form with one ``[baseline]`` table (docs/geonet.md).
+
+    Relative file paths are taken relative to the job file's directory.
+
+    Returns
+    -------
+    dict
+        ``name``, ``master``, ``rinex`` ({name: Path}), ``nav`` ([Path]), ``options``
+        (:class:`BaselineOptions`) and ``positions`` ({name: ECEF m} given in the file; the
+        others come from the RINEX headers).
+
+    Raises
+    ------
+    CdgpsError
+        Unreadable file, TOML syntax error, unknown or mistyped keys (all listed at once).
+    """
+    p = Path(path)
+    try:
+        text = p.read_text()
+        text = text[1:] if text.startswith("\ufeff") else text     # a UTF-8 byte-order mark
+        doc = tomllib.loads(text)
+    except OSError as exc:
+        raise CdgpsError(f"{p}: cannot read: {exc.strerror or exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise CdgpsError(f"{p}: not valid TOML: {exc}") from None
+    if "gnss" in doc:
+        return _job_from_gnss_config(p, text)
+    problems = []
+    extra = sorted(set(doc) - {"baseline"})
+    if extra:
+        problems.append(f"unknown top-level key(s) {', '.join(extra)} (a baseline job has one [baseline] table)")
+    b = doc.get("baseline")
+    if not isinstance(b, dict):
+        raise CdgpsError(join_problems(f"{p}: invalid baseline job", problems + ["missing [baseline] table (or a [gnss] table)"]))
+    for k, v in b.items():
+        t = _JOB_KEYS.get(k)
+        if t is None:
+            problems.append(f"baseline.{k}: unknown key (known: {', '.join(sorted(_JOB_KEYS))})")
+        elif not isinstance(v, t) or (t == (int, float) and isinstance(v, bool)):
+            problems.append(f"baseline.{k}: expected {getattr(t, '__name__', 'a number')}, got {v!r}")
+    for k in ("master", "rinex", "nav"):
+        if k not in b:
+            problems.append(f"baseline.{k}: required")
+    base = p.parent
+    rinex = {}
+    if isinstance(b.get("rinex"), dict):
+        for n, v in b["rinex"].items():
+            if not isinstance(v, str):
+                problems.append(f"baseline.rinex.{n}: expected a file path string, got {v!r}")
+            else:
+                rinex[str(n)] = (base / v) if not Path(v).is_absolute() else Path(v)
+        if len(rinex) != 2:
+            problems.append(f"baseline.rinex: expected exactly two stations, got {len(b['rinex'])}")
+    nav = []
+    if isinstance(b.get("nav"), list):
+        for i, v in enumerate(b["nav"]):
+            if not isinstance(v, str):
+                problems.append(f"baseline.nav[{i}]: expected a file path string, got {v!r}")
+            else:
+                nav.append((base / v) if not Path(v).is_absolute() else Path(v))
+        if not nav:
+            problems.append("baseline.nav: at least one navigation file is needed")
+    if isinstance(b.get("master"), str) and rinex and b["master"] not in rinex:
+        problems.append(f"baseline.master: {b['master']!r} is not one of baseline.rinex ({', '.join(rinex)})")
+    if problems:
+        raise CdgpsError(join_problems(f"{p}: invalid baseline job", problems))
+    kw = {}
+    for k_job, k_opt in (("mask_deg", "mask_deg"), ("ratio", "ratio_threshold"), ("partial", "partial"),
+                         ("weighting", "weighting"), ("troposphere", "troposphere"), ("sigma_a_m", "sigma_a_m"),
+                         ("sigma_b_m", "sigma_b_m"), ("code_ratio", "code_ratio"), ("max_gap_s", "max_gap_s")):
+        if k_job in b:
+            kw[k_opt] = float(b[k_job]) if isinstance(b[k_job], (int, float)) and not isinstance(b[k_job], bool) else b[k_job]
+    opt = BaselineOptions(**kw)
+    try:
+        opt.validate()
+    except CdgpsError as exc:
+        raise CdgpsError(f"{p}: {exc}") from None
+    return {"name": b.get("name", p.stem), "master": b["master"], "rinex": rinex, "nav": nav, "options": opt,
+            "positions": {}}
+
+
+def _job_from_gnss_config(p: Path, text: str) -> dict:
+    """A baseline job from a GNSS run config: exactly two antennas with RINEX files."""
+    from cdgps_cli.config.structure import parse_gnss_config  # noqa: PLC0415
+
+    cfg = parse_gnss_config(text, str(p), base_dir=p.resolve().parent)
+    problems = []
+    if not cfg.master:
+        problems.append("gnss.master: required for a baseline")
+    if len(cfg.antennas) != 2:
+        problems.append(f"gnss.antennas: a baseline needs exactly two antennas, got {len(cfg.antennas)}")
+    for a in cfg.antennas:
+        if not a.rinex:
+            problems.append(f"gnss.antennas.{a.name}: 'cdgps baseline' needs a rinex observation file"
+                            + (" (UBX logs go through 'cdgps ingest')" if a.ubx else ""))
+    if not cfg.nav:
+        problems.append("gnss.nav: at least one navigation file is needed")
+    if problems:
+        raise CdgpsError(join_problems(f"{p}: not usable as a baseline job", problems))
+    opt = BaselineOptions.from_gnss_config(cfg, motion="static")        # 'cdgps baseline' is the static solution
+    try:
+        opt.validate()
+    except CdgpsError as exc:
+        raise CdgpsError(f"{p}: {exc}") from None
+    return {"name": cfg.name, "master": cfg.master, "rinex": {a.name: Path(a.rinex) for a in cfg.antennas},
+            "nav": [Path(n) for n in cfg.nav], "options": opt,
+            "positions": {a.name: a.position_ecef_m for a in cfg.antennas if a.position_ecef_m is not None}}

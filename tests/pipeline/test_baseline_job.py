@@ -1,0 +1,88 @@
+"""Baseline job files (pipeline/baseline_job.py): the GNSS-config form, the older [baseline] form, errors.
+
+The solver itself is tested in tests/estimation/test_baseline.py.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from cdgps_cli.cli.commands import main
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
+from cdgps_cli.pipeline.baseline_job import baseline_from_files, load_baseline_job
+
+ROOT = Path(__file__).resolve().parents[2]
+SHARED = ROOT.parent / "shared" / "data" / "rinex"
+JOB = ROOT / "configs" / "geonet-0759-3040.toml"
+ROVER_XYZ = np.array([-3976219.5082, 3382372.5671, 3652512.9849])    # 0759 RINEX header APPROX POSITION XYZ
+
+
+def shared(name: str) -> Path:
+    p = SHARED / name
+    if not p.exists():
+        pytest.skip(f"shared test data not available: {p} (the ../shared/data folder beside the repository)")
+    return p
+
+
+def test_geonet_job_file_loads():
+    job = load_baseline_job(JOB)
+    assert job["master"] == "3040" and set(job["rinex"]) == {"3040", "0759"}
+    assert job["rinex"]["0759"].name == "07590920.05o" and len(job["nav"]) == 2
+    assert job["options"].mask_deg == 15.0 and job["options"].ratio_threshold == 3.0
+
+
+def test_baseline_config_writer_round_trip(tmp_path):
+    obs = [shared("30400920.05o"), shared("07590920.05o")]
+    out = tmp_path / "job.toml"
+    r = CliRunner().invoke(main, ["baseline-config", "--rinex", f"3040={obs[0]}", "--rinex", f"0759={obs[1]}",
+                                  "--nav", str(shared("30400920.05n")), "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    job = load_baseline_job(out)
+    assert job["master"] == "3040" and job["rinex"]["3040"].resolve() == obs[0].resolve()
+    assert "TRIMBLE 5700" in out.read_text()
+
+
+def test_job_file_errors(tmp_path):
+    p = tmp_path / "job.toml"
+    p.write_text('[baseline]\nmaster = "A"\nnav = []\nmask_deg = "x"\ncolour = 1\n[baseline.rinex]\nA = "a.o"\n')
+    with pytest.raises(CdgpsError) as e:
+        load_baseline_job(p)
+    msg = str(e.value)
+    for part in ("invalid baseline job", "baseline.mask_deg", "baseline.colour: unknown key", "exactly two stations",
+                 "at least one navigation file"):
+        assert part in msg, msg
+    p.write_text("[baseline\n")
+    with pytest.raises(CdgpsError, match="not valid TOML"):
+        load_baseline_job(p)
+    with pytest.raises(CdgpsError, match="cannot read"):
+        load_baseline_job(tmp_path / "missing.toml")
+
+
+def test_old_baseline_job_form_still_loads_and_gnss_positions_are_used(tmp_path):
+    obs = [shared("30400920.05o"), shared("07590920.05o")]
+    old = tmp_path / "old.toml"
+    old.write_text(f'[baseline]\nmaster = "3040"\nnav = ["{shared("30400920.05n")}"]\nratio = 4.0\n'
+                   f'[baseline.rinex]\n"3040" = "{obs[0]}"\n"0759" = "{obs[1]}"\n')
+    job = load_baseline_job(old)
+    assert job["master"] == "3040" and job["options"].ratio_threshold == 4.0 and job["positions"] == {}
+    # a [gnss] config: position_ecef_m replaces the header position (here the rover's, moved 1 m up)
+    up = ROVER_XYZ + enu_matrix(*ecef_to_geodetic(ROVER_XYZ)[:2]).T @ np.array([0.0, 0.0, 1.0])
+    new = tmp_path / "new.toml"
+    new.write_text(f'[gnss]\nmaster = "3040"\nnav = ["{shared("30400920.05n")}"]\n'
+                   f'[gnss.antennas."3040"]\nrinex = "{obs[0]}"\n'
+                   f'[gnss.antennas."0759"]\nrinex = "{obs[1]}"\nposition_ecef_m = [{float(up[0])!r}, {float(up[1])!r}, {float(up[2])!r}]\n')
+    job = load_baseline_job(new)
+    assert set(job["positions"]) == {"0759"}
+    r = baseline_from_files(job["rinex"], job["nav"], job["master"], job["options"], positions=job["positions"])
+    assert r["rover_apriori_source"] == "given"
+    np.testing.assert_allclose(r["rover_ecef_m"], [-3976219.6636, 3382372.5422, 3652513.0576], atol=1e-3)
+    assert abs(r["states"]["0759_u"] - (0.12545 - 1.0)) < 1e-3
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[gnss]\nmaster = "a"\n[gnss.antennas.a]\nubx = "a.ubx"\n')
+    with pytest.raises(CdgpsError, match=r"not usable as a baseline job: 3 problems"):
+        load_baseline_job(bad)
