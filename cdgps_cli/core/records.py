@@ -138,6 +138,40 @@ class StateSeries:
         return int(np.shape(self.output_map)[1])
 
 
+@dataclass(frozen=True)
+class CoordinateModel:
+    """The coordinates of a state series that has no structure model (GNSS displacement states):
+    what spectra need of a config — name, coordinate names and units — with no modes and no gyros.
+
+    Attributes
+    ----------
+    name, sha256 : str
+        The config the estimate was made with (the GNSS run's).
+    coord_names, coord_units : tuple of str (n_q,)
+    """
+
+    name: str
+    sha256: str
+    coord_names: tuple
+    coord_units: tuple
+    mode_names: tuple = ()
+    mode_frequency_hz: tuple = ()
+    mode_time_constant_s: tuple = ()
+    gyro_names: tuple = ()
+    rigid_index: int | None = None
+
+    @property
+    def mode_shapes(self) -> np.ndarray:
+        """(n_q, 0): no modes."""
+        return np.zeros((len(self.coord_names), 0))
+
+    def coord_unit(self, name: str) -> str:
+        return self.coord_units[self.coord_names.index(name)]
+
+    def coord_unit_label(self, name: str) -> str:
+        return self.coord_unit(name)
+
+
 OBS_COLUMNS = (
     "time_gps_s",
     "sat",

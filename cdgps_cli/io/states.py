@@ -51,7 +51,7 @@ import numpy as np
 from cdgps_cli.core import progress
 from cdgps_cli.config.structure import StructureConfig, parse_config
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.core.records import Series, StateSeries
+from cdgps_cli.core.records import CoordinateModel, Series, StateSeries
 from cdgps_cli.io.states_layout import (COVARIANCE_CHOICES, DEFAULT_COVARIANCE, DEFAULT_PREVIEW_RATE_HZ,
                                         OUTPUT_MAP_PACKED, PACKED_PREFIX, RESIDUAL_PACKED, SERIES_ATTACHMENT,
                                         STATE_DELTA, STATES_FORMAT, STATES_KINDS)
@@ -453,6 +453,13 @@ class States:
     @property
     def config_sha256(self) -> str:
         return self.cfg.sha256 if self.cfg is not None else self.metadata.get("config_sha256", "")
+
+    def coordinate_model(self):
+        """The structure config, or for states without one (GNSS displacements) their
+        :class:`~cdgps_cli.core.records.CoordinateModel` (names and units, no modes, no gyros)."""
+        if self.cfg is not None:
+            return self.cfg
+        return CoordinateModel(self.config_name, self.config_sha256, tuple(self.coord_names), tuple(self.coord_units))
 
     def _describe(self, att: dict) -> None:
         """kind, cfg, coordinates, output map and wavelength, from the description or the config."""

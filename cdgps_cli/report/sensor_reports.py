@@ -32,6 +32,12 @@ def _structure_config(states, what: str):
     return states.cfg
 
 
+def _coordinate_model(states):
+    """The structure config of ``states``, or the coordinates-only model of GNSS displacement
+    states (:meth:`cdgps_cli.io.states.States.coordinate_model`: PSDs and FDD, no modes)."""
+    return states.cfg if states.cfg is not None else states.coordinate_model()
+
+
 def _mpl():
     import matplotlib
 
@@ -109,7 +115,7 @@ def run_spectra(states, run, opt, out_dir: str | Path, dest: OutputSet | None = 
     or go into ``dest``, the output set of a larger command (the spectrum report)."""
     from cdgps_cli.analysis.spectra import compute_spectra
 
-    cfg = _structure_config(states, "spectra")
+    cfg = _coordinate_model(states)
     gt, gr, gnames = (np.zeros(0), None, [])
     if run is not None:
         if run.cfg.sha256 != cfg.sha256:
@@ -125,7 +131,7 @@ def run_spectra(states, run, opt, out_dir: str | Path, dest: OutputSet | None = 
 
 
 def _write_spectra(states, res: dict, gnames: list, dest: OutputSet) -> dict:
-    cfg = states.cfg
+    cfg = _coordinate_model(states)
     f = res["f_hz"]
     df = pd.DataFrame({"frequency_hz": f})
     units = {"rad": "_rad2_hz", "m": "_m2_hz", "1": "_1_hz"}
@@ -637,5 +643,5 @@ def spectrum_report(states, run, opt, out_dir: str | Path, date: str | None = No
         data = {"modes": modes, "settings": st, "seen": seen, "summary": text, "provenance": prov}
         _write_report(dest, "Spectrum sensor test", md, data,
                       [("Identified modes", f"<p>{html.escape(text)}</p>" + _html_table(rows, header)
-                        + f"<p class='note'>{html.escape(note)}</p>")], pngs, _spectrum_captions(s, states.cfg))
+                        + f"<p class='note'>{html.escape(note)}</p>")], pngs, _spectrum_captions(s, _coordinate_model(states)))
     return data

@@ -137,11 +137,16 @@ def test_geonet_states_file(geonet):
     # what needs a structure says so (exit 2, nothing written)
     f = tmp / "states.mcap"
     for args, out in ((["export", f, "--points", "antennas", "-o", tmp / "p.csv"], tmp / "p.csv"),
-                      (["spectra", f, "-o", tmp / "sp"], tmp / "sp"),
                       (["report", "static", f, "--angle", "0759_e", "-o", tmp / "rep"], tmp / "rep")):
         r = run_cli(*args)
         assert r.exit_code == 2 and "needs the STATES.mcap of a structure" in r.output, r.output
         assert not out.exists()
+    # spectra of the displacements: PSDs and FDD of the coordinates, no model modes
+    r = run_cli("spectra", f, "-o", tmp / "sp", "--json")
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["modes"] == []
+    cols = pd.read_csv(tmp / "sp" / "psd.csv").columns
+    assert {"gps_0759_e_m2_hz", "gps_0759_n_m2_hz", "gps_0759_u_m2_hz"} <= set(cols)
 
 
 # ----------------------------------------------------------------------------------------------
