@@ -13,18 +13,20 @@ reads:
 * ``arrays<topic>/time_s`` (N,), ``xi`` (N, n_pos) and, with rates, ``xidot`` (N, n_pos) for each
   state series (``<topic>`` is ``/cdgps/state``, ``/cdgps/state_filtered`` or, on a GNSS run,
   ``/cdgps/kinematic`` — the single-epoch solutions, with ``extra`` arrays ``n_sat`` and ``pdop``);
-* for the estimate (``/cdgps/state``) its modal-position covariance, ``P_xi_triu``
-  (N, n_m(n_m+1)/2: the upper triangle row by row, written when every P_ξ is exactly symmetric)
-  or ``P_xi`` (N, n_m, n_m); for the forward filter of a smoothed run only ``sigma_q`` (N, n_q),
-  its 1-σ of q;
-* with ``--covariance full``: ``P`` (N, n, n), the whole state covariance of both series, and
-  P_ξ of the forward filter too;
+* for every series but the forward filter of a smoothed run, its position covariance,
+  ``P_xi_triu`` (N, n_pos(n_pos+1)/2: the upper triangle row by row, written when every P_ξ is
+  exactly symmetric) or ``P_xi`` (N, n_pos, n_pos); for the forward filter of a smoothed run only
+  ``sigma_q`` (N, n_q), its 1-σ of q;
+* with ``--covariance full``: ``P`` (N, n, n), the whole state covariance of every series that
+  has it, and P_ξ of the forward filter too;
+* the state and covariance arrays (``xi``, ``xidot``, ``P_xi_triu``/``P_xi``, ``sigma_q``, ``P``)
+  are packed with :data:`STATE_DELTA` (second differences between epochs, lossless);
 * ``arrays/cdgps/residuals/``: ``residual_m`` (N, C, float32 — 7 significant digits, nm on
   cm-level residuals; NaN where the channel was not used),
   ``nis`` (N,, NaN where none), ``nis_dof`` (N,), and ``channels.json`` (the C
   ``[antenna, transmitter]`` pairs, the columns of ``residual_m``).
 
-q = ξ Uᵀ and σ_q (the standard deviations of U P_ξ Uᵀ) are computed from these when read.  The
+q = ξ Cᵀ and σ_q (the standard deviations of C P_ξ Cᵀ) are computed from these when read.  The
 JSON channels hold one message every ``json_channels_every_epochs`` epochs (metadata
 ``cdgps.estimate``; chosen by ``--foxglove-rate-hz``).
 """
