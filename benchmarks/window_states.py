@@ -60,7 +60,7 @@ def one_seed(cfg, seed: int) -> dict:
         k_of = {round(float(t), 6): i for i, t in enumerate(sim.time_s)}
         rows = np.array([k_of[round(float(t), 6)] for t in res.time_s])
         q = res.x[:, :nm] @ U.T
-        sq = coordinate_sigma(cfg, res.P[:, :nm, :nm])
+        sq = coordinate_sigma(cfg.mode_shapes, res.P[:, :nm, :nm])
         z2 = ((q - sim.q[rows]) / sq) ** 2
         i0 = int(np.argmin(np.abs(res.time_s - t0)))
         r = {"epochs": len(res.time_s), "ratio_t0": sq[i0] / s_init, "ratio_t1": sq[i0 + 1] / s_init,

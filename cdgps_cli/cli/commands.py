@@ -418,7 +418,7 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
     import hashlib
 
     from cdgps_cli.io.file_checks import RUNS, require_kind
-    from cdgps_cli.io.gnss_run import run_kind
+    from cdgps_cli.io.run import run_kind
 
     require_kind(run_mcap, RUNS, "RUN_MCAP")
     if run_kind(run_mcap) == "gnss":
@@ -515,7 +515,7 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
     single-epoch solutions, DD residuals and slip/reference events (docs/gnss-pipeline.md).
     """
     from cdgps_cli.io.file_checks import RUNS, require_kind
-    from cdgps_cli.io.gnss_run import run_kind
+    from cdgps_cli.io.run import run_kind
 
     require_kind(run_mcap, RUNS, "RUN_MCAP")
     if run_kind(run_mcap) == "gnss":

@@ -5,13 +5,17 @@
 * :data:`INIT_FORMAT` and :func:`init_kind` — the one INIT.json format for both kinds of run.
 * :class:`Run` — an ingested recording (what :func:`cdgps_cli.io.run.read_run` returns, or
   :func:`memory_run` builds from tables in memory).
+* :class:`StateSeries` (with its :class:`Series`) — an estimate of any kind (a structure's modal
+  state, GNSS displacement states): what :func:`cdgps_cli.io.states.write_states` writes to
+  STATES.mcap.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
+import numpy as np
 import pandas as pd
 
 if TYPE_CHECKING:                     # a type only: core imports nothing above it at run time
@@ -50,6 +54,122 @@ def memory_run(cfg: StructureConfig, phase: pd.DataFrame, gyro: pd.DataFrame | N
         actuators = pd.DataFrame({"time_s": pd.Series([], dtype=float), "actuator": pd.Series([], dtype=object),
                                   "force_n": pd.Series([], dtype=float)})
     return Run(name, cfg, phase.reset_index(drop=True), pd.DataFrame() if gyro is None else gyro, actuators, {})
+
+
+@dataclass
+class Series:
+    """One series of states over epochs: the estimate, the forward filter of a smoothed run, the
+    single-epoch solutions of a GNSS run.
+
+    Attributes
+    ----------
+    time_s : ndarray (N,)
+        Epoch times, s (run seconds, or GPS seconds on a GNSS run).
+    x : ndarray (N, n)
+        States (state units; NaN where a state has no solution at that epoch).
+    P : ndarray (N, m, m)
+        Covariance of the first m ≥ ``n_pos`` states (m = n: the whole state), state units².
+    smoothed : bool
+        Whether the series is a smoother's output.
+    extra : dict of str to ndarray (N, ...)
+        Further per-epoch numbers stored beside the states (e.g. ``n_sat``, ``pdop``).
+    messages : bool
+        Whether the series also gets a Foxglove JSON channel (else its packed arrays only).
+    """
+
+    time_s: np.ndarray
+    x: np.ndarray
+    P: np.ndarray
+    smoothed: bool = False
+    extra: dict = field(default_factory=dict)
+    messages: bool = True
+
+
+@dataclass
+class StateSeries:
+    """An estimate of any kind as one record: state series, output map, residuals, NIS, events.
+
+    The states x of every series start with ``n_pos`` positions (the modal positions ξ of a
+    structure, or the displacements themselves) followed, when ``n_rate`` > 0, by their rates; the
+    reported coordinates are q = C x[:n_pos] with C = ``output_map``.
+
+    Attributes
+    ----------
+    kind : {"structure", "displacement"}
+        A structure's modal state (pseudolite or GNSS run) or GNSS displacement states.
+    coord_names : list of str (n_q,)
+        Names of the coordinates q.
+    coord_units : list of str (n_q,)
+        Unit of each coordinate (``"m"``, ``"rad"`` or ``"1"``).
+    output_map : ndarray (n_q, n_pos)
+        C of q = C x[:n_pos] (the mode shapes U of a structure; the identity for displacements).
+    n_rate : int
+        Rates stored after the positions (ξ̇: n_pos; 0: none).
+    series : dict of str to Series
+        By topic; ``/cdgps/state`` (the estimate) always.
+    residual_channels : list of (str, str)
+        The (antenna or rover, transmitter or satellite) label of each column of ``residual_m``.
+    residual_m : ndarray (N, C)
+        Post-fit residuals of the estimate, m (NaN where the channel was not used).
+    nis, nis_dof : ndarray (N,)
+        Normalized innovation squared per epoch (NaN where none) and its degrees of freedom.
+    events : list of dict
+        ``time_s``, ``antenna``, ``transmitter``, ``kind``, ``action`` and any details.
+    wavelength_m : float
+        Carrier wavelength the biases are counted in, m.
+    """
+
+    kind: str
+    coord_names: list
+    coord_units: list
+    output_map: np.ndarray
+    n_rate: int
+    series: dict
+    residual_channels: list
+    residual_m: np.ndarray
+    nis: np.ndarray
+    nis_dof: np.ndarray
+    events: list
+    wavelength_m: float
+
+    @property
+    def n_pos(self) -> int:
+        """Number of position states (columns of ``output_map``)."""
+        return int(np.shape(self.output_map)[1])
+
+
+@dataclass(frozen=True)
+class CoordinateModel:
+    """The coordinates of a state series that has no structure model (GNSS displacement states):
+    what spectra need of a config — name, coordinate names and units — with no modes and no gyros.
+
+    Attributes
+    ----------
+    name, sha256 : str
+        The config the estimate was made with (the GNSS run's).
+    coord_names, coord_units : tuple of str (n_q,)
+    """
+
+    name: str
+    sha256: str
+    coord_names: tuple
+    coord_units: tuple
+    mode_names: tuple = ()
+    mode_frequency_hz: tuple = ()
+    mode_time_constant_s: tuple = ()
+    gyro_names: tuple = ()
+    rigid_index: int | None = None
+
+    @property
+    def mode_shapes(self) -> np.ndarray:
+        """(n_q, 0): no modes."""
+        return np.zeros((len(self.coord_names), 0))
+
+    def coord_unit(self, name: str) -> str:
+        return self.coord_units[self.coord_names.index(name)]
+
+    def coord_unit_label(self, name: str) -> str:
+        return self.coord_unit(name)
 
 
 OBS_COLUMNS = (

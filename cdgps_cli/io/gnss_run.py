@@ -36,12 +36,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from cdgps_cli import __version__
 from cdgps_cli.core import progress
-from cdgps_cli.io.atomic import file_sha256, path_for_config
+from cdgps_cli.io.atomic import path_for_config
 from cdgps_cli.config.structure import GnssConfig, gnss_config_toml, parse_gnss_config
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.mcap import CONFIG_ATTACHMENT, McapOut, array_schema, message_schema, read_mcap
+from cdgps_cli.io.run import INGEST_METADATA, contents_kind, ingest_metadata, run_kind
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.core.records import NAV_COLUMNS, OBS_COLUMNS
 from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
@@ -58,7 +58,6 @@ GNSS_EPHEMERIS_TOPIC = "/cdgps/gnss/ephemeris"
 RECEIVERS_ATTACHMENT = "gnss/receivers.json"
 EPHEMERIS_ATTACHMENT = "gnss/ephemeris.json"
 OBS_ATTACHMENT = "gnss/obs/{}.npz.zst"
-INGEST_METADATA = "cdgps.ingest"
 LOCK_TIME_CAP_MS = 64500.0
 
 RAW_COLUMNS = {
@@ -517,19 +516,14 @@ def write_gnss_run(cfg: GnssConfig, out_path: str | Path, inp: IngestInputs, pos
     files, master, nav_list, receivers, nav = inp.files, inp.master, inp.nav_list, inp.receivers, inp.nav
     integrity, warnings, nav_source = inp.integrity, inp.warnings, inp.nav_source
     out_path = Path(out_path)
-    meta = {"cdgps_version": __version__, "created_by": "cdgps ingest", "kind": "gnss", "config_name": cfg.name,
-            "config_sha256": cfg.sha256, "config_path": Path(cfg.path).name if not cfg.path.startswith("<") else cfg.path,
-            "master": master, "receivers": ",".join(receivers), "displacement_model": cfg.displacement}
+    inputs = {**{f"{kind}:{n}": p for n, (kind, p) in files.items()}, **{f"nav[{i}]": p for i, p in enumerate(nav_list)}}
+    meta = ingest_metadata("gnss", cfg, inputs, master=master, receivers=",".join(receivers),
+                           displacement_model=cfg.displacement)
     for n, (kind, p) in files.items():
-        meta[f"{kind}:{n}"] = Path(p).name
-        meta[f"{kind}:{n}_sha256"] = file_sha256(Path(p))
         if n in integrity:
             meta[f"{kind}:{n}_integrity"] = integrity_record(receivers[n].info)
     if nav is not None and not nav_list:
         meta["ephemeris_source"] = nav_source
-    for i, p in enumerate(nav_list):
-        meta[f"nav[{i}]"] = Path(p).name
-        meta[f"nav[{i}]_sha256"] = file_sha256(Path(p))
     rx_json = []
     for n, rx in receivers.items():
         rx_json.append({"name": n, "format": rx.format, "file": rx.file, "header": rx.header, "info": rx.info,
@@ -635,18 +629,10 @@ def _write_obs_messages(out: McapOut, ch: int, receivers: dict) -> int:
 # reading back
 
 
-def run_kind(path: str | Path) -> str | None:
-    """``"gnss"`` if an MCAP file's ingest metadata says it is a GNSS run, else None.  Reads only
-    the metadata records, through :func:`cdgps_cli.io.mcap_integrity.read_metadata` (CRCs and the
-    records' checksums verified: a damaged file is a CdgpsError naming it)."""
-    from cdgps_cli.io.mcap_integrity import read_metadata  # noqa: PLC0415
-
-    return "gnss" if read_metadata(path).get(INGEST_METADATA, {}).get("kind") == "gnss" else None
-
-
 def is_gnss_run(contents) -> bool:
-    """Whether MCAP contents (:func:`~cdgps_cli.io.mcap.read_mcap`) are a GNSS RUN."""
-    return contents.metadata.get(INGEST_METADATA, {}).get("kind") == "gnss" or RECEIVERS_ATTACHMENT in contents.attachments
+    """Whether MCAP contents (:func:`~cdgps_cli.io.mcap.read_mcap`) are a GNSS RUN
+    (:func:`cdgps_cli.io.run.contents_kind`)."""
+    return contents_kind(contents) == "gnss"
 
 
 def read_gnss_run(path: str | Path, contents=None) -> GnssRun:

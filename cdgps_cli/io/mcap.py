@@ -291,12 +291,14 @@ class McapOut:
     def attach(self, name: str, data: bytes, media_type: str = "text/plain") -> None:
         self.writer.add_attachment(create_time=0, log_time=0, name=name, media_type=media_type, data=data)
 
-    def attach_packed(self, name: str, arr: np.ndarray) -> None:
+    def attach_packed(self, name: str, arr: np.ndarray, delta: int = 0, overwrite: bool = False) -> None:
         """Attach ``arr`` as a packed array (:mod:`cdgps_cli.io.packed_arrays`: byte-shuffled,
-        zstd-compressed, lossless; media type ``application/x-cdgps-packed-array``)."""
+        zstd-compressed, lossless; media type ``application/x-cdgps-packed-array``); ``delta``:
+        order of the epoch-to-epoch differences taken first (0, 1 or 2); ``overwrite``: ``arr`` is
+        a temporary the packing may overwrite (no copy)."""
         from cdgps_cli.io.packed_arrays import MEDIA_TYPE, pack_pieces  # noqa: PLC0415
 
-        pieces = pack_pieces(arr)
+        pieces = pack_pieces(arr, delta, overwrite)
         self.attach_stream(name, sum(len(p) for p in pieces), pieces, MEDIA_TYPE)
 
     def attach_npy(self, name: str, arr: np.ndarray, media_type: str = "application/x-npy",

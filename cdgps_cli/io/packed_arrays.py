@@ -4,7 +4,7 @@ Layout (all integers little-endian)::
 
     b"CDGPSPA1"                      8-byte magic
     uint32  header_length            bytes of the header that follows
-    header                           UTF-8 JSON {"dtype": "<f8", "shape": [N, ...], "filter": "shuffle"}
+    header                           UTF-8 JSON {"dtype": "<f8", "shape": [N, ...], "filter": "shuffle"[, "delta": k]}
     zstd frame                       the array's bytes, byte-shuffled
 
 "shuffle": the array is viewed as (N, m) (N = first axis, usually epochs; m = the product of the
@@ -13,6 +13,14 @@ byte position within an element (all first bytes, then all second bytes, …).  
 numbers (times, standard deviations, lock counters, names' codes) then compress to a few percent;
 noise-like float64 mantissas stay about their size.  Decoding inverts both steps exactly (same bits,
 NaN payloads included).  The zstd level is fixed, so the same array gives the same bytes.
+
+``"delta": k`` (k = 1 or 2; absent: 0): before the shuffle, each column's numbers, as the unsigned
+integers of their bits (a float64 as a uint64), are replaced k times by their differences from
+the previous epoch (the first row kept; arithmetic modulo 2^bits), then zigzag-coded (a small
+negative difference becomes a small positive number).  For slowly varying series — the covariance
+of a filter, whose consecutive matrices share their sign, exponent and leading mantissa bits — the
+high bytes of the differences are zeros, which zstd then stores in almost nothing.  Decoding
+inverts every step exactly (cumulative sums modulo 2^bits).
 
 Any numeric dtype numpy writes in ``.npy`` without pickling (bool, integers, floats) is accepted.
 """
@@ -33,11 +41,56 @@ _HEAD = struct.Struct("<I")
 _MAX_HEADER = 4096
 
 
-def _compressed_planes(arr: np.ndarray) -> list[bytes]:
+DELTA_ORDERS = (0, 1, 2)
+
+
+def _unsigned(itemsize: int) -> np.dtype:
+    return np.dtype(f"<u{itemsize}")
+
+
+def _delta_encode(cols: np.ndarray, order: int, overwrite: bool = False, block: int = 256) -> np.ndarray:
+    """(N, m) numbers → their bits' k-th differences along axis 0, zigzag-coded (unsigned, same size).
+
+    In place when ``overwrite`` (``cols`` must then be C-contiguous and writeable), else on one
+    copy; ``block`` rows at a time from the end (so each block's previous rows are still the values
+    being differenced, and the temporaries stay small)."""
+    u = cols.view(_unsigned(cols.dtype.itemsize))
+    if not overwrite:
+        u = u.copy()
+    n = u.shape[0]
+    for _ in range(order):
+        for end in range(n, 1, -block):
+            start = max(end - block, 1)
+            np.subtract(u[start:end], u[start - 1:end - 1], out=u[start:end])   # modulo 2^bits
+    s = u.view(u.dtype.str.replace("u", "i"))
+    bits = 8 * u.dtype.itemsize
+    for a in range(0, n, block):
+        sign = s[a:a + block] >> (bits - 1)
+        np.left_shift(s[a:a + block], 1, out=s[a:a + block])
+        np.bitwise_xor(s[a:a + block], sign, out=s[a:a + block])
+    return u
+
+
+def _delta_decode(z: np.ndarray, order: int, dtype: np.dtype) -> np.ndarray:
+    """Inverse of :func:`_delta_encode`: unsigned (N, m) → numbers of ``dtype``."""
+    mask = z & 1
+    np.negative(mask, out=mask)                               # 0 or all ones (modulo 2^bits)
+    u = z >> 1
+    u ^= mask
+    del mask
+    for _ in range(order):
+        np.cumsum(u, axis=0, dtype=u.dtype, out=u)          # integer sums wrap modulo 2^bits
+    return u.view(dtype)
+
+
+def _compressed_planes(arr: np.ndarray, delta: int = 0, overwrite: bool = False) -> list[bytes]:
     """zstd frame of arr's bytes as (N, m) byte planes (see the module docstring), built one plane
-    at a time (no full-size copy of arr)."""
+    at a time (no full-size copy of arr, unless ``delta`` without ``overwrite``)."""
     n = arr.shape[0] if arr.ndim else 1
     cols = np.ascontiguousarray(arr).reshape(n, int(np.prod(arr.shape[1:], dtype=np.int64)))
+    if delta:                           # in place on the caller's temporary, or on a copy made here
+        mine = overwrite or not np.shares_memory(cols, arr)
+        cols = _delta_encode(cols, delta, overwrite=mine and cols.flags.writeable)
     octets = cols.view(np.uint8).reshape(n, cols.shape[1], arr.dtype.itemsize)
     cobj = zstandard.ZstdCompressor(level=LEVEL).compressobj(size=cols.nbytes)
     parts = [cobj.compress(np.ascontiguousarray(octets[:, :, b].T)) for b in range(arr.dtype.itemsize)]
@@ -45,12 +98,12 @@ def _compressed_planes(arr: np.ndarray) -> list[bytes]:
     return parts
 
 
-def pack(arr: np.ndarray) -> bytes:
-    """The packed bytes of ``arr`` (see the module docstring); ``b"".join(pack_pieces(arr))``."""
-    return b"".join(pack_pieces(arr))
+def pack(arr: np.ndarray, delta: int = 0) -> bytes:
+    """The packed bytes of ``arr`` (see the module docstring); ``b"".join(pack_pieces(arr, delta))``."""
+    return b"".join(pack_pieces(arr, delta))
 
 
-def pack_pieces(arr: np.ndarray) -> list[bytes]:
+def pack_pieces(arr: np.ndarray, delta: int = 0, overwrite: bool = False) -> list[bytes]:
     """The packed bytes of ``arr`` (see the module docstring) in pieces, to be written in order.
 
     Parameters
@@ -58,6 +111,11 @@ def pack_pieces(arr: np.ndarray) -> list[bytes]:
     arr : ndarray
         Numeric (bool, integer or floating) array of any shape; its dtype is stored in
         little-endian form.
+    delta : {0, 1, 2}
+        Order of the differences along the first axis taken before the shuffle (integers and
+        floats only; see the module docstring).
+    overwrite : bool
+        With ``delta``: ``arr`` is a temporary of the caller's that may be overwritten (no copy).
 
     Returns
     -------
@@ -66,10 +124,12 @@ def pack_pieces(arr: np.ndarray) -> list[bytes]:
     arr = np.asarray(arr)
     if arr.dtype.kind not in "biuf":
         raise ValueError(f"packed arrays hold bool, integer or float numbers, not dtype {arr.dtype}")
+    if delta not in DELTA_ORDERS or (delta and arr.dtype.kind == "b"):
+        raise ValueError(f"delta {delta!r}: expected one of {DELTA_ORDERS} (0 for bool arrays)")
     arr = arr.astype(arr.dtype.newbyteorder("<"), copy=False)
-    header = json.dumps({"dtype": arr.dtype.str, "filter": FILTER, "shape": list(arr.shape)},
-                        sort_keys=True).encode()
-    return [MAGIC + _HEAD.pack(len(header)) + header, *_compressed_planes(arr)]
+    head = {"dtype": arr.dtype.str, "filter": FILTER, "shape": list(arr.shape), **({"delta": delta} if delta else {})}
+    header = json.dumps(head, sort_keys=True).encode()
+    return [MAGIC + _HEAD.pack(len(header)) + header, *_compressed_planes(arr, delta, overwrite)]
 
 
 def unpack(data: bytes, what: str = "packed array") -> np.ndarray:
@@ -97,9 +157,11 @@ def unpack(data: bytes, what: str = "packed array") -> np.ndarray:
         dtype = np.dtype(head["dtype"])
         shape = tuple(int(s) for s in head["shape"])
         filt = head["filter"]
+        delta = head.get("delta", 0)
     except (ValueError, KeyError, TypeError) as exc:
         raise ValueError(f"{what}: damaged header ({exc})") from None
-    if filt != FILTER or dtype.kind not in "biuf" or any(s < 0 for s in shape):
+    if (filt != FILTER or dtype.kind not in "biuf" or any(s < 0 for s in shape) or delta not in DELTA_ORDERS
+            or (delta and dtype.kind == "b")):
         raise ValueError(f"{what}: unsupported header {head}")
     size = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
     try:
@@ -111,5 +173,7 @@ def unpack(data: bytes, what: str = "packed array") -> np.ndarray:
     n = shape[0] if shape else 1
     m = int(np.prod(shape[1:], dtype=np.int64))
     planes = np.frombuffer(raw, dtype=np.uint8).reshape(dtype.itemsize, m, n)
-    cols = np.ascontiguousarray(planes.transpose(2, 1, 0)).view(dtype)
-    return cols.reshape(shape)
+    cols = np.ascontiguousarray(planes.transpose(2, 1, 0))
+    if delta:
+        return _delta_decode(cols.view(_unsigned(dtype.itemsize)), delta, dtype).reshape(shape)
+    return cols.view(dtype).reshape(shape)

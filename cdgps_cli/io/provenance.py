@@ -110,7 +110,8 @@ def report_provenance(command: str, options: dict, states, run=None, date: str |
     except ValueError:
         est_opts = meta.get("options")
     est = {"run": meta.get("run"), "run_sha256": meta.get("run_sha256"), "init_sha256": meta.get("init_sha256"),
-           "config": states.cfg.name, "config_sha256": states.cfg.sha256,
+           "config": states.cfg.name if states.cfg is not None else states.config_name,
+           "config_sha256": states.cfg.sha256 if states.cfg is not None else states.config_sha256,
            "cdgps_version": meta.get("cdgps_version"), "smoothed": meta.get("smoothed"), "options": est_opts}
     out = {"command": command, "options": options, "inputs": inputs, "estimated_from": est,
            "gyro_run_ingested_from": None, "gyro_run_is_estimate_run": None,

@@ -1,7 +1,15 @@
-"""RUN.mcap: the ingested, validated recording that every later stage reads.
+"""RUN.mcap: the ingested, validated recording that every later stage reads, of either kind.
 
-:func:`write_run` is the library form of ``cdgps ingest``; :func:`read_run` loads a RUN.mcap back
-into tables plus the embedded structure config (later stages need no ``--config``).
+What both kinds share is here: the ``cdgps.ingest`` metadata (:func:`ingest_metadata`: version,
+config name/sha256/path, every input's name and sha256, ``kind``), the kind of a file
+(:func:`run_kind`, :func:`contents_kind`), reading a RUN of any kind (:func:`read_any_run`) and
+``cdgps info`` (:func:`run_info`).  The per-kind parts differ in what they store:
+
+* ``structure`` — native receiver/gyro/actuator CSV logs: :func:`write_run` (the library form of
+  ``cdgps ingest``) and :func:`read_run` (tables plus the embedded structure config, so later
+  stages need no ``--config``), here;
+* ``gnss`` — RINEX/UBX receivers and broadcast ephemerides: :mod:`cdgps_cli.io.gnss_run`
+  (``write_gnss_run``, ``read_gnss_run``).
 """
 
 from __future__ import annotations
@@ -54,6 +62,61 @@ def _gyro_from_attachments(att: dict) -> pd.DataFrame | None:
 
 
 INGEST_METADATA = "cdgps.ingest"
+RUN_KINDS = ("structure", "gnss")
+
+
+def ingest_metadata(kind: str, cfg, inputs: dict, **extra) -> dict:
+    """The ``cdgps.ingest`` metadata record of a RUN of ``kind`` (both kinds write it this way).
+
+    Parameters
+    ----------
+    kind : {"structure", "gnss"}
+    cfg : StructureConfig or GnssConfig
+        The config embedded in the run (its name, sha256 and file name are recorded).
+    inputs : dict of str to path
+        Input files by key: each gives ``<key>`` (file name) and ``<key>_sha256``.
+    **extra : str
+        Further entries of the record (after the common ones, before the inputs).
+    """
+    if kind not in RUN_KINDS:
+        raise ValueError(f"run kind {kind!r}: expected one of {', '.join(RUN_KINDS)}")
+    meta = {"cdgps_version": __version__, "created_by": "cdgps ingest", **({"kind": kind} if kind == "gnss" else {}),
+            "config_name": cfg.name, "config_sha256": cfg.sha256,
+            "config_path": cfg.path if str(cfg.path).startswith("<") else Path(cfg.path).name, **extra}
+    for k, p in inputs.items():
+        meta[k] = Path(p).name
+        meta[k + "_sha256"] = file_sha256(Path(p))
+    return meta
+
+
+def contents_kind(contents) -> str | None:
+    """``"gnss"``, ``"structure"`` or None (not a RUN) of MCAP contents (:func:`~cdgps_cli.io.mcap.read_mcap`)."""
+    meta = contents.metadata.get(INGEST_METADATA)
+    if (meta or {}).get("kind") == "gnss" or "gnss/receivers.json" in contents.attachments:
+        return "gnss"
+    return None if meta is None else "structure"
+
+
+def run_kind(path: str | Path) -> str | None:
+    """``"gnss"``, ``"structure"`` or None (no ``cdgps.ingest`` record: not a RUN) of an MCAP file.
+    Reads only the metadata records, through :func:`cdgps_cli.io.mcap_integrity.read_metadata`
+    (CRCs and the records' checksums verified: a damaged file is a CdgpsError naming it)."""
+    from cdgps_cli.io.mcap_integrity import read_metadata  # noqa: PLC0415
+
+    meta = read_metadata(path).get(INGEST_METADATA)
+    if meta is None:
+        return None
+    return "gnss" if meta.get("kind") == "gnss" else "structure"
+
+
+def read_any_run(path: str | Path, phase: bool = True):
+    """A RUN.mcap of either kind: :class:`~cdgps_cli.core.records.Run` (structure; ``phase`` as
+    :func:`read_run`) or :class:`~cdgps_cli.io.gnss_run.GnssRun`."""
+    if run_kind(path) == "gnss":
+        from cdgps_cli.io.gnss_run import read_gnss_run  # noqa: PLC0415
+
+        return read_gnss_run(path)
+    return read_run(path, phase=phase)
 
 
 def _attach_phase_packed(out: McapOut, phase: pd.DataFrame) -> None:
@@ -160,12 +223,7 @@ def write_run(cfg: StructureConfig, receiver_csv: str | Path, out_path: str | Pa
     phase = read_receiver_log(sources["receiver_csv"], cfg)
     gyro = read_gyro_log(sources["gyro_csv"], cfg) if gyro_csv else None
     act = read_actuator_log(sources["actuator_csv"], cfg) if actuator_csv else None
-    meta = {"cdgps_version": __version__, "created_by": "cdgps ingest", "config_name": cfg.name,
-            "config_sha256": cfg.sha256, "config_path": Path(cfg.path).name,
-            "sample_period_s": repr(cfg.sample_period_s)}
-    for k, p in sources.items():
-        meta[k] = p.name
-        meta[k + "_sha256"] = file_sha256(p)
+    meta = ingest_metadata("structure", cfg, sources, sample_period_s=repr(cfg.sample_period_s))
     with McapOut(out_path, time_scale="relative") as out:     # time_s: run seconds (cdgps_cli.core.timescales)
         ch = out.channel(PHASE_TOPIC, PHASE_SCHEMA, {"units": "cycles", "wavelength_m": repr(cfg.wavelength_m)})
         n_phase = out.write_table(ch, phase, PHASE_ARRAYS, ["master"])
@@ -207,7 +265,7 @@ def read_run(path: str | Path, phase: bool = True) -> Run:
     c = read_mcap(path, topics=[ACTUATOR_TOPIC])
     if "cdgps.estimate" not in c.metadata:
         c.require_metadata(INGEST_METADATA, "RUN.mcap from 'cdgps ingest'")
-    if c.metadata.get(INGEST_METADATA, {}).get("kind") == "gnss":
+    if contents_kind(c) == "gnss":
         raise CdgpsError(f"{path}: this is a GNSS run (RINEX/UBX receivers, docs/gnss-pipeline.md), not a structure run; "
                          f"it is processed by 'cdgps init' and 'cdgps estimate' into displacement states")
     if "cdgps.estimate" in c.metadata:
@@ -266,9 +324,9 @@ def run_info(path: str | Path, gnss_common_epochs=None) -> dict:
             "start": format_time(start, scale), "end": format_time(end, scale),
             "median_period_s": median_spacing_s(t, msgs.scalars.get("receiver")),
         })
-    from cdgps_cli.io.gnss_run import gnss_run_info, is_gnss_run  # noqa: PLC0415 (GNSS runs: docs/gnss-pipeline.md)
+    from cdgps_cli.io.gnss_run import gnss_run_info  # noqa: PLC0415 (GNSS runs: docs/gnss-pipeline.md)
 
-    if is_gnss_run(c):
+    if contents_kind(c) == "gnss":
         info["gnss"] = gnss_run_info(path, c, gnss_common_epochs)
     if PHASE_TOPIC in c.topics and CONFIG_ATTACHMENT in c.attachments:
         cfg = parse_config(c.attachments[CONFIG_ATTACHMENT].decode("utf-8"), f"{path}:{CONFIG_ATTACHMENT}")

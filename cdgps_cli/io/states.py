@@ -1,11 +1,14 @@
-"""STATES.mcap (output of ``cdgps estimate``): the writer and the reader (no numerics: the stage
-functions — writing an estimate, CSV export, evaluation against truth — are in
-:mod:`cdgps_cli.pipeline.estimate_outputs`).
+"""STATES.mcap (output of ``cdgps estimate``), any kind of estimate: the one writer
+(:func:`write_states`, of a :class:`cdgps_cli.core.records.StateSeries`) and the one reader
+(:class:`States`).  No numerics here: the stage functions that build the record — a structure's
+modal states (pseudolite or GNSS run) in :mod:`cdgps_cli.pipeline.estimate_outputs`, GNSS
+displacement states in :mod:`cdgps_cli.pipeline.gnss` — and CSV export and evaluation are in
+:mod:`cdgps_cli.pipeline`.
 
 Every epoch of every series is stored as packed arrays (lossless, compact; the layout is in
 :mod:`cdgps_cli.io.states_layout`), which :class:`States` reads.  Beside them, the Foxglove
 channels (JSON schema / JSON, ``timestamp {sec, nsec}``) hold one message every
-``json_channels_every_epochs`` epochs (``--foxglove-rate-hz``, default 1 Hz; 0: every epoch):
+``json_channels_every_epochs`` epochs (``--foxglove-rate-hz``, default 0.5 Hz; 0: every epoch):
 
 * ``/cdgps/state`` — the estimate (smoothed when ``--smooth``): ``q`` and ``sigma_q`` as objects
   keyed by coordinate name (so Foxglove plots ``/cdgps/state.q.q10`` directly), the modal state
@@ -27,10 +30,14 @@ channels (JSON schema / JSON, ``timestamp {sec, nsec}``) hold one message every
 times are Unix time (:mod:`cdgps_cli.core.timescales`).  No message holds ``null``
 (:mod:`cdgps_cli.io.mcap`).
 
-Attachments: ``config.toml``, ``init.json``, the packed arrays.  Metadata ``cdgps.estimate``: RUN
-and INIT sha256, options, final biases, ``covariance``, ``json_channels_every_epochs``.  Files
-of the earlier layouts (``.npy`` attachments with every epoch in JSON, or JSON messages only) are
-still read.
+Attachments: ``states.json`` (kind, coordinate names and units, the sizes of the state blocks,
+the series), the output map C of q = C ξ (``arrays/output_map``), the packed arrays, ``init.json``,
+and ``config.toml`` for a structure (``gnss_config.toml`` for GNSS displacement states).  Metadata
+``cdgps.estimate``: RUN and INIT sha256, options, final biases, ``covariance``,
+``json_channels_every_epochs`` (``kind = gnss`` for displacement states).  Files of the earlier
+layouts are still read: without ``states.json`` (the description then comes from ``config.toml``,
+which a GNSS estimate wrote as a structure-form displacement model), with ``.npy`` attachments and
+every epoch in JSON, or JSON messages only.
 """
 
 from __future__ import annotations
@@ -41,12 +48,13 @@ from pathlib import Path
 
 import numpy as np
 
-from cdgps_cli import __version__
 from cdgps_cli.core import progress
 from cdgps_cli.config.structure import StructureConfig, parse_config
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.io.states_layout import (COVARIANCE_CHOICES, DEFAULT_COVARIANCE, DEFAULT_PREVIEW_RATE_HZ, PACKED_PREFIX,
-                               RESIDUAL_PACKED)
+from cdgps_cli.core.records import CoordinateModel, Series, StateSeries
+from cdgps_cli.io.states_layout import (COVARIANCE_CHOICES, DEFAULT_COVARIANCE, DEFAULT_PREVIEW_RATE_HZ,
+                                        OUTPUT_MAP_PACKED, PACKED_PREFIX, RESIDUAL_PACKED, SERIES_ATTACHMENT,
+                                        STATE_DELTA, STATES_FORMAT, STATES_KINDS)
 from cdgps_cli.io.mcap import NULLABLE, CONFIG_ATTACHMENT, McapOut, array_schema, message_schema, read_mcap
 
 STATE_TOPIC = "/cdgps/state"
@@ -58,12 +66,15 @@ ESTIMATE_METADATA = "cdgps.estimate"
 ANGLES_TOPIC = "/cdgps/angles_deg"
 
 
-def _state_schema(cfg: StructureConfig, with_P: bool = True) -> dict:
-    obj = {"type": "object", "properties": {n: {"type": "number"} for n in cfg.coord_names}}
-    arrays = {"xi": "number", "xidot": "number", **({"P_xi": "number"} if with_P else {})}
-    s = array_schema("cdgps.StructureState", arrays,
+def _state_schema(names, with_P: bool, with_rates: bool, nullable: bool) -> dict:
+    obj = {"type": "object", "properties": {n: {"type": "number"} for n in names}}
+    arrays = {"xi": NULLABLE if nullable else "number", **({"xidot": "number"} if with_rates else {}),
+              **({"P_xi": "number"} if with_P else {})}
+    s = array_schema("cdgps.StructureState" if with_rates else "cdgps.DisplacementState", arrays,
                      {"smoothed": "boolean"})
-    s["properties"]["q"] = dict(obj, description="generalized coordinates (m or rad)")
+    s["properties"]["q"] = dict(obj, description="generalized coordinates (m or rad)" if with_rates else
+                                "displacement from the nominal position, m (E, N, U per rover); a coordinate "
+                                "without a solution at this epoch is left out")
     s["properties"]["sigma_q"] = dict(obj, description="1-sigma of q")
     return s
 
@@ -117,15 +128,16 @@ def _angles_schema(angles) -> dict:
     return message_schema("cdgps.AnglesDeg", props, "section angles in degrees (small-angle sums of coordinates)")
 
 
-def _write_angles(out: McapOut, cfg: StructureConfig, angles, time_s, q: np.ndarray, P_xi: np.ndarray) -> None:
+def _write_angles(out: McapOut, C: np.ndarray, angles, time_s, q: np.ndarray, P_pos: np.ndarray) -> None:
     """The :data:`ANGLES_TOPIC` messages: section angles and their 1-sigma, degrees.
 
     ``angles``: list of (name, expression, coefficients (n_q,)) as
-    :func:`cdgps_cli.model.kinematics.section_angles` gives them (empty: no channel)."""
+    :func:`cdgps_cli.model.kinematics.section_angles` gives them (empty: no channel); ``C``: the
+    output map (n_q, n_pos), so an angle's variance is a C P_pos Cᵀ aᵀ."""
     if not angles:
         return
     A = np.array([c for _, _, c in angles])                   # (n_angles, n_q)
-    AU = A @ np.asarray(cfg.mode_shapes)                      # (n_angles, n_m)
+    AU = A @ C                                                # (n_angles, n_pos)
     names = [n for n, _, _ in angles]
     sig_names = ["sigma_" + n for n in names]
     ch = out.channel(ANGLES_TOPIC, _angles_schema(angles),
@@ -134,7 +146,7 @@ def _write_angles(out: McapOut, cfg: StructureConfig, angles, time_s, q: np.ndar
     for a in range(0, times.size, 1024):                      # blocks: no full-length temporaries
         b = min(a + 1024, times.size)
         deg = np.degrees(q[a:b] @ A.T).tolist()
-        var = np.einsum("ai,nij,aj->na", AU, P_xi[a:b], AU)
+        var = np.einsum("ai,nij,aj->na", AU, P_pos[a:b], AU)
         sig = np.degrees(np.sqrt(np.maximum(var, 0.0))).tolist()
         for k, t in enumerate(times[a:b].tolist()):
             msg = dict(zip(names, deg[k]))
@@ -142,17 +154,24 @@ def _write_angles(out: McapOut, cfg: StructureConfig, angles, time_s, q: np.ndar
             out.write(ch, t, msg)
 
 
-def coordinate_sigma(cfg: StructureConfig, P_xi: np.ndarray, block: int = 1024) -> np.ndarray:
-    """1-σ of q = U ξ from the modal-position covariances (N, n_m, n_m) → (N, n_q).
+def _is_identity(C: np.ndarray) -> bool:
+    return C.shape[0] == C.shape[1] and np.array_equal(C, np.eye(C.shape[0]))
 
-    Computed on contiguous blocks of ``block`` epochs: the same numbers whatever the memory layout
-    of ``P_xi`` (a strided view of the filter's (N, n, n) series or a contiguous array read back),
-    and no full-size temporary."""
-    U = np.asarray(cfg.mode_shapes)
-    out = np.empty((P_xi.shape[0], U.shape[0]))
-    for a in range(0, P_xi.shape[0], block):
-        Pb = np.ascontiguousarray(P_xi[a:a + block], dtype=float)
-        out[a:a + block] = np.sqrt(np.maximum(np.einsum("qi,nij,qj->nq", U, Pb, U), 0.0))
+
+def coordinate_sigma(C: np.ndarray, P_pos: np.ndarray, block: int = 1024) -> np.ndarray:
+    """1-σ of q = C x_pos from the position covariances (N, n_pos, n_pos) → (N, n_q).
+
+    ``C``: the output map (n_q, n_pos) (a structure's mode shapes U).  Computed on contiguous blocks
+    of ``block`` epochs: the same numbers whatever the memory layout of ``P_pos`` (a strided view of
+    the filter's (N, n, n) series or a contiguous array read back), and no full-size temporary.  With
+    C = I the diagonal itself (NaN where a displacement has no covariance)."""
+    C = np.array(C, dtype=float, order="C")           # a fresh array: einsum's sums do not depend on where C came from
+    if _is_identity(C):
+        return np.sqrt(np.maximum(np.einsum("nii->ni", np.asarray(P_pos, dtype=float)), 0.0))
+    out = np.empty((P_pos.shape[0], C.shape[0]))
+    for a in range(0, P_pos.shape[0], block):
+        Pb = np.ascontiguousarray(P_pos[a:a + block], dtype=float)
+        out[a:a + block] = np.sqrt(np.maximum(np.einsum("qi,nij,qj->nq", C, Pb, C), 0.0))
     return out
 
 
@@ -173,15 +192,20 @@ def preview_stride(time_s: np.ndarray, rate_hz: float) -> int:
     return max(int(round(1.0 / (rate_hz * period_s))), 1) if period_s > 0 else 1
 
 
-def series_derived(cfg: StructureConfig, xi: np.ndarray, P_xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """q = ξ Uᵀ (N, n_q) and its 1-σ (N, n_q) from ξ (N, n_m) and P_ξ (N, n_m, n_m): what the
-    writer puts in the JSON channels and the reader returns (the same function on the same arrays)."""
-    return series_q(cfg, xi), coordinate_sigma(cfg, P_xi)
+def series_derived(C: np.ndarray, x_pos: np.ndarray, P_pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """q = x_pos Cᵀ (N, n_q) and its 1-σ (N, n_q) from x_pos (N, n_pos) and P_pos (N, n_pos, n_pos):
+    what the writer puts in the JSON channels and the reader returns (the same function on the same
+    arrays)."""
+    return series_q(C, x_pos), coordinate_sigma(C, P_pos)
 
 
-def series_q(cfg: StructureConfig, xi: np.ndarray) -> np.ndarray:
-    """q = ξ Uᵀ (N, n_q) from ξ (N, n_m)."""
-    return np.ascontiguousarray(xi, dtype=float) @ np.asarray(cfg.mode_shapes).T
+def series_q(C: np.ndarray, x_pos: np.ndarray) -> np.ndarray:
+    """q = x_pos Cᵀ (N, n_q) from x_pos (N, n_pos); with C = I a copy of x_pos (NaN stays in its own
+    coordinate)."""
+    C = np.asarray(C, dtype=float)
+    if _is_identity(C):
+        return np.array(x_pos, dtype=float)
+    return np.ascontiguousarray(x_pos, dtype=float) @ C.T
 
 
 def _triu(P: np.ndarray, block: int = 1024) -> np.ndarray | None:
@@ -205,79 +229,110 @@ def _from_triu(T: np.ndarray, m: int) -> np.ndarray:
     return P
 
 
-def _attach_series(out: McapOut, topic: str, time_s, X: np.ndarray, P: np.ndarray, P_xi: np.ndarray,
-                   sigma_q: np.ndarray, with_P_xi: bool, full: bool) -> None:
+def _attach_series(out: McapOut, topic: str, ss: StateSeries, ser: Series, sigma_q: np.ndarray,
+                   with_P_pos: bool, full: bool) -> None:
     """The packed arrays of one state series (:mod:`cdgps_cli.io.states_layout`)."""
-    nm = P_xi.shape[1]
+    npos, X = ss.n_pos, ser.x
     key = f"{PACKED_PREFIX}{topic}/"
-    out.attach_packed(key + "time_s", np.asarray(time_s, dtype=float))
-    out.attach_packed(key + "xi", np.ascontiguousarray(X[:, :nm]))
-    out.attach_packed(key + "xidot", np.ascontiguousarray(X[:, nm:2 * nm]))
-    if full and P.shape[1] > nm:
-        out.attach_packed(key + "P", P)
-    if not with_P_xi:
-        out.attach_packed(key + "sigma_q", sigma_q)
+    out.attach_packed(key + "time_s", np.asarray(ser.time_s, dtype=float))
+    # (np.array: copies the caller's states, which the packing then overwrites)
+    out.attach_packed(key + "xi", np.array(X[:, :npos]), STATE_DELTA, overwrite=True)
+    if ss.n_rate:
+        out.attach_packed(key + "xidot", np.array(X[:, npos:npos + ss.n_rate]), STATE_DELTA, overwrite=True)
+    for name, arr in sorted(ser.extra.items()):
+        out.attach_packed(key + name, np.asarray(arr))
+    if full and ser.P.shape[1] > npos:
+        out.attach_packed(key + "P", ser.P, STATE_DELTA)
+    if not with_P_pos:
+        out.attach_packed(key + "sigma_q", sigma_q, STATE_DELTA)
         return
-    T = _triu(P_xi)
+    P_pos = ser.P[:, :npos, :npos]
+    T = _triu(P_pos)
     if T is None:
-        out.attach_packed(key + "P_xi", P_xi)
+        out.attach_packed(key + "P_xi", P_pos, STATE_DELTA)
     else:
-        out.attach_packed(key + "P_xi_triu", T)
+        out.attach_packed(key + "P_xi_triu", T, STATE_DELTA, overwrite=True)     # T: a new array
 
 
-def _write_state_messages(out: McapOut, ch: int, names, sel, time_s, X, q, sq, P_xi, nm, smoothed,
+def _write_state_messages(out: McapOut, ch: int, names, sel, ser: Series, q, sq, npos: int, nrate: int,
                           with_P: bool) -> None:
     """The Foxglove JSON messages of one state series at the epochs ``sel``."""
+    X, time_s = ser.x, ser.time_s
     for k in sel.tolist():
         msg = {"q": dict(zip(names, q[k].tolist())), "sigma_q": dict(zip(names, sq[k].tolist())),
-               "xi": X[k, :nm].tolist(), "xidot": X[k, nm:2 * nm].tolist()}
+               "xi": X[k, :npos].tolist()}
+        if nrate:
+            msg["xidot"] = X[k, npos:npos + nrate].tolist()
         if with_P:
-            msg["P_xi"] = P_xi[k].ravel().tolist()
-        msg["smoothed"] = smoothed
+            msg["P_xi"] = ser.P[k, :npos, :npos].ravel().tolist()
+        msg["smoothed"] = ser.smoothed
         out.write(ch, time_s[k], msg)
 
 
-def _write_residuals(out: McapOut, res, sel) -> None:
+def _write_residuals(out: McapOut, ss: StateSeries, time_s, sel) -> None:
     """Residuals, NIS and dof: every epoch packed, the JSON channel at the epochs ``sel``."""
     # float32 (7 significant digits: nm on cm-level residuals) keeps the file within its RUN's size;
     # the JSON messages carry the float64 values
-    out.attach_packed(RESIDUAL_PACKED + "residual_m", np.asarray(res.residual_m, dtype=np.float32))
-    out.attach_packed(RESIDUAL_PACKED + "nis", np.asarray(res.nis, dtype=float))
-    out.attach_packed(RESIDUAL_PACKED + "nis_dof", np.asarray(res.nis_dof, dtype=np.int64))
-    out.attach(RESIDUAL_PACKED + "channels.json", json.dumps([list(c) for c in res.channels]).encode(),
+    out.attach_packed(RESIDUAL_PACKED + "residual_m", np.asarray(ss.residual_m, dtype=np.float32))
+    out.attach_packed(RESIDUAL_PACKED + "nis", np.asarray(ss.nis, dtype=float))
+    out.attach_packed(RESIDUAL_PACKED + "nis_dof", np.asarray(ss.nis_dof, dtype=np.int64))
+    out.attach(RESIDUAL_PACKED + "channels.json", json.dumps([list(c) for c in ss.residual_channels]).encode(),
                "application/json")
     ch = out.channel(RESIDUAL_TOPIC, RESIDUAL_SCHEMA)
-    ants = [c[0] for c in res.channels]
-    txs = [c[1] for c in res.channels]
+    ants = [c[0] for c in ss.residual_channels]
+    txs = [c[1] for c in ss.residual_channels]
     for k in sel.tolist():
-        r = res.residual_m[k]
+        r = ss.residual_m[k]
         used = ~np.isnan(r)
-        out.write(ch, res.time_s[k], {"antenna": [a for a, u in zip(ants, used) if u],
-                                      "transmitter": [x for x, u in zip(txs, used) if u],
-                                      "residual_m": r[used].tolist(),
-                                      "nis": None if np.isnan(res.nis[k]) else float(res.nis[k]),
-                                      "nis_dof": int(res.nis_dof[k])})
+        out.write(ch, time_s[k], {"antenna": [a for a, u in zip(ants, used) if u],
+                                  "transmitter": [x for x, u in zip(txs, used) if u],
+                                  "residual_m": r[used].tolist(),
+                                  "nis": None if np.isnan(ss.nis[k]) else float(ss.nis[k]),
+                                  "nis_dof": int(ss.nis_dof[k])})
 
 
-def write_states(res, run_path: str | Path, init: dict, init_text: str,
-                 out_path: str | Path, options: dict, covariance: str = DEFAULT_COVARIANCE,
+def _description(ss: StateSeries) -> bytes:
+    """The :data:`SERIES_ATTACHMENT` of ``ss`` (what the reader needs besides the arrays)."""
+    return json.dumps({
+        "format": STATES_FORMAT, "kind": ss.kind, "coord_names": list(ss.coord_names),
+        "coord_units": list(ss.coord_units), "n_pos": ss.n_pos, "n_rate": int(ss.n_rate),
+        "wavelength_m": float(ss.wavelength_m),
+        "series": {t: {"smoothed": bool(v.smoothed), "extra": sorted(v.extra), "messages": bool(v.messages)}
+                   for t, v in ss.series.items()},
+    }, sort_keys=True, indent=1).encode()
+
+
+def provenance(run_path: str | Path, init_text: str) -> dict:
+    """The RUN and INIT part of the ``cdgps.estimate`` metadata: file name and sha256 of each."""
+    return {"run": Path(run_path).name, "run_sha256": hashlib.sha256(Path(run_path).read_bytes()).hexdigest(),
+            "init_sha256": hashlib.sha256(init_text.encode()).hexdigest()}
+
+
+def write_states(ss: StateSeries, out_path: str | Path, metadata: dict, attachments: dict, *,
+                 time_scale: str = "relative", covariance: str = DEFAULT_COVARIANCE,
                  preview_rate_hz: float = DEFAULT_PREVIEW_RATE_HZ, angles=()) -> dict:
-    """Write STATES.mcap atomically; returns a summary.
+    """Write an estimate of any kind to STATES.mcap atomically; returns a summary.
 
-    The stage function is :func:`cdgps_cli.pipeline.estimate_outputs.write_states`, which gives
-    the section angles of the structure (this module imports no numerics).
+    The stage functions building ``ss`` are :func:`cdgps_cli.pipeline.estimate_outputs.write_states`
+    (a structure, pseudolite or GNSS run) and :func:`cdgps_cli.pipeline.gnss.gnss_estimate`
+    (displacements); this module imports no numerics.
 
     Parameters
     ----------
-    res
-        The estimate (:class:`cdgps_cli.estimation.filter.EstimateResult` or the same fields).
-    run_path, init, init_text, options
-        Provenance recorded in the ``cdgps.estimate`` metadata.
+    ss : StateSeries
+        The estimate; ``ss.series[STATE_TOPIC]`` is the one reported.
     out_path : path
+    metadata : dict of str to str
+        The ``cdgps.estimate`` metadata (provenance, options, final biases, …); the writer adds
+        ``covariance``, ``arrays`` and ``json_channels_every_epochs``.
+    attachments : dict of str to (bytes, str)
+        Further attachments by name: content and media type (``config.toml``, ``init.json``, …).
+    time_scale : {"relative", "gps"}
+        Time scale of the series' ``time_s`` (:mod:`cdgps_cli.core.timescales`).
     covariance : {"modal", "full"}
-        ``"modal"``: the modal-position covariance P_ξ (n_m×n_m) per epoch; ``"full"``: also the
-        whole state covariance P (n×n) of the estimate (and of the forward filter when it was
-        kept whole), and P_ξ in the JSON messages.
+        ``"modal"``: the position covariance P_ξ (n_pos×n_pos) per epoch of every series but the
+        forward filter of a smoothed run (of it, its 1-σ of q only); ``"full"``: also the whole state covariance P of every
+        series that has it, P_ξ of every series, and P_ξ in the JSON messages.
     preview_rate_hz : float
         Rate of the Foxglove JSON channels, Hz (0: every epoch); see :data:`DEFAULT_PREVIEW_RATE_HZ`.
     angles : list of (str, str, ndarray (n_q,))
@@ -286,77 +341,75 @@ def write_states(res, run_path: str | Path, init: dict, init_text: str,
     """
     if covariance not in COVARIANCE_CHOICES:
         raise ValueError(f"covariance {covariance!r}: expected one of {', '.join(COVARIANCE_CHOICES)}")
-    cfg = res.cfg
-    nm = cfg.n_modes
-    names = list(cfg.coord_names)
-    stride = preview_stride(res.time_s, preview_rate_hz)
-    sel = np.arange(0, len(res.time_s), stride)
-    meta = {"cdgps_version": __version__, "created_by": "cdgps estimate", "config_name": cfg.name,
-            "config_sha256": cfg.sha256, "run": Path(run_path).name,
-            "run_sha256": hashlib.sha256(Path(run_path).read_bytes()).hexdigest(),
-            "init_sha256": hashlib.sha256(init_text.encode()).hexdigest(),
-            "options": json.dumps(options, sort_keys=True),
-            "measurement_noise": json.dumps(getattr(res, "noise", {}) or {}, sort_keys=True),
-            "final_biases": json.dumps([{"antenna": a, "transmitter": t, "bias_m": b}
-                                        for (a, t), b in res.biases.items()]),
-            "smoothed": str(res.smoothed).lower(),
-            # where the filter ran in static mode (report static says when its segment did not)
-            "rest_active_s": json.dumps(getattr(res, "rest_active_s", [])),
-            "rest_detection": json.dumps(getattr(res, "rest_detection", None)),
-            "covariance": covariance, "arrays": "packed (cdgps_cli.io.packed_arrays), every epoch",
-            "json_channels_every_epochs": str(stride)}
-    window = getattr(res, "window", None)
-    if window:
-        # epochs start_s … end_s come from INIT's batch solution (not from the filter)
-        meta["window"] = json.dumps(window, sort_keys=True)
-    from cdgps_cli.io.gnss_run import run_kind  # noqa: PLC0415 (a structure estimated on a GNSS run: GPS time)
-
-    time_scale = "gps" if run_kind(run_path) == "gnss" else "relative"
-    time_s = np.asarray(res.time_s, dtype=float)
-    series = [(STATE_TOPIC, res.x, res.P, res.smoothed)]
-    if res.smoothed:
-        series.append((STATE_FILTERED_TOPIC, res.x_filt, res.P_filt, False))
+    est = ss.series[STATE_TOPIC]
+    names, C, full = list(ss.coord_names), np.asarray(ss.output_map, dtype=float), covariance == "full"
+    time_s = np.asarray(est.time_s, dtype=float)
+    stride = preview_stride(time_s, preview_rate_hz)
+    sel = np.arange(0, len(time_s), stride)
+    meta = dict(metadata, covariance=covariance, arrays="packed (cdgps_cli.io.packed_arrays), every epoch",
+                json_channels_every_epochs=str(stride))
+    nullable = bool(np.isnan(est.x[:, :ss.n_pos]).any())
+    schema = _state_schema(names, full, ss.n_rate > 0, nullable)
     with McapOut(out_path, time_scale=time_scale) as out, \
-            progress.bar(len(series) + 1, f"writing {Path(out_path).name}", "series") as bar:
-        schema = _state_schema(cfg, with_P=covariance == "full")
-        for topic, X, P, smoothed in series:
-            P_xi = P[:, :nm, :nm]                                 # a view: no full-size copy
-            q, sq = series_derived(cfg, X[:, :nm], P_xi)          # as the reader computes them
-            _attach_series(out, topic, time_s, X, P, P_xi, sq, with_P_xi=topic == STATE_TOPIC or covariance == "full",
-                           full=covariance == "full")
-            _write_state_messages(out, out.channel(topic, schema), names, sel, time_s, X, q, sq, P_xi, nm,
-                                  smoothed, covariance == "full")
+            progress.bar(len(ss.series) + 1, f"writing {Path(out_path).name}", "series") as bar:
+        for topic, ser in ss.series.items():
+            P_pos = ser.P[:, :ss.n_pos, :ss.n_pos]                 # a view: no full-size copy
+            q, sq = series_derived(C, ser.x[:, :ss.n_pos], P_pos)   # as the reader computes them
+            # P_ξ of every series but the forward filter of a smoothed run (its 1-σ only), unless full
+            _attach_series(out, topic, ss, ser, sq, with_P_pos=topic != STATE_FILTERED_TOPIC or full, full=full)
+            if ser.messages:
+                _write_state_messages(out, out.channel(topic, schema), names, np.arange(0, len(ser.time_s), stride),
+                                      ser, q, sq, ss.n_pos, ss.n_rate, full)
             if topic == STATE_TOPIC:
-                _write_angles(out, cfg, angles, time_s[sel], q[sel], P_xi[sel])
-            del q, sq, P_xi
+                _write_angles(out, C, angles, time_s[sel], q[sel], P_pos[sel])
+            del q, sq, P_pos
             bar.update()
-        _write_residuals(out, res, sel)
+        _write_residuals(out, ss, time_s, sel)
         bar.update()
-        ch = out.channel(EVENT_TOPIC, event_schema(res.events))
-        for ev in res.events:
-            body = {k: v for k, v in ev.items() if k != "time_s"}
-            out.write(ch, ev["time_s"], body)
-        out.attach(CONFIG_ATTACHMENT, cfg.text.encode(), "application/toml")
-        out.attach(INIT_ATTACHMENT, init_text.encode(), "application/json")
+        ch = out.channel(EVENT_TOPIC, event_schema(ss.events))
+        for ev in ss.events:
+            out.write(ch, ev["time_s"], {k: v for k, v in ev.items() if k != "time_s"})
+        out.attach(SERIES_ATTACHMENT, _description(ss), "application/json")
+        out.attach_packed(OUTPUT_MAP_PACKED, C)
+        for name, (data, media) in attachments.items():
+            out.attach(name, data, media)
         out.metadata(ESTIMATE_METADATA, meta)
-    nis_ok = res.nis_dof > 0
-    return {"output": str(out_path), "epochs": int(len(res.time_s)), "start_s": float(res.time_s[0]),
-            "end_s": float(res.time_s[-1]), "smoothed": res.smoothed, "events": len(res.events),
-            "window": window or None, "covariance": covariance, "json_channels_every_epochs": stride,
-            "mean_nis_per_dof": float(np.nanmean(res.nis[nis_ok] / res.nis_dof[nis_ok])) if nis_ok.any() else None,
-            "event_list": res.events}
+    nis_ok = ss.nis_dof > 0
+    return {"output": str(out_path), "epochs": int(len(time_s)), "start_s": float(time_s[0]),
+            "end_s": float(time_s[-1]), "smoothed": bool(est.smoothed), "events": len(ss.events),
+            "covariance": covariance, "json_channels_every_epochs": stride,
+            "mean_nis_per_dof": float(np.nanmean(ss.nis[nis_ok] / ss.nis_dof[nis_ok])) if nis_ok.any() else None,
+            "event_list": ss.events}
+
+
+def _legacy_description(cfg: StructureConfig, meta: dict) -> dict:
+    """The description of a file written before :data:`SERIES_ATTACHMENT` (from its config.toml:
+    a structure's own, or the displacement model a GNSS estimate wrote in the structure form)."""
+    names = list(cfg.coord_names)
+    if meta.get("kind") == "gnss":
+        return {"kind": "displacement", "coord_names": names, "coord_units": ["m"] * len(names),
+                "n_pos": len(names), "n_rate": 0, "wavelength_m": cfg.wavelength_m, "output_map": np.eye(len(names))}
+    return {"kind": "structure", "coord_names": names, "coord_units": [cfg.coord_unit(n) for n in names],
+            "n_pos": cfg.n_modes, "n_rate": cfg.n_modes, "wavelength_m": cfg.wavelength_m,
+            "output_map": np.asarray(cfg.mode_shapes, dtype=float)}
 
 
 class States:
-    """A STATES.mcap read back: config, times, q, sigma_q, modal state, covariances, events.
+    """A STATES.mcap of any kind read back: coordinates, times, q, sigma_q, states, covariances, events.
 
     Attributes
     ----------
+    kind : {"structure", "displacement"}
+    cfg : StructureConfig or None
+        The structure config (None for GNSS displacement states).
+    coord_names, coord_units : list of str (n_q,)
+    output_map : (n_q, n_pos) — q = C ξ; n_pos : int; wavelength_m : float (m)
     time_s : (N,) s
     q, sigma_q : (N, n_q) coordinate units (m or rad)
-    xi : (N, n_m); xidot : (N, n_m) or None (files before the packed arrays)
-    P_xi : (N, n_m, n_m) or None (the forward filter of a smoothed run, unless ``--covariance full``)
+    xi : (N, n_pos); xidot : (N, n_pos) or None (no rates, or files before the packed arrays)
+    P_xi : (N, n_pos, n_pos) or None (the forward filter of a smoothed run, unless ``--covariance full``)
     P : (N, n, n) or None (only with ``--covariance full``)
+    extra : dict of str to ndarray (N, ...) — the series' further arrays (e.g. ``n_sat``, ``pdop``)
     nis, nis_dof : (N,) or None (``diagnostics=False``)
     events : list of dict; metadata : dict (``cdgps.estimate``)
     """
@@ -366,24 +419,25 @@ class States:
         self.path = str(path)
         if "cdgps.ingest" in c.metadata:
             raise CdgpsError(f"{path}: this is a RUN.mcap (from 'cdgps ingest'), not a STATES.mcap from 'cdgps estimate'")
-        if CONFIG_ATTACHMENT not in c.attachments:
-            raise CdgpsError(f"{path}: no config attachment; is this a STATES.mcap from 'cdgps estimate'?")
+        if CONFIG_ATTACHMENT not in c.attachments and SERIES_ATTACHMENT not in c.attachments:
+            raise CdgpsError(f"{path}: no {SERIES_ATTACHMENT} or config attachment; is this a STATES.mcap from "
+                             f"'cdgps estimate'?")
         what = "STATES.mcap from 'cdgps estimate'"
-        c.require_metadata(ESTIMATE_METADATA, what)
+        self.metadata = c.require_metadata(ESTIMATE_METADATA, what)
         if diagnostics:
             c.require_channels(RESIDUAL_TOPIC, EVENT_TOPIC, what=what)
-        self.cfg = parse_config(c.attachments[CONFIG_ATTACHMENT].decode(), f"{path}:{CONFIG_ATTACHMENT}")
+        self._describe(c.attachments)
         self.xidot = self.P = None
+        self.extra = {}
         key = f"{PACKED_PREFIX}{topic}/"
         if key + "time_s" in c.attachments:                # packed arrays (every epoch)
-            self._read_packed(c.attachments, key)
+            self._read_packed(c.attachments, key, topic)
         elif key + "time_s.npy" in c.attachments:        # .npy attachments (older files)
             self._read_npy(c.attachments, key)
         else:                                             # messages only (oldest files)
             self._read_messages(topic)
-        self.metadata = c.metadata[ESTIMATE_METADATA]
         self.nis = self.nis_dof = None
-        if diagnostics:
+        if diagnostics and topic in (STATE_TOPIC, STATE_FILTERED_TOPIC):    # (not the single-epoch solutions)
             self._read_diagnostics(c)
         ev = c.topics.get(EVENT_TOPIC)
         self.events = []
@@ -391,34 +445,90 @@ class States:
             for i, t in enumerate(ev.times()):
                 self.events.append({"time_s": float(t), **{k: ev.scalars[k][i] for k in ev.scalars if k != "time_s"}})
 
-    def _read_packed(self, att: dict, key: str) -> None:
+    @property
+    def config_name(self) -> str:
+        """Name of the config the estimate was made with (the structure's, or the GNSS run's)."""
+        return self.cfg.name if self.cfg is not None else self.metadata.get("config_name", "")
+
+    @property
+    def config_sha256(self) -> str:
+        return self.cfg.sha256 if self.cfg is not None else self.metadata.get("config_sha256", "")
+
+    def coordinate_model(self):
+        """The structure config, or for states without one (GNSS displacements) their
+        :class:`~cdgps_cli.core.records.CoordinateModel` (names and units, no modes, no gyros)."""
+        if self.cfg is not None:
+            return self.cfg
+        return CoordinateModel(self.config_name, self.config_sha256, tuple(self.coord_names), tuple(self.coord_units))
+
+    def _describe(self, att: dict) -> None:
+        """kind, cfg, coordinates, output map and wavelength, from the description or the config."""
+        cfg = None
+        if CONFIG_ATTACHMENT in att:
+            cfg = parse_config(att[CONFIG_ATTACHMENT].decode(), f"{self.path}:{CONFIG_ATTACHMENT}")
+        if SERIES_ATTACHMENT in att:
+            from cdgps_cli.io.packed_arrays import unpack  # noqa: PLC0415
+
+            try:
+                d = json.loads(att[SERIES_ATTACHMENT])
+                d["output_map"] = unpack(att[OUTPUT_MAP_PACKED], f"{self.path}: {OUTPUT_MAP_PACKED}")
+                if d["output_map"].shape != (len(d["coord_names"]), d["n_pos"]) or d["kind"] not in STATES_KINDS:
+                    raise ValueError(f"output map of shape {list(d['output_map'].shape)} for {len(d['coord_names'])} "
+                                     f"coordinates and {d['n_pos']} positions, kind {d['kind']!r}")
+            except (KeyError, TypeError, ValueError) as exc:
+                raise CdgpsError(f"{self.path}: damaged {SERIES_ATTACHMENT} / {OUTPUT_MAP_PACKED}: {exc}") from None
+        else:
+            d = _legacy_description(cfg, self.metadata)
+        self.kind = d["kind"]
+        self.cfg = cfg if self.kind == "structure" else None
+        self.coord_names, self.coord_units = list(d["coord_names"]), list(d["coord_units"])
+        self.output_map, self.n_pos, self.n_rate = d["output_map"], int(d["n_pos"]), int(d["n_rate"])
+        self.wavelength_m = float(d["wavelength_m"])
+        self._series = d.get("series", {})
+
+    def require_structure(self, what: str) -> StructureConfig:
+        """The structure config, or a CdgpsError saying ``what`` needs a structure's STATES."""
+        if self.cfg is None:
+            raise CdgpsError(f"{self.path}: {what} needs the STATES.mcap of a structure (modal states); this one "
+                             f"holds {self.kind} states ({', '.join(self.coord_names)})")
+        return self.cfg
+
+    def _read_packed(self, att: dict, key: str, topic: str) -> None:
         from cdgps_cli.io.packed_arrays import unpack  # noqa: PLC0415
 
-        nm = self.cfg.n_modes
+        npos = self.n_pos
+
+        def get(name):
+            return unpack(att[key + name], f"{self.path}: {key}{name}")
         try:
-            self.time_s = unpack(att[key + "time_s"], f"{self.path}: {key}time_s").astype(float, copy=False)
+            self.time_s = get("time_s").astype(float, copy=False)
             N = self.time_s.shape[0]
-            self.xi = unpack(att[key + "xi"], f"{self.path}: {key}xi").reshape(N, nm)
-            self.xidot = unpack(att[key + "xidot"], f"{self.path}: {key}xidot").reshape(N, -1)
+            self.xi = get("xi").reshape(N, npos)
+            if key + "xidot" in att:
+                self.xidot = get("xidot").reshape(N, -1)
             self.P_xi = sigma_q = None
             if key + "P_xi_triu" in att:
-                self.P_xi = _from_triu(unpack(att[key + "P_xi_triu"], f"{self.path}: {key}P_xi_triu"), nm)
+                self.P_xi = _from_triu(get("P_xi_triu"), npos)
             elif key + "P_xi" in att:
-                self.P_xi = unpack(att[key + "P_xi"], f"{self.path}: {key}P_xi").reshape(N, nm, nm)
+                self.P_xi = get("P_xi").reshape(N, npos, npos)
             else:                                         # a forward filter stored with its 1-σ only
-                sigma_q = unpack(att[key + "sigma_q"], f"{self.path}: {key}sigma_q").reshape(N, -1)
+                sigma_q = get("sigma_q").reshape(N, -1)
             if key + "P" in att:
-                self.P = unpack(att[key + "P"], f"{self.path}: {key}P")
+                self.P = get("P")
                 if self.P.ndim != 3 or self.P.shape[0] != N:
                     raise ValueError(f"P of shape {list(self.P.shape)} for {N} epochs")
+            for name in self._series.get(topic, {}).get("extra", []):
+                self.extra[name] = get(name)
+                if self.extra[name].shape[:1] != (N,):
+                    raise ValueError(f"{name} of shape {list(self.extra[name].shape)} for {N} epochs")
         except (KeyError, ValueError) as exc:
             raise CdgpsError(f"{self.path}: damaged state arrays ({key}*): {exc}") from None
         if self.time_s.ndim != 1:
             raise CdgpsError(f"{self.path}: damaged state arrays ({key}time_s of shape {list(self.time_s.shape)})")
         if self.P_xi is None:
-            self.q, self.sigma_q = series_q(self.cfg, self.xi), sigma_q
+            self.q, self.sigma_q = series_q(self.output_map, self.xi), sigma_q
         else:
-            self.q, self.sigma_q = series_derived(self.cfg, self.xi, self.P_xi)
+            self.q, self.sigma_q = series_derived(self.output_map, self.xi, self.P_xi)
 
     def _read_npy(self, att: dict, key: str) -> None:
         try:
@@ -427,6 +537,10 @@ class States:
             self.sigma_q = _npy_load(att[key + "sigma_q.npy"])
             self.xi = _npy_load(att[key + "xi.npy"])
             self.P_xi = _npy_load(att[key + "P_xi.npy"])
+            for name in sorted(att):                      # a GNSS run's kinematic n_sat, pdop
+                stem = name[len(key):-len(".npy")] if name.startswith(key) and name.endswith(".npy") else None
+                if stem and stem not in ("time_s", "q", "sigma_q", "xi", "P_xi"):
+                    self.extra[stem] = _npy_load(att[name])
         except (KeyError, ValueError, OSError) as exc:
             raise CdgpsError(f"{self.path}: damaged state arrays attachment: {exc}") from None
 
@@ -434,9 +548,9 @@ class States:
         tc = read_mcap(self.path, topics=[topic]).topics.get(topic)
         if tc is None:
             raise CdgpsError(f"{self.path}: no {topic} messages; is this a STATES.mcap from 'cdgps estimate'?")
-        nm = self.cfg.n_modes
+        nm = self.n_pos
         self.time_s = tc.times()
-        names = list(self.cfg.coord_names)
+        names = list(self.coord_names)
         nan = float("nan")                            # a coordinate left out (no solution): NaN
         self.q = np.array([[_num(m.get(n, nan)) for n in names] for m in tc.scalars["q"]], dtype=float)
         self.sigma_q = np.array([[_num(m.get(n, nan)) for n in names] for m in tc.scalars["sigma_q"]], dtype=float)

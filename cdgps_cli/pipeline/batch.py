@@ -351,7 +351,7 @@ def _session(line: int, values: dict, cols: dict, base: Path, probs: _Problems) 
 
 
 def _is_gnss_run(path: str) -> bool:
-    from cdgps_cli.io.gnss_run import run_kind
+    from cdgps_cli.io.run import run_kind
 
     try:
         return run_kind(path) == "gnss"

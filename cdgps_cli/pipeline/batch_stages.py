@@ -46,7 +46,7 @@ def _ingest_gnss(s) -> dict:
 
 def _run_kind(path: str) -> str:
     from cdgps_cli.io.file_checks import RUNS, require_kind
-    from cdgps_cli.io.gnss_run import run_kind
+    from cdgps_cli.io.run import run_kind
 
     require_kind(path, RUNS, "RUN_MCAP")
     return run_kind(path) or "structure"

@@ -4,8 +4,9 @@
   with the structure's section angles (:func:`cdgps_cli.model.kinematics.section_angles`) for the
   ``/cdgps/angles_deg`` channel;
 * :func:`export_csv` — ``cdgps export``: coordinates, their 1-σ and, on request, displacements of
-  named points (:mod:`cdgps_cli.model.points`);
-* :func:`evaluate` — ``cdgps evaluate``: RMS error, NEES, NIS and bias errors against simulator truth.
+  named points (:mod:`cdgps_cli.model.points`; a structure's STATES only);
+* :func:`evaluate` — ``cdgps evaluate``: RMS error, NEES, NIS and bias errors against simulator truth
+  (any kind of STATES: NEES on the positions ξ through the output map).
 
 The file formats are in :mod:`cdgps_cli.io.states` (which imports no numerics); this module is the
 stage layer that joins them with the model.
@@ -19,26 +20,72 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from cdgps_cli import __version__
 from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.core.records import Series, StateSeries
 from cdgps_cli.io import states as states_io
 from cdgps_cli.io.atomic import write_atomic
-from cdgps_cli.io.states import ESTIMATE_METADATA, States
+from cdgps_cli.io.mcap import CONFIG_ATTACHMENT
+from cdgps_cli.io.states import ESTIMATE_METADATA, INIT_ATTACHMENT, STATE_FILTERED_TOPIC, STATE_TOPIC, States
 from cdgps_cli.io.states_layout import DEFAULT_COVARIANCE, DEFAULT_PREVIEW_RATE_HZ
 
-__all__ = ["write_states", "export_csv", "evaluate"]
+__all__ = ["structure_series", "write_states", "export_csv", "evaluate"]
+
+
+def structure_series(res) -> StateSeries:
+    """The :class:`~cdgps_cli.core.records.StateSeries` of a structure estimate ``res``
+    (:class:`cdgps_cli.estimation.filter.EstimateResult` or the same fields): q = U ξ, x = [ξ, ξ̇, …],
+    the smoother's and the forward filter's series when smoothed."""
+    cfg = res.cfg
+    series = {STATE_TOPIC: Series(res.time_s, res.x, res.P, bool(res.smoothed))}
+    if res.smoothed:
+        series[STATE_FILTERED_TOPIC] = Series(res.time_s, res.x_filt, res.P_filt, False)
+    names = list(cfg.coord_names)
+    return StateSeries("structure", names, [cfg.coord_unit(n) for n in names], np.asarray(cfg.mode_shapes, dtype=float),
+                       cfg.n_modes, series, list(res.channels), res.residual_m, res.nis, res.nis_dof, res.events,
+                       cfg.wavelength_m)
 
 
 def write_states(res, run_path: str | Path, init: dict, init_text: str, out_path: str | Path, options: dict,
                  covariance: str = DEFAULT_COVARIANCE, preview_rate_hz: float = DEFAULT_PREVIEW_RATE_HZ) -> dict:
-    """Write the estimate ``res`` to STATES.mcap atomically; returns the writer's summary.
+    """Write the structure estimate ``res`` to STATES.mcap atomically; returns the writer's summary.
 
-    Parameters are those of :func:`cdgps_cli.io.states.write_states`; the section angles of
-    ``res.cfg`` are computed here (:func:`cdgps_cli.model.kinematics.section_angles`).
+    Parameters
+    ----------
+    res
+        The estimate (:class:`cdgps_cli.estimation.filter.EstimateResult` or the same fields).
+    run_path, init, init_text, options
+        Provenance recorded in the ``cdgps.estimate`` metadata.
+    out_path : path
+    covariance, preview_rate_hz
+        As :func:`cdgps_cli.io.states.write_states`; the section angles of ``res.cfg``
+        (:func:`cdgps_cli.model.kinematics.section_angles`) make its ``/cdgps/angles_deg`` channel.
     """
     from cdgps_cli.model.kinematics import section_angles  # noqa: PLC0415
+    from cdgps_cli.io.run import run_kind  # noqa: PLC0415 (a structure estimated on a GNSS run: GPS time)
 
-    return states_io.write_states(res, run_path, init, init_text, out_path, options, covariance=covariance,
-                                  preview_rate_hz=preview_rate_hz, angles=section_angles(res.cfg))
+    cfg = res.cfg
+    meta = {"cdgps_version": __version__, "created_by": "cdgps estimate", "config_name": cfg.name,
+            "config_sha256": cfg.sha256, **states_io.provenance(run_path, init_text),
+            "options": json.dumps(options, sort_keys=True),
+            "measurement_noise": json.dumps(getattr(res, "noise", {}) or {}, sort_keys=True),
+            "final_biases": json.dumps([{"antenna": a, "transmitter": t, "bias_m": b}
+                                        for (a, t), b in res.biases.items()]),
+            "smoothed": str(res.smoothed).lower(),
+            # where the filter ran in static mode (report static says when its segment did not)
+            "rest_active_s": json.dumps(getattr(res, "rest_active_s", [])),
+            "rest_detection": json.dumps(getattr(res, "rest_detection", None))}
+    window = getattr(res, "window", None)
+    if window:
+        # epochs start_s … end_s come from INIT's batch solution (not from the filter)
+        meta["window"] = json.dumps(window, sort_keys=True)
+    attachments = {CONFIG_ATTACHMENT: (cfg.text.encode(), "application/toml"),
+                   INIT_ATTACHMENT: (init_text.encode(), "application/json")}
+    out = states_io.write_states(structure_series(res), out_path, meta, attachments,
+                                 time_scale="gps" if run_kind(run_path) == "gnss" else "relative",
+                                 covariance=covariance, preview_rate_hz=preview_rate_hz, angles=section_angles(cfg))
+    out["window"] = window or None
+    return out
 
 
 def export_csv(states_path: str | Path, out_csv: str | Path, points: str | None = None) -> dict:
@@ -49,7 +96,7 @@ def export_csv(states_path: str | Path, out_csv: str | Path, points: str | None 
     1-σ from J U P_ξ Uᵀ Jᵀ: columns ``<point>_d{x,y,z}_m`` and ``sigma_<point>_d{x,y,z}_m``.
     """
     st = States(states_path)
-    names = list(st.cfg.coord_names)
+    names = list(st.coord_names)
     bad = ~np.isfinite(st.q).all(axis=1) | ~np.isfinite(st.sigma_q).all(axis=1)
     if bad.any():
         raise CdgpsError(f"{states_path}: {int(bad.sum())} of {len(bad)} epoch(s) with non-finite states or sigmas "
@@ -58,7 +105,7 @@ def export_csv(states_path: str | Path, out_csv: str | Path, points: str | None 
     if points is not None:
         from cdgps_cli.model.points import point_columns, select_points
 
-        pts = select_points(st.cfg, points)          # before writing: a bad name leaves no file
+        pts = select_points(st.require_structure("--points"), points)          # before writing: a bad name leaves no file
     df = pd.DataFrame(st.q, columns=names)
     for i, n in enumerate(names):
         df["sigma_" + n] = st.sigma_q[:, i]
@@ -93,12 +140,11 @@ def evaluate(truth_dir: str | Path, states_path: str | Path, converge_s: float =
     except (OSError, ValueError) as exc:
         raise CdgpsError(f"{truth_dir}: cannot read truth.csv / truth.json: {exc}") from None
     st = States(states_path)
-    cfg = st.cfg
-    names = list(cfg.coord_names)
+    names = list(st.coord_names)
     missing = [n for n in ["time_s", *names] if n not in truth.columns]
     if missing:
         raise CdgpsError(f"{truth_dir / 'truth.csv'}: missing column(s) {', '.join(missing)}")
-    if tj.get("config_sha256") and tj["config_sha256"] != cfg.sha256:
+    if tj.get("config_sha256") and tj["config_sha256"] != st.config_sha256:
         raise CdgpsError("truth.json was simulated with a different config than the estimate's")
     tt = np.rint(truth["time_s"].to_numpy() * 1e6).astype(np.int64)
     te = np.rint(st.time_s * 1e6).astype(np.int64)
@@ -120,10 +166,9 @@ def evaluate(truth_dir: str | Path, states_path: str | Path, converge_s: float =
         raise CdgpsError(f"{states_path}: {int(bad.sum())} epoch(s) with non-finite states or sigmas "
                          f"(first at {time[np.flatnonzero(bad)[0]]:g} s)")
     rms = np.sqrt(np.mean(err[after] ** 2, axis=0))
-    U = np.asarray(cfg.mode_shapes)
-    xi_t = qt @ np.linalg.pinv(U).T
+    xi_t = qt @ np.linalg.pinv(st.output_map).T
     d = st.xi[ie] - xi_t
-    nm = cfg.n_modes
+    nm = st.n_pos
     nees = np.einsum("ni,ni->n", d, np.linalg.solve(st.P_xi[ie], d[..., None])[..., 0])
     lo, hi = chi2.ppf(0.025, nm), chi2.ppf(0.975, nm)
     na = int(after.sum())
@@ -141,8 +186,9 @@ def evaluate(truth_dir: str | Path, states_path: str | Path, converge_s: float =
     out = {
         "epochs": int(common.size), "start_s": float(time[0]), "end_s": float(time[-1]),
         "rms_error": {n: float(v) for n, v in zip(names, rms)},
-        "rms_error_units": {n: cfg.coord_unit_label(n) for n in names},
-        "rms_error_deg": {n: float(np.degrees(v)) for n, v in zip(names, rms) if cfg.coord_unit(n) == "rad"},
+        "rms_error_units": {n: (st.cfg.coord_unit_label(n) if st.cfg is not None else u)
+                            for n, u in zip(names, st.coord_units)},
+        "rms_error_deg": {n: float(np.degrees(v)) for n, v, u in zip(names, rms, st.coord_units) if u == "rad"},
         "within_3sigma_fraction": float(np.mean(inside[after])),
         "convergence_definition": "first time from which the NEES stays below its 99.9% chi-square bound for 1 s",
         "convergence_s": conv_t,
@@ -172,6 +218,6 @@ def evaluate(truth_dir: str | Path, states_path: str | Path, converge_s: float =
     if errs:
         e = np.array([x[2] for x in errs])
         out["bias_error"] = {"rms_m": float(np.sqrt(np.mean(e**2))), "max_abs_m": float(np.max(np.abs(e))),
-                             "wrong_integers": int(np.sum(np.abs(e) > cfg.wavelength_m / 2)), "channels": len(errs)}
+                             "wrong_integers": int(np.sum(np.abs(e) > st.wavelength_m / 2)), "channels": len(errs)}
     out["events"] = len(st.events)
     return out

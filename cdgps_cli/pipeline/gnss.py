@@ -18,21 +18,19 @@ correlations between the baselines of several rovers through the common master a
     dynamics, process noise ``σ²·Δt`` per component); ``--smooth`` adds the engine's
     Rauch-Tung-Striebel pass;
 
-  plus, for both, the single-epoch (kinematic) solutions with the fixed integers (attachments
-  ``arrays/cdgps/kinematic/*.npy``, readable as ``States(path, topic="/cdgps/kinematic")`` and
+  plus, for both, the single-epoch (kinematic) solutions with the fixed integers (the series
+  ``/cdgps/kinematic``, arrays only, readable as ``States(path, topic="/cdgps/kinematic")`` and
   exported by ``cdgps export --kinematic``), DD residuals, NIS, and events (slips from LLI / half-cycle flags /
   lock-time restarts, gaps, reference-satellite changes, unfixed ambiguities) → STATES.mcap.
 
-STATES.mcap has the layout of :mod:`cdgps_cli.io.states` (``/cdgps/state`` with ``q`` and
-``sigma_q`` keyed by coordinate, the ``arrays/cdgps/state/*.npy`` attachments, residuals, events)
-so that ``cdgps export`` and ``cdgps evaluate`` read it: its ``config.toml`` attachment is the
-displacement model written in the structure-config form (one rigid unit-shape "mode" per
-coordinate), and the GNSS run config is attached as ``gnss_config.toml``.
+STATES.mcap is written by the one STATES writer (:func:`cdgps_cli.io.states.write_states`) from a
+:class:`~cdgps_cli.core.records.StateSeries` of kind ``displacement`` (x = q, output map C = I, no
+rates), so ``cdgps export`` and ``cdgps evaluate`` read it like any other; the GNSS run config is
+attached as ``gnss_config.toml``.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
 from dataclasses import asdict
 from pathlib import Path
@@ -41,26 +39,24 @@ import numpy as np
 import pandas as pd
 
 from cdgps_cli import __version__
-from cdgps_cli.core import progress
 from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.estimation.baseline import BaselineOptions, Station, json_safe, solve_static_baseline
 from cdgps_cli.estimation.model_filter import filter_numpy
 from cdgps_cli.estimation.smoother import rts_smooth_transitions
 from cdgps_cli.measurement.dd_displacement import SatelliteDDDisplacement, SDObservations
 from cdgps_cli.model.dynamics_models import RandomWalk
-from cdgps_cli.config.structure import parse_config
 from cdgps_cli.measurement.differencing import dd_weight_blocks, select_reference
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.core.records import INIT_FORMAT, init_kind
+from cdgps_cli.core.records import INIT_FORMAT, Series, StateSeries, init_kind
 
 from cdgps_cli.io.gnss_run import GnssRun, processing_obs
-from cdgps_cli.io.mcap import NULLABLE, CONFIG_ATTACHMENT, McapOut, array_schema, read_mcap
+from cdgps_cli.io import states as states_io
+from cdgps_cli.io.mcap import read_mcap
 from cdgps_cli.core.gps_time import gps_time_str
-from cdgps_cli.io.states import (ESTIMATE_METADATA, EVENT_TOPIC, event_schema, INIT_ATTACHMENT, RESIDUAL_SCHEMA, RESIDUAL_TOPIC,
-                     STATE_FILTERED_TOPIC, STATE_TOPIC)
+from cdgps_cli.io.states import ESTIMATE_METADATA, INIT_ATTACHMENT, STATE_FILTERED_TOPIC, STATE_TOPIC, States
 
-__all__ = ["gnss_init", "gnss_estimate", "displacement_structure_config", "export_kinematic_csv", "KINEMATIC_TOPIC",
+__all__ = ["gnss_init", "gnss_estimate", "export_kinematic_csv", "KINEMATIC_TOPIC",
            "is_gnss_states"]
 
 KINEMATIC_TOPIC = "/cdgps/kinematic"
@@ -442,60 +438,12 @@ def _events(rover: str, master: str, res: dict, w: dict) -> list:
 # STATES.mcap
 
 
-def displacement_structure_config(name: str, master: str, rovers, sample_period_s: float, sigma_rw=None) -> str:
-    """The displacement states as a structure-config TOML (for every STATES.mcap reader)."""
-    coords = [f"{r}_{c}" for r in rovers for c in "enu"]
-    lines = [
-        "# Displacement states of a GNSS run, written by 'cdgps estimate' (docs/gnss-pipeline.md) in the",
-        "# structure-config form so that every STATES.mcap reader works: coordinate <rover>_e/_n/_u is the",
-        "# rover antenna's east/north/up displacement (m) from its nominal position, local frame x=E y=N z=U;",
-        "# one rigid unit-shape mode per coordinate (the modal state is the displacement itself).",
-        "[model]", f"name = \"{name}-displacement\"",
-        f"description = \"E/N/U displacement of {', '.join(rovers)} from the nominal positions, master {master}\"",
-        f"sample_period_s = {float(sample_period_s)!r}", "measurement_sigma_m = 0.003", "",
-    ]
-    for c in coords:
-        lines += ["[[coordinates]]", f"name = \"{c}\"", "kind = \"translation\"", ""]
-    lines += ["[[antennas]]", f"name = \"{master}\"", "position_m = [0.0, 0.0, 0.0]", "master = true", ""]
-    for r in rovers:
-        lines += ["[[antennas]]", f"name = \"{r}\"", "position_m = [0.0, 0.0, 0.0]",
-                  f"displacement_m = {{\"{r}_e\" = [1.0, 0.0, 0.0], \"{r}_n\" = [0.0, 1.0, 0.0], \"{r}_u\" = [0.0, 0.0, 1.0]}}", ""]
-    lines += ["[[transmitters]]", "name = \"GPS\"", "direction = [0.0, 0.0, 1.0]", "description = \"GPS satellites\"", ""]
-    for i, c in enumerate(coords):
-        shape = ["0.0"] * len(coords)
-        shape[i] = "1.0"
-        lines += ["[[modes]]", f"name = \"{c}\"", "rigid = true", "frequency_hz = 0.0", "time_constant_s = 1e9",
-                  f"shape = [{', '.join(shape)}]", ""]
-    sig = [0.0] * len(coords) if sigma_rw is None else [float(v) for _ in rovers for v in sigma_rw]
-    lines += ["[process_noise]", "space = \"coordinates\"", f"sigma = [{', '.join(repr(v) for v in sig)}]"]
-    return "\n".join(lines) + "\n"
-
-
-def _npy(arr) -> bytes:
-    import io
-
-    buf = io.BytesIO()
-    np.save(buf, np.asarray(arr, dtype=float), allow_pickle=False)
-    return buf.getvalue()
-
-
-def _state_schema(title: str, names) -> dict:
-    obj = {"type": "object", "properties": {n: {"type": "number"} for n in names}}
-    s = array_schema(title, {"xi": NULLABLE, "xidot": "number", "P_xi": "number"}, {"smoothed": "boolean"})
-    s["properties"]["q"] = dict(obj, description="displacement from the nominal position, m (E, N, U per rover); "
-                                "a coordinate without a solution at this epoch is left out")
-    s["properties"]["sigma_q"] = dict(obj, description="1-sigma of q, m")
-    return s
-
-
 def _write_gnss_states(run, init, init_text, out_path, names, t, q, P, qf, Pf, kq, kP, kin_n, kin_pdop,
                        res_cols, residual_m, nis, nis_dof, events, smoothed, meta_extra) -> dict:
+    """The displacement states as a :class:`~cdgps_cli.core.records.StateSeries` (x = q, C = I)
+    through the one STATES writer :func:`cdgps_cli.io.states.write_states`; the single-epoch
+    solutions as the arrays-only series ``/cdgps/kinematic`` (with ``n_sat`` and ``pdop``)."""
     model = run.cfg.displacement
-    interval = float(np.median(np.diff(t))) if t.size > 1 else 1.0
-    struct_text = displacement_structure_config(run.cfg.name, run.master, run.rovers, interval,
-                                                run.cfg.random_walk_sigma if model == "random_walk" else None)
-    parse_config(struct_text, "<displacement model>")         # must be readable by States
-    run_sha = hashlib.sha256(Path(run.path).read_bytes()).hexdigest()
     biases = []
     for r in run.rovers:
         for s in init["rovers"][r]["ambiguities"]:
@@ -503,8 +451,7 @@ def _write_gnss_states(run, init, init_text, out_path, names, t, q, P, qf, Pf, k
                 biases.append({"antenna": r, "transmitter": s["sat"], "bias_m": GPS_L1_WAVELENGTH_M * s["integer"],
                                "from_gps_s": s["first_gps_s"]})
     meta = {"cdgps_version": __version__, "created_by": "cdgps estimate", "kind": "gnss", "config_name": run.cfg.name,
-            "config_sha256": run.cfg.sha256, "run": Path(run.path).name, "run_sha256": run_sha,
-            "init_sha256": hashlib.sha256(init_text.encode()).hexdigest(),
+            "config_sha256": run.cfg.sha256, **states_io.provenance(run.path, init_text),
             "options": json.dumps({"smooth": bool(smoothed), "displacement_model": model,
                                    "random_walk_sigma_m_per_sqrt_s": list(run.cfg.random_walk_sigma) if model == "random_walk" else None,
                                    **meta_extra.get("options", {})},
@@ -512,58 +459,23 @@ def _write_gnss_states(run, init, init_text, out_path, names, t, q, P, qf, Pf, k
             "final_biases": json.dumps(biases), "smoothed": str(bool(smoothed)).lower(), "displacement_model": model,
             "coordinates": ",".join(names), "master": run.master,
             "rovers": json.dumps(json_safe(meta_extra["rovers"]), sort_keys=True)}
-    sig = np.sqrt(np.maximum(np.einsum("nii->ni", P), 0.0))
-    with McapOut(out_path, time_scale="gps") as out:
-        series = [(STATE_TOPIC, q, P, sig, smoothed)]
-        if qf is not None:
-            series.append((STATE_FILTERED_TOPIC, qf, Pf, np.sqrt(np.maximum(np.einsum("nii->ni", Pf), 0.0)), False))
-        for topic, X, PP, S, sm in series:
-            ch = out.channel(topic, _state_schema("cdgps.DisplacementState", names))
-            Xl, Sl, Pl = X.tolist(), S.tolist(), PP.reshape(len(t), -1).tolist()
-            for k, tk in progress.iterate(enumerate(t.tolist()), f"writing {Path(out_path).name} {topic}", len(t), "msg"):
-                out.write(ch, tk, {"q": _obj(names, Xl[k]), "sigma_q": _obj(names, Sl[k]), "xi": _nn(Xl[k]),
-                                   "xidot": [], "P_xi": Pl[k], "smoothed": sm})
-            for nm, arr in (("time_s", t), ("q", X), ("sigma_q", S), ("xi", X), ("P_xi", PP)):
-                out.attach(f"arrays{topic}/{nm}.npy", _npy(arr), "application/x-npy")
-        # single-epoch (kinematic) solutions with the fixed integers
-        ks = np.sqrt(np.maximum(np.einsum("nii->ni", kP), 0.0))
-        ks = np.where(np.isnan(kq), np.nan, ks)
-        # (arrays only: 86 400 more JSON messages would cost ~4 s per day of 1 Hz data)
-        have = ~np.all(np.isnan(kq), axis=1)
-        for nm, arr in (("time_s", t[have]), ("q", kq[have]), ("sigma_q", ks[have]), ("xi", kq[have]), ("P_xi", kP[have]),
-                        ("n_sat", kin_n[have]), ("pdop", kin_pdop[have])):
-            out.attach(f"arrays{KINEMATIC_TOPIC}/{nm}.npy", _npy(arr), "application/x-npy")
-        # residuals
-        ch = out.channel(RESIDUAL_TOPIC, RESIDUAL_SCHEMA)
-        ants = [c[0] for c in res_cols]
-        txs = [c[1] for c in res_cols]
-        for k, tk in progress.iterate(enumerate(t.tolist()), f"writing {Path(out_path).name} {RESIDUAL_TOPIC}", len(t), "msg"):
-            rk = residual_m[k]
-            used = ~np.isnan(rk)
-            out.write(ch, tk, {"antenna": [a for a, u in zip(ants, used) if u],
-                               "transmitter": [x for x, u in zip(txs, used) if u], "residual_m": rk[used].tolist(),
-                               "nis": None if np.isnan(nis[k]) else float(nis[k]), "nis_dof": int(nis_dof[k])})
-        ch = out.channel(EVENT_TOPIC, event_schema(events))
-        for ev in events:
-            out.write(ch, ev["time_s"], {k: v for k, v in ev.items() if k != "time_s"})
-        out.attach(CONFIG_ATTACHMENT, struct_text.encode(), "application/toml")
-        out.attach(GNSS_CONFIG_ATTACHMENT, run.cfg.text.encode(), "application/toml")
-        out.attach(INIT_ATTACHMENT, init_text.encode(), "application/json")
-        out.metadata(ESTIMATE_METADATA, meta)
-    ok = nis_dof > 0
-    return {"output": str(out_path), "epochs": int(t.size), "start_s": float(t[0]), "end_s": float(t[-1]),
-            "start": gps_time_str(float(t[0])), "end": gps_time_str(float(t[-1])), "smoothed": bool(smoothed),
-            "events": len(events),
-            "mean_nis_per_dof": float(np.nanmean(nis[ok] / nis_dof[ok])) if ok.any() else None,
-            "kinematic_epochs": int(have.sum()), "event_list": events}
-
-
-def _nn(v):
-    return [None if x != x else x for x in v]
-
-
-def _obj(names, vals):
-    return {n: (None if v != v else v) for n, v in zip(names, vals)}
+    series = {STATE_TOPIC: Series(t, q, P, bool(smoothed))}
+    if qf is not None:
+        series[STATE_FILTERED_TOPIC] = Series(t, qf, Pf, False)
+    have = ~np.all(np.isnan(kq), axis=1)
+    kP = kP.copy()
+    kP[np.isnan(kq)] = np.nan                  # no single-epoch solution of a rover: no covariance either
+    series[KINEMATIC_TOPIC] = Series(t[have], kq[have], kP[have], False,
+                                     {"n_sat": kin_n[have], "pdop": kin_pdop[have]}, messages=False)
+    ss = StateSeries("displacement", list(names), ["m"] * len(names), np.eye(len(names)), 0, series, list(res_cols),
+                     residual_m, nis, nis_dof, events, GPS_L1_WAVELENGTH_M)
+    attachments = {GNSS_CONFIG_ATTACHMENT: (run.cfg.text.encode(), "application/toml"),
+                   INIT_ATTACHMENT: (init_text.encode(), "application/json")}
+    # Foxglove channels at every epoch (GNSS epochs are 1 s or longer: the arrays dominate the size)
+    out = states_io.write_states(ss, out_path, meta, attachments, time_scale="gps", preview_rate_hz=0.0)
+    out.update({"start": gps_time_str(float(t[0])), "end": gps_time_str(float(t[-1])),
+                "kinematic_epochs": int(have.sum())})
+    return out
 
 
 def is_gnss_states(path: str | Path) -> bool:
@@ -574,23 +486,18 @@ def is_gnss_states(path: str | Path) -> bool:
 def export_kinematic_csv(states_path: str | Path, out_csv: str | Path) -> dict:
     """The single-epoch (kinematic) solutions of a GNSS STATES.mcap as CSV: time_s, coordinates,
     sigma_<name>, n_sat_<rover>, pdop_<rover>."""
-    from cdgps_cli.io.states import States  # noqa: PLC0415
-
-    c = read_mcap(states_path, topics=[])
-    if c.metadata.get(ESTIMATE_METADATA, {}).get("kind") != "gnss":
+    if not is_gnss_states(states_path):
         raise CdgpsError(f"{states_path}: --kinematic needs a STATES.mcap from 'cdgps estimate' on a GNSS run")
     st = States(states_path, topic=KINEMATIC_TOPIC, diagnostics=False)
-    names = list(st.cfg.coord_names)
+    names = list(st.coord_names)
     df = pd.DataFrame(st.q, columns=names)
     for i, nm in enumerate(names):
         df["sigma_" + nm] = st.sigma_q[:, i]
-    rovers = st.cfg.rover_names
-    key = f"arrays{KINEMATIC_TOPIC}/"
+    rovers = list(dict.fromkeys(n.rsplit("_", 1)[0] for n in names))
     try:
-        ns = np.load(__import__("io").BytesIO(c.attachments[key + "n_sat.npy"]))
-        pd_ = np.load(__import__("io").BytesIO(c.attachments[key + "pdop.npy"]))
-    except (KeyError, ValueError) as exc:
-        raise CdgpsError(f"{states_path}: damaged kinematic arrays: {exc}") from None
+        ns, pd_ = st.extra["n_sat"], st.extra["pdop"]
+    except KeyError as exc:
+        raise CdgpsError(f"{states_path}: damaged kinematic arrays: no {exc}") from None
     for j, r in enumerate(rovers):
         df[f"n_sat_{r}"] = ns[:, j].astype(int)
         df[f"pdop_{r}"] = pd_[:, j]

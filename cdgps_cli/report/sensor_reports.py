@@ -23,6 +23,21 @@ from cdgps_cli.model.kinematics import gyro_matrix
 from cdgps_cli.io.provenance import provenance_rows, report_provenance
 
 
+def _structure_config(states, what: str):
+    """The structure config of ``states`` (a :class:`~cdgps_cli.io.states.States`), or a CdgpsError:
+    modes, gyros and angles belong to a structure, not to GNSS displacement states."""
+    if states.cfg is None:
+        raise CdgpsError(f"{states.path}: {what} needs the STATES.mcap of a structure (modal states); this one holds "
+                         f"{getattr(states, 'kind', 'other')} states ({', '.join(states.coord_names)})")
+    return states.cfg
+
+
+def _coordinate_model(states):
+    """The structure config of ``states``, or the coordinates-only model of GNSS displacement
+    states (:meth:`cdgps_cli.io.states.States.coordinate_model`: PSDs and FDD, no modes)."""
+    return states.cfg if states.cfg is not None else states.coordinate_model()
+
+
 def _mpl():
     import matplotlib
 
@@ -100,7 +115,7 @@ def run_spectra(states, run, opt, out_dir: str | Path, dest: OutputSet | None = 
     or go into ``dest``, the output set of a larger command (the spectrum report)."""
     from cdgps_cli.analysis.spectra import compute_spectra
 
-    cfg = states.cfg
+    cfg = _coordinate_model(states)
     gt, gr, gnames = (np.zeros(0), None, [])
     if run is not None:
         if run.cfg.sha256 != cfg.sha256:
@@ -116,7 +131,7 @@ def run_spectra(states, run, opt, out_dir: str | Path, dest: OutputSet | None = 
 
 
 def _write_spectra(states, res: dict, gnames: list, dest: OutputSet) -> dict:
-    cfg = states.cfg
+    cfg = _coordinate_model(states)
     f = res["f_hz"]
     df = pd.DataFrame({"frequency_hz": f})
     units = {"rad": "_rad2_hz", "m": "_m2_hz", "1": "_1_hz"}
@@ -460,7 +475,7 @@ def static_report(states, run, angle: str, survey_deg: float | None, out_dir: st
 
     for name, v in (("survey_deg", survey_deg), ("start_s", start_s), ("end_s", end_s)):
         require_finite(v, name)
-    cfg = states.cfg
+    cfg = _structure_config(states, "the static report")
     coef = parse_expression(angle, cfg.coord_names)
     a_all = states.q @ coef
     t_all = states.time_s
@@ -628,5 +643,5 @@ def spectrum_report(states, run, opt, out_dir: str | Path, date: str | None = No
         data = {"modes": modes, "settings": st, "seen": seen, "summary": text, "provenance": prov}
         _write_report(dest, "Spectrum sensor test", md, data,
                       [("Identified modes", f"<p>{html.escape(text)}</p>" + _html_table(rows, header)
-                        + f"<p class='note'>{html.escape(note)}</p>")], pngs, _spectrum_captions(s, states.cfg))
+                        + f"<p class='note'>{html.escape(note)}</p>")], pngs, _spectrum_captions(s, _coordinate_model(states)))
     return data

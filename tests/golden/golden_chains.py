@@ -130,7 +130,7 @@ def add_states(g: Numbers, prefix: str, path: str, topic: str | None = None) -> 
     st = States(path) if topic is None else States(path, topic=topic)
     k = samples(len(st.time_s))
     g.exact(f"{prefix}/epochs", len(st.time_s))
-    g.exact(f"{prefix}/coordinates", list(st.cfg.coord_names))
+    g.exact(f"{prefix}/coordinates", list(st.coord_names))
     g.time(f"{prefix}/time_s", st.time_s[k])
     g.close(f"{prefix}/q", st.q[k], "coordinate units (m or rad)")
     g.close(f"{prefix}/sigma_q", st.sigma_q[k], "coordinate units (m or rad)")

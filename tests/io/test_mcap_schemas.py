@@ -30,6 +30,7 @@ from cdgps_cli.io.mcap import McapOut, array_schema, read_mcap
 from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
 from cdgps_cli.io.run import read_run
 from cdgps_cli.io.states import ANGLES_TOPIC, States
+from cdgps_cli.io.states_layout import DEFAULT_PREVIEW_RATE_HZ
 from cdgps_cli.core.timescales import GPS_EPOCH_UNIX_S, gps_minus_utc_s, unix_ns
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -194,7 +195,7 @@ def pseudolite(tmp_path_factory):
     run_cli("simulate", TESTBED, "--duration", "8", "--seed", "4", "--scenario", "pulse", "--out", tmp / "pulse")
     run_cli("ingest", tmp / "pulse" / "receiver.csv", tmp / "pulse" / "gyro.csv", "--actuators",
             tmp / "pulse" / "actuators.csv", "--config", TESTBED, "-o", tmp / "pulse.mcap")
-    # JSON channels at every epoch (checked message by message below), and at the default 1 Hz
+    # JSON channels at every epoch (checked message by message below), and at the default rate (0.5 Hz)
     run_cli("estimate", tmp / "run.mcap", "--init", tmp / "init.json", "--smooth", "--foxglove-rate-hz", "0",
             "-o", tmp / "states.mcap")
     run_cli("estimate", tmp / "run.mcap", "--init", tmp / "init.json", "--smooth", "-o", tmp / "states_1hz.mcap")
@@ -210,8 +211,9 @@ def test_pseudolite_run_and_states_open_everywhere(pseudolite):
     assert r["messages"] + s["messages"] > 1000
     s1 = assert_opens_everywhere(tmp / "states_1hz.mcap", ["/cdgps/state", "/cdgps/state_filtered", "/cdgps/residuals",
                                                            ANGLES_TOPIC])
-    n = len(States(tmp / "states.mcap").time_s)                   # 10 Hz: every 10th epoch, 4 topics + events
-    assert s1["messages"] == 4 * len(range(0, n, 10)) + len(States(tmp / "states.mcap").events)
+    n = len(States(tmp / "states.mcap").time_s)                   # 10 Hz: every 20th epoch, 4 topics + events
+    assert DEFAULT_PREVIEW_RATE_HZ == 0.5
+    assert s1["messages"] == 4 * len(range(0, n, 20)) + len(States(tmp / "states.mcap").events)
     # the missing C/N0 come back as NaN, everything else as written
     run = read_run(tmp / "run.mcap")
     assert int(run.phase["snr_dbhz"].isna().sum()) == int(rx["snr_dbhz"].isna().sum()) > 0

@@ -171,3 +171,30 @@ def test_cli_json_and_quiet(sim_dir, tmp_path):
     assert s["channels"] == 36 and s["phase_rows"] > 0
     r = CliRunner().invoke(main, ["info", str(out), "--json"])
     assert json.loads(r.stdout)["topics"][0]["topic"] == "/cdgps/phase"
+
+
+def test_one_run_module_with_a_kind(run_file, tmp_path):
+    """io/run.py tells the kinds apart and writes the ingest record of both the same way: a
+    structure RUN, a GNSS RUN (tests/data/format-2026-12-03) and a STATES file."""
+    from cdgps_cli.core.records import Run
+    from cdgps_cli.io.gnss_run import GnssRun, read_gnss_run
+    from cdgps_cli.io.mcap import read_mcap
+    from cdgps_cli.io.run import contents_kind, ingest_metadata, read_any_run, run_kind
+
+    gnss_run = ROOT / "tests" / "data" / "format-2026-12-03" / "gnss-run.mcap"
+    states = ROOT / "tests" / "data" / "format-2026-12-03" / "structure-states.mcap"
+    assert run_kind(run_file) == "structure" and run_kind(gnss_run) == "gnss" and run_kind(states) is None
+    assert contents_kind(read_mcap(run_file, topics=[])) == "structure"
+    assert contents_kind(read_mcap(gnss_run, topics=[])) == "gnss"
+    assert isinstance(read_any_run(run_file), Run) and isinstance(read_any_run(gnss_run), GnssRun)
+    # the common part of the record: the same keys for both kinds (main wrote the GNSS one)
+    common = ("cdgps_version", "created_by", "config_name", "config_sha256", "config_path")
+    g = read_gnss_run(gnss_run).metadata
+    s = read_run(run_file).metadata
+    assert all(k in g and k in s for k in common) and g["kind"] == "gnss" and "kind" not in s
+    cfg = load_config(TESTBED)
+    meta = ingest_metadata("structure", cfg, {"receiver_csv": run_file}, sample_period_s="0.1")
+    assert meta["config_path"] == TESTBED.name and meta["receiver_csv"] == run_file.name
+    assert meta["receiver_csv_sha256"] == __import__("hashlib").sha256(run_file.read_bytes()).hexdigest()
+    with pytest.raises(ValueError, match="run kind"):
+        ingest_metadata("other", cfg, {})

@@ -521,5 +521,5 @@ def test_write_states_makes_no_full_size_copies(tmp_path):
     np.testing.assert_array_equal(st.P_xi, P[:, :nm, :nm])
     filt = States(tmp_path / "st.mcap", "/cdgps/state_filtered")     # the forward filter: its 1-σ only
     assert filt.P_xi is None
-    np.testing.assert_allclose(filt.sigma_q, coordinate_sigma(cfg, P_filt), rtol=0, atol=0)
+    np.testing.assert_allclose(filt.sigma_q, coordinate_sigma(cfg.mode_shapes, P_filt), rtol=0, atol=0)
     np.testing.assert_array_equal(st.xi, x[:, :nm])

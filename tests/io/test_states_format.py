@@ -24,6 +24,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.mcap import read_mcap
 from cdgps_cli.io.run import PHASE_TOPIC, _phase_table, read_run, write_run
 from cdgps_cli.io.states import (STATE_FILTERED_TOPIC, STATE_TOPIC, States, preview_stride)
+from cdgps_cli.io.states_layout import DEFAULT_PREVIEW_RATE_HZ
 
 ROOT = Path(__file__).resolve().parents[2]
 TESTBED = ROOT / "configs" / "testbed-1998.toml"
@@ -137,7 +138,7 @@ def test_covariance_full_and_json_rate(tmp_path):
     assert States(tmp_path / "d.mcap", topic=STATE_FILTERED_TOPIC).P_xi is None
     cf, cd = read_mcap(tmp_path / "full.mcap"), read_mcap(tmp_path / "d.mcap")
     assert len(cf.topics[STATE_TOPIC]) == len(full.time_s)                          # every epoch
-    k = preview_stride(d.time_s, 1.0)
+    k = preview_stride(d.time_s, DEFAULT_PREVIEW_RATE_HZ)
     assert len(cd.topics[STATE_TOPIC]) == len(range(0, len(d.time_s), k))
     np.testing.assert_array_equal(cd.topics[STATE_TOPIC].times(), d.time_s[::k])
     meta = cd.metadata["cdgps.estimate"]

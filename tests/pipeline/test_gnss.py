@@ -123,7 +123,9 @@ def test_geonet_init_biases_have_the_structure_init_fields(geonet, tmp_path):
 def test_geonet_states_file(geonet):
     tmp = geonet[0]
     st = States(tmp / "states.mcap")
-    assert st.cfg.coord_names == ("0759_e", "0759_n", "0759_u") and st.q.shape == (120, 3)
+    assert st.kind == "displacement" and st.cfg is None                  # no structure config faked
+    assert st.coord_names == ["0759_e", "0759_n", "0759_u"] and st.q.shape == (120, 3)
+    np.testing.assert_array_equal(st.output_map, np.eye(3))
     assert st.metadata["kind"] == "gnss" and st.metadata["displacement_model"] == "static"
     kinds = {e["kind"] for e in st.events}
     assert "reference satellite" in kinds
@@ -132,6 +134,19 @@ def test_geonet_states_file(geonet):
     assert k.q.shape == (120, 3)
     r = run_cli("info", tmp / "states.mcap")
     assert r.exit_code == 0 and "/cdgps/state" in r.stdout and "/cdgps/residuals" in r.stdout
+    # what needs a structure says so (exit 2, nothing written)
+    f = tmp / "states.mcap"
+    for args, out in ((["export", f, "--points", "antennas", "-o", tmp / "p.csv"], tmp / "p.csv"),
+                      (["report", "static", f, "--angle", "0759_e", "-o", tmp / "rep"], tmp / "rep")):
+        r = run_cli(*args)
+        assert r.exit_code == 2 and "needs the STATES.mcap of a structure" in r.output, r.output
+        assert not out.exists()
+    # spectra of the displacements: PSDs and FDD of the coordinates, no model modes
+    r = run_cli("spectra", f, "-o", tmp / "sp", "--json")
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["modes"] == []
+    cols = pd.read_csv(tmp / "sp" / "psd.csv").columns
+    assert {"gps_0759_e_m2_hz", "gps_0759_n_m2_hz", "gps_0759_u_m2_hz"} <= set(cols)
 
 
 # ----------------------------------------------------------------------------------------------
