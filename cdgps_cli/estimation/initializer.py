@@ -36,6 +36,7 @@ from cdgps_cli.config.options import INIT_MAX_ITERATIONS, INIT_STARTS, RATIO_THR
 from cdgps_cli.config.structure import StructureConfig, channel_sigma_m, scalar_sigma_m
 from cdgps_cli.model.dynamics import discrete_model
 from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.measurement.channels import lock_segments
 from cdgps_cli.measurement.phase import channel_indices, phase_model
 from cdgps_cli.core import progress
 from cdgps_cli.estimation.ambiguity import resolve
@@ -143,27 +144,18 @@ def window_snr_dbhz(run: Run, wd: WindowData) -> np.ndarray:
 
 
 def window_data(run: Run, t0: float, t1: float) -> WindowData:
+    """The window [t0, t1] of a run: phase matrix, channels and one bias parameter per lock segment
+    (:func:`cdgps_cli.measurement.channels.lock_segments` on the lock counts; a segment is cut at
+    the window's edges).  Segments are numbered by channel, then time."""
     grid, y, lock, chans = phase_matrix(run, t0, t1)
     n, C = y.shape
+    cc, kk = np.nonzero(~np.isnan(y.T))          # channel-major: the rule's (channel, step) order
+    ls = lock_segments(cc, kk, lock=lock[kk, cc])
     seg = np.full((n, C), -1, dtype=np.int64)
-    segments = []
-    for c in range(C):
-        # a new lock segment starts at the first sample, at a re-lock (lock count 0 or decreasing),
-        # and after a gap unless the lock count advanced by exactly the gap
-        ks = np.flatnonzero(~np.isnan(y[:, c]))
-        if ks.size == 0:
-            continue
-        L = lock[ks, c]
-        dk = np.diff(ks)
-        new = np.ones(ks.size, dtype=bool)
-        new[1:] = (L[1:] == 0) | (L[1:] < L[:-1]) | ((dk > 1) & (L[1:] != L[:-1] + dk))
-        sid = np.cumsum(new) - 1 + len(segments)
-        seg[ks, c] = sid
-        starts = np.flatnonzero(new)
-        ends = np.append(starts[1:], ks.size) - 1
-        for i0, i1 in zip(starts.tolist(), ends.tolist()):
-            segments.append({"antenna": chans[c][0], "transmitter": chans[c][1], "channel": c,
-                             "start_s": float(grid[ks[i0]]), "end_s": float(grid[ks[i1]])})
+    seg[kk, cc] = ls.segment
+    segments = [{"antenna": chans[c][0], "transmitter": chans[c][1], "channel": c,
+                 "start_s": float(grid[kk[i0]]), "end_s": float(grid[kk[i1]])}
+                for c, i0, i1 in zip(ls.channel.tolist(), ls.first.tolist(), ls.last.tolist())]
     ant, tx = channel_indices(run.cfg, [c[0] for c in chans], [c[1] for c in chans])
     return WindowData(grid, y, chans, ant, tx, seg, segments)
 

@@ -49,7 +49,8 @@ from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.records import INIT_FORMAT, init_kind
 
-from cdgps_cli.io.gnss_run import GnssRun, processing_obs
+from cdgps_cli.io.gnss_run import GnssRun
+from cdgps_cli.pipeline.gnss_ingest import processing_obs
 from cdgps_cli.io.mcap import NULLABLE, CONFIG_ATTACHMENT, McapOut, array_schema, read_mcap
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.io.states import (ESTIMATE_METADATA, EVENT_TOPIC, event_schema, INIT_ATTACHMENT, RESIDUAL_SCHEMA, RESIDUAL_TOPIC,
