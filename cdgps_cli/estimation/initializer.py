@@ -339,22 +339,24 @@ class _Problem:
         return LinearSolution(sol.x, sol.w, sol.b * fs, sol.cost, sol.R_end / d[None, :], P, sol.rank_deficient)
 
     def leverage(self, x: np.ndarray) -> np.ndarray:
-        """Σ_k h_kc per channel of the linearization about x (no damping; Hutchinson probes)."""
+        """Σ_k h_kc per channel of the linearization about x (no damping; Hutchinson probes, all
+        solved at once as one SRIF pass with a right-hand side per probe)."""
         lp0 = self.linear_problem(x, 0.0, x[0], 0.0, np.zeros(self.free.size))
         H = lp0.H
         present = np.isfinite(self.y)
 
-        def fitted(eps):
+        def fitted(eps):                        # eps (N, C, K) → whitened fitted values (N, C, K)
+            K = eps.shape[2]
             lp = LinearProblem(A=lp0.A, Bw_L=lp0.Bw_L, H=H, y=eps, bias_index=lp0.bias_index, n_bias=lp0.n_bias,
-                               sigma_m=1.0, x1_mean=np.zeros(self.n), x1_sqrt_info=lp0.x1_sqrt_info,
-                               b_mean=np.zeros(lp0.n_bias), b_sqrt_info=lp0.b_sqrt_info)
+                               sigma_m=1.0, x1_mean=np.zeros((self.n, K)), x1_sqrt_info=lp0.x1_sqrt_info,
+                               b_mean=np.zeros((lp0.n_bias, K)), b_sqrt_info=lp0.b_sqrt_info)
             sol = srif_solve(lp, square_root=self._square_root)
-            f = np.einsum("nci,ni->nc", H, sol.x)
+            f = np.einsum("nci,nik->nck", H, sol.x)
             if sol.b.size:
-                f = f + np.where(self.bias_index >= 0, sol.b[np.maximum(self.bias_index, 0)], 0.0)
+                f = f + np.where((self.bias_index >= 0)[..., None], sol.b[np.maximum(self.bias_index, 0)], 0.0)
             return f
 
-        return leverage_per_channel(fitted, present)
+        return leverage_per_channel(fitted, present, batched=True)
 
     def initial_biases(self, x: np.ndarray) -> np.ndarray:
         """Bias guess per free parameter: mean residual of its segment along trajectory x."""
