@@ -88,6 +88,9 @@ class WindowData:
     tx: np.ndarray
     segment: np.ndarray         # (N, C) bias parameter index, -1 where absent
     segments: list              # per parameter: dict(antenna, transmitter, start_s, end_s, channel)
+    # the last linearization of the phase model on this window (x, h, H), shared by every problem
+    # built on it: the noise estimate and the fixed solution re-linearize where the float one ended
+    model_cache: dict = field(default_factory=dict, repr=False, compare=False)
 
 
 def _say(opt: InitOptions, msg: str) -> None:
@@ -266,6 +269,15 @@ class _Problem:
         return h, H
 
     def _predict(self, x: np.ndarray, jacobian: bool = False):
+        c = self.wd.model_cache
+        if "x" in c and c["x"].shape == x.shape and np.array_equal(c["x"], x):
+            return (c["h"], c["H"]) if jacobian else c["h"]
+        out = self._evaluate(x, jacobian)
+        if jacobian:
+            c.update(x=x.copy(), h=out[0], H=out[1])
+        return out
+
+    def _evaluate(self, x: np.ndarray, jacobian: bool):
         N = len(x)
         if N <= _MODEL_CHUNK:
             return phase_model(self.cfg, x, self.wd.ant, self.wd.tx, jacobian=jacobian)
