@@ -286,11 +286,11 @@ def ingest(ctx, receiver_csv, gyro_csv, actuator_csv, config, rinex, ubx, nav, m
     if config is None:
         raise click.UsageError("Missing option '--config'.")
     from cdgps_cli.config.structure import load_config
-    from cdgps_cli.io.run import write_run
+    from cdgps_cli.pipeline.ingest import ingest_structure
 
     cfg = load_config(config)
     _say(ctx, f"ingesting {receiver_csv}" + (f" + {gyro_csv}" if gyro_csv else "") + f" with {cfg.name} …")
-    s = write_run(cfg, receiver_csv, output, gyro_csv, actuator_csv)
+    s = ingest_structure(cfg, receiver_csv, output, gyro_csv, actuator_csv)
     _say(ctx, f"wrote {output}: {s['phase_messages']} epochs ({s['start_s']:g}–{s['end_s']:g} s), "
               f"{s['channels']} channels, {len(s['gaps'])} gaps, {s['lock_restarts']} lock restarts")
     if gyro_csv and s["gyro_rows"] == 0:

@@ -59,16 +59,18 @@ class LinearProblem:
         B_w W^{1/2}: process noise enters as B_w W^{1/2} ω_k with ω_k ~ N(0, I); r may be 0.
     H : ndarray (N, C, n)
         Measurement Jacobians per epoch and channel.
-    y : ndarray (N, C)
-        Pseudo-measurements ỹ (metres); NaN where a channel is absent.
+    y : ndarray (N, C) or (N, C, K)
+        Pseudo-measurements ỹ (metres); NaN where a channel is absent.  With a third axis, K
+        right-hand sides solved at once (the same rows absent in each): the solution's x, w, b
+        gain the same trailing axis, its cost is NaN (see :func:`srif_solve`).
     bias_index : ndarray (N, C) int
         Bias parameter of each (epoch, channel), −1 where the bias is known (already in ỹ).
     n_bias : int
     sigma_m : float
         Measurement noise (R = σ² I).
-    x1_mean, x1_sqrt_info : (n,), (n, n)
+    x1_mean, x1_sqrt_info : (n,) or (n, K), (n, n)
         Prior on x₁ (square-root information; zeros = no prior).
-    b_mean, b_sqrt_info : (m,), (m, m)
+    b_mean, b_sqrt_info : (m,) or (m, K), (m, m)
         Prior on the biases.
     E : ndarray (N, C, m), optional
         A general bias incidence per row, for rows already whitened by a full noise covariance
@@ -92,10 +94,10 @@ class LinearProblem:
 
 @dataclass
 class LinearSolution:
-    x: np.ndarray            # (N, n) trajectory
-    w: np.ndarray            # (N-1, r) whitened process noise ω_k (w_k = W^{1/2} ω_k)
-    b: np.ndarray            # (m,)
-    cost: float              # minimum of the linearized cost
+    x: np.ndarray            # (N, n) trajectory ((N, n, K) for K right-hand sides)
+    w: np.ndarray            # (N-1, r) whitened process noise ω_k (w_k = W^{1/2} ω_k) ((N-1, r, K))
+    b: np.ndarray            # (m,) ((m, K))
+    cost: float              # minimum of the linearized cost (NaN for K right-hand sides)
     R_end: np.ndarray        # (n+m, n+m) square-root information of z_N = [x_N; b]
     P_end: np.ndarray | None  # covariance of z_N, None if not observable
     rank_deficient: bool
@@ -113,7 +115,7 @@ def _qr_inplace(M: np.ndarray) -> np.ndarray:
 
 
 class _BiasRows:
-    """Accumulates rows [b | y] that involve only the biases (width m+1).
+    """Accumulates rows [b | y] that involve only the biases (width m+k, k right-hand sides).
 
     ``square_root``: the rows are kept as a triangular factor, compressed by a QR about every
     thousand rows (numerically stable).  Otherwise only their Gram matrix Σ rowsᵀrows is kept (cheaper; its
@@ -121,10 +123,10 @@ class _BiasRows:
     uses it when the result is well conditioned and redoes the solve in square-root form otherwise.
     """
 
-    def __init__(self, m: int, square_root: bool):
-        self.m = m
+    def __init__(self, m: int, square_root: bool, k: int = 1):
+        self.m, self.k = m, k
         self.square_root = square_root
-        self.gram = None if square_root else np.zeros((m + 1, m + 1))
+        self.gram = None if square_root else np.zeros((m + k, m + k))
         self.blocks: list = []
         self.rows = 0
 
@@ -136,7 +138,7 @@ class _BiasRows:
             return
         for i in range(0, rows.shape[0], 1024):           # QRs of at most ~1000 rows (see _gram)
             piece = rows[i:i + 1024]
-            if self.rows + piece.shape[0] > 1024 + self.m + 1:
+            if self.rows + piece.shape[0] > 1024 + self.m + self.k:
                 self._compress()
             self.blocks.append(piece)
             self.rows += piece.shape[0]
@@ -145,26 +147,30 @@ class _BiasRows:
         self.gram += gram
 
     def _compress(self) -> None:
-        if len(self.blocks) > 1 or self.rows > self.m + 1:
+        if len(self.blocks) > 1 or self.rows > self.m + self.k:
             T = _qr_r(np.asfortranarray(np.vstack(self.blocks)))
             self.blocks = [T]
             self.rows = T.shape[0]
 
     def sqrt(self) -> np.ndarray | None:
-        """Rows S with SᵀS = the accumulated information; None if the Gram's bias block is singular."""
-        m = self.m
+        """Rows S with SᵀS = the accumulated information; None if the Gram's bias block is singular.
+
+        With several right-hand sides (k > 1) the data block of S (which only carries the costs) is
+        left zero: the solution does not depend on it."""
+        m, k = self.m, self.k
         if self.square_root:
             self._compress()
-            return self.blocks[0] if self.blocks else np.zeros((0, m + 1))
+            return self.blocks[0] if self.blocks else np.zeros((0, m + k))
         G = self.gram
-        S = np.zeros((m + 1, m + 1))
+        S = np.zeros((m + k, m + k))
         if m:
             U, info = dpotrf(G[:m, :m], lower=0, clean=1)
             if info != 0:
                 return None
             S[:m, :m] = U
-            S[:m, m] = solve_triangular(U, G[:m, m], trans="T")
-        S[m, m] = math.sqrt(max(G[m, m] - float(S[:m, m] @ S[:m, m]), 0.0))
+            S[:m, m:] = solve_triangular(U, G[:m, m:], trans="T")
+        if k == 1:
+            S[m, m] = math.sqrt(max(G[m, m] - float(S[:m, m] @ S[:m, m]), 0.0))
         return S
 
 
@@ -191,34 +197,55 @@ def _measurement_rows(prob: LinearProblem, r: int, pool: _BiasRows) -> np.ndarra
     square-root form, or as their Gram matrix Σ [E|y]ᵀ[E|y] − Σ (Q₁ᵀ[E|y])ᵀ(Q₁ᵀ[E|y]), whose first
     term is diagonal (plus the y column) because each row touches one bias.
 
-    Returns (N, q, r+n+m+1): the filter's rows in its column layout [ω | x | b | y] (zero in ω).
+    Returns (N, q, r+n+m+K): the filter's rows in its column layout [ω | x | b | y] (zero in ω), K
+    right-hand sides.
     """
     if prob.E is not None:
         return _measurement_rows_full(prob, r, pool)
     N, C, n = prob.H.shape
     m = prob.n_bias
     s = 1.0 / prob.sigma_m
-    present = ~np.isnan(prob.y)
+    Y = _rhs(prob.y)
+    present = ~np.isnan(Y[:, :, 0])
     all_present = bool(present.all())
-    ys = (prob.y if all_present else np.where(present, prob.y, 0.0)) * s
+    ys = (Y if all_present else np.where(present[..., None], Y, 0.0)) * s          # (N, C, K)
     bi = prob.bias_index if all_present else np.where(present, prob.bias_index, -1)
     J = np.flatnonzero(prob.H.reshape(-1, n).any(axis=0))
     w = r + n
     reduce = 0 < J.size < C
     q = J.size if reduce else C
-    meas = np.zeros((N, q, w + m + 1))
+    meas = np.zeros((N, q, w + m + ys.shape[2]))
     if not reduce:
         meas[:, :, r:w] = prob.H if all_present else np.where(present[..., None], prob.H, 0.0)
         meas[:, :, r:w] *= s
-        meas[:, :, -1] = ys
+        meas[:, :, w + m:] = ys
         for c in range(C):
             ks = np.flatnonzero(bi[:, c] >= 0)
             if ks.size:
                 meas[ks, c, w + bi[ks, c]] += s
         return meas
+    _reduced_rows(prob, ys, bi, J, r, pool, meas)
+    return meas
+
+
+def _rhs(y: np.ndarray) -> np.ndarray:
+    """The right-hand sides as (N, C, K) (a view)."""
+    return y if y.ndim == 3 else y[:, :, None]
+
+
+def _reduced_rows(prob: LinearProblem, ys: np.ndarray, bi: np.ndarray, J: np.ndarray, r: int, pool: "_BiasRows",
+                  meas: np.ndarray) -> None:
+    """:func:`_measurement_rows` when H_k spans |J| < C columns: the filter's rows into ``meas``
+    (N, |J|, r+n+m+K), the bias-only rows to ``pool``.  ``ys`` (N, C, K) whitened data (0 where absent),
+    ``bi`` (N, C) bias index (−1 where absent or known)."""
+    N, C, n = prob.H.shape
+    m, K, q = prob.n_bias, ys.shape[2], J.size
+    s = 1.0 / prob.sigma_m
+    w = r + n
     HJ = prob.H[:, :, J]
-    if not all_present:
-        HJ[~present] = 0.0
+    absent = ~np.isfinite(_rhs(prob.y)[:, :, 0])
+    if absent.any():
+        HJ[absent] = 0.0
     xcols = slice(r + J[0], r + J[-1] + 1) if J[-1] - J[0] + 1 == J.size else r + J
     # the usual case: every epoch has the same channels, each with its own bias → Qᵀ E is a
     # permutation of Qᵀ's columns (no products needed), often the identity
@@ -238,7 +265,10 @@ def _measurement_rows(prob: LinearProblem, r: int, pool: _BiasRows) -> np.ndarra
                 ks = np.flatnonzero(bi[k0:k0 + len(Q), c] >= 0)
                 if ks.size:
                     out[ks, :, bi[k0 + ks, c]] += s * Q[ks, c, :]
-        np.einsum("kcj,kc->kj", Q, ys[k0:k0 + len(Q)], out=out[:, :, m])
+        if K == 1:
+            np.einsum("kcj,kc->kj", Q, ys[k0:k0 + len(Q), :, 0], out=out[:, :, m])
+        else:
+            np.einsum("kcj,kcl->kjl", Q, ys[k0:k0 + len(Q)], out=out[:, :, m:])
 
     step = 1024
     for k0 in range(0, N, step):
@@ -247,9 +277,9 @@ def _measurement_rows(prob: LinearProblem, r: int, pool: _BiasRows) -> np.ndarra
             Q, R1 = np.linalg.qr(HJ[k0:k1], mode="complete")
             meas[k0:k1, :, xcols] = R1[:, :q] * s
             rows_of(Q[:, :, :q], k0, meas[k0:k1, :, w:])
-            other = np.zeros((k1 - k0, C - q, m + 1))
+            other = np.zeros((k1 - k0, C - q, m + K))
             rows_of(Q[:, :, q:], k0, other)
-            pool.add(other.reshape(-1, m + 1))
+            pool.add(other.reshape(-1, m + K))
         else:
             Q1, R1 = np.linalg.qr(HJ[k0:k1])
             R1 *= s
@@ -258,14 +288,17 @@ def _measurement_rows(prob: LinearProblem, r: int, pool: _BiasRows) -> np.ndarra
     if not pool.square_root:
         # Σ [E|y]ᵀ[E|y]: diagonal counts, per-bias sums of y, Σ y²; minus the part kept for the filter
         ok = bi >= 0
-        gram = np.zeros((m + 1, m + 1))
+        gram = np.zeros((m + K, m + K))
         idx = np.arange(m)
         gram[idx, idx] = s * s * np.bincount(bi[ok], minlength=m)
-        gram[idx, m] = gram[m, idx] = s * np.bincount(bi[ok], weights=ys[ok], minlength=m)
-        gram[m, m] = float(np.einsum("kc,kc->", ys, ys))
-        gram -= _gram(meas[:, :, w:].reshape(N * q, m + 1))
+        for j in range(K):
+            gram[idx, m + j] = gram[m + j, idx] = s * np.bincount(bi[ok], weights=ys[:, :, j][ok], minlength=m)
+        if K == 1:
+            gram[m, m] = float(np.einsum("kc,kc->", ys[:, :, 0], ys[:, :, 0]))
+        else:
+            gram[m:, m:] = np.einsum("kcl,kcj->lj", ys, ys)
+        gram -= _gram(meas[:, :, w:].reshape(N * q, m + K))
         pool.add_gram(gram)
-    return meas
 
 
 def _measurement_rows_full(prob: LinearProblem, r: int, pool: _BiasRows) -> np.ndarray:
@@ -277,23 +310,24 @@ def _measurement_rows_full(prob: LinearProblem, r: int, pool: _BiasRows) -> np.n
     N, C, n = prob.H.shape
     m = prob.n_bias
     s = 1.0 / prob.sigma_m
-    present = np.isfinite(prob.y)
+    Y = _rhs(prob.y)
+    present = np.isfinite(Y[:, :, 0])
     Hs = np.where(present[..., None], prob.H, 0.0) * s
-    EY = np.concatenate([np.where(present[..., None], prob.E, 0.0), np.where(present, prob.y, 0.0)[..., None]], axis=2) * s
+    EY = np.concatenate([np.where(present[..., None], prob.E, 0.0), np.where(present[..., None], Y, 0.0)], axis=2) * s
     J = np.flatnonzero(Hs.reshape(-1, n).any(axis=0))
     w = r + n
     if not 0 < J.size < C:
-        meas = np.zeros((N, C, w + m + 1))
+        meas = np.zeros((N, C, w + m + Y.shape[2]))
         meas[:, :, r:w] = Hs
         meas[:, :, w:] = EY
         return meas
     q = J.size
     Q, R1 = np.linalg.qr(Hs[:, :, J], mode="complete")
     QtEY = np.matmul(Q.transpose(0, 2, 1), EY)
-    meas = np.zeros((N, q, w + m + 1))
+    meas = np.zeros((N, q, w + m + Y.shape[2]))
     meas[:, :, r + J] = R1[:, :q]
     meas[:, :, w:] = QtEY[:, :q]
-    pool.add(np.ascontiguousarray(QtEY[:, q:]).reshape(-1, m + 1))
+    pool.add(np.ascontiguousarray(QtEY[:, q:]).reshape(-1, m + Y.shape[2]))
     return meas
 
 
@@ -346,24 +380,49 @@ def _constant_jacobian(H: np.ndarray) -> bool:
 
 
 def _srif(prob: LinearProblem, square_root: bool) -> LinearSolution | None:
-    A, G = prob.A, prob.Bw_L
-    N, C, n = prob.H.shape
-    m = prob.n_bias
-    r = G.shape[1]
+    """One SRIF pass and smoother (:func:`srif_solve`); None if the Gram form's bias block is singular."""
+    n, m, r = prob.A.shape[0], prob.n_bias, prob.Bw_L.shape[1]
+    K = 1 if prob.y.ndim == 2 else prob.y.shape[2]
+    Ainv = np.linalg.inv(prob.A)
+    AG = np.asfortranarray(np.hstack([-(Ainv @ prob.Bw_L), Ainv]))  # x_{k−1} = AG @ [ω_{k−1}; x_k]
+    pool = _BiasRows(m, square_root, K)
+    M, smooth = _forward(prob, AG, pool)
+    S = pool.sqrt()
+    if S is None:
+        return None
+    R, d, cost = _final_factor(M[r:r + n], n, m, K, S)
+    diag = np.abs(np.diag(R))
+    scale = max(diag.max(initial=0.0), 1e-300)
+    rank_deficient = bool(diag.min(initial=1.0) <= 1e-10 * scale)
     p = n + m
-    w = r + n
-    ncol = w + m + 1
-    Ainv = np.linalg.inv(A)
-    AG = np.asfortranarray(np.hstack([-(Ainv @ G), Ainv]))  # x_{k−1} = AG @ [ω_{k−1}; x_k]
-    pool = _BiasRows(m, square_root)
+    if rank_deficient:
+        z = np.linalg.lstsq(R, d, rcond=1e-12)[0]
+        P = None
+    else:
+        z = solve_triangular(R, d)
+        Rinv = solve_triangular(R, np.eye(p))
+        P = Rinv @ Rinv.T
+    xs, ws = _smooth(smooth, AG, Ainv, z, n, m, r)
+    return LinearSolution(xs, ws, z[n:], float(cost), R, P, rank_deficient)
+
+
+def _forward(prob: LinearProblem, AG: np.ndarray, pool: "_BiasRows") -> tuple[np.ndarray, np.ndarray]:
+    """The filter pass of :func:`srif_solve`: the work array M (w+q, r+n+m+K) after the last epoch
+    (rows [r, r+n): [R_x | R_xb | d] at epoch N) and the smoother's ω rows (N−1, r, r+n+m+K); the
+    bias-only rows go to ``pool``."""
+    N, C, n = prob.H.shape
+    m, r = prob.n_bias, prob.Bw_L.shape[1]
+    K = pool.k
+    p, w = n + m, r + n
+    ncol = w + m + K
     meas = _measurement_rows(prob, r, pool)
     q = meas.shape[1]
     # prior on b: bias-only rows
-    pool.add(np.hstack([prob.b_sqrt_info, (prob.b_sqrt_info @ prob.b_mean)[:, None]]))
+    pool.add(np.hstack([prob.b_sqrt_info, (prob.b_sqrt_info @ prob.b_mean).reshape(m, K)]))
     # epoch 0: prior on x₁ and the first measurements, columns [x | b | y]
-    M0 = np.zeros((n + q, p + 1), order="F")
+    M0 = np.zeros((n + q, p + K), order="F")
     M0[:n, :n] = prob.x1_sqrt_info
-    M0[:n, p] = prob.x1_sqrt_info @ prob.x1_mean
+    M0[:n, p:] = (prob.x1_sqrt_info @ prob.x1_mean).reshape(n, K)
     M0[n:, :] = meas[0, :, r:]
     T0 = _qr_r(M0)
     pool.add(T0[n:, n:])
@@ -374,7 +433,7 @@ def _srif(prob: LinearProblem, square_root: bool) -> LinearSolution | None:
     top = np.zeros((r, ncol))
     top[:, :r] = np.eye(r)
     smooth = np.empty((max(N - 1, 0), r, ncol))             # ω rows for the smoother
-    left = np.empty((max(N - 1, 0), q, m + 1))              # bias-only rows left by each update
+    left = np.empty((max(N - 1, 0), q, m + K))              # bias-only rows left by each update
     for k in range(1, N):
         M[r:w, :w] = dtrmm(1.0, M[r:w, r:w], AG)            # R_x A⁻¹[−G | I]; R_xb and d stay in place
         M[:r] = top
@@ -383,52 +442,56 @@ def _srif(prob: LinearProblem, square_root: bool) -> LinearSolution | None:
         smooth[k - 1] = M[:r]
         left[k - 1] = M[w:, w:]
     if N > 1 and q:
-        left *= np.triu(np.ones((q, m + 1)))                # reflectors below the diagonal
-        pool.add(left.reshape(-1, m + 1))
-    S = pool.sqrt()
-    if S is None:
-        return None
-    # the state rows at epoch N over the pooled bias rows → R_end, d_end and the residual
-    F = np.zeros((n + S.shape[0], p + 1), order="F")
-    F[:n, :n] = np.triu(M[r:w, r:w])
-    F[:n, n:] = M[r:w, w:]
+        left *= np.triu(np.ones((q, m + K)))                # reflectors below the diagonal
+        pool.add(left.reshape(-1, m + K))
+    return M, smooth
+
+
+def _final_factor(Mx: np.ndarray, n: int, m: int, K: int, S: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """R_end (p, p), d_end (p,) or (p, K) and the cost (NaN for K > 1): the state rows ``Mx``
+    [·| R_x | R_xb | d] at epoch N over the pooled bias rows S."""
+    p = n + m
+    w = Mx.shape[1] - m - K
+    F = np.zeros((n + S.shape[0], p + K), order="F")
+    F[:n, :n] = np.triu(Mx[:, w - n:w])
+    F[:n, n:] = Mx[:, w:]
     F[n:, n:] = S
     T = _qr_r(F)
     R = np.zeros((p, p))
-    d = np.zeros(p)
+    d = np.zeros((p, K))
     kk = min(T.shape[0], p)
     R[:kk] = T[:kk, :p]
-    d[:kk] = T[:kk, p]
+    d[:kk] = T[:kk, p:]
+    if K > 1:
+        return R, d, math.nan
     cost = float(T[p, p] ** 2) if T.shape[0] > p else 0.0
-    # final estimate
-    diag = np.abs(np.diag(R))
-    scale = max(diag.max(initial=0.0), 1e-300)
-    rank_deficient = bool(diag.min(initial=1.0) <= 1e-10 * scale)
-    if rank_deficient:
-        z = np.linalg.lstsq(R, d, rcond=1e-12)[0]
-        P = None
-    else:
-        z = solve_triangular(R, d)
-        Rinv = solve_triangular(R, np.eye(p))
-        P = Rinv @ Rinv.T
-    # smoother: ω_{k−1} = R_w⁻¹ (d_w − R_wx x_k − R_wb b), x_{k−1} = A⁻¹(x_k − G ω_{k−1})
-    xs = np.empty((N, n))
-    ws = np.zeros((max(N - 1, 0), r))
+    return R, d[:, 0], cost
+
+
+def _smooth(smooth: np.ndarray, AG: np.ndarray, Ainv: np.ndarray, z: np.ndarray, n: int, m: int, r: int):
+    """Dyer–McReynolds smoother: ω_{k−1} = R_w⁻¹ (d_w − R_wx x_k − R_wb b), x_{k−1} = A⁻¹(x_k − G ω_{k−1}),
+    from z = [x_N; b] ((p,) or (p, K)).  Returns x (N, n[, K]) and ω (N−1, r[, K])."""
+    N = smooth.shape[0] + 1
+    w = r + n
+    tail = z.shape[1:]
+    xs = np.empty((N, n) + tail)
+    ws = np.zeros((max(N - 1, 0), r) + tail)
     xs[-1] = z[:n]
     b = z[n:]
     if N > 1 and r:
         Rw_inv = np.linalg.inv(np.triu(smooth[:, :, :r]))   # well conditioned: unit prior on ω
-        K = Rw_inv @ smooth[:, :, r:w]                       # (N−1, r, n)
-        c = np.einsum("kij,kj->ki", Rw_inv, smooth[:, :, -1] - np.einsum("kij,j->ki", smooth[:, :, w:w + m], b))
-        Fk = AG[:, r:] - AG[:, :r] @ K                       # x_{k−1} = F x_k + g
-        gk = np.einsum("ij,kj->ki", AG[:, :r], c)
+        Kg = Rw_inv @ smooth[:, :, r:w]                      # (N−1, r, n)
+        dy = smooth[:, :, w + m:] if tail else smooth[:, :, -1]
+        c = np.einsum("kij,kj...->ki...", Rw_inv, dy - np.einsum("kij,j...->ki...", smooth[:, :, w:w + m], b))
+        Fk = AG[:, r:] - AG[:, :r] @ Kg                      # x_{k−1} = F x_k + g
+        gk = np.einsum("ij,kj...->ki...", AG[:, :r], c)
         for k in range(N - 2, -1, -1):
             xs[k] = Fk[k] @ xs[k + 1] + gk[k]
-        ws[:] = c - np.einsum("kij,kj->ki", K, xs[1:])
+        ws[:] = c - np.einsum("kij,kj...->ki...", Kg, xs[1:])
     elif N > 1:
         for k in range(N - 2, -1, -1):
             xs[k] = Ainv @ xs[k + 1]
-    return LinearSolution(xs, ws, b, float(cost), R, P, rank_deficient)
+    return xs, ws
 
 
 def dense_solve(prob: LinearProblem) -> LinearSolution:

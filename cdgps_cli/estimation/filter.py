@@ -51,6 +51,7 @@ from cdgps_cli.config.limits import INIT_BOUNDS, OPTION_BOUNDS
 from cdgps_cli.core.checks import has_bool, is_json_number, require_finite
 from cdgps_cli.measurement.model import PseudoliteSD, Rows
 from cdgps_cli.measurement.phase import channel_indices, phase_model
+from cdgps_cli.measurement.channels import lock_segments
 from cdgps_cli.measurement import multipath
 from cdgps_cli.measurement.noise import filter_sigma_estimate, init_channel_sigma_m
 from cdgps_cli.core.records import Run
@@ -1138,22 +1139,12 @@ def _q_segments(at_rest: np.ndarray, Q: np.ndarray, Q_rest: np.ndarray) -> list[
 
 
 def lock_events(Y: np.ndarray, LOCK: np.ndarray) -> np.ndarray:
-    """Per (epoch, channel): 1 = first sighting, 2 = lock restart (slip), 3 = re-acquisition after a
-    gap with a lock counter that does not continue; 0 otherwise.  Y, LOCK: (N, C), NaN / −1 = absent."""
-    N, C = Y.shape
-    ev = np.zeros((N, C), dtype=np.int8)
-    for c in range(C):
-        k = np.flatnonzero(~np.isnan(Y[:, c]))
-        if k.size == 0:
-            continue
-        ev[k[0], c] = 1
-        lk = LOCK[k, c]
-        dk = np.diff(k)
-        restart = (lk[1:] == 0) | (lk[1:] < lk[:-1])
-        gap = dk > 1
-        reacq = gap & (lk[1:] != lk[:-1] + dk) & ~restart
-        ev[k[1:][restart], c] = np.where(gap[restart], 3, 2)
-        ev[k[1:][reacq], c] = 3
+    """Per (epoch, channel) the cause of a new lock segment (:func:`cdgps_cli.measurement.channels.lock_segments`):
+    1 = first sighting, 2 = lock restart (slip), 3 = re-acquisition after a gap with a lock counter
+    that does not continue; 0 otherwise.  Y, LOCK: (N, C), NaN / −1 = absent."""
+    cc, kk = np.nonzero(~np.isnan(Y.T))
+    ev = np.zeros(Y.shape, dtype=np.int8)
+    ev[kk, cc] = lock_segments(cc, kk, lock=LOCK[kk, cc]).cause
     return ev
 
 

@@ -36,6 +36,7 @@ from cdgps_cli.config.options import INIT_MAX_ITERATIONS, INIT_STARTS, RATIO_THR
 from cdgps_cli.config.structure import StructureConfig, channel_sigma_m, scalar_sigma_m
 from cdgps_cli.model.dynamics import discrete_model
 from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.measurement.channels import lock_segments
 from cdgps_cli.measurement.phase import channel_indices, phase_model
 from cdgps_cli.core import progress
 from cdgps_cli.estimation.ambiguity import resolve
@@ -87,6 +88,9 @@ class WindowData:
     tx: np.ndarray
     segment: np.ndarray         # (N, C) bias parameter index, -1 where absent
     segments: list              # per parameter: dict(antenna, transmitter, start_s, end_s, channel)
+    # the last linearization of the phase model on this window (x, h, H), shared by every problem
+    # built on it: the noise estimate and the fixed solution re-linearize where the float one ended
+    model_cache: dict = field(default_factory=dict, repr=False, compare=False)
 
 
 def _say(opt: InitOptions, msg: str) -> None:
@@ -143,27 +147,18 @@ def window_snr_dbhz(run: Run, wd: WindowData) -> np.ndarray:
 
 
 def window_data(run: Run, t0: float, t1: float) -> WindowData:
+    """The window [t0, t1] of a run: phase matrix, channels and one bias parameter per lock segment
+    (:func:`cdgps_cli.measurement.channels.lock_segments` on the lock counts; a segment is cut at
+    the window's edges).  Segments are numbered by channel, then time."""
     grid, y, lock, chans = phase_matrix(run, t0, t1)
     n, C = y.shape
+    cc, kk = np.nonzero(~np.isnan(y.T))          # channel-major: the rule's (channel, step) order
+    ls = lock_segments(cc, kk, lock=lock[kk, cc])
     seg = np.full((n, C), -1, dtype=np.int64)
-    segments = []
-    for c in range(C):
-        # a new lock segment starts at the first sample, at a re-lock (lock count 0 or decreasing),
-        # and after a gap unless the lock count advanced by exactly the gap
-        ks = np.flatnonzero(~np.isnan(y[:, c]))
-        if ks.size == 0:
-            continue
-        L = lock[ks, c]
-        dk = np.diff(ks)
-        new = np.ones(ks.size, dtype=bool)
-        new[1:] = (L[1:] == 0) | (L[1:] < L[:-1]) | ((dk > 1) & (L[1:] != L[:-1] + dk))
-        sid = np.cumsum(new) - 1 + len(segments)
-        seg[ks, c] = sid
-        starts = np.flatnonzero(new)
-        ends = np.append(starts[1:], ks.size) - 1
-        for i0, i1 in zip(starts.tolist(), ends.tolist()):
-            segments.append({"antenna": chans[c][0], "transmitter": chans[c][1], "channel": c,
-                             "start_s": float(grid[ks[i0]]), "end_s": float(grid[ks[i1]])})
+    seg[kk, cc] = ls.segment
+    segments = [{"antenna": chans[c][0], "transmitter": chans[c][1], "channel": c,
+                 "start_s": float(grid[kk[i0]]), "end_s": float(grid[kk[i1]])}
+                for c, i0, i1 in zip(ls.channel.tolist(), ls.first.tolist(), ls.last.tolist())]
     ant, tx = channel_indices(run.cfg, [c[0] for c in chans], [c[1] for c in chans])
     return WindowData(grid, y, chans, ant, tx, seg, segments)
 
@@ -274,6 +269,15 @@ class _Problem:
         return h, H
 
     def _predict(self, x: np.ndarray, jacobian: bool = False):
+        c = self.wd.model_cache
+        if "x" in c and c["x"].shape == x.shape and np.array_equal(c["x"], x):
+            return (c["h"], c["H"]) if jacobian else c["h"]
+        out = self._evaluate(x, jacobian)
+        if jacobian:
+            c.update(x=x.copy(), h=out[0], H=out[1])
+        return out
+
+    def _evaluate(self, x: np.ndarray, jacobian: bool):
         N = len(x)
         if N <= _MODEL_CHUNK:
             return phase_model(self.cfg, x, self.wd.ant, self.wd.tx, jacobian=jacobian)
@@ -347,22 +351,24 @@ class _Problem:
         return LinearSolution(sol.x, sol.w, sol.b * fs, sol.cost, sol.R_end / d[None, :], P, sol.rank_deficient)
 
     def leverage(self, x: np.ndarray) -> np.ndarray:
-        """Σ_k h_kc per channel of the linearization about x (no damping; Hutchinson probes)."""
+        """Σ_k h_kc per channel of the linearization about x (no damping; Hutchinson probes, all
+        solved at once as one SRIF pass with a right-hand side per probe)."""
         lp0 = self.linear_problem(x, 0.0, x[0], 0.0, np.zeros(self.free.size))
         H = lp0.H
         present = np.isfinite(self.y)
 
-        def fitted(eps):
+        def fitted(eps):                        # eps (N, C, K) → whitened fitted values (N, C, K)
+            K = eps.shape[2]
             lp = LinearProblem(A=lp0.A, Bw_L=lp0.Bw_L, H=H, y=eps, bias_index=lp0.bias_index, n_bias=lp0.n_bias,
-                               sigma_m=1.0, x1_mean=np.zeros(self.n), x1_sqrt_info=lp0.x1_sqrt_info,
-                               b_mean=np.zeros(lp0.n_bias), b_sqrt_info=lp0.b_sqrt_info)
+                               sigma_m=1.0, x1_mean=np.zeros((self.n, K)), x1_sqrt_info=lp0.x1_sqrt_info,
+                               b_mean=np.zeros((lp0.n_bias, K)), b_sqrt_info=lp0.b_sqrt_info)
             sol = srif_solve(lp, square_root=self._square_root)
-            f = np.einsum("nci,ni->nc", H, sol.x)
+            f = np.einsum("nci,nik->nck", H, sol.x)
             if sol.b.size:
-                f = f + np.where(self.bias_index >= 0, sol.b[np.maximum(self.bias_index, 0)], 0.0)
+                f = f + np.where((self.bias_index >= 0)[..., None], sol.b[np.maximum(self.bias_index, 0)], 0.0)
             return f
 
-        return leverage_per_channel(fitted, present)
+        return leverage_per_channel(fitted, present, batched=True)
 
     def initial_biases(self, x: np.ndarray) -> np.ndarray:
         """Bias guess per free parameter: mean residual of its segment along trajectory x."""
@@ -560,6 +566,66 @@ def _start_guesses(cfg: StructureConfig, n_starts: int) -> list[tuple[str, np.nd
     return starts
 
 
+@dataclass
+class _Window:
+    """The initialization window of a run and its nonlinear problem at the options' σ."""
+
+    t0: float
+    t1: float
+    how: str
+    wd: WindowData
+    motion_m: float
+    mp: MultipathModel
+    prob: _Problem
+
+
+@dataclass
+class _Race:
+    """Outcome of the multi-start stage (:func:`_multi_start`)."""
+
+    results: list               # [(label, GNResult on the start window)]
+    best_i: int
+    best: GaussNewton
+    outcome: dict               # start index → full-window outcome
+    final_costs: dict           # start index → full-window cost
+    iterations: int
+
+
+@dataclass
+class _Fit:
+    """The float solution with its noise model (:func:`_noise_fit`)."""
+
+    prob: _Problem
+    g: GNResult
+    noise: dict
+    mp: MultipathModel
+    auto_mp: dict | None
+
+
+@dataclass
+class _Fix:
+    """Integer fixing of the float biases (:func:`_fix_integers`), per bias segment."""
+
+    line: np.ndarray            # line bias (m)
+    a_float: np.ndarray         # float ambiguity (cycles)
+    fixed: np.ndarray           # bool
+    integers: np.ndarray        # int64
+    ratio: float | None
+    note: str
+
+
+@dataclass
+class _Final:
+    """The reported solution: fixed when the fix passed validation, else the float one."""
+
+    x: np.ndarray
+    lin: object
+    prob: _Problem
+    cost: float
+    bias_m: np.ndarray
+    iterations: int
+
+
 def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool = False):
     """Estimate channel biases and the filter's initial state from a window of a RUN.
 
@@ -568,15 +634,36 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
     does not make the biases observable or Gauss–Newton does not converge.
     """
     opt = opt or InitOptions()
-    cfg = run.cfg
     t_start = _time.perf_counter()
+    sigma = _checked_sigma(run.cfg, opt)
+    win = _window(run, opt, sigma)
+    race = _multi_start(run, win, opt, sigma)
+    fit = _noise_fit(run, win, race.best.result(), opt, sigma)
+    _check_float(run.cfg, win, fit, opt)
+    fix = _fix_integers(run.cfg, win.wd, fit, opt)
+    final = _fixed_solution(run.cfg, win, fit, fix, opt)
+    out = _init_record(run, win, race, fit, fix, final, opt)
+    out["iterations"] = int(race.iterations + final.iterations)
+    out["elapsed_s"] = _time.perf_counter() - t_start
+    if return_trajectory:
+        return out, {"time_s": win.wd.time_s, "x": final.x[:, :fit.prob.n_dyn]}
+    return out
+
+
+def _checked_sigma(cfg: StructureConfig, opt: InitOptions) -> float:
+    """The options checked; the scalar σ (m) of the start stage (``--sigma-m`` or the config's)."""
     if opt.sigma_m is not None and not (np.isfinite(opt.sigma_m) and opt.sigma_m > 0):
         raise CdgpsError(f"--sigma-m must be a positive number of metres, got {opt.sigma_m!r}")
-    sigma = opt.sigma_m if opt.sigma_m is not None else scalar_sigma_m(channel_sigma_m(cfg, cfg.channels))
     if opt.ratio_threshold <= 1.0:
         raise CdgpsError(f"--ratio must be greater than 1, got {opt.ratio_threshold:g}")
     if opt.starts < 1 or opt.max_iterations < 1:
         raise CdgpsError("--starts and --max-iterations must be at least 1")
+    return opt.sigma_m if opt.sigma_m is not None else scalar_sigma_m(channel_sigma_m(cfg, cfg.channels))
+
+
+def _window(run: Run, opt: InitOptions, sigma: float) -> _Window:
+    """The window (:func:`choose_window`), refused when too short or without enough motion."""
+    cfg = run.cfg
     t0, t1, how = choose_window(run, opt, sigma)
     wd = window_data(run, t0, t1)
     N = len(wd.time_s)
@@ -591,20 +678,23 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
     if mp.active:
         _say(opt, f"  multipath: a Gauss–Markov state per channel (σ {mp.sigma_m * 1000:.2f} mm, "
                   f"τ {mp.time_constant_s:g} s)")
-    prob = _Problem(cfg, wd, sigma, opt.process_noise, mp=mp)
+    return _Window(t0, t1, how, wd, motion, mp, _Problem(cfg, wd, sigma, opt.process_noise, mp=mp))
 
-    # --- cold start: several initial guesses, each tried on the first part of the window
+
+def _multi_start(run: Run, win: _Window, opt: InitOptions, sigma: float) -> _Race:
+    """Cold start: every initial guess a few iterations on the first part of the window; the most
+    promising (lowest short-window cost) continue through the growing windows (:func:`_race`); the
+    lowest full-window cost wins (a short window can prefer a mirror solution ~180° away)."""
+    cfg, wd, N = run.cfg, win.wd, len(win.wd.time_s)
     n_sub = min(N, max(int(round(opt.start_window_s / cfg.sample_period_s)) + 1, 3))
     sub = _Problem(cfg, window_data(run, float(wd.time_s[0]), float(wd.time_s[n_sub - 1])), sigma, opt.process_noise,
-                   mp=mp)
+                   mp=win.mp)
     results = []
     for label, x1 in _start_guesses(cfg, opt.starts):
         xs = sub.propagate(x1)
         g = sub.gauss_newton(xs, sub.initial_biases(xs), opt.start_iterations, opt, max_retries=3, information=False)
         results.append((label, g))
         _say(opt, f"  start {label}: cost {g.cost:.4g} after {g.iterations} iterations on the first {n_sub} epochs")
-    # the most promising starts (lowest short-window cost) are continued on the whole window; the
-    # lowest full-window cost wins (a short window can prefer a mirror solution ~180° away)
     order = list(np.argsort([g.cost for _, g in results]))[: max(1, min(opt.finalists, len(results)))]
     # on a long window the finalists first go through intermediate windows, each at most
     # STAGE_GROWTH times longer than the previous one (from a converged shorter solution the
@@ -615,20 +705,9 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
     survivors = [(int(i), results[i][1]) for i in order]
     outcome, final_costs, total_iter = {}, {}, sum(r.iterations for _, r in results)
     for n_stage in stages[1:] or [N]:
-        last = n_stage == N
-        sp = prob if last else _Problem(cfg, window_data(run, float(wd.time_s[0]), float(wd.time_s[n_stage - 1])),
-                                        sigma, opt.process_noise, mp=mp)
-        runs = []
-        for i, g0 in survivors:
-            x_init = np.empty((n_stage, sp.n))
-            x_init[:len(g0.x)] = g0.x
-            for k in range(len(g0.x), n_stage):
-                x_init[k] = sp.A @ x_init[k - 1]
-            w_init = np.zeros((n_stage - 1, sp.G.shape[1]))
-            w_init[:len(g0.w)] = g0.w
-            runs.append((i, GaussNewton(sp, x_init, sp.initial_biases(x_init), opt.max_iterations, opt, w_init=w_init)))
-        stage_outcome = _race(runs, sp, results, opt)
+        runs, stage_outcome = _race_stage(run, win, n_stage, survivors, results, opt, sigma)
         total_iter += sum(gn.it for _, gn in runs)
+        last = n_stage == N
         where = "the whole window" if last else f"the first {n_stage} epochs"
         for i, gn in runs:
             _say(opt, f"  continued {results[i][0]} on {where}: cost {gn.J:.6g} after {gn.it} iterations, "
@@ -638,8 +717,35 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
             elif stage_outcome[i].startswith("abandoned"):
                 outcome[i] = stage_outcome[i].replace("abandoned", f"abandoned on the first {n_stage} epochs", 1)
         survivors = [(i, gn) for i, gn in runs if not stage_outcome[i].startswith("abandoned")]
-    best_i, best_run = min(((i, gn) for i, gn in runs if not outcome[i].startswith("abandoned")), key=lambda t: t[1].J)
-    g = best_run.result()
+    best_i, best = min(((i, gn) for i, gn in runs if not outcome[i].startswith("abandoned")), key=lambda t: t[1].J)
+    return _Race(results, best_i, best, outcome, final_costs, total_iter)
+
+
+def _race_stage(run: Run, win: _Window, n_stage: int, survivors: list, results: list, opt: InitOptions,
+                sigma: float) -> tuple[list, dict]:
+    """The survivors' runs continued on the first ``n_stage`` epochs (their trajectories propagated
+    over the new epochs), raced (:func:`_race`).  Returns ([(start index, GaussNewton)], outcome)."""
+    wd = win.wd
+    sp = win.prob if n_stage == len(wd.time_s) else _Problem(
+        run.cfg, window_data(run, float(wd.time_s[0]), float(wd.time_s[n_stage - 1])), sigma, opt.process_noise,
+        mp=win.mp)
+    runs = []
+    for i, g0 in survivors:
+        x_init = np.empty((n_stage, sp.n))
+        x_init[:len(g0.x)] = g0.x
+        for k in range(len(g0.x), n_stage):
+            x_init[k] = sp.A @ x_init[k - 1]
+        w_init = np.zeros((n_stage - 1, sp.G.shape[1]))
+        w_init[:len(g0.w)] = g0.w
+        runs.append((i, GaussNewton(sp, x_init, sp.initial_biases(x_init), opt.max_iterations, opt, w_init=w_init)))
+    return runs, _race(runs, sp, results, opt)
+
+
+def _noise_fit(run: Run, win: _Window, g: GNResult, opt: InitOptions, sigma: float) -> _Fit:
+    """The winner refitted with the per-channel prior σ (config, SNR weighting), checked for
+    time-correlated residuals (:func:`_auto_multipath`), and its σ per channel estimated
+    (:func:`_estimate_noise`)."""
+    cfg, wd, prob, mp = run.cfg, win.wd, win.prob, win.mp
     snr = window_snr_dbhz(run, wd)
     prior = prior_sigma_m(cfg, wd.channels, opt.sigma_m, snr_dbhz=snr)
     snr_f = snr_sigma_factor(snr) if opt.sigma_m is None else None
@@ -662,33 +768,37 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
                                   "snr_ref_dbhz": float(np.nanmedian(snr)),
                                   "snr_dbhz": {f"{a}/{t}": (float(v) if np.isfinite(v) else None)
                                                for (a, t), v in zip(wd.channels, snr)}}
-    sig_c = prob.sig_c
-    sigma = float(np.sqrt(np.mean(sig_c**2)))
-    lin = g.lin
-    m = len(wd.segments)
-    n = prob.n
-    if lin.P_end is None:
-        raise CdgpsError(_unobservable_msg(t0, t1, motion, sigma, None, cfg.wavelength_m, opt))
-    Pbb = lin.P_end[n:, n:]
-    bias_sigma = np.sqrt(np.diag(Pbb))
-    if bias_sigma.max() > opt.max_bias_sigma_cycles * cfg.wavelength_m:
-        raise CdgpsError(_unobservable_msg(t0, t1, motion, sigma, bias_sigma.max(), cfg.wavelength_m, opt))
-    if not g.converged:
-        raise CdgpsError(f"batch initialization did not converge in {opt.max_iterations} iterations "
-                         f"(window {t0:g}–{t1:g} s, cost {g.cost:.4g}); try another window (--start/--duration) "
-                         f"or more iterations (--max-iterations)")
-    b_float = g.b.copy()
+    return _Fit(prob, g, noise, mp, auto_mp)
 
-    # --- integers
-    lam = cfg.wavelength_m
+
+def _check_float(cfg: StructureConfig, win: _Window, fit: _Fit, opt: InitOptions) -> None:
+    """Refuse a float solution whose biases are not observable (singular, or σ above the limit)
+    or that did not converge."""
+    sigma = float(np.sqrt(np.mean(fit.prob.sig_c**2)))
+    lin, n = fit.g.lin, fit.prob.n
+    if lin.P_end is None:
+        raise CdgpsError(_unobservable_msg(win.t0, win.t1, win.motion_m, sigma, None, cfg.wavelength_m, opt))
+    bias_sigma = np.sqrt(np.diag(lin.P_end[n:, n:]))
+    if bias_sigma.max() > opt.max_bias_sigma_cycles * cfg.wavelength_m:
+        raise CdgpsError(_unobservable_msg(win.t0, win.t1, win.motion_m, sigma, bias_sigma.max(), cfg.wavelength_m, opt))
+    if not fit.g.converged:
+        raise CdgpsError(f"batch initialization did not converge in {opt.max_iterations} iterations "
+                         f"(window {win.t0:g}–{win.t1:g} s, cost {fit.g.cost:.4g}); try another window "
+                         f"(--start/--duration) or more iterations (--max-iterations)")
+
+
+def _fix_integers(cfg: StructureConfig, wd: WindowData, fit: _Fit, opt: InitOptions) -> _Fix:
+    """b = line bias + λ·n: LAMBDA, ratio test and partial fixing (:func:`~cdgps_cli.estimation.ambiguity.resolve`)
+    when the line biases are calibrated."""
+    lam, m, n = cfg.wavelength_m, len(wd.segments), fit.prob.n
     line = np.array([cfg.antenna_line_bias_m[cfg.antenna_names.index(s["antenna"])]
                      - cfg.antenna_line_bias_m[cfg.master_index] for s in wd.segments])
-    a_float = (b_float - line) / lam
+    a_float = (fit.g.b - line) / lam
     fixed = np.zeros(m, dtype=bool)
     integers = np.rint(a_float).astype(np.int64)
-    ratio = None
-    fix_note = "integer fixing off"
+    ratio, note = None, "integer fixing off"
     if opt.fix_integers and cfg.line_bias_calibrated:
+        Pbb = fit.g.lin.P_end[n:, n:]
         Qa = Pbb / lam**2
         Qa = 0.5 * (Qa + Qa.T)
         with progress.bar(m if opt.partial else 1, "integer fixing (LAMBDA)", unit="subset") as bar:
@@ -699,90 +809,87 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
         if pf["n_fixed"] == m:
             fixed[:] = True
             integers = pf["integers"]
-            fix_note = f"all {m} integers fixed (ratio {ratio:.2f} ≥ {opt.ratio_threshold:g})"
+            note = f"all {m} integers fixed (ratio {ratio:.2f} ≥ {opt.ratio_threshold:g})"
         elif pf["n_fixed"]:
             fixed = np.asarray(pf["fixed_mask"], dtype=bool)
             integers = np.where(fixed, pf["integers"], integers)
-            fix_note = (f"{int(fixed.sum())} of {m} integers fixed by partial fixing (full set: "
-                        f"{'ratio ' + format(ratio, '.2f') if ratio is not None else full_txt})")
+            note = (f"{int(fixed.sum())} of {m} integers fixed by partial fixing (full set: "
+                    f"{'ratio ' + format(ratio, '.2f') if ratio is not None else full_txt})")
         else:
-            fix_note = f"integers not fixed: {full_txt}"
+            note = f"integers not fixed: {full_txt}"
     elif not cfg.line_bias_calibrated:
-        fix_note = "line biases not calibrated: float biases only"
-    _say(opt, f"  {fix_note}")
+        note = "line biases not calibrated: float biases only"
+    _say(opt, f"  {note}")
+    return _Fix(line, a_float, fixed, integers, ratio, note)
 
-    final_b = b_float.copy()
-    if fixed.any():
-        known = np.full(m, np.nan)
-        known[fixed] = line[fixed] + lam * integers[fixed]
-        prob_f = _Problem(cfg, wd, sig_c, opt.process_noise, known_bias=known, mp=mp)
-        gf = prob_f.gauss_newton(g.x, g.b[~fixed], opt.max_iterations, opt, w_init=g.w)
-        total_iter += gf.iterations
-        final_b = prob_f.full_bias(gf.b)
-        x_traj, lin_final, prob_final, J_final = gf.x, gf.lin, prob_f, gf.cost
-        # validation: with the right integers the cost rises by about a chi-square(n_fixed) amount
-        # (scaled by the float solution's cost per degree of freedom)
-        n_obs = int(np.isfinite(prob.y).sum())
-        dof_f = max(n_obs - prob.n_dyn - m, 1)     # (the multipath states have their own prior)
-        scale = max(g.cost / dof_f, 1e-12)
-        dJ = (J_final - g.cost) / scale
-        limit = opt.fix_validation_margin * float(chi2_quantile(opt.fix_validation_probability, int(fixed.sum())))
-        if dJ > limit:
-            _say(opt, f"  integer fix rejected by validation: cost increase {dJ:.1f} > {limit:.1f} "
-                      f"(chi-square {opt.fix_validation_probability:g}, {int(fixed.sum())} dof, margin {opt.fix_validation_margin:g})")
-            fix_note = (f"integer fix rejected by validation (cost increase {dJ:.1f} > {limit:.1f}); "
-                        f"float biases kept")
-            fixed[:] = False
-            integers = np.rint(a_float).astype(np.int64)
-            final_b = b_float.copy()
-            x_traj, lin_final, prob_final, J_final = g.x, lin, prob, g.cost
-    else:
-        x_traj, lin_final, prob_final, J_final = g.x, lin, prob, g.cost
 
-    # --- outputs
-    resid = prob_final.residual(x_traj, final_b[prob_final.free] if prob_final.free.size else np.zeros(0))
+def _fixed_solution(cfg: StructureConfig, win: _Window, fit: _Fit, fix: _Fix, opt: InitOptions) -> _Final:
+    """The states re-solved with the fixed integers, kept when the cost increase passes the fix
+    validation (:func:`fix_validation`); otherwise (or with nothing fixed) the float solution."""
+    g, prob, m = fit.g, fit.prob, len(win.wd.segments)
+    float_final = _Final(g.x, g.lin, prob, g.cost, g.b.copy(), 0)
+    if not fix.fixed.any():
+        return float_final
+    known = np.full(m, np.nan)
+    known[fix.fixed] = fix.line[fix.fixed] + cfg.wavelength_m * fix.integers[fix.fixed]
+    prob_f = _Problem(cfg, win.wd, prob.sig_c, opt.process_noise, known_bias=known, mp=fit.mp)
+    gf = prob_f.gauss_newton(g.x, g.b[~fix.fixed], opt.max_iterations, opt, w_init=g.w)
+    n_obs = int(np.isfinite(prob.y).sum())
+    dof_f = max(n_obs - prob.n_dyn - m, 1)     # (the multipath states have their own prior)
+    n_fixed = int(fix.fixed.sum())
+    dJ, limit = fix_validation(g.cost, gf.cost, dof_f, n_fixed, opt)
+    if dJ > limit:
+        _say(opt, f"  integer fix rejected by validation: cost increase {dJ:.1f} > {limit:.1f} "
+                  f"(chi-square {opt.fix_validation_probability:g}, {n_fixed} dof, margin {opt.fix_validation_margin:g})")
+        fix.note = f"integer fix rejected by validation (cost increase {dJ:.1f} > {limit:.1f}); float biases kept"
+        fix.fixed[:] = False
+        fix.integers = np.rint(fix.a_float).astype(np.int64)
+        float_final.iterations = gf.iterations
+        return float_final
+    return _Final(gf.x, gf.lin, prob_f, gf.cost, prob_f.full_bias(gf.b), gf.iterations)
+
+
+def _bias_records(wd: WindowData, fit: _Fit, fix: _Fix, final: _Final) -> list:
+    """INIT.json's ``biases``: one entry per lock segment (``current``: the channel's last segment)."""
+    m, n = len(wd.segments), fit.prob.n
+    P = final.lin.P_end
+    free_sigma = np.full(m, 0.0)
+    if P is not None and final.prob.free.size:
+        free_sigma[final.prob.free] = np.sqrt(np.diag(P[n:, n:]))
+    bias_sigma = np.sqrt(np.diag(fit.g.lin.P_end[n:, n:]))
+    last_seg = {(s["antenna"], s["transmitter"]): s_i for s_i, s in enumerate(wd.segments)}
+    return [{"antenna": s["antenna"], "transmitter": s["transmitter"],
+             "bias_m": float(final.bias_m[s_i]),
+             "sigma_m": float(free_sigma[s_i] if not fix.fixed[s_i] else 0.0),
+             "float_bias_m": float(fit.g.b[s_i]), "float_sigma_m": float(bias_sigma[s_i]),
+             "integer_cycles": int(fix.integers[s_i]), "float_cycles": float(fix.a_float[s_i]),
+             "line_bias_m": float(fix.line[s_i]), "fixed": bool(fix.fixed[s_i]),
+             "segment_start_s": s["start_s"], "segment_end_s": s["end_s"],
+             "current": last_seg[(s["antenna"], s["transmitter"])] == s_i}
+            for s_i, s in enumerate(wd.segments)]
+
+
+def _init_record(run: Run, win: _Window, race: _Race, fit: _Fit, fix: _Fix, final: _Final, opt: InitOptions) -> dict:
+    """The INIT.json dictionary (``iterations`` and ``elapsed_s`` filled in by :func:`initialize`)."""
+    cfg, wd = run.cfg, win.wd
+    N, nd, sig_c = len(wd.time_s), fit.prob.n_dyn, fit.prob.sig_c
+    resid = final.prob.residual(final.x, final.bias_m[final.prob.free] if final.prob.free.size else np.zeros(0))
     res_rms = {f"{a}/{t}": float(np.sqrt(np.nanmean(resid[:, c] ** 2))) if np.isfinite(resid[:, c]).any() else None
                for c, (a, t) in enumerate(wd.channels)}
-    P = lin_final.P_end
-    nd = prob.n_dyn
+    P = final.lin.P_end
     Pxx = P[:nd, :nd] if P is not None else None
-    free_sigma = np.full(m, 0.0)
-    if P is not None and prob_final.free.size:
-        free_sigma[prob_final.free] = np.sqrt(np.diag(P[n:, n:]))
-    biases = []
-    last_seg = {}
-    for s_i, s in enumerate(wd.segments):
-        last_seg[(s["antenna"], s["transmitter"])] = s_i
-    for s_i, s in enumerate(wd.segments):
-        biases.append({
-            "antenna": s["antenna"], "transmitter": s["transmitter"],
-            "bias_m": float(final_b[s_i]),
-            "sigma_m": float(free_sigma[s_i] if not fixed[s_i] else 0.0),
-            "float_bias_m": float(b_float[s_i]), "float_sigma_m": float(bias_sigma[s_i]),
-            "integer_cycles": int(integers[s_i]), "float_cycles": float(a_float[s_i]),
-            "line_bias_m": float(line[s_i]), "fixed": bool(fixed[s_i]),
-            "segment_start_s": s["start_s"], "segment_end_s": s["end_s"],
-            "current": last_seg[(s["antenna"], s["transmitter"])] == s_i,
-        })
-    nm = cfg.n_modes
-    U = np.asarray(cfg.mode_shapes)
-    x_end = x_traj[-1][:nd]
-    mp_out = _multipath_record(mp, wd, x_traj[-1], P, nd)
-    if auto_mp is not None:
+    x_end = final.x[-1][:nd]
+    mp_out = _multipath_record(fit.mp, wd, final.x[-1], P, nd)
+    if fit.auto_mp is not None:
         mp_out["source"] = "estimated from the white-noise fit's residual autocovariance (no multipath option given)"
-        mp_out["evidence"] = auto_mp
-    q_end = U @ x_end[:nm]
-    elapsed = _time.perf_counter() - t_start
-    dof = max(int(np.isfinite(resid).sum()) - nd - int(prob_final.free.size), 1)
-    out = {
-        "format": INIT_FORMAT,
-        "kind": "structure",
-        "config": cfg.name,
-        "config_sha256": cfg.sha256,
-        "run": run.path,
-        "window": {"start_s": float(wd.time_s[0]), "end_s": float(wd.time_s[-1]), "epochs": N, "selection": how,
-                   "motion_rms_m": motion, "channels": len(wd.channels), "bias_segments": m},
-        "biases": biases,
+        mp_out["evidence"] = fit.auto_mp
+    q_end = np.asarray(cfg.mode_shapes) @ x_end[:cfg.n_modes]
+    dof = max(int(np.isfinite(resid).sum()) - nd - int(final.prob.free.size), 1)
+    return {
+        "format": INIT_FORMAT, "kind": "structure", "config": cfg.name, "config_sha256": cfg.sha256, "run": run.path,
+        "window": {"start_s": float(wd.time_s[0]), "end_s": float(wd.time_s[-1]), "epochs": N, "selection": win.how,
+                   "motion_rms_m": win.motion_m, "channels": len(wd.channels), "bias_segments": len(wd.segments)},
+        "biases": _bias_records(wd, fit, fix, final),
         "state": {
             "time_s": float(wd.time_s[-1]),
             "state_names": [f"xi_{k}" for k in cfg.mode_names] + [f"xidot_{k}" for k in cfg.mode_names],
@@ -790,28 +897,25 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
             "P": [[float(v) for v in row] for row in Pxx] if Pxx is not None else None,
             "q": {name: float(v) for name, v in zip(cfg.coord_names, q_end)},
         },
-        "iterations": int(total_iter),
+        "iterations": None,
         "converged": True,
-        "starts": [{"label": lab, "cost": float(r.cost), "iterations": r.iterations, "won": i == best_i,
-                    "full_window_cost": (float(final_costs[i]) if i in final_costs else None),
-                    "full_window": outcome.get(i)}
-                   for i, (lab, r) in enumerate(results)],
-        "cost": float(J_final),
-        "cost_per_dof": float(J_final / dof),
-        "ratio": None if ratio is None else (float(ratio) if np.isfinite(ratio) else "inf"),
-        "integer_fixing": fix_note,
-        "n_fixed": int(fixed.sum()),
+        "starts": [{"label": lab, "cost": float(r.cost), "iterations": r.iterations, "won": i == race.best_i,
+                    "full_window_cost": (float(race.final_costs[i]) if i in race.final_costs else None),
+                    "full_window": race.outcome.get(i)}
+                   for i, (lab, r) in enumerate(race.results)],
+        "cost": float(final.cost),
+        "cost_per_dof": float(final.cost / dof),
+        "ratio": None if fix.ratio is None else (float(fix.ratio) if np.isfinite(fix.ratio) else "inf"),
+        "integer_fixing": fix.note,
+        "n_fixed": int(fix.fixed.sum()),
         "residual_rms_m": res_rms,
-        "sigma_m": sigma,
+        "sigma_m": float(np.sqrt(np.mean(sig_c**2))),
         "sigma_m_per_channel": {f"{a}/{t}": float(v) for (a, t), v in zip(wd.channels, sig_c)},
-        "noise": noise,
+        "noise": fit.noise,
         **({"multipath": mp_out} if mp_out is not None else {}),
         "options": opt.echo(),
-        "elapsed_s": elapsed,
+        "elapsed_s": None,
     }
-    if return_trajectory:
-        return out, {"time_s": wd.time_s, "x": x_traj[:, :nd]}
-    return out
 
 
 def _auto_multipath(cfg, wd, prob, g, prior, noise, opt):

@@ -4,9 +4,10 @@
 checks the files and writes one self-contained RUN.mcap (atomic, zstd chunks, CRCs, the GNSS run
 config attached, sha256 of every input in the metadata).  Differencing is a processing step
 (``cdgps init`` / ``cdgps estimate``): the run stores the observations *as recorded*, per
-receiver, satellite and epoch.  :func:`read_gnss_run` loads it back; :func:`processing_obs`
-turns a receiver's raw table into the observation table of the solvers (RINEX LLI kept, u-blox
-lock times and half-cycle flags converted to LLI bits).
+receiver, satellite and epoch.  :func:`read_gnss_run` loads it back;
+:func:`cdgps_cli.pipeline.gnss_ingest.processing_obs` turns a receiver's raw table into the
+observation table of the solvers (RINEX LLI kept, u-blox lock times and half-cycle flags converted
+to LLI bits by the one lock-segment rule, :mod:`cdgps_cli.measurement.channels`).
 
 Layout (format details in docs/gnss-pipeline.md):
 
@@ -50,7 +51,7 @@ from cdgps_cli.core.gps_time import nominal_interval_s
 
 __all__ = [
     "GNSS_OBS_TOPIC", "GNSS_EPHEMERIS_TOPIC", "RAW_COLUMNS", "GnssReceiver", "GnssRun", "is_gnss_run",
-    "IngestInputs", "read_ingest_inputs", "nominal_positions", "write_gnss_run", "read_gnss_run", "run_kind", "processing_obs", "gnss_run_info", "default_config_text",
+    "IngestInputs", "read_ingest_inputs", "nominal_positions", "write_gnss_run", "read_gnss_run", "run_kind", "gnss_run_info", "default_config_text",
 ]
 
 GNSS_OBS_TOPIC = "/cdgps/gnss/obs"
@@ -235,70 +236,6 @@ def read_receiver_file(name: str, kind: str, path: str | Path, *, strict: bool =
 
 # ----------------------------------------------------------------------------------------------
 # slips from the receivers' own flags
-
-
-def processing_obs(rx: GnssReceiver, interval_s: float | None = None) -> pd.DataFrame:
-    """The receiver's observations as the solvers' table (:data:`~cdgps_cli.io.rinex.OBS_COLUMNS`).
-
-    Loss-of-lock bits come from the receiver's own flags:
-
-    * RINEX: the LLI as recorded (bit 0 slip, bit 1 half-cycle);
-    * UBX: bit 0 (a new ambiguity) where the carrier lock time restarted — it is shorter than
-      the previous lock time plus the time since that observation, less half an epoch interval
-      (lock time is capped at 64.5 s) — and where the half-cycle ambiguity became resolved
-      (the receiver then shifts the phase by half a cycle); bit 1 while it is unresolved.
-      Rows without a valid phase keep NaN phase.
-    """
-    r = rx.raw
-    lli = r["lli"].to_numpy(dtype=np.int64).copy()
-    if rx.format == "ubx":
-        lli[:] = 0
-        t = r["time_gps_s"].to_numpy()
-        sat = r["sat"].to_numpy()
-        lock = r["lock_time_ms"].to_numpy(dtype=np.float64)
-        half = r["half_cycle"].to_numpy(dtype=np.int64) == 1
-        ok = np.isfinite(r["phase_cycles"].to_numpy())
-        dt_nom = interval_s if interval_s else nominal_interval_s(t)
-        tol_ms = 0.5 * 1e3 * (dt_nom if math.isfinite(dt_nom) else 1.0)
-        order = np.lexsort((t, sat))
-        o_ok = order[ok[order]]
-        s_o, t_o, l_o, h_o = sat[o_ok], t[o_ok], lock[o_ok], half[o_ok]
-        same = np.r_[False, s_o[1:] == s_o[:-1]]
-        prev_l = np.r_[np.nan, l_o[:-1]]
-        prev_t = np.r_[np.nan, t_o[:-1]]
-        expected = np.minimum(prev_l + (t_o - prev_t) * 1e3, LOCK_TIME_CAP_MS)
-        restart = same & (l_o < expected - tol_ms)
-        resolved_now = same & ~h_o & np.r_[False, h_o[:-1]]
-        bits = np.where(restart | resolved_now, 1, 0) | np.where(h_o, 2, 0)
-        lli[o_ok] = bits
-    return pd.DataFrame({
-        "time_gps_s": r["time_gps_s"].to_numpy(dtype=np.float64),
-        "sat": r["sat"].to_numpy(dtype=object),
-        "phase_l1_cycles": r["phase_cycles"].to_numpy(dtype=np.float64),
-        "lli_l1": lli,
-        "ssi_l1": r["ssi"].to_numpy(dtype=np.int64),
-        "pseudorange_l1_m": r["pseudorange_m"].to_numpy(dtype=np.float64),
-        "snr_l1_dbhz": r["snr_dbhz"].to_numpy(dtype=np.float64),
-        "rx_clock_offset_s": r["clock_offset_s"].to_numpy(dtype=np.float64),
-        "epoch_flag": r["epoch_flag"].to_numpy(dtype=np.int64),
-    }, columns=list(OBS_COLUMNS))
-
-
-def lock_summary(rx: GnssReceiver, obs: pd.DataFrame | None = None) -> dict:
-    """Lock counters of a receiver: per satellite the phase rows, slips (LLI bit 0 after the
-    first row: RINEX flags or u-blox lock-time restarts), half-cycle-flagged rows and arcs."""
-    o = processing_obs(rx) if obs is None else obs
-    o = o[np.isfinite(o["phase_l1_cycles"].to_numpy())]
-    out = {}
-    interval = nominal_interval_s(o["time_gps_s"].to_numpy())
-    for s, g in o.groupby("sat", sort=True):
-        t = g["time_gps_s"].to_numpy()
-        lli = g["lli_l1"].to_numpy()
-        slips = int(np.sum((lli[1:] & 1) != 0))
-        gaps = int(np.sum(np.diff(t) > 1.5 * interval)) if math.isfinite(interval) else 0
-        out[s] = {"rows": int(len(g)), "slips": slips, "half_cycle_rows": int(np.sum((lli & 2) != 0)),
-                  "arcs": 1 + slips + gaps}
-    return out
 
 
 # ----------------------------------------------------------------------------------------------
@@ -507,11 +444,14 @@ def nominal_positions(cfg: GnssConfig, inp: IngestInputs) -> dict:
     return pos_src
 
 
-def write_gnss_run(cfg: GnssConfig, out_path: str | Path, inp: IngestInputs, pos_src: dict, common: dict) -> dict:
+def write_gnss_run(cfg: GnssConfig, out_path: str | Path, inp: IngestInputs, pos_src: dict, common: dict,
+                   lock: dict) -> dict:
     """Write the GNSS RUN.mcap (atomically) of checked inputs; returns the ingest summary.
 
     ``pos_src``: from :func:`nominal_positions`; ``common``: rover → its common-epoch counts with
-    the master (:func:`cdgps_cli.model.gps.epoch_align.common_epochs` plus the epoch counts).
+    the master (:func:`cdgps_cli.model.gps.epoch_align.common_epochs` plus the epoch counts);
+    ``lock``: receiver → its lock counters per satellite
+    (:func:`cdgps_cli.pipeline.gnss_ingest.lock_summary`, the one lock-segment rule).
     """
     files, master, nav_list, receivers, nav = inp.files, inp.master, inp.nav_list, inp.receivers, inp.nav
     integrity, warnings, nav_source = inp.integrity, inp.warnings, inp.nav_source
@@ -528,7 +468,6 @@ def write_gnss_run(cfg: GnssConfig, out_path: str | Path, inp: IngestInputs, pos
     for n, rx in receivers.items():
         rx_json.append({"name": n, "format": rx.format, "file": rx.file, "header": rx.header, "info": rx.info,
                         "position_source": pos_src[n][0], "position_ecef_m": pos_src[n][1]})
-    lock = {n: lock_summary(rx) for n, rx in receivers.items()}
     with McapOut(out_path, time_scale="gps") as out:
         n_eph = 0
         if nav is not None:
@@ -680,16 +619,17 @@ def read_gnss_run(path: str | Path, contents=None) -> GnssRun:
     return GnssRun(str(path), cfg, master, receivers, nav, meta)
 
 
-def gnss_run_info(path: str | Path, contents, common_epochs=None) -> dict:
+def gnss_run_info(path: str | Path, contents, common_epochs=None, lock_summary=None) -> dict:
     """The GNSS part of ``cdgps info``: config, master, receivers with lock counters, ephemerides.
 
     ``common_epochs``: a function of the :class:`GnssRun` giving rover → number of epochs in
-    common with the master (:func:`cdgps_cli.pipeline.gnss_ingest.run_info` passes it: epoch
-    alignment is a model computation); None: recorded as None."""
+    common with the master; ``lock_summary``: a function of a :class:`GnssReceiver` giving its
+    lock counters per satellite (:func:`cdgps_cli.pipeline.gnss_ingest.run_info` passes both: epoch
+    alignment and the lock-segment rule are model computations); None: recorded as None / {}."""
     run = read_gnss_run(path, contents)
     rx = []
     for n, r in run.receivers.items():
-        lock = lock_summary(r)
+        lock = lock_summary(r) if lock_summary else {}
         pos = (r.info.get("position_source"), r.info.get("position_ecef_m"))
         s = _receiver_summary(n, r, lock, pos)
         s["lock"] = lock

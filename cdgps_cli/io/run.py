@@ -175,26 +175,9 @@ def epoch_gaps(time_s: np.ndarray, period_s: float) -> list[dict]:
             for i in idx]
 
 
-def channel_summary(phase: pd.DataFrame) -> list[dict]:
-    """Per channel: rows, first/last time, lock (re)starts after the first epoch (slips/relocks)."""
-    out = []
-    if len(phase) == 0:
-        return out
-    g = phase.groupby(["antenna", "transmitter"], sort=True)
-    first = g["time_s"].min()
-    last = g["time_s"].max()
-    rows = g.size()
-    relock = phase[(phase["lock"] == 0)].groupby(["antenna", "transmitter"])["time_s"].apply(list)
-    for key in rows.index:
-        starts = relock.get(key, [])
-        out.append({"antenna": key[0], "transmitter": key[1], "rows": int(rows[key]),
-                    "first_s": float(first[key]), "last_s": float(last[key]),
-                    "lock_restarts_s": [float(t) for t in starts if t > first[key]]})
-    return out
-
-
 def write_run(cfg: StructureConfig, receiver_csv: str | Path, out_path: str | Path,
-              gyro_csv: str | Path | None = None, actuator_csv: str | Path | None = None) -> dict:
+              gyro_csv: str | Path | None = None, actuator_csv: str | Path | None = None,
+              channel_summary=None) -> dict:
     """Validate native CSV logs and write one self-contained RUN.mcap.
 
     Parameters
@@ -205,11 +188,15 @@ def write_run(cfg: StructureConfig, receiver_csv: str | Path, out_path: str | Pa
         Native logs (see :mod:`cdgps_cli.io.logs`); gyro and actuator logs are optional.
     out_path : path
         Output MCAP; written atomically.
+    channel_summary : callable, optional
+        ``channel_summary(phase, sample_period_s) -> list of dict`` with each channel's
+        ``lock_restarts_s`` (:func:`cdgps_cli.pipeline.ingest.channel_summary`, the one
+        lock-segment rule); the summary's ``lock_restarts`` counts them (None without it).
 
     Returns
     -------
     dict
-        Summary: counts, time span, gaps, channels.
+        Summary: counts, time span, gaps, channels, lock restarts.
     """
     sources = {"receiver_csv": Path(receiver_csv)}
     if gyro_csv:
@@ -252,7 +239,8 @@ def write_run(cfg: StructureConfig, receiver_csv: str | Path, out_path: str | Pa
         "start_s": float(t[0]), "end_s": float(t[-1]),
         "gaps": epoch_gaps(t, cfg.sample_period_s),
         "channels": int(phase.groupby(["antenna", "transmitter"]).ngroups),
-        "lock_restarts": int(((phase["lock"] == 0) & (t > t[0])).sum()),
+        "lock_restarts": (None if channel_summary is None else
+                          sum(len(c["lock_restarts_s"]) for c in channel_summary(phase, cfg.sample_period_s))),
     }
 
 
@@ -304,12 +292,14 @@ def _phase_table(tc: TopicColumns) -> pd.DataFrame:
     return phase
 
 
-def run_info(path: str | Path, gnss_common_epochs=None) -> dict:
+def run_info(path: str | Path, gnss_common_epochs=None, channel_summary=None, gnss_lock_summary=None) -> dict:
     """Summary of a RUN.mcap for ``cdgps info``: topics, counts, span, sampling, gaps, channels, slips.
 
-    ``gnss_common_epochs``: for a GNSS run, the function giving each rover's epochs in common with
-    the master (see :func:`cdgps_cli.io.gnss_run.gnss_run_info`); the stage
-    :func:`cdgps_cli.pipeline.gnss_ingest.run_info` passes it."""
+    The model's counts come from functions the stage :func:`cdgps_cli.pipeline.gnss_ingest.run_info`
+    passes (``io`` imports no numerics): ``channel_summary(phase, sample_period_s)`` each
+    structure channel's rows, span and lock restarts (the one lock-segment rule; without it
+    ``channels`` and ``slips`` are left out); for a GNSS run ``gnss_common_epochs`` and
+    ``gnss_lock_summary`` (see :func:`cdgps_cli.io.gnss_run.gnss_run_info`)."""
     c = read_mcap(path)
     info = {"file": str(path), "topics": [], "metadata": c.metadata,
             "attachments": sorted(c.attachments)}
@@ -327,15 +317,16 @@ def run_info(path: str | Path, gnss_common_epochs=None) -> dict:
     from cdgps_cli.io.gnss_run import gnss_run_info  # noqa: PLC0415 (GNSS runs: docs/gnss-pipeline.md)
 
     if contents_kind(c) == "gnss":
-        info["gnss"] = gnss_run_info(path, c, gnss_common_epochs)
+        info["gnss"] = gnss_run_info(path, c, gnss_common_epochs, gnss_lock_summary)
     if PHASE_TOPIC in c.topics and CONFIG_ATTACHMENT in c.attachments:
         cfg = parse_config(c.attachments[CONFIG_ATTACHMENT].decode("utf-8"), f"{path}:{CONFIG_ATTACHMENT}")
         phase = c.topics[PHASE_TOPIC].table(PHASE_ARRAYS, ["master"])
         info["config"] = cfg.summary()
         info["gaps"] = epoch_gaps(phase["time_s"].to_numpy(), cfg.sample_period_s)
-        chans = channel_summary(phase)
-        info["channels"] = chans
-        info["slips"] = [{"antenna": ch["antenna"], "transmitter": ch["transmitter"], "time_s": t}
-                         for ch in chans for t in ch["lock_restarts_s"]]
-        info["slips"].sort(key=lambda r: (r["time_s"], r["antenna"], r["transmitter"]))
+        if channel_summary is not None:
+            chans = channel_summary(phase, cfg.sample_period_s)
+            info["channels"] = chans
+            info["slips"] = [{"antenna": ch["antenna"], "transmitter": ch["transmitter"], "time_s": t, "kind": kind}
+                             for ch in chans for t, kind in zip(ch["lock_restarts_s"], ch["lock_restart_kinds"])]
+            info["slips"].sort(key=lambda r: (r["time_s"], r["antenna"], r["transmitter"]))
     return info

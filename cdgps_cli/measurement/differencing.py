@@ -40,6 +40,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from cdgps_cli.config.options import PHASE_SIGMA_A_M, PHASE_SIGMA_B_M
+from cdgps_cli.measurement.channels import lock_segments
 
 __all__ = [
     "epoch_pointers",
@@ -121,12 +122,13 @@ def ambiguity_segments(epoch, sat, slip, *, epoch_time_s=None, max_gap_s: float 
     A new segment (new ambiguity) starts at a satellite's first row, at a row whose ``slip`` flag
     is set (LLI bit 0 at either receiver), after a gap in its rows of more than ``max_gap_s`` (or
     any skipped epoch index when times are not given), and at every row of a ``reset_epochs``
-    epoch (e.g. epoch flag 1, power failure).
+    epoch (e.g. epoch flag 1, power failure): the one lock-segment rule,
+    :func:`cdgps_cli.measurement.channels.lock_segments`, with the satellite as the channel.
 
     Parameters
     ----------
     epoch : array_like of int, shape (N,)
-        Epoch index of each row.
+        Epoch index of each row (epoch indices in time order).
     sat : array_like of int, shape (N,)
         Satellite index of each row.
     slip : array_like of bool, shape (N,)
@@ -148,37 +150,25 @@ def ambiguity_segments(epoch, sat, slip, *, epoch_time_s=None, max_gap_s: float 
     ep = np.asarray(epoch, dtype=np.int64)
     sv = np.asarray(sat, dtype=np.int64)
     sl = np.asarray(slip, dtype=bool)
-    n = ep.size
-    if n == 0:
-        z = np.zeros(0, dtype=np.int64)
-        return z, {"sat": z, "first_epoch": z, "last_epoch": z, "n_rows": z}
-    order = np.lexsort((ep, sv))
-    e_o, s_o = ep[order], sv[order]
-    start = np.ones(n, dtype=bool)
-    same = s_o[1:] == s_o[:-1]
     if epoch_time_s is not None:
         tt = np.asarray(epoch_time_s, dtype=np.float64)
         if max_gap_s is None:
             ut = np.unique(tt)
             max_gap_s = 1.5 * float(np.median(np.diff(ut))) if ut.size > 1 else np.inf
-        gap = (tt[e_o[1:]] - tt[e_o[:-1]]) > max_gap_s
+        step, max_step = (tt[ep] if ep.size else tt[:0]), max_gap_s
     else:
-        gap = (e_o[1:] - e_o[:-1]) > 1
-    start[1:] = ~same | gap | sl[order][1:]
+        step, max_step = ep, 1
+    reset = None
     if reset_epochs is not None and len(reset_epochs):
-        start |= np.isin(e_o, np.asarray(reset_epochs, dtype=np.int64))
-    seg_o = np.cumsum(start) - 1
-    seg = np.empty(n, dtype=np.int64)
-    seg[order] = seg_o
-    first = np.flatnonzero(start)
-    last = np.append(first[1:], n) - 1
+        reset = np.isin(ep, np.asarray(reset_epochs, dtype=np.int64))
+    ls = lock_segments(sv, step, slip=sl, max_step=max_step, reset=reset)
     table = {
-        "sat": s_o[first],
-        "first_epoch": e_o[first],
-        "last_epoch": e_o[last],
-        "n_rows": (last - first + 1).astype(np.int64),
+        "sat": ls.channel.astype(np.int64),
+        "first_epoch": ep[ls.first],
+        "last_epoch": ep[ls.last],
+        "n_rows": ls.n_rows,
     }
-    return seg, table
+    return ls.segment, table
 
 
 def ambiguity_datum(epoch, seg, n_seg: int) -> tuple[np.ndarray, np.ndarray]:

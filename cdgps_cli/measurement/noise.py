@@ -72,7 +72,7 @@ def prior_sigma_m(cfg, channels, override_m: float | None = None, snr_dbhz=None)
 
 
 def leverage_per_channel(solve_fitted, present: np.ndarray, probes: int = HUTCHINSON_PROBES,
-                         seed: int = HUTCHINSON_SEED) -> np.ndarray:
+                         seed: int = HUTCHINSON_SEED, batched: bool = False) -> np.ndarray:
     """Σ_k h_kc per channel by Hutchinson's estimator.
 
     Parameters
@@ -80,21 +80,25 @@ def leverage_per_channel(solve_fitted, present: np.ndarray, probes: int = HUTCHI
     solve_fitted : callable
         ``solve_fitted(eps) -> fitted``: the whitened fitted values (N, C) of the linear LS problem
         whose whitened data are ``eps`` (N, C; NaN where absent), priors at zero mean.  Linear in eps.
+        With ``batched``, all probes at once: eps and fitted (N, C, probes) (one solve with several
+        right-hand sides).
     present : (N, C) bool
         Observations that exist.
     probes : int
         Number of random ±1 probes (E[εᵀ D_c Ĥ ε] = tr(D_c Ĥ) for each).
+    seed : int
+        Seed of the probes (the same probes batched or not).
 
     Returns
     -------
     (C,) estimated sum of leverages of each channel's observations.
     """
     rng = np.random.default_rng(seed)
+    eps = [np.where(present, rng.choice((-1.0, 1.0), size=present.shape), np.nan) for _ in range(probes)]
+    fits = np.moveaxis(solve_fitted(np.stack(eps, axis=2)), 2, 0) if batched else (solve_fitted(e) for e in eps)
     acc = np.zeros(present.shape[1])
-    for _ in range(probes):
-        eps = np.where(present, rng.choice((-1.0, 1.0), size=present.shape), np.nan)
-        fit = solve_fitted(eps)
-        acc += np.nansum(np.where(present, eps * fit, 0.0), axis=0)
+    for e, fit in zip(eps, fits):
+        acc += np.nansum(np.where(present, e * fit, 0.0), axis=0)
     return acc / probes
 
 

@@ -71,7 +71,11 @@ def phase_model_q(cfg: StructureConfig, q: np.ndarray, ant: np.ndarray, tx: np.n
         return h
     ua = va / da[..., None]
     um = vm / dm[..., None]
-    dh = -np.einsum("nci,nciq->ncq", ua, J[:, ant]) + np.einsum("nci,niq->ncq", um, J[:, m])
+    # ∂h/∂q = −u_aᵀ J_a + u_Mᵀ J_M: one batched product per antenna (no (N, C, 3, n_q) copy of J)
+    dh = um @ J[:, m]
+    for a in np.unique(ant).tolist():
+        cs = np.flatnonzero(ant == a)
+        dh[:, cs] -= ua[:, cs] @ J[:, a]
     return h, dh
 
 

@@ -24,10 +24,10 @@ def _ingest(s) -> dict:
     if s.kind == "gnss":
         return _ingest_gnss(s)
     from cdgps_cli.config.structure import load_config
-    from cdgps_cli.io.run import write_run
+    from cdgps_cli.pipeline.ingest import ingest_structure
 
     cfg = load_config(s.inputs["config"])
-    r = write_run(cfg, s.inputs["receiver_csv"], s.path("ingest"), s.inputs.get("gyro_csv"), s.inputs.get("actuator_csv"))
+    r = ingest_structure(cfg, s.inputs["receiver_csv"], s.path("ingest"), s.inputs.get("gyro_csv"), s.inputs.get("actuator_csv"))
     return {"epochs": r["phase_messages"], "start_s": r["start_s"], "end_s": r["end_s"], "channels": r["channels"],
             "gaps": len(r["gaps"]), "lock_restarts": r["lock_restarts"]}
 

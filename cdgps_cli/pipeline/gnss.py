@@ -50,7 +50,8 @@ from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.records import INIT_FORMAT, Series, StateSeries, init_kind
 
-from cdgps_cli.io.gnss_run import GnssRun, processing_obs
+from cdgps_cli.io.gnss_run import GnssRun
+from cdgps_cli.pipeline.gnss_ingest import processing_obs
 from cdgps_cli.io import states as states_io
 from cdgps_cli.io.mcap import read_mcap
 from cdgps_cli.core.gps_time import gps_time_str

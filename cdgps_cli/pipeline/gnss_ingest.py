@@ -5,12 +5,16 @@ checks that need the GPS model — every receiver's phases covered by a healthy 
 (:func:`cdgps_cli.model.gps.positioning.ephemeris_coverage`) and the epochs each rover has in
 common with the master (:func:`cdgps_cli.model.gps.epoch_align.common_epochs`) — are made here, so
 that ``io`` imports no numerics.  :func:`run_info` is ``cdgps info`` with the GNSS common-epoch
-counts.
+counts.  The receivers' observation table of the solvers (:func:`processing_obs`: u-blox lock
+times → loss-of-lock bits) and their lock counters (:func:`lock_summary`) follow the one
+lock-segment rule, :func:`cdgps_cli.measurement.channels.lock_segments`.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+
+import math
 
 import numpy as np
 import pandas as pd
@@ -18,11 +22,14 @@ import pandas as pd
 from cdgps_cli.config.structure import GnssConfig
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io import gnss_run
-from cdgps_cli.io.gnss_run import IngestInputs, span_text
+from cdgps_cli.core.gps_time import nominal_interval_s
+from cdgps_cli.core.records import OBS_COLUMNS
+from cdgps_cli.io.gnss_run import LOCK_TIME_CAP_MS, GnssReceiver, IngestInputs, span_text
+from cdgps_cli.measurement.channels import FIRST, lock_segments, ubx_restarts
 from cdgps_cli.model.gps.epoch_align import common_epochs
 from cdgps_cli.model.gps.positioning import ephemeris_coverage, spp_static
 
-__all__ = ["ingest_gnss", "run_info", "starter_gnss_config", "spp_master_position"]
+__all__ = ["ingest_gnss", "run_info", "processing_obs", "lock_summary", "starter_gnss_config", "spp_master_position"]
 
 
 def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = None, ubx: dict | None = None,
@@ -68,7 +75,70 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
     pos_src = gnss_run.nominal_positions(cfg, inp)
     common = _common_epochs(cfg, inp)
     say(f"writing {out_path} …")
-    return gnss_run.write_gnss_run(cfg, out_path, inp, pos_src, common)
+    lock = {n: lock_summary(rx) for n, rx in inp.receivers.items()}
+    return gnss_run.write_gnss_run(cfg, out_path, inp, pos_src, common, lock)
+
+
+def processing_obs(rx: GnssReceiver, interval_s: float | None = None) -> pd.DataFrame:
+    """The receiver's observations as the solvers' table (:data:`~cdgps_cli.core.records.OBS_COLUMNS`).
+
+    Loss-of-lock bits come from the receiver's own flags:
+
+    * RINEX: the LLI as recorded (bit 0 slip, bit 1 half-cycle);
+    * UBX: bit 0 (a new ambiguity) where the carrier lock time restarted
+      (:func:`cdgps_cli.measurement.channels.ubx_restarts`: shorter than the previous lock time plus
+      the time since that observation, less half an epoch interval; lock time is capped at 64.5 s)
+      and where the half-cycle ambiguity became resolved (the receiver then shifts the phase by
+      half a cycle); bit 1 while it is unresolved.  Rows without a valid phase keep NaN phase.
+    """
+    r = rx.raw
+    lli = r["lli"].to_numpy(dtype=np.int64).copy()
+    if rx.format == "ubx":
+        lli[:] = 0
+        t = r["time_gps_s"].to_numpy()
+        sat = r["sat"].to_numpy()
+        half = r["half_cycle"].to_numpy(dtype=np.int64) == 1
+        ok = np.flatnonzero(np.isfinite(r["phase_cycles"].to_numpy()))
+        o = ok[np.lexsort((t[ok], sat[ok]))]                 # by satellite, then time
+        dt_nom = interval_s if interval_s else nominal_interval_s(t)
+        restart = ubx_restarts(sat[o], t[o], r["lock_time_ms"].to_numpy(dtype=np.float64)[o], dt_nom,
+                               LOCK_TIME_CAP_MS)
+        same = np.r_[False, sat[o][1:] == sat[o][:-1]]
+        h_o = half[o]
+        resolved_now = same & ~h_o & np.r_[False, h_o[:-1]]
+        lli[o] = np.where(restart | resolved_now, 1, 0) | np.where(h_o, 2, 0)
+    return pd.DataFrame({
+        "time_gps_s": r["time_gps_s"].to_numpy(dtype=np.float64),
+        "sat": r["sat"].to_numpy(dtype=object),
+        "phase_l1_cycles": r["phase_cycles"].to_numpy(dtype=np.float64),
+        "lli_l1": lli,
+        "ssi_l1": r["ssi"].to_numpy(dtype=np.int64),
+        "pseudorange_l1_m": r["pseudorange_m"].to_numpy(dtype=np.float64),
+        "snr_l1_dbhz": r["snr_dbhz"].to_numpy(dtype=np.float64),
+        "rx_clock_offset_s": r["clock_offset_s"].to_numpy(dtype=np.float64),
+        "epoch_flag": r["epoch_flag"].to_numpy(dtype=np.int64),
+    }, columns=list(OBS_COLUMNS))
+
+
+def lock_summary(rx: GnssReceiver, obs: pd.DataFrame | None = None) -> dict:
+    """Lock counters of a receiver per satellite: phase rows, slips (LLI bit 0 after the first row:
+    RINEX flags or u-blox lock-time restarts), half-cycle-flagged rows, and arcs — the lock segments
+    of :func:`cdgps_cli.measurement.channels.lock_segments` (slip flags, gaps over 1.5 epoch
+    intervals), the same rule as the double differences' ambiguities."""
+    o = processing_obs(rx) if obs is None else obs
+    o = o[np.isfinite(o["phase_l1_cycles"].to_numpy())]
+    t = o["time_gps_s"].to_numpy()
+    lli = o["lli_l1"].to_numpy()
+    codes, sats = pd.factorize(o["sat"].to_numpy(dtype=object), sort=True)
+    interval = nominal_interval_s(t)
+    seg = lock_segments(codes, t, slip=(lli & 1) != 0, max_step=1.5 * interval if math.isfinite(interval) else np.inf)
+    first = seg.cause == FIRST
+    rows = np.bincount(codes, minlength=len(sats))
+    slips = np.bincount(codes, weights=(((lli & 1) != 0) & ~first).astype(float), minlength=len(sats))
+    half = np.bincount(codes, weights=((lli & 2) != 0).astype(float), minlength=len(sats))
+    arcs = np.bincount(seg.channel, minlength=len(sats))
+    return {s: {"rows": int(rows[i]), "slips": int(slips[i]), "half_cycle_rows": int(half[i]), "arcs": int(arcs[i])}
+            for i, s in enumerate(sats)}
 
 
 def _check_coverage(inp: IngestInputs) -> None:
@@ -118,11 +188,16 @@ def _common_epochs(cfg: GnssConfig, inp: IngestInputs) -> dict:
 
 
 def run_info(path: str | Path) -> dict:
-    """``cdgps info``: :func:`cdgps_cli.io.run.run_info` with, for a GNSS run, the epochs each rover
-    has in common with the master (``gnss.common_epochs``: rover → count)."""
+    """``cdgps info``: :func:`cdgps_cli.io.run.run_info` with the model's counts: for a structure run
+    each channel's lock restarts (:func:`cdgps_cli.pipeline.ingest.channel_summary`), for a GNSS run
+    each receiver's lock counters (:func:`lock_summary`) and the epochs each rover has in common
+    with the master (``gnss.common_epochs``: rover → count)."""
     from cdgps_cli.io.run import run_info as file_info  # noqa: PLC0415
 
-    return file_info(path, gnss_common_epochs=_run_common_epochs)
+    from cdgps_cli.pipeline.ingest import channel_summary  # noqa: PLC0415
+
+    return file_info(path, gnss_common_epochs=_run_common_epochs, gnss_lock_summary=lock_summary,
+                     channel_summary=channel_summary)
 
 
 def _run_common_epochs(run: gnss_run.GnssRun) -> dict:

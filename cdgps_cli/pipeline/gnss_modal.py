@@ -164,6 +164,8 @@ def _set_integers(tb: dict, a_seg: np.ndarray, use: np.ndarray) -> dict:
 
 
 INIT_WINDOW_S = 60.0            # default window of the modal batch initialization, s
+INIT_WINDOW_GROWTH = 1.5        # a window whose integers are not all fixed is extended this many times …
+INIT_WINDOW_MAX_FACTOR = 3.0    # … up to this multiple of the first window
 MIN_INIT_EPOCHS = 10
 
 
@@ -186,7 +188,9 @@ def modal_batch_initialization(cfg: StructureConfig, R, tabs, k_of, ant_idx, d_h
                                window_s: float = INIT_WINDOW_S, options=None):
     """Model-aided batch initialization of the modal state on the satellite DDs (the paper's method).
 
-    On the first ``window_s`` seconds, every rover's DDs with *float* ambiguities (one per pair of
+    On the first ``window_s`` seconds (extended ×INIT_WINDOW_GROWTH, up to INIT_WINDOW_MAX_FACTOR ×
+    ``window_s`` and the end of the regular epochs, while not every integer is fixed and validated;
+    ``windows_tried`` in the record then lists each attempt), every rover's DDs with *float* ambiguities (one per pair of
     satellite and reference segments, :class:`~cdgps_cli.measurement.model.SatelliteDDModal`) and
     the modal dynamics are solved by :func:`cdgps_cli.estimation.model_init.model_batch_init`
     (Gauss–Newton over [x₁, w, b], SRIF, LAMBDA + ratio + partial fixing, validation).  The fixed DD
@@ -207,11 +211,31 @@ def modal_batch_initialization(cfg: StructureConfig, R, tabs, k_of, ant_idx, d_h
     from cdgps_cli.estimation.initializer import InitOptions  # noqa: PLC0415
     from cdgps_cli.estimation.model_init import model_batch_init  # noqa: PLC0415
 
-    idx, dt = _init_window(t_all, window_s)
     raw = [dict(tb, r0=tb["r_raw"], use=np.ones(tb["seg"].size, dtype=bool),
                 ref=select_reference(tb["d"].ptr, tb["d"].sat, tb["d"].el_rover, tb["d"].slip)) for tb in tabs]
     model = SatelliteDDModal(cfg, R, raw, k_of, ant_idx, d_hdr)
-    res = model_batch_init(model, ModalZOH(cfg), idx, dt, GPS_L1_WAVELENGTH_M, options or InitOptions())
+    tried = []
+    w_s = window_s
+    while True:
+        # the window grows (×INIT_WINDOW_GROWTH, up to INIT_WINDOW_MAX_FACTOR × the first) until
+        # every DD integer is fixed and validated, as a recursive RTK engine keeps accumulating data
+        # until its ratio test passes; a longer window can only add information
+        try:
+            idx_w, dt = _init_window(t_all, w_s)
+            res_w = model_batch_init(model, ModalZOH(cfg), idx_w, dt, GPS_L1_WAVELENGTH_M, options or InitOptions())
+        except CdgpsError as exc:           # (a longer window refused: the last solved one stands)
+            if not tried:
+                raise
+            tried.append({"window_s": float(w_s), "refused": str(exc)})
+            idx_w = None
+        if idx_w is not None:
+            idx, res = idx_w, res_w
+            tried.append({"window_s": float(w_s), "epochs": int(idx.size), "n_segments": len(res.columns),
+                          "n_fixed": int(res.fixed.sum()), "integer_fixing": res.note})
+        longest = INIT_WINDOW_MAX_FACTOR * window_s
+        if res.fixed.all() or w_s >= longest - 1e-9 or (idx_w is not None and t_all[idx[-1]] < t_all[0] + w_s - 2 * dt):
+            break
+        w_s = min(w_s * INIT_WINDOW_GROWTH, longest)
     init_known = [np.asarray(tb["w"]["known_seg"], bool) & (tb["n_fixed"] > 0) for tb in tabs]
     segs, agree, n_cmp = [], 0, 0
     for i, col in enumerate(res.columns):
@@ -232,6 +256,8 @@ def modal_batch_initialization(cfg: StructureConfig, R, tabs, k_of, ant_idx, d_h
               "ratio": None if res.ratio is None else (float(res.ratio) if np.isfinite(res.ratio) else "inf"),
               "integer_fixing": res.note, "cost_per_dof": float(res.cost_per_dof), "iterations": int(res.iterations),
               "agree_with_init": {"compared": n_cmp, "equal": agree}, "x1": [float(v) for v in res.x[0]], "segments": segs}
+    if len(tried) > 1:
+        record["windows_tried"] = tried
     return apply_modal_record(tabs, record), res.x[0].copy(), record
 
 

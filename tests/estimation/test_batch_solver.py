@@ -409,3 +409,40 @@ def test_srif_general_incidence_matches_dense_and_one_hot(seed, h_cols, square_r
     mix = np.tril(rng.standard_normal((5, 5))) + 3 * np.eye(5)
     mixed = _with_incidence(prob, mix)
     _assert_agree(srif_solve(mixed, square_root=square_root), dense_solve(mixed))
+
+
+# ---------------------------------------------------------------------------------------------
+# several right-hand sides at once (the Hutchinson probes of init's noise estimate)
+
+
+@pytest.mark.parametrize("square_root", [None, False, True])
+@pytest.mark.parametrize("h_cols,prior,full", [(None, False, False), (2, True, False), (3, False, False),
+                                               (None, True, True), (2, False, True)])
+def test_several_right_hand_sides_equal_separate_solves(square_root, h_cols, prior, full):
+    rng = np.random.default_rng(77 + (h_cols or 0) + 10 * prior + 100 * full)
+    prob = random_problem(rng, n=5, r=2, C=6, N=25, prior=prior, h_cols=h_cols)
+    if full:                                        # a general bias incidence (whitened full noise)
+        E = np.zeros(prob.H.shape[:2] + (prob.n_bias,))
+        k, c = np.nonzero(prob.bias_index >= 0)
+        E[k, c, prob.bias_index[k, c]] = 1.0
+        E += 0.1 * rng.standard_normal(E.shape) * (prob.bias_index >= 0)[..., None]
+        prob = LinearProblem(**{**prob.__dict__, "E": E})
+    K = 4
+    present = np.isfinite(prob.y)
+    Y = np.where(present[..., None], rng.standard_normal(prob.y.shape + (K,)), np.nan)
+    X1 = rng.standard_normal((prob.A.shape[0], K)) if prior else np.zeros((prob.A.shape[0], K))
+    B = rng.standard_normal((prob.n_bias, K)) if prior else np.zeros((prob.n_bias, K))
+    many = srif_solve(LinearProblem(**{**prob.__dict__, "y": Y, "x1_mean": X1, "b_mean": B}), square_root=square_root)
+    assert many.x.shape == prob.H.shape[:1] + (prob.A.shape[0], K) and many.b.shape == (prob.n_bias, K)
+    assert np.isnan(many.cost)
+    for j in range(K):
+        one = srif_solve(LinearProblem(**{**prob.__dict__, "y": Y[:, :, j], "x1_mean": X1[:, j], "b_mean": B[:, j]}),
+                         square_root=square_root)
+        np.testing.assert_allclose(many.x[:, :, j], one.x, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(many.b[:, j], one.b, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(many.w[:, :, j], one.w, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(many.R_end, one.R_end, rtol=1e-12, atol=1e-12)
+        # and one against the dense reference (Eq. 13–15)
+        if j == 0 and not full:
+            _assert_agree(one, dense_solve(LinearProblem(**{**prob.__dict__, "y": Y[:, :, j], "x1_mean": X1[:, j],
+                                                            "b_mean": B[:, j]})))

@@ -17,8 +17,8 @@ from cdgps_cli.cli.commands import main
 from cdgps_cli.config.structure import config_kind, load_gnss_config, parse_gnss_config
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.estimation.baseline import BaselineOptions
-from cdgps_cli.io.gnss_run import (GnssReceiver, RAW_COLUMNS, lock_summary, processing_obs, read_gnss_run,
-                                read_receiver_file)
+from cdgps_cli.io.gnss_run import GnssReceiver, RAW_COLUMNS, read_gnss_run, read_receiver_file
+from cdgps_cli.pipeline.gnss_ingest import lock_summary, processing_obs
 from cdgps_cli.io.mcap import read_mcap
 from cdgps_cli.io.rinex import read_rinex_obs
 

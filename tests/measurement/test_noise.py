@@ -99,6 +99,18 @@ def test_batch_leverage_equals_brute_force_unit_responses():
     np.testing.assert_allclose(est, exact, atol=0.4)
     assert np.all(exact > 1.0) and np.all(exact < N)
 
+    # all probes as one solve with a right-hand side per probe: the same probes, the same estimate
+    def fitted_many(eps):
+        K = eps.shape[2]
+        lp = LinearProblem(A=A, Bw_L=G, H=H, y=eps, bias_index=bi, n_bias=C, sigma_m=1.0,
+                           x1_mean=np.zeros((n, K)), x1_sqrt_info=np.zeros((n, n)), b_mean=np.zeros((C, K)),
+                           b_sqrt_info=np.zeros((C, C)))
+        sol = srif_solve(lp)
+        return np.einsum("nci,nik->nck", H, sol.x) + sol.b[bi]
+
+    many = leverage_per_channel(fitted_many, np.ones((N, C), bool), probes=600, batched=True)
+    np.testing.assert_allclose(many, est, rtol=1e-11, atol=1e-12)
+
 
 def test_prior_sigma_vector_and_override(testbed_cfg):
     ch = list(testbed_cfg.channels)[:5]

@@ -201,7 +201,8 @@ def test_simulate_gnss_raw_tags_and_master_rate(tmp_path):
 def test_phase_rate_agrees_with_the_doppler_of_a_real_ublox_log(repo_root):
     """Independent check of the rate (and of its sign, Φ̇ = −D) on real RXM-RAWX data."""
     from cdgps_cli.model.gps.epoch_align import phase_rate
-    from cdgps_cli.io.gnss_run import processing_obs, read_receiver_file
+    from cdgps_cli.io.gnss_run import read_receiver_file
+    from cdgps_cli.pipeline.gnss_ingest import processing_obs
 
     path = repo_root.parent / "shared" / "data" / "ubx" / "pygpsdata-RXMRAWX.log"
     if not path.exists():

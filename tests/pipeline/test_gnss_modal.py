@@ -256,3 +256,33 @@ def test_init_with_structure_writes_the_modal_init_and_estimate_uses_it(tower, t
     assert "structure_sha256" not in other
     r = run_cli("-q", "init", tmp / "run.mcap", "--receiver", "r1=r1", "-o", tmp_path / "bad.json")
     assert r.exit_code == 2 and "--receiver needs --structure" in r.output and not (tmp_path / "bad.json").exists()
+
+
+def test_the_window_grows_until_every_integer_is_fixed(tower, tmp_path, monkeypatch):
+    """A first window whose integers are not all fixed is extended ×1.5 up to 3× (and no further);
+    each attempt is recorded.  Windows under 25 epochs are made to fail here, so the growth path is
+    taken whatever the data: 10 s → 15 s → 22.5 s → 30 s (the cap), where the real fix stands."""
+    from cdgps_cli.estimation import model_init
+
+    real = model_init.model_batch_init
+
+    def weak(model, dyn, epochs, *args, **kwargs):
+        res = real(model, dyn, epochs, *args, **kwargs)
+        if len(epochs) < 25:
+            res.fixed = np.zeros_like(res.fixed)
+            res.note = "made to fail by the test"
+        return res
+
+    monkeypatch.setattr(model_init, "model_batch_init", weak)
+    tmp, cfg, *_ = tower
+    run = read_gnss_run(tmp / "run.mcap")
+    text = (tmp / "init.json").read_text()
+    mi = gnss_modal_estimate(run, json.loads(text), text, cfg, tmp_path / "g.mcap", init_window_s=10.0)["modal_init"]
+    tried = mi["windows_tried"]
+    assert [w["window_s"] for w in tried] == [10.0, 15.0, 22.5, 30.0], tried
+    solved = [w for w in tried if "refused" not in w]     # a window may be refused (not converged): skipped
+    assert all(w["n_fixed"] == 0 for w in solved if w["epochs"] < 25)
+    assert solved[-1]["n_fixed"] == mi["n_fixed"] and mi["window"]["epochs"] == solved[-1]["epochs"]
+    # a window fixed at once is not extended and records no attempts
+    mi60 = gnss_modal_estimate(run, json.loads(text), text, cfg, tmp_path / "h.mcap", init_window_s=60.0)["modal_init"]
+    assert "windows_tried" not in mi60 and mi60["window"]["epochs"] == 60

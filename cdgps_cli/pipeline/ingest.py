@@ -1,0 +1,65 @@
+"""``cdgps ingest`` of a structure's native logs, and the channel summary of ``cdgps ingest`` / ``cdgps info``.
+
+:func:`cdgps_cli.io.run.write_run` validates the logs and writes the RUN.mcap; the lock restarts it
+reports are counted here with the one lock-segment rule
+(:func:`cdgps_cli.measurement.channels.lock_segments`), the rule ``cdgps init`` cuts its bias
+parameters with and ``cdgps estimate`` raises its lock events by, so that the three agree.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from cdgps_cli.config.structure import StructureConfig
+from cdgps_cli.io.run import write_run
+from cdgps_cli.measurement.channels import REACQUIRED, RESTART, lock_segments
+
+__all__ = ["channel_summary", "ingest_structure"]
+
+_KIND = {RESTART: "restart", REACQUIRED: "reacquisition"}
+
+
+def channel_summary(phase: pd.DataFrame, sample_period_s: float) -> list[dict]:
+    """Per channel (sorted by antenna, transmitter): rows, first/last time, and the lock segments after
+    the first — the times (s) and kinds (``restart``: lock count 0 or decreasing; ``reacquisition``:
+    after a gap the lock count did not advance over) of :func:`~cdgps_cli.measurement.channels.lock_segments`.
+
+    Parameters
+    ----------
+    phase : DataFrame
+        The run's phase table (``time_s``, ``antenna``, ``transmitter``, ``lock``).
+    sample_period_s : float
+        The config's sample period, s (epoch index = round((t − t₀) / T)).
+    """
+    if len(phase) == 0:
+        return []
+    t = phase["time_s"].to_numpy(dtype=np.float64)
+    a_codes, a_names = pd.factorize(phase["antenna"].to_numpy(dtype=object), sort=True)
+    t_codes, t_names = pd.factorize(phase["transmitter"].to_numpy(dtype=object), sort=True)
+    chan = a_codes.astype(np.int64) * len(t_names) + t_codes
+    step = np.rint((t - t.min()) / sample_period_s).astype(np.int64)
+    seg = lock_segments(chan, step, lock=phase["lock"].to_numpy(dtype=np.int64))
+    rows = np.bincount(chan)
+    out = {}
+    for s_first, s_last, c in zip(seg.first.tolist(), seg.last.tolist(), seg.channel.tolist()):
+        if c not in out:                                    # the channel's first segment
+            out[c] = {"antenna": a_names[c // len(t_names)], "transmitter": t_names[c % len(t_names)],
+                      "rows": int(rows[c]), "first_s": float(t[s_first]), "last_s": float(t[s_last]),
+                      "lock_restarts_s": [], "lock_restart_kinds": []}
+            continue
+        out[c]["lock_restarts_s"].append(float(t[s_first]))
+        out[c]["lock_restart_kinds"].append(_KIND[int(seg.cause[s_first])])
+        out[c]["last_s"] = float(t[s_last])
+    for ch in out.values():
+        ch["segments"] = 1 + len(ch["lock_restarts_s"])
+    return list(out.values())
+
+
+def ingest_structure(cfg: StructureConfig, receiver_csv: str | Path, out_path: str | Path,
+                     gyro_csv: str | Path | None = None, actuator_csv: str | Path | None = None) -> dict:
+    """``cdgps ingest`` of native logs: :func:`cdgps_cli.io.run.write_run` with the lock restarts
+    counted by :func:`channel_summary`.  Returns the ingest summary."""
+    return write_run(cfg, receiver_csv, out_path, gyro_csv, actuator_csv, channel_summary=channel_summary)
