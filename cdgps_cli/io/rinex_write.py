@@ -8,7 +8,10 @@ back unchanged (a tested round trip):
 * :func:`write_rinex_obs` — one GPS receiver, observation types ``C1C L1C S1C`` (pseudorange,
   carrier phase with its LLI and signal-strength digit, C/N0), epoch flags 0/1, the receiver
   clock offset on the epoch line when known;
-* :func:`write_rinex_nav` — GPS broadcast ephemerides (the 29 values of each record, ``D19.12``
+* :func:`write_rinex_obs_signals` — one multi-GNSS, multi-frequency receiver (``M: MIXED``), per
+  signal of :mod:`cdgps_cli.core.signals` the code and phase types of its first tracking attribute
+  (``G:L2`` → ``C2X L2X``, ``E:E5a`` → ``C5Q L5Q``);
+* :func:`write_rinex_nav` — GPS (and Galileo: ``M: MIXED``) broadcast ephemerides (the 29 values of each record, ``D19.12``
   style with an ``E`` exponent, which RINEX allows).
 
 Resolution: phases and pseudoranges are written with 3 decimals (1 mcycle ≈ 0.19 mm, 1 mm),
@@ -31,7 +34,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import GPS_EPOCH
 from cdgps_cli.core.records import NAV_COLUMNS
 
-__all__ = ["write_rinex_obs", "write_rinex_nav", "rinex_calendar"]
+__all__ = ["write_rinex_obs", "write_rinex_obs_signals", "write_rinex_nav", "rinex_calendar"]
 
 
 def _hl(body: str, label: str) -> str:
@@ -134,30 +137,12 @@ def write_rinex_obs(path: str | Path, obs: pd.DataFrame, header: dict | None = N
         _hl(f"{('cdgps ' + __version__)[:20]:<20}{'cdgps':<20}{_created(created):<20}",
             "PGM / RUN BY / DATE"),
     ]
-    for c in h.get("comments") or []:
-        lines.append(_hl(str(c)[:60], "COMMENT"))
-    lines.append(_hl(str(h.get("marker_name") or "UNKNOWN")[:60], "MARKER NAME"))
-    if h.get("marker_number"):
-        lines.append(_hl(str(h["marker_number"])[:20], "MARKER NUMBER"))
-    lines.append(_hl("GEODETIC", "MARKER TYPE"))
-    lines.append(_hl(f"{str(h.get('observer') or '')[:20]:<20}{str(h.get('agency') or '')[:40]:<40}", "OBSERVER / AGENCY"))
-    lines.append(_hl(f"{str(h.get('receiver_number') or '')[:20]:<20}{str(h.get('receiver_type') or '')[:20]:<20}"
-                     f"{str(h.get('receiver_version') or '')[:20]:<20}", "REC # / TYPE / VERS"))
-    lines.append(_hl(f"{str(h.get('antenna_number') or '')[:20]:<20}{str(h.get('antenna_type') or '')[:20]:<20}", "ANT # / TYPE"))
-    pos = h.get("approx_position_xyz_m")
-    if pos is not None:
-        x, y, z = (float(v) for v in pos)
-        lines.append(_hl(f"{x:14.4f}{y:14.4f}{z:14.4f}", "APPROX POSITION XYZ"))
-    dh = h.get("antenna_delta_hen_m") or (0.0, 0.0, 0.0)
-    lines.append(_hl(f"{float(dh[0]):14.4f}{float(dh[1]):14.4f}{float(dh[2]):14.4f}", "ANTENNA: DELTA H/E/N"))
+    lines += _station_lines(h)
     lines.append(_hl(f"G  {len(types):3d}" + "".join(f" {ty}" for ty in types), "SYS / # / OBS TYPES"))
     lines.append(_hl("DBHZ", "SIGNAL STRENGTH UNIT"))
     if h.get("interval_s"):
         lines.append(_hl(f"{float(h['interval_s']):10.3f}", "INTERVAL"))
-    lines.append(_hl(f"{first[0]:6d}{first[1]:6d}{first[2]:6d}{first[3]:6d}{first[4]:6d}{first[5]:13.7f}{'':5}{ts:<3}",
-                     "TIME OF FIRST OBS"))
-    lines.append(_hl(f"{last[0]:6d}{last[1]:6d}{last[2]:6d}{last[3]:6d}{last[4]:6d}{last[5]:13.7f}{'':5}{ts:<3}",
-                     "TIME OF LAST OBS"))
+    lines += _time_lines(first, last, ts)
     if np.isfinite(clk).any():
         lines.append(_hl(f"{0:6d}", "RCV CLOCK OFFS APPL"))
     lines.append(_hl("G L1C", "SYS / PHASE SHIFT"))
@@ -186,6 +171,108 @@ def write_rinex_obs(path: str | Path, obs: pd.DataFrame, header: dict | None = N
     write_atomic(path, lambda p: p.write_text(text, encoding="ascii"))
     return {"path": str(path), "epochs": int(cuts.size - 1), "records": int(n), "first_gps_s": float(t[0]),
             "last_gps_s": float(t[-1])}
+
+
+def _time_lines(first, last, ts: str) -> list:
+    """TIME OF FIRST OBS / TIME OF LAST OBS lines of calendar tuples ``first``, ``last``."""
+    return [_hl(f"{c[0]:6d}{c[1]:6d}{c[2]:6d}{c[3]:6d}{c[4]:6d}{c[5]:13.7f}{'':5}{ts:<3}", label)
+            for c, label in ((first, "TIME OF FIRST OBS"), (last, "TIME OF LAST OBS"))]
+
+
+def write_rinex_obs_signals(path: str | Path, obs: pd.DataFrame, signals, header: dict | None = None, *,
+                            created: str | None = None) -> dict:
+    """Write one receiver's multi-GNSS, multi-frequency observations as a RINEX 3.04 file.
+
+    Parameters
+    ----------
+    path : str or Path
+        Output file (written atomically).
+    obs : DataFrame
+        ``time_gps_s``, ``sat``, ``signal`` (names of :mod:`cdgps_cli.core.signals`), ``phase_cycles``,
+        ``pseudorange_m``; optional ``lli`` (0–9) and ``snr_dbhz``.  One row per epoch, satellite and signal.
+    signals : sequence of str
+        The signals of the file, in the order of their observation types (code ``C``, phase ``L``,
+        C/N0 ``S`` of each, with the signal's first tracking attribute).
+    header, created : as :func:`write_rinex_obs`.
+
+    Returns
+    -------
+    dict
+        ``path``, ``epochs``, ``records``, ``first_gps_s``, ``last_gps_s``, ``obs_types`` ({system: [types]}).
+    """
+    from cdgps_cli.core.signals import signal as _signal  # noqa: PLC0415
+
+    h = dict(header or {})
+    if len(obs) == 0:
+        raise CdgpsError(f"{path}: no observations to write")
+    sigs = [_signal(g) for g in dict.fromkeys(signals)]
+    types: dict = {}
+    for g in sigs:
+        types.setdefault(g.system, []).extend(f"{k}{g.band}{g.attributes[0]}" for k in "CLS")
+    unknown = sorted(set(obs["signal"]) - {g.name for g in sigs})
+    if unknown:
+        raise CdgpsError(f"{path}: rows of signal(s) {', '.join(unknown)} not in the signals to write")
+    o = obs.sort_values(["time_gps_s", "sat"], kind="stable")
+    t_all = o["time_gps_s"].to_numpy(dtype=np.float64)
+    ts = h.get("time_system") or "GPS"
+    lines = [_hl(f"{'3.04':>9}{'':11}{'OBSERVATION DATA':<20}{'M: MIXED':<20}", "RINEX VERSION / TYPE"),
+             _hl(f"{('cdgps ' + __version__)[:20]:<20}{'cdgps':<20}{_created(created):<20}", "PGM / RUN BY / DATE")]
+    lines += _station_lines(h)
+    for c, ty in types.items():
+        for i in range(0, len(ty), 13):
+            head = f"{c}  {len(ty):3d}" if i == 0 else " " * 6
+            lines.append(_hl(head + "".join(f" {x}" for x in ty[i:i + 13]), "SYS / # / OBS TYPES"))
+    lines.append(_hl("DBHZ", "SIGNAL STRENGTH UNIT"))
+    if h.get("interval_s"):
+        lines.append(_hl(f"{float(h['interval_s']):10.3f}", "INTERVAL"))
+    lines += _time_lines(rinex_calendar(t_all[0]), rinex_calendar(t_all[-1]), ts)
+    lines += [_hl("", "END OF HEADER")]
+    body = []
+    n_rec = 0
+    for t, ep in o.groupby("time_gps_s", sort=True):
+        recs = []
+        for sat, rows in ep.groupby("sat", sort=True):
+            vals = {}
+            for r in rows.itertuples(index=False):
+                g = _signal(r.signal)
+                a = g.attributes[0]
+                snr = float(getattr(r, "snr_dbhz", math.nan))
+                ssi = int(np.clip(math.floor(snr / 6.0), 1, 9)) if np.isfinite(snr) else 0
+                lli = int(getattr(r, "lli", 0) or 0)
+                vals[f"C{g.band}{a}"] = _field(float(r.pseudorange_m), "pseudorange") + "  "
+                vals[f"L{g.band}{a}"] = _field(float(r.phase_cycles), "phase") + (str(lli) if lli else " ") + (str(ssi) if ssi else " ")
+                vals[f"S{g.band}{a}"] = _field(snr, "C/N0") + "  "
+            recs.append((sat + "".join(vals.get(x, " " * 16) for x in types[sat[0]])).rstrip())
+        y, mo, d, hh, mi, sec = rinex_calendar(float(t))
+        body.append(f"> {y:4d} {mo:02d} {d:02d} {hh:02d} {mi:02d}{sec:11.7f}  0{len(recs):3d}")
+        body += recs
+        n_rec += len(recs)
+    text = "\n".join(lines + body) + "\n"
+    write_atomic(path, lambda p: p.write_text(text, encoding="ascii"))
+    return {"path": str(path), "epochs": int(np.unique(t_all).size), "records": n_rec, "first_gps_s": float(t_all[0]),
+            "last_gps_s": float(t_all[-1]), "obs_types": types}
+
+
+def _station_lines(h: dict) -> list:
+    """Header lines from COMMENT to ANTENNA: DELTA H/E/N of the header dict ``h``."""
+    lines = []
+    for c in h.get("comments") or []:
+        lines.append(_hl(str(c)[:60], "COMMENT"))
+    lines.append(_hl(str(h.get("marker_name") or "UNKNOWN")[:60], "MARKER NAME"))
+    if h.get("marker_number"):
+        lines.append(_hl(str(h["marker_number"])[:20], "MARKER NUMBER"))
+    lines.append(_hl("GEODETIC", "MARKER TYPE"))
+    lines.append(_hl(f"{str(h.get('observer') or '')[:20]:<20}{str(h.get('agency') or '')[:40]:<40}", "OBSERVER / AGENCY"))
+    lines.append(_hl(f"{str(h.get('receiver_number') or '')[:20]:<20}{str(h.get('receiver_type') or '')[:20]:<20}"
+                     f"{str(h.get('receiver_version') or '')[:20]:<20}", "REC # / TYPE / VERS"))
+    lines.append(_hl(f"{str(h.get('antenna_number') or '')[:20]:<20}{str(h.get('antenna_type') or '')[:20]:<20}", "ANT # / TYPE"))
+    pos = h.get("approx_position_xyz_m")
+    if pos is not None:
+        x, y, z = (float(v) for v in pos)
+        lines.append(_hl(f"{x:14.4f}{y:14.4f}{z:14.4f}", "APPROX POSITION XYZ"))
+    dh = h.get("antenna_delta_hen_m") or (0.0, 0.0, 0.0)
+    lines.append(_hl(f"{float(dh[0]):14.4f}{float(dh[1]):14.4f}{float(dh[2]):14.4f}", "ANTENNA: DELTA H/E/N"))
+    return lines
 
 
 def _d19(v: float) -> str:
@@ -238,8 +325,9 @@ def write_rinex_nav(path: str | Path, nav: pd.DataFrame, *, leap_seconds: int | 
     missing = [c for c in NAV_COLUMNS if c not in nav.columns and c not in ("line", "toe_gps_s", "transmit_gps_s")]
     if missing:
         raise CdgpsError(f"{path}: the ephemeris table lacks {', '.join(missing)}")
+    sys_field = "G: GPS" if set(nav["sat"].astype(str).str[0]) <= {"G"} else "M: MIXED"
     lines = [
-        _hl(f"{'3.04':>9}{'':11}{'N: GNSS NAV DATA':<20}{'G: GPS':<20}", "RINEX VERSION / TYPE"),
+        _hl(f"{'3.04':>9}{'':11}{'N: GNSS NAV DATA':<20}{sys_field:<20}", "RINEX VERSION / TYPE"),
         _hl(f"{('cdgps ' + __version__)[:20]:<20}{'cdgps':<20}{_created(created):<20}",
             "PGM / RUN BY / DATE"),
     ]

@@ -1,0 +1,155 @@
+"""The modal structure model on multi-GNSS, dual-frequency double differences (issue 14 items 4 and 6).
+
+`cdgps simulate-gnss-structure --signals G:L1,G:L2,E:E1,E:E5a` writes multi-signal RINEX 3 files and
+a config with ``[gnss] signals``; ingest keeps the signals (``gnss/signals/<k>.npz.zst``); the modal
+path takes one DD group per rover and signal, each with its own reference satellite and wavelength,
+fixes all groups' integers as one set in the model-aided batch initialization, and filters.  Checked
+against the simulator's truth (integers per signal, q(t)), finite differences, and the refusals.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from cdgps_cli.cli.commands import main
+from cdgps_cli.config.structure import load_config
+from cdgps_cli.io.gnss_run import read_gnss_run
+from cdgps_cli.measurement.model import SatelliteDDModal
+from cdgps_cli.pipeline.gnss_modal import _modal_setup
+
+ROOT = Path(__file__).resolve().parents[2]
+TOWER = ROOT / "configs" / "gnss-tower.toml"
+SIGS = "G:L1,G:L2,E:E1,E:E5a"
+
+
+def run_cli(*args):
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def multi(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("multi")
+    for args in (("simulate-gnss-structure", TOWER, "--duration", "150", "--seed", "3", "--signals", SIGS, "--out", tmp),
+                 ("ingest", "--config", tmp / "config.toml", "-o", tmp / "run.mcap"),
+                 ("init", tmp / "run.mcap", "--structure", TOWER, "-o", tmp / "init.json"),
+                 ("estimate", tmp / "run.mcap", "--init", tmp / "init.json", "--structure", TOWER, "--smooth",
+                  "-o", tmp / "states.mcap")):
+        r = run_cli("-q", *args)
+        assert r.exit_code == 0, (args, r.output)
+    r = run_cli("evaluate", "--truth", tmp, "--estimate", tmp / "states.mcap", "--json", "--converge-s", "20")
+    assert r.exit_code == 0, r.output
+    return tmp, json.loads((tmp / "truth.json").read_text()), json.loads((tmp / "init.json").read_text()), json.loads(r.stdout)
+
+
+def test_ingest_keeps_the_signals(multi):
+    tmp, truth, *_ = multi
+    run = read_gnss_run(tmp / "run.mcap")
+    assert run.cfg.signals == tuple(SIGS.split(",")) and run.metadata["signals"] == SIGS
+    for rx in run.receivers.values():
+        assert set(rx.signals["signal"]) == set(SIGS.split(","))
+        assert set(rx.signals["sat"].str[0]) == {"G", "E"}
+    assert set(run.nav["sat"].str[0]) == {"G", "E"}
+
+
+def test_every_group_has_its_own_reference_and_the_integers_are_the_truth(multi):
+    """Per rover and signal a DD group; every fixed DD integer equals the simulated
+    (N_r^j − N_m^j) − (N_r^ref − N_m^ref) of that signal (one lock segment per satellite here)."""
+    tmp, truth, init, _ = multi
+    mi = init["modal_init"]
+    ints, master = truth["integers"], truth["master"]
+    groups = {}
+    for sg in mi["segments"]:
+        groups.setdefault((sg["rover_slot"], sg["signal"]), set()).add(sg["reference"])
+    assert {g for _, g in groups} == set(SIGS.split(",")) and len(groups) == 2 * 4
+    assert all(len(refs) == 1 for refs in groups.values())           # one reference per group in the window
+    rovers = [r for r in truth["receivers"].values() if r != master]
+    n_ok = 0
+    for sg in mi["segments"]:
+        g, rx = sg["signal"], rovers[sg["rover_slot"] // 4]
+        sat, ref = sg["satellite"].split(":")[0], sg["reference"].split(":")[0]
+        assert sg["satellite"][0] == g[0]                          # within one constellation
+        want = (ints[rx][g][sat] - ints[master][g][sat]) - (ints[rx][g][ref] - ints[master][g][ref])
+        assert sg["fixed"] and sg["integer_cycles"] == want, sg
+        n_ok += 1
+    assert mi["n_fixed"] == mi["n_segments"] == n_ok >= 40
+
+
+def test_modal_states_recover_the_truth(multi):
+    _, _, _, ev = multi
+    rms = ev["rms_error"]
+    assert rms["ex"] < 0.004 and rms["ey"] < 0.004 and rms["psi"] < 4e-4
+    assert 1.5 < ev["nees"]["mean"] < 4.5                                       # dof 3
+    assert 0.8 < ev["nis"]["mean_per_dof"] < 1.2
+
+
+def test_multi_signal_model_jacobian_and_noise(multi):
+    """The multi-signal SatelliteDDModal: H = finite differences; rows of different signals are
+    uncorrelated, rows of one signal of different rovers correlate through the master."""
+    tmp, *_ = multi
+    cfg = load_config(TOWER)
+    run = read_gnss_run(tmp / "run.mcap")
+    init = json.loads((tmp / "init.json").read_text())
+    su = _modal_setup(run, init, cfg, None, 90.0, lambda m: None)
+    raw = [dict(tb, r0=tb["r_raw"], use=np.ones(tb["seg"].size, bool), ref=tb["ref"]) for tb in su.tabs]
+    from cdgps_cli.measurement.differencing import select_reference
+
+    for tb in raw:
+        tb["ref"] = select_reference(tb["d"].ptr, tb["d"].sat, tb["d"].el_rover, tb["d"].slip)
+    model = SatelliteDDModal(cfg, su.R, raw, su.k_of, su.ant_idx, su.d_hdr)
+    rows = model.rows(5)
+    x = np.random.default_rng(1).normal(scale=0.05, size=model.n_state)
+    _, H = model.predict(x, rows)
+    fd = np.zeros_like(H)
+    for j in range(x.size):
+        dx = np.zeros(x.size)
+        dx[j] = 1e-6
+        fd[:, j] = (model.predict(x + dx, rows)[0] - model.predict(x - dx, rows)[0]) / 2e-6
+    np.testing.assert_allclose(H, fd, atol=1e-7)
+    C = rows.covariance()
+    sig = np.array([lab[1].split(":")[1] for lab in rows.labels])
+    slot = np.array([lab[0] for lab in rows.labels])
+    assert np.all(C[sig[:, None] != sig[None, :]] == 0.0)
+    cross = (sig[:, None] == sig[None, :]) & (np.array(su.slot_ants)[slot][:, None] != np.array(su.slot_ants)[slot][None, :])
+    assert np.all(C[cross] != 0.0)
+    # the wavelength of each group: L2 and E5a slots have their own λ
+    lam = {tb["signal"]: tb["lam_m"] for tb in su.tabs}
+    assert lam["G:L2"] == pytest.approx(0.2442102, abs=1e-6) and lam["E:E5a"] == pytest.approx(0.2548280, abs=1e-6)
+
+
+def _write_config(tmp, src, signals):
+    text = (src / "config.toml").read_text()
+    lines = [ln for ln in text.splitlines() if not ln.startswith("signals")]
+    i = lines.index("[gnss]") + 1
+    lines.insert(i, f"signals = {signals}")
+    cfg = tmp / "config.toml"
+    cfg.write_text("\n".join(lines) + "\n")
+    for p in src.iterdir():
+        if p.suffix == ".rnx":
+            (tmp / p.name).write_bytes(p.read_bytes())
+    return cfg
+
+
+@pytest.mark.parametrize("signals,message", [
+    ('["G:L1", "E:E5b"]', "E:E5b"),                     # a signal the receivers do not track
+    ('["G:L1", "C:B1I"]', "BeiDou"),                    # a system without ephemerides here
+    ('["G:L1", "X:L9"]', "gnss.signals: unknown signal"),
+])
+def test_ingest_refuses_signals_the_receivers_do_not_share(multi, tmp_path, signals, message):
+    tmp, *_ = multi
+    cfg = _write_config(tmp_path, tmp, signals)
+    (tmp_path / "nav.rnx").write_bytes((tmp / "nav.rnx").read_bytes())
+    out = tmp_path / "run.mcap"
+    r = run_cli("ingest", "--config", cfg, "-o", out)
+    assert r.exit_code == 2 and message in r.output and "Traceback" not in r.output, r.output
+    assert not out.exists() and not any(p.name.startswith(".run.mcap") for p in tmp_path.iterdir())
+
+
+def test_simulate_refuses_signals_without_gps_l1(tmp_path):
+    out = tmp_path / "sim"
+    r = run_cli("simulate-gnss-structure", TOWER, "--duration", "20", "--signals", "E:E1,E:E5a", "--out", out)
+    assert r.exit_code == 2 and "G:L1" in r.output and not out.exists(), r.output
