@@ -227,26 +227,34 @@ def write_rinex_obs_signals(path: str | Path, obs: pd.DataFrame, signals, header
         lines.append(_hl(f"{float(h['interval_s']):10.3f}", "INTERVAL"))
     lines += _time_lines(rinex_calendar(t_all[0]), rinex_calendar(t_all[-1]), ts)
     lines += [_hl("", "END OF HEADER")]
+    # one record per (epoch, satellite): its system's types, each 16 columns (F14.3, LLI, SSI)
+    sats = o["sat"].astype(str).to_numpy()
+    slot = {(g.system, g.name): types[g.system].index(f"C{g.band}{g.attributes[0]}") for g in sigs}
+    col = np.array([slot[(s[0], g)] for s, g in zip(sats, o["signal"].to_numpy())])
+    n = len(o)
+    snr = (o["snr_dbhz"] if "snr_dbhz" in o.columns else pd.Series(np.full(n, np.nan))).to_numpy(dtype=np.float64)
+    lli = (o["lli"] if "lli" in o.columns else pd.Series(np.zeros(n))).to_numpy().astype(np.int64)
+    ssi = np.where(np.isfinite(snr), np.clip(np.floor(np.nan_to_num(snr) / 6.0), 1, 9), 0).astype(np.int64)
+    fields = zip(o["pseudorange_m"].to_numpy(dtype=np.float64).tolist(), o["phase_cycles"].to_numpy(dtype=np.float64).tolist(),
+                 lli.tolist(), ssi.tolist(), snr.tolist())
+    new_rec = np.r_[True, (t_all[1:] != t_all[:-1]) | (sats[1:] != sats[:-1])]
+    recs, rec_t = [], []
+    for k, (pr, ph, li, si, q) in enumerate(fields):
+        if new_rec[k]:
+            recs.append([sats[k]] + [" " * 16] * len(types[sats[k][0]]))
+            rec_t.append(t_all[k])
+        r, c = recs[-1], col[k] + 1
+        r[c] = _field(pr, "pseudorange") + "  "
+        r[c + 1] = _field(ph, "phase") + (str(li) if li else " ") + (str(si) if si else " ")
+        r[c + 2] = _field(q, "C/N0") + "  "
+    rec_t = np.asarray(rec_t)
+    cuts = np.flatnonzero(np.r_[True, rec_t[1:] != rec_t[:-1], True])
     body = []
-    n_rec = 0
-    for t, ep in o.groupby("time_gps_s", sort=True):
-        recs = []
-        for sat, rows in ep.groupby("sat", sort=True):
-            vals = {}
-            for r in rows.itertuples(index=False):
-                g = _signal(r.signal)
-                a = g.attributes[0]
-                snr = float(getattr(r, "snr_dbhz", math.nan))
-                ssi = int(np.clip(math.floor(snr / 6.0), 1, 9)) if np.isfinite(snr) else 0
-                lli = int(getattr(r, "lli", 0) or 0)
-                vals[f"C{g.band}{a}"] = _field(float(r.pseudorange_m), "pseudorange") + "  "
-                vals[f"L{g.band}{a}"] = _field(float(r.phase_cycles), "phase") + (str(lli) if lli else " ") + (str(ssi) if ssi else " ")
-                vals[f"S{g.band}{a}"] = _field(snr, "C/N0") + "  "
-            recs.append((sat + "".join(vals.get(x, " " * 16) for x in types[sat[0]])).rstrip())
-        y, mo, d, hh, mi, sec = rinex_calendar(float(t))
-        body.append(f"> {y:4d} {mo:02d} {d:02d} {hh:02d} {mi:02d}{sec:11.7f}  0{len(recs):3d}")
-        body += recs
-        n_rec += len(recs)
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        y, mo, d, hh, mi, sec = rinex_calendar(float(rec_t[a]))
+        body.append(f"> {y:4d} {mo:02d} {d:02d} {hh:02d} {mi:02d}{sec:11.7f}  0{b - a:3d}")
+        body += ["".join(r).rstrip() for r in recs[a:b]]
+    n_rec = len(recs)
     text = "\n".join(lines + body) + "\n"
     write_atomic(path, lambda p: p.write_text(text, encoding="ascii"))
     return {"path": str(path), "epochs": int(np.unique(t_all).size), "records": n_rec, "first_gps_s": float(t_all[0]),
