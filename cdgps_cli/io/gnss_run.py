@@ -310,33 +310,42 @@ def lock_summary(rx: GnssReceiver, obs: pd.DataFrame | None = None) -> dict:
 # writing
 
 
-def _npz_zst(raw: pd.DataFrame) -> bytes:
+def _pack_npz_zst(tab: pd.DataFrame, text_cols: tuple, dtypes: dict) -> bytes:
+    """Columns of ``tab`` as zstd-compressed numpy arrays: each text column as ``<c>_index`` (int16) and
+    ``<c>_names``, each numeric column ``c`` of ``dtypes`` in its dtype."""
     import zstandard  # noqa: PLC0415
 
-    codes, names = pd.factorize(raw["sat"], sort=True)
-    arrays = {"sat_index": codes.astype(np.int16), "sat_names": np.array(list(names), dtype="U8")}
-    for c, dt in _DTYPES.items():
-        arrays[c] = raw[c].to_numpy().astype(dt)
+    arrays = {}
+    for c in text_cols:
+        codes, names = pd.factorize(tab[c], sort=True)
+        arrays[c + "_index"], arrays[c + "_names"] = codes.astype(np.int16), np.array(list(names), dtype="U8")
+    for c, dt in dtypes.items():
+        arrays[c] = tab[c].to_numpy().astype(dt)
     buf = io.BytesIO()
     np.savez(buf, **arrays)
     return zstandard.ZstdCompressor(level=3).compress(buf.getvalue())
 
 
-def _raw_from_npz_zst(data: bytes, what: str) -> pd.DataFrame:
+def _unpack_npz_zst(data: bytes, what: str, text_cols: tuple, dtypes: dict, columns: list) -> pd.DataFrame:
+    """The table of :func:`_pack_npz_zst` (floats as float64, integers as int64); CdgpsError when damaged."""
     import zstandard  # noqa: PLC0415
 
     try:
         z = np.load(io.BytesIO(zstandard.ZstdDecompressor().decompress(data)), allow_pickle=False)
-        names = np.asarray(z["sat_names"], dtype=object)
-        df = {"time_gps_s": z["time_gps_s"].astype(np.float64), "sat": names[z["sat_index"].astype(np.int64)]}
-        for c in _DTYPES:
-            if c == "time_gps_s":
-                continue
-            a = z[c]
-            df[c] = a.astype(np.float64) if a.dtype.kind == "f" else a.astype(np.int64)
+        df = {c: np.asarray(z[c + "_names"], dtype=object)[z[c + "_index"].astype(np.int64)] for c in text_cols}
+        for c in dtypes:
+            df[c] = z[c].astype(np.float64) if z[c].dtype.kind == "f" else z[c].astype(np.int64)
     except (KeyError, ValueError, OSError, zstandard.ZstdError) as exc:
         raise CdgpsError(f"{what}: damaged observation arrays: {exc}") from None
-    return pd.DataFrame(df, columns=list(RAW_COLUMNS))
+    return pd.DataFrame(df, columns=columns)
+
+
+def _npz_zst(raw: pd.DataFrame) -> bytes:
+    return _pack_npz_zst(raw, ("sat",), _DTYPES)
+
+
+def _raw_from_npz_zst(data: bytes, what: str) -> pd.DataFrame:
+    return _unpack_npz_zst(data, what, ("sat",), _DTYPES, list(RAW_COLUMNS))
 
 
 _SIGNAL_DTYPES = {"time_gps_s": np.float64, "phase_cycles": np.float64, "pseudorange_m": np.float64, "lli": np.int8,
@@ -345,30 +354,12 @@ _SIGNAL_DTYPES = {"time_gps_s": np.float64, "phase_cycles": np.float64, "pseudor
 
 def _signals_npz_zst(tab: pd.DataFrame) -> bytes:
     """A multi-signal table (:data:`~cdgps_cli.io.rinex_signals.SIGNAL_COLUMNS`) as zstd-compressed numpy arrays."""
-    import zstandard  # noqa: PLC0415
-
-    arrays = {}
-    for c in ("sat", "signal"):
-        codes, names = pd.factorize(tab[c], sort=True)
-        arrays[c + "_index"], arrays[c + "_names"] = codes.astype(np.int16), np.array(list(names), dtype="U8")
-    for c, dt in _SIGNAL_DTYPES.items():
-        arrays[c] = tab[c].to_numpy().astype(dt)
-    buf = io.BytesIO()
-    np.savez(buf, **arrays)
-    return zstandard.ZstdCompressor(level=3).compress(buf.getvalue())
+    return _pack_npz_zst(tab, ("sat", "signal"), _SIGNAL_DTYPES)
 
 
 def _signals_from_npz_zst(data: bytes, what: str) -> pd.DataFrame:
-    import zstandard  # noqa: PLC0415
-
-    try:
-        z = np.load(io.BytesIO(zstandard.ZstdDecompressor().decompress(data)), allow_pickle=False)
-        df = {c: np.asarray(z[c + "_names"], dtype=object)[z[c + "_index"].astype(np.int64)] for c in ("sat", "signal")}
-        for c in _SIGNAL_DTYPES:
-            df[c] = z[c].astype(np.float64) if z[c].dtype.kind == "f" else z[c].astype(np.int64)
-    except (KeyError, ValueError, OSError, zstandard.ZstdError) as exc:
-        raise CdgpsError(f"{what}: damaged signal arrays: {exc}") from None
-    return pd.DataFrame(df, columns=["time_gps_s", "sat", "signal", "phase_cycles", "pseudorange_m", "lli", "wavelength_m"])
+    return _unpack_npz_zst(data, what, ("sat", "signal"), _SIGNAL_DTYPES,
+                           ["time_gps_s", "sat", "signal", "phase_cycles", "pseudorange_m", "lli", "wavelength_m"])
 
 
 def _nullable(values: np.ndarray) -> list:

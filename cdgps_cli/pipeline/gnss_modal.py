@@ -359,6 +359,13 @@ def _modal_setup(run, init: dict, cfg: StructureConfig, receivers, x_axis_azimut
                            d_hdr=d_hdr, mismatch=mismatch, t_all=t_all, k_of=k_of, slot_ants=slot_ants)
 
 
+def _signal_options(tabs: list) -> dict:
+    """The signal groups of a multi-signal estimate with their wavelengths (m), for the outputs' options."""
+    lam = {tb["signal"]: tb["lam_m"] for tb in tabs if "signal" in tb}
+    return {"signals": list(lam), "wavelengths_m": lam,
+            "dd_groups": "per rover and signal, own reference satellite; integers fixed as one full set"} if lam else {}
+
+
 def _final_biases(su, tabs: list, init: dict) -> tuple[dict, dict]:
     """``final_biases`` {(antenna, satellite): bias m} and the integer counts of the summary: INIT's fixed
     L1 integers per rover (GPS L1 path), or per signal slot the integers used (signal path)."""
@@ -546,7 +553,8 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
                "master_ecef_m": list(map(float, xm)), "receivers": mapping,
                "initial_sigma_xi": initial_sigma_xi, "initial_sigma_xidot": initial_sigma_xidot,
                **({"batch_init_window_s": float(init_window_s)} if batch_init else {"batch_init": False}),
-               "dd_covariance": "D Σ Dᵀ jointly over the rovers (common master)", "outlier_sigma": gate, **(extra_options or {})}
+               "dd_covariance": "D Σ Dᵀ jointly over the rovers (common master)", "outlier_sigma": gate,
+               **_signal_options(tabs), **(extra_options or {})}
     say(f"writing {out_path} …")
     out = write_states(res, run.path, init, init_text, out_path, options)
     out.update({
