@@ -29,6 +29,7 @@ from types import SimpleNamespace
 
 import pandas as pd
 
+from cdgps_cli.core.gps_time import nominal_interval_s
 from cdgps_cli.measurement.differencing import ambiguity_segments, dd_covariance, dd_operator, epoch_pointers
 
 __all__ = ["dd_range", "epoch_rows", "signal_sd_table", "group_key"]
@@ -39,8 +40,17 @@ def group_key(sat: str, signal_name: str) -> str:
     return f"{sat}:{signal_name.split(':', 1)[1]}"
 
 
+def _on_grid(df: pd.DataFrame, step_s: float, tol_s: float) -> pd.DataFrame:
+    """Rows whose time tag is within ``tol_s`` of a grid time k·step, with ``key`` = k."""
+    t = df["time_gps_s"].to_numpy()
+    key = np.rint(t / step_s).astype(np.int64)
+    ok = np.abs(t - key * step_s) <= tol_s
+    return df[ok].assign(key=key[ok])
+
+
 def signal_sd_table(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz_m, *, mask_rad: float,
-                    max_gap_s: float, troposphere: bool = True, tag_resolution_s: float = 1e-3) -> SimpleNamespace:
+                    max_gap_s: float | None, troposphere: bool = True, interval_s: float | None = None,
+                    sync_tol_s: float = 0.025) -> SimpleNamespace:
     """Single differences (rover − base) of one signal group over a run.
 
     Parameters
@@ -55,8 +65,12 @@ def signal_sd_table(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_x
         Elevation mask at both receivers, rad.
     max_gap_s : float
         A longer gap in a satellite's rows starts a new ambiguity (as an LLI slip flag does).
-    tag_resolution_s : float
-        Epochs pair when their time tags agree to this, s (labels: the base's tags).
+    interval_s : float, optional
+        Epoch grid step, s (default: the base's median spacing).
+    sync_tol_s : float
+        Each receiver's time tags are put on the grid of GPS times k·interval when within this of
+        one (others dropped); epochs pair on grid times, labelled by them.  The geometry stays at each
+        receiver's own reception instant (the "geometry" epoch alignment of the GPS L1 path).
 
     Returns
     -------
@@ -68,12 +82,12 @@ def signal_sd_table(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_x
         ``ptr`` (n_ep + 1,), ``lam_m`` (the group's wavelength), ``signal``.
     """
     cols = ["time_gps_s", "sat", "phase_cycles", "lli", "wavelength_m", "sx", "sy", "sz", "el_rad", "trop_m"]
-    b, r = base[cols].copy(), rover[cols].copy()
-    for df in (b, r):
-        df["key"] = np.rint(df["time_gps_s"].to_numpy() / tag_resolution_s).astype(np.int64)
-    m = b.merge(r.drop(columns="time_gps_s"), on=["key", "sat"], suffixes=("_b", "_r"))
+    step = nominal_interval_s(base["time_gps_s"]) if interval_s is None else float(interval_s)
+    b, r = (_on_grid(df[cols], step, sync_tol_s) for df in (base, rover))
+    m = b.drop(columns="time_gps_s").merge(r.drop(columns="time_gps_s"), on=["key", "sat"], suffixes=("_b", "_r"))
     m = m[(m["el_rad_b"] >= mask_rad) & (m["el_rad_r"] >= mask_rad)].sort_values(["key", "sat"], kind="stable")
-    t_label, epoch = np.unique(m["time_gps_s"].to_numpy(), return_inverse=True)
+    keys, epoch = np.unique(m["key"].to_numpy(), return_inverse=True)
+    t_label = keys * step
     names, sat = np.unique(m["sat"].to_numpy().astype(str), return_inverse=True)
     slip = ((m["lli_b"].to_numpy() | m["lli_r"].to_numpy()) & 1) > 0
     seg, _ = ambiguity_segments(epoch, sat, slip, epoch_time_s=t_label, max_gap_s=max_gap_s)

@@ -413,7 +413,8 @@ def _signal_slots(run, mapping: dict, rover_ants: list, xm: np.ndarray, say) -> 
         geo_r = receiver_geometry(run.receivers[r].signals, run.nav, xr0)
         for g in c.signals:
             d = signal_sd_table(geo_m[geo_m["signal"] == g], geo_r[geo_r["signal"] == g], xm, xr0,
-                                mask_rad=math.radians(c.mask_deg), max_gap_s=c.max_gap_s, troposphere=c.troposphere)
+                                mask_rad=math.radians(c.mask_deg), max_gap_s=c.max_gap_s, troposphere=c.troposphere,
+                                sync_tol_s=c.sync_tol_s)
             if d.t_label.size == 0:
                 raise CdgpsError(f"{run.path}: no common {g} observations of {run.master} and {r} above the {c.mask_deg:g}° mask")
             va = 0.5 * sd_variance(d.el_rover, d.el_rover, sigma_a_m=c.sigma_a_m, sigma_b_m=c.sigma_b_m, weighting=c.weighting)
