@@ -82,10 +82,11 @@ def simulate_receiver_signals(nav: pd.DataFrame, rx_ecef_m, t_start_s: float, n_
     fracs = {g: float(gen.uniform(-0.5, 0.5)) for g in names}
     systems = {signal(g).system for g in names}
     frames, amb_rows = [], []
-    for s in sorted(nav["sat"].unique()):
-        if s[0] not in systems:
-            continue
-        idx = np.flatnonzero(ephemeris_coverage(nav, np.full(t_nom.size, s, dtype=object), t_nom))
+    sats = [s for s in sorted(nav["sat"].unique()) if s[0] in systems]
+    covered = ephemeris_coverage(nav, np.repeat(np.array(sats, dtype=object), t_nom.size),
+                                 np.tile(t_nom, len(sats))).reshape(len(sats), t_nom.size)
+    for s, cov in zip(sats, covered):
+        idx = np.flatnonzero(cov)
         if idx.size == 0:
             continue
         geo = sat_position_at_reception(nav, s, t_nom[idx], track[idx], rx_clock_s=clock[idx])

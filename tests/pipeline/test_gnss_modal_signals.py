@@ -153,3 +153,17 @@ def test_simulate_refuses_signals_without_gps_l1(tmp_path):
     out = tmp_path / "sim"
     r = run_cli("simulate-gnss-structure", TOWER, "--duration", "20", "--signals", "E:E1,E:E5a", "--out", out)
     assert r.exit_code == 2 and "G:L1" in r.output and not out.exists(), r.output
+
+
+def test_simulate_with_signals_is_deterministic(tmp_path):
+    for d in ("a", "b"):
+        r = run_cli("-q", "simulate-gnss-structure", TOWER, "--duration", "20", "--seed", "5", "--signals", "G:L1,E:E1",
+                    "--out", tmp_path / d)
+        assert r.exit_code == 0, r.output
+    files = sorted(p.name for p in (tmp_path / "a").iterdir())
+    assert "nav.rnx" in files and sum(f.endswith(".rnx") for f in files) == 4
+    for f in files:
+        assert (tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes(), f
+    cfg = (tmp_path / "a" / "config.toml").read_text()
+    assert 'signals = ["G:L1", "E:E1"]' in cfg
+    assert "M: MIXED" in (tmp_path / "a" / "nav.rnx").read_text().splitlines()[0]
