@@ -203,15 +203,8 @@ def modal_batch_initialization(cfg: StructureConfig, R, tabs, k_of, ant_idx, d_h
     record : dict
         Window, counts, ratio, note, agreement with INIT's integers, per-segment floats/integers.
     """
-    from cdgps_cli.estimation.initializer import InitOptions  # noqa: PLC0415
-    from cdgps_cli.estimation.model_init import model_batch_init  # noqa: PLC0415
-
     idx, dt = _init_window(t_all, window_s)
-    raw = [dict(tb, r0=tb["r_raw"], use=np.ones(tb["seg"].size, dtype=bool),
-                ref=select_reference(tb["d"].ptr, tb["d"].sat, tb["d"].el_rover, tb["d"].slip)) for tb in tabs]
-    model = SatelliteDDModal(cfg, R, raw, k_of, ant_idx, d_hdr)
-    lam = [tb.get("lam_m", GPS_L1_WAVELENGTH_M) for tb in tabs]
-    res = model_batch_init(model, ModalZOH(cfg), idx, dt, lambda col: lam[model.segment_keys[col][0]], options or InitOptions())
+    res, model, lam = _solve_window(cfg, R, tabs, k_of, ant_idx, d_hdr, idx, dt, options)
     init_known = [np.asarray(tb["w"]["known_seg"], bool) & (tb["n_fixed"] > 0) for tb in tabs]
     segs, agree, n_cmp = [], 0, 0
     for i, col in enumerate(res.columns):
@@ -232,7 +225,74 @@ def modal_batch_initialization(cfg: StructureConfig, R, tabs, k_of, ant_idx, d_h
               "ratio": None if res.ratio is None else (float(res.ratio) if np.isfinite(res.ratio) else "inf"),
               "integer_fixing": res.note, "cost_per_dof": float(res.cost_per_dof), "iterations": int(res.iterations),
               "agree_with_init": {"compared": n_cmp, "equal": agree}, "x1": [float(v) for v in res.x[0]], "segments": segs}
+    if tabs and "signal" in tabs[0]:     # signal path: no INIT integers for later segments → later windows
+        record["later_segments"], record["later_windows"] = _later_windows(
+            cfg, R, apply_modal_record(tabs, record), k_of, ant_idx, d_hdr, t_all, window_s, float(t_all[idx[-1]]) + 1e-6)
     return apply_modal_record(tabs, record), res.x[0].copy(), record
+
+
+def _solve_window(cfg, R, tabs, k_of, ant_idx, d_hdr, idx, dt, options=None):
+    """The batch initialization of every slot's DDs, all ambiguities float, on the epochs ``idx``
+    (:func:`cdgps_cli.estimation.model_init.model_batch_init`): (result, its model, λ per slot)."""
+    from cdgps_cli.estimation.initializer import InitOptions  # noqa: PLC0415
+    from cdgps_cli.estimation.model_init import model_batch_init  # noqa: PLC0415
+
+    raw = [dict(tb, r0=tb["r_raw"], use=np.ones(tb["seg"].size, dtype=bool),
+                ref=select_reference(tb["d"].ptr, tb["d"].sat, tb["d"].el_rover, tb["d"].slip)) for tb in tabs]
+    model = SatelliteDDModal(cfg, R, raw, k_of, ant_idx, d_hdr)
+    lam = [tb.get("lam_m", GPS_L1_WAVELENGTH_M) for tb in tabs]
+    res = model_batch_init(model, ModalZOH(cfg), idx, dt, lambda col: lam[model.segment_keys[col][0]], options or InitOptions())
+    return res, model, lam
+
+
+def _later_windows(cfg, R, tabs, k_of, ant_idx, d_hdr, t_all, window_s: float, t_from: float) -> tuple[list, list]:
+    """Signal path: integers of the segments starting after the first window (rising satellites, slips).
+
+    A window of ``window_s`` opens where the first segment not yet known and observed for at least
+    half a window more (a new one, or one the previous window left float) is seen, and is solved as the first
+    (all DD ambiguities float, :func:`_solve_window`); its fixed DD integers N of (s_j, s_r) are first
+    checked where both segments are already known (a disagreement rejects the window), then chained
+    onto the datum: a(s_j) = a(s_r) + N when only s_r is known (and a(s_r) = a(s_j) − N the other way).
+    The next window opens after this one.  ``tabs`` carry the first window's integers (``use``,
+    ``a_seg``).  Returns ([{rover_slot, segment, a_cycles}], [per-window summary])."""
+    a_cur = [np.array(tb["a_seg"], float) for tb in tabs]
+    known = [np.isin(np.arange(a.size), tb["seg"][tb["use"]]) for a, tb in zip(a_cur, tabs)]
+    first_t, last_t = [], []
+    for a, tb in zip(a_cur, tabs):
+        t_row = tb["d"].t_label[tb["d"].epoch]
+        ft, lt = np.full(a.size, np.inf), np.full(a.size, -np.inf)
+        np.minimum.at(ft, tb["seg"], t_row)
+        np.maximum.at(lt, tb["seg"], t_row)
+        first_t.append(ft)
+        last_t.append(lt)
+    later, windows = [], []
+    while True:                   # unknown segments still observed after t_from (new ones, or left float)
+        starts = np.concatenate([np.maximum(ft, t_from)[~kn & (lt >= t_from + window_s / 2)]
+                                 for ft, lt, kn in zip(first_t, last_t, known)])
+        if starts.size == 0:
+            return later, windows
+        k0 = int(np.searchsorted(t_all, starts.min()))
+        try:
+            idx, dt = _init_window(t_all[k0:], window_s)
+            res, model, _ = _solve_window(cfg, R, tabs, k_of, ant_idx, d_hdr, idx + k0, dt)
+        except CdgpsError as exc:
+            windows.append({"start_s": float(t_all[k0]), "refused": str(exc)})
+            t_from = float(t_all[k0]) + window_s
+            continue
+        fixed = [(model.segment_keys[c], int(n)) for c, f, n in zip(res.columns, res.fixed, res.integers) if f]
+        both = [(k, n) for k, n in fixed if known[k[0]][k[1]] and known[k[0]][k[2]]]
+        bad = sum(int(round(a_cur[s][j] - a_cur[s][r])) != n for (s, j, r), n in both)
+        new = 0
+        for _ in range(2 if not bad else 0):          # twice: a reference that became known in the first pass
+            for (s, j, r), n in fixed:
+                if known[s][r] != known[s][j]:
+                    tgt, val = (j, a_cur[s][r] + n) if known[s][r] else (r, a_cur[s][j] - n)
+                    a_cur[s][tgt], known[s][tgt] = val, True
+                    later.append({"rover_slot": int(s), "segment": int(tgt), "a_cycles": float(val)})
+                    new += 1
+        windows.append({"start_s": float(t_all[idx[0] + k0]), "end_s": float(t_all[idx[-1] + k0]), "epochs": int(idx.size),
+                        "integer_fixing": res.note, "checked": len(both), "disagree": int(bad), "new_segments": new})
+        t_from = float(t_all[idx[-1] + k0]) + 1e-6
 
 
 def apply_modal_record(tabs: list, record: dict) -> list:
@@ -251,6 +311,11 @@ def apply_modal_record(tabs: list, record: dict) -> list:
             a_new[a][sj] = float(tabs[a]["a_seg"][sr]) + int(sg["integer_cycles"])
             known[a][sj] = known[a][sr] = True
             anchored[a] = anchored[a] and bool(init_known[a][sr])
+    for sg in record.get("later_segments", []):     # signal path: later windows' integers, on the datum
+        a, sj = sg["rover_slot"], sg["segment"]
+        if not (0 <= a < len(tabs) and 0 <= sj < a_new[a].size):
+            raise CdgpsError("INIT.json's modal_init does not match this run's lock segments")
+        a_new[a][sj], known[a][sj] = float(sg["a_cycles"]), True
     out = []
     for a, tb in enumerate(tabs):
         # INIT's integers where the window's did not decide, while on the same datum

@@ -192,3 +192,32 @@ def test_compiled_filter_equals_numpy_on_the_multi_signal_model(multi):
     got = filter_dd_kernel(model, ModalZOH(cfg), t, x0, P0)
     np.testing.assert_allclose(got["x"], ref["x"], rtol=1e-8, atol=1e-11)
     np.testing.assert_allclose(got["P"], ref["P"], rtol=1e-7, atol=1e-15)
+
+
+def test_a_segment_starting_after_the_window_is_fixed_by_a_later_window(multi):
+    """A slip of +7 cycles at epoch 90 on one satellite of one group (a new lock segment the first
+    window cannot see): a window opened at the slip fixes it, chained onto the datum, so its SD integer
+    is the old segment's + 7 and its rows are used; the rest of the run is checked, not changed."""
+    from cdgps_cli.pipeline.gnss_modal import modal_batch_initialization
+
+    tmp, *_ = multi
+    cfg = load_config(TOWER)
+    init = json.loads((tmp / "init.json").read_text())
+    su = _modal_setup(read_gnss_run(tmp / "run.mcap"), init, cfg, None, 90.0, lambda m: None)
+    tabs = [dict(tb) for tb in su.tabs]
+    tb, d = tabs[0], su.tabs[0]["d"]
+    k90 = d.ptr[90]
+    rows90 = np.arange(k90, d.ptr[91])
+    sat = d.sat[rows90[np.argmin(d.el_rover[rows90])]]        # the lowest satellite: not the reference
+    old = int(tb["seg"][rows90[d.sat[rows90] == sat][0]])
+    n_seg = tb["a_seg"].size
+    hit = (d.sat == sat) & (d.epoch >= 90)
+    seg = np.where(hit, n_seg, tb["seg"])
+    tb.update(seg=seg, r_raw=tb["r_raw"] + np.where(hit, 7 * tb["lam_m"], 0.0), a_seg=np.zeros(n_seg + 1),
+              w={"known_seg": np.zeros(n_seg + 1, bool), "seg": seg, "a_seg": np.zeros(n_seg + 1)})
+    out, _, rec = modal_batch_initialization(cfg, su.R, tabs, su.k_of, su.ant_idx, su.d_hdr, su.t_all, window_s=30.0)
+    assert rec["window"]["epochs"] == 30
+    lw = [w for w in rec["later_windows"] if "refused" not in w]
+    assert lw and lw[0]["start_s"] == pytest.approx(su.t_all[90]) and lw[0]["disagree"] == 0 and lw[0]["checked"] > 10
+    assert any(s["rover_slot"] == 0 and s["segment"] == n_seg for s in rec["later_segments"])
+    assert out[0]["a_seg"][n_seg] == out[0]["a_seg"][old] + 7 and out[0]["use"][hit].all()
