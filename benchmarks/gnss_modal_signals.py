@@ -12,7 +12,8 @@ group per rover and signal, own reference, own wavelength; all integers fixed as
 Recorded per row: **time to first fix** = the shortest of those windows whose integers are all fixed
 and all right (against the simulator's: (N_r^j − N_m^j) − (N_r^ref − N_m^ref) per signal), the
 integers fixed / right / wrong in the 60 s window, the smoothed modal RMS error per coordinate
-(after 20 s), and NEES/dof of the smoothed states (``cdgps evaluate``'s, after 20 s).  Rows go to OUT.partial as they finish::
+(after 20 s), and NEES/dof of the smoothed states (``cdgps evaluate``'s, after 20 s).  Rows go to OUT.partial as they
+finish (removed when the table is written)::
 
     python benchmarks/gnss_modal_signals.py [--seeds 3] [--duration 180]
 """
@@ -132,6 +133,7 @@ def main_(argv=None):
     out = {"seeds": a.seeds, "duration_s": a.duration, "windows_s": list(WINDOWS_S), "elapsed_s": time.perf_counter() - t0,
            "load_average_start": load0, "load_average_end": os.getloadavg(), "summary": summary, "rows": rows}
     Path(a.out).write_text(json.dumps(out, indent=2) + "\n")
+    part.unlink()
     print(json.dumps(summary, indent=2))
 
 
