@@ -1182,18 +1182,24 @@ def _gps_time(t: float) -> str:
     return gps_time_str(t)
 
 
-@main.command("simulate-gnss-structure", short_help="Simulate a structure seen by GPS L1 → RINEX")
+@main.command("simulate-gnss-structure", short_help="Simulate a structure seen by GNSS receivers → RINEX")
 @click.argument("config", type=click.Path(dir_okay=False))
 @click.option("--duration", "duration_s", type=float, default=1200.0, show_default=True, help="Seconds to simulate.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed (same seed → identical files).")
 @click.option("--x-axis-azimuth-deg", "x_axis_azimuth_deg", type=float, default=90.0, show_default=True,
               help="Azimuth of the structure x axis, degrees clockwise from north (90: x east, y north).")
 @click.option("--master-xyz", default=None, metavar="X,Y,Z", help="ECEF position of the master antenna, m [GEONET 3040].")
+@click.option("--signals", default=None, metavar="SIG,SIG…",
+              help="Signals every receiver tracks, e.g. G:L1,G:L2,E:E1,E:E5a (GPS and Galileo; G:L1 required); "
+                   "written to the config's [gnss] signals.  Default: GPS L1 without a signals list.")
 @_output_option("out_dir", "Output directory.", directory=True, old=("--out",))
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
-def simulate_gnss_structure_cmd(ctx, config, duration_s, seed, x_axis_azimuth_deg, master_xyz, out_dir, as_json):
-    """Simulate a structure's free motion seen by one GPS L1 receiver per antenna → RINEX + truth.
+def simulate_gnss_structure_cmd(ctx, config, duration_s, seed, x_axis_azimuth_deg, master_xyz, signals, out_dir, as_json):
+    """Simulate a structure's free motion seen by one GNSS receiver per antenna → RINEX + truth.
+
+    With --signals the receivers track GPS and Galileo on every signal given (multi-signal RINEX 3)
+    and the written config lists them ([gnss] signals), so the modal path uses them all.
 
     The structure config's modal model moves the antennas (scenario free, at the config's sample
     period); every antenna, the master too, has its own receiver.  The files feed
@@ -1212,6 +1218,7 @@ def simulate_gnss_structure_cmd(ctx, config, duration_s, seed, x_axis_azimuth_de
     s = simulate_structure_gnss(
         out_dir, cfg, master_ecef_m=parse_vector(master_xyz, "--master-xyz") if master_xyz else DEFAULT_MASTER_XYZ,
         x_axis_azimuth_deg=x_axis_azimuth_deg, duration_s=duration_s, seed=seed,
+        signals=None if signals is None else [g.strip() for g in signals.split(",") if g.strip()],
         progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
     _say(ctx, f"wrote {out_dir}/: " + ", ".join(f"{k} {v}" for k, v in s.items() if isinstance(v, (int, float, str)))[:400])
     if as_json:

@@ -929,7 +929,7 @@ _GNSS_KEYS = {
     "mask_deg": "number", "ratio": "number", "partial": "bool", "fix": "bool", "weighting": "string",
     "sigma_a_m": "number", "sigma_b_m": "number", "code_ratio": "number", "troposphere": "bool",
     "max_gap_s": "number", "sync_tol_s": "number", "epoch_alignment": "string", "antennas": "table",
-    "displacement": "table",
+    "displacement": "table", "signals": "list of signal names",
 }
 _GNSS_ANTENNA_KEYS = {"rinex", "ubx", "position_ecef_m", "description"}
 _GNSS_DISPLACEMENT_KEYS = {"model", "sigma_m_per_sqrt_s", "initial_sigma_m"}
@@ -992,6 +992,9 @@ class GnssConfig:
     displacement: str = "static"
     random_walk_sigma: tuple = GNSS_DEFAULTS["random_walk_sigma"]
     initial_sigma_m: float = GNSS_DEFAULTS["initial_sigma_m"]
+    signals: tuple = ()
+    """Multi-GNSS signals kept at ingest (``G:L1``, ``G:L2``, ``E:E1``, ``E:E5a`` …; names of
+    :mod:`cdgps_cli.core.signals`); empty: GPS L1 only (the raw tables)."""
 
     def antenna(self, name: str) -> GnssAntenna | None:
         return next((a for a in self.antennas if a.name == name), None)
@@ -1083,6 +1086,7 @@ def parse_gnss_config(text: str, path: str = "<config>", base_dir: str | Path | 
                     chk.add(f"gnss.nav[{i}]", f"expected a file path string, got {e!r}")
                 else:
                     nav.append(resolve(e))
+    signals = _gnss_signals(g, chk)
     mask = chk.number(g, "gnss", "mask_deg", GNSS_DEFAULTS["mask_deg"])
     if mask is not None and not 0.0 <= mask < 90.0:
         chk.add("gnss.mask_deg", f"expected an elevation mask in [0, 90) degrees, got {mask!r}")
@@ -1167,7 +1171,26 @@ def parse_gnss_config(text: str, path: str = "<config>", base_dir: str | Path | 
         mask_deg=mask, ratio=ratio, partial=flag("partial", True), fix=flag("fix", True), weighting=weighting,
         sigma_a_m=sa, sigma_b_m=sb, code_ratio=code_ratio, troposphere=flag("troposphere", True),
         max_gap_s=max_gap, sync_tol_s=sync, epoch_alignment=align, displacement=model, random_walk_sigma=rw, initial_sigma_m=init_sigma,
+        signals=signals,
     )
+
+
+def _gnss_signals(g: dict, chk) -> tuple:
+    """``[gnss] signals``: a non-empty list of known, distinct signal names (problems added to ``chk``)."""
+    from cdgps_cli.core.signals import SIGNALS  # noqa: PLC0415
+
+    if "signals" not in g:
+        return ()
+    v = g["signals"]
+    if not isinstance(v, list) or not v or not all(isinstance(e, str) for e in v):
+        chk.add("gnss.signals", f"expected a non-empty list of signal names (e.g. [\"G:L1\", \"E:E1\"]), got {v!r}")
+        return ()
+    bad = [e for e in v if e not in SIGNALS]
+    if bad:
+        chk.add("gnss.signals", f"unknown signal(s) {', '.join(map(repr, bad))}; known: {', '.join(SIGNALS)}")
+    if len(set(v)) != len(v):
+        chk.add("gnss.signals", f"a signal is listed twice: {v!r}")
+    return tuple(v)
 
 
 def _toml_str(s: str) -> str:
@@ -1209,9 +1232,12 @@ def gnss_config_toml(antennas: dict, nav=(), master: str | None = None, *, name:
     notes = {"mask_deg": "elevation mask at every receiver, degrees", "ratio": "LAMBDA ratio-test threshold",
              "partial": "partial fixing when the full set fails the ratio test",
              "weighting": 'phase variance a^2 + b^2/sin^2(el) ("elevation") or a^2 + b^2 ("equal")',
-             "troposphere": "a priori hydrostatic troposphere (Saastamoinen x Niell), as RTKLIB"}
+             "troposphere": "a priori hydrostatic troposphere (Saastamoinen x Niell), as RTKLIB",
+             "signals": "multi-GNSS signals kept at ingest (system:slot)"}
     for k, v in opts.items():
-        val = ("true" if v else "false") if isinstance(v, bool) else (_toml_str(v) if isinstance(v, str) else repr(float(v)))
+        val = ("true" if v else "false") if isinstance(v, bool) else (_toml_str(v) if isinstance(v, str) else
+                                                                   "[" + ", ".join(map(_toml_str, v)) + "]" if isinstance(v, (list, tuple))
+                                                                   else repr(float(v)))
         out.append(f"{k} = {val}" + (f"    # {notes[k]}" if k in notes else ""))
     out += ["", "[gnss.displacement]",
             f"model = {_toml_str(displacement)}    # \"static\" or \"random_walk\" E/N/U displacement of each rover"]

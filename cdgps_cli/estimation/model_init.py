@@ -168,11 +168,14 @@ class ModelInitResult:
     iterations: int
 
 
-def model_batch_init(model, dyn, epochs, dt_s: float, wavelength_m: float, opt: InitOptions | None = None,
+def model_batch_init(model, dyn, epochs, dt_s: float, wavelength_m, opt: InitOptions | None = None,
                      x1: np.ndarray | None = None, max_bias_sigma_cycles: float | None = None) -> ModelInitResult:
     """Batch initialization of ``model`` on ``epochs``: float solution, integers, fixed solution.
 
-    The biases are λ·(integer) (no line biases: double differences).  One start (``x1``, default 0)
+    The biases are λ·(integer) (no line biases: double differences); ``wavelength_m`` is one λ (m)
+    for every segment, or a function of the model's segment column giving each segment's λ (DDs of
+    several frequencies: the integers of all of them are fixed as one full set, in cycles, with
+    their float covariance scaled by 1/(λᵢλⱼ)).  One start (``x1``, default 0)
     — the modal amplitudes of a structure on GNSS are centimetres, well inside the basin of the
     linearization.  Refuses (CdgpsError) when the float solution does not converge, its information
     is singular, or (``max_bias_sigma_cycles`` given) a float bias has a larger σ.  Without that
@@ -192,16 +195,18 @@ def model_batch_init(model, dyn, epochs, dt_s: float, wavelength_m: float, opt: 
         raise CdgpsError("batch initialization: the ambiguities are not observable in the window (singular information)")
     Pbb = P[n:, n:]
     sig = np.sqrt(np.diag(Pbb))
-    if max_bias_sigma_cycles is not None and sig.max(initial=0.0) > max_bias_sigma_cycles * wavelength_m:
-        raise CdgpsError(f"batch initialization: float ambiguity σ up to {sig.max() / wavelength_m:.2f} cycle "
+    lam = np.array([wavelength_m(c) for c in prob.columns], float) if callable(wavelength_m) \
+        else np.full(m, float(wavelength_m))
+    if max_bias_sigma_cycles is not None and np.max(sig / lam, initial=0.0) > max_bias_sigma_cycles:
+        raise CdgpsError(f"batch initialization: float ambiguity σ up to {np.max(sig / lam):.2f} cycle "
                          f"(limit {max_bias_sigma_cycles:g}): not observable in the window")
-    a = g.b / wavelength_m
+    a = g.b / lam
     integers = np.rint(a).astype(np.int64)
     fixed = np.zeros(m, dtype=bool)
     ratio, note = None, "integer fixing off"
     if opt.fix_integers and m:
         try:
-            fx = resolve(a, 0.5 * (Pbb + Pbb.T) / wavelength_m**2, opt.ratio_threshold, partial=opt.partial)
+            fx = resolve(a, 0.5 * (Pbb + Pbb.T) / np.outer(lam, lam), opt.ratio_threshold, partial=opt.partial)
             fixed, ratio = np.asarray(fx["fixed_mask"], dtype=bool), full_set_ratio(fx)
             integers = np.where(fixed, fx["integers"], integers)
             note = fix_note_text(fx, m, opt.ratio_threshold)
@@ -211,7 +216,7 @@ def model_batch_init(model, dyn, epochs, dt_s: float, wavelength_m: float, opt: 
     res = ModelInitResult(prob.columns, g.b.copy(), sig, g.b.copy(), fixed, integers, ratio, note, g.x,
                           P[:n, :n], g.cost, g.cost / max(n_obs - n - m, 1), g.iterations)
     if fixed.any():
-        known = np.where(fixed, wavelength_m * integers, np.nan)
+        known = np.where(fixed, lam * integers, np.nan)
         pf = ModelProblem(model, dyn, epochs, dt_s, known_bias=known, rows=prob.rows)
         gf = pf.gauss_newton(g.x, g.b[~fixed], opt, w_init=g.w)
         dJ, limit = fix_validation(g.cost, gf.cost, n_obs - n - m, int(fixed.sum()), opt)

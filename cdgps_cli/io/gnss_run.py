@@ -22,7 +22,8 @@ Layout (format details in docs/gnss-pipeline.md):
 * attachments ``gnss/receivers.json`` (names, formats, source files, headers, read summaries),
   ``gnss/obs/<receiver>.npz.zst`` (the raw table as zstd-compressed numpy arrays: the fast path
   every later stage reads), ``gnss/ephemeris.json`` (the ephemeris table), ``config.toml`` (the
-  GNSS run config);
+  GNSS run config); with ``[gnss] signals`` also ``gnss/signals/<receiver>.npz.zst`` (every asked-for
+  signal of the receiver, :data:`~cdgps_cli.io.rinex_signals.SIGNAL_COLUMNS`);
 * metadata ``cdgps.ingest`` with ``kind = gnss``, the master, the inputs and their sha256.
 """
 
@@ -59,6 +60,7 @@ GNSS_EPHEMERIS_TOPIC = "/cdgps/gnss/ephemeris"
 RECEIVERS_ATTACHMENT = "gnss/receivers.json"
 EPHEMERIS_ATTACHMENT = "gnss/ephemeris.json"
 OBS_ATTACHMENT = "gnss/obs/{}.npz.zst"
+SIGNALS_ATTACHMENT = "gnss/signals/{}.npz.zst"
 LOCK_TIME_CAP_MS = 64500.0
 
 RAW_COLUMNS = {
@@ -110,6 +112,8 @@ class GnssReceiver:
     info: dict
     nav: pd.DataFrame | None = None
     """UBX: GPS ephemerides decoded from the log's RXM-SFRBX subframes (None for RINEX)."""
+    signals: pd.DataFrame | None = None
+    """With ``[gnss] signals``: the receiver's multi-signal table (:func:`~cdgps_cli.io.rinex_signals.read_rinex_signals`)."""
 
 
 @dataclass
@@ -242,33 +246,56 @@ def read_receiver_file(name: str, kind: str, path: str | Path, *, strict: bool =
 # writing
 
 
-def _npz_zst(raw: pd.DataFrame) -> bytes:
+def _pack_npz_zst(tab: pd.DataFrame, text_cols: tuple, dtypes: dict) -> bytes:
+    """Columns of ``tab`` as zstd-compressed numpy arrays: each text column as ``<c>_index`` (int16) and
+    ``<c>_names``, each numeric column ``c`` of ``dtypes`` in its dtype."""
     import zstandard  # noqa: PLC0415
 
-    codes, names = pd.factorize(raw["sat"], sort=True)
-    arrays = {"sat_index": codes.astype(np.int16), "sat_names": np.array(list(names), dtype="U8")}
-    for c, dt in _DTYPES.items():
-        arrays[c] = raw[c].to_numpy().astype(dt)
+    arrays = {}
+    for c in text_cols:
+        codes, names = pd.factorize(tab[c], sort=True)
+        arrays[c + "_index"], arrays[c + "_names"] = codes.astype(np.int16), np.array(list(names), dtype="U8")
+    for c, dt in dtypes.items():
+        arrays[c] = tab[c].to_numpy().astype(dt)
     buf = io.BytesIO()
     np.savez(buf, **arrays)
     return zstandard.ZstdCompressor(level=3).compress(buf.getvalue())
 
 
-def _raw_from_npz_zst(data: bytes, what: str) -> pd.DataFrame:
+def _unpack_npz_zst(data: bytes, what: str, text_cols: tuple, dtypes: dict, columns: list) -> pd.DataFrame:
+    """The table of :func:`_pack_npz_zst` (floats as float64, integers as int64); CdgpsError when damaged."""
     import zstandard  # noqa: PLC0415
 
     try:
         z = np.load(io.BytesIO(zstandard.ZstdDecompressor().decompress(data)), allow_pickle=False)
-        names = np.asarray(z["sat_names"], dtype=object)
-        df = {"time_gps_s": z["time_gps_s"].astype(np.float64), "sat": names[z["sat_index"].astype(np.int64)]}
-        for c in _DTYPES:
-            if c == "time_gps_s":
-                continue
-            a = z[c]
-            df[c] = a.astype(np.float64) if a.dtype.kind == "f" else a.astype(np.int64)
+        df = {c: np.asarray(z[c + "_names"], dtype=object)[z[c + "_index"].astype(np.int64)] for c in text_cols}
+        for c in dtypes:
+            df[c] = z[c].astype(np.float64) if z[c].dtype.kind == "f" else z[c].astype(np.int64)
     except (KeyError, ValueError, OSError, zstandard.ZstdError) as exc:
         raise CdgpsError(f"{what}: damaged observation arrays: {exc}") from None
-    return pd.DataFrame(df, columns=list(RAW_COLUMNS))
+    return pd.DataFrame(df, columns=columns)
+
+
+def _npz_zst(raw: pd.DataFrame) -> bytes:
+    return _pack_npz_zst(raw, ("sat",), _DTYPES)
+
+
+def _raw_from_npz_zst(data: bytes, what: str) -> pd.DataFrame:
+    return _unpack_npz_zst(data, what, ("sat",), _DTYPES, list(RAW_COLUMNS))
+
+
+_SIGNAL_DTYPES = {"time_gps_s": np.float64, "phase_cycles": np.float64, "pseudorange_m": np.float64, "lli": np.int8,
+                  "wavelength_m": np.float64}
+
+
+def _signals_npz_zst(tab: pd.DataFrame) -> bytes:
+    """A multi-signal table (:data:`~cdgps_cli.io.rinex_signals.SIGNAL_COLUMNS`) as zstd-compressed numpy arrays."""
+    return _pack_npz_zst(tab, ("sat", "signal"), _SIGNAL_DTYPES)
+
+
+def _signals_from_npz_zst(data: bytes, what: str) -> pd.DataFrame:
+    return _unpack_npz_zst(data, what, ("sat", "signal"), _SIGNAL_DTYPES,
+                           ["time_gps_s", "sat", "signal", "phase_cycles", "pseudorange_m", "lli", "wavelength_m"])
 
 
 def _nullable(values: np.ndarray) -> list:
@@ -286,9 +313,53 @@ def default_config_text(files: dict, nav_paths, master: str | None) -> str:
                                       "static rover displacements; files and navigation data came from the command line."])
 
 
-def merge_nav(nav_paths) -> pd.DataFrame:
-    """Read and merge navigation files (exact duplicates removed), as ``cdgps baseline`` does."""
-    return _merge_nav_tables([read_rinex_nav(p) for p in nav_paths])
+def merge_nav(nav_paths, systems=("G",)) -> pd.DataFrame:
+    """Read and merge navigation files (exact duplicates removed), as ``cdgps baseline`` does;
+    ``systems``: the systems whose records are read (a file without any of them is skipped while
+    another file has them; every system must be found in some file)."""
+    if tuple(systems) == ("G",):
+        return _merge_nav_tables([read_rinex_nav(p) for p in nav_paths])
+    tabs = [read_rinex_nav(p, systems=tuple(systems)) for p in nav_paths]
+    nav = _merge_nav_tables(tabs)
+    have = set(nav["sat"].astype(str).str[0])
+    missing = [c for c in systems if c not in have]
+    if missing:
+        raise CdgpsError(f"the navigation data ({', '.join(map(str, nav_paths))}) have no ephemerides of system(s) "
+                         f"{', '.join(missing)}; the config's signals need them")
+    return nav
+
+
+def _nav_systems(signals, nav_list) -> tuple:
+    """Systems whose ephemerides the signals need (GPS always, for the L1 tables)."""
+    from cdgps_cli.core.signals import SYSTEM_NAMES, signal  # noqa: PLC0415
+    from cdgps_cli.io.rinex import NAV_KEPLER_SYSTEMS  # noqa: PLC0415
+
+    systems = ["G"] + sorted({signal(g).system for g in signals} - {"G"})
+    bad = [c for c in systems if c not in NAV_KEPLER_SYSTEMS]
+    if bad:
+        raise CdgpsError(f"signals of {', '.join(SYSTEM_NAMES[c] for c in bad)} cannot be ingested yet: broadcast "
+                         f"ephemerides are read for {', '.join(SYSTEM_NAMES[c] for c in NAV_KEPLER_SYSTEMS)} only")
+    return tuple(systems)
+
+
+def _read_signal_tables(signals, receivers: dict, files: dict, say) -> None:
+    """Every receiver's table of ``signals`` (RINEX only); CdgpsError naming the file when a receiver
+    lacks one of them (the receivers must share every signal asked for)."""
+    from cdgps_cli.io.rinex_signals import read_rinex_signals  # noqa: PLC0415
+
+    for n, rx in receivers.items():
+        kind, p = files[n]
+        if kind != "rinex":
+            raise CdgpsError(f"{p} ({n}): [gnss] signals are read from RINEX 3 files only; a UBX log gives GPS L1 "
+                             f"(remove 'signals' from the config or convert the log to RINEX)")
+        say(f"reading signals {', '.join(signals)} of {p} ({n}) …")
+        _, tab = read_rinex_signals(p, signals)
+        have = set(tab["signal"])
+        absent = [g for g in signals if g not in have]
+        if absent:
+            raise CdgpsError(f"{p} ({n}): no {', '.join(absent)} phase observations; the receivers must share every "
+                             f"signal of [gnss] signals (this file has: {', '.join(sorted(have)) or 'none'})")
+        rx.signals = tab
 
 
 def _merge_nav_tables(navs) -> pd.DataFrame:
@@ -392,6 +463,8 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
         if w:
             warnings.append(w)
 
+    if cfg.signals:
+        _read_signal_tables(cfg.signals, receivers, files, say)
     nav = None
     sf_navs = [rx.nav for rx in receivers.values() if rx.nav is not None and len(rx.nav)]
     nav_source = ",".join(Path(p).name for p in nav_list)
@@ -408,7 +481,7 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
             "of that day")
     if nav_list:
         say(f"reading {len(nav_list)} navigation file(s) …")
-        nav = merge_nav(nav_list)
+        nav = merge_nav(nav_list, _nav_systems(cfg.signals, nav_list))
     else:
         warnings.append("no navigation file: the run has no ephemerides, and 'cdgps init' needs them "
                         "(ingest again with --nav, or list nav files in the config)")
@@ -458,7 +531,7 @@ def write_gnss_run(cfg: GnssConfig, out_path: str | Path, inp: IngestInputs, pos
     out_path = Path(out_path)
     inputs = {**{f"{kind}:{n}": p for n, (kind, p) in files.items()}, **{f"nav[{i}]": p for i, p in enumerate(nav_list)}}
     meta = ingest_metadata("gnss", cfg, inputs, master=master, receivers=",".join(receivers),
-                           displacement_model=cfg.displacement)
+                           displacement_model=cfg.displacement, **({"signals": ",".join(cfg.signals)} if cfg.signals else {}))
     for n, (kind, p) in files.items():
         if n in integrity:
             meta[f"{kind}:{n}_integrity"] = integrity_record(receivers[n].info)
@@ -481,6 +554,8 @@ def write_gnss_run(cfg: GnssConfig, out_path: str | Path, inp: IngestInputs, pos
         n_msg = _write_obs_messages(out, ch, receivers)
         for i, (n, rx) in enumerate(receivers.items()):
             out.attach(OBS_ATTACHMENT.format(i), _npz_zst(rx.raw), "application/x-npz+zstd")
+            if rx.signals is not None:
+                out.attach(SIGNALS_ATTACHMENT.format(i), _signals_npz_zst(rx.signals), "application/x-npz+zstd")
         out.attach(RECEIVERS_ATTACHMENT, json.dumps(_json_safe(rx_json), indent=1).encode(), "application/json")
         out.attach(CONFIG_ATTACHMENT, cfg.text.encode("utf-8"), "application/toml")
         out.metadata(INGEST_METADATA, meta)
@@ -598,9 +673,13 @@ def read_gnss_run(path: str | Path, contents=None) -> GnssRun:
         if key not in c.attachments:
             raise CdgpsError(f"{path}: no {key} attachment (observations of {rj.get('name')})")
         raw = _raw_from_npz_zst(c.attachments[key], f"{path}:{key}")
+        skey = SIGNALS_ATTACHMENT.format(i)
+        if cfg.signals and skey not in c.attachments:
+            raise CdgpsError(f"{path}: no {skey} attachment (signals of {rj.get('name')}) although the config lists signals")
+        sig = _signals_from_npz_zst(c.attachments[skey], f"{path}:{skey}") if cfg.signals else None
         receivers[rj["name"]] = GnssReceiver(rj["name"], rj["format"], rj["file"], rj["header"], raw,
                                              dict(rj.get("info") or {}, position_source=rj.get("position_source"),
-                                                  position_ecef_m=rj.get("position_ecef_m")))
+                                                  position_ecef_m=rj.get("position_ecef_m")), signals=sig)
     nav = pd.DataFrame(columns=list(NAV_COLUMNS))
     if EPHEMERIS_ATTACHMENT in c.attachments:
         try:

@@ -8,7 +8,10 @@ back unchanged (a tested round trip):
 * :func:`write_rinex_obs` — one GPS receiver, observation types ``C1C L1C S1C`` (pseudorange,
   carrier phase with its LLI and signal-strength digit, C/N0), epoch flags 0/1, the receiver
   clock offset on the epoch line when known;
-* :func:`write_rinex_nav` — GPS broadcast ephemerides (the 29 values of each record, ``D19.12``
+* :func:`write_rinex_obs_signals` — one multi-GNSS, multi-frequency receiver (``M: MIXED``), per
+  signal of :mod:`cdgps_cli.core.signals` the code and phase types of its first tracking attribute
+  (``G:L2`` → ``C2X L2X``, ``E:E5a`` → ``C5Q L5Q``);
+* :func:`write_rinex_nav` — GPS (and Galileo: ``M: MIXED``) broadcast ephemerides (the 29 values of each record, ``D19.12``
   style with an ``E`` exponent, which RINEX allows).
 
 Resolution: phases and pseudoranges are written with 3 decimals (1 mcycle ≈ 0.19 mm, 1 mm),
@@ -31,7 +34,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import GPS_EPOCH
 from cdgps_cli.core.records import NAV_COLUMNS
 
-__all__ = ["write_rinex_obs", "write_rinex_nav", "rinex_calendar"]
+__all__ = ["write_rinex_obs", "write_rinex_obs_signals", "write_rinex_nav", "rinex_calendar"]
 
 
 def _hl(body: str, label: str) -> str:
@@ -134,30 +137,12 @@ def write_rinex_obs(path: str | Path, obs: pd.DataFrame, header: dict | None = N
         _hl(f"{('cdgps ' + __version__)[:20]:<20}{'cdgps':<20}{_created(created):<20}",
             "PGM / RUN BY / DATE"),
     ]
-    for c in h.get("comments") or []:
-        lines.append(_hl(str(c)[:60], "COMMENT"))
-    lines.append(_hl(str(h.get("marker_name") or "UNKNOWN")[:60], "MARKER NAME"))
-    if h.get("marker_number"):
-        lines.append(_hl(str(h["marker_number"])[:20], "MARKER NUMBER"))
-    lines.append(_hl("GEODETIC", "MARKER TYPE"))
-    lines.append(_hl(f"{str(h.get('observer') or '')[:20]:<20}{str(h.get('agency') or '')[:40]:<40}", "OBSERVER / AGENCY"))
-    lines.append(_hl(f"{str(h.get('receiver_number') or '')[:20]:<20}{str(h.get('receiver_type') or '')[:20]:<20}"
-                     f"{str(h.get('receiver_version') or '')[:20]:<20}", "REC # / TYPE / VERS"))
-    lines.append(_hl(f"{str(h.get('antenna_number') or '')[:20]:<20}{str(h.get('antenna_type') or '')[:20]:<20}", "ANT # / TYPE"))
-    pos = h.get("approx_position_xyz_m")
-    if pos is not None:
-        x, y, z = (float(v) for v in pos)
-        lines.append(_hl(f"{x:14.4f}{y:14.4f}{z:14.4f}", "APPROX POSITION XYZ"))
-    dh = h.get("antenna_delta_hen_m") or (0.0, 0.0, 0.0)
-    lines.append(_hl(f"{float(dh[0]):14.4f}{float(dh[1]):14.4f}{float(dh[2]):14.4f}", "ANTENNA: DELTA H/E/N"))
+    lines += _station_lines(h)
     lines.append(_hl(f"G  {len(types):3d}" + "".join(f" {ty}" for ty in types), "SYS / # / OBS TYPES"))
     lines.append(_hl("DBHZ", "SIGNAL STRENGTH UNIT"))
     if h.get("interval_s"):
         lines.append(_hl(f"{float(h['interval_s']):10.3f}", "INTERVAL"))
-    lines.append(_hl(f"{first[0]:6d}{first[1]:6d}{first[2]:6d}{first[3]:6d}{first[4]:6d}{first[5]:13.7f}{'':5}{ts:<3}",
-                     "TIME OF FIRST OBS"))
-    lines.append(_hl(f"{last[0]:6d}{last[1]:6d}{last[2]:6d}{last[3]:6d}{last[4]:6d}{last[5]:13.7f}{'':5}{ts:<3}",
-                     "TIME OF LAST OBS"))
+    lines += _time_lines(first, last, ts)
     if np.isfinite(clk).any():
         lines.append(_hl(f"{0:6d}", "RCV CLOCK OFFS APPL"))
     lines.append(_hl("G L1C", "SYS / PHASE SHIFT"))
@@ -186,6 +171,116 @@ def write_rinex_obs(path: str | Path, obs: pd.DataFrame, header: dict | None = N
     write_atomic(path, lambda p: p.write_text(text, encoding="ascii"))
     return {"path": str(path), "epochs": int(cuts.size - 1), "records": int(n), "first_gps_s": float(t[0]),
             "last_gps_s": float(t[-1])}
+
+
+def _time_lines(first, last, ts: str) -> list:
+    """TIME OF FIRST OBS / TIME OF LAST OBS lines of calendar tuples ``first``, ``last``."""
+    return [_hl(f"{c[0]:6d}{c[1]:6d}{c[2]:6d}{c[3]:6d}{c[4]:6d}{c[5]:13.7f}{'':5}{ts:<3}", label)
+            for c, label in ((first, "TIME OF FIRST OBS"), (last, "TIME OF LAST OBS"))]
+
+
+def write_rinex_obs_signals(path: str | Path, obs: pd.DataFrame, signals, header: dict | None = None, *,
+                            created: str | None = None) -> dict:
+    """Write one receiver's multi-GNSS, multi-frequency observations as a RINEX 3.04 file.
+
+    Parameters
+    ----------
+    path : str or Path
+        Output file (written atomically).
+    obs : DataFrame
+        ``time_gps_s``, ``sat``, ``signal`` (names of :mod:`cdgps_cli.core.signals`), ``phase_cycles``,
+        ``pseudorange_m``; optional ``lli`` (0–9) and ``snr_dbhz``.  One row per epoch, satellite and signal.
+    signals : sequence of str
+        The signals of the file, in the order of their observation types (code ``C``, phase ``L``,
+        C/N0 ``S`` of each, with the signal's first tracking attribute).
+    header, created : as :func:`write_rinex_obs`.
+
+    Returns
+    -------
+    dict
+        ``path``, ``epochs``, ``records``, ``first_gps_s``, ``last_gps_s``, ``obs_types`` ({system: [types]}).
+    """
+    from cdgps_cli.core.signals import signal as _signal  # noqa: PLC0415
+
+    h = dict(header or {})
+    if len(obs) == 0:
+        raise CdgpsError(f"{path}: no observations to write")
+    sigs = [_signal(g) for g in dict.fromkeys(signals)]
+    types: dict = {}
+    for g in sigs:
+        types.setdefault(g.system, []).extend(f"{k}{g.band}{g.attributes[0]}" for k in "CLS")
+    unknown = sorted(set(obs["signal"]) - {g.name for g in sigs})
+    if unknown:
+        raise CdgpsError(f"{path}: rows of signal(s) {', '.join(unknown)} not in the signals to write")
+    o = obs.sort_values(["time_gps_s", "sat"], kind="stable")
+    t_all = o["time_gps_s"].to_numpy(dtype=np.float64)
+    ts = h.get("time_system") or "GPS"
+    lines = [_hl(f"{'3.04':>9}{'':11}{'OBSERVATION DATA':<20}{'M: MIXED':<20}", "RINEX VERSION / TYPE"),
+             _hl(f"{('cdgps ' + __version__)[:20]:<20}{'cdgps':<20}{_created(created):<20}", "PGM / RUN BY / DATE")]
+    lines += _station_lines(h)
+    for c, ty in types.items():
+        for i in range(0, len(ty), 13):
+            head = f"{c}  {len(ty):3d}" if i == 0 else " " * 6
+            lines.append(_hl(head + "".join(f" {x}" for x in ty[i:i + 13]), "SYS / # / OBS TYPES"))
+    lines.append(_hl("DBHZ", "SIGNAL STRENGTH UNIT"))
+    if h.get("interval_s"):
+        lines.append(_hl(f"{float(h['interval_s']):10.3f}", "INTERVAL"))
+    lines += _time_lines(rinex_calendar(t_all[0]), rinex_calendar(t_all[-1]), ts)
+    lines += [_hl("", "END OF HEADER")]
+    # one record per (epoch, satellite): its system's types, each 16 columns (F14.3, LLI, SSI)
+    sats = o["sat"].astype(str).to_numpy()
+    slot = {(g.system, g.name): types[g.system].index(f"C{g.band}{g.attributes[0]}") for g in sigs}
+    col = np.array([slot[(s[0], g)] for s, g in zip(sats, o["signal"].to_numpy())])
+    n = len(o)
+    snr = (o["snr_dbhz"] if "snr_dbhz" in o.columns else pd.Series(np.full(n, np.nan))).to_numpy(dtype=np.float64)
+    lli = (o["lli"] if "lli" in o.columns else pd.Series(np.zeros(n))).to_numpy().astype(np.int64)
+    ssi = np.where(np.isfinite(snr), np.clip(np.floor(np.nan_to_num(snr) / 6.0), 1, 9), 0).astype(np.int64)
+    fields = zip(o["pseudorange_m"].to_numpy(dtype=np.float64).tolist(), o["phase_cycles"].to_numpy(dtype=np.float64).tolist(),
+                 lli.tolist(), ssi.tolist(), snr.tolist())
+    new_rec = np.r_[True, (t_all[1:] != t_all[:-1]) | (sats[1:] != sats[:-1])]
+    recs, rec_t = [], []
+    for k, (pr, ph, li, si, q) in enumerate(fields):
+        if new_rec[k]:
+            recs.append([sats[k]] + [" " * 16] * len(types[sats[k][0]]))
+            rec_t.append(t_all[k])
+        r, c = recs[-1], col[k] + 1
+        r[c] = _field(pr, "pseudorange") + "  "
+        r[c + 1] = _field(ph, "phase") + (str(li) if li else " ") + (str(si) if si else " ")
+        r[c + 2] = _field(q, "C/N0") + "  "
+    rec_t = np.asarray(rec_t)
+    cuts = np.flatnonzero(np.r_[True, rec_t[1:] != rec_t[:-1], True])
+    body = []
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        y, mo, d, hh, mi, sec = rinex_calendar(float(rec_t[a]))
+        body.append(f"> {y:4d} {mo:02d} {d:02d} {hh:02d} {mi:02d}{sec:11.7f}  0{b - a:3d}")
+        body += ["".join(r).rstrip() for r in recs[a:b]]
+    n_rec = len(recs)
+    text = "\n".join(lines + body) + "\n"
+    write_atomic(path, lambda p: p.write_text(text, encoding="ascii"))
+    return {"path": str(path), "epochs": int(np.unique(t_all).size), "records": n_rec, "first_gps_s": float(t_all[0]),
+            "last_gps_s": float(t_all[-1]), "obs_types": types}
+
+
+def _station_lines(h: dict) -> list:
+    """Header lines from COMMENT to ANTENNA: DELTA H/E/N of the header dict ``h``."""
+    lines = []
+    for c in h.get("comments") or []:
+        lines.append(_hl(str(c)[:60], "COMMENT"))
+    lines.append(_hl(str(h.get("marker_name") or "UNKNOWN")[:60], "MARKER NAME"))
+    if h.get("marker_number"):
+        lines.append(_hl(str(h["marker_number"])[:20], "MARKER NUMBER"))
+    lines.append(_hl("GEODETIC", "MARKER TYPE"))
+    lines.append(_hl(f"{str(h.get('observer') or '')[:20]:<20}{str(h.get('agency') or '')[:40]:<40}", "OBSERVER / AGENCY"))
+    lines.append(_hl(f"{str(h.get('receiver_number') or '')[:20]:<20}{str(h.get('receiver_type') or '')[:20]:<20}"
+                     f"{str(h.get('receiver_version') or '')[:20]:<20}", "REC # / TYPE / VERS"))
+    lines.append(_hl(f"{str(h.get('antenna_number') or '')[:20]:<20}{str(h.get('antenna_type') or '')[:20]:<20}", "ANT # / TYPE"))
+    pos = h.get("approx_position_xyz_m")
+    if pos is not None:
+        x, y, z = (float(v) for v in pos)
+        lines.append(_hl(f"{x:14.4f}{y:14.4f}{z:14.4f}", "APPROX POSITION XYZ"))
+    dh = h.get("antenna_delta_hen_m") or (0.0, 0.0, 0.0)
+    lines.append(_hl(f"{float(dh[0]):14.4f}{float(dh[1]):14.4f}{float(dh[2]):14.4f}", "ANTENNA: DELTA H/E/N"))
+    return lines
 
 
 def _d19(v: float) -> str:
@@ -238,8 +333,9 @@ def write_rinex_nav(path: str | Path, nav: pd.DataFrame, *, leap_seconds: int | 
     missing = [c for c in NAV_COLUMNS if c not in nav.columns and c not in ("line", "toe_gps_s", "transmit_gps_s")]
     if missing:
         raise CdgpsError(f"{path}: the ephemeris table lacks {', '.join(missing)}")
+    sys_field = "G: GPS" if set(nav["sat"].astype(str).str[0]) <= {"G"} else "M: MIXED"
     lines = [
-        _hl(f"{'3.04':>9}{'':11}{'N: GNSS NAV DATA':<20}{'G: GPS':<20}", "RINEX VERSION / TYPE"),
+        _hl(f"{'3.04':>9}{'':11}{'N: GNSS NAV DATA':<20}{sys_field:<20}", "RINEX VERSION / TYPE"),
         _hl(f"{('cdgps ' + __version__)[:20]:<20}{'cdgps':<20}{_created(created):<20}",
             "PGM / RUN BY / DATE"),
     ]

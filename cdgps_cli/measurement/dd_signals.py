@@ -14,15 +14,96 @@ is not an integer times one wavelength — those groups are kept float.  Receive
 cancel because every group has its own reference satellite (no inter-system DD is formed).  The
 noise is D Σ Dᵀ per group, Σ the SD variances (a² + b²/sin²el, doubled for the two receivers).
 :func:`epoch_rows` gives (z − h(x), H, L) for a linearization point, :func:`dd_range` the model.
+
+The modal path (:mod:`cdgps_cli.pipeline.gnss_modal`) takes the same groups over a whole run:
+:func:`signal_sd_table` gives one group's single differences of a base and a rover (epochs, satellites,
+lock segments, the SD phase residual at the nominal positions); its DDs, each group against its own
+reference satellite with D Σ Dᵀ, are formed by :class:`cdgps_cli.measurement.model.SatelliteDDModal`
+with the group as one slot (satellites named ``G05:L2``, so that only rows of one signal correlate
+through the common master).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from cdgps_cli.measurement.differencing import dd_covariance, dd_operator
+from types import SimpleNamespace
 
-__all__ = ["dd_range", "epoch_rows"]
+import pandas as pd
+
+from cdgps_cli.core.gps_time import nominal_interval_s
+from cdgps_cli.measurement.differencing import ambiguity_segments, dd_covariance, dd_operator, epoch_pointers
+
+__all__ = ["dd_range", "epoch_rows", "signal_sd_table", "group_key"]
+
+
+def group_key(sat: str, signal_name: str) -> str:
+    """Name of a satellite within a signal group: ``G05:L2`` (satellite, frequency slot)."""
+    return f"{sat}:{signal_name.split(':', 1)[1]}"
+
+
+def _on_grid(df: pd.DataFrame, step_s: float, tol_s: float) -> pd.DataFrame:
+    """Rows whose time tag is within ``tol_s`` of a grid time k·step, with ``key`` = k."""
+    t = df["time_gps_s"].to_numpy()
+    key = np.rint(t / step_s).astype(np.int64)
+    ok = np.abs(t - key * step_s) <= tol_s
+    return df[ok].assign(key=key[ok])
+
+
+def signal_sd_table(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz_m, *, mask_rad: float,
+                    max_gap_s: float | None, troposphere: bool = True, interval_s: float | None = None,
+                    sync_tol_s: float = 0.025) -> SimpleNamespace:
+    """Single differences (rover − base) of one signal group over a run.
+
+    Parameters
+    ----------
+    base, rover : DataFrame
+        One signal's rows with the satellite geometry of each receiver
+        (:func:`cdgps_cli.estimation.rtk_multi.receiver_geometry`: ``time_gps_s``, ``sat``, ``signal``,
+        ``phase_cycles``, ``lli``, ``wavelength_m``, ``sx/sy/sz`` (m, ECEF at reception), ``el_rad``, ``trop_m``).
+    base_xyz_m, rover_xyz_m : array_like (3,)
+        Nominal positions, ECEF m.
+    mask_rad : float
+        Elevation mask at both receivers, rad.
+    max_gap_s : float
+        A longer gap in a satellite's rows starts a new ambiguity (as an LLI slip flag does).
+    interval_s : float, optional
+        Epoch grid step, s (default: the base's median spacing).
+    sync_tol_s : float
+        Each receiver's time tags are put on the grid of GPS times k·interval when within this of
+        one (others dropped); epochs pair on grid times, labelled by them.  The geometry stays at each
+        receiver's own reception instant (the "geometry" epoch alignment of the GPS L1 path).
+
+    Returns
+    -------
+    SimpleNamespace
+        ``t_label`` (n_ep,), per row (epoch then satellite order): ``epoch``, ``sat`` (index into
+        ``sat_names``, :func:`group_key` names), ``rover_sat_xyz`` (N, 3), ``el_rover``, ``el_base`` (rad),
+        ``slip`` (bool), ``seg`` (ambiguity segment), ``r_raw_m`` (λ·SD phase − SD of the ranges and
+        troposphere at the nominal positions, m: receiver clocks, λ·(N_r − N_b) and the motion remain);
+        ``ptr`` (n_ep + 1,), ``lam_m`` (the group's wavelength), ``signal``.
+    """
+    cols = ["time_gps_s", "sat", "phase_cycles", "lli", "wavelength_m", "sx", "sy", "sz", "el_rad", "trop_m"]
+    step = nominal_interval_s(base["time_gps_s"]) if interval_s is None else float(interval_s)
+    b, r = (_on_grid(df[cols], step, sync_tol_s) for df in (base, rover))
+    m = b.drop(columns="time_gps_s").merge(r.drop(columns="time_gps_s"), on=["key", "sat"], suffixes=("_b", "_r"))
+    m = m[(m["el_rad_b"] >= mask_rad) & (m["el_rad_r"] >= mask_rad)].sort_values(["key", "sat"], kind="stable")
+    keys, epoch = np.unique(m["key"].to_numpy(), return_inverse=True)
+    t_label = keys * step
+    names, sat = np.unique(m["sat"].to_numpy().astype(str), return_inverse=True)
+    slip = ((m["lli_b"].to_numpy() | m["lli_r"].to_numpy()) & 1) > 0
+    seg, _ = ambiguity_segments(epoch, sat, slip, epoch_time_s=t_label, max_gap_s=max_gap_s)
+    xs_r, xs_b = m[["sx_r", "sy_r", "sz_r"]].to_numpy(), m[["sx_b", "sy_b", "sz_b"]].to_numpy()
+    lam = m["wavelength_m_r"].to_numpy()
+    trop = (m["trop_m_r"].to_numpy() - m["trop_m_b"].to_numpy()) if troposphere else 0.0
+    model = np.linalg.norm(xs_r - np.asarray(rover_xyz_m, float), axis=1) - np.linalg.norm(xs_b - np.asarray(base_xyz_m, float), axis=1)
+    r_raw = lam * (m["phase_cycles_r"].to_numpy() - m["phase_cycles_b"].to_numpy()) - model - trop
+    sig = str(base["signal"].iloc[0]) if len(base) else ""
+    return SimpleNamespace(t_label=t_label, epoch=epoch.astype(np.int64), ptr=epoch_pointers(epoch, t_label.size),
+                           sat=sat.astype(np.int64), sat_names=[group_key(n, sig) for n in names], rover_sat_xyz=xs_r,
+                           el_rover=m["el_rad_r"].to_numpy(), el_base=m["el_rad_b"].to_numpy(), slip=slip,
+                           seg=np.asarray(seg, dtype=np.int64), r_raw_m=r_raw, lam_m=float(lam[0]) if lam.size else np.nan,
+                           signal=sig)
 
 
 def dd_range(rover_xyz_m, base_xyz_m, sat_xyz_m, ref: int, sat_base_xyz_m=None) -> np.ndarray:

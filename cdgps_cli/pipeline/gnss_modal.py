@@ -156,7 +156,7 @@ def _set_integers(tb: dict, a_seg: np.ndarray, use: np.ndarray) -> dict:
     epoch's mean over the usable rows removed — the receiver clock difference, which cancels in the
     DDs), ``use`` (rows entering) and the reference row per epoch among them."""
     d = tb["d"]
-    r0 = tb["r_raw"] - GPS_L1_WAVELENGTH_M * np.asarray(a_seg)[tb["seg"]]
+    r0 = tb["r_raw"] - tb.get("lam_m", GPS_L1_WAVELENGTH_M) * np.asarray(a_seg)[tb["seg"]]
     cnt = np.bincount(d.epoch, weights=use.astype(float), minlength=d.t_label.size)
     mean = np.bincount(d.epoch, weights=np.where(use, r0, 0.0), minlength=d.t_label.size) / np.maximum(cnt, 1.0)
     ref = select_reference(d.ptr, d.sat, d.el_rover, d.slip, usable=use)
@@ -208,12 +208,6 @@ def modal_batch_initialization(cfg: StructureConfig, R, tabs, k_of, ant_idx, d_h
     record : dict
         Window, counts, ratio, note, agreement with INIT's integers, per-segment floats/integers.
     """
-    from cdgps_cli.estimation.initializer import InitOptions  # noqa: PLC0415
-    from cdgps_cli.estimation.model_init import model_batch_init  # noqa: PLC0415
-
-    raw = [dict(tb, r0=tb["r_raw"], use=np.ones(tb["seg"].size, dtype=bool),
-                ref=select_reference(tb["d"].ptr, tb["d"].sat, tb["d"].el_rover, tb["d"].slip)) for tb in tabs]
-    model = SatelliteDDModal(cfg, R, raw, k_of, ant_idx, d_hdr)
     tried = []
     w_s = window_s
     while True:
@@ -222,7 +216,7 @@ def modal_batch_initialization(cfg: StructureConfig, R, tabs, k_of, ant_idx, d_h
         # until its ratio test passes; a longer window can only add information
         try:
             idx_w, dt = _init_window(t_all, w_s)
-            res_w = model_batch_init(model, ModalZOH(cfg), idx_w, dt, GPS_L1_WAVELENGTH_M, options or InitOptions())
+            res_w, model, lam = _solve_window(cfg, R, tabs, k_of, ant_idx, d_hdr, idx_w, dt, options)
         except CdgpsError as exc:           # (a longer window refused: the last solved one stands)
             if not tried:
                 raise
@@ -246,9 +240,9 @@ def modal_batch_initialization(cfg: StructureConfig, R, tabs, k_of, ant_idx, d_h
             agree += int(round(tabs[a]["a_seg"][sj] - tabs[a]["a_seg"][sr]) == res.integers[i])
         segs.append({"rover_slot": int(a), "satellite": d.sat_names[int(d.sat[np.flatnonzero(seg == sj)[0]])],
                      "reference": d.sat_names[int(d.sat[np.flatnonzero(seg == sr)[0]])],
-                     "segment": int(sj), "reference_segment": int(sr), "float_cycles": float(res.float_bias_m[i] / GPS_L1_WAVELENGTH_M),
-                     "sigma_cycles": float(res.float_sigma_m[i] / GPS_L1_WAVELENGTH_M), "integer_cycles": int(res.integers[i]),
-                     "fixed": bool(res.fixed[i])})
+                     "segment": int(sj), "reference_segment": int(sr), "float_cycles": float(res.float_bias_m[i] / lam[a]),
+                     "sigma_cycles": float(res.float_sigma_m[i] / lam[a]), "integer_cycles": int(res.integers[i]),
+                     "fixed": bool(res.fixed[i]), **({"signal": tabs[a]["signal"]} if "signal" in tabs[a] else {})})
     record = {"method": "model-aided batch (Gauss–Newton over [x1, w, b] on the DDs, SRIF; LAMBDA, ratio, partial)",
               "window": {"start_s": float(t_all[idx[0]]), "end_s": float(t_all[idx[-1]]), "epochs": int(idx.size),
                          "interval_s": dt},
@@ -258,7 +252,74 @@ def modal_batch_initialization(cfg: StructureConfig, R, tabs, k_of, ant_idx, d_h
               "agree_with_init": {"compared": n_cmp, "equal": agree}, "x1": [float(v) for v in res.x[0]], "segments": segs}
     if len(tried) > 1:
         record["windows_tried"] = tried
+    if tabs and "signal" in tabs[0]:     # signal path: no INIT integers for later segments → later windows
+        record["later_segments"], record["later_windows"] = _later_windows(
+            cfg, R, apply_modal_record(tabs, record), k_of, ant_idx, d_hdr, t_all, window_s, float(t_all[idx[-1]]) + 1e-6)
     return apply_modal_record(tabs, record), res.x[0].copy(), record
+
+
+def _solve_window(cfg, R, tabs, k_of, ant_idx, d_hdr, idx, dt, options=None):
+    """The batch initialization of every slot's DDs, all ambiguities float, on the epochs ``idx``
+    (:func:`cdgps_cli.estimation.model_init.model_batch_init`): (result, its model, λ per slot)."""
+    from cdgps_cli.estimation.initializer import InitOptions  # noqa: PLC0415
+    from cdgps_cli.estimation.model_init import model_batch_init  # noqa: PLC0415
+
+    raw = [dict(tb, r0=tb["r_raw"], use=np.ones(tb["seg"].size, dtype=bool),
+                ref=select_reference(tb["d"].ptr, tb["d"].sat, tb["d"].el_rover, tb["d"].slip)) for tb in tabs]
+    model = SatelliteDDModal(cfg, R, raw, k_of, ant_idx, d_hdr)
+    lam = [tb.get("lam_m", GPS_L1_WAVELENGTH_M) for tb in tabs]
+    res = model_batch_init(model, ModalZOH(cfg), idx, dt, lambda col: lam[model.segment_keys[col][0]], options or InitOptions())
+    return res, model, lam
+
+
+def _later_windows(cfg, R, tabs, k_of, ant_idx, d_hdr, t_all, window_s: float, t_from: float) -> tuple[list, list]:
+    """Signal path: integers of the segments starting after the first window (rising satellites, slips).
+
+    A window of ``window_s`` opens where the first segment not yet known and observed for at least
+    half a window more (a new one, or one the previous window left float) is seen, and is solved as the first
+    (all DD ambiguities float, :func:`_solve_window`); its fixed DD integers N of (s_j, s_r) are first
+    checked where both segments are already known (a disagreement rejects the window), then chained
+    onto the datum: a(s_j) = a(s_r) + N when only s_r is known (and a(s_r) = a(s_j) − N the other way).
+    The next window opens after this one.  ``tabs`` carry the first window's integers (``use``,
+    ``a_seg``).  Returns ([{rover_slot, segment, a_cycles}], [per-window summary])."""
+    a_cur = [np.array(tb["a_seg"], float) for tb in tabs]
+    known = [np.isin(np.arange(a.size), tb["seg"][tb["use"]]) for a, tb in zip(a_cur, tabs)]
+    first_t, last_t = [], []
+    for a, tb in zip(a_cur, tabs):
+        t_row = tb["d"].t_label[tb["d"].epoch]
+        ft, lt = np.full(a.size, np.inf), np.full(a.size, -np.inf)
+        np.minimum.at(ft, tb["seg"], t_row)
+        np.maximum.at(lt, tb["seg"], t_row)
+        first_t.append(ft)
+        last_t.append(lt)
+    later, windows = [], []
+    while True:                   # unknown segments still observed after t_from (new ones, or left float)
+        starts = np.concatenate([np.maximum(ft, t_from)[~kn & (lt >= t_from + window_s / 2)]
+                                 for ft, lt, kn in zip(first_t, last_t, known)])
+        if starts.size == 0:
+            return later, windows
+        k0 = int(np.searchsorted(t_all, starts.min()))
+        try:
+            idx, dt = _init_window(t_all[k0:], window_s)
+            res, model, _ = _solve_window(cfg, R, tabs, k_of, ant_idx, d_hdr, idx + k0, dt)
+        except CdgpsError as exc:
+            windows.append({"start_s": float(t_all[k0]), "refused": str(exc)})
+            t_from = float(t_all[k0]) + window_s
+            continue
+        fixed = [(model.segment_keys[c], int(n)) for c, f, n in zip(res.columns, res.fixed, res.integers) if f]
+        both = [(k, n) for k, n in fixed if known[k[0]][k[1]] and known[k[0]][k[2]]]
+        bad = sum(int(round(a_cur[s][j] - a_cur[s][r])) != n for (s, j, r), n in both)
+        new = 0
+        for _ in range(2 if not bad else 0):          # twice: a reference that became known in the first pass
+            for (s, j, r), n in fixed:
+                if known[s][r] != known[s][j]:
+                    tgt, val = (j, a_cur[s][r] + n) if known[s][r] else (r, a_cur[s][j] - n)
+                    a_cur[s][tgt], known[s][tgt] = val, True
+                    later.append({"rover_slot": int(s), "segment": int(tgt), "a_cycles": float(val)})
+                    new += 1
+        windows.append({"start_s": float(t_all[idx[0] + k0]), "end_s": float(t_all[idx[-1] + k0]), "epochs": int(idx.size),
+                        "integer_fixing": res.note, "checked": len(both), "disagree": int(bad), "new_segments": new})
+        t_from = float(t_all[idx[-1] + k0]) + 1e-6
 
 
 def apply_modal_record(tabs: list, record: dict) -> list:
@@ -277,6 +338,11 @@ def apply_modal_record(tabs: list, record: dict) -> list:
             a_new[a][sj] = float(tabs[a]["a_seg"][sr]) + int(sg["integer_cycles"])
             known[a][sj] = known[a][sr] = True
             anchored[a] = anchored[a] and bool(init_known[a][sr])
+    for sg in record.get("later_segments", []):     # signal path: later windows' integers, on the datum
+        a, sj = sg["rover_slot"], sg["segment"]
+        if not (0 <= a < len(tabs) and 0 <= sj < a_new[a].size):
+            raise CdgpsError("INIT.json's modal_init does not match this run's lock segments")
+        a_new[a][sj], known[a][sj] = float(sg["a_cycles"]), True
     out = []
     for a, tb in enumerate(tabs):
         # INIT's integers where the window's did not decide, while on the same datum
@@ -361,13 +427,16 @@ def _modal_setup(run, init: dict, cfg: StructureConfig, receivers, x_axis_azimut
     xm = _master_xyz(run)
     placement = StructurePlacement(tuple(float(v) for v in xm), float(x_axis_azimuth_deg))
     R = placement.rotation()
-    tabs = [_rover_tables(run, init, mapping[a], stations, say) for a in rover_ants]
-    ant_idx = np.array([cfg.antenna_names.index(a) for a in rover_ants])
+    if run.cfg.signals:                  # one slot per rover and signal group
+        tabs, slot_ants = _signal_slots(run, mapping, rover_ants, xm, say)
+    else:                                # one slot per rover: GPS L1 with INIT's integers
+        tabs, slot_ants = [_rover_tables(run, init, mapping[a], stations, say) for a in rover_ants], list(rover_ants)
+    ant_idx = np.array([cfg.antenna_names.index(a) for a in slot_ants])
     m_idx = cfg.master_index
     # nominal receiver positions relative to the master, in the structure frame; mismatch to the model's
     p0 = antenna_positions(cfg, np.zeros((1, cfg.n_q)))[0]
     d_hdr = np.array([(tb["xr0"] - xm) @ R for tb in tabs])
-    mismatch = {a: float(np.linalg.norm(d_hdr[i] - (p0[ant_idx[i]] - p0[m_idx]))) for i, a in enumerate(rover_ants)}
+    mismatch = {a: float(np.linalg.norm(d_hdr[i] - (p0[ant_idx[i]] - p0[m_idx]))) for i, a in enumerate(slot_ants)}
 
     # common time axis
     t_all = np.unique(np.concatenate([tb["d"].t_label for tb in tabs]))
@@ -379,7 +448,76 @@ def _modal_setup(run, init: dict, cfg: StructureConfig, receivers, x_axis_azimut
         k_of.append(m)
 
     return SimpleNamespace(mapping=mapping, rover_ants=rover_ants, unused=unused, xm=xm, R=R, tabs=tabs, ant_idx=ant_idx,
-                           d_hdr=d_hdr, mismatch=mismatch, t_all=t_all, k_of=k_of)
+                           d_hdr=d_hdr, mismatch=mismatch, t_all=t_all, k_of=k_of, slot_ants=slot_ants)
+
+
+def _signal_options(tabs: list) -> dict:
+    """The signal groups of a multi-signal estimate with their wavelengths (m), for the outputs' options."""
+    lam = {tb["signal"]: tb["lam_m"] for tb in tabs if "signal" in tb}
+    return {"signals": list(lam), "wavelengths_m": lam,
+            "dd_groups": "per rover and signal, own reference satellite; integers fixed as one full set"} if lam else {}
+
+
+def _final_biases(su, tabs: list, init: dict) -> tuple[dict, dict]:
+    """``final_biases`` {(antenna, satellite): bias m} and the integer counts of the summary: INIT's fixed
+    L1 integers per rover (GPS L1 path), or per signal slot the integers used (signal path)."""
+    biases, counts = {}, {}
+    if not su.tabs or "signal" not in su.tabs[0]:
+        for i, a in enumerate(su.rover_ants):
+            for s in sorted(init["rovers"][su.mapping[a]]["ambiguities"], key=lambda s: s["first_gps_s"]):
+                if s.get("fixed") and s.get("integer") is not None:
+                    biases[(a, s["sat"])] = GPS_L1_WAVELENGTH_M * s["integer"]
+            counts[a] = {"fixed": tabs[i]["n_fixed"], "estimated": tabs[i]["n_estimated"]}
+        return biases, counts
+    for a, tb in zip(su.slot_ants, tabs):
+        d, used = tb["d"], np.unique(tb["seg"][tb["use"]])
+        for sg in used:                       # the last used segment of each satellite wins (time order)
+            biases[(a, d.sat_names[int(d.sat[np.flatnonzero(tb["seg"] == sg)[0]])])] = tb["lam_m"] * float(tb["a_seg"][sg])
+        c = counts.setdefault(a, {"fixed": 0, "estimated": 0, "signals": {}})
+        c["signals"][tb["signal"]] = {"fixed": int(used.size), "estimated": int(tb["n_estimated"])}
+        c["fixed"] += int(used.size)
+        c["estimated"] += int(tb["n_estimated"])
+    return biases, counts
+
+
+def _signal_slots(run, mapping: dict, rover_ants: list, xm: np.ndarray, say) -> tuple[list, list]:
+    """Per rover antenna and signal of ``[gnss] signals``, the SD table of that group
+    (:func:`cdgps_cli.measurement.dd_signals.signal_sd_table`) in the form of :func:`_rover_tables`; no
+    integer is known yet (the modal batch initialization fixes them).  Returns (tables, antenna of each)."""
+    from cdgps_cli.estimation.rtk_multi import receiver_geometry  # noqa: PLC0415
+    from cdgps_cli.measurement.dd_signals import signal_sd_table  # noqa: PLC0415
+    from cdgps_cli.pipeline.gnss import _position_args  # noqa: PLC0415
+
+    c = run.cfg
+    if any(g.startswith("R:") for g in c.signals):
+        raise CdgpsError("the modal structure path takes CDMA signals only (GPS, Galileo); GLONASS (FDMA) is not supported")
+    geo_m = receiver_geometry(run.receivers[run.master].signals, run.nav, xm)
+    tabs, slot_ants = [], []
+    for a in rover_ants:
+        r = mapping[a]
+        xr0 = _position_args(run, r)
+        if xr0 is None:
+            h = run.receivers[r].header.get("approx_position_xyz_m")
+            if h is None:
+                raise CdgpsError(f"{run.path}: rover {r} has no nominal position (RINEX header or config); the signal path needs one")
+            xr0 = np.asarray(h, dtype=float)
+        say(f"{run.master} → {r}: single differences of {', '.join(c.signals)} …")
+        geo_r = receiver_geometry(run.receivers[r].signals, run.nav, xr0)
+        for g in c.signals:
+            d = signal_sd_table(geo_m[geo_m["signal"] == g], geo_r[geo_r["signal"] == g], xm, xr0,
+                                mask_rad=math.radians(c.mask_deg), max_gap_s=c.max_gap_s, troposphere=c.troposphere,
+                                sync_tol_s=c.sync_tol_s)
+            if d.t_label.size == 0:
+                raise CdgpsError(f"{run.path}: no common {g} observations of {run.master} and {r} above the {c.mask_deg:g}° mask")
+            va = 0.5 * sd_variance(d.el_rover, d.el_rover, sigma_a_m=c.sigma_a_m, sigma_b_m=c.sigma_b_m, weighting=c.weighting)
+            vm = 0.5 * sd_variance(d.el_base, d.el_base, sigma_a_m=c.sigma_a_m, sigma_b_m=c.sigma_b_m, weighting=c.weighting)
+            n_seg = int(d.seg.max()) + 1
+            tb = {"res": None, "w": {"known_seg": np.zeros(n_seg, dtype=bool), "seg": d.seg, "a_seg": np.zeros(n_seg)},
+                  "d": d, "r_raw": d.r_raw_m, "seg": d.seg, "var_rover": va, "var_master": vm, "events": [], "n_fixed": 0,
+                  "n_estimated": n_seg, "xr0": xr0, "xm": np.asarray(xm, float), "lam_m": d.lam_m, "signal": g}
+            tabs.append(_set_integers(tb, np.zeros(n_seg), np.zeros(d.seg.size, dtype=bool)))
+            slot_ants.append(a)
+    return tabs, slot_ants
 
 
 def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, out_path, *,
@@ -479,46 +617,44 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
     nis, nis_dof = fr["nis"], fr["nis_dof"]
 
     # DD residuals of the reported estimate, per (antenna, satellite) channel
-    chans = sorted({(rover_ants[a], s) for mk in meas if mk is not None for a, s in mk.labels})
+    slot_ants = su.slot_ants
+    chans = sorted({(slot_ants[a], s) for mk in meas if mk is not None for a, s in mk.labels})
     cidx = {c: i for i, c in enumerate(chans)}
     resid = np.full((n, len(chans)), np.nan)
     for k, mk in enumerate(meas):
         if mk is None:
             continue
         h, _ = model.predict(xs[k], mk)
-        cols = [cidx[(rover_ants[a], s)] for a, s in mk.labels]
+        cols = [cidx[(slot_ants[a], s)] for a, s in mk.labels]
         resid[k, cols] = mk.z_m - h
 
     events = []
     for i, tb in enumerate(tabs):
         for ev in tb["events"]:
             e = dict(ev)
-            if e["antenna"] == mapping[rover_ants[i]]:
-                e["antenna"] = rover_ants[i]
+            if e["antenna"] == mapping[slot_ants[i]]:
+                e["antenna"] = slot_ants[i]
             events.append(e)
     for e in outliers:
-        events.append({"time_s": float(e["time_s"]), "antenna": rover_ants[e["label"][0]], "transmitter": e["label"][1],
+        events.append({"time_s": float(e["time_s"]), "antenna": slot_ants[e["label"][0]], "transmitter": e["label"][1],
                        "kind": "outlier", "action": f"DD not used at this epoch ({e['sigmas']:.1f} σ)"})
     events.sort(key=lambda e: (e["time_s"], e["antenna"], e["transmitter"], e["kind"]))
-    biases = {}
-    for i, a in enumerate(rover_ants):
-        for s in sorted(init["rovers"][mapping[a]]["ambiguities"], key=lambda s: s["first_gps_s"]):
-            if s.get("fixed") and s.get("integer") is not None:
-                biases[(a, s["sat"])] = GPS_L1_WAVELENGTH_M * s["integer"]
+    biases, integers = _final_biases(su, tabs, init)
     res = SimpleNamespace(cfg=cfg, x=xs, P=Ps, smoothed=bool(smooth), x_filt=xf, P_filt=Pf, time_s=t_all,
                           channels=chans, residual_m=resid, nis=nis, nis_dof=nis_dof, events=events, biases=biases)
     options = {"model": "gnss-modal", "smooth": bool(smooth), "x_axis_azimuth_deg": float(x_axis_azimuth_deg),
                "master_ecef_m": list(map(float, xm)), "receivers": mapping,
                "initial_sigma_xi": initial_sigma_xi, "initial_sigma_xidot": initial_sigma_xidot,
                **({"batch_init_window_s": float(init_window_s)} if batch_init else {"batch_init": False}),
-               "dd_covariance": "D Σ Dᵀ jointly over the rovers (common master)", "outlier_sigma": gate, **(extra_options or {})}
+               "dd_covariance": "D Σ Dᵀ jointly over the rovers (common master)", "outlier_sigma": gate,
+               **_signal_options(tabs), **(extra_options or {})}
     say(f"writing {out_path} …")
     out = write_states(res, run.path, init, init_text, out_path, options)
     out.update({
         "placement": {"master_ecef_m": list(map(float, xm)), "x_axis_azimuth_deg": float(x_axis_azimuth_deg)},
         "receivers": mapping, "unused_receivers": unused,
         "nominal_mismatch_m": mismatch,
-        "integers": {a: {"fixed": tabs[i]["n_fixed"], "estimated": tabs[i]["n_estimated"]} for i, a in enumerate(rover_ants)},
+        "integers": integers,
         "coordinates": list(cfg.coord_names),
         **({"modal_init": init_record} if init_record is not None else {}),
     })
@@ -532,8 +668,13 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
 def simulate_structure_gnss(out_dir, cfg: StructureConfig, *, master_ecef_m=SIM_MASTER_ECEF_M,
                             x_axis_azimuth_deg: float = 90.0, receivers: dict | None = None, duration_s: float = 1200.0,
                             seed: int = 0, start_gps_s: float | None = None, random_walk_sigma: float = 0.01,
-                            mask_deg: float = 10.0, code_sigma_m: float = 0.5, progress=None) -> dict:
-    """Simulate the structure's free motion and one GPS L1 receiver per antenna → RINEX + truth.
+                            mask_deg: float = 10.0, code_sigma_m: float = 0.5, progress=None, signals=None) -> dict:
+    """Simulate the structure's free motion and one GNSS receiver per antenna → RINEX + truth.
+
+    ``signals`` (names of :mod:`cdgps_cli.core.signals`, ``G:L1`` among them; default None: the GPS L1
+    simulator below): every receiver tracks them all (:func:`cdgps_cli.sim.gnss_signals.simulate_receiver_signals`,
+    GPS and Galileo synthetic constellations), the files are multi-signal RINEX 3 and the config lists
+    the signals (``[gnss] signals``), so ingest keeps them; the truth gives the integers per signal.
 
     The motion is :func:`cdgps_cli.sim.structure.simulate` (scenario ``free``) at the config's sample
     period, which is also the receivers' epoch interval; every antenna (the master too) carries
@@ -563,6 +704,7 @@ def simulate_structure_gnss(out_dir, cfg: StructureConfig, *, master_ecef_m=SIM_
     xm = np.asarray(master_ecef_m, dtype=float)
     if xm.shape != (3,) or not np.all(np.isfinite(xm)) or not 6.0e6 < np.linalg.norm(xm) < 7.0e6:
         problems.append(f"master_ecef_m must be 3 finite ECEF coordinates near the Earth's surface, got {master_ecef_m!r}")
+    signals = _check_sim_signals(signals, problems)
     if problems:
         raise CdgpsError("simulate-gnss-structure: " + "; ".join(problems))
     out = Path(out_dir)
@@ -573,7 +715,12 @@ def simulate_structure_gnss(out_dir, cfg: StructureConfig, *, master_ecef_m=SIM_
     if start_gps_s is None:
         start_gps_s = gps_seconds(2024, 1, 1)
     t_gps = start_gps_s + sim.time_s
-    nav = synthetic_gps_nav(start_gps_s, float(sim.time_s[-1]) + T, seed=seed)
+    if signals:
+        from cdgps_cli.model.gps.positioning import synthetic_nav  # noqa: PLC0415
+
+        nav = synthetic_nav({g[0] for g in signals}, start_gps_s, float(sim.time_s[-1]) + T, seed=seed)
+    else:
+        nav = synthetic_gps_nav(start_gps_s, float(sim.time_s[-1]) + T, seed=seed)
     placement = StructurePlacement(tuple(float(v) for v in master_ecef_m), float(x_axis_azimuth_deg))
     R = placement.rotation()
     p = antenna_positions(cfg, sim.q)                         # (n, A, 3) structure frame
@@ -590,17 +737,22 @@ def simulate_structure_gnss(out_dir, cfg: StructureConfig, *, master_ecef_m=SIM_
             lat, lon, _ = ecef_to_geodetic(xa)
             off_ecef = (p[:, i, :] - p0[i]) @ R.T                # displacement from the nominal position, ECEF
             off_enu = off_ecef @ enu_matrix(lat, lon).T
-            s = simulate_static_pair(nav, np.asarray(master_ecef_m, float), xa, start_gps_s, n * T, T,
-                                     seed=seed * 1000 + 17 * (i + 1), mask_rad=math.radians(mask_deg),
-                                     phase_sigma_m=(0.003, 0.003), code_sigma_m=code_sigma_m,
-                                     clock_drift_ms=(0.0, 5.0 - 2.0 * i), rover_offset_enu_m=off_enu)
             rx = mapping[a]
             hdr = {"marker_name": rx, "observer": "cdgps gnss_modal simulation", "agency": "simulated",
                    "receiver_type": "CDGPS SIMULATOR", "receiver_version": __version__, "antenna_type": "SIMULATED",
                    "approx_position_xyz_m": tuple(float(v) for v in xa), "interval_s": T,
                    "comments": [f"structure {cfg.name}, antenna {a}: nominal position (q = 0)"]}
-            write_rinex_obs(dest.path(f"{rx}.rnx"), s["rover"], hdr, created=stamp)
             files[rx] = f"{rx}.rnx"
+            if signals:
+                integers[rx] = _simulate_signal_receiver(dest.path(files[rx]), nav, xa, off_enu, start_gps_s, n, T, signals,
+                                                         seed * 1000 + 17 * (i + 1), mask_deg, code_sigma_m, 5.0 - 2.0 * i,
+                                                         hdr, stamp)
+                continue
+            s = simulate_static_pair(nav, np.asarray(master_ecef_m, float), xa, start_gps_s, n * T, T,
+                                     seed=seed * 1000 + 17 * (i + 1), mask_rad=math.radians(mask_deg),
+                                     phase_sigma_m=(0.003, 0.003), code_sigma_m=code_sigma_m,
+                                     clock_drift_ms=(0.0, 5.0 - 2.0 * i), rover_offset_enu_m=off_enu)
+            write_rinex_obs(dest.path(f"{rx}.rnx"), s["rover"], hdr, created=stamp)
             amb = s["ambiguities"]
             integers[rx] = {r_["sat"]: int(r_["n_cycles"]) for _, r_ in amb[amb["receiver"] == "rover"].iterrows()}
         write_rinex_nav(dest.path("nav.rnx"), nav, comments=[f"synthetic ephemerides (seed {seed})"], created=stamp)
@@ -614,13 +766,48 @@ def simulate_structure_gnss(out_dir, cfg: StructureConfig, *, master_ecef_m=SIM_
               "x_axis_azimuth_deg": float(x_axis_azimuth_deg),
               "nominal_ecef_m": {mapping[a]: list(map(float, v)) for a, v in nominal.items()},
               "coordinates": list(cfg.coord_names), "x0": sim.x[0].tolist(),
-              "phase_noise": "sigma^2 = a^2 + b^2/sin^2(el) per receiver, a = b = 0.003 m", "code_sigma_m": code_sigma_m}
+              "phase_noise": "sigma^2 = a^2 + b^2/sin^2(el) per receiver, a = b = 0.003 m", "code_sigma_m": code_sigma_m,
+              **({"signals": list(signals), "integers": integers} if signals else {})}
         write_bytes_atomic(dest.path("truth.json"), (json.dumps(tj, indent=2) + "\n").encode())
         text = gnss_config_toml({mapping[a]: ("rinex", files[mapping[a]]) for a in cfg.antenna_names}, ["nav.rnx"], master_rx,
                                 name=f"simulated-{cfg.name}", description=f"structure {cfg.name} simulated by cdgps_cli.pipeline.gnss_modal",
-                                displacement="random_walk", sigma_m_per_sqrt_s=random_walk_sigma)
+                                displacement="random_walk", sigma_m_per_sqrt_s=random_walk_sigma,
+                                options={"signals": list(signals)} if signals else None)
         write_bytes_atomic(dest.path("config.toml"), text.encode())
     return {"output": str(out), "epochs": int(n), "files": files, "master": master_rx, "receivers": mapping,
             "placement": {"master_ecef_m": list(map(float, master_ecef_m)), "x_axis_azimuth_deg": float(x_axis_azimuth_deg)},
             "q_range": {c: [float(sim.q[:, j].min()), float(sim.q[:, j].max())] for j, c in enumerate(cfg.coord_names)},
-            "integers": integers}
+            "integers": integers, **({"signals": list(signals)} if signals else {})}
+
+
+def _check_sim_signals(signals, problems: list):
+    """None: the GPS L1 simulator (no signals in the config); else the tuple of signals (problems appended),
+    simulated by the multi-signal simulator and listed in the config (also ``("G:L1",)`` alone)."""
+    from cdgps_cli.core.signals import SIGNALS  # noqa: PLC0415
+    from cdgps_cli.model.gps.positioning import SYNTHETIC_ORBITS  # noqa: PLC0415
+
+    if signals is None:
+        return None
+    sig = tuple(dict.fromkeys(signals))
+    bad = [g for g in sig if g not in SIGNALS]
+    if bad:
+        problems.append(f"unknown signal(s) {', '.join(bad)} (known: {', '.join(SIGNALS)})")
+    elif any(g[0] not in SYNTHETIC_ORBITS for g in sig):
+        problems.append(f"signals can be simulated for systems {', '.join(SYNTHETIC_ORBITS)} only, got {', '.join(sig)}")
+    if "G:L1" not in sig:
+        problems.append("signals must include G:L1 (the run's GPS L1 baselines give 'cdgps init' its integers)")
+    return sig
+
+
+def _simulate_signal_receiver(path, nav, xa, off_enu, start_gps_s, n, T, signals, seed, mask_deg, code_sigma_m,
+                              drift_ms, hdr, stamp) -> dict:
+    """One antenna's multi-signal receiver → RINEX 3 at ``path``; {signal: {satellite: first integer}}."""
+    from cdgps_cli.io.rinex_write import write_rinex_obs_signals  # noqa: PLC0415
+    from cdgps_cli.sim.gnss_signals import simulate_receiver_signals  # noqa: PLC0415
+
+    s = simulate_receiver_signals(nav, xa, start_gps_s, n, T, signals, offset_enu_m=off_enu, seed=seed,
+                                  mask_rad=math.radians(mask_deg), phase_sigma_m=(0.003, 0.003),
+                                  code_sigma_m=code_sigma_m, clock_drift_ms=drift_ms)
+    write_rinex_obs_signals(path, s["obs"], signals, hdr, created=stamp)
+    amb = s["ambiguities"].drop_duplicates(["signal", "sat"])
+    return {g: {r.sat: int(r.n_cycles) for r in amb[amb["signal"] == g].itertuples()} for g in signals}

@@ -39,3 +39,44 @@ def test_noise_is_dd_covariance_and_ref_has_no_row():
     assert np.allclose(C[:4, 4:], 0)
     # the reference satellite's ambiguity enters every phase row with −λ
     assert np.allclose(H[:4, 3 + 2], -0.19)
+
+
+
+def test_signal_sd_table_dd_is_the_true_integer_per_signal():
+    """Two static receivers ~36 m apart on GPS L1/L2 and Galileo E5a (simulator truth), with different
+    drifting clocks: per signal, every DD of the SD residual at the true positions, in cycles of that
+    signal, is the DD of the simulated integers (fractional biases and receiver clocks cancel) to the
+    phase noise; satellites are named per signal."""
+    from cdgps_cli.core.gps_time import gps_seconds
+    from cdgps_cli.core.signals import signal
+    from cdgps_cli.estimation.rtk_multi import receiver_geometry
+    from cdgps_cli.measurement.dd_signals import signal_sd_table
+    from cdgps_cli.measurement.differencing import select_reference
+    from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
+    from cdgps_cli.model.gps.positioning import synthetic_nav
+    from cdgps_cli.sim.gnss_signals import simulate_receiver_signals
+
+    t0, sigs = gps_seconds(2024, 3, 1), ("G:L1", "G:L2", "E:E5a")
+    nav = synthetic_nav("GE", t0, 60.0, seed=1)
+    xb = np.array([-3978242.4, 3382841.2, 3649902.8])
+    xr = xb + np.array([30.0, 20.0, 5.0]) @ enu_matrix(*ecef_to_geodetic(xb)[:2])
+    sims = [simulate_receiver_signals(nav, x, t0, 30, 2.0, sigs, seed=k, clock_drift_ms=dr)
+            for x, k, dr in ((xb, 1, 2.0), (xr, 2, -3.0))]
+    geo = []
+    for s, x in zip(sims, (xb, xr)):
+        o = s["obs"].assign(wavelength_m=[signal(g).wavelength_m for g in s["obs"]["signal"]])
+        geo.append(receiver_geometry(o, nav, x))
+    amb = [s["ambiguities"].set_index(["signal", "sat"])["n_cycles"] for s in sims]
+    for g in sigs:
+        d = signal_sd_table(geo[0][geo[0]["signal"] == g], geo[1][geo[1]["signal"] == g], xb, xr,
+                            mask_rad=np.radians(15.0), max_gap_s=None)
+        assert d.lam_m == signal(g).wavelength_m and d.t_label.size == 30
+        assert all(n.endswith(":" + g.split(":")[1]) for n in d.sat_names)
+        ref = select_reference(d.ptr, d.sat, d.el_rover, d.slip)
+        names = [n.split(":")[0] for n in d.sat_names]
+        n_sd = np.array([amb[1][(g, names[k])] - amb[0][(g, names[k])] for k in d.sat], float)
+        rows = np.flatnonzero(np.arange(d.sat.size) != ref[d.epoch])
+        r = ref[d.epoch[rows]]
+        dd_cycles = (d.r_raw_m[rows] - d.r_raw_m[r]) / d.lam_m
+        err = dd_cycles - (n_sd[rows] - n_sd[r])
+        assert rows.size > 100 and np.max(np.abs(err)) < 0.25 and np.std(err) < 0.06, (g, np.abs(err).max())

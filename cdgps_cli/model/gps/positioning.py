@@ -63,6 +63,7 @@ __all__ = [
     "reception_geometry",
     "simulate_static_pair",
     "synthetic_gps_nav",
+    "synthetic_nav",
 ]
 
 """GPS L1 carrier wavelength c / 1575.42 MHz, m."""
@@ -839,9 +840,40 @@ def synthetic_gps_nav(t_start_s: float, duration_s: float, *, planes: int = 6, p
     DataFrame
         Columns :data:`~cdgps_cli.io.rinex.NAV_COLUMNS` (``line`` = 0), healthy (``sv_health`` 0).
     """
+    return _synthetic_kepler_nav("G", 26_559_700.0, 55.0, GM_GPS, t_start_s, duration_s, planes, per_plane,
+                                 seed, record_interval_s)
+
+
+SYNTHETIC_ORBITS = {"G": (26_559_700.0, 55.0, 6, 6), "E": (29_599_800.0, 56.0, 3, 8)}
+"""Nominal orbit per system of :func:`synthetic_nav`: semi-major axis (m), inclination (deg),
+planes, satellites per plane (Galileo: the Walker 24/3/1 shell of the OS SIS ICD, 29 599.8 km, 56°)."""
+
+
+def synthetic_nav(systems, t_start_s: float, duration_s: float, *, seed: int = 0,
+                  record_interval_s: float = 7200.0) -> pd.DataFrame:
+    """Broadcast ephemerides of nominal constellations of several systems (``"G"``, ``"E"``).
+
+    GPS is :func:`synthetic_gps_nav` with ``seed`` (identical records); Galileo satellites
+    ``E01…E24`` on the orbits of :data:`SYNTHETIC_ORBITS` with the Galileo GM (seed + 1).  Records
+    in the GPS form (Galileo ``week`` as a GPS week, as RINEX 3 writes it).  Simulations only.
+    """
+    from cdgps_cli.model.gps.orbits import GM_BY_SYSTEM  # noqa: PLC0415
+
+    tabs = []
+    for k, c in enumerate(sorted(set(systems), key="GE".index)):
+        if c not in SYNTHETIC_ORBITS:
+            raise CdgpsError(f"synthetic ephemerides exist for systems {', '.join(SYNTHETIC_ORBITS)}, not {c!r}")
+        a, inc, planes, per_plane = SYNTHETIC_ORBITS[c]
+        tabs.append(_synthetic_kepler_nav(c, a, inc, GM_BY_SYSTEM[c], t_start_s, duration_s, planes, per_plane,
+                                          seed + "GE".index(c), record_interval_s))
+    return pd.concat(tabs, ignore_index=True)
+
+
+def _synthetic_kepler_nav(letter: str, a: float, inc_deg: float, gm: float, t_start_s: float, duration_s: float,
+                          planes: int, per_plane: int, seed: int, record_interval_s: float) -> pd.DataFrame:
+    """Records of ``planes × per_plane`` near-circular orbits of radius ``a`` (m), see :func:`synthetic_gps_nav`."""
     gen = np.random.default_rng(seed)
-    a = 26_559_700.0
-    n0 = math.sqrt(GM_GPS / a**3)
+    n0 = math.sqrt(gm / a**3)
     omega_dot = -8.0e-9
     step = float(record_interval_s)
     t_ref = math.floor(t_start_s / step) * step
@@ -855,7 +887,7 @@ def synthetic_gps_nav(t_start_s: float, duration_s: float, *, planes: int = 6, p
             m_ref = 2 * math.pi * q / per_plane + gen.uniform(-0.05, 0.05)
             ecc = gen.uniform(0.002, 0.012)
             argp = gen.uniform(-math.pi, math.pi)
-            inc = math.radians(55.0) + gen.uniform(-0.01, 0.01)
+            inc = math.radians(inc_deg) + gen.uniform(-0.01, 0.01)
             af0, af1, tgd = gen.uniform(-2e-4, 2e-4), gen.uniform(-5e-12, 5e-12), gen.uniform(-1e-8, 1e-8)
             for k, toe in enumerate(toes):
                 week = int(toe // 604800)
@@ -865,7 +897,7 @@ def synthetic_gps_nav(t_start_s: float, duration_s: float, *, planes: int = 6, p
                 om0 = math.remainder(node + omega_dot * dt_ - OMEGA_E_GPS * dt_ + OMEGA_E_GPS * sow, 2 * math.pi)
                 iod = int((k + 7 * prn) % 256)
                 rows.append({
-                    "sat": f"G{prn:02d}", "toc_gps_s": float(toe), "af0_s": af0 + af1 * dt_, "af1_s_per_s": af1,
+                    "sat": f"{letter}{prn:02d}", "toc_gps_s": float(toe), "af0_s": af0 + af1 * dt_, "af1_s_per_s": af1,
                     "af2_s_per_s2": 0.0, "iode": iod, "crs_m": 0.0, "delta_n_rad_per_s": 0.0, "m0_rad": m0,
                     "cuc_rad": 0.0, "e": ecc, "cus_rad": 0.0, "sqrt_a_sqrt_m": math.sqrt(a), "toe_sow_s": sow,
                     "cic_rad": 0.0, "omega0_rad": om0, "cis_rad": 0.0, "i0_rad": inc, "crc_m": 0.0,
