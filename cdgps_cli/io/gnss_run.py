@@ -45,7 +45,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.mcap import CONFIG_ATTACHMENT, McapOut, array_schema, message_schema, read_mcap
 from cdgps_cli.io.run import INGEST_METADATA, contents_kind, ingest_metadata, run_kind
 from cdgps_cli.core.gps_time import gps_time_str
-from cdgps_cli.core.records import NAV_COLUMNS, OBS_COLUMNS
+from cdgps_cli.core.records import NAV_COLUMNS
 from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
 from cdgps_cli.io.ubx import INTEGRITY_COUNTS, integrity_problems, integrity_record, skipped_line
 from cdgps_cli.core.gps_time import nominal_interval_s

@@ -8,7 +8,7 @@ displacement states in :mod:`cdgps_cli.pipeline.gnss` — and CSV export and eva
 Every epoch of every series is stored as packed arrays (lossless, compact; the layout is in
 :mod:`cdgps_cli.io.states_layout`), which :class:`States` reads.  Beside them, the Foxglove
 channels (JSON schema / JSON, ``timestamp {sec, nsec}``) hold one message every
-``json_channels_every_epochs`` epochs (``--foxglove-rate-hz``, default 0.5 Hz; 0: every epoch):
+``json_channels_every_epochs`` epochs (``--foxglove-rate-hz``, default 1 Hz; 0: every epoch):
 
 * ``/cdgps/state`` — the estimate (smoothed when ``--smooth``): ``q`` and ``sigma_q`` as objects
   keyed by coordinate name (so Foxglove plots ``/cdgps/state.q.q10`` directly), the modal state

@@ -40,9 +40,11 @@ PACKED_PREFIX = "arrays"
 RESIDUAL_PACKED = "arrays/cdgps/residuals/"
 COVARIANCE_CHOICES = ("modal", "full")
 DEFAULT_COVARIANCE = "modal"
-DEFAULT_PREVIEW_RATE_HZ = 0.5
-"""Rate of the Foxglove JSON channels, Hz (0: every epoch).  0.5 Hz keeps a STATES.mcap within the
-size of its RUN.mcap by default (docs/benchmarks/io.md); every epoch is in the packed arrays."""
+DEFAULT_PREVIEW_RATE_HZ = 1.0
+"""Rate of the Foxglove JSON channels, Hz (0: every epoch); every epoch is in the packed arrays.  1 Hz
+shows a structure's modes up to 0.5 Hz in Foxglove's plots (0.5 Hz would alias the testbed's 0.28 Hz
+mode and bring STATES.mcap of an hour at 10 Hz 1.8 MiB under its RUN.mcap; at 1 Hz it is 1.0 MiB
+over: docs/benchmarks/io.md)."""
 STATE_DELTA = 2
 """Order of the epoch-to-epoch differences the state and covariance arrays are packed with
 (:mod:`cdgps_cli.io.packed_arrays`; lossless: P_ξ of an hour at 10 Hz 10.4 → 9.9 MB)."""

@@ -121,7 +121,7 @@ def test_displacement_series_has_no_structure_config(tmp_path):
         st.require_structure("--points")
     # the Foxglove messages: q without the missing coordinates, xi with its validity companion
     m = c.topics[STATE_TOPIC]
-    k = int(np.flatnonzero(m.times() == ss.series[STATE_TOPIC].time_s[6])[0])       # (0.5 Hz: every other epoch)
+    k = int(np.flatnonzero(m.times() == ss.series[STATE_TOPIC].time_s[6])[0])       # (a preview epoch at the default rate)
     assert set(m.scalars["q"][k]) == {"r1_e", "r1_n", "r1_u"}
 
 
