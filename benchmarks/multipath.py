@@ -64,7 +64,9 @@ def one(cfg, seed: int, case: str, d: Path, white_m: float = WHITE_M, mp_m: floa
                          for b in fixed),
                sigma_hat_m=init["sigma_m"], init_s=time.perf_counter() - t,
                mp_sigma_m=init.get("multipath", {}).get("sigma_m"),
-               mp_tau_s=init.get("multipath", {}).get("time_constant_s"))
+               mp_tau_s=init.get("multipath", {}).get("time_constant_s"),
+               mp_fit_sigma_m=init.get("multipath", {}).get("evidence", {}).get("raw_sigma_m"),
+               mp_fit_tau_s=init.get("multipath", {}).get("evidence", {}).get("raw_time_constant_s"))
     res = estimate(run, init, EstimateOptions())
     sub = d / f"s{seed}"
     write_simulation(sim, sub)
