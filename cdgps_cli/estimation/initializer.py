@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 import time as _time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
@@ -39,7 +39,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.phase import channel_indices, phase_model
 from cdgps_cli.core import progress
 from cdgps_cli.estimation.ambiguity import resolve
-from cdgps_cli.measurement.multipath import MultipathModel, augment, calibrate_fit, fit_autocovariance, model_from
+from cdgps_cli.measurement.multipath import MultipathModel, augment, fit_autocovariance, model_from
 from cdgps_cli.measurement.noise import leverage_per_channel, prior_sigma_m, snr_sigma_factor, variance_factors
 from cdgps_cli.core.records import INIT_FORMAT, Run
 
@@ -832,12 +832,7 @@ def _auto_multipath(cfg, wd, prob, g, prior, noise, opt):
               f"{'time-correlated' if fit['detected'] else 'no multipath model'}")
     if not fit["detected"]:
         return prob, g, noise, off, None
-    # the white fit absorbed part of the multipath: σ_mp, τ corrected by simulating that fit
-    cal = calibrate_fit(fit, _residual_map(prob, g.x), np.isfinite(prob.y), wd.segment, cfg.sample_period_s)
-    fit = dict(fit, calibration=cal)
-    _say(opt, f"  multipath fit corrected for what the white fit absorbs: σ {cal['sigma_m'] * 1000:.2f} mm "
-              f"(× {cal['sigma_factor']:.2f}), τ {cal['time_constant_s']:.3g} s")
-    mp = MultipathModel(cal["sigma_m"], cal["time_constant_s"])
+    mp = MultipathModel(fit["sigma_m"], fit["time_constant_s"])
     N, C = g.x.shape[0], len(wd.channels)
     p2 = _Problem(cfg, wd, prior, opt.process_noise, mp=mp)
     x0 = np.hstack([g.x, np.zeros((N, C))])
@@ -851,28 +846,9 @@ def _auto_multipath(cfg, wd, prob, g, prior, noise, opt):
         f"time-correlated phase residuals (multipath?): pooled Ljung–Box Q = {fit['ljung_box_q']:.0f} > "
         f"{fit['ljung_box_limit']:.0f} ({fit['ljung_box_dof']} dof, lags {', '.join(f'{v:g}' for v in fit['lags_s'])} s); "
         f"modelled as a Gauss–Markov state per channel with σ {mp.sigma_m * 1000:.2f} mm, τ "
-        f"{mp.time_constant_s:.3g} s estimated from the residual autocovariance (corrected for what the white fit "
-        f"absorbs) "
+        f"{mp.time_constant_s:.3g} s estimated from the residual autocovariance "
         f"(--multipath-sigma-m 0 to switch it off, or give the values)"))
     return p2, g2, noise, mp, fit
-
-
-def _residual_map(prob: _Problem, x: np.ndarray):
-    """e ↦ the residuals (N, C) m of ``prob``'s batch linearized about x when its data are e (N, C) m
-    (no damping): the linear map through which the white fit's residuals came (for
-    :func:`~cdgps_cli.measurement.multipath.calibrate_fit`)."""
-    lp0 = prob.linear_problem(x, 0.0, x[0], 0.0, np.zeros(prob.free.size))
-    wt = 1.0 / prob.sig_c
-
-    def residuals(e: np.ndarray) -> np.ndarray:
-        lp = replace(lp0, y=e * wt, x1_mean=np.zeros(prob.n), b_mean=np.zeros(lp0.n_bias))
-        sol = srif_solve(lp, square_root=prob._square_root)
-        fit = np.einsum("nci,ni->nc", lp0.H, sol.x)
-        if sol.b.size:
-            fit = fit + np.where(prob.bias_index >= 0, sol.b[np.maximum(prob.bias_index, 0)], 0.0)
-        return e - fit / wt
-
-    return residuals
 
 
 def _multipath_record(mp: MultipathModel, wd: WindowData, z_end: np.ndarray, P, nd: int) -> dict | None:

@@ -213,7 +213,7 @@ def fit_autocovariance(resid: np.ndarray, segment: np.ndarray, dt_s: float) -> d
     ``AUTO_MULTIPATH_SIGMA`` / ``AUTO_MULTIPATH_TAU``.  The grid ends at
     ``TAU_MAX_STRETCH_FRACTION`` × the median stretch: a longer τ is not identifiable from demeaned
     stretches (only σ²/τ is), and the fit at that end gives the σ with the same drift.  What the batch's state trajectory absorbed of
-    the multipath is not in the residuals, so σ_mp comes out low: :func:`calibrate_fit` corrects it.
+    the multipath is not in the residuals, so σ_mp is if anything underestimated.
 
     Detection: the pooled Ljung–Box statistic Q = Σ_runs L(L+2) Σ_k ρ_k²/(L−k) at ``DETECT_LAGS_S``
     above its chi-square (runs × lags) quantile 1 − ``DETECT_PROBABILITY``, and σ_mp ≥
@@ -260,82 +260,4 @@ def fit_autocovariance(resid: np.ndarray, segment: np.ndarray, dt_s: float) -> d
             "sigma_m": float(min(max(sigma_mp, AUTO_MULTIPATH_SIGMA.lo), AUTO_MULTIPATH_SIGMA.hi)),
             "time_constant_s": float(min(max(tau, AUTO_MULTIPATH_TAU.lo), AUTO_MULTIPATH_TAU.hi)),
             "raw_sigma_m": sigma_mp, "raw_time_constant_s": float(tau), "white_sigma_m": sigma_w,
-            "tau_max_s": float(tau_hi), "runs": len(runs), "lag_samples": [int(k) for k in lags]}
-
-
-# --- bias correction of the fit for what the white batch absorbs (indirect inference)
-
-#: simulated data sets per iteration of :func:`calibrate_fit` (each one linear solve of the batch)
-CALIBRATION_PROBES = 6
-#: fixed-point iterations of :func:`calibrate_fit`
-CALIBRATION_ITERATIONS = 2
-#: fixed seed of the simulated probes: same data → same model (byte-identical outputs)
-CALIBRATION_SEED = 20261203
-
-
-def gauss_markov_samples(rng: np.random.Generator, n: int, C: int, dt_s: float, sigma_m: float,
-                         tau_s: float) -> np.ndarray:
-    """(n, C) stationary first-order Gauss–Markov samples (m): m₁ ~ N(0, σ²),
-    m_{k+1} = a m_k + σ √(1 − a²) ω_k, a = exp(−dt/τ)."""
-    from scipy.signal import lfilter
-
-    a = math.exp(-dt_s / tau_s)
-    e = rng.standard_normal((n, C)) * (sigma_m * math.sqrt(-math.expm1(-2.0 * dt_s / tau_s)))
-    e[0] = rng.standard_normal(C) * sigma_m
-    return lfilter([1.0], [1.0, -a], e, axis=0)
-
-
-def calibrate_fit(fit: dict, residuals_of, present: np.ndarray, segment: np.ndarray, dt_s: float,
-                  probes: int = CALIBRATION_PROBES, iterations: int = CALIBRATION_ITERATIONS,
-                  seed: int = CALIBRATION_SEED) -> dict:
-    """Correct the fitted (σ_mp, τ, σ_w) of :func:`fit_autocovariance` for the fit that made the residuals.
-
-    The residuals the fit sees are not the phase errors: the white-noise batch fit has absorbed part
-    of them into its trajectory (process noise at every epoch) and biases, and a window of a few
-    correlation times biases the moments too, so σ_mp comes out low (≈ 0.8 × on the 1998 testbed).
-    Both effects are those of a known linear operator — the batch's residual map e ↦ e − ŷ(e) at its
-    solution — so the estimator's expectation can be simulated (indirect inference / bootstrap bias
-    correction): with θ = (σ_mp, τ, σ_w), draw ``probes`` data sets of Gauss–Markov(σ_mp, τ) + white(σ_w)
-    on the window's observations, push each through ``residuals_of``, fit, and update
-    θ ← θ · θ̂_data / mean(θ̂_probes) (component-wise), ``iterations`` times with common random numbers.
-    τ stays at most the fit's own upper bound (``tau_max_s``: beyond it only σ²/τ is identifiable)
-    and σ_mp within ``AUTO_MULTIPATH_SIGMA``.
-
-    Parameters
-    ----------
-    fit : dict
-        :func:`fit_autocovariance` of the data's residuals.
-    residuals_of : callable
-        ``residuals_of(e) -> r``: residuals (N, C) m of the linearized batch fit whose data are ``e``
-        (N, C) m, NaN where absent.  Linear in e.
-    present, segment : (N, C)
-        Observations that exist (bool); bias-segment index per observation (−1 = none).
-    dt_s : float
-        Sample period (s).
-
-    Returns
-    -------
-    dict with ``sigma_m``, ``time_constant_s``, ``white_sigma_m`` (corrected), ``sigma_factor``
-    (corrected / fitted σ_mp), ``probes``, ``iterations`` and ``probe_means`` per iteration.
-    """
-    from cdgps_cli.config.limits import AUTO_MULTIPATH_SIGMA, AUTO_MULTIPATH_TAU
-
-    target = np.array([fit["raw_sigma_m"], fit["raw_time_constant_s"], fit["white_sigma_m"]], dtype=float)
-    lo = np.array([AUTO_MULTIPATH_SIGMA.lo, AUTO_MULTIPATH_TAU.lo, 0.0])
-    hi = np.array([AUTO_MULTIPATH_SIGMA.hi, fit["tau_max_s"], np.inf])
-    theta = np.clip(target, lo, hi)
-    n, C = present.shape
-    means = []
-    for _ in range(iterations):
-        rng = np.random.default_rng(seed)
-        got = np.zeros(3)
-        for _ in range(probes):
-            e = gauss_markov_samples(rng, n, C, dt_s, theta[0], theta[1]) + theta[2] * rng.standard_normal((n, C))
-            f = fit_autocovariance(residuals_of(np.where(present, e, np.nan)), segment, dt_s)
-            got += [f["raw_sigma_m"], f["raw_time_constant_s"], f["white_sigma_m"]]
-        got /= probes
-        means.append([float(v) for v in got])
-        theta = np.clip(theta * np.where(got > 0, target / np.maximum(got, 1e-300), 1.0), lo, hi)
-    return {"sigma_m": float(theta[0]), "time_constant_s": float(theta[1]), "white_sigma_m": float(theta[2]),
-            "sigma_factor": float(theta[0] / target[0]) if target[0] > 0 else 1.0,
-            "probes": probes, "iterations": iterations, "probe_means": means}
+            "runs": len(runs), "lag_samples": [int(k) for k in lags]}
