@@ -9,7 +9,7 @@ model given (``init --multipath-sigma-m 0.015 --multipath-tau-s 30``), ``off`` =
 Reported per case: runs with every integer fixed, integers fixed / total, wrong fixes (|bias − truth|
 > λ/4), NEES/dof of the modal positions, its 95 % coverage, NIS/dof and its 95 % coverage.
 
-Usage: ``python benchmarks/multipath.py [--seeds 20 | --seed-list 5,6,10] [--configs testbed-1998,tower-120m-fe] [--cases auto,model,off] [--duration-s 120] [--window-s W] [--out F.json]``
+Usage: ``python benchmarks/multipath.py [--seeds 20 | --seed-list 5,6,10] [--configs testbed-1998,tower-120m-fe] [--cases auto,model,off] [--duration-s 120] [--window-s W] [--disturbance-scale S] [--out F.json]``
 (single process; about 1.5–2 min per seed and config with the model on the testbed).
 ``--multipath-m 0 --white-m 0.01 --cases auto``: white-noise runs, where the auto case must stay off.
 """
@@ -47,8 +47,9 @@ CASES = {"auto": {}, "model": dict(multipath_sigma_m=MP_M, multipath_time_consta
 
 
 def one(cfg, seed: int, case: str, d: Path, white_m: float = WHITE_M, mp_m: float = MP_M,
-        duration_s: float = 120.0, window_s: float | None = None) -> dict:
-    sim = simulate(cfg, SimOptions(duration_s=duration_s, seed=seed, phase_sigma_m=white_m, multipath_sigma_m=mp_m))
+        duration_s: float = 120.0, window_s: float | None = None, disturbance_scale: float | None = None) -> dict:
+    sim = simulate(cfg, SimOptions(duration_s=duration_s, seed=seed, phase_sigma_m=white_m, multipath_sigma_m=mp_m,
+                                   disturbance_scale=disturbance_scale))
     run = memory_run(cfg, sim.receiver)
     out = {"seed": seed}
     t = time.perf_counter()
@@ -113,6 +114,8 @@ def main() -> None:
     ap.add_argument("--duration-s", type=float, default=120.0, help="simulated run length, s")
     ap.add_argument("--window-s", type=float, default=None, help="INIT window length, s (default: automatic)")
     ap.add_argument("--seed-list", default=None, help="comma-separated seeds instead of 1..--seeds")
+    ap.add_argument("--disturbance-scale", type=float, default=None,
+                    help="simulated disturbance / the filter's process noise (default: the config's [simulation])")
     ap.add_argument("--out", default=None)
     a = ap.parse_args()
     seeds = [int(v) for v in a.seed_list.split(",")] if a.seed_list else list(range(1, a.seeds + 1))
@@ -127,7 +130,7 @@ def main() -> None:
                 runs = []
                 for s in seeds:
                     runs.append(one(cfg, s, model, Path(tmp) / f"{cfg.name}-{model}", a.white_m, a.multipath_m,
-                                    a.duration_s, a.window_s))
+                                    a.duration_s, a.window_s, a.disturbance_scale))
                     print(f"  {cfg.name} model={model} seed {s}: {json.dumps(runs[-1])}", flush=True)
                 row = summarize(cfg.name, model, runs)
                 rows.append(row)

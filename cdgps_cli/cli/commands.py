@@ -584,8 +584,11 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
         rng_txt = (f", {nz['sigma_m_min'] * 1000:.2f}–{nz['sigma_m_max'] * 1000:.2f} mm per channel"
                    if nz.get("sigma_m_max", 0) > nz.get("sigma_m_min", 0) else "")
         worst = nz.get("worst_channel")
+        inno = nz.get("innovation_sigma_m")
+        inno_txt = ("none (no filter epoch with data)" if inno is None or not math.isfinite(inno)
+                    else f"{inno * 1000:.2f} mm")
         _say(ctx, f"  measurement σ {nz['sigma_m'] * 1000:.2f} mm RMS{rng_txt} ({nz['source']}); innovation-based "
-                  f"estimate {nz.get('innovation_sigma_m', float('nan')) * 1000:.2f} mm"
+                  f"estimate {inno_txt}"
                   + (f"; {worst['channel']} still {worst['relative_variance']:.2f}× the others' variance ratio"
                      if worst else ""))
         mpn = res.noise.get("multipath")

@@ -65,6 +65,8 @@ def test_readme_chain_as_written(tmp_path, repo_root, monkeypatch):
     truth = pd.read_csv("run1/truth.csv")
     # STATES cover every epoch of the 60 s run (the init window from the batch, the filter after it)
     assert "601 epochs (0–60 s; 0–60 s from INIT" in outputs[4]
+    # no filter epoch after the window: said in words, never "nan" (the innovation-based σ too)
+    assert "nan" not in outputs[4].lower() and "innovation-based estimate none" in outputs[4]
     ev = json.loads(_cdgps("evaluate", "--truth", "run1", "--estimate", "run1/states.mcap", "--json"))
     assert ev["epochs"] == len(truth) == 601
     assert all(np.isfinite(v) and v > 0 for v in ev["rms_error"].values())

@@ -90,6 +90,15 @@ def test_damaged_packed_phase_is_a_clean_error(new_run):
         run_module._phase_from_packed(missing, new_run / "run.mcap")
 
 
+def _close_across_machines(a, b) -> None:
+    """The stored files were written on another machine: equal within the golden tests' FLOAT
+    tolerance (relative 1e-9 plus 1e-9 × the largest magnitude), which admits another BLAS's round-off
+    grown through the filter and nothing an intended change of arithmetic makes."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    scale = float(np.nanmax(np.abs(b))) if np.isfinite(b).any() else 0.0
+    np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9 * scale)
+
+
 def test_previous_layout_still_reads_with_the_same_numbers(tmp_path):
     """The old STATES (.npy + every epoch in JSON) and its RUN: read, and re-estimated by today's
     code into the packed layout with the same numbers."""
@@ -110,17 +119,18 @@ def test_previous_layout_still_reads_with_the_same_numbers(tmp_path):
         new = States(tmp_path / "new.mcap", topic=t)
         np.testing.assert_array_equal(new.time_s, old[t].time_s)
         for field in ("q", "sigma_q", "xi"):
-            np.testing.assert_allclose(getattr(new, field), getattr(old[t], field), rtol=1e-12, atol=1e-15)
+            _close_across_machines(getattr(new, field), getattr(old[t], field))
         if t == STATE_TOPIC:
-            np.testing.assert_allclose(new.P_xi, old[t].P_xi, rtol=1e-12, atol=1e-18)
-            np.testing.assert_allclose(new.nis, old[t].nis, rtol=1e-12)
+            _close_across_machines(new.P_xi, old[t].P_xi)
+            _close_across_machines(new.nis, old[t].nis)
             np.testing.assert_array_equal(new.nis_dof, old[t].nis_dof)
             assert new.events == old[t].events
     # downstream commands read both layouts
     for f in ("states.mcap", "new.mcap"):
         cli("export", tmp_path / f, "--points", "all", "-o", tmp_path / f"{f}.csv")
     a, b = pd.read_csv(tmp_path / "states.mcap.csv"), pd.read_csv(tmp_path / "new.mcap.csv")
-    np.testing.assert_allclose(a.to_numpy(), b.to_numpy(), rtol=1e-9, atol=1e-12)
+    for col in a.columns:
+        _close_across_machines(b[col].to_numpy(), a[col].to_numpy())
 
 
 def test_covariance_full_and_json_rate(tmp_path):
