@@ -28,7 +28,7 @@ from click.testing import CliRunner
 from cdgps_cli.cli.commands import main
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.pipeline import batch as B
-from cdgps_cli.pipeline.batch_dask import local_cluster, run_batch
+from cdgps_cli.pipeline.batch_dask import PROFILE_KEY, local_cluster, run_batch
 
 distributed = pytest.importorskip("distributed")
 
@@ -127,6 +127,10 @@ def _set_aside(campaign, name):
 
 
 def test_one_worker_gives_the_single_commands_bytes(campaign, client):
+    # the batch's own cluster runs its workers without dask's profiler (its samples grew a worker's memory)
+    import dask
+
+    assert set(client.run(lambda: dask.config.get(PROFILE_KEY)).values()) == {False}
     s = run_batch(campaign["manifest"], campaign["out"], client=client, retries=0)
     assert s["workers"] == 1 and s["counts"] == {"sessions": 3, "done": 3}, s["failures"]
     _assert_same_tree(campaign["ref"], campaign["out"], CAMPAIGN_FILES)
