@@ -907,6 +907,86 @@ def _glonass_record(lines: list[str], i: int, v3: bool, p, compressed: bool) -> 
     return rec
 
 
+def _nav_header(lines: list, p: Path, compressed: bool, version: float) -> tuple[dict, int]:
+    """The header of a navigation file: (``attrs`` with version, leap seconds, ionosphere
+    coefficients and comments; the index of its END OF HEADER line)."""
+    attrs: dict = {"path": str(p), "version": version, "leap_seconds": None, "ion_alpha": None, "ion_beta": None, "comments": []}
+    end = None
+    for i in range(1, len(lines)):
+        ln = lines[i]
+        label = ln[60:80].strip()
+        try:
+            if label == "END OF HEADER":
+                end = i
+                break
+            if label == "COMMENT":
+                attrs["comments"].append(ln[:60].rstrip())
+            elif label == "LEAP SECONDS":
+                attrs["leap_seconds"] = int(ln[:6])
+            elif label == "ION ALPHA":
+                attrs["ion_alpha"] = [_float_field(ln[2 + 12 * k : 14 + 12 * k]) for k in range(4)]
+            elif label == "ION BETA":
+                attrs["ion_beta"] = [_float_field(ln[2 + 12 * k : 14 + 12 * k]) for k in range(4)]
+            elif label == "IONOSPHERIC CORR" and ln[:4] in ("GPSA", "GPSB"):
+                attrs["ion_alpha" if ln[:4] == "GPSA" else "ion_beta"] = [_float_field(ln[5 + 12 * k : 17 + 12 * k]) for k in range(4)]
+        except ValueError:
+            raise CdgpsError(f"{_where(p, i + 1, compressed)}: malformed header line '{label}': {ln.rstrip()!r}") from None
+    if end is None:
+        raise CdgpsError(f"{p}: no 'END OF HEADER' line; truncated or not a RINEX navigation file")
+    return attrs, end
+
+
+def _kepler_record(lines: list, i: int, nrec: int, sysc: str, version: float, p: Path, compressed: bool) -> list:
+    """The Keplerian ephemeris record (GPS, Galileo, BeiDou) of ``nrec`` lines from line index ``i``:
+    [sat, toc (GPS s), the 29 broadcast values, line number]; a malformed, truncated or incomplete
+    record is an error naming the file and line."""
+    v3 = version >= 3
+    cont_col = 4 if v3 else 3
+    ln = lines[i]
+    lineno = i + 1
+    try:
+        if v3:
+            sat = _sat_id(ln[0:3], version)
+            y, mo, d, h, mi = (int(ln[a:b]) for a, b in ((4, 8), (9, 11), (12, 14), (15, 17), (18, 20)))
+            sec = float(ln[21:23])
+            first_vals = [ln[23 + 19 * k : 42 + 19 * k] for k in range(3)]
+        else:
+            sat = f"G{int(ln[0:2]):02d}"
+            yy, mo, d, h, mi = (int(ln[a:b]) for a, b in ((3, 5), (6, 8), (9, 11), (12, 14), (15, 17)))
+            y = yy + (1900 if yy >= 80 else 2000) if yy < 100 else yy
+            sec = float(ln[17:22])
+            first_vals = [ln[22 + 19 * k : 41 + 19 * k] for k in range(3)]
+        toc = gps_seconds(y, mo, d, h, mi, sec) + (GPS_MINUS_BDT_S if sysc == "C" else 0.0)
+        vals = [_float_field(s) for s in first_vals]
+    except ValueError:
+        raise CdgpsError(f"{_where(p, lineno, compressed)}: malformed first line of an ephemeris record: {ln.rstrip()!r}") from None
+    for k in range(1, nrec):
+        cl = lines[i + k]
+        if v3 and cl[:1] in _NAV_LINES and cl[1:3].strip().isdigit():
+            raise CdgpsError(f"{_where(p, i + k + 1, compressed)}: ephemeris record of {sat} starting at line {lineno} is truncated: a new record starts after {k} of {nrec} lines")
+        try:
+            vals.extend(_float_field(cl[cont_col + 19 * q : cont_col + 19 * (q + 1)]) for q in range(4))
+        except ValueError:
+            raise CdgpsError(f"{_where(p, i + k + 1, compressed)}: malformed broadcast-orbit line {k} of the {sat} record starting at line {lineno}: {cl.rstrip()!r}") from None
+    vals = vals[:29]
+    if any(math.isnan(vals[k]) for k in _NAV_REQUIRED):
+        missing = [_NAV_VALUES[k] for k in _NAV_REQUIRED if math.isnan(vals[k])][:5]
+        raise CdgpsError(f"{_where(p, lineno, compressed)}: ephemeris record of {sat} has blank required field(s): {', '.join(missing)}")
+    return [sat, toc, *vals, lineno]
+
+
+def _with_glonass(df: pd.DataFrame, glonass: list) -> pd.DataFrame:
+    """The Keplerian table ``df`` and the GLONASS state-vector records in one table (NaN where a
+    column is the other kind's), integer columns restored, duplicates dropped, sorted."""
+    glo = pd.DataFrame(glonass, columns=[*NAV_COLUMNS, *GLONASS_NAV_COLUMNS])
+    df = pd.concat([d for d in (df.reindex(columns=glo.columns), glo) if len(d)], ignore_index=True)
+    for c in ("iode", "codes_l2", "l2p_data_flag", "sv_health", "iodc", "week", "line"):
+        df[c] = df[c].fillna(-1).round().astype(np.int64)
+    df = df.drop_duplicates(subset=["sat", "toe_gps_s", "iode", "af0_s"], keep="first")
+    df = df.sort_values(["sat", "toe_gps_s", "transmit_gps_s"], kind="stable").reset_index(drop=True)
+    return df
+
+
 def read_rinex_nav(path: str | Path, systems=("G",)) -> pd.DataFrame:
     """Read the broadcast ephemerides of a RINEX 2 or 3 navigation file.
 
@@ -958,32 +1038,8 @@ def read_rinex_nav(path: str | Path, systems=("G",)) -> pd.DataFrame:
         raise CdgpsError(f"{p}: ephemerides of system(s) {', '.join(bad_sys)} cannot be read; supported: {', '.join(NAV_SYSTEMS)}")
     if version >= 3 and system not in ("G", "M", " ", "") and system not in systems:
         raise CdgpsError(f"{p}: RINEX {version:.2f} navigation file for system {system!r}; GPS ('G') or mixed ('M') ephemerides are needed")
-    attrs: dict = {"path": str(p), "version": version, "leap_seconds": None, "ion_alpha": None, "ion_beta": None, "comments": []}
-    end = None
-    for i in range(1, len(lines)):
-        ln = lines[i]
-        label = ln[60:80].strip()
-        try:
-            if label == "END OF HEADER":
-                end = i
-                break
-            if label == "COMMENT":
-                attrs["comments"].append(ln[:60].rstrip())
-            elif label == "LEAP SECONDS":
-                attrs["leap_seconds"] = int(ln[:6])
-            elif label == "ION ALPHA":
-                attrs["ion_alpha"] = [_float_field(ln[2 + 12 * k : 14 + 12 * k]) for k in range(4)]
-            elif label == "ION BETA":
-                attrs["ion_beta"] = [_float_field(ln[2 + 12 * k : 14 + 12 * k]) for k in range(4)]
-            elif label == "IONOSPHERIC CORR" and ln[:4] in ("GPSA", "GPSB"):
-                attrs["ion_alpha" if ln[:4] == "GPSA" else "ion_beta"] = [_float_field(ln[5 + 12 * k : 17 + 12 * k]) for k in range(4)]
-        except ValueError:
-            raise CdgpsError(f"{_where(p, i + 1, compressed)}: malformed header line '{label}': {ln.rstrip()!r}") from None
-    if end is None:
-        raise CdgpsError(f"{p}: no 'END OF HEADER' line; truncated or not a RINEX navigation file")
-
+    attrs, end = _nav_header(lines, p, compressed, version)
     v3 = version >= 3
-    cont_col = 4 if v3 else 3
     records: list[list] = []
     glonass: list[dict] = []
     counts: dict[str, int] = {}
@@ -1011,37 +1067,8 @@ def read_rinex_nav(path: str | Path, systems=("G",)) -> pd.DataFrame:
             raise CdgpsError(f"{_where(p, lineno, compressed)}: ephemeris record truncated: {nrec} lines expected, the file ends after {n - i}")
         if sysc == "R":
             glonass.append(_glonass_record(lines, i, v3, p, compressed))
-            i += nrec
-            continue
-        try:
-            if v3:
-                sat = _sat_id(ln[0:3], version)
-                y, mo, d, h, mi = (int(ln[a:b]) for a, b in ((4, 8), (9, 11), (12, 14), (15, 17), (18, 20)))
-                sec = float(ln[21:23])
-                first_vals = [ln[23 + 19 * k : 42 + 19 * k] for k in range(3)]
-            else:
-                sat = f"G{int(ln[0:2]):02d}"
-                yy, mo, d, h, mi = (int(ln[a:b]) for a, b in ((3, 5), (6, 8), (9, 11), (12, 14), (15, 17)))
-                y = yy + (1900 if yy >= 80 else 2000) if yy < 100 else yy
-                sec = float(ln[17:22])
-                first_vals = [ln[22 + 19 * k : 41 + 19 * k] for k in range(3)]
-            toc = gps_seconds(y, mo, d, h, mi, sec) + (GPS_MINUS_BDT_S if sysc == "C" else 0.0)
-            vals = [_float_field(s) for s in first_vals]
-        except ValueError:
-            raise CdgpsError(f"{_where(p, lineno, compressed)}: malformed first line of an ephemeris record: {ln.rstrip()!r}") from None
-        for k in range(1, nrec):
-            cl = lines[i + k]
-            if v3 and cl[:1] in _NAV_LINES and cl[1:3].strip().isdigit():
-                raise CdgpsError(f"{_where(p, i + k + 1, compressed)}: ephemeris record of {sat} starting at line {lineno} is truncated: a new record starts after {k} of {nrec} lines")
-            try:
-                vals.extend(_float_field(cl[cont_col + 19 * q : cont_col + 19 * (q + 1)]) for q in range(4))
-            except ValueError:
-                raise CdgpsError(f"{_where(p, i + k + 1, compressed)}: malformed broadcast-orbit line {k} of the {sat} record starting at line {lineno}: {cl.rstrip()!r}") from None
-        vals = vals[:29]
-        if any(math.isnan(vals[k]) for k in _NAV_REQUIRED):
-            missing = [_NAV_VALUES[k] for k in _NAV_REQUIRED if math.isnan(vals[k])][:5]
-            raise CdgpsError(f"{_where(p, lineno, compressed)}: ephemeris record of {sat} has blank required field(s): {', '.join(missing)}")
-        records.append([sat, toc, *vals, lineno])
+        else:
+            records.append(_kepler_record(lines, i, nrec, sysc, version, p, compressed))
         i += nrec
     if not records and not glonass:
         found = ", ".join(f"{k}: {v}" for k, v in sorted(counts.items())) or "none"
@@ -1049,12 +1076,7 @@ def read_rinex_nav(path: str | Path, systems=("G",)) -> pd.DataFrame:
         raise CdgpsError(f"{p}: no {wanted} ephemeris records (records found by system: {found})")
     df = _kepler_table(records, p, compressed)
     if "R" in systems:
-        glo = pd.DataFrame(glonass, columns=[*NAV_COLUMNS, *GLONASS_NAV_COLUMNS])
-        df = pd.concat([d for d in (df.reindex(columns=glo.columns), glo) if len(d)], ignore_index=True)
-        for c in ("iode", "codes_l2", "l2p_data_flag", "sv_health", "iodc", "week", "line"):
-            df[c] = df[c].fillna(-1).round().astype(np.int64)
-        df = df.drop_duplicates(subset=["sat", "toe_gps_s", "iode", "af0_s"], keep="first")
-        df = df.sort_values(["sat", "toe_gps_s", "transmit_gps_s"], kind="stable").reset_index(drop=True)
+        df = _with_glonass(df, glonass)
     attrs["n_records_by_system"] = dict(sorted(counts.items()))
     df.attrs.update(attrs)
     return df
