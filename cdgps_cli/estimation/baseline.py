@@ -432,7 +432,27 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
         },
         "below_mask_sd_rows": {str(k): int(v) for k, v in below.items()},
     }
+    if master.signals is not None and rover.signals is not None:
+        return _signal_data(master, rover, (om, orv), (clk_m, clk_r), j, t_label, nav, (master_xyz, rover_xyz), opt,
+                            ce.interval_s, info, warnings)
     return _sd_data(j, sel, gb, gr, t_label, ce.interval_s, info)
+
+
+def _signal_data(master: Station, rover: Station, l1_rows, clocks, j, t_label, nav, xyz, opt: BaselineOptions,
+                 interval: float, info: dict, warnings: list) -> _Data:
+    """The signal groups' SD rows (:func:`~cdgps_cli.estimation.baseline_signals.signal_sd_fields`) on the
+    epochs and clocks of the GPS L1 rows; receiver resets from the L1 epoch flags."""
+    from cdgps_cli.estimation.baseline_signals import signal_sd_fields  # noqa: PLC0415
+
+    if opt.epoch_alignment != "geometry":
+        raise CdgpsError(f"epoch_alignment {opt.epoch_alignment!r} is not available with [gnss] signals: the signal "
+                         f"rows are modelled at their own reception instants (use epoch_alignment = \"geometry\")")
+    f = signal_sd_fields(master.signals, rover.signals, l1_rows[0], l1_rows[1], clocks[0], clocks[1], t_label, nav,
+                         xyz[0], xyz[1], mask_rad=math.radians(opt.mask_deg), troposphere=opt.troposphere,
+                         names=(_where(master), _where(rover)), warnings=warnings)
+    reset = np.unique(j["ep"].to_numpy()[(j["epoch_flag_r"].to_numpy() == 1) | (j["epoch_flag_b"].to_numpy() == 1)])
+    info = dict(info, below_mask_sd_rows=None, **f.pop("info"))
+    return _Data(t_label=t_label, reset_epochs=reset.astype(np.int64), interval_s=interval, info=info, **f)
 
 
 def _sd_data(j: pd.DataFrame, sel, gb: dict, gr: dict, t_label, interval: float, info: dict) -> _Data:
@@ -950,8 +970,10 @@ def _kinematic_summary(d: _Data, ka: dict, x_final, opt: BaselineOptions) -> dic
 
 
 def _segment_table(d: _Data, sg: _Segments, fx: _Fix) -> list:
-    """One row per SD ambiguity segment: satellite, span, datum, float value, integer."""
+    """One row per SD ambiguity segment: satellite, span, datum, float value, integer (and with signal
+    groups its ``signal`` and ``wavelength_m``)."""
     rows = []
+    sig = _satellite_signals(d)
     for k in range(sg.n_seg):
         p_idx = sg.par_of_seg[k] - 3
         piv = sg.is_pivot[k]
@@ -969,8 +991,20 @@ def _segment_table(d: _Data, sg: _Segments, fx: _Fix) -> list:
             "integer": (0 if piv else (int(fx.integers[p_idx]) if fx.fixed_mask[p_idx] else None)),
             "first_gps_s": float(d.t_label[sg.segtab["first_epoch"][k]]),
             "last_gps_s": float(d.t_label[sg.segtab["last_epoch"][k]]),
+            **(sig[int(sg.segtab["sat"][k])] if sig else {}),
         })
     return rows
+
+
+def _satellite_signals(d: _Data) -> list:
+    """Per satellite-signal name: its ``signal`` and ``wavelength_m`` (empty list: GPS L1 only)."""
+    if getattr(d, "group", None) is None:
+        return []
+    grp = np.zeros(len(d.sat_names), dtype=np.int64)
+    lam = np.zeros(len(d.sat_names))
+    grp[d.sat] = d.group
+    lam[d.sat] = d.lam_m
+    return [{"signal": d.group_names[g], "wavelength_m": float(v)} for g, v in zip(grp, lam)]
 
 
 def _satellite_table(d: _Data, sg: _Segments) -> list:
