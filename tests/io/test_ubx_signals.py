@@ -16,22 +16,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
-from cdgps_cli.cli.commands import main
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.signals import wavelength_m
 from cdgps_cli.io.ubx import read_ubx_signals
+from tests._shared import run_cli, run_commands
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 RAWX = DATA / "pygpsdata-RXMRAWX.log"
 ROOT = Path(__file__).resolve().parents[2]
 _SIG_ID = {"G:L1": (0, 0), "G:L2": (0, 3), "E:E1": (2, 1), "E:E5a": (2, 3)}      # as an F9 reports them
 _SYS = {"G": 0, "E": 2, "C": 3, "R": 6}
-
-
-def run_cli(*args):
-    return CliRunner().invoke(main, [str(a) for a in args])
 
 
 def _struct_rows(data: bytes):
@@ -128,11 +123,9 @@ def ubx_pair(tmp_path_factory):
         f'[gnss]\nmaster = "base"\nsignals = {json.dumps(sigs)}\nnav = ["nav.rnx"]\n'
         f'[gnss.antennas.base]\nubx = "base.ubx"\nposition_ecef_m = {base.tolist()}\n'
         f'[gnss.antennas.rover]\nubx = "rover.ubx"\nposition_ecef_m = {rover.tolist()}\n')
-    for args in (("ingest", "--config", tmp / "job.toml", "-o", tmp / "run.mcap"),
+    run_commands(("ingest", "--config", tmp / "job.toml", "-o", tmp / "run.mcap"),
                  ("init", tmp / "run.mcap", "-o", tmp / "init.json"),
-                 ("estimate", tmp / "run.mcap", "--init", tmp / "init.json", "-o", tmp / "states.mcap")):
-        r = run_cli("-q", *args)
-        assert r.exit_code == 0, (args, r.output)
+                 ("estimate", tmp / "run.mcap", "--init", tmp / "init.json", "-o", tmp / "states.mcap"))
     return json.loads((tmp / "init.json").read_text()), ints
 
 

@@ -14,13 +14,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
-from cdgps_cli.cli.commands import main
 from cdgps_cli.estimation.baseline import BaselineOptions, Station, solve_static_baseline
 from cdgps_cli.io.gnss_run import read_gnss_run
 from cdgps_cli.io.mcap import read_mcap
 from cdgps_cli.pipeline.gnss_ingest import processing_obs
+from tests._shared import run_cli, run_commands
 
 ROOT = Path(__file__).resolve().parents[2]
 TOWER = ROOT / "configs" / "gnss-tower.toml"
@@ -30,19 +29,13 @@ GE_BASE_M = [4157177.06580187, 671230.476590636, 4774767.03105544]      # rinex-
 GE_ROVER_M = [4156857.1195929, 673209.028774142, 4774767.03105544]
 
 
-def run_cli(*args):
-    return CliRunner().invoke(main, [str(a) for a in args])
-
-
 @pytest.fixture(scope="module")
 def sim(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("sig")
-    for args in (("simulate-gnss-structure", TOWER, "--duration", "120", "--seed", "5", "--signals", SIGS, "--out", tmp),
+    run_commands(("simulate-gnss-structure", TOWER, "--duration", "120", "--seed", "5", "--signals", SIGS, "--out", tmp),
                  ("ingest", "--config", tmp / "config.toml", "-o", tmp / "run.mcap"),
                  ("init", tmp / "run.mcap", "-o", tmp / "init.json"),
-                 ("estimate", tmp / "run.mcap", "--init", tmp / "init.json", "-o", tmp / "states.mcap")):
-        r = run_cli("-q", *args)
-        assert r.exit_code == 0, (args, r.output)
+                 ("estimate", tmp / "run.mcap", "--init", tmp / "init.json", "-o", tmp / "states.mcap"))
     return tmp, json.loads((tmp / "truth.json").read_text()), json.loads((tmp / "init.json").read_text())
 
 
@@ -126,9 +119,7 @@ def test_rinex_ge_static_rover_is_fixed_within_3_mm_of_the_truth(tmp_path, signa
     """Hardware-simulator base/rover 2 km apart (Spirent, 10 min): integers fixed, static solution
     within 3 mm of the true rover position (nominal = truth, so the displacement is the error)."""
     cfg = _ge_config(tmp_path, signals, galileo_nav=bool(signals))
-    for args in (("ingest", "--config", cfg, "-o", tmp_path / "run.mcap"), ("init", tmp_path / "run.mcap", "-o", tmp_path / "init.json")):
-        r = run_cli("-q", *args)
-        assert r.exit_code == 0, (args, r.output)
+    run_commands(("ingest", "--config", cfg, "-o", tmp_path / "run.mcap"), ("init", tmp_path / "run.mcap", "-o", tmp_path / "init.json"))
     init = json.loads((tmp_path / "init.json").read_text())
     rov = init["rovers"]["rover"]
     assert rov["solution"] == "fixed" and rov["n_fixed"] == rov["n_estimated"] >= (20 if signals else 4)
