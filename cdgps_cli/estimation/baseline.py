@@ -887,7 +887,8 @@ def _fixed_solution(d: _Data, sg: _Segments, w: _Weights, fl: _Float, fx: _Fix, 
         "sigma_enu_m": np.sqrt(np.diag(q_fix)[:3]).tolist(),
         "iterations": it_fix,
         "unit_variance": sq / dof if dof > 0 else None,
-        "observations": "L1 carrier phase only" if getattr(d, "group", None) is None else f"carrier phase only ({', '.join(d.group_names)})",
+        "observations": ("L1 carrier phase only" if getattr(d, "group", None) is None
+                         else f"carrier phase only ({', '.join(d.group_names)})"),
     }
     kind = "fixed" if n_fixed == sg.free.size else "partially fixed"
     return _Final(block, x_fix, kind, a_fix, known_seg, q_fix[:3, :3], g, r_ph)

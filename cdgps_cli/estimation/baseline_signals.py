@@ -6,7 +6,8 @@ The GPS L1 rows of each receiver fix its epochs on the grid of GPS times and its
 placed in it, at the true reception instant tag − clock.  Rover and master rows of one epoch,
 satellite and signal form a single difference (SD)::
 
-    λ_g·SD_φ = SD(ρ − c·dt_sat + T) + c·Δdt_rx + b_g + λ_g·a_seg + ε,      SD_P = SD(ρ − c·dt_sat + T) + c·Δdt_rx + b'_g + e
+    λ_g·SD_φ = SD(ρ − c·dt_sat + T) + c·Δdt_rx + b_g + λ_g·a_seg + ε
+    SD_P     = SD(ρ − c·dt_sat + T) + c·Δdt_rx + b'_g + e
 
 with λ_g the signal's wavelength, b_g the receivers' inter-system / inter-frequency bias
 difference of group g (a constant per epoch and group, removed with the clock by the DDs of the
