@@ -77,6 +77,16 @@ def _covered(j: pd.DataFrame, nav, t_label, warnings: list) -> pd.DataFrame:
     return j[cov]
 
 
+def _group_info(order: list, grp: np.ndarray, sats: np.ndarray, lam: np.ndarray) -> dict:
+    """Per signal: its SD rows, satellites and wavelength (m)."""
+    out = {}
+    for k, g in enumerate(order):
+        m = grp == k
+        out[g] = {"sd_rows": int(m.sum()), "satellites": int(np.unique(sats[m]).size),
+                  "wavelength_m": float(lam[m][0]) if m.any() else None}
+    return out
+
+
 def signal_sd_fields(master_sig: pd.DataFrame, rover_sig: pd.DataFrame, l1_master: pd.DataFrame, l1_rover: pd.DataFrame,
                      clk_m: np.ndarray, clk_r: np.ndarray, t_label: np.ndarray, nav: pd.DataFrame, xm, xr,
                      *, mask_rad: float, troposphere: bool, names: tuple, warnings: list) -> dict:
@@ -141,11 +151,7 @@ def signal_sd_fields(master_sig: pd.DataFrame, rover_sig: pd.DataFrame, l1_maste
     lam = j["wavelength_m_r"].to_numpy(dtype=np.float64)[sel]
     ph = j["phase_cycles_r"].to_numpy()[sel] - j["phase_cycles_b"].to_numpy()[sel]
     c = SPEED_OF_LIGHT_M_S
-    info = {"signals": {g: {"sd_rows": int(np.sum(grp[sel] == k)),
-                            "satellites": int(np.unique(j["sat"].to_numpy()[sel][grp[sel] == k]).size),
-                            "wavelength_m": float(lam[grp[sel] == k][0]) if np.any(grp[sel] == k) else None}
-                        for k, g in enumerate(order)},
-            "n_epochs_used": int(np.unique(ep[sel]).size)}
+    info = {"signals": _group_info(order, grp[sel], j["sat"].to_numpy()[sel], lam), "n_epochs_used": int(np.unique(ep[sel]).size)}
     return {
         "ptr": epoch_pointers(ep[sel], t_label.size), "epoch": ep[sel], "sat_names": sat_names,
         "sat": np.array([sat_idx[s] for s in keys[sel]], dtype=np.int64),
