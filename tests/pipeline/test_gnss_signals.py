@@ -156,3 +156,41 @@ def test_ingest_of_a_displacement_run_refuses_missing_signals_and_ephemerides(tm
     r = run_cli("ingest", "--config", cfg, "-o", out)
     assert r.exit_code == 2 and message in r.output and "Traceback" not in r.output, r.output
     assert not out.exists() and not any(p.name.startswith(".run.mcap") for p in tmp_path.iterdir())
+
+
+@pytest.fixture(scope="module")
+def bds_pair(tmp_path_factory):
+    """The synthetic GPS + BeiDou + GLONASS pair of test_gnss_multi (real MOJN broadcast records,
+    361 m, 40 s; every receiver has the same integer per satellite and signal, so every DD integer is 0)."""
+    from tests.pipeline.test_gnss_multi import BASE, NAV, ROVER, _make_pair
+
+    d = _make_pair(tmp_path_factory.mktemp("bds"))
+
+    def config(signals) -> Path:
+        cfg = d / f"job-{len(signals)}.toml"
+        cfg.write_text(f"[gnss]\nmaster = \"base\"\nsignals = {json.dumps(signals)}\nnav = [\"{NAV}\"]\nmask_deg = 20.0\n"
+                       f"troposphere = false\n[gnss.antennas.base]\nrinex = \"base.obs\"\n"
+                       f"position_ecef_m = {[float(v) for v in BASE]}\n[gnss.antennas.rover]\nrinex = \"rover.obs\"\n"
+                       f"position_ecef_m = {[float(v) for v in ROVER]}\n")
+        return cfg
+
+    return d, config
+
+
+def test_beidou_b1i_b2i_on_the_displacement_path(bds_pair):
+    d, config = bds_pair
+    run_commands(("ingest", "--config", config(["G:L1", "C:B1I", "C:B2I"]), "-o", d / "run.mcap"),
+                 ("init", d / "run.mcap", "-o", d / "init.json"))
+    init = json.loads((d / "init.json").read_text())
+    rov = init["rovers"]["rover"]
+    assert rov["solution"] == "fixed" and rov["n_fixed"] == rov["n_estimated"] >= 10
+    assert {s["signal"] for s in rov["ambiguities"]} == {"G:L1", "C:B1I", "C:B2I"}
+    assert all(s["integer"] == 0 for s in rov["ambiguities"])
+    assert np.linalg.norm(list(init["states"].values())) < 0.005
+
+
+def test_glonass_signals_are_refused_naming_them(bds_pair):
+    d, config = bds_pair
+    out = d / "glo.mcap"
+    r = run_cli("ingest", "--config", config(["G:L1", "R:G1"]), "-o", out)
+    assert r.exit_code == 2 and "GLONASS" in r.output and "Traceback" not in r.output and not out.exists(), r.output
