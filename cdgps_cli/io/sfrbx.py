@@ -6,11 +6,13 @@ LNAV subframes 1–3 (IS-GPS-200 §20.3.2–20.3.3) into the same broadcast-ephe
 navigation reader returns (:data:`cdgps_cli.core.records.NAV_COLUMNS`), so a u-blox pair needs no
 separate navigation file.
 
-* RXM-SFRBX, GPS (gnssId 0): ten 32-bit words, each holding one 30-bit navigation word in bits
-  29…0 (D1 at bit 29, D25–D30 the parity).  The data bits are taken as they come and also
-  complemented by the previous word's D30 (the IS-GPS-200 polarity rule); the one whose
-  parity (Table 20-XIV) holds is used, so both conventions a receiver may follow are read, and a
-  subframe with any word failing its parity is dropped and counted.
+* RXM-SFRBX, GPS L1 C/A (gnssId 0, sigId 0): ten 32-bit words, each holding one 30-bit navigation
+  word in bits 29…0 (D1 at bit 29, D25–D30 the parity).  u-blox delivers the data bits
+  polarity-corrected and the previous word's D29*, D30* in bits 31–30, so the parity (Table 20-XIV)
+  is checked with those; failing that, with the previous word's last two bits and the data as they
+  come or complemented by D30* (the IS-GPS-200 transmitted form).  A subframe with any word failing
+  its parity is dropped and counted.  Frames of other GPS signals (sigId ≠ 0: L2C/L5 CNAV, no LNAV
+  parity) are counted apart, not decoded.
 * RXM-SFRB (legacy), GPS: ten 32-bit words of 24 data bits (parity already removed by the
   receiver, so no parity check is possible).
 
@@ -27,7 +29,8 @@ separate navigation file.
   dropped and counted (no single-bit correction: a corrupted word is never turned into a wrong
   value).  Subframes 1–3 of the D1 message (MEO/IGSO satellites) of one 30-s frame (SOW, SOW + 6,
   SOW + 12) give one record, :func:`decode_beidou_d1`.  GEO satellites broadcast D2 (other page
-  layout), which is counted, not decoded.
+  layout), which is counted, not decoded; so are frames of other word counts (B-CNAV1/2/3 of B1C,
+  B2a, B2b: not D1/D2).
 
 GPS subframes of one satellite are combined when subframes 2 and 3 carry the same IODE and it
 equals the 8 LSBs of subframe 1's IODC (IS-GPS-200 §20.3.4.4: a consistent data set).  The
@@ -90,8 +93,23 @@ def parity_ok(word30: int, d29_prev: int, d30_prev: int) -> int | None:
 
 def gps_words_from_sfrbx(dwrd: list[int]) -> list[int] | None:
     """The 24-bit source data words of an RXM-SFRBX GPS subframe (ten 30-bit words), or None when
-    a word fails its parity.  The word before word 1 is word 10 of the previous subframe, whose
-    D29/D30 are zero by design (IS-GPS-200 §20.3.5.2)."""
+    a word fails its parity.
+
+    u-blox 8/9 receivers deliver the data bits already polarity-corrected (the source bits) and put
+    the previous word's D29*, D30* — which every parity equation needs — in bits 31–30 of each word:
+    that form is tried first (all 5 440 L1 C/A subframes of the real M8/F9/X20 logs checked pass it,
+    none passes the chain below).  Otherwise the ICD chain: D29*, D30* from the previous word's bits
+    1–0 (word 10 of the previous subframe has D29 = D30 = 0 by design, IS-GPS-200 §20.3.5.2), data as
+    delivered or complemented by D30*.
+    """
+    out = []
+    for w in dwrd:
+        data = (w >> 6) & 0xFFFFFF
+        if parity_bits(data, (w >> 31) & 1, (w >> 30) & 1) != w & 0x3F:
+            break
+        out.append(data)
+    else:
+        return out
     out = []
     d29 = d30 = 0
     for w in dwrd:
@@ -451,6 +469,9 @@ def _beidou_frame(pl: bytes, sv: int, latest: dict, recs: dict, stats: dict) -> 
     if sv in _BDS_GEO:
         stats["beidou_d2_frames"] += 1
         return
+    if pl[4] != 10:
+        stats["beidou_cnav_frames"] += 1
+        return
     words = beidou_words_from_sfrbx(np.frombuffer(pl[8:48], dtype="<u4").tolist()) if pl[4] >= 10 else None
     if words is None:
         stats["beidou_bch_failures"] += 1
@@ -491,10 +512,13 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None) -> tuple[pd.DataFrame,
         ``sfrbx_frames``, ``gps_subframes`` (1–3 decoded), ``parity_failures`` (subframes dropped),
         ``galileo_words``, ``galileo_bad_pages``, ``beidou_subframes`` (D1 1–3 kept),
         ``beidou_bch_failures`` (subframes dropped), ``beidou_d2_frames`` (GEO, not decoded),
-        ``other_systems`` (gnssId → frames: not decoded here), ``ephemerides``.
+        ``beidou_cnav_frames`` (not ten words: B1C/B2a/B2b, not decoded), ``gps_cnav_frames``
+        (sigId ≠ 0: L2C/L5, not decoded), ``other_systems`` (gnssId → frames: not decoded here),
+        ``ephemerides``.
     """
     stats = {"sfrbx_frames": 0, "gps_subframes": 0, "parity_failures": 0, "galileo_words": 0, "galileo_bad_pages": 0,
-             "beidou_subframes": 0, "beidou_bch_failures": 0, "beidou_d2_frames": 0, "other_systems": {}, "ephemerides": 0}
+             "beidou_subframes": 0, "beidou_bch_failures": 0, "beidou_d2_frames": 0, "beidou_cnav_frames": 0,
+             "gps_cnav_frames": 0, "other_systems": {}, "ephemerides": 0}
     latest: dict[str, dict[int, list[int]]] = {}
     recs: dict[tuple, dict] = {}
     for _, cls, mid, fr in frames:
@@ -529,6 +553,9 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None) -> tuple[pd.DataFrame,
                 stats["other_systems"][str(gnss)] = stats["other_systems"].get(str(gnss), 0) + 1
                 continue
             if pl[4] != 10:
+                continue
+            if pl[2] != 0:                 # sigId: L2C / L5 CNAV (u-blox 9), not LNAV
+                stats["gps_cnav_frames"] += 1
                 continue
             dw = list(np.frombuffer(pl[8:48], dtype="<u4").tolist())
             words = gps_words_from_sfrbx(dw)
