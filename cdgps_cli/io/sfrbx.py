@@ -43,7 +43,8 @@ import numpy as np
 import pandas as pd
 
 from cdgps_cli.core.gps_time import bdt_to_gps_s
-from cdgps_cli.core.records import NAV_COLUMNS
+from cdgps_cli.core.records import GLONASS_NAV_COLUMNS, NAV_COLUMNS
+from cdgps_cli.io.sfrbx_glonass import glonass_frame
 
 __all__ = ["GPS_PI", "URA_M", "BDS_PREAMBLE", "bch15_syndrome", "beidou_words_from_sfrbx", "decode_beidou_d1",
            "decode_galileo_words", "decode_gps_subframes", "inav_word", "gps_words_from_sfrbx", "parity_ok", "sfrbx_ephemerides"]
@@ -493,8 +494,9 @@ _SFRBX = (0x02, 0x13)
 _SFRB = (0x02, 0x11)
 
 
-def sfrbx_ephemerides(frames: list, week_ref: int | None) -> tuple[pd.DataFrame, dict]:
-    """GPS, Galileo and BeiDou (D1) ephemerides from the RXM-SFRBX / RXM-SFRB frames of a log.
+def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = False) -> tuple[pd.DataFrame, dict]:
+    """GPS, Galileo and BeiDou (D1) — and with ``glonass`` GLONASS — ephemerides from the RXM-SFRBX /
+    RXM-SFRB frames of a log.
 
     Parameters
     ----------
@@ -502,6 +504,9 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None) -> tuple[pd.DataFrame,
         Checksum-valid UBX frames (:func:`cdgps_cli.io.ubx_frames.split_stream`), in log order.
     week_ref : int or None
         Full GPS week of the log (RXM-RAWX); None: ephemerides cannot be dated and none are returned.
+    glonass : bool
+        Also decode GLONASS strings 1–4 (:mod:`cdgps_cli.io.sfrbx_glonass`); the table then has the
+        :data:`~cdgps_cli.core.records.GLONASS_NAV_COLUMNS` too (as ``read_rinex_nav(..., systems=(…, "R"))``).
 
     Returns
     -------
@@ -513,12 +518,16 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None) -> tuple[pd.DataFrame,
         ``galileo_words``, ``galileo_bad_pages``, ``beidou_subframes`` (D1 1–3 kept),
         ``beidou_bch_failures`` (subframes dropped), ``beidou_d2_frames`` (GEO, not decoded),
         ``beidou_cnav_frames`` (not ten words: B1C/B2a/B2b, not decoded), ``gps_cnav_frames``
-        (sigId ≠ 0: L2C/L5, not decoded), ``other_systems`` (gnssId → frames: not decoded here),
-        ``ephemerides``.
+        (sigId ≠ 0: L2C/L5, not decoded), ``glonass_strings``, ``glonass_hamming_failures``,
+        ``glonass_unknown_slot`` (with ``glonass``), ``other_systems`` (gnssId → frames: not decoded
+        here), ``ephemerides``.
     """
     stats = {"sfrbx_frames": 0, "gps_subframes": 0, "parity_failures": 0, "galileo_words": 0, "galileo_bad_pages": 0,
              "beidou_subframes": 0, "beidou_bch_failures": 0, "beidou_d2_frames": 0, "beidou_cnav_frames": 0,
              "gps_cnav_frames": 0, "other_systems": {}, "ephemerides": 0}
+    if glonass:
+        stats.update({"glonass_strings": 0, "glonass_hamming_failures": 0, "glonass_unknown_slot": 0})
+    glo_recs: dict[tuple, dict] = {}
     latest: dict[str, dict[int, list[int]]] = {}
     recs: dict[tuple, dict] = {}
     for _, cls, mid, fr in frames:
@@ -548,6 +557,9 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None) -> tuple[pd.DataFrame,
                 continue
             if gnss == 3:
                 _beidou_frame(pl, sv, latest, recs, stats)
+                continue
+            if gnss == 6 and glonass:
+                glonass_frame(pl, latest, glo_recs, stats, week_ref)
                 continue
             if gnss != 0:
                 stats["other_systems"][str(gnss)] = stats["other_systems"].get(str(gnss), 0) + 1
@@ -582,6 +594,12 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None) -> tuple[pd.DataFrame,
                 recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)
     nav = pd.DataFrame(list(recs.values()), columns=list(NAV_COLUMNS))
     if len(nav):
+        for c in ("iode", "codes_l2", "l2p_data_flag", "sv_health", "iodc", "week", "line"):
+            nav[c] = nav[c].astype(np.int64)
+        nav = nav.sort_values(["sat", "toe_gps_s", "transmit_gps_s"], kind="stable").reset_index(drop=True)
+    if glo_recs:
+        glo = pd.DataFrame(list(glo_recs.values()), columns=[*NAV_COLUMNS, *GLONASS_NAV_COLUMNS])
+        nav = pd.concat([d for d in (nav.reindex(columns=glo.columns), glo) if len(d)], ignore_index=True)
         for c in ("iode", "codes_l2", "l2p_data_flag", "sv_health", "iodc", "week", "line"):
             nav[c] = nav[c].astype(np.int64)
         nav = nav.sort_values(["sat", "toe_gps_s", "transmit_gps_s"], kind="stable").reset_index(drop=True)

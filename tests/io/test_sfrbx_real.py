@@ -87,16 +87,16 @@ def test_frame_counts_of_the_real_log(log):
 
 
 def _pseudorange_fit(nav, ep, meas, bdt_error_s: float = 0.0):
-    """Static position + a clock per epoch and system from the L1/E1/B1I pseudoranges (every 5th epoch)
+    """Static position + a clock per epoch and system from the L1/E1/B1I/G1 pseudoranges (every 5th epoch)
     of the satellites with a decoded ephemeris (hydrostatic troposphere, no ionosphere); residuals per system."""
-    letters = {0: "G", 2: "E", 3: "C"}
+    letters = {0: "G", 2: "E", 3: "C", 6: "R"}
     nav = nav.copy()
     bds = nav["sat"].str[0] == "C"
     nav.loc[bds, ["toe_gps_s", "toc_gps_s"]] += bdt_error_s
     t_ep = ep["week"].astype(float) * 604800.0 + ep["rcvTow"]
-    keep = np.isin(meas["gnssId"], list(letters)) & ((meas["trkStat"] & 1) == 1) & (meas["sigId"] <= 1)
+    keep = np.isin(meas["gnssId"], list(letters)) & ((meas["trkStat"] & 1) == 1)
+    keep &= (meas["sigId"] == 0) | ((meas["gnssId"] == 2) & (meas["sigId"] == 1))      # L1 C/A, E1, B1I, L1OF
     keep &= meas["epoch"] % 5 == 0                                      # every 5th epoch: 15 of 75
-    keep &= (meas["gnssId"] == 2) | (meas["sigId"] == 0)
     m = meas[keep]
     sat = np.array([f"{letters[g]}{s:02d}" for g, s in zip(m["gnssId"], m["svId"])], dtype=object)
     use = np.isin(sat, nav["sat"].to_numpy())
