@@ -5,37 +5,18 @@ integers are the simulator's; the modal states match the truth; same seed → sa
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
-
 import pytest
 from click.testing import CliRunner
 
 from cdgps_cli.cli.commands import main
 from cdgps_cli.io.gnss_run import read_gnss_run
 
-ROOT = Path(__file__).resolve().parents[2]
-TOWER = ROOT / "configs" / "gnss-tower.toml"
 SIGS = "G:L1,C:B1I,C:B2a"
 
 
-def run_cli(*args):
-    return CliRunner().invoke(main, [str(a) for a in args])
-
-
 @pytest.fixture(scope="module")
-def bds(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("bds")
-    for args in (("simulate-gnss-structure", TOWER, "--duration", "120", "--seed", "4", "--signals", SIGS, "--out", tmp),
-                 ("ingest", "--config", tmp / "config.toml", "-o", tmp / "run.mcap"),
-                 ("init", tmp / "run.mcap", "--structure", TOWER, "-o", tmp / "init.json"),
-                 ("estimate", tmp / "run.mcap", "--init", tmp / "init.json", "--structure", TOWER, "--smooth",
-                  "-o", tmp / "states.mcap")):
-        r = run_cli("-q", *args)
-        assert r.exit_code == 0, (args, r.output)
-    r = run_cli("evaluate", "--truth", tmp, "--estimate", tmp / "states.mcap", "--json", "--converge-s", "20")
-    assert r.exit_code == 0, r.output
-    return tmp, json.loads((tmp / "truth.json").read_text()), json.loads((tmp / "init.json").read_text()), json.loads(r.stdout)
+def bds(tmp_path_factory, gnss_modal_chain):
+    return gnss_modal_chain(tmp_path_factory.mktemp("bds"), SIGS, 120, 4)
 
 
 def test_beidou_signals_reach_the_run_with_their_ephemerides(bds):
@@ -74,10 +55,10 @@ def test_modal_states_recover_the_truth_with_beidou(bds):
     assert 1.0 < ev["nees"]["mean"] < 5.0                                       # dof 3
 
 
-def test_beidou_simulation_is_deterministic(tmp_path):
+def test_beidou_simulation_is_deterministic(tmp_path, gnss_tower):
     for d in ("a", "b"):
-        r = run_cli("-q", "simulate-gnss-structure", TOWER, "--duration", "10", "--seed", "2", "--signals",
-                    "G:L1,C:B1I,C:B2I", "--out", tmp_path / d)
+        r = CliRunner().invoke(main, ["-q", "simulate-gnss-structure", str(gnss_tower), "--duration", "10", "--seed", "2",
+                                      "--signals", "G:L1,C:B1I,C:B2I", "--out", str(tmp_path / d)])
         assert r.exit_code == 0, r.output
     for f in sorted(p.name for p in (tmp_path / "a").iterdir()):
         assert (tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes(), f

@@ -39,7 +39,6 @@ from cdgps_cli.model.gps.orbits import (
     GM_GPS,
     MAX_EPHEMERIS_AGE_GLONASS_S,
     MAX_EPHEMERIS_AGE_S,
-    OMEGA_E_GPS,
     azimuth_elevation,
     ecef_to_geodetic,
     enu_matrix,
