@@ -19,7 +19,8 @@ separate navigation file.
 * RXM-SFRBX, Galileo (gnssId 2): an I/NAV page pair (E1-B or E5b-I) in eight words; word types
   1–5 (ephemeris, clock, SISA, BGD, health, GST week) give one record, see
   :func:`decode_galileo_words` for how its fields map onto the RINEX 3 Galileo layout.  A page
-  pair failing its CRC-24Q is dropped and counted.
+  pair failing its CRC-24Q is dropped and counted.  Frames of E5a (F/NAV) and E6 (C/NAV) — sigId
+  other than 0, 1, 5 or not eight words — are counted apart, not decoded.
 * RXM-SFRBX, BeiDou (gnssId 3): ten words, each one 30-bit D1 word in bits 29…0 (the two MSBs are
   padding; u-blox integration manuals, "BeiDou": words in the order received, secondary code
   removed).  Words are read in the ICD's logical layout — 22 information bits, then the 4 parity
@@ -585,6 +586,9 @@ def _beidou_frame(pl: bytes, sv: int, latest: dict, recs: dict, stats: dict) -> 
             recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)
 
 
+_INAV_SIGNALS = frozenset((0, 1, 5))
+"""RXM-SFRBX sigIds of Galileo I/NAV frames: E1-B (1) and E5b-I (5) on u-blox 9 and later, 0 on u-blox 8
+(whose reserved byte is 0 and which tracks E1 only); E5a F/NAV and E6 C/NAV frames are counted apart."""
 _SFRBX = (0x02, 0x13)
 _SFRB = (0x02, 0x11)
 
@@ -610,7 +614,8 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = Fal
         reader's table.
     stats : dict
         ``sfrbx_frames``, ``gps_subframes`` (1–3 decoded), ``parity_failures`` (subframes dropped),
-        ``galileo_words``, ``galileo_bad_pages``, ``beidou_subframes`` (D1 1–3 kept),
+        ``galileo_words``, ``galileo_bad_pages``, ``galileo_other_frames`` (F/NAV, C/NAV: not decoded),
+        ``beidou_subframes`` (D1 1–3 kept),
         ``beidou_bch_failures`` (subframes dropped), ``beidou_d2_frames`` (GEO frames),
         ``beidou_d2_pages`` (D2 subframe-1 pages 1–10 kept),
         ``beidou_cnav_frames`` (not ten words: B1C/B2a/B2b, not decoded), ``gps_cnav_frames``
@@ -620,7 +625,7 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = Fal
     """
     stats = {"sfrbx_frames": 0, "gps_subframes": 0, "parity_failures": 0, "galileo_words": 0, "galileo_bad_pages": 0,
              "beidou_subframes": 0, "beidou_bch_failures": 0, "beidou_d2_frames": 0, "beidou_d2_pages": 0,
-             "beidou_cnav_frames": 0,
+             "beidou_cnav_frames": 0, "galileo_other_frames": 0,
              "gps_cnav_frames": 0, "other_systems": {}, "ephemerides": 0}
     if glonass:
         stats.update({"glonass_strings": 0, "glonass_hamming_failures": 0, "glonass_unknown_slot": 0})
@@ -636,7 +641,10 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = Fal
             if len(pl) < 8 or len(pl) != 8 + 4 * pl[4]:
                 continue
             gnss, sv = pl[0], pl[1]
-            if gnss == 2 and pl[4] >= 8 and week_ref is not None:
+            if gnss == 2 and (pl[4] != 8 or pl[2] not in _INAV_SIGNALS):
+                stats["galileo_other_frames"] += 1        # F/NAV (E5a), C/NAV (E6): not I/NAV
+                continue
+            if gnss == 2 and week_ref is not None:
                 dw8 = np.frombuffer(pl[8:40], dtype="<u4").tolist()
                 got = inav_word(dw8)
                 if got is None:

@@ -79,7 +79,8 @@ def test_frame_counts_of_the_real_log(log):
     nav, st = sfrbx_ephemerides(ubx, int(ep["week"][0]))
     assert st["parity_failures"] == 0 and st["gps_subframes"] == 27 and st["gps_cnav_frames"] == 12
     assert st["beidou_subframes"] == 28 and st["beidou_bch_failures"] == 0 and st["beidou_cnav_frames"] == 0
-    assert st["galileo_bad_pages"] == 0 and st["other_systems"] == {"6": 491}
+    assert st["galileo_bad_pages"] == 0 and st["galileo_other_frames"] == 0 and st["galileo_words"] == 143
+    assert st["other_systems"] == {"6": 491}
     assert sorted(nav["sat"]) == ["C29", "C30", "C36", "C47", "E05", "E15", "E27", "E30", "E34", "G01", "G02", "G22"]
     c = nav[nav["sat"].str[0] == "C"]
     assert (c["week"] == 1058).all() and (c["toe_sow_s"] == 136800.0).all()                 # BDT week 1058 = GPS 2414
@@ -136,3 +137,20 @@ def test_decoded_ephemerides_explain_the_receivers_pseudoranges(log):
     assert rms["C"] < 2.0 and rms["G"] < 2.5 and rms["E"] < 3.0, rms          # no ionosphere model: metres
     _, rms_bad, _ = _pseudorange_fit(nav, ep, meas, bdt_error_s=14.0)           # BDT taken as GPST
     assert rms_bad["C"] > 20.0 * rms["C"], rms_bad
+
+
+def test_galileo_fnav_frames_are_counted_apart(log):
+    """A Galileo frame of sigId 3 (E5a F/NAV) is not an I/NAV page pair: counted apart, not as a bad page."""
+    ubx, ep, _ = log
+    inav = [f for f in ubx if (f[1], f[2]) == (0x02, 0x13) and f[3][6] == 2]
+    off, c, m, fr = inav[0]
+    pl = bytearray(fr[6:-2])
+    pl[2] = 3
+    body = bytes((0x02, 0x13)) + len(pl).to_bytes(2, "little") + bytes(pl)
+    a = b = 0
+    for x in body:
+        a = (a + x) & 0xFF
+        b = (b + a) & 0xFF
+    frames = split_stream(b"\xb5\x62" + body + bytes((a, b)))[0]
+    _, st = sfrbx_ephemerides(frames, int(ep["week"][0]))
+    assert st["galileo_other_frames"] == 1 and st["galileo_bad_pages"] == 0 and st["galileo_words"] == 0
