@@ -121,7 +121,7 @@ def tropo_zenith_hydrostatic_m(lat_rad, h_m) -> np.ndarray:
     """
     lat = np.asarray(lat_rad, dtype=np.float64)
     h = np.asarray(h_m, dtype=np.float64)
-    hc = np.maximum(h, 0.0)
+    hc = np.clip(h, 0.0, 1e4)  # beyond 10 km the result is 0 anyway; no NaN from a negative base
     pres = 1013.25 * np.power(1.0 - 2.2557e-5 * hc, 5.2568)
     zhd = 0.0022768 * pres / (1.0 - 0.00266 * np.cos(2.0 * lat) - 0.00028 * hc / 1e3)
     return np.where((h < -100.0) | (h > 1e4), 0.0, zhd)
