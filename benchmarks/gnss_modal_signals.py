@@ -1,11 +1,11 @@
 #!/usr/bin/env python3
-"""Modal estimate of a structure on GPS alone vs GPS + Galileo (single and dual frequency) — issue 14 item 6.
+"""Modal estimate of a structure on GPS alone vs GPS + Galileo (+ BeiDou), single and dual frequency — issue 14 item 6.
 
 Per seed and signal set: ``simulate_structure_gnss(signals=…)`` of configs/gnss-tower.toml (the same
 structure motion for every set of a seed: the motion depends on the seed only; GPS satellites are the
-same synthetic constellation, Galileo is added) → ``cdgps ingest`` → ``cdgps init`` → the modal batch
-initialization (:func:`cdgps_cli.pipeline.gnss_modal.gnss_modal_init`) on windows of 10, 15, 20, 30
-and 60 s → the filter with the 60 s window's integers (:func:`gnss_modal_estimate`, smoothed) →
+same synthetic constellation, Galileo and BeiDou — GEO, IGSO and MEO — are added) → ``cdgps ingest``
+→ ``cdgps init`` → the modal batch initialization (:func:`cdgps_cli.pipeline.gnss_modal.gnss_modal_init`)
+on windows of 10, 15, 20, 30 and 60 s → the filter with the 60 s window's integers (:func:`gnss_modal_estimate`, smoothed) →
 ``cdgps evaluate`` against the truth.  Every set goes through the same multi-signal modal path (one DD
 group per rover and signal, own reference, own wavelength; all integers fixed as one set).
 
@@ -15,7 +15,11 @@ integers fixed / right / wrong in the 60 s window, the smoothed modal RMS error 
 (after 20 s), and NEES/dof of the smoothed states (``cdgps evaluate``'s, after 20 s).  Rows go to OUT.partial as they
 finish (removed when the table is written)::
 
-    python benchmarks/gnss_modal_signals.py [--seeds 3] [--duration 180]
+    python benchmarks/gnss_modal_signals.py [--seeds 3] [--duration 180] [--sets NAME ...] [--out JSON]
+
+``--sets`` picks signal sets by name (default: the three GPS/Galileo sets of the first study; the
+BeiDou study ran ``--sets "GPS L1" "GPS+Galileo dual (L1 L2 E1 E5a)" "GPS+Galileo+BeiDou L1/E1/B1I"
+"GPS+Galileo+BeiDou dual (L1 L2 E1 E5a B1I B2a)" --out docs/benchmarks/gnss_modal_signals_beidou.json``).
 """
 
 from __future__ import annotations
@@ -43,7 +47,10 @@ from cdgps_cli.pipeline.gnss_modal import gnss_modal_estimate, gnss_modal_init, 
 
 TOWER = ROOT / "configs" / "gnss-tower.toml"
 SETS = {"GPS L1": ("G:L1",), "GPS+Galileo L1/E1": ("G:L1", "E:E1"),
-        "GPS+Galileo dual (L1 L2 E1 E5a)": ("G:L1", "G:L2", "E:E1", "E:E5a")}
+        "GPS+Galileo dual (L1 L2 E1 E5a)": ("G:L1", "G:L2", "E:E1", "E:E5a"),
+        "GPS+Galileo+BeiDou L1/E1/B1I": ("G:L1", "E:E1", "C:B1I"),
+        "GPS+Galileo+BeiDou dual (L1 L2 E1 E5a B1I B2a)": ("G:L1", "G:L2", "E:E1", "E:E5a", "C:B1I", "C:B2a")}
+DEFAULT_SETS = tuple(SETS)[:3]
 WINDOWS_S = (10.0, 15.0, 20.0, 30.0, 60.0)
 
 
@@ -102,7 +109,9 @@ def main_(argv=None):
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--duration", type=float, default=180.0)
     ap.add_argument("--out", default=str(ROOT / "docs" / "benchmarks" / "gnss_modal_signals.json"))
+    ap.add_argument("--sets", nargs="+", default=list(DEFAULT_SETS), choices=list(SETS), metavar="NAME")
     a = ap.parse_args(argv)
+    sets = {k: SETS[k] for k in a.sets}
     part = Path(a.out + ".partial")
     part.parent.mkdir(parents=True, exist_ok=True)
     part.write_text("")
@@ -110,7 +119,7 @@ def main_(argv=None):
     t0 = time.perf_counter()
     load0 = os.getloadavg()
     for seed in range(a.seeds):
-        for name, sigs in SETS.items():
+        for name, sigs in sets.items():
             with tempfile.TemporaryDirectory() as d:
                 row = one_row(seed, name, sigs, a.duration, Path(d))
             rows.append(row)
@@ -121,16 +130,21 @@ def main_(argv=None):
                   f"{w['wrong']} wrong, RMS " + ", ".join(f"{k} {v:.4g}" for k, v in row["rms_error"].items())
                   + f", NEES/dof {row['nees_per_dof']:.2f}", file=sys.stderr)
     summary = {}
-    for name in SETS:
+    for name in sets:
         rs = [r for r in rows if r["set"] == name]
         summary[name] = {
             "ttff_s": [r["ttff_s"] for r in rs],
+            "windows_all_right": {str(w): sum(r["windows"][str(w)]["right"] == r["windows"][str(w)]["segments"] > 0
+                                              for r in rs) for w in WINDOWS_S},
+            "wrong_any_window": sum(v["wrong"] for r in rs for v in r["windows"].values()),
+            "segments_60s": [r["window60"]["segments"] for r in rs],
             "window60_all_right": sum(r["window60"]["right"] == r["window60"]["segments"] > 0 for r in rs),
             "window60_wrong": sum(r["window60"]["wrong"] for r in rs),
             "rms_error_mean": {k: float(np.mean([r["rms_error"][k] for r in rs])) for k in rs[0]["rms_error"]},
             "nees_per_dof": [round(r["nees_per_dof"], 3) for r in rs],
+            "mean_modal_init_s": float(np.mean([r["mean_modal_init_s"] for r in rs])),
         }
-    out = {"seeds": a.seeds, "duration_s": a.duration, "windows_s": list(WINDOWS_S), "elapsed_s": time.perf_counter() - t0,
+    out = {"seeds": a.seeds, "duration_s": a.duration, "sets": {k: list(v) for k, v in sets.items()}, "windows_s": list(WINDOWS_S), "elapsed_s": time.perf_counter() - t0,
            "load_average_start": load0, "load_average_end": os.getloadavg(), "summary": summary, "rows": rows}
     Path(a.out).write_text(json.dumps(out, indent=2) + "\n")
     part.unlink()

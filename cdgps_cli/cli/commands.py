@@ -1193,7 +1193,8 @@ def _gps_time(t: float) -> str:
               help="Azimuth of the structure x axis, degrees clockwise from north (90: x east, y north).")
 @click.option("--master-xyz", default=None, metavar="X,Y,Z", help="ECEF position of the master antenna, m [GEONET 3040].")
 @click.option("--signals", default=None, metavar="SIG,SIG…",
-              help="Signals every receiver tracks, e.g. G:L1,G:L2,E:E1,E:E5a (GPS and Galileo; G:L1 required); "
+              help="Signals every receiver tracks, e.g. G:L1,G:L2,E:E1,E:E5a,C:B1I,C:B2a (GPS, Galileo, BeiDou; G:L1 "
+                   "required); "
                    "written to the config's [gnss] signals.  Default: GPS L1 without a signals list.")
 @_output_option("out_dir", "Output directory.", directory=True, old=("--out",))
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
@@ -1201,8 +1202,8 @@ def _gps_time(t: float) -> str:
 def simulate_gnss_structure_cmd(ctx, config, duration_s, seed, x_axis_azimuth_deg, master_xyz, signals, out_dir, as_json):
     """Simulate a structure's free motion seen by one GNSS receiver per antenna → RINEX + truth.
 
-    With --signals the receivers track GPS and Galileo on every signal given (multi-signal RINEX 3)
-    and the written config lists them ([gnss] signals), so the modal path uses them all.
+    With --signals the receivers track GPS, Galileo and BeiDou (GEO, IGSO, MEO) on every signal given
+    (multi-signal RINEX 3) and the written config lists them ([gnss] signals), so the modal path uses them all.
 
     The structure config's modal model moves the antennas (scenario free, at the config's sample
     period); every antenna, the master too, has its own receiver.  The files feed

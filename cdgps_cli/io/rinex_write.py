@@ -31,7 +31,7 @@ import pandas as pd
 from cdgps_cli import __version__
 from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.core.gps_time import GPS_EPOCH
+from cdgps_cli.core.gps_time import GPS_EPOCH, GPS_MINUS_BDT_S
 from cdgps_cli.core.records import NAV_COLUMNS
 
 __all__ = ["write_rinex_obs", "write_rinex_obs_signals", "write_rinex_nav", "rinex_calendar"]
@@ -302,11 +302,14 @@ _ORBIT_LINES = (
     ("sv_accuracy_m", "sv_health", "tgd_s", "iodc"),
     ("transmit_sow_s", "fit_interval_h"),
 )
+# BeiDou (RINEX 3.04 Table A14): TGD2 where GPS has IODC (not kept: written blank), AODC where GPS has
+# the fit interval; week, toe and transmission time in BDT (``week``/``toe_sow_s``/``transmit_sow_s``)
+_BEIDOU_ORBIT_LINES = _ORBIT_LINES[:5] + (("sv_accuracy_m", "sv_health", "tgd_s", "_blank"), ("transmit_sow_s", "iodc"))
 
 
 def write_rinex_nav(path: str | Path, nav: pd.DataFrame, *, leap_seconds: int | None = None,
                     comments=(), created: str | None = None) -> dict:
-    """Write GPS broadcast ephemerides as a RINEX 3.04 navigation file.
+    """Write broadcast ephemerides (GPS, Galileo, BeiDou Kepler records) as a RINEX 3.04 navigation file.
 
     Parameters
     ----------
@@ -348,12 +351,16 @@ def write_rinex_nav(path: str | Path, nav: pd.DataFrame, *, leap_seconds: int | 
     n = nav.sort_values(["sat", "toc_gps_s"], kind="stable")
     for r in n.itertuples(index=False):
         rr = r._asdict()
-        y, mo, d, hh, mi, sec = rinex_calendar(rr["toc_gps_s"])
+        bds = str(rr["sat"]).startswith("C")
+        lines_ = _BEIDOU_ORBIT_LINES if bds else _ORBIT_LINES
+        rr["_blank"] = math.nan
+        # BeiDou: the epoch of toc in BDT (GPST − 14 s), as read_rinex_nav expects
+        y, mo, d, hh, mi, sec = rinex_calendar(rr["toc_gps_s"] - (GPS_MINUS_BDT_S if bds else 0.0))
         if abs(sec - round(sec)) > 1e-6:
             raise CdgpsError(f"{path}: toc of {rr['sat']} is not a whole second ({rr['toc_gps_s']!r})")
         lines.append(f"{rr['sat']} {y:4d} {mo:02d} {d:02d} {hh:02d} {mi:02d} {int(round(sec)):02d}"
                      + "".join(_d19(float(rr[k])) for k in ("af0_s", "af1_s_per_s", "af2_s_per_s2")))
-        for keys in _ORBIT_LINES:
+        for keys in lines_:
             vals = []
             for k in keys:
                 v = float(rr[k])

@@ -6,18 +6,21 @@ LNAV subframes 1–3 (IS-GPS-200 §20.3.2–20.3.3) into the same broadcast-ephe
 navigation reader returns (:data:`cdgps_cli.core.records.NAV_COLUMNS`), so a u-blox pair needs no
 separate navigation file.
 
-* RXM-SFRBX, GPS (gnssId 0): ten 32-bit words, each holding one 30-bit navigation word in bits
-  29…0 (D1 at bit 29, D25–D30 the parity).  The data bits are taken as they come and also
-  complemented by the previous word's D30 (the IS-GPS-200 polarity rule); the one whose
-  parity (Table 20-XIV) holds is used, so both conventions a receiver may follow are read, and a
-  subframe with any word failing its parity is dropped and counted.
+* RXM-SFRBX, GPS L1 C/A (gnssId 0, sigId 0): ten 32-bit words, each holding one 30-bit navigation
+  word in bits 29…0 (D1 at bit 29, D25–D30 the parity).  u-blox delivers the data bits
+  polarity-corrected and the previous word's D29*, D30* in bits 31–30, so the parity (Table 20-XIV)
+  is checked with those; failing that, with the previous word's last two bits and the data as they
+  come or complemented by D30* (the IS-GPS-200 transmitted form).  A subframe with any word failing
+  its parity is dropped and counted.  Frames of other GPS signals (sigId ≠ 0: L2C/L5 CNAV, no LNAV
+  parity) are counted apart, not decoded.
 * RXM-SFRB (legacy), GPS: ten 32-bit words of 24 data bits (parity already removed by the
   receiver, so no parity check is possible).
 
 * RXM-SFRBX, Galileo (gnssId 2): an I/NAV page pair (E1-B or E5b-I) in eight words; word types
   1–5 (ephemeris, clock, SISA, BGD, health, GST week) give one record, see
   :func:`decode_galileo_words` for how its fields map onto the RINEX 3 Galileo layout.  A page
-  pair failing its CRC-24Q is dropped and counted.
+  pair failing its CRC-24Q is dropped and counted.  Frames of E5a (F/NAV) and E6 (C/NAV) — sigId
+  other than 0, 1, 5 or not eight words — are counted apart, not decoded.
 * RXM-SFRBX, BeiDou (gnssId 3): ten words, each one 30-bit D1 word in bits 29…0 (the two MSBs are
   padding; u-blox integration manuals, "BeiDou": words in the order received, secondary code
   removed).  Words are read in the ICD's logical layout — 22 information bits, then the 4 parity
@@ -26,8 +29,10 @@ separate navigation file.
   by the inverted preamble.  A subframe with a codeword failing BCH(15,11) (g(X) = X⁴ + X + 1) is
   dropped and counted (no single-bit correction: a corrupted word is never turned into a wrong
   value).  Subframes 1–3 of the D1 message (MEO/IGSO satellites) of one 30-s frame (SOW, SOW + 6,
-  SOW + 12) give one record, :func:`decode_beidou_d1`.  GEO satellites broadcast D2 (other page
-  layout), which is counted, not decoded.
+  SOW + 12) give one record, :func:`decode_beidou_d1`.  GEO satellites broadcast D2: pages 1 and
+  3–10 of subframe 1 of one 30 s cycle give one record, :func:`decode_beidou_d2` (checked against an
+  encoder only: no real D2 log at hand).  Frames of other word counts (B-CNAV1/2/3 of B1C,
+  B2a, B2b: not D1/D2).
 
 GPS subframes of one satellite are combined when subframes 2 and 3 carry the same IODE and it
 equals the 8 LSBs of subframe 1's IODC (IS-GPS-200 §20.3.4.4: a consistent data set).  The
@@ -40,10 +45,11 @@ import numpy as np
 import pandas as pd
 
 from cdgps_cli.core.gps_time import bdt_to_gps_s
-from cdgps_cli.core.records import NAV_COLUMNS
+from cdgps_cli.core.records import GLONASS_NAV_COLUMNS, NAV_COLUMNS
+from cdgps_cli.io.sfrbx_glonass import glonass_frame
 
 __all__ = ["GPS_PI", "URA_M", "BDS_PREAMBLE", "bch15_syndrome", "beidou_words_from_sfrbx", "decode_beidou_d1",
-           "decode_galileo_words", "decode_gps_subframes", "inav_word", "gps_words_from_sfrbx", "parity_ok", "sfrbx_ephemerides"]
+           "decode_beidou_d2", "decode_galileo_words", "decode_gps_subframes", "inav_word", "gps_words_from_sfrbx", "parity_ok", "sfrbx_ephemerides"]
 
 GPS_PI = 3.1415926535898
 """The value of π IS-GPS-200 fixes for converting semicircles to radians."""
@@ -90,8 +96,23 @@ def parity_ok(word30: int, d29_prev: int, d30_prev: int) -> int | None:
 
 def gps_words_from_sfrbx(dwrd: list[int]) -> list[int] | None:
     """The 24-bit source data words of an RXM-SFRBX GPS subframe (ten 30-bit words), or None when
-    a word fails its parity.  The word before word 1 is word 10 of the previous subframe, whose
-    D29/D30 are zero by design (IS-GPS-200 §20.3.5.2)."""
+    a word fails its parity.
+
+    u-blox 8/9 receivers deliver the data bits already polarity-corrected (the source bits) and put
+    the previous word's D29*, D30* — which every parity equation needs — in bits 31–30 of each word:
+    that form is tried first (all 5 440 L1 C/A subframes of the real M8/F9/X20 logs checked pass it,
+    none passes the chain below).  Otherwise the ICD chain: D29*, D30* from the previous word's bits
+    1–0 (word 10 of the previous subframe has D29 = D30 = 0 by design, IS-GPS-200 §20.3.5.2), data as
+    delivered or complemented by D30*.
+    """
+    out = []
+    for w in dwrd:
+        data = (w >> 6) & 0xFFFFFF
+        if parity_bits(data, (w >> 31) & 1, (w >> 30) & 1) != w & 0x3F:
+            break
+        out.append(data)
+    else:
+        return out
     out = []
     d29 = d30 = 0
     for w in dwrd:
@@ -438,6 +459,16 @@ def decode_beidou_d1(sf1: list[int], sf2: list[int], sf3: list[int], sat: str) -
         "sv_health": b1.u(42, 1), "tgd_s": b1.s(98, 10) * 1e-10, "iodc": b1.u(43, 5), "transmit_sow_s": float(sow),
         "fit_interval_h": float("nan"), "line": -1,
     }
+    return _record_dates(rec, week, sow, toc, toe)
+
+
+def d2_page_number(words30: list[int]) -> int:
+    """Page number (Pnum, 4 bits) of a D2 subframe 1 page in the logical layout."""
+    return _D1(words30).u(42, 4)
+
+
+def _record_dates(rec: dict, week: int, sow: int, toc: float, toe: float) -> dict:
+    """``rec`` with ``transmit_gps_s``, ``toc_gps_s``, ``toe_gps_s`` from BDT week, SOW, toc, toe (s)."""
     t_tx = float(bdt_to_gps_s(week, sow))
     rec["transmit_gps_s"] = t_tx
     for key, sow_v in (("toc_gps_s", toc), ("toe_gps_s", toe)):
@@ -446,14 +477,101 @@ def decode_beidou_d1(sf1: list[int], sf2: list[int], sf3: list[int], sat: str) -
     return rec
 
 
+def decode_beidou_d2(pages: dict, sat: str) -> dict | None:
+    """One BeiDou GEO ephemeris from D2 subframe 1, pages 1 and 3–10 (BDS-ICD-B1I 3.0 §5.3.3; the
+    field positions are those of RTKLIB's ``decode_bds_d2``, bits counted from 0 in the 300-bit
+    logical page: the 22 information bits of each word followed by its parity).
+
+    Parameters
+    ----------
+    pages : dict
+        Page number → ten 30-bit words in the logical layout (:func:`beidou_words_from_sfrbx`).
+    sat : str
+        Satellite ("C03").
+
+    Returns
+    -------
+    dict or None
+        The record (layout of :func:`decode_beidou_d1`), or None when a page is missing, a page is
+        not of subframe 1, the SOWs are not those of one 30 s cycle (page 1 at SOW, page k ≥ 3 at
+        SOW + 3(k − 1)) or toc ≠ toe.
+    """
+    if not all(k in pages for k in (1, *range(3, 11))):
+        return None
+    f = {k: _D1(pages[k]) for k in (1, *range(3, 11))}
+    ids = {k: d1_subframe_id(pages[k]) for k in f}
+    sow = ids[1][1]
+    if any(i != 1 or d2_page_number(pages[k]) != k or s_ != sow + 3 * (k - 1) for k, (i, s_) in ids.items()):
+        return None
+
+    def joined(parts, signed):
+        """Fields split over pages: (page, start, bits, …) msb part first → int."""
+        v, n = 0, 0
+        for k, a, na, *rest in parts:
+            pieces = [(a, na), *zip(rest[::2], rest[1::2])]
+            for st, nb in pieces:
+                v, n = v << nb | f[k].u(st, nb), n + nb
+        return v - (1 << n) if signed and v >> (n - 1) else v
+
+    toc = f[1].u2(77, 5, 90, 12) * 8.0
+    toe = f[7].u2(80, 2, 90, 15) * 8.0
+    if toc != toe:
+        return None
+    pi, urai, week = GPS_PI, f[1].u(60, 4), f[1].u(64, 13)
+    rec = {
+        "sat": sat, "af0_s": f[3].s2(100, 12, 120, 12) * 2.0**-33,
+        "af1_s_per_s": joined([(3, 132, 4), (4, 46, 6, 60, 12)], True) * 2.0**-50,
+        "af2_s_per_s2": f[4].s2(72, 10, 90, 1) * 2.0**-66, "iode": f[4].u(91, 5),
+        "crs_m": f[8].s(91, 18) * 2.0**-6, "delta_n_rad_per_s": f[4].s(96, 16) * 2.0**-43 * pi,
+        "m0_rad": joined([(5, 50, 2, 60, 22, 90, 8)], True) * 2.0**-31 * pi,
+        "cuc_rad": joined([(4, 120, 14), (5, 46, 4)], True) * 2.0**-31,
+        "e": joined([(5, 124, 10), (6, 46, 6, 60, 16)], False) * 2.0**-33,
+        "cus_rad": f[5].s2(98, 14, 120, 4) * 2.0**-31,
+        "sqrt_a_sqrt_m": joined([(6, 76, 6, 90, 22, 120, 4)], False) * 2.0**-19, "toe_sow_s": toe,
+        "cic_rad": joined([(6, 124, 10), (7, 46, 6, 60, 2)], True) * 2.0**-31,
+        "omega0_rad": joined([(9, 51, 1, 60, 22, 90, 9)], True) * 2.0**-31 * pi,
+        "cis_rad": f[7].s(62, 18) * 2.0**-31,
+        "i0_rad": joined([(7, 105, 7, 120, 14), (8, 46, 6, 60, 5)], True) * 2.0**-31 * pi,
+        "crc_m": f[8].s2(65, 17, 90, 1) * 2.0**-6,
+        "omega_rad": joined([(9, 99, 13, 120, 14), (10, 46, 5)], True) * 2.0**-31 * pi,
+        "omega_dot_rad_per_s": joined([(8, 109, 3, 120, 16), (9, 46, 5)], True) * 2.0**-43 * pi,
+        "idot_rad_per_s": f[10].s2(51, 1, 60, 13) * 2.0**-43 * pi,
+        "codes_l2": -1, "week": week, "l2p_data_flag": -1, "sv_accuracy_m": _URAI_M[urai] if urai < 15 else 12288.0,
+        "sv_health": f[1].u(46, 1), "tgd_s": f[1].s(102, 10) * 1e-10, "iodc": f[1].u(47, 5),
+        "transmit_sow_s": float(sow), "fit_interval_h": float("nan"), "line": -1,
+    }
+    return _record_dates(rec, week, sow, toc, toe)
+
+
+def _beidou_d2_page(words: list[int], sat: str, latest: dict, recs: dict, stats: dict) -> None:
+    """Keep a D2 subframe-1 page; decode when page 10 completes a cycle."""
+    fid, _ = d1_subframe_id(words)
+    if fid != 1:
+        return
+    pn = d2_page_number(words)
+    if not 1 <= pn <= 10:
+        return
+    stats["beidou_d2_pages"] += 1
+    have = latest.setdefault(sat + ":D2", {})
+    have[pn] = words
+    if pn == 10:
+        rec = decode_beidou_d2(have, sat)
+        if rec is not None and 0 <= rec["e"] < 1 and rec["sqrt_a_sqrt_m"] > 0:
+            recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)
+
+
 def _beidou_frame(pl: bytes, sv: int, latest: dict, recs: dict, stats: dict) -> None:
     """One RXM-SFRBX BeiDou payload: check, keep the subframe, decode when 1-3 of a frame are in."""
-    if sv in _BDS_GEO:
-        stats["beidou_d2_frames"] += 1
+    if pl[4] != 10:
+        stats["beidou_cnav_frames"] += 1
         return
-    words = beidou_words_from_sfrbx(np.frombuffer(pl[8:48], dtype="<u4").tolist()) if pl[4] >= 10 else None
+    words = beidou_words_from_sfrbx(np.frombuffer(pl[8:48], dtype="<u4").tolist())
     if words is None:
         stats["beidou_bch_failures"] += 1
+        return
+    if sv in _BDS_GEO:
+        stats["beidou_d2_frames"] += 1
+        _beidou_d2_page(words, f"C{sv:02d}", latest, recs, stats)
         return
     fid, _ = d1_subframe_id(words)
     if fid not in (1, 2, 3):
@@ -468,12 +586,16 @@ def _beidou_frame(pl: bytes, sv: int, latest: dict, recs: dict, stats: dict) -> 
             recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)
 
 
+_INAV_SIGNALS = frozenset((0, 1, 5))
+"""RXM-SFRBX sigIds of Galileo I/NAV frames: E1-B (1) and E5b-I (5) on u-blox 9 and later, 0 on u-blox 8
+(whose reserved byte is 0 and which tracks E1 only); E5a F/NAV and E6 C/NAV frames are counted apart."""
 _SFRBX = (0x02, 0x13)
 _SFRB = (0x02, 0x11)
 
 
-def sfrbx_ephemerides(frames: list, week_ref: int | None) -> tuple[pd.DataFrame, dict]:
-    """GPS, Galileo and BeiDou (D1) ephemerides from the RXM-SFRBX / RXM-SFRB frames of a log.
+def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = False) -> tuple[pd.DataFrame, dict]:
+    """GPS, Galileo and BeiDou (D1) — and with ``glonass`` GLONASS — ephemerides from the RXM-SFRBX /
+    RXM-SFRB frames of a log.
 
     Parameters
     ----------
@@ -481,6 +603,9 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None) -> tuple[pd.DataFrame,
         Checksum-valid UBX frames (:func:`cdgps_cli.io.ubx_frames.split_stream`), in log order.
     week_ref : int or None
         Full GPS week of the log (RXM-RAWX); None: ephemerides cannot be dated and none are returned.
+    glonass : bool
+        Also decode GLONASS strings 1–4 (:mod:`cdgps_cli.io.sfrbx_glonass`); the table then has the
+        :data:`~cdgps_cli.core.records.GLONASS_NAV_COLUMNS` too (as ``read_rinex_nav(..., systems=(…, "R"))``).
 
     Returns
     -------
@@ -489,12 +614,22 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None) -> tuple[pd.DataFrame,
         reader's table.
     stats : dict
         ``sfrbx_frames``, ``gps_subframes`` (1–3 decoded), ``parity_failures`` (subframes dropped),
-        ``galileo_words``, ``galileo_bad_pages``, ``beidou_subframes`` (D1 1–3 kept),
-        ``beidou_bch_failures`` (subframes dropped), ``beidou_d2_frames`` (GEO, not decoded),
-        ``other_systems`` (gnssId → frames: not decoded here), ``ephemerides``.
+        ``galileo_words``, ``galileo_bad_pages``, ``galileo_other_frames`` (F/NAV, C/NAV: not decoded),
+        ``beidou_subframes`` (D1 1–3 kept),
+        ``beidou_bch_failures`` (subframes dropped), ``beidou_d2_frames`` (GEO frames),
+        ``beidou_d2_pages`` (D2 subframe-1 pages 1–10 kept),
+        ``beidou_cnav_frames`` (not ten words: B1C/B2a/B2b, not decoded), ``gps_cnav_frames``
+        (sigId ≠ 0: L2C/L5, not decoded), ``glonass_strings``, ``glonass_hamming_failures``,
+        ``glonass_unknown_slot`` (with ``glonass``), ``other_systems`` (gnssId → frames: not decoded
+        here), ``ephemerides``.
     """
     stats = {"sfrbx_frames": 0, "gps_subframes": 0, "parity_failures": 0, "galileo_words": 0, "galileo_bad_pages": 0,
-             "beidou_subframes": 0, "beidou_bch_failures": 0, "beidou_d2_frames": 0, "other_systems": {}, "ephemerides": 0}
+             "beidou_subframes": 0, "beidou_bch_failures": 0, "beidou_d2_frames": 0, "beidou_d2_pages": 0,
+             "beidou_cnav_frames": 0, "galileo_other_frames": 0,
+             "gps_cnav_frames": 0, "other_systems": {}, "ephemerides": 0}
+    if glonass:
+        stats.update({"glonass_strings": 0, "glonass_hamming_failures": 0, "glonass_unknown_slot": 0})
+    glo_recs: dict[tuple, dict] = {}
     latest: dict[str, dict[int, list[int]]] = {}
     recs: dict[tuple, dict] = {}
     for _, cls, mid, fr in frames:
@@ -506,7 +641,10 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None) -> tuple[pd.DataFrame,
             if len(pl) < 8 or len(pl) != 8 + 4 * pl[4]:
                 continue
             gnss, sv = pl[0], pl[1]
-            if gnss == 2 and pl[4] >= 8 and week_ref is not None:
+            if gnss == 2 and (pl[4] != 8 or pl[2] not in _INAV_SIGNALS):
+                stats["galileo_other_frames"] += 1        # F/NAV (E5a), C/NAV (E6): not I/NAV
+                continue
+            if gnss == 2 and week_ref is not None:
                 dw8 = np.frombuffer(pl[8:40], dtype="<u4").tolist()
                 got = inav_word(dw8)
                 if got is None:
@@ -525,10 +663,16 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None) -> tuple[pd.DataFrame,
             if gnss == 3:
                 _beidou_frame(pl, sv, latest, recs, stats)
                 continue
+            if gnss == 6 and glonass:
+                glonass_frame(pl, latest, glo_recs, stats, week_ref)
+                continue
             if gnss != 0:
                 stats["other_systems"][str(gnss)] = stats["other_systems"].get(str(gnss), 0) + 1
                 continue
             if pl[4] != 10:
+                continue
+            if pl[2] != 0:                 # sigId: L2C / L5 CNAV (u-blox 9), not LNAV
+                stats["gps_cnav_frames"] += 1
                 continue
             dw = list(np.frombuffer(pl[8:48], dtype="<u4").tolist())
             words = gps_words_from_sfrbx(dw)
@@ -555,6 +699,12 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None) -> tuple[pd.DataFrame,
                 recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)
     nav = pd.DataFrame(list(recs.values()), columns=list(NAV_COLUMNS))
     if len(nav):
+        for c in ("iode", "codes_l2", "l2p_data_flag", "sv_health", "iodc", "week", "line"):
+            nav[c] = nav[c].astype(np.int64)
+        nav = nav.sort_values(["sat", "toe_gps_s", "transmit_gps_s"], kind="stable").reset_index(drop=True)
+    if glo_recs:
+        glo = pd.DataFrame(list(glo_recs.values()), columns=[*NAV_COLUMNS, *GLONASS_NAV_COLUMNS])
+        nav = pd.concat([d for d in (nav.reindex(columns=glo.columns), glo) if len(d)], ignore_index=True)
         for c in ("iode", "codes_l2", "l2p_data_flag", "sv_health", "iodc", "week", "line"):
             nav[c] = nav[c].astype(np.int64)
         nav = nav.sort_values(["sat", "toe_gps_s", "transmit_gps_s"], kind="stable").reset_index(drop=True)

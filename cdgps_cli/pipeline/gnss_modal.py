@@ -491,7 +491,7 @@ def _signal_slots(run, mapping: dict, rover_ants: list, xm: np.ndarray, say) -> 
 
     c = run.cfg
     if any(g.startswith("R:") for g in c.signals):
-        raise CdgpsError("the modal structure path takes CDMA signals only (GPS, Galileo); GLONASS (FDMA) is not supported")
+        raise CdgpsError("the modal structure path takes CDMA signals only (GPS, Galileo, BeiDou); GLONASS (FDMA) is not supported")
     geo_m = receiver_geometry(signal_obs(run.receivers[run.master]), run.nav, xm)
     tabs, slot_ants = [], []
     for a in rover_ants:
@@ -674,7 +674,8 @@ def simulate_structure_gnss(out_dir, cfg: StructureConfig, *, master_ecef_m=SIM_
 
     ``signals`` (names of :mod:`cdgps_cli.core.signals`, ``G:L1`` among them; default None: the GPS L1
     simulator below): every receiver tracks them all (:func:`cdgps_cli.sim.gnss_signals.simulate_receiver_signals`,
-    GPS and Galileo synthetic constellations), the files are multi-signal RINEX 3 and the config lists
+    GPS, Galileo and BeiDou synthetic constellations of :func:`cdgps_cli.model.gps.positioning.synthetic_nav`,
+    BeiDou with GEO and IGSO satellites and its records in BDT), the files are multi-signal RINEX 3 and the config lists
     the signals (``[gnss] signals``), so ingest keeps them; the truth gives the integers per signal.
 
     The motion is :func:`cdgps_cli.sim.structure.simulate` (scenario ``free``) at the config's sample

@@ -1,8 +1,8 @@
 """Multi-GNSS, multi-frequency carrier phase and pseudorange of one (possibly moving) receiver.
 
 :func:`simulate_receiver_signals` gives, for the signals asked for (names of
-:mod:`cdgps_cli.core.signals`, e.g. ``G:L1``, ``G:L2``, ``E:E1``, ``E:E5a``), one row per epoch,
-satellite and signal:
+:mod:`cdgps_cli.core.signals`, e.g. ``G:L1``, ``G:L2``, ``E:E1``, ``E:E5a``, ``C:B1I``, ``C:B2a``), one
+row per epoch, satellite and signal:
 
     P_g = ρ + c·(dt − dt_sat) + T + ε_P,      φ_g = (ρ + c·(dt − dt_sat) + T + ε_φ,g) / λ_g + N_g + f_g
 
@@ -14,7 +14,10 @@ inter-frequency phase bias: it cancels in double differences within a signal), �
 σ² = a² + b²/sin²el per signal (independent between signals).  Time tags are the nominal epochs (a
 receiver steering its time tags to GPS time).  No ionosphere: the structures are short baselines, on
 which it cancels in the double differences.  The satellite clock includes T_GD for every signal
-(common to both receivers of a baseline, so it cancels in the single differences).
+(common to both receivers of a baseline, so it cancels in the single differences).  Every system's
+satellites come from ``nav`` evaluated at GPS time (BeiDou records carry GPS seconds in their
+``*_gps_s`` columns, BDT = GPST − 14 s, so one time axis serves all); every satellite of a system is
+observed on every signal of it asked for (real BeiDou: B2I on BDS-2 only, B2a on BDS-3 only).
 """
 
 from __future__ import annotations

@@ -32,18 +32,8 @@ def run_cli(*args):
 
 
 @pytest.fixture(scope="module")
-def multi(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("multi")
-    for args in (("simulate-gnss-structure", TOWER, "--duration", "150", "--seed", "3", "--signals", SIGS, "--out", tmp),
-                 ("ingest", "--config", tmp / "config.toml", "-o", tmp / "run.mcap"),
-                 ("init", tmp / "run.mcap", "--structure", TOWER, "-o", tmp / "init.json"),
-                 ("estimate", tmp / "run.mcap", "--init", tmp / "init.json", "--structure", TOWER, "--smooth",
-                  "-o", tmp / "states.mcap")):
-        r = run_cli("-q", *args)
-        assert r.exit_code == 0, (args, r.output)
-    r = run_cli("evaluate", "--truth", tmp, "--estimate", tmp / "states.mcap", "--json", "--converge-s", "20")
-    assert r.exit_code == 0, r.output
-    return tmp, json.loads((tmp / "truth.json").read_text()), json.loads((tmp / "init.json").read_text()), json.loads(r.stdout)
+def multi(tmp_path_factory, gnss_modal_chain):
+    return gnss_modal_chain(tmp_path_factory.mktemp("multi"), SIGS, 150, 3)
 
 
 def test_ingest_keeps_the_signals(multi):

@@ -90,3 +90,43 @@ def test_multi_signal_rinex_round_trip(sim, tmp_path):
     write_rinex_nav(tmp_path / "nav.rnx", nav, created="20240101 000000 UTC")
     back_nav = read_rinex_nav(tmp_path / "nav.rnx", systems=("G", "E"))
     assert set(back_nav["sat"].str[0]) == {"G", "E"} and len(back_nav) == len(nav)
+
+
+def test_beidou_signals_geo_igso_meo_ranges_and_rinex(tmp_path):
+    """BeiDou B1I + B2a (synthetic GEO, IGSO and MEO satellites, BDT records): λ_g(φ_g − N_g − f_g) is
+    the independent light-time range minus the satellite clock (T_GD of the record) on both signals,
+    for a GEO, an IGSO and a MEO satellite; the RINEX 3 file carries C2I/L2I and C5P/L5P and reads back;
+    the mixed navigation file gives the BeiDou records back in GPS seconds."""
+    sigs = ("G:L1", "C:B1I", "C:B2a")
+    nav = synthetic_nav("GC", T0, 120.0, seed=4)
+    s = simulate_receiver_signals(nav, X, T0, 30, 2.0, sigs, seed=3, troposphere=False, clock_drift_ms=0.0)
+    obs, amb = s["obs"], s["ambiguities"].set_index(["signal", "sat"])["n_cycles"]
+    seen = set(obs.loc[obs["signal"] == "C:B1I", "sat"])
+    kinds = {"GEO": {f"C{k:02d}" for k in range(1, 6)}, "IGSO": {"C06", "C07", "C08"}}
+    kinds["MEO"] = seen - kinds["GEO"] - kinds["IGSO"]
+    assert all(seen & v for v in kinds.values()) and len(seen) >= 10        # Japan sees every BeiDou orbit type
+    for sat in (min(seen & kinds["GEO"]), min(seen & kinds["IGSO"]), min(kinds["MEO"])):
+        for g in ("C:B1I", "C:B2a"):
+            o = obs[(obs["signal"] == g) & (obs["sat"] == sat)].iloc[:3]
+            r_sim = signal(g).wavelength_m * (o["phase_cycles"].to_numpy() - amb.loc[(g, sat)] - s["frac_bias_cycles"][g])
+            for t, r in zip(o["time_gps_s"], r_sim):
+                eph = select_ephemeris(nav, sat, np.array([t]))
+                tau = 0.12
+                for _ in range(8):
+                    xs, clk = sat_position_ecef(eph, np.array([t - tau]))
+                    th = 7.2921151467e-5 * tau
+                    rot = np.array([[math.cos(th), math.sin(th), 0], [-math.sin(th), math.cos(th), 0], [0, 0, 1]]) @ xs[0]
+                    tau = np.linalg.norm(rot - X) / SPEED_OF_LIGHT_M_S
+                assert r == pytest.approx(tau * SPEED_OF_LIGHT_M_S - SPEED_OF_LIGHT_M_S * clk[0], abs=0.08), (sat, g)
+    assert signal("C:B1I").wavelength_m == pytest.approx(SPEED_OF_LIGHT_M_S / 1561.098e6)
+    assert signal("C:B2a").wavelength_m == pytest.approx(SPEED_OF_LIGHT_M_S / 1176.45e6)
+    info = write_rinex_obs_signals(tmp_path / "rx.rnx", obs, sigs, {"marker_name": "RX", "approx_position_xyz_m": X},
+                                   created="20240101 000000 UTC")
+    assert info["obs_types"]["C"] == ["C2I", "L2I", "S2I", "C5P", "L5P", "S5P"]
+    _, back = read_rinex_signals(tmp_path / "rx.rnx", sigs)
+    m = back.merge(obs, on=["time_gps_s", "sat", "signal"])
+    assert len(m) == len(obs) == len(back) and np.max(np.abs(m["phase_cycles_x"] - m["phase_cycles_y"])) <= 5e-4 + 1e-6
+    write_rinex_nav(tmp_path / "nav.rnx", nav, created="20240101 000000 UTC")
+    bn = read_rinex_nav(tmp_path / "nav.rnx", systems=("G", "C"))
+    c_in, c_out = (n[n["sat"].str[0] == "C"].sort_values(["sat", "toe_gps_s"]) for n in (nav, bn))
+    assert np.array_equal(c_in["toe_gps_s"].to_numpy(), c_out["toe_gps_s"].to_numpy())

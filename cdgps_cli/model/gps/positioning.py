@@ -39,7 +39,6 @@ from cdgps_cli.model.gps.orbits import (
     GM_GPS,
     MAX_EPHEMERIS_AGE_GLONASS_S,
     MAX_EPHEMERIS_AGE_S,
-    OMEGA_E_GPS,
     azimuth_elevation,
     ecef_to_geodetic,
     enu_matrix,
@@ -122,7 +121,7 @@ def tropo_zenith_hydrostatic_m(lat_rad, h_m) -> np.ndarray:
     """
     lat = np.asarray(lat_rad, dtype=np.float64)
     h = np.asarray(h_m, dtype=np.float64)
-    hc = np.maximum(h, 0.0)
+    hc = np.clip(h, 0.0, 1e4)  # beyond 10 km the result is 0 anyway; no NaN from a negative base
     pres = 1013.25 * np.power(1.0 - 2.2557e-5 * hc, 5.2568)
     zhd = 0.0022768 * pres / (1.0 - 0.00266 * np.cos(2.0 * lat) - 0.00028 * hc / 1e3)
     return np.where((h < -100.0) | (h > 1e4), 0.0, zhd)
@@ -844,42 +843,199 @@ def synthetic_gps_nav(t_start_s: float, duration_s: float, *, planes: int = 6, p
                                  seed, record_interval_s)
 
 
-SYNTHETIC_ORBITS = {"G": (26_559_700.0, 55.0, 6, 6), "E": (29_599_800.0, 56.0, 3, 8)}
-"""Nominal orbit per system of :func:`synthetic_nav`: semi-major axis (m), inclination (deg),
-planes, satellites per plane (Galileo: the Walker 24/3/1 shell of the OS SIS ICD, 29 599.8 km, 56°)."""
+SYNTHETIC_ORBITS = {"G": (26_559_700.0, 55.0, 6, 6), "E": (29_599_800.0, 56.0, 3, 8), "C": (27_906_100.0, 55.0, 3, 8)}
+"""Nominal medium-Earth orbit per system of :func:`synthetic_nav`: semi-major axis (m), inclination
+(deg), planes, satellites per plane (Galileo: the Walker 24/3/1 shell of the OS SIS ICD, 29 599.8 km,
+56°; BeiDou: the BDS-3 MEO Walker 24/3/1 shell, 21 528 km altitude, 55°).  BeiDou also has the
+geosynchronous satellites of :data:`SYNTHETIC_BEIDOU_GEO_LON_DEG` and :data:`SYNTHETIC_BEIDOU_IGSO`."""
+SYNTHETIC_BEIDOU_GEO_LON_DEG = (58.75, 80.0, 110.5, 140.0, 160.0)
+"""Longitudes (deg E) of the synthetic BeiDou GEO satellites C01–C05 (the BDS GEO slots)."""
+SYNTHETIC_BEIDOU_IGSO = (118.0, 55.0, 3)
+"""Synthetic BeiDou IGSO satellites C06–C08: longitude (deg E) where their common figure-eight
+ground track crosses the equator, inclination (deg), number (nodes 360°/number apart)."""
+SYNTHETIC_BEIDOU_FIRST_MEO_PRN = 19
+"""PRN of the first synthetic BeiDou MEO satellite (C19–C42, as BDS-3's MEO PRNs begin at 19)."""
+_SYSTEM_ORDER = "GEC"
 
 
 def synthetic_nav(systems, t_start_s: float, duration_s: float, *, seed: int = 0,
                   record_interval_s: float = 7200.0) -> pd.DataFrame:
-    """Broadcast ephemerides of nominal constellations of several systems (``"G"``, ``"E"``).
+    """Broadcast ephemerides of nominal constellations of several systems (``"G"``, ``"E"``, ``"C"``).
 
     GPS is :func:`synthetic_gps_nav` with ``seed`` (identical records); Galileo satellites
-    ``E01…E24`` on the orbits of :data:`SYNTHETIC_ORBITS` with the Galileo GM (seed + 1).  Records
-    in the GPS form (Galileo ``week`` as a GPS week, as RINEX 3 writes it).  Simulations only.
+    ``E01…E24`` on the orbits of :data:`SYNTHETIC_ORBITS` with the Galileo GM (seed + 1); BeiDou
+    (seed + 2, :func:`synthetic_beidou_nav`) ``C01…C05`` GEO, ``C06…C08`` IGSO and ``C19…C42`` MEO.
+    Records in the GPS form (Galileo ``week`` as a GPS week, as RINEX 3 writes it; BeiDou in BDT:
+    ``week``/``toe_sow_s``/``transmit_sow_s`` BDT, the ``*_gps_s`` columns GPS seconds, as
+    :func:`~cdgps_cli.io.rinex.read_rinex_nav` returns them).  Simulations only.
     """
     from cdgps_cli.model.gps.orbits import GM_BY_SYSTEM  # noqa: PLC0415
 
     tabs = []
-    for k, c in enumerate(sorted(set(systems), key="GE".index)):
+    for c in sorted(set(systems), key=lambda x: _SYSTEM_ORDER.index(x) if x in _SYSTEM_ORDER else 99):
         if c not in SYNTHETIC_ORBITS:
             raise CdgpsError(f"synthetic ephemerides exist for systems {', '.join(SYNTHETIC_ORBITS)}, not {c!r}")
+        if c == "C":
+            tabs.append(synthetic_beidou_nav(t_start_s, duration_s, seed=seed + 2, record_interval_s=record_interval_s))
+            continue
         a, inc, planes, per_plane = SYNTHETIC_ORBITS[c]
         tabs.append(_synthetic_kepler_nav(c, a, inc, GM_BY_SYSTEM[c], t_start_s, duration_s, planes, per_plane,
-                                          seed + "GE".index(c), record_interval_s))
+                                          seed + _SYSTEM_ORDER.index(c), record_interval_s))
     return pd.concat(tabs, ignore_index=True)
 
 
-def _synthetic_kepler_nav(letter: str, a: float, inc_deg: float, gm: float, t_start_s: float, duration_s: float,
-                          planes: int, per_plane: int, seed: int, record_interval_s: float) -> pd.DataFrame:
-    """Records of ``planes × per_plane`` near-circular orbits of radius ``a`` (m), see :func:`synthetic_gps_nav`."""
-    gen = np.random.default_rng(seed)
-    n0 = math.sqrt(gm / a**3)
-    omega_dot = -8.0e-9
+def synthetic_beidou_nav(t_start_s: float, duration_s: float, *, seed: int = 0,
+                         record_interval_s: float = 7200.0) -> pd.DataFrame:
+    """Broadcast ephemerides of a nominal BeiDou constellation (BDS-ICD-B1I 3.0 record layout).
+
+    * ``C01…C05`` GEO at the longitudes :data:`SYNTHETIC_BEIDOU_GEO_LON_DEG`: geosynchronous
+      (n = ω_e of CGCS2000), eccentricity 0.0002–0.001, physical inclination 0.5–1.5°; their
+      records are written for the ICD's GEO algorithm (Kepler elements in the frame R_X(5°)·ECEF(t_oe),
+      see :func:`_geo_record_elements`), so :func:`~cdgps_cli.model.gps.orbits.sat_position_ecef`
+      turns them back into the same inertial two-body orbit;
+    * ``C06…C08`` IGSO (:data:`SYNTHETIC_BEIDOU_IGSO`: 55°, nodes 120° apart, one ground track
+      crossing the equator at 118° E);
+    * ``C19…C42`` MEO, the Walker 24/3/1 shell of :data:`SYNTHETIC_ORBITS` ``"C"``.
+
+    Time: BDT = GPST − 14 s.  Records every ``record_interval_s`` on whole multiples of it in
+    **BDT** (t_oe, t_oc), ``week``/``toe_sow_s``/``transmit_sow_s`` in BDT, ``toe_gps_s``/``toc_gps_s``/
+    ``transmit_gps_s`` in GPS seconds; ``iode`` = AODE (5 bits), ``iodc`` = AODC, ``tgd_s`` = TGD1.
+    Each record is the exact continuation of the same orbit (no jump at a record change).  Not real
+    orbits: for simulations only.
+    """
+    from cdgps_cli.core.gps_time import GPS_MINUS_BDT_S  # noqa: PLC0415
+    from cdgps_cli.model.gps.orbits import GM_BEIDOU, OMEGA_E_BEIDOU  # noqa: PLC0415
+
+    a, inc, planes, per_plane = SYNTHETIC_ORBITS["C"]
+    meo = _synthetic_kepler_nav("C", a, inc, GM_BEIDOU, t_start_s, duration_s, planes, per_plane, seed, record_interval_s,
+                                first_prn=SYNTHETIC_BEIDOU_FIRST_MEO_PRN)
+    gen = np.random.default_rng(seed + 1000)
+    a_gso = (GM_BEIDOU / OMEGA_E_BEIDOU**2) ** (1.0 / 3.0)
     step = float(record_interval_s)
-    t_ref = math.floor(t_start_s / step) * step
+    t_ref = math.floor((t_start_s - GPS_MINUS_BDT_S) / step) * step + GPS_MINUS_BDT_S
     toes = np.arange(t_ref - step, t_start_s + duration_s + 2 * step, step)
     rows = []
-    prn = 0
+    for k, lon in enumerate(SYNTHETIC_BEIDOU_GEO_LON_DEG):
+        node, argp = gen.uniform(-math.pi, math.pi, 2)
+        el = {"a": a_gso, "e": gen.uniform(2e-4, 1e-3), "inc": math.radians(gen.uniform(0.5, 1.5)), "node": node,
+              "argp": argp, "m_ref": math.radians(lon) - node - argp, "omega_dot": 0.0}
+        rows += _element_records(f"C{k + 1:02d}", el, t_ref, toes, "C", _sat_clock(gen), geo=True)
+    lon_x, inc_igso, n_igso = SYNTHETIC_BEIDOU_IGSO
+    for k in range(n_igso):
+        node = 2 * math.pi * k / n_igso
+        argp = gen.uniform(-math.pi, math.pi)
+        el = {"a": a_gso, "e": gen.uniform(2e-3, 8e-3), "inc": math.radians(inc_igso), "node": node, "argp": argp,
+              "m_ref": math.radians(lon_x) - node - argp, "omega_dot": -8.0e-9}
+        rows += _element_records(f"C{len(SYNTHETIC_BEIDOU_GEO_LON_DEG) + k + 1:02d}", el, t_ref, toes, "C",
+                                 _sat_clock(gen), geo=False)
+    from cdgps_cli.core.records import NAV_COLUMNS  # noqa: PLC0415
+
+    gso = pd.DataFrame(rows)[list(NAV_COLUMNS)]
+    return pd.concat([gso, meo], ignore_index=True).sort_values(["sat", "toe_gps_s"], kind="stable").reset_index(drop=True)
+
+
+def _sat_clock(gen) -> tuple[float, float, float]:
+    """(af0 s, af1 s/s, T_GD s) of a synthetic satellite clock."""
+    return gen.uniform(-2e-4, 2e-4), gen.uniform(-5e-12, 5e-12), gen.uniform(-1e-8, 1e-8)
+
+
+def _system_week_sow(letter: str, t_gps_s: float) -> tuple[int, float]:
+    """(week, seconds of week) of a GPS time in the time scale a system's records use (BeiDou: BDT)."""
+    from cdgps_cli.core.gps_time import BDT_WEEK_OFFSET, GPS_MINUS_BDT_S  # noqa: PLC0415
+
+    if letter == "C":
+        t = t_gps_s - GPS_MINUS_BDT_S
+        week = int(t // 604800)
+        return week - BDT_WEEK_OFFSET, float(t - week * 604800)
+    week = int(t_gps_s // 604800)
+    return week, float(t_gps_s - week * 604800)
+
+
+def _rot_x(phi: float) -> np.ndarray:
+    """Frame rotation about X by ``phi`` (rad), the R_X of BDS-ICD-B1I §5.2.4.12."""
+    c, s = math.cos(phi), math.sin(phi)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, s], [0.0, -s, c]])
+
+
+def _rot_z(phi: float) -> np.ndarray:
+    """Frame rotation about Z by ``phi`` (rad), the R_Z of BDS-ICD-B1I §5.2.4.12."""
+    c, s = math.cos(phi), math.sin(phi)
+    return np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _geo_record_elements(inc: float, node: float, argp: float, theta_rad: float) -> tuple[float, float, float]:
+    """(i, Ω, ω) rad of an orbit of inertial elements ``inc, node, argp`` in the frame of a BeiDou GEO
+    record, x_GK = R_X(+5°) · R_Z(θ) · x_I with θ = ω_e (t_oe − t_ref) (the inverse of the ICD's
+    x_ECEF = R_Z(ω_e t_k) · R_X(−5°) · x_GK): the perigee direction P and the orbit normal W are
+    rotated and the elements read back (W = (sin Ω sin i, −cos Ω sin i, cos i), P_z = sin ω sin i)."""
+    from cdgps_cli.model.gps.orbits import BEIDOU_GEO_TILT_RAD  # noqa: PLC0415
+
+    co, so, cw, sw, ci, si = (math.cos(node), math.sin(node), math.cos(argp), math.sin(argp),
+                              math.cos(inc), math.sin(inc))
+    p_vec = np.array([co * cw - so * sw * ci, so * cw + co * sw * ci, sw * si])
+    w_vec = np.array([so * si, -co * si, ci])
+    q = _rot_x(-BEIDOU_GEO_TILT_RAD) @ _rot_z(theta_rad)
+    p2, w2 = q @ p_vec, q @ w_vec
+    inc2 = math.acos(max(-1.0, min(1.0, w2[2])))
+    node2 = math.atan2(w2[0], -w2[1])
+    argp2 = math.atan2(p2[2] / math.sin(inc2), p2[0] * math.cos(node2) + p2[1] * math.sin(node2))
+    return inc2, node2, argp2
+
+
+def _element_records(sat: str, el: dict, t_ref: float, toes, letter: str, clock: tuple, *, geo: bool) -> list[dict]:
+    """One broadcast record per t_oe (GPS s) of the orbit with inertial elements ``el`` at ``t_ref``
+    (``a`` m, ``e``, ``inc``, ``node``, ``argp``, ``m_ref`` rad, ``omega_dot`` rad/s; the inertial
+    frame is the ECEF frame at ``t_ref``), each the exact continuation of that orbit."""
+    from cdgps_cli.model.gps.orbits import GM_BY_SYSTEM, OMEGA_E_BY_SYSTEM  # noqa: PLC0415
+
+    gm, we = GM_BY_SYSTEM[letter], OMEGA_E_BY_SYSTEM[letter]
+    n0 = math.sqrt(gm / el["a"] ** 3)
+    af0, af1, tgd = clock
+    prn = int(sat[1:])
+    rows = []
+    for k, toe in enumerate(toes):
+        week, sow = _system_week_sow(letter, float(toe))
+        dt_ = float(toe) - t_ref
+        inc, node, argp = el["inc"], el["node"] + el["omega_dot"] * dt_ - we * dt_, el["argp"]
+        if geo:
+            inc, node, argp = _geo_record_elements(el["inc"], el["node"], el["argp"], we * dt_)
+        iod = int((k + 7 * prn) % (32 if letter == "C" else 256))
+        rows.append(_nav_row(sat, float(toe), week, sow, af0 + af1 * dt_, af1, tgd, iod, {
+            "m0_rad": math.remainder(el["m_ref"] + n0 * dt_, 2 * math.pi), "e": el["e"],
+            "sqrt_a_sqrt_m": math.sqrt(el["a"]), "omega0_rad": math.remainder(node + we * sow, 2 * math.pi),
+            "i0_rad": inc, "omega_rad": argp, "omega_dot_rad_per_s": el["omega_dot"]}))
+    return rows
+
+
+def _nav_row(sat: str, toe: float, week: int, sow: float, af0: float, af1: float, tgd: float, iod: int, orbit: dict) -> dict:
+    """A :data:`NAV_COLUMNS` record (harmonic corrections, Δn, IDOT and af2 zero; healthy; transmitted
+    an hour before t_oe, at t_oe in a week's first hour)."""
+    row = {"sat": sat, "toc_gps_s": toe, "af0_s": af0, "af1_s_per_s": af1, "af2_s_per_s2": 0.0, "iode": iod,
+           "crs_m": 0.0, "delta_n_rad_per_s": 0.0, "cuc_rad": 0.0, "cus_rad": 0.0, "toe_sow_s": sow, "cic_rad": 0.0,
+           "cis_rad": 0.0, "crc_m": 0.0, "idot_rad_per_s": 0.0, "codes_l2": 1, "week": week, "l2p_data_flag": 0,
+           "sv_accuracy_m": 2.0, "sv_health": 0, "tgd_s": tgd, "iodc": iod,
+           "transmit_sow_s": sow - 3600.0 if sow >= 3600.0 else sow, "fit_interval_h": 4.0, "toe_gps_s": toe,
+           "transmit_gps_s": toe - 3600.0 if sow >= 3600.0 else toe, "line": 0}
+    row.update(orbit)
+    if sat[0] == "C":            # BeiDou: no L2 codes / P flag / fit interval in the record
+        row.update({"codes_l2": -1, "l2p_data_flag": -1, "fit_interval_h": float("nan")})
+    return row
+
+
+def _synthetic_kepler_nav(letter: str, a: float, inc_deg: float, gm: float, t_start_s: float, duration_s: float,
+                          planes: int, per_plane: int, seed: int, record_interval_s: float, *,
+                          first_prn: int = 1) -> pd.DataFrame:
+    """Records of ``planes × per_plane`` near-circular orbits of radius ``a`` (m), see :func:`synthetic_gps_nav`
+    (t_oe on whole multiples of ``record_interval_s`` in the system's time scale; BeiDou: BDT)."""
+    from cdgps_cli.core.gps_time import GPS_MINUS_BDT_S  # noqa: PLC0415
+
+    gen = np.random.default_rng(seed)
+    step = float(record_interval_s)
+    off = GPS_MINUS_BDT_S if letter == "C" else 0.0
+    t_ref = math.floor((t_start_s - off) / step) * step + off
+    toes = np.arange(t_ref - step, t_start_s + duration_s + 2 * step, step)
+    rows = []
+    prn = first_prn - 1
     for p in range(planes):
         node = 2 * math.pi * p / planes + gen.uniform(-0.02, 0.02)
         for q in range(per_plane):
@@ -888,25 +1044,8 @@ def _synthetic_kepler_nav(letter: str, a: float, inc_deg: float, gm: float, t_st
             ecc = gen.uniform(0.002, 0.012)
             argp = gen.uniform(-math.pi, math.pi)
             inc = math.radians(inc_deg) + gen.uniform(-0.01, 0.01)
-            af0, af1, tgd = gen.uniform(-2e-4, 2e-4), gen.uniform(-5e-12, 5e-12), gen.uniform(-1e-8, 1e-8)
-            for k, toe in enumerate(toes):
-                week = int(toe // 604800)
-                sow = float(toe - week * 604800)
-                dt_ = toe - t_ref
-                m0 = math.remainder(m_ref + n0 * dt_, 2 * math.pi)
-                om0 = math.remainder(node + omega_dot * dt_ - OMEGA_E_GPS * dt_ + OMEGA_E_GPS * sow, 2 * math.pi)
-                iod = int((k + 7 * prn) % 256)
-                rows.append({
-                    "sat": f"{letter}{prn:02d}", "toc_gps_s": float(toe), "af0_s": af0 + af1 * dt_, "af1_s_per_s": af1,
-                    "af2_s_per_s2": 0.0, "iode": iod, "crs_m": 0.0, "delta_n_rad_per_s": 0.0, "m0_rad": m0,
-                    "cuc_rad": 0.0, "e": ecc, "cus_rad": 0.0, "sqrt_a_sqrt_m": math.sqrt(a), "toe_sow_s": sow,
-                    "cic_rad": 0.0, "omega0_rad": om0, "cis_rad": 0.0, "i0_rad": inc, "crc_m": 0.0,
-                    "omega_rad": argp, "omega_dot_rad_per_s": omega_dot, "idot_rad_per_s": 0.0, "codes_l2": 1,
-                    "week": week, "l2p_data_flag": 0, "sv_accuracy_m": 2.0, "sv_health": 0, "tgd_s": tgd,
-                    "iodc": iod, "transmit_sow_s": sow - 3600.0 if sow >= 3600.0 else sow,
-                    "fit_interval_h": 4.0, "toe_gps_s": float(toe),
-                    "transmit_gps_s": float(toe - 3600.0 if sow >= 3600.0 else toe), "line": 0,
-                })
+            el = {"a": a, "e": ecc, "inc": inc, "node": node, "argp": argp, "m_ref": m_ref, "omega_dot": -8.0e-9}
+            rows += _element_records(f"{letter}{prn:02d}", el, t_ref, toes, letter, _sat_clock(gen), geo=False)
     df = pd.DataFrame(rows)
     from cdgps_cli.core.records import NAV_COLUMNS  # noqa: PLC0415
 
