@@ -1,4 +1,5 @@
-"""Value checks shared by every library function: finite numbers and JSON value kinds.
+"""Value checks shared by every library function: finite numbers, JSON value kinds, a usable
+a-priori receiver position.
 
 These are the library's own checks (numerics and readers call them and name their own fields);
 the command line adds its option-level checks in :mod:`cdgps_cli.cli.guard` on top.
@@ -8,7 +9,13 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from cdgps_cli.core.errors import CdgpsError
+
+#: an ECEF position closer than this to the Earth's centre is not a receiver position, m
+#: (a RINEX header's APPROX POSITION XYZ of 0 0 0 means "unknown")
+MIN_RECEIVER_RADIUS_M = 6.0e6
 
 
 def require_finite(value: float | None, name: str, positive: bool = False, nonnegative: bool = False) -> None:
@@ -38,3 +45,15 @@ def has_bool(value) -> bool:
         if isinstance(v, list):
             stack.extend(v)
     return False
+
+
+def header_position_m(header: dict):
+    """A RINEX header's ``approx_position_xyz_m`` as an ECEF position (3,), m, when it is usable:
+    three finite numbers at least :data:`MIN_RECEIVER_RADIUS_M` from the Earth's centre; else None."""
+    pos = header.get("approx_position_xyz_m")
+    if pos is None:
+        return None
+    pos = np.asarray(pos, dtype=np.float64)
+    if pos.shape != (3,) or not np.all(np.isfinite(pos)) or np.linalg.norm(pos) < MIN_RECEIVER_RADIUS_M:
+        return None
+    return pos

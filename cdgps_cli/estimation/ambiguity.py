@@ -249,6 +249,27 @@ def _reduce(L, d, *, z=None, on_tail=None):
     arithmetic is element for element that of the former list implementation, so the results are
     bit-identical to it.
     """
+    L, d = _reduce_inputs(L, d)
+    n = d.shape[0]
+    ops = []
+    k = n - 2
+    lowest = n - 1
+    while k >= 0:
+        if on_tail is not None and k < lowest:
+            lowest = k
+            on_tail(k + 1, L, d, z, len(ops))
+        _gauss(L, ops, z, k + 1, k)
+        if _swap_if_shorter(L, d, ops, z, k):
+            if k < n - 2:
+                k += 1          # the swap changed the pair (k+1, k+2): test it again
+        else:
+            k -= 1
+    _size_reduce(L, ops, z)
+    return L, d, ops
+
+
+def _reduce_inputs(L, d):
+    """Working copies (float64) of the factors ``L`` (n, n) and ``d`` (n,) of :func:`_reduce`."""
     L = np.array(L, dtype=float)
     d = np.array(d, dtype=float)
     n = d.shape[0]
@@ -256,58 +277,66 @@ def _reduce(L, d, *, z=None, on_tail=None):
         raise AmbiguityError(
             f"L must have shape (n, n) matching d of shape (n,), got {L.shape} and {d.shape}"
         )
-    ops = []
-    floor = math.floor
+    return L, d
 
-    def gauss(i, j):
-        # integer Gauss transformation z_j <- z_j - mu z_i (i > j) making
-        # |L[i, j]| <= 1/2; with G = I - mu e_i e_j^T:  L <- L G, Z <- Z G.
-        mu = floor(L[i, j] + 0.5)
-        if mu:
-            L[i:, j] -= mu * L[i:, i]
-            ops.append((i, j, mu))
-            if z is not None:
-                z[j] -= mu * z[i]
 
-    k = n - 2
-    lowest = n - 1
-    while k >= 0:
-        if on_tail is not None and k < lowest:
-            lowest = k
-            on_tail(k + 1, L, d, z, len(ops))
-        gauss(k + 1, k)
-        lk = float(L[k + 1, k])
-        dk = float(d[k])
-        dk1 = float(d[k + 1])
-        # conditional variance of the last of the pair after swapping
-        delta = dk + lk * lk * dk1
-        if delta < dk1 * (1.0 - PERM_RTOL):
-            eta = dk / delta
-            lam = dk1 * lk / delta
-            d[k] = eta * dk1
-            d[k + 1] = delta
-            if k:
-                old_k = L[k, :k].copy()
-                old_k1 = L[k + 1, :k].copy()
-                L[k, :k] = old_k1 - lk * old_k
-                L[k + 1, :k] = eta * old_k + lam * old_k1
-            L[k + 1, k] = lam
-            if k + 2 < n:
-                L[k + 2:, [k, k + 1]] = L[k + 2:, [k + 1, k]]
-            ops.append((k, k + 1, 0))
-            if z is not None:
-                z[k], z[k + 1] = z[k + 1], z[k]
-            if k < n - 2:
-                k += 1
-        else:
-            k -= 1
+def _gauss(L, ops, z, i, j):
+    """Integer Gauss transformation ``z_j <- z_j - mu z_i`` (``i > j``) making ``|L[i, j]| <= 1/2``.
 
-    # final full size reduction of the strictly lower triangle (only where it changes anything)
+    With ``G = I - mu e_i e_j^T``: ``L <- L G``, ``Z <- Z G``; in place on ``L`` (n, n), the
+    operation list ``ops`` and the float ambiguities ``z`` (list, or None).  Nothing happens
+    when ``mu`` rounds to 0.
+    """
+    mu = math.floor(L[i, j] + 0.5)
+    if mu:
+        L[i:, j] -= mu * L[i:, i]
+        ops.append((i, j, mu))
+        if z is not None:
+            z[j] -= mu * z[i]
+
+
+def _swap_if_shorter(L, d, ops, z, k):
+    """Permute the adjacent pair ``(k, k+1)`` when that lowers ``d[k+1]`` by more than
+    :data:`PERM_RTOL` (relative); update ``L``, ``d``, ``ops``, ``z`` in place.
+
+    Returns
+    -------
+    bool
+        Whether the pair was swapped.
+    """
+    lk = float(L[k + 1, k])
+    dk = float(d[k])
+    dk1 = float(d[k + 1])
+    # conditional variance of the last of the pair after swapping
+    delta = dk + lk * lk * dk1
+    if not delta < dk1 * (1.0 - PERM_RTOL):
+        return False
+    eta = dk / delta
+    lam = dk1 * lk / delta
+    d[k] = eta * dk1
+    d[k + 1] = delta
+    if k:
+        old_k = L[k, :k].copy()
+        old_k1 = L[k + 1, :k].copy()
+        L[k, :k] = old_k1 - lk * old_k
+        L[k + 1, :k] = eta * old_k + lam * old_k1
+    L[k + 1, k] = lam
+    if k + 2 < d.shape[0]:
+        L[k + 2:, [k, k + 1]] = L[k + 2:, [k + 1, k]]
+    ops.append((k, k + 1, 0))
+    if z is not None:
+        z[k], z[k + 1] = z[k + 1], z[k]
+    return True
+
+
+def _size_reduce(L, ops, z):
+    """Final size reduction of the strictly lower triangle of ``L`` below the sub-diagonal
+    (only where ``|L[i, j]| > 1/2``); changes neither ``d`` nor the integer solution."""
+    n = L.shape[0]
     for j in range(n - 2, -1, -1):
         for i in range(j + 2, n):
             if abs(L[i, j]) > 0.5:
-                gauss(i, j)
-    return L, d, ops
+                _gauss(L, ops, z, i, j)
 
 
 def _forward(ops, v):
@@ -428,6 +457,17 @@ def search(L, d, zs, candidates, *, max_nodes=None):
     slice operation for levels ``>= SEARCH_NUMPY_LEVEL`` (a Python list
     below, where numpy's per-call cost exceeds the work); the arithmetic is the same either way.
     """
+    L, d, zs, m, cap = _search_inputs(L, d, zs, candidates, max_nodes)
+    out_z, out_s = _enumerate(L, d, zs, m, cap)
+    order = sorted(range(len(out_s)), key=out_s.__getitem__)
+    zn = np.array([out_z[i] for i in order], dtype=float).reshape(len(order), d.shape[0])
+    s = np.array([out_s[i] for i in order], dtype=float)
+    return zn, s
+
+
+def _search_inputs(L, d, zs, candidates, max_nodes):
+    """Checked arrays ``L`` (n, n), ``d`` (n,), ``zs`` (n,), the candidate count and the node cap
+    of :func:`search`."""
     L = np.asarray(L, dtype=float)
     d = np.asarray(d, dtype=float)
     zs = np.asarray(zs, dtype=float)
@@ -445,30 +485,29 @@ def search(L, d, zs, candidates, *, max_nodes=None):
         raise AmbiguityError(f"candidates must be an integer >= 1, got {candidates!r}")
     if not np.all(d > 0):
         raise AmbiguityError("conditional variances d must all be > 0")
-    cap = _check_cap(max_nodes)
-    m = int(candidates)
+    return L, d, zs, int(candidates), _check_cap(max_nodes)
 
+
+def _enumerate(L, d, zs, m, cap):
+    """The depth-first enumeration of :func:`search` (see its Notes); returns the retained
+    candidates (lists, length n) and their squared norms, unsorted.
+
+    ``S[k][:k+1]`` accumulates ``sum_{i>k} L[i, :k+1] * (z_i - zb_i)``; the conditional estimate
+    of component k is ``zb_k = zs_k + S[k][k]``.  Levels ``>= T`` keep ``S`` as numpy arrays,
+    the others as lists.
+    """
+    n = d.shape[0]
     T = min(SEARCH_NUMPY_LEVEL, n)
     Ln = np.ascontiguousarray(L)
     Lr = Ln[:T + 1, :T].tolist()       # rows used by the list updates (levels < T)
     dl = d.tolist()
     zsl = zs.tolist()
     floor = math.floor
-    # S[k][:k+1] accumulates sum_{i>k} L[i, :k+1] * (z_i - zb_i); the
-    # conditional estimate of component k is zb_k = zs_k + S[k][k].
     S = [None] * n
     S[n - 1] = np.zeros(n) if n > T else [0.0] * n
-    dist = [0.0] * n
-    zb = [0.0] * n
-    z = [0.0] * n
-    step = [0.0] * n
-
-    out_z = []  # retained candidates (lists)
-    out_s = []  # their squared norms
-    maxdist = math.inf
-    imax = 0
-    nodes = 0
-
+    dist, zb, z, step = [0.0] * n, [0.0] * n, [0.0] * n, [0.0] * n
+    out_z, out_s = [], []              # retained candidates (lists) and their squared norms
+    maxdist, imax, nodes = math.inf, 0, 0
     k = n - 1
     zb[k] = zsl[k]
     z[k] = floor(zb[k] + 0.5)
@@ -477,11 +516,7 @@ def search(L, d, zs, candidates, *, max_nodes=None):
     while True:
         nodes += 1
         if nodes > cap:
-            raise SearchLimitError(
-                f"LAMBDA search stopped after {cap} nodes for {n} ambiguities without completing "
-                f"({len(out_z)} of {m} candidates found): the float ambiguities are too weakly "
-                f"determined to enumerate (try partial fixing, a longer span, or a float solution)"
-            )
+            raise _limit_error(cap, n, len(out_z), m)
         newdist = dist[k] + y * y / dl[k]
         if newdist < maxdist:
             if k:
@@ -504,19 +539,8 @@ def search(L, d, zs, candidates, *, max_nodes=None):
                 y = zbk - zk
                 step[k] = 1.0 if y > 0 else -1.0
                 continue
-            # a full candidate has been reached
-            if len(out_z) < m:
-                out_z.append(z[:])
-                out_s.append(newdist)
-                if len(out_z) == m:
-                    imax = max(range(m), key=out_s.__getitem__)
-                    maxdist = out_s[imax]
-            else:
-                out_z[imax] = z[:]
-                out_s[imax] = newdist
-                imax = max(range(m), key=out_s.__getitem__)
-                maxdist = out_s[imax]
-            # next integer at the bottom level (zig-zag around zb[0])
+            # a full candidate has been reached; then the next integer at the bottom level
+            maxdist, imax = _retain(out_z, out_s, z, newdist, m, imax)
             st = step[0]
             z[0] += st
             y = zb[0] - z[0]
@@ -530,11 +554,32 @@ def search(L, d, zs, candidates, *, max_nodes=None):
             z[k] += st
             y = zb[k] - z[k]
             step[k] = -st - (1.0 if st > 0 else -1.0)
+    return out_z, out_s
 
-    order = sorted(range(len(out_s)), key=out_s.__getitem__)
-    zn = np.array([out_z[i] for i in order], dtype=float).reshape(len(order), n)
-    s = np.array([out_s[i] for i in order], dtype=float)
-    return zn, s
+
+def _retain(out_z, out_s, z, dist, m, imax):
+    """Keep the full candidate ``z`` (squared norm ``dist``) among the best ``m``, replacing the
+    worst (index ``imax``) once ``m`` are kept; return the new search radius (inf until ``m``
+    candidates are kept) and the index of the worst kept."""
+    if len(out_z) < m:
+        out_z.append(z[:])
+        out_s.append(dist)
+        if len(out_z) < m:
+            return math.inf, imax
+    else:
+        out_z[imax] = z[:]
+        out_s[imax] = dist
+    imax = max(range(m), key=out_s.__getitem__)
+    return out_s[imax], imax
+
+
+def _limit_error(cap, n, found, m):
+    """The :class:`SearchLimitError` of a search stopped at ``cap`` nodes."""
+    return SearchLimitError(
+        f"LAMBDA search stopped after {cap} nodes for {n} ambiguities without completing "
+        f"({found} of {m} candidates found): the float ambiguities are too weakly "
+        f"determined to enumerate (try partial fixing, a longer span, or a float solution)"
+    )
 
 
 # ---------------------------------------------------------------------------
@@ -712,14 +757,8 @@ def partial_fix(a, Q, threshold=RATIO_THRESHOLD, min_fixed=1, *, max_nodes=None,
     is fixed, with its marginal covariance ``Q[np.ix_(sub, sub)]``.  Working in the original
     space keeps the result a mask over the input ambiguities.
 
-    The subsets are not resolved one full LAMBDA each (O(n) decompositions and reductions, O(n^4)
-    in all, which is what kept a 150-segment init from finishing): with the ambiguities ordered
-    so that those dropped first come first, each subset is a *trailing* block, whose
-    ``L^T D L`` factor is the trailing block of the full one, and the reduction, which works
-    from the end, completes every trailing block on its way (see ``on_tail`` of
-    :func:`_reduce`).  So one factorization and one reduction serve all ``n`` subsets; each
-    subset only costs its search, run while the reduction passes it.  The answer is the one
-    the drop-one-and-redo loop gives (the largest passing subset of the same nested sequence).
+    One factorization and one reduction serve all the nested subsets (:class:`_NestedSearch`);
+    the answer is the one the drop-one-and-redo loop gives.
 
     Parameters
     ----------
@@ -772,51 +811,84 @@ def partial_fix(a, Q, threshold=RATIO_THRESHOLD, min_fixed=1, *, max_nodes=None,
     if not 1 <= min_fixed <= n:
         raise AmbiguityError(f"min_fixed must be between 1 and n={n}, got {min_fixed}")
     cap = _check_cap(max_nodes)
-    thr = float(threshold)
+    nested = _NestedSearch(n, min_fixed, float(threshold), cap, progress)
     var = np.diag(Qs)
     perm = np.array(sorted(range(n), key=lambda i: (-var[i], i)), dtype=np.int64)
     ap = aa[perm]
     offset = _round_half_up(ap)
     L, d = ld_factorize(Qs[np.ix_(perm, perm)])
-    total = n - min_fixed + 1           # the full set, then the subsets of sizes min_fixed … n-1
-    st = {"done": 0, "limited": 0, "best": None, "stop": False}
-
-    def attempt(k, Lw, dw, zw, n_ops):
-        """Search the trailing block [k, n); remember it if it passes (larger blocks come later)."""
-        if n - k < min_fixed or st["stop"]:
-            return None
-        st["done"] += 1
-        try:
-            zn, s = search(Lw[k:, k:], dw[k:], zw[k:], 2, max_nodes=cap)
-        except SearchLimitError:
-            st["limited"] += 1
-            st["stop"] = k > 0          # larger subsets contain this one: do not search them
-            ratio = math.nan
-        else:
-            ok, ratio = ratio_test(s, thr)
-            if ok:
-                st["best"] = (k, zn[0].tolist(), n_ops, ratio)
-        if progress is not None:
-            progress(st["done"], total)
-        return ratio
-
     # 1. the full set
     Lr, dr, ops = _reduce(L, d)
-    zf = _forward(ops, (ap - offset).tolist())
-    full_ratio = attempt(0, Lr, dr, zf, len(ops))
+    full_ratio = nested(0, Lr, dr, _forward(ops, (ap - offset).tolist()), len(ops))
     # 2. the nested subsets, all from one more pass of the reduction
-    if st["best"] is None and n > 1:
-        st["stop"] = False
-        _, _, ops = _reduce(L, d, z=(ap - offset).tolist(), on_tail=attempt)
+    if nested.best is None and n > 1:
+        nested.stop = False
+        _, _, ops = _reduce(L, d, z=(ap - offset).tolist(), on_tail=nested)
+    return _partial_result(nested, ops, perm, offset, full_ratio)
 
+
+class _NestedSearch:
+    """The ``on_tail`` callback of :func:`_reduce` that searches the nested subsets of
+    :func:`partial_fix`.
+
+    The subsets are not resolved one full LAMBDA each (O(n) decompositions and reductions, O(n^4)
+    in all, which is what kept a 150-segment init from finishing): with the ambiguities ordered
+    so that those dropped first come first, each subset is a *trailing* block, whose
+    ``L^T D L`` factor is the trailing block of the full one, and the reduction, which works
+    from the end, completes every trailing block on its way (see ``on_tail`` of
+    :func:`_reduce`).  So one factorization and one reduction serve all ``n`` subsets; each
+    subset only costs its search, run while the reduction passes it.  The answer is the one
+    the drop-one-and-redo loop gives (the largest passing subset of the same nested sequence).
+
+    Attributes
+    ----------
+    best : tuple or None
+        ``(k, z, n_ops, ratio)`` of the largest trailing block ``[k, n)`` that passed so far.
+    done, limited : int
+        Searches run, and those stopped by the node cap.
+    stop : bool
+        A block hit the cap: the larger ones (which contain it) are not searched.
+    """
+
+    def __init__(self, n, min_fixed, threshold, cap, progress):
+        self.n, self.min_fixed, self.threshold, self.cap = n, min_fixed, threshold, cap
+        self.progress = progress
+        self.total = n - min_fixed + 1      # the full set, then the subsets of sizes min_fixed … n-1
+        self.done, self.limited, self.best, self.stop = 0, 0, None, False
+
+    def __call__(self, k, Lw, dw, zw, n_ops):
+        """Search the trailing block [k, n); remember it if it passes (larger blocks come later).
+        Returns its ratio (NaN when the search hit the cap; None when not searched)."""
+        if self.n - k < self.min_fixed or self.stop:
+            return None
+        self.done += 1
+        try:
+            zn, s = search(Lw[k:, k:], dw[k:], zw[k:], 2, max_nodes=self.cap)
+        except SearchLimitError:
+            self.limited += 1
+            self.stop = k > 0
+            ratio = math.nan
+        else:
+            ok, ratio = ratio_test(s, self.threshold)
+            if ok:
+                self.best = (k, zn[0].tolist(), n_ops, ratio)
+        if self.progress is not None:
+            self.progress(self.done, self.total)
+        return ratio
+
+
+def _partial_result(nested, ops, perm, offset, full_ratio):
+    """The result dict of :func:`partial_fix` from the nested search (``ops``: the reduction's
+    operations, ``perm`` (n,): the drop order, ``offset`` (n,): the rounding taken off ``a``)."""
+    n = perm.shape[0]
     fixed_mask = np.zeros(n, dtype=bool)
     integers = np.zeros(n, dtype=np.int64)
     result = {"fixed_mask": fixed_mask, "integers": integers, "ratio": float(full_ratio),
               "ratio_full_set": float(full_ratio), "n_fixed": 0,
-              "subsets_searched": st["done"], "search_limited": st["limited"]}
-    if st["best"] is None:
+              "subsets_searched": nested.done, "search_limited": nested.limited}
+    if nested.best is None:
         return result
-    k, zbest, n_ops, ratio = st["best"]
+    k, zbest, n_ops, ratio = nested.best
     # the operations recorded up to this block's completion involve indices >= k only
     a_tail = _to_original(ops[:n_ops], [[0.0] * k + zbest], offset)[0]
     fixed_mask[perm[k:]] = True

@@ -41,6 +41,7 @@ from scipy.linalg import cho_factor, cho_solve
 
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M, SPEED_OF_LIGHT_M_S
 from cdgps_cli.core import progress
+from cdgps_cli.core.checks import header_position_m
 from cdgps_cli.estimation.ambiguity import AmbiguityError, resolve
 from cdgps_cli.estimation.model_filter import filter_numpy
 from cdgps_cli.measurement.dd_displacement import SatelliteDDDisplacement, SDObservations
@@ -221,16 +222,6 @@ class Station(NamedTuple):
 # ----------------------------------------------------------------------------------------------
 # preparation: epochs, clocks, single differences, geometry
 # ----------------------------------------------------------------------------------------------
-
-
-def _header_position(st: Station):
-    pos = st.header.get("approx_position_xyz_m")
-    if pos is None:
-        return None
-    pos = np.asarray(pos, dtype=np.float64)
-    if pos.shape != (3,) or not np.all(np.isfinite(pos)) or np.linalg.norm(pos) < 6.0e6:
-        return None
-    return pos
 
 
 def _where(st: Station) -> str:
@@ -688,11 +679,11 @@ class _Final(NamedTuple):
 
 def _a_priori_positions(master: Station, rover: Station, nav, master_xyz, rover_xyz, warnings: list):
     """Master position (given or header) and the rover's a priori position with its source."""
-    xm = _header_position(master) if master_xyz is None else np.asarray(master_xyz, dtype=np.float64)
+    xm = header_position_m(master.header) if master_xyz is None else np.asarray(master_xyz, dtype=np.float64)
     if xm is None:
         raise CdgpsError(f"{_where(master)}: the RINEX header has no usable APPROX POSITION XYZ; the master (reference) "
                          f"receiver must be at a known position")
-    xr0 = _header_position(rover) if rover_xyz is None else np.asarray(rover_xyz, dtype=np.float64)
+    xr0 = header_position_m(rover.header) if rover_xyz is None else np.asarray(rover_xyz, dtype=np.float64)
     rover_pos_source = "RINEX header APPROX POSITION XYZ" if rover_xyz is None else "given"
     if xr0 is None:
         o = rover.obs

@@ -1,40 +1,164 @@
-"""One Kalman step: prediction through a linear(ized) transition and an information-form update.
+"""The engine's Kalman step: prediction through a transition and an iterated information-form
+update through the measurement-model interface (../shared/design/architecture.md "Filter").
 
-The update takes one epoch's linearized rows — residuals ρ = z − h(x̄) (m), the Jacobian H and the
-noise as a diagonal σ or a full covariance's Cholesky factor — whitens them (ρ_w = L⁻¹ρ, H_w = L⁻¹H),
-and applies
+:class:`StepFilter` holds (x, P) and steps it one epoch at a time: :meth:`StepFilter.predict`
+(x̄ = A x + u, P̄ = A P Aᵀ + Q) and :meth:`StepFilter.update` on the rows of one epoch given by a
+:class:`~cdgps_cli.measurement.model.MeasurementModel` (:func:`iterated_update`).  It is the loop
+body of the forward filter :func:`cdgps_cli.estimation.model_filter.filter_numpy` and of the
+Python epochs of :func:`~cdgps_cli.estimation.model_filter.filter_dd_kernel`, the closed loop's
+in-loop filter (:class:`cdgps_cli.estimation.loop_filter.LoopFilter`) and the first linearization
+of the INIT window (:mod:`cdgps_cli.estimation.window_smoother`).
 
-    P⁺ = (P̄⁻¹ + H_wᵀ H_w)⁻¹,   x⁺ = x̄ + P⁺ H_wᵀ ρ_w,   NIS = ρ_wᵀ ρ_w − (H_wᵀρ_w)ᵀ P⁺ (H_wᵀρ_w)
+The update whitens the rows by their noise (ρ_w = L⁻¹ρ, H_w = L⁻¹H for C = L Lᵀ, or ρ/σ, H/σ)
+and applies, relinearizing h at the iterate x_i (Gauss–Newton),
 
-(the last is ρᵀ(H P̄ Hᵀ + R)⁻¹ρ by the matrix inversion lemma).  1998 paper Eq. (16)–(23) in
-information form; both noise kinds of the architecture's filter.
+    P⁺ = (P̄⁻¹ + H_wᵀ H_w)⁻¹,   x_{i+1} = x̄ + P⁺ H_wᵀ (z_w − h_w(x_i) − H_w (x̄ − x_i)),
+    NIS = ν_wᵀ ν_w − (H_wᵀν_w)ᵀ P⁺ (H_wᵀν_w)  at the prior linearization
+
+(the last is νᵀ(H P̄ Hᵀ + C)⁻¹ν by the matrix inversion lemma).  1998 paper Eq. (16)–(23) in
+information form; both noise kinds of the architecture's filter.  :func:`update` is the same step
+for rows already linearized at x̄ (residual ρ = z − h(x̄) and H).
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve, solve_triangular
+from scipy.linalg import solve_triangular
+from scipy.linalg.lapack import dpotrf, dpotrs
+
+__all__ = ["StepFilter", "iterated_update", "predict", "update"]
 
 
-def predict(x: np.ndarray, P: np.ndarray, A: np.ndarray, Q: np.ndarray, known_input=None):
-    """x̄ = A x (+ known input), P̄ = A P Aᵀ + Q.
+class StepFilter:
+    """The forward filter's state (x, P) and its step, one epoch at a time.
 
     Parameters
     ----------
+    x : array_like, shape (n,)
+        Initial state (copied).
+    P : array_like, shape (n, n)
+        Its covariance (copied).
+
+    Attributes
+    ----------
+    x : ndarray, shape (n,)
+        The current estimate: predicted after :meth:`predict`, updated after :meth:`update`.
+    P : ndarray, shape (n, n)
+        Its covariance.
+    """
+
+    def __init__(self, x, P):
+        self.x = np.array(x, dtype=float)
+        self.P = np.array(P, dtype=float)
+
+    def predict(self, A: np.ndarray, Q: np.ndarray, known_input=None) -> None:
+        """x̄ = A x (+ known input), P̄ = A P Aᵀ + Q.
+
+        Parameters
+        ----------
+        A, Q : ndarray, shape (n, n)
+            Transition and process-noise covariance over the step.
+        known_input : ndarray, shape (n,), optional
+            The state change due to known inputs over the step (e.g. B u, or the exact response
+            to fired thruster pulses).
+        """
+        x = A @ self.x
+        self.x = x if known_input is None else x + known_input
+        self.P = A @ self.P @ A.T + Q
+
+    def update(self, model, rows, max_iterations: int = 5) -> float:
+        """The iterated update with one epoch's ``rows`` (:class:`~cdgps_cli.measurement.model.Rows`)
+        of ``model`` (a :class:`~cdgps_cli.measurement.model.MeasurementModel`), :func:`iterated_update`;
+        returns the epoch's NIS (dof ``rows.z_m.size``)."""
+        self.x, self.P, nis = iterated_update(model, rows, self.x, self.P, max_iterations)
+        return nis
+
+
+def iterated_update(model, mk, xbar: np.ndarray, Pbar: np.ndarray, max_iterations: int = 5):
+    """(x, P, NIS) of one iterated information-form update on the whitened rows ``mk``.
+
+    Iterates (Gauss–Newton) while the correction exceeds 1e-9 of the state, at most
+    ``max_iterations`` times.  NIS uses the prior linearization:
+    νᵀ(HPHᵀ + I)⁻¹ν = νᵀν − νᵀH(P⁻¹ + HᵀH)⁻¹Hᵀν (whitened ν, H).
+
+    Parameters
+    ----------
+    model : MeasurementModel
+        Gives h(x) (m,) and H (m, n) for the rows (``model.predict(x, mk)``).
+    mk : Rows
+        The epoch's rows: values ``z_m`` (m,), m, and ``whiten`` (their noise).
+    xbar, Pbar : ndarray, shapes (n,), (n, n)
+        Predicted state and covariance.
+    max_iterations : int
+        1: the extended Kalman update.
+
+    Returns
+    -------
     x : ndarray, shape (n,)
     P : ndarray, shape (n, n)
-    A, Q : ndarray, shape (n, n)
-        Transition and process-noise covariance over the step.
-    known_input : ndarray, shape (n,), optional
-        The state change due to known inputs over the step (e.g. B u, or the exact response to
-        fired thruster pulses).
+    nis : float
     """
-    xb = A @ x if known_input is None else A @ x + known_input
-    Pb = A @ P @ A.T + Q
-    return xb, 0.5 * (Pb + Pb.T)
+    zw = mk.whiten(mk.z_m)
+    eye = np.eye(len(xbar))
+    Pinv = _cho_solve(_cho_factor(Pbar), eye)
+    xi = xbar.copy()
+    nis = np.nan
+    last = max(int(max_iterations), 1) - 1
+    for it in range(last + 1):
+        h, H = model.predict(xi, mk)
+        H = mk.whiten(H)
+        hw = mk.whiten(h)
+        cf = _cho_factor(Pinv + H.T @ H)
+        v = zw - hw - H @ (xbar - xi)               # whitened innovation at the iterate
+        if it == 0:
+            hv = H.T @ v
+            nis = float(v @ v - hv @ _cho_solve(cf, hv))
+        x_new = xbar + _cho_solve(cf, H.T @ v)
+        if it == last:                              # no convergence test after the last allowed step
+            xi = x_new
+            break
+        step = np.max(np.abs(x_new - xi))
+        xi = x_new
+        if step <= 1e-9 * max(1.0, float(np.max(np.abs(xi)))):
+            break
+    P = _cho_solve(cf, eye)
+    return xi, 0.5 * (P + P.T), nis
 
 
-def whiten(residual_m, H, sigma_m=None, noise_chol=None):
+def _cho_factor(M: np.ndarray) -> np.ndarray:
+    """Upper Cholesky factor of an SPD matrix: LAPACK potrf as ``scipy.linalg.cho_factor`` calls it,
+    without its wrapper's per-call cost (the filter calls it twice an epoch)."""
+    c, info = dpotrf(M, lower=0, clean=0)
+    if info > 0:
+        raise np.linalg.LinAlgError(f"{info}-th leading minor of the array is not positive definite")
+    if info < 0:
+        raise ValueError(f"potrf: illegal value in argument {-info}")
+    return c
+
+
+def _cho_solve(c: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """M⁻¹ b from the factor of :func:`_cho_factor` (LAPACK potrs, as ``scipy.linalg.cho_solve``)."""
+    x, info = dpotrs(c, b, lower=0)
+    if info != 0:
+        raise ValueError(f"potrs: illegal value in argument {-info}")
+    return x
+
+
+class _Whitened:
+    """Rows already whitened (noise I) and linearized at x̄, as both the model and its rows of
+    :func:`iterated_update`: z_w = ρ_w, h_w(x) = H_w (x − x̄)."""
+
+    def __init__(self, rw: np.ndarray, Hw: np.ndarray, xbar: np.ndarray):
+        self.z_m, self.Hw, self.xbar = rw, Hw, xbar
+
+    def whiten(self, v):
+        return v
+
+    def predict(self, x, rows):
+        return self.Hw @ (x - self.xbar), self.Hw
+
+
+def _whiten(residual_m, H, sigma_m=None, noise_chol=None):
     """Whitened rows: (ρ/σ, H/σ) for a diagonal noise, (L⁻¹ρ, L⁻¹H) for R = L Lᵀ."""
     r = np.asarray(residual_m, dtype=float)
     H = np.asarray(H, dtype=float)
@@ -45,8 +169,25 @@ def whiten(residual_m, H, sigma_m=None, noise_chol=None):
     return r / s, H / s[:, None]
 
 
+def predict(x: np.ndarray, P: np.ndarray, A: np.ndarray, Q: np.ndarray, known_input=None):
+    """x̄ = A x (+ known input), P̄ = A P Aᵀ + Q: :meth:`StepFilter.predict` as a function.
+
+    Parameters
+    ----------
+    x : ndarray, shape (n,)
+    P : ndarray, shape (n, n)
+    A, Q : ndarray, shape (n, n)
+        Transition and process-noise covariance over the step.
+    known_input : ndarray, shape (n,), optional
+        The state change due to known inputs over the step.
+    """
+    step = StepFilter(x, P)
+    step.predict(A, Q, known_input)
+    return step.x, step.P
+
+
 def update(xb: np.ndarray, Pb: np.ndarray, residual_m, H, sigma_m=None, noise_chol=None):
-    """Information-form measurement update of one epoch.
+    """The update of one epoch from rows linearized at x̄ (one step of :func:`iterated_update`).
 
     Parameters
     ----------
@@ -68,16 +209,6 @@ def update(xb: np.ndarray, Pb: np.ndarray, residual_m, H, sigma_m=None, noise_ch
     nis : float
         Normalized innovation squared ρᵀ S⁻¹ ρ with S = H P̄ Hᵀ + R (dof p).
     """
-    rw, Hw = whiten(residual_m, H, sigma_m, noise_chol)
-    info = _inverse_spd(Pb) + Hw.T @ Hw
-    c = cho_factor(info, lower=True)
-    v = Hw.T @ rw
-    dx = cho_solve(c, v)
-    P = cho_solve(c, np.eye(len(xb)))
-    return xb + dx, 0.5 * (P + P.T), float(rw @ rw - v @ dx)
-
-
-def _inverse_spd(M: np.ndarray) -> np.ndarray:
-    c = cho_factor(M, lower=True)
-    inv = cho_solve(c, np.eye(M.shape[0]))
-    return 0.5 * (inv + inv.T)
+    xb = np.asarray(xb, dtype=float)
+    w = _Whitened(*_whiten(residual_m, H, sigma_m, noise_chol), xb)
+    return iterated_update(w, w, xb, np.asarray(Pb, dtype=float), 1)

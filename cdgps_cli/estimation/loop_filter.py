@@ -1,9 +1,10 @@
 """The closed loop's estimator (1998 paper, Sec. IV–V): the EKF of Eqs. 19–23 run one step at a time
 at the control rate, from carrier phases whose biases are known from the initialization.
 
-It is the engine's information-form Kalman step (:func:`cdgps_cli.estimation.kalman.predict` and
-:func:`~cdgps_cli.estimation.kalman.update`) on the modal model, stepped by the caller between
-control periods, so the regulator can use each estimate before the next measurement.  Numerics only.
+It is the engine's forward filter step (:class:`cdgps_cli.estimation.kalman.StepFilter`: predict, and
+the information-form update through the measurement-model interface, not iterated) on the modal
+model, stepped by the caller between control periods, so the regulator can use each estimate before
+the next measurement.  Numerics only.
 """
 
 from __future__ import annotations
@@ -11,16 +12,42 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg import block_diag
 
-from cdgps_cli.estimation.kalman import predict, update
+from cdgps_cli.estimation.kalman import StepFilter
+from cdgps_cli.measurement.model import MeasurementModel, Rows
 
 #: prior σ of the estimator's initial modal state, per unit of ξ and ξ̇ (the loop starts from a
 #: converged initialization: the estimate starts at the truth with this small covariance)
 INITIAL_ESTIMATE_SIGMA = 1e-3
 
 
+class _LoopPhases(MeasurementModel):
+    """The loop's measurement model: every channel's phase h(x) = h_of(ξ) (+ its multipath state).
+
+    Parameters
+    ----------
+    h_of : callable
+        ``h_of(x) -> (h (C,), H (C, n))`` on the modal state.
+    n : int
+        Modal states.
+    n_mp : int
+        Multipath states (0, or one per channel after the modal states).
+    """
+
+    def __init__(self, h_of, n: int, n_mp: int):
+        self.h_of, self.n, self.n_mp = h_of, n, n_mp
+        self.n_state = n + n_mp
+
+    def predict(self, x, rows):
+        h, H = self.h_of(x[:self.n])
+        if self.n_mp:
+            H = np.hstack([H, np.eye(self.n_mp)])
+            h = h + x[self.n:]
+        return h, H
+
+
 class LoopFilter:
     """The control loop's EKF as a step filter: one :meth:`update` per measurement epoch, one
-    :meth:`predict` per control period, on the engine's Kalman step (:mod:`cdgps_cli.estimation.kalman`).
+    :meth:`predict` per control period, on the engine's step (:class:`~cdgps_cli.estimation.kalman.StepFilter`).
 
     The state is the structure's n modal states, plus C first-order Gauss–Markov phase-error states
     (one per channel, :mod:`cdgps_cli.measurement.multipath`) when ``multipath`` is active — the
@@ -51,8 +78,8 @@ class LoopFilter:
 
     def start(self, x0):
         """Estimate at the truth with covariance (INITIAL_ESTIMATE_SIGMA)² I; multipath at its stationary prior."""
-        self.xb = np.concatenate([x0, np.zeros(self.C)])
-        self.Pb = np.diag(np.r_[np.full(self.n, INITIAL_ESTIMATE_SIGMA**2), np.full(self.C, self.prior_m**2 if self.C else 0.0)])
+        P0 = np.diag(np.r_[np.full(self.n, INITIAL_ESTIMATE_SIGMA**2), np.full(self.C, self.prior_m**2 if self.C else 0.0)])
+        self.step = StepFilter(np.concatenate([x0, np.zeros(self.C)]), P0)
 
     def update(self, z_m, h_of, sigma):
         """The update with one epoch's phases.
@@ -75,13 +102,11 @@ class LoopFilter:
         nis : float
             Normalized innovation squared of the epoch.
         """
-        h_bar, H = h_of(self.xb[:self.n])
-        if self.C:
-            H = np.hstack([H, np.eye(self.C)])
-            h_bar = h_bar + self.xb[self.n:]
-        self.x, self.P, nis = update(self.xb, self.Pb, z_m - h_bar, H, sigma)
-        return self.x[:self.n], self.P[:self.n, :self.n], nis
+        z = np.asarray(z_m, dtype=float)
+        rows = Rows(z, [], np.full(z.size, -1), sigma_m=np.broadcast_to(np.asarray(sigma, dtype=float), z.shape))
+        nis = self.step.update(_LoopPhases(h_of, self.n, self.C), rows, max_iterations=1)
+        return self.step.x[:self.n], self.step.P[:self.n, :self.n], nis
 
     def predict(self, known):
         """Predict over one period; ``known`` (n,) is the modal state change of the firings commanded."""
-        self.xb, self.Pb = predict(self.x, self.P, self.A, self.Q, np.concatenate([known, np.zeros(self.C)]))
+        self.step.predict(self.A, self.Q, np.concatenate([known, np.zeros(self.C)]))

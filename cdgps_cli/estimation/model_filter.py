@@ -3,15 +3,18 @@
 
 :func:`filter_numpy` is the reference path: an iterated extended Kalman filter whose measurement
 update is in information form on the rows whitened by their noise (diagonal σ or the Cholesky
-factor of a full covariance, so R = I after whitening).  Integrity is given to it as hooks on the
-rows of each epoch (``rows_hook``, e.g. :func:`outlier_gate`).  The smoother of its outputs (``A``, ``Q``
-per epoch) is :func:`cdgps_cli.estimation.smoother.rts_smooth_transitions`.
+factor of a full covariance, so R = I after whitening); its loop body is the engine's step
+(:class:`cdgps_cli.estimation.kalman.StepFilter`, :func:`~cdgps_cli.estimation.kalman.iterated_update`).
+Integrity is given to it as hooks on the rows of each epoch (``rows_hook``, e.g. :func:`outlier_gate`).
+The smoother of its outputs (``A``, ``Q`` per epoch) is
+:func:`cdgps_cli.estimation.smoother.rts_smooth_transitions`.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg.lapack import dpotrf, dpotrs
+
+from cdgps_cli.estimation.kalman import StepFilter, iterated_update
 
 __all__ = ["filter_numpy", "iterated_update", "outlier_gate", "filter_dd_kernel"]
 
@@ -50,73 +53,25 @@ def filter_numpy(model, dyn, time_s, x0, P0, max_iterations: int = 5, rows_hook=
     m = n if history else 0
     out = {"x": np.zeros((m, ns)), "P": np.zeros((m, ns, ns)), "A": np.zeros((m, ns, ns)), "Q": np.zeros((m, ns, ns)),
            "nis": np.full(n, np.nan), "nis_dof": np.zeros(n, dtype=np.int64), "rows": [None] * m}
-    x, P = np.array(x0, dtype=float), np.array(P0, dtype=float)
+    step = StepFilter(x0, P0)
     for k in range(n):
         if k:
             A, _, Q = dyn.transition(float(time_s[k] - time_s[k - 1]))
             if history:
                 out["A"][k], out["Q"][k] = A, Q
-            x = A @ x
-            P = A @ P @ A.T + Q
+            step.predict(A, Q)
         mk = model.rows(k)
         if mk is not None and rows_hook is not None:
-            mk = rows_hook(k, mk, x, P)
+            mk = rows_hook(k, mk, step.x, step.P)
         if mk is not None:
-            x, P, out["nis"][k] = iterated_update(model, mk, x, P, max_iterations)
+            out["nis"][k] = step.update(model, mk, max_iterations)
             out["nis_dof"][k] = mk.z_m.size
         if history:
             out["rows"][k] = mk
-            out["x"][k], out["P"][k] = x, P
+            out["x"][k], out["P"][k] = step.x, step.P
     if not history:
-        out["x"], out["P"] = x, P
+        out["x"], out["P"] = step.x, step.P
     return out
-
-
-def iterated_update(model, mk, xbar, Pbar, max_iterations: int = 5):
-    """(x, P, NIS) of one iterated information-form update on the whitened rows ``mk``.
-
-    NIS uses the prior linearization: νᵀ(HPHᵀ + I)⁻¹ν = νᵀν − νᵀH(P⁻¹ + HᵀH)⁻¹Hᵀν (whitened ν, H).
-    """
-    zw = mk.whiten(mk.z_m)
-    eye = np.eye(len(xbar))
-    Pinv = _cho_solve(_cho_factor(Pbar), eye)
-    xi = xbar.copy()
-    nis = np.nan
-    for it in range(max(int(max_iterations), 1)):
-        h, H = model.predict(xi, mk)
-        H = mk.whiten(H)
-        hw = mk.whiten(h)
-        cf = _cho_factor(Pinv + H.T @ H)
-        v = zw - hw - H @ (xbar - xi)               # whitened innovation at the iterate
-        if it == 0:
-            hv = H.T @ v
-            nis = float(v @ v - hv @ _cho_solve(cf, hv))
-        x_new = xbar + _cho_solve(cf, H.T @ v)
-        step = np.max(np.abs(x_new - xi))
-        xi = x_new
-        if step <= 1e-9 * max(1.0, float(np.max(np.abs(xi)))):
-            break
-    P = _cho_solve(cf, eye)
-    return xi, 0.5 * (P + P.T), nis
-
-
-def _cho_factor(M: np.ndarray) -> np.ndarray:
-    """Upper Cholesky factor of an SPD matrix: LAPACK potrf as ``scipy.linalg.cho_factor`` calls it,
-    without its wrapper's per-call cost (the filter calls it twice an epoch)."""
-    c, info = dpotrf(M, lower=0, clean=0)
-    if info > 0:
-        raise np.linalg.LinAlgError(f"{info}-th leading minor of the array is not positive definite")
-    if info < 0:
-        raise ValueError(f"potrf: illegal value in argument {-info}")
-    return c
-
-
-def _cho_solve(c: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """M⁻¹ b from the factor of :func:`_cho_factor` (LAPACK potrs, as ``scipy.linalg.cho_solve``)."""
-    x, info = dpotrs(c, b, lower=0)
-    if info != 0:
-        raise ValueError(f"potrs: illegal value in argument {-info}")
-    return x
 
 
 def outlier_gate(model, outlier_sigma: float, events: list, time_s=None):
@@ -175,13 +130,13 @@ def filter_dd_kernel(model, dyn, time_s, x0, P0, max_iterations: int = 5, outlie
     out["A"][1:], out["Q"][1:] = A, Q
     f, i64 = kernel._f64, kernel._i64
     arrays = (f(pk.L), f(pk.z_m), f(pk.var_m2), f(pk.srows), i64(pk.ant), f(pk.hconst_m), i64(pk.m), stop)
-    x, P = np.array(x0, dtype=float), np.array(P0, dtype=float)
+    step = StepFilter(x0, P0)                                  # the kernel steps step.x, step.P in place
     hook = outlier_gate(model, outlier_sigma, events, time_s)
     k = 0
     while k < N:
-        k, reason = kernel._ekfcore.dd_span(gi, gf, *kernel.csr(A), f(Q), *arrays, x, P, out["x"], out["P"],
-                                            out["nis"], out["nis_dof"], N, ns, C, k, N, int(max_iterations),
-                                            float(outlier_sigma))
+        k, reason = kernel._ekfcore.dd_span(gi, gf, *kernel.csr(A), f(Q), *arrays, step.x, step.P, out["x"],
+                                            out["P"], out["nis"], out["nis_dof"], N, ns, C, k, N,
+                                            int(max_iterations), float(outlier_sigma))
         if k >= N:
             break
         if reason not in (1, 3):                               # a Cholesky failure: not a hook's epoch
@@ -189,14 +144,14 @@ def filter_dd_kernel(model, dyn, time_s, x0, P0, max_iterations: int = 5, outlie
         if k:
             Ak, _, Qk = dyn.transition(float(time_s[k] - time_s[k - 1]))
             out["A"][k], out["Q"][k] = Ak, Qk
-            x, P = Ak @ x, Ak @ P @ Ak.T + Qk
+            step.predict(Ak, Qk)
         mk = model.rows(k)
-        mk = hook(k, mk, x, P) if mk is not None else None
+        mk = hook(k, mk, step.x, step.P) if mk is not None else None
         if mk is not None:
             out["rows"][k] = mk
-            x, P, out["nis"][k] = iterated_update(model, mk, x, P, max_iterations)
+            out["nis"][k] = step.update(model, mk, max_iterations)
             out["nis_dof"][k] = mk.z_m.size
-        out["x"][k], out["P"][k] = x, P
-        x, P = x.copy(), P.copy()
+        out["x"][k], out["P"][k] = step.x, step.P
+        step.x, step.P = step.x.copy(), step.P.copy()
         k += 1
     return out

@@ -18,7 +18,18 @@ iterated extended Kalman smoother (Gauss–Newton on the batch cost), O(N) per i
   P_k|N = A⁻¹[(I − QȲ)P_{k+1}|N(I − ȲQ) + Q − QȲQ]A⁻ᵀ,
   valid also where the filtered covariance does not exist yet (first epochs: no velocity information).
 
-The first linearization is a backward EKF from INIT's state at the window end.  The iteration stops
+Why this pass is in information form and not the engine's forward filter + RTS smoother
+(:class:`cdgps_cli.estimation.kalman.StepFilter`, :mod:`cdgps_cli.estimation.smoother`): the batch has
+no prior on the first state nor on the float biases (a diffuse start), which the covariance form
+cannot represent, and its RTS smoother needs a filtered covariance at every epoch, which does not
+exist before the velocities and biases are observed.  With a broad prior P₀ = s² I instead, the
+engine misses the batch by ≈ 7·10⁻³/s² (relative: the prior's weight) until cancellation
+(cond ~ s²/σ²) takes over: on the linear case of tests/estimation/test_window_smoother.py its best,
+s = 10³, is 7e-9 off in x and 5e-8 in P, and s = 10⁸ fails its Cholesky, where this pass is within
+2e-13 and 1.5e-15 (benchmarks/window_information_form.py, docs/benchmarks/window-information-form.json).
+
+The first linearization is a backward EKF from INIT's state at the window end (the engine's step,
+:class:`cdgps_cli.estimation.kalman.StepFilter`, on the pseudolite SD model).  The iteration stops
 when the largest step of a modal position (h depends on nothing else) is below 1e-3 of its σ, so
 the solution is within ~1e-6 σ of the batch's (quadratic convergence from a trajectory that is
 already at the filter's accuracy: 2–3 iterations; exact after 2 on a linear model).  Like the batch, the window
@@ -39,7 +50,9 @@ from scipy.linalg import cho_factor, cho_solve
 
 from cdgps_cli.model.dynamics import discrete_model
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.measurement.phase import EpochPhaseModel, phase_model
+from cdgps_cli.estimation.kalman import StepFilter
+from cdgps_cli.measurement.model import PseudoliteSD
+from cdgps_cli.measurement.phase import phase_model
 from cdgps_cli.measurement import multipath
 from cdgps_cli.core.records import Run
 from cdgps_cli.measurement.noise import init_channel_sigma_m
@@ -205,29 +218,23 @@ def _backward(A_inv, Q, Ybar, ybar, Y_end, y_end):
 
 
 def _backward_ekf(cfg, wd, A_inv, Q, x_end, P_end, seg_bias, sigma):
-    """First linearization: an EKF backward in time from INIT's end state (all biases as INIT's)."""
-    N, C = wd.y_m.shape
+    """First linearization: the engine's step (:class:`~cdgps_cli.estimation.kalman.StepFilter`, the
+    pseudolite SD model, one EKF update an epoch) run backward in time from INIT's end state, all
+    biases as INIT's: x_k = A⁻¹ x_{k+1}, P_k = A⁻¹ P_{k+1} A⁻ᵀ + A⁻¹ Q A⁻ᵀ."""
+    N = wd.y_m.shape[0]
     n = len(x_end)
-    model = EpochPhaseModel(cfg, wd.ant, wd.tx)
     b = np.where(wd.segment >= 0, seg_bias[np.maximum(wd.segment, 0)], np.nan)
-    sig_c = np.broadcast_to(np.asarray(sigma, dtype=float), (C,))
+    model = PseudoliteSD(cfg, wd.y_m - b, wd.ant, wd.tx, sigma)
+    Q_back = A_inv @ Q[:n, :n] @ A_inv.T
+    step = StepFilter(x_end, P_end)
     xs = np.empty((N, n))
-    x, P = x_end.copy(), P_end.copy()
-    xs[-1] = x
+    xs[-1] = step.x
     for k in range(N - 2, -1, -1):
-        x = A_inv @ x
-        P = A_inv @ (P + Q[:n, :n]) @ A_inv.T
-        ok = ~np.isnan(wd.y_m[k]) & ~np.isnan(b[k])
-        if ok.any():
-            # information-form update (n × n instead of channels × channels)
-            h, Hx = model(x)
-            Hk = Hx[ok]
-            rho = wd.y_m[k, ok] - h[ok] - b[k, ok]
-            w = 1.0 / sig_c[ok]**2
-            P = np.linalg.inv(np.linalg.inv(P) + Hk.T @ (w[:, None] * Hk))
-            P = 0.5 * (P + P.T)
-            x = x + P @ (Hk.T @ (w * rho))
-        xs[k] = x
+        step.predict(A_inv, Q_back)
+        rows = model.rows(k)
+        if rows is not None:
+            step.update(model, rows, max_iterations=1)
+        xs[k] = step.x
     return xs
 
 

@@ -39,6 +39,7 @@ import numpy as np
 import pandas as pd
 
 from cdgps_cli.core import progress
+from cdgps_cli.core.checks import header_position_m
 from cdgps_cli.io.atomic import path_for_config
 from cdgps_cli.config.structure import GnssConfig, gnss_config_toml, parse_gnss_config
 from cdgps_cli.core.errors import CdgpsError
@@ -386,16 +387,6 @@ def span_text(t) -> str:
     return f"{gps_time_str(float(t.min()))} – {gps_time_str(float(t.max()))}" if t.size else "no epochs"
 
 
-def _header_position(h: dict):
-    pos = h.get("approx_position_xyz_m")
-    if pos is None:
-        return None
-    pos = np.asarray(pos, dtype=np.float64)
-    if pos.shape != (3,) or not np.all(np.isfinite(pos)) or np.linalg.norm(pos) < 6.0e6:
-        return None
-    return pos
-
-
 @dataclass
 class IngestInputs:
     """The inputs of a GNSS ingest, read and checked for what needs no model (:func:`read_ingest_inputs`).
@@ -505,9 +496,9 @@ def nominal_positions(cfg: GnssConfig, inp: IngestInputs) -> dict:
         a = cfg.antenna(n)
         if a is not None and a.position_ecef_m is not None:
             pos_src[n] = ("config position_ecef_m", list(a.position_ecef_m))
-        elif _header_position(rx.header) is not None:
+        elif header_position_m(rx.header) is not None:
             pos_src[n] = (rx.header.get("position_source") or "RINEX header APPROX POSITION XYZ",
-                          _header_position(rx.header).tolist())
+                          header_position_m(rx.header).tolist())
         else:
             pos_src[n] = (None, None)
     rovers = [n for n in receivers if n != master]
@@ -765,7 +756,7 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
         rx = read_receiver_file(n, "rinex", p)
         h = rx.header
         t = np.unique(rx.raw["time_gps_s"].to_numpy())
-        pos = _header_position(h)
+        pos = header_position_m(h)
         if pos is not None:
             with_pos.append(n)
         comments.append(f"{n}: {Path(p).name}, RINEX {float(h.get('version') or 0):.2f}, marker {h.get('marker_name') or '?'}, receiver "
