@@ -42,3 +42,19 @@ def kernel(enabled: bool):
             os.environ.pop("CDGPS_NO_KERNEL", None)
         else:
             os.environ["CDGPS_NO_KERNEL"] = old
+
+
+def run_cli(*args):
+    """``cdgps ARGS…`` in-process (Click's runner); the result (``exit_code``, ``output``)."""
+    from click.testing import CliRunner  # noqa: PLC0415
+
+    from cdgps_cli.cli.commands import main  # noqa: PLC0415
+
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def run_commands(*commands) -> None:
+    """Run each ``cdgps`` command (a tuple of arguments) quietly; assert that every one succeeds."""
+    for args in commands:
+        r = run_cli("-q", *args)
+        assert r.exit_code == 0, (args, r.output)

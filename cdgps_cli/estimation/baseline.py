@@ -208,11 +208,15 @@ class BaselineOptions:
 
 class Station(NamedTuple):
     """One receiver: a name, the RINEX header dict and the observation table of
-    :func:`~cdgps_cli.io.rinex.read_rinex_obs`."""
+    :func:`~cdgps_cli.io.rinex.read_rinex_obs`; optionally its multi-signal table
+    (:func:`~cdgps_cli.io.rinex_signals.read_rinex_signals`: ``time_gps_s``, ``sat``, ``signal``,
+    ``phase_cycles``, ``pseudorange_m``, ``lli``, ``wavelength_m``), whose signals are then the
+    observations (:mod:`cdgps_cli.estimation.baseline_signals`)."""
 
     name: str
     header: dict
     obs: pd.DataFrame
+    signals: pd.DataFrame | None = None
 
 
 # ----------------------------------------------------------------------------------------------
@@ -252,6 +256,33 @@ class _Data(NamedTuple):
     reset_epochs: np.ndarray
     interval_s: float
     info: dict
+    group: np.ndarray | None = None     # (N,) signal group of each row (None: GPS L1 only, one group)
+    group_names: tuple = ("G:L1",)      # signal of each group
+    lam_m: float | np.ndarray = GPS_L1_WAVELENGTH_M    # wavelength, m: one, or (N,) per row
+
+
+def _group_masks(d: _Data) -> list:
+    """Rows of each signal group (``[None]``: one group, all rows).  DDs are formed within a group,
+    each with its own reference satellite; groups share no DD (inter-system and inter-frequency
+    receiver biases cancel)."""
+    group = getattr(d, "group", None)
+    if group is None:
+        return [None]
+    return [group == k for k in range(len(d.group_names))]
+
+
+def _lam(d: _Data):
+    """Wavelength of the rows, m: GPS L1's, or (N,) per row (signal groups)."""
+    return getattr(d, "lam_m", GPS_L1_WAVELENGTH_M)
+
+
+def _block_of_row(d: _Data) -> tuple[np.ndarray, int]:
+    """(epoch, group) block of each row (rows are sorted by epoch, group, satellite) and their number."""
+    n_ep = d.t_label.size
+    if getattr(d, "group", None) is None:
+        return d.epoch, n_ep
+    n_g = len(d.group_names)
+    return d.epoch * n_g + d.group, n_ep * n_g
 
 
 class _Epochs(NamedTuple):
@@ -392,7 +423,27 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
         },
         "below_mask_sd_rows": {str(k): int(v) for k, v in below.items()},
     }
+    if master.signals is not None and rover.signals is not None:
+        return _signal_data(master, rover, (om, orv), (clk_m, clk_r), j, t_label, nav, (master_xyz, rover_xyz), opt,
+                            ce.interval_s, info, warnings)
     return _sd_data(j, sel, gb, gr, t_label, ce.interval_s, info)
+
+
+def _signal_data(master: Station, rover: Station, l1_rows, clocks, j, t_label, nav, xyz, opt: BaselineOptions,
+                 interval: float, info: dict, warnings: list) -> _Data:
+    """The signal groups' SD rows (:func:`~cdgps_cli.estimation.baseline_signals.signal_sd_fields`) on the
+    epochs and clocks of the GPS L1 rows; receiver resets from the L1 epoch flags."""
+    from cdgps_cli.estimation.baseline_signals import signal_sd_fields  # noqa: PLC0415
+
+    if opt.epoch_alignment != "geometry":
+        raise CdgpsError(f"epoch_alignment {opt.epoch_alignment!r} is not available with [gnss] signals: the signal "
+                         f"rows are modelled at their own reception instants (use epoch_alignment = \"geometry\")")
+    f = signal_sd_fields(master.signals, rover.signals, l1_rows[0], l1_rows[1], clocks[0], clocks[1], t_label, nav,
+                         xyz[0], xyz[1], mask_rad=math.radians(opt.mask_deg), troposphere=opt.troposphere,
+                         names=(_where(master), _where(rover)), warnings=warnings)
+    reset = np.unique(j["ep"].to_numpy()[(j["epoch_flag_r"].to_numpy() == 1) | (j["epoch_flag_b"].to_numpy() == 1)])
+    info = dict(info, below_mask_sd_rows=None, **f.pop("info"))
+    return _Data(t_label=t_label, reset_epochs=reset.astype(np.int64), interval_s=interval, info=info, **f)
 
 
 def _sd_data(j: pd.DataFrame, sel, gb: dict, gr: dict, t_label, interval: float, info: dict) -> _Data:
@@ -453,10 +504,12 @@ def _center(epoch: np.ndarray, r: np.ndarray, n_ep: int, usable=None) -> np.ndar
     return r - mean[epoch]
 
 
-def _accumulate(blocks, g, r, col, n_par: int, lam: float):
+def _accumulate(blocks, g, r, col, n_par: int, lam):
     """Normal equations Σ_k [G λE]ᵀ P_k [G λE] and right side from per-epoch DD weight blocks.
 
-    ``col[i]`` is the parameter index (≥ 3) of row i's ambiguity, or −1 (known / datum)."""
+    ``col[i]`` is the parameter index (≥ 3) of row i's ambiguity, or −1 (known / datum); ``lam`` the
+    wavelength (m), one for all rows or (N,) per row (signal groups)."""
+    per_row = np.ndim(lam) > 0
     nmat = np.zeros((n_par, n_par))
     rhs = np.zeros(n_par)
     size = n_par + 1
@@ -472,14 +525,16 @@ def _accumulate(blocks, g, r, col, n_par: int, lam: float):
         c = col[rows]
         cc = np.where(c >= 0, c, n_par)    # dummy slot for rows without an unknown ambiguity
         lin = (cc[:, :, None] * size + cc[:, None, :]).ravel()
-        nmat += (np.bincount(lin, weights=(lam * lam * p).ravel(), minlength=size * size)
+        lk = lam[rows] if per_row else lam
+        lpl = (lk[:, :, None] * p * lk[:, None, :]) if per_row else lam * lam * p
+        nmat += (np.bincount(lin, weights=lpl.ravel(), minlength=size * size)
                  .reshape(size, size)[:n_par, :n_par])
         flat_c = cc.ravel()
         for q in range(3):  # cross terms λ·(P G)[i, q] at (ambiguity of row i, q); c >= 3, so x block untouched
-            v = np.bincount(flat_c, weights=lam * pg[:, :, q].ravel(), minlength=size)[:n_par]
+            v = np.bincount(flat_c, weights=(lk * pg[:, :, q]).ravel(), minlength=size)[:n_par]
             nmat[:, q] += v
             nmat[q, :] += v
-        rhs += np.bincount(flat_c, weights=lam * pr.ravel(), minlength=size)[:n_par]
+        rhs += np.bincount(flat_c, weights=(lk * pr).ravel(), minlength=size)[:n_par]
     return nmat, rhs
 
 
@@ -524,8 +579,8 @@ def _float_random_walk(d: _Data, sg: "_Segments", w: "_Weights", fl: "_Float", o
     """
     n_amb = sg.n_par - 3
     par = sg.par_of_seg[sg.seg]
-    obs = [SDObservations(fl.r_ph, w.var_ph, w.ref_ph, ambiguity_col=np.where(par >= 0, par - 3, -1)),
-           SDObservations(fl.r_cd, w.var_code, w.ref_code, usable=w.code_ok, kind="code")]
+    acol = np.where(par >= 0, par - 3, -1)
+    obs = _group_observations(d, w, fl.r_ph, acol) + _group_observations(d, w, fl.r_cd, None)
     model = SatelliteDDDisplacement(d.ptr, d.sat, d.sat_names, fl.g, obs, n_ambiguities=n_amb)
     dyn = WithConstants(RandomWalk(3, opt.random_walk_sigma), n_amb)
     P0 = np.diag(np.r_[np.full(3, opt.initial_sigma_m**2), np.full(n_amb, AMBIGUITY_PRIOR_SIGMA_CYCLES**2)])
@@ -557,7 +612,8 @@ class _Segments(NamedTuple):
 
 
 class _Weights(NamedTuple):
-    """SD variances, reference rows and DD weight blocks of the phase and code rows."""
+    """SD variances, reference rows and DD weight blocks of the phase and code rows (the blocks of
+    every signal group; ``refs_*`` one reference array per group, ``ref_*`` the first group's)."""
 
     var_ph: np.ndarray
     ref_ph: np.ndarray
@@ -567,6 +623,25 @@ class _Weights(NamedTuple):
     ref_code: np.ndarray
     blocks_code: list
     y_code: np.ndarray         # SD pseudorange, 0 where missing
+    refs_ph: list
+    refs_code: list
+
+
+def _group_observations(d: _Data, w: _Weights, r, acol, usable=None) -> list:
+    """The engine's DD observations of SD residuals ``r``: one per signal group (own reference,
+    own wavelength); ``acol`` the ambiguity column of each row (None: pseudorange, the code
+    references)."""
+    out = []
+    phase = acol is not None
+    base_use = usable if phase else w.code_ok
+    for k, m in enumerate(_group_masks(d)):
+        use = base_use if m is None else (m if base_use is None else base_use & m)
+        if not phase:
+            out.append(SDObservations(r, w.var_code, w.refs_code[k], usable=use, kind="code"))
+            continue
+        lam = None if m is None else float(_lam(d)[np.argmax(m)])
+        out.append(SDObservations(r, w.var_ph, w.refs_ph[k], usable=use, ambiguity_col=acol, wavelength_m=lam))
+    return out
 
 
 class _Float(NamedTuple):
@@ -627,7 +702,7 @@ def _segments(d: _Data, opt: BaselineOptions) -> _Segments:
     seg, segtab = ambiguity_segments(d.epoch, d.sat, d.slip, epoch_time_s=d.t_label, max_gap_s=opt.max_gap_s,
                                      reset_epochs=d.reset_epochs)
     n_seg = segtab["sat"].size
-    pivots, comp = ambiguity_datum(d.epoch, seg, n_seg)
+    pivots, comp = ambiguity_datum(_block_of_row(d)[0], seg, n_seg)     # one datum per signal group
     is_pivot = np.zeros(n_seg, dtype=bool)
     is_pivot[pivots] = True
     seg_half = np.bincount(seg, weights=d.half.astype(float), minlength=n_seg) > 0
@@ -641,27 +716,33 @@ def _weights(d: _Data, opt: BaselineOptions) -> _Weights:
     """SD variances and DD weights of the phase rows and of the code rows (its own references)."""
     var_ph = sd_variance(d.el_rover, d.el_base, sigma_a_m=opt.sigma_a_m, sigma_b_m=opt.sigma_b_m, weighting=opt.weighting)
     var_code = var_ph * opt.code_ratio**2
-    ref_ph = select_reference(d.ptr, d.sat, d.el_rover, d.slip)
-    blocks_ph = dd_weight_blocks(d.ptr, var_ph, ref_ph)
     code_ok = np.isfinite(d.y_code_m)
-    ref_code = select_reference(d.ptr, d.sat, d.el_rover, usable=code_ok)
-    blocks_code = dd_weight_blocks(d.ptr, var_code, ref_code, usable=code_ok)
-    return _Weights(var_ph, ref_ph, blocks_ph, code_ok, var_code, ref_code, blocks_code, np.where(code_ok, d.y_code_m, 0.0))
+    refs_ph, refs_code, blocks_ph, blocks_code = [], [], [], []
+    for m in _group_masks(d):
+        ref_ph = select_reference(d.ptr, d.sat, d.el_rover, d.slip, usable=m)
+        blocks_ph += dd_weight_blocks(d.ptr, var_ph, ref_ph, usable=m)
+        cm = code_ok if m is None else (code_ok & m)
+        ref_code = select_reference(d.ptr, d.sat, d.el_rover, usable=cm)
+        blocks_code += dd_weight_blocks(d.ptr, var_code, ref_code, usable=cm)
+        refs_ph.append(ref_ph)
+        refs_code.append(ref_code)
+    return _Weights(var_ph, refs_ph[0], blocks_ph, code_ok, var_code, refs_code[0], blocks_code,
+                    np.where(code_ok, d.y_code_m, 0.0), refs_ph, refs_code)
 
 
 def _residuals(d: _Data, xr, r_enu, a_seg, seg, w: _Weights, code: bool = True):
     """Design g (N, 3) at rover position xr and the epoch-centred SD phase (and code) residuals, m."""
-    n_ep = d.t_label.size
+    block, n_blocks = _block_of_row(d)       # the clock (and each group's receiver bias) removed per block
     model, g = _rover_model(d, xr, r_enu)
-    r_ph = _center(d.epoch, d.y_phase_m - model - GPS_L1_WAVELENGTH_M * a_seg[seg], n_ep)
-    r_cd = _center(d.epoch, w.y_code - model, n_ep, w.code_ok) if code else None
+    r_ph = _center(block, d.y_phase_m - model - _lam(d) * a_seg[seg], n_blocks)
+    r_cd = _center(block, w.y_code - model, n_blocks, w.code_ok) if code else None
     return g, r_ph, r_cd
 
 
 def _float_solution(d: _Data, sg: _Segments, w: _Weights, xr0, r_enu, opt: BaselineOptions) -> _Float:
     """Float solution from phase and code DDs: Gauss–Newton on [δx, free SD ambiguities]."""
     # start the SD ambiguities from code-minus-phase (keeps the numbers small), relative to the pivots
-    cmp_ = np.where(w.code_ok, (d.y_phase_m - w.y_code) / GPS_L1_WAVELENGTH_M, np.nan)
+    cmp_ = np.where(w.code_ok, (d.y_phase_m - w.y_code) / _lam(d), np.nan)
     a0 = pd.Series(cmp_).groupby(sg.seg).mean().reindex(range(sg.n_seg)).fillna(0.0).to_numpy()
     a_seg = np.round(a0 - a0[sg.pivots][sg.comp])
     a_seg[sg.is_pivot] = 0.0
@@ -670,8 +751,8 @@ def _float_solution(d: _Data, sg: _Segments, w: _Weights, xr0, r_enu, opt: Basel
     it_float = 0
     for it_float in range(1, opt.max_iterations + 1):
         g, r_ph, r_cd = _residuals(d, xr0 + r_enu.T @ x_enu, r_enu, a_seg, sg.seg, w)
-        n1, b1 = _accumulate(w.blocks_ph, g, r_ph, col, sg.n_par, GPS_L1_WAVELENGTH_M)
-        n2, b2 = _accumulate(w.blocks_code, g, r_cd, None, sg.n_par, GPS_L1_WAVELENGTH_M)
+        n1, b1 = _accumulate(w.blocks_ph, g, r_ph, col, sg.n_par, _lam(d))
+        n2, b2 = _accumulate(w.blocks_code, g, r_cd, None, sg.n_par, _lam(d))
         nmat, rhs = n1 + n2, b1 + b2
         cf, dx = _solve(nmat, rhs, "float solution")
         x_enu = x_enu + dx[:3]
@@ -782,7 +863,7 @@ def _fixed_solution(d: _Data, sg: _Segments, w: _Weights, fl: _Float, fx: _Fix, 
     it_fix = 0
     for it_fix in range(1, opt.max_iterations + 1):
         g, r_ph, _ = _residuals(d, xr0 + r_enu.T @ x_fix, r_enu, a_fix, sg.seg, w, code=False)
-        nmat, rhs = _accumulate(w.blocks_ph, g, r_ph, col2, n_par2, GPS_L1_WAVELENGTH_M)
+        nmat, rhs = _accumulate(w.blocks_ph, g, r_ph, col2, n_par2, _lam(d))
         cf2, dx = _solve(nmat, rhs, "fixed solution")
         x_fix = x_fix + dx[:3]
         a_fix[unk] += dx[3:]
@@ -797,15 +878,17 @@ def _fixed_solution(d: _Data, sg: _Segments, w: _Weights, fl: _Float, fx: _Fix, 
         "sigma_enu_m": np.sqrt(np.diag(q_fix)[:3]).tolist(),
         "iterations": it_fix,
         "unit_variance": sq / dof if dof > 0 else None,
-        "observations": "L1 carrier phase only",
+        "observations": ("L1 carrier phase only" if getattr(d, "group", None) is None
+                         else f"carrier phase only ({', '.join(d.group_names)})"),
     }
     kind = "fixed" if n_fixed == sg.free.size else "partially fixed"
     return _Final(block, x_fix, kind, a_fix, known_seg, q_fix[:3, :3], g, r_ph)
 
 
-def _residual_summary(d: _Data, ref_ph, r_ph, n_dd_code: int) -> dict:
-    """DD phase residuals of the reported solution: RMS, largest, per satellite."""
-    dd_res = double_differences(d.ptr, ref_ph, r_ph)
+def _residual_summary(d: _Data, w: _Weights, r_ph, n_dd_code: int) -> dict:
+    """DD phase residuals of the reported solution (every signal group): RMS, largest, per satellite."""
+    parts = [double_differences(d.ptr, ref, r_ph, usable=m) for m, ref in zip(_group_masks(d), w.refs_ph)]
+    dd_res = {k: np.concatenate([p[k] for p in parts]) for k in ("value", "row")}
     res_v = dd_res["value"]
     return {
         "dd_phase_rms_m": float(np.sqrt(np.mean(res_v**2))) if res_v.size else None,
@@ -820,33 +903,32 @@ def _residual_summary(d: _Data, ref_ph, r_ph, n_dd_code: int) -> dict:
 
 
 def _single_epoch_positions(d: _Data, w: _Weights, fin: _Final, seg, opt: BaselineOptions):
-    """Every epoch solved alone from its phase DDs with the known ambiguities → (epoch, ENU m, n_sat,
-    PDOP, covariance m²) sorted by epoch, or None when no epoch has enough satellites."""
+    """Every epoch solved alone from its phase DDs (all signal groups) with the known ambiguities →
+    (epoch, ENU m, n_sat, PDOP, covariance m²) by epoch, or None when no epoch has enough satellites.
+    ``n_sat`` counts satellite-signal rows; an epoch needs ``min_sats_kinematic`` − 1 DDs."""
     usable = fin.known_seg[seg]
-    ref_k = select_reference(d.ptr, d.sat, d.el_rover, d.slip, usable=usable)
-    blocks_k = dd_weight_blocks(d.ptr, w.var_ph, ref_k, usable=usable)
-    ep_list, enu_list, ns_list, pdop_list, cov_list = [], [], [], [], []
-    for rows, p in blocks_k:
-        if rows.shape[1] < opt.min_sats_kinematic:
-            continue
-        gk, rk = fin.g[rows], fin.r_ph[rows]
-        nk = np.einsum("kic,kij,kjd->kcd", gk, p, gk)
-        bk = np.einsum("kic,kij,kj->kc", gk, p, rk)
-        ck = np.linalg.inv(nk)
-        dk = np.einsum("kcd,kd->kc", ck, bk)
-        gc = gk - gk.mean(axis=1, keepdims=True)       # geometry with the clock eliminated
-        pdop = np.sqrt(np.trace(np.linalg.inv(np.einsum("kic,kid->kcd", gc, gc)), axis1=1, axis2=2))
-        ep_list.append(d.epoch[rows[:, 0]])
-        enu_list.append(fin.x + dk)
-        ns_list.append(np.full(rows.shape[0], rows.shape[1]))
-        pdop_list.append(pdop)
-        cov_list.append(ck)
-    if not ep_list:
+    n_ep = d.t_label.size
+    nmat, rhs, gcg = np.zeros((n_ep, 3, 3)), np.zeros((n_ep, 3)), np.zeros((n_ep, 3, 3))
+    n_sat, n_dd = np.zeros(n_ep, dtype=np.int64), np.zeros(n_ep, dtype=np.int64)
+    for m in _group_masks(d):
+        u = usable if m is None else usable & m
+        ref_k = select_reference(d.ptr, d.sat, d.el_rover, d.slip, usable=u)
+        for rows, p in dd_weight_blocks(d.ptr, w.var_ph, ref_k, usable=u):
+            gk, rk = fin.g[rows], fin.r_ph[rows]
+            ep = d.epoch[rows[:, 0]]
+            nmat[ep] += np.einsum("kic,kij,kjd->kcd", gk, p, gk)
+            rhs[ep] += np.einsum("kic,kij,kj->kc", gk, p, rk)
+            gc = gk - gk.mean(axis=1, keepdims=True)       # geometry with the clock (group bias) eliminated
+            gcg[ep] += np.einsum("kic,kid->kcd", gc, gc)
+            n_sat[ep] += rows.shape[1]
+            n_dd[ep] += rows.shape[1] - 1
+    ep = np.flatnonzero(n_dd >= opt.min_sats_kinematic - 1)
+    if not ep.size:
         return None
-    arrays = [np.concatenate(v) for v in (ep_list, enu_list, ns_list, pdop_list, cov_list)]
-    o = np.argsort(arrays[0])
-    return {"epoch": arrays[0][o], "enu_m": arrays[1][o], "n_sat": arrays[2][o], "pdop": arrays[3][o],
-            "cov_m2": arrays[4][o]}
+    ck = np.linalg.inv(nmat[ep])
+    dk = np.einsum("kcd,kd->kc", ck, rhs[ep])
+    pdop = np.sqrt(np.trace(np.linalg.inv(gcg[ep]), axis1=1, axis2=2))
+    return {"epoch": ep, "enu_m": fin.x + dk, "n_sat": n_sat[ep], "pdop": pdop, "cov_m2": ck}
 
 
 def _kinematic_summary(d: _Data, ka: dict, x_final, opt: BaselineOptions) -> dict:
@@ -880,8 +962,10 @@ def _kinematic_summary(d: _Data, ka: dict, x_final, opt: BaselineOptions) -> dic
 
 
 def _segment_table(d: _Data, sg: _Segments, fx: _Fix) -> list:
-    """One row per SD ambiguity segment: satellite, span, datum, float value, integer."""
+    """One row per SD ambiguity segment: satellite, span, datum, float value, integer (and with signal
+    groups its ``signal`` and ``wavelength_m``)."""
     rows = []
+    sig = _satellite_signals(d)
     for k in range(sg.n_seg):
         p_idx = sg.par_of_seg[k] - 3
         piv = sg.is_pivot[k]
@@ -899,8 +983,20 @@ def _segment_table(d: _Data, sg: _Segments, fx: _Fix) -> list:
             "integer": (0 if piv else (int(fx.integers[p_idx]) if fx.fixed_mask[p_idx] else None)),
             "first_gps_s": float(d.t_label[sg.segtab["first_epoch"][k]]),
             "last_gps_s": float(d.t_label[sg.segtab["last_epoch"][k]]),
+            **(sig[int(sg.segtab["sat"][k])] if sig else {}),
         })
     return rows
+
+
+def _satellite_signals(d: _Data) -> list:
+    """Per satellite-signal name: its ``signal`` and ``wavelength_m`` (empty list: GPS L1 only)."""
+    if getattr(d, "group", None) is None:
+        return []
+    grp = np.zeros(len(d.sat_names), dtype=np.int64)
+    lam = np.zeros(len(d.sat_names))
+    grp[d.sat] = d.group
+    lam[d.sat] = d.lam_m
+    return [{"signal": d.group_names[g], "wavelength_m": float(v)} for g, v in zip(grp, lam)]
 
 
 def _satellite_table(d: _Data, sg: _Segments) -> list:
@@ -913,13 +1009,19 @@ def _satellite_table(d: _Data, sg: _Segments) -> list:
     return out
 
 
-def _reference_satellites(d: _Data, ref_ph) -> tuple[list, int]:
-    """The reference satellites in time order (satellite, from) and the number of changes."""
-    ref_ep = np.flatnonzero(ref_ph >= 0)
-    ref_sat = d.sat[ref_ph[ref_ep]]
-    starts = np.flatnonzero(np.r_[True, np.diff(ref_sat) != 0])
-    ref_list = [{"sat": d.sat_names[int(ref_sat[i])], "from": gps_time_str(float(d.t_label[ref_ep[i]]))} for i in starts]
-    return ref_list, (int(starts.size - 1) if starts.size else 0)
+def _reference_satellites(d: _Data, refs_ph: list) -> tuple[list, int]:
+    """The reference satellites of each signal group in time order (satellite, from) and the number
+    of changes."""
+    ref_list, n_changes = [], 0
+    for k, ref_ph in enumerate(refs_ph):
+        ref_ep = np.flatnonzero(ref_ph >= 0)
+        ref_sat = d.sat[ref_ph[ref_ep]]
+        starts = np.flatnonzero(np.r_[True, np.diff(ref_sat) != 0])
+        sig = {} if getattr(d, "group", None) is None else {"signal": d.group_names[k]}
+        ref_list += [{"sat": d.sat_names[int(ref_sat[i])], "from": gps_time_str(float(d.t_label[ref_ep[i]])), **sig}
+                     for i in starts]
+        n_changes += int(starts.size - 1) if starts.size else 0
+    return ref_list, n_changes
 
 
 def _ambiguity_summary(sg: _Segments, fx: _Fix, opt: BaselineOptions, seg_rows: list) -> dict:
@@ -976,7 +1078,7 @@ def _work(d: _Data, sg: _Segments, w: _Weights, fin: _Final, xr0, xm, r_enu, kin
     """The solver's working arrays for the GNSS pipeline's estimators (``keep_work``)."""
     return {
         "data": d, "seg": sg.seg, "segtab": sg.segtab, "is_pivot": sg.is_pivot, "seg_half": sg.seg_half,
-        "known_seg": fin.known_seg, "a_seg": fin.a_seg, "var_ph": w.var_ph, "ref_ph": w.ref_ph, "xr0": xr0, "xm": xm,
+        "known_seg": fin.known_seg, "a_seg": fin.a_seg, "var_ph": w.var_ph, "ref_ph": w.ref_ph, "refs_ph": w.refs_ph, "xr0": xr0, "xm": xm,
         "r_enu": r_enu, "x_final": np.asarray(fin.x), "q_final": fin.q3, "r_ph": fin.r_ph, "g": fin.g,
         "kinematic": kin_arrays,
     }
@@ -1045,11 +1147,11 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
     t_lambda = lap()
     fin = _fixed_solution(d, sg, w, fl, fx, xr0, r_enu, opt)
     t_fixed = lap()
-    residuals = _residual_summary(d, w.ref_ph, fin.r_ph, fl.n_dd_code)
+    residuals = _residual_summary(d, w, fin.r_ph, fl.n_dd_code)
     ka = _single_epoch_positions(d, w, fin, sg.seg, opt) if fx.fixed_mask.any() else None
     kin = None if ka is None else _kinematic_summary(d, ka, fin.x, opt)
     t_kin = lap()
-    ref_list, n_ref_changes = _reference_satellites(d, w.ref_ph)
+    ref_list, n_ref_changes = _reference_satellites(d, w.refs_ph)
     result = _result(master, rover, xm, xr0, source, r_enu, fl, fin)
     result.update({
         "ambiguities": _ambiguity_summary(sg, fx, opt, _segment_table(d, sg, fx)),

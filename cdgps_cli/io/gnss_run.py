@@ -263,18 +263,21 @@ def _pack_npz_zst(tab: pd.DataFrame, text_cols: tuple, dtypes: dict) -> bytes:
     return zstandard.ZstdCompressor(level=3).compress(buf.getvalue())
 
 
-def _unpack_npz_zst(data: bytes, what: str, text_cols: tuple, dtypes: dict, columns: list) -> pd.DataFrame:
-    """The table of :func:`_pack_npz_zst` (floats as float64, integers as int64); CdgpsError when damaged."""
+def _unpack_npz_zst(data: bytes, what: str, text_cols: tuple, dtypes: dict, columns: list,
+                    optional: tuple = ()) -> pd.DataFrame:
+    """The table of :func:`_pack_npz_zst` (floats as float64, integers as int64; the ``optional`` numeric
+    columns when stored); CdgpsError when damaged."""
     import zstandard  # noqa: PLC0415
 
     try:
         z = np.load(io.BytesIO(zstandard.ZstdDecompressor().decompress(data)), allow_pickle=False)
         df = {c: np.asarray(z[c + "_names"], dtype=object)[z[c + "_index"].astype(np.int64)] for c in text_cols}
-        for c in dtypes:
+        extra = [c for c in optional if c in z.files]
+        for c in list(dtypes) + extra:
             df[c] = z[c].astype(np.float64) if z[c].dtype.kind == "f" else z[c].astype(np.int64)
     except (KeyError, ValueError, OSError, zstandard.ZstdError) as exc:
         raise CdgpsError(f"{what}: damaged observation arrays: {exc}") from None
-    return pd.DataFrame(df, columns=columns)
+    return pd.DataFrame(df, columns=columns + extra)
 
 
 def _npz_zst(raw: pd.DataFrame) -> bytes:
@@ -287,16 +290,21 @@ def _raw_from_npz_zst(data: bytes, what: str) -> pd.DataFrame:
 
 _SIGNAL_DTYPES = {"time_gps_s": np.float64, "phase_cycles": np.float64, "pseudorange_m": np.float64, "lli": np.int8,
                   "wavelength_m": np.float64}
+_SIGNAL_UBX_DTYPES = {"lock_time_ms": np.int32, "half_cycle": np.int8}
+"""Columns of a UBX receiver's signal table (:func:`~cdgps_cli.io.ubx.read_ubx_signals`): loss of lock
+comes from the lock times at processing."""
 
 
 def _signals_npz_zst(tab: pd.DataFrame) -> bytes:
     """A multi-signal table (:data:`~cdgps_cli.io.rinex_signals.SIGNAL_COLUMNS`) as zstd-compressed numpy arrays."""
-    return _pack_npz_zst(tab, ("sat", "signal"), _SIGNAL_DTYPES)
+    ubx = all(c in tab for c in _SIGNAL_UBX_DTYPES)
+    return _pack_npz_zst(tab, ("sat", "signal"), {**_SIGNAL_DTYPES, **(_SIGNAL_UBX_DTYPES if ubx else {})})
 
 
 def _signals_from_npz_zst(data: bytes, what: str) -> pd.DataFrame:
     return _unpack_npz_zst(data, what, ("sat", "signal"), _SIGNAL_DTYPES,
-                           ["time_gps_s", "sat", "signal", "phase_cycles", "pseudorange_m", "lli", "wavelength_m"])
+                           ["time_gps_s", "sat", "signal", "phase_cycles", "pseudorange_m", "lli", "wavelength_m"],
+                           optional=tuple(_SIGNAL_UBX_DTYPES))
 
 
 def _nullable(values: np.ndarray) -> list:
@@ -344,17 +352,16 @@ def _nav_systems(signals, nav_list) -> tuple:
 
 
 def _read_signal_tables(signals, receivers: dict, files: dict, say) -> None:
-    """Every receiver's table of ``signals`` (RINEX only); CdgpsError naming the file when a receiver
-    lacks one of them (the receivers must share every signal asked for)."""
+    """Every receiver's table of ``signals`` (RINEX, or a UBX log's RXM-RAWX: :func:`~cdgps_cli.io.ubx.read_ubx_signals`);
+    CdgpsError naming the file when a receiver lacks one of them (the receivers must share every
+    signal asked for)."""
     from cdgps_cli.io.rinex_signals import read_rinex_signals  # noqa: PLC0415
+    from cdgps_cli.io.ubx import read_ubx_signals  # noqa: PLC0415
 
     for n, rx in receivers.items():
         kind, p = files[n]
-        if kind != "rinex":
-            raise CdgpsError(f"{p} ({n}): [gnss] signals are read from RINEX 3 files only; a UBX log gives GPS L1 "
-                             f"(remove 'signals' from the config or convert the log to RINEX)")
         say(f"reading signals {', '.join(signals)} of {p} ({n}) …")
-        _, tab = read_rinex_signals(p, signals)
+        tab = read_ubx_signals(p, signals) if kind == "ubx" else read_rinex_signals(p, signals)[1]
         have = set(tab["signal"])
         absent = [g for g in signals if g not in have]
         if absent:

@@ -34,8 +34,8 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.sfrbx import sfrbx_ephemerides
 from cdgps_cli.io.ubx_frames import MAX_OFFSETS_SHOWN, rtcm_station_arp, split_stream
 
-__all__ = ["INTEGRITY_COUNTS", "UBX_OBS_COLUMNS", "integrity_line", "integrity_problems", "integrity_record", "read_ubx_rawx",
-           "skipped_line"]
+__all__ = ["INTEGRITY_COUNTS", "UBX_OBS_COLUMNS", "UBX_SIGNALS", "integrity_line", "integrity_problems", "integrity_record",
+           "read_ubx_rawx", "read_ubx_signals", "skipped_line"]
 
 UBX_OBS_COLUMNS = (
     "time_gps_s",
@@ -54,6 +54,19 @@ UBX_OBS_COLUMNS = (
     "clock_reset",
 )
 """Columns of the table returned by :func:`read_ubx_rawx`."""
+
+UBX_SIGNALS = {
+    "G:L1": ((0, 0),), "G:L2": ((0, 3), (0, 4)), "G:L5": ((0, 6), (0, 7)),
+    "E:E1": ((2, 0), (2, 1)), "E:E5a": ((2, 3), (2, 4)), "E:E5b": ((2, 5), (2, 6)),
+    "C:B1I": ((3, 0), (3, 1)), "C:B2I": ((3, 2), (3, 3)), "C:B2a": ((3, 7),),
+    "R:G1": ((6, 0),), "R:G2": ((6, 2),),
+}
+"""RXM-RAWX (gnssId, sigId) pairs of each signal of :mod:`cdgps_cli.core.signals`, the preferred first
+(u-blox F9 interface description, "Signal identifiers": GPS L1C/A 0, L2 CL 3, L2 CM 4, L5 I 6, L5 Q 7;
+Galileo E1 C 0, E1 B 1, E5 aI 3, E5 aQ 4, E5 bI 5, E5 bQ 6; BeiDou B1I D1 0, D2 1, B2I D1 2, D2 3,
+B2a 7; GLONASS L1 OF 0, L2 OF 2).  u-blox 8 receivers (protocol < 27) report sigId 0 only: GPS L1 C/A,
+Galileo E1, BeiDou B1I, GLONASS L1."""
+_SYS_LETTER = {0: "G", 2: "E", 3: "C", 6: "R"}
 
 _SYNC = b"\xb5\x62"
 _RAWX = (0x02, 0x15)
@@ -192,6 +205,68 @@ def _decode_rawx(rawx: list) -> tuple[np.ndarray, np.ndarray, list]:
     return epochs, meas, undecodable
 
 
+def _decoded_rawx(p: Path, strict: bool):
+    """Frame a UBX log and decode its RXM-RAWX messages: (frames, rtcm, split statistics, message counts,
+    epochs, measurements, offsets of undecodable frames, epoch time tags in GPS s); CdgpsError as
+    :func:`read_ubx_log` says."""
+    try:
+        data = p.read_bytes()
+    except OSError as exc:
+        raise CdgpsError(f"{p}: cannot read: {exc.strerror or exc}") from None
+    if data[:2] == b"\x1f\x8b":
+        try:
+            data = gzip.decompress(data)
+        except (OSError, EOFError, zlib.error) as exc:
+            raise CdgpsError(f"{p}: cannot decompress this gzip file: {exc}") from None
+    if not data:
+        raise CdgpsError(f"{p}: empty file; expected a u-blox UBX binary log")
+    frames, rtcm, stats = split_stream(data)
+    counts: dict[str, int] = {}
+    for _, cls, mid, _ in frames:
+        name = _msg_name(cls, mid)
+        counts[name] = counts.get(name, 0) + 1
+    if not frames:
+        extra = f" ({stats['bad_checksum_frames']} candidate frames failed the checksum)" if stats["bad_checksum_frames"] else ""
+        raise CdgpsError(f"{p}: no valid UBX frames found in {len(data)} bytes{extra}; expected a u-blox UBX binary log with RXM-RAWX messages")
+    rawx = [(off, fr) for off, cls, mid, fr in frames if (cls, mid) == _RAWX]
+    found = ", ".join(f"{k} ×{v}" for k, v in sorted(counts.items(), key=lambda kv: -kv[1]))
+    if stats["nmea_bytes"]:
+        found += f", and {stats['nmea_bytes']} bytes of NMEA sentences"
+    if stats["skipped_bytes"]:
+        found += f", and {stats['skipped_bytes']} bytes of other non-UBX data"
+    if not rawx:
+        if counts.get("RXM-RAW"):
+            raise CdgpsError(
+                f"{p}: no RXM-RAWX messages; this is a legacy u-blox raw log with {counts['RXM-RAW']} RXM-RAW messages "
+                f"(u-blox 4/5/6 receivers; found: {found}). RXM-RAW is not supported: it has no carrier lock time and no "
+                "half-cycle status, so a phase still carrying the half-cycle ambiguity cannot be told from a resolved one "
+                "(a silent half-cycle error breaks integer ambiguity resolution) and slips are flagged only by a per-epoch "
+                "LLI. Record RXM-RAWX with a u-blox M8T, F9P/F9T or later receiver."
+            )
+        raise CdgpsError(f"{p}: no RXM-RAWX messages (found: {found}); carrier-phase logging needs RXM-RAWX enabled on "
+                         f"the receiver (UBX-CFG-MSG class 0x02 id 0x15, or CFG-MSGOUT-UBX_RXM_RAWX on F9)")
+
+    epochs, meas, undecodable_offsets = _decode_rawx(rawx)
+    undecodable = len(undecodable_offsets)
+    if strict:
+        problems = integrity_problems(dict(stats, undecodable_frames=undecodable,
+                                           undecodable_frame_offsets=undecodable_offsets[:_MAX_SHOWN]))
+        if problems:
+            raise CdgpsError(f"{p}: corrupt UBX data: {', '.join(problems)} (refused by --strict)")
+    n_epochs = len(epochs)
+    if n_epochs == 0:
+        raise CdgpsError(f"{p}: none of the {len(rawx)} RXM-RAWX messages could be decoded (each payload must "
+                         f"be 16 + 32·numMeas bytes)")
+    t = epochs["week"].astype(np.float64) * 604800.0 + epochs["rcvTow"]
+    back = np.flatnonzero(t[1:] < t[:-1])
+    if back.size:
+        i = int(back[0]) + 1
+        raise CdgpsError(f"{p}, byte {epochs['offset'][i]}: RXM-RAWX epoch (week {epochs['week'][i]}, rcvTow "
+                         f"{epochs['rcvTow'][i]} s) is earlier than the previous one (byte {epochs['offset'][i - 1]}); "
+                         "epochs must be in time order")
+    return frames, rtcm, stats, counts, epochs, meas, undecodable_offsets, t
+
+
 def read_ubx_rawx(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.DataFrame]:
     """``info`` and ``obs`` of :func:`read_ubx_log` (the GPS L1 C/A RXM-RAWX measurements)."""
     info, obs, _ = read_ubx_log(path, strict=strict)
@@ -255,61 +330,9 @@ def read_ubx_log(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.Da
         C/A measurement; epochs going backwards; with ``strict``, any corrupt frame.
     """
     p = Path(path)
-    try:
-        data = p.read_bytes()
-    except OSError as exc:
-        raise CdgpsError(f"{p}: cannot read: {exc.strerror or exc}") from None
-    if data[:2] == b"\x1f\x8b":
-        try:
-            data = gzip.decompress(data)
-        except (OSError, EOFError, zlib.error) as exc:
-            raise CdgpsError(f"{p}: cannot decompress this gzip file: {exc}") from None
-    if not data:
-        raise CdgpsError(f"{p}: empty file; expected a u-blox UBX binary log")
-    frames, rtcm, stats = split_stream(data)
-    counts: dict[str, int] = {}
-    for _, cls, mid, _ in frames:
-        name = _msg_name(cls, mid)
-        counts[name] = counts.get(name, 0) + 1
-    if not frames:
-        extra = f" ({stats['bad_checksum_frames']} candidate frames failed the checksum)" if stats["bad_checksum_frames"] else ""
-        raise CdgpsError(f"{p}: no valid UBX frames found in {len(data)} bytes{extra}; expected a u-blox UBX binary log with RXM-RAWX messages")
-    rawx = [(off, fr) for off, cls, mid, fr in frames if (cls, mid) == _RAWX]
-    found = ", ".join(f"{k} ×{v}" for k, v in sorted(counts.items(), key=lambda kv: -kv[1]))
-    if stats["nmea_bytes"]:
-        found += f", and {stats['nmea_bytes']} bytes of NMEA sentences"
-    if stats["skipped_bytes"]:
-        found += f", and {stats['skipped_bytes']} bytes of other non-UBX data"
-    if not rawx:
-        if counts.get("RXM-RAW"):
-            raise CdgpsError(
-                f"{p}: no RXM-RAWX messages; this is a legacy u-blox raw log with {counts['RXM-RAW']} RXM-RAW messages "
-                f"(u-blox 4/5/6 receivers; found: {found}). RXM-RAW is not supported: it has no carrier lock time and no "
-                "half-cycle status, so a phase still carrying the half-cycle ambiguity cannot be told from a resolved one "
-                "(a silent half-cycle error breaks integer ambiguity resolution) and slips are flagged only by a per-epoch "
-                "LLI. Record RXM-RAWX with a u-blox M8T, F9P/F9T or later receiver."
-            )
-        raise CdgpsError(f"{p}: no RXM-RAWX messages (found: {found}); carrier-phase logging needs RXM-RAWX enabled on "
-                         f"the receiver (UBX-CFG-MSG class 0x02 id 0x15, or CFG-MSGOUT-UBX_RXM_RAWX on F9)")
-
-    epochs, meas, undecodable_offsets = _decode_rawx(rawx)
+    frames, rtcm, stats, counts, epochs, meas, undecodable_offsets, t = _decoded_rawx(p, strict)
     undecodable = len(undecodable_offsets)
-    if strict:
-        problems = integrity_problems(dict(stats, undecodable_frames=undecodable,
-                                           undecodable_frame_offsets=undecodable_offsets[:_MAX_SHOWN]))
-        if problems:
-            raise CdgpsError(f"{p}: corrupt UBX data: {', '.join(problems)} (refused by --strict)")
     n_epochs = len(epochs)
-    if n_epochs == 0:
-        raise CdgpsError(f"{p}: none of the {len(rawx)} RXM-RAWX messages could be decoded (each payload must "
-                         f"be 16 + 32·numMeas bytes)")
-    t = epochs["week"].astype(np.float64) * 604800.0 + epochs["rcvTow"]
-    back = np.flatnonzero(t[1:] < t[:-1])
-    if back.size:
-        i = int(back[0]) + 1
-        raise CdgpsError(f"{p}, byte {epochs['offset'][i]}: RXM-RAWX epoch (week {epochs['week'][i]}, rcvTow "
-                         f"{epochs['rcvTow'][i]} s) is earlier than the previous one (byte {epochs['offset'][i - 1]}); "
-                         "epochs must be in time order")
     week0 = int(epochs["week"][0])
     leap_ok = (epochs["recStat"] & 1) != 0
     leap = int(epochs["leapS"][np.flatnonzero(leap_ok)[-1]]) if leap_ok.any() else None
@@ -377,3 +400,61 @@ def read_ubx_log(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.Da
     nav, info["sfrbx"] = sfrbx_ephemerides(frames, week0)
     info["rtcm_base"] = rtcm_station_arp(rtcm)
     return info, obs, nav
+
+
+def read_ubx_signals(path: str | Path, names, *, strict: bool = False) -> pd.DataFrame:
+    """The RXM-RAWX measurements of the signals ``names`` (``G:L1``, ``E:E1`` …) of a UBX log as a
+    multi-signal table.
+
+    Parameters
+    ----------
+    path : str or Path
+        A UBX log (as :func:`read_ubx_log`).
+    names : sequence of str
+        Signal names of :data:`UBX_SIGNALS`.
+    strict : bool
+        As :func:`read_ubx_log`.
+
+    Returns
+    -------
+    DataFrame
+        :data:`~cdgps_cli.io.rinex_signals.SIGNAL_COLUMNS` (``lli`` 0: loss of lock comes from the
+        lock times at processing) plus ``lock_time_ms`` (int) and ``half_cycle`` (1 while the
+        half-cycle ambiguity is unresolved); rows with a valid carrier phase, sorted by time,
+        satellite, signal.  GLONASS wavelengths from each measurement's freqId (k = freqId − 7).
+
+    Raises
+    ------
+    CdgpsError
+        As :func:`read_ubx_log`; a signal a UBX log cannot carry (not in :data:`UBX_SIGNALS`).
+    """
+    from cdgps_cli.core.signals import wavelength_m  # noqa: PLC0415
+    from cdgps_cli.io.rinex_signals import SIGNAL_COLUMNS  # noqa: PLC0415
+
+    p = Path(path)
+    bad = [n for n in names if n not in UBX_SIGNALS]
+    if bad:
+        raise CdgpsError(f"{p}: signal(s) {', '.join(bad)} cannot come from u-blox RXM-RAWX (it carries "
+                         f"{', '.join(UBX_SIGNALS)})")
+    _, _, _, _, epochs, meas, _, t = _decoded_rawx(p, strict)
+    tabs = []
+    for name in names:
+        for rank, (g, sid) in enumerate(UBX_SIGNALS[name]):
+            m = meas[(meas["gnssId"] == g) & (meas["sigId"] == sid) & ((meas["trkStat"] & 2) != 0)]
+            if not len(m):
+                continue
+            k = m["freqId"].astype(np.int64) - 7
+            lam = (np.array([wavelength_m(name, int(v)) for v in k]) if name.startswith("R:")
+                   else np.full(len(m), wavelength_m(name)))
+            tabs.append(pd.DataFrame({
+                "time_gps_s": t[m["epoch"]], "sat": [f"{_SYS_LETTER[g]}{v:02d}" for v in m["svId"].tolist()],
+                "signal": name, "phase_cycles": m["cpMes"],
+                "pseudorange_m": np.where((m["trkStat"] & 1) != 0, m["prMes"], np.nan), "lli": 0, "wavelength_m": lam,
+                "lock_time_ms": m["locktime"].astype(np.int64), "half_cycle": ((m["trkStat"] & 4) == 0).astype(np.int64),
+                "rank": rank}))
+    cols = list(SIGNAL_COLUMNS) + ["lock_time_ms", "half_cycle"]
+    if not tabs:
+        return pd.DataFrame(columns=cols)
+    out = pd.concat(tabs, ignore_index=True).sort_values(["time_gps_s", "sat", "signal", "rank"], kind="stable")
+    out = out.drop_duplicates(["time_gps_s", "sat", "signal"], keep="first")        # e.g. E1 C and E1 B: the first
+    return out[cols].reset_index(drop=True)

@@ -52,6 +52,8 @@ class SDObservations:
         Column of each row's ambiguity in a (−1: known); None: no ambiguities (pseudorange).
     kind : str
         Label of the kind ("phase", "code").
+    wavelength_m : float, optional
+        λ of this kind's ambiguities, m (a signal group's; default: the model's ``wavelength_m``).
     """
 
     residual_m: np.ndarray
@@ -60,6 +62,7 @@ class SDObservations:
     usable: np.ndarray | None = None
     ambiguity_col: np.ndarray | None = None
     kind: str = "phase"
+    wavelength_m: float | None = None
 
 
 class SatelliteDDDisplacement(MeasurementModel):
@@ -96,9 +99,16 @@ class SatelliteDDDisplacement(MeasurementModel):
         self.lam = float(wavelength_m)
         sat = np.asarray(sat, dtype=np.int64)
         self._kinds = [_dd_tables(ptr, sat, g, ob, self.n_epochs) for ob in observations]
+        self._lams = [self.lam if ob.wavelength_m is None else float(ob.wavelength_m) for ob in observations]
+        self._one_lam = len(set(self._lams)) <= 1
 
     def rows(self, k: int) -> Rows | None:
         parts = [_epoch_part(kd, k, self.sat_names) for kd in self._kinds]
+        if self._one_lam:
+            lam = self._lams[0] if self._lams else self.lam
+        else:                                   # signal groups: each row's own wavelength
+            lam = np.concatenate([np.full(p[0].size, lm) for p, lm in zip(parts, self._lams) if p is not None]
+                                 or [np.zeros(0)])
         parts = [p for p in parts if p is not None]
         if not parts:
             return None
@@ -115,9 +125,9 @@ class SatelliteDDDisplacement(MeasurementModel):
             H[:, :Hx.shape[1]] = Hx
             i = np.arange(z.size)
             m = col >= 0
-            H[i[m], Hx.shape[1] + col[m]] += self.lam
+            H[i[m], Hx.shape[1] + col[m]] += lam if np.ndim(lam) == 0 else lam[m]
             m = col_ref >= 0
-            H[i[m], Hx.shape[1] + col_ref[m]] -= self.lam
+            H[i[m], Hx.shape[1] + col_ref[m]] -= lam if np.ndim(lam) == 0 else lam[m]
         return Rows(z, labels, col, chol_m=L, context=H)
 
     def predict(self, x, rows: Rows):

@@ -51,7 +51,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.records import INIT_FORMAT, Series, StateSeries, init_kind
 
 from cdgps_cli.io.gnss_run import GnssRun
-from cdgps_cli.pipeline.gnss_ingest import processing_obs
+from cdgps_cli.pipeline.gnss_ingest import processing_obs, signal_obs
 from cdgps_cli.io import states as states_io
 from cdgps_cli.io.mcap import read_mcap
 from cdgps_cli.core.gps_time import gps_time_str
@@ -75,9 +75,15 @@ def _stations(run: GnssRun):
     if not run.rovers:
         raise CdgpsError(f"{run.path}: the run has only the master receiver {run.master!r}; a displacement solution "
                          f"needs at least one rover receiver (ingest two or more --rinex/--ubx files)")
+    sigs = tuple(run.cfg.signals)
+    fdma = [g for g in sigs if g.startswith("R:")]
+    if fdma:
+        raise CdgpsError(f"{run.path}: gnss.signals: {', '.join(fdma)} (GLONASS, FDMA) cannot be used by 'cdgps init'/"
+                         f"'cdgps estimate' yet (its DD ambiguities are not integers of one wavelength); remove them from "
+                         f"[gnss] signals, or use 'cdgps rtk' (GLONASS float)")
     stations = {}
     for n, rx in run.receivers.items():
-        stations[n] = Station(n, dict(rx.header, path=rx.file), processing_obs(rx))
+        stations[n] = Station(n, dict(rx.header, path=rx.file), processing_obs(rx), signal_obs(rx) if sigs else None)
     return stations
 
 
@@ -166,16 +172,33 @@ def gnss_init(run: GnssRun, *, options: dict | None = None, progress=None) -> di
         "biases": [b for r, v in rovers.items() for b in gnss_biases(run.master, r, v["ambiguities"])],
         "rovers": rovers,
         "options": json_safe(asdict(opt)),
+        **_signals_summary(run, rovers),
     }
+
+
+def _signals_summary(run: GnssRun, rovers: dict) -> dict:
+    """With ``[gnss] signals``: the frequency slots used (per signal its wavelength, m) and how DDs are
+    formed, for INIT.json and the STATES metadata (empty without signals)."""
+    if not run.cfg.signals:
+        return {}
+    lam = {}
+    for v in rovers.values():
+        for g, i in ((v.get("epochs") or {}).get("signals") or {}).items():
+            lam.setdefault(g, i.get("wavelength_m"))
+    return {"signals": list(run.cfg.signals), "wavelengths_m": lam,
+            "dd_groups": "per constellation and frequency slot, own reference satellite; no inter-system or "
+                         "inter-frequency DD; one ambiguity per satellite-signal lock segment; integers of all "
+                         "groups fixed as one set (LAMBDA, ratio test, partial fixing)"}
 
 
 def gnss_biases(master: str, rover: str, segments: list) -> list:
     """INIT's ``biases`` entries (:data:`cdgps_cli.core.records.INIT_FORMAT`) of one rover's ambiguity
     segments: SD ambiguities (rover − master) relative to each connected set's reference (pivot)
-    segment, so that double differences against ``reference`` are integers; metres and cycles."""
-    lam = GPS_L1_WAVELENGTH_M
+    segment, so that double differences against ``reference`` are integers; metres and cycles (each
+    segment's own wavelength with ``[gnss] signals``, else GPS L1's)."""
     out = []
     for s in segments:
+        lam = s.get("wavelength_m", GPS_L1_WAVELENGTH_M)
         fixed = bool(s["fixed"])
         cycles = s["integer"] if fixed else s["float_cycles"]
         out.append({
@@ -203,23 +226,34 @@ def is_gnss_init(init: dict) -> bool:
 # per-epoch information of the DD phases with the fixed integers
 
 
+def _group_use(d, use: np.ndarray) -> list:
+    """``use`` split by signal group (one entry without ``[gnss] signals``)."""
+    if getattr(d, "group", None) is None:
+        return [use]
+    return [use & (d.group == k) for k in range(len(d.group_names))]
+
+
 def _epoch_information(w: dict, use: np.ndarray):
     """Per epoch: c = rᵀPr of the DD phases at the static solution (its NIS), dof, whether it has
-    DDs, and its reference row (−1: fewer than two usable rows)."""
+    DDs (summed over the signal groups), and per group its usable rows and its reference row per
+    epoch (−1: fewer than two usable rows)."""
     d = w["data"]
-    ref = select_reference(d.ptr, d.sat, d.el_rover, d.slip, usable=use)
     n_ep = d.t_label.size
     c = np.zeros(n_ep)
     dof = np.zeros(n_ep, dtype=np.int64)
     has = np.zeros(n_ep, dtype=bool)
     r = w["r_ph"]
-    for rows, p in dd_weight_blocks(d.ptr, w["var_ph"], ref, usable=use):
-        ep = d.epoch[rows[:, 0]]
-        rk = r[rows]
-        c[ep] = np.einsum("ki,kij,kj->k", rk, p, rk)
-        dof[ep] = rows.shape[1] - 1
-        has[ep] = True
-    return c, dof, has, ref
+    groups = []
+    for u in _group_use(d, use):
+        ref = select_reference(d.ptr, d.sat, d.el_rover, d.slip, usable=u)
+        for rows, p in dd_weight_blocks(d.ptr, w["var_ph"], ref, usable=u):
+            ep = d.epoch[rows[:, 0]]
+            rk = r[rows]
+            c[ep] += np.einsum("ki,kij,kj->k", rk, p, rk)
+            dof[ep] += rows.shape[1] - 1
+            has[ep] = True
+        groups.append((u, ref))
+    return c, dof, has, groups
 
 
 def _random_walk(model: SatelliteDDDisplacement, t: np.ndarray, sigma_rw, p0_sigma: float, smooth: bool):
@@ -322,14 +356,15 @@ def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path
         x_fin = w["x_final"]
         fixed_any = res["ambiguities"]["n_fixed"] > 0
         use = w["known_seg"][w["seg"]] if fixed_any else np.ones(w["seg"].size, dtype=bool)
-        c, dof, has, ref = _epoch_information(w, use)
+        c, dof, has, groups = _epoch_information(w, use)
         if model == "static":
             q[idx, sl] = x_fin
             P[idx, sl, sl] = w["q_final"]
             dx = np.zeros((d.t_label.size, 3))
             nis = np.where(has, c, np.nan)
         else:
-            dd = SatelliteDDDisplacement(d.ptr, d.sat, d.sat_names, w["g"], [SDObservations(w["r_ph"], w["var_ph"], ref, usable=use)])
+            dd = SatelliteDDDisplacement(d.ptr, d.sat, d.sat_names, w["g"],
+                                         [SDObservations(w["r_ph"], w["var_ph"], ref, usable=u) for u, ref in groups])
             xs, ps, xf, pf, nis = _random_walk(dd, d.t_label, run.cfg.random_walk_sigma, run.cfg.initial_sigma_m, smooth)
             q[idx, sl] = x_fin + xs
             P[idx, sl, sl] = ps
@@ -341,12 +376,12 @@ def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path
         nis_sum[idx] += np.where(has, np.nan_to_num(nis), 0.0)
         # DD residuals (m) of the reported estimate, per satellite, against the epoch's reference
         e = w["r_ph"] - np.einsum("ic,ic->i", w["g"], dx[d.epoch])
-        ref_row = ref[d.epoch]
-        ok = use & (ref_row >= 0) & (np.arange(e.size) != ref_row)
-        dd = np.where(ok, e - e[np.maximum(ref_row, 0)], np.nan)
         sats = np.array(d.sat_names, dtype=object)
         tab = np.full((d.t_label.size, len(d.sat_names)), np.nan)
-        tab[d.epoch[ok], d.sat[ok]] = dd[ok]
+        for u, ref in groups:                   # each group's DDs against its own reference
+            ref_row = ref[d.epoch]
+            ok = u & (ref_row >= 0) & (np.arange(e.size) != ref_row)
+            tab[d.epoch[ok], d.sat[ok]] = (e - e[np.maximum(ref_row, 0)])[ok]
         for s_i, s in enumerate(sats):
             res_cols.append((r, s))
             col = np.full(n, np.nan)
@@ -376,7 +411,8 @@ def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path
     nis_tot = np.where(dof_tot > 0, nis_sum, np.nan)
     events.sort(key=lambda e: (e["time_s"], e["antenna"], e["transmitter"], e["kind"]))
     say(f"writing {out_path} …")
-    meta_extra = {"rovers": summary_rovers, "options": extra_options or {}}
+    meta_extra = {"rovers": summary_rovers,
+                  "options": {**_signals_summary(run, {r: v[0] for r, v in per.items()}), **(extra_options or {})}}
     out = _write_gnss_states(run, init, init_text, out_path, names, t_all, q, P, qf, Pf, kq, kP, kin_n, kin_pdop,
                              res_cols, residual_m, nis_tot, dof_tot, events, smooth and model == "random_walk",
                              meta_extra)
@@ -422,9 +458,10 @@ def _events(rover: str, master: str, res: dict, w: dict) -> list:
         if info["half_cycle_flag"]:
             ev.append({"time_s": t0, "antenna": rover, "transmitter": s_name, "kind": "half-cycle unresolved (LLI bit 1)",
                        "action": "ambiguity kept float"})
-    ref = w["ref_ph"]
-    ok = np.flatnonzero(ref >= 0)
-    if ok.size:
+    for ref in w.get("refs_ph", [w["ref_ph"]]):      # one reference per signal group
+        ok = np.flatnonzero(ref >= 0)
+        if not ok.size:
+            continue
         rs = d.sat[ref[ok]]
         ch = np.flatnonzero(np.r_[True, rs[1:] != rs[:-1]])
         for i in ch:
@@ -449,7 +486,8 @@ def _write_gnss_states(run, init, init_text, out_path, names, t, q, P, qf, Pf, k
     for r in run.rovers:
         for s in init["rovers"][r]["ambiguities"]:
             if s["fixed"] and s["integer"] is not None:
-                biases.append({"antenna": r, "transmitter": s["sat"], "bias_m": GPS_L1_WAVELENGTH_M * s["integer"],
+                lam = s.get("wavelength_m", GPS_L1_WAVELENGTH_M)
+                biases.append({"antenna": r, "transmitter": s["sat"], "bias_m": lam * s["integer"],
                                "from_gps_s": s["first_gps_s"]})
     meta = {"cdgps_version": __version__, "created_by": "cdgps estimate", "kind": "gnss", "config_name": run.cfg.name,
             "config_sha256": run.cfg.sha256, **states_io.provenance(run.path, init_text),

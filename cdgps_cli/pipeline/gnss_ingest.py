@@ -29,7 +29,8 @@ from cdgps_cli.measurement.channels import FIRST, lock_segments, ubx_restarts
 from cdgps_cli.model.gps.epoch_align import common_epochs
 from cdgps_cli.model.gps.positioning import ephemeris_coverage, spp_static
 
-__all__ = ["ingest_gnss", "run_info", "processing_obs", "lock_summary", "starter_gnss_config", "spp_master_position"]
+__all__ = ["ingest_gnss", "run_info", "processing_obs", "signal_obs", "ubx_loss_of_lock", "lock_summary", "starter_gnss_config",
+           "spp_master_position"]
 
 
 def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = None, ubx: dict | None = None,
@@ -94,19 +95,9 @@ def processing_obs(rx: GnssReceiver, interval_s: float | None = None) -> pd.Data
     r = rx.raw
     lli = r["lli"].to_numpy(dtype=np.int64).copy()
     if rx.format == "ubx":
-        lli[:] = 0
-        t = r["time_gps_s"].to_numpy()
-        sat = r["sat"].to_numpy()
-        half = r["half_cycle"].to_numpy(dtype=np.int64) == 1
-        ok = np.flatnonzero(np.isfinite(r["phase_cycles"].to_numpy()))
-        o = ok[np.lexsort((t[ok], sat[ok]))]                 # by satellite, then time
-        dt_nom = interval_s if interval_s else nominal_interval_s(t)
-        restart = ubx_restarts(sat[o], t[o], r["lock_time_ms"].to_numpy(dtype=np.float64)[o], dt_nom,
-                               LOCK_TIME_CAP_MS)
-        same = np.r_[False, sat[o][1:] == sat[o][:-1]]
-        h_o = half[o]
-        resolved_now = same & ~h_o & np.r_[False, h_o[:-1]]
-        lli[o] = np.where(restart | resolved_now, 1, 0) | np.where(h_o, 2, 0)
+        lli = ubx_loss_of_lock(r["time_gps_s"].to_numpy(), r["sat"].to_numpy(), r["phase_cycles"].to_numpy(),
+                               r["lock_time_ms"].to_numpy(dtype=np.float64), r["half_cycle"].to_numpy(dtype=np.int64) == 1,
+                               interval_s)
     return pd.DataFrame({
         "time_gps_s": r["time_gps_s"].to_numpy(dtype=np.float64),
         "sat": r["sat"].to_numpy(dtype=object),
@@ -118,6 +109,47 @@ def processing_obs(rx: GnssReceiver, interval_s: float | None = None) -> pd.Data
         "rx_clock_offset_s": r["clock_offset_s"].to_numpy(dtype=np.float64),
         "epoch_flag": r["epoch_flag"].to_numpy(dtype=np.int64),
     }, columns=list(OBS_COLUMNS))
+
+
+def ubx_loss_of_lock(t, channel, phase, lock_time_ms, half, interval_s: float | None = None) -> np.ndarray:
+    """Loss-of-lock bits of u-blox rows (see :func:`processing_obs`): bit 0 where the lock time of the
+    row's channel (satellite, or satellite and signal) restarted or the half-cycle ambiguity became
+    resolved, bit 1 while it is unresolved; 0 on rows without a phase.
+
+    Parameters
+    ----------
+    t : array_like (n,)  time tags, GPS s
+    channel : array_like (n,)  satellite (or satellite-signal) of each row
+    phase : array_like (n,)  carrier phase (NaN: none)
+    lock_time_ms : array_like (n,)  RXM-RAWX lock times, ms
+    half : array_like of bool (n,)  half-cycle ambiguity unresolved
+    interval_s : float, optional  nominal epoch interval, s (default: from the tags)
+    """
+    t = np.asarray(t, dtype=np.float64)
+    sat = np.asarray(channel)
+    half = np.asarray(half, dtype=bool)
+    lli = np.zeros(t.size, dtype=np.int64)
+    ok = np.flatnonzero(np.isfinite(np.asarray(phase, dtype=np.float64)))
+    o = ok[np.lexsort((t[ok], sat[ok]))]                 # by channel, then time
+    dt_nom = interval_s if interval_s else nominal_interval_s(t)
+    restart = ubx_restarts(sat[o], t[o], np.asarray(lock_time_ms, dtype=np.float64)[o], dt_nom, LOCK_TIME_CAP_MS)
+    same = np.r_[False, sat[o][1:] == sat[o][:-1]]
+    h_o = half[o]
+    resolved_now = same & ~h_o & np.r_[False, h_o[:-1]]
+    lli[o] = np.where(restart | resolved_now, 1, 0) | np.where(h_o, 2, 0)
+    return lli
+
+
+def signal_obs(rx: GnssReceiver, interval_s: float | None = None) -> pd.DataFrame | None:
+    """The receiver's multi-signal table for the solvers: a UBX log's ``lli`` from its lock times and
+    half-cycle status per satellite and signal (:func:`ubx_loss_of_lock`); a RINEX table as recorded."""
+    s = rx.signals
+    if s is None or "lock_time_ms" not in s:
+        return s
+    key = (s["sat"].astype(str) + ":" + s["signal"].astype(str)).to_numpy()
+    lli = ubx_loss_of_lock(s["time_gps_s"].to_numpy(), key, s["phase_cycles"].to_numpy(),
+                           s["lock_time_ms"].to_numpy(dtype=np.float64), s["half_cycle"].to_numpy() == 1, interval_s)
+    return s.assign(lli=lli)
 
 
 def lock_summary(rx: GnssReceiver, obs: pd.DataFrame | None = None) -> dict:

@@ -487,11 +487,12 @@ def _signal_slots(run, mapping: dict, rover_ants: list, xm: np.ndarray, say) -> 
     from cdgps_cli.estimation.rtk_multi import receiver_geometry  # noqa: PLC0415
     from cdgps_cli.measurement.dd_signals import signal_sd_table  # noqa: PLC0415
     from cdgps_cli.pipeline.gnss import _position_args  # noqa: PLC0415
+    from cdgps_cli.pipeline.gnss_ingest import signal_obs  # noqa: PLC0415   (UBX: slips from lock times)
 
     c = run.cfg
     if any(g.startswith("R:") for g in c.signals):
         raise CdgpsError("the modal structure path takes CDMA signals only (GPS, Galileo, BeiDou); GLONASS (FDMA) is not supported")
-    geo_m = receiver_geometry(run.receivers[run.master].signals, run.nav, xm)
+    geo_m = receiver_geometry(signal_obs(run.receivers[run.master]), run.nav, xm)
     tabs, slot_ants = [], []
     for a in rover_ants:
         r = mapping[a]
@@ -502,7 +503,7 @@ def _signal_slots(run, mapping: dict, rover_ants: list, xm: np.ndarray, say) -> 
                 raise CdgpsError(f"{run.path}: rover {r} has no nominal position (RINEX header or config); the signal path needs one")
             xr0 = np.asarray(h, dtype=float)
         say(f"{run.master} → {r}: single differences of {', '.join(c.signals)} …")
-        geo_r = receiver_geometry(run.receivers[r].signals, run.nav, xr0)
+        geo_r = receiver_geometry(signal_obs(run.receivers[r]), run.nav, xr0)
         for g in c.signals:
             d = signal_sd_table(geo_m[geo_m["signal"] == g], geo_r[geo_r["signal"] == g], xm, xr0,
                                 mask_rad=math.radians(c.mask_deg), max_gap_s=c.max_gap_s, troposphere=c.troposphere,

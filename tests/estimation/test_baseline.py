@@ -410,7 +410,8 @@ def test_random_walk_float_ambiguities_equal_the_dense_joint_least_squares():
     opt = BaselineOptions(motion="random_walk", random_walk_sigma=(0.002, 0.003, 0.004), initial_sigma_m=0.5)
     d = SimpleNamespace(ptr=ptr, sat=sat, sat_names=[f"G{i:02d}" for i in range(n_sat)], t_label=t, epoch=epoch)
     sg = SimpleNamespace(n_par=3 + n_amb, par_of_seg=np.r_[-1, 3 + np.arange(n_amb)], seg=seg)
-    w = SimpleNamespace(var_ph=var, ref_ph=ref_ph, var_code=var * 1e4, ref_code=ref_cd, code_ok=code_ok)
+    w = SimpleNamespace(var_ph=var, ref_ph=ref_ph, var_code=var * 1e4, ref_code=ref_cd, code_ok=code_ok,
+                        refs_ph=[ref_ph], refs_code=[ref_cd])
     fl = SimpleNamespace(g=g, r_ph=r_ph, r_cd=r_cd)
     da, q_aa = bl._float_random_walk(d, sg, w, fl, opt)
 

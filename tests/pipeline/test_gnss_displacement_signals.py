@@ -1,0 +1,196 @@
+"""``cdgps init`` / ``cdgps estimate`` (displacement states) on multi-GNSS, dual-frequency runs (issue 14 item 4).
+
+A run whose config lists ``[gnss] signals`` gives one DD group per constellation and frequency slot,
+each with its own reference satellite and wavelength, one ambiguity per satellite-signal lock
+segment, and all groups' integers fixed as one set.  Checked against the simulator's integers per
+signal, against the GPS L1 path (the signal path with ``G:L1`` alone is the same estimator), against
+the true position of a hardware-simulator data set, and the refusals.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cdgps_cli.estimation.baseline import BaselineOptions, Station, solve_static_baseline
+from cdgps_cli.io.gnss_run import read_gnss_run
+from cdgps_cli.io.mcap import read_mcap
+from cdgps_cli.pipeline.gnss_ingest import processing_obs
+from tests._shared import run_cli, run_commands
+
+ROOT = Path(__file__).resolve().parents[2]
+TOWER = ROOT / "configs" / "gnss-tower.toml"
+SIGS = "G:L1,G:L2,E:E1,E:E5a"
+GE = ROOT.parent / "shared" / "data" / "rinex-ge"
+GE_BASE_M = [4157177.06580187, 671230.476590636, 4774767.03105544]      # rinex-ge README, true ECEF
+GE_ROVER_M = [4156857.1195929, 673209.028774142, 4774767.03105544]
+
+
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("sig")
+    run_commands(("simulate-gnss-structure", TOWER, "--duration", "120", "--seed", "5", "--signals", SIGS, "--out", tmp),
+                 ("ingest", "--config", tmp / "config.toml", "-o", tmp / "run.mcap"),
+                 ("init", tmp / "run.mcap", "-o", tmp / "init.json"),
+                 ("estimate", tmp / "run.mcap", "--init", tmp / "init.json", "-o", tmp / "states.mcap"))
+    return tmp, json.loads((tmp / "truth.json").read_text()), json.loads((tmp / "init.json").read_text())
+
+
+def test_every_signal_group_is_fixed_to_the_simulated_integers(sim):
+    """Each segment's integer (SD ambiguity relative to its group's datum segment) equals the simulated
+    (N_rover − N_master) of that satellite and signal minus that of the datum satellite; one datum
+    per group, always of the same constellation and frequency."""
+    tmp, truth, init = sim
+    ints, master = truth["integers"], truth["master"]
+    assert init["signals"] == SIGS.split(",")
+    assert set(init["wavelengths_m"]) == set(SIGS.split(","))
+    n = 0
+    for rx, rov in init["rovers"].items():
+        assert rov["n_fixed"] == rov["n_estimated"] > 0
+        pivots = {}
+        for s in rov["ambiguities"]:
+            sat, slot = s["sat"].split(":")
+            ref = s["reference"].split(":")[0]
+            assert s["reference"].endswith(":" + slot) and ref[0] == sat[0]
+            sig = s["signal"]
+            assert sig == f"{sat[0]}:{slot}" and s["wavelength_m"] == pytest.approx(init["wavelengths_m"][sig])
+            if s["pivot"]:
+                pivots.setdefault(sig, []).append(s["sat"])
+                continue
+            want = (ints[rx][sig][sat] - ints[master][sig][sat]) - (ints[rx][sig][ref] - ints[master][sig][ref])
+            assert s["fixed"] and s["integer"] == want, s
+            n += 1
+        assert sorted(pivots) == sorted(SIGS.split(",")) and all(len(v) == 1 for v in pivots.values())
+    assert n >= 30
+    b = init["biases"][0]
+    lam = init["wavelengths_m"][b["satellite"][0] + ":" + b["satellite"].split(":")[1]]
+    assert b["bias_m"] == pytest.approx(lam * b["integer_cycles"])
+
+
+def test_estimate_states_name_the_signals(sim):
+    """STATES metadata: the signals, how DDs are grouped, biases per satellite-signal in its wavelength."""
+    tmp, *_ = sim
+    meta = read_mcap(tmp / "states.mcap", topics=[]).metadata["cdgps.estimate"]
+    opts = json.loads(meta["options"])
+    assert opts["signals"] == SIGS.split(",") and "own reference" in opts["dd_groups"]
+    assert {b["transmitter"].split(":")[1] for b in json.loads(meta["final_biases"])} == {"L1", "L2", "E1", "E5a"}
+
+
+def test_the_signal_path_with_gps_l1_alone_is_the_l1_path(sim):
+    """Independent check of the group machinery: with only G:L1 in the signal table, the solver
+    reaches the GPS L1 path's integers and static solution (the same data through the other
+    preparation: signal rows on the L1 epochs, names G05:L1)."""
+    tmp, *_ = sim
+    run = read_gnss_run(tmp / "run.mcap")
+    opt = BaselineOptions.from_gnss_config(run.cfg, kinematic_series=False)
+    rover = run.rovers[0]
+    res = {}
+    for how in ("l1", "sig"):
+        st = {}
+        for n, rx in run.receivers.items():
+            sig = rx.signals[rx.signals["signal"] == "G:L1"] if how == "sig" else None
+            st[n] = Station(n, dict(rx.header, path=rx.file), processing_obs(rx), sig)
+        res[how] = solve_static_baseline(st[run.master], st[rover], run.nav, opt)
+    a, b = res["l1"], res["sig"]
+    assert a["ambiguities"]["n_fixed"] == b["ambiguities"]["n_fixed"] > 0
+    ia = {(s["sat"], s["first_gps_s"]): s["integer"] for s in a["ambiguities"]["segments"]}
+    ib = {(s["sat"].split(":")[0], s["first_gps_s"]): s["integer"] for s in b["ambiguities"]["segments"]}
+    assert ia == ib
+    assert np.allclose(list(a["states"].values()), list(b["states"].values()), atol=1e-9)
+
+
+def _ge_config(tmp_path, signals, *, galileo_nav: bool) -> Path:
+    nav = [GE / "RINEX_GN_Spirent.23N"] + ([GE / "RINEX_EN_Spirent.23L"] if galileo_nav else [])
+    cfg = tmp_path / "job.toml"
+    cfg.write_text("[gnss]\nmaster = \"base\"\n" + (f"signals = {signals}\n" if signals else "")
+                   + f"nav = {json.dumps([str(p) for p in nav])}\n"
+                   + f"[gnss.antennas.base]\nrinex = \"{GE / 'Base-static_MO_Spirent.obs'}\"\nposition_ecef_m = {GE_BASE_M}\n"
+                   + f"[gnss.antennas.rover]\nrinex = \"{GE / 'Rover-static-2km-east_MO_Spirent.obs'}\"\n"
+                   + f"position_ecef_m = {GE_ROVER_M}\n")
+    return cfg
+
+
+@pytest.mark.skipif(not GE.is_dir(), reason="../shared/data/rinex-ge not available")
+@pytest.mark.parametrize("signals,tol_m", [(None, 0.003), ('["G:L1", "G:L2", "E:E1", "E:E5a"]', 0.003)])
+def test_rinex_ge_static_rover_is_fixed_within_3_mm_of_the_truth(tmp_path, signals, tol_m):
+    """Hardware-simulator base/rover 2 km apart (Spirent, 10 min): integers fixed, static solution
+    within 3 mm of the true rover position (nominal = truth, so the displacement is the error)."""
+    cfg = _ge_config(tmp_path, signals, galileo_nav=bool(signals))
+    run_commands(("ingest", "--config", cfg, "-o", tmp_path / "run.mcap"), ("init", tmp_path / "run.mcap", "-o", tmp_path / "init.json"))
+    init = json.loads((tmp_path / "init.json").read_text())
+    rov = init["rovers"]["rover"]
+    assert rov["solution"] == "fixed" and rov["n_fixed"] == rov["n_estimated"] >= (20 if signals else 4)
+    assert np.linalg.norm(list(init["states"].values())) < tol_m
+
+
+@pytest.mark.parametrize("edit,message", [
+    (lambda t: t.replace("[gnss]\n", "[gnss]\nepoch_alignment = \"doppler\"\n", 1), "epoch_alignment 'doppler'"),
+])
+def test_init_refuses_what_the_signal_path_cannot_take(sim, tmp_path, edit, message):
+    tmp, *_ = sim
+    text = edit((tmp / "config.toml").read_text())
+    (tmp_path / "config.toml").write_text(text)
+    for p in tmp.iterdir():
+        if p.suffix == ".rnx":
+            (tmp_path / p.name).write_bytes(p.read_bytes())
+    r = run_cli("ingest", "--config", tmp_path / "config.toml", "-o", tmp_path / "run.mcap")
+    assert r.exit_code == 0, r.output
+    out = tmp_path / "init.json"
+    r = run_cli("init", tmp_path / "run.mcap", "-o", out)
+    assert r.exit_code == 2 and message in r.output and "Traceback" not in r.output, r.output
+    assert not out.exists() and not any(p.name.startswith(".init") for p in tmp_path.iterdir())
+
+
+@pytest.mark.skipif(not GE.is_dir(), reason="../shared/data/rinex-ge not available")
+@pytest.mark.parametrize("signals,galileo_nav,message", [
+    ('["G:L1", "E:E1"]', False, "have no ephemerides of system(s) E"),        # a nav file missing a system
+    ('["G:L1", "C:B1I"]', True, "BeiDou"),                                   # a signal the receivers do not have
+    ('["G:L1", "R:G1"]', True, "R:G1 (GLONASS"),
+])
+def test_ingest_of_a_displacement_run_refuses_missing_signals_and_ephemerides(tmp_path, signals, galileo_nav, message):
+    cfg = _ge_config(tmp_path, signals, galileo_nav=galileo_nav)
+    out = tmp_path / "run.mcap"
+    r = run_cli("ingest", "--config", cfg, "-o", out)
+    assert r.exit_code == 2 and message in r.output and "Traceback" not in r.output, r.output
+    assert not out.exists() and not any(p.name.startswith(".run.mcap") for p in tmp_path.iterdir())
+
+
+@pytest.fixture(scope="module")
+def bds_pair(tmp_path_factory):
+    """The synthetic GPS + BeiDou + GLONASS pair of test_gnss_multi (real MOJN broadcast records,
+    361 m, 40 s; every receiver has the same integer per satellite and signal, so every DD integer is 0)."""
+    from tests.pipeline.test_gnss_multi import BASE, NAV, ROVER, _make_pair
+
+    d = _make_pair(tmp_path_factory.mktemp("bds"))
+
+    def config(signals) -> Path:
+        cfg = d / f"job-{len(signals)}.toml"
+        cfg.write_text(f"[gnss]\nmaster = \"base\"\nsignals = {json.dumps(signals)}\nnav = [\"{NAV}\"]\nmask_deg = 20.0\n"
+                       f"troposphere = false\n[gnss.antennas.base]\nrinex = \"base.obs\"\n"
+                       f"position_ecef_m = {[float(v) for v in BASE]}\n[gnss.antennas.rover]\nrinex = \"rover.obs\"\n"
+                       f"position_ecef_m = {[float(v) for v in ROVER]}\n")
+        return cfg
+
+    return d, config
+
+
+def test_beidou_b1i_b2i_on_the_displacement_path(bds_pair):
+    d, config = bds_pair
+    run_commands(("ingest", "--config", config(["G:L1", "C:B1I", "C:B2I"]), "-o", d / "run.mcap"),
+                 ("init", d / "run.mcap", "-o", d / "init.json"))
+    init = json.loads((d / "init.json").read_text())
+    rov = init["rovers"]["rover"]
+    assert rov["solution"] == "fixed" and rov["n_fixed"] == rov["n_estimated"] >= 10
+    assert {s["signal"] for s in rov["ambiguities"]} == {"G:L1", "C:B1I", "C:B2I"}
+    assert all(s["integer"] == 0 for s in rov["ambiguities"])
+    assert np.linalg.norm(list(init["states"].values())) < 0.005
+
+
+def test_glonass_signals_are_refused_naming_them(bds_pair):
+    d, config = bds_pair
+    out = d / "glo.mcap"
+    r = run_cli("ingest", "--config", config(["G:L1", "R:G1"]), "-o", out)
+    assert r.exit_code == 2 and "GLONASS" in r.output and "Traceback" not in r.output and not out.exists(), r.output
