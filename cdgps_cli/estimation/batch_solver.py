@@ -31,6 +31,8 @@ from scipy.linalg import solve_triangular
 from scipy.linalg.blas import dtrmm
 from scipy.linalg.lapack import dgeqrf, dpotrf, dtrcon
 
+from cdgps_cli.estimation import compiled
+
 _MASKS: dict = {}
 
 
@@ -384,13 +386,13 @@ def _srif(prob: LinearProblem, square_root: bool) -> LinearSolution | None:
     n, m, r = prob.A.shape[0], prob.n_bias, prob.Bw_L.shape[1]
     K = 1 if prob.y.ndim == 2 else prob.y.shape[2]
     Ainv = np.linalg.inv(prob.A)
-    AG = np.asfortranarray(np.hstack([-(Ainv @ prob.Bw_L), Ainv]))  # x_{k−1} = AG @ [ω_{k−1}; x_k]
+    AG = np.hstack([-(Ainv @ prob.Bw_L), Ainv])             # x_{k−1} = AG @ [ω_{k−1}; x_k]
     pool = _BiasRows(m, square_root, K)
-    M, smooth = _forward(prob, AG, pool)
+    Mx, smooth = _forward(prob, AG, pool)
     S = pool.sqrt()
     if S is None:
         return None
-    R, d, cost = _final_factor(M[r:r + n], n, m, K, S)
+    R, d, cost = _final_factor(Mx, n, m, K, S)
     diag = np.abs(np.diag(R))
     scale = max(diag.max(initial=0.0), 1e-300)
     rank_deficient = bool(diag.min(initial=1.0) <= 1e-10 * scale)
@@ -407,15 +409,16 @@ def _srif(prob: LinearProblem, square_root: bool) -> LinearSolution | None:
 
 
 def _forward(prob: LinearProblem, AG: np.ndarray, pool: "_BiasRows") -> tuple[np.ndarray, np.ndarray]:
-    """The filter pass of :func:`srif_solve`: the work array M (w+q, r+n+m+K) after the last epoch
-    (rows [r, r+n): [R_x | R_xb | d] at epoch N) and the smoother's ω rows (N−1, r, r+n+m+K); the
-    bias-only rows go to ``pool``."""
+    """The filter pass of :func:`srif_solve`: the state rows [· | R_x | R_xb | d] (n, r+n+m+K) after
+    the last epoch and the smoother's ω rows (N−1, r, r+n+m+K); the bias-only rows go to ``pool``.
+    The epoch loop runs in the compiled kernel (:func:`cdgps_cli.estimation.compiled.srif_forward`) when
+    it is available, else in :func:`_forward_numpy` (its twin, tested equal)."""
     N, C, n = prob.H.shape
     m, r = prob.n_bias, prob.Bw_L.shape[1]
     K = pool.k
     p, w = n + m, r + n
     ncol = w + m + K
-    meas = _measurement_rows(prob, r, pool)
+    meas = _measurement_rows(prob, r, pool)                 # zero in the ω columns
     q = meas.shape[1]
     # prior on b: bias-only rows
     pool.add(np.hstack([prob.b_sqrt_info, (prob.b_sqrt_info @ prob.b_mean).reshape(m, K)]))
@@ -426,14 +429,33 @@ def _forward(prob: LinearProblem, AG: np.ndarray, pool: "_BiasRows") -> tuple[np
     M0[n:, :] = meas[0, :, r:]
     T0 = _qr_r(M0)
     pool.add(T0[n:, n:])
-    # the filter's work array, columns [ω | x | b | y]; rows [0, r): prior on ω, [r, w): x, [w, w+q): data
-    M = np.zeros((w + q, ncol), order="F")
-    M[r:w, r:w] = T0[:n, :n]
-    M[r:w, w:] = T0[:n, n:]
-    top = np.zeros((r, ncol))
-    top[:, :r] = np.eye(r)
+    X = np.zeros((n, ncol))                                 # the state rows, columns [ω | x | b | y]
+    X[:, r:w] = T0[:n, :n]
+    X[:, w:] = T0[:n, n:]
     smooth = np.empty((max(N - 1, 0), r, ncol))             # ω rows for the smoother
     left = np.empty((max(N - 1, 0), q, m + K))              # bias-only rows left by each update
+    if N > 1 and compiled.available():
+        compiled.srif_forward(AG, X, meas, smooth, left)
+    elif N > 1:
+        X = _forward_numpy(X, AG, meas, smooth, left, r)
+    if N > 1 and q:
+        pool.add(left.reshape(-1, m + K))
+    return X, smooth
+
+
+def _forward_numpy(X: np.ndarray, AG: np.ndarray, meas: np.ndarray, smooth: np.ndarray, left: np.ndarray,
+                   r: int) -> np.ndarray:
+    """The epoch loop of :func:`_forward` in numpy (the compiled kernel's twin): per epoch k ≥ 1 the QR
+    (LAPACK dgeqrf) of [prior on ω; time-updated state rows; measurement rows] (see :func:`srif_solve`).
+    Writes ``smooth`` and ``left`` (made upper trapezoidal), returns the state rows after the last epoch."""
+    n, ncol = X.shape
+    w = r + n
+    N, q = meas.shape[:2]
+    M = np.zeros((w + q, ncol), order="F")  # rows [0, r): prior on ω, [r, w): x, [w, w+q): data
+    M[r:w] = X
+    top = np.zeros((r, ncol))
+    top[:, :r] = np.eye(r)
+    AG = np.asfortranarray(AG)
     for k in range(1, N):
         M[r:w, :w] = dtrmm(1.0, M[r:w, r:w], AG)            # R_x A⁻¹[−G | I]; R_xb and d stay in place
         M[:r] = top
@@ -441,10 +463,9 @@ def _forward(prob: LinearProblem, AG: np.ndarray, pool: "_BiasRows") -> tuple[np
         _qr_inplace(M)
         smooth[k - 1] = M[:r]
         left[k - 1] = M[w:, w:]
-    if N > 1 and q:
-        left *= np.triu(np.ones((q, m + K)))                # reflectors below the diagonal
-        pool.add(left.reshape(-1, m + K))
-    return M, smooth
+    if q:
+        left *= np.triu(np.ones((q, left.shape[2])))        # reflectors below the diagonal
+    return M[r:w]
 
 
 def _final_factor(Mx: np.ndarray, n: int, m: int, K: int, S: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:

@@ -1,0 +1,61 @@
+"""The compiled extension ``cdgps_cli.estimation._ekfcore``: loading, API check, and the wrapper of its
+geometry-free routine, the batch solver's epoch loop (:func:`srif_forward`).
+
+:mod:`cdgps_cli.estimation.kernel` holds the wrappers that need the structure's geometry (the forward
+filter, the measurement model) and re-exports these names.  The extension is optional:
+:func:`available` is false when it was not compiled, when its API does not match this module, or
+when the environment variable ``CDGPS_NO_KERNEL`` is set to anything but ``""`` / ``"0"`` (tests use
+it to force the numpy paths).
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+try:
+    from cdgps_cli.estimation import _ekfcore
+except ImportError:                      # not compiled (no C compiler at install time)
+    _ekfcore = None
+
+API = 5                                 # 2: per-channel measurement variance (R = diag(r_var)); 3: dd_span;
+                                        # 4: filter_span writes H(x_k) P_k H(x_k)ᵀ per used channel (hph);
+                                        # 5: srif_forward and phase_model_batch (batch initialization)
+
+
+def available() -> bool:
+    """True when the compiled kernel is importable, current, and not disabled by CDGPS_NO_KERNEL."""
+    if os.environ.get("CDGPS_NO_KERNEL", "") not in ("", "0"):
+        return False
+    return _ekfcore is not None and getattr(_ekfcore, "API", None) == API
+
+
+def _f64(a) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=np.float64)
+
+
+def srif_forward(AG: np.ndarray, X: np.ndarray, meas: np.ndarray, smooth: np.ndarray, left: np.ndarray) -> None:
+    """The epoch loop of :func:`cdgps_cli.estimation.batch_solver._forward` in C (same arithmetic as its numpy
+    twin ``_forward_numpy`` up to rounding: one Householder QR per epoch, triangular in the ω and x columns).
+
+    Parameters
+    ----------
+    AG : ndarray (n, r+n)
+        A⁻¹[−B_w W^{1/2} | I] (x_{k−1} = AG [ω_{k−1}; x_k]).
+    X : ndarray (n, r+n+m+K), updated in place
+        The state rows [0 | R_x | R_xb | d] after epoch 0 on entry, after the last epoch on return (zero
+        below R_x's diagonal and in the ω columns).
+    meas : ndarray (N, q, r+n+m+K)
+        Each epoch's compressed measurement rows, zero in the ω columns (epoch 0 is not read).
+    smooth : ndarray (N−1, r, r+n+m+K), written
+        The ω rows of each update, for the smoother.
+    left : ndarray (N−1, q, m+K), written
+        The bias-only rows each update leaves (not triangular).
+    """
+    n, w = AG.shape
+    N, q, ncol = meas.shape
+    for name, arr in (("X", X), ("smooth", smooth), ("left", left)):
+        if arr.dtype != np.float64 or not arr.flags.c_contiguous or not arr.flags.writeable:
+            raise ValueError(f"srif_forward: {name} must be a writable C-contiguous float64 array")
+    _ekfcore.srif_forward(_f64(AG), X, _f64(meas), smooth, left, N, w - n, n, q, ncol)
