@@ -239,7 +239,9 @@ def _reduced_rows(prob: LinearProblem, ys: np.ndarray, bi: np.ndarray, J: np.nda
                   meas: np.ndarray) -> None:
     """:func:`_measurement_rows` when H_k spans |J| < C columns: the filter's rows into ``meas``
     (N, |J|, r+n+m+K), the bias-only rows to ``pool``.  ``ys`` (N, C, K) whitened data (0 where absent),
-    ``bi`` (N, C) bias index (−1 where absent or known)."""
+    ``bi`` (N, C) bias index (−1 where absent or known).  The per-epoch QRs run in the compiled kernel
+    (:func:`cdgps_cli.estimation.compiled.reduce_rows`) when it is available, else in numpy
+    (:func:`_split_rows_numpy`, its twin)."""
     N, C, n = prob.H.shape
     m, K, q = prob.n_bias, ys.shape[2], J.size
     s = 1.0 / prob.sigma_m
@@ -249,44 +251,18 @@ def _reduced_rows(prob: LinearProblem, ys: np.ndarray, bi: np.ndarray, J: np.nda
     if absent.any():
         HJ[absent] = 0.0
     xcols = slice(r + J[0], r + J[-1] + 1) if J[-1] - J[0] + 1 == J.size else r + J
-    # the usual case: every epoch has the same channels, each with its own bias → Qᵀ E is a
-    # permutation of Qᵀ's columns (no products needed), often the identity
-    ok0 = bi[0] >= 0
-    chan0, bias0 = np.flatnonzero(ok0), bi[0, ok0]
-    permutation = bool((bi == bi[0]).all()) and np.unique(bias0).size == bias0.size
-    identity = permutation and C == m and np.array_equal(bias0, np.arange(m))
-
-    def rows_of(Q, k0, out):
-        """out[k] = Qₖᵀ [E_k | y_k] for epochs k0 … k0+len(Q)−1 (out zero on entry), Q (·, C, j)."""
-        if identity:
-            np.multiply(Q.transpose(0, 2, 1), s, out=out[:, :, :m])
-        elif permutation:
-            out[:, :, bias0] = s * Q[:, chan0, :].transpose(0, 2, 1)
-        else:
-            for c in range(C):
-                ks = np.flatnonzero(bi[k0:k0 + len(Q), c] >= 0)
-                if ks.size:
-                    out[ks, :, bi[k0 + ks, c]] += s * Q[ks, c, :]
-        if K == 1:
-            np.einsum("kcj,kc->kj", Q, ys[k0:k0 + len(Q), :, 0], out=out[:, :, m])
-        else:
-            np.einsum("kcj,kcl->kjl", Q, ys[k0:k0 + len(Q)], out=out[:, :, m:])
-
+    use_c = compiled.available()
     step = 1024
     for k0 in range(0, N, step):
         k1 = min(N, k0 + step)
-        if pool.square_root:
-            Q, R1 = np.linalg.qr(HJ[k0:k1], mode="complete")
-            meas[k0:k1, :, xcols] = R1[:, :q] * s
-            rows_of(Q[:, :, :q], k0, meas[k0:k1, :, w:])
-            other = np.zeros((k1 - k0, C - q, m + K))
-            rows_of(Q[:, :, q:], k0, other)
-            pool.add(other.reshape(-1, m + K))
+        if use_c:
+            R1, EY = compiled.reduce_rows(HJ[k0:k1], ys[k0:k1], bi[k0:k1], m, s, pool.square_root)
         else:
-            Q1, R1 = np.linalg.qr(HJ[k0:k1])
-            R1 *= s
-            meas[k0:k1, :, xcols] = R1
-            rows_of(Q1, k0, meas[k0:k1, :, w:])
+            R1, EY = _split_rows_numpy(HJ[k0:k1], ys[k0:k1], bi, k0, m, s, pool.square_root)
+        meas[k0:k1, :, xcols] = R1 * s
+        meas[k0:k1, :, w:] = EY[:, :q]
+        if pool.square_root:
+            pool.add(EY[:, q:].reshape(-1, m + K))
     if not pool.square_root:
         # Σ [E|y]ᵀ[E|y]: diagonal counts, per-bias sums of y, Σ y²; minus the part kept for the filter
         ok = bi >= 0
@@ -301,6 +277,41 @@ def _reduced_rows(prob: LinearProblem, ys: np.ndarray, bi: np.ndarray, J: np.nda
             gram[m:, m:] = np.einsum("kcl,kcj->lj", ys, ys)
         gram -= _gram(meas[:, :, w:].reshape(N * q, m + K))
         pool.add_gram(gram)
+
+
+def _split_rows_numpy(HJ: np.ndarray, ys: np.ndarray, bi: np.ndarray, k0: int, m: int, s: float,
+                      full: bool) -> tuple[np.ndarray, np.ndarray]:
+    """The QRs HJ[k] = Q_k R_k of epochs k0 … k0+len(HJ)−1 (numpy/LAPACK): R₁ (·, q, q) (unscaled) and
+    Q_kᵀ[E_k | y_k] (·, q, m+K), or with ``full`` all C rows (the last C − q involve only the biases).
+    E_k: s in column ``bi[k, c]`` of row c (none where −1); ``ys`` (·, C, K); ``bi`` (N, C), all epochs."""
+    nk, C, q = HJ.shape
+    K = ys.shape[2]
+    b0 = bi[0]
+    ok0 = b0 >= 0
+    chan0, bias0 = np.flatnonzero(ok0), b0[ok0]
+    # the usual case: every epoch has the same channels, each with its own bias → Qᵀ E is a
+    # permutation of Qᵀ's columns (no products needed), often the identity
+    permutation = bool((bi == b0).all()) and np.unique(bias0).size == bias0.size
+    identity = permutation and C == m and np.array_equal(bias0, np.arange(m))
+    if full:
+        Q, R = np.linalg.qr(HJ, mode="complete")
+    else:
+        Q, R = np.linalg.qr(HJ)
+    out = np.zeros((nk, Q.shape[2], m + K))
+    if identity:
+        np.multiply(Q.transpose(0, 2, 1), s, out=out[:, :, :m])
+    elif permutation:
+        out[:, :, bias0] = s * Q[:, chan0, :].transpose(0, 2, 1)
+    else:
+        for c in range(C):
+            ks = np.flatnonzero(bi[k0:k0 + nk, c] >= 0)
+            if ks.size:
+                out[ks, :, bi[k0 + ks, c]] += s * Q[ks, c, :]
+    if K == 1:
+        np.einsum("kcj,kc->kj", Q, ys[:, :, 0], out=out[:, :, m])
+    else:
+        np.einsum("kcj,kcl->kjl", Q, ys, out=out[:, :, m:])
+    return R[:, :q], out
 
 
 def _measurement_rows_full(prob: LinearProblem, r: int, pool: _BiasRows) -> np.ndarray:
@@ -491,7 +502,16 @@ def _final_factor(Mx: np.ndarray, n: int, m: int, K: int, S: np.ndarray) -> tupl
 
 def _smooth(smooth: np.ndarray, AG: np.ndarray, Ainv: np.ndarray, z: np.ndarray, n: int, m: int, r: int):
     """Dyer–McReynolds smoother: ω_{k−1} = R_w⁻¹ (d_w − R_wx x_k − R_wb b), x_{k−1} = A⁻¹(x_k − G ω_{k−1}),
-    from z = [x_N; b] ((p,) or (p, K)).  Returns x (N, n[, K]) and ω (N−1, r[, K])."""
+    from z = [x_N; b] ((p,) or (p, K)).  Returns x (N, n[, K]) and ω (N−1, r[, K]).  In the compiled
+    kernel (:func:`cdgps_cli.estimation.compiled.srif_smooth`) when available, else :func:`_smooth_numpy`."""
+    if compiled.available():
+        return compiled.srif_smooth(smooth, AG, z, smooth.shape[0] + 1, m)
+    return _smooth_numpy(smooth, AG, Ainv, z, n, m, r)
+
+
+def _smooth_numpy(smooth: np.ndarray, AG: np.ndarray, Ainv: np.ndarray, z: np.ndarray, n: int, m: int, r: int):
+    """:func:`_smooth` in numpy (the compiled kernel's twin): the gains of all epochs at once, then the
+    recursion x_{k−1} = F_k x_k + g_k."""
     N = smooth.shape[0] + 1
     w = r + n
     tail = z.shape[1:]

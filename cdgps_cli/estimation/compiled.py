@@ -59,3 +59,63 @@ def srif_forward(AG: np.ndarray, X: np.ndarray, meas: np.ndarray, smooth: np.nda
         if arr.dtype != np.float64 or not arr.flags.c_contiguous or not arr.flags.writeable:
             raise ValueError(f"srif_forward: {name} must be a writable C-contiguous float64 array")
     _ekfcore.srif_forward(_f64(AG), X, _f64(meas), smooth, left, N, w - n, n, q, ncol)
+
+
+def reduce_rows(HJ: np.ndarray, ys: np.ndarray, bi: np.ndarray, m: int, s: float,
+                full: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Per epoch k the Householder QR HJ[k] = Q_k R_k (LAPACK's convention) and the rows Q_kᵀ[E_k | y_k]
+    of :func:`cdgps_cli.estimation.batch_solver._reduced_rows` in C (its numpy twin: ``_split_rows_numpy``).
+
+    Parameters
+    ----------
+    HJ : ndarray (N, C, q), C > q
+        The measurement Jacobian's non-zero columns (zero rows where a channel is absent).
+    ys : ndarray (N, C, K)
+        Whitened right-hand sides (zero where absent).
+    bi : ndarray (N, C) int
+        Bias parameter of each row (−1: none); E_k[c, bi[k, c]] = ``s``.
+    m : int
+        Number of bias parameters.
+    full : bool
+        Also return the C − q rows that involve only the biases.
+
+    Returns
+    -------
+    R1 : ndarray (N, q, q), upper triangular
+    EY : ndarray (N, q, m+K), or (N, C, m+K) with ``full``
+    """
+    N, C, q = HJ.shape
+    K = ys.shape[2]
+    R1 = np.empty((N, q, q))
+    EY = np.empty((N, C if full else q, m + K))
+    _ekfcore.reduce_rows(_f64(HJ), _f64(ys), np.ascontiguousarray(bi, dtype=np.int64), R1, EY,
+                         N, C, q, m, K, float(s), EY.shape[1])
+    return R1, EY
+
+
+def srif_smooth(smooth: np.ndarray, AG: np.ndarray, z: np.ndarray, N: int, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """The Dyer–McReynolds smoother of :func:`cdgps_cli.estimation.batch_solver._smooth` in C (its numpy
+    twin: ``_smooth_numpy``): ω_{k−1} = R_w⁻¹(d_w − R_wx x_k − R_wb b), x_{k−1} = AG [ω_{k−1}; x_k].
+
+    Parameters
+    ----------
+    smooth : ndarray (N−1, r, r+n+m+K)
+        The ω rows of each update (:func:`srif_forward`).
+    AG : ndarray (n, r+n)
+    z : ndarray (n+m,) or (n+m, K)
+        [x_N; b].
+    N, m : int
+        Epochs and bias parameters.
+
+    Returns
+    -------
+    x : ndarray (N, n[, K]) and ω : ndarray (N−1, r[, K]), with z's trailing axis.
+    """
+    n, w = AG.shape
+    r = w - n
+    tail = z.shape[1:]
+    K = int(np.prod(tail)) if tail else 1
+    xs = np.empty((N, n, K))
+    ws = np.empty((max(N - 1, 0), r, K))
+    _ekfcore.srif_smooth(_f64(smooth), _f64(AG), _f64(z).reshape(-1), xs, ws, N, r, n, m, K)
+    return xs.reshape((N, n) + tail), ws.reshape((max(N - 1, 0), r) + tail)

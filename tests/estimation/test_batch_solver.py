@@ -522,3 +522,52 @@ def test_compiled_forward_on_testbed_linearization(monkeypatch, testbed_lin):
     (Xc, sc, Ic), (Xn, sn, In) = _forward_both(lp, monkeypatch, False)
     r = lp.Bw_L.shape[1]
     assert _rel(Xc, np.triu(Xn, r)) < 1e-12 and _rel(sc, np.triu(sn)) < 1e-12 and _rel(Ic, In) < 1e-12
+
+
+@needs_kernel
+@pytest.mark.parametrize("full", [False, True])
+@pytest.mark.parametrize("case", ["identity", "shared_known_absent", "slip_k3"])
+def test_compiled_row_split_equals_numpy_twin(case, full):
+    """The per-epoch QR split of the measurement rows (kernel.reduce_rows vs _split_rows_numpy, LAPACK):
+    R₁ and Qᵀ[E | y] to 1e-12, for one bias per channel, shared / known biases with absent rows
+    (a general incidence, handled row by row), and a slip with three right-hand sides."""
+    rng = np.random.default_rng({"identity": 1, "shared_known_absent": 2, "slip_k3": 3}[case])
+    N, C, q = 40, 11, 4
+    K = 3 if case == "slip_k3" else 1
+    HJ = rng.standard_normal((N, C, q))
+    ys = rng.standard_normal((N, C, K))
+    bi = np.tile(np.arange(C), (N, 1))
+    m = C
+    if case == "shared_known_absent":
+        bi[:, 2], bi[:, 5] = 1, -1
+        absent = rng.random((N, C)) < 0.2
+        bi[absent], HJ[absent], ys[absent] = -1, 0.0, 0.0
+    if case == "slip_k3":
+        bi[N // 2:, 0] = C
+        m = C + 1
+    R1c, EYc = compiled.reduce_rows(HJ, ys, bi, m, 0.7, full)
+    R1n, EYn = batch._split_rows_numpy(HJ, ys, bi, 0, m, 0.7, full)
+    assert R1c.shape == R1n.shape == (N, q, q) and EYc.shape == EYn.shape == (N, C if full else q, m + K)
+    np.testing.assert_allclose(R1c, R1n, rtol=0, atol=1e-12 * np.abs(R1n).max())
+    np.testing.assert_allclose(EYc, EYn, rtol=0, atol=1e-12 * np.abs(EYn).max())
+
+
+@needs_kernel
+@pytest.mark.parametrize("r,K", [(2, 1), (3, 4), (0, 1)])
+def test_compiled_smoother_equals_numpy_twin(r, K):
+    """The smoother's backward pass (kernel.srif_smooth vs _smooth_numpy) on random ω rows: x and ω to 1e-12."""
+    rng = np.random.default_rng(40 + r + K)
+    N, n, m = 30, 5, 4
+    ncol = r + n + m + K
+    smooth = rng.standard_normal((N - 1, r, ncol))
+    smooth[:, :, :r] = np.triu(smooth[:, :, :r]) + 3 * np.eye(r)      # R_w: the unit prior keeps it regular
+    S = rng.standard_normal((n, n))
+    Ainv = expm(0.2 * (S - S.T))
+    AG = np.hstack([-(Ainv @ rng.standard_normal((n, r))), Ainv])
+    z = rng.standard_normal((n + m, K)) if K > 1 else rng.standard_normal(n + m)
+    xc, wc = compiled.srif_smooth(smooth, AG, z, N, m)
+    xn, wn = batch._smooth_numpy(smooth, AG, Ainv, z, n, m, r)
+    assert xc.shape == xn.shape and wc.shape == wn.shape
+    np.testing.assert_allclose(xc, xn, rtol=0, atol=1e-12 * np.abs(xn).max())
+    if r:
+        np.testing.assert_allclose(wc, wn, rtol=0, atol=1e-12 * np.abs(wn).max())
