@@ -1170,8 +1170,7 @@ done:
  * Householder reflection (LAPACK dlarfg's convention) of rows j0 .. rows-1 of the row-major
  * B (ld columns) that zeroes column col below row j0, applied to the columns col+1 .. ld-1:
  * H = I - tau v v^T, v = [1; B[j0+1:, col] / (alpha - beta)], beta = -sign(alpha) |B[j0:, col]|.
- * Column col is left as [beta; 0 ...], or with keep as [beta; v[1:]] (the reflector, as dgeqrf
- * stores it).  Returns tau (0, and nothing changes, when the column is zero below j0).
+ * Column col is left as [beta; 0 ...] (nothing changes when it is zero below j0).
  * wv: ld scratch.  Rows whose entry in column col is zero are skipped (v_i = 0).
  */
 /*
@@ -1186,11 +1185,11 @@ done:
 #endif
 
 SIMD_CLONES
-static double householder_step(double *restrict B, int ld, int j0, int rows, int col, double *restrict wv, int keep)
+static void householder_step(double *restrict B, int ld, int j0, int rows, int col, double *restrict wv)
 {
     double xn2 = 0.0;
     for (int i = j0 + 1; i < rows; i++) xn2 += B[(Py_ssize_t)i * ld + col] * B[(Py_ssize_t)i * ld + col];
-    if (xn2 == 0.0) return 0.0;
+    if (xn2 == 0.0) return;
     double alpha = B[(Py_ssize_t)j0 * ld + col];
     double beta = -copysign(sqrt(alpha * alpha + xn2), alpha);
     double scale = 1.0 / (alpha - beta), tau = (beta - alpha) / beta;
@@ -1211,112 +1210,161 @@ static double householder_step(double *restrict B, int ld, int j0, int rows, int
         const double v = tau * *vi;
         double *Bi = vi + 1;
         for (int c = 0; c < len; c++) Bi[c] -= v * wv[c];
-        if (!keep) *vi = 0.0;
+        *vi = 0.0;
     }
     B[(Py_ssize_t)j0 * ld + col] = beta;
-    return tau;
+}
+
+/* sum_i a_i b_i, four partial sums (a fixed order: the same bits in every build) */
+static inline double dot4(const double *restrict a, const double *restrict b, int len)
+{
+    double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
+    int i = 0;
+    for (; i + 3 < len; i += 4) {
+        s0 += a[i] * b[i];
+        s1 += a[i + 1] * b[i + 1];
+        s2 += a[i + 2] * b[i + 2];
+        s3 += a[i + 3] * b[i + 3];
+    }
+    for (; i < len; i++) s0 += a[i] * b[i];
+    return (s0 + s1) + (s2 + s3);
 }
 
 /*
- * Q = H_0 H_1 ... H_{nr-1} [I; 0] (rows x nq, row-major, nq <= rows) from the reflectors kept in
- * the columns of the row-major A (rows x lda) by householder_step (LAPACK dorg2r's backward
- * accumulation: H_j touches rows j.. and columns j.. only).  wv: nq scratch.
+ * Householder QR (dlarfg's convention) of the rows x q matrix whose columns are the rows of At
+ * (q x rows, row-major: each column contiguous), rows >= q.  On return At[j][j..] = [R_jj; v_j[1:]]
+ * and At[c][j] = R_jc for j < c (R's column c in the first entries of At's row c); tau (q).
  */
 SIMD_CLONES
-static void householder_q(const double *restrict A, int lda, const double *restrict tau, int nr, int rows,
-                          double *restrict Q, int nq, double *restrict wv)
+static void qr_columns(double *restrict At, int q, int rows, double *restrict tau)
 {
-    memset(Q, 0, sizeof(double) * rows * nq);
-    for (int i = 0; i < nq; i++) Q[i * nq + i] = 1.0;
-    for (int j = nr - 1; j >= 0; j--) {
-        if (tau[j] == 0.0) continue;
-        const int len = nq - j;
-        const double *Qj = Q + j * nq + j;
-        for (int c = 0; c < len; c++) wv[c] = Qj[c];
-        for (int i = j + 1; i < rows; i++) {
-            const double v = A[i * lda + j], *Qi = Q + i * nq + j;
-            if (v == 0.0) continue;
-            for (int c = 0; c < len; c++) wv[c] += v * Qi[c];
-        }
-        for (int c = 0; c < len; c++) Q[j * nq + j + c] -= tau[j] * wv[c];
-        for (int i = j + 1; i < rows; i++) {
-            const double v = tau[j] * A[i * lda + j];
-            double *Qi = Q + i * nq + j;
-            if (v == 0.0) continue;
-            for (int c = 0; c < len; c++) Qi[c] -= v * wv[c];
+    for (int j = 0; j < q; j++) {
+        double *x = At + j * rows;
+        const int len = rows - j - 1;
+        double xn2 = dot4(x + j + 1, x + j + 1, len);
+        tau[j] = 0.0;
+        if (xn2 == 0.0) continue;
+        const double alpha = x[j], beta = -copysign(sqrt(alpha * alpha + xn2), alpha);
+        const double scale = 1.0 / (alpha - beta);
+        tau[j] = (beta - alpha) / beta;
+        for (int i = j + 1; i < rows; i++) x[i] *= scale;
+        x[j] = beta;
+        for (int c = j + 1; c < q; c++) {
+            double *y = At + c * rows;
+            const double f = tau[j] * (y[j] + dot4(x + j + 1, y + j + 1, len));
+            y[j] -= f;
+            for (int i = j + 1; i < rows; i++) y[i] -= f * x[i];
         }
     }
 }
 
 /*
- * reduce_rows(HJ, ys, bi, R1, EY, N, C, qj, m, K, s, nq) -> None
- *   batch_solver._reduced_rows per epoch k: the QR HJ[k] = Q R (C x qj, C > qj, absent rows zero),
- *   R1[k] = R's first qj rows (qj x qj, upper triangular), and EY[k] = the first nq rows of
- *   Q^T [E_k | y_k] (nq = qj: the filter's rows; nq = C: also the C - qj bias-only rows), with
- *   E_k[c, bi[k, c]] = s (no entry where bi < 0) and y_k = ys[k] (C x K, zero where absent).
- *   HJ (N, C, qj), ys (N, C, K), bi (N, C) int64, R1 (N, qj, qj), EY (N, nq, m + K).
+ * The first nq columns of Q = H_0 ... H_{q-1} (rows x rows) from qr_columns' reflectors, as the rows
+ * of Qt (nq x rows, row-major), q <= nq <= rows (dorg2r's backward accumulation: H_j touches the
+ * entries j.. of the columns j..).
+ */
+SIMD_CLONES
+static void q_columns(const double *restrict At, const double *restrict tau, int q, int rows, double *restrict Qt, int nq)
+{
+    memset(Qt, 0, sizeof(double) * nq * rows);
+    for (int c = 0; c < nq; c++) Qt[c * rows + c] = 1.0;
+    for (int j = q - 1; j >= 0; j--) {
+        if (tau[j] == 0.0) continue;
+        const double *v = At + j * rows;
+        const int len = rows - j - 1;
+        for (int c = j; c < nq; c++) {
+            double *y = Qt + c * rows;
+            const double f = tau[j] * (y[j] + dot4(v + j + 1, y + j + 1, len));
+            y[j] -= f;
+            for (int i = j + 1; i < rows; i++) y[i] -= f * v[i];
+        }
+    }
+}
+
+/*
+ * reduce_rows(H, J, present, ys, bi, meas, other, N, C, n, q, m, K, r, ncol, s, full) -> None
+ *   batch_solver._reduced_rows per epoch k: the QR H[k][:, J] = Q R (C x q, C > q; rows of absent
+ *   channels zero) and Q^T [E_k | y_k], with E_k[c, bi[k, c]] = s (no entry where bi < 0) and y_k = ys[k]
+ *   (C x K, zero where absent).  Writes the filter's rows into meas[k] (q x ncol): s R in the columns
+ *   r + J, the first q rows of Q^T [E_k | y_k] in the columns ncol - m - K ..; other columns untouched.
+ *   With full, the other C - q rows of Q^T [E_k | y_k] (biases only) into other[k] ((C - q) x (m + K)).
+ *   H (N, C, n), J (q) int64, present (N, C) bytes, ys (N, C, K), bi (N, C) int64, all row-major.
  */
 static PyObject *py_reduce_rows(PyObject *self, PyObject *args)
 {
-    PyObject *o[5];
-    Buf b[5];
+    enum { NB = 7 };
+    PyObject *o[NB];
+    Buf b[NB];
     memset(b, 0, sizeof(b));
-    Py_ssize_t N, C, qj, m, K, nq;
+    Py_ssize_t N, C, n, q, m, K, r, ncol;
     double s;
-    if (!PyArg_ParseTuple(args, "OOOOOnnnnndn", &o[0], &o[1], &o[2], &o[3], &o[4], &N, &C, &qj, &m, &K, &s, &nq))
+    int full;
+    if (!PyArg_ParseTuple(args, "OOOOOOOnnnnnnnndp", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &o[6], &N, &C, &n, &q,
+                          &m, &K, &r, &ncol, &s, &full))
         return NULL;
     PyObject *ret = NULL;
     double *work = NULL;
-    if (N < 0 || qj < 1 || C <= qj || C > 100000 || m < 0 || m > 1000000 || K < 1 || K > 100000
-        || (nq != qj && nq != C)) {
+    if (N < 0 || n < 1 || q < 1 || C <= q || C > 100000 || m < 0 || K < 1 || r < 0 || ncol != r + n + m + K
+        || ncol > 10000000) {
         PyErr_SetString(PyExc_ValueError, "_ekfcore.reduce_rows: bad dimensions");
         return NULL;
     }
-    const Py_ssize_t ne = m + K;
-    if (get_buf(o[0], &b[0], 'd', N * C * qj, 0, "HJ") || get_buf(o[1], &b[1], 'd', N * C * K, 0, "ys")
-        || get_buf(o[2], &b[2], 'q', N * C, 0, "bi") || get_buf(o[3], &b[3], 'd', N * qj * qj, 1, "R1")
-        || get_buf(o[4], &b[4], 'd', N * nq * ne, 1, "EY"))
+    const Py_ssize_t ne = m + K, nq = full ? C : q;
+    if (get_buf(o[0], &b[0], 'd', N * C * n, 0, "H") || get_buf(o[1], &b[1], 'q', q, 0, "J")
+        || get_buf(o[2], &b[2], 'b', N * C, 0, "present") || get_buf(o[3], &b[3], 'd', N * C * K, 0, "ys")
+        || get_buf(o[4], &b[4], 'q', N * C, 0, "bi") || get_buf(o[5], &b[5], 'd', N * q * ncol, 1, "meas")
+        || get_buf(o[6], &b[6], 'd', full ? N * (C - q) * ne : 0, 1, "other"))
         goto done;
-    const int64_t *bi = b[2].view.buf;
+    const int64_t *J = b[1].view.buf, *bi = b[4].view.buf;
+    for (Py_ssize_t j = 0; j < q; j++)
+        if (J[j] < 0 || J[j] >= n) {
+            PyErr_SetString(PyExc_ValueError, "_ekfcore.reduce_rows: column index out of range");
+            goto done;
+        }
     for (Py_ssize_t i = 0; i < N * C; i++)
         if (bi[i] < -1 || bi[i] >= m) {
             PyErr_SetString(PyExc_ValueError, "_ekfcore.reduce_rows: bias index out of range");
             goto done;
         }
-    work = malloc(sizeof(double) * (C * qj + qj + C * nq + C + 1));
+    work = malloc(sizeof(double) * (C * q + q + C * nq + nq * ne + 1));
     if (!work) {
         PyErr_NoMemory();
         goto done;
     }
-    double *A = work, *tau = A + C * qj, *Q = tau + qj, *wv = Q + C * nq;
-    const double *HJ = b[0].view.buf, *ys = b[1].view.buf;
-    double *R1 = b[3].view.buf, *EY = b[4].view.buf;
+    double *At = work, *tau = At + C * q, *Qt = tau + q, *EY = Qt + C * nq;
+    const double *H = b[0].view.buf, *ys = b[3].view.buf;
+    const uint8_t *present = b[2].view.buf;
+    double *meas = b[5].view.buf, *other = b[6].view.buf;
     Py_BEGIN_ALLOW_THREADS
     for (Py_ssize_t k = 0; k < N; k++) {
-        memcpy(A, HJ + k * C * qj, sizeof(double) * C * qj);
-        for (int j = 0; j < qj; j++) tau[j] = householder_step(A, (int)qj, j, (int)C, j, wv, 1);
-        double *Rk = R1 + k * qj * qj;
-        for (Py_ssize_t i = 0; i < qj; i++)
-            for (Py_ssize_t j = 0; j < qj; j++) Rk[i * qj + j] = j >= i ? A[i * qj + j] : 0.0;
-        householder_q(A, (int)qj, tau, (int)qj, (int)C, Q, (int)nq, wv);
-        double *E = EY + k * nq * ne;
-        memset(E, 0, sizeof(double) * nq * ne);
+        const uint8_t *pk = present + k * C;
+        for (Py_ssize_t c = 0; c < C; c++)
+            for (Py_ssize_t j = 0; j < q; j++) At[j * C + c] = pk[c] ? H[(k * C + c) * n + J[j]] : 0.0;
+        qr_columns(At, (int)q, (int)C, tau);
+        q_columns(At, tau, (int)q, (int)C, Qt, (int)nq);
+        memset(EY, 0, sizeof(double) * nq * ne);
         const double *yk = ys + k * C * K;
         const int64_t *bk = bi + k * C;
-        for (Py_ssize_t c = 0; c < C; c++) {
-            const double *Qc = Q + c * nq, *yc = yk + c * K;
-            for (Py_ssize_t j = 0; j < nq; j++) {
-                double *Ej = E + j * ne;
-                if (bk[c] >= 0) Ej[bk[c]] += s * Qc[j];
-                for (Py_ssize_t l = 0; l < K; l++) Ej[m + l] += Qc[j] * yc[l];
+        for (Py_ssize_t j = 0; j < nq; j++) {                 /* row j of Q^T [E | y] */
+            const double *Qj = Qt + j * C;
+            double *Ej = EY + j * ne;
+            for (Py_ssize_t c = 0; c < C; c++) {
+                if (bk[c] >= 0) Ej[bk[c]] += s * Qj[c];
+                for (Py_ssize_t l = 0; l < K; l++) Ej[m + l] += Qj[c] * yk[c * K + l];
             }
         }
+        double *Mk = meas + k * q * ncol;
+        for (Py_ssize_t i = 0; i < q; i++) {
+            for (Py_ssize_t j = 0; j < q; j++) Mk[i * ncol + r + J[j]] = j >= i ? s * At[j * C + i] : 0.0;
+            memcpy(Mk + i * ncol + ncol - ne, EY + i * ne, sizeof(double) * ne);
+        }
+        if (full) memcpy(other + k * (C - q) * ne, EY + q * ne, sizeof(double) * (C - q) * ne);
     }
     Py_END_ALLOW_THREADS
     ret = Py_NewRef(Py_None);
 done:
     free(work);
-    release_all(b, 5);
+    release_all(b, NB);
     return ret;
 }
 
@@ -1389,12 +1437,12 @@ static PyObject *py_srif_forward(PyObject *self, PyObject *args)
         for (int j = 0; j < r; j++) {
             memset(B, 0, sizeof(double) * ncol);
             B[j] = 1.0;
-            householder_step(B, (int)ncol, 0, (int)(1 + n), j, wv, 0);
+            householder_step(B, (int)ncol, 0, (int)(1 + n), j, wv);
             memcpy(smooth + ((k - 1) * r + j) * ncol, B, sizeof(double) * ncol);
         }
         /* x columns: rows of X from the diagonal, and the measurement rows */
         for (int j = 0; j < n; j++)
-            householder_step(Bx, (int)ncol, j, (int)(n + q), (int)(r + j), wv, 0);
+            householder_step(Bx, (int)ncol, j, (int)(n + q), (int)(r + j), wv);
         for (Py_ssize_t i = 0; i < q; i++)
             memcpy(left + ((k - 1) * q + i) * nb, Bx + (n + i) * ncol + w, sizeof(double) * nb);
     }

@@ -246,23 +246,25 @@ def _reduced_rows(prob: LinearProblem, ys: np.ndarray, bi: np.ndarray, J: np.nda
     m, K, q = prob.n_bias, ys.shape[2], J.size
     s = 1.0 / prob.sigma_m
     w = r + n
-    HJ = prob.H[:, :, J]
-    absent = ~np.isfinite(_rhs(prob.y)[:, :, 0])
-    if absent.any():
-        HJ[absent] = 0.0
-    xcols = slice(r + J[0], r + J[-1] + 1) if J[-1] - J[0] + 1 == J.size else r + J
+    present = np.isfinite(_rhs(prob.y)[:, :, 0])
     use_c = compiled.available()
+    if not use_c:
+        HJ = prob.H[:, :, J]
+        HJ[~present] = 0.0
+        xcols = slice(r + J[0], r + J[-1] + 1) if J[-1] - J[0] + 1 == J.size else r + J
     step = 1024
     for k0 in range(0, N, step):
         k1 = min(N, k0 + step)
         if use_c:
-            R1, EY = compiled.reduce_rows(HJ[k0:k1], ys[k0:k1], bi[k0:k1], m, s, pool.square_root)
+            other = compiled.reduce_rows(prob.H[k0:k1], J, present[k0:k1], ys[k0:k1], bi[k0:k1], m, s, r,
+                                         meas[k0:k1], pool.square_root)
         else:
             R1, EY = _split_rows_numpy(HJ[k0:k1], ys[k0:k1], bi, k0, m, s, pool.square_root)
-        meas[k0:k1, :, xcols] = R1 * s
-        meas[k0:k1, :, w:] = EY[:, :q]
+            meas[k0:k1, :, xcols] = R1 * s
+            meas[k0:k1, :, w:] = EY[:, :q]
+            other = EY[:, q:]
         if pool.square_root:
-            pool.add(EY[:, q:].reshape(-1, m + K))
+            pool.add(other.reshape(-1, m + K))
     if not pool.square_root:
         # Σ [E|y]ᵀ[E|y]: diagonal counts, per-bias sums of y, Σ y²; minus the part kept for the filter
         ok = bi >= 0

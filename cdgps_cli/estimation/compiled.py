@@ -61,36 +61,42 @@ def srif_forward(AG: np.ndarray, X: np.ndarray, meas: np.ndarray, smooth: np.nda
     _ekfcore.srif_forward(_f64(AG), X, _f64(meas), smooth, left, N, w - n, n, q, ncol)
 
 
-def reduce_rows(HJ: np.ndarray, ys: np.ndarray, bi: np.ndarray, m: int, s: float,
-                full: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Per epoch k the Householder QR HJ[k] = Q_k R_k (LAPACK's convention) and the rows Q_kᵀ[E_k | y_k]
+def reduce_rows(H: np.ndarray, J: np.ndarray, present: np.ndarray, ys: np.ndarray, bi: np.ndarray, m: int,
+                s: float, r: int, meas: np.ndarray, full: bool) -> np.ndarray | None:
+    """Per epoch k the Householder QR H[k][:, J] = Q_k R_k (LAPACK's convention) and the rows Q_kᵀ[E_k | y_k]
     of :func:`cdgps_cli.estimation.batch_solver._reduced_rows` in C (its numpy twin: ``_split_rows_numpy``).
 
     Parameters
     ----------
-    HJ : ndarray (N, C, q), C > q
-        The measurement Jacobian's non-zero columns (zero rows where a channel is absent).
+    H : ndarray (N, C, n)
+        Whitened measurement Jacobians; only the columns ``J`` (q < C of them) are non-zero.
+    J : ndarray (q,) int
+    present : ndarray (N, C) bool
+        Rows of absent channels take no part (zero).
     ys : ndarray (N, C, K)
         Whitened right-hand sides (zero where absent).
     bi : ndarray (N, C) int
         Bias parameter of each row (−1: none); E_k[c, bi[k, c]] = ``s``.
     m : int
         Number of bias parameters.
+    s : float
+        1/σ, the whitening of the bias incidence and of R (R₁ is written as s·R).
+    r : int
+        ω columns before the state's in ``meas``.
+    meas : ndarray (N, q, r+n+m+K), written
+        s·R_k in the columns r + J, the first q rows of Q_kᵀ[E_k | y_k] in the last m+K columns.
     full : bool
-        Also return the C − q rows that involve only the biases.
-
-    Returns
-    -------
-    R1 : ndarray (N, q, q), upper triangular
-    EY : ndarray (N, q, m+K), or (N, C, m+K) with ``full``
+        Also return the C − q rows that involve only the biases, (N, C−q, m+K); else None.
     """
-    N, C, q = HJ.shape
-    K = ys.shape[2]
-    R1 = np.empty((N, q, q))
-    EY = np.empty((N, C if full else q, m + K))
-    _ekfcore.reduce_rows(_f64(HJ), _f64(ys), np.ascontiguousarray(bi, dtype=np.int64), R1, EY,
-                         N, C, q, m, K, float(s), EY.shape[1])
-    return R1, EY
+    N, C, n = H.shape
+    q, K = len(J), ys.shape[2]
+    if meas.dtype != np.float64 or not meas.flags.c_contiguous or not meas.flags.writeable:
+        raise ValueError("reduce_rows: meas must be a writable C-contiguous float64 array")
+    other = np.empty((N, C - q, m + K)) if full else np.empty(0)
+    _ekfcore.reduce_rows(_f64(H), np.ascontiguousarray(J, dtype=np.int64), np.ascontiguousarray(present, dtype=np.uint8),
+                         _f64(ys), np.ascontiguousarray(bi, dtype=np.int64), meas, other,
+                         N, C, n, q, m, K, r, meas.shape[2], float(s), bool(full))
+    return other if full else None
 
 
 def srif_smooth(smooth: np.ndarray, AG: np.ndarray, z: np.ndarray, N: int, m: int) -> tuple[np.ndarray, np.ndarray]:

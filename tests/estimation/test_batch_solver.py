@@ -525,31 +525,32 @@ def test_compiled_forward_on_testbed_linearization(monkeypatch, testbed_lin):
 
 
 @needs_kernel
-@pytest.mark.parametrize("full", [False, True])
+@pytest.mark.parametrize("square_root", [False, True])
 @pytest.mark.parametrize("case", ["identity", "shared_known_absent", "slip_k3"])
-def test_compiled_row_split_equals_numpy_twin(case, full):
+def test_compiled_row_split_equals_numpy_twin(monkeypatch, case, square_root):
     """The per-epoch QR split of the measurement rows (kernel.reduce_rows vs _split_rows_numpy, LAPACK):
-    R₁ and Qᵀ[E | y] to 1e-12, for one bias per channel, shared / known biases with absent rows
-    (a general incidence, handled row by row), and a slip with three right-hand sides."""
+    the filter's rows and the pooled bias-only information to 1e-12, for one bias per channel (Qᵀ E a
+    column permutation in numpy), shared / known biases with absent rows (a general incidence, handled
+    row by row), and a slip with three right-hand sides."""
     rng = np.random.default_rng({"identity": 1, "shared_known_absent": 2, "slip_k3": 3}[case])
-    N, C, q = 40, 11, 4
+    kw = {"identity": dict(known=False, shared=False, slip=False, nan_frac=0.0),
+          "shared_known_absent": dict(slip=False, nan_frac=0.2), "slip_k3": dict(nan_frac=0.05)}[case]
+    prob = random_problem(rng, n=6, r=2, C=11, N=40, h_cols=4, **kw)
     K = 3 if case == "slip_k3" else 1
-    HJ = rng.standard_normal((N, C, q))
-    ys = rng.standard_normal((N, C, K))
-    bi = np.tile(np.arange(C), (N, 1))
-    m = C
-    if case == "shared_known_absent":
-        bi[:, 2], bi[:, 5] = 1, -1
-        absent = rng.random((N, C)) < 0.2
-        bi[absent], HJ[absent], ys[absent] = -1, 0.0, 0.0
-    if case == "slip_k3":
-        bi[N // 2:, 0] = C
-        m = C + 1
-    R1c, EYc = compiled.reduce_rows(HJ, ys, bi, m, 0.7, full)
-    R1n, EYn = batch._split_rows_numpy(HJ, ys, bi, 0, m, 0.7, full)
-    assert R1c.shape == R1n.shape == (N, q, q) and EYc.shape == EYn.shape == (N, C if full else q, m + K)
-    np.testing.assert_allclose(R1c, R1n, rtol=0, atol=1e-12 * np.abs(R1n).max())
-    np.testing.assert_allclose(EYc, EYn, rtol=0, atol=1e-12 * np.abs(EYn).max())
+    if K > 1:
+        Y = np.where(np.isfinite(prob.y)[..., None], rng.standard_normal(prob.y.shape + (K,)), np.nan)
+        prob = LinearProblem(**{**prob.__dict__, "y": Y})
+    out = []
+    for no_kernel in ("0", "1"):
+        monkeypatch.setenv("CDGPS_NO_KERNEL", no_kernel)
+        pool = batch._BiasRows(prob.n_bias, square_root, K)
+        meas = batch._measurement_rows(prob, 2, pool)
+        S = pool.sqrt()
+        out.append((meas, S.T @ S))
+    (mc, Ic), (mn, In) = out
+    assert mc.shape == mn.shape == (40, 4, 2 + 6 + prob.n_bias + K)
+    np.testing.assert_allclose(mc, mn, rtol=0, atol=1e-12 * np.abs(mn).max())
+    np.testing.assert_allclose(Ic, In, rtol=0, atol=1e-12 * np.abs(In).max())
 
 
 @needs_kernel
