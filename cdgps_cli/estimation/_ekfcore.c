@@ -1230,6 +1230,14 @@ static inline double dot4(const double *restrict a, const double *restrict b, in
     return (s0 + s1) + (s2 + s3);
 }
 
+/* y[j..] -= tau v v^T y[j..] for the reflector v = [1; v[j+1..]] (entries j .. rows-1) */
+static inline void reflect(const double *restrict v, double *restrict y, int j, int rows, double tau)
+{
+    const double f = tau * (y[j] + dot4(v + j + 1, y + j + 1, rows - j - 1));
+    y[j] -= f;
+    for (int i = j + 1; i < rows; i++) y[i] -= f * v[i];
+}
+
 /*
  * Householder QR (dlarfg's convention) of the rows x q matrix whose columns are the rows of At
  * (q x rows, row-major: each column contiguous), rows >= q.  On return At[j][j..] = [R_jj; v_j[1:]]
@@ -1249,12 +1257,7 @@ static void qr_columns(double *restrict At, int q, int rows, double *restrict ta
         tau[j] = (beta - alpha) / beta;
         for (int i = j + 1; i < rows; i++) x[i] *= scale;
         x[j] = beta;
-        for (int c = j + 1; c < q; c++) {
-            double *y = At + c * rows;
-            const double f = tau[j] * (y[j] + dot4(x + j + 1, y + j + 1, len));
-            y[j] -= f;
-            for (int i = j + 1; i < rows; i++) y[i] -= f * x[i];
-        }
+        for (int c = j + 1; c < q; c++) reflect(x, At + c * rows, j, rows, tau[j]);
     }
 }
 
@@ -1270,14 +1273,7 @@ static void q_columns(const double *restrict At, const double *restrict tau, int
     for (int c = 0; c < nq; c++) Qt[c * rows + c] = 1.0;
     for (int j = q - 1; j >= 0; j--) {
         if (tau[j] == 0.0) continue;
-        const double *v = At + j * rows;
-        const int len = rows - j - 1;
-        for (int c = j; c < nq; c++) {
-            double *y = Qt + c * rows;
-            const double f = tau[j] * (y[j] + dot4(v + j + 1, y + j + 1, len));
-            y[j] -= f;
-            for (int i = j + 1; i < rows; i++) y[i] -= f * v[i];
-        }
+        for (int c = j; c < nq; c++) reflect(At + j * rows, Qt + c * rows, j, rows, tau[j]);
     }
 }
 
