@@ -19,6 +19,10 @@ is the literal Eq. (13)–(15) reference used by the tests on short windows.
 Both work in absolute variables: given pseudo-measurements ỹ_k = y_k − h(x̂_k) + H_k x̂_k they
 return the trajectory x_k, the process-noise sequence w_k and the biases b that minimize the
 linearized cost (one Gauss–Newton step).  Priors are given as means and square-root weights.
+
+The SRIF's per-epoch loops (measurement-row split, filter pass, smoother) run in the compiled kernel
+when it is available (:mod:`cdgps_cli.estimation.compiled`); the numpy code here is their twin, used
+otherwise (``CDGPS_NO_KERNEL=1``) and tested equal to 1e-12.
 """
 
 from __future__ import annotations
