@@ -19,6 +19,10 @@ is the literal Eq. (13)–(15) reference used by the tests on short windows.
 Both work in absolute variables: given pseudo-measurements ỹ_k = y_k − h(x̂_k) + H_k x̂_k they
 return the trajectory x_k, the process-noise sequence w_k and the biases b that minimize the
 linearized cost (one Gauss–Newton step).  Priors are given as means and square-root weights.
+
+The SRIF's per-epoch loops (measurement-row split, filter pass, smoother) run in the compiled kernel
+when it is available (:mod:`cdgps_cli.estimation.compiled`); the numpy code here is their twin, used
+otherwise (``CDGPS_NO_KERNEL=1``) and tested equal to 1e-12.
 """
 
 from __future__ import annotations
@@ -30,6 +34,8 @@ import numpy as np
 from scipy.linalg import solve_triangular
 from scipy.linalg.blas import dtrmm
 from scipy.linalg.lapack import dgeqrf, dpotrf, dtrcon
+
+from cdgps_cli.estimation import compiled
 
 _MASKS: dict = {}
 
@@ -237,54 +243,32 @@ def _reduced_rows(prob: LinearProblem, ys: np.ndarray, bi: np.ndarray, J: np.nda
                   meas: np.ndarray) -> None:
     """:func:`_measurement_rows` when H_k spans |J| < C columns: the filter's rows into ``meas``
     (N, |J|, r+n+m+K), the bias-only rows to ``pool``.  ``ys`` (N, C, K) whitened data (0 where absent),
-    ``bi`` (N, C) bias index (−1 where absent or known)."""
+    ``bi`` (N, C) bias index (−1 where absent or known).  The per-epoch QRs run in the compiled kernel
+    (:func:`cdgps_cli.estimation.compiled.reduce_rows`) when it is available, else in numpy
+    (:func:`_split_rows_numpy`, its twin)."""
     N, C, n = prob.H.shape
     m, K, q = prob.n_bias, ys.shape[2], J.size
     s = 1.0 / prob.sigma_m
     w = r + n
-    HJ = prob.H[:, :, J]
-    absent = ~np.isfinite(_rhs(prob.y)[:, :, 0])
-    if absent.any():
-        HJ[absent] = 0.0
-    xcols = slice(r + J[0], r + J[-1] + 1) if J[-1] - J[0] + 1 == J.size else r + J
-    # the usual case: every epoch has the same channels, each with its own bias → Qᵀ E is a
-    # permutation of Qᵀ's columns (no products needed), often the identity
-    ok0 = bi[0] >= 0
-    chan0, bias0 = np.flatnonzero(ok0), bi[0, ok0]
-    permutation = bool((bi == bi[0]).all()) and np.unique(bias0).size == bias0.size
-    identity = permutation and C == m and np.array_equal(bias0, np.arange(m))
-
-    def rows_of(Q, k0, out):
-        """out[k] = Qₖᵀ [E_k | y_k] for epochs k0 … k0+len(Q)−1 (out zero on entry), Q (·, C, j)."""
-        if identity:
-            np.multiply(Q.transpose(0, 2, 1), s, out=out[:, :, :m])
-        elif permutation:
-            out[:, :, bias0] = s * Q[:, chan0, :].transpose(0, 2, 1)
-        else:
-            for c in range(C):
-                ks = np.flatnonzero(bi[k0:k0 + len(Q), c] >= 0)
-                if ks.size:
-                    out[ks, :, bi[k0 + ks, c]] += s * Q[ks, c, :]
-        if K == 1:
-            np.einsum("kcj,kc->kj", Q, ys[k0:k0 + len(Q), :, 0], out=out[:, :, m])
-        else:
-            np.einsum("kcj,kcl->kjl", Q, ys[k0:k0 + len(Q)], out=out[:, :, m:])
-
+    present = np.isfinite(_rhs(prob.y)[:, :, 0])
+    use_c = compiled.available()
+    if not use_c:
+        HJ = prob.H[:, :, J]
+        HJ[~present] = 0.0
+        xcols = slice(r + J[0], r + J[-1] + 1) if J[-1] - J[0] + 1 == J.size else r + J
     step = 1024
     for k0 in range(0, N, step):
         k1 = min(N, k0 + step)
-        if pool.square_root:
-            Q, R1 = np.linalg.qr(HJ[k0:k1], mode="complete")
-            meas[k0:k1, :, xcols] = R1[:, :q] * s
-            rows_of(Q[:, :, :q], k0, meas[k0:k1, :, w:])
-            other = np.zeros((k1 - k0, C - q, m + K))
-            rows_of(Q[:, :, q:], k0, other)
-            pool.add(other.reshape(-1, m + K))
+        if use_c:
+            other = compiled.reduce_rows(prob.H[k0:k1], J, present[k0:k1], ys[k0:k1], bi[k0:k1], m, s, r,
+                                         meas[k0:k1], pool.square_root)
         else:
-            Q1, R1 = np.linalg.qr(HJ[k0:k1])
-            R1 *= s
-            meas[k0:k1, :, xcols] = R1
-            rows_of(Q1, k0, meas[k0:k1, :, w:])
+            R1, EY = _split_rows_numpy(HJ[k0:k1], ys[k0:k1], bi, k0, m, s, pool.square_root)
+            meas[k0:k1, :, xcols] = R1 * s
+            meas[k0:k1, :, w:] = EY[:, :q]
+            other = EY[:, q:]
+        if pool.square_root:
+            pool.add(other.reshape(-1, m + K))
     if not pool.square_root:
         # Σ [E|y]ᵀ[E|y]: diagonal counts, per-bias sums of y, Σ y²; minus the part kept for the filter
         ok = bi >= 0
@@ -299,6 +283,41 @@ def _reduced_rows(prob: LinearProblem, ys: np.ndarray, bi: np.ndarray, J: np.nda
             gram[m:, m:] = np.einsum("kcl,kcj->lj", ys, ys)
         gram -= _gram(meas[:, :, w:].reshape(N * q, m + K))
         pool.add_gram(gram)
+
+
+def _split_rows_numpy(HJ: np.ndarray, ys: np.ndarray, bi: np.ndarray, k0: int, m: int, s: float,
+                      full: bool) -> tuple[np.ndarray, np.ndarray]:
+    """The QRs HJ[k] = Q_k R_k of epochs k0 … k0+len(HJ)−1 (numpy/LAPACK): R₁ (·, q, q) (unscaled) and
+    Q_kᵀ[E_k | y_k] (·, q, m+K), or with ``full`` all C rows (the last C − q involve only the biases).
+    E_k: s in column ``bi[k, c]`` of row c (none where −1); ``ys`` (·, C, K); ``bi`` (N, C), all epochs."""
+    nk, C, q = HJ.shape
+    K = ys.shape[2]
+    b0 = bi[0]
+    ok0 = b0 >= 0
+    chan0, bias0 = np.flatnonzero(ok0), b0[ok0]
+    # the usual case: every epoch has the same channels, each with its own bias → Qᵀ E is a
+    # permutation of Qᵀ's columns (no products needed), often the identity
+    permutation = bool((bi == b0).all()) and np.unique(bias0).size == bias0.size
+    identity = permutation and C == m and np.array_equal(bias0, np.arange(m))
+    if full:
+        Q, R = np.linalg.qr(HJ, mode="complete")
+    else:
+        Q, R = np.linalg.qr(HJ)
+    out = np.zeros((nk, Q.shape[2], m + K))
+    if identity:
+        np.multiply(Q.transpose(0, 2, 1), s, out=out[:, :, :m])
+    elif permutation:
+        out[:, :, bias0] = s * Q[:, chan0, :].transpose(0, 2, 1)
+    else:
+        for c in range(C):
+            ks = np.flatnonzero(bi[k0:k0 + nk, c] >= 0)
+            if ks.size:
+                out[ks, :, bi[k0 + ks, c]] += s * Q[ks, c, :]
+    if K == 1:
+        np.einsum("kcj,kc->kj", Q, ys[:, :, 0], out=out[:, :, m])
+    else:
+        np.einsum("kcj,kcl->kjl", Q, ys, out=out[:, :, m:])
+    return R[:, :q], out
 
 
 def _measurement_rows_full(prob: LinearProblem, r: int, pool: _BiasRows) -> np.ndarray:
@@ -384,13 +403,13 @@ def _srif(prob: LinearProblem, square_root: bool) -> LinearSolution | None:
     n, m, r = prob.A.shape[0], prob.n_bias, prob.Bw_L.shape[1]
     K = 1 if prob.y.ndim == 2 else prob.y.shape[2]
     Ainv = np.linalg.inv(prob.A)
-    AG = np.asfortranarray(np.hstack([-(Ainv @ prob.Bw_L), Ainv]))  # x_{k−1} = AG @ [ω_{k−1}; x_k]
+    AG = np.hstack([-(Ainv @ prob.Bw_L), Ainv])             # x_{k−1} = AG @ [ω_{k−1}; x_k]
     pool = _BiasRows(m, square_root, K)
-    M, smooth = _forward(prob, AG, pool)
+    Mx, smooth = _forward(prob, AG, pool)
     S = pool.sqrt()
     if S is None:
         return None
-    R, d, cost = _final_factor(M[r:r + n], n, m, K, S)
+    R, d, cost = _final_factor(Mx, n, m, K, S)
     diag = np.abs(np.diag(R))
     scale = max(diag.max(initial=0.0), 1e-300)
     rank_deficient = bool(diag.min(initial=1.0) <= 1e-10 * scale)
@@ -407,15 +426,16 @@ def _srif(prob: LinearProblem, square_root: bool) -> LinearSolution | None:
 
 
 def _forward(prob: LinearProblem, AG: np.ndarray, pool: "_BiasRows") -> tuple[np.ndarray, np.ndarray]:
-    """The filter pass of :func:`srif_solve`: the work array M (w+q, r+n+m+K) after the last epoch
-    (rows [r, r+n): [R_x | R_xb | d] at epoch N) and the smoother's ω rows (N−1, r, r+n+m+K); the
-    bias-only rows go to ``pool``."""
+    """The filter pass of :func:`srif_solve`: the state rows [· | R_x | R_xb | d] (n, r+n+m+K) after
+    the last epoch and the smoother's ω rows (N−1, r, r+n+m+K); the bias-only rows go to ``pool``.
+    The epoch loop runs in the compiled kernel (:func:`cdgps_cli.estimation.compiled.srif_forward`) when
+    it is available, else in :func:`_forward_numpy` (its twin, tested equal)."""
     N, C, n = prob.H.shape
     m, r = prob.n_bias, prob.Bw_L.shape[1]
     K = pool.k
     p, w = n + m, r + n
     ncol = w + m + K
-    meas = _measurement_rows(prob, r, pool)
+    meas = _measurement_rows(prob, r, pool)                 # zero in the ω columns
     q = meas.shape[1]
     # prior on b: bias-only rows
     pool.add(np.hstack([prob.b_sqrt_info, (prob.b_sqrt_info @ prob.b_mean).reshape(m, K)]))
@@ -426,14 +446,33 @@ def _forward(prob: LinearProblem, AG: np.ndarray, pool: "_BiasRows") -> tuple[np
     M0[n:, :] = meas[0, :, r:]
     T0 = _qr_r(M0)
     pool.add(T0[n:, n:])
-    # the filter's work array, columns [ω | x | b | y]; rows [0, r): prior on ω, [r, w): x, [w, w+q): data
-    M = np.zeros((w + q, ncol), order="F")
-    M[r:w, r:w] = T0[:n, :n]
-    M[r:w, w:] = T0[:n, n:]
-    top = np.zeros((r, ncol))
-    top[:, :r] = np.eye(r)
+    X = np.zeros((n, ncol))                                 # the state rows, columns [ω | x | b | y]
+    X[:, r:w] = T0[:n, :n]
+    X[:, w:] = T0[:n, n:]
     smooth = np.empty((max(N - 1, 0), r, ncol))             # ω rows for the smoother
     left = np.empty((max(N - 1, 0), q, m + K))              # bias-only rows left by each update
+    if N > 1 and compiled.available():
+        compiled.srif_forward(AG, X, meas, smooth, left)
+    elif N > 1:
+        X = _forward_numpy(X, AG, meas, smooth, left, r)
+    if N > 1 and q:
+        pool.add(left.reshape(-1, m + K))
+    return X, smooth
+
+
+def _forward_numpy(X: np.ndarray, AG: np.ndarray, meas: np.ndarray, smooth: np.ndarray, left: np.ndarray,
+                   r: int) -> np.ndarray:
+    """The epoch loop of :func:`_forward` in numpy (the compiled kernel's twin): per epoch k ≥ 1 the QR
+    (LAPACK dgeqrf) of [prior on ω; time-updated state rows; measurement rows] (see :func:`srif_solve`).
+    Writes ``smooth`` and ``left`` (made upper trapezoidal), returns the state rows after the last epoch."""
+    n, ncol = X.shape
+    w = r + n
+    N, q = meas.shape[:2]
+    M = np.zeros((w + q, ncol), order="F")  # rows [0, r): prior on ω, [r, w): x, [w, w+q): data
+    M[r:w] = X
+    top = np.zeros((r, ncol))
+    top[:, :r] = np.eye(r)
+    AG = np.asfortranarray(AG)
     for k in range(1, N):
         M[r:w, :w] = dtrmm(1.0, M[r:w, r:w], AG)            # R_x A⁻¹[−G | I]; R_xb and d stay in place
         M[:r] = top
@@ -441,10 +480,9 @@ def _forward(prob: LinearProblem, AG: np.ndarray, pool: "_BiasRows") -> tuple[np
         _qr_inplace(M)
         smooth[k - 1] = M[:r]
         left[k - 1] = M[w:, w:]
-    if N > 1 and q:
-        left *= np.triu(np.ones((q, m + K)))                # reflectors below the diagonal
-        pool.add(left.reshape(-1, m + K))
-    return M, smooth
+    if q:
+        left *= np.triu(np.ones((q, left.shape[2])))        # reflectors below the diagonal
+    return M[r:w]
 
 
 def _final_factor(Mx: np.ndarray, n: int, m: int, K: int, S: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
@@ -470,7 +508,16 @@ def _final_factor(Mx: np.ndarray, n: int, m: int, K: int, S: np.ndarray) -> tupl
 
 def _smooth(smooth: np.ndarray, AG: np.ndarray, Ainv: np.ndarray, z: np.ndarray, n: int, m: int, r: int):
     """Dyer–McReynolds smoother: ω_{k−1} = R_w⁻¹ (d_w − R_wx x_k − R_wb b), x_{k−1} = A⁻¹(x_k − G ω_{k−1}),
-    from z = [x_N; b] ((p,) or (p, K)).  Returns x (N, n[, K]) and ω (N−1, r[, K])."""
+    from z = [x_N; b] ((p,) or (p, K)).  Returns x (N, n[, K]) and ω (N−1, r[, K]).  In the compiled
+    kernel (:func:`cdgps_cli.estimation.compiled.srif_smooth`) when available, else :func:`_smooth_numpy`."""
+    if compiled.available():
+        return compiled.srif_smooth(smooth, AG, z, smooth.shape[0] + 1, m)
+    return _smooth_numpy(smooth, AG, Ainv, z, n, m, r)
+
+
+def _smooth_numpy(smooth: np.ndarray, AG: np.ndarray, Ainv: np.ndarray, z: np.ndarray, n: int, m: int, r: int):
+    """:func:`_smooth` in numpy (the compiled kernel's twin): the gains of all epochs at once, then the
+    recursion x_{k−1} = F_k x_k + g_k."""
     N = smooth.shape[0] + 1
     w = r + n
     tail = z.shape[1:]

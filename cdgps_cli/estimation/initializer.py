@@ -31,6 +31,7 @@ import numpy as np
 import pandas as pd
 from cdgps_cli.estimation.chi2 import chi2_quantile
 
+from cdgps_cli.estimation import kernel
 from cdgps_cli.estimation.batch_solver import LinearProblem, LinearSolution, srif_solve
 from cdgps_cli.config.options import INIT_MAX_ITERATIONS, INIT_STARTS, RATIO_THRESHOLD
 from cdgps_cli.config.structure import StructureConfig, channel_sigma_m, scalar_sigma_m
@@ -218,6 +219,7 @@ class _Problem:
                  known_bias: np.ndarray | None = None, mp: MultipathModel | None = None):
         self.cfg = cfg
         self.wd = wd
+        self._geometry = None                     # the compiled model's packed geometry (on first use)
         self.mp = mp if mp is not None and mp.active else None
         # per-channel σ (m); self.sigma (a scalar) only scales the damping prior
         self.sig_c = np.broadcast_to(np.asarray(sigma_m, dtype=float), (len(wd.channels),)).copy()
@@ -278,6 +280,10 @@ class _Problem:
         return out
 
     def _evaluate(self, x: np.ndarray, jacobian: bool):
+        if kernel.available():                    # the compiled model (tested equal to phase_model)
+            if self._geometry is None:
+                self._geometry = kernel.pack_geometry(self.cfg, self.wd.ant, self.wd.tx)
+            return kernel.phase_model_batch(self._geometry, x, jacobian)
         N = len(x)
         if N <= _MODEL_CHUNK:
             return phase_model(self.cfg, x, self.wd.ant, self.wd.tx, jacobian=jacobian)

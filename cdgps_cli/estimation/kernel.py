@@ -1,4 +1,5 @@
-"""The compiled inner loops of :mod:`cdgps_cli.estimation.filter` (C extension ``cdgps_cli.estimation._ekfcore``), and their inputs.
+"""The compiled inner loops of :mod:`cdgps_cli.estimation.filter` and of the batch initializer (C extension
+``cdgps_cli.estimation._ekfcore``), and their inputs.
 
 The forward filter with fixed biases spends its time in steady-state epochs: predict, evaluate the
 measurement model, update, test the NIS.  :class:`ForwardKernel` runs stretches of such epochs in C and
@@ -15,34 +16,18 @@ not match this module, or when the environment variable ``CDGPS_NO_KERNEL`` is s
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 
-try:
-    from cdgps_cli.estimation import _ekfcore
-except ImportError:                      # not compiled (no C compiler at install time)
-    _ekfcore = None
+# the extension, its API number and the availability rule live in compiled.py (imported by the
+# batch solver, which must not import the model geometry this module packs)
+from cdgps_cli.estimation.compiled import API, _ekfcore, _f64, available, srif_forward  # noqa: F401
 
-API = 4                                 # 2: per-channel measurement variance (R = diag(r_var)); 3: dd_span;
-                                        # 4: filter_span writes H(x_k) P_k H(x_k)ᵀ per used channel (hph)
 STOP_REASONS = {0: "end", 1: "lock event", 2: "re-bias", 3: "outlier", 4: "re-initialization", 5: "cholesky"}
-
-
-def available() -> bool:
-    """True when the compiled kernel is importable, current, and not disabled by CDGPS_NO_KERNEL."""
-    if os.environ.get("CDGPS_NO_KERNEL", "") not in ("", "0"):
-        return False
-    return _ekfcore is not None and getattr(_ekfcore, "API", None) == API
 
 
 def path_name() -> str:
     """"c" or "numpy": which forward-filter path :func:`cdgps_cli.estimation.filter.estimate` takes (biases="fixed")."""
     return "c" if available() else "numpy"
-
-
-def _f64(a) -> np.ndarray:
-    return np.ascontiguousarray(a, dtype=np.float64)
 
 
 def _i64(a) -> np.ndarray:
@@ -212,3 +197,35 @@ def rts(A, Q, B, U_in, xf, Pf, xs, Ps, extra_q=None, no_link=None) -> None:
                         N, p, nu)
     if fail >= 0:
         raise np.linalg.LinAlgError(f"smoother: predicted covariance after epoch {fail} is not positive definite")
+
+
+def phase_model_batch(geometry: tuple[np.ndarray, np.ndarray], x: np.ndarray, jacobian: bool = False):
+    """The C measurement model on N states at once, as :func:`cdgps_cli.measurement.phase.phase_model`.
+
+    Parameters
+    ----------
+    geometry : (gi, gf)
+        :func:`pack_geometry` of the config and the channels (C of them).
+    x : ndarray (N, n_x)
+        Modal states [ξ, ξ̇] in their first 2·n_m columns (n_x ≥ 2·n_m; further columns ignored).
+    jacobian : bool
+        Also return H = ∂h/∂x, shape (N, C, 2·n_m) (zero in the rate columns).
+
+    Returns
+    -------
+    h : ndarray (N, C), metres, and H with ``jacobian``.
+    """
+    gi, gf = geometry
+    nm, C = int(gi[1]), int(gi[3])
+    x = _f64(x)
+    N = x.shape[0]
+    h = np.empty((N, C))
+    if not jacobian:
+        _ekfcore.phase_model_batch(gi, gf, x, h, np.empty(0), N, x.shape[1], False)
+        return h
+    Hm = np.empty((N, C, nm))
+    _ekfcore.phase_model_batch(gi, gf, x, h, Hm, N, x.shape[1], True)
+    H = np.zeros((N, C, 2 * nm))
+    H[:, :, :nm] = Hm
+    return h, H
+

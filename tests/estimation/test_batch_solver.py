@@ -18,6 +18,7 @@ import pytest
 from scipy.linalg import expm
 
 from cdgps_cli.estimation import batch_solver as batch
+from cdgps_cli.estimation import compiled
 from cdgps_cli.estimation.batch_solver import LinearProblem, dense_solve, srif_solve
 from cdgps_cli.estimation.initializer import _Problem, window_data
 from cdgps_cli.core.records import Run
@@ -351,10 +352,12 @@ def _count_qr(monkeypatch):
 def test_linear_structure_qr_count_and_size(monkeypatch, square_root, C, h_cols):
     """One fused time + measurement QR per epoch after the first, of a size independent of N; the
     other QRs (first epoch, final assembly, and in square-root form the compressions of the
-    bias-only rows, about one per thousand rows) have a bounded size too."""
+    bias-only rows, about one per thousand rows) have a bounded size too.  (The numpy epoch loop,
+    whose LAPACK calls can be counted; the compiled loop is its twin, see test_compiled_forward_*.)"""
     sizes = {}
     for N in (20, 200):
         shapes = _count_qr(monkeypatch)
+        monkeypatch.setenv("CDGPS_NO_KERNEL", "1")
         rng = np.random.default_rng(9)
         prob = random_problem(rng, n=6, r=2, C=C, N=N, nan_frac=0.0, h_cols=h_cols)
         srif_solve(prob, square_root=square_root)
@@ -446,3 +449,126 @@ def test_several_right_hand_sides_equal_separate_solves(square_root, h_cols, pri
         if j == 0 and not full:
             _assert_agree(one, dense_solve(LinearProblem(**{**prob.__dict__, "y": Y[:, :, j], "x1_mean": X1[:, j],
                                                             "b_mean": B[:, j]})))
+
+
+# ---------------------------------------------------------------------------------------------
+# the compiled epoch loop (kernel.srif_forward) against its numpy twin (_forward_numpy)
+
+needs_kernel = pytest.mark.skipif(not compiled.available(), reason="compiled kernel not built or disabled")
+
+
+def _forward_both(prob: LinearProblem, monkeypatch, square_root: bool):
+    """_forward's outputs (state rows, ω rows, pooled bias-only information) by the kernel and by numpy."""
+    n, r, m = prob.A.shape[0], prob.Bw_L.shape[1], prob.n_bias
+    K = 1 if prob.y.ndim == 2 else prob.y.shape[2]
+    Ainv = np.linalg.inv(prob.A)
+    AG = np.hstack([-(Ainv @ prob.Bw_L), Ainv])
+    out = []
+    for no_kernel in ("0", "1"):
+        monkeypatch.setenv("CDGPS_NO_KERNEL", no_kernel)
+        pool = batch._BiasRows(m, square_root, K)
+        X, smooth = batch._forward(prob, AG, pool)
+        S = pool.sqrt()
+        out.append((X, smooth, S.T @ S))           # S is defined up to an orthogonal factor: compare SᵀS
+    monkeypatch.delenv("CDGPS_NO_KERNEL")
+    return out
+
+
+def _random_twin_case(seed: int):
+    rng = np.random.default_rng(500 + seed)
+    n, r, C, N = [(4, 0, 3, 9), (5, 2, 5, 30), (6, 2, 12, 40), (4, 1, 7, 2), (6, 3, 4, 25), (5, 2, 9, 33)][seed]
+    prob = random_problem(rng, n=n, r=r, C=C, N=N, prior=bool(seed % 2), h_cols=3 if C > 6 else None)
+    if seed == 4:                                   # several right-hand sides
+        Y = np.where(np.isfinite(prob.y)[..., None], rng.standard_normal(prob.y.shape + (3,)), np.nan)
+        prob = LinearProblem(**{**prob.__dict__, "y": Y, "x1_mean": np.zeros((n, 3)), "b_mean": np.zeros((prob.n_bias, 3))})
+    if seed == 5:                                   # a general bias incidence (whitened full noise)
+        prob = _with_incidence(prob, np.tril(rng.standard_normal((C, C))) + 3 * np.eye(C))
+    return prob
+
+
+@needs_kernel
+@pytest.mark.parametrize("square_root", [False, True])
+@pytest.mark.parametrize("seed", range(6))
+def test_compiled_forward_equals_numpy_twin(monkeypatch, seed, square_root):
+    """The compiled epoch loop writes the same state rows and ω rows as the numpy loop (LAPACK dgeqrf,
+    same Householder sign convention) and leaves the same bias-only information, to 1e-12."""
+    prob = _random_twin_case(seed)
+    (Xc, sc, Ic), (Xn, sn, In) = _forward_both(prob, monkeypatch, square_root)
+    r = prob.Bw_L.shape[1]
+    np.testing.assert_allclose(Xc, np.triu(Xn, r), rtol=0, atol=1e-12 * np.abs(Xn).max())
+    np.testing.assert_allclose(sc, np.triu(sn), rtol=0, atol=1e-12 * max(np.abs(sn).max(initial=0.0), 1.0))
+    np.testing.assert_allclose(Ic, In, rtol=0, atol=1e-12 * np.abs(In).max())
+
+
+@needs_kernel
+@pytest.mark.parametrize("seed", range(6))
+def test_compiled_srif_solution_equals_numpy(monkeypatch, seed):
+    """Whole solves (trajectory, process noise, biases, cost, information at the end) agree to 1e-12."""
+    prob = _random_twin_case(seed)
+    sols = []
+    for no_kernel in ("0", "1"):
+        monkeypatch.setenv("CDGPS_NO_KERNEL", no_kernel)
+        sols.append(srif_solve(prob))
+    c, d = sols
+    for a, b in ((c.x, d.x), (c.w, d.w), (c.b, d.b), (c.R_end, d.R_end)):
+        assert _rel(a, b) < 1e-12, _rel(a, b)
+    assert np.isnan(c.cost) and np.isnan(d.cost) or abs(c.cost - d.cost) <= 1e-12 * abs(d.cost)
+
+
+@needs_kernel
+def test_compiled_forward_on_testbed_linearization(monkeypatch, testbed_lin):
+    """The init's case (18 states, 9 noise inputs, 36 channels reduced to 9 rows, 36 biases)."""
+    lp = testbed_lin[0]
+    (Xc, sc, Ic), (Xn, sn, In) = _forward_both(lp, monkeypatch, False)
+    r = lp.Bw_L.shape[1]
+    assert _rel(Xc, np.triu(Xn, r)) < 1e-12 and _rel(sc, np.triu(sn)) < 1e-12 and _rel(Ic, In) < 1e-12
+
+
+@needs_kernel
+@pytest.mark.parametrize("square_root", [False, True])
+@pytest.mark.parametrize("case", ["identity", "shared_known_absent", "slip_k3"])
+def test_compiled_row_split_equals_numpy_twin(monkeypatch, case, square_root):
+    """The per-epoch QR split of the measurement rows (kernel.reduce_rows vs _split_rows_numpy, LAPACK):
+    the filter's rows and the pooled bias-only information to 1e-12, for one bias per channel (Qᵀ E a
+    column permutation in numpy), shared / known biases with absent rows (a general incidence, handled
+    row by row), and a slip with three right-hand sides."""
+    rng = np.random.default_rng({"identity": 1, "shared_known_absent": 2, "slip_k3": 3}[case])
+    kw = {"identity": dict(known=False, shared=False, slip=False, nan_frac=0.0),
+          "shared_known_absent": dict(slip=False, nan_frac=0.2), "slip_k3": dict(nan_frac=0.05)}[case]
+    prob = random_problem(rng, n=6, r=2, C=11, N=40, h_cols=4, **kw)
+    K = 3 if case == "slip_k3" else 1
+    if K > 1:
+        Y = np.where(np.isfinite(prob.y)[..., None], rng.standard_normal(prob.y.shape + (K,)), np.nan)
+        prob = LinearProblem(**{**prob.__dict__, "y": Y})
+    out = []
+    for no_kernel in ("0", "1"):
+        monkeypatch.setenv("CDGPS_NO_KERNEL", no_kernel)
+        pool = batch._BiasRows(prob.n_bias, square_root, K)
+        meas = batch._measurement_rows(prob, 2, pool)
+        S = pool.sqrt()
+        out.append((meas, S.T @ S))
+    (mc, Ic), (mn, In) = out
+    assert mc.shape == mn.shape == (40, 4, 2 + 6 + prob.n_bias + K)
+    np.testing.assert_allclose(mc, mn, rtol=0, atol=1e-12 * np.abs(mn).max())
+    np.testing.assert_allclose(Ic, In, rtol=0, atol=1e-12 * np.abs(In).max())
+
+
+@needs_kernel
+@pytest.mark.parametrize("r,K", [(2, 1), (3, 4), (0, 1)])
+def test_compiled_smoother_equals_numpy_twin(r, K):
+    """The smoother's backward pass (kernel.srif_smooth vs _smooth_numpy) on random ω rows: x and ω to 1e-12."""
+    rng = np.random.default_rng(40 + r + K)
+    N, n, m = 30, 5, 4
+    ncol = r + n + m + K
+    smooth = rng.standard_normal((N - 1, r, ncol))
+    smooth[:, :, :r] = np.triu(smooth[:, :, :r]) + 3 * np.eye(r)      # R_w: the unit prior keeps it regular
+    S = rng.standard_normal((n, n))
+    Ainv = expm(0.2 * (S - S.T))
+    AG = np.hstack([-(Ainv @ rng.standard_normal((n, r))), Ainv])
+    z = rng.standard_normal((n + m, K)) if K > 1 else rng.standard_normal(n + m)
+    xc, wc = compiled.srif_smooth(smooth, AG, z, N, m)
+    xn, wn = batch._smooth_numpy(smooth, AG, Ainv, z, n, m, r)
+    assert xc.shape == xn.shape and wc.shape == wn.shape
+    np.testing.assert_allclose(xc, xn, rtol=0, atol=1e-12 * np.abs(xn).max())
+    if r:
+        np.testing.assert_allclose(wc, wn, rtol=0, atol=1e-12 * np.abs(wn).max())

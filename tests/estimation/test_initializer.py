@@ -21,6 +21,7 @@ from cdgps_cli.cli.commands import main
 from cdgps_cli.config.structure import parse_config
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.estimation import initializer as init_mod
+from cdgps_cli.estimation import kernel
 from cdgps_cli.estimation.initializer import InitOptions, initialize, phase_matrix, window_data
 from cdgps_cli.core.records import Run, init_kind
 from cdgps_cli.io.run import read_run, write_run
@@ -443,6 +444,7 @@ def test_window_data_segments_match_reference(testbed_cfg):
 
 def test_model_in_blocks_equals_whole(free60, monkeypatch):
     _, _, run, _, _ = free60
+    monkeypatch.setenv("CDGPS_NO_KERNEL", "1")          # the numpy model (the compiled one has no blocks)
     wd = window_data(run, 0.0, 20.0)
     prob = init_mod._Problem(run.cfg, wd, 0.02, True)
     rng = np.random.default_rng(1)
@@ -453,6 +455,25 @@ def test_model_in_blocks_equals_whole(free60, monkeypatch):
     np.testing.assert_allclose(h1, h0, rtol=1e-13, atol=1e-15)          # same values (BLAS rounding aside)
     np.testing.assert_allclose(H1, H0, rtol=1e-13, atol=1e-15)
     np.testing.assert_allclose(prob.predict(x), h0, rtol=1e-13, atol=1e-15)
+
+
+def test_compiled_and_numpy_paths_give_the_same_init(free60, monkeypatch):
+    """initialize() with the compiled kernel (batched phase model, SRIF epoch loop) and with numpy only:
+    the same starts, winner, iterations and integers; costs, biases and the state to 1e-9 relative."""
+    _, _, run, _, res = free60
+    if not kernel.available():
+        pytest.skip("compiled kernel not built or disabled")
+    monkeypatch.setenv("CDGPS_NO_KERNEL", "1")
+    ref = initialize(run, InitOptions())
+    assert res["iterations"] == ref["iterations"] and res["n_fixed"] == ref["n_fixed"]
+    assert [(s["won"], s["iterations"], s["full_window"]) for s in res["starts"]] == \
+        [(s["won"], s["iterations"], s["full_window"]) for s in ref["starts"]]
+    assert [b["integer_cycles"] for b in res["biases"]] == [b["integer_cycles"] for b in ref["biases"]]
+    assert res["cost"] == pytest.approx(ref["cost"], rel=1e-9)
+    for key in ("bias_m", "float_bias_m", "sigma_m"):
+        np.testing.assert_allclose([b[key] for b in res["biases"]], [b[key] for b in ref["biases"]], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(res["state"]["x"], ref["state"]["x"], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(res["state"]["P"], ref["state"]["P"], rtol=1e-9, atol=1e-18)
 
 
 def test_long_window_staged_like_direct(testbed_cfg, monkeypatch):

@@ -29,7 +29,7 @@ from cdgps_cli.config.structure import load_config, parse_config
 from cdgps_cli.estimation.filter import EstimateOptions, estimate, rts_smooth
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.estimation.initializer import InitOptions, initialize
-from cdgps_cli.measurement.phase import EpochPhaseModel, all_channels
+from cdgps_cli.measurement.phase import EpochPhaseModel, all_channels, phase_model
 from cdgps_cli.core.records import Run
 from cdgps_cli.sim.structure import SimOptions, parse_outage, parse_slip, simulate
 
@@ -140,7 +140,7 @@ def _random_states(cfg, rng, qs):
 
 @needs_kernel
 @pytest.mark.parametrize("which", ["testbed", "dof2", "linear"])
-def test_c_phase_model_equals_epoch_phase_model(which, testbed_cfg, dof2_cfg, testbed_large_q, dof2_large_q):
+def test_c_phase_models_equal_numpy(which, testbed_cfg, dof2_cfg, testbed_large_q, dof2_large_q):
     if which == "linear":
         cfg = parse_config(LINEAR_CONFIG, "<linear>")
         qs = np.random.default_rng(1).normal(0, 2, (5, cfg.n_q))
@@ -161,6 +161,16 @@ def test_c_phase_model_equals_epoch_phase_model(which, testbed_cfg, dof2_cfg, te
             np.testing.assert_allclose(h1, h0, rtol=0, atol=1e-12)
             np.testing.assert_allclose(H1, H0, rtol=0, atol=1e-12)
             worst = max(worst, np.abs(h1 - h0).max(), np.abs(H1 - H0).max())
+        # the initializer's batched C model (all states at once, h with or without H) against the numpy
+        # phase_model, and with extra (multipath) state columns, which it ignores
+        geometry = ekf_kernel.pack_geometry(cfg, a, t)
+        h0, H0 = phase_model(cfg, xs, a, t, jacobian=True)
+        h1, H1 = ekf_kernel.phase_model_batch(geometry, xs, jacobian=True)
+        assert h1.shape == h0.shape and H1.shape == H0.shape
+        np.testing.assert_allclose(h1, h0, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(H1, H0, rtol=0, atol=1e-12)
+        wide = np.hstack([xs, rng.normal(0, 1, (len(xs), 3))])
+        np.testing.assert_array_equal(ekf_kernel.phase_model_batch(geometry, wide), h1)
     print(f"\nC model vs EpochPhaseModel ({which}): max difference {worst:.1e}")
 
 
