@@ -76,8 +76,10 @@ class ModelProblem:
             self.z[k, :m] = r.z_m
             self.Linv[k, :m, :m] = r.whiten(np.eye(m))
             self.seg[k, :m] = [local[int(c)] if c >= 0 else -1 for c in r.segment]
-            var.append(np.diag(r.covariance()))
+            v = np.diag(r.covariance())
+            var.append(v[r.segment >= 0] if np.any(r.segment >= 0) else v)
         self.present = np.isfinite(self.z)
+        # scale of the damping prior: the rows with an ambiguity (phase), not e.g. pseudorange rows
         self.sigma = float(np.sqrt(np.mean(np.concatenate(var))))
         kb = np.where(self.seg >= 0, np.nan_to_num(self.known, nan=0.0)[np.maximum(self.seg, 0)], 0.0)
         self.y = np.where(self.present, self.z - kb, np.nan)
