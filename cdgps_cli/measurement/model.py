@@ -12,7 +12,9 @@ Implementations:
   state (Eq. 2; :class:`cdgps_cli.measurement.phase.EpochPhaseModel`), diagonal σ per channel;
 * :class:`SatelliteDDModal` — satellite double differences on the modal state (the structure placed
   on the Earth, :mod:`cdgps_cli.pipeline.gnss_modal`), far-field with the satellites' directions of
-  that epoch, noise D Σ Dᵀ jointly over the rovers (:func:`cdgps_cli.measurement.differencing.joint_dd_covariance`).
+  that epoch, noise D Σ Dᵀ jointly over the rovers (:func:`cdgps_cli.measurement.differencing.joint_dd_covariance`);
+  with ``code=True`` also the pseudorange DDs (no ambiguity, their own D Σ_P Dᵀ), as the modal batch
+  initialization uses them.
 """
 
 from __future__ import annotations
