@@ -257,7 +257,8 @@ def modal_batch_initialization(cfg: StructureConfig, R, tabs, k_of, ant_idx, d_h
         record["windows_tried"] = tried
     if tabs and "signal" in tabs[0]:     # signal path: no INIT integers for later segments → later windows
         record["later_segments"], record["later_windows"] = _later_windows(
-            cfg, R, apply_modal_record(tabs, record), k_of, ant_idx, d_hdr, t_all, window_s, float(t_all[idx[-1]]) + 1e-6)
+            cfg, R, apply_modal_record(tabs, record), k_of, ant_idx, d_hdr, t_all, window_s, float(t_all[idx[-1]]) + 1e-6,
+            code_dd)
     return apply_modal_record(tabs, record), res.x[0].copy(), record
 
 
@@ -276,7 +277,8 @@ def _solve_window(cfg, R, tabs, k_of, ant_idx, d_hdr, idx, dt, options=None, cod
     return res, model, lam
 
 
-def _later_windows(cfg, R, tabs, k_of, ant_idx, d_hdr, t_all, window_s: float, t_from: float) -> tuple[list, list]:
+def _later_windows(cfg, R, tabs, k_of, ant_idx, d_hdr, t_all, window_s: float, t_from: float,
+                   code_dd: bool = MODAL_INIT_CODE_DD) -> tuple[list, list]:
     """Signal path: integers of the segments starting after the first window (rising satellites, slips).
 
     A window of ``window_s`` opens where the first segment not yet known and observed for at least
@@ -305,7 +307,7 @@ def _later_windows(cfg, R, tabs, k_of, ant_idx, d_hdr, t_all, window_s: float, t
         k0 = int(np.searchsorted(t_all, starts.min()))
         try:
             idx, dt = _init_window(t_all[k0:], window_s)
-            res, model, _ = _solve_window(cfg, R, tabs, k_of, ant_idx, d_hdr, idx + k0, dt)
+            res, model, _ = _solve_window(cfg, R, tabs, k_of, ant_idx, d_hdr, idx + k0, dt, code_dd=code_dd)
         except CdgpsError as exc:
             windows.append({"start_s": float(t_all[k0]), "refused": str(exc)})
             t_from = float(t_all[k0]) + window_s

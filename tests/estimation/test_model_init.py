@@ -87,12 +87,17 @@ def test_code_dds_fix_a_window_the_phase_alone_cannot_solve(seed):
     assert abs(res.x[0][2] - x1[2]) < 1e-3
 
 
-def test_code_dds_shrink_the_float_ambiguities_spread_along_the_yaw():
-    """A case where the phase alone converges (the yaw is seen only through second-order terms): its
-    float ambiguities still spread over more than a cycle; with the code they are within ½ cycle."""
-    cfg, tabs, k_of, ant, d_hdr, _, truth = _static_sky_case(1)
-    _, phase = _solve(cfg, tabs, k_of, ant, d_hdr, code=False)
+@pytest.mark.parametrize("seed", [1, 4])
+def test_phase_alone_is_refused_or_spread_over_cycles_code_pins_it(seed):
+    """Whatever the phase alone does on this geometry (refused, or converged with the yaw seen only
+    through second-order terms and float ambiguities spread over more than a cycle), with the code
+    every float ambiguity is within ½ cycle and every integer is fixed and right."""
+    cfg, tabs, k_of, ant, d_hdr, _, truth = _static_sky_case(seed)
+    try:
+        _, phase = _solve(cfg, tabs, k_of, ant, d_hdr, code=False)
+        assert np.max(phase.float_sigma_m) > 1.0 * LAM
+    except CdgpsError as exc:
+        assert "did not converge" in str(exc) or "not observable" in str(exc)
     model, both = _solve(cfg, tabs, k_of, ant, d_hdr, code=True)
-    assert np.max(phase.float_sigma_m) > 1.0 * LAM and np.max(both.float_sigma_m) < 0.5 * LAM
-    assert both.ratio > 10 * phase.ratio
+    assert np.max(both.float_sigma_m) < 0.5 * LAM and both.fixed.all()
     assert {model.segment_keys[c]: int(n) for c, n in zip(both.columns, both.integers)} == truth
