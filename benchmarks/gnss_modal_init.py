@@ -10,7 +10,7 @@ of rover r, satellite j, reference k is (N_rj − N_mj) − (N_rk − N_mk)), ho
 wrong; the antennas' motion during the window; the filter's NEES per degree of freedom.
 
 Targets: integers fixed and right in ≥ 19 of 20 seeds with the 60 s window, never a wrong fix;
-NEES/dof in [0.7, 1.4].  Rows are appended to OUT.partial as each seed finishes; the table goes to
+NEES/dof in [0.7, 1.4].  Rows are appended to OUT.partial as each seed finishes (removed when the table is written); the table goes to
 docs/benchmarks/gnss_modal_init.json::
 
     python benchmarks/gnss_modal_init.py [--seeds 20] [--duration 240] [--strict-window] [--no-code-dd] [--out FILE]
@@ -136,6 +136,7 @@ def main_(argv=None):
                "nees_per_dof_mean": float(nd.mean()), "elapsed_s": time.perf_counter() - t0,
                "targets": "≥ 19 of 20 all fixed and right, 0 wrong; NEES/dof in [0.7, 1.4]"}
     Path(a.out).write_text(json.dumps({"summary": summary, "rows": rows}, indent=2) + "\n")
+    part.unlink()
     print(json.dumps(summary, indent=2))
 
 
