@@ -17,6 +17,8 @@ INIT_MAX_ITERATIONS = 30
 #: un-differenced phase σ = a + b / sin(elevation) (m), RTKLIB's form
 PHASE_SIGMA_A_M = 0.003
 PHASE_SIGMA_B_M = 0.003
+#: the modal batch initialization on GNSS also uses pseudorange DDs (σ = code_ratio × the phase σ)
+MODAL_INIT_CODE_DD = True
 
 #: GNSS run config and baseline solver defaults (docs/gnss-pipeline.md)
 GNSS_DEFAULTS = {"mask_deg": 15.0, "ratio": RATIO_THRESHOLD, "partial": True, "weighting": "elevation",

@@ -76,19 +76,30 @@ class ModelProblem:
             self.z[k, :m] = r.z_m
             self.Linv[k, :m, :m] = r.whiten(np.eye(m))
             self.seg[k, :m] = [local[int(c)] if c >= 0 else -1 for c in r.segment]
-            var.append(np.diag(r.covariance()))
+            v = np.diag(r.covariance())
+            var.append(v[r.segment >= 0] if np.any(r.segment >= 0) else v)
         self.present = np.isfinite(self.z)
+        # scale of the damping prior: the rows with an ambiguity (phase), not e.g. pseudorange rows
         self.sigma = float(np.sqrt(np.mean(np.concatenate(var))))
         kb = np.where(self.seg >= 0, np.nan_to_num(self.known, nan=0.0)[np.maximum(self.seg, 0)], 0.0)
-        self.y = np.where(self.present, self.z - kb, np.nan)
         self.bias_index = np.where(self.seg >= 0, remap[np.maximum(self.seg, 0)], -1)
+        # the free biases are solved about a reference each (the window mean of its rows, m): raw DDs
+        # carry λ·N of 1e5–1e6 m, whose cancellation in every cost evaluation would leave a rounding
+        # noise (~1e-7 on a cost of 1e3) above Gauss–Newton's acceptance tolerance near the minimum
+        ok = self.present & (self.bias_index >= 0)
+        cnt = np.bincount(self.bias_index[ok], minlength=self.free.size)
+        tot = np.bincount(self.bias_index[ok], weights=(self.z - kb)[ok], minlength=self.free.size)
+        self.b_offset = np.where(cnt > 0, tot / np.maximum(cnt, 1), 0.0)
+        off = np.append(self.b_offset, 0.0)[self.bias_index]           # (index −1: no bias → 0)
+        self.y = np.where(self.present, self.z - kb - off, np.nan)
         self.E = np.zeros((N, C, self.free.size))
         k, c = np.nonzero(self.bias_index >= 0)
         self.E[k, c, self.bias_index[k, c]] = 1.0
 
     def full_bias(self, b_free: np.ndarray) -> np.ndarray:
+        """Every window segment's bias, m: the known ones, and the free ``b_free`` (about ``b_offset``)."""
         out = self.known.copy()
-        out[self.free] = b_free
+        out[self.free] = self.b_offset + b_free
         return out
 
     def predict(self, x: np.ndarray, jacobian: bool = False):
@@ -200,7 +211,8 @@ def model_batch_init(model, dyn, epochs, dt_s: float, wavelength_m, opt: InitOpt
     if max_bias_sigma_cycles is not None and np.max(sig / lam, initial=0.0) > max_bias_sigma_cycles:
         raise CdgpsError(f"batch initialization: float ambiguity σ up to {np.max(sig / lam):.2f} cycle "
                          f"(limit {max_bias_sigma_cycles:g}): not observable in the window")
-    a = g.b / lam
+    b_float = prob.full_bias(g.b)
+    a = b_float / lam
     integers = np.rint(a).astype(np.int64)
     fixed = np.zeros(m, dtype=bool)
     ratio, note = None, "integer fixing off"
@@ -213,12 +225,12 @@ def model_batch_init(model, dyn, epochs, dt_s: float, wavelength_m, opt: InitOpt
         except AmbiguityError as exc:
             note = f"integer fixing failed: {exc}"
     n_obs = int(prob.present.sum())
-    res = ModelInitResult(prob.columns, g.b.copy(), sig, g.b.copy(), fixed, integers, ratio, note, g.x,
+    res = ModelInitResult(prob.columns, b_float, sig, b_float.copy(), fixed, integers, ratio, note, g.x,
                           P[:n, :n], g.cost, g.cost / max(n_obs - n - m, 1), g.iterations)
     if fixed.any():
         known = np.where(fixed, lam * integers, np.nan)
         pf = ModelProblem(model, dyn, epochs, dt_s, known_bias=known, rows=prob.rows)
-        gf = pf.gauss_newton(g.x, g.b[~fixed], opt, w_init=g.w)
+        gf = pf.gauss_newton(g.x, b_float[~fixed] - pf.b_offset, opt, w_init=g.w)
         dJ, limit = fix_validation(g.cost, gf.cost, n_obs - n - m, int(fixed.sum()), opt)
         if gf.converged and dJ <= limit:
             Pf = gf.lin.P_end

@@ -60,7 +60,8 @@ def signal_sd_table(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_x
     base, rover : DataFrame
         One signal's rows with the satellite geometry of each receiver
         (:func:`cdgps_cli.estimation.rtk_multi.receiver_geometry`: ``time_gps_s``, ``sat``, ``signal``,
-        ``phase_cycles``, ``lli``, ``wavelength_m``, ``sx/sy/sz`` (m, ECEF at reception), ``el_rad``, ``trop_m``).
+        ``phase_cycles``, ``lli``, ``wavelength_m``, ``sx/sy/sz`` (m, ECEF at reception), ``el_rad``, ``trop_m``,
+        and ``pseudorange_m`` when present).
     base_xyz_m, rover_xyz_m : array_like (3,)
         Nominal positions, ECEF m.
     mask_rad : float
@@ -80,10 +81,12 @@ def signal_sd_table(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_x
         ``t_label`` (n_ep,), per row (epoch then satellite order): ``epoch``, ``sat`` (index into
         ``sat_names``, :func:`group_key` names), ``rover_sat_xyz`` (N, 3), ``el_rover``, ``el_base`` (rad),
         ``slip`` (bool), ``seg`` (ambiguity segment), ``r_raw_m`` (λ·SD phase − SD of the ranges and
-        troposphere at the nominal positions, m: receiver clocks, λ·(N_r − N_b) and the motion remain);
+        troposphere at the nominal positions, m: receiver clocks, λ·(N_r − N_b) and the motion remain),
+        ``r_code_m`` (the same for the SD pseudorange, m; NaN without a ``pseudorange_m`` column);
         ``ptr`` (n_ep + 1,), ``lam_m`` (the group's wavelength), ``signal``.
     """
     cols = ["time_gps_s", "sat", "phase_cycles", "lli", "wavelength_m", "sx", "sy", "sz", "el_rad", "trop_m"]
+    cols += [c for c in ("pseudorange_m",) if c in base.columns and c in rover.columns]
     step = nominal_interval_s(base["time_gps_s"]) if interval_s is None else float(interval_s)
     b, r = (_on_grid(df[cols], step, sync_tol_s) for df in (base, rover))
     m = b.drop(columns="time_gps_s").merge(r.drop(columns="time_gps_s"), on=["key", "sat"], suffixes=("_b", "_r"))
@@ -98,11 +101,13 @@ def signal_sd_table(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_x
     trop = (m["trop_m_r"].to_numpy() - m["trop_m_b"].to_numpy()) if troposphere else 0.0
     model = np.linalg.norm(xs_r - np.asarray(rover_xyz_m, float), axis=1) - np.linalg.norm(xs_b - np.asarray(base_xyz_m, float), axis=1)
     r_raw = lam * (m["phase_cycles_r"].to_numpy() - m["phase_cycles_b"].to_numpy()) - model - trop
+    r_code = (m["pseudorange_m_r"].to_numpy() - m["pseudorange_m_b"].to_numpy() - model - trop) if "pseudorange_m" in cols \
+        else np.full(r_raw.size, np.nan)
     sig = str(base["signal"].iloc[0]) if len(base) else ""
     return SimpleNamespace(t_label=t_label, epoch=epoch.astype(np.int64), ptr=epoch_pointers(epoch, t_label.size),
                            sat=sat.astype(np.int64), sat_names=[group_key(n, sig) for n in names], rover_sat_xyz=xs_r,
                            el_rover=m["el_rad_r"].to_numpy(), el_base=m["el_rad_b"].to_numpy(), slip=slip,
-                           seg=np.asarray(seg, dtype=np.int64), r_raw_m=r_raw, lam_m=float(lam[0]) if lam.size else np.nan,
+                           seg=np.asarray(seg, dtype=np.int64), r_raw_m=r_raw, r_code_m=r_code, lam_m=float(lam[0]) if lam.size else np.nan,
                            signal=sig)
 
 

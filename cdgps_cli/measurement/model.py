@@ -12,7 +12,9 @@ Implementations:
   state (Eq. 2; :class:`cdgps_cli.measurement.phase.EpochPhaseModel`), diagonal σ per channel;
 * :class:`SatelliteDDModal` — satellite double differences on the modal state (the structure placed
   on the Earth, :mod:`cdgps_cli.pipeline.gnss_modal`), far-field with the satellites' directions of
-  that epoch, noise D Σ Dᵀ jointly over the rovers (:func:`cdgps_cli.measurement.differencing.joint_dd_covariance`).
+  that epoch, noise D Σ Dᵀ jointly over the rovers (:func:`cdgps_cli.measurement.differencing.joint_dd_covariance`);
+  with ``code=True`` also the pseudorange DDs (no ambiguity, their own D Σ_P Dᵀ), as the modal batch
+  initialization uses them.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import solve_triangular
+from scipy.linalg import block_diag, solve_triangular
 
 from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.measurement.differencing import joint_dd_covariance
@@ -191,7 +193,8 @@ class SatelliteDDModal(MeasurementModel):
         baseline data: ``ptr``, ``sat``, ``sat_names``, ``rover_sat_xyz``), ``use`` (row usable),
         ``r0`` (SD residual at the nominal position, m), ``var_rover``/``var_master`` (undifferenced
         phase variances, m²), ``ref`` (reference row per epoch, −1 none), ``xm`` (master ECEF, m) and
-        optionally ``seg`` (ambiguity-segment id per row).
+        optionally ``seg`` (ambiguity-segment id per row); with ``code``, ``rc`` (SD pseudorange
+        residual at the nominal position, m, NaN where missing) and ``code_ratio`` (code σ / phase σ).
     k_of : list of ndarray (n_epochs,) int
         Per slot, the table epoch of each common epoch (−1: none).
     ant_idx : ndarray (n_rov,) int
@@ -199,13 +202,21 @@ class SatelliteDDModal(MeasurementModel):
     d_hdr : ndarray (n_rov, 3)
         Nominal receiver position relative to the master, structure frame, m.
 
+    code : bool
+        Add every epoch's pseudorange DDs (after the phase rows; labels (slot, ``"<satellite>/code"``),
+        no ambiguity, segment −1): the same far-field model h(x), their own noise D Σ_P Dᵀ with
+        Σ_P = ``code_ratio``² Σ (jointly over the rovers, independent of the phase).  They pin each
+        DD's absolute value to decimetres, hence the float ambiguities and the slow (rigid) modes the
+        phase alone leaves nearly constant over a window.
+
     Rows are labelled (slot, satellite); a row's segment key is (slot, segment of the satellite,
     segment of the reference), so a slip of either satellite starts a new DD ambiguity.
     """
 
-    def __init__(self, cfg: StructureConfig, R_struct, tabs, k_of, ant_idx, d_hdr):
+    def __init__(self, cfg: StructureConfig, R_struct, tabs, k_of, ant_idx, d_hdr, code: bool = False):
         self.cfg, self.R, self.tabs, self.k_of = cfg, np.asarray(R_struct, float), tabs, k_of
         self.ant_idx, self.d_hdr = np.asarray(ant_idx, dtype=int), np.asarray(d_hdr, float)
+        self.code = bool(code)
         self.geo = EpochGeometry(cfg)
         self.U = np.asarray(cfg.mode_shapes)
         self.nm = cfg.n_modes
@@ -221,38 +232,54 @@ class SatelliteDDModal(MeasurementModel):
             self.segment_keys.append(key)
         return c
 
-    def rows(self, k: int) -> Rows | None:
-        z, sd_rows, slot, labels, seg = [], [], [], [], []
-        vr, vm, sats, refs = [], [], [], []
-        for a, tb in enumerate(self.tabs):
-            ke = self.k_of[a][k]
-            if ke < 0 or tb["ref"][ke] < 0:
-                continue
-            d, ref = tb["d"], tb["ref"][ke]
-            rows = np.arange(d.ptr[ke], d.ptr[ke + 1])
-            rows = rows[tb["use"][rows]]
-            if rows.size < 2:
-                continue
-            pos = int(np.flatnonzero(rows == ref)[0])
-            u = (d.rover_sat_xyz[rows] - tb["xm"]) @ self.R          # structure-frame directions from the master
-            u /= np.linalg.norm(u, axis=1, keepdims=True)
-            others = np.delete(np.arange(rows.size), pos)
-            z.append(tb["r0"][rows[others]] - tb["r0"][ref])
-            sd_rows.append(u[others] - u[pos])
-            slot.extend([a] * others.size)
-            names = [d.sat_names[int(d.sat[i])] for i in rows]
-            labels.extend([(a, names[i]) for i in others])
-            sg = tb.get("seg")
-            seg.extend([self._column((a, int(sg[rows[i]]), int(sg[ref]))) if sg is not None else -1 for i in others])
-            vr.append(tb["var_rover"][rows])
-            vm.append(tb["var_master"][rows])
-            sats.append(names)
-            refs.append(pos)
-        if not z:
+    def _slot_rows(self, a: int, tb: dict, ke: int, code: bool):
+        """Slot ``a``'s DDs at its table epoch ``ke`` (phase, or with ``code`` pseudorange: rows whose code
+        is finite, against the phase reference when its code is finite): a dict of the pieces, or None."""
+        d, ref = tb["d"], tb["ref"][ke]
+        rows = np.arange(d.ptr[ke], d.ptr[ke + 1])
+        rows = rows[tb["use"][rows]]
+        if code:
+            rows = rows[np.isfinite(tb["rc"][rows])]
+        if rows.size < 2 or not np.any(rows == ref):
             return None
-        C = joint_dd_covariance(vr, vm, sats, refs)
-        return Rows(np.concatenate(z), labels, np.asarray(seg, dtype=np.int64), chol_m=np.linalg.cholesky(C),
-                    context=(np.asarray(slot), np.vstack(sd_rows)))
+        pos = int(np.flatnonzero(rows == ref)[0])
+        u = (d.rover_sat_xyz[rows] - tb["xm"]) @ self.R          # structure-frame directions from the master
+        u /= np.linalg.norm(u, axis=1, keepdims=True)
+        others = np.delete(np.arange(rows.size), pos)
+        names = [d.sat_names[int(d.sat[i])] for i in rows]
+        sg = tb.get("seg")
+        if code:
+            seg = [-1] * others.size
+        else:
+            seg = [self._column((a, int(sg[rows[i]]), int(sg[ref]))) if sg is not None else -1 for i in others]
+        zc, f2 = ("rc", tb["code_ratio"] ** 2) if code else ("r0", 1.0)
+        return {"z": tb[zc][rows[others]] - tb[zc][ref], "s": u[others] - u[pos], "slot": [a] * others.size,
+                "labels": [(a, names[i] + ("/code" if code else "")) for i in others], "seg": seg,
+                "vr": f2 * tb["var_rover"][rows], "vm": f2 * tb["var_master"][rows], "sats": names, "ref": pos}
+
+    def rows(self, k: int) -> Rows | None:
+        """Epoch k's DDs of every slot: the phase rows, then (``code``) the pseudorange rows; noise
+        D Σ Dᵀ jointly over the slots, phase and code independent (block-diagonal)."""
+        kinds = []
+        for code in ((False, True) if self.code else (False,)):
+            parts = []
+            for a, tb in enumerate(self.tabs):
+                ke = self.k_of[a][k]
+                if ke >= 0 and tb["ref"][ke] >= 0:
+                    p = self._slot_rows(a, tb, ke, code)
+                    if p is not None:
+                        parts.append(p)
+            if parts:
+                kinds.append(parts)
+        if not kinds:
+            return None
+        blocks = [joint_dd_covariance([p["vr"] for p in ps], [p["vm"] for p in ps], [p["sats"] for p in ps],
+                                      [p["ref"] for p in ps]) for ps in kinds]
+        C = block_diag(*blocks)
+        flat = [p for ps in kinds for p in ps]
+        return Rows(np.concatenate([p["z"] for p in flat]), [lb for p in flat for lb in p["labels"]],
+                    np.asarray([s for p in flat for s in p["seg"]], dtype=np.int64), chol_m=np.linalg.cholesky(C),
+                    context=(np.asarray([s for p in flat for s in p["slot"]]), np.vstack([p["s"] for p in flat])))
 
     def predict(self, x, rows: Rows):
         slot, srows = rows.context

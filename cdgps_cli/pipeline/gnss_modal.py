@@ -56,7 +56,7 @@ import pandas as pd
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli import __version__
 from cdgps_cli.config.structure import StructureConfig
-from cdgps_cli.config.options import SIM_MASTER_ECEF_M
+from cdgps_cli.config.options import MODAL_INIT_CODE_DD, SIM_MASTER_ECEF_M
 
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.measurement.differencing import joint_dd_covariance, sd_variance, select_reference
@@ -138,6 +138,7 @@ def _rover_tables(run, init, r, stations, progress):
     los = d.rover_sat_xyz - w["xr0"]
     rng = np.linalg.norm(los, axis=1)
     r_raw = d.y_phase_m - (rng + d.rover_clk_trop_m - d.base_model_m)
+    rc = d.y_code_m - (rng + d.rover_clk_trop_m - d.base_model_m)      # SD code residual, m (NaN: missing)
     # undifferenced variances of each receiver (the run's weighting): σ²(el) = sd_variance(el, el) / 2
     va = 0.5 * sd_variance(d.el_rover, d.el_rover, sigma_a_m=opt.sigma_a_m, sigma_b_m=opt.sigma_b_m, weighting=opt.weighting)
     vm = 0.5 * sd_variance(d.el_base, d.el_base, sigma_a_m=opt.sigma_a_m, sigma_b_m=opt.sigma_b_m, weighting=opt.weighting)
@@ -145,7 +146,8 @@ def _rover_tables(run, init, r, stations, progress):
     if not n_fixed:
         ev.append({"time_s": float(d.t_label[0]), "antenna": r, "transmitter": "", "kind": "no integer fixed",
                    "action": "receiver not used"})
-    tb = {"res": res, "w": w, "d": d, "r_raw": r_raw, "seg": w["seg"], "var_rover": va, "var_master": vm,
+    tb = {"res": res, "w": w, "d": d, "r_raw": r_raw, "rc": rc, "code_ratio": float(opt.code_ratio),
+          "seg": w["seg"], "var_rover": va, "var_master": vm,
           "events": ev, "n_fixed": int(n_fixed), "n_estimated": int(res["ambiguities"]["n_estimated"]),
           "xr0": np.asarray(w["xr0"], float), "xm": np.asarray(w["xm"], float)}
     return _set_integers(tb, w["a_seg"], use)
@@ -185,7 +187,8 @@ def _init_window(t_all: np.ndarray, window_s: float) -> tuple[np.ndarray, float]
 
 
 def modal_batch_initialization(cfg: StructureConfig, R, tabs, k_of, ant_idx, d_hdr, t_all, *,
-                               window_s: float = INIT_WINDOW_S, options=None):
+                               window_s: float = INIT_WINDOW_S, options=None,
+                               max_window_factor: float = INIT_WINDOW_MAX_FACTOR, code_dd: bool = MODAL_INIT_CODE_DD):
     """Model-aided batch initialization of the modal state on the satellite DDs (the paper's method).
 
     On the first ``window_s`` seconds (extended ×INIT_WINDOW_GROWTH, up to INIT_WINDOW_MAX_FACTOR ×
@@ -216,7 +219,7 @@ def modal_batch_initialization(cfg: StructureConfig, R, tabs, k_of, ant_idx, d_h
         # until its ratio test passes; a longer window can only add information
         try:
             idx_w, dt = _init_window(t_all, w_s)
-            res_w, model, lam = _solve_window(cfg, R, tabs, k_of, ant_idx, d_hdr, idx_w, dt, options)
+            res_w, model, lam = _solve_window(cfg, R, tabs, k_of, ant_idx, d_hdr, idx_w, dt, options, code_dd)
         except CdgpsError as exc:           # (a longer window refused: the last solved one stands)
             if not tried:
                 raise
@@ -226,7 +229,7 @@ def modal_batch_initialization(cfg: StructureConfig, R, tabs, k_of, ant_idx, d_h
             idx, res = idx_w, res_w
             tried.append({"window_s": float(w_s), "epochs": int(idx.size), "n_segments": len(res.columns),
                           "n_fixed": int(res.fixed.sum()), "integer_fixing": res.note})
-        longest = INIT_WINDOW_MAX_FACTOR * window_s
+        longest = max(float(max_window_factor), 1.0) * window_s
         if res.fixed.all() or w_s >= longest - 1e-9 or (idx_w is not None and t_all[idx[-1]] < t_all[0] + w_s - 2 * dt):
             break
         w_s = min(w_s * INIT_WINDOW_GROWTH, longest)
@@ -254,25 +257,28 @@ def modal_batch_initialization(cfg: StructureConfig, R, tabs, k_of, ant_idx, d_h
         record["windows_tried"] = tried
     if tabs and "signal" in tabs[0]:     # signal path: no INIT integers for later segments → later windows
         record["later_segments"], record["later_windows"] = _later_windows(
-            cfg, R, apply_modal_record(tabs, record), k_of, ant_idx, d_hdr, t_all, window_s, float(t_all[idx[-1]]) + 1e-6)
+            cfg, R, apply_modal_record(tabs, record), k_of, ant_idx, d_hdr, t_all, window_s, float(t_all[idx[-1]]) + 1e-6,
+            code_dd)
     return apply_modal_record(tabs, record), res.x[0].copy(), record
 
 
-def _solve_window(cfg, R, tabs, k_of, ant_idx, d_hdr, idx, dt, options=None):
+def _solve_window(cfg, R, tabs, k_of, ant_idx, d_hdr, idx, dt, options=None, code_dd: bool = MODAL_INIT_CODE_DD):
     """The batch initialization of every slot's DDs, all ambiguities float, on the epochs ``idx``
-    (:func:`cdgps_cli.estimation.model_init.model_batch_init`): (result, its model, λ per slot)."""
+    (:func:`cdgps_cli.estimation.model_init.model_batch_init`): (result, its model, λ per slot).
+    ``code_dd``: with the pseudorange DDs of the slots that have them (``rc``)."""
     from cdgps_cli.estimation.initializer import InitOptions  # noqa: PLC0415
     from cdgps_cli.estimation.model_init import model_batch_init  # noqa: PLC0415
 
     raw = [dict(tb, r0=tb["r_raw"], use=np.ones(tb["seg"].size, dtype=bool),
                 ref=select_reference(tb["d"].ptr, tb["d"].sat, tb["d"].el_rover, tb["d"].slip)) for tb in tabs]
-    model = SatelliteDDModal(cfg, R, raw, k_of, ant_idx, d_hdr)
+    model = SatelliteDDModal(cfg, R, raw, k_of, ant_idx, d_hdr, code=code_dd and all("rc" in tb for tb in tabs))
     lam = [tb.get("lam_m", GPS_L1_WAVELENGTH_M) for tb in tabs]
     res = model_batch_init(model, ModalZOH(cfg), idx, dt, lambda col: lam[model.segment_keys[col][0]], options or InitOptions())
     return res, model, lam
 
 
-def _later_windows(cfg, R, tabs, k_of, ant_idx, d_hdr, t_all, window_s: float, t_from: float) -> tuple[list, list]:
+def _later_windows(cfg, R, tabs, k_of, ant_idx, d_hdr, t_all, window_s: float, t_from: float,
+                   code_dd: bool = MODAL_INIT_CODE_DD) -> tuple[list, list]:
     """Signal path: integers of the segments starting after the first window (rising satellites, slips).
 
     A window of ``window_s`` opens where the first segment not yet known and observed for at least
@@ -301,7 +307,7 @@ def _later_windows(cfg, R, tabs, k_of, ant_idx, d_hdr, t_all, window_s: float, t
         k0 = int(np.searchsorted(t_all, starts.min()))
         try:
             idx, dt = _init_window(t_all[k0:], window_s)
-            res, model, _ = _solve_window(cfg, R, tabs, k_of, ant_idx, d_hdr, idx + k0, dt)
+            res, model, _ = _solve_window(cfg, R, tabs, k_of, ant_idx, d_hdr, idx + k0, dt, code_dd=code_dd)
         except CdgpsError as exc:
             windows.append({"start_s": float(t_all[k0]), "refused": str(exc)})
             t_from = float(t_all[k0]) + window_s
@@ -514,7 +520,8 @@ def _signal_slots(run, mapping: dict, rover_ants: list, xm: np.ndarray, say) -> 
             vm = 0.5 * sd_variance(d.el_base, d.el_base, sigma_a_m=c.sigma_a_m, sigma_b_m=c.sigma_b_m, weighting=c.weighting)
             n_seg = int(d.seg.max()) + 1
             tb = {"res": None, "w": {"known_seg": np.zeros(n_seg, dtype=bool), "seg": d.seg, "a_seg": np.zeros(n_seg)},
-                  "d": d, "r_raw": d.r_raw_m, "seg": d.seg, "var_rover": va, "var_master": vm, "events": [], "n_fixed": 0,
+                  "d": d, "r_raw": d.r_raw_m, "rc": d.r_code_m, "code_ratio": float(c.code_ratio), "seg": d.seg,
+                  "var_rover": va, "var_master": vm, "events": [], "n_fixed": 0,
                   "n_estimated": n_seg, "xr0": xr0, "xm": np.asarray(xm, float), "lam_m": d.lam_m, "signal": g}
             tabs.append(_set_integers(tb, np.zeros(n_seg), np.zeros(d.seg.size, dtype=bool)))
             slot_ants.append(a)
@@ -526,7 +533,9 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
                         initial_sigma_xi: float = 1.0, initial_sigma_xidot: float = 1.0,
                         max_iterations: int = 5, progress=None, extra_options: dict | None = None,
                         batch_init: bool = True, init_window_s: float = INIT_WINDOW_S,
-                        outlier_sigma: float | None = None) -> dict:
+                        outlier_sigma: float | None = None,
+                        init_window_max_factor: float = INIT_WINDOW_MAX_FACTOR,
+                        init_code_dd: bool = MODAL_INIT_CODE_DD) -> dict:
     """Modal states of a structure from a GNSS RUN and its INIT (integers) → STATES.mcap.
 
     Parameters
@@ -592,7 +601,9 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
         say(f"modal batch initialization on the first {init_window_s:g} s …")
         try:
             tabs, x0, init_record = modal_batch_initialization(cfg, R, tabs, k_of, ant_idx, d_hdr, t_all,
-                                                               window_s=init_window_s)
+                                                               window_s=init_window_s,
+                                                               max_window_factor=init_window_max_factor,
+                                                               code_dd=init_code_dd)
         except CdgpsError as exc:
             init_record = {"method": "INIT's integers (the modal batch initialization refused)", "refused": str(exc)}
             say(f"  modal batch initialization refused ({exc}); INIT's integers are used")

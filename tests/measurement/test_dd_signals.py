@@ -46,7 +46,8 @@ def test_signal_sd_table_dd_is_the_true_integer_per_signal():
     """Two static receivers ~36 m apart on GPS L1/L2 and Galileo E5a (simulator truth), with different
     drifting clocks: per signal, every DD of the SD residual at the true positions, in cycles of that
     signal, is the DD of the simulated integers (fractional biases and receiver clocks cancel) to the
-    phase noise; satellites are named per signal."""
+    phase noise, and every DD of the SD pseudorange residual is zero to the code noise; satellites are
+    named per signal."""
     from cdgps_cli.core.gps_time import gps_seconds
     from cdgps_cli.core.signals import signal
     from cdgps_cli.estimation.rtk_multi import receiver_geometry
@@ -80,3 +81,6 @@ def test_signal_sd_table_dd_is_the_true_integer_per_signal():
         dd_cycles = (d.r_raw_m[rows] - d.r_raw_m[r]) / d.lam_m
         err = dd_cycles - (n_sd[rows] - n_sd[r])
         assert rows.size > 100 and np.max(np.abs(err)) < 0.25 and np.std(err) < 0.06, (g, np.abs(err).max())
+        # the code DDs at the true positions: zero to the code noise (simulated σ 0.5 m per receiver → DD σ 1 m)
+        code_dd = d.r_code_m[rows] - d.r_code_m[r]
+        assert np.all(np.isfinite(code_dd)) and abs(np.mean(code_dd)) < 0.3 and 0.5 < np.std(code_dd) < 1.5, g

@@ -142,3 +142,61 @@ def test_packed_dd_rows_equal_the_per_epoch_rows():
         np.testing.assert_allclose(pk.srows[k, :m], srows, rtol=1e-15)
         np.testing.assert_allclose(pk.hconst_m[k, :m], np.einsum("mi,mi->m", srows, d_hdr[slot]), rtol=1e-13)
         assert np.all(pk.L[k, m:, m:] == np.eye(pk.L.shape[1] - m)) and np.all(pk.z_m[k, m:] == 0)
+
+
+def _with_code(tabs, ratio=100.0, seed=5):
+    """The tables with SD pseudorange residuals (``rc``, m) and the code / phase σ ratio."""
+    gen = np.random.default_rng(seed)
+    return [dict(tb, rc=gen.normal(scale=1.0, size=tb["r0"].size), code_ratio=ratio) for tb in tabs]
+
+
+def test_satellite_dd_modal_code_rows_jacobian_noise_and_values():
+    """Pseudorange DD rows (``code=True``): after the phase rows, the same far-field h (H = the finite
+    difference), no ambiguity (segment −1), z the DD of ``rc``, noise D Σ_P Dᵀ with Σ_P = ratio² Σ built
+    here by brute force (SD covariance over every SD of both rovers, D explicit), independent of the phase."""
+    cfg = load_config(TOWER)
+    tabs, k_of, ant, d_hdr = _dd_tables(cfg)
+    tabs = _with_code(tabs, ratio=50.0)
+    phase = SatelliteDDModal(cfg, np.eye(3), tabs, k_of, ant, d_hdr).rows(1)
+    model = SatelliteDDModal(cfg, np.eye(3), tabs, k_of, ant, d_hdr, code=True)
+    rows = model.rows(1)
+    n_p = phase.z_m.size
+    assert rows.z_m.size == 2 * n_p
+    np.testing.assert_array_equal(rows.z_m[:n_p], phase.z_m)
+    np.testing.assert_array_equal(rows.segment[:n_p], phase.segment)
+    assert np.all(rows.segment[n_p:] == -1) and rows.labels[n_p] == (0, "G01/code")
+    rc = tabs[0]["rc"][5:10]
+    np.testing.assert_allclose(rows.z_m[n_p:n_p + 4], np.delete(rc, 1) - rc[1])
+    # brute-force covariance: SDs (slot, satellite) of both rovers, the master's noise common per satellite
+    n_rov, n_sat = len(tabs), 5
+    vr = np.concatenate([tb["var_rover"][5:10] for tb in tabs]) * 50.0**2
+    vm = np.concatenate([tb["var_master"][5:10] for tb in tabs]) * 50.0**2
+    sat = np.tile(np.arange(n_sat), n_rov)
+    S = np.diag(vr) + np.where(sat[:, None] == sat[None, :], np.sqrt(np.outer(vm, vm)), 0.0)
+    D = np.zeros((n_rov * (n_sat - 1), n_rov * n_sat))
+    for a in range(n_rov):
+        for i, j in enumerate(np.delete(np.arange(n_sat), 1)):
+            D[a * (n_sat - 1) + i, a * n_sat + j] = 1.0
+            D[a * (n_sat - 1) + i, a * n_sat + 1] = -1.0
+    C = rows.covariance()
+    np.testing.assert_allclose(C[n_p:, n_p:], D @ S @ D.T, rtol=1e-12)
+    np.testing.assert_allclose(C[:n_p, :n_p], phase.covariance(), rtol=1e-12)
+    assert np.all(C[:n_p, n_p:] == 0.0)
+    x = np.random.default_rng(6).normal(scale=0.2, size=model.n_state)
+    h, H = model.predict(x, rows)
+    np.testing.assert_allclose(H, _fd_jacobian(model, x, rows), atol=1e-7)
+    np.testing.assert_allclose(h[n_p:], h[:n_p], rtol=1e-15)   # code and phase DDs see the same geometry
+
+
+def test_satellite_dd_modal_code_rows_skip_missing_pseudoranges():
+    """A satellite without a pseudorange has no code DD; a reference without one, no code DD of that
+    rover at that epoch (the phase rows are unchanged)."""
+    cfg = load_config(TOWER)
+    tabs, k_of, ant, d_hdr = _dd_tables(cfg)
+    tabs = _with_code(tabs)
+    tabs[0]["rc"][5 + 3] = np.nan            # slot 0, epoch 1: G04 has no code
+    tabs[1]["rc"][5 + 1] = np.nan            # slot 1, epoch 1: the reference G02 has no code
+    rows = SatelliteDDModal(cfg, np.eye(3), tabs, k_of, ant, d_hdr, code=True).rows(1)
+    code = [lb for lb in rows.labels if lb[1].endswith("/code")]
+    assert code == [(0, "G01/code"), (0, "G03/code"), (0, "G05/code")]
+    assert sum(not lb[1].endswith("/code") for lb in rows.labels) == 8
