@@ -397,6 +397,11 @@ class _Problem:
         return gn.result(information)
 
 
+def _largest_change(lin, x: np.ndarray, b: np.ndarray) -> float:
+    """Largest change of a bias or of a state (m) from (x, b) to the linear solution ``lin``."""
+    return max(np.max(np.abs(lin.b - b), initial=0.0), np.max(np.abs(lin.x - x), initial=0.0))
+
+
 class GaussNewton:
     """Gauss–Newton on a :class:`_Problem`, one iteration per :meth:`step` (so that several runs can
     be advanced in turn), with Levenberg–Marquardt step control on x₁ and b.
@@ -406,7 +411,9 @@ class GaussNewton:
     is retried with ten times more damping.  Converged when the step (largest change of a bias or
     of a state) is below ``step_tol_m``, when the cost changes by less than ``cost_rtol`` without
     damping, or when two successive full undamped steps contract so fast (ratio r ≤ ½) that the
-    steps still to come, about r/(1 − r) × the last one, are below ``step_tol_m``.
+    steps still to come, about r/(1 − r) × the last one, are below ``step_tol_m``; also converged
+    when every trial raises the cost but the first proposed step is already below ``step_tol_m``
+    (the rise is then rounding in a cost at its minimum, not a failure).
     """
 
     def __init__(self, prob: _Problem, x_init: np.ndarray, b_init: np.ndarray, max_iter: int, opt: InitOptions,
@@ -434,10 +441,13 @@ class GaussNewton:
         x, b, w, J = self.x, self.b, self.w, self.J
         self.it += 1
         accepted = False
+        first_step = None
         for _ in range(self.max_retries):
             sw = self.lam / prob.sigma          # square-root weight of the damping prior
             lin = prob.solve(prob.linear_problem(x, sw, x[0], sw, b))
             self.lin = lin
+            if first_step is None:
+                first_step = _largest_change(lin, x, b)
             # backtracking along the Gauss–Newton step before adding damping
             for alpha in (1.0, 0.5, 0.25, 0.1):
                 xt = x + alpha * (lin.x - x)
@@ -451,13 +461,16 @@ class GaussNewton:
                 break
             self.lam = max(self.lam * 10.0, 1e-2)
         if not accepted:
+            # every trial raised the cost; if the first proposed step was already below the step
+            # tolerance, that rise is rounding in the cost at its minimum: converged where we stand
+            self.converged = bool(first_step is not None and first_step < opt.step_tol_m)
             self.done = True
             return False
         full = alpha == 1.0 and sw == 0.0
         self.last = (J - Jn, J - lin.cost, full)
         if alpha != 1.0:
             lin = self.lin = LinearSolutionView(xt, wt, bt, lin)
-        step = max(np.max(np.abs(lin.b - b), initial=0.0), np.max(np.abs(lin.x - x), initial=0.0))
+        step = _largest_change(lin, x, b)
         rel = (J - Jn) / max(J, 1e-300)
         self.x, self.b, self.w, self.J = lin.x, lin.b, lin.w, Jn
         self.hist.append(Jn)

@@ -495,3 +495,35 @@ def test_long_window_staged_like_direct(testbed_cfg, monkeypatch):
     assert staged["cost"] == pytest.approx(direct["cost"], rel=1e-7)
     _, wrong = bias_errors(staged, sim.truth)
     assert wrong == []
+
+
+class _RoundingAtMinimum:
+    """A problem already at its minimum: every proposed point costs a rounding error more."""
+
+    sigma = 0.01
+    G = np.zeros((2, 1))
+
+    def __init__(self, step_m):
+        self.step_m = step_m
+        self.x0 = np.zeros((2, 2))
+
+    def cost(self, x, b, w):
+        return 919.0 if np.array_equal(x, self.x0) else 919.0 * (1 + 1e-9)
+
+    def linear_problem(self, x, *args):
+        return x
+
+    def solve(self, x):
+        from types import SimpleNamespace
+        return SimpleNamespace(x=x + self.step_m, b=np.zeros(3), w=np.zeros((1, 1)), cost=918.0)
+
+
+@pytest.mark.parametrize("step_m, converged", [(1e-8, True), (1e-3, False)])
+def test_gauss_newton_at_its_minimum_is_converged_not_failed(step_m, converged):
+    """A cost that rises by rounding only, for a step below step_tol_m, ends converged; a real step
+    that every trial rejects ends not converged (the failure it was before)."""
+    from cdgps_cli.estimation.initializer import GaussNewton, InitOptions
+    prob = _RoundingAtMinimum(step_m)
+    gn = GaussNewton(prob, prob.x0.copy(), np.zeros(3), 10, InitOptions(), w_init=np.zeros((1, 1)))
+    assert gn.step() is False
+    assert gn.converged is converged and gn.done
