@@ -299,7 +299,7 @@ class McapOut:
         """Attach ``arr`` as a packed array (:mod:`cdgps_cli.io.packed_arrays`: byte-shuffled,
         zstd-compressed, lossless; media type ``application/x-cdgps-packed-array``); ``delta``:
         order of the epoch-to-epoch differences taken first (0, 1 or 2); ``overwrite``: ``arr`` is
-        a temporary the packing may overwrite (no copy)."""
+        a temporary the packing may overwrite (:func:`cdgps_cli.io.packed_arrays.pack_pieces`)."""
         from cdgps_cli.io.packed_arrays import MEDIA_TYPE, pack_pieces  # noqa: PLC0415
 
         pieces = pack_pieces(arr, delta, overwrite)

@@ -134,7 +134,8 @@ def pack_pieces(arr: np.ndarray, delta: int = 0, overwrite: bool = False) -> lis
         Order of the differences along the first axis taken before the shuffle (integers and
         floats only; see the module docstring).
     overwrite : bool
-        With ``delta``: ``arr`` is a temporary of the caller's that may be overwritten (no copy).
+        With ``delta``: ``arr`` is a temporary of the caller's that may be overwritten (then arrays
+        over :data:`_TRANSPOSE_MAX_BYTES` are packed without a copy; smaller ones always from one).
 
     Returns
     -------
