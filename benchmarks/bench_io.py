@@ -42,17 +42,21 @@ CONFIG = ROOT / "configs" / "testbed-1998.toml"
 CLI = """
 import json, sys, time
 t0 = time.perf_counter()
+from cdgps_cli.cli.commands import main                 # what the console script imports first
 import cdgps_cli.estimation.filter as E, cdgps_cli.io.run as R, cdgps_cli.io.states as S
-from cdgps_cli.cli.commands import main
 stages = {{"import": time.perf_counter() - t0}}
+imported_in_filter = []
 def timed(mod, name, key):
     f = getattr(mod, name)
     def wrapper(*a, **k):
+        before = set(sys.modules)
         t = time.perf_counter()
         try:
             return f(*a, **k)
         finally:
             stages[key] = stages.get(key, 0.0) + time.perf_counter() - t
+            if key == "filter":
+                imported_in_filter.extend(sorted(set(sys.modules) - before))
     setattr(mod, name, wrapper)
 timed(R, "read_run", "read RUN.mcap")
 timed(E, "estimate", "filter")
@@ -60,7 +64,17 @@ timed(S, "write_states", "write STATES.mcap")
 main({args!r}, standalone_mode=False)
 stages["inside"] = time.perf_counter() - t0
 print("__IO__", json.dumps(stages), file=sys.stderr)
+print("__FILTER_IMPORTS__", json.dumps(imported_in_filter), file=sys.stderr)
 """
+
+
+def compile_bytecode() -> None:
+    """Compile this tree's ``cdgps_cli`` into its ``__pycache__`` directories (git-ignored) once.
+
+    An installed package has its bytecode; this tree (an editable install, and environments with
+    ``PYTHONDONTWRITEBYTECODE=1``) would otherwise compile ≈ 50 modules in every timed process
+    (≈ 0.1 s), which is not the command's cost.  (Numpy, scipy, pandas… have theirs from pip.)"""
+    subprocess.run([sys.executable, "-m", "compileall", "-q", str(ROOT / "cdgps_cli")], check=True, cwd=ROOT)
 
 
 def _python(code: str) -> tuple[float, str]:
@@ -103,12 +117,15 @@ def run_estimate(d: Path, smooth: bool, out: Path) -> dict:
             *(["--smooth"] if smooth else []), "-o", str(out)]
     wall, err = _python(CLI.format(args=args))
     stages = json.loads([ln for ln in err.splitlines() if ln.startswith("__IO__")][-1].split(" ", 1)[1])
+    in_filter = json.loads([ln for ln in err.splitlines() if ln.startswith("__FILTER_IMPORTS__")][-1].split(" ", 1)[1])
     inside = stages.pop("inside")
     stages["interpreter start and exit"] = wall - inside
     stages["other (option checks, RUN hash for the INIT pairing, …)"] = inside - sum(
         v for k, v in stages.items() if k != "interpreter start and exit")
     return {"process_s": wall, "stages_s": stages, "ratio_process_over_filter": wall / stages["filter"],
-            "states_mib": out.stat().st_size / 2**20}
+            "states_mib": out.stat().st_size / 2**20, "load_average_1min": os.getloadavg()[0],
+            # modules first imported inside the timed filter call (their import time counts as filter)
+            "modules_imported_during_filter": in_filter}
 
 
 def measure(d: Path, repeat: int) -> dict:
@@ -137,6 +154,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         d = a.workdir or Path(tmp)
         res = {"label": a.label, "setup": setup(d, a.hours, a.seed)}
+        compile_bytecode()
+        res["bytecode"] = "cdgps_cli precompiled into its __pycache__, as an installed package has it"
         res["run_mcap_mib"] = (d / "run.mcap").stat().st_size / 2**20
         res["cases"] = measure(d, a.repeat)
     res["machine"] = {"python": platform.python_version(), "cpus": os.cpu_count(), "platform": platform.platform(),
@@ -154,6 +173,8 @@ def main() -> None:
               f"byte-identical reruns: {c['byte_identical_reruns']}")
         for k, v in b["stages_s"].items():
             print(f"      {k:58s} {v:6.2f} s")
+        print(f"      (load average {b['load_average_1min']:.1f}; modules first imported inside the filter call: "
+              f"{', '.join(b['modules_imported_during_filter']) or 'none'})")
     print(f"wrote {a.out}")
 
 

@@ -117,12 +117,16 @@ def _missing(v) -> bool:
     return v is None or (isinstance(v, float) and v != v)
 
 
+_COMPACT_JSON = json.JSONEncoder(separators=(",", ":"), allow_nan=False)
+"""``json.dumps(…, separators=(",", ":"), allow_nan=False)`` without building an encoder per message."""
+
+
 def _plain_json(msg: dict, payload: dict) -> bytes | None:
     """``msg`` followed by ``payload`` as compact JSON when no value is missing (None or NaN at any
     depth), else None: then :meth:`McapOut._encode` applies the schema's rules.  When it returns
     bytes, they are the bytes ``_encode`` would give (nothing to drop or replace)."""
     try:
-        data = json.dumps({**msg, **payload}, separators=(",", ":"), allow_nan=False).encode()
+        data = _COMPACT_JSON.encode({**msg, **payload}).encode()
     except ValueError:                                        # NaN or infinity somewhere
         return None
     return None if b"null" in data else data                  # a None somewhere (or the word in a string)
@@ -262,7 +266,7 @@ class McapOut:
                                      f"has no {VALID_SUFFIX} companion")
                 msg[k] = v
         try:
-            data = json.dumps(msg, separators=(",", ":"), allow_nan=False).encode()
+            data = _COMPACT_JSON.encode(msg).encode()
         except ValueError:
             bad = [k for k, v in msg.items() if isinstance(v, list) and any(_missing(x) for x in v)]
             raise ValueError(f"message at {time_s!r} s: missing values in array field(s) {', '.join(bad) or '?'} "
@@ -295,7 +299,7 @@ class McapOut:
         """Attach ``arr`` as a packed array (:mod:`cdgps_cli.io.packed_arrays`: byte-shuffled,
         zstd-compressed, lossless; media type ``application/x-cdgps-packed-array``); ``delta``:
         order of the epoch-to-epoch differences taken first (0, 1 or 2); ``overwrite``: ``arr`` is
-        a temporary the packing may overwrite (no copy)."""
+        a temporary the packing may overwrite (:func:`cdgps_cli.io.packed_arrays.pack_pieces`)."""
         from cdgps_cli.io.packed_arrays import MEDIA_TYPE, pack_pieces  # noqa: PLC0415
 
         pieces = pack_pieces(arr, delta, overwrite)

@@ -51,7 +51,7 @@ def _unsigned(itemsize: int) -> np.dtype:
 def _delta_encode(cols: np.ndarray, order: int, overwrite: bool = False, block: int = 256) -> np.ndarray:
     """(N, m) numbers → their bits' k-th differences along axis 0, zigzag-coded (unsigned, same size).
 
-    In place when ``overwrite`` (``cols`` must then be C-contiguous and writeable), else on one
+    In place when ``overwrite`` (``cols`` must then be writeable; any memory layout), else on one
     copy; ``block`` rows at a time from the end (so each block's previous rows are still the values
     being differenced, and the temporaries stay small)."""
     u = cols.view(_unsigned(cols.dtype.itemsize))
@@ -83,17 +83,36 @@ def _delta_decode(z: np.ndarray, order: int, dtype: np.dtype) -> np.ndarray:
     return u.view(dtype)
 
 
+_TRANSPOSE_MAX_BYTES = 64 << 20
+"""Arrays up to this size are packed from one epochs-last copy (see :func:`_compressed_planes`)."""
+_BLOCK_BYTES = 4 << 20
+"""Size of the temporaries of :func:`unpack` (columns decoded a block at a time)."""
+
+
 def _compressed_planes(arr: np.ndarray, delta: int = 0, overwrite: bool = False) -> list[bytes]:
-    """zstd frame of arr's bytes as (N, m) byte planes (see the module docstring), built one plane
-    at a time (no full-size copy of arr, unless ``delta`` without ``overwrite``)."""
+    """zstd frame of arr's bytes as (N, m) byte planes (see the module docstring).
+
+    Up to :data:`_TRANSPOSE_MAX_BYTES`: one copy of arr with the epochs last (m, N), differenced
+    there in place, whose byte planes are then contiguous slices (3–4× faster than gathering each
+    plane across the epochs).  Larger arrays plane by plane, with no copy beyond the differences
+    (none with ``overwrite``)."""
     n = arr.shape[0] if arr.ndim else 1
-    cols = np.ascontiguousarray(arr).reshape(n, int(np.prod(arr.shape[1:], dtype=np.int64)))
-    if delta:                           # in place on the caller's temporary, or on a copy made here
-        mine = overwrite or not np.shares_memory(cols, arr)
-        cols = _delta_encode(cols, delta, overwrite=mine and cols.flags.writeable)
-    octets = cols.view(np.uint8).reshape(n, cols.shape[1], arr.dtype.itemsize)
+    cols = np.asarray(arr).reshape(n, int(np.prod(arr.shape[1:], dtype=np.int64)))
+    size = arr.dtype.itemsize
     cobj = zstandard.ZstdCompressor(level=LEVEL).compressobj(size=cols.nbytes)
-    parts = [cobj.compress(np.ascontiguousarray(octets[:, :, b].T)) for b in range(arr.dtype.itemsize)]
+    if cols.nbytes <= _TRANSPOSE_MAX_BYTES:
+        by_column = np.array(cols.T, order="C")          # a copy even when cols.T is contiguous (m = 1)
+        if delta:
+            _delta_encode(by_column.T, delta, overwrite=True)
+        octets = by_column.view(np.uint8).reshape(by_column.shape + (size,))
+        parts = [cobj.compress(np.ascontiguousarray(octets[:, :, b])) for b in range(size)]
+    else:
+        cols = np.ascontiguousarray(cols)
+        if delta:                       # in place on the caller's temporary, or on a copy made here
+            mine = overwrite or not np.shares_memory(cols, arr)
+            cols = _delta_encode(cols, delta, overwrite=mine and cols.flags.writeable)
+        octets = cols.view(np.uint8).reshape(n, cols.shape[1], size)
+        parts = [cobj.compress(np.ascontiguousarray(octets[:, :, b].T)) for b in range(size)]
     parts.append(cobj.flush())
     return parts
 
@@ -115,7 +134,8 @@ def pack_pieces(arr: np.ndarray, delta: int = 0, overwrite: bool = False) -> lis
         Order of the differences along the first axis taken before the shuffle (integers and
         floats only; see the module docstring).
     overwrite : bool
-        With ``delta``: ``arr`` is a temporary of the caller's that may be overwritten (no copy).
+        With ``delta``: ``arr`` is a temporary of the caller's that may be overwritten (then arrays
+        over :data:`_TRANSPOSE_MAX_BYTES` are packed without a copy; smaller ones always from one).
 
     Returns
     -------
@@ -172,8 +192,21 @@ def unpack(data: bytes, what: str = "packed array") -> np.ndarray:
         raise ValueError(f"{what}: {len(raw)} bytes of content for shape {list(shape)} of {dtype.str}")
     n = shape[0] if shape else 1
     m = int(np.prod(shape[1:], dtype=np.int64))
-    planes = np.frombuffer(raw, dtype=np.uint8).reshape(dtype.itemsize, m, n)
-    cols = np.ascontiguousarray(planes.transpose(2, 1, 0))
+    cols = _from_planes(np.frombuffer(raw, dtype=np.uint8).reshape(dtype.itemsize, m, n))
     if delta:
-        return _delta_decode(cols.view(_unsigned(dtype.itemsize)), delta, dtype).reshape(shape)
+        return _delta_decode(cols, delta, dtype).reshape(shape)
     return cols.view(dtype).reshape(shape)
+
+
+def _from_planes(planes: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`_byte_planes`: (size, m, N) byte planes → (N, m) unsigned integers of
+    ``size`` bytes; a block of columns at a time (each interleaved contiguously, then transposed)."""
+    size, m, n = planes.shape
+    out = np.empty((n, m), dtype=_unsigned(size))
+    step = max(_BLOCK_BYTES // max(n * size, 1), 1)
+    for c in range(0, m, step):
+        block = np.empty((min(step, m - c), n, size), dtype=np.uint8)
+        for b in range(size):
+            block[:, :, b] = planes[b, c:c + step]
+        out[:, c:c + step] = block.view(out.dtype).reshape(block.shape[:2]).T
+    return out

@@ -235,10 +235,9 @@ def _attach_series(out: McapOut, topic: str, ss: StateSeries, ser: Series, sigma
     npos, X = ss.n_pos, ser.x
     key = f"{PACKED_PREFIX}{topic}/"
     out.attach_packed(key + "time_s", np.asarray(ser.time_s, dtype=float))
-    # (np.array: copies the caller's states, which the packing then overwrites)
-    out.attach_packed(key + "xi", np.array(X[:, :npos]), STATE_DELTA, overwrite=True)
-    if ss.n_rate:
-        out.attach_packed(key + "xidot", np.array(X[:, npos:npos + ss.n_rate]), STATE_DELTA, overwrite=True)
+    out.attach_packed(key + "xi", X[:, :npos], STATE_DELTA)            # (packing copies what it differences)
+    if ss.n_rate and full:                          # no cdgps command reads ξ̇: every epoch on request only
+        out.attach_packed(key + "xidot", X[:, npos:npos + ss.n_rate], STATE_DELTA)
     for name, arr in sorted(ser.extra.items()):
         out.attach_packed(key + name, np.asarray(arr))
     if full and ser.P.shape[1] > npos:
@@ -257,16 +256,19 @@ def _attach_series(out: McapOut, topic: str, ss: StateSeries, ser: Series, sigma
 def _write_state_messages(out: McapOut, ch: int, names, sel, ser: Series, q, sq, npos: int, nrate: int,
                           with_P: bool) -> None:
     """The Foxglove JSON messages of one state series at the epochs ``sel``."""
-    X, time_s = ser.x, ser.time_s
-    for k in sel.tolist():
-        msg = {"q": dict(zip(names, q[k].tolist())), "sigma_q": dict(zip(names, sq[k].tolist())),
-               "xi": X[k, :npos].tolist()}
+    X = ser.x[sel]
+    rows = {"q": q[sel].tolist(), "sigma_q": sq[sel].tolist(), "xi": X[:, :npos].tolist(),
+            "xidot": X[:, npos:npos + nrate].tolist() if nrate else None,
+            "P_xi": ser.P[sel, :npos, :npos].reshape(len(sel), -1).tolist() if with_P else None}
+    for i, t in enumerate(np.asarray(ser.time_s, dtype=float)[sel].tolist()):
+        msg = {"q": dict(zip(names, rows["q"][i])), "sigma_q": dict(zip(names, rows["sigma_q"][i])),
+               "xi": rows["xi"][i]}
         if nrate:
-            msg["xidot"] = X[k, npos:npos + nrate].tolist()
+            msg["xidot"] = rows["xidot"][i]
         if with_P:
-            msg["P_xi"] = ser.P[k, :npos, :npos].ravel().tolist()
+            msg["P_xi"] = rows["P_xi"][i]
         msg["smoothed"] = ser.smoothed
-        out.write(ch, time_s[k], msg)
+        out.write(ch, t, msg)
 
 
 def _write_residuals(out: McapOut, ss: StateSeries, time_s, sel) -> None:
@@ -281,14 +283,21 @@ def _write_residuals(out: McapOut, ss: StateSeries, time_s, sel) -> None:
     ch = out.channel(RESIDUAL_TOPIC, RESIDUAL_SCHEMA)
     ants = [c[0] for c in ss.residual_channels]
     txs = [c[1] for c in ss.residual_channels]
-    for k in sel.tolist():
-        r = ss.residual_m[k]
-        used = ~np.isnan(r)
-        out.write(ch, time_s[k], {"antenna": [a for a, u in zip(ants, used) if u],
-                                  "transmitter": [x for x, u in zip(txs, used) if u],
-                                  "residual_m": r[used].tolist(),
-                                  "nis": None if np.isnan(ss.nis[k]) else float(ss.nis[k]),
-                                  "nis_dof": int(ss.nis_dof[k])})
+    R = np.asarray(ss.residual_m, dtype=float)[sel]
+    used = ~np.isnan(R)
+    every = used.all(axis=1).tolist()
+    rows, nis = R.tolist(), np.asarray(ss.nis, dtype=float)[sel]
+    nis_list = [None if bad else v for bad, v in zip(np.isnan(nis).tolist(), nis.tolist())]
+    dof = [int(d) for d in np.asarray(ss.nis_dof)[sel].tolist()]
+    for i, t in enumerate(np.asarray(time_s, dtype=float)[sel].tolist()):
+        if every[i]:                                  # every channel used: the lists as they are
+            a, x, r = ants, txs, rows[i]
+        else:
+            u = used[i].tolist()
+            a = [v for v, ok in zip(ants, u) if ok]
+            x = [v for v, ok in zip(txs, u) if ok]
+            r = [v for v, ok in zip(rows[i], u) if ok]
+        out.write(ch, t, {"antenna": a, "transmitter": x, "residual_m": r, "nis": nis_list[i], "nis_dof": dof[i]})
 
 
 def _description(ss: StateSeries) -> bytes:
@@ -302,9 +311,11 @@ def _description(ss: StateSeries) -> bytes:
     }, sort_keys=True, indent=1).encode()
 
 
-def provenance(run_path: str | Path, init_text: str) -> dict:
-    """The RUN and INIT part of the ``cdgps.estimate`` metadata: file name and sha256 of each."""
-    return {"run": Path(run_path).name, "run_sha256": hashlib.sha256(Path(run_path).read_bytes()).hexdigest(),
+def provenance(run_path: str | Path, init_text: str, run_sha256: str | None = None) -> dict:
+    """The RUN and INIT part of the ``cdgps.estimate`` metadata: file name and sha256 of each
+    (``run_sha256``: the RUN's, when the caller has already hashed it)."""
+    run_sha256 = run_sha256 or hashlib.sha256(Path(run_path).read_bytes()).hexdigest()
+    return {"run": Path(run_path).name, "run_sha256": run_sha256,
             "init_sha256": hashlib.sha256(init_text.encode()).hexdigest()}
 
 
@@ -331,8 +342,9 @@ def write_states(ss: StateSeries, out_path: str | Path, metadata: dict, attachme
         Time scale of the series' ``time_s`` (:mod:`cdgps_cli.core.timescales`).
     covariance : {"modal", "full"}
         ``"modal"``: the position covariance P_ξ (n_pos×n_pos) per epoch of every series but the
-        forward filter of a smoothed run (of it, its 1-σ of q only); ``"full"``: also the whole state covariance P of every
-        series that has it, P_ξ of every series, and P_ξ in the JSON messages.
+        forward filter of a smoothed run (of it, its 1-σ of q only); ``"full"``: also the rates ξ̇
+        of every epoch, the whole state covariance P of every series that has it, P_ξ of every
+        series, and P_ξ in the JSON messages.
     preview_rate_hz : float
         Rate of the Foxglove JSON channels, Hz (0: every epoch); see :data:`DEFAULT_PREVIEW_RATE_HZ`.
     angles : list of (str, str, ndarray (n_q,))
@@ -406,7 +418,8 @@ class States:
     output_map : (n_q, n_pos) — q = C ξ; n_pos : int; wavelength_m : float (m)
     time_s : (N,) s
     q, sigma_q : (N, n_q) coordinate units (m or rad)
-    xi : (N, n_pos); xidot : (N, n_pos) or None (no rates, or files before the packed arrays)
+    xi : (N, n_pos); xidot : (N, n_pos) or None (no rates; files written without ``--covariance full``
+        since 2026-12-03, or before the packed arrays)
     P_xi : (N, n_pos, n_pos) or None (the forward filter of a smoothed run, unless ``--covariance full``)
     P : (N, n, n) or None (only with ``--covariance full``)
     extra : dict of str to ndarray (N, ...) — the series' further arrays (e.g. ``n_sat``, ``pdop``)

@@ -10,15 +10,16 @@ Beside its Foxglove JSON channels (:mod:`cdgps_cli.io.states`), a STATES.mcap ca
 of every series as packed arrays (:mod:`cdgps_cli.io.packed_arrays`), the arrays cdgps itself
 reads:
 
-* ``arrays<topic>/time_s`` (N,), ``xi`` (N, n_pos) and, with rates, ``xidot`` (N, n_pos) for each
-  state series (``<topic>`` is ``/cdgps/state``, ``/cdgps/state_filtered`` or, on a GNSS run,
+* ``arrays<topic>/time_s`` (N,), ``xi`` (N, n_pos) and, with rates and ``--covariance full``,
+  ``xidot`` (N, n_pos) for each state series (no cdgps command reads ξ̇: by default it is in the
+  Foxglove channel only, at its rate) (``<topic>`` is ``/cdgps/state``, ``/cdgps/state_filtered`` or, on a GNSS run,
   ``/cdgps/kinematic`` — the single-epoch solutions, with ``extra`` arrays ``n_sat`` and ``pdop``);
 * for every series but the forward filter of a smoothed run, its position covariance,
   ``P_xi_triu`` (N, n_pos(n_pos+1)/2: the upper triangle row by row, written when every P_ξ is
   exactly symmetric) or ``P_xi`` (N, n_pos, n_pos); for the forward filter of a smoothed run only
   ``sigma_q`` (N, n_q), its 1-σ of q;
 * with ``--covariance full``: ``P`` (N, n, n), the whole state covariance of every series that
-  has it, and P_ξ of the forward filter too;
+  has it, P_ξ of the forward filter too, and ``xidot``;
 * the state and covariance arrays (``xi``, ``xidot``, ``P_xi_triu``/``P_xi``, ``sigma_q``, ``P``)
   are packed with :data:`STATE_DELTA` (second differences between epochs, lossless);
 * ``arrays/cdgps/residuals/``: ``residual_m`` (N, C, float32 — 7 significant digits, nm on
@@ -43,8 +44,7 @@ DEFAULT_COVARIANCE = "modal"
 DEFAULT_PREVIEW_RATE_HZ = 1.0
 """Rate of the Foxglove JSON channels, Hz (0: every epoch); every epoch is in the packed arrays.  1 Hz
 shows a structure's modes up to 0.5 Hz in Foxglove's plots (0.5 Hz would alias the testbed's 0.28 Hz
-mode and bring STATES.mcap of an hour at 10 Hz 1.8 MiB under its RUN.mcap; at 1 Hz it is 1.0 MiB
-over: docs/benchmarks/io.md)."""
+mode).  An hour at 10 Hz: STATES.mcap 19.5 MiB for a 20.6 MiB RUN.mcap (docs/benchmarks/io.md)."""
 STATE_DELTA = 2
 """Order of the epoch-to-epoch differences the state and covariance arrays are packed with
 (:mod:`cdgps_cli.io.packed_arrays`; lossless: P_ξ of an hour at 10 Hz 10.4 → 9.9 MB)."""

@@ -36,8 +36,6 @@ All functions are pure and work on numpy arrays; units are given per argument.
 from __future__ import annotations
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from cdgps_cli.config.options import PHASE_SIGMA_A_M, PHASE_SIGMA_B_M
 from cdgps_cli.measurement.channels import lock_segments
@@ -195,6 +193,10 @@ def ambiguity_datum(epoch, seg, n_seg: int) -> tuple[np.ndarray, np.ndarray]:
     component : ndarray of int64, shape (n_seg,)
         Set of each ambiguity.
     """
+    # scipy.sparse (≈40 ms to import) only here: the pseudolite estimate never needs it
+    from scipy.sparse import coo_matrix  # noqa: PLC0415
+    from scipy.sparse.csgraph import connected_components  # noqa: PLC0415
+
     ep = np.asarray(epoch, dtype=np.int64)
     sg = np.asarray(seg, dtype=np.int64)
     if sg.size == 0:

@@ -47,7 +47,8 @@ def structure_series(res) -> StateSeries:
 
 
 def write_states(res, run_path: str | Path, init: dict, init_text: str, out_path: str | Path, options: dict,
-                 covariance: str = DEFAULT_COVARIANCE, preview_rate_hz: float = DEFAULT_PREVIEW_RATE_HZ) -> dict:
+                 covariance: str = DEFAULT_COVARIANCE, preview_rate_hz: float = DEFAULT_PREVIEW_RATE_HZ,
+                 run_sha256: str | None = None) -> dict:
     """Write the structure estimate ``res`` to STATES.mcap atomically; returns the writer's summary.
 
     Parameters
@@ -60,13 +61,16 @@ def write_states(res, run_path: str | Path, init: dict, init_text: str, out_path
     covariance, preview_rate_hz
         As :func:`cdgps_cli.io.states.write_states`; the section angles of ``res.cfg``
         (:func:`cdgps_cli.model.kinematics.section_angles`) make its ``/cdgps/angles_deg`` channel.
+    run_sha256 : str, optional
+        The RUN's sha256 when the caller has it (``cdgps estimate`` hashed the RUN to check the
+        INIT pairing); else the RUN is hashed here.
     """
     from cdgps_cli.model.kinematics import section_angles  # noqa: PLC0415
     from cdgps_cli.io.run import run_kind  # noqa: PLC0415 (a structure estimated on a GNSS run: GPS time)
 
     cfg = res.cfg
     meta = {"cdgps_version": __version__, "created_by": "cdgps estimate", "config_name": cfg.name,
-            "config_sha256": cfg.sha256, **states_io.provenance(run_path, init_text),
+            "config_sha256": cfg.sha256, **states_io.provenance(run_path, init_text, run_sha256),
             "options": json.dumps(options, sort_keys=True),
             "measurement_noise": json.dumps(getattr(res, "noise", {}) or {}, sort_keys=True),
             "final_biases": json.dumps([{"antenna": a, "transmitter": t, "bias_m": b}

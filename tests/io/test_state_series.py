@@ -79,10 +79,10 @@ def test_round_trip_of_any_kind(kind, tmp_path):
     np.testing.assert_array_equal(st.time_s, est.time_s)
     np.testing.assert_array_equal(st.xi, est.x[:, :ss.n_pos])
     np.testing.assert_array_equal(st.P_xi, est.P[:, :ss.n_pos, :ss.n_pos])
+    assert st.xidot is None                   # ξ̇ of every epoch only with covariance="full" (no reader needs it)
     if ss.n_rate:
-        np.testing.assert_array_equal(st.xidot, est.x[:, ss.n_pos:2 * ss.n_pos])
-    else:
-        assert st.xidot is None
+        _write(ss, tmp_path / "full.mcap", covariance="full")
+        np.testing.assert_array_equal(States(tmp_path / "full.mcap").xidot, est.x[:, ss.n_pos:2 * ss.n_pos])
     # q = C ξ and σ_q = sqrt(diag(C P_ξ Cᵀ)), epoch by epoch (brute force)
     for k in range(50):
         xk, Pk = est.x[k, :ss.n_pos], est.P[k, :ss.n_pos, :ss.n_pos]

@@ -1,0 +1,37 @@
+"""What a command pays before it starts (issue 13 item 5): the CLI module imports only click and
+cdgps' light modules, each subcommand imports its own dependencies in its body, and `cdgps estimate`
+on a structure run never loads plotting, dask or the sparse-matrix code."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+HEAVY = ("numpy", "pandas", "scipy", "matplotlib", "dask", "distributed", "mcap", "zstandard")
+
+
+def _modules_after(code: str) -> set[str]:
+    """Top-level and dotted module names loaded by a fresh interpreter after ``code``."""
+    out = subprocess.run([sys.executable, "-c", code + "\nimport sys, json; print(json.dumps(sorted(sys.modules)))"],
+                         capture_output=True, text=True, check=True)
+    return set(json.loads(out.stdout.strip().splitlines()[-1]))
+
+
+def test_cli_module_and_help_import_nothing_heavy():
+    for code in ("import cdgps_cli.cli.commands",
+                 "from cdgps_cli.cli.commands import main\n"
+                 "try:\n    main(['--help'])\nexcept SystemExit:\n    pass",
+                 "from cdgps_cli.cli.commands import main\n"
+                 "try:\n    main(['estimate', '--help'])\nexcept SystemExit:\n    pass"):
+        loaded = _modules_after(code)
+        assert not [m for m in HEAVY if m in loaded], (code, [m for m in HEAVY if m in loaded])
+
+
+def test_estimate_path_loads_no_plotting_dask_or_sparse():
+    """The modules `cdgps estimate` imports on a structure run (filter, RUN reader, STATES writer)."""
+    loaded = _modules_after("import cdgps_cli.estimation.filter, cdgps_cli.io.run, cdgps_cli.io.states, "
+                            "cdgps_cli.pipeline.estimate_outputs, cdgps_cli.model.kinematics")
+    assert "numpy" in loaded and "cdgps_cli.estimation.filter" in loaded        # the probe itself works
+    for name in ("matplotlib", "dask", "distributed", "scipy.sparse", "scipy.stats", "scipy.optimize"):
+        assert name not in loaded, name
