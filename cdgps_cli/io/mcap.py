@@ -246,6 +246,28 @@ class McapOut:
         data = None if arrays.intersection(payload) else _plain_json(msg, payload)
         if data is None:
             data = self._encode(msg, payload, arrays, others, time_s)
+        self._add(channel_id, ns, data)
+
+    def write_json_members(self, channel_id: int, time_s: float, members: str) -> None:
+        """Write one message whose payload is given as compact JSON text: its members without the
+        braces (``'"a":1,"b":[2.5]'``), every value present (no NaN, infinity or null).
+
+        The bytes are those :meth:`write` gives for the same payload (``{"timestamp":…,"time_s":…,``
+        then ``members``), without building and encoding a dict per message; for channels whose
+        schema has no ``<field>_valid`` array (ValueError otherwise).
+        """
+        if self.nullable_arrays(channel_id):
+            raise ValueError("write_json_members: the channel's schema has nullable arrays; use write()")
+        ns = time_ns(time_s, self.time_scale)
+        head = '{"timestamp":{"sec":%d,"nsec":%d},"time_s":%r,' % (ns // 1_000_000_000, ns % 1_000_000_000,
+                                                                   float(time_s))
+        self._add(channel_id, ns, (head + members + "}").encode())
+
+    def nullable_arrays(self, channel_id: int) -> frozenset:
+        """The array fields of the channel's schema that have a ``<field>_valid`` companion."""
+        return self._nullable[channel_id][0]
+
+    def _add(self, channel_id: int, ns: int, data: bytes) -> None:
         self.writer.add_message(channel_id=channel_id, log_time=ns, publish_time=ns, data=data,
                                 sequence=self._seq[channel_id])
         self._seq[channel_id] += 1

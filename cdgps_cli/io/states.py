@@ -255,20 +255,47 @@ def _attach_series(out: McapOut, topic: str, ss: StateSeries, ser: Series, sigma
 
 def _write_state_messages(out: McapOut, ch: int, names, sel, ser: Series, q, sq, npos: int, nrate: int,
                           with_P: bool) -> None:
-    """The Foxglove JSON messages of one state series at the epochs ``sel``."""
+    """The Foxglove JSON messages of one state series at the epochs ``sel`` (rows without a missing
+    value as text from one template, the same bytes :meth:`McapOut.write` gives for them)."""
     X = ser.x[sel]
-    rows = {"q": q[sel].tolist(), "sigma_q": sq[sel].tolist(), "xi": X[:, :npos].tolist(),
-            "xidot": X[:, npos:npos + nrate].tolist() if nrate else None,
-            "P_xi": ser.P[sel, :npos, :npos].reshape(len(sel), -1).tolist() if with_P else None}
+    blocks = [q[sel], sq[sel], X[:, :npos]] + ([X[:, npos:npos + nrate]] if nrate else []) + \
+        ([ser.P[sel, :npos, :npos].reshape(len(sel), -1)] if with_P else [])
+    values = np.hstack(blocks)
+    complete = np.isfinite(values).all(axis=1).tolist() if not out.nullable_arrays(ch) else [False] * len(sel)
+    template = _state_members_template(names, npos, nrate, with_P, ser.smoothed)
+    rows = values.tolist()
     for i, t in enumerate(np.asarray(ser.time_s, dtype=float)[sel].tolist()):
-        msg = {"q": dict(zip(names, rows["q"][i])), "sigma_q": dict(zip(names, rows["sigma_q"][i])),
-               "xi": rows["xi"][i]}
+        if complete[i]:
+            out.write_json_members(ch, t, template % tuple(rows[i]))
+            continue
+        row, nq = rows[i], len(names)
+        msg = {"q": dict(zip(names, row[:nq])), "sigma_q": dict(zip(names, row[nq:2 * nq])),
+               "xi": row[2 * nq:2 * nq + npos]}
         if nrate:
-            msg["xidot"] = rows["xidot"][i]
+            msg["xidot"] = row[2 * nq + npos:2 * nq + npos + nrate]
         if with_P:
-            msg["P_xi"] = rows["P_xi"][i]
+            msg["P_xi"] = row[2 * nq + npos + nrate:]
         msg["smoothed"] = ser.smoothed
         out.write(ch, t, msg)
+
+
+def _json_key(name: str) -> str:
+    """``name`` as a JSON string, escaped for use in a %-template."""
+    return json.dumps(name).replace("%", "%%")
+
+
+def _state_members_template(names, npos: int, nrate: int, with_P: bool, smoothed: bool) -> str:
+    """%-template of a state message's members: q and sigma_q objects, xi, [xidot], [P_xi], smoothed
+    (``%r`` of a Python float is the text ``json`` writes for it)."""
+    def obj(key):
+        return _json_key(key) + ":{" + ",".join(_json_key(n) + ":%r" for n in names) + "}"
+
+    def arr(key, k):
+        return _json_key(key) + ":[" + ",".join(["%r"] * k) + "]"
+
+    parts = [obj("q"), obj("sigma_q"), arr("xi", npos)] + ([arr("xidot", nrate)] if nrate else []) + \
+        ([arr("P_xi", npos * npos)] if with_P else [])
+    return ",".join(parts + ['"smoothed":' + ("true" if smoothed else "false")])
 
 
 def _write_residuals(out: McapOut, ss: StateSeries, time_s, sel) -> None:
@@ -289,8 +316,15 @@ def _write_residuals(out: McapOut, ss: StateSeries, time_s, sel) -> None:
     rows, nis = R.tolist(), np.asarray(ss.nis, dtype=float)[sel]
     nis_list = [None if bad else v for bad, v in zip(np.isnan(nis).tolist(), nis.tolist())]
     dof = [int(d) for d in np.asarray(ss.nis_dof)[sel].tolist()]
+    prefix = ('"antenna":' + json.dumps(ants, separators=(",", ":")) + ',"transmitter":'
+              + json.dumps(txs, separators=(",", ":"))).replace("%", "%%")
+    template = prefix + ',"residual_m":[' + ",".join(["%r"] * len(ants)) + '],"nis":%r,"nis_dof":%d'
+    finite = (np.isfinite(R).all(axis=1) & np.isfinite(nis)).tolist()
     for i, t in enumerate(np.asarray(time_s, dtype=float)[sel].tolist()):
-        if every[i]:                                  # every channel used: the lists as they are
+        if finite[i]:                                 # every channel used, NIS present: the template
+            out.write_json_members(ch, t, template % (*rows[i], nis_list[i], dof[i]))
+            continue
+        if every[i]:
             a, x, r = ants, txs, rows[i]
         else:
             u = used[i].tolist()
