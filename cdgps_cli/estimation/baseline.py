@@ -1084,9 +1084,38 @@ def _work(d: _Data, sg: _Segments, w: _Weights, fin: _Final, xr0, xm, r_enu, kin
     }
 
 
+def check_iono_rule(master: str, rover: str, length_m: float, threshold_km: float) -> None:
+    """Refuse a multi-signal baseline at or above the ionosphere threshold.
+
+    The displacement path neglects the double-differenced ionosphere (:mod:`.baseline_signals`), as
+    ``cdgps rtk`` does only below its ``iono_threshold_km``; at or above it the DD ionosphere (a few
+    mm per km, more on dual frequency's wide lane) would bias the position and the integers.
+
+    Parameters
+    ----------
+    master, rover : str
+        Station names, for the message.
+    length_m : float
+        Baseline length (master to rover a priori position), m.
+    threshold_km : float
+        ``gnss.iono_threshold_km``, km.
+
+    Raises
+    ------
+    CdgpsError
+        ``length_m`` ≥ ``threshold_km`` km, naming the length, the key and ``cdgps rtk``.
+    """
+    if length_m >= 1e3 * threshold_km:
+        raise CdgpsError(
+            f"baseline {master} → {rover} is {length_m / 1e3:.3f} km long, at or above gnss.iono_threshold_km = "
+            f"{threshold_km:g} km: 'cdgps init' with [gnss] signals neglects the double-differenced ionosphere; use "
+            f"'cdgps rtk' (estimates it at or above its iono_threshold_km), or raise gnss.iono_threshold_km in the "
+            f"config to accept the ionosphere's error")
+
+
 def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, options: BaselineOptions | None = None,
                           *, master_xyz=None, rover_xyz=None, integers: dict | None = None,
-                          keep_work: bool = False) -> dict:
+                          keep_work: bool = False, iono_threshold_km: float | None = None) -> dict:
     """Static baseline from two receivers' RINEX observations (see the module docstring).
 
     Parameters
@@ -1109,6 +1138,9 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
     keep_work : bool
         Also return the internal arrays under ``"_work"`` (not JSON: SD rows, geometry,
         ambiguities, weights, single-epoch solutions), for the GNSS pipeline's estimators.
+    iono_threshold_km : float, optional
+        With both stations' signal tables: refuse a baseline (master to rover a priori) at least
+        this long, km, since the DD ionosphere is neglected (:func:`check_iono_rule`).  None: no check.
 
     Returns
     -------
@@ -1131,6 +1163,8 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
     opt.validate()
     warnings: list[str] = []
     xm, xr0, source = _a_priori_positions(master, rover, nav, master_xyz, rover_xyz, warnings)
+    if iono_threshold_km is not None and master.signals is not None and rover.signals is not None:
+        check_iono_rule(master.name, rover.name, float(np.linalg.norm(xr0 - xm)), iono_threshold_km)
     clock = [time.perf_counter()]
 
     def lap() -> float:

@@ -126,7 +126,8 @@ def gnss_init(run: GnssRun, *, options: dict | None = None, progress=None) -> di
     for r in run.rovers:
         say(f"baseline {run.master} → {r}: float, LAMBDA, fixed …")
         res = solve_static_baseline(stations[run.master], stations[r], run.nav, opt,
-                                    master_xyz=_position_args(run, run.master), rover_xyz=_position_args(run, r))
+                                    master_xyz=_position_args(run, run.master), rover_xyz=_position_args(run, r),
+                                    iono_threshold_km=run.cfg.iono_threshold_km)
         res = json_safe(res)
         sol = res["fixed"] or res["float"]
         amb = res["ambiguities"]

@@ -194,3 +194,48 @@ def test_glonass_signals_are_refused_naming_them(bds_pair):
     out = d / "glo.mcap"
     r = run_cli("ingest", "--config", config(["G:L1", "R:G1"]), "-o", out)
     assert r.exit_code == 2 and "GLONASS" in r.output and "Traceback" not in r.output and not out.exists(), r.output
+
+
+def test_init_refuses_a_signal_baseline_at_the_ionosphere_threshold(bds_pair):
+    """The displacement path neglects the DD ionosphere: with [gnss] signals, a baseline at or above
+    gnss.iono_threshold_km is refused (exit 2, nothing written), naming its length, the key and
+    'cdgps rtk'; the same run passes once the threshold is raised above its length (361 m)."""
+    d, config = bds_pair
+    base = config(["G:L1", "C:B1I"]).read_text()
+    for km, refused in ((0.3, True), (0.5, False)):
+        cfg = d / f"iono-{km}.toml"
+        cfg.write_text(base.replace("[gnss]\n", f"[gnss]\niono_threshold_km = {km}\n", 1))
+        run, out = d / f"iono-{km}.mcap", d / f"iono-{km}.json"
+        run_commands(("ingest", "--config", cfg, "-o", run))
+        r = run_cli("init", run, "-o", out)
+        if refused:
+            assert r.exit_code == 2 and "Traceback" not in r.output and not out.exists(), r.output
+            text = " ".join(r.output.split())
+            assert "0.361 km" in text and "gnss.iono_threshold_km = 0.3 km" in text and "'cdgps rtk'" in text, text
+            assert not any(p.name.startswith(".iono") for p in d.iterdir())
+        else:
+            assert r.exit_code == 0 and json.loads(out.read_text())["rovers"]["rover"]["solution"] == "fixed", r.output
+
+
+@pytest.mark.parametrize("length_m,refused", [(9999.999, False), (10000.0, True), (25000.0, True)])
+def test_the_ionosphere_rule_refuses_at_or_above_the_threshold(length_m, refused):
+    from cdgps_cli.core.errors import CdgpsError
+    from cdgps_cli.estimation.baseline import check_iono_rule
+
+    if refused:
+        with pytest.raises(CdgpsError, match=r"at or above gnss.iono_threshold_km = 10 km"):
+            check_iono_rule("m", "r", length_m, 10.0)
+    else:
+        check_iono_rule("m", "r", length_m, 10.0)
+
+
+def test_the_ionosphere_threshold_key_is_checked(tmp_path):
+    from cdgps_cli.config.options import GNSS_DEFAULTS, MULTI_GNSS_DEFAULTS
+    from cdgps_cli.config.structure import parse_gnss_config
+    from cdgps_cli.core.errors import CdgpsError
+
+    assert GNSS_DEFAULTS["iono_threshold_km"] == MULTI_GNSS_DEFAULTS["iono_threshold_km"] == 10.0
+    text = "[gnss]\nmaster = \"a\"\n[gnss.antennas.a]\nrinex = \"a.obs\"\n"
+    assert parse_gnss_config(text, str(tmp_path / "c.toml")).iono_threshold_km == 10.0
+    with pytest.raises(CdgpsError, match=r"gnss.iono_threshold_km.*positive"):
+        parse_gnss_config(text.replace("[gnss]\n", "[gnss]\niono_threshold_km = -1\n"), str(tmp_path / "c.toml"))
