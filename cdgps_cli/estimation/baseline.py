@@ -1057,6 +1057,12 @@ def _reference_satellites(d: _Data, refs_ph: list) -> tuple[list, int]:
     return ref_list, n_changes
 
 
+def _fdma_count(seg_rows: list) -> dict:
+    """``{"n_float_glonass": n}``: GLONASS segments estimated as float biases (datum excluded); {} when none."""
+    n = sum(1 for r in seg_rows if "reason" in r and not r["pivot"])
+    return {"n_float_glonass": n} if n else {}
+
+
 def _ambiguity_summary(sg: _Segments, fx: _Fix, opt: BaselineOptions, seg_rows: list) -> dict:
     return {
         "n_segments": int(sg.n_seg),
@@ -1064,7 +1070,7 @@ def _ambiguity_summary(sg: _Segments, fx: _Fix, opt: BaselineOptions, seg_rows: 
         "n_estimated": int(sg.free.size),
         "n_fixed": int(fx.fixed_mask.sum()),
         "n_half_cycle_excluded": int(np.sum(sg.seg_half[sg.free])),
-        **({"n_float_glonass": n_fdma} if (n_fdma := sum(1 for r in seg_rows if "reason" in r)) else {}),
+        **_fdma_count(seg_rows),
         "ratio": fx.ratio,
         "ratio_full_set": fx.ratio_full,
         "ratio_threshold": opt.ratio_threshold,
