@@ -451,8 +451,11 @@ def _events(rover: str, master: str, res: dict, w: dict) -> list:
             ev.append({"time_s": t0, "antenna": who, "transmitter": s_name, "kind": kind,
                        "action": f"new ambiguity, {fix_txt}"})
         elif not (info["fixed"] or info["pivot"]):
-            ev.append({"time_s": t0, "antenna": rover, "transmitter": s_name, "kind": "ambiguity not fixed",
-                       "action": "float ambiguity (phase used, integer unknown)"})
+            glo = "reason" in info                 # GLONASS (FDMA): float by design, never fixed
+            ev.append({"time_s": t0, "antenna": rover, "transmitter": s_name,
+                       "kind": "GLONASS (FDMA) float bias" if glo else "ambiguity not fixed",
+                       "action": "float bias (m) in the static solution; no per-epoch DD" if glo
+                       else "float ambiguity (phase used, integer unknown)"})
         seen_sat.add(s_name)
         if info["half_cycle_flag"]:
             ev.append({"time_s": t0, "antenna": rover, "transmitter": s_name, "kind": "half-cycle unresolved (LLI bit 1)",
