@@ -21,10 +21,15 @@ PHASE_SIGMA_B_M = 0.003
 MODAL_INIT_CODE_DD = True
 
 #: GNSS run config and baseline solver defaults (docs/gnss-pipeline.md)
+#: the DD ionosphere is neglected on baselines shorter than this, km (`cdgps rtk` estimates it at or
+#: above; `cdgps init` with [gnss] signals, which always neglects it, refuses there: gnss.iono_threshold_km)
+IONO_THRESHOLD_KM = 10.0
+
 GNSS_DEFAULTS = {"mask_deg": 15.0, "ratio": RATIO_THRESHOLD, "partial": True, "weighting": "elevation",
                  "troposphere": True, "sigma_a_m": PHASE_SIGMA_A_M, "sigma_b_m": PHASE_SIGMA_B_M,
                  "code_ratio": 100.0, "sync_tol_s": 0.025, "epoch_alignment": "geometry",
-                 "random_walk_sigma": (0.001, 0.001, 0.001), "initial_sigma_m": 1.0}
+                 "random_walk_sigma": (0.001, 0.001, 0.001), "initial_sigma_m": 1.0,
+                 "iono_threshold_km": IONO_THRESHOLD_KM}
 
 #: `cdgps control design` weights by default: "paper", the 1998 paper's Sec. V numbers
 #: (Q_x* = 5000 diag(1, …, 1, 0.01), Q_x = diag(Q_x*, 0.01 Q_x*), Q_u = I; cdgps_cli.control.lqr.PAPER_*)
@@ -54,7 +59,7 @@ MULTI_GNSS_DEFAULTS = {
     "mask_deg": 15.0, "ratio": RATIO_THRESHOLD, "fix": True, "glonass_fix": False,
     "sigma_a_m": PHASE_SIGMA_A_M, "sigma_b_m": PHASE_SIGMA_B_M, "code_ratio": 100.0,
     "amb_sigma_cycles": 30.0, "troposphere": True,
-    "iono_threshold_km": 10.0,             # below: DD ionosphere neglected; above: estimated
+    "iono_threshold_km": IONO_THRESHOLD_KM,  # below: DD ionosphere neglected; above: estimated
     "iono_sigma_m_per_km": 0.002,          # prior σ of the SD slant ionosphere per km of baseline
     "iono_rw_m_per_sqrt_s": 0.0005,
 }

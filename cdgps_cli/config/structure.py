@@ -929,7 +929,7 @@ _GNSS_KEYS = {
     "mask_deg": "number", "ratio": "number", "partial": "bool", "fix": "bool", "weighting": "string",
     "sigma_a_m": "number", "sigma_b_m": "number", "code_ratio": "number", "troposphere": "bool",
     "max_gap_s": "number", "sync_tol_s": "number", "epoch_alignment": "string", "antennas": "table",
-    "displacement": "table", "signals": "list of signal names",
+    "displacement": "table", "signals": "list of signal names", "iono_threshold_km": "number",
 }
 _GNSS_ANTENNA_KEYS = {"rinex", "ubx", "position_ecef_m", "description"}
 _GNSS_DISPLACEMENT_KEYS = {"model", "sigma_m_per_sqrt_s", "initial_sigma_m"}
@@ -992,6 +992,9 @@ class GnssConfig:
     displacement: str = "static"
     random_walk_sigma: tuple = GNSS_DEFAULTS["random_walk_sigma"]
     initial_sigma_m: float = GNSS_DEFAULTS["initial_sigma_m"]
+    iono_threshold_km: float = GNSS_DEFAULTS["iono_threshold_km"]
+    """With ``signals``: ``cdgps init`` refuses a baseline at least this long, km (the displacement path
+    neglects the DD ionosphere; ``cdgps rtk`` estimates it)."""
     signals: tuple = ()
     """Multi-GNSS signals kept at ingest (``G:L1``, ``G:L2``, ``E:E1``, ``E:E5a`` …; names of
     :mod:`cdgps_cli.core.signals`); empty: GPS L1 only (the raw tables)."""
@@ -1105,6 +1108,7 @@ def parse_gnss_config(text: str, path: str = "<config>", base_dir: str | Path | 
     sync = chk.number(g, "gnss", "sync_tol_s", GNSS_DEFAULTS["sync_tol_s"], positive=True)
     if sync is not None and sync > 1.0:
         chk.add("gnss.sync_tol_s", f"expected at most 1 s, got {sync!r}")
+    iono_km = chk.number(g, "gnss", "iono_threshold_km", GNSS_DEFAULTS["iono_threshold_km"], positive=True)
     align = chk.string(g, "gnss", "epoch_alignment", GNSS_DEFAULTS["epoch_alignment"])
     if align not in ("geometry", "doppler"):
         chk.add("gnss.epoch_alignment", f"expected \"geometry\" or \"doppler\", got {align!r}")
@@ -1171,7 +1175,7 @@ def parse_gnss_config(text: str, path: str = "<config>", base_dir: str | Path | 
         mask_deg=mask, ratio=ratio, partial=flag("partial", True), fix=flag("fix", True), weighting=weighting,
         sigma_a_m=sa, sigma_b_m=sb, code_ratio=code_ratio, troposphere=flag("troposphere", True),
         max_gap_s=max_gap, sync_tol_s=sync, epoch_alignment=align, displacement=model, random_walk_sigma=rw, initial_sigma_m=init_sigma,
-        signals=signals,
+        signals=signals, iono_threshold_km=iono_km,
     )
 
 

@@ -675,6 +675,7 @@ class _Final(NamedTuple):
     q3: np.ndarray             # (3, 3) covariance of x
     g: np.ndarray
     r_ph: np.ndarray
+    a_sigma: np.ndarray | None = None   # (n_seg,) 1σ of a_seg, cycles (0: known)
 
 
 def _a_priori_positions(master: Station, rover: Station, nav, master_xyz, rover_xyz, warnings: list):
@@ -829,7 +830,7 @@ def _integer_fix(d: _Data, sg: _Segments, w: _Weights, fl: _Float, opt: Baseline
         a_float = a_float + da
         fl.block["motion"] = "random_walk"
         fl.block["random_walk_sigma_m_per_sqrt_s"] = list(opt.random_walk_sigma)
-    fixable = ~sg.seg_half[sg.free]
+    fixable = ~sg.seg_half[sg.free] & ~_fdma_segments(d, sg)[sg.free]
     fixed_mask = np.zeros(sg.free.size, dtype=bool)
     integers_fix = np.zeros(sg.free.size, dtype=np.int64)
     ratio, ratio_full, accepted, partial_used = None, None, False, False
@@ -848,7 +849,9 @@ def _fixed_solution(d: _Data, sg: _Segments, w: _Weights, fl: _Float, fx: _Fix, 
     float), iterated to convergence; the float solution when nothing is fixed."""
     n_fixed = int(fx.fixed_mask.sum())
     if not n_fixed:
-        return _Final(None, fl.x, "float", fl.a_seg.copy(), sg.is_pivot.copy(), fl.q[:3, :3], fl.g, fl.r_ph)
+        a_sig = np.zeros(sg.n_seg)
+        a_sig[sg.free] = np.sqrt(np.diag(fl.q)[3:])
+        return _Final(None, fl.x, "float", fl.a_seg.copy(), sg.is_pivot.copy(), fl.q[:3, :3], fl.g, fl.r_ph, a_sig)
     a_fix = fl.a_seg.copy()
     known_seg = sg.is_pivot.copy()
     fsegs = sg.free[fx.fixed_mask]
@@ -881,8 +884,10 @@ def _fixed_solution(d: _Data, sg: _Segments, w: _Weights, fl: _Float, fx: _Fix, 
         "observations": ("L1 carrier phase only" if getattr(d, "group", None) is None
                          else f"carrier phase only ({', '.join(d.group_names)})"),
     }
-    kind = "fixed" if n_fixed == sg.free.size else "partially fixed"
-    return _Final(block, x_fix, kind, a_fix, known_seg, q_fix[:3, :3], g, r_ph)
+    kind = "fixed" if n_fixed == int(np.sum(~_fdma_segments(d, sg)[sg.free])) else "partially fixed"
+    a_sig = np.zeros(sg.n_seg)
+    a_sig[unk] = np.sqrt(np.diag(q_fix)[3:])
+    return _Final(block, x_fix, kind, a_fix, known_seg, q_fix[:3, :3], g, r_ph, a_sig)
 
 
 def _residual_summary(d: _Data, w: _Weights, r_ph, n_dd_code: int) -> dict:
@@ -961,9 +966,34 @@ def _kinematic_summary(d: _Data, ka: dict, x_final, opt: BaselineOptions) -> dic
     return kin
 
 
-def _segment_table(d: _Data, sg: _Segments, fx: _Fix) -> list:
+def _fdma_segments(d: _Data, sg: _Segments) -> np.ndarray:
+    """(n_seg,) bool: segments of GLONASS (FDMA) signals, kept float and never passed to LAMBDA.
+
+    A GLONASS SD segment's phase in metres carries λ_i·N_i with its satellite's own wavelength, so
+    the DD λ_i·N_i − λ_r·N_r (plus the receivers' inter-frequency bias difference of the two
+    channels) is not an integer of one wavelength: each segment is one float bias (m, λ_i × its
+    float cycles, relative to its group's datum segment), as ``cdgps rtk`` keeps GLONASS."""
+    names = np.array([str(n)[:1] for n in d.sat_names], dtype=object)
+    return names[sg.segtab["sat"]] == "R" if len(names) else np.zeros(sg.n_seg, dtype=bool)
+
+
+_FDMA_REASON = ("GLONASS (FDMA): the DD ambiguity λ_i·N_i − λ_r·N_r plus the inter-frequency bias is not an integer "
+                "of one wavelength; kept float (one bias per lock segment, m), never passed to LAMBDA")
+
+
+def _fdma_row(row: dict, lam: float, a_cycles: float, sigma_cycles: float) -> dict:
+    """A GLONASS segment's table row: float, no integer, its value in the reported solution (cycles
+    of its own wavelength and the bias in metres, relative to its group's datum segment; LAMBDA never
+    sees it), and the reason."""
+    if row["pivot"]:
+        return dict(row, fixed=False, integer=None, float_bias_m=0.0, sigma_bias_m=0.0, reason=_FDMA_REASON)
+    return dict(row, fixed=False, integer=None, float_cycles=a_cycles, sigma_cycles=sigma_cycles,
+                float_bias_m=lam * a_cycles, sigma_bias_m=lam * sigma_cycles, reason=_FDMA_REASON)
+
+
+def _segment_table(d: _Data, sg: _Segments, fx: _Fix, fin: _Final) -> list:
     """One row per SD ambiguity segment: satellite, span, datum, float value, integer (and with signal
-    groups its ``signal`` and ``wavelength_m``)."""
+    groups its ``signal`` and ``wavelength_m``; GLONASS segments: :func:`_fdma_row` from ``fin``)."""
     rows = []
     sig = _satellite_signals(d)
     for k in range(sg.n_seg):
@@ -985,6 +1015,9 @@ def _segment_table(d: _Data, sg: _Segments, fx: _Fix) -> list:
             "last_gps_s": float(d.t_label[sg.segtab["last_epoch"][k]]),
             **(sig[int(sg.segtab["sat"][k])] if sig else {}),
         })
+    fdma = _fdma_segments(d, sg) if sig else np.zeros(sg.n_seg, dtype=bool)
+    for k in np.flatnonzero(fdma):
+        rows[k] = _fdma_row(rows[k], rows[k]["wavelength_m"], float(fin.a_seg[k]), float(fin.a_sigma[k]))
     return rows
 
 
@@ -1024,6 +1057,12 @@ def _reference_satellites(d: _Data, refs_ph: list) -> tuple[list, int]:
     return ref_list, n_changes
 
 
+def _fdma_count(seg_rows: list) -> dict:
+    """``{"n_float_glonass": n}``: GLONASS segments estimated as float biases (datum excluded); {} when none."""
+    n = sum(1 for r in seg_rows if "reason" in r and not r["pivot"])
+    return {"n_float_glonass": n} if n else {}
+
+
 def _ambiguity_summary(sg: _Segments, fx: _Fix, opt: BaselineOptions, seg_rows: list) -> dict:
     return {
         "n_segments": int(sg.n_seg),
@@ -1031,6 +1070,7 @@ def _ambiguity_summary(sg: _Segments, fx: _Fix, opt: BaselineOptions, seg_rows: 
         "n_estimated": int(sg.free.size),
         "n_fixed": int(fx.fixed_mask.sum()),
         "n_half_cycle_excluded": int(np.sum(sg.seg_half[sg.free])),
+        **_fdma_count(seg_rows),
         "ratio": fx.ratio,
         "ratio_full_set": fx.ratio_full,
         "ratio_threshold": opt.ratio_threshold,
@@ -1084,9 +1124,38 @@ def _work(d: _Data, sg: _Segments, w: _Weights, fin: _Final, xr0, xm, r_enu, kin
     }
 
 
+def check_iono_rule(master: str, rover: str, length_m: float, threshold_km: float) -> None:
+    """Refuse a multi-signal baseline at or above the ionosphere threshold.
+
+    The displacement path neglects the double-differenced ionosphere (:mod:`.baseline_signals`), as
+    ``cdgps rtk`` does only below its ``iono_threshold_km``; at or above it the DD ionosphere (a few
+    mm per km, more on dual frequency's wide lane) would bias the position and the integers.
+
+    Parameters
+    ----------
+    master, rover : str
+        Station names, for the message.
+    length_m : float
+        Baseline length (master to rover a priori position), m.
+    threshold_km : float
+        ``gnss.iono_threshold_km``, km.
+
+    Raises
+    ------
+    CdgpsError
+        ``length_m`` ≥ ``threshold_km`` km, naming the length, the key and ``cdgps rtk``.
+    """
+    if length_m >= 1e3 * threshold_km:
+        raise CdgpsError(
+            f"baseline {master} → {rover} is {length_m / 1e3:.3f} km long, at or above gnss.iono_threshold_km = "
+            f"{threshold_km:g} km: 'cdgps init' with [gnss] signals neglects the double-differenced ionosphere; use "
+            f"'cdgps rtk' (estimates it at or above its iono_threshold_km), or raise gnss.iono_threshold_km in the "
+            f"config to accept the ionosphere's error")
+
+
 def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, options: BaselineOptions | None = None,
                           *, master_xyz=None, rover_xyz=None, integers: dict | None = None,
-                          keep_work: bool = False) -> dict:
+                          keep_work: bool = False, iono_threshold_km: float | None = None) -> dict:
     """Static baseline from two receivers' RINEX observations (see the module docstring).
 
     Parameters
@@ -1109,6 +1178,9 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
     keep_work : bool
         Also return the internal arrays under ``"_work"`` (not JSON: SD rows, geometry,
         ambiguities, weights, single-epoch solutions), for the GNSS pipeline's estimators.
+    iono_threshold_km : float, optional
+        With both stations' signal tables: refuse a baseline (master to rover a priori) at least
+        this long, km, since the DD ionosphere is neglected (:func:`check_iono_rule`).  None: no check.
 
     Returns
     -------
@@ -1131,6 +1203,8 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
     opt.validate()
     warnings: list[str] = []
     xm, xr0, source = _a_priori_positions(master, rover, nav, master_xyz, rover_xyz, warnings)
+    if iono_threshold_km is not None and master.signals is not None and rover.signals is not None:
+        check_iono_rule(master.name, rover.name, float(np.linalg.norm(xr0 - xm)), iono_threshold_km)
     clock = [time.perf_counter()]
 
     def lap() -> float:
@@ -1154,7 +1228,7 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
     ref_list, n_ref_changes = _reference_satellites(d, w.refs_ph)
     result = _result(master, rover, xm, xr0, source, r_enu, fl, fin)
     result.update({
-        "ambiguities": _ambiguity_summary(sg, fx, opt, _segment_table(d, sg, fx)),
+        "ambiguities": _ambiguity_summary(sg, fx, opt, _segment_table(d, sg, fx, fin)),
         "residuals": residuals,
         "kinematic": kin,
         "epochs": dict(d.info, n_reference_changes=n_ref_changes, reference_satellites=ref_list),

@@ -16,7 +16,10 @@ frequency slot (``G:L1``, ``E:E5a`` …); its rows are named ``G05:L1`` (:func:`
 segment, reference and residual carries its signal.  Rows are sorted by epoch, group, satellite,
 and an (epoch, group) block with a single row forms no DD and is dropped.  No ionosphere term:
 the DD ionosphere is neglected (short baselines; the same default as ``cdgps rtk`` below its
-10 km threshold).  GLONASS (FDMA) is not taken here (the caller refuses it).
+10 km threshold; the caller refuses longer baselines).  GLONASS (FDMA) rows carry their
+satellite's own wavelength (frequency number from the RINEX header, the navigation records or the
+UBX freqId); the solver keeps their segments float (λ_g·a_seg then differs per satellite, so the DD
+of two segments is a float bias in metres, not an integer of one wavelength).
 """
 
 from __future__ import annotations
@@ -84,6 +87,9 @@ def _group_info(order: list, grp: np.ndarray, sats: np.ndarray, lam: np.ndarray)
         m = grp == k
         out[g] = {"sd_rows": int(m.sum()), "satellites": int(np.unique(sats[m]).size),
                   "wavelength_m": float(lam[m][0]) if m.any() else None}
+        if g.startswith("R:"):               # FDMA: a wavelength per satellite
+            u, i = np.unique(sats[m], return_index=True)
+            out[g].update(wavelength_m=None, wavelength_m_by_satellite={str(a): float(b) for a, b in zip(u, lam[m][i])})
     return out
 
 

@@ -46,7 +46,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.mcap import CONFIG_ATTACHMENT, McapOut, array_schema, message_schema, read_mcap
 from cdgps_cli.io.run import INGEST_METADATA, contents_kind, ingest_metadata, run_kind
 from cdgps_cli.core.gps_time import gps_time_str
-from cdgps_cli.core.records import NAV_COLUMNS
+from cdgps_cli.core.records import GLONASS_NAV_COLUMNS, NAV_COLUMNS
 from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
 from cdgps_cli.io.ubx import INTEGRITY_COUNTS, integrity_problems, integrity_record, skipped_line
 from cdgps_cli.core.gps_time import nominal_interval_s
@@ -341,27 +341,44 @@ def merge_nav(nav_paths, systems=("G",)) -> pd.DataFrame:
 def _nav_systems(signals, nav_list) -> tuple:
     """Systems whose ephemerides the signals need (GPS always, for the L1 tables)."""
     from cdgps_cli.core.signals import SYSTEM_NAMES, signal  # noqa: PLC0415
-    from cdgps_cli.io.rinex import NAV_KEPLER_SYSTEMS  # noqa: PLC0415
+    from cdgps_cli.io.rinex import NAV_SYSTEMS  # noqa: PLC0415
 
     systems = ["G"] + sorted({signal(g).system for g in signals} - {"G"})
-    bad = [c for c in systems if c not in NAV_KEPLER_SYSTEMS]
+    bad = [c for c in systems if c not in NAV_SYSTEMS]
     if bad:
         raise CdgpsError(f"signals of {', '.join(SYSTEM_NAMES[c] for c in bad)} cannot be ingested yet: broadcast "
-                         f"ephemerides are read for {', '.join(SYSTEM_NAMES[c] for c in NAV_KEPLER_SYSTEMS)} only")
+                         f"ephemerides are read for {', '.join(SYSTEM_NAMES[c] for c in NAV_SYSTEMS)} only")
     return tuple(systems)
 
 
-def _read_signal_tables(signals, receivers: dict, files: dict, say) -> None:
+def _glonass_nav(signals, nav_list) -> tuple:
+    """With GLONASS signals: the navigation data read ahead for their frequency numbers, as
+    (nav table or None, {sat: k}).  A navigation error is left for the regular read after the
+    observation files (whose errors come first); (None, {}) without GLONASS signals."""
+    if not nav_list or not any(str(g).startswith("R:") for g in signals):
+        return None, {}
+    try:
+        nav = merge_nav(nav_list, _nav_systems(signals, nav_list))
+    except CdgpsError:
+        return None, {}
+    if "glonass_k" not in nav.columns:
+        return nav, {}
+    k = nav.dropna(subset=["glonass_k"]).groupby("sat")["glonass_k"].first()
+    return nav, {str(sat): int(v) for sat, v in k.items()}
+
+
+def _read_signal_tables(signals, receivers: dict, files: dict, say, glonass_k: dict | None = None) -> None:
     """Every receiver's table of ``signals`` (RINEX, or a UBX log's RXM-RAWX: :func:`~cdgps_cli.io.ubx.read_ubx_signals`);
     CdgpsError naming the file when a receiver lacks one of them (the receivers must share every
-    signal asked for)."""
+    signal asked for).  ``glonass_k``: GLONASS frequency numbers of the navigation records, for
+    RINEX files whose header lacks ``GLONASS SLOT / FRQ #`` (UBX logs carry freqId)."""
     from cdgps_cli.io.rinex_signals import read_rinex_signals  # noqa: PLC0415
     from cdgps_cli.io.ubx import read_ubx_signals  # noqa: PLC0415
 
     for n, rx in receivers.items():
         kind, p = files[n]
         say(f"reading signals {', '.join(signals)} of {p} ({n}) …")
-        tab = read_ubx_signals(p, signals) if kind == "ubx" else read_rinex_signals(p, signals)[1]
+        tab = read_ubx_signals(p, signals) if kind == "ubx" else read_rinex_signals(p, signals, glonass_k)[1]
         have = set(tab["signal"])
         absent = [g for g in signals if g not in have]
         if absent:
@@ -461,8 +478,9 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
         if w:
             warnings.append(w)
 
+    nav_ahead, glonass_k = _glonass_nav(cfg.signals, nav_list)
     if cfg.signals:
-        _read_signal_tables(cfg.signals, receivers, files, say)
+        _read_signal_tables(cfg.signals, receivers, files, say, glonass_k)
     nav = None
     sf_navs = [rx.nav for rx in receivers.values() if rx.nav is not None and len(rx.nav)]
     nav_source = ",".join(Path(p).name for p in nav_list)
@@ -479,7 +497,7 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
             "of that day")
     if nav_list:
         say(f"reading {len(nav_list)} navigation file(s) …")
-        nav = merge_nav(nav_list, _nav_systems(cfg.signals, nav_list))
+        nav = nav_ahead if nav_ahead is not None else merge_nav(nav_list, _nav_systems(cfg.signals, nav_list))
     else:
         warnings.append("no navigation file: the run has no ephemerides, and 'cdgps init' needs them "
                         "(ingest again with --nav, or list nav files in the config)")
@@ -546,7 +564,8 @@ def write_gnss_run(cfg: GnssConfig, out_path: str | Path, inp: IngestInputs, pos
             for rec in nav.to_dict(orient="records"):
                 out.write(ch_e, float(rec["toc_gps_s"]), {k: _json_safe(v) for k, v in rec.items()})
                 n_eph += 1
-            tab = {c: _json_safe(nav[c].tolist()) for c in NAV_COLUMNS}
+            cols = NAV_COLUMNS + (GLONASS_NAV_COLUMNS if "x_m" in nav.columns else ())   # GLONASS state vectors
+            tab = {c: _json_safe(nav[c].tolist()) for c in cols}
             out.attach(EPHEMERIS_ATTACHMENT, json.dumps(tab).encode(), "application/json")
         ch = out.channel(GNSS_OBS_TOPIC, OBS_SCHEMA, {"units": "cycles, m, dB-Hz, Hz, ms"})
         n_msg = _write_obs_messages(out, ch, receivers)
@@ -682,12 +701,12 @@ def read_gnss_run(path: str | Path, contents=None) -> GnssRun:
     if EPHEMERIS_ATTACHMENT in c.attachments:
         try:
             tab = json.loads(c.attachments[EPHEMERIS_ATTACHMENT])
-            nav = pd.DataFrame({k: tab[k] for k in NAV_COLUMNS})
+            nav = pd.DataFrame({k: tab[k] for k in NAV_COLUMNS + (GLONASS_NAV_COLUMNS if "x_m" in tab else ())})
         except (ValueError, KeyError) as exc:
             raise CdgpsError(f"{path}: damaged {EPHEMERIS_ATTACHMENT}: {exc}") from None
         for col in ("iode", "codes_l2", "l2p_data_flag", "sv_health", "iodc", "week", "line"):
             nav[col] = nav[col].fillna(-1).astype(np.int64)
-        for col in NAV_COLUMNS:
+        for col in [c for c in NAV_COLUMNS + GLONASS_NAV_COLUMNS if c in nav.columns]:
             if col not in ("sat", "iode", "codes_l2", "l2p_data_flag", "sv_health", "iodc", "week", "line"):
                 nav[col] = nav[col].astype(np.float64)
     master = meta.get("master") or cfg.master or next(iter(receivers))

@@ -76,11 +76,6 @@ def _stations(run: GnssRun):
         raise CdgpsError(f"{run.path}: the run has only the master receiver {run.master!r}; a displacement solution "
                          f"needs at least one rover receiver (ingest two or more --rinex/--ubx files)")
     sigs = tuple(run.cfg.signals)
-    fdma = [g for g in sigs if g.startswith("R:")]
-    if fdma:
-        raise CdgpsError(f"{run.path}: gnss.signals: {', '.join(fdma)} (GLONASS, FDMA) cannot be used by 'cdgps init'/"
-                         f"'cdgps estimate' yet (its DD ambiguities are not integers of one wavelength); remove them from "
-                         f"[gnss] signals, or use 'cdgps rtk' (GLONASS float)")
     stations = {}
     for n, rx in run.receivers.items():
         stations[n] = Station(n, dict(rx.header, path=rx.file), processing_obs(rx), signal_obs(rx) if sigs else None)
@@ -126,7 +121,8 @@ def gnss_init(run: GnssRun, *, options: dict | None = None, progress=None) -> di
     for r in run.rovers:
         say(f"baseline {run.master} → {r}: float, LAMBDA, fixed …")
         res = solve_static_baseline(stations[run.master], stations[r], run.nav, opt,
-                                    master_xyz=_position_args(run, run.master), rover_xyz=_position_args(run, r))
+                                    master_xyz=_position_args(run, run.master), rover_xyz=_position_args(run, r),
+                                    iono_threshold_km=run.cfg.iono_threshold_km)
         res = json_safe(res)
         sol = res["fixed"] or res["float"]
         amb = res["ambiguities"]
@@ -145,6 +141,7 @@ def gnss_init(run: GnssRun, *, options: dict | None = None, progress=None) -> di
             "accepted": amb["accepted"], "partial": amb["partial"], "n_segments": amb["n_segments"],
             "n_fixed": amb["n_fixed"], "n_estimated": amb["n_estimated"],
             "n_half_cycle_excluded": amb["n_half_cycle_excluded"],
+            **({"n_float_glonass": amb["n_float_glonass"]} if "n_float_glonass" in amb else {}),
             "ambiguities": amb["segments"],
             "residuals": res["residuals"], "kinematic": res["kinematic"], "epochs": res["epochs"],
             "satellites": res["satellites"], "warnings": res["warnings"], "options": res["options"],
@@ -188,7 +185,9 @@ def _signals_summary(run: GnssRun, rovers: dict) -> dict:
     return {"signals": list(run.cfg.signals), "wavelengths_m": lam,
             "dd_groups": "per constellation and frequency slot, own reference satellite; no inter-system or "
                          "inter-frequency DD; one ambiguity per satellite-signal lock segment; integers of all "
-                         "groups fixed as one set (LAMBDA, ratio test, partial fixing)"}
+                         "groups fixed as one set (LAMBDA, ratio test, partial fixing)"
+                         + ("; GLONASS (FDMA) groups float: one bias (m) per lock segment, wavelength per satellite, "
+                            "never passed to LAMBDA" if any(str(g).startswith("R:") for g in run.cfg.signals) else "")}
 
 
 def gnss_biases(master: str, rover: str, segments: list) -> list:
@@ -452,8 +451,11 @@ def _events(rover: str, master: str, res: dict, w: dict) -> list:
             ev.append({"time_s": t0, "antenna": who, "transmitter": s_name, "kind": kind,
                        "action": f"new ambiguity, {fix_txt}"})
         elif not (info["fixed"] or info["pivot"]):
-            ev.append({"time_s": t0, "antenna": rover, "transmitter": s_name, "kind": "ambiguity not fixed",
-                       "action": "float ambiguity (phase used, integer unknown)"})
+            glo = "reason" in info                 # GLONASS (FDMA): float by design, never fixed
+            ev.append({"time_s": t0, "antenna": rover, "transmitter": s_name,
+                       "kind": "GLONASS (FDMA) float bias" if glo else "ambiguity not fixed",
+                       "action": "float bias (m) in the static solution; no per-epoch DD" if glo
+                       else "float ambiguity (phase used, integer unknown)"})
         seen_sat.add(s_name)
         if info["half_cycle_flag"]:
             ev.append({"time_s": t0, "antenna": rover, "transmitter": s_name, "kind": "half-cycle unresolved (LLI bit 1)",

@@ -189,8 +189,139 @@ def test_beidou_b1i_b2i_on_the_displacement_path(bds_pair):
     assert np.linalg.norm(list(init["states"].values())) < 0.005
 
 
-def test_glonass_signals_are_refused_naming_them(bds_pair):
+def test_init_refuses_a_signal_baseline_at_the_ionosphere_threshold(bds_pair):
+    """The displacement path neglects the DD ionosphere: with [gnss] signals, a baseline at or above
+    gnss.iono_threshold_km is refused (exit 2, nothing written), naming its length, the key and
+    'cdgps rtk'; the same run passes once the threshold is raised above its length (361 m)."""
     d, config = bds_pair
-    out = d / "glo.mcap"
-    r = run_cli("ingest", "--config", config(["G:L1", "R:G1"]), "-o", out)
-    assert r.exit_code == 2 and "GLONASS" in r.output and "Traceback" not in r.output and not out.exists(), r.output
+    base = config(["G:L1", "C:B1I"]).read_text()
+    for km, refused in ((0.3, True), (0.5, False)):
+        cfg = d / f"iono-{km}.toml"
+        cfg.write_text(base.replace("[gnss]\n", f"[gnss]\niono_threshold_km = {km}\n", 1))
+        run, out = d / f"iono-{km}.mcap", d / f"iono-{km}.json"
+        run_commands(("ingest", "--config", cfg, "-o", run))
+        r = run_cli("init", run, "-o", out)
+        if refused:
+            assert r.exit_code == 2 and "Traceback" not in r.output and not out.exists(), r.output
+            text = " ".join(r.output.split())
+            assert "0.361 km" in text and "gnss.iono_threshold_km = 0.3 km" in text and "'cdgps rtk'" in text, text
+            assert not any(p.name.startswith(".iono") for p in d.iterdir())
+        else:
+            assert r.exit_code == 0 and json.loads(out.read_text())["rovers"]["rover"]["solution"] == "fixed", r.output
+
+
+@pytest.mark.parametrize("length_m,refused", [(9999.999, False), (10000.0, True), (25000.0, True)])
+def test_the_ionosphere_rule_refuses_at_or_above_the_threshold(length_m, refused):
+    from cdgps_cli.core.errors import CdgpsError
+    from cdgps_cli.estimation.baseline import check_iono_rule
+
+    if refused:
+        with pytest.raises(CdgpsError, match=r"at or above gnss.iono_threshold_km = 10 km"):
+            check_iono_rule("m", "r", length_m, 10.0)
+    else:
+        check_iono_rule("m", "r", length_m, 10.0)
+
+
+def test_the_ionosphere_threshold_key_is_checked(tmp_path):
+    from cdgps_cli.config.options import GNSS_DEFAULTS, MULTI_GNSS_DEFAULTS
+    from cdgps_cli.config.structure import parse_gnss_config
+    from cdgps_cli.core.errors import CdgpsError
+
+    assert GNSS_DEFAULTS["iono_threshold_km"] == MULTI_GNSS_DEFAULTS["iono_threshold_km"] == 10.0
+    text = "[gnss]\nmaster = \"a\"\n[gnss.antennas.a]\nrinex = \"a.obs\"\n"
+    assert parse_gnss_config(text, str(tmp_path / "c.toml")).iono_threshold_km == 10.0
+    with pytest.raises(CdgpsError, match=r"gnss.iono_threshold_km.*positive"):
+        parse_gnss_config(text.replace("[gnss]\n", "[gnss]\niono_threshold_km = -1\n"), str(tmp_path / "c.toml"))
+
+
+def _init_of(d, config, signals, tag):
+    run_commands(("ingest", "--config", config(signals), "-o", d / f"{tag}.mcap"),
+                 ("init", d / f"{tag}.mcap", "-o", d / f"{tag}.json"))
+    return json.loads((d / f"{tag}.json").read_text())
+
+
+def _glonass_bias_truth() -> dict:
+    """Per GLONASS satellite the simulated SD (rover − master) phase offset of R:G1, cycles, from the
+    same generator calls as test_gnss_multi._make_pair (equal integers at both receivers, so the
+    SD integer is 0 and only the receivers' fractional channel offsets remain)."""
+    from cdgps_cli.core.gps_time import gps_seconds
+    from cdgps_cli.io.rinex import read_rinex_nav
+    from tests.pipeline.test_gnss_multi import BASE, NAV, ROVER, _obs
+
+    nav = read_rinex_nav(NAV, systems=("G", "C", "R"))
+    t = gps_seconds(2020, 6, 25, 0, 30, 0) + np.arange(0.0, 40.0)
+    rng, off = np.random.default_rng(11), {}
+    for rx, clk in ((BASE, 2.1e-4), (ROVER, -3.7e-4)):
+        _obs(nav, rx, clk, t, rng, off)
+    return {k[0]: off[(k[0], "R:G1", id(ROVER))] - off[(k[0], "R:G1", id(BASE))]
+            for k in off if k[1:] == ("R:G1", "N")}
+
+
+def test_glonass_float_beside_gps_on_the_displacement_path(bds_pair):
+    """GPS + GLONASS (real MOJN GLONASS state vectors, per-satellite FDMA wavelengths from the
+    header's frequency numbers, a different fractional phase per channel at each receiver) against
+    GPS alone and against 'cdgps rtk' (static, GLONASS float) on the same files: the GPS integers
+    are the simulated ones (0), every GLONASS segment is float with its bias in metres and the
+    reason, nothing GLONASS reaches LAMBDA, each bias (m, relative to the group's datum segment)
+    within 4 mm of the simulated λ_i·Δfrac_i − λ_p·Δfrac_p, the static position within 3 mm of the
+    truth and within 2 mm of cdgps rtk's; estimate runs on it."""
+    from tests.pipeline.test_gnss_multi import BASE, NAV, ROVER
+    from cdgps_cli.model.gps.orbits import ecef_to_enu
+    from cdgps_cli.pipeline.gnss_multi import rtk_from_files
+
+    d, config = bds_pair
+    gps = _init_of(d, config, ["G:L1"], "g")["rovers"]["rover"]
+    init = _init_of(d, config, ["G:L1", "R:G1"], "gr")
+    rov = init["rovers"]["rover"]
+    glo = [s for s in rov["ambiguities"] if s["signal"] == "R:G1"]
+    gpa = [s for s in rov["ambiguities"] if s["signal"] == "G:L1"]
+    assert len(glo) >= 4 and rov["n_float_glonass"] == len(glo) - 1          # one datum segment
+    assert all(not s["fixed"] and s["integer"] is None and "FDMA" in s["reason"] for s in glo)
+    assert all(s["float_bias_m"] == pytest.approx(s["wavelength_m"] * s["float_cycles"]) for s in glo if not s["pivot"])
+    truth = _glonass_bias_truth()         # λ_i·Δfrac_i − λ_p·Δfrac_p: the simulated channel offsets
+    (piv,) = [s for s in glo if s["pivot"]]
+    for s in glo:
+        want = s["wavelength_m"] * truth[s["sat"][:3]] - piv["wavelength_m"] * truth[piv["sat"][:3]]
+        assert s["float_bias_m"] == pytest.approx(want, abs=0.004), (s, want)
+    assert len({round(s["wavelength_m"], 6) for s in glo}) >= 3            # FDMA: a wavelength per satellite
+    assert rov["solution"] == "fixed" and rov["n_fixed"] == len(gpa) - 1 == gps["n_fixed"]
+    assert all(s["fixed"] and s["integer"] == 0 for s in gpa)
+    assert init["wavelengths_m"]["R:G1"] is None and "GLONASS (FDMA) groups float" in init["dd_groups"]
+    assert rov["epochs"]["signals"]["R:G1"]["wavelength_m_by_satellite"]
+    err = np.linalg.norm(list(init["states"].values()))
+    assert err < 0.003 and np.linalg.norm(list(gps["states"].values())) < 0.003
+    s = rtk_from_files(d / "base.obs", d / "rover.obs", [NAV], d / "rtk.csv", base_xyz_m=BASE,
+                       options={"signals": ("G:L1", "R:G1"), "mode": "static", "troposphere": False, "mask_deg": 20.0})
+    ours = np.asarray(rov["rover_ecef_m"])
+    assert np.linalg.norm(ecef_to_enu(ours, np.asarray(s["static_xyz_m"]))) < 0.002
+    assert np.linalg.norm(ecef_to_enu(ours, ROVER)) < 0.003
+    r = run_cli("-q", "estimate", d / "gr.mcap", "--init", d / "gr.json", "-o", d / "gr-states.mcap")
+    assert r.exit_code == 0, r.output
+
+
+def test_glonass_without_frequency_numbers_is_refused_naming_the_file(bds_pair, tmp_path):
+    """No 'GLONASS SLOT / FRQ #' header line and no GLONASS navigation record: exit 2, the file named,
+    nothing written."""
+    from tests.pipeline.test_gnss_multi import BASE, NAV
+
+    d, config = bds_pair
+    lines = [ln for ln in (d / "base.obs").read_text().splitlines() if "GLONASS SLOT / FRQ #" not in ln]
+    (tmp_path / "base.obs").write_text("\n".join(lines) + "\n")
+    (tmp_path / "rover.obs").write_bytes((d / "rover.obs").read_bytes())
+    gps_nav = tmp_path / "gps.rnx"
+    text = NAV.read_text()
+    head, body = text.split("END OF HEADER", 1)
+    recs, keep = [], False
+    for ln in body.splitlines()[1:]:
+        if ln[:1].strip():
+            keep = ln[0] == "G"
+        if keep:
+            recs.append(ln)
+    gps_nav.write_text(head + "END OF HEADER\n" + "\n".join(recs) + "\n")
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(config(["G:L1", "R:G1"]).read_text().replace(f"nav = [\"{NAV}\"]", f"nav = [\"{gps_nav}\"]"))
+    out = tmp_path / "run.mcap"
+    r = run_cli("ingest", "--config", cfg, "-o", out)
+    assert r.exit_code == 2 and "Traceback" not in r.output and not out.exists(), r.output
+    text = " ".join(r.output.split())
+    assert "base.obs" in text and "GLONASS frequency numbers absent" in text, text
