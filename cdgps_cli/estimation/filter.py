@@ -39,8 +39,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 from scipy.linalg import cho_factor, cho_solve
-from scipy.linalg.lapack import dpotrf, dpotri
 from cdgps_cli.estimation.chi2 import chi2_quantile
+from cdgps_cli.estimation import kalman
 
 from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.model.dynamics import discrete_model
@@ -119,29 +119,10 @@ class EstimateResult:
     noise: dict = field(default_factory=dict)    # σ used (RMS and per channel), its source, the innovation-based estimates
 
 
-_MASKS: dict = {}
-
 # Test hook: when a dict, ``estimate`` records in it the prior covariance of every numpy-path
 # measurement update ("prior": {k: P̄}), the prior of every zero-velocity update ("zupt": {k: P̄}), and the
 # smoother's inputs (A, Q, Q_rest, at_rest, extra_q, no_link, filtered P).  None in normal use.
 _TRACE: dict | None = None
-
-
-def _chol_inv(M: np.ndarray) -> np.ndarray:
-    """Inverse of a symmetric positive definite matrix by Cholesky (LAPACK dpotrf/dpotri).
-
-    Raises numpy.linalg.LinAlgError when M is not positive definite.  Returns a symmetric matrix.
-    """
-    c, info = dpotrf(M, lower=0, clean=0)
-    if info != 0:
-        raise np.linalg.LinAlgError("matrix is not positive definite")
-    inv, info = dpotri(c, lower=0)
-    if info != 0:
-        raise np.linalg.LinAlgError("matrix is singular")
-    masks = _MASKS.get(M.shape[0])
-    if masks is None:
-        masks = _MASKS[M.shape[0]] = (np.triu(np.ones(M.shape)), np.triu(np.ones(M.shape), 1))
-    return inv * masks[0] + (inv * masks[1]).T
 
 
 def load_init_state(init: dict, cfg: StructureConfig, source: str = "INIT.json") -> tuple[float, np.ndarray, np.ndarray, dict]:
@@ -284,6 +265,11 @@ class _ForwardPass:
     :meth:`new_bias_states_hook`; :meth:`rebias_hook` (channels whose bias is re-estimated);
     :meth:`update` (outlier gate, information-form update, NIS test); the epoch is stored; then
     :meth:`reinit_hook` (batch re-initialization after persistent NIS failures, 1995 Fig. 7).
+
+    The state (x, P) is the engine's step, a :class:`cdgps_cli.estimation.kalman.StepFilter`
+    (``self.step``; ``self.x``, ``self.P`` are its arrays): :meth:`predict` is its prediction and
+    :meth:`update` the engine's update (:func:`cdgps_cli.estimation.kalman.update`) on the rows the
+    outlier gate keeps.  The hooks read and change x, P between the two.
     """
 
     def __init__(self, run: Run, init: dict, opt: EstimateOptions):
@@ -341,7 +327,6 @@ class _ForwardPass:
         C = self.C = len(chans)
         self.sig_c, self.sigma_source = filter_sigma(self.init, cfg, chans, opt)
         self.r_var = self.sig_c**2                          # R = diag(σ_c²)
-        self.inv_r = 1.0 / self.r_var                       # (C,) per channel
         self.sigma = float(np.sqrt(np.mean(self.r_var)))    # their RMS: the re-initialization's batch σ
         k_of = np.rint((time_s - t0) / T).astype(np.int32)
         chan_of_pair = np.full(n_pairs, -1, dtype=np.int32)
@@ -403,16 +388,33 @@ class _ForwardPass:
         self.Bu = np.zeros((p, model.B.shape[1]))
         self.Bu[:n] = model.B
 
+    @property
+    def x(self) -> np.ndarray:
+        """The filter's state (p,): the step's (predicted, then updated)."""
+        return self.step.x
+
+    @x.setter
+    def x(self, value: np.ndarray) -> None:
+        self.step.x = value
+
+    @property
+    def P(self) -> np.ndarray:
+        """Its covariance (p, p)."""
+        return self.step.P
+
+    @P.setter
+    def P(self, value: np.ndarray) -> None:
+        self.step.P = value
+
     def _initial_state(self) -> None:
         """x, P at INIT's time; the biases INIT fixed (NaN where it has none)."""
         n, C, p, mp0 = self.n, self.C, self.p, self.mp0
+        self.step = kalman.StepFilter(np.zeros(p), np.zeros((p, p)))
         self.bias = np.full(C, np.nan)
         for c, key in enumerate(self.chans):
             if key in self.init_bias:
                 self.bias[c] = self.init_bias[key]
-        self.x = np.zeros(p)
         self.x[:n] = self.x0
-        self.P = np.zeros((p, p))
         self.P[:n, :n] = self.P0
         if self.use_bias_states:
             self.x[n:n + C] = np.nan_to_num(self.bias)
@@ -535,8 +537,7 @@ class _ForwardPass:
     def predict(self, k: int) -> None:
         """Time update into epoch k (the rest process noise inside a rest stretch)."""
         if k > 0:
-            self.x = self.A @ self.x + self.Bu @ self.U_in[k - 1]
-            self.P = self.A @ self.P @ self.A.T + (self.Qd_rest if self.at_rest[k] else self.Qd)
+            self.step.predict(self.A, self.Qd_rest if self.at_rest[k] else self.Qd, self.Bu @ self.U_in[k - 1])
 
     def lock_event_hook(self, k: int) -> None:
         """Lock restarts (slips, re-acquisitions) and first sightings (precomputed, rare)."""
@@ -700,7 +701,9 @@ class _ForwardPass:
         self.log(k, c, "bias re-estimated", action)
 
     def update(self, k: int, y, usable, xq) -> None:
-        """Measurement update of epoch k on the usable channels, after the per-channel outlier gate."""
+        """Measurement update of epoch k on the usable channels, after the per-channel outlier gate:
+        the engine's update (:func:`cdgps_cli.estimation.kalman.update`) on the rows linearized at the
+        prediction, ρ = y − h(x̄) − bias (− multipath), with the channels' σ."""
         idx = np.flatnonzero(usable)
         if not idx.size:
             return
@@ -715,19 +718,12 @@ class _ForwardPass:
             return
         if _TRACE is not None:
             _TRACE.setdefault("prior", {})[k] = self.P.copy()
-        Pinv = _chol_inv(self.P)
-        w = self.inv_r[idx]
-        Y_info = Pinv + H.T @ (w[:, None] * H)
         try:
-            Pn = _chol_inv(Y_info)
+            self.x, self.P, self.nis[k] = kalman.update(x, self.P, rho, H, sigma_m=self.sig_c[idx])
         except np.linalg.LinAlgError:
             raise CdgpsError(f"filter covariance lost positive definiteness at {self.grid[k]:g} s") from None
-        g = H.T @ (w * rho)
-        # NIS = ρᵀ S⁻¹ ρ with S⁻¹ = R⁻¹ − R⁻¹ H P Hᵀ R⁻¹ (Woodbury)
-        self.nis[k] = float(rho @ (w * rho) - g @ Pn @ g)
         self.nis_dof[k] = idx.size
-        self.x = x = x + Pn @ g
-        self.P = Pn
+        x = self.x
         self.resid[k, idx] = (y[idx] - (h[idx] + Hx[idx] @ (x[:n] - xq))
                               - (x[n + idx] if self.use_bias_states else self.bias[idx]))
         if mp0 is not None:

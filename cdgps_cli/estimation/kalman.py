@@ -109,11 +109,14 @@ def iterated_update(model, mk, xbar: np.ndarray, Pbar: np.ndarray, max_iteration
         H = mk.whiten(H)
         hw = mk.whiten(h)
         cf = _cho_factor(Pinv + H.T @ H)
-        v = zw - hw - H @ (xbar - xi)               # whitened innovation at the iterate
-        if it == 0:
+        if it == 0:                                 # at x̄: the innovation and its NIS
+            v = zw - hw
             hv = H.T @ v
             nis = float(v @ v - hv @ _cho_solve(cf, hv))
-        x_new = xbar + _cho_solve(cf, H.T @ v)
+        else:                                       # whitened innovation at the iterate
+            v = zw - hw - H @ (xbar - xi)
+            hv = H.T @ v
+        x_new = xbar + _cho_solve(cf, hv)
         if it == last:                              # no convergence test after the last allowed step
             xi = x_new
             break

@@ -174,11 +174,17 @@ def linear():
     return out
 
 
-def test_linear_filter_equals_textbook_kalman(linear):
+@pytest.mark.parametrize("no_kernel", ["", "1"])
+def test_linear_filter_equals_textbook_kalman(linear, no_kernel, monkeypatch):
+    """Both forward paths: the compiled kernel (when built) and the numpy path, whose every epoch is
+    the engine's step (kalman.StepFilter.predict, kalman.update)."""
+    monkeypatch.setenv("CDGPS_NO_KERNEL", no_kernel)
     cfg, H, h0 = linear["cfg"], linear["H"], linear["h0"]
     d = linear["clean"]
     res = estimate(d["run"], d["init"], EstimateOptions(smooth=True))
     assert res.events == []
+    if no_kernel:
+        assert res.filter_path == "numpy"
     m = discrete_model(cfg)
     z = d["Y"] - d["b0"] - h0
     xf, Pf, _, _, nis = textbook_kf(m.A, m.Bw @ m.W @ m.Bw.T, H, LIN_SIGMA**2 * np.eye(len(h0)), z, d["x0"], d["P0"])
