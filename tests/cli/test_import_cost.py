@@ -35,3 +35,27 @@ def test_estimate_path_loads_no_plotting_dask_or_sparse():
     assert "numpy" in loaded and "cdgps_cli.estimation.filter" in loaded        # the probe itself works
     for name in ("matplotlib", "dask", "distributed", "scipy.sparse", "scipy.stats", "scipy.optimize"):
         assert name not in loaded, name
+
+
+def test_the_collector_threshold_is_raised_while_a_command_runs_and_restored():
+    import gc
+
+    from click.testing import CliRunner
+
+    from cdgps_cli.cli import commands
+    seen = []
+    before = gc.get_threshold()
+    real = commands._Group.invoke
+
+    def spy(self, ctx):
+        seen.append(gc.get_threshold())
+        return real(self, ctx)
+
+    commands._Group.invoke = spy
+    try:
+        r = CliRunner().invoke(commands.main, ["info", "--help"])
+    finally:
+        commands._Group.invoke = real
+    assert r.exit_code == 0, r.output
+    assert seen and seen[0] == commands._GC_THRESHOLDS
+    assert gc.get_threshold() == before
