@@ -400,7 +400,12 @@ def compute_spectra(cfg: StructureConfig, time_s: np.ndarray, q: np.ndarray,
     resolution = 1.44 * fs / nperseg                     # Hann half-power main-lobe width
     Y = q[:, sel]
     std = Y.std(axis=0)
-    std[std == 0] = 1.0
+    constant = std <= 1e-12 * np.maximum(1.0, np.abs(Y).max(axis=0))     # rounding only (m or rad)
+    if constant.all():
+        raise CdgpsError(f"every coordinate ({', '.join(names[i] for i in sel)}) is constant over the "
+                         f"{N} epochs (a static estimate): spectra need a time-varying estimate "
+                         "(cdgps estimate with the random-walk model, or a structure's modal states)")
+    std[constant] = 1.0
     f, G = cross_spectral_matrix(Y / std, fs, nperseg, opt.overlap, nfft)
     fmax = min(opt.fmax_hz or fs / 2, fs / 2)
     keep = (f > 0) & (f <= fmax)

@@ -141,12 +141,10 @@ def test_geonet_states_file(geonet):
         r = run_cli(*args)
         assert r.exit_code == 2 and "needs the STATES.mcap of a structure" in r.output, r.output
         assert not out.exists()
-    # spectra of the displacements: PSDs and FDD of the coordinates, no model modes
+    # a static estimate is constant: no spectrum (its figures were empty log axes), exit 2, nothing written
     r = run_cli("spectra", f, "-o", tmp / "sp", "--json")
-    assert r.exit_code == 0, r.output
-    assert json.loads(r.stdout)["modes"] == []
-    cols = pd.read_csv(tmp / "sp" / "psd.csv").columns
-    assert {"gps_0759_e_m2_hz", "gps_0759_n_m2_hz", "gps_0759_u_m2_hz"} <= set(cols)
+    assert r.exit_code == 2 and "constant over the 120 epochs" in r.output and "random-walk" in r.output, r.output
+    assert not (tmp / "sp").exists()
 
 
 # ----------------------------------------------------------------------------------------------
@@ -252,6 +250,17 @@ def test_random_walk_rover_filter_and_smoother(rw_sim):
     truth = pd.read_csv(tmp / "truth.csv")
     assert truth["rover_u"].max() - truth["rover_u"].min() > 0.03                      # it really wanders
 
+
+
+def test_spectra_of_random_walk_displacements(rw_sim):
+    """Spectra of time-varying displacement states: PSDs and FDD of the coordinates, no model modes."""
+    tmp = rw_sim[0]
+    r = run_cli("spectra", tmp / "filtered.mcap", "-o", tmp / "sp", "--json")
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["modes"] == []
+    psd = pd.read_csv(tmp / "sp" / "psd.csv")
+    cols = [c for c in psd.columns if c.startswith("gps_") and c.endswith("_m2_hz")]
+    assert len(cols) == 3 and (psd[cols].to_numpy() > 0).all()
 
 def _information_kf_oracle(t, N, b, c, has, sigma_rw, p0_sigma):
     """The random-walk displacement filter + RTS as the pipeline ran it before the engine (textbook
