@@ -27,6 +27,7 @@ import numpy as np
 
 
 from cdgps_cli.config.structure import StructureConfig
+from cdgps_cli.config.options import SPECTRA_DEFAULTS
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.model.kinematics import gyro_matrix
 
@@ -37,8 +38,8 @@ class SpectraOptions:
 
     coords: tuple | None = None        # coordinates for PSD/FDD (default: all but the rigid one)
     segment_s: float | None = None     # Welch segment length (default: min(duration / 4, 600 s): ≥ 7 averages, so the CSD matrix has rank > 1)
-    overlap: float = 0.5               # fraction of a segment
-    pad: int = 4                       # FFT zero-padding factor (finer peak location)
+    overlap: float = SPECTRA_DEFAULTS["overlap"]               # fraction of a segment
+    pad: int = SPECTRA_DEFAULTS["pad"]                       # FFT zero-padding factor (finer peak location)
     band_pct: float = 5.0              # search band around each model frequency, %
     seen_pct: float = 5.0              # a mode is "seen" when identified within this %
     min_mac: float = 0.6               # … and its FDD singular vector matches the model shape

@@ -17,8 +17,9 @@ from pathlib import Path
 
 import click
 
-from cdgps_cli.config.options import (CONTROL_TUNED_WEIGHTS, CONTROL_WEIGHTS, GNSS_DEFAULTS,
-                                      INIT_MAX_ITERATIONS, INIT_STARTS, RATIO_THRESHOLD)
+from cdgps_cli.config.options import (CONTROL_TUNED_WEIGHTS, CONTROL_WEIGHTS, ESTIMATE_DEFAULTS, GNSS_DEFAULTS,
+                                      INIT_MAX_ITERATIONS, INIT_STARTS, RATIO_THRESHOLD, SPECTRA_DEFAULTS,
+                                      TRACK_DEFAULTS, X_AXIS_AZIMUTH_DEG)
 from cdgps_cli import __version__
 from cdgps_cli.core import progress
 from cdgps_cli.io.atomic import TERMINATED_EXIT, Terminated, sigterm_raises
@@ -410,7 +411,7 @@ def _placement_options(f):
     """--x-axis-azimuth-deg and --receiver of a GNSS run with --structure (init and estimate)."""
     f = click.option("--receiver", "receiver_map", multiple=True, metavar="ANTENNA=RECEIVER",
                      help="With --structure: the receiver of a structure antenna (repeatable; default: the same name).")(f)
-    return click.option("--x-axis-azimuth-deg", "x_axis_azimuth_deg", type=float, default=90.0, show_default=True,
+    return click.option("--x-axis-azimuth-deg", "x_axis_azimuth_deg", type=float, default=X_AXIS_AZIMUTH_DEG, show_default=True,
                         help="With --structure: azimuth of the structure x axis, degrees clockwise from north "
                              "(90: x east, y north).")(f)
 
@@ -443,7 +444,7 @@ def _placement_options(f):
 @click.pass_context
 def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, ratio_threshold, no_partial,
              starts, max_iterations, sigma_m, multipath_sigma_m, multipath_time_constant_s, output, as_json,
-             structure=None, x_axis_azimuth_deg=90.0, receiver_map=()):
+             structure=None, x_axis_azimuth_deg=X_AXIS_AZIMUTH_DEG, receiver_map=()):
     """Batch bias initialization (Eq. 9-15) with LAMBDA integer fixing → INIT.json.
 
     On a GNSS run (RINEX/UBX receivers): float DD solution, LAMBDA integers (ratio test, partial
@@ -501,9 +502,9 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
 @click.option("--biases", type=click.Choice(["fixed", "states"]), default="fixed", show_default=True,
               help="fixed: biases from INIT; states: biases in the filter state (1995 variant).")
 @click.option("--sigma-m", type=float, default=None, help="Measurement noise, m (default: INIT's).")
-@click.option("--nis-probability", type=float, default=0.999, show_default=True, help="Chi-square level of the NIS test.")
-@click.option("--outlier-sigma", type=float, default=6.0, show_default=True, help="Innovation outlier threshold (sigmas).")
-@click.option("--process-noise-scale", type=float, default=1.0, show_default=True,
+@click.option("--nis-probability", type=float, default=ESTIMATE_DEFAULTS["nis_probability"], show_default=True, help="Chi-square level of the NIS test.")
+@click.option("--outlier-sigma", type=float, default=ESTIMATE_DEFAULTS["outlier_sigma"], show_default=True, help="Innovation outlier threshold (sigmas).")
+@click.option("--process-noise-scale", type=float, default=ESTIMATE_DEFAULTS["process_noise_scale"], show_default=True,
               help="Multiplies the config's process-noise standard deviations (Q x scale^2): below 1 for a "
                    "structure at rest or only lightly disturbed (static survey), above 1 for stronger excitation.")
 @click.option("--rest", "rest", multiple=True, metavar="START:END",
@@ -511,14 +512,14 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
                    "out: to the end of the log); there the process noise is further multiplied by "
                    "--rest-process-noise-scale, so the filter averages instead of following. Repeatable. "
                    "'--rest auto': segments found from the data (zero-velocity test on the modal velocities).")
-@click.option("--rest-process-noise-scale", type=float, default=0.005, show_default=True,
+@click.option("--rest-process-noise-scale", type=float, default=ESTIMATE_DEFAULTS["rest_process_noise_scale"], show_default=True,
               help="Process-noise standard-deviation factor inside --rest segments.")
-@click.option("--rest-retry-s", type=float, default=1.0, show_default=True,
+@click.option("--rest-retry-s", type=float, default=ESTIMATE_DEFAULTS["rest_retry_s"], show_default=True,
               help="When the data show motion inside a --rest segment, the filter leaves static mode and tries "
                    "it again this many seconds later (0: not again in that segment).")
-@click.option("--rest-window-s", type=float, default=3.0, show_default=True,
+@click.option("--rest-window-s", type=float, default=ESTIMATE_DEFAULTS["rest_window_s"], show_default=True,
               help="--rest auto: sliding window of the zero-velocity chi-square test, s.")
-@click.option("--rest-dwell-s", type=float, default=2.0, show_default=True,
+@click.option("--rest-dwell-s", type=float, default=ESTIMATE_DEFAULTS["rest_dwell_s"], show_default=True,
               help="--rest auto: the test must pass this long before rest is entered, s.")
 @click.option("--allow-other-run", is_flag=True,
               help="Use an INIT.json made from another run than RUN_MCAP (its run_sha256 differs); echoed in the "
@@ -540,7 +541,8 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
 def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability, outlier_sigma, process_noise_scale,
-             output, as_json, rest=(), rest_process_noise_scale=0.005, rest_retry_s=1.0, structure=None, x_axis_azimuth_deg=90.0,
+             output, as_json, rest=(), rest_process_noise_scale=ESTIMATE_DEFAULTS["rest_process_noise_scale"],
+             rest_retry_s=ESTIMATE_DEFAULTS["rest_retry_s"], structure=None, x_axis_azimuth_deg=X_AXIS_AZIMUTH_DEG,
              receiver_map=(), rest_window_s=3.0, rest_dwell_s=2.0, allow_other_run=False,
              covariance=_STATES_DEFAULT_COVARIANCE, foxglove_rate_hz=_STATES_PREVIEW_RATE_HZ):
     """Extended Kalman filter (Eq. 16-23) [+ RTS smoother] over a RUN from INIT → STATES.mcap.
@@ -762,8 +764,8 @@ _spectra_opts = [
     click.option("--gyro", "gyro_mcap", type=click.Path(dir_okay=False), help="RUN.mcap with the gyro log."),
     click.option("--coords", default=None, help="Comma-separated coordinates (default: all but the rigid one)."),
     click.option("--segment-s", type=float, default=None, help="Welch/FDD segment length, s (default: min(duration/4, 600 s))."),
-    click.option("--overlap", type=float, default=0.5, show_default=True, help="Segment overlap fraction."),
-    click.option("--pad", type=int, default=4, show_default=True, help="FFT zero-padding factor."),
+    click.option("--overlap", type=float, default=SPECTRA_DEFAULTS["overlap"], show_default=True, help="Segment overlap fraction."),
+    click.option("--pad", type=int, default=SPECTRA_DEFAULTS["pad"], show_default=True, help="FFT zero-padding factor."),
 ]
 
 
@@ -1135,7 +1137,7 @@ def _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, a
 
 
 def _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json, structure_only, structure=None,
-                   x_axis_azimuth_deg=90.0, receiver_map=(), allow_other_run=False):
+                   x_axis_azimuth_deg=X_AXIS_AZIMUTH_DEG, receiver_map=(), allow_other_run=False):
     from cdgps_cli.pipeline.gnss import gnss_estimate
     from cdgps_cli.io.gnss_run import read_gnss_run
 
@@ -1225,7 +1227,7 @@ def _gps_time(t: float) -> str:
 @click.argument("config", type=click.Path(dir_okay=False))
 @click.option("--duration", "duration_s", type=float, default=1200.0, show_default=True, help="Seconds to simulate.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed (same seed → identical files).")
-@click.option("--x-axis-azimuth-deg", "x_axis_azimuth_deg", type=float, default=90.0, show_default=True,
+@click.option("--x-axis-azimuth-deg", "x_axis_azimuth_deg", type=float, default=X_AXIS_AZIMUTH_DEG, show_default=True,
               help="Azimuth of the structure x axis, degrees clockwise from north (90: x east, y north).")
 @click.option("--master-xyz", default=None, metavar="X,Y,Z", help="ECEF position of the master antenna, m [GEONET 3040].")
 @click.option("--signals", default=None, metavar="SIG,SIG…",
@@ -1421,8 +1423,8 @@ def control_design(ctx, config, weight_set, qx, qu, rigid_factor, rate_factor, o
 @click.option("--if", "if_hz", type=float, default=0.0, show_default=True, help="Intermediate frequency, Hz (0: baseband).")
 @click.option("--prn", "prns", type=int, multiple=True, help="Track only these PRNs (repeatable; default: every one acquired).")
 @click.option("--duration", "duration_s", type=float, default=None, help="Seconds of the file to use (default: all).")
-@click.option("--pll-bn", "pll_bn_hz", type=float, default=15.0, show_default=True, help="PLL noise bandwidth, Hz.")
-@click.option("--pull-in", "pull_in_s", type=float, default=0.1, show_default=True, help="FLL pull-in before the PLL, s.")
+@click.option("--pll-bn", "pll_bn_hz", type=float, default=TRACK_DEFAULTS["pll_bn_hz"], show_default=True, help="PLL noise bandwidth, Hz.")
+@click.option("--pull-in", "pull_in_s", type=float, default=TRACK_DEFAULTS["pull_in_s"], show_default=True, help="FLL pull-in before the PLL, s.")
 @click.option("--noncoherent-ms", type=int, default=None,
               help="Acquisition: 1 ms correlations summed non-coherently [10] (10 detects 38 dB-Hz, 20 36 dB-Hz, "
                    "docs/tracking.md).")
@@ -1542,8 +1544,8 @@ def simulate_if_cmd(ctx, config, sim_dir, start_s, duration_s, fs_hz, if_hz, bit
 @click.argument("if_json", type=click.Path(dir_okay=False))
 @click.option("--config", "config", required=True, type=click.Path(dir_okay=False),
               help="Structure config the samples were simulated for (its antennas, master, epochs).")
-@click.option("--pll-bn", "pll_bn_hz", type=float, default=15.0, show_default=True, help="PLL noise bandwidth, Hz.")
-@click.option("--pull-in", "pull_in_s", type=float, default=0.1, show_default=True, help="FLL pull-in before the PLL, s.")
+@click.option("--pll-bn", "pll_bn_hz", type=float, default=TRACK_DEFAULTS["pll_bn_hz"], show_default=True, help="PLL noise bandwidth, Hz.")
+@click.option("--pull-in", "pull_in_s", type=float, default=TRACK_DEFAULTS["pull_in_s"], show_default=True, help="FLL pull-in before the PLL, s.")
 @click.option("--aid", type=click.Choice(["none", "truth", "gyro", "model"]), default="none", show_default=True,
               help="External Doppler aid of every PLL: none; truth, the true line-of-sight Doppler from IF_JSON's truth "
                    "(a perfect inertial or structural-model prediction); gyro, the Doppler of the antenna velocity "

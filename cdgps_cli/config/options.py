@@ -63,3 +63,21 @@ MULTI_GNSS_DEFAULTS = {
     "iono_sigma_m_per_km": 0.002,          # prior σ of the SD slant ionosphere per km of baseline
     "iono_rw_m_per_sqrt_s": 0.0005,
 }
+
+#: `cdgps estimate` (:class:`cdgps_cli.estimation.filter.EstimateOptions`): integrity tests and static mode
+ESTIMATE_DEFAULTS = {
+    "nis_probability": 0.999,          # chi-square level of the per-epoch NIS test
+    "outlier_sigma": 6.0,              # |ν_i| / sqrt(S_ii) above this: suspected slip on channel i
+    "process_noise_scale": 1.0,        # multiplies the config's process-noise σ (Q × scale²)
+    "rest_process_noise_scale": 0.005,  # further factor inside rest segments
+    "rest_retry_s": 1.0,               # after motion inside a rest segment, try rest again this much later, s
+    "rest_window_s": 3.0,              # `--rest auto`: sliding window of the zero-velocity test, s
+    "rest_dwell_s": 2.0,               # … and how long it must pass before rest is entered, s
+}
+#: structure frame on a GNSS run: azimuth of the structure's x axis, degrees from north (90: x = East)
+X_AXIS_AZIMUTH_DEG = 90.0
+#: `cdgps spectra` (:class:`cdgps_cli.analysis.spectra.SpectraOptions`): Welch segment overlap and FFT padding
+SPECTRA_DEFAULTS = {"overlap": 0.5, "pad": 4}
+#: tracking loops (:class:`cdgps_cli.tracking.channel.TrackOptions`): PLL noise bandwidth (Hz) and FLL
+#: pull-in (s) of `cdgps track` / `track-structure`
+TRACK_DEFAULTS = {"pll_bn_hz": 15.0, "pull_in_s": 0.1}

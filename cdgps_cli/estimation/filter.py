@@ -46,6 +46,7 @@ from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.model.dynamics import discrete_model
 from cdgps_cli.estimation import kernel as ekf_kernel
 from cdgps_cli.core import progress
+from cdgps_cli.config.options import ESTIMATE_DEFAULTS
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.config.limits import INIT_BOUNDS, OPTION_BOUNDS
 from cdgps_cli.core.checks import has_bool, is_json_number, require_finite
@@ -69,8 +70,8 @@ class EstimateOptions:
     channel_sigma_m: dict | None = None  # {(antenna, transmitter): σ (m)}: per-channel σ (overrides INIT's; not with sigma_m)
     adapt_sigma: bool = True           # innovation-based σ: re-run once with it when the NIS disagrees
     bias_process_sigma_m: float = 1e-4  # per-epoch random walk of bias states (biases="states")
-    nis_probability: float = 0.999     # chi-square test level of the per-epoch NIS
-    outlier_sigma: float = 6.0         # |ν_i| / sqrt(S_ii) above this → suspected slip on channel i
+    nis_probability: float = ESTIMATE_DEFAULTS["nis_probability"]     # chi-square test level of the per-epoch NIS
+    outlier_sigma: float = ESTIMATE_DEFAULTS["outlier_sigma"]         # |ν_i| / sqrt(S_ii) above this → suspected slip on channel i
     rebias_epochs: int = 10            # epochs used to re-estimate a dropped channel's bias
     refix_max_sigma_cycles: float = 0.1   # re-fix the integer when the float's sigma is below this
     refix_max_offset_cycles: float = 0.25  # … and it is this close to an integer
@@ -78,13 +79,13 @@ class EstimateOptions:
     reinit_window_s: float = 30.0
     restart_sigma_cycles: float = 10.0  # biases="states": variance inflation at a lock restart
     keep_filtered_covariance: str = "full"  # with smooth: "full" (n×n) or "modal" (the n_m×n_m block the outputs use)
-    process_noise_scale: float = 1.0   # multiplies the config's process-noise sigma (Q × scale²), filter and smoother
+    process_noise_scale: float = ESTIMATE_DEFAULTS["process_noise_scale"]   # multiplies the config's process-noise sigma (Q × scale²), filter and smoother
     rest_segments_s: tuple = ()        # ((start_s, end_s), …): the structure is declared at rest (static mode)
-    rest_process_noise_scale: float = 0.005 # … and there the process-noise sigma is further multiplied by this
-    rest_retry_s: float = 1.0          # after the data contradict a rest segment, try rest again this much later (0: never)
+    rest_process_noise_scale: float = ESTIMATE_DEFAULTS["rest_process_noise_scale"] # … and there the process-noise sigma is further multiplied by this
+    rest_retry_s: float = ESTIMATE_DEFAULTS["rest_retry_s"]          # after the data contradict a rest segment, try rest again this much later (0: never)
     rest_auto: bool = False            # rest segments found from the data (zero-velocity test, :mod:`cdgps_cli.estimation.rest`)
-    rest_window_s: float = 3.0         # … its sliding window
-    rest_dwell_s: float = 2.0          # … and how long it must pass before rest is entered
+    rest_window_s: float = ESTIMATE_DEFAULTS["rest_window_s"]         # … its sliding window
+    rest_dwell_s: float = ESTIMATE_DEFAULTS["rest_dwell_s"]          # … and how long it must pass before rest is entered
     progress: object = None
     init_source: str = "INIT.json"     # how messages name the INIT (its path); not echoed in outputs
 

@@ -56,7 +56,7 @@ import pandas as pd
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli import __version__
 from cdgps_cli.config.structure import StructureConfig
-from cdgps_cli.config.options import MODAL_INIT_CODE_DD, SIM_MASTER_ECEF_M
+from cdgps_cli.config.options import MODAL_INIT_CODE_DD, SIM_MASTER_ECEF_M, X_AXIS_AZIMUTH_DEG
 
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.measurement.differencing import joint_dd_covariance, sd_variance, select_reference
@@ -93,7 +93,7 @@ class StructurePlacement:
     """
 
     master_ecef_m: tuple
-    x_axis_azimuth_deg: float = 90.0
+    x_axis_azimuth_deg: float = X_AXIS_AZIMUTH_DEG
 
     def rotation(self) -> np.ndarray:
         """R (3, 3): ECEF vector = R @ structure-frame vector."""
@@ -369,7 +369,7 @@ def _stored_record(init: dict, cfg: StructureConfig, mapping: dict, x_axis_azimu
 
 
 def gnss_modal_init(run, init: dict, cfg: StructureConfig, *, receivers: dict | None = None,
-                    x_axis_azimuth_deg: float = 90.0, window_s: float = INIT_WINDOW_S, progress=None) -> dict:
+                    x_axis_azimuth_deg: float = X_AXIS_AZIMUTH_DEG, window_s: float = INIT_WINDOW_S, progress=None) -> dict:
     """``cdgps init --structure`` on a GNSS run: the modal batch initialization as INIT.json's
     ``modal_init`` (read back by :func:`gnss_modal_estimate` for the same structure, receiver mapping
     and azimuth).
@@ -529,7 +529,7 @@ def _signal_slots(run, mapping: dict, rover_ants: list, xm: np.ndarray, say) -> 
 
 
 def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, out_path, *,
-                        receivers: dict | None = None, x_axis_azimuth_deg: float = 90.0, smooth: bool = False,
+                        receivers: dict | None = None, x_axis_azimuth_deg: float = X_AXIS_AZIMUTH_DEG, smooth: bool = False,
                         initial_sigma_xi: float = 1.0, initial_sigma_xidot: float = 1.0,
                         max_iterations: int = 5, progress=None, extra_options: dict | None = None,
                         batch_init: bool = True, init_window_s: float = INIT_WINDOW_S,
@@ -678,7 +678,7 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
 
 
 def simulate_structure_gnss(out_dir, cfg: StructureConfig, *, master_ecef_m=SIM_MASTER_ECEF_M,
-                            x_axis_azimuth_deg: float = 90.0, receivers: dict | None = None, duration_s: float = 1200.0,
+                            x_axis_azimuth_deg: float = X_AXIS_AZIMUTH_DEG, receivers: dict | None = None, duration_s: float = 1200.0,
                             seed: int = 0, start_gps_s: float | None = None, random_walk_sigma: float = 0.01,
                             mask_deg: float = 10.0, code_sigma_m: float = 0.5, progress=None, signals=None) -> dict:
     """Simulate the structure's free motion and one GNSS receiver per antenna → RINEX + truth.

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cdgps_cli.config.options import TRACK_DEFAULTS
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.constants import GPS_L1_HZ
 from cdgps_cli.tracking.ca_code import CHIP_RATE_HZ, CODE_LENGTH, ca_code
@@ -46,10 +47,10 @@ WINDOW = 20
 class TrackOptions:
     """Loop settings: bandwidths (Hz), pull-in length (s), correlator spacing (chips), PLL order."""
 
-    pll_bn_hz: float = 15.0
+    pll_bn_hz: float = TRACK_DEFAULTS["pll_bn_hz"]
     fll_bn_hz: float = 10.0
     dll_bn_hz: float = 1.0
-    pull_in_s: float = 0.1
+    pull_in_s: float = TRACK_DEFAULTS["pull_in_s"]
     spacing_chips: float = 0.5
     pll_order: int = 2
     #: a PLL narrower than ``wide_pll_hz`` first runs at that bandwidth for this long after the FLL,

@@ -38,3 +38,32 @@ def test_init_and_gnss_defaults_come_from_options():
 
 def test_toml_value():
     assert [options.toml_value(v) for v in (True, 3.0, 15, "elevation")] == ["true", "3.0", "15", '"elevation"']
+
+
+def _cli_default(command, name):
+    """The default of option ``name`` of a click command (a group's subcommand path)."""
+    return next(p.default for p in command.params if p.name == name)
+
+
+def test_estimate_spectra_and_tracking_defaults_are_one_value_read_by_library_and_cli():
+    """Each default below is written once (config/options.py); the library's option class and the
+    command's option both read it, so the help text and the library agree."""
+    from dataclasses import fields
+
+    from cdgps_cli.analysis.spectra import SpectraOptions
+    from cdgps_cli.cli.commands import main
+    from cdgps_cli.config import options
+    from cdgps_cli.estimation.filter import EstimateOptions
+    from cdgps_cli.tracking.channel import TrackOptions
+
+    cases = [(EstimateOptions, main.commands["estimate"], options.ESTIMATE_DEFAULTS),
+             (SpectraOptions, main.commands["spectra"], options.SPECTRA_DEFAULTS),
+             (TrackOptions, main.commands["track"], options.TRACK_DEFAULTS),
+             (TrackOptions, main.commands["track-structure"], options.TRACK_DEFAULTS)]
+    for cls, command, defaults in cases:
+        lib = {f.name: f.default for f in fields(cls)}
+        for key, value in defaults.items():
+            assert lib[key] == value, (cls.__name__, key)
+            assert _cli_default(command, key) == value, (command.name, key)
+    assert _cli_default(main.commands["estimate"], "x_axis_azimuth_deg") == options.X_AXIS_AZIMUTH_DEG
+    assert _cli_default(main.commands["simulate-gnss-structure"], "x_axis_azimuth_deg") == options.X_AXIS_AZIMUTH_DEG
