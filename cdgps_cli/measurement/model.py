@@ -331,6 +331,16 @@ class PackedDD:
     sat_names: list
 
 
+def _unique_pairs(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(np.stack([a, b], axis=1), axis=0, return_inverse=True)`` for integer arrays ≥ −1,
+    through one int64 key per pair (a 1-D sort instead of a sort of row views; same order)."""
+    a = np.asarray(a, dtype=np.int64) + 1
+    b = np.asarray(b, dtype=np.int64) + 1
+    base = int(b.max(initial=0)) + 1
+    keys, inv = np.unique(a * base + b, return_inverse=True)
+    return np.stack([keys // base - 1, keys % base - 1], axis=1), inv
+
+
 def _dd_entries(model: "SatelliteDDModal", names: dict) -> dict:
     """All DD rows of every slot as flat arrays (common epoch, slot, row, reference row, …)."""
     cols = {k: [] for k in ("k", "slot", "z", "s", "vr", "vrr", "vm", "vmr", "sat", "satr", "seg")}
@@ -359,7 +369,7 @@ def _dd_entries(model: "SatelliteDDModal", names: dict) -> dict:
         if sg is None:
             cols["seg"].append(np.full(rows.size, -1, dtype=np.int64))
         else:
-            pairs, inv = np.unique(np.stack([sg[rows], sg[rr]], axis=1), axis=0, return_inverse=True)
+            pairs, inv = _unique_pairs(sg[rows], sg[rr])
             # columns in order of first appearance (as rows(k) assigns them epoch by epoch)
             first = np.full(len(pairs), rows.size, dtype=np.int64)
             np.minimum.at(first, inv.reshape(-1), np.arange(rows.size))

@@ -200,3 +200,15 @@ def test_satellite_dd_modal_code_rows_skip_missing_pseudoranges():
     code = [lb for lb in rows.labels if lb[1].endswith("/code")]
     assert code == [(0, "G01/code"), (0, "G03/code"), (0, "G05/code")]
     assert sum(not lb[1].endswith("/code") for lb in rows.labels) == 8
+
+
+def test_unique_pairs_equals_numpy_unique_of_rows():
+    """The one-key pair uniquing used by pack_dd equals np.unique(..., axis=0) (values, order, inverse)."""
+    from cdgps_cli.measurement.model import _unique_pairs
+    rng = np.random.default_rng(3)
+    for n in (0, 1, 7, 2000):
+        a, b = rng.integers(-1, 40, n), rng.integers(-1, 300, n)
+        pairs, inv = np.unique(np.stack([a, b], axis=1), axis=0, return_inverse=True)
+        got_pairs, got_inv = _unique_pairs(a, b)
+        np.testing.assert_array_equal(got_pairs, pairs.reshape(-1, 2))
+        np.testing.assert_array_equal(got_inv.reshape(-1), inv.reshape(-1))
