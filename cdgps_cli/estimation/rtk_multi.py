@@ -91,28 +91,59 @@ def receiver_geometry(obs: pd.DataFrame, nav: pd.DataFrame, rx_xyz_m) -> pd.Data
     return out
 
 
-def _epoch_groups(eb, er, opt, amb_key_col, iono_col):
-    groups = []
-    m = eb.merge(er[["sat", "signal", "phase_cycles", "pseudorange_m", "lli", "sx", "sy", "sz", "trop_m"]],
-                 on=["sat", "signal"], suffixes=("_b", "_r"))
+_PAIR_COLS = ["time_gps_s", "sat", "signal", "phase_cycles", "pseudorange_m", "lli", "sx", "sy", "sz", "trop_m"]
+
+
+def _paired_rows(base, rover, times, opt) -> dict:
+    """Base and rover rows of the whole run paired on (time, satellite, signal), once, as numpy columns.
+
+    Rows above the mask (base elevation), ordered by epoch, then signal name, then the base's row
+    order (the order the per-epoch groups had when each epoch was merged on its own); ``ptr``
+    (n_ep + 1,) bounds each epoch of ``times`` (n_ep,), ``code`` (N,) the signal's index in ``names``.
+    Per row: ``sats``, ``lam_m``, ``mu``, ``el`` (rad), ``sat_xyz`` / ``sat_base_xyz`` (N, 3, m),
+    ``phase_sd_m`` / ``code_sd_m`` (m, rover − base, troposphere removed when asked), ``slip``,
+    ``var_phase`` / ``var_code`` (m²).
+    """
+    b = base.assign(_row_b=np.arange(len(base)))
+    r = rover[_PAIR_COLS].assign(_row_r=np.arange(len(rover)))
+    m = b.merge(r, on=["time_gps_s", "sat", "signal"], suffixes=("_b", "_r"))
     m = m[m["el_rad"] >= np.radians(opt["mask_deg"])]
-    for name, g in m.groupby("signal", sort=True):
-        if len(g) < 2:
+    m = m.sort_values(["time_gps_s", "signal", "_row_b", "_row_r"], kind="stable")
+    names, code = np.unique(m["signal"].to_numpy().astype(str), return_inverse=True)
+    epoch = np.searchsorted(times, m["time_gps_s"].to_numpy())
+    lam = m["wavelength_m"].to_numpy(dtype=float)
+    el = m["el_rad"].to_numpy(dtype=float)
+    var = 2 * (opt["sigma_a_m"] ** 2 + opt["sigma_b_m"] ** 2 / np.sin(el) ** 2)
+    dtrop = m["trop_m_r"].to_numpy() - m["trop_m_b"].to_numpy() if opt["troposphere"] else 0.0
+    return {
+        "ptr": np.searchsorted(epoch, np.arange(len(times) + 1)), "names": names, "code": code.reshape(-1),
+        "sats": m["sat"].to_numpy(), "lam_m": lam, "el": el,
+        "mu": (lam / _LAMBDA_L1) ** 2,        # (f_L1 / f)², per satellite (GLONASS FDMA)
+        "sat_xyz": m[["sx_r", "sy_r", "sz_r"]].to_numpy(), "sat_base_xyz": m[["sx_b", "sy_b", "sz_b"]].to_numpy(),
+        "phase_sd_m": lam * (m["phase_cycles_r"].to_numpy() - m["phase_cycles_b"].to_numpy()) - dtrop,
+        "code_sd_m": m["pseudorange_m_r"].to_numpy() - m["pseudorange_m_b"].to_numpy() - dtrop,
+        "slip": ((m["lli_r"].to_numpy() | m["lli_b"].to_numpy()) & 1) > 0,
+        "var_phase": var, "var_code": var * opt["code_ratio"] ** 2,
+    }
+
+
+_ROW_KEYS = ("sats", "lam_m", "mu", "sat_xyz", "sat_base_xyz", "phase_sd_m", "code_sd_m", "slip", "var_phase", "var_code")
+
+
+def _epoch_groups(rows, k):
+    """Signal groups (≥ 2 satellites) of epoch ``k``: views of :func:`_paired_rows` columns, ``ref`` the
+    highest base elevation."""
+    lo, hi = rows["ptr"][k], rows["ptr"][k + 1]
+    code = rows["code"][lo:hi]
+    cuts = [lo, *(lo + np.flatnonzero(code[1:] != code[:-1]) + 1), hi]
+    groups = []
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        if b - a < 2:
             continue
-        lam = g["wavelength_m"].to_numpy()
-        el = g["el_rad"].to_numpy()
-        var = 2 * (opt["sigma_a_m"] ** 2 + opt["sigma_b_m"] ** 2 / np.sin(el) ** 2)
-        sats = g["sat"].to_numpy()
-        dtrop = g["trop_m_r"].to_numpy() - g["trop_m_b"].to_numpy() if opt["troposphere"] else 0.0
-        groups.append({
-            "signal": name, "sats": sats, "ref": int(np.argmax(el)), "lam_m": lam,
-            "mu": (lam / _LAMBDA_L1) ** 2,        # (f_L1 / f)², per satellite (GLONASS FDMA)
-            "sat_xyz": g[["sx_r", "sy_r", "sz_r"]].to_numpy(), "sat_base_xyz": g[["sx_b", "sy_b", "sz_b"]].to_numpy(),
-            "phase_sd_m": lam * (g["phase_cycles_r"].to_numpy() - g["phase_cycles_b"].to_numpy()) - dtrop,
-            "code_sd_m": g["pseudorange_m_r"].to_numpy() - g["pseudorange_m_b"].to_numpy() - dtrop,
-            "slip": ((g["lli_r"].to_numpy() | g["lli_b"].to_numpy()) & 1) > 0,
-            "var_phase": var, "var_code": var * opt["code_ratio"] ** 2,
-        })
+        g = {key: rows[key][a:b] for key in _ROW_KEYS}
+        g["signal"] = str(rows["names"][rows["code"][a]])
+        g["ref"] = int(np.argmax(rows["el"][a:b]))
+        groups.append(g)
     return groups
 
 
@@ -218,11 +249,11 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
     pos_dyn = Static(3) if opt["mode"] == "static" else RandomWalk(3, opt["kinematic_sigma_m_per_sqrt_s"])
     st = _State(3)
     times = np.intersect1d(base["time_gps_s"].unique(), rover["time_gps_s"].unique())
-    bi, ri = base.groupby("time_gps_s").indices, rover.groupby("time_gps_s").indices
+    rows = _paired_rows(base, rover, times, opt)
     out = {k: [] for k in ("float", "fixed", "n", "ratio")}
     t_prev = None
     for k, t in enumerate(times):
-        groups = _epoch_groups(base.iloc[bi[t]], rover.iloc[ri[t]], opt, None, None)
+        groups = _epoch_groups(rows, k)
         if t_prev is not None:
             A, _, Q = pos_dyn.transition(t - t_prev)
             st.P[:3, :3] += Q
