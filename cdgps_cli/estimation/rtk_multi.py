@@ -21,7 +21,7 @@ from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.signals import signal, SYSTEM_NAMES
 from cdgps_cli.estimation import kalman
-from cdgps_cli.estimation.ambiguity import resolve
+from cdgps_cli.estimation.ambiguity import decorrelate, ld_factorize, resolve
 from cdgps_cli.measurement.dd_signals import epoch_rows
 from cdgps_cli.measurement.differencing import dd_operator
 from cdgps_cli.model.dynamics_models import RandomWalk, Static
@@ -91,28 +91,59 @@ def receiver_geometry(obs: pd.DataFrame, nav: pd.DataFrame, rx_xyz_m) -> pd.Data
     return out
 
 
-def _epoch_groups(eb, er, opt, amb_key_col, iono_col):
-    groups = []
-    m = eb.merge(er[["sat", "signal", "phase_cycles", "pseudorange_m", "lli", "sx", "sy", "sz", "trop_m"]],
-                 on=["sat", "signal"], suffixes=("_b", "_r"))
+_PAIR_COLS = ["time_gps_s", "sat", "signal", "phase_cycles", "pseudorange_m", "lli", "sx", "sy", "sz", "trop_m"]
+
+
+def _paired_rows(base, rover, times, opt) -> dict:
+    """Base and rover rows of the whole run paired on (time, satellite, signal), once, as numpy columns.
+
+    Rows above the mask (base elevation), ordered by epoch, then signal name, then the base's row
+    order (the order the per-epoch groups had when each epoch was merged on its own); ``ptr``
+    (n_ep + 1,) bounds each epoch of ``times`` (n_ep,), ``code`` (N,) the signal's index in ``names``.
+    Per row: ``sats``, ``lam_m``, ``mu``, ``el`` (rad), ``sat_xyz`` / ``sat_base_xyz`` (N, 3, m),
+    ``phase_sd_m`` / ``code_sd_m`` (m, rover − base, troposphere removed when asked), ``slip``,
+    ``var_phase`` / ``var_code`` (m²).
+    """
+    b = base.assign(_row_b=np.arange(len(base)))
+    r = rover[_PAIR_COLS].assign(_row_r=np.arange(len(rover)))
+    m = b.merge(r, on=["time_gps_s", "sat", "signal"], suffixes=("_b", "_r"))
     m = m[m["el_rad"] >= np.radians(opt["mask_deg"])]
-    for name, g in m.groupby("signal", sort=True):
-        if len(g) < 2:
+    m = m.sort_values(["time_gps_s", "signal", "_row_b", "_row_r"], kind="stable")
+    names, code = np.unique(m["signal"].to_numpy().astype(str), return_inverse=True)
+    epoch = np.searchsorted(times, m["time_gps_s"].to_numpy())
+    lam = m["wavelength_m"].to_numpy(dtype=float)
+    el = m["el_rad"].to_numpy(dtype=float)
+    var = 2 * (opt["sigma_a_m"] ** 2 + opt["sigma_b_m"] ** 2 / np.sin(el) ** 2)
+    dtrop = m["trop_m_r"].to_numpy() - m["trop_m_b"].to_numpy() if opt["troposphere"] else 0.0
+    return {
+        "ptr": np.searchsorted(epoch, np.arange(len(times) + 1)), "names": names, "code": code.reshape(-1),
+        "sats": m["sat"].to_numpy(), "lam_m": lam, "el": el,
+        "mu": (lam / _LAMBDA_L1) ** 2,        # (f_L1 / f)², per satellite (GLONASS FDMA)
+        "sat_xyz": m[["sx_r", "sy_r", "sz_r"]].to_numpy(), "sat_base_xyz": m[["sx_b", "sy_b", "sz_b"]].to_numpy(),
+        "phase_sd_m": lam * (m["phase_cycles_r"].to_numpy() - m["phase_cycles_b"].to_numpy()) - dtrop,
+        "code_sd_m": m["pseudorange_m_r"].to_numpy() - m["pseudorange_m_b"].to_numpy() - dtrop,
+        "slip": ((m["lli_r"].to_numpy() | m["lli_b"].to_numpy()) & 1) > 0,
+        "var_phase": var, "var_code": var * opt["code_ratio"] ** 2,
+    }
+
+
+_ROW_KEYS = ("sats", "lam_m", "mu", "sat_xyz", "sat_base_xyz", "phase_sd_m", "code_sd_m", "slip", "var_phase", "var_code")
+
+
+def _epoch_groups(rows, k):
+    """Signal groups (≥ 2 satellites) of epoch ``k``: views of :func:`_paired_rows` columns, ``ref`` the
+    highest base elevation."""
+    lo, hi = rows["ptr"][k], rows["ptr"][k + 1]
+    code = rows["code"][lo:hi]
+    cuts = [lo, *(lo + np.flatnonzero(code[1:] != code[:-1]) + 1), hi]
+    groups = []
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        if b - a < 2:
             continue
-        lam = g["wavelength_m"].to_numpy()
-        el = g["el_rad"].to_numpy()
-        var = 2 * (opt["sigma_a_m"] ** 2 + opt["sigma_b_m"] ** 2 / np.sin(el) ** 2)
-        sats = g["sat"].to_numpy()
-        dtrop = g["trop_m_r"].to_numpy() - g["trop_m_b"].to_numpy() if opt["troposphere"] else 0.0
-        groups.append({
-            "signal": name, "sats": sats, "ref": int(np.argmax(el)), "lam_m": lam,
-            "mu": (lam / _LAMBDA_L1) ** 2,        # (f_L1 / f)², per satellite (GLONASS FDMA)
-            "sat_xyz": g[["sx_r", "sy_r", "sz_r"]].to_numpy(), "sat_base_xyz": g[["sx_b", "sy_b", "sz_b"]].to_numpy(),
-            "phase_sd_m": lam * (g["phase_cycles_r"].to_numpy() - g["phase_cycles_b"].to_numpy()) - dtrop,
-            "code_sd_m": g["pseudorange_m_r"].to_numpy() - g["pseudorange_m_b"].to_numpy() - dtrop,
-            "slip": ((g["lli_r"].to_numpy() | g["lli_b"].to_numpy()) & 1) > 0,
-            "var_phase": var, "var_code": var * opt["code_ratio"] ** 2,
-        })
+        g = {key: rows[key][a:b] for key in _ROW_KEYS}
+        g["signal"] = str(rows["names"][rows["code"][a]])
+        g["ref"] = int(np.argmax(rows["el"][a:b]))
+        groups.append(g)
     return groups
 
 
@@ -166,9 +197,52 @@ def _prepare_state(st, groups, opt, iono):
         g["iono_col"] = np.array([st.col(("I", s)) if iono else -1 for s in g["sats"]])
 
 
-def _fix(st, groups, opt):
+class _CarriedDecorrelation:
+    """LAMBDA's integer transformation Z of the DD ambiguities, carried from one epoch to the next.
+
+    Reducing ~30 DD ambiguities from scratch takes ~800 adjacent swaps each epoch, while their
+    covariance changes little between epochs: starting from the previous epoch's Z, ``Zᵀ Q Z`` needs
+    a few.  The integer least-squares solution does not depend on the unimodular Z (``a = Z⁻ᵀ z``,
+    exact integer arithmetic), so the integers — and the fixed positions — are those of the reduction
+    from scratch; the ratio agrees to rounding (~1e-12 relative).  Z restarts from the identity when
+    the set of DD ambiguities (signal, satellites, reference) changes, or if its entries grow large.
+    """
+
+    MAX_ENTRY = 2**20
+
+    def __init__(self):
+        self.keys, self.Z, self.Zinv = None, None, None
+
+    def _update(self, keys, Qa):
+        n = Qa.shape[0]
+        eye = np.eye(n, dtype=np.int64)
+        if keys != self.keys:
+            self.keys, self.Z, self.Zinv = keys, eye, eye
+        Q = self.Z.T @ Qa @ self.Z
+        _, _, Z1 = decorrelate(*ld_factorize(0.5 * (Q + Q.T)))
+        if np.array_equal(Z1, eye):
+            return
+        Z = self.Z @ Z1
+        Zinv = np.rint(np.linalg.inv(Z)).astype(np.int64)
+        if np.abs(Z).max() < self.MAX_ENTRY and np.array_equal(Z @ Zinv, eye):
+            self.Z, self.Zinv = Z, Zinv
+        else:                     # start again from scratch (resolve's own reduction does the work)
+            self.Z, self.Zinv = eye, eye
+
+    def resolve(self, keys, a, Qa, threshold):
+        """:func:`~cdgps_cli.estimation.ambiguity.resolve` (full set) of ``a`` (n,) cycles with
+        covariance ``Qa`` (n, n) cycles²; ``integers`` in the original space."""
+        self._update(keys, Qa)
+        Q = self.Z.T @ Qa @ self.Z
+        res = resolve(self.Z.T @ a, 0.5 * (Q + Q.T), threshold, partial=False)
+        if res["accepted"]:
+            res["integers"] = self.Zinv.T @ res["integers"]
+        return res
+
+
+def _fix(st, groups, opt, carried):
     """DD ambiguities of every fixable group, resolved as one set; the fixed position or None."""
-    rows, dd = [], []
+    rows, keys = [], []
     for g in groups:
         if g["signal"].startswith("R:") and not opt["glonass_fix"]:
             continue
@@ -176,12 +250,13 @@ def _fix(st, groups, opt):
         T = np.zeros((len(D), len(st.x)))
         T[:, g["amb_col"]] = D
         rows.append(T)
+        keys.append((g["signal"], tuple(g["sats"]), g["ref"]))
     if not rows:
         return None, 0, np.nan
     T = np.vstack(rows)
     a = T @ st.x
     Qa = T @ st.P @ T.T
-    res = resolve(a, 0.5 * (Qa + Qa.T), opt["ratio"], partial=False)
+    res = carried.resolve(tuple(keys), a, 0.5 * (Qa + Qa.T), opt["ratio"])
     if not res["accepted"]:
         return None, 0, res.get("ratio", np.nan)
     Pxa = st.P[:3] @ T.T
@@ -218,11 +293,12 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
     pos_dyn = Static(3) if opt["mode"] == "static" else RandomWalk(3, opt["kinematic_sigma_m_per_sqrt_s"])
     st = _State(3)
     times = np.intersect1d(base["time_gps_s"].unique(), rover["time_gps_s"].unique())
-    bi, ri = base.groupby("time_gps_s").indices, rover.groupby("time_gps_s").indices
+    rows = _paired_rows(base, rover, times, opt)
     out = {k: [] for k in ("float", "fixed", "n", "ratio")}
+    carried = _CarriedDecorrelation()
     t_prev = None
     for k, t in enumerate(times):
-        groups = _epoch_groups(base.iloc[bi[t]], rover.iloc[ri[t]], opt, None, None)
+        groups = _epoch_groups(rows, k)
         if t_prev is not None:
             A, _, Q = pos_dyn.transition(t - t_prev)
             st.P[:3, :3] += Q
@@ -238,7 +314,7 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
                 r, H, L = epoch_rows(xi, groups, base_xyz, origin, len(xb))
                 xi, P, _ = kalman.update(xb, Pb, r + H @ (xi - xb), H, noise_chol=L)
             st.x, st.P = xi, P
-        fx, n, ratio = _fix(st, groups, opt) if (groups and opt["fix"]) else (None, 0, np.nan)
+        fx, n, ratio = _fix(st, groups, opt, carried) if (groups and opt["fix"]) else (None, 0, np.nan)
         out["float"].append(origin + st.x[:3])
         out["fixed"].append(origin + fx if fx is not None else np.full(3, np.nan))
         out["n"].append(n)

@@ -5,6 +5,11 @@ import pandas as pd
 import pytest
 
 from cdgps_cli.core.errors import CdgpsError
+import itertools
+
+from cdgps_cli.config.options import MULTI_GNSS_DEFAULTS
+from cdgps_cli.estimation import rtk_multi
+from cdgps_cli.estimation.ambiguity import resolve
 from cdgps_cli.estimation.rtk_multi import check_common_signals, receiver_geometry, solve_rtk
 from cdgps_cli.io.rinex import read_rinex_nav
 from cdgps_cli.io.rinex_signals import read_rinex_signals
@@ -46,3 +51,86 @@ def test_missing_signal_or_system(pair):
         check_common_signals(b, r, ["G:L1", "G:L5"], nav, where)
     with pytest.raises(CdgpsError, match=r"gps.nav\) have no Galileo ephemerides"):
         check_common_signals(b, r, sig, nav[nav["sat"].str.startswith("G")], where)
+
+
+def test_paired_rows_match_a_merge_per_epoch(pair):
+    """The run-wide pairing gives each epoch the groups of a base/rover merge of that epoch alone."""
+    sig, nav, b, r = pair
+    gb, gr = receiver_geometry(b, nav, BASE), receiver_geometry(r, nav, TRUTH)
+    opt = dict(MULTI_GNSS_DEFAULTS)
+    times = np.intersect1d(gb["time_gps_s"].unique(), gr["time_gps_s"].unique())
+    rows = rtk_multi._paired_rows(gb, gr, times, opt)
+    n_groups = 0
+    for k, t in enumerate(times):
+        eb, er = gb[gb["time_gps_s"] == t], gr[gr["time_gps_s"] == t]
+        m = eb.merge(er[["sat", "signal", "phase_cycles", "trop_m"]], on=["sat", "signal"], suffixes=("_b", "_r"))
+        m = m[m["el_rad"] >= np.radians(opt["mask_deg"])]
+        want = [(name, g["sat"].tolist(), int(np.argmax(g["el_rad"].to_numpy())),
+                 (g["wavelength_m"] * (g["phase_cycles_r"] - g["phase_cycles_b"]) - (g["trop_m_r"] - g["trop_m_b"])).to_numpy())
+                for name, g in m.groupby("signal", sort=True) if len(g) >= 2]
+        got = rtk_multi._epoch_groups(rows, k)
+        assert [(g["signal"], list(g["sats"]), g["ref"]) for g in got] == [w[:3] for w in want]
+        for g, w in zip(got, want):
+            np.testing.assert_array_equal(g["phase_sd_m"], w[3])
+        n_groups += len(got)
+    assert n_groups >= 4 * len(times)
+
+
+def _correlated_sequence(rng, n, epochs):
+    """Float ambiguities (cycles) and covariances shrinking and turning slowly over epochs, strongly
+    correlated through a 3-D geometry (as DD ambiguities of a short baseline)."""
+    truth = rng.integers(-50, 50, n)
+    B = rng.normal(size=(n, 3))
+    for k in range(epochs):
+        Bk = B + 0.02 * k * np.sin(np.arange(3 * n).reshape(n, 3))
+        Q = (2.0 / (1 + k)) * Bk @ Bk.T + 0.002 * np.eye(n)
+        yield truth + np.linalg.cholesky(Q) @ rng.normal(size=n) * 0.3, 0.5 * (Q + Q.T)
+
+
+def _brute_force_best(a, Q, radius=2):
+    """Integer vector minimising (a − z)ᵀ Q⁻¹ (a − z) over a box around round(a) (independent of LAMBDA)."""
+    W = np.linalg.inv(Q)
+    best, zbest = np.inf, None
+    for off in itertools.product(range(-radius, radius + 1), repeat=len(a)):
+        z = np.round(a) + off
+        v = (a - z) @ W @ (a - z)
+        if v < best:
+            best, zbest = v, z
+    return zbest.astype(np.int64)
+
+
+def test_carried_decorrelation_gives_the_integers_of_a_reduction_from_scratch():
+    rng = np.random.default_rng(7)
+    carried = rtk_multi._CarriedDecorrelation()
+    n_carried = 0
+    for part, (n, keys) in enumerate(((5, ("a",)), (5, ("b",)), (8, ("c",)))):   # key changes restart Z
+        for a, Q in _correlated_sequence(rng, n, 25):
+            got, ref = carried.resolve(keys, a, Q, 3.0), resolve(a, Q, 3.0, partial=False)
+            n_carried += not np.array_equal(carried.Z, np.eye(n, dtype=np.int64))
+            assert got["accepted"] == ref["accepted"]
+            np.testing.assert_array_equal(got["integers"], ref["integers"])
+            assert got["ratio"] == pytest.approx(ref["ratio"], rel=1e-9)
+            if n == 5 and got["accepted"]:
+                np.testing.assert_array_equal(got["integers"], _brute_force_best(a, Q))
+    assert n_carried > 20      # the carried transformation was used, not only the identity
+
+
+def test_solve_rtk_carried_decorrelation_equals_reduction_from_scratch(pair, monkeypatch):
+    sig, nav, b, r = pair
+    # the simulator's ambiguities are all 0: whole cycles per (satellite, signal) make Z⁻ᵀ z matter
+    keys = r["sat"] + r["signal"]
+    cycles = dict(zip(sorted(keys.unique()), np.random.default_rng(3).integers(-40, 40, keys.nunique())))
+    r = r.assign(phase_cycles=r["phase_cycles"] + keys.map(cycles).to_numpy())
+    gb, gr = receiver_geometry(b, nav, BASE), receiver_geometry(r, nav, TRUTH)
+    warm = solve_rtk(gb, gr, BASE, TRUTH)
+    assert np.abs(warm["fixed_xyz_m"] - TRUTH).max() < 0.005
+
+    def from_scratch(self, keys, Qa):      # Z = I: resolve reduces the DD covariance itself, as before
+        self.Z = self.Zinv = np.eye(Qa.shape[0], dtype=np.int64)
+
+    monkeypatch.setattr(rtk_multi._CarriedDecorrelation, "_update", from_scratch)
+    cold = solve_rtk(gb, gr, BASE, TRUTH)
+    assert warm["fixed"].all() and np.array_equal(warm["fixed"], cold["fixed"])
+    np.testing.assert_array_equal(warm["fixed_xyz_m"], cold["fixed_xyz_m"])
+    np.testing.assert_array_equal(warm["float_xyz_m"], cold["float_xyz_m"])
+    np.testing.assert_allclose(warm["ratio"], cold["ratio"], rtol=1e-9)
