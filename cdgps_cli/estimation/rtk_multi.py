@@ -309,9 +309,9 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
         _prepare_state(st, groups, opt, iono)
         if groups:
             xb, Pb = st.x.copy(), st.P
-            xi = xb
-            for _ in range(2 if k else 4):   # iterated update (relinearized at the new estimate)
-                r, H, L = epoch_rows(xi, groups, base_xyz, origin, len(xb))
+            xi, L = xb, None
+            for _ in range(2 if k else 4):   # iterated update (relinearized at the new estimate; same noise)
+                r, H, L = epoch_rows(xi, groups, base_xyz, origin, len(xb), noise_chol=L)
                 xi, P, _ = kalman.update(xb, Pb, r + H @ (xi - xb), H, noise_chol=L)
             st.x, st.P = xi, P
         fx, n, ratio = _fix(st, groups, opt, carried) if (groups and opt["fix"]) else (None, 0, np.nan)

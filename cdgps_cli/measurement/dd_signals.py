@@ -120,7 +120,7 @@ def dd_range(rover_xyz_m, base_xyz_m, sat_xyz_m, ref: int, sat_base_xyz_m=None) 
     return dd_operator(len(sd), ref) @ sd
 
 
-def epoch_rows(x, groups, base_xyz_m, origin_xyz_m, n_state: int):
+def epoch_rows(x, groups, base_xyz_m, origin_xyz_m, n_state: int, noise_chol=None):
     """Residuals, Jacobian and noise factor of one epoch's DDs at state ``x``.
 
     Parameters
@@ -135,6 +135,9 @@ def epoch_rows(x, groups, base_xyz_m, origin_xyz_m, n_state: int):
     base_xyz_m, origin_xyz_m : ndarray (3,)
         Base position and the origin of the rover offset, ECEF m.
     n_state : int
+    noise_chol : ndarray (p, p), optional
+        ``L`` of an earlier call on the same ``groups`` (the noise does not depend on ``x``): returned
+        as is instead of being formed again (iterated updates relinearize only r and H).
 
     Returns
     -------
@@ -167,7 +170,10 @@ def epoch_rows(x, groups, base_xyz_m, origin_xyz_m, n_state: int):
         rs.append(D @ g["phase_sd_m"] - (geo + D @ (lam * n_amb) - D @ (mu * ion)))
         rs.append(D @ g["code_sd_m"] - (geo + D @ (mu * ion)))
         Hs += [Hg, Hc]
-        Cs += [dd_covariance(g["var_phase"], ref), dd_covariance(g["var_code"], ref)]
+        if noise_chol is None:
+            Cs += [dd_covariance(g["var_phase"], ref), dd_covariance(g["var_code"], ref)]
+    if noise_chol is not None:
+        return np.concatenate(rs), np.vstack(Hs), noise_chol
     p = sum(c.shape[0] for c in Cs)
     C = np.zeros((p, p))
     k = 0

@@ -42,6 +42,17 @@ def test_noise_is_dd_covariance_and_ref_has_no_row():
 
 
 
+def test_a_given_noise_factor_is_reused_and_rows_are_unchanged():
+    """Iterated updates pass the epoch's L back in: r and H are those of a full call at the new x."""
+    x, groups, base, origin, n = _case(True)
+    _, _, L = epoch_rows(x, groups, base, origin, n)
+    x2 = x + 0.01
+    r_full, H_full, L_full = epoch_rows(x2, groups, base, origin, n)
+    r, H, L2 = epoch_rows(x2, groups, base, origin, n, noise_chol=L)
+    assert L2 is L and np.array_equal(L_full, L)
+    assert np.array_equal(r, r_full) and np.array_equal(H, H_full)
+
+
 def test_signal_sd_table_dd_is_the_true_integer_per_signal():
     """Two static receivers ~36 m apart on GPS L1/L2 and Galileo E5a (simulator truth), with different
     drifting clocks: per signal, every DD of the SD residual at the true positions, in cycles of that
