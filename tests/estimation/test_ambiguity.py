@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import itertools
-import time
 
 import numpy as np
 import pytest
@@ -450,14 +449,9 @@ def test_gnss36_resolves_truth_quickly(gnss36):
     np.testing.assert_array_equal(cands[0], gnss36["truth"])
     np.testing.assert_allclose(s, qnorm(a, Q, cands), rtol=1e-7)
     assert ratio_test(s)[0]
-    best = np.inf
-    for _ in range(5):
-        t0 = time.perf_counter()
-        lambda_search(a, Q)
-        best = min(best, time.perf_counter() - t0)
-    # typically ~3 ms; generous bound so that only an algorithmic
-    # regression (not machine load) trips it
-    assert best < 0.05
+    # the search's work, not the wall clock (which a loaded machine inflates): this case needs
+    # 1 000–2 000 nodes after the decorrelation (measured); ten times that trips the cap
+    lambda_search(a, Q, max_nodes=20_000)
 
 
 # ---------------------------------------------------------------------------
