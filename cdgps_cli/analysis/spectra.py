@@ -340,32 +340,20 @@ def _refuse_blind_gyros(cfg, G: np.ndarray) -> None:
                          "angle would be an all-zero curve; fix the config's [[gyros]] (docs/config-format.md)")
 
 
-def compute_spectra(cfg: StructureConfig, time_s: np.ndarray, q: np.ndarray,
-                    gyro_time_s: np.ndarray | None = None, gyro_rate: np.ndarray | None = None,
-                    opt: SpectraOptions | None = None) -> dict:
-    """PSDs, FDD modal identification and GPS–gyro comparison.
-
-    Parameters
-    ----------
-    cfg : StructureConfig
-    time_s : (N,) regular epochs, s
-    q : (N, n_q) estimated generalized coordinates
-    gyro_time_s : (M,), gyro_rate : (M, n_g) rad/s, optional
-    opt : SpectraOptions
-
-    Returns
-    -------
-    dict with ``f_hz``, ``psd`` (name → array), ``fdd_sv`` (F, k), ``modes`` (list), ``settings``.
-    """
-    opt = opt or SpectraOptions()
+def _selected_coordinates(cfg: StructureConfig, opt: SpectraOptions) -> tuple[list, list]:
+    """The config's coordinate names and the indices of those analysed (``opt.coords``, default all
+    but the rigid one)."""
     names = list(cfg.coord_names)
-    if opt.coords:
-        bad = [c for c in opt.coords if c not in names]
-        if bad:
-            raise CdgpsError(f"--coords: unknown coordinate(s) {', '.join(bad)} (known: {', '.join(names)})")
-        sel = [names.index(c) for c in opt.coords]
-    else:
-        sel = [i for i in range(len(names)) if i != cfg.rigid_index]
+    if not opt.coords:
+        return names, [i for i in range(len(names)) if i != cfg.rigid_index]
+    bad = [c for c in opt.coords if c not in names]
+    if bad:
+        raise CdgpsError(f"--coords: unknown coordinate(s) {', '.join(bad)} (known: {', '.join(names)})")
+    return names, [names.index(c) for c in opt.coords]
+
+
+def _grid_step_s(time_s: np.ndarray, q: np.ndarray, names: list, opt: SpectraOptions) -> float:
+    """The epochs' regular spacing, s, after checking q's shape, finiteness and the grid."""
     N = len(time_s)
     if np.shape(q) != (N, len(names)):
         raise CdgpsError(f"q has shape {np.shape(q)}, expected ({N}, {len(names)}) for {N} epochs and the config's coordinates")
@@ -384,9 +372,14 @@ def compute_spectra(cfg: StructureConfig, time_s: np.ndarray, q: np.ndarray,
     if bad.any():
         k, j = np.argwhere(bad)[0]
         raise CdgpsError(f"the estimate has a non-finite value ({names[j]} at {time_s[k]:g} s); spectra need finite data")
+    return T
+
+
+def _segment_lengths(N: int, T: float, opt: SpectraOptions) -> tuple[int, int]:
+    """Welch segment length and FFT length, samples, for N epochs T s apart (every bad setting
+    listed at once)."""
     fs = 1.0 / T
-    duration = N * T
-    seg_s = opt.segment_s or min(duration / 4.0, 600.0)
+    seg_s = opt.segment_s or min(N * T / 4.0, 600.0)
     problems = []
     if not seg_s > 0:
         problems.append(f"--segment-s {seg_s:g}: expected a positive segment length in seconds")
@@ -397,16 +390,110 @@ def compute_spectra(cfg: StructureConfig, time_s: np.ndarray, q: np.ndarray,
     if problems:
         raise CdgpsError("; ".join(problems))
     nperseg = int(min(N, max(16, round(seg_s * fs))))
-    nfft = int(2 ** np.ceil(np.log2(nperseg * opt.pad)))
-    resolution = 1.44 * fs / nperseg                     # Hann half-power main-lobe width
-    Y = q[:, sel]
+    return nperseg, int(2 ** np.ceil(np.log2(nperseg * opt.pad)))
+
+
+def _coordinate_scales(Y: np.ndarray, names: list) -> np.ndarray:
+    """Standard deviation of each column of Y (1 for a column constant to rounding), refusing a
+    record where every coordinate is constant (a static estimate has no spectrum)."""
     std = Y.std(axis=0)
     constant = std <= 1e-12 * np.maximum(1.0, np.abs(Y).max(axis=0))     # rounding only (m or rad)
     if constant.all():
-        raise CdgpsError(f"every coordinate ({', '.join(names[i] for i in sel)}) is constant over the "
-                         f"{N} epochs (a static estimate): spectra need a time-varying estimate "
+        raise CdgpsError(f"every coordinate ({', '.join(names)}) is constant over the {len(Y)} epochs "
+                         "(a static estimate): spectra need a time-varying estimate "
                          "(cdgps estimate with the random-walk model, or a structure's modal states)")
     std[constant] = 1.0
+    return std
+
+
+def _gyro_spectra(cfg: StructureConfig, time_s, q, gyro_time_s, gyro_rate, psd: dict, welch: tuple) -> dict:
+    """Each gyro's angle PSD (rate PSD / (2πf)²), the GPS angle PSD it senses and their coherence,
+    added to ``psd``; returns the gyro names and matrix G (angles = G q).  ``welch``: (fs, nperseg,
+    overlap, nfft)."""
+    fs, nperseg, overlap, nfft = welch
+    Gm = gyro_matrix(cfg)
+    _refuse_blind_gyros(cfg, Gm)
+    rates = np.column_stack([np.interp(time_s, gyro_time_s, gyro_rate[:, g]) for g in range(gyro_rate.shape[1])])
+    gps_ang = q @ Gm.T
+    for g, gname in enumerate(cfg.gyro_names):
+        fw, pr = welch_psd(rates[:, g], fs, nperseg, overlap, nfft)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            psd[f"gyro_{gname}"] = np.where(fw > 0, pr / (2 * np.pi * fw) ** 2, np.nan)
+        _, pa = welch_psd(gps_ang[:, g], fs, nperseg, overlap, nfft)
+        psd[f"gps_{gname}"] = pa
+        _, coh = coherence_msc(gps_ang[:, g], rates[:, g], fs, nperseg, overlap, nfft)
+        psd[f"coherence_{gname}"] = coh
+    return {"names": list(cfg.gyro_names), "G": Gm}
+
+
+def _fdd_peak(f, U_sv, S_sv, band, phi) -> dict:
+    """The FDD peak in ``band``: among the first three singular values, the frequency whose value ×
+    MAC with the model shape ``phi`` is largest (``fdd_peak_hz``, ``mac``, ``singular_value``; {} when
+    the band is empty)."""
+    best = None
+    idx = np.flatnonzero(band)
+    for k in range(min(3, S_sv.shape[1])):
+        if idx.size == 0:
+            continue
+        macs = np.array([mac(U_sv[i, :, k], phi) for i in idx])
+        score = S_sv[idx, k] * macs
+        ib = int(np.argmax(score))
+        if best is None or score[ib] > best[0]:
+            best = (score[ib], k, int(idx[ib]), macs[ib])
+    if best is None:
+        return {}
+    _, k, i, m_mac = best
+    return {"fdd_peak_hz": _parabolic(f, S_sv[:, k], i), "mac": float(m_mac), "singular_value": k + 1}
+
+
+def _gyro_peak(gy: dict, shape, f, psd: dict, center_hz: float, band_pct: float) -> dict:
+    """The mode's peak in the gyro that sees it best (``gyro``, ``coherence``, and ``gyro_hz`` when the
+    maximum is inside the band); {} when no gyro sees the mode or the band is empty."""
+    weights = np.abs(gy["G"] @ shape)
+    visible = np.linalg.norm(gy["G"], axis=1) * np.linalg.norm(shape) * 1e-6
+    if not np.any(weights > visible):
+        return {}
+    gname = gy["names"][int(np.argmax(weights))]
+    gb = (f >= center_hz * (1 - band_pct / 100)) & (f <= center_hz * (1 + band_pct / 100))
+    if not gb.any():
+        return {}
+    pg = psd[f"gyro_{gname}"]
+    band_idx = np.flatnonzero(gb)
+    ii = int(band_idx[np.nanargmax(pg[gb])])
+    out = {"gyro": gname, "coherence": float(psd[f"coherence_{gname}"][ii])}
+    # a maximum on the band edge is the flank of something else, not a peak
+    if band_idx[0] < ii < band_idx[-1]:
+        out["gyro_hz"] = _parabolic(f, pg, ii)
+    return out
+
+
+def compute_spectra(cfg: StructureConfig, time_s: np.ndarray, q: np.ndarray,
+                    gyro_time_s: np.ndarray | None = None, gyro_rate: np.ndarray | None = None,
+                    opt: SpectraOptions | None = None) -> dict:
+    """PSDs, FDD modal identification and GPS–gyro comparison.
+
+    Parameters
+    ----------
+    cfg : StructureConfig
+    time_s : (N,) regular epochs, s
+    q : (N, n_q) estimated generalized coordinates
+    gyro_time_s : (M,), gyro_rate : (M, n_g) rad/s, optional
+    opt : SpectraOptions
+
+    Returns
+    -------
+    dict with ``f_hz``, ``psd`` (name → array), ``fdd_sv`` (F, k), ``modes`` (list), ``settings``.
+    """
+    opt = opt or SpectraOptions()
+    names, sel = _selected_coordinates(cfg, opt)
+    N = len(time_s)
+    T = _grid_step_s(time_s, q, names, opt)
+    fs = 1.0 / T
+    duration = N * T
+    nperseg, nfft = _segment_lengths(N, T, opt)
+    resolution = 1.44 * fs / nperseg                     # Hann half-power main-lobe width
+    Y = q[:, sel]
+    std = _coordinate_scales(Y, [names[i] for i in sel])
     f, G = cross_spectral_matrix(Y / std, fs, nperseg, opt.overlap, nfft)
     fmax = min(opt.fmax_hz or fs / 2, fs / 2)
     keep = (f > 0) & (f <= fmax)
@@ -419,19 +506,7 @@ def compute_spectra(cfg: StructureConfig, time_s: np.ndarray, q: np.ndarray,
     Um = np.asarray(cfg.mode_shapes)[sel] / std[:, None]
     gy = None
     if gyro_rate is not None and gyro_rate.size and len(cfg.gyro_names):
-        Gm = gyro_matrix(cfg)
-        _refuse_blind_gyros(cfg, Gm)
-        gy = {"names": list(cfg.gyro_names), "G": Gm}
-        rates = np.column_stack([np.interp(time_s, gyro_time_s, gyro_rate[:, g]) for g in range(gyro_rate.shape[1])])
-        gps_ang = q @ Gm.T
-        for g, gname in enumerate(cfg.gyro_names):
-            fw, pr = welch_psd(rates[:, g], fs, nperseg, opt.overlap, nfft)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                psd[f"gyro_{gname}"] = np.where(fw > 0, pr / (2 * np.pi * fw) ** 2, np.nan)
-            _, pa = welch_psd(gps_ang[:, g], fs, nperseg, opt.overlap, nfft)
-            psd[f"gps_{gname}"] = pa
-            _, coh = coherence_msc(gps_ang[:, g], rates[:, g], fs, nperseg, opt.overlap, nfft)
-            psd[f"coherence_{gname}"] = coh
+        gy = _gyro_spectra(cfg, time_s, q, gyro_time_s, gyro_rate, psd, (fs, nperseg, opt.overlap, nfft))
     modes = []
     Ystd = Y / std
     Wfilt = np.linalg.pinv(Um)                              # modal filter: ξ̂ = U⁺ y (standardized)
@@ -452,20 +527,7 @@ def compute_spectra(cfg: StructureConfig, time_s: np.ndarray, q: np.ndarray,
         f_fit, z_fit, f_sig, z_sig = sdof_whittle_fit(Ystd @ Wfilt[j], fs, fm, zeta_model, half)
         # 2. FDD: singular-value peak in the band whose vector matches the model shape
         band = (f >= fm * (1 - opt.band_pct / 100)) & (f <= fm * (1 + opt.band_pct / 100))
-        best = None
-        for k in range(min(3, S_sv.shape[1])):
-            idx = np.flatnonzero(band)
-            if idx.size == 0:
-                continue
-            macs = np.array([mac(U_sv[i, :, k], phi) for i in idx])
-            score = S_sv[idx, k] * macs
-            ib = int(np.argmax(score))
-            i = int(idx[ib])
-            if best is None or score[ib] > best[0]:
-                best = (score[ib], k, i, macs[ib])
-        if best is not None:
-            _, k, i, m_mac = best
-            entry.update(fdd_peak_hz=_parabolic(f, S_sv[:, k], i), mac=float(m_mac), singular_value=k + 1)
+        entry.update(_fdd_peak(f, U_sv, S_sv, band, phi))
         f_id = f_fit if f_fit is not None else entry["fdd_peak_hz"]
         if f_id is not None:
             err = 100.0 * (f_id - fm) / fm
@@ -474,23 +536,7 @@ def compute_spectra(cfg: StructureConfig, time_s: np.ndarray, q: np.ndarray,
                          damping_resolution_limited=bool(z_fit is None or 2 * z_fit * f_id < 2 * fs / N),
                          seen=bool(abs(err) <= opt.seen_pct and (entry["mac"] or 0) >= opt.min_mac))
         if gy is not None:
-            U_full = np.asarray(cfg.mode_shapes)[:, j]
-            weights = np.abs(gy["G"] @ U_full)
-            visible = np.linalg.norm(gy["G"], axis=1) * np.linalg.norm(U_full) * 1e-6
-            if np.any(weights > visible):
-                g = int(np.argmax(weights))
-                gname = gy["names"][g]
-                center = entry["gps_hz"] or fm
-                gb = (f >= center * (1 - opt.band_pct / 100)) & (f <= center * (1 + opt.band_pct / 100))
-                pg = psd[f"gyro_{gname}"]
-                if gb.any():
-                    band_idx = np.flatnonzero(gb)
-                    ii = int(band_idx[np.nanargmax(pg[gb])])
-                    entry["gyro"] = gname
-                    entry["coherence"] = float(psd[f"coherence_{gname}"][ii])
-                    # a maximum on the band edge is the flank of something else, not a peak
-                    if band_idx[0] < ii < band_idx[-1]:
-                        entry["gyro_hz"] = _parabolic(f, pg, ii)
+            entry.update(_gyro_peak(gy, np.asarray(cfg.mode_shapes)[:, j], f, psd, entry["gps_hz"] or fm, opt.band_pct))
         modes.append(entry)
     return {
         "f_hz": f[keep], "psd": {k: v[keep] for k, v in psd.items()},
