@@ -167,6 +167,21 @@ def _epoch_time(line: str, a: int, path, lineno) -> float:
         raise CdgpsError(f"{path}:{lineno}: malformed epoch line {line[:60]!r}") from None
 
 
+def _epoch_counts(line: str, col: int, path, lineno: int) -> tuple[int, int]:
+    """(epoch flag, number of satellites or special records) of an epoch line; the flag is at
+    ``col`` (RINEX 3: 31, RINEX 2: 28), the count in the next three columns."""
+    try:
+        return int(line[col:col + 1] or 0), int(line[col + 1:col + 4])
+    except ValueError:
+        raise CdgpsError(f"{path}:{lineno}: malformed epoch line {line[:60]!r} (flag and satellite count "
+                         f"expected in columns {col + 1}–{col + 4})") from None
+
+
+def _truncated(path, lineno: int, nsat: int, left: int) -> CdgpsError:
+    return CdgpsError(f"{path}:{lineno}: the epoch announces {nsat} satellites but the file ends after "
+                      f"{left} more lines (truncated file?)")
+
+
 def _parse_v3(lines, i, cols, path) -> list:
     rows = []
     while i < len(lines):
@@ -176,12 +191,14 @@ def _parse_v3(lines, i, cols, path) -> list:
             continue
         if not ln.startswith(">"):
             raise CdgpsError(f"{path}:{i + 1}: expected an epoch line starting with '>', got {ln[:60]!r}")
-        flag, nsat = int(ln[31:32] or 0), int(ln[32:35])
+        flag, nsat = _epoch_counts(ln, 31, path, i + 1)
+        if i + 1 + nsat > len(lines):
+            raise _truncated(path, i + 1, nsat, len(lines) - i - 1)
         if flag > 1:
             i += 1 + nsat
             continue
         t = _epoch_time(ln, 2, path, i + 1)
-        for rec in lines[i + 1:i + 1 + nsat]:
+        for r_off, rec in enumerate(lines[i + 1:i + 1 + nsat]):
             sat = rec[0:3].replace(" ", "0")
             for name, (key, ip, ic, _) in cols.items():
                 if sat[0] != key:
@@ -190,7 +207,7 @@ def _parse_v3(lines, i, cols, path) -> list:
                     ph, lli = _value(rec, ip, 3)
                     pr = _value(rec, ic, 3)[0] if ic >= 0 else math.nan
                 except ValueError:
-                    raise CdgpsError(f"{path}:{i + 2}: malformed observation record {rec[:40]!r}") from None
+                    raise CdgpsError(f"{path}:{i + 2 + r_off}: malformed observation record {rec[:40]!r}") from None
                 if not math.isnan(ph):
                     rows.append((t, sat, name, ph, pr, lli))
         i += 1 + nsat
@@ -206,7 +223,10 @@ def _parse_v2(lines, i, hdr, cols, path) -> list:
         if not ln.strip():
             i += 1
             continue
-        flag, nsat = int(ln[28:29] or 0), int(ln[29:32])
+        flag, nsat = _epoch_counts(ln, 28, path, i + 1)
+        n_rec = nsat if flag > 1 else nsat * per       # special records: one line each
+        if i + math.ceil(nsat / 12) + n_rec > len(lines):
+            raise _truncated(path, i + 1, nsat, len(lines) - i - 1)
         sats = "".join(lines[i + k][32:68] for k in range(math.ceil(nsat / 12)))
         i += math.ceil(nsat / 12)
         if flag > 1:

@@ -73,3 +73,22 @@ def test_rinex2_glonass_observations_with_frequency_numbers_from_elsewhere():
     m = r.merge(r3, on=["time_gps_s", "sat"])
     assert len(m) == len(r) == len(r3) and (m["phase_cycles_x"] == m["phase_cycles_y"]).all()
     assert (m["pseudorange_m_x"] == m["pseudorange_m_y"]).all()
+
+
+def test_a_truncated_file_names_the_epoch_line(tmp_path: Path):
+    """An epoch announcing more satellites than the file still has (a log cut off) is an error
+    naming the file and the epoch's line, for RINEX 3 and RINEX 2; a malformed count too."""
+    p = tmp_path / "cut.obs"
+    p.write_text(HDR.rsplit("G05", 1)[0])                       # the second satellite's line is gone
+    with pytest.raises(CdgpsError, match=r"cut.obs:5: the epoch announces 2 satellites but the file ends after 1"):
+        read_rinex_signals(p, ["G:L1"])
+    p.write_text(HDR.replace("  0  2\n", "  0  x\n"))
+    with pytest.raises(CdgpsError, match=r"cut.obs:5: malformed epoch line"):
+        read_rinex_signals(p, ["G:L1"])
+    lines = (REPO_ROOT / "tests" / "data" / "07590920.05o").read_text().splitlines(keepends=True)
+    p2 = tmp_path / "cut.05o"
+    p2.write_text("".join(lines[:-3]))
+    with pytest.raises(CdgpsError, match=r"cut.05o:\d+: the epoch announces \d+ satellites but the file ends"):
+        read_rinex_signals(p2, ["G:L1", "G:L2"])
+    _, whole = read_rinex_signals(REPO_ROOT / "tests" / "data" / "07590920.05o", ["G:L1", "G:L2"])
+    assert len(whole) > 0
