@@ -1,4 +1,6 @@
-"""Shared pieces of the fuzz suite (issue 12 item 10): settings, base files, mutations, the property.
+"""Shared pieces of the fuzz suite (issue 12 item 10): settings, mutations, the property (the base
+files are the ``base`` fixture of this folder's conftest.py).  A module of its own name, not
+``conftest``: another folder's conftest.py would shadow it when both are collected.
 
 Every test here states one property over generated inputs: a reader or a command given any input
 returns a valid result or raises the project's own :class:`~cdgps_cli.core.errors.CdgpsError` whose
@@ -17,7 +19,6 @@ import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
-import pytest
 from click.testing import CliRunner
 from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
@@ -135,23 +136,3 @@ NUMBER_TEXT = st.one_of(
 )
 #: any short text, including separators, quotes and non-ASCII
 ANY_TEXT = st.text(max_size=12)
-
-
-@pytest.fixture(scope="session")
-def base(tmp_path_factory):
-    """Small artefacts built once: sim/ (2-DOF, 6 s), RUN.mcap, INIT.json, STATES.mcap; tsim/
-    (the 1998 testbed, 2 s pulse: gyro and actuator logs); gsim/ (a 60 s simulated RINEX pair)
-    and GRUN.mcap."""
-    d = tmp_path_factory.mktemp("fuzzbase")
-    steps = [["simulate", DOF2, "--duration", "6", "-o", d / "sim"],
-             ["ingest", d / "sim" / "receiver.csv", d / "sim" / "gyro.csv", "--config", DOF2, "-o", d / "RUN.mcap"],
-             ["init", d / "RUN.mcap", "-o", d / "INIT.json"],
-             ["estimate", d / "RUN.mcap", "--init", d / "INIT.json", "-o", d / "STATES.mcap"],
-             ["simulate", TESTBED, "--duration", "2", "--scenario", "pulse", "-o", d / "tsim"],
-             ["simulate-gnss", "--duration", "60", "-o", d / "gsim"],
-             ["ingest", "--rinex", f"A={d / 'gsim' / 'rover.rnx'}", "--rinex", f"B={d / 'gsim' / 'base.rnx'}",
-              "--nav", d / "gsim" / "nav.rnx", "--master", "A", "-o", d / "GRUN.mcap"]]
-    for s in steps:
-        r = cli(*s)
-        assert r.exit_code == 0, (s, r.output, r.exception)
-    return d

@@ -18,7 +18,7 @@ from cdgps_cli.config.structure import load_config, load_gnss_config
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.sim.structure import SimOptions, simulate
 
-from conftest import DOF2, TESTBED, byte_mutation, check_reader, fuzz_settings, scratch
+from fuzz_support import DOF2, TESTBED, byte_mutation, check_reader, fuzz_settings, scratch
 
 _KEY_LINE = re.compile(r"^(\s*)([A-Za-z_]+)(\s*=\s*)(.+?)(\s*#.*)?$")
 

@@ -12,7 +12,7 @@ import json
 from hypothesis import given
 from hypothesis import strategies as st
 
-from conftest import byte_mutation, check_command, cli, fuzz_settings, scratch, sha256
+from fuzz_support import byte_mutation, check_command, cli, fuzz_settings, scratch, sha256
 
 JSON_VALUE = st.one_of(
     st.none(), st.booleans(), st.integers(-2**70, 2**70), st.floats(allow_nan=True, allow_infinity=True),

@@ -18,7 +18,7 @@ from cdgps_cli.config.structure import load_config
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.logs import read_actuator_log, read_gyro_log, read_receiver_log
 
-from conftest import ANY_TEXT, DOF2, NUMBER_TEXT, TESTBED, byte_mutation, check_command, check_reader, cli, \
+from fuzz_support import ANY_TEXT, DOF2, NUMBER_TEXT, TESTBED, byte_mutation, check_command, check_reader, cli, \
     fuzz_settings, scratch, sha256
 
 READERS = {"receiver": read_receiver_log, "gyro": read_gyro_log, "actuators": read_actuator_log}

@@ -22,7 +22,7 @@ from cdgps_cli.io.mcap import read_mcap
 from cdgps_cli.io.run import read_run, run_info
 from cdgps_cli.pipeline.estimate_outputs import export_csv
 
-from conftest import byte_mutation, check_reader, fuzz_settings, scratch, sha256
+from fuzz_support import byte_mutation, check_reader, fuzz_settings, scratch, sha256
 
 READERS = {
     "RUN.mcap": lambda f, d: (read_run(f), run_info(f)),

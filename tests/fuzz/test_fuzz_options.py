@@ -26,7 +26,7 @@ from cdgps_cli.config.limits import OPTION_BOUNDS
 from cdgps_cli.cli.guard import OUTPUT_PARAMS, _is_named_files, _spelling
 
 from _shared import cli_commands
-from conftest import DOF2, NUMBER_TEXT, check_command, cli, fuzz_settings, scratch, sha256
+from fuzz_support import DOF2, NUMBER_TEXT, check_command, cli, fuzz_settings, scratch, sha256
 
 
 def _is_numeric(p: click.Parameter) -> bool:

@@ -21,7 +21,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
 from cdgps_cli.io.ubx import read_ubx_rawx
 
-from conftest import DATA, byte_mutation, check_reader, fuzz_settings, scratch
+from fuzz_support import DATA, byte_mutation, check_reader, fuzz_settings, scratch
 
 OBS = ["demo.10o", "demo3.10o", "14601736.18o", "P433_lli_subset.crx"]
 NAV = ["14601736.18n", "brdc1820_subset.10n"]
