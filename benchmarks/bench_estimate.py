@@ -146,11 +146,11 @@ def part_ab(minutes: float, repeat: int, seed: int) -> dict:
 
     # the same data for FilterPy: Z = λ·phase − bias, channels in the filter's order
     chans = res.channels
-    ph = run.phase[run.phase["time_s"] >= res.time_s[0] - 1e-9]
+    ph = run.phase.take(run.phase["time_s"] >= res.time_s[0] - 1e-9)
     C = len(chans)
     assert len(ph) == N * C and list(zip(ph["antenna"][:C], ph["transmitter"][:C])) == chans
     bias = {(b["antenna"], b["transmitter"]): b["bias_m"] for b in init["biases"] if b["current"]}
-    Z = ph["phase_cycles"].to_numpy().reshape(N, C) * cfg.wavelength_m - np.array([bias[c] for c in chans])
+    Z = ph["phase_cycles"].reshape(N, C) * cfg.wavelength_m - np.array([bias[c] for c in chans])
     ant, tx = channel_indices(cfg, [c[0] for c in chans], [c[1] for c in chans])
     hmodel = EpochPhaseModel(cfg, ant, tx)
 

@@ -13,10 +13,11 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
-import pandas as pd
+
+from cdgps_cli.core.table import Table
 
 if TYPE_CHECKING:                     # a type only: core imports nothing above it at run time
     from cdgps_cli.config.structure import StructureConfig
@@ -28,32 +29,58 @@ class Run:
 
     Attributes
     ----------
+    path : str
+        Where it was read from (``"<memory>"`` for :func:`memory_run`).
     cfg : StructureConfig
         The structure config embedded in the file.
-    phase : DataFrame
-        Long table time_s, master, receiver, antenna, transmitter, phase_cycles, lock, snr_dbhz.
-    gyro, actuators : DataFrame
-        Long tables (possibly empty).
+    phase : Table
+        Long table time_s, receiver, master, antenna, transmitter, phase_cycles (cycles), lock,
+        snr_dbhz (NaN where missing); the name columns categorical.
+    gyro : Table
+        Long table time_s, gyro, rate_rad_s (possibly empty).
+    actuators : Table
+        Long table time_s, actuator, force_n (possibly empty).
     metadata : dict
+        The ``cdgps.ingest`` record.
+
+    A pandas DataFrame given or assigned for a table (None: an empty table) is taken in through
+    :meth:`Table.from_frame <cdgps_cli.core.table.Table.from_frame>`; ``run.phase.frame()`` is
+    the DataFrame view (a copy: change it, then assign it back).
     """
 
     path: str
     cfg: StructureConfig
-    phase: pd.DataFrame
-    gyro: pd.DataFrame
-    actuators: pd.DataFrame
+    phase: Table
+    gyro: Table
+    actuators: Table
     metadata: dict
 
+    def __setattr__(self, name, value):            # a table given as a DataFrame (or None) is taken in
+        if name in _TABLE_COLUMNS:
+            value = as_table(value, _TABLE_COLUMNS[name])
+        object.__setattr__(self, name, value)
 
 
-def memory_run(cfg: StructureConfig, phase: pd.DataFrame, gyro: pd.DataFrame | None = None,
-               actuators: pd.DataFrame | None = None, name: str = "<memory>") -> Run:
+_TABLE_COLUMNS = {"phase": ("time_s", "receiver", "master", "antenna", "transmitter", "phase_cycles", "lock", "snr_dbhz"),
+                  "gyro": ("time_s", "gyro", "rate_rad_s"), "actuators": ("time_s", "actuator", "force_n")}
+
+
+def as_table(table, empty_columns: Sequence[str]) -> Table:
+    """A :class:`Table` as is; a DataFrame converted; None an empty table of ``empty_columns``."""
+    if isinstance(table, Table):
+        return table
+    if table is None:
+        return Table({c: np.array([], dtype=float) for c in empty_columns})
+    return Table.from_frame(table)
+
+
+def memory_run(cfg: StructureConfig, phase, gyro=None, actuators=None, name: str = "<memory>") -> Run:
     """A :class:`Run` from tables already in memory (e.g. ``simulate(...).receiver``), without files:
-    what :func:`read_run` returns for the same data.  Missing gyro/actuator tables are empty."""
-    if actuators is None:
-        actuators = pd.DataFrame({"time_s": pd.Series([], dtype=float), "actuator": pd.Series([], dtype=object),
-                                  "force_n": pd.Series([], dtype=float)})
-    return Run(name, cfg, phase.reset_index(drop=True), pd.DataFrame() if gyro is None else gyro, actuators, {})
+    what :func:`read_run` returns for the same data.  Missing gyro/actuator tables are empty.
+
+    ``phase``, ``gyro``, ``actuators`` are :class:`Table` s or pandas DataFrames (rows in order;
+    the index is ignored)."""
+    return Run(name, cfg, phase, gyro, actuators, {})
 
 
 @dataclass

@@ -37,7 +37,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-import pandas as pd
 from scipy.linalg import cho_factor, cho_solve
 from cdgps_cli.estimation.chi2 import chi2_quantile
 from cdgps_cli.estimation import kalman
@@ -51,7 +50,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.config.limits import INIT_BOUNDS, OPTION_BOUNDS
 from cdgps_cli.core.checks import has_bool, is_json_number, require_finite
 from cdgps_cli.measurement.model import PseudoliteSD, Rows
-from cdgps_cli.measurement.phase import channel_indices, phase_model
+from cdgps_cli.measurement.phase import channel_indices, phase_model, row_channel_indices
 from cdgps_cli.measurement.channels import lock_segments
 from cdgps_cli.measurement import multipath
 from cdgps_cli.measurement.noise import filter_sigma_estimate, init_channel_sigma_m
@@ -296,11 +295,12 @@ class _ForwardPass:
     def _epoch_data(self) -> None:
         """Epoch grid from INIT time to the end; Y (N, C) phase in metres and LOCK; the channels."""
         run, cfg, opt, T, t0 = self.run_, self.cfg, self.opt, self.T, self.t0
-        t_first = float(run.phase["time_s"].min()) if len(run.phase) else t0
+        ph = run.phase
+        t_first = float(ph["time_s"].min()) if len(ph) else t0
         if t0 < t_first - T:
             raise CdgpsError(f"{opt.init_source}: state.time_s = {t0:g} s is before the first epoch of {run.path} "
                              f"({t_first:g} s): expected the INIT.json of this run (its batch window end)")
-        time_s = run.phase["time_s"].to_numpy()
+        time_s = ph["time_s"]
         keep = time_s >= t0 - 1e-9
         every = bool(keep.all())
         if not keep.any():
@@ -314,14 +314,14 @@ class _ForwardPass:
         time_s = kept(time_s)
         N = self.N = int(round((float(time_s.max()) - t0) / T)) + 1
         self.grid = t0 + np.arange(N) * T
-        # channel codes on the whole columns, then the kept rows (no copy of the string columns); in
-        # order of appearance (the channels are put in the config's order below)
-        a_codes, a_names = pd.factorize(run.phase["antenna"].to_numpy(dtype=object))
-        t_codes, t_names = pd.factorize(run.phase["transmitter"].to_numpy(dtype=object))
-        n_pairs = len(a_names) * len(t_names)
-        pair_code = kept(a_codes).astype(np.int64) * len(t_names) + kept(t_codes)
+        # each row's channel as (antenna, transmitter) indices in the config: pair codes ascend in the
+        # config's channel order, the order the channels are put in below
+        a_idx, t_idx = row_channel_indices(cfg, ph, run.path)
+        nT = len(cfg.transmitter_names)
+        n_pairs = len(cfg.antenna_names) * nT
+        pair_code = kept(a_idx) * nT + kept(t_idx)
         pairs = np.flatnonzero(np.bincount(pair_code, minlength=n_pairs))     # the pairs present, ascending
-        seen = [(a_names[pc // len(t_names)], t_names[pc % len(t_names)]) for pc in pairs]
+        seen = [(cfg.antenna_names[pc // nT], cfg.transmitter_names[pc % nT]) for pc in pairs.tolist()]
         chans = self.chans = sorted(set(seen) | set(self.init_bias),
                                     key=lambda c: (cfg.antenna_names.index(c[0]), cfg.transmitter_names.index(c[1])))
         cidx = {c: i for i, c in enumerate(chans)}
@@ -333,11 +333,11 @@ class _ForwardPass:
         chan_of_pair = np.full(n_pairs, -1, dtype=np.int32)
         chan_of_pair[pairs] = [cidx[c] for c in seen]
         c_of = chan_of_pair[pair_code]
-        del pair_code, a_codes, t_codes
+        del pair_code, a_idx, t_idx
         self.Y = np.full((N, C), np.nan)
         LOCK = np.full((N, C), -1, dtype=np.int32)
-        self.Y[k_of, c_of] = kept(run.phase["phase_cycles"].to_numpy()) * self.lam
-        LOCK[k_of, c_of] = kept(run.phase["lock"].to_numpy())
+        self.Y[k_of, c_of] = kept(ph["phase_cycles"]) * self.lam
+        LOCK[k_of, c_of] = kept(ph["lock"])
         del k_of, c_of, keep, time_s
         self.EVENT = lock_events(self.Y, LOCK)
         self.ant, self.tx = channel_indices(cfg, [c[0] for c in chans], [c[1] for c in chans])
@@ -351,12 +351,15 @@ class _ForwardPass:
         """U_in (N, n_thrusters): thruster commands held over each epoch (zero-order hold)."""
         cfg, run = self.cfg, self.run_
         self.U_in = np.zeros((self.N, len(cfg.thruster_names)))
-        if len(run.actuators):
+        act = run.actuators
+        if len(act):
+            codes, words = act.codes("actuator")
+            t_all, f_all = act["time_s"], act["force_n"]
             names = list(cfg.thruster_names)
-            for tname, grp in run.actuators.groupby("actuator"):
-                j = names.index(tname)
-                times = grp["time_s"].to_numpy()
-                forces = grp["force_n"].to_numpy()
+            for code in np.unique(codes).tolist():
+                j = names.index(words[code])
+                rows = codes == code
+                times, forces = t_all[rows], f_all[rows]
                 idx = np.searchsorted(times, self.grid + 1e-9, side="right") - 1
                 self.U_in[:, j] = np.where(idx >= 0, forces[np.maximum(idx, 0)], 0.0)
 

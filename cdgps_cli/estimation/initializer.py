@@ -28,7 +28,6 @@ import time as _time
 from dataclasses import dataclass, field
 
 import numpy as np
-import pandas as pd
 from cdgps_cli.estimation.chi2 import chi2_quantile
 
 from cdgps_cli.estimation import kernel
@@ -38,7 +37,7 @@ from cdgps_cli.config.structure import StructureConfig, channel_sigma_m, scalar_
 from cdgps_cli.model.dynamics import discrete_model
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.channels import lock_segments
-from cdgps_cli.measurement.phase import channel_indices, phase_model
+from cdgps_cli.measurement.phase import channel_indices, phase_model, row_channel_indices
 from cdgps_cli.core import progress
 from cdgps_cli.estimation.ambiguity import resolve
 from cdgps_cli.measurement.multipath import MultipathModel, augment, fit_autocovariance, model_from
@@ -104,7 +103,7 @@ def phase_matrix(run: Run, t0: float, t1: float):
     cfg = run.cfg
     T = cfg.sample_period_s
     ph = run.phase
-    t_all = ph["time_s"].to_numpy()
+    t_all = ph["time_s"]
     keep = (t_all >= t0 - 1e-9) & (t_all <= t1 + 1e-9)
     if not keep.any():
         raise CdgpsError(f"{run.path}: no phase data between {t0:g} s and {t1:g} s")
@@ -114,30 +113,25 @@ def phase_matrix(run: Run, t0: float, t1: float):
     grid = tmin + np.arange(n) * T
     k = np.rint((t - tmin) / T).astype(int)
     # channels in config order (antenna, then transmitter)
-    ai = pd.Index(cfg.antenna_names).get_indexer(ph["antenna"].to_numpy()[keep])
-    ti = pd.Index(cfg.transmitter_names).get_indexer(ph["transmitter"].to_numpy()[keep])
-    if (ai < 0).any() or (ti < 0).any():
-        bad = sorted({str(a) for a, i in zip(ph["antenna"].to_numpy()[keep], ai) if i < 0}
-                     | {str(x) for x, i in zip(ph["transmitter"].to_numpy()[keep], ti) if i < 0})
-        raise CdgpsError(f"{run.path}: antenna/transmitter not in the config: {', '.join(bad)}")
+    ai, ti = row_channel_indices(cfg, ph.take(keep), run.path)
     key = ai * len(cfg.transmitter_names) + ti
     ukey, ci = np.unique(key, return_inverse=True)
     chans = [(cfg.antenna_names[u // len(cfg.transmitter_names)], cfg.transmitter_names[u % len(cfg.transmitter_names)])
              for u in ukey.tolist()]
     y = np.full((n, len(chans)), np.nan)
     lock = np.full((n, len(chans)), -1, dtype=np.int64)
-    y[k, ci] = ph["phase_cycles"].to_numpy()[keep] * cfg.wavelength_m
-    lock[k, ci] = ph["lock"].to_numpy()[keep]
+    y[k, ci] = ph["phase_cycles"][keep] * cfg.wavelength_m
+    lock[k, ci] = ph["lock"][keep]
     return grid, y, lock, chans
 
 
 def window_snr_dbhz(run: Run, wd: WindowData) -> np.ndarray:
     """Each window channel's mean C/N₀ (dB-Hz) over the window, (C,); NaN where none is reported."""
     ph = run.phase
-    t = ph["time_s"].to_numpy()
+    t = ph["time_s"]
     keep = (t >= wd.time_s[0] - 1e-9) & (t <= wd.time_s[-1] + 1e-9)
-    snr = ph["snr_dbhz"].to_numpy(dtype=float)[keep]
-    ant, tx = ph["antenna"].to_numpy()[keep], ph["transmitter"].to_numpy()[keep]
+    snr = np.asarray(ph["snr_dbhz"], dtype=float)[keep]
+    ant, tx = ph["antenna"][keep], ph["transmitter"][keep]
     out = np.full(len(wd.channels), np.nan)
     for c, (a, x) in enumerate(wd.channels):
         v = snr[(ant == a) & (tx == x)]
@@ -176,7 +170,7 @@ def motion_rms_m(y: np.ndarray, segment: np.ndarray) -> float:
 
 def choose_window(run: Run, opt: InitOptions, sigma_m: float) -> tuple[float, float, str]:
     """Window [t0, t1] for initialization; automatic: first 60 s span with enough motion."""
-    ph_t = run.phase["time_s"].to_numpy()
+    ph_t = run.phase["time_s"]
     first, last = float(ph_t[0]), float(ph_t[-1])
     if opt.start_s is not None or opt.duration_s is not None:
         t0 = first if opt.start_s is None else float(opt.start_s)

@@ -37,7 +37,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 import zstandard
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
@@ -48,6 +47,7 @@ from mcap.writer import CompressionType, IndexType, Writer
 from cdgps_cli.core import progress
 from cdgps_cli.io.atomic import is_no_room, output_error, remove_stale_temporaries, temporary_name
 from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.core.table import Table
 from cdgps_cli.io.mcap_integrity import RECORD_SHA256_KEY, check_records, record_sha256, verify_file, warn_once
 from cdgps_cli.core.timescales import RELATIVE_EPOCH_UTC, TIME_SCALES, unix_ns
 
@@ -295,19 +295,20 @@ class McapOut:
                              f"whose schema has no {VALID_SUFFIX} companion") from None
         return data
 
-    def write_table(self, channel_id: int, df: pd.DataFrame, array_columns: list[str],
+    def write_table(self, channel_id: int, df, array_columns: list[str],
                     scalar_columns: list[str] = ()) -> int:
-        """Write a long table (sorted by ``time_s``) as one message per distinct time.
+        """Write a long table (a DataFrame or a :class:`~cdgps_cli.core.table.Table`, sorted by
+        ``time_s``) as one message per distinct time.
 
         Returns the number of messages written.
         """
         if len(df) == 0:
             return 0
-        t = df["time_s"].to_numpy()
+        t = np.asarray(df["time_s"])
         cuts = np.flatnonzero(np.r_[True, t[1:] != t[:-1], True])
-        cols = {c: df[c].to_numpy() for c in array_columns}
+        cols = {c: np.asarray(df[c]) for c in array_columns}
         lists = {c: v.tolist() for c, v in cols.items()}      # NaN: encoded by write() per the schema
-        scal = {c: df[c].to_numpy() for c in scalar_columns}
+        scal = {c: np.asarray(df[c]) for c in scalar_columns}
         for a, b in progress.iterate(zip(cuts[:-1], cuts[1:]), f"writing {self.path.name}", len(cuts) - 1, "msg"):
             payload = {c: scal[c][a] for c in scalar_columns}
             payload.update({c: lists[c][a:b] for c in array_columns})
@@ -524,15 +525,37 @@ class TopicColumns:
             out[np.frombuffer(valid, dtype=float) == 0.0] = np.nan
         return out
 
-    def table(self, array_columns: list[str], scalar_columns: list[str] = ()) -> pd.DataFrame:
-        """Long table: one row per array element, scalars repeated (inverse of write_table)."""
+    def table(self, array_columns: list[str], scalar_columns: list[str] = ()) -> Table:
+        """Long table: one row per array element, scalars repeated (inverse of write_table).
+
+        Columns time_s, the scalars, then the arrays; a string field is a name column, a field
+        never seen an empty number column.
+
+        Raises
+        ------
+        ValueError
+            A scalar field that mixes strings with other values on rows of the table.
+        """
         counts = np.asarray(self.counts, dtype=np.int64)
-        out = {"time_s": np.repeat(self.times(), counts)}
+        numbers = {"time_s": np.repeat(self.times(), counts)}
+        names = {}
         for c in scalar_columns:
-            out[c] = np.repeat(np.array(self.scalars.get(c, []), dtype=object), counts)
+            vals = np.repeat(np.array(self.scalars.get(c, [None] * len(counts)), dtype=object), counts)
+            if vals.size and all(isinstance(v, str) for v in vals.tolist()):
+                words, codes = np.unique(vals.astype(str), return_inverse=True)
+                names[c] = (codes, words.tolist())
+            else:
+                try:
+                    numbers[c] = np.array([np.nan if v is None else v for v in vals.tolist()], dtype=float)
+                except (TypeError, ValueError):
+                    raise ValueError(f"field {c!r}: strings mixed with other values") from None
         for c in array_columns:
-            out[c] = self.column(c)
-        return pd.DataFrame(out)
+            if c in self._vocab and self._buf.get(c):
+                words = sorted(self._vocab[c], key=self._vocab[c].get)
+                names[c] = (np.frombuffer(self._buf[c], dtype=np.int32).copy(), words)
+            else:
+                numbers[c] = self.column(c)
+        return Table(numbers, names, ["time_s", *scalar_columns, *array_columns])
 
 
 @dataclass

@@ -19,15 +19,14 @@ import json
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from cdgps_cli import __version__
 from cdgps_cli.io.atomic import file_sha256
 from cdgps_cli.config.structure import StructureConfig, parse_config
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.records import Run
+from cdgps_cli.core.table import Table
 from cdgps_cli.core.time_format import format_time, median_spacing_s, time_scale
-from cdgps_cli.io.logs import read_actuator_log, read_gyro_log, read_receiver_log
 from cdgps_cli.io.mcap import (ACTUATOR_SCHEMA, ACTUATOR_TOPIC, CONFIG_ATTACHMENT, GYRO_SCHEMA, GYRO_TOPIC,
                       PHASE_SCHEMA, PHASE_TOPIC, McapOut, TopicColumns, read_mcap)
 
@@ -50,15 +49,15 @@ def _npy(arr: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
-def _gyro_from_attachments(att: dict) -> pd.DataFrame | None:
+def _gyro_from_attachments(att: dict) -> Table | None:
     try:
         t = np.load(io.BytesIO(att[GYRO_ARRAYS + "time_s.npy"]), allow_pickle=False)
         r = np.load(io.BytesIO(att[GYRO_ARRAYS + "rate_rad_s.npy"]), allow_pickle=False)
         i = np.load(io.BytesIO(att[GYRO_ARRAYS + "gyro_index.npy"]), allow_pickle=False)
-        names = np.array(json.loads(att[GYRO_ARRAYS + "gyro_names.json"]), dtype=object)
-    except (KeyError, ValueError, OSError):
+        names = [str(n) for n in json.loads(att[GYRO_ARRAYS + "gyro_names.json"])]
+        return Table({"time_s": t, "rate_rad_s": r}, {"gyro": (i, names)}, ["time_s", "gyro", "rate_rad_s"])
+    except (KeyError, ValueError, OSError, TypeError):
         return None
-    return pd.DataFrame({"time_s": t, "gyro": names[i], "rate_rad_s": r})
 
 
 INGEST_METADATA = "cdgps.ingest"
@@ -119,21 +118,21 @@ def read_any_run(path: str | Path, phase: bool = True):
     return read_run(path, phase=phase)
 
 
-def _attach_phase_packed(out: McapOut, phase: pd.DataFrame) -> None:
+def _attach_phase_packed(out: McapOut, phase: Table) -> None:
     """The phase table as :data:`PHASE_PACKED` attachments."""
     names = {}
     for col in PHASE_NAME_COLUMNS:
-        codes, uniq = pd.factorize(phase[col], sort=True)
-        names[col] = [str(u) for u in uniq]
+        codes, words = phase.codes(col)
+        names[col] = list(words)
         out.attach_packed(f"{PHASE_PACKED}{col}_code", codes.astype(np.int32))
     out.attach(PHASE_PACKED + "names.json", json.dumps(names, sort_keys=True).encode(), "application/json")
-    out.attach_packed(PHASE_PACKED + "time_s", phase["time_s"].to_numpy(dtype=float))
-    out.attach_packed(PHASE_PACKED + "phase_cycles", phase["phase_cycles"].to_numpy(dtype=float))
-    out.attach_packed(PHASE_PACKED + "lock", phase["lock"].to_numpy(dtype=np.int64))
-    out.attach_packed(PHASE_PACKED + "snr_dbhz", phase["snr_dbhz"].to_numpy(dtype=float))
+    out.attach_packed(PHASE_PACKED + "time_s", phase["time_s"].astype(float))
+    out.attach_packed(PHASE_PACKED + "phase_cycles", phase["phase_cycles"].astype(float))
+    out.attach_packed(PHASE_PACKED + "lock", phase["lock"].astype(np.int64))
+    out.attach_packed(PHASE_PACKED + "snr_dbhz", phase["snr_dbhz"].astype(float))
 
 
-def _phase_from_packed(att: dict, path) -> pd.DataFrame | None:
+def _phase_from_packed(att: dict, path) -> Table | None:
     """The phase table from the :data:`PHASE_PACKED` attachments (None when the file has none)."""
     from cdgps_cli.io.packed_arrays import unpack  # noqa: PLC0415
 
@@ -147,19 +146,20 @@ def _phase_from_packed(att: dict, path) -> pd.DataFrame | None:
         n = cols["time_s"].shape
         if any(v.shape != n for v in cols.values()) or len(n) != 1:
             raise ValueError(f"{what}*: columns of different lengths {sorted({v.shape for v in cols.values()})}")
-        out = {"time_s": cols["time_s"].astype(float, copy=False)}
+        numbers = {"time_s": cols["time_s"].astype(float, copy=False),
+                   "phase_cycles": cols["phase_cycles"].astype(float, copy=False),
+                   "lock": cols["lock"].astype(np.int64, copy=False),
+                   "snr_dbhz": cols["snr_dbhz"].astype(float, copy=False)}
+        codes = {}
         for c in PHASE_NAME_COLUMNS:
             words = [str(w) for w in names[c]]
-            codes = cols[c + "_code"]
-            if len(words) != len(set(words)) or (codes.size and (codes.min() < 0 or codes.max() >= len(words))):
+            code = cols[c + "_code"]
+            if len(words) != len(set(words)) or (code.size and (code.min() < 0 or code.max() >= len(words))):
                 raise ValueError(f"{what}{c}_code: codes outside the {len(words)} names of names.json")
-            out[c] = pd.Categorical.from_codes(codes, categories=words) if codes.size else np.array([], dtype=float)
-        out["phase_cycles"] = cols["phase_cycles"].astype(float, copy=False)
-        out["lock"] = cols["lock"].astype(np.int64, copy=False)
-        out["snr_dbhz"] = cols["snr_dbhz"].astype(float, copy=False)
+            codes[c] = (code, words)
+        return Table(numbers, codes, PHASE_COLUMNS, categorical=PHASE_NAME_COLUMNS)
     except (KeyError, TypeError, ValueError) as exc:
         raise CdgpsError(f"{path}: damaged phase arrays ({PHASE_PACKED}*): {exc}") from None
-    return pd.DataFrame(out)[PHASE_COLUMNS]
 
 
 
@@ -207,7 +207,9 @@ def write_run(cfg: StructureConfig, receiver_csv: str | Path, out_path: str | Pa
     for k, p in sources.items():
         if p.resolve() == out_path.resolve():
             raise CdgpsError(f"{out_path}: the output would overwrite the input {k}")
-    phase = read_receiver_log(sources["receiver_csv"], cfg)
+    from cdgps_cli.io.logs import read_actuator_log, read_gyro_log, read_receiver_log  # noqa: PLC0415 (pandas)
+
+    phase = _categorical_phase(read_receiver_log(sources["receiver_csv"], cfg))
     gyro = read_gyro_log(sources["gyro_csv"], cfg) if gyro_csv else None
     act = read_actuator_log(sources["actuator_csv"], cfg) if actuator_csv else None
     meta = ingest_metadata("structure", cfg, sources, sample_period_s=repr(cfg.sample_period_s))
@@ -219,7 +221,7 @@ def write_run(cfg: StructureConfig, receiver_csv: str | Path, out_path: str | Pa
         if gyro is not None and len(gyro):          # (a header-only log of a config without gyros: no topic)
             n_gyro = out.write_table(out.channel(GYRO_TOPIC, GYRO_SCHEMA, {"units": "rad/s"}), gyro, ["gyro", "rate_rad_s"])
             # the gyro log also as .npy arrays (fast reading by spectra and reports)
-            codes, names = pd.factorize(gyro["gyro"])
+            codes, names = Table.from_frame(gyro[["gyro"]]).codes("gyro")
             out.attach(GYRO_ARRAYS + "time_s.npy", _npy(gyro["time_s"].to_numpy(dtype=float)), "application/x-npy")
             out.attach(GYRO_ARRAYS + "rate_rad_s.npy", _npy(gyro["rate_rad_s"].to_numpy(dtype=float)), "application/x-npy")
             out.attach(GYRO_ARRAYS + "gyro_index.npy", _npy(codes.astype(np.int64)), "application/x-npy")
@@ -228,7 +230,9 @@ def write_run(cfg: StructureConfig, receiver_csv: str | Path, out_path: str | Pa
             n_act = out.write_table(out.channel(ACTUATOR_TOPIC, ACTUATOR_SCHEMA, {"units": "N"}), act, ["actuator", "force_n"])
         out.attach(CONFIG_ATTACHMENT, cfg.text.encode("utf-8"), "application/toml")
         out.metadata(INGEST_METADATA, meta)
-    t = phase["time_s"].to_numpy()
+    t = phase["time_s"]
+    a_codes, _ = phase.codes("antenna")
+    x_codes, x_names = phase.codes("transmitter")
     return {
         "output": str(out_path),
         "config": cfg.name,
@@ -238,7 +242,7 @@ def write_run(cfg: StructureConfig, receiver_csv: str | Path, out_path: str | Pa
         "actuator_rows": int(0 if act is None else len(act)), "actuator_messages": n_act,
         "start_s": float(t[0]), "end_s": float(t[-1]),
         "gaps": epoch_gaps(t, cfg.sample_period_s),
-        "channels": int(phase.groupby(["antenna", "transmitter"]).ngroups),
+        "channels": int(np.unique(a_codes.astype(np.int64) * len(x_names) + x_codes).size),
         "lock_restarts": (None if channel_summary is None else
                           sum(len(c["lock_restarts_s"]) for c in channel_summary(phase, cfg.sample_period_s))),
     }
@@ -277,19 +281,19 @@ def read_run(path: str | Path, phase: bool = True) -> Run:
     return Run(str(path), cfg, phase, gyro, act, c.metadata.get(INGEST_METADATA, {}))
 
 
-def _phase_table(tc: TopicColumns) -> pd.DataFrame:
+def _categorical_phase(df) -> Table:
+    """The phase table of a receiver log (DataFrame) as the :class:`Run`'s phase Table."""
+    return Table.from_frame(df[PHASE_COLUMNS], name_columns=PHASE_NAME_COLUMNS, categorical=PHASE_NAME_COLUMNS)
+
+
+def _phase_table(tc: TopicColumns) -> Table:
     """The phase table from decoded ``/cdgps/phase`` messages (the columns of :class:`Run`)."""
-    phase = tc.table(PHASE_ARRAYS, ["master"])
-    for col in ("receiver", "master", "antenna", "transmitter", "phase_cycles", "lock", "snr_dbhz"):
-        if col not in phase:
-            phase[col] = np.array([], dtype=float)
-    phase = phase[PHASE_COLUMNS]
-    for col in PHASE_NAME_COLUMNS:
-        if len(phase):
-            phase[col] = phase[col].astype("category")       # a few names repeated 1e6 times
-    phase["lock"] = phase["lock"].astype(np.int64)
-    phase["snr_dbhz"] = phase["snr_dbhz"].astype(float)
-    return phase
+    t = tc.table(PHASE_ARRAYS, ["master"])
+    if not len(t):
+        return Table({c: np.array([], dtype=np.int64 if c == "lock" else float) for c in PHASE_COLUMNS})
+    numbers = {"time_s": t["time_s"], "phase_cycles": t["phase_cycles"].astype(float),
+               "lock": t["lock"].astype(np.int64), "snr_dbhz": t["snr_dbhz"].astype(float)}
+    return Table(numbers, {c: t.codes(c) for c in PHASE_NAME_COLUMNS}, PHASE_COLUMNS, categorical=PHASE_NAME_COLUMNS)
 
 
 def run_info(path: str | Path, gnss_common_epochs=None, channel_summary=None, gnss_lock_summary=None) -> dict:
@@ -322,7 +326,7 @@ def run_info(path: str | Path, gnss_common_epochs=None, channel_summary=None, gn
         cfg = parse_config(c.attachments[CONFIG_ATTACHMENT].decode("utf-8"), f"{path}:{CONFIG_ATTACHMENT}")
         phase = c.topics[PHASE_TOPIC].table(PHASE_ARRAYS, ["master"])
         info["config"] = cfg.summary()
-        info["gaps"] = epoch_gaps(phase["time_s"].to_numpy(), cfg.sample_period_s)
+        info["gaps"] = epoch_gaps(phase["time_s"], cfg.sample_period_s)
         if channel_summary is not None:
             chans = channel_summary(phase, cfg.sample_period_s)
             info["channels"] = chans

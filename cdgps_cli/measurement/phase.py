@@ -14,6 +14,8 @@ from __future__ import annotations
 import numpy as np
 
 from cdgps_cli.config.structure import StructureConfig
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.core.table import Table
 from cdgps_cli.model.kinematics import antenna_positions
 
 
@@ -22,6 +24,32 @@ def channel_indices(cfg: StructureConfig, antennas, transmitters) -> tuple[np.nd
     ai = {n: i for i, n in enumerate(cfg.antenna_names)}
     ti = {n: i for i, n in enumerate(cfg.transmitter_names)}
     return (np.array([ai[a] for a in antennas], dtype=int), np.array([ti[t] for t in transmitters], dtype=int))
+
+
+def row_channel_indices(cfg: StructureConfig, phase: Table, where: str = "phase table") -> tuple[np.ndarray, np.ndarray]:
+    """Each row's antenna and transmitter index in the config, for a run's phase table.
+
+    Parameters
+    ----------
+    cfg : StructureConfig
+    phase : Table
+        The run's phase table (:attr:`cdgps_cli.core.records.Run.phase`), R rows.
+    where : str
+        What to name in an error (the run's path).
+
+    Returns
+    -------
+    antenna, transmitter : ndarray (R,) of int64
+
+    Raises
+    ------
+    CdgpsError
+        A row names an antenna or transmitter the config does not have (listed).
+    """
+    bad = phase.names_not_in("antenna", cfg.antenna_names) + phase.names_not_in("transmitter", cfg.transmitter_names)
+    if bad:
+        raise CdgpsError(f"{where}: antenna/transmitter not in the config: {', '.join(sorted(bad))}")
+    return phase.index_in("antenna", cfg.antenna_names), phase.index_in("transmitter", cfg.transmitter_names)
 
 
 def all_channels(cfg: StructureConfig) -> tuple[np.ndarray, np.ndarray]:

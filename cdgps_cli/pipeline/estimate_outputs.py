@@ -18,7 +18,6 @@ import json
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from cdgps_cli import __version__
 from cdgps_cli.core.errors import CdgpsError
@@ -110,6 +109,8 @@ def export_csv(states_path: str | Path, out_csv: str | Path, points: str | None 
         from cdgps_cli.model.points import point_columns, select_points
 
         pts = select_points(st.require_structure("--points"), points)          # before writing: a bad name leaves no file
+    import pandas as pd  # noqa: PLC0415 (not on the path of `cdgps estimate`)
+
     df = pd.DataFrame(st.q, columns=names)
     for i, n in enumerate(names):
         df["sigma_" + n] = st.sigma_q[:, i]
@@ -128,6 +129,7 @@ def evaluate(truth_dir: str | Path, states_path: str | Path, converge_s: float =
     Returns RMS error per coordinate (after ``converge_s`` from the first estimate), NEES on the
     modal positions with its chi-square 95% interval, NIS statistics, convergence time and bias errors.
     """
+    import pandas as pd  # noqa: PLC0415 (not on the path of `cdgps estimate`)
     from scipy.stats import chi2
 
     from cdgps_cli.core.checks import require_finite

@@ -11,9 +11,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from cdgps_cli.config.structure import StructureConfig
+from cdgps_cli.core.table import Table
 from cdgps_cli.io.run import write_run
 from cdgps_cli.measurement.channels import REACQUIRED, RESTART, lock_segments
 
@@ -22,26 +22,28 @@ __all__ = ["channel_summary", "ingest_structure"]
 _KIND = {RESTART: "restart", REACQUIRED: "reacquisition"}
 
 
-def channel_summary(phase: pd.DataFrame, sample_period_s: float) -> list[dict]:
+def channel_summary(phase: Table, sample_period_s: float) -> list[dict]:
     """Per channel (sorted by antenna, transmitter): rows, first/last time, and the lock segments after
     the first — the times (s) and kinds (``restart``: lock count 0 or decreasing; ``reacquisition``:
     after a gap the lock count did not advance over) of :func:`~cdgps_cli.measurement.channels.lock_segments`.
 
     Parameters
     ----------
-    phase : DataFrame
+    phase : Table or DataFrame
         The run's phase table (``time_s``, ``antenna``, ``transmitter``, ``lock``).
     sample_period_s : float
         The config's sample period, s (epoch index = round((t − t₀) / T)).
     """
     if len(phase) == 0:
         return []
-    t = phase["time_s"].to_numpy(dtype=np.float64)
-    a_codes, a_names = pd.factorize(phase["antenna"].to_numpy(dtype=object), sort=True)
-    t_codes, t_names = pd.factorize(phase["transmitter"].to_numpy(dtype=object), sort=True)
+    if not isinstance(phase, Table):
+        phase = Table.from_frame(phase[["time_s", "antenna", "transmitter", "lock"]], name_columns=["antenna", "transmitter"])
+    t = np.asarray(phase["time_s"], dtype=np.float64)
+    a_codes, a_names = phase.codes("antenna")               # codes index the sorted names
+    t_codes, t_names = phase.codes("transmitter")
     chan = a_codes.astype(np.int64) * len(t_names) + t_codes
     step = np.rint((t - t.min()) / sample_period_s).astype(np.int64)
-    seg = lock_segments(chan, step, lock=phase["lock"].to_numpy(dtype=np.int64))
+    seg = lock_segments(chan, step, lock=np.asarray(phase["lock"], dtype=np.int64))
     rows = np.bincount(chan)
     out = {}
     for s_first, s_last, c in zip(seg.first.tolist(), seg.last.tolist(), seg.channel.tolist()):

@@ -90,9 +90,9 @@ def _json_clean(o):
 
 
 def _gyro_table(run) -> tuple[np.ndarray, np.ndarray, list]:
-    g = run.gyro
-    if g is None or len(g) == 0:
+    if run.gyro is None or len(run.gyro) == 0:
         return np.zeros(0), np.zeros((0, 0)), []
+    g = run.gyro.frame()
     names = [n for n in run.cfg.gyro_names if n in set(g["gyro"])]
     wide = g.pivot_table(index="time_s", columns="gyro", values="rate_rad_s")
     wide = wide[names].interpolate(limit_direction="both")

@@ -300,9 +300,10 @@ def prior_mismatches(rec) -> list:
 
 def _with_lock_restart(tb, sim, t_slip):
     run = memory_run(tb, sim.receiver)
-    ph = run.phase
+    ph = run.phase.frame()
     sel = (ph["antenna"] == "a1") & (ph["transmitter"] == "PL1") & (ph["time_s"] >= t_slip - 1e-9)
     ph.loc[sel, "lock"] = np.arange(int(sel.sum()))
+    run.phase = ph
     return run
 
 
@@ -367,9 +368,9 @@ def test_rest_with_data_gaps_kernel_equals_numpy(static_case):
     failure again count as two in a row on both paths (re-initialization flow alike)."""
     tb = static_case["tb"]
     run = memory_run(tb, static_case["sim"].receiver)
-    t = run.phase["time_s"].to_numpy()
+    t = run.phase["time_s"]
     gap = np.isin(np.round(t, 1), np.round(np.arange(81.0, 140.0, 0.2), 1))
-    run.phase = run.phase[~gap].reset_index(drop=True)
+    run.phase = run.phase.take(~gap)
     opt = EstimateOptions(rest_segments_s=((80.0, np.inf),), sigma_m=0.0015, reinit_after_epochs=2)
     with kernel(True):
         a = estimate(run, static_case["init"], opt)
@@ -386,7 +387,7 @@ def test_new_channel_bias_state_prior_exact(static_case, trace):
     tb = static_case["tb"]
     run = memory_run(tb, static_case["sim"].receiver)
     ph = run.phase
-    run.phase = ph[~((ph["antenna"] == "a1") & (ph["transmitter"] == "PL1") & (ph["time_s"] < 65.0))].reset_index(drop=True)
+    run.phase = ph.take(~((ph["antenna"] == "a1") & (ph["transmitter"] == "PL1") & (ph["time_s"] < 65.0)))
     init = dict(static_case["init"])
     init["biases"] = [b for b in init["biases"] if (b["antenna"], b["transmitter"]) != ("a1", "PL1")]
     with kernel(False):

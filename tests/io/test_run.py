@@ -42,13 +42,13 @@ def test_round_trip_every_row(sim_dir, run_file):
     run = read_run(run_file)
     src = pd.read_csv(sim_dir / "receiver.csv")
     assert len(run.phase) == len(src)
-    got = run.phase.reset_index(drop=True)
+    got = run.phase.frame()
     for c in ("time_s", "phase_cycles", "lock", "snr_dbhz"):
         np.testing.assert_array_equal(got[c].to_numpy(), src[c].to_numpy(), err_msg=c)
     for c in ("receiver", "master", "antenna", "transmitter"):
         assert list(got[c]) == list(src[c]), c
     gy = pd.read_csv(sim_dir / "gyro.csv")
-    np.testing.assert_array_equal(run.gyro["rate_rad_s"].to_numpy(), gy["rate_rad_s"].to_numpy())
+    np.testing.assert_array_equal(run.gyro["rate_rad_s"], gy["rate_rad_s"].to_numpy())
     act = pd.read_csv(sim_dir / "actuators.csv")
     assert list(run.actuators["actuator"]) == list(act["actuator"])
     assert run.cfg.sha256 == load_config(TESTBED).sha256

@@ -54,12 +54,14 @@ def test_run_packed_phase_equals_the_messages(new_run):
     assert "arrays/cdgps/phase/names.json" in c.attachments
     from_messages = _phase_table(c.topics[PHASE_TOPIC])
     run = read_run(new_run / "run.mcap")
-    pd.testing.assert_frame_equal(run.phase, from_messages)
-    assert run.phase["snr_dbhz"].isna().sum() > 0 and run.phase["lock"].dtype == np.int64
+    pd.testing.assert_frame_equal(run.phase.frame(), from_messages.frame())
+    assert np.isnan(run.phase["snr_dbhz"]).sum() > 0 and run.phase["lock"].dtype == np.int64
+    assert all(isinstance(run.phase.frame()[c].dtype, pd.CategoricalDtype)
+               for c in ("receiver", "master", "antenna", "transmitter"))
     # and equal to the log as ingested (names, order, values)
     rx = pd.read_csv(new_run / "sim" / "receiver.csv")
-    np.testing.assert_array_equal(run.phase["phase_cycles"].to_numpy(), rx["phase_cycles"].to_numpy())
-    assert list(run.phase["antenna"].astype(str)) == list(rx["antenna"])
+    np.testing.assert_array_equal(run.phase["phase_cycles"], rx["phase_cycles"].to_numpy())
+    assert list(run.phase["antenna"]) == list(rx["antenna"])
 
 
 def test_run_without_packed_arrays_reads_from_the_messages(new_run, tmp_path, monkeypatch):
@@ -67,7 +69,7 @@ def test_run_without_packed_arrays_reads_from_the_messages(new_run, tmp_path, mo
     monkeypatch.setattr(run_module, "_attach_phase_packed", lambda out, phase: None)    # the previous writer
     write_run(cfg, new_run / "sim" / "receiver.csv", tmp_path / "old.mcap", new_run / "sim" / "gyro.csv")
     assert "arrays/cdgps/phase/names.json" not in read_mcap(tmp_path / "old.mcap", topics=[]).attachments
-    pd.testing.assert_frame_equal(read_run(tmp_path / "old.mcap").phase, read_run(new_run / "run.mcap").phase)
+    pd.testing.assert_frame_equal(read_run(tmp_path / "old.mcap").phase.frame(), read_run(new_run / "run.mcap").phase.frame())
 
 
 def test_damaged_packed_phase_is_a_clean_error(new_run):

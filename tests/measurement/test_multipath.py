@@ -144,7 +144,7 @@ def _textbook(cfg, run, init, chans, mp):
     Q = np.zeros((p, p))
     Q[:n, :n] = model.Q
     Q[n:, n:] = np.eye(C) * mp.sigma_m**2 * (1 - a * a)
-    ph = run.phase
+    ph = run.phase.frame()
     times = np.unique(ph["time_s"].to_numpy())
     N = len(times)
     col = {c: i for i, c in enumerate(chans)}

@@ -54,7 +54,7 @@ def test_info_ingest_init_and_filter_count_the_same_segments(edited_run):
     path, summary, made = edited_run
     info = run_info(path)
     run = read_run(path)
-    t = run.phase["time_s"].to_numpy()
+    t = run.phase["time_s"]
     wd = window_data(run, float(t.min()), float(t.max()))
     per_channel_init = pd.Series([(s["antenna"], s["transmitter"]) for s in wd.segments]).value_counts()
     per_channel_info = {(c["antenna"], c["transmitter"]): c["segments"] for c in info["channels"]}
