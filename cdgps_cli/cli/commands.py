@@ -452,11 +452,9 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
     """
     import hashlib
 
-    from cdgps_cli.io.file_checks import RUNS, require_kind
-    from cdgps_cli.io.run import run_kind
+    from cdgps_cli.io.file_checks import GNSS_RUN, RUNS, require_kind
 
-    require_kind(run_mcap, RUNS, "RUN_MCAP")
-    if run_kind(run_mcap) == "gnss":
+    if require_kind(run_mcap, RUNS, "RUN_MCAP") == GNSS_RUN:      # (the file's metadata read once)
         _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, as_json,
                    structure=(structure, x_axis_azimuth_deg, receiver_map) if (structure or receiver_map) else None,
                    structure_only={"--start": start_s is not None, "--duration": duration_s is not None,
@@ -551,11 +549,9 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
     integers (static: the batch solution; random_walk: Kalman filter [+ RTS smoother]), plus
     single-epoch solutions, DD residuals and slip/reference events (docs/gnss-pipeline.md).
     """
-    from cdgps_cli.io.file_checks import RUNS, require_kind
-    from cdgps_cli.io.run import run_kind
+    from cdgps_cli.io.file_checks import GNSS_RUN, RUNS, require_kind
 
-    require_kind(run_mcap, RUNS, "RUN_MCAP")
-    if run_kind(run_mcap) == "gnss":
+    if require_kind(run_mcap, RUNS, "RUN_MCAP") == GNSS_RUN:      # (the file's metadata read once)
         with _init_named(init_json):
             _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json,
                            structure_only={"--biases": biases != "fixed", "--sigma-m": sigma_m is not None,

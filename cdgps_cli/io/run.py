@@ -268,7 +268,8 @@ def read_run(path: str | Path, phase: bool = True) -> Run:
     cfg = parse_config(c.attachments[CONFIG_ATTACHMENT].decode("utf-8"), f"{path}:{CONFIG_ATTACHMENT}")
     phase = _phase_from_packed(c.attachments, path) if want_phase else None
     gyro = _gyro_from_attachments(c.attachments)
-    wanted = ([PHASE_TOPIC] if want_phase and phase is None else []) + ([GYRO_TOPIC] if gyro is None else [])
+    wanted = (([PHASE_TOPIC] if want_phase and phase is None else [])
+              + ([GYRO_TOPIC] if gyro is None and GYRO_TOPIC in c.channels else []))   # (no gyro log: no re-read)
     if wanted:                                               # a RUN.mcap written before the packed arrays
         c.topics.update(read_mcap(path, topics=wanted).topics)
     if want_phase and phase is None and PHASE_TOPIC not in c.topics:

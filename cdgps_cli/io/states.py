@@ -142,16 +142,20 @@ def _write_angles(out: McapOut, C: np.ndarray, angles, time_s, q: np.ndarray, P_
     sig_names = ["sigma_" + n for n in names]
     ch = out.channel(ANGLES_TOPIC, _angles_schema(angles),
                      {"units": "deg", "angles": json.dumps({n: e for n, e, _ in angles})})
+    template = ",".join(_json_key(n) + ":%r" for n in names + sig_names)    # rows without a missing value
     times = np.asarray(time_s, dtype=float)
     for a in range(0, times.size, 1024):                      # blocks: no full-length temporaries
         b = min(a + 1024, times.size)
-        deg = np.degrees(q[a:b] @ A.T).tolist()
+        deg = np.degrees(q[a:b] @ A.T)
         var = np.einsum("ai,nij,aj->na", AU, P_pos[a:b], AU)
-        sig = np.degrees(np.sqrt(np.maximum(var, 0.0))).tolist()
+        sig = np.degrees(np.sqrt(np.maximum(var, 0.0)))
+        finite = (np.isfinite(deg).all(axis=1) & np.isfinite(sig).all(axis=1)).tolist()
+        rows = np.hstack([deg, sig]).tolist()
         for k, t in enumerate(times[a:b].tolist()):
-            msg = dict(zip(names, deg[k]))
-            msg.update(zip(sig_names, sig[k]))
-            out.write(ch, t, msg)
+            if finite[k]:
+                out.write_json_members(ch, t, template % tuple(rows[k]))
+            else:
+                out.write(ch, t, dict(zip(names + sig_names, rows[k])))
 
 
 def _is_identity(C: np.ndarray) -> bool:
