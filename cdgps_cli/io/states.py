@@ -142,20 +142,15 @@ def _write_angles(out: McapOut, C: np.ndarray, angles, time_s, q: np.ndarray, P_
     sig_names = ["sigma_" + n for n in names]
     ch = out.channel(ANGLES_TOPIC, _angles_schema(angles),
                      {"units": "deg", "angles": json.dumps({n: e for n, e, _ in angles})})
-    template = ",".join(_json_key(n) + ":%r" for n in names + sig_names)    # rows without a missing value
+    keys = names + sig_names
     times = np.asarray(time_s, dtype=float)
     for a in range(0, times.size, 1024):                      # blocks: no full-length temporaries
         b = min(a + 1024, times.size)
         deg = np.degrees(q[a:b] @ A.T)
         var = np.einsum("ai,nij,aj->na", AU, P_pos[a:b], AU)
-        sig = np.degrees(np.sqrt(np.maximum(var, 0.0)))
-        finite = (np.isfinite(deg).all(axis=1) & np.isfinite(sig).all(axis=1)).tolist()
-        rows = np.hstack([deg, sig]).tolist()
-        for k, t in enumerate(times[a:b].tolist()):
-            if finite[k]:
-                out.write_json_members(ch, t, template % tuple(rows[k]))
-            else:
-                out.write(ch, t, dict(zip(names + sig_names, rows[k])))
+        rows = np.hstack([deg, np.degrees(np.sqrt(np.maximum(var, 0.0)))]).tolist()
+        for t, row in zip(times[a:b].tolist(), rows):
+            out.write(ch, t, dict(zip(keys, row)))
 
 
 def _is_identity(C: np.ndarray) -> bool:
@@ -259,47 +254,19 @@ def _attach_series(out: McapOut, topic: str, ss: StateSeries, ser: Series, sigma
 
 def _write_state_messages(out: McapOut, ch: int, names, sel, ser: Series, q, sq, npos: int, nrate: int,
                           with_P: bool) -> None:
-    """The Foxglove JSON messages of one state series at the epochs ``sel`` (rows without a missing
-    value as text from one template, the same bytes :meth:`McapOut.write` gives for them)."""
+    """The Foxglove JSON messages of one state series at the epochs ``sel``."""
     X = ser.x[sel]
     blocks = [q[sel], sq[sel], X[:, :npos]] + ([X[:, npos:npos + nrate]] if nrate else []) + \
         ([ser.P[sel, :npos, :npos].reshape(len(sel), -1)] if with_P else [])
-    values = np.hstack(blocks)
-    complete = np.isfinite(values).all(axis=1).tolist() if not out.nullable_arrays(ch) else [False] * len(sel)
-    template = _state_members_template(names, npos, nrate, with_P, ser.smoothed)
-    rows = values.tolist()
-    for i, t in enumerate(np.asarray(ser.time_s, dtype=float)[sel].tolist()):
-        if complete[i]:
-            out.write_json_members(ch, t, template % tuple(rows[i]))
-            continue
-        row, nq = rows[i], len(names)
-        msg = {"q": dict(zip(names, row[:nq])), "sigma_q": dict(zip(names, row[nq:2 * nq])),
-               "xi": row[2 * nq:2 * nq + npos]}
-        if nrate:
-            msg["xidot"] = row[2 * nq + npos:2 * nq + npos + nrate]
-        if with_P:
-            msg["P_xi"] = row[2 * nq + npos + nrate:]
+    nq = len(names)
+    cuts = np.cumsum([0, nq, nq, npos] + ([nrate] if nrate else []) + ([npos * npos] if with_P else []))
+    keys = ["xi"] + (["xidot"] if nrate else []) + (["P_xi"] if with_P else [])
+    for t, row in zip(np.asarray(ser.time_s, dtype=float)[sel].tolist(), np.hstack(blocks).tolist()):
+        msg = {"q": dict(zip(names, row[:nq])), "sigma_q": dict(zip(names, row[nq:2 * nq]))}
+        for key, a, b in zip(keys, cuts[2:-1].tolist(), cuts[3:].tolist()):
+            msg[key] = row[a:b]
         msg["smoothed"] = ser.smoothed
         out.write(ch, t, msg)
-
-
-def _json_key(name: str) -> str:
-    """``name`` as a JSON string, escaped for use in a %-template."""
-    return json.dumps(name).replace("%", "%%")
-
-
-def _state_members_template(names, npos: int, nrate: int, with_P: bool, smoothed: bool) -> str:
-    """%-template of a state message's members: q and sigma_q objects, xi, [xidot], [P_xi], smoothed
-    (``%r`` of a Python float is the text ``json`` writes for it)."""
-    def obj(key):
-        return _json_key(key) + ":{" + ",".join(_json_key(n) + ":%r" for n in names) + "}"
-
-    def arr(key, k):
-        return _json_key(key) + ":[" + ",".join(["%r"] * k) + "]"
-
-    parts = [obj("q"), obj("sigma_q"), arr("xi", npos)] + ([arr("xidot", nrate)] if nrate else []) + \
-        ([arr("P_xi", npos * npos)] if with_P else [])
-    return ",".join(parts + ['"smoothed":' + ("true" if smoothed else "false")])
 
 
 def _write_residuals(out: McapOut, ss: StateSeries, time_s, sel) -> None:
@@ -317,24 +284,17 @@ def _write_residuals(out: McapOut, ss: StateSeries, time_s, sel) -> None:
     R = np.asarray(ss.residual_m, dtype=float)[sel]
     used = ~np.isnan(R)
     every = used.all(axis=1).tolist()
-    rows, nis = R.tolist(), np.asarray(ss.nis, dtype=float)[sel]
+    nis = np.asarray(ss.nis, dtype=float)[sel]
     nis_list = [None if bad else v for bad, v in zip(np.isnan(nis).tolist(), nis.tolist())]
     dof = [int(d) for d in np.asarray(ss.nis_dof)[sel].tolist()]
-    prefix = ('"antenna":' + json.dumps(ants, separators=(",", ":")) + ',"transmitter":'
-              + json.dumps(txs, separators=(",", ":"))).replace("%", "%%")
-    template = prefix + ',"residual_m":[' + ",".join(["%r"] * len(ants)) + '],"nis":%r,"nis_dof":%d'
-    finite = (np.isfinite(R).all(axis=1) & np.isfinite(nis)).tolist()
-    for i, t in enumerate(np.asarray(time_s, dtype=float)[sel].tolist()):
-        if finite[i]:                                 # every channel used, NIS present: the template
-            out.write_json_members(ch, t, template % (*rows[i], nis_list[i], dof[i]))
-            continue
+    for i, (t, r) in enumerate(zip(np.asarray(time_s, dtype=float)[sel].tolist(), R.tolist())):
         if every[i]:
-            a, x, r = ants, txs, rows[i]
-        else:
+            a, x = ants, txs
+        else:                                          # the channels used at this epoch
             u = used[i].tolist()
             a = [v for v, ok in zip(ants, u) if ok]
             x = [v for v, ok in zip(txs, u) if ok]
-            r = [v for v, ok in zip(rows[i], u) if ok]
+            r = [v for v, ok in zip(r, u) if ok]
         out.write(ch, t, {"antenna": a, "transmitter": x, "residual_m": r, "nis": nis_list[i], "nis_dof": dof[i]})
 
 

@@ -528,31 +528,3 @@ def test_write_states_makes_no_full_size_copies(tmp_path):
     np.testing.assert_array_equal(st.xi, x[:, :nm])
 
 
-@pytest.mark.parametrize("covariance", ["modal", "full"])
-def test_json_members_template_gives_the_bytes_of_the_dict_path(chain, tmp_path, monkeypatch, covariance):
-    """The state and residual messages written from %-templates are byte for byte those of
-    ``McapOut.write`` on the payload dict (the template path replaced by parsing its text back to a
-    dict and writing that): the whole STATES file is identical."""
-    from cdgps_cli.io.mcap import McapOut
-    d = chain["dir"]
-    args = ("--quiet", "estimate", d / "run.mcap", "--init", d / "init.json", "--smooth", "--covariance", covariance)
-    assert cli(*args, "-o", tmp_path / "template.mcap").exit_code == 0
-    calls = []
-
-    def through_dict(self, channel_id, time_s, members):
-        calls.append(channel_id)
-        self.write(channel_id, time_s, json.loads("{" + members + "}"))
-
-    monkeypatch.setattr(McapOut, "write_json_members", through_dict)
-    assert cli(*args, "-o", tmp_path / "dict.mcap").exit_code == 0
-    assert len(calls) > 30
-    assert (tmp_path / "template.mcap").read_bytes() == (tmp_path / "dict.mcap").read_bytes()
-
-
-def test_write_json_members_refuses_a_channel_with_nullable_arrays(tmp_path):
-    from cdgps_cli.io.mcap import McapOut, array_schema, NULLABLE
-    with pytest.raises(ValueError, match="nullable"):
-        with McapOut(tmp_path / "x.mcap") as out:
-            ch = out.channel("/x", array_schema("cdgps.X", {"v": NULLABLE}, {}))
-            out.write_json_members(ch, 0.0, '"v":[1.0]')
-    assert no_leftovers(tmp_path, "x.mcap")
