@@ -28,12 +28,14 @@ def test_cli_module_and_help_import_nothing_heavy():
         assert not [m for m in HEAVY if m in loaded], (code, [m for m in HEAVY if m in loaded])
 
 
-def test_estimate_path_loads_no_plotting_dask_or_sparse():
-    """The modules `cdgps estimate` imports on a structure run (filter, RUN reader, STATES writer)."""
+def test_estimate_path_loads_no_plotting_dask_sparse_or_pandas():
+    """The modules `cdgps init` / `cdgps estimate` import on a structure run (initializer, filter, RUN
+    reader, STATES writer); a run's tables are numpy columns (core/table.Table), so no pandas."""
     loaded = _modules_after("import cdgps_cli.estimation.filter, cdgps_cli.io.run, cdgps_cli.io.states, "
-                            "cdgps_cli.pipeline.estimate_outputs, cdgps_cli.model.kinematics")
+                            "cdgps_cli.pipeline.estimate_outputs, cdgps_cli.model.kinematics, "
+                            "cdgps_cli.estimation.initializer, cdgps_cli.io.file_checks")
     assert "numpy" in loaded and "cdgps_cli.estimation.filter" in loaded        # the probe itself works
-    for name in ("matplotlib", "dask", "distributed", "scipy.sparse", "scipy.stats", "scipy.optimize"):
+    for name in ("matplotlib", "dask", "distributed", "scipy.sparse", "scipy.stats", "scipy.optimize", "pandas"):
         assert name not in loaded, name
 
 
