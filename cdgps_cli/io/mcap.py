@@ -693,7 +693,8 @@ def read_mcap(path: str | Path, topics: list[str] | None = None) -> McapContents
                 encodings[channel.topic] = channel.message_encoding
                 chan_meta[channel.topic] = dict(channel.metadata or {})
             acc.add(json.loads(message.data))
-        _check_attachment_crcs(fh, summary, p, zero_ok=info.data_section_crc_checked)
+        if not info.data_section_crc_checked:      # (else every attachment's bytes are in the checked section)
+            _check_attachment_crcs(fh, summary, p, zero_ok=False)
         attachments = {a.name: bytes(a.data) for a in reader.iter_attachments()}
         channels = frozenset(ch.topic for ch in summary.channels.values())
     return McapContents(str(p), cols, attachments, info.metadata, schemas, encodings, chan_meta, channels)

@@ -184,3 +184,23 @@ def test_foreign_file_without_data_crc(files, tmp_path, capsys):
     _foreign_copy(files / "RUN.mcap", tmp_path / "h.mcap", enable_crcs=False)
     with pytest.raises(CdgpsError, match=r"h\.mcap: the MCAP summary has no CRC"):
         read_mcap(tmp_path / "h.mcap")
+
+
+def test_attachments_of_a_file_without_a_data_section_crc_are_checked_one_by_one(tmp_path):
+    """A file from a writer that leaves the data-section CRC at 0: each attachment is checked against
+    its own CRC (with the data-section CRC present, the section check covers their bytes)."""
+    p = tmp_path / "foreign.mcap"
+    with open(p, "wb") as fh:
+        w = Writer(fh, enable_data_crcs=False)
+        w.start(profile="", library="another writer")
+        w.add_attachment(create_time=0, log_time=0, name="a.bin", media_type="application/octet-stream",
+                         data=b"0123456789" * 50)
+        w.finish()
+    assert read_mcap(p).attachments["a.bin"] == b"0123456789" * 50
+    raw = bytearray(p.read_bytes())
+    at = raw.find(b"0123456789")
+    raw[at + 5] ^= 0x01
+    bad = tmp_path / "foreign_bad.mcap"
+    bad.write_bytes(bytes(raw))
+    with pytest.raises(CdgpsError, match=r"attachment 'a\.bin' fails its CRC check"):
+        read_mcap(bad)
