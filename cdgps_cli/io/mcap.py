@@ -207,6 +207,8 @@ class McapOut:
         self._schemas: dict[str, int] = {}
         self._seq: dict[int, int] = {}
         self._nullable: dict[int, tuple] = {}
+        self._packer = None                      # pack_in_background: the worker, and what it packs
+        self._deferred: list = []
 
     def __enter__(self) -> "McapOut":
         try:
@@ -320,8 +322,30 @@ class McapOut:
         a temporary the packing may overwrite (:func:`cdgps_cli.io.packed_arrays.pack_pieces`)."""
         from cdgps_cli.io.packed_arrays import MEDIA_TYPE, pack_pieces  # noqa: PLC0415
 
+        if self._packer is not None:
+            self._deferred.append((name, self._packer.submit(pack_pieces, arr, delta, overwrite)))
+            return
         pieces = pack_pieces(arr, delta, overwrite)
         self.attach_stream(name, sum(len(p) for p in pieces), pieces, MEDIA_TYPE)
+
+    def pack_in_background(self) -> None:
+        """From now on :meth:`attach_packed` packs in a worker thread (numpy's copies and zstd release
+        the GIL, so the packing overlaps what the caller does next, e.g. building JSON messages);
+        the attachments are written, in the order given, by :meth:`write_packed` or on closing.
+        The arrays given must not change until then."""
+        from concurrent.futures import ThreadPoolExecutor  # noqa: PLC0415
+
+        if self._packer is None:
+            self._packer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="cdgps-pack")
+
+    def write_packed(self) -> None:
+        """Write the attachments packed in the background so far, in the order they were given."""
+        from cdgps_cli.io.packed_arrays import MEDIA_TYPE  # noqa: PLC0415
+
+        while self._deferred:
+            name, fut = self._deferred.pop(0)
+            pieces = fut.result()
+            self.attach_stream(name, sum(len(p) for p in pieces), pieces, MEDIA_TYPE)
 
     def attach_npy(self, name: str, arr: np.ndarray, media_type: str = "application/x-npy",
                    chunk_bytes: int = 1 << 20) -> None:
@@ -419,6 +443,7 @@ class McapOut:
     def __exit__(self, exc_type, exc, tb) -> None:
         try:
             if exc_type is None:
+                self.write_packed()              # attachments still packing in the background
                 self.writer.finish()
             self._fh.close()
             if exc_type is None:
@@ -426,6 +451,11 @@ class McapOut:
         except OSError as err:                  # full disk, file-size limit while finishing
             raise output_error(self.path, err) from None
         finally:
+            if self._packer is not None:
+                self._packer.shutdown(wait=True, cancel_futures=True)
+                self._deferred.clear()
+            if not self._fh.closed:             # (an array that could not be packed)
+                self._fh.close()
             if self.tmp.exists():
                 self.tmp.unlink()
         if isinstance(exc, OSError) and is_no_room(exc):   # the same while writing messages

@@ -362,6 +362,7 @@ def write_states(ss: StateSeries, out_path: str | Path, metadata: dict, attachme
     schema = _state_schema(names, full, ss.n_rate > 0, nullable)
     with McapOut(out_path, time_scale=time_scale) as out, \
             progress.bar(len(ss.series) + 1, f"writing {Path(out_path).name}", "series") as bar:
+        out.pack_in_background()            # a series' arrays are packed while its JSON messages are built
         for topic, ser in ss.series.items():
             P_pos = ser.P[:, :ss.n_pos, :ss.n_pos]                 # a view: no full-size copy
             q, sq = series_derived(C, ser.x[:, :ss.n_pos], P_pos)   # as the reader computes them
@@ -372,9 +373,11 @@ def write_states(ss: StateSeries, out_path: str | Path, metadata: dict, attachme
                                       ser, q, sq, ss.n_pos, ss.n_rate, full)
             if topic == STATE_TOPIC:
                 _write_angles(out, C, angles, time_s[sel], q[sel], P_pos[sel])
+            out.write_packed()              # written before the next series: one series' arrays at a time
             del q, sq, P_pos
             bar.update()
         _write_residuals(out, ss, time_s, sel)
+        out.write_packed()
         bar.update()
         ch = out.channel(EVENT_TOPIC, event_schema(ss.events))
         for ev in ss.events:

@@ -493,12 +493,15 @@ def test_topic_columns_flat_buffers():
     np.testing.assert_array_equal(tc.column("v"), [1.5, np.nan, 1.0, 2.0])   # failed adds left no trace
 
 
-def test_write_states_makes_no_full_size_copies(tmp_path):
-    """The per-epoch messages and the .npy attachments are written without full-size temporaries:
-    peak traced memory of write_states stays below two (N, n_m, n_m) covariance series (≈ 1.2 here:
-    the mcap library's ~3 MB of chunk buffers; the former writer, which built every .npy and its
-    attachment record in memory, peaked at ≈ 3.5)."""
+def test_write_states_makes_no_full_size_copies(tmp_path, monkeypatch):
+    """The per-epoch messages and the packed attachments are written without full-size temporaries:
+    peak traced memory of write_states, packing in line, stays below two (N, n_m, n_m) covariance
+    series (≈ 1.5 here: the mcap library's ~3 MB of chunk buffers; the former writer, which built
+    every .npy and its attachment record in memory, peaked at ≈ 3.5).  Packing in the background
+    (the default: one series' arrays while its messages are built) adds at most one such series."""
     import tracemalloc
+
+    from cdgps_cli.io.mcap import McapOut
 
     cfg = load_config(TESTBED_PATH)
     n, nm, N = cfg.n_states, cfg.n_modes, 4000
@@ -512,14 +515,24 @@ def test_write_states_makes_no_full_size_copies(tmp_path):
                          np.ones(N), np.full(N, 2), smoothed=True, biases={c: 0.0 for c in chans})
     with McapOut(tmp_path / "run.mcap") as out:               # stand-in RUN: only its ingest record
         out.metadata("cdgps.ingest", {"kind": "structure"})
-    tracemalloc.start()
-    try:
-        write_states(res, tmp_path / "run.mcap", {}, "{}", tmp_path / "st.mcap", {})
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
+
+    def peak_of_write(name: str) -> int:
+        tracemalloc.start()
+        try:
+            write_states(res, tmp_path / "run.mcap", {}, "{}", tmp_path / name, {})
+            return tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+
     block = N * nm * nm * 8                                   # 2.6 MB
-    assert peak < 2 * block, f"write_states peaked at {peak / 2**20:.1f} MiB (P_xi series {block / 2**20:.1f} MiB)"
+    background = peak_of_write("st.mcap")
+    with monkeypatch.context() as m:
+        m.setattr(McapOut, "pack_in_background", lambda self: None)
+        in_line = peak_of_write("in_line.mcap")
+    assert in_line < 2 * block, f"write_states peaked at {in_line / 2**20:.1f} MiB (P_xi series {block / 2**20:.1f} MiB)"
+    assert background < in_line + block, f"{background / 2**20:.1f} MiB packing in the background"
+    st_line = States(tmp_path / "in_line.mcap")
+    np.testing.assert_array_equal(st_line.P_xi, P[:, :nm, :nm])
     st = States(tmp_path / "st.mcap")
     np.testing.assert_array_equal(st.P_xi, P[:, :nm, :nm])
     filt = States(tmp_path / "st.mcap", "/cdgps/state_filtered")     # the forward filter: its 1-σ only
