@@ -160,17 +160,21 @@ def _is_identity(C: np.ndarray) -> bool:
 def coordinate_sigma(C: np.ndarray, P_pos: np.ndarray, block: int = 1024) -> np.ndarray:
     """1-σ of q = C x_pos from the position covariances (N, n_pos, n_pos) → (N, n_q).
 
-    ``C``: the output map (n_q, n_pos) (a structure's mode shapes U).  Computed on contiguous blocks
-    of ``block`` epochs: the same numbers whatever the memory layout of ``P_pos`` (a strided view of
-    the filter's (N, n, n) series or a contiguous array read back), and no full-size temporary.  With
-    C = I the diagonal itself (NaN where a displacement has no covariance)."""
-    C = np.array(C, dtype=float, order="C")           # a fresh array: einsum's sums do not depend on where C came from
+    ``C``: the output map (n_q, n_pos) (a structure's mode shapes U).  σ_q² = Σ_ij C_qi C_qj P_ij
+    is one matrix product per block of ``block`` epochs, P's rows (flattened) times the
+    (n_pos², n_q) matrix of the products C_qi C_qj; each block is copied to a contiguous array
+    first, so the numbers do not depend on the memory layout of ``P_pos`` (a strided view of the
+    filter's (N, n, n) series or a contiguous array read back) and there is no full-size temporary.
+    With C = I the diagonal itself (NaN where a displacement has no covariance)."""
+    C = np.array(C, dtype=float, order="C")           # a fresh array: the products do not depend on where C came from
     if _is_identity(C):
         return np.sqrt(np.maximum(np.einsum("nii->ni", np.asarray(P_pos, dtype=float)), 0.0))
-    out = np.empty((P_pos.shape[0], C.shape[0]))
+    nq, m = C.shape
+    K = np.ascontiguousarray((C[:, :, None] * C[:, None, :]).reshape(nq, m * m).T)     # (m², n_q)
+    out = np.empty((P_pos.shape[0], nq))
     for a in range(0, P_pos.shape[0], block):
-        Pb = np.ascontiguousarray(P_pos[a:a + block], dtype=float)
-        out[a:a + block] = np.sqrt(np.maximum(np.einsum("qi,nij,qj->nq", C, Pb, C), 0.0))
+        Pb = np.ascontiguousarray(P_pos[a:a + block], dtype=float).reshape(-1, m * m)
+        out[a:a + block] = np.sqrt(np.maximum(Pb @ K, 0.0))
     return out
 
 
