@@ -15,15 +15,28 @@ from typing import Iterable, Mapping, Sequence
 import numpy as np
 
 
-def _sorted_names(codes: np.ndarray, words: list[str]) -> tuple[np.ndarray, tuple[str, ...]]:
-    """Codes and words renumbered so the words are sorted (as they were when already sorted)."""
+class Deferred:
+    """A column computed on first use: ``make()`` returns what the column would have been given as
+    (an array for a number column, the codes for a name column).  A run's reader defers the columns
+    ``cdgps estimate`` does not read (receiver, master, C/N₀: a quarter of the RUN's decoding)."""
+
+    def __init__(self, make):
+        self.make = make
+
+
+def _name_order(words: list[str]) -> np.ndarray | None:
+    """Codes into ``words`` → codes into ``sorted(words)``: the lookup table, None when already sorted."""
     if all(a < b for a, b in zip(words, words[1:])):
-        return codes, tuple(words)
+        return None
     order = sorted(range(len(words)), key=words.__getitem__)
     new_code = np.empty(len(words), dtype=np.int32)
     new_code[order] = np.arange(len(words), dtype=np.int32)
-    valid = codes.size == 0 or (0 <= int(codes.min()) and int(codes.max()) < len(words))
-    return (new_code[codes] if valid else codes), tuple(words[i] for i in order)
+    return new_code
+
+
+def _renumbered(codes: np.ndarray, lut: np.ndarray | None) -> np.ndarray:
+    valid = codes.size == 0 or lut is None or (0 <= int(codes.min()) and int(codes.max()) < lut.size)
+    return codes if lut is None or not valid else lut[codes]
 
 
 class Table:
@@ -43,20 +56,28 @@ class Table:
         Name columns that :meth:`frame` gives as pandas categoricals (the others as object
         columns of str).
 
+    A number column's array, or a name column's codes, may be a :class:`Deferred`: computed on
+    first use and then checked like the others (at least one column must be given as an array).
+
     Raises
     ------
     ValueError
         Columns of different lengths, codes outside their words, repeated words, an unknown or
-        missing column in ``order``.
+        missing column in ``order`` (for a deferred column: when it is computed).
     """
 
     def __init__(self, numbers: Mapping[str, np.ndarray], names: Mapping[str, tuple] | None = None,
                  order: Sequence[str] | None = None, categorical: Iterable[str] = ()):
-        self._numbers = {k: np.asarray(v) for k, v in numbers.items()}
-        self._codes: dict[str, np.ndarray] = {}
+        self._numbers = {k: v if isinstance(v, Deferred) else np.asarray(v) for k, v in numbers.items()}
+        self._codes: dict = {}
         self._words: dict[str, tuple[str, ...]] = {}
+        self._lut: dict[str, np.ndarray | None] = {}
         for k, (codes, words) in (names or {}).items():
-            self._codes[k], self._words[k] = _sorted_names(np.asarray(codes, dtype=np.int32), [str(w) for w in words])
+            words = [str(w) for w in words]
+            self._words[k] = tuple(sorted(words))
+            self._lut[k] = _name_order(words)
+            self._codes[k] = codes if isinstance(codes, Deferred) else \
+                _renumbered(np.asarray(codes, dtype=np.int32), self._lut[k])
         self._order = list(order) if order is not None else [*self._numbers, *self._codes]
         self._categorical = frozenset(categorical)
         self._check()
@@ -65,24 +86,49 @@ class Table:
         every = {**self._numbers, **self._codes}
         if sorted(self._order) != sorted(every) or len(set(self._order)) != len(self._order):
             raise ValueError(f"table columns {sorted(every)}: order {self._order} does not list each once")
-        lengths = {k: v.shape for k, v in every.items()}
+        present = {k: v for k, v in every.items() if not isinstance(v, Deferred)}
+        if every and not present:
+            raise ValueError("table columns: every column deferred (give at least one as an array)")
+        lengths = {k: v.shape for k, v in present.items()}
         if len(set(lengths.values())) > 1 or any(len(s) != 1 for s in lengths.values()):
             raise ValueError(f"table columns of different lengths or not 1-D: {lengths}")
-        for k, codes in self._codes.items():
-            words = self._words[k]
+        for k, words in self._words.items():
             if len(set(words)) != len(words):
                 raise ValueError(f"name column {k!r}: repeated names in {list(words)}")
-            if codes.size and (int(codes.min()) < 0 or int(codes.max()) >= len(words)):
-                raise ValueError(f"name column {k!r}: codes outside its {len(words)} names")
+            if not isinstance(self._codes[k], Deferred):
+                self._check_codes(k, self._codes[k])
         unknown = self._categorical - set(self._codes)
         if unknown:
             raise ValueError(f"categorical columns {sorted(unknown)} are not name columns")
+
+    def _check_codes(self, k: str, codes: np.ndarray) -> None:
+        if codes.size and (int(codes.min()) < 0 or int(codes.max()) >= len(self._words[k])):
+            raise ValueError(f"name column {k!r}: codes outside its {len(self._words[k])} names")
+
+    def _number(self, k: str) -> np.ndarray:
+        v = self._numbers[k]
+        if isinstance(v, Deferred):
+            v = np.asarray(v.make())
+            if v.shape != (len(self),):
+                raise ValueError(f"table column {k!r}: {list(v.shape)} values for {len(self)} rows")
+            self._numbers[k] = v
+        return v
+
+    def _code(self, k: str) -> np.ndarray:
+        c = self._codes[k]
+        if isinstance(c, Deferred):
+            c = np.asarray(c.make(), dtype=np.int32)
+            if c.shape != (len(self),):
+                raise ValueError(f"name column {k!r}: {list(c.shape)} codes for {len(self)} rows")
+            self._check_codes(k, c)
+            c = self._codes[k] = _renumbered(c, self._lut[k])
+        return c
 
     # ------------------------------------------------------------------------------------------
     # reading
 
     def __len__(self) -> int:
-        first = next(iter({**self._numbers, **self._codes}.values()), None)
+        first = next((v for v in [*self._numbers.values(), *self._codes.values()] if not isinstance(v, Deferred)), None)
         return 0 if first is None else int(first.shape[0])
 
     @property
@@ -96,16 +142,16 @@ class Table:
     def __getitem__(self, column: str) -> np.ndarray:
         """Column as numpy (R,): numbers as stored, names as an object array of str."""
         if column in self._numbers:
-            return self._numbers[column]
+            return self._number(column)
         if column in self._codes:
-            return np.asarray(self._words[column] or [""], dtype=object)[self._codes[column]]
+            return np.asarray(self._words[column] or [""], dtype=object)[self._code(column)]
         raise KeyError(f"table has no column {column!r} (columns: {', '.join(self._order)})")
 
     def codes(self, column: str) -> tuple[np.ndarray, tuple[str, ...]]:
         """A name column as ``(codes (R,) int32, words)``: row r is ``words[codes[r]]``."""
         if column not in self._codes:
             raise KeyError(f"table has no name column {column!r} (name columns: {', '.join(self._codes)})")
-        return self._codes[column], self._words[column]
+        return self._code(column), self._words[column]
 
     def index_in(self, column: str, vocabulary: Sequence[str]) -> np.ndarray:
         """Each row's position of its name in ``vocabulary``, (R,) int64; −1 where it is absent."""
@@ -122,9 +168,13 @@ class Table:
         return sorted(words[i] for i in used if words[i] not in known)
 
     def take(self, rows: np.ndarray) -> Table:
-        """The rows selected by a boolean mask or an index array (names and order kept)."""
-        return Table({k: v[rows] for k, v in self._numbers.items()},
-                     {k: (c[rows], self._words[k]) for k, c in self._codes.items()},
+        """The rows selected by a boolean mask or an index array (names and order kept; a deferred
+        column stays deferred)."""
+        def sub(get, k, v):
+            return Deferred(lambda: get(k)[rows]) if isinstance(v, Deferred) else v[rows]
+
+        return Table({k: sub(self._number, k, v) for k, v in self._numbers.items()},
+                     {k: (sub(self._code, k, c), self._words[k]) for k, c in self._codes.items()},
                      self._order, self._categorical)
 
     # ------------------------------------------------------------------------------------------
@@ -140,11 +190,11 @@ class Table:
         out = {}
         for k in self._order:
             if k in self._numbers:
-                out[k] = self._numbers[k]
+                out[k] = self._number(k)
             elif not len(self):
                 out[k] = np.array([], dtype=float)
             elif k in self._categorical:
-                out[k] = pd.Categorical.from_codes(self._codes[k], categories=list(self._words[k]))
+                out[k] = pd.Categorical.from_codes(self._code(k), categories=list(self._words[k]))
             else:
                 out[k] = self[k]
         return pd.DataFrame(out, columns=self._order)

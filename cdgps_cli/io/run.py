@@ -25,7 +25,7 @@ from cdgps_cli.io.atomic import file_sha256
 from cdgps_cli.config.structure import StructureConfig, parse_config
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.records import Run
-from cdgps_cli.core.table import Table
+from cdgps_cli.core.table import Deferred, Table
 from cdgps_cli.core.time_format import format_time, median_spacing_s, time_scale
 from cdgps_cli.io.mcap import (ACTUATOR_SCHEMA, ACTUATOR_TOPIC, CONFIG_ATTACHMENT, GYRO_SCHEMA, GYRO_TOPIC,
                       PHASE_SCHEMA, PHASE_TOPIC, McapOut, TopicColumns, read_mcap)
@@ -132,36 +132,56 @@ def _attach_phase_packed(out: McapOut, phase: Table) -> None:
     out.attach_packed(PHASE_PACKED + "snr_dbhz", phase["snr_dbhz"].astype(float))
 
 
+_PHASE_DEFERRED = ("receiver", "master", "snr_dbhz")
+"""Phase columns :func:`read_run` decodes on first use (``cdgps estimate`` reads none of them)."""
+_PHASE_DTYPES = {"time_s": float, "phase_cycles": float, "lock": np.int64, "snr_dbhz": float}
+
+
 def _phase_from_packed(att: dict, path) -> Table | None:
-    """The phase table from the :data:`PHASE_PACKED` attachments (None when the file has none)."""
+    """The phase table from the :data:`PHASE_PACKED` attachments (None when the file has none);
+    the columns of :data:`_PHASE_DEFERRED` are decoded on first use (their bytes are already
+    CRC-checked; damage found then is the same CdgpsError)."""
     from cdgps_cli.io.packed_arrays import unpack  # noqa: PLC0415
 
     if PHASE_PACKED + "names.json" not in att:
         return None
     what = f"{path}: attachment {PHASE_PACKED}"
+
+    def damaged(exc: Exception) -> CdgpsError:
+        return CdgpsError(f"{path}: damaged phase arrays ({PHASE_PACKED}*): {exc}")
+
+    def column(key: str, n: int | None = None, dtype=None) -> np.ndarray:
+        try:
+            arr = unpack(att[PHASE_PACKED + key], what + key)
+            if n is not None and arr.shape != (n,):
+                raise ValueError(f"{what}{key}: {list(arr.shape)} values for {n} rows")
+            return arr if dtype is None else arr.astype(dtype, copy=False)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise damaged(exc) from None
+
+    def later(key: str, n: int, dtype=None) -> Deferred:
+        return Deferred(lambda: column(key, n, dtype))
+
     try:
         names = json.loads(att[PHASE_PACKED + "names.json"])
-        cols = {c: unpack(att[PHASE_PACKED + c], what + c)
-                for c in ("time_s", "phase_cycles", "lock", "snr_dbhz", *(n + "_code" for n in PHASE_NAME_COLUMNS))}
-        n = cols["time_s"].shape
-        if any(v.shape != n for v in cols.values()) or len(n) != 1:
-            raise ValueError(f"{what}*: columns of different lengths {sorted({v.shape for v in cols.values()})}")
-        numbers = {"time_s": cols["time_s"].astype(float, copy=False),
-                   "phase_cycles": cols["phase_cycles"].astype(float, copy=False),
-                   "lock": cols["lock"].astype(np.int64, copy=False),
-                   "snr_dbhz": cols["snr_dbhz"].astype(float, copy=False)}
-        codes = {}
-        for c in PHASE_NAME_COLUMNS:
-            words = [str(w) for w in names[c]]
-            code = cols[c + "_code"]
-            if len(words) != len(set(words)) or (code.size and (code.min() < 0 or code.max() >= len(words))):
-                raise ValueError(f"{what}{c}_code: codes outside the {len(words)} names of names.json")
-            codes[c] = (code, words)
-        return Table(numbers, codes, PHASE_COLUMNS, categorical=PHASE_NAME_COLUMNS)
+        words = {c: [str(w) for w in names[c]] for c in PHASE_NAME_COLUMNS}
+        missing = [k for k in (*_PHASE_DTYPES, *(c + "_code" for c in PHASE_NAME_COLUMNS)) if PHASE_PACKED + k not in att]
+        if missing:
+            raise KeyError(f"no {', '.join(missing)}")
     except (KeyError, TypeError, ValueError) as exc:
-        raise CdgpsError(f"{path}: damaged phase arrays ({PHASE_PACKED}*): {exc}") from None
-
-
+        raise damaged(exc) from None
+    t = column("time_s", dtype=float)
+    if t.ndim != 1:
+        raise damaged(ValueError(f"{what}time_s: shape {list(t.shape)}"))
+    n = t.size
+    numbers = {c: later(c, n, dt) if c in _PHASE_DEFERRED else column(c, n, dt)
+               for c, dt in _PHASE_DTYPES.items() if c != "time_s"}
+    codes = {c: (later(c + "_code", n) if c in _PHASE_DEFERRED else column(c + "_code", n), words[c])
+             for c in PHASE_NAME_COLUMNS}
+    try:
+        return Table({"time_s": t, **numbers}, codes, PHASE_COLUMNS, categorical=PHASE_NAME_COLUMNS)
+    except ValueError as exc:                      # repeated names, codes outside them
+        raise damaged(exc) from None
 
 
 def epoch_gaps(time_s: np.ndarray, period_s: float) -> list[dict]:

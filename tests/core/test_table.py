@@ -130,3 +130,32 @@ def test_cdgps_estimate_does_not_import_pandas(tmp_path, static_init_for_testbed
     assert p.returncode == 0, p.stderr
     assert (tmp_path / "states.mcap").stat().st_size > 0
     assert p.stdout.strip() == "[]", p.stdout
+
+
+def test_deferred_columns_are_made_on_first_use_checked_and_kept():
+    from cdgps_cli.core.table import Deferred
+
+    made = []
+
+    def make(values):
+        def f():
+            made.append(len(values))
+            return np.asarray(values)
+        return Deferred(f)
+
+    t = Table({"t": np.arange(4.0), "snr": make([40.0, 41.0, 42.0, 43.0])},
+              {"rx": (make([1, 0, 1, 1]), ["b", "a"])})              # words not sorted: renumbered on use
+    assert len(t) == 4 and made == []
+    sub = t.take(np.array([True, False, True, True]))
+    assert made == []                                                 # still deferred after take
+    assert sub["rx"].tolist() == ["a", "a", "a"] and sub["snr"].tolist() == [40.0, 42.0, 43.0]
+    assert t.codes("rx")[0].tolist() == [0, 1, 0, 0] and t.codes("rx")[1] == ("a", "b")
+    assert made == [4, 4]                                             # each made once, kept
+    bad_len = Table({"t": np.arange(3.0), "x": make([1.0, 2.0])})
+    with pytest.raises(ValueError, match="column 'x': \\[2\\] values for 3 rows"):
+        bad_len["x"]
+    bad_code = Table({"t": np.arange(2.0)}, {"n": (make([0, 5]), ["a"])})
+    with pytest.raises(ValueError, match="codes outside its 1 names"):
+        bad_code.codes("n")
+    with pytest.raises(ValueError, match="every column deferred"):
+        Table({"x": make([1.0])})

@@ -189,3 +189,25 @@ def test_one_run_module_with_a_kind(run_file, tmp_path):
     assert meta["receiver_csv_sha256"] == __import__("hashlib").sha256(run_file.read_bytes()).hexdigest()
     with pytest.raises(ValueError, match="run kind"):
         ingest_metadata("other", cfg, {})
+
+
+def test_damage_in_a_column_read_on_first_use_is_a_clean_error(run_file, tmp_path):
+    """receiver, master and C/N₀ are decoded when first read: damage found then names the file
+    (a packed array that does not decode)."""
+    import json as _json
+
+    from cdgps_cli.core.errors import CdgpsError
+    from cdgps_cli.io import run as run_module
+
+    att = {"arrays/cdgps/phase/names.json": _json.dumps({"receiver": ["r"], "master": ["a0"], "antenna": ["a1"],
+                                                          "transmitter": ["PL1"]}).encode()}
+    from cdgps_cli.io.packed_arrays import pack
+    for key, arr in {"time_s": np.arange(3.0), "phase_cycles": np.zeros(3), "lock": np.arange(3),
+                     "antenna_code": np.zeros(3, np.int32), "transmitter_code": np.zeros(3, np.int32),
+                     "master_code": np.zeros(3, np.int32), "receiver_code": np.zeros(3, np.int32)}.items():
+        att["arrays/cdgps/phase/" + key] = pack(arr)
+    att["arrays/cdgps/phase/snr_dbhz"] = b"not a packed array"
+    phase = run_module._phase_from_packed(att, "x.mcap")
+    assert phase["phase_cycles"].tolist() == [0.0, 0.0, 0.0]         # the others read
+    with pytest.raises(CdgpsError, match=r"x\.mcap: damaged phase arrays .*snr_dbhz"):
+        phase["snr_dbhz"]
