@@ -295,7 +295,7 @@ def read_run(path: str | Path, phase: bool = True) -> Run:
     if want_phase and phase is None and PHASE_TOPIC not in c.topics:
         raise CdgpsError(f"{path}: no {PHASE_TOPIC} messages; is this a RUN.mcap from 'cdgps ingest'?")
     if phase is None:
-        phase = _phase_table(c.topics.get(PHASE_TOPIC, TopicColumns()))
+        phase = _phase_table(c.topics.get(PHASE_TOPIC, TopicColumns()), path)
     if gyro is None:
         gyro = c.topics.get(GYRO_TOPIC, TopicColumns()).table(["gyro", "rate_rad_s"])
     act = c.topics.get(ACTUATOR_TOPIC, TopicColumns()).table(["actuator", "force_n"])
@@ -307,14 +307,18 @@ def _categorical_phase(df) -> Table:
     return Table.from_frame(df[PHASE_COLUMNS], name_columns=PHASE_NAME_COLUMNS, categorical=PHASE_NAME_COLUMNS)
 
 
-def _phase_table(tc: TopicColumns) -> Table:
+def _phase_table(tc: TopicColumns, path="RUN.mcap") -> Table:
     """The phase table from decoded ``/cdgps/phase`` messages (the columns of :class:`Run`)."""
-    t = tc.table(PHASE_ARRAYS, ["master"])
-    if not len(t):
-        return Table({c: np.array([], dtype=np.int64 if c == "lock" else float) for c in PHASE_COLUMNS})
-    numbers = {"time_s": t["time_s"], "phase_cycles": t["phase_cycles"].astype(float),
-               "lock": t["lock"].astype(np.int64), "snr_dbhz": t["snr_dbhz"].astype(float)}
-    return Table(numbers, {c: t.codes(c) for c in PHASE_NAME_COLUMNS}, PHASE_COLUMNS, categorical=PHASE_NAME_COLUMNS)
+    try:
+        t = tc.table(PHASE_ARRAYS, ["master"])
+        if not len(t):
+            return Table({c: np.array([], dtype=np.int64 if c == "lock" else float) for c in PHASE_COLUMNS})
+        numbers = {"time_s": t["time_s"], "phase_cycles": t["phase_cycles"].astype(float),
+                   "lock": t["lock"].astype(np.int64), "snr_dbhz": t["snr_dbhz"].astype(float)}
+        names = {c: t.codes(c) for c in PHASE_NAME_COLUMNS}
+        return Table(numbers, names, PHASE_COLUMNS, categorical=PHASE_NAME_COLUMNS)
+    except (KeyError, ValueError) as exc:        # e.g. a name field holding numbers, fields of other lengths
+        raise CdgpsError(f"{path}: damaged {PHASE_TOPIC} messages: {exc}") from None
 
 
 def run_info(path: str | Path, gnss_common_epochs=None, channel_summary=None, gnss_lock_summary=None) -> dict:

@@ -211,3 +211,17 @@ def test_damage_in_a_column_read_on_first_use_is_a_clean_error(run_file, tmp_pat
     assert phase["phase_cycles"].tolist() == [0.0, 0.0, 0.0]         # the others read
     with pytest.raises(CdgpsError, match=r"x\.mcap: damaged phase arrays .*snr_dbhz"):
         phase["snr_dbhz"]
+
+
+def test_phase_messages_with_a_number_for_a_name_are_a_clean_error():
+    """Files written before the packed arrays are read from their messages: a name field holding
+    numbers is refused naming the file and the topic."""
+    from cdgps_cli.core.errors import CdgpsError
+    from cdgps_cli.io.mcap import TopicColumns
+    from cdgps_cli.io.run import _phase_table
+
+    tc = TopicColumns()
+    tc.add({"time_s": 0.0, "master": "a0", "receiver": [1.0], "antenna": ["a1"], "transmitter": ["PL1"],
+            "phase_cycles": [1.0], "lock": [1], "snr_dbhz": [40.0]})
+    with pytest.raises(CdgpsError, match=r"old\.mcap: damaged /cdgps/phase messages.*receiver"):
+        _phase_table(tc, "old.mcap")
