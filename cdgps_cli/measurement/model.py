@@ -404,13 +404,22 @@ def pack_dd(model: "SatelliteDDModal") -> PackedDD:
 
     sm, smr = np.sqrt(vm), np.sqrt(vmr)
     same_slot = slot[:, :, None] == slot[:, None, :]
+    rover_v, rover_vr = np.where(same_slot, vr[:, :, None], 0.0), np.where(same_slot, vrr[:, :, None], 0.0)
+    del same_slot
 
-    def term(sx, vx, mx, sy, my):
-        """Cov(SD x, SD y): the rover's variance when they are one SD, the master's for one satellite."""
-        same = sx[:, :, None] == sy[:, None, :]
-        return same * (same_slot * vx[:, :, None] + mx[:, :, None] * my[:, None, :])
+    def term(sx, rover, mx, sy, my):
+        """Cov(SD x, SD y): the rover's variance when they are one SD, the master's for one satellite
+        (in place on one temporary: the same numbers as (same · (rover + mx myᵀ)))."""
+        t = mx[:, :, None] * my[:, None, :]
+        t += rover
+        t *= sx[:, :, None] == sy[:, None, :]
+        return t
 
-    cov = term(sat, vr, sm, sat, sm) - term(sat, vr, sm, satr, smr) - term(satr, vrr, smr, sat, sm) + term(satr, vrr, smr, satr, smr)
+    cov = term(sat, rover_v, sm, sat, sm)
+    cov -= term(sat, rover_v, sm, satr, smr)
+    cov -= term(satr, rover_vr, smr, sat, sm)
+    cov += term(satr, rover_vr, smr, satr, smr)
+    del rover_v, rover_vr
     pad = slot < 0
     cov[pad] = 0.0
     cov.transpose(0, 2, 1)[pad] = 0.0
