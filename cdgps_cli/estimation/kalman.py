@@ -57,14 +57,18 @@ class StepFilter:
         Parameters
         ----------
         A, Q : ndarray, shape (n, n)
-            Transition and process-noise covariance over the step.
+            Transition and process-noise covariance over the step; A None for the identity.
         known_input : ndarray, shape (n,), optional
             The state change due to known inputs over the step (e.g. B u, or the exact response
             to fired thruster pulses).
         """
-        x = A @ self.x
+        if A is None:                   # the identity: A x and A P Aᵀ are x and P, exactly
+            x = self.x
+            self.P = self.P + Q
+        else:
+            x = A @ self.x
+            self.P = A @ self.P @ A.T + Q
         self.x = x if known_input is None else x + known_input
-        self.P = A @ self.P @ A.T + Q
 
     def update(self, model, rows, max_iterations: int = 5) -> float:
         """The iterated update with one epoch's ``rows`` (:class:`~cdgps_cli.measurement.model.Rows`)

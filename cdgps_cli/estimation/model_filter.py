@@ -54,12 +54,13 @@ def filter_numpy(model, dyn, time_s, x0, P0, max_iterations: int = 5, rows_hook=
     out = {"x": np.zeros((m, ns)), "P": np.zeros((m, ns, ns)), "A": np.zeros((m, ns, ns)), "Q": np.zeros((m, ns, ns)),
            "nis": np.full(n, np.nan), "nis_dof": np.zeros(n, dtype=np.int64), "rows": [None] * m}
     step = StepFilter(x0, P0)
+    identity = bool(getattr(dyn, "identity_transition", False))
     for k in range(n):
         if k:
             A, _, Q = dyn.transition(float(time_s[k] - time_s[k - 1]))
             if history:
                 out["A"][k], out["Q"][k] = A, Q
-            step.predict(A, Q)
+            step.predict(None if identity else A, Q)
         mk = model.rows(k)
         if mk is not None and rows_hook is not None:
             mk = rows_hook(k, mk, step.x, step.P)

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import block_diag, solve_triangular
+from scipy.linalg.lapack import dtrtrs as _dtrtrs
 
 from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.measurement.differencing import joint_dd_covariance
@@ -31,6 +32,24 @@ from cdgps_cli.model.kinematics import EpochGeometry
 
 __all__ = ["Rows", "MeasurementModel", "PseudoliteSD", "SatelliteDDModal", "dd_modal_h_and_H"]
 
+
+
+def solve_lower(L: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """L⁻¹ v for a lower-triangular L (m, m) and v (m,) or (m, p): LAPACK trtrs called as
+    ``scipy.linalg.solve_triangular(L, v, lower=True, check_finite=False)`` calls it (the same
+    numbers), without that wrapper's per-call checks (≈ 15 µs; the filters whiten three times an
+    epoch)."""
+    L = np.asarray(L, dtype=float)
+    v = np.asarray(v, dtype=float)
+    if v.size == 0 or L.ndim != 2 or L.shape[0] != L.shape[1] or v.shape[0] != L.shape[0]:
+        return solve_triangular(L, v, lower=True, check_finite=False)      # its shapes and messages
+    if L.flags.f_contiguous:
+        x, info = _dtrtrs(L, v, lower=1, trans=0)
+    else:                                     # the transposed system, as trtrs expects Fortran order
+        x, info = _dtrtrs(L.T, v, lower=0, trans=1)
+    if info != 0:
+        return solve_triangular(L, v, lower=True, check_finite=False)      # its error for this case
+    return x
 
 @dataclass
 class Rows:
@@ -63,7 +82,7 @@ class Rows:
         """C^{-1/2} v for v (m,) or (m, p): L⁻¹ v (full noise) or v / σ (diagonal)."""
         v = np.asarray(v, dtype=float)
         if self.chol_m is not None:
-            return solve_triangular(self.chol_m, v, lower=True, check_finite=False)
+            return solve_lower(self.chol_m, v)
         return v / (self.sigma_m if v.ndim == 1 else self.sigma_m[:, None])
 
     def subset(self, keep) -> "Rows":

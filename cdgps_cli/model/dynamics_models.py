@@ -29,10 +29,12 @@ __all__ = ["Dynamics", "ModalZOH", "RandomWalk", "Static", "WithConstants"]
 
 
 class Dynamics:
-    """Interface: ``n`` states, ``n_u`` inputs, ``transition(dt_s)`` and ``noise_factor(dt_s)``."""
+    """Interface: ``n`` states, ``n_u`` inputs, ``transition(dt_s)`` and ``noise_factor(dt_s)``;
+    ``identity_transition``: A is the identity for every step (a filter may then skip A P Aᵀ)."""
 
     n: int
     n_u: int
+    identity_transition: bool = False
 
     def transition(self, dt_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
         """(A (n, n), B (n, n_u), Q (n, n)) for a step of ``dt_s`` seconds."""
@@ -93,6 +95,7 @@ class RandomWalk(Dynamics):
             raise ValueError(f"sigma_per_sqrt_s must be ≥ 0 (one number or {int(n)}), got {sigma_per_sqrt_s!r}")
         self.n, self.n_u = int(n), 0
         self.sigma = float(s) if s.ndim == 0 else s.copy()
+        self.identity_transition = True
 
     def transition(self, dt_s: float):
         dt = _check_dt(dt_s)
@@ -117,6 +120,10 @@ class WithConstants(Dynamics):
     def __init__(self, dyn: Dynamics, n_const: int):
         self.dyn, self.n_const = dyn, int(n_const)
         self.n, self.n_u = dyn.n + self.n_const, dyn.n_u
+
+    @property
+    def identity_transition(self) -> bool:
+        return self.dyn.identity_transition
 
     def transition(self, dt_s: float):
         A, B, Q = self.dyn.transition(dt_s)

@@ -86,3 +86,45 @@ class _Linear(MeasurementModel):
 
     def predict(self, x, rows):
         return self.H @ x, self.H
+
+
+def test_identity_transition_skips_a_p_at_with_the_same_numbers():
+    """A random walk's A is the identity: the filter's predict without A P Aᵀ gives the same bytes
+    (filter_numpy on a random-walk displacement, the dynamics flag on and off)."""
+    import numpy as np
+
+    from cdgps_cli.estimation.kalman import StepFilter
+    from cdgps_cli.estimation.model_filter import filter_numpy
+    from cdgps_cli.model.dynamics_models import ModalZOH, RandomWalk, Static, WithConstants
+
+    rng = np.random.default_rng(5)
+    P = rng.normal(size=(4, 4))
+    P = P @ P.T
+    Q = np.diag(rng.random(4))
+    a, b = StepFilter(rng.normal(size=4), P), None
+    b = StepFilter(a.x.copy(), P.copy())
+    a.predict(None, Q)
+    b.predict(np.eye(4), Q)
+    assert np.array_equal(a.x, b.x) and np.array_equal(a.P, b.P)
+    assert RandomWalk(3, 0.01).identity_transition and Static(2).identity_transition
+    assert WithConstants(RandomWalk(3, 0.01), 4).identity_transition
+
+    class Linear:                                   # z = x + noise on 3 coordinates
+        def __init__(self, z):
+            self.z = z
+
+        def rows(self, k):
+            from cdgps_cli.measurement.model import Rows
+            return Rows(self.z[k], ["e", "n", "u"], np.full(3, -1), sigma_m=np.full(3, 0.01))
+
+        def predict(self, x, rows):
+            return x.copy(), np.eye(3)
+
+    z = rng.normal(size=(50, 3)) * 0.01
+    t = np.arange(50.0)
+    dyn = RandomWalk(3, 0.001)
+    on = filter_numpy(Linear(z), dyn, t, np.zeros(3), np.eye(3))
+    dyn.identity_transition = False
+    off = filter_numpy(Linear(z), dyn, t, np.zeros(3), np.eye(3))
+    assert np.array_equal(on["x"], off["x"]) and np.array_equal(on["P"], off["P"])
+    assert not ModalZOH.identity_transition

@@ -212,3 +212,27 @@ def test_unique_pairs_equals_numpy_unique_of_rows():
         got_pairs, got_inv = _unique_pairs(a, b)
         np.testing.assert_array_equal(got_pairs, pairs.reshape(-1, 2))
         np.testing.assert_array_equal(got_inv.reshape(-1), inv.reshape(-1))
+
+
+def test_solve_lower_gives_scipy_solve_triangular_s_numbers():
+    """The whitening's trtrs call without scipy's wrapper: bit for bit its numbers, in C and
+    Fortran order, for vectors and matrices; empty and mismatched shapes through scipy itself."""
+    import numpy as np
+    import pytest
+    from scipy.linalg import solve_triangular
+
+    from cdgps_cli.measurement.model import solve_lower
+
+    rng = np.random.default_rng(3)
+    for m, p in [(1, None), (7, None), (12, 3), (30, 6)]:
+        A = rng.normal(size=(m, m))
+        L = np.linalg.cholesky(A @ A.T + m * np.eye(m))
+        v = rng.normal(size=(m,) if p is None else (m, p))
+        for LL in (L, np.asfortranarray(L)):
+            want = solve_triangular(LL, v, lower=True, check_finite=False)
+            got = solve_lower(LL, v)
+            assert got.shape == want.shape and np.array_equal(got, want)
+            assert not np.shares_memory(got, v)
+    assert solve_lower(np.eye(3), np.zeros((3, 0))).shape == (3, 0)
+    with pytest.raises(ValueError):
+        solve_lower(np.eye(3), np.zeros(4))
