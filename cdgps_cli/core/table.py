@@ -153,16 +153,19 @@ class Table:
             raise KeyError(f"table has no name column {column!r} (name columns: {', '.join(self._codes)})")
         return self._code(column), self._words[column]
 
-    def index_in(self, column: str, vocabulary: Sequence[str]) -> np.ndarray:
-        """Each row's position of its name in ``vocabulary``, (R,) int64; −1 where it is absent."""
+    def index_in(self, column: str, vocabulary: Sequence[str], rows=None) -> np.ndarray:
+        """Each row's position of its name in ``vocabulary``, (R,) int64; −1 where it is absent.
+        ``rows`` (a mask or indices): those rows only."""
         codes, words = self.codes(column)
         where = {w: i for i, w in enumerate(vocabulary)}
         lut = np.array([where.get(w, -1) for w in words] or [-1], dtype=np.int64)
-        return lut[codes]
+        return lut[codes if rows is None else codes[rows]]
 
-    def names_not_in(self, column: str, vocabulary: Sequence[str]) -> list[str]:
-        """The names of a column that occur in some row and are not in ``vocabulary`` (sorted)."""
+    def names_not_in(self, column: str, vocabulary: Sequence[str], rows=None) -> list[str]:
+        """The names of a column that occur in some row (of ``rows``) and are not in ``vocabulary``
+        (sorted)."""
         codes, words = self.codes(column)
+        codes = codes if rows is None else codes[rows]
         used = np.flatnonzero(np.bincount(codes, minlength=len(words))) if codes.size else []
         known = set(vocabulary)
         return sorted(words[i] for i in used if words[i] not in known)

@@ -113,7 +113,7 @@ def phase_matrix(run: Run, t0: float, t1: float):
     grid = tmin + np.arange(n) * T
     k = np.rint((t - tmin) / T).astype(int)
     # channels in config order (antenna, then transmitter)
-    ai, ti = row_channel_indices(cfg, ph.take(keep), run.path)
+    ai, ti = row_channel_indices(cfg, ph, run.path, rows=keep)
     key = ai * len(cfg.transmitter_names) + ti
     ukey, ci = np.unique(key, return_inverse=True)
     chans = [(cfg.antenna_names[u // len(cfg.transmitter_names)], cfg.transmitter_names[u % len(cfg.transmitter_names)])
@@ -131,10 +131,12 @@ def window_snr_dbhz(run: Run, wd: WindowData) -> np.ndarray:
     t = ph["time_s"]
     keep = (t >= wd.time_s[0] - 1e-9) & (t <= wd.time_s[-1] + 1e-9)
     snr = np.asarray(ph["snr_dbhz"], dtype=float)[keep]
-    ant, tx = ph["antenna"][keep], ph["transmitter"][keep]
+    ai, ti = row_channel_indices(run.cfg, ph, run.path, rows=keep)
+    key = ai * len(run.cfg.transmitter_names) + ti               # each row's channel, by config index
+    c_ant, c_tx = channel_indices(run.cfg, [c[0] for c in wd.channels], [c[1] for c in wd.channels])
     out = np.full(len(wd.channels), np.nan)
-    for c, (a, x) in enumerate(wd.channels):
-        v = snr[(ant == a) & (tx == x)]
+    for c, k in enumerate((c_ant * len(run.cfg.transmitter_names) + c_tx).tolist()):
+        v = snr[key == k]
         v = v[np.isfinite(v)]
         if v.size:
             out[c] = float(v.mean())

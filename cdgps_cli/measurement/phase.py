@@ -26,7 +26,8 @@ def channel_indices(cfg: StructureConfig, antennas, transmitters) -> tuple[np.nd
     return (np.array([ai[a] for a in antennas], dtype=int), np.array([ti[t] for t in transmitters], dtype=int))
 
 
-def row_channel_indices(cfg: StructureConfig, phase: Table, where: str = "phase table") -> tuple[np.ndarray, np.ndarray]:
+def row_channel_indices(cfg: StructureConfig, phase: Table, where: str = "phase table",
+                        rows=None) -> tuple[np.ndarray, np.ndarray]:
     """Each row's antenna and transmitter index in the config, for a run's phase table.
 
     Parameters
@@ -36,20 +37,24 @@ def row_channel_indices(cfg: StructureConfig, phase: Table, where: str = "phase 
         The run's phase table (:attr:`cdgps_cli.core.records.Run.phase`), R rows.
     where : str
         What to name in an error (the run's path).
+    rows : ndarray of bool or int, optional
+        Those rows only (default: all).
 
     Returns
     -------
-    antenna, transmitter : ndarray (R,) of int64
+    antenna, transmitter : ndarray (R,) of int64 (R: the rows selected)
 
     Raises
     ------
     CdgpsError
         A row names an antenna or transmitter the config does not have (listed).
     """
-    bad = phase.names_not_in("antenna", cfg.antenna_names) + phase.names_not_in("transmitter", cfg.transmitter_names)
+    bad = (phase.names_not_in("antenna", cfg.antenna_names, rows)
+           + phase.names_not_in("transmitter", cfg.transmitter_names, rows))
     if bad:
         raise CdgpsError(f"{where}: antenna/transmitter not in the config: {', '.join(sorted(bad))}")
-    return phase.index_in("antenna", cfg.antenna_names), phase.index_in("transmitter", cfg.transmitter_names)
+    return (phase.index_in("antenna", cfg.antenna_names, rows),
+            phase.index_in("transmitter", cfg.transmitter_names, rows))
 
 
 def all_channels(cfg: StructureConfig) -> tuple[np.ndarray, np.ndarray]:

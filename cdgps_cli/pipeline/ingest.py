@@ -29,15 +29,13 @@ def channel_summary(phase: Table, sample_period_s: float) -> list[dict]:
 
     Parameters
     ----------
-    phase : Table or DataFrame
+    phase : Table
         The run's phase table (``time_s``, ``antenna``, ``transmitter``, ``lock``).
     sample_period_s : float
         The config's sample period, s (epoch index = round((t − t₀) / T)).
     """
     if len(phase) == 0:
         return []
-    if not isinstance(phase, Table):
-        phase = Table.from_frame(phase[["time_s", "antenna", "transmitter", "lock"]], name_columns=["antenna", "transmitter"])
     t = np.asarray(phase["time_s"], dtype=np.float64)
     a_codes, a_names = phase.codes("antenna")               # codes index the sorted names
     t_codes, t_names = phase.codes("transmitter")

@@ -10,6 +10,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from cdgps_cli.core.table import Table
+
 from cdgps_cli.config.structure import load_config
 from cdgps_cli.estimation.filter import lock_events
 from cdgps_cli.estimation.initializer import phase_matrix, window_data
@@ -80,4 +82,5 @@ def test_info_reports_slips_and_channels(edited_run):
 
 
 def test_channel_summary_of_an_empty_table():
-    assert channel_summary(pd.DataFrame({"time_s": [], "antenna": [], "transmitter": [], "lock": []}), 0.1) == []
+    assert channel_summary(Table({"time_s": np.array([]), "lock": np.array([], dtype=np.int64)},
+                                 {"antenna": ([], []), "transmitter": ([], [])}), 0.1) == []
