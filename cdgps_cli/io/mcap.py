@@ -564,16 +564,18 @@ class TopicColumns:
         counts = np.asarray(self.counts, dtype=np.int64)
         numbers = {"time_s": np.repeat(self.times(), counts)}
         names = {}
-        for c in scalar_columns:
-            vals = np.repeat(np.array(self.scalars.get(c, [None] * len(counts)), dtype=object), counts)
-            if vals.size and all(isinstance(v, str) for v in vals.tolist()):
-                words, codes = np.unique(vals.astype(str), return_inverse=True)
-                names[c] = (codes, words.tolist())
+        used = counts > 0                                     # messages that give rows
+        for c in scalar_columns:                              # one value per message, then repeated
+            vals = [v for v, u in zip(self.scalars.get(c, [None] * len(counts)), used.tolist()) if u]
+            if vals and all(isinstance(v, str) for v in vals):
+                words, codes = np.unique(np.array(vals, dtype=str), return_inverse=True)
+                names[c] = (np.repeat(codes, counts[used]), words.tolist())
             else:
                 try:
-                    numbers[c] = np.array([np.nan if v is None else v for v in vals.tolist()], dtype=float)
+                    per_message = np.array([np.nan if v is None else v for v in vals], dtype=float)
                 except (TypeError, ValueError):
                     raise ValueError(f"field {c!r}: strings mixed with other values") from None
+                numbers[c] = np.repeat(per_message, counts[used])
         for c in array_columns:
             if c in self._vocab and self._buf.get(c):
                 words = sorted(self._vocab[c], key=self._vocab[c].get)
