@@ -7,13 +7,14 @@ the earliest candidate start of any of them and accepting it only when its own c
 * UBX: sync ``0xB5 0x62``, class, id, 16-bit little-endian length, payload, 8-bit Fletcher
   checksum over class … payload (u-blox interface description, "UBX checksum");
 * NMEA: ``$`` talker+sentence ``,`` … ``*hh`` CR LF, XOR checksum of the characters between ``$``
-  and ``*``, at most 82 characters (NMEA 0183);
+  and ``*``, at most :data:`NMEA_MAX_CHARS` characters (NMEA 0183 says 82, but u-blox receivers in
+  their high-precision NMEA mode write longer GGA sentences: 92 characters in a real all-band log);
 * RTCM 3: preamble ``0xD3``, 6 reserved bits (zero), 10-bit length, payload whose first 12 bits
   are the message type, CRC-24Q over preamble … payload (RTCM 10403.x §4).
 
 A candidate that fails its check costs one byte (two for a UBX sync) and the search resumes; the
 bytes outside accepted frames are counted.  Every candidate's check is bounded (UBX checksums come
-from prefix sums in O(1), an RTCM CRC covers at most 1 029 bytes, an NMEA sentence 82), so the
+from prefix sums in O(1), an RTCM CRC covers at most 1 029 bytes, an NMEA sentence :data:`NMEA_MAX_CHARS`), so the
 walk is linear in the stream's length whatever its content.
 """
 
@@ -23,13 +24,16 @@ import re
 
 import numpy as np
 
-__all__ = ["RTCM_MAX_PAYLOAD", "crc24q", "split_stream"]
+__all__ = ["NMEA_MAX_CHARS", "RTCM_MAX_PAYLOAD", "crc24q", "split_stream"]
 
 UBX_SYNC = b"\xb5\x62"
 RTCM_PREAMBLE = 0xD3
 RTCM_MAX_PAYLOAD = 1023
 MAX_OFFSETS_SHOWN = 5
-_NMEA = re.compile(rb"\$[A-Z][A-Z0-9]{1,5},[\x20-\x7e]{0,79}?\*([0-9A-Fa-f]{2})\r?\n")
+#: longest NMEA sentence accepted, characters from ``$`` to LF: NMEA 0183's 82 leaves out the
+#: high-precision GGA of u-blox receivers (92 in ../shared/data/real-pairs/ublox-walk); 128 bounds it
+NMEA_MAX_CHARS = 128
+_NMEA = re.compile(rb"\$[A-Z][A-Z0-9]{1,5},[\x20-\x7e]{0,%d}?\*([0-9A-Fa-f]{2})\r?\n" % (NMEA_MAX_CHARS - 13))
 
 
 def _crc24q_table() -> list[int]:

@@ -355,13 +355,21 @@ REFUSED = {
     "rinex-ge/RINEX_EN_Spirent.23L": "this is a RINEX navigation file, not an observation file",
     "ubx/pygpsdata-ESF.log": "no RXM-RAWX messages (found: ESF-MEAS",
     "ubx/ubx_20080526.ubx": "legacy u-blox raw log with 242 RXM-RAW messages",
+    "real-pairs/geonet-car/SEPT2650.21P": "this is a RINEX navigation file, not an observation file",
+    "real-pairs/mosaic-static/base.nav": "this is a RINEX navigation file, not an observation file",
+    "real-pairs/ublox-walk/gnss_1730_convbin.nav": "this is a RINEX navigation file, not an observation file",
 }
 # files in ../shared/data that are not receiver logs: licences, READMEs, the simulator's true
-# trajectory (CSV) and raw IF samples for the tracking loops (read by other tests)
-NOT_RECEIVER_LOGS = ("README.md", "LICENSE-*", "*.csv", "if/*")
+# trajectory (CSV), raw IF samples for the tracking loops (read by other tests), and beside the real
+# pairs their reference coordinates (*.txt), RTKLIB solutions (*.pos) and RTKLIB option files (*.conf)
+NOT_RECEIVER_LOGS = ("README.md", "LICENSE-*", "*.csv", "if/*", "real-pairs/*.txt", "real-pairs/*.pos",
+                     "real-pairs/*.conf")
 NAV_PAIRS = (("rinex/14601736.18o", "rinex/14601736.18n"), ("rinex/07590920.05o", "rinex/07590920.05n"),
              ("rinex/30400920.05o", "rinex/30400920.05n"),
-             ("rinex-ge/Base-static_MO_Spirent.obs", "rinex-ge/RINEX_GN_Spirent.23N"))
+             ("rinex-ge/Base-static_MO_Spirent.obs", "rinex-ge/RINEX_GN_Spirent.23N"),
+             ("real-pairs/mosaic-static/base.obs", "real-pairs/mosaic-static/base.nav"),
+             ("real-pairs/geonet-car/SEPT265G.21O", "real-pairs/geonet-car/SEPT2650.21P"),
+             ("real-pairs/ublox-walk/gnss_1730_convbin.obs", "real-pairs/ublox-walk/gnss_1730_convbin.nav"))
 
 
 def _receiver_logs(root):
@@ -380,7 +388,7 @@ def test_every_real_file_ingests_or_is_refused(tmp_path):
     assert set(REFUSED) <= set(files) and len(files) >= 15, files
     for rel in files:
         p = root / rel
-        opt = "--ubx" if rel.startswith("ubx/") else "--rinex"
+        opt = "--ubx" if rel.startswith("ubx/") or rel.endswith(".ubx") else "--rinex"
         out = tmp_path / "one.mcap"
         r = run_cli("-q", "ingest", opt, f"a={p}", "-o", out)
         if rel in REFUSED:
@@ -389,6 +397,7 @@ def test_every_real_file_ingests_or_is_refused(tmp_path):
             assert not out.exists()
         else:
             assert r.exit_code == 0, (rel, r.output)
+            assert "corrupt" not in r.stderr, (rel, r.stderr)       # none of the real logs is damaged
             run = read_gnss_run(out)
             assert np.isfinite(run.receivers["a"].raw["phase_cycles"]).any()
             out.unlink()

@@ -12,7 +12,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from cdgps_cli.io.ubx_frames import crc24q, split_stream
+from cdgps_cli.io.ubx_frames import NMEA_MAX_CHARS, crc24q, split_stream
 
 SHARED = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "ubx"
 
@@ -131,3 +131,17 @@ def test_real_logs_frame_completely(name):
         + stats["skipped_bytes"] + stats["truncated_tail_bytes"]
     assert accounted == len(data)
     assert len(ubx) > 10 and stats["bad_checksum_frames"] == 0
+
+
+def test_high_precision_nmea_longer_than_82_characters_is_nmea():
+    """u-blox high-precision NMEA mode writes GGA sentences past NMEA 0183's 82 characters (92 in the
+    real all-band log of ../shared/data/real-pairs/ublox-walk): they are NMEA, not skipped bytes;
+    a sentence past NMEA_MAX_CHARS, or with a wrong checksum, is not."""
+    gga = _nmea("GNGGA,173021.75,4005.8014957,N,10508.8299894,W,4,12,0.62,1601.435,M,-21.387,M,0.8,0000")
+    assert len(gga) == 92
+    _, _, stats = split_stream(gga + gga)
+    assert stats["nmea_sentences"] == 2 and stats["skipped_bytes"] == 0
+    too_long = _nmea("GNTXT," + "x" * NMEA_MAX_CHARS)
+    bad = gga.replace(b"*62", b"*63")
+    _, _, stats = split_stream(too_long + bad)
+    assert stats["nmea_sentences"] == 0 and stats["skipped_bytes"] == len(too_long) + len(bad)
