@@ -1599,15 +1599,40 @@ if __name__ == "__main__":  # pragma: no cover
 @click.option("--base-xyz", nargs=3, type=float, default=None, help="Base ECEF position, m (default: its header).")
 @click.option("--glonass-fix", is_flag=True, default=False,
               help="Fix GLONASS (FDMA) integers too: only for identical base and rover receivers (default: float).")
+@click.option("--mask-deg", type=float, default=None,
+              help=f"Elevation mask, degrees [{__import__('cdgps_cli.config.options', fromlist=['x']).MULTI_GNSS_DEFAULTS['mask_deg']:g}].")
+@click.option("--ratio", "ratio_threshold", type=float, default=None,
+              help=f"LAMBDA ratio-test threshold [{__import__('cdgps_cli.config.options', fromlist=['x']).MULTI_GNSS_DEFAULTS['ratio']:g}].")
+@click.option("--max-age", "max_age_s", type=float, default=None,
+              help="Oldest base epoch bridged across a base gap or a lower base rate, s "
+                   f"[{__import__('cdgps_cli.config.options', fromlist=['x']).EPOCH_PAIRING_DEFAULTS['max_age_s']:g}, RTKLIB's].")
+@click.option("--sync-tol", "sync_tol_s", type=float, default=None,
+              help="Base and rover epochs this close are simultaneous, s "
+                   f"[{__import__('cdgps_cli.config.options', fromlist=['x']).EPOCH_PAIRING_DEFAULTS['sync_tol_s']:g}].")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Output CSV.")
-def rtk(base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_fix, output):
-    """Double differences per constellation and frequency, integers by LAMBDA (docs/gnss-pipeline.md, "Multi-GNSS")."""
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (epochs used and why others were not, fixes) on stdout.")
+@click.pass_context
+def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_fix, mask_deg, ratio_threshold, max_age_s,
+        sync_tol_s, output, as_json):
+    """Double differences per constellation and frequency, integers by LAMBDA (docs/gnss-pipeline.md, "Multi-GNSS").
+
+    The rover's epochs drive the solution: each takes the nearest base epoch within --max-age (a base
+    with gaps or a lower rate is bridged, its σ growing with the age); every rover epoch not used is
+    counted with its reason."""
     from cdgps_cli.pipeline.gnss_multi import rtk_from_files
 
-    s = rtk_from_files(base_file, rover_file, list(nav_files), output, base_xyz_m=base_xyz or None,
-                       options={"signals": tuple(x.strip() for x in signals.split(",") if x.strip()), "mode": mode,
-                                "glonass_fix": glonass_fix})
+    options = {"signals": tuple(x.strip() for x in signals.split(",") if x.strip()), "mode": mode,
+               "glonass_fix": glonass_fix}
+    for key, value in (("mask_deg", mask_deg), ("ratio", ratio_threshold), ("max_age_s", max_age_s),
+                       ("sync_tol_s", sync_tol_s)):
+        if value is not None:
+            options[key] = value
+    s = rtk_from_files(base_file, rover_file, list(nav_files), output, base_xyz_m=base_xyz or None, options=options)
     for w in s["warnings"]:
         click.echo(f"cdgps: WARNING: {w}", err=True)
-    click.echo(f"{output}: {s['epochs']} epochs, fixed {s['fixed_pct']:.1f} %, ionosphere {s['iono_model']}, "
-               f"signals {' '.join(s['signals'])}")
+    ep = s["epoch_pairing"]
+    _say(ctx, f"{output}: {s['epochs']} of {ep['rover_epochs']} rover epochs ({ep['bridged']} bridged across base gaps, "
+              f"max age {ep['max_age_s']:.3g} s), fixed {s['fixed_pct']:.1f} %, ionosphere {s['iono_model']}, "
+              f"signals {' '.join(s['signals'])}")
+    if as_json:
+        _emit_json({k: v for k, v in s.items()})

@@ -25,9 +25,16 @@ MODAL_INIT_CODE_DD = True
 #: above; `cdgps init` with [gnss] signals, which always neglects it, refuses there: gnss.iono_threshold_km)
 IONO_THRESHOLD_KM = 10.0
 
+#: pairing base epochs with rover epochs (measurement/epoch_pairing.py), every GNSS command:
+#: ``sync_tol_s`` a base epoch this close to a rover epoch is simultaneous (RTKLIB's DTTOL, 25 ms);
+#: ``max_age_s`` the oldest base epoch bridged across a base gap (RTKLIB's ``pos2-maxage`` default, 30 s);
+#: ``age_sigma_m_per_s`` the σ an SD observation gains per second of base age (RTKLIB's satellite-clock
+#: stability ``stats-clkstab`` 5·10⁻¹² s/s × c = 1.5 mm/s)
+EPOCH_PAIRING_DEFAULTS = {"sync_tol_s": 0.025, "max_age_s": 30.0, "age_sigma_m_per_s": 5e-12 * 299792458.0}
+
 GNSS_DEFAULTS = {"mask_deg": 15.0, "ratio": RATIO_THRESHOLD, "partial": True, "weighting": "elevation",
                  "troposphere": True, "sigma_a_m": PHASE_SIGMA_A_M, "sigma_b_m": PHASE_SIGMA_B_M,
-                 "code_ratio": 100.0, "sync_tol_s": 0.025, "epoch_alignment": "geometry",
+                 "code_ratio": 100.0, "sync_tol_s": EPOCH_PAIRING_DEFAULTS["sync_tol_s"], "epoch_alignment": "geometry",
                  "random_walk_sigma": (0.001, 0.001, 0.001), "initial_sigma_m": 1.0,
                  "iono_threshold_km": IONO_THRESHOLD_KM}
 
@@ -62,6 +69,7 @@ MULTI_GNSS_DEFAULTS = {
     "iono_threshold_km": IONO_THRESHOLD_KM,  # below: DD ionosphere neglected; above: estimated
     "iono_sigma_m_per_km": 0.002,          # prior σ of the SD slant ionosphere per km of baseline
     "iono_rw_m_per_sqrt_s": 0.0005,
+    **EPOCH_PAIRING_DEFAULTS,
 }
 
 #: `cdgps estimate` (:class:`cdgps_cli.estimation.filter.EstimateOptions`): integrity tests and static mode

@@ -24,6 +24,7 @@ from cdgps_cli.estimation import kalman
 from cdgps_cli.estimation.ambiguity import decorrelate, ld_factorize, resolve
 from cdgps_cli.measurement.dd_signals import epoch_rows
 from cdgps_cli.measurement.differencing import dd_operator
+from cdgps_cli.measurement.epoch_pairing import age_variance_m2, carry_base_slips, pair_epochs
 from cdgps_cli.model.dynamics_models import RandomWalk, Static
 from cdgps_cli.model.gps.orbits import OMEGA_E_GPS, azimuth_elevation, ecef_to_geodetic, sat_position_ecef, select_ephemeris
 from cdgps_cli.model.gps.positioning import ephemeris_coverage, tropo_hydrostatic_m
@@ -51,7 +52,8 @@ def receiver_geometry(obs: pd.DataFrame, nav: pd.DataFrame, rx_xyz_m) -> pd.Data
     """Satellite positions at transmission (ECEF of reception) per row, from the row's own pseudorange.
 
     τ = P/c − clk_rx + dt_sat, clk_rx the epoch's median clock from the nominal position (so no
-    iteration on the receiver position is needed); adds ``sx, sy, sz`` (m), ``el_rad``.  Observations
+    iteration on the receiver position is needed); adds ``sx, sy, sz`` (m), ``sat_clock_m`` (c·dt_sat at
+    transmission, m), ``el_rad``, ``trop_m``.  Observations
     of satellites without a healthy ephemeris covering them are dropped; ``attrs["dropped"]`` counts
     them per satellite.  CdgpsError when none is left.
     """
@@ -77,7 +79,7 @@ def receiver_geometry(obs: pd.DataFrame, nav: pd.DataFrame, rx_xyz_m) -> pd.Data
     tau = tau - c_rx + clk
     for sat, idx in first.groupby("sat").indices.items():
         eph = select_ephemeris(nav, sat, t[idx])
-        xyz[idx], _ = sat_position_ecef(eph, t[idx] - c_rx[idx] - tau[idx])
+        xyz[idx], clk[idx] = sat_position_ecef(eph, t[idx] - c_rx[idx] - tau[idx])
     th = OMEGA_E_GPS * tau
     c, s = np.cos(th), np.sin(th)
     rot = np.stack([c * xyz[:, 0] + s * xyz[:, 1], -s * xyz[:, 0] + c * xyz[:, 1], xyz[:, 2]], axis=-1)
@@ -85,45 +87,62 @@ def receiver_geometry(obs: pd.DataFrame, nav: pd.DataFrame, rx_xyz_m) -> pd.Data
     lat, _, h = ecef_to_geodetic(rx)
     trop = tropo_hydrostatic_m(el, lat, h, t)
     g = pd.DataFrame({"time_gps_s": t, "sat": first["sat"].to_numpy(), "sx": rot[:, 0], "sy": rot[:, 1], "sz": rot[:, 2],
-                      "el_rad": el, "trop_m": trop})
+                      "sat_clock_m": SPEED_OF_LIGHT_M_S * clk, "el_rad": el, "trop_m": trop})
     out = df.merge(g, on=["time_gps_s", "sat"], how="left")
     out.attrs["dropped"] = {k: int(v) for k, v in sorted(dropped.items())}
     return out
 
 
-_PAIR_COLS = ["time_gps_s", "sat", "signal", "phase_cycles", "pseudorange_m", "lli", "sx", "sy", "sz", "trop_m"]
+_PAIR_COLS = ["time_gps_s", "sat", "signal", "phase_cycles", "pseudorange_m", "lli", "sx", "sy", "sz", "sat_clock_m",
+              "trop_m"]
 
 
-def _paired_rows(base, rover, times, opt) -> dict:
-    """Base and rover rows of the whole run paired on (time, satellite, signal), once, as numpy columns.
+def _paired_rows(base, rover, pairs, opt) -> dict:
+    """Base and rover rows of the whole run paired on (epoch pair, satellite, signal), once, as numpy columns.
 
-    Rows above the mask (base elevation), ordered by epoch, then signal name, then the base's row
-    order (the order the per-epoch groups had when each epoch was merged on its own); ``ptr``
-    (n_ep + 1,) bounds each epoch of ``times`` (n_ep,), ``code`` (N,) the signal's index in ``names``.
-    Per row: ``sats``, ``lam_m``, ``mu``, ``el`` (rad), ``sat_xyz`` / ``sat_base_xyz`` (N, 3, m),
-    ``phase_sd_m`` / ``code_sd_m`` (m, rover − base, troposphere removed when asked), ``slip``,
-    ``var_phase`` / ``var_code`` (m²).
+    ``pairs`` (:func:`~cdgps_cli.measurement.epoch_pairing.pair_epochs`) gives each used rover epoch
+    its base epoch; a base epoch may serve several rover epochs (a base with gaps or a lower rate),
+    its slip flags only the first of them.  Rows above the mask (base elevation), ordered by epoch,
+    then signal name, then the base's row order; ``ptr`` (n_ep + 1,) bounds each epoch, ``code``
+    (N,) the signal's index in ``names``.  Per row: ``sats``, ``lam_m``, ``mu``, ``el`` (rad),
+    ``sat_xyz`` / ``sat_base_xyz`` (N, 3, m), ``phase_sd_m`` / ``code_sd_m`` (m, rover − base, each
+    receiver's satellite clock and, when asked, troposphere removed), ``slip``, ``var_phase`` /
+    ``var_code`` (m², the base age's share included).
     """
-    b = base.assign(_row_b=np.arange(len(base)))
-    r = rover[_PAIR_COLS].assign(_row_r=np.arange(len(rover)))
-    m = b.merge(r, on=["time_gps_s", "sat", "signal"], suffixes=("_b", "_r"))
+    tb = np.unique(base["time_gps_s"].to_numpy())
+    tr = np.unique(rover["time_gps_s"].to_numpy())
+    n_ep = pairs.rover_time_s.size
+    pair_of_rover = np.full(tr.size, -1, dtype=np.int64)
+    pair_of_rover[pairs.rover_index] = np.arange(n_ep)
+    first_use = np.r_[True, pairs.base_index[1:] != pairs.base_index[:-1]] if n_ep else np.zeros(0, bool)
+    bep = np.searchsorted(tb, base["time_gps_s"].to_numpy())
+    lli_b = carry_base_slips(bep, base["sat"].to_numpy().astype(str) + base["signal"].to_numpy().astype(str),
+                             base["lli"].to_numpy(dtype=np.int64), np.bincount(pairs.base_index, minlength=tb.size))
+    b = base.assign(_row_b=np.arange(len(base)), _bep=bep, lli=lli_b)
+    ep_r = pair_of_rover[np.searchsorted(tr, rover["time_gps_s"].to_numpy())]
+    r = rover[_PAIR_COLS].assign(_row_r=np.arange(len(rover)), _ep=ep_r)[ep_r >= 0]
+    r = r.assign(_bep=pairs.base_index[r["_ep"].to_numpy()])
+    m = b.merge(r, on=["_bep", "sat", "signal"], suffixes=("_b", "_r"))
     m = m[m["el_rad"] >= np.radians(opt["mask_deg"])]
-    m = m.sort_values(["time_gps_s", "signal", "_row_b", "_row_r"], kind="stable")
+    m = m.sort_values(["_ep", "signal", "_row_b", "_row_r"], kind="stable")
     names, code = np.unique(m["signal"].to_numpy().astype(str), return_inverse=True)
-    epoch = np.searchsorted(times, m["time_gps_s"].to_numpy())
+    epoch = m["_ep"].to_numpy()
     lam = m["wavelength_m"].to_numpy(dtype=float)
     el = m["el_rad"].to_numpy(dtype=float)
     var = 2 * (opt["sigma_a_m"] ** 2 + opt["sigma_b_m"] ** 2 / np.sin(el) ** 2)
+    var_age = age_variance_m2(pairs.age_s[epoch], opt["sync_tol_s"], opt["age_sigma_m_per_s"])
     dtrop = m["trop_m_r"].to_numpy() - m["trop_m_b"].to_numpy() if opt["troposphere"] else 0.0
+    dclk = m["sat_clock_m_r"].to_numpy() - m["sat_clock_m_b"].to_numpy()
+    slip_b = ((m["lli_b"].to_numpy() & 1) > 0) & first_use[epoch]
     return {
-        "ptr": np.searchsorted(epoch, np.arange(len(times) + 1)), "names": names, "code": code.reshape(-1),
+        "ptr": np.searchsorted(epoch, np.arange(n_ep + 1)), "names": names, "code": code.reshape(-1),
         "sats": m["sat"].to_numpy(), "lam_m": lam, "el": el,
         "mu": (lam / _LAMBDA_L1) ** 2,        # (f_L1 / f)², per satellite (GLONASS FDMA)
         "sat_xyz": m[["sx_r", "sy_r", "sz_r"]].to_numpy(), "sat_base_xyz": m[["sx_b", "sy_b", "sz_b"]].to_numpy(),
-        "phase_sd_m": lam * (m["phase_cycles_r"].to_numpy() - m["phase_cycles_b"].to_numpy()) - dtrop,
-        "code_sd_m": m["pseudorange_m_r"].to_numpy() - m["pseudorange_m_b"].to_numpy() - dtrop,
-        "slip": ((m["lli_r"].to_numpy() | m["lli_b"].to_numpy()) & 1) > 0,
-        "var_phase": var, "var_code": var * opt["code_ratio"] ** 2,
+        "phase_sd_m": lam * (m["phase_cycles_r"].to_numpy() - m["phase_cycles_b"].to_numpy()) + dclk - dtrop,
+        "code_sd_m": m["pseudorange_m_r"].to_numpy() - m["pseudorange_m_b"].to_numpy() + dclk - dtrop,
+        "slip": ((m["lli_r"].to_numpy() & 1) > 0) | slip_b,
+        "var_phase": var + var_age, "var_code": var * opt["code_ratio"] ** 2 + var_age,
     }
 
 
@@ -241,7 +260,8 @@ class _CarriedDecorrelation:
 
 
 def _fix(st, groups, opt, carried):
-    """DD ambiguities of every fixable group, resolved as one set; the fixed position or None."""
+    """DD ambiguities of every fixable group, resolved as one set: the fixed position (or None), the
+    number of DD ambiguities fixed, the ratio, the fixed position's covariance (3, 3; m², or None)."""
     rows, keys = [], []
     for g in groups:
         if g["signal"].startswith("R:") and not opt["glonass_fix"]:
@@ -252,16 +272,17 @@ def _fix(st, groups, opt, carried):
         rows.append(T)
         keys.append((g["signal"], tuple(g["sats"]), g["ref"]))
     if not rows:
-        return None, 0, np.nan
+        return None, 0, np.nan, None
     T = np.vstack(rows)
     a = T @ st.x
     Qa = T @ st.P @ T.T
     res = carried.resolve(tuple(keys), a, 0.5 * (Qa + Qa.T), opt["ratio"])
     if not res["accepted"]:
-        return None, 0, res.get("ratio", np.nan)
+        return None, 0, res.get("ratio", np.nan), None
     Pxa = st.P[:3] @ T.T
     dx = Pxa @ np.linalg.solve(Qa, a - res["integers"])
-    return st.x[:3] - dx, len(a), res.get("ratio", np.nan)
+    cov = st.P[:3, :3] - Pxa @ np.linalg.solve(Qa, Pxa.T)
+    return st.x[:3] - dx, len(a), res.get("ratio", np.nan), 0.5 * (cov + cov.T)
 
 
 def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m, *, options: dict | None = None,
@@ -283,7 +304,10 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
     dict
         ``time_gps_s`` (n,), ``float_xyz_m`` / ``fixed_xyz_m`` (n, 3; NaN rows where not fixed),
         ``fixed`` (n,) bool, ``n_dd_ambiguities`` (n,), ``ratio`` (n,), ``iono_model``, ``static_xyz_m``
-        (the last epoch's fixed, else float, position — the static solution in static mode).
+        (the last epoch's fixed, else float, position — the static solution in static mode),
+        ``float_cov_m2`` / ``fixed_cov_m2`` (n, 3, 3; ECEF, m²; NaN where not fixed), ``n_satellites`` (n,),
+        ``epoch_pairing`` (the summary of :func:`~cdgps_cli.measurement.epoch_pairing.pair_epochs`: rover
+        epochs used, bridged, dropped with reasons) and ``base_age_s`` (n,; rover − base time, s).
     """
     opt = {**MULTI_GNSS_DEFAULTS, **(options or {})}
     base_xyz = np.asarray(base_xyz_m, float)
@@ -292,9 +316,19 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
     iono = opt["iono_sigma_m_per_km"] * length_km if length_km >= opt["iono_threshold_km"] else 0.0
     pos_dyn = Static(3) if opt["mode"] == "static" else RandomWalk(3, opt["kinematic_sigma_m_per_sqrt_s"])
     st = _State(3)
-    times = np.intersect1d(base["time_gps_s"].unique(), rover["time_gps_s"].unique())
-    rows = _paired_rows(base, rover, times, opt)
-    out = {k: [] for k in ("float", "fixed", "n", "ratio")}
+    try:
+        pairs = pair_epochs(rover["time_gps_s"].to_numpy(), base["time_gps_s"].to_numpy(),
+                            sync_tol_s=opt["sync_tol_s"], max_age_s=opt["max_age_s"])
+    except ValueError as exc:
+        raise CdgpsError(f"invalid rtk options: {exc}") from None
+    times = pairs.rover_time_s
+    if times.size == 0:
+        ps = pairs.summary
+        raise CdgpsError(f"no common epochs: none of the rover's {ps['rover_epochs']} epochs has a base epoch within "
+                         f"max_age_s = {opt['max_age_s']:g} s (" + "; ".join(f"{n} {r}" for r, n in ps["dropped"].items())
+                         + f"; the base has {ps['base_epochs']} epochs)")
+    rows = _paired_rows(base, rover, pairs, opt)
+    out = {k: [] for k in ("float", "fixed", "n", "ratio", "float_cov", "fixed_cov", "ns")}
     carried = _CarriedDecorrelation()
     t_prev = None
     for k, t in enumerate(times):
@@ -314,11 +348,14 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
                 r, H, L = epoch_rows(xi, groups, base_xyz, origin, len(xb), noise_chol=L)
                 xi, P, _ = kalman.update(xb, Pb, r + H @ (xi - xb), H, noise_chol=L)
             st.x, st.P = xi, P
-        fx, n, ratio = _fix(st, groups, opt, carried) if (groups and opt["fix"]) else (None, 0, np.nan)
+        fx, n, ratio, fx_cov = _fix(st, groups, opt, carried) if (groups and opt["fix"]) else (None, 0, np.nan, None)
         out["float"].append(origin + st.x[:3])
         out["fixed"].append(origin + fx if fx is not None else np.full(3, np.nan))
         out["n"].append(n)
         out["ratio"].append(ratio)
+        out["float_cov"].append(st.P[:3, :3].copy())
+        out["fixed_cov"].append(fx_cov if fx_cov is not None else np.full((3, 3), np.nan))
+        out["ns"].append(len({s for g in groups for s in g["sats"]}))
         if progress is not None:
             progress(k + 1, len(times))
     fixed = np.array(out["fixed"])
@@ -327,4 +364,6 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
     return {"time_gps_s": times, "float_xyz_m": np.array(out["float"]), "fixed_xyz_m": fixed, "fixed": ok,
             "n_dd_ambiguities": np.array(out["n"]), "ratio": np.array(out["ratio"]),
             "iono_model": "estimated" if iono else "neglected (short baseline)", "baseline_km": length_km,
-            "static_xyz_m": last}
+            "static_xyz_m": last, "epoch_pairing": pairs.summary, "base_age_s": pairs.age_s,
+            "float_cov_m2": np.array(out["float_cov"]), "fixed_cov_m2": np.array(out["fixed_cov"]),
+            "n_satellites": np.array(out["ns"], dtype=np.int64)}

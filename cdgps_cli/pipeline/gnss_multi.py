@@ -1,9 +1,11 @@
-"""Multi-GNSS RTK from files (``cdgps rtk``): read, check, solve (estimation/rtk_multi.py), write a CSV.
+"""Multi-GNSS RTK from files (``cdgps rtk``): read, check, solve (estimation/rtk_multi.py), write the solution.
 
-Every check runs before anything is written; the CSV is written atomically (io/atomic.py), so a
-refused input leaves nothing behind.  The CSV echoes the signals used with their wavelengths and
-the options in ``#`` comment lines, then one row per epoch: ``time_gps_s, x_m, y_m, z_m, fixed,
-n_dd_ambiguities, ratio`` (the fixed position where fixed, else the float one).
+Every check runs before anything is written; the output is written atomically (io/atomic.py), so a
+refused input leaves nothing behind.  The output's suffix picks its format (:data:`OUTPUT_FORMATS`):
+RTKLIB ``.pos`` (lat/lon/height, Q, ns, σ, age, ratio: ``rtkplot``/``pos2kml`` read it), NMEA GGA
+(``.nmea``/``.gga``), GeoJSON, or CSV — the signals used with their wavelengths and the options in
+``#`` comment lines, then one row per epoch (:func:`solution_text`; the fixed position where fixed,
+else the float one).
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from cdgps_cli import __version__
 from cdgps_cli.config.options import MULTI_GNSS_DEFAULTS
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.signals import SIGNALS, signal
@@ -21,6 +24,8 @@ from cdgps_cli.estimation.rtk_multi import check_common_signals, receiver_geomet
 from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.io.rinex import NAV_SYSTEMS, read_rinex_nav
 from cdgps_cli.io.rinex_signals import read_rinex_signals
+from cdgps_cli.io.solution_formats import Q_FIX, Q_FLOAT, finite_or, geojson_text, nmea_gga_text, pos_text
+from cdgps_cli.model.gps.orbits import ecef_to_enu, ecef_to_geodetic, enu_matrix
 
 __all__ = ["validate_options", "rtk_from_files"]
 
@@ -38,6 +43,12 @@ def validate_options(options: dict) -> dict:
         bad.append(f"mask_deg: expected a value in [0, 90), got {opt['mask_deg']}")
     if float(opt["ratio"]) < 1:
         bad.append(f"ratio: expected ≥ 1, got {opt['ratio']}")
+    for key in ("sync_tol_s", "max_age_s"):
+        v = float(opt[key])
+        if not (np.isfinite(v) and v > 0):
+            bad.append(f"{key}: expected a number of seconds > 0, got {opt[key]}")
+    if float(opt["max_age_s"]) < float(opt["sync_tol_s"]):
+        bad.append(f"max_age_s: expected ≥ sync_tol_s ({opt['sync_tol_s']} s), got {opt['max_age_s']}")
     if bad:
         raise CdgpsError("invalid rtk options: " + "; ".join(bad))
     return opt
@@ -79,17 +90,75 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
     hr, r = read_rinex_signals(rover_path, sigs, glo_k)
     if nav_error is not None:
         raise nav_error
+    warnings = []
+    b, r = (_first_of_repeated_epochs(df, path, who, warnings) for df, path, who in ((b, base_path, "base"), (r, rover_path, "rover")))
     check_common_signals(b, r, sigs, nav, {"base": str(base_path), "rover": str(rover_path), "nav": ", ".join(map(str, nav_paths))})
     bx = np.asarray(base_xyz_m if base_xyz_m is not None else hb["approx_position_xyz_m"] or (), dtype=float)
     if bx.shape != (3,):
         raise CdgpsError(f"{base_path}: the base has no position (no APPROX POSITION XYZ; give --base-xyz X Y Z)")
     rx = np.asarray(hr["approx_position_xyz_m"] or bx, dtype=float)
     gb, gr = receiver_geometry(b, nav, bx), receiver_geometry(r, nav, rx)
-    warnings = [f"{path} ({who}): observations of {len(d)} satellite(s) without a healthy ephemeris covering them "
-                f"dropped: " + ", ".join(f"{s} ({n} epochs)" for s, n in d.items())
-                for who, path, d in (("base", base_path, gb.attrs["dropped"]), ("rover", rover_path, gr.attrs["dropped"])) if d]
-    res = solve_rtk(gb, gr, bx, rx, options=opt)
-    xyz = np.where(res["fixed"][:, None], res["fixed_xyz_m"], res["float_xyz_m"])
+    warnings += [f"{path} ({who}): observations of {len(d)} satellite(s) without a healthy ephemeris covering them "
+                 f"dropped: " + ", ".join(f"{s} ({n} epochs)" for s, n in d.items())
+                 for who, path, d in (("base", base_path, gb.attrs["dropped"]), ("rover", rover_path, gr.attrs["dropped"])) if d]
+    try:
+        res = solve_rtk(gb, gr, bx, rx, options=opt)
+    except CdgpsError as exc:
+        if str(exc).startswith("no common epochs"):
+            raise CdgpsError(f"{rover_path} (rover) and {base_path} (base): {exc}") from None
+        raise
+    ep = res["epoch_pairing"]
+    if ep["dropped"]:
+        warnings.append(f"{rover_path} (rover): {sum(ep['dropped'].values())} of {ep['rover_epochs']} epochs not used: "
+                        + "; ".join(f"{n} {why}" for why, n in ep["dropped"].items())
+                        + f" (max_age_s {opt['max_age_s']:g} s)")
+    text = solution_text(res, sigs, opt, out_csv, bx, inputs=(rover_path, base_path, *nav_paths))
+    write_atomic(out_csv, lambda tmp: Path(tmp).write_text(text, newline=""))
+    return {"epochs": int(len(res["time_gps_s"])), "fixed_pct": float(100 * res["fixed"].mean()),
+            "fixed_epochs": int(res["fixed"].sum()),
+            "static_xyz_m": res["static_xyz_m"].tolist(), "iono_model": res["iono_model"], "signals": sigs,
+            "epoch_pairing": ep, "warnings": warnings}
+
+
+OUTPUT_FORMATS = {".pos": "RTKLIB .pos", ".nmea": "NMEA GGA", ".gga": "NMEA GGA", ".geojson": "GeoJSON", ".csv": "CSV"}
+
+
+def _solution_columns(res, base_xyz):
+    """Per epoch: ECEF position (fixed where fixed), its covariance (ECEF), quality, geodetic and
+    ENU-baseline coordinates and the ENU covariance."""
+    fixed = res["fixed"]
+    xyz = np.where(fixed[:, None], res["fixed_xyz_m"], res["float_xyz_m"])
+    cov = np.where(fixed[:, None, None], res["fixed_cov_m2"], res["float_cov_m2"])
+    lat, lon, h = ecef_to_geodetic(xyz)
+    R = enu_matrix(lat, lon)                                   # (n, 3, 3) rows e, n, u
+    cov_enu = np.einsum("nij,njk,nlk->nil", R, cov, R)
+    enu = ecef_to_enu(xyz, base_xyz)
+    q = np.where(fixed, Q_FIX, Q_FLOAT)
+    return xyz, cov, q, np.degrees(lat), np.degrees(lon), h, enu, cov_enu
+
+
+def solution_text(res: dict, sigs, opt: dict, out_path, base_xyz, *, inputs=()) -> str:
+    """The solution as the text of the format ``out_path``'s suffix names (:data:`OUTPUT_FORMATS`;
+    any other suffix: CSV).  CSV columns: ``time_gps_s, x_m, y_m, z_m, fixed, n_dd_ambiguities, ratio,
+    n_satellites, age_s, e_m, n_m, u_m`` (ENU baseline from the base) and ``sigma_e_m, sigma_n_m, sigma_u_m``."""
+    xyz, cov, q, lat, lon, h, enu, cov_enu = _solution_columns(res, base_xyz)
+    t, ns, age = res["time_gps_s"], res["n_satellites"], res["base_age_s"]
+    ratio = np.array([finite_or(r, 0.0) for r in res["ratio"]])
+    sig_enu = np.sqrt(np.abs(np.einsum("nii->ni", cov_enu)))
+    suffix = Path(str(out_path)).suffix.lower()
+    desc = (f"cdgps {__version__} rtk, mode {opt['mode']}, signals {' '.join(sigs)}, mask {opt['mask_deg']:g} deg, "
+            f"ratio {opt['ratio']:g}, max age {opt['max_age_s']:g} s, ionosphere {res['iono_model']}")
+    if suffix == ".pos":
+        bl, bo, bh = ecef_to_geodetic(np.asarray(base_xyz, float))
+        header = [f"program   : {desc}", *(f"inp file  : {p}" for p in inputs),
+                  f"ref pos   : {np.degrees(bl):.9f} {np.degrees(bo):.9f} {bh:.4f}"]
+        cov_neu = cov_enu[:, [1, 0, 2]][:, :, [1, 0, 2]]
+        return pos_text(t, np.c_[lat, lon, h], q, ns, cov_neu, age, ratio, frame="llh", header=header)
+    if suffix in (".nmea", ".gga"):
+        return nmea_gga_text(t, lat, lon, h, q, ns, age)
+    if suffix == ".geojson":
+        return geojson_text(t, lat, lon, h, q, ns, sig_enu, properties={"program": desc, "inputs": [str(p) for p in inputs],
+                                                                        "height": "ellipsoidal (WGS84), m"})
     buf = _io.StringIO()
     for s in sigs:
         buf.write(f"# signal {s} wavelength_m {signal(s).wavelength_m:.9f}\n" if not signal(s).fdma_step_hz
@@ -98,10 +167,22 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
         buf.write(f"# glonass {'fixed (glonass_fix: identical receivers)' if opt['glonass_fix'] else 'float'} "
                   "(FDMA: DD ambiguities are not integer multiples of one wavelength)\n")
     buf.write(f"# mode {opt['mode']} ionosphere {res['iono_model']} baseline_km {res['baseline_km']:.3f} ratio {opt['ratio']}\n")
-    pd.DataFrame({"time_gps_s": res["time_gps_s"], "x_m": xyz[:, 0], "y_m": xyz[:, 1], "z_m": xyz[:, 2],
+    pd.DataFrame({"time_gps_s": t, "x_m": xyz[:, 0], "y_m": xyz[:, 1], "z_m": xyz[:, 2],
                   "fixed": res["fixed"].astype(int), "n_dd_ambiguities": res["n_dd_ambiguities"],
-                  "ratio": res["ratio"]}).to_csv(buf, index=False, float_format="%.4f")
-    write_atomic(out_csv, lambda tmp: Path(tmp).write_text(buf.getvalue()))
-    return {"epochs": int(len(res["time_gps_s"])), "fixed_pct": float(100 * res["fixed"].mean()),
-            "static_xyz_m": res["static_xyz_m"].tolist(), "iono_model": res["iono_model"], "signals": sigs,
-            "warnings": warnings}
+                  "ratio": res["ratio"], "n_satellites": ns, "age_s": age,
+                  "e_m": enu[:, 0], "n_m": enu[:, 1], "u_m": enu[:, 2],
+                  "sigma_e_m": sig_enu[:, 0], "sigma_n_m": sig_enu[:, 1], "sigma_u_m": sig_enu[:, 2]}
+                 ).to_csv(buf, index=False, float_format="%.4f")
+    return buf.getvalue()
+
+
+def _first_of_repeated_epochs(df: pd.DataFrame, path, who: str, warnings: list) -> pd.DataFrame:
+    """The rows of a receiver whose epoch was written more than once, kept once (the first record);
+    a warning names the file and the repeated epochs."""
+    dup = df.duplicated(["time_gps_s", "sat", "signal"], keep="first").to_numpy()
+    if not dup.any():
+        return df
+    t = np.unique(df["time_gps_s"].to_numpy()[dup])
+    warnings.append(f"{path} ({who}): {t.size} epoch(s) written more than once, the first record used "
+                    f"({dup.sum()} repeated observations dropped; first at GPS {t[0]:.3f} s)")
+    return df[~dup].reset_index(drop=True)

@@ -14,6 +14,7 @@ from cdgps_cli.estimation.rtk_multi import check_common_signals, receiver_geomet
 from cdgps_cli.io.rinex import read_rinex_nav
 from cdgps_cli.io.rinex_signals import read_rinex_signals
 from cdgps_cli.model.gps.orbits import ecef_to_enu
+from cdgps_cli.measurement.epoch_pairing import pair_epochs
 from tests._shared import REPO_ROOT
 
 GE = REPO_ROOT / ".." / "shared" / "data" / "rinex-ge"
@@ -58,15 +59,18 @@ def test_paired_rows_match_a_merge_per_epoch(pair):
     sig, nav, b, r = pair
     gb, gr = receiver_geometry(b, nav, BASE), receiver_geometry(r, nav, TRUTH)
     opt = dict(MULTI_GNSS_DEFAULTS)
+    pairs = pair_epochs(gr["time_gps_s"].to_numpy(), gb["time_gps_s"].to_numpy())
     times = np.intersect1d(gb["time_gps_s"].unique(), gr["time_gps_s"].unique())
-    rows = rtk_multi._paired_rows(gb, gr, times, opt)
+    np.testing.assert_array_equal(pairs.rover_time_s, times)      # simultaneous tags: the intersection
+    rows = rtk_multi._paired_rows(gb, gr, pairs, opt)
     n_groups = 0
     for k, t in enumerate(times):
         eb, er = gb[gb["time_gps_s"] == t], gr[gr["time_gps_s"] == t]
-        m = eb.merge(er[["sat", "signal", "phase_cycles", "trop_m"]], on=["sat", "signal"], suffixes=("_b", "_r"))
+        m = eb.merge(er[["sat", "signal", "phase_cycles", "trop_m", "sat_clock_m"]], on=["sat", "signal"], suffixes=("_b", "_r"))
         m = m[m["el_rad"] >= np.radians(opt["mask_deg"])]
         want = [(name, g["sat"].tolist(), int(np.argmax(g["el_rad"].to_numpy())),
-                 (g["wavelength_m"] * (g["phase_cycles_r"] - g["phase_cycles_b"]) - (g["trop_m_r"] - g["trop_m_b"])).to_numpy())
+                 (g["wavelength_m"] * (g["phase_cycles_r"] - g["phase_cycles_b"]) + (g["sat_clock_m_r"] - g["sat_clock_m_b"])
+                  - (g["trop_m_r"] - g["trop_m_b"])).to_numpy())
                 for name, g in m.groupby("signal", sort=True) if len(g) >= 2]
         got = rtk_multi._epoch_groups(rows, k)
         assert [(g["signal"], list(g["sats"]), g["ref"]) for g in got] == [w[:3] for w in want]

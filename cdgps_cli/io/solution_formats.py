@@ -1,0 +1,209 @@
+"""Position solutions in the formats people already use: RTKLIB ``.pos``, NMEA GGA, GeoJSON.
+
+The writers take the solution already in the frame they write (the caller converts ECEF to
+geodetic or ENU: ``io`` holds no numerics) and return text; :func:`read_pos` reads RTKLIB ``.pos``
+files (ours and RTKLIB's: ``rnx2rtkp``/``rtkpost`` output in lat/lon/height, ECEF or ENU-baseline
+form, calendar GPST or week/seconds time), so solutions can be compared epoch by epoch.
+
+RTKLIB ``.pos`` layout (RTKLIB manual, appendix "Solution file"): ``%`` header lines, the last of
+them naming the columns; per epoch the time, three coordinates, ``Q`` (1 fix, 2 float, 5 single),
+``ns`` (satellites), three σ (m) and three signed square roots of the covariances
+(``sign(c)·√|c|``, m), the differential age (s) and the ratio.  ``rtkplot`` and ``pos2kml`` read
+this layout.  NMEA GGA (NMEA 0183 v4): quality 4 = RTK fixed, 5 = RTK float; the altitude
+written is the ellipsoidal height with a geoid separation of 0 (no geoid model is applied — said
+in the header comment of the other formats, and by the ``M,0.000,M`` fields here).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.core.gps_time import GPS_EPOCH
+from cdgps_cli.core.timescales import gps_minus_utc_s
+
+__all__ = ["POS_FRAMES", "pos_text", "nmea_gga_text", "geojson_text", "read_pos", "finite_or", "Q_FIX", "Q_FLOAT",
+           "Q_SINGLE"]
+
+Q_FIX, Q_FLOAT, Q_SINGLE = 1, 2, 5
+#: coordinate frames of a .pos file: column names of the coordinates and of their σ / covariance roots
+POS_FRAMES = {
+    "llh": (("latitude(deg)", "longitude(deg)", "height(m)"),
+            ("sdn(m)", "sde(m)", "sdu(m)", "sdne(m)", "sdeu(m)", "sdun(m)")),
+    "xyz": (("x-ecef(m)", "y-ecef(m)", "z-ecef(m)"),
+            ("sdx(m)", "sdy(m)", "sdz(m)", "sdxy(m)", "sdyz(m)", "sdzx(m)")),
+    "enu": (("e-baseline(m)", "n-baseline(m)", "u-baseline(m)"),
+            ("sde(m)", "sdn(m)", "sdu(m)", "sden(m)", "sdnu(m)", "sdue(m)")),
+}
+# the covariance pairs of each frame's last three σ columns, as indices into its coordinate order
+_COV_PAIRS = {"llh": ((0, 1), (1, 2), (2, 0)), "xyz": ((0, 1), (1, 2), (2, 0)), "enu": ((0, 1), (1, 2), (2, 0))}
+
+
+def _calendar(t_gps_s: float) -> str:
+    ms = int(round(t_gps_s * 1000.0))
+    d = GPS_EPOCH + _dt.timedelta(milliseconds=ms)
+    return d.strftime("%Y/%m/%d %H:%M:%S.") + f"{d.microsecond // 1000:03d}"
+
+
+def _signed_root(c):
+    return np.sign(c) * np.sqrt(np.abs(c))
+
+
+def pos_text(time_gps_s, coords, q, ns, cov, age_s, ratio, *, frame: str, header: list[str]) -> str:
+    """An RTKLIB ``.pos`` file.
+
+    Parameters
+    ----------
+    time_gps_s : array_like (n,)
+        Epoch times, GPS s.
+    coords : array_like (n, 3)
+        Latitude and longitude (degrees) and height (m); or ECEF x, y, z (m); or east, north, up
+        of the baseline (m) — by ``frame``.
+    q, ns : array_like of int (n,)
+        Solution quality (:data:`Q_FIX`, :data:`Q_FLOAT`, :data:`Q_SINGLE`) and satellites used.
+    cov : array_like (n, 3, 3)
+        Covariance of the coordinates, m² (for ``llh``: of north, east, up).
+    age_s, ratio : array_like (n,)
+        Differential age (s) and the ratio test value (0 where none).
+    frame : {"llh", "xyz", "enu"}
+    header : list of str
+        Lines for the ``%`` header (program, inputs, options, reference position …).
+    """
+    if frame not in POS_FRAMES:
+        raise ValueError(f"frame: expected one of {', '.join(POS_FRAMES)}, got {frame!r}")
+    names, sd_names = POS_FRAMES[frame]
+    c = np.asarray(coords, dtype=float)
+    P = np.asarray(cov, dtype=float)
+    sd = np.sqrt(np.abs(np.stack([P[:, i, i] for i in range(3)], axis=1)))
+    cr = np.stack([_signed_root(P[:, i, j]) for i, j in _COV_PAIRS[frame]], axis=1)
+    out = [f"% {h}" for h in header]
+    out.append("%")
+    out.append("% (Q=1:fix,2:float,5:single,ns=# of satellites; " +
+               ("lat/lon/height=WGS84/ellipsoidal" if frame == "llh" else "ECEF" if frame == "xyz" else "e/n/u-baseline=WGS84")
+               + ")")
+    out.append(f"%  GPST                  {names[0]:>14s} {names[1]:>14s} {names[2]:>14s}   Q  ns "
+               + " ".join(f"{n:>8s}" for n in sd_names) + "  age(s)  ratio")
+    fmt = "{:14.9f} {:14.9f} {:10.4f}" if frame == "llh" else "{:14.4f} {:14.4f} {:14.4f}"
+    for k in range(c.shape[0]):
+        out.append(f"{_calendar(float(time_gps_s[k]))} " + fmt.format(*c[k]) + f" {int(q[k]):3d} {int(ns[k]):3d} "
+                   + " ".join(f"{v:8.4f}" for v in (*sd[k], *cr[k])) + f" {float(age_s[k]):6.2f} {float(ratio[k]):6.1f}")
+    return "\n".join(out) + "\n"
+
+
+def _dm(deg: float, width: int) -> tuple[str, bool]:
+    a = abs(deg)
+    d = int(a)
+    m = (a - d) * 60.0
+    if round(m, 7) >= 60.0:
+        d, m = d + 1, 0.0
+    return f"{d:0{width}d}{m:011.8f}", deg >= 0
+
+
+def _nmea(body: str) -> str:
+    x = 0
+    for ch in body.encode("ascii"):
+        x ^= ch
+    return f"${body}*{x:02X}"
+
+
+def nmea_gga_text(time_gps_s, lat_deg, lon_deg, height_m, q, ns, age_s) -> str:
+    """NMEA GGA sentences (UTC = GPS − leap seconds; quality 4 RTK fixed, 5 float, 1 single)."""
+    gga_q = {Q_FIX: 4, Q_FLOAT: 5, Q_SINGLE: 1}
+    out = []
+    for k in range(len(time_gps_s)):
+        t = float(time_gps_s[k])
+        utc = GPS_EPOCH + _dt.timedelta(milliseconds=int(round((t - int(gps_minus_utc_s(t))) * 1000.0)))
+        lat, north = _dm(float(lat_deg[k]), 2)
+        lon, east = _dm(float(lon_deg[k]), 3)
+        body = (f"GPGGA,{utc:%H%M%S}.{utc.microsecond // 10000:02d},{lat},{'N' if north else 'S'},{lon},"
+                f"{'E' if east else 'W'},{gga_q.get(int(q[k]), 0)},{min(int(ns[k]), 99):02d},1.0,"
+                f"{float(height_m[k]):.4f},M,0.000,M,{float(age_s[k]):.1f},0000")
+        out.append(_nmea(body))
+    return "\r\n".join(out) + "\r\n"
+
+
+def geojson_text(time_gps_s, lat_deg, lon_deg, height_m, q, ns, sigma_enu_m, *, properties: dict) -> str:
+    """A GeoJSON FeatureCollection of one Point per epoch ([lon, lat, h], WGS84), with the epoch's
+    ``time_gps_s``, ``q``, ``ns`` and ``sigma_e_m``/``sigma_n_m``/``sigma_u_m``."""
+    sig = np.asarray(sigma_enu_m, dtype=float)
+    feats = [{"type": "Feature",
+              "geometry": {"type": "Point", "coordinates": [round(float(lon_deg[k]), 10), round(float(lat_deg[k]), 10),
+                                                            round(float(height_m[k]), 4)]},
+              "properties": {"time_gps_s": float(time_gps_s[k]), "q": int(q[k]), "ns": int(ns[k]),
+                             "sigma_e_m": round(float(sig[k, 0]), 5), "sigma_n_m": round(float(sig[k, 1]), 5),
+                             "sigma_u_m": round(float(sig[k, 2]), 5)}}
+             for k in range(len(time_gps_s))]
+    return json.dumps({"type": "FeatureCollection", "properties": properties, "features": feats}, indent=1) + "\n"
+
+
+def _pos_time(fields: list[str], path, lineno) -> tuple[float, int]:
+    """GPS seconds of a data line's time and the number of fields it takes."""
+    try:
+        if "/" in fields[0]:
+            y, mo, d = (int(x) for x in fields[0].split("/"))
+            hh, mm, ss = fields[1].split(":")
+            base = (_dt.datetime(y, mo, d, int(hh), int(mm)) - GPS_EPOCH).total_seconds()
+            return base + float(ss), 2
+        return int(fields[0]) * 604800.0 + float(fields[1]), 2
+    except (ValueError, IndexError):
+        raise CdgpsError(f"{path}, line {lineno}: expected a time 'YYYY/MM/DD hh:mm:ss.sss' or 'week seconds', "
+                         f"got {' '.join(fields[:2])!r}") from None
+
+
+def read_pos(path) -> dict:
+    """An RTKLIB ``.pos`` file (GPST times; lat/lon/height, ECEF or ENU-baseline coordinates).
+
+    Returns
+    -------
+    dict
+        ``frame`` ("llh", "xyz" or "enu"), ``time_gps_s`` (n,), ``coords`` (n, 3), ``q`` (n,),
+        ``ns`` (n,), ``sd`` (n, 6; the σ and covariance-root columns as written), ``age_s`` (n,),
+        ``ratio`` (n,), ``header`` (the ``%`` lines).
+
+    Raises
+    ------
+    CdgpsError
+        Naming the file and line: no column header, a UTC/JST time scale, a malformed line.
+    """
+    p = Path(path)
+    try:
+        lines = p.read_text(errors="replace").splitlines()
+    except OSError as exc:
+        raise CdgpsError(f"{p}: cannot read ({exc.strerror})") from None
+    header = [ln for ln in lines if ln.startswith("%")]
+    cols = next((ln for ln in reversed(header) if "Q" in ln.split() and "ns" in ln.split()), None)
+    if cols is None:
+        raise CdgpsError(f"{p}: not an RTKLIB .pos file: no '%' header line naming the columns (… Q  ns …)")
+    if "UTC" in cols or "JST" in cols:
+        raise CdgpsError(f"{p}: times in UTC/JST are not read; write the solution in GPST (RTKLIB out-timesys=gpst)")
+    frame = "llh" if "latitude(deg)" in cols else "xyz" if "x-ecef(m)" in cols else "enu" if "e-baseline(m)" in cols else None
+    if frame is None:
+        raise CdgpsError(f"{p}: the column header names no coordinates RTKLIB writes (latitude(deg), x-ecef(m), "
+                         f"e-baseline(m)): {cols!r}")
+    rows = []
+    for i, ln in enumerate(lines, 1):
+        if not ln.strip() or ln.startswith("%"):
+            continue
+        f = ln.split()
+        t, k = _pos_time(f, p, i)
+        try:
+            v = [float(x) for x in f[k:k + 13]]
+        except ValueError:
+            raise CdgpsError(f"{p}, line {i}: expected numbers after the time, got {' '.join(f[k:k + 13])!r}") from None
+        if len(v) < 13:
+            raise CdgpsError(f"{p}, line {i}: expected 13 values after the time (coordinates, Q, ns, 6 σ, age, "
+                             f"ratio), got {len(v)}")
+        rows.append([t, *v])
+    a = np.array(rows, dtype=float).reshape(-1, 14)
+    return {"frame": frame, "time_gps_s": a[:, 0], "coords": a[:, 1:4], "q": a[:, 4].astype(int),
+            "ns": a[:, 5].astype(int), "sd": a[:, 6:12], "age_s": a[:, 12], "ratio": a[:, 13], "header": header}
+
+
+def finite_or(value, default: float) -> float:
+    """``value`` if finite, else ``default`` (ratios of unfixed epochs are NaN)."""
+    return float(value) if value is not None and math.isfinite(value) else default

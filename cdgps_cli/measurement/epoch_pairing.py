@@ -1,0 +1,183 @@
+"""Pairing a base receiver's epochs with a rover's, as real receivers write them.
+
+The rover's epochs drive the solution: every distinct rover epoch is either paired with one base
+epoch or dropped with a stated reason, so nothing is lost silently.  A rover epoch tagged ``t``
+takes the base epoch nearest to it in time (the earlier on a tie):
+
+* **simultaneous** when ``|t − t_b| ≤ sync_tol_s`` — the millisecond differences of receivers that
+  steer their clocks differently (u-blox tags at .990/.991 s against .991/.992 s; GEONET tags at
+  hh:mm:ss.999 against whole seconds);
+* **bridged** when ``sync_tol_s < |t − t_b| ≤ max_age_s`` — a base that logs with gaps, or at a
+  lower rate (a 1 s or 5 s base under a 10 Hz rover).  The base observation is used as recorded:
+  the solvers model each receiver's ranges, satellite clocks and troposphere at that receiver's own
+  reception instant, so the receiver clocks still cancel in the double difference and the
+  satellites' motion over the age is modelled exactly; what is not modelled (the drift of the
+  broadcast satellite clock, the atmosphere's change) grows with the age, and the single
+  difference's σ grows with it: ``σ_age = age_sigma_m_per_s × |age|`` (RTKLIB's
+  satellite-clock-stability term, same default).  This is how RTKLIB processes a base with a
+  differential age (``rtkpos.c``), here in both time directions because the whole record is there;
+* **dropped** otherwise: the rover epoch lies before the base's first epoch, after its last, or
+  inside a base gap longer than twice ``max_age_s``; a repeated rover time tag (the same epoch
+  written twice) is dropped as a duplicate.
+
+:func:`pair_epochs` returns the pairing and a summary whose counts add up to the rover's epochs;
+:func:`carry_base_slips` moves the loss-of-lock flags of base epochs that are not used (or used for
+a second rover epoch) to the next use of that satellite, so a slip of the base is seen exactly once.
+
+References: RTKLIB ``rtkpos.c`` (differential age, ``maxtdiff``), ``postpos.c`` (``DTTOL``).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from cdgps_cli.config.options import EPOCH_PAIRING_DEFAULTS
+
+__all__ = ["EpochPairs", "pair_epochs", "age_variance_m2", "carry_base_slips", "DROP_REASONS"]
+
+#: why a rover epoch is not used, in the order the summary lists them
+DROP_REASONS = ("duplicate rover epoch", "before the first base epoch", "after the last base epoch",
+                "in a base gap (no base epoch within the maximum age)")
+
+
+class EpochPairs(NamedTuple):
+    """A rover–base epoch pairing (:func:`pair_epochs`)."""
+
+    rover_time_s: np.ndarray   # (n,) time tags of the used rover epochs, increasing, GPS s
+    rover_index: np.ndarray    # (n,) index of each used epoch among the rover's distinct time tags
+    base_index: np.ndarray     # (n,) index of its base epoch among the base's distinct time tags
+    age_s: np.ndarray          # (n,) rover time − base time, s (negative: the base epoch is later)
+    summary: dict              # counts and limits (see pair_epochs)
+
+
+def _check(name: str, value: float, low: float = 0.0) -> float:
+    v = float(value)
+    if not (math.isfinite(v) and v > low):
+        raise ValueError(f"{name}: expected a finite number > {low:g} s, got {value!r}")
+    return v
+
+
+def pair_epochs(rover_time_s, base_time_s, *, sync_tol_s: float = EPOCH_PAIRING_DEFAULTS["sync_tol_s"],
+                max_age_s: float = EPOCH_PAIRING_DEFAULTS["max_age_s"]) -> EpochPairs:
+    """Pair every rover epoch with the nearest base epoch within ``max_age_s``.
+
+    Parameters
+    ----------
+    rover_time_s, base_time_s : array_like, shape (N,), (M,)
+        Time tags (GPS s) of each receiver's epochs, or of its observation rows (repeated tags are
+        one epoch); any order.
+    sync_tol_s : float
+        Largest |rover − base| time-tag difference counted as simultaneous, s (> 0).
+    max_age_s : float
+        Largest |rover − base| time-tag difference bridged, s (≥ ``sync_tol_s``).
+
+    Returns
+    -------
+    EpochPairs
+        ``summary``: ``rover_epochs`` (distinct rover tags), ``base_epochs``, ``used`` (=
+        ``simultaneous`` + ``bridged``), ``dropped`` ({reason: count}, reasons of
+        :data:`DROP_REASONS` with a non-zero count; ``used`` + the counts = ``rover_epochs``),
+        ``base_epochs_used``, ``max_age_s`` (largest |age| used, s; 0 when none is bridged),
+        ``sync_tol_s``, ``max_age_limit_s``.  ``duplicate rover epoch`` counts rover tags closer
+        than 1 µs to the previous one (tags are first made distinct with :func:`numpy.unique`,
+        so exact repeats never reach the count; they are the caller's rows to drop).
+
+    Raises
+    ------
+    ValueError
+        A limit is not a positive finite number, or ``max_age_s < sync_tol_s``.
+    """
+    tol = _check("sync_tol_s", sync_tol_s)
+    age_max = _check("max_age_s", max_age_s)
+    if age_max < tol:
+        raise ValueError(f"max_age_s: expected ≥ sync_tol_s ({tol:g} s), got {max_age_s!r}")
+    tr = np.unique(np.asarray(rover_time_s, dtype=np.float64))
+    tb = np.unique(np.asarray(base_time_s, dtype=np.float64))
+    tr, tb = tr[np.isfinite(tr)], tb[np.isfinite(tb)]
+    dup = np.r_[False, np.diff(tr) < 1e-6]
+    reasons = dict.fromkeys(DROP_REASONS, 0)
+    reasons["duplicate rover epoch"] = int(dup.sum())
+    if tb.size == 0:
+        k_near = np.zeros(tr.size, dtype=np.int64)
+        age = np.full(tr.size, np.inf)
+    else:
+        k = np.searchsorted(tb, tr)
+        before = np.clip(k - 1, 0, tb.size - 1)
+        after = np.clip(k, 0, tb.size - 1)
+        d_before, d_after = np.abs(tr - tb[before]), np.abs(tb[after] - tr)
+        k_near = np.where(d_before <= d_after, before, after)
+        age = tr - tb[k_near]
+    ok = ~dup & (np.abs(age) <= age_max)
+    lost = ~dup & ~ok
+    if tb.size:
+        reasons["before the first base epoch"] = int((lost & (tr < tb[0])).sum())
+        reasons["after the last base epoch"] = int((lost & (tr > tb[-1])).sum())
+        reasons["in a base gap (no base epoch within the maximum age)"] = int((lost & (tr >= tb[0]) & (tr <= tb[-1])).sum())
+    else:
+        reasons["after the last base epoch"] = int(lost.sum())
+    idx = np.flatnonzero(ok)
+    a = age[idx]
+    simultaneous = np.abs(a) <= tol
+    summary = {
+        "rover_epochs": int(tr.size), "base_epochs": int(tb.size), "used": int(idx.size),
+        "simultaneous": int(simultaneous.sum()), "bridged": int((~simultaneous).sum()),
+        "dropped": {r: n for r, n in reasons.items() if n},
+        "base_epochs_used": int(np.unique(k_near[idx]).size),
+        "max_age_s": float(np.max(np.abs(a), initial=0.0)) if (~simultaneous).any() else 0.0,
+        "sync_tol_s": tol, "max_age_limit_s": age_max,
+    }
+    return EpochPairs(tr[idx], idx.astype(np.int64), k_near[idx].astype(np.int64), a, summary)
+
+
+def age_variance_m2(age_s, sync_tol_s: float = EPOCH_PAIRING_DEFAULTS["sync_tol_s"],
+                    age_sigma_m_per_s: float = EPOCH_PAIRING_DEFAULTS["age_sigma_m_per_s"]) -> np.ndarray:
+    """Variance an SD observation gains from its base age, m²: ``(age_sigma_m_per_s × |age|)²``,
+    zero for simultaneous epochs (|age| ≤ ``sync_tol_s``)."""
+    a = np.abs(np.asarray(age_s, dtype=np.float64))
+    return np.where(a <= sync_tol_s, 0.0, (age_sigma_m_per_s * a) ** 2)
+
+
+def carry_base_slips(base_epoch, key, lli, use_count) -> np.ndarray:
+    """Base loss-of-lock flags as the paired rows must see them: once per slip.
+
+    Parameters
+    ----------
+    base_epoch : array_like of int, shape (N,)
+        Index of each base row's epoch (increasing in time).
+    key : array_like, shape (N,)
+        The row's channel (satellite, or satellite and signal): flags move along one channel only.
+    lli : array_like of int, shape (N,)
+        Loss-of-lock indicator of each base row (bit 0: a new ambiguity from this row on).
+    use_count : array_like of int, shape (M,)
+        How many rover epochs use each base epoch (0: not used).
+
+    Returns
+    -------
+    ndarray of int64, shape (N,)
+        LLI of the rows, with bit 0 of a row whose epoch is not used moved to the channel's next row
+        in a used epoch.  A base epoch used by several rover epochs keeps its flag; the caller
+        applies it at the first of them only (the pairs are increasing in time).
+    """
+    ep = np.asarray(base_epoch, dtype=np.int64)
+    out = np.asarray(lli, dtype=np.int64).copy()
+    if out.size == 0:
+        return out
+    used = np.asarray(use_count)[ep] > 0
+    if used.all():
+        return out
+    _, ch = np.unique(np.asarray(key).astype(str), return_inverse=True)
+    order = np.lexsort((ep, ch.reshape(-1)))
+    ch_o, used_o, res = ch.reshape(-1)[order], used[order], out[order]
+    kept = np.flatnonzero(used_o)
+    src = np.flatnonzero(~used_o & ((res & 1) == 1))
+    if kept.size and src.size:
+        pos = np.searchsorted(kept, src)
+        ok = pos < kept.size
+        dst = kept[np.minimum(pos, kept.size - 1)]
+        ok &= ch_o[dst] == ch_o[src]
+        res[dst[ok]] |= 1
+    out[order] = res
+    return out
