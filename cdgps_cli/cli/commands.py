@@ -350,14 +350,14 @@ def _parse_named(items, option: str, what: str = "antenna", form: str = "ANTENNA
 
 
 def _grid_note(c: dict) -> str:
-    """' (… off the grid of GPS times within … ms, … dropped)' for an ingest pair, or ''."""
+    """' (of N rover epochs: … bridged across master gaps (max age … s), … not used)' for an ingest pair, or ''."""
+    p = c.get("pairing") or {}
     parts = []
-    for who in ("master", "rover"):
-        r = c.get(who) or {}
-        if r.get("off_grid") or r.get("dropped"):
-            parts.append(f"{who} {r.get('off_grid', 0)} off-grid epochs kept (≤ {r.get('max_offset_ms') or 0:.1f} ms)"
-                         + (f", {r['dropped']} dropped" if r.get("dropped") else ""))
-    return f" ({'; '.join(parts)}; tolerance {c.get('tolerance_ms', 0):g} ms)" if parts else ""
+    if p.get("bridged"):
+        parts.append(f"{p['bridged']} bridged to a master epoch up to {p['max_age_s']:.3g} s away")
+    if p.get("dropped"):
+        parts.append(f"{sum(p['dropped'].values())} not used")
+    return f" (of {p['rover_epochs']} rover epochs: {'; '.join(parts)})" if parts else ""
 
 
 def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict=False):

@@ -34,7 +34,8 @@ EPOCH_PAIRING_DEFAULTS = {"sync_tol_s": 0.025, "max_age_s": 30.0, "age_sigma_m_p
 
 GNSS_DEFAULTS = {"mask_deg": 15.0, "ratio": RATIO_THRESHOLD, "partial": True, "weighting": "elevation",
                  "troposphere": True, "sigma_a_m": PHASE_SIGMA_A_M, "sigma_b_m": PHASE_SIGMA_B_M,
-                 "code_ratio": 100.0, "sync_tol_s": EPOCH_PAIRING_DEFAULTS["sync_tol_s"], "epoch_alignment": "geometry",
+                 "code_ratio": 100.0, "sync_tol_s": EPOCH_PAIRING_DEFAULTS["sync_tol_s"],
+                 "max_age_s": EPOCH_PAIRING_DEFAULTS["max_age_s"], "epoch_alignment": "geometry",
                  "random_walk_sigma": (0.001, 0.001, 0.001), "initial_sigma_m": 1.0,
                  "iono_threshold_km": IONO_THRESHOLD_KM}
 

@@ -67,7 +67,8 @@ from cdgps_cli.model.gps.positioning import (
     spp_static,
 )
 from cdgps_cli.core.gps_time import gps_time_str
-from cdgps_cli.model.gps.epoch_align import ALIGN_MODES, align_receiver, carry_slips, pair_epochs
+from cdgps_cli.measurement.epoch_pairing import age_variance_m2, pair_epochs, rows_for_pairs
+from cdgps_cli.model.gps.epoch_align import ALIGN_MODES, align_receiver, carry_slips
 
 __all__ = [
     "BaselineOptions",
@@ -108,8 +109,12 @@ class BaselineOptions:
     max_iterations : int
         Gauss-Newton iteration cap (float and fixed solutions each).
     sync_tol_s : float
-        Largest offset of an epoch's time tag from its grid time of GPS seconds, s (epochs farther
-        away are dropped; :mod:`cdgps_cli.model.gps.epoch_align`).
+        Largest offset of a rover epoch's time tag from its grid time of GPS seconds, s (epochs
+        farther away are dropped; :mod:`cdgps_cli.model.gps.epoch_align`); base and rover epochs this
+        close are simultaneous (:mod:`cdgps_cli.measurement.epoch_pairing`).
+    max_age_s : float
+        Oldest base epoch bridged to a rover epoch, s (a base with gaps or a lower rate; RTKLIB's
+        ``pos2-maxage``): the rover's epochs drive, each paired with the nearest base epoch.
     epoch_alignment : {"geometry", "doppler"}
         Off-grid epochs modelled at their own reception instants, or their phase and range moved
         to the grid time by carrier-phase rate × offset.
@@ -145,6 +150,7 @@ class BaselineOptions:
     troposphere: bool = True
     max_iterations: int = 10
     sync_tol_s: float = GNSS_DEFAULTS["sync_tol_s"]
+    max_age_s: float = GNSS_DEFAULTS["max_age_s"]
     epoch_alignment: str = GNSS_DEFAULTS["epoch_alignment"]
     max_gap_s: float | None = None
     min_sats_kinematic: int = 4
@@ -161,7 +167,7 @@ class BaselineOptions:
         kw = dict(mask_deg=cfg.mask_deg, ratio_threshold=cfg.ratio, partial=cfg.partial, fix=cfg.fix,
                   weighting=cfg.weighting, sigma_a_m=cfg.sigma_a_m, sigma_b_m=cfg.sigma_b_m,
                   code_ratio=cfg.code_ratio, troposphere=cfg.troposphere, max_gap_s=cfg.max_gap_s,
-                  sync_tol_s=cfg.sync_tol_s, epoch_alignment=cfg.epoch_alignment, motion=cfg.displacement, random_walk_sigma=tuple(cfg.random_walk_sigma),
+                  sync_tol_s=cfg.sync_tol_s, max_age_s=cfg.max_age_s, epoch_alignment=cfg.epoch_alignment, motion=cfg.displacement, random_walk_sigma=tuple(cfg.random_walk_sigma),
                   initial_sigma_m=cfg.initial_sigma_m)
         kw.update(overrides)
         return cls(**kw)
@@ -187,6 +193,8 @@ class BaselineOptions:
             p.append(f"max_iterations must be an integer >= 1, got {self.max_iterations!r}")
         if not (math.isfinite(self.sync_tol_s) and 0.0 < self.sync_tol_s <= 1.0):
             p.append(f"sync_tol_s must be in (0, 1] s, got {self.sync_tol_s!r}")
+        if not (math.isfinite(self.max_age_s) and self.max_age_s >= self.sync_tol_s):
+            p.append(f"max_age_s must be a number of seconds >= sync_tol_s, got {self.max_age_s!r}")
         if self.epoch_alignment not in ALIGN_MODES:
             p.append(f"epoch_alignment must be one of {', '.join(ALIGN_MODES)}, got {self.epoch_alignment!r}")
         if self.max_gap_s is not None and not (math.isfinite(self.max_gap_s) and self.max_gap_s > 0):
@@ -259,6 +267,7 @@ class _Data(NamedTuple):
     group: np.ndarray | None = None     # (N,) signal group of each row (None: GPS L1 only, one group)
     group_names: tuple = ("G:L1",)      # signal of each group
     lam_m: float | np.ndarray = GPS_L1_WAVELENGTH_M    # wavelength, m: one, or (N,) per row
+    age_var_m2: np.ndarray | None = None    # (N,) SD variance added by the base epoch's age, m² (None: none)
 
 
 def _group_masks(d: _Data) -> list:
@@ -286,20 +295,21 @@ def _block_of_row(d: _Data) -> tuple[np.ndarray, int]:
 
 
 class _Epochs(NamedTuple):
-    """The common epochs of the pair on the grid of GPS times."""
+    """The pair's epochs: the rover's, each with its base epoch (measurement/epoch_pairing)."""
 
-    aligned: dict              # receiver name → its observations on the grid (epoch_align)
+    aligned: dict              # receiver name → its observations (grid_gps_s, tag_gps_s, row)
     align_info: dict           # receiver name → alignment summary
-    grid: dict                 # receiver name → (its grid times, index of each common epoch among them)
-    t_label: np.ndarray        # (n_ep,) common epoch times, GPS s
+    grid: dict                 # receiver name → (its distinct epoch times, its epoch of each common epoch)
+    t_label: np.ndarray        # (n_ep,) epoch times (the rover's grid times), GPS s
     interval_s: float
     n_tags: dict               # receiver name → number of distinct time tags
+    pairing: dict              # pair_epochs summary: rover epochs used, bridged, dropped with reasons
 
 
-def _align(st: Station, opt: BaselineOptions, warnings: list):
+def _align(st: Station, opt: BaselineOptions, warnings: list, step_s: float | None = None):
     """One receiver's observations on the grid of GPS times (warnings for what is not used)."""
     try:
-        aligned, a = align_receiver(st.obs, tol_s=opt.sync_tol_s, mode=opt.epoch_alignment, what=_where(st))
+        aligned, a = align_receiver(st.obs, tol_s=opt.sync_tol_s, mode=opt.epoch_alignment, what=_where(st), step_s=step_s)
     except ValueError as exc:
         raise CdgpsError(str(exc)) from None
     lost = a["dropped_off_grid"] + a["dropped_duplicate"]
@@ -313,8 +323,20 @@ def _align(st: Station, opt: BaselineOptions, warnings: list):
     return aligned, a
 
 
+def _as_recorded(st: Station) -> tuple[pd.DataFrame, dict]:
+    """A base receiver's epochs as recorded ("geometry" alignment: no grid, no epoch dropped)."""
+    t = st.obs["time_gps_s"].to_numpy(dtype=np.float64)
+    out = st.obs.assign(grid_gps_s=t, tag_gps_s=t, row=np.arange(len(st.obs)))
+    n = int(np.unique(t).size)
+    return out, {"epochs": n, "on_grid": None, "off_grid_kept": None, "corrected": 0, "dropped_off_grid": 0,
+                 "dropped_duplicate": 0, "rows_dropped_no_rate": 0, "max_offset_ms": None, "grid_s": None,
+                 "tolerance_ms": None, "mode": "as recorded (base epochs paired by time)"}
+
+
 def _common_epochs(master: Station, rover: Station, opt: BaselineOptions, warnings: list) -> _Epochs:
-    """Epochs of both receivers on the common grid of GPS times (pairs at any rates)."""
+    """The rover's epochs, each paired with the nearest base (master) epoch within ``max_age_s``
+    (:func:`~cdgps_cli.measurement.epoch_pairing.pair_epochs`: base gaps and lower base rates bridged,
+    millisecond tag offsets simultaneous); every rover epoch not used is counted with its reason."""
     for st in (master, rover):
         o = st.obs
         if len(o) == 0 or not np.isfinite(o["phase_l1_cycles"].to_numpy(dtype=float)).any():
@@ -322,46 +344,54 @@ def _common_epochs(master: Station, rover: Station, opt: BaselineOptions, warnin
                              f"at both receivers")
     tm = np.unique(master.obs["time_gps_s"].to_numpy())
     tr = np.unique(rover.obs["time_gps_s"].to_numpy())
-    interval = nominal_interval_s(tm)
+    interval = nominal_interval_s(tr)
     aligned, align_info = {}, {}
-    for st in (master, rover):
-        aligned[st.name], align_info[st.name] = _align(st, opt, warnings)
+    aligned[rover.name], align_info[rover.name] = _align(rover, opt, warnings)
+    if opt.epoch_alignment == "geometry":          # the base as recorded: its geometry is modelled at its own instants
+        aligned[master.name], align_info[master.name] = _as_recorded(master)
+    else:                                          # moved to the rover's grid (its own grid may be guessed from gaps)
+        aligned[master.name], align_info[master.name] = _align(master, opt, warnings, step_s=align_info[rover.name]["grid_s"])
     gm = np.unique(aligned[master.name]["grid_gps_s"].to_numpy())
     gr = np.unique(aligned[rover.name]["grid_gps_s"].to_numpy())
-    im, ir = pair_epochs(gm, gr)
-    if im.size == 0:
-        tol = align_info[master.name]["tolerance_ms"]
+    pairs = pair_epochs(gr, gm, sync_tol_s=opt.sync_tol_s, max_age_s=opt.max_age_s)
+    ps = pairs.summary
+    if ps["used"] == 0:
         raise CdgpsError(f"no common epochs: master {master.name} has {tm.size} epochs ({_span(tm)}), rover {rover.name} "
-                         f"has {tr.size} ({_span(tr)}); no grid time of GPS seconds has an epoch of both within "
-                         f"{tol:g} ms (gnss.sync_tol_s)")
-    for st, n_m in ((master, im.size), (rover, ir.size)):
+                         f"has {tr.size} ({_span(tr)}); no rover epoch has a master epoch within {opt.max_age_s:g} s "
+                         f"(gnss.max_age_s)")
+    if ps["dropped"]:
+        warnings.append(f"{rover.name}: {sum(ps['dropped'].values())} of {ps['rover_epochs']} epochs not used: "
+                        + "; ".join(f"{n} {why}" for why, n in ps["dropped"].items())
+                        + f" (master {master.name}; gnss.max_age_s = {opt.max_age_s:g} s)")
+    im, ir = pairs.base_index, pairs.rover_index
+    for st, n_m in ((master, ps["base_epochs_used"]), (rover, ir.size)):
         align_info[st.name]["matched"] = int(n_m)
     q = 10.0 ** math.floor(math.log10(interval)) / 10.0 if math.isfinite(interval) and interval > 0 else 1e-3
-    t_label = np.round(gm[im] / q) * q
+    t_label = np.round(gr[ir] / q) * q
     return _Epochs(aligned, align_info, {master.name: (gm, im), rover.name: (gr, ir)}, t_label, interval,
-                   {master.name: tm.size, rover.name: tr.size})
+                   {master.name: tm.size, rover.name: tr.size}, ps)
 
 
 def _receiver_rows(st: Station, ce: _Epochs, nav: pd.DataFrame, pos, opt: BaselineOptions, warnings: list):
     """One receiver's rows in the common epochs with an ephemeris, their epoch index and true
-    reception times; its clock per epoch, s; its time tag per epoch (NaN: none), GPS s."""
+    reception times; its clock per epoch, s; its time tag per epoch (NaN: none), GPS s.  A base
+    epoch serving several rover epochs gives its rows to each, its slip flags to the first only."""
     t_all, idx = ce.grid[st.name]
     t_label = ce.t_label
     n_ep = t_label.size
     o = ce.aligned[st.name]
-    ep_of_tag = np.full(t_all.size, -1, dtype=np.int64)
-    ep_of_tag[idx] = np.arange(n_ep)
-    k = ep_of_tag[np.searchsorted(t_all, o["grid_gps_s"].to_numpy())]
+    take, k, first = rows_for_pairs(np.searchsorted(t_all, o["grid_gps_s"].to_numpy()), idx)
     tag = np.full(n_ep, np.nan)
-    tag[k[k >= 0]] = o["tag_gps_s"].to_numpy()[k >= 0]
+    tag[k] = o["tag_gps_s"].to_numpy()[take]
     # slip flags of rows that are not differenced move to the satellite's next differenced row
     used = np.zeros(len(st.obs), dtype=bool)
-    used[o["row"].to_numpy()[k >= 0]] = True
+    used[o["row"].to_numpy()[take]] = True
     lli_all = carry_slips(st.obs["time_gps_s"].to_numpy(dtype=np.float64), st.obs["sat"].to_numpy(),
                           st.obs["lli_l1"].to_numpy(dtype=np.int64), used)
-    o = o.assign(lli_l1=lli_all[o["row"].to_numpy()])
-    o = o[k >= 0].copy()
-    o["ep"] = k[k >= 0]
+    lli = lli_all[o["row"].to_numpy()[take]]
+    o = o.iloc[take].copy()
+    o["lli_l1"] = np.where(first, lli, lli & ~1)
+    o["ep"] = k
     cov = ephemeris_coverage(nav, o["sat"].to_numpy(), t_label[o["ep"].to_numpy()])
     if not cov.any():
         tn = nav["toe_gps_s"].to_numpy()
@@ -407,6 +437,9 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
         raise CdgpsError(f"no double differences: fewer than two common satellites above the {opt.mask_deg:g}° mask "
                          f"at every common epoch ({n_ep} epochs, {_span(t_label)})")
     sel = np.flatnonzero(keep)
+    age_ep = tag_r - tag_m                                   # rover − base time of each epoch, s
+    simultaneous = np.abs(age_ep) <= opt.sync_tol_s
+    age_var_ep = age_variance_m2(np.nan_to_num(age_ep), opt.sync_tol_s)
     info = {
         "n_epochs_master": int(ce.n_tags[master.name]),
         "n_epochs_rover": int(ce.n_tags[rover.name]),
@@ -415,7 +448,8 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
         "interval_s": ce.interval_s,
         "first_epoch": gps_time_str(float(t_label[0])),
         "last_epoch": gps_time_str(float(t_label[-1])),
-        "max_tag_difference_ms": float(np.nanmax(np.abs(tag_m - tag_r)) * 1e3),
+        "max_tag_difference_ms": float(np.nanmax(np.where(simultaneous, np.abs(tag_m - tag_r), 0.0)) * 1e3),
+        "epoch_pairing": ce.pairing,
         "epoch_alignment": ce.align_info,
         "rx_clock_ms": {
             master.name: [float(np.min(clk_m) * 1e3), float(np.max(clk_m) * 1e3)],
@@ -424,9 +458,11 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
         "below_mask_sd_rows": {str(k): int(v) for k, v in below.items()},
     }
     if master.signals is not None and rover.signals is not None:
-        return _signal_data(master, rover, (om, orv), (clk_m, clk_r), j, t_label, nav, (master_xyz, rover_xyz), opt,
-                            ce.interval_s, info, warnings)
-    return _sd_data(j, sel, gb, gr, t_label, ce.interval_s, info)
+        d = _signal_data(master, rover, (om, orv), (clk_m, clk_r), j, t_label, nav, (master_xyz, rover_xyz), opt,
+                         ce.interval_s, info, warnings)
+    else:
+        d = _sd_data(j, sel, gb, gr, t_label, ce.interval_s, info)
+    return d._replace(age_var_m2=age_var_ep[d.epoch]) if np.any(age_var_ep > 0) else d
 
 
 def _signal_data(master: Station, rover: Station, l1_rows, clocks, j, t_label, nav, xyz, opt: BaselineOptions,
@@ -717,6 +753,9 @@ def _weights(d: _Data, opt: BaselineOptions) -> _Weights:
     """SD variances and DD weights of the phase rows and of the code rows (its own references)."""
     var_ph = sd_variance(d.el_rover, d.el_base, sigma_a_m=opt.sigma_a_m, sigma_b_m=opt.sigma_b_m, weighting=opt.weighting)
     var_code = var_ph * opt.code_ratio**2
+    age_var = getattr(d, "age_var_m2", None)
+    if age_var is not None:                       # a bridged base epoch: σ grows with its age (epoch_pairing)
+        var_ph, var_code = var_ph + age_var, var_code + age_var
     code_ok = np.isfinite(d.y_code_m)
     refs_ph, refs_code, blocks_ph, blocks_code = [], [], [], []
     for m in _group_masks(d):

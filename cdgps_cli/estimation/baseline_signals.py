@@ -32,6 +32,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.signals import SIGNALS
 from cdgps_cli.measurement.dd_signals import group_key
 from cdgps_cli.measurement.differencing import epoch_pointers
+from cdgps_cli.measurement.epoch_pairing import rows_for_pairs
 from cdgps_cli.model.gps.epoch_align import carry_slips
 from cdgps_cli.model.gps.positioning import ephemeris_coverage, reception_geometry
 
@@ -46,8 +47,9 @@ def _rows_at_epochs(sig: pd.DataFrame, l1_rows: pd.DataFrame, clk: np.ndarray, w
     ``l1_rows`` are the receiver's GPS L1 rows in the common epochs (``time_gps_s`` = time tag,
     ``ep``); a signal row belongs to the epoch whose tag equals its own (within 1 µs).  Slip flags
     of rows that are not used move to the next used row of that satellite and signal."""
-    tags = l1_rows[["time_gps_s", "ep"]].drop_duplicates("time_gps_s").sort_values("time_gps_s")
-    tt, te = tags["time_gps_s"].to_numpy(), tags["ep"].to_numpy()
+    tags = l1_rows[["time_gps_s", "ep"]].drop_duplicates().sort_values("ep", kind="stable")
+    te = tags["ep"].to_numpy()
+    tt = np.unique(tags["time_gps_s"].to_numpy())
     t = sig["time_gps_s"].to_numpy(dtype=np.float64)
     if tt.size == 0:
         raise CdgpsError(f"{what}: no epoch with GPS L1 observations in common with the other receiver")
@@ -57,8 +59,12 @@ def _rows_at_epochs(sig: pd.DataFrame, l1_rows: pd.DataFrame, clk: np.ndarray, w
     ok = (np.abs(tt[i] - t) <= _TAG_MATCH_S) & np.isfinite(sig["phase_cycles"].to_numpy(dtype=np.float64))
     key = (sig["sat"].astype(str) + ":" + sig["signal"].astype(str)).to_numpy()
     lli = carry_slips(t, key, sig["lli"].to_numpy(dtype=np.int64), ok)
-    out = sig.assign(lli=lli)[ok].copy()
-    out["ep"] = te[i[ok]]
+    # a base epoch serving several rover epochs gives its rows to each, its slip flags to the first
+    rows = np.flatnonzero(ok)
+    take, pair, first = rows_for_pairs(i[rows], np.searchsorted(tt, tags["time_gps_s"].to_numpy()))
+    out = sig.iloc[rows[take]].copy()
+    out["lli"] = np.where(first, lli[rows[take]], lli[rows[take]] & ~1)
+    out["ep"] = te[pair]
     out["t_true"] = out["time_gps_s"].to_numpy() - clk[out["ep"].to_numpy()]
     return out
 

@@ -36,7 +36,7 @@ import numpy as np
 
 from cdgps_cli.config.options import EPOCH_PAIRING_DEFAULTS
 
-__all__ = ["EpochPairs", "pair_epochs", "age_variance_m2", "carry_base_slips", "DROP_REASONS"]
+__all__ = ["EpochPairs", "pair_epochs", "age_variance_m2", "carry_base_slips", "rows_for_pairs", "DROP_REASONS"]
 
 #: why a rover epoch is not used, in the order the summary lists them
 DROP_REASONS = ("duplicate rover epoch", "before the first base epoch", "after the last base epoch",
@@ -181,3 +181,35 @@ def carry_base_slips(base_epoch, key, lli, use_count) -> np.ndarray:
         res[dst[ok]] |= 1
     out[order] = res
     return out
+
+
+def rows_for_pairs(row_epoch, pair_epoch) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rows of one receiver as each pair needs them: a base epoch serving several rover epochs
+    gives its rows to each.
+
+    Parameters
+    ----------
+    row_epoch : array_like of int, shape (N,)
+        The receiver epoch of each row (index among its distinct epochs).
+    pair_epoch : array_like of int, shape (n,)
+        The receiver epoch of each pair (:attr:`EpochPairs.base_index` or ``rover_index``),
+        non-decreasing.
+
+    Returns
+    -------
+    take : ndarray of int64, shape (M,)
+        Row of each copy (rows of epochs no pair uses are left out).
+    pair : ndarray of int64, shape (M,)
+        The pair each copy belongs to.
+    first : ndarray of bool, shape (M,)
+        True for the copy in the first pair that uses the row's epoch (where its slip flags belong).
+    """
+    pe = np.asarray(pair_epoch, dtype=np.int64)
+    re = np.asarray(row_epoch, dtype=np.int64)
+    if pe.size > 1 and np.any(np.diff(pe) < 0):
+        raise ValueError("pair_epoch: expected non-decreasing receiver epochs (pairs in time order)")
+    start = np.searchsorted(pe, re, side="left")
+    count = np.searchsorted(pe, re, side="right") - start
+    take = np.repeat(np.arange(re.size, dtype=np.int64), count)
+    offset = np.arange(take.size, dtype=np.int64) - np.repeat(np.cumsum(count) - count, count)
+    return take, np.repeat(start, count) + offset, offset == 0

@@ -3,7 +3,7 @@
 :mod:`cdgps_cli.io.gnss_run` reads the receiver and navigation files and writes the RUN.mcap; the
 checks that need the GPS model — every receiver's phases covered by a healthy broadcast ephemeris
 (:func:`cdgps_cli.model.gps.positioning.ephemeris_coverage`) and the epochs each rover has in
-common with the master (:func:`cdgps_cli.model.gps.epoch_align.common_epochs`) — are made here, so
+common with the master (:func:`cdgps_cli.measurement.epoch_pairing.pair_epochs`) — are made here, so
 that ``io`` imports no numerics.  :func:`run_info` is ``cdgps info`` with the GNSS common-epoch
 counts.  The receivers' observation table of the solvers (:func:`processing_obs`: u-blox lock
 times → loss-of-lock bits) and their lock counters (:func:`lock_summary`) follow the one
@@ -26,7 +26,7 @@ from cdgps_cli.core.gps_time import nominal_interval_s
 from cdgps_cli.core.records import OBS_COLUMNS
 from cdgps_cli.io.gnss_run import LOCK_TIME_CAP_MS, GnssReceiver, IngestInputs, span_text
 from cdgps_cli.measurement.channels import FIRST, lock_segments, ubx_restarts
-from cdgps_cli.model.gps.epoch_align import common_epochs
+from cdgps_cli.measurement.epoch_pairing import pair_epochs
 from cdgps_cli.model.gps.positioning import ephemeris_coverage, spp_static
 
 __all__ = ["ingest_gnss", "run_info", "processing_obs", "signal_obs", "ubx_loss_of_lock", "lock_summary", "starter_gnss_config",
@@ -191,31 +191,33 @@ def _check_coverage(inp: IngestInputs) -> None:
                             f"{' …' if len(miss) > 8 else ''}) have no healthy ephemeris within ±2 h; they will not be used")
 
 
+def _pairing(tm, tr, cfg: GnssConfig) -> dict:
+    """A rover's epochs paired with the master's (:func:`~cdgps_cli.measurement.epoch_pairing.pair_epochs`:
+    the rover drives, master epochs within ``sync_tol_s`` simultaneous, bridged up to ``max_age_s``)."""
+    return pair_epochs(tr, tm, sync_tol_s=cfg.sync_tol_s, max_age_s=cfg.max_age_s).summary
+
+
 def _common_epochs(cfg: GnssConfig, inp: IngestInputs) -> dict:
-    """Rover → its common-epoch counts with the master; refuses a rover with none, warns about dropped epochs."""
+    """Rover → its epochs paired with the master's; refuses a rover with none, warns about every
+    rover epoch that will not be used (with the reason)."""
     receivers, master, files, warnings = inp.receivers, inp.master, inp.files, inp.warnings
     rovers = [n for n in receivers if n != master]
     tm = np.unique(receivers[master].raw["time_gps_s"].to_numpy())
     common = {}
     for n in rovers:
         tr = np.unique(receivers[n].raw["time_gps_s"].to_numpy())
-        ce = common_epochs(tm, tr, cfg.sync_tol_s)
-        n_common = ce["common_epochs"]
-        if n_common == 0:
+        ps = _pairing(tm, tr, cfg)
+        if ps["used"] == 0:
             raise CdgpsError(
                 f"no common epochs: master {master} ({files[master][1]}) has {tm.size} epochs ({span_text(tm)}), rover {n} "
-                f"({files[n][1]}) has {tr.size} ({span_text(tr)}); no grid time of GPS seconds has an epoch of both within "
-                f"{ce['tolerance_ms']:g} ms (gnss.sync_tol_s)")
-        common[n] = {"common_epochs": n_common, "master_epochs": int(tm.size), "rover_epochs": int(tr.size),
-                     "tolerance_ms": ce["tolerance_ms"], "master": ce["master"], "rover": ce["rover"]}
-        if n_common < max(tm.size, tr.size):
-            warnings.append(f"{n}: {n_common} epochs in common with the master (master {tm.size}, {n} {tr.size}); only "
-                            f"common epochs are differenced")
-        for who, name in (("master", master), ("rover", n)):
-            if ce[who]["dropped"]:
-                warnings.append(f"{name}: {ce[who]['dropped']} of {ce[who]['epochs']} epochs more than "
-                                f"{ce['tolerance_ms']:g} ms off the {ce[who]['grid_s']:.6g} s grid of GPS times (or a "
-                                f"second epoch on one grid time) are not used")
+                f"({files[n][1]}) has {tr.size} ({span_text(tr)}); no rover epoch has a master epoch within "
+                f"{cfg.max_age_s:g} s (gnss.max_age_s)")
+        common[n] = {"common_epochs": ps["used"], "master_epochs": int(tm.size), "rover_epochs": int(tr.size),
+                     "tolerance_ms": cfg.sync_tol_s * 1e3, "pairing": ps}
+        if ps["dropped"]:
+            warnings.append(f"{n}: {sum(ps['dropped'].values())} of {tr.size} epochs have no master epoch within "
+                            f"{cfg.max_age_s:g} s (gnss.max_age_s) and will not be used: "
+                            + "; ".join(f"{k} {why}" for why, k in ps["dropped"].items()))
     return common
 
 
@@ -238,7 +240,7 @@ def _run_common_epochs(run: gnss_run.GnssRun) -> dict:
     common = {}
     for n in run.rovers:
         tr = np.unique(run.receivers[n].raw["time_gps_s"].to_numpy())
-        common[n] = common_epochs(tm, tr, run.cfg.sync_tol_s)["common_epochs"]
+        common[n] = _pairing(tm, tr, run.cfg)["used"]
     return common
 
 

@@ -291,13 +291,13 @@ def test_nav_not_covering_the_observations(simdir, tmp_path):
 
 
 def test_mismatched_epochs_between_receivers(simdir, tmp_path):
-    # shift the rover's time tags by 0.5 s: no epoch within the tolerance
+    # the rover's time tags an hour later than the master's last epoch: no master epoch within max_age_s
+    # (a 0.5 s shift is now bridged: the rover drives and base epochs up to 30 s away are used)
     lines = (simdir / "rover.rnx").read_text().split("\n")
     shifted = []
     for ln in lines:
         if ln.startswith("> "):
-            sec = float(ln[18:29]) + 0.5
-            ln = ln[:18] + f"{sec:11.7f}" + ln[29:]
+            ln = ln[:13] + f"{(int(ln[13:15]) + 2) % 24:02d}" + ln[15:]
         shifted.append(ln)
     (tmp_path / "late.rnx").write_text("\n".join(shifted))
     r = run_cli("ingest", "--rinex", f"m={simdir / 'base.rnx'}", "--rinex", f"r={tmp_path / 'late.rnx'}",
@@ -317,7 +317,7 @@ def test_mismatched_epochs_between_receivers(simdir, tmp_path):
     (tmp_path / "half.rnx").write_text("\n".join(half))
     r = run_cli("ingest", "--rinex", f"m={simdir / 'base.rnx'}", "--rinex", f"r={tmp_path / 'half.rnx'}",
                 "--nav", simdir / "nav.rnx", "--master", "m", "-o", tmp_path / "o.mcap")
-    assert r.exit_code == 0 and "150 epochs in common with the master" in r.stderr
+    assert r.exit_code == 0 and "r: 150 epochs in common with m" in r.stderr     # the rover drives: all of its epochs
 
 
 def test_other_ingest_errors(simdir, tmp_path):

@@ -92,3 +92,15 @@ def test_base_slips_of_unused_epochs_move_to_the_next_used_one():
     out = carry_base_slips(ep, key, lli, use)
     assert out.tolist() == [0, 0, 0, 1, 1, 0, 1, 1, 0, 0]
     assert carry_base_slips(ep, key, lli, np.ones(5, int)).tolist() == lli.tolist()
+
+
+def test_rows_for_pairs_replicates_a_shared_base_epoch():
+    from cdgps_cli.measurement.epoch_pairing import rows_for_pairs
+    row_epoch = np.array([0, 0, 1, 2, 2, 3])          # base rows: epochs 0,0,1,2,2,3
+    pair_epoch = np.array([0, 0, 2, 2, 2])            # 5 rover epochs: base 0 twice, base 2 three times
+    take, pair, first = rows_for_pairs(row_epoch, pair_epoch)
+    want = [(r, p) for p, e in enumerate(pair_epoch) for r in np.flatnonzero(row_epoch == e)]
+    assert sorted(zip(take.tolist(), pair.tolist())) == sorted(want)
+    assert [(t, p) for t, p, f in zip(take, pair, first) if f] == [(0, 0), (1, 0), (3, 2), (4, 2)]
+    with pytest.raises(ValueError, match="non-decreasing"):
+        rows_for_pairs(row_epoch, [2, 1])

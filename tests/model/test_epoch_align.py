@@ -176,11 +176,14 @@ def test_drifting_8ms_offset_matches_the_offset_free_solution(nav, offset_free, 
 
 
 def test_a_5s_base_beside_a_1hz_rover_keeps_the_rovers_slips(nav):
-    """The rover's slips flagged at epochs the base does not have start new ambiguities at the
-    next common epoch (they were lost before: a silently wrong fix, metres off)."""
+    """Every 1 Hz rover epoch is used (four of five bridged to the nearest 5 s base epoch, issue 28;
+    before: only the 120 common epochs), and the rover's slips still start new ambiguities (they
+    were once lost: a silently wrong fix, metres off)."""
     res, sim = solve(nav, base_every=5, slips=12)
     truth = np.array([0.0, 0.0, 0.0])
-    assert res["epochs"]["epoch_alignment"]["rover"]["matched"] == 120
+    assert res["epochs"]["epoch_alignment"]["rover"]["matched"] == 600
+    ep = res["epochs"]["epoch_pairing"]
+    assert ep["used"] == 600 and ep["bridged"] == 480 and 2.0 <= ep["max_age_s"] <= 4.0 + 0.01   # 4: the last rover epochs after the last base epoch
     assert res["solution"] in ("fixed", "partially fixed")
     sol = np.array((res["fixed"] or res["float"])["enu_m"])
     assert np.max(np.abs(sol - truth)) < 0.01

@@ -151,3 +151,46 @@ def test_geonet_pair_uses_all_120_epochs(tmp_path):
     import json
     s = json.loads(r.stdout)
     assert s["epochs"] == 120 and s["epoch_pairing"]["dropped"] == {} and s["fixed_epochs"] >= 110
+
+
+def _init(d, base, rover, name, signals=None):
+    """ingest → init of the pair (master = base); the INIT's rover record."""
+    import json
+    cfg = d / f"{name}.toml"
+    r = run_cli("-q", "config", "--rinex", f"base={base}", "--rinex", f"rover={rover}", "--nav", MOSAIC / "base.nav",
+                "--master", "base", "-o", cfg)
+    assert r.exit_code == 0, r.output
+    text = cfg.read_text()              # the base at base_position.txt (its header is 0.4 m off), as RTKLIB ran
+    head, tail = text.split('[gnss.antennas."base"]\n', 1)
+    text = head + '[gnss.antennas."base"]\n' + f"position_ecef_m = [{', '.join(map(str, BASE_XYZ))}]\n" + tail
+    if signals:
+        text = text.replace("[gnss]\n", f"[gnss]\nsignals = {json.dumps(signals)}\n", 1)
+    cfg.write_text(text)
+    for args in (("ingest", "--config", cfg, "-o", d / f"{name}.mcap"), ("init", d / f"{name}.mcap", "-o", d / f"{name}.json")):
+        r = run_cli("-q", *args)
+        assert r.exit_code == 0, (args, r.output)
+    return json.loads((d / f"{name}.json").read_text())["rovers"]["rover"]
+
+
+def test_init_on_a_gappy_base_uses_every_rover_epoch(files):
+    """The M8P case of issue 28 (init used 88 of 1205 rover epochs: a 3 s grid guessed from the base's
+    median spacing): every rover epoch is used, and the static baseline is the clean pair's."""
+    a = _init(files, MOSAIC / "base.obs", MOSAIC / "rover.obs", "clean")
+    b = _init(files, files / "base_gappy.obs", files / "rover_ms.obs", "gappy")
+    assert a["solution"] == b["solution"] == "fixed"
+    ea, eb = a["epochs"], b["epochs"]
+    assert ea["n_epochs_used"] == eb["n_epochs_used"] == 301
+    assert eb["epoch_pairing"]["bridged"] > 200 and eb["epoch_pairing"]["dropped"] == {}
+    da, db = np.array(a["baseline_enu_from_master_m"]), np.array(b["baseline_enu_from_master_m"])
+    assert np.all(np.abs(da - db) < 0.002), (da, db)
+    # against RTKLIB's GPS L1 static solution of the clean pair (its last epoch), same signals
+    ref = read_pos(MOSAIC / "rtklib" / "gps_l1_static.pos")
+    assert np.all(np.abs(db - ref["coords"][-1]) < 0.003), (db, ref["coords"][-1])      # 1 cm asked
+
+
+def test_init_with_signals_on_a_gappy_base(files):
+    sig = ["G:L1", "G:L2", "E:E1"]
+    a = _init(files, MOSAIC / "base.obs", MOSAIC / "rover.obs", "clean_sig", sig)
+    b = _init(files, files / "base_gappy.obs", files / "rover_ms.obs", "gappy_sig", sig)
+    assert b["solution"] == "fixed" and b["epochs"]["n_epochs_used"] == 301
+    assert np.all(np.abs(np.array(a["baseline_enu_from_master_m"]) - np.array(b["baseline_enu_from_master_m"])) < 0.002)
