@@ -1591,9 +1591,10 @@ if __name__ == "__main__":  # pragma: no cover
 @click.option("--rover", "rover_file", required=True, type=click.Path(dir_okay=False), help="Rover RINEX observation file.")
 @click.option("--nav", "nav_files", required=True, multiple=True, type=click.Path(dir_okay=False),
               help="RINEX navigation file(s) with the GPS / Galileo / BeiDou / GLONASS ephemerides (repeatable).")
-@click.option("--signals", default=",".join(__import__("cdgps_cli.config.options", fromlist=["x"]).MULTI_GNSS_DEFAULTS["signals"]),
-              show_default=True, help="Comma-separated signals (G:L1, G:L2, G:L5, E:E1, E:E5a, E:E5b, C:B1I, C:B2I, C:B2a, "
-                                       "R:G1, R:G2; GLONASS stays float).")
+@click.option("--signals", default="auto", show_default=True,
+              help="Comma-separated signals (G:L1, G:L2, G:L5, E:E1, E:E5a, E:E5b, C:B1I, C:B2I, C:B2a, R:G1, R:G2; "
+                   "GLONASS stays float unless --glonass-fix), or 'auto': every one both files hold whose system has "
+                   "ephemerides in --nav.")
 @click.option("--mode", type=click.Choice(["kinematic", "static"]), default="kinematic", show_default=True,
               help="kinematic: random-walk rover position, a solution per epoch; static: one position for the span.")
 @click.option("--base-xyz", nargs=3, type=float, default=None, help="Base ECEF position, m (default: its header).")
@@ -1609,11 +1610,18 @@ if __name__ == "__main__":  # pragma: no cover
 @click.option("--sync-tol", "sync_tol_s", type=float, default=None,
               help="Base and rover epochs this close are simultaneous, s "
                    f"[{__import__('cdgps_cli.config.options', fromlist=['x']).EPOCH_PAIRING_DEFAULTS['sync_tol_s']:g}].")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Output CSV.")
+@click.option("--direction", type=click.Choice(["forward", "backward", "combined"]), default=None,
+              help="Kinematic passes: forward, backward, or both combined - an epoch is fixed where the passes' fixes "
+                   "agree (or one's fix agrees with the other's float); disagreeing fixes are rejected [combined].")
+@click.option("--min-success-rate", type=float, default=None,
+              help="Bootstrapped success rate an integer set must reach; when the whole set does not, the part that "
+                   "does is fixed and the epoch stays float [0.999].")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="Output: .pos (RTKLIB, lat/lon/height), .nmea/.gga (NMEA GGA), .geojson, or CSV (any other suffix).")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (epochs used and why others were not, fixes) on stdout.")
 @click.pass_context
 def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_fix, mask_deg, ratio_threshold, max_age_s,
-        sync_tol_s, output, as_json):
+        sync_tol_s, direction, min_success_rate, output, as_json):
     """Double differences per constellation and frequency, integers by LAMBDA (docs/gnss-pipeline.md, "Multi-GNSS").
 
     The rover's epochs drive the solution: each takes the nearest base epoch within --max-age (a base
@@ -1621,10 +1629,11 @@ def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_
     counted with its reason."""
     from cdgps_cli.pipeline.gnss_multi import rtk_from_files
 
-    options = {"signals": tuple(x.strip() for x in signals.split(",") if x.strip()), "mode": mode,
+    options = {"signals": "auto" if signals.strip() == "auto" else tuple(x.strip() for x in signals.split(",") if x.strip()),
+               "mode": mode,
                "glonass_fix": glonass_fix}
     for key, value in (("mask_deg", mask_deg), ("ratio", ratio_threshold), ("max_age_s", max_age_s),
-                       ("sync_tol_s", sync_tol_s)):
+                       ("sync_tol_s", sync_tol_s), ("direction", direction), ("min_success_rate", min_success_rate)):
         if value is not None:
             options[key] = value
     s = rtk_from_files(base_file, rover_file, list(nav_files), output, base_xyz_m=base_xyz or None, options=options)
@@ -1632,7 +1641,8 @@ def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_
         click.echo(f"cdgps: WARNING: {w}", err=True)
     ep = s["epoch_pairing"]
     _say(ctx, f"{output}: {s['epochs']} of {ep['rover_epochs']} rover epochs ({ep['bridged']} bridged across base gaps, "
-              f"max age {ep['max_age_s']:.3g} s), fixed {s['fixed_pct']:.1f} %, ionosphere {s['iono_model']}, "
+              f"max age {ep['max_age_s']:.3g} s), fixed {s['fixed_pct']:.1f} % ({s['direction']}; "
+              f"{s['fixes_rejected']} fixes rejected where the passes disagree), ionosphere {s['iono_model']}, "
               f"signals {' '.join(s['signals'])}")
     if as_json:
         _emit_json({k: v for k, v in s.items()})

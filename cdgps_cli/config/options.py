@@ -61,10 +61,12 @@ def toml_value(v) -> str:
 
 #: multi-GNSS dual-frequency RTK (estimation/rtk_multi.py, docs/gnss-pipeline.md "Multi-GNSS")
 MULTI_GNSS_DEFAULTS = {
-    "signals": ("G:L1", "G:L2", "G:L5", "E:E1", "E:E5a", "E:E5b"),
+    "signals": "auto",                     # every signal both files hold whose system has ephemerides, or a tuple of names
     "mode": "kinematic",                   # "kinematic" (random-walk position) or "static"
+    "direction": "combined",               # kinematic: "forward", "backward" or "combined" (both, checked against each other)
     "kinematic_sigma_m_per_sqrt_s": 30.0,  # random-walk rate of the kinematic rover position
     "mask_deg": 15.0, "ratio": RATIO_THRESHOLD, "fix": True, "glonass_fix": False,
+    "min_success_rate": 0.999,             # bootstrapped success rate an integer set must reach (partial set otherwise)
     "sigma_a_m": PHASE_SIGMA_A_M, "sigma_b_m": PHASE_SIGMA_B_M, "code_ratio": 100.0,
     "amb_sigma_cycles": 30.0, "troposphere": True,
     "iono_threshold_km": IONO_THRESHOLD_KM,  # below: DD ionosphere neglected; above: estimated

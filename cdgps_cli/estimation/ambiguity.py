@@ -42,6 +42,8 @@ import numpy as np
 from cdgps_cli.config.options import RATIO_THRESHOLD
 
 __all__ = [
+    "bootstrap_success_rate",
+    "success_tail",
     "AmbiguityError",
     "SearchLimitError",
     "ld_factorize",
@@ -745,6 +747,47 @@ def ratio_test(squared_norms, threshold=RATIO_THRESHOLD):
     else:
         ratio = math.inf if s1 > 0 else 1.0
     return bool(ratio >= thr), ratio
+
+
+def bootstrap_success_rate(d) -> float:
+    """Success rate of integer bootstrapping, the sharp lower bound of the integer least-squares
+    success rate (Teunissen 1998, "Success probability of integer GPS ambiguity rounding and
+    bootstrapping", J. Geodesy 72; used by LAMBDA's partial ambiguity resolution).
+
+    Parameters
+    ----------
+    d : array_like, shape (n,)
+        Conditional variances of the (decorrelated) ambiguities, cycles² (:func:`ld_factorize`,
+        :func:`decorrelate`).
+
+    Returns
+    -------
+    float
+        ``Π_i (2 Φ(1 / (2 σ_i)) − 1) = Π_i erf(1 / (2 √(2 d_i)))``; 1 for an empty set.
+    """
+    dd = np.asarray(d, dtype=float).ravel()
+    if np.any(~np.isfinite(dd)) or np.any(dd <= 0):
+        raise AmbiguityError(f"conditional variances must be finite and > 0, got {dd}")
+    return float(np.prod([math.erf(1.0 / (2.0 * math.sqrt(2.0 * x))) for x in dd]))
+
+
+def success_tail(d, min_success_rate: float) -> int:
+    """First index ``k`` of the longest tail ``d[k:]`` whose bootstrapped success rate is at least
+    ``min_success_rate`` (``len(d)``: not even the last ambiguity qualifies).
+
+    With :func:`ld_factorize`'s convention (``d[i]`` conditioned on ``i+1 … n−1``) the tail is a
+    set that bootstrapping fixes first, and its success rate is the product over the tail alone:
+    the subset for partial ambiguity resolution with a success-rate criterion.
+    """
+    dd = np.asarray(d, dtype=float).ravel()
+    p = 1.0
+    k = dd.size
+    for i in range(dd.size - 1, -1, -1):
+        p *= math.erf(1.0 / (2.0 * math.sqrt(2.0 * dd[i])))
+        if p < min_success_rate:
+            break
+        k = i
+    return k
 
 
 def partial_fix(a, Q, threshold=RATIO_THRESHOLD, min_fixed=1, *, max_nodes=None, progress=None):

@@ -21,7 +21,7 @@ from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.signals import signal, SYSTEM_NAMES
 from cdgps_cli.estimation import kalman
-from cdgps_cli.estimation.ambiguity import decorrelate, ld_factorize, resolve
+from cdgps_cli.estimation.ambiguity import bootstrap_success_rate, decorrelate, ld_factorize, resolve, success_tail
 from cdgps_cli.measurement.dd_signals import epoch_rows
 from cdgps_cli.measurement.differencing import dd_operator
 from cdgps_cli.measurement.epoch_pairing import age_variance_m2, carry_base_slips, pair_epochs
@@ -248,20 +248,39 @@ class _CarriedDecorrelation:
         else:                     # start again from scratch (resolve's own reduction does the work)
             self.Z, self.Zinv = eye, eye
 
-    def resolve(self, keys, a, Qa, threshold):
-        """:func:`~cdgps_cli.estimation.ambiguity.resolve` (full set) of ``a`` (n,) cycles with
-        covariance ``Qa`` (n, n) cycles²; ``integers`` in the original space."""
+    def resolve(self, keys, a, Qa, threshold, min_success_rate):
+        """Integers of the DD ambiguities ``a`` (n,) cycles, covariance ``Qa`` (n, n) cycles², in the
+        decorrelated space ``z = Zᵀ a``: the longest tail of z whose bootstrapped success rate is at
+        least ``min_success_rate`` (:func:`~cdgps_cli.estimation.ambiguity.success_tail`: the whole
+        set when it qualifies, else a partial set), accepted when it also passes the ratio test.
+
+        Returns ``accepted``, ``ratio``, ``success_rate`` (of the set tried), ``partial``, ``rows``
+        ((m, n) integer rows of Zᵀ fixed) and ``integers`` (m,)."""
         self._update(keys, Qa)
         Q = self.Z.T @ Qa @ self.Z
-        res = resolve(self.Z.T @ a, 0.5 * (Q + Q.T), threshold, partial=False)
+        _, d, Z1 = decorrelate(*ld_factorize(0.5 * (Q + Q.T)))   # the carried Z is reduced already: Z1 ≈ I
+        Zt = (self.Z @ Z1).T
+        Q = Zt @ Qa @ Zt.T
+        Q = 0.5 * (Q + Q.T)
+        z = Zt @ a
+        k = success_tail(d, min_success_rate)
+        n = len(z)
+        out = {"accepted": False, "ratio": np.nan, "success_rate": bootstrap_success_rate(d[k:]) if k < n else 0.0,
+               "rows": None, "integers": None, "partial": 0 < k < n}
+        if n - k < 1:
+            return out
+        res = resolve(z[k:], Q[k:, k:], threshold, partial=False)
+        out["ratio"] = res.get("ratio", np.nan)
         if res["accepted"]:
-            res["integers"] = self.Zinv.T @ res["integers"]
-        return res
+            out.update(accepted=True, rows=Zt[k:], integers=res["integers"])
+        return out
 
 
 def _fix(st, groups, opt, carried):
-    """DD ambiguities of every fixable group, resolved as one set: the fixed position (or None), the
-    number of DD ambiguities fixed, the ratio, the fixed position's covariance (3, 3; m², or None)."""
+    """DD ambiguities of every fixable group, resolved as one set (partially when only part of it
+    reaches the success rate): the fixed position (or None), the number of (decorrelated)
+    ambiguities fixed, the ratio, the fixed position's covariance (3, 3; m², or None) and whether only
+    part of the set was fixed."""
     rows, keys = [], []
     for g in groups:
         if g["signal"].startswith("R:") and not opt["glonass_fix"]:
@@ -272,17 +291,19 @@ def _fix(st, groups, opt, carried):
         rows.append(T)
         keys.append((g["signal"], tuple(g["sats"]), g["ref"]))
     if not rows:
-        return None, 0, np.nan, None
+        return None, 0, np.nan, None, False
     T = np.vstack(rows)
     a = T @ st.x
     Qa = T @ st.P @ T.T
-    res = carried.resolve(tuple(keys), a, 0.5 * (Qa + Qa.T), opt["ratio"])
+    res = carried.resolve(tuple(keys), a, 0.5 * (Qa + Qa.T), opt["ratio"], opt["min_success_rate"])
     if not res["accepted"]:
-        return None, 0, res.get("ratio", np.nan), None
-    Pxa = st.P[:3] @ T.T
-    dx = Pxa @ np.linalg.solve(Qa, a - res["integers"])
-    cov = st.P[:3, :3] - Pxa @ np.linalg.solve(Qa, Pxa.T)
-    return st.x[:3] - dx, len(a), res.get("ratio", np.nan), 0.5 * (cov + cov.T)
+        return None, 0, res["ratio"], None, False
+    Ts = res["rows"] @ T                                      # the fixed integer combinations of the state
+    Qs = Ts @ st.P @ Ts.T
+    Pxs = st.P[:3] @ Ts.T
+    dx = Pxs @ np.linalg.solve(Qs, Ts @ st.x - res["integers"])
+    cov = st.P[:3, :3] - Pxs @ np.linalg.solve(Qs, Pxs.T)
+    return st.x[:3] - dx, len(res["integers"]), res["ratio"], 0.5 * (cov + cov.T), res["partial"]
 
 
 def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m, *, options: dict | None = None,
@@ -314,8 +335,6 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
     origin = np.asarray(rover_xyz0_m, float)
     length_km = np.linalg.norm(origin - base_xyz) / 1e3
     iono = opt["iono_sigma_m_per_km"] * length_km if length_km >= opt["iono_threshold_km"] else 0.0
-    pos_dyn = Static(3) if opt["mode"] == "static" else RandomWalk(3, opt["kinematic_sigma_m_per_sqrt_s"])
-    st = _State(3)
     try:
         pairs = pair_epochs(rover["time_gps_s"].to_numpy(), base["time_gps_s"].to_numpy(),
                             sync_tol_s=opt["sync_tol_s"], max_age_s=opt["max_age_s"])
@@ -328,42 +347,131 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
                          f"max_age_s = {opt['max_age_s']:g} s (" + "; ".join(f"{n} {r}" for r, n in ps["dropped"].items())
                          + f"; the base has {ps['base_epochs']} epochs)")
     rows = _paired_rows(base, rover, pairs, opt)
-    out = {k: [] for k in ("float", "fixed", "n", "ratio", "float_cov", "fixed_cov", "ns")}
+    n_ep = times.size
+    fwd = _filter_pass(rows, times, range(n_ep), opt, base_xyz, origin, iono, progress)
+    direction = "forward" if opt["mode"] == "static" else opt["direction"]
+    if direction == "forward":
+        res = fwd
+    else:
+        back_rows = dict(rows, slip=_backward_slips(rows))
+        bwd = _filter_pass(back_rows, times, range(n_ep - 1, -1, -1), opt, base_xyz, origin, iono, None)
+        res = bwd if direction == "backward" else _combine(fwd, bwd)
+    ok = res["fixed"]
+    last = res["fixed_xyz"][-1] if ok[-1] else res["float_xyz"][-1]
+    return {"time_gps_s": times, "float_xyz_m": res["float_xyz"], "fixed_xyz_m": np.where(ok[:, None], res["fixed_xyz"], np.nan),
+            "fixed": ok, "n_dd_ambiguities": res["n_fixed"], "ratio": res["ratio"],
+            "iono_model": "estimated" if iono else "neglected (short baseline)", "baseline_km": length_km,
+            "static_xyz_m": last, "epoch_pairing": pairs.summary, "base_age_s": pairs.age_s,
+            "float_cov_m2": res["float_cov"], "fixed_cov_m2": np.where(ok[:, None, None], res["fixed_cov"], np.nan),
+            "n_satellites": res["ns"], "direction": direction, "fixes_rejected": int(res.get("rejected", 0)),
+            "partial_fixes": int(res["partial"].sum())}
+
+
+def _filter_pass(rows, times, order, opt, base_xyz, origin, iono, progress) -> dict:
+    """One Kalman pass over the epochs in ``order`` (forward or backward); per epoch (in time order)
+    the float and fixed positions (ECEF, m) and covariances, the DD ambiguities fixed, whether only
+    a partial set was (the position is then kept as float), the ratio and the satellites used."""
+    n_ep = times.size
+    pos_dyn = Static(3) if opt["mode"] == "static" else RandomWalk(3, opt["kinematic_sigma_m_per_sqrt_s"])
+    st = _State(3)
+    out = {"float_xyz": np.full((n_ep, 3), np.nan), "fixed_xyz": np.full((n_ep, 3), np.nan),
+           "float_cov": np.full((n_ep, 3, 3), np.nan), "fixed_cov": np.full((n_ep, 3, 3), np.nan),
+           "n_fixed": np.zeros(n_ep, dtype=np.int64), "ratio": np.full(n_ep, np.nan),
+           "partial": np.zeros(n_ep, dtype=bool), "ns": np.zeros(n_ep, dtype=np.int64)}
     carried = _CarriedDecorrelation()
     t_prev = None
-    for k, t in enumerate(times):
+    for i, k in enumerate(order):
+        t = times[k]
         groups = _epoch_groups(rows, k)
         if t_prev is not None:
-            A, _, Q = pos_dyn.transition(t - t_prev)
+            dt = abs(t - t_prev)
+            _, _, Q = pos_dyn.transition(dt)
             st.P[:3, :3] += Q
             if iono:
-                ion = [i for i, key in enumerate(st.keys) if key[0] == "I"]
-                st.P[ion, ion] += opt["iono_rw_m_per_sqrt_s"] ** 2 * (t - t_prev)
+                ion = [j for j, key in enumerate(st.keys) if key[0] == "I"]
+                st.P[ion, ion] += opt["iono_rw_m_per_sqrt_s"] ** 2 * dt
         t_prev = t
         _prepare_state(st, groups, opt, iono)
         if groups:
             xb, Pb = st.x.copy(), st.P
             xi, L = xb, None
-            for _ in range(2 if k else 4):   # iterated update (relinearized at the new estimate; same noise)
+            for _ in range(2 if i else 4):   # iterated update (relinearized at the new estimate; same noise)
                 r, H, L = epoch_rows(xi, groups, base_xyz, origin, len(xb), noise_chol=L)
                 xi, P, _ = kalman.update(xb, Pb, r + H @ (xi - xb), H, noise_chol=L)
             st.x, st.P = xi, P
-        fx, n, ratio, fx_cov = _fix(st, groups, opt, carried) if (groups and opt["fix"]) else (None, 0, np.nan, None)
-        out["float"].append(origin + st.x[:3])
-        out["fixed"].append(origin + fx if fx is not None else np.full(3, np.nan))
-        out["n"].append(n)
-        out["ratio"].append(ratio)
-        out["float_cov"].append(st.P[:3, :3].copy())
-        out["fixed_cov"].append(fx_cov if fx_cov is not None else np.full((3, 3), np.nan))
-        out["ns"].append(len({s for g in groups for s in g["sats"]}))
+        fx, n, ratio, fx_cov, partial = _fix(st, groups, opt, carried) if (groups and opt["fix"]) else (None, 0, np.nan, None, False)
+        out["float_xyz"][k] = origin + st.x[:3]
+        out["float_cov"][k] = st.P[:3, :3]
+        if fx is not None and partial:             # part of the set: a better float, not a fixed position
+            out["float_xyz"][k], out["float_cov"][k] = origin + fx, fx_cov
+        elif fx is not None:
+            out["fixed_xyz"][k], out["fixed_cov"][k] = origin + fx, fx_cov
+        out["n_fixed"][k], out["ratio"][k], out["partial"][k] = n, ratio, partial
+        out["ns"][k] = len({s for g in groups for s in g["sats"]})
         if progress is not None:
-            progress(k + 1, len(times))
-    fixed = np.array(out["fixed"])
-    ok = np.isfinite(fixed[:, 0])
-    last = fixed[-1] if ok[-1] else np.array(out["float"])[-1]
-    return {"time_gps_s": times, "float_xyz_m": np.array(out["float"]), "fixed_xyz_m": fixed, "fixed": ok,
-            "n_dd_ambiguities": np.array(out["n"]), "ratio": np.array(out["ratio"]),
-            "iono_model": "estimated" if iono else "neglected (short baseline)", "baseline_km": length_km,
-            "static_xyz_m": last, "epoch_pairing": pairs.summary, "base_age_s": pairs.age_s,
-            "float_cov_m2": np.array(out["float_cov"]), "fixed_cov_m2": np.array(out["fixed_cov"]),
-            "n_satellites": np.array(out["ns"], dtype=np.int64)}
+            progress(i + 1, n_ep)
+    out["fixed"] = np.isfinite(out["fixed_xyz"][:, 0])
+    return out
+
+
+def _backward_slips(rows) -> np.ndarray:
+    """Slip flags for a pass backward in time: a flag at a channel's row (a new ambiguity from that
+    epoch on) belongs, going backward, to the channel's previous row."""
+    n = rows["sats"].size
+    epoch = np.repeat(np.arange(rows["ptr"].size - 1), np.diff(rows["ptr"]))
+    key = np.char.add(rows["sats"].astype(str), rows["code"].astype(str))
+    order = np.lexsort((epoch, key))
+    k_o, s_o = key[order], rows["slip"][order]
+    nxt = np.zeros(n, dtype=bool)
+    same = k_o[1:] == k_o[:-1]
+    nxt[:-1] = same & s_o[1:]
+    out = np.zeros(n, dtype=bool)
+    out[order] = nxt
+    return out
+
+
+#: χ²(3) at 0.999: forward and backward fixed positions farther apart than this disagree
+_CHI2_3_999 = 16.266
+
+
+def _combine(f: dict, b: dict) -> dict:
+    """Forward and backward passes combined per epoch (RTKLIB's combined mode, with a check):
+    fixed where both are fixed and agree (their weighted mean), or one is fixed and agrees with the
+    other's float; where the two fixes disagree (χ² of the difference over 0.999 of χ²(3)) one of
+    them is wrong and the epoch is float.  Floats are combined as independent estimates."""
+    n = f["fixed"].size
+    out = {k: np.array(v, copy=True) for k, v in f.items()}
+    out["rejected"] = 0
+    floor = np.eye(3) * 1e-6                                  # 1 mm²: fixed covariances are optimistic
+
+    def merge(xa, Pa, xb, Pb):
+        S = Pa + Pb
+        K = Pa @ np.linalg.inv(S)
+        return xa + K @ (xb - xa), Pa - K @ Pa
+
+    def agree(xa, Pa, xb, Pb) -> bool:
+        d = xa - xb
+        return float(d @ np.linalg.solve(Pa + Pb + floor, d)) <= _CHI2_3_999
+
+    for k in range(n):
+        xf, Pf = merge(f["float_xyz"][k], f["float_cov"][k], b["float_xyz"][k], b["float_cov"][k])
+        out["float_xyz"][k], out["float_cov"][k] = xf, Pf
+        ff, fb = f["fixed"][k], b["fixed"][k]
+        out["fixed_xyz"][k], out["fixed_cov"][k] = np.nan, np.nan
+        if ff and fb:
+            if agree(f["fixed_xyz"][k], f["fixed_cov"][k], b["fixed_xyz"][k], b["fixed_cov"][k]):
+                out["fixed_xyz"][k], out["fixed_cov"][k] = merge(f["fixed_xyz"][k], f["fixed_cov"][k],
+                                                                 b["fixed_xyz"][k], b["fixed_cov"][k])
+            else:
+                out["rejected"] += 1
+        elif ff or fb:
+            src, other = (f, b) if ff else (b, f)
+            if agree(src["fixed_xyz"][k], src["fixed_cov"][k], other["float_xyz"][k], other["float_cov"][k]):
+                out["fixed_xyz"][k], out["fixed_cov"][k] = src["fixed_xyz"][k], src["fixed_cov"][k]
+            else:
+                out["rejected"] += 1
+        out["ratio"][k] = np.nanmax([f["ratio"][k], b["ratio"][k]]) if np.isfinite([f["ratio"][k], b["ratio"][k]]).any() else np.nan
+        out["n_fixed"][k] = max(f["n_fixed"][k], b["n_fixed"][k])
+        out["partial"][k] = f["partial"][k] and b["partial"][k]
+    out["fixed"] = np.isfinite(out["fixed_xyz"][:, 0])
+    return out

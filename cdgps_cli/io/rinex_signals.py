@@ -19,7 +19,7 @@ import pandas as pd
 
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import gps_seconds
-from cdgps_cli.core.signals import SYSTEM_NAMES, glonass_frequency_hz, signal
+from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, glonass_frequency_hz, signal
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.io.rinex import _ObsHeader, _parse_version_line, _read_lines
 
@@ -89,6 +89,28 @@ def _value(rec: str, k: int, col0: int) -> tuple[float, int]:
     lli = rec[c + 14:c + 15]
     v = float(f) if f.strip() else math.nan
     return v, (int(lli) if lli.strip().isdigit() else 0)
+
+
+def signals_in_file(path: str | Path) -> list[str]:
+    """The signals of :data:`~cdgps_cli.core.signals.SIGNALS` whose carrier phase the observation
+    file's header lists (RINEX 3 ``SYS / # / OBS TYPES``, RINEX 2 ``# / TYPES OF OBSERV``), in the
+    table's order."""
+    p = Path(path)
+    lines, compressed = _read_lines(p)
+    version, ftype, _ = _parse_version_line(lines, p, compressed, "observation")
+    if ftype != "O":
+        raise CdgpsError(f"{p}: not a RINEX observation file (type {ftype!r})")
+    hdr = _ObsHeader(p, version, compressed)
+    if next((i for i in range(1, len(lines)) if hdr.apply(lines[i], i + 1) == "END OF HEADER"), None) is None:
+        raise CdgpsError(f"{p}: no 'END OF HEADER' line")
+    v3 = version >= 3
+    out = []
+    for name, sig in SIGNALS.items():
+        if not v3 and sig.system not in ("G", "R"):
+            continue
+        if _codes(hdr.info["obs_types"].get(sig.system if v3 else "*", []), name, v3) is not None:
+            out.append(name)
+    return out
 
 
 def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None) -> tuple[dict, pd.DataFrame]:

@@ -19,11 +19,11 @@ import pandas as pd
 from cdgps_cli import __version__
 from cdgps_cli.config.options import MULTI_GNSS_DEFAULTS
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.core.signals import SIGNALS, signal
+from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, signal
 from cdgps_cli.estimation.rtk_multi import check_common_signals, receiver_geometry, solve_rtk
 from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.io.rinex import NAV_SYSTEMS, read_rinex_nav
-from cdgps_cli.io.rinex_signals import read_rinex_signals
+from cdgps_cli.io.rinex_signals import read_rinex_signals, signals_in_file
 from cdgps_cli.io.solution_formats import Q_FIX, Q_FLOAT, finite_or, geojson_text, nmea_gga_text, pos_text
 from cdgps_cli.model.gps.orbits import ecef_to_enu, ecef_to_geodetic, enu_matrix
 
@@ -36,7 +36,11 @@ def validate_options(options: dict) -> dict:
     bad = [f"{k}: unknown option" for k in options if k not in MULTI_GNSS_DEFAULTS]
     if opt["mode"] not in ("kinematic", "static"):
         bad.append(f"mode: expected 'kinematic' or 'static', got {opt['mode']!r}")
-    for s in opt["signals"]:
+    if opt["direction"] not in ("forward", "backward", "combined"):
+        bad.append(f"direction: expected 'forward', 'backward' or 'combined', got {opt['direction']!r}")
+    if not 0.0 < float(opt["min_success_rate"]) < 1.0:
+        bad.append(f"min_success_rate: expected a probability in (0, 1), got {opt['min_success_rate']}")
+    for s in (() if opt["signals"] == "auto" else opt["signals"]):
         if s not in SIGNALS:
             bad.append(f"signals: unknown signal {s!r} (known: {', '.join(SIGNALS)})")
     if not 0 <= float(opt["mask_deg"]) < 90:
@@ -66,14 +70,17 @@ def _nav(paths, systems) -> pd.DataFrame:
                 raise
     if not tabs:
         raise CdgpsError(f"no usable ephemerides in {', '.join(map(str, paths))} for systems {', '.join(systems)}")
-    nav = pd.concat(tabs, ignore_index=True)
-    return nav.drop_duplicates(["sat", "toe_gps_s"]).reset_index(drop=True)
+    nav = pd.concat(tabs, ignore_index=True).drop_duplicates(["sat", "toe_gps_s"]).reset_index(drop=True)
+    nav.attrs = {}          # the files' header notes: pandas deep-copies attrs into every subset (a third of the run)
+    return nav
 
 
 def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None, options: dict | None = None) -> dict:
     """Solve base → rover and write ``out_csv``; returns the summary (fix rate, static position …)."""
     opt = validate_options(options or {})
-    sigs = list(opt["signals"])
+    warnings = []
+    sigs = _auto_signals(base_path, rover_path, nav_paths, warnings) if opt["signals"] == "auto" else list(opt["signals"])
+    opt["signals"] = tuple(sigs)
     systems = sorted({signal(s).system for s in sigs})
     for c in systems:
         if c not in NAV_SYSTEMS:
@@ -90,7 +97,6 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
     hr, r = read_rinex_signals(rover_path, sigs, glo_k)
     if nav_error is not None:
         raise nav_error
-    warnings = []
     b, r = (_first_of_repeated_epochs(df, path, who, warnings) for df, path, who in ((b, base_path, "base"), (r, rover_path, "rover")))
     check_common_signals(b, r, sigs, nav, {"base": str(base_path), "rover": str(rover_path), "nav": ", ".join(map(str, nav_paths))})
     bx = np.asarray(base_xyz_m if base_xyz_m is not None else hb["approx_position_xyz_m"] or (), dtype=float)
@@ -101,6 +107,7 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
     warnings += [f"{path} ({who}): observations of {len(d)} satellite(s) without a healthy ephemeris covering them "
                  f"dropped: " + ", ".join(f"{s} ({n} epochs)" for s, n in d.items())
                  for who, path, d in (("base", base_path, gb.attrs["dropped"]), ("rover", rover_path, gr.attrs["dropped"])) if d]
+    gb.attrs, gr.attrs = {}, {}
     try:
         res = solve_rtk(gb, gr, bx, rx, options=opt)
     except CdgpsError as exc:
@@ -115,7 +122,8 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
     text = solution_text(res, sigs, opt, out_csv, bx, inputs=(rover_path, base_path, *nav_paths))
     write_atomic(out_csv, lambda tmp: Path(tmp).write_text(text, newline=""))
     return {"epochs": int(len(res["time_gps_s"])), "fixed_pct": float(100 * res["fixed"].mean()),
-            "fixed_epochs": int(res["fixed"].sum()),
+            "fixed_epochs": int(res["fixed"].sum()), "direction": res["direction"],
+            "fixes_rejected": res["fixes_rejected"], "partial_fixes": res["partial_fixes"],
             "static_xyz_m": res["static_xyz_m"].tolist(), "iono_model": res["iono_model"], "signals": sigs,
             "epoch_pairing": ep, "warnings": warnings}
 
@@ -174,6 +182,30 @@ def solution_text(res: dict, sigs, opt: dict, out_path, base_xyz, *, inputs=()) 
                   "sigma_e_m": sig_enu[:, 0], "sigma_n_m": sig_enu[:, 1], "sigma_u_m": sig_enu[:, 2]}
                  ).to_csv(buf, index=False, float_format="%.4f")
     return buf.getvalue()
+
+
+def _auto_signals(base_path, rover_path, nav_paths, warnings: list) -> list[str]:
+    """Every signal both observation files hold whose system has ephemerides in the navigation files
+    (systems the navigation data lack are named in a warning); CdgpsError when none is left."""
+    held = [set(signals_in_file(p)) for p in (base_path, rover_path)]
+    both = [s for s in SIGNALS if s in held[0] and s in held[1]]
+    systems = sorted({signal(s).system for s in both if signal(s).system in NAV_SYSTEMS})
+    have = set()
+    for p in nav_paths:
+        try:
+            have |= set(read_rinex_nav(p, systems=tuple(systems))["sat"].str[0])
+        except CdgpsError:
+            continue
+    use = [s for s in both if signal(s).system in have]
+    lost = sorted({signal(s).system for s in both} - have)
+    if lost:
+        warnings.append(f"signals of {', '.join(SYSTEM_NAMES.get(c, c) for c in lost)} held by both files are not used: "
+                        f"no ephemerides for them in {', '.join(map(str, nav_paths))}")
+    if not use:
+        raise CdgpsError(f"{base_path} (base) and {rover_path} (rover) share no signal with ephemerides in "
+                         f"{', '.join(map(str, nav_paths))}: base holds {' '.join(sorted(held[0])) or 'none'}, rover "
+                         f"{' '.join(sorted(held[1])) or 'none'}")
+    return use
 
 
 def _first_of_repeated_epochs(df: pd.DataFrame, path, who: str, warnings: list) -> pd.DataFrame:

@@ -490,7 +490,9 @@ def static_report(states, run, angle: str, survey_deg: float | None, out_dir: st
             raise CdgpsError(f"--end ({t1:g}) must be after --start ({t0:g})")
     sel = (t_all >= t0 - 1e-9) & (t_all <= t1 + 1e-9)
     if sel.sum() < 10:
-        raise CdgpsError(f"the segment {t0:g}–{t1:g} s has fewer than 10 estimates")
+        where = "the detected rest segment" if how == "detected" else "the segment given by --start/--end"
+        raise CdgpsError(f"{where}, {t0:g}–{t1:g} s, has fewer than 10 estimates ({int(sel.sum())}; the states "
+                         f"span {float(t_all[0]):g}–{float(t_all[-1]):g} s)")
     t = t_all[sel]
     a = np.degrees(a_all[sel])
     sig = None

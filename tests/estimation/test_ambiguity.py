@@ -574,3 +574,26 @@ def test_partial_fix_validation(partial_case):
         partial_fix(partial_case["a"], partial_case["Q"], min_fixed=4)
     with pytest.raises(AmbiguityError, match="size mismatch"):
         partial_fix(partial_case["a"][:2], partial_case["Q"])
+
+
+def test_bootstrap_success_rate_closed_form_and_monte_carlo():
+    """1-D: P = 2Φ(1/(2σ)) − 1 exactly; 2-D correlated: the product of conditional terms equals the
+    frequency with which sequential rounding (bootstrapping) recovers the true integers."""
+    import math
+    from cdgps_cli.estimation.ambiguity import bootstrap_success_rate, ld_factorize, success_tail
+    from scipy.stats import norm
+    for s in (0.05, 0.2, 0.5):
+        assert bootstrap_success_rate([s * s]) == pytest.approx(2 * norm.cdf(1 / (2 * s)) - 1, rel=1e-12)
+    Q = np.array([[0.09, 0.05], [0.05, 0.06]])
+    L, d = ld_factorize(Q)
+    p = bootstrap_success_rate(d)
+    rng = np.random.default_rng(5)
+    e = rng.multivariate_normal([0, 0], Q, size=200_000)
+    z1 = np.round(e[:, 1])                                   # ambiguity 1 first (d[1] is unconditional)
+    z0 = np.round(e[:, 0] - Q[0, 1] / Q[1, 1] * (e[:, 1] - z1))
+    freq = np.mean((z0 == 0) & (z1 == 0))
+    assert abs(freq - p) < 4 * math.sqrt(p * (1 - p) / e.shape[0])
+    assert success_tail(d, 0.0) == 0 and success_tail([1e-4, 1.0, 1e-4], 0.999) == 2
+    assert success_tail([1.0], 0.999) == 1
+    with pytest.raises(Exception):
+        bootstrap_success_rate([0.0])

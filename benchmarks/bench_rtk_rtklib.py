@@ -1,0 +1,166 @@
+"""`cdgps rtk` side by side with RTKLIB's `rnx2rtkp` on the same files, in one run (issue 28 item 6).
+
+For each case both programs run as whole processes (wall clock from start to exit, median of
+``--repeats``), with the same signals, elevation mask (15°), ratio threshold (3), base position and
+navigation files; RTKLIB gets an explicit ``-k`` options file (``pos1-navsys`` for the systems —
+Debian's ``-sys`` switch turns on other systems too — and ``pos1-frequency`` l1 or l1+l2: the
+Debian build refuses l1+l2+l5) and combined forward/backward processing (``-c``) like our default.
+The peer failing (non-zero exit, no solution lines) stops the benchmark with its stderr; a missing
+``rnx2rtkp`` stops it too unless ``--no-rtklib``.
+
+Figures per case: epochs and fixed epochs of each, seconds per epoch of each whole process and
+their ratio (ours / RTKLIB; < 1: we are faster), and the difference of the fixed-epoch means (ENU,
+mm) where both fix.  Writes ``docs/benchmarks/rtk_rtklib.json``.
+
+Cases: the real Septentrio pair (mosaic-static) GPS L1 and multi-GNSS L1+L2; the same pair with a
+u-blox-like base (a quarter of its epochs, ms clock steering; sim/rinex_edit); GEONET 0759→3040
+GPS L1+L2; the Spirent GPS+Galileo set (2 km static rover) L1+L2; the car against a CORS 5 km
+away (geonet-car) GPS+Galileo L1.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = ROOT.parent / "shared" / "data"
+CDGPS = str(Path(sys.executable).parent / "cdgps")
+OUT = ROOT / "docs" / "benchmarks" / "rtk_rtklib.json"
+NAVSYS = {"G": 1, "R": 4, "E": 8, "C": 32}
+
+
+def _case(name, base, rover, navs, base_xyz, signals, freq):
+    return {"name": name, "base": base, "rover": rover, "navs": navs, "base_xyz": base_xyz, "signals": signals, "freq": freq}
+
+
+def cases(tmp: Path) -> list:
+    from cdgps_cli.sim.rinex_edit import edit_rinex3_obs  # noqa: PLC0415
+
+    ms = SHARED / "real-pairs" / "mosaic-static"
+    ms_xyz = (-3817681.1213, 3562839.4311, 3650159.1593)
+    rng = np.random.default_rng(7)
+    keep, t = set(), 1403252400
+    while t <= 1403252700:
+        keep.add(t)
+        t += int(rng.integers(1, 9))
+    gappy = tmp / "base_gappy.obs"
+    gappy.write_text(edit_rinex3_obs((ms / "base.obs").read_text(), keep=lambda t: round(t) in keep,
+                                     clock_offset_s=lambda t: -0.010 + 0.001 * ((round(t) // 7) % 2)))
+    rover_ms = tmp / "rover_ms.obs"
+    rover_ms.write_text(edit_rinex3_obs((ms / "rover.obs").read_text(),
+                                        clock_offset_s=lambda t: -0.009 + 0.001 * ((round(t) // 5) % 2)))
+    ge = SHARED / "rinex-ge"
+    car = SHARED / "real-pairs" / "geonet-car"
+    geo = SHARED / "rinex"
+    multi = ("G:L1", "G:L2", "R:G1", "R:G2", "E:E1", "E:E5b", "C:B1I", "C:B2I")
+    return [
+        _case("mosaic-static GPS L1", ms / "base.obs", ms / "rover.obs", [ms / "base.nav"], ms_xyz, ("G:L1",), 1),
+        _case("mosaic-static G+R+E+C L1+L2", ms / "base.obs", ms / "rover.obs", [ms / "base.nav"], ms_xyz, multi, 2),
+        _case("mosaic-static, u-blox-like gappy base, GPS L1", gappy, rover_ms, [ms / "base.nav"], ms_xyz, ("G:L1",), 1),
+        _case("GEONET 0759-3040 GPS L1+L2", geo / "07590920.05o", geo / "30400920.05o", [geo / "07590920.05n"],
+              None, ("G:L1", "G:L2"), 2),
+        _case("Spirent 2 km static G+E L1+L2", ge / "Base-static_MO_Spirent.obs", ge / "Rover-static-2km-east_MO_Spirent.obs",
+              [ge / "RINEX_GN_Spirent.23N", ge / "RINEX_EN_Spirent.23L"], (4157177.06580187, 671230.476590636, 4774767.03105544),
+              ("G:L1", "G:L2", "E:E1", "E:E5b"), 2),
+        _case("geonet-car G+E L1", car / "3034265G.21O", car / "SEPT265G.21O", [car / "SEPT2650.21P"],
+              (-3959400.631, 3385704.533, 3667523.111), ("G:L1", "E:E1"), 1),
+    ]
+
+
+def _header_xyz(path: Path):
+    for ln in path.read_text(errors="replace").splitlines():
+        if ln[60:].strip() == "APPROX POSITION XYZ":
+            return tuple(float(x) for x in ln[:60].split())
+    raise SystemExit(f"{path}: no APPROX POSITION XYZ")
+
+
+def _timed(cmd) -> tuple[float, subprocess.CompletedProcess]:
+    t0 = time.perf_counter()
+    p = subprocess.run(cmd, capture_output=True, text=True, timeout=1800)
+    return time.perf_counter() - t0, p
+
+
+def run_rtklib(c, tmp: Path, repeats: int):
+    systems = sorted({s[0] for s in c["signals"]})
+    xyz = c["base_xyz"] or _header_xyz(c["base"])
+    conf = tmp / "rtklib.conf"
+    conf.write_text("\n".join([
+        "pos1-posmode=kinematic", f"pos1-frequency={'l1' if c['freq'] == 1 else 'l1+l2'}", "pos1-soltype=combined",
+        "pos1-elmask=15", "pos1-tropopt=saas", "pos1-ionoopt=off", f"pos1-navsys={sum(NAVSYS[s] for s in systems)}",
+        "pos2-armode=continuous", "pos2-arthres=3", "pos2-gloarmode=off", "out-solformat=xyz", "out-timesys=gpst",
+        "ant2-postype=xyz", *(f"ant2-pos{i + 1}={v:.4f}" for i, v in enumerate(xyz)), ""]))
+    out = tmp / "rtklib.pos"
+    times = []
+    for _ in range(repeats):
+        sec, p = _timed(["rnx2rtkp", "-k", str(conf), "-o", str(out), str(c["rover"]), str(c["base"]), *map(str, c["navs"])])
+        rows = [ln.split() for ln in out.read_text().splitlines() if ln.strip() and not ln.startswith("%")] if out.exists() else []
+        if p.returncode != 0 or not rows:
+            raise SystemExit(f"rnx2rtkp failed on {c['name']} (exit {p.returncode}, {len(rows)} solution lines):\n"
+                             f"{p.stderr[-2000:]}\noptions:\n{conf.read_text()}")
+        times.append(sec)
+    xyzs = np.array([[float(r[2]), float(r[3]), float(r[4])] for r in rows])
+    q = np.array([int(r[5]) for r in rows])
+    return statistics.median(times), xyzs, q == 1, xyz
+
+
+def run_cdgps(c, tmp: Path, repeats: int):
+    out = tmp / "cdgps.csv"
+    cmd = [CDGPS, "-q", "rtk", "--base", str(c["base"]), "--rover", str(c["rover"]), *sum((["--nav", str(n)] for n in c["navs"]), []),
+           "--signals", ",".join(c["signals"]), "-o", str(out), "--json"]
+    if c["base_xyz"]:
+        cmd += ["--base-xyz", *map(str, c["base_xyz"])]
+    times = []
+    for _ in range(repeats):
+        sec, p = _timed(cmd)
+        if p.returncode != 0:
+            raise SystemExit(f"cdgps rtk failed on {c['name']}:\n{p.stderr[-2000:]}")
+        times.append(sec)
+    import pandas as pd  # noqa: PLC0415
+
+    d = pd.read_csv(out, comment="#")
+    return statistics.median(times), d[["x_m", "y_m", "z_m"]].to_numpy(), d["fixed"].to_numpy() == 1, json.loads(p.stdout)
+
+
+def main() -> None:
+    from cdgps_cli.model.gps.orbits import ecef_to_enu  # noqa: PLC0415
+
+    repeats = int(sys.argv[sys.argv.index("--repeats") + 1]) if "--repeats" in sys.argv else 3
+    peer = "--no-rtklib" not in sys.argv
+    if peer and not shutil.which("rnx2rtkp"):
+        raise SystemExit("rnx2rtkp not found: apt-get install rtklib (or --no-rtklib for our side only)")
+    res = {"machine": {"python": platform.python_version(), "cpu": platform.processor() or platform.machine()},
+           "repeats": repeats, "cases": {}}
+    with tempfile.TemporaryDirectory() as d:
+        tmp = Path(d)
+        for c in cases(tmp):
+            sec_c, xyz_c, fix_c, summ = run_cdgps(c, tmp, repeats)
+            row = {"signals": list(c["signals"]), "epochs": int(len(fix_c)), "cdgps_fixed": int(fix_c.sum()),
+                   "cdgps_s": sec_c, "cdgps_ms_per_epoch": 1e3 * sec_c / max(len(fix_c), 1),
+                   "cdgps_fixes_rejected": summ["fixes_rejected"], "epoch_pairing": summ["epoch_pairing"]}
+            if peer:
+                sec_r, xyz_r, fix_r, bxyz = run_rtklib(c, tmp, repeats)
+                row.update(rtklib_epochs=int(len(fix_r)), rtklib_fixed=int(fix_r.sum()), rtklib_s=sec_r,
+                           rtklib_ms_per_epoch=1e3 * sec_r / max(len(fix_r), 1))
+                row["speed_ratio_per_epoch"] = row["cdgps_ms_per_epoch"] / row["rtklib_ms_per_epoch"]
+                if fix_c.any() and fix_r.any():
+                    diff = ecef_to_enu(xyz_c[fix_c], bxyz).mean(axis=0) - ecef_to_enu(xyz_r[fix_r], bxyz).mean(axis=0)
+                    row["fixed_mean_diff_enu_mm"] = [round(1e3 * float(v), 2) for v in diff]
+            res["cases"][c["name"]] = row
+            print(c["name"], json.dumps({k: v for k, v in row.items() if k != "epoch_pairing"}), flush=True)
+    OUT.parent.mkdir(parents=True, exist_ok=True)
+    OUT.write_text(json.dumps(res, indent=1) + "\n")
+    print(f"wrote {OUT}")
+
+
+if __name__ == "__main__":
+    main()
