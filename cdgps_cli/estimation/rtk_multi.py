@@ -142,11 +142,15 @@ def _paired_rows(base, rover, pairs, opt) -> dict:
         "phase_sd_m": lam * (m["phase_cycles_r"].to_numpy() - m["phase_cycles_b"].to_numpy()) + dclk - dtrop,
         "code_sd_m": m["pseudorange_m_r"].to_numpy() - m["pseudorange_m_b"].to_numpy() + dclk - dtrop,
         "slip": ((m["lli_r"].to_numpy() & 1) > 0) | slip_b,
+        # LLI bit 1: half-cycle ambiguity not resolved by the receiver (u-blox before it decodes the
+        # data bits): the phase may be off by λ/2; such a row has an ambiguity of its own, never fixed
+        "half": ((m["lli_r"].to_numpy() | m["lli_b"].to_numpy()) & 2) > 0,
         "var_phase": var + var_age, "var_code": var * opt["code_ratio"] ** 2 + var_age,
     }
 
 
-_ROW_KEYS = ("sats", "lam_m", "mu", "sat_xyz", "sat_base_xyz", "phase_sd_m", "code_sd_m", "slip", "var_phase", "var_code")
+_ROW_KEYS = ("sats", "lam_m", "mu", "sat_xyz", "sat_base_xyz", "phase_sd_m", "code_sd_m", "slip", "half", "var_phase",
+             "var_code")
 
 
 def _epoch_groups(rows, k):
@@ -161,7 +165,8 @@ def _epoch_groups(rows, k):
             continue
         g = {key: rows[key][a:b] for key in _ROW_KEYS}
         g["signal"] = str(rows["names"][rows["code"][a]])
-        g["ref"] = int(np.argmax(rows["el"][a:b]))
+        el = np.where(g["half"], -np.inf, rows["el"][a:b]) if not g["half"].all() else rows["el"][a:b]
+        g["ref"] = int(np.argmax(el))          # highest, preferring satellites without a half-cycle flag
         groups.append(g)
     return groups
 
@@ -192,27 +197,33 @@ class _State:
         return self.keys.index(key)
 
 
+def _amb_key(g, j):
+    """State key of row ``j``'s SD ambiguity: signal, satellite, and whether its half cycle is
+    unresolved (a flag that comes or goes starts a new ambiguity)."""
+    return ("N", g["signal"], g["sats"][j], bool(g["half"][j]))
+
+
 def _prepare_state(st, groups, opt, iono):
     wanted = set()
     for g in groups:
-        for s in g["sats"]:
-            wanted.add(("N", g["signal"], s))
+        for j, s in enumerate(g["sats"]):
+            wanted.add(_amb_key(g, j))
             if iono:
                 wanted.add(("I", s))
     for g in groups:
-        for s, slip in zip(g["sats"], g["slip"]):
-            if slip and ("N", g["signal"], s) in st.keys:
-                wanted.discard(("N", g["signal"], s))
+        for j, slip in enumerate(g["slip"]):
+            if slip and _amb_key(g, j) in st.keys:
+                wanted.discard(_amb_key(g, j))
     st.keep(wanted)
     for g in groups:
         est = (g["phase_sd_m"] - g["code_sd_m"]) / g["lam_m"]
         for j, s in enumerate(g["sats"]):
-            if ("N", g["signal"], s) not in st.keys:
-                st.add(("N", g["signal"], s), est[j], (opt["amb_sigma_cycles"]) ** 2)
+            if _amb_key(g, j) not in st.keys:
+                st.add(_amb_key(g, j), est[j], (opt["amb_sigma_cycles"]) ** 2)
             if iono and ("I", s) not in st.keys:
                 st.add(("I", s), 0.0, iono ** 2)
     for g in groups:
-        g["amb_col"] = np.array([st.col(("N", g["signal"], s)) for s in g["sats"]])
+        g["amb_col"] = np.array([st.col(_amb_key(g, j)) for j in range(len(g["sats"]))])
         g["iono_col"] = np.array([st.col(("I", s)) if iono else -1 for s in g["sats"]])
 
 
@@ -285,11 +296,16 @@ def _fix(st, groups, opt, carried):
     for g in groups:
         if g["signal"].startswith("R:") and not opt["glonass_fix"]:
             continue
+        if g["half"][g["ref"]]:
+            continue                                  # every satellite of the group has an unresolved half cycle
         D = dd_operator(len(g["sats"]), g["ref"])
+        D = D[~np.delete(g["half"], g["ref"])]        # DDs of satellites with an unresolved half cycle stay float
+        if not len(D):
+            continue
         T = np.zeros((len(D), len(st.x)))
         T[:, g["amb_col"]] = D
         rows.append(T)
-        keys.append((g["signal"], tuple(g["sats"]), g["ref"]))
+        keys.append((g["signal"], tuple(g["sats"]), g["ref"], tuple(np.flatnonzero(g["half"]))))
     if not rows:
         return None, 0, np.nan, None, False
     T = np.vstack(rows)
