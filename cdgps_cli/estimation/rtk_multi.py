@@ -364,6 +364,9 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
                          + f"; the base has {ps['base_epochs']} epochs)")
     rows = _paired_rows(base, rover, pairs, opt)
     n_ep = times.size
+    if not any(_epoch_groups(rows, k) for k in range(n_ep)):
+        raise CdgpsError(f"no double differences: no epoch of the {n_ep} paired has two satellites of one signal "
+                         f"observed at both receivers above the {opt['mask_deg']:g}° mask")
     fwd = _filter_pass(rows, times, range(n_ep), opt, base_xyz, origin, iono, progress)
     direction = "forward" if opt["mode"] == "static" else opt["direction"]
     if direction == "forward":

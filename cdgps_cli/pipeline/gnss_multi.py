@@ -19,6 +19,7 @@ import pandas as pd
 from cdgps_cli import __version__
 from cdgps_cli.config.options import MULTI_GNSS_DEFAULTS
 from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, signal
 from cdgps_cli.estimation.rtk_multi import check_common_signals, receiver_geometry, solve_rtk
 from cdgps_cli.io.atomic import write_atomic
@@ -26,6 +27,7 @@ from cdgps_cli.io.rinex import NAV_SYSTEMS, read_rinex_nav
 from cdgps_cli.io.rinex_signals import read_rinex_signals, signals_in_file
 from cdgps_cli.io.solution_formats import Q_FIX, Q_FLOAT, finite_or, geojson_text, nmea_gga_text, pos_text
 from cdgps_cli.model.gps.orbits import ecef_to_enu, ecef_to_geodetic, enu_matrix
+from cdgps_cli.model.gps.positioning import ephemeris_coverage, spp_static
 
 __all__ = ["validate_options", "rtk_from_files"]
 
@@ -102,16 +104,24 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
     bx = np.asarray(base_xyz_m if base_xyz_m is not None else hb["approx_position_xyz_m"] or (), dtype=float)
     if bx.shape != (3,):
         raise CdgpsError(f"{base_path}: the base has no position (no APPROX POSITION XYZ; give --base-xyz X Y Z)")
-    rx = np.asarray(hr["approx_position_xyz_m"] or bx, dtype=float)
-    gb, gr = receiver_geometry(b, nav, bx), receiver_geometry(r, nav, rx)
+    rx, rx_from_spp = _rover_origin(hr, r, nav, bx, rover_path, warnings)
+    _check_position(bx, f"{base_path} (base)", "--base-xyz" if base_xyz_m is not None else "its APPROX POSITION XYZ")
+    gb, gr = (_geometry(df, nav, xyz, path, who, nav_paths) for df, xyz, path, who in
+              ((b, bx, base_path, "base"), (r, rx, rover_path, "rover")))
     warnings += [f"{path} ({who}): observations of {len(d)} satellite(s) without a healthy ephemeris covering them "
                  f"dropped: " + ", ".join(f"{s} ({n} epochs)" for s, n in d.items())
                  for who, path, d in (("base", base_path, gb.attrs["dropped"]), ("rover", rover_path, gr.attrs["dropped"])) if d]
     gb.attrs, gr.attrs = {}, {}
     try:
+        if rx_from_spp:             # a single-point origin is metres off: the rover's troposphere (≈ 0.3 mm per
+            # metre of height) is computed there, so move the origin to the float solution's median first
+            rough = solve_rtk(gb, gr, bx, rx, options={**opt, "fix": False, "direction": "forward"})
+            rx = np.median(rough["float_xyz_m"], axis=0)
+            gr = _geometry(r, nav, rx, rover_path, "rover", nav_paths)
+            gr.attrs = {}
         res = solve_rtk(gb, gr, bx, rx, options=opt)
     except CdgpsError as exc:
-        if str(exc).startswith("no common epochs"):
+        if str(exc).startswith(("no common epochs", "no double differences")):
             raise CdgpsError(f"{rover_path} (rover) and {base_path} (base): {exc}") from None
         raise
     ep = res["epoch_pairing"]
@@ -182,6 +192,56 @@ def solution_text(res: dict, sigs, opt: dict, out_path, base_xyz, *, inputs=()) 
                   "sigma_e_m": sig_enu[:, 0], "sigma_n_m": sig_enu[:, 1], "sigma_u_m": sig_enu[:, 2]}
                  ).to_csv(buf, index=False, float_format="%.4f")
     return buf.getvalue()
+
+
+#: a receiver on or near the Earth: its distance from the geocentre, m (WGS-84 radii 6 356 752–6 378 137 m,
+#: from the Dead Sea shore to above the highest summits and aircraft altitudes)
+_GEOCENTRIC_RANGE_M = (6.30e6, 6.45e6)
+
+
+def _check_position(xyz, who: str, source: str) -> None:
+    r = float(np.linalg.norm(xyz))
+    if not (np.all(np.isfinite(xyz)) and _GEOCENTRIC_RANGE_M[0] <= r <= _GEOCENTRIC_RANGE_M[1]):
+        raise CdgpsError(f"{who}: position from {source} is {' '.join(f'{v:g}' for v in xyz)} m, {r / 1e3:.1f} km from the "
+                         f"Earth's centre; expected an ECEF position on the Earth ({_GEOCENTRIC_RANGE_M[0] / 1e3:.0f}–"
+                         f"{_GEOCENTRIC_RANGE_M[1] / 1e3:.0f} km)")
+
+
+def _rover_origin(header: dict, obs: pd.DataFrame, nav, base_xyz, path, warnings: list) -> np.ndarray:
+    """The rover's a-priori position: its header's APPROX POSITION XYZ when that is on the Earth,
+    else (no position, or 0 0 0 as u-blox converters write) the mean single-point position from its
+    pseudoranges (a warning says so); and whether it is that single-point position."""
+    hx = np.asarray(header.get("approx_position_xyz_m") or (0.0, 0.0, 0.0), dtype=float)
+    r = float(np.linalg.norm(hx))
+    if np.all(np.isfinite(hx)) and _GEOCENTRIC_RANGE_M[0] <= r <= _GEOCENTRIC_RANGE_M[1]:
+        return hx, False
+    sig = "G:L1" if (obs["signal"] == "G:L1").any() else str(obs["signal"].iloc[0])
+    o = obs[(obs["signal"] == sig) & np.isfinite(obs["pseudorange_m"].to_numpy())]
+    o = o[ephemeris_coverage(nav, o["sat"].to_numpy(), o["time_gps_s"].to_numpy())]
+    if o.empty:
+        raise CdgpsError(f"{path} (rover): no usable APPROX POSITION XYZ and no {sig} pseudoranges covered by the "
+                         f"navigation data for a single-point position")
+    t = o["time_gps_s"].to_numpy()
+    x, _ = spp_static(np.unique(t, return_inverse=True)[1], o["sat"].to_numpy(), t, o["pseudorange_m"].to_numpy(), nav,
+                      x0_ecef_m=base_xyz, what=f"{path} (rover)")
+    warnings.append(f"{path} (rover): APPROX POSITION XYZ {' '.join(f'{v:g}' for v in hx)} is not on the Earth; "
+                    f"the a-priori position is the mean single-point position from its {sig} pseudoranges, "
+                    f"refined by a float solution")
+    return np.asarray(x, dtype=float), True
+
+
+def _geometry(df, nav, xyz, path, who, nav_paths):
+    """receiver_geometry with the file names and spans in its errors."""
+    try:
+        return receiver_geometry(df, nav, xyz)
+    except CdgpsError as exc:
+        t = df["time_gps_s"].to_numpy()
+        toe = nav["toe_gps_s"].to_numpy() if "toe_gps_s" in nav.columns and len(nav) else np.zeros(0)
+        span = (f"observations {gps_time_str(float(t.min()))} – {gps_time_str(float(t.max()))}" if t.size else "no observations")
+        eph = (f"ephemerides with toe {gps_time_str(float(toe.min()))} – {gps_time_str(float(toe.max()))}" if toe.size
+               else "no ephemerides")
+        raise CdgpsError(f"{path} ({who}) and {', '.join(map(str, nav_paths))}: {exc}; {span}, {eph} (give the "
+                         f"navigation file(s) of the observations' day)") from None
 
 
 def _auto_signals(base_path, rover_path, nav_paths, warnings: list) -> list[str]:

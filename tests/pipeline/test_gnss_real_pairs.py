@@ -194,3 +194,43 @@ def test_init_with_signals_on_a_gappy_base(files):
     b = _init(files, files / "base_gappy.obs", files / "rover_ms.obs", "gappy_sig", sig)
     assert b["solution"] == "fixed" and b["epochs"]["n_epochs_used"] == 301
     assert np.all(np.abs(np.array(a["baseline_enu_from_master_m"]) - np.array(b["baseline_enu_from_master_m"])) < 0.002)
+
+
+@pytest.mark.parametrize("case", ["base 0 0 0", "nav of another day", "no common epochs", "no double differences"])
+def test_bad_input_exits_2_naming_the_file(tmp_path, case):
+    geo = SHARED / "rinex"
+    base, rover, nav, extra = MOSAIC / "base.obs", MOSAIC / "rover.obs", MOSAIC / "base.nav", []
+    want = {"base 0 0 0": ["base.obs (base)", "--base-xyz", "0 0 0"],
+            "nav of another day": ["07590920.05n", "2024-06-24", "2005-04", "navigation file(s) of the observations' day"],
+            "no common epochs": ["no common epochs", "rover.obs (rover)", "07590920.05o (base)"],
+            "no double differences": ["no double differences", "rover.obs (rover)", "89° mask"]}[case]
+    if case == "base 0 0 0":
+        extra = ["--base-xyz", 0, 0, 0]
+    elif case == "nav of another day":
+        nav = geo / "07590920.05n"
+    elif case == "no common epochs":                       # the 2005 GEONET base beside the 2024 rover, both navs
+        base, extra = geo / "07590920.05o", ["--nav", geo / "07590920.05n", "--base-xyz", *BASE_XYZ]
+    else:
+        extra = ["--mask-deg", 89]
+    out = tmp_path / "out.pos"
+    r = run_cli("-q", "rtk", "--base", base, "--rover", rover, "--nav", nav, "--signals", "G:L1", "-o", out, *extra)
+    assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+    assert all(w in r.stderr for w in want), r.stderr
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_rover_without_a_header_position_gets_a_single_point_position(files, original):
+    """u-blox converters write APPROX POSITION XYZ 0 0 0: the rover's a-priori position is then its
+    mean single-point position (a warning says so), and the solution is the same."""
+    text = (MOSAIC / "rover.obs").read_text().splitlines()
+    text = ["        0.0000        0.0000        0.0000                  APPROX POSITION XYZ"
+            if ln[60:].strip() == "APPROX POSITION XYZ" else ln for ln in text]
+    (files / "rover0.obs").write_text("\n".join(text) + "\n")
+    out = files / "rover0.csv"
+    r = run_cli("rtk", "--base", MOSAIC / "base.obs", "--rover", files / "rover0.obs", "--nav", MOSAIC / "base.nav",
+                "--signals", "G:L1", "--base-xyz", *BASE_XYZ, "-o", out)
+    assert r.exit_code == 0, r.output
+    assert "single-point position" in r.stderr
+    df = pd.read_csv(out, comment="#")
+    assert (df["fixed"] == 1).sum() == 301
+    assert np.abs(_enu(df) - _enu(original[1])).max() < 0.001
