@@ -21,7 +21,8 @@ from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.signals import signal, SYSTEM_NAMES
 from cdgps_cli.estimation import kalman
-from cdgps_cli.estimation.ambiguity import bootstrap_success_rate, decorrelate, ld_factorize, resolve, success_tail
+from cdgps_cli.estimation.ambiguity import (SearchLimitError, bootstrap_success_rate, decorrelate, ld_factorize,
+                                            ratio_test, search, success_tail)
 from cdgps_cli.measurement.dd_signals import epoch_rows
 from cdgps_cli.measurement.differencing import dd_operator
 from cdgps_cli.measurement.epoch_pairing import age_variance_m2, carry_base_slips, pair_epochs
@@ -244,35 +245,42 @@ class _CarriedDecorrelation:
         self.keys, self.Z, self.Zinv = None, None, None
 
     def _update(self, keys, Qa):
+        """Carry Z to this epoch's ``Qa``; the reduced factors ``(L, d)`` of ``Zᵀ Qa Z`` when they are
+        at hand (None when Z had to restart)."""
         n = Qa.shape[0]
         eye = np.eye(n, dtype=np.int64)
         if keys != self.keys:
             self.keys, self.Z, self.Zinv = keys, eye, eye
         Q = self.Z.T @ Qa @ self.Z
-        _, _, Z1 = decorrelate(*ld_factorize(0.5 * (Q + Q.T)))
+        L, d, Z1 = decorrelate(*ld_factorize(0.5 * (Q + Q.T)))
         if np.array_equal(Z1, eye):
-            return
+            return L, d
         Z = self.Z @ Z1
         Zinv = np.rint(np.linalg.inv(Z)).astype(np.int64)
         if np.abs(Z).max() < self.MAX_ENTRY and np.array_equal(Z @ Zinv, eye):
             self.Z, self.Zinv = Z, Zinv
-        else:                     # start again from scratch (resolve's own reduction does the work)
-            self.Z, self.Zinv = eye, eye
+            return L, d                      # decorrelate's factors are those of Z1ᵀ Q Z1 = (Z Z1)ᵀ Qa (Z Z1)
+        self.Z, self.Zinv = eye, eye         # start again from scratch
+        return None
 
     def resolve(self, keys, a, Qa, threshold, min_success_rate):
         """Integers of the DD ambiguities ``a`` (n,) cycles, covariance ``Qa`` (n, n) cycles², in the
         decorrelated space ``z = Zᵀ a``: the longest tail of z whose bootstrapped success rate is at
         least ``min_success_rate`` (:func:`~cdgps_cli.estimation.ambiguity.success_tail`: the whole
         set when it qualifies, else a partial set), accepted when it also passes the ratio test.
+        The tail's own factors are the tail of the reduced ``L``, ``d`` (``d[i]`` is conditioned on
+        ``i+1 …``), so the integer search runs on them directly.
 
         Returns ``accepted``, ``ratio``, ``success_rate`` (of the set tried), ``partial``, ``rows``
         ((m, n) integer rows of Zᵀ fixed) and ``integers`` (m,)."""
-        self._update(keys, Qa)
-        Q = self.Z.T @ Qa @ self.Z
-        _, d, Z1 = decorrelate(*ld_factorize(0.5 * (Q + Q.T)))   # the carried Z is reduced already: Z1 ≈ I
-        Zt = (self.Z @ Z1).T
-        Q = Zt @ Qa @ Zt.T
-        Q = 0.5 * (Q + Q.T)
+        factors = self._update(keys, Qa)
+        Zt = self.Z.T
+        if factors is None:                  # Z restarted (or a caller's Z): reduce here
+            Q = Zt @ Qa @ Zt.T
+            L, d, Z1 = decorrelate(*ld_factorize(0.5 * (Q + Q.T)))
+            Zt = (self.Z @ Z1).T
+        else:
+            L, d = factors
         z = Zt @ a
         k = success_tail(d, min_success_rate)
         n = len(z)
@@ -280,10 +288,14 @@ class _CarriedDecorrelation:
                "rows": None, "integers": None, "partial": 0 < k < n}
         if n - k < 1:
             return out
-        res = resolve(z[k:], Q[k:, k:], threshold, partial=False)
-        out["ratio"] = res.get("ratio", np.nan)
-        if res["accepted"]:
-            out.update(accepted=True, rows=Zt[k:], integers=res["integers"])
+        offset = np.floor(z[k:] + 0.5)
+        try:
+            zn, sq = search(L[k:, k:], d[k:], z[k:] - offset, 2)
+        except SearchLimitError:
+            return out
+        accepted, out["ratio"] = ratio_test(sq, threshold)
+        if accepted:
+            out.update(accepted=True, rows=Zt[k:], integers=(zn[0] + offset).astype(np.int64))
         return out
 
 
