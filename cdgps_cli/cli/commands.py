@@ -960,6 +960,8 @@ def _write_text_atomic(path: str, text: str) -> None:
 @click.option("--master", default=None, help="Station held at its RINEX header position (the reference).")
 @click.option("--mask-deg", type=float, default=None, help=f"Elevation mask, degrees [{GNSS_DEFAULTS['mask_deg']:g}].")
 @click.option("--ratio", "ratio_threshold", type=float, default=None, help=f"LAMBDA ratio-test threshold [{GNSS_DEFAULTS['ratio']:g}].")
+@click.option("--max-age", "max_age_s", type=float, default=None,
+              help=f"Oldest master epoch bridged to a rover epoch, s [{GNSS_DEFAULTS['max_age_s']:g}, RTKLIB's].")
 @click.option("--weighting", type=click.Choice(["elevation", "equal"]), default=None,
               help="Phase weights: a²+b²/sin²(el) or equal [elevation].")
 @click.option("--no-partial", is_flag=True, help="Do not try partial fixing when the full set fails the ratio test.")
@@ -968,7 +970,7 @@ def _write_text_atomic(path: str, text: str) -> None:
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="Result JSON to write.")
 @click.option("--json", "as_json", is_flag=True, help="Also print the result JSON on stdout.")
 @click.pass_context
-def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, weighting, no_partial, float_only,
+def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, max_age_s, weighting, no_partial, float_only,
                  no_troposphere, output, as_json):
     """Static baseline from two receivers' RINEX L1 phase: float, LAMBDA integers, fixed → JSON."""
     import dataclasses
@@ -1001,6 +1003,8 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, weight
         changes["mask_deg"] = mask_deg
     if ratio_threshold is not None:
         changes["ratio_threshold"] = ratio_threshold
+    if max_age_s is not None:
+        changes["max_age_s"] = max_age_s
     if weighting is not None:
         changes["weighting"] = weighting
     if no_partial:

@@ -1235,13 +1235,14 @@ def gnss_config_toml(antennas: dict, nav=(), master: str | None = None, *, name:
     if master:
         out.append(f"master = {_toml_str(master)}")
     out.append("nav = [" + ", ".join(_toml_str(p) for p in nav) + "]")
-    opts = {k: GNSS_DEFAULTS[k] for k in ("mask_deg", "ratio", "partial", "weighting", "troposphere")}
+    opts = {k: GNSS_DEFAULTS[k] for k in ("mask_deg", "ratio", "partial", "weighting", "troposphere", "max_age_s")}
     opts.update(options or {})
     notes = {"mask_deg": "elevation mask at every receiver, degrees", "ratio": "LAMBDA ratio-test threshold",
              "partial": "partial fixing when the full set fails the ratio test",
              "weighting": 'phase variance a^2 + b^2/sin^2(el) ("elevation") or a^2 + b^2 ("equal")',
              "troposphere": "a priori hydrostatic troposphere (Saastamoinen x Niell), as RTKLIB",
-             "signals": "multi-GNSS signals kept at ingest (system:slot)"}
+             "signals": "multi-GNSS signals kept at ingest (system:slot)",
+             "max_age_s": "oldest base (master) epoch bridged to a rover epoch, s (RTKLIB's maxage)"}
     for k, v in opts.items():
         val = ("true" if v else "false") if isinstance(v, bool) else (_toml_str(v) if isinstance(v, str) else
                                                                    "[" + ", ".join(map(_toml_str, v)) + "]" if isinstance(v, (list, tuple))
