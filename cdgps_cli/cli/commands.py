@@ -1617,6 +1617,9 @@ if __name__ == "__main__":  # pragma: no cover
 @click.option("--direction", type=click.Choice(["forward", "backward", "combined"]), default=None,
               help="Kinematic passes: forward, backward, or both combined - an epoch is fixed where the passes' fixes "
                    "agree (or one's fix agrees with the other's float); disagreeing fixes are rejected [combined].")
+@click.option("--fix-and-hold", is_flag=True, default=False,
+              help="After 10 consecutive fixed epochs, feed the fixed integers back as measurements (RTKLIB's fix-and-hold; "
+                   "a wrong fix is then held too: the combined mode's check still applies).")
 @click.option("--min-success-rate", type=float, default=None,
               help="Bootstrapped success rate an integer set must reach; when the whole set does not, the part that "
                    "does is fixed and the epoch stays float [0.999].")
@@ -1625,7 +1628,7 @@ if __name__ == "__main__":  # pragma: no cover
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (epochs used and why others were not, fixes) on stdout.")
 @click.pass_context
 def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_fix, mask_deg, ratio_threshold, max_age_s,
-        sync_tol_s, direction, min_success_rate, output, as_json):
+        sync_tol_s, direction, fix_and_hold, min_success_rate, output, as_json):
     """Double differences per constellation and frequency, integers by LAMBDA (docs/gnss-pipeline.md, "Multi-GNSS").
 
     The rover's epochs drive the solution: each takes the nearest base epoch within --max-age (a base
@@ -1634,7 +1637,7 @@ def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_
     from cdgps_cli.pipeline.gnss_multi import rtk_from_files
 
     options = {"signals": "auto" if signals.strip() == "auto" else tuple(x.strip() for x in signals.split(",") if x.strip()),
-               "mode": mode,
+               "mode": mode, "fix_and_hold": fix_and_hold,
                "glonass_fix": glonass_fix}
     for key, value in (("mask_deg", mask_deg), ("ratio", ratio_threshold), ("max_age_s", max_age_s),
                        ("sync_tol_s", sync_tol_s), ("direction", direction), ("min_success_rate", min_success_rate)):

@@ -243,6 +243,7 @@ class _CarriedDecorrelation:
 
     def __init__(self):
         self.keys, self.Z, self.Zinv = None, None, None
+        self.last_fix = None          # (Ts, integers) of the last accepted fix, for fix-and-hold
 
     def _update(self, keys, Qa):
         """Carry Z to this epoch's ``Qa``; the reduced factors ``(L, d)`` of ``Zᵀ Qa Z`` when they are
@@ -331,7 +332,23 @@ def _fix(st, groups, opt, carried):
     Pxs = st.P[:3] @ Ts.T
     dx = Pxs @ np.linalg.solve(Qs, Ts @ st.x - res["integers"])
     cov = st.P[:3, :3] - Pxs @ np.linalg.solve(Qs, Pxs.T)
+    carried.last_fix = (Ts, res["integers"])
     return st.x[:3] - dx, len(res["integers"]), res["ratio"], 0.5 * (cov + cov.T), res["partial"]
+
+
+#: variance of the fix-and-hold pseudo-measurement of a fixed integer combination, cycles² (RTKLIB's VAR_HOLDAMB)
+HOLD_VARIANCE_CYCLES2 = 0.001
+
+
+def _hold(st, fix) -> None:
+    """Fix-and-hold: the fixed integer combinations ``Ts x = integers`` as measurements of variance
+    :data:`HOLD_VARIANCE_CYCLES2` (RTKLIB ``holdamb``), so the float ambiguities keep the integers."""
+    Ts, ints = fix
+    S = Ts @ st.P @ Ts.T + HOLD_VARIANCE_CYCLES2 * np.eye(len(ints))
+    K = np.linalg.solve(S, Ts @ st.P).T
+    st.x = st.x + K @ (ints - Ts @ st.x)
+    P = st.P - K @ Ts @ st.P
+    st.P = 0.5 * (P + P.T)
 
 
 def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m, *, options: dict | None = None,
@@ -410,7 +427,7 @@ def _filter_pass(rows, times, order, opt, base_xyz, origin, iono, progress) -> d
            "n_fixed": np.zeros(n_ep, dtype=np.int64), "ratio": np.full(n_ep, np.nan),
            "partial": np.zeros(n_ep, dtype=bool), "ns": np.zeros(n_ep, dtype=np.int64)}
     carried = _CarriedDecorrelation()
-    t_prev = None
+    t_prev, run = None, 0                    # run: consecutive fixed epochs (fix-and-hold waits for hold_after_fixes)
     for i, k in enumerate(order):
         t = times[k]
         groups = _epoch_groups(rows, k)
@@ -437,6 +454,9 @@ def _filter_pass(rows, times, order, opt, base_xyz, origin, iono, progress) -> d
             out["float_xyz"][k], out["float_cov"][k] = origin + fx, fx_cov
         elif fx is not None:
             out["fixed_xyz"][k], out["fixed_cov"][k] = origin + fx, fx_cov
+        run = run + 1 if (fx is not None and not partial) else 0
+        if opt["fix_and_hold"] and run >= opt["hold_after_fixes"]:
+            _hold(st, carried.last_fix)
         out["n_fixed"][k], out["ratio"][k], out["partial"][k] = n, ratio, partial
         out["ns"][k] = len({s for g in groups for s in g["sats"]})
         if progress is not None:
