@@ -258,3 +258,19 @@ def test_car_against_a_cors_5_km_away(tmp_path, hold):
         assert dev.size == 0 or (dev[:, :2].max() < 0.01 and dev[:, 2].max() < 0.05), dev.max(axis=0)
     assert s["epochs"] == 360 and s["fixed_epochs"] >= (250 if hold else 150)
     assert (fixed & (t <= 34)).sum() == 35
+
+
+@pytest.mark.parametrize("signals,rtklib_enu", [
+    ("E:E1", (-0.2275, -0.9638, 0.0079)),          # README: RTKLIB Galileo E1 only, kinematic fixed mean
+    ("R:G1,R:G2", None),                            # GLONASS alone, identical receivers (--glonass-fix)
+    ("C:B1I", None)])
+def test_one_system_carries_the_solution_alone(tmp_path, signals, rtklib_enu):
+    out = tmp_path / "one.csv"
+    r = run_cli("-q", "rtk", "--base", MOSAIC / "base.obs", "--rover", MOSAIC / "rover.obs", "--nav", MOSAIC / "base.nav",
+                "--signals", signals, "--base-xyz", *BASE_XYZ, "-o", out, "--glonass-fix")
+    assert r.exit_code == 0, r.output
+    d = pd.read_csv(out, comment="#")
+    f = d[d["fixed"] == 1]
+    assert len(f) >= 295
+    truth = rtklib_enu or (-0.2237, -0.9647, 0.0090)      # else RTKLIB's multi-GNSS L1+L2 mean, within 1 cm
+    assert np.all(np.abs(_enu(f).mean(axis=0) - np.array(truth)) < (0.001 if rtklib_enu else 0.01))
