@@ -91,19 +91,26 @@ def _value(rec: str, k: int, col0: int) -> tuple[float, int]:
     return v, (int(lli) if lli.strip().isdigit() else 0)
 
 
-def signals_in_file(path: str | Path) -> list[str]:
-    """The signals of :data:`~cdgps_cli.core.signals.SIGNALS` whose carrier phase the observation
-    file's header lists (RINEX 3 ``SYS / # / OBS TYPES``, RINEX 2 ``# / TYPES OF OBSERV``), in the
-    table's order."""
+def _observation_header(path: str | Path):
+    """The file's lines, its parsed observation header and the index of its END OF HEADER line."""
     p = Path(path)
     lines, compressed = _read_lines(p)
     version, ftype, _ = _parse_version_line(lines, p, compressed, "observation")
     if ftype != "O":
         raise CdgpsError(f"{p}: not a RINEX observation file (type {ftype!r})")
     hdr = _ObsHeader(p, version, compressed)
-    if next((i for i in range(1, len(lines)) if hdr.apply(lines[i], i + 1) == "END OF HEADER"), None) is None:
+    end = next((i for i in range(1, len(lines)) if hdr.apply(lines[i], i + 1) == "END OF HEADER"), None)
+    if end is None:
         raise CdgpsError(f"{p}: no 'END OF HEADER' line")
-    v3 = version >= 3
+    return lines, hdr, end
+
+
+def signals_in_file(path: str | Path) -> list[str]:
+    """The signals of :data:`~cdgps_cli.core.signals.SIGNALS` whose carrier phase the observation
+    file's header lists (RINEX 3 ``SYS / # / OBS TYPES``, RINEX 2 ``# / TYPES OF OBSERV``), in the
+    table's order."""
+    _, hdr, _ = _observation_header(path)
+    v3 = hdr.version >= 3
     out = []
     for name, sig in SIGNALS.items():
         if not v3 and sig.system not in ("G", "R"):
@@ -142,14 +149,8 @@ def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None)
         signals without ``GLONASS SLOT / FRQ #`` for an observed satellite, a malformed line.
     """
     p = Path(path)
-    lines, compressed = _read_lines(p)
-    version, ftype, _ = _parse_version_line(lines, p, compressed, "observation")
-    if ftype != "O":
-        raise CdgpsError(f"{p}: not a RINEX observation file (type {ftype!r})")
-    hdr = _ObsHeader(p, version, compressed)
-    end = next((i for i in range(1, len(lines)) if hdr.apply(lines[i], i + 1) == "END OF HEADER"), None)
-    if end is None:
-        raise CdgpsError(f"{p}: no 'END OF HEADER' line")
+    lines, hdr, end = _observation_header(p)
+    version = hdr.version
     cols = _columns(hdr, list(signals), p)
     slots = {**(glonass_k or {}), **_glonass_slots(lines, end, p)}
     rows = _parse_v3(lines, end + 1, cols, p) if version >= 3 else _parse_v2(lines, end + 1, hdr, cols, p)
