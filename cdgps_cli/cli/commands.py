@@ -349,14 +349,15 @@ def _parse_named(items, option: str, what: str = "antenna", form: str = "ANTENNA
     return out
 
 
-def _grid_note(c: dict) -> str:
-    """' (of N rover epochs: … bridged across master gaps (max age … s), … not used)' for an ingest pair, or ''."""
-    p = c.get("pairing") or {}
+def _grid_note(c: dict | None) -> str:
+    """' (of N rover epochs: K bridged to a master epoch up to A s away; M not used: reasons)' for a
+    pair (an ingest summary entry with ``pairing``, or the pairing summary itself), or ''."""
+    p = (c.get("pairing") if c and "pairing" in c else c) or {}
     parts = []
     if p.get("bridged"):
         parts.append(f"{p['bridged']} bridged to a master epoch up to {p['max_age_s']:.3g} s away")
     if p.get("dropped"):
-        parts.append(f"{sum(p['dropped'].values())} not used")
+        parts.append(f"{sum(p['dropped'].values())} not used: " + ", ".join(f"{k} {why}" for why, k in p["dropped"].items()))
     return f" (of {p['rover_epochs']} rover epochs: {'; '.join(parts)})" if parts else ""
 
 
@@ -935,7 +936,7 @@ def _gnss_info_lines(g: dict) -> list:
 
             out.append(f"      integrity: {integrity_line(r['integrity'])}")
     for n, k in g["common_epochs"].items():
-        out.append(f"    {n}: {k} epochs in common with {g['master']}")
+        out.append(f"    {n}: {k} epochs in common with {g['master']}" + _grid_note((g.get("epoch_pairing") or {}).get(n)))
     toe = g["ephemeris_toe"]
     out.append(f"    ephemerides: {g['ephemerides']} records of {g['ephemeris_satellites']} satellites"
                + (f", toe {toe[0]} – {toe[1]}" if toe else " (none: ingest with --nav before 'cdgps init')"))

@@ -352,8 +352,11 @@ def _common_epochs(master: Station, rover: Station, opt: BaselineOptions, warnin
     else:                                          # moved to the rover's grid (its own grid may be guessed from gaps)
         aligned[master.name], align_info[master.name] = _align(master, opt, warnings, step_s=align_info[rover.name]["grid_s"])
     gm = np.unique(aligned[master.name]["grid_gps_s"].to_numpy())
-    gr = np.unique(aligned[rover.name]["grid_gps_s"].to_numpy())
-    pairs = pair_epochs(gr, gm, sync_tol_s=opt.sync_tol_s, max_age_s=opt.max_age_s)
+    gr, first = np.unique(aligned[rover.name]["grid_gps_s"].to_numpy(), return_index=True)
+    # the instant each rover epoch was measured: its tag ("geometry": observations as recorded, as
+    # ingest and info pair them), or its grid time ("doppler": observations moved there)
+    tr_meas = aligned[rover.name]["tag_gps_s"].to_numpy()[first] if opt.epoch_alignment == "geometry" else gr
+    pairs = pair_epochs(tr_meas, gm, sync_tol_s=opt.sync_tol_s, max_age_s=opt.max_age_s)
     ps = pairs.summary
     if ps["used"] == 0:
         raise CdgpsError(f"no common epochs: master {master.name} has {tm.size} epochs ({_span(tm)}), rover {rover.name} "

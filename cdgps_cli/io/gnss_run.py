@@ -715,11 +715,19 @@ def read_gnss_run(path: str | Path, contents=None) -> GnssRun:
     return GnssRun(str(path), cfg, master, receivers, nav, meta)
 
 
+def _pairing_info(pairing: dict | None) -> dict:
+    """``common_epochs`` (rover → epochs used) and ``epoch_pairing`` (rover → the pairing summary:
+    used, bridged, dropped with reasons) from rover → summary."""
+    if pairing is None:
+        return {"common_epochs": None, "epoch_pairing": None}
+    return {"common_epochs": {n: int(p["used"]) for n, p in pairing.items()}, "epoch_pairing": pairing}
+
+
 def gnss_run_info(path: str | Path, contents, common_epochs=None, lock_summary=None) -> dict:
     """The GNSS part of ``cdgps info``: config, master, receivers with lock counters, ephemerides.
 
-    ``common_epochs``: a function of the :class:`GnssRun` giving rover → number of epochs in
-    common with the master; ``lock_summary``: a function of a :class:`GnssReceiver` giving its
+    ``common_epochs``: a function of the :class:`GnssRun` giving rover → its epoch pairing with the
+    master (a summary with ``used``, ``bridged``, ``dropped`` …); ``lock_summary``: a function of a :class:`GnssReceiver` giving its
     lock counters per satellite (:func:`cdgps_cli.pipeline.gnss_ingest.run_info` passes both: epoch
     alignment and the lock-segment rule are model computations); None: recorded as None / {}."""
     run = read_gnss_run(path, contents)
@@ -737,7 +745,7 @@ def gnss_run_info(path: str | Path, contents, common_epochs=None, lock_summary=N
     return {
         "config": run.cfg.summary(), "master": run.master, "rovers": run.rovers,
         "coordinates": [f"{r}_{c}" for r in run.rovers for c in "enu"],
-        "receivers": rx, "common_epochs": common_epochs(run) if common_epochs else None,
+        "receivers": rx, **_pairing_info(common_epochs(run) if common_epochs else None),
         "ephemerides": int(len(nav)), "ephemeris_satellites": int(nav["sat"].nunique()) if len(nav) else 0,
         "ephemeris_toe": [gps_time_str(float(nav["toe_gps_s"].min())), gps_time_str(float(nav["toe_gps_s"].max()))] if len(nav) else None,
     }

@@ -235,12 +235,12 @@ def run_info(path: str | Path) -> dict:
 
 
 def _run_common_epochs(run: gnss_run.GnssRun) -> dict:
-    """Rover → number of epochs in common with the master of a GNSS run read back."""
+    """Rover → its epoch pairing with the master of a GNSS run read back (epochs used, bridged, dropped)."""
     tm = np.unique(run.receivers[run.master].raw["time_gps_s"].to_numpy())
     common = {}
     for n in run.rovers:
         tr = np.unique(run.receivers[n].raw["time_gps_s"].to_numpy())
-        common[n] = _pairing(tm, tr, run.cfg)["used"]
+        common[n] = _pairing(tm, tr, run.cfg)
     return common
 
 

@@ -274,3 +274,29 @@ def test_one_system_carries_the_solution_alone(tmp_path, signals, rtklib_enu):
     assert len(f) >= 295
     truth = rtklib_enu or (-0.2237, -0.9647, 0.0090)      # else RTKLIB's multi-GNSS L1+L2 mean, within 1 cm
     assert np.all(np.abs(_enu(f).mean(axis=0) - np.array(truth)) < (0.001 if rtklib_enu else 0.01))
+
+
+def test_info_and_ingest_say_which_epochs_are_used_and_why(files):
+    """With gnss.max_age_s = 3 s, rover epochs in the gappy base's longer gaps are not used: ingest
+    warns with the reasons, info and its JSON give the same counts, init uses exactly the rest."""
+    import json
+    cfg = files / "short_age.toml"
+    r = run_cli("-q", "config", "--rinex", f"base={files / 'base_gappy.obs'}", "--rinex", f"rover={files / 'rover_ms.obs'}",
+                "--nav", MOSAIC / "base.nav", "--master", "base", "-o", cfg)
+    assert r.exit_code == 0, r.output
+    text = cfg.read_text()
+    assert "max_age_s = 30.0" in text                       # the starter config states the default
+    cfg.write_text(text.replace("max_age_s = 30.0", "max_age_s = 3.0"))
+    run = files / "short_age.mcap"
+    r = run_cli("ingest", "--config", cfg, "-o", run)
+    assert r.exit_code == 0 and "in a base gap (no base epoch within the maximum age)" in r.stderr, r.stderr
+    r = run_cli("info", run, "--json")
+    g = json.loads(r.stdout)["gnss"]
+    p = g["epoch_pairing"]["rover"]
+    assert 0 < sum(p["dropped"].values()) and p["used"] + sum(p["dropped"].values()) == 301
+    assert g["common_epochs"]["rover"] == p["used"] and p["max_age_s"] <= 3.0
+    r = run_cli("info", run)
+    assert f"rover: {p['used']} epochs in common with base (of 301 rover epochs:" in r.stdout and "not used" in r.stdout
+    r = run_cli("-q", "init", run, "-o", files / "short_age.json")
+    assert r.exit_code == 0, r.output
+    assert json.loads((files / "short_age.json").read_text())["rovers"]["rover"]["epochs"]["n_epochs_used"] == p["used"]
