@@ -1618,6 +1618,9 @@ if __name__ == "__main__":  # pragma: no cover
 @click.option("--direction", type=click.Choice(["forward", "backward", "combined"]), default=None,
               help="Kinematic passes: forward, backward, or both combined - an epoch is fixed where the passes' fixes "
                    "agree (or one's fix agrees with the other's float); disagreeing fixes are rejected [combined].")
+@click.option("--code-correlation", "code_correlation_s", type=float, default=None,
+              help="Correlation time of the code errors, s: their variance is inflated by (1+ρ)/(1−ρ), ρ = e^(−Δt/τ), so "
+                   "a minute of correlated multipath is not taken as 60 independent ranges [0: white, as RTKLIB].")
 @click.option("--fix-and-hold", is_flag=True, default=False,
               help="After 10 consecutive fixed epochs, feed the fixed integers back as measurements (RTKLIB's fix-and-hold; "
                    "a wrong fix is then held too: the combined mode's check still applies).")
@@ -1629,7 +1632,7 @@ if __name__ == "__main__":  # pragma: no cover
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (epochs used and why others were not, fixes) on stdout.")
 @click.pass_context
 def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_fix, mask_deg, ratio_threshold, max_age_s,
-        sync_tol_s, direction, fix_and_hold, min_success_rate, output, as_json):
+        sync_tol_s, direction, code_correlation_s, fix_and_hold, min_success_rate, output, as_json):
     """Double differences per constellation and frequency, integers by LAMBDA (docs/gnss-pipeline.md, "Multi-GNSS").
 
     The rover's epochs drive the solution: each takes the nearest base epoch within --max-age (a base
@@ -1641,7 +1644,8 @@ def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_
                "mode": mode, "fix_and_hold": fix_and_hold,
                "glonass_fix": glonass_fix}
     for key, value in (("mask_deg", mask_deg), ("ratio", ratio_threshold), ("max_age_s", max_age_s),
-                       ("sync_tol_s", sync_tol_s), ("direction", direction), ("min_success_rate", min_success_rate)):
+                       ("sync_tol_s", sync_tol_s), ("direction", direction), ("min_success_rate", min_success_rate),
+                       ("code_correlation_s", code_correlation_s)):
         if value is not None:
             options[key] = value
     s = rtk_from_files(base_file, rover_file, list(nav_files), output, base_xyz_m=base_xyz or None, options=options)

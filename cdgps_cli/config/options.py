@@ -67,6 +67,7 @@ MULTI_GNSS_DEFAULTS = {
     "kinematic_sigma_m_per_sqrt_s": 30.0,  # random-walk rate of the kinematic rover position
     "mask_deg": 15.0, "ratio": RATIO_THRESHOLD, "fix": True, "glonass_fix": False,
     "min_success_rate": 0.999,             # bootstrapped success rate an integer set must reach (partial set otherwise)
+    "code_correlation_s": 0.0,             # code errors as a first-order Gauss-Markov process of this correlation time (0: white, as RTKLIB)
     "fix_and_hold": False,                 # feed fixed integers back as measurements (RTKLIB pos2-armode=fix-and-hold)
     "hold_after_fixes": 10,                # … once this many consecutive epochs fixed (RTKLIB pos2-arminfix)
     "sigma_a_m": PHASE_SIGMA_A_M, "sigma_b_m": PHASE_SIGMA_B_M, "code_ratio": 100.0,

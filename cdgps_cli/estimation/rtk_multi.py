@@ -26,6 +26,8 @@ from cdgps_cli.estimation.ambiguity import (SearchLimitError, bootstrap_success_
 from cdgps_cli.measurement.dd_signals import epoch_rows
 from cdgps_cli.measurement.differencing import dd_operator
 from cdgps_cli.measurement.epoch_pairing import age_variance_m2, carry_base_slips, pair_epochs
+from cdgps_cli.measurement.noise import correlated_variance_factor
+from cdgps_cli.core.gps_time import nominal_interval_s
 from cdgps_cli.model.dynamics_models import RandomWalk, Static
 from cdgps_cli.model.gps.orbits import OMEGA_E_GPS, azimuth_elevation, ecef_to_geodetic, sat_position_ecef, select_ephemeris
 from cdgps_cli.model.gps.positioning import ephemeris_coverage, tropo_hydrostatic_m
@@ -146,7 +148,9 @@ def _paired_rows(base, rover, pairs, opt) -> dict:
         # LLI bit 1: half-cycle ambiguity not resolved by the receiver (u-blox before it decodes the
         # data bits): the phase may be off by λ/2; such a row has an ambiguity of its own, never fixed
         "half": ((m["lli_r"].to_numpy() | m["lli_b"].to_numpy()) & 2) > 0,
-        "var_phase": var + var_age, "var_code": var * opt["code_ratio"] ** 2 + var_age,
+        "var_phase": var + var_age,
+        "var_code": var * opt["code_ratio"] ** 2 * correlated_variance_factor(nominal_interval_s(pairs.rover_time_s),
+                                                                             opt["code_correlation_s"]) + var_age,
     }
 
 

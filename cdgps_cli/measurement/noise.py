@@ -20,6 +20,8 @@ One source of truth for the σ of each carrier-phase channel (antenna, transmitt
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from cdgps_cli.core.errors import CdgpsError
@@ -197,3 +199,19 @@ def init_channel_sigma_m(init: dict, cfg, channels, override_m: float | None = N
     fallback = float(s0) if s0 else float(np.sqrt(np.mean(np.square(list(per.values()) or [cfg.measurement_sigma_m]))))
     out = np.array([float(per.get(f"{a}/{t}", fallback)) for a, t in channels])
     return out, "INIT (estimated per channel)" if "noise" in init else "INIT (per channel)"
+
+
+def correlated_variance_factor(interval_s: float, correlation_s: float) -> float:
+    """Factor by which a white-noise variance is inflated so that N samples of a first-order
+    Gauss–Markov error (correlation time ``correlation_s``, sampled every ``interval_s``) carry the
+    information they really have about a constant: ``(1 + ρ) / (1 − ρ)``, ``ρ = exp(−Δt/τ)``, the
+    large-N ratio of the variance of the mean of AR(1) samples to that of white samples.  1 for
+    ``correlation_s`` = 0 (white).  Real code multipath is correlated over about a minute: τ = 60 s
+    at 1 Hz gives 120 (σ × 11).
+    """
+    if not (math.isfinite(correlation_s) and correlation_s >= 0):
+        raise ValueError(f"code correlation time must be >= 0 s, got {correlation_s!r}")
+    if correlation_s == 0 or not (math.isfinite(interval_s) and interval_s > 0):
+        return 1.0
+    rho = math.exp(-interval_s / correlation_s)
+    return (1.0 + rho) / (1.0 - rho)

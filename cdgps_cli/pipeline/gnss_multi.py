@@ -40,6 +40,8 @@ def validate_options(options: dict) -> dict:
         bad.append(f"mode: expected 'kinematic' or 'static', got {opt['mode']!r}")
     if opt["direction"] not in ("forward", "backward", "combined"):
         bad.append(f"direction: expected 'forward', 'backward' or 'combined', got {opt['direction']!r}")
+    if not (np.isfinite(float(opt["code_correlation_s"])) and float(opt["code_correlation_s"]) >= 0):
+        bad.append(f"code_correlation_s: expected a number of seconds >= 0, got {opt['code_correlation_s']}")
     if not 0.0 < float(opt["min_success_rate"]) < 1.0:
         bad.append(f"min_success_rate: expected a probability in (0, 1), got {opt['min_success_rate']}")
     for s in (() if opt["signals"] == "auto" else opt["signals"]):

@@ -222,3 +222,27 @@ def test_init_prior_follows_snr_only_when_it_varies():
         assert ratio == pytest.approx(expect, rel=1e-9)
         # the estimated σ agrees with the SNR model's (independently: the noise added above)
         assert p["sigma_m"] / (0.002 * (10 ** 0.5 if name.startswith(ant + "/") else 1.0)) == pytest.approx(1.0, abs=0.25)
+
+
+def test_correlated_variance_factor_against_ar1_samples():
+    """(1+ρ)/(1−ρ) is the large-N ratio of the variance of the mean of AR(1) samples to that of white
+    samples of the same variance (checked by simulation), 1 for white noise, refused below 0."""
+    import math
+    import pytest
+    from cdgps_cli.measurement.noise import correlated_variance_factor
+    assert correlated_variance_factor(1.0, 0.0) == 1.0
+    f = correlated_variance_factor(1.0, 5.0)
+    rho = math.exp(-1 / 5)
+    assert f == pytest.approx((1 + rho) / (1 - rho))
+    rng = np.random.default_rng(0)
+    n, trials = 2000, 2000
+    e = np.empty((trials, n))
+    e[:, 0] = rng.normal(size=trials)
+    w = rng.normal(size=(trials, n)) * math.sqrt(1 - rho ** 2)
+    for k in range(1, n):
+        e[:, k] = rho * e[:, k - 1] + w[:, k]
+    ratio = e.mean(axis=1).var() / (1.0 / n)
+    assert ratio == pytest.approx(f, rel=0.1)
+    assert correlated_variance_factor(1.0, 60.0) == pytest.approx(120.0, rel=0.01)
+    with pytest.raises(ValueError):
+        correlated_variance_factor(1.0, -1.0)

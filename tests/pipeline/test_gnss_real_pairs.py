@@ -300,3 +300,18 @@ def test_info_and_ingest_say_which_epochs_are_used_and_why(files):
     r = run_cli("-q", "init", run, "-o", files / "short_age.json")
     assert r.exit_code == 0, r.output
     assert json.loads((files / "short_age.json").read_text())["rovers"]["rover"]["epochs"]["n_epochs_used"] == p["used"]
+
+
+def test_correlated_code_is_an_option_with_honest_errors(tmp_path):
+    """--code-correlation 60: code multipath correlated over a minute is not taken as 60 independent
+    ranges; the real pair still fixes every epoch at the same answer; a negative time is refused."""
+    out = tmp_path / "cc.csv"
+    r = run_cli("-q", "rtk", "--base", MOSAIC / "base.obs", "--rover", MOSAIC / "rover.obs", "--nav", MOSAIC / "base.nav",
+                "--signals", "G:L1", "--base-xyz", *BASE_XYZ, "--code-correlation", 60, "-o", out)
+    assert r.exit_code == 0, r.output
+    d = pd.read_csv(out, comment="#")
+    assert (d["fixed"] == 1).sum() == 301
+    assert np.all(np.abs(_enu(d).mean(axis=0) - np.array((-0.2239, -0.9633, 0.0058))) < 0.003)
+    r = run_cli("-q", "rtk", "--base", MOSAIC / "base.obs", "--rover", MOSAIC / "rover.obs", "--nav", MOSAIC / "base.nav",
+                "--code-correlation", -1, "-o", tmp_path / "bad.csv")
+    assert r.exit_code == 2 and "code_correlation_s" in r.stderr and not (tmp_path / "bad.csv").exists()
