@@ -498,7 +498,7 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
     if nav_list:
         say(f"reading {len(nav_list)} navigation file(s) …")
         nav = nav_ahead if nav_ahead is not None else merge_nav(nav_list, _nav_systems(cfg.signals, nav_list))
-    else:
+    elif not sf_navs:               # SFRBX ephemerides are a navigation source (issue 28)
         warnings.append("no navigation file: the run has no ephemerides, and 'cdgps init' needs them "
                         "(ingest again with --nav, or list nav files in the config)")
     return IngestInputs(files, master, nav_list, receivers, nav, integrity, warnings, nav_source)

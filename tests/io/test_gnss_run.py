@@ -406,3 +406,14 @@ def test_every_real_file_ingests_or_is_refused(tmp_path):
         r = run_cli("-q", "ingest", "--rinex", f"a={root / obs}", "--nav", root / nav, "-o", tmp_path / "n.mcap")
         assert r.exit_code == 0, (obs, r.output)
         assert len(read_gnss_run(tmp_path / "n.mcap").nav) > 0
+
+
+def test_sfrbx_ephemerides_count_as_a_navigation_source(tmp_path):
+    """A real u-blox log with RXM-SFRBX (real-pairs/ublox-walk): ingest uses its ephemerides and does
+    not also warn 'no navigation file' (issue 28)."""
+    log = shared("real-pairs/ublox-walk/gnss_1730.ubx")
+    r = run_cli("ingest", "--ubx", f"a={log}", "-o", tmp_path / "w.mcap")
+    assert r.exit_code == 0, r.output
+    assert "broadcast ephemerides decoded from the UBX logs' RXM-SFRBX" in r.stderr
+    assert "no navigation file" not in r.stderr
+    assert len(read_gnss_run(tmp_path / "w.mcap").nav) > 0
