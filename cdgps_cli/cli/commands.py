@@ -1592,10 +1592,13 @@ if __name__ == "__main__":  # pragma: no cover
 
 
 @main.command(short_help="Multi-GNSS, multi-frequency RTK of a pair → CSV")
-@click.option("--base", "base_file", required=True, type=click.Path(dir_okay=False), help="Base RINEX observation file.")
-@click.option("--rover", "rover_file", required=True, type=click.Path(dir_okay=False), help="Rover RINEX observation file.")
-@click.option("--nav", "nav_files", required=True, multiple=True, type=click.Path(dir_okay=False),
-              help="RINEX navigation file(s) with the GPS / Galileo / BeiDou / GLONASS ephemerides (repeatable).")
+@click.option("--base", "base_file", required=True, type=click.Path(dir_okay=False),
+              help="Base observations: RINEX, or a u-blox log (RXM-RAWX; its RTCM 1005/1006 position is used).")
+@click.option("--rover", "rover_file", required=True, type=click.Path(dir_okay=False),
+              help="Rover observations: RINEX, or a u-blox log (RXM-RAWX).")
+@click.option("--nav", "nav_files", multiple=True, type=click.Path(dir_okay=False),
+              help="RINEX navigation file(s) with the GPS / Galileo / BeiDou / GLONASS ephemerides (repeatable); "
+                   "without it, the u-blox logs' RXM-SFRBX ephemerides.")
 @click.option("--signals", default="auto", show_default=True,
               help="Comma-separated signals (G:L1, G:L2, G:L5, E:E1, E:E5a, E:E5b, C:B1I, C:B2I, C:B2a, R:G1, R:G2; "
                    "GLONASS stays float unless --glonass-fix), or 'auto': every one both files hold whose system has "

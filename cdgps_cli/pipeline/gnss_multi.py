@@ -10,6 +10,7 @@ else the float one).
 
 from __future__ import annotations
 
+import functools
 import io as _io
 from pathlib import Path
 
@@ -91,14 +92,22 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
             raise CdgpsError(f"signals of system {c} cannot be processed yet (broadcast ephemerides read for "
                              f"{', '.join(NAV_SYSTEMS)} only)")
     try:                  # read first for its GLONASS frequency numbers; the observation files' errors come first
-        nav, nav_error = _nav(nav_paths, systems), None
+        if nav_paths:
+            nav, nav_error = _nav(nav_paths, systems), None
+        else:
+            nav = _ubx_nav((base_path, rover_path))
+            nav_error = None if nav is not None else CdgpsError(
+                f"no broadcast ephemerides: no --nav given and neither {base_path} nor {rover_path} is a u-blox log "
+                f"with RXM-SFRBX ephemerides")
+            nav = nav[nav["sat"].str[0].isin(systems)] if nav is not None else pd.DataFrame()
+            nav_paths = [f"RXM-SFRBX of {', '.join(str(p) for p in (base_path, rover_path) if is_ubx_log(p))}"]
     except CdgpsError as exc:
         nav, nav_error = pd.DataFrame(), exc
     # GLONASS frequency numbers: the observation header's, else the navigation records'
     glo_k = ({sat: int(k) for sat, k in nav.dropna(subset=["glonass_k"]).groupby("sat")["glonass_k"].first().items()}
              if "glonass_k" in nav.columns else {})
-    hb, b = read_rinex_signals(base_path, sigs, glo_k)
-    hr, r = read_rinex_signals(rover_path, sigs, glo_k)
+    hb, b = _read_observations(base_path, sigs, glo_k)
+    hr, r = _read_observations(rover_path, sigs, glo_k)
     if nav_error is not None:
         raise nav_error
     b, r = (_first_of_repeated_epochs(df, path, who, warnings) for df, path, who in ((b, base_path, "base"), (r, rover_path, "rover")))
@@ -226,9 +235,9 @@ def _rover_origin(header: dict, obs: pd.DataFrame, nav, base_xyz, path, warnings
     t = o["time_gps_s"].to_numpy()
     x, _ = spp_static(np.unique(t, return_inverse=True)[1], o["sat"].to_numpy(), t, o["pseudorange_m"].to_numpy(), nav,
                       x0_ecef_m=base_xyz, what=f"{path} (rover)")
-    warnings.append(f"{path} (rover): APPROX POSITION XYZ {' '.join(f'{v:g}' for v in hx)} is not on the Earth; "
-                    f"the a-priori position is the mean single-point position from its {sig} pseudoranges, "
-                    f"refined by a float solution")
+    warnings.append(f"{path} (rover): no position on the Earth in the file (APPROX POSITION XYZ, RTCM 1005/1006: "
+                    f"{' '.join(f'{v:g}' for v in hx)}); the a-priori position is the mean single-point position from "
+                    f"its {sig} pseudoranges, refined by a float solution")
     return np.asarray(x, dtype=float), True
 
 
@@ -246,10 +255,69 @@ def _geometry(df, nav, xyz, path, who, nav_paths):
                          f"navigation file(s) of the observations' day)") from None
 
 
+def is_ubx_log(path) -> bool:
+    """Whether the file is a u-blox log (UBX frames) rather than a RINEX text file: its first line is
+    not a RINEX header line and a UBX sync word appears in its first 64 KiB."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(65536)
+    except OSError as exc:
+        raise CdgpsError(f"{path}: cannot read ({exc.strerror})") from None
+    first = head.split(b"\n", 1)[0]
+    return b"RINEX VERSION / TYPE" not in first and b"\xb5\x62" in head
+
+
+@functools.lru_cache(maxsize=4)
+def _ubx_decoded(path: str, mtime_ns: int, size: int):
+    """A u-blox log read once per command: its summary (RTCM base position), every signal's table
+    with loss of lock from the lock times and half-cycle status, and its SFRBX ephemerides."""
+    from cdgps_cli.io.ubx import UBX_SIGNALS, read_ubx_log, read_ubx_signals  # noqa: PLC0415
+    from cdgps_cli.pipeline.gnss_ingest import ubx_loss_of_lock  # noqa: PLC0415
+
+    tab = read_ubx_signals(path, list(UBX_SIGNALS))
+    key = (tab["sat"].astype(str) + ":" + tab["signal"].astype(str)).to_numpy()
+    tab["lli"] = ubx_loss_of_lock(tab["time_gps_s"].to_numpy(), key, tab["phase_cycles"].to_numpy(),
+                                  tab["lock_time_ms"].to_numpy(dtype=np.float64), tab["half_cycle"].to_numpy() == 1)
+    info, _, nav = read_ubx_log(path)
+    return info, tab.drop(columns=["lock_time_ms", "half_cycle"]), nav
+
+
+def _ubx(path):
+    st = Path(path).stat()
+    return _ubx_decoded(str(path), st.st_mtime_ns, st.st_size)
+
+
+def _read_observations(path, sigs, glo_k) -> tuple[dict, pd.DataFrame]:
+    """A receiver's header (``approx_position_xyz_m``) and signal table, from RINEX or from a u-blox
+    log's RXM-RAWX (loss of lock from the lock times and half-cycle status; the position from its
+    RTCM 1005/1006 when it has one)."""
+    if not is_ubx_log(path):
+        return read_rinex_signals(path, sigs, glo_k)
+    info, tab, _ = _ubx(path)
+    base = info.get("rtcm_base")
+    return ({"approx_position_xyz_m": base["arp_ecef_m"] if base else None},
+            tab[tab["signal"].isin(list(sigs))].reset_index(drop=True))
+
+
+def _ubx_signals(path) -> list[str]:
+    return sorted(set(_ubx(path)[1]["signal"]))
+
+
+def _ubx_nav(paths) -> pd.DataFrame | None:
+    """Broadcast ephemerides decoded from the RXM-SFRBX frames of the u-blox logs among ``paths``."""
+    navs = [_ubx(p)[2] for p in dict.fromkeys(map(str, paths)) if is_ubx_log(p)]
+    navs = [n for n in navs if n is not None and len(n)]
+    if not navs:
+        return None
+    nav = pd.concat(navs, ignore_index=True).drop_duplicates(["sat", "toe_gps_s"]).reset_index(drop=True)
+    nav.attrs = {}
+    return nav
+
+
 def _auto_signals(base_path, rover_path, nav_paths, warnings: list) -> list[str]:
     """Every signal both observation files hold whose system has ephemerides in the navigation files
     (systems the navigation data lack are named in a warning); CdgpsError when none is left."""
-    held = [set(signals_in_file(p)) for p in (base_path, rover_path)]
+    held = [set(_ubx_signals(p) if is_ubx_log(p) else signals_in_file(p)) for p in (base_path, rover_path)]
     both = [s for s in SIGNALS if s in held[0] and s in held[1]]
     systems = sorted({signal(s).system for s in both if signal(s).system in NAV_SYSTEMS})
     have = set()
@@ -258,6 +326,9 @@ def _auto_signals(base_path, rover_path, nav_paths, warnings: list) -> list[str]
             have |= set(read_rinex_nav(p, systems=tuple(systems))["sat"].str[0])
         except CdgpsError:
             continue
+    if not nav_paths:
+        ubx_nav = _ubx_nav((base_path, rover_path))
+        have = set(ubx_nav["sat"].str[0]) if ubx_nav is not None else set()
     use = [s for s in both if signal(s).system in have]
     lost = sorted({signal(s).system for s in both} - have)
     if lost:

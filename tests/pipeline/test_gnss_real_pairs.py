@@ -315,3 +315,21 @@ def test_correlated_code_is_an_option_with_honest_errors(tmp_path):
     r = run_cli("-q", "rtk", "--base", MOSAIC / "base.obs", "--rover", MOSAIC / "rover.obs", "--nav", MOSAIC / "base.nav",
                 "--code-correlation", -1, "-o", tmp_path / "bad.csv")
     assert r.exit_code == 2 and "code_correlation_s" in r.stderr and not (tmp_path / "bad.csv").exists()
+
+
+def test_ublox_logs_go_straight_into_rtk(tmp_path):
+    """A real u-blox log (real-pairs/ublox-walk: 4 Hz RXM-RAWX with RXM-SFRBX, NMEA mixed in, tags 2 ms
+    before the grid) as both base and rover, without --nav: its SFRBX ephemerides are used, slips
+    come from the lock times, the unresolved half cycles stay float, and the zero baseline is fixed
+    at every epoch."""
+    log = SHARED / "real-pairs" / "ublox-walk" / "gnss_1730.ubx"
+    base_xyz = (-1276975.6547, -4717238.8712, 4087235.6076)       # its receiver's first NAV-PVT fix
+    out = tmp_path / "zero.csv"
+    r = run_cli("rtk", "--base", log, "--rover", log, "--signals", "G:L1,E:E1", "--base-xyz", *base_xyz, "-o", out, "--json")
+    assert r.exit_code == 0, r.output
+    import json
+    s = json.loads(r.stdout)
+    assert s["epochs"] == s["epoch_pairing"]["rover_epochs"] == 536 and s["fixed_epochs"] >= 0.95 * 536
+    d = pd.read_csv(out, comment="#")
+    assert np.abs(d[["e_m", "n_m", "u_m"]].to_numpy()).max() < 0.002
+    assert "single-point position" in r.stderr
