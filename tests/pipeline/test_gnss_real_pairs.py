@@ -333,3 +333,20 @@ def test_ublox_logs_go_straight_into_rtk(tmp_path):
     d = pd.read_csv(out, comment="#")
     assert np.abs(d[["e_m", "n_m", "u_m"]].to_numpy()).max() < 0.002
     assert "single-point position" in r.stderr
+
+
+def test_a_repeated_epoch_record_is_read_once(files, original):
+    """The same epoch written twice in the rover file (issue 32: an AmbiguityError traceback): read
+    once, with a warning naming the file; the solution is the clean one."""
+    lines = (MOSAIC / "rover.obs").read_text().splitlines()
+    starts = [i for i, ln in enumerate(lines) if ln.startswith(">")]
+    a, b = starts[10], starts[11]
+    (files / "rover_dup.obs").write_text("\n".join(lines[:b] + lines[a:b] + lines[b:]) + "\n")
+    out = files / "dup.csv"
+    r = run_cli("rtk", "--base", MOSAIC / "base.obs", "--rover", files / "rover_dup.obs", "--nav", MOSAIC / "base.nav",
+                "--signals", "G:L1", "--base-xyz", *BASE_XYZ, "-o", out)
+    assert r.exit_code == 0, r.output
+    assert "rover_dup.obs (rover): 1 epoch(s) written more than once" in r.stderr
+    d = pd.read_csv(out, comment="#")
+    assert len(d) == 301 and np.abs(_enu(d) - _enu(original[1])).max() < 1e-4
+
