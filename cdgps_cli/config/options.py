@@ -36,6 +36,7 @@ GNSS_DEFAULTS = {"mask_deg": 15.0, "ratio": RATIO_THRESHOLD, "partial": True, "w
                  "troposphere": True, "sigma_a_m": PHASE_SIGMA_A_M, "sigma_b_m": PHASE_SIGMA_B_M,
                  "code_ratio": 100.0, "sync_tol_s": EPOCH_PAIRING_DEFAULTS["sync_tol_s"],
                  "max_age_s": EPOCH_PAIRING_DEFAULTS["max_age_s"], "epoch_alignment": "geometry",
+                 "code_correlation_s": 0.0,
                  "random_walk_sigma": (0.001, 0.001, 0.001), "initial_sigma_m": 1.0,
                  "iono_threshold_km": IONO_THRESHOLD_KM}
 
@@ -67,7 +68,7 @@ MULTI_GNSS_DEFAULTS = {
     "kinematic_sigma_m_per_sqrt_s": 30.0,  # random-walk rate of the kinematic rover position
     "mask_deg": 15.0, "ratio": RATIO_THRESHOLD, "fix": True, "glonass_fix": False,
     "min_success_rate": 0.999,             # bootstrapped success rate an integer set must reach (partial set otherwise)
-    "code_correlation_s": 0.0,             # code errors as a first-order Gauss-Markov process of this correlation time (0: white, as RTKLIB)
+    "code_correlation_s": GNSS_DEFAULTS["code_correlation_s"],  # code errors as a Gauss-Markov process of this correlation time, s (0: white, as RTKLIB)
     "fix_and_hold": False,                 # feed fixed integers back as measurements (RTKLIB pos2-armode=fix-and-hold)
     "hold_after_fixes": 10,                # … once this many consecutive epochs fixed (RTKLIB pos2-arminfix)
     "sigma_a_m": PHASE_SIGMA_A_M, "sigma_b_m": PHASE_SIGMA_B_M, "code_ratio": 100.0,

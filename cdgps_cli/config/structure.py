@@ -928,7 +928,8 @@ _GNSS_KEYS = {
     "name": "string", "description": "string", "master": "string", "nav": "list of file paths",
     "mask_deg": "number", "ratio": "number", "partial": "bool", "fix": "bool", "weighting": "string",
     "sigma_a_m": "number", "sigma_b_m": "number", "code_ratio": "number", "troposphere": "bool",
-    "max_gap_s": "number", "sync_tol_s": "number", "max_age_s": "number", "epoch_alignment": "string", "antennas": "table",
+    "max_gap_s": "number", "sync_tol_s": "number", "max_age_s": "number", "code_correlation_s": "number",
+    "epoch_alignment": "string", "antennas": "table",
     "displacement": "table", "signals": "list of signal names", "iono_threshold_km": "number",
 }
 _GNSS_ANTENNA_KEYS = {"rinex", "ubx", "position_ecef_m", "description"}
@@ -989,6 +990,7 @@ class GnssConfig:
     max_gap_s: float | None = None
     sync_tol_s: float = GNSS_DEFAULTS["sync_tol_s"]
     max_age_s: float = GNSS_DEFAULTS["max_age_s"]
+    code_correlation_s: float = GNSS_DEFAULTS["code_correlation_s"]
     epoch_alignment: str = GNSS_DEFAULTS["epoch_alignment"]
     displacement: str = "static"
     random_walk_sigma: tuple = GNSS_DEFAULTS["random_walk_sigma"]
@@ -1110,6 +1112,9 @@ def parse_gnss_config(text: str, path: str = "<config>", base_dir: str | Path | 
     if sync is not None and sync > 1.0:
         chk.add("gnss.sync_tol_s", f"expected at most 1 s, got {sync!r}")
     max_age = chk.number(g, "gnss", "max_age_s", GNSS_DEFAULTS["max_age_s"], positive=True)
+    code_corr = chk.number(g, "gnss", "code_correlation_s", GNSS_DEFAULTS["code_correlation_s"])
+    if code_corr is not None and code_corr < 0:
+        chk.add("gnss.code_correlation_s", f"expected a correlation time >= 0 s, got {code_corr!r}")
     if max_age is not None and sync is not None and max_age < sync:
         chk.add("gnss.max_age_s", f"expected at least gnss.sync_tol_s ({sync:g} s), got {max_age!r}")
     iono_km = chk.number(g, "gnss", "iono_threshold_km", GNSS_DEFAULTS["iono_threshold_km"], positive=True)
@@ -1178,7 +1183,7 @@ def parse_gnss_config(text: str, path: str = "<config>", base_dir: str | Path | 
         description=description or "", master=master, antennas=tuple(ants), nav=tuple(nav),
         mask_deg=mask, ratio=ratio, partial=flag("partial", True), fix=flag("fix", True), weighting=weighting,
         sigma_a_m=sa, sigma_b_m=sb, code_ratio=code_ratio, troposphere=flag("troposphere", True),
-        max_gap_s=max_gap, sync_tol_s=sync, max_age_s=max_age, epoch_alignment=align, displacement=model, random_walk_sigma=rw, initial_sigma_m=init_sigma,
+        max_gap_s=max_gap, sync_tol_s=sync, max_age_s=max_age, code_correlation_s=code_corr, epoch_alignment=align, displacement=model, random_walk_sigma=rw, initial_sigma_m=init_sigma,
         signals=signals, iono_threshold_km=iono_km,
     )
 

@@ -68,6 +68,7 @@ from cdgps_cli.model.gps.positioning import (
 )
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.measurement.epoch_pairing import age_variance_m2, pair_epochs, rows_for_pairs
+from cdgps_cli.measurement.noise import correlated_variance_factor
 from cdgps_cli.model.gps.epoch_align import ALIGN_MODES, align_receiver, carry_slips
 
 __all__ = [
@@ -115,6 +116,9 @@ class BaselineOptions:
     max_age_s : float
         Oldest base epoch bridged to a rover epoch, s (a base with gaps or a lower rate; RTKLIB's
         ``pos2-maxage``): the rover's epochs drive, each paired with the nearest base epoch.
+    code_correlation_s : float
+        Correlation time of the code errors, s: their variance is inflated by (1+ρ)/(1−ρ),
+        ρ = exp(−interval/τ) (:func:`~cdgps_cli.measurement.noise.correlated_variance_factor`; 0: white).
     epoch_alignment : {"geometry", "doppler"}
         Off-grid epochs modelled at their own reception instants, or their phase and range moved
         to the grid time by carrier-phase rate × offset.
@@ -151,6 +155,7 @@ class BaselineOptions:
     max_iterations: int = 10
     sync_tol_s: float = GNSS_DEFAULTS["sync_tol_s"]
     max_age_s: float = GNSS_DEFAULTS["max_age_s"]
+    code_correlation_s: float = GNSS_DEFAULTS["code_correlation_s"]
     epoch_alignment: str = GNSS_DEFAULTS["epoch_alignment"]
     max_gap_s: float | None = None
     min_sats_kinematic: int = 4
@@ -167,7 +172,8 @@ class BaselineOptions:
         kw = dict(mask_deg=cfg.mask_deg, ratio_threshold=cfg.ratio, partial=cfg.partial, fix=cfg.fix,
                   weighting=cfg.weighting, sigma_a_m=cfg.sigma_a_m, sigma_b_m=cfg.sigma_b_m,
                   code_ratio=cfg.code_ratio, troposphere=cfg.troposphere, max_gap_s=cfg.max_gap_s,
-                  sync_tol_s=cfg.sync_tol_s, max_age_s=cfg.max_age_s, epoch_alignment=cfg.epoch_alignment, motion=cfg.displacement, random_walk_sigma=tuple(cfg.random_walk_sigma),
+                  sync_tol_s=cfg.sync_tol_s, max_age_s=cfg.max_age_s, code_correlation_s=cfg.code_correlation_s,
+                  epoch_alignment=cfg.epoch_alignment, motion=cfg.displacement, random_walk_sigma=tuple(cfg.random_walk_sigma),
                   initial_sigma_m=cfg.initial_sigma_m)
         kw.update(overrides)
         return cls(**kw)
@@ -195,6 +201,8 @@ class BaselineOptions:
             p.append(f"sync_tol_s must be in (0, 1] s, got {self.sync_tol_s!r}")
         if not (math.isfinite(self.max_age_s) and self.max_age_s >= self.sync_tol_s):
             p.append(f"max_age_s must be a number of seconds >= sync_tol_s, got {self.max_age_s!r}")
+        if not (math.isfinite(self.code_correlation_s) and self.code_correlation_s >= 0):
+            p.append(f"code_correlation_s must be >= 0 s, got {self.code_correlation_s!r}")
         if self.epoch_alignment not in ALIGN_MODES:
             p.append(f"epoch_alignment must be one of {', '.join(ALIGN_MODES)}, got {self.epoch_alignment!r}")
         if self.max_gap_s is not None and not (math.isfinite(self.max_gap_s) and self.max_gap_s > 0):
@@ -755,7 +763,7 @@ def _segments(d: _Data, opt: BaselineOptions) -> _Segments:
 def _weights(d: _Data, opt: BaselineOptions) -> _Weights:
     """SD variances and DD weights of the phase rows and of the code rows (its own references)."""
     var_ph = sd_variance(d.el_rover, d.el_base, sigma_a_m=opt.sigma_a_m, sigma_b_m=opt.sigma_b_m, weighting=opt.weighting)
-    var_code = var_ph * opt.code_ratio**2
+    var_code = var_ph * opt.code_ratio**2 * correlated_variance_factor(d.interval_s, opt.code_correlation_s)
     age_var = getattr(d, "age_var_m2", None)
     if age_var is not None:                       # a bridged base epoch: σ grows with its age (epoch_pairing)
         var_ph, var_code = var_ph + age_var, var_code + age_var
