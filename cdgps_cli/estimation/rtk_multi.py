@@ -122,8 +122,12 @@ def _paired_rows(base, rover, pairs, opt) -> dict:
     lli_b = carry_base_slips(bep, base["sat"].to_numpy().astype(str) + base["signal"].to_numpy().astype(str),
                              base["lli"].to_numpy(dtype=np.int64), np.bincount(pairs.base_index, minlength=tb.size))
     b = base.assign(_row_b=np.arange(len(base)), _bep=bep, lli=lli_b)
-    ep_r = pair_of_rover[np.searchsorted(tr, rover["time_gps_s"].to_numpy())]
-    r = rover[_PAIR_COLS].assign(_row_r=np.arange(len(rover)), _ep=ep_r)[ep_r >= 0]
+    rep = np.searchsorted(tr, rover["time_gps_s"].to_numpy())
+    ep_r = pair_of_rover[rep]
+    # the rover's slip flags of epochs that are not used move to the channel's next used epoch
+    lli_r = carry_base_slips(rep, rover["sat"].to_numpy().astype(str) + rover["signal"].to_numpy().astype(str),
+                             rover["lli"].to_numpy(dtype=np.int64), (pair_of_rover >= 0).astype(np.int64))
+    r = rover[_PAIR_COLS].assign(_row_r=np.arange(len(rover)), _ep=ep_r, lli=lli_r)[ep_r >= 0]
     r = r.assign(_bep=pairs.base_index[r["_ep"].to_numpy()])
     m = b.merge(r, on=["_bep", "sat", "signal"], suffixes=("_b", "_r"))
     m = m[m["el_rad"] >= np.radians(opt["mask_deg"])]
