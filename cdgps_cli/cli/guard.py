@@ -1,5 +1,5 @@
 """Checks every command gets for free (issue 12): option values are what they claim to be, and no
-output path is one of the command's inputs.
+output path is one of the command's inputs, empty, or another of its outputs.
 
 :class:`GuardedCommand` is the Click command class of the ``cdgps`` group: it turns every float
 option into :data:`FINITE_FLOAT` (NaN and ±inf refused, naming the option) and, before the command
@@ -101,12 +101,13 @@ class GuardedCommand(click.Command):
                 p.type = FINITE_FLOAT
 
     def invoke(self, ctx):
-        from cdgps_cli.io.atomic import refuse_input_overwrite
+        from cdgps_cli.io.atomic import refuse_input_overwrite, refuse_output_collisions
 
         from cdgps_cli.config.limits import check_option
 
         for p in self.params:
             check_option(p.name, _spelling(p), ctx.params.get(p.name))   # plausible ranges (limits.py)
         outputs, inputs = command_paths(self, ctx.params)
+        refuse_output_collisions(outputs)
         refuse_input_overwrite(outputs, inputs)
         return super().invoke(ctx)

@@ -331,6 +331,10 @@ class _Checker:
         if not isinstance(v, str) or not v:
             self.add(full, f"expected a non-empty string, got {v!r}")
             return default
+        bad = next((c for c in v if not c.isprintable()), None)
+        if bad is not None:        # a NUL or newline in a name breaks every file that carries it (issue 32)
+            self.add(full, f"expected printable characters, got {v!r} (contains U+{ord(bad):04X})")
+            return default
         return v
 
     def vector(self, table, key, name, size, default=None, unit=False):

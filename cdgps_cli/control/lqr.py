@@ -37,6 +37,9 @@ SETTLING_FRACTION = 0.02
 #: an eigenvalue with |z| above 1 − this is treated as not asymptotically stable when testing
 #: stabilizability and detectability (the rigid-body angle sits exactly at z = 1)
 MARGINAL_TOLERANCE = 1e-9
+#: largest weight entry accepted: beyond it Bᵀ P B overflows double precision in the Riccati solver
+#: (``--qx 1e308`` ended in a traceback, issue 32); only the ratio of Q_x to Q_u matters
+WEIGHT_MAX = 1e100
 
 
 @dataclass(frozen=True)
@@ -115,6 +118,10 @@ def check_weights(Qx, Qu, n: int, m: int) -> tuple[np.ndarray, np.ndarray]:
             continue
         if not np.all(np.isfinite(M)):
             problems.append(f"{name}: every entry must be a finite number")
+            continue
+        if size and np.abs(M).max() > WEIGHT_MAX:
+            problems.append(f"{name}: entries up to {np.abs(M).max():.3g}, expected at most {WEIGHT_MAX:g} in magnitude "
+                            "(the gain depends only on the ratio of Qx to Qu: scale both down)")
             continue
         if not np.allclose(M, M.T, rtol=1e-12, atol=0.0):
             problems.append(f"{name}: must be symmetric")
@@ -202,7 +209,14 @@ def design_lqr(A, B, Qx, Qu, sample_period_s: float, state_names=None) -> LqrDes
     unreachable, unseen = unstable_uncovered_modes(A, B, Qx)
     if unreachable or unseen:
         raise CdgpsError(_uncovered_message(A, unreachable, unseen, state_names))
-    P = solve_discrete_are(A, B, Qx, Qu)
+    try:
+        P = solve_discrete_are(A, B, Qx, Qu)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        raise CdgpsError(f"no LQR gain: the Riccati equation could not be solved with these weights ({exc}); "
+                         "bring Qx and Qu closer in scale (--qx, --qu)") from None
+    if not np.all(np.isfinite(P)):
+        raise CdgpsError("no LQR gain: the Riccati solution overflowed with these weights; "
+                         "bring Qx and Qu closer in scale (--qx, --qu)")
     P = 0.5 * (P + P.T)
     G = Qu + B.T @ P @ B
     K = np.linalg.solve(G, B.T @ P @ A)

@@ -136,6 +136,32 @@ def refuse_input_overwrite(outputs, inputs) -> None:
                                  f"input (refused, nothing written); choose another output path")
 
 
+def refuse_output_collisions(outputs) -> None:
+    """Refuse an empty output path, and two outputs of one command that are the same file.
+
+    Parameters
+    ----------
+    outputs : iterable of (option, path, is_directory)
+        As for :func:`refuse_input_overwrite`.  Paths are compared after resolving ``.``, ``..``
+        and symlinks, so ``-o g.json --figure ./g.json`` is caught before anything is written
+        (issue 32: the figure used to replace the gains file).
+
+    Raises
+    ------
+    CdgpsError
+        Naming both options and the path; nothing has been written.
+    """
+    seen: dict[str, str] = {}
+    for opt, path, _ in outputs:
+        if not str(path).strip():
+            raise CdgpsError(f"{opt}: expected a file or folder path, got an empty string")
+        key = os.path.realpath(path)
+        if key in seen:
+            raise CdgpsError(f"{opt} {path} is the same path as {seen[key]}: the second output would replace the "
+                             f"first (refused, nothing written); give each output its own path")
+        seen[key] = f"{opt} {path}"
+
+
 # ----------------------------------------------------------------------------- signals
 #
 # SIGINT raises KeyboardInterrupt, so the ``finally`` blocks below remove every hidden temporary.

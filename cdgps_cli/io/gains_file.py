@@ -41,6 +41,16 @@ def gains_record(design, poles: dict, *, config_path, state_names, thruster_name
     }
 
 
+def gain_sha256(K) -> str:
+    """Hex sha256 of the gain matrix as float64 bytes (C order): which design a closed-loop run used.
+
+    ``cdgps simulate --controller`` writes it into truth.json (``controller.gains_k_sha256``) and
+    ``cdgps report control`` refuses a GAINS.json whose K is another (issue 32)."""
+    import hashlib
+
+    return hashlib.sha256(np.ascontiguousarray(np.asarray(K, dtype="<f8")).tobytes()).hexdigest()
+
+
 def write_gains(path: str | Path, record: dict) -> None:
     """Write GAINS.json atomically (sorted keys, 2-space indent, a final newline)."""
     write_bytes_atomic(path, (json.dumps(record, indent=2, sort_keys=True, allow_nan=False) + "\n").encode())
@@ -69,8 +79,33 @@ def read_gains(path: str | Path, config_path: str | Path | None = None) -> dict:
         if doc[key].shape != shape or not np.all(np.isfinite(doc[key])):
             raise CdgpsError(f"{path}: key {key!r}: expected a finite {shape[0]}×{shape[1]} matrix, "
                              f"got shape {doc[key].shape}")
+    _check_period_and_poles(doc, path)
     if config_path is not None and doc["config"].get("sha256") != file_sha256(config_path):
         raise CdgpsError(f"{path}: designed for config {doc['config'].get('path')} (sha256 "
                          f"{str(doc['config'].get('sha256'))[:12]}…), not {config_path}; design the gain "
                          f"for this config with `cdgps control design`")
     return doc
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and bool(np.isfinite(v))
+
+
+def _check_period_and_poles(doc: dict, path) -> None:
+    """``sample_period_s`` a positive number; ``poles`` the tables ``control design`` writes (issue 32:
+    ``"poles": null`` ended in a TypeError inside ``report control``)."""
+    dt = doc.get("sample_period_s")
+    if not (_is_number(dt) and dt > 0):
+        raise CdgpsError(f"{path}: key 'sample_period_s': expected a positive number of seconds, got {dt!r}")
+    poles = doc.get("poles")
+    if not isinstance(poles, dict):
+        raise CdgpsError(f"{path}: key 'poles': expected the pole tables written by `cdgps control design`, got {poles!r}")
+    for loop in ("open_loop", "closed_loop"):
+        rows = poles.get(loop)
+        if not isinstance(rows, list) or not all(isinstance(r, dict) and _is_number(r.get("z_re"))
+                                                 and _is_number(r.get("z_im")) for r in rows):
+            raise CdgpsError(f"{path}: key 'poles.{loop}': expected a list of poles with numeric z_re and z_im")
+    for loop in ("open_loop", "closed_loop"):
+        settle = (poles.get("settling_time_s") or {}).get(loop) if isinstance(poles.get("settling_time_s"), dict) else None
+        if not isinstance(settle, dict) or not all(v is None or (_is_number(v) and v >= 0) for v in settle.values()):
+            raise CdgpsError(f"{path}: key 'poles.settling_time_s.{loop}': expected a table of mode -> seconds (or null)")

@@ -202,7 +202,28 @@ def _decode_rawx(rawx: list) -> tuple[np.ndarray, np.ndarray, list]:
     for f in _RAWX_MEAS.names:
         meas[f] = raw[f]
     meas["epoch"] = np.repeat(np.arange(len(head)), head["numMeas"].astype(np.int64))
+    forged = _repeated_signal_frames(meas)
+    if forged.size:       # a frame listing one signal twice is not what a receiver writes (issue 32)
+        undecodable = sorted(undecodable + [int(o) for o in epochs["offset"][forged]])
+        keep = np.ones(len(epochs), bool)
+        keep[forged] = False
+        new_index = np.cumsum(keep) - 1
+        meas = meas[keep[meas["epoch"]]]
+        meas["epoch"] = new_index[meas["epoch"]]
+        epochs = epochs[keep]
     return epochs, meas, undecodable
+
+
+def _repeated_signal_frames(meas: np.ndarray) -> np.ndarray:
+    """Indices of RXM-RAWX frames in which one (gnssId, svId, sigId) appears more than once
+    (e.g. a forged frame with numMeas = 255 and a valid checksum)."""
+    if not len(meas):
+        return np.zeros(0, np.int64)
+    key = (meas["epoch"].astype(np.int64) << 24) | (meas["gnssId"].astype(np.int64) << 16) \
+        | (meas["svId"].astype(np.int64) << 8) | meas["sigId"].astype(np.int64)
+    key = np.sort(key)
+    dup = key[1:][key[1:] == key[:-1]]
+    return np.unique(dup >> 24)
 
 
 def _decoded_rawx(p: Path, strict: bool):

@@ -27,6 +27,7 @@ allocation and slew planning in :mod:`cdgps_cli.control`, the filter in
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,6 +40,7 @@ from cdgps_cli.control.modulation import PwpfParams, merge_firings, modulate_per
 from cdgps_cli.control.propagation import PulseResponse
 from cdgps_cli.control.slew import slew_reference
 from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.io.gains_file import gain_sha256
 from cdgps_cli.estimation.loop_filter import INITIAL_ESTIMATE_SIGMA, LoopFilter
 from cdgps_cli.measurement.multipath import model_from
 from cdgps_cli.measurement.phase import EpochPhaseModel, all_channels
@@ -222,6 +224,10 @@ def closed_loop_trajectory(cfg: StructureConfig, scenario: str, gains: dict, *, 
         (:func:`loop_estimator`).
     """
     model = discrete_model(cfg)
+    if not math.isclose(float(gains["sample_period_s"]), cfg.sample_period_s, rel_tol=1e-12, abs_tol=0.0):
+        raise CdgpsError(f"GAINS.json: key 'sample_period_s' is {gains['sample_period_s']!r} s, the config's "
+                         f"model.sample_period_s is {cfg.sample_period_s!r} s; design the gain for this config "
+                         "with `cdgps control design`")
     if gains["A"].shape != model.A.shape or not (np.allclose(gains["A"], model.A, rtol=0, atol=1e-9)
                                                  and np.allclose(gains["B"], model.B, rtol=0, atol=1e-9)):
         raise CdgpsError("GAINS.json: its A and B are not this config's discrete model")
@@ -262,6 +268,7 @@ def closed_loop_trajectory(cfg: StructureConfig, scenario: str, gains: dict, *, 
         extra = {"controller": {"feedback": feedback, "vibration_control": vibration_control,
                                 **({"slew_reference": slew_reference_kind} if scenario == "slew" else {}),
                                 "gains_config_sha256": gains["config"]["sha256"],
+                                "gains_k_sha256": gain_sha256(gains["K"]),
                                 "weight_set": gains.get("weight_set", "custom"),
                                 "pwpf": {"gain": pwpf.gain, "time_constant_s": pwpf.time_constant_s,
                                          "u_on": pwpf.u_on, "u_off": pwpf.u_off, "anti_windup": pwpf.anti_windup,

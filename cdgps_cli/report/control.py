@@ -18,7 +18,7 @@ from cdgps_cli.control.metrics import ARRIVED_WITHIN_DEG, BACK_FRACTION, pulse_m
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.provenance import _file, report_date, software
 from cdgps_cli.io.atomic import output_set
-from cdgps_cli.io.gains_file import read_gains
+from cdgps_cli.io.gains_file import gain_sha256, read_gains
 from cdgps_cli.report.sensor_reports import REPORT_FILES, _fmt, _html_table, _md_table, _mpl, _save_fig, _write_report
 
 #: internal angles plotted and measured (the sections' vertical-axis rotations, Figs. 10–12)
@@ -42,7 +42,10 @@ def read_simulation(folder: str | Path, role: str) -> dict:
     files = [d / "truth.json", d / "truth.csv"]
     ctrl = None
     if (d / "controller.csv").exists():
-        ctrl = pd.read_csv(d / "controller.csv")
+        try:
+            ctrl = pd.read_csv(d / "controller.csv")
+        except ValueError as exc:
+            raise CdgpsError(f"{d / 'controller.csv'}: not a readable CSV ({exc})") from None
         files.append(d / "controller.csv")
     closed = "controller" in truth
     if (role == "open") == closed:
@@ -52,7 +55,30 @@ def read_simulation(folder: str | Path, role: str) -> dict:
     missing = [c for c in ("time_s", RIGID_ANGLE, *INTERNAL_ANGLES) if c not in q.columns]
     if missing:
         raise CdgpsError(f"{d / 'truth.csv'}: missing columns {', '.join(missing)}")
+    _check_complete(d / "truth.csv", q)
+    if ctrl is not None:
+        _check_complete(d / "controller.csv", ctrl)
+        if len(ctrl) != len(q) or not np.array_equal(ctrl["time_s"].to_numpy(), q["time_s"].to_numpy()):
+            raise CdgpsError(f"{d / 'controller.csv'}: {len(ctrl)} rows, truth.csv {len(q)}: expected the same epochs "
+                             "(time_s) in both; is one of them cut short?")
     return {"folder": str(d), "truth": truth, "q": q, "controller": ctrl, "files": [str(f) for f in files]}
+
+
+def _check_complete(path: Path, table: pd.DataFrame) -> None:
+    """Every cell numeric and finite, time_s increasing: a file cut mid-row or emptied is refused by name
+    (issue 32: a cut truth.csv ended in an IndexError)."""
+    if "time_s" not in table.columns or len(table) == 0:
+        raise CdgpsError(f"{path}: expected a time_s column and at least one row")
+    values = table.apply(pd.to_numeric, errors="coerce").to_numpy(dtype=float)
+    bad = ~np.isfinite(values)
+    if bad.any():
+        row, col = np.argwhere(bad)[0]
+        cell = table.iat[row, col]
+        got = "an empty cell" if pd.isna(cell) else repr(str(cell))
+        raise CdgpsError(f"{path}: line {row + 2}, column {table.columns[col]!r}: expected a finite number, got "
+                         f"{got} (is the file cut short?)")
+    if not np.all(np.diff(values[:, list(table.columns).index("time_s")]) > 0):
+        raise CdgpsError(f"{path}: time_s must increase from row to row")
 
 
 def _scenario(runs: dict) -> str:
@@ -77,6 +103,11 @@ def control_report(gains_path: str | Path, runs: dict, out_dir: str | Path, date
         if s["truth"]["config_sha256"] != gains.get("config", {}).get("sha256"):
             raise CdgpsError(f"--{role.replace('_', '-')} {s['folder']}: simulated with another config than "
                              f"{gains_path} was designed for")
+        used = s["truth"].get("controller", {}).get("gains_k_sha256")
+        if role != "open" and used is not None and used != gain_sha256(gains["K"]):
+            raise CdgpsError(f"--{role.replace('_', '-')} {s['folder']}: simulated with another gain K than the one in "
+                             f"{gains_path} (truth.json controller.gains_k_sha256 {used[:12]}…); give the GAINS.json "
+                             "that run used")
     if scenario == "pulse":
         data, rows, header, figures, captions = _pulse_section(sims)
     elif scenario == "slew":

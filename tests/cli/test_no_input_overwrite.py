@@ -103,3 +103,23 @@ def test_distinct_output_is_not_refused(tmp_path):
     a, b = tmp_path / "a", tmp_path / "b"
     a.write_text("x")
     refuse_input_overwrite([("-o", str(b), False), ("-o", str(tmp_path / "d"), True)], [("RUN", str(a), False)])
+
+
+@pytest.mark.parametrize("path,cmd", [c for c in COMMANDS if c[0][-1] not in NO_OUTPUT], ids=lambda c: " ".join(c) if isinstance(c, tuple) else "")
+def test_command_refuses_an_empty_output_path(tmp_path, path, cmd):
+    """Issue 32: `ingest -o ''` ended in a traceback; every command now names the option."""
+    args, _ = _invocation(cmd, tmp_path, "same")
+    args[-1] = ""
+    before = sorted(p.name for p in tmp_path.rglob("*"))
+    r = CliRunner().invoke(main, ["-q", *path, *args])
+    assert r.exit_code == 2 and "expected a file or folder path, got an empty string" in r.stderr, (args, r.output)
+    assert sorted(p.name for p in tmp_path.rglob("*")) == before
+
+
+def test_two_outputs_on_one_path_are_refused(tmp_path):
+    from cdgps_cli.io.atomic import refuse_output_collisions
+
+    refuse_output_collisions([("-o", str(tmp_path / "a"), False), ("--figure", str(tmp_path / "b"), False)])
+    (tmp_path / "d").mkdir()
+    with pytest.raises(Exception, match="--figure .* is the same path as -o"):
+        refuse_output_collisions([("-o", str(tmp_path / "a"), False), ("--figure", f"{tmp_path}/d/../a", False)])

@@ -356,3 +356,10 @@ def test_bundled_samples_match_their_config(repo_root, sample, config):
     truth = json.loads((repo_root / "data" / sample / "truth.json").read_text())
     assert truth["config_sha256"] == load_config(repo_root / "configs" / config).sha256, (
         f"data/{sample}/truth.json was simulated with another configs/{config}: run scripts/make_samples.sh")
+
+
+@pytest.mark.parametrize("char", ["\\u0000", "\\n", "\\t", "\\u001b"])
+def test_names_with_control_characters_are_refused(testbed_text, char):
+    """Issue 32: a NUL byte in an antenna name was accepted and carried into every output file."""
+    msg = _error(_replace_once(testbed_text, A1_SECTION, A1_SECTION.replace('"a1"', f'"a{char}1"')))
+    assert "antennas[" in msg and ".name: expected printable characters" in msg

@@ -126,3 +126,28 @@ def test_defaults_are_the_papers_weights_and_the_set_is_recorded(testbed_path, t
         assert read_gains(tmp_path / "c.json", testbed_path)["weight_set"] == name, args
     r = _run("control", "design", testbed_path, "--weights", "mine", "-o", tmp_path / "x.json")
     assert r.exit_code == 2 and "Traceback" not in r.output and not (tmp_path / "x.json").exists()
+
+
+@pytest.mark.parametrize("args,words", [
+    (["--qx", "1e308"], ["Qx: entries up to 1e+308", "at most 1e+100"]),
+    (["--qx", "1e60"], ["no LQR gain", "--qx"]),
+    (["--qu", "1e-300,1,1,1,1,1,1,1"], []),
+])
+def test_extreme_weights_are_refused_cleanly(testbed_path, tmp_path, args, words):
+    """Issue 32: --qx 1e308 ended in a ValueError traceback inside the Riccati solver."""
+    r = _run("control", "design", testbed_path, *args, "-o", tmp_path / "g.json")
+    if not words:                                           # whatever the outcome, never a traceback
+        assert r.exit_code in (0, 2) and "Traceback" not in r.output, r.output
+        return
+    _clean_error(r, *words)
+    assert not (tmp_path / "g.json").exists()
+
+
+@pytest.mark.parametrize("figure", ["g.json", "./g.json", "sub/../g.json"])
+def test_figure_and_gains_on_one_path_are_refused(testbed_path, tmp_path, monkeypatch, figure):
+    """Issue 32: `--figure X -o X` wrote the PNG over the gains file."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "sub").mkdir()
+    r = _run("control", "design", testbed_path, "-o", "g.json", "--figure", figure)
+    _clean_error(r, "--figure", "same path as --output g.json")
+    assert not (tmp_path / "g.json").exists()

@@ -107,3 +107,70 @@ def test_slew_report_gives_the_metrics_on_the_estimate_too(pulse_runs, testbed_p
                        -22.0, 5.0)
     assert est["internal_max_deg"] == pytest.approx(ref["internal_max_deg"], rel=1e-12)
     assert "as estimated" in (tmp_path / "rep" / "report.md").read_text()
+
+
+def _edited_copy(src, dst, edit):
+    import shutil
+
+    shutil.copytree(src, dst)
+    edit(dst)
+    return dst
+
+
+def _cut_truth(d):
+    text = (d / "truth.csv").read_bytes()
+    (d / "truth.csv").write_bytes(text[: len(text) // 3])
+
+
+def _short_controller(d):
+    lines = (d / "controller.csv").read_text().splitlines(keepends=True)
+    (d / "controller.csv").write_text("".join(lines[:-5]))
+
+
+@pytest.mark.parametrize("edit,words", [
+    (_cut_truth, "truth.csv: line"),
+    (_short_controller, "controller.csv: "),
+])
+def test_report_refuses_a_cut_simulation_csv(pulse_runs, tmp_path, edit, words):
+    """Issue 32: a truth.csv cut mid-row ended in an IndexError traceback; now the file and line are named."""
+    closed = _edited_copy(pulse_runs / "closed", tmp_path / "closed", edit)
+    r = _run("report", "control", pulse_runs / "g.json", "--open", pulse_runs / "open", "--closed", closed,
+             "-o", tmp_path / "rep")
+    assert r.exit_code == 2 and words in r.output and "Traceback" not in r.output, r.output
+    assert not (tmp_path / "rep").exists()
+
+
+@pytest.mark.parametrize("key,value,words", [
+    ("poles", None, "key 'poles'"),
+    ("poles", {"open_loop": [], "closed_loop": [{"z_re": "x"}]}, "key 'poles.closed_loop'"),
+    ("sample_period_s", -1, "key 'sample_period_s'"),
+])
+def test_report_refuses_a_damaged_gains_file(pulse_runs, tmp_path, key, value, words):
+    g = json.loads((pulse_runs / "g.json").read_text())
+    g[key] = value
+    (tmp_path / "g.json").write_text(json.dumps(g))
+    r = _run("report", "control", tmp_path / "g.json", "--open", pulse_runs / "open", "--closed",
+             pulse_runs / "closed", "-o", tmp_path / "rep")
+    assert r.exit_code == 2 and words in r.output and "Traceback" not in r.output, r.output
+
+
+def test_report_refuses_the_gain_of_another_design(pulse_runs, testbed_path, tmp_path):
+    """The closed run records which K it used; a GAINS.json of another design (same config) is refused."""
+    assert _run("control", "design", testbed_path, "-o", tmp_path / "paper.json").exit_code == 0
+    r = _run("report", "control", tmp_path / "paper.json", "--open", pulse_runs / "open", "--closed",
+             pulse_runs / "closed", "-o", tmp_path / "rep")
+    assert r.exit_code == 2 and "another gain K" in r.output, r.output
+    truth = json.loads((pulse_runs / "closed" / "truth.json").read_text())
+    from cdgps_cli.io.gains_file import gain_sha256, read_gains
+
+    assert truth["controller"]["gains_k_sha256"] == gain_sha256(read_gains(pulse_runs / "g.json")["K"])
+
+
+def test_simulate_refuses_a_gain_of_another_sample_period(pulse_runs, testbed_path, tmp_path):
+    g = json.loads((pulse_runs / "g.json").read_text())
+    g["sample_period_s"] = 0.05
+    (tmp_path / "g.json").write_text(json.dumps(g))
+    r = _run("simulate", testbed_path, "--scenario", "pulse", "--duration", "2", "--controller", tmp_path / "g.json",
+             "-o", tmp_path / "sim")
+    assert r.exit_code == 2 and "sample_period_s" in r.output and "0.05" in r.output, r.output
+    assert not (tmp_path / "sim").exists()

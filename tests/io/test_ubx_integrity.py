@@ -71,6 +71,19 @@ def _undecodable(data: bytes) -> tuple[bytes, dict]:
     return bytes(b), {"undecodable_frames": 1, "n_frames": 14, "epochs": 13, "offset": k}
 
 
+def _forged_255(data: bytes) -> tuple[bytes, dict]:
+    """The 4th RXM-RAWX rebuilt with numMeas = 255: its measurement blocks repeated to fill 255, the
+    length and checksum recomputed (a frame no receiver writes: one signal listed many times)."""
+    k, n = _offsets(data)[3]
+    pl = bytearray(data[k + 6 : k + 6 + n])
+    blocks = [bytes(pl[16 + 32 * i : 48 + 32 * i]) for i in range(pl[11])]
+    pl[11] = 255
+    payload = bytes(pl[:16]) + b"".join(blocks[i % len(blocks)] for i in range(255))
+    body = data[k + 2 : k + 4] + struct.pack("<H", len(payload)) + payload
+    frame = data[k : k + 2] + body + _fletcher(body)
+    return data[:k] + frame + data[k + 8 + n :], {"undecodable_frames": 1, "n_frames": 14, "epochs": 13, "offset": k}
+
+
 def _no_sync(data: bytes) -> tuple[bytes, dict]:
     """The sync word of the 3rd frame destroyed: the whole frame is bytes between frames."""
     k, n = _offsets(data)[2]
@@ -79,7 +92,8 @@ def _no_sync(data: bytes) -> tuple[bytes, dict]:
     return bytes(b), {"skipped_bytes": n + 8, "n_frames": 13, "epochs": 13}
 
 
-CASES = {"flipped_bit": _flip, "truncated_tail": _truncate, "undecodable": _undecodable, "no_sync": _no_sync}
+CASES = {"flipped_bit": _flip, "truncated_tail": _truncate, "undecodable": _undecodable, "no_sync": _no_sync,
+         "forged_255": _forged_255}
 COUNTERS = ("bad_checksum_frames", "undecodable_frames", "skipped_bytes", "truncated_tail_bytes")
 
 
