@@ -375,6 +375,10 @@ def _grid_step_s(time_s: np.ndarray, q: np.ndarray, names: list, opt: SpectraOpt
     return T
 
 
+#: shortest Welch segment, samples (a default segment of a short record is raised to it)
+MIN_SEGMENT_SAMPLES = 16
+
+
 def _segment_lengths(N: int, T: float, opt: SpectraOptions) -> tuple[int, int]:
     """Welch segment length and FFT length, samples, for N epochs T s apart (every bad setting
     listed at once)."""
@@ -383,13 +387,17 @@ def _segment_lengths(N: int, T: float, opt: SpectraOptions) -> tuple[int, int]:
     problems = []
     if not seg_s > 0:
         problems.append(f"--segment-s {seg_s:g}: expected a positive segment length in seconds")
+    elif opt.segment_s is not None and not MIN_SEGMENT_SAMPLES <= round(seg_s * fs) <= N:
+        # was clamped silently: 1e9 s gave one segment (a rank-1 CSD), 0.001 s gave 16 samples (issue 32)
+        problems.append(f"--segment-s {seg_s:g}: expected {MIN_SEGMENT_SAMPLES * T:g} s ({MIN_SEGMENT_SAMPLES} samples) "
+                        f"to {N * T:g} s ({N} samples, the whole record)")
     if not opt.pad >= 1:
         problems.append(f"--pad {opt.pad:g}: expected an FFT zero-padding factor >= 1")
     if not 0 <= opt.overlap < 1:
         problems.append(f"--overlap {opt.overlap:g}: expected a fraction of a segment in [0, 1)")
     if problems:
         raise CdgpsError("; ".join(problems))
-    nperseg = int(min(N, max(16, round(seg_s * fs))))
+    nperseg = int(min(N, max(MIN_SEGMENT_SAMPLES, round(seg_s * fs))))
     return nperseg, int(2 ** np.ceil(np.log2(nperseg * opt.pad)))
 
 

@@ -246,6 +246,8 @@ def _check_options(opt: EstimateOptions) -> None:
     """Refuse options the filter cannot use, naming each (EstimateOptions' own field names)."""
     for name in ("outlier_sigma", "nis_probability"):
         require_finite(getattr(opt, name), f"EstimateOptions.{name}", positive=True)
+    if not 0.5 < opt.nis_probability < 1.0:      # 1.5 gave a NaN chi-square bound: every test passed (issue 32)
+        raise CdgpsError(f"EstimateOptions.nis_probability: expected a probability in (0.5, 1), got {opt.nis_probability!r}")
     if opt.sigma_m is not None and not (np.isfinite(opt.sigma_m) and opt.sigma_m > 0):
         raise CdgpsError(f"--sigma-m must be a positive number of metres, got {opt.sigma_m!r}")
     if opt.biases not in ("fixed", "states"):

@@ -686,7 +686,10 @@ def _window(run: Run, opt: InitOptions, sigma: float) -> _Window:
     _say(opt, f"window {t0:g}–{t1:g} s ({how}): {N} epochs, {len(wd.channels)} channels, "
               f"{len(wd.segments)} bias segments, phase motion RMS {motion * 100:.2f} cm")
     if N < 3:
-        raise CdgpsError(f"window {t0:g}–{t1:g} s has only {N} epochs; need at least 3")
+        given = [f"{flag} {v:g} s" for flag, v in (("--start", opt.start_s), ("--duration", opt.duration_s)) if v is not None]
+        raise CdgpsError(f"{' and '.join(given) + ': the ' if given else ''}window {t0:g}–{t1:g} s has only {N} "
+                         f"epoch{'s' if N != 1 else ''}; need at least 3"
+                         + (" (give a longer --duration)" if opt.duration_s is not None else ""))
     if motion < opt.min_motion_ratio * sigma:
         raise CdgpsError(_unobservable_msg(t0, t1, motion, sigma, None, cfg.wavelength_m, opt, motion_only=True))
     mp = model_from(cfg, opt.multipath_sigma_m, opt.multipath_time_constant_s)

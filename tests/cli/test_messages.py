@@ -180,3 +180,21 @@ def test_one_epoch_baseline_summary(tmp_path):
     assert r.exit_code == 0 and "Traceback" not in r.stderr, r.stderr
     assert "one epoch: no interval" in r.stderr
     assert np.isfinite(json.loads((tmp_path / "b.json").read_text())["epochs"]["n_epochs_used"])
+
+
+@pytest.mark.parametrize("value", ["1e9", "0.001"])
+def test_spectra_segment_outside_the_record_is_refused(chain, tmp_path, value):
+    """Issue 32: 1e9 s was clamped to one segment (a rank-1 CSD) and 0.001 s to 16 samples, silently."""
+    refused(cli("-q", "spectra", chain / "states.mcap", "--segment-s", value, "-o", tmp_path / "sp"),
+            f"--segment-s {float(value):g}: expected", "samples, the whole record")
+    assert not (tmp_path / "sp").exists()
+
+
+@pytest.mark.parametrize("args,words", [
+    (["--duration", "0.05"], ["--duration 0.05 s: the window", "need at least 3", "longer --duration"]),
+    (["--start", "29.95"], ["--start 29.95 s: the window"]),
+    (["--start", "500"], ["--start 500 s is outside the recording"]),
+])
+def test_init_window_messages_name_the_option(chain, tmp_path, args, words):
+    refused(cli("-q", "init", chain / "run.mcap", *args, "-o", tmp_path / "i.json"), *words)
+    assert not (tmp_path / "i.json").exists()
