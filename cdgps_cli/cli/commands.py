@@ -180,6 +180,20 @@ class _AliasedOption(click.Option):
             self.opts = shown
 
 
+def _named_by_flags(build, flags: dict):
+    """``build()``, with the library's field names in its CdgpsError replaced by the command-line
+    flags the user gave (``mask_deg must be in [0, 90)`` → ``--mask-deg must be in [0, 90)``)."""
+    import re
+
+    try:
+        return build()
+    except CdgpsError as exc:
+        msg = str(exc)
+        for field, flag in flags.items():
+            msg = re.sub(rf"(?<![\w-]){re.escape(field)}(?!\w)", flag, msg)
+        raise CdgpsError(msg) from None
+
+
 def _emit_json(data: dict) -> None:
     _echo(json.dumps(data, indent=2, sort_keys=False))
 
@@ -1014,7 +1028,9 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, max_ag
         changes["fix"] = False
     if no_troposphere:
         changes["troposphere"] = False
+    flags = {"mask_deg": "--mask-deg", "ratio_threshold": "--ratio", "max_age_s": "--max-age", "weighting": "--weighting"}
     opt = dataclasses.replace(opt, **changes)
+    _named_by_flags(opt.validate, {k: flags[k] for k in changes if k in flags})
     rover = next(n for n in stations if n != mst)
     _say(ctx, f"baseline {mst} → {rover}: {len(navs)} navigation file(s), mask {opt.mask_deg:g}°, ratio {opt.ratio_threshold:g} …")
     res = json_safe(baseline_from_files(stations, navs, mst, opt,

@@ -212,3 +212,28 @@ def _size(n: float) -> str:
         if n >= k:
             return f"{n / k:.3g} {unit}"
     return f"{n:.0f} B"
+
+
+#: a receiver on or near the Earth: its distance from the geocentre, m (WGS-84 radii 6 356 752–6 378 137 m,
+#: from the Dead Sea shore to above the highest summits and aircraft altitudes)
+GEOCENTRIC_RANGE_M = (6.30e6, 6.45e6)
+#: the GNSS epochs a simulation may start at: GPS time 0 (1980-01-06) up to 2100 (broadcast week numbers,
+#: RINEX and GPS-UTC tables beyond it are guesses)
+SIMULATION_START_RANGE = ("1980-01-06", "2100-01-01")
+
+
+def check_on_earth(xyz_m, what: str) -> None:
+    """Refuse an ECEF position that is not on or near the Earth (e.g. 0 0 0), naming ``what``.
+
+    Parameters
+    ----------
+    xyz_m : array_like, shape (3,)
+        ECEF position, m.
+    what : str
+        The option or key it came from, for the message.
+    """
+    v = [float(x) for x in xyz_m]
+    r = math.sqrt(sum(x * x for x in v))
+    if not (all(math.isfinite(x) for x in v) and GEOCENTRIC_RANGE_M[0] <= r <= GEOCENTRIC_RANGE_M[1]):
+        raise CdgpsError(f"{what} {','.join(f'{x:g}' for x in v)}: {r / 1e3:.1f} km from the Earth's centre; expected "
+                         f"an ECEF position on the Earth ({GEOCENTRIC_RANGE_M[0] / 1e3:.0f}–{GEOCENTRIC_RANGE_M[1] / 1e3:.0f} km)")

@@ -36,7 +36,7 @@ from cdgps_cli.config.structure import GnssConfig, gnss_config_toml
 from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.model.gps.positioning import simulate_static_pair, synthetic_gps_nav
-from cdgps_cli.config.limits import check_table_size
+from cdgps_cli.config.limits import SIMULATION_START_RANGE, check_on_earth, check_table_size
 from cdgps_cli.config.options import SIM_MASTER_ECEF_M
 from cdgps_cli.core.gps_time import gps_seconds, gps_time_str
 from cdgps_cli.io.rinex import read_rinex_nav
@@ -58,6 +58,15 @@ def parse_vector(text: str, what: str, n: int = 3) -> tuple:
     if len(v) != n or not all(math.isfinite(x) for x in v):
         raise CdgpsError(f"{what} expects {n} comma-separated numbers, got {text!r}")
     return v
+
+
+def check_simulation_start(start_gps_s: float) -> None:
+    """Refuse a first epoch before GPS time 0 or after 2100 (``--start 1970-01-01`` gave negative GPS
+    seconds and week numbers, silently; issue 32)."""
+    lo, hi = (parse_start(d) for d in SIMULATION_START_RANGE)
+    if not (math.isfinite(start_gps_s) and lo <= start_gps_s < hi):
+        raise CdgpsError(f"--start {gps_time_str(start_gps_s) if math.isfinite(start_gps_s) else start_gps_s}: expected a GPS "
+                         f"time from {SIMULATION_START_RANGE[0]} (GPS time 0) to before {SIMULATION_START_RANGE[1]}")
 
 
 def parse_start(text: str) -> float:
@@ -173,6 +182,10 @@ def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_
         raise CdgpsError(f"--rate-hz must be in (0, 100], got {rate_hz!r}")
     if master == rover:
         raise CdgpsError("the master and rover names must differ")
+    check_on_earth(master_xyz, "--master-xyz")
+    check_on_earth(rover_xyz, "--rover-xyz")
+    if start_gps_s is not None:
+        check_simulation_start(start_gps_s)
     for what, v in (("--clock-offset-ms", clock_offset_ms), ("--clock-drift-ms", clock_drift_ms)):
         if len(v) != 2 or not all(math.isfinite(x) and abs(x) <= 1000.0 for x in v):
             raise CdgpsError(f"{what} expects two offsets (master, rover) within ±1000 ms, got {v!r}")

@@ -198,3 +198,27 @@ def test_spectra_segment_outside_the_record_is_refused(chain, tmp_path, value):
 def test_init_window_messages_name_the_option(chain, tmp_path, args, words):
     refused(cli("-q", "init", chain / "run.mcap", *args, "-o", tmp_path / "i.json"), *words)
     assert not (tmp_path / "i.json").exists()
+
+
+# ---- simulate-gnss / baseline (issue 32)
+
+
+@pytest.mark.parametrize("args,words", [
+    (["--start", "1970-01-01"], ["--start 1970-01-01 00:00:00 GPST: expected a GPS time from 1980-01-06"]),
+    (["--start", "2100-01-01"], ["--start 2100-01-01", "before 2100-01-01"]),
+    (["--master-xyz", "0,0,0"], ["--master-xyz 0,0,0: 0.0 km from the Earth's centre"]),
+    (["--rover-xyz", "1e7,0,0"], ["--rover-xyz 1e+07,0,0: 10000.0 km"]),
+])
+def test_simulate_gnss_refuses_impossible_times_and_places(tmp_path, args, words):
+    refused(cli("-q", "simulate-gnss", "--duration", "10", *args, "-o", tmp_path / "sim"), *words)
+    assert not (tmp_path / "sim").exists()
+
+
+def test_baseline_names_the_flag_not_the_field(tmp_path):
+    g = ROOT.parent / "shared" / "data" / "rinex"
+    if not g.exists():
+        pytest.skip("../shared/data/rinex absent")
+    r = cli("-q", "baseline", "--rinex", f"A={g / '07590920.05o'}", "--rinex", f"B={g / '30400920.05o'}",
+            "--nav", g / "07590920.05n", "--master", "B", "--mask-deg", "-10", "-o", tmp_path / "b.json")
+    refused(r, "--mask-deg must be in [0, 90) degrees, got -10")
+    assert "mask_deg" not in r.stderr and not (tmp_path / "b.json").exists()
