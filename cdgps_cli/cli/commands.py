@@ -152,6 +152,12 @@ def _echo(text: str) -> None:
                          f"device?)") from None
 
 
+def _warn(msg: str) -> None:
+    """One voice for warnings (issue 32): ``cdgps: warning: …`` on stderr, also with --quiet (a warning
+    is about the data or the result, not progress)."""
+    progress.write(f"cdgps: warning: {msg}")
+
+
 def _say(ctx, msg: str) -> None:
     if not ctx.obj.get("quiet"):
         progress.write(msg)
@@ -272,11 +278,11 @@ def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_s
             sim, loop = simulate_closed_loop(cfg, opt, gains, vibration_control=not no_vibration_control,
                                              feedback=feedback, slew_reference_kind=slew_reference)
             if loop.saturated_fraction > 0.2:
-                progress.write(f"cdgps: warning: the jets were asked for more than their maximum force in "
+                _warn(f"the jets were asked for more than their maximum force in "
                                f"{100 * loop.saturated_fraction:.0f}% of jet-periods; the gain asks for more authority "
                                f"than the thrusters have (`cdgps control design --weights tuned` or a smaller --qx, docs/control.md)")
             if loop.estimator.get("met") is False:
-                progress.write("cdgps: warning: the in-loop estimator cannot be made "
+                _warn("the in-loop estimator cannot be made "
                                f"{loop.estimator['separation']:g}x faster than this regulator ({loop.estimator['rule']}); "
                                "the estimate lags the regulator (`cdgps control design --weights tuned` or a smaller --qx)")
     summary = write_simulation(sim, out_dir)
@@ -503,7 +509,7 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
               + (f", multipath Gauss–Markov σ {res['multipath']['sigma_m'] * 1000:.2f} mm τ "
                  f"{res['multipath']['time_constant_s']:g} s" if "multipath" in res else "") + f" → {output}")
     for w in res["noise"].get("warnings", []):
-        click.echo(f"WARNING: {w}", err=True)
+        _warn(w)
     if as_json:
         _emit_json(res)
 
@@ -671,10 +677,10 @@ def _check_pairing(ctx, init: dict, init_json, run_mcap, allow_other_run: bool) 
 
     pairing = check_init_run(init, init_json, run_mcap, allow_other_run)
     if pairing["allowed"]:
-        _say(ctx, f"warning: {init_json} was made from another run (run_sha256 {pairing['init_run_sha256'][:12]}…) "
+        _warn(f"{init_json} was made from another run (run_sha256 {pairing['init_run_sha256'][:12]}…) "
                   f"than {run_mcap} ({pairing['run_sha256'][:12]}…); used anyway (--allow-other-run)")
     elif pairing["matches"] is None:
-        _say(ctx, f"warning: {init_json} records no run_sha256: whether it comes from {run_mcap} is not checked")
+        _warn(f"{init_json} records no run_sha256: whether it comes from {run_mcap} is not checked")
     return pairing
 
 
@@ -839,7 +845,7 @@ def report_static(ctx, states_mcap, gyro_mcap, angle, survey_deg, start_s, end_s
     _say(ctx, f"{angle}: mean {d['mean_deg']:.4f}°{err}, noise {d['noise_rms_deg']:.4f}° RMS, "
               f"drift {d['drift_deg_per_min']:+.4f}°/min{gd} on {d['start_s']:.1f}–{d['end_s']:.1f} s")
     if d["static_mode"]["active_fraction"] != 1.0:
-        _say(ctx, f"warning: {d['static_mode']['statement']}")
+        _warn(d["static_mode"]["statement"])
     _say(ctx, f"report: {Path(out_dir) / 'report.html'}")
     if as_json:
         _emit_json(d)
@@ -1422,7 +1428,7 @@ def control_design(ctx, config, weight_set, qx, qu, rigid_factor, rate_factor, o
                   f"closed loop {'∞' if t is None else f'{t:.1f} s':>9}")
     _say(ctx, f"  in-loop filter: {est['rule']}")
     if not est["met"]:
-        progress.write(f"cdgps: warning: the in-loop estimator cannot be made {est['separation']:g}x faster than this "
+        _warn(f"the in-loop estimator cannot be made {est['separation']:g}x faster than this "
                        "regulator; in the closed loop the estimate will lag it (--weights tuned or a smaller --qx, docs/control.md)")
     if as_json:
         _emit_json({"output": output, "riccati_residual": design.riccati_residual,
@@ -1669,7 +1675,7 @@ def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_
             options[key] = value
     s = rtk_from_files(base_file, rover_file, list(nav_files), output, base_xyz_m=base_xyz or None, options=options)
     for w in s["warnings"]:
-        click.echo(f"cdgps: WARNING: {w}", err=True)
+        _warn(w)
     ep = s["epoch_pairing"]
     _say(ctx, f"{output}: {s['epochs']} of {ep['rover_epochs']} rover epochs ({ep['bridged']} bridged across base gaps, "
               f"max age {ep['max_age_s']:.3g} s), fixed {s['fixed_pct']:.1f} % ({s['direction']}; "

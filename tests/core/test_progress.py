@@ -147,7 +147,7 @@ def test_outputs_identical_with_and_without_progress(tmp_path, monkeypatch, fast
     progress.configure(stream=_Tty())                # bars on a (fake) terminal
     bars, b_out, _ = _chain(tmp_path, monkeypatch, "tty")
     progress.configure(stream=None)
-    assert all(e == "" or all(ln.startswith("WARNING: ") for ln in e.splitlines()) for e in q_err), q_err
+    assert all(e == "" or all(ln.startswith("cdgps: warning: ") for ln in e.splitlines()) for e in q_err), q_err
     assert any("reading run.mcap" in e for e in p_err) and any("filter: done" in e for e in p_err)
     assert any("writing states.mcap" in e for e in p_err) and any("writing receiver.csv" in e for e in p_err)
     assert any("smoothing: done" in e for e in p_err) and any("reading receiver.csv" in e for e in p_err)
