@@ -1062,8 +1062,9 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, max_ag
 @click.option("--sigma", "sigma", type=float, default=None, help="random_walk process noise, m/√s per component [0.001].")
 @click.option("--name", default=None, help="Run name (default: the antenna names).")
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="Config TOML to write.")
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (the written config as it loads, notes) on stdout.")
 @click.pass_context
-def config_cmd(ctx, rinex, ubx, nav, master, displacement, sigma, name, output):
+def config_cmd(ctx, rinex, ubx, nav, master, displacement, sigma, name, output, as_json):
     """Write a starter GNSS run config from the receiver files' headers (for ingest and baseline)."""
     from cdgps_cli.pipeline.gnss_ingest import starter_gnss_config
 
@@ -1077,6 +1078,10 @@ def config_cmd(ctx, rinex, ubx, nav, master, displacement, sigma, name, output):
     for n in notes:
         click.echo(f"cdgps: note: {n}", err=True)
     _say(ctx, f"wrote {output}")
+    if as_json:
+        from cdgps_cli.config.structure import load_gnss_config
+
+        _emit_json({"output": output, "config": load_gnss_config(output).summary(), "notes": notes})
 
 
 @main.command("baseline-config", short_help="Starter baseline job TOML from RINEX headers")
@@ -1084,8 +1089,9 @@ def config_cmd(ctx, rinex, ubx, nav, master, displacement, sigma, name, output):
 @click.option("--nav", "nav", multiple=True, required=True, type=click.Path(dir_okay=False), help="RINEX GPS navigation file.")
 @click.option("--master", default=None, help="Reference station (default: the first --rinex).")
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="Job TOML to write.")
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (stations, master, navigation files, options) on stdout.")
 @click.pass_context
-def baseline_config_cmd(ctx, rinex, nav, master, output):
+def baseline_config_cmd(ctx, rinex, nav, master, output, as_json):
     """Write a starter baseline job TOML for 'cdgps baseline --config' (headers summarised in comments).
 
     The file is a GNSS run config (docs/gnss-pipeline.md), so it also serves 'cdgps ingest'.
@@ -1099,8 +1105,13 @@ def baseline_config_cmd(ctx, rinex, nav, master, output):
     master = master or next(iter(stations))
     text = starter_gnss_config(stations, {}, list(nav), master, relative_to=Path(output).resolve().parent)
     _write_text_atomic(output, text)
-    load_baseline_job(output)  # the written job must load
+    job = load_baseline_job(output)  # the written job must load
     _say(ctx, f"wrote {output}")
+    if as_json:
+        import dataclasses
+
+        _emit_json({"output": output, "master": job["master"], "stations": {k: str(v) for k, v in job["rinex"].items()},
+                    "nav": [str(v) for v in job["nav"]], "options": dataclasses.asdict(job["options"])})
 
 
 # ----------------------------------------------------------------------------------------------

@@ -61,6 +61,13 @@ def test_every_writer_has_dash_o_output(path, cmd):
     assert "-o, --output" in help_text
 
 
+@pytest.mark.parametrize("path,cmd", LEAVES, ids=_ids(LEAVES))
+def test_every_command_has_json_and_quiet(path, cmd):
+    """Issue 32: --json was missing on config and baseline-config."""
+    names = {p.name for p in cmd.params}
+    assert {"as_json", "quiet"} <= names, f"cdgps {' '.join(path)}: missing {sorted({'as_json', 'quiet'} - names)}"
+
+
 @pytest.mark.parametrize("path,cmd", ALL, ids=_ids(ALL))
 def test_quiet_accepted_after_every_subcommand(path, cmd):
     r = CliRunner().invoke(main, [*path, "-q", "--help"])
