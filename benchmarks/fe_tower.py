@@ -12,8 +12,9 @@ from the modal states, independently of ``evaluate``):
   |error| ≤ 1.96 σ, per lab axis x and y;
 * integers fixed / wrong; spectra (default settings): frequency error of the four modes.
 
-The config's σ is used as given (no noise estimation): at noise levels other than 5 mm the
-figures show how wrong a fixed prior is (the subject of issue 11, item 4).
+``init`` estimates the white σ from the data (issue 11, item 4) and ``estimate`` uses it, so the
+levels other than the config's 5 mm prior check that the reported σ stays honest.  The table of
+docs/fe-tower.md is written from the JSON (``--doc``), so the doc quotes the last run.
 
 Example::
 
