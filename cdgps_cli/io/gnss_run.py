@@ -322,19 +322,34 @@ def default_config_text(files: dict, nav_paths, master: str | None) -> str:
                                       "static rover displacements; files and navigation data came from the command line."])
 
 
+def system_list(systems) -> str:
+    """'GPS, Galileo' for ('G', 'E')."""
+    from cdgps_cli.core.signals import SYSTEM_NAMES  # noqa: PLC0415
+
+    return ", ".join(SYSTEM_NAMES.get(c, c) for c in systems) or "no system"
+
+
 def merge_nav(nav_paths, systems=("G",)) -> pd.DataFrame:
     """Read and merge navigation files (exact duplicates removed), as ``cdgps baseline`` does;
     ``systems``: the systems whose records are read (a file without any of them is skipped while
     another file has them; every system must be found in some file)."""
+    from cdgps_cli.io.rinex import nav_file_systems  # noqa: PLC0415
+
+    holding = [p for p in nav_paths if set(nav_file_systems(p)) & set(systems)]
+    if nav_paths and not holding:       # e.g. only a Galileo file (RINEX_EN) where GPS is wanted
+        raise CdgpsError(f"the navigation files ({', '.join(f'{Path(p).name}: {system_list(nav_file_systems(p))}' for p in nav_paths)}) "
+                         f"hold no ephemerides of {system_list(systems)}, which are needed")
     if tuple(systems) == ("G",):
-        return _merge_nav_tables([read_rinex_nav(p) for p in nav_paths])
-    tabs = [read_rinex_nav(p, systems=tuple(systems)) for p in nav_paths]
+        return _merge_nav_tables([read_rinex_nav(p) for p in holding])
+    tabs = [read_rinex_nav(p, systems=tuple(systems)) for p in holding]
     nav = _merge_nav_tables(tabs)
     have = set(nav["sat"].astype(str).str[0])
     missing = [c for c in systems if c not in have]
     if missing:
+        why = ("the ingest/init/estimate path fixes each receiver's epochs and clock on GPS L1 (for a run without GPS, "
+               "`cdgps rtk` solves Galileo-, BeiDou- or GLONASS-only pairs)") if missing == ["G"] else "the config's signals need them"
         raise CdgpsError(f"the navigation data ({', '.join(map(str, nav_paths))}) have no ephemerides of system(s) "
-                         f"{', '.join(missing)}; the config's signals need them")
+                         f"{system_list(missing)}; {why}")
     return nav
 
 
@@ -810,8 +825,12 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
                             f"{base['station_id']} ({', '.join(f'{v:.4f}' for v in base['arp_ecef_m'])}){extra}")
         files[n] = ("ubx", rel(p))
     for p in nav_paths:
-        nav = read_rinex_nav(p)
-        comments.append(f"nav {Path(p).name}: {len(nav)} GPS ephemerides of {nav['sat'].nunique()} satellites, toe "
+        from cdgps_cli.io.rinex import NAV_SYSTEMS  # noqa: PLC0415
+
+        nav = read_rinex_nav(p, systems=NAV_SYSTEMS)
+        per = nav["sat"].astype(str).str[0].value_counts()
+        what = ", ".join(f"{int(per[c])} {system_list(c)}" for c in NAV_SYSTEMS if c in per) or "no"
+        comments.append(f"nav {Path(p).name}: {what} ephemerides of {nav['sat'].nunique()} satellites, toe "
                         f"{span_text(nav['toe_gps_s'])}")
     master = master or (with_pos[0] if with_pos else next(iter(files)))
     if master not in files:

@@ -987,6 +987,18 @@ def _with_glonass(df: pd.DataFrame, glonass: list) -> pd.DataFrame:
     return df
 
 
+def nav_file_systems(path: str | Path) -> tuple[str, ...]:
+    """Systems whose ephemerides a navigation file can hold, from its first line only: a RINEX 3 file
+    its header system (all of :data:`NAV_SYSTEMS` for a mixed ``M`` file), RINEX 2 ``N`` GPS and
+    ``G`` GLONASS.  Lets a reader skip a Galileo-only file when it wants GPS (instead of refusing it)."""
+    p = Path(path)
+    lines, compressed = _read_lines(p)
+    version, ftype, system = _parse_version_line(lines[:1], p, compressed, "navigation")
+    if version >= 3:
+        return NAV_SYSTEMS if system in ("M", " ", "") else (system,)
+    return {"N": ("G",), "G": ("R",)}.get(ftype, ())
+
+
 def read_rinex_nav(path: str | Path, systems=("G",)) -> pd.DataFrame:
     """Read the broadcast ephemerides of a RINEX 2 or 3 navigation file.
 

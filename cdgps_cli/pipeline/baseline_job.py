@@ -15,7 +15,8 @@ import pandas as pd
 
 from cdgps_cli.core.errors import CdgpsError, join_problems
 from cdgps_cli.estimation.baseline import BaselineOptions, Station, solve_static_baseline
-from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
+from cdgps_cli.io.gnss_run import merge_nav
+from cdgps_cli.io.rinex import read_rinex_obs
 
 __all__ = ["load_stations", "baseline_from_files", "load_baseline_job"]
 
@@ -29,11 +30,7 @@ def load_stations(rinex: dict, nav_paths) -> tuple[dict, pd.DataFrame]:
     for name, path in rinex.items():
         h, o = read_rinex_obs(path)
         stations[name] = Station(name, h, o)
-    navs = [read_rinex_nav(p) for p in nav_paths]
-    nav = pd.concat(navs, ignore_index=True)
-    nav = nav.drop_duplicates(subset=["sat", "toe_gps_s", "iode", "af0_s"], keep="first")
-    nav = nav.sort_values(["sat", "toe_gps_s", "transmit_gps_s"], kind="stable").reset_index(drop=True)
-    return stations, nav
+    return stations, merge_nav(nav_paths, ("G",))     # GPS files only; a Galileo-only file beside them is skipped
 
 
 def baseline_from_files(rinex: dict, nav_paths, master: str, options: BaselineOptions | None = None,
