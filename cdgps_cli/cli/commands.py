@@ -981,6 +981,9 @@ def _write_text_atomic(path: str, text: str) -> None:
 @click.option("--master", default=None, help="Station held at its RINEX header position (the reference).")
 @click.option("--mask-deg", type=float, default=None, help=f"Elevation mask, degrees [{GNSS_DEFAULTS['mask_deg']:g}].")
 @click.option("--ratio", "ratio_threshold", type=float, default=None, help=f"LAMBDA ratio-test threshold [{GNSS_DEFAULTS['ratio']:g}].")
+@click.option("--min-success-rate", type=float, default=None,
+              help=f"Bootstrapped success rate an integer set (or partial subset) must reach besides the ratio test "
+                   f"(0: ratio test only) [{GNSS_DEFAULTS['min_success_rate']:g}].")
 @click.option("--max-age", "max_age_s", type=float, default=None,
               help=f"Oldest master epoch bridged to a rover epoch, s [{GNSS_DEFAULTS['max_age_s']:g}, RTKLIB's].")
 @click.option("--weighting", type=click.Choice(["elevation", "equal"]), default=None,
@@ -991,8 +994,8 @@ def _write_text_atomic(path: str, text: str) -> None:
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="Result JSON to write.")
 @click.option("--json", "as_json", is_flag=True, help="Also print the result JSON on stdout.")
 @click.pass_context
-def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, max_age_s, weighting, no_partial, float_only,
-                 no_troposphere, output, as_json):
+def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, min_success_rate, max_age_s, weighting, no_partial,
+                 float_only, no_troposphere, output, as_json):
     """Static baseline from two receivers' RINEX L1 phase: float, LAMBDA integers, fixed → JSON."""
     import dataclasses
 
@@ -1024,6 +1027,8 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, max_ag
         changes["mask_deg"] = mask_deg
     if ratio_threshold is not None:
         changes["ratio_threshold"] = ratio_threshold
+    if min_success_rate is not None:
+        changes["min_success_rate"] = min_success_rate
     if max_age_s is not None:
         changes["max_age_s"] = max_age_s
     if weighting is not None:
@@ -1034,7 +1039,8 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, max_ag
         changes["fix"] = False
     if no_troposphere:
         changes["troposphere"] = False
-    flags = {"mask_deg": "--mask-deg", "ratio_threshold": "--ratio", "max_age_s": "--max-age", "weighting": "--weighting"}
+    flags = {"mask_deg": "--mask-deg", "ratio_threshold": "--ratio", "max_age_s": "--max-age", "weighting": "--weighting",
+             "min_success_rate": "--min-success-rate"}
     opt = dataclasses.replace(opt, **changes)
     _named_by_flags(opt.validate, {k: flags[k] for k in changes if k in flags})
     rover = next(n for n in stations if n != mst)

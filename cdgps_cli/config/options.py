@@ -38,7 +38,10 @@ GNSS_DEFAULTS = {"mask_deg": 15.0, "ratio": RATIO_THRESHOLD, "partial": True, "w
                  "max_age_s": EPOCH_PAIRING_DEFAULTS["max_age_s"], "epoch_alignment": "geometry",
                  "code_correlation_s": 0.0,
                  "random_walk_sigma": (0.001, 0.001, 0.001), "initial_sigma_m": 1.0,
-                 "iono_threshold_km": IONO_THRESHOLD_KM}
+                 "iono_threshold_km": IONO_THRESHOLD_KM,
+                 # an integer set (or partial subset) is fixed only if its bootstrapped success rate reaches this,
+                 # besides the ratio test (partial ambiguity resolution with a success-rate criterion)
+                 "min_success_rate": 0.999}
 
 #: `cdgps control design` weights by default: "paper", the 1998 paper's Sec. V numbers
 #: (Q_x* = 5000 diag(1, …, 1, 0.01), Q_x = diag(Q_x*, 0.01 Q_x*), Q_u = I; cdgps_cli.control.lqr.PAPER_*)
@@ -67,7 +70,7 @@ MULTI_GNSS_DEFAULTS = {
     "direction": "combined",               # kinematic: "forward", "backward" or "combined" (both, checked against each other)
     "kinematic_sigma_m_per_sqrt_s": 30.0,  # random-walk rate of the kinematic rover position
     "mask_deg": 15.0, "ratio": RATIO_THRESHOLD, "fix": True, "glonass_fix": False,
-    "min_success_rate": 0.999,             # bootstrapped success rate an integer set must reach (partial set otherwise)
+    "min_success_rate": GNSS_DEFAULTS["min_success_rate"],  # bootstrapped success rate an integer set must reach (partial set otherwise)
     "code_correlation_s": GNSS_DEFAULTS["code_correlation_s"],  # code errors as a Gauss-Markov process of this correlation time, s (0: white, as RTKLIB)
     "fix_and_hold": False,                 # feed fixed integers back as measurements (RTKLIB pos2-armode=fix-and-hold)
     "hold_after_fixes": 10,                # … once this many consecutive epochs fixed (RTKLIB pos2-arminfix)

@@ -790,7 +790,8 @@ def success_tail(d, min_success_rate: float) -> int:
     return k
 
 
-def partial_fix(a, Q, threshold=RATIO_THRESHOLD, min_fixed=1, *, max_nodes=None, progress=None):
+def partial_fix(a, Q, threshold=RATIO_THRESHOLD, min_fixed=1, *, max_nodes=None, progress=None,
+                min_success_rate=None):
     """Partial ambiguity resolution: the largest subset, in order of decreasing variance, that
     passes the ratio test — from one decomposition and one reduction.
 
@@ -820,6 +821,10 @@ def partial_fix(a, Q, threshold=RATIO_THRESHOLD, min_fixed=1, *, max_nodes=None,
         ``progress(done, total)`` after each subset searched (``total = n - min_fixed + 1``: the
         full set, then the nested subsets of sizes ``min_fixed … n-1``; fewer when one passes or
         a search hits the cap).
+    min_success_rate : float, optional
+        A set (or subset) passes only if, besides the ratio test, its bootstrapped success rate
+        (:func:`bootstrap_success_rate` of its decorrelated conditional variances) reaches this
+        value — partial ambiguity resolution with a success-rate criterion.  None: ratio test only.
 
     Returns
     -------
@@ -840,12 +845,14 @@ def partial_fix(a, Q, threshold=RATIO_THRESHOLD, min_fixed=1, *, max_nodes=None,
             Searches run (the full set included).
         ``search_limited`` : int
             Searches stopped by the node cap.
+        ``success_rate`` : float
+            Bootstrapped success rate of the fixed set (of the full set when nothing was fixed).
 
     Raises
     ------
     AmbiguityError
         On invalid input (see :func:`lambda_search`) or invalid
-        ``min_fixed``.
+        ``min_fixed`` / ``min_success_rate``.
     """
     aa, Qs, _ = _validate(a, Q, 2)
     n = aa.shape[0]
@@ -854,7 +861,10 @@ def partial_fix(a, Q, threshold=RATIO_THRESHOLD, min_fixed=1, *, max_nodes=None,
     if not 1 <= min_fixed <= n:
         raise AmbiguityError(f"min_fixed must be between 1 and n={n}, got {min_fixed}")
     cap = _check_cap(max_nodes)
-    nested = _NestedSearch(n, min_fixed, float(threshold), cap, progress)
+    if min_success_rate is not None and not (isinstance(min_success_rate, numbers.Real)
+                                             and 0.0 <= float(min_success_rate) < 1.0):
+        raise AmbiguityError(f"min_success_rate must be a probability in [0, 1), got {min_success_rate!r}")
+    nested = _NestedSearch(n, min_fixed, float(threshold), cap, progress, min_success_rate)
     var = np.diag(Qs)
     perm = np.array(sorted(range(n), key=lambda i: (-var[i], i)), dtype=np.int64)
     ap = aa[perm]
@@ -893,9 +903,10 @@ class _NestedSearch:
         A block hit the cap: the larger ones (which contain it) are not searched.
     """
 
-    def __init__(self, n, min_fixed, threshold, cap, progress):
+    def __init__(self, n, min_fixed, threshold, cap, progress, min_success_rate=None):
         self.n, self.min_fixed, self.threshold, self.cap = n, min_fixed, threshold, cap
-        self.progress = progress
+        self.progress, self.min_success_rate = progress, min_success_rate
+        self.full_success_rate = math.nan
         self.total = n - min_fixed + 1      # the full set, then the subsets of sizes min_fixed … n-1
         self.done, self.limited, self.best, self.stop = 0, 0, None, False
 
@@ -913,8 +924,11 @@ class _NestedSearch:
             ratio = math.nan
         else:
             ok, ratio = ratio_test(s, self.threshold)
-            if ok:
-                self.best = (k, zn[0].tolist(), n_ops, ratio)
+            p_s = bootstrap_success_rate(dw[k:])
+            if k == 0:
+                self.full_success_rate = p_s
+            if ok and (self.min_success_rate is None or p_s >= self.min_success_rate):
+                self.best = (k, zn[0].tolist(), n_ops, ratio, p_s)
         if self.progress is not None:
             self.progress(self.done, self.total)
         return ratio
@@ -928,10 +942,12 @@ def _partial_result(nested, ops, perm, offset, full_ratio):
     integers = np.zeros(n, dtype=np.int64)
     result = {"fixed_mask": fixed_mask, "integers": integers, "ratio": float(full_ratio),
               "ratio_full_set": float(full_ratio), "n_fixed": 0,
-              "subsets_searched": nested.done, "search_limited": nested.limited}
+              "subsets_searched": nested.done, "search_limited": nested.limited,
+              "success_rate": float(nested.full_success_rate)}
     if nested.best is None:
         return result
-    k, zbest, n_ops, ratio = nested.best
+    k, zbest, n_ops, ratio, p_s = nested.best
+    result["success_rate"] = float(p_s)
     # the operations recorded up to this block's completion involve indices >= k only
     a_tail = _to_original(ops[:n_ops], [[0.0] * k + zbest], offset)[0]
     fixed_mask[perm[k:]] = True
@@ -940,7 +956,14 @@ def _partial_result(nested, ops, perm, offset, full_ratio):
     return result
 
 
-def resolve(a, Q, threshold=RATIO_THRESHOLD, *, partial=True, max_nodes=None, progress=None):
+def _success_rate(Q) -> float:
+    """Bootstrapped success rate of a whole set after decorrelation (:func:`decorrelate`)."""
+    L, d = ld_factorize(np.asarray(Q, dtype=float))
+    _, dz, _ = decorrelate(L, d)
+    return bootstrap_success_rate(dz)
+
+
+def resolve(a, Q, threshold=RATIO_THRESHOLD, *, partial=True, max_nodes=None, progress=None, min_success_rate=None):
     """The integer fixing of the solvers: the full set, then (``partial``) nested subsets.
 
     :func:`partial_fix` when ``partial`` (its first step is the full set), else
@@ -949,7 +972,7 @@ def resolve(a, Q, threshold=RATIO_THRESHOLD, *, partial=True, max_nodes=None, pr
 
     Parameters
     ----------
-    a, Q, threshold, max_nodes, progress
+    a, Q, threshold, max_nodes, progress, min_success_rate
         As for :func:`partial_fix`.
     partial : bool
         Try subsets when the full set fails.
@@ -963,7 +986,7 @@ def resolve(a, Q, threshold=RATIO_THRESHOLD, *, partial=True, max_nodes=None, pr
     """
     n = np.asarray(a).shape[0] if np.ndim(a) == 1 else 0
     if partial and n > 1:
-        res = partial_fix(a, Q, threshold, max_nodes=max_nodes, progress=progress)
+        res = partial_fix(a, Q, threshold, max_nodes=max_nodes, progress=progress, min_success_rate=min_success_rate)
         limit = None
         if math.isnan(res["ratio_full_set"]):
             limit = (f"the LAMBDA search of the full set of {n} ambiguities exceeded "
@@ -980,8 +1003,8 @@ def resolve(a, Q, threshold=RATIO_THRESHOLD, *, partial=True, max_nodes=None, pr
             limit = str(exc)
         else:
             ok, ratio = ratio_test(s, threshold)
-            res.update(ratio=float(ratio), ratio_full_set=float(ratio))
-            if ok:
+            res.update(ratio=float(ratio), ratio_full_set=float(ratio), success_rate=_success_rate(Q) if n else 1.0)
+            if ok and (min_success_rate is None or res["success_rate"] >= min_success_rate):
                 mask[:] = True
                 ints[:] = cands[0]
                 res["n_fixed"] = n

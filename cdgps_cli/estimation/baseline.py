@@ -141,6 +141,9 @@ class BaselineOptions:
     initial_sigma_m : float
         Prior σ of the first epoch's position about the static float solution, m
         (``motion="random_walk"``).
+    min_success_rate : float
+        Besides the ratio test, the integer set (or partial subset) must reach this bootstrapped
+        success rate (Teunissen 1998) to be fixed; 0 turns the criterion off.
     """
 
     mask_deg: float = GNSS_DEFAULTS["mask_deg"]
@@ -164,6 +167,7 @@ class BaselineOptions:
     motion: str = "static"
     random_walk_sigma: tuple = GNSS_DEFAULTS["random_walk_sigma"]
     initial_sigma_m: float = GNSS_DEFAULTS["initial_sigma_m"]
+    min_success_rate: float = GNSS_DEFAULTS["min_success_rate"]
 
     @classmethod
     def from_gnss_config(cls, cfg, **overrides) -> "BaselineOptions":
@@ -214,6 +218,8 @@ class BaselineOptions:
         rw = tuple(self.random_walk_sigma) if isinstance(self.random_walk_sigma, (tuple, list)) else ()
         if len(rw) != 3 or not all(isinstance(v, (int, float)) and math.isfinite(v) and v > 0 for v in rw):
             p.append(f"random_walk_sigma must be three positive numbers (m/√s), got {self.random_walk_sigma!r}")
+        if not (isinstance(self.min_success_rate, (int, float)) and 0.0 <= self.min_success_rate < 1.0):
+            p.append(f"min_success_rate must be a probability in [0, 1), got {self.min_success_rate!r}")
         if not (math.isfinite(self.initial_sigma_m) and self.initial_sigma_m > 0):
             p.append(f"initial_sigma_m must be > 0, got {self.initial_sigma_m!r}")
         if not (isinstance(self.min_sats_kinematic, int) and self.min_sats_kinematic >= 4):
@@ -711,6 +717,7 @@ class _Fix(NamedTuple):
     ratio_full: float | None
     accepted: bool
     partial: bool
+    success_rate: float | None = None   # bootstrapped success rate of the fixed set (of the full set if none)
 
 
 class _Final(NamedTuple):
@@ -857,18 +864,21 @@ def _lambda_fix(a_float, q_aa, fixable, opt: BaselineOptions, fixed_mask, intege
     try:
         with progress.bar(fi.size if opt.partial else 1, "integer fixing (LAMBDA)", unit="subset") as bar:
             pf = resolve(a_float[fi], q_aa[np.ix_(fi, fi)], opt.ratio_threshold, partial=opt.partial,
-                         progress=lambda done, total: bar.update_to(done))
+                         progress=lambda done, total: bar.update_to(done),
+                         min_success_rate=opt.min_success_rate or None)
     except AmbiguityError as exc:
         warnings.append(f"integer ambiguity resolution failed: {exc}")
-        return None, None, False, False
+        return None, None, False, False, None
     fixed_mask[fi[pf["fixed_mask"]]] = True
     integers_fix[fi[pf["fixed_mask"]]] = pf["integers"][pf["fixed_mask"]]
     if pf["limit_message"]:
         warnings.append(f"integer ambiguity resolution: {pf['limit_message']} "
                         f"({'partial fixing tried subsets' if opt.partial else 'no partial fixing'}); "
                         f"{pf['n_fixed']} of {fi.size} fixed")
+    p_s = pf.get("success_rate", math.nan)
     return (None if math.isnan(pf["ratio"]) else pf["ratio"],
-            None if math.isnan(pf["ratio_full_set"]) else pf["ratio_full_set"], pf["accepted"], pf["partial"])
+            None if math.isnan(pf["ratio_full_set"]) else pf["ratio_full_set"], pf["accepted"], pf["partial"],
+            None if math.isnan(p_s) else p_s)
 
 
 def _integer_fix(d: _Data, sg: _Segments, w: _Weights, fl: _Float, opt: BaselineOptions, integers, warnings) -> _Fix:
@@ -883,14 +893,14 @@ def _integer_fix(d: _Data, sg: _Segments, w: _Weights, fl: _Float, opt: Baseline
     fixable = ~sg.seg_half[sg.free] & ~_fdma_segments(d, sg)[sg.free]
     fixed_mask = np.zeros(sg.free.size, dtype=bool)
     integers_fix = np.zeros(sg.free.size, dtype=np.int64)
-    ratio, ratio_full, accepted, partial_used = None, None, False, False
+    ratio, ratio_full, accepted, partial_used, p_s = None, None, False, False, None
     if integers is not None:
         _given_integers(integers, d, sg, fixed_mask, integers_fix)
         accepted = bool(fixed_mask.any())
     elif opt.fix and fixable.sum() >= 1:
-        ratio, ratio_full, accepted, partial_used = _lambda_fix(a_float, q_aa, fixable, opt, fixed_mask, integers_fix,
-                                                                warnings)
-    return _Fix(a_float, q_aa, fixed_mask, integers_fix, ratio, ratio_full, accepted, partial_used)
+        ratio, ratio_full, accepted, partial_used, p_s = _lambda_fix(a_float, q_aa, fixable, opt, fixed_mask,
+                                                                     integers_fix, warnings)
+    return _Fix(a_float, q_aa, fixed_mask, integers_fix, ratio, ratio_full, accepted, partial_used, p_s)
 
 
 def _fixed_solution(d: _Data, sg: _Segments, w: _Weights, fl: _Float, fx: _Fix, xr0, r_enu,
@@ -1124,6 +1134,8 @@ def _ambiguity_summary(sg: _Segments, fx: _Fix, opt: BaselineOptions, seg_rows: 
         "ratio": fx.ratio,
         "ratio_full_set": fx.ratio_full,
         "ratio_threshold": opt.ratio_threshold,
+        "success_rate": fx.success_rate,
+        "min_success_rate": opt.min_success_rate,
         "accepted": bool(fx.accepted),
         "partial": fx.partial,
         "segments": seg_rows,
@@ -1337,7 +1349,9 @@ def format_summary(res: dict) -> str:
     rtxt = "-" if r is None else (r if isinstance(r, str) else format(r, ".2f"))
     lines.append(f"  ambiguities: {amb['n_segments']} SD segments ({amb['n_pivots']} datum), {amb['n_fixed']} of "
                  f"{amb['n_estimated']} fixed, ratio {rtxt} "
-                 f"(threshold {amb['ratio_threshold']:g}){' partial' if amb['partial'] else ''} → {res['solution']}")
+                 f"(threshold {amb['ratio_threshold']:g})"
+                 + (f", success rate {amb['success_rate']:.4f}" if amb.get("success_rate") is not None else "")
+                 + f"{' partial' if amb['partial'] else ''} → {res['solution']}")
     sol = res["fixed"] or res["float"]
     sig = sol["sigma_enu_m"]
     lines.append(f"  {rv} displacement from its header position (ENU, m): "

@@ -224,7 +224,8 @@ def closed_loop_trajectory(cfg: StructureConfig, scenario: str, gains: dict, *, 
         (:func:`loop_estimator`).
     """
     model = discrete_model(cfg)
-    if not math.isclose(float(gains["sample_period_s"]), cfg.sample_period_s, rel_tol=1e-12, abs_tol=0.0):
+    if "sample_period_s" in gains and not math.isclose(float(gains["sample_period_s"]), cfg.sample_period_s,
+                                                       rel_tol=1e-12, abs_tol=0.0):
         raise CdgpsError(f"GAINS.json: key 'sample_period_s' is {gains['sample_period_s']!r} s, the config's "
                          f"model.sample_period_s is {cfg.sample_period_s!r} s; design the gain for this config "
                          "with `cdgps control design`")

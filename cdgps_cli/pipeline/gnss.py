@@ -138,6 +138,7 @@ def gnss_init(run: GnssRun, *, options: dict | None = None, progress=None) -> di
             "baseline_length_m": res["baseline_length_m"],
             "float": res["float"], "fixed": res["fixed"],
             "ratio": amb["ratio"], "ratio_full_set": amb["ratio_full_set"], "ratio_threshold": amb["ratio_threshold"],
+            "success_rate": amb.get("success_rate"),
             "accepted": amb["accepted"], "partial": amb["partial"], "n_segments": amb["n_segments"],
             "n_fixed": amb["n_fixed"], "n_estimated": amb["n_estimated"],
             "n_half_cycle_excluded": amb["n_half_cycle_excluded"],

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import math
 
 import numpy as np
 import pytest
@@ -597,3 +598,53 @@ def test_bootstrap_success_rate_closed_form_and_monte_carlo():
     assert success_tail([1.0], 0.999) == 1
     with pytest.raises(Exception):
         bootstrap_success_rate([0.0])
+
+
+# ---- success-rate criterion in the batch fixing (issue 28 item 4)
+
+
+def test_ratio_alone_fixes_an_imprecise_set_the_success_rate_refuses():
+    """Floats 0.02 cycle from integers pass the ratio test by far, but with σ = 0.32 cycle per
+    ambiguity bootstrapping succeeds only 0.886³ = 70 % of the time: not fixed with the criterion."""
+    from cdgps_cli.estimation.ambiguity import resolve
+
+    a, Q = np.array([0.02, -0.01, 3.03]), 0.1 * np.eye(3)
+    plain = resolve(a, Q, 3.0)
+    assert plain["n_fixed"] == 3 and plain["ratio"] > 3
+    crit = resolve(a, Q, 3.0, min_success_rate=0.999)
+    assert crit["n_fixed"] == 0 and not crit["accepted"]
+    assert crit["success_rate"] == pytest.approx(math.erf(1 / (2 * math.sqrt(0.2))) ** 3, rel=1e-12)
+
+
+def test_success_rate_keeps_the_precise_subset():
+    from cdgps_cli.estimation.ambiguity import resolve
+
+    a, Q = np.array([0.4, 1.02, -1.99]), np.diag([0.1, 1e-3, 1e-3])
+    r = resolve(a, Q, 3.0, min_success_rate=0.999)
+    assert r["partial"] and r["fixed_mask"].tolist() == [False, True, True]
+    assert r["integers"][1:].tolist() == [1, -2] and r["success_rate"] >= 0.999
+    r = resolve(a, Q, 3.0, partial=False, min_success_rate=0.999)
+    assert r["n_fixed"] == 0
+
+
+def test_success_rate_agrees_with_monte_carlo_bootstrapping():
+    """The product of erf terms against counting correct bootstrapped roundings of simulated floats."""
+    from cdgps_cli.estimation.ambiguity import _success_rate
+
+    rng = np.random.default_rng(3)
+    B = rng.standard_normal((3, 3))
+    Q = 0.02 * (B @ B.T + 0.5 * np.eye(3))
+    L = np.linalg.cholesky(Q)
+    e = rng.standard_normal((200_000, 3)) @ L.T
+    # bootstrapping in the original order, last ambiguity first: x_i|J = x_i − Q_iJ Q_JJ⁻¹ (x_J − z_J)
+    Ld, d = ld_factorize(Q)
+    z = np.zeros_like(e)
+    for i in range(2, -1, -1):
+        J = list(range(i + 1, 3))
+        cond = e[:, i] - ((e[:, J] - z[:, J]) @ np.linalg.solve(Q[np.ix_(J, J)], Q[J, i]) if J else 0.0)
+        z[:, i] = np.round(cond)
+    ok = np.all(z == 0, axis=1)
+    p_mc = ok.mean()
+    p = float(np.prod([math.erf(1 / (2 * math.sqrt(2 * x))) for x in d]))
+    assert p_mc == pytest.approx(p, abs=4e-3)
+    assert _success_rate(Q) >= p - 1e-12          # decorrelation never lowers it

@@ -146,7 +146,7 @@ def test_init_refuses_what_the_signal_path_cannot_take(sim, tmp_path, edit, mess
 
 @pytest.mark.skipif(not GE.is_dir(), reason="../shared/data/rinex-ge not available")
 @pytest.mark.parametrize("signals,galileo_nav,message", [
-    ('["G:L1", "E:E1"]', False, "have no ephemerides of system(s) E"),        # a nav file missing a system
+    ('["G:L1", "E:E1"]', False, "have no ephemerides of system(s) Galileo"),        # a nav file missing a system
     ('["G:L1", "C:B1I"]', True, "BeiDou"),                                   # a signal the receivers do not have
     ('["G:L1", "R:G1"]', True, "R:G1 (GLONASS"),
 ])
