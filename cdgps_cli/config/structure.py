@@ -26,6 +26,7 @@ import numpy as np
 from cdgps_cli.core.errors import CdgpsError, join_problems
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli.config.limits import config_range_problems
+from cdgps_cli.config.schema import optional_keys, required_keys
 from cdgps_cli.config.options import GNSS_DEFAULTS
 
 AXES = ("x", "y", "z")
@@ -484,7 +485,7 @@ def _channel_sigma(chk: _Checker, doc: dict, a_names, masters, t_names) -> list:
     master = a_names[masters[0]] if len(masters) == 1 else None
     for i, e in enumerate(_table_list(chk, doc, "channel_sigma", False)):
         key = f"channel_sigma[{i}]"
-        chk.keys(e, key, {"antenna", "transmitter", "sigma_m"}, {"description"})
+        chk.keys(e, key, *_keys("channel_sigma[]"))
         a, t = e.get("antenna"), e.get("transmitter")
         if "antenna" in e and (a not in a_names or a == master):
             chk.add(f"{key}.antenna", f"expected a rover antenna ({', '.join(n for n in a_names if n != master)}), got {a!r}")
@@ -497,6 +498,11 @@ def _channel_sigma(chk: _Checker, doc: dict, a_names, masters, t_names) -> list:
         if sig is not None and a in a_names and t in t_names and a != master:
             out.append((a, t, sig))
     return out
+
+
+def _keys(table: str) -> tuple[set, set]:
+    """(required, optional) keys of a table, from the one declaration in :mod:`cdgps_cli.config.schema`."""
+    return required_keys(table), optional_keys(table)
 
 
 def _table_list(chk: _Checker, doc: dict, name: str, required: bool) -> list:
@@ -577,16 +583,11 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
     ranges = config_range_problems(doc)                 # plausible bounds (limits.py), first so that
     chk.problems += ranges                              # later checks guarded by `not chk.problems` skip
     chk.problems += _description_problems(doc)
-    top_allowed = {"model", "body", "coordinates", "sections", "antennas", "transmitters", "modes",
-                   "process_noise", "gyros", "thrusters", "simulation", "channel_sigma", "points"}
-    chk.keys(doc, "", {"model", "coordinates", "antennas", "transmitters", "modes", "process_noise"},
-             top_allowed - {"model", "coordinates", "antennas", "transmitters", "modes", "process_noise"})
+    chk.keys(doc, "", *_keys(""))
 
     # [model]
     model = doc.get("model", {}) if isinstance(doc.get("model", {}), dict) else {}
-    chk.keys(model, "model", {"name", "sample_period_s", "measurement_sigma_m"},
-             {"description", "wavelength_m", "line_bias_calibrated", "multipath_sigma_m",
-              "multipath_time_constant_s"})
+    chk.keys(model, "model", *_keys("model"))
     name = chk.string(model, "model", "name", "unnamed")
     description = model.get("description", "") if isinstance(model.get("description", ""), str) else ""
     dt = chk.number(model, "model", "sample_period_s", 0.1, positive=True)
@@ -604,7 +605,7 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
     coord_names, coord_kinds, coord_units = [], [], []
     for i, c in enumerate(coords):
         key = f"coordinates[{i}]"
-        chk.keys(c, key, {"name", "kind"}, {"description", "unit"})
+        chk.keys(c, key, *_keys("coordinates[]"))
         coord_names.append(chk.string(c, key, "name", f"?{i}"))
         coord_units.append(chk.string(c, key, "unit", ""))
         kind = c.get("kind", "modal")
@@ -627,7 +628,7 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
 
     # [body]
     body = doc.get("body", {})
-    chk.keys(body, "body", set(), {"origin_m", "rigid_rotation"})
+    chk.keys(body, "body", *_keys("body"))
     body = body if isinstance(body, dict) else {}
     origin = chk.vector(body, "body", "origin_m", 3, np.zeros(3))
     rigid_index = None
@@ -640,7 +641,7 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
     used_coords: dict[int, str] = {}
     for i, s in enumerate(sec_tables):
         key = f"sections[{i}]"
-        chk.keys(s, key, {"name", "pivot_m"}, {"translation", "rotation"})
+        chk.keys(s, key, *_keys("sections[]"))
         sname = chk.string(s, key, "name", f"?{i}")
         pivot = chk.vector(s, key, "pivot_m", 3, np.zeros(3))
         parts = {}
@@ -693,7 +694,7 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
         return out
     for i, a in enumerate(ants):
         key = f"antennas[{i}]"
-        chk.keys(a, key, {"name", "position_m"}, {"section", "receiver", "master", "line_bias_m", "displacement_m", "sigma_m"})
+        chk.keys(a, key, *_keys("antennas[]"))
         a_names.append(chk.string(a, key, "name", f"?{i}"))
         a_sec.append(section_ref(a, key))
         a_pos.append(chk.vector(a, key, "position_m", 3, np.zeros(3)))
@@ -720,7 +721,7 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
     t_names, t_pos, far, t_sig = [], [], [], []
     for i, t in enumerate(txs):
         key = f"transmitters[{i}]"
-        chk.keys(t, key, {"name"}, {"position_m", "direction", "description", "sigma_m"})
+        chk.keys(t, key, *_keys("transmitters[]"))
         t_names.append(chk.string(t, key, "name", f"?{i}"))
         t_sig.append(chk.number(t, key, "sigma_m", np.nan, positive=True))
         if ("position_m" in t) == ("direction" in t):
@@ -742,7 +743,7 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
     m_names, m_f, m_tau, m_zeta, shapes = [], [], [], [], []
     for i, m in enumerate(modes):
         key = f"modes[{i}]"
-        chk.keys(m, key, {"name", "frequency_hz", "shape"}, {"description", "rigid", "time_constant_s", "damping_ratio"})
+        chk.keys(m, key, *_keys("modes[]"))
         m_names.append(chk.string(m, key, "name", f"?{i}"))
         rigid = m.get("rigid", False)
         if not isinstance(rigid, bool):
@@ -770,7 +771,7 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
 
     # [process_noise]
     pn = doc.get("process_noise", {})
-    chk.keys(pn, "process_noise", {"space"}, {"sigma", "covariance", "cholesky"})
+    chk.keys(pn, "process_noise", *_keys("process_noise"))
     pn = pn if isinstance(pn, dict) else {}
     space = pn.get("space", "modal")
     if space not in ("modal", "coordinates"):
@@ -783,7 +784,7 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
     g_names, g_sec, g_axis, g_rot = [], [], [], []
     for i, g in enumerate(_table_list(chk, doc, "gyros", False)):
         key = f"gyros[{i}]"
-        chk.keys(g, key, {"name", "axis"}, {"description", "section", "rotation_rad"})
+        chk.keys(g, key, *_keys("gyros[]"))
         g_names.append(chk.string(g, key, "name", f"?{i}"))
         g_sec.append(section_ref(g, key))
         g_rot.append(per_coordinate_vectors(g, key, "rotation_rad", "{coordinate = [rx, ry, rz]} (rad per unit coordinate)"))
@@ -805,7 +806,7 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
     p_names, p_sec, p_pos, p_disp = [], [], [], []
     for i, pt in enumerate(_table_list(chk, doc, "points", False)):
         key = f"points[{i}]"
-        chk.keys(pt, key, {"name", "position_m"}, {"section", "displacement_m", "description"})
+        chk.keys(pt, key, *_keys("points[]"))
         p_names.append(chk.string(pt, key, "name", f"?{i}"))
         p_sec.append(section_ref(pt, key))
         p_pos.append(chk.vector(pt, key, "position_m", 3, np.zeros(3)))
@@ -819,7 +820,7 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
     u_names, u_sec, u_pos, u_dir, u_max = [], [], [], [], []
     for i, u in enumerate(_table_list(chk, doc, "thrusters", False)):
         key = f"thrusters[{i}]"
-        chk.keys(u, key, {"name", "position_m", "direction"}, {"section", "max_force_n"})
+        chk.keys(u, key, *_keys("thrusters[]"))
         u_names.append(chk.string(u, key, "name", f"?{i}"))
         u_sec.append(section_ref(u, key))
         u_pos.append(chk.vector(u, key, "position_m", 3, np.zeros(3)))
