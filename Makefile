@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 CDGPS  := $(VENV)/bin/cdgps
 DEMO   := build/demo
 
-.PHONY: demo test venv clean bench studies
+.PHONY: demo test venv clean bench studies paper
 
 $(VENV)/.installed: pyproject.toml setup.py cdgps_cli/estimation/_ekfcore.c cdgps_cli/tracking/_trackcore.c
 	$(PYTHON) -m venv $(VENV)
@@ -39,6 +39,10 @@ studies: venv
 	$(PY) benchmarks/estimate_accuracy.py
 	$(PY) benchmarks/oma_crosscheck.py
 	$(PY) benchmarks/record_length.py
+
+# every headline of the three papers, reproduced: docs/paper-reproduction.md (≈ 10-15 min on 2 cores)
+paper: venv
+	$(PY) benchmarks/paper.py
 
 clean:
 	rm -rf build $(VENV)

@@ -1,0 +1,382 @@
+#!/usr/bin/env python3
+"""Every headline of the three papers, reproduced by one command (issue 31 item 3): ``make paper``.
+
+Runs the ``cdgps`` commands a user would run (each headline lists them) on the bundled data and on
+fresh simulations, plus the tracking studies of ``benchmarks/tracking_paper.py`` in-process, and writes
+
+* ``docs/paper-reproduction.md``: per headline the paper's statement, our figure, whether it is met,
+  the commands, a note where the comparison is not like for like, and the figures beside the
+  paper's description (copied to ``docs/figures/paper-*.png``);
+* ``docs/benchmarks/paper.json``: every number behind the table.
+
+Nothing is tuned to fit: a headline that is not reproduced says so with the measurement.
+
+    python benchmarks/paper.py                 # everything (≈ 10-15 min on 2 cores)
+    python benchmarks/paper.py --quick         # 1995, the static test, Fig. 6 (≈ 1 min; what `make test` runs)
+    python benchmarks/paper.py --only 1995,fig6 --out /tmp/paper   # some headlines, elsewhere
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import importlib.util
+import json
+import math
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+CDGPS = str(Path(sys.executable).parent / "cdgps")
+TESTBED = ROOT / "configs" / "testbed-1998.toml"
+DOF2 = ROOT / "configs" / "teague-1995-2dof.toml"
+QUICK = ("1995", "static", "fig6")
+ALL = ("1995", "static", "psd", "fig6", "pulse", "slew", "tracking")
+
+
+@dataclass
+class Headline:
+    """One row of the reproduction table."""
+
+    paper: str                 # "1995", "1998", "2003"
+    where: str                 # figure / section of the paper
+    claim: str                 # the paper's statement, quoted or closely paraphrased
+    ours: str = ""             # our figure, with its unit
+    met: bool | None = None    # None: not comparable like for like (see note)
+    commands: list = field(default_factory=list)
+    note: str = ""
+    figure: str | None = None  # docs-relative path of our figure
+    values: dict = field(default_factory=dict)
+
+
+def cdgps(*args, cwd=None) -> str:
+    """Run one cdgps command; its stdout (exit status checked, stderr shown on failure)."""
+    p = subprocess.run([CDGPS, "-q", *map(str, args)], capture_output=True, text=True, cwd=cwd)
+    if p.returncode != 0:
+        raise SystemExit(f"cdgps {' '.join(map(str, args))} failed ({p.returncode}):\n{p.stderr[-3000:]}")
+    return p.stdout
+
+
+def cdgps_json(*args) -> dict:
+    return json.loads(cdgps(*args, "--json"))
+
+
+def _cmd(*args) -> str:
+    return "cdgps " + " ".join(str(a).replace(str(ROOT) + "/", "") for a in args)
+
+
+def _figure(src: Path, name: str, figdir: Path) -> str:
+    figdir.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(src, figdir / name)
+    return f"figures/{name}"
+
+
+# ----------------------------------------------------------------------------------------------
+# 1995: the 2-DOF structure, batch init then EKF
+
+
+def h1995(w: Path, figdir: Path) -> list[Headline]:
+    d = w / "dof2"
+    steps = [("ingest", ROOT / "data/teague-1995/receiver.csv.xz", "--config", DOF2, "-o", d / "run.mcap"),
+             ("init", d / "run.mcap", "--start", 0, "--duration", 2.4, "--no-process-noise", "-o", d / "init.json"),
+             ("estimate", d / "run.mcap", "--init", d / "init.json", "--biases", "states", "-o", d / "states.mcap")]
+    d.mkdir(parents=True)
+    out = [cdgps_json(*s) for s in steps]
+    ev = cdgps_json("evaluate", "--truth", ROOT / "data/teague-1995", "--estimate", d / "states.mcap")
+    cmds = [_cmd(*s) for s in steps] + [_cmd("evaluate", "--truth", "data/teague-1995", "--estimate", d / "states.mcap")]
+    rms = ev["rms_error_deg"]
+    init = out[1]
+    n_fixed, n_seg = init.get("n_fixed"), len(init.get("biases", [])) or init.get("n_segments")
+    return [
+        Headline("1995", "Sec. V, Fig. 6", "the estimator converged to within 0.3 deg RMS of the q1 and q2 states "
+                 "(batch over the first ≈ 2 s, then the EKF)",
+                 ours=f"RMS error q1 {rms['q1']:.3f}°, q2 {rms['q2']:.3f}° over the whole 30 s record",
+                 met=max(rms.values()) <= 0.3 * 1.05, commands=cmds, values={"evaluate": ev, "init": init},
+                 note=f"NEES mean {ev['nees']['mean']:.2f} for {ev['nees']['dof']} states (expected ≈ {ev['nees']['dof']}): "
+                      "the reported σ is optimistic on this record; NIS/dof "
+                      f"{ev['nis']['mean_per_dof']:.2f}. The data are the bundled simulation of the paper's structure "
+                      "(data/teague-1995), not the paper's recording.",
+                 figure="figures/dof2_estimate.png"),
+        Headline("1995", "Sec. IV", "integer biases found by the batch initialization",
+                 ours=f"{n_fixed} of {n_seg} integers fixed; {ev['bias_error']['wrong_integers']} wrong "
+                      f"(bias RMS error {1000 * ev['bias_error']['rms_m']:.2f} mm)",
+                 met=ev["bias_error"]["wrong_integers"] == 0 and n_fixed == n_seg, commands=cmds[:2]),
+    ]
+
+
+# ----------------------------------------------------------------------------------------------
+# 1998: static test (Fig. 7), PSD vs gyro (Fig. 8)
+
+
+def hstatic(w: Path, figdir: Path) -> list[Headline]:
+    d = w / "static"
+    d.mkdir(parents=True)
+    src = ROOT / "data/testbed-static"
+    steps = [("ingest", src / "receiver.csv.xz", src / "gyro.csv.xz", "--config", TESTBED, "-o", d / "run.mcap"),
+             ("init", d / "run.mcap", "--sigma-m", 0.002, "-o", d / "init.json"),
+             ("estimate", d / "run.mcap", "--init", d / "init.json", "--rest", "80:", "--smooth", "-o", d / "states.mcap"),
+             ("report", "static", d / "states.mcap", "--gyro", d / "run.mcap", "--angle", "q6+q10", "--survey-deg", -1.4,
+              "--date", "2026-01-01", "-o", d / "report")]
+    for s in steps[:-1]:
+        cdgps(*s)
+    r = cdgps_json(*steps[-1])
+    fig = _figure(d / "report" / "static.png", "paper-static.png", figdir)
+    return [Headline(
+        "1998", "Sec. VI.A, Fig. 7", "centre-section vertical angle q6 + q10 at rest: −1.48° by GPS against a laser "
+        "survey of −1.4°, 'essentially no drift', estimated noise < 0.02° RMS; the gyro drifts",
+        ours=f"mean {r['mean_deg']:.3f}° (survey −1.4°: {r['error_deg']:+.3f}°), noise {r['noise_rms_deg']:.4f}° RMS, "
+             f"drift {r['drift_deg_per_min']:+.4f}°/min; gyro drift {r['gyro_drift_deg_per_min']:+.3f}°/min",
+        met=r["noise_rms_deg"] < 0.02 and abs(r["error_deg"]) < 0.1 and abs(r["drift_deg_per_min"]) < 0.01,
+        commands=[_cmd(*s) for s in steps], values=r, figure=fig,
+        note="The bundled record (data/testbed-static) is a simulation of the test with the paper's 2 mm static "
+             "noise, so the survey value is the simulator's truth.")]
+
+
+def hpsd(w: Path, figdir: Path) -> list[Headline]:
+    d = w / "free"
+    steps = [("simulate", TESTBED, "--duration", 1200, "--seed", 7, "--scenario", "free", "--noise-m", 0.02,
+              "--disturbance-scale", 1, "-o", d / "sim"),
+             ("ingest", d / "sim" / "receiver.csv", d / "sim" / "gyro.csv", "--config", TESTBED, "-o", d / "run.mcap"),
+             ("init", d / "run.mcap", "-o", d / "init.json"),
+             ("estimate", d / "run.mcap", "--init", d / "init.json", "--smooth", "-o", d / "states.mcap"),
+             ("report", "spectrum", d / "states.mcap", "--gyro", d / "run.mcap", "--date", "2026-01-01", "-o", d / "report")]
+    for s in steps[:-1]:
+        cdgps(*s)
+    r = cdgps_json(*steps[-1])
+    modes = [m for m in r["modes"] if m.get("gps_hz") is not None]
+    errs = {m["mode"]: m["error_pct"] for m in modes}
+    worst = max(errs, key=lambda k: abs(errs[k]))
+    within = sum(abs(v) <= 5.0 for v in errs.values())
+    gyro = {m["mode"]: 100 * (m["gps_hz"] / m["gyro_hz"] - 1) for m in modes if m.get("gyro_hz")}
+    fig = _figure(d / "report" / "psd.png", "paper-psd.png", figdir)
+    return [Headline(
+        "1998", "Sec. VI.B, Fig. 8", "the GPS and gyro PSD peaks agree, and the peak frequencies are within 5 % of "
+        "Table 1's model frequencies",
+        ours=f"{within} of {len(errs)} modes within 5 % (worst {worst} {errs[worst]:+.2f} %); GPS vs gyro peaks within "
+             f"{max(abs(v) for v in gyro.values()):.2f} % on the {len(gyro)} modes the gyros see",
+        met=within == len(errs), commands=[_cmd(*s) for s in steps], values={"modes": r["modes"]}, figure=fig,
+        note="Our structure is simulated from Table 1's frequencies, so this measures the estimator and the spectral "
+             "method on a 20 min record at 2 cm noise, not the paper's model against its hardware.")]
+
+
+# ----------------------------------------------------------------------------------------------
+# 1998: control (Fig. 6 poles, Fig. 10 pulse, Figs. 11-12 slew)
+
+
+def _design(w: Path, weights: str) -> tuple[Path, dict, list]:
+    g = w / f"gains-{weights}.json"
+    if not g.exists():
+        args = ("control", "design", TESTBED, "--weights", weights, "-o", g, "--figure", w / f"poles-{weights}.png")
+        return g, cdgps_json(*args), [_cmd(*args)]
+    return g, {}, []
+
+
+def hfig6(w: Path, figdir: Path) -> list[Headline]:
+    g, s, cmds = _design(w, "paper")
+    settle = s["settling_time_s"]["closed_loop"]
+    rigid = settle.get("rigid-body")
+    vib = [v for k, v in settle.items() if k != "rigid-body" and v is not None]
+    fast = sorted(v for v in vib if v < 100)
+    fig = _figure(w / "poles-paper.png", "paper-fig6-poles.png", figdir)
+    return [Headline(
+        "1998", "Sec. V, Fig. 6", "with the paper's weights the rigid-body closed-loop pole settles in ≈ 30 s and the "
+        "vibration poles in ≈ 5 s",
+        ours=f"rigid body {rigid:.1f} s; vibration modes " + ", ".join(
+            f"{k} {v:.2f} s" for k, v in sorted(settle.items(), key=lambda kv: kv[1] or math.inf) if k != "rigid-body"),
+        met=abs(rigid - 30) <= 10 and all(2.5 <= v <= 10 for v in fast),
+        commands=cmds, values=s, figure=fig,
+        note=f"The rigid pole matches; most vibration poles settle ≈ {5 / fast[len(fast) // 2]:.0f}× faster than the paper's "
+             "≈ 5 s because the config takes Table 1's frequencies with the lumped model's mode shapes, which makes the "
+             "structure 3–6× more compliant than the testbed (issue 31 item 1: a consistent mass/stiffness model is "
+             "open); the swing mode is barely controllable by the thrusters.")]
+
+
+def _pulse(w: Path, seed: int, g: Path) -> dict:
+    common = ("--scenario", "pulse", "--duration", 20, "--seed", seed, "--disturbance-scale", 0.05)
+    o, c = w / f"pulse-open-{seed}", w / f"pulse-closed-{seed}"
+    cdgps("simulate", TESTBED, *common, "-o", o)
+    cdgps("simulate", TESTBED, *common, "--controller", g, "-o", c)
+    return cdgps_json("report", "control", g, "--open", o, "--closed", c, "--date", "2026-01-01", "-o", w / f"pulse-rep-{seed}")
+
+
+def hpulse(w: Path, figdir: Path, seeds: int) -> list[Headline]:
+    g, _, cmds = _design(w, "paper")
+    reps = [_pulse(w, s, g) for s in range(1, seeds + 1)]
+    m = [r["metrics"]["closed"] for r in reps]
+    open_pp = max(x[q]["open_tail_peak_to_peak_deg"] for x in m for q in ("q5", "q8"))
+    ratio = max(x[q]["peak_ratio"] for x in m for q in ("q5", "q8"))
+    back = max(x[q]["closed_back_within_s_after_pulse"] or math.inf for x in m for q in ("q5", "q8"))
+    fig = _figure(w / "pulse-rep-1" / "pulse.png", "paper-fig10-pulse.png", figdir)
+    cmds += [_cmd("simulate", TESTBED, "--scenario", "pulse", "--duration", 20, "--seed", "S", "--disturbance-scale", 0.05,
+                  "[--controller", "gains-paper.json]", "-o", "DIR"),
+             _cmd("report", "control", "gains-paper.json", "--open", "OPEN", "--closed", "CLOSED", "-o", "REPORT")]
+    return [
+        Headline("1998", "Sec. VI.C, Fig. 10", "closed loop: q5 and q8 peak at about one third of the first open-loop "
+                 "oscillation, and the structure is back within 3 s of the end of the pulse",
+                 ours=f"closed/open peak ratio ≤ {ratio:.2f}, back within {back:.1f} s ({seeds} seeds, GPS estimate in the loop)",
+                 met=ratio <= 1 / 3 + 0.02 and back <= 3.0, commands=cmds, figure=fig,
+                 values={"metrics": m, "seeds": seeds}),
+        Headline("1998", "Fig. 10 (open loop)", "open loop: the pulse swings the longitudinal twist q5/q8 by ≈ 10° peak to peak",
+                 ours=f"{open_pp:.0f}° peak to peak (largest of q5, q8 over {seeds} seeds)", met=False,
+                 note="3–6× the paper's swing: the same compliance as Fig. 6's poles (issue 31 item 1).",
+                 values={"open_tail_peak_to_peak_deg": open_pp}),
+    ]
+
+
+def _slew(w: Path, seed: int, g: Path, extra=()) -> dict:
+    tag = "novib" if extra else "vib"
+    d = w / f"slew-{tag}-{seed}"
+    cdgps("simulate", TESTBED, "--scenario", "slew", "--duration", 40, "--seed", seed, "--controller", g, *extra, "-o", d)
+    return cdgps_json("report", "control", g, "--closed", d, "--date", "2026-01-01", "-o", w / f"slew-rep-{tag}-{seed}")
+
+
+def hslew(w: Path, figdir: Path, seeds: int) -> list[Headline]:
+    g, _, cmds = _design(w, "paper")
+    vib = [_slew(w, s, g)["metrics"]["closed"] for s in range(1, seeds + 1)]
+    novib = [_slew(w, s, g, ("--no-vibration-control",))["metrics"]["closed"] for s in range(1, min(seeds, 5) + 1)]
+
+    def worst(runs, key):
+        return max(abs(r[key]) if r[key] is not None else math.inf for r in runs)
+
+    arrived, final = worst(vib, "arrived_s_after_command"), worst(vib, "final_error_deg")
+    internal = [max(r["internal_max_deg"][q] for q in ("q2", "q5", "q8")) for r in vib]
+    ok_internal = sum(v <= 1.0 for v in internal)
+    internal_nv = [max(r["internal_max_deg"][q] for q in ("q2", "q5", "q8")) for r in novib]
+    fig = _figure(w / "slew-rep-vib-1" / "slew.png", "paper-fig11-slew.png", figdir)
+    cmds += [_cmd("simulate", TESTBED, "--scenario", "slew", "--duration", 40, "--seed", "S", "--controller",
+                  "gains-paper.json", "[--no-vibration-control]", "-o", "DIR"),
+             _cmd("report", "control", "gains-paper.json", "--closed", "DIR", "-o", "REPORT")]
+    return [
+        Headline("1998", "Sec. VI.D, Fig. 11", "slew +14° → −22°: done within 30 s, final angle within 0.5° as measured "
+                 "by GPS, internal rotations q2/q5/q8 within 1°",
+                 ours=f"arrived within {arrived:.1f} s, final error ≤ {final:.2f}°; q2/q5/q8 within 1° in {ok_internal} of "
+                      f"{seeds} seeds (worst {max(internal):.2f}°)",
+                 met=arrived <= 30 and final <= 0.5 and ok_internal >= math.ceil(0.95 * seeds), commands=cmds, figure=fig,
+                 values={"with_vibration_control": vib},
+                 note="Issue 31 asks for q2/q5/q8 within 1° in ≥ 19 of 20 seeds with the estimator in the loop."),
+        Headline("1998", "Fig. 12", "without vibration control the slew excites large internal vibrations and the final "
+                 "angle oscillates about the target",
+                 ours=f"internal rotations up to {max(internal_nv):.1f}° without vibration control against "
+                      f"{max(internal):.2f}° with it ({len(novib)} seeds)",
+                 met=min(internal_nv) > max(internal), values={"without_vibration_control": novib}),
+    ]
+
+
+# ----------------------------------------------------------------------------------------------
+# 2003: aided tracking loops
+
+
+def _tracking_module():
+    spec = importlib.util.spec_from_file_location("tracking_paper", ROOT / "benchmarks" / "tracking_paper.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["tracking_paper"] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def htracking(w: Path, figdir: Path) -> list[Headline]:
+    tp = _tracking_module()
+    tones, jitter, shared = tp.study_tones(), tp.study_jitter(), tp.study_shared()
+    bw = {r["run"]: r["bandwidth_3db_hz"] for r in tones["runs"]}
+    aided_bw = bw.get("3 Hz aided, 30 Hz sensor")
+    dyn = {(r["bn_hz"], r["loop"]): r for r in jitter["dynamics"]}
+    j15, j3a = dyn[(15.0, "unaided")]["jitter_deg"], dyn[(3.0, "aided")]["jitter_deg"]
+    gain_db = 20 * math.log10(j15 / j3a)
+    tcxo = next(o for o in shared["oscillators"] if o["name"] == "TCXO")
+    rows = {r["run"]: r for r in tcxo["rows"]}
+    narrow = next((r for k, r in rows.items() if k.startswith("3 Hz + shared")), None)
+    cmd = "python benchmarks/tracking_paper.py --only tones,jitter,shared"
+    return [
+        Headline("2003", "abstract, §III", "the aided carrier loop's tracking bandwidth matches the inertial sensor's (> 30 Hz)",
+                 ours=f"−3 dB tracking bandwidth {aided_bw:.1f} Hz (3 Hz loop aided by a 30 Hz sensor); unaided 3 Hz: "
+                      f"{bw['3 Hz unaided']:.1f} Hz", met=aided_bw is not None and aided_bw > 30, commands=[cmd],
+                 values={"tones": tones}, figure="figures/tracking-tones.png"),
+        Headline("2003", "abstract", "a 3 Hz aided loop suppresses phase noise 14 dB better than a traditional 15 Hz loop",
+                 ours=f"{gain_db:.1f} dB: jitter {j15:.2f}° (15 Hz unaided) → {j3a:.2f}° (3 Hz, consumer accelerometer aid), "
+                      f"0.5 g at 2 Hz line-of-sight dynamics, 45 dB-Hz", met=gain_db >= 14 - 1,
+                 commands=[cmd], values={"jitter": jitter}, figure="figures/tracking-jitter.png",
+                 note="The paper does not give the dynamics and C/N0 behind its 14 dB; ours are stated, and the ratio "
+                      "depends on them."),
+        Headline("2003", "abstract", "with low-cost inertial sensors and a typical TCXO the loop works at a 3 Hz bandwidth",
+                 ours=(f"TCXO: independent 3 Hz loops lose lock ({rows['independent 3 Hz']['slips']} slips in "
+                       f"{tcxo.get('duration_s', shared['duration_s'])} s); 3 Hz channels with a shared clock loop: "
+                       f"{narrow['slips']} slips, jitter {narrow['jitter_deg_max']:.1f}°") if narrow else "see note",
+                 met=None if narrow is None else narrow["slips"] == 0, commands=[cmd], values={"shared": shared},
+                 figure="figures/tracking-oscillator.png",
+                 note="With our TCXO phase-noise model a 3 Hz loop alone cannot follow the oscillator; the clock's "
+                      "common part must be tracked once for all channels (a shared clock loop), which is how we hold 3 Hz."),
+    ]
+
+
+# ----------------------------------------------------------------------------------------------
+
+
+def _md(rows: list[Headline], runtime_s: float, quick: bool) -> str:
+    mark = {True: "yes", False: "**no**", None: "see note"}
+    out = ["# The papers' headlines, reproduced", "",
+           f"Generated by `python benchmarks/paper.py{' --quick' if quick else ''}` (`make paper`) in {runtime_s:.0f} s on "
+           f"{datetime.date.today().isoformat()}; the numbers are in `docs/benchmarks/paper.json`. Each row gives the "
+           "paper's statement, ours, whether it is reproduced, and the commands that measure it. Where the comparison "
+           "is not like for like, or a number is not reproduced, the note says why with the measurement; nothing was "
+           "tuned to fit.", "",
+           "| paper | where | the paper says | we measure | reproduced |", "|---|---|---|---|---|"]
+    for h in rows:
+        out.append(f"| {h.paper} | {h.where} | {h.claim} | {h.ours} | {mark[h.met]} |")
+    out += ["", "## Each headline", ""]
+    for h in rows:
+        out += [f"### {h.paper}, {h.where}", "", f"*Paper:* {h.claim}.", "", f"*Ours:* {h.ours}."]
+        if h.note:
+            out += ["", h.note]
+        if h.commands:
+            out += ["", "```sh", *h.commands, "```"]
+        if h.figure:
+            out += ["", f"![{h.where}]({h.figure})"]
+        out.append("")
+    return "\n".join(out)
+
+
+RUNNERS = {"1995": lambda w, f, a: h1995(w, f), "static": lambda w, f, a: hstatic(w, f), "psd": lambda w, f, a: hpsd(w, f),
+           "fig6": lambda w, f, a: hfig6(w, f), "pulse": lambda w, f, a: hpulse(w, f, a.pulse_seeds),
+           "slew": lambda w, f, a: hslew(w, f, a.slew_seeds), "tracking": lambda w, f, a: htracking(w, f)}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true", help=f"only {', '.join(QUICK)}")
+    ap.add_argument("--only", default=None, help=f"comma-separated subset of {', '.join(ALL)}")
+    ap.add_argument("--pulse-seeds", type=int, default=3)
+    ap.add_argument("--slew-seeds", type=int, default=20)
+    ap.add_argument("--out", type=Path, default=ROOT / "docs", help="folder of paper-reproduction.md (figures/ inside it)")
+    a = ap.parse_args(argv)
+    names = a.only.split(",") if a.only else (QUICK if a.quick else ALL)
+    unknown = [n for n in names if n not in RUNNERS]
+    if unknown:
+        ap.error(f"unknown headline(s) {unknown}; choose from {', '.join(ALL)}")
+    t0 = time.perf_counter()
+    rows: list[Headline] = []
+    with tempfile.TemporaryDirectory(prefix="cdgps-paper-") as tmp:
+        for n in names:
+            t = time.perf_counter()
+            got = RUNNERS[n](Path(tmp), a.out / "figures", a)
+            rows += got
+            print(f"{n}: {time.perf_counter() - t:.0f} s: " + "; ".join(f"{h.ours} [{h.met}]" for h in got), flush=True)
+    runtime = time.perf_counter() - t0
+    a.out.mkdir(parents=True, exist_ok=True)
+    (a.out / "paper-reproduction.md").write_text(_md(rows, runtime, a.quick) + "\n")
+    bench = a.out / "benchmarks" / "paper.json"
+    bench.parent.mkdir(parents=True, exist_ok=True)
+    bench.write_text(json.dumps({"benchmark": "benchmarks/paper.py", "headlines": [asdict(h) for h in rows],
+                                 "runtime_s": runtime, "machine": platform.platform(),
+                                 "date": datetime.date.today().isoformat()}, indent=1, default=str) + "\n")
+    print(f"wrote {a.out / 'paper-reproduction.md'} ({len(rows)} headlines, {runtime:.0f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
