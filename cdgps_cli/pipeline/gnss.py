@@ -117,7 +117,7 @@ def gnss_init(run: GnssRun, *, options: dict | None = None, progress=None) -> di
     _check_master_position(run)
     opt = BaselineOptions.from_gnss_config(run.cfg, kinematic_series=False, **(options or {}))
     opt.validate()
-    rovers = {}
+    rovers, segments = {}, {}
     for r in run.rovers:
         say(f"baseline {run.master} → {r}: float, LAMBDA, fixed …")
         res = solve_static_baseline(stations[run.master], stations[r], run.nav, opt,
@@ -126,6 +126,7 @@ def gnss_init(run: GnssRun, *, options: dict | None = None, progress=None) -> di
         res = json_safe(res)
         sol = res["fixed"] or res["float"]
         amb = res["ambiguities"]
+        segments[r] = amb["segments"]
         names = list(res["states"])
         rovers[r] = {
             "solution": res["solution"],
@@ -143,7 +144,6 @@ def gnss_init(run: GnssRun, *, options: dict | None = None, progress=None) -> di
             "n_fixed": amb["n_fixed"], "n_estimated": amb["n_estimated"],
             "n_half_cycle_excluded": amb["n_half_cycle_excluded"],
             **({"n_float_glonass": amb["n_float_glonass"]} if "n_float_glonass" in amb else {}),
-            "ambiguities": amb["segments"],
             "residuals": res["residuals"], "kinematic": res["kinematic"], "epochs": res["epochs"],
             "satellites": res["satellites"], "warnings": res["warnings"], "options": res["options"],
         }
@@ -167,7 +167,7 @@ def gnss_init(run: GnssRun, *, options: dict | None = None, progress=None) -> di
         "n_fixed": int(sum(v["n_fixed"] for v in rovers.values())),
         "n_estimated": int(sum(v["n_estimated"] for v in rovers.values())),
         "ratio": min(ratios) if ratios else None,
-        "biases": [b for r, v in rovers.items() for b in gnss_biases(run.master, r, v["ambiguities"])],
+        "biases": [b for r in rovers for b in gnss_biases(run.master, r, segments[r])],
         "rovers": rovers,
         "options": json_safe(asdict(opt)),
         **_signals_summary(run, rovers),
@@ -207,7 +207,38 @@ def gnss_biases(master: str, rover: str, segments: list) -> list:
             "sigma_m": 0.0 if fixed else (None if s["sigma_cycles"] is None else float(lam * s["sigma_cycles"])),
             "integer_cycles": int(s["integer"]) if fixed else None, "fixed": fixed, "pivot": bool(s["pivot"]),
             "segment_start_s": s["first_gps_s"], "segment_end_s": s["last_gps_s"],
+            **{k: v for k, v in s.items() if k not in _SEGMENT_MAPPED},
         })
+    return out
+
+
+#: fields of a solver's ambiguity segment that a ``biases`` entry holds under its own names; every other
+#: field (n_epochs, half_cycle_flag, float_cycles, sigma_cycles, wavelength_m, signal, reason, …) is carried as is
+_SEGMENT_MAPPED = {"sat", "reference", "fixed", "integer", "pivot", "first_gps_s", "last_gps_s"}
+_BIAS_OWN = {"master", "rover", "satellite", "reference", "bias_m", "sigma_m", "integer_cycles", "fixed", "pivot",
+             "segment_start_s", "segment_end_s"}
+
+
+def rover_segments(init: dict, rover: str) -> list[dict]:
+    """One rover's ambiguity segments in the solver's form (``sat``, ``first_gps_s``, ``last_gps_s``,
+    ``fixed``, ``integer``, ``pivot``, …), from INIT's ``biases`` — the one record of them since
+    INIT v2 — or, in an older INIT.json, from its legacy ``rovers[rover]["ambiguities"]`` list."""
+    legacy = (init.get("rovers", {}).get(rover) or {}).get("ambiguities")
+    if legacy is not None:
+        return list(legacy)
+    out = []
+    for b in init.get("biases", []):
+        if b.get("rover") != rover:
+            continue
+        try:
+            seg = {"sat": str(b["satellite"]), "reference": b.get("reference"), "pivot": bool(b["pivot"]),
+                   "fixed": bool(b["fixed"]), "integer": b.get("integer_cycles"),
+                   "first_gps_s": float(b["segment_start_s"]), "last_gps_s": float(b["segment_end_s"])}
+        except (KeyError, TypeError, ValueError):
+            raise CdgpsError(f"INIT.json: biases entry of {rover}: expected satellite, pivot, fixed, "
+                             "segment_start_s and segment_end_s") from None
+        seg.update({k: v for k, v in b.items() if k not in _BIAS_OWN})
+        out.append(seg)
     return out
 
 
@@ -272,9 +303,9 @@ def _random_walk(model: SatelliteDDDisplacement, t: np.ndarray, sigma_rw, p0_sig
     return xs, ps, xf, pf, fr["nis"]
 
 
-def _integers_from_init(rov: dict) -> dict:
+def _integers_from_init(init: dict, r: str) -> dict:
     out = {}
-    for s in rov.get("ambiguities", []):
+    for s in rover_segments(init, r):
         try:
             out[(str(s["sat"]), float(s["first_gps_s"]))] = s.get("integer") if s.get("fixed") or s.get("pivot") else None
         except (KeyError, TypeError, ValueError):
@@ -301,7 +332,7 @@ def solve_with_init_integers(run, init: dict, r: str, stations: dict):
     opt = BaselineOptions(**{**asdict(opt), "kinematic_series": False})
     res = solve_static_baseline(stations[run.master], stations[r], run.nav, opt,
                                 master_xyz=_position_args(run, run.master), rover_xyz=_position_args(run, r),
-                                integers=_integers_from_init(rov), keep_work=True)
+                                integers=_integers_from_init(init, r), keep_work=True)
     w = res.pop("_work")
     if not np.allclose(w["xr0"], rov["nominal_ecef_m"], atol=1e-6):
         raise CdgpsError(f"INIT.json: the nominal position of {r} differs from this run's")
@@ -487,7 +518,7 @@ def _write_gnss_states(run, init, init_text, out_path, names, t, q, P, qf, Pf, k
     model = run.cfg.displacement
     biases = []
     for r in run.rovers:
-        for s in init["rovers"][r]["ambiguities"]:
+        for s in rover_segments(init, r):
             if s["fixed"] and s["integer"] is not None:
                 lam = s.get("wavelength_m", GPS_L1_WAVELENGTH_M)
                 biases.append({"antenna": r, "transmitter": s["sat"], "bias_m": lam * s["integer"],

@@ -69,6 +69,7 @@ from cdgps_cli.estimation.smoother import rts_smooth_transitions
 from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.model.kinematics import antenna_positions
+from cdgps_cli.pipeline.gnss import rover_segments
 
 __all__ = ["StructurePlacement", "structure_to_ecef", "nominal_receiver_positions", "gnss_modal_estimate", "gnss_modal_init",
            "modal_batch_initialization", "apply_modal_record",
@@ -470,7 +471,7 @@ def _final_biases(su, tabs: list, init: dict) -> tuple[dict, dict]:
     biases, counts = {}, {}
     if not su.tabs or "signal" not in su.tabs[0]:
         for i, a in enumerate(su.rover_ants):
-            for s in sorted(init["rovers"][su.mapping[a]]["ambiguities"], key=lambda s: s["first_gps_s"]):
+            for s in sorted(rover_segments(init, su.mapping[a]), key=lambda s: s["first_gps_s"]):
                 if s.get("fixed") and s.get("integer") is not None:
                     biases[(a, s["sat"])] = GPS_L1_WAVELENGTH_M * s["integer"]
             counts[a] = {"fixed": tabs[i]["n_fixed"], "estimated": tabs[i]["n_estimated"]}

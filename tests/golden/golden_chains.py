@@ -181,6 +181,13 @@ def add_structure_init(g: Numbers, prefix: str, init: dict) -> None:
     g.close(f"{prefix}/start_cost", [s["cost"] for s in starts], "1 (weighted SSR)")
 
 
+def _rover(init: dict, name: str) -> dict:
+    """A GNSS INIT's rover entry with its ambiguity segments (from ``biases`` since they are the one record)."""
+    from cdgps_cli.pipeline.gnss import rover_segments
+
+    return dict(init["rovers"][name], ambiguities=rover_segments(init, name))
+
+
 def add_gnss_rover(g: Numbers, prefix: str, rov: dict) -> None:
     """One rover of a GNSS INIT.json (or a baseline JSON's fields): states, σ, float, integers, ratio."""
     if isinstance(rov["ambiguities"], dict):          # baseline JSON: segments and ratio under "ambiguities"
@@ -315,7 +322,7 @@ def run_gnss(work: Path) -> Numbers:
     with _cwd(work):
         init = _gnss_ingest_init_estimate("geonet", geonet)
         cdgps("baseline", "--config", geonet, "-o", "geonet/baseline.json")
-        add_gnss_rover(g, "geonet/init/0759", init["rovers"]["0759"])
+        add_gnss_rover(g, "geonet/init/0759", _rover(init, "0759"))
         add_states(g, "geonet/states", "geonet/states.mcap")
         add_states(g, "geonet/kinematic", "geonet/states.mcap", topic="/cdgps/kinematic")
         bl = json.loads(Path("geonet/baseline.json").read_text())
@@ -327,7 +334,7 @@ def run_gnss(work: Path) -> Numbers:
         cdgps("simulate-gnss", "--duration", 240, "--seed", 5, "--random-walk", 0.001, "--slips", 2, "-o", "rw")
         init = _gnss_ingest_init_estimate("rw", "rw/config.toml", "--smooth")
         ev = json.loads(cdgps("evaluate", "--truth", "rw", "--estimate", "rw/states.mcap", "--json"))
-        add_gnss_rover(g, "rw/init/rover", init["rovers"]["rover"])
+        add_gnss_rover(g, "rw/init/rover", _rover(init, "rover"))
         add_states(g, "rw/smoothed", "rw/states.mcap")
         add_states(g, "rw/filtered", "rw/states.mcap", topic="/cdgps/state_filtered")
         add_evaluation(g, "rw/evaluate", ev)
@@ -344,7 +351,7 @@ def run_gnss_structure(work: Path) -> Numbers:
         ev = json.loads(cdgps("evaluate", "--truth", "tw", "--estimate", "tw/states.mcap", "--json",
                               "--converge-s", 10))
         for name in sorted(init["rovers"]):
-            add_gnss_rover(g, f"tw/init/{name}", init["rovers"][name])
+            add_gnss_rover(g, f"tw/init/{name}", _rover(init, name))
         add_states(g, "tw/smoothed", "tw/states.mcap")
         add_states(g, "tw/filtered", "tw/states.mcap", topic="/cdgps/state_filtered")
         add_evaluation(g, "tw/evaluate", ev)

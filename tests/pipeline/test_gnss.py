@@ -24,7 +24,7 @@ from cdgps_cli.estimation.baseline import BaselineOptions, Station, solve_static
 from cdgps_cli.cli.commands import main
 from cdgps_cli.model.gps.orbits import ecef_to_enu
 from cdgps_cli.model.gps.positioning import simulate_static_pair, synthetic_gps_nav
-from cdgps_cli.pipeline.gnss import KINEMATIC_TOPIC
+from cdgps_cli.pipeline.gnss import KINEMATIC_TOPIC, rover_segments
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli.core.gps_time import gps_seconds
 from cdgps_cli.io.states import States
@@ -74,7 +74,7 @@ def test_geonet_pipeline_equals_baseline_and_rtklib(geonet):
     assert rov["solution"] == "fixed" and rov["n_fixed"] == rov["n_estimated"] == 6 and rov["ratio"] > 100
     # the same numbers as `cdgps baseline` (to the last bit: same data, same code)
     assert init["states"] == bl["states"]
-    assert [s["integer"] for s in rov["ambiguities"]] == [s["integer"] for s in bl["ambiguities"]["segments"]]
+    assert [s["integer"] for s in rover_segments(init, "0759")] == [s["integer"] for s in bl["ambiguities"]["segments"]]
     # and so within 0.2 mm of RTKLIB's fixed solution (the requirement is 1 cm)
     rtk = ecef_to_enu(np.array(RTKLIB_FIX_AND_HOLD), ROVER_XYZ)
     ours = np.array([init["states"][f"0759_{c}"] for c in "enu"])
@@ -100,7 +100,8 @@ def test_geonet_init_biases_have_the_structure_init_fields(geonet, tmp_path):
     """INIT v2: one ``biases`` entry per ambiguity segment, the same fields as a structure INIT's, the
     channel named rover/satellite/reference; a fixed entry's bias is λ × its integer, the pivot's 0."""
     tmp, init, _ = geonet
-    segs = init["rovers"]["0759"]["ambiguities"]
+    segs = rover_segments(init, "0759")
+    assert "ambiguities" not in init["rovers"]["0759"]            # the biases are the one record of them
     assert len(init["biases"]) == len(segs) == init["rovers"]["0759"]["n_segments"]
     for b, s in zip(init["biases"], segs):
         assert BIAS_FIELDS <= set(b) and (b["master"], b["rover"], b["satellite"]) == ("3040", "0759", s["sat"])
@@ -114,6 +115,7 @@ def test_geonet_init_biases_have_the_structure_init_fields(geonet, tmp_path):
     # and gives the same states
     old = {k: v for k, v in init.items() if k not in ("format", "biases")}
     old["kind"] = "cdgps gnss init"
+    old["rovers"] = {r: dict(v, ambiguities=rover_segments(init, r)) for r, v in init["rovers"].items()}
     (tmp_path / "old.json").write_text(json.dumps(old))
     r = run_cli("-q", "estimate", tmp / "run.mcap", "--init", tmp_path / "old.json", "-o", tmp_path / "s.mcap")
     assert r.exit_code == 0, r.output
@@ -181,8 +183,8 @@ def test_static_simulation_recovers_the_truth(static_sim):
 def test_estimate_uses_the_integers_of_init(static_sim, tmp_path):
     tmp, init = static_sim
     bad = json.loads(json.dumps(init))
-    seg = next(s for s in bad["rovers"]["rover"]["ambiguities"] if not s["pivot"])
-    seg["integer"] += 1
+    seg = next(b for b in bad["biases"] if b["rover"] == "rover" and not b["pivot"])
+    seg["integer_cycles"] += 1
     (tmp_path / "bad.json").write_text(json.dumps(bad))
     r = run_cli("-q", "estimate", tmp / "run.mcap", "--init", tmp_path / "bad.json", "-o", tmp_path / "s.mcap")
     assert r.exit_code == 0, r.output
@@ -190,7 +192,7 @@ def test_estimate_uses_the_integers_of_init(static_sim, tmp_path):
     good = np.array([init["states"][f"rover_{c}"] for c in "enu"])
     assert np.linalg.norm(q - good) > 0.002                            # a wrong integer moves the solution
     # an INIT whose segments do not match, or from another run: clear errors, no output
-    bad["rovers"]["rover"]["ambiguities"] = bad["rovers"]["rover"]["ambiguities"][1:]
+    bad["biases"] = [b for b in bad["biases"] if b["rover"] == "rover"][1:]
     (tmp_path / "bad2.json").write_text(json.dumps(bad))
     r = run_cli("estimate", tmp / "run.mcap", "--init", tmp_path / "bad2.json", "-o", tmp_path / "s2.mcap")
     assert r.exit_code == 2 and "do not match the ambiguity segments" in r.stderr

@@ -15,6 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cdgps_cli.pipeline.gnss import rover_segments
+
 from cdgps_cli.estimation.baseline import BaselineOptions, Station, solve_static_baseline
 from cdgps_cli.io.gnss_run import read_gnss_run
 from cdgps_cli.io.mcap import read_mcap
@@ -51,7 +53,7 @@ def test_every_signal_group_is_fixed_to_the_simulated_integers(sim):
     for rx, rov in init["rovers"].items():
         assert rov["n_fixed"] == rov["n_estimated"] > 0
         pivots = {}
-        for s in rov["ambiguities"]:
+        for s in rover_segments(init, rx):
             sat, slot = s["sat"].split(":")
             ref = s["reference"].split(":")[0]
             assert s["reference"].endswith(":" + slot) and ref[0] == sat[0]
@@ -184,8 +186,9 @@ def test_beidou_b1i_b2i_on_the_displacement_path(bds_pair):
     init = json.loads((d / "init.json").read_text())
     rov = init["rovers"]["rover"]
     assert rov["solution"] == "fixed" and rov["n_fixed"] == rov["n_estimated"] >= 10
-    assert {s["signal"] for s in rov["ambiguities"]} == {"G:L1", "C:B1I", "C:B2I"}
-    assert all(s["integer"] == 0 for s in rov["ambiguities"])
+    segs = rover_segments(init, "rover")
+    assert {s["signal"] for s in segs} == {"G:L1", "C:B1I", "C:B2I"}
+    assert all(s["integer"] == 0 for s in segs)
     assert np.linalg.norm(list(init["states"].values())) < 0.005
 
 
@@ -273,8 +276,8 @@ def test_glonass_float_beside_gps_on_the_displacement_path(bds_pair):
     gps = _init_of(d, config, ["G:L1"], "g")["rovers"]["rover"]
     init = _init_of(d, config, ["G:L1", "R:G1"], "gr")
     rov = init["rovers"]["rover"]
-    glo = [s for s in rov["ambiguities"] if s["signal"] == "R:G1"]
-    gpa = [s for s in rov["ambiguities"] if s["signal"] == "G:L1"]
+    glo = [s for s in rover_segments(init, "rover") if s["signal"] == "R:G1"]
+    gpa = [s for s in rover_segments(init, "rover") if s["signal"] == "G:L1"]
     assert len(glo) >= 4 and rov["n_float_glonass"] == len(glo) - 1          # one datum segment
     assert all(not s["fixed"] and s["integer"] is None and "FDMA" in s["reason"] for s in glo)
     assert all(s["float_bias_m"] == pytest.approx(s["wavelength_m"] * s["float_cycles"]) for s in glo if not s["pivot"])

@@ -28,6 +28,7 @@ from cdgps_cli.pipeline.gnss_modal import (StructurePlacement, _h_and_H, gnss_mo
                                           nominal_receiver_positions, simulate_structure_gnss)
 from cdgps_cli.model.kinematics import EpochGeometry, antenna_positions
 from cdgps_cli.io.states import States
+from cdgps_cli.pipeline.gnss import rover_segments
 
 ROOT = Path(__file__).resolve().parents[2]
 TOWER = ROOT / "configs" / "gnss-tower.toml"
@@ -65,7 +66,7 @@ def test_integers_fixed_and_right(tower):
     m = init["master"]
     for r, rov in init["rovers"].items():
         assert rov["solution"] == "fixed" and rov["n_fixed"] == rov["n_estimated"] >= 5
-        segs = rov["ambiguities"]
+        segs = rover_segments(init, r)
         assert len({s["sat"] for s in segs}) == len(segs)
         piv = [s["sat"] for s in segs if s["pivot"]]
         assert len(piv) == 1
