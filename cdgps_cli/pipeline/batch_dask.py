@@ -6,8 +6,12 @@ file (a real cluster: ``dask scheduler --scheduler-file F`` and ``dask worker --
 or starts a LocalCluster: one worker process per core, one thread each, BLAS pinned to one thread,
 dashboard off unless asked.
 
+It also starts a cluster manager named by ``MODULE.CLASS`` (``--cluster dask_jobqueue.SLURMCluster``)
+with keyword options, and registers :class:`WorkerSettings` on whatever cluster it uses.
+
 Dask gives: dependencies between tasks (a stage waits for the one it reads), ``retries=K`` for a
-task that raises, and rescheduling of the tasks of a worker that died on another worker (up to
+task that raises a worker fault (input errors are returned, not raised: :func:`run_task`), and
+rescheduling of the tasks of a worker that died on another worker (up to
 ``distributed.scheduler.allowed-failures`` deaths, then the task fails with KilledWorker, reported).
 """
 
@@ -68,8 +72,9 @@ class WorkerSettings(_WorkerPluginBase):
 
     On each worker :meth:`setup`
 
-    * stops dask's statistical profiler (its periodic callbacks) (:data:`PROFILE_KEY`; its samples grew a worker's memory
-      ≈ 2.6 MB per session without bound) unless ``profile`` (the dashboard was asked for);
+    * stops dask's statistical profiler, the worker's periodic callbacks that :data:`PROFILE_KEY`
+      starts (its samples grew a worker's memory ≈ 2.6 MB per session without bound), unless
+      ``profile`` (the dashboard was asked for);
     * when the worker was started with a fixed ``MALLOC_TRIM_THRESHOLD_`` (dask's nanny default,
       65536) that the batch's own environment does not ask for, sets glibc's mmap and trim thresholds
       back to large values (:data:`MMAP_THRESHOLD_B`; the variable itself is read only at process start);
@@ -78,8 +83,7 @@ class WorkerSettings(_WorkerPluginBase):
 
     and records what it did in ``worker.cdgps_settings``.  In a worker thread of the batch's own process
     (an in-process cluster) only the profiler is stopped: the process's environment and allocator are
-    the user's.  Each stage's memory is also returned to the
-    system after the stage (:func:`cdgps_cli.pipeline.batch.release_memory`, in the task itself).
+    the user's.  Each stage's memory is also returned to the system after the stage (:func:`cdgps_cli.pipeline.batch.release_memory`, in the task itself).
     """
 
     name = "cdgps-batch-worker-settings"
@@ -209,14 +213,7 @@ def start_cluster(name: str, options: dict, workers: int | None):
     CdgpsError
         When the class cannot be imported, refuses the options, or cannot start.
     """
-    cls = cluster_manager_class(name)
-    shown = ", ".join(f"{k}={v!r}" for k, v in options.items()) or "no options"
-    try:
-        cluster = cls(**options)
-    except (TypeError, ValueError, KeyError) as exc:
-        raise CdgpsError(f"--cluster {name}: refused the options ({shown}): {type(exc).__name__}: {exc}") from None
-    except (OSError, RuntimeError, TimeoutError) as exc:
-        raise CdgpsError(f"--cluster {name}: cannot start the cluster ({shown}): {type(exc).__name__}: {exc}") from None
+    cluster = _instantiate(cluster_manager_class(name), name, options)
     try:
         have = len(getattr(cluster, "worker_spec", None) or getattr(cluster, "workers", None) or {})
         if workers is not None or have == 0:
@@ -225,6 +222,18 @@ def start_cluster(name: str, options: dict, workers: int | None):
         cluster.close()
         raise
     return cluster
+
+
+def _instantiate(cls, name: str, options: dict):
+    """``cls(**options)``; a refusal (unknown or bad keyword) or a failed start as a CdgpsError naming
+    the class and the options."""
+    shown = ", ".join(f"{k}={v!r}" for k, v in options.items()) or "no options"
+    try:
+        return cls(**options)
+    except (TypeError, ValueError, KeyError) as exc:
+        raise CdgpsError(f"--cluster {name}: refused the options ({shown}): {type(exc).__name__}: {exc}") from None
+    except (OSError, RuntimeError, TimeoutError) as exc:
+        raise CdgpsError(f"--cluster {name}: cannot start the cluster ({shown}): {type(exc).__name__}: {exc}") from None
 
 
 def job_script(name: str, options: dict) -> str:
@@ -239,11 +248,7 @@ def job_script(name: str, options: dict) -> str:
     cls = cluster_manager_class(name)
     if not callable(getattr(cls, "job_script", None)):
         raise CdgpsError(f"--cluster {name}: not a job-queue cluster manager (it writes no job script)")
-    shown = ", ".join(f"{k}={v!r}" for k, v in options.items()) or "no options"
-    try:
-        cluster = cls(**options)
-    except (TypeError, ValueError, KeyError) as exc:
-        raise CdgpsError(f"--cluster {name}: refused the options ({shown}): {type(exc).__name__}: {exc}") from None
+    cluster = _instantiate(cls, name, options)
     try:
         return cluster.job_script()
     finally:
