@@ -213,7 +213,9 @@ def start_cluster(name: str, options: dict, workers: int | None):
     CdgpsError
         When the class cannot be imported, refuses the options, or cannot start.
     """
-    cluster = _instantiate(cluster_manager_class(name), name, options)
+    cls = cluster_manager_class(name)
+    _check_submit_command(cls, name)
+    cluster = _instantiate(cls, name, options)
     try:
         have = len(getattr(cluster, "worker_spec", None) or getattr(cluster, "workers", None) or {})
         if workers is not None or have == 0:
@@ -222,6 +224,17 @@ def start_cluster(name: str, options: dict, workers: int | None):
         cluster.close()
         raise
     return cluster
+
+
+def _check_submit_command(cls, name: str) -> None:
+    """A job-queue cluster manager whose submit command (``sbatch``, ``qsub`` …) is not on PATH would
+    fail to submit every job in the background while the batch waits for workers: refused up front."""
+    import shutil
+
+    cmd = getattr(getattr(cls, "job_cls", None), "submit_command", None)
+    if isinstance(cmd, str) and cmd.split() and shutil.which(cmd.split()[0]) is None:
+        raise CdgpsError(f"--cluster {name}: its job submit command {cmd.split()[0]!r} is not on this machine's PATH "
+                         f"(run the batch where jobs can be submitted; --print-job-script shows the job script)")
 
 
 def _instantiate(cls, name: str, options: dict):
@@ -371,14 +384,13 @@ def _run_locked(sessions, manifest, outdir, client, scheduler, workers, resume, 
         apply_worker_settings(client, dashboard)
         t0 = time.perf_counter()
         started = _now()
-        n_workers = len(client.scheduler_info(n_workers=-1)["workers"]) if _has_n_workers(client) else \
-            len(client.scheduler_info()["workers"])
+        n_workers = _n_workers(client)
         results, errors = _submit_and_wait(client, sessions, resume, retries, progress)
-    finally:
-        if own:
-            client.close()
-        if cluster is not None:
-            cluster.close()
+        n_workers = max(n_workers, _n_workers(client))         # a cluster manager's workers join as they start
+    except BaseException:
+        _close(client if own else None, cluster, quiet=True)
+        raise
+    _close(client if own else None, cluster)
     entries = [B.session_summary(s, results.get(s.name, {}), errors.get(s.name, {})) for s in sessions]
     summary = {"manifest": str(Path(manifest).resolve()), "outdir": str(out), "started": started, "finished": _now(),
                "elapsed_s": round(time.perf_counter() - t0, 3), "workers": n_workers, "retries": retries,
@@ -392,6 +404,24 @@ def _run_locked(sessions, manifest, outdir, client, scheduler, workers, resume, 
     write_bytes_atomic(out / "batch.json", (json.dumps(summary, indent=2, allow_nan=False) + "\n").encode())
     write_index(summary, out)
     return summary
+
+
+def _close(client, cluster, quiet: bool = False) -> None:
+    """Close what the batch opened; ``quiet``: while another exception is on its way, a failure to
+    close (a cluster manager whose jobs never started cannot always be closed cleanly) does not hide it."""
+    for thing in (client, cluster):
+        if thing is None:
+            continue
+        try:
+            thing.close()
+        except Exception:
+            if not quiet:
+                raise
+
+
+def _n_workers(client) -> int:
+    info = client.scheduler_info(n_workers=-1) if _has_n_workers(client) else client.scheduler_info()
+    return len(info["workers"])
 
 
 def _has_n_workers(client) -> bool:

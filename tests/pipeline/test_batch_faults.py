@@ -265,14 +265,30 @@ def test_two_acquires_in_one_process_the_second_refused(tmp_path):
 
 # --------------------------------------------------------------------------- --cluster
 
-def test_cluster_names_a_local_cluster_with_options(fake):
+@pytest.mark.parametrize("workers, argv", [(1, ["--cluster-option", "n_workers=1"]),
+                                           (2, ["--cluster-option", "n_workers=0", "--workers", "2"])])
+def test_cluster_names_a_local_cluster_with_options(fake, workers, argv):
     r = CliRunner().invoke(main, ["batch", str(fake.manifest), "-o", str(fake.out), "--json",
                                   "--cluster", "distributed.LocalCluster", "--cluster-option", "processes=false",
-                                  "--cluster-option", "n_workers=1", "--cluster-option", "threads_per_worker=1",
-                                  "--cluster-option", "dashboard_address=':0'"])
+                                  "--cluster-option", "threads_per_worker=1",
+                                  "--cluster-option", "dashboard_address=':0'", *argv])
     assert r.exit_code == 0, r.output
     s = json.loads(r.stdout)
-    assert s["counts"] == {"sessions": 3, "done": 3} and s["workers"] == 1
+    assert s["counts"] == {"sessions": 3, "done": 3} and s["workers"] == workers
+    assert not (fake.out / B.LOCK_FILE).exists()
+
+
+def test_a_job_queue_class_without_its_submit_command_exits_2(fake, monkeypatch):
+    """dask-jobqueue's SLURMCluster where there is no sbatch: refused before any job (which would fail in
+    the background while the batch waited)."""
+    pytest.importorskip("dask_jobqueue")
+    monkeypatch.setenv("PATH", str(fake.manifest.parent))            # no sbatch there
+    r = CliRunner().invoke(main, ["batch", str(fake.manifest), "-o", str(fake.out), "--cluster",
+                                  "dask_jobqueue.SLURMCluster", "--cluster-option", "cores=1", "--cluster-option",
+                                  "memory=1GiB"])
+    assert r.exit_code == 2, r.output
+    assert "job submit command 'sbatch' is not on this machine's PATH" in r.output
+    assert not fake.out.exists()
 
 
 @pytest.mark.parametrize("argv, says", [
