@@ -214,6 +214,9 @@ def start_cluster(name: str, options: dict, workers: int | None):
         When the class cannot be imported, refuses the options, or cannot start.
     """
     cls = cluster_manager_class(name)
+    if not (callable(getattr(cls, "scale", None)) and callable(getattr(cls, "close", None))):
+        raise CdgpsError(f"--cluster {name}: not a dask cluster manager (no scale/close methods); expected e.g. "
+                         f"dask_jobqueue.SLURMCluster or distributed.LocalCluster")
     _check_submit_command(cls, name)
     cluster = _instantiate(cls, name, options)
     try:

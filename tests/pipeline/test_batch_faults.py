@@ -295,6 +295,7 @@ def test_a_job_queue_class_without_its_submit_command_exits_2(fake, monkeypatch)
     (["--cluster", "no_such_module.Cluster"], "--cluster no_such_module.Cluster: cannot import no_such_module"),
     (["--cluster", "distributed.NoSuchCluster"], "distributed has no class NoSuchCluster"),
     (["--cluster", "LocalCluster"], "expected MODULE.CLASS"),
+    (["--cluster", "collections.OrderedDict"], "not a dask cluster manager"),
     (["--cluster", "distributed.LocalCluster", "--cluster-option", "processes=false", "--cluster-option",
       "bogus_option=1"], "refused the options (processes=False, bogus_option=1)"),
     (["--cluster", "distributed.LocalCluster", "--cluster-option", "nokey"], "expected KEY=VALUE"),
