@@ -49,8 +49,10 @@ GNSS_STAGES = ("ingest", "init", "estimate")
 GNSS_OPTIONS = ("float_only", "smooth")
 RECORD_DIR = ".batch"                 # OUTDIR/<session>/.batch/<stage>.json: the resume records
 CAMPAIGN_FILE = ".cdgps-batch.json"   # OUTDIR/.cdgps-batch.json: which manifest owns OUTDIR
+LOCK_FILE = ".cdgps-batch.lock"       # OUTDIR/.cdgps-batch.lock: the batch writing OUTDIR now (batch_lock)
+ERROR_LOG = "batch-error.log"         # OUTDIR/batch-error.log: the traceback when the batch itself failed
 #: files of the campaign itself in OUTDIR: no session may be called so
-RESERVED = ("batch.json", "index.html", "trends.png")
+RESERVED = ("batch.json", "index.html", "trends.png", ERROR_LOG)
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
 
 
@@ -505,7 +507,7 @@ def prepare_outdir(sessions: list, manifest: str | Path, outdir: str | Path, cla
         if old.get("manifest") != ident["manifest"]:
             raise CdgpsError(f"{outdir}: holds the outputs of another batch manifest ({old.get('manifest')}); "
                              f"refusing to mix them with {ident['manifest']}'s (choose another -o OUTDIR)")
-    elif out.is_dir() and any(out.iterdir()):
+    elif out.is_dir() and any(not f.name.startswith(LOCK_FILE) for f in out.iterdir()):
         raise CdgpsError(f"{outdir}: not empty and not a batch output folder (no {CAMPAIGN_FILE}); refusing to "
                          f"write a campaign into it (choose a new or empty -o OUTDIR)")
     from cdgps_cli.io.atomic import write_bytes_atomic
@@ -602,14 +604,32 @@ def forget_record(s: Session, stage: str) -> None:
 # --------------------------------------------------------------------------- one session-stage
 
 #: test hook (docs/batch.md, "Testing faults"): a folder; its file ``faults`` lists lines
-#: ``SESSION/STAGE KIND N``: the first N attempts of that session-stage fail (KIND ``raise``) or kill
-#: their worker process (KIND ``kill``).  Attempts are counted in files of that folder, so that the
+#: ``SESSION/STAGE KIND N``: the first N attempts of that session-stage fail (KIND ``raise``: a
+#: RuntimeError, ``input``: a CdgpsError, ``oserror``, ``memory``: a MemoryError) or kill their worker
+#: process (KIND ``kill``).  Attempts are counted in files of that folder, so that the
 #: count survives the worker's death.  Unset (the normal case): nothing is read.
 FAULT_ENV = "CDGPS_BATCH_FAULTS"
 
 
 class InjectedFault(RuntimeError):
     """The failure asked for by :data:`FAULT_ENV` (tests only)."""
+
+
+class InjectedInputError(CdgpsError):
+    """An input error asked for by :data:`FAULT_ENV` (tests only): failed at once, never retried."""
+
+
+def _raise_fault(kind: str, what: str) -> None:
+    """KIND ``raise`` (RuntimeError), ``input`` (CdgpsError), ``oserror``, ``memory``, ``kill``."""
+    if kind == "kill":
+        os.kill(os.getpid(), 9)
+    if kind == "input":
+        raise InjectedInputError(what)
+    if kind == "oserror":
+        raise OSError(5, what)
+    if kind == "memory":
+        raise MemoryError(what)
+    raise InjectedFault(what)
 
 
 def _inject_fault(session: str, stage: str) -> None:
@@ -629,9 +649,7 @@ def _inject_fault(session: str, stage: str) -> None:
             fh.write(f"{os.getpid()}\n")
         attempt = len(counter.read_text().split())
         if attempt <= int(n):
-            if kind == "kill":
-                os.kill(os.getpid(), 9)
-            raise InjectedFault(f"injected failure of {session}/{stage} (attempt {attempt}; the first {n} fail)")
+            _raise_fault(kind, f"injected failure of {session}/{stage} (attempt {attempt}; the first {n} fail)")
 
 
 def execute_stage(s: Session, stage: str, resume: bool, *upstream) -> dict:
@@ -778,34 +796,63 @@ def _round(v, digits: int):
     return None if v is None else round(v, digits)
 
 
-def weighted_trend(t_day, y, sigma) -> dict | None:
-    """Weighted least-squares line y = a + b t (weights 1/σ²) with the slope's σ from the weights.
+#: a σ below this fraction of the values' magnitude is no measured uncertainty (a fixed, clamped or
+#: degenerate estimate, e.g. a damping ratio with σ ≈ 1e-15): such a series gets no trend
+TREND_SIGMA_FLOOR = 1e-9
+#: what the index and batch.json say instead of a trend that cannot be fitted
+NO_SPREAD = "not enough spread"
+
+
+def trend_fit(t_day, y, sigma) -> tuple:
+    """Weighted least-squares line y = a + b t (weights 1/σ²) with the slope's σ from the weights, or
+    why there is none.
+
+    Points whose time, value or σ is not finite, or whose σ is not > 0, are left out.  No line is
+    fitted (never an exception) with fewer than 3 points left, a single time, identical values, or a
+    σ below :data:`TREND_SIGMA_FLOOR` × the values' magnitude.  The fit is the centred closed form
+    with weights scaled by the smallest σ, so that no matrix is inverted and no weight overflows.
 
     Parameters
     ----------
-    t_day, y, sigma : sequences (n,) of days, values, 1σ (σ > 0)
+    t_day, y, sigma : sequences (n,) of days, values, 1σ
 
     Returns
     -------
-    dict ``{"slope_per_day", "slope_sigma_per_day", "intercept", "chi2_per_dof", "n"}`` or None
-    with fewer than 3 points or a single time.
+    (fit, note) : ``fit`` a dict ``{"slope_per_day", "slope_sigma_per_day", "intercept",
+        "chi2_per_dof", "n"}`` and ``note`` None; or ``fit`` None and ``note`` a sentence beginning
+        with :data:`NO_SPREAD`.
     """
     import numpy as np
 
-    t, y, s = (np.asarray(a, float) for a in (t_day, y, sigma))
+    t, y, s = (np.asarray(a, float).ravel() for a in (t_day, y, sigma))
     ok = np.isfinite(t) & np.isfinite(y) & np.isfinite(s) & (s > 0)
     t, y, s = t[ok], y[ok], s[ok]
-    if len(t) < 3 or np.ptp(t) == 0:
-        return None
-    w = 1.0 / s**2
-    A = np.column_stack([np.ones_like(t), t - t.mean()])
-    N = A.T @ (A * w[:, None])
-    coef = np.linalg.solve(N, A.T @ (w * y))
-    cov = np.linalg.inv(N)
-    r = y - A @ coef
-    return {"slope_per_day": float(coef[1]), "slope_sigma_per_day": float(math.sqrt(cov[1, 1])),
-            "intercept": float(coef[0] - coef[1] * t.mean()), "chi2_per_dof": float((w * r**2).sum() / (len(t) - 2)),
-            "n": int(len(t))}
+    n = len(t)
+    if n < 3:
+        return None, f"{NO_SPREAD}: {n} session{'s' if n != 1 else ''} with a finite value and σ > 0 (a line needs 3)"
+    if np.ptp(t) == 0:
+        return None, f"{NO_SPREAD}: all {n} sessions at the same time"
+    s_min = float(s.min())
+    if s_min <= TREND_SIGMA_FLOOR * float(np.abs(y).max()):
+        return None, f"{NO_SPREAD}: σ ≈ 0 ({s_min:.1g} for values of {np.abs(y).max():.3g}); no real uncertainty"
+    if np.ptp(y) == 0:
+        return None, f"{NO_SPREAD}: the same value ({y[0]:.6g}) in all {n} sessions"
+    w = (s_min / s) ** 2                               # relative weights in (0, 1]
+    tw, yw = (w * t).sum() / w.sum(), (w * y).sum() / w.sum()
+    dt = t - tw
+    stt = float((w * dt**2).sum())
+    slope = float((w * dt * (y - yw)).sum() / stt) if stt > 0 else float("nan")
+    fit = {"slope_per_day": slope, "slope_sigma_per_day": s_min / math.sqrt(stt) if stt > 0 else float("nan"),
+           "intercept": float(yw - slope * tw), "chi2_per_dof": float((((y - yw - slope * dt) / s) ** 2).sum() / (n - 2)),
+           "n": int(n)}
+    if not all(math.isfinite(v) for v in fit.values()):
+        return None, f"{NO_SPREAD}: the {n} sessions do not determine a finite line"
+    return fit, None
+
+
+def weighted_trend(t_day, y, sigma) -> dict | None:
+    """The line of :func:`trend_fit`, None when there is none."""
+    return trend_fit(t_day, y, sigma)[0]
 
 
 def mode_trends(entries: list) -> list:
@@ -821,18 +868,34 @@ def mode_trends(entries: list) -> list:
                 {"session": e["session"], "time": e["time"], "gps_hz": m["gps_hz"], "gps_hz_sigma": m["gps_hz_sigma"],
                  "damping": m["damping"], "damping_sigma": m["damping_sigma"], "seen": m["seen"]})
     out = []
-    for mode in sorted(by_mode.values(), key=lambda d: d["model_hz"]):
+    for mode in sorted(by_mode.values(), key=lambda d: (not math.isfinite(_num(d["model_hz"])), _num(d["model_hz"]))):
         pts = [p for p in mode["sessions"] if p["time"] is not None]
         t0 = _days(pts[0]["time"]) if pts else 0.0
         t = [_days(p["time"]) - t0 for p in pts]
         for q, sq, name in (("gps_hz", "gps_hz_sigma", "frequency_trend_hz"), ("damping", "damping_sigma", "damping_trend")):
-            mode[name] = weighted_trend(t, [_num(p[q]) for p in pts], [_num(p[sq]) for p in pts])
+            mode[name], mode[name + "_note"] = trend_fit(t, [_num(p[q]) for p in pts], [_num(p[sq]) for p in pts])
+            if not pts:
+                mode[name + "_note"] = f"{NO_SPREAD}: no session of this mode has a time"
         out.append(mode)
     return out
 
 
 def _num(v) -> float:
-    return float("nan") if v is None else float(v)
+    try:
+        return float("nan") if v is None else float(v)
+    except (TypeError, ValueError):
+        return float("nan")
+
+
+def finite_json(obj):
+    """``obj`` with every non-finite float (NaN, ±inf) replaced by None: batch.json stays strict JSON."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: finite_json(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [finite_json(v) for v in obj]
+    return obj
 
 
 def _days(iso: str) -> float:

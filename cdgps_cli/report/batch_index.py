@@ -18,11 +18,30 @@ def _f(v, fmt=".4f") -> str:
 
 
 def write_index(summary: dict, out: Path) -> None:
-    """Write ``out/index.html`` (and ``out/trends.png``) from the batch.json content ``summary``."""
+    """Write ``out/index.html`` (and ``out/trends.png``) from the batch.json content ``summary``.
+
+    A figure that cannot be drawn (values matplotlib refuses) is left out with its reason on the page:
+    the index of a finished campaign is always written.
+    """
     has_png = any(len(t["sessions"]) > 0 for t in summary["trends"])
+    why = None
     if has_png:
-        write_atomic(out / "trends.png", lambda p: _trend_figure(summary["trends"], p))
-    write_bytes_atomic(out / "index.html", _page(summary, has_png, out).encode())
+        try:
+            write_atomic(out / "trends.png", lambda p: _trend_figure(summary["trends"], p))
+        except (ValueError, TypeError, OverflowError, RuntimeError) as exc:
+            has_png, why = False, f"trends.png not drawn: {type(exc).__name__}: {exc}"
+    write_bytes_atomic(out / "index.html", _page(summary, has_png, out, why).encode())
+
+
+def _slope(fit, note) -> str:
+    """A trend cell: slope ± σ, or why there is none (\"not enough spread: …\")."""
+    if fit is None:
+        return html.escape(note or "–")
+    return f"{fit['slope_per_day']:+.3g} ± {fit['slope_sigma_per_day']:.2g}"
+
+
+def _finite(v) -> bool:
+    return isinstance(v, (int, float)) and v == v and abs(v) != float("inf")
 
 
 def _session_axis(trends: list) -> dict:
@@ -50,13 +69,13 @@ def _trend_figure(trends: list, path: Path) -> None:
     fig, (ax_f, ax_d) = plt.subplots(2, 1, figsize=(11, 7), sharex=True)
     when = _session_axis(trends)
     for t in trends:
-        pts = [p for p in t["sessions"] if p["gps_hz"] is not None]
+        pts = [p for p in t["sessions"] if _finite(p["gps_hz"])]
         ax_f.errorbar([when[p["session"]] for p in pts], [p["gps_hz"] for p in pts],
-                      yerr=[p["gps_hz_sigma"] or 0 for p in pts], fmt="o-", capsize=3,
-                      label=f"{t['mode']} (model {t['model_hz']:.3f} Hz)")
-        dp = [p for p in pts if p["damping"] is not None]
+                      yerr=[p["gps_hz_sigma"] if _finite(p["gps_hz_sigma"]) else 0 for p in pts], fmt="o-", capsize=3,
+                      label=f"{t['mode']} (model {_f(t['model_hz'], '.3f')} Hz)")
+        dp = [p for p in pts if _finite(p["damping"])]
         ax_d.errorbar([when[p["session"]] for p in dp], [p["damping"] for p in dp],
-                      yerr=[p["damping_sigma"] or 0 for p in dp], fmt="o-", capsize=3)
+                      yerr=[p["damping_sigma"] if _finite(p["damping_sigma"]) else 0 for p in dp], fmt="o-", capsize=3)
     ax_f.set_ylabel("frequency (Hz)")
     ax_d.set_ylabel("damping ratio ζ")
     ax_d.set_xlabel("session time (UTC)")
@@ -73,7 +92,7 @@ def _row(cells, tag="td") -> str:
     return "<tr>" + "".join(f"<{tag}>{c}</{tag}>" for c in cells) + "</tr>"
 
 
-def _page(summary: dict, has_png: bool, out: Path) -> str:
+def _page(summary: dict, has_png: bool, out: Path, why: str | None = None) -> str:
     e = html.escape
     c = summary["counts"]
     rows = []
@@ -83,16 +102,16 @@ def _page(summary: dict, has_png: bool, out: Path) -> str:
         seen = [m for m in s.get("modes", []) if m["seen"]]
         fixed = "–" if "integers_fixed" not in s else f"{s['integers_fixed']} of {s['integers']}"
         noise = None if s.get("noise_sigma_m") is None else s["noise_sigma_m"] * 1000
-        modes = ", ".join(f"{e(m['mode'])} {m['gps_hz']:.4f}±{_f(m['gps_hz_sigma'])}" for m in seen) or "–"
+        modes = ", ".join(f"{e(m['mode'])} {_f(m['gps_hz'])}±{_f(m['gps_hz_sigma'])}" for m in seen) or "–"
         rows.append(_row([name, e(s["time"] or "–"), e(s["status"]), f"{s['elapsed_s']:.1f}", fixed,
                           _f(s.get("nis_per_dof"), ".3f"), _f(noise, ".2f"), modes, e(s.get("error", ""))]))
     trend_rows = []
     for t in summary["trends"]:
         ft, dt = t["frequency_trend_hz"], t["damping_trend"]
-        trend_rows.append(_row([e(t["mode"]), f"{t['model_hz']:.4f}", str(len(t["sessions"])),
-                                "–" if ft is None else f"{ft['slope_per_day']:+.3g} ± {ft['slope_sigma_per_day']:.2g}",
+        trend_rows.append(_row([e(t["mode"]), _f(t["model_hz"]), str(len(t["sessions"])),
+                                _slope(ft, t.get("frequency_trend_hz_note")),
                                 "–" if ft is None else f"{ft['chi2_per_dof']:.2f}",
-                                "–" if dt is None else f"{dt['slope_per_day']:+.3g} ± {dt['slope_sigma_per_day']:.2g}"]))
+                                _slope(dt, t.get("damping_trend_note"))]))
     fail = "".join(f"<li><b>{e(f['session'])}</b>: <pre>{e(f['error'])}</pre></li>" for f in summary["failures"])
     return f"""<!DOCTYPE html>
 <html><head><meta charset="utf-8"><title>cdgps batch: {e(Path(summary['manifest']).name)}</title>
@@ -110,7 +129,7 @@ Numbers in <a href="batch.json">batch.json</a>.</p>
 weights 1/σ²; the slope's σ is from those weights (χ²/dof ≫ 1: the scatter exceeds the stated σ).</p>
 <table>{_row(['mode', 'model Hz', 'sessions', 'frequency slope (Hz/day)', 'χ²/dof', 'damping slope (1/day)'], 'th')}
 {''.join(trend_rows)}</table>
-{'<p><img src="trends.png" alt="mode trends"></p>' if has_png else ''}
+{'<p><img src="trends.png" alt="mode trends"></p>' if has_png else ''}{f'<p>{e(why)}</p>' if why else ''}
 <h2>Failures</h2>
 {f'<ul>{fail}</ul>' if fail else '<p>none</p>'}
 </body></html>

@@ -231,7 +231,7 @@ def test_a_task_failing_more_than_retries_is_reported_not_dropped(campaign, clie
     assert "injected failure of b/ingest" in (out / "index.html").read_text()
     r = CliRunner().invoke(main, ["batch", str(m), "-o", str(out), "--resume", "--retries", "1",
                                   "--scheduler", client.scheduler.address])
-    assert r.exit_code == 1 and "session b failed: ingest: InjectedFault: injected failure" in r.output
+    assert r.exit_code == 3 and "session b failed: ingest: InjectedFault: injected failure" in r.output
     _faults(campaign)                          # the fault gone, --resume does the session (scheduler file)
     # a scheduler file as `dask scheduler --scheduler-file` writes it (Client.write_scheduler_file fails on
     # this distributed version: tuple keys in its scheduler_info)
