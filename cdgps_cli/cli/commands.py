@@ -882,13 +882,18 @@ def report_spectrum(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad
 @main.command(short_help="Topics, dates, sampling, gaps, slips of an MCAP")
 @click.argument("mcap_file", type=click.Path(dir_okay=False))
 @click.option("--json", "as_json", is_flag=True, help="Print the full summary as JSON on stdout.")
+@click.option("--deep", is_flag=True,
+              help="Also decompress and decode every message (chunk CRCs, JSON) and check the file's summary "
+                   "record against them; without it the answer comes from the summary and metadata records "
+                   "after the file's CRC checks (docs/hardening.md, 'MCAP integrity').")
 @click.pass_context
-def info(ctx, mcap_file, as_json):
+def info(ctx, mcap_file, as_json, deep):
     """Topics, counts, time span, sampling, gaps, channels and slips of an MCAP file."""
     from cdgps_cli.pipeline.gnss_ingest import run_info
     from cdgps_cli.core.time_format import format_period
+    from cdgps_cli.io.mcap import INFO_METADATA
 
-    s = run_info(mcap_file)
+    s = run_info(mcap_file, deep=deep)
     if as_json:
         _emit_json(s)
         return
@@ -909,6 +914,8 @@ def info(ctx, mcap_file, as_json):
     if "gnss" in s:
         out.extend(_gnss_info_lines(s["gnss"]))
     for name, md in s["metadata"].items():
+        if name == INFO_METADATA:                 # what the lines above were made from
+            continue
         out.append(f"  metadata {name}: " + ", ".join(f"{k}={v if len(v) <= 60 else v[:57] + '…'}"
                                                      for k, v in sorted(md.items()) if not k.endswith(("sha256", "_integrity"))))
     _echo("\n".join(out))
