@@ -892,11 +892,15 @@ def report_spectrum(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad
 @click.pass_context
 def info(ctx, mcap_file, as_json, deep):
     """Topics, counts, time span, sampling, gaps, channels and slips of an MCAP file."""
-    from cdgps_cli.pipeline.gnss_ingest import run_info
     from cdgps_cli.core.time_format import format_period
     from cdgps_cli.io.mcap import INFO_METADATA
+    from cdgps_cli.io.run import summary_info
 
-    s = run_info(mcap_file, deep=deep)
+    s = None if deep else summary_info(mcap_file)         # the summary and records (no pandas, no numerics)
+    if s is None:                                          # older files, GNSS runs, --deep: every message
+        from cdgps_cli.pipeline.gnss_ingest import run_info
+
+        s = run_info(mcap_file, deep=deep)
     if as_json:
         _emit_json(s)
         return

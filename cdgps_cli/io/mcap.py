@@ -715,9 +715,9 @@ class _InputBoundedFile:
         return self._fh.read(left if n is None or n < 0 else min(n, left))
 
     def readinto(self, b) -> int:
-        data = self.read(len(b))
-        b[:len(data)] = data
-        return len(data)
+        left = max(self._size - self._fh.tell(), 0)
+        view = memoryview(b).cast("B")
+        return self._fh.readinto(view[:left] if len(view) > left else view)
 
 
 #: what the mcap reader and its decompressors raise on damaged bytes (zstd/lz4 data errors,

@@ -351,7 +351,7 @@ def run_info(path: str | Path, gnss_common_epochs=None, channel_summary=None, gn
     ``channels`` and ``slips`` are left out); for a GNSS run ``gnss_common_epochs`` and
     ``gnss_lock_summary`` (see :func:`cdgps_cli.io.gnss_run.gnss_run_info`)."""
     if not deep:
-        info = _summary_info(path, channel_summary is not None)
+        info = summary_info(path, channel_summary is not None)
         if info is not None:
             return info
     info, record = _decoded_info(path, gnss_common_epochs, channel_summary, gnss_lock_summary)
@@ -402,9 +402,11 @@ def _decoded_info(path, gnss_common_epochs, channel_summary, gnss_lock_summary) 
     return info, record
 
 
-def _summary_info(path, want_channels: bool) -> dict | None:
-    """:func:`run_info` from the summary and metadata records; None when the file cannot answer so
-    (no INFO_METADATA record of this format, a GNSS run, a structure part missing)."""
+def summary_info(path, want_channels: bool = True) -> dict | None:
+    """:func:`run_info` from the summary and metadata records (with ``channels`` and ``slips`` when
+    ``want_channels``); None when the file cannot answer so (no INFO_METADATA record of this format,
+    a GNSS run, a structure part missing).  Imports neither pandas nor the numerics, so
+    ``cdgps info`` starts fast."""
     from cdgps_cli.io.mcap import open_verified, read_attachment  # noqa: PLC0415
 
     with open_verified(path) as (_reader, fh, integrity, summary):
