@@ -318,6 +318,6 @@ def test_memory_bound_is_the_documented_one(dof2_cfg):
 def test_programming_errors_keep_their_traceback(base, monkeypatch):
     import cdgps_cli.io.run as run_mod
 
-    monkeypatch.setattr(run_mod, "run_info", lambda *a, **k: {}["missing"])
+    monkeypatch.setattr(run_mod, "summary_info", lambda *a, **k: {}["missing"])     # (info tries it first)
     r = _run("info", base / "RUN.mcap")
     assert r.exit_code == 1 and isinstance(r.exception, KeyError)
