@@ -357,9 +357,10 @@ def run_info(path: str | Path, gnss_common_epochs=None, channel_summary=None, gn
     info, record = _decoded_info(path, gnss_common_epochs, channel_summary, gnss_lock_summary)
     if deep and record is not None:
         _compare_record(path, info, record)
-    elif record is None:
-        print(f"cdgps: note: {path}: written without a {INFO_METADATA} record (before cdgps 0.1 of issue 29): "
-              f"read message by message (slow); written again by this cdgps, it is answered from its summary", file=sys.stderr, flush=True)
+    elif record is None and "gnss" not in info:        # (GNSS runs are always read message by message)
+        print(f"cdgps: note: {path}: written by an older cdgps, without a {INFO_METADATA} record: read message "
+              f"by message (slow); a file written by this version is answered from its summary",
+              file=sys.stderr, flush=True)
     return info
 
 

@@ -84,7 +84,7 @@ def test_older_files_are_read_message_by_message_with_a_note(tmp_path, capsys):
     assert INFO_METADATA not in read_metadata(tmp_path / "old.mcap")
     info = run_info(tmp_path / "old.mcap")
     assert info["topics"] and "channels" in info
-    assert f"{tmp_path / 'old.mcap'}: written without a {INFO_METADATA} record" in capsys.readouterr().err
+    assert f"{tmp_path / 'old.mcap'}: written by an older cdgps, without a {INFO_METADATA} record" in capsys.readouterr().err
 
 
 # ---- behind recomputed CRCs (a forger, or another tool) ---------------------------------------------
