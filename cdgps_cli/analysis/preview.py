@@ -13,7 +13,7 @@ Here the series is low-pass filtered first, then decimated:
   a causal filter would draw each oscillation about half a second late.  Being an FIR of finite
   length, the same result can be computed block by block with (taps − 1)/2 epochs of look-ahead;
 * computed only at the kept epochs (:func:`scipy.signal.upfirdn`), with the first and last values
-  repeated beyond the ends of the record.
+  repeated beyond the ends of the record (and of each run of complete epochs between missing ones).
 
 :func:`preview_stride_for_modes` picks the stride from the structure's highest mode, so that the
 mode lies inside the passband and is shown at its own frequency.
@@ -73,7 +73,8 @@ def anti_alias_decimate(x: np.ndarray, stride: int) -> np.ndarray:
     Parameters
     ----------
     x : ndarray (N, ...)
-        A series sampled at constant spacing (NaN-free for a meaningful result).
+        A series sampled at constant spacing.  Epochs with a NaN keep their value; each run of
+        complete epochs between them is filtered on its own (no NaN spreads over the filter's length).
     stride : int
         Keep every ``stride``-th epoch (1: ``x`` unchanged).
 
@@ -85,6 +86,18 @@ def anti_alias_decimate(x: np.ndarray, stride: int) -> np.ndarray:
     x = np.asarray(x, dtype=float)
     if stride <= 1 or x.shape[0] == 0:
         return x.copy()
+    out = x[::stride].copy()                             # epochs with a missing value: as they are
+    finite = np.isfinite(x.reshape(x.shape[0], -1)).all(axis=1)
+    edges = np.flatnonzero(np.diff(np.r_[0, finite.astype(np.int8), 0]))
+    for a, b in zip(edges[::2], edges[1::2]):            # each run of complete epochs on its own
+        k0 = -(-a // stride) * stride                    # its first kept epoch
+        if k0 < b:
+            out[k0 // stride:k0 // stride + len(range(k0, b, stride))] = _filtered(x[k0:b], stride)
+    return out
+
+
+def _filtered(x: np.ndarray, stride: int) -> np.ndarray:
+    """:func:`anti_alias_decimate` of a NaN-free series (its ends repeated beyond the record)."""
     from scipy.signal import upfirdn  # noqa: PLC0415
 
     h = preview_filter(stride)

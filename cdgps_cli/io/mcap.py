@@ -846,26 +846,40 @@ def check_indexes(fh, summary, path, chunk_crcs: bool = False) -> IndexCounts:
         if start < prev_end or end + ci.message_index_length > data_end:
             raise bad(f"chunk at byte {start} overlaps another record or lies outside the data section")
         prev_end = end + ci.message_index_length
-        comp = ci.compression.encode()
-        fh.seek(start)
-        head = fh.read(_CHUNK_HEAD.size + 4 + len(comp) + 8)
-        op, length, t0, t1, usize, crc = _CHUNK_HEAD.unpack_from(head)
-        n = struct.unpack_from("<I", head, _CHUNK_HEAD.size)[0]
-        rec_len = struct.unpack_from("<Q", head, _CHUNK_HEAD.size + 4 + len(comp))[0]
-        if (op != _OP_CHUNK or length != ci.chunk_length - 9 or (t0, t1) != (ci.message_start_time, ci.message_end_time)
-                or usize != ci.uncompressed_size or n != len(comp) or head[_CHUNK_HEAD.size + 4:][:n] != comp
-                or rec_len != ci.compressed_size or len(head) + rec_len != ci.chunk_length):
-            raise bad(f"chunk at byte {start} differs from its chunk index")
+        records_at, crc = _chunk_header(fh, ci, bad)
         fh.seek(end)
-        raw = fh.read(ci.message_index_length)
-        found = _message_indexes(raw, end, ci, summary, bad)
+        found = _message_indexes(fh.read(ci.message_index_length), end, ci, summary, bad)
         if chunk_crcs:
-            _check_chunk(fh, start + len(head), rec_len, ci, crc, found, bad)
+            _check_chunk(fh, records_at, ci.compressed_size, ci, crc, found, bad)
         for cid, (log_ns, _offsets) in found.items():
             if log_ns.size:
                 counts[cid] = counts.get(cid, 0) + int(log_ns.size)
                 first[cid] = min(first.get(cid, log_ns.min()), log_ns.min())
                 last[cid] = max(last.get(cid, log_ns.max()), log_ns.max())
+    _check_statistics(st, summary, counts, first, last, bad)
+    return IndexCounts(counts, {k: int(v) for k, v in first.items()}, {k: int(v) for k, v in last.items()})
+
+
+def _chunk_header(fh, ci, bad) -> tuple:
+    """Check a Chunk record's header against its chunk index; returns (offset of its compressed
+    records, its CRC)."""
+    comp = ci.compression.encode()
+    fh.seek(ci.chunk_start_offset)
+    head = fh.read(_CHUNK_HEAD.size + 4 + len(comp) + 8)
+    if len(head) < _CHUNK_HEAD.size + 4 + len(comp) + 8:
+        raise bad(f"chunk at byte {ci.chunk_start_offset} is truncated")
+    op, length, t0, t1, usize, crc = _CHUNK_HEAD.unpack_from(head)
+    n = struct.unpack_from("<I", head, _CHUNK_HEAD.size)[0]
+    rec_len = struct.unpack_from("<Q", head, _CHUNK_HEAD.size + 4 + len(comp))[0]
+    if (op != _OP_CHUNK or length != ci.chunk_length - 9 or (t0, t1) != (ci.message_start_time, ci.message_end_time)
+            or usize != ci.uncompressed_size or n != len(comp) or head[_CHUNK_HEAD.size + 4:][:n] != comp
+            or rec_len != ci.compressed_size or len(head) + rec_len != ci.chunk_length):
+        raise bad(f"chunk at byte {ci.chunk_start_offset} differs from its chunk index")
+    return ci.chunk_start_offset + len(head), crc
+
+
+def _check_statistics(st, summary, counts: dict, first: dict, last: dict, bad) -> None:
+    """The Statistics record against the message indexes (counts, first and last log time) and the summary."""
     total = sum(counts.values())
     stated = {cid: int(k) for cid, k in st.channel_message_counts.items() if k}
     if stated != counts or st.message_count != total:
@@ -879,7 +893,6 @@ def check_indexes(fh, summary, path, chunk_crcs: bool = False) -> IndexCounts:
             raise bad(f"Statistics {k} {getattr(st, k)} but the summary lists {v}")
     if total and (st.message_start_time, st.message_end_time) != (min(first.values()), max(last.values())):
         raise bad("Statistics message start/end times differ from the message indexes")
-    return IndexCounts(counts, {k: int(v) for k, v in first.items()}, {k: int(v) for k, v in last.items()})
 
 
 def _message_indexes(raw: bytes, at: int, ci, summary, bad) -> dict:

@@ -115,3 +115,16 @@ def test_anti_alias_decimate_is_zero_phase_and_keeps_the_passband():
         assert y.shape == (len(range(0, t.size, k)), 1)
         np.testing.assert_allclose(y[20:-20, 0], x[::k][20:-20, 0], atol=2e-3)   # no delay, passband gain 1
     np.testing.assert_array_equal(anti_alias_decimate(x, 1), x)
+
+
+def test_anti_alias_decimate_keeps_missing_epochs_local():
+    """A NaN epoch stays NaN in the preview and does not spread over the filter's length."""
+    t = np.arange(3000) * 0.1
+    x = np.sin(2 * np.pi * 0.3 * t)[:, None]
+    x[1003] = np.nan
+    y = anti_alias_decimate(x, 10)
+    assert np.isfinite(y).all()                                  # 1003 is not a kept epoch
+    x[1000] = np.nan
+    y = anti_alias_decimate(x, 10)
+    assert np.isnan(y[100, 0]) and np.isfinite(np.delete(y, 100)).all()
+    np.testing.assert_allclose(y[25:75, 0], x[::10][25:75, 0], atol=2e-3)      # away from the run's ends
