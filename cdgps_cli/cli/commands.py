@@ -553,9 +553,12 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
                    "of the estimate (what evaluate's NEES, export --points and report static use; the forward "
                    "filter of a --smooth run: its 1-sigma only); full = also the rates xidot of every epoch, the "
                    "whole state covariance P of both series, and P_xi in the JSON messages.")
-@click.option("--foxglove-rate-hz", type=float, default=_STATES_PREVIEW_RATE_HZ, show_default=True,
+@click.option("--foxglove-rate-hz", type=float, default=None,
               help="Rate of the Foxglove JSON channels (/cdgps/state, angles_deg, residuals), Hz; 0: every epoch "
-                   "(slow to write, large). The packed arrays that cdgps reads hold every epoch.")
+                   "(slow to write, large). Default: from the config's highest mode (at least "
+                   f"{_STATES_PREVIEW_RATE_HZ:g} Hz, the mode inside the preview's passband). The motion is "
+                   "low-pass filtered before decimation, so no mode shows at a false frequency. The packed "
+                   "arrays that cdgps reads hold every epoch.")
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="STATES.mcap to write.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
@@ -563,7 +566,7 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
              output, as_json, rest=(), rest_process_noise_scale=ESTIMATE_DEFAULTS["rest_process_noise_scale"],
              rest_retry_s=ESTIMATE_DEFAULTS["rest_retry_s"], structure=None, x_axis_azimuth_deg=X_AXIS_AZIMUTH_DEG,
              receiver_map=(), rest_window_s=3.0, rest_dwell_s=2.0, allow_other_run=False,
-             covariance=_STATES_DEFAULT_COVARIANCE, foxglove_rate_hz=_STATES_PREVIEW_RATE_HZ):
+             covariance=_STATES_DEFAULT_COVARIANCE, foxglove_rate_hz=None):
     """Extended Kalman filter (Eq. 16-23) [+ RTS smoother] over a RUN from INIT → STATES.mcap.
 
     On a GNSS run: per-epoch rover displacement states <ant>_e/_n/_u with 1σ from INIT's
@@ -585,7 +588,7 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
                            structure=structure, x_axis_azimuth_deg=x_axis_azimuth_deg, receiver_map=receiver_map,
                            allow_other_run=allow_other_run)
         return
-    if not (foxglove_rate_hz >= 0 and math.isfinite(foxglove_rate_hz)):
+    if foxglove_rate_hz is not None and not (foxglove_rate_hz >= 0 and math.isfinite(foxglove_rate_hz)):
         raise CdgpsError(f"--foxglove-rate-hz must be a finite rate >= 0 (0: every epoch), got {foxglove_rate_hz:g}")
     if structure is not None or receiver_map:
         raise CdgpsError("--structure/--receiver apply to GNSS runs (from 'cdgps ingest --rinex/--ubx'); a structure "
@@ -902,13 +905,22 @@ def report_spectrum(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad
 @main.command(short_help="Topics, dates, sampling, gaps, slips of an MCAP")
 @click.argument("mcap_file", type=click.Path(dir_okay=False))
 @click.option("--json", "as_json", is_flag=True, help="Print the full summary as JSON on stdout.")
+@click.option("--deep", is_flag=True,
+              help="Also decompress and decode every message (chunk CRCs, JSON) and check the file's summary "
+                   "record against them; without it the answer comes from the summary and metadata records "
+                   "after the file's CRC checks (docs/hardening.md, 'MCAP integrity').")
 @click.pass_context
-def info(ctx, mcap_file, as_json):
+def info(ctx, mcap_file, as_json, deep):
     """Topics, counts, time span, sampling, gaps, channels and slips of an MCAP file."""
-    from cdgps_cli.pipeline.gnss_ingest import run_info
     from cdgps_cli.core.time_format import format_period
+    from cdgps_cli.io.mcap import INFO_METADATA
+    from cdgps_cli.io.run import summary_info
 
-    s = run_info(mcap_file)
+    s = None if deep else summary_info(mcap_file)         # the summary and records (no pandas, no numerics)
+    if s is None:                                          # older files, GNSS runs, --deep: every message
+        from cdgps_cli.pipeline.gnss_ingest import run_info
+
+        s = run_info(mcap_file, deep=deep)
     if as_json:
         _emit_json(s)
         return
@@ -929,6 +941,8 @@ def info(ctx, mcap_file, as_json):
     if "gnss" in s:
         out.extend(_gnss_info_lines(s["gnss"]))
     for name, md in s["metadata"].items():
+        if name == INFO_METADATA:                 # what the lines above were made from
+            continue
         out.append(f"  metadata {name}: " + ", ".join(f"{k}={v if len(v) <= 60 else v[:57] + '…'}"
                                                      for k, v in sorted(md.items()) if not k.endswith(("sha256", "_integrity"))))
     _echo("\n".join(out))

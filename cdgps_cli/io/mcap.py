@@ -52,6 +52,14 @@ from cdgps_cli.core.table import Table
 from cdgps_cli.io.mcap_integrity import RECORD_SHA256_KEY, check_records, record_sha256, verify_file, warn_once
 from cdgps_cli.core.timescales import RELATIVE_EPOCH_UTC, TIME_SCALES, unix_ns
 
+INFO_METADATA = "cdgps.info"
+"""Metadata record :class:`McapOut` writes into every file: ``format`` (:data:`INFO_FORMAT`),
+``topics`` (JSON: per topic with messages ``messages``, ``start_s``, ``end_s``, ``median_period_s``,
+:func:`time_summary` of the messages' ``time_s``) and what the writer adds
+(:attr:`McapOut.info_extra`, e.g. ``structure`` in a RUN, :func:`cdgps_cli.io.run.write_run`).
+``cdgps info`` answers from it and the summary section without reading the messages
+(:func:`cdgps_cli.io.run.run_info`)."""
+INFO_FORMAT = "1"
 PHASE_TOPIC = "/cdgps/phase"
 GYRO_TOPIC = "/cdgps/gyro"
 ACTUATOR_TOPIC = "/cdgps/actuators"
@@ -67,6 +75,16 @@ NULLABLE = "number|null"
 ``number`` array plus its boolean ``<field>_valid`` array; as a scalar, a ``number`` that is left
 out of the messages where it is missing."""
 VALID_SUFFIX = "_valid"
+
+
+def time_summary(time_s, sources=None) -> dict:
+    """``start_s``, ``end_s`` (min, max; None when empty) and ``median_period_s``
+    (:func:`cdgps_cli.core.time_format.median_spacing_s`) of a topic's message times, s."""
+    from cdgps_cli.core.time_format import median_spacing_s  # noqa: PLC0415
+
+    t = np.asarray(time_s, dtype=float)
+    start, end = (float(np.min(t)), float(np.max(t))) if t.size else (None, None)
+    return {"start_s": start, "end_s": end, "median_period_s": median_spacing_s(t, sources)}
 
 
 def message_schema(title: str, properties: dict, description: str | None = None) -> dict:
@@ -209,6 +227,11 @@ class McapOut:
         self._nullable: dict[int, tuple] = {}
         self._packer = None                      # pack_in_background: the worker, and what it packs
         self._deferred: list = []
+        self._topic: dict[int, str] = {}
+        self._times: dict[int, array] = {}       # per channel: each message's time_s (for INFO_METADATA)
+        self._sources: dict[int, list] = {}      # per channel: each message's scalar ``receiver`` (or None)
+        self.info_extra: dict[str, str] = {}
+        """Further entries of the :data:`INFO_METADATA` record (e.g. a RUN's gaps and channels)."""
 
     def __enter__(self) -> "McapOut":
         try:
@@ -244,6 +267,8 @@ class McapOut:
                                            schema_id=self._schemas[title][0], metadata=meta)
         self._seq[cid] = 0
         self._nullable[cid] = _nullable_fields(schema)
+        self._topic[cid] = topic
+        self._times[cid] = array("d")
         return cid
 
     def write(self, channel_id: int, time_s: float, payload: dict) -> None:
@@ -260,6 +285,35 @@ class McapOut:
         if data is None:
             data = self._encode(msg, payload, arrays, others, time_s)
         self._add(channel_id, ns, data)
+        self._note(channel_id, msg["time_s"], payload.get("receiver"))
+
+    def _note(self, channel_id: int, time_s: float, receiver) -> None:
+        """Remember a message's time (and scalar ``receiver``) for :data:`INFO_METADATA`."""
+        times = self._times[channel_id]
+        src = self._sources.get(channel_id)
+        scalar = None if isinstance(receiver, list) or _missing(receiver) else receiver
+        if src is None and scalar is not None:
+            src = self._sources[channel_id] = [None] * len(times)
+        if src is not None:
+            src.append(scalar)
+        times.append(time_s)
+
+    def _write_info(self) -> None:
+        """The :data:`INFO_METADATA` record: per topic with messages its span and sampling period
+        (what ``cdgps info`` shows, without reading the messages back), plus :attr:`info_extra`."""
+        topics: dict[str, dict] = {}
+        for cid, times in self._times.items():
+            if len(times):
+                t, src = topics.setdefault(self._topic[cid], {"t": [], "src": []}), self._sources.get(cid)
+                t["t"].append(np.frombuffer(times, dtype=float))
+                t["src"].append(src if src is not None else [None] * len(times))
+        out = {}
+        for topic, d in sorted(topics.items()):
+            t = np.concatenate(d["t"])
+            src = [s for part in d["src"] for s in part]
+            out[topic] = {"messages": int(t.size), **time_summary(t, src if any(s is not None for s in src) else None)}
+        self.metadata(INFO_METADATA, {"format": INFO_FORMAT, "topics": json.dumps(out, sort_keys=True),
+                                      **self.info_extra})
 
     def _add(self, channel_id: int, ns: int, data: bytes) -> None:
         self.writer.add_message(channel_id=channel_id, log_time=ns, publish_time=ns, data=data,
@@ -444,6 +498,7 @@ class McapOut:
         try:
             if exc_type is None:
                 self.write_packed()              # attachments still packing in the background
+                self._write_info()
                 self.writer.finish()
             self._fh.close()
             if exc_type is None:
@@ -660,9 +715,9 @@ class _InputBoundedFile:
         return self._fh.read(left if n is None or n < 0 else min(n, left))
 
     def readinto(self, b) -> int:
-        data = self.read(len(b))
-        b[:len(data)] = data
-        return len(data)
+        left = max(self._size - self._fh.tell(), 0)
+        view = memoryview(b).cast("B")
+        return self._fh.readinto(view[:left] if len(view) > left else view)
 
 
 #: what the mcap reader and its decompressors raise on damaged bytes (zstd/lz4 data errors,
@@ -730,3 +785,194 @@ def read_mcap(path: str | Path, topics: list[str] | None = None) -> McapContents
         attachments = {a.name: bytes(a.data) for a in reader.iter_attachments()}
         channels = frozenset(ch.topic for ch in summary.channels.values())
     return McapContents(str(p), cols, attachments, info.metadata, schemas, encodings, chan_meta, channels)
+
+
+_OP_CHUNK, _OP_MESSAGE_INDEX, _OP_MESSAGE = int(Opcode.CHUNK), int(Opcode.MESSAGE_INDEX), int(Opcode.MESSAGE)
+_CHUNK_HEAD = struct.Struct("<BQQQQI")        # opcode, length, message start/end time, uncompressed size, crc
+
+
+@dataclass
+class IndexCounts:
+    """What :func:`check_indexes` read from the message indexes: per channel id the number of
+    messages and the first and last log time (Unix ns)."""
+
+    messages: dict
+    first_ns: dict
+    last_ns: dict
+
+
+def check_indexes(fh, summary, path, chunk_crcs: bool = False) -> IndexCounts:
+    """Check the summary's indexes and statistics against the file without decoding a message.
+
+    Every chunk index must point at a Chunk record inside the data section whose header (times,
+    sizes, compression) it repeats, chunks must not overlap, and each chunk's Message Index records
+    must sit where the chunk index says, name known channels and list offsets inside the chunk and
+    log times inside its time range; the Statistics record must agree with all of them (message,
+    chunk, channel, schema, attachment and metadata counts; per-channel counts; first and last log
+    time).  With ``chunk_crcs`` every chunk is also decompressed and its CRC checked, and each
+    indexed offset must hold a Message record of that channel and log time (the check the data-section
+    CRC makes redundant for a file that has one: cdgps then leaves it to ``cdgps info --deep``).
+
+    Parameters
+    ----------
+    fh : binary file
+        The open, already verified file (:func:`open_verified`).
+    summary : mcap Summary
+    path : path
+        Named in the errors.
+    chunk_crcs : bool
+        Decompress every chunk and check its CRC and message offsets.
+
+    Raises
+    ------
+    CdgpsError
+        Naming the file and the inconsistent record.
+    """
+    def bad(what: str) -> CdgpsError:
+        return CdgpsError(f"{path}: MCAP index check failed: {what} (corrupt file)")
+
+    st = summary.statistics
+    if st is None:
+        raise bad("no Statistics record in the summary")
+    size = os.fstat(fh.fileno()).st_size
+    fh.seek(size - 8 - 4 - 8 - 8)
+    data_end = struct.unpack("<Q", fh.read(8))[0] - 13          # footer's summary start − Data End record
+    counts: dict = {}
+    first: dict = {}
+    last: dict = {}
+    prev_end = len(b"\x89MCAP0\r\n")
+    for ci in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
+        start, end = ci.chunk_start_offset, ci.chunk_start_offset + ci.chunk_length
+        if start < prev_end or end + ci.message_index_length > data_end:
+            raise bad(f"chunk at byte {start} overlaps another record or lies outside the data section")
+        prev_end = end + ci.message_index_length
+        records_at, crc = _chunk_header(fh, ci, bad)
+        fh.seek(end)
+        found = _message_indexes(fh.read(ci.message_index_length), end, ci, summary, bad)
+        if chunk_crcs:
+            _check_chunk(fh, records_at, ci.compressed_size, ci, crc, found, bad)
+        for cid, (log_ns, _offsets) in found.items():
+            if log_ns.size:
+                counts[cid] = counts.get(cid, 0) + int(log_ns.size)
+                first[cid] = min(first.get(cid, log_ns.min()), log_ns.min())
+                last[cid] = max(last.get(cid, log_ns.max()), log_ns.max())
+    _check_statistics(st, summary, counts, first, last, bad)
+    return IndexCounts(counts, {k: int(v) for k, v in first.items()}, {k: int(v) for k, v in last.items()})
+
+
+def _chunk_header(fh, ci, bad) -> tuple:
+    """Check a Chunk record's header against its chunk index; returns (offset of its compressed
+    records, its CRC)."""
+    comp = ci.compression.encode()
+    fh.seek(ci.chunk_start_offset)
+    head = fh.read(_CHUNK_HEAD.size + 4 + len(comp) + 8)
+    if len(head) < _CHUNK_HEAD.size + 4 + len(comp) + 8:
+        raise bad(f"chunk at byte {ci.chunk_start_offset} is truncated")
+    op, length, t0, t1, usize, crc = _CHUNK_HEAD.unpack_from(head)
+    n = struct.unpack_from("<I", head, _CHUNK_HEAD.size)[0]
+    rec_len = struct.unpack_from("<Q", head, _CHUNK_HEAD.size + 4 + len(comp))[0]
+    if (op != _OP_CHUNK or length != ci.chunk_length - 9 or (t0, t1) != (ci.message_start_time, ci.message_end_time)
+            or usize != ci.uncompressed_size or n != len(comp) or head[_CHUNK_HEAD.size + 4:][:n] != comp
+            or rec_len != ci.compressed_size or len(head) + rec_len != ci.chunk_length):
+        raise bad(f"chunk at byte {ci.chunk_start_offset} differs from its chunk index")
+    return ci.chunk_start_offset + len(head), crc
+
+
+def _check_statistics(st, summary, counts: dict, first: dict, last: dict, bad) -> None:
+    """The Statistics record against the message indexes (counts, first and last log time) and the summary."""
+    total = sum(counts.values())
+    stated = {cid: int(k) for cid, k in st.channel_message_counts.items() if k}
+    if stated != counts or st.message_count != total:
+        raise bad(f"Statistics counts ({st.message_count} messages, per channel {stated}) differ from the "
+                  f"message indexes ({total}, {counts})")
+    expected = {"chunk_count": len(summary.chunk_indexes), "channel_count": len(summary.channels),
+                "schema_count": len(summary.schemas), "attachment_count": len(summary.attachment_indexes),
+                "metadata_count": len(summary.metadata_indexes)}
+    for k, v in expected.items():
+        if getattr(st, k) != v:
+            raise bad(f"Statistics {k} {getattr(st, k)} but the summary lists {v}")
+    if total and (st.message_start_time, st.message_end_time) != (min(first.values()), max(last.values())):
+        raise bad("Statistics message start/end times differ from the message indexes")
+
+
+def _message_indexes(raw: bytes, at: int, ci, summary, bad) -> dict:
+    """Parse a chunk's Message Index records: ``{channel id: (log times, offsets)}`` (uint64 arrays)."""
+    out, pos, where = {}, 0, {}
+    while pos < len(raw):
+        if len(raw) - pos < 15 or raw[pos] != _OP_MESSAGE_INDEX:
+            raise bad(f"damaged message index at byte {at + pos}")
+        length, cid, nbytes = struct.unpack_from("<QHI", raw, pos + 1)
+        if length != 2 + 4 + nbytes or nbytes % 16 or pos + 9 + length > len(raw) or cid in out:
+            raise bad(f"damaged message index at byte {at + pos}")
+        if cid not in summary.channels:
+            raise bad(f"message index at byte {at + pos} names channel {cid}, which the summary does not list")
+        pairs = np.frombuffer(raw, dtype="<u8", count=nbytes // 8, offset=pos + 15).reshape(-1, 2)
+        log_ns, offsets = pairs[:, 0], pairs[:, 1]
+        if log_ns.size and (log_ns.min() < ci.message_start_time or log_ns.max() > ci.message_end_time
+                            or offsets.max() >= ci.uncompressed_size):
+            raise bad(f"message index at byte {at + pos} lists messages outside its chunk")
+        where[cid] = at + pos
+        out[cid] = (log_ns, offsets)
+        pos += 9 + length
+    if where != dict(ci.message_index_offsets):
+        raise bad(f"the chunk index of the chunk at byte {ci.chunk_start_offset} does not match its message indexes")
+    return out
+
+
+def _check_chunk(fh, records_at: int, rec_len: int, ci, crc: int, found: dict, bad) -> None:
+    """Decompress one chunk, check its CRC and that every indexed offset holds a Message record of
+    the indexed channel and log time."""
+    fh.seek(records_at)
+    comp = fh.read(rec_len)
+    try:
+        if ci.compression == "zstd":
+            data = zstandard.ZstdDecompressor().decompress(comp, max_output_size=ci.uncompressed_size)
+        elif ci.compression == "":
+            data = comp
+        else:                                               # another writer's lz4 (as the mcap reader)
+            import lz4.frame  # noqa: PLC0415
+
+            data = lz4.frame.decompress(comp)
+    except Exception as exc:  # noqa: BLE001 (any decompressor error is damage)
+        raise bad(f"chunk at byte {ci.chunk_start_offset} does not decompress ({type(exc).__name__})") from None
+    if len(data) != ci.uncompressed_size or (crc != 0 and zlib.crc32(data) != crc):
+        raise bad(f"chunk at byte {ci.chunk_start_offset} fails its CRC check")
+    buf = np.frombuffer(data, dtype=np.uint8)
+    for cid, (log_ns, offsets) in found.items():
+        off = offsets.astype(np.int64)
+        if off.size == 0:
+            continue
+        if (off + 9 + 14 > buf.size).any() or (buf[off] != _OP_MESSAGE).any():
+            raise bad(f"message index of the chunk at byte {ci.chunk_start_offset} points outside its Message records")
+        ch = buf[off + 9].astype(np.uint16) | (buf[off + 10].astype(np.uint16) << 8)
+        t = np.zeros(off.size, dtype=np.uint64)
+        for k in range(8):
+            t |= buf[off + 15 + k].astype(np.uint64) << np.uint64(8 * k)
+        if (ch != cid).any() or (t != log_ns).any():
+            raise bad(f"message index of the chunk at byte {ci.chunk_start_offset} disagrees with its Message records")
+
+
+def read_attachment(fh, summary, name: str, path) -> bytes:
+    """The data of the attachment ``name`` (the last of that name, as :func:`read_mcap` keeps),
+    read through its index entry alone; its record framing and CRC (when not 0) are checked."""
+    idx = [a for a in summary.attachment_indexes if a.name == name][-1]
+    fh.seek(idx.offset)
+    raw = fh.read(idx.length)
+    try:
+        op, length, _lt, _ct, n = struct.unpack_from("<BQQQI", raw)
+        pos = 1 + 8 + 8 + 8 + 4
+        got_name = raw[pos:pos + n].decode("utf-8")
+        pos += n
+        m = struct.unpack_from("<I", raw, pos)[0]
+        pos += 4 + m
+        size = struct.unpack_from("<Q", raw, pos)[0]
+        pos += 8
+        data, stored = raw[pos:pos + size], struct.unpack_from("<I", raw, pos + size)[0]
+    except (struct.error, UnicodeDecodeError):
+        raise CdgpsError(f"{path}: attachment {name!r} is truncated or damaged (corrupt file)") from None
+    if (op != int(Opcode.ATTACHMENT) or length + 9 != idx.length or got_name != name or size != idx.data_size
+            or pos + size + 4 != len(raw)):
+        raise CdgpsError(f"{path}: attachment {name!r} differs from its index entry (corrupt file)")
+    if stored != 0 and zlib.crc32(raw[9:pos + size]) != stored:
+        raise CdgpsError(f"{path}: attachment {name!r} fails its CRC check (corrupt file)")
+    return data

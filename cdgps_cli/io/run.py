@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import io
 import json
+import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -26,9 +28,11 @@ from cdgps_cli.config.structure import StructureConfig, parse_config
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.records import Run
 from cdgps_cli.core.table import Deferred, Table
-from cdgps_cli.core.time_format import format_time, median_spacing_s, time_scale
-from cdgps_cli.io.mcap import (ACTUATOR_SCHEMA, ACTUATOR_TOPIC, CONFIG_ATTACHMENT, GYRO_SCHEMA, GYRO_TOPIC,
-                      PHASE_SCHEMA, PHASE_TOPIC, McapOut, TopicColumns, read_mcap)
+from cdgps_cli.core.time_format import format_time, time_scale
+from cdgps_cli.core.timescales import unix_ns
+from cdgps_cli.io.mcap import (ACTUATOR_SCHEMA, ACTUATOR_TOPIC, CONFIG_ATTACHMENT, GYRO_SCHEMA, GYRO_TOPIC, INFO_FORMAT,
+                      INFO_METADATA, PHASE_SCHEMA, PHASE_TOPIC, McapOut, TopicColumns, check_indexes, read_mcap,
+                      time_summary)
 
 PHASE_ARRAYS = ["receiver", "antenna", "transmitter", "phase_cycles", "lock", "snr_dbhz"]
 GYRO_ARRAYS = "arrays/cdgps/gyro/"
@@ -61,6 +65,10 @@ def _gyro_from_attachments(att: dict) -> Table | None:
 
 
 INGEST_METADATA = "cdgps.ingest"
+INFO_STRUCTURE_KEY = "structure"
+"""Key of a structure RUN's :data:`~cdgps_cli.io.mcap.INFO_METADATA` record: JSON ``{"gaps": [...],
+"channels": [...]}`` (:func:`epoch_gaps` and the ``channel_summary`` given to :func:`write_run`),
+what ``cdgps info`` shows of the phase table without decoding it."""
 RUN_KINDS = ("structure", "gnss")
 
 
@@ -250,6 +258,9 @@ def write_run(cfg: StructureConfig, receiver_csv: str | Path, out_path: str | Pa
             n_act = out.write_table(out.channel(ACTUATOR_TOPIC, ACTUATOR_SCHEMA, {"units": "N"}), act, ["actuator", "force_n"])
         out.attach(CONFIG_ATTACHMENT, cfg.text.encode("utf-8"), "application/toml")
         out.metadata(INGEST_METADATA, meta)
+        gaps = epoch_gaps(phase["time_s"], cfg.sample_period_s)
+        chans = None if channel_summary is None else channel_summary(phase, cfg.sample_period_s)
+        out.info_extra[INFO_STRUCTURE_KEY] = json.dumps({"gaps": gaps, **({} if chans is None else {"channels": chans})})
     t = phase["time_s"]
     a_codes, _ = phase.codes("antenna")
     x_codes, x_names = phase.codes("transmitter")
@@ -261,10 +272,9 @@ def write_run(cfg: StructureConfig, receiver_csv: str | Path, out_path: str | Pa
         "gyro_rows": int(0 if gyro is None else len(gyro)), "gyro_messages": n_gyro,
         "actuator_rows": int(0 if act is None else len(act)), "actuator_messages": n_act,
         "start_s": float(t[0]), "end_s": float(t[-1]),
-        "gaps": epoch_gaps(t, cfg.sample_period_s),
+        "gaps": gaps,
         "channels": int(np.unique(a_codes.astype(np.int64) * len(x_names) + x_codes).size),
-        "lock_restarts": (None if channel_summary is None else
-                          sum(len(c["lock_restarts_s"]) for c in channel_summary(phase, cfg.sample_period_s))),
+        "lock_restarts": None if chans is None else sum(len(c["lock_restarts_s"]) for c in chans),
     }
 
 
@@ -321,28 +331,63 @@ def _phase_table(tc: TopicColumns, path="RUN.mcap") -> Table:
         raise CdgpsError(f"{path}: damaged {PHASE_TOPIC} messages: {exc}") from None
 
 
-def run_info(path: str | Path, gnss_common_epochs=None, channel_summary=None, gnss_lock_summary=None) -> dict:
-    """Summary of a RUN.mcap for ``cdgps info``: topics, counts, span, sampling, gaps, channels, slips.
+def run_info(path: str | Path, gnss_common_epochs=None, channel_summary=None, gnss_lock_summary=None,
+             deep: bool = False) -> dict:
+    """Summary of a RUN.mcap (or any cdgps MCAP) for ``cdgps info``: topics, counts, span, sampling,
+    gaps, channels, slips.
+
+    The answer comes from the summary section and the metadata records (:data:`~cdgps_cli.io.mcap.INFO_METADATA`,
+    written by every cdgps writer) without decoding a message, after the same integrity checks as
+    every reader (:func:`~cdgps_cli.io.mcap.open_verified`: magic, footer, summary and data-section
+    CRCs, metadata checksums) plus :func:`~cdgps_cli.io.mcap.check_indexes` (chunk and message
+    indexes against the statistics and the record; chunk CRCs too when the file has no data-section
+    CRC).  GNSS runs and files written before the record are read message by message (a note on
+    stderr for the latter).  ``deep``: always decode every message (chunk CRCs, JSON of each
+    message), and refuse a file whose record disagrees with its messages.
 
     The model's counts come from functions the stage :func:`cdgps_cli.pipeline.gnss_ingest.run_info`
     passes (``io`` imports no numerics): ``channel_summary(phase, sample_period_s)`` each
     structure channel's rows, span and lock restarts (the one lock-segment rule; without it
     ``channels`` and ``slips`` are left out); for a GNSS run ``gnss_common_epochs`` and
     ``gnss_lock_summary`` (see :func:`cdgps_cli.io.gnss_run.gnss_run_info`)."""
+    if not deep:
+        info = summary_info(path, channel_summary is not None)
+        if info is not None:
+            return info
+    info, record = _decoded_info(path, gnss_common_epochs, channel_summary, gnss_lock_summary)
+    if deep and record is not None:
+        _compare_record(path, info, record)
+    elif record is None and "gnss" not in info:        # (GNSS runs are always read message by message)
+        print(f"cdgps: note: {path}: written by an older cdgps, without a {INFO_METADATA} record: read message "
+              f"by message (slow); a file written by this version is answered from its summary",
+              file=sys.stderr, flush=True)
+    return info
+
+
+def _topic_entry(topic: str, schema, encoding: str, count: int, span: dict, scale: str) -> dict:
+    return {"topic": topic, "schema": schema[0], "schema_encoding": schema[1], "message_encoding": encoding,
+            "messages": count, "start_s": span["start_s"], "end_s": span["end_s"], "time_scale": scale,
+            "start": format_time(span["start_s"], scale), "end": format_time(span["end_s"], scale),
+            "median_period_s": span["median_period_s"]}
+
+
+def _slips(chans: list) -> list:
+    out = [{"antenna": ch["antenna"], "transmitter": ch["transmitter"], "time_s": t, "kind": kind}
+           for ch in chans for t, kind in zip(ch["lock_restarts_s"], ch["lock_restart_kinds"])]
+    out.sort(key=lambda r: (r["time_s"], r["antenna"], r["transmitter"]))
+    return out
+
+
+def _decoded_info(path, gnss_common_epochs, channel_summary, gnss_lock_summary) -> tuple:
+    """:func:`run_info` from every message decoded; also the file's INFO_METADATA record (or None)."""
     c = read_mcap(path)
+    record = c.metadata.get(INFO_METADATA)
     info = {"file": str(path), "topics": [], "metadata": c.metadata,
             "attachments": sorted(c.attachments)}
     for topic, msgs in sorted(c.topics.items()):
         t = msgs.times()
-        scale = time_scale(c, topic, t)
-        start, end = (float(np.min(t)), float(np.max(t))) if t.size else (None, None)
-        info["topics"].append({
-            "topic": topic, "schema": c.schemas[topic][0], "schema_encoding": c.schemas[topic][1],
-            "message_encoding": c.message_encoding[topic], "messages": len(msgs),
-            "start_s": start, "end_s": end, "time_scale": scale,
-            "start": format_time(start, scale), "end": format_time(end, scale),
-            "median_period_s": median_spacing_s(t, msgs.scalars.get("receiver")),
-        })
+        info["topics"].append(_topic_entry(topic, c.schemas[topic], c.message_encoding[topic], len(msgs),
+                                           time_summary(t, msgs.scalars.get("receiver")), time_scale(c, topic, t)))
     from cdgps_cli.io.gnss_run import gnss_run_info  # noqa: PLC0415 (GNSS runs: docs/gnss-pipeline.md)
 
     if contents_kind(c) == "gnss":
@@ -353,9 +398,100 @@ def run_info(path: str | Path, gnss_common_epochs=None, channel_summary=None, gn
         info["config"] = cfg.summary()
         info["gaps"] = epoch_gaps(phase["time_s"], cfg.sample_period_s)
         if channel_summary is not None:
-            chans = channel_summary(phase, cfg.sample_period_s)
-            info["channels"] = chans
-            info["slips"] = [{"antenna": ch["antenna"], "transmitter": ch["transmitter"], "time_s": t, "kind": kind}
-                             for ch in chans for t, kind in zip(ch["lock_restarts_s"], ch["lock_restart_kinds"])]
-            info["slips"].sort(key=lambda r: (r["time_s"], r["antenna"], r["transmitter"]))
+            info["channels"] = channel_summary(phase, cfg.sample_period_s)
+            info["slips"] = _slips(info["channels"])
+    return info, record
+
+
+def summary_info(path, want_channels: bool = True) -> dict | None:
+    """:func:`run_info` from the summary and metadata records (with ``channels`` and ``slips`` when
+    ``want_channels``); None when the file cannot answer so (no INFO_METADATA record of this format,
+    a GNSS run, a structure part missing).  Imports neither pandas nor the numerics, so
+    ``cdgps info`` starts fast."""
+    from cdgps_cli.io.mcap import open_verified, read_attachment  # noqa: PLC0415
+
+    with open_verified(path) as (_reader, fh, integrity, summary):
+        meta = integrity.metadata
+        record = meta.get(INFO_METADATA)
+        names = {a.name for a in summary.attachment_indexes}
+        if record is None or record.get("format") != INFO_FORMAT:
+            return None
+        if (meta.get(INGEST_METADATA) or {}).get("kind") == "gnss" or "gnss/receivers.json" in names:
+            return None                                      # GNSS runs: gnss_run_info decodes the run
+        idx = check_indexes(fh, summary, path, chunk_crcs=not integrity.data_section_crc_checked)
+        spans = _record_json(path, record, "topics")
+        by_topic: dict = {}
+        for cid in sorted(idx.messages):
+            by_topic.setdefault(summary.channels[cid].topic, []).append(cid)
+        _check_spans(path, spans, by_topic, idx, summary)
+        channel_meta = {t: dict(summary.channels[cids[0]].metadata or {}) for t, cids in by_topic.items()}
+        view = _MetaView(channel_meta, meta)
+        info = {"file": str(path), "topics": [], "metadata": meta, "attachments": sorted(names)}
+        for topic, cids in sorted(by_topic.items()):
+            ch = summary.channels[cids[0]]
+            sc = summary.schemas.get(ch.schema_id)
+            span = spans[topic]
+            ends = [v for v in (span["start_s"], span["end_s"]) if v is not None]
+            info["topics"].append(_topic_entry(topic, (sc.name, sc.encoding) if sc else ("", ""), ch.message_encoding,
+                                               sum(idx.messages[c] for c in cids), span,
+                                               time_scale(view, topic, np.array(ends, dtype=float))))
+        if PHASE_TOPIC in by_topic and CONFIG_ATTACHMENT in names:
+            part = _record_json(path, record, INFO_STRUCTURE_KEY) if INFO_STRUCTURE_KEY in record else {}
+            if "gaps" not in part or (want_channels and "channels" not in part):
+                return None
+            text = read_attachment(fh, summary, CONFIG_ATTACHMENT, path)
+            cfg = parse_config(text.decode("utf-8"), f"{path}:{CONFIG_ATTACHMENT}")
+            info["config"] = cfg.summary()
+            info["gaps"] = part["gaps"]
+            if want_channels:
+                info["channels"] = part["channels"]
+                info["slips"] = _slips(part["channels"])
     return info
+
+
+@dataclass
+class _MetaView:
+    """What :func:`~cdgps_cli.core.time_format.time_scale` reads of MCAP contents."""
+
+    channel_metadata: dict
+    metadata: dict
+
+
+def _record_json(path, record: dict, key: str):
+    try:
+        return json.loads(record[key])
+    except (KeyError, TypeError, ValueError):
+        raise CdgpsError(f"{path}: damaged {INFO_METADATA} metadata record (key {key!r}) (corrupt file)") from None
+
+
+def _check_spans(path, spans, by_topic: dict, idx, summary) -> None:
+    """The record's topics against the message indexes: same topics, counts, first and last log time."""
+    def bad(what):
+        return CdgpsError(f"{path}: the {INFO_METADATA} record disagrees with the message indexes: {what} (corrupt file)")
+
+    if not isinstance(spans, dict) or set(spans) != set(by_topic):
+        raise bad(f"topics {sorted(spans) if isinstance(spans, dict) else spans!r} vs {sorted(by_topic)}")
+    for topic, cids in by_topic.items():
+        s = spans[topic]
+        scale = (summary.channels[cids[0]].metadata or {}).get("time_scale", "relative")
+        try:
+            ok = (s["messages"] == sum(idx.messages[c] for c in cids)
+                  and unix_ns(s["start_s"], scale) == min(idx.first_ns[c] for c in cids)
+                  and unix_ns(s["end_s"], scale) == max(idx.last_ns[c] for c in cids)
+                  and (s["median_period_s"] is None or isinstance(s["median_period_s"], float)))
+        except (KeyError, TypeError, ValueError, OverflowError):
+            ok = False
+        if not ok:
+            raise bad(f"topic {topic}")
+
+
+def _compare_record(path, info: dict, record: dict) -> None:
+    """``info --deep``: the INFO_METADATA record must say what the decoded messages say."""
+    spans = _record_json(path, record, "topics")
+    got = {t["topic"]: {"messages": t["messages"], "start_s": t["start_s"], "end_s": t["end_s"],
+                        "median_period_s": t["median_period_s"]} for t in info["topics"]}
+    part = _record_json(path, record, INFO_STRUCTURE_KEY) if INFO_STRUCTURE_KEY in record else None
+    same = spans == got and (part is None or (part.get("gaps") == info.get("gaps")
+                                              and part.get("channels", info.get("channels")) == info.get("channels")))
+    if not same:
+        raise CdgpsError(f"{path}: the {INFO_METADATA} record disagrees with the decoded messages (corrupt file)")

@@ -257,10 +257,12 @@ def _attach_series(out: McapOut, topic: str, ss: StateSeries, ser: Series, sigma
 
 
 def _write_state_messages(out: McapOut, ch: int, names, sel, ser: Series, q, sq, npos: int, nrate: int,
-                          with_P: bool) -> None:
-    """The Foxglove JSON messages of one state series at the epochs ``sel``."""
-    X = ser.x[sel]
-    blocks = [q[sel], sq[sel], X[:, :npos]] + ([X[:, npos:npos + nrate]] if nrate else []) + \
+                          with_P: bool, pick=None) -> None:
+    """The Foxglove JSON messages of one state series at the epochs ``sel``; ``pick(a)`` gives the
+    motion (q, ξ, ξ̇) there (default ``a[sel]``; anti-aliased by :func:`write_states`'s ``preview``)."""
+    pick = pick or (lambda a: a[sel])
+    X = pick(ser.x[:, :npos + nrate])
+    blocks = [pick(q), sq[sel], X[:, :npos]] + ([X[:, npos:npos + nrate]] if nrate else []) + \
         ([ser.P[sel, :npos, :npos].reshape(len(sel), -1)] if with_P else [])
     nq = len(names)
     cuts = np.cumsum([0, nq, nq, npos] + ([nrate] if nrate else []) + ([npos * npos] if with_P else []))
@@ -323,7 +325,7 @@ def provenance(run_path: str | Path, init_text: str, run_sha256: str | None = No
 
 def write_states(ss: StateSeries, out_path: str | Path, metadata: dict, attachments: dict, *,
                  time_scale: str = "relative", covariance: str = DEFAULT_COVARIANCE,
-                 preview_rate_hz: float = DEFAULT_PREVIEW_RATE_HZ, angles=()) -> dict:
+                 preview_rate_hz: float = DEFAULT_PREVIEW_RATE_HZ, angles=(), preview=None) -> dict:
     """Write an estimate of any kind to STATES.mcap atomically; returns a summary.
 
     The stage functions building ``ss`` are :func:`cdgps_cli.pipeline.estimate_outputs.write_states`
@@ -352,6 +354,11 @@ def write_states(ss: StateSeries, out_path: str | Path, metadata: dict, attachme
     angles : list of (str, str, ndarray (n_q,))
         The :data:`ANGLES_TOPIC` channel's angles: name, expression, coefficients (rad per
         coordinate unit); empty: no such channel.
+    preview : callable, optional
+        ``preview(a, stride) -> a at epochs 0, stride, …`` for the motion in the JSON channels
+        (q, ξ, ξ̇ and the angles), e.g. :func:`cdgps_cli.analysis.preview.anti_alias_decimate`
+        (low-pass filtered first: no alias of a mode above the preview's Nyquist frequency);
+        default: the samples themselves.  Sigmas, covariances and residuals are sampled.
     """
     if covariance not in COVARIANCE_CHOICES:
         raise ValueError(f"covariance {covariance!r}: expected one of {', '.join(COVARIANCE_CHOICES)}")
@@ -362,6 +369,9 @@ def write_states(ss: StateSeries, out_path: str | Path, metadata: dict, attachme
     sel = np.arange(0, len(time_s), stride)
     meta = dict(metadata, covariance=covariance, arrays="packed (cdgps_cli.io.packed_arrays), every epoch",
                 json_channels_every_epochs=str(stride))
+    if preview is not None and stride > 1:
+        meta["json_channels_filter"] = "low-pass before decimation (cdgps_cli.analysis.preview)"
+    pick = None if preview is None or stride == 1 else (lambda a: preview(a, stride))
     nullable = bool(np.isnan(est.x[:, :ss.n_pos]).any())
     schema = _state_schema(names, full, ss.n_rate > 0, nullable)
     with McapOut(out_path, time_scale=time_scale) as out, \
@@ -374,9 +384,9 @@ def write_states(ss: StateSeries, out_path: str | Path, metadata: dict, attachme
             _attach_series(out, topic, ss, ser, sq, with_P_pos=topic != STATE_FILTERED_TOPIC or full, full=full)
             if ser.messages:
                 _write_state_messages(out, out.channel(topic, schema), names, np.arange(0, len(ser.time_s), stride),
-                                      ser, q, sq, ss.n_pos, ss.n_rate, full)
+                                      ser, q, sq, ss.n_pos, ss.n_rate, full, pick)
             if topic == STATE_TOPIC:
-                _write_angles(out, C, angles, time_s[sel], q[sel], P_pos[sel])
+                _write_angles(out, C, angles, time_s[sel], q[sel] if pick is None else pick(q), P_pos[sel])
             out.write_packed()              # written before the next series: one series' arrays at a time
             del q, sq, P_pos
             bar.update()

@@ -42,9 +42,11 @@ RESIDUAL_PACKED = "arrays/cdgps/residuals/"
 COVARIANCE_CHOICES = ("modal", "full")
 DEFAULT_COVARIANCE = "modal"
 DEFAULT_PREVIEW_RATE_HZ = 1.0
-"""Rate of the Foxglove JSON channels, Hz (0: every epoch); every epoch is in the packed arrays.  1 Hz
-shows a structure's modes up to 0.5 Hz in Foxglove's plots (0.5 Hz would alias the testbed's 0.28 Hz
-mode).  An hour at 10 Hz: STATES.mcap 19.5 MiB for a 20.6 MiB RUN.mcap (docs/benchmarks/io.md)."""
+"""Rate of the Foxglove JSON channels, Hz (0: every epoch); every epoch is in the packed arrays.  The
+lowest rate ``cdgps estimate`` chooses from a config's highest mode
+(:func:`cdgps_cli.pipeline.estimate_outputs.preview_rate_hz_for`; the motion is low-pass filtered before
+decimation, :mod:`cdgps_cli.analysis.preview`), and the rate of :func:`cdgps_cli.io.states.write_states`
+when it is given none.  An hour at 10 Hz: STATES.mcap 19.5 MiB for a 20.6 MiB RUN.mcap (docs/benchmarks/io.md)."""
 STATE_DELTA = 2
 """Order of the epoch-to-epoch differences the state and covariance arrays are packed with
 (:mod:`cdgps_cli.io.packed_arrays`; lossless: P_ξ of an hour at 10 Hz 10.4 → 9.9 MB)."""

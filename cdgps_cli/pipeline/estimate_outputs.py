@@ -46,7 +46,7 @@ def structure_series(res) -> StateSeries:
 
 
 def write_states(res, run_path: str | Path, init: dict, init_text: str, out_path: str | Path, options: dict,
-                 covariance: str = DEFAULT_COVARIANCE, preview_rate_hz: float = DEFAULT_PREVIEW_RATE_HZ,
+                 covariance: str = DEFAULT_COVARIANCE, preview_rate_hz: float | None = None,
                  run_sha256: str | None = None) -> dict:
     """Write the structure estimate ``res`` to STATES.mcap atomically; returns the writer's summary.
 
@@ -60,6 +60,9 @@ def write_states(res, run_path: str | Path, init: dict, init_text: str, out_path
     covariance, preview_rate_hz
         As :func:`cdgps_cli.io.states.write_states`; the section angles of ``res.cfg``
         (:func:`cdgps_cli.model.kinematics.section_angles`) make its ``/cdgps/angles_deg`` channel.
+        The preview's motion is low-pass filtered before decimation
+        (:func:`cdgps_cli.analysis.preview.anti_alias_decimate`); ``preview_rate_hz`` None: the rate
+        from the config's highest mode (:func:`preview_rate_hz_for`).
     run_sha256 : str, optional
         The RUN's sha256 when the caller has it (``cdgps estimate`` hashed the RUN to check the
         INIT pairing); else the RUN is hashed here.
@@ -84,11 +87,30 @@ def write_states(res, run_path: str | Path, init: dict, init_text: str, out_path
         meta["window"] = json.dumps(window, sort_keys=True)
     attachments = {CONFIG_ATTACHMENT: (cfg.text.encode(), "application/toml"),
                    INIT_ATTACHMENT: (init_text.encode(), "application/json")}
+    from cdgps_cli.analysis.preview import anti_alias_decimate  # noqa: PLC0415
+
+    if preview_rate_hz is None:
+        preview_rate_hz = preview_rate_hz_for(cfg, res.time_s)
     out = states_io.write_states(structure_series(res), out_path, meta, attachments,
                                  time_scale="gps" if run_kind(run_path) == "gnss" else "relative",
-                                 covariance=covariance, preview_rate_hz=preview_rate_hz, angles=section_angles(cfg))
+                                 covariance=covariance, preview_rate_hz=preview_rate_hz, angles=section_angles(cfg),
+                                 preview=anti_alias_decimate)
     out["window"] = window or None
     return out
+
+
+def preview_rate_hz_for(cfg, time_s) -> float:
+    """Foxglove preview rate, Hz, for a structure: at least :data:`DEFAULT_PREVIEW_RATE_HZ`, and high
+    enough that the config's highest mode lies in the preview filter's passband
+    (:func:`cdgps_cli.analysis.preview.preview_stride_for_modes`): an epoch rate divided by a whole stride."""
+    from cdgps_cli.analysis.preview import preview_stride_for_modes  # noqa: PLC0415
+
+    t = np.asarray(time_s, dtype=float)
+    period_s = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    if not period_s > 0:
+        return DEFAULT_PREVIEW_RATE_HZ
+    default = states_io.preview_stride(t, DEFAULT_PREVIEW_RATE_HZ)
+    return 1.0 / (period_s * preview_stride_for_modes(period_s, cfg.mode_frequency_hz, default))
 
 
 def export_csv(states_path: str | Path, out_csv: str | Path, points: str | None = None) -> dict:

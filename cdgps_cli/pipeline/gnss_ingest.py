@@ -221,17 +221,18 @@ def _common_epochs(cfg: GnssConfig, inp: IngestInputs) -> dict:
     return common
 
 
-def run_info(path: str | Path) -> dict:
+def run_info(path: str | Path, deep: bool = False) -> dict:
     """``cdgps info``: :func:`cdgps_cli.io.run.run_info` with the model's counts: for a structure run
     each channel's lock restarts (:func:`cdgps_cli.pipeline.ingest.channel_summary`), for a GNSS run
     each receiver's lock counters (:func:`lock_summary`) and the epochs each rover has in common
-    with the master (``gnss.common_epochs``: rover → count)."""
+    with the master (``gnss.common_epochs``: rover → count).  ``deep``: decode every message
+    (``cdgps info --deep``)."""
     from cdgps_cli.io.run import run_info as file_info  # noqa: PLC0415
 
     from cdgps_cli.pipeline.ingest import channel_summary  # noqa: PLC0415
 
     return file_info(path, gnss_common_epochs=_run_common_epochs, gnss_lock_summary=lock_summary,
-                     channel_summary=channel_summary)
+                     channel_summary=channel_summary, deep=deep)
 
 
 def _run_common_epochs(run: gnss_run.GnssRun) -> dict:

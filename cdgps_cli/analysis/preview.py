@@ -1,0 +1,108 @@
+"""Anti-aliased decimation of the estimated motion for the Foxglove preview channels of STATES.mcap.
+
+The JSON channels Foxglove plots carry every ``stride``-th epoch (the packed arrays keep every
+epoch).  Taking every ``stride``-th sample of a signal folds everything above the preview's Nyquist
+frequency onto a false one below it: the 120 m tower's 1.638 Hz mode at 1 Hz showed at 0.362 Hz.
+Here the series is low-pass filtered first, then decimated:
+
+* a linear-phase FIR (Kaiser window, :func:`scipy.signal.firwin` / :func:`scipy.signal.kaiserord`)
+  with its passband up to :data:`PASSBAND_FRACTION` of the preview's Nyquist frequency and at least
+  :data:`STOPBAND_DB` dB attenuation from that Nyquist frequency on;
+* applied centred on each kept epoch (zero phase: the filter's delay of (taps − 1)/2 samples is
+  taken out), so a peak stays at its time stamp and the preview lines up with every other channel;
+  a causal filter would draw each oscillation about half a second late.  Being an FIR of finite
+  length, the same result can be computed block by block with (taps − 1)/2 epochs of look-ahead;
+* computed only at the kept epochs (:func:`scipy.signal.upfirdn`), with the first and last values
+  repeated beyond the ends of the record (and of each run of complete epochs between missing ones).
+
+:func:`preview_stride_for_modes` picks the stride from the structure's highest mode, so that the
+mode lies inside the passband and is shown at its own frequency.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+PASSBAND_FRACTION = 0.8
+"""Passband edge of the preview filter as a fraction of the preview's Nyquist frequency."""
+STOPBAND_DB = 60.0
+"""Minimum attenuation of the preview filter from the preview's Nyquist frequency on, dB."""
+
+
+def preview_stride_for_modes(sample_period_s: float, mode_frequency_hz, max_stride: int) -> int:
+    """The largest stride (≤ ``max_stride``, ≥ 1) whose preview passband holds the highest mode.
+
+    Parameters
+    ----------
+    sample_period_s : float
+        Epoch spacing of the estimate, s.
+    mode_frequency_hz : array_like
+        The model's mode frequencies, Hz.
+    max_stride : int
+        The stride of the default preview rate (never fewer previews than that).
+
+    Returns
+    -------
+    int
+        ``stride`` with ``PASSBAND_FRACTION · fs / (2 · stride) ≥ f_max`` (fs = 1 / sample period).
+    """
+    f = np.asarray(mode_frequency_hz, dtype=float)
+    f = f[np.isfinite(f) & (f > 0)]
+    if f.size == 0 or not sample_period_s > 0:
+        return max(int(max_stride), 1)
+    fit = math.floor(PASSBAND_FRACTION / (2.0 * float(f.max()) * sample_period_s) + 1e-9)
+    return max(min(fit, int(max_stride)), 1)
+
+
+def preview_filter(stride: int) -> np.ndarray:
+    """Taps of the preview low-pass filter for decimation by ``stride`` (odd length 2·m·stride + 1)."""
+    from scipy.signal import firwin, kaiserord  # noqa: PLC0415
+
+    nyq = 1.0 / stride                                  # preview Nyquist, in units of the input's
+    width = (1.0 - PASSBAND_FRACTION) * nyq
+    numtaps, beta = kaiserord(STOPBAND_DB, width)
+    m = max(math.ceil((numtaps - 1) / (2 * stride)), 1)
+    return firwin(2 * m * stride + 1, (1.0 + PASSBAND_FRACTION) / 2 * nyq, window=("kaiser", beta))
+
+
+def anti_alias_decimate(x: np.ndarray, stride: int) -> np.ndarray:
+    """Low-pass filter ``x`` along its first axis and keep epochs 0, stride, 2·stride, …
+
+    Parameters
+    ----------
+    x : ndarray (N, ...)
+        A series sampled at constant spacing.  Epochs with a NaN keep their value; each run of
+        complete epochs between them is filtered on its own (no NaN spreads over the filter's length).
+    stride : int
+        Keep every ``stride``-th epoch (1: ``x`` unchanged).
+
+    Returns
+    -------
+    ndarray (ceil(N / stride), ...)
+        The filtered series at the kept epochs (zero phase).
+    """
+    x = np.asarray(x, dtype=float)
+    if stride <= 1 or x.shape[0] == 0:
+        return x.copy()
+    out = x[::stride].copy()                             # epochs with a missing value: as they are
+    finite = np.isfinite(x.reshape(x.shape[0], -1)).all(axis=1)
+    edges = np.flatnonzero(np.diff(np.r_[0, finite.astype(np.int8), 0]))
+    for a, b in zip(edges[::2], edges[1::2]):            # each run of complete epochs on its own
+        k0 = -(-a // stride) * stride                    # its first kept epoch
+        if k0 < b:
+            out[k0 // stride:k0 // stride + len(range(k0, b, stride))] = _filtered(x[k0:b], stride)
+    return out
+
+
+def _filtered(x: np.ndarray, stride: int) -> np.ndarray:
+    """:func:`anti_alias_decimate` of a NaN-free series (its ends repeated beyond the record)."""
+    from scipy.signal import upfirdn  # noqa: PLC0415
+
+    h = preview_filter(stride)
+    half = (h.size - 1) // 2                             # a multiple of stride
+    padded = np.concatenate([np.repeat(x[:1], half, axis=0), x, np.repeat(x[-1:], half, axis=0)])
+    y = upfirdn(h, padded, up=1, down=stride, axis=0)
+    first = 2 * half // stride
+    return y[first:first + len(range(0, x.shape[0], stride))]
