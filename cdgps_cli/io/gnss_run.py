@@ -47,6 +47,8 @@ from cdgps_cli.io.mcap import CONFIG_ATTACHMENT, McapOut, array_schema, message_
 from cdgps_cli.io.run import INGEST_METADATA, contents_kind, ingest_metadata, run_kind
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.core.records import GLONASS_NAV_COLUMNS, NAV_COLUMNS
+from cdgps_cli.io.gnss_sequence import join_receivers, join_signal_tables, pieces_text
+from cdgps_cli.io.log_sequence import expand_paths
 from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
 from cdgps_cli.io.ubx import INTEGRITY_COUNTS, integrity_problems, integrity_record, skipped_line
 from cdgps_cli.core.gps_time import nominal_interval_s
@@ -367,7 +369,8 @@ def _glonass_nav(signals, nav_list) -> tuple:
     return nav, {str(sat): int(v) for sat, v in k.items()}
 
 
-def _read_signal_tables(signals, receivers: dict, files: dict, say, glonass_k: dict | None = None) -> None:
+def _read_signal_tables(signals, receivers: dict, files: dict, say, glonass_k: dict | None = None,
+                        pieces: dict | None = None) -> None:
     """Every receiver's table of ``signals`` (RINEX, or a UBX log's RXM-RAWX: :func:`~cdgps_cli.io.ubx.read_ubx_signals`);
     CdgpsError naming the file when a receiver lacks one of them (the receivers must share every
     signal asked for).  ``glonass_k``: GLONASS frequency numbers of the navigation records, for
@@ -378,7 +381,10 @@ def _read_signal_tables(signals, receivers: dict, files: dict, say, glonass_k: d
     for n, rx in receivers.items():
         kind, p = files[n]
         say(f"reading signals {', '.join(signals)} of {p} ({n}) …")
-        tab = read_ubx_signals(p, signals) if kind == "ubx" else read_rinex_signals(p, signals, glonass_k)[1]
+        paths = (pieces or {}).get(n) or [p]
+        tabs = [read_ubx_signals(q, signals) if kind == "ubx" else read_rinex_signals(q, signals, glonass_k)[1]
+                for q in paths]
+        tab = tabs[0] if len(tabs) == 1 else join_signal_tables(n, tabs, paths)
         have = set(tab["signal"])
         absent = [g for g in signals if g not in have]
         if absent:
@@ -422,6 +428,10 @@ class IngestInputs:
     integrity: dict
     warnings: list
     nav_source: str = ""
+    pieces: dict | None = None
+    """Antenna → its files in time order (several: one record joined, :mod:`cdgps_cli.io.gnss_sequence`)."""
+    joins: dict | None = None
+    """Antenna with several files → how they joined (files, gaps, overlaps; GPS s)."""
 
 
 def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = None, ubx: dict | None = None,
@@ -439,7 +449,8 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
             for n, p in d.items():
                 if n in files:
                     raise CdgpsError(f"antenna {n!r} is given twice (--rinex/--ubx)")
-                files[n] = (kind, str(p))
+                files[n] = (kind, p)
+        opt = "--{} " + "{}"
     else:
         for a in cfg.antennas:
             if a.rinex or a.ubx:
@@ -448,6 +459,10 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
         if missing:
             raise CdgpsError(f"{cfg.path}: no observation file for antenna(s) {', '.join(missing)}; give rinex/ubx in "
                              f"[gnss.antennas.NAME] or --rinex/--ubx NAME=FILE")
+        opt = f"{cfg.path}: [gnss.antennas.{{1}}] {{0}}"
+    pieces = {n: expand_paths([p] if isinstance(p, (str, Path)) else list(p), opt.format(k, n))
+              for n, (k, p) in files.items()}
+    files = {n: (k, pieces[n][0] if len(pieces[n]) == 1 else pieces_text(pieces[n])) for n, (k, _) in files.items()}
     if not files:
         raise CdgpsError("no receiver files: give --rinex NAME=FILE / --ubx NAME=FILE, or list them in the config's "
                          "[gnss.antennas.NAME] tables")
@@ -458,18 +473,26 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
         raise CdgpsError(f"master {master!r} is not one of the receivers given: {', '.join(files)}")
     nav_list = list(cfg.nav) if nav_paths is None else [str(p) for p in nav_paths]
     out_path = Path(out_path)
-    for n, (_, p) in files.items():
-        if Path(p).resolve() == out_path.resolve():
-            raise CdgpsError(f"{out_path}: the output would overwrite the input file of {n}")
+    for n, ps in pieces.items():
+        for p in ps:
+            if Path(p).resolve() == out_path.resolve():
+                raise CdgpsError(f"{out_path}: the output would overwrite the input file of {n}")
     for p in nav_list:
         if Path(p).resolve() == out_path.resolve():
             raise CdgpsError(f"{out_path}: the output would overwrite the navigation file {p}")
     warnings: list[str] = []
 
-    receivers = {}
+    receivers, joins = {}, {}
     for n, (kind, p) in files.items():
         say(f"reading {kind.upper()} {p} ({n}) …")
-        receivers[n] = read_receiver_file(n, kind, p, strict=strict)
+        rxs = [read_receiver_file(n, kind, q, strict=strict) for q in pieces[n]]
+        if len(rxs) == 1:
+            receivers[n] = rxs[0]
+            continue
+        receivers[n], joins[n], w, order = join_receivers(n, rxs, pieces[n])
+        pieces[n] = [pieces[n][i] for i in order]
+        files[n] = (kind, pieces_text(pieces[n]))
+        warnings.extend(w)
     # master first, then the others in the given order
     receivers = {master: receivers[master], **{n: r for n, r in receivers.items() if n != master}}
     integrity = _ubx_integrity(receivers, files)
@@ -480,15 +503,15 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
 
     nav_ahead, glonass_k = _glonass_nav(cfg.signals, nav_list)
     if cfg.signals:
-        _read_signal_tables(cfg.signals, receivers, files, say, glonass_k)
+        _read_signal_tables(cfg.signals, receivers, files, say, glonass_k, pieces)
     nav = None
     sf_navs = [rx.nav for rx in receivers.values() if rx.nav is not None and len(rx.nav)]
     nav_source = ",".join(Path(p).name for p in nav_list)
     if not nav_list and sf_navs:
         say(f"using {sum(len(x) for x in sf_navs)} broadcast ephemerides decoded from the UBX logs' RXM-SFRBX subframes …")
         nav = _merge_nav_tables(sf_navs)
-        nav_source = "RXM-SFRBX:" + ",".join(Path(files[n][1]).name for n, rx in receivers.items()
-                                             if rx.nav is not None and len(rx.nav))
+        nav_source = "RXM-SFRBX:" + ",".join(Path(q).name for n, rx in receivers.items()
+                                             if rx.nav is not None and len(rx.nav) for q in pieces[n])
     elif not nav_list and rovers_given(receivers, master) and all(rx.format == "ubx" for rx in receivers.values()):
         raise CdgpsError(
             "no broadcast ephemerides: no navigation file was given and none of the UBX logs ("
@@ -501,7 +524,7 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
     elif not sf_navs:               # SFRBX ephemerides are a navigation source (issue 28)
         warnings.append("no navigation file: the run has no ephemerides, and 'cdgps init' needs them "
                         "(ingest again with --nav, or list nav files in the config)")
-    return IngestInputs(files, master, nav_list, receivers, nav, integrity, warnings, nav_source)
+    return IngestInputs(files, master, nav_list, receivers, nav, integrity, warnings, nav_source, pieces, joins)
 
 
 def nominal_positions(cfg: GnssConfig, inp: IngestInputs) -> dict:
@@ -545,7 +568,9 @@ def write_gnss_run(cfg: GnssConfig, out_path: str | Path, inp: IngestInputs, pos
     files, master, nav_list, receivers, nav = inp.files, inp.master, inp.nav_list, inp.receivers, inp.nav
     integrity, warnings, nav_source = inp.integrity, inp.warnings, inp.nav_source
     out_path = Path(out_path)
-    inputs = {**{f"{kind}:{n}": p for n, (kind, p) in files.items()}, **{f"nav[{i}]": p for i, p in enumerate(nav_list)}}
+    pieces = inp.pieces or {n: [p] for n, (_, p) in files.items()}
+    inputs = {**{k: p for n, (kind, _) in files.items() for k, p in _input_keys(f"{kind}:{n}", pieces[n])},
+              **{f"nav[{i}]": p for i, p in enumerate(nav_list)}}
     meta = ingest_metadata("gnss", cfg, inputs, master=master, receivers=",".join(receivers),
                            displacement_model=cfg.displacement, **({"signals": ",".join(cfg.signals)} if cfg.signals else {}))
     for n, (kind, p) in files.items():
@@ -584,7 +609,14 @@ def write_gnss_run(cfg: GnssConfig, out_path: str | Path, inp: IngestInputs, pos
         "ephemerides": n_eph, "ephemeris_satellites": int(nav["sat"].nunique()) if nav is not None else 0,
         "messages": n_msg, "warnings": warnings, "integrity": integrity,
     }
+    if inp.joins:
+        summary["joins"] = inp.joins
     return summary
+
+
+def _input_keys(key: str, paths: list) -> list:
+    """The metadata keys of a receiver's files: ``key`` for one file, ``key[0]``, ``key[1]`` … (time order) for several."""
+    return [(key, paths[0])] if len(paths) == 1 else [(f"{key}[{i}]", p) for i, p in enumerate(paths)]
 
 
 def _ubx_integrity(receivers: dict, files: dict) -> dict:
@@ -594,8 +626,11 @@ def _ubx_integrity(receivers: dict, files: dict) -> dict:
     for n, rx in receivers.items():
         if rx.format != "ubx":
             continue
+        per_file = rx.info.get("files")
+        problems = integrity_problems(rx.info) if not per_file else [
+            f"{f['file']} (last epoch {gps_time_str(f['last_s'])}): {q}" for f in per_file for q in f.get("problems") or []]
         out[n] = {"file": files[n][1], **{k: int(rx.info.get(k) or 0) for k in INTEGRITY_COUNTS},
-                  "problems": integrity_problems(rx.info), "other_protocols": skipped_line(rx.info)}
+                  "problems": problems, "other_protocols": skipped_line(rx.info)}
     return out
 
 
