@@ -284,6 +284,19 @@ def _input_keys(key: str, paths: list) -> list:
     return [(key, paths[0])] if len(paths) == 1 else [(f"{key}[{i}]", p) for i, p in enumerate(paths)]
 
 
+def _check_same_receivers(paths: list, tabs: list) -> None:
+    """Refuse receiver logs in which an antenna is measured by another receiver than in an earlier
+    file (another receiver: its phase biases do not continue), naming the file, antenna and both."""
+    seen: dict = {}
+    for p, t in zip(paths, tabs):
+        pairs = t[["antenna", "receiver"]].drop_duplicates().itertuples(index=False)
+        for antenna, receiver in pairs:
+            first = seen.setdefault(antenna, (receiver, p))
+            if first[0] != receiver:
+                raise CdgpsError(f"{p}: antenna {antenna} is measured by receiver {receiver!r}, by {first[0]!r} in "
+                                 f"{first[1]}; the files of one record must be one receiver's log per antenna")
+
+
 def _read_sequence(paths: list, reader, cfg, period_s, joins: dict, key: str):
     """Read a log given as one file or as consecutive files (each validated by ``reader``) and join
     them in time order (:func:`cdgps_cli.io.log_sequence.join_tables`): an epoch a later file repeats
@@ -303,6 +316,8 @@ def _read_sequence(paths: list, reader, cfg, period_s, joins: dict, key: str):
         if ref is not None and np.isfinite(dt) and abs(dt - dts[ref]) > 1e-6 * max(dts[ref], 1.0):
             raise CdgpsError(f"{p}: epoch interval {dt:g} s differs from {dts[ref]:g} s in {paths[ref]}; the files of one "
                              f"record must have one rate")
+    if "receiver" in tabs[0]:
+        _check_same_receivers(paths, tabs)
     period = period_s if period_s else nominal_interval_s(np.concatenate([t["time_s"].to_numpy() for t in tabs]))
     tab, rep, order = join_tables(list(zip(names, tabs)), "time_s", period, what=key)
     paths[:] = [paths[i] for i in order]

@@ -362,6 +362,14 @@ def test_receiver_csv_gap_and_corrupt_piece(testbed_csv, tmp_path):
     assert not (tmp_path / "q.mcap").exists()
 
 
+def test_receiver_csv_of_another_receiver_is_refused(testbed_csv, tmp_path):
+    a, b = _split_csv(testbed_csv / "receiver.csv", tmp_path, "rx", [-np.inf, 10.0, np.inf])
+    b.write_text(b.read_text().replace(",rx1,", ",rx9,"))
+    r = _cli("ingest", f"{tmp_path}/rx_*.csv", "--config", TESTBED, "-o", tmp_path / "p.mcap")
+    assert r.exit_code == 2 and f"{b}: antenna a1 is measured by receiver 'rx9', by 'rx1' in {a}" in r.output
+    assert not (tmp_path / "p.mcap").exists()
+
+
 # ------------------------------------------------------------------------------------------------
 # the join itself
 
