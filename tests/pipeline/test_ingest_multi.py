@@ -97,8 +97,11 @@ def mosaic(tmp_path_factory):
     """The real mosaic-X5 rover file (301 epochs at 1 s), its RUN, and three pieces of it."""
     d = tmp_path_factory.mktemp("mosaic")
     pieces = _split_rinex(MOSAIC_ROVER, d, "rover", [-np.inf, T0_MOSAIC + 100, T0_MOSAIC + 200, np.inf])
-    r = _cli("-q", "ingest", "--rinex", f"R={MOSAIC_ROVER}", "-o", d / "whole.mcap")
+    r = _cli("-q", "ingest", "--rinex", f"R={MOSAIC_ROVER}", "-o", d / "whole.mcap", "--json")
     assert r.exit_code == 0, r.output
+    assert "joins" not in json.loads(r.stdout)                     # one file: the old provenance keys
+    meta = _parts(d / "whole.mcap")[2]["cdgps.ingest"]
+    assert meta["rinex:R"] == "rover.obs" and "rinex:R[0]" not in meta
     return d, pieces
 
 
@@ -250,6 +253,22 @@ def test_ubx_pieces_cut_at_frames_give_the_whole_logs_run(tmp_path):
     s = json.loads(r.stdout)
     assert s["ephemerides"] == 19 and s["integrity"]["U"]["problems"] == []
     assert [f["epochs"] for f in s["joins"]["U"]["files"]] == [200, 200, 136]
+
+
+def test_ubx_pieces_with_gnss_signals_keep_the_whole_logs_signal_table(tmp_path):
+    """With ``[gnss] signals`` the multi-signal table (here GPS L1 + L2C, lock times and half-cycle
+    flags) of the pieces is the whole log's too."""
+    data = UBX_WALK.read_bytes()
+    off = _rawx_offsets(data)
+    _split_bytes(data, tmp_path, "sg", [off[100], off[300]])
+    job = '[gnss]\nname = "walk"\nsignals = ["G:L1", "G:L2"]\nmaster = "U"\nnav = []\n\n[gnss.antennas.U]\nubx = "{}"\n'
+    (tmp_path / "whole.toml").write_text(job.format(UBX_WALK))
+    (tmp_path / "pieces.toml").write_text(job.format("sg_*.ubx"))
+    for name in ("whole", "pieces"):
+        r = _cli("-q", "ingest", "--config", tmp_path / f"{name}.toml", "-o", tmp_path / f"{name}.mcap")
+        assert r.exit_code == 0, r.output
+    assert "gnss/signals/0.npz.zst" in _parts(tmp_path / "pieces.mcap")[1]
+    assert_same_record(tmp_path / "whole.mcap", tmp_path / "pieces.mcap", {"ubx:U": 3}, other_config=True)
 
 
 def _retimed_rawx_log(data: bytes, shift_s: float) -> bytes:
