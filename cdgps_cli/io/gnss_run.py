@@ -485,13 +485,15 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
     receivers, joins = {}, {}
     for n, (kind, p) in files.items():
         say(f"reading {kind.upper()} {p} ({n}) …")
-        rxs = [read_receiver_file(n, kind, q, strict=strict) for q in pieces[n]]
-        if len(rxs) == 1:
-            receivers[n] = rxs[0]
+        if len(pieces[n]) == 1:
+            receivers[n] = read_receiver_file(n, kind, pieces[n][0], strict=strict)
             continue
+        rxs = [read_receiver_file(n, kind, q) for q in pieces[n]]       # (--strict: below, with the file's span)
         receivers[n], joins[n], w, order = join_receivers(n, rxs, pieces[n])
         pieces[n] = [pieces[n][i] for i in order]
         files[n] = (kind, pieces_text(pieces[n]))
+        if strict:
+            _refuse_lost_data(n, receivers[n], pieces[n])
         warnings.extend(w)
     # master first, then the others in the given order
     receivers = {master: receivers[master], **{n: r for n, r in receivers.items() if n != master}}
@@ -525,6 +527,15 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
         warnings.append("no navigation file: the run has no ephemerides, and 'cdgps init' needs them "
                         "(ingest again with --nav, or list nav files in the config)")
     return IngestInputs(files, master, nav_list, receivers, nav, integrity, warnings, nav_source, pieces, joins)
+
+
+def _refuse_lost_data(name: str, rx: GnssReceiver, paths: list) -> None:
+    """``--strict`` on a UBX record of several files: the first file with lost data (time order) is
+    refused, naming it, its span and the losses."""
+    for f, p in zip(rx.info.get("files") or [], paths):
+        if f.get("problems"):
+            raise CdgpsError(f"{p} ({name}, epochs {gps_time_str(f['first_s'])} – {gps_time_str(f['last_s'])}): corrupt "
+                             f"UBX data: {', '.join(f['problems'])} (refused by --strict)")
 
 
 def nominal_positions(cfg: GnssConfig, inp: IngestInputs) -> dict:

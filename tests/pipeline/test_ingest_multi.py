@@ -319,7 +319,8 @@ def test_truncated_ubx_piece_warns_naming_file_and_time_and_strict_refuses(tmp_p
     assert ("tr_01.ubx (2 files) (U): corrupt UBX data, skipped: tr_01.ubx (last epoch 2025-08-28 17:32:44.498 GPST): "
             "40 bytes of a truncated frame at the end") in r.output
     r = _cli("ingest", "--strict", "--ubx", f"U={tmp_path}/tr_*.ubx", "-o", tmp_path / "s.mcap")
-    assert r.exit_code == 2 and f"{b}: corrupt UBX data" in r.output and "refused by --strict" in r.output
+    assert r.exit_code == 2 and (f"{b} (U, epochs 2025-08-28 17:31:42.248 GPST – 2025-08-28 17:32:44.498 GPST): corrupt "
+                                 f"UBX data: 40 bytes of a truncated frame at the end (refused by --strict)") in r.output
     assert not (tmp_path / "s.mcap").exists()
 
 
