@@ -33,6 +33,8 @@ __all__ = ["check_same_receiver", "join_receivers", "pieces_text", "join_signal_
 
 _MUST_AGREE = ("receiver_type", "marker_name", "antenna_type", "l1_obs_types")
 _MAY_DIFFER = ("version", "obs_types", "approx_position_xyz_m")
+"""Header fields that may differ between a record's files (a warning; the first file's are kept,
+but a UBX record's position is that of its last RTCM 1005/1006 message)."""
 _SUMMED = ("n_epochs", "n_epochs_power_failure", "n_gps_epochs", "n_frames", "bad_checksum_frames",
            "undecodable_frames", "skipped_bytes", "truncated_tail_bytes", "nmea_bytes", "nmea_sentences",
            "rtcm_bytes", "bad_crc_rtcm_frames", "n_clock_resets")
@@ -152,6 +154,10 @@ def join_receivers(name: str, rxs: list, paths: list) -> tuple:
         header["time_last_obs_gps_s"] = rxs_o[-1].header.get("time_last_obs_gps_s")
     if rx0.format == "ubx":
         header["interval_s"] = nominal_interval_s(raw["time_gps_s"].to_numpy())
+        base = next((r.info["rtcm_base"] for r in reversed(rxs_o) if r.info.get("rtcm_base")), None)
+        if base:            # the station position of the last RTCM 1005/1006, as for one log
+            header["approx_position_xyz_m"] = list(base["arp_ecef_m"])
+            header["position_source"] = f"RTCM {base['message']} ARP (station {base['station_id']})"
     header["files"] = [Path(p).name for p in paths_o]
     join = rep.as_dict()
     info = _merged_info([r.info for r in rxs_o], {"files": join["files"], "join": {"gaps": join["gaps"],

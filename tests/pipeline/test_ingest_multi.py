@@ -271,6 +271,35 @@ def test_ubx_pieces_with_gnss_signals_keep_the_whole_logs_signal_table(tmp_path)
     assert_same_record(tmp_path / "whole.mcap", tmp_path / "pieces.mcap", {"ubx:U": 3}, other_config=True)
 
 
+def _rtcm1005(station: int, xyz_m) -> bytes:
+    """An RTCM 3 message 1005 (station ARP, ECEF in 0.1 mm, 38-bit signed) with its CRC-24Q."""
+    from cdgps_cli.io.ubx_frames import crc24q
+
+    fields = [(1005, 12), (station, 12), (0, 6), (1, 1), (0, 1), (0, 1), (0, 1), (round(xyz_m[0] * 1e4), 38), (0, 1),
+              (0, 1), (round(xyz_m[1] * 1e4), 38), (0, 2), (round(xyz_m[2] * 1e4), 38)]
+    bits = 0
+    for v, n in fields:
+        bits = (bits << n) | (v & ((1 << n) - 1))
+    payload = bits.to_bytes(19, "big")
+    head = bytes((0xD3, 0, len(payload))) + payload
+    return head + crc24q(head).to_bytes(3, "big")
+
+
+def test_ubx_record_position_is_the_last_rtcm_base_of_its_files(tmp_path):
+    """Only the second file carries the base's RTCM 1005: the record has its position (as the whole log
+    would), and the summary says where it came from."""
+    data = UBX_WALK.read_bytes()
+    cut = _rawx_offsets(data)[300]
+    xyz = (-3962108.6726, 3381309.5703, 3668678.6243)
+    (tmp_path / "b_00.ubx").write_bytes(data[:cut])
+    (tmp_path / "b_01.ubx").write_bytes(data[cut:] + _rtcm1005(7, xyz))
+    r = _cli("-q", "ingest", "--ubx", f"U={tmp_path}/b_*.ubx", "-o", tmp_path / "p.mcap", "--json")
+    assert r.exit_code == 0, r.output
+    rx = json.loads(r.stdout)["receivers"][0]
+    assert rx["position_source"] == "RTCM 1005 ARP (station 7)"
+    assert np.allclose(rx["position_ecef_m"], xyz, atol=1e-4)
+
+
 def _retimed_rawx_log(data: bytes, shift_s: float) -> bytes:
     """The RXM-RAWX frames of a log only, every epoch moved by ``shift_s`` (week and rcvTow rewritten)."""
     out = []
