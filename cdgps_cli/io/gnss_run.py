@@ -198,11 +198,13 @@ def _raw_from_ubx(obs: pd.DataFrame) -> pd.DataFrame:
     })
 
 
-def read_receiver_file(name: str, kind: str, path: str | Path, *, strict: bool = False) -> GnssReceiver:
+def read_receiver_file(name: str, kind: str, path: str | Path, *, strict: bool = False,
+                       data: bytes | None = None) -> GnssReceiver:
     """Read one RINEX observation file or UBX log into a :class:`GnssReceiver` (raw table).
 
     ``strict``: a UBX log with any corrupt or skipped data is an error (see
     :func:`~cdgps_cli.io.ubx.read_ubx_rawx`); without it the losses are counted in ``info``.
+    ``data``: a UBX log's bytes already read (consecutive files joined; ``path`` names it).
 
     Raises
     ------
@@ -222,7 +224,7 @@ def read_receiver_file(name: str, kind: str, path: str | Path, *, strict: bool =
     elif kind == "ubx":
         from cdgps_cli.io.ubx import read_ubx_log  # noqa: PLC0415
 
-        info_u, obs, sf_nav = read_ubx_log(p, strict=strict)
+        info_u, obs, sf_nav = read_ubx_log(p, strict=strict, data=data)
         raw = _raw_from_ubx(obs)
         info = _json_safe(info_u)
         base = info_u.get("rtcm_base")
@@ -492,6 +494,8 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
         receivers[n], joins[n], w, order = join_receivers(n, rxs, pieces[n])
         pieces[n] = [pieces[n][i] for i in order]
         files[n] = (kind, pieces_text(pieces[n]))
+        if kind == "ubx":
+            _rejoin_cut_frames(n, receivers[n], joins[n], pieces[n], w)
         if strict:
             _refuse_lost_data(n, receivers[n], pieces[n])
         warnings.extend(w)
@@ -529,9 +533,54 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
     return IngestInputs(files, master, nav_list, receivers, nav, integrity, warnings, nav_source, pieces, joins)
 
 
+_LOSS_OFFSETS = ("bad_frame_offsets", "undecodable_frame_offsets", "bad_rtcm_offsets")
+
+
+def _rejoin_cut_frames(name: str, rx: GnssReceiver, join: dict, paths: list, warnings: list) -> None:
+    """A UBX frame cut in two by a logger's file rotation (a file ending in a truncated frame whose
+    rest begins the next file) is joined again: the files, consecutive bytes of one log (no file
+    repeats another's epochs), are read once more as one byte stream, and the record becomes that
+    stream's — what the single log would have given.  Kept only when the stream loses less than the
+    files one by one; the losses left (``info["record_problems"]``) name the file and byte."""
+    files = rx.info.get("files") or []
+    if join["overlaps"] or not any(f.get("truncated_tail_bytes") for f in files[:-1]):
+        return
+    from cdgps_cli.io.gnss_sequence import ubx_bytes  # noqa: PLC0415
+
+    parts = [ubx_bytes(p) for p in paths]
+    one = read_receiver_file(name, "ubx", pieces_text(paths), data=b"".join(parts))
+
+    def lost(info):
+        return sum(int(info.get(k) or 0) for k in INTEGRITY_COUNTS if k != "n_frames")
+
+    if lost(one.info) >= lost(rx.info):
+        return
+    starts = np.cumsum([0] + [len(b) for b in parts])
+    where = {k: [f"{Path(paths[i]).name} byte {o - starts[i]}" for o in one.info.get(k) or []
+                 for i in [int(np.searchsorted(starts, o, side="right")) - 1]] for k in _LOSS_OFFSETS}
+    cut = [f"{Path(paths[i]).name} → {Path(paths[i + 1]).name}" for i, f in enumerate(files[:-1])
+           if f.get("truncated_tail_bytes")]
+    keep = {k: rx.info[k] for k in ("files", "join") if k in rx.info}
+    rx.raw, rx.nav = one.raw, one.nav
+    rx.info = {**one.info, **keep, "path": rx.info.get("path"), "record_problems": integrity_problems({**one.info, **where})}
+    for f in rx.info["files"]:
+        f["problems"] = []
+    t = np.unique(one.raw["time_gps_s"].to_numpy())
+    for g in [g for g in join["gaps"] if ((t > g["start_s"]) & (t < g["end_s"])).any()]:   # epochs found again
+        join["gaps"].remove(g)
+        warnings[:] = [w for w in warnings if f"between {g['after']} (last epoch" not in w
+                       or f"and {g['before']} (first epoch" not in w]
+    join["frames_joined_across_files"] = cut
+    warnings.append(f"{name}: UBX frame(s) cut by the file rotation ({', '.join(cut)}) joined again: the files were "
+                    f"read as one byte stream")
+
+
 def _refuse_lost_data(name: str, rx: GnssReceiver, paths: list) -> None:
     """``--strict`` on a UBX record of several files: the first file with lost data (time order) is
     refused, naming it, its span and the losses."""
+    if rx.info.get("record_problems"):
+        raise CdgpsError(f"{pieces_text(paths)} ({name}): corrupt UBX data: {', '.join(rx.info['record_problems'])} "
+                         f"(refused by --strict)")
     for f, p in zip(rx.info.get("files") or [], paths):
         if f.get("problems"):
             raise CdgpsError(f"{p} ({name}, epochs {gps_time_str(f['first_s'])} – {gps_time_str(f['last_s'])}): corrupt "
@@ -638,7 +687,8 @@ def _ubx_integrity(receivers: dict, files: dict) -> dict:
         if rx.format != "ubx":
             continue
         per_file = rx.info.get("files")
-        problems = integrity_problems(rx.info) if not per_file else [
+        problems = rx.info["record_problems"] if "record_problems" in rx.info else integrity_problems(rx.info) \
+            if not per_file else [
             f"{f['file']} (last epoch {gps_time_str(f['last_s'])}): {q}" for f in per_file for q in f.get("problems") or []]
         out[n] = {"file": files[n][1], **{k: int(rx.info.get(k) or 0) for k in INTEGRITY_COUNTS},
                   "problems": problems, "other_protocols": skipped_line(rx.info)}

@@ -29,7 +29,8 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import gps_time_str, nominal_interval_s
 from cdgps_cli.io.log_sequence import join_tables
 
-__all__ = ["check_same_receiver", "join_receivers", "pieces_text", "join_signal_tables"]
+__all__ = ["check_same_receiver", "join_receivers", "pieces_text", "join_signal_tables", "ubx_bytes",
+           "ubx_sequence_ephemerides"]
 
 _MUST_AGREE = ("receiver_type", "marker_name", "antenna_type", "l1_obs_types")
 _MAY_DIFFER = ("version", "obs_types", "approx_position_xyz_m")
@@ -170,6 +171,7 @@ def join_receivers(name: str, rxs: list, paths: list) -> tuple:
 
         for f, r in zip(info["files"], rxs_o):
             f["problems"] = integrity_problems(r.info)
+            f["truncated_tail_bytes"] = int(r.info.get("truncated_tail_bytes") or 0)
         for k in ("bad_frame_offsets", "undecodable_frame_offsets", "bad_rtcm_offsets"):
             info[k] = []                    # byte offsets are per file: see info["files"][i]["problems"]
     nav = None
@@ -191,11 +193,14 @@ def ubx_sequence_ephemerides(paths, week_ref) -> tuple:
 
     frames = []
     for p in paths:
-        data = Path(p).read_bytes()
-        if data[:2] == b"\x1f\x8b":
-            data = gzip.decompress(data)
-        frames.extend(split_stream(data)[0])
+        frames.extend(split_stream(ubx_bytes(p))[0])
     return sfrbx_ephemerides(frames, week_ref)
+
+
+def ubx_bytes(path) -> bytes:
+    """A UBX log's bytes (gzip decompressed)."""
+    data = Path(path).read_bytes()
+    return gzip.decompress(data) if data[:2] == b"\x1f\x8b" else data
 
 
 def join_signal_tables(name: str, tables: list, paths: list) -> pd.DataFrame:

@@ -255,6 +255,32 @@ def test_ubx_pieces_cut_at_frames_give_the_whole_logs_run(tmp_path):
     assert [f["epochs"] for f in s["joins"]["U"]["files"]] == [200, 200, 136]
 
 
+def test_ubx_frame_cut_by_file_rotation_is_joined_again(tmp_path):
+    """A logger rotating files by size cuts frames in two: the walk log cut inside an RXM-RAWX frame
+    and inside the next frame after another 300 epochs gives the whole log's RUN (no epoch lost),
+    with a warning and nothing for --strict to refuse."""
+    data = UBX_WALK.read_bytes()
+    off = _rawx_offsets(data)
+    _split_bytes(data, tmp_path, "rot", [off[200] + 50, off[500] + 7])
+    r = _cli("-q", "ingest", "--ubx", f"U={UBX_WALK}", "-o", tmp_path / "whole.mcap")
+    assert r.exit_code == 0, r.output
+    r = _cli("ingest", "--strict", "--ubx", f"U={tmp_path}/rot_*.ubx", "-o", tmp_path / "p.mcap", "--json")
+    assert r.exit_code == 0, r.output
+    assert_same_record(tmp_path / "whole.mcap", tmp_path / "p.mcap", {"ubx:U": 3})
+    s = json.loads(r.stdout)
+    assert s["joins"]["U"]["frames_joined_across_files"] == ["rot_00.ubx → rot_01.ubx", "rot_01.ubx → rot_02.ubx"]
+    assert s["integrity"]["U"]["problems"] == [] and s["receivers"][0]["epochs"] == 536
+    assert s["joins"]["U"]["gaps"] == [] and "gap of" not in r.output
+    assert "UBX frame(s) cut by the file rotation (rot_00.ubx → rot_01.ubx, rot_01.ubx → rot_02.ubx) joined again" in r.output
+    (tmp_path / "rot_01.ubx").write_bytes(data[off[200] + 50: off[300]] + b"\xb5\x62\x02\x15junk" + data[off[300]: off[500] + 7])
+    r = _cli("ingest", "--ubx", f"U={tmp_path}/rot_*.ubx", "-o", tmp_path / "q.mcap", "--json")
+    assert r.exit_code == 0, r.output                      # a real loss left after the join names its file and byte
+    s = json.loads(r.stdout)
+    assert s["integrity"]["U"]["problems"] == [f"1 frame(s) failing the checksum (byte offsets rot_01.ubx byte "
+                                               f"{off[300] - off[200] - 50})", "8 bytes skipped between frames"]
+    assert s["joins"]["U"]["gaps"] == [] and "gap of" not in r.output      # the cut epochs are found again
+
+
 def test_ubx_pieces_with_gnss_signals_keep_the_whole_logs_signal_table(tmp_path):
     """With ``[gnss] signals`` the multi-signal table (here GPS L1 + L2C, lock times and half-cycle
     flags) of the pieces is the whole log's too."""
