@@ -238,35 +238,40 @@ def _split_bytes(data: bytes, out: Path, stem: str, cuts) -> list[Path]:
     return paths
 
 
-def test_ubx_pieces_cut_at_frames_give_the_whole_logs_run(tmp_path):
+@pytest.fixture(scope="module")
+def ubx_whole(tmp_path_factory) -> Path:
+    """The RUN of the whole walk log."""
+    out = tmp_path_factory.mktemp("ubx") / "whole.mcap"
+    r = _cli("-q", "ingest", "--ubx", f"U={UBX_WALK}", "-o", out)
+    assert r.exit_code == 0, r.output
+    return out
+
+
+def test_ubx_pieces_cut_at_frames_give_the_whole_logs_run(tmp_path, ubx_whole):
     """The real u-blox F9P walk log (RXM-RAWX at 4 Hz, RXM-SFRBX, NMEA) cut before two RXM-RAWX frames:
     the same observations and the same 19 ephemerides (the RXM-SFRBX subframes are decoded across
     the cuts: one ephemeris has its subframes in two pieces)."""
     data = UBX_WALK.read_bytes()
     off = _rawx_offsets(data)
     _split_bytes(data, tmp_path, "walk", [off[200], off[400]])
-    r = _cli("-q", "ingest", "--ubx", f"U={UBX_WALK}", "-o", tmp_path / "whole.mcap")
-    assert r.exit_code == 0, r.output
     r = _cli("-q", "ingest", "--ubx", f"U={tmp_path}/walk_*.ubx", "-o", tmp_path / "p.mcap", "--json")
     assert r.exit_code == 0, r.output
-    assert_same_record(tmp_path / "whole.mcap", tmp_path / "p.mcap", {"ubx:U": 3})
+    assert_same_record(ubx_whole, tmp_path / "p.mcap", {"ubx:U": 3})
     s = json.loads(r.stdout)
     assert s["ephemerides"] == 19 and s["integrity"]["U"]["problems"] == []
     assert [f["epochs"] for f in s["joins"]["U"]["files"]] == [200, 200, 136]
 
 
-def test_ubx_frame_cut_by_file_rotation_is_joined_again(tmp_path):
+def test_ubx_frame_cut_by_file_rotation_is_joined_again(tmp_path, ubx_whole):
     """A logger rotating files by size cuts frames in two: the walk log cut inside an RXM-RAWX frame
     and inside the next frame after another 300 epochs gives the whole log's RUN (no epoch lost),
     with a warning and nothing for --strict to refuse."""
     data = UBX_WALK.read_bytes()
     off = _rawx_offsets(data)
     _split_bytes(data, tmp_path, "rot", [off[200] + 50, off[500] + 7])
-    r = _cli("-q", "ingest", "--ubx", f"U={UBX_WALK}", "-o", tmp_path / "whole.mcap")
-    assert r.exit_code == 0, r.output
     r = _cli("ingest", "--strict", "--ubx", f"U={tmp_path}/rot_*.ubx", "-o", tmp_path / "p.mcap", "--json")
     assert r.exit_code == 0, r.output
-    assert_same_record(tmp_path / "whole.mcap", tmp_path / "p.mcap", {"ubx:U": 3})
+    assert_same_record(ubx_whole, tmp_path / "p.mcap", {"ubx:U": 3})
     s = json.loads(r.stdout)
     assert s["joins"]["U"]["frames_joined_across_files"] == ["rot_00.ubx → rot_01.ubx", "rot_01.ubx → rot_02.ubx"]
     assert s["integrity"]["U"]["problems"] == [] and s["receivers"][0]["epochs"] == 536
@@ -386,7 +391,7 @@ def test_truncated_ubx_piece_warns_naming_file_and_time_and_strict_refuses(tmp_p
 @pytest.fixture(scope="module")
 def testbed_csv(tmp_path_factory):
     d = tmp_path_factory.mktemp("csv")
-    r = _cli("-q", "simulate", TESTBED, "--duration", 30, "--random-slips", 3, "-o", d)
+    r = _cli("-q", "simulate", TESTBED, "--duration", 15, "--random-slips", 3, "-o", d)
     assert r.exit_code == 0, r.output
     r = _cli("-q", "ingest", d / "receiver.csv", d / "gyro.csv", "--config", TESTBED, "-o", d / "whole.mcap")
     assert r.exit_code == 0, r.output
@@ -406,31 +411,31 @@ def _split_csv(src: Path, out: Path, stem: str, bounds) -> list[Path]:
 
 def test_receiver_csv_pieces_give_the_whole_logs_run(testbed_csv, tmp_path):
     d = testbed_csv
-    _split_csv(d / "receiver.csv", tmp_path, "receiver", [-np.inf, 10.0, 20.0, np.inf])
-    _split_csv(d / "gyro.csv", tmp_path, "gyro", [-np.inf, 15.0, np.inf])
+    _split_csv(d / "receiver.csv", tmp_path, "receiver", [-np.inf, 5.0, 10.0, np.inf])
+    _split_csv(d / "gyro.csv", tmp_path, "gyro", [-np.inf, 7.5, np.inf])
     (tmp_path / "receiver_01.csv").write_text((tmp_path / "receiver_01.csv").read_text()
                                               + "".join(x for x in (d / "receiver.csv").read_text().splitlines(True)
-                                                        if x.startswith("20.0,")))          # 20.0 s repeated in _02
+                                                        if x.startswith("10.0,")))          # 10.0 s repeated in _02
     r = _cli("ingest", f"{tmp_path}/receiver_*.csv", f"{tmp_path}/gyro_*.csv", "--config", TESTBED,
              "-o", tmp_path / "p.mcap", "--json")
     assert r.exit_code == 0, r.output
     assert_same_record(d / "whole.mcap", tmp_path / "p.mcap", {"receiver_csv": 3, "gyro_csv": 2})
     s = json.loads(r.stdout)
     assert [f["file"] for f in s["joins"]["receiver_csv"]["files"]] == ["receiver_00.csv", "receiver_01.csv", "receiver_02.csv"]
-    assert s["joins"]["receiver_csv"]["overlaps"][0]["start_s"] == 20.0
-    assert "receiver_02.csv repeats 1 epoch(s) of receiver_01.csv (20 s – 20 s); the rows are identical" in r.output
+    assert s["joins"]["receiver_csv"]["overlaps"][0]["start_s"] == 10.0
+    assert "receiver_02.csv repeats 1 epoch(s) of receiver_01.csv (10 s – 10 s); the rows are identical" in r.output
 
 
 def test_receiver_csv_gap_and_corrupt_piece(testbed_csv, tmp_path):
     d = testbed_csv
-    a, b, c = _split_csv(d / "receiver.csv", tmp_path, "rx", [-np.inf, 10.0, 12.0, np.inf])
+    a, b, c = _split_csv(d / "receiver.csv", tmp_path, "rx", [-np.inf, 5.0, 7.0, np.inf])
     b.unlink()
     r = _cli("ingest", f"{tmp_path}/rx_*.csv", "--config", TESTBED, "-o", tmp_path / "p.mcap", "--json")
     assert r.exit_code == 0, r.output
     g = json.loads(r.stdout)["joins"]["receiver_csv"]["gaps"]
-    assert g == [{"after": "rx_00.csv", "before": "rx_02.csv", "start_s": 9.9, "end_s": 12.0, "gap_s": pytest.approx(2.1),
+    assert g == [{"after": "rx_00.csv", "before": "rx_02.csv", "start_s": 4.9, "end_s": 7.0, "gap_s": pytest.approx(2.1),
                   "missing_epochs": 20}]
-    assert "gap of 2.1 s (20 epochs missing) between rx_00.csv (last epoch 9.9 s) and rx_02.csv (first epoch 12 s)" in r.output
+    assert "gap of 2.1 s (20 epochs missing) between rx_00.csv (last epoch 4.9 s) and rx_02.csv (first epoch 7 s)" in r.output
     c.write_text(c.read_text()[:-25])                     # the last file cut inside its last row
     r = _cli("ingest", f"{tmp_path}/rx_*.csv", "--config", TESTBED, "-o", tmp_path / "q.mcap")
     assert r.exit_code == 2 and f"{c}, line {len(c.read_text().splitlines())}" in r.output
@@ -438,7 +443,7 @@ def test_receiver_csv_gap_and_corrupt_piece(testbed_csv, tmp_path):
 
 
 def test_receiver_csv_of_another_receiver_is_refused(testbed_csv, tmp_path):
-    a, b = _split_csv(testbed_csv / "receiver.csv", tmp_path, "rx", [-np.inf, 10.0, np.inf])
+    a, b = _split_csv(testbed_csv / "receiver.csv", tmp_path, "rx", [-np.inf, 5.0, np.inf])
     b.write_text(b.read_text().replace(",rx1,", ",rx9,"))
     r = _cli("ingest", f"{tmp_path}/rx_*.csv", "--config", TESTBED, "-o", tmp_path / "p.mcap")
     assert r.exit_code == 2 and f"{b}: antenna a1 is measured by receiver 'rx9', by 'rx1' in {a}" in r.output
