@@ -273,7 +273,8 @@ def read_ubx_rawx(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.D
     return info, obs
 
 
-def read_ubx_log(path: str | Path, *, strict: bool = False, data: bytes | None = None) -> tuple[dict, pd.DataFrame, pd.DataFrame]:
+def read_ubx_log(path: str | Path, *, strict: bool = False,
+                 data: bytes | None = None) -> tuple[dict, pd.DataFrame, pd.DataFrame]:
     """Read GPS L1 C/A raw measurements from the RXM-RAWX messages of a u-blox UBX log.
 
     Parameters
