@@ -237,7 +237,7 @@ def write_run(cfg: StructureConfig, receiver_csv: str | Path, out_path: str | Pa
     rx = _read_sequence(files["receiver_csv"], read_receiver_log, cfg, cfg.sample_period_s, joins, "receiver_csv")
     phase = _categorical_phase(rx)
     gyro = _read_sequence(files["gyro_csv"], read_gyro_log, cfg, None, joins, "gyro_csv") if "gyro_csv" in files else None
-    act = (_read_sequence(files["actuator_csv"], read_actuator_log, cfg, None, joins, "actuator_csv")
+    act = (_read_sequence(files["actuator_csv"], read_actuator_log, cfg, None, joins, "actuator_csv", sampled=False)
            if "actuator_csv" in files else None)
     if joins:               # the files in time order (the metadata keys receiver_csv[0], [1] … follow it)
         sources = {key: Path(p) for k, ps in files.items() for key, p in _input_keys(k, ps)}
@@ -297,12 +297,16 @@ def _check_same_receivers(paths: list, tabs: list) -> None:
                                  f"{first[1]}; the files of one record must be one receiver's log per antenna")
 
 
-def _read_sequence(paths: list, reader, cfg, period_s, joins: dict, key: str):
+def _read_sequence(paths: list, reader, cfg, period_s, joins: dict, key: str, sampled: bool = True):
     """Read a log given as one file or as consecutive files (each validated by ``reader``) and join
     them in time order (:func:`cdgps_cli.io.log_sequence.join_tables`): an epoch a later file repeats
     is kept from the earlier file (a warning), the gaps between files are reported, and files of
     another rate refused.  ``paths`` is reordered in place to time order; ``joins[key]`` gets the
-    report (``files``, ``gaps``, ``overlaps``) and the warnings when there are several files."""
+    report (``files``, ``gaps``, ``overlaps``) and the warnings when there are several files.
+
+    ``period_s``: the record's sample period (None: the median spacing of the data); ``sampled``
+    False: an event log (the actuator commands, rows only when a command changes), which has no
+    rate to compare and no gaps."""
     from cdgps_cli.core.gps_time import nominal_interval_s  # noqa: PLC0415
     from cdgps_cli.io.log_sequence import join_tables  # noqa: PLC0415
 
@@ -313,12 +317,13 @@ def _read_sequence(paths: list, reader, cfg, period_s, joins: dict, key: str):
     dts = [nominal_interval_s(t["time_s"].to_numpy()) for t in tabs]
     ref = next((i for i, dt in enumerate(dts) if np.isfinite(dt)), None)
     for p, dt in zip(paths, dts):
-        if ref is not None and np.isfinite(dt) and abs(dt - dts[ref]) > 1e-6 * max(dts[ref], 1.0):
+        if sampled and ref is not None and np.isfinite(dt) and abs(dt - dts[ref]) > 1e-6 * max(dts[ref], 1.0):
             raise CdgpsError(f"{p}: epoch interval {dt:g} s differs from {dts[ref]:g} s in {paths[ref]}; the files of one "
                              f"record must have one rate")
     if "receiver" in tabs[0]:
         _check_same_receivers(paths, tabs)
-    period = period_s if period_s else nominal_interval_s(np.concatenate([t["time_s"].to_numpy() for t in tabs]))
+    period = (period_s or nominal_interval_s(np.concatenate([t["time_s"].to_numpy() for t in tabs]))) if sampled \
+        else float("nan")
     tab, rep, order = join_tables(list(zip(names, tabs)), "time_s", period, what=key)
     paths[:] = [paths[i] for i in order]
     joins[key] = {"report": rep.as_dict(), "warnings": rep.warnings}

@@ -442,6 +442,25 @@ def test_receiver_csv_gap_and_corrupt_piece(testbed_csv, tmp_path):
     assert not (tmp_path / "q.mcap").exists()
 
 
+def test_actuator_event_logs_join_without_a_rate_or_gaps(testbed_csv, tmp_path):
+    """Actuator logs have rows only when a command changes: their pieces are joined without a rate
+    check or a gap report (a 2.5 s pause between commands is not a gap)."""
+    d = testbed_csv
+    head = "time_s,actuator,force_n\n"
+    rows = ["5.0,a3+z,1.4\n", "6.0,a3+z,0.0\n", "6.5,a4-z,1.4\n", "9.0,a4-z,0.0\n", "9.5,a4-z,1.4\n"]
+    (tmp_path / "act.csv").write_text(head + "".join(rows))
+    (tmp_path / "act_00.csv").write_text(head + "".join(rows[:2]))
+    (tmp_path / "act_01.csv").write_text(head + "".join(rows[2:]))
+    r = _cli("-q", "ingest", d / "receiver.csv", "--actuators", tmp_path / "act.csv", "--config", TESTBED,
+             "-o", tmp_path / "whole.mcap")
+    assert r.exit_code == 0, r.output
+    r = _cli("ingest", d / "receiver.csv", "--actuators", f"{tmp_path}/act_*.csv", "--config", TESTBED,
+             "-o", tmp_path / "p.mcap", "--json")
+    assert r.exit_code == 0, r.output
+    assert_same_record(tmp_path / "whole.mcap", tmp_path / "p.mcap", {"actuator_csv": 2})
+    assert json.loads(r.stdout)["joins"]["actuator_csv"]["gaps"] == [] and "gap of" not in r.output
+
+
 def test_receiver_csv_of_another_receiver_is_refused(testbed_csv, tmp_path):
     a, b = _split_csv(testbed_csv / "receiver.csv", tmp_path, "rx", [-np.inf, 5.0, np.inf])
     b.write_text(b.read_text().replace(",rx1,", ",rx9,"))
