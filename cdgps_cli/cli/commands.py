@@ -297,12 +297,15 @@ def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_s
 @main.command(short_help="Validate logs and write one RUN.mcap")
 @click.argument("receiver_csv", required=False, type=click.Path(dir_okay=False))
 @click.argument("gyro_csv", required=False, type=click.Path(dir_okay=False))
-@click.option("--actuators", "actuator_csv", type=click.Path(dir_okay=False), help="Thruster command log CSV.")
+@click.option("--actuators", "actuator_csv", type=click.Path(dir_okay=False),
+              help="Thruster command log CSV (or a quoted glob pattern of consecutive files).")
 @click.option("--config", "config", type=click.Path(dir_okay=False),
               help="Structure config TOML (CSV logs), or a GNSS run config (RINEX/UBX; docs/gnss-pipeline.md).")
 @click.option("--rinex", "rinex", multiple=True, metavar="ANTENNA=FILE",
-              help="GNSS: RINEX 2.1x/3.x observation file of an antenna (plain, gzip, Hatanaka); repeatable.")
-@click.option("--ubx", "ubx", multiple=True, metavar="ANTENNA=FILE", help="GNSS: u-blox UBX log with RXM-RAWX; repeatable.")
+              help="GNSS: RINEX 2.1x/3.x observation file of an antenna (plain, gzip, Hatanaka); repeatable. An antenna "
+                   "repeated, or ANTENNA='PATTERN' (quoted glob), gives its consecutive files: one record.")
+@click.option("--ubx", "ubx", multiple=True, metavar="ANTENNA=FILE",
+              help="GNSS: u-blox UBX log with RXM-RAWX; repeatable (several files per antenna as for --rinex).")
 @click.option("--nav", "nav", multiple=True, type=click.Path(dir_okay=False), help="GNSS: RINEX GPS navigation file; repeatable.")
 @click.option("--master", "master", default=None, help="GNSS: the reference antenna at a known position.")
 @click.option("--strict", is_flag=True,
@@ -319,6 +322,15 @@ def ingest(ctx, receiver_csv, gyro_csv, actuator_csv, config, rinex, ubx, nav, m
     GNSS runs:       cdgps ingest --rinex A=a.obs --rinex B=b.obs --nav brdc.nav [--ubx C=c.ubx]
                                   [--master A] [--config GNSS.toml] -o RUN.mcap
                      cdgps ingest --config GNSS.toml -o RUN.mcap   (files listed in the config)
+    Many files per antenna (hourly/daily logs) as one record:
+                     cdgps ingest --rinex A='a_*.obs' --rinex B=b1.obs --rinex B=b2.obs ... -o RUN.mcap
+                     cdgps ingest 'receiver_*.csv' 'gyro_*.csv' --config STRUCTURE.toml -o RUN.mcap
+
+    
+    Several files of one antenna (the option repeated, or a quoted glob pattern) are joined in time
+    order of their first epochs (not their names): an epoch repeated by a later file is kept once
+    (warning naming both files), gaps between files are reported (summary, --json "joins", warnings);
+    files of another receiver, marker, antenna, L1 signal or rate are refused (docs/gnss-pipeline.md).
     """
     gnss = bool(rinex or ubx or nav or master)
     if not gnss and config and receiver_csv is None:
@@ -352,6 +364,10 @@ def ingest(ctx, receiver_csv, gyro_csv, actuator_csv, config, rinex, ubx, nav, m
         _say(ctx, f"  {gyro_csv}: header only (the config declares no gyros): no gyro topic")
     for g in s["gaps"][:10]:
         _say(ctx, f"  gap {g['start_s']:g}–{g['end_s']:g} s ({g['missing_epochs']} epochs missing)")
+    for k, j in s.get("joins", {}).items():
+        _say(ctx, f"  {k}: {len(j['files'])} files joined in time order: " + ", ".join(f["file"] for f in j["files"]))
+    for w in s.get("warnings", []):
+        _say(ctx, f"  warning: {w}")
     if as_json:
         _emit_json(s)
 
@@ -366,6 +382,19 @@ def _parse_named(items, option: str, what: str = "antenna", form: str = "ANTENNA
         if name.strip() in out:
             raise CdgpsError(f"{option}: {what} {name.strip()!r} given twice")
         out[name.strip()] = path.strip()
+    return out
+
+
+def _parse_named_files(items, option: str) -> dict:
+    """ANTENNA=FILE options of ``ingest`` (--rinex/--ubx) → {antenna: [file or pattern, …]}: an antenna
+    repeated, or a quoted glob pattern, gives its consecutive files (joined into one record)."""
+    out: dict = {}
+    for it in items:
+        name, sep, path = it.partition("=")
+        if not sep or not name.strip() or not path.strip():
+            raise CdgpsError(f"{option} expects ANTENNA=FILE or ANTENNA='PATTERN' (e.g. 3040=30400920.05o, "
+                             f"rover='rover_*.obs'), got {it!r}")
+        out.setdefault(name.strip(), []).append(path.strip())
     return out
 
 
@@ -386,7 +415,7 @@ def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict=F
     from cdgps_cli.io.gnss_run import default_config_text
     from cdgps_cli.pipeline.gnss_ingest import ingest_gnss
 
-    rx, ub = _parse_named(rinex, "--rinex"), _parse_named(ubx, "--ubx")
+    rx, ub = _parse_named_files(rinex, "--rinex"), _parse_named_files(ubx, "--ubx")
     if config:
         cfg = load_gnss_config(config)
     else:

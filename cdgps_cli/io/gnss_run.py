@@ -47,6 +47,8 @@ from cdgps_cli.io.mcap import CONFIG_ATTACHMENT, McapOut, array_schema, message_
 from cdgps_cli.io.run import INGEST_METADATA, contents_kind, ingest_metadata, run_kind
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.core.records import GLONASS_NAV_COLUMNS, NAV_COLUMNS
+from cdgps_cli.io.gnss_sequence import join_receivers, join_signal_tables, pieces_text
+from cdgps_cli.io.log_sequence import expand_paths
 from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
 from cdgps_cli.io.ubx import INTEGRITY_COUNTS, integrity_problems, integrity_record, skipped_line
 from cdgps_cli.core.gps_time import nominal_interval_s
@@ -196,11 +198,13 @@ def _raw_from_ubx(obs: pd.DataFrame) -> pd.DataFrame:
     })
 
 
-def read_receiver_file(name: str, kind: str, path: str | Path, *, strict: bool = False) -> GnssReceiver:
+def read_receiver_file(name: str, kind: str, path: str | Path, *, strict: bool = False,
+                       data: bytes | None = None) -> GnssReceiver:
     """Read one RINEX observation file or UBX log into a :class:`GnssReceiver` (raw table).
 
     ``strict``: a UBX log with any corrupt or skipped data is an error (see
     :func:`~cdgps_cli.io.ubx.read_ubx_rawx`); without it the losses are counted in ``info``.
+    ``data``: a UBX log's bytes already read (consecutive files joined; ``path`` names it).
 
     Raises
     ------
@@ -220,7 +224,7 @@ def read_receiver_file(name: str, kind: str, path: str | Path, *, strict: bool =
     elif kind == "ubx":
         from cdgps_cli.io.ubx import read_ubx_log  # noqa: PLC0415
 
-        info_u, obs, sf_nav = read_ubx_log(p, strict=strict)
+        info_u, obs, sf_nav = read_ubx_log(p, strict=strict, data=data)
         raw = _raw_from_ubx(obs)
         info = _json_safe(info_u)
         base = info_u.get("rtcm_base")
@@ -382,7 +386,8 @@ def _glonass_nav(signals, nav_list) -> tuple:
     return nav, {str(sat): int(v) for sat, v in k.items()}
 
 
-def _read_signal_tables(signals, receivers: dict, files: dict, say, glonass_k: dict | None = None) -> None:
+def _read_signal_tables(signals, receivers: dict, files: dict, say, glonass_k: dict | None = None,
+                        pieces: dict | None = None) -> None:
     """Every receiver's table of ``signals`` (RINEX, or a UBX log's RXM-RAWX: :func:`~cdgps_cli.io.ubx.read_ubx_signals`);
     CdgpsError naming the file when a receiver lacks one of them (the receivers must share every
     signal asked for).  ``glonass_k``: GLONASS frequency numbers of the navigation records, for
@@ -393,7 +398,10 @@ def _read_signal_tables(signals, receivers: dict, files: dict, say, glonass_k: d
     for n, rx in receivers.items():
         kind, p = files[n]
         say(f"reading signals {', '.join(signals)} of {p} ({n}) …")
-        tab = read_ubx_signals(p, signals) if kind == "ubx" else read_rinex_signals(p, signals, glonass_k)[1]
+        paths = (pieces or {}).get(n) or [p]
+        tabs = [read_ubx_signals(q, signals) if kind == "ubx" else read_rinex_signals(q, signals, glonass_k)[1]
+                for q in paths]
+        tab = tabs[0] if len(tabs) == 1 else join_signal_tables(n, tabs, paths)
         have = set(tab["signal"])
         absent = [g for g in signals if g not in have]
         if absent:
@@ -437,6 +445,10 @@ class IngestInputs:
     integrity: dict
     warnings: list
     nav_source: str = ""
+    pieces: dict | None = None
+    """Antenna → its files in time order (several: one record joined, :mod:`cdgps_cli.io.gnss_sequence`)."""
+    joins: dict | None = None
+    """Antenna with several files → how they joined (files, gaps, overlaps; GPS s)."""
 
 
 def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = None, ubx: dict | None = None,
@@ -454,7 +466,8 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
             for n, p in d.items():
                 if n in files:
                     raise CdgpsError(f"antenna {n!r} is given twice (--rinex/--ubx)")
-                files[n] = (kind, str(p))
+                files[n] = (kind, p)
+        opt = "--{} " + "{}"
     else:
         for a in cfg.antennas:
             if a.rinex or a.ubx:
@@ -463,6 +476,10 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
         if missing:
             raise CdgpsError(f"{cfg.path}: no observation file for antenna(s) {', '.join(missing)}; give rinex/ubx in "
                              f"[gnss.antennas.NAME] or --rinex/--ubx NAME=FILE")
+        opt = f"{cfg.path}: [gnss.antennas.{{1}}] {{0}}"
+    pieces = {n: expand_paths([p] if isinstance(p, (str, Path)) else list(p), opt.format(k, n))
+              for n, (k, p) in files.items()}
+    files = {n: (k, pieces[n][0] if len(pieces[n]) == 1 else pieces_text(pieces[n])) for n, (k, _) in files.items()}
     if not files:
         raise CdgpsError("no receiver files: give --rinex NAME=FILE / --ubx NAME=FILE, or list them in the config's "
                          "[gnss.antennas.NAME] tables")
@@ -473,18 +490,30 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
         raise CdgpsError(f"master {master!r} is not one of the receivers given: {', '.join(files)}")
     nav_list = list(cfg.nav) if nav_paths is None else [str(p) for p in nav_paths]
     out_path = Path(out_path)
-    for n, (_, p) in files.items():
-        if Path(p).resolve() == out_path.resolve():
-            raise CdgpsError(f"{out_path}: the output would overwrite the input file of {n}")
+    for n, ps in pieces.items():
+        for p in ps:
+            if Path(p).resolve() == out_path.resolve():
+                raise CdgpsError(f"{out_path}: the output would overwrite the input file of {n}")
     for p in nav_list:
         if Path(p).resolve() == out_path.resolve():
             raise CdgpsError(f"{out_path}: the output would overwrite the navigation file {p}")
     warnings: list[str] = []
 
-    receivers = {}
+    receivers, joins = {}, {}
     for n, (kind, p) in files.items():
         say(f"reading {kind.upper()} {p} ({n}) …")
-        receivers[n] = read_receiver_file(n, kind, p, strict=strict)
+        if len(pieces[n]) == 1:
+            receivers[n] = read_receiver_file(n, kind, pieces[n][0], strict=strict)
+            continue
+        rxs = [read_receiver_file(n, kind, q) for q in pieces[n]]       # (--strict: below, with the file's span)
+        receivers[n], joins[n], w, order = join_receivers(n, rxs, pieces[n])
+        pieces[n] = [pieces[n][i] for i in order]
+        files[n] = (kind, pieces_text(pieces[n]))
+        if kind == "ubx":
+            _rejoin_cut_frames(n, receivers[n], joins[n], pieces[n], w)
+        if strict:
+            _refuse_lost_data(n, receivers[n], pieces[n])
+        warnings.extend(w)
     # master first, then the others in the given order
     receivers = {master: receivers[master], **{n: r for n, r in receivers.items() if n != master}}
     integrity = _ubx_integrity(receivers, files)
@@ -495,15 +524,15 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
 
     nav_ahead, glonass_k = _glonass_nav(cfg.signals, nav_list)
     if cfg.signals:
-        _read_signal_tables(cfg.signals, receivers, files, say, glonass_k)
+        _read_signal_tables(cfg.signals, receivers, files, say, glonass_k, pieces)
     nav = None
     sf_navs = [rx.nav for rx in receivers.values() if rx.nav is not None and len(rx.nav)]
     nav_source = ",".join(Path(p).name for p in nav_list)
     if not nav_list and sf_navs:
         say(f"using {sum(len(x) for x in sf_navs)} broadcast ephemerides decoded from the UBX logs' RXM-SFRBX subframes …")
         nav = _merge_nav_tables(sf_navs)
-        nav_source = "RXM-SFRBX:" + ",".join(Path(files[n][1]).name for n, rx in receivers.items()
-                                             if rx.nav is not None and len(rx.nav))
+        nav_source = "RXM-SFRBX:" + ",".join(Path(q).name for n, rx in receivers.items()
+                                             if rx.nav is not None and len(rx.nav) for q in pieces[n])
     elif not nav_list and rovers_given(receivers, master) and all(rx.format == "ubx" for rx in receivers.values()):
         raise CdgpsError(
             "no broadcast ephemerides: no navigation file was given and none of the UBX logs ("
@@ -516,7 +545,61 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
     elif not sf_navs:               # SFRBX ephemerides are a navigation source (issue 28)
         warnings.append("no navigation file: the run has no ephemerides, and 'cdgps init' needs them "
                         "(ingest again with --nav, or list nav files in the config)")
-    return IngestInputs(files, master, nav_list, receivers, nav, integrity, warnings, nav_source)
+    return IngestInputs(files, master, nav_list, receivers, nav, integrity, warnings, nav_source, pieces, joins)
+
+
+_LOSS_OFFSETS = ("bad_frame_offsets", "undecodable_frame_offsets", "bad_rtcm_offsets")
+
+
+def _rejoin_cut_frames(name: str, rx: GnssReceiver, join: dict, paths: list, warnings: list) -> None:
+    """A UBX frame cut in two by a logger's file rotation (a file ending in a truncated frame whose
+    rest begins the next file) is joined again: the files, consecutive bytes of one log (no file
+    repeats another's epochs), are read once more as one byte stream, and the record becomes that
+    stream's — what the single log would have given.  Kept only when the stream loses less than the
+    files one by one; the losses left (``info["record_problems"]``) name the file and byte."""
+    files = rx.info.get("files") or []
+    if join["overlaps"] or not any(f.get("truncated_tail_bytes") for f in files[:-1]):
+        return
+    from cdgps_cli.io.gnss_sequence import ubx_bytes  # noqa: PLC0415
+
+    parts = [ubx_bytes(p) for p in paths]
+    one = read_receiver_file(name, "ubx", pieces_text(paths), data=b"".join(parts))
+
+    def lost(info):
+        return sum(int(info.get(k) or 0) for k in INTEGRITY_COUNTS if k != "n_frames")
+
+    if lost(one.info) >= lost(rx.info):
+        return
+    starts = np.cumsum([0] + [len(b) for b in parts])
+    where = {k: [f"{Path(paths[i]).name} byte {o - starts[i]}" for o in one.info.get(k) or []
+                 for i in [int(np.searchsorted(starts, o, side="right")) - 1]] for k in _LOSS_OFFSETS}
+    cut = [f"{Path(paths[i]).name} → {Path(paths[i + 1]).name}" for i, f in enumerate(files[:-1])
+           if f.get("truncated_tail_bytes")]
+    keep = {k: rx.info[k] for k in ("files", "join") if k in rx.info}
+    rx.raw, rx.nav = one.raw, one.nav
+    rx.info = {**one.info, **keep, "path": rx.info.get("path"), "record_problems": integrity_problems({**one.info, **where})}
+    for f in rx.info["files"]:
+        f["problems"] = []
+    t = np.unique(one.raw["time_gps_s"].to_numpy())
+    for g in [g for g in join["gaps"] if ((t > g["start_s"]) & (t < g["end_s"])).any()]:   # epochs found again
+        join["gaps"].remove(g)
+        warnings[:] = [w for w in warnings if f"between {g['after']} (last epoch" not in w
+                       or f"and {g['before']} (first epoch" not in w]
+    join["frames_joined_across_files"] = cut
+    warnings.append(f"{name}: UBX frame(s) cut by the file rotation ({', '.join(cut)}) joined again: the files were "
+                    f"read as one byte stream")
+
+
+def _refuse_lost_data(name: str, rx: GnssReceiver, paths: list) -> None:
+    """``--strict`` on a UBX record of several files: the first file with lost data (time order) is
+    refused, naming it, its span and the losses."""
+    if rx.info.get("record_problems"):
+        raise CdgpsError(f"{pieces_text(paths)} ({name}): corrupt UBX data: {', '.join(rx.info['record_problems'])} "
+                         f"(refused by --strict)")
+    for f, p in zip(rx.info.get("files") or [], paths):
+        if f.get("problems"):
+            raise CdgpsError(f"{p} ({name}, epochs {gps_time_str(f['first_s'])} – {gps_time_str(f['last_s'])}): corrupt "
+                             f"UBX data: {', '.join(f['problems'])} (refused by --strict)")
 
 
 def nominal_positions(cfg: GnssConfig, inp: IngestInputs) -> dict:
@@ -560,7 +643,9 @@ def write_gnss_run(cfg: GnssConfig, out_path: str | Path, inp: IngestInputs, pos
     files, master, nav_list, receivers, nav = inp.files, inp.master, inp.nav_list, inp.receivers, inp.nav
     integrity, warnings, nav_source = inp.integrity, inp.warnings, inp.nav_source
     out_path = Path(out_path)
-    inputs = {**{f"{kind}:{n}": p for n, (kind, p) in files.items()}, **{f"nav[{i}]": p for i, p in enumerate(nav_list)}}
+    pieces = inp.pieces or {n: [p] for n, (_, p) in files.items()}
+    inputs = {**{k: p for n, (kind, _) in files.items() for k, p in _input_keys(f"{kind}:{n}", pieces[n])},
+              **{f"nav[{i}]": p for i, p in enumerate(nav_list)}}
     meta = ingest_metadata("gnss", cfg, inputs, master=master, receivers=",".join(receivers),
                            displacement_model=cfg.displacement, **({"signals": ",".join(cfg.signals)} if cfg.signals else {}))
     for n, (kind, p) in files.items():
@@ -599,7 +684,14 @@ def write_gnss_run(cfg: GnssConfig, out_path: str | Path, inp: IngestInputs, pos
         "ephemerides": n_eph, "ephemeris_satellites": int(nav["sat"].nunique()) if nav is not None else 0,
         "messages": n_msg, "warnings": warnings, "integrity": integrity,
     }
+    if inp.joins:
+        summary["joins"] = inp.joins
     return summary
+
+
+def _input_keys(key: str, paths: list) -> list:
+    """The metadata keys of a receiver's files: ``key`` for one file, ``key[0]``, ``key[1]`` … (time order) for several."""
+    return [(key, paths[0])] if len(paths) == 1 else [(f"{key}[{i}]", p) for i, p in enumerate(paths)]
 
 
 def _ubx_integrity(receivers: dict, files: dict) -> dict:
@@ -609,8 +701,12 @@ def _ubx_integrity(receivers: dict, files: dict) -> dict:
     for n, rx in receivers.items():
         if rx.format != "ubx":
             continue
+        per_file = rx.info.get("files")
+        problems = rx.info["record_problems"] if "record_problems" in rx.info else integrity_problems(rx.info) \
+            if not per_file else [
+            f"{f['file']} (last epoch {gps_time_str(f['last_s'])}): {q}" for f in per_file for q in f.get("problems") or []]
         out[n] = {"file": files[n][1], **{k: int(rx.info.get(k) or 0) for k in INTEGRITY_COUNTS},
-                  "problems": integrity_problems(rx.info), "other_protocols": skipped_line(rx.info)}
+                  "problems": problems, "other_protocols": skipped_line(rx.info)}
     return out
 
 

@@ -212,8 +212,11 @@ def write_run(cfg: StructureConfig, receiver_csv: str | Path, out_path: str | Pa
     ----------
     cfg : StructureConfig
         Structure model the logs refer to (embedded as an attachment).
-    receiver_csv, gyro_csv, actuator_csv : path
-        Native logs (see :mod:`cdgps_cli.io.logs`); gyro and actuator logs are optional.
+    receiver_csv, gyro_csv, actuator_csv : path, glob pattern, or list of them
+        Native logs (see :mod:`cdgps_cli.io.logs`); gyro and actuator logs are optional.  Several
+        files (a list, or a pattern matching several) are consecutive pieces of one record (hourly
+        files): each is validated, and they are joined in time order by their first epoch
+        (:func:`_read_sequence`; the summary's ``joins`` and ``warnings`` say how).
     out_path : path
         Output MCAP; written atomically.
     channel_summary : callable, optional
@@ -226,20 +229,26 @@ def write_run(cfg: StructureConfig, receiver_csv: str | Path, out_path: str | Pa
     dict
         Summary: counts, time span, gaps, channels, lock restarts.
     """
-    sources = {"receiver_csv": Path(receiver_csv)}
-    if gyro_csv:
-        sources["gyro_csv"] = Path(gyro_csv)
-    if actuator_csv:
-        sources["actuator_csv"] = Path(actuator_csv)
+    from cdgps_cli.io.log_sequence import expand_paths  # noqa: PLC0415
+
+    given = {"receiver_csv": receiver_csv, "gyro_csv": gyro_csv, "actuator_csv": actuator_csv}
+    files = {k: expand_paths([v] if isinstance(v, (str, Path)) else list(v), k.upper())
+             for k, v in given.items() if v is not None and (isinstance(v, (str, Path)) or len(v))}
+    sources = {key: Path(p) for k, ps in files.items() for key, p in _input_keys(k, ps)}
     out_path = Path(out_path)
     for k, p in sources.items():
         if p.resolve() == out_path.resolve():
             raise CdgpsError(f"{out_path}: the output would overwrite the input {k}")
     from cdgps_cli.io.logs import read_actuator_log, read_gyro_log, read_receiver_log  # noqa: PLC0415 (pandas)
 
-    phase = _categorical_phase(read_receiver_log(sources["receiver_csv"], cfg))
-    gyro = read_gyro_log(sources["gyro_csv"], cfg) if gyro_csv else None
-    act = read_actuator_log(sources["actuator_csv"], cfg) if actuator_csv else None
+    joins: dict = {}
+    rx = _read_sequence(files["receiver_csv"], read_receiver_log, cfg, cfg.sample_period_s, joins, "receiver_csv")
+    phase = _categorical_phase(rx)
+    gyro = _read_sequence(files["gyro_csv"], read_gyro_log, cfg, None, joins, "gyro_csv") if "gyro_csv" in files else None
+    act = (_read_sequence(files["actuator_csv"], read_actuator_log, cfg, None, joins, "actuator_csv", sampled=False)
+           if "actuator_csv" in files else None)
+    if joins:               # the files in time order (the metadata keys receiver_csv[0], [1] … follow it)
+        sources = {key: Path(p) for k, ps in files.items() for key, p in _input_keys(k, ps)}
     meta = ingest_metadata("structure", cfg, sources, sample_period_s=repr(cfg.sample_period_s))
     with McapOut(out_path, time_scale="relative") as out:     # time_s: run seconds (cdgps_cli.core.timescales)
         ch = out.channel(PHASE_TOPIC, PHASE_SCHEMA, {"units": "cycles", "wavelength_m": repr(cfg.wavelength_m)})
@@ -275,7 +284,60 @@ def write_run(cfg: StructureConfig, receiver_csv: str | Path, out_path: str | Pa
         "gaps": gaps,
         "channels": int(np.unique(a_codes.astype(np.int64) * len(x_names) + x_codes).size),
         "lock_restarts": None if chans is None else sum(len(c["lock_restarts_s"]) for c in chans),
+        **({"joins": {k: j["report"] for k, j in joins.items()},
+            "warnings": [w for j in joins.values() for w in j["warnings"]]} if joins else {}),
     }
+
+
+def _input_keys(key: str, paths: list) -> list:
+    """Metadata keys of a log's files: ``key`` for one file, ``key[0]``, ``key[1]`` … (time order) for several."""
+    return [(key, paths[0])] if len(paths) == 1 else [(f"{key}[{i}]", p) for i, p in enumerate(paths)]
+
+
+def _check_same_receivers(paths: list, tabs: list) -> None:
+    """Refuse receiver logs in which an antenna is measured by another receiver than in an earlier
+    file (another receiver: its phase biases do not continue), naming the file, antenna and both."""
+    seen: dict = {}
+    for p, t in zip(paths, tabs):
+        pairs = t[["antenna", "receiver"]].drop_duplicates().itertuples(index=False)
+        for antenna, receiver in pairs:
+            first = seen.setdefault(antenna, (receiver, p))
+            if first[0] != receiver:
+                raise CdgpsError(f"{p}: antenna {antenna} is measured by receiver {receiver!r}, by {first[0]!r} in "
+                                 f"{first[1]}; the files of one record must be one receiver's log per antenna")
+
+
+def _read_sequence(paths: list, reader, cfg, period_s, joins: dict, key: str, sampled: bool = True):
+    """Read a log given as one file or as consecutive files (each validated by ``reader``) and join
+    them in time order (:func:`cdgps_cli.io.log_sequence.join_tables`): an epoch a later file repeats
+    is kept from the earlier file (a warning), the gaps between files are reported, and files of
+    another rate refused.  ``paths`` is reordered in place to time order; ``joins[key]`` gets the
+    report (``files``, ``gaps``, ``overlaps``) and the warnings when there are several files.
+
+    ``period_s``: the record's sample period (None: the median spacing of the data); ``sampled``
+    False: an event log (the actuator commands, rows only when a command changes), which has no
+    rate to compare and no gaps."""
+    from cdgps_cli.core.gps_time import nominal_interval_s  # noqa: PLC0415
+    from cdgps_cli.io.log_sequence import join_tables  # noqa: PLC0415
+
+    if len(paths) == 1:
+        return reader(paths[0], cfg)
+    tabs = [reader(p, cfg) for p in paths]
+    names = [Path(p).name if len({Path(q).name for q in paths}) == len(paths) else str(p) for p in paths]
+    dts = [nominal_interval_s(t["time_s"].to_numpy()) for t in tabs]
+    ref = next((i for i, dt in enumerate(dts) if np.isfinite(dt)), None)
+    for p, dt in zip(paths, dts):
+        if sampled and ref is not None and np.isfinite(dt) and abs(dt - dts[ref]) > 1e-6 * max(dts[ref], 1.0):
+            raise CdgpsError(f"{p}: epoch interval {dt:g} s differs from {dts[ref]:g} s in {paths[ref]}; the files of one "
+                             f"record must have one rate")
+    if "receiver" in tabs[0]:
+        _check_same_receivers(paths, tabs)
+    period = (period_s or nominal_interval_s(np.concatenate([t["time_s"].to_numpy() for t in tabs]))) if sampled \
+        else float("nan")
+    tab, rep, order = join_tables(list(zip(names, tabs)), "time_s", period, what=key)
+    paths[:] = [paths[i] for i in order]
+    joins[key] = {"report": rep.as_dict(), "warnings": rep.warnings}
+    return tab
 
 
 def read_run(path: str | Path, phase: bool = True) -> Run:

@@ -226,12 +226,12 @@ def _repeated_signal_frames(meas: np.ndarray) -> np.ndarray:
     return np.unique(dup >> 24)
 
 
-def _decoded_rawx(p: Path, strict: bool):
+def _decoded_rawx(p: Path, strict: bool, data: bytes | None = None):
     """Frame a UBX log and decode its RXM-RAWX messages: (frames, rtcm, split statistics, message counts,
     epochs, measurements, offsets of undecodable frames, epoch time tags in GPS s); CdgpsError as
-    :func:`read_ubx_log` says."""
+    :func:`read_ubx_log` says.  ``data``: the log's bytes when already read (``p`` then names it)."""
     try:
-        data = p.read_bytes()
+        data = p.read_bytes() if data is None else data
     except OSError as exc:
         raise CdgpsError(f"{p}: cannot read: {exc.strerror or exc}") from None
     if data[:2] == b"\x1f\x8b":
@@ -294,7 +294,8 @@ def read_ubx_rawx(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.D
     return info, obs
 
 
-def read_ubx_log(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.DataFrame, pd.DataFrame]:
+def read_ubx_log(path: str | Path, *, strict: bool = False,
+                 data: bytes | None = None) -> tuple[dict, pd.DataFrame, pd.DataFrame]:
     """Read GPS L1 C/A raw measurements from the RXM-RAWX messages of a u-blox UBX log.
 
     Parameters
@@ -306,6 +307,9 @@ def read_ubx_log(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.Da
         checksum or with an impossible length, an undecodable RXM-RAWX payload, bytes skipped
         between frames, a truncated tail) instead of skipping the data and counting it in
         ``info``; the message names the file and every count.
+    data : bytes, optional
+        The log's bytes, already read (e.g. consecutive files of one log joined); ``path`` then
+        only names the log in the messages and ``info``.
 
     Returns
     -------
@@ -351,7 +355,7 @@ def read_ubx_log(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.Da
         C/A measurement; epochs going backwards; with ``strict``, any corrupt frame.
     """
     p = Path(path)
-    frames, rtcm, stats, counts, epochs, meas, undecodable_offsets, t = _decoded_rawx(p, strict)
+    frames, rtcm, stats, counts, epochs, meas, undecodable_offsets, t = _decoded_rawx(p, strict, data)
     undecodable = len(undecodable_offsets)
     n_epochs = len(epochs)
     week0 = int(epochs["week"][0])

@@ -1,0 +1,210 @@
+"""A receiver's consecutive RINEX files or UBX logs (hourly, daily) read as one :class:`GnssReceiver`.
+
+Each file is read and checked by its reader (errors name the file and line / byte); the files are
+then checked to be of one receiver (:func:`check_same_receiver`) and joined in time order by
+:func:`cdgps_cli.io.log_sequence.join_tables` (repeated epochs kept once, gaps reported).  Times
+are GPS seconds since 1980-01-06 (RINEX calendar dates and UBX week + time of week alike), so a
+day boundary or a GPS week rollover between (or inside) the files is continuous.
+
+What must agree between the files, and why (a mismatch is a CdgpsError naming the file and both
+values): the RINEX ``receiver_type``, ``marker_name`` and ``antenna_type`` (another receiver,
+site or antenna is not the same record: other clock, biases and phase centre), the L1 observation
+codes ingested (``l1_obs_types``: another tracking mode of L1 has another phase bias), and the
+epoch interval of every file with two epochs or more (the lock-segment rule and the gap report
+use one interval per record).  What may differ, with a warning: the RINEX version, the other
+observation types (not ingested; with ``[gnss] signals`` every file is checked to have them), the
+header's approximate position (the first file's is used).
+"""
+
+from __future__ import annotations
+
+import gzip
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.core.gps_time import gps_time_str, nominal_interval_s
+from cdgps_cli.io.log_sequence import join_tables
+
+__all__ = ["check_same_receiver", "join_receivers", "pieces_text", "join_signal_tables", "ubx_bytes",
+           "ubx_sequence_ephemerides"]
+
+_MUST_AGREE = ("receiver_type", "marker_name", "antenna_type", "l1_obs_types")
+_MAY_DIFFER = ("version", "obs_types", "approx_position_xyz_m")
+"""Header fields that may differ between a record's files (a warning; the first file's are kept,
+but a UBX record's position is that of its last RTCM 1005/1006 message)."""
+_SUMMED = ("n_epochs", "n_epochs_power_failure", "n_gps_epochs", "n_frames", "bad_checksum_frames",
+           "undecodable_frames", "skipped_bytes", "truncated_tail_bytes", "nmea_bytes", "nmea_sentences",
+           "rtcm_bytes", "bad_crc_rtcm_frames", "n_clock_resets")
+
+
+def pieces_text(paths) -> str:
+    """A receiver's files for the messages: the file, or ``first … last (N files)``."""
+    paths = [str(p) for p in paths]
+    return paths[0] if len(paths) == 1 else f"{paths[0]} … {paths[-1]} ({len(paths)} files)"
+
+
+def _interval(rx) -> float:
+    return nominal_interval_s(rx.raw["time_gps_s"].to_numpy())
+
+
+def check_same_receiver(name: str, rxs: list, paths: list) -> list[str]:
+    """Refuse files of ``name`` that are not of one receiver; the warnings for harmless differences.
+
+    Parameters
+    ----------
+    name : str
+        The antenna.
+    rxs : list of GnssReceiver
+        One per file, in time order.
+    paths : list of str
+        The files, in the same order.
+
+    Raises
+    ------
+    CdgpsError
+        The file, what differs and both values (see the module docstring for what must agree).
+    """
+    first, p0 = rxs[0], paths[0]
+    warnings = []
+    dt0 = next((d for d in map(_interval, rxs) if math.isfinite(d)), math.nan)
+    p_dt0 = next((p for rx, p in zip(rxs, paths) if math.isfinite(_interval(rx))), p0)
+    for rx, p in zip(rxs[1:], paths[1:]):
+        for k in _MUST_AGREE:
+            a, b = first.header.get(k), rx.header.get(k)
+            if a != b:
+                raise CdgpsError(f"{p} ({name}): {k} {b!r} differs from {a!r} in {p0}; the files of one antenna must be "
+                                 f"one receiver's record (same receiver, marker, antenna and L1 observation codes)")
+        dt = _interval(rx)
+        if math.isfinite(dt) and math.isfinite(dt0) and abs(dt - dt0) > 1e-6 * max(dt0, 1.0):
+            raise CdgpsError(f"{p} ({name}): epoch interval {dt:g} s differs from {dt0:g} s in {p_dt0}; the files of one "
+                             f"record must have one rate (resample them to one interval first)")
+        diff = [k for k in _MAY_DIFFER if first.header.get(k) != rx.header.get(k)]
+        if diff:
+            warnings.append(f"{name}: {p} differs from {p0} in {', '.join(diff)} (not used: the first file's header "
+                            f"is kept)")
+    return warnings
+
+
+def _merged_info(infos: list[dict], reps: dict) -> dict:
+    """The read summary of the joined record: the first file's, counters summed over the files,
+    satellite lists united, and ``files`` (each file's name, span and counters)."""
+    out = dict(infos[0])
+    for k in _SUMMED:
+        if any(k in i for i in infos):
+            out[k] = int(sum(int(i.get(k) or 0) for i in infos))
+    for k in ("gps_satellites",):
+        if any(k in i for i in infos):
+            out[k] = sorted(set().union(*[set(i.get(k) or []) for i in infos]))
+    for k in ("message_counts", "signal_counts"):
+        if any(k in i for i in infos):
+            tot: dict = {}
+            for i in infos:
+                for m, c in (i.get(k) or {}).items():
+                    tot[m] = tot.get(m, 0) + int(c)
+            out[k] = dict(sorted(tot.items()))
+    bases = [i.get("rtcm_base") for i in infos if i.get("rtcm_base")]
+    if "rtcm_base" in out:
+        out["rtcm_base"] = bases[-1] if bases else None
+    out.update(reps)
+    return out
+
+
+def join_receivers(name: str, rxs: list, paths: list) -> tuple:
+    """One :class:`~cdgps_cli.io.gnss_run.GnssReceiver` of a receiver's consecutive files.
+
+    Parameters
+    ----------
+    name : str
+        The antenna.
+    rxs : list of GnssReceiver
+        One per file (as read, any order).
+    paths : list of str
+        The files, in the order of ``rxs``.
+
+    Returns
+    -------
+    receiver : GnssReceiver
+        The joined record: the raw tables in time order (an epoch repeated by a later file kept
+        from the earlier file only), the first file's header with the summed epoch counts, the
+        read summaries merged (``info["files"]``: per file its name, span, epochs; ``info["join"]``:
+        the gaps and overlaps between files); a UBX record's ephemerides decoded from the RXM-SFRBX
+        subframes of all its files in time order (:func:`ubx_sequence_ephemerides`).
+    join : dict
+        ``files``, ``gaps``, ``overlaps`` (:class:`~cdgps_cli.io.log_sequence.JoinReport`), times in GPS s.
+    warnings : list of str
+    order : list of int
+        The files' indices in time order.
+    """
+    pieces = [(Path(p).name if len({Path(q).name for q in paths}) == len(paths) else str(p), rx.raw)
+              for p, rx in zip(paths, rxs)]
+    t_all = np.concatenate([rx.raw["time_gps_s"].to_numpy(dtype=np.float64) for rx in rxs])
+    raw, rep, order = join_tables(pieces, "time_gps_s", nominal_interval_s(t_all), gps_time_str, what=name)
+    rxs_o, paths_o = [rxs[i] for i in order], [str(paths[i]) for i in order]
+    warnings = check_same_receiver(name, rxs_o, paths_o) + rep.warnings
+    rx0 = rxs_o[0]
+    header = dict(rx0.header)
+    repeated = sum(o["epochs"] for o in rep.overlaps)
+    for k in ("n_epochs", "n_gps_epochs", "n_epochs_power_failure"):
+        if k in header:
+            header[k] = int(sum(int(r.header.get(k) or 0) for r in rxs_o)) - (repeated if k != "n_epochs_power_failure" else 0)
+    if "time_last_obs_gps_s" in header:
+        header["time_last_obs_gps_s"] = rxs_o[-1].header.get("time_last_obs_gps_s")
+    if rx0.format == "ubx":
+        header["interval_s"] = nominal_interval_s(raw["time_gps_s"].to_numpy())
+        base = next((r.info["rtcm_base"] for r in reversed(rxs_o) if r.info.get("rtcm_base")), None)
+        if base:            # the station position of the last RTCM 1005/1006, as for one log
+            header["approx_position_xyz_m"] = list(base["arp_ecef_m"])
+            header["position_source"] = f"RTCM {base['message']} ARP (station {base['station_id']})"
+    header["files"] = [Path(p).name for p in paths_o]
+    join = rep.as_dict()
+    info = _merged_info([r.info for r in rxs_o], {"files": join["files"], "join": {"gaps": join["gaps"],
+                                                                                  "overlaps": join["overlaps"]}})
+    for k in ("n_epochs", "n_gps_epochs"):
+        if k in info:
+            info[k] = header[k] if k in header else info[k] - repeated
+    if rx0.format == "ubx":
+        from cdgps_cli.io.ubx import integrity_problems  # noqa: PLC0415
+
+        for f, r in zip(info["files"], rxs_o):
+            f["problems"] = integrity_problems(r.info)
+            f["truncated_tail_bytes"] = int(r.info.get("truncated_tail_bytes") or 0)
+        for k in ("bad_frame_offsets", "undecodable_frame_offsets", "bad_rtcm_offsets"):
+            info[k] = []                    # byte offsets are per file: see info["files"][i]["problems"]
+    nav = None
+    if rx0.format == "ubx":
+        nav, info["sfrbx"] = ubx_sequence_ephemerides(paths_o, rx0.info.get("week"))
+    out = type(rx0)(rx0.name, rx0.format, pieces_text([Path(p).name for p in paths_o]), header, raw, info, nav)
+    return out, join, warnings, order
+
+
+def ubx_sequence_ephemerides(paths, week_ref) -> tuple:
+    """Ephemerides of the RXM-SFRBX subframes of consecutive UBX logs read as one stream (in the
+    given order), so that an ephemeris whose subframes 1–3 straddle two files is decoded as from one
+    log; (nav table, decoder counters) of :func:`cdgps_cli.io.sfrbx.sfrbx_ephemerides`.
+
+    The files were read (and checked) by :func:`cdgps_cli.io.ubx.read_ubx_log` before; this frames
+    them again (only the ephemeris decoding needs frames across the files' boundaries)."""
+    from cdgps_cli.io.sfrbx import sfrbx_ephemerides  # noqa: PLC0415
+    from cdgps_cli.io.ubx_frames import split_stream  # noqa: PLC0415
+
+    frames = []
+    for p in paths:
+        frames.extend(split_stream(ubx_bytes(p))[0])
+    return sfrbx_ephemerides(frames, week_ref)
+
+
+def ubx_bytes(path) -> bytes:
+    """A UBX log's bytes (gzip decompressed)."""
+    data = Path(path).read_bytes()
+    return gzip.decompress(data) if data[:2] == b"\x1f\x8b" else data
+
+
+def join_signal_tables(name: str, tables: list, paths: list) -> pd.DataFrame:
+    """The multi-signal tables of a receiver's files (in the files' time order) joined as the raw
+    tables are: an epoch a later file repeats is taken from the earlier file."""
+    tab, _, _ = join_tables([(str(p), t) for p, t in zip(paths, tables)], "time_gps_s", math.nan, gps_time_str, what=name)
+    return tab
