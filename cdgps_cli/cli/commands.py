@@ -367,7 +367,7 @@ def ingest(ctx, receiver_csv, gyro_csv, actuator_csv, config, rinex, ubx, nav, m
     for k, j in s.get("joins", {}).items():
         _say(ctx, f"  {k}: {len(j['files'])} files joined in time order: " + ", ".join(f["file"] for f in j["files"]))
     for w in s.get("warnings", []):
-        _say(ctx, f"  warning: {w}")
+        _warn(w)
     if as_json:
         _emit_json(s)
 
@@ -432,9 +432,8 @@ def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict=F
                     progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)), strict=strict)
     for n, g in s["integrity"].items():        # lost data is reported even with --quiet
         if g["problems"]:
-            click.echo(f"cdgps: WARNING: {g['file']} ({n}): corrupt UBX data, skipped: {', '.join(g['problems'])}; "
-                       f"{g['n_frames']} frames read (the run lacks what was lost; 'ingest --strict' refuses such a log)",
-                       err=True)
+            _warn(f"{g['file']} ({n}): corrupt UBX data, skipped: {', '.join(g['problems'])}; "
+                  f"{g['n_frames']} frames read (the run lacks what was lost; 'ingest --strict' refuses such a log)")
         if g.get("other_protocols"):
             _say(ctx, f"  {g['file']} ({n}): skipped other protocols' frames between the UBX frames: {g['other_protocols']}")
     _say(ctx, f"wrote {output}: GNSS run {s['config']}, master {s['master']}, {len(s['receivers'])} receiver(s), "
@@ -446,7 +445,7 @@ def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict=F
     for n, c in s["common_epochs"].items():
         _say(ctx, f"  {n}: {c['common_epochs']} epochs in common with {s['master']}" + _grid_note(c))
     for w in s["warnings"]:
-        _say(ctx, f"  warning: {w}")
+        _warn(w)
     if as_json:
         _emit_json(s)
 
@@ -1597,7 +1596,7 @@ def batch_cmd(ctx, manifest, out_dir, scheduler, cluster_class, cluster_option, 
         s = run_batch(manifest, out_dir, scheduler=scheduler, workers=workers, resume=resume, retries=retries,
                       dashboard=dashboard, cluster_class=cluster_class, cluster_options=options,
                       progress=None if ctx.obj.get("quiet") else progress.write,
-                      warn=lambda m: click.echo(f"cdgps: warning: {m}", err=True))
+                      warn=_warn)
     except (CdgpsError, click.exceptions.Exit, click.ClickException, KeyboardInterrupt, Terminated):
         raise
     except Exception as exc:           # the batch layer itself, not a session (those are in batch.json)

@@ -481,7 +481,7 @@ def test_corrupt_rtcm_frame_is_a_loss_warned_and_refused_by_strict(tmp_path):
                    f'[gnss.antennas.rover]\nubx = "{r.name}"\n')
     res = CliRunner().invoke(main, ["ingest", "--config", str(cfg), "-o", str(run)])
     assert res.exit_code == 0, res.output
-    assert "WARNING" in res.output and "1 RTCM 3 frames failing the CRC-24Q" in res.output
+    assert "cdgps: warning:" in res.output and "1 RTCM 3 frames failing the CRC-24Q" in res.output
     run.unlink()
     res = CliRunner().invoke(main, ["ingest", "--config", str(cfg), "-o", str(run), "--strict"])
     assert res.exit_code == 2 and "RTCM 3 frames failing the CRC-24Q" in res.output and not run.exists()
