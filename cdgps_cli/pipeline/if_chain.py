@@ -37,13 +37,14 @@ from cdgps_cli.core import progress as _progress
 from cdgps_cli.io.atomic import file_sha256, refuse_input_overwrite, write_atomic
 from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.io.iq_samples import read_samples
+from cdgps_cli.config.options import TRACK_BLOCK_SAMPLES
+from cdgps_cli.io.iq_samples import iter_samples, read_samples
 from cdgps_cli.io.logs import RECEIVER_COLUMNS
 from cdgps_cli.sim.if_samples import C_M_S, KNOT_S, L1_HZ, MANIFEST_FORMAT, StructureIf, simulate_structure_if
-from cdgps_cli.tracking.acquisition import Acquisition, acquire
+from cdgps_cli.tracking.acquisition import NONCOHERENT_MS, Acquisition, acquire
 from cdgps_cli.tracking.ca_code import CHIP_RATE_HZ, CODE_LENGTH, G2_TAPS, ca_code
-from cdgps_cli.tracking.channel import PHASE_LOCK_THRESHOLD, WINDOW, TrackOptions, track
-from cdgps_cli.tracking.shared_clock import track_shared_clock
+from cdgps_cli.tracking.channel import PHASE_LOCK_THRESHOLD, WINDOW, TrackOptions
+from cdgps_cli.tracking.receiver import BlockTracker
 
 #: external Doppler aids of :func:`track_structure`
 AIDS = ("none", "truth", "gyro", "model")
@@ -99,6 +100,7 @@ class ChainOptions:
     acquisition: str = "search"     # "truth": start the loops from the manifest's true Doppler and code phase
     clock_bn_hz: float | None = None  # each antenna's channels share a clock loop of this bandwidth (Hz;
                                       # tracking.shared_clock, Alban et al.'s clock-error frequency), or not
+    block_samples: int = TRACK_BLOCK_SAMPLES  # samples of a file read and tracked at a time (no effect on results)
 
     def check(self) -> None:
         if self.aid not in AIDS:
@@ -255,38 +257,39 @@ def _track_antenna(path: Path, man: dict, prns: list, opt: ChainOptions, say, an
     """Acquire the manifest's PRNs in one antenna's file and track those found (a PRN not acquired
     gives its channels no rows and is listed under ``missing``); ``opt.aid`` feeds each loop its
     line-of-sight Doppler (:func:`truth_aid_hz`, or ``gyro_aid``); with ``opt.clock_bn_hz`` the channels
-    share a clock loop (:func:`cdgps_cli.tracking.shared_clock.track_shared_clock`)."""
-    x = read_samples(path, "int8-iq", man["iq_sign"])
-    fs, if_hz = man["fs_hz"], man["if_hz"]
-    acq = acquire(x, fs, prns, if_hz=if_hz) if opt.acquisition == "search" else _truth_start(man, antenna, prns)
+    share a clock loop (:func:`cdgps_cli.tracking.shared_clock.track_shared_clock`).  The file is read and
+    tracked in blocks of ``opt.block_samples`` (:class:`cdgps_cli.tracking.receiver.BlockTracker`)."""
+    fs, if_hz, total = man["fs_hz"], man["if_hz"], man["samples"]
+    if opt.acquisition == "search":
+        head = read_samples(path, "int8-iq", man["iq_sign"], max_samples=round(fs * 1e-3) * NONCOHERENT_MS)
+        acq = acquire(head, fs, prns, if_hz=if_hz)
+    else:
+        acq = _truth_start(man, antenna, prns)
     found = [a for a in acq if a.acquired]
     missing = [{"prn": a.prn, "peak_ratio": a.peak_ratio, "peak_to_noise": a.peak_to_noise, "threshold": a.threshold}
                for a in acq if not a.acquired]
     if not found:
         raise CdgpsError(f"{path}: none of PRN {', '.join(map(str, prns))} acquired (peak over noise, threshold: "
                          + ", ".join(f"{m['peak_to_noise']:.2f}, {m['threshold']:.2f}" for m in missing) + ")")
-    if if_hz:
-        x = x * np.exp(-2j * np.pi * if_hz * np.arange(x.size) / fs)
     tx_of = {int(t["prn"]): t["name"] for t in man["transmitters"]}
     n = int(round(fs * KNOT_S))
-    tracks, sats = {}, []
     aids = {}
     for a in found:
         aid = None
         if opt.aid == "truth":
-            aid = truth_aid_hz(man, antenna, tx_of[a.prn], np.arange(x.size // n) * n / fs)
+            aid = truth_aid_hz(man, antenna, tx_of[a.prn], np.arange(total // n) * n / fs)
         elif opt.aid in ("gyro", "model"):
-            aid = gyro_aid(antenna, tx_of[a.prn], np.arange(x.size // n) * n / fs)
+            aid = gyro_aid(antenna, tx_of[a.prn], np.arange(total // n) * n / fs)
         aids[a.prn] = aid
     starts = [(a.prn, a.doppler_hz - (aids[a.prn][0] if aids[a.prn] is not None else 0.0), a.code_phase_chips)
               for a in found]
-    if opt.clock_bn_hz is not None:                # the channels of this antenna share one clock loop
-        shared = track_shared_clock(x, fs, starts, opt.track, clock_bn_hz=opt.clock_bn_hz,
-                                    aids=[aids[a.prn] for a in found])
-        tracks = {a.prn: r for a, r in zip(found, shared["tracks"])}
-    for a, (_, start_hz, code) in zip(found, starts):
-        if opt.clock_bn_hz is None:
-            tracks[a.prn] = track(x, fs, a.prn, start_hz, code, opt.track, aid_doppler_hz=aids[a.prn])
+    rx = BlockTracker(fs, starts, opt.track, n_samples=total, if_hz=if_hz, aids=[aids[a.prn] for a in found],
+                      clock_bn_hz=opt.clock_bn_hz)
+    for blk in iter_samples(path, "int8-iq", man["iq_sign"], block_samples=opt.block_samples, max_samples=total):
+        rx.feed(blk)
+    tracks = dict(zip([a.prn for a in found], rx.results()))
+    sats = []
+    for a in found:
         r = tracks[a.prn]
         cn0 = r["cn0_dbhz"][::WINDOW][-5:]
         sats.append({"prn": a.prn, "doppler_hz": float(np.mean(r["doppler_hz"][-100:])),

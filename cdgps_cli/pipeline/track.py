@@ -1,4 +1,9 @@
-"""`cdgps track`: read a raw sample file, acquire and track, write TRACK.mcap."""
+"""`cdgps track`: read a raw sample file, acquire and track, write TRACK.mcap.
+
+The file is read in blocks of its native sample type (:func:`cdgps_cli.io.iq_samples.iter_samples`) and
+tracked block by block (:func:`cdgps_cli.tracking.receiver.track_stream`): the samples' memory is that of
+one block, whatever the file's length; the outputs (one row per channel and millisecond) are kept.
+"""
 
 from __future__ import annotations
 
@@ -10,26 +15,31 @@ import numpy as np
 from cdgps_cli import __version__
 from cdgps_cli.io.atomic import file_sha256
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.io.iq_samples import FORMATS, read_samples
+from cdgps_cli.config.options import TRACK_BLOCK_SAMPLES
+from cdgps_cli.io.iq_samples import FORMATS, iter_samples, read_samples
 from cdgps_cli.config.limits import check_table_size
 from cdgps_cli.io.mcap import NULLABLE, McapOut, array_schema
 from cdgps_cli.tracking.acquisition import FALSE_ALARM, NONCOHERENT_MS
 from cdgps_cli.tracking.channel import TrackOptions
-from cdgps_cli.tracking.receiver import track_all
+from cdgps_cli.tracking.receiver import track_stream
 
 TRACK_TOPIC = "/cdgps/track"
 TRACK_SCHEMA = array_schema("cdgps.Track", {
     "prn": "integer", "doppler_hz": "number", "carrier_phase_cycles": "number", "code_phase_chips": "number",
     "i_prompt": "number", "q_prompt": "number", "cn0_dbhz": NULLABLE, "phase_lock": NULLABLE})
-#: bytes held per complex sample while tracking (the samples, a carrier-wiped copy, replicas)
-BYTES_PER_SAMPLE = 48
+#: bytes held per channel and 1 ms update (the loop's output row, its named columns, the MCAP columns)
+BYTES_PER_UPDATE = 256
+#: channels at most (GPS PRNs 1-32)
+MAX_CHANNELS = 32
 
 
 def track_file(path: str | Path, out_path: str | Path, *, fmt: str, fs_hz: float, if_hz: float = 0.0,
                iq_sign: str = "minus", prns=None, duration_s: float | None = None, opt: TrackOptions | None = None,
-               noncoherent_ms: int | None = None, false_alarm: float | None = None, progress=None) -> dict:
+               noncoherent_ms: int | None = None, false_alarm: float | None = None, progress=None,
+               block_samples: int = TRACK_BLOCK_SAMPLES) -> dict:
     """Track every satellite in a sample file; write TRACK.mcap; return the summary (no arrays).
-    ``noncoherent_ms``, ``false_alarm``: the acquisition's (None: its defaults, NONCOHERENT_MS, FALSE_ALARM)."""
+    ``noncoherent_ms``, ``false_alarm``: the acquisition's (None: its defaults, NONCOHERENT_MS, FALSE_ALARM);
+    ``block_samples``: samples read and tracked at a time (the results do not depend on it)."""
     noncoherent_ms = NONCOHERENT_MS if noncoherent_ms is None else noncoherent_ms
     false_alarm = FALSE_ALARM if false_alarm is None else false_alarm
     if not (np.isfinite(fs_hz) and 2.1e6 <= fs_hz <= 1e9):
@@ -48,16 +58,18 @@ def track_file(path: str | Path, out_path: str | Path, *, fmt: str, fs_hz: float
     size = Path(path).stat().st_size if Path(path).exists() else 0
     per = np.dtype(FORMATS[fmt][0]).itemsize * (2 if FORMATS[fmt][1] else 1)
     n = size // per if duration_s is None else min(size // per, int(duration_s * fs_hz))
-    check_table_size(n, 1, BYTES_PER_SAMPLE, "the samples", "--duration")
-    x = read_samples(path, fmt, iq_sign, max_samples=n)
-    if x.size < fs_hz * 0.02:
-        raise CdgpsError(f"{path}: {x.size / fs_hz * 1e3:.1f} ms of samples; tracking needs at least 20 ms")
-    if x.size < fs_hz * 1e-3 * noncoherent_ms:
-        raise CdgpsError(f"{path}: {x.size / fs_hz * 1e3:.1f} ms of samples; --noncoherent-ms {noncoherent_ms} needs more")
-    res = track_all(x, fs_hz, prns, if_hz=if_hz, opt=opt, progress=progress, noncoherent_ms=noncoherent_ms,
-                    false_alarm=false_alarm)
+    check_table_size(n / round(fs_hz * 1e-3), len(prns) if prns else MAX_CHANNELS, BYTES_PER_UPDATE,
+                     "the tracking outputs", "--duration")
+    head = read_samples(path, fmt, iq_sign, max_samples=min(n, round(fs_hz * 1e-3) * noncoherent_ms))
+    if n < fs_hz * 0.02:
+        raise CdgpsError(f"{path}: {n / fs_hz * 1e3:.1f} ms of samples; tracking needs at least 20 ms")
+    if n < fs_hz * 1e-3 * noncoherent_ms:
+        raise CdgpsError(f"{path}: {n / fs_hz * 1e3:.1f} ms of samples; --noncoherent-ms {noncoherent_ms} needs more")
+    blocks = iter_samples(path, fmt, iq_sign, block_samples=block_samples, max_samples=n)
+    res = track_stream(head, blocks, fs_hz, prns, n_samples=n, if_hz=if_hz, opt=opt, progress=progress,
+                       noncoherent_ms=noncoherent_ms, false_alarm=false_alarm)
     summary = {"input": str(path), "input_sha256": file_sha256(path), "format": fmt, "iq_sign": iq_sign,
-               "fs_hz": fs_hz, "if_hz": if_hz, "duration_s": x.size / fs_hz, "cdgps_version": __version__,
+               "fs_hz": fs_hz, "if_hz": if_hz, "duration_s": n / fs_hz, "cdgps_version": __version__,
                "options": {**(opt or TrackOptions()).__dict__, "noncoherent_ms": noncoherent_ms,
                            "false_alarm": false_alarm}, "acquisition": res["acquisition"],
                "satellites": res["satellites"]}
