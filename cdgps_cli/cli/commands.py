@@ -180,6 +180,20 @@ class _AliasedOption(click.Option):
             self.opts = shown
 
 
+def _named_by_flags(build, flags: dict):
+    """``build()``, with the library's field names in its CdgpsError replaced by the command-line
+    flags the user gave (``mask_deg must be in [0, 90)`` → ``--mask-deg must be in [0, 90)``)."""
+    import re
+
+    try:
+        return build()
+    except CdgpsError as exc:
+        msg = str(exc)
+        for field, flag in flags.items():
+            msg = re.sub(rf"(?<![\w-]){re.escape(field)}(?!\w)", flag, msg)
+        raise CdgpsError(msg) from None
+
+
 def _emit_json(data: dict) -> None:
     _echo(json.dumps(data, indent=2, sort_keys=False))
 
@@ -1414,6 +1428,10 @@ def control_design(ctx, config, weight_set, qx, qu, rigid_factor, rate_factor, o
                     "loop_estimator": rec["loop_estimator"]})
 
 
+#: library field → flag of `cdgps track` / `track-structure` (their option errors name the flag given)
+TRACK_FLAGS = {"pll_bn_hz": "--pll-bn", "pull_in_s": "--pull-in", "prns": "--prn"}
+
+
 @main.command("track", short_help="Track GPS L1 C/A in raw IF samples → TRACK.mcap")
 @click.argument("iq_file", type=click.Path(dir_okay=False))
 @click.option("--format", "fmt", required=True, type=click.Choice(["int8-iq", "int16-iq", "int8-real", "int16-real"]),
@@ -1441,8 +1459,10 @@ def track_cmd(ctx, iq_file, fmt, iq_sign, fs_hz, if_hz, prns, duration_s, pll_bn
     Costas PLL, carrier-aided DLL): Doppler, code phase, carrier phase, C/N0 and lock per millisecond."""
     from cdgps_cli.pipeline.track import track_file
     from cdgps_cli.tracking.channel import TrackOptions
+    from cdgps_cli.tracking.receiver import check_prns
 
-    opt = TrackOptions(pll_bn_hz=pll_bn_hz, pull_in_s=pull_in_s)
+    opt = _named_by_flags(lambda: TrackOptions(pll_bn_hz=pll_bn_hz, pull_in_s=pull_in_s), TRACK_FLAGS)
+    _named_by_flags(lambda: check_prns(prns), TRACK_FLAGS)
     with progress.stage("tracking"):
         s = track_file(iq_file, output, fmt=fmt, fs_hz=fs_hz, if_hz=if_hz, iq_sign=iq_sign,
                        prns=list(prns) or None, duration_s=duration_s, opt=opt, noncoherent_ms=noncoherent_ms,
@@ -1576,9 +1596,14 @@ def track_structure_cmd(ctx, if_json, config, pll_bn_hz, pull_in_s, aid, gyro_cs
     from cdgps_cli.pipeline.if_chain import ChainOptions, track_structure
     from cdgps_cli.tracking.channel import TrackOptions
 
+    def options():
+        o = ChainOptions(track=TrackOptions(pll_bn_hz=pll_bn_hz, pull_in_s=pull_in_s), aid=aid,
+                         acquisition=acquisition, gyro_csv=gyro_csv, pose_csv=pose_csv, clock_bn_hz=clock_bn_hz)
+        o.check()
+        return o
+
+    opt = _named_by_flags(options, {**TRACK_FLAGS, "clock_bn_hz": "--clock-bn"})
     cfg = load_config(config)
-    opt = ChainOptions(track=TrackOptions(pll_bn_hz=pll_bn_hz, pull_in_s=pull_in_s), aid=aid, acquisition=acquisition,
-                       gyro_csv=gyro_csv, pose_csv=pose_csv, clock_bn_hz=clock_bn_hz)
     with progress.stage("tracking"):
         s = track_structure(if_json, cfg, output, opt, progress=None if ctx.obj.get("quiet") else progress.write)
     _say(ctx, f"wrote {output}: {s['rows']} rows, {s['epochs']} epochs, "

@@ -40,7 +40,8 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.config.options import TRACK_BLOCK_SAMPLES
 from cdgps_cli.io.iq_samples import iter_samples, read_samples
 from cdgps_cli.io.logs import RECEIVER_COLUMNS
-from cdgps_cli.sim.if_samples import C_M_S, KNOT_S, L1_HZ, MANIFEST_FORMAT, StructureIf, simulate_structure_if
+from cdgps_cli.sim.if_samples import (C_M_S, FS_RANGE_HZ, KNOT_S, L1_HZ, MANIFEST_FORMAT, StructureIf,
+                                      simulate_structure_if)
 from cdgps_cli.tracking.acquisition import NONCOHERENT_MS, Acquisition, acquire
 from cdgps_cli.tracking.ca_code import CHIP_RATE_HZ, CODE_LENGTH, G2_TAPS, ca_code
 from cdgps_cli.tracking.channel import PHASE_LOCK_THRESHOLD, WINDOW, TrackOptions
@@ -75,6 +76,7 @@ def read_manifest(path: str | Path) -> dict:
         raise CdgpsError(f"{p}: missing key(s) {', '.join(missing)}")
     if man["sample_format"] != "int8-iq":
         raise CdgpsError(f"{p}: sample_format {man['sample_format']!r}: expected 'int8-iq'")
+    _check_manifest_values(p, man)
     for a in man["antennas"]:
         f = p.parent / a["file"]
         size = f.stat().st_size if f.exists() else -1
@@ -82,6 +84,58 @@ def read_manifest(path: str | Path) -> dict:
             raise CdgpsError(f"{f}: {'missing' if size < 0 else f'{size} bytes'}; the manifest {p} says "
                              f"{2 * man['samples']} bytes ({man['samples']} int8 I/Q samples)")
     return man
+
+
+def _number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _check_manifest_values(p: Path, man: dict) -> None:
+    """The manifest's numbers and lists are of the kind and range :func:`simulate_if` writes (a CdgpsError
+    naming the file and the key otherwise)."""
+    lo, hi = FS_RANGE_HZ
+    fs = man["fs_hz"]
+    if not (_number(fs) and lo <= fs <= hi and abs(fs * KNOT_S - round(fs * KNOT_S)) <= 1e-6):
+        raise CdgpsError(f"{p}: fs_hz {fs!r}: expected a sample rate in Hz between {lo:g} and {hi:g}, a whole "
+                         "number of samples per millisecond")
+    if not (_number(man["if_hz"]) and abs(man["if_hz"]) < fs / 2):
+        raise CdgpsError(f"{p}: if_hz {man['if_hz']!r}: expected a frequency in Hz below half the sample rate")
+    if isinstance(man["samples"], bool) or not isinstance(man["samples"], int) or man["samples"] < 1:
+        raise CdgpsError(f"{p}: samples {man['samples']!r}: expected a whole number of samples ≥ 1")
+    if not _number(man["start_s"]):
+        raise CdgpsError(f"{p}: start_s {man['start_s']!r}: expected a time in seconds")
+    if man["iq_sign"] not in ("minus", "plus"):
+        raise CdgpsError(f"{p}: iq_sign {man['iq_sign']!r}: expected 'minus' or 'plus'")
+    for key, need in (("antennas", ("name", "file", "sha256")), ("transmitters", ("name", "prn"))):
+        items = man[key]
+        if not (isinstance(items, list) and items and all(isinstance(a, dict) and all(k in a for k in need)
+                                                          for a in items)):
+            raise CdgpsError(f"{p}: {key}: expected a non-empty list of objects with {', '.join(need)}")
+        if not all(isinstance(a[k], str) for a in items for k in need if k != "prn"):
+            raise CdgpsError(f"{p}: {key}: {', '.join(k for k in need if k != 'prn')} must be strings")
+    prns = [t["prn"] for t in man["transmitters"]]
+    if not all(isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= 32 for v in prns) or len(set(prns)) < len(prns):
+        raise CdgpsError(f"{p}: transmitters: prn {prns!r}: expected distinct GPS PRNs 1-32")
+
+
+def check_truth(p: Path, man: dict) -> None:
+    """The manifest's ``truth`` (used by ``--aid truth`` and ``--acquisition truth``): epoch times and,
+    per antenna and transmitter, range, Doppler and code phase at each epoch."""
+    tr = man.get("truth")
+    t = tr.get("time_s") if isinstance(tr, dict) else None
+    if not (isinstance(t, list) and t and all(_number(v) for v in t) and isinstance(tr.get("antennas"), dict)):
+        raise CdgpsError(f"{p}: truth: expected time_s (a list of times, s) and antennas (the aid and the "
+                         "truth acquisition need them)")
+    for a in man["antennas"]:
+        for tx in man["transmitters"]:
+            ch = tr["antennas"].get(a["name"], {})
+            ch = ch.get(tx["name"]) if isinstance(ch, dict) else None
+            ok = isinstance(ch, dict) and all(isinstance(ch.get(k), list) and len(ch[k]) == len(t)
+                                              and all(_number(v) for v in ch[k])
+                                              for k in ("range_m", "doppler_hz", "code_phase_chips"))
+            if not ok:
+                raise CdgpsError(f"{p}: truth.antennas.{a['name']}.{tx['name']}: expected range_m, doppler_hz and "
+                                 f"code_phase_chips, {len(t)} numbers each (one per truth.time_s)")
 
 
 @dataclass
@@ -112,7 +166,7 @@ class ChainOptions:
         if self.acquisition not in ACQUISITIONS:
             raise CdgpsError(f"acquisition {self.acquisition!r}: expected one of {', '.join(ACQUISITIONS)}")
         if self.clock_bn_hz is not None and not (math.isfinite(self.clock_bn_hz) and 0 < self.clock_bn_hz <= 100):
-            raise CdgpsError(f"clock loop bandwidth {self.clock_bn_hz!r}: expected a number of Hz in (0, 100]")
+            raise CdgpsError(f"clock_bn_hz {self.clock_bn_hz!r}: expected a clock loop bandwidth in (0, 100] Hz")
         if not (math.isfinite(self.settle_s) and self.settle_s >= 0):
             raise CdgpsError(f"settle_s {self.settle_s!r}: expected a non-negative number of seconds")
 
@@ -385,6 +439,8 @@ def track_structure(manifest_path: str | Path, cfg: StructureConfig, out_csv: st
         raise CdgpsError(f"{path}: simulated with another config than {cfg.path} (config_sha256 differs)")
     refuse_input_overwrite([("out_csv", out_csv, False)],
                            [("manifest", path, False)] + [("sample file", path.parent / a["file"], False) for a in man["antennas"]])
+    if "truth" in (opt.aid, opt.acquisition):
+        check_truth(path, man)
     names = [a["name"] for a in man["antennas"]]
     master = cfg.antenna_names[cfg.master_index]
     if master not in names:

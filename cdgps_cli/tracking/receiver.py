@@ -85,6 +85,18 @@ def track_stream(head: np.ndarray, blocks, fs_hz: float, prns=None, *, n_samples
             "tracks": tracks}
 
 
+def check_prns(prns) -> list[int]:
+    """The PRNs asked for, as a list: whole numbers 1-32, each once (else CdgpsError naming ``prns``)."""
+    out = list(prns)
+    bad = [p for p in out if isinstance(p, bool) or not isinstance(p, (int, np.integer)) or not 1 <= p <= 32]
+    if bad:
+        raise CdgpsError(f"prns {bad[0]!r}: expected GPS PRNs, whole numbers 1-32")
+    twice = sorted({p for p in out if out.count(p) > 1})
+    if twice:
+        raise CdgpsError(f"prns: PRN {', '.join(map(str, twice))} given twice")
+    return out
+
+
 def _start_hz(a, aid) -> float:
     """The loop's first Doppler: the acquired one minus the aid's first value (the aid is fed forward)."""
     return a.doppler_hz - (float(aid.ravel()[0]) if aid is not None and aid.size else 0.0)
@@ -93,10 +105,7 @@ def _start_hz(a, aid) -> float:
 def _acquired(samples, fs_hz, prns, if_hz, false_alarm, noncoherent_ms, aids) -> tuple[list, list, dict]:
     """(every acquisition, the acquired ones, aids by PRN as float arrays); refuses a PRN given twice,
     a PRN asked for and not acquired, no satellite at all, an aid for a PRN not acquired."""
-    wanted = list(range(1, 33)) if prns is None else list(prns)
-    twice = sorted({p for p in wanted if wanted.count(p) > 1})
-    if twice:
-        raise CdgpsError(f"prns: PRN {', '.join(map(str, twice))} given twice")
+    wanted = list(range(1, 33)) if prns is None else check_prns(prns)
     acq = acquire(samples, fs_hz, wanted, if_hz=if_hz, false_alarm=false_alarm, noncoherent_ms=noncoherent_ms)
     found = [a for a in acq if a.acquired]
     if prns is not None:
