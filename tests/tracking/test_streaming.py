@@ -129,14 +129,64 @@ def test_real_file_in_blocks_equals_the_whole_file(if_hz):
     _same_tracks(ref["tracks"], res["tracks"])
 
 
+def _old_track_file(path, out_path, *, n, opt, if_hz=0.0) -> None:
+    """`cdgps track` before issue 29: the whole file as complex128, track_all, then TRACK.mcap written
+    from the whole arrays (the writer as it was)."""
+    import json as _json
+
+    from cdgps_cli import __version__
+    from cdgps_cli.io.atomic import file_sha256
+    from cdgps_cli.io.mcap import McapOut
+    from cdgps_cli.pipeline.track import TRACK_SCHEMA, TRACK_TOPIC
+
+    res = track_all(read_samples(path, "int8-iq", max_samples=n), FS, if_hz=if_hz, opt=opt)
+    summary = {"input": str(path), "input_sha256": file_sha256(path), "format": "int8-iq", "iq_sign": "minus",
+               "fs_hz": FS, "if_hz": if_hz, "duration_s": n / FS, "cdgps_version": __version__,
+               "options": {**(opt or TrackOptions()).__dict__, "noncoherent_ms": 10, "false_alarm": 1e-4},
+               "acquisition": res["acquisition"], "satellites": res["satellites"]}
+    tracks = res["tracks"]
+    prns = sorted(tracks)
+    m = min(len(tracks[p]["time_s"]) for p in prns)
+    cols = {k: np.stack([tracks[p][k][:m] for p in prns], axis=1)
+            for k in ("doppler_hz", "carrier_phase_cycles", "code_phase_chips", "i_prompt", "q_prompt",
+                      "cn0_dbhz", "phase_lock")}
+    t = tracks[prns[0]]["time_s"][:m]
+    with McapOut(out_path) as out:
+        ch = out.channel(TRACK_TOPIC, TRACK_SCHEMA, {"prns": ",".join(map(str, prns))})
+        for k in range(m):
+            out.write(ch, float(t[k]), {"prn": prns, **{c: v[k].tolist() for c, v in cols.items()}})
+        out.metadata("track", {key: (v if isinstance(v, str) else _json.dumps(v)) for key, v in summary.items()})
+
+
 @needs_if
-def test_track_file_bytes_do_not_depend_on_the_block_length(tmp_path):
-    outs = []
-    for block in (3_999, 1 << 19):
-        out = tmp_path / f"t{block}.mcap"
-        s = track_file(IQ_FILE, out, fmt="int8-iq", fs_hz=FS, duration_s=0.1, block_samples=block)
-        outs.append(out.read_bytes())
-    assert outs[0] == outs[1] and s["duration_s"] == 0.1
+@pytest.mark.parametrize("block,opt,if_hz", [(3_999, None, 0.0), (10_007, None, 1234.5),
+                                             (1 << 19, TrackOptions(pll_bn_hz=5.0, pull_in_s=0.13), 0.0)])
+def test_track_file_writes_the_bytes_of_the_whole_file_path(tmp_path, block, opt, if_hz):
+    """TRACK.mcap streamed window by window (blocks cut inside code periods; a pull-in ending inside a
+    window and a PLL that starts late) is byte for byte the old whole-array writer's."""
+    n = int(0.15 * FS)
+    _old_track_file(IQ_FILE, tmp_path / "old.mcap", n=n, opt=opt, if_hz=if_hz)
+    s = track_file(IQ_FILE, tmp_path / "new.mcap", fmt="int8-iq", fs_hz=FS, if_hz=if_hz, duration_s=0.15, opt=opt,
+                   block_samples=block)
+    assert (tmp_path / "new.mcap").read_bytes() == (tmp_path / "old.mcap").read_bytes()
+    assert s["duration_s"] == 0.15 and len(s["satellites"]) >= 4
+
+
+def test_running_summary_equals_the_whole_array_summary():
+    """The summary accumulated over pieces (20 ms windows) equals _summary of the whole arrays, also
+    with sign changes across pieces, a PLL start inside a piece and no lock at all."""
+    from cdgps_cli.tracking.acquisition import Acquisition
+    from cdgps_cli.tracking.receiver import RunningSummary, _summary
+
+    a = Acquisition(prn=9, acquired=True, doppler_hz=900.0, code_phase_chips=50.0, code_phase_samples=0,
+                    peak_ratio=3.0)
+    x, _ = _signal(9, 900.0, 50.0, 40.0, 0.5, seed=5, bits=True, fs=2.2e6)
+    for opt in (TrackOptions(pull_in_s=0.037), TrackOptions(pull_in_s=0.49)):
+        r = track(x, 2.2e6, 9, 900.0, 50.0, opt)
+        rs = RunningSummary(a)
+        for lo in range(0, r["time_s"].size, 60):
+            rs.add({k: v[lo:lo + 60] for k, v in r.items()})
+        assert rs.result() == _summary(a, r)
 
 
 def test_track_structure_in_blocks_equals_the_whole_files(tmp_path, dof2_cfg):
