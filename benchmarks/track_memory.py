@@ -109,6 +109,7 @@ def main():
     work = Path(tempfile.mkdtemp(prefix="track_memory_", dir=args.workdir))
     out_path = ROOT / "docs" / "benchmarks" / "track_memory.json"
     try:
+        load_start = os.getloadavg()
         longest = max(durations + before)
         full = work / f"if_{longest:g}s.bin"
         t0 = time.perf_counter()
@@ -138,6 +139,7 @@ def main():
                "block_samples": TRACK_BLOCK_SAMPLES, "machine": platform.machine(), "cpus": os.cpu_count(),
                "python": platform.python_version(), "numpy": np.__version__,
                "command": "python benchmarks/track_memory.py " + " ".join(sys.argv[1:]),
+               "load_average_1_5_15_min": {"start": load_start, "end": os.getloadavg()},
                "runs": rows, "before_after_track_mcap_identical": same}
         out_path.parent.mkdir(parents=True, exist_ok=True)
         out_path.write_text(json.dumps(res, indent=2) + "\n")

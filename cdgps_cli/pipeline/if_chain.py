@@ -282,7 +282,10 @@ def gyro_aid_hz(cfg: StructureConfig, man: dict, gyro: tuple, antenna: str, tran
     p, J = antenna_positions(cfg, q_hat, jacobian=True)
     a = list(cfg.antenna_names).index(antenna)
     tx = next(t for t in man["transmitters"] if t["name"] == transmitter)
-    tr = Transmitter(**tx)
+    try:
+        tr = Transmitter(**tx)
+    except TypeError as exc:                   # a hand-edited manifest: a key missing or unknown
+        raise CdgpsError(f"IF manifest transmitters: {transmitter}: {exc} (expected the keys of `cdgps simulate-if`)") from None
     pa = p[:, a]                                                            # (n, 3)
     h = 1e-4                                                                # central difference of ρ(p): u = ∂ρ/∂p
     u = np.stack([(line_of_sight_range_m(tr, pa + h * e) - line_of_sight_range_m(tr, pa - h * e)) / (2 * h)
