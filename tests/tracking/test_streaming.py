@@ -218,3 +218,27 @@ def test_track_structure_in_blocks_equals_the_whole_files(tmp_path, dof2_cfg):
     found = [a for a in acquire(x, fs, prns, if_hz=if_hz) if a.acquired]
     x = x * np.exp(-2j * np.pi * if_hz * np.arange(x.size) / fs)
     _same_tracks({a.prn: track(x, fs, a.prn, a.doppler_hz, a.code_phase_chips) for a in found}, got)
+
+
+@needs_if
+def test_a_file_cut_while_tracking_leaves_no_output(tmp_path, monkeypatch):
+    """An IF file that ends early while it is tracked (after TRACK.mcap was opened): exit 2 naming the
+    file, no TRACK.mcap and no temporary left."""
+    import cdgps_cli.pipeline.track as track_mod
+
+    f = tmp_path / "if.bin"
+    f.write_bytes(IQ_FILE.read_bytes()[: 2 * 400_000])
+    real = track_mod.iter_samples
+
+    def cut(*args, **kw):
+        for i, blk in enumerate(real(*args, **{**kw, "block_samples": 50_000})):
+            if i == 3:
+                f.write_bytes(f.read_bytes()[: 2 * 200_000])
+            yield blk
+
+    monkeypatch.setattr(track_mod, "iter_samples", cut)
+    out = tmp_path / "t.mcap"
+    r = CliRunner().invoke(main, ["-q", "track", str(f), "--format", "int8-iq", "--fs", "4e6", "-o", str(out)])
+    assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+    assert f"{f}: ended after" in r.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["if.bin"]
