@@ -1442,8 +1442,8 @@ TRACK_FLAGS = {"pll_bn_hz": "--pll-bn", "pull_in_s": "--pull-in", "prns": "--prn
 @click.option("--if", "if_hz", type=float, default=0.0, show_default=True, help="Intermediate frequency, Hz (0: baseband).")
 @click.option("--prn", "prns", type=int, multiple=True, help="Track only these PRNs (repeatable; default: every one acquired).")
 @click.option("--duration", "duration_s", type=float, default=None, help="Seconds of the file to use (default: all).")
-@click.option("--pll-bn", "pll_bn_hz", type=float, default=TRACK_DEFAULTS["pll_bn_hz"], show_default=True, help="PLL noise bandwidth, Hz.")
-@click.option("--pull-in", "pull_in_s", type=float, default=TRACK_DEFAULTS["pull_in_s"], show_default=True, help="FLL pull-in before the PLL, s.")
+@click.option("--pll-bn", "pll_bn_hz", type=float, default=TRACK_DEFAULTS["pll_bn_hz"], show_default=True, help="PLL noise bandwidth, Hz, in (0, 100].")
+@click.option("--pull-in", "pull_in_s", type=float, default=TRACK_DEFAULTS["pull_in_s"], show_default=True, help="FLL pull-in before the PLL, s (0 or more).")
 @click.option("--noncoherent-ms", type=int, default=None,
               help="Acquisition: 1 ms correlations summed non-coherently [10] (10 detects 38 dB-Hz, 20 36 dB-Hz, "
                    "docs/tracking.md).")
@@ -1565,8 +1565,8 @@ def simulate_if_cmd(ctx, config, sim_dir, start_s, duration_s, fs_hz, if_hz, bit
 @click.argument("if_json", type=click.Path(dir_okay=False))
 @click.option("--config", "config", required=True, type=click.Path(dir_okay=False),
               help="Structure config the samples were simulated for (its antennas, master, epochs).")
-@click.option("--pll-bn", "pll_bn_hz", type=float, default=TRACK_DEFAULTS["pll_bn_hz"], show_default=True, help="PLL noise bandwidth, Hz.")
-@click.option("--pull-in", "pull_in_s", type=float, default=TRACK_DEFAULTS["pull_in_s"], show_default=True, help="FLL pull-in before the PLL, s.")
+@click.option("--pll-bn", "pll_bn_hz", type=float, default=TRACK_DEFAULTS["pll_bn_hz"], show_default=True, help="PLL noise bandwidth, Hz, in (0, 100].")
+@click.option("--pull-in", "pull_in_s", type=float, default=TRACK_DEFAULTS["pull_in_s"], show_default=True, help="FLL pull-in before the PLL, s (0 or more).")
 @click.option("--aid", type=click.Choice(["none", "truth", "gyro", "model"]), default="none", show_default=True,
               help="External Doppler aid of every PLL: none; truth, the true line-of-sight Doppler from IF_JSON's truth "
                    "(a perfect inertial or structural-model prediction); gyro, the Doppler of the antenna velocity "
@@ -1579,7 +1579,7 @@ def simulate_if_cmd(ctx, config, sim_dir, start_s, duration_s, fs_hz, if_hz, bit
                    "config's coordinates (truth.csv of `cdgps simulate`, or an estimate's states CSV); the gyros "
                    "carry it on.  Default: the rest pose (all coordinates 0).")
 @click.option("--clock-bn", "clock_bn_hz", type=float, default=None,
-              help="Share one receiver-clock loop of this noise bandwidth (Hz) among each antenna's channels "
+              help="Share one receiver-clock loop of this noise bandwidth (Hz, in (0, 100]) among each antenna's channels "
                    "(the clock-error frequency estimated across channels; default: independent loops).")
 @click.option("--acquisition", type=click.Choice(["search", "truth"]), default="search", show_default=True,
               help="Start the loops from an FFT search of each file, or from IF_JSON's true Doppler and code phase "
