@@ -12,10 +12,15 @@ the change, with its compiled ``_trackcore`` copied in) on the lengths ``--befor
 path holds the whole file as complex128 and refuses beyond 8 GiB of samples) and checks that the two
 write the same TRACK.mcap bytes.
 
-    python benchmarks/track_memory.py [--durations 10,30,60] [--before /tmp/old --before-durations 2,5,10]
+``structure`` (``--only structure``): `cdgps track-structure` on the testbed config's simulated IF files
+(`cdgps simulate` + `cdgps simulate-if`, 7 antennas × 6 pseudolites, 2.2 MHz), ``--structure-durations``
+seconds, with the new and (``--before``) the old code, and whether the two receiver logs are identical.
 
-Writes docs/benchmarks/track_memory.json.  The per-channel real-time factor is
-duration × channels / wall time (the channels run one after the other on one core).
+    python benchmarks/track_memory.py [--only track,structure] [--durations 10,30,60]
+        [--before /tmp/old --before-durations 2,5,10] [--structure-durations 5,20]
+
+Writes docs/benchmarks/track_memory.json (the studies not run are kept).  The per-channel real-time
+factor is duration × channels / wall time (the channels run one after the other on one core).
 """
 
 from __future__ import annotations
@@ -97,55 +102,110 @@ def run_track(tree: Path, iq: Path, out: Path) -> dict:
     return row
 
 
+def run_cli(tree: Path, args: list, cwd: Path) -> dict:
+    """One fresh `cdgps` process of ``tree``'s code: exit code, peak RSS (MiB), wall and CPU time (s)."""
+    env = {**os.environ, "PYTHONPATH": str(tree)}
+    t0 = time.perf_counter()
+    with tempfile.TemporaryFile() as err:
+        proc = subprocess.Popen([sys.executable, "-c", CLI, "-q", *map(str, args)], env=env,
+                                stdout=subprocess.DEVNULL, stderr=err, cwd=cwd)
+        _, status, ru = os.wait4(proc.pid, 0)
+    return {"exit": os.waitstatus_to_exitcode(status), "peak_rss_mb": ru.ru_maxrss / 1024,
+            "wall_s": time.perf_counter() - t0, "cpu_s": ru.ru_utime + ru.ru_stime}
+
+
+def study_structure(durations: list, before: Path | None, work: Path) -> dict:
+    """`cdgps track-structure` on the testbed (7 antennas × 6 pseudolites, 2.2 MHz IF files from
+    `cdgps simulate-if`), after and (with ``before``) before, and whether the receiver logs are identical."""
+    cfg = ROOT / "configs" / "testbed-1998.toml"
+    assert run_cli(ROOT, ["simulate", cfg, "--duration", max(durations) + 1, "--seed", 1, "-o", work / "sim"],
+                   work)["exit"] == 0
+    rows = []
+    for d in durations:
+        ifd = work / f"if{d:g}"
+        assert run_cli(ROOT, ["simulate-if", cfg, work / "sim", "--duration", d, "--fs", 2.2e6, "--seed", 2,
+                              "-o", ifd], work)["exit"] == 0
+        logs = {}
+        for label, tree in (("after", ROOT), ("before", before)):
+            if tree is None:
+                continue
+            logs[label] = work / f"rx_{label}_{d:g}.csv"
+            r = run_cli(tree, ["track-structure", ifd / "if.json", "--config", cfg, "-o", logs[label]], work)
+            rows.append({"code": label, "duration_s": d, "if_files_mb": sum(f.stat().st_size for f in ifd.glob("*.bin"))
+                         / 2**20, **r})
+            print(json.dumps(rows[-1]), flush=True)
+        if len(logs) == 2:
+            rows[-1]["receiver_log_identical_to_after"] = logs["after"].read_bytes() == logs["before"].read_bytes()
+        shutil.rmtree(ifd)
+    return {"what": "peak RSS and time of `cdgps track-structure` on the testbed's simulated IF files",
+            "format": "int8-iq, 8-bit, 2.2 MHz, 7 antennas × 6 pseudolites at 45 dB-Hz", "runs": rows}
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", default="track,structure", help="studies to run: track, structure")
     ap.add_argument("--durations", default="10,30,60", help="file lengths, s (comma-separated)")
     ap.add_argument("--before", type=Path, default=None, help="source tree of the old code to compare with")
     ap.add_argument("--before-durations", default="2,5,10")
+    ap.add_argument("--structure-durations", default="5,20", help="track-structure: simulated lengths, s")
     ap.add_argument("--workdir", type=Path, default=None, help="where the IF files go (default: a temporary folder)")
     args = ap.parse_args()
-    durations = [float(v) for v in args.durations.split(",")]
-    before = [float(v) for v in args.before_durations.split(",")] if args.before else []
-    work = Path(tempfile.mkdtemp(prefix="track_memory_", dir=args.workdir))
     out_path = ROOT / "docs" / "benchmarks" / "track_memory.json"
+    res = json.loads(out_path.read_text()) if out_path.exists() else {}
+    work = Path(tempfile.mkdtemp(prefix="track_memory_", dir=args.workdir))
     try:
-        load_start = os.getloadavg()
-        longest = max(durations + before)
-        full = work / f"if_{longest:g}s.bin"
-        t0 = time.perf_counter()
-        simulate(full, longest)
-        print(f"simulated {longest:g} s in {time.perf_counter() - t0:.0f} s", flush=True)
-        rows = []
-        for label, tree, lengths in (("after", ROOT, durations), ("before", args.before, before)):
-            for d in lengths:
-                iq = work / f"if_{d:g}s.bin"
-                if not iq.exists():
-                    prefix(full, iq, d)
-                r = run_track(tree, iq, work / f"{label}_{d:g}.mcap")
-                r = {"code": label, "duration_s": d, "file_mb": iq.stat().st_size / 2**20, **r}
-                if r.get("channels"):
-                    r["real_time_factor_per_channel"] = d * r["channels"] / r["wall_s"]
-                    r["real_time_factor_per_channel_cpu"] = d * r["channels"] / r["cpu_s"]
-                rows.append(r)
-                print(json.dumps(r), flush=True)
-        same = {}
-        for d in before:
-            a, b = work / f"after_{d:g}.mcap", work / f"before_{d:g}.mcap"
-            if a.exists() and b.exists():
-                same[f"{d:g}"] = a.read_bytes() == b.read_bytes()
-        res = {"what": "peak RSS and time of a fresh `cdgps track` process against the IF file's length",
-               "format": "int8-iq, 2-bit levels, 4 MHz (the bundled real file's)",
-               "satellites": [{"prn": p, "cn0_dbhz": c, "doppler_hz": f} for p, c, f in SATELLITES],
-               "block_samples": TRACK_BLOCK_SAMPLES, "machine": platform.machine(), "cpus": os.cpu_count(),
-               "python": platform.python_version(), "numpy": np.__version__,
-               "command": "python benchmarks/track_memory.py " + " ".join(sys.argv[1:]),
-               "load_average_1_5_15_min": {"start": load_start, "end": os.getloadavg()},
-               "runs": rows, "before_after_track_mcap_identical": same}
+        if "track" in args.only.split(","):
+            res.update(study_track(args, work))
+        if "structure" in args.only.split(","):
+            load_start = os.getloadavg()
+            res["track_structure"] = study_structure([float(v) for v in args.structure_durations.split(",")],
+                                                     args.before, work)
+            res["track_structure"]["load_average_1_5_15_min"] = {"start": load_start, "end": os.getloadavg()}
+            res["track_structure"]["command"] = "python benchmarks/track_memory.py " + " ".join(sys.argv[1:])
         out_path.parent.mkdir(parents=True, exist_ok=True)
         out_path.write_text(json.dumps(res, indent=2) + "\n")
         print(f"wrote {out_path}")
     finally:
         shutil.rmtree(work, ignore_errors=True)
+
+
+def study_track(args, work: Path) -> dict:
+    """`cdgps track` on simulated files of ``args.durations`` (and of ``args.before_durations`` with the
+    old code): the top-level entries of the JSON."""
+    durations = [float(v) for v in args.durations.split(",")]
+    before = [float(v) for v in args.before_durations.split(",")] if args.before else []
+    load_start = os.getloadavg()
+    longest = max(durations + before)
+    full = work / f"if_{longest:g}s.bin"
+    t0 = time.perf_counter()
+    simulate(full, longest)
+    print(f"simulated {longest:g} s in {time.perf_counter() - t0:.0f} s", flush=True)
+    rows = []
+    for label, tree, lengths in (("after", ROOT, durations), ("before", args.before, before)):
+        for d in lengths:
+            iq = work / f"if_{d:g}s.bin"
+            if not iq.exists():
+                prefix(full, iq, d)
+            r = run_track(tree, iq, work / f"{label}_{d:g}.mcap")
+            r = {"code": label, "duration_s": d, "file_mb": iq.stat().st_size / 2**20, **r}
+            if r.get("channels"):
+                r["real_time_factor_per_channel"] = d * r["channels"] / r["wall_s"]
+                r["real_time_factor_per_channel_cpu"] = d * r["channels"] / r["cpu_s"]
+            rows.append(r)
+            print(json.dumps(r), flush=True)
+    same = {}
+    for d in before:
+        a, b = work / f"after_{d:g}.mcap", work / f"before_{d:g}.mcap"
+        if a.exists() and b.exists():
+            same[f"{d:g}"] = a.read_bytes() == b.read_bytes()
+    return {"what": "peak RSS and time of a fresh `cdgps track` process against the IF file's length",
+            "format": "int8-iq, 2-bit levels, 4 MHz (the bundled real file's)",
+            "satellites": [{"prn": p, "cn0_dbhz": c, "doppler_hz": f} for p, c, f in SATELLITES],
+            "block_samples": TRACK_BLOCK_SAMPLES, "machine": platform.machine(), "cpus": os.cpu_count(),
+            "python": platform.python_version(), "numpy": np.__version__,
+            "command": "python benchmarks/track_memory.py " + " ".join(sys.argv[1:]),
+            "load_average_1_5_15_min": {"start": load_start, "end": os.getloadavg()},
+            "runs": rows, "before_after_track_mcap_identical": same}
 
 
 if __name__ == "__main__":
