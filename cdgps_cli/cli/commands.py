@@ -1495,6 +1495,10 @@ def control_design(ctx, config, weight_set, qx, qu, rigid_factor, rate_factor, o
                     "loop_estimator": rec["loop_estimator"]})
 
 
+#: library field → flag of `cdgps track` / `track-structure` (their option errors name the flag given)
+TRACK_FLAGS = {"pll_bn_hz": "--pll-bn", "pull_in_s": "--pull-in", "prns": "--prn"}
+
+
 @main.command("track", short_help="Track GPS L1 C/A in raw IF samples → TRACK.mcap")
 @click.argument("iq_file", type=click.Path(dir_okay=False))
 @click.option("--format", "fmt", required=True, type=click.Choice(["int8-iq", "int16-iq", "int8-real", "int16-real"]),
@@ -1505,8 +1509,8 @@ def control_design(ctx, config, weight_set, qx, qu, rigid_factor, rate_factor, o
 @click.option("--if", "if_hz", type=float, default=0.0, show_default=True, help="Intermediate frequency, Hz (0: baseband).")
 @click.option("--prn", "prns", type=int, multiple=True, help="Track only these PRNs (repeatable; default: every one acquired).")
 @click.option("--duration", "duration_s", type=float, default=None, help="Seconds of the file to use (default: all).")
-@click.option("--pll-bn", "pll_bn_hz", type=float, default=TRACK_DEFAULTS["pll_bn_hz"], show_default=True, help="PLL noise bandwidth, Hz.")
-@click.option("--pull-in", "pull_in_s", type=float, default=TRACK_DEFAULTS["pull_in_s"], show_default=True, help="FLL pull-in before the PLL, s.")
+@click.option("--pll-bn", "pll_bn_hz", type=float, default=TRACK_DEFAULTS["pll_bn_hz"], show_default=True, help="PLL noise bandwidth, Hz, in (0, 100].")
+@click.option("--pull-in", "pull_in_s", type=float, default=TRACK_DEFAULTS["pull_in_s"], show_default=True, help="FLL pull-in before the PLL, s (0 or more).")
 @click.option("--noncoherent-ms", type=int, default=None,
               help="Acquisition: 1 ms correlations summed non-coherently [10] (10 detects 38 dB-Hz, 20 36 dB-Hz, "
                    "docs/tracking.md).")
@@ -1522,8 +1526,10 @@ def track_cmd(ctx, iq_file, fmt, iq_sign, fs_hz, if_hz, prns, duration_s, pll_bn
     Costas PLL, carrier-aided DLL): Doppler, code phase, carrier phase, C/N0 and lock per millisecond."""
     from cdgps_cli.pipeline.track import track_file
     from cdgps_cli.tracking.channel import TrackOptions
+    from cdgps_cli.tracking.receiver import check_prns
 
-    opt = TrackOptions(pll_bn_hz=pll_bn_hz, pull_in_s=pull_in_s)
+    opt = _named_by_flags(lambda: TrackOptions(pll_bn_hz=pll_bn_hz, pull_in_s=pull_in_s), TRACK_FLAGS)
+    _named_by_flags(lambda: check_prns(prns), TRACK_FLAGS)
     with progress.stage("tracking"):
         s = track_file(iq_file, output, fmt=fmt, fs_hz=fs_hz, if_hz=if_hz, iq_sign=iq_sign,
                        prns=list(prns) or None, duration_s=duration_s, opt=opt, noncoherent_ms=noncoherent_ms,
@@ -1688,8 +1694,8 @@ def simulate_if_cmd(ctx, config, sim_dir, start_s, duration_s, fs_hz, if_hz, bit
 @click.argument("if_json", type=click.Path(dir_okay=False))
 @click.option("--config", "config", required=True, type=click.Path(dir_okay=False),
               help="Structure config the samples were simulated for (its antennas, master, epochs).")
-@click.option("--pll-bn", "pll_bn_hz", type=float, default=TRACK_DEFAULTS["pll_bn_hz"], show_default=True, help="PLL noise bandwidth, Hz.")
-@click.option("--pull-in", "pull_in_s", type=float, default=TRACK_DEFAULTS["pull_in_s"], show_default=True, help="FLL pull-in before the PLL, s.")
+@click.option("--pll-bn", "pll_bn_hz", type=float, default=TRACK_DEFAULTS["pll_bn_hz"], show_default=True, help="PLL noise bandwidth, Hz, in (0, 100].")
+@click.option("--pull-in", "pull_in_s", type=float, default=TRACK_DEFAULTS["pull_in_s"], show_default=True, help="FLL pull-in before the PLL, s (0 or more).")
 @click.option("--aid", type=click.Choice(["none", "truth", "gyro", "model"]), default="none", show_default=True,
               help="External Doppler aid of every PLL: none; truth, the true line-of-sight Doppler from IF_JSON's truth "
                    "(a perfect inertial or structural-model prediction); gyro, the Doppler of the antenna velocity "
@@ -1702,7 +1708,7 @@ def simulate_if_cmd(ctx, config, sim_dir, start_s, duration_s, fs_hz, if_hz, bit
                    "config's coordinates (truth.csv of `cdgps simulate`, or an estimate's states CSV); the gyros "
                    "carry it on.  Default: the rest pose (all coordinates 0).")
 @click.option("--clock-bn", "clock_bn_hz", type=float, default=None,
-              help="Share one receiver-clock loop of this noise bandwidth (Hz) among each antenna's channels "
+              help="Share one receiver-clock loop of this noise bandwidth (Hz, in (0, 100]) among each antenna's channels "
                    "(the clock-error frequency estimated across channels; default: independent loops).")
 @click.option("--acquisition", type=click.Choice(["search", "truth"]), default="search", show_default=True,
               help="Start the loops from an FFT search of each file, or from IF_JSON's true Doppler and code phase "
@@ -1719,9 +1725,14 @@ def track_structure_cmd(ctx, if_json, config, pll_bn_hz, pull_in_s, aid, gyro_cs
     from cdgps_cli.pipeline.if_chain import ChainOptions, track_structure
     from cdgps_cli.tracking.channel import TrackOptions
 
+    def options():
+        o = ChainOptions(track=TrackOptions(pll_bn_hz=pll_bn_hz, pull_in_s=pull_in_s), aid=aid,
+                         acquisition=acquisition, gyro_csv=gyro_csv, pose_csv=pose_csv, clock_bn_hz=clock_bn_hz)
+        o.check()
+        return o
+
+    opt = _named_by_flags(options, {**TRACK_FLAGS, "clock_bn_hz": "--clock-bn"})
     cfg = load_config(config)
-    opt = ChainOptions(track=TrackOptions(pll_bn_hz=pll_bn_hz, pull_in_s=pull_in_s), aid=aid, acquisition=acquisition,
-                       gyro_csv=gyro_csv, pose_csv=pose_csv, clock_bn_hz=clock_bn_hz)
     with progress.stage("tracking"):
         s = track_structure(if_json, cfg, output, opt, progress=None if ctx.obj.get("quiet") else progress.write)
     _say(ctx, f"wrote {output}: {s['rows']} rows, {s['epochs']} epochs, "

@@ -37,13 +37,15 @@ from cdgps_cli.core import progress as _progress
 from cdgps_cli.io.atomic import file_sha256, refuse_input_overwrite, write_atomic
 from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.io.iq_samples import read_samples
+from cdgps_cli.config.options import TRACK_BLOCK_SAMPLES
+from cdgps_cli.io.iq_samples import iter_samples, read_samples
 from cdgps_cli.io.logs import RECEIVER_COLUMNS
-from cdgps_cli.sim.if_samples import C_M_S, KNOT_S, L1_HZ, MANIFEST_FORMAT, StructureIf, simulate_structure_if
-from cdgps_cli.tracking.acquisition import Acquisition, acquire
+from cdgps_cli.sim.if_samples import (C_M_S, FS_RANGE_HZ, KNOT_S, L1_HZ, MANIFEST_FORMAT, StructureIf,
+                                      simulate_structure_if)
+from cdgps_cli.tracking.acquisition import NONCOHERENT_MS, Acquisition, acquire
 from cdgps_cli.tracking.ca_code import CHIP_RATE_HZ, CODE_LENGTH, G2_TAPS, ca_code
-from cdgps_cli.tracking.channel import PHASE_LOCK_THRESHOLD, WINDOW, TrackOptions, track
-from cdgps_cli.tracking.shared_clock import track_shared_clock
+from cdgps_cli.tracking.channel import PHASE_LOCK_THRESHOLD, WINDOW, TrackOptions
+from cdgps_cli.tracking.receiver import BlockTracker
 
 #: external Doppler aids of :func:`track_structure`
 AIDS = ("none", "truth", "gyro", "model")
@@ -74,6 +76,7 @@ def read_manifest(path: str | Path) -> dict:
         raise CdgpsError(f"{p}: missing key(s) {', '.join(missing)}")
     if man["sample_format"] != "int8-iq":
         raise CdgpsError(f"{p}: sample_format {man['sample_format']!r}: expected 'int8-iq'")
+    _check_manifest_values(p, man)
     for a in man["antennas"]:
         f = p.parent / a["file"]
         size = f.stat().st_size if f.exists() else -1
@@ -81,6 +84,58 @@ def read_manifest(path: str | Path) -> dict:
             raise CdgpsError(f"{f}: {'missing' if size < 0 else f'{size} bytes'}; the manifest {p} says "
                              f"{2 * man['samples']} bytes ({man['samples']} int8 I/Q samples)")
     return man
+
+
+def _number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _check_manifest_values(p: Path, man: dict) -> None:
+    """The manifest's numbers and lists are of the kind and range :func:`simulate_if` writes (a CdgpsError
+    naming the file and the key otherwise)."""
+    lo, hi = FS_RANGE_HZ
+    fs = man["fs_hz"]
+    if not (_number(fs) and lo <= fs <= hi and abs(fs * KNOT_S - round(fs * KNOT_S)) <= 1e-6):
+        raise CdgpsError(f"{p}: fs_hz {fs!r}: expected a sample rate in Hz between {lo:g} and {hi:g}, a whole "
+                         "number of samples per millisecond")
+    if not (_number(man["if_hz"]) and abs(man["if_hz"]) < fs / 2):
+        raise CdgpsError(f"{p}: if_hz {man['if_hz']!r}: expected a frequency in Hz below half the sample rate")
+    if isinstance(man["samples"], bool) or not isinstance(man["samples"], int) or man["samples"] < 1:
+        raise CdgpsError(f"{p}: samples {man['samples']!r}: expected a whole number of samples ≥ 1")
+    if not _number(man["start_s"]):
+        raise CdgpsError(f"{p}: start_s {man['start_s']!r}: expected a time in seconds")
+    if man["iq_sign"] not in ("minus", "plus"):
+        raise CdgpsError(f"{p}: iq_sign {man['iq_sign']!r}: expected 'minus' or 'plus'")
+    for key, need in (("antennas", ("name", "file", "sha256")), ("transmitters", ("name", "prn"))):
+        items = man[key]
+        if not (isinstance(items, list) and items and all(isinstance(a, dict) and all(k in a for k in need)
+                                                          for a in items)):
+            raise CdgpsError(f"{p}: {key}: expected a non-empty list of objects with {', '.join(need)}")
+        if not all(isinstance(a[k], str) for a in items for k in need if k != "prn"):
+            raise CdgpsError(f"{p}: {key}: {', '.join(k for k in need if k != 'prn')} must be strings")
+    prns = [t["prn"] for t in man["transmitters"]]
+    if not all(isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= 32 for v in prns) or len(set(prns)) < len(prns):
+        raise CdgpsError(f"{p}: transmitters: prn {prns!r}: expected distinct GPS PRNs 1-32")
+
+
+def check_truth(p: Path, man: dict) -> None:
+    """The manifest's ``truth`` (used by ``--aid truth`` and ``--acquisition truth``): epoch times and,
+    per antenna and transmitter, range, Doppler and code phase at each epoch."""
+    tr = man.get("truth")
+    t = tr.get("time_s") if isinstance(tr, dict) else None
+    if not (isinstance(t, list) and t and all(_number(v) for v in t) and isinstance(tr.get("antennas"), dict)):
+        raise CdgpsError(f"{p}: truth: expected time_s (a list of times, s) and antennas (the aid and the "
+                         "truth acquisition need them)")
+    for a in man["antennas"]:
+        for tx in man["transmitters"]:
+            ch = tr["antennas"].get(a["name"], {})
+            ch = ch.get(tx["name"]) if isinstance(ch, dict) else None
+            ok = isinstance(ch, dict) and all(isinstance(ch.get(k), list) and len(ch[k]) == len(t)
+                                              and all(_number(v) for v in ch[k])
+                                              for k in ("range_m", "doppler_hz", "code_phase_chips"))
+            if not ok:
+                raise CdgpsError(f"{p}: truth.antennas.{a['name']}.{tx['name']}: expected range_m, doppler_hz and "
+                                 f"code_phase_chips, {len(t)} numbers each (one per truth.time_s)")
 
 
 @dataclass
@@ -99,6 +154,7 @@ class ChainOptions:
     acquisition: str = "search"     # "truth": start the loops from the manifest's true Doppler and code phase
     clock_bn_hz: float | None = None  # each antenna's channels share a clock loop of this bandwidth (Hz;
                                       # tracking.shared_clock, Alban et al.'s clock-error frequency), or not
+    block_samples: int = TRACK_BLOCK_SAMPLES  # samples of a file read and tracked at a time (no effect on results)
 
     def check(self) -> None:
         if self.aid not in AIDS:
@@ -110,7 +166,7 @@ class ChainOptions:
         if self.acquisition not in ACQUISITIONS:
             raise CdgpsError(f"acquisition {self.acquisition!r}: expected one of {', '.join(ACQUISITIONS)}")
         if self.clock_bn_hz is not None and not (math.isfinite(self.clock_bn_hz) and 0 < self.clock_bn_hz <= 100):
-            raise CdgpsError(f"clock loop bandwidth {self.clock_bn_hz!r}: expected a number of Hz in (0, 100]")
+            raise CdgpsError(f"clock_bn_hz {self.clock_bn_hz!r}: expected a clock loop bandwidth in (0, 100] Hz")
         if not (math.isfinite(self.settle_s) and self.settle_s >= 0):
             raise CdgpsError(f"settle_s {self.settle_s!r}: expected a non-negative number of seconds")
 
@@ -226,7 +282,10 @@ def gyro_aid_hz(cfg: StructureConfig, man: dict, gyro: tuple, antenna: str, tran
     p, J = antenna_positions(cfg, q_hat, jacobian=True)
     a = list(cfg.antenna_names).index(antenna)
     tx = next(t for t in man["transmitters"] if t["name"] == transmitter)
-    tr = Transmitter(**tx)
+    try:
+        tr = Transmitter(**tx)
+    except TypeError as exc:                   # a hand-edited manifest: a key missing or unknown
+        raise CdgpsError(f"IF manifest transmitters: {transmitter}: {exc} (expected the keys of `cdgps simulate-if`)") from None
     pa = p[:, a]                                                            # (n, 3)
     h = 1e-4                                                                # central difference of ρ(p): u = ∂ρ/∂p
     u = np.stack([(line_of_sight_range_m(tr, pa + h * e) - line_of_sight_range_m(tr, pa - h * e)) / (2 * h)
@@ -255,38 +314,39 @@ def _track_antenna(path: Path, man: dict, prns: list, opt: ChainOptions, say, an
     """Acquire the manifest's PRNs in one antenna's file and track those found (a PRN not acquired
     gives its channels no rows and is listed under ``missing``); ``opt.aid`` feeds each loop its
     line-of-sight Doppler (:func:`truth_aid_hz`, or ``gyro_aid``); with ``opt.clock_bn_hz`` the channels
-    share a clock loop (:func:`cdgps_cli.tracking.shared_clock.track_shared_clock`)."""
-    x = read_samples(path, "int8-iq", man["iq_sign"])
-    fs, if_hz = man["fs_hz"], man["if_hz"]
-    acq = acquire(x, fs, prns, if_hz=if_hz) if opt.acquisition == "search" else _truth_start(man, antenna, prns)
+    share a clock loop (:func:`cdgps_cli.tracking.shared_clock.track_shared_clock`).  The file is read and
+    tracked in blocks of ``opt.block_samples`` (:class:`cdgps_cli.tracking.receiver.BlockTracker`)."""
+    fs, if_hz, total = man["fs_hz"], man["if_hz"], man["samples"]
+    if opt.acquisition == "search":
+        head = read_samples(path, "int8-iq", man["iq_sign"], max_samples=round(fs * 1e-3) * NONCOHERENT_MS)
+        acq = acquire(head, fs, prns, if_hz=if_hz)
+    else:
+        acq = _truth_start(man, antenna, prns)
     found = [a for a in acq if a.acquired]
     missing = [{"prn": a.prn, "peak_ratio": a.peak_ratio, "peak_to_noise": a.peak_to_noise, "threshold": a.threshold}
                for a in acq if not a.acquired]
     if not found:
         raise CdgpsError(f"{path}: none of PRN {', '.join(map(str, prns))} acquired (peak over noise, threshold: "
                          + ", ".join(f"{m['peak_to_noise']:.2f}, {m['threshold']:.2f}" for m in missing) + ")")
-    if if_hz:
-        x = x * np.exp(-2j * np.pi * if_hz * np.arange(x.size) / fs)
     tx_of = {int(t["prn"]): t["name"] for t in man["transmitters"]}
     n = int(round(fs * KNOT_S))
-    tracks, sats = {}, []
     aids = {}
     for a in found:
         aid = None
         if opt.aid == "truth":
-            aid = truth_aid_hz(man, antenna, tx_of[a.prn], np.arange(x.size // n) * n / fs)
+            aid = truth_aid_hz(man, antenna, tx_of[a.prn], np.arange(total // n) * n / fs)
         elif opt.aid in ("gyro", "model"):
-            aid = gyro_aid(antenna, tx_of[a.prn], np.arange(x.size // n) * n / fs)
+            aid = gyro_aid(antenna, tx_of[a.prn], np.arange(total // n) * n / fs)
         aids[a.prn] = aid
     starts = [(a.prn, a.doppler_hz - (aids[a.prn][0] if aids[a.prn] is not None else 0.0), a.code_phase_chips)
               for a in found]
-    if opt.clock_bn_hz is not None:                # the channels of this antenna share one clock loop
-        shared = track_shared_clock(x, fs, starts, opt.track, clock_bn_hz=opt.clock_bn_hz,
-                                    aids=[aids[a.prn] for a in found])
-        tracks = {a.prn: r for a, r in zip(found, shared["tracks"])}
-    for a, (_, start_hz, code) in zip(found, starts):
-        if opt.clock_bn_hz is None:
-            tracks[a.prn] = track(x, fs, a.prn, start_hz, code, opt.track, aid_doppler_hz=aids[a.prn])
+    rx = BlockTracker(fs, starts, opt.track, n_samples=total, if_hz=if_hz, aids=[aids[a.prn] for a in found],
+                      clock_bn_hz=opt.clock_bn_hz)
+    for blk in iter_samples(path, "int8-iq", man["iq_sign"], block_samples=opt.block_samples, max_samples=total):
+        rx.feed(blk)
+    tracks = dict(zip([a.prn for a in found], rx.results()))
+    sats = []
+    for a in found:
         r = tracks[a.prn]
         cn0 = r["cn0_dbhz"][::WINDOW][-5:]
         sats.append({"prn": a.prn, "doppler_hz": float(np.mean(r["doppler_hz"][-100:])),
@@ -382,6 +442,8 @@ def track_structure(manifest_path: str | Path, cfg: StructureConfig, out_csv: st
         raise CdgpsError(f"{path}: simulated with another config than {cfg.path} (config_sha256 differs)")
     refuse_input_overwrite([("out_csv", out_csv, False)],
                            [("manifest", path, False)] + [("sample file", path.parent / a["file"], False) for a in man["antennas"]])
+    if "truth" in (opt.aid, opt.acquisition):
+        check_truth(path, man)
     names = [a["name"] for a in man["antennas"]]
     master = cfg.antenna_names[cfg.master_index]
     if master not in names:

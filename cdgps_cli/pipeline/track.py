@@ -1,4 +1,9 @@
-"""`cdgps track`: read a raw sample file, acquire and track, write TRACK.mcap."""
+"""`cdgps track`: read a raw sample file, acquire and track, write TRACK.mcap.
+
+The file is read in blocks of its native sample type (:func:`cdgps_cli.io.iq_samples.iter_samples`),
+tracked block by block and each 20 ms window of outputs written as soon as it is complete
+(:func:`cdgps_cli.tracking.receiver.track_stream_to`): memory does not grow with the file's length.
+"""
 
 from __future__ import annotations
 
@@ -10,26 +15,26 @@ import numpy as np
 from cdgps_cli import __version__
 from cdgps_cli.io.atomic import file_sha256
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.io.iq_samples import FORMATS, read_samples
-from cdgps_cli.config.limits import check_table_size
+from cdgps_cli.config.options import TRACK_BLOCK_SAMPLES
+from cdgps_cli.io.iq_samples import FORMATS, iter_samples, read_samples
 from cdgps_cli.io.mcap import NULLABLE, McapOut, array_schema
 from cdgps_cli.tracking.acquisition import FALSE_ALARM, NONCOHERENT_MS
 from cdgps_cli.tracking.channel import TrackOptions
-from cdgps_cli.tracking.receiver import track_all
+from cdgps_cli.tracking.receiver import track_stream_to
 
 TRACK_TOPIC = "/cdgps/track"
 TRACK_SCHEMA = array_schema("cdgps.Track", {
     "prn": "integer", "doppler_hz": "number", "carrier_phase_cycles": "number", "code_phase_chips": "number",
     "i_prompt": "number", "q_prompt": "number", "cn0_dbhz": NULLABLE, "phase_lock": NULLABLE})
-#: bytes held per complex sample while tracking (the samples, a carrier-wiped copy, replicas)
-BYTES_PER_SAMPLE = 48
 
 
 def track_file(path: str | Path, out_path: str | Path, *, fmt: str, fs_hz: float, if_hz: float = 0.0,
                iq_sign: str = "minus", prns=None, duration_s: float | None = None, opt: TrackOptions | None = None,
-               noncoherent_ms: int | None = None, false_alarm: float | None = None, progress=None) -> dict:
+               noncoherent_ms: int | None = None, false_alarm: float | None = None, progress=None,
+               block_samples: int = TRACK_BLOCK_SAMPLES) -> dict:
     """Track every satellite in a sample file; write TRACK.mcap; return the summary (no arrays).
-    ``noncoherent_ms``, ``false_alarm``: the acquisition's (None: its defaults, NONCOHERENT_MS, FALSE_ALARM)."""
+    ``noncoherent_ms``, ``false_alarm``: the acquisition's (None: its defaults, NONCOHERENT_MS, FALSE_ALARM);
+    ``block_samples``: samples read and tracked at a time (the results do not depend on it)."""
     noncoherent_ms = NONCOHERENT_MS if noncoherent_ms is None else noncoherent_ms
     false_alarm = FALSE_ALARM if false_alarm is None else false_alarm
     if not (np.isfinite(fs_hz) and 2.1e6 <= fs_hz <= 1e9):
@@ -48,32 +53,41 @@ def track_file(path: str | Path, out_path: str | Path, *, fmt: str, fs_hz: float
     size = Path(path).stat().st_size if Path(path).exists() else 0
     per = np.dtype(FORMATS[fmt][0]).itemsize * (2 if FORMATS[fmt][1] else 1)
     n = size // per if duration_s is None else min(size // per, int(duration_s * fs_hz))
-    check_table_size(n, 1, BYTES_PER_SAMPLE, "the samples", "--duration")
-    x = read_samples(path, fmt, iq_sign, max_samples=n)
-    if x.size < fs_hz * 0.02:
-        raise CdgpsError(f"{path}: {x.size / fs_hz * 1e3:.1f} ms of samples; tracking needs at least 20 ms")
-    if x.size < fs_hz * 1e-3 * noncoherent_ms:
-        raise CdgpsError(f"{path}: {x.size / fs_hz * 1e3:.1f} ms of samples; --noncoherent-ms {noncoherent_ms} needs more")
-    res = track_all(x, fs_hz, prns, if_hz=if_hz, opt=opt, progress=progress, noncoherent_ms=noncoherent_ms,
-                    false_alarm=false_alarm)
-    summary = {"input": str(path), "input_sha256": file_sha256(path), "format": fmt, "iq_sign": iq_sign,
-               "fs_hz": fs_hz, "if_hz": if_hz, "duration_s": x.size / fs_hz, "cdgps_version": __version__,
-               "options": {**(opt or TrackOptions()).__dict__, "noncoherent_ms": noncoherent_ms,
-                           "false_alarm": false_alarm}, "acquisition": res["acquisition"],
-               "satellites": res["satellites"]}
-    _write_track(out_path, res["tracks"], summary)
+    head = read_samples(path, fmt, iq_sign, max_samples=min(n, round(fs_hz * 1e-3) * noncoherent_ms))
+    if n < fs_hz * 0.02:
+        raise CdgpsError(f"{path}: {n / fs_hz * 1e3:.1f} ms of samples; tracking needs at least 20 ms")
+    if n < fs_hz * 1e-3 * noncoherent_ms:
+        raise CdgpsError(f"{path}: {n / fs_hz * 1e3:.1f} ms of samples; --noncoherent-ms {noncoherent_ms} needs more")
+    blocks = iter_samples(path, fmt, iq_sign, block_samples=block_samples, max_samples=n)
+    with McapOut(out_path) as out:
+        writer = _TrackWriter(out)
+        res = track_stream_to(writer, head, blocks, fs_hz, prns, n_samples=n, if_hz=if_hz, opt=opt,
+                              progress=progress, noncoherent_ms=noncoherent_ms, false_alarm=false_alarm)
+        summary = {"input": str(path), "input_sha256": file_sha256(path), "format": fmt, "iq_sign": iq_sign,
+                   "fs_hz": fs_hz, "if_hz": if_hz, "duration_s": n / fs_hz, "cdgps_version": __version__,
+                   "options": {**(opt or TrackOptions()).__dict__, "noncoherent_ms": noncoherent_ms,
+                               "false_alarm": false_alarm}, "acquisition": res["acquisition"],
+                   "satellites": res["satellites"]}
+        out.metadata("track", {key: (v if isinstance(v, str) else json.dumps(v)) for key, v in summary.items()})
     return summary
 
 
-def _write_track(out_path, tracks: dict, summary: dict) -> None:
-    prns = sorted(tracks)
-    m = min(len(tracks[p]["time_s"]) for p in prns)
-    cols = {k: np.stack([tracks[p][k][:m] for p in prns], axis=1)
-            for k in ("doppler_hz", "carrier_phase_cycles", "code_phase_chips", "i_prompt", "q_prompt",
-                      "cn0_dbhz", "phase_lock")}
-    t = tracks[prns[0]]["time_s"][:m]
-    with McapOut(out_path) as out:
-        ch = out.channel(TRACK_TOPIC, TRACK_SCHEMA, {"prns": ",".join(map(str, prns))})
-        for k in range(m):
-            out.write(ch, float(t[k]), {"prn": prns, **{c: v[k].tolist() for c, v in cols.items()}})
-        out.metadata("track", {key: (v if isinstance(v, str) else json.dumps(v)) for key, v in summary.items()})
+class _TrackWriter:
+    """The sink of :func:`cdgps_cli.tracking.receiver.track_stream_to`: one message per 1 ms update on
+    ``/cdgps/track``, the channels in PRN order (the channel is registered at the first call)."""
+
+    COLUMNS = ("doppler_hz", "carrier_phase_cycles", "code_phase_chips", "i_prompt", "q_prompt", "cn0_dbhz",
+               "phase_lock")
+
+    def __init__(self, out: McapOut):
+        self.out, self.ch = out, None
+
+    def __call__(self, prns: list, columns: list) -> None:
+        order = sorted(range(len(prns)), key=lambda j: prns[j])
+        srt = [prns[j] for j in order]
+        if self.ch is None:
+            self.ch = self.out.channel(TRACK_TOPIC, TRACK_SCHEMA, {"prns": ",".join(map(str, srt))})
+        cols = {k: np.stack([columns[j][k] for j in order], axis=1) for k in self.COLUMNS}
+        t = columns[order[0]]["time_s"]
+        for k in range(t.size):
+            self.out.write(self.ch, float(t[k]), {"prn": srt, **{c: v[k].tolist() for c, v in cols.items()}})

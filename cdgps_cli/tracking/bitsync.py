@@ -43,24 +43,36 @@ def bit_sync(out: dict) -> dict:
         ``bit_sync_fraction``: the share of them at the dominant code epoch (of the 20 in a bit).
     """
     i = np.asarray(out["i_prompt"], dtype=float)
-    run = np.asarray(out["pll"], dtype=bool)
-    flips = np.flatnonzero(run[1:] & run[:-1] & (np.sign(i[1:]) * np.sign(i[:-1]) < 0)) + 1
-    if flips.size < MIN_CHANGES:
-        return {"bit_edge_s": None, "bit_changes": int(flips.size), "bit_sync_fraction": None}
-    t = np.asarray(out["time_s"], dtype=float)[flips]
-    rate = CHIP_RATE_HZ * (1.0 + np.asarray(out["doppler_hz"], dtype=float)[flips] / GPS_L1_HZ)
+    flips = sign_changes(i, np.asarray(out["pll"], dtype=bool))
+    return bit_sync_at(i[flips - 1], i[flips], *(np.asarray(out[k], dtype=float)[flips]
+                                                  for k in ("time_s", "doppler_hz", "code_phase_chips")))
+
+
+def sign_changes(i_prompt: np.ndarray, pll: np.ndarray) -> np.ndarray:
+    """Indices k of the updates whose prompt I changes sign from update k − 1, both with the PLL running."""
+    return np.flatnonzero(pll[1:] & pll[:-1] & (np.sign(i_prompt[1:]) * np.sign(i_prompt[:-1]) < 0)) + 1
+
+
+def bit_sync_at(i_before: np.ndarray, i_at: np.ndarray, time_s: np.ndarray, doppler_hz: np.ndarray,
+                code_phase_chips: np.ndarray) -> dict:
+    """:func:`bit_sync` from the sign changes alone: at each change k (:func:`sign_changes`), the prompt I
+    of updates k − 1 and k, and update k's start time (s), Doppler (Hz) and code phase (chips); shapes (n,)."""
+    t = np.asarray(time_s, dtype=float)
+    if t.size < MIN_CHANGES:
+        return {"bit_edge_s": None, "bit_changes": int(t.size), "bit_sync_fraction": None}
+    rate = CHIP_RATE_HZ * (1.0 + doppler_hz / GPS_L1_HZ)
     period_s = CODE_LENGTH / rate
-    later = t + (CODE_LENGTH - np.asarray(out["code_phase_chips"], dtype=float)[flips] % CODE_LENGTH) / rate
+    later = t + (CODE_LENGTH - code_phase_chips % CODE_LENGTH) / rate
     cand = np.stack([later - period_s, later], axis=1)                    # the epochs in blocks k − 1 and k
     count = np.r_[0, np.cumsum(np.round(np.diff(later) / period_s[1:]))].astype(np.int64)   # epochs since the first
     idx = np.stack([count - 1, count], axis=1) % PERIODS_PER_BIT
     frac = (later - t) / period_s                                          # where block k's epoch falls in it
-    weak_before = np.abs(i[flips - 1]) < np.abs(i[flips])                  # the transition block is the weaker one
+    weak_before = np.abs(i_before) < np.abs(i_at)                          # the transition block is the weaker one
     pick = np.where(frac > 0.75, 0, np.where(frac < 0.25, 1, np.where(weak_before, 0, 1)))
-    best = int(np.argmax(np.bincount(idx[np.arange(flips.size), pick], minlength=PERIODS_PER_BIT)))
+    best = int(np.argmax(np.bincount(idx[np.arange(t.size), pick], minlength=PERIODS_PER_BIT)))
     near = (idx == best).any(axis=1)
     first = int(np.flatnonzero(near)[0])
     edge = cand[first, 1] if idx[first, 1] == best else cand[first, 0]
     bit_s = PERIODS_PER_BIT * period_s[first]                              # one bit at this channel's code rate
-    return {"bit_edge_s": float(edge - bit_s * np.floor(edge / bit_s)), "bit_changes": int(flips.size),
+    return {"bit_edge_s": float(edge - bit_s * np.floor(edge / bit_s)), "bit_changes": int(t.size),
             "bit_sync_fraction": float(np.mean(near))}

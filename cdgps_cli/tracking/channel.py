@@ -59,6 +59,29 @@ class TrackOptions:
     wide_pll_s: float = 0.1
     wide_pll_hz: float = 15.0
 
+    def __post_init__(self):
+        for name, (lo, hi, unit, what) in OPTION_RANGES.items():
+            v = getattr(self, name)
+            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+            if not (ok and (v > lo if name in OPEN_BELOW else v >= lo) and v <= hi):
+                low = "(" if name in OPEN_BELOW else "["
+                raise CdgpsError(f"{name} {v!r}: expected {what} in {low}{lo:g}, {hi:g}] {unit}")
+        if self.pll_order not in (2, 3) or isinstance(self.pll_order, bool):
+            raise CdgpsError(f"pll_order: expected 2 or 3, got {self.pll_order!r}")
+
+
+#: valid ranges of :class:`TrackOptions` (low, high, unit, what): a loop bandwidth B_n must be positive
+#: and small against the 1 kHz update rate (the discrete filters hold for B_n T ≪ 1); times are finite
+OPTION_RANGES = {"pll_bn_hz": (0.0, 100.0, "Hz", "a PLL noise bandwidth"),
+                 "fll_bn_hz": (0.0, 100.0, "Hz", "an FLL noise bandwidth"),
+                 "dll_bn_hz": (0.0, 100.0, "Hz", "a DLL noise bandwidth"),
+                 "wide_pll_hz": (0.0, 100.0, "Hz", "a PLL noise bandwidth"),
+                 "pull_in_s": (0.0, 1e6, "s", "an FLL pull-in time"),
+                 "wide_pll_s": (0.0, 1e6, "s", "a wide-PLL stage length"),
+                 "spacing_chips": (0.0, 1.0, "chips", "an early-late correlator spacing")}
+#: the ranges whose low end is excluded
+OPEN_BELOW = ("pll_bn_hz", "fll_bn_hz", "dll_bn_hz", "wide_pll_hz", "spacing_chips")
+
 
 def _m2m4_cn0(i: np.ndarray, q: np.ndarray, T: float) -> float:
     """C/N0 (dB-Hz) from prompt correlations by the second and fourth moments."""
