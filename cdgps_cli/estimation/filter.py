@@ -57,6 +57,7 @@ from cdgps_cli.measurement.noise import filter_sigma_estimate, init_channel_sigm
 from cdgps_cli.core.records import Run
 from cdgps_cli.estimation.window_smoother import batch_window, extend_smoothing, window_states
 from cdgps_cli.estimation.smoother import rts_smooth
+from cdgps_cli.estimation.history import MemoryHistory
 
 
 @dataclass
@@ -87,14 +88,24 @@ class EstimateOptions:
     rest_dwell_s: float = ESTIMATE_DEFAULTS["rest_dwell_s"]          # … and how long it must pass before rest is entered
     progress: object = None
     init_source: str = "INIT.json"     # how messages name the INIT (its path); not echoed in outputs
+    # where the forward pass keeps x_k, P_k for the smoother (None: in memory, estimation.history.MemoryHistory;
+    # cdgps estimate gives io.scratch.DiskHistory) and every how many epochs it drops pages it is done with;
+    # keep_covariance "modal": the result's P holds only the n_m×n_m modal-position block (what STATES
+    # --covariance modal stores).  None of the three changes a number; not echoed in outputs
+    history: object = None
+    chunk_epochs: int = ESTIMATE_DEFAULTS["chunk_epochs"]
+    keep_covariance: str = "full"
 
     def echo(self) -> dict:
-        d = {k: v for k, v in self.__dict__.items() if k not in ("progress", "init_source")}
+        d = {k: v for k, v in self.__dict__.items() if k not in _NOT_ECHOED}
         # JSON has no infinity: an open-ended rest segment is echoed with end null
         d["rest_segments_s"] = [[float(a), None if np.isinf(float(b)) else float(b)] for a, b in self.rest_segments_s]
         if self.channel_sigma_m:
             d["channel_sigma_m"] = {f"{a}/{t}": float(v) for (a, t), v in self.channel_sigma_m.items()}
         return d
+
+
+_NOT_ECHOED = ("progress", "init_source", "history", "chunk_epochs", "keep_covariance")
 
 
 @dataclass
@@ -227,19 +238,29 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
         from cdgps_cli.estimation.rest import estimate_auto_rest
 
         return estimate_auto_rest(run, init, opt)
-    fp = _ForwardPass(run, init, opt)
-    fp.run()
-    res = _finish(fp)
-    if opt.adapt_sigma and opt.sigma_m is None and res.noise.get("adapt"):
+    adapting = opt.adapt_sigma and opt.sigma_m is None
+    res = _one_pass(run, init, opt, provisional=adapting)
+    if adapting and res.noise.get("adapt"):
         from dataclasses import replace
         first = res.noise
         for npass in range(2, ADAPT_MAX_PASSES + 1):
             new = {ch: float(v["adapted_sigma_m"]) for ch, v in zip(res.channels, res.noise["per_channel"])}
-            res = estimate(run, init, replace(opt, channel_sigma_m=new, adapt_sigma=False))
+            res = None                        # (the discarded pass's arrays are freed before the next)
+            res = _one_pass(run, init, replace(opt, channel_sigma_m=new, adapt_sigma=False),
+                            provisional=npass < ADAPT_MAX_PASSES)
             if not res.noise.get("adapt"):
                 break
         res.noise = dict(res.noise, source=f"innovation-adapted per channel (pass {npass})", first_pass=first)
     return res
+
+
+def _one_pass(run: Run, init: dict, opt: EstimateOptions, provisional: bool) -> EstimateResult:
+    """One filter pass and its finish; ``provisional``: a pass that is re-run when its noise
+    estimate says so, which then stops before the smoother (its noise is all the caller reads)."""
+    _check_options(opt)
+    fp = _ForwardPass(run, init, opt)
+    fp.run()
+    return _finish(fp, provisional)
 
 
 def _check_options(opt: EstimateOptions) -> None:
@@ -434,8 +455,12 @@ class _ForwardPass:
     def _working_records(self) -> None:
         """Outputs (xs, Ps, residuals, NIS), the event log and the hooks' bookkeeping."""
         N, p, C = self.N, self.p, self.C
-        self.xs = np.empty((N, p))
-        self.Ps = np.empty((N, p, p))
+        # the history the smoother reads back (on disk with a DiskHistory), dropped from memory chunk by chunk
+        self.hist = self.opt.history if self.opt.history is not None else MemoryHistory()
+        self.chunk = max(int(self.opt.chunk_epochs), 1)
+        self.xs = self.hist.empty((N, p))
+        self.Ps = self.hist.empty((N, p, p))
+        self.released_to = 0                        # history rows before this one were released
         self.resid = np.full((N, C), np.nan)
         self.nis = np.full(N, np.nan)
         self.nis_dof = np.zeros(N, dtype=np.int64)
@@ -497,6 +522,7 @@ class _ForwardPass:
             k = self._kernel_span(k, bar)
             if k >= N:
                 break
+            self._release_behind(k)
             self.predict(k)
             y = self.Y[k]
             present = ~np.isnan(y)
@@ -529,14 +555,29 @@ class _ForwardPass:
             return k
         k0, in_rest = k, bool(at_rest[k])
         nxt = self.q_bounds[self.q_bounds > k]         # the span ends where the process noise changes
-        # in rest, every NIS failure comes back here (to the rest checks)
-        k, self.fail_run, self.x, self.P = self.kern.run(
-            k0, self.x, self.P, self.bias, self.rebias, self.fail_run, self.k_reinit_block,
-            int(nxt[0]) if nxt.size else None, Q=self.Qd_rest if in_rest else self.Qd, stop_on_nis_failure=in_rest)
+        k_end = int(nxt[0]) if nxt.size else self.N
+        while True:
+            # in rest, every NIS failure comes back here (to the rest checks); the span is cut at the
+            # history's chunk ends (the kernel carries on from its own state: the same numbers)
+            cap = min(k_end, (k // self.chunk + 1) * self.chunk)
+            k, self.fail_run, self.x, self.P = self.kern.run(
+                k, self.x, self.P, self.bias, self.rebias, self.fail_run, self.k_reinit_block,
+                cap, Q=self.Qd_rest if in_rest else self.Qd, stop_on_nis_failure=in_rest)
+            self._release_behind(k)
+            if k < cap or cap >= k_end:
+                break
         if in_rest and (self.nis_dof[k0:k] > 0).any():
             self.rest_fail = 0                   # an epoch with data passed the NIS test
         bar.update_to(k)
         return k
+
+    def _release_behind(self, k: int) -> None:
+        """Drop from memory the history of the chunks before epoch k's (its values stay on disk)."""
+        start = (k // self.chunk) * self.chunk
+        if start > self.released_to:
+            self.hist.release(self.xs, 0, start)
+            self.hist.release(self.Ps, 0, start)
+            self.released_to = start
 
     def predict(self, k: int) -> None:
         """Time update into epoch k (the rest process noise inside a rest stretch)."""
@@ -805,39 +846,94 @@ class _ForwardPass:
         self.no_link[k:kk] = True
 
 
-def _finish(fp: _ForwardPass) -> EstimateResult:
-    """The forward pass's result; the smoother; INIT's window epochs; the noise estimates."""
+def _finish(fp: _ForwardPass, provisional: bool = False) -> EstimateResult:
+    """The forward pass's result; the smoother; INIT's window epochs; the noise estimates.
+
+    ``provisional``: stop before the smoother when the noise estimate asks for another pass (the
+    caller re-runs the filter and reads only ``res.noise``).  With a history on disk
+    (``fp.hist.on_disk``) the result's arrays are compact copies taken chunk by chunk (the smoother
+    runs backwards in chunks over the history), the history's pages dropped behind; in memory they
+    are views of the history, as before."""
     cfg, opt, n, nm, p, grid = fp.cfg, fp.opt, fp.n, fp.nm, fp.p, fp.grid
     xs, Ps = fp.xs, fp.Ps
     if _TRACE is not None:
         _TRACE.update(A=fp.A, Q=fp.Qd, Q_rest=fp.Qd_rest, at_rest=fp.at_rest.copy(), no_link=fp.no_link.copy(),
-                      Pf=Ps.copy(), extra_q={kk_: list(v) for kk_, v in fp.extra_q.items()})
+                      Pf=np.array(Ps), extra_q={kk_: list(v) for kk_, v in fp.extra_q.items()})
     filter_path = "c" if fp.kern is not None else "numpy"
     fp.Y = fp.EVENT = fp.kern = None        # free the (N, C) inputs before the smoother (memory)
     C = fp.C
-    res = EstimateResult(cfg, grid, xs[:, :n] if p == n else xs[:, :n].copy(),
-                         Ps if p == n else Ps[:, :n, :n].copy(), None, None, fp.chans, fp.resid, fp.nis,
+    res = EstimateResult(cfg, grid, None, None, None, None, fp.chans, fp.resid, fp.nis,
                          fp.nis_dof, fp.events, {fp.chans[c]: (float(xs[-1, n + c]) if fp.use_bias_states
                                                                else float(fp.bias[c])) for c in range(C)},
                          filter_path=filter_path)
     res.rest_active_s = [[float(grid[a]), float(grid[b - 1])] for a, b in _true_runs(fp.at_rest)]
-    chan_est = _channel_noise_estimate(cfg, fp.ant, fp.tx, xs[:, :n], Ps, fp.resid, n, fp.hph)   # (filtered P, before smoothing)
+    chan_est = _channel_noise_estimate(cfg, fp.ant, fp.tx, xs[:, :n], Ps, fp.resid, n, fp.hph,
+                                       release=fp.hist.release)   # (filtered P, before smoothing)
+    noise = _innovation_noise(res, fp.sig_c, fp.sigma_source, chan_est)
+    if provisional and noise.get("adapt"):
+        res.noise = noise                   # re-run with the adapted sigma: no smoother, no window
+        return res
+    m = nm if opt.keep_covariance == "modal" else n
     if opt.smooth:
         # keep the filter's states and covariances, then smooth in place (one copy instead of three)
-        res.x_filt = res.x.copy()
-        res.P_filt = res.P.copy() if opt.keep_filtered_covariance == "full" else res.P[:, :nm, :nm].copy()
-        res.P = None
+        mf = n if opt.keep_filtered_covariance == "full" else nm
+        res.x_filt, res.P_filt = _history_out(fp, n, mf, forward=True)
         with progress.stage("smoothing"):
-            rts_smooth(fp.A, fp.Qd, fp.Bu, fp.U_in, xs, Ps, fp.extra_q, fp.no_link, in_place=True,
-                       q_segments=_q_segments(fp.at_rest, fp.Qd, fp.Qd_rest))
-        res.x = xs[:, :n] if p == n else xs[:, :n].copy()
-        res.P = Ps if p == n else Ps[:, :n, :n].copy()
+            if fp.hist.on_disk:
+                res.x, res.P = _smooth_chunks(fp, m)
+            else:
+                rts_smooth(fp.A, fp.Qd, fp.Bu, fp.U_in, xs, Ps, fp.extra_q, fp.no_link, in_place=True,
+                           q_segments=_q_segments(fp.at_rest, fp.Qd, fp.Qd_rest))
         res.smoothed = True
+    if not fp.hist.on_disk or not opt.smooth:
+        res.x, res.P = _history_out(fp, n, m, forward=False)
+    res.P_first = Ps[0, :n, :n].copy() if len(Ps) else None     # full, for the INIT window's smoothing
     _window_epochs(fp, res)
-    res.noise = _innovation_noise(res, fp.sig_c, fp.sigma_source, chan_est)
+    del res.P_first
+    res.noise = noise
     if fp.mp.active:
         res.noise["multipath"] = dict(fp.mp.echo(), source="INIT.json", filter_path="numpy (kernel has no multipath states)")
     return res
+
+
+def _history_out(fp: _ForwardPass, n: int, m: int, forward: bool) -> tuple[np.ndarray, np.ndarray]:
+    """States (N, n) and covariances (N, m, m) of the history as the result holds them.
+
+    In memory: the history itself when it has no further states and m = n (views, no copy), else
+    copies (``forward``: the filter's values kept before the smoother overwrites them).  On disk:
+    compact copies taken chunk by chunk, the history's pages dropped behind."""
+    xs, Ps, p = fp.xs, fp.Ps, fp.p
+    if not fp.hist.on_disk:
+        full = p == n and m == n and not forward
+        return (xs[:, :n] if p == n and not forward else xs[:, :n].copy(),
+                Ps if full else Ps[:, :m, :m].copy())
+    N = len(xs)
+    x_out, P_out = np.empty((N, n)), np.empty((N, m, m))
+    for a in range(0, N, fp.chunk):
+        b = min(a + fp.chunk, N)
+        x_out[a:b] = xs[a:b, :n]
+        P_out[a:b] = Ps[a:b, :m, :m]
+        fp.hist.release(xs, a, b)
+        fp.hist.release(Ps, a, b)
+    return x_out, P_out
+
+
+def _smooth_chunks(fp: _ForwardPass, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """The RTS pass over the history on disk in reverse chunks: smoothed (N, n) states and (N, m, m)
+    covariances, copied out of each chunk as it is finished (its pages then dropped)."""
+    xs, Ps, n = fp.xs, fp.Ps, fp.n
+    N = len(xs)
+    x_out, P_out = np.empty((N, n)), np.empty((N, m, m))
+
+    def done(a: int, b: int) -> None:
+        x_out[a:b] = xs[a:b, :n]
+        P_out[a:b] = Ps[a:b, :m, :m]
+        fp.hist.release(xs, a, b)
+        fp.hist.release(Ps, a, b)
+
+    rts_smooth(fp.A, fp.Qd, fp.Bu, fp.U_in, xs, Ps, fp.extra_q, fp.no_link, in_place=True,
+               q_segments=_q_segments(fp.at_rest, fp.Qd, fp.Qd_rest), chunk=fp.chunk, on_done=done)
+    return x_out, P_out
 
 
 def _window_epochs(fp: _ForwardPass, res: EstimateResult) -> None:
@@ -872,13 +968,16 @@ def _join_window(res: EstimateResult, ws, x0: np.ndarray, P0: np.ndarray, opt: E
     nm = res.cfg.n_modes
     if nw < 0 or abs(float(ws.time_s[-1]) - float(res.time_s[0])) > 1e-6:
         raise CdgpsError("INIT's window does not end where the filter starts")
+    P_first = getattr(res, "P_first", None)          # the full covariance at the window end (res.P may be modal)
     if res.smoothed:
-        xw, Pw = extend_smoothing(ws, res.x[0], res.P[0], x0, P0)
+        xw, Pw = extend_smoothing(ws, res.x[0], res.P[0] if P_first is None else P_first, x0, P0)
         res.x_filt = np.concatenate([ws.x[:-1], res.x_filt])
         Pf = ws.P[:-1] if res.P_filt.shape[1] == ws.P.shape[1] else ws.P[:-1, :nm, :nm]
         res.P_filt = np.concatenate([Pf, res.P_filt])
     else:
         xw, Pw = ws.x[:-1], ws.P[:-1]
+    if res.P.shape[1] != Pw.shape[1]:
+        Pw = Pw[:, :nm, :nm]
     res.x = np.concatenate([xw, res.x])
     res.P = np.concatenate([Pw, res.P])
     res.time_s = np.concatenate([ws.time_s[:-1], res.time_s])
@@ -929,13 +1028,14 @@ def filter_sigma(init: dict, cfg, chans, opt: EstimateOptions) -> tuple[np.ndarr
 
 
 def _channel_noise_estimate(cfg, ant, tx, xs: np.ndarray, Ps: np.ndarray, resid: np.ndarray, n: int,
-                            hph: np.ndarray | None = None) -> tuple:
+                            hph: np.ndarray | None = None, release=None) -> tuple:
     """Residual-based σ̂_c of every channel (:func:`cdgps_cli.measurement.noise.filter_sigma_estimate`).
 
     Its term H_c P⁺ H_cᵀ (m²) is taken from the filtered covariances Ps (N, p, p) with the Jacobian at
     the filtered state xs (N, n) (with bias states, p > n, the row also has a 1 in the channel's bias
     column).  ``hph`` (N, C), when given, holds that term already for the epochs the compiled kernel
-    ran (it is updated in place); the other epochs with a residual are computed here, in chunks.
+    ran (it is updated in place); the other epochs with a residual are computed here, in chunks
+    (``release(arr, start, stop)``, when given, is told after each which rows of xs and Ps it read).
     Returns (σ̂ (C,), count (C,)).
     """
     N, C = resid.shape
@@ -953,6 +1053,9 @@ def _channel_noise_estimate(cfg, ant, tx, xs: np.ndarray, Ps: np.ndarray, resid:
         if bias_states:
             cb = n + np.arange(C)
             hph[k] += Ps[k][:, cb, cb] + 2.0 * np.einsum("kci,kic->kc", Hm, Ps[k][:, :nm, cb])
+        if release is not None:
+            release(xs, int(k[0]), int(k[-1]) + 1)
+            release(Ps, int(k[0]), int(k[-1]) + 1)
     return filter_sigma_estimate(resid, hph)
 
 
