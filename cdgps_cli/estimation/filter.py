@@ -1244,10 +1244,15 @@ def _q_segments(at_rest: np.ndarray, Q: np.ndarray, Q_rest: np.ndarray) -> list[
 def lock_events(Y: np.ndarray, LOCK: np.ndarray) -> np.ndarray:
     """Per (epoch, channel) the cause of a new lock segment (:func:`cdgps_cli.measurement.channels.lock_segments`):
     1 = first sighting, 2 = lock restart (slip), 3 = re-acquisition after a gap with a lock counter
-    that does not continue; 0 otherwise.  Y, LOCK: (N, C), NaN / −1 = absent."""
-    cc, kk = np.nonzero(~np.isnan(Y.T))
+    that does not continue; 0 otherwise.  Y, LOCK: (N, C), NaN / −1 = absent.
+
+    One channel at a time (a channel's segments depend on its own rows only), so the temporaries
+    are those of one column, not of the record's N·C rows."""
     ev = np.zeros(Y.shape, dtype=np.int8)
-    ev[kk, cc] = lock_segments(cc, kk, lock=LOCK[kk, cc]).cause
+    for c in range(Y.shape[1]):
+        kk = np.flatnonzero(~np.isnan(Y[:, c]))
+        if kk.size:
+            ev[kk, c] = lock_segments(np.full(kk.size, c, dtype=np.int64), kk, lock=LOCK[kk, c]).cause
     return ev
 
 
