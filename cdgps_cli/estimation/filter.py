@@ -371,18 +371,21 @@ class _ForwardPass:
     def _thruster_inputs(self) -> None:
         """U_in (N, n_thrusters): thruster commands held over each epoch (zero-order hold)."""
         cfg, run = self.cfg, self.run_
-        self.U_in = np.zeros((self.N, len(cfg.thruster_names)))
         act = run.actuators
-        if len(act):
-            codes, words = act.codes("actuator")
-            t_all, f_all = act["time_s"], act["force_n"]
-            names = list(cfg.thruster_names)
-            for code in np.unique(codes).tolist():
-                j = names.index(words[code])
-                rows = codes == code
-                times, forces = t_all[rows], f_all[rows]
-                idx = np.searchsorted(times, self.grid + 1e-9, side="right") - 1
-                self.U_in[:, j] = np.where(idx >= 0, forces[np.maximum(idx, 0)], 0.0)
+        if not len(act):
+            # no command logged: one row of zeros seen N times (no (N, n_thrusters) array in memory)
+            self.U_in = np.broadcast_to(np.zeros(len(cfg.thruster_names)), (self.N, len(cfg.thruster_names)))
+            return
+        self.U_in = np.zeros((self.N, len(cfg.thruster_names)))
+        codes, words = act.codes("actuator")
+        t_all, f_all = act["time_s"], act["force_n"]
+        names = list(cfg.thruster_names)
+        for code in np.unique(codes).tolist():
+            j = names.index(words[code])
+            rows = codes == code
+            times, forces = t_all[rows], f_all[rows]
+            idx = np.searchsorted(times, self.grid + 1e-9, side="right") - 1
+            self.U_in[:, j] = np.where(idx >= 0, forces[np.maximum(idx, 0)], 0.0)
 
     def _state_layout(self) -> None:
         """x = [structure (n), bias states (C, biases="states"), multipath states (C, INIT's model)]: A, Q, B."""

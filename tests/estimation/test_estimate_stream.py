@@ -186,3 +186,27 @@ def test_cli_estimate_leaves_no_scratch(case, tmp_path):
                                   "--smooth", "-o", str(out / "states.mcap")])
     assert r.exit_code == 0, r.output
     assert sorted(os.listdir(out)) == ["states.mcap"]
+
+
+@pytest.mark.parametrize("no_kernel", ["0", "1"])
+def test_no_thruster_log_zero_row_equals_zero_array(case, no_kernel, monkeypatch):
+    """Without actuator messages the inputs are one broadcast row of zeros (no (N, n_thrusters) array);
+    the numbers equal those with the explicit zero array (compiled and numpy paths)."""
+    import cdgps_cli.estimation.filter as filt
+
+    monkeypatch.setenv("CDGPS_NO_KERNEL", no_kernel)
+    assert len(case["run"].actuators) == 0
+    opt = EstimateOptions(smooth=True, keep_filtered_covariance="modal")
+    lean = estimate(case["run"], case["init"], opt)
+    original = filt._ForwardPass._thruster_inputs
+    seen = {}
+
+    def explicit(self):
+        original(self)
+        seen["broadcast"] = self.U_in.strides[0] == 0
+        self.U_in = np.zeros(self.U_in.shape)
+
+    monkeypatch.setattr(filt._ForwardPass, "_thruster_inputs", explicit)
+    full = estimate(case["run"], case["init"], opt)
+    assert seen["broadcast"]
+    _assert_identical(full, lean, modal=False)
