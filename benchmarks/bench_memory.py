@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import platform
 import subprocess
 import sys
 import tempfile
@@ -131,7 +133,9 @@ def main() -> None:
                 for f in d.glob("*.mcap"):
                     f.unlink()
     res = {"command": "cdgps estimate RUN.mcap --init INIT.json --smooth -o STATES.mcap",
-           "config": "configs/testbed-1998.toml (10 Hz)", "runs": rows}
+           "config": "configs/testbed-1998.toml (10 Hz)", "runs": rows,
+           "machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "machine": platform.machine(),
+                       "load_average_1min_at_end": os.getloadavg()[0]}}
     if len(rows) > 1:
         hs = [r["hours"] for r in rows]
         res["peak_rss_mib_per_hour"] = float(_slope(hs, [r["estimate_smooth_peak_rss_mib"] for r in rows]))

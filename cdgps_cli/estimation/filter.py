@@ -863,7 +863,7 @@ def _finish(fp: _ForwardPass, provisional: bool = False) -> EstimateResult:
         _TRACE.update(A=fp.A, Q=fp.Qd, Q_rest=fp.Qd_rest, at_rest=fp.at_rest.copy(), no_link=fp.no_link.copy(),
                       Pf=np.array(Ps), extra_q={kk_: list(v) for kk_, v in fp.extra_q.items()})
     filter_path = "c" if fp.kern is not None else "numpy"
-    fp.Y = fp.EVENT = fp.kern = None        # free the (N, C) inputs before the smoother (memory)
+    fp.Y = fp.EVENT = fp.kern = fp.meas = None      # free the (N, C) inputs before the smoother (memory)
     C = fp.C
     res = EstimateResult(cfg, grid, None, None, None, None, fp.chans, fp.resid, fp.nis,
                          fp.nis_dof, fp.events, {fp.chans[c]: (float(xs[-1, n + c]) if fp.use_bias_states
@@ -872,6 +872,7 @@ def _finish(fp: _ForwardPass, provisional: bool = False) -> EstimateResult:
     res.rest_active_s = [[float(grid[a]), float(grid[b - 1])] for a, b in _true_runs(fp.at_rest)]
     chan_est = _channel_noise_estimate(cfg, fp.ant, fp.tx, xs[:, :n], Ps, fp.resid, n, fp.hph,
                                        release=fp.hist.release)   # (filtered P, before smoothing)
+    fp.hph = None                           # (N, C): only the noise estimate reads it
     noise = _innovation_noise(res, fp.sig_c, fp.sigma_source, chan_est)
     if provisional and noise.get("adapt"):
         res.noise = noise                   # re-run with the adapted sigma: no smoother, no window
