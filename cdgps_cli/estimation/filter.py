@@ -878,21 +878,24 @@ def _finish(fp: _ForwardPass, provisional: bool = False) -> EstimateResult:
         res.noise = noise                   # re-run with the adapted sigma: no smoother, no window
         return res
     m = nm if opt.keep_covariance == "modal" else n
+    # on disk, INIT's window first: its epochs get rows in front of the result's arrays (no joined copies)
+    solution = _window_solution(fp) if fp.hist.on_disk else None
+    lead = _window_lead(solution[0], grid) if solution else 0
     if opt.smooth:
         # keep the filter's states and covariances, then smooth in place (one copy instead of three)
         mf = n if opt.keep_filtered_covariance == "full" else nm
-        res.x_filt, res.P_filt = _history_out(fp, n, mf, forward=True)
+        res.x_filt, res.P_filt = _history_out(fp, n, mf, forward=True, lead=lead)
         with progress.stage("smoothing"):
             if fp.hist.on_disk:
-                res.x, res.P = _smooth_chunks(fp, m)
+                res.x, res.P = _smooth_chunks(fp, m, lead)
             else:
                 rts_smooth(fp.A, fp.Qd, fp.Bu, fp.U_in, xs, Ps, fp.extra_q, fp.no_link, in_place=True,
                            q_segments=_q_segments(fp.at_rest, fp.Qd, fp.Qd_rest))
         res.smoothed = True
     if not fp.hist.on_disk or not opt.smooth:
-        res.x, res.P = _history_out(fp, n, m, forward=False)
+        res.x, res.P = _history_out(fp, n, m, forward=False, lead=lead)
     res.P_first = Ps[0, :n, :n].copy() if len(Ps) else None     # full, for the INIT window's smoothing
-    _window_epochs(fp, res)
+    _window_epochs(fp, res, solution, lead)
     del res.P_first
     res.noise = noise
     if fp.mp.active:
@@ -900,34 +903,38 @@ def _finish(fp: _ForwardPass, provisional: bool = False) -> EstimateResult:
     return res
 
 
-def _history_out(fp: _ForwardPass, n: int, m: int, forward: bool) -> tuple[np.ndarray, np.ndarray]:
+def _history_out(fp: _ForwardPass, n: int, m: int, forward: bool, lead: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """States (N, n) and covariances (N, m, m) of the history as the result holds them.
 
     In memory: the history itself when it has no further states and m = n (views, no copy), else
     copies (``forward``: the filter's values kept before the smoother overwrites them).  On disk:
-    compact copies taken chunk by chunk, the history's pages dropped behind."""
+    compact copies taken chunk by chunk, the history's pages dropped behind, after ``lead`` rows
+    left for INIT's window (filled by :func:`_join_window`)."""
     xs, Ps, p = fp.xs, fp.Ps, fp.p
     if not fp.hist.on_disk:
         full = p == n and m == n and not forward
         return (xs[:, :n] if p == n and not forward else xs[:, :n].copy(),
                 Ps if full else Ps[:, :m, :m].copy())
     N = len(xs)
-    x_out, P_out = np.empty((N, n)), np.empty((N, m, m))
+    x_all, P_all = np.empty((lead + N, n)), np.empty((lead + N, m, m))
+    x_out, P_out = x_all[lead:], P_all[lead:]
     for a in range(0, N, fp.chunk):
         b = min(a + fp.chunk, N)
         x_out[a:b] = xs[a:b, :n]
         P_out[a:b] = Ps[a:b, :m, :m]
         fp.hist.release(xs, a, b)
         fp.hist.release(Ps, a, b)
-    return x_out, P_out
+    return x_all, P_all
 
 
-def _smooth_chunks(fp: _ForwardPass, m: int) -> tuple[np.ndarray, np.ndarray]:
+def _smooth_chunks(fp: _ForwardPass, m: int, lead: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """The RTS pass over the history on disk in reverse chunks: smoothed (N, n) states and (N, m, m)
-    covariances, copied out of each chunk as it is finished (its pages then dropped)."""
+    covariances after ``lead`` rows left for INIT's window, copied out of each chunk as it is finished
+    (its pages then dropped)."""
     xs, Ps, n = fp.xs, fp.Ps, fp.n
     N = len(xs)
-    x_out, P_out = np.empty((N, n)), np.empty((N, m, m))
+    x_all, P_all = np.empty((lead + N, n)), np.empty((lead + N, m, m))
+    x_out, P_out = x_all[lead:], P_all[lead:]
 
     def done(a: int, b: int) -> None:
         x_out[a:b] = xs[a:b, :n]
@@ -937,23 +944,43 @@ def _smooth_chunks(fp: _ForwardPass, m: int) -> tuple[np.ndarray, np.ndarray]:
 
     rts_smooth(fp.A, fp.Qd, fp.Bu, fp.U_in, xs, Ps, fp.extra_q, fp.no_link, in_place=True,
                q_segments=_q_segments(fp.at_rest, fp.Qd, fp.Qd_rest), chunk=fp.chunk, on_done=done)
-    return x_out, P_out
+    return x_all, P_all
 
 
-def _window_epochs(fp: _ForwardPass, res: EstimateResult) -> None:
-    """INIT's window epochs from the batch solution (window_states); say where STATES start if not at the run's start."""
-    run, win, grid = fp.run_, fp.win, fp.grid
-    if win is not None:
-        try:
-            with progress.stage(f"batch solution over INIT's window {win[0]:g}–{win[1]:g} s"):
-                ws = window_states(run, fp.init, win, fp.x0, fp.P0)
-        except CdgpsError as exc:          # e.g. an INIT edited by hand: the filter part is still right
-            ws = None
-            res.events.insert(0, {"time_s": float(grid[0]), "antenna": "", "transmitter": "",
-                                  "kind": "batch window", "action": f"window epochs not recomputed: {exc}; "
-                                  f"STATES start at the window end"})
-        if ws is not None:
-            _join_window(res, ws, fp.x0, fp.P0, fp.opt)
+def _window_solution(fp: _ForwardPass) -> tuple:
+    """INIT's window from the batch solution (window_states): (ws, None), or (None, the event saying why
+    not), or (None, None) without a window."""
+    win, grid = fp.win, fp.grid
+    if win is None:
+        return None, None
+    try:
+        with progress.stage(f"batch solution over INIT's window {win[0]:g}–{win[1]:g} s"):
+            return window_states(fp.run_, fp.init, win, fp.x0, fp.P0), None
+    except CdgpsError as exc:          # e.g. an INIT edited by hand: the filter part is still right
+        return None, {"time_s": float(grid[0]), "antenna": "", "transmitter": "",
+                      "kind": "batch window", "action": f"window epochs not recomputed: {exc}; "
+                      f"STATES start at the window end"}
+
+
+def _window_lead(ws, grid: np.ndarray) -> int:
+    """Epochs of the window before the filter's first (rows to reserve in front of the result's arrays;
+    0 when the window does not join, which :func:`_join_window` then reports)."""
+    if ws is None:
+        return 0
+    nw = len(ws.time_s) - 1
+    return nw if nw > 0 and abs(float(ws.time_s[-1]) - float(grid[0])) <= 1e-6 else 0
+
+
+def _window_epochs(fp: _ForwardPass, res: EstimateResult, solution: tuple | None = None, lead: int = 0) -> None:
+    """INIT's window epochs from the batch solution (``solution``: :func:`_window_solution`'s, computed
+    here when None; ``lead``: rows already reserved for them in front of x, P, x_filt, P_filt); say
+    where STATES start if not at the run's start."""
+    run, win = fp.run_, fp.win
+    ws, failed = _window_solution(fp) if solution is None else solution
+    if failed is not None:
+        res.events.insert(0, failed)
+    if ws is not None:
+        _join_window(res, ws, fp.x0, fp.P0, fp.opt, lead)
     t_first = float(run.phase["time_s"].min())
     if win is not None and res.time_s[0] > t_first + 1e-6:     # (a hand-made INIT is a prior where it says)
         where = "INIT's window start" if res.window else "INIT's state time"
@@ -963,27 +990,39 @@ def _window_epochs(fp: _ForwardPass, res: EstimateResult) -> None:
                                         "initialize from the run start (cdgps init --start) to cover it"})
 
 
-def _join_window(res: EstimateResult, ws, x0: np.ndarray, P0: np.ndarray, opt: EstimateOptions) -> None:
+def _join_window(res: EstimateResult, ws, x0: np.ndarray, P0: np.ndarray, opt: EstimateOptions,
+                 lead: int = 0) -> None:
     """Put the window's batch solution before the filter's epochs (in place on ``res``).
 
     ``res`` starts at the window end with INIT's state (x0, P0) as its first filtered value; with
-    smoothing the pass is carried into the window (:func:`cdgps_cli.estimation.window_smoother.extend_smoothing`)."""
+    smoothing the pass is carried into the window (:func:`cdgps_cli.estimation.window_smoother.extend_smoothing`).
+    ``lead`` > 0: x, P, x_filt, P_filt already have that many rows in front (:func:`_window_lead`), which
+    are filled (no concatenated copies); the other arrays are concatenated."""
     nw = len(ws.time_s) - 1                   # window epochs before its end (the end is res's first)
     nm = res.cfg.n_modes
     if nw < 0 or abs(float(ws.time_s[-1]) - float(res.time_s[0])) > 1e-6:
         raise CdgpsError("INIT's window does not end where the filter starts")
+    if lead and lead != nw:
+        raise ValueError(f"_join_window: {lead} rows reserved for a window of {nw} epochs")
     P_first = getattr(res, "P_first", None)          # the full covariance at the window end (res.P may be modal)
+
+    def joined(front: np.ndarray, rest: np.ndarray) -> np.ndarray:
+        if not lead:
+            return np.concatenate([front, rest])
+        rest[:lead] = front
+        return rest
+
     if res.smoothed:
-        xw, Pw = extend_smoothing(ws, res.x[0], res.P[0] if P_first is None else P_first, x0, P0)
-        res.x_filt = np.concatenate([ws.x[:-1], res.x_filt])
+        xw, Pw = extend_smoothing(ws, res.x[lead], res.P[lead] if P_first is None else P_first, x0, P0)
+        res.x_filt = joined(ws.x[:-1], res.x_filt)
         Pf = ws.P[:-1] if res.P_filt.shape[1] == ws.P.shape[1] else ws.P[:-1, :nm, :nm]
-        res.P_filt = np.concatenate([Pf, res.P_filt])
+        res.P_filt = joined(Pf, res.P_filt)
     else:
         xw, Pw = ws.x[:-1], ws.P[:-1]
     if res.P.shape[1] != Pw.shape[1]:
         Pw = Pw[:, :nm, :nm]
-    res.x = np.concatenate([xw, res.x])
-    res.P = np.concatenate([Pw, res.P])
+    res.x = joined(xw, res.x)
+    res.P = joined(Pw, res.P)
     res.time_s = np.concatenate([ws.time_s[:-1], res.time_s])
     C = len(res.channels)
     resid = np.full((nw + 1, C), np.nan)
