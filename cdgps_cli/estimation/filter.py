@@ -308,40 +308,67 @@ class _ForwardPass:
         self._thruster_inputs()
         self._state_layout()
         self._initial_state()
+        # with the history on disk INIT's window is solved first: its epochs get rows in front of the
+        # result's arrays (residuals here, states and covariances in _finish), so nothing is joined by copy
+        on_disk = opt.history is not None and getattr(opt.history, "on_disk", False)
+        self.solution = _window_solution(self) if on_disk else None
+        self.lead = _window_lead(self.solution[0], self.grid) if on_disk else 0
         self._working_records()
 
     # ------------------------------------------------------------------------------------------
     # set-up
 
     def _epoch_data(self) -> None:
-        """Epoch grid from INIT time to the end; Y (N, C) phase in metres and LOCK; the channels."""
+        """Epoch grid from INIT time to the end; Y (N, C) phase in metres and LOCK; the channels.
+
+        The phase rows are read in blocks of :data:`PHASE_BLOCK_ROWS` (passes for the last time, the
+        names, the channels present, then Y and LOCK), so the temporaries are those of a block, not of
+        the record's rows."""
         run, cfg, opt, T, t0 = self.run_, self.cfg, self.opt, self.T, self.t0
         ph = run.phase
         t_first = float(ph["time_s"].min()) if len(ph) else t0
         if t0 < t_first - T:
             raise CdgpsError(f"{opt.init_source}: state.time_s = {t0:g} s is before the first epoch of {run.path} "
                              f"({t_first:g} s): expected the INIT.json of this run (its batch window end)")
-        time_s = ph["time_s"]
-        keep = time_s >= t0 - 1e-9
-        every = bool(keep.all())
-        if not keep.any():
+        time_all = ph["time_s"]
+        R = len(time_all)
+        blocks = [slice(a, min(a + PHASE_BLOCK_ROWS, R)) for a in range(0, R, PHASE_BLOCK_ROWS)]
+        t_last = -np.inf                              # the last kept time (≥ t0)
+        for rows in blocks:
+            t = time_all[rows]
+            t = t[t >= t0 - 1e-9]
+            if t.size:
+                t_last = max(t_last, float(t.max()))
+        if not np.isfinite(t_last):
             raise CdgpsError(f"{opt.init_source}: state.time_s = {t0:g} s is after the last epoch of {run.path} "
-                             f"({float(time_s.max()) if len(time_s) else float('nan'):g} s): no phase data to "
+                             f"({float(time_all.max()) if R else float('nan'):g} s): no phase data to "
                              f"filter; expected the INIT.json of this run")
+        bad = {"antenna": set(), "transmitter": set()}
+        for rows in blocks:                           # names the config does not have, in any row
+            for col, names in (("antenna", cfg.antenna_names), ("transmitter", cfg.transmitter_names)):
+                bad[col].update(ph.names_not_in(col, names, rows))
+        if bad["antenna"] or bad["transmitter"]:
+            row_channel_indices(cfg, ph, run.path)    # (raises the error naming them)
+        nT = len(cfg.transmitter_names)
+        n_pairs = len(cfg.antenna_names) * nT
 
-        def kept(a: np.ndarray) -> np.ndarray:
-            return a if every else a[keep]
+        def block_rows(rows):
+            """The kept rows of a block (time ≥ t0): their times, pair codes and the selection."""
+            t = time_all[rows]
+            keep = t >= t0 - 1e-9
+            sel = rows if keep.all() else np.arange(rows.start, rows.stop)[keep]
+            a_idx, t_idx = ph.index_in("antenna", cfg.antenna_names, sel), ph.index_in("transmitter", cfg.transmitter_names, sel)
+            return time_all[sel], a_idx * nT + t_idx, sel
 
-        time_s = kept(time_s)
-        N = self.N = int(round((float(time_s.max()) - t0) / T)) + 1
+        counts = np.zeros(n_pairs, dtype=np.int64)
+        for rows in blocks:
+            _, pair_code, _ = block_rows(rows)
+            counts += np.bincount(pair_code, minlength=n_pairs)
+        N = self.N = int(round((t_last - t0) / T)) + 1
         self.grid = t0 + np.arange(N) * T
         # each row's channel as (antenna, transmitter) indices in the config: pair codes ascend in the
         # config's channel order, the order the channels are put in below
-        a_idx, t_idx = row_channel_indices(cfg, ph, run.path)
-        nT = len(cfg.transmitter_names)
-        n_pairs = len(cfg.antenna_names) * nT
-        pair_code = kept(a_idx) * nT + kept(t_idx)
-        pairs = np.flatnonzero(np.bincount(pair_code, minlength=n_pairs))     # the pairs present, ascending
+        pairs = np.flatnonzero(counts)                 # the pairs present, ascending
         seen = [(cfg.antenna_names[pc // nT], cfg.transmitter_names[pc % nT]) for pc in pairs.tolist()]
         chans = self.chans = sorted(set(seen) | set(self.init_bias),
                                     key=lambda c: (cfg.antenna_names.index(c[0]), cfg.transmitter_names.index(c[1])))
@@ -350,16 +377,17 @@ class _ForwardPass:
         self.sig_c, self.sigma_source = filter_sigma(self.init, cfg, chans, opt)
         self.r_var = self.sig_c**2                          # R = diag(σ_c²)
         self.sigma = float(np.sqrt(np.mean(self.r_var)))    # their RMS: the re-initialization's batch σ
-        k_of = np.rint((time_s - t0) / T).astype(np.int32)
         chan_of_pair = np.full(n_pairs, -1, dtype=np.int32)
         chan_of_pair[pairs] = [cidx[c] for c in seen]
-        c_of = chan_of_pair[pair_code]
-        del pair_code, a_idx, t_idx
         self.Y = np.full((N, C), np.nan)
         LOCK = np.full((N, C), -1, dtype=np.int32)
-        self.Y[k_of, c_of] = kept(ph["phase_cycles"]) * self.lam
-        LOCK[k_of, c_of] = kept(ph["lock"])
-        del k_of, c_of, keep, time_s
+        phase_cycles, lock = ph["phase_cycles"], ph["lock"]
+        for rows in blocks:                           # in row order: a repeated (epoch, channel) keeps its last row
+            t, pair_code, sel = block_rows(rows)
+            k_of = np.rint((t - t0) / T).astype(np.int32)
+            c_of = chan_of_pair[pair_code]
+            self.Y[k_of, c_of] = phase_cycles[sel] * self.lam
+            LOCK[k_of, c_of] = lock[sel]
         self.EVENT = lock_events(self.Y, LOCK)
         self.ant, self.tx = channel_indices(cfg, [c[0] for c in chans], [c[1] for c in chans])
         self.line = cfg.antenna_line_bias_m[self.ant] - cfg.antenna_line_bias_m[cfg.master_index]
@@ -464,7 +492,8 @@ class _ForwardPass:
         self.xs = self.hist.empty((N, p))
         self.Ps = self.hist.empty((N, p, p))
         self.released_to = 0                        # history rows before this one were released
-        self.resid = np.full((N, C), np.nan)
+        self.resid_all = np.full((self.lead + N, C), np.nan)     # (lead rows for INIT's window)
+        self.resid = self.resid_all[self.lead:]
         self.nis = np.full(N, np.nan)
         self.nis_dof = np.zeros(N, dtype=np.int64)
         self.hph = np.full((N, C), np.nan)          # H P⁺ Hᵀ of the noise estimate (the kernel's epochs)
@@ -865,7 +894,7 @@ def _finish(fp: _ForwardPass, provisional: bool = False) -> EstimateResult:
     filter_path = "c" if fp.kern is not None else "numpy"
     fp.Y = fp.EVENT = fp.kern = fp.meas = None      # free the (N, C) inputs before the smoother (memory)
     C = fp.C
-    res = EstimateResult(cfg, grid, None, None, None, None, fp.chans, fp.resid, fp.nis,
+    res = EstimateResult(cfg, grid, None, None, None, None, fp.chans, fp.resid_all, fp.nis,
                          fp.nis_dof, fp.events, {fp.chans[c]: (float(xs[-1, n + c]) if fp.use_bias_states
                                                                else float(fp.bias[c])) for c in range(C)},
                          filter_path=filter_path)
@@ -878,9 +907,7 @@ def _finish(fp: _ForwardPass, provisional: bool = False) -> EstimateResult:
         res.noise = noise                   # re-run with the adapted sigma: no smoother, no window
         return res
     m = nm if opt.keep_covariance == "modal" else n
-    # on disk, INIT's window first: its epochs get rows in front of the result's arrays (no joined copies)
-    solution = _window_solution(fp) if fp.hist.on_disk else None
-    lead = _window_lead(solution[0], grid) if solution else 0
+    solution, lead = fp.solution, fp.lead      # (on disk: INIT's window, solved before the filter)
     if opt.smooth:
         # keep the filter's states and covariances, then smooth in place (one copy instead of three)
         mf = n if opt.keep_filtered_covariance == "full" else nm
@@ -1031,7 +1058,7 @@ def _join_window(res: EstimateResult, ws, x0: np.ndarray, P0: np.ndarray, opt: E
         if c in col:
             resid[:, col[c]] = ws.residual_m[:, j]
     first = resid[-1]
-    res.residual_m = np.concatenate([resid[:-1], res.residual_m])
+    res.residual_m = joined(resid[:-1], res.residual_m)
     row0 = res.residual_m[nw]
     row0[np.isnan(row0)] = first[np.isnan(row0)]   # the window end: the batch's residuals
     res.nis = np.concatenate([np.full(nw, np.nan), res.nis])
@@ -1196,6 +1223,7 @@ def zero_velocity_update(x: np.ndarray, P: np.ndarray, nm: int, var: np.ndarray)
     return x, 0.5 * (P + P.T)
 
 
+PHASE_BLOCK_ROWS = 1 << 20                 # phase rows per block when Y and LOCK are built
 REST_NIS_FAILURES = 3                      # NIS failures in a row that break a rest segment
 REST_ENTRY_POSITION_INFLATION = 100.0      # entering rest: modal position variances × (1 + this)
 

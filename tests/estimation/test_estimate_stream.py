@@ -210,3 +210,16 @@ def test_no_thruster_log_zero_row_equals_zero_array(case, no_kernel, monkeypatch
     full = estimate(case["run"], case["init"], opt)
     assert seen["broadcast"]
     _assert_identical(full, lean, modal=False)
+
+
+def test_phase_rows_in_blocks_equal_whole(case, monkeypatch):
+    """Y, LOCK and everything after them are the same when the phase rows are read in small blocks
+    (also with INIT's time inside a block, so a block's rows are partly kept)."""
+    import cdgps_cli.estimation.filter as filt
+
+    opt = EstimateOptions(smooth=True, keep_filtered_covariance="modal")
+    whole = estimate(case["run"], case["init"], opt)
+    assert len(case["run"].phase) < filt.PHASE_BLOCK_ROWS
+    monkeypatch.setattr(filt, "PHASE_BLOCK_ROWS", 1001)
+    blocks = estimate(case["run"], case["init"], opt)
+    _assert_identical(whole, blocks, modal=False)
