@@ -90,7 +90,7 @@ ESTIMATE_DEFAULTS = {
     "rest_dwell_s": 2.0,               # … and how long it must pass before rest is entered, s
     # epochs per chunk of the filter's history on disk (cdgps estimate): its pages are dropped from
     # memory chunk by chunk forward and backward (memory of a chunk, not of the record; same numbers)
-    "chunk_epochs": 20000,
+    "chunk_epochs": 4096,
 }
 #: structure frame on a GNSS run: azimuth of the structure's x axis, degrees from north (90: x = East)
 X_AXIS_AZIMUTH_DEG = 90.0
