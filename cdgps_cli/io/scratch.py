@@ -15,7 +15,9 @@ is the ``history`` of :class:`cdgps_cli.estimation.filter.EstimateOptions`; the 
 
 from __future__ import annotations
 
+import errno
 import mmap
+import os
 import tempfile
 from pathlib import Path
 
@@ -24,6 +26,20 @@ import numpy as np
 from cdgps_cli.core.errors import CdgpsError
 
 __all__ = ["DiskHistory"]
+
+
+def _reserve(fd: int, nbytes: int) -> None:
+    """Give the file its ``nbytes`` of disk now (``posix_fallocate``): a full disk is an OSError
+    here, not a SIGBUS when a page of the mapping is first written.  Where the file system cannot
+    reserve, the file is only extended (sparse)."""
+    try:
+        os.posix_fallocate(fd, 0, nbytes)
+    except OSError as exc:
+        if exc.errno not in (errno.EOPNOTSUPP, errno.EINVAL, errno.ENOSYS):
+            raise
+        os.ftruncate(fd, nbytes)
+    except AttributeError:                    # (no posix_fallocate on this platform)
+        os.ftruncate(fd, nbytes)
 
 
 class DiskHistory:
@@ -49,7 +65,7 @@ class DiskHistory:
             return np.empty(shape, dtype=dtype)
         try:
             with tempfile.TemporaryFile(prefix=".cdgps-history-", dir=self.dir) as fh:
-                fh.truncate(nbytes)
+                _reserve(fh.fileno(), nbytes)
                 # the mapping holds its own descriptor: the file lives as long as the array
                 return np.memmap(fh, dtype=dtype, mode="r+", shape=shape)
         except OSError as exc:

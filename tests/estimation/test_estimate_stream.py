@@ -223,3 +223,18 @@ def test_phase_rows_in_blocks_equal_whole(case, monkeypatch):
     monkeypatch.setattr(filt, "PHASE_BLOCK_ROWS", 1001)
     blocks = estimate(case["run"], case["init"], opt)
     _assert_identical(whole, blocks, modal=False)
+
+
+def test_disk_history_full_disk_is_a_cdgps_error(tmp_path, monkeypatch):
+    """No room for the history: a CdgpsError naming the directory and the size (not a SIGBUS later)."""
+    import errno
+
+    from cdgps_cli.core.errors import CdgpsError
+
+    def no_room(fd, offset, size):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(os, "posix_fallocate", no_room)
+    with pytest.raises(CdgpsError, match=r"cannot make a scratch file of \d+ MiB.*No space left"):
+        DiskHistory(tmp_path).empty((1024, 64, 64))
+    assert list(tmp_path.iterdir()) == []
