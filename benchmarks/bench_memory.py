@@ -1,24 +1,28 @@
 #!/usr/bin/env python3
-"""Peak memory of ``cdgps estimate --smooth`` on one hour of 10 Hz testbed data (issue 4: < 500 MB).
+"""Peak memory of ``cdgps estimate --smooth`` on hours of 10 Hz testbed data (issue 4: < 500 MB at 1 h;
+issue 29: flat in the record length).
 
-Simulates (seed 1, 2 cm noise, disturbance scale 1), ingests and initializes once (cached in
-``--workdir``), then runs
+For each ``--hours`` value (several may be given) simulates (seed 1, 2 cm noise, disturbance scale 1),
+ingests and initializes once (cached in ``--workdir``/<hours>h), then runs
 
 1. ``cdgps estimate RUN.mcap --init INIT.json --smooth -o STATES.mcap`` in a fresh process: wall time
    and peak RSS (VmHWM of that process);
 2. the same steps instrumented in a fresh process with exactly the CLI's options (read, filter +
    smooth, write): per stage the time, the current RSS at its end and the peak RSS so far.
 
-Prints a table (``--json`` for a JSON object).  No output is written outside ``--workdir``::
+Prints a table (``--json`` for a JSON object; ``--out FILE`` also writes it, with the per-hour
+slope of the peak and of the time).  No other output is written outside ``--workdir``::
 
     python benchmarks/bench_memory.py                      # ≈ 1 min after the first setup
-    python benchmarks/bench_memory.py --hours 0.25 --workdir /tmp/cdgps-mem
+    python benchmarks/bench_memory.py --hours 1 3 6 --workdir /tmp/estmem --out docs/benchmarks/estimate_memory.json
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import platform
 import subprocess
 import sys
 import tempfile
@@ -53,13 +57,15 @@ def mark(name, t0):
 t = time.perf_counter()
 from cdgps_cli.estimation.filter import EstimateOptions, estimate
 from cdgps_cli.io.run import read_run
+from cdgps_cli.io.scratch import DiskHistory
 from cdgps_cli.pipeline.estimate_outputs import write_states
 t = mark('import', t)
 run = read_run({run!r})
 t = mark('read RUN.mcap', t)
 text = open({init!r}).read()
 init = json.loads(text)
-opt = EstimateOptions(smooth=True, keep_filtered_covariance='modal')
+opt = EstimateOptions(smooth=True, keep_filtered_covariance='modal', keep_covariance='modal',
+                      history=DiskHistory({workdir!r}))    # as the CLI (--covariance modal)
 res = estimate(run, init, opt)
 t = mark('filter + smooth', t)
 write_states(res, {run!r}, init, text, {out!r}, opt.echo())
@@ -98,7 +104,7 @@ def setup(d: Path, hours: float, seed: int) -> dict:
 def measure(d: Path) -> dict:
     run, init = d / "run.mcap", d / "init.json"
     wall, peak = _cli(["estimate", str(run), "--init", str(init), "--smooth", "-o", str(d / "states.mcap")])
-    err = _py(STAGES.format(run=str(run), init=str(init), out=str(d / "states2.mcap")))
+    err = _py(STAGES.format(run=str(run), init=str(init), out=str(d / "states2.mcap"), workdir=str(d)))
     stages = []
     for ln in err.splitlines():
         if ln.startswith("__STAGE__"):
@@ -112,23 +118,49 @@ def measure(d: Path) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--hours", type=float, default=1.0)
+    ap.add_argument("--hours", type=float, nargs="+", default=[1.0])
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--workdir", type=Path, default=None, help="keep the simulated data here (reused next time)")
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--out", type=Path, default=None, help="also write the JSON here")
     a = ap.parse_args()
+    rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        d = a.workdir or Path(tmp)
-        res = {**setup(d, a.hours, a.seed), **measure(d)}
+        for h in a.hours:
+            d = (a.workdir or Path(tmp)) / f"h{h:g}"
+            rows.append({**setup(d, h, a.seed), **measure(d)})
+            if a.workdir is None:
+                for f in d.glob("*.mcap"):
+                    f.unlink()
+    res = {"command": "cdgps estimate RUN.mcap --init INIT.json --smooth -o STATES.mcap",
+           "config": "configs/testbed-1998.toml (10 Hz)", "runs": rows,
+           "machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "machine": platform.machine(),
+                       "load_average_1min_at_end": os.getloadavg()[0]}}
+    if len(rows) > 1:
+        hs = [r["hours"] for r in rows]
+        res["peak_rss_mib_per_hour"] = float(_slope(hs, [r["estimate_smooth_peak_rss_mib"] for r in rows]))
+        res["wall_s_per_hour"] = [r["estimate_smooth_wall_s"] / r["hours"] for r in rows]
+    if a.out:
+        a.out.write_text(json.dumps(res, indent=1) + "\n")
     if a.json:
         print(json.dumps(res, indent=2))
         return
-    print(f"{a.hours:g} h, RUN {res['run_mcap_mib']:.1f} MiB → STATES {res['states_mcap_mib']:.1f} MiB: "
-          f"cdgps estimate --smooth {res['estimate_smooth_wall_s']:.1f} s, peak RSS "
-          f"{res['estimate_smooth_peak_rss_mib']:.0f} MiB (target < 500; byte-identical rerun: {res['byte_identical_rerun']})")
-    for st in res["stages"]:
-        print(f"    {st['stage']:20s} {st['s']:6.2f} s   RSS {st['rss_mib']:6.0f} MiB   peak so far "
-              f"{st['peak_rss_mib_so_far']:6.0f} MiB")
+    for r in rows:
+        print(f"{r['hours']:g} h, RUN {r['run_mcap_mib']:.1f} MiB → STATES {r['states_mcap_mib']:.1f} MiB: "
+              f"cdgps estimate --smooth {r['estimate_smooth_wall_s']:.1f} s, peak RSS "
+              f"{r['estimate_smooth_peak_rss_mib']:.0f} MiB (byte-identical rerun: {r['byte_identical_rerun']})")
+        for st in r["stages"]:
+            print(f"    {st['stage']:20s} {st['s']:6.2f} s   RSS {st['rss_mib']:6.0f} MiB   peak so far "
+                  f"{st['peak_rss_mib_so_far']:6.0f} MiB")
+    if "peak_rss_mib_per_hour" in res:
+        print(f"peak RSS grows {res['peak_rss_mib_per_hour']:.0f} MiB per hour of record")
+
+
+def _slope(x, y) -> float:
+    """Least-squares slope of y over x."""
+    x, y = [float(v) for v in x], [float(v) for v in y]
+    mx, my = sum(x) / len(x), sum(y) / len(y)
+    return sum((a - mx) * (b - my) for a, b in zip(x, y)) / sum((a - mx) ** 2 for a in x)
 
 
 if __name__ == "__main__":

@@ -623,6 +623,7 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
                          "run already has its config")
     from cdgps_cli.estimation.filter import EstimateOptions, estimate as run_ekf, validate_rest_segments
     from cdgps_cli.io.run import read_run
+    from cdgps_cli.io.scratch import DiskHistory
     from cdgps_cli.pipeline.estimate_outputs import write_states
 
     if not 0.5 < nis_probability < 1.0:
@@ -648,6 +649,10 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
                           rest_dwell_s=rest_dwell_s,
                           keep_filtered_covariance="full" if covariance == "full" else "modal",
                           init_source=str(init_json),
+                          # the filter's history on disk beside the output (removed however the run ends),
+                          # so memory does not grow with the record; the result holds what STATES stores
+                          history=DiskHistory(Path(output).resolve().parent),
+                          keep_covariance="full" if covariance == "full" else "modal",
                           progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
     _say(ctx, f"estimating {run_mcap} from {init_json} (biases {biases}{', smoothing' if smooth else ''}) …")
     with _init_named(init_json):

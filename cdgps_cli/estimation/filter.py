@@ -57,6 +57,7 @@ from cdgps_cli.measurement.noise import filter_sigma_estimate, init_channel_sigm
 from cdgps_cli.core.records import Run
 from cdgps_cli.estimation.window_smoother import batch_window, extend_smoothing, window_states
 from cdgps_cli.estimation.smoother import rts_smooth
+from cdgps_cli.estimation.history import MemoryHistory
 
 
 @dataclass
@@ -87,14 +88,24 @@ class EstimateOptions:
     rest_dwell_s: float = ESTIMATE_DEFAULTS["rest_dwell_s"]          # … and how long it must pass before rest is entered
     progress: object = None
     init_source: str = "INIT.json"     # how messages name the INIT (its path); not echoed in outputs
+    # where the forward pass keeps x_k, P_k for the smoother (None: in memory, estimation.history.MemoryHistory;
+    # cdgps estimate gives io.scratch.DiskHistory) and every how many epochs it drops pages it is done with;
+    # keep_covariance "modal": the result's P holds only the n_m×n_m modal-position block (what STATES
+    # --covariance modal stores).  None of the three changes a number; not echoed in outputs
+    history: object = None
+    chunk_epochs: int = ESTIMATE_DEFAULTS["chunk_epochs"]
+    keep_covariance: str = "full"
 
     def echo(self) -> dict:
-        d = {k: v for k, v in self.__dict__.items() if k not in ("progress", "init_source")}
+        d = {k: v for k, v in self.__dict__.items() if k not in _NOT_ECHOED}
         # JSON has no infinity: an open-ended rest segment is echoed with end null
         d["rest_segments_s"] = [[float(a), None if np.isinf(float(b)) else float(b)] for a, b in self.rest_segments_s]
         if self.channel_sigma_m:
             d["channel_sigma_m"] = {f"{a}/{t}": float(v) for (a, t), v in self.channel_sigma_m.items()}
         return d
+
+
+_NOT_ECHOED = ("progress", "init_source", "history", "chunk_epochs", "keep_covariance")
 
 
 @dataclass
@@ -227,19 +238,29 @@ def estimate(run: Run, init: dict, opt: EstimateOptions | None = None) -> Estima
         from cdgps_cli.estimation.rest import estimate_auto_rest
 
         return estimate_auto_rest(run, init, opt)
-    fp = _ForwardPass(run, init, opt)
-    fp.run()
-    res = _finish(fp)
-    if opt.adapt_sigma and opt.sigma_m is None and res.noise.get("adapt"):
+    adapting = opt.adapt_sigma and opt.sigma_m is None
+    res = _one_pass(run, init, opt, provisional=adapting)
+    if adapting and res.noise.get("adapt"):
         from dataclasses import replace
         first = res.noise
         for npass in range(2, ADAPT_MAX_PASSES + 1):
             new = {ch: float(v["adapted_sigma_m"]) for ch, v in zip(res.channels, res.noise["per_channel"])}
-            res = estimate(run, init, replace(opt, channel_sigma_m=new, adapt_sigma=False))
+            res = None                        # (the discarded pass's arrays are freed before the next)
+            res = _one_pass(run, init, replace(opt, channel_sigma_m=new, adapt_sigma=False),
+                            provisional=npass < ADAPT_MAX_PASSES)
             if not res.noise.get("adapt"):
                 break
         res.noise = dict(res.noise, source=f"innovation-adapted per channel (pass {npass})", first_pass=first)
     return res
+
+
+def _one_pass(run: Run, init: dict, opt: EstimateOptions, provisional: bool) -> EstimateResult:
+    """One filter pass and its finish; ``provisional``: a pass that is re-run when its noise
+    estimate says so, which then stops before the smoother (its noise is all the caller reads)."""
+    _check_options(opt)
+    fp = _ForwardPass(run, init, opt)
+    fp.run()
+    return _finish(fp, provisional)
 
 
 def _check_options(opt: EstimateOptions) -> None:
@@ -289,40 +310,67 @@ class _ForwardPass:
         self._thruster_inputs()
         self._state_layout()
         self._initial_state()
+        # with the history on disk INIT's window is solved first: its epochs get rows in front of the
+        # result's arrays (residuals here, states and covariances in _finish), so nothing is joined by copy
+        on_disk = opt.history is not None and getattr(opt.history, "on_disk", False)
+        self.solution = _window_solution(self) if on_disk else None
+        self.lead = _window_lead(self.solution[0], self.grid) if on_disk else 0
         self._working_records()
 
     # ------------------------------------------------------------------------------------------
     # set-up
 
     def _epoch_data(self) -> None:
-        """Epoch grid from INIT time to the end; Y (N, C) phase in metres and LOCK; the channels."""
+        """Epoch grid from INIT time to the end; Y (N, C) phase in metres and LOCK; the channels.
+
+        The phase rows are read in blocks of :data:`PHASE_BLOCK_ROWS` (passes for the last time, the
+        names, the channels present, then Y and LOCK), so the temporaries are those of a block, not of
+        the record's rows."""
         run, cfg, opt, T, t0 = self.run_, self.cfg, self.opt, self.T, self.t0
         ph = run.phase
         t_first = float(ph["time_s"].min()) if len(ph) else t0
         if t0 < t_first - T:
             raise CdgpsError(f"{opt.init_source}: state.time_s = {t0:g} s is before the first epoch of {run.path} "
                              f"({t_first:g} s): expected the INIT.json of this run (its batch window end)")
-        time_s = ph["time_s"]
-        keep = time_s >= t0 - 1e-9
-        every = bool(keep.all())
-        if not keep.any():
+        time_all = ph["time_s"]
+        R = len(time_all)
+        blocks = [slice(a, min(a + PHASE_BLOCK_ROWS, R)) for a in range(0, R, PHASE_BLOCK_ROWS)]
+        t_last = -np.inf                              # the last kept time (≥ t0)
+        for rows in blocks:
+            t = time_all[rows]
+            t = t[t >= t0 - 1e-9]
+            if t.size:
+                t_last = max(t_last, float(t.max()))
+        if not np.isfinite(t_last):
             raise CdgpsError(f"{opt.init_source}: state.time_s = {t0:g} s is after the last epoch of {run.path} "
-                             f"({float(time_s.max()) if len(time_s) else float('nan'):g} s): no phase data to "
+                             f"({float(time_all.max()) if R else float('nan'):g} s): no phase data to "
                              f"filter; expected the INIT.json of this run")
+        bad = {"antenna": set(), "transmitter": set()}
+        for rows in blocks:                           # names the config does not have, in any row
+            for col, names in (("antenna", cfg.antenna_names), ("transmitter", cfg.transmitter_names)):
+                bad[col].update(ph.names_not_in(col, names, rows))
+        if bad["antenna"] or bad["transmitter"]:
+            row_channel_indices(cfg, ph, run.path)    # (raises the error naming them)
+        nT = len(cfg.transmitter_names)
+        n_pairs = len(cfg.antenna_names) * nT
 
-        def kept(a: np.ndarray) -> np.ndarray:
-            return a if every else a[keep]
+        def block_rows(rows):
+            """The kept rows of a block (time ≥ t0): their times, pair codes and the selection."""
+            t = time_all[rows]
+            keep = t >= t0 - 1e-9
+            sel = rows if keep.all() else np.arange(rows.start, rows.stop)[keep]
+            a_idx, t_idx = ph.index_in("antenna", cfg.antenna_names, sel), ph.index_in("transmitter", cfg.transmitter_names, sel)
+            return time_all[sel], a_idx * nT + t_idx, sel
 
-        time_s = kept(time_s)
-        N = self.N = int(round((float(time_s.max()) - t0) / T)) + 1
+        counts = np.zeros(n_pairs, dtype=np.int64)
+        for rows in blocks:
+            _, pair_code, _ = block_rows(rows)
+            counts += np.bincount(pair_code, minlength=n_pairs)
+        N = self.N = int(round((t_last - t0) / T)) + 1
         self.grid = t0 + np.arange(N) * T
         # each row's channel as (antenna, transmitter) indices in the config: pair codes ascend in the
         # config's channel order, the order the channels are put in below
-        a_idx, t_idx = row_channel_indices(cfg, ph, run.path)
-        nT = len(cfg.transmitter_names)
-        n_pairs = len(cfg.antenna_names) * nT
-        pair_code = kept(a_idx) * nT + kept(t_idx)
-        pairs = np.flatnonzero(np.bincount(pair_code, minlength=n_pairs))     # the pairs present, ascending
+        pairs = np.flatnonzero(counts)                 # the pairs present, ascending
         seen = [(cfg.antenna_names[pc // nT], cfg.transmitter_names[pc % nT]) for pc in pairs.tolist()]
         chans = self.chans = sorted(set(seen) | set(self.init_bias),
                                     key=lambda c: (cfg.antenna_names.index(c[0]), cfg.transmitter_names.index(c[1])))
@@ -331,16 +379,17 @@ class _ForwardPass:
         self.sig_c, self.sigma_source = filter_sigma(self.init, cfg, chans, opt)
         self.r_var = self.sig_c**2                          # R = diag(σ_c²)
         self.sigma = float(np.sqrt(np.mean(self.r_var)))    # their RMS: the re-initialization's batch σ
-        k_of = np.rint((time_s - t0) / T).astype(np.int32)
         chan_of_pair = np.full(n_pairs, -1, dtype=np.int32)
         chan_of_pair[pairs] = [cidx[c] for c in seen]
-        c_of = chan_of_pair[pair_code]
-        del pair_code, a_idx, t_idx
         self.Y = np.full((N, C), np.nan)
         LOCK = np.full((N, C), -1, dtype=np.int32)
-        self.Y[k_of, c_of] = kept(ph["phase_cycles"]) * self.lam
-        LOCK[k_of, c_of] = kept(ph["lock"])
-        del k_of, c_of, keep, time_s
+        phase_cycles, lock = ph["phase_cycles"], ph["lock"]
+        for rows in blocks:                           # in row order: a repeated (epoch, channel) keeps its last row
+            t, pair_code, sel = block_rows(rows)
+            k_of = np.rint((t - t0) / T).astype(np.int32)
+            c_of = chan_of_pair[pair_code]
+            self.Y[k_of, c_of] = phase_cycles[sel] * self.lam
+            LOCK[k_of, c_of] = lock[sel]
         self.EVENT = lock_events(self.Y, LOCK)
         self.ant, self.tx = channel_indices(cfg, [c[0] for c in chans], [c[1] for c in chans])
         self.line = cfg.antenna_line_bias_m[self.ant] - cfg.antenna_line_bias_m[cfg.master_index]
@@ -352,18 +401,21 @@ class _ForwardPass:
     def _thruster_inputs(self) -> None:
         """U_in (N, n_thrusters): thruster commands held over each epoch (zero-order hold)."""
         cfg, run = self.cfg, self.run_
-        self.U_in = np.zeros((self.N, len(cfg.thruster_names)))
         act = run.actuators
-        if len(act):
-            codes, words = act.codes("actuator")
-            t_all, f_all = act["time_s"], act["force_n"]
-            names = list(cfg.thruster_names)
-            for code in np.unique(codes).tolist():
-                j = names.index(words[code])
-                rows = codes == code
-                times, forces = t_all[rows], f_all[rows]
-                idx = np.searchsorted(times, self.grid + 1e-9, side="right") - 1
-                self.U_in[:, j] = np.where(idx >= 0, forces[np.maximum(idx, 0)], 0.0)
+        if not len(act):
+            # no command logged: one row of zeros seen N times (no (N, n_thrusters) array in memory)
+            self.U_in = np.broadcast_to(np.zeros(len(cfg.thruster_names)), (self.N, len(cfg.thruster_names)))
+            return
+        self.U_in = np.zeros((self.N, len(cfg.thruster_names)))
+        codes, words = act.codes("actuator")
+        t_all, f_all = act["time_s"], act["force_n"]
+        names = list(cfg.thruster_names)
+        for code in np.unique(codes).tolist():
+            j = names.index(words[code])
+            rows = codes == code
+            times, forces = t_all[rows], f_all[rows]
+            idx = np.searchsorted(times, self.grid + 1e-9, side="right") - 1
+            self.U_in[:, j] = np.where(idx >= 0, forces[np.maximum(idx, 0)], 0.0)
 
     def _state_layout(self) -> None:
         """x = [structure (n), bias states (C, biases="states"), multipath states (C, INIT's model)]: A, Q, B."""
@@ -436,9 +488,14 @@ class _ForwardPass:
     def _working_records(self) -> None:
         """Outputs (xs, Ps, residuals, NIS), the event log and the hooks' bookkeeping."""
         N, p, C = self.N, self.p, self.C
-        self.xs = np.empty((N, p))
-        self.Ps = np.empty((N, p, p))
-        self.resid = np.full((N, C), np.nan)
+        # the history the smoother reads back (on disk with a DiskHistory), dropped from memory chunk by chunk
+        self.hist = self.opt.history if self.opt.history is not None else MemoryHistory()
+        self.chunk = max(int(self.opt.chunk_epochs), 1)
+        self.xs = self.hist.empty((N, p))
+        self.Ps = self.hist.empty((N, p, p))
+        self.released_to = 0                        # history rows before this one were released
+        self.resid_all = np.full((self.lead + N, C), np.nan)     # (lead rows for INIT's window)
+        self.resid = self.resid_all[self.lead:]
         self.nis = np.full(N, np.nan)
         self.nis_dof = np.zeros(N, dtype=np.int64)
         self.hph = np.full((N, C), np.nan)          # H P⁺ Hᵀ of the noise estimate (the kernel's epochs)
@@ -499,6 +556,7 @@ class _ForwardPass:
             k = self._kernel_span(k, bar)
             if k >= N:
                 break
+            self._release_behind(k)
             self.predict(k)
             y = self.Y[k]
             present = ~np.isnan(y)
@@ -531,14 +589,29 @@ class _ForwardPass:
             return k
         k0, in_rest = k, bool(at_rest[k])
         nxt = self.q_bounds[self.q_bounds > k]         # the span ends where the process noise changes
-        # in rest, every NIS failure comes back here (to the rest checks)
-        k, self.fail_run, self.x, self.P = self.kern.run(
-            k0, self.x, self.P, self.bias, self.rebias, self.fail_run, self.k_reinit_block,
-            int(nxt[0]) if nxt.size else None, Q=self.Qd_rest if in_rest else self.Qd, stop_on_nis_failure=in_rest)
+        k_end = int(nxt[0]) if nxt.size else self.N
+        while True:
+            # in rest, every NIS failure comes back here (to the rest checks); the span is cut at the
+            # history's chunk ends (the kernel carries on from its own state: the same numbers)
+            cap = min(k_end, (k // self.chunk + 1) * self.chunk)
+            k, self.fail_run, self.x, self.P = self.kern.run(
+                k, self.x, self.P, self.bias, self.rebias, self.fail_run, self.k_reinit_block,
+                cap, Q=self.Qd_rest if in_rest else self.Qd, stop_on_nis_failure=in_rest)
+            self._release_behind(k)
+            if k < cap or cap >= k_end:
+                break
         if in_rest and (self.nis_dof[k0:k] > 0).any():
             self.rest_fail = 0                   # an epoch with data passed the NIS test
         bar.update_to(k)
         return k
+
+    def _release_behind(self, k: int) -> None:
+        """Drop from memory the history of the chunks before epoch k's (its values stay on disk)."""
+        start = (k // self.chunk) * self.chunk
+        if start > self.released_to:
+            self.hist.release(self.xs, 0, start)
+            self.hist.release(self.Ps, 0, start)
+            self.released_to = start
 
     def predict(self, k: int) -> None:
         """Time update into epoch k (the rest process noise inside a rest stretch)."""
@@ -807,55 +880,136 @@ class _ForwardPass:
         self.no_link[k:kk] = True
 
 
-def _finish(fp: _ForwardPass) -> EstimateResult:
-    """The forward pass's result; the smoother; INIT's window epochs; the noise estimates."""
+def _finish(fp: _ForwardPass, provisional: bool = False) -> EstimateResult:
+    """The forward pass's result; the smoother; INIT's window epochs; the noise estimates.
+
+    ``provisional``: stop before the smoother when the noise estimate asks for another pass (the
+    caller re-runs the filter and reads only ``res.noise``).  With a history on disk
+    (``fp.hist.on_disk``) the result's arrays are compact copies taken chunk by chunk (the smoother
+    runs backwards in chunks over the history), the history's pages dropped behind; in memory they
+    are views of the history, as before."""
     cfg, opt, n, nm, p, grid = fp.cfg, fp.opt, fp.n, fp.nm, fp.p, fp.grid
     xs, Ps = fp.xs, fp.Ps
     if _TRACE is not None:
         _TRACE.update(A=fp.A, Q=fp.Qd, Q_rest=fp.Qd_rest, at_rest=fp.at_rest.copy(), no_link=fp.no_link.copy(),
-                      Pf=Ps.copy(), extra_q={kk_: list(v) for kk_, v in fp.extra_q.items()})
+                      Pf=np.array(Ps), extra_q={kk_: list(v) for kk_, v in fp.extra_q.items()})
     filter_path = "c" if fp.kern is not None else "numpy"
-    fp.Y = fp.EVENT = fp.kern = None        # free the (N, C) inputs before the smoother (memory)
+    fp.Y = fp.EVENT = fp.kern = fp.meas = None      # free the (N, C) inputs before the smoother (memory)
     C = fp.C
-    res = EstimateResult(cfg, grid, xs[:, :n] if p == n else xs[:, :n].copy(),
-                         Ps if p == n else Ps[:, :n, :n].copy(), None, None, fp.chans, fp.resid, fp.nis,
+    res = EstimateResult(cfg, grid, None, None, None, None, fp.chans, fp.resid_all, fp.nis,
                          fp.nis_dof, fp.events, {fp.chans[c]: (float(xs[-1, n + c]) if fp.use_bias_states
                                                                else float(fp.bias[c])) for c in range(C)},
                          filter_path=filter_path)
     res.rest_active_s = [[float(grid[a]), float(grid[b - 1])] for a, b in _true_runs(fp.at_rest)]
-    chan_est = _channel_noise_estimate(cfg, fp.ant, fp.tx, xs[:, :n], Ps, fp.resid, n, fp.hph)   # (filtered P, before smoothing)
+    chan_est = _channel_noise_estimate(cfg, fp.ant, fp.tx, xs[:, :n], Ps, fp.resid, n, fp.hph,
+                                       release=fp.hist.release)   # (filtered P, before smoothing)
+    fp.hph = None                           # (N, C): only the noise estimate reads it
+    noise = _innovation_noise(res, fp.sig_c, fp.sigma_source, chan_est)
+    if provisional and noise.get("adapt"):
+        res.noise = noise                   # re-run with the adapted sigma: no smoother, no window
+        return res
+    m = nm if opt.keep_covariance == "modal" else n
+    solution, lead = fp.solution, fp.lead      # (on disk: INIT's window, solved before the filter)
     if opt.smooth:
         # keep the filter's states and covariances, then smooth in place (one copy instead of three)
-        res.x_filt = res.x.copy()
-        res.P_filt = res.P.copy() if opt.keep_filtered_covariance == "full" else res.P[:, :nm, :nm].copy()
-        res.P = None
+        mf = n if opt.keep_filtered_covariance == "full" else nm
+        res.x_filt, res.P_filt = _history_out(fp, n, mf, forward=True, lead=lead)
         with progress.stage("smoothing"):
-            rts_smooth(fp.A, fp.Qd, fp.Bu, fp.U_in, xs, Ps, fp.extra_q, fp.no_link, in_place=True,
-                       q_segments=_q_segments(fp.at_rest, fp.Qd, fp.Qd_rest))
-        res.x = xs[:, :n] if p == n else xs[:, :n].copy()
-        res.P = Ps if p == n else Ps[:, :n, :n].copy()
+            if fp.hist.on_disk:
+                res.x, res.P = _smooth_chunks(fp, m, lead)
+            else:
+                rts_smooth(fp.A, fp.Qd, fp.Bu, fp.U_in, xs, Ps, fp.extra_q, fp.no_link, in_place=True,
+                           q_segments=_q_segments(fp.at_rest, fp.Qd, fp.Qd_rest))
         res.smoothed = True
-    _window_epochs(fp, res)
-    res.noise = _innovation_noise(res, fp.sig_c, fp.sigma_source, chan_est)
+    if not fp.hist.on_disk or not opt.smooth:
+        res.x, res.P = _history_out(fp, n, m, forward=False, lead=lead)
+    res.P_first = Ps[0, :n, :n].copy() if len(Ps) else None     # full, for the INIT window's smoothing
+    _window_epochs(fp, res, solution, lead)
+    del res.P_first
+    res.noise = noise
     if fp.mp.active:
         res.noise["multipath"] = dict(fp.mp.echo(), source="INIT.json", filter_path="numpy (kernel has no multipath states)")
     return res
 
 
-def _window_epochs(fp: _ForwardPass, res: EstimateResult) -> None:
-    """INIT's window epochs from the batch solution (window_states); say where STATES start if not at the run's start."""
-    run, win, grid = fp.run_, fp.win, fp.grid
-    if win is not None:
-        try:
-            with progress.stage(f"batch solution over INIT's window {win[0]:g}–{win[1]:g} s"):
-                ws = window_states(run, fp.init, win, fp.x0, fp.P0)
-        except CdgpsError as exc:          # e.g. an INIT edited by hand: the filter part is still right
-            ws = None
-            res.events.insert(0, {"time_s": float(grid[0]), "antenna": "", "transmitter": "",
-                                  "kind": "batch window", "action": f"window epochs not recomputed: {exc}; "
-                                  f"STATES start at the window end"})
-        if ws is not None:
-            _join_window(res, ws, fp.x0, fp.P0, fp.opt)
+def _history_out(fp: _ForwardPass, n: int, m: int, forward: bool, lead: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """States (N, n) and covariances (N, m, m) of the history as the result holds them.
+
+    In memory: the history itself when it has no further states and m = n (views, no copy), else
+    copies (``forward``: the filter's values kept before the smoother overwrites them).  On disk:
+    compact copies taken chunk by chunk, the history's pages dropped behind, after ``lead`` rows
+    left for INIT's window (filled by :func:`_join_window`)."""
+    xs, Ps, p = fp.xs, fp.Ps, fp.p
+    if not fp.hist.on_disk:
+        full = p == n and m == n and not forward
+        return (xs[:, :n] if p == n and not forward else xs[:, :n].copy(),
+                Ps if full else Ps[:, :m, :m].copy())
+    N = len(xs)
+    x_all, P_all = np.empty((lead + N, n)), np.empty((lead + N, m, m))
+    x_out, P_out = x_all[lead:], P_all[lead:]
+    for a in range(0, N, fp.chunk):
+        b = min(a + fp.chunk, N)
+        x_out[a:b] = xs[a:b, :n]
+        P_out[a:b] = Ps[a:b, :m, :m]
+        fp.hist.release(xs, a, b)
+        fp.hist.release(Ps, a, b)
+    return x_all, P_all
+
+
+def _smooth_chunks(fp: _ForwardPass, m: int, lead: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """The RTS pass over the history on disk in reverse chunks: smoothed (N, n) states and (N, m, m)
+    covariances after ``lead`` rows left for INIT's window, copied out of each chunk as it is finished
+    (its pages then dropped)."""
+    xs, Ps, n = fp.xs, fp.Ps, fp.n
+    N = len(xs)
+    x_all, P_all = np.empty((lead + N, n)), np.empty((lead + N, m, m))
+    x_out, P_out = x_all[lead:], P_all[lead:]
+
+    def done(a: int, b: int) -> None:
+        x_out[a:b] = xs[a:b, :n]
+        P_out[a:b] = Ps[a:b, :m, :m]
+        fp.hist.release(xs, a, b)
+        fp.hist.release(Ps, a, b)
+
+    rts_smooth(fp.A, fp.Qd, fp.Bu, fp.U_in, xs, Ps, fp.extra_q, fp.no_link, in_place=True,
+               q_segments=_q_segments(fp.at_rest, fp.Qd, fp.Qd_rest), chunk=fp.chunk, on_done=done)
+    return x_all, P_all
+
+
+def _window_solution(fp: _ForwardPass) -> tuple:
+    """INIT's window from the batch solution (window_states): (ws, None), or (None, the event saying why
+    not), or (None, None) without a window."""
+    win, grid = fp.win, fp.grid
+    if win is None:
+        return None, None
+    try:
+        with progress.stage(f"batch solution over INIT's window {win[0]:g}–{win[1]:g} s"):
+            return window_states(fp.run_, fp.init, win, fp.x0, fp.P0), None
+    except CdgpsError as exc:          # e.g. an INIT edited by hand: the filter part is still right
+        return None, {"time_s": float(grid[0]), "antenna": "", "transmitter": "",
+                      "kind": "batch window", "action": f"window epochs not recomputed: {exc}; "
+                      f"STATES start at the window end"}
+
+
+def _window_lead(ws, grid: np.ndarray) -> int:
+    """Epochs of the window before the filter's first (rows to reserve in front of the result's arrays;
+    0 when the window does not join, which :func:`_join_window` then reports)."""
+    if ws is None:
+        return 0
+    nw = len(ws.time_s) - 1
+    return nw if nw > 0 and abs(float(ws.time_s[-1]) - float(grid[0])) <= 1e-6 else 0
+
+
+def _window_epochs(fp: _ForwardPass, res: EstimateResult, solution: tuple | None = None, lead: int = 0) -> None:
+    """INIT's window epochs from the batch solution (``solution``: :func:`_window_solution`'s, computed
+    here when None; ``lead``: rows already reserved for them in front of x, P, x_filt, P_filt); say
+    where STATES start if not at the run's start."""
+    run, win = fp.run_, fp.win
+    ws, failed = _window_solution(fp) if solution is None else solution
+    if failed is not None:
+        res.events.insert(0, failed)
+    if ws is not None:
+        _join_window(res, ws, fp.x0, fp.P0, fp.opt, lead)
     t_first = float(run.phase["time_s"].min())
     if win is not None and res.time_s[0] > t_first + 1e-6:     # (a hand-made INIT is a prior where it says)
         where = "INIT's window start" if res.window else "INIT's state time"
@@ -865,24 +1019,39 @@ def _window_epochs(fp: _ForwardPass, res: EstimateResult) -> None:
                                         "initialize from the run start (cdgps init --start) to cover it"})
 
 
-def _join_window(res: EstimateResult, ws, x0: np.ndarray, P0: np.ndarray, opt: EstimateOptions) -> None:
+def _join_window(res: EstimateResult, ws, x0: np.ndarray, P0: np.ndarray, opt: EstimateOptions,
+                 lead: int = 0) -> None:
     """Put the window's batch solution before the filter's epochs (in place on ``res``).
 
     ``res`` starts at the window end with INIT's state (x0, P0) as its first filtered value; with
-    smoothing the pass is carried into the window (:func:`cdgps_cli.estimation.window_smoother.extend_smoothing`)."""
+    smoothing the pass is carried into the window (:func:`cdgps_cli.estimation.window_smoother.extend_smoothing`).
+    ``lead`` > 0: x, P, x_filt, P_filt already have that many rows in front (:func:`_window_lead`), which
+    are filled (no concatenated copies); the other arrays are concatenated."""
     nw = len(ws.time_s) - 1                   # window epochs before its end (the end is res's first)
     nm = res.cfg.n_modes
     if nw < 0 or abs(float(ws.time_s[-1]) - float(res.time_s[0])) > 1e-6:
         raise CdgpsError("INIT's window does not end where the filter starts")
+    if lead and lead != nw:
+        raise ValueError(f"_join_window: {lead} rows reserved for a window of {nw} epochs")
+    P_first = getattr(res, "P_first", None)          # the full covariance at the window end (res.P may be modal)
+
+    def joined(front: np.ndarray, rest: np.ndarray) -> np.ndarray:
+        if not lead:
+            return np.concatenate([front, rest])
+        rest[:lead] = front
+        return rest
+
     if res.smoothed:
-        xw, Pw = extend_smoothing(ws, res.x[0], res.P[0], x0, P0)
-        res.x_filt = np.concatenate([ws.x[:-1], res.x_filt])
+        xw, Pw = extend_smoothing(ws, res.x[lead], res.P[lead] if P_first is None else P_first, x0, P0)
+        res.x_filt = joined(ws.x[:-1], res.x_filt)
         Pf = ws.P[:-1] if res.P_filt.shape[1] == ws.P.shape[1] else ws.P[:-1, :nm, :nm]
-        res.P_filt = np.concatenate([Pf, res.P_filt])
+        res.P_filt = joined(Pf, res.P_filt)
     else:
         xw, Pw = ws.x[:-1], ws.P[:-1]
-    res.x = np.concatenate([xw, res.x])
-    res.P = np.concatenate([Pw, res.P])
+    if res.P.shape[1] != Pw.shape[1]:
+        Pw = Pw[:, :nm, :nm]
+    res.x = joined(xw, res.x)
+    res.P = joined(Pw, res.P)
     res.time_s = np.concatenate([ws.time_s[:-1], res.time_s])
     C = len(res.channels)
     resid = np.full((nw + 1, C), np.nan)
@@ -891,7 +1060,7 @@ def _join_window(res: EstimateResult, ws, x0: np.ndarray, P0: np.ndarray, opt: E
         if c in col:
             resid[:, col[c]] = ws.residual_m[:, j]
     first = resid[-1]
-    res.residual_m = np.concatenate([resid[:-1], res.residual_m])
+    res.residual_m = joined(resid[:-1], res.residual_m)
     row0 = res.residual_m[nw]
     row0[np.isnan(row0)] = first[np.isnan(row0)]   # the window end: the batch's residuals
     res.nis = np.concatenate([np.full(nw, np.nan), res.nis])
@@ -931,13 +1100,14 @@ def filter_sigma(init: dict, cfg, chans, opt: EstimateOptions) -> tuple[np.ndarr
 
 
 def _channel_noise_estimate(cfg, ant, tx, xs: np.ndarray, Ps: np.ndarray, resid: np.ndarray, n: int,
-                            hph: np.ndarray | None = None) -> tuple:
+                            hph: np.ndarray | None = None, release=None) -> tuple:
     """Residual-based σ̂_c of every channel (:func:`cdgps_cli.measurement.noise.filter_sigma_estimate`).
 
     Its term H_c P⁺ H_cᵀ (m²) is taken from the filtered covariances Ps (N, p, p) with the Jacobian at
     the filtered state xs (N, n) (with bias states, p > n, the row also has a 1 in the channel's bias
     column).  ``hph`` (N, C), when given, holds that term already for the epochs the compiled kernel
-    ran (it is updated in place); the other epochs with a residual are computed here, in chunks.
+    ran (it is updated in place); the other epochs with a residual are computed here, in chunks
+    (``release(arr, start, stop)``, when given, is told after each which rows of xs and Ps it read).
     Returns (σ̂ (C,), count (C,)).
     """
     N, C = resid.shape
@@ -955,6 +1125,9 @@ def _channel_noise_estimate(cfg, ant, tx, xs: np.ndarray, Ps: np.ndarray, resid:
         if bias_states:
             cb = n + np.arange(C)
             hph[k] += Ps[k][:, cb, cb] + 2.0 * np.einsum("kci,kic->kc", Hm, Ps[k][:, :nm, cb])
+        if release is not None:
+            release(xs, int(k[0]), int(k[-1]) + 1)
+            release(Ps, int(k[0]), int(k[-1]) + 1)
     return filter_sigma_estimate(resid, hph)
 
 
@@ -1052,6 +1225,7 @@ def zero_velocity_update(x: np.ndarray, P: np.ndarray, nm: int, var: np.ndarray)
     return x, 0.5 * (P + P.T)
 
 
+PHASE_BLOCK_ROWS = 1 << 20                 # phase rows per block when Y and LOCK are built
 REST_NIS_FAILURES = 3                      # NIS failures in a row that break a rest segment
 REST_ENTRY_POSITION_INFLATION = 100.0      # entering rest: modal position variances × (1 + this)
 
@@ -1143,10 +1317,15 @@ def _q_segments(at_rest: np.ndarray, Q: np.ndarray, Q_rest: np.ndarray) -> list[
 def lock_events(Y: np.ndarray, LOCK: np.ndarray) -> np.ndarray:
     """Per (epoch, channel) the cause of a new lock segment (:func:`cdgps_cli.measurement.channels.lock_segments`):
     1 = first sighting, 2 = lock restart (slip), 3 = re-acquisition after a gap with a lock counter
-    that does not continue; 0 otherwise.  Y, LOCK: (N, C), NaN / −1 = absent."""
-    cc, kk = np.nonzero(~np.isnan(Y.T))
+    that does not continue; 0 otherwise.  Y, LOCK: (N, C), NaN / −1 = absent.
+
+    One channel at a time (a channel's segments depend on its own rows only), so the temporaries
+    are those of one column, not of the record's N·C rows."""
     ev = np.zeros(Y.shape, dtype=np.int8)
-    ev[kk, cc] = lock_segments(cc, kk, lock=LOCK[kk, cc]).cause
+    for c in range(Y.shape[1]):
+        kk = np.flatnonzero(~np.isnan(Y[:, c]))
+        if kk.size:
+            ev[kk, c] = lock_segments(np.full(kk.size, c, dtype=np.int64), kk, lock=LOCK[kk, c]).cause
     return ev
 
 

@@ -34,6 +34,16 @@ def _i64(a) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=np.int64)
 
 
+def _inputs(B: np.ndarray, U_in: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """B (p, n_u) and U_in (N, n_u) for C; inputs that are zero throughout (e.g. a broadcast row of
+    zeros: no thruster logged) become n_u = 0 — the C prediction skips a zero u anyway, so the
+    numbers are the same — and no (N, n_u) copy is made."""
+    U = np.asarray(U_in)
+    if U.ndim == 2 and (U.strides[0] == 0 or U.size == 0) and not U[:1].any():
+        return np.zeros((B.shape[0], 0)), np.zeros((U.shape[0], 0))
+    return _f64(B), U_in
+
+
 def csr(A: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Row pointer, column indices and values of the exact non-zeros of a square matrix."""
     A = np.asarray(A, dtype=float)
@@ -115,7 +125,7 @@ class ForwardKernel:
         self.n = A.shape[0]
         self.A = csr(A)
         self.Q = _f64(Q)
-        self.B = _f64(B)
+        self.B, U_in = _inputs(B, U_in)
         self.nu = self.B.shape[1]
         C = len(ant)
         # the NIS bound per number of channels used (index 0 unused)
@@ -181,7 +191,7 @@ def rts(A, Q, B, U_in, xf, Pf, xs, Ps, extra_q=None, no_link=None) -> None:
     Raises numpy.linalg.LinAlgError when a predicted covariance is not positive definite.
     """
     N, p = xf.shape
-    B = _f64(B).reshape(p, -1)
+    B, U_in = _inputs(_f64(B).reshape(p, -1), U_in)
     nu = B.shape[1]
     for name, arr in (("xf", xf), ("Pf", Pf), ("xs", xs), ("Ps", Ps)):
         if arr.dtype != np.float64 or not arr.flags.c_contiguous:

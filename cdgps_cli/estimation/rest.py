@@ -194,7 +194,7 @@ def estimate_auto_rest(run, init: dict, opt):
     say(f"  rest detection: kinematic pass with sigma {s_det * 1000:.2f} mm")
     kin = estimate(run, init, replace(opt, rest_auto=False, smooth=False, sigma_m=s_det, channel_sigma_m=None,
                                       rest_segments_s=(),
-                                      keep_filtered_covariance="modal"))
+                                      keep_filtered_covariance="modal", keep_covariance="full"))
     d = velocity_nis_series(kin.x[:, nm:2 * nm], kin.P[:, nm:2 * nm, nm:2 * nm])
     time_s = kin.time_s
     del kin

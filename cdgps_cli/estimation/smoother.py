@@ -23,7 +23,8 @@ from cdgps_cli.estimation import kernel as ekf_kernel
 __all__ = ["rts_smooth", "rts_smooth_transitions"]
 
 
-def rts_smooth(A, Q, B, U_in, xf, Pf, extra_q=None, no_link=None, in_place=False, q_segments=None):
+def rts_smooth(A, Q, B, U_in, xf, Pf, extra_q=None, no_link=None, in_place=False, q_segments=None,
+               chunk=None, on_done=None):
     """Rauch–Tung–Striebel smoother over filtered states (N, p) and covariances (N, p, p).
 
     The priors are recomputed from the filtered values (x̄ = A x + B u, P̄ = A P Aᵀ + Q_k) so that
@@ -35,21 +36,35 @@ def rts_smooth(A, Q, B, U_in, xf, Pf, extra_q=None, no_link=None, in_place=False
     covariances; with ``in_place`` they overwrite ``xf`` and ``Pf`` (epoch k is read before it is
     replaced, and epoch k+1 is already smoothed when k is processed, so this is exact and saves two
     copies).
+
+    ``chunk`` (epochs): run each stretch as passes over at most ``chunk + 1`` epochs, latest first
+    (each pass ends on an epoch the later pass has smoothed: the same numbers as one pass), and call
+    ``on_done(start, stop)`` after each with the epochs start … stop−1 that are final (descending; the
+    arrays may be on disk, :mod:`cdgps_cli.estimation.history`, and the caller copies out and drops them).
     """
     extra_q = extra_q or {}
     xs = xf if in_place else xf.copy()
     Ps = Pf if in_place else Pf.copy()
-    if q_segments and not (len(q_segments) == 1 and q_segments[0][2] is Q):
-        # piecewise-constant Q: one pass per stretch, latest first; each stretch ends on an epoch the
-        # later pass has already smoothed, which is exactly what the recursion reads as "k+1"
-        for k_lo, k_hi, Qs in sorted(q_segments, reverse=True, key=lambda t: t[0]):
-            if k_hi <= k_lo:
-                continue
-            sub_q = {k - k_lo: v for k, v in extra_q.items() if k_lo < k <= k_hi}
-            sub_nl = None if no_link is None else np.asarray(no_link)[k_lo:k_hi + 1]
-            _rts_pass(A, Qs, B, U_in[k_lo:k_hi + 1], xs[k_lo:k_hi + 1], Ps[k_lo:k_hi + 1], sub_q, sub_nl)
+    N = xs.shape[0]
+    if chunk is None and on_done is None and not (q_segments and not (len(q_segments) == 1 and q_segments[0][2] is Q)):
+        _rts_pass(A, Q, B, U_in, xs, Ps, extra_q, no_link)
         return xs, Ps
-    _rts_pass(A, Q, B, U_in, xs, Ps, extra_q, no_link)
+    # piecewise-constant Q: one pass per stretch, latest first; each stretch ends on an epoch the
+    # later pass has already smoothed, which is exactly what the recursion reads as "k+1"
+    segs = q_segments if q_segments else ([(0, N - 1, Q)] if N > 1 else [])
+    step = N if chunk is None else max(int(chunk), 1)
+    for k_lo, k_hi, Qs in sorted(segs, reverse=True, key=lambda t: t[0]):
+        if k_hi <= k_lo:
+            continue
+        for b in range(k_hi, k_lo, -step):
+            a = max(b - step, k_lo)
+            sub_q = {k - a: v for k, v in extra_q.items() if a < k <= b}
+            sub_nl = None if no_link is None else np.asarray(no_link)[a:b + 1]
+            _rts_pass(A, Qs, B, U_in[a:b + 1], xs[a:b + 1], Ps[a:b + 1], sub_q, sub_nl)
+            if on_done is not None:
+                on_done(a, b + 1)
+    if on_done is not None and N == 1:
+        on_done(0, 1)
     return xs, Ps
 
 

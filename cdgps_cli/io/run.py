@@ -158,9 +158,9 @@ def _phase_from_packed(att: dict, path) -> Table | None:
     def damaged(exc: Exception) -> CdgpsError:
         return CdgpsError(f"{path}: damaged phase arrays ({PHASE_PACKED}*): {exc}")
 
-    def column(key: str, n: int | None = None, dtype=None) -> np.ndarray:
+    def column(source: dict, key: str, n: int | None = None, dtype=None) -> np.ndarray:
         try:
-            arr = unpack(att[PHASE_PACKED + key], what + key)
+            arr = unpack(source[PHASE_PACKED + key], what + key)
             if n is not None and arr.shape != (n,):
                 raise ValueError(f"{what}{key}: {list(arr.shape)} values for {n} rows")
             return arr if dtype is None else arr.astype(dtype, copy=False)
@@ -168,7 +168,9 @@ def _phase_from_packed(att: dict, path) -> Table | None:
             raise damaged(exc) from None
 
     def later(key: str, n: int, dtype=None) -> Deferred:
-        return Deferred(lambda: column(key, n, dtype))
+        # only this column's bytes stay with the table (not every attachment's: the RUN's size in memory)
+        one = {k: att[k] for k in (PHASE_PACKED + key,) if k in att}
+        return Deferred(lambda: column(one, key, n, dtype))
 
     try:
         names = json.loads(att[PHASE_PACKED + "names.json"])
@@ -178,13 +180,13 @@ def _phase_from_packed(att: dict, path) -> Table | None:
             raise KeyError(f"no {', '.join(missing)}")
     except (KeyError, TypeError, ValueError) as exc:
         raise damaged(exc) from None
-    t = column("time_s", dtype=float)
+    t = column(att, "time_s", dtype=float)
     if t.ndim != 1:
         raise damaged(ValueError(f"{what}time_s: shape {list(t.shape)}"))
     n = t.size
-    numbers = {c: later(c, n, dt) if c in _PHASE_DEFERRED else column(c, n, dt)
+    numbers = {c: later(c, n, dt) if c in _PHASE_DEFERRED else column(att, c, n, dt)
                for c, dt in _PHASE_DTYPES.items() if c != "time_s"}
-    codes = {c: (later(c + "_code", n) if c in _PHASE_DEFERRED else column(c + "_code", n), words[c])
+    codes = {c: (later(c + "_code", n) if c in _PHASE_DEFERRED else column(att, c + "_code", n), words[c])
              for c in PHASE_NAME_COLUMNS}
     try:
         return Table({"time_s": t, **numbers}, codes, PHASE_COLUMNS, categorical=PHASE_NAME_COLUMNS)

@@ -142,9 +142,11 @@ class PseudoliteSD(MeasurementModel):
         self.sigma = np.broadcast_to(np.asarray(sigma_m, dtype=float), (C,))
         if not np.all(np.isfinite(self.sigma) & (self.sigma > 0)):
             raise ValueError("PseudoliteSD: sigma_m must be positive and finite for every channel")
-        self.seg = np.full(self.y.shape, -1, dtype=np.int64) if segment is None else np.asarray(segment, dtype=np.int64)
+        # no segments: one −1 seen at every (epoch, channel) (read-only; no (N, C) array in memory)
+        self.seg = (np.broadcast_to(np.int64(-1), self.y.shape) if segment is None
+                    else np.asarray(segment, dtype=np.int64))
         self.n_state = 2 * cfg.n_modes
-        ids = np.unique(self.seg[self.seg >= 0])
+        ids = np.zeros(0, dtype=np.int64) if segment is None else np.unique(self.seg[self.seg >= 0])
         self.segment_keys = [int(s) for s in ids]
         self._col = np.full(int(ids.max(initial=-1)) + 2, -1, dtype=np.int64)
         self._col[ids] = np.arange(ids.size)

@@ -1,0 +1,93 @@
+"""Scratch arrays on disk: per-epoch histories too large to keep in memory (issue 29).
+
+:class:`DiskHistory` hands out numpy arrays backed by anonymous temporary files (``np.memmap`` over
+a file that is unlinked as soon as it is opened, in ``dir`` — the output's directory — or the
+system's temporary directory).  Nothing is left on disk afterwards, whether the command ends, fails
+or is killed: the space is returned when the last array over it is garbage-collected.
+
+The forward filter writes its x_k, P_k into such arrays and the smoother reads them back in reverse
+chunks (:mod:`cdgps_cli.estimation.filter`); :meth:`DiskHistory.release` drops the pages of the
+epochs done with from the process (``madvise(MADV_DONTNEED)``: a shared file mapping keeps its
+data in the file and the page cache), so the resident memory stays that of one chunk.  The object
+is the ``history`` of :class:`cdgps_cli.estimation.filter.EstimateOptions`; the in-memory twin is
+:class:`cdgps_cli.estimation.history.MemoryHistory`.  No numerics here.
+"""
+
+from __future__ import annotations
+
+import errno
+import mmap
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from cdgps_cli.core.errors import CdgpsError
+
+__all__ = ["DiskHistory"]
+
+
+def _reserve(fd: int, nbytes: int) -> None:
+    """Give the file its ``nbytes`` of disk now (``posix_fallocate``): a full disk is an OSError
+    here, not a SIGBUS when a page of the mapping is first written.  Where the file system cannot
+    reserve, the file is only extended (sparse)."""
+    try:
+        os.posix_fallocate(fd, 0, nbytes)
+    except OSError as exc:
+        if exc.errno not in (errno.EOPNOTSUPP, errno.EINVAL, errno.ENOSYS):
+            raise
+        os.ftruncate(fd, nbytes)
+    except AttributeError:                    # (no posix_fallocate on this platform)
+        os.ftruncate(fd, nbytes)
+
+
+class DiskHistory:
+    """Arrays over unlinked temporary files in ``dir`` (None: the system's temporary directory).
+
+    Parameters
+    ----------
+    dir : path, optional
+        Where the temporary files go (the output's directory keeps them on the disk the output is
+        written to).
+    """
+
+    on_disk = True
+
+    def __init__(self, dir: str | Path | None = None):
+        # (a directory that does not exist yet, e.g. the output's before it is written: the system's)
+        self.dir = str(dir) if dir is not None and Path(dir).is_dir() else None
+
+    def empty(self, shape: tuple, dtype=np.float64) -> np.ndarray:
+        """An uninitialized C-contiguous array of ``shape`` and ``dtype`` on disk (writable)."""
+        nbytes = int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
+        if nbytes == 0:
+            return np.empty(shape, dtype=dtype)
+        try:
+            with tempfile.TemporaryFile(prefix=".cdgps-history-", dir=self.dir) as fh:
+                _reserve(fh.fileno(), nbytes)
+                # the mapping holds its own descriptor: the file lives as long as the array
+                return np.memmap(fh, dtype=dtype, mode="r+", shape=shape)
+        except OSError as exc:
+            where = self.dir or tempfile.gettempdir()
+            raise CdgpsError(f"{where}: cannot make a scratch file of {nbytes / 2**20:.0f} MiB for the "
+                             f"filter's history: {exc.strerror}") from None
+
+    @staticmethod
+    def release(arr: np.ndarray, start: int, stop: int) -> None:
+        """Drop rows ``start`` … ``stop``−1 of ``arr`` (first axis) from memory; their values stay
+        in the file and come back when read.  The pages wholly inside the rows are dropped."""
+        mm = getattr(arr, "_mmap", None)
+        if mm is None or stop <= start or arr.ndim == 0:
+            return
+        row = arr.strides[0]
+        mapped = np.frombuffer(mm, dtype=np.uint8, count=1)           # the mapping's first byte
+        origin = arr.__array_interface__["data"][0] - mapped.__array_interface__["data"][0]
+        del mapped
+        a = origin + start * row
+        b = origin + stop * row
+        page = mmap.PAGESIZE
+        a = -(-a // page) * page
+        b = (b // page) * page
+        if b > a:
+            mm.madvise(mmap.MADV_DONTNEED, a, b - a)
