@@ -935,7 +935,8 @@ def _fix_integers(cfg: StructureConfig, wd: WindowData, fit: _Fit, opt: InitOpti
         else:
             note = f"integers not fixed: {full_txt}"
         if keep_float is not None and keep_float.any():
-            note += f"; {int(keep_float.sum())} bias(es) after a half-cycle slip kept float"
+            note = (note.replace("full set", "the set without them")
+                    + f"; {int(keep_float.sum())} bias(es) after a half-cycle slip kept float")
     elif not cfg.line_bias_calibrated:
         note = "line biases not calibrated: float biases only"
     _say(opt, f"  {note}")
