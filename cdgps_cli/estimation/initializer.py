@@ -785,7 +785,7 @@ def _split_slips(run: Run, win: _Window, race: _Race, opt: InitOptions, sigma: f
 
     Returns (window, race, [slip records for INIT.json's ``unflagged_slips``])."""
     cfg, found, cuts = run.cfg, [], []
-    for _ in range(SLIP_ROUNDS):
+    for rnd in range(SLIP_ROUNDS + 1):
         wd, g = win.wd, race.best.result()
         steps = residual_steps(win.prob.residual(g.x, g.b), wd.segment, cfg.wavelength_m, cfg.sample_period_s)
         if not steps:
@@ -795,6 +795,8 @@ def _split_slips(run: Run, win: _Window, race: _Race, opt: InitOptions, sigma: f
                  "residual_step_cycles": st.step_m / cfg.wavelength_m, "z": st.z} for st in steps]
         if win.how == "given":
             raise CdgpsError(_slip_refusal(win, recs, cfg.wavelength_m))
+        if rnd == SLIP_ROUNDS:
+            raise CdgpsError(_slip_refusal(win, recs, cfg.wavelength_m, found))
         # one split per round, the largest step: a large slip bends the fitted trajectory and so
         # leaves smaller steps in other channels, which vanish once the slip has its own bias
         j = int(np.argmax([abs(st.step_m) for st in steps]))
@@ -813,10 +815,14 @@ def _split_slips(run: Run, win: _Window, race: _Race, opt: InitOptions, sigma: f
     return win, race, found
 
 
-def _slip_refusal(win: _Window, recs: list, lam: float) -> str:
+def _slip_refusal(win: _Window, recs: list, lam: float, split: list | None = None) -> str:
     what = "; ".join(f"{r['antenna']}/{r['transmitter']} at {r['time_s']:g} s (residual step "
                      f"{r['residual_step_m'] * 100:.1f} cm ≈ {r['residual_step_cycles']:+.2f} cycle)" for r in recs)
     first = min(r["time_s"] for r in recs)
+    if split is not None:
+        return (f"unflagged cycle slips in the automatic window {win.t0:g}–{win.t1:g} s: still {what} after "
+                f"{len(split)} segments were split at slips ({', '.join(r['antenna'] + '/' + r['transmitter'] for r in split)}); "
+                f"too many to trust the window: initialize on another one (--start/--duration)")
     return (f"--start/--duration: unflagged cycle slip in the window {win.t0:g}–{win.t1:g} s (the phase jumps "
             f"but the lock indicator continues): {what}. Initialize on a window without it (e.g. --start "
             f"{first:g}), or leave --start/--duration out: the automatic window starts a new bias at the slip")

@@ -14,6 +14,8 @@ Before: 22 of these 30 automatic cases refused, 8 accepted with a wrong bias (be
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -91,3 +93,58 @@ def test_no_slip_no_record(base):
     cfg, sim = base
     res = initialize(memory_run(cfg, sim.receiver), InitOptions())
     assert "unflagged_slips" not in res and res["n_fixed"] == len(res["biases"]) == 12
+
+
+EDGES = {"last epoch": [("s2", "S1", -1, 3)], "second epoch, half cycle": [("s3", "S2", 1, 0.5)],
+         "two on one channel": [("s2", "S1", 30, 2), ("s2", "S1", 70, -5)],
+         "every channel of an antenna": [("s2", tx, 50, 1) for tx in ("S1", "S2", "S3", "S4")]}
+
+
+@pytest.mark.parametrize("name", list(EDGES))
+def test_edges_and_several_slips(base, name):
+    cfg, sim = base
+    lam, t = cfg.wavelength_m, sim.time_s
+    slips = [(a, x, k % len(t), c) for a, x, k, c in EDGES[name]]
+    rec = sim.receiver.copy()
+    for a, x, k, c in slips:
+        rec.loc[(rec["time_s"] >= t[k] - 1e-9) & (rec["antenna"] == a) & (rec["transmitter"] == x), "phase_cycles"] += c
+    res = initialize(memory_run(cfg, rec), InitOptions())
+    assert sorted((s["antenna"], s["transmitter"], round(s["time_s"], 6)) for s in res["unflagged_slips"]) == \
+        sorted((a, x, round(float(t[k]), 6)) for a, x, k, _ in slips)
+    truth = {(b["antenna"], b["transmitter"]): b["bias_m"] for b in sim.truth["biases"]}
+    for b in res["biases"]:
+        key = (b["antenna"], b["transmitter"])
+        true = truth[key] + lam * sum(c for a, x, k, c in slips if (a, x) == key and b["segment_start_s"] >= t[k] - 1e-9)
+        assert abs(b["bias_m"] - true) < (1e-9 if b["fixed"] else 0.25 * lam), (b, true)
+
+
+def test_too_many_slips_refused(base, monkeypatch):
+    from cdgps_cli.estimation import initializer as init_mod
+    monkeypatch.setattr(init_mod, "SLIP_ROUNDS", 1)
+    cfg, sim = base
+    t = sim.time_s
+    rec = sim.receiver.copy()
+    for x, k in (("S1", 30), ("S3", 70)):
+        rec.loc[(rec["time_s"] >= t[k] - 1e-9) & (rec["antenna"] == "s2") & (rec["transmitter"] == x), "phase_cycles"] += 2
+    with pytest.raises(CdgpsError, match=r"still s2/S\d at .* after 1 segments were split"):
+        initialize(memory_run(cfg, rec), InitOptions())
+
+
+def test_cli_given_window_exit_2_names_channel_no_output(base, tmp_path):
+    from click.testing import CliRunner
+    from cdgps_cli.cli.commands import main
+    from cdgps_cli.io.run import write_run
+    cfg, sim = base
+    ts = float(sim.time_s[50])
+    rec = sim.receiver.copy()
+    rec.loc[(rec["time_s"] >= ts - 1e-9) & (rec["antenna"] == "s3") & (rec["transmitter"] == "S4"), "phase_cycles"] += 5
+    rec.to_csv(tmp_path / "receiver.csv", index=False)
+    write_run(cfg, tmp_path / "receiver.csv", tmp_path / "run.mcap")
+    out = tmp_path / "init.json"
+    r = CliRunner().invoke(main, ["init", str(tmp_path / "run.mcap"), "--start", "0", "--duration", "12", "-o", str(out)])
+    assert r.exit_code == 2, r.output
+    assert "cdgps: error:" in r.output and f"s3/S4 at {ts:g} s" in r.output and "Traceback" not in r.output
+    assert not out.exists()
+    r = CliRunner().invoke(main, ["--quiet", "init", str(tmp_path / "run.mcap"), "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    assert [s["time_s"] for s in json.loads(out.read_text())["unflagged_slips"]] == [ts]
