@@ -5,7 +5,9 @@ Flow (Teague, How & Parkinson 1998 Sec. IV.A; Teague et al. 1995 batch estimator
 1. Pick a window of epochs recorded while the structure moves (automatic by default: the first
    window whose phase motion is well above the noise).
 2. Give every channel one bias parameter per lock segment (a slip or re-lock inside the window
-   starts a new segment, so the window is split at the slip rather than corrupted by it).
+   starts a new segment, so the window is split at the slip rather than corrupted by it).  A slip
+   the receiver did not flag is found after the cold start as a step in the channel's residuals
+   (:func:`_split_slips`): split there too in an automatic window, refused in a given one.
 3. For several initial guesses of the large rigid-body angle (cold start), iterate Gauss–Newton:
    linearize h about the current trajectory, solve the linear batch problem of Eq. (13)–(15) in
    O(N) with :func:`cdgps_cli.estimation.batch_solver.srif_solve`, accept the step if the nonlinear cost decreases

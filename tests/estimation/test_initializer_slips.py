@@ -9,7 +9,8 @@ not show it.  Over a sweep of slip size (1, 2, 5, 20 cycles and half a cycle), e
   after a half-cycle slip the new segment's bias is kept float;
 * a window the user gave (--start/--duration): refused, naming the channel and the time.
 
-Before: 22 of these 30 automatic cases refused, 8 accepted with a wrong bias (benchmarks/init_slips.py).
+Before: 22 of these 30 automatic cases refused, 8 accepted with a wrong bias; the longer sweep is
+benchmarks/init_slips.py (docs/benchmarks/init-slips*.json).
 """
 
 from __future__ import annotations
