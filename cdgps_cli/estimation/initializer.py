@@ -5,7 +5,9 @@ Flow (Teague, How & Parkinson 1998 Sec. IV.A; Teague et al. 1995 batch estimator
 1. Pick a window of epochs recorded while the structure moves (automatic by default: the first
    window whose phase motion is well above the noise).
 2. Give every channel one bias parameter per lock segment (a slip or re-lock inside the window
-   starts a new segment, so the window is split at the slip rather than corrupted by it).
+   starts a new segment, so the window is split at the slip rather than corrupted by it).  A slip
+   the receiver did not flag is found after the cold start as a step in the channel's residuals
+   (:func:`_split_slips`): split there too in an automatic window, refused in a given one.
 3. For several initial guesses of the large rigid-body angle (cold start), iterate Gauss–Newton:
    linearize h about the current trajectory, solve the linear batch problem of Eq. (13)–(15) in
    O(N) with :func:`cdgps_cli.estimation.batch_solver.srif_solve`, accept the step if the nonlinear cost decreases
@@ -41,6 +43,7 @@ from cdgps_cli.measurement.phase import channel_indices, phase_model, row_channe
 from cdgps_cli.core import progress
 from cdgps_cli.estimation.ambiguity import resolve
 from cdgps_cli.measurement.multipath import MultipathModel, augment, fit_autocovariance, model_from
+from cdgps_cli.measurement.slips import residual_steps
 from cdgps_cli.measurement.noise import leverage_per_channel, prior_sigma_m, snr_sigma_factor, variance_factors
 from cdgps_cli.core.records import INIT_FORMAT, Run
 
@@ -143,14 +146,20 @@ def window_snr_dbhz(run: Run, wd: WindowData) -> np.ndarray:
     return out
 
 
-def window_data(run: Run, t0: float, t1: float) -> WindowData:
+def window_data(run: Run, t0: float, t1: float, cuts=()) -> WindowData:
     """The window [t0, t1] of a run: phase matrix, channels and one bias parameter per lock segment
     (:func:`cdgps_cli.measurement.channels.lock_segments` on the lock counts; a segment is cut at
-    the window's edges).  Segments are numbered by channel, then time."""
+    the window's edges).  Segments are numbered by channel, then time.
+
+    ``cuts``: (channel, epoch) pairs (column and row of the window's phase matrix) where a segment
+    starts although the lock indicator continues (unflagged slips found by :func:`_split_slips`)."""
     grid, y, lock, chans = phase_matrix(run, t0, t1)
     n, C = y.shape
     cc, kk = np.nonzero(~np.isnan(y.T))          # channel-major: the rule's (channel, step) order
-    ls = lock_segments(cc, kk, lock=lock[kk, cc])
+    slip = np.zeros(cc.size, dtype=bool)
+    for c, k in cuts:
+        slip |= (cc == c) & (kk == k)
+    ls = lock_segments(cc, kk, lock=lock[kk, cc], slip=slip if len(cuts) else None)
     seg = np.full((n, C), -1, dtype=np.int64)
     seg[kk, cc] = ls.segment
     segments = [{"antenna": chans[c][0], "transmitter": chans[c][1], "channel": c,
@@ -592,6 +601,7 @@ class _Window:
     motion_m: float
     mp: MultipathModel
     prob: _Problem
+    cuts: tuple = ()            # (channel, epoch) of the unflagged slips found (:func:`_split_slips`)
 
 
 @dataclass
@@ -653,11 +663,15 @@ def initialize(run: Run, opt: InitOptions | None = None, return_trajectory: bool
     sigma = _checked_sigma(run.cfg, opt)
     win = _window(run, opt, sigma)
     race = _multi_start(run, win, opt, sigma)
+    win, race, slips = _split_slips(run, win, race, opt, sigma)
     fit = _noise_fit(run, win, race.best.result(), opt, sigma)
     _check_float(run.cfg, win, fit, opt)
-    fix = _fix_integers(run.cfg, win.wd, fit, opt)
+    keep_float = _slip_sizes(run.cfg, win.wd, fit, slips)
+    fix = _fix_integers(run.cfg, win.wd, fit, opt, keep_float)
     final = _fixed_solution(run.cfg, win, fit, fix, opt)
     out = _init_record(run, win, race, fit, fix, final, opt)
+    if slips:
+        out["unflagged_slips"] = slips
     out["iterations"] = int(race.iterations + final.iterations)
     out["elapsed_s"] = _time.perf_counter() - t_start
     if return_trajectory:
@@ -705,8 +719,8 @@ def _multi_start(run: Run, win: _Window, opt: InitOptions, sigma: float) -> _Rac
     lowest full-window cost wins (a short window can prefer a mirror solution ~180° away)."""
     cfg, wd, N = run.cfg, win.wd, len(win.wd.time_s)
     n_sub = min(N, max(int(round(opt.start_window_s / cfg.sample_period_s)) + 1, 3))
-    sub = _Problem(cfg, window_data(run, float(wd.time_s[0]), float(wd.time_s[n_sub - 1])), sigma, opt.process_noise,
-                   mp=win.mp)
+    sub = _Problem(cfg, window_data(run, float(wd.time_s[0]), float(wd.time_s[n_sub - 1]), win.cuts), sigma,
+                   opt.process_noise, mp=win.mp)
     results = []
     for label, x1 in _start_guesses(cfg, opt.starts):
         xs = sub.propagate(x1)
@@ -745,8 +759,8 @@ def _race_stage(run: Run, win: _Window, n_stage: int, survivors: list, results: 
     over the new epochs), raced (:func:`_race`).  Returns ([(start index, GaussNewton)], outcome)."""
     wd = win.wd
     sp = win.prob if n_stage == len(wd.time_s) else _Problem(
-        run.cfg, window_data(run, float(wd.time_s[0]), float(wd.time_s[n_stage - 1])), sigma, opt.process_noise,
-        mp=win.mp)
+        run.cfg, window_data(run, float(wd.time_s[0]), float(wd.time_s[n_stage - 1]), win.cuts), sigma,
+        opt.process_noise, mp=win.mp)
     runs = []
     for i, g0 in survivors:
         x_init = np.empty((n_stage, sp.n))
@@ -757,6 +771,93 @@ def _race_stage(run: Run, win: _Window, n_stage: int, survivors: list, results: 
         w_init[:len(g0.w)] = g0.w
         runs.append((i, GaussNewton(sp, x_init, sp.initial_biases(x_init), opt.max_iterations, opt, w_init=w_init)))
     return runs, _race(runs, sp, results, opt)
+
+
+SLIP_ROUNDS = 6                 # search – split – refit rounds for unflagged slips (one split each)
+
+
+def _split_slips(run: Run, win: _Window, race: _Race, opt: InitOptions, sigma: float):
+    """Unflagged cycle slips in the window: steps in a channel's residuals of the winning fit
+    (:func:`~cdgps_cli.measurement.slips.residual_steps`).  In a window the user gave
+    (--start/--duration) a slip is refused, naming the channel and the time; in an automatic
+    window the channel's lock segment is split at the largest step (a new bias parameter from there
+    on), the cold start redone on the split window (:func:`_multi_start`: the unmodelled slip may
+    have drawn the first fit into a wrong basin) and its residuals searched again, up to
+    SLIP_ROUNDS times.
+
+    Returns (window, race, [slip records for INIT.json's ``unflagged_slips``])."""
+    cfg, found, cuts = run.cfg, [], []
+    for rnd in range(SLIP_ROUNDS + 1):
+        wd, g = win.wd, race.best.result()
+        steps = residual_steps(win.prob.residual(g.x, g.b), wd.segment, cfg.wavelength_m, cfg.sample_period_s)
+        if not steps:
+            break
+        recs = [{"antenna": wd.channels[st.channel][0], "transmitter": wd.channels[st.channel][1],
+                 "time_s": float(wd.time_s[st.epoch]), "residual_step_m": st.step_m,
+                 "residual_step_cycles": st.step_m / cfg.wavelength_m, "z": st.z} for st in steps]
+        if win.how == "given":
+            raise CdgpsError(_slip_refusal(win, recs, cfg.wavelength_m))
+        if rnd == SLIP_ROUNDS:
+            raise CdgpsError(_slip_refusal(win, recs, cfg.wavelength_m, found))
+        # one split per round, the largest step: a large slip bends the fitted trajectory and so
+        # leaves smaller steps in other channels, which vanish once the slip has its own bias
+        j = int(np.argmax([abs(st.step_m) for st in steps]))
+        steps, recs = [steps[j]], [recs[j]]
+        for r in recs:
+            _say(opt, f"  unflagged cycle slip on {r['antenna']}/{r['transmitter']} at {r['time_s']:g} s (residual step "
+                      f"{r['residual_step_m'] * 100:.1f} cm, z {r['z']:.0f}): a new bias from there on")
+        found += recs
+        cuts += [(st.channel, st.epoch) for st in steps]
+        wd = window_data(run, win.t0, win.t1, cuts)
+        prob = _Problem(cfg, wd, sigma, opt.process_noise, mp=win.mp)
+        win = _Window(win.t0, win.t1, win.how, wd, win.motion_m, win.mp, prob, tuple(cuts))
+        iterations = race.iterations
+        race = _multi_start(run, win, opt, sigma)
+        race.iterations += iterations
+    return win, race, found
+
+
+def _slip_refusal(win: _Window, recs: list, lam: float, split: list | None = None) -> str:
+    what = "; ".join(f"{r['antenna']}/{r['transmitter']} at {r['time_s']:g} s (residual step "
+                     f"{r['residual_step_m'] * 100:.1f} cm ≈ {r['residual_step_cycles']:+.2f} cycle)" for r in recs)
+    first = min(r["time_s"] for r in recs)
+    if split is not None:
+        return (f"unflagged cycle slips in the automatic window {win.t0:g}–{win.t1:g} s: still {what} after "
+                f"{len(split)} segments were split at slips ({', '.join(r['antenna'] + '/' + r['transmitter'] for r in split)}); "
+                f"too many to trust the window: initialize on another one (--start/--duration)")
+    return (f"--start/--duration: unflagged cycle slip in the window {win.t0:g}–{win.t1:g} s (the phase jumps "
+            f"but the lock indicator continues): {what}. Initialize on a window without it (e.g. --start "
+            f"{first:g}), or leave --start/--duration out: the automatic window starts a new bias at the slip")
+
+
+#: a split segment whose bias differs from the one before by more than this distance (cycles) from
+#: a whole number of cycles came after a half-cycle slip: its bias is not an integer, kept float
+HALF_CYCLE_TOLERANCE = 0.25
+
+
+def _slip_sizes(cfg: StructureConfig, wd: WindowData, fit: _Fit, slips: list) -> np.ndarray:
+    """(segments,) bool: segments to keep float.  Each slip's size in cycles is the float bias
+    after it minus the one before (recorded in ``slips``); after a slip of a half number of
+    cycles the channel's later segments are not whole cycles from the line bias and are not fixed."""
+    keep = np.zeros(len(wd.segments), dtype=bool)
+    lam = cfg.wavelength_m
+    for r in slips:
+        idx = [i for i, sg in enumerate(wd.segments) if (sg["antenna"], sg["transmitter"]) == (r["antenna"], r["transmitter"])]
+        post = next(i for i in idx if abs(wd.segments[i]["start_s"] - r["time_s"]) < 1e-9)
+        pre = max(i for i in idx if wd.segments[i]["start_s"] < r["time_s"])
+        k = float((fit.g.b[post] - fit.g.b[pre]) / lam)
+        half = abs(k - round(k)) > HALF_CYCLE_TOLERANCE
+        r["slip_cycles"] = k
+        r["handling"] = ("segment split; a half-cycle slip: the biases from here on are kept float" if half
+                         else "segment split: a new bias from here on")
+        if half:
+            keep[[i for i in idx if wd.segments[i]["start_s"] >= r["time_s"] - 1e-9]] = True
+    if slips:
+        fit.noise["warnings"].insert(0, "unflagged cycle slips (the lock indicator continued) found in the window and "
+                                        "given a new bias: " + ", ".join(
+                                            f"{r['antenna']}/{r['transmitter']} at {r['time_s']:g} s "
+                                            f"({r['slip_cycles']:+.2f} cycles)" for r in slips))
+    return keep
 
 
 def _noise_fit(run: Run, win: _Window, g: GNResult, opt: InitOptions, sigma: float) -> _Fit:
@@ -805,9 +906,11 @@ def _check_float(cfg: StructureConfig, win: _Window, fit: _Fit, opt: InitOptions
                          f"(--start/--duration) or more iterations (--max-iterations)")
 
 
-def _fix_integers(cfg: StructureConfig, wd: WindowData, fit: _Fit, opt: InitOptions) -> _Fix:
+def _fix_integers(cfg: StructureConfig, wd: WindowData, fit: _Fit, opt: InitOptions,
+                  keep_float: np.ndarray | None = None) -> _Fix:
     """b = line bias + λ·n: LAMBDA, ratio test and partial fixing (:func:`~cdgps_cli.estimation.ambiguity.resolve`)
-    when the line biases are calibrated."""
+    when the line biases are calibrated; segments marked in ``keep_float`` (after a half-cycle
+    slip) are left out of the integer set (fixed on the marginal of the others)."""
     lam, m, n = cfg.wavelength_m, len(wd.segments), fit.prob.n
     line = np.array([cfg.antenna_line_bias_m[cfg.antenna_names.index(s["antenna"])]
                      - cfg.antenna_line_bias_m[cfg.master_index] for s in wd.segments])
@@ -819,9 +922,13 @@ def _fix_integers(cfg: StructureConfig, wd: WindowData, fit: _Fit, opt: InitOpti
         Pbb = fit.g.lin.P_end[n:, n:]
         Qa = Pbb / lam**2
         Qa = 0.5 * (Qa + Qa.T)
+        sub = np.flatnonzero(~keep_float) if keep_float is not None and keep_float.any() else None
         with progress.bar(m if opt.partial else 1, "integer fixing (LAMBDA)", unit="subset") as bar:
-            pf = resolve(a_float, Qa, opt.ratio_threshold, partial=opt.partial,
-                         progress=lambda done, total: bar.update_to(done))
+            if sub is None:
+                pf = resolve(a_float, Qa, opt.ratio_threshold, partial=opt.partial,
+                             progress=lambda done, total: bar.update_to(done))
+            else:
+                pf = _resolve_subset(a_float, Qa, sub, opt, bar)
         ratio = full_set_ratio(pf)
         full_txt = pf["limit_message"] or f"ratio {ratio:.2f} < {opt.ratio_threshold:g}"
         if pf["n_fixed"] == m:
@@ -835,10 +942,29 @@ def _fix_integers(cfg: StructureConfig, wd: WindowData, fit: _Fit, opt: InitOpti
                     f"{'ratio ' + format(ratio, '.2f') if ratio is not None else full_txt})")
         else:
             note = f"integers not fixed: {full_txt}"
+        if keep_float is not None and keep_float.any():
+            note = (note.replace("full set", "the set without them")
+                    + f"; {int(keep_float.sum())} bias(es) after a half-cycle slip kept float")
     elif not cfg.line_bias_calibrated:
         note = "line biases not calibrated: float biases only"
     _say(opt, f"  {note}")
     return _Fix(line, a_float, fixed, integers, ratio, note)
+
+
+def _resolve_subset(a_float: np.ndarray, Qa: np.ndarray, sub: np.ndarray, opt: InitOptions, bar) -> dict:
+    """:func:`resolve` on the ambiguities ``sub`` (their marginal), mapped back to the full set
+    (the others never fixed; the full set then counts as not fixed as a whole)."""
+    m = a_float.size
+    if sub.size == 0:
+        return {"n_fixed": 0, "fixed_mask": np.zeros(m, dtype=bool), "integers": np.rint(a_float).astype(np.int64),
+                "ratio_full_set": float("nan"), "limit_message": "every bias follows a half-cycle slip: none fixed"}
+    pf = resolve(a_float[sub], Qa[np.ix_(sub, sub)], opt.ratio_threshold, partial=opt.partial,
+                 progress=lambda done, total: bar.update_to(done))
+    mask = np.zeros(m, dtype=bool)
+    mask[sub] = np.asarray(pf["fixed_mask"], dtype=bool)
+    ints = np.rint(a_float).astype(np.int64)
+    ints[sub] = pf["integers"]
+    return dict(pf, fixed_mask=mask, integers=ints, n_fixed=int(mask.sum()))
 
 
 def _fixed_solution(cfg: StructureConfig, win: _Window, fit: _Fit, fix: _Fix, opt: InitOptions) -> _Final:

@@ -132,9 +132,12 @@ def init_states(init: dict, chans: list, n: int, mp: MultipathModel) -> tuple[np
 DETECT_LAGS_S = (1.0, 2.0, 4.0)
 #: Ljung–Box false-alarm probability under white residuals (chi-square, C × lags dof)
 DETECT_PROBABILITY = 1e-6
-#: … and the fitted multipath σ must reach this fraction of the fitted white σ (a correlation that
-#: matters for the fix, not the few per cent the fit itself induces in white residuals)
-DETECT_MIN_RATIO = 0.5
+#: … and the fitted multipath must at least multiply the variance of a bias estimated from a
+#: stretch (the mean of its median length) by 1 + this ratio (a correlation that matters for the
+#: fix, not the few per cent the fit itself induces in white residuals).  A multipath σ well below
+#: the white σ can still matter: over τ/T epochs it does not average out as white noise does
+#: (5 mm, τ 30 s under 1 cm white at 10 Hz: ≈ 80 times the white noise's bias variance)
+DETECT_MIN_BIAS_VARIANCE_RATIO = 1.0
 #: lags (s) of the autocovariance fit, up to a third of the typical run length
 FIT_LAGS_S = (0.0, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0)
 #: time constants tried by the fit (log grid across the clamp bounds)
@@ -216,8 +219,9 @@ def fit_autocovariance(resid: np.ndarray, segment: np.ndarray, dt_s: float) -> d
     the multipath is not in the residuals, so σ_mp is if anything underestimated.
 
     Detection: the pooled Ljung–Box statistic Q = Σ_runs L(L+2) Σ_k ρ_k²/(L−k) at ``DETECT_LAGS_S``
-    above its chi-square (runs × lags) quantile 1 − ``DETECT_PROBABILITY``, and σ_mp ≥
-    ``DETECT_MIN_RATIO`` × σ_w.  Returns None when no stretch is long enough."""
+    above its chi-square (runs × lags) quantile 1 − ``DETECT_PROBABILITY``, and the fitted
+    multipath's variance of a stretch mean at least ``DETECT_MIN_BIAS_VARIANCE_RATIO`` × the white
+    noise's (:func:`mean_variance_ratio`).  Returns None when no stretch is long enough."""
     from scipy.optimize import nnls
     from scipy.stats import chi2
     from cdgps_cli.config.limits import AUTO_MULTIPATH_SIGMA, AUTO_MULTIPATH_TAU
@@ -254,10 +258,24 @@ def fit_autocovariance(resid: np.ndarray, segment: np.ndarray, dt_s: float) -> d
                 q += L * (L + 2) * rho**2 / (L - k)
                 dof += 1
     q_limit = float(chi2.isf(DETECT_PROBABILITY, max(dof, 1)))
-    detected = dof > 0 and q > q_limit and sigma_mp >= DETECT_MIN_RATIO * sigma_w
+    bias_ratio = mean_variance_ratio(sigma_mp, tau, sigma_w, dt_s, int(round(L_med)))
+    detected = dof > 0 and q > q_limit and bias_ratio >= DETECT_MIN_BIAS_VARIANCE_RATIO
     return {"detected": bool(detected), "ljung_box_q": q, "ljung_box_dof": dof, "ljung_box_limit": q_limit,
             "lags_s": [float(s) for s in DETECT_LAGS_S],
             "sigma_m": float(min(max(sigma_mp, AUTO_MULTIPATH_SIGMA.lo), AUTO_MULTIPATH_SIGMA.hi)),
             "time_constant_s": float(min(max(tau, AUTO_MULTIPATH_TAU.lo), AUTO_MULTIPATH_TAU.hi)),
             "raw_sigma_m": sigma_mp, "raw_time_constant_s": float(tau), "white_sigma_m": sigma_w,
-            "runs": len(runs), "lag_samples": [int(k) for k in lags]}
+            "runs": len(runs), "lag_samples": [int(k) for k in lags], "bias_variance_ratio": bias_ratio}
+
+
+def mean_variance_ratio(sigma_mp: float, tau_s: float, sigma_w: float, dt_s: float, n: int) -> float:
+    """Variance of the mean of ``n`` samples of a Gauss–Markov process (σ_mp, τ) over that of ``n``
+    white samples (σ_w): (σ_mp/σ_w)² (1 + 2 Σ_{k=1}^{n−1} (1 − k/n) a^k), a = exp(−dt/τ) (∞ when σ_w = 0)."""
+    if sigma_mp <= 0.0:
+        return 0.0
+    if sigma_w <= 0.0:
+        return math.inf
+    n = max(int(n), 1)
+    a = math.exp(-dt_s / tau_s)
+    k = np.arange(1, n)
+    return float((sigma_mp / sigma_w) ** 2 * (1.0 + 2.0 * np.sum((1.0 - k / n) * a**k)))

@@ -115,3 +115,40 @@ def test_long_time_constant_fitted_at_the_stretch_limit_with_its_drift():
     assert fit["time_constant_s"] == pytest.approx(30.0, rel=1e-9)
     drift = 0.05**2 / 600.0
     assert fit["sigma_m"] ** 2 / fit["time_constant_s"] == pytest.approx(drift, rel=0.5)
+
+
+# --- multipath below the white noise (issue 32 item 3): it matters through the bias estimates
+
+
+def test_mean_variance_ratio_against_dense_reference():
+    from cdgps_cli.measurement.multipath import mean_variance_ratio
+    n, tau, dt = 50, 3.0, 0.1
+    a = math.exp(-dt / tau)
+    R = a ** np.abs(np.subtract.outer(np.arange(n), np.arange(n)))
+    dense = 0.004**2 * R.sum() / n**2 / (0.01**2 / n)
+    assert mean_variance_ratio(0.004, tau, 0.01, dt, n) == pytest.approx(dense, rel=1e-12)
+    assert mean_variance_ratio(0.0, tau, 0.01, dt, n) == 0.0
+    # τ → 0: the Gauss–Markov samples are white, the ratio is (σ_mp/σ_w)²
+    assert mean_variance_ratio(0.005, 1e-6, 0.01, dt, n) == pytest.approx(0.25)
+
+
+def test_multipath_below_white_detected_when_it_matters():
+    """5 mm Gauss–Markov (τ 30 s) under 1 cm white: σ_mp/σ_w ≈ 0.5 or below (the old gate), yet
+    over 600 epochs it dominates the variance of a bias estimate, so it is detected."""
+    rng = np.random.default_rng(3)
+    y = _gm(rng, 600, 18, 0.005, 30.0) + rng.normal(0, 0.01, (600, 18))
+    fit = fit_autocovariance(y, np.zeros(y.shape, dtype=int), DT)
+    assert fit["detected"] and fit["bias_variance_ratio"] > 10
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_init_fixes_under_multipath_below_white(tower, seed):
+    """Issue 32 item 3: before, 0 of 18 fixed (the white fit's bias σ were too small for the
+    multipath, and the fix validation rejected the right integers)."""
+    sim = simulate(tower, SimOptions(duration_s=120.0, seed=seed, phase_sigma_m=0.01, multipath_sigma_m=0.005))
+    init = initialize(memory_run(tower, sim.receiver), InitOptions())
+    assert "multipath" in init
+    truth = {(r["antenna"], r["transmitter"]): r["bias_m"] for r in sim.truth["biases"]}
+    assert init["n_fixed"] == len(init["biases"]) == 18, init["integer_fixing"]
+    for b in init["biases"]:
+        assert abs(b["bias_m"] - truth[(b["antenna"], b["transmitter"])]) < 1e-9 + 0.25 * tower.wavelength_m

@@ -162,7 +162,8 @@ def test_unflagged_slip_in_window_is_refused_naming_the_channel(testbed_cfg):
     ant, tx = cfg.rover_names[1], cfg.transmitter_names[2]
     sel = (rx["antenna"] == ant) & (rx["transmitter"] == tx) & (rx["time_s"] >= 10.0)
     rx.loc[sel, "phase_cycles"] += 3.0                # a 3-cycle slip, lock counter untouched
-    with pytest.raises(CdgpsError, match=f"inconsistent.*{ant}/{tx}"):
+    # (issue 32: found as a residual step before the noise estimate, so the message says what it is)
+    with pytest.raises(CdgpsError, match=f"--start/--duration: unflagged cycle slip.*{ant}/{tx} at 10 s"):
         initialize(memory_run(cfg, rx), InitOptions(start_s=0.0, duration_s=20.0))
 
 
