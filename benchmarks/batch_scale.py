@@ -22,7 +22,7 @@ figures: ``flat`` — the peak of a worker's tasks in its last session is within
 fresh process running one session minus that process's resident memory before the session (its lazy
 imports included), and ``worker_idle`` the worker's resident memory after its start.
 
-Prints a table and writes ``--json`` (default docs/batch-scale.json)::
+Prints a table and writes ``--json`` (default docs/benchmarks/batch-scale.json)::
 
     python benchmarks/batch_scale.py                              # 16 × 10 min, ≈ 5 min on 2 idle cores
     python benchmarks/batch_scale.py --sessions 4 --minutes 2 --json /tmp/b.json      # quick
@@ -201,7 +201,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=1, help="how many times the three runs are repeated")
     ap.add_argument("--no-default-threads", action="store_true", help="skip the serial loop at default threads")
     ap.add_argument("--workdir", default="/tmp/cdgps-batch-scale")
-    ap.add_argument("--json", default=str(ROOT / "docs" / "batch-scale.json"))
+    ap.add_argument("--json", default=str(ROOT / "docs" / "benchmarks" / "batch-scale.json"))
     a = ap.parse_args()
     sys.path.insert(0, str(ROOT))
     work = Path(a.workdir)

@@ -5,7 +5,7 @@ Runs, with the paper's weights (the design default), the tuned weights and a Fig
   * slew +14 -> -22 deg (Figs. 11-12): with and without vibration control, profile and step command;
   * the wall time of a 60 s closed-loop `cdgps simulate` with the default design (target < 10 s).
 The noise and multipath sweep is benchmarks/control_sweep.py.
-Writes docs/control-experiments.json and the figures docs/figures/control-{pulse,slew}.png, and
+Writes docs/benchmarks/control-experiments.json and the figures docs/figures/control-{pulse,slew}.png, and
 prints markdown tables for docs/control.md.
 
     python benchmarks/control_experiments.py [--quick]
@@ -209,7 +209,7 @@ def main() -> None:
         shutil.copy(t / "rs" / "slew.png", figs / "control-slew.png")
         shutil.copy(t / "rs" / "poles.png", figs / "control-poles-testbed.png")
 
-    (ROOT / "docs" / "control-experiments.json").write_text(json.dumps(out, indent=2, default=float) + "\n")
+    (ROOT / "docs" / "benchmarks" / "control-experiments.json").write_text(json.dumps(out, indent=2, default=float) + "\n")
     print("\n| pulse run | peak ratio (worst of q5, q8), mean [min–max] | seeds ≤ 1/3 | back within 10% of the open-loop peak after the pulse (s), median [max] | filter W scale |")
     print("|---|---|---|---|---|")
     for k, v in rows.items():

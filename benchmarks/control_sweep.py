@@ -4,7 +4,7 @@ figures of merit, seeds 1-3, the paper's weights (the design default) or the tun
 
 Multipath is the simulator's first-order Gauss-Markov error per antenna (30 s), modelled in the
 loop's filter at the simulated sigma (the estimation pipeline's `[model] multipath_sigma_m`); the
-filter keeps weighting with the config's 2 cm.  Writes docs/control-sweep-<weights>.json and prints a
+filter keeps weighting with the config's 2 cm.  Writes docs/benchmarks/control-sweep-<weights>.json and prints a
 markdown table.
 
     python benchmarks/control_sweep.py [--weights paper|tuned]
@@ -55,7 +55,7 @@ def main() -> None:
                                         for r in s],
                      "saturated_fraction": [r["saturated_fraction"] for r in s]})
         print(f"{ph} {mp}: {rows[-1]}", flush=True)
-    (ROOT / "docs" / f"control-sweep-{args.weights}.json").write_text(json.dumps(
+    (ROOT / "docs" / "benchmarks" / f"control-sweep-{args.weights}.json").write_text(json.dumps(
         {"weights": weights, "disturbance_scale": ce.DISTURBANCE, "rows": rows,
          "wall_s": time.perf_counter() - t0}, indent=1) + "\n")
     print("\n| phase σ (cm) | multipath σ (cm), modelled | slew: largest q2/q5/q8 after the command (°), mean [max] "

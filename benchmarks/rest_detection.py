@@ -8,7 +8,7 @@ mean and std of q6+q10 (forward filter, and smoothed) over the simulator's rest 
 the detected one; free runs: segments detected (target: none) and the smallest windowed
 zero-velocity statistic relative to its entry bound (margin).
 
-    .venv/bin/python benchmarks/rest_detection.py [--seeds 20] [--jobs 2] [--out docs/rest-detection.json]
+    .venv/bin/python benchmarks/rest_detection.py [--seeds 20] [--jobs 2] [--out docs/benchmarks/rest-detection.json]
 
 (~80 s of one core per run, 40 runs for 20 seeds; the rows done so far are kept in ``OUT.partial``.)
 
@@ -98,7 +98,7 @@ def _write_section(doc: Path, lines, a, fr, st) -> None:
     begin, end = "<!-- rest-detection: begin -->", "<!-- rest-detection: end -->"
     body = "\n".join([begin, "## Rest detection (`estimate --rest auto`): 20 static and 20 free-vibration runs\n",
                       f"Produced by `python benchmarks/rest_detection.py --seeds {a.seeds}` on "
-                      f"{time.strftime('%Y-%m-%d')}; per-seed numbers in `docs/rest-detection.json`. Data as "
+                      f"{time.strftime('%Y-%m-%d')}; per-seed numbers in `docs/benchmarks/rest-detection.json`. Data as "
                       f"`cdgps simulate configs/testbed-1998.toml --scenario static|free --noise-m 0.002 --duration 180 "
                       f"--seed N`; INIT with default options (window 0–60 s); `estimate --rest auto` with default "
                       f"options (config σ 2 cm; the detection pass weights the data with the batch's a-posteriori "
@@ -122,7 +122,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--out", default=str(ROOT / "docs" / "rest-detection.json"))
+    ap.add_argument("--out", default=str(ROOT / "docs" / "benchmarks" / "rest-detection.json"))
     ap.add_argument("--doc", default=str(ROOT / "docs" / "estimate-accuracy.md"),
                     help="markdown file whose rest-detection section is (re)written ('' : none)")
     a = ap.parse_args()

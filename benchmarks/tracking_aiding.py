@@ -100,7 +100,7 @@ def main():
         dyn.append({"run": label, "jitter_deg": math.degrees(s), "lock_fraction": lock_fraction(r)})
         print(dyn[-1], flush=True)
     out = {"prn": a.prn, "bandwidth": rows, "dynamics": {"acceleration_m_s2": acc, "frequency_hz": f_mot, "runs": dyn}}
-    (ROOT / "docs" / "tracking-aiding.json").write_text(json.dumps(out, indent=2) + "\n")
+    (ROOT / "docs" / "benchmarks" / "tracking-aiding.json").write_text(json.dumps(out, indent=2) + "\n")
     print("\n| B_n (Hz) | measured jitter (°) | thermal formula (°) | ratio | C/N0 (dB-Hz) | lock |")
     print("|---|---|---|---|---|---|")
     for r in rows:

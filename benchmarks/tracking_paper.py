@@ -23,7 +23,7 @@ Studies (``--only`` picks some):
 
     python benchmarks/tracking_paper.py [--only jitter,tones,oscillator,shared,slips]
 
-Writes docs/tracking-paper.json and docs/figures/tracking-*.png.
+Writes docs/benchmarks/tracking-paper.json and docs/figures/tracking-*.png.
 """
 
 from __future__ import annotations
@@ -463,11 +463,11 @@ def figures(res, figdir: Path):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", default="jitter,tones,oscillator,shared,slips")
-    ap.add_argument("--figures-only", action="store_true", help="redraw the figures from docs/tracking-paper.json")
+    ap.add_argument("--figures-only", action="store_true", help="redraw the figures from docs/benchmarks/tracking-paper.json")
     args = ap.parse_args()
     studies = {"jitter": study_jitter, "tones": study_tones, "oscillator": study_oscillator, "shared": study_shared,
                "slips": study_slips}
-    path = ROOT / "docs" / "tracking-paper.json"
+    path = ROOT / "docs" / "benchmarks" / "tracking-paper.json"
     res = json.loads(path.read_text()) if path.exists() else {}
     for name in ([] if args.figures_only else args.only.split(",")):
         t0 = time.process_time()

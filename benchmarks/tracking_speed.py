@@ -91,7 +91,7 @@ def main():
     row(f"acquisition + {len(acq)} channels, compiled", with_kernel(True, lambda: best_cpu(cold_start, max(1, args.repeat // 2))))
     out = {"input": IQ.name, "duration_s": duration_s, "sample_rate_hz": FS, "machine": platform.machine(),
            "python": platform.python_version(), "repeat": args.repeat, "runs": rows}
-    (ROOT / "docs" / "tracking-speed.json").write_text(json.dumps(out, indent=2) + "\n")
+    (ROOT / "docs" / "benchmarks" / "tracking-speed.json").write_text(json.dumps(out, indent=2) + "\n")
 
 
 if __name__ == "__main__":
