@@ -53,10 +53,10 @@ class SpectraOptions:
 def column_sums(x: np.ndarray, start: np.ndarray | None = None) -> np.ndarray:
     """Σ over rows of x (N, m), the rows added one after the other to ``start`` (default 0).
 
-    The order numpy itself sums the rows of an (N, m ≥ 2) array (``x.sum(axis=0)``), so a record's
-    sum carried over its chunks (``start``: the chunks before) is bit for bit the whole record's;
-    a single column (m = 1) is summed in the same sequential order (numpy would sum it pairwise, a
-    tree over the whole length that a chunked reader cannot reproduce)."""
+    The order numpy itself sums the rows of a C-ordered (N, m ≥ 2) array (``x.sum(axis=0)``), so a
+    record's sum carried over its chunks (``start``: the chunks before) is bit for bit the whole
+    record's; a single column, or a Fortran-ordered array, is summed in the same sequential order
+    (numpy would sum it pairwise, a tree over the whole length that a chunked reader cannot rebuild)."""
     x = np.asarray(x, dtype=float)
     if start is None:
         start = np.zeros(x.shape[1])
@@ -110,7 +110,8 @@ class WelchAccumulator:
     def feed(self, x: np.ndarray) -> None:
         """Add the next chunk of samples, x (k, m), in time order."""
         x = np.asarray(x, dtype=float)
-        buf = np.concatenate([self._pending, x - self.mean]) if len(self._pending) else x - self.mean
+        xc = np.ascontiguousarray(x - self.mean)              # C order: each segment summed the same way
+        buf = np.concatenate([self._pending, xc]) if len(self._pending) else xc
         w = self.window[None, :, None]
         while self._next + self.nperseg <= self._start + len(buf):
             a = self._next - self._start
