@@ -266,26 +266,37 @@ class PackedRows:
         self.m = int(np.prod(self.shape[1:], dtype=np.int64))
         size = self.n_rows * self.m * self.dtype.itemsize
         self._file = tempfile.TemporaryFile()
-        left, out = length - 12 - n_head, 0
-        dobj = zstandard.ZstdDecompressor().decompressobj()
         try:
-            while left > 0:
-                piece = read(min(left, self._PIECE))
-                if not piece:
-                    raise ValueError(f"{what}: truncated content")
-                left -= len(piece)
-                raw = dobj.decompress(piece)
+            self._decompress(read, length - 12 - n_head, size)
+        except (zstandard.ZstdError, ValueError) as exc:
+            self.close()
+            raise ValueError(f"{what}: damaged content ({exc})") from None
+        self._file.flush()
+
+    def _decompress(self, read, left: int, size: int) -> None:
+        """The zstd frame (``left`` bytes from ``read``) into the temporary file, a piece at a time
+        (compressed and decompressed pieces both bounded: a highly compressed array cannot expand
+        into memory at once)."""
+        class _Span:
+            def read(self, n=-1):
+                nonlocal left
+                data = read(left if n is None or n < 0 else min(n, left))
+                left -= len(data)
+                return data
+
+        out = 0
+        with zstandard.ZstdDecompressor().stream_reader(_Span(), read_size=self._PIECE, closefd=False) as z:
+            while True:
+                raw = z.read(self._PIECE)
+                if not raw:
+                    break
                 out += len(raw)
                 if out > size:
                     break
                 self._file.write(raw)
-        except zstandard.ZstdError as exc:
-            self.close()
-            raise ValueError(f"{what}: damaged content ({exc})") from None
-        if out != size or not dobj.eof:
-            self.close()
-            raise ValueError(f"{what}: {out} bytes of content for shape {list(self.shape)} of {self.dtype.str}")
-        self._file.flush()
+        if out != size or left:
+            raise ValueError(f"{out if out <= size else 'more'} bytes of content for shape {list(self.shape)} "
+                             f"of {self.dtype.str}")
 
     def close(self) -> None:
         self._file.close()
