@@ -546,23 +546,41 @@ def _coordinate_scales(sumsq: np.ndarray, absmax: np.ndarray, N: int, names: lis
     return std
 
 
-def _scan_welch(record, N: int, sel, std, mean_std, welch: tuple, Wfilt, gyros, gyro_mean):
+class MemoryColumns:
+    """(n_rows, n_cols) float64 kept in memory, written by blocks of rows and read a column at a time:
+    the default store of :func:`spectra_of_chunks` (same interface as
+    :class:`cdgps_cli.io.column_scratch.ColumnScratch`, which keeps them on disk)."""
+
+    def __init__(self, n_rows: int, n_cols: int):
+        self._a = np.empty((n_cols, n_rows))
+
+    def write(self, row: int, block: np.ndarray) -> None:
+        self._a[:, row:row + len(block)] = block.T
+
+    def column(self, j: int) -> np.ndarray:
+        return self._a[j]
+
+    def close(self) -> None:
+        self._a = None
+
+
+def _scan_welch(record, store, sel, std, mean_std, welch: tuple, Wfilt, gyros, gyro_mean):
     """Pass 4: the standardized coordinates' CSD, every gyro pair's CSD, and the modal filter's
-    outputs (N, n_modes) for the whole-record fits."""
+    outputs (N, n_modes) written to ``store`` for the whole-record fits."""
     fs, nperseg, overlap, nfft = welch
     acc = WelchAccumulator(mean_std, fs, nperseg, overlap, nfft)
     pair_acc = [WelchAccumulator(gyro_mean[[g, gyros.n + g]], *welch) for g in range(gyros.n)] if gyros else []
-    modal, a = np.empty((N, Wfilt.shape[0])), 0
+    a = 0
     for t, qc in record:
         Z = qc[:, sel] / std
         acc.feed(Z)
-        modal[a:a + len(t)] = rows_matmul(Z, Wfilt.T)
+        store.write(a, rows_matmul(Z, Wfilt.T))
         if gyros:
             P = gyros.pairs(t, qc)
             for g, pa in enumerate(pair_acc):
                 pa.feed(P[:, [g, gyros.n + g]])
         a += len(t)
-    return acc.result(), [pa.result()[1] for pa in pair_acc], modal
+    return acc.result(), [pa.result()[1] for pa in pair_acc]
 
 
 def _gyro_psds(cfg, f, pair_G: list, psd: dict) -> None:
@@ -644,7 +662,8 @@ def compute_spectra(cfg: StructureConfig, time_s: np.ndarray, q: np.ndarray,
 
 
 def spectra_of_chunks(cfg: StructureConfig, chunks, n_epochs: int, gyro_time_s: np.ndarray | None = None,
-                      gyro_rate: np.ndarray | None = None, opt: SpectraOptions | None = None) -> dict:
+                      gyro_rate: np.ndarray | None = None, opt: SpectraOptions | None = None,
+                      columns=MemoryColumns) -> dict:
     """:func:`compute_spectra` of a record read in consecutive chunks of epochs, in bounded memory.
 
     ``chunks()`` returns a new iterator of ``(time_s (k,), q (k, n_q))`` chunks, first to last, each
@@ -652,8 +671,9 @@ def spectra_of_chunks(cfg: StructureConfig, chunks, n_epochs: int, gyro_time_s: 
     standardized coordinates' sums; Welch segments), every sum carried from chunk to chunk in the
     order one whole-record pass adds it (:func:`column_sums`, :class:`WelchAccumulator`,
     :func:`cdgps_cli.core.rowmath.rows_matmul`), so any chunking gives the same numbers bit for bit.
-    Held in memory beside one chunk: the Welch sums, and the modal filter's output (8 bytes per epoch
-    and mode) whose whole-record periodogram the mode fits need.
+    Held beside one chunk: the Welch sums, and the modal filter's output (8 bytes per epoch and mode)
+    whose whole-record periodogram the mode fits need, one mode at a time, in ``columns(N, n_modes)``
+    (default :class:`MemoryColumns`; the command line keeps them on disk).
 
     Parameters
     ----------
@@ -661,6 +681,7 @@ def spectra_of_chunks(cfg: StructureConfig, chunks, n_epochs: int, gyro_time_s: 
     chunks : callable () -> iterator of (ndarray, ndarray)
     n_epochs : int, N
     gyro_time_s, gyro_rate, opt : as :func:`compute_spectra`
+    columns : callable (n_rows, n_cols) -> store with ``write(row, block)``, ``column(j)``, ``close()``
     """
     opt = opt or SpectraOptions()
     names, sel = _selected_coordinates(cfg, opt)
@@ -696,15 +717,25 @@ def spectra_of_chunks(cfg: StructureConfig, chunks, n_epochs: int, gyro_time_s: 
     if gyros:
         _refuse_blind_gyros(cfg, gyros.G)
     welch = (fs, nperseg, opt.overlap, nfft)
-    (f, G), pair_G, modal = _scan_welch(record(), N, sel, std, sum_std / N, welch, Wfilt, gyros,
-                                        first["gyro_sum"] / N if gyros else None)
+    store = columns(N, Wfilt.shape[0])
+    try:
+        (f, G), pair_G = _scan_welch(record(), store, sel, std, sum_std / N, welch, Wfilt, gyros,
+                                     first["gyro_sum"] / N if gyros else None)
+        return _spectra_result(cfg, opt, names, sel, N, T, nperseg, nfft, f, G, std, Um, store, gyros, pair_G)
+    finally:
+        store.close()
+
+
+def _spectra_result(cfg, opt, names, sel, N, T, nperseg, nfft, f, G, std, Um, store, gyros, pair_G) -> dict:
+    """PSDs, FDD and the modes identified, from the record's CSD matrices and modal series."""
+    fs = 1.0 / T
     psd = {f"gps_{names[i]}": np.real(G[:, j, j]) * std[j] ** 2 for j, i in enumerate(sel)}
     U_sv, S_sv = np.linalg.svd(G)[:2]                       # (F, m, m), (F, m)
     gy = None
     if gyros:
         _gyro_psds(cfg, f, pair_G, psd)
         gy = {"names": list(cfg.gyro_names), "G": gyros.G}
-    modes = [_identify_mode(cfg, j, Um, modal[:, j], f, U_sv, S_sv, gy, psd, fs, N, opt)
+    modes = [_identify_mode(cfg, j, Um, store.column(j), f, U_sv, S_sv, gy, psd, fs, N, opt)
              for j in range(len(cfg.mode_names)) if cfg.mode_frequency_hz[j] > 0]
     fmax = min(opt.fmax_hz or fs / 2, fs / 2)
     keep = (f > 0) & (f <= fmax)

@@ -130,7 +130,10 @@ def run_spectra(states, run, opt, out_dir: str | Path, dest: OutputSet | None = 
             gr = None if not gnames else gr
     gyro = (gt if gr is not None else None, gr)
     if hasattr(states, "chunks"):
-        res = spectra_of_chunks(cfg, lambda: states.chunks(chunk_epochs), states.n_epochs, *gyro, opt)
+        from cdgps_cli.io.column_scratch import ColumnScratch  # noqa: PLC0415
+
+        res = spectra_of_chunks(cfg, lambda: states.chunks(chunk_epochs), states.n_epochs, *gyro, opt,
+                                columns=ColumnScratch)          # the modal series on disk, a mode at a time
     else:
         res = compute_spectra(cfg, states.time_s, states.q, *gyro, opt)
     if dest is None:
