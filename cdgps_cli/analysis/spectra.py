@@ -102,6 +102,7 @@ class WelchAccumulator:
         self.window = 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(self.nperseg) / self.nperseg)    # periodic Hann
         m = self.mean.size
         self.sum = np.zeros((self.nfft // 2 + 1, m, m), dtype=complex)
+        self._product = np.empty_like(self.sum)
         self.segments = 0
         self._pending = np.zeros((0, m))         # samples from the next segment's start on
         self._next = 0                           # absolute index of the next segment's first sample
@@ -118,7 +119,8 @@ class WelchAccumulator:
             seg = buf[a:a + self.nperseg][None]
             seg = seg - seg.mean(axis=1, keepdims=True)
             X = np.fft.rfft(seg * w, n=self.nfft, axis=1)                      # (1, F, m)
-            self.sum = self.sum + np.einsum("sfi,sfj->fij", X, X.conj())
+            np.einsum("sfi,sfj->fij", X, X.conj(), out=self._product)
+            self.sum += self._product                     # (in place: no allocation per segment)
             self.segments += 1
             self._next += self.step
         keep = min(self._next - self._start, len(buf))
@@ -130,6 +132,7 @@ class WelchAccumulator:
         if self.segments == 0:
             raise ValueError(f"no complete Welch segment of {self.nperseg} samples was fed")
         scale = 1.0 / (self.fs * np.sum(self.window**2))
+        self._product = None
         G = self.sum * scale / self.segments
         if self.nfft % 2 == 0:
             G[1:-1] *= 2.0            # one-sided: double all but DC and Nyquist
