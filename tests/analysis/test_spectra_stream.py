@@ -260,3 +260,38 @@ def test_column_scratch_round_trip_and_spectra(testbed_cfg, truth):
         return ((r.time_s[a:a + 500], r.q[a:a + 500]) for a in range(0, N, 500))
     _assert_same_result(spectra_of_chunks(testbed_cfg, chunks, N, gt, gr, opt, columns=ColumnScratch),
                         compute_spectra(testbed_cfg, r.time_s, r.q, gt, gr, opt))
+
+
+@pytest.mark.parametrize("name", ["format-2026-12-03/structure-states.mcap", "format-2026-12-03/gnss-states.mcap",
+                                  "format-2026-12-02/states.mcap"])
+def test_states_chunks_read_earlier_layouts(name):
+    """Files of the earlier layouts (packed arrays described by config.toml; .npy attachments): the
+    chunks hold the reader's times and the coordinates of the packed ξ (or, without packed arrays,
+    the reader's own q)."""
+    from pathlib import Path
+
+    from cdgps_cli.io.states import States, StatesChunks, rows_q
+
+    path = Path(__file__).resolve().parents[1] / "data" / name
+    st = States(path, diagnostics=False)
+    with StatesChunks(path) as sc:
+        assert sc.n_epochs == len(st.time_s) and sc.coord_names == st.coord_names and sc.kind == st.kind
+        parts = list(sc.chunks(50))
+    assert np.array_equal(np.concatenate([p[0] for p in parts]), st.time_s)
+    q = np.concatenate([p[1] for p in parts])
+    want = rows_q(st.output_map, st.xi) if sc._whole is None else st.q
+    assert np.array_equal(q, want, equal_nan=True)
+    np.testing.assert_allclose(q, st.q, rtol=0, atol=1e-13 * np.nanmax(np.abs(st.q)))
+
+
+def test_states_chunks_refuse_a_run_and_a_damaged_file(states_file, tmp_path):
+    from cdgps_cli.io.states import StatesChunks
+
+    with pytest.raises(CdgpsError, match="RUN.mcap"):
+        StatesChunks(states_file.parent / "run.mcap")
+    data = bytearray(states_file.read_bytes())
+    data[len(data) // 3] ^= 0x55
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    with pytest.raises(CdgpsError, match="bad.mcap"):
+        StatesChunks(bad)
