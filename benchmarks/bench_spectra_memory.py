@@ -7,7 +7,8 @@ For every record length (``--hours``) the STATES.mcap is made once in ``--workdi
 
     cdgps --quiet spectra STATES.mcap -o OUT
 
-runs in a fresh process per source tree (``--tree LABEL=PATH``, default: this checkout as
+(and with ``--gyro``: ``--gyro RUN.mcap``, the record's RUN ingested with its gyro log) runs in a
+fresh process per source tree (``--tree LABEL=PATH``, default: this checkout as
 ``after``; e.g. ``--tree before=/tmp/oldsrc`` for an export of the commit before): wall time and
 peak RSS (VmHWM of that process).  Each tree's psd.csv and peaks.json are compared with the first
 tree's: byte-identical or not, the largest difference of a PSD value relative to its column's
@@ -69,6 +70,15 @@ def make_states(d: Path, hours: float) -> Path:
     return states
 
 
+def gyro_run(d: Path) -> Path | None:
+    """RUN.mcap with the gyro log (``ingest receiver.csv gyro.csv``) of the record in ``d``, made once
+    from ``d/sim``; None when neither is there."""
+    run = d / "rungyro.mcap"
+    if not run.exists() and (d / "sim" / "gyro.csv").exists():
+        _cli(["ingest", d / "sim" / "receiver.csv", d / "sim" / "gyro.csv", "--config", CONFIG, "-o", run], ROOT)
+    return run if run.exists() else None
+
+
 def compare(ref: Path, new: Path) -> dict:
     """psd.csv and peaks.json of ``new`` against ``ref``."""
     out = {}
@@ -96,6 +106,8 @@ def main() -> None:
     ap.add_argument("--tree", action="append", default=None, metavar="LABEL=PATH",
                     help="a cdgps source tree to run (repeatable; default after=this checkout)")
     ap.add_argument("--out", type=Path, default=None, help="write the JSON here")
+    ap.add_argument("--gyro", action="store_true",
+                    help="also with --gyro (the record's RUN.mcap with the gyro log, ingested once from its sim/)")
     a = ap.parse_args()
     trees = [(t.split("=", 1)[0], Path(t.split("=", 1)[1]).resolve()) for t in (a.tree or [f"after={ROOT}"])]
     res = {"command": "cdgps --quiet spectra STATES.mcap -o OUT (fresh process; VmHWM)",
@@ -105,13 +117,17 @@ def main() -> None:
         d = a.workdir / f"h{h:g}"
         states = make_states(d, h)
         rec = {"hours": h, "states_mcap_mib": states.stat().st_size / 2**20, "runs": {}}
-        for label, tree in trees:
-            wall, peak = _cli(["spectra", states, "-o", d / f"spectra-{label}"], tree)
-            rec["runs"][label] = {"wall_s": wall, "peak_rss_mib": peak}
-            if label != trees[0][0]:
-                rec["runs"][label]["vs_" + trees[0][0]] = compare(d / f"spectra-{trees[0][0]}", d / f"spectra-{label}")
-            print(f"{h:g} h ({rec['states_mcap_mib']:.1f} MiB STATES) {label:>8}: {wall:6.2f} s, peak RSS {peak:6.0f} MiB",
-                  flush=True)
+        gyro = gyro_run(d) if a.gyro else None
+        for extra, tag in [([], "")] + ([(["--gyro", gyro], "+gyro")] if gyro else []):
+            for label, tree in trees:
+                key = label + tag
+                wall, peak = _cli(["spectra", states, *extra, "-o", d / f"spectra-{key}"], tree)
+                rec["runs"][key] = {"wall_s": wall, "peak_rss_mib": peak}
+                if label != trees[0][0]:
+                    rec["runs"][key]["vs_" + trees[0][0] + tag] = compare(d / f"spectra-{trees[0][0]}{tag}",
+                                                                          d / f"spectra-{key}")
+                print(f"{h:g} h ({rec['states_mcap_mib']:.1f} MiB STATES) {key:>14}: {wall:6.2f} s, peak RSS "
+                      f"{peak:6.0f} MiB", flush=True)
         res["records"].append(rec)
     text = json.dumps(res, indent=2) + "\n"
     if a.out:

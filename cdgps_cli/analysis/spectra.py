@@ -17,6 +17,11 @@ GPS-estimated angles with gyro-derived ones.  Here:
   matrix of the (standardized) coordinates; each model mode is searched within ±5 % of its frequency
   for the singular-value peak whose singular vector best matches the model's mode shape (MAC); a
   mode is "seen" when the fitted frequency is within 5 % and that MAC is high enough.
+
+A record too long for memory is read in chunks (:func:`spectra_of_chunks`; :func:`compute_spectra` is
+its one-chunk form): the Welch segments are accumulated as the chunks arrive
+(:class:`WelchAccumulator`) and every sum is carried from chunk to chunk in the order of one
+whole-record pass, so the numbers do not depend on the chunking, bit for bit.
 """
 
 from __future__ import annotations
