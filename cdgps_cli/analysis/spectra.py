@@ -17,6 +17,11 @@ GPS-estimated angles with gyro-derived ones.  Here:
   matrix of the (standardized) coordinates; each model mode is searched within ±5 % of its frequency
   for the singular-value peak whose singular vector best matches the model's mode shape (MAC); a
   mode is "seen" when the fitted frequency is within 5 % and that MAC is high enough.
+
+A record too long for memory is read in chunks (:func:`spectra_of_chunks`; :func:`compute_spectra` is
+its one-chunk form): the Welch segments are accumulated as the chunks arrive
+(:class:`WelchAccumulator`) and every sum is carried from chunk to chunk in the order of one
+whole-record pass, so the numbers do not depend on the chunking, bit for bit.
 """
 
 from __future__ import annotations
@@ -29,6 +34,7 @@ import numpy as np
 from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.config.options import SPECTRA_DEFAULTS
 from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.core.rowmath import rows_matmul
 from cdgps_cli.model.kinematics import gyro_matrix
 
 
@@ -49,14 +55,100 @@ class SpectraOptions:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
 
 
-def _segments(x: np.ndarray, nperseg: int, step: int) -> np.ndarray:
-    n = x.shape[0]
-    starts = np.arange(0, n - nperseg + 1, step)
-    return np.stack([x[s:s + nperseg] for s in starts])          # (S, nperseg, m)
+def column_sums(x: np.ndarray, start: np.ndarray | None = None) -> np.ndarray:
+    """Σ over rows of x (N, m), the rows added one after the other to ``start`` (default 0).
+
+    The order numpy itself sums the rows of a C-ordered (N, m ≥ 2) array (``x.sum(axis=0)``), so a
+    record's sum carried over its chunks (``start``: the chunks before) is bit for bit the whole
+    record's; a single column, or a Fortran-ordered array, is summed in the same sequential order
+    (numpy would sum it pairwise, a tree over the whole length that a chunked reader cannot rebuild)."""
+    x = np.asarray(x, dtype=float)
+    if start is None:
+        start = np.zeros(x.shape[1])
+    if x.shape[0] == 0:
+        return np.array(start, dtype=float)
+    return np.cumsum(np.vstack([start[None, :], x]), axis=0)[-1]
+
+
+def column_means(x: np.ndarray) -> np.ndarray:
+    """Mean of each column of x (N, m) with :func:`column_sums` (= ``x.mean(axis=0)`` for m ≥ 2)."""
+    x = np.asarray(x, dtype=float)
+    return column_sums(x) / x.shape[0]
+
+
+class WelchAccumulator:
+    """Welch cross-spectral density matrix accumulated over consecutive chunks of a regular series.
+
+    Each segment (``nperseg`` samples, ``step`` apart) is taken as soon as the chunks fed so far
+    cover it, whether or not it straddles a chunk boundary: its mean removed, the periodic Hann
+    window applied, zero-padded to ``nfft``, and its periodogram matrix XXᴴ added to the running
+    sum, segment after segment in time order — the same arithmetic, in the same order, as one call
+    on the whole record (:func:`cross_spectral_matrix`), so the result is the same bit for bit
+    however the record is cut.  Memory: one segment and the part of a chunk not yet used.
+
+    Parameters
+    ----------
+    mean : ndarray (m,)
+        Removed from every sample before segmenting (the whole record's column means).
+    fs : float, Hz
+    nperseg : int
+        Segment length, samples.
+    overlap : float
+        Fraction of a segment shared with the next one (``step = nperseg − int(nperseg·overlap)``,
+        as ``scipy.signal.welch``'s ``noverlap``).
+    nfft : int
+        FFT length (≥ nperseg).
+    """
+
+    def __init__(self, mean: np.ndarray, fs: float, nperseg: int, overlap: float, nfft: int):
+        self.mean = np.asarray(mean, dtype=float)
+        self.fs, self.nperseg, self.nfft = fs, int(nperseg), int(nfft)
+        self.step = max(self.nperseg - int(self.nperseg * overlap), 1)        # as scipy.signal.welch's noverlap
+        self.window = 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(self.nperseg) / self.nperseg)    # periodic Hann
+        m = self.mean.size
+        self.sum = np.zeros((self.nfft // 2 + 1, m, m), dtype=complex)
+        self._product = np.empty_like(self.sum)
+        self.segments = 0
+        self._pending = np.zeros((0, m))         # samples from the next segment's start on
+        self._next = 0                           # absolute index of the next segment's first sample
+        self._start = 0                          # absolute index of _pending[0]
+
+    def feed(self, x: np.ndarray) -> None:
+        """Add the next chunk of samples, x (k, m), in time order."""
+        x = np.asarray(x, dtype=float)
+        xc = np.ascontiguousarray(x - self.mean)              # C order: each segment summed the same way
+        buf = np.concatenate([self._pending, xc]) if len(self._pending) else xc
+        w = self.window[None, :, None]
+        while self._next + self.nperseg <= self._start + len(buf):
+            a = self._next - self._start
+            seg = buf[a:a + self.nperseg][None]
+            seg = seg - seg.mean(axis=1, keepdims=True)
+            X = np.fft.rfft(seg * w, n=self.nfft, axis=1)                      # (1, F, m)
+            np.einsum("sfi,sfj->fij", X, X.conj(), out=self._product)
+            self.sum += self._product                     # (in place: no allocation per segment)
+            self.segments += 1
+            self._next += self.step
+        keep = min(self._next - self._start, len(buf))
+        self._pending = buf[keep:].copy()
+        self._start += keep
+
+    def result(self) -> tuple[np.ndarray, np.ndarray]:
+        """f (F,) Hz and G (F, m, m): the one-sided CSD, units of x² / Hz."""
+        if self.segments == 0:
+            raise ValueError(f"no complete Welch segment of {self.nperseg} samples was fed")
+        scale = 1.0 / (self.fs * np.sum(self.window**2))
+        self._product = None
+        G = self.sum * scale / self.segments
+        if self.nfft % 2 == 0:
+            G[1:-1] *= 2.0            # one-sided: double all but DC and Nyquist
+        else:
+            G[1:] *= 2.0
+        return np.fft.rfftfreq(self.nfft, 1.0 / self.fs), G
 
 
 def cross_spectral_matrix(x: np.ndarray, fs: float, nperseg: int, overlap: float, nfft: int):
-    """Welch cross-spectral density matrix G(f) of the columns of x.
+    """Welch cross-spectral density matrix G(f) of the columns of x: one feed of a
+    :class:`WelchAccumulator` with the whole record (its column means from :func:`column_means`).
 
     Parameters
     ----------
@@ -66,19 +158,10 @@ def cross_spectral_matrix(x: np.ndarray, fs: float, nperseg: int, overlap: float
     -------
     f : (F,) Hz;  G : (F, m, m) complex, one-sided, units of x² / Hz.
     """
-    step = max(nperseg - int(nperseg * overlap), 1)          # as scipy.signal.welch's noverlap
-    seg = _segments(x - x.mean(axis=0), nperseg, step)
-    seg = seg - seg.mean(axis=1, keepdims=True)
-    w = 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(nperseg) / nperseg)    # periodic Hann
-    X = np.fft.rfft(seg * w[None, :, None], n=nfft, axis=1)      # (S, F, m)
-    scale = 1.0 / (fs * np.sum(w**2))
-    G = np.einsum("sfi,sfj->fij", X, X.conj()) * scale / seg.shape[0]
-    if nfft % 2 == 0:
-        G[1:-1] *= 2.0            # one-sided: double all but DC and Nyquist
-    else:
-        G[1:] *= 2.0
-    f = np.fft.rfftfreq(nfft, 1.0 / fs)
-    return f, G
+    x = np.asarray(x, dtype=float)
+    acc = WelchAccumulator(column_means(x), fs, nperseg, overlap, nfft)
+    acc.feed(x)
+    return acc.result()
 
 
 def welch_psd(x: np.ndarray, fs: float, nperseg: int, overlap: float, nfft: int):
@@ -352,29 +435,6 @@ def _selected_coordinates(cfg: StructureConfig, opt: SpectraOptions) -> tuple[li
     return names, [names.index(c) for c in opt.coords]
 
 
-def _grid_step_s(time_s: np.ndarray, q: np.ndarray, names: list, opt: SpectraOptions) -> float:
-    """The epochs' regular spacing, s, after checking q's shape, finiteness and the grid."""
-    N = len(time_s)
-    if np.shape(q) != (N, len(names)):
-        raise CdgpsError(f"q has shape {np.shape(q)}, expected ({N}, {len(names)}) for {N} epochs and the config's coordinates")
-    if opt.fmax_hz is not None and not opt.fmax_hz > 0:
-        raise CdgpsError(f"fmax_hz must be positive, got {opt.fmax_hz!r}")
-    if N < 16:
-        raise CdgpsError(f"only {N} epochs: too short for spectra")
-    dt = np.diff(time_s)
-    if np.any(dt <= 0):
-        k = int(np.flatnonzero(dt <= 0)[0])
-        raise CdgpsError(f"state epochs are not increasing (at {time_s[k]:g} s → {time_s[k + 1]:g} s)")
-    T = float(np.median(dt))
-    if np.any(np.abs(dt - T) > 1e-6 * max(T, 1)):
-        raise CdgpsError("state epochs are not regularly spaced; spectra need a regular grid")
-    bad = ~np.isfinite(np.asarray(q, dtype=float))
-    if bad.any():
-        k, j = np.argwhere(bad)[0]
-        raise CdgpsError(f"the estimate has a non-finite value ({names[j]} at {time_s[k]:g} s); spectra need finite data")
-    return T
-
-
 #: shortest Welch segment, samples (a default segment of a short record is raised to it)
 MIN_SEGMENT_SAMPLES = 16
 
@@ -401,37 +461,153 @@ def _segment_lengths(N: int, T: float, opt: SpectraOptions) -> tuple[int, int]:
     return nperseg, int(2 ** np.ceil(np.log2(nperseg * opt.pad)))
 
 
-def _coordinate_scales(Y: np.ndarray, names: list) -> np.ndarray:
-    """Standard deviation of each column of Y (1 for a column constant to rounding), refusing a
-    record where every coordinate is constant (a static estimate has no spectrum)."""
-    std = Y.std(axis=0)
-    constant = std <= 1e-12 * np.maximum(1.0, np.abs(Y).max(axis=0))     # rounding only (m or rad)
+def _record_chunks(chunks, n_names: int, N: int):
+    """The (time_s, q) chunks of ``chunks()`` as float arrays, each chunk's shape checked, and the
+    epochs counted against N."""
+    seen = 0
+    for t, qc in chunks():
+        t = np.asarray(t, dtype=float)
+        qc = np.asarray(qc, dtype=float)
+        if qc.shape != (len(t), n_names):
+            raise CdgpsError(f"q has shape {qc.shape}, expected ({len(t)}, {n_names}) for {len(t)} epochs and the "
+                             "config's coordinates")
+        seen += len(t)
+        yield t, qc
+    if seen != N:
+        raise CdgpsError(f"the state record gave {seen} epochs, expected {N}")
+
+
+def _with_previous(t: np.ndarray, prev: float | None) -> np.ndarray:
+    return t if prev is None else np.concatenate([[prev], t])
+
+
+def _median_of_counts(counts: dict) -> float:
+    """``np.median`` of values given as value → count (the two middle values averaged as numpy does)."""
+    keys = np.array(sorted(counts), dtype=float)
+    if keys.size == 0 or np.isnan(keys).any():
+        return float("nan")
+    cum = np.cumsum([counts[k] for k in keys])
+    n = int(cum[-1])
+
+    def kth(i):
+        return keys[int(np.searchsorted(cum, i, side="right"))]
+    return float(kth(n // 2)) if n % 2 else float(np.mean([kth(n // 2 - 1), kth(n // 2)]))
+
+
+class _Gyros:
+    """The gyro part of the spectra: gyro matrix, rates on the epochs, GPS-equivalent angles."""
+
+    def __init__(self, cfg, gyro_time_s, gyro_rate):
+        self.G = gyro_matrix(cfg)
+        self.time_s, self.rate = np.asarray(gyro_time_s, dtype=float), np.asarray(gyro_rate, dtype=float)
+        self.n = self.rate.shape[1]
+
+    def pairs(self, t: np.ndarray, qc: np.ndarray) -> np.ndarray:
+        """(k, 2 n_g): the GPS angles g·q of every gyro, then its rates interpolated at t (rad, rad/s)."""
+        rates = [np.interp(t, self.time_s, self.rate[:, g]) for g in range(self.n)]
+        return np.column_stack([rows_matmul(qc, self.G.T), *rates])
+
+
+def _scan_first(record, sel, names, gyros) -> dict:
+    """Pass 1: time order, the spacings' counts, first non-finite value, column sums (and abs maxima)."""
+    m = len(sel)
+    out = {"prev": None, "counts": {}, "decreasing": None, "nonfinite": None, "sum": np.zeros(m),
+           "absmax": np.zeros(m), "gyro_sum": np.zeros(2 * gyros.n) if gyros else None}
+    for t, qc in record:
+        tt = _with_previous(t, out["prev"])
+        dt = np.diff(tt)
+        if out["decreasing"] is None and np.any(dt <= 0):
+            k = int(np.flatnonzero(dt <= 0)[0])
+            out["decreasing"] = (tt[k], tt[k + 1])
+        for v, c in zip(*np.unique(dt, return_counts=True)):
+            out["counts"][float(v)] = out["counts"].get(float(v), 0) + int(c)
+        bad = ~np.isfinite(qc)
+        if out["nonfinite"] is None and bad.any():
+            k, j = np.argwhere(bad)[0]
+            out["nonfinite"] = (names[j], t[k])
+        Y = qc[:, sel]
+        out["sum"] = column_sums(Y, out["sum"])
+        if len(Y):
+            out["absmax"] = np.maximum(out["absmax"], np.abs(Y).max(axis=0))
+        if gyros:
+            out["gyro_sum"] = column_sums(gyros.pairs(t, qc), out["gyro_sum"])
+        out["prev"] = tt[-1] if len(tt) else out["prev"]
+    return out
+
+
+def _scan_grid(record, sel, T: float, mean: np.ndarray) -> np.ndarray:
+    """Pass 2: the regular grid checked against T; Σ (y − mean)² of each selected column."""
+    prev, sq = None, np.zeros(len(sel))
+    for t, qc in record:
+        tt = _with_previous(t, prev)
+        if np.any(np.abs(np.diff(tt) - T) > 1e-6 * max(T, 1)):
+            raise CdgpsError("state epochs are not regularly spaced; spectra need a regular grid")
+        with np.errstate(invalid="ignore", over="ignore"):     # (non-finite values are refused after this pass)
+            d = qc[:, sel] - mean
+            sq = column_sums(d * d, sq)
+        prev = tt[-1] if len(tt) else prev
+    return sq
+
+
+def _coordinate_scales(sumsq: np.ndarray, absmax: np.ndarray, N: int, names: list) -> np.ndarray:
+    """Standard deviation of each selected column from Σ (y − mean)² (1 for a column constant to
+    rounding), refusing a record where every coordinate is constant (a static estimate has no spectrum)."""
+    std = np.sqrt(sumsq / N)
+    constant = std <= 1e-12 * np.maximum(1.0, absmax)     # rounding only (m or rad)
     if constant.all():
-        raise CdgpsError(f"every coordinate ({', '.join(names)}) is constant over the {len(Y)} epochs "
+        raise CdgpsError(f"every coordinate ({', '.join(names)}) is constant over the {N} epochs "
                          "(a static estimate): spectra need a time-varying estimate "
                          "(cdgps estimate with the random-walk model, or a structure's modal states)")
     std[constant] = 1.0
     return std
 
 
-def _gyro_spectra(cfg: StructureConfig, time_s, q, gyro_time_s, gyro_rate, psd: dict, welch: tuple) -> dict:
-    """Each gyro's angle PSD (rate PSD / (2πf)²), the GPS angle PSD it senses and their coherence,
-    added to ``psd``; returns the gyro names and matrix G (angles = G q).  ``welch``: (fs, nperseg,
-    overlap, nfft)."""
+class MemoryColumns:
+    """(n_rows, n_cols) float64 kept in memory, written by blocks of rows and read a column at a time:
+    the default store of :func:`spectra_of_chunks` (same interface as
+    :class:`cdgps_cli.io.column_scratch.ColumnScratch`, which keeps them on disk)."""
+
+    def __init__(self, n_rows: int, n_cols: int):
+        self._a = np.empty((n_cols, n_rows))
+
+    def write(self, row: int, block: np.ndarray) -> None:
+        self._a[:, row:row + len(block)] = block.T
+
+    def column(self, j: int) -> np.ndarray:
+        return self._a[j]
+
+    def close(self) -> None:
+        self._a = None
+
+
+def _scan_welch(record, store, sel, std, mean_std, welch: tuple, Wfilt, gyros, gyro_mean):
+    """Pass 4: the standardized coordinates' CSD, every gyro pair's CSD, and the modal filter's
+    outputs (N, n_modes) written to ``store`` for the whole-record fits."""
     fs, nperseg, overlap, nfft = welch
-    Gm = gyro_matrix(cfg)
-    _refuse_blind_gyros(cfg, Gm)
-    rates = np.column_stack([np.interp(time_s, gyro_time_s, gyro_rate[:, g]) for g in range(gyro_rate.shape[1])])
-    gps_ang = q @ Gm.T
-    for g, gname in enumerate(cfg.gyro_names):
-        fw, pr = welch_psd(rates[:, g], fs, nperseg, overlap, nfft)
+    acc = WelchAccumulator(mean_std, fs, nperseg, overlap, nfft)
+    pair_acc = [WelchAccumulator(gyro_mean[[g, gyros.n + g]], *welch) for g in range(gyros.n)] if gyros else []
+    a = 0
+    for t, qc in record:
+        Z = qc[:, sel] / std
+        acc.feed(Z)
+        store.write(a, rows_matmul(Z, Wfilt.T))
+        if gyros:
+            P = gyros.pairs(t, qc)
+            for g, pa in enumerate(pair_acc):
+                pa.feed(P[:, [g, gyros.n + g]])
+        a += len(t)
+    return acc.result(), [pa.result()[1] for pa in pair_acc]
+
+
+def _gyro_psds(cfg, f, pair_G: list, psd: dict) -> None:
+    """Each gyro's angle PSD (rate PSD / (2πf)²), the GPS angle PSD it senses and their coherence
+    (from the CSD of the pair), added to ``psd``."""
+    for gname, G in zip(cfg.gyro_names, pair_G):
         with np.errstate(divide="ignore", invalid="ignore"):
-            psd[f"gyro_{gname}"] = np.where(fw > 0, pr / (2 * np.pi * fw) ** 2, np.nan)
-        _, pa = welch_psd(gps_ang[:, g], fs, nperseg, overlap, nfft)
-        psd[f"gps_{gname}"] = pa
-        _, coh = coherence_msc(gps_ang[:, g], rates[:, g], fs, nperseg, overlap, nfft)
-        psd[f"coherence_{gname}"] = coh
-    return {"names": list(cfg.gyro_names), "G": Gm}
+            psd[f"gyro_{gname}"] = np.where(f > 0, np.real(G[:, 1, 1]) / (2 * np.pi * f) ** 2, np.nan)
+            psd[f"gps_{gname}"] = np.real(G[:, 0, 0])
+            c = np.abs(G[:, 0, 1]) ** 2 / np.real(G[:, 0, 0] * G[:, 1, 1])
+        psd[f"coherence_{gname}"] = np.nan_to_num(c)
 
 
 def _fdd_peak(f, U_sv, S_sv, band, phi) -> dict:
@@ -478,7 +654,8 @@ def _gyro_peak(gy: dict, shape, f, psd: dict, center_hz: float, band_pct: float)
 def compute_spectra(cfg: StructureConfig, time_s: np.ndarray, q: np.ndarray,
                     gyro_time_s: np.ndarray | None = None, gyro_rate: np.ndarray | None = None,
                     opt: SpectraOptions | None = None) -> dict:
-    """PSDs, FDD modal identification and GPS–gyro comparison.
+    """PSDs, FDD modal identification and GPS–gyro comparison of a whole record in memory: one
+    chunk of :func:`spectra_of_chunks` (the same numbers, bit for bit, as any chunking of it).
 
     Parameters
     ----------
@@ -492,66 +669,128 @@ def compute_spectra(cfg: StructureConfig, time_s: np.ndarray, q: np.ndarray,
     -------
     dict with ``f_hz``, ``psd`` (name → array), ``fdd_sv`` (F, k), ``modes`` (list), ``settings``.
     """
+    time_s = np.asarray(time_s, dtype=float)
+    names, _ = _selected_coordinates(cfg, opt or SpectraOptions())
+    if np.shape(q) != (len(time_s), len(names)):
+        raise CdgpsError(f"q has shape {np.shape(q)}, expected ({len(time_s)}, {len(names)}) for {len(time_s)} epochs "
+                         "and the config's coordinates")
+    return spectra_of_chunks(cfg, lambda: iter([(time_s, q)]), len(time_s), gyro_time_s, gyro_rate, opt)
+
+
+def spectra_of_chunks(cfg: StructureConfig, chunks, n_epochs: int, gyro_time_s: np.ndarray | None = None,
+                      gyro_rate: np.ndarray | None = None, opt: SpectraOptions | None = None,
+                      columns=MemoryColumns) -> dict:
+    """:func:`compute_spectra` of a record read in consecutive chunks of epochs, in bounded memory.
+
+    ``chunks()`` returns a new iterator of ``(time_s (k,), q (k, n_q))`` chunks, first to last, each
+    time it is called: the record is read four times (time grid and column sums; spreads; the
+    standardized coordinates' sums; Welch segments), every sum carried from chunk to chunk in the
+    order one whole-record pass adds it (:func:`column_sums`, :class:`WelchAccumulator`,
+    :func:`cdgps_cli.core.rowmath.rows_matmul`), so any chunking gives the same numbers bit for bit.
+    Held beside one chunk: the Welch sums, and the modal filter's output (8 bytes per epoch and mode)
+    whose whole-record periodogram the mode fits need, one mode at a time, in ``columns(N, n_modes)``
+    (default :class:`MemoryColumns`; the command line keeps them on disk).
+
+    Parameters
+    ----------
+    cfg : StructureConfig
+    chunks : callable () -> iterator of (ndarray, ndarray)
+    n_epochs : int, N
+    gyro_time_s, gyro_rate, opt : as :func:`compute_spectra`
+    columns : callable (n_rows, n_cols) -> store with ``write(row, block)``, ``column(j)``, ``close()``
+    """
     opt = opt or SpectraOptions()
     names, sel = _selected_coordinates(cfg, opt)
-    N = len(time_s)
-    T = _grid_step_s(time_s, q, names, opt)
+    N = int(n_epochs)
+    if opt.fmax_hz is not None and not opt.fmax_hz > 0:
+        raise CdgpsError(f"fmax_hz must be positive, got {opt.fmax_hz!r}")
+    if N < 16:
+        raise CdgpsError(f"only {N} epochs: too short for spectra")
+    gyros = None
+    if gyro_rate is not None and np.size(gyro_rate) and len(cfg.gyro_names):
+        gyros = _Gyros(cfg, gyro_time_s, gyro_rate)
+
+    def record():
+        return _record_chunks(chunks, len(names), N)
+    first = _scan_first(record(), sel, names, gyros)
+    if first["decreasing"] is not None:
+        a, b = first["decreasing"]
+        raise CdgpsError(f"state epochs are not increasing (at {a:g} s → {b:g} s)")
+    T = _median_of_counts(first["counts"])
+    mean = first["sum"] / N
+    sumsq = _scan_grid(record(), sel, T, mean)
+    if first["nonfinite"] is not None:
+        name, t = first["nonfinite"]
+        raise CdgpsError(f"the estimate has a non-finite value ({name} at {t:g} s); spectra need finite data")
     fs = 1.0 / T
-    duration = N * T
     nperseg, nfft = _segment_lengths(N, T, opt)
-    resolution = 1.44 * fs / nperseg                     # Hann half-power main-lobe width
-    Y = q[:, sel]
-    std = _coordinate_scales(Y, [names[i] for i in sel])
-    f, G = cross_spectral_matrix(Y / std, fs, nperseg, opt.overlap, nfft)
+    std = _coordinate_scales(sumsq, first["absmax"], N, [names[i] for i in sel])
+    sum_std = np.zeros(len(sel))
+    for _, qc in record():
+        sum_std = column_sums(qc[:, sel] / std, sum_std)
+    Um = np.asarray(cfg.mode_shapes)[sel] / std[:, None]      # model mode shapes, standardized like the data
+    Wfilt = np.linalg.pinv(Um)                              # modal filter: ξ̂ = U⁺ y (standardized)
+    if gyros:
+        _refuse_blind_gyros(cfg, gyros.G)
+    welch = (fs, nperseg, opt.overlap, nfft)
+    store = columns(N, Wfilt.shape[0])
+    try:
+        (f, G), pair_G = _scan_welch(record(), store, sel, std, sum_std / N, welch, Wfilt, gyros,
+                                     first["gyro_sum"] / N if gyros else None)
+        return _spectra_result(cfg, opt, names, sel, N, T, nperseg, nfft, f, G, std, Um, store, gyros, pair_G)
+    finally:
+        store.close()
+
+
+def _spectra_result(cfg, opt, names, sel, N, T, nperseg, nfft, f, G, std, Um, store, gyros, pair_G) -> dict:
+    """PSDs, FDD and the modes identified, from the record's CSD matrices and modal series."""
+    fs = 1.0 / T
+    psd = {f"gps_{names[i]}": np.real(G[:, j, j]) * std[j] ** 2 for j, i in enumerate(sel)}
+    U_sv, S_sv = np.linalg.svd(G)[:2]                       # (F, m, m), (F, m)
+    gy = None
+    if gyros:
+        _gyro_psds(cfg, f, pair_G, psd)
+        gy = {"names": list(cfg.gyro_names), "G": gyros.G}
+    modes = [_identify_mode(cfg, j, Um, store.column(j), f, U_sv, S_sv, gy, psd, fs, N, opt)
+             for j in range(len(cfg.mode_names)) if cfg.mode_frequency_hz[j] > 0]
     fmax = min(opt.fmax_hz or fs / 2, fs / 2)
     keep = (f > 0) & (f <= fmax)
-    psd = {}
-    for j, i in enumerate(sel):
-        psd[f"gps_{names[i]}"] = np.real(G[:, j, j]) * std[j] ** 2
-    sv_u = np.linalg.svd(G)
-    U_sv, S_sv = sv_u[0], sv_u[1]                          # (F, m, m), (F, m)
-    # model mode shapes on the selected coordinates, standardized like the data
-    Um = np.asarray(cfg.mode_shapes)[sel] / std[:, None]
-    gy = None
-    if gyro_rate is not None and gyro_rate.size and len(cfg.gyro_names):
-        gy = _gyro_spectra(cfg, time_s, q, gyro_time_s, gyro_rate, psd, (fs, nperseg, opt.overlap, nfft))
-    modes = []
-    Ystd = Y / std
-    Wfilt = np.linalg.pinv(Um)                              # modal filter: ξ̂ = U⁺ y (standardized)
-    for j, (mname, fm, tau) in enumerate(zip(cfg.mode_names, cfg.mode_frequency_hz, cfg.mode_time_constant_s)):
-        if fm <= 0:
-            continue
-        zeta_model = 1.0 / (2 * np.pi * fm * tau)
-        entry = {"mode": mname, "number": j + 1, "model_hz": float(fm), "model_damping": float(zeta_model), "gps_hz": None,
-                 "gyro_hz": None, "error_pct": None, "damping": None, "damping_resolution_limited": None,
-                 "mac": None, "singular_value": None, "fdd_peak_hz": None, "seen": False, "gyro": None}
-        phi = Um[:, j]
-        if np.linalg.norm(phi) == 0:
-            modes.append(entry)
-            continue
-        # 1. modal filter + single-mode maximum-likelihood fit on the whole record
-        bw_model = 2 * zeta_model * fm
-        half = max(5 * bw_model, fm * opt.band_pct / 100, 20 * fs / N)
-        f_fit, z_fit, f_sig, z_sig = sdof_whittle_fit(Ystd @ Wfilt[j], fs, fm, zeta_model, half)
-        # 2. FDD: singular-value peak in the band whose vector matches the model shape
-        band = (f >= fm * (1 - opt.band_pct / 100)) & (f <= fm * (1 + opt.band_pct / 100))
-        entry.update(_fdd_peak(f, U_sv, S_sv, band, phi))
-        f_id = f_fit if f_fit is not None else entry["fdd_peak_hz"]
-        if f_id is not None:
-            err = 100.0 * (f_id - fm) / fm
-            entry.update(gps_hz=f_id, gps_hz_sigma=f_sig if f_fit is not None else None, error_pct=err, damping=z_fit,
-                         damping_sigma=z_sig if f_fit is not None else None,
-                         damping_resolution_limited=bool(z_fit is None or 2 * z_fit * f_id < 2 * fs / N),
-                         seen=bool(abs(err) <= opt.seen_pct and (entry["mac"] or 0) >= opt.min_mac))
-        if gy is not None:
-            entry.update(_gyro_peak(gy, np.asarray(cfg.mode_shapes)[:, j], f, psd, entry["gps_hz"] or fm, opt.band_pct))
-        modes.append(entry)
     return {
         "f_hz": f[keep], "psd": {k: v[keep] for k, v in psd.items()},
         "fdd_sv": S_sv[keep, : min(3, S_sv.shape[1])],
         "modes": modes,
-        "settings": {**opt.echo(), "sample_rate_hz": fs, "duration_s": duration, "segment_s": nperseg / fs,
+        "settings": {**opt.echo(), "sample_rate_hz": fs, "duration_s": N * T, "segment_s": nperseg / fs,
                      "segments": int((N - nperseg) // max(int(round(nperseg * (1 - opt.overlap))), 1) + 1),
-                     "nfft": nfft, "resolution_hz": resolution, "coordinates": [names[i] for i in sel],
-                     "window": "hann"},
+                     "nfft": nfft, "resolution_hz": 1.44 * fs / nperseg,      # Hann half-power main-lobe width
+                     "coordinates": [names[i] for i in sel], "window": "hann"},
     }
+
+
+def _identify_mode(cfg, j, Um, y, f, U_sv, S_sv, gy, psd, fs, N, opt) -> dict:
+    """Mode j of the model identified: whole-record fit of its modal filter output ``y``, FDD peak,
+    gyro peak."""
+    mname, fm, tau = cfg.mode_names[j], cfg.mode_frequency_hz[j], cfg.mode_time_constant_s[j]
+    zeta_model = 1.0 / (2 * np.pi * fm * tau)
+    entry = {"mode": mname, "number": j + 1, "model_hz": float(fm), "model_damping": float(zeta_model), "gps_hz": None,
+             "gyro_hz": None, "error_pct": None, "damping": None, "damping_resolution_limited": None,
+             "mac": None, "singular_value": None, "fdd_peak_hz": None, "seen": False, "gyro": None}
+    phi = Um[:, j]
+    if np.linalg.norm(phi) == 0:
+        return entry
+    # 1. modal filter + single-mode maximum-likelihood fit on the whole record
+    bw_model = 2 * zeta_model * fm
+    half = max(5 * bw_model, fm * opt.band_pct / 100, 20 * fs / N)
+    f_fit, z_fit, f_sig, z_sig = sdof_whittle_fit(y, fs, fm, zeta_model, half)
+    # 2. FDD: singular-value peak in the band whose vector matches the model shape
+    band = (f >= fm * (1 - opt.band_pct / 100)) & (f <= fm * (1 + opt.band_pct / 100))
+    entry.update(_fdd_peak(f, U_sv, S_sv, band, phi))
+    f_id = f_fit if f_fit is not None else entry["fdd_peak_hz"]
+    if f_id is not None:
+        err = 100.0 * (f_id - fm) / fm
+        entry.update(gps_hz=f_id, gps_hz_sigma=f_sig if f_fit is not None else None, error_pct=err, damping=z_fit,
+                     damping_sigma=z_sig if f_fit is not None else None,
+                     damping_resolution_limited=bool(z_fit is None or 2 * z_fit * f_id < 2 * fs / N),
+                     seen=bool(abs(err) <= opt.seen_pct and (entry["mac"] or 0) >= opt.min_mac))
+    if gy is not None:
+        entry.update(_gyro_peak(gy, np.asarray(cfg.mode_shapes)[:, j], f, psd, entry["gps_hz"] or fm, opt.band_pct))
+    return entry

@@ -794,16 +794,18 @@ def evaluate(ctx, truth_dir, states_mcap, converge_s, as_json):
     _echo("\n".join(lines))
 
 
-def _states_and_gyro(states_mcap, gyro_mcap):
-    """STATES.mcap (state series only) and, optionally, the gyro log of a RUN.mcap."""
+def _states_and_gyro(states_mcap, gyro_mcap, chunked: bool = False):
+    """STATES.mcap (state series only; ``chunked``: read in chunks, io.states.StatesChunks) and,
+    optionally, the gyro log of a RUN.mcap."""
     from cdgps_cli.io.file_checks import STATES, STRUCTURE_RUN, require_kind
     from cdgps_cli.io.run import read_run
-    from cdgps_cli.io.states import States
+    from cdgps_cli.io.states import States, StatesChunks
 
     require_kind(states_mcap, STATES, "STATES_MCAP")
     if gyro_mcap:
         require_kind(gyro_mcap, STRUCTURE_RUN, "--gyro")
-    return States(states_mcap, diagnostics=False), (read_run(gyro_mcap, phase=False) if gyro_mcap else None)
+    st = StatesChunks(states_mcap) if chunked else States(states_mcap, diagnostics=False)
+    return st, (read_run(gyro_mcap, phase=False) if gyro_mcap else None)
 
 
 def _spectra_options(coords, segment_s, overlap, pad):
@@ -839,7 +841,7 @@ def _with(opts):
 def spectra(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad, out_dir, as_json):
     """Welch PSDs vs gyros, FDD modal identification → psd.csv, peaks.json, psd.png, fdd.png."""
     from cdgps_cli.report.sensor_reports import run_spectra
-    st, run = _states_and_gyro(states_mcap, gyro_mcap)
+    st, run = _states_and_gyro(states_mcap, gyro_mcap, chunked=True)
     with progress.stage("spectra, mode fits and figures"):
         s = run_spectra(st, run, _spectra_options(coords, segment_s, overlap, pad), out_dir)
     seen = sum(1 for m in s["modes"] if m["seen"])
@@ -926,7 +928,7 @@ def report_control(ctx, gains_json, closed_dir, open_dir, full_state_dir, no_vib
 def report_spectrum(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad, out_dir, as_json, date):
     """Dynamic sensor test (1998 paper Fig. 8): PSDs vs gyros and identified modes vs the model."""
     from cdgps_cli.report.sensor_reports import spectrum_report
-    st, run = _states_and_gyro(states_mcap, gyro_mcap)
+    st, run = _states_and_gyro(states_mcap, gyro_mcap, chunked=True)
     with progress.stage("spectra, mode fits and figures"):
         d = spectrum_report(st, run, _spectra_options(coords, segment_s, overlap, pad), out_dir, date=date)
     _say(ctx, d["summary"])

@@ -99,6 +99,10 @@ ESTIMATE_DEFAULTS = {
 X_AXIS_AZIMUTH_DEG = 90.0
 #: `cdgps spectra` (:class:`cdgps_cli.analysis.spectra.SpectraOptions`): Welch segment overlap and FFT padding
 SPECTRA_DEFAULTS = {"overlap": 0.5, "pad": 4}
+#: epochs per chunk when `cdgps spectra` / `report spectrum` read a STATES.mcap (io.states.StatesChunks):
+#: memory holds one chunk and its temporaries, whatever the record's length (16384 epochs of the
+#: testbed's 10 coordinates: 1.3 MB of q); the results do not depend on it
+STATES_CHUNK_EPOCHS = 16384
 #: tracking loops (:class:`cdgps_cli.tracking.channel.TrackOptions`): PLL noise bandwidth (Hz) and FLL
 #: pull-in (s) of `cdgps track` / `track-structure`
 TRACK_DEFAULTS = {"pll_bn_hz": 15.0, "pull_in_s": 0.1}

@@ -976,3 +976,42 @@ def read_attachment(fh, summary, name: str, path) -> bytes:
     if stored != 0 and zlib.crc32(raw[9:pos + size]) != stored:
         raise CdgpsError(f"{path}: attachment {name!r} fails its CRC check (corrupt file)")
     return data
+
+
+def attachment_spans(fh, summary, path) -> dict:
+    """Where each attachment's content is in an open MCAP file: name → (offset, length), bytes.
+
+    Read from the attachment index and each record's header (no content is read), so one large
+    attachment can then be read in pieces (:func:`read_span`).  A header that disagrees with its
+    index (lengths past the record) is a CdgpsError naming the file and the attachment."""
+    spans = {}
+    for idx in summary.attachment_indexes:
+        fh.seek(idx.offset + 9 + 16)                   # opcode, record length, log and create times
+        try:
+            (n_name,) = struct.unpack("<I", fh.read(4))
+            fh.seek(n_name, os.SEEK_CUR)
+            (n_media,) = struct.unpack("<I", fh.read(4))
+            fh.seek(n_media, os.SEEK_CUR)
+            (n_data,) = struct.unpack("<Q", fh.read(8))
+        except struct.error:
+            raise CdgpsError(f"{path}: attachment {idx.name!r} is truncated") from None
+        start = fh.tell()
+        if start + n_data + 4 != idx.offset + idx.length:
+            raise CdgpsError(f"{path}: attachment {idx.name!r}: its record disagrees with the attachment index "
+                             f"(corrupt file)")
+        spans[idx.name] = (start, n_data)
+    return spans
+
+
+def read_span(fh, offset: int, length: int):
+    """A ``read(n)`` over ``length`` bytes of ``fh`` from ``offset`` (each call reads on from where
+    the last stopped; never past the span)."""
+    pos = [offset]
+    end = offset + length
+
+    def read(n: int) -> bytes:
+        n = max(min(n, end - pos[0]), 0)
+        data = os.pread(fh.fileno(), n, pos[0])
+        pos[0] += len(data)
+        return data
+    return read

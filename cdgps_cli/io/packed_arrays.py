@@ -28,6 +28,7 @@ Any numeric dtype numpy writes in ``.npy`` without pickling (bool, integers, flo
 from __future__ import annotations
 
 import json
+import os
 import struct
 
 import numpy as np
@@ -210,3 +211,124 @@ def _from_planes(planes: np.ndarray) -> np.ndarray:
             block[:, :, b] = planes[b, c:c + step]
         out[:, c:c + step] = block.view(out.dtype).reshape(block.shape[:2]).T
     return out
+
+
+def _parse_header(head_bytes: bytes, what: str) -> tuple[np.dtype, tuple, int]:
+    """dtype, shape and delta order of a packed array's JSON header (ValueError when damaged)."""
+    try:
+        head = json.loads(head_bytes)
+        dtype = np.dtype(head["dtype"])
+        shape = tuple(int(s) for s in head["shape"])
+        filt = head["filter"]
+        delta = head.get("delta", 0)
+    except (ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"{what}: damaged header ({exc})") from None
+    if (filt != FILTER or dtype.kind not in "biuf" or any(s < 0 for s in shape) or delta not in DELTA_ORDERS
+            or (delta and dtype.kind == "b")):
+        raise ValueError(f"{what}: unsupported header {head}")
+    return dtype, shape, delta
+
+
+class PackedRows:
+    """A packed array read back in consecutive blocks of rows (epochs), in bounded memory.
+
+    The packed bytes hold the array's byte planes (plane, column, epoch), so no row can be decoded
+    before the whole zstd frame is: the frame is decompressed once, in pieces, into an unlinked
+    temporary file, and :meth:`chunks` then reads each block of rows from its ``size × m`` runs there
+    and undoes the differences with the running sums carried from the block before (integer sums
+    modulo 2^bits: the same bits as :func:`unpack`).  Memory: one block of rows and the
+    decompressor's window, whatever the array's length.
+
+    Parameters
+    ----------
+    read : callable (n) -> bytes
+        Reads the next ``n`` bytes of the packed data (e.g. an attachment's span of an open file).
+    length : int
+        Bytes of packed data.
+    what : str
+        Named in error messages.
+    """
+
+    _PIECE = 1 << 20
+
+    def __init__(self, read, length: int, what: str = "packed array"):
+        import tempfile
+
+        self.what = what
+        first = read(min(length, 12))
+        if len(first) < 12 or first[:8] != MAGIC:
+            raise ValueError(f"{what}: not a packed array (no {MAGIC.decode()} magic)")
+        (n_head,) = _HEAD.unpack(first[8:12])
+        if n_head > _MAX_HEADER or 12 + n_head > length:
+            raise ValueError(f"{what}: header length {n_head} is out of range")
+        self.dtype, self.shape, self.delta = _parse_header(read(n_head), what)
+        self.n_rows = self.shape[0] if self.shape else 1
+        self.m = int(np.prod(self.shape[1:], dtype=np.int64))
+        size = self.n_rows * self.m * self.dtype.itemsize
+        self._file = tempfile.TemporaryFile()
+        try:
+            self._decompress(read, length - 12 - n_head, size)
+        except (zstandard.ZstdError, ValueError) as exc:
+            self.close()
+            raise ValueError(f"{what}: damaged content ({exc})") from None
+        self._file.flush()
+
+    def _decompress(self, read, left: int, size: int) -> None:
+        """The zstd frame (``left`` bytes from ``read``) into the temporary file, a piece at a time
+        (compressed and decompressed pieces both bounded: a highly compressed array cannot expand
+        into memory at once)."""
+        class _Span:
+            def read(self, n=-1):
+                nonlocal left
+                data = read(left if n is None or n < 0 else min(n, left))
+                left -= len(data)
+                return data
+
+        out = 0
+        with zstandard.ZstdDecompressor().stream_reader(_Span(), read_size=self._PIECE, closefd=False) as z:
+            while True:
+                raw = z.read(self._PIECE)
+                if not raw:
+                    break
+                out += len(raw)
+                if out > size:
+                    break
+                self._file.write(raw)
+        if out != size or left:
+            raise ValueError(f"{out if out <= size else 'more'} bytes of content for shape {list(self.shape)} "
+                             f"of {self.dtype.str}")
+
+    def close(self) -> None:
+        self._file.close()
+
+    def chunks(self, rows: int):
+        """Blocks of up to ``rows`` consecutive rows, first to last: arrays (k, *shape[1:]) of the dtype.
+
+        Each call starts again from the first row (several passes over the same array)."""
+        if rows < 1:
+            raise ValueError(f"rows {rows!r}: expected a positive number of rows per block")
+        size, n, m = self.dtype.itemsize, self.n_rows, self.m
+        carry = [np.zeros(m, dtype=_unsigned(size)) for _ in range(self.delta)]
+        fd = self._file.fileno()
+        for a in range(0, n, rows):
+            k = min(rows, n - a)
+            block = np.empty((k, m, size), dtype=np.uint8)
+            for b in range(size):
+                for c in range(m):
+                    block[:, c, b] = np.frombuffer(os.pread(fd, k, (b * m + c) * n + a), dtype=np.uint8)
+            u = block.view(_unsigned(size)).reshape(k, m)
+            if self.delta:
+                u = self._undo_delta(u, carry)
+            yield u.view(self.dtype).reshape((k,) + self.shape[1:])
+
+    def _undo_delta(self, z: np.ndarray, carry: list) -> np.ndarray:
+        """:func:`_delta_decode` of one block, continuing the running sums of the blocks before."""
+        mask = z & 1
+        np.negative(mask, out=mask)
+        u = z >> 1
+        u ^= mask
+        for level in range(self.delta):
+            np.cumsum(u, axis=0, dtype=u.dtype, out=u)
+            u += carry[level]                                  # modulo 2^bits, as the whole-array sums
+            carry[level] = u[-1].copy()
+        return u

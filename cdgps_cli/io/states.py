@@ -55,7 +55,8 @@ from cdgps_cli.core.records import CoordinateModel, Series, StateSeries
 from cdgps_cli.io.states_layout import (COVARIANCE_CHOICES, DEFAULT_COVARIANCE, DEFAULT_PREVIEW_RATE_HZ,
                                         OUTPUT_MAP_PACKED, PACKED_PREFIX, RESIDUAL_PACKED, SERIES_ATTACHMENT,
                                         STATE_DELTA, STATES_FORMAT, STATES_KINDS)
-from cdgps_cli.io.mcap import NULLABLE, CONFIG_ATTACHMENT, McapOut, array_schema, message_schema, read_mcap
+from cdgps_cli.io.mcap import (NULLABLE, CONFIG_ATTACHMENT, McapOut, array_schema, attachment_spans, message_schema,
+                               read_mcap, read_span)
 
 STATE_TOPIC = "/cdgps/state"
 STATE_FILTERED_TOPIC = "/cdgps/state_filtered"
@@ -209,6 +210,17 @@ def series_q(C: np.ndarray, x_pos: np.ndarray) -> np.ndarray:
     if _is_identity(C):
         return np.array(x_pos, dtype=float)
     return np.ascontiguousarray(x_pos, dtype=float) @ C.T
+
+
+def rows_q(C: np.ndarray, x_pos: np.ndarray) -> np.ndarray:
+    """q = x_pos Cᵀ (k, n_q) computed row by row in a fixed order (:func:`cdgps_cli.core.rowmath.rows_matmul`),
+    so a chunk of epochs gives the same bits as the whole record; with C = I a copy of x_pos."""
+    from cdgps_cli.core.rowmath import rows_matmul  # noqa: PLC0415
+
+    C = np.asarray(C, dtype=float)
+    if _is_identity(C):
+        return np.array(x_pos, dtype=float)
+    return rows_matmul(x_pos, C.T)
 
 
 def _triu(P: np.ndarray, block: int = 1024) -> np.ndarray | None:
@@ -614,3 +626,96 @@ class States:
 
 def _num(v) -> float:
     return float("nan") if v is None else v
+
+
+class StatesChunks:
+    """A STATES.mcap's description and one state series read in consecutive chunks of epochs.
+
+    The same description as :class:`States` (``kind``, ``cfg``, ``coord_names``, ``coord_units``,
+    ``output_map``, ``n_pos``, ``metadata``, :meth:`coordinate_model`), without loading the series:
+    the file's integrity is checked as :func:`cdgps_cli.io.mcap.read_mcap` checks it, then only
+    ``time_s`` and ``xi`` of ``topic`` are decompressed, in pieces, into unlinked temporary files
+    (:class:`cdgps_cli.io.packed_arrays.PackedRows`), so memory does not grow with the record.
+    Files of the earlier layouts (no packed arrays) are read whole by :class:`States` and cut.
+
+    Parameters
+    ----------
+    path : path
+    topic : str
+        The series (default :data:`STATE_TOPIC`).
+
+    Attributes
+    ----------
+    n_epochs : int
+    """
+
+    _describe = States._describe
+    coordinate_model = States.coordinate_model
+    require_structure = States.require_structure
+    config_name = States.config_name
+    config_sha256 = States.config_sha256
+
+    def __init__(self, path: str | Path, topic: str = STATE_TOPIC):
+        from cdgps_cli.io.mcap import _check_attachment_crcs, open_verified  # noqa: PLC0415
+        from cdgps_cli.io.packed_arrays import PackedRows  # noqa: PLC0415
+
+        self.path = str(path)
+        self._arrays, self._whole = {}, None
+        key = f"{PACKED_PREFIX}{topic}/"
+        with open_verified(path) as (_reader, fh, info, summary):
+            if "cdgps.ingest" in info.metadata:
+                raise CdgpsError(f"{path}: this is a RUN.mcap (from 'cdgps ingest'), not a STATES.mcap from "
+                                 f"'cdgps estimate'")
+            if not info.data_section_crc_checked:
+                _check_attachment_crcs(fh, summary, path, zero_ok=False)
+            spans = attachment_spans(fh, summary, path)
+            if CONFIG_ATTACHMENT not in spans and SERIES_ATTACHMENT not in spans:
+                raise CdgpsError(f"{path}: no {SERIES_ATTACHMENT} or config attachment; is this a STATES.mcap from "
+                                 f"'cdgps estimate'?")
+            if ESTIMATE_METADATA not in info.metadata:
+                raise CdgpsError(f"{path}: no {ESTIMATE_METADATA!r} metadata record; expected in a STATES.mcap from "
+                                 f"'cdgps estimate' (damaged or not written by cdgps)")
+            self.metadata = info.metadata[ESTIMATE_METADATA]
+            small = {n: read_span(fh, *spans[n])(spans[n][1]) for n in (CONFIG_ATTACHMENT, SERIES_ATTACHMENT,
+                                                                     OUTPUT_MAP_PACKED) if n in spans}
+            self._describe(small)
+            if key + "time_s" not in spans:
+                self._whole = States(path, topic, diagnostics=False)
+                self.n_epochs = len(self._whole.time_s)
+                return
+            try:
+                for name in ("time_s", "xi"):
+                    self._arrays[name] = PackedRows(read_span(fh, *spans[key + name]), spans[key + name][1],
+                                                    f"{path}: {key}{name}")
+            except (KeyError, ValueError) as exc:
+                self.close()
+                raise CdgpsError(f"{path}: damaged state arrays ({key}*): {exc}") from None
+        t, xi = self._arrays["time_s"], self._arrays["xi"]
+        self.n_epochs = t.n_rows
+        if len(t.shape) != 1 or xi.shape[:1] != (t.n_rows,) or xi.m != self.n_pos:
+            self.close()
+            raise CdgpsError(f"{path}: damaged state arrays ({key}time_s of shape {list(t.shape)}, xi of shape "
+                             f"{list(xi.shape)} for {self.n_pos} positions)")
+
+    def close(self) -> None:
+        """Remove the temporary files (also when the object is collected)."""
+        for a in self._arrays.values():
+            a.close()
+
+    def __enter__(self) -> "StatesChunks":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def chunks(self, epochs: int):
+        """Consecutive chunks ``(time_s (k,), q (k, n_q))`` of at most ``epochs`` epochs, first to
+        last; q = ξ Cᵀ by :func:`rows_q` (the same bits however the record is cut).  Every call
+        starts again from the first epoch."""
+        if self._whole is not None:
+            w = self._whole
+            for a in range(0, self.n_epochs, epochs):
+                yield w.time_s[a:a + epochs], w.q[a:a + epochs]          # (as States reads them)
+            return
+        for t, xi in zip(self._arrays["time_s"].chunks(epochs), self._arrays["xi"].chunks(epochs)):
+            yield t.astype(float, copy=False), rows_q(self.output_map, xi.reshape(len(t), self.n_pos))

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from cdgps_cli.config.options import STATES_CHUNK_EPOCHS
 from cdgps_cli.io.atomic import OutputSet, output_set, write_bytes_atomic
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.expressions import parse_expression
@@ -108,12 +109,16 @@ STATIC_REPORT_FILES = (*REPORT_FILES, "static.png")
 SPECTRUM_REPORT_FILES = (*SPECTRA_FILES, *REPORT_FILES)
 
 
-def run_spectra(states, run, opt, out_dir: str | Path, dest: OutputSet | None = None) -> dict:
+def run_spectra(states, run, opt, out_dir: str | Path, dest: OutputSet | None = None,
+                chunk_epochs: int = STATES_CHUNK_EPOCHS) -> dict:
     """Compute spectra and write psd.csv, peaks.json, psd.png, fdd.png into ``out_dir``.
 
     The four files replace an earlier set there as a whole (:func:`cdgps_cli.io.atomic.output_set`),
-    or go into ``dest``, the output set of a larger command (the spectrum report)."""
-    from cdgps_cli.analysis.spectra import compute_spectra
+    or go into ``dest``, the output set of a larger command (the spectrum report).  ``states``: a
+    :class:`~cdgps_cli.io.states.States` (whole record in memory) or a
+    :class:`~cdgps_cli.io.states.StatesChunks`, read in chunks of ``chunk_epochs`` epochs (the
+    numbers do not depend on it)."""
+    from cdgps_cli.analysis.spectra import compute_spectra, spectra_of_chunks
 
     cfg = _coordinate_model(states)
     gt, gr, gnames = (np.zeros(0), None, [])
@@ -123,7 +128,14 @@ def run_spectra(states, run, opt, out_dir: str | Path, dest: OutputSet | None = 
         gt, gr, gnames = _gyro_table(run)
         if len(gnames) != len(cfg.gyro_names):
             gr = None if not gnames else gr
-    res = compute_spectra(cfg, states.time_s, states.q, gt if gr is not None else None, gr, opt)
+    gyro = (gt if gr is not None else None, gr)
+    if hasattr(states, "chunks"):
+        from cdgps_cli.io.column_scratch import ColumnScratch  # noqa: PLC0415
+
+        res = spectra_of_chunks(cfg, lambda: states.chunks(chunk_epochs), states.n_epochs, *gyro, opt,
+                                columns=ColumnScratch)          # the modal series on disk, a mode at a time
+    else:
+        res = compute_spectra(cfg, states.time_s, states.q, *gyro, opt)
     if dest is None:
         with output_set(out_dir, replaces=SPECTRA_FILES) as own:
             return _write_spectra(states, res, gnames, own)
@@ -606,7 +618,8 @@ _SPECTRUM_NOTE = ("#: the mode's number in the config (for the testbed: Table 1 
                   "mode shape. seen: within {pct:g} % of the model and MAC ≥ {mac:g}.")
 
 
-def spectrum_report(states, run, opt, out_dir: str | Path, date: str | None = None) -> dict:
+def spectrum_report(states, run, opt, out_dir: str | Path, date: str | None = None,
+                    chunk_epochs: int = STATES_CHUNK_EPOCHS) -> dict:
     """The dynamic sensor test (Sec. VI.B): PSD figure and identified modes vs the model.
 
     ``date`` is the report's date (``--date``; see :mod:`cdgps_cli.io.provenance` for the default)."""
@@ -615,7 +628,7 @@ def spectrum_report(states, run, opt, out_dir: str | Path, date: str | None = No
             **{k: v for k, v in opt.echo().items() if k not in ("coords", "segment_s", "overlap", "pad")}}
     prov = report_provenance("cdgps report spectrum", opts, states, run, date)     # checks --date first
     with output_set(out_dir, replaces=SPECTRUM_REPORT_FILES) as dest:      # one set: spectra and report
-        s = run_spectra(states, run, opt, out_dir, dest=dest)
+        s = run_spectra(states, run, opt, out_dir, dest=dest, chunk_epochs=chunk_epochs)
         pngs = s["pngs"]
         rows = []
         modes = sorted(s["modes"], key=lambda m: (m["model_hz"], m["number"]))

@@ -28,7 +28,7 @@ from cdgps_cli.report.sensor_reports import detect_rest, spectrum_report, static
 from cdgps_cli.io.run import read_run, write_run
 from cdgps_cli.sim.structure import SimOptions, simulate, write_simulation
 from cdgps_cli.analysis.spectra import SpectraOptions
-from cdgps_cli.io.states import States
+from cdgps_cli.io.states import States, StatesChunks
 from cdgps_cli.pipeline.estimate_outputs import write_states
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -164,7 +164,7 @@ def test_detect_rest_synthetic():
 
 @pytest.fixture(scope="module")
 def spectrum_out(free_run, tmp_path_factory):
-    st = States(free_run["states"], diagnostics=False)
+    st = StatesChunks(free_run["states"])            # as the CLI reads it (in chunks)
     run = read_run(free_run["run"], phase=False)
     out = tmp_path_factory.mktemp("spectrum_report")
     return spectrum_report(st, run, SpectraOptions(), out), out
