@@ -91,10 +91,11 @@ ESTIMATE_DEFAULTS = {
     "rest_retry_s": 1.0,               # after motion inside a rest segment, try rest again this much later, s
     "rest_window_s": 3.0,              # `--rest auto`: sliding window of the zero-velocity test, s
     "rest_dwell_s": 2.0,               # … and how long it must pass before rest is entered, s
-    # epochs per chunk of the filter's history on disk (cdgps estimate): its pages are dropped from
-    # memory chunk by chunk forward and backward (memory of a chunk, not of the record; same numbers)
-    "chunk_epochs": 4096,
 }
+#: epochs per chunk of the filter's history on disk (cdgps estimate): its pages are dropped from memory
+#: chunk by chunk forward and backward (memory of a chunk, not of the record; the same numbers for any value).
+#: An internal setting of the library (EstimateOptions.chunk_epochs), not a command-line option.
+ESTIMATE_CHUNK_EPOCHS = 4096
 #: structure frame on a GNSS run: azimuth of the structure's x axis, degrees from north (90: x = East)
 X_AXIS_AZIMUTH_DEG = 90.0
 #: `cdgps spectra` (:class:`cdgps_cli.analysis.spectra.SpectraOptions`): Welch segment overlap and FFT padding

@@ -45,7 +45,7 @@ from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.model.dynamics import discrete_model
 from cdgps_cli.estimation import kernel as ekf_kernel
 from cdgps_cli.core import progress
-from cdgps_cli.config.options import ESTIMATE_DEFAULTS
+from cdgps_cli.config.options import ESTIMATE_CHUNK_EPOCHS, ESTIMATE_DEFAULTS
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.config.limits import INIT_BOUNDS, OPTION_BOUNDS
 from cdgps_cli.core.checks import has_bool, is_json_number, require_finite
@@ -93,7 +93,7 @@ class EstimateOptions:
     # keep_covariance "modal": the result's P holds only the n_m×n_m modal-position block (what STATES
     # --covariance modal stores).  None of the three changes a number; not echoed in outputs
     history: object = None
-    chunk_epochs: int = ESTIMATE_DEFAULTS["chunk_epochs"]
+    chunk_epochs: int = ESTIMATE_CHUNK_EPOCHS
     keep_covariance: str = "full"
 
     def echo(self) -> dict:

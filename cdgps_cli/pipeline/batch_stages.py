@@ -131,11 +131,12 @@ def _estimate(s) -> dict:
 def _states_and_gyro(s):
     from cdgps_cli.io.file_checks import STATES, STRUCTURE_RUN, require_kind
     from cdgps_cli.io.run import read_run
-    from cdgps_cli.io.states import States
+    from cdgps_cli.io.states import StatesChunks
 
     require_kind(s.path("estimate"), STATES, "STATES_MCAP")
     require_kind(s.path("ingest"), STRUCTURE_RUN, "--gyro")
-    return States(s.path("estimate"), diagnostics=False), read_run(s.path("ingest"), phase=False)
+    # read in chunks as `cdgps spectra` / `report spectrum` do, so the batch writes their bytes
+    return StatesChunks(s.path("estimate")), read_run(s.path("ingest"), phase=False)
 
 
 def _spectra_options(s):

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cdgps_cli.config.options import ESTIMATE_DEFAULTS
+from cdgps_cli.config.options import ESTIMATE_CHUNK_EPOCHS
 from cdgps_cli.estimation import kernel as ekf_kernel
 from cdgps_cli.estimation.filter import EstimateOptions, estimate
 from cdgps_cli.estimation.initializer import InitOptions, initialize
@@ -106,7 +106,7 @@ def test_states_byte_identical(case, tmp_path):
 
 
 def test_chunk_default_in_options():
-    assert EstimateOptions().chunk_epochs == ESTIMATE_DEFAULTS["chunk_epochs"] > 1000
+    assert EstimateOptions().chunk_epochs == ESTIMATE_CHUNK_EPOCHS > 1000
 
 
 @pytest.mark.parametrize("chunk", [1, 4, 7, 1000])
