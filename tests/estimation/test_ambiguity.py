@@ -597,3 +597,32 @@ def test_bootstrap_success_rate_closed_form_and_monte_carlo():
     assert success_tail([1.0], 0.999) == 1
     with pytest.raises(Exception):
         bootstrap_success_rate([0.0])
+
+
+def test_z_matrix_and_size_reduction_match_the_elementwise_reference():
+    """The numpy Z (column operations on int64) equals the Python-integer one, and the size
+    reduction that searches each column with numpy records the operations of the element-by-element
+    double loop (same L bit for bit)."""
+    from cdgps_cli.estimation import ambiguity as amb
+
+    def size_reduce_loop(L, ops):
+        n = L.shape[0]
+        for j in range(n - 2, -1, -1):
+            for i in range(j + 2, n):
+                if abs(L[i, j]) > 0.5:
+                    amb._gauss(L, ops, None, i, j)
+
+    rng = np.random.default_rng(3)
+    for n in (2, 5, 12, 30):
+        A = rng.normal(size=(n, n)) * np.geomspace(1, 10, n)
+        L0, d0 = amb.ld_factorize(A @ A.T + 1e-3 * np.eye(n))
+        L, d, ops = amb._reduce(L0, d0)
+        assert np.array_equal(amb._z_matrix(ops, n), amb._z_matrix_exact(ops, n))
+        Lr = np.array(L0, copy=True)
+        for a in range(n):                      # a lower triangle with entries beyond 1/2 to reduce
+            Lr[a + 1:, a] = rng.normal(scale=3.0, size=n - a - 1)
+        L1, L2, ops1, ops2 = Lr.copy(), Lr.copy(), [], []
+        amb._size_reduce(L1, ops1, None)
+        size_reduce_loop(L2, ops2)
+        assert ops1 == ops2 and np.array_equal(L1, L2)
+        assert len(ops1) > 0 or n < 3
