@@ -448,6 +448,9 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
         epochs used, bridged, dropped with reasons) and ``base_age_s`` (n,; rover − base time, s).
     """
     opt = {**MULTI_GNSS_DEFAULTS, **(options or {})}
+    if opt["fix_and_hold"] and not int(opt["hold_after_fixes"]) >= 1:     # the run counter starts at 0: nothing to hold yet
+        raise CdgpsError(f"invalid rtk options: hold_after_fixes: expected >= 1 consecutive fixed epochs, "
+                         f"got {opt['hold_after_fixes']!r}")
     base_xyz = np.asarray(base_xyz_m, float)
     origin = np.asarray(rover_xyz0_m, float)
     length_km = np.linalg.norm(origin - base_xyz) / 1e3
