@@ -559,7 +559,16 @@ def _combine(f: dict, b: dict) -> dict:
     """Forward and backward passes combined per epoch (RTKLIB's combined mode, with a check):
     fixed where both are fixed and agree (their weighted mean), or one is fixed and agrees with the
     other's float; where the two fixes disagree (χ² of the difference over 0.999 of χ²(3)) one of
-    them is wrong and the epoch is float.  Floats are combined as independent estimates."""
+    them is wrong and the epoch is float.  Floats are combined as a weighted mean too.
+
+    Both passes' estimates at epoch k hold epoch k's measurements, so they are not independent:
+    their weighted mean is kept, but not the covariance of a merge of independent estimates, which
+    counts epoch k twice (R/(n+1) for n measurements of a static point, and in kinematic mode, where
+    epoch k's phases set the position, about half the true variance).  The covariance reported is
+    the better pass's: conservative by at most the share of epoch k.  (The two-filter smoother on the
+    position alone — the forward estimate with the backward pass's prediction to k — counts k once
+    but drops the backward pass's ambiguities: a kinematic float σ of 3 cm became 0.7 m; the exact
+    combination needs both passes' full states at every epoch.)"""
     n = f["fixed"].size
     out = {k: np.array(v, copy=True) for k, v in f.items()}
     out["rejected"] = 0
@@ -575,14 +584,14 @@ def _combine(f: dict, b: dict) -> dict:
         return float(d @ np.linalg.solve(Pa + Pb + floor, d)) <= _CHI2_3_999
 
     for k in range(n):
-        xf, Pf = merge(f["float_xyz"][k], f["float_cov"][k], b["float_xyz"][k], b["float_cov"][k])
-        out["float_xyz"][k], out["float_cov"][k] = xf, Pf
+        out["float_xyz"][k] = merge(f["float_xyz"][k], f["float_cov"][k], b["float_xyz"][k], b["float_cov"][k])[0]
+        out["float_cov"][k] = min(f["float_cov"][k], b["float_cov"][k], key=np.trace)
         ff, fb = f["fixed"][k], b["fixed"][k]
         out["fixed_xyz"][k], out["fixed_cov"][k] = np.nan, np.nan
         if ff and fb:
             if agree(f["fixed_xyz"][k], f["fixed_cov"][k], b["fixed_xyz"][k], b["fixed_cov"][k]):
-                out["fixed_xyz"][k], out["fixed_cov"][k] = merge(f["fixed_xyz"][k], f["fixed_cov"][k],
-                                                                 b["fixed_xyz"][k], b["fixed_cov"][k])
+                out["fixed_xyz"][k] = merge(f["fixed_xyz"][k], f["fixed_cov"][k], b["fixed_xyz"][k], b["fixed_cov"][k])[0]
+                out["fixed_cov"][k] = min(f["fixed_cov"][k], b["fixed_cov"][k], key=np.trace)
             else:
                 out["rejected"] += 1
         elif ff or fb:
