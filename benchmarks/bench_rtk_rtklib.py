@@ -163,7 +163,8 @@ def main() -> None:
     peer = "--no-rtklib" not in sys.argv
     if peer and not shutil.which("rnx2rtkp"):
         raise SystemExit("rnx2rtkp not found: apt-get install rtklib (or --no-rtklib for our side only)")
-    res = {"machine": {"python": platform.python_version(), "cpu": platform.processor() or platform.machine()},
+    res = {"machine": {"python": platform.python_version(), "cpu": platform.processor() or platform.machine(),
+                       "cpus": os.cpu_count(), "load_average_1min_at_start": round(os.getloadavg()[0], 2)},
            "repeats": repeats,
            "cdgps_runs": "environment without PYTHONDONTWRITEBYTECODE (bytecode caches, as a user's install) and one "
                          "untimed warm-up run per case; rnx2rtkp timed as is (no warm-up)",
@@ -188,6 +189,7 @@ def main() -> None:
                     row["fixed_mean_diff_enu_mm"] = [round(1e3 * float(v), 2) for v in diff]
             res["cases"][c["name"]] = row
             print(c["name"], json.dumps({k: v for k, v in row.items() if k != "epoch_pairing"}), flush=True)
+    res["machine"]["load_average_1min_at_end"] = round(os.getloadavg()[0], 2)
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(json.dumps(res, indent=1) + "\n")
     print(f"wrote {OUT}")

@@ -379,8 +379,9 @@ def _epoch_update(xb, Pb, groups, base_xyz, origin, iterations):
     lam, mu = cat("lam_m"), cat("mu")
     z = np.concatenate([cat("phase_sd_m"), cat("code_sd_m")])
     w = 1.0 / np.concatenate([cat("var_phase"), cat("var_code")])
-    block = np.repeat(np.arange(2 * sizes.size), np.r_[sizes, sizes])
-    starts = np.r_[0, np.cumsum(np.r_[sizes, sizes])[:-1]]
+    sizes2 = np.concatenate([sizes, sizes])                       # phase blocks, then code blocks
+    block = np.repeat(np.arange(2 * sizes.size), sizes2)
+    starts = np.cumsum(sizes2) - sizes2
     w_sum = np.add.reduceat(w, starts)
     base_rng = np.linalg.norm(cat("sat_base_xyz") - base_xyz, axis=1)
     n = xb.size
@@ -399,7 +400,7 @@ def _epoch_update(xb, Pb, groups, base_xyz, origin, iterations):
         H[:M, :3] = H[M:, :3] = -los / rng[:, None]
         geo = rng - base_rng
         iono_m = mu * x[ion] if has_iono else 0.0
-        r = z - np.r_[geo + lam * x[amb] - iono_m, geo + iono_m] + H @ (x - xb)
+        r = z - np.concatenate([geo + lam * x[amb] - iono_m, geo + iono_m]) + H @ (x - xb)
         wH = w[:, None] * H
         WH = wH - w[:, None] * (np.add.reduceat(wH, starts, axis=0) / w_sum[:, None])[block]
         P = np.linalg.inv(P_inv + H.T @ WH)
