@@ -336,9 +336,13 @@ def _size_reduce(L, ops, z):
     (only where ``|L[i, j]| > 1/2``); changes neither ``d`` nor the integer solution.  Column by
     column from the right, rows top down: a transformation at ``(i, j)`` changes only ``L[i:, j]``,
     so the next row of column ``j`` to transform is searched below ``i`` (numpy) in the column as
-    it is then."""
+    it is then.  A transformation in column ``j`` changes no other column, so the columns with work
+    to do are those with an entry beyond 1/2 to begin with."""
     n = L.shape[0]
-    for j in range(n - 2, -1, -1):
+    if n < 3:
+        return
+    todo = np.flatnonzero((np.abs(np.tril(L, -2)) > 0.5).any(axis=0))
+    for j in todo[::-1].tolist():
         i = j + 2
         while i < n:
             big = np.flatnonzero(np.abs(L[i:, j]) > 0.5)
