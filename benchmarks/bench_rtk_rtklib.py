@@ -16,7 +16,8 @@ cdgps runs as on a user's machine: with bytecode caches (the environment without
 ``PYTHONDONTWRITEBYTECODE``, which a development shell may set: every run would recompile our
 modules, ≈ 0.3 s) and after one untimed warm-up run per case that writes them; rnx2rtkp is timed as
 before (no warm-up).  The start-up floor — the interpreter, ``import numpy``, ``import numpy,
-pandas``, and the import of the rtk path — is measured the same way (``startup_floor``), and each
+pandas``, and the import of the rtk path — is measured the same way (``startup_floor``, the least
+of several runs), and each
 case also gives its ratio with our import time taken off (``speed_ratio_per_epoch_after_imports``).
 
 Cases: the real Septentrio pair (mosaic-static) GPS L1 and multi-GNSS L1+L2; the same pair with a
@@ -103,15 +104,21 @@ def _timed(cmd, env=None) -> tuple[float, subprocess.CompletedProcess]:
 
 
 def startup_floor(repeats: int) -> dict:
-    """Median wall time (s) of the interpreter alone, of ``import numpy``, of ``import numpy, pandas``
-    and of importing the rtk path (CLI and pipeline modules), in :data:`USER_ENV`."""
+    """Wall time (s) of the interpreter alone, of ``import numpy``, of ``import numpy, pandas`` and of
+    importing the rtk path (CLI and pipeline modules), in :data:`USER_ENV`: the least of
+    ``max(repeats, 7)`` runs taken in turn (a floor: a busy machine only adds to it).  The BLAS gets
+    one thread, as ``cdgps_cli/__init__.py`` sets before numpy is imported (a thread pool's start
+    costs a numpy import ≈ 0.04 s here)."""
+    env = {**USER_ENV, **{v: USER_ENV.get(v, "1") for v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}}
     imports = {"python_s": "pass", "import_numpy_s": "import numpy", "import_numpy_pandas_s": "import numpy, pandas",
                "import_cdgps_rtk_path_s": "import cdgps_cli.cli.commands, cdgps_cli.pipeline.gnss_multi"}
-    out = {}
-    for key, code in imports.items():
-        _timed([sys.executable, "-c", code], USER_ENV)                      # warm-up: bytecode caches written
-        out[key] = statistics.median(_timed([sys.executable, "-c", code], USER_ENV)[0] for _ in range(max(repeats, 5)))
-    return out
+    times = {key: [] for key in imports}
+    for code in imports.values():
+        _timed([sys.executable, "-c", code], env)                           # warm-up: bytecode caches written
+    for _ in range(max(repeats, 7)):
+        for key, code in imports.items():
+            times[key].append(_timed([sys.executable, "-c", code], env)[0])
+    return {key: min(v) for key, v in times.items()}
 
 
 def run_rtklib(c, tmp: Path, repeats: int):
