@@ -218,3 +218,43 @@ def test_combined_covariance_does_not_count_epoch_k_twice():
     assert out["fixed"].all() and out["rejected"] == 0
     np.testing.assert_allclose(out["fixed_cov"], np.tile(Pa, (n, 1, 1)))
     np.testing.assert_allclose(out["fixed_xyz"], fx + 1e-4 / 3, atol=1e-12)
+
+
+def test_sd_information_update_equals_the_dd_rows_with_kalman_update(pair, monkeypatch):
+    """The epoch update on the single differences with W = Σ⁻¹ − Σ⁻¹11ᵀΣ⁻¹/1ᵀΣ⁻¹1 gives what the DD
+    rows (dd_signals.epoch_rows, a reference per group, Cholesky-whitened D Σ Dᵀ) with kalman.update
+    gave: same fixed epochs, positions to rounding, on L1 + L2 with the ionosphere estimated too."""
+    from cdgps_cli.estimation import kalman
+    from cdgps_cli.measurement.dd_signals import epoch_rows
+
+    sig, nav, b, r = pair
+    gb, gr = receiver_geometry(b, nav, BASE), receiver_geometry(r, nav, TRUTH)
+
+    def dd_rows_update(xb, Pb, groups, base_xyz, origin, iterations):
+        xi, L = xb.copy(), None
+        for _ in range(iterations):
+            res, H, L = epoch_rows(xi, groups, base_xyz, origin, len(xb), noise_chol=L)
+            xi, P, _ = kalman.update(xb, Pb, res + H @ (xi - xb), H, noise_chol=L)
+        return xi, P
+
+    for opt in ({}, {"iono_threshold_km": 1.0}):
+        new = solve_rtk(gb, gr, BASE, TRUTH, options=opt)
+        assert ("estimated" in new["iono_model"]) == bool(opt)
+        with monkeypatch.context() as m:
+            m.setattr(rtk_multi, "_epoch_update", dd_rows_update)
+            old = solve_rtk(gb, gr, BASE, TRUTH, options=opt)
+        assert new["fixed"].any() and np.array_equal(new["fixed"], old["fixed"])
+        np.testing.assert_allclose(new["float_xyz_m"], old["float_xyz_m"], rtol=0, atol=1e-6)
+        np.testing.assert_allclose(new["fixed_xyz_m"], old["fixed_xyz_m"], rtol=0, atol=1e-6)
+        np.testing.assert_allclose(new["float_cov_m2"], old["float_cov_m2"], rtol=1e-6, atol=1e-12)
+
+
+def test_the_rtk_path_does_not_import_scipy():
+    """scipy's import (≈ 0.13 s) is not on `cdgps rtk`'s path: the start-up counts against RTKLIB."""
+    import subprocess
+    import sys
+
+    code = ("import sys, cdgps_cli.cli.commands, cdgps_cli.pipeline.gnss_multi; "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] == 'scipy'))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert out == "[]", out
