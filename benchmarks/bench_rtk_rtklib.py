@@ -12,6 +12,14 @@ Figures per case: epochs and fixed epochs of each, seconds per epoch of each who
 their ratio (ours / RTKLIB; < 1: we are faster), and the difference of the fixed-epoch means (ENU,
 mm) where both fix.  Writes ``docs/benchmarks/rtk_rtklib.json``.
 
+cdgps runs as on a user's machine: with bytecode caches (the environment without
+``PYTHONDONTWRITEBYTECODE``, which a development shell may set: every run would recompile our
+modules, ≈ 0.3 s) and after one untimed warm-up run per case that writes them; rnx2rtkp is timed as
+before (no warm-up).  The start-up floor — the interpreter, ``import numpy``, ``import numpy,
+pandas``, and the import of the rtk path — is measured the same way (``startup_floor``, the least
+of several runs), and each
+case also gives its ratio with our import time taken off (``speed_ratio_per_epoch_after_imports``).
+
 Cases: the real Septentrio pair (mosaic-static) GPS L1 and multi-GNSS L1+L2; the same pair with a
 u-blox-like base (a quarter of its epochs, ms clock steering; sim/rinex_edit); GEONET 0759→3040
 GPS L1+L2; the Spirent GPS+Galileo set (2 km static rover) L1+L2; the car against a CORS 5 km
@@ -21,6 +29,7 @@ away (geonet-car) GPS+Galileo L1.
 from __future__ import annotations
 
 import json
+import os
 import platform
 import shutil
 import statistics
@@ -84,10 +93,32 @@ def _header_xyz(path: Path):
     raise SystemExit(f"{path}: no APPROX POSITION XYZ")
 
 
-def _timed(cmd) -> tuple[float, subprocess.CompletedProcess]:
+#: the environment of the cdgps runs: a user's, with bytecode caches
+USER_ENV = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+
+
+def _timed(cmd, env=None) -> tuple[float, subprocess.CompletedProcess]:
     t0 = time.perf_counter()
-    p = subprocess.run(cmd, capture_output=True, text=True, timeout=1800)
+    p = subprocess.run(cmd, capture_output=True, text=True, timeout=1800, env=env)
     return time.perf_counter() - t0, p
+
+
+def startup_floor(repeats: int) -> dict:
+    """Wall time (s) of the interpreter alone, of ``import numpy``, of ``import numpy, pandas`` and of
+    importing the rtk path (CLI and pipeline modules), in :data:`USER_ENV`: the least of
+    ``max(repeats, 7)`` runs taken in turn (a floor: a busy machine only adds to it).  The BLAS gets
+    one thread, as ``cdgps_cli/__init__.py`` sets before numpy is imported (a thread pool's start
+    costs a numpy import ≈ 0.04 s here)."""
+    env = {**USER_ENV, **{v: USER_ENV.get(v, "1") for v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}}
+    imports = {"python_s": "pass", "import_numpy_s": "import numpy", "import_numpy_pandas_s": "import numpy, pandas",
+               "import_cdgps_rtk_path_s": "import cdgps_cli.cli.commands, cdgps_cli.pipeline.gnss_multi"}
+    times = {key: [] for key in imports}
+    for code in imports.values():
+        _timed([sys.executable, "-c", code], env)                           # warm-up: bytecode caches written
+    for _ in range(max(repeats, 7)):
+        for key, code in imports.items():
+            times[key].append(_timed([sys.executable, "-c", code], env)[0])
+    return {key: min(v) for key, v in times.items()}
 
 
 def run_rtklib(c, tmp: Path, repeats: int):
@@ -120,8 +151,9 @@ def run_cdgps(c, tmp: Path, repeats: int):
     if c["base_xyz"]:
         cmd += ["--base-xyz", *map(str, c["base_xyz"])]
     times = []
+    _timed(cmd, USER_ENV)                              # untimed warm-up: bytecode caches, as on a user's machine
     for _ in range(repeats):
-        sec, p = _timed(cmd)
+        sec, p = _timed(cmd, USER_ENV)
         if p.returncode != 0:
             raise SystemExit(f"cdgps rtk failed on {c['name']}:\n{p.stderr[-2000:]}")
         times.append(sec)
@@ -138,8 +170,14 @@ def main() -> None:
     peer = "--no-rtklib" not in sys.argv
     if peer and not shutil.which("rnx2rtkp"):
         raise SystemExit("rnx2rtkp not found: apt-get install rtklib (or --no-rtklib for our side only)")
-    res = {"machine": {"python": platform.python_version(), "cpu": platform.processor() or platform.machine()},
-           "repeats": repeats, "cases": {}}
+    res = {"machine": {"python": platform.python_version(), "cpu": platform.processor() or platform.machine(),
+                       "cpus": os.cpu_count(), "load_average_1min_at_start": round(os.getloadavg()[0], 2)},
+           "repeats": repeats,
+           "cdgps_runs": "environment without PYTHONDONTWRITEBYTECODE (bytecode caches, as a user's install) and one "
+                         "untimed warm-up run per case; rnx2rtkp timed as is (no warm-up)",
+           "startup_floor": startup_floor(repeats), "cases": {}}
+    print("startup floor", json.dumps(res["startup_floor"]), flush=True)
+    floor = res["startup_floor"]["import_cdgps_rtk_path_s"]
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         for c in cases(tmp):
@@ -152,11 +190,13 @@ def main() -> None:
                 row.update(rtklib_epochs=int(len(fix_r)), rtklib_fixed=int(fix_r.sum()), rtklib_s=sec_r,
                            rtklib_ms_per_epoch=1e3 * sec_r / max(len(fix_r), 1))
                 row["speed_ratio_per_epoch"] = row["cdgps_ms_per_epoch"] / row["rtklib_ms_per_epoch"]
+                row["speed_ratio_per_epoch_after_imports"] = ((sec_c - floor) / max(len(fix_c), 1)) / (sec_r / max(len(fix_r), 1))
                 if fix_c.any() and fix_r.any():
                     diff = ecef_to_enu(xyz_c[fix_c], bxyz).mean(axis=0) - ecef_to_enu(xyz_r[fix_r], bxyz).mean(axis=0)
                     row["fixed_mean_diff_enu_mm"] = [round(1e3 * float(v), 2) for v in diff]
             res["cases"][c["name"]] = row
             print(c["name"], json.dumps({k: v for k, v in row.items() if k != "epoch_pairing"}), flush=True)
+    res["machine"]["load_average_1min_at_end"] = round(os.getloadavg()[0], 2)
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(json.dumps(res, indent=1) + "\n")
     print(f"wrote {OUT}")

@@ -1786,8 +1786,11 @@ if __name__ == "__main__":  # pragma: no cover
               help="Correlation time of the code errors, s: their variance is inflated by (1+ρ)/(1−ρ), ρ = e^(−Δt/τ), so "
                    "a minute of correlated multipath is not taken as 60 independent ranges [0: white, as RTKLIB].")
 @click.option("--fix-and-hold", is_flag=True, default=False,
-              help="After 10 consecutive fixed epochs, feed the fixed integers back as measurements (RTKLIB's fix-and-hold; "
-                   "a wrong fix is then held too: the combined mode's check still applies).")
+              help="After --hold-after-fixes consecutive fixed epochs, feed the fixed integers back as measurements "
+                   "(RTKLIB's fix-and-hold; a wrong fix is then held too: the combined mode's check still applies).")
+@click.option("--hold-after-fixes", "hold_after_fixes", type=click.IntRange(min=1), default=None,
+              help="Consecutive fixed epochs before --fix-and-hold holds the integers (RTKLIB pos2-arminfix) "
+                   f"[{__import__('cdgps_cli.config.options', fromlist=['x']).MULTI_GNSS_DEFAULTS['hold_after_fixes']}].")
 @click.option("--min-success-rate", type=float, default=None,
               help="Bootstrapped success rate an integer set must reach; when the whole set does not, the part that "
                    "does is fixed and the epoch stays float [0.999].")
@@ -1796,7 +1799,7 @@ if __name__ == "__main__":  # pragma: no cover
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (epochs used and why others were not, fixes) on stdout.")
 @click.pass_context
 def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_fix, mask_deg, ratio_threshold, max_age_s,
-        sync_tol_s, direction, code_correlation_s, fix_and_hold, min_success_rate, output, as_json):
+        sync_tol_s, direction, code_correlation_s, fix_and_hold, hold_after_fixes, min_success_rate, output, as_json):
     """Double differences per constellation and frequency, integers by LAMBDA (docs/gnss-pipeline.md, "Multi-GNSS").
 
     The rover's epochs drive the solution: each takes the nearest base epoch within --max-age (a base
@@ -1809,7 +1812,7 @@ def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_
                "glonass_fix": glonass_fix}
     for key, value in (("mask_deg", mask_deg), ("ratio", ratio_threshold), ("max_age_s", max_age_s),
                        ("sync_tol_s", sync_tol_s), ("direction", direction), ("min_success_rate", min_success_rate),
-                       ("code_correlation_s", code_correlation_s)):
+                       ("code_correlation_s", code_correlation_s), ("hold_after_fixes", hold_after_fixes)):
         if value is not None:
             options[key] = value
     s = rtk_from_files(base_file, rover_file, list(nav_files), output, base_xyz_m=base_xyz or None, options=options)

@@ -333,12 +333,24 @@ def _swap_if_shorter(L, d, ops, z, k):
 
 def _size_reduce(L, ops, z):
     """Final size reduction of the strictly lower triangle of ``L`` below the sub-diagonal
-    (only where ``|L[i, j]| > 1/2``); changes neither ``d`` nor the integer solution."""
+    (only where ``|L[i, j]| > 1/2``); changes neither ``d`` nor the integer solution.  Column by
+    column from the right, rows top down: a transformation at ``(i, j)`` changes only ``L[i:, j]``,
+    so the next row of column ``j`` to transform is searched below ``i`` (numpy) in the column as
+    it is then.  A transformation in column ``j`` changes no other column, so the columns with work
+    to do are those with an entry beyond 1/2 to begin with."""
     n = L.shape[0]
-    for j in range(n - 2, -1, -1):
-        for i in range(j + 2, n):
-            if abs(L[i, j]) > 0.5:
-                _gauss(L, ops, z, i, j)
+    if n < 3:
+        return
+    todo = np.flatnonzero((np.abs(np.tril(L, -2)) > 0.5).any(axis=0))
+    for j in todo[::-1].tolist():
+        i = j + 2
+        while i < n:
+            big = np.flatnonzero(np.abs(L[i:, j]) > 0.5)
+            if not big.size:
+                break
+            i += int(big[0])
+            _gauss(L, ops, z, i, j)
+            i += 1
 
 
 def _forward(ops, v):
@@ -362,7 +374,27 @@ def _backward(ops, v):
 
 
 def _z_matrix(ops, n):
-    """Materialise ``Z`` (int64, shape (n, n)) from the recorded operations."""
+    """Materialise ``Z`` (int64, shape (n, n)) from the recorded operations.
+
+    Column operations on an int64 array, with a bound on every column's largest entry carried
+    along (``|Z_j - mu Z_i| <= b_j + |mu| b_i``): when a bound could reach 2**62 the product is
+    formed again in Python integers, which cannot overflow, and checked."""
+    Z = np.eye(n, dtype=np.int64)
+    bound = [1.0] * n
+    for i, j, mu in ops:
+        if mu:
+            bound[j] += abs(mu) * bound[i]
+            if bound[j] >= 2.0**62:
+                return _z_matrix_exact(ops, n)
+            Z[:, j] -= mu * Z[:, i]
+        else:
+            Z[:, [i, j]] = Z[:, [j, i]]
+            bound[i], bound[j] = bound[j], bound[i]
+    return Z
+
+
+def _z_matrix_exact(ops, n):
+    """:func:`_z_matrix` in Python integers; AmbiguityError when an entry does not fit int64."""
     cols = [[int(r == c) for r in range(n)] for c in range(n)]
     for i, j, mu in ops:
         if mu:

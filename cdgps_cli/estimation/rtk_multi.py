@@ -20,11 +20,8 @@ from cdgps_cli.config.options import MULTI_GNSS_DEFAULTS
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.signals import signal, SYSTEM_NAMES
-from cdgps_cli.estimation import kalman
 from cdgps_cli.estimation.ambiguity import (SearchLimitError, bootstrap_success_rate, decorrelate, ld_factorize,
                                             ratio_test, search, success_tail)
-from cdgps_cli.measurement.dd_signals import epoch_rows
-from cdgps_cli.measurement.differencing import dd_operator
 from cdgps_cli.measurement.epoch_pairing import age_variance_m2, carry_base_slips, pair_epochs
 from cdgps_cli.measurement.noise import correlated_variance_factor
 from cdgps_cli.core.gps_time import nominal_interval_s
@@ -68,21 +65,17 @@ def receiver_geometry(obs: pd.DataFrame, nav: pd.DataFrame, rx_xyz_m) -> pd.Data
         raise CdgpsError(f"no observation is covered by the navigation data (satellites without a healthy "
                          f"ephemeris covering their epochs: {' '.join(sorted(dropped)) or 'none'})")
     first = df.drop_duplicates(["time_gps_s", "sat"])
-    xyz = np.zeros((len(first), 3))
     clk = np.zeros(len(first))
     t = first["time_gps_s"].to_numpy()
     tau = first["pseudorange_m"].to_numpy() / SPEED_OF_LIGHT_M_S
-    for sat, idx in first.groupby("sat").indices.items():
-        eph = select_ephemeris(nav, sat, t[idx])
-        for _ in range(2):
-            xyz[idx], clk[idx] = sat_position_ecef(eph, t[idx] - tau[idx] + clk[idx])
+    eph = _row_ephemerides(nav, first["sat"].to_numpy(), t)      # every row's ephemeris, selected once
+    for _ in range(2):
+        xyz, clk = sat_position_ecef(eph, t - tau + clk)           # all satellites and epochs at once
     rx = np.asarray(rx_xyz_m, dtype=float)
     rng = np.linalg.norm(xyz - rx, axis=1)
     c_rx = pd.Series(first["pseudorange_m"].to_numpy() / SPEED_OF_LIGHT_M_S + clk - rng / SPEED_OF_LIGHT_M_S).groupby(t).transform("median").to_numpy()
     tau = tau - c_rx + clk
-    for sat, idx in first.groupby("sat").indices.items():
-        eph = select_ephemeris(nav, sat, t[idx])
-        xyz[idx], clk[idx] = sat_position_ecef(eph, t[idx] - c_rx[idx] - tau[idx])
+    xyz, clk = sat_position_ecef(eph, t - c_rx - tau)
     th = OMEGA_E_GPS * tau
     c, s = np.cos(th), np.sin(th)
     rot = np.stack([c * xyz[:, 0] + s * xyz[:, 1], -s * xyz[:, 0] + c * xyz[:, 1], xyz[:, 2]], axis=-1)
@@ -94,6 +87,18 @@ def receiver_geometry(obs: pd.DataFrame, nav: pd.DataFrame, rx_xyz_m) -> pd.Data
     out = df.merge(g, on=["time_gps_s", "sat"], how="left")
     out.attrs["dropped"] = {k: int(v) for k, v in sorted(dropped.items())}
     return out
+
+
+def _row_ephemerides(nav: pd.DataFrame, sats: np.ndarray, t: np.ndarray) -> pd.DataFrame:
+    """The ephemeris of each row (satellite ``sats[i]`` at time ``t[i]``), one table row per row
+    (:func:`~cdgps_cli.model.gps.orbits.select_ephemeris` once per satellite)."""
+    parts, order = [], []
+    for sat, idx in pd.Series(sats).groupby(sats).indices.items():
+        parts.append(select_ephemeris(nav, sat, t[idx]))
+        order.append(idx)
+    pos = np.empty(len(sats), dtype=np.int64)
+    pos[np.concatenate(order)] = np.arange(len(sats))
+    return pd.concat(parts, ignore_index=True).iloc[pos].reset_index(drop=True)
 
 
 _PAIR_COLS = ["time_gps_s", "sat", "signal", "phase_cycles", "pseudorange_m", "lli", "sx", "sy", "sz", "sat_clock_m",
@@ -181,19 +186,24 @@ def _epoch_groups(rows, k):
 
 
 class _State:
-    """Ambiguity / ionosphere columns appearing and vanishing with the satellites."""
+    """Ambiguity / ionosphere columns appearing and vanishing with the satellites (``index``: key → column)."""
 
     def __init__(self, n_pos):
         self.keys = [("pos", i) for i in range(n_pos)]
+        self.index = {k: i for i, k in enumerate(self.keys)}
         self.x = np.zeros(n_pos)
         self.P = np.eye(n_pos) * 1e4
 
     def keep(self, wanted):
         idx = [i for i, k in enumerate(self.keys) if k[0] == "pos" or k in wanted]
+        if len(idx) == len(self.keys):
+            return
         self.keys = [self.keys[i] for i in idx]
+        self.index = {k: i for i, k in enumerate(self.keys)}
         self.x, self.P = self.x[idx], self.P[np.ix_(idx, idx)]
 
     def add(self, key, value, var):
+        self.index[key] = len(self.keys)
         self.keys.append(key)
         self.x = np.append(self.x, value)
         n = len(self.x)
@@ -203,7 +213,7 @@ class _State:
         self.P = P
 
     def col(self, key):
-        return self.keys.index(key)
+        return self.index[key]
 
 
 def _amb_key(g, j):
@@ -213,27 +223,27 @@ def _amb_key(g, j):
 
 
 def _prepare_state(st, groups, opt, iono):
-    wanted = set()
-    for g in groups:
-        for j, s in enumerate(g["sats"]):
-            wanted.add(_amb_key(g, j))
-            if iono:
-                wanted.add(("I", s))
-    for g in groups:
-        for j, slip in enumerate(g["slip"]):
-            if slip and _amb_key(g, j) in st.keys:
-                wanted.discard(_amb_key(g, j))
+    keys = [[_amb_key(g, j) for j in range(len(g["sats"]))] for g in groups]
+    wanted = {k for ks in keys for k in ks}
+    if iono:
+        wanted |= {("I", s) for g in groups for s in g["sats"]}
+    for g, ks in zip(groups, keys):
+        for j in np.flatnonzero(g["slip"]):
+            if ks[j] in st.index:
+                wanted.discard(ks[j])
     st.keep(wanted)
-    for g in groups:
-        est = (g["phase_sd_m"] - g["code_sd_m"]) / g["lam_m"]
+    for g, ks in zip(groups, keys):
+        est = None
         for j, s in enumerate(g["sats"]):
-            if _amb_key(g, j) not in st.keys:
-                st.add(_amb_key(g, j), est[j], (opt["amb_sigma_cycles"]) ** 2)
-            if iono and ("I", s) not in st.keys:
+            if ks[j] not in st.index:
+                est = (g["phase_sd_m"] - g["code_sd_m"]) / g["lam_m"] if est is None else est
+                st.add(ks[j], est[j], (opt["amb_sigma_cycles"]) ** 2)
+            if iono and ("I", s) not in st.index:
                 st.add(("I", s), 0.0, iono ** 2)
-    for g in groups:
-        g["amb_col"] = np.array([st.col(_amb_key(g, j)) for j in range(len(g["sats"]))])
-        g["iono_col"] = np.array([st.col(("I", s)) if iono else -1 for s in g["sats"]])
+    for g, ks in zip(groups, keys):
+        g["amb_col"] = np.array([st.index[k] for k in ks], dtype=np.int64)
+        g["iono_col"] = (np.array([st.index[("I", s)] for s in g["sats"]], dtype=np.int64) if iono
+                         else np.full(len(ks), -1, dtype=np.int64))
 
 
 class _CarriedDecorrelation:
@@ -313,23 +323,26 @@ def _fix(st, groups, opt, carried):
     reaches the success rate): the fixed position (or None), the number of (decorrelated)
     ambiguities fixed, the ratio, the fixed position's covariance (3, 3; m², or None) and whether only
     part of the set was fixed."""
-    rows, keys = [], []
+    plus, minus, keys = [], [], []
     for g in groups:
         if g["signal"].startswith("R:") and not opt["glonass_fix"]:
             continue
-        if g["half"][g["ref"]]:
+        ref = g["ref"]
+        if g["half"][ref]:
             continue                                  # every satellite of the group has an unresolved half cycle
-        D = dd_operator(len(g["sats"]), g["ref"])
-        D = D[~np.delete(g["half"], g["ref"])]        # DDs of satellites with an unresolved half cycle stay float
-        if not len(D):
+        use = ~g["half"]                              # DDs of satellites with an unresolved half cycle stay float
+        use[ref] = False
+        if not use.any():
             continue
-        T = np.zeros((len(D), len(st.x)))
-        T[:, g["amb_col"]] = D
-        rows.append(T)
-        keys.append((g["signal"], tuple(g["sats"]), g["ref"], tuple(np.flatnonzero(g["half"]))))
-    if not rows:
+        plus.append(g["amb_col"][use])
+        minus.append(np.full(int(use.sum()), g["amb_col"][ref]))
+        keys.append((g["signal"], tuple(g["sats"]), ref, tuple(np.flatnonzero(g["half"]))))
+    if not plus:
         return None, 0, np.nan, None, False
-    T = np.vstack(rows)
+    plus, minus = np.concatenate(plus), np.concatenate(minus)
+    T = np.zeros((plus.size, len(st.x)))          # the DD operator on the SD ambiguity columns
+    T[np.arange(plus.size), plus] = 1.0
+    T[np.arange(plus.size), minus] = -1.0
     a = T @ st.x
     Qa = T @ st.P @ T.T
     res = carried.resolve(tuple(keys), a, 0.5 * (Qa + Qa.T), opt["ratio"], opt["min_success_rate"])
@@ -342,6 +355,58 @@ def _fix(st, groups, opt, carried):
     cov = st.P[:3, :3] - Pxs @ np.linalg.solve(Qs, Pxs.T)
     carried.last_fix = (Ts, res["integers"])
     return st.x[:3] - dx, len(res["integers"]), res["ratio"], 0.5 * (cov + cov.T), res["partial"]
+
+
+def _epoch_update(xb, Pb, groups, base_xyz, origin, iterations):
+    """The iterated update of one epoch (Gauss–Newton, relinearized at each iterate from the prior
+    ``xb``, ``Pb``), in information form on the single differences.
+
+    Each group's DDs ``D z`` with noise ``D Σ Dᵀ`` (Σ = diag(v), SD variances) carry the same
+    information as the SDs weighted by ``W = Dᵀ (D Σ Dᵀ)⁻¹ D = Σ⁻¹ − Σ⁻¹ 1 1ᵀ Σ⁻¹ / (1ᵀ Σ⁻¹ 1)``
+    whatever the reference (``D 1 = 0``, rank m − 1): the update needs no DD operator and no
+    Cholesky factor of the DD noise.  Per iteration, with H, r the SD rows at the iterate x_i,
+    ``P = (P̄⁻¹ + Hᵀ W H)⁻¹`` and ``x_{i+1} = x̄ + P Hᵀ W (r + H (x_i − x̄))``.
+
+    Returns the updated state (n,) and covariance (n, n).
+    """
+    sizes = np.array([len(g["sats"]) for g in groups])
+    M = int(sizes.sum())
+
+    def cat(key):
+        return np.concatenate([g[key] for g in groups])
+
+    sx, amb, ion = cat("sat_xyz"), cat("amb_col"), cat("iono_col")
+    lam, mu = cat("lam_m"), cat("mu")
+    z = np.concatenate([cat("phase_sd_m"), cat("code_sd_m")])
+    w = 1.0 / np.concatenate([cat("var_phase"), cat("var_code")])
+    sizes2 = np.concatenate([sizes, sizes])                       # phase blocks, then code blocks
+    block = np.repeat(np.arange(2 * sizes.size), sizes2)
+    starts = np.cumsum(sizes2) - sizes2
+    w_sum = np.add.reduceat(w, starts)
+    base_rng = np.linalg.norm(cat("sat_base_xyz") - base_xyz, axis=1)
+    n = xb.size
+    rows = np.arange(M)
+    H = np.zeros((2 * M, n))
+    H[rows, amb] = lam
+    has_iono = bool(np.all(ion >= 0))
+    if has_iono:
+        H[rows, ion] = -mu
+        H[M + rows, ion] = mu
+    P_inv = np.linalg.inv(Pb)
+    x, P = xb, Pb
+    for _ in range(iterations):
+        los = sx - (origin + x[:3])
+        rng = np.sqrt(np.einsum("ij,ij->i", los, los))
+        H[:M, :3] = H[M:, :3] = -los / rng[:, None]
+        geo = rng - base_rng
+        iono_m = mu * x[ion] if has_iono else 0.0
+        r = z - np.concatenate([geo + lam * x[amb] - iono_m, geo + iono_m]) + H @ (x - xb)
+        wH = w[:, None] * H
+        WH = wH - w[:, None] * (np.add.reduceat(wH, starts, axis=0) / w_sum[:, None])[block]
+        P = np.linalg.inv(P_inv + H.T @ WH)
+        P = 0.5 * (P + P.T)
+        x = xb + P @ (WH.T @ r)
+    return x, P
 
 
 #: variance of the fix-and-hold pseudo-measurement of a fixed integer combination, cycles² (RTKLIB's VAR_HOLDAMB)
@@ -384,6 +449,9 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
         epochs used, bridged, dropped with reasons) and ``base_age_s`` (n,; rover − base time, s).
     """
     opt = {**MULTI_GNSS_DEFAULTS, **(options or {})}
+    if opt["fix_and_hold"] and not int(opt["hold_after_fixes"]) >= 1:     # the run counter starts at 0: nothing to hold yet
+        raise CdgpsError(f"invalid rtk options: hold_after_fixes: expected >= 1 consecutive fixed epochs, "
+                         f"got {opt['hold_after_fixes']!r}")
     base_xyz = np.asarray(base_xyz_m, float)
     origin = np.asarray(rover_xyz0_m, float)
     length_km = np.linalg.norm(origin - base_xyz) / 1e3
@@ -448,13 +516,8 @@ def _filter_pass(rows, times, order, opt, base_xyz, origin, iono, progress) -> d
                 st.P[ion, ion] += opt["iono_rw_m_per_sqrt_s"] ** 2 * dt
         t_prev = t
         _prepare_state(st, groups, opt, iono)
-        if groups:
-            xb, Pb = st.x.copy(), st.P
-            xi, L = xb, None
-            for _ in range(2 if i else 4):   # iterated update (relinearized at the new estimate; same noise)
-                r, H, L = epoch_rows(xi, groups, base_xyz, origin, len(xb), noise_chol=L)
-                xi, P, _ = kalman.update(xb, Pb, r + H @ (xi - xb), H, noise_chol=L)
-            st.x, st.P = xi, P
+        if groups:                           # iterated update (relinearized at the new estimate; same noise)
+            st.x, st.P = _epoch_update(st.x, st.P, groups, base_xyz, origin, 2 if i else 4)
         fx, n, ratio, fx_cov, partial = _fix(st, groups, opt, carried) if (groups and opt["fix"]) else (None, 0, np.nan, None, False)
         out["float_xyz"][k] = origin + st.x[:3]
         out["float_cov"][k] = st.P[:3, :3]
@@ -497,7 +560,16 @@ def _combine(f: dict, b: dict) -> dict:
     """Forward and backward passes combined per epoch (RTKLIB's combined mode, with a check):
     fixed where both are fixed and agree (their weighted mean), or one is fixed and agrees with the
     other's float; where the two fixes disagree (χ² of the difference over 0.999 of χ²(3)) one of
-    them is wrong and the epoch is float.  Floats are combined as independent estimates."""
+    them is wrong and the epoch is float.  Floats are combined as a weighted mean too.
+
+    Both passes' estimates at epoch k hold epoch k's measurements, so they are not independent:
+    their weighted mean is kept, but not the covariance of a merge of independent estimates, which
+    counts epoch k twice (R/(n+1) for n measurements of a static point, and in kinematic mode, where
+    epoch k's phases set the position, about half the true variance).  The covariance reported is
+    the better pass's: conservative by at most the share of epoch k.  (The two-filter smoother on the
+    position alone — the forward estimate with the backward pass's prediction to k — counts k once
+    but drops the backward pass's ambiguities: a kinematic float σ of 3 cm became 0.7 m; the exact
+    combination needs both passes' full states at every epoch.)"""
     n = f["fixed"].size
     out = {k: np.array(v, copy=True) for k, v in f.items()}
     out["rejected"] = 0
@@ -513,14 +585,14 @@ def _combine(f: dict, b: dict) -> dict:
         return float(d @ np.linalg.solve(Pa + Pb + floor, d)) <= _CHI2_3_999
 
     for k in range(n):
-        xf, Pf = merge(f["float_xyz"][k], f["float_cov"][k], b["float_xyz"][k], b["float_cov"][k])
-        out["float_xyz"][k], out["float_cov"][k] = xf, Pf
+        out["float_xyz"][k] = merge(f["float_xyz"][k], f["float_cov"][k], b["float_xyz"][k], b["float_cov"][k])[0]
+        out["float_cov"][k] = min(f["float_cov"][k], b["float_cov"][k], key=np.trace)
         ff, fb = f["fixed"][k], b["fixed"][k]
         out["fixed_xyz"][k], out["fixed_cov"][k] = np.nan, np.nan
         if ff and fb:
             if agree(f["fixed_xyz"][k], f["fixed_cov"][k], b["fixed_xyz"][k], b["fixed_cov"][k]):
-                out["fixed_xyz"][k], out["fixed_cov"][k] = merge(f["fixed_xyz"][k], f["fixed_cov"][k],
-                                                                 b["fixed_xyz"][k], b["fixed_cov"][k])
+                out["fixed_xyz"][k] = merge(f["fixed_xyz"][k], f["fixed_cov"][k], b["fixed_xyz"][k], b["fixed_cov"][k])[0]
+                out["fixed_cov"][k] = min(f["fixed_cov"][k], b["fixed_cov"][k], key=np.trace)
             else:
                 out["rejected"] += 1
         elif ff or fb:

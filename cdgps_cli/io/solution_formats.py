@@ -91,17 +91,30 @@ def pos_text(time_gps_s, coords, q, ns, cov, age_s, ratio, *, frame: str, header
     fmt = "{:14.9f} {:14.9f} {:10.4f}" if frame == "llh" else "{:14.4f} {:14.4f} {:14.4f}"
     for k in range(c.shape[0]):
         out.append(f"{_calendar(float(time_gps_s[k]))} " + fmt.format(*c[k]) + f" {int(q[k]):3d} {int(ns[k]):3d} "
-                   + " ".join(f"{v:8.4f}" for v in (*sd[k], *cr[k])) + f" {float(age_s[k]):6.2f} {float(ratio[k]):6.1f}")
+                   + " ".join(f"{_unsigned_zero(v, 4):8.4f}" for v in (*sd[k], *cr[k]))
+                   + f" {_unsigned_zero(age_s[k], 2):6.2f} {float(ratio[k]):6.1f}")
     return "\n".join(out) + "\n"
 
 
-def _dm(deg: float, width: int) -> tuple[str, bool]:
+def _unsigned_zero(value, decimals: int) -> float:
+    """``value``, or +0.0 when it rounds to zero at ``decimals`` (no ``-0.00`` in the files)."""
+    v = float(value)
+    return 0.0 if round(v, decimals) == 0 else v
+
+
+#: the longest NMEA 0183 sentence, ``$`` to the checksum included (82 with the CR LF the standard counts: 80)
+NMEA_MAX_CHARS = 82
+#: decimals of the minutes of latitude and longitude in GGA (RTKLIB's: 1e-7 min ≈ 0.2 mm)
+GGA_MINUTE_DECIMALS = 7
+
+
+def _dm(deg: float, width: int, decimals: int) -> tuple[str, bool]:
     a = abs(deg)
     d = int(a)
-    m = (a - d) * 60.0
-    if round(m, 7) >= 60.0:
+    m = round((a - d) * 60.0, decimals)
+    if m >= 60.0:
         d, m = d + 1, 0.0
-    return f"{d:0{width}d}{m:011.8f}", deg >= 0
+    return f"{d:0{width}d}{m:0{3 + decimals}.{decimals}f}", deg >= 0
 
 
 def _nmea(body: str) -> str:
@@ -111,19 +124,32 @@ def _nmea(body: str) -> str:
     return f"${body}*{x:02X}"
 
 
+def _gga(utc, lat_deg, lon_deg, q, ns, height_m, age_s) -> str:
+    """One GGA sentence of at most :data:`NMEA_MAX_CHARS`: minutes with :data:`GGA_MINUTE_DECIMALS`
+    decimals, fewer only where a long height or age would not fit otherwise."""
+    age = _unsigned_zero(age_s, 1)
+    for decimals in range(GGA_MINUTE_DECIMALS, 2, -1):
+        lat, north = _dm(lat_deg, 2, decimals)
+        lon, east = _dm(lon_deg, 3, decimals)
+        s = _nmea(f"GPGGA,{utc:%H%M%S}.{utc.microsecond // 10000:02d},{lat},{'N' if north else 'S'},{lon},"
+                  f"{'E' if east else 'W'},{q},{ns:02d},,{_unsigned_zero(height_m, 3):.3f},M,0.0,M,{age:.1f},0000")
+        if len(s) <= NMEA_MAX_CHARS:
+            break
+    return s
+
+
 def nmea_gga_text(time_gps_s, lat_deg, lon_deg, height_m, q, ns, age_s) -> str:
-    """NMEA GGA sentences (UTC = GPS − leap seconds; quality 4 RTK fixed, 5 float, 1 single)."""
+    """NMEA GGA sentences (UTC = GPS − leap seconds; quality 4 RTK fixed, 5 float, 1 single), each at
+    most :data:`NMEA_MAX_CHARS` characters: minutes of latitude and longitude with 7 decimals (as
+    RTKLIB), the height (ellipsoidal, geoid separation 0.0) in mm, HDOP empty (not computed), the
+    differential age in 0.1 s and station 0000."""
     gga_q = {Q_FIX: 4, Q_FLOAT: 5, Q_SINGLE: 1}
     out = []
     for k in range(len(time_gps_s)):
         t = float(time_gps_s[k])
         utc = GPS_EPOCH + _dt.timedelta(milliseconds=int(round((t - int(gps_minus_utc_s(t))) * 1000.0)))
-        lat, north = _dm(float(lat_deg[k]), 2)
-        lon, east = _dm(float(lon_deg[k]), 3)
-        body = (f"GPGGA,{utc:%H%M%S}.{utc.microsecond // 10000:02d},{lat},{'N' if north else 'S'},{lon},"
-                f"{'E' if east else 'W'},{gga_q.get(int(q[k]), 0)},{min(int(ns[k]), 99):02d},1.0,"
-                f"{float(height_m[k]):.4f},M,0.000,M,{float(age_s[k]):.1f},0000")
-        out.append(_nmea(body))
+        out.append(_gga(utc, float(lat_deg[k]), float(lon_deg[k]), gga_q.get(int(q[k]), 0), min(int(ns[k]), 99),
+                        float(height_m[k]), float(age_s[k])))
     return "\r\n".join(out) + "\r\n"
 
 

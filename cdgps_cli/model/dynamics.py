@@ -16,7 +16,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import expm
 
 from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.model.kinematics import thruster_forcing
@@ -62,6 +61,8 @@ def continuous_model(cfg: StructureConfig) -> tuple[np.ndarray, np.ndarray, np.n
 
 def zoh(Ac: np.ndarray, Bc: np.ndarray, T: float) -> tuple[np.ndarray, np.ndarray]:
     """Zero-order-hold discretization: A = e^{A_c T}, B = ∫₀ᵀ e^{A_c s} ds B_c."""
+    from scipy.linalg import expm  # noqa: PLC0415  (scipy's import is a tenth of a second: not on paths that never discretize)
+
     n, m = Bc.shape
     M = np.zeros((n + m, n + m))
     M[:n, :n] = Ac

@@ -50,6 +50,10 @@ def validate_options(options: dict) -> dict:
             bad.append(f"signals: unknown signal {s!r} (known: {', '.join(SIGNALS)})")
     if not 0 <= float(opt["mask_deg"]) < 90:
         bad.append(f"mask_deg: expected a value in [0, 90), got {opt['mask_deg']}")
+    hold = opt["hold_after_fixes"]
+    if isinstance(hold, bool) or not isinstance(hold, (int, np.integer)) or hold < 1:
+        bad.append(f"hold_after_fixes: expected a whole number of consecutive fixed epochs >= 1 before fix-and-hold "
+                   f"feeds the integers back, got {hold!r}")
     if float(opt["ratio"]) < 1:
         bad.append(f"ratio: expected ≥ 1, got {opt['ratio']}")
     for key in ("sync_tol_s", "max_age_s"):
@@ -115,8 +119,9 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
     bx = np.asarray(base_xyz_m if base_xyz_m is not None else hb["approx_position_xyz_m"] or (), dtype=float)
     if bx.shape != (3,):
         raise CdgpsError(f"{base_path}: the base has no position (no APPROX POSITION XYZ; give --base-xyz X Y Z)")
-    rx, rx_from_spp = _rover_origin(hr, r, nav, bx, rover_path, warnings)
+    # the base first: a rover without a position is placed by single-point positioning started at the base
     _check_position(bx, f"{base_path} (base)", "--base-xyz" if base_xyz_m is not None else "its APPROX POSITION XYZ")
+    rx, rx_from_spp = _rover_origin(hr, r, nav, bx, rover_path, warnings)
     gb, gr = (_geometry(df, nav, xyz, path, who, nav_paths) for df, xyz, path, who in
               ((b, bx, base_path, "base"), (r, rx, rover_path, "rover")))
     warnings += [f"{path} ({who}): observations of {len(d)} satellite(s) without a healthy ephemeris covering them "

@@ -57,3 +57,41 @@ def test_beidou_glonass_signals_are_accepted_and_refusals_name_what_is_missing(t
     # rinex-ge has no BeiDou observation types
     msg = _run(tmp_path, "--base", BASE, "--rover", BASE, "--nav", str(GE / "RINEX_GN_Spirent.23N"), "--signals", "C:B1I")
     assert "C:B1I (BeiDou" in msg and "absent from the observation types" in msg
+
+
+def test_hold_after_fixes_below_one_is_refused_naming_the_option(tmp_path):
+    """Review finding: hold_after_fixes = 0 held a fix that did not exist yet (TypeError); it is refused
+    by the CLI (--hold-after-fixes), by the options check and by solve_rtk, naming the option."""
+    from cdgps_cli.core.errors import CdgpsError
+    from cdgps_cli.estimation.rtk_multi import solve_rtk
+    from cdgps_cli.pipeline.gnss_multi import rtk_from_files
+
+    msg = _run(tmp_path, "--base", BASE, "--rover", BASE, "--nav", str(GE / "RINEX_GN_Spirent.23N"), "--signals", "G:L1",
+               "--fix-and-hold", "--hold-after-fixes", "0")
+    assert "--hold-after-fixes" in msg and "0" in msg
+    for bad in (0, -3, 2.5, True):
+        with pytest.raises(CdgpsError, match="hold_after_fixes"):
+            rtk_from_files(BASE, BASE, [], tmp_path / "x.csv", options={"fix_and_hold": True, "hold_after_fixes": bad})
+    with pytest.raises(CdgpsError, match="hold_after_fixes"):
+        solve_rtk(None, None, (1.0, 2.0, 3.0), (1.0, 2.0, 3.0), options={"fix_and_hold": True, "hold_after_fixes": 0})
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_bad_base_position_is_named_before_the_rover_is_placed(tmp_path):
+    """Review finding: a rover without a position is placed by single-point positioning started at
+    the base; a base position off the Earth (a typo) gave "rover: single-point position is not
+    solvable".  The base position is checked first and named."""
+    ms = REPO_ROOT / ".." / "shared" / "data" / "real-pairs" / "mosaic-static"
+    if not ms.exists():
+        pytest.skip("../shared/data/real-pairs absent")
+    lines = (ms / "rover.obs").read_text().splitlines(keepends=True)
+    lines = [f"{0.0:14.4f}{0.0:14.4f}{0.0:14.4f}{'':18s}APPROX POSITION XYZ\n" if "APPROX POSITION XYZ" in ln else ln
+             for ln in lines]
+    src = tmp_path.parent / f"{tmp_path.name}_in"
+    src.mkdir()
+    rover = src / "rover_no_position.obs"
+    rover.write_text("".join(lines))
+    msg = _run(tmp_path, "--base", str(ms / "base.obs"), "--rover", str(rover), "--nav", str(ms / "base.nav"),
+               "--signals", "G:L1", "--base-xyz", "-3817681", "3562839", "36501590")
+    assert "base.obs (base): position from --base-xyz is" in msg and "km from the Earth's centre" in msg
+    assert "single-point" not in msg

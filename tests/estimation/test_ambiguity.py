@@ -648,3 +648,32 @@ def test_success_rate_agrees_with_monte_carlo_bootstrapping():
     p = float(np.prod([math.erf(1 / (2 * math.sqrt(2 * x))) for x in d]))
     assert p_mc == pytest.approx(p, abs=4e-3)
     assert _success_rate(Q) >= p - 1e-12          # decorrelation never lowers it
+
+
+def test_z_matrix_and_size_reduction_match_the_elementwise_reference():
+    """The numpy Z (column operations on int64) equals the Python-integer one, and the size
+    reduction that searches each column with numpy records the operations of the element-by-element
+    double loop (same L bit for bit)."""
+    from cdgps_cli.estimation import ambiguity as amb
+
+    def size_reduce_loop(L, ops):
+        n = L.shape[0]
+        for j in range(n - 2, -1, -1):
+            for i in range(j + 2, n):
+                if abs(L[i, j]) > 0.5:
+                    amb._gauss(L, ops, None, i, j)
+
+    rng = np.random.default_rng(3)
+    for n in (2, 5, 12, 30):
+        A = rng.normal(size=(n, n)) * np.geomspace(1, 10, n)
+        L0, d0 = amb.ld_factorize(A @ A.T + 1e-3 * np.eye(n))
+        L, d, ops = amb._reduce(L0, d0)
+        assert np.array_equal(amb._z_matrix(ops, n), amb._z_matrix_exact(ops, n))
+        Lr = np.array(L0, copy=True)
+        for a in range(n):                      # a lower triangle with entries beyond 1/2 to reduce
+            Lr[a + 1:, a] = rng.normal(scale=3.0, size=n - a - 1)
+        L1, L2, ops1, ops2 = Lr.copy(), Lr.copy(), [], []
+        amb._size_reduce(L1, ops1, None)
+        size_reduce_loop(L2, ops2)
+        assert ops1 == ops2 and np.array_equal(L1, L2)
+        assert len(ops1) > 0 or n < 3

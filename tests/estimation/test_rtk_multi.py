@@ -178,3 +178,83 @@ def test_unresolved_half_cycles_stay_float():
     assert res["fixed"].all()
     e = np.array([ecef_to_enu(x, TRUTH) for x in res["fixed_xyz_m"]])
     assert np.abs(e).max() < 0.003, np.abs(e).max(axis=0)
+
+
+def _pass(x, P, fixed_x=None, fixed_P=None):
+    n = len(x)
+    fixed = fixed_x is not None
+    return {"float_xyz": np.array(x), "float_cov": np.array(P),
+            "fixed_xyz": np.array(fixed_x) if fixed else np.full((n, 3), np.nan),
+            "fixed_cov": np.array(fixed_P) if fixed else np.full((n, 3, 3), np.nan),
+            "fixed": np.full(n, fixed), "ratio": np.full(n, np.nan), "n_fixed": np.zeros(n, np.int64),
+            "partial": np.zeros(n, bool), "ns": np.zeros(n, np.int64)}
+
+
+def test_combined_covariance_does_not_count_epoch_k_twice():
+    """Review finding: the forward and backward estimates at epoch k both hold epoch k's measurement;
+    merged as independent estimates their covariance counted it twice (R/(n+1) for n measurements of
+    a static point: below the batch R/n).  The combined float and fixed covariances are the better
+    pass's (never below the batch's), the positions their weighted mean."""
+    from cdgps_cli.estimation.rtk_multi import _combine
+
+    rng = np.random.default_rng(5)
+    n, R = 6, 4e-4
+    z = rng.normal(scale=np.sqrt(R), size=(n, 3)) + [1.0, 2.0, 3.0]
+    eye = np.eye(3)
+    fwd = _pass([z[:k + 1].mean(0) for k in range(n)], [R / (k + 1) * eye for k in range(n)])
+    bwd = _pass([z[k:].mean(0) for k in range(n)], [R / (n - k) * eye for k in range(n)])
+    out = _combine(fwd, bwd)
+    var = out["float_cov"][:, 0, 0]
+    assert np.all(var >= R / n * (1 - 1e-12)), var * n / R             # never better than all n measurements
+    np.testing.assert_allclose(var, [R / max(k + 1, n - k) for k in range(n)])
+    w = np.array([[k + 1, n - k] for k in range(n)], float)        # inverse-variance weights of the two passes
+    mean = (w[:, :1] * fwd["float_xyz"] + w[:, 1:] * bwd["float_xyz"]) / w.sum(1, keepdims=True)
+    np.testing.assert_allclose(out["float_xyz"], mean, atol=1e-12)
+    # two agreeing fixes of one epoch share its phases: their mean is not reported twice as precise
+    fx = np.tile([1.0, 2.0, 3.0], (n, 1))
+    Pa, Pb = 1e-6 * eye, 2e-6 * eye
+    out = _combine(_pass(fwd["float_xyz"], fwd["float_cov"], fx, np.tile(Pa, (n, 1, 1))),
+                   _pass(bwd["float_xyz"], bwd["float_cov"], fx + 1e-4, np.tile(Pb, (n, 1, 1))))
+    assert out["fixed"].all() and out["rejected"] == 0
+    np.testing.assert_allclose(out["fixed_cov"], np.tile(Pa, (n, 1, 1)))
+    np.testing.assert_allclose(out["fixed_xyz"], fx + 1e-4 / 3, atol=1e-12)
+
+
+def test_sd_information_update_equals_the_dd_rows_with_kalman_update(pair, monkeypatch):
+    """The epoch update on the single differences with W = Σ⁻¹ − Σ⁻¹11ᵀΣ⁻¹/1ᵀΣ⁻¹1 gives what the DD
+    rows (dd_signals.epoch_rows, a reference per group, Cholesky-whitened D Σ Dᵀ) with kalman.update
+    gave: same fixed epochs, positions to rounding, on L1 + L2 with the ionosphere estimated too."""
+    from cdgps_cli.estimation import kalman
+    from cdgps_cli.measurement.dd_signals import epoch_rows
+
+    sig, nav, b, r = pair
+    gb, gr = receiver_geometry(b, nav, BASE), receiver_geometry(r, nav, TRUTH)
+
+    def dd_rows_update(xb, Pb, groups, base_xyz, origin, iterations):
+        xi, L = xb.copy(), None
+        for _ in range(iterations):
+            res, H, L = epoch_rows(xi, groups, base_xyz, origin, len(xb), noise_chol=L)
+            xi, P, _ = kalman.update(xb, Pb, res + H @ (xi - xb), H, noise_chol=L)
+        return xi, P
+
+    for opt in ({}, {"iono_threshold_km": 1.0}):
+        new = solve_rtk(gb, gr, BASE, TRUTH, options=opt)
+        assert ("estimated" in new["iono_model"]) == bool(opt)
+        with monkeypatch.context() as m:
+            m.setattr(rtk_multi, "_epoch_update", dd_rows_update)
+            old = solve_rtk(gb, gr, BASE, TRUTH, options=opt)
+        assert new["fixed"].any() and np.array_equal(new["fixed"], old["fixed"])
+        np.testing.assert_allclose(new["float_xyz_m"], old["float_xyz_m"], rtol=0, atol=1e-6)
+        np.testing.assert_allclose(new["fixed_xyz_m"], old["fixed_xyz_m"], rtol=0, atol=1e-6)
+        np.testing.assert_allclose(new["float_cov_m2"], old["float_cov_m2"], rtol=1e-6, atol=1e-12)
+
+
+def test_the_rtk_path_does_not_import_scipy():
+    """scipy's import (≈ 0.13 s) is not on `cdgps rtk`'s path: the start-up counts against RTKLIB."""
+    import subprocess
+    import sys
+
+    code = ("import sys, cdgps_cli.cli.commands, cdgps_cli.pipeline.gnss_multi; "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] == 'scipy'))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert out == "[]", out

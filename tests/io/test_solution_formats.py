@@ -1,0 +1,53 @@
+"""The solution writers of `cdgps rtk` (review findings): no ``-0.00`` in .pos files, NMEA GGA
+sentences within the standard's 82 characters."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cdgps_cli.io.solution_formats import Q_FIX, Q_FLOAT, nmea_gga_text, pos_text, read_pos
+
+T0 = 1403252400.0
+
+
+def test_pos_writes_no_negative_zero_ages_or_covariance_roots(tmp_path):
+    n = 4
+    age = np.array([-0.001, -0.004, 0.0, -0.5])           # rover − base: a base epoch a few ms later
+    cov = np.tile(np.diag([1e-4, 1e-4, 4e-4]), (n, 1, 1))
+    cov[:, 0, 1] = cov[:, 1, 0] = -1e-10                  # a covariance whose signed root rounds to zero
+    text = pos_text(T0 + np.arange(n), np.tile([35.1, 136.9, 104.8], (n, 1)), np.full(n, Q_FIX), np.full(n, 9), cov,
+                    age, np.full(n, 5.0), frame="llh", header=["program : test"])
+    assert "-0.00 " not in text and " -0.0000" not in text
+    p = tmp_path / "s.pos"
+    p.write_text(text)
+    np.testing.assert_array_equal(read_pos(p)["age_s"], [0.0, 0.0, 0.0, -0.5])
+
+
+def _checksum_ok(sentence: str) -> bool:
+    body, hh = sentence[1:].split("*")
+    x = 0
+    for ch in body.encode("ascii"):
+        x ^= ch
+    return f"{x:02X}" == hh
+
+
+def test_gga_sentences_fit_82_characters_with_seven_decimal_minutes():
+    lat = np.array([35.134699044, -35.134699044, 0.5, 59.999999999999, 35.1])
+    lon = np.array([136.977575471, -136.977575471, -0.5, 179.9999999999, 136.9])
+    h = np.array([104.8607, -12.0, 0.0, 8848.1234, -1545.4])
+    age = np.array([0.0, -0.01, 1.0, 30.0, 29.96])
+    lines = nmea_gga_text(T0 + np.arange(5), lat, lon, h, np.array([Q_FIX, Q_FLOAT, Q_FIX, Q_FIX, Q_FLOAT]),
+                          np.array([9, 12, 4, 120, 30]), age).split("\r\n")[:-1]
+    assert len(lines) == 5
+    for ln in lines:
+        f = ln.split(",")
+        assert len(ln) <= 82, (len(ln), ln)                 # NMEA 0183, $ to checksum
+        assert _checksum_ok(ln)
+        assert len(f[2].split(".")[1]) <= 7 and len(f[4].split(".")[1]) <= 7
+        assert f[14] != "-0.0"
+    f = lines[0].split(",")                                # an ordinary line keeps RTKLIB's 7 decimals
+    assert f[2] == "3508.0819426" and f[3] == "N" and f[4] == "13658.6545283" and f[5] == "E" and f[6] == "4"
+    assert lines[1].split(",")[3] == "S" and lines[1].split(",")[5] == "W"
+    deg = int(float(f[2]) // 100) + (float(f[2]) % 100) / 60
+    assert abs(deg - lat[0]) < 1e-9
+    assert lines[3].split(",")[7] == "99"
