@@ -748,7 +748,8 @@ def export(ctx, states_mcap, out_csv, kinematic, points, as_json):
     from cdgps_cli.io.file_checks import GNSS_STATES, STATES, require_kind
     from cdgps_cli.pipeline.estimate_outputs import export_csv
 
-    require_kind(states_mcap, GNSS_STATES if kinematic else STATES, "STATES_MCAP")
+    require_kind(states_mcap, GNSS_STATES if kinematic else STATES,
+                 "--kinematic: STATES_MCAP" if kinematic else "STATES_MCAP")   # the option that asks for a GNSS file
     if kinematic:
         from cdgps_cli.pipeline.gnss import export_kinematic_csv
 

@@ -169,11 +169,13 @@ def evaluate(truth_dir: str | Path, states_path: str | Path, converge_s: float =
         raise CdgpsError(f"{truth_dir}: cannot read truth.csv / truth.json: {exc}") from None
     st = States(states_path)
     names = list(st.coord_names)
+    if tj.get("config_sha256") and tj["config_sha256"] != st.config_sha256:    # first: it explains missing columns
+        raise CdgpsError(f"--truth {truth_dir}: simulated with config {tj.get('config')!r} (sha256 "
+                         f"{str(tj['config_sha256'])[:12]}…), but {states_path} estimates config {st.config_name!r} "
+                         f"(sha256 {str(st.config_sha256)[:12]}…); give the truth of the run that was estimated")
     missing = [n for n in ["time_s", *names] if n not in truth.columns]
     if missing:
         raise CdgpsError(f"{truth_dir / 'truth.csv'}: missing column(s) {', '.join(missing)}")
-    if tj.get("config_sha256") and tj["config_sha256"] != st.config_sha256:
-        raise CdgpsError("truth.json was simulated with a different config than the estimate's")
     tt = np.rint(truth["time_s"].to_numpy() * 1e6).astype(np.int64)
     te = np.rint(st.time_s * 1e6).astype(np.int64)
     common, it, ie = np.intersect1d(tt, te, return_indices=True)

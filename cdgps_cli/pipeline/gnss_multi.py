@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from cdgps_cli.config.limits import GEOCENTRIC_RANGE_M
 from cdgps_cli import __version__
 from cdgps_cli.config.options import MULTI_GNSS_DEFAULTS
 from cdgps_cli.core.errors import CdgpsError
@@ -210,9 +211,7 @@ def solution_text(res: dict, sigs, opt: dict, out_path, base_xyz, *, inputs=()) 
     return buf.getvalue()
 
 
-#: a receiver on or near the Earth: its distance from the geocentre, m (WGS-84 radii 6 356 752–6 378 137 m,
-#: from the Dead Sea shore to above the highest summits and aircraft altitudes)
-_GEOCENTRIC_RANGE_M = (6.30e6, 6.45e6)
+_GEOCENTRIC_RANGE_M = GEOCENTRIC_RANGE_M          # one home: config/limits.py
 
 
 def _check_position(xyz, who: str, source: str) -> None:

@@ -222,3 +222,15 @@ def test_baseline_names_the_flag_not_the_field(tmp_path):
             "--nav", g / "07590920.05n", "--master", "B", "--mask-deg", "-10", "-o", tmp_path / "b.json")
     refused(r, "--mask-deg must be in [0, 90) degrees, got -10")
     assert "mask_deg" not in r.stderr and not (tmp_path / "b.json").exists()
+
+
+def test_export_kinematic_on_a_structure_states_names_the_option(chain, tmp_path):
+    refused(cli("-q", "export", chain / "states.mcap", "--kinematic", "-o", tmp_path / "k.csv"),
+            "--kinematic: STATES_MCAP", "expected a GNSS STATES.mcap")
+    assert not (tmp_path / "k.csv").exists()
+
+
+def test_evaluate_with_the_truth_of_another_config_says_so(chain):
+    """Issue 32: the truth of the testbed against a 2-DOF estimate reported 'missing columns'."""
+    r = cli("-q", "evaluate", "--truth", ROOT / "data" / "testbed-static", "--estimate", chain / "states.mcap")
+    refused(r, "--truth", "simulated with config 'testbed-1998'", "estimates config 'teague-1995-2dof'")
