@@ -67,6 +67,13 @@ def cdgps_json(*args) -> dict:
     return json.loads(cdgps(*args, "--json"))
 
 
+def _chain(steps) -> dict:
+    """Run the commands in order; the last one's --json summary."""
+    for s in steps[:-1]:
+        cdgps(*s)
+    return cdgps_json(*steps[-1])
+
+
 def _cmd(*args) -> str:
     return "cdgps " + " ".join(str(a).replace(str(ROOT) + "/", "") for a in args)
 
@@ -123,9 +130,7 @@ def hstatic(w: Path, figdir: Path) -> list[Headline]:
              ("estimate", d / "run.mcap", "--init", d / "init.json", "--rest", "80:", "--smooth", "-o", d / "states.mcap"),
              ("report", "static", d / "states.mcap", "--gyro", d / "run.mcap", "--angle", "q6+q10", "--survey-deg", -1.4,
               "--date", "2026-01-01", "-o", d / "report")]
-    for s in steps[:-1]:
-        cdgps(*s)
-    r = cdgps_json(*steps[-1])
+    r = _chain(steps)
     fig = _figure(d / "report" / "static.png", "paper-static.png", figdir)
     return [Headline(
         "1998", "Sec. VI.A, Fig. 7", "centre-section vertical angle q6 + q10 at rest: −1.48° by GPS against a laser "
@@ -146,9 +151,7 @@ def hpsd(w: Path, figdir: Path) -> list[Headline]:
              ("init", d / "run.mcap", "-o", d / "init.json"),
              ("estimate", d / "run.mcap", "--init", d / "init.json", "--smooth", "-o", d / "states.mcap"),
              ("report", "spectrum", d / "states.mcap", "--gyro", d / "run.mcap", "--date", "2026-01-01", "-o", d / "report")]
-    for s in steps[:-1]:
-        cdgps(*s)
-    r = cdgps_json(*steps[-1])
+    r = _chain(steps)
     modes = [m for m in r["modes"] if m.get("gps_hz") is not None]
     errs = {m["mode"]: m["error_pct"] for m in modes}
     worst = max(errs, key=lambda k: abs(errs[k]))

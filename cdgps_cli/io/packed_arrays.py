@@ -173,17 +173,7 @@ def unpack(data: bytes, what: str = "packed array") -> np.ndarray:
     (n_head,) = _HEAD.unpack(data[8:12])
     if n_head > _MAX_HEADER or 12 + n_head > len(data):
         raise ValueError(f"{what}: header length {n_head} is out of range")
-    try:
-        head = json.loads(bytes(data[12:12 + n_head]))
-        dtype = np.dtype(head["dtype"])
-        shape = tuple(int(s) for s in head["shape"])
-        filt = head["filter"]
-        delta = head.get("delta", 0)
-    except (ValueError, KeyError, TypeError) as exc:
-        raise ValueError(f"{what}: damaged header ({exc})") from None
-    if (filt != FILTER or dtype.kind not in "biuf" or any(s < 0 for s in shape) or delta not in DELTA_ORDERS
-            or (delta and dtype.kind == "b")):
-        raise ValueError(f"{what}: unsupported header {head}")
+    dtype, shape, delta = _parse_header(bytes(data[12:12 + n_head]), what)
     size = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
     try:
         raw = zstandard.ZstdDecompressor().decompress(data[12 + n_head:], max_output_size=max(size, 1))
