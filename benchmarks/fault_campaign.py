@@ -312,7 +312,7 @@ def build_old_outputs(p: dict, work: Path) -> None:
         return
     old.mkdir(exist_ok=True)
     for argv in (["simulate", str(p["config"]), "--duration", "120", "--seed", "1", "-o", str(old / "sim-seed1")],
-                 ["spectra", str(p["states"]), "--segment-s", "1", "-o", str(old / "spectra-seg1")],
+                 ["spectra", str(p["states"]), "--segment-s", "2", "-o", str(old / "spectra-seg1")],
                  ["simulate-gnss", "--duration", "900", "--seed", "1", "-o", str(old / "gsim-seed1")]):
         subprocess.run(CDGPS + ["-q", *argv], check=True, capture_output=True)
     (old / "done").write_text("")
