@@ -1,5 +1,6 @@
-"""The structure config's keys, declared once (issue 32 item 6): which tables exist, which keys each
-table allows and requires, their types, bounds and meaning.
+"""The config files' keys, declared once (issue 32 item 6): which tables exist, which keys each
+table allows and requires, their types, bounds and meaning — the structure config
+(:data:`STRUCTURE_TABLES`) and the GNSS run config (:data:`GNSS_TABLES`).
 
 :func:`cdgps_cli.config.structure.parse_config` takes its allowed and required key sets from
 :data:`STRUCTURE_TABLES` (so an unknown key and a missing one are judged by this table), the
@@ -204,3 +205,81 @@ def structure_json_schema(simulation_defaults: dict) -> dict:
                            "transmitters, modes, process noise, gyros, points, thrusters (docs/config-format.md).",
             "type": "object", "properties": dict(sorted(props.items())), "required": list(TOP_REQUIRED),
             "additionalProperties": False}
+
+
+# ---------------------------------------------------------------------------------------------
+# GNSS run configs (docs/gnss-pipeline.md): one [gnss] table, its antennas and displacement model
+
+_POS = {"type": "number", "exclusiveMinimum": 0}
+_FILES = {"oneOf": [_STR, {"type": "array", "items": _STR}]}
+
+#: table path ("gnss", "gnss.antennas.*": every antenna, "gnss.displacement") → key → (required, JSON Schema)
+GNSS_TABLES: dict[str, dict[str, tuple[bool, dict]]] = {
+    "gnss": {
+        "name": _key(_STR, "run name (default: the file's name)"),
+        "description": _key(_STR, "free text"),
+        "master": _key(_STR, "the reference antenna (its position is held)"),
+        "nav": _key(_FILES, "RINEX navigation file(s), relative to this file; globs allowed"),
+        "mask_deg": _key({"type": "number", "minimum": 0, "exclusiveMaximum": 90}, "elevation mask, degrees"),
+        "ratio": _key({"type": "number", "minimum": 1}, "LAMBDA ratio-test threshold"),
+        "partial": _key(_BOOL, "partial fixing when the full set fails the ratio test"),
+        "fix": _key(_BOOL, "fix integers (false: float solution)"),
+        "weighting": _key({"type": "string", "enum": ["elevation", "equal"]},
+                          "phase variance a² + b²/sin²(el) or a² + b²"),
+        "sigma_a_m": _key({"type": "number", "minimum": 0}, "phase noise a, m"),
+        "sigma_b_m": _key({"type": "number", "minimum": 0}, "phase noise b (elevation term), m"),
+        "code_ratio": _key(_POS, "code σ / phase σ"),
+        "troposphere": _key(_BOOL, "a priori hydrostatic troposphere"),
+        "max_gap_s": _key(_POS, "a longer gap in a satellite's phase starts a new ambiguity, s"),
+        "sync_tol_s": _key({"type": "number", "exclusiveMinimum": 0, "maximum": 1},
+                           "base and rover epochs this close are simultaneous, s"),
+        "max_age_s": _key(_POS, "oldest base epoch bridged to a rover epoch, s (RTKLIB's maxage)"),
+        "code_correlation_s": _key({"type": "number", "minimum": 0},
+                                   "code errors as a Gauss-Markov process of this correlation time, s (0: white)"),
+        "epoch_alignment": _key({"type": "string", "enum": ["geometry", "doppler"]},
+                                "how receivers' epochs are brought to one instant"),
+        "signals": _key({"type": "array", "items": _STR}, "signals to use, e.g. [\"G:L1\", \"E:E1\"]"),
+        "iono_threshold_km": _key({"type": "number", "minimum": 0},
+                                  "baselines longer than this estimate the ionosphere, km"),
+        "antennas": _key({"type": "object"}, "one table per antenna: [gnss.antennas.NAME]", True),
+        "displacement": _key({"type": "object"}, "the rovers' motion model"),
+    },
+    "gnss.antennas.*": {
+        "rinex": _key(_STR, "RINEX observation file (or a quoted glob of consecutive files), relative to this file"),
+        "ubx": _key(_STR, "u-blox UBX log (or a quoted glob of consecutive files), relative to this file"),
+        "position_ecef_m": _key(_VEC3, "nominal antenna position, ECEF m (default: the RINEX header's)"),
+        "description": _key(_STR, "free text"),
+    },
+    "gnss.displacement": {
+        "model": _key({"type": "string", "enum": ["static", "random_walk"]}, "static or random-walk E/N/U displacement"),
+        "sigma_m_per_sqrt_s": _key({"oneOf": [_POS, {**_VEC3, "items": _POS}]},
+                                   "random-walk rate, m/√s (one number or E, N, U)"),
+        "initial_sigma_m": _key(_POS, "prior σ of the first epoch's position, m"),
+    },
+}
+
+
+def gnss_keys(table: str) -> tuple[set, set]:
+    """(required, optional) keys of a GNSS run config table (:data:`GNSS_TABLES`)."""
+    keys = GNSS_TABLES[table]
+    return {k for k, (r, _) in keys.items() if r}, {k for k, (r, _) in keys.items() if not r}
+
+
+def gnss_json_schema() -> dict:
+    """The JSON Schema of a GNSS run config (shape, types, ranges, descriptions)."""
+    def table(name):
+        keys = GNSS_TABLES[name]
+        out = {"type": "object", "properties": {k: copy.deepcopy(v) for k, (_, v) in sorted(keys.items())},
+               "additionalProperties": False}
+        req = sorted(k for k, (r, _) in keys.items() if r)
+        return {**out, "required": req} if req else out
+    gnss = table("gnss")
+    gnss["properties"]["antennas"] = {**gnss["properties"]["antennas"], "additionalProperties": table("gnss.antennas.*")}
+    gnss["properties"]["displacement"] = {**table("gnss.displacement"),
+                                          "description": gnss["properties"]["displacement"]["description"]}
+    return {"$schema": "https://json-schema.org/draft/2020-12/schema",
+            "$id": SCHEMA_ID.replace("structure-config", "gnss-config"),
+            "title": "cdgps GNSS run config (TOML)",
+            "description": "Real or simulated receiver files of a master and rovers, and the solver's settings "
+                           "(docs/gnss-pipeline.md).",
+            "type": "object", "properties": {"gnss": gnss}, "required": ["gnss"], "additionalProperties": False}

@@ -26,7 +26,7 @@ import numpy as np
 from cdgps_cli.core.errors import CdgpsError, join_problems
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli.config.limits import config_range_problems
-from cdgps_cli.config.schema import optional_keys, required_keys
+from cdgps_cli.config.schema import gnss_keys, optional_keys, required_keys
 from cdgps_cli.config.options import GNSS_DEFAULTS
 
 AXES = ("x", "y", "z")
@@ -929,16 +929,10 @@ GNSS_WEIGHTINGS = ("elevation", "equal")
 # defaults of the GNSS solver settings: the [gnss] parser, GnssConfig and baseline.BaselineOptions all
 # take them from here (RTKLIB-comparable: 15° mask, ratio 3, a = b = 3 mm, code/phase ratio 100, DTTOL)
 
-_GNSS_KEYS = {
-    "name": "string", "description": "string", "master": "string", "nav": "list of file paths",
-    "mask_deg": "number", "ratio": "number", "partial": "bool", "fix": "bool", "weighting": "string",
-    "sigma_a_m": "number", "sigma_b_m": "number", "code_ratio": "number", "troposphere": "bool",
-    "max_gap_s": "number", "sync_tol_s": "number", "max_age_s": "number", "code_correlation_s": "number",
-    "epoch_alignment": "string", "antennas": "table",
-    "displacement": "table", "signals": "list of signal names", "iono_threshold_km": "number",
-}
-_GNSS_ANTENNA_KEYS = {"rinex", "ubx", "position_ecef_m", "description"}
-_GNSS_DISPLACEMENT_KEYS = {"model", "sigma_m_per_sqrt_s", "initial_sigma_m"}
+# the keys of each table, from the one declaration (config/schema.py, also published as a JSON Schema)
+_GNSS_KEYS = set().union(*gnss_keys("gnss"))
+_GNSS_ANTENNA_KEYS = set().union(*gnss_keys("gnss.antennas.*"))
+_GNSS_DISPLACEMENT_KEYS = set().union(*gnss_keys("gnss.displacement"))
 
 
 @dataclass(frozen=True)

@@ -82,3 +82,37 @@ def test_a_missing_required_key_is_refused_by_both(testbed_text):
     lines = [ln for ln in testbed_text.splitlines(keepends=True) if not ln.startswith("sample_period_s")]
     with pytest.raises(CdgpsError, match="model.sample_period_s: missing required key"):
         parse_config("".join(lines))
+
+
+# ---- the GNSS run config
+
+
+GNSS_CONFIGS = [p for p in sorted((ROOT / "configs").glob("*.toml")) if config_kind(p.read_text()) == "gnss"]
+
+
+def test_the_published_gnss_schema_is_the_generated_one():
+    spec = importlib.util.spec_from_file_location("mk", ROOT / "scripts" / "make_config_schema.py")
+    mk = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mk)
+    assert mk.GNSS_OUT.read_text() == mk.gnss_schema_text(), "run scripts/make_config_schema.py"
+    jsonschema.Draft202012Validator.check_schema(json.loads(mk.GNSS_OUT.read_text()))
+
+
+@pytest.mark.parametrize("path", GNSS_CONFIGS, ids=lambda p: p.name)
+def test_every_shipped_gnss_config_validates(path):
+    from cdgps_cli.config.schema import gnss_json_schema
+
+    assert len(GNSS_CONFIGS) >= 2
+    jsonschema.validate(tomllib.loads(path.read_text()), gnss_json_schema())
+
+
+def test_gnss_unknown_keys_are_refused_by_both():
+    from cdgps_cli.config.schema import gnss_json_schema
+    from cdgps_cli.config.structure import parse_gnss_config
+
+    text = '[gnss]\nmaster = "A"\nbogus = 1\n[gnss.antennas.A]\nrinex = "a.obs"\nnope = 2\n'
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate(tomllib.loads(text), gnss_json_schema())
+    with pytest.raises(CdgpsError) as e:
+        parse_gnss_config(text)
+    assert "gnss.bogus: unknown key" in str(e.value) and "gnss.antennas.A.nope: unknown key" in str(e.value)

@@ -1,0 +1,338 @@
+"""GNSS commands beside the stages: baseline, rtk, config, baseline-config, simulate-gnss,
+simulate-gnss-structure; each a thin shell over its library function."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from cdgps_cli.config.options import GNSS_DEFAULTS, X_AXIS_AZIMUTH_DEG
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.cli.app import (_warn, _say, _output_option, _named_by_flags, _emit_json, main, _parse_named,
+                               _write_json_atomic, _write_text_atomic)
+
+
+@main.command("baseline", short_help="Static baseline of two RINEX receivers → JSON")
+@click.option("--config", "job", type=click.Path(dir_okay=False), default=None,
+              help="Baseline job TOML (files, master, options; see docs/geonet.md). Options below override it.")
+@click.option("--rinex", "rinex", multiple=True, metavar="NAME=PATH", help="RINEX observation file of a station (give two).")
+@click.option("--nav", "nav", multiple=True, type=click.Path(dir_okay=False), help="RINEX GPS navigation file (repeatable).")
+@click.option("--master", default=None, help="Station held at its RINEX header position (the reference).")
+@click.option("--mask-deg", type=float, default=None, help=f"Elevation mask, degrees [{GNSS_DEFAULTS['mask_deg']:g}].")
+@click.option("--ratio", "ratio_threshold", type=float, default=None, help=f"LAMBDA ratio-test threshold [{GNSS_DEFAULTS['ratio']:g}].")
+@click.option("--min-success-rate", type=float, default=None,
+              help=f"Bootstrapped success rate an integer set (or partial subset) must reach besides the ratio test "
+                   f"(0: ratio test only) [{GNSS_DEFAULTS['min_success_rate']:g}].")
+@click.option("--max-age", "max_age_s", type=float, default=None,
+              help=f"Oldest master epoch bridged to a rover epoch, s [{GNSS_DEFAULTS['max_age_s']:g}, RTKLIB's].")
+@click.option("--weighting", type=click.Choice(["elevation", "equal"]), default=None,
+              help="Phase weights: a²+b²/sin²(el) or equal [elevation].")
+@click.option("--no-partial", is_flag=True, help="Do not try partial fixing when the full set fails the ratio test.")
+@click.option("--float-only", is_flag=True, help="Do not fix integers (float solution only).")
+@click.option("--no-troposphere", is_flag=True, help="No a priori hydrostatic troposphere.")
+@click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="Result JSON to write.")
+@click.option("--json", "as_json", is_flag=True, help="Also print the result JSON on stdout.")
+@click.pass_context
+def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, min_success_rate, max_age_s, weighting, no_partial,
+                 float_only, no_troposphere, output, as_json):
+    """Static baseline from two receivers' RINEX L1 phase: float, LAMBDA integers, fixed → JSON."""
+    import dataclasses
+
+    from cdgps_cli.estimation.baseline import BaselineOptions, format_summary, json_safe
+    from cdgps_cli.pipeline.baseline_job import baseline_from_files, load_baseline_job
+
+    positions = {}
+    if job:
+        cfg = load_baseline_job(job)
+        stations, navs, mst, opt = cfg["rinex"], cfg["nav"], cfg["master"], cfg["options"]
+        positions = cfg.get("positions", {})
+    else:
+        stations, navs, mst, opt = {}, [], None, BaselineOptions()
+    if rinex:
+        stations = _parse_named(rinex, "--rinex", "station", "NAME=PATH")
+    if nav:
+        navs = list(nav)
+    mst = master or mst
+    if len(stations) != 2:
+        raise CdgpsError(f"give exactly two stations with --rinex NAME=PATH (or --config), got {len(stations)}")
+    if not navs:
+        raise CdgpsError("give at least one navigation file with --nav (or --config)")
+    if not mst:
+        raise CdgpsError(f"--master is required: which of {', '.join(stations)} is the reference at its header position")
+    if mst not in stations:
+        raise CdgpsError(f"master {mst!r} is not one of the stations given: {', '.join(stations)}")
+    changes = {}
+    if mask_deg is not None:
+        changes["mask_deg"] = mask_deg
+    if ratio_threshold is not None:
+        changes["ratio_threshold"] = ratio_threshold
+    if min_success_rate is not None:
+        changes["min_success_rate"] = min_success_rate
+    if max_age_s is not None:
+        changes["max_age_s"] = max_age_s
+    if weighting is not None:
+        changes["weighting"] = weighting
+    if no_partial:
+        changes["partial"] = False
+    if float_only:
+        changes["fix"] = False
+    if no_troposphere:
+        changes["troposphere"] = False
+    flags = {"mask_deg": "--mask-deg", "ratio_threshold": "--ratio", "max_age_s": "--max-age", "weighting": "--weighting",
+             "min_success_rate": "--min-success-rate"}
+    opt = dataclasses.replace(opt, **changes)
+    _named_by_flags(opt.validate, {k: flags[k] for k in changes if k in flags})
+    rover = next(n for n in stations if n != mst)
+    _say(ctx, f"baseline {mst} → {rover}: {len(navs)} navigation file(s), mask {opt.mask_deg:g}°, ratio {opt.ratio_threshold:g} …")
+    res = json_safe(baseline_from_files(stations, navs, mst, opt,
+                                        positions={k: v for k, v in positions.items() if k in stations}))
+    if job:
+        res["inputs"]["config"] = str(job)
+    timing = res.pop("timing_s", {})        # wall-clock: stderr only, so the file is byte-identical across runs
+    _write_json_atomic(output, res)
+    _say(ctx, format_summary(res))
+    _say(ctx, "timing (s): " + ", ".join(f"{k} {v:.2f}" for k, v in timing.items()))
+    _say(ctx, f"wrote {output}")
+    if as_json:
+        _emit_json(res)
+
+
+@main.command("config", short_help="Starter GNSS run config from receiver headers")
+@click.option("--rinex", "rinex", multiple=True, metavar="ANTENNA=FILE", help="RINEX observation file of an antenna.")
+@click.option("--ubx", "ubx", multiple=True, metavar="ANTENNA=FILE", help="u-blox UBX log (RXM-RAWX) of an antenna.")
+@click.option("--nav", "nav", multiple=True, type=click.Path(dir_okay=False), help="RINEX GPS navigation file.")
+@click.option("--master", default=None, help="Reference antenna (default: the first RINEX one with a header position).")
+@click.option("--displacement", type=click.Choice(["static", "random_walk"]), default="static", show_default=True,
+              help="Rover displacement model.")
+@click.option("--sigma", "sigma", type=float, default=None, help="random_walk process noise, m/√s per component [0.001].")
+@click.option("--name", default=None, help="Run name (default: the antenna names).")
+@click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="Config TOML to write.")
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (the written config as it loads, notes) on stdout.")
+@click.pass_context
+def config_cmd(ctx, rinex, ubx, nav, master, displacement, sigma, name, output, as_json):
+    """Write a starter GNSS run config from the receiver files' headers (for ingest and baseline)."""
+    from cdgps_cli.pipeline.gnss_ingest import starter_gnss_config
+
+    if sigma is not None and displacement != "random_walk":
+        raise CdgpsError("--sigma is the random-walk process noise: use it with --displacement random_walk")
+    notes: list = []
+    text = starter_gnss_config(_parse_named(rinex, "--rinex"), _parse_named(ubx, "--ubx"), list(nav), master,
+                               displacement=displacement, sigma_m_per_sqrt_s=sigma,
+                               relative_to=Path(output).resolve().parent, name=name, notes=notes)
+    _write_text_atomic(output, text)
+    for n in notes:
+        click.echo(f"cdgps: note: {n}", err=True)
+    _say(ctx, f"wrote {output}")
+    if as_json:
+        from cdgps_cli.config.structure import load_gnss_config
+
+        _emit_json({"output": output, "config": load_gnss_config(output).summary(), "notes": notes})
+
+
+@main.command("baseline-config", short_help="Starter baseline job TOML from RINEX headers")
+@click.option("--rinex", "rinex", multiple=True, required=True, metavar="NAME=PATH", help="RINEX observation file (give two).")
+@click.option("--nav", "nav", multiple=True, required=True, type=click.Path(dir_okay=False), help="RINEX GPS navigation file.")
+@click.option("--master", default=None, help="Reference station (default: the first --rinex).")
+@click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="Job TOML to write.")
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (stations, master, navigation files, options) on stdout.")
+@click.pass_context
+def baseline_config_cmd(ctx, rinex, nav, master, output, as_json):
+    """Write a starter baseline job TOML for 'cdgps baseline --config' (headers summarised in comments).
+
+    The file is a GNSS run config (docs/gnss-pipeline.md), so it also serves 'cdgps ingest'.
+    """
+    from cdgps_cli.pipeline.baseline_job import load_baseline_job
+    from cdgps_cli.pipeline.gnss_ingest import starter_gnss_config
+
+    stations = _parse_named(rinex, "--rinex", "station", "NAME=PATH")
+    if len(stations) != 2:
+        raise CdgpsError(f"a baseline job needs exactly two RINEX observation files (NAME=PATH), got {len(stations)}")
+    master = master or next(iter(stations))
+    text = starter_gnss_config(stations, {}, list(nav), master, relative_to=Path(output).resolve().parent)
+    _write_text_atomic(output, text)
+    job = load_baseline_job(output)  # the written job must load
+    _say(ctx, f"wrote {output}")
+    if as_json:
+        import dataclasses
+
+        _emit_json({"output": output, "master": job["master"], "stations": {k: str(v) for k, v in job["rinex"].items()},
+                    "nav": [str(v) for v in job["nav"]], "options": dataclasses.asdict(job["options"])})
+
+
+@main.command("simulate-gnss-structure", short_help="Simulate a structure seen by GNSS receivers → RINEX")
+@click.argument("config", type=click.Path(dir_okay=False))
+@click.option("--duration", "duration_s", type=float, default=1200.0, show_default=True, help="Seconds to simulate.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed (same seed → identical files).")
+@click.option("--x-axis-azimuth-deg", "x_axis_azimuth_deg", type=float, default=X_AXIS_AZIMUTH_DEG, show_default=True,
+              help="Azimuth of the structure x axis, degrees clockwise from north (90: x east, y north).")
+@click.option("--master-xyz", default=None, metavar="X,Y,Z", help="ECEF position of the master antenna, m [GEONET 3040].")
+@click.option("--signals", default=None, metavar="SIG,SIG…",
+              help="Signals every receiver tracks, e.g. G:L1,G:L2,E:E1,E:E5a,C:B1I,C:B2a (GPS, Galileo, BeiDou; G:L1 "
+                   "required); "
+                   "written to the config's [gnss] signals.  Default: GPS L1 without a signals list.")
+@_output_option("out_dir", "Output directory.", directory=True, old=("--out",))
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
+@click.pass_context
+def simulate_gnss_structure_cmd(ctx, config, duration_s, seed, x_axis_azimuth_deg, master_xyz, signals, out_dir, as_json):
+    """Simulate a structure's free motion seen by one GNSS receiver per antenna → RINEX + truth.
+
+    With --signals the receivers track GPS, Galileo and BeiDou (GEO, IGSO, MEO) on every signal given
+    (multi-signal RINEX 3) and the written config lists them ([gnss] signals), so the modal path uses them all.
+
+    The structure config's modal model moves the antennas (scenario free, at the config's sample
+    period); every antenna, the master too, has its own receiver.  The files feed
+    'cdgps ingest --config DIR/config.toml', 'cdgps init', then
+    'cdgps estimate … --structure CONFIG' and 'cdgps evaluate --truth DIR'.
+    """
+    from cdgps_cli.config.structure import load_config
+    from cdgps_cli.pipeline.gnss_modal import simulate_structure_gnss
+    from cdgps_cli.sim.gnss import DEFAULT_MASTER_XYZ, parse_vector
+
+    if not duration_s > 0:
+        raise CdgpsError(f"--duration must be positive, got {duration_s:g}")
+    if not -360.0 <= x_axis_azimuth_deg <= 360.0:
+        raise CdgpsError(f"--x-axis-azimuth-deg must be in [-360, 360], got {x_axis_azimuth_deg:g}")
+    cfg = load_config(config)
+    s = simulate_structure_gnss(
+        out_dir, cfg, master_ecef_m=parse_vector(master_xyz, "--master-xyz") if master_xyz else DEFAULT_MASTER_XYZ,
+        x_axis_azimuth_deg=x_axis_azimuth_deg, duration_s=duration_s, seed=seed,
+        signals=None if signals is None else [g.strip() for g in signals.split(",") if g.strip()],
+        progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
+    _say(ctx, f"wrote {out_dir}/: " + ", ".join(f"{k} {v}" for k, v in s.items() if isinstance(v, (int, float, str)))[:400])
+    if as_json:
+        _emit_json(s)
+
+
+@main.command("simulate-gnss", short_help="Simulate a GPS L1 master + rover pair → RINEX")
+@click.option("--duration", "duration_s", type=float, default=3600.0, show_default=True, help="Seconds to simulate.")
+@click.option("--rate-hz", type=float, default=1.0, show_default=True, help="Epochs per second.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed (same seed → identical files).")
+@click.option("--start", "start", default=None,
+              help="First epoch, GPS time YYYY-MM-DD[THH:MM:SS] [2024-01-01, or the first hour of --nav].")
+@click.option("--nav", "nav", multiple=True, type=click.Path(dir_okay=False),
+              help="Real RINEX navigation file(s) to simulate with [a synthetic 36-satellite constellation].")
+@click.option("--master", "master", default="base", show_default=True, help="Master antenna name.")
+@click.option("--rover", "rover", default="rover", show_default=True, help="Rover antenna name.")
+@click.option("--master-xyz", default=None, metavar="X,Y,Z", help="Master ECEF position, m [GEONET 3040].")
+@click.option("--rover-xyz", default=None, metavar="X,Y,Z", help="Rover NOMINAL ECEF position, m [GEONET 0759, 3.3 km away].")
+@click.option("--displacement", "displacement", default="0.031,-0.022,0.017", show_default=True, metavar="E,N,U",
+              help="Rover's true displacement from its nominal position, m.")
+@click.option("--random-walk", "random_walk", type=float, default=None, metavar="SIGMA",
+              help="Rover also random-walks with SIGMA m/√s per component (config model random_walk).")
+@click.option("--slips", "n_slips", type=int, default=0, show_default=True, help="Random LLI-flagged cycle slips.")
+@click.option("--phase-noise-m", type=float, default=None,
+              help="Undifferenced white phase noise, m [default: the elevation model sigma^2 = a^2 + b^2/sin^2(el), "
+                   "a = b = 3 mm per receiver, the estimator's default weighting].")
+@click.option("--code-noise-m", type=float, default=0.5, show_default=True, help="Undifferenced pseudorange noise, m.")
+@click.option("--clock-offset-ms", "clock_offset", default="0,0", show_default=True, metavar="M,R",
+              help="Master and rover receiver-clock offset at the start, ms.")
+@click.option("--clock-drift-ms", "clock_drift", default="-4,5", show_default=True, metavar="M,R",
+              help="Change of the master and rover clock offsets over the span, ms.")
+@click.option("--raw-tags", is_flag=True,
+              help="Time tags = nominal epoch + clock offset, not rounded to 1 ms (u-blox-like epochs off whole seconds).")
+@click.option("--master-rate-hz", type=float, default=None,
+              help="The master records at this lower rate (a divisor of --rate-hz), e.g. 0.2 for a 5 s CORS receiver.")
+@_output_option("out_dir", "Output directory.", directory=True, old=("--out",))
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
+@click.pass_context
+def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover, master_xyz, rover_xyz, displacement,
+                      random_walk, n_slips, phase_noise_m, code_noise_m, clock_offset, clock_drift, raw_tags,
+                      master_rate_hz, out_dir, as_json):
+    """Simulate a master + rover GPS L1 pair → RINEX 3 obs/nav files, truth.csv/json, config.toml.
+
+    The rover antenna is displaced from its nominal (header) position by --displacement (plus a
+    random walk with --random-walk); the files feed 'cdgps ingest --config DIR/config.toml'.
+    """
+    from cdgps_cli.sim.gnss import DEFAULT_MASTER_XYZ, DEFAULT_ROVER_XYZ, parse_start, parse_vector, simulate_gnss_pair
+
+    s = simulate_gnss_pair(
+        out_dir, duration_s=duration_s, rate_hz=rate_hz, seed=seed,
+        start_gps_s=parse_start(start) if start else None, nav_paths=list(nav), master=master, rover=rover,
+        master_xyz=parse_vector(master_xyz, "--master-xyz") if master_xyz else DEFAULT_MASTER_XYZ,
+        rover_xyz=parse_vector(rover_xyz, "--rover-xyz") if rover_xyz else DEFAULT_ROVER_XYZ,
+        displacement_enu_m=parse_vector(displacement, "--displacement"), random_walk_sigma=random_walk,
+        n_slips=n_slips, phase_sigma_m=phase_noise_m, code_sigma_m=code_noise_m,
+        clock_offset_ms=parse_vector(clock_offset, "--clock-offset-ms", 2),
+        clock_drift_ms=parse_vector(clock_drift, "--clock-drift-ms", 2), raw_tags=raw_tags,
+        master_rate_hz=master_rate_hz,
+        progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
+    _say(ctx, f"wrote {', '.join(s['files'])} to {out_dir}/: {s['epochs']} epochs, {s['satellites']} satellites, "
+              f"{s['slips']} slips, {s['displacement_model']} rover")
+    if as_json:
+        _emit_json(s)
+
+
+@main.command(short_help="Multi-GNSS, multi-frequency RTK of a pair → CSV")
+@click.option("--base", "base_file", required=True, type=click.Path(dir_okay=False),
+              help="Base observations: RINEX, or a u-blox log (RXM-RAWX; its RTCM 1005/1006 position is used).")
+@click.option("--rover", "rover_file", required=True, type=click.Path(dir_okay=False),
+              help="Rover observations: RINEX, or a u-blox log (RXM-RAWX).")
+@click.option("--nav", "nav_files", multiple=True, type=click.Path(dir_okay=False),
+              help="RINEX navigation file(s) with the GPS / Galileo / BeiDou / GLONASS ephemerides (repeatable); "
+                   "without it, the u-blox logs' RXM-SFRBX ephemerides.")
+@click.option("--signals", default="auto", show_default=True,
+              help="Comma-separated signals (G:L1, G:L2, G:L5, E:E1, E:E5a, E:E5b, C:B1I, C:B2I, C:B2a, R:G1, R:G2; "
+                   "GLONASS stays float unless --glonass-fix), or 'auto': every one both files hold whose system has "
+                   "ephemerides in --nav.")
+@click.option("--mode", type=click.Choice(["kinematic", "static"]), default="kinematic", show_default=True,
+              help="kinematic: random-walk rover position, a solution per epoch; static: one position for the span.")
+@click.option("--base-xyz", nargs=3, type=float, default=None, help="Base ECEF position, m (default: its header).")
+@click.option("--glonass-fix", is_flag=True, default=False,
+              help="Fix GLONASS (FDMA) integers too: only for identical base and rover receivers (default: float).")
+@click.option("--mask-deg", type=float, default=None,
+              help=f"Elevation mask, degrees [{__import__('cdgps_cli.config.options', fromlist=['x']).MULTI_GNSS_DEFAULTS['mask_deg']:g}].")
+@click.option("--ratio", "ratio_threshold", type=float, default=None,
+              help=f"LAMBDA ratio-test threshold [{__import__('cdgps_cli.config.options', fromlist=['x']).MULTI_GNSS_DEFAULTS['ratio']:g}].")
+@click.option("--max-age", "max_age_s", type=float, default=None,
+              help="Oldest base epoch bridged across a base gap or a lower base rate, s "
+                   f"[{__import__('cdgps_cli.config.options', fromlist=['x']).EPOCH_PAIRING_DEFAULTS['max_age_s']:g}, RTKLIB's].")
+@click.option("--sync-tol", "sync_tol_s", type=float, default=None,
+              help="Base and rover epochs this close are simultaneous, s "
+                   f"[{__import__('cdgps_cli.config.options', fromlist=['x']).EPOCH_PAIRING_DEFAULTS['sync_tol_s']:g}].")
+@click.option("--direction", type=click.Choice(["forward", "backward", "combined"]), default=None,
+              help="Kinematic passes: forward, backward, or both combined - an epoch is fixed where the passes' fixes "
+                   "agree (or one's fix agrees with the other's float); disagreeing fixes are rejected [combined].")
+@click.option("--code-correlation", "code_correlation_s", type=float, default=None,
+              help="Correlation time of the code errors, s: their variance is inflated by (1+ρ)/(1−ρ), ρ = e^(−Δt/τ), so "
+                   "a minute of correlated multipath is not taken as 60 independent ranges [0: white, as RTKLIB].")
+@click.option("--fix-and-hold", is_flag=True, default=False,
+              help="After --hold-after-fixes consecutive fixed epochs, feed the fixed integers back as measurements "
+                   "(RTKLIB's fix-and-hold; a wrong fix is then held too: the combined mode's check still applies).")
+@click.option("--hold-after-fixes", "hold_after_fixes", type=click.IntRange(min=1), default=None,
+              help="Consecutive fixed epochs before --fix-and-hold holds the integers (RTKLIB pos2-arminfix) "
+                   f"[{__import__('cdgps_cli.config.options', fromlist=['x']).MULTI_GNSS_DEFAULTS['hold_after_fixes']}].")
+@click.option("--min-success-rate", type=float, default=None,
+              help="Bootstrapped success rate an integer set must reach; when the whole set does not, the part that "
+                   "does is fixed and the epoch stays float [0.999].")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="Output: .pos (RTKLIB, lat/lon/height), .nmea/.gga (NMEA GGA), .geojson, or CSV (any other suffix).")
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (epochs used and why others were not, fixes) on stdout.")
+@click.pass_context
+def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_fix, mask_deg, ratio_threshold, max_age_s,
+        sync_tol_s, direction, code_correlation_s, fix_and_hold, hold_after_fixes, min_success_rate, output, as_json):
+    """Double differences per constellation and frequency, integers by LAMBDA (docs/gnss-pipeline.md, "Multi-GNSS").
+
+    The rover's epochs drive the solution: each takes the nearest base epoch within --max-age (a base
+    with gaps or a lower rate is bridged, its σ growing with the age); every rover epoch not used is
+    counted with its reason."""
+    from cdgps_cli.pipeline.gnss_multi import rtk_from_files
+
+    options = {"signals": "auto" if signals.strip() == "auto" else tuple(x.strip() for x in signals.split(",") if x.strip()),
+               "mode": mode, "fix_and_hold": fix_and_hold,
+               "glonass_fix": glonass_fix}
+    for key, value in (("mask_deg", mask_deg), ("ratio", ratio_threshold), ("max_age_s", max_age_s),
+                       ("sync_tol_s", sync_tol_s), ("direction", direction), ("min_success_rate", min_success_rate),
+                       ("code_correlation_s", code_correlation_s), ("hold_after_fixes", hold_after_fixes)):
+        if value is not None:
+            options[key] = value
+    s = rtk_from_files(base_file, rover_file, list(nav_files), output, base_xyz_m=base_xyz or None, options=options)
+    for w in s["warnings"]:
+        _warn(w)
+    ep = s["epoch_pairing"]
+    _say(ctx, f"{output}: {s['epochs']} of {ep['rover_epochs']} rover epochs ({ep['bridged']} bridged across base gaps, "
+              f"max age {ep['max_age_s']:.3g} s), fixed {s['fixed_pct']:.1f} % ({s['direction']}; "
+              f"{s['fixes_rejected']} fixes rejected where the passes disagree), ionosphere {s['iono_model']}, "
+              f"signals {' '.join(s['signals'])}")
+    if as_json:
+        _emit_json({k: v for k, v in s.items()})
