@@ -273,7 +273,7 @@ def test_evaluate_errors(chain, tmp_path):
     other.mkdir()
     pd.read_csv(d / "sim" / "truth.csv").to_csv(other / "truth.csv", index=False)
     (other / "truth.json").write_text(json.dumps({"config_sha256": "0" * 64}))
-    with pytest.raises(CdgpsError, match="different config"):
+    with pytest.raises(CdgpsError, match="simulated with config .*, but .* estimates config"):
         evaluate(other, d / "states.mcap")
     pd.read_csv(d / "sim" / "truth.csv").drop(columns=["q4"]).to_csv(other / "truth.csv", index=False)
     with pytest.raises(CdgpsError, match="missing column"):
