@@ -27,6 +27,35 @@ def temporary_name(path: Path) -> Path:
     return path.with_name(f".{path.name}.tmp{os.getpid()}")
 
 
+def open_anonymous(directory: Path):
+    """An unnamed file in ``directory`` (Linux ``O_TMPFILE``), opened for binary writing, or None
+    where the system or file system has none.  Nothing is left if the process is killed, even by
+    SIGKILL; :func:`link_anonymous` gives it its name when it is complete."""
+    flag = getattr(os, "O_TMPFILE", None)
+    if flag is None or not os.path.isdir(f"/proc/self/fd"):
+        return None
+    try:
+        fd = os.open(directory, flag | os.O_WRONLY, 0o666)   # the umask applies, as for open()
+    except OSError:                     # EOPNOTSUPP, EISDIR (old kernels), EINVAL: a named temporary then
+        return None
+    return os.fdopen(fd, "wb")
+
+
+def link_anonymous(fh, path: Path) -> None:
+    """Give the complete unnamed file ``fh`` (:func:`open_anonymous`) the name ``path``, replacing
+    what is there: linked under its hidden temporary name, then renamed (atomic), so a reader never
+    sees a partial file and the temporary exists only for the instant between the two calls."""
+    fh.flush()
+    tmp = temporary_name(path)
+    tmp.unlink(missing_ok=True)
+    proc = os.open("/proc/self/fd", os.O_RDONLY)
+    try:        # linkat(…, AT_SYMLINK_FOLLOW): with a src_dir_fd Python calls linkat, not link (which gives EXDEV)
+        os.link(str(fh.fileno()), tmp, src_dir_fd=proc, follow_symlinks=True)
+    finally:
+        os.close(proc)
+    os.replace(tmp, path)
+
+
 #: errno of a write that failed for lack of room, not for a wrong path or permission
 _NO_ROOM = {errno.ENOSPC: "no space left on the device",
             errno.EFBIG: "file too large (the file system's or this process's file-size limit, ulimit -f)",

@@ -46,7 +46,8 @@ from mcap.records import AttachmentIndex
 from mcap.writer import CompressionType, IndexType, Writer
 
 from cdgps_cli.core import progress
-from cdgps_cli.io.atomic import is_no_room, output_error, remove_stale_temporaries, temporary_name
+from cdgps_cli.io.atomic import (is_no_room, link_anonymous, open_anonymous, output_error, remove_stale_temporaries,
+                                 temporary_name)
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.table import Table
 from cdgps_cli.io.mcap_integrity import RECORD_SHA256_KEY, check_records, record_sha256, verify_file, warn_once
@@ -237,7 +238,11 @@ class McapOut:
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             remove_stale_temporaries(self.path)         # left by a SIGKILLed writer
-            self._fh = open(self.tmp, "wb")
+            # an unnamed file where the system has them: a SIGKILL leaves nothing behind
+            self._fh = open_anonymous(self.path.parent)
+            self._anonymous = self._fh is not None
+            if self._fh is None:
+                self._fh = open(self.tmp, "wb")
         except OSError as exc:
             raise CdgpsError(f"{self.path}: cannot write: {exc.strerror}") from None
         self.writer = Writer(self._fh, compression=CompressionType.ZSTD, enable_crcs=True,
@@ -500,8 +505,10 @@ class McapOut:
                 self.write_packed()              # attachments still packing in the background
                 self._write_info()
                 self.writer.finish()
+                if self._anonymous:
+                    link_anonymous(self._fh, self.path)
             self._fh.close()
-            if exc_type is None:
+            if exc_type is None and not self._anonymous:
                 os.replace(self.tmp, self.path)
         except OSError as err:                  # full disk, file-size limit while finishing
             raise output_error(self.path, err) from None

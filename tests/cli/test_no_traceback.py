@@ -162,6 +162,8 @@ def test_no_space_while_writing_an_mcap_is_named(base, tmp_path, monkeypatch):
 
     monkeypatch.setattr(mio, "open", lambda p, mode="r", *a, **k: Full(real_open(p, mode, *a, **k)) if "w" in mode
                         else real_open(p, mode, *a, **k), raising=False)
+    real_anonymous = mio.open_anonymous             # the unnamed (O_TMPFILE) file, where the system has it
+    monkeypatch.setattr(mio, "open_anonymous", lambda d: (lambda fh: None if fh is None else Full(fh))(real_anonymous(d)))
     out = tmp_path / "STATES.mcap"
     r = _run("estimate", base / "RUN.mcap", "--init", base / "INIT.json", "-o", out)
     assert_clean_error(r, out, "no space left on the device")

@@ -63,3 +63,22 @@ def test_an_array_that_cannot_be_packed_is_an_error_on_closing_and_leaves_no_fil
             out.pack_in_background()
             out.attach_packed("bad", np.array(["text"], dtype=object))
     assert list(tmp_path.iterdir()) == [] and not _pack_threads()
+
+
+def test_a_writer_killed_by_sigkill_leaves_nothing(tmp_path):
+    """McapOut writes into an unnamed (O_TMPFILE) file and names it only when complete: a SIGKILL
+    mid-write leaves no hidden temporary beside the output (issue 32: `.run.mcap.tmpNNNN` was left)."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import os, signal\nfrom cdgps_cli.io.mcap import McapOut\n"
+            f"with McapOut({str(tmp_path / 'x.mcap')!r}) as out:\n"
+            "    ch = out.channel('/t', {'title': 't', 'type': 'object', 'properties': {'v': {'type': 'number'}}})\n"
+            "    out.write(ch, 0.0, {'v': 1.0})\n"
+            "    os.kill(os.getpid(), signal.SIGKILL)\n")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert p.returncode == -9, p.stderr
+    if not hasattr(os, "O_TMPFILE"):
+        return                                   # a named temporary then, removed by the next write
+    assert sorted(q.name for q in tmp_path.iterdir()) == []
