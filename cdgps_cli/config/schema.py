@@ -222,6 +222,8 @@ GNSS_TABLES: dict[str, dict[str, tuple[bool, dict]]] = {
         "nav": _key(_FILES, "RINEX navigation file(s), relative to this file; globs allowed"),
         "mask_deg": _key({"type": "number", "minimum": 0, "exclusiveMaximum": 90}, "elevation mask, degrees"),
         "ratio": _key({"type": "number", "minimum": 1}, "LAMBDA ratio-test threshold"),
+        "min_success_rate": _key({"type": "number", "minimum": 0, "exclusiveMaximum": 1},
+                                 "bootstrapped success rate an integer set must reach besides the ratio test"),
         "partial": _key(_BOOL, "partial fixing when the full set fails the ratio test"),
         "fix": _key(_BOOL, "fix integers (false: float solution)"),
         "weighting": _key({"type": "string", "enum": ["elevation", "equal"]},

@@ -990,6 +990,7 @@ class GnssConfig:
     sync_tol_s: float = GNSS_DEFAULTS["sync_tol_s"]
     max_age_s: float = GNSS_DEFAULTS["max_age_s"]
     code_correlation_s: float = GNSS_DEFAULTS["code_correlation_s"]
+    min_success_rate: float = GNSS_DEFAULTS["min_success_rate"]
     epoch_alignment: str = GNSS_DEFAULTS["epoch_alignment"]
     displacement: str = "static"
     random_walk_sigma: tuple = GNSS_DEFAULTS["random_walk_sigma"]
@@ -1117,6 +1118,9 @@ def parse_gnss_config(text: str, path: str = "<config>", base_dir: str | Path | 
     if max_age is not None and sync is not None and max_age < sync:
         chk.add("gnss.max_age_s", f"expected at least gnss.sync_tol_s ({sync:g} s), got {max_age!r}")
     iono_km = chk.number(g, "gnss", "iono_threshold_km", GNSS_DEFAULTS["iono_threshold_km"], positive=True)
+    min_sr = chk.number(g, "gnss", "min_success_rate", GNSS_DEFAULTS["min_success_rate"])
+    if min_sr is not None and not 0.0 <= min_sr < 1.0:
+        chk.add("gnss.min_success_rate", f"expected a probability in [0, 1), got {min_sr!r}")
     align = chk.string(g, "gnss", "epoch_alignment", GNSS_DEFAULTS["epoch_alignment"])
     if align not in ("geometry", "doppler"):
         chk.add("gnss.epoch_alignment", f"expected \"geometry\" or \"doppler\", got {align!r}")
@@ -1182,7 +1186,9 @@ def parse_gnss_config(text: str, path: str = "<config>", base_dir: str | Path | 
         description=description or "", master=master, antennas=tuple(ants), nav=tuple(nav),
         mask_deg=mask, ratio=ratio, partial=flag("partial", True), fix=flag("fix", True), weighting=weighting,
         sigma_a_m=sa, sigma_b_m=sb, code_ratio=code_ratio, troposphere=flag("troposphere", True),
-        max_gap_s=max_gap, sync_tol_s=sync, max_age_s=max_age, code_correlation_s=code_corr, epoch_alignment=align, displacement=model, random_walk_sigma=rw, initial_sigma_m=init_sigma,
+        max_gap_s=max_gap, sync_tol_s=sync, max_age_s=max_age, code_correlation_s=code_corr, epoch_alignment=align,
+        displacement=model, random_walk_sigma=rw, initial_sigma_m=init_sigma,
+        min_success_rate=GNSS_DEFAULTS["min_success_rate"] if min_sr is None else min_sr,
         signals=signals, iono_threshold_km=iono_km,
     )
 
@@ -1239,14 +1245,16 @@ def gnss_config_toml(antennas: dict, nav=(), master: str | None = None, *, name:
     if master:
         out.append(f"master = {_toml_str(master)}")
     out.append("nav = [" + ", ".join(_toml_str(p) for p in nav) + "]")
-    opts = {k: GNSS_DEFAULTS[k] for k in ("mask_deg", "ratio", "partial", "weighting", "troposphere", "max_age_s")}
+    opts = {k: GNSS_DEFAULTS[k] for k in ("mask_deg", "ratio", "partial", "weighting", "troposphere", "max_age_s",
+                                          "min_success_rate")}
     opts.update(options or {})
     notes = {"mask_deg": "elevation mask at every receiver, degrees", "ratio": "LAMBDA ratio-test threshold",
              "partial": "partial fixing when the full set fails the ratio test",
              "weighting": 'phase variance a^2 + b^2/sin^2(el) ("elevation") or a^2 + b^2 ("equal")',
              "troposphere": "a priori hydrostatic troposphere (Saastamoinen x Niell), as RTKLIB",
              "signals": "multi-GNSS signals kept at ingest (system:slot)",
-             "max_age_s": "oldest base (master) epoch bridged to a rover epoch, s (RTKLIB's maxage)"}
+             "max_age_s": "oldest base (master) epoch bridged to a rover epoch, s (RTKLIB's maxage)",
+             "min_success_rate": "bootstrapped success rate an integer set must reach besides the ratio test"}
     for k, v in opts.items():
         val = ("true" if v else "false") if isinstance(v, bool) else (_toml_str(v) if isinstance(v, str) else
                                                                    "[" + ", ".join(map(_toml_str, v)) + "]" if isinstance(v, (list, tuple))

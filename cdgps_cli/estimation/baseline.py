@@ -178,7 +178,7 @@ class BaselineOptions:
                   code_ratio=cfg.code_ratio, troposphere=cfg.troposphere, max_gap_s=cfg.max_gap_s,
                   sync_tol_s=cfg.sync_tol_s, max_age_s=cfg.max_age_s, code_correlation_s=cfg.code_correlation_s,
                   epoch_alignment=cfg.epoch_alignment, motion=cfg.displacement, random_walk_sigma=tuple(cfg.random_walk_sigma),
-                  initial_sigma_m=cfg.initial_sigma_m)
+                  initial_sigma_m=cfg.initial_sigma_m, min_success_rate=cfg.min_success_rate)
         kw.update(overrides)
         return cls(**kw)
 

@@ -42,3 +42,15 @@ def test_geonet_records_the_success_rate_and_the_flag_is_checked(tmp_path):
     assert amb["n_fixed"] == 6 and amb["success_rate"] > 0.999999 and amb["min_success_rate"] == 0.999
     r = _baseline(tmp_path, "--min-success-rate", "1")
     assert r.exit_code == 2 and "--min-success-rate must be a probability" in r.stderr, r.output
+
+
+def test_the_gnss_run_config_carries_it_to_init():
+    """One option for every GNSS command: [gnss] min_success_rate reaches the batch (init) options."""
+    from cdgps_cli.config.structure import parse_gnss_config
+
+    base = '[gnss]\nmaster = "A"\n{}\n[gnss.antennas.A]\nrinex = "a.obs"\n[gnss.antennas.B]\nrinex = "b.obs"\n'
+    cfg = parse_gnss_config(base.format("min_success_rate = 0.99"))
+    assert cfg.min_success_rate == 0.99 and BaselineOptions.from_gnss_config(cfg).min_success_rate == 0.99
+    assert parse_gnss_config(base.format("")).min_success_rate == GNSS_DEFAULTS["min_success_rate"]
+    with pytest.raises(CdgpsError, match="gnss.min_success_rate: expected a probability"):
+        parse_gnss_config(base.format("min_success_rate = 1.0"))
