@@ -313,7 +313,21 @@ def run_task(s, stage: str, resume: bool, *upstream) -> dict:
         return {"session": s.name, "stage": stage, "status": "failed", "error": str(exc)}
 
 
+def _result_or_none(fut):
+    """A completed future's result; None for an error or a cancelled future.  A future whose result
+    was lost with a killed worker between completing and being read ('lost') is computed again by
+    dask, and its result is waited for (it was reported as "NoneType: None" before)."""
+    if fut.status == "error" or fut.cancelled():
+        return None
+    try:
+        return fut.result()
+    except Exception:                          # noqa: BLE001 - reported by _error_text
+        return None
+
+
 def _error_text(fut) -> str:
+    if fut.cancelled():
+        return "cancelled by the scheduler (its worker or the connection was lost)"
     exc = fut.exception()
     if isinstance(exc, CdgpsError):
         return str(exc)
@@ -485,7 +499,7 @@ def _submit_and_wait(client, sessions, resume, retries, progress):
         name, st = owner[f.key]
         left[name] -= 1
         started.add(name)
-        r = f.result() if f.status == "finished" else None
+        r = _result_or_none(f)
         if r is None:
             errors.setdefault(name, {})[st] = _error_text(f)
             failed.add(name)
