@@ -21,6 +21,7 @@ mode lies inside the passband and is shown at its own frequency.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -56,8 +57,16 @@ def preview_stride_for_modes(sample_period_s: float, mode_frequency_hz, max_stri
     return max(min(fit, int(max_stride)), 1)
 
 
+@functools.lru_cache(maxsize=16)
 def preview_filter(stride: int) -> np.ndarray:
-    """Taps of the preview low-pass filter for decimation by ``stride`` (odd length 2·m·stride + 1)."""
+    """Taps of the preview low-pass filter for decimation by ``stride`` (odd length 2·m·stride + 1);
+    designed once per stride (read-only: every run between gaps shares it)."""
+    taps = _design(stride)
+    taps.flags.writeable = False
+    return taps
+
+
+def _design(stride: int) -> np.ndarray:
     from scipy.signal import firwin, kaiserord  # noqa: PLC0415
 
     nyq = 1.0 / stride                                  # preview Nyquist, in units of the input's

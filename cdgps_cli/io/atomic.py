@@ -32,7 +32,7 @@ def open_anonymous(directory: Path):
     where the system or file system has none.  Nothing is left if the process is killed, even by
     SIGKILL; :func:`link_anonymous` gives it its name when it is complete."""
     flag = getattr(os, "O_TMPFILE", None)
-    if flag is None or not os.path.isdir(f"/proc/self/fd"):
+    if flag is None or not os.path.isdir("/proc/self/fd"):
         return None
     try:
         fd = os.open(directory, flag | os.O_WRONLY, 0o666)   # the umask applies, as for open()
@@ -255,7 +255,8 @@ def signals_deferred():
 
 # ----------------------------------------------------------------------------- stale temporaries
 
-def _pid_alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
+    """Whether process ``pid`` may exist (on this host); another user's counts as alive."""
     if pid == os.getpid():
         return True
     try:
@@ -278,7 +279,7 @@ def remove_stale_temporaries(path: str | Path) -> None:
         return
     for p in entries:
         tail = p.name[len(prefix):]
-        if p.name.startswith(prefix) and tail.isdigit() and not _pid_alive(int(tail)):
+        if p.name.startswith(prefix) and tail.isdigit() and not pid_alive(int(tail)):
             try:
                 p.unlink()
             except OSError:
@@ -357,7 +358,7 @@ def recover_output_folder(out: str | Path) -> list[str]:
             done.append(f"finished {p.name}")
         elif p.name.startswith(_STAGING) and p.is_dir():
             pid = p.name[len(_STAGING):].split("-")[0]
-            if pid.isdigit() and not _pid_alive(int(pid)):
+            if pid.isdigit() and not pid_alive(int(pid)):
                 shutil.rmtree(p, ignore_errors=True)
                 done.append(f"removed {p.name}")
     return done

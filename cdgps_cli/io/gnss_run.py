@@ -44,7 +44,7 @@ from cdgps_cli.io.atomic import path_for_config
 from cdgps_cli.config.structure import GnssConfig, gnss_config_toml, parse_gnss_config
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.mcap import CONFIG_ATTACHMENT, McapOut, array_schema, message_schema, read_mcap
-from cdgps_cli.io.run import INGEST_METADATA, contents_kind, ingest_metadata, run_kind
+from cdgps_cli.io.run import INGEST_METADATA, contents_kind, ingest_metadata, input_keys, run_kind
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.core.records import GLONASS_NAV_COLUMNS, NAV_COLUMNS
 from cdgps_cli.io.gnss_sequence import join_receivers, join_signal_tables, pieces_text
@@ -644,7 +644,7 @@ def write_gnss_run(cfg: GnssConfig, out_path: str | Path, inp: IngestInputs, pos
     integrity, warnings, nav_source = inp.integrity, inp.warnings, inp.nav_source
     out_path = Path(out_path)
     pieces = inp.pieces or {n: [p] for n, (_, p) in files.items()}
-    inputs = {**{k: p for n, (kind, _) in files.items() for k, p in _input_keys(f"{kind}:{n}", pieces[n])},
+    inputs = {**{k: p for n, (kind, _) in files.items() for k, p in input_keys(f"{kind}:{n}", pieces[n])},
               **{f"nav[{i}]": p for i, p in enumerate(nav_list)}}
     meta = ingest_metadata("gnss", cfg, inputs, master=master, receivers=",".join(receivers),
                            displacement_model=cfg.displacement, **({"signals": ",".join(cfg.signals)} if cfg.signals else {}))
@@ -687,11 +687,6 @@ def write_gnss_run(cfg: GnssConfig, out_path: str | Path, inp: IngestInputs, pos
     if inp.joins:
         summary["joins"] = inp.joins
     return summary
-
-
-def _input_keys(key: str, paths: list) -> list:
-    """The metadata keys of a receiver's files: ``key`` for one file, ``key[0]``, ``key[1]`` … (time order) for several."""
-    return [(key, paths[0])] if len(paths) == 1 else [(f"{key}[{i}]", p) for i, p in enumerate(paths)]
 
 
 def _ubx_integrity(receivers: dict, files: dict) -> dict:

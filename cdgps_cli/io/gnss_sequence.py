@@ -70,15 +70,15 @@ def check_same_receiver(name: str, rxs: list, paths: list) -> list[str]:
     """
     first, p0 = rxs[0], paths[0]
     warnings = []
-    dt0 = next((d for d in map(_interval, rxs) if math.isfinite(d)), math.nan)
-    p_dt0 = next((p for rx, p in zip(rxs, paths) if math.isfinite(_interval(rx))), p0)
-    for rx, p in zip(rxs[1:], paths[1:]):
+    dts = [_interval(rx) for rx in rxs]
+    i0 = next((i for i, d in enumerate(dts) if math.isfinite(d)), None)
+    dt0, p_dt0 = (math.nan, p0) if i0 is None else (dts[i0], paths[i0])
+    for rx, p, dt in zip(rxs[1:], paths[1:], dts[1:]):
         for k in _MUST_AGREE:
             a, b = first.header.get(k), rx.header.get(k)
             if a != b:
                 raise CdgpsError(f"{p} ({name}): {k} {b!r} differs from {a!r} in {p0}; the files of one antenna must be "
                                  f"one receiver's record (same receiver, marker, antenna and L1 observation codes)")
-        dt = _interval(rx)
         if math.isfinite(dt) and math.isfinite(dt0) and abs(dt - dt0) > 1e-6 * max(dt0, 1.0):
             raise CdgpsError(f"{p} ({name}): epoch interval {dt:g} s differs from {dt0:g} s in {p_dt0}; the files of one "
                              f"record must have one rate (resample them to one interval first)")

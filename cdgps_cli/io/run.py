@@ -236,7 +236,7 @@ def write_run(cfg: StructureConfig, receiver_csv: str | Path, out_path: str | Pa
     given = {"receiver_csv": receiver_csv, "gyro_csv": gyro_csv, "actuator_csv": actuator_csv}
     files = {k: expand_paths([v] if isinstance(v, (str, Path)) else list(v), k.upper())
              for k, v in given.items() if v is not None and (isinstance(v, (str, Path)) or len(v))}
-    sources = {key: Path(p) for k, ps in files.items() for key, p in _input_keys(k, ps)}
+    sources = {key: Path(p) for k, ps in files.items() for key, p in input_keys(k, ps)}
     out_path = Path(out_path)
     for k, p in sources.items():
         if p.resolve() == out_path.resolve():
@@ -250,7 +250,7 @@ def write_run(cfg: StructureConfig, receiver_csv: str | Path, out_path: str | Pa
     act = (_read_sequence(files["actuator_csv"], read_actuator_log, cfg, None, joins, "actuator_csv", sampled=False)
            if "actuator_csv" in files else None)
     if joins:               # the files in time order (the metadata keys receiver_csv[0], [1] … follow it)
-        sources = {key: Path(p) for k, ps in files.items() for key, p in _input_keys(k, ps)}
+        sources = {key: Path(p) for k, ps in files.items() for key, p in input_keys(k, ps)}
     meta = ingest_metadata("structure", cfg, sources, sample_period_s=repr(cfg.sample_period_s))
     with McapOut(out_path, time_scale="relative") as out:     # time_s: run seconds (cdgps_cli.core.timescales)
         ch = out.channel(PHASE_TOPIC, PHASE_SCHEMA, {"units": "cycles", "wavelength_m": repr(cfg.wavelength_m)})
@@ -291,7 +291,7 @@ def write_run(cfg: StructureConfig, receiver_csv: str | Path, out_path: str | Pa
     }
 
 
-def _input_keys(key: str, paths: list) -> list:
+def input_keys(key: str, paths: list) -> list:
     """Metadata keys of a log's files: ``key`` for one file, ``key[0]``, ``key[1]`` … (time order) for several."""
     return [(key, paths[0])] if len(paths) == 1 else [(f"{key}[{i}]", p) for i, p in enumerate(paths)]
 

@@ -270,11 +270,12 @@ def _attach_series(out: McapOut, topic: str, ss: StateSeries, ser: Series, sigma
 
 def _write_state_messages(out: McapOut, ch: int, names, sel, ser: Series, q, sq, npos: int, nrate: int,
                           with_P: bool, pick=None) -> None:
-    """The Foxglove JSON messages of one state series at the epochs ``sel``; ``pick(a)`` gives the
-    motion (q, ξ, ξ̇) there (default ``a[sel]``; anti-aliased by :func:`write_states`'s ``preview``)."""
+    """The Foxglove JSON messages of one state series at the epochs ``sel``; ``q`` is the coordinates
+    already there (picked once by the caller, who also draws the angles from it), ``pick(a)`` gives the
+    motion (ξ, ξ̇) there (default ``a[sel]``; anti-aliased by :func:`write_states`'s ``preview``)."""
     pick = pick or (lambda a: a[sel])
     X = pick(ser.x[:, :npos + nrate])
-    blocks = [pick(q), sq[sel], X[:, :npos]] + ([X[:, npos:npos + nrate]] if nrate else []) + \
+    blocks = [q, sq[sel], X[:, :npos]] + ([X[:, npos:npos + nrate]] if nrate else []) + \
         ([ser.P[sel, :npos, :npos].reshape(len(sel), -1)] if with_P else [])
     nq = len(names)
     cuts = np.cumsum([0, nq, nq, npos] + ([nrate] if nrate else []) + ([npos * npos] if with_P else []))
@@ -394,11 +395,14 @@ def write_states(ss: StateSeries, out_path: str | Path, metadata: dict, attachme
             q, sq = series_derived(C, ser.x[:, :ss.n_pos], P_pos)   # as the reader computes them
             # P_ξ of every series but the forward filter of a smoothed run (its 1-σ only), unless full
             _attach_series(out, topic, ss, ser, sq, with_P_pos=topic != STATE_FILTERED_TOPIC or full, full=full)
+            q_prev = None            # the preview's coordinates: filtered (or picked) once for the messages and angles
+            if ser.messages or (topic == STATE_TOPIC and angles):
+                q_prev = q[sel] if pick is None else pick(q)
             if ser.messages:
                 _write_state_messages(out, out.channel(topic, schema), names, np.arange(0, len(ser.time_s), stride),
-                                      ser, q, sq, ss.n_pos, ss.n_rate, full, pick)
+                                      ser, q_prev, sq, ss.n_pos, ss.n_rate, full, pick)
             if topic == STATE_TOPIC:
-                _write_angles(out, C, angles, time_s[sel], q[sel] if pick is None else pick(q), P_pos[sel])
+                _write_angles(out, C, angles, time_s[sel], q_prev, P_pos[sel])
             out.write_packed()              # written before the next series: one series' arrays at a time
             del q, sq, P_pos
             bar.update()

@@ -150,21 +150,26 @@ TAU_MAX_STRETCH_FRACTION = 0.5
 MIN_RUN = 20
 
 
-def residual_runs(resid: np.ndarray, segment: np.ndarray) -> list[np.ndarray]:
-    """Contiguous finite stretches of each channel's residuals within one bias segment, each with
-    its own mean removed (so that the expected autocovariance below is exact for it).
+def segment_stretches(resid: np.ndarray, segment: np.ndarray, min_len: int):
+    """``(channel, start, stop)`` of every contiguous stretch of finite residuals of one channel within
+    one bias segment, at least ``min_len`` epochs long, by channel then time (the one definition
+    used by the multipath fit and the slip test, :func:`cdgps_cli.measurement.slips.residual_steps`).
 
     ``resid`` (N, C) m, NaN where missing; ``segment`` (N, C) bias-segment index (−1 = none)."""
-    runs = []
     for c in range(resid.shape[1]):
         ok = np.isfinite(resid[:, c]) & (segment[:, c] >= 0)
         key = np.where(ok, segment[:, c], -1)
         edges = np.flatnonzero(np.diff(np.r_[-1, key, -1]) != 0)
         for a, b in zip(edges[:-1], edges[1:]):
-            if key[a] >= 0 and b - a >= MIN_RUN:
-                r = resid[a:b, c]
-                runs.append(r - r.mean())
-    return runs
+            if key[a] >= 0 and b - a >= min_len:
+                yield c, int(a), int(b)
+
+
+def residual_runs(resid: np.ndarray, segment: np.ndarray) -> list[np.ndarray]:
+    """Contiguous finite stretches of each channel's residuals within one bias segment
+    (:func:`segment_stretches`), each with its own mean removed (so that the expected
+    autocovariance below is exact for it)."""
+    return [r - r.mean() for r in (resid[a:b, c] for c, a, b in segment_stretches(resid, segment, MIN_RUN))]
 
 
 def _lagged_sums(runs: list, lags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

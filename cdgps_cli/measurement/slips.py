@@ -28,6 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cdgps_cli.measurement.multipath import segment_stretches
+
 #: the test's half width (s): residuals on each side of a candidate epoch
 STEP_HALF_WIDTH_S = 2.0
 #: z value a step must exceed
@@ -92,23 +94,17 @@ def residual_steps(resid: np.ndarray, segment: np.ndarray, wavelength_m: float, 
     """
     w = max(int(round(half_width_s / dt_s)), 2)
     out = []
-    for c in range(resid.shape[1]):
-        ok = np.isfinite(resid[:, c]) & (segment[:, c] >= 0)
-        key = np.where(ok, segment[:, c], -1)
-        edges = np.flatnonzero(np.diff(np.r_[-1, key, -1]) != 0)
-        for a, b in zip(edges[:-1], edges[1:]):
-            if key[a] < 0 or b - a < 3:
-                continue
-            e = resid[a:b, c]
-            sig = robust_sigma(e)
-            if not (np.isfinite(sig) and sig > 0):
-                continue
-            step, scale = local_steps(e, w)
-            z = step / (sig * scale)
-            cand = np.abs(step) >= min_cycles * wavelength_m
-            if not cand.any():
-                continue
-            j = int(np.argmax(np.where(cand, np.abs(z), -np.inf)))
-            if abs(z[j]) >= z_min:
-                out.append(ResidualStep(c, a + j + 1, float(step[j]), float(z[j]), sig))
+    for c, a, b in segment_stretches(resid, segment, 3):
+        e = resid[a:b, c]
+        sig = robust_sigma(e)
+        if not (np.isfinite(sig) and sig > 0):
+            continue
+        step, scale = local_steps(e, w)
+        z = step / (sig * scale)
+        cand = np.abs(step) >= min_cycles * wavelength_m
+        if not cand.any():
+            continue
+        j = int(np.argmax(np.where(cand, np.abs(z), -np.inf)))
+        if abs(z[j]) >= z_min:
+            out.append(ResidualStep(c, a + j + 1, float(step[j]), float(z[j]), sig))
     return out

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
+from cdgps_cli.io.atomic import pid_alive
 from cdgps_cli.core.errors import CdgpsError
 
 from cdgps_cli.pipeline.batch import LOCK_FILE
@@ -75,12 +76,8 @@ def holder_state(holder: dict | None, path: Path) -> str:
     pid = holder.get("pid")
     if not isinstance(pid, int) or pid <= 0:
         return "dead"
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
+    if not pid_alive(pid):
         return "dead"
-    except PermissionError:            # alive, another user's
-        return "alive"
     start = holder.get("start_ticks")
     if start is not None and _start_ticks(pid) not in (None, start):
         return "dead"                  # the pid was reused by another process
