@@ -9,7 +9,8 @@ from pathlib import Path
 
 import click
 
-from cdgps_cli.config.options import ESTIMATE_DEFAULTS, INIT_MAX_ITERATIONS, INIT_STARTS, RATIO_THRESHOLD, SPECTRA_DEFAULTS, X_AXIS_AZIMUTH_DEG
+from cdgps_cli.config.options import (ESTIMATE_DEFAULTS, INIT_MAX_ITERATIONS, INIT_STARTS, RATIO_THRESHOLD,
+                                     SCENE_EXAGGERATION, SPECTRA_DEFAULTS, X_AXIS_AZIMUTH_DEG)
 from cdgps_cli.core import progress
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.states_layout import COVARIANCE_CHOICES as _STATES_COVARIANCE
@@ -353,6 +354,10 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
                    f"{_STATES_PREVIEW_RATE_HZ:g} Hz, the mode inside the preview's passband). The motion is "
                    "low-pass filtered before decimation, so no mode shows at a false frequency. The packed "
                    "arrays that cdgps reads hold every epoch.")
+@click.option("--scene-exaggeration", default=SCENE_EXAGGERATION, show_default=True, metavar="FACTOR|auto",
+              help="The structure drawn in 3-D in STATES.mcap (/cdgps/scene, foxglove.SceneUpdate, at the Foxglove "
+                   "rate): factor on the deformation (its rigid-body rotation at true scale); auto: 1, 2, 5, 10, … "
+                   "so that the largest deformation shows at about 5% of the structure's size; 0: no 3-D scene.")
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="STATES.mcap to write.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
@@ -360,7 +365,7 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
              output, as_json, rest=(), rest_process_noise_scale=ESTIMATE_DEFAULTS["rest_process_noise_scale"],
              rest_retry_s=ESTIMATE_DEFAULTS["rest_retry_s"], structure=None, x_axis_azimuth_deg=X_AXIS_AZIMUTH_DEG,
              receiver_map=(), rest_window_s=3.0, rest_dwell_s=2.0, allow_other_run=False,
-             covariance=_STATES_DEFAULT_COVARIANCE, foxglove_rate_hz=None):
+             covariance=_STATES_DEFAULT_COVARIANCE, foxglove_rate_hz=None, scene_exaggeration=SCENE_EXAGGERATION):
     """Extended Kalman filter (Eq. 16-23) [+ RTS smoother] over a RUN from INIT → STATES.mcap.
 
     On a GNSS run: per-epoch rover displacement states <ant>_e/_n/_u with 1σ from INIT's
@@ -378,12 +383,15 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
                                            "--rest": bool(rest),
                                            "--rest-process-noise-scale": rest_process_noise_scale != 0.005,
                                            "--rest-retry-s": rest_retry_s != 1.0,
-                                           "--rest-window-s": rest_window_s != 3.0, "--rest-dwell-s": rest_dwell_s != 2.0},
+                                           "--rest-window-s": rest_window_s != 3.0, "--rest-dwell-s": rest_dwell_s != 2.0,
+                                           "--scene-exaggeration": structure is None and not receiver_map
+                                           and str(scene_exaggeration) != str(SCENE_EXAGGERATION)},
                            structure=structure, x_axis_azimuth_deg=x_axis_azimuth_deg, receiver_map=receiver_map,
-                           allow_other_run=allow_other_run)
+                           allow_other_run=allow_other_run, scene_exaggeration=_scene_factor(scene_exaggeration))
         return
     if foxglove_rate_hz is not None and not (foxglove_rate_hz >= 0 and math.isfinite(foxglove_rate_hz)):
         raise CdgpsError(f"--foxglove-rate-hz must be a finite rate >= 0 (0: every epoch), got {foxglove_rate_hz:g}")
+    scene_exaggeration = _scene_factor(scene_exaggeration)
     if structure is not None or receiver_map:
         raise CdgpsError("--structure/--receiver apply to GNSS runs (from 'cdgps ingest --rinex/--ubx'); a structure "
                          "run already has its config")
@@ -428,7 +436,8 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
     if allow_other_run:
         options.update(allow_other_run=True, init_run_sha256=pairing["init_run_sha256"])
     s = write_states(res, run_mcap, init, init_text, output, options, covariance=covariance,
-                     preview_rate_hz=foxglove_rate_hz, run_sha256=pairing["run_sha256"])
+                     preview_rate_hz=foxglove_rate_hz, run_sha256=pairing["run_sha256"],
+                     scene_exaggeration=scene_exaggeration)
     s["init_run"] = pairing
     nis_text = "no filter epoch with data" if s["mean_nis_per_dof"] is None else f"mean NIS/dof {s['mean_nis_per_dof']:.3f}"
     w = s.get("window")
@@ -799,8 +808,22 @@ def _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, a
         _emit_json(res)
 
 
+def _scene_factor(text) -> float | str:
+    """--scene-exaggeration: "auto", or a finite factor >= 0."""
+    if str(text).strip().lower() == "auto":
+        return "auto"
+    try:
+        v = float(text)
+    except ValueError:
+        v = float("nan")
+    if not (v >= 0 and math.isfinite(v)):
+        raise CdgpsError(f"--scene-exaggeration {text!r}: expected a finite factor >= 0 (0: no 3-D scene) or 'auto'")
+    return v
+
+
 def _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json, structure_only, structure=None,
-                   x_axis_azimuth_deg=X_AXIS_AZIMUTH_DEG, receiver_map=(), allow_other_run=False):
+                   x_axis_azimuth_deg=X_AXIS_AZIMUTH_DEG, receiver_map=(), allow_other_run=False,
+                   scene_exaggeration=SCENE_EXAGGERATION):
     from cdgps_cli.pipeline.gnss import gnss_estimate
     from cdgps_cli.io.gnss_run import read_gnss_run
 
@@ -813,7 +836,7 @@ def _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json, structure_
     run = read_gnss_run(run_mcap)
     if structure is not None or receiver_map:
         _estimate_gnss_modal(ctx, run, init, init_text, output, as_json, smooth, structure, x_axis_azimuth_deg,
-                             receiver_map, extra, pairing)
+                             receiver_map, extra, pairing, scene_exaggeration)
         return
     _say(ctx, f"estimating {run_mcap} from {init_json} ({run.cfg.displacement} displacement"
               f"{', smoothing' if smooth and run.cfg.displacement == 'random_walk' else ''}) …")
@@ -860,7 +883,7 @@ def _structure_options(structure, x_axis_azimuth_deg, receiver_map):
 
 
 def _estimate_gnss_modal(ctx, run, init, init_text, output, as_json, smooth, structure, x_axis_azimuth_deg,
-                         receiver_map, extra=None, pairing=None):
+                         receiver_map, extra=None, pairing=None, scene_exaggeration=SCENE_EXAGGERATION):
     """``cdgps estimate RUN --init INIT --structure STRUCT.toml``: the modal model on the DDs (gnss_modal.py)."""
     from cdgps_cli.pipeline.gnss_modal import gnss_modal_estimate
 
@@ -869,7 +892,7 @@ def _estimate_gnss_modal(ctx, run, init, init_text, output, as_json, smooth, str
               f"{' (smoothing)' if smooth else ''} …")
     s = gnss_modal_estimate(run, init, init_text, cfg, output, receivers=mapping, x_axis_azimuth_deg=x_axis_azimuth_deg,
                             smooth=smooth, progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)),
-                            extra_options=extra)
+                            extra_options=extra, scene_exaggeration=scene_exaggeration)
     s["init_run"] = pairing
     _say(ctx, f"wrote {output}: {s['epochs']} epochs, coordinates {', '.join(s['coordinates'])}, mean NIS/dof "
               f"{s['mean_nis_per_dof']:.3f}, {s['events']} events")

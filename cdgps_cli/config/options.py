@@ -92,6 +92,11 @@ ESTIMATE_DEFAULTS = {
     "rest_window_s": 3.0,              # `--rest auto`: sliding window of the zero-velocity test, s
     "rest_dwell_s": 2.0,               # … and how long it must pass before rest is entered, s
 }
+#: `cdgps estimate --scene-exaggeration`: factor on the deformation drawn in STATES.mcap's 3-D scene
+#: (/cdgps/scene, foxglove.SceneUpdate; cdgps_cli.analysis.scene); "auto": the largest of 1, 2, 5, 10, …
+#: that draws the 99th-percentile deformation at most SCENE_AUTO_FRACTION of the structure's size; 0: no scene
+SCENE_EXAGGERATION = "auto"
+SCENE_AUTO_FRACTION = 0.05
 #: epochs per chunk of the filter's history on disk (cdgps estimate): its pages are dropped from memory
 #: chunk by chunk forward and backward (memory of a chunk, not of the record; the same numbers for any value).
 #: An internal setting of the library (EstimateOptions.chunk_epochs), not a command-line option.

@@ -137,6 +137,15 @@ def _missing(v) -> bool:
     return v is None or (isinstance(v, float) and v != v)
 
 
+def _holds_missing(v) -> bool:
+    """Whether a None, NaN or infinity is anywhere in ``v`` (dicts and lists, recursively)."""
+    if isinstance(v, dict):
+        return any(_holds_missing(x) for x in v.values())
+    if isinstance(v, (list, tuple)):
+        return any(_holds_missing(x) for x in v)
+    return v is None or (isinstance(v, float) and not np.isfinite(v))
+
+
 _COMPACT_JSON = json.JSONEncoder(separators=(",", ":"), allow_nan=False)
 
 
@@ -291,6 +300,17 @@ class McapOut:
             data = self._encode(msg, payload, arrays, others, time_s)
         self._add(channel_id, ns, data)
         self._note(channel_id, msg["time_s"], payload.get("receiver"))
+
+    def write_raw(self, channel_id: int, time_s: float, payload: dict) -> None:
+        """Write ``payload`` exactly as given (no ``timestamp`` / ``time_s`` added: a message of a
+        well-known schema such as ``foxglove.SceneUpdate``) at log time ``time_s`` (the file's time
+        scale).  A missing value (None, NaN, infinity) anywhere is a ValueError: no ``null`` is written."""
+        data = json_bytes(payload)
+        if b"null" in data and _holds_missing(payload):    # (else the word in a text)
+            raise ValueError(f"message at {time_s!r} s on {self._topic[channel_id]}: a missing value (None, NaN or "
+                             "infinity)")
+        self._add(channel_id, time_ns(time_s, self.time_scale), data)
+        self._note(channel_id, float(time_s), None)
 
     def _note(self, channel_id: int, time_s: float, receiver) -> None:
         """Remember a message's time (and scalar ``receiver``) for :data:`INFO_METADATA`."""

@@ -55,8 +55,9 @@ from cdgps_cli.core.records import CoordinateModel, Series, StateSeries
 from cdgps_cli.io.states_layout import (COVARIANCE_CHOICES, DEFAULT_COVARIANCE, DEFAULT_PREVIEW_RATE_HZ,
                                         OUTPUT_MAP_PACKED, PACKED_PREFIX, RESIDUAL_PACKED, SERIES_ATTACHMENT,
                                         STATE_DELTA, STATES_FORMAT, STATES_KINDS)
+from cdgps_cli.io.foxglove_schema import scene_update_schema
 from cdgps_cli.io.mcap import (NULLABLE, CONFIG_ATTACHMENT, McapOut, array_schema, attachment_spans, message_schema,
-                               read_mcap, read_span)
+                               read_mcap, read_span, time_ns)
 
 STATE_TOPIC = "/cdgps/state"
 STATE_FILTERED_TOPIC = "/cdgps/state_filtered"
@@ -65,6 +66,10 @@ EVENT_TOPIC = "/cdgps/events"
 INIT_ATTACHMENT = "init.json"
 ESTIMATE_METADATA = "cdgps.estimate"
 ANGLES_TOPIC = "/cdgps/angles_deg"
+SCENE_TOPIC = "/cdgps/scene"
+"""The structure drawn in 3-D (``foxglove.SceneUpdate``), one message per preview epoch."""
+SCENE_FIXED_TOPIC = "/cdgps/scene_fixed"
+"""The transmitters drawn in 3-D (``foxglove.SceneUpdate``), one message at the first epoch."""
 
 
 def _state_schema(names, with_P: bool, with_rates: bool, nullable: bool) -> dict:
@@ -82,6 +87,14 @@ def _state_schema(names, with_P: bool, with_rates: bool, nullable: bool) -> dict
 
 RESIDUAL_SCHEMA = array_schema("cdgps.Residuals", {"antenna": "string", "transmitter": "string", "residual_m": "number"},
                                {"nis": NULLABLE, "nis_dof": "integer"})
+_RESIDUAL_BOUNDS_SCHEMA = array_schema("cdgps.Residuals", {"antenna": "string", "transmitter": "string",
+                                                           "residual_m": "number"},
+                                       {"nis": NULLABLE, "nis_dof": "integer", "nis_lower95": NULLABLE,
+                                        "nis_upper95": NULLABLE})
+for _k in ("nis_lower95", "nis_upper95"):
+    _RESIDUAL_BOUNDS_SCHEMA["properties"][_k]["description"] = (
+        f"{'2.5' if _k == 'nis_lower95' else '97.5'} % point of chi-square(nis_dof): the NIS's two-sided 95 % "
+        "interval; left out where there is no NIS")
 _EVENT_FIELDS = {"antenna": {"type": "string"}, "transmitter": {"type": "string"}, "kind": {"type": "string"},
                  "action": {"type": "string"},
                  "velocity_nis": {"type": "number", "description": "rest test statistic (rest events only)"}}
@@ -152,6 +165,31 @@ def _write_angles(out: McapOut, C: np.ndarray, angles, time_s, q: np.ndarray, P_
         rows = np.hstack([deg, np.degrees(np.sqrt(np.maximum(var, 0.0)))]).tolist()
         for t, row in zip(times[a:b].tolist(), rows):
             out.write(ch, t, dict(zip(keys, row)))
+
+
+def _write_scene(out: McapOut, scene, time_s, q: np.ndarray, block: int = 1024) -> int:
+    """The :data:`SCENE_TOPIC` messages at the preview epochs ``time_s`` from the coordinates ``q``
+    there (k, n_q), and the :data:`SCENE_FIXED_TOPIC` message at the first; returns how many.
+
+    ``scene`` (:class:`cdgps_cli.analysis.scene.StructureScene` or the same methods) builds the
+    message dicts: ``updates(q_block, stamps_ns)`` (None where nothing is drawn), ``fixed(stamp_ns)``
+    (None: no such channel) and ``metadata`` (the channel metadata)."""
+    times = np.asarray(time_s, dtype=float).tolist()
+    if scene is None or not times:
+        return 0
+    schema = scene_update_schema()
+    ns = [time_ns(t, out.time_scale) for t in times]
+    fixed = scene.fixed(ns[0])
+    if fixed is not None:
+        out.write_raw(out.channel(SCENE_FIXED_TOPIC, schema, dict(scene.metadata)), times[0], fixed)
+    ch = out.channel(SCENE_TOPIC, schema, dict(scene.metadata))
+    n = 0
+    for a in range(0, len(times), block):                    # blocks: no full-length temporaries
+        for t, msg in zip(times[a:a + block], scene.updates(q[a:a + block], ns[a:a + block])):
+            if msg is not None:
+                out.write_raw(ch, t, msg)
+                n += 1
+    return n
 
 
 def _is_identity(C: np.ndarray) -> bool:
@@ -288,8 +326,9 @@ def _write_state_messages(out: McapOut, ch: int, names, sel, ser: Series, q, sq,
         out.write(ch, t, msg)
 
 
-def _write_residuals(out: McapOut, ss: StateSeries, time_s, sel) -> None:
-    """Residuals, NIS and dof: every epoch packed, the JSON channel at the epochs ``sel``."""
+def _write_residuals(out: McapOut, ss: StateSeries, time_s, sel, nis_bounds=None) -> None:
+    """Residuals, NIS and dof: every epoch packed, the JSON channel at the epochs ``sel`` (with the
+    NIS's 95 % bounds when ``nis_bounds`` is given, see :func:`write_states`)."""
     # float32 (7 significant digits: nm on cm-level residuals) keeps the file within its RUN's size;
     # the JSON messages carry the float64 values
     out.attach_packed(RESIDUAL_PACKED + "residual_m", np.asarray(ss.residual_m, dtype=np.float32))
@@ -297,7 +336,7 @@ def _write_residuals(out: McapOut, ss: StateSeries, time_s, sel) -> None:
     out.attach_packed(RESIDUAL_PACKED + "nis_dof", np.asarray(ss.nis_dof, dtype=np.int64))
     out.attach(RESIDUAL_PACKED + "channels.json", json.dumps([list(c) for c in ss.residual_channels]).encode(),
                "application/json")
-    ch = out.channel(RESIDUAL_TOPIC, RESIDUAL_SCHEMA)
+    ch = out.channel(RESIDUAL_TOPIC, RESIDUAL_SCHEMA if nis_bounds is None else _RESIDUAL_BOUNDS_SCHEMA)
     ants = [c[0] for c in ss.residual_channels]
     txs = [c[1] for c in ss.residual_channels]
     R = np.asarray(ss.residual_m, dtype=float)[sel]
@@ -306,6 +345,12 @@ def _write_residuals(out: McapOut, ss: StateSeries, time_s, sel) -> None:
     nis = np.asarray(ss.nis, dtype=float)[sel]
     nis_list = [None if bad else v for bad, v in zip(np.isnan(nis).tolist(), nis.tolist())]
     dof = [int(d) for d in np.asarray(ss.nis_dof)[sel].tolist()]
+    bounds = None
+    if nis_bounds is not None:
+        lo, hi = nis_bounds(np.asarray(ss.nis_dof)[sel])
+        has = ~np.isnan(nis) & (np.asarray(dof) > 0)
+        bounds = [None if not h else (a, b) for h, a, b in zip(has.tolist(), np.asarray(lo, dtype=float).tolist(),
+                                                               np.asarray(hi, dtype=float).tolist())]
     for i, (t, r) in enumerate(zip(np.asarray(time_s, dtype=float)[sel].tolist(), R.tolist())):
         if every[i]:
             a, x = ants, txs
@@ -314,7 +359,10 @@ def _write_residuals(out: McapOut, ss: StateSeries, time_s, sel) -> None:
             a = [v for v, ok in zip(ants, u) if ok]
             x = [v for v, ok in zip(txs, u) if ok]
             r = [v for v, ok in zip(r, u) if ok]
-        out.write(ch, t, {"antenna": a, "transmitter": x, "residual_m": r, "nis": nis_list[i], "nis_dof": dof[i]})
+        msg = {"antenna": a, "transmitter": x, "residual_m": r, "nis": nis_list[i], "nis_dof": dof[i]}
+        if bounds is not None and bounds[i] is not None:
+            msg["nis_lower95"], msg["nis_upper95"] = bounds[i]
+        out.write(ch, t, msg)
 
 
 def _description(ss: StateSeries) -> bytes:
@@ -338,7 +386,8 @@ def provenance(run_path: str | Path, init_text: str, run_sha256: str | None = No
 
 def write_states(ss: StateSeries, out_path: str | Path, metadata: dict, attachments: dict, *,
                  time_scale: str = "relative", covariance: str = DEFAULT_COVARIANCE,
-                 preview_rate_hz: float = DEFAULT_PREVIEW_RATE_HZ, angles=(), preview=None) -> dict:
+                 preview_rate_hz: float = DEFAULT_PREVIEW_RATE_HZ, angles=(), preview=None, scene=None,
+                 nis_bounds=None) -> dict:
     """Write an estimate of any kind to STATES.mcap atomically; returns a summary.
 
     The stage functions building ``ss`` are :func:`cdgps_cli.pipeline.estimate_outputs.write_states`
@@ -372,6 +421,15 @@ def write_states(ss: StateSeries, out_path: str | Path, metadata: dict, attachme
         (q, ξ, ξ̇ and the angles), e.g. :func:`cdgps_cli.analysis.preview.anti_alias_decimate`
         (low-pass filtered first: no alias of a mode above the preview's Nyquist frequency);
         default: the samples themselves.  Sigmas, covariances and residuals are sampled.
+    scene : optional
+        Draws the structure in 3-D (:class:`cdgps_cli.analysis.scene.StructureScene`): the
+        :data:`SCENE_TOPIC` channel from the preview's coordinates of the estimate (the same
+        anti-aliased q as ``/cdgps/state``) and :data:`SCENE_FIXED_TOPIC` (transmitters); None: no
+        such channels.
+    nis_bounds : callable, optional
+        ``nis_bounds(dof (k,)) -> (lower (k,), upper (k,))``: the NIS's two-sided 95 % chi-square
+        interval per epoch, written beside ``nis`` in the residual messages as ``nis_lower95`` and
+        ``nis_upper95`` (Foxglove plots NIS against its bounds); None: not written.
     """
     if covariance not in COVARIANCE_CHOICES:
         raise ValueError(f"covariance {covariance!r}: expected one of {', '.join(COVARIANCE_CHOICES)}")
@@ -396,17 +454,19 @@ def write_states(ss: StateSeries, out_path: str | Path, metadata: dict, attachme
             # P_ξ of every series but the forward filter of a smoothed run (its 1-σ only), unless full
             _attach_series(out, topic, ss, ser, sq, with_P_pos=topic != STATE_FILTERED_TOPIC or full, full=full)
             q_prev = None            # the preview's coordinates: filtered (or picked) once for the messages and angles
-            if ser.messages or (topic == STATE_TOPIC and angles):
+            if ser.messages or (topic == STATE_TOPIC and (angles or scene is not None)):
                 q_prev = q[sel] if pick is None else pick(q)
             if ser.messages:
                 _write_state_messages(out, out.channel(topic, schema), names, np.arange(0, len(ser.time_s), stride),
                                       ser, q_prev, sq, ss.n_pos, ss.n_rate, full, pick)
             if topic == STATE_TOPIC:
                 _write_angles(out, C, angles, time_s[sel], q_prev, P_pos[sel])
+                if scene is not None:
+                    _write_scene(out, scene, time_s[sel], q[sel] if q_prev is None else q_prev)
             out.write_packed()              # written before the next series: one series' arrays at a time
             del q, sq, P_pos
             bar.update()
-        _write_residuals(out, ss, time_s, sel)
+        _write_residuals(out, ss, time_s, sel, nis_bounds)
         out.write_packed()
         bar.update()
         ch = out.channel(EVENT_TOPIC, event_schema(ss.events))

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from cdgps_cli import __version__
+from cdgps_cli.config.options import SCENE_AUTO_FRACTION, SCENE_EXAGGERATION
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.records import Series, StateSeries
 from cdgps_cli.io import states as states_io
@@ -28,7 +29,7 @@ from cdgps_cli.io.mcap import CONFIG_ATTACHMENT
 from cdgps_cli.io.states import ESTIMATE_METADATA, INIT_ATTACHMENT, STATE_FILTERED_TOPIC, STATE_TOPIC, States
 from cdgps_cli.io.states_layout import DEFAULT_COVARIANCE, DEFAULT_PREVIEW_RATE_HZ
 
-__all__ = ["structure_series", "write_states", "export_csv", "evaluate"]
+__all__ = ["structure_series", "write_states", "scene_for", "nis_bounds95", "export_csv", "evaluate"]
 
 
 def structure_series(res) -> StateSeries:
@@ -47,7 +48,7 @@ def structure_series(res) -> StateSeries:
 
 def write_states(res, run_path: str | Path, init: dict, init_text: str, out_path: str | Path, options: dict,
                  covariance: str = DEFAULT_COVARIANCE, preview_rate_hz: float | None = None,
-                 run_sha256: str | None = None) -> dict:
+                 run_sha256: str | None = None, scene_exaggeration: float | str = SCENE_EXAGGERATION) -> dict:
     """Write the structure estimate ``res`` to STATES.mcap atomically; returns the writer's summary.
 
     Parameters
@@ -66,6 +67,8 @@ def write_states(res, run_path: str | Path, init: dict, init_text: str, out_path
     run_sha256 : str, optional
         The RUN's sha256 when the caller has it (``cdgps estimate`` hashed the RUN to check the
         INIT pairing); else the RUN is hashed here.
+    scene_exaggeration : float or "auto"
+        Factor on the deformation drawn in the 3-D scene channel (:func:`scene_for`); 0: no scene.
     """
     from cdgps_cli.model.kinematics import section_angles  # noqa: PLC0415
     from cdgps_cli.io.run import run_kind  # noqa: PLC0415 (a structure estimated on a GNSS run: GPS time)
@@ -91,12 +94,47 @@ def write_states(res, run_path: str | Path, init: dict, init_text: str, out_path
 
     if preview_rate_hz is None:
         preview_rate_hz = preview_rate_hz_for(cfg, res.time_s)
-    out = states_io.write_states(structure_series(res), out_path, meta, attachments,
-                                 time_scale="gps" if run_kind(run_path) == "gnss" else "relative",
+    ss = structure_series(res)
+    gnss = run_kind(run_path) == "gnss"             # the config's transmitters stand for satellites: not drawn
+    scene = scene_for(cfg, ss, preview_rate_hz, scene_exaggeration, transmitters=not gnss)
+    out = states_io.write_states(ss, out_path, meta, attachments, time_scale="gps" if gnss else "relative",
                                  covariance=covariance, preview_rate_hz=preview_rate_hz, angles=section_angles(cfg),
-                                 preview=anti_alias_decimate)
+                                 preview=anti_alias_decimate, scene=scene, nis_bounds=nis_bounds95)
     out["window"] = window or None
+    out["scene_exaggeration"] = scene.exaggeration if scene is not None else 0.0
     return out
+
+
+def nis_bounds95(dof):
+    """Two-sided 95 % chi-square interval of the NIS per epoch: (2.5 %, 97.5 %) points for ``dof``
+    (NaN where dof ≤ 0); written beside the NIS in STATES.mcap's residual messages."""
+    from cdgps_cli.estimation.chi2 import chi2_quantile  # noqa: PLC0415
+
+    d = np.asarray(dof, dtype=float)
+    return np.atleast_1d(chi2_quantile(0.025, d)), np.atleast_1d(chi2_quantile(0.975, d))
+
+
+def scene_for(cfg, ss: StateSeries, preview_rate_hz: float, exaggeration: float | str, transmitters: bool = True):
+    """The 3-D scene of a structure estimate (:class:`cdgps_cli.analysis.scene.StructureScene`),
+    or None when ``exaggeration`` is 0; ``transmitters``: draw the config's transmitters (not on a
+    GNSS run, where the satellites replace them).
+
+    ``"auto"``: :func:`cdgps_cli.analysis.scene.auto_exaggeration` on the estimate at the preview
+    epochs (:data:`SCENE_AUTO_FRACTION` of the structure's size)."""
+    from cdgps_cli.analysis.scene import StructureScene, auto_exaggeration, scene_geometry  # noqa: PLC0415
+
+    if isinstance(exaggeration, str):
+        if exaggeration.strip().lower() != "auto":
+            raise CdgpsError(f"--scene-exaggeration {exaggeration!r}: expected a factor >= 0 or 'auto'")
+        est = ss.series[STATE_TOPIC]
+        stride = states_io.preview_stride(np.asarray(est.time_s, dtype=float), preview_rate_hz)
+        q = states_io.series_q(ss.output_map, est.x[::stride, :ss.n_pos])
+        exaggeration = auto_exaggeration(cfg, scene_geometry(cfg), q, SCENE_AUTO_FRACTION)
+    exaggeration = float(exaggeration)
+    if not (exaggeration >= 0 and np.isfinite(exaggeration)):
+        raise CdgpsError(f"--scene-exaggeration {exaggeration:g}: expected a finite factor >= 0 (0: no 3-D scene) "
+                         "or 'auto'")
+    return StructureScene(cfg, exaggeration, transmitters=transmitters) if exaggeration > 0 else None
 
 
 def preview_rate_hz_for(cfg, time_s) -> float:

@@ -545,7 +545,10 @@ def _write_gnss_states(run, init, init_text, out_path, names, t, q, P, qf, Pf, k
     attachments = {GNSS_CONFIG_ATTACHMENT: (run.cfg.text.encode(), "application/toml"),
                    INIT_ATTACHMENT: (init_text.encode(), "application/json")}
     # Foxglove channels at every epoch (GNSS epochs are 1 s or longer: the arrays dominate the size)
-    out = states_io.write_states(ss, out_path, meta, attachments, time_scale="gps", preview_rate_hz=0.0)
+    from cdgps_cli.pipeline.estimate_outputs import nis_bounds95  # noqa: PLC0415
+
+    out = states_io.write_states(ss, out_path, meta, attachments, time_scale="gps", preview_rate_hz=0.0,
+                                 nis_bounds=nis_bounds95)
     out.update({"start": gps_time_str(float(t[0])), "end": gps_time_str(float(t[-1])),
                 "kinematic_epochs": int(have.sum())})
     return out

@@ -56,7 +56,7 @@ import pandas as pd
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli import __version__
 from cdgps_cli.config.structure import StructureConfig
-from cdgps_cli.config.options import MODAL_INIT_CODE_DD, SIM_MASTER_ECEF_M, X_AXIS_AZIMUTH_DEG
+from cdgps_cli.config.options import MODAL_INIT_CODE_DD, SCENE_EXAGGERATION, SIM_MASTER_ECEF_M, X_AXIS_AZIMUTH_DEG
 
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.measurement.differencing import joint_dd_covariance, sd_variance, select_reference
@@ -536,7 +536,8 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
                         batch_init: bool = True, init_window_s: float = INIT_WINDOW_S,
                         outlier_sigma: float | None = None,
                         init_window_max_factor: float = INIT_WINDOW_MAX_FACTOR,
-                        init_code_dd: bool = MODAL_INIT_CODE_DD) -> dict:
+                        init_code_dd: bool = MODAL_INIT_CODE_DD,
+                        scene_exaggeration: float | str = SCENE_EXAGGERATION) -> dict:
     """Modal states of a structure from a GNSS RUN and its INIT (integers) → STATES.mcap.
 
     Parameters
@@ -572,6 +573,8 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
     outlier_sigma : float, optional
         Outlier gate: a DD whose innovation exceeds this many σ is not used at that epoch (event
         ``outlier``); default :class:`cdgps_cli.estimation.filter.EstimateOptions`'s.
+    scene_exaggeration : float or "auto"
+        The 3-D scene's factor on the deformation (:func:`cdgps_cli.pipeline.estimate_outputs.scene_for`).
 
     Returns
     -------
@@ -662,7 +665,7 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
                "dd_covariance": "D Σ Dᵀ jointly over the rovers (common master)", "outlier_sigma": gate,
                **_signal_options(tabs), **(extra_options or {})}
     say(f"writing {out_path} …")
-    out = write_states(res, run.path, init, init_text, out_path, options)
+    out = write_states(res, run.path, init, init_text, out_path, options, scene_exaggeration=scene_exaggeration)
     out.update({
         "placement": {"master_ecef_m": list(map(float, xm)), "x_axis_azimuth_deg": float(x_axis_azimuth_deg)},
         "receivers": mapping, "unused_receivers": unused,

@@ -1,0 +1,308 @@
+"""The structure drawn in 3-D: ``foxglove.SceneUpdate`` messages of a structure estimate (no I/O).
+
+What is drawn, from the structure config alone (:func:`scene_geometry`):
+
+* the **skeleton**: the shortest tree (minimum spanning tree of the nominal distances) joining the
+  body origin, the section pivots and the points fixed to the body frame (antennas and named
+  ``[[points]]`` without a section, e.g. finite-element nodes) — the testbed's beams C1–C2–C3, a
+  tower's mast from its foundation to its top;
+* **spokes** from each section pivot to the antennas and named points carried by that section;
+* **antennas** as spheres (the master in red) with their names, named points as small spheres;
+* in one message of its own (:meth:`StructureScene.fixed`): **pseudolites** as cubes at their
+  positions, or far-field transmitters as arrows from the body origin along their directions.
+
+Every node moves as the model says (:func:`cdgps_cli.model.kinematics.point_positions`, q = U ξ).
+The motion is drawn exaggerated: with q_r the coordinates with only the rigid-body rotation kept
+(all zero without one),
+
+    p_drawn = p(q_r) + k · (p(q) − p(q_r)),
+
+so the structure turns as a whole at true scale and its deformation is magnified k times
+(``estimate --scene-exaggeration``).  Positions are rounded to 0.1 mm (as drawn) to keep the
+messages small.  :func:`cdgps_cli.io.states.write_states` writes the messages at the anti-aliased
+preview epochs (:mod:`cdgps_cli.analysis.preview`); their schema is
+:mod:`cdgps_cli.io.foxglove_schema`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cdgps_cli.model.kinematics import point_positions
+
+FRAME_ID = "cdgps_lab"
+"""Frame of every scene entity: the structure's lab frame (x, y, z as the config, metres)."""
+SCENE_TOPIC = "/cdgps/scene"
+"""The moving structure, one SceneUpdate per preview epoch."""
+SCENE_FIXED_TOPIC = "/cdgps/scene_fixed"
+"""Transmitters (pseudolites, far-field directions): one SceneUpdate at the first epoch."""
+ROUND_M = 4
+"""Drawn positions are rounded to this many decimals of a metre."""
+
+_COLORS = {"skeleton": (0.25, 0.45, 0.85, 1.0), "spoke": (0.55, 0.7, 0.95, 1.0), "antenna": (1.0, 0.6, 0.1, 1.0),
+           "master": (0.9, 0.15, 0.15, 1.0), "point": (0.2, 0.7, 0.9, 1.0), "label": (1.0, 1.0, 1.0, 1.0),
+           "pseudolite": (0.2, 0.75, 0.3, 1.0), "direction": (0.6, 0.6, 0.6, 0.8)}
+_IDENTITY = {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}
+
+
+@dataclass(frozen=True)
+class SceneGeometry:
+    """The nodes and lines drawn for a structure (nominal, body frame).
+
+    Attributes
+    ----------
+    names : tuple of str (P,)
+        ``origin``, ``pivot:<section>``, antenna names, named points.
+    kinds : tuple of str (P,)
+        ``origin``, ``pivot``, ``master``, ``antenna`` or ``point``.
+    section : ndarray of int (P,)
+        Section per node, -1: the body frame.
+    position_m : ndarray (P, 3)
+        Nominal body-frame positions, m.
+    displacement : ndarray (P, 3, n_q)
+        Linear displacement per coordinate (FE mode shapes), m per coordinate unit.
+    skeleton, spokes : ndarray of int (E, 2), (S, 2)
+        Node pairs joined by a line.
+    size_m : float
+        Extent of the structure (largest nominal distance between nodes, at least 1 m).
+    """
+
+    names: tuple
+    kinds: tuple
+    section: np.ndarray
+    position_m: np.ndarray
+    displacement: np.ndarray
+    skeleton: np.ndarray
+    spokes: np.ndarray
+    size_m: float
+
+
+def scene_geometry(cfg) -> SceneGeometry:
+    """The nodes, skeleton and spokes of ``cfg`` (a :class:`~cdgps_cli.config.structure.StructureConfig`)."""
+    n_q = cfg.n_q
+    names, kinds, sec, pos, disp = ["origin"], ["origin"], [-1], [np.zeros(3)], [np.zeros((3, n_q))]
+    for s, section in enumerate(cfg.sections):
+        names.append(f"pivot:{section.name}")
+        kinds.append("pivot")
+        sec.append(s)
+        pos.append(np.asarray(section.pivot_m, dtype=float))
+        disp.append(np.zeros((3, n_q)))
+    for i, name in enumerate(cfg.antenna_names):
+        names.append(name)
+        kinds.append("master" if i == cfg.master_index else "antenna")
+        sec.append(int(cfg.antenna_section[i]))
+        pos.append(np.asarray(cfg.antenna_position_m[i], dtype=float))
+        disp.append(np.asarray(cfg.antenna_displacement[i], dtype=float))
+    for i, name in enumerate(cfg.point_names):
+        names.append(name)
+        kinds.append("point")
+        sec.append(int(cfg.point_section[i]))
+        pos.append(np.asarray(cfg.point_position_m[i], dtype=float))
+        disp.append(np.asarray(cfg.point_displacement[i], dtype=float))
+    section = np.array(sec, dtype=int)
+    position = np.array(pos, dtype=float).reshape(-1, 3)
+    # pivots first, the origin last: a pivot at the origin (the testbed's C2) is the node kept
+    frame_nodes = [k for k in range(len(names)) if kinds[k] == "pivot"] + \
+        [k for k in range(len(names)) if kinds[k] not in ("origin", "pivot") and section[k] < 0] + [0]
+    skeleton = _spanning_tree(position, frame_nodes)
+    spokes = [(1 + s, k) for k in range(len(names)) if kinds[k] not in ("origin", "pivot")
+              for s in [section[k]] if s >= 0 and np.linalg.norm(position[k] - position[1 + s]) > 1e-3]
+    d = np.linalg.norm(position[:, None] - position[None], axis=-1)
+    return SceneGeometry(tuple(names), tuple(kinds), section, position, np.array(disp).reshape(-1, 3, n_q),
+                         np.array(skeleton, dtype=int).reshape(-1, 2), np.array(spokes, dtype=int).reshape(-1, 2),
+                         max(float(d.max()), 1.0))
+
+
+def _spanning_tree(position: np.ndarray, nodes: list[int], same_m: float = 1e-3) -> list[tuple[int, int]]:
+    """Edges of the minimum spanning tree (Prim, ties to the lower index) over ``nodes``; nodes
+    within ``same_m`` of an earlier one are the same place and get no edge of their own."""
+    keep = []
+    for k in nodes:
+        if all(np.linalg.norm(position[k] - position[j]) > same_m for j in keep):
+            keep.append(k)
+    if len(keep) < 2:
+        return []
+    p = position[keep]
+    d = np.linalg.norm(p[:, None] - p[None], axis=-1)
+    inside = np.zeros(len(keep), dtype=bool)
+    inside[0] = True
+    best, parent = d[0].copy(), np.zeros(len(keep), dtype=int)
+    edges = []
+    for _ in range(len(keep) - 1):
+        j = int(np.argmin(np.where(inside, np.inf, best)))
+        edges.append((keep[int(parent[j])], keep[j]))
+        inside[j] = True
+        closer = d[j] < best
+        best = np.where(closer, d[j], best)
+        parent = np.where(closer, j, parent)
+    return edges
+
+
+def drawn_positions(cfg, geom: SceneGeometry, q: np.ndarray, exaggeration: float) -> np.ndarray:
+    """Lab-frame positions of the nodes as drawn, (N, P, 3) m: p(q_r) + k (p(q) − p(q_r)).
+
+    Parameters
+    ----------
+    cfg : StructureConfig
+    geom : SceneGeometry
+    q : ndarray (N, n_q)
+        Coordinates (m or rad as the config declares).
+    exaggeration : float
+        k, the factor on the deformation (1: true scale).
+    """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    p = point_positions(cfg, q, geom.section, geom.position_m, geom.displacement)
+    q_r = np.zeros_like(q)
+    if cfg.rigid_index is not None:
+        q_r[:, cfg.rigid_index] = q[:, cfg.rigid_index]
+    p_r = point_positions(cfg, q_r, geom.section, geom.position_m, geom.displacement)
+    return p_r + float(exaggeration) * (p - p_r)
+
+
+def auto_exaggeration(cfg, geom: SceneGeometry, q: np.ndarray, fraction: float) -> float:
+    """The exaggeration that draws the largest deformation about ``fraction`` of the structure's size.
+
+    The deformation is the 99th percentile over the epochs of ``q`` (k, n_q) of the largest node
+    displacement |p(q) − p(q_r)|; the factor is the largest of 1, 2, 5, 10, 20, … that keeps it at or
+    below ``fraction`` · size, and never below 1 (a structure that moves visibly is drawn at true scale).
+    """
+    q = np.asarray(q, dtype=float)
+    q = q[np.isfinite(q).all(axis=1)] if q.ndim == 2 else q
+    if q.size == 0:
+        return 1.0
+    d = np.linalg.norm(drawn_positions(cfg, geom, q, 1.0) - drawn_positions(cfg, geom, q, 0.0), axis=-1)
+    big = float(np.percentile(d.max(axis=1), 99))
+    if not big > 0:
+        return 1.0
+    target = fraction * geom.size_m / big
+    k = 1.0
+    for decade in range(0, 9):
+        for m in (1.0, 2.0, 5.0):
+            if m * 10.0 ** decade <= target:
+                k = m * 10.0 ** decade
+    return k
+
+
+def _xyz(v) -> dict:
+    return {"x": v[0], "y": v[1], "z": v[2]}
+
+
+def _rgba(name: str) -> dict:
+    return dict(zip("rgba", _COLORS[name]))
+
+
+def _stamp(ns: int) -> dict:
+    return {"sec": int(ns) // 1_000_000_000, "nsec": int(ns) % 1_000_000_000}
+
+
+def _pose(v) -> dict:
+    return {"position": _xyz(v), "orientation": dict(_IDENTITY)}
+
+
+def _entity(ns: int, entity_id: str, **primitives) -> dict:
+    e = {"timestamp": _stamp(ns), "frame_id": FRAME_ID, "id": entity_id, "lifetime": {"sec": 0, "nsec": 0},
+         "frame_locked": False, "metadata": []}
+    for k in ("arrows", "cubes", "spheres", "cylinders", "lines", "triangles", "texts", "models"):
+        e[k] = primitives.get(k, [])
+    return e
+
+
+def _lines(pairs: np.ndarray, p: list, color: str) -> dict:
+    """One LINE_LIST (type 2) through the node pairs, 3 px wide at any zoom."""
+    pts = [_xyz(p[k]) for pair in pairs.tolist() for k in pair]
+    return {"type": 2, "pose": _pose((0.0, 0.0, 0.0)), "thickness": 3.0, "scale_invariant": True, "points": pts,
+            "color": _rgba(color), "colors": [], "indices": []}
+
+
+class StructureScene:
+    """The scene of one structure: :meth:`updates` per epoch block, :meth:`fixed` once.
+
+    Parameters
+    ----------
+    cfg : StructureConfig
+    exaggeration : float
+        Factor on the deformation (> 0).
+    transmitters : bool
+        Draw the config's transmitters (:meth:`fixed`); not on a GNSS run, where the satellites
+        replace them.
+    """
+
+    def __init__(self, cfg, exaggeration: float, transmitters: bool = True):
+        if not (exaggeration > 0 and np.isfinite(exaggeration)):
+            raise ValueError(f"scene exaggeration {exaggeration!r}: expected a finite factor > 0")
+        self.cfg = cfg
+        self.exaggeration = float(exaggeration)
+        self.transmitters = bool(transmitters)
+        self.geometry = scene_geometry(cfg)
+        self.metadata = {"frame_id": FRAME_ID, "exaggeration": f"{self.exaggeration:g}",
+                         "drawn": "p(q_r) + exaggeration * (p(q) - p(q_r)); q_r: the rigid-body rotation only",
+                         "nodes": ",".join(self.geometry.names), "size_m": f"{self.geometry.size_m:.6g}"}
+
+    def updates(self, q: np.ndarray, stamps_ns) -> list:
+        """SceneUpdate messages (dicts) at the epochs of ``q`` (k, n_q), log times ``stamps_ns`` (Unix
+        ns); None where q is not finite."""
+        g = self.geometry
+        P = np.round(drawn_positions(self.cfg, g, q, self.exaggeration), ROUND_M)
+        ok = np.isfinite(P.reshape(len(P), -1)).all(axis=1).tolist()
+        r = round(0.02 * g.size_m, 3)
+        shown = [k for k, kind in enumerate(g.kinds) if kind in ("master", "antenna", "point")]
+        out = []
+        for frame, good, ns in zip(P.tolist(), ok, stamps_ns):
+            if not good:
+                out.append(None)
+                continue
+            lines = [_lines(pairs, frame, c) for pairs, c in ((g.skeleton, "skeleton"), (g.spokes, "spoke")) if len(pairs)]
+            spheres, texts = [], []
+            for k in shown:
+                d = r * (2.0 if g.kinds[k] != "point" else 1.2)
+                spheres.append({"pose": _pose(frame[k]), "size": {"x": d, "y": d, "z": d}, "color": _rgba(g.kinds[k])})
+                if g.kinds[k] != "point":
+                    texts.append({"pose": _pose((frame[k][0], frame[k][1], frame[k][2] + 1.5 * d)), "billboard": True,
+                                  "font_size": 14.0, "scale_invariant": True, "color": _rgba("label"),
+                                  "text": g.names[k]})
+            out.append({"deletions": [], "entities": [_entity(ns, "structure", lines=lines, spheres=spheres, texts=texts)]})
+        return out
+
+    def fixed(self, stamp_ns: int) -> dict | None:
+        """The transmitters: pseudolites as cubes, far-field directions as arrows from the body origin
+        (None without transmitters)."""
+        cfg = self.cfg
+        if not (self.transmitters and len(cfg.transmitter_names)):
+            return None
+        T = np.asarray(cfg.transmitter_position_m, dtype=float).reshape(-1, 3)
+        L = self.geometry.size_m
+        if cfg.transmitter_far_field:
+            origin = np.asarray(cfg.body_origin_m, dtype=float).tolist()
+            arrows = [{"pose": {"position": _xyz(origin), "orientation": _direction_quaternion(u)},
+                       "shaft_length": round(0.8 * L, 3), "shaft_diameter": round(0.01 * L, 3),
+                       "head_length": round(0.2 * L, 3), "head_diameter": round(0.03 * L, 3),
+                       "color": _rgba("direction")} for u in T]
+            texts = [_label(np.asarray(origin) + 1.05 * L * u / np.linalg.norm(u), n) for u, n in
+                     zip(T, cfg.transmitter_names)]
+            prims = {"arrows": arrows, "texts": texts}
+        else:
+            s = round(0.03 * L, 3)
+            prims = {"cubes": [{"pose": _pose(p.tolist()), "size": {"x": s, "y": s, "z": s}, "color": _rgba("pseudolite")}
+                               for p in T],
+                     "texts": [_label(p + np.array([0.0, 0.0, 1.5 * s]), n) for p, n in zip(T, cfg.transmitter_names)]}
+        return {"deletions": [], "entities": [_entity(stamp_ns, "transmitters", **prims)]}
+
+
+def _label(at: np.ndarray, text: str) -> dict:
+    return {"pose": _pose([round(float(v), ROUND_M) for v in at]), "billboard": True, "font_size": 14.0,
+            "scale_invariant": True, "color": _rgba("label"), "text": str(text)}
+
+
+def _direction_quaternion(u) -> dict:
+    """Unit quaternion turning +x onto the direction ``u``."""
+    u = np.asarray(u, dtype=float) / np.linalg.norm(u)
+    x = np.array([1.0, 0.0, 0.0])
+    c = float(np.dot(x, u))
+    if c < -1.0 + 1e-12:                                   # opposite: half a turn about z
+        return {"x": 0.0, "y": 0.0, "z": 1.0, "w": 0.0}
+    axis = np.cross(x, u)
+    qv = np.array([*axis, 1.0 + c])
+    qv /= np.linalg.norm(qv)
+    return dict(zip("xyzw", [float(v) for v in qv]))
