@@ -1,7 +1,7 @@
 // Decode MCAP files the way Foxglove / Lichtblick does, with the viewer's own JSON-schema decoder.
 //
 // Not part of `make test` (needs Node and npm); a manual cross-check of cdgps_cli.mcap_check:
-//   mkdir /tmp/fx && cd /tmp/fx && npm install @mcap/core fzstd typescript@5
+//   mkdir /tmp/fx && cd /tmp/fx && npm install @mcap/core fzstd typescript@5 @protobufjs/base64
 //   git show <lichtblick>:packages/mcap-support/src/parseJsonSchema.ts > parseJsonSchema.ts
 //   node -e 'const ts=require("typescript"),fs=require("fs");fs.writeFileSync("parseJsonSchema.js",
 //     ts.transpileModule(fs.readFileSync("parseJsonSchema.ts","utf8"),{compilerOptions:{module:1,target:7}}).outputText)'
@@ -9,7 +9,8 @@
 //     node scripts/foxglove_decode_check.js run.mcap states.mcap
 // Every channel's schema goes through parseJsonSchema (a refused schema is a failure), every
 // message through JSON.parse and the decoder's post-processing, and `timestamp` must equal the
-// log time; prints each file's first log time as a UTC date.  Exit 1 on any failure.
+// log time (a foxglove.SceneUpdate: each entity's timestamp); prints each file's first log time as a
+// UTC date.  Exit 1 on any failure.
 const fs = require("fs");
 const { McapIndexedReader } = require("@mcap/core");
 const { decompress } = require("fzstd");
@@ -41,8 +42,12 @@ class FileReadable {
         const v = JSON.parse(new TextDecoder().decode(m.data));
         const p = parsers.get(m.channelId);
         if (p) p.postprocessValue(v);
-        const ts = v.timestamp;
-        if (BigInt(ts.sec) * 1000000000n + BigInt(ts.nsec) !== m.logTime) throw new Error("timestamp != logTime");
+        // cdgps channels: the top-level timestamp; foxglove.SceneUpdate: each entity's
+        const stamps = v.timestamp ? [v.timestamp] : (v.entities || []).map((e) => e.timestamp);
+        if (!stamps.length) throw new Error("no timestamp");
+        for (const ts of stamps) {
+          if (BigInt(ts.sec) * 1000000000n + BigInt(ts.nsec) !== m.logTime) throw new Error("timestamp != logTime");
+        }
       } catch (e) { failures++; if (failures < 20) console.log(`${path}: message ${m.sequence}: ${e.message}`); }
     }
     const st = reader.statistics;

@@ -183,3 +183,15 @@ def _collect(obj, prefix: str, into: set) -> None:
             name = f"{prefix}.{k}" if prefix else k
             into.add(name)
             _collect(v, name, into)
+
+
+def write_layout(states_path: str | Path, out_path: str | Path) -> dict:
+    """Write the layout of :func:`states_layout` for ``states_path`` to ``out_path`` (atomically);
+    returns ``output``, ``panels`` (ids) and ``paths`` (:func:`layout_paths`, each once)."""
+    from cdgps_cli.io.atomic import write_atomic  # noqa: PLC0415
+
+    layout = states_layout(describe_states(states_path))
+    text = json.dumps(layout, indent=2, ensure_ascii=False) + "\n"
+    write_atomic(Path(out_path), lambda p: Path(p).write_text(text, encoding="utf-8"))
+    return {"output": str(out_path), "panels": list(layout["configById"]),
+            "paths": list(dict.fromkeys(layout_paths(layout)))}

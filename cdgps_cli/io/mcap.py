@@ -784,9 +784,17 @@ def open_verified(path: str | Path):
                          f"{str(exc)[:200]}") from None
 
 
+def _is_foxglove(schema) -> bool:
+    """A channel of one of Foxglove's own message schemas (``foxglove.*``, e.g. the 3-D scene)."""
+    return schema is not None and schema.name.startswith("foxglove.")
+
+
 def read_mcap(path: str | Path, topics: list[str] | None = None) -> McapContents:
     """Read an MCAP file, every byte checked before any value is used (:func:`open_verified`,
     chunk and attachment CRCs, each metadata record's ``record_sha256``).
+
+    ``topics`` None: every channel but those of Foxglove's own schemas (``foxglove.*``, nested
+    messages that do not fit :class:`TopicColumns`; read them with the ``mcap`` reader).
 
     Raises
     ------
@@ -797,6 +805,9 @@ def read_mcap(path: str | Path, topics: list[str] | None = None) -> McapContents
     cols: dict = {}
     schemas, encodings, chan_meta = {}, {}, {}
     with open_verified(p) as (reader, fh, info, summary):
+        if topics is None:          # every cdgps channel; a Foxglove message (foxglove.SceneUpdate) is not a column set
+            topics = [ch.topic for ch in summary.channels.values()
+                      if not _is_foxglove(summary.schemas.get(ch.schema_id))]
         messages = reader.iter_messages(topics=topics) if topics != [] else ()
         for schema, channel, message in progress.iterate(messages, f"reading {p.name}",
                                                           _message_count(summary, topics), "msg"):

@@ -167,7 +167,7 @@ def _write_angles(out: McapOut, C: np.ndarray, angles, time_s, q: np.ndarray, P_
             out.write(ch, t, dict(zip(keys, row)))
 
 
-def _write_scene(out: McapOut, scene, time_s, q: np.ndarray, block: int = 1024) -> int:
+def _write_scene(out: McapOut, scene, time_s, q: np.ndarray, block: int = 64) -> int:
     """The :data:`SCENE_TOPIC` messages at the preview epochs ``time_s`` from the coordinates ``q``
     there (k, n_q), and the :data:`SCENE_FIXED_TOPIC` message at the first; returns how many.
 
@@ -184,7 +184,7 @@ def _write_scene(out: McapOut, scene, time_s, q: np.ndarray, block: int = 1024) 
         out.write_raw(out.channel(SCENE_FIXED_TOPIC, schema, dict(scene.metadata)), times[0], fixed)
     ch = out.channel(SCENE_TOPIC, schema, dict(scene.metadata))
     n = 0
-    for a in range(0, len(times), block):                    # blocks: no full-length temporaries
+    for a in range(0, len(times), block):          # small blocks: a message is ~10 kB of Python objects
         for t, msg in zip(times[a:a + block], scene.updates(q[a:a + block], ns[a:a + block])):
             if msg is not None:
                 out.write_raw(ch, t, msg)

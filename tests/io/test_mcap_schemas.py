@@ -29,7 +29,7 @@ from cdgps_cli.io.mcap_check import check_mcap, foxglove_schema_problems, path_n
 from cdgps_cli.io.mcap import McapOut, array_schema, read_mcap
 from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
 from cdgps_cli.io.run import read_run
-from cdgps_cli.io.states import ANGLES_TOPIC, States
+from cdgps_cli.io.states import ANGLES_TOPIC, SCENE_FIXED_TOPIC, SCENE_TOPIC, States
 from cdgps_cli.io.states_layout import DEFAULT_PREVIEW_RATE_HZ
 from cdgps_cli.core.timescales import GPS_EPOCH_UNIX_S, gps_minus_utc_s, unix_ns
 
@@ -207,14 +207,16 @@ def test_pseudolite_run_and_states_open_everywhere(pseudolite):
     r = assert_opens_everywhere(tmp / "run.mcap", ["/cdgps/phase", "/cdgps/gyro"])
     assert_opens_everywhere(tmp / "pulse.mcap", ["/cdgps/phase", "/cdgps/gyro", "/cdgps/actuators"])
     s = assert_opens_everywhere(tmp / "states.mcap", ["/cdgps/state", "/cdgps/state_filtered", "/cdgps/residuals",
-                                                      ANGLES_TOPIC])
+                                                      ANGLES_TOPIC, SCENE_TOPIC, SCENE_FIXED_TOPIC])
     assert r["messages"] + s["messages"] > 1000
     s1 = assert_opens_everywhere(tmp / "states_1hz.mcap", ["/cdgps/state", "/cdgps/state_filtered", "/cdgps/residuals",
-                                                           ANGLES_TOPIC])
-    n = len(States(tmp / "states.mcap").time_s)                   # 10 Hz run: every stride-th epoch, 4 topics + events
+                                                           ANGLES_TOPIC, SCENE_TOPIC])
+    n = len(States(tmp / "states.mcap").time_s)                   # 10 Hz run: every stride-th epoch, 5 topics + events
     stride = int(round(1.0 / (0.1 * DEFAULT_PREVIEW_RATE_HZ)))
     assert stride > 1
-    assert s1["messages"] == 4 * len(range(0, n, stride)) + len(States(tmp / "states.mcap").events)
+    # (state, state_filtered, angles, residuals, scene) per preview epoch, the transmitters once, the events
+    assert s1["messages"] == 5 * len(range(0, n, stride)) + 1 + len(States(tmp / "states.mcap").events)
+    assert s1["channels"][SCENE_TOPIC]["schema"] == "foxglove.SceneUpdate"
     # the missing C/N0 come back as NaN, everything else as written
     run = read_run(tmp / "run.mcap")
     assert int(np.isnan(run.phase["snr_dbhz"]).sum()) == int(rx["snr_dbhz"].isna().sum()) > 0
@@ -341,3 +343,110 @@ def test_old_files_with_nulls_still_read(tmp_path):
     run = read_run(p)
     np.testing.assert_array_equal(run.phase["snr_dbhz"], [np.nan, 44.0] * 3)
     assert check_mcap(p)["channels"]["/cdgps/phase"]["schema_problems"]      # and the checker refuses its schema
+
+
+# ----------------------------------------------------------------------------------------------
+# issue 33 item 2: the shipped Foxglove layouts and the 3-D scene channel
+
+
+LAYOUTS = ROOT / "docs" / "foxglove"
+
+
+def _tree_ids(node) -> list:
+    if isinstance(node, str):
+        return [node]
+    return _tree_ids(node["first"]) + _tree_ids(node["second"])
+
+
+@pytest.mark.parametrize("name,chain,states", [("cdgps-states-layout.json", "pseudolite", "states_1hz.mcap"),
+                                               ("cdgps-gnss-states-layout.json", "gnss_sim", "states.mcap")])
+def test_shipped_layouts_refer_only_to_what_states_hold(request, tmp_path, name, chain, states):
+    """Every topic and field a shipped layout plots exists in a STATES written here (the demo's
+    testbed config; a simulate-gnss run), and the layout is what ``cdgps foxglove-layout`` writes
+    for that file today: neither can go stale."""
+    from cdgps_cli.io.foxglove_layout import layout_paths, missing_paths
+
+    fx = request.getfixturevalue(chain)
+    path = (fx[0] if isinstance(fx, tuple) else fx) / states
+    shipped = json.loads((LAYOUTS / name).read_text())
+    assert sorted(_tree_ids(shipped["layout"])) == sorted(shipped["configById"])      # every panel placed, once
+    paths = layout_paths(shipped)
+    assert "/cdgps/residuals.nis_upper95" in paths and "/cdgps/events" in paths
+    assert any(p.endswith(".@negative") for c in shipped["configById"].values() for p in
+               [s["value"] for s in c.get("paths", [])])                               # the −σ half of the band
+    assert missing_paths(shipped, path) == []
+    stale = json.loads(json.dumps(shipped))
+    next(c for k, c in stale["configById"].items() if k.startswith("Plot!"))["paths"][0]["value"] += "_gone"
+    assert len(missing_paths(stale, path)) == 1                                         # (the check can fail)
+    if chain == "pseudolite":
+        three_d = shipped["configById"]["3D!structure"]
+        assert set(three_d["topics"]) == {SCENE_TOPIC, SCENE_FIXED_TOPIC}
+        with open(path, "rb") as fh:
+            ch = next(c for c in make_reader(fh).get_summary().channels.values() if c.topic == SCENE_TOPIC)
+        assert three_d["followTf"] == ch.metadata["frame_id"]
+    run_cli("foxglove-layout", path, "-o", tmp_path / name)
+    assert json.loads((tmp_path / name).read_text()) == shipped
+
+
+def test_scene_follows_the_preview_and_can_be_left_out(pseudolite, tmp_path):
+    """The scene's messages sit at the preview epochs of /cdgps/state and draw the antennas where
+    the model puts them for that preview's q (exaggeration as asked); ``--scene-exaggeration 0``
+    leaves both scene channels out and changes nothing else; a bad factor is refused."""
+    from cdgps_cli.analysis.scene import StructureScene
+    from cdgps_cli.model.kinematics import antenna_positions
+
+    tmp, _ = pseudolite
+    run_cli("estimate", tmp / "run.mcap", "--init", tmp / "init.json", "--smooth", "--scene-exaggeration", "20",
+            "-o", tmp_path / "x20.mcap")
+    run_cli("estimate", tmp / "run.mcap", "--init", tmp / "init.json", "--smooth", "--scene-exaggeration", "0",
+            "-o", tmp_path / "none.mcap")
+    with open(tmp_path / "x20.mcap", "rb") as fh:
+        rd = make_reader(fh)
+        states = {m.log_time: json.loads(m.data) for _, _, m in rd.iter_messages(topics=["/cdgps/state"])}
+        scene = [(m.log_time, json.loads(m.data), ch) for _, ch, m in rd.iter_messages(topics=[SCENE_TOPIC])]
+    assert [t for t, _, _ in scene] == sorted(states) and scene[0][2].metadata["exaggeration"] == "20"
+    cfg = load_config(TESTBED)
+    t, msg, _ = scene[len(scene) // 2]
+    q = np.array([[states[t]["q"][n] for n in cfg.coord_names]])
+    sc = StructureScene(cfg, 20.0)
+    expect = sc.updates(q, [t])[0]
+    assert msg == json.loads(json.dumps(expect))
+    rigid = np.zeros_like(q)
+    rigid[:, cfg.rigid_index] = q[:, cfg.rigid_index]
+    p = antenna_positions(cfg, rigid) + 20.0 * (antenna_positions(cfg, q) - antenna_positions(cfg, rigid))
+    got = np.array([[s["pose"]["position"][a] for a in "xyz"] for s in msg["entities"][0]["spheres"]])
+    np.testing.assert_allclose(got, p[0], atol=0.51e-4)
+    r = check_mcap(tmp_path / "none.mcap")
+    assert SCENE_TOPIC not in r["channels"] and SCENE_FIXED_TOPIC not in r["channels"] and r["failures"] == 0
+    a, b = States(tmp_path / "none.mcap"), States(tmp_path / "x20.mcap")
+    np.testing.assert_array_equal(a.q, b.q)
+    np.testing.assert_array_equal(a.P_xi, b.P_xi)
+    bad = CliRunner().invoke(main, ["-q", "estimate", str(tmp / "run.mcap"), "--init", str(tmp / "init.json"),
+                                    "--scene-exaggeration", "-1", "-o", str(tmp_path / "bad.mcap")])
+    assert bad.exit_code == 2 and "--scene-exaggeration" in bad.output and "Traceback" not in bad.output
+    assert not (tmp_path / "bad.mcap").exists()
+
+
+def test_nis_bounds_are_the_chi_square_interval(pseudolite):
+    from scipy.stats import chi2
+
+    tmp, _ = pseudolite
+    with open(tmp / "states.mcap", "rb") as fh:
+        msgs = [json.loads(m.data) for _, _, m in make_reader(fh).iter_messages(topics=["/cdgps/residuals"])]
+    with_nis = [m for m in msgs if "nis" in m]
+    assert with_nis and all("nis_upper95" not in m for m in msgs if "nis" not in m)
+    for m in with_nis[:20]:
+        assert m["nis_lower95"] == pytest.approx(chi2.ppf(0.025, m["nis_dof"]), rel=1e-12)
+        assert m["nis_upper95"] == pytest.approx(chi2.ppf(0.975, m["nis_dof"]), rel=1e-12)
+
+
+def test_old_states_without_a_scene_still_read_and_get_a_layout():
+    """A STATES.mcap of the earlier layout (no scene, no NIS bounds) still reads, and its layout
+    has no 3-D panel and plots only what it holds."""
+    from cdgps_cli.io.foxglove_layout import describe_states, missing_paths, states_layout
+
+    old = DATA / "format-2026-12-03" / "structure-states.mcap"
+    st = States(old)
+    assert len(st.time_s) > 0
+    layout = states_layout(describe_states(old))
+    assert "3D!structure" not in layout["configById"] and missing_paths(layout, old) == []
