@@ -419,6 +419,8 @@ def run_info(path: str | Path, gnss_common_epochs=None, channel_summary=None, gn
         if info is not None:
             return info
     info, record = _decoded_info(path, gnss_common_epochs, channel_summary, gnss_lock_summary)
+    if record is not None:
+        info["topics"] = sorted(info["topics"] + _foxglove_topics(path, record), key=lambda t: t["topic"])
     if deep and record is not None:
         _compare_record(path, info, record)
     elif record is None and "gnss" not in info:        # (GNSS runs are always read message by message)
@@ -439,6 +441,45 @@ def _slips(chans: list) -> list:
     out = [{"antenna": ch["antenna"], "transmitter": ch["transmitter"], "time_s": t, "kind": kind}
            for ch in chans for t, kind in zip(ch["lock_restarts_s"], ch["lock_restart_kinds"])]
     out.sort(key=lambda r: (r["time_s"], r["antenna"], r["transmitter"]))
+    return out
+
+
+def _foxglove_topics(path, record: dict) -> list:
+    """Topic entries of the channels :func:`~cdgps_cli.io.mcap.read_mcap` leaves out (Foxglove's own
+    schemas, e.g. STATES' 3-D scene, whose messages hold no ``time_s``): every message decoded
+    (JSON), counted, and its first and last log times checked against the ``INFO_METADATA`` record,
+    whose span (in the file's time scale) they then take."""
+    from mcap.reader import make_reader  # noqa: PLC0415
+
+    spans = _record_json(path, record, "topics")
+    with open(path, "rb") as fh:
+        reader = make_reader(fh)
+        summary = reader.get_summary()
+        chans = {cid: ch for cid, ch in summary.channels.items()
+                 if summary.schemas[ch.schema_id].name.startswith("foxglove.")}
+        seen: dict = {}
+        for _, ch, m in reader.iter_messages(topics=sorted({c.topic for c in chans.values()})):
+            try:
+                json.loads(m.data)
+            except ValueError:
+                raise CdgpsError(f"{path}: {ch.topic}: message {m.sequence} is not JSON (corrupt file)") from None
+            n, lo, hi = seen.get(ch.topic, (0, m.log_time, m.log_time))
+            seen[ch.topic] = (n + 1, min(lo, m.log_time), max(hi, m.log_time))
+    out = []
+    for cid, ch in sorted(chans.items()):
+        if ch.topic not in seen:
+            continue
+        s, (n, lo, hi) = spans.get(ch.topic), seen[ch.topic]
+        scale = (ch.metadata or {}).get("time_scale", "relative")
+        try:
+            ok = s["messages"] == n and unix_ns(s["start_s"], scale) == lo and unix_ns(s["end_s"], scale) == hi
+        except (KeyError, TypeError, ValueError, OverflowError):
+            ok = False
+        if not ok:
+            raise CdgpsError(f"{path}: the {INFO_METADATA} record disagrees with the decoded messages of {ch.topic} "
+                             "(corrupt file)")
+        sc = summary.schemas[ch.schema_id]
+        out.append(_topic_entry(ch.topic, (sc.name, sc.encoding), ch.message_encoding, n, s, scale))
     return out
 
 
