@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 import matplotlib
 
@@ -86,7 +87,7 @@ def main(argv=None) -> None:
         ax.tick_params(labelsize=6)
         ax.set_box_aspect((1, 1, 1))
         _equal(ax)
-    fig.suptitle(f"{a.states}: /cdgps/scene as decoded (deformation x{k}; faint: first instant)", fontsize=9)
+    fig.suptitle(f"{Path(a.states).name}: /cdgps/scene as decoded (deformation x{k}; faint: first instant)", fontsize=9)
     fig.tight_layout()
     fig.savefig(a.output, dpi=130)
 

@@ -18,8 +18,8 @@ The motion is drawn exaggerated: with q_r the coordinates with only the rigid-bo
     p_drawn = p(q_r) + k · (p(q) − p(q_r)),
 
 so the structure turns as a whole at true scale and its deformation is magnified k times
-(``estimate --scene-exaggeration``).  Positions are rounded to 0.1 mm (as drawn) to keep the
-messages small.  :func:`cdgps_cli.io.states.write_states` writes the messages at the anti-aliased
+(``estimate --scene-exaggeration``).  Drawn positions are rounded to :data:`RESOLUTION` of the
+structure's size (1 mm on the 8 m testbed) to keep the messages small.  :func:`cdgps_cli.io.states.write_states` writes the messages at the anti-aliased
 preview epochs (:mod:`cdgps_cli.analysis.preview`); their schema is
 :mod:`cdgps_cli.io.foxglove_schema`.
 """
@@ -38,8 +38,10 @@ SCENE_TOPIC = "/cdgps/scene"
 """The moving structure, one SceneUpdate per preview epoch."""
 SCENE_FIXED_TOPIC = "/cdgps/scene_fixed"
 """Transmitters (pseudolites, far-field directions): one SceneUpdate at the first epoch."""
-ROUND_M = 4
-"""Drawn positions are rounded to this many decimals of a metre."""
+RESOLUTION = 1e-4
+"""Drawn positions are rounded to about this fraction of the structure's size (the nearest power of
+ten of a metre, at most 0.1 mm): 1 mm on the 8 m testbed, 1 cm on the 120 m tower, invisible at any zoom that shows
+the structure, and fewer digits to store."""
 
 _COLORS = {"skeleton": (0.25, 0.45, 0.85, 1.0), "spoke": (0.55, 0.7, 0.95, 1.0), "antenna": (1.0, 0.6, 0.1, 1.0),
            "master": (0.9, 0.15, 0.15, 1.0), "point": (0.2, 0.7, 0.9, 1.0), "label": (1.0, 1.0, 1.0, 1.0),
@@ -236,34 +238,50 @@ class StructureScene:
         self.exaggeration = float(exaggeration)
         self.transmitters = bool(transmitters)
         self.geometry = scene_geometry(cfg)
+        self.decimals = min(max(int(round(-np.log10(RESOLUTION * self.geometry.size_m))), 0), 4)
+        self._constant_parts()
         self.metadata = {"frame_id": FRAME_ID, "exaggeration": f"{self.exaggeration:g}",
                          "drawn": "p(q_r) + exaggeration * (p(q) - p(q_r)); q_r: the rigid-body rotation only",
-                         "nodes": ",".join(self.geometry.names), "size_m": f"{self.geometry.size_m:.6g}"}
+                         "nodes": ",".join(self.geometry.names), "size_m": f"{self.geometry.size_m:.6g}",
+                         "resolution_m": f"{10.0 ** -self.decimals:g}"}
 
     def updates(self, q: np.ndarray, stamps_ns) -> list:
         """SceneUpdate messages (dicts) at the epochs of ``q`` (k, n_q), log times ``stamps_ns`` (Unix
-        ns); None where q is not finite."""
+        ns); None where q is not finite.  (Constant parts are shared between messages: read-only.)"""
         g = self.geometry
-        P = np.round(drawn_positions(self.cfg, g, q, self.exaggeration), ROUND_M)
+        P = np.round(drawn_positions(self.cfg, g, q, self.exaggeration), self.decimals)
         ok = np.isfinite(P.reshape(len(P), -1)).all(axis=1).tolist()
-        r = round(0.02 * g.size_m, 3)
-        shown = [k for k, kind in enumerate(g.kinds) if kind in ("master", "antenna", "point")]
+        lifted = np.round(P[:, self._labelled, 2] + self._lift, self.decimals).tolist()
         out = []
-        for frame, good, ns in zip(P.tolist(), ok, stamps_ns):
+        for frame, good, ns, zs in zip(P.tolist(), ok, stamps_ns, lifted):
             if not good:
                 out.append(None)
                 continue
-            lines = [_lines(pairs, frame, c) for pairs, c in ((g.skeleton, "skeleton"), (g.spokes, "spoke")) if len(pairs)]
-            spheres, texts = [], []
-            for k in shown:
-                d = r * (2.0 if g.kinds[k] != "point" else 1.2)
-                spheres.append({"pose": _pose(frame[k]), "size": {"x": d, "y": d, "z": d}, "color": _rgba(g.kinds[k])})
-                if g.kinds[k] != "point":
-                    texts.append({"pose": _pose((frame[k][0], frame[k][1], frame[k][2] + 1.5 * d)), "billboard": True,
-                                  "font_size": 14.0, "scale_invariant": True, "color": _rgba("label"),
-                                  "text": g.names[k]})
+            xyz = [{"x": x, "y": y, "z": z} for x, y, z in frame]
+            lines = [dict(head, points=[xyz[k] for k in idx]) for head, idx in self._lines]
+            spheres = [{"pose": {"position": xyz[k], "orientation": _IDENTITY}, **rest} for k, rest in self._spheres]
+            texts = [{"pose": {"position": {"x": xyz[k]["x"], "y": xyz[k]["y"], "z": z}, "orientation": _IDENTITY},
+                      **rest} for (k, rest), z in zip(self._texts, zs)]
             out.append({"deletions": [], "entities": [_entity(ns, "structure", lines=lines, spheres=spheres, texts=texts)]})
         return out
+
+    def _constant_parts(self) -> None:
+        """What every :meth:`updates` message shares: line heads and node lists, sphere sizes and
+        colours, labels."""
+        g = self.geometry
+        self._lines = [({k: v for k, v in _lines(pairs, [(0.0, 0.0, 0.0)] * len(g.names), c).items() if k != "points"},
+                        pairs.ravel().tolist()) for pairs, c in ((g.skeleton, "skeleton"), (g.spokes, "spoke"))
+                       if len(pairs)]
+        r = round(0.02 * g.size_m, 3)
+        shown = [k for k, kind in enumerate(g.kinds) if kind in ("master", "antenna", "point")]
+        self._spheres = []
+        for k in shown:
+            d = round(r * (2.0 if g.kinds[k] != "point" else 1.2), 4)
+            self._spheres.append((k, {"size": {"x": d, "y": d, "z": d}, "color": _rgba(g.kinds[k])}))
+        self._labelled = [k for k in shown if g.kinds[k] != "point"]
+        self._lift = round(3.0 * r, 4)
+        self._texts = [(k, {"billboard": True, "font_size": 14.0, "scale_invariant": True, "color": _rgba("label"),
+                            "text": g.names[k]}) for k in self._labelled]
 
     def fixed(self, stamp_ns: int) -> dict | None:
         """The transmitters: pseudolites as cubes, far-field directions as arrows from the body origin
@@ -291,7 +309,7 @@ class StructureScene:
 
 
 def _label(at: np.ndarray, text: str) -> dict:
-    return {"pose": _pose([round(float(v), ROUND_M) for v in at]), "billboard": True, "font_size": 14.0,
+    return {"pose": _pose([round(float(v), 4) for v in at]), "billboard": True, "font_size": 14.0,
             "scale_invariant": True, "color": _rgba("label"), "text": str(text)}
 
 
