@@ -32,6 +32,8 @@ echo "-- 2. dynamic sensor test: simulate 20 minutes of free vibration of the te
 "$CDGPS" evaluate --truth "$OUT/free/sim" --estimate "$OUT/free/states.mcap"
 "$CDGPS" export "$OUT/free/states.mcap" -o "$OUT/free/states.csv"
 "$CDGPS" report spectrum "$OUT/free/states.mcap" --gyro "$OUT/free/run.mcap" -o "$OUT/free/report"
+# Foxglove: plots with 1-sigma, NIS, the structure in 3-D (docs/file-formats.md "Open in Foxglove")
+"$CDGPS" foxglove-layout "$OUT/free/states.mcap" -o "$OUT/free/foxglove-layout.json"
 
 echo "-- 3. the 1995 two-degree-of-freedom model: batch initialization on 20 epochs (2.4 s), biases as states"
 "$CDGPS" ingest data/teague-1995/receiver.csv.xz --config configs/teague-1995-2dof.toml -o "$OUT/dof2/run.mcap"
@@ -78,3 +80,4 @@ echo "   $OUT/free/report/report.html     (spectra vs gyros and identified modes
 echo "   $OUT/tower/spectra/psd.png     (FE tower: GPS vs gyro spectra, identified modes)"
 echo "   $OUT/control/report/report.html  (pulse rejection open vs closed loop, like Figs. 6 and 10)"
 echo "   MCAP files (open in Foxglove): $OUT/*/run.mcap, $OUT/*/states.mcap, $OUT/track/track.mcap"
+echo "   Foxglove layout (Layouts > Import from file): $OUT/free/foxglove-layout.json (for $OUT/free/states.mcap)"

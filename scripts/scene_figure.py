@@ -41,6 +41,8 @@ def _draw(ax, update, alpha=1.0, labels=True):
     for e in update["entities"]:
         for line in e["lines"]:
             pts = [_xyz(p) for p in line["points"]]
+            if line["indices"]:
+                pts = [pts[i] for i in line["indices"]]
             c = tuple(line["color"][k] for k in "rgba")
             pairs = zip(pts[::2], pts[1::2]) if line["type"] == 2 else zip(pts[:-1], pts[1:])
             for a, b in pairs:

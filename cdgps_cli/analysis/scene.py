@@ -211,11 +211,14 @@ def _entity(ns: int, entity_id: str, **primitives) -> dict:
     return e
 
 
-def _lines(pairs: np.ndarray, p: list, color: str) -> dict:
-    """One LINE_LIST (type 2) through the node pairs, 3 px wide at any zoom."""
-    pts = [_xyz(p[k]) for pair in pairs.tolist() for k in pair]
-    return {"type": 2, "pose": _pose((0.0, 0.0, 0.0)), "thickness": 3.0, "scale_invariant": True, "points": pts,
-            "color": _rgba(color), "colors": [], "indices": []}
+def _line_list(pairs: np.ndarray, color: str) -> tuple[dict, list]:
+    """One LINE_LIST (type 2) through the node pairs, 3 px wide at any zoom: the primitive without its
+    points, and the nodes whose positions are its points (each once; ``indices`` pair them up)."""
+    nodes = list(dict.fromkeys(pairs.ravel().tolist()))
+    where = {k: i for i, k in enumerate(nodes)}
+    head = {"type": 2, "pose": _pose((0.0, 0.0, 0.0)), "thickness": 3.0, "scale_invariant": True,
+            "color": _rgba(color), "colors": [], "indices": [where[k] for k in pairs.ravel().tolist()]}
+    return head, nodes
 
 
 class StructureScene:
@@ -269,9 +272,7 @@ class StructureScene:
         """What every :meth:`updates` message shares: line heads and node lists, sphere sizes and
         colours, labels."""
         g = self.geometry
-        self._lines = [({k: v for k, v in _lines(pairs, [(0.0, 0.0, 0.0)] * len(g.names), c).items() if k != "points"},
-                        pairs.ravel().tolist()) for pairs, c in ((g.skeleton, "skeleton"), (g.spokes, "spoke"))
-                       if len(pairs)]
+        self._lines = [_line_list(pairs, c) for pairs, c in ((g.skeleton, "skeleton"), (g.spokes, "spoke")) if len(pairs)]
         r = round(0.02 * g.size_m, 3)
         shown = [k for k, kind in enumerate(g.kinds) if kind in ("master", "antenna", "point")]
         self._spheres = []

@@ -121,8 +121,11 @@ def test_messages_are_valid_scene_updates_and_nan_epochs_are_skipped():
     e = msgs[2]["entities"][0]
     assert e["frame_id"] == FRAME_ID and e["timestamp"] == {"sec": 3, "nsec": 5} and e["id"] == "structure"
     assert len(e["spheres"]) == len(cfg.antenna_names) and {t["text"] for t in e["texts"]} == set(cfg.antenna_names)
-    pts = e["lines"][0]["points"]
-    assert e["lines"][0]["type"] == 2 and len(pts) == 2 * 2          # two beams, LINE_LIST
+    beams = e["lines"][0]                                            # two beams, LINE_LIST over 3 pivots
+    assert beams["type"] == 2 and len(beams["points"]) == 3 and len(beams["indices"]) == 4
+    ends = sorted(tuple(sorted((beams["points"][a]["x"], beams["points"][b]["x"])))
+                  for a, b in zip(beams["indices"][::2], beams["indices"][1::2]))
+    assert np.allclose(ends, [(-4.0, 0.0), (0.0, 4.0)], atol=0.5)   # C1–C2 and C2–C3 (x of the pivots, moved)
     # spheres where the model puts the antennas (exaggerated), rounded to 1 mm on the 8 m testbed
     g = sc.geometry
     p = drawn_positions(cfg, g, q[2:], 10.0)[0]

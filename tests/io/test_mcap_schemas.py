@@ -285,7 +285,8 @@ def test_structure_on_a_gnss_run_opens_everywhere(tmp_path):
     run_cli("estimate", tmp_path / "run.mcap", "--init", tmp_path / "init.json", "--structure", TOWER,
             "-o", tmp_path / "states.mcap")
     assert_opens_everywhere(tmp_path / "run.mcap", ["/cdgps/gnss/obs"])
-    assert_opens_everywhere(tmp_path / "states.mcap", ["/cdgps/state", ANGLES_TOPIC])
+    r = assert_opens_everywhere(tmp_path / "states.mcap", ["/cdgps/state", ANGLES_TOPIC, SCENE_TOPIC])
+    assert SCENE_FIXED_TOPIC not in r["channels"]           # the config's transmitters stand for satellites: not drawn
     with open(tmp_path / "states.mcap", "rb") as fh:
         _, ch, _ = next(make_reader(fh).iter_messages(topics=["/cdgps/state"]))
     assert ch.metadata["time_scale"] == "gps"
