@@ -18,10 +18,11 @@ The motion is drawn exaggerated: with q_r the coordinates with only the rigid-bo
     p_drawn = p(q_r) + k · (p(q) − p(q_r)),
 
 so the structure turns as a whole at true scale and its deformation is magnified k times
-(``estimate --scene-exaggeration``).  Drawn positions are rounded to :data:`RESOLUTION` of the
-structure's size (1 mm on the 8 m testbed) to keep the messages small.  :func:`cdgps_cli.io.states.write_states` writes the messages at the anti-aliased
-preview epochs (:mod:`cdgps_cli.analysis.preview`); their schema is
-:mod:`cdgps_cli.io.foxglove_schema`.
+(``estimate --scene-exaggeration``).  Drawn positions are rounded to about :data:`RESOLUTION` of
+the structure's size (1 mm on the 8 m testbed) to keep the messages small.
+:func:`cdgps_cli.io.states.write_states` writes the messages (topics ``/cdgps/scene`` and
+``/cdgps/scene_fixed``) at the anti-aliased preview epochs (:mod:`cdgps_cli.analysis.preview`);
+their schema is :mod:`cdgps_cli.io.foxglove_schema`.
 """
 
 from __future__ import annotations
@@ -34,14 +35,10 @@ from cdgps_cli.model.kinematics import point_positions
 
 FRAME_ID = "cdgps_lab"
 """Frame of every scene entity: the structure's lab frame (x, y, z as the config, metres)."""
-SCENE_TOPIC = "/cdgps/scene"
-"""The moving structure, one SceneUpdate per preview epoch."""
-SCENE_FIXED_TOPIC = "/cdgps/scene_fixed"
-"""Transmitters (pseudolites, far-field directions): one SceneUpdate at the first epoch."""
 RESOLUTION = 1e-4
 """Drawn positions are rounded to about this fraction of the structure's size (the nearest power of
-ten of a metre, at most 0.1 mm): 1 mm on the 8 m testbed, 1 cm on the 120 m tower, invisible at any zoom that shows
-the structure, and fewer digits to store."""
+ten of a metre, at most 0.1 mm): 1 mm on the 8 m testbed, 1 cm on the 120 m tower — invisible at
+any zoom that shows the structure, and fewer digits to store."""
 
 _COLORS = {"skeleton": (0.25, 0.45, 0.85, 1.0), "spoke": (0.55, 0.7, 0.95, 1.0), "antenna": (1.0, 0.6, 0.1, 1.0),
            "master": (0.9, 0.15, 0.15, 1.0), "point": (0.2, 0.7, 0.9, 1.0), "label": (1.0, 1.0, 1.0, 1.0),
@@ -174,8 +171,10 @@ def auto_exaggeration(cfg, geom: SceneGeometry, q: np.ndarray, fraction: float) 
     q = q[np.isfinite(q).all(axis=1)] if q.ndim == 2 else q
     if q.size == 0:
         return 1.0
-    d = np.linalg.norm(drawn_positions(cfg, geom, q, 1.0) - drawn_positions(cfg, geom, q, 0.0), axis=-1)
-    big = float(np.percentile(d.max(axis=1), 99))
+    largest = np.concatenate([                                # blocks: memory does not grow with the record
+        np.linalg.norm(drawn_positions(cfg, geom, q[a:a + 4096], 1.0) - drawn_positions(cfg, geom, q[a:a + 4096], 0.0),
+                       axis=-1).max(axis=1) for a in range(0, len(q), 4096)])
+    big = float(np.percentile(largest, 99))
     if not big > 0:
         return 1.0
     target = fraction * geom.size_m / big
