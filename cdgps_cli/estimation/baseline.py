@@ -373,9 +373,9 @@ def _common_epochs(master: Station, rover: Station, opt: BaselineOptions, warnin
     pairs = pair_epochs(tr_meas, gm, sync_tol_s=opt.sync_tol_s, max_age_s=opt.max_age_s)
     ps = pairs.summary
     if ps["used"] == 0:
-        raise CdgpsError(f"no common epochs: master {master.name} has {tm.size} epochs ({_span(tm)}), rover {rover.name} "
-                         f"has {tr.size} ({_span(tr)}); no rover epoch has a master epoch within {opt.max_age_s:g} s "
-                         f"(gnss.max_age_s)")
+        raise CdgpsError(f"no common epochs: master {_where(master)} has {tm.size} epochs ({_span(tm)}), rover "
+                         f"{_where(rover)} has {tr.size} ({_span(tr)}); no rover epoch has a master epoch within "
+                         f"{opt.max_age_s:g} s (gnss.max_age_s)")
     if ps["dropped"]:
         warnings.append(f"{rover.name}: {sum(ps['dropped'].values())} of {ps['rover_epochs']} epochs not used: "
                         + "; ".join(f"{n} {why}" for why, n in ps["dropped"].items())
@@ -440,7 +440,8 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
     orv = orv[np.isfinite(orv["phase_l1_cycles"].to_numpy())]
     j = pd.merge(orv, om, on=["ep", "sat"], suffixes=("_r", "_b"), how="inner", sort=True)
     if len(j) == 0:
-        raise CdgpsError(f"no satellite has L1 phase at both {master.name} and {rover.name} in any of the {n_ep} common epochs")
+        raise CdgpsError(f"no common satellites: no satellite has L1 phase at both {_where(master)} and {_where(rover)} "
+                         f"in any of the {n_ep} common epochs")
     sat_r = j["sat"].to_numpy()
     ep = j["ep"].to_numpy()
     gb = reception_geometry(nav, sat_r, t_label[ep], j["t_true_b"].to_numpy(), master_xyz, troposphere=opt.troposphere)
@@ -451,8 +452,8 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
     cnt = np.bincount(ep[keep], minlength=n_ep)
     keep &= cnt[ep] >= 2
     if keep.sum() < 2:
-        raise CdgpsError(f"no double differences: fewer than two common satellites above the {opt.mask_deg:g}° mask "
-                         f"at every common epoch ({n_ep} epochs, {_span(t_label)})")
+        raise CdgpsError(f"no double differences: fewer than two satellites of {_where(master)} and {_where(rover)} "
+                         f"in common above the {opt.mask_deg:g}° mask at every common epoch ({n_ep} epochs, {_span(t_label)})")
     sel = np.flatnonzero(keep)
     age_ep = tag_r - tag_m                                   # rover − base time of each epoch, s
     simultaneous = np.abs(age_ep) <= opt.sync_tol_s

@@ -184,7 +184,8 @@ def _check_coverage(inp: IngestInputs) -> None:
             raise CdgpsError(
                 f"the navigation data do not cover the observations of {n} ({files[n][1]}): observations "
                 f"{span_text(r['time_gps_s'])}, broadcast ephemerides with toe {span_text(tn)} (each is used within ±2 h of "
-                f"its toe, healthy satellites only); give the navigation file(s) of that day")
+                f"its toe, healthy satellites only) in {', '.join(map(str, inp.nav_list)) or inp.nav_source or 'the run'}; give the "
+                f"navigation file(s) of that day")
         if not cov.all():
             miss = pd.Series(r["sat"].to_numpy()[~cov]).value_counts()
             warnings.append(f"{n}: {int(miss.sum())} of {len(r)} phase observations ({', '.join(sorted(miss.index)[:8])}"
@@ -212,6 +213,7 @@ def _common_epochs(cfg: GnssConfig, inp: IngestInputs) -> dict:
                 f"no common epochs: master {master} ({files[master][1]}) has {tm.size} epochs ({span_text(tm)}), rover {n} "
                 f"({files[n][1]}) has {tr.size} ({span_text(tr)}); no rover epoch has a master epoch within "
                 f"{cfg.max_age_s:g} s (gnss.max_age_s)")
+        _check_common_satellites(master, n, receivers, files)
         common[n] = {"common_epochs": ps["used"], "master_epochs": int(tm.size), "rover_epochs": int(tr.size),
                      "tolerance_ms": cfg.sync_tol_s * 1e3, "pairing": ps}
         if ps["dropped"]:
@@ -219,6 +221,28 @@ def _common_epochs(cfg: GnssConfig, inp: IngestInputs) -> dict:
                             f"{cfg.max_age_s:g} s (gnss.max_age_s) and will not be used: "
                             + "; ".join(f"{k} {why}" for why, k in ps["dropped"].items()))
     return common
+
+
+def _phase_satellites(rx: GnssReceiver) -> set:
+    """Satellites with a carrier phase in a receiver's raw (L1) table or its signal table."""
+    out = set()
+    for t in (rx.raw, rx.signals):
+        if t is not None and len(t):
+            out |= set(t["sat"].to_numpy()[np.isfinite(t["phase_cycles"].to_numpy(dtype=float))].astype(str).tolist())
+    return out
+
+
+def _check_common_satellites(master: str, rover: str, receivers: dict, files: dict) -> None:
+    """Refuse a rover that has carrier phase of no satellite the master also tracks (no double difference
+    can ever be formed), naming both files and what each tracks."""
+    sm, sr = _phase_satellites(receivers[master]), _phase_satellites(receivers[rover])
+    if sm and sr and not sm & sr:
+        def few(s):
+            s = sorted(s)
+            return " ".join(s[:12]) + (f" … ({len(s)})" if len(s) > 12 else "")
+        raise CdgpsError(f"no common satellites: master {master} ({files[master][1]}) has carrier phase of {few(sm)}; "
+                         f"rover {rover} ({files[rover][1]}) of {few(sr)}; a double difference needs satellites "
+                         f"tracked by both receivers")
 
 
 def run_info(path: str | Path, deep: bool = False) -> dict:
