@@ -51,7 +51,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.records import INIT_FORMAT, Series, StateSeries, init_kind
 
 from cdgps_cli.io.gnss_run import GnssRun
-from cdgps_cli.pipeline.gnss_ingest import processing_obs, signal_obs
+from cdgps_cli.pipeline.gnss_ingest import anchor_obs, signal_obs
 from cdgps_cli.io import states as states_io
 from cdgps_cli.io.mcap import read_mcap
 from cdgps_cli.core.gps_time import gps_time_str
@@ -78,7 +78,7 @@ def _stations(run: GnssRun):
     sigs = tuple(run.cfg.signals)
     stations = {}
     for n, rx in run.receivers.items():
-        stations[n] = Station(n, dict(rx.header, path=rx.file), processing_obs(rx), signal_obs(rx) if sigs else None)
+        stations[n] = Station(n, dict(rx.header, path=rx.file), anchor_obs(rx, sigs), signal_obs(rx) if sigs else None)
     return stations
 
 
