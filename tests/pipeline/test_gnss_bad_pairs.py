@@ -124,3 +124,17 @@ def test_ingest_with_an_unreadable_config_names_its_toml_error(tmp_path):
     assert r.exit_code == 2 and "Traceback" not in r.output, r.output
     assert "run.toml" in r.stderr and "RECEIVER_CSV" not in r.stderr, r.stderr
     assert not (tmp_path / "run.mcap").exists()
+
+
+def test_init_on_an_older_run_without_common_satellites_names_the_files(files, tmp_path, monkeypatch):
+    """A RUN written before ingest refused pairs without a common satellite (the check switched off
+    here): init refuses it naming both receivers' files."""
+    import cdgps_cli.pipeline.gnss_ingest as gi
+
+    monkeypatch.setattr(gi, "_check_common_satellites", lambda *a, **k: None)
+    r = run_cli("-q", "ingest", "--rinex", f"base={files / 'base_even.obs'}", "--rinex", f"rover={files / 'rover_odd.obs'}",
+                "--nav", MOSAIC / "base.nav", "--master", "base", "-o", tmp_path / "run.mcap")
+    assert r.exit_code == 0, r.output
+    out = tmp_path / "init.json"
+    r = run_cli("-q", "init", tmp_path / "run.mcap", "-o", out)
+    _assert_refused(r, ["no common satellites", "base_even.obs", "rover_odd.obs"], out)
