@@ -91,3 +91,25 @@ def test_the_anchor_signal():
     assert anchor_signal(None) is None and anchor_signal([]) is None
     assert anchor_signal(["E:E1", "G:L1"]) is None                 # GPS L1 present: as before
     assert anchor_signal(["E:E5a", "E:E1"]) == "E:E5a" and anchor_signal(["C:B1I"]) == "C:B1I"
+
+
+MOSAIC = REPO_ROOT.parent / "shared" / "data" / "real-pairs" / "mosaic-static"
+
+
+@pytest.mark.skipif(not MOSAIC.exists(), reason="../shared/data/real-pairs absent")
+@pytest.mark.parametrize("signals,ref,tol_m", [
+    (["E:E1"], (-0.2275, -0.9638, 0.0079), 0.001),          # RTKLIB Galileo E1 only, kinematic fixed mean (README)
+    (["C:B1I", "C:B2I"], (-0.2237, -0.9647, 0.0090), 0.003)])   # RTKLIB multi-GNSS L1+L2 static
+def test_one_system_on_the_real_pair(tmp_path, signals, ref, tol_m):
+    """The real Septentrio pair with Galileo alone or BeiDou alone, anchored on that system."""
+    cfg = tmp_path / "run.toml"
+    cfg.write_text("\n".join([
+        "[gnss]", 'master = "base"', f'nav = ["{MOSAIC / "base.nav"}"]', f"signals = {json.dumps(signals)}",
+        '[gnss.antennas."base"]', f'rinex = "{MOSAIC / "base.obs"}"', "position_ecef_m = [-3817681.1213, 3562839.4311, 3650159.1593]",
+        '[gnss.antennas."rover"]', f'rinex = "{MOSAIC / "rover.obs"}"', ""]))
+    for args in (("ingest", "--config", cfg, "-o", tmp_path / "run.mcap"), ("init", tmp_path / "run.mcap", "-o", tmp_path / "i.json")):
+        r = run_cli("-q", *args)
+        assert r.exit_code == 0, (args, r.output)
+    rov = json.loads((tmp_path / "i.json").read_text())["rovers"]["rover"]
+    assert rov["solution"] == "fixed" and rov["epochs"]["n_epochs_used"] == 301
+    assert np.all(np.abs(np.array(rov["baseline_enu_from_master_m"]) - ref) < tol_m), rov["baseline_enu_from_master_m"]
