@@ -354,8 +354,8 @@ def _common_epochs(master: Station, rover: Station, opt: BaselineOptions, warnin
     for st in (master, rover):
         o = st.obs
         if len(o) == 0 or not np.isfinite(o["phase_l1_cycles"].to_numpy(dtype=float)).any():
-            raise CdgpsError(f"{_where(st)}: no carrier-phase observations of the signal that fixes the epochs (GPS L1, or "
-                             f"the first of [gnss] signals when they do not include G:L1); a carrier-phase baseline needs "
+            raise CdgpsError(f"{_where(st)}: no GPS L1 carrier-phase observations (in a run whose [gnss] signals leave "
+                             f"out G:L1: none of its first signal, which fixes the epochs); a carrier-phase baseline needs "
                              f"that phase at both receivers")
     tm = np.unique(master.obs["time_gps_s"].to_numpy())
     tr = np.unique(rover.obs["time_gps_s"].to_numpy())
