@@ -147,11 +147,14 @@ def ingest(ctx, receiver_csv, gyro_csv, actuator_csv, config, rinex, ubx, nav, m
         return
     if strict:
         raise click.UsageError("--strict applies to GNSS receiver files (UBX logs given with --ubx or in a GNSS config)")
+    from cdgps_cli.config.structure import load_config
+
     if receiver_csv is None:
+        if config is not None:
+            load_config(config)          # a config that is not valid TOML is named first (it may be a GNSS one)
         raise click.UsageError("Missing argument 'RECEIVER_CSV' (or give GNSS files with --rinex/--ubx).")
     if config is None:
         raise click.UsageError("Missing option '--config'.")
-    from cdgps_cli.config.structure import load_config
     from cdgps_cli.pipeline.ingest import ingest_structure
 
     cfg = load_config(config)

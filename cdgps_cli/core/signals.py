@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 
-__all__ = ["Signal", "SIGNALS", "SYSTEM_NAMES", "signal", "wavelength_m", "glonass_frequency_hz"]
+__all__ = ["Signal", "SIGNALS", "SYSTEM_NAMES", "signal", "wavelength_m", "glonass_frequency_hz", "anchor_signal"]
 
 
 @dataclass(frozen=True)
@@ -85,3 +85,12 @@ def wavelength_m(name: str, k: int | None = None) -> float:
             raise ValueError(f"{name} is FDMA: its wavelength needs the satellite's GLONASS frequency number")
         return SPEED_OF_LIGHT_M_S / glonass_frequency_hz(sig, k)
     return sig.wavelength_m
+
+
+def anchor_signal(signals) -> str | None:
+    """The signal whose rows fix each receiver's epochs and clock in the displacement path (``init`` /
+    ``estimate``): None — the receiver's GPS L1 table — without ``[gnss] signals`` or when they
+    include ``G:L1`` (as always before); otherwise the first signal listed (``E:E1`` for a
+    Galileo-only run), so that any single system carries the solution alone."""
+    sig = list(signals or ())
+    return None if not sig or "G:L1" in sig else str(sig[0])

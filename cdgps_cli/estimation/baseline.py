@@ -354,8 +354,9 @@ def _common_epochs(master: Station, rover: Station, opt: BaselineOptions, warnin
     for st in (master, rover):
         o = st.obs
         if len(o) == 0 or not np.isfinite(o["phase_l1_cycles"].to_numpy(dtype=float)).any():
-            raise CdgpsError(f"{_where(st)}: no GPS L1 carrier-phase observations; a carrier-phase baseline needs L1 phase "
-                             f"at both receivers")
+            raise CdgpsError(f"{_where(st)}: no GPS L1 carrier-phase observations (in a run whose [gnss] signals leave "
+                             f"out G:L1: none of its first signal, which fixes the epochs); a carrier-phase baseline needs "
+                             f"that phase at both receivers")
     tm = np.unique(master.obs["time_gps_s"].to_numpy())
     tr = np.unique(rover.obs["time_gps_s"].to_numpy())
     interval = nominal_interval_s(tr)
@@ -373,9 +374,9 @@ def _common_epochs(master: Station, rover: Station, opt: BaselineOptions, warnin
     pairs = pair_epochs(tr_meas, gm, sync_tol_s=opt.sync_tol_s, max_age_s=opt.max_age_s)
     ps = pairs.summary
     if ps["used"] == 0:
-        raise CdgpsError(f"no common epochs: master {master.name} has {tm.size} epochs ({_span(tm)}), rover {rover.name} "
-                         f"has {tr.size} ({_span(tr)}); no rover epoch has a master epoch within {opt.max_age_s:g} s "
-                         f"(gnss.max_age_s)")
+        raise CdgpsError(f"no common epochs: master {_where(master)} has {tm.size} epochs ({_span(tm)}), rover "
+                         f"{_where(rover)} has {tr.size} ({_span(tr)}); no rover epoch has a master epoch within "
+                         f"{opt.max_age_s:g} s (gnss.max_age_s)")
     if ps["dropped"]:
         warnings.append(f"{rover.name}: {sum(ps['dropped'].values())} of {ps['rover_epochs']} epochs not used: "
                         + "; ".join(f"{n} {why}" for why, n in ps["dropped"].items())
@@ -440,7 +441,8 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
     orv = orv[np.isfinite(orv["phase_l1_cycles"].to_numpy())]
     j = pd.merge(orv, om, on=["ep", "sat"], suffixes=("_r", "_b"), how="inner", sort=True)
     if len(j) == 0:
-        raise CdgpsError(f"no satellite has L1 phase at both {master.name} and {rover.name} in any of the {n_ep} common epochs")
+        raise CdgpsError(f"no common satellites: no satellite has L1 phase at both {_where(master)} and {_where(rover)} "
+                         f"in any of the {n_ep} common epochs")
     sat_r = j["sat"].to_numpy()
     ep = j["ep"].to_numpy()
     gb = reception_geometry(nav, sat_r, t_label[ep], j["t_true_b"].to_numpy(), master_xyz, troposphere=opt.troposphere)
@@ -451,8 +453,8 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
     cnt = np.bincount(ep[keep], minlength=n_ep)
     keep &= cnt[ep] >= 2
     if keep.sum() < 2:
-        raise CdgpsError(f"no double differences: fewer than two common satellites above the {opt.mask_deg:g}° mask "
-                         f"at every common epoch ({n_ep} epochs, {_span(t_label)})")
+        raise CdgpsError(f"no double differences: fewer than two satellites of {_where(master)} and {_where(rover)} "
+                         f"in common above the {opt.mask_deg:g}° mask at every common epoch ({n_ep} epochs, {_span(t_label)})")
     sel = np.flatnonzero(keep)
     age_ep = tag_r - tag_m                                   # rover − base time of each epoch, s
     simultaneous = np.abs(age_ep) <= opt.sync_tol_s
@@ -903,6 +905,52 @@ def _integer_fix(d: _Data, sg: _Segments, w: _Weights, fl: _Float, opt: Baseline
     return _Fix(a_float, q_aa, fixed_mask, integers_fix, ratio, ratio_full, accepted, partial_used, p_s)
 
 
+#: largest correction (m) the given solution may need to be that of its integers on these data (the fixed
+#: solution's own convergence step); beyond it the solution is solved again from the integers
+_KNOWN_SOLUTION_TOL_M = 1e-6
+
+
+def _known_solution(d: _Data, sg: _Segments, w: _Weights, integers: dict, solution: dict, xr0, r_enu, warnings: list):
+    """The fixed solution given whole (e.g. INIT's): every ambiguity an integer or a datum pivot, the
+    position ``solution["enu_m"]`` — evaluated there (design, residuals, covariance), not solved again.
+
+    Returns (float, fix, final) in the solver's forms, or None when the given integers leave a segment
+    float, the data hold GLONASS (FDMA) segments, or the position is not the fixed solution of these
+    integers (one least-squares step would move it more than :data:`_KNOWN_SOLUTION_TOL_M`; a warning
+    says so): the caller then solves from the integers."""
+    fixed_mask = np.zeros(sg.free.size, dtype=bool)
+    integers_fix = np.zeros(sg.free.size, dtype=np.int64)
+    _given_integers(integers, d, sg, fixed_mask, integers_fix)
+    if not fixed_mask.all() or _fdma_segments(d, sg).any():
+        return None
+    x = np.asarray(solution["enu_m"], dtype=np.float64).reshape(3)
+    a_fix = np.zeros(sg.n_seg)
+    a_fix[sg.free] = integers_fix
+    keys = [(d.sat_names[int(sg.segtab["sat"][k])], round(float(d.t_label[sg.segtab["first_epoch"][k]]), 3))
+            for k in sg.free]
+    given = {(str(k[0]), round(float(k[1]), 3)): v for k, v in (solution.get("float_cycles") or {}).items()}
+    a_float = np.array([np.nan if given.get(k) is None else float(given[k][0]) for k in keys])
+    sig = np.array([np.nan if given.get(k) is None or given[k][1] is None else float(given[k][1]) for k in keys])
+    g, r_ph, _ = _residuals(d, xr0 + r_enu.T @ x, r_enu, a_fix, sg.seg, w, code=False)
+    nmat, rhs = _accumulate(w.blocks_ph, g, r_ph, np.full(sg.seg.size, -1, dtype=np.int64), 3, _lam(d))
+    cf, dx = _solve(nmat, rhs, "fixed solution")
+    if np.max(np.abs(dx)) > _KNOWN_SOLUTION_TOL_M:        # not the solution of these integers on these data
+        warnings.append(f"the given solution is {1e3 * float(np.linalg.norm(dx)):.3g} mm from the fixed solution of the "
+                        f"given integers on these data; solved again from the integers")
+        return None
+    q3 = cho_solve(cf, np.eye(3))
+    sq, n_dd = _quad(w.blocks_ph, r_ph)
+    block = {"enu_m": x.tolist(), "sigma_enu_m": np.sqrt(np.diag(q3)).tolist(), "iterations": 0,
+             "unit_variance": sq / (n_dd - 3) if n_dd > 3 else None,
+             "observations": ("L1 carrier phase only" if getattr(d, "group", None) is None
+                              else f"carrier phase only ({', '.join(d.group_names)})"),
+             "given": "position and integers given (not solved again)"}
+    fl = _Float(x, a_fix.copy(), None, None, g, r_ph, None, 0)
+    fx = _Fix(a_float, np.diag(sig**2) if sig.size else np.zeros((0, 0)), fixed_mask, integers_fix, None, None, True, False)
+    fin = _Final(block, x, "fixed", a_fix, np.ones(sg.n_seg, dtype=bool), q3, g, r_ph, np.zeros(sg.n_seg))
+    return fl, fx, fin
+
+
 def _fixed_solution(d: _Data, sg: _Segments, w: _Weights, fl: _Float, fx: _Fix, xr0, r_enu,
                     opt: BaselineOptions) -> _Final:
     """The fixed solution from the L1 phase only (fixed integers removed from the unknowns, the others
@@ -1217,6 +1265,7 @@ def check_iono_rule(master: str, rover: str, length_m: float, threshold_km: floa
 
 def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, options: BaselineOptions | None = None,
                           *, master_xyz=None, rover_xyz=None, integers: dict | None = None,
+                          solution: dict | None = None,
                           keep_work: bool = False, iono_threshold_km: float | None = None) -> dict:
     """Static baseline from two receivers' RINEX observations (see the module docstring).
 
@@ -1237,6 +1286,14 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
         ``{(sat, first_epoch_gps_s): integer or None}`` per SD segment as listed in the result's
         ``ambiguities.segments`` (``sat``, ``first_gps_s``, ``integer``); the segments and datum
         pivots of these data must be the same (else :class:`CdgpsError`).  None: LAMBDA.
+    solution : dict, optional
+        With ``integers``: the fixed solution they belong to (e.g. INIT's), ``{"enu_m": (3,),
+        "float_cycles": {(sat, first_epoch_gps_s): (float value, σ) cycles}}`` (the second only for the
+        segment table).  When every ambiguity is given an integer (no float segment, no GLONASS), the
+        solution is evaluated at ``enu_m`` — design, residuals and covariance for the estimators —
+        without a float solution, LAMBDA or iterations: the states then are INIT's static solution
+        exactly (``cdgps estimate`` does not solve the baseline again).  Otherwise the fixed solution
+        is solved from the integers as without it.
     keep_work : bool
         Also return the internal arrays under ``"_work"`` (not JSON: SD rows, geometry,
         ambiguities, weights, single-epoch solutions), for the GNSS pipeline's estimators.
@@ -1277,12 +1334,18 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
     t_prep = lap()
     r_enu = enu_matrix(*ecef_to_geodetic(xr0)[:2])
     sg, w = _segments(d, opt), _weights(d, opt)
-    fl = _float_solution(d, sg, w, xr0, r_enu, opt)
-    t_float = lap()
-    fx = _integer_fix(d, sg, w, fl, opt, integers, warnings)
-    t_lambda = lap()
-    fin = _fixed_solution(d, sg, w, fl, fx, xr0, r_enu, opt)
-    t_fixed = lap()
+    known = None if integers is None or solution is None else _known_solution(d, sg, w, integers, solution, xr0, r_enu, warnings)
+    if known is not None:
+        fl, fx, fin = known
+        t_float = t_lambda = 0.0
+        t_fixed = lap()
+    else:
+        fl = _float_solution(d, sg, w, xr0, r_enu, opt)
+        t_float = lap()
+        fx = _integer_fix(d, sg, w, fl, opt, integers, warnings)
+        t_lambda = lap()
+        fin = _fixed_solution(d, sg, w, fl, fx, xr0, r_enu, opt)
+        t_fixed = lap()
     residuals = _residual_summary(d, w, fin.r_ph, fl.n_dd_code)
     ka = _single_epoch_positions(d, w, fin, sg.seg, opt) if fx.fixed_mask.any() else None
     kin = None if ka is None else _kinematic_summary(d, ka, fin.x, opt)

@@ -1,7 +1,8 @@
 """Multi-GNSS, multi-frequency single differences for the static baseline (``[gnss] signals``).
 
-The GPS L1 rows of each receiver fix its epochs on the grid of GPS times and its clock
-(:func:`cdgps_cli.estimation.baseline._receiver_rows`); every row of the receiver's signal table
+The anchor rows of each receiver — GPS L1, or the first signal listed when ``G:L1`` is not among
+them (:func:`cdgps_cli.core.signals.anchor_signal`: a Galileo-only run is anchored on E1) — fix its
+epochs on the grid of GPS times and its clock (:func:`cdgps_cli.estimation.baseline._receiver_rows`); every row of the receiver's signal table
 (:func:`~cdgps_cli.io.rinex_signals.read_rinex_signals`) recorded at one of those epochs is then
 placed in it, at the true reception instant tag − clock.  Rover and master rows of one epoch,
 satellite and signal form a single difference (SD)::
@@ -52,7 +53,8 @@ def _rows_at_epochs(sig: pd.DataFrame, l1_rows: pd.DataFrame, clk: np.ndarray, w
     tt = np.unique(tags["time_gps_s"].to_numpy())
     t = sig["time_gps_s"].to_numpy(dtype=np.float64)
     if tt.size == 0:
-        raise CdgpsError(f"{what}: no epoch with GPS L1 observations in common with the other receiver")
+        raise CdgpsError(f"{what}: no epoch with observations of the anchor signal (GPS L1, or the first of [gnss] "
+                         f"signals without G:L1) in common with the other receiver")
     i = np.clip(np.searchsorted(tt, t), 1, tt.size - 1) if tt.size > 1 else np.zeros(t.size, dtype=np.int64)
     if tt.size > 1:
         i = np.where(np.abs(tt[i - 1] - t) <= np.abs(tt[i] - t), i - 1, i)

@@ -105,6 +105,12 @@ _PAIR_COLS = ["time_gps_s", "sat", "signal", "phase_cycles", "pseudorange_m", "l
               "trop_m"]
 
 
+def _few(sats) -> str:
+    """Satellite names, sorted, the first 12 and the count."""
+    s = sorted(set(np.asarray(sats).astype(str).tolist()))
+    return " ".join(s[:12]) + (f" … ({len(s)})" if len(s) > 12 else "") if s else "no satellite"
+
+
 def _paired_rows(base, rover, pairs, opt) -> dict:
     """Base and rover rows of the whole run paired on (epoch pair, satellite, signal), once, as numpy columns.
 
@@ -467,6 +473,10 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
         raise CdgpsError(f"no common epochs: none of the rover's {ps['rover_epochs']} epochs has a base epoch within "
                          f"max_age_s = {opt['max_age_s']:g} s (" + "; ".join(f"{n} {r}" for r, n in ps["dropped"].items())
                          + f"; the base has {ps['base_epochs']} epochs)")
+    common = set(base["sat"].astype(str)) & set(rover["sat"].astype(str))
+    if not common:
+        raise CdgpsError(f"no common satellites: the base observes {_few(base['sat'])}, the rover {_few(rover['sat'])} "
+                         f"(signals asked for); a double difference needs satellites observed at both receivers")
     rows = _paired_rows(base, rover, pairs, opt)
     n_ep = times.size
     if not any(_epoch_groups(rows, k) for k in range(n_ep)):

@@ -199,12 +199,15 @@ def _raw_from_ubx(obs: pd.DataFrame) -> pd.DataFrame:
 
 
 def read_receiver_file(name: str, kind: str, path: str | Path, *, strict: bool = False,
-                       data: bytes | None = None) -> GnssReceiver:
+                       data: bytes | None = None, gps_l1_optional: bool = False) -> GnssReceiver:
     """Read one RINEX observation file or UBX log into a :class:`GnssReceiver` (raw table).
 
     ``strict``: a UBX log with any corrupt or skipped data is an error (see
     :func:`~cdgps_cli.io.ubx.read_ubx_rawx`); without it the losses are counted in ``info``.
     ``data``: a UBX log's bytes already read (consecutive files joined; ``path`` names it).
+    ``gps_l1_optional``: a run anchored on another system's signal
+    (:func:`~cdgps_cli.core.signals.anchor_signal`): a RINEX 3 file without GPS, or without GPS L1
+    phase, gives an empty GPS L1 table instead of an error.
 
     Raises
     ------
@@ -213,7 +216,7 @@ def read_receiver_file(name: str, kind: str, path: str | Path, *, strict: bool =
     """
     p = Path(path)
     if kind == "rinex":
-        hdr, obs = read_rinex_obs(p)
+        hdr, obs = read_rinex_obs(p, gps_l1_optional=gps_l1_optional)
         if hdr.get("file_type") not in (None, "O"):
             raise CdgpsError(f"{p}: not an observation file")
         raw = _raw_from_rinex(obs)
@@ -235,7 +238,7 @@ def read_receiver_file(name: str, kind: str, path: str | Path, *, strict: bool =
         header = _json_safe(header)
     else:  # pragma: no cover - the CLI only passes these two
         raise ValueError(kind)
-    if len(raw) == 0 or not np.isfinite(raw["phase_cycles"].to_numpy()).any():
+    if not gps_l1_optional and (len(raw) == 0 or not np.isfinite(raw["phase_cycles"].to_numpy()).any()):
         what = "a valid carrier phase (cpValid) in any RXM-RAWX epoch" if kind == "ubx" else \
             f"a value in its L1 phase column ({(header.get('l1_obs_types') or {}).get('phase', 'L1')})"
         raise CdgpsError(f"{p}: no GPS L1 carrier-phase observations: no satellite has {what}; carrier-phase "
@@ -350,19 +353,21 @@ def merge_nav(nav_paths, systems=("G",)) -> pd.DataFrame:
     have = set(nav["sat"].astype(str).str[0])
     missing = [c for c in systems if c not in have]
     if missing:
-        why = ("the ingest/init/estimate path fixes each receiver's epochs and clock on GPS L1 (for a run without GPS, "
-               "`cdgps rtk` solves Galileo-, BeiDou- or GLONASS-only pairs)") if missing == ["G"] else "the config's signals need them"
+        why = ("the config's signals need them (a run of other systems alone lists only theirs, e.g. "
+               "signals = [\"E:E1\", \"E:E5a\"]: its first signal then fixes the epochs and clocks)")
         raise CdgpsError(f"the navigation data ({', '.join(map(str, nav_paths))}) have no ephemerides of system(s) "
                          f"{system_list(missing)}; {why}")
     return nav
 
 
 def _nav_systems(signals, nav_list) -> tuple:
-    """Systems whose ephemerides the signals need (GPS always, for the L1 tables)."""
-    from cdgps_cli.core.signals import SYSTEM_NAMES, signal  # noqa: PLC0415
+    """Systems whose ephemerides the signals need (GPS first when the GPS L1 tables anchor the epochs,
+    :func:`~cdgps_cli.core.signals.anchor_signal`; a run of other systems only needs none of GPS)."""
+    from cdgps_cli.core.signals import SYSTEM_NAMES, anchor_signal, signal  # noqa: PLC0415
     from cdgps_cli.io.rinex import NAV_SYSTEMS  # noqa: PLC0415
 
-    systems = ["G"] + sorted({signal(g).system for g in signals} - {"G"})
+    own = sorted({signal(g).system for g in signals} - {"G"})
+    systems = (["G"] if anchor_signal(signals) is None or any(signal(g).system == "G" for g in signals) else []) + own
     bad = [c for c in systems if c not in NAV_SYSTEMS]
     if bad:
         raise CdgpsError(f"signals of {', '.join(SYSTEM_NAMES[c] for c in bad)} cannot be ingested yet: broadcast "
@@ -500,12 +505,15 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
     warnings: list[str] = []
 
     receivers, joins = {}, {}
+    from cdgps_cli.core.signals import anchor_signal  # noqa: PLC0415
+
+    l1_opt = anchor_signal(cfg.signals) is not None       # epochs and clocks from another signal: GPS L1 not needed
     for n, (kind, p) in files.items():
         say(f"reading {kind.upper()} {p} ({n}) …")
         if len(pieces[n]) == 1:
-            receivers[n] = read_receiver_file(n, kind, pieces[n][0], strict=strict)
+            receivers[n] = read_receiver_file(n, kind, pieces[n][0], strict=strict, gps_l1_optional=l1_opt)
             continue
-        rxs = [read_receiver_file(n, kind, q) for q in pieces[n]]       # (--strict: below, with the file's span)
+        rxs = [read_receiver_file(n, kind, q, gps_l1_optional=l1_opt) for q in pieces[n]]   # (--strict: below)
         receivers[n], joins[n], w, order = join_receivers(n, rxs, pieces[n])
         pieces[n] = [pieces[n][i] for i in order]
         files[n] = (kind, pieces_text(pieces[n]))
@@ -709,7 +717,7 @@ def _missing_code_warning(name: str, path: str, rx: GnssReceiver) -> str | None:
     """A warning when a receiver has L1 phase but no L1 pseudorange at all (``cdgps init`` needs them)."""
     raw = rx.raw
     ph = np.isfinite(raw["phase_cycles"].to_numpy())
-    if np.isfinite(raw["pseudorange_m"].to_numpy()[ph]).any():
+    if not ph.any() or np.isfinite(raw["pseudorange_m"].to_numpy()[ph]).any():    # (no GPS L1 at all: another anchor)
         return None
     types = (rx.header.get("l1_obs_types") or {}) if rx.format == "rinex" else {}
     if rx.format == "rinex" and not types.get("pseudorange"):
@@ -724,13 +732,14 @@ def _missing_code_warning(name: str, path: str, rx: GnssReceiver) -> str | None:
 
 
 def _receiver_summary(n, rx: GnssReceiver, lock: dict, pos) -> dict:
-    t = rx.raw["time_gps_s"].to_numpy()
-    ph = np.isfinite(rx.raw["phase_cycles"].to_numpy())
+    tab = rx.raw if len(rx.raw) or rx.signals is None else rx.signals     # a file without GPS: its signal rows
+    t = tab["time_gps_s"].to_numpy()
+    ph = np.isfinite(tab["phase_cycles"].to_numpy(dtype=float))
     tu = np.unique(t)
     return {"name": n, "format": rx.format, "file": rx.file, "epochs": int(tu.size),
             "first": gps_time_str(float(tu[0])), "last": gps_time_str(float(tu[-1])),
             "first_gps_s": float(tu[0]), "last_gps_s": float(tu[-1]),
-            "interval_s": nominal_interval_s(tu), "satellites": int(rx.raw["sat"].nunique()),
+            "interval_s": nominal_interval_s(tu), "satellites": int(tab["sat"].nunique()),
             "rows": int(len(t)), "phase_rows": int(ph.sum()),
             "slips": int(sum(v["slips"] for v in lock.values())),
             "half_cycle_rows": int(sum(v["half_cycle_rows"] for v in lock.values())),
@@ -744,7 +753,7 @@ def _write_obs_messages(out: McapOut, ch: int, receivers: dict) -> int:
     for n, rx in receivers.items():
         r = rx.raw
         t = r["time_gps_s"].to_numpy()
-        cuts = np.flatnonzero(np.r_[True, t[1:] != t[:-1], True])
+        cuts = np.flatnonzero(np.r_[True, t[1:] != t[:-1], True]) if t.size else np.zeros(1, dtype=np.int64)
         cols = {c: _nullable(r[c].to_numpy()) for c in ("phase_cycles", "pseudorange_m", "snr_dbhz", "doppler_hz")}
         for c in ("lli", "half_cycle", "lock_time_ms"):
             cols[c] = r[c].to_numpy().tolist()
@@ -833,13 +842,13 @@ def gnss_run_info(path: str | Path, contents, common_epochs=None, lock_summary=N
     """The GNSS part of ``cdgps info``: config, master, receivers with lock counters, ephemerides.
 
     ``common_epochs``: a function of the :class:`GnssRun` giving rover → its epoch pairing with the
-    master (a summary with ``used``, ``bridged``, ``dropped`` …); ``lock_summary``: a function of a :class:`GnssReceiver` giving its
-    lock counters per satellite (:func:`cdgps_cli.pipeline.gnss_ingest.run_info` passes both: epoch
+    master (a summary with ``used``, ``bridged``, ``dropped`` …); ``lock_summary``: a function of a :class:`GnssReceiver` and the run's
+    signals giving its lock counters per satellite (:func:`cdgps_cli.pipeline.gnss_ingest.run_info` passes both: epoch
     alignment and the lock-segment rule are model computations); None: recorded as None / {}."""
     run = read_gnss_run(path, contents)
     rx = []
     for n, r in run.receivers.items():
-        lock = lock_summary(r) if lock_summary else {}
+        lock = lock_summary(r, run.cfg.signals) if lock_summary else {}
         pos = (r.info.get("position_source"), r.info.get("position_ecef_m"))
         s = _receiver_summary(n, r, lock, pos)
         s["lock"] = lock

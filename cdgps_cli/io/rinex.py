@@ -312,6 +312,13 @@ class _GpsL1Columns:
         info = hdr.info
         v3 = hdr.version >= 3
         types = info["obs_types"].get("*" if not v3 else "G")
+        if not types and v3 and info["obs_types"] and getattr(hdr, "gps_l1_optional", False):
+            # a RINEX 3 file without GPS, read for a run anchored on another system: no GPS rows
+            self.types, self.n, self.phase, self.code, self.snr = [], 0, None, None, None
+            self.i_phase = self.i_code = self.i_snr = -1
+            self.scale = {"phase": 1.0}
+            info["l1_obs_types"] = None
+            return
         if not types:
             if not info["obs_types"]:
                 raise CdgpsError(f"{hdr.path}: the header lists no observation types ('# / TYPES OF OBSERV' or 'SYS / # / OBS TYPES')")
@@ -357,7 +364,7 @@ def _flag_digit(ch: str) -> int:
     raise ValueError(ch)
 
 
-def read_rinex_obs(path: str | Path) -> tuple[dict, pd.DataFrame]:
+def read_rinex_obs(path: str | Path, *, gps_l1_optional: bool = False) -> tuple[dict, pd.DataFrame]:
     """Read a RINEX 2.10/2.11 or 3.0x observation file (plain, compressed or Hatanaka).
 
     Parameters
@@ -399,6 +406,11 @@ def read_rinex_obs(path: str | Path) -> tuple[dict, pd.DataFrame]:
         offset from the epoch line, NaN if absent), ``epoch_flag`` (int64, 0 OK or 1 power
         failure since the previous epoch).
 
+    gps_l1_optional : bool, default False
+        Accept a RINEX 3 file without GPS observation types (a run anchored on another system,
+        :func:`~cdgps_cli.core.signals.anchor_signal`): ``obs`` is then empty and the header's
+        ``l1_obs_types`` None.
+
     Raises
     ------
     CdgpsError
@@ -414,6 +426,7 @@ def read_rinex_obs(path: str | Path) -> tuple[dict, pd.DataFrame]:
         raise CdgpsError(f"{p}: this is a RINEX {kind} file, not an observation file (RINEX VERSION / TYPE says {ftype!r})")
     _check_version(version, p, "observation")
     hdr = _ObsHeader(p, version, compressed)
+    hdr.gps_l1_optional = gps_l1_optional
     hdr.info["satellite_system"] = system or "G"
     end = None
     for i in range(1, len(lines)):

@@ -47,8 +47,13 @@ def baseline_from_files(rinex: dict, nav_paths, master: str, options: BaselineOp
     stations, nav = load_stations(rinex, nav_paths)
     rover = next(n for n in rinex if n != master)
     pos = positions or {}
-    res = solve_static_baseline(stations[master], stations[rover], nav, options, master_xyz=pos.get(master),
-                                rover_xyz=pos.get(rover))
+    try:
+        res = solve_static_baseline(stations[master], stations[rover], nav, options, master_xyz=pos.get(master),
+                                    rover_xyz=pos.get(rover))
+    except CdgpsError as exc:
+        if str(exc).startswith("the navigation data does not cover"):     # name the files that fell short
+            raise CdgpsError(f"{exc} (navigation file(s) given: {', '.join(map(str, nav_paths))})") from None
+        raise
     res["inputs"] = {"rinex": {k: str(v) for k, v in rinex.items()}, "nav": [str(p) for p in nav_paths]}
     return res
 

@@ -51,7 +51,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.records import INIT_FORMAT, Series, StateSeries, init_kind
 
 from cdgps_cli.io.gnss_run import GnssRun
-from cdgps_cli.pipeline.gnss_ingest import processing_obs, signal_obs
+from cdgps_cli.pipeline.gnss_ingest import anchor_obs, signal_obs
 from cdgps_cli.io import states as states_io
 from cdgps_cli.io.mcap import read_mcap
 from cdgps_cli.core.gps_time import gps_time_str
@@ -78,7 +78,7 @@ def _stations(run: GnssRun):
     sigs = tuple(run.cfg.signals)
     stations = {}
     for n, rx in run.receivers.items():
-        stations[n] = Station(n, dict(rx.header, path=rx.file), processing_obs(rx), signal_obs(rx) if sigs else None)
+        stations[n] = Station(n, dict(rx.header, path=rx.file), anchor_obs(rx, sigs), signal_obs(rx) if sigs else None)
     return stations
 
 
@@ -317,8 +317,21 @@ def _integers_from_init(init: dict, r: str) -> dict:
 # estimate
 
 
+def _solution_from_init(init: dict, r: str) -> dict | None:
+    """INIT's fixed static solution of rover ``r`` for :func:`solve_static_baseline` (``solution``): its
+    ENU displacement and each segment's float value and σ (cycles); None without a fixed block."""
+    fixed = (init["rovers"].get(r) or {}).get("fixed")
+    if not fixed or fixed.get("enu_m") is None:
+        return None
+    floats = {(str(s["sat"]), float(s["first_gps_s"])): (s.get("float_cycles"), s.get("sigma_cycles"))
+              for s in rover_segments(init, r) if not s.get("pivot")}
+    return {"enu_m": [float(v) for v in fixed["enu_m"]], "float_cycles": floats}
+
+
 def solve_with_init_integers(run, init: dict, r: str, stations: dict):
-    """Rover ``r``'s baseline solved again with INIT's options and integers (no kinematic series).
+    """Rover ``r``'s baseline with INIT's options, integers and fixed solution (no kinematic series):
+    evaluated at INIT's solution when every integer is fixed (nothing is solved again), else the
+    fixed solution solved from INIT's integers.
 
     Returns (baseline result, its working data ``_work``, INIT's rover entry, the BaselineOptions); raises CdgpsError when
     INIT's options are not valid or its nominal position is not this run's.
@@ -332,7 +345,8 @@ def solve_with_init_integers(run, init: dict, r: str, stations: dict):
     opt = BaselineOptions(**{**asdict(opt), "kinematic_series": False})
     res = solve_static_baseline(stations[run.master], stations[r], run.nav, opt,
                                 master_xyz=_position_args(run, run.master), rover_xyz=_position_args(run, r),
-                                integers=_integers_from_init(init, r), keep_work=True)
+                                integers=_integers_from_init(init, r), solution=_solution_from_init(init, r),
+                                keep_work=True)
     w = res.pop("_work")
     if not np.allclose(w["xr0"], rov["nominal_ecef_m"], atol=1e-6):
         raise CdgpsError(f"INIT.json: the nominal position of {r} differs from this run's")

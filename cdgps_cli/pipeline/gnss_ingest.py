@@ -72,11 +72,11 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
     inp = gnss_run.read_ingest_inputs(cfg, out_path, rinex=rinex, ubx=ubx, nav_paths=nav_paths, master=master,
                                       progress=progress, strict=strict)
     if inp.nav is not None:
-        _check_coverage(inp)
+        _check_coverage(inp, cfg.signals)
     pos_src = gnss_run.nominal_positions(cfg, inp)
     common = _common_epochs(cfg, inp)
     say(f"writing {out_path} …")
-    lock = {n: lock_summary(rx) for n, rx in inp.receivers.items()}
+    lock = {n: lock_summary(rx, anchor_obs(rx, cfg.signals)) for n, rx in inp.receivers.items()}
     return gnss_run.write_gnss_run(cfg, out_path, inp, pos_src, common, lock)
 
 
@@ -109,6 +109,36 @@ def processing_obs(rx: GnssReceiver, interval_s: float | None = None) -> pd.Data
         "rx_clock_offset_s": r["clock_offset_s"].to_numpy(dtype=np.float64),
         "epoch_flag": r["epoch_flag"].to_numpy(dtype=np.int64),
     }, columns=list(OBS_COLUMNS))
+
+
+def anchor_obs(rx: GnssReceiver, signals, interval_s: float | None = None) -> pd.DataFrame:
+    """The solvers' table (:data:`~cdgps_cli.core.records.OBS_COLUMNS`) of the signal that anchors each
+    receiver's epochs and clock (:func:`~cdgps_cli.core.signals.anchor_signal`): :func:`processing_obs`
+    (GPS L1) when the signals include ``G:L1`` or there are none; otherwise the rows of the first signal
+    listed (its phase in that signal's cycles, loss of lock as in :func:`signal_obs`), with the epoch
+    flags and clock offsets of the receiver's GPS rows at the same time tags (0 / NaN without any)."""
+    from cdgps_cli.core.signals import anchor_signal  # noqa: PLC0415
+
+    name = anchor_signal(signals)
+    if name is None:
+        return processing_obs(rx, interval_s)
+    s = signal_obs(rx, interval_s)
+    s = s[s["signal"].to_numpy() == name] if s is not None else pd.DataFrame(columns=["time_gps_s", "sat", "phase_cycles",
+                                                                                      "pseudorange_m", "lli"])
+    t = s["time_gps_s"].to_numpy(dtype=np.float64)
+    raw = rx.raw.drop_duplicates("time_gps_s").sort_values("time_gps_s")
+    tr = raw["time_gps_s"].to_numpy(dtype=np.float64)
+    k = np.clip(np.searchsorted(tr, t), 0, max(tr.size - 1, 0))
+    same = (tr[k] == t) if tr.size else np.zeros(t.size, dtype=bool)
+    flag = np.where(same, raw["epoch_flag"].to_numpy(dtype=np.int64)[k] if tr.size else 0, 0)
+    clk = np.where(same, raw["clock_offset_s"].to_numpy(dtype=np.float64)[k] if tr.size else np.nan, np.nan)
+    return pd.DataFrame({
+        "time_gps_s": t, "sat": s["sat"].to_numpy(dtype=object),
+        "phase_l1_cycles": s["phase_cycles"].to_numpy(dtype=np.float64),
+        "lli_l1": s["lli"].to_numpy(dtype=np.int64), "ssi_l1": np.zeros(t.size, dtype=np.int64),
+        "pseudorange_l1_m": s["pseudorange_m"].to_numpy(dtype=np.float64), "snr_l1_dbhz": np.full(t.size, np.nan),
+        "rx_clock_offset_s": clk, "epoch_flag": flag.astype(np.int64),
+    }, columns=list(OBS_COLUMNS)).reset_index(drop=True)
 
 
 def ubx_loss_of_lock(t, channel, phase, lock_time_ms, half, interval_s: float | None = None) -> np.ndarray:
@@ -173,18 +203,31 @@ def lock_summary(rx: GnssReceiver, obs: pd.DataFrame | None = None) -> dict:
             for i, s in enumerate(sats)}
 
 
-def _check_coverage(inp: IngestInputs) -> None:
+def _anchor_rows(rx: GnssReceiver, signals) -> pd.DataFrame:
+    """The rows (``time_gps_s``, ``sat``, ``phase_cycles``) that anchor the receiver's epochs: its GPS L1
+    table, or the rows of :func:`~cdgps_cli.core.signals.anchor_signal`."""
+    from cdgps_cli.core.signals import anchor_signal  # noqa: PLC0415
+
+    name = anchor_signal(signals)
+    if name is None or rx.signals is None:
+        return rx.raw
+    return rx.signals[rx.signals["signal"].to_numpy() == name]
+
+
+def _check_coverage(inp: IngestInputs, signals=()) -> None:
     """Refuse a receiver none of whose phases has a healthy ephemeris; warn about the rows without one."""
     receivers, nav, files, warnings = inp.receivers, inp.nav, inp.files, inp.warnings
     for n, rx in receivers.items():
-        r = rx.raw[np.isfinite(rx.raw["phase_cycles"].to_numpy())]
+        a = _anchor_rows(rx, signals)
+        r = a[np.isfinite(a["phase_cycles"].to_numpy(dtype=float))]
         cov = ephemeris_coverage(nav, r["sat"].to_numpy(), r["time_gps_s"].to_numpy())
         if not cov.any():
             tn = nav["toe_gps_s"].to_numpy()
             raise CdgpsError(
                 f"the navigation data do not cover the observations of {n} ({files[n][1]}): observations "
                 f"{span_text(r['time_gps_s'])}, broadcast ephemerides with toe {span_text(tn)} (each is used within ±2 h of "
-                f"its toe, healthy satellites only); give the navigation file(s) of that day")
+                f"its toe, healthy satellites only) in {', '.join(map(str, inp.nav_list)) or inp.nav_source or 'the run'}; give the "
+                f"navigation file(s) of that day")
         if not cov.all():
             miss = pd.Series(r["sat"].to_numpy()[~cov]).value_counts()
             warnings.append(f"{n}: {int(miss.sum())} of {len(r)} phase observations ({', '.join(sorted(miss.index)[:8])}"
@@ -202,16 +245,17 @@ def _common_epochs(cfg: GnssConfig, inp: IngestInputs) -> dict:
     rover epoch that will not be used (with the reason)."""
     receivers, master, files, warnings = inp.receivers, inp.master, inp.files, inp.warnings
     rovers = [n for n in receivers if n != master]
-    tm = np.unique(receivers[master].raw["time_gps_s"].to_numpy())
+    tm = np.unique(_anchor_rows(receivers[master], cfg.signals)["time_gps_s"].to_numpy())
     common = {}
     for n in rovers:
-        tr = np.unique(receivers[n].raw["time_gps_s"].to_numpy())
+        tr = np.unique(_anchor_rows(receivers[n], cfg.signals)["time_gps_s"].to_numpy())
         ps = _pairing(tm, tr, cfg)
         if ps["used"] == 0:
             raise CdgpsError(
                 f"no common epochs: master {master} ({files[master][1]}) has {tm.size} epochs ({span_text(tm)}), rover {n} "
                 f"({files[n][1]}) has {tr.size} ({span_text(tr)}); no rover epoch has a master epoch within "
                 f"{cfg.max_age_s:g} s (gnss.max_age_s)")
+        _check_common_satellites(master, n, receivers, files)
         common[n] = {"common_epochs": ps["used"], "master_epochs": int(tm.size), "rover_epochs": int(tr.size),
                      "tolerance_ms": cfg.sync_tol_s * 1e3, "pairing": ps}
         if ps["dropped"]:
@@ -219,6 +263,28 @@ def _common_epochs(cfg: GnssConfig, inp: IngestInputs) -> dict:
                             f"{cfg.max_age_s:g} s (gnss.max_age_s) and will not be used: "
                             + "; ".join(f"{k} {why}" for why, k in ps["dropped"].items()))
     return common
+
+
+def _phase_satellites(rx: GnssReceiver) -> set:
+    """Satellites with a carrier phase in a receiver's raw (L1) table or its signal table."""
+    out = set()
+    for t in (rx.raw, rx.signals):
+        if t is not None and len(t):
+            out |= set(t["sat"].to_numpy()[np.isfinite(t["phase_cycles"].to_numpy(dtype=float))].astype(str).tolist())
+    return out
+
+
+def _check_common_satellites(master: str, rover: str, receivers: dict, files: dict) -> None:
+    """Refuse a rover that has carrier phase of no satellite the master also tracks (no double difference
+    can ever be formed), naming both files and what each tracks."""
+    sm, sr = _phase_satellites(receivers[master]), _phase_satellites(receivers[rover])
+    if sm and sr and not sm & sr:
+        def few(s):
+            s = sorted(s)
+            return " ".join(s[:12]) + (f" … ({len(s)})" if len(s) > 12 else "")
+        raise CdgpsError(f"no common satellites: master {master} ({files[master][1]}) has carrier phase of {few(sm)}; "
+                         f"rover {rover} ({files[rover][1]}) of {few(sr)}; a double difference needs satellites "
+                         f"tracked by both receivers")
 
 
 def run_info(path: str | Path, deep: bool = False) -> dict:
@@ -231,16 +297,17 @@ def run_info(path: str | Path, deep: bool = False) -> dict:
 
     from cdgps_cli.pipeline.ingest import channel_summary  # noqa: PLC0415
 
-    return file_info(path, gnss_common_epochs=_run_common_epochs, gnss_lock_summary=lock_summary,
+    return file_info(path, gnss_common_epochs=_run_common_epochs,
+                     gnss_lock_summary=lambda rx, signals: lock_summary(rx, anchor_obs(rx, signals)),
                      channel_summary=channel_summary, deep=deep)
 
 
 def _run_common_epochs(run: gnss_run.GnssRun) -> dict:
     """Rover → its epoch pairing with the master of a GNSS run read back (epochs used, bridged, dropped)."""
-    tm = np.unique(run.receivers[run.master].raw["time_gps_s"].to_numpy())
+    tm = np.unique(_anchor_rows(run.receivers[run.master], run.cfg.signals)["time_gps_s"].to_numpy())
     common = {}
     for n in run.rovers:
-        tr = np.unique(run.receivers[n].raw["time_gps_s"].to_numpy())
+        tr = np.unique(_anchor_rows(run.receivers[n], run.cfg.signals)["time_gps_s"].to_numpy())
         common[n] = _pairing(tm, tr, run.cfg)
     return common
 

@@ -138,7 +138,7 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
             gr.attrs = {}
         res = solve_rtk(gb, gr, bx, rx, options=opt)
     except CdgpsError as exc:
-        if str(exc).startswith(("no common epochs", "no double differences")):
+        if str(exc).startswith(("no common epochs", "no common satellites", "no double differences")):
             raise CdgpsError(f"{rover_path} (rover) and {base_path} (base): {exc}") from None
         raise
     ep = res["epoch_pairing"]

@@ -31,7 +31,7 @@ from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix, sat_position_ecef, select_ephemeris
 
-__all__ = ["edit_rinex3_obs", "range_change_of_motion", "BAND_FREQUENCY_HZ"]
+__all__ = ["edit_rinex3_obs", "range_change_of_motion", "epoch_times_gps_s", "BAND_FREQUENCY_HZ"]
 
 #: carrier of each (system, RINEX 3 band digit), Hz (RINEX 3.04 Table 4); GLONASS 1/2 are FDMA (below)
 BAND_FREQUENCY_HZ = {
@@ -169,30 +169,74 @@ def edit_rinex3_obs(text: str, *, keep=None, clock_offset_s=None, range_change_m
     return "\n".join(out) + "\n"
 
 
-def range_change_of_motion(nav, xyz_m, displacement_enu_m):
+def epoch_times_gps_s(text: str) -> np.ndarray:
+    """The time tags (GPS s) of a RINEX 3 observation file's observation epochs (flag 0 or 1), in file
+    order: the ``times_gps_s`` of :func:`range_change_of_motion` for that file."""
+    lines = text.splitlines()
+    i = _header(lines)[2]
+    out = []
+    while i < len(lines):
+        ln = lines[i]
+        if not ln.startswith(">"):
+            raise CdgpsError(f"line {i + 1}: expected an epoch record starting with '>', got {ln[:20]!r}")
+        if int(ln[31:32] or 0) <= 1:
+            out.append(_epoch_gps_s(ln))
+        i += 1 + int(ln[32:35])
+    return np.asarray(out, dtype=float)
+
+
+def _unit_vectors(nav, sat: str, t: np.ndarray, xyz: np.ndarray) -> np.ndarray:
+    """Unit vectors (N, 3) from ``xyz`` to ``sat`` at times ``t`` (transmission 0.075 s earlier); rows
+    of 0 where the satellite has no healthy ephemeris near the time."""
+    try:
+        eph = select_ephemeris(nav, sat, t)
+        ok = np.ones(t.size, dtype=bool)
+    except CdgpsError:                                    # some times uncovered: find which, one by one
+        ok = np.zeros(t.size, dtype=bool)
+        for k, tk in enumerate(t):
+            try:
+                select_ephemeris(nav, sat, np.array([tk]))
+                ok[k] = True
+            except CdgpsError:
+                pass
+        if not ok.any():
+            return np.zeros((t.size, 3))
+        eph = select_ephemeris(nav, sat, t[ok])
+    p, _ = sat_position_ecef(eph, t[ok] - 0.075)
+    e = np.asarray(p, dtype=float).reshape(-1, 3) - xyz
+    out = np.zeros((t.size, 3))
+    out[ok] = e / np.linalg.norm(e, axis=1, keepdims=True)
+    return out
+
+
+def range_change_of_motion(nav, xyz_m, displacement_enu_m, times_gps_s=None):
     """``range_change_m`` for :func:`edit_rinex3_obs`: the range change of an antenna at ``xyz_m``
     (ECEF, m) displaced by ``displacement_enu_m(t) -> (3,)`` (east, north, up, m) at GPS time t, to
     each satellite of an epoch with an ephemeris in ``nav`` (others: 0): Δρ_s = −e_sᵀ d(t), e_s the
     unit vector from the antenna to the satellite (at t − 0.075 s of flight; the direction changes
-    by < 10⁻⁵ rad over the flight time)."""
+    by < 10⁻⁵ rad over the flight time).
+
+    ``times_gps_s`` (optional, the file's epochs: :func:`epoch_times_gps_s`): the unit vectors of
+    every satellite at those times are computed at once, vectorized (the same values to 10⁻¹³ m,
+    about 100 times faster than one epoch at a time); an epoch not among them is computed alone."""
     xyz = np.asarray(xyz_m, dtype=float)
     lat, lon, _ = ecef_to_geodetic(xyz)
     r_enu = enu_matrix(lat, lon)                         # rows: east, north, up in ECEF
     have = set(nav["sat"].unique())
+    grid = None if times_gps_s is None else np.unique(np.asarray(times_gps_s, dtype=float))
+    cache: dict = {}
+
+    def unit(s: str, t: float) -> np.ndarray:
+        if grid is not None:
+            k = int(np.searchsorted(grid, t))
+            if k < grid.size and grid[k] == t:
+                if s not in cache:
+                    cache[s] = _unit_vectors(nav, s, grid, xyz)
+                return cache[s][k]
+        return _unit_vectors(nav, s, np.array([t]), xyz)[0]
 
     def change(t, sats):
         d_ecef = r_enu.T @ np.asarray(displacement_enu_m(t), dtype=float)
-        out = np.zeros(len(sats))
-        for k, s in enumerate(sats):
-            if s not in have:
-                continue
-            try:
-                eph = select_ephemeris(nav, s, np.array([t]))
-            except Exception:                             # no ephemeris near t: leave the satellite alone
-                continue
-            p, _ = sat_position_ecef(eph, np.array([t - 0.075]))
-            e = p.reshape(3) - xyz
-            out[k] = -(e / np.linalg.norm(e)) @ d_ecef
-        return out
+        return np.array([-(unit(s, t) @ d_ecef) if s in have else 0.0 for s in sats])
 
     return change

@@ -343,7 +343,7 @@ def test_error_navigation_not_covering(small):
 
 def test_error_no_common_epochs(small, nav):
     rov = small["rover"].assign(time_gps_s=small["rover"]["time_gps_s"] + 15.0)
-    with pytest.raises(CdgpsError, match="no common epochs: master 3040 has 20 epochs"):
+    with pytest.raises(CdgpsError, match=r"no common epochs: master 3040 \(.*\) has 20 epochs"):
         _solve(small, nav, rover=rov)
 
 

@@ -49,10 +49,15 @@ def test_config_comments_every_system_and_the_baseline_runs(tmp_path):
     assert r.exit_code == 0, r.output
 
 
-def test_ingest_without_gps_ephemerides_points_to_rtk(tmp_path):
+def test_a_galileo_run_needs_no_gps_ephemerides(tmp_path):
+    """signals = ["E:E1"] with only the Galileo navigation file: ingested and solved (E1 fixes the epochs
+    and clocks; issue 28); with G:L1 among the signals the missing GPS ephemerides are named."""
     cfg = tmp_path / "gal.toml"
-    cfg.write_text(f'[gnss]\nmaster = "base"\nnav = ["{GAL_NAV}"]\nsignals = ["E:E1"]\n'
-                   f'[gnss.antennas.base]\nrinex = "{BASE}"\n[gnss.antennas.rover]\nrinex = "{ROVER}"\n')
+    body = (f'[gnss.antennas.base]\nrinex = "{BASE}"\n[gnss.antennas.rover]\nrinex = "{ROVER}"\n')
+    cfg.write_text(f'[gnss]\nmaster = "base"\nnav = ["{GAL_NAV}"]\nsignals = ["E:E1"]\n' + body)
     r = CliRunner().invoke(main, ["-q", "ingest", "--config", str(cfg), "-o", str(tmp_path / "run.mcap")])
-    assert r.exit_code == 2 and "no ephemerides of system(s) GPS" in r.stderr and "cdgps rtk" in r.stderr, r.output
-    assert not (tmp_path / "run.mcap").exists()
+    assert r.exit_code == 0, r.output
+    cfg.write_text(f'[gnss]\nmaster = "base"\nnav = ["{GAL_NAV}"]\nsignals = ["G:L1", "E:E1"]\n' + body)
+    r = CliRunner().invoke(main, ["-q", "ingest", "--config", str(cfg), "-o", str(tmp_path / "run2.mcap")])
+    assert r.exit_code == 2 and "no ephemerides of system(s) GPS" in r.stderr and "signals" in r.stderr, r.output
+    assert not (tmp_path / "run2.mcap").exists()

@@ -180,6 +180,26 @@ def test_static_simulation_recovers_the_truth(static_sim):
     assert len(slips) == len(tracked) and all(e["action"].startswith("new ambiguity, fixed") for e in slips)
 
 
+def test_estimate_does_not_solve_the_baseline_again(static_sim):
+    """estimate takes INIT's fixed solution as it is (issue 28 item 1): no float solution, no LAMBDA,
+    no iterations — the same states, bit for bit, as when it solved them again; an INIT position that
+    is not the solution of its integers is solved again, with a warning."""
+    from cdgps_cli.io.gnss_run import read_gnss_run
+    from cdgps_cli.pipeline.gnss import _stations, solve_with_init_integers
+
+    tmp, init = static_sim
+    run = read_gnss_run(tmp / "run.mcap")
+    res, w, _, _ = solve_with_init_integers(run, init, "rover", _stations(run))
+    assert res["fixed"]["given"].startswith("position and integers given") and res["timing_s"]["float"] == 0.0
+    assert w["x_final"].tolist() == [init["states"][f"rover_{c}"] for c in "enu"]     # exactly INIT's
+    assert np.array_equal(States(tmp / "states.mcap").q[0], w["x_final"])
+    moved = json.loads(json.dumps(init))
+    moved["rovers"]["rover"]["fixed"]["enu_m"][0] += 1e-4
+    res2, w2, _, _ = solve_with_init_integers(run, moved, "rover", _stations(run))
+    assert "given" not in res2["fixed"] and any("solved again from the integers" in m for m in res2["warnings"])
+    np.testing.assert_allclose(w2["x_final"], w["x_final"], atol=1e-9)
+
+
 def test_estimate_uses_the_integers_of_init(static_sim, tmp_path):
     tmp, init = static_sim
     bad = json.loads(json.dumps(init))
