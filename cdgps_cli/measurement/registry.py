@@ -14,13 +14,15 @@ from typing import Callable
 
 import numpy as np
 
+from cdgps_cli.config.sensors import FUSABLE_KINDS, SensorSpec
+from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.measurement.accelerometer import Accelerometer
 from cdgps_cli.measurement.gnss_position import GnssPosition
 from cdgps_cli.measurement.gyro import RateGyro
 from cdgps_cli.measurement.model import PseudoliteSD
 from cdgps_cli.measurement.tilt import TiltMeter
 
-__all__ = ["ModelKind", "REGISTRY", "UNITS", "FUSABLE"]
+__all__ = ["ModelKind", "REGISTRY", "UNITS", "FUSABLE", "model_from_spec"]
 
 #: units a field name may end with (m, m/s², rad, rad/s)
 UNITS = ("m", "m_s2", "rad", "rad_s")
@@ -81,5 +83,20 @@ REGISTRY: dict[str, ModelKind] = {
     "pseudolite_sd": ModelKind(PseudoliteSD, "m", _pseudolite),
 }
 
-#: the sensors ``estimate --fuse`` takes
-FUSABLE = ("gyro", "accel", "tilt")
+#: the sensors ``estimate --fuse`` takes (config/sensors.py FUSABLE_KINDS)
+FUSABLE = FUSABLE_KINDS
+
+
+def model_from_spec(cfg: StructureConfig, spec: SensorSpec, values, k_of, n_core: int, S=None, bias: bool = True):
+    """The measurement model of ``spec`` (:mod:`cdgps_cli.measurement.accelerometer` …) on the leading
+    ``n_core`` states (S: the disturbance selection of the accelerometer, when the state carries d)."""
+    b = spec.bias_sigma if bias else None
+    if spec.kind == "accel":
+        if S is not None and n_core != 2 * cfg.n_modes + S.shape[1]:
+            raise ValueError("accelerometer: n_core must be 2 n_m + r with the disturbance")
+        return Accelerometer(cfg, spec.name, spec.point, list(spec.axes), values, k_of, spec.sigma, b, spec.bias_drift,
+                             rotation_rad=spec.rotation_rad, disturbance=S)
+    if spec.kind == "tilt":
+        return TiltMeter(cfg, spec.name, list(spec.axes), values, k_of, spec.sigma, spec.section, spec.rotation_rad,
+                         b, spec.bias_drift, n_core=n_core)
+    return RateGyro(cfg, [spec.name], values, k_of, spec.sigma, b, spec.bias_drift, n_core=n_core, name=spec.name)

@@ -27,7 +27,8 @@ AXIS_NAMES = ("x", "y", "z")
 
 
 def axis_vectors(axes) -> tuple[np.ndarray, list]:
-    """Unit axes (n, 3) and their names from "x", ["x", "y"], or 3-vectors (named a0, a1 …)."""
+    """Unit axes (n, 3) and their names from "x", ["x", "y"], or 3-vectors (x, y, z for the basis
+    vectors, else a0, a1 … by position)."""
     items = [axes] if isinstance(axes, str) or (len(axes) == 3 and not isinstance(axes[0], (str, list, tuple, np.ndarray))) \
         else list(axes)
     vecs, names = [], []
@@ -37,8 +38,10 @@ def axis_vectors(axes) -> tuple[np.ndarray, list]:
             names.append(a)
         else:
             v = np.asarray(a, dtype=float)
-            vecs.append(v / np.linalg.norm(v))
-            names.append(f"a{i}")
+            v = v / np.linalg.norm(v)
+            basis = np.flatnonzero(np.isclose(np.abs(v), 1.0) & (v > 0))
+            vecs.append(v)
+            names.append(AXIS_NAMES[int(basis[0])] if basis.size else f"a{i}")   # a basis vector keeps its name
     return np.array(vecs).reshape(-1, 3), names
 
 
