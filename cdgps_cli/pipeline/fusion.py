@@ -117,3 +117,102 @@ def run_fused(model, dyn, time_s, x0, P0, smooth: bool = True, max_iterations: i
     return SimpleNamespace(x=xs, P=Ps, x_filt=fr["x"], P_filt=fr["P"], nis=fr["nis"], nis_dof=fr["nis_dof"], rows=fr["rows"])
 
 
+
+
+def fusion_choice(cfg: StructureConfig, fuse_option: str | None, hold_out_option=()) -> tuple[tuple, tuple]:
+    """(kinds fused, sensors held out): ``--fuse`` (or the config's ``[fusion] fuse``: opt-in, empty by
+    default) and ``--hold-out`` added to ``[fusion] hold_out``."""
+    from cdgps_cli.config.sensors import fusion_settings  # noqa: PLC0415
+
+    st = fusion_settings(cfg)
+    kinds = parse_fuse(fuse_option) if fuse_option is not None else st["fuse"]
+    held = tuple(dict.fromkeys(tuple(st["hold_out"]) + tuple(hold_out_option)))
+    if held and not kinds:
+        raise CdgpsError("--hold-out needs --fuse (or [fusion] fuse in the structure config)")
+    return kinds, held
+
+
+def _dd_rows(rows, part: int = 0):
+    """The rows of stacked part ``part`` (the GNSS DDs) of one epoch's stacked rows, or None."""
+    if rows is None:
+        return None
+    p, local, subs = rows.context
+    sel = np.flatnonzero(p == part)
+    if sel.size == 0:
+        return None
+    sub, mine = subs[sel[0]], local[sel]
+    return sub if mine.size == sub.z_m.size and np.all(mine == np.arange(sub.z_m.size)) else sub.subset(mine)
+
+
+def fuse_with_dd(cfg: StructureConfig, dd, t_gnss, logs: dict, fuse, hold_out, x0, P0, *, smooth: bool,
+                 max_iterations: int, outlier_sigma: float, say=None):
+    """The GNSS modal estimate with the sensors fused (``cdgps estimate --structure --fuse``).
+
+    ``dd`` is the run's :class:`~cdgps_cli.measurement.model.SatelliteDDModal` on the GNSS epochs
+    ``t_gnss``; it is re-indexed onto the common time axis of the GNSS epochs and the fused sensors'
+    samples, stacked with the sensors, filtered (outlier gate on every row) and smoothed.
+
+    Returns
+    -------
+    SimpleNamespace
+        ``t`` (N,), ``dd`` (the re-indexed DD model), ``x``, ``P``, ``x_filt``, ``P_filt`` (modal states
+        [ξ, ξ̇] only), ``nis``, ``nis_dof``, ``dd_rows`` (the DD rows used per epoch), ``outliers_dd``
+        (events labelled (slot, satellite)), ``events`` (sensor outliers), ``summary`` (JSON-ready).
+    """
+    from cdgps_cli.config.sensors import sensor_specs  # noqa: PLC0415
+    from cdgps_cli.estimation.model_filter import outlier_gate  # noqa: PLC0415
+    from cdgps_cli.measurement.model import SatelliteDDModal  # noqa: PLC0415
+
+    all_specs = sensor_specs(cfg)
+    specs = [s for s in all_specs if s.kind in fuse and s.name not in hold_out]
+    used = {s.name for s in specs}
+    times = [g.loc[g["sensor"].isin(used), "time_s"].to_numpy(float) for k, g in logs.items() if k in fuse]
+    t = common_time_axis(t_gnss, times)
+    kk = align_epochs(t, t_gnss, SYNC_TOL_S)
+    k_of = [np.where(kk >= 0, ko[np.maximum(kk, 0)], -1) for ko in dd.k_of]
+    dd2 = SatelliteDDModal(cfg, dd.R, dd.tabs, k_of, dd.ant_idx, dd.d_hdr)
+    accel = any(s.kind == "accel" for s in specs)
+    S = ModalDisturbance(cfg).S if accel else None
+    parts = sensor_parts(cfg, all_specs, logs, t, fuse, hold_out, S=S)
+    model, dyn, P0f, names = fusion_problem(cfg, [("gnss", dd2)], parts, P0, disturbance=accel)
+    x0f = np.zeros(dyn.n)
+    x0f[:x0.size] = x0
+    events: list = []
+    if say:
+        say(f"fused EKF over {t.size} epochs ({t_gnss.size} GNSS), {len(parts)} sensor(s), {dyn.n} states …")
+    r = run_fused(model, dyn, t, x0f, P0f, smooth, max_iterations, rows_hook=outlier_gate(model, outlier_sigma, events, t))
+    nm2 = 2 * cfg.n_modes
+    dd_rows = [_dd_rows(rk) for rk in r.rows]
+    out_dd = [dict(e, label=tuple(e["label"][1:])) for e in events if e["label"][0] == "gnss"]
+    out_s = [{"time_s": e["time_s"], "antenna": e["label"][0], "transmitter": e["label"][2], "kind": "outlier",
+              "action": f"sensor reading not used at this epoch ({e['sigmas']:.1f} σ)"} for e in events if e["label"][0] != "gnss"]
+    summary = {"fused": list(fuse), "hold_out": list(hold_out), "epochs": int(t.size), "gnss_epochs": int(t_gnss.size),
+               "added_states": names, "sensors": _sensor_summary(parts, r.x, r.rows),
+               "disturbance_states": bool(accel),
+               "gyro_independent_check": "gyro" not in fuse or any(s.kind == "gyro" and s.name in hold_out
+                                                                 for s in all_specs)}
+    return SimpleNamespace(t=t, dd=dd2, x=r.x[:, :nm2], P=r.P[:, :nm2, :nm2], x_filt=r.x_filt[:, :nm2],
+                           P_filt=r.P_filt[:, :nm2, :nm2], nis=r.nis, nis_dof=r.nis_dof, dd_rows=dd_rows,
+                           outliers_dd=out_dd, events=out_s, summary=summary)
+
+
+def _sensor_summary(parts, x, rows) -> dict:
+    """Per fused sensor: samples, RMS residual of the reported estimate per field, final bias per field."""
+    out = {}
+    for p, (name, m) in enumerate(parts, start=1):
+        res = {f: [] for f in m.fields}
+        n = 0
+        for k, rk in enumerate(rows):
+            sub = _dd_rows(rk, p)
+            if sub is None:
+                continue
+            n += 1
+            h, _ = m.predict(x[k], sub)
+            for (_, f), z, hh in zip(sub.labels, sub.z_m, h):
+                res[f].append(z - hh)
+        out[name] = {"kind": m.kind, "samples": n,
+                     "residual_rms": {f: float(np.sqrt(np.mean(np.square(v)))) if v else None for f, v in res.items()},
+                     "sigma": {f: float(s) for f, s in zip(m.fields, m.sigma)},
+                     "final_bias": ({f: float(x[-1, m.bias_offset + j]) for j, f in enumerate(m.fields)}
+                                    if m.extra_states else {})}
+    return out
