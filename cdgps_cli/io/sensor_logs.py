@@ -7,7 +7,9 @@ long format, units in the column names —
 * ``sensor`` — the sensor's name in the structure config (``[[accelerometers]]``, ``[[tilts]]``,
   ``[[gyros]]``; a column ``gyro`` is read as ``sensor``, as the structure simulator's gyro.csv);
 * the readings, ``<kind>_<axis>_<unit>``: ``accel_x_m_s2`` … (m/s²), ``tilt_y_rad`` (rad),
-  ``gyro_z_rad_s`` (rad/s); empty for an axis a sensor lacks.
+  ``gyro_z_rad_s`` (rad/s); empty for an axis a sensor lacks.  The reader takes any kind whose
+  columns follow this pattern (a new sensor needs no change here; the fusion matches the kind to the
+  structure config's sensors).
 
 :func:`read_sensor_csv` checks a file (its kind from the column names; every other column refused;
 finite increasing times per sensor; numbers or empty cells) and :func:`sensor_attachments` /
@@ -26,22 +28,27 @@ import pandas as pd
 
 from cdgps_cli.core.errors import CdgpsError
 
-__all__ = ["SENSOR_KINDS", "SENSOR_ATTACHMENT", "read_sensor_csv", "sensor_attachments", "sensor_logs_from_attachments",
+__all__ = ["SENSOR_KINDS", "UNITS", "SENSOR_ATTACHMENT", "read_sensor_csv", "sensor_attachments", "sensor_logs_from_attachments",
            "write_sensor_csv"]
 
-#: kind → (column pattern, unit)
-SENSOR_KINDS = {"accel": re.compile(r"^accel_([a-z0-9]+)_m_s2$"), "tilt": re.compile(r"^tilt_([a-z0-9]+)_rad$"),
-                "gyro": re.compile(r"^gyro_([a-z0-9]+)_rad_s$")}
+#: units a reading's column may end with (m/s², rad/s, rad, m, m/s, 1 for a ratio such as strain)
+UNITS = ("m_s2", "rad_s", "rad", "m", "m_s", "1")
+#: a reading's column: <kind>_<axis>_<unit> (any kind: the reader needs no change for a new sensor)
+_COLUMN = re.compile(r"^([a-z]+)_([a-z0-9]+)_(" + "|".join(UNITS) + r")$")
+#: the kinds of the shipped sensors (documentation; the reader takes any kind)
+SENSOR_KINDS = ("accel", "tilt", "gyro")
 SENSOR_ATTACHMENT = "sensors/{}.csv"
 _PREFIX = "sensors/"
 
 
 def _kind_of(cols: list, where: str) -> str:
-    kinds = {k for c in cols for k, pat in SENSOR_KINDS.items() if pat.match(c)}
-    bad = [c for c in cols if not any(p.match(c) for p in SENSOR_KINDS.values())]
+    found = [_COLUMN.match(c) for c in cols]
+    kinds = {m.group(1) for m in found if m}
+    bad = [c for c, m in zip(cols, found) if not m]
     if bad or len(kinds) != 1:
-        raise CdgpsError(f"{where}: expected columns time_s, sensor and the readings of one sensor kind "
-                         f"(accel_<axis>_m_s2, tilt_<axis>_rad or gyro_<axis>_rad_s), got {', '.join(cols) or 'none'}")
+        raise CdgpsError(f"{where}: expected columns time_s, sensor and the readings of one sensor kind, "
+                         f"<kind>_<axis>_<unit> with unit {', '.join(UNITS)} (e.g. accel_x_m_s2, tilt_y_rad, "
+                         f"gyro_z_rad_s), got {', '.join(cols) or 'none'}")
     return kinds.pop()
 
 
