@@ -91,15 +91,19 @@ class WithRandomWalks(Dynamics):
             raise ValueError(f"sigma_per_sqrt_s must be finite and ≥ 0, got {sigma_per_sqrt_s!r}")
         self.dyn, self.sigma = dyn, s
         self.n, self.n_u = dyn.n + s.size, dyn.n_u
+        self._cache: dict = {}
 
     def transition(self, dt_s: float):
         dt = _check_dt(dt_s)
-        A, B, Q = self.dyn.transition(dt)
-        n, m = self.n, self.dyn.n
-        Aa, Qa = np.eye(n), np.zeros((n, n))
-        Aa[:m, :m], Qa[:m, :m] = A, Q
-        Qa[m:, m:] = np.diag(self.sigma**2 * dt)
-        return Aa, np.vstack([B, np.zeros((self.sigma.size, B.shape[1]))]), Qa
+        key = round(dt, 9)
+        if key not in self._cache:                     # (one per spacing: the filter asks every epoch)
+            A, B, Q = self.dyn.transition(dt)
+            n, m = self.n, self.dyn.n
+            Aa, Qa = np.eye(n), np.zeros((n, n))
+            Aa[:m, :m], Qa[:m, :m] = A, Q
+            Qa[m:, m:] = np.diag(self.sigma**2 * dt)
+            self._cache[key] = (Aa, np.vstack([B, np.zeros((self.sigma.size, B.shape[1]))]), Qa)
+        return tuple(a.copy() for a in self._cache[key])
 
 
 def fusion_dynamics(cfg: StructureConfig, models, disturbance: bool = True) -> tuple[Dynamics, list, np.ndarray]:
