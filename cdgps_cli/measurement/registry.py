@@ -19,7 +19,9 @@ from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.measurement.accelerometer import Accelerometer
 from cdgps_cli.measurement.gnss_position import GnssPosition
 from cdgps_cli.measurement.gyro import RateGyro
-from cdgps_cli.measurement.model import PseudoliteSD
+from cdgps_cli.measurement.model import PseudoliteSD, SatelliteDDModal
+from cdgps_cli.measurement.sensor import place
+from cdgps_cli.measurement.stacked import Stacked
 from cdgps_cli.measurement.tilt import TiltMeter
 
 __all__ = ["ModelKind", "REGISTRY", "UNITS", "FUSABLE", "model_from_spec"]
@@ -75,12 +77,46 @@ def _pseudolite(cfg, rng, n):
     return PseudoliteSD(cfg, rng.standard_normal((n, C)) * 0.01, ant, tx, np.full(C, cfg.measurement_sigma_m))
 
 
+def _dd_modal(cfg, rng, n, n_sat: int = 5):
+    """Synthetic single-difference tables of every rover (far satellites in random directions, one
+    segment per satellite), every epoch, as :mod:`cdgps_cli.pipeline.gnss_modal` builds them."""
+    from types import SimpleNamespace  # noqa: PLC0415
+
+    from cdgps_cli.model.kinematics import antenna_positions  # noqa: PLC0415
+
+    rov = [i for i in range(len(cfg.antenna_names)) if i != cfg.master_index]
+    xm = np.array([-3978242.4, 3382841.2, 3649902.8])
+    sat_xyz = xm + rng.normal(size=(n_sat, 3)) * 2.0e7
+    tabs = []
+    for a in rov:
+        m = n * n_sat
+        d = SimpleNamespace(ptr=np.arange(0, m + 1, n_sat), sat=np.tile(np.arange(n_sat), n),
+                            sat_names=[f"G{j + 1:02d}" for j in range(n_sat)], rover_sat_xyz=np.tile(sat_xyz, (n, 1)))
+        tabs.append({"d": d, "use": np.ones(m, dtype=bool), "r0": rng.normal(scale=0.01, size=m),
+                     "var_rover": rng.uniform(1, 3, m) * 1e-5, "var_master": rng.uniform(1, 3, m) * 1e-5,
+                     "ref": np.arange(n) * n_sat + 1, "xm": xm, "seg": np.tile(np.arange(n_sat), n) + 100 * a})
+    p0 = antenna_positions(cfg, np.zeros((1, cfg.n_q)))[0]
+    return SatelliteDDModal(cfg, np.eye(3), tabs, [np.arange(n) for _ in rov], np.array(rov),
+                            p0[rov] - p0[cfg.master_index])
+
+
+def _stacked(cfg, rng, n):
+    """The satellite DDs (full noise, every 5th epoch) stacked with a biased accelerometer (every epoch)."""
+    dd = _dd_modal(cfg, rng, n)
+    dd.k_of = [np.where(np.arange(n) % 5 == 0, np.arange(n) // 5, -1) for _ in dd.k_of]
+    acc = _accel(cfg, rng, n)
+    place([acc], acc.n_core)
+    return Stacked([("gnss", dd), ("accel", acc)], acc.n_state)
+
+
 REGISTRY: dict[str, ModelKind] = {
     "accel": ModelKind(Accelerometer, "m_s2", _accel),
     "tilt": ModelKind(TiltMeter, "rad", _tilt),
     "gyro": ModelKind(RateGyro, "rad_s", _gyro),
     "gnss_position": ModelKind(GnssPosition, "m", _gnss),
     "pseudolite_sd": ModelKind(PseudoliteSD, "m", _pseudolite),
+    "dd_modal": ModelKind(SatelliteDDModal, "m", _dd_modal),
+    "stacked": ModelKind(Stacked, "m", _stacked),          # (its parts keep their units: DDs m, accelerometer m/s²)
 }
 
 #: the sensors ``estimate --fuse`` takes (config/sensors.py FUSABLE_KINDS)

@@ -91,3 +91,17 @@ def test_hold_out_and_missing_logs(case):
 def test_common_time_axis():
     t = common_time_axis([0.0, 0.1, 0.2], [np.arange(0, 0.25, 0.05) + 1e-6, np.array([-1.0, 5.0])])
     assert np.allclose(t, [0.0, 0.05, 0.1, 0.15, 0.2], atol=2e-6) and t[2] == 0.1     # 0.1 + 1e-6 merged into the GNSS epoch
+
+
+def test_fusion_choice_config_and_options():
+    from cdgps_cli.config.structure import parse_config
+    from cdgps_cli.pipeline.fusion import fusion_choice
+
+    text = open("configs/tower-fusion.toml").read()
+    assert fusion_choice(CFG, None) == ((), ())                                  # opt-in: nothing by default
+    assert fusion_choice(CFG, "accel", ("acc-mid",)) == (("accel",), ("acc-mid",))
+    cfg = parse_config(text + '\n[fusion]\nfuse = ["accel", "gyro"]\nhold_out = ["gyro-top"]\n')
+    assert fusion_choice(cfg, None, ("acc-mid",)) == (("accel", "gyro"), ("gyro-top", "acc-mid"))
+    assert fusion_choice(cfg, "tilt") == (("tilt",), ("gyro-top",))              # --fuse replaces [fusion] fuse
+    with pytest.raises(CdgpsError, match="--hold-out needs --fuse"):
+        fusion_choice(CFG, None, ("acc-mid",))
