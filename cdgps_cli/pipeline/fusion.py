@@ -70,6 +70,10 @@ def sensor_parts(cfg: StructureConfig, specs, logs: dict, t_common, fuse, hold_o
     if unknown:
         raise CdgpsError(f"--hold-out: {', '.join(unknown)} is not a sensor of config {cfg.name!r} "
                          f"(sensors: {', '.join(s.name for s in specs) or 'none'})")
+    lacking = [k for k in fuse if not any(s.kind == k for s in specs)]
+    if lacking:
+        raise CdgpsError(f"--fuse {','.join(fuse)}: config {cfg.name!r} has no {', '.join(lacking)} sensor "
+                         f"([[accelerometers]], [[tilts]], [[gyros]]; docs/config-format.md)")
     n_core = 2 * cfg.n_modes + (0 if S is None else S.shape[1])
     parts = []
     for sp in specs:
@@ -85,6 +89,10 @@ def sensor_parts(cfg: StructureConfig, specs, logs: dict, t_common, fuse, hold_o
         if missing:
             raise CdgpsError(f"sensor {sp.name}: its log has no column(s) {', '.join(missing)}")
         k_of = align_epochs(t_common, rows["time_s"].to_numpy(float), SYNC_TOL_S)
+        if not np.any(k_of >= 0):
+            raise CdgpsError(f"sensor {sp.name}: no sample of its log ({rows['time_s'].min():.3f} – "
+                             f"{rows['time_s'].max():.3f} s) falls within the GNSS epochs ({t_common[0]:.3f} – "
+                             f"{t_common[-1]:.3f} s, GPS s); keep it out with --hold-out {sp.name}")
         parts.append((sp.name, model_from_spec(cfg, sp, rows[probe.fields].to_numpy(float), k_of, n_core, S=S)))
     return parts
 

@@ -83,6 +83,10 @@ def test_hold_out_and_missing_logs(case):
         sensor_parts(CFG, specs, logs, t, ("accel",), hold_out=("nope",))
     with pytest.raises(CdgpsError, match="no log of sensor 'tilt-top'"):
         sensor_parts(CFG, specs, {k: v for k, v in logs.items() if k != "tilt"}, t, ("tilt",))
+    with pytest.raises(CdgpsError, match="has no tilt sensor"):
+        sensor_parts(load_config("configs/gnss-tower.toml"), [], logs, t, ("tilt",))
+    with pytest.raises(CdgpsError, match="sensor acc-top: no sample of its log"):
+        sensor_parts(CFG, specs, logs, t + 1000.0, ("accel",))
     with pytest.raises(CdgpsError, match="--fuse accel,strain: unknown sensor kind"):
         parse_fuse("accel,strain")
     assert parse_fuse("gyro, accel,gyro") == ("gyro", "accel")
