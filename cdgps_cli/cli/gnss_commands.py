@@ -171,10 +171,14 @@ def baseline_config_cmd(ctx, rinex, nav, master, output, as_json):
               help="Signals every receiver tracks, e.g. G:L1,G:L2,E:E1,E:E5a,C:B1I,C:B2a (GPS, Galileo, BeiDou; G:L1 "
                    "required); "
                    "written to the config's [gnss] signals.  Default: GPS L1 without a signals list.")
+@click.option("--gnss-interval", "gnss_interval_s", type=float, default=None, metavar="SECONDS",
+              help="Receivers' epoch interval, a multiple of the config's sample_period_s (e.g. 0.1 for 10 Hz GNSS on a "
+                   "structure simulated at 100 Hz) [the sample period].")
 @_output_option("out_dir", "Output directory.", directory=True, old=("--out",))
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
-def simulate_gnss_structure_cmd(ctx, config, duration_s, seed, x_axis_azimuth_deg, master_xyz, signals, out_dir, as_json):
+def simulate_gnss_structure_cmd(ctx, config, duration_s, seed, x_axis_azimuth_deg, master_xyz, signals, out_dir, as_json,
+                                gnss_interval_s=None):
     """Simulate a structure's free motion seen by one GNSS receiver per antenna → RINEX + truth.
 
     With --signals the receivers track GPS, Galileo and BeiDou (GEO, IGSO, MEO) on every signal given
@@ -183,7 +187,10 @@ def simulate_gnss_structure_cmd(ctx, config, duration_s, seed, x_axis_azimuth_de
     The structure config's modal model moves the antennas (scenario free, at the config's sample
     period); every antenna, the master too, has its own receiver.  The files feed
     'cdgps ingest --config DIR/config.toml', 'cdgps init', then
-    'cdgps estimate … --structure CONFIG' and 'cdgps evaluate --truth DIR'.
+    'cdgps estimate … --structure CONFIG' and 'cdgps evaluate --truth DIR'.  A config with sensors
+    ([[accelerometers]], [[tilts]], [[gyros]]) also gets their CSV logs (accel.csv, tilt.csv, gyro.csv;
+    noise, bias and bias drift as configured), listed in the written config for ingest and
+    'estimate --fuse'.
     """
     from cdgps_cli.config.structure import load_config
     from cdgps_cli.pipeline.gnss_modal import simulate_structure_gnss
@@ -198,7 +205,7 @@ def simulate_gnss_structure_cmd(ctx, config, duration_s, seed, x_axis_azimuth_de
         out_dir, cfg, master_ecef_m=parse_vector(master_xyz, "--master-xyz") if master_xyz else DEFAULT_MASTER_XYZ,
         x_axis_azimuth_deg=x_axis_azimuth_deg, duration_s=duration_s, seed=seed,
         signals=None if signals is None else [g.strip() for g in signals.split(",") if g.strip()],
-        progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
+        progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)), gnss_interval_s=gnss_interval_s)
     _say(ctx, f"wrote {out_dir}/: " + ", ".join(f"{k} {v}" for k, v in s.items() if isinstance(v, (int, float, str)))[:400])
     if as_json:
         _emit_json(s)

@@ -110,10 +110,14 @@ def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_s
 @click.option("--strict", is_flag=True,
               help="GNSS: refuse a UBX log with lost data (frames failing the checksum, undecodable RXM-RAWX, bytes "
                    "skipped between frames, a truncated tail) instead of reporting it with a warning.")
+@click.option("--sensor-log", "sensor_logs", multiple=True, type=click.Path(dir_okay=False),
+              help="GNSS: a sensor CSV log (accelerometers, tilt meters, gyros; units in the column names, "
+                   "docs/file-formats.md) for 'estimate --fuse'; repeatable. Default: the GNSS config's sensors key.")
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="RUN.mcap to write.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
-def ingest(ctx, receiver_csv, gyro_csv, actuator_csv, config, rinex, ubx, nav, master, strict, output, as_json):
+def ingest(ctx, receiver_csv, gyro_csv, actuator_csv, config, rinex, ubx, nav, master, strict, output, as_json,
+           sensor_logs=()):
     """Validate logs and write one self-contained RUN.mcap.
 
     \b
@@ -143,8 +147,10 @@ def ingest(ctx, receiver_csv, gyro_csv, actuator_csv, config, rinex, ubx, nav, m
         if receiver_csv or gyro_csv or actuator_csv:
             raise CdgpsError("CSV logs and GNSS receiver files (--rinex/--ubx/--nav/--master, or a GNSS config) cannot be "
                              "mixed in one ingest")
-        _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict)
+        _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict, sensor_logs)
         return
+    if sensor_logs:
+        raise click.UsageError("--sensor-log applies to GNSS runs (the structure run's gyro log is GYRO_CSV)")
     if strict:
         raise click.UsageError("--strict applies to GNSS receiver files (UBX logs given with --ubx or in a GNSS config)")
     from cdgps_cli.config.structure import load_config
@@ -186,7 +192,7 @@ def _grid_note(c: dict | None) -> str:
     return f" (of {p['rover_epochs']} rover epochs: {'; '.join(parts)})" if parts else ""
 
 
-def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict=False):
+def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict=False, sensor_logs=()):
     from cdgps_cli.config.structure import load_gnss_config, parse_gnss_config
     from cdgps_cli.io.gnss_run import default_config_text
     from cdgps_cli.pipeline.gnss_ingest import ingest_gnss
@@ -205,7 +211,8 @@ def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict=F
             raise CdgpsError(f"master {master!r} is not one of the receivers given: {', '.join(files)}")
         cfg = parse_gnss_config(default_config_text(files, list(nav), master), "<generated config>")
     s = ingest_gnss(cfg, output, rinex=rx or None, ubx=ub or None, nav_paths=list(nav) if nav else None, master=master,
-                    progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)), strict=strict)
+                    progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)), strict=strict,
+                    sensor_paths=list(sensor_logs) if sensor_logs else None)
     for n, g in s["integrity"].items():        # lost data is reported even with --quiet
         if g["problems"]:
             _warn(f"{g['file']} ({n}): corrupt UBX data, skipped: {', '.join(g['problems'])}; "
@@ -220,6 +227,8 @@ def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict=F
                   f"{r['half_cycle_rows']} half-cycle rows")
     for n, c in s["common_epochs"].items():
         _say(ctx, f"  {n}: {c['common_epochs']} epochs in common with {s['master']}" + _grid_note(c))
+    if "sensor_logs" in s:
+        _say(ctx, f"  sensor logs ({', '.join(s['sensor_logs']['kinds'])}): {', '.join(s['sensor_logs']['files'])}")
     for w in s["warnings"]:
         _warn(w)
     if as_json:
@@ -345,6 +354,13 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
               help="GNSS runs: a structure config (docs/config-format.md) whose modal model is estimated from the "
                    "double differences instead of the rover displacements (docs/gnss-pipeline.md).")
 @_placement_options
+@click.option("--fuse", "fuse", default=None, metavar="KINDS",
+              help="GNSS runs with --structure: fuse the run's sensor logs of these kinds with the double differences "
+                   "(comma-separated: gyro,accel,tilt; opt-in; default: the structure config's [fusion] fuse). "
+                   "A fused gyro is no longer an independent check of the spectra.")
+@click.option("--hold-out", "hold_out", multiple=True, metavar="SENSOR",
+              help="With --fuse: keep this sensor out of the fusion, as an independent check (repeatable; adds to "
+                   "[fusion] hold_out).")
 @click.option("--covariance", type=click.Choice(_STATES_COVARIANCE), default=_STATES_DEFAULT_COVARIANCE,
               show_default=True,
               help="What STATES.mcap holds per epoch: modal = the states xi and the modal-position covariance P_xi "
@@ -368,7 +384,8 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
              output, as_json, rest=(), rest_process_noise_scale=ESTIMATE_DEFAULTS["rest_process_noise_scale"],
              rest_retry_s=ESTIMATE_DEFAULTS["rest_retry_s"], structure=None, x_axis_azimuth_deg=X_AXIS_AZIMUTH_DEG,
              receiver_map=(), rest_window_s=3.0, rest_dwell_s=2.0, allow_other_run=False,
-             covariance=_STATES_DEFAULT_COVARIANCE, foxglove_rate_hz=None, scene_exaggeration=SCENE_EXAGGERATION):
+             covariance=_STATES_DEFAULT_COVARIANCE, foxglove_rate_hz=None, scene_exaggeration=SCENE_EXAGGERATION,
+             fuse=None, hold_out=()):
     """Extended Kalman filter (Eq. 16-23) [+ RTS smoother] over a RUN from INIT → STATES.mcap.
 
     On a GNSS run: per-epoch rover displacement states <ant>_e/_n/_u with 1σ from INIT's
@@ -390,8 +407,12 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
                                            "--scene-exaggeration": structure is None and not receiver_map
                                            and str(scene_exaggeration) != str(SCENE_EXAGGERATION)},
                            structure=structure, x_axis_azimuth_deg=x_axis_azimuth_deg, receiver_map=receiver_map,
-                           allow_other_run=allow_other_run, scene_exaggeration=_scene_factor(scene_exaggeration))
+                           allow_other_run=allow_other_run, scene_exaggeration=_scene_factor(scene_exaggeration),
+                           fuse=fuse, hold_out=hold_out)
         return
+    if fuse or hold_out:
+        raise CdgpsError("--fuse/--hold-out apply to GNSS runs with --structure (the sensors are fused with the "
+                         "double differences on the structure's modal state)")
     if foxglove_rate_hz is not None and not (foxglove_rate_hz >= 0 and math.isfinite(foxglove_rate_hz)):
         raise CdgpsError(f"--foxglove-rate-hz must be a finite rate >= 0 (0: every epoch), got {foxglove_rate_hz:g}")
     scene_exaggeration = _scene_factor(scene_exaggeration)
@@ -637,6 +658,10 @@ def spectra(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad, out_di
         s = run_spectra(st, run, _spectra_options(coords, segment_s, overlap, pad), out_dir)
     seen = sum(1 for m in s["modes"] if m["seen"])
     _say(ctx, f"wrote {', '.join(s['files'])} to {out_dir}/: {seen} of {len(s['modes'])} modes identified")
+    if s.get("fusion") and not s["fusion"]["gyros_independent_check"]:
+        _warn(s["fusion"]["note"])
+    elif s.get("fusion"):
+        _say(ctx, f"  {s['fusion']['note']}")
     for m in s["modes"]:
         g = "–" if m["gps_hz"] is None else f"{m['gps_hz']:.4f}"
         e = "" if m["error_pct"] is None else f" ({m['error_pct']:+.2f}%)"
@@ -846,7 +871,7 @@ def _scene_factor(text) -> float | str:
 
 def _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json, structure_only, structure=None,
                    x_axis_azimuth_deg=X_AXIS_AZIMUTH_DEG, receiver_map=(), allow_other_run=False,
-                   scene_exaggeration=SCENE_EXAGGERATION):
+                   scene_exaggeration=SCENE_EXAGGERATION, fuse=None, hold_out=()):
     from cdgps_cli.pipeline.gnss import gnss_estimate
     from cdgps_cli.io.gnss_run import read_gnss_run
 
@@ -859,8 +884,10 @@ def _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json, structure_
     run = read_gnss_run(run_mcap)
     if structure is not None or receiver_map:
         _estimate_gnss_modal(ctx, run, init, init_text, output, as_json, smooth, structure, x_axis_azimuth_deg,
-                             receiver_map, extra, pairing, scene_exaggeration)
+                             receiver_map, extra, pairing, scene_exaggeration, fuse=fuse, hold_out=hold_out)
         return
+    if fuse or hold_out:
+        raise CdgpsError("--fuse/--hold-out need --structure (the sensors are fused on the structure's modal state)")
     _say(ctx, f"estimating {run_mcap} from {init_json} ({run.cfg.displacement} displacement"
               f"{', smoothing' if smooth and run.cfg.displacement == 'random_walk' else ''}) …")
     s = gnss_estimate(run, init, init_text, output, smooth=smooth,
@@ -906,22 +933,38 @@ def _structure_options(structure, x_axis_azimuth_deg, receiver_map):
 
 
 def _estimate_gnss_modal(ctx, run, init, init_text, output, as_json, smooth, structure, x_axis_azimuth_deg,
-                         receiver_map, extra=None, pairing=None, scene_exaggeration=SCENE_EXAGGERATION):
+                         receiver_map, extra=None, pairing=None, scene_exaggeration=SCENE_EXAGGERATION, fuse=None,
+                         hold_out=()):
     """``cdgps estimate RUN --init INIT --structure STRUCT.toml``: the modal model on the DDs (gnss_modal.py)."""
+    from cdgps_cli.pipeline.fusion import fusion_choice
     from cdgps_cli.pipeline.gnss_modal import gnss_modal_estimate
 
     cfg, mapping = _structure_options(structure, x_axis_azimuth_deg, receiver_map)
+    fuse_kinds, held = fusion_choice(cfg, fuse, hold_out)
+    logs = None
+    if fuse_kinds:
+        from cdgps_cli.io.sensor_logs import sensor_logs_from_attachments
+        from cdgps_cli.io.mcap import read_mcap
+
+        logs = sensor_logs_from_attachments(read_mcap(run.path, topics=[]).attachments, run.path)
+        _say(ctx, f"fusing {', '.join(fuse_kinds)} with the double differences"
+                  + (f" (held out: {', '.join(held)})" if held else "") + " …")
     _say(ctx, f"estimating the modal model of {cfg.name} from {run.path} and its INIT"
               f"{' (smoothing)' if smooth else ''} …")
     s = gnss_modal_estimate(run, init, init_text, cfg, output, receivers=mapping, x_axis_azimuth_deg=x_axis_azimuth_deg,
                             smooth=smooth, progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)),
-                            extra_options=extra, scene_exaggeration=scene_exaggeration)
+                            extra_options=extra, scene_exaggeration=scene_exaggeration, fuse=fuse_kinds, hold_out=held,
+                            sensor_logs=logs)
     s["init_run"] = pairing
     _say(ctx, f"wrote {output}: {s['epochs']} epochs, coordinates {', '.join(s['coordinates'])}, mean NIS/dof "
               f"{s['mean_nis_per_dof']:.3f}, {s['events']} events")
     for a, v in s["integers"].items():
         _say(ctx, f"  {a} ({s['receivers'][a]}): {v['fixed']}/{v['estimated']} integers fixed; nominal position "
                   f"{s['nominal_mismatch_m'][a] * 1e3:.1f} mm from the structure's")
+    for name, v in (s.get("fusion") or {}).get("sensors", {}).items():
+        _say(ctx, f"  fused {name}: {v['samples']} samples; residual RMS "
+                  + ", ".join(f"{k} {r:.3g} (σ {v['sigma'][k]:.3g})" for k, r in v["residual_rms"].items() if r is not None)
+                  + ("; final bias " + ", ".join(f"{k} {b:+.3g}" for k, b in v["final_bias"].items()) if v["final_bias"] else ""))
     if as_json:
         _emit_json(s)
 

@@ -110,6 +110,42 @@ STRUCTURE_TABLES: dict[str, dict[str, tuple[bool, dict]]] = {
         "description": _key(_STR, "free text"),
         "section": _key(_STR, "section the gyro is mounted on"),
         "rotation_rad": _key(_PER_COORD_VEC3, "rotation vector of the mount per unit of each coordinate (FE), rad"),
+        "sigma_rad_s": _key(_NUM, "white noise of the gyro as a fused measurement, rad/s (default [simulation] gyro_noise_rad_s)"),
+        "bias_sigma_rad_s": _key(_NUM, "prior sigma of its bias state, rad/s (default [simulation] gyro_bias_sigma_rad_s)"),
+        "bias_drift_rad_s_per_sqrt_s": _key(_NUM, "random walk of its bias, rad/s/sqrt(s) "
+                                                  "(default [simulation] gyro_bias_drift_rad_s_per_sqrt_s)"),
+    },
+    "accelerometers[]": {
+        "name": _key(_STR, "accelerometer name", True),
+        "point": _key(_STR, "antenna or [[points]] name it is attached to", True),
+        "axes": _key({"oneOf": [{"type": "string", "enum": ["x", "y", "z"]},
+                                {"type": "array", "items": {"type": "string", "enum": ["x", "y", "z"]}}]},
+                     "sensitive axis or axes (body frame): \"x\" (uniaxial) or [\"x\", \"y\", \"z\"] (triaxial)", True),
+        "sigma_m_s2": _key(_NUM, "white noise per axis, m/s^2", True),
+        "bias_sigma_m_s2": _key(_NUM, "prior sigma of each axis's bias state, m/s^2 (0: no bias state)"),
+        "bias_drift_m_s2_per_sqrt_s": _key(_NUM, "random walk of each bias, m/s^2/sqrt(s)"),
+        "sample_period_s": _key(_NUM, "sample period of the log, s (default [model] sample_period_s)"),
+        "rotation_rad": _key(_PER_COORD_VEC3, "rotation of the mount per unit coordinate (FE slopes), rad: "
+                                              "the gravity a tilted axis feels"),
+        "description": _key(_STR, "free text"),
+    },
+    "tilts[]": {
+        "name": _key(_STR, "tilt meter (inclinometer) name", True),
+        "axis": _key({"oneOf": [{"type": "string", "enum": ["x", "y", "z"]}, _VEC3]},
+                     "rotation axis sensed: x, y, z of the body frame, or a 3-vector", True),
+        "sigma_rad": _key(_NUM, "white noise, rad", True),
+        "section": _key(_STR, "section it is mounted on"),
+        "rotation_rad": _key(_PER_COORD_VEC3, "rotation vector of the mount per unit of each coordinate (FE slopes), rad"),
+        "bias_sigma_rad": _key(_NUM, "prior sigma of its bias state, rad (0: no bias state)"),
+        "bias_drift_rad_per_sqrt_s": _key(_NUM, "random walk of its bias, rad/sqrt(s)"),
+        "sample_period_s": _key(_NUM, "sample period of the log, s (default [model] sample_period_s)"),
+        "description": _key(_STR, "free text"),
+    },
+    "fusion": {
+        "fuse": _key({"type": "array", "items": {"type": "string", "enum": ["gyro", "accel", "tilt"]}},
+                     "sensor kinds fused with GNSS by 'estimate --structure' (opt-in; --fuse overrides)"),
+        "hold_out": _key({"type": "array", "items": _STR},
+                         "sensor names kept out of the fusion, as independent checks (--hold-out adds)"),
     },
     "points[]": {
         "name": _key(_STR, "point name (not an antenna name)", True),
@@ -129,7 +165,8 @@ STRUCTURE_TABLES: dict[str, dict[str, tuple[bool, dict]]] = {
 
 #: the top level: which tables are required (arrays of tables are marked "[]" in STRUCTURE_TABLES)
 TOP_REQUIRED = ("model", "coordinates", "antennas", "transmitters", "modes", "process_noise")
-TOP_OPTIONAL = ("body", "sections", "gyros", "thrusters", "simulation", "channel_sigma", "points")
+TOP_OPTIONAL = ("body", "sections", "gyros", "thrusters", "simulation", "channel_sigma", "points",
+                "accelerometers", "tilts", "fusion")
 
 
 def simulation_table(defaults: dict) -> dict[str, tuple[bool, dict]]:
@@ -243,6 +280,8 @@ GNSS_TABLES: dict[str, dict[str, tuple[bool, dict]]] = {
         "signals": _key({"type": "array", "items": _STR}, "signals to use, e.g. [\"G:L1\", \"E:E1\"]"),
         "iono_threshold_km": _key({"type": "number", "minimum": 0},
                                   "baselines longer than this estimate the ionosphere, km"),
+        "sensors": _key(_FILES, "sensor CSV logs (accelerometer, tilt, gyro; units in the column names), "
+                                "relative to this file; globs allowed"),
         "antennas": _key({"type": "object"}, "one table per antenna: [gnss.antennas.NAME]", True),
         "displacement": _key({"type": "object"}, "the rovers' motion model"),
     },

@@ -640,20 +640,22 @@ def nominal_positions(cfg: GnssConfig, inp: IngestInputs) -> dict:
 
 
 def write_gnss_run(cfg: GnssConfig, out_path: str | Path, inp: IngestInputs, pos_src: dict, common: dict,
-                   lock: dict) -> dict:
+                   lock: dict, extra_attachments: dict | None = None, extra_inputs: dict | None = None) -> dict:
     """Write the GNSS RUN.mcap (atomically) of checked inputs; returns the ingest summary.
 
     ``pos_src``: from :func:`nominal_positions`; ``common``: rover → its common-epoch counts with
     the master (:func:`cdgps_cli.model.gps.epoch_align.common_epochs` plus the epoch counts);
     ``lock``: receiver → its lock counters per satellite
-    (:func:`cdgps_cli.pipeline.gnss_ingest.lock_summary`, the one lock-segment rule).
+    (:func:`cdgps_cli.pipeline.gnss_ingest.lock_summary`, the one lock-segment rule);
+    ``extra_attachments`` {name: bytes} (e.g. the sensor logs, :mod:`cdgps_cli.io.sensor_logs`) and
+    ``extra_inputs`` {metadata key: path} of the files they came from (hashed like the others).
     """
     files, master, nav_list, receivers, nav = inp.files, inp.master, inp.nav_list, inp.receivers, inp.nav
     integrity, warnings, nav_source = inp.integrity, inp.warnings, inp.nav_source
     out_path = Path(out_path)
     pieces = inp.pieces or {n: [p] for n, (_, p) in files.items()}
     inputs = {**{k: p for n, (kind, _) in files.items() for k, p in input_keys(f"{kind}:{n}", pieces[n])},
-              **{f"nav[{i}]": p for i, p in enumerate(nav_list)}}
+              **{f"nav[{i}]": p for i, p in enumerate(nav_list)}, **(extra_inputs or {})}
     meta = ingest_metadata("gnss", cfg, inputs, master=master, receivers=",".join(receivers),
                            displacement_model=cfg.displacement, **({"signals": ",".join(cfg.signals)} if cfg.signals else {}))
     for n, (kind, p) in files.items():
@@ -683,6 +685,8 @@ def write_gnss_run(cfg: GnssConfig, out_path: str | Path, inp: IngestInputs, pos
                 out.attach(SIGNALS_ATTACHMENT.format(i), _signals_npz_zst(rx.signals), "application/x-npz+zstd")
         out.attach(RECEIVERS_ATTACHMENT, json.dumps(_json_safe(rx_json), indent=1).encode(), "application/json")
         out.attach(CONFIG_ATTACHMENT, cfg.text.encode("utf-8"), "application/toml")
+        for name, data in (extra_attachments or {}).items():
+            out.attach(name, data, "text/csv" if name.endswith(".csv") else "application/octet-stream")
         out.metadata(INGEST_METADATA, meta)
     summary = {
         "output": str(out_path), "kind": "gnss", "config": cfg.name, "config_sha256": cfg.sha256, "master": master,

@@ -25,6 +25,7 @@ from cdgps_cli.io import gnss_run
 from cdgps_cli.core.gps_time import nominal_interval_s
 from cdgps_cli.core.records import OBS_COLUMNS
 from cdgps_cli.io.gnss_run import LOCK_TIME_CAP_MS, GnssReceiver, IngestInputs, span_text
+from cdgps_cli.io.sensor_logs import sensor_attachments
 from cdgps_cli.measurement.channels import FIRST, lock_segments, ubx_restarts
 from cdgps_cli.measurement.epoch_pairing import pair_epochs
 from cdgps_cli.model.gps.positioning import ephemeris_coverage, spp_static
@@ -34,7 +35,8 @@ __all__ = ["ingest_gnss", "run_info", "processing_obs", "signal_obs", "ubx_loss_
 
 
 def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = None, ubx: dict | None = None,
-                nav_paths=None, master: str | None = None, progress=None, strict: bool = False) -> dict:
+                nav_paths=None, master: str | None = None, progress=None, strict: bool = False,
+                sensor_paths=None) -> dict:
     """Read receiver files and navigation data, check them, and write a GNSS RUN.mcap.
 
     Parameters
@@ -54,6 +56,9 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
     strict : bool, default False
         Refuse a UBX log with corrupt or skipped data (checksum failures, undecodable RXM-RAWX,
         bytes skipped between frames, a truncated tail) instead of counting and reporting it.
+    sensor_paths : list of path, optional
+        Sensor CSV logs (accelerometers, tilt meters, gyros; :mod:`cdgps_cli.io.sensor_logs`) attached
+        to the run for ``estimate --fuse``.  None: the config's ``[gnss] sensors``.
 
     Returns
     -------
@@ -77,7 +82,30 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
     common = _common_epochs(cfg, inp)
     say(f"writing {out_path} …")
     lock = {n: lock_summary(rx, anchor_obs(rx, cfg.signals)) for n, rx in inp.receivers.items()}
-    return gnss_run.write_gnss_run(cfg, out_path, inp, pos_src, common, lock)
+    sensors = config_sensor_paths(cfg) if sensor_paths is None else [str(p) for p in sensor_paths]
+    att = sensor_attachments(sensors) if sensors else None
+    s = gnss_run.write_gnss_run(cfg, out_path, inp, pos_src, common, lock, extra_attachments=att,
+                                extra_inputs={f"sensors[{i}]": p for i, p in enumerate(sensors)})
+    if sensors:
+        s["sensor_logs"] = {"files": sensors, "kinds": sorted(k.split("/")[1][:-4] for k in att)}
+    return s
+
+
+def config_sensor_paths(cfg: GnssConfig) -> list:
+    """The ``[gnss] sensors`` logs of a GNSS run config, resolved against its directory (globs expanded)."""
+    import tomllib  # noqa: PLC0415
+
+    from cdgps_cli.io.log_sequence import expand_paths  # noqa: PLC0415
+
+    try:
+        items = tomllib.loads(cfg.text.lstrip("\ufeff")).get("gnss", {}).get("sensors", [])
+    except tomllib.TOMLDecodeError:
+        return []
+    items = [items] if isinstance(items, str) else items
+    if not isinstance(items, list) or not all(isinstance(i, str) for i in items):
+        raise CdgpsError(f"{cfg.path}: gnss.sensors: expected a file name or a list of them, got {items!r}")
+    base = Path(cfg.path).parent if cfg.path and not str(cfg.path).startswith("<") else Path(".")
+    return expand_paths([str(base / i) for i in items], "gnss.sensors")
 
 
 def processing_obs(rx: GnssReceiver, interval_s: float | None = None) -> pd.DataFrame:

@@ -537,7 +537,8 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
                         outlier_sigma: float | None = None,
                         init_window_max_factor: float = INIT_WINDOW_MAX_FACTOR,
                         init_code_dd: bool = MODAL_INIT_CODE_DD,
-                        scene_exaggeration: float | str = SCENE_EXAGGERATION) -> dict:
+                        scene_exaggeration: float | str = SCENE_EXAGGERATION, fuse=(), hold_out=(),
+                        sensor_logs: dict | None = None) -> dict:
     """Modal states of a structure from a GNSS RUN and its INIT (integers) → STATES.mcap.
 
     Parameters
@@ -575,6 +576,12 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
         ``outlier``); default :class:`cdgps_cli.estimation.filter.EstimateOptions`'s.
     scene_exaggeration : float or "auto"
         The 3-D scene's factor on the deformation (:func:`cdgps_cli.pipeline.estimate_outputs.scene_for`).
+    fuse, hold_out, sensor_logs : optional
+        Sensor kinds fused with the DDs (``gyro``, ``accel``, ``tilt``; issue 30), sensor names kept
+        out, and the run's sensor logs {kind: table} (:func:`cdgps_cli.pipeline.fusion.fuse_with_dd`):
+        the filter then steps on the union of the GNSS epochs and the sensor samples, the state carries
+        the held modal disturbance (with accelerometers) and the sensor biases, and the outputs'
+        options and summary carry ``fusion`` (per sensor: samples, residual RMS, final bias).
 
     Returns
     -------
@@ -623,14 +630,24 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
     say(f"modal EKF over {n} epochs, {len(rover_ants)} rover antenna(s), {nm} modes …")
     gate = EstimateOptions().outlier_sigma if outlier_sigma is None else float(outlier_sigma)
     outliers: list = []
-    if kernel.available():
+    fusion = None
+    if fuse:
+        from cdgps_cli.pipeline.fusion import fuse_with_dd  # noqa: PLC0415
+
+        fusion = fuse_with_dd(cfg, model, t_all, sensor_logs or {}, tuple(fuse), tuple(hold_out), x0, P0, smooth=smooth,
+                              max_iterations=max_iterations, outlier_sigma=gate, say=say)
+        model, t_all, n, outliers = fusion.dd, fusion.t, fusion.t.size, fusion.outliers_dd
+        xf, Pf, meas, xs, Ps = fusion.x_filt, fusion.P_filt, fusion.dd_rows, fusion.x, fusion.P
+        nis, nis_dof = fusion.nis, fusion.nis_dof
+    elif kernel.available():
         fr = filter_dd_kernel(model, dyn, t_all, x0, P0, max_iterations, outlier_sigma=gate, events=outliers)
     else:
         fr = filter_numpy(model, dyn, t_all, x0, P0, max_iterations,
                           rows_hook=outlier_gate(model, gate, outliers, t_all))
-    xf, Pf, meas = fr["x"], fr["P"], fr["rows"]
-    xs, Ps = rts_smooth_transitions(xf, Pf, fr["A"], fr["Q"]) if smooth else (xf, Pf)
-    nis, nis_dof = fr["nis"], fr["nis_dof"]
+    if fusion is None:
+        xf, Pf, meas = fr["x"], fr["P"], fr["rows"]
+        xs, Ps = rts_smooth_transitions(xf, Pf, fr["A"], fr["Q"]) if smooth else (xf, Pf)
+        nis, nis_dof = fr["nis"], fr["nis_dof"]
 
     # DD residuals of the reported estimate, per (antenna, satellite) channel
     slot_ants = su.slot_ants
@@ -654,6 +671,8 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
     for e in outliers:
         events.append({"time_s": float(e["time_s"]), "antenna": slot_ants[e["label"][0]], "transmitter": e["label"][1],
                        "kind": "outlier", "action": f"DD not used at this epoch ({e['sigmas']:.1f} σ)"})
+    if fusion is not None:
+        events += fusion.events
     events.sort(key=lambda e: (e["time_s"], e["antenna"], e["transmitter"], e["kind"]))
     biases, integers = _final_biases(su, tabs, init)
     res = SimpleNamespace(cfg=cfg, x=xs, P=Ps, smoothed=bool(smooth), x_filt=xf, P_filt=Pf, time_s=t_all,
@@ -663,7 +682,8 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
                "initial_sigma_xi": initial_sigma_xi, "initial_sigma_xidot": initial_sigma_xidot,
                **({"batch_init_window_s": float(init_window_s)} if batch_init else {"batch_init": False}),
                "dd_covariance": "D Σ Dᵀ jointly over the rovers (common master)", "outlier_sigma": gate,
-               **_signal_options(tabs), **(extra_options or {})}
+               **_signal_options(tabs), **({"fusion": fusion.summary} if fusion is not None else {}),
+               **(extra_options or {})}
     say(f"writing {out_path} …")
     out = write_states(res, run.path, init, init_text, out_path, options, scene_exaggeration=scene_exaggeration)
     out.update({
@@ -673,6 +693,7 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
         "integers": integers,
         "coordinates": list(cfg.coord_names),
         **({"modal_init": init_record} if init_record is not None else {}),
+        **({"fusion": fusion.summary} if fusion is not None else {}),
     })
     return out
 
@@ -684,7 +705,8 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
 def simulate_structure_gnss(out_dir, cfg: StructureConfig, *, master_ecef_m=SIM_MASTER_ECEF_M,
                             x_axis_azimuth_deg: float = X_AXIS_AZIMUTH_DEG, receivers: dict | None = None, duration_s: float = 1200.0,
                             seed: int = 0, start_gps_s: float | None = None, random_walk_sigma: float = 0.01,
-                            mask_deg: float = 10.0, code_sigma_m: float = 0.5, progress=None, signals=None) -> dict:
+                            mask_deg: float = 10.0, code_sigma_m: float = 0.5, progress=None, signals=None,
+                            gnss_interval_s: float | None = None) -> dict:
     """Simulate the structure's free motion and one GNSS receiver per antenna → RINEX + truth.
 
     ``signals`` (names of :mod:`cdgps_cli.core.signals`, ``G:L1`` among them; default None: the GPS L1
@@ -703,6 +725,14 @@ def simulate_structure_gnss(out_dir, cfg: StructureConfig, *, master_ecef_m=SIM_
     synthetic constellation), ``truth.csv`` (``time_s`` in GPS s and the structure's coordinates),
     ``truth.json`` and ``config.toml`` (a GNSS run config, random-walk displacement with
     ``random_walk_sigma`` for the init).  Returns a summary.
+
+    ``gnss_interval_s`` (a multiple of the config's sample period; default: that period): the receivers'
+    epoch interval, the structure simulated at its sample period (e.g. 100 Hz motion, 10 Hz GNSS).
+    A config with sensors (``[[accelerometers]]``, ``[[tilts]]``, ``[[gyros]]``) also gets their logs
+    (:func:`cdgps_cli.sim.sensors.simulate_sensor_logs`: noise, bias and bias drift as configured, each
+    at its own sample period, time in GPS s) as ``accel.csv``, ``tilt.csv``, ``gyro.csv``, listed in the
+    written config's ``sensors`` (so ``cdgps ingest --config`` attaches them) and their true biases in
+    truth.json.
     """
     from cdgps_cli.config.structure import gnss_config_toml  # noqa: PLC0415
     from cdgps_cli.io.atomic import output_set, write_atomic, write_bytes_atomic  # noqa: PLC0415
@@ -722,13 +752,19 @@ def simulate_structure_gnss(out_dir, cfg: StructureConfig, *, master_ecef_m=SIM_
     if xm.shape != (3,) or not np.all(np.isfinite(xm)) or not 6.0e6 < np.linalg.norm(xm) < 7.0e6:
         problems.append(f"master_ecef_m must be 3 finite ECEF coordinates near the Earth's surface, got {master_ecef_m!r}")
     signals = _check_sim_signals(signals, problems)
+    T = cfg.sample_period_s
+    step = 1 if gnss_interval_s is None else int(round(float(gnss_interval_s) / T))
+    if gnss_interval_s is not None and (not np.isfinite(gnss_interval_s) or step < 1
+                                        or abs(step * T - float(gnss_interval_s)) > 1e-9 * max(T, 1.0)):
+        problems.append(f"gnss_interval_s must be a positive multiple of the config's sample_period_s {T:g} s, "
+                        f"got {gnss_interval_s!r}")
     if problems:
         raise CdgpsError("simulate-gnss-structure: " + "; ".join(problems))
     out = Path(out_dir)
     mapping = {a: (receivers or {}).get(a, a) for a in cfg.antenna_names}
-    T = cfg.sample_period_s
     sim = simulate(cfg, SimOptions(duration_s=duration_s, seed=seed, scenario="free"))
-    n = sim.time_s.size
+    n_truth = sim.time_s.size
+    n, T_truth, T = len(range(0, n_truth, step)), T, T * step         # receiver epochs and interval
     if start_gps_s is None:
         start_gps_s = gps_seconds(2024, 1, 1)
     t_gps = start_gps_s + sim.time_s
@@ -752,7 +788,7 @@ def simulate_structure_gnss(out_dir, cfg: StructureConfig, *, master_ecef_m=SIM_
         for i, a in enumerate(cfg.antenna_names):
             xa = nominal[a]
             lat, lon, _ = ecef_to_geodetic(xa)
-            off_ecef = (p[:, i, :] - p0[i]) @ R.T                # displacement from the nominal position, ECEF
+            off_ecef = (p[::step, i, :] - p0[i]) @ R.T           # displacement from the nominal position, ECEF
             off_enu = off_ecef @ enu_matrix(lat, lon).T
             rx = mapping[a]
             hdr = {"marker_name": rx, "observer": "cdgps gnss_modal simulation", "agency": "simulated",
@@ -773,12 +809,15 @@ def simulate_structure_gnss(out_dir, cfg: StructureConfig, *, master_ecef_m=SIM_
             amb = s["ambiguities"]
             integers[rx] = {r_["sat"]: int(r_["n_cycles"]) for _, r_ in amb[amb["receiver"] == "rover"].iterrows()}
         write_rinex_nav(dest.path("nav.rnx"), nav, comments=[f"synthetic ephemerides (seed {seed})"], created=stamp)
+        sensor_files, sensor_truth = _simulate_sensors(cfg, sim, seed, start_gps_s, dest, say)
         truth = pd.DataFrame({"time_s": t_gps, **{c: sim.q[:, j] for j, c in enumerate(cfg.coord_names)}})
         write_atomic(dest.path("truth.csv"), lambda pth: truth.to_csv(pth, index=False, lineterminator="\n", float_format="%.9f"))
         master_rx = mapping[cfg.antenna_names[cfg.master_index]]
         tj = {"kind": "cdgps gnss structure simulation", "cdgps_version": __version__, "config": cfg.name,
               "config_sha256": cfg.sha256, "seed": seed, "start_gps_s": start_gps_s, "start": gps_time_str(start_gps_s),
               "duration_s": float(sim.time_s[-1]), "interval_s": T, "epochs": int(n), "master": master_rx,
+              **({"structure_interval_s": T_truth, "structure_epochs": int(n_truth)} if step > 1 else {}),
+              **({"sensors": sensor_truth} if sensor_truth else {}),
               "receivers": mapping, "master_ecef_m": list(map(float, master_ecef_m)),
               "x_axis_azimuth_deg": float(x_axis_azimuth_deg),
               "nominal_ecef_m": {mapping[a]: list(map(float, v)) for a, v in nominal.items()},
@@ -789,12 +828,34 @@ def simulate_structure_gnss(out_dir, cfg: StructureConfig, *, master_ecef_m=SIM_
         text = gnss_config_toml({mapping[a]: ("rinex", files[mapping[a]]) for a in cfg.antenna_names}, ["nav.rnx"], master_rx,
                                 name=f"simulated-{cfg.name}", description=f"structure {cfg.name} simulated by cdgps_cli.pipeline.gnss_modal",
                                 displacement="random_walk", sigma_m_per_sqrt_s=random_walk_sigma,
-                                options={"signals": list(signals)} if signals else None)
+                                options={**({"signals": list(signals)} if signals else {}),
+                                         **({"sensors": sensor_files} if sensor_files else {})} or None)
         write_bytes_atomic(dest.path("config.toml"), text.encode())
     return {"output": str(out), "epochs": int(n), "files": files, "master": master_rx, "receivers": mapping,
             "placement": {"master_ecef_m": list(map(float, master_ecef_m)), "x_axis_azimuth_deg": float(x_axis_azimuth_deg)},
             "q_range": {c: [float(sim.q[:, j].min()), float(sim.q[:, j].max())] for j, c in enumerate(cfg.coord_names)},
-            "integers": integers, **({"signals": list(signals)} if signals else {})}
+            "integers": integers, **({"signals": list(signals)} if signals else {}),
+            **({"sensor_logs": sensor_files} if sensor_files else {})}
+
+
+def _simulate_sensors(cfg: StructureConfig, sim, seed: int, start_gps_s: float, dest, say) -> tuple[list, dict]:
+    """The config's sensor logs (accel.csv, tilt.csv, gyro.csv in ``dest``) from the simulated truth:
+    (file names, true biases per sensor); nothing for a config without sensors."""
+    from cdgps_cli.config.sensors import sensor_specs  # noqa: PLC0415
+    from cdgps_cli.io.sensor_logs import write_sensor_csv  # noqa: PLC0415
+    from cdgps_cli.sim.sensors import disturbance_truth, simulate_sensor_logs  # noqa: PLC0415
+
+    specs = sensor_specs(cfg)
+    if not specs:
+        return [], {}
+    say(f"simulating {len(specs)} sensor log(s) …")
+    logs = simulate_sensor_logs(cfg, specs, sim.time_s, disturbance_truth(cfg, sim.x), seed=seed, time_offset_s=start_gps_s)
+    files = []
+    for kind in ("accel", "tilt", "gyro"):
+        if kind in logs:
+            write_sensor_csv(dest.path(f"{kind}.csv"), logs[kind])
+            files.append(f"{kind}.csv")
+    return files, logs["_truth"]
 
 
 def _check_sim_signals(signals, problems: list):

@@ -158,8 +158,10 @@ def _write_spectra(states, res: dict, gnames: list, dest: OutputSet) -> dict:
     for i in range(res["fdd_sv"].shape[1]):
         df[f"fdd_singular_value_{i + 1}_1_hz"] = res["fdd_sv"][:, i]      # of the standardized CSD
     _atomic_bytes(dest.path("psd.csv"), float_csv(df, "%.7g").encode())
+    fusion = fusion_note(states)
     peaks = _json_clean({"modes": res["modes"], "settings": res["settings"], "states": str(states.path),
-                         "config": cfg.name, "config_sha256": cfg.sha256, "gyros": gnames})
+                         "config": cfg.name, "config_sha256": cfg.sha256, "gyros": gnames,
+                         **({"fusion": fusion} if fusion else {})})
     _atomic_bytes(dest.path("peaks.json"), (json.dumps(peaks, indent=2) + "\n").encode())
     plt = _mpl()
     pngs = {}
@@ -167,7 +169,27 @@ def _write_spectra(states, res: dict, gnames: list, dest: OutputSet) -> dict:
         pngs[name] = _save_fig(fig, dest.path(name))
         plt.close(fig)
     return {"out_dir": str(dest.out), "files": ["psd.csv", "peaks.json", *pngs], "modes": peaks["modes"],
-            "settings": peaks["settings"], "pngs": pngs, "gyros": gnames}
+            "settings": peaks["settings"], "pngs": pngs, "gyros": gnames, **({"fusion": fusion} if fusion else {})}
+
+
+def fusion_note(states) -> dict | None:
+    """What the states fused (``estimate --fuse``, issue 30) and whether the gyros are still an
+    independent check of the spectra: {fused, hold_out, gyros_independent_check, note}, or None."""
+    try:
+        opts = json.loads(states.metadata.get("options", "{}"))
+    except (ValueError, TypeError, AttributeError):
+        return None
+    f = opts.get("fusion") if isinstance(opts, dict) else None
+    if not isinstance(f, dict) or not f.get("fused"):
+        return None
+    independent = bool(f.get("gyro_independent_check", True))
+    held = list(f.get("hold_out", []))
+    if not independent:
+        note = ("the gyros are fused into these states: they are no longer an independent check of the spectra "
+                "(keep one out with 'estimate --hold-out NAME')")
+    else:
+        note = f"fused: {', '.join(f['fused'])}" + (f"; held out as independent checks: {', '.join(held)}" if held else "")
+    return {"fused": list(f["fused"]), "hold_out": held, "gyros_independent_check": independent, "note": note}
 
 
 def _mark_modes(ax, res, cfg, label=True):

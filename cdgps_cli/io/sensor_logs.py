@@ -1,0 +1,143 @@
+"""Sensor CSV logs (accelerometers, tilt meters, rate gyros) and their place in a GNSS RUN.mcap.
+
+Format (docs/file-formats.md, written by ``cdgps simulate-gnss-structure``): one CSV per sensor kind,
+long format, units in the column names —
+
+* ``time_s`` — GPS seconds (the receivers' time scale);
+* ``sensor`` — the sensor's name in the structure config (``[[accelerometers]]``, ``[[tilts]]``,
+  ``[[gyros]]``; a column ``gyro`` is read as ``sensor``, as the structure simulator's gyro.csv);
+* the readings, ``<kind>_<axis>_<unit>``: ``accel_x_m_s2`` … (m/s²), ``tilt_y_rad`` (rad),
+  ``gyro_z_rad_s`` (rad/s); empty for an axis a sensor lacks.  The reader takes any kind whose
+  columns follow this pattern (a new sensor needs no change here; the fusion matches the kind to the
+  structure config's sensors).
+
+:func:`read_sensor_csv` checks a file (its kind from the column names; every other column refused;
+finite increasing times per sensor; numbers or empty cells) and :func:`sensor_attachments` /
+:func:`sensor_logs_from_attachments` carry the tables into and out of the RUN as attachments
+``sensors/<kind>.csv`` (canonical CSV text, so the same inputs give the same bytes).
+"""
+
+from __future__ import annotations
+
+import io
+import re
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from cdgps_cli.core.errors import CdgpsError
+
+__all__ = ["SENSOR_KINDS", "UNITS", "SENSOR_ATTACHMENT", "read_sensor_csv", "sensor_attachments", "sensor_logs_from_attachments",
+           "write_sensor_csv"]
+
+#: units a reading's column may end with (m/s², rad/s, rad, m, m/s, 1 for a ratio such as strain)
+UNITS = ("m_s2", "rad_s", "rad", "m", "m_s", "1")
+#: a reading's column: <kind>_<axis>_<unit> (any kind: the reader needs no change for a new sensor)
+_COLUMN = re.compile(r"^([a-z]+)_([a-z0-9]+)_(" + "|".join(UNITS) + r")$")
+#: the kinds of the shipped sensors (documentation; the reader takes any kind)
+SENSOR_KINDS = ("accel", "tilt", "gyro")
+SENSOR_ATTACHMENT = "sensors/{}.csv"
+_PREFIX = "sensors/"
+
+
+def _kind_of(cols: list, where: str) -> str:
+    found = [_COLUMN.match(c) for c in cols]
+    kinds = {m.group(1) for m in found if m}
+    bad = [c for c, m in zip(cols, found) if not m]
+    if bad or len(kinds) != 1:
+        raise CdgpsError(f"{where}: expected columns time_s, sensor and the readings of one sensor kind, "
+                         f"<kind>_<axis>_<unit> with unit {', '.join(UNITS)} (e.g. accel_x_m_s2, tilt_y_rad, "
+                         f"gyro_z_rad_s), got {', '.join(cols) or 'none'}")
+    return kinds.pop()
+
+
+def _check_table(df: pd.DataFrame, where: str) -> tuple[str, pd.DataFrame]:
+    if "gyro" in df.columns and "sensor" not in df.columns:
+        df = df.rename(columns={"gyro": "sensor"})
+    if list(df.columns[:2]) != ["time_s", "sensor"]:
+        raise CdgpsError(f"{where}: the first columns must be time_s, sensor; got {', '.join(map(str, df.columns[:2]))}")
+    kind = _kind_of([str(c) for c in df.columns[2:]], where)
+    out = pd.DataFrame({"time_s": pd.to_numeric(df["time_s"], errors="coerce"), "sensor": df["sensor"].astype(str)})
+    for c in df.columns[2:]:
+        v = pd.to_numeric(df[c], errors="coerce")
+        bad = np.flatnonzero(v.isna().to_numpy() & df[c].notna().to_numpy())
+        if bad.size or not np.all(np.isfinite(v.dropna().to_numpy())):
+            line = int(bad[0]) + 2 if bad.size else "?"
+            raise CdgpsError(f"{where}: line {line}: column {c}: expected a finite number or an empty cell, "
+                             f"got {df[c].iloc[bad[0]]!r}" if bad.size else f"{where}: column {c}: non-finite value")
+        out[c] = v.astype(float)
+    t = out["time_s"].to_numpy()
+    if not np.all(np.isfinite(t)):
+        line = int(np.flatnonzero(~np.isfinite(t))[0]) + 2
+        raise CdgpsError(f"{where}: line {line}: time_s must be a finite number of GPS seconds")
+    for name, g in out.groupby("sensor", sort=False):
+        d = np.diff(g["time_s"].to_numpy())
+        if np.any(d <= 0):
+            line = int(g.index[np.flatnonzero(d <= 0)[0] + 1]) + 2
+            raise CdgpsError(f"{where}: line {line}: sensor {name}: time_s must increase (sample after sample)")
+    if out.empty:
+        raise CdgpsError(f"{where}: no samples")
+    return kind, out
+
+
+def read_sensor_csv(path: str | Path) -> tuple[str, pd.DataFrame]:
+    """(kind, table) of a sensor CSV log; CdgpsError naming the file, line and column."""
+    p = Path(path)
+    try:
+        df = pd.read_csv(p, dtype=str, keep_default_na=False, na_values=[""])
+    except FileNotFoundError:
+        raise CdgpsError(f"{p}: sensor log not found") from None
+    except (OSError, ValueError, pd.errors.ParserError) as exc:
+        raise CdgpsError(f"{p}: cannot read the sensor log as CSV: {exc}") from None
+    return _check_table(df, str(p))
+
+
+def _csv_text(df: pd.DataFrame) -> str:
+    """Canonical CSV text: times to the nanosecond (%.9f, as truth.csv), readings to 12 significant digits."""
+    out = df.copy()
+    out["time_s"] = [f"{v:.9f}" for v in out["time_s"].to_numpy(float)]
+    return out.to_csv(index=False, lineterminator="\n", float_format="%.12g")
+
+
+def write_sensor_csv(path, df: pd.DataFrame) -> None:
+    """Write a sensor log (atomically), the canonical text of :func:`read_sensor_csv`'s format."""
+    from cdgps_cli.io.atomic import write_bytes_atomic  # noqa: PLC0415
+
+    write_bytes_atomic(Path(path), _csv_text(df).encode())
+
+
+def sensor_attachments(paths) -> dict:
+    """{attachment name: CSV bytes} of the sensor logs ``paths`` (one table per kind: two files of one
+    kind are joined; a sensor in two files, or a kind twice at one time, refused)."""
+    by_kind: dict = {}
+    for p in paths:
+        kind, df = read_sensor_csv(p)
+        by_kind.setdefault(kind, []).append((str(p), df))
+    out = {}
+    for kind, items in by_kind.items():
+        seen: dict = {}
+        for p, df in items:
+            for s in df["sensor"].unique():
+                if s in seen:
+                    raise CdgpsError(f"{p}: sensor {s} is also in {seen[s]} (one file per sensor's log)")
+                seen[s] = p
+        df = pd.concat([d for _, d in items], ignore_index=True)
+        df = df.sort_values(["time_s", "sensor"], kind="stable").reset_index(drop=True)
+        out[SENSOR_ATTACHMENT.format(kind)] = _csv_text(df).encode()
+    return out
+
+
+def sensor_logs_from_attachments(attachments: dict, where: str = "RUN.mcap") -> dict:
+    """{kind: table} of a RUN's ``sensors/<kind>.csv`` attachments (empty: the run has none)."""
+    out = {}
+    for name, data in attachments.items():
+        if not name.startswith(_PREFIX):
+            continue
+        try:
+            df = pd.read_csv(io.BytesIO(data), dtype=str, keep_default_na=False, na_values=[""])
+        except (ValueError, pd.errors.ParserError) as exc:
+            raise CdgpsError(f"{where}: damaged attachment {name}: {exc}") from None
+        kind, tab = _check_table(df, f"{where}:{name}")
+        out[kind] = tab
+    return out

@@ -1,0 +1,226 @@
+"""GNSS fused with accelerometers, tilt meters and gyros on the structure's modal state (issue 30).
+
+The mapping from (structure config, sensor logs, GNSS measurement models) to the engine's pieces:
+
+* :func:`common_time_axis` — the filter's epochs: the union of the GNSS epochs and the sensors'
+  samples within the GNSS span (the dynamics step at the fastest rate; an epoch carries the rows of
+  the models sampled there, :class:`cdgps_cli.measurement.stacked.Stacked`);
+* :func:`sensor_parts` — the measurement model of each fused sensor (kinds ``fuse``, names in
+  ``hold_out`` left out as independent checks) from its log;
+* :func:`fusion_problem` — the stacked model, the dynamics [ξ, ξ̇, d, biases]
+  (:func:`cdgps_cli.model.fusion_dynamics.fusion_dynamics`) and the prior of the added states
+  (d: its per-step covariance; biases: their prior σ);
+* :func:`run_fused` — forward filter (:func:`cdgps_cli.estimation.model_filter.filter_numpy`) and
+  RTS smoother (:func:`cdgps_cli.estimation.smoother.rts_smooth_transitions`) over it.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from cdgps_cli.config.sensors import FUSABLE_KINDS
+from cdgps_cli.config.structure import StructureConfig
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.estimation.model_filter import filter_numpy
+from cdgps_cli.estimation.smoother import rts_smooth_transitions
+from cdgps_cli.measurement.registry import model_from_spec
+from cdgps_cli.measurement.sensor import align_epochs, place
+from cdgps_cli.measurement.stacked import Stacked
+from cdgps_cli.model.fusion_dynamics import ModalDisturbance, fusion_dynamics
+
+__all__ = ["common_time_axis", "sensor_parts", "fusion_problem", "run_fused", "parse_fuse", "SYNC_TOL_S"]
+
+#: a sensor sample this close to a GNSS epoch is at that epoch, s
+SYNC_TOL_S = 1e-4
+
+
+def parse_fuse(text: str | None, option: str = "--fuse") -> tuple:
+    """``"gyro,accel"`` → ("gyro", "accel"); CdgpsError naming ``option`` for an unknown kind."""
+    if not text:
+        return ()
+    kinds = tuple(dict.fromkeys(k.strip() for k in text.split(",") if k.strip()))
+    bad = [k for k in kinds if k not in FUSABLE_KINDS]
+    if bad:
+        raise CdgpsError(f"{option} {text}: unknown sensor kind(s) {', '.join(bad)} (expected a comma-separated list of "
+                         f"{', '.join(FUSABLE_KINDS)})")
+    return kinds
+
+
+def common_time_axis(t_gnss, sensor_times, tol_s: float = SYNC_TOL_S) -> np.ndarray:
+    """The union of the GNSS epochs and the sensor samples within their span (samples within
+    ``tol_s`` of an epoch merged into it), sorted, s."""
+    t = np.asarray(t_gnss, dtype=float)
+    extra = [np.asarray(s, float) for s in sensor_times if len(s)]
+    if not extra:
+        return t.copy()
+    s = np.unique(np.concatenate(extra))
+    s = s[(s >= t[0] - tol_s) & (s <= t[-1] + tol_s)]
+    allt = np.unique(np.concatenate([t, s]))
+    keep = np.r_[True, np.diff(allt) > tol_s]
+    return allt[keep]
+
+
+def sensor_parts(cfg: StructureConfig, specs, logs: dict, t_common, fuse, hold_out=(), S=None) -> list:
+    """[(name, model)] of the fused sensors: kinds in ``fuse``, names not in ``hold_out``; ``logs``
+    {kind: DataFrame with time_s, sensor and the kind's columns}; S the accelerometers' disturbance
+    selection (None: state [ξ, ξ̇])."""
+    unknown = [h for h in hold_out if h not in {s.name for s in specs}]
+    if unknown:
+        raise CdgpsError(f"--hold-out: {', '.join(unknown)} is not a sensor of config {cfg.name!r} "
+                         f"(sensors: {', '.join(s.name for s in specs) or 'none'})")
+    lacking = [k for k in fuse if not any(s.kind == k for s in specs)]
+    if lacking:
+        raise CdgpsError(f"--fuse {','.join(fuse)}: config {cfg.name!r} has no {', '.join(lacking)} sensor "
+                         f"([[accelerometers]], [[tilts]], [[gyros]]; docs/config-format.md)")
+    n_core = 2 * cfg.n_modes + (0 if S is None else S.shape[1])
+    parts = []
+    for sp in specs:
+        if sp.kind not in fuse or sp.name in hold_out:
+            continue
+        df = logs.get(sp.kind)
+        rows = None if df is None else df[df["sensor"] == sp.name]
+        if rows is None or rows.empty:
+            raise CdgpsError(f"--fuse {sp.kind}: no log of sensor {sp.name!r} in the run (ingest its CSV with the "
+                             f"GNSS config's sensors key), or keep it out with --hold-out {sp.name}")
+        probe = model_from_spec(cfg, sp, np.zeros((1, len(sp.axes))), [0], n_core, S=S)
+        missing = [f for f in probe.fields if f not in rows.columns]
+        if missing:
+            raise CdgpsError(f"sensor {sp.name}: its log has no column(s) {', '.join(missing)}")
+        k_of = align_epochs(t_common, rows["time_s"].to_numpy(float), SYNC_TOL_S)
+        if not np.any(k_of >= 0):
+            raise CdgpsError(f"sensor {sp.name}: no sample of its log ({rows['time_s'].min():.3f} – "
+                             f"{rows['time_s'].max():.3f} s) falls within the GNSS epochs ({t_common[0]:.3f} – "
+                             f"{t_common[-1]:.3f} s, GPS s); keep it out with --hold-out {sp.name}")
+        parts.append((sp.name, model_from_spec(cfg, sp, rows[probe.fields].to_numpy(float), k_of, n_core, S=S)))
+    return parts
+
+
+def fusion_problem(cfg: StructureConfig, gnss_parts: list, sensor_parts_: list, P0_modal, disturbance: bool = True):
+    """(model, dyn, P0, state names of the added states) of GNSS parts on [ξ, ξ̇] and sensor parts
+    (placed after the core states, in order)."""
+    core = ModalDisturbance(cfg) if disturbance else None
+    n_core = 2 * cfg.n_modes + (core.r if core else 0)
+    models = [m for _, m in sensor_parts_]
+    n = place(models, n_core)
+    dyn, names, prior = fusion_dynamics(cfg, models, disturbance=disturbance)
+    if dyn.n != n:
+        raise AssertionError("fusion state layout")
+    P0 = np.zeros((n, n))
+    k = 2 * cfg.n_modes
+    P0[:k, :k] = P0_modal
+    if core is not None:
+        P0[k:n_core, k:n_core] = core.W_d
+    P0[n_core:, n_core:] = np.diag(prior**2)
+    d_names = [f"d_{cfg.mode_names[i]}" for i in np.flatnonzero(core.S.any(axis=1))] if core else []
+    return Stacked(list(gnss_parts) + list(sensor_parts_), n), dyn, P0, d_names + names
+
+
+def run_fused(model, dyn, time_s, x0, P0, smooth: bool = True, max_iterations: int = 5, rows_hook=None):
+    """Forward filter and (``smooth``) RTS smoother over the stacked model: SimpleNamespace with ``x``,
+    ``P`` (reported: smoothed or filtered), ``x_filt``, ``P_filt``, ``nis``, ``nis_dof``, ``rows``."""
+    fr = filter_numpy(model, dyn, np.asarray(time_s, float), x0, P0, max_iterations, rows_hook=rows_hook)
+    xs, Ps = rts_smooth_transitions(fr["x"], fr["P"], fr["A"], fr["Q"]) if smooth else (fr["x"], fr["P"])
+    return SimpleNamespace(x=xs, P=Ps, x_filt=fr["x"], P_filt=fr["P"], nis=fr["nis"], nis_dof=fr["nis_dof"], rows=fr["rows"])
+
+
+
+
+def fusion_choice(cfg: StructureConfig, fuse_option: str | None, hold_out_option=()) -> tuple[tuple, tuple]:
+    """(kinds fused, sensors held out): ``--fuse`` (or the config's ``[fusion] fuse``: opt-in, empty by
+    default) and ``--hold-out`` added to ``[fusion] hold_out``."""
+    from cdgps_cli.config.sensors import fusion_settings  # noqa: PLC0415
+
+    st = fusion_settings(cfg)
+    kinds = parse_fuse(fuse_option) if fuse_option is not None else st["fuse"]
+    held = tuple(dict.fromkeys(tuple(st["hold_out"]) + tuple(hold_out_option)))
+    if held and not kinds:
+        raise CdgpsError("--hold-out needs --fuse (or [fusion] fuse in the structure config)")
+    return kinds, held
+
+
+def _dd_rows(rows, part: int = 0):
+    """The rows of stacked part ``part`` (the GNSS DDs) of one epoch's stacked rows, or None."""
+    if rows is None:
+        return None
+    p, local, subs = rows.context
+    sel = np.flatnonzero(p == part)
+    if sel.size == 0:
+        return None
+    sub, mine = subs[sel[0]], local[sel]
+    return sub if mine.size == sub.z_m.size and np.all(mine == np.arange(sub.z_m.size)) else sub.subset(mine)
+
+
+def fuse_with_dd(cfg: StructureConfig, dd, t_gnss, logs: dict, fuse, hold_out, x0, P0, *, smooth: bool,
+                 max_iterations: int, outlier_sigma: float, say=None):
+    """The GNSS modal estimate with the sensors fused (``cdgps estimate --structure --fuse``).
+
+    ``dd`` is the run's :class:`~cdgps_cli.measurement.model.SatelliteDDModal` on the GNSS epochs
+    ``t_gnss``; it is re-indexed onto the common time axis of the GNSS epochs and the fused sensors'
+    samples, stacked with the sensors, filtered (outlier gate on every row) and smoothed.
+
+    Returns
+    -------
+    SimpleNamespace
+        ``t`` (N,), ``dd`` (the re-indexed DD model), ``x``, ``P``, ``x_filt``, ``P_filt`` (modal states
+        [ξ, ξ̇] only), ``nis``, ``nis_dof``, ``dd_rows`` (the DD rows used per epoch), ``outliers_dd``
+        (events labelled (slot, satellite)), ``events`` (sensor outliers), ``summary`` (JSON-ready).
+    """
+    from cdgps_cli.config.sensors import sensor_specs  # noqa: PLC0415
+    from cdgps_cli.estimation.model_filter import outlier_gate  # noqa: PLC0415
+    from cdgps_cli.measurement.model import SatelliteDDModal  # noqa: PLC0415
+
+    all_specs = sensor_specs(cfg)
+    specs = [s for s in all_specs if s.kind in fuse and s.name not in hold_out]
+    used = {s.name for s in specs}
+    times = [g.loc[g["sensor"].isin(used), "time_s"].to_numpy(float) for k, g in logs.items() if k in fuse]
+    t = common_time_axis(t_gnss, times)
+    kk = align_epochs(t, t_gnss, SYNC_TOL_S)
+    k_of = [np.where(kk >= 0, ko[np.maximum(kk, 0)], -1) for ko in dd.k_of]
+    dd2 = SatelliteDDModal(cfg, dd.R, dd.tabs, k_of, dd.ant_idx, dd.d_hdr)
+    accel = any(s.kind == "accel" for s in specs)
+    S = ModalDisturbance(cfg).S if accel else None
+    parts = sensor_parts(cfg, all_specs, logs, t, fuse, hold_out, S=S)
+    model, dyn, P0f, names = fusion_problem(cfg, [("gnss", dd2)], parts, P0, disturbance=accel)
+    x0f = np.zeros(dyn.n)
+    x0f[:x0.size] = x0
+    events: list = []
+    if say:
+        say(f"fused EKF over {t.size} epochs ({t_gnss.size} GNSS), {len(parts)} sensor(s), {dyn.n} states …")
+    r = run_fused(model, dyn, t, x0f, P0f, smooth, max_iterations, rows_hook=outlier_gate(model, outlier_sigma, events, t))
+    nm2 = 2 * cfg.n_modes
+    dd_rows = [_dd_rows(rk) for rk in r.rows]
+    out_dd = [dict(e, label=tuple(e["label"][1:])) for e in events if e["label"][0] == "gnss"]
+    out_s = [{"time_s": e["time_s"], "antenna": e["label"][0], "transmitter": e["label"][2], "kind": "outlier",
+              "action": f"sensor reading not used at this epoch ({e['sigmas']:.1f} σ)"} for e in events if e["label"][0] != "gnss"]
+    summary = {"fused": list(fuse), "hold_out": list(hold_out), "epochs": int(t.size), "gnss_epochs": int(t_gnss.size),
+               "added_states": names, "sensors": _sensor_summary(parts, r.x, r.rows),
+               "disturbance_states": bool(accel),
+               "gyro_independent_check": "gyro" not in fuse or any(s.kind == "gyro" and s.name in hold_out
+                                                                 for s in all_specs)}
+    return SimpleNamespace(t=t, dd=dd2, x=r.x[:, :nm2], P=r.P[:, :nm2, :nm2], x_filt=r.x_filt[:, :nm2],
+                           P_filt=r.P_filt[:, :nm2, :nm2], nis=r.nis, nis_dof=r.nis_dof, dd_rows=dd_rows,
+                           outliers_dd=out_dd, events=out_s, summary=summary)
+
+
+def _sensor_summary(parts, x, rows) -> dict:
+    """Per fused sensor: samples, RMS residual of the reported estimate per field, final bias per field."""
+    out = {}
+    for p, (name, m) in enumerate(parts, start=1):
+        res = {f: [] for f in m.fields}
+        n = 0
+        for k, rk in enumerate(rows):
+            sub = _dd_rows(rk, p)
+            if sub is None:
+                continue
+            n += 1
+            h, _ = m.predict(x[k], sub)
+            for (_, f), z, hh in zip(sub.labels, sub.z_m, h):
+                res[f].append(z - hh)
+        out[name] = {"kind": m.kind, "samples": n,
+                     "residual_rms": {f: float(np.sqrt(np.mean(np.square(v)))) if v else None for f, v in res.items()},
+                     "sigma": {f: float(s) for f, s in zip(m.fields, m.sigma)},
+                     "final_bias": ({f: float(x[-1, m.bias_offset + j]) for j, f in enumerate(m.fields)}
+                                    if m.extra_states else {})}
+    return out

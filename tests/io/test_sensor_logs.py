@@ -1,0 +1,48 @@
+"""Sensor CSV logs (io/sensor_logs.py): kinds from the column names, refusals that name file, line and
+column, canonical attachments."""
+
+import pandas as pd
+import pytest
+
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.io.sensor_logs import read_sensor_csv, sensor_attachments, sensor_logs_from_attachments
+
+
+def _write(path, text):
+    path.write_text(text)
+    return path
+
+
+def test_kinds_and_round_trip(tmp_path):
+    a = _write(tmp_path / "a.csv", "time_s,sensor,accel_x_m_s2,accel_z_m_s2\n10.0,s1,0.5,\n10.01,s1,0.25,1e-3\n")
+    g = _write(tmp_path / "g.csv", "time_s,gyro,gyro_y_rad_s\n10.0,g1,0.001\n")          # the structure simulator's column
+    s = _write(tmp_path / "s.csv", "time_s,sensor,strain_x_1\n10.0,st,1e-6\n")           # any kind with a known unit
+    assert read_sensor_csv(a)[0] == "accel" and read_sensor_csv(g)[0] == "gyro" and read_sensor_csv(s)[0] == "strain"
+    att = sensor_attachments([a, g])
+    assert sorted(att) == ["sensors/accel.csv", "sensors/gyro.csv"]
+    assert att == sensor_attachments([a, g])                                             # deterministic bytes
+    logs = sensor_logs_from_attachments(att)
+    assert list(logs["accel"].columns) == ["time_s", "sensor", "accel_x_m_s2", "accel_z_m_s2"]
+    assert pd.isna(logs["accel"]["accel_z_m_s2"][0]) and logs["accel"]["time_s"][1] == 10.01
+
+
+@pytest.mark.parametrize("text,message", [
+    ("time_s,sensor,accel_x_m_s2\n1,a,x\n", "line 2: column accel_x_m_s2"),
+    ("time_s,sensor,accel_x_m_s2,tilt_y_rad\n1,a,1,2\n", "one sensor kind"),
+    ("time_s,sensor,accel_x_mps2\n1,a,1\n", "accel_x_mps2"),
+    ("sensor,time_s,accel_x_m_s2\na,1,1\n", "first columns must be time_s, sensor"),
+    ("time_s,sensor,accel_x_m_s2\n1,a,1\n1,a,2\n", "line 3: sensor a: time_s must increase"),
+    ("time_s,sensor,accel_x_m_s2\nnan,a,1\n", "line 2: time_s"),
+])
+def test_refusals_name_the_place(tmp_path, text, message):
+    p = _write(tmp_path / "bad.csv", text)
+    with pytest.raises(CdgpsError, match="bad.csv") as e:
+        read_sensor_csv(p)
+    assert message in str(e.value)
+
+
+def test_one_sensor_in_two_files_is_refused(tmp_path):
+    a = _write(tmp_path / "a.csv", "time_s,sensor,accel_x_m_s2\n1,s1,0.5\n")
+    b = _write(tmp_path / "b.csv", "time_s,sensor,accel_x_m_s2\n2,s1,0.5\n")
+    with pytest.raises(CdgpsError, match="sensor s1 is also in"):
+        sensor_attachments([a, b])
