@@ -38,6 +38,7 @@ RUN_REPORT_FILES = ("index.html", "report.json")
 _PAGE_CSS = _CSS + """
 nav.toc{background:#f7f7f7;border:1px solid #ddd;padding:0.6em 1.2em;margin:1em 0}nav.toc ol{margin:0.3em 0}
 figcaption .src{color:#555;font-size:0.95em}h2{border-bottom:1px solid #ddd;padding-bottom:0.2em;margin-top:1.8em}
+table.kv td,table.kv th{text-align:left}
 @media print{nav.toc{display:none}figure{break-inside:avoid}body{max-width:none}}"""
 
 
@@ -213,7 +214,7 @@ def _summary_section(page: _Page, data: dict, states, scan, spectra, static) -> 
         lo, hi = ns["pooled_interval95_if_independent"]
         ok = lo <= ns["pooled_per_dof"] <= hi
         rows.append(["NIS per dof (pooled) vs its 95 % bound", f"{ns['pooled_per_dof']:.3f} in [{lo:.3f}, {hi:.3f}]: "
-                     + ("consistent" if ok else "OUTSIDE")])
+                     + ("consistent" if ok else f"outside (the bound pools {ns['epochs']} epochs as if independent)")])
         rows.append(["epochs with NIS inside its 95 % χ² interval", f"{100 * ns['fraction_in_interval95']:.1f} % "
                      f"(expected 95 %) of {ns['epochs']}"])
     if scan.nees_stats:
@@ -246,7 +247,7 @@ def _summary_section(page: _Page, data: dict, states, scan, spectra, static) -> 
         d = static[0]
         rows.append([f"static survey {d['angle']}", f"mean {d['mean_deg']:.4f}°, noise {d['noise_rms_deg']:.4f}° RMS"
                      + ("" if d["error_deg"] is None else f", error {d['error_deg']:+.4f}° vs survey")])
-    page.section("summary", "Summary", _html_table(rows, ["quantity", "value"]))
+    page.section("summary", "Summary", _html_table(rows, ["quantity", "value"]).replace("<table>", "<table class='kv'>", 1))
     page.text(_coordinate_table(states, scan, summary))
     data["summary"] = summary
 

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cdgps_cli.analysis.spectra import column_sums
 from cdgps_cli.config.options import STATES_CHUNK_EPOCHS
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.estimation.chi2 import chi2_quantile
@@ -40,11 +41,13 @@ class Sums:
         return cls(np.zeros(m, dtype=np.int64), np.zeros(m), np.zeros(m))
 
     def add(self, x: np.ndarray) -> None:
+        """Add the rows of x (k, m) in order (:func:`column_sums`: any chunking, the same bits)."""
+        x = np.asarray(x, dtype=float).reshape(len(x), -1)
         ok = np.isfinite(x)
         v = np.where(ok, x, 0.0)
         self.n += ok.sum(axis=0)
-        self.s += v.sum(axis=0)
-        self.ss += (v * v).sum(axis=0)
+        self.s = column_sums(v, self.s)
+        self.ss = column_sums(v * v, self.ss)
 
     def mean(self) -> np.ndarray:
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -134,14 +137,14 @@ def scan_states(states, truth: dict | None = None, n_bins: int = DEFAULT_BINS,
         sc.angles, sc.angle_sums, sc.angle_sigma_sums = EnvelopeBins(N, len(names), n_bins), \
             Sums.zeros(len(names)), Sums.zeros(len(names))
     sc.nis, sc.nis_bounds = EnvelopeBins(N, 1, n_bins), EnvelopeBins(N, 2, n_bins)
-    nis = {"epochs": 0, "inside": 0, "sum_nis": 0.0, "sum_dof": 0.0, "sum_ratio": 0.0}
+    nis = {"epochs": 0, "inside": 0, "sums": Sums.zeros(3)}          # NIS, dof, NIS/dof
     nc = len(states.channels)
     if nc:
         sc.resid, sc.resid_sums = EnvelopeBins(N, nc, max(n_bins // RESIDUAL_BIN_FACTOR, 1)), Sums.zeros(nc)
     if truth is not None:
         pinv = np.linalg.pinv(np.asarray(states.output_map, dtype=float))
         sc.nees, sc.error_sums = EnvelopeBins(N, 1, n_bins), Sums.zeros(nq)
-        nees = {"epochs": 0, "inside": 0, "sum": 0.0, "dof": states.n_pos}
+        nees = {"epochs": 0, "inside": 0, "sums": Sums.zeros(1), "dof": states.n_pos}
         order = np.argsort(truth["us"], kind="stable")
         t_us = truth["us"][order]
     first_t = prev_t = None
@@ -201,17 +204,15 @@ def _nis_block(sc: Scan, acc: dict, a: int, t, nis, dof) -> None:
     sc.nis_bounds.add(a, t, np.column_stack([lo, hi]))
     acc["epochs"] += int(ok.sum())
     acc["inside"] += int(np.sum(ok & (r >= lo) & (r <= hi)))
-    acc["sum_nis"] += float(np.sum(nis[ok]))
-    acc["sum_dof"] += float(np.sum(dof[ok]))
-    acc["sum_ratio"] += float(np.sum(r[ok]))
+    acc["sums"].add(np.column_stack([nis[ok], dof[ok], r[ok]]))
 
 
 def _nis_summary(acc: dict) -> dict:
     n = acc["epochs"]
     if n == 0:
         return {"epochs": 0}
-    dof = acc["sum_dof"]
-    return {"epochs": n, "mean_per_dof": acc["sum_ratio"] / n, "pooled_per_dof": acc["sum_nis"] / dof,
+    sum_nis, dof, sum_ratio = acc["sums"].s.tolist()
+    return {"epochs": n, "mean_per_dof": sum_ratio / n, "pooled_per_dof": sum_nis / dof,
             "fraction_in_interval95": acc["inside"] / n,
             "pooled_interval95_if_independent": [float(chi2_quantile(CHI2_LOWER, dof) / dof),
                                                  float(chi2_quantile(CHI2_UPPER, dof) / dof)]}
@@ -233,11 +234,11 @@ def _nees_block(sc: Scan, acc: dict, a: int, t, q, xi, P_xi, t_us, q_truth, pinv
     lo, hi = chi2_quantile(CHI2_LOWER, m), chi2_quantile(CHI2_UPPER, m)
     acc["epochs"] += int(ok.sum())
     acc["inside"] += int(np.sum((nees[ok] >= lo) & (nees[ok] <= hi)))
-    acc["sum"] += float(np.sum(nees[ok]))
+    acc["sums"].add(nees[ok][:, None])
 
 
 def _nees_summary(acc: dict) -> dict:
     m, n = acc["dof"], acc["epochs"]
-    return {"epochs": n, "dof": m, "mean": acc["sum"] / n if n else None,
+    return {"epochs": n, "dof": m, "mean": float(acc["sums"].s[0]) / n if n else None,
             "interval95_single": [float(chi2_quantile(CHI2_LOWER, m)), float(chi2_quantile(CHI2_UPPER, m))],
             "fraction_in_interval95": acc["inside"] / n if n else None}
