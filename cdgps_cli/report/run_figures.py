@@ -20,13 +20,17 @@ LINE = {"color": "tab:blue", "lw": 0.8}
 
 
 def _time_axis(t: np.ndarray) -> tuple[np.ndarray, str]:
-    """Times in s, min or h (whichever keeps the tick labels short) and the axis label."""
-    span = float(np.nanmax(t) - np.nanmin(t)) if t.size else 0.0
+    """Times from the record's first epoch in s, min or h (whichever keeps the tick labels short),
+    and the axis label (a record on the GPS time scale would otherwise read 1.4×10⁹ s)."""
+    t0 = float(np.nanmin(t)) if t.size else 0.0
+    rel = t - t0
+    what = "time" if t0 == 0 else "time from the first epoch"
+    span = float(np.nanmax(rel)) if t.size else 0.0
     if span > 3 * 3600:
-        return t / 3600.0, "time [h]"
+        return rel / 3600.0, f"{what} [h]"
     if span > 3 * 60:
-        return t / 60.0, "time [min]"
-    return t, "time [s]"
+        return rel / 60.0, f"{what} [min]"
+    return rel, f"{what} [s]"
 
 
 def _head(fig, height_in: float, title: str, handles, labels) -> float:

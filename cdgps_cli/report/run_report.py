@@ -143,12 +143,19 @@ def run_report(states, out_dir: str | Path, run=None, truth_dir: str | Path | No
         _static_section(page, data, static, survey_deg, angle, run)
     data["captions"] = dict(page.captions)
     title = f"Run report: {Path(states.path).name} ({states.config_name})"
-    sub = (f"{scan.n_epochs} epochs, {scan.start_s:g}–{scan.end_s:g} s, sampled every {scan.period_s:g} s; "
+    sub = (f"{scan.n_epochs} epochs, {_span_text(scan)}, sampled every {scan.period_s:g} s; "
            f"{states.kind} states; report date {prov['date']}.")
     with output_set(out_dir, replaces=RUN_REPORT_FILES) as dest:
         write_bytes_atomic(dest.path("index.html"), page.html(title, sub).encode())
         write_bytes_atomic(dest.path("report.json"), (json.dumps(_json_clean(data), indent=2) + "\n").encode())
     return data
+
+
+def _span_text(scan) -> str:
+    """The record's span: run seconds, or on the GPS time scale (≥ 10⁶ s) its start and duration."""
+    if scan.start_s >= 1e6:
+        return f"{scan.end_s - scan.start_s:g} s from GPS time {scan.start_s:.1f} s"
+    return f"{scan.start_s:g}–{scan.end_s:g} s"
 
 
 def _spectra(states, run, opt, chunk_epochs):
@@ -205,7 +212,7 @@ def _provenance_section(page: _Page, prov: dict, states, run) -> None:
 
 
 def _summary_section(page: _Page, data: dict, states, scan, spectra, static) -> None:
-    rows = [["epochs", f"{scan.n_epochs} ({scan.start_s:g}–{scan.end_s:g} s, every {scan.period_s:g} s)"],
+    rows = [["epochs", f"{scan.n_epochs} ({_span_text(scan)}, every {scan.period_s:g} s)"],
             ["config", f"{states.config_name} (sha256 {str(states.config_sha256)[:16]}…)"]]
     ns = scan.nis_stats
     summary = {"epochs": scan.n_epochs, "start_s": scan.start_s, "end_s": scan.end_s, "period_s": scan.period_s,
@@ -225,7 +232,7 @@ def _summary_section(page: _Page, data: dict, states, scan, spectra, static) -> 
                      f"{ne['epochs']} epochs inside"])
     init = states.init or {}
     if "n_fixed" in init:
-        total = len(init.get("biases", [])) or init.get("n_estimated")
+        total = init.get("n_estimated") or len(init.get("biases", []))
         rows.append(["integers fixed (INIT)", f"{init['n_fixed']}" + (f" of {total}" if total else "")
                      + (f", ratio {init['ratio']:.3g}" if isinstance(init.get("ratio"), (int, float)) else "")])
         summary["integers_fixed"] = init["n_fixed"]
@@ -293,16 +300,32 @@ def _time_sections(page: _Page, states, scan) -> None:
                     f"(σ from a P_ξ aᵀ of the angle's coefficients a). Expressions: "
                     + ", ".join(f"{n} = {e}" for n, e in zip(scan.angle_names, scan.angle_expr)) + ".", src)
     units, scale = zip(*(_display_unit(u) for u in states.coord_units))
-    what = "generalized coordinates" if states.cfg is not None else "displacements from the nominal position"
-    fig = figs.time_history(scan.q, list(states.coord_names), list(units), f"Every {what[:-1]} with its ±1σ band",
-                            states.has_covariance, np.array(scale),
-                            scan.sigma_sums.mean() * np.array(scale) if scan.sigma_sums.n.any() else None)
+    structure = states.cfg is not None
+    title = ("Every generalized coordinate with its ±1σ band" if structure else
+             "Displacement of each rover from its nominal position (east, north, up) with its ±1σ band")
+    fig = figs.time_history(scan.q, list(states.coord_names), list(units), title, states.has_covariance,
+                            np.array(scale), scan.sigma_sums.mean() * np.array(scale) if scan.sigma_sums.n.any()
+                            else None, cols=2 if structure else 3)
+    what = "generalized coordinate" if structure else "displacement (east, north, up per rover)"
     page.figure("coordinates", fig, f"Every {what} ({kind}), each in its unit (rad shown in deg, m in mm), with "
-                f"the ±1σ band from the estimate's covariance.", src)
+                f"the ±1σ band from the estimate's covariance.{_fix_text(states)}", src)
     if scan.extra:
         fig = figs.extra_figure(scan.extra, {})
         page.figure("extra", fig, "The series' further arrays (e.g. satellites used and PDOP of GNSS solutions), "
                     "minimum–maximum per bin.", src)
+
+
+def _fix_text(states) -> str:
+    """The integer ambiguities each rover's estimate used (INIT.json attached to the STATES): fixed or
+    float, how many, the ratio test."""
+    rovers = (states.init or {}).get("rovers") or {}
+    parts = []
+    for name, r in sorted(rovers.items()):
+        if isinstance(r, dict) and "solution" in r:
+            ratio = r.get("ratio")
+            parts.append(f"{name}: {str(r['solution']).upper()} ({r.get('n_fixed', '?')} of {r.get('n_estimated', '?')} "
+                         f"ambiguities fixed" + (f", ratio {ratio:.3g}" if isinstance(ratio, (int, float)) else "") + ")")
+    return (" Integers (from the INIT the estimate started from): " + "; ".join(parts) + ".") if parts else ""
 
 
 def _consistency_section(page: _Page, states, scan) -> None:
