@@ -66,7 +66,7 @@ def test_pulse_report(pulse_runs, tmp_path):
     md = (tmp_path / "rep" / "report.md").read_text()
     assert "## Controller" in md and "(met)" in md
     names = sorted(p.name for p in (tmp_path / "rep").iterdir())
-    assert names == ["poles.png", "pulse.png", "report.html", "report.json", "report.md"]
+    assert names == ["coordinates.png", "poles.png", "pulse.png", "report.html", "report.json", "report.md"]
     html = (tmp_path / "rep" / "report.html").read_text()
     assert "Provenance" in html and "sha256" in html and "Figure 1" in html
     r2 = _run("report", "control", d / "g.json", "--open", d / "open", "--closed", d / "closed", "-o", tmp_path / "rep2",
