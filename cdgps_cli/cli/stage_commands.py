@@ -702,6 +702,26 @@ def report_run(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad, tru
         _emit_json(d["summary"])
 
 
+@report.command("rtk", short_help="One HTML page for an RTK solution (.pos): ENU by fix/float, satellites, ratio")
+@click.argument("pos_file", type=click.Path(dir_okay=False))
+@click.option("--date", "date", default=None, metavar="ISO_DATE",
+              help="Date printed in the report (default: $SOURCE_DATE_EPOCH, else the input's modification time).")
+@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False), help="Output directory.")
+@click.option("--json", "as_json", is_flag=True, help="Print report.json's summary on stdout.")
+@click.pass_context
+def report_rtk(ctx, pos_file, date, out_dir, as_json):
+    """One self-contained HTML page (index.html) for an RTK solution file in RTKLIB's .pos layout
+    (`cdgps rtk`, or RTKLIB's rnx2rtkp): east/north/up coloured fix/float/single with its ±1σ,
+    satellites and ratio, the solver's header as provenance."""
+    from cdgps_cli.report.rtk_report import rtk_report
+
+    with progress.stage("rtk report"):
+        d = rtk_report(pos_file, out_dir, date=date)
+    _say(ctx, f"report: {Path(out_dir) / 'index.html'}")
+    if as_json:
+        _emit_json(d["summary"])
+
+
 @main.command(short_help="Topics, dates, sampling, gaps, slips of an MCAP")
 @click.argument("mcap_file", type=click.Path(dir_okay=False))
 @click.option("--json", "as_json", is_flag=True, help="Print the full summary as JSON on stdout.")

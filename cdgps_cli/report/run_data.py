@@ -135,10 +135,14 @@ class StatesBlocks:
 
     def chunks(self, epochs: int):
         """``(time_s (k,), q (k, n_q))`` blocks, as :meth:`cdgps_cli.io.states.StatesChunks.chunks`."""
-        for b in self.blocks(epochs, covariance=False):
-            yield b["time_s"], b["q"]
+        if self._whole is not None:
+            for b in self._whole_blocks(epochs):
+                yield b["time_s"], b["q"]
+            return
+        for t, xi in zip(self._rows["time_s"].chunks(epochs), self._rows["xi"].chunks(epochs)):
+            yield t.astype(float, copy=False), rows_q(self.output_map, xi.reshape(len(t), self.n_pos))
 
-    def blocks(self, epochs: int, covariance: bool = True):
+    def blocks(self, epochs: int):
         """Consecutive blocks of at most ``epochs`` epochs, first to last: dicts with ``start``
         (index of the first epoch), ``time_s`` (k,), ``q`` (k, n_q), ``xi`` (k, n_pos), ``P_xi``
         (k, n_pos, n_pos) or None, ``sigma_q`` (k, n_q) or None, ``nis``, ``nis_dof`` (k,) or None,
@@ -157,7 +161,7 @@ class StatesBlocks:
                    "nis": d.get("nis"), "nis_dof": None if "nis_dof" not in d else d["nis_dof"].astype(float),
                    "residual_m": None if "residual_m" not in d else d["residual_m"].reshape(k, -1).astype(float),
                    "extra": {n[len("extra:"):]: v for n, v in d.items() if n.startswith("extra:")}}
-            if covariance and "cov" in d:
+            if "cov" in d:
                 if self._cov_kind == "sigma_q":
                     out["sigma_q"] = d["cov"].reshape(k, -1)
                 else:
