@@ -101,6 +101,11 @@ def chi2_history(env: EnvelopeBins, bounds: EnvelopeBins | None, ylabel: str, ti
         ax.axhline(const_bounds[1], color="tab:red", ls="--", lw=0.9)
         handles.append(b_h)
     ax.set_yscale("log")
+    from matplotlib.ticker import FuncFormatter  # noqa: PLC0415
+
+    ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))     # 0.5, 1, 2 rather than 5×10⁻¹
+    ax.yaxis.set_minor_formatter(FuncFormatter(lambda v, _: f"{v:g}" if f"{v:g}"[0] in "235" else ""))
+    ax.tick_params(axis="y", which="minor", labelsize=7)
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.set_title(title, fontsize=10, pad=22)
