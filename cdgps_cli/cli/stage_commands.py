@@ -675,13 +675,15 @@ def report_spectrum(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad
               help="`cdgps simulate` folder of a simulated run: NEES and errors against its truth.csv.")
 @click.option("--angle", default=None, help='Add the static-survey section for this angle, e.g. "q6+q10".')
 @click.option("--survey-deg", type=float, default=None, help="Surveyed value of --angle, degrees.")
+@click.option("--no-spectra", is_flag=True, default=False,
+              help="Leave out the spectra, modes, MAC and mode shapes (on a long record the slowest part).")
 @click.option("--date", "date", default=None, metavar="ISO_DATE",
               help="Date printed in the report (default: $SOURCE_DATE_EPOCH, else the newest input's modification time).")
 @click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False), help="Output directory.")
 @click.option("--json", "as_json", is_flag=True, help="Print report.json's summary on stdout.")
 @click.pass_context
-def report_run(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad, truth_dir, angle, survey_deg, date,
-               out_dir, as_json):
+def report_run(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad, truth_dir, angle, survey_deg, no_spectra,
+               date, out_dir, as_json):
     """One self-contained HTML page (index.html) for one estimated run: provenance, summary, time
     histories with ±1σ, NIS/NEES against χ² bounds, residuals per channel, PSDs and modes, the MAC
     matrix and mode shapes, and with --angle the static-survey statistics."""
@@ -696,13 +698,13 @@ def report_run(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad, tru
     run = read_run(gyro_mcap, phase=False) if gyro_mcap else None
     with StatesBlocks(states_mcap) as st, progress.stage("run report"):
         d = run_report(st, out_dir, run, truth_dir, _spectra_options(coords, segment_s, overlap, pad), angle,
-                       survey_deg, date=date)
+                       survey_deg, date=date, spectra=not no_spectra)
     _say(ctx, f"report: {Path(out_dir) / 'index.html'}")
     if as_json:
         _emit_json(d["summary"])
 
 
-@report.command("rtk", short_help="One HTML page for an RTK solution (.pos): ENU by fix/float, satellites, ratio")
+@report.command("rtk", short_help="RTK solution (.pos) as one HTML page: ENU by fix/float, ratio")
 @click.argument("pos_file", type=click.Path(dir_okay=False))
 @click.option("--date", "date", default=None, metavar="ISO_DATE",
               help="Date printed in the report (default: $SOURCE_DATE_EPOCH, else the input's modification time).")

@@ -91,7 +91,7 @@ def _check_inputs(states, run) -> None:
 def run_report(states, out_dir: str | Path, run=None, truth_dir: str | Path | None = None,
                spectra_opt=None, angle: str | None = None, survey_deg: float | None = None,
                date: str | None = None, n_bins: int = DEFAULT_BINS,
-               chunk_epochs: int = STATES_CHUNK_EPOCHS) -> dict:
+               chunk_epochs: int = STATES_CHUNK_EPOCHS, spectra: bool = True) -> dict:
     """Write ``index.html`` and ``report.json`` for the estimate ``states``.
 
     Parameters
@@ -104,6 +104,7 @@ def run_report(states, out_dir: str | Path, run=None, truth_dir: str | Path | No
     angle : str or None — angle expression of the static-survey section (``--angle``), e.g. ``q6+q10``
     survey_deg : float or None — its surveyed value, degrees
     date : str or None — ``--date`` (:mod:`cdgps_cli.io.provenance`)
+    spectra : bool — False: no spectra, modes, MAC or mode shapes (``--no-spectra``)
     n_bins : int — envelope bins across a figure
     chunk_epochs : int — epochs read at a time
 
@@ -119,7 +120,8 @@ def run_report(states, out_dir: str | Path, run=None, truth_dir: str | Path | No
                          "the static-survey section needs a structure's STATES.mcap")
     opt = spectra_opt or SpectraOptions()
     options = {"--gyro": None if run is None else run.path, "--truth": None if truth_dir is None else str(truth_dir),
-               "--angle": angle, "--survey-deg": survey_deg, "--date": date, **{f"--{k.replace('_', '-')}": v
+               "--angle": angle, "--survey-deg": survey_deg, "--no-spectra": None if spectra else True,
+               "--date": date, **{f"--{k.replace('_', '-')}": v
                                                                                 for k, v in opt.echo().items()}}
     prov = report_provenance("cdgps report run", options, states, run, date)
     truth = None if truth_dir is None else read_truth(truth_dir, states)
@@ -129,7 +131,7 @@ def run_report(states, out_dir: str | Path, run=None, truth_dir: str | Path | No
 
         static = static_statistics(States(states.path, diagnostics=False), run, angle, survey_deg)
     scan = scan_states(states, truth, n_bins, chunk_epochs)
-    spectra = _spectra(states, run, opt, chunk_epochs)
+    spectra = _spectra(states, run, opt, chunk_epochs) if spectra else None
     page = _Page()
     data = {"provenance": prov}
     _provenance_section(page, prov, states, run)
@@ -281,10 +283,11 @@ def _coordinate_table(states, scan, summary: dict) -> str:
             "lengths in mm):</p>" + _html_table(rows, header))
 
 
-def _span(scan) -> str:
-    per = max(int(np.ceil(scan.n_epochs / scan.q.n_bins)), 1)
-    return (f"every epoch of the record ({scan.n_epochs}), drawn as the minimum and maximum of each of "
-            f"{scan.q.n_bins} bins of {per} epoch{'s' if per > 1 else ''}")
+def _span(scan, env=None, what: str = "the minimum and maximum") -> str:
+    bins = (env or scan.q).n_bins
+    per = max(int(np.ceil(scan.n_epochs / bins)), 1)
+    return (f"every epoch of the record ({scan.n_epochs}), drawn as {what} of each of "
+            f"{bins} bins of {'up to ' if per > 1 else ''}{per} epoch{'s' if per > 1 else ''}")
 
 
 def _time_sections(page: _Page, states, scan) -> None:
@@ -365,7 +368,7 @@ def _residual_section(page: _Page, states, scan) -> None:
                 "its RMS over the record, right its RMS in each time bin (the colour scale stops at the 99th "
                 "percentile). A channel that stands out over a stretch points at multipath, a slip or a bad "
                 "antenna position.", f"{Path(states.path).name}: arrays/cdgps/residuals/residual_m (every epoch, "
-                f"float32) and channels.json; {_span(scan)}.")
+                f"float32) and channels.json; {_span(scan, scan.resid, 'the RMS')}.")
 
 
 def _spectra_sections(page: _Page, data: dict, states, spectra: dict) -> None:
