@@ -23,6 +23,8 @@ from cdgps_cli.io.states import (ESTIMATE_METADATA, INIT_ATTACHMENT, STATE_TOPIC
                                  coordinate_sigma, rows_q)
 from cdgps_cli.io.states_layout import OUTPUT_MAP_PACKED, PACKED_PREFIX, RESIDUAL_PACKED, SERIES_ATTACHMENT
 
+#: the single-epoch (kinematic) solutions of a GNSS run, arrays only, with ``n_sat`` and ``pdop``
+KINEMATIC_TOPIC = "/cdgps/kinematic"
 _SMALL = (CONFIG_ATTACHMENT, SERIES_ATTACHMENT, OUTPUT_MAP_PACKED, INIT_ATTACHMENT, RESIDUAL_PACKED + "channels.json")
 
 
@@ -111,6 +113,11 @@ class StatesBlocks:
                 self.channels = [tuple(c) for c in json.loads(small[RESIDUAL_PACKED + "channels.json"])]
         except ValueError as exc:
             raise CdgpsError(f"{self.path}: damaged {INIT_ATTACHMENT} or residual channel list: {exc}") from None
+
+    @property
+    def series_names(self) -> list:
+        """The state series the file holds (``/cdgps/state``, ``/cdgps/state_filtered``, …)."""
+        return sorted(getattr(self, "_series", {}) or {})
 
     @property
     def has_covariance(self) -> bool:

@@ -156,6 +156,12 @@ def extra_figure(envs: dict, units: dict):
             x, y = envelope_line(t, env.lo[:, j], env.hi[:, j])
             ax.plot(x, y, lw=0.8)
         ax.set_ylabel(f"{name} [{units.get(name, '1')}]")
+        finite = np.concatenate([env.lo[np.isfinite(env.lo)], env.hi[np.isfinite(env.hi)]])
+        if finite.size and np.all(finite == np.round(finite)):          # counts: whole-number ticks
+            from matplotlib.ticker import MaxNLocator  # noqa: PLC0415
+
+            ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+            ax.set_ylim(finite.min() - 0.6, finite.max() + 0.6)
     axes[-1, 0].set_xlabel(xlabel)
     fig.tight_layout()
     return fig

@@ -29,7 +29,8 @@ from cdgps_cli.io.provenance import provenance_rows, report_provenance
 from cdgps_cli.report import run_figures as figs
 from cdgps_cli.report.envelope import DEFAULT_BINS
 from cdgps_cli.report.mac import mac_matrix
-from cdgps_cli.report.run_scan import CHI2_LOWER, CHI2_UPPER, read_truth, scan_states
+from cdgps_cli.report.run_data import KINEMATIC_TOPIC, StatesBlocks
+from cdgps_cli.report.run_scan import CHI2_LOWER, CHI2_UPPER, read_truth, scan_series, scan_states
 from cdgps_cli.report.sensor_reports import (_CSS, _fmt, _html_table, _json_clean, _mpl, _png, plot_fdd, plot_psd,
                                              plot_static, spectra_result, static_statistics)
 
@@ -136,7 +137,7 @@ def run_report(states, out_dir: str | Path, run=None, truth_dir: str | Path | No
     data = {"provenance": prov}
     _provenance_section(page, prov, states, run)
     _summary_section(page, data, states, scan, spectra, static)
-    _time_sections(page, states, scan)
+    _time_sections(page, states, scan, chunk_epochs)
     _consistency_section(page, states, scan)
     _residual_section(page, states, scan)
     if spectra is not None:
@@ -290,7 +291,7 @@ def _span(scan, env=None, what: str = "the minimum and maximum") -> str:
             f"{bins} bins of {'up to ' if per > 1 else ''}{per} epoch{'s' if per > 1 else ''}")
 
 
-def _time_sections(page: _Page, states, scan) -> None:
+def _time_sections(page: _Page, states, scan, chunk_epochs: int = STATES_CHUNK_EPOCHS) -> None:
     src = f"{Path(states.path).name}: the state series (ξ and P_ξ of /cdgps/state, packed arrays); {_span(scan)}."
     page.section("time", "Time histories with ±1σ")
     smoothed = states.metadata.get("smoothed") == "true"
@@ -315,6 +316,27 @@ def _time_sections(page: _Page, states, scan) -> None:
     if scan.extra:
         fig = figs.extra_figure(scan.extra, {})
         page.figure("extra", fig, "The series' further arrays (e.g. satellites used and PDOP of GNSS solutions), "
+                    "minimum–maximum per bin.", src)
+    if KINEMATIC_TOPIC in states.series_names:
+        _kinematic_figures(page, states, scan.q.n_bins, chunk_epochs)
+
+
+def _kinematic_figures(page: _Page, states, n_bins: int, chunk_epochs: int) -> None:
+    """A GNSS run's single-epoch solutions (each epoch alone, with the fixed integers) and the
+    satellites and PDOP of each epoch."""
+    with StatesBlocks(states.path, KINEMATIC_TOPIC) as kin:
+        sc = scan_series(kin, n_bins, chunk_epochs)
+    units, scale = zip(*(_display_unit(u) for u in kin.coord_units))
+    src = (f"{Path(states.path).name}: the single-epoch series {KINEMATIC_TOPIC} (packed arrays); "
+           f"{sc.n_epochs} epochs, minimum and maximum per bin.")
+    fig = figs.time_history(sc.q, list(kin.coord_names), list(units), "Single-epoch solutions (each epoch on its own, "
+                            "with the fixed integers) and their ±1σ", kin.has_covariance, np.array(scale),
+                            sc.sigma_sums.mean() * np.array(scale) if sc.sigma_sums.n.any() else None, cols=3)
+    page.figure("kinematic", fig, "Each epoch's own solution with the fixed integers (no filter between epochs): "
+                "what the filtered estimate above smooths; its scatter is the measurement noise.", src)
+    if sc.extra:
+        page.figure("satellites", figs.extra_figure(sc.extra, {"n_sat": "1", "pdop": "1"}),
+                    "Satellites used (n_sat) and the position dilution of precision (PDOP) of each epoch's solution, "
                     "minimum–maximum per bin.", src)
 
 

@@ -242,3 +242,23 @@ def _nees_summary(acc: dict) -> dict:
     return {"epochs": n, "dof": m, "mean": float(acc["sums"].s[0]) / n if n else None,
             "interval95_single": [float(chi2_quantile(CHI2_LOWER, m)), float(chi2_quantile(CHI2_UPPER, m))],
             "fraction_in_interval95": acc["inside"] / n if n else None}
+
+
+def scan_series(states, n_bins: int = DEFAULT_BINS, chunk_epochs: int = STATES_CHUNK_EPOCHS) -> Scan:
+    """The coordinates (with ±σ) and further arrays of a series without diagnostics (e.g. a GNSS
+    run's single-epoch solutions ``/cdgps/kinematic``), one block at a time."""
+    N, nq = states.n_epochs, len(states.coord_names)
+    sc = Scan(N)
+    sc.q, sc.q_sums, sc.sigma_sums = EnvelopeBins(N, nq, n_bins), Sums.zeros(nq), Sums.zeros(nq)
+    for b in states.blocks(chunk_epochs):
+        a, t, q, sq = b["start"], b["time_s"], b["q"], b["sigma_q"]
+        sc.q.add(a, t, q, None if sq is None else q - sq, None if sq is None else q + sq)
+        sc.q_sums.add(q)
+        if sq is not None:
+            sc.sigma_sums.add(sq)
+        for name, v in b["extra"].items():
+            v = np.asarray(v, dtype=float).reshape(len(t), -1)
+            sc.extra.setdefault(name, EnvelopeBins(N, v.shape[1], n_bins)).add(a, t, v)
+        sc.start_s = float(t[0]) if a == 0 else sc.start_s
+        sc.end_s = float(t[-1])
+    return sc

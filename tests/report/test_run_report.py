@@ -289,3 +289,37 @@ def test_page_in_headless_chromium(page, tmp_path):
     im = Image.open(shot)
     assert im.size == (1100, 1600)
     assert len(np.unique(np.asarray(im.convert("L").resize((64, 64))))) > 8       # a page was drawn, not a blank
+
+
+# ----------------------------------------------------------------------------- other kinds of STATES
+
+LEGACY = ROOT / "tests" / "data"
+
+
+def test_states_of_the_earlier_layouts_get_a_page(tmp_path):
+    """Files written before the packed residuals (read whole by States): no residual section, the rest."""
+    with StatesBlocks(LEGACY / "format-2026-12-02" / "states.mcap") as st:
+        run_report(st, tmp_path / "s", None, date=DATE, n_bins=200, spectra=False)
+    text = (tmp_path / "s" / "index.html").read_text()
+    assert set(_images(text)) == {"angles", "coordinates", "nis"}
+    with StatesBlocks(LEGACY / "format-2026-12-03" / "gnss-states.mcap") as st:
+        d = run_report(st, tmp_path / "g", None, date=DATE, n_bins=200)
+    text = (tmp_path / "g" / "index.html").read_text()
+    assert {"coordinates", "nis"} <= set(_images(text)) and "angles" not in _images(text)
+    assert "rover: FIXED (7 of 7 ambiguities fixed" in text                  # fixed/float from the INIT
+    assert list(d["summary"]["coordinates"]) == ["rover_e", "rover_n", "rover_u"]
+
+
+def test_gnss_states_page_has_the_single_epoch_solutions_and_satellites(tmp_path):
+    """A GNSS estimate of today's layout: ENU with σ, the single-epoch series, satellites and PDOP."""
+    sim, gdir = tmp_path / "sim", tmp_path / "g"
+    for args in (["simulate-gnss", "--duration", "120", "--seed", "5", "--random-walk", "0.002", "-o", sim],
+                 ["ingest", "--config", sim / "config.toml", "-o", sim / "run.mcap"],
+                 ["init", sim / "run.mcap", "-o", sim / "init.json"],
+                 ["estimate", sim / "run.mcap", "--init", sim / "init.json", "--smooth", "-o", sim / "states.mcap"],
+                 ["report", "run", sim / "states.mcap", "-o", gdir, "--date", DATE]):
+        r = CliRunner().invoke(main, ["-q", *map(str, args)])
+        assert r.exit_code == 0, (args, r.output)
+    text = (gdir / "index.html").read_text()
+    assert set(_images(text)) == {"coordinates", "kinematic", "satellites", "nis", "residuals"}
+    assert "ambiguities fixed" in text
