@@ -195,7 +195,8 @@ def _view_axes(d: np.ndarray) -> tuple[int, int]:
 
 
 def mode_shape_figure(cfg, pts, shapes: list):
-    """Each mode drawn on the structure: the points' nominal positions (grey) and displaced by the
+    """Each mode drawn on the structure: the sections' pivots (grey squares) joined to their points,
+    the points' nominal positions (grey circles) and displaced by the
     mode (blue: the config's shape; orange: the identified one, when there is one), exaggerated so
     that the largest displacement is 12 % of the structure's size, in the view of the two lab axes
     the mode moves most along.  ``shapes``: list of (title, model q (n_q,), identified q or None)."""
@@ -216,6 +217,13 @@ def mode_shape_figure(cfg, pts, shapes: list):
         d_m = J @ q_model
         ia, ib = _view_axes(d_m)
         g = 0.12 * size / max(float(np.abs(d_m).max()), 1e-12)
+        for k, sec in enumerate(pts.section):                     # the structure: each point on its section's pivot
+            if sec >= 0:
+                c = cfg.sections[sec].pivot_m
+                ax.plot([c[ia], p0[k, ia]], [c[ib], p0[k, ib]], color="0.8", lw=1.2, zorder=0)
+        pivots = np.array([s.pivot_m for s in cfg.sections]).reshape(-1, 3)
+        if pivots.size:
+            handles["section pivot"] = ax.scatter(pivots[:, ia], pivots[:, ib], s=18, marker="s", color="0.75", zorder=1)
         handles["nominal"] = ax.scatter(p0[:, ia], p0[:, ib], s=14, facecolors="none", edgecolors="0.55", lw=0.8)
         dm = p0 + g * d_m
         handles["model shape (config)"] = ax.scatter(dm[:, ia], dm[:, ib], s=12, color="tab:blue")
