@@ -19,7 +19,7 @@ import numpy as np
 
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.mcap import CONFIG_ATTACHMENT, attachment_spans, open_verified, read_span
-from cdgps_cli.io.states import (ESTIMATE_METADATA, INIT_ATTACHMENT, STATE_TOPIC, States, StatesChunks,
+from cdgps_cli.io.states import (ESTIMATE_METADATA, INIT_ATTACHMENT, STATE_TOPIC, States,
                                  coordinate_sigma, rows_q)
 from cdgps_cli.io.states_layout import OUTPUT_MAP_PACKED, PACKED_PREFIX, RESIDUAL_PACKED, SERIES_ATTACHMENT
 

@@ -120,6 +120,10 @@ def run_report(states, out_dir: str | Path, run=None, truth_dir: str | Path | No
         raise CdgpsError(f"--angle: {states.path} holds {states.kind} states ({', '.join(states.coord_names)}); "
                          "the static-survey section needs a structure's STATES.mcap")
     opt = spectra_opt or SpectraOptions()
+    if spectra and states.cfg is not None and opt.coords:
+        bad = [c for c in opt.coords if c not in states.coord_names]
+        if bad:                                     # an option error, not a record the spectra cannot use
+            raise CdgpsError(f"--coords: unknown coordinate(s) {', '.join(bad)} (known: {', '.join(states.coord_names)})")
     options = {"--gyro": None if run is None else run.path, "--truth": None if truth_dir is None else str(truth_dir),
                "--angle": angle, "--survey-deg": survey_deg, "--no-spectra": None if spectra else True,
                "--date": date, **{f"--{k.replace('_', '-')}": v

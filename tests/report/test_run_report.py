@@ -19,7 +19,6 @@ from PIL import Image
 
 from cdgps_cli.cli.commands import main
 from cdgps_cli.config.structure import load_config
-from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.estimation.filter import EstimateOptions, estimate
 from cdgps_cli.estimation.initializer import InitOptions, initialize
 from cdgps_cli.io.run import read_run, write_run
@@ -216,6 +215,7 @@ def test_bad_input_exits_2_and_writes_nothing(free_run, tmp_path):
     cases = {"another config's truth": (["--truth", other], "simulated with config"),
              "a truth without a coordinate": (["--truth", cut], "missing column(s) q2"),
              "an unknown coordinate": (["--angle", "q6+q99"], "q99"),
+             "an unknown spectra coordinate": (["--coords", "q2,q42"], "--coords: unknown coordinate(s) q42"),
              "a RUN.mcap as the STATES": (None, "")}
     for what, (extra, needle) in cases.items():
         out = tmp_path / what.replace(" ", "_")
