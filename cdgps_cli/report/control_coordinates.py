@@ -106,7 +106,7 @@ def coordinates_figure(sims: dict, role: str, limits: dict, units: dict, label: 
             handles["estimate (controller)"], = ax.plot(tc, est, color="tab:orange", lw=0.8, ls="--")
             if f"{n}_ref" in c.columns:
                 handles["reference"], = ax.plot(tc, f * c[f"{n}_ref"].to_numpy(), color="k", lw=0.7, ls=":")
-        handles[f"{label} (true)"], = ax.plot(t, f * q[n].to_numpy(), color="tab:blue", lw=1.0)
+        handles["true value (simulator)"], = ax.plot(t, f * q[n].to_numpy(), color="tab:blue", lw=1.0)
         lim = limits.get(n)
         if lim is None:
             ax.set_title(f"{n}: no limit stated" + (" (open loop in grey)" if "open" in sims else ""), fontsize=8,
