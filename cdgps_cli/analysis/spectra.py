@@ -614,6 +614,15 @@ def _fdd_peak(f, U_sv, S_sv, band, phi) -> dict:
     """The FDD peak in ``band``: among the first three singular values, the frequency whose value ×
     MAC with the model shape ``phi`` is largest (``fdd_peak_hz``, ``mac``, ``singular_value``; {} when
     the band is empty)."""
+    best = _fdd_best(U_sv, S_sv, band, phi)
+    if best is None:
+        return {}
+    _, k, i, m_mac = best
+    return {"fdd_peak_hz": _parabolic(f, S_sv[:, k], i), "mac": float(m_mac), "singular_value": k + 1}
+
+
+def _fdd_best(U_sv, S_sv, band, phi):
+    """``(score, singular value index k, frequency bin i, MAC)`` of :func:`_fdd_peak`, or None."""
     best = None
     idx = np.flatnonzero(band)
     for k in range(min(3, S_sv.shape[1])):
@@ -624,10 +633,23 @@ def _fdd_peak(f, U_sv, S_sv, band, phi) -> dict:
         ib = int(np.argmax(score))
         if best is None or score[ib] > best[0]:
             best = (score[ib], k, int(idx[ib]), macs[ib])
-    if best is None:
-        return {}
-    _, k, i, m_mac = best
-    return {"fdd_peak_hz": _parabolic(f, S_sv[:, k], i), "mac": float(m_mac), "singular_value": k + 1}
+    return best
+
+
+def fdd_shapes(cfg, opt, f, U_sv, S_sv, Um, std, names) -> dict:
+    """The FDD singular vectors at each mode's peak (the shapes the MAC column compares), for a MAC
+    matrix against every model shape: ``vectors`` {mode number: (m,) complex, standardized
+    coordinates}, ``model`` (m, n_modes) the model shapes standardized alike, ``scales`` (m,) the
+    coordinate scales (coordinate = standardized × scale), ``coordinates`` (m,) names."""
+    vectors = {}
+    for j, fm in enumerate(cfg.mode_frequency_hz):
+        if fm <= 0 or np.linalg.norm(Um[:, j]) == 0:
+            continue
+        band = (f >= fm * (1 - opt.band_pct / 100)) & (f <= fm * (1 + opt.band_pct / 100))
+        best = _fdd_best(U_sv, S_sv, band, Um[:, j])
+        if best is not None:
+            vectors[j + 1] = U_sv[best[2], :, best[1]]
+    return {"vectors": vectors, "model": Um, "scales": std, "coordinates": list(names)}
 
 
 def _gyro_peak(gy: dict, shape, f, psd: dict, center_hz: float, band_pct: float) -> dict:
@@ -759,6 +781,7 @@ def _spectra_result(cfg, opt, names, sel, N, T, nperseg, nfft, f, G, std, Um, st
         "f_hz": f[keep], "psd": {k: v[keep] for k, v in psd.items()},
         "fdd_sv": S_sv[keep, : min(3, S_sv.shape[1])],
         "modes": modes,
+        "fdd_shapes": fdd_shapes(cfg, opt, f, U_sv, S_sv, Um, std, [names[i] for i in sel]),
         "settings": {**opt.echo(), "sample_rate_hz": fs, "duration_s": N * T, "segment_s": nperseg / fs,
                      "segments": int((N - nperseg) // max(int(round(nperseg * (1 - opt.overlap))), 1) + 1),
                      "nfft": nfft, "resolution_hz": 1.44 * fs / nperseg,      # Hann half-power main-lobe width

@@ -725,6 +725,62 @@ def report_spectrum(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad
         _emit_json(d)
 
 
+@report.command("run", short_help="One HTML page for one run: provenance, σ bands, NIS, modes, MAC")
+@click.argument("states_mcap", type=click.Path(dir_okay=False))
+@_with(_spectra_opts)
+@click.option("--truth", "truth_dir", type=click.Path(file_okay=False),
+              help="`cdgps simulate` folder of a simulated run: NEES and errors against its truth.csv.")
+@click.option("--angle", default=None, help='Add the static-survey section for this angle, e.g. "q6+q10".')
+@click.option("--survey-deg", type=float, default=None, help="Surveyed value of --angle, degrees.")
+@click.option("--no-spectra", is_flag=True, default=False,
+              help="Leave out the spectra, modes, MAC and mode shapes (on a long record the slowest part).")
+@click.option("--date", "date", default=None, metavar="ISO_DATE",
+              help="Date printed in the report (default: $SOURCE_DATE_EPOCH, else the newest input's modification time).")
+@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False), help="Output directory.")
+@click.option("--json", "as_json", is_flag=True, help="Print report.json's summary on stdout.")
+@click.pass_context
+def report_run(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad, truth_dir, angle, survey_deg, no_spectra,
+               date, out_dir, as_json):
+    """One self-contained HTML page (index.html) for one estimated run: provenance, summary, time
+    histories with ±1σ, NIS/NEES against χ² bounds, residuals per channel, PSDs and modes, the MAC
+    matrix and mode shapes, and with --angle the static-survey statistics."""
+    from cdgps_cli.io.file_checks import STATES, STRUCTURE_RUN, require_kind
+    from cdgps_cli.io.run import read_run
+    from cdgps_cli.report.run_data import StatesBlocks
+    from cdgps_cli.report.run_report import run_report
+
+    require_kind(states_mcap, STATES, "STATES_MCAP")
+    if gyro_mcap:
+        require_kind(gyro_mcap, STRUCTURE_RUN, "--gyro")
+    run = read_run(gyro_mcap, phase=False) if gyro_mcap else None
+    with StatesBlocks(states_mcap) as st, progress.stage("run report"):
+        d = run_report(st, out_dir, run, truth_dir, _spectra_options(coords, segment_s, overlap, pad), angle,
+                       survey_deg, date=date, spectra=not no_spectra)
+    _say(ctx, f"report: {Path(out_dir) / 'index.html'}")
+    if as_json:
+        _emit_json(d["summary"])
+
+
+@report.command("rtk", short_help="RTK solution (.pos) as one HTML page: ENU by fix/float, ratio")
+@click.argument("pos_file", type=click.Path(dir_okay=False))
+@click.option("--date", "date", default=None, metavar="ISO_DATE",
+              help="Date printed in the report (default: $SOURCE_DATE_EPOCH, else the input's modification time).")
+@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False), help="Output directory.")
+@click.option("--json", "as_json", is_flag=True, help="Print report.json's summary on stdout.")
+@click.pass_context
+def report_rtk(ctx, pos_file, date, out_dir, as_json):
+    """One self-contained HTML page (index.html) for an RTK solution file in RTKLIB's .pos layout
+    (`cdgps rtk`, or RTKLIB's rnx2rtkp): east/north/up coloured fix/float/single with its ±1σ,
+    satellites and ratio, the solver's header as provenance."""
+    from cdgps_cli.report.rtk_report import rtk_report
+
+    with progress.stage("rtk report"):
+        d = rtk_report(pos_file, out_dir, date=date)
+    _say(ctx, f"report: {Path(out_dir) / 'index.html'}")
+    if as_json:
+        _emit_json(d["summary"])
+
+
 @main.command(short_help="Topics, dates, sampling, gaps, slips of an MCAP")
 @click.argument("mcap_file", type=click.Path(dir_okay=False))
 @click.option("--json", "as_json", is_flag=True, help="Print the full summary as JSON on stdout.")

@@ -26,7 +26,7 @@ INTERNAL_ANGLES = ("q2", "q5", "q8")
 RIGID_ANGLE = "q10"
 ROLES = ("open", "closed", "full_state", "no_vibration")
 #: every file the report may write (replaced as one set, cdgps_cli.io.atomic.output_set)
-CONTROL_REPORT_FILES = (*REPORT_FILES, "poles.png", "pulse.png", "slew.png")
+CONTROL_REPORT_FILES = (*REPORT_FILES, "poles.png", "pulse.png", "slew.png", "coordinates.png")
 ROLE_LABEL = {"open": "open loop", "closed": "closed loop (GPS estimate)",
               "full_state": "closed loop (true state)", "no_vibration": "no vibration control (GPS estimate)"}
 
@@ -114,6 +114,15 @@ def control_report(gains_path: str | Path, runs: dict, out_dir: str | Path, date
         data, rows, header, figures, captions = _slew_section(sims)
     else:
         raise CdgpsError(f"the runs are of scenario {scenario!r}; the control report covers pulse and slew")
+    from cdgps_cli.report import control_coordinates as cc
+
+    names = [n for n in sims["closed"]["q"].columns if n != "time_s"]
+    limits = cc.coordinate_limits(scenario, sims, names)
+    figures[cc.COORDINATES_PNG] = cc.coordinates_figure(sims, "closed", limits, cc.coordinate_units(gains, names),
+                                                        ROLE_LABEL["closed"])
+    captions[cc.COORDINATES_PNG] = cc.coordinates_caption(scenario, limits, ROLE_LABEL["closed"])
+    data["coordinate_limits"] = {n: None if v is None else {"half_width": v[0], "centre": v[1], "from_s": v[2],
+                                                            "statement": v[3]} for n, v in limits.items()}
     plt = _mpl()
     from cdgps_cli.report.control_figures import pole_figure
 

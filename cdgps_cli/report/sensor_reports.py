@@ -118,6 +118,16 @@ def run_spectra(states, run, opt, out_dir: str | Path, dest: OutputSet | None = 
     :class:`~cdgps_cli.io.states.States` (whole record in memory) or a
     :class:`~cdgps_cli.io.states.StatesChunks`, read in chunks of ``chunk_epochs`` epochs (the
     numbers do not depend on it)."""
+    res, gnames = spectra_result(states, run, opt, chunk_epochs)
+    if dest is None:
+        with output_set(out_dir, replaces=SPECTRA_FILES) as own:
+            return _write_spectra(states, res, gnames, own)
+    return _write_spectra(states, res, gnames, dest)
+
+
+def spectra_result(states, run, opt, chunk_epochs: int = STATES_CHUNK_EPOCHS) -> tuple[dict, list]:
+    """The spectra of ``states`` (and the gyros of ``run``, or None): ``(result, gyro names)``, the
+    result of :func:`cdgps_cli.analysis.spectra.spectra_of_chunks`; nothing written."""
     from cdgps_cli.analysis.spectra import compute_spectra, spectra_of_chunks
 
     cfg = _coordinate_model(states)
@@ -136,10 +146,7 @@ def run_spectra(states, run, opt, out_dir: str | Path, dest: OutputSet | None = 
                                 columns=ColumnScratch)          # the modal series on disk, a mode at a time
     else:
         res = compute_spectra(cfg, states.time_s, states.q, *gyro, opt)
-    if dest is None:
-        with output_set(out_dir, replaces=SPECTRA_FILES) as own:
-            return _write_spectra(states, res, gnames, own)
-    return _write_spectra(states, res, gnames, dest)
+    return res, gnames
 
 
 def _write_spectra(states, res: dict, gnames: list, dest: OutputSet) -> dict:
@@ -499,12 +506,15 @@ def _static_caption(data: dict, smoothed: bool | None, no_gyro: str = "no gyro")
     return text
 
 
-def static_report(states, run, angle: str, survey_deg: float | None, out_dir: str | Path,
-                  start_s: float | None = None, end_s: float | None = None, gyro: str | None = None,
-                  date: str | None = None) -> dict:
-    """The static sensor test (1998 paper Sec. VI.A, Fig. 7) on the rest segment.
+def static_statistics(states, run, angle: str, survey_deg: float | None, start_s: float | None = None,
+                      end_s: float | None = None, gyro: str | None = None):
+    """The static sensor test's numbers on the rest segment (what :func:`static_report` reports).
 
-    ``date`` is the report's date (``--date``; see :mod:`cdgps_cli.io.provenance` for the default)."""
+    Returns
+    -------
+    ``(data, t, a, sig, g_angle)``: the statistics dict (no provenance), the segment's times (s),
+    the angle (deg), its 1-σ (deg, or None), the gyro-integrated angle (deg, or None).
+    """
     from cdgps_cli.core.checks import require_finite
 
     for name, v in (("survey_deg", survey_deg), ("start_s", start_s), ("end_s", end_s)):
@@ -570,6 +580,17 @@ def static_report(states, run, angle: str, survey_deg: float | None, out_dir: st
                 data.update(gyro=[names[i] for i in use], gyro_drift_deg_per_min=float(pg[0]),
                             gyro_noise_rms_deg=float(np.std(g_angle - np.polyval(pg, minutes))),
                             gyro_minus_gps_end_deg=float(g_angle[-1] - a[-1]))
+    return data, t, a, sig, g_angle
+
+
+def static_report(states, run, angle: str, survey_deg: float | None, out_dir: str | Path,
+                  start_s: float | None = None, end_s: float | None = None, gyro: str | None = None,
+                  date: str | None = None) -> dict:
+    """The static sensor test (1998 paper Sec. VI.A, Fig. 7) on the rest segment.
+
+    ``date`` is the report's date (``--date``; see :mod:`cdgps_cli.io.provenance` for the default)."""
+    data, t, a, sig, g_angle = static_statistics(states, run, angle, survey_deg, start_s, end_s, gyro)
+    how, mean = data["segment"], data["mean_deg"]
     data["provenance"] = report_provenance(
         "cdgps report static", {"--angle": angle, "--survey-deg": survey_deg, "--start": start_s, "--end": end_s,
                                 "--gyro": None if run is None else run.path, "--gyro-name": gyro, "--date": date},

@@ -66,7 +66,7 @@ def test_pulse_report(pulse_runs, tmp_path):
     md = (tmp_path / "rep" / "report.md").read_text()
     assert "## Controller" in md and "(met)" in md
     names = sorted(p.name for p in (tmp_path / "rep").iterdir())
-    assert names == ["poles.png", "pulse.png", "report.html", "report.json", "report.md"]
+    assert names == ["coordinates.png", "poles.png", "pulse.png", "report.html", "report.json", "report.md"]
     html = (tmp_path / "rep" / "report.html").read_text()
     assert "Provenance" in html and "sha256" in html and "Figure 1" in html
     r2 = _run("report", "control", d / "g.json", "--open", d / "open", "--closed", d / "closed", "-o", tmp_path / "rep2",
@@ -102,6 +102,10 @@ def test_slew_report_gives_the_metrics_on_the_estimate_too(pulse_runs, testbed_p
              "--date", "2026-12-02", "--json")
     assert r.exit_code == 0, r.output
     est = json.loads(r.stdout)["metrics"]["closed"]["estimated"]
+    limits = json.loads(r.stdout)["coordinate_limits"]          # slew: the rigid angle's band only
+    assert limits["q10"]["centre"] == pytest.approx(math.radians(-22.0)) and limits["q10"]["from_s"] == 5.0
+    assert limits["q10"]["half_width"] == pytest.approx(math.radians(0.5))
+    assert all(v is None for k, v in limits.items() if k != "q10")
     c = pd.read_csv(tmp_path / "slew" / "controller.csv")
     ref = slew_metrics(c["time_s"], np.degrees(c["q10_hat"]), {k: np.degrees(c[f"{k}_hat"]) for k in ("q2", "q5", "q8")},
                        -22.0, 5.0)
@@ -174,3 +178,31 @@ def test_simulate_refuses_a_gain_of_another_sample_period(pulse_runs, testbed_pa
              "-o", tmp_path / "sim")
     assert r.exit_code == 2 and "sample_period_s" in r.output and "0.05" in r.output, r.output
     assert not (tmp_path / "sim").exists()
+
+
+def test_every_coordinate_is_drawn_against_the_limit_the_report_states(pulse_runs, tmp_path):
+    """Issue 33: the closed loop's q1…q10 (q3/q6/q9 included) in coordinates.png; the stated limits are
+    the report's own criteria (pulse: q2, q5, q8 back within 10 % of the open-loop first peak)."""
+    import pandas as pd
+    from PIL import Image
+
+    from cdgps_cli.control.metrics import BACK_FRACTION, first_peak_deg
+
+    d = pulse_runs
+    r = _run("report", "control", d / "g.json", "--open", d / "open", "--closed", d / "closed", "-o", tmp_path / "rep",
+             "--date", "2026-12-02", "--json")
+    assert r.exit_code == 0, r.output
+    limits = json.loads(r.stdout)["coordinate_limits"]
+    assert sorted(limits, key=lambda n: int(n[1:])) == [f"q{i}" for i in range(1, 11)]
+    open_q = pd.read_csv(d / "open" / "truth.csv")
+    start = next(s for s in json.loads((d / "closed" / "truth.json").read_text())["segments"] if s["kind"] == "pulse")
+    for n, lim in limits.items():
+        if n in ("q2", "q5", "q8"):
+            peak = first_peak_deg(open_q["time_s"].to_numpy(), open_q[n].to_numpy(), start["start_s"])
+            assert lim["half_width"] == pytest.approx(BACK_FRACTION * peak) and lim["from_s"] == start["start_s"]
+        else:
+            assert lim is None, n
+    im = Image.open(tmp_path / "rep" / "coordinates.png")
+    assert im.size[0] >= 1000 and im.size[1] >= 900                 # ten panels at print size
+    assert "Figure" in (tmp_path / "rep" / "report.html").read_text() and "no limit stated" in \
+        json.loads(r.stdout)["captions"]["coordinates.png"]

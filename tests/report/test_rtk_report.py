@@ -1,0 +1,66 @@
+"""`cdgps report rtk` on synthetic RTKLIB .pos files (written by cdgps' own .pos writer): the rover's
+motion recovered in east/north/up, the quality shares, the header as provenance, bad input."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from cdgps_cli.cli.commands import main
+from cdgps_cli.io.solution_formats import Q_FIX, Q_FLOAT, Q_SINGLE, pos_text
+from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix, geodetic_to_ecef
+
+LAT, LON, H = 35.16, 139.61, 70.0
+HEADER = ["program   : test writer, ratio 3, mask 15 deg", "inp file  : rover.rnx"]
+
+
+def _pos(tmp_path, frame: str):
+    n = 900
+    t = 1.4e9 + np.arange(n, dtype=float)
+    east = 0.020 * np.sin(2 * np.pi * t / 120.0)                 # 20 mm east–west, 2 min period
+    q = np.full(n, Q_FIX)
+    q[300:360], q[700:705] = Q_FLOAT, Q_SINGLE
+    ref = geodetic_to_ecef(np.radians(LAT), np.radians(LON), H)
+    R = enu_matrix(np.radians(LAT), np.radians(LON))
+    xyz = ref + east[:, None] * R[0][None, :]
+    if frame == "llh":
+        lat, lon, h = ecef_to_geodetic(xyz)
+        coords = np.column_stack([np.degrees(lat), np.degrees(lon), h])
+    else:
+        coords = np.column_stack([east, 0 * east, 0 * east])
+    cov = np.tile(np.diag([0.004, 0.003, 0.009]) ** 2, (n, 1, 1))
+    ratio = np.where(q == Q_FIX, 50.0, 0.0)
+    p = tmp_path / f"sol_{frame}.pos"
+    p.write_text(pos_text(t, coords, q, np.full(n, 8), cov, np.zeros(n), ratio, frame=frame, header=HEADER))
+    return p, east
+
+
+@pytest.mark.parametrize("frame", ["llh", "enu"])
+def test_rtk_page_recovers_the_motion_and_the_quality(tmp_path, frame):
+    pos, east = _pos(tmp_path, frame)
+    out = tmp_path / "rep"
+    r = CliRunner().invoke(main, ["report", "rtk", str(pos), "-o", str(out), "--date", "2026-12-04", "--json"])
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.stdout)
+    assert s["epochs"] == 900
+    assert s["fraction"] == {"fix": pytest.approx(835 / 900), "float": pytest.approx(60 / 900),
+                             "single": pytest.approx(5 / 900)}
+    fixed = np.ones(900, bool)
+    fixed[300:360] = fixed[700:705] = False
+    assert s["fixed_scatter_mm"]["e"] == pytest.approx(1e3 * np.std(east[fixed]), abs=0.05)    # (file rounding)
+    assert s["fixed_scatter_mm"]["n"] < 0.1 and s["fixed_scatter_mm"]["u"] < 0.1
+    text = (out / "index.html").read_text()
+    assert text.count("data:image/png;base64,") == 2 and "<script" not in text
+    assert "program   : test writer, ratio 3" in text and "sha256" in text     # the solver's header as provenance
+    assert sorted(p.name for p in out.iterdir()) == ["index.html", "report.json"]
+
+
+def test_rtk_report_refuses_a_file_that_is_not_a_pos(tmp_path):
+    bad = tmp_path / "bad.pos"
+    bad.write_text("2024/01/01 00:00:00.000 1 2 3\n")
+    r = CliRunner().invoke(main, ["report", "rtk", str(bad), "-o", str(tmp_path / "rep")])
+    assert r.exit_code == 2 and "not an RTKLIB .pos file" in r.output and "Traceback" not in r.output
+    assert not (tmp_path / "rep").exists()
