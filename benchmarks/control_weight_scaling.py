@@ -36,7 +36,7 @@ from cdgps_cli.control.lqr import design_lqr  # noqa: E402
 from cdgps_cli.control.poles import pole_table, slowest_settling_by_mode  # noqa: E402
 from cdgps_cli.model.dynamics import continuous_model, discrete_model  # noqa: E402
 
-CONFIG = ROOT / "configs" / "testbed-1998.toml"
+CONFIG = ROOT / "configs" / "testbed-1998-lumped.toml"
 
 
 def settling(cfg, M, T):
