@@ -23,9 +23,9 @@ echo "-- 1. static sensor test on the bundled testbed run (data/testbed-static: 
 
 echo "-- 2. dynamic sensor test: simulate 20 minutes of free vibration of the testbed, then the whole chain"
 # noise and disturbance as the filter assumes (2 cm, full process noise), so NEES/NIS are meaningful
-"$CDGPS" -q simulate configs/testbed-1998-lumped.toml --duration 1200 --seed 7 --scenario free --noise-m 0.02 \
+"$CDGPS" -q simulate configs/testbed-1998.toml --duration 1200 --seed 7 --scenario free --noise-m 0.02 \
     --disturbance-scale 1 -o "$OUT/free/sim"
-"$CDGPS" ingest "$OUT/free/sim/receiver.csv" "$OUT/free/sim/gyro.csv" --config configs/testbed-1998-lumped.toml \
+"$CDGPS" ingest "$OUT/free/sim/receiver.csv" "$OUT/free/sim/gyro.csv" --config configs/testbed-1998.toml \
     -o "$OUT/free/run.mcap"
 "$CDGPS" init "$OUT/free/run.mcap" -o "$OUT/free/init.json"
 "$CDGPS" estimate "$OUT/free/run.mcap" --init "$OUT/free/init.json" --smooth -o "$OUT/free/states.mcap"
@@ -54,11 +54,11 @@ echo "-- 4. a structural engineer's FE model: the 120 m tower (FE mode shapes on
 echo "-- 5. control with GPS in the loop (1998 Sec. V-VI.C): LQR design, then the Fig. 9 pulse open and closed loop"
 # the experiments' tuned weights: with the paper's (the default) the in-loop estimator cannot be made 3x
 # faster than the regulator and cdgps warns that the estimate lags it (docs/control.md)
-"$CDGPS" control design configs/testbed-1998-lumped.toml --weights tuned -o "$OUT/control/gains.json" \
+"$CDGPS" control design configs/testbed-1998.toml --weights tuned -o "$OUT/control/gains.json" \
     --figure "$OUT/control/poles.png"
-"$CDGPS" -q simulate configs/testbed-1998-lumped.toml --scenario pulse --duration 20 --seed 1 --disturbance-scale 0.05 \
+"$CDGPS" -q simulate configs/testbed-1998.toml --scenario pulse --duration 20 --seed 1 --disturbance-scale 0.05 \
     -o "$OUT/control/pulse-open"
-"$CDGPS" -q simulate configs/testbed-1998-lumped.toml --scenario pulse --duration 20 --seed 1 --disturbance-scale 0.05 \
+"$CDGPS" -q simulate configs/testbed-1998.toml --scenario pulse --duration 20 --seed 1 --disturbance-scale 0.05 \
     --controller "$OUT/control/gains.json" -o "$OUT/control/pulse-closed"
 "$CDGPS" report control "$OUT/control/gains.json" --open "$OUT/control/pulse-open" \
     --closed "$OUT/control/pulse-closed" -o "$OUT/control/report"

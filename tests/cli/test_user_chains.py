@@ -40,7 +40,7 @@ def test_header_only_gyro_log_refused_when_the_config_has_gyros(tmp_path, testbe
 
 
 README_CHAIN_INTRO = "The same chain as a shell pipeline"
-README_CHAIN_START = "cdgps simulate configs/testbed-1998-lumped.toml --duration 60"
+README_CHAIN_START = "cdgps simulate configs/testbed-1998.toml --duration 60"
 
 
 def readme_chain(readme: str) -> list[str]:
