@@ -240,8 +240,8 @@ def hfig6(w: Path, figdir: Path) -> list[Headline]:
         note=f"With the paper's weights on our model (mass-normalized shapes, NASTRAN's default, and our Υ) the moved "
              f"vibration poles settle ≈ {5 / fast[len(fast) // 2]:.0f}× faster than the paper's ≈ 5 s and the rigid pole "
              "in the time above; the paper's units for ξ and u are not stated and no reading of them gives both 30 s "
-             "and 5 s (unit-norm shapes: rigid 66 s, vibration 2.8–12.5 s; benchmarks/control_weight_scaling.py on this "
-             "config). The swing mode cannot be moved: the thrusters (±x, ±z at the arm tips, our assumption) exert no "
+             "and 5 s (unit-norm shapes: rigid 66 s, vibration 2.8–12.5 s; `python benchmarks/control_weight_scaling.py "
+             "configs/testbed-1998.toml`). The swing mode cannot be moved: the thrusters (±x, ±z at the arm tips, our assumption) exert no "
              "sideways force. With these weights the jets saturate in 43–45 % of jet-periods in the experiments.")]
 
 

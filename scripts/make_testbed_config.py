@@ -44,16 +44,16 @@ import scipy.linalg
 
 G0 = 9.80665
 X_SECTIONS = np.array([-4.0, 0.0, 4.0])
-MASS_KG = 60.0
-I_XX = 6.0
+MASS_KG = 60.0                  # per section: 180 kg / 3
+I_XX = 6.0                      # the lumped model's section inertias and tube wall (testbed-1998-lumped.toml)
 I_ZZ = 6.0
-ARM_M = 1.0
-BEAM_L = 3.7
-BEAM_OFFSET = 0.15
-E_AL, G_AL = 70e9, 26e9
-OD, WALL = 0.0127, 0.001
-THREAD_L = 12.0
-THREAD_H = 0.0015
+ARM_M = 1.0                     # antennas and jets at the arm tips, 1 m from the section centre (assumed)
+BEAM_L = 3.7                    # tube length (Sec. III.A)
+BEAM_OFFSET = 0.15              # tube clamped at the cube face: (4 m spacing - 3.7 m tube) / 2
+E_AL, G_AL = 70e9, 26e9         # aluminium, Pa
+OD, WALL = 0.0127, 0.001        # ½ in. tube; WALL: the lumped model's wall
+THREAD_L = 12.0                 # suspension threads (Sec. III.A)
+THREAD_H = 0.0015               # the lumped model's thread height above the centre of mass
 
 # Table 1 of the paper: (name, frequency_hz, time_constant_s)
 TABLE1 = {
@@ -66,7 +66,6 @@ ORDER = ["pendulum", "swing", "bending-1", "twist-1", "twist-2", "bending-2", "b
 
 
 # ---------------------------------------------------------------- the fitted model (issue 31)
-THREAD_ATTACH_OFFSET_M = 0.15      # beam clamped at the cube face: (4 m spacing - 3.7 m beam) / 2
 AL_DENSITY = 2700.0
 
 
@@ -131,9 +130,9 @@ def testbed_matrices(p: TestbedParameters) -> tuple[np.ndarray, np.ndarray]:
     for k in range(2):
         a, b = 3 * k, 3 * (k + 1)
         T = np.zeros((4, 9))                  # beam-end [v1, θ1, v2, θ2] from the section DOFs
-        T[0, a], T[0, a + 2] = 1.0, THREAD_ATTACH_OFFSET_M
+        T[0, a], T[0, a + 2] = 1.0, BEAM_OFFSET
         T[1, a + 2] = 1.0
-        T[2, b], T[2, b + 2] = 1.0, -THREAD_ATTACH_OFFSET_M
+        T[2, b], T[2, b + 2] = 1.0, -BEAM_OFFSET
         T[3, b + 2] = 1.0
         K += T.T @ beam_element(ei, BEAM_L) @ T
         d = np.zeros(9)
@@ -241,6 +240,7 @@ def lumped_model():
 
 
 def elastic_modes():
+    """The previous lumped model's named modes (configs/testbed-1998-lumped.toml, rendered unchanged)."""
     M, K = lumped_model()
     r = np.zeros(9)                       # rigid rotation of the assembly about the vertical
     r[0::3] = X_SECTIONS
