@@ -65,6 +65,13 @@ def test_config_shapes_are_the_eigenvectors_of_the_generated_model(mt, new_cfg, 
         assert np.linalg.norm(K @ u - w2[k] * M @ u) <= 1e-4 * np.linalg.norm(K @ u), names[i]
         assert np.sqrt(w2[k]) / 2 / np.pi == pytest.approx(float(hz[names[i]]), abs=6e-5), names[i]
     assert sorted(np.round(np.sqrt(w2[1:]) / 2 / np.pi, 4)) == sorted(round(float(v), 4) for v in hz.values())
+    import scipy.linalg
+
+    w2s, V = scipy.linalg.eigh(K, M)                                       # the generalized solver on M, K
+    assert np.allclose(w2s[1:], w2[1:], rtol=1e-10)
+    for j in range(Ue.shape[1]):                                          # each written shape is one of its vectors
+        k = int(np.argmax(np.abs(V.T @ M @ Ue[:, j])))
+        assert abs(V[:, k] @ M @ Ue[:, j]) == pytest.approx(1.0, abs=2e-5)
 
 
 def test_rigid_mode_is_the_null_vector_of_K(mt, new_cfg):
