@@ -22,7 +22,7 @@ from cdgps_cli.io.atomic import output_set
 from cdgps_cli.io.gains_file import gain_sha256, read_gains
 from cdgps_cli.report.sensor_reports import REPORT_FILES, _fmt, _html_table, _md_table, _mpl, _save_fig, _write_report
 
-#: internal angles plotted and measured (Figs. 10–12: the longitudinal twists of this model; Fig. 11b calls them vertical-axis rotations)
+#: internal angles plotted and measured (Figs. 10–12): the longitudinal twists of this model
 INTERNAL_ANGLES = ("q2", "q5", "q8")
 #: the testbed's rotations about the vertical (Fig. 4; Sec. VI.A's centre-section vertical angle is q6 + q10):
 #: Fig. 11b's text calls q2, q5, q8 "vertical axis rotations", so the slew figure shows both triples
