@@ -293,8 +293,9 @@ def hpulse(w: Path, figdir: Path, seeds: int) -> list[Headline]:
                       f"weights ({len(pap['metrics'])} seeds): ratio ≤ {pap['ratio']:.2f}, back within "
                       f"{pap['back']:.1f} s, every coordinate within its limit in {pap['all_within']} of "
                       f"{len(pap['metrics'])} seeds, jets saturated in {100 * pap['saturated']:.0f} % of jet-periods "
-                      f"(the {EXPERIMENT_WEIGHTS} weights: {100 * run['saturated']:.0f} %); the closed loop's own "
-                      "thruster activity on the GPS estimate keeps the twists moving by ≈ 1°."),
+                      f"(the {EXPERIMENT_WEIGHTS} weights: {100 * run['saturated']:.0f} %); with them the loop's own "
+                      "firing on the GPS estimate keeps the twists moving by ≈ 1° (with the true state fed back, "
+                      "seed 1: ratio 0.14, back within 0.4 s)."),
         Headline("1998", "Fig. 10 (open loop)", "open loop: the pulse swings the longitudinal twist q5/q8 by ≈ 10° peak to peak",
                  ours=f"{open_pp:.1f}° peak to peak (largest of q5, q8 over the last 10 s, {seeds} seeds)",
                  met=abs(open_pp / OPEN_PULSE_PP_DEG - 1) <= OPEN_PULSE_TOL,
@@ -337,6 +338,8 @@ def hslew(w: Path, figdir: Path, seeds: int) -> list[Headline]:
     vertical_nv = _largest(novib, ("q3", "q6", "q9"))
     all_within = sum(all(c["within"] is not False for c in r["coordinates"].values()) for r in vib)
     final_nv = _worst(novib, "final_error_deg")
+    ratios = [nv / v for nv, v in zip(internal_nv, internal)]             # the same seeds 1..len(novib)
+    more = [r > 1 for r in ratios]
     fig = _figure(w / "slew-rep-vib-1" / "slew.png", "paper-fig11-slew.png", figdir)
     cmds += [_cmd("simulate", TESTBED, "--scenario", "slew", "--duration", 40, "--seed", "S", "--disturbance-scale",
                   SLEW_DISTURBANCE, "--controller", f"gains-{EXPERIMENT_WEIGHTS}.json", "[--no-vibration-control]", "-o", "DIR"),
@@ -374,18 +377,20 @@ def hslew(w: Path, figdir: Path, seeds: int) -> list[Headline]:
                       "instead of ±x gave 1.5–2.1° (one seed, arrival 34.6 s). The paper's q2/q5/q8 are twists by Sec. VI.C "
                       "and by Sec. VI.A's centre-section vertical angle q6 + q10; if Fig. 11b shows rotations about "
                       "the vertical, this is not reproduced."),
-        Headline("1998", "Fig. 12", "without vibration control the slew excites large internal vibrations and the final "
-                 "angle oscillates about the target",
-                 ours=f"internal rotations q2/q5/q8 up to {max(internal_nv):.2f}° without vibration control against "
-                      f"{max(internal):.2f}° with it, q3/q6/q9 up to {max(vertical_nv):.1f}° against {max(vertical):.1f}°; "
-                      f"final error ≤ {final_nv:.2f}° without, ≤ {final:.2f}° with ({len(novib)} seeds)",
-                 met=min(internal_nv) > max(internal),
-                 values={"without_vibration_control": novib},
-                 note="Met for the internal vibrations only: the final angle does not oscillate about the target. Both "
-                      "runs follow the same bang-bang reference with feed-forward thrust (the default --slew-reference "
-                      "profile), which the rigid-only loop tracks as well; the paper commanded a step. With a step "
-                      "(seed 1, tuned weights, 60 s run) the slew is not done within 30 s (arrived 50.4 s with "
-                      "vibration control, 51.4 s without) and q3/q6/q9 reach 6.2° and 8.2°."),
+        Headline("1998", "Fig. 12b", "without vibration control the slew excites significant internal vibrations",
+                 ours=f"q2/q5/q8 larger without vibration control in {sum(more)} of {len(novib)} seeds, by "
+                      f"{min(ratios):.1f}–{max(ratios):.1f}× (up to {max(internal_nv):.2f}° against {max(internal):.2f}°); "
+                      f"q3/q6/q9 up to {max(vertical_nv):.1f}° against {max(vertical):.1f}°",
+                 met=all(more), values={"without_vibration_control": novib},
+                 note="Same seeds, same reference and weights; the rigid-only regulator is the paper's low-bandwidth "
+                      "design (rigid pole as in Fig. 6, vibration poles left open loop)."),
+        Headline("1998", "Fig. 12a", "without vibration control the final rigid-body angle oscillates about the target",
+                 ours=f"final error ≤ {final_nv:.2f}° without vibration control, ≤ {final:.2f}° with it ({len(novib)} seeds)",
+                 met=False,
+                 note="Not reproduced: both runs follow the same bang-bang reference with feed-forward thrust (the "
+                      "default --slew-reference profile), which the rigid-only loop tracks as well; the paper commanded a "
+                      "step. With a step (seed 1, tuned weights, 60 s run) the slew is not done within 30 s (arrived "
+                      "50.4 s with vibration control, 51.4 s without) and q3/q6/q9 reach 6.2° and 8.2°."),
     ]
 
 
