@@ -57,7 +57,7 @@ from cdgps_cli.measurement.phase import EpochPhaseModel, channel_indices  # noqa
 from cdgps_cli.io.run import Run  # noqa: E402
 from cdgps_cli.sim.structure import SimOptions, simulate  # noqa: E402
 
-CONFIG = ROOT / "configs" / "testbed-1998.toml"
+CONFIG = ROOT / "configs" / "testbed-1998-lumped.toml"
 SIGMA = 0.02          # the config's measurement sigma; simulated with the same noise
 
 

@@ -40,7 +40,7 @@ from cdgps_cli.estimation.initializer import InitOptions, _Problem, initialize, 
 from cdgps_cli.io.run import Run  # noqa: E402
 from cdgps_cli.sim.structure import SimOptions, simulate  # noqa: E402
 
-CONFIG = ROOT / "configs" / "testbed-1998.toml"
+CONFIG = ROOT / "configs" / "testbed-1998-lumped.toml"
 
 
 def best_of(fn, repeat: int, cpu: list | None = None) -> tuple[float, object]:

@@ -30,7 +30,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-CONFIG = ROOT / "configs" / "testbed-1998.toml"
+CONFIG = ROOT / "configs" / "testbed-1998-lumped.toml"
 
 RSS = """
 def _status(key):
@@ -133,7 +133,7 @@ def main() -> None:
                 for f in d.glob("*.mcap"):
                     f.unlink()
     res = {"command": "cdgps estimate RUN.mcap --init INIT.json --smooth -o STATES.mcap",
-           "config": "configs/testbed-1998.toml (10 Hz)", "runs": rows,
+           "config": "configs/testbed-1998-lumped.toml (10 Hz)", "runs": rows,
            "machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "machine": platform.machine(),
                        "load_average_1min_at_end": os.getloadavg()[0]}}
     if len(rows) > 1:

@@ -35,7 +35,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-CONFIG = ROOT / "configs" / "testbed-1998.toml"
+CONFIG = ROOT / "configs" / "testbed-1998-lumped.toml"
 TARGET_TOTAL_S = 10.0
 
 RUNNER = r"""

@@ -36,7 +36,7 @@ from cdgps_cli.control.design import PAPER_WEIGHTS, design_for_structure  # noqa
 from cdgps_cli.control.metrics import pulse_metrics, slew_metrics  # noqa: E402
 from cdgps_cli.sim.structure import SimOptions, simulate  # noqa: E402
 
-CONFIG = ROOT / "configs" / "testbed-1998.toml"
+CONFIG = ROOT / "configs" / "testbed-1998-lumped.toml"
 #: our weights for our thruster model (`control design --weights tuned`; the paper's Υ is unpublished; see
 #: docs/control.md)
 TUNED = dict(CONTROL_TUNED_WEIGHTS)

@@ -16,7 +16,7 @@ compared with Fig. 6 (rigid-body about 30 s, vibration about 5 s):
 
 Also the largest gain entry.  Linear algebra only; seconds.
 
-    python benchmarks/control_weight_scaling.py
+    python benchmarks/control_weight_scaling.py [CONFIG]     # default: configs/testbed-1998-lumped.toml (docs/control.md)
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ from cdgps_cli.control.lqr import design_lqr  # noqa: E402
 from cdgps_cli.control.poles import pole_table, slowest_settling_by_mode  # noqa: E402
 from cdgps_cli.model.dynamics import continuous_model, discrete_model  # noqa: E402
 
-CONFIG = ROOT / "configs" / "testbed-1998.toml"
+CONFIG = ROOT / "configs" / "testbed-1998-lumped.toml"
 
 
 def settling(cfg, M, T):
@@ -47,7 +47,7 @@ def settling(cfg, M, T):
 
 
 def main() -> None:
-    cfg = load_config(CONFIG)
+    cfg = load_config(Path(sys.argv[1]) if len(sys.argv) > 1 else CONFIG)
     Qx, Qu = weights_for(cfg, weights="paper")
     norms = np.linalg.norm(np.asarray(cfg.mode_shapes), axis=0)
     S = np.diag(np.concatenate([norms, norms]))

@@ -57,7 +57,7 @@ from cdgps_cli.io.run import write_run  # noqa: E402
 from cdgps_cli.sim.structure import SimOptions, parse_outage, parse_slip, simulate, write_simulation  # noqa: E402
 from cdgps_cli.pipeline.estimate_outputs import evaluate, write_states  # noqa: E402
 
-TB = load_config(ROOT / "configs" / "testbed-1998.toml")
+TB = load_config(ROOT / "configs" / "testbed-1998-lumped.toml")
 D2 = load_config(ROOT / "configs" / "teague-1995-2dof.toml")
 SLIP = "a3:PL2:80.0:+3"
 OUTAGE = "PL4:70:10"
@@ -371,7 +371,7 @@ def main() -> None:
               f"conservative here: it weights the data at INIT's 2 cm, the data have 2 mm); a rest "
               f"declared 10 s too early (during settling) is refused or broken by the data and retried, and ends at "
               f"{np.mean(col(st, 'rest_early_std')):.4f}°. The kinematic filter (no `--rest`) does not reach the "
-              f"figure with `configs/testbed-1998.toml`, and does what its model predicts: the steady-state "
+              f"figure with `configs/testbed-1998-lumped.toml`, and does what its model predicts: the steady-state "
               f"std of q6+q10 predicted from the filter's own gain (DARE) with a structure at rest and 2 mm "
               f"white noise is {p20:.4f}° with σ = 2 cm and {p2:.4f}° with σ = 2 mm, and a single-epoch least "
               f"squares from the 36 measurements gives {single_epoch_ls_csv_std(0.002):.4f}° — the config's "

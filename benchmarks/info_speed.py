@@ -33,7 +33,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-CONFIG = ROOT / "configs" / "testbed-1998.toml"
+CONFIG = ROOT / "configs" / "testbed-1998-lumped.toml"
 CDGPS = [sys.executable, "-c", "import sys; from cdgps_cli.cli.commands import main; sys.exit(main())"]
 
 MEASURE = """

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """``initialize()`` of two checkouts timed in turn, for a ratio that holds on a loaded machine (issue 13 item 6).
 
-The case is bench_init's: the testbed (``configs/testbed-1998.toml``), 60 s of free vibration (601
+The case is bench_init's: the testbed (``configs/testbed-1998-lumped.toml``), 60 s of free vibration (601
 epochs), seed 1, 1 cm phase noise, ``initialize`` with the 8-start cold start (and 1 start).  Each
 checkout is measured in its own child process with its own interpreter (its venv, its compiled
 kernel), the two alternating ``--rounds`` times; each child runs the call ``--repeat`` times and keeps
@@ -35,7 +35,7 @@ from cdgps_cli.estimation.initializer import InitOptions, initialize
 from cdgps_cli.io.run import Run
 from cdgps_cli.sim.structure import SimOptions, simulate
 from cdgps_cli.estimation import kernel
-cfg = load_config(Path(sys.argv[1]) / "configs" / "testbed-1998.toml")
+cfg = load_config(Path(sys.argv[1]) / "configs" / "testbed-1998-lumped.toml")
 dur, repeat = float(sys.argv[2]), int(sys.argv[3])
 sim = simulate(cfg, SimOptions(duration_s=dur, seed=1, phase_sigma_m=0.01))
 run = Run("<testbed>", cfg, sim.receiver.reset_index(drop=True), sim.gyro, None, {})

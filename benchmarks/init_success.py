@@ -53,7 +53,7 @@ from cdgps_cli.estimation.initializer import InitOptions, initialize  # noqa: E4
 from cdgps_cli.io.run import Run  # noqa: E402
 from cdgps_cli.sim.structure import SimOptions, simulate  # noqa: E402
 
-CONFIGS = {"testbed": ROOT / "configs" / "testbed-1998.toml",
+CONFIGS = {"testbed": ROOT / "configs" / "testbed-1998-lumped.toml",
            "dof2": ROOT / "configs" / "teague-1995-2dof.toml"}
 WRONG_BASIN_M = 1.0     # float-bias RMS error above this: converged to a wrong local minimum
 DOF2_LADDER = [3, 4, 5, 6, 7, 8, 10, 12, 15, 20, 30, 40, 60, 80]
@@ -225,7 +225,7 @@ def write_markdown(path: Path, args, tb_cells, d2_cells, need, wall_s, n_inits, 
         return out + [""] if out else []
 
     if tb_cells:
-        L += ["## Testbed (configs/testbed-1998.toml, 36 channels, 10 Hz)", ""] + table(tb_cells, "window (s)") + [""]
+        L += ["## Testbed (configs/testbed-1998-lumped.toml, 36 channels, 10 Hz)", ""] + table(tb_cells, "window (s)") + [""]
         L += details(tb_cells, "s")
     if d2_cells:
         L += ["## 1995 two-DOF model (configs/teague-1995-2dof.toml, 12 channels, 0.12 s)", ""]

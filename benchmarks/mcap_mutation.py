@@ -55,7 +55,7 @@ from cdgps_cli.io.states import States
 
 REPO = Path(__file__).resolve().parent.parent
 DOF2 = REPO / "configs" / "teague-1995-2dof.toml"
-TESTBED = REPO / "configs" / "testbed-1998.toml"
+TESTBED = REPO / "configs" / "testbed-1998-lumped.toml"
 CLASSES = ("identical", "clean", "traceback", "different", "other")
 
 

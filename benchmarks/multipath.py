@@ -37,7 +37,7 @@ from cdgps_cli.io.run import write_run  # noqa: E402
 from cdgps_cli.sim.structure import SimOptions, simulate, write_simulation  # noqa: E402
 from cdgps_cli.pipeline.estimate_outputs import evaluate, write_states  # noqa: E402
 
-CONFIGS = {"testbed-1998": ROOT / "configs" / "testbed-1998.toml",
+CONFIGS = {"testbed-1998": ROOT / "configs" / "testbed-1998-lumped.toml",
            "tower-120m-fe": ROOT / "configs" / "tower-120m-fe.toml"}
 WHITE_M, MP_M, TAU_S = 0.002, 0.015, 30.0
 

@@ -35,7 +35,7 @@ from cdgps_cli.io.run import write_run  # noqa: E402
 from cdgps_cli.sim.structure import SimOptions, simulate, write_simulation  # noqa: E402
 from cdgps_cli.pipeline.estimate_outputs import evaluate, write_states  # noqa: E402
 
-CONFIGS = {"testbed-1998": ROOT / "configs" / "testbed-1998.toml",
+CONFIGS = {"testbed-1998": ROOT / "configs" / "testbed-1998-lumped.toml",
            "teague-1995-2dof": ROOT / "configs" / "teague-1995-2dof.toml",
            "fe-mast-noise": ROOT / "configs" / "fe-mast-noise.toml"}
 WHITE = [0.002, 0.01, 0.02]

@@ -55,7 +55,7 @@ from cdgps_cli.config.structure import load_config  # noqa: E402
 from cdgps_cli.analysis.spectra import mac  # noqa: E402
 from cdgps_cli.io.states import States  # noqa: E402
 
-CONFIG = ROOT / "configs" / "testbed-1998.toml"
+CONFIG = ROOT / "configs" / "testbed-1998-lumped.toml"
 DECIMATE = 5
 BR = 80
 ORDMAX = 60
@@ -408,12 +408,12 @@ with `pip install pyoma-2`, a benchmark-only dependency, not a dependency of cdg
 ## What was run
 
 For each seed ({seeds}): a {args.duration / 60:g}-minute free-vibration run of the 1998 testbed model
-(`configs/testbed-1998.toml`, 10 Hz, config defaults: 1 cm white phase noise, disturbance 0.2 × process noise,
+(`configs/testbed-1998-lumped.toml`, 10 Hz, config defaults: 1 cm white phase noise, disturbance 0.2 × process noise,
 random modal initial conditions) through the whole pipeline as a user runs it, each stage a `cdgps` subprocess:
 
 ```sh
-cdgps simulate configs/testbed-1998.toml --duration {args.duration:g} --seed SEED --scenario free -o sim
-cdgps ingest sim/receiver.csv sim/gyro.csv --config configs/testbed-1998.toml -o run.mcap
+cdgps simulate configs/testbed-1998-lumped.toml --duration {args.duration:g} --seed SEED --scenario free -o sim
+cdgps ingest sim/receiver.csv sim/gyro.csv --config configs/testbed-1998-lumped.toml -o run.mcap
 cdgps init run.mcap -o init.json
 cdgps estimate run.mcap --init init.json --smooth -o states.mcap
 cdgps spectra states.mcap --gyro run.mcap -o spectra        # → peaks.json: the "cdgps" columns

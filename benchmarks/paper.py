@@ -36,10 +36,18 @@ ROOT = Path(__file__).resolve().parent.parent
 CDGPS = str(Path(sys.executable).parent / "cdgps")
 TESTBED = ROOT / "configs" / "testbed-1998.toml"
 DOF2 = ROOT / "configs" / "teague-1995-2dof.toml"
-QUICK = ("1995", "static", "fig6")
+QUICK = ("1995", "model", "static", "fig6")
 #: the slews' disturbance (× the config's process noise), as benchmarks/control_experiments.py uses
 SLEW_DISTURBANCE = 0.05
-ALL = ("1995", "static", "psd", "fig6", "pulse", "slew", "tracking")
+#: the weights of the pulse and slew experiments: the paper's saturate the jets on our Υ (43-45 % of
+#: jet-periods) and do not finish the slew, so the experiments use the set the paper's own rule ("the
+#: maximum control authority ... without saturating the actuators") gave, `cdgps control design --weights
+#: tuned`; the paper's weights are run beside them on PAPER_WEIGHT_SEEDS seeds and reported in the notes
+EXPERIMENT_WEIGHTS = "tuned"
+PAPER_WEIGHT_SEEDS = 3
+#: Fig. 10's open-loop swing, "approximately 10 deg peak-to-peak": met within ±30 %
+OPEN_PULSE_PP_DEG, OPEN_PULSE_TOL = 10.0, 0.3
+ALL = ("1995", "model", "static", "psd", "fig6", "pulse", "slew", "tracking")
 
 
 @dataclass
@@ -124,11 +132,43 @@ def h1995(w: Path, figdir: Path) -> list[Headline]:
 # 1998: static test (Fig. 7), PSD vs gyro (Fig. 8)
 
 
+def _testbed_script():
+    spec = importlib.util.spec_from_file_location("make_testbed_config", ROOT / "scripts" / "make_testbed_config.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["make_testbed_config"] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def hmodel(w: Path, figdir: Path) -> list[Headline]:
+    mt = _testbed_script()
+    M, K = mt.testbed_matrices(mt.FITTED)
+    modes = mt.model_modes(M, K)
+    err = {n: 100 * (modes[n][0] / mt.TABLE1[n][0] - 1) for n in mt.ORDER[:-1]}
+    within = [n for n, e in err.items() if abs(e) <= 5.0]
+    out = [n for n in err if n not in within]
+    return [Headline(
+        "1998", "Table 1, Figs. 3–5", "an 8 m, 180 kg structure: three rigid sections joined by ½ in. aluminium tubes "
+        "(3.7 m) hung on 12 m threads; eight elastic modes at Table 1's measured frequencies (within 5 %), shapes from "
+        "NASTRAN",
+        ours=f"our mass/stiffness model (fitted: tube wall {mt.FITTED.wall_m * 1e3:.2f} mm, section I_xx = "
+             f"{mt.FITTED.ixx_kg_m2:.1f} kg·m²): {len(within)} of 8 modes within 5 % of Table 1; "
+             + ", ".join(f"{n} {err[n]:+.1f} %" for n in out),
+        met=not out, commands=["python scripts/make_testbed_config.py --fit"],
+        values={"model_hz": {n: modes[n][0] for n in err}, "error_pct": err, "fitted": vars(mt.FITTED)},
+        note="docs/testbed-model.md derives the model. The swing mode is the whole structure on its 12 m threads, "
+             "sqrt(g/L)/2π = 0.144 Hz whatever the other parameters (Table 1's 0.160 Hz would need 9.7 m threads); "
+             "bending-1 is the best compromise of the fit with the twist modes. The config takes Table 1's "
+             "frequencies with our shapes, as the paper adjusted its NASTRAN frequencies to the measured ones.")]
+
+
 def hstatic(w: Path, figdir: Path) -> list[Headline]:
     d = w / "static"
     d.mkdir(parents=True)
-    src = ROOT / "data/testbed-static"
-    steps = [("ingest", src / "receiver.csv.xz", src / "gyro.csv.xz", "--config", TESTBED, "-o", d / "run.mcap"),
+    src = d / "sim"
+    steps = [("simulate", TESTBED, "--duration", 180, "--seed", 12, "--scenario", "static", "--noise-m", 0.002,
+              "-o", src),
+             ("ingest", src / "receiver.csv", src / "gyro.csv", "--config", TESTBED, "-o", d / "run.mcap"),
              ("init", d / "run.mcap", "--sigma-m", 0.002, "-o", d / "init.json"),
              ("estimate", d / "run.mcap", "--init", d / "init.json", "--rest", "80:", "--smooth", "-o", d / "states.mcap"),
              ("report", "static", d / "states.mcap", "--gyro", d / "run.mcap", "--angle", "q6+q10", "--survey-deg", -1.4,
@@ -142,8 +182,8 @@ def hstatic(w: Path, figdir: Path) -> list[Headline]:
              f"drift {r['drift_deg_per_min']:+.4f}°/min; gyro drift {r['gyro_drift_deg_per_min']:+.3f}°/min",
         met=r["noise_rms_deg"] < 0.02 and abs(r["error_deg"]) < 0.1 and abs(r["drift_deg_per_min"]) < 0.01,
         commands=[_cmd(*s) for s in steps], values=r, figure=fig,
-        note="The bundled record (data/testbed-static) is a simulation of the test with the paper's 2 mm static "
-             "noise, so the survey value is the simulator's truth.")]
+        note="A simulation of the test on configs/testbed-1998.toml with the paper's 2 mm static noise (motion, then "
+             "rest from 80 s), so the survey value is the simulator's truth.")]
 
 
 def hpsd(w: Path, figdir: Path) -> list[Headline]:
@@ -197,84 +237,161 @@ def hfig6(w: Path, figdir: Path) -> list[Headline]:
             f"{k} {v:.2f} s" for k, v in sorted(settle.items(), key=lambda kv: kv[1] or math.inf) if k != "rigid-body"),
         met=abs(rigid - 30) <= 10 and all(2.5 <= v <= 10 for v in fast),
         commands=cmds, values=s, figure=fig,
-        note=f"The rigid pole matches; most vibration poles settle ≈ {5 / fast[len(fast) // 2]:.0f}× faster than the paper's "
-             "≈ 5 s because the config takes Table 1's frequencies with the lumped model's mode shapes, which makes the "
-             "structure 3–6× more compliant than the testbed (issue 31 item 1: a consistent mass/stiffness model is "
-             "open); the swing mode is barely controllable by the thrusters.")]
+        note=f"With the paper's weights on our model (mass-normalized shapes, NASTRAN's default, and our Υ) the moved "
+             f"vibration poles settle ≈ {5 / fast[len(fast) // 2]:.0f}× faster than the paper's ≈ 5 s and the rigid pole "
+             "in the time above; the paper's units for ξ and u are not stated and no reading of them gives both 30 s "
+             "and 5 s (unit-norm shapes: rigid 66 s, vibration 2.8–12.5 s; `python benchmarks/control_weight_scaling.py "
+             "configs/testbed-1998.toml`). The swing mode cannot be moved: the thrusters (±x, ±z at the arm tips, our assumption) exert no "
+             "sideways force. With these weights the jets saturate in 43–45 % of jet-periods in the experiments.")]
 
 
-def _pulse(w: Path, seed: int, g: Path) -> dict:
+def _pulse(w: Path, seed: int, g: Path, tag: str) -> dict:
     common = ("--scenario", "pulse", "--duration", 20, "--seed", seed, "--disturbance-scale", 0.05)
-    o, c = w / f"pulse-open-{seed}", w / f"pulse-closed-{seed}"
-    cdgps("simulate", TESTBED, *common, "-o", o)
+    o, c = w / f"pulse-open-{seed}", w / f"pulse-closed-{tag}-{seed}"
+    if not o.exists():
+        cdgps("simulate", TESTBED, *common, "-o", o)
     cdgps("simulate", TESTBED, *common, "--controller", g, "-o", c)
-    return cdgps_json("report", "control", g, "--open", o, "--closed", c, "--date", "2026-01-01", "-o", w / f"pulse-rep-{seed}")
+    return cdgps_json("report", "control", g, "--open", o, "--closed", c, "--date", "2026-01-01", "-o",
+                      w / f"pulse-rep-{tag}-{seed}")
+
+
+def _pulse_summary(reps) -> dict:
+    m = [r["metrics"]["closed"] for r in reps]
+    coords = [r["coordinates"]["closed"] for r in reps]
+    return {"ratio": max(x[q]["peak_ratio"] for x in m for q in ("q5", "q8")),
+            "back": max(x[q]["closed_back_within_s_after_pulse"] or math.inf for x in m for q in ("q5", "q8")),
+            "open_pp": max(x[q]["open_tail_peak_to_peak_deg"] for x in m for q in ("q5", "q8")),
+            "all_within": sum(all(c["within"] is not False for c in cs.values()) for cs in coords),
+            "worst": max(((k, c["max_abs"] / c["limit"], c["max_abs"], c["unit"]) for cs in coords for k, c in cs.items()
+                          if c["limit"]), key=lambda v: v[1]),
+            "saturated": max(r["controllers"]["closed"].get("saturated_fraction") or 0.0 for r in reps),
+            "metrics": m, "coordinates": coords}
 
 
 def hpulse(w: Path, figdir: Path, seeds: int) -> list[Headline]:
-    g, _, cmds = _design(w, "paper")
-    reps = [_pulse(w, s, g) for s in range(1, seeds + 1)]
-    m = [r["metrics"]["closed"] for r in reps]
-    open_pp = max(x[q]["open_tail_peak_to_peak_deg"] for x in m for q in ("q5", "q8"))
-    ratio = max(x[q]["peak_ratio"] for x in m for q in ("q5", "q8"))
-    back = max(x[q]["closed_back_within_s_after_pulse"] or math.inf for x in m for q in ("q5", "q8"))
-    fig = _figure(w / "pulse-rep-1" / "pulse.png", "paper-fig10-pulse.png", figdir)
+    g, _, cmds = _design(w, EXPERIMENT_WEIGHTS)
+    gp, _, cmds_p = _design(w, "paper")
+    run = _pulse_summary([_pulse(w, s, g, EXPERIMENT_WEIGHTS) for s in range(1, seeds + 1)])
+    pap = _pulse_summary([_pulse(w, s, gp, "paper") for s in range(1, min(seeds, PAPER_WEIGHT_SEEDS) + 1)])
+    fig = _figure(w / f"pulse-rep-{EXPERIMENT_WEIGHTS}-1" / "pulse.png", "paper-fig10-pulse.png", figdir)
     cmds += [_cmd("simulate", TESTBED, "--scenario", "pulse", "--duration", 20, "--seed", "S", "--disturbance-scale", 0.05,
-                  "[--controller", "gains-paper.json]", "-o", "DIR"),
-             _cmd("report", "control", "gains-paper.json", "--open", "OPEN", "--closed", "CLOSED", "-o", "REPORT")]
+                  "[--controller", f"gains-{EXPERIMENT_WEIGHTS}.json]", "-o", "DIR"),
+             _cmd("report", "control", f"gains-{EXPERIMENT_WEIGHTS}.json", "--open", "OPEN", "--closed", "CLOSED", "-o",
+                  "REPORT")]
+    k, _, worst, unit = run["worst"]
+    open_pp = run["open_pp"]
     return [
         Headline("1998", "Sec. VI.C, Fig. 10", "closed loop: q5 and q8 peak at about one third of the first open-loop "
                  "oscillation, and the structure is back within 3 s of the end of the pulse",
-                 ours=f"closed/open peak ratio ≤ {ratio:.2f}, back within {back:.1f} s ({seeds} seeds, GPS estimate in the loop)",
-                 met=ratio <= 1 / 3 + 0.02 and back <= 3.0, commands=cmds, figure=fig,
-                 values={"metrics": m, "seeds": seeds}),
+                 ours=f"closed/open peak ratio ≤ {run['ratio']:.2f}, back within {run['back']:.1f} s; every coordinate "
+                      f"q1–q9 within its limit from 3 s after the pulse in {run['all_within']} of {seeds} seeds (worst "
+                      f"{k} {worst:.2f} {unit}) ({seeds} seeds, GPS estimate in the loop, weights {EXPERIMENT_WEIGHTS})",
+                 met=run["ratio"] <= 1 / 3 + 0.02 and run["back"] <= 3.0 and run["all_within"] == seeds,
+                 commands=cmds + cmds_p, figure=fig,
+                 values={"weights": EXPERIMENT_WEIGHTS, **run, "paper_weights": pap, "seeds": seeds},
+                 note=f"Limits: rotations 1°, translations 17.5 mm (cdgps_cli/control/metrics.py). With the paper's "
+                      f"weights ({len(pap['metrics'])} seeds): ratio ≤ {pap['ratio']:.2f}, back within "
+                      f"{pap['back']:.1f} s, every coordinate within its limit in {pap['all_within']} of "
+                      f"{len(pap['metrics'])} seeds, jets saturated in {100 * pap['saturated']:.0f} % of jet-periods "
+                      f"(the {EXPERIMENT_WEIGHTS} weights: {100 * run['saturated']:.0f} %); with them the loop's own "
+                      "firing on the GPS estimate keeps the twists moving by ≈ 1° (with the true state fed back, "
+                      "seed 1: ratio 0.14, back within 0.4 s)."),
         Headline("1998", "Fig. 10 (open loop)", "open loop: the pulse swings the longitudinal twist q5/q8 by ≈ 10° peak to peak",
-                 ours=f"{open_pp:.0f}° peak to peak (largest of q5, q8 over {seeds} seeds)", met=False,
-                 note="3–6× the paper's swing: the same compliance as Fig. 6's poles (issue 31 item 1).",
+                 ours=f"{open_pp:.1f}° peak to peak (largest of q5, q8 over the last 10 s, {seeds} seeds)",
+                 met=abs(open_pp / OPEN_PULSE_PP_DEG - 1) <= OPEN_PULSE_TOL,
+                 note=f"Met within ±{100 * OPEN_PULSE_TOL:.0f} %. Not fitted: the model's inertias come from Table 1's "
+                      "frequencies and the tube's stiffness (docs/testbed-model.md); the lumped model it replaces "
+                      "(configs/testbed-1998-lumped.toml) swung 50°. q5 moves up and q8 down at once, q2 follows about "
+                      "2 s later, as the paper describes.",
                  values={"open_tail_peak_to_peak_deg": open_pp}),
     ]
 
 
-def _slew(w: Path, seed: int, g: Path, extra=()) -> dict:
-    tag = "novib" if extra else "vib"
+def _slew(w: Path, seed: int, g: Path, tag: str, extra=()) -> dict:
     d = w / f"slew-{tag}-{seed}"
     cdgps("simulate", TESTBED, "--scenario", "slew", "--duration", 40, "--seed", seed, "--disturbance-scale", SLEW_DISTURBANCE,
           "--controller", g, *extra, "-o", d)
-    return cdgps_json("report", "control", g, "--closed", d, "--date", "2026-01-01", "-o", w / f"slew-rep-{tag}-{seed}")
+    rep = cdgps_json("report", "control", g, "--closed", d, "--date", "2026-01-01", "-o", w / f"slew-rep-{tag}-{seed}")
+    return {**rep["metrics"]["closed"], "coordinates": rep["coordinates"]["closed"],
+            "saturated": rep["controllers"]["closed"].get("saturated_fraction")}
+
+
+def _worst(runs, key):
+    return max(abs(r[key]) if r[key] is not None else math.inf for r in runs)
+
+
+def _largest(runs, names):
+    return [max(r["coordinates"][q]["max_abs"] for q in names) for r in runs]
 
 
 def hslew(w: Path, figdir: Path, seeds: int) -> list[Headline]:
-    g, _, cmds = _design(w, "paper")
-    vib = [_slew(w, s, g)["metrics"]["closed"] for s in range(1, seeds + 1)]
-    novib = [_slew(w, s, g, ("--no-vibration-control",))["metrics"]["closed"] for s in range(1, min(seeds, 5) + 1)]
-
-    def worst(runs, key):
-        return max(abs(r[key]) if r[key] is not None else math.inf for r in runs)
-
-    arrived, final = worst(vib, "arrived_s_after_command"), worst(vib, "final_error_deg")
+    g, _, cmds = _design(w, EXPERIMENT_WEIGHTS)
+    gp, _, _ = _design(w, "paper")
+    vib = [_slew(w, s, g, "vib") for s in range(1, seeds + 1)]
+    novib = [_slew(w, s, g, "novib", ("--no-vibration-control",)) for s in range(1, min(seeds, 5) + 1)]
+    pap = [_slew(w, s, gp, "paper") for s in range(1, min(seeds, PAPER_WEIGHT_SEEDS) + 1)]
+    arrived, final = _worst(vib, "arrived_s_after_command"), _worst(vib, "final_error_deg")
     internal = [max(r["internal_max_deg"][q] for q in ("q2", "q5", "q8")) for r in vib]
     ok_internal = sum(v <= 1.0 for v in internal)
     internal_nv = [max(r["internal_max_deg"][q] for q in ("q2", "q5", "q8")) for r in novib]
+    vertical, lateral = _largest(vib, ("q3", "q6", "q9")), _largest(vib, ("q1", "q4", "q7"))
+    vertical_nv = _largest(novib, ("q3", "q6", "q9"))
+    all_within = sum(all(c["within"] is not False for c in r["coordinates"].values()) for r in vib)
+    final_nv = _worst(novib, "final_error_deg")
+    ratios = [nv / v for nv, v in zip(internal_nv, internal)]             # the same seeds 1..len(novib)
+    more = [r > 1 for r in ratios]
     fig = _figure(w / "slew-rep-vib-1" / "slew.png", "paper-fig11-slew.png", figdir)
     cmds += [_cmd("simulate", TESTBED, "--scenario", "slew", "--duration", 40, "--seed", "S", "--disturbance-scale",
-                  SLEW_DISTURBANCE, "--controller", "gains-paper.json", "[--no-vibration-control]", "-o", "DIR"),
-             _cmd("report", "control", "gains-paper.json", "--closed", "DIR", "-o", "REPORT")]
+                  SLEW_DISTURBANCE, "--controller", f"gains-{EXPERIMENT_WEIGHTS}.json", "[--no-vibration-control]", "-o", "DIR"),
+             _cmd("report", "control", f"gains-{EXPERIMENT_WEIGHTS}.json", "--closed", "DIR", "-o", "REPORT")]
+    pap_arrived = _worst(pap, "arrived_s_after_command")
+    pap_note = (f"With the paper's weights ({len(pap)} seeds) the jets saturate in "
+                f"{100 * max(r['saturated'] or 0 for r in pap):.0f} % of jet-periods and the slew "
+                + (f"arrives within {pap_arrived:.1f} s" if math.isfinite(pap_arrived) else
+                   "does not arrive within the 35 s after the command")
+                + f" (final error up to {_worst(pap, 'final_error_deg'):.1f}°; q2/q5/q8 up to "
+                f"{max(max(r['internal_max_deg'].values()) for r in pap):.2f}°).")
     return [
         Headline("1998", "Sec. VI.D, Fig. 11", "slew +14° → −22°: done within 30 s, final angle within 0.5° as measured "
                  "by GPS, internal rotations q2/q5/q8 within 1°",
                  ours=f"arrived within {arrived:.1f} s, final error ≤ {final:.2f}°; q2/q5/q8 within 1° in {ok_internal} of "
-                      f"{seeds} seeds (worst {max(internal):.2f}°)",
+                      f"{seeds} seeds (worst {max(internal):.2f}°; GPS estimate in the loop, weights {EXPERIMENT_WEIGHTS})",
                  met=arrived <= 30 and final <= 0.5 and ok_internal >= math.ceil(0.95 * seeds), commands=cmds, figure=fig,
-                 values={"with_vibration_control": vib},
-                 note=f"Issue 31 asks for q2/q5/q8 within 1° in ≥ 19 of 20 seeds with the estimator in the loop. The "
-                      f"structure is forced by {SLEW_DISTURBANCE:g} × the model's process noise throughout, as in "
-                      "benchmarks/control_experiments.py (the paper's structure was at rest before the command); "
-                      "part of the internal motion is that forcing, not the slew."),
-        Headline("1998", "Fig. 12", "without vibration control the slew excites large internal vibrations and the final "
-                 "angle oscillates about the target",
-                 ours=f"internal rotations up to {max(internal_nv):.1f}° without vibration control against "
-                      f"{max(internal):.2f}° with it ({len(novib)} seeds)",
-                 met=min(internal_nv) > max(internal), values={"without_vibration_control": novib}),
+                 values={"weights": EXPERIMENT_WEIGHTS, "with_vibration_control": vib, "paper_weights": pap},
+                 note=f"q2/q5/q8 are the sections' twists about the structure's axis in our model (Fig. 10's 'longitudinal "
+                      f"twist'). The structure is forced by {SLEW_DISTURBANCE:g} × the model's process noise throughout, "
+                      "as in benchmarks/control_experiments.py (the paper's was at rest before the command). " + pap_note),
+        Headline("1998", "Sec. VI.D (every coordinate)", "Fig. 11b's text calls the internal angles 'relative vertical "
+                 "axis rotations' and has them within 1°; the other coordinates are not shown",
+                 ours=f"rotations about the vertical q3/q6/q9 up to {max(vertical):.1f}° (over 1° in "
+                      f"{sum(v > 1.0 for v in vertical)} of {seeds} seeds, least {min(vertical):.1f}°), lateral "
+                      f"translations q1/q4/q7 up to {max(lateral):.1f} mm (limit 17.5 mm); every coordinate within its "
+                      f"limit in {all_within} of {seeds} seeds",
+                 met=all_within >= math.ceil(0.95 * seeds),
+                 values={"vertical_max_deg": vertical, "lateral_max_mm": lateral, "all_within": all_within},
+                 note="The slew's torque comes from ±x jets on the 1 m arms (our reading of 'four actuators at the end of "
+                      "each boom'), i.e. as a torque on each section; the end sections' 60 kg at 4 m (95 % of the "
+                      "rotational inertia) can only be accelerated through the tubes, which bend: with the torque shared "
+                      "equally by the sections, K⁺(f − M r α) gives an end-section yaw of 2.3–3.3° for a 36° bang-bang "
+                      "slew in 30–25 s, and each switch of the acceleration rings the bending modes on top. Vibration "
+                      f"control does not remove it (without it: up to {max(vertical_nv):.1f}°). Sideways (±y) jets "
+                      "instead of ±x gave 1.5–2.1° (one seed, arrival 34.6 s). The paper's q2/q5/q8 are twists by Sec. VI.C "
+                      "and by Sec. VI.A's centre-section vertical angle q6 + q10; if Fig. 11b shows rotations about "
+                      "the vertical, this is not reproduced."),
+        Headline("1998", "Fig. 12b", "without vibration control the slew excites significant internal vibrations",
+                 ours=f"q2/q5/q8 larger without vibration control in {sum(more)} of {len(novib)} seeds, by "
+                      f"{min(ratios):.1f}–{max(ratios):.1f}× (up to {max(internal_nv):.2f}° against {max(internal):.2f}°); "
+                      f"q3/q6/q9 up to {max(vertical_nv):.1f}° against {max(vertical):.1f}°",
+                 met=all(more), values={"without_vibration_control": novib},
+                 note="Same seeds, same reference and weights; the rigid-only regulator is the paper's low-bandwidth "
+                      "design (rigid pole as in Fig. 6, vibration poles left open loop)."),
+        Headline("1998", "Fig. 12a", "without vibration control the final rigid-body angle oscillates about the target",
+                 ours=f"final error ≤ {final_nv:.2f}° without vibration control, ≤ {final:.2f}° with it ({len(novib)} seeds)",
+                 met=False,
+                 note="Not reproduced: both runs follow the same bang-bang reference with feed-forward thrust (the "
+                      "default --slew-reference profile), which the rigid-only loop tracks as well; the paper commanded a "
+                      "step. With a step (seed 1, tuned weights, 60 s run) the slew is not done within 30 s (arrived "
+                      "50.4 s with vibration control, 51.4 s without) and q3/q6/q9 reach 6.2° and 8.2°."),
     ]
 
 
@@ -352,7 +469,7 @@ def _md(rows: list[Headline], runtime_s: float, quick: bool) -> str:
     return "\n".join(out)
 
 
-RUNNERS = {"1995": lambda w, f, a: h1995(w, f), "static": lambda w, f, a: hstatic(w, f), "psd": lambda w, f, a: hpsd(w, f),
+RUNNERS = {"1995": lambda w, f, a: h1995(w, f), "model": lambda w, f, a: hmodel(w, f), "static": lambda w, f, a: hstatic(w, f), "psd": lambda w, f, a: hpsd(w, f),
            "fig6": lambda w, f, a: hfig6(w, f), "pulse": lambda w, f, a: hpulse(w, f, a.pulse_seeds),
            "slew": lambda w, f, a: hslew(w, f, a.slew_seeds), "tracking": lambda w, f, a: htracking(w, f)}
 

@@ -1,6 +1,6 @@
 """Rest detection (``cdgps estimate --rest auto``): 20 static and 20 free-vibration runs.
 
-For each seed: the testbed (configs/testbed-1998.toml), 180 s, 2 mm white phase noise, INIT with
+For each seed: the testbed (configs/testbed-1998-lumped.toml), 180 s, 2 mm white phase noise, INIT with
 the default options (automatic window), then ``estimate --rest auto`` forward and with ``--smooth``
 (the library calls the CLI makes; ``cdgps simulate … --scenario static --noise-m 0.002 --duration
 180 --seed N`` gives the same data).  Static runs: detected rest start vs truth.json's rest segment,
@@ -38,7 +38,7 @@ from cdgps_cli.estimation.rest import (REST_ENTER_PROBABILITY, detection_sigma_m
 from cdgps_cli.core.records import memory_run  # noqa: E402
 from cdgps_cli.sim.structure import SimOptions, simulate  # noqa: E402
 
-TB = load_config(ROOT / "configs" / "testbed-1998.toml")
+TB = load_config(ROOT / "configs" / "testbed-1998-lumped.toml")
 SURVEY_DEG = -1.4
 
 
@@ -99,7 +99,7 @@ def _write_section(doc: Path, lines, a, fr, st) -> None:
     body = "\n".join([begin, "## Rest detection (`estimate --rest auto`): 20 static and 20 free-vibration runs\n",
                       f"Produced by `python benchmarks/rest_detection.py --seeds {a.seeds}` on "
                       f"{time.strftime('%Y-%m-%d')}; per-seed numbers in `docs/benchmarks/rest-detection.json`. Data as "
-                      f"`cdgps simulate configs/testbed-1998.toml --scenario static|free --noise-m 0.002 --duration 180 "
+                      f"`cdgps simulate configs/testbed-1998-lumped.toml --scenario static|free --noise-m 0.002 --duration 180 "
                       f"--seed N`; INIT with default options (window 0–60 s); `estimate --rest auto` with default "
                       f"options (config σ 2 cm; the detection pass weights the data with the batch's a-posteriori "
                       f"σ). The simulator's rest starts at 80 s; the std and mean of q6+q10 are over the simulator's "

@@ -117,7 +117,7 @@ def run_cli(tree: Path, args: list, cwd: Path) -> dict:
 def study_structure(durations: list, before: Path | None, work: Path) -> dict:
     """`cdgps track-structure` on the testbed (7 antennas × 6 pseudolites, 2.2 MHz IF files from
     `cdgps simulate-if`), after and (with ``before``) before, and whether the receiver logs are identical."""
-    cfg = ROOT / "configs" / "testbed-1998.toml"
+    cfg = ROOT / "configs" / "testbed-1998-lumped.toml"
     assert run_cli(ROOT, ["simulate", cfg, "--duration", max(durations) + 1, "--seed", 1, "-o", work / "sim"],
                    work)["exit"] == 0
     rows = []

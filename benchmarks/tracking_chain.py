@@ -1,7 +1,7 @@
 """Issue 16 item 6 (a first, modest version): the whole chain on the simulated testbed, from IF
 samples to modal estimates, with unaided and aided tracking loops, against C/N0.
 
-For each C/N0 the testbed (configs/testbed-1998.toml, 7 antennas, 6 pseudolites) vibrates freely for
+For each C/N0 the testbed (configs/testbed-1998-lumped.toml, 7 antennas, 6 pseudolites) vibrates freely for
 DURATION_S (`cdgps simulate`, seed 1); `cdgps simulate-if` writes the antennas' samples at 2.2 MHz with
 one example receiver oscillator (OSCILLATOR below, h0, h-1, h-2); then for each loop setting
 `cdgps track-structure --acquisition truth` (loops started from the true Doppler and code phase:
@@ -54,7 +54,7 @@ sys.path.insert(0, str(ROOT))
 from cdgps_cli.config.structure import load_config  # noqa: E402
 from cdgps_cli.io.logs import read_receiver_log  # noqa: E402
 
-CONFIG = ROOT / "configs" / "testbed-1998.toml"
+CONFIG = ROOT / "configs" / "testbed-1998-lumped.toml"
 CDGPS = [sys.executable, "-m", "cdgps_cli.cli.commands"]
 FS_HZ = 2.2e6
 DURATION_S = 8.0

@@ -1,7 +1,7 @@
 """Issue 16 item 6: why gyro-aided loops did worse than unaided ones — the aid's own error, without
 IF samples or loops.
 
-For the free-vibrating testbed (configs/testbed-1998.toml, `cdgps simulate --seed 1`), each antenna's
+For the free-vibrating testbed (configs/testbed-1998-lumped.toml, `cdgps simulate --seed 1`), each antenna's
 line-of-sight Doppler to each pseudolite is computed from the simulator's truth (exact ranges, central
 difference over the 10 Hz epochs) and compared with the aid of `pipeline.if_chain.gyro_aid_hz` in
 its variants:
@@ -38,7 +38,7 @@ from cdgps_cli.model.kinematics import antenna_positions, gyro_matrix  # noqa: E
 from cdgps_cli.pipeline.if_chain import gyro_aid_hz, gyro_rates  # noqa: E402
 from cdgps_cli.sim.if_samples import C_M_S, L1_HZ, Transmitter, line_of_sight_range_m  # noqa: E402
 
-CONFIG = ROOT / "configs" / "testbed-1998.toml"
+CONFIG = ROOT / "configs" / "testbed-1998-lumped.toml"
 
 
 def _arg(name, default):

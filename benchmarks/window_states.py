@@ -80,7 +80,7 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--out", default=str(ROOT / "docs" / "window-states.md"))
     a = ap.parse_args()
-    cfg = load_config(ROOT / "configs" / "testbed-1998.toml")
+    cfg = load_config(ROOT / "configs" / "testbed-1998-lumped.toml")
     t_start = time.time()
     rs = []
     for s in range(1, a.seeds + 1):
@@ -100,7 +100,7 @@ def main() -> None:
         f"Produced by `python benchmarks/window_states.py --seeds {a.seeds}` on {datetime.date.today()} "
         f"({platform.machine()}, Python {platform.python_version()}), {time.time() - t_start:.0f} s.",
         "",
-        "Testbed (`configs/testbed-1998.toml`), 90 s free vibration, phase noise 2 cm = the config's σ, "
+        "Testbed (`configs/testbed-1998-lumped.toml`), 90 s free vibration, phase noise 2 cm = the config's σ, "
         "true disturbance = the filter's process noise (disturbance scale 1), "
         f"{a.seeds} seeds; `init` with its automatic window (0–60 s), `estimate` without smoothing. "
         "*before*: INIT's state at 60 s taken as a prior and updated with the 60 s data a second time "

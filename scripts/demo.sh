@@ -11,7 +11,7 @@ echo "== cdgps demo: outputs in $OUT/"
 
 echo "-- 1. static sensor test on the bundled testbed run (data/testbed-static: motion, then rest at -1.4 deg, 2 mm noise, 180 s)"
 "$CDGPS" ingest data/testbed-static/receiver.csv.xz data/testbed-static/gyro.csv.xz \
-    --config configs/testbed-1998.toml -o "$OUT/static/run.mcap"
+    --config configs/testbed-1998-lumped.toml -o "$OUT/static/run.mcap"
 "$CDGPS" info "$OUT/static/run.mcap"
 # this run was recorded with 2 mm phase noise (the config's prior is 2 cm): say so, rather than be warned
 "$CDGPS" init "$OUT/static/run.mcap" --sigma-m 0.002 -o "$OUT/static/init.json"

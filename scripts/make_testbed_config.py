@@ -1,32 +1,34 @@
 #!/usr/bin/env python3
-"""Write configs/testbed-1998.toml: the 1998 Stanford testbed (Teague, How & Parkinson 1998).
+"""Write configs/testbed-1998.toml: the 1998 Stanford testbed (Teague, How & Parkinson 1998), and
+configs/testbed-1998-lumped.toml, the previous lumped model kept for the bundled data and tests.
 
-The paper's mode shapes came from NASTRAN and are not published; this script derives physically
-plausible ones from a lumped mass/stiffness model of the testbed and then imposes Table 1's
-measured frequencies and time constants, as the paper did with its analytic model.
+The paper's mode shapes came from NASTRAN and are not published.  This script builds a mass and
+stiffness model of the testbed from the layout the paper describes (Sec. III.A), fits its unknown
+parameters by least squares so that the generalized eigenproblem K φ = ω² M φ gives Table 1's
+frequencies with the shapes the paper names, and writes those shapes with Table 1's frequencies and
+time constants, as the paper did with its analytic model.  Derivation, assumptions and the table of
+paper vs model per mode: docs/testbed-model.md.
 
-Lumped model (body frame B: x along the structure, y horizontal, z up)
-----------------------------------------------------------------------
-* Three rigid sections C1, C2, C3 (60 kg each, 180 kg total) at x = -4, 0, +4 m, each with a
-  lateral translation y (q1, q4, q7), a twist about x (q2, q5, q8) and a rotation about the
-  vertical z (q3, q6, q9).  Section inertias I_xx = I_zz = 6 kg·m² (a 25 cm aluminium cube with two
-  1 m iron arms).
-* Two elastic beams (aluminium tube, 12.7 mm OD, 1 mm wall, E = 70 GPa, G = 26 GPa, 3.7 m long)
-  clamped to the facing sides of adjacent sections (0.15 m from the section centres): Euler-
-  Bernoulli bending stiffness in the horizontal plane (couples y and z-rotation) and torsion
-  (couples the twists).
-* Suspension: 12 m threads attached just above each centre of mass (1.5 mm): pendulum stiffness
-  m·g/L on y, gravity stiffness m·g·h on the twist.  The threads hang from a beam on a thrust
-  bearing, so a rotation of the whole assembly about the vertical is free: that motion is the
-  rigid-body coordinate q10, and the elastic modes are computed on the mass-orthogonal complement of
-  it (q1..q9 stay small in B).
-* Generalized eigenproblem K v = ω² M v on that 8-dimensional subspace → 8 elastic modes,
-  mass-normalized (Uᵀ M U = I), signs fixed so the largest component is positive.  Modes are named
-  after their character (the twist subsystem gives the pendulum/roll mode and two twist modes, the
-  lateral subsystem the swing mode and four bending modes) and given Table 1's frequency and time
-  constant.  The rigid-body mode is q10 = ξ9 / sqrt(I_total).
+Model (body frame B: x along the structure, y horizontal, z up; q1..q9 = [y, twist φ about x,
+yaw θ about z] of sections C1, C2, C3 at x = -4, 0, +4 m)
+---------------------------------------------------------------------------------------------
+* M = diag(m, I_xx, I_zz) per section; m = 60 kg (180 kg / 3), identical sections, so one I_xx and
+  one I_zz = I_xx + I_yy (perpendicular-axis theorem for a section lying in the horizontal plane).
+* Two aluminium tubes (½ in. = 12.7 mm OD, wall t, E = 70 GPa, G = 26 GPa, 3.7 m) clamped to the
+  cube faces 0.15 m from the section centres: an Euler-Bernoulli element in the horizontal plane
+  (y, θ) through rigid offsets, and torsion GJ/L between the twists.
+* Threads (12 m) hang each section from a top beam that turns freely on a thrust bearing: pendulum
+  stiffness m g/L on y relative to the top beam, whose angle is eliminated (static condensation: it
+  is massless and frictionless), and gravity stiffness m g h on the twist, h the height of the
+  attachment above the centre of mass (per section: the paper balances each section by adjusting it).
+  The rigid rotation of the whole assembly about the vertical is then the null vector of K: the
+  rigid-body coordinate q10; the 8 elastic modes are M-orthogonal to it (mean-axis frame B).
+* Fitted (least squares on log frequency, all 8 elastic modes, equal weights): t, I_xx, I_yy ≥ 0,
+  h (C1, C3) and h (C2).  The fitted values are written below as FITTED (4 significant digits);
+  ``--fit`` runs the fit again and prints it with the residuals.
 
-Run ``python scripts/make_testbed_config.py`` to regenerate; tests check the file matches.
+Run ``python scripts/make_testbed_config.py`` to regenerate both files; ``--check`` exits 1 when
+a file differs from what the script renders (tests use it).
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ from __future__ import annotations
 import math
 import re
 import sys
+from dataclasses import astuple, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -41,16 +44,16 @@ import scipy.linalg
 
 G0 = 9.80665
 X_SECTIONS = np.array([-4.0, 0.0, 4.0])
-MASS_KG = 60.0
-I_XX = 6.0
+MASS_KG = 60.0                  # per section: 180 kg / 3
+I_XX = 6.0                      # the lumped model's section inertias and tube wall (testbed-1998-lumped.toml)
 I_ZZ = 6.0
-ARM_M = 1.0
-BEAM_L = 3.7
-BEAM_OFFSET = 0.15
-E_AL, G_AL = 70e9, 26e9
-OD, WALL = 0.0127, 0.001
-THREAD_L = 12.0
-THREAD_H = 0.0015
+ARM_M = 1.0                     # antennas and jets at the arm tips, 1 m from the section centre (assumed)
+BEAM_L = 3.7                    # tube length (Sec. III.A)
+BEAM_OFFSET = 0.15              # tube clamped at the cube face: (4 m spacing - 3.7 m tube) / 2
+E_AL, G_AL = 70e9, 26e9         # aluminium, Pa
+OD, WALL = 0.0127, 0.001        # ½ in. tube; WALL: the lumped model's wall
+THREAD_L = 12.0                 # suspension threads (Sec. III.A)
+THREAD_H = 0.0015               # the lumped model's thread height above the centre of mass
 
 # Table 1 of the paper: (name, frequency_hz, time_constant_s)
 TABLE1 = {
@@ -62,6 +65,152 @@ ORDER = ["pendulum", "swing", "bending-1", "twist-1", "twist-2", "bending-2", "b
          "bending-4", "rigid-body"]
 
 
+# ---------------------------------------------------------------- the fitted model (issue 31)
+AL_DENSITY = 2700.0
+
+
+@dataclass(frozen=True)
+class TestbedParameters:
+    """The unknowns of the testbed model (SI units)."""
+
+    wall_m: float                  # tube wall thickness
+    ixx_kg_m2: float               # section inertia about the structure axis x (twist)
+    iyy_kg_m2: float               # I_zz - I_xx >= 0 (the section's inertia about y)
+    thread_height_end_m: float     # thread attachment above the centre of mass, C1 and C3
+    thread_height_centre_m: float  # the same, C2
+
+    @property
+    def izz_kg_m2(self) -> float:
+        return self.ixx_kg_m2 + self.iyy_kg_m2
+
+
+#: the least-squares solution of :func:`fit_parameters`, rounded to 4 significant digits
+FITTED = TestbedParameters(wall_m=7.967e-4, ixx_kg_m2=36.11, iyy_kg_m2=0.0,
+                           thread_height_end_m=5.800e-3, thread_height_centre_m=1.389e-2)
+FIT_START = TestbedParameters(1.0e-3, 40.0, 3.0, 8.0e-3, 2.0e-2)
+#: bounds: a "thin-walled" ½ in. tube (0.4-1.27 mm), all of a 60 kg section's mass within the 1 m arms
+#: (I_xx <= m·1 m²), I_yy >= 0, the thread within 5 cm of the centre of mass
+FIT_LOWER = TestbedParameters(4.0e-4, 1.0, 0.0, 0.0, 0.0)
+FIT_UPPER = TestbedParameters(1.27e-3, 60.0, 30.0, 0.05, 0.05)
+FIT_SCALE = TestbedParameters(1.0e-3, 10.0, 3.0, 0.01, 0.01)
+
+
+def tube_stiffness(wall_m: float) -> tuple[float, float]:
+    """Bending EI (N·m²) and torsion GJ (N·m²) of the ½ in. aluminium tube with wall ``wall_m``."""
+    i_area = np.pi / 64 * (OD**4 - (OD - 2 * wall_m) ** 4)
+    return E_AL * i_area, G_AL * 2 * i_area
+
+
+def tube_sag_m(wall_m: float) -> float:
+    """Mid-span sag of the clamped tube under its own weight, w L⁴ / (384 EI), m."""
+    area = np.pi / 4 * (OD**2 - (OD - 2 * wall_m) ** 2)
+    return AL_DENSITY * area * G0 * BEAM_L**4 / (384 * tube_stiffness(wall_m)[0])
+
+
+def beam_element(ei: float, length: float) -> np.ndarray:
+    """Euler-Bernoulli stiffness (4, 4) on [v1, θ1, v2, θ2]."""
+    L = length
+    return ei / L**3 * np.array([[12, 6 * L, -12, 6 * L], [6 * L, 4 * L * L, -6 * L, 2 * L * L],
+                                 [-12, -6 * L, 12, -6 * L], [6 * L, 2 * L * L, -6 * L, 4 * L * L]])
+
+
+def rigid_rotation() -> np.ndarray:
+    """The rigid rotation of the assembly about the vertical in q1..q9 (1 rad), shape (9,)."""
+    r = np.zeros(9)
+    r[0::3] = X_SECTIONS
+    r[2::3] = 1.0
+    return r
+
+
+def testbed_matrices(p: TestbedParameters) -> tuple[np.ndarray, np.ndarray]:
+    """M and K (9, 9) over q1..q9; K has the rigid rotation as its null vector."""
+    M = np.diag(np.tile([MASS_KG, p.ixx_kg_m2, p.izz_kg_m2], 3))
+    ei, gj = tube_stiffness(p.wall_m)
+    K = np.zeros((9, 9))
+    for k in range(2):
+        a, b = 3 * k, 3 * (k + 1)
+        T = np.zeros((4, 9))                  # beam-end [v1, θ1, v2, θ2] from the section DOFs
+        T[0, a], T[0, a + 2] = 1.0, BEAM_OFFSET
+        T[1, a + 2] = 1.0
+        T[2, b], T[2, b + 2] = 1.0, -BEAM_OFFSET
+        T[3, b + 2] = 1.0
+        K += T.T @ beam_element(ei, BEAM_L) @ T
+        d = np.zeros(9)
+        d[a + 1], d[b + 1] = -1.0, 1.0
+        K += gj / BEAM_L * np.outer(d, d)
+    heights = (p.thread_height_end_m, p.thread_height_centre_m, p.thread_height_end_m)
+    Kt = np.zeros((10, 10))                   # threads on [q1..q9, β]: β the top beam's angle
+    for k in range(3):
+        K[3 * k + 1, 3 * k + 1] += MASS_KG * G0 * heights[k]
+        a = np.zeros(10)
+        a[3 * k], a[9] = 1.0, -X_SECTIONS[k]
+        Kt += MASS_KG * G0 / THREAD_L * np.outer(a, a)
+    K += Kt[:9, :9] - np.outer(Kt[:9, 9], Kt[9, :9]) / Kt[9, 9]   # the free top beam condensed out
+    return M, 0.5 * (K + K.T)
+
+
+def _mac(M, v, u) -> float:
+    """Mass-weighted modal assurance criterion of two shapes (1: the same shape)."""
+    return float((v @ M @ u) ** 2 / ((v @ M @ v) * (u @ M @ u)))
+
+
+def ideal_shapes() -> dict:
+    """The shapes the paper's mode names describe, in q1..q9 (unnormalized)."""
+    def e(**kw):
+        v = np.zeros(9)
+        for k, x in kw.items():
+            v[int(k[1:]) - 1] = x
+        return v
+    return {"pendulum": e(q2=1, q5=1, q8=1),        # all sections rock together about x
+            "twist-1": e(q2=-1, q8=1),               # ends twist against each other
+            "twist-2": e(q2=1, q5=-2, q8=1),         # centre against the ends
+            "swing": e(q1=1, q4=1, q7=1)}            # the whole structure swings sideways
+
+
+def name_modes(M, w2, V) -> dict:
+    """Table 1's name -> column of V: the three modes with the most twist energy are the pendulum
+    and twist modes (each the best MAC with its ideal shape), the remaining lateral mode closest to
+    a common translation is the swing mode, the other four the bending modes by frequency."""
+    elastic = [int(i) for i in np.argsort(w2)[1:]]
+    twist_energy = {i: sum(V[3 * k + 1, i] ** 2 * M[3 * k + 1, 3 * k + 1] for k in range(3)) for i in elastic}
+    twist = sorted(elastic, key=twist_energy.get)[-3:]
+    lateral = [i for i in elastic if i not in twist]
+    ideal = ideal_shapes()
+    out = {}
+    for n in ("pendulum", "twist-1", "twist-2"):
+        out[n] = max(twist, key=lambda i: _mac(M, V[:, i], ideal[n]))
+        twist.remove(out[n])
+    out["swing"] = max(lateral, key=lambda i: _mac(M, V[:, i], ideal["swing"]))
+    lateral.remove(out["swing"])
+    for j, i in enumerate(sorted(lateral, key=lambda i: w2[i])):
+        out[f"bending-{j + 1}"] = i
+    return out
+
+
+def model_modes(M, K) -> dict:
+    """Table 1's name -> (model frequency, Hz; mass-normalized shape (9,)) for the 8 elastic modes."""
+    w2, V = scipy.linalg.eigh(K, M)
+    names = name_modes(M, w2, V)
+    return {n: (float(np.sqrt(max(w2[i], 0.0)) / 2 / np.pi), clean_shape(V[:, i])) for n, i in names.items()}
+
+
+def frequency_residuals(p: TestbedParameters) -> np.ndarray:
+    """ln(model / Table 1) per elastic mode in ORDER, shape (8,)."""
+    modes = model_modes(*testbed_matrices(p))
+    return np.array([np.log(modes[n][0] / TABLE1[n][0]) for n in ORDER[:-1]])
+
+
+def fit_parameters() -> tuple[TestbedParameters, np.ndarray]:
+    """Least-squares parameters (from FIT_START within the bounds) and their residuals."""
+    from scipy.optimize import least_squares  # noqa: PLC0415
+
+    vec = lambda p: np.array(astuple(p), dtype=float)  # noqa: E731
+    r = least_squares(lambda x: frequency_residuals(TestbedParameters(*x)), vec(FIT_START),
+                      bounds=(vec(FIT_LOWER), vec(FIT_UPPER)), x_scale=vec(FIT_SCALE), xtol=1e-12, ftol=1e-12)
+    return TestbedParameters(*map(float, r.x)), r.fun
+
+
+# ---------------------------------------------------------------- the previous lumped model
 def lumped_model():
     """Mass and stiffness matrices (9×9) over q1..q9 = [y, twist, yaw] per section."""
     M = np.diag(np.tile([MASS_KG, I_XX, I_ZZ], 3))
@@ -91,6 +240,7 @@ def lumped_model():
 
 
 def elastic_modes():
+    """The previous lumped model's named modes (configs/testbed-1998-lumped.toml, rendered unchanged)."""
     M, K = lumped_model()
     r = np.zeros(9)                       # rigid rotation of the assembly about the vertical
     r[0::3] = X_SECTIONS
@@ -173,14 +323,33 @@ def first_difference(expected: str, actual: str):
     return None
 
 
-def render() -> str:
-    names, M = elastic_modes()
-    izz_total = 3 * I_ZZ + MASS_KG * float(np.sum(X_SECTIONS**2))
+def render(lumped: bool = False) -> str:
+    """The config text: the fitted testbed model, or with ``lumped`` the previous lumped model
+    (configs/testbed-1998-lumped.toml, byte for byte as it was generated before issue 31)."""
+    if lumped:
+        modes = {n: (f, v) for n, (f, v, _) in elastic_modes()[0].items()}
+        izz_total = 3 * I_ZZ + MASS_KG * float(np.sum(X_SECTIONS**2))
+        header = ["# Teague, How & Parkinson (1998): the 8 m, 180 kg Stanford flexible-structure testbed.",
+                  "# GENERATED by scripts/make_testbed_config.py (lumped model → mode shapes, Table 1 frequencies);",
+                  "# edit the script, not this file.  Format: docs/config-format.md."]
+        note = "lumped-model frequency"
+    else:
+        M, K = testbed_matrices(FITTED)
+        modes = model_modes(M, K)
+        izz_total = float(rigid_rotation() @ M @ rigid_rotation())
+        header = ["# Teague, How & Parkinson (1998): the 8 m, 180 kg Stanford flexible-structure testbed.",
+                  "# GENERATED by scripts/make_testbed_config.py: mode shapes of the mass/stiffness model fitted to",
+                  "# Table 1 (docs/testbed-model.md), frequencies and time constants of Table 1 as in the paper;",
+                  "# edit the script, not this file.  Format: docs/config-format.md.",
+                  f"# fitted: tube wall {FITTED.wall_m * 1e3:.3g} mm, section I_xx = I_zz = {FITTED.ixx_kg_m2:.4g} kg·m², "
+                  f"I_zz - I_xx = {FITTED.iyy_kg_m2:.3g} kg·m²,",
+                  f"# thread above the centre of mass {FITTED.thread_height_end_m * 1e3:.3g} mm (C1, C3), "
+                  f"{FITTED.thread_height_centre_m * 1e3:.3g} mm (C2)"]
+        note = "model frequency"
     lines = []
     w = lines.append
-    w("# Teague, How & Parkinson (1998): the 8 m, 180 kg Stanford flexible-structure testbed.")
-    w("# GENERATED by scripts/make_testbed_config.py (lumped model → mode shapes, Table 1 frequencies);")
-    w("# edit the script, not this file.  Format: docs/config-format.md.")
+    for h in header:
+        w(h)
     w("")
     w("[model]")
     w('name = "testbed-1998"')
@@ -252,8 +421,8 @@ def render() -> str:
             shape = np.zeros(10)
             shape[9] = 1.0 / np.sqrt(izz_total)
         else:
-            fl, v, _ = names[name]
-            w(f"# lumped-model frequency {fl:.4f} Hz")
+            fl, v = modes[name]
+            w(f"# {note} {fl:.4f} Hz")
             shape = np.concatenate([v, [0.0]])
         w(f"shape = {fmt(shape)}")
         w("")
@@ -319,10 +488,33 @@ def check_or_write(out: Path, text: str, check: bool) -> None:
     sys.exit(0)
 
 
+def report(p: TestbedParameters) -> str:
+    """Per mode: Table 1, the model's frequency and the MAC with the named shape (where one is named)."""
+    M, K = testbed_matrices(p)
+    modes, ideal = model_modes(M, K), ideal_shapes()
+    rows = [f"{n:10s} Table 1 {TABLE1[n][0]:.3f} Hz  model {modes[n][0]:.4f} Hz  "
+            f"{100 * (modes[n][0] / TABLE1[n][0] - 1):+5.1f} %"
+            + (f"  MAC {_mac(M, modes[n][1], ideal[n]):.4f}" if n in ideal else "") for n in ORDER[:-1]]
+    ei, gj = tube_stiffness(p.wall_m)
+    rows.append(f"EI {ei:.2f} N·m², GJ/L {gj / BEAM_L:.2f} N·m/rad, sag {tube_sag_m(p.wall_m) * 100:.2f} cm")
+    return "\n".join(rows)
+
+
 if __name__ == "__main__":
-    out = Path(__file__).resolve().parent.parent / "configs" / "testbed-1998.toml"
-    text = render()
-    check_or_write(out, text, "--check" in sys.argv)
-    names, _ = elastic_modes()
-    for n in ORDER[:-1]:
-        print(f"{n:10s} lumped {names[n][0]:.4f} Hz -> Table 1 {TABLE1[n][0]} Hz")
+    root = Path(__file__).resolve().parent.parent / "configs"
+    if "--fit" in sys.argv:
+        p, res = fit_parameters()
+        print(p, f"\nRMS log residual {np.sqrt(np.mean(res**2)):.4f}")
+        print(report(p))
+        sys.exit(0)
+    if "--check" in sys.argv:
+        bad = [out for out, lumped in ((root / "testbed-1998.toml", False), (root / "testbed-1998-lumped.toml", True))
+               if first_difference(render(lumped), out.read_text()) is not None]
+        for out in bad[1:]:
+            print(f"{out}: differs from what make_testbed_config.py renders", file=sys.stderr)
+        if bad:
+            check_or_write(bad[0], render(bad[0].name.endswith("lumped.toml")), True)
+        sys.exit(0)
+    for out, lumped in ((root / "testbed-1998.toml", False), (root / "testbed-1998-lumped.toml", True)):
+        check_or_write(out, render(lumped), False)
+    print(report(FITTED))

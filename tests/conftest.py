@@ -10,7 +10,7 @@ import pytest
 from cdgps_cli.config.structure import load_config
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
-TESTBED_PATH = REPO_ROOT / "configs" / "testbed-1998.toml"
+TESTBED_PATH = REPO_ROOT / "configs" / "testbed-1998-lumped.toml"
 DOF2_PATH = REPO_ROOT / "configs" / "teague-1995-2dof.toml"
 
 

@@ -13,6 +13,14 @@ import numpy as np
 BACK_FRACTION = 0.1
 #: the slew has "arrived" when the rigid-body angle stays within this many degrees of the command
 ARRIVED_WITHIN_DEG = 0.5
+#: every generalized coordinate of the closed-loop experiments is checked against a limit (issue 31):
+#: a rotation within the paper's 1° for the sections' internal rotations (Fig. 11) ...
+ROTATION_LIMIT_DEG = 1.0
+#: ... a translation within the displacement a 1° rotation gives at 1 m (the testbed's arm length), mm
+TRANSLATION_LIMIT_MM = 1000.0 * np.radians(1.0)
+#: the pulse experiment checks every coordinate from this long after the pulse ends ("the system returned to
+#: the initial configuration within 3 s of the end of the pulse", Sec. VI.C)
+PULSE_BACK_S = 3.0
 
 
 def first_peak_deg(time_s, angle_deg, after_s: float) -> float:
@@ -75,3 +83,34 @@ def slew_metrics(time_s, rigid_deg, internal_deg: dict, command_deg: float, comm
             "final_error_deg": float(r[-1] - command_deg),
             "final_peak_to_peak_deg": float(np.ptp(r[tail])),
             "internal_max_deg": {k: float(np.abs(np.asarray(v)[after]).max()) for k, v in internal_deg.items()}}
+
+
+def coordinate_checks(time_s, values: dict, kinds: dict, after_s: float) -> dict:
+    """Every coordinate's largest |value| from ``after_s`` on against its limit.
+
+    Parameters
+    ----------
+    time_s : array_like, shape (n,)
+    values : dict
+        Coordinate name -> samples (n,) in SI units (rad for a rotation, m for a translation).
+    kinds : dict
+        Coordinate name -> ``"rotation"``, ``"translation"`` or another kind (not checked: no limit).
+    after_s : float
+
+    Returns
+    -------
+    dict
+        Name -> ``{"kind", "unit" ("deg" or "mm"), "max_abs", "limit", "within"}``; ``limit`` and
+        ``within`` are None for a kind without a limit.
+    """
+    t = np.asarray(time_s)
+    sel = t >= after_s
+    out = {}
+    for name, v in values.items():
+        kind = kinds.get(name)
+        scale, unit, limit = {"rotation": (np.degrees(1.0), "deg", ROTATION_LIMIT_DEG),
+                              "translation": (1000.0, "mm", TRANSLATION_LIMIT_MM)}.get(kind, (1.0, "", None))
+        m = float(np.abs(np.asarray(v, dtype=float)[sel]).max() * scale) if sel.any() else float("nan")
+        out[name] = {"kind": kind, "unit": unit, "max_abs": m, "limit": limit,
+                     "within": None if limit is None else bool(m <= limit)}
+    return out

@@ -14,15 +14,19 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from cdgps_cli.control.metrics import ARRIVED_WITHIN_DEG, BACK_FRACTION, pulse_metrics, slew_metrics
+from cdgps_cli.control.metrics import (ARRIVED_WITHIN_DEG, BACK_FRACTION, PULSE_BACK_S, ROTATION_LIMIT_DEG,
+                                      TRANSLATION_LIMIT_MM, coordinate_checks, pulse_metrics, slew_metrics)
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.provenance import _file, report_date, software
 from cdgps_cli.io.atomic import output_set
 from cdgps_cli.io.gains_file import gain_sha256, read_gains
 from cdgps_cli.report.sensor_reports import REPORT_FILES, _fmt, _html_table, _md_table, _mpl, _save_fig, _write_report
 
-#: internal angles plotted and measured (the sections' vertical-axis rotations, Figs. 10–12)
+#: internal angles plotted and measured (Figs. 10–12): the longitudinal twists of this model
 INTERNAL_ANGLES = ("q2", "q5", "q8")
+#: the testbed's rotations about the vertical (Fig. 4; Sec. VI.A's centre-section vertical angle is q6 + q10):
+#: Fig. 11b's text calls q2, q5, q8 "vertical axis rotations", so the slew figure shows both triples
+VERTICAL_ANGLES = ("q3", "q6", "q9")
 RIGID_ANGLE = "q10"
 ROLES = ("open", "closed", "full_state", "no_vibration")
 #: every file the report may write (replaced as one set, cdgps_cli.io.atomic.output_set)
@@ -137,10 +141,12 @@ def control_report(gains_path: str | Path, runs: dict, out_dir: str | Path, date
                                                                                     for r, v in runs.items()},
                                                        "--date": date},
         "inputs": inputs, "software": software(), "date": when["date"], "date_source": when["source"]}})
+    data["coordinates"], k_rows, k_header, k_note = _coordinate_section(sims, scenario, data)
     c_rows, c_header = _controller_rows(sims)
     data["controllers"] = {role: s["truth"]["controller"] for role, s in sims.items() if role != "open"}
     title = f"Control experiment: {scenario}"
     md = (f"# {title}\n\n{_md_table(rows, header)}\n\n{data['definitions']}\n\n"
+          f"## Every coordinate\n\n{_md_table(k_rows, k_header)}\n\n{k_note}\n\n"
           f"## Controller\n\n{_md_table(c_rows, c_header)}\n")
     with output_set(out_dir, replaces=CONTROL_REPORT_FILES) as dest:
         pole_figure(gains["poles"], dest.path("poles.png"), "LQR poles (Fig. 6 style)")
@@ -149,9 +155,36 @@ def control_report(gains_path: str | Path, runs: dict, out_dir: str | Path, date
         plt.close("all")
         _write_report(dest, title, md, data,
                       [("Result", _html_table(rows, header) + f"<p class='note'>{data['definitions']}</p>"),
+                       ("Every coordinate", _html_table(k_rows, k_header) + f"<p class='note'>{k_note}</p>"),
                        ("Controller", _html_table(c_rows, c_header))],
                       figures, captions)
     return data
+
+
+def _coordinate_section(sims, scenario: str, data: dict):
+    """Every generalized coordinate but the rigid-body angle, per closed-loop run, against its limit
+    (:func:`cdgps_cli.control.metrics.coordinate_checks`): after the command (slew), from
+    PULSE_BACK_S after the pulse's end (pulse)."""
+    seg = data["slew"] if scenario == "slew" else data["pulse"]
+    after = seg["start_s"] if scenario == "slew" else seg["end_s"] + PULSE_BACK_S
+    checks = {}
+    for role, s in sims.items():
+        kinds = s["truth"].get("coordinates")
+        if role == "open" or not kinds:
+            continue
+        names = [k for k in kinds if k != RIGID_ANGLE and k in s["q"].columns]
+        checks[role] = coordinate_checks(s["q"]["time_s"].to_numpy(), {k: s["q"][k].to_numpy() for k in names},
+                                         kinds, after)
+    names = list(next(iter(checks.values()), {}))
+    header = ["run", *names, "all within"]
+    rows = [[ROLE_LABEL[role], *(f"{c[k]['max_abs']:.2f}" + ("" if c[k]["within"] is not False else " ✗") for k in names),
+             "yes" if all(v["within"] is not False for v in c.values()) else "no"] for role, c in checks.items()]
+    when = "after the command" if scenario == "slew" else f"from {PULSE_BACK_S:g} s after the pulse's end"
+    note = (f"Largest |value| {when} (truth), degrees for rotations (limit {ROTATION_LIMIT_DEG:g}°, the paper's "
+            f"internal-rotation bound of Fig. 11), millimetres for translations (limit {TRANSLATION_LIMIT_MM:.1f} mm, "
+            "what 1° gives at 1 m); ✗: over its limit. The rigid-body angle is the table above."
+            if checks else "The simulations predate the per-coordinate kinds in truth.json: not checked.")
+    return checks, rows, header, note
 
 
 def _controller_rows(sims):
@@ -238,7 +271,9 @@ def _slew_section(sims):
               f"as estimated: within {ARRIVED_WITHIN_DEG:g}° (s)", "as estimated: largest internal angle (°)"]
     plt = _mpl()
     shown = [r for r in ("closed", "no_vibration") if r in sims]
-    fig, axes = plt.subplots(2, len(shown), figsize=(5.5 * len(shown), 6.5), squeeze=False, sharex=True)
+    vertical = [k for k in VERTICAL_ANGLES if k in sims["closed"]["q"].columns]
+    fig, axes = plt.subplots(2 + bool(vertical), len(shown), figsize=(5.5 * len(shown), 6.5 + 3 * bool(vertical)),
+                             squeeze=False, sharex=True)
     for j, role in enumerate(shown):
         s = sims[role]
         t = s["q"]["time_s"].to_numpy()
@@ -255,13 +290,19 @@ def _slew_section(sims):
         for k in INTERNAL_ANGLES:
             axes[1, j].plot(t, _deg(s, k), lw=1, label=k)
         axes[1, j].set_ylabel("internal angles (deg)")
-        axes[1, j].set_xlabel("time (s)")
         axes[1, j].legend(fontsize=8)
+        for k in vertical:
+            axes[2, j].plot(t, _deg(s, k), lw=1, label=k)
+        if vertical:
+            axes[2, j].set_ylabel("vertical-axis rotations (deg)")
+            axes[2, j].legend(fontsize=8)
+        axes[-1, j].set_xlabel("time (s)")
     fig.tight_layout()
     caps = {"slew.png": f"Slew from {sims['closed']['truth']['segments'][0].get('rigid_angle_deg', 0):g}° to {cmd:g}° "
                         f"commanded at {t0:g} s: rigid-body angle (top; band ±{ARRIVED_WITHIN_DEG:g}° about the command) "
-                        f"and the sections' vertical-axis rotations (bottom), with and without vibration control "
-                        f"(Figs. 11–12)."}
+                        f"the internal angles {', '.join(INTERNAL_ANGLES)} (middle; Fig. 11b's labels) and the sections' "
+                        f"rotations about the vertical {', '.join(vertical) or '(none)'} (bottom), with and without "
+                        f"vibration control (Figs. 11–12)."}
     data = {"slew": seg, "metrics": metrics,
             "definitions": f"Within: from when the true rigid-body angle stays within {ARRIVED_WITHIN_DEG:g}° of the "
                            f"command to the end; final error and peak-to-peak over the last 10 s; internal maxima "

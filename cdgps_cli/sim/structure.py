@@ -294,7 +294,8 @@ def simulate(cfg: StructureConfig, opt: SimOptions, trajectory=None) -> Simulati
     qdot = x[:, nm:] @ U.T
 
     truth = {"scenario": opt.scenario, "seed": opt.seed, "duration_s": float(time_s[-1]),
-             "sample_period_s": T, "config": cfg.name, "config_sha256": cfg.sha256}
+             "sample_period_s": T, "config": cfg.name, "config_sha256": cfg.sha256,
+             "coordinates": dict(zip(cfg.coord_names, cfg.coord_kinds))}   # kinds: the reports' limits per coordinate
     segments = [{"kind": "motion", "start_s": 0.0, "end_s": float(time_s[-1])}]
     if opt.scenario == "static":
         t_rest, t_settle = sim["static_rest_after_s"], sim["static_settle_s"]

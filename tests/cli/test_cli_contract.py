@@ -15,7 +15,7 @@ from click.testing import CliRunner
 from cdgps_cli.cli.commands import main
 
 ROOT = Path(__file__).resolve().parents[2]
-TESTBED = ROOT / "configs" / "testbed-1998.toml"
+TESTBED = ROOT / "configs" / "testbed-1998-lumped.toml"
 READ_ONLY = {("info",), ("evaluate",)}      # print to stdout, write no file
 
 

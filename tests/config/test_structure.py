@@ -14,8 +14,10 @@ from cdgps_cli.config.structure import load_config, parse_config
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.phase import all_channels, phase_model, phase_model_q
 
-TESTBED_NAME = "testbed-1998.toml"
+TESTBED_NAME = "testbed-1998-lumped.toml"
 TESTBED_PSEUDO_PATH = "configs/" + TESTBED_NAME
+#: the configs scripts/make_testbed_config.py writes (the fitted testbed, and the lumped model the tests use)
+GENERATED_CONFIGS = ("testbed-1998.toml", "testbed-1998-lumped.toml")
 
 # The bending-1 mode (modes[2]) of the testbed, as written by the generator.
 BENDING1_FREQ = "frequency_hz = 0.132\n"
@@ -109,6 +111,8 @@ def _run_check_on(repo_root, tmp_path, config_text):
     (tmp_path / "scripts").mkdir(exist_ok=True)
     (tmp_path / "configs").mkdir(exist_ok=True)
     shutil.copy(repo_root / "scripts" / "make_testbed_config.py", tmp_path / "scripts")
+    for shipped in GENERATED_CONFIGS:                  # the script renders (and checks) both testbed configs
+        shutil.copy(repo_root / "configs" / shipped, tmp_path / "configs")
     (tmp_path / "configs" / TESTBED_NAME).write_text(config_text)
     return subprocess.run([sys.executable, "scripts/make_testbed_config.py", "--check"], cwd=tmp_path,
                           capture_output=True, text=True, timeout=60)
@@ -149,6 +153,8 @@ def test_generator_check_detects_drift(repo_root, testbed_text, tmp_path):
     (tmp_path / "scripts").mkdir()
     (tmp_path / "configs").mkdir()
     shutil.copy(repo_root / "scripts" / "make_testbed_config.py", tmp_path / "scripts")
+    for shipped in GENERATED_CONFIGS:
+        shutil.copy(repo_root / "configs" / shipped, tmp_path / "configs")
     (tmp_path / "configs" / TESTBED_NAME).write_text(_replace_once(testbed_text, BENDING1_FREQ, "frequency_hz = 0.133\n"))
     r = subprocess.run([sys.executable, "scripts/make_testbed_config.py", "--check"], cwd=tmp_path,
                        capture_output=True, text=True, timeout=60)
@@ -346,7 +352,7 @@ def test_fe_style_config_bad_displacement_reference():
     assert "expected the name of a coordinate" in msg and "expected 3 finite numbers" in msg
 
 
-@pytest.mark.parametrize("sample,config", [("testbed-free", "testbed-1998.toml"), ("testbed-static", "testbed-1998.toml"),
+@pytest.mark.parametrize("sample,config", [("testbed-free", "testbed-1998-lumped.toml"), ("testbed-static", "testbed-1998-lumped.toml"),
                                            ("teague-1995", "teague-1995-2dof.toml")])
 def test_bundled_samples_match_their_config(repo_root, sample, config):
     """The demo evaluates the bundled samples against their truth.json, which refuses a config other

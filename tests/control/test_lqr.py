@@ -14,7 +14,7 @@ from cdgps_cli.core.errors import CdgpsError
 
 @pytest.fixture(scope="module")
 def testbed(repo_root):
-    return load_config(repo_root / "configs" / "testbed-1998.toml")
+    return load_config(repo_root / "configs" / "testbed-1998-lumped.toml")
 
 
 @pytest.mark.parametrize("a,b,q,r", [(1.0, 1.0, 1.0, 1.0), (1.2, 0.5, 3.0, 0.1), (0.9, 2.0, 0.01, 5.0),

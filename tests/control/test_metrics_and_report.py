@@ -8,7 +8,8 @@ import pytest
 from click.testing import CliRunner
 
 from cdgps_cli.cli.commands import main
-from cdgps_cli.control.metrics import first_peak_deg, pulse_metrics, settle_time_s, slew_metrics
+from cdgps_cli.control.metrics import (ROTATION_LIMIT_DEG, TRANSLATION_LIMIT_MM, coordinate_checks, first_peak_deg,
+                                      pulse_metrics, settle_time_s, slew_metrics)
 
 
 def test_first_peak_of_a_damped_sine():
@@ -37,6 +38,21 @@ def test_pulse_and_slew_metrics_on_synthetic_runs():
     s = slew_metrics(t, rigid, {"q2": 0.5 * np.sin(t)}, -22.0, 5.0)
     assert s["arrived_s_after_command"] == pytest.approx(3 * math.log(36 / 0.5), abs=0.02)
     assert s["internal_max_deg"]["q2"] == pytest.approx(0.5, rel=1e-3)
+
+
+def test_coordinate_checks_limit_every_kind():
+    """Rotations in degrees against 1°, translations in mm against what 1° gives at 1 m, a kind without
+    a limit reported unchecked; only samples from ``after_s`` count."""
+    t = np.linspace(0, 10, 101)
+    v = {"q3": np.where(t < 5, 0.5, np.radians(1.2)), "q2": np.full_like(t, np.radians(0.9)),
+         "q1": np.where(t < 5, 1.0, 0.017), "q4": np.full_like(t, 0.018), "xi": np.full_like(t, 7.0)}
+    kinds = {"q3": "rotation", "q2": "rotation", "q1": "translation", "q4": "translation", "xi": "modal"}
+    c = coordinate_checks(t, v, kinds, 5.0)
+    assert c["q3"]["max_abs"] == pytest.approx(1.2) and c["q3"]["within"] is False and c["q3"]["unit"] == "deg"
+    assert c["q2"]["within"] is True and c["q2"]["limit"] == ROTATION_LIMIT_DEG
+    assert c["q1"]["max_abs"] == pytest.approx(17.0) and c["q1"]["within"] is True      # 1 m before 5 s ignored
+    assert c["q4"]["within"] is False and c["q4"]["limit"] == pytest.approx(TRANSLATION_LIMIT_MM) == pytest.approx(17.4533, rel=1e-4)
+    assert c["xi"]["limit"] is None and c["xi"]["within"] is None
 
 
 def _run(*args):
@@ -111,6 +127,26 @@ def test_slew_report_gives_the_metrics_on_the_estimate_too(pulse_runs, testbed_p
                        -22.0, 5.0)
     assert est["internal_max_deg"] == pytest.approx(ref["internal_max_deg"], rel=1e-12)
     assert "as estimated" in (tmp_path / "rep" / "report.md").read_text()
+
+
+def test_control_reports_check_every_coordinate(pulse_runs, tmp_path):
+    """Every generalized coordinate but q10 (q3, q6, q9 included) is in the pulse report, checked from 3 s
+    after the pulse against its limit, with the numbers computed from truth.csv."""
+    import pandas as pd
+
+    d = pulse_runs
+    r = _run("report", "control", d / "g.json", "--open", d / "open", "--closed", d / "closed", "-o", tmp_path / "rep",
+             "--date", "2026-12-02", "--json")
+    assert r.exit_code == 0, r.output
+    checks = json.loads(r.stdout)["coordinates"]["closed"]
+    assert list(checks) == [f"q{i}" for i in range(1, 10)]
+    q = pd.read_csv(d / "closed" / "truth.csv")
+    late = q[q["time_s"] >= 6.0 + 3.0]
+    assert checks["q6"]["max_abs"] == pytest.approx(np.degrees(late["q6"].abs().max()), rel=1e-12)
+    assert checks["q4"]["max_abs"] == pytest.approx(1000 * late["q4"].abs().max(), rel=1e-12)
+    assert all(c["within"] == (c["max_abs"] <= c["limit"]) for c in checks.values())
+    md = (tmp_path / "rep" / "report.md").read_text()
+    assert "## Every coordinate" in md and "| q3 |" in md and "| q9 |" in md
 
 
 def _edited_copy(src, dst, edit):

@@ -152,7 +152,7 @@ def test_modulate_refuses_bad_input():
 
 
 def test_testbed_pairs_realize_the_same_generalized_force(repo_root):
-    cfg = load_config(repo_root / "configs" / "testbed-1998.toml")
+    cfg = load_config(repo_root / "configs" / "testbed-1998-lumped.toml")
     pairs = opposing_pairs(cfg.thruster_section, cfg.thruster_position_m, cfg.thruster_direction)
     assert len(pairs) == 12
     Ups = thruster_forcing(cfg)

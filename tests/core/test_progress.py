@@ -16,7 +16,7 @@ from cdgps_cli.cli.commands import main
 from cdgps_cli.core.time_format import format_period, format_time, median_spacing_s
 
 ROOT = Path(__file__).resolve().parents[2]
-TESTBED = ROOT / "configs" / "testbed-1998.toml"
+TESTBED = ROOT / "configs" / "testbed-1998-lumped.toml"
 
 
 class _Tty(io.StringIO):

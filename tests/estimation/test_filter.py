@@ -41,7 +41,7 @@ from cdgps_cli.pipeline.estimate_outputs import write_states, evaluate
 
 ROOT = Path(__file__).resolve().parents[2]
 from _linear_case import LIN_SIGMA, LIN_SLIP, LINEAR_CONFIG, _rel, textbook_kf, textbook_rts  # noqa: E402
-TESTBED_PATH = ROOT / "configs" / "testbed-1998.toml"
+TESTBED_PATH = ROOT / "configs" / "testbed-1998-lumped.toml"
 DOF2_PATH = ROOT / "configs" / "teague-1995-2dof.toml"
 
 
@@ -423,7 +423,7 @@ def test_static_angle_mean_and_noise(tb, static_run, sigma_m):
 
 @pytest.mark.xfail(strict=True, reason=(
     "the kinematic filter (no --rest) does not reach the paper's < 0.02° rms at 2 mm noise with "
-    "configs/testbed-1998.toml: its pseudolite geometry gives a single-epoch least-squares std of "
+    "configs/testbed-1998-lumped.toml: its pseudolite geometry gives a single-epoch least-squares std of "
     "0.052° for q6+q10 and the 0.5 modal process noise keeps the filter close to single-epoch (steady "
     "state 0.032° with σ=2 cm, 0.046° with σ=2 mm); static mode (--rest, tests/estimation/test_filter_rest.py) does"))
 def test_static_angle_noise_paper_figure(tb, static_run):

@@ -162,7 +162,7 @@ def test_zero_velocity_update_matches_joseph_textbook():
 
 @pytest.fixture(scope="module")
 def static_case():
-    tb = load_config(ROOT / "configs" / "testbed-1998.toml")
+    tb = load_config(ROOT / "configs" / "testbed-1998-lumped.toml")
     sim = simulate(tb, SimOptions(duration_s=140.0, seed=5, scenario="static", phase_sigma_m=0.002))
     run = memory_run(tb, sim.receiver)
     init = initialize(run, InitOptions(start_s=0.0, duration_s=60.0))

@@ -28,7 +28,7 @@ from cdgps_cli.io.run import read_run, write_run
 from cdgps_cli.sim.structure import SimOptions, parse_outage, parse_slip, simulate, write_simulation
 
 ROOT = Path(__file__).resolve().parents[2]
-TESTBED = ROOT / "configs" / "testbed-1998.toml"
+TESTBED = ROOT / "configs" / "testbed-1998-lumped.toml"
 
 
 def make_run(cfg, opt: SimOptions, out_dir: Path):

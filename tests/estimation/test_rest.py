@@ -149,7 +149,7 @@ def test_detector_options_validated(window, dwell):
 
 @pytest.fixture(scope="module")
 def testbed():
-    return load_config(ROOT / "configs" / "testbed-1998.toml")
+    return load_config(ROOT / "configs" / "testbed-1998-lumped.toml")
 
 
 @pytest.fixture(scope="module")

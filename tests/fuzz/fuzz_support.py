@@ -30,7 +30,7 @@ REPO_ROOT = Path(__file__).resolve().parents[2]
 DATA = REPO_ROOT / "tests" / "data"
 SHARED = REPO_ROOT.parent / "shared" / "data"
 DOF2 = REPO_ROOT / "configs" / "teague-1995-2dof.toml"
-TESTBED = REPO_ROOT / "configs" / "testbed-1998.toml"
+TESTBED = REPO_ROOT / "configs" / "testbed-1998-lumped.toml"
 
 #: examples per property in `make test` (a few seconds per file on a loaded 2-core machine)
 MAX_EXAMPLES = int(os.environ.get("CDGPS_FUZZ_EXAMPLES", "0")) or None

@@ -241,7 +241,7 @@ def _head_csv_xz(src: Path, dst: Path, end_s: float) -> None:
 def run_demo(work: Path, reports: bool = True) -> Numbers:
     """scripts/demo.sh parts 1–3, shortened; outputs under ``work`` (see the module docstring)."""
     g = Numbers()
-    tb = CONFIGS / "testbed-1998.toml"
+    tb = CONFIGS / "testbed-1998-lumped.toml"
     with _cwd(work):
         # a cycle slip and a transmitter outage after the INIT window: the filter's lock restart and re-bias
         cdgps("simulate", tb, "--duration", 40, "--seed", 7, "--scenario", "free", "--noise-m", 0.02,

@@ -40,7 +40,7 @@ def nothing_written(directory, name):
 def two_runs(tmp_path_factory):
     """Two 30 s testbed runs (seeds 21, 22), each with its INIT (0–20 s) and STATES."""
     d = tmp_path_factory.mktemp("pairs")
-    cfg = load_config(ROOT / "configs" / "testbed-1998.toml")
+    cfg = load_config(ROOT / "configs" / "testbed-1998-lumped.toml")
     for name, seed in (("a", 21), ("b", 22)):
         write_simulation(simulate(cfg, SimOptions(duration_s=30.0, seed=seed)), d / name)
         write_run(cfg, d / name / "receiver.csv", d / name / "run.mcap", d / name / "gyro.csv")

@@ -88,7 +88,7 @@ def test_geonet_config_loads_for_both_commands():
     assert cfg.master == "3040" and cfg.antenna_names == ("3040", "0759") and len(cfg.nav) == 2
     assert cfg.displacement == "static" and cfg.mask_deg == 15.0 and cfg.ratio == 3.0
     assert cfg.antenna("0759").rinex.endswith("07590920.05o") and Path(cfg.antenna("0759").rinex).is_absolute()
-    assert config_kind(GEONET.read_text()) == "gnss" and config_kind((ROOT / "configs" / "testbed-1998.toml").read_text()) == "structure"
+    assert config_kind(GEONET.read_text()) == "gnss" and config_kind((ROOT / "configs" / "testbed-1998-lumped.toml").read_text()) == "structure"
     opt = BaselineOptions.from_gnss_config(cfg)
     assert opt.ratio_threshold == 3.0 and opt.motion == "static"
     rw = parse_gnss_config('[gnss]\nmaster = "a"\n[gnss.displacement]\nmodel = "random_walk"\nsigma_m_per_sqrt_s = [0.001, 0.001, 0.002]\n')

@@ -36,7 +36,7 @@ from cdgps_cli.core.timescales import GPS_EPOCH_UNIX_S, gps_minus_utc_s, unix_ns
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "tests" / "data"
 SHARED = ROOT.parent / "shared" / "data"
-TESTBED = ROOT / "configs" / "testbed-1998.toml"
+TESTBED = ROOT / "configs" / "testbed-1998-lumped.toml"
 TOWER = ROOT / "configs" / "gnss-tower.toml"
 GEONET = ROOT / "configs" / "geonet-0759-3040.toml"
 

@@ -26,7 +26,7 @@ from cdgps_cli.sim.structure import SimOptions, simulate, write_simulation
 from cdgps_cli.analysis.spectra import SpectraOptions
 
 ROOT = Path(__file__).resolve().parents[2]
-TESTBED = ROOT / "configs" / "testbed-1998.toml"
+TESTBED = ROOT / "configs" / "testbed-1998-lumped.toml"
 SIM_SET = {"receiver.csv", "gyro.csv", "truth.csv", "truth.json"}
 FAST_SPECTRA = SpectraOptions(pad=1, coords=("q2", "q5", "q8"))
 

@@ -31,7 +31,7 @@ from cdgps_cli.io.states import coordinate_sigma, States
 from cdgps_cli.pipeline.estimate_outputs import evaluate, export_csv, write_states
 
 ROOT = Path(__file__).resolve().parents[2]
-TESTBED_PATH = ROOT / "configs" / "testbed-1998.toml"
+TESTBED_PATH = ROOT / "configs" / "testbed-1998-lumped.toml"
 DOF2_PATH = ROOT / "configs" / "teague-1995-2dof.toml"
 
 

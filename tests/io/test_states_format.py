@@ -27,7 +27,7 @@ from cdgps_cli.io.states import (STATE_FILTERED_TOPIC, STATE_TOPIC, States, prev
 from cdgps_cli.io.states_layout import DEFAULT_PREVIEW_RATE_HZ
 
 ROOT = Path(__file__).resolve().parents[2]
-TESTBED = ROOT / "configs" / "testbed-1998.toml"
+TESTBED = ROOT / "configs" / "testbed-1998-lumped.toml"
 OLD = ROOT / "tests" / "data" / "format-2026-12-02"
 
 

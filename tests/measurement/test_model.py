@@ -93,7 +93,7 @@ def test_satellite_dd_modal_noise_and_segments():
 
 
 def test_pseudolite_sd_jacobian_noise_and_segments():
-    cfg = load_config(ROOT / "configs" / "testbed-1998.toml")
+    cfg = load_config(ROOT / "configs" / "testbed-1998-lumped.toml")
     ant = np.repeat(cfg.rover_indices, len(cfg.transmitter_names))
     tx = np.tile(np.arange(len(cfg.transmitter_names)), len(cfg.rover_indices))
     gen = np.random.default_rng(3)

@@ -14,7 +14,7 @@ from cdgps_cli.model.dynamics_models import ModalZOH, RandomWalk, Static, WithCo
 ROOT = Path(__file__).resolve().parents[2]
 
 
-@pytest.mark.parametrize("name", ["gnss-tower.toml", "testbed-1998.toml"])
+@pytest.mark.parametrize("name", ["gnss-tower.toml", "testbed-1998-lumped.toml"])
 def test_modal_zoh_is_the_discrete_model_with_density_kept(name):
     cfg = load_config(ROOT / "configs" / name)
     dyn = ModalZOH(cfg)

@@ -33,7 +33,7 @@ from cdgps_cli.pipeline.batch_dask import PROFILE_KEY, local_cluster, run_batch
 distributed = pytest.importorskip("distributed")
 
 ROOT = Path(__file__).resolve().parents[2]
-CONFIG = ROOT / "configs" / "testbed-1998.toml"
+CONFIG = ROOT / "configs" / "testbed-1998-lumped.toml"
 DURATION_S = 16
 IGNORED = {B.RECORD_DIR, B.CAMPAIGN_FILE, "batch.json", "index.html", "trends.png"}
 

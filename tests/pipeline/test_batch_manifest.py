@@ -14,7 +14,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.pipeline import batch as B
 
 ROOT = Path(__file__).resolve().parents[2]
-CONFIG = ROOT / "configs" / "testbed-1998.toml"
+CONFIG = ROOT / "configs" / "testbed-1998-lumped.toml"
 
 
 @pytest.fixture

@@ -19,7 +19,7 @@ from cdgps_cli.pipeline.if_chain import track_structure
 from cdgps_cli.sim.if_samples import IfOptions, StructureIf
 
 ROOT = Path(__file__).resolve().parents[2]
-TESTBED = str(ROOT / "configs" / "testbed-1998.toml")
+TESTBED = str(ROOT / "configs" / "testbed-1998-lumped.toml")
 FS = 2.2e6
 SECONDS = 3.0
 

@@ -21,7 +21,7 @@ from cdgps_cli.pipeline.ingest import channel_summary, ingest_structure
 from cdgps_cli.sim.structure import SimOptions, parse_outage, parse_slip, simulate, write_simulation
 
 ROOT = Path(__file__).resolve().parents[2]
-TESTBED = ROOT / "configs" / "testbed-1998.toml"
+TESTBED = ROOT / "configs" / "testbed-1998-lumped.toml"
 
 
 @pytest.fixture(scope="module")

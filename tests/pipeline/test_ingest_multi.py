@@ -32,7 +32,7 @@ ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT.parent / "shared" / "data"
 MOSAIC_ROVER = DATA / "real-pairs" / "mosaic-static" / "rover.obs"
 UBX_WALK = DATA / "real-pairs" / "ublox-walk" / "gnss_1730.ubx"
-TESTBED = ROOT / "configs" / "testbed-1998.toml"
+TESTBED = ROOT / "configs" / "testbed-1998-lumped.toml"
 PROVENANCE_ATTACHMENTS = {"gnss/receivers.json"}
 
 

@@ -32,7 +32,7 @@ from cdgps_cli.io.states import States, StatesChunks
 from cdgps_cli.pipeline.estimate_outputs import write_states
 
 ROOT = Path(__file__).resolve().parents[2]
-TESTBED = ROOT / "configs" / "testbed-1998.toml"
+TESTBED = ROOT / "configs" / "testbed-1998-lumped.toml"
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 STATIC_KEYS = {"mean_deg", "survey_deg", "error_deg", "noise_rms_deg", "drift_deg_per_min", "gyro_drift_deg_per_min"}
 MODE_KEYS = {"mode", "model_hz", "gps_hz", "gyro_hz", "error_pct", "damping", "seen"}

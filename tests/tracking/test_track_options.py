@@ -15,7 +15,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.tracking.channel import TrackOptions
 
 ROOT = Path(__file__).resolve().parents[2]
-TESTBED = ROOT / "configs" / "testbed-1998.toml"
+TESTBED = ROOT / "configs" / "testbed-1998-lumped.toml"
 IQ_FILE = ROOT.parent / "shared" / "data" / "if" / "L1_20211202_084700_4MHz_IQ.bin"
 needs_if = pytest.mark.skipif(not IQ_FILE.exists(), reason="bundled IF file not present")
 
