@@ -31,7 +31,7 @@ from cdgps_cli.report.run_report import RUN_REPORT_FILES, run_report
 from cdgps_cli.sim.structure import SimOptions, simulate, write_simulation
 
 ROOT = Path(__file__).resolve().parents[2]
-TESTBED = ROOT / "configs" / "testbed-1998.toml"
+TESTBED = ROOT / "configs" / "testbed-1998-lumped.toml"
 DOF2 = ROOT / "configs" / "teague-1995-2dof.toml"
 DATE = "2026-12-04"
 
