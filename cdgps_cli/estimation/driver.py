@@ -131,12 +131,16 @@ class HistorySink:
     by chunk behind the filter (``chunk_epochs``); the smoother reads them back.  Its ``nis`` (N,) and
     ``nis_dof`` (N,) are the drive's (a compiled span writes them too)."""
 
-    def __init__(self, n_epochs: int, p: int, history=None, chunk_epochs: int = 1 << 30):
+    def __init__(self, n_epochs: int, p: int, history=None, chunk_epochs: int = 1 << 30, lead: int = 0):
         self.history = history if history is not None else MemoryHistory()
         self.on_disk = bool(getattr(self.history, "on_disk", False))
         self.chunk = max(int(chunk_epochs), 1)
-        self.xs = self.history.empty((n_epochs, p))
-        self.Ps = self.history.empty((n_epochs, p, p))
+        # in memory, ``lead`` rows before the first epoch for what the caller puts in front (INIT's
+        # window): xs_lead / Ps_lead hold them and xs / Ps are the epochs' rows (views, C-contiguous)
+        lead = 0 if self.on_disk else int(lead)
+        self.xs_lead = self.history.empty((lead + n_epochs, p))
+        self.Ps_lead = self.history.empty((lead + n_epochs, p, p))
+        self.xs, self.Ps = self.xs_lead[lead:], self.Ps_lead[lead:]
         self.nis = np.full(n_epochs, np.nan)
         self.nis_dof = np.zeros(n_epochs, dtype=np.int64)
         self.released_to = 0

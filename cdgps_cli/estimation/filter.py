@@ -315,11 +315,11 @@ class _ForwardPass:
         self._thruster_inputs()
         self._state_layout()
         self._initial_state()
-        # with the history on disk INIT's window is solved first: its epochs get rows in front of the
-        # result's arrays (residuals here, states and covariances in _finish), so nothing is joined by copy
-        on_disk = opt.history is not None and getattr(opt.history, "on_disk", False)
-        self.solution = _window_solution(self) if on_disk else None
-        self.lead = _window_lead(self.solution[0], self.grid) if on_disk else 0
+        # INIT's window is solved first: its epochs get rows in front of the result's arrays (residuals
+        # here; states and covariances in the history's arrays in memory, in _finish's copies on disk),
+        # so nothing is joined by copy
+        self.solution = _window_solution(self)
+        self.lead = _window_lead(self.solution[0], self.grid)
         self._working_records()
 
     # ------------------------------------------------------------------------------------------
@@ -494,7 +494,7 @@ class _ForwardPass:
         """Outputs (xs, Ps, residuals, NIS), the event log and the hooks' bookkeeping."""
         N, p, C = self.N, self.p, self.C
         # the history the smoother reads back (on disk with a DiskHistory), dropped from memory chunk by chunk
-        self.sink = HistorySink(N, p, self.opt.history, self.opt.chunk_epochs)
+        self.sink = HistorySink(N, p, self.opt.history, self.opt.chunk_epochs, lead=self.lead)
         self.hist, self.chunk = self.sink.history, self.sink.chunk
         self.xs, self.Ps = self.sink.xs, self.sink.Ps
         self.nis, self.nis_dof = self.sink.nis, self.sink.nis_dof
@@ -611,7 +611,7 @@ def _finish(fp: _ForwardPass, provisional: bool = False) -> EstimateResult:
         res.noise = noise                   # re-run with the adapted sigma: no smoother, no window
         return res
     m = nm if opt.keep_covariance == "modal" else n
-    solution, lead = fp.solution, fp.lead      # (on disk: INIT's window, solved before the filter)
+    solution, lead = fp.solution, fp.lead      # (INIT's window, solved before the filter)
     if opt.smooth:
         # keep the filter's states and covariances, then smooth in place (one copy instead of three)
         mf = n if opt.keep_filtered_covariance == "full" else nm
@@ -639,14 +639,24 @@ def _history_out(fp: _ForwardPass, n: int, m: int, forward: bool, lead: int = 0)
 
     In memory: the history itself when it has no further states and m = n (views, no copy), else
     copies (``forward``: the filter's values kept before the smoother overwrites them).  On disk:
-    compact copies taken chunk by chunk, the history's pages dropped behind, after ``lead`` rows
-    left for INIT's window (filled by :func:`_join_window`)."""
+    compact copies taken chunk by chunk, the history's pages dropped behind.  Either way ``lead``
+    rows come first for INIT's window (filled by :func:`_join_window`)."""
     xs, Ps, p = fp.xs, fp.Ps, fp.p
-    if not fp.hist.on_disk:
-        full = p == n and m == n and not forward
-        return (xs[:, :n] if p == n and not forward else xs[:, :n].copy(),
-                Ps if full else Ps[:, :m, :m].copy())
     N = len(xs)
+    if not fp.hist.on_disk:
+        # the history's arrays have the window's rows in front (HistorySink lead): views of them, or copies
+        xa, Pa = fp.sink.xs_lead, fp.sink.Ps_lead
+        if p == n and not forward:
+            x_all = xa
+        else:
+            x_all = np.empty((lead + N, n))
+            x_all[lead:] = xs[:, :n]
+        if p == n and m == n and not forward:
+            P_all = Pa
+        else:
+            P_all = np.empty((lead + N, m, m))
+            P_all[lead:] = Ps[:, :m, :m]
+        return x_all, P_all
     x_all, P_all = np.empty((lead + N, n)), np.empty((lead + N, m, m))
     x_out, P_out = x_all[lead:], P_all[lead:]
     for a in range(0, N, fp.chunk):
