@@ -37,8 +37,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve
-from cdgps_cli.estimation.chi2 import chi2_quantile
 from cdgps_cli.estimation import kalman
 
 from cdgps_cli.config.structure import StructureConfig
@@ -60,9 +58,12 @@ from cdgps_cli.estimation.smoother import rts_smooth
 from cdgps_cli.estimation.driver import EpochGrid, HistorySink, drive
 from cdgps_cli.estimation.integrity import (EpochDynamics, LockRestart, NewBiasStates, OutlierGate, PhaseRows, PostFit,
                                             Rebias, Reinit)
-from cdgps_cli.estimation.rest import (REST_ENTRY_POSITION_INFLATION, REST_NIS_FAILURES, StaticMode,  # noqa: F401
+from cdgps_cli.estimation.rest import (REST_ENTRY_POSITION_INFLATION, REST_NIS_FAILURES, StaticMode,
                                        q_segments as _q_segments, rest_mask, rest_motion, true_runs as _true_runs,
                                        validate_rest_segments, velocity_nis, zero_velocity_update)
+
+# moved to rest.py with the static-mode hook; still importable from here
+_MOVED_TO_REST = (REST_ENTRY_POSITION_INFLATION, REST_NIS_FAILURES, rest_motion, velocity_nis, zero_velocity_update)
 
 
 @dataclass
