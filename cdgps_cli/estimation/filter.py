@@ -15,13 +15,15 @@ restarts, or whose normalized innovation is an outlier, has its bias dropped and
 the filter's prediction over a short window (its integer re-fixed when the float value is
 unambiguous).  Persistent NIS failures trigger a batch re-initialization on a window after the
 event, as in the 1995 paper's Fig. 7.  Every event is logged (time, channel, kind, action).
+The epoch loop is the engine's one driver (:func:`cdgps_cli.estimation.driver.drive`); the
+integrity logic is its hooks (:mod:`cdgps_cli.estimation.integrity`, :class:`cdgps_cli.estimation.rest.StaticMode`).
 
 Speed: with fixed biases the steady-state epochs (no lock event, no channel being re-estimated, no
 outlier, no re-initialization) run in the compiled kernel of :mod:`cdgps_cli.estimation.kernel` (same
-arithmetic, sparse A, H non-zero only in the position columns), which returns here at the first
-epoch that needs the logic below; the smoother's pass is compiled too.  Without the extension (or
-with ``CDGPS_NO_KERNEL=1``) everything runs in the numpy loops of this module, with the same results
-to rounding.
+arithmetic, sparse A, H non-zero only in the position columns), which returns to the driver at the
+first epoch that needs a hook; the smoother's pass is compiled too.  Without the extension (or
+with ``CDGPS_NO_KERNEL=1``) every epoch runs through the driver's numpy update, with the same
+results to rounding.
 
 Multipath: when INIT.json has a ``multipath`` model (:mod:`cdgps_cli.measurement.multipath`, from ``[model]
 multipath_sigma_m`` or ``init --multipath-sigma-m``), each channel gets a first-order Gauss–Markov
@@ -286,19 +288,19 @@ def _check_options(opt: EstimateOptions) -> None:
 
 
 class _ForwardPass:
-    """The forward filter over one run, its working state, and its integrity hooks.
+    """The forward filter over one run: its set-up (epoch grid, phases, channels, σ, state layout,
+    INIT's state and window) and the working state its hooks share.
 
-    Each epoch k runs, in this order: the compiled kernel over the span no hook claims (fixed
-    biases, no multipath states), then :meth:`predict`; :meth:`lock_event_hook` (first sightings,
-    restarts, re-acquisitions); :meth:`rest_hook` (entering, keeping or leaving static mode);
-    :meth:`new_bias_states_hook`; :meth:`rebias_hook` (channels whose bias is re-estimated);
-    :meth:`update` (outlier gate, information-form update, NIS test); the epoch is stored; then
-    :meth:`reinit_hook` (batch re-initialization after persistent NIS failures, 1995 Fig. 7).
-
-    The state (x, P) is the engine's step, a :class:`cdgps_cli.estimation.kalman.StepFilter`
-    (``self.step``; ``self.x``, ``self.P`` are its arrays): :meth:`predict` is its prediction and
-    :meth:`update` the engine's update (:func:`cdgps_cli.estimation.kalman.update`) on the rows the
-    outlier gate keeps.  The hooks read and change x, P between the two.
+    :meth:`run` is the one driver (:func:`cdgps_cli.estimation.driver.drive`) with the pass's
+    dynamics (:class:`~cdgps_cli.estimation.integrity.EpochDynamics`), its single-difference model
+    (:class:`~cdgps_cli.estimation.integrity.PhaseRows`), the compiled kernel as the driver's spans
+    (fixed biases, no multipath states) and the hooks, each epoch in this order: lock events
+    (:class:`~cdgps_cli.estimation.integrity.LockRestart`), static mode
+    (:class:`~cdgps_cli.estimation.rest.StaticMode`), new bias states, re-bias, the outlier gate,
+    the engine's update, post-fit residuals and the NIS test, the epoch stored in the sink
+    (:class:`~cdgps_cli.estimation.driver.HistorySink`), then the batch re-initialization after
+    persistent NIS failures (1995 Fig. 7).  The state (x, P) is the engine's step
+    (:class:`cdgps_cli.estimation.kalman.StepFilter`, ``self.step``; ``self.x``, ``self.P`` are its arrays).
     """
 
     def __init__(self, run: Run, init: dict, opt: EstimateOptions):
