@@ -1526,6 +1526,223 @@ done:
     return ret;
 }
 
+/* ------------------------------------------------------------------------------------------ */
+/* INIT's window smoother (cdgps_cli/estimation/window_smoother.py): the information filter from zero
+   information and its Rauch-Tung-Striebel pass written with the prior information only.  The numpy
+   twins are window_smoother._forward_numpy / _backward_numpy (same formulas; sums in another order). */
+
+/* C = A B for A (m x q), B (q x n), row-major, plain loops (the r-column products of the window) */
+static void mm_plain(const double *restrict A, const double *restrict B, double *restrict C, int m, int q, int n)
+{
+    for (int i = 0; i < m; i++) {
+        double *Ci = C + (Py_ssize_t)i * n;
+        for (int j = 0; j < n; j++) Ci[j] = 0.0;
+        for (int l = 0; l < q; l++) {
+            double a = A[(Py_ssize_t)i * q + l];
+            if (a == 0.0) continue;
+            const double *Bl = B + (Py_ssize_t)l * n;
+            for (int j = 0; j < n; j++) Ci[j] += a * Bl[j];
+        }
+    }
+}
+
+/*
+ * window_forward(AT_row, AT_col, AT_val, G, info, infv, Y, y, Ybar, ybar, N, p, r)
+ *   For k = 0 .. N-1: for k > 0 the prior M = A^-T Y A^-1 (AT: CSR of A^-T), m = A^-T y, then with
+ *   the process noise G (p x r): M -= M G (I + G^T M G)^-1 G^T M, m likewise; Y = (M + M^T)/2 and y = m
+ *   stored in Ybar[k], ybar[k]; then Y += info[k], y += infv[k].  Y, y: the start on entry, the
+ *   last posterior on return.  Returns -1, or the epoch whose I + G^T M G is not positive definite.
+ */
+static PyObject *py_window_forward(PyObject *self, PyObject *args)
+{
+    enum { NB = 10 };
+    PyObject *o[NB];
+    Buf b[NB + 2];
+    memset(b, 0, sizeof(b));
+    Py_ssize_t N, p, r;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOOnnn", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &o[6], &o[7], &o[8], &o[9],
+                          &N, &p, &r))
+        return NULL;
+    if (N < 1 || p < 1 || p > 4000 || r < 0 || r > p) {
+        PyErr_SetString(PyExc_ValueError, "_ekfcore.window_forward: bad dimensions");
+        return NULL;
+    }
+    PyObject *ret = NULL;
+    double *work = NULL;
+    Csr AT;
+    if (get_csr(o[0], o[1], o[2], b, (int)p, &AT) || get_buf(o[3], &b[3], 'd', p * r, 0, "G")
+        || get_buf(o[4], &b[4], 'd', N * p * p, 0, "info") || get_buf(o[5], &b[5], 'd', N * p, 0, "infv")
+        || get_buf(o[6], &b[6], 'd', p * p, 1, "Y") || get_buf(o[7], &b[7], 'd', p, 1, "y")
+        || get_buf(o[8], &b[8], 'd', N * p * p, 1, "Ybar") || get_buf(o[9], &b[9], 'd', N * p, 1, "ybar"))
+        goto done;
+    const Py_ssize_t pp = p * p;
+    work = calloc(3 * pp + 3 * p * (r + 1) + 3 * r * r + 2 * r + p + 4, sizeof(double));
+    if (!work) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    const double *G = b[3].view.buf, *info = b[4].view.buf, *infv = b[5].view.buf;
+    double *Y = b[6].view.buf, *y = b[7].view.buf, *Ybar = b[8].view.buf, *ybar = b[9].view.buf;
+    double *zero = work, *AP = zero + pp, *M = AP + pp, *MG = M + pp, *K = MG + p * (r + 1), *GT = K + p * (r + 1),
+           *S = GT + p * (r + 1), *R = S + r * r, *Rw = R + r * r, *gm = Rw + r * r, *m = gm + r + 1;
+    long bad = -1;
+    const int P = (int)p, Rr = (int)r;
+    Py_BEGIN_ALLOW_THREADS
+    for (int i = 0; i < P; i++)
+        for (int j = 0; j < Rr; j++) GT[j * P + i] = G[i * Rr + j];
+    for (Py_ssize_t k = 0; k < N && bad < 0; k++) {
+        if (k > 0) {
+            predict_P(&AT, zero, Y, AP, M, P);          /* M = A^-T Y A^-1 (zero: p x p zeros) */
+            for (int i = 0; i < P; i++) {               /* m = A^-T y */
+                double s = 0.0;
+                for (int64_t z = AT.row[i]; z < AT.row[i + 1]; z++) s += AT.val[z] * y[AT.col[z]];
+                m[i] = s;
+            }
+            if (Rr > 0) {
+                mm_plain(M, G, MG, P, P, Rr);            /* MG = M G (p x r) */
+                mm_plain(GT, MG, S, Rr, P, Rr);          /* S = G^T M G + I */
+                for (int i = 0; i < Rr; i++) S[i * Rr + i] += 1.0;
+                if (cholesky_upper(S, R, Rr)) {
+                    bad = (long)k;
+                    break;
+                }
+                /* K = MG S^-1: solve R^T R K^T = MG^T row by row of K */
+                for (int i = 0; i < P; i++) {
+                    double *Ki = K + i * Rr;
+                    const double *MGi = MG + i * Rr;
+                    for (int a = 0; a < Rr; a++) {           /* R^T w = MG_i */
+                        double v = MGi[a];
+                        for (int c = 0; c < a; c++) v -= R[c * Rr + a] * Ki[c];
+                        Ki[a] = v / R[a * Rr + a];
+                    }
+                    for (int a = Rr - 1; a >= 0; a--) {      /* R K_i = w */
+                        double v = Ki[a];
+                        for (int c = a + 1; c < Rr; c++) v -= R[a * Rr + c] * Ki[c];
+                        Ki[a] = v / R[a * Rr + a];
+                    }
+                }
+                for (int i = 0; i < P; i++)                 /* M -= K MG^T */
+                    for (int j = 0; j < P; j++) {
+                        double s = 0.0;
+                        for (int a = 0; a < Rr; a++) s += K[i * Rr + a] * MG[j * Rr + a];
+                        M[i * P + j] -= s;
+                    }
+                for (int a = 0; a < Rr; a++) {              /* m -= K (G^T m) */
+                    double s = 0.0;
+                    for (int i = 0; i < P; i++) s += GT[a * P + i] * m[i];
+                    gm[a] = s;
+                }
+                for (int i = 0; i < P; i++) {
+                    double s = 0.0;
+                    for (int a = 0; a < Rr; a++) s += K[i * Rr + a] * gm[a];
+                    m[i] -= s;
+                }
+            }
+            double *Yb = Ybar + k * pp, *yb = ybar + k * p;
+            for (int i = 0; i < P; i++) {
+                for (int j = i; j < P; j++) {
+                    double v = 0.5 * (M[i * P + j] + M[j * P + i]);
+                    Y[i * P + j] = v;
+                    Y[j * P + i] = v;
+                }
+                y[i] = m[i];
+            }
+            memcpy(Yb, Y, sizeof(double) * pp);
+            memcpy(yb, y, sizeof(double) * p);
+        }
+        const double *Ik = info + k * pp, *ik = infv + k * p;
+        for (Py_ssize_t i = 0; i < pp; i++) Y[i] += Ik[i];
+        for (Py_ssize_t i = 0; i < p; i++) y[i] += ik[i];
+    }
+    Py_END_ALLOW_THREADS
+    ret = PyLong_FromLong(bad);
+done:
+    free(work);
+    release_all(b, NB);
+    return ret;
+}
+
+/*
+ * window_backward(Ai_row, Ai_col, Ai_val, Q, Ybar, ybar, z, Pz, N, p)
+ *   For k = N-2 .. 0, from z[k+1], Pz[k+1] (the last on entry):
+ *   z[k] = A^-1 (z[k+1] - Q (Ybar[k+1] z[k+1] - ybar[k+1])),
+ *   Pz[k] = A^-1 [(I - Q Ybar) Pz[k+1] (I - Ybar Q) + Q - Q Ybar Q] A^-T (symmetrized).
+ */
+static PyObject *py_window_backward(PyObject *self, PyObject *args)
+{
+    enum { NB = 8 };
+    PyObject *o[NB];
+    Buf b[NB + 2];
+    memset(b, 0, sizeof(b));
+    Py_ssize_t N, p;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOnn", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &o[6], &o[7], &N, &p))
+        return NULL;
+    if (N < 1 || p < 1 || p > 4000) {
+        PyErr_SetString(PyExc_ValueError, "_ekfcore.window_backward: bad dimensions");
+        return NULL;
+    }
+    PyObject *ret = NULL;
+    double *work = NULL;
+    Csr Ai;
+    if (get_csr(o[0], o[1], o[2], b, (int)p, &Ai) || get_buf(o[3], &b[3], 'd', p * p, 0, "Q")
+        || get_buf(o[4], &b[4], 'd', N * p * p, 0, "Ybar") || get_buf(o[5], &b[5], 'd', N * p, 0, "ybar")
+        || get_buf(o[6], &b[6], 'd', N * p, 1, "z") || get_buf(o[7], &b[7], 'd', N * p * p, 1, "Pz"))
+        goto done;
+    const Py_ssize_t pp = p * p;
+    work = calloc(6 * pp + 2 * p, sizeof(double));
+    if (!work) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    const double *Q = b[3].view.buf, *Ybar = b[4].view.buf, *ybar = b[5].view.buf;
+    double *z = b[6].view.buf, *Pz = b[7].view.buf;
+    double *zero = work, *QY = zero + pp, *F = QY + pp, *T1 = F + pp, *T2 = T1 + pp, *AP = T2 + pp, *t = AP + pp,
+           *u = t + p;
+    const int P = (int)p;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t k = N - 2; k >= 0; k--) {
+        const double *Yb = Ybar + (k + 1) * pp, *yb = ybar + (k + 1) * p, *zn = z + (k + 1) * p, *Pn = Pz + (k + 1) * pp;
+        gemm_small(P, 0, Q, Yb, NULL, QY);                /* QY = Q Ybar */
+        for (int i = 0; i < P; i++) {                     /* t = Ybar z - ybar */
+            double s = 0.0;
+            for (int j = 0; j < P; j++) s += Yb[i * P + j] * zn[j];
+            t[i] = s - yb[i];
+        }
+        for (int i = 0; i < P; i++) {                     /* u = z - Q t */
+            double s = 0.0;
+            for (int j = 0; j < P; j++) s += Q[i * P + j] * t[j];
+            u[i] = zn[i] - s;
+        }
+        double *zk = z + k * p;
+        for (int i = 0; i < P; i++) {                     /* z[k] = A^-1 u */
+            double s = 0.0;
+            for (int64_t q = Ai.row[i]; q < Ai.row[i + 1]; q++) s += Ai.val[q] * u[Ai.col[q]];
+            zk[i] = s;
+        }
+        for (int i = 0; i < P; i++)                       /* F = I - QY */
+            for (int j = 0; j < P; j++) F[i * P + j] = (i == j ? 1.0 : 0.0) - QY[i * P + j];
+        gemm_small(P, 0, F, Pn, NULL, T1);                /* T1 = F Pn */
+        for (int i = 0; i < P; i++)                       /* T2 = T1^T (= Pn F^T) */
+            for (int j = 0; j < P; j++) T2[i * P + j] = T1[j * P + i];
+        gemm_small(P, 0, F, T2, Q, T1);                   /* T1 = Q + F Pn F^T */
+        gemm_small(P, 0, QY, Q, NULL, T2);                /* T2 = QY Q */
+        for (Py_ssize_t i = 0; i < pp; i++) T1[i] -= T2[i];
+        for (int i = 0; i < P; i++)                       /* symmetric part (A^-1 X A^-T reads X's rows) */
+            for (int j = i + 1; j < P; j++) {
+                double v = 0.5 * (T1[i * P + j] + T1[j * P + i]);
+                T1[i * P + j] = v;
+                T1[j * P + i] = v;
+            }
+        predict_P(&Ai, zero, T1, AP, Pz + k * pp, P);     /* Pz[k] = A^-1 X A^-T (exactly symmetric) */
+    }
+    Py_END_ALLOW_THREADS
+    ret = Py_NewRef(Py_None);
+done:
+    free(work);
+    release_all(b, NB);
+    return ret;
+}
+
 static PyMethodDef methods[] = {
     {"phase_model", py_phase_model, METH_VARARGS, "phase_model(gi, gf, x, h, H): h(x) and H[:, :n_m] of one state."},
     {"filter_span", py_filter_span, METH_VARARGS, "Forward EKF (fixed biases) over steady-state epochs."},
@@ -1535,6 +1752,8 @@ static PyMethodDef methods[] = {
     {"srif_forward", py_srif_forward, METH_VARARGS, "Epoch loop of the batch square-root information filter."},
     {"reduce_rows", py_reduce_rows, METH_VARARGS, "Per-epoch QR split of the batch solver's measurement rows."},
     {"srif_smooth", py_srif_smooth, METH_VARARGS, "Dyer-McReynolds smoother pass of the batch solver."},
+    {"window_forward", py_window_forward, METH_VARARGS, "Information filter of INIT's window (from zero information)."},
+    {"window_backward", py_window_backward, METH_VARARGS, "RTS pass of INIT's window from the prior information."},
     {NULL, NULL, 0, NULL},
 };
 

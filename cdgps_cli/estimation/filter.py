@@ -15,13 +15,15 @@ restarts, or whose normalized innovation is an outlier, has its bias dropped and
 the filter's prediction over a short window (its integer re-fixed when the float value is
 unambiguous).  Persistent NIS failures trigger a batch re-initialization on a window after the
 event, as in the 1995 paper's Fig. 7.  Every event is logged (time, channel, kind, action).
+The epoch loop is the engine's one driver (:func:`cdgps_cli.estimation.driver.drive`); the
+integrity logic is its hooks (:mod:`cdgps_cli.estimation.integrity`, :class:`cdgps_cli.estimation.rest.StaticMode`).
 
 Speed: with fixed biases the steady-state epochs (no lock event, no channel being re-estimated, no
 outlier, no re-initialization) run in the compiled kernel of :mod:`cdgps_cli.estimation.kernel` (same
-arithmetic, sparse A, H non-zero only in the position columns), which returns here at the first
-epoch that needs the logic below; the smoother's pass is compiled too.  Without the extension (or
-with ``CDGPS_NO_KERNEL=1``) everything runs in the numpy loops of this module, with the same results
-to rounding.
+arithmetic, sparse A, H non-zero only in the position columns), which returns to the driver at the
+first epoch that needs a hook; the smoother's pass is compiled too.  Without the extension (or
+with ``CDGPS_NO_KERNEL=1``) every epoch runs through the driver's numpy update, with the same
+results to rounding.
 
 Multipath: when INIT.json has a ``multipath`` model (:mod:`cdgps_cli.measurement.multipath`, from ``[model]
 multipath_sigma_m`` or ``init --multipath-sigma-m``), each channel gets a first-order Gauss–Markov
@@ -37,8 +39,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve
-from cdgps_cli.estimation.chi2 import chi2_quantile
 from cdgps_cli.estimation import kalman
 
 from cdgps_cli.config.structure import StructureConfig
@@ -57,7 +57,15 @@ from cdgps_cli.measurement.noise import filter_sigma_estimate, init_channel_sigm
 from cdgps_cli.core.records import Run
 from cdgps_cli.estimation.window_smoother import batch_window, extend_smoothing, window_states
 from cdgps_cli.estimation.smoother import rts_smooth
-from cdgps_cli.estimation.history import MemoryHistory
+from cdgps_cli.estimation.driver import EpochGrid, HistorySink, drive
+from cdgps_cli.estimation.integrity import (EpochDynamics, LockRestart, NewBiasStates, OutlierGate, PhaseRows, PostFit,
+                                            Rebias, Reinit)
+from cdgps_cli.estimation.rest import (REST_ENTRY_POSITION_INFLATION, REST_NIS_FAILURES, StaticMode,
+                                       q_segments as _q_segments, rest_mask, rest_motion, true_runs as _true_runs,
+                                       validate_rest_segments, velocity_nis, zero_velocity_update)
+
+# moved to rest.py with the static-mode hook; still importable from here
+_MOVED_TO_REST = (REST_ENTRY_POSITION_INFLATION, REST_NIS_FAILURES, rest_motion, velocity_nis, zero_velocity_update)
 
 
 @dataclass
@@ -280,19 +288,19 @@ def _check_options(opt: EstimateOptions) -> None:
 
 
 class _ForwardPass:
-    """The forward filter over one run, its working state, and its integrity hooks.
+    """The forward filter over one run: its set-up (epoch grid, phases, channels, σ, state layout,
+    INIT's state and window) and the working state its hooks share.
 
-    Each epoch k runs, in this order: the compiled kernel over the span no hook claims (fixed
-    biases, no multipath states), then :meth:`predict`; :meth:`lock_event_hook` (first sightings,
-    restarts, re-acquisitions); :meth:`rest_hook` (entering, keeping or leaving static mode);
-    :meth:`new_bias_states_hook`; :meth:`rebias_hook` (channels whose bias is re-estimated);
-    :meth:`update` (outlier gate, information-form update, NIS test); the epoch is stored; then
-    :meth:`reinit_hook` (batch re-initialization after persistent NIS failures, 1995 Fig. 7).
-
-    The state (x, P) is the engine's step, a :class:`cdgps_cli.estimation.kalman.StepFilter`
-    (``self.step``; ``self.x``, ``self.P`` are its arrays): :meth:`predict` is its prediction and
-    :meth:`update` the engine's update (:func:`cdgps_cli.estimation.kalman.update`) on the rows the
-    outlier gate keeps.  The hooks read and change x, P between the two.
+    :meth:`run` is the one driver (:func:`cdgps_cli.estimation.driver.drive`) with the pass's
+    dynamics (:class:`~cdgps_cli.estimation.integrity.EpochDynamics`), its single-difference model
+    (:class:`~cdgps_cli.estimation.integrity.PhaseRows`), the compiled kernel as the driver's spans
+    (fixed biases, no multipath states) and the hooks, each epoch in this order: lock events
+    (:class:`~cdgps_cli.estimation.integrity.LockRestart`), static mode
+    (:class:`~cdgps_cli.estimation.rest.StaticMode`), new bias states, re-bias, the outlier gate,
+    the engine's update, post-fit residuals and the NIS test, the epoch stored in the sink
+    (:class:`~cdgps_cli.estimation.driver.HistorySink`), then the batch re-initialization after
+    persistent NIS failures (1995 Fig. 7).  The state (x, P) is the engine's step
+    (:class:`cdgps_cli.estimation.kalman.StepFilter`, ``self.step``; ``self.x``, ``self.P`` are its arrays).
     """
 
     def __init__(self, run: Run, init: dict, opt: EstimateOptions):
@@ -310,11 +318,11 @@ class _ForwardPass:
         self._thruster_inputs()
         self._state_layout()
         self._initial_state()
-        # with the history on disk INIT's window is solved first: its epochs get rows in front of the
-        # result's arrays (residuals here, states and covariances in _finish), so nothing is joined by copy
-        on_disk = opt.history is not None and getattr(opt.history, "on_disk", False)
-        self.solution = _window_solution(self) if on_disk else None
-        self.lead = _window_lead(self.solution[0], self.grid) if on_disk else 0
+        # INIT's window is solved first: its epochs get rows in front of the result's arrays (residuals
+        # here; states and covariances in the history's arrays in memory, in _finish's copies on disk),
+        # so nothing is joined by copy
+        self.solution = _window_solution(self)
+        self.lead = _window_lead(self.solution[0], self.grid)
         self._working_records()
 
     # ------------------------------------------------------------------------------------------
@@ -489,15 +497,12 @@ class _ForwardPass:
         """Outputs (xs, Ps, residuals, NIS), the event log and the hooks' bookkeeping."""
         N, p, C = self.N, self.p, self.C
         # the history the smoother reads back (on disk with a DiskHistory), dropped from memory chunk by chunk
-        self.hist = self.opt.history if self.opt.history is not None else MemoryHistory()
-        self.chunk = max(int(self.opt.chunk_epochs), 1)
-        self.xs = self.hist.empty((N, p))
-        self.Ps = self.hist.empty((N, p, p))
-        self.released_to = 0                        # history rows before this one were released
+        self.sink = HistorySink(N, p, self.opt.history, self.opt.chunk_epochs, lead=self.lead)
+        self.hist, self.chunk = self.sink.history, self.sink.chunk
+        self.xs, self.Ps = self.sink.xs, self.sink.Ps
+        self.nis, self.nis_dof = self.sink.nis, self.sink.nis_dof
         self.resid_all = np.full((self.lead + N, C), np.nan)     # (lead rows for INIT's window)
         self.resid = self.resid_all[self.lead:]
-        self.nis = np.full(N, np.nan)
-        self.nis_dof = np.zeros(N, dtype=np.int64)
         self.hph = np.full((N, C), np.nan)          # H P⁺ Hᵀ of the noise estimate (the kernel's epochs)
         self.events: list = []
         self.rebias: dict[int, list] = {}           # channel → list of (k, y − h(x̄), var_h)
@@ -533,51 +538,25 @@ class _ForwardPass:
         ev.update(detail)
         self.events.append(ev)
 
-    def drop_bias(self, k, c, kind) -> None:
-        """A channel's bias is no longer trusted (restart, outlier): re-estimate it, or inflate its state."""
-        opt = self.opt
-        if self.use_bias_states:
-            # the 1995 variant: the bias state absorbs the jump; its variance is inflated as extra
-            # process noise at this epoch (recorded so that the smoother stays exact)
-            q = opt.restart_sigma_cycles**2 * self.lam**2
-            self.P[self.n + c, self.n + c] += q
-            self.extra_q.setdefault(k, []).append((self.n + c, q))
-            self.log(k, c, kind, f"bias state variance inflated by ({opt.restart_sigma_cycles:g} cycles)²")
-            return
-        self.bias[c] = np.nan
-        self.rebias[c] = []
-        self.log(k, c, kind, f"bias dropped; re-estimating over {opt.rebias_epochs} epochs")
+    @property
+    def trace(self) -> dict | None:
+        """The test hook :data:`_TRACE` (read at call time: tests set it on this module)."""
+        return _TRACE
 
     def run(self) -> None:
-        """All epochs, in order (the kernel's spans, then the hooks at the epochs they claim)."""
-        N, k = self.N, 0
-        bar = progress.bar(N, "filter", "epoch")
-        while k < N:
-            k = self._kernel_span(k, bar)
-            if k >= N:
-                break
-            self._release_behind(k)
-            self.predict(k)
-            y = self.Y[k]
-            present = ~np.isnan(y)
-            self.lock_event_hook(k)
-            if self.at_rest[k]:
-                self.rest_hook(k, y, present)
-            elif k > 0 and self.at_rest[k - 1]:
-                self.rest_fail = 0
-                self.log(k, None, "rest segment end", "process noise back to the kinematic model")
-            xq = self.x[:self.n]
-            if self.hx_at is None or not np.array_equal(self.hx_at, xq):    # (the rest checks evaluated it already)
-                self.h, self.Hx = self.meas.predict(xq, self.all_channels)
-            self.hx_at = None
-            self.new_bias_states_hook(k, y)
-            usable = present.copy() if self.use_bias_states else present & ~np.isnan(self.bias)
-            self.rebias_hook(k, y, present)
-            self.update(k, y, usable, xq)
-            self.xs[k] = self.x
-            self.Ps[k] = self.P
-            k = self.reinit_hook(k)
-            bar.update_to(k)
+        """All epochs through the driver: the kernel's spans, then the hooks at the epochs they claim
+        (:mod:`cdgps_cli.estimation.integrity` and :class:`cdgps_cli.estimation.rest.StaticMode`, in
+        the order the filter has always run them)."""
+        bar = progress.bar(self.N, "filter", "epoch")
+        model = PhaseRows(self)
+        hooks = [LockRestart(self), StaticMode(self), NewBiasStates(self), Rebias(self), OutlierGate(self),
+                 PostFit(self, model), Reinit(self)]
+
+        def singular(k):
+            raise CdgpsError(f"filter covariance lost positive definiteness at {self.grid[k]:g} s")
+
+        drive(EpochDynamics(self), [model], EpochGrid(self.grid, self.chunk), self.step, hooks, self.sink,
+              spans=lambda ctx, k: self._kernel_span(k, bar), progress=bar, on_singular=singular)
         bar.close()
 
     def _kernel_span(self, k: int, bar) -> int:
@@ -597,287 +576,13 @@ class _ForwardPass:
             k, self.fail_run, self.x, self.P = self.kern.run(
                 k, self.x, self.P, self.bias, self.rebias, self.fail_run, self.k_reinit_block,
                 cap, Q=self.Qd_rest if in_rest else self.Qd, stop_on_nis_failure=in_rest)
-            self._release_behind(k)
+            self.sink.release_before(k)
             if k < cap or cap >= k_end:
                 break
         if in_rest and (self.nis_dof[k0:k] > 0).any():
             self.rest_fail = 0                   # an epoch with data passed the NIS test
         bar.update_to(k)
         return k
-
-    def _release_behind(self, k: int) -> None:
-        """Drop from memory the history of the chunks before epoch k's (its values stay on disk)."""
-        start = (k // self.chunk) * self.chunk
-        if start > self.released_to:
-            self.hist.release(self.xs, 0, start)
-            self.hist.release(self.Ps, 0, start)
-            self.released_to = start
-
-    def predict(self, k: int) -> None:
-        """Time update into epoch k (the rest process noise inside a rest stretch)."""
-        if k > 0:
-            self.step.predict(self.A, self.Qd_rest if self.at_rest[k] else self.Qd, self.Bu @ self.U_in[k - 1])
-
-    def lock_event_hook(self, k: int) -> None:
-        """Lock restarts (slips, re-acquisitions) and first sightings (precomputed, rare)."""
-        for c in np.flatnonzero(self.EVENT[k]):
-            if self.EVENT[k, c] == 1:
-                if np.isnan(self.bias[c]) and not self.use_bias_states:
-                    self.rebias.setdefault(c, [])
-                    self.log(k, c, "new channel", "no INIT bias; estimating")
-                elif np.isnan(self.bias[c]) and self.use_bias_states:
-                    self.new_states.append(c)
-            else:
-                self.drop_bias(k, c, "lock restart" if self.EVENT[k, c] == 2 else "re-acquisition")
-
-    def rest_hook(self, k: int, y, present) -> None:
-        """Static mode at epoch k: enter (zero-velocity update), keep, or leave when the data say it moves."""
-        q_events = list(self.extra_q.get(k, ()))    # variance raised at this epoch by its lock events
-        entering = k >= self.rest_stretch_end       # (also after a re-initialization inside a stretch)
-        if entering:
-            off = np.flatnonzero(~self.at_rest[k:])
-            self.rest_stretch_end = k + (int(off[0]) if off.size else self.N - k)
-            self.rest_fail = 0
-        k_end = self.rest_stretch_end               # end of this stretch (exclusive)
-        if entering:
-            x_kin, vel_nis, vel_bound = self._enter_rest(k, k_end)
-        else:
-            x_kin = self.x.copy()
-            vel_nis, vel_bound = 0.0, 1.0
-        why = self._rest_contradiction(k, y, present, vel_nis, vel_bound)
-        if why:
-            # (P_kin: the kinematic prior covariance of this stretch's entry)
-            self._leave_rest(k, k_end, why, x_kin, self.P_kin, q_events, refused=vel_nis > vel_bound, vel_nis=vel_nis)
-
-    def _enter_rest(self, k: int, k_end: int):
-        """The kinematic prior (kept in case the structure moves), the velocity test, the zero-velocity update."""
-        opt, nm, A = self.opt, self.nm, self.A
-        x_kin = self.x.copy()
-        P_kin = self.P_kin = self.P.copy() if k == 0 else A @ self.Ps[k - 1] @ A.T + self.Qd
-        # the zero-velocity update's own test: are the estimated modal velocities zero?
-        vel_nis = velocity_nis(x_kin, P_kin, nm, self.zupt_var)
-        vel_bound = chi2_quantile(opt.nis_probability, nm)
-        if vel_nis <= vel_bound:
-            # the rest position is re-estimated from the data: the modal position variances of
-            # the prior are raised REST_ENTRY_POSITION_INFLATION-fold (recorded as extra process
-            # noise, so the smoother stays exact), so that an estimate lagging the structure's
-            # last motion is not carried into the average; then the zero-velocity update
-            d = REST_ENTRY_POSITION_INFLATION * np.diag(self.P)[:nm]
-            self.P[np.arange(nm), np.arange(nm)] += d
-            self.extra_q.setdefault(k, []).extend((i, float(d[i])) for i in range(nm))
-            if _TRACE is not None:
-                _TRACE.setdefault("zupt", {})[k] = self.P.copy()     # the prior (after the raise)
-            self.x, self.P = zero_velocity_update(self.x, self.P, nm, self.zupt_var)
-            self.log(k, None, "rest segment", "modal velocities set to zero (zero-velocity update); process "
-                     f"noise × {opt.rest_process_noise_scale:g}² until {self.grid[k_end - 1]:g} s")
-            self.events[-1]["velocity_nis"] = vel_nis
-        return x_kin, vel_nis, vel_bound
-
-    def _rest_contradiction(self, k: int, y, present, vel_nis: float, vel_bound: float) -> str:
-        """Why the data contradict rest at epoch k ('' when they do not)."""
-        opt = self.opt
-        if vel_nis > vel_bound:
-            return f"modal velocities not zero (NIS {vel_nis:.1f} > {vel_bound:.1f})"
-        self.hx_at = self.x[:self.n].copy()
-        self.h, self.Hx = self.meas.predict(self.hx_at, self.all_channels)
-        usable = present & ~np.isnan(self.bias)
-        why, nis_failed = rest_motion(self.x, self.P, self.h, self.Hx, y=y, bias=self.bias, usable=usable,
-                                      mp0=self.mp0, n=self.n, use_bias_states=self.use_bias_states, r_var=self.r_var,
-                                      outlier_sigma=opt.outlier_sigma, bound=lambda m: chi2_quantile(opt.nis_probability, m))
-        if nis_failed:
-            self.rest_fail += 1
-        elif usable.any():
-            self.rest_fail = 0                        # (an epoch without data leaves the count as it is)
-        if nis_failed and self.rest_fail < REST_NIS_FAILURES:
-            return ""                                 # one NIS failure can be chance (1 − nis_probability)
-        if nis_failed:
-            why += f" ({REST_NIS_FAILURES} epochs in a row)"
-        return why
-
-    def _leave_rest(self, k, k_end, why, x_kin, P_kin, q_events, refused: bool, vel_nis: float) -> None:
-        """The data say the structure moves: kinematic for the rest of this stretch (or until the retry),
-        from the kinematic prior of the stretch's entry."""
-        opt, A, n, N = self.opt, self.A, self.n, self.N
-        self.rest_fail = 0
-        k_back = k_end if opt.rest_retry_s <= 0 else min(k + max(int(round(min(opt.rest_retry_s / self.T, N))), 1), k_end)
-        self.at_rest[k:k_back] = False                  # retried after rest_retry_s, within the segment
-        self.rest_stretch_end = -1
-        self.q_bounds = np.flatnonzero(np.diff(self.at_rest.astype(np.int8))) + 1
-        self.x = x_kin
-        if k == 0:
-            self.P = P_kin.copy()
-            self.extra_q.pop(0, None)           # (the smoother reads no prior at the first epoch)
-            if q_events:
-                self.extra_q[0] = q_events
-        else:
-            # the kinematic prediction, its variances raised to the entry's kinematic prior; the
-            # raise is recorded as extra process noise so that the smoother stays exact
-            self.P = A @ self.Ps[k - 1] @ A.T + self.Qd
-            for i, q in q_events:
-                self.P[i, i] += q
-            d = np.maximum(np.diag(P_kin)[:n] - np.diag(self.P)[:n], 0.0)   # structure states only
-            self.P[np.arange(n), np.arange(n)] += d
-            self.extra_q[k] = q_events + [(int(i), float(d[i])) for i in np.flatnonzero(d)]
-        if _TRACE is not None:
-            _TRACE.get("zupt", {}).pop(k, None)     # this epoch's prior is the rebuilt one
-        self.log(k, None, "rest segment refused" if refused else "rest segment broken",
-                 f"{why}: the structure moves; kinematic process noise"
-                 + (f", rest tried again at {self.grid[k_back]:g} s" if k_back < k_end else " to the segment's end"))
-        if refused:
-            self.events[-1]["velocity_nis"] = vel_nis
-
-    def new_bias_states_hook(self, k: int, y) -> None:
-        """A channel INIT did not know (biases="states"): its bias state starts from the prediction."""
-        opt, n, lam = self.opt, self.n, self.lam
-        for c in self.new_states:
-            q_new = opt.restart_sigma_cycles**2 * lam**2
-            self.x[n + c] = y[c] - self.h[c]
-            q_was = float(self.P[n + c, n + c])          # never measured: no cross terms to drop
-            self.P[n + c, :] = 0.0
-            self.P[:, n + c] = 0.0
-            self.P[n + c, n + c] = q_new
-            self.bias[c] = self.x[n + c]
-            self.extra_q.setdefault(k, []).append((n + c, q_new - q_was))    # the smoother's prior = the filter's
-            self.log(k, c, "new channel", f"bias state initialized from the prediction (sigma {opt.restart_sigma_cycles:g} cycles)")
-        self.new_states = []
-
-    def rebias_hook(self, k: int, y, present) -> None:
-        """Channels being re-biased: collect y − h(x̄); after rebias_epochs, set the bias (re-fix the integer
-        when the float is unambiguous)."""
-        n, mp0, P, x = self.n, self.mp0, self.P, self.x
-        for c in list(self.rebias):
-            if not present[c]:
-                continue
-            var_h = float(self.Hx[c] @ P[:n, :n] @ self.Hx[c])
-            m_c = 0.0
-            if mp0 is not None:                # the channel's multipath state is predicted, not a bias
-                m_c = float(x[mp0 + c])
-                var_h += float(P[mp0 + c, mp0 + c] + 2.0 * self.Hx[c] @ P[:n, mp0 + c])
-            self.rebias[c].append((y[c] - self.h[c] - m_c, var_h))
-            if len(self.rebias[c]) >= self.opt.rebias_epochs:
-                self._set_rebiased(k, c)
-
-    def _set_rebiased(self, k: int, c: int) -> None:
-        opt, cfg, lam, n = self.opt, self.cfg, self.lam, self.n
-        vals = np.array([v for v, _ in self.rebias[c]])
-        est = float(vals.mean())
-        s_b = float(np.sqrt(self.r_var[c] / len(vals) + np.mean([v for _, v in self.rebias[c]])))
-        a = (est - self.line[c]) / lam
-        nint = int(np.rint(a))
-        if (cfg.line_bias_calibrated and s_b / lam < opt.refix_max_sigma_cycles
-                and abs(a - nint) < min(opt.refix_max_offset_cycles, 3.0 * s_b / lam)):
-            est = self.line[c] + lam * nint
-            action = f"integer re-fixed: {nint} cycles (float {a:.3f}, sigma {s_b / lam:.3f} cycle)"
-        else:
-            action = f"float bias {est:.4f} m (sigma {s_b / lam:.3f} cycle)"
-        self.bias[c] = est
-        if self.use_bias_states:
-            self.x[n + c] = est
-            self.P[n + c, :] = 0.0
-            self.P[:, n + c] = 0.0
-            self.P[n + c, n + c] = s_b**2
-        del self.rebias[c]
-        self.log(k, c, "bias re-estimated", action)
-
-    def update(self, k: int, y, usable, xq) -> None:
-        """Measurement update of epoch k on the usable channels, after the per-channel outlier gate:
-        the engine's update (:func:`cdgps_cli.estimation.kalman.update`) on the rows linearized at the
-        prediction, ρ = y − h(x̄) − bias (− multipath), with the channels' σ."""
-        idx = np.flatnonzero(usable)
-        if not idx.size:
-            return
-        n, mp0, x, h, Hx = self.n, self.mp0, self.x, self.h, self.Hx
-        H = _rows(Hx, idx, self.p, n, self.use_bias_states, mp0)
-        b_used = x[n + idx] if self.use_bias_states else self.bias[idx]
-        if mp0 is not None:
-            b_used = b_used + x[mp0 + idx]
-        rho = y[idx] - h[idx] - b_used
-        idx, H, rho = self._outlier_gate(k, idx, H, rho)
-        if not idx.size:
-            return
-        if _TRACE is not None:
-            _TRACE.setdefault("prior", {})[k] = self.P.copy()
-        try:
-            self.x, self.P, self.nis[k] = kalman.update(x, self.P, rho, H, sigma_m=self.sig_c[idx])
-        except np.linalg.LinAlgError:
-            raise CdgpsError(f"filter covariance lost positive definiteness at {self.grid[k]:g} s") from None
-        self.nis_dof[k] = idx.size
-        x = self.x
-        self.resid[k, idx] = (y[idx] - (h[idx] + Hx[idx] @ (x[:n] - xq))
-                              - (x[n + idx] if self.use_bias_states else self.bias[idx]))
-        if mp0 is not None:
-            self.resid[k, idx] -= x[mp0 + idx]
-        bound = self.chi2_bound.get(idx.size)
-        if bound is None:
-            bound = self.chi2_bound[idx.size] = chi2_quantile(self.opt.nis_probability, idx.size)
-        self.fail_run = self.fail_run + 1 if self.nis[k] > bound else 0
-
-    def _outlier_gate(self, k, idx, H, rho):
-        """Per-channel test of the normalized innovation: outliers (fewer than half the rows) drop their bias."""
-        S_diag = np.sum((H @ self.P) * H, axis=1) + self.r_var[idx]
-        z = rho / np.sqrt(S_diag)
-        out = np.flatnonzero(np.abs(z) > self.opt.outlier_sigma)
-        if not (out.size and out.size < idx.size // 2 + 1):
-            return idx, H, rho
-        worst = out[np.argsort(-np.abs(z[out]))]
-        for j in worst:
-            self.drop_bias(k, int(idx[j]), "innovation outlier")
-            self.events[-1]["normalized_innovation"] = float(z[j])
-        if self.use_bias_states:
-            return idx, H, rho
-        keep = np.setdiff1d(np.arange(idx.size), worst)
-        return idx[keep], H[keep], rho[keep]
-
-    def reinit_hook(self, k: int) -> int:
-        """After reinit_after_epochs NIS failures in a row, a batch re-initialization on a window after k
-        (1995 Fig. 7); returns the next epoch to run."""
-        opt = self.opt
-        if not (self.fail_run >= opt.reinit_after_epochs and k > self.k_reinit_block):
-            return k + 1
-        k_new = _reinitialize(self.run_, self.grid, k, opt, self.sigma, self.chans, self.bias, self.line, self.x,
-                              self.P, self.n, self.use_bias_states, self.log, self.mp)
-        self.fail_run = 0
-        if k_new is None:
-            self.k_reinit_block = k + int(opt.reinit_window_s / self.T)
-            return k + 1
-        kk, xr, Pr, new_bias, traj_t, traj_x = k_new
-        self._fill_reinit_window(k, kk, Pr, traj_t, traj_x)
-        for c, b in new_bias.items():
-            self.bias[c] = b
-            self.rebias.pop(c, None)
-        n, C, p, mp0 = self.n, self.C, self.p, self.mp0
-        self.x = np.zeros(p)
-        self.x[:n] = xr
-        self.P = np.zeros((p, p))
-        self.P[:n, :n] = Pr
-        if self.use_bias_states:
-            self.x[n:n + C] = np.nan_to_num(self.bias)
-            self.P[n:n + C, n:n + C] = np.eye(C) * 1e-8
-        if self.mp.active:                  # the multipath states restart from their stationary prior
-            self.P[mp0:, mp0:] = np.eye(C) * self.mp.sigma_m**2
-        self.k_reinit_block = kk + opt.reinit_after_epochs
-        self.rest_stretch_end, self.rest_fail = -1, 0    # a rest stretch in progress is entered afresh
-        self.xs[kk] = self.x
-        self.Ps[kk] = self.P
-        return kk + 1
-
-    def _fill_reinit_window(self, k, kk, Pr, traj_t, traj_x) -> None:
-        """Epochs k+1 … kk−1 take the batch solution (smoothed over the re-initialization window)."""
-        n, C, p, mp0 = self.n, self.C, self.p, self.mp0
-        for j in range(k + 1, kk):
-            xj = np.zeros(p)
-            ti = int(np.argmin(np.abs(traj_t - self.grid[j])))
-            xj[:n] = traj_x[ti]
-            if self.use_bias_states:
-                xj[n:n + C] = self.xs[k, n:n + C]
-            self.xs[j] = xj
-            self.Ps[j] = np.zeros((p, p))
-            self.Ps[j][:n, :n] = Pr
-            if self.use_bias_states:
-                self.Ps[j][n:n + C, n:n + C] = self.Ps[k][n:n + C, n:n + C]
-            if self.mp.active:
-                self.Ps[j][mp0:, mp0:] = np.eye(C) * self.mp.sigma_m**2
-        self.no_link[k:kk] = True
 
 
 def _finish(fp: _ForwardPass, provisional: bool = False) -> EstimateResult:
@@ -909,7 +614,7 @@ def _finish(fp: _ForwardPass, provisional: bool = False) -> EstimateResult:
         res.noise = noise                   # re-run with the adapted sigma: no smoother, no window
         return res
     m = nm if opt.keep_covariance == "modal" else n
-    solution, lead = fp.solution, fp.lead      # (on disk: INIT's window, solved before the filter)
+    solution, lead = fp.solution, fp.lead      # (INIT's window, solved before the filter)
     if opt.smooth:
         # keep the filter's states and covariances, then smooth in place (one copy instead of three)
         mf = n if opt.keep_filtered_covariance == "full" else nm
@@ -937,14 +642,24 @@ def _history_out(fp: _ForwardPass, n: int, m: int, forward: bool, lead: int = 0)
 
     In memory: the history itself when it has no further states and m = n (views, no copy), else
     copies (``forward``: the filter's values kept before the smoother overwrites them).  On disk:
-    compact copies taken chunk by chunk, the history's pages dropped behind, after ``lead`` rows
-    left for INIT's window (filled by :func:`_join_window`)."""
+    compact copies taken chunk by chunk, the history's pages dropped behind.  Either way ``lead``
+    rows come first for INIT's window (filled by :func:`_join_window`)."""
     xs, Ps, p = fp.xs, fp.Ps, fp.p
-    if not fp.hist.on_disk:
-        full = p == n and m == n and not forward
-        return (xs[:, :n] if p == n and not forward else xs[:, :n].copy(),
-                Ps if full else Ps[:, :m, :m].copy())
     N = len(xs)
+    if not fp.hist.on_disk:
+        # the history's arrays have the window's rows in front (HistorySink lead): views of them, or copies
+        xa, Pa = fp.sink.xs_lead, fp.sink.Ps_lead
+        if p == n and not forward:
+            x_all = xa
+        else:
+            x_all = np.empty((lead + N, n))
+            x_all[lead:] = xs[:, :n]
+        if p == n and m == n and not forward:
+            P_all = Pa
+        else:
+            P_all = np.empty((lead + N, m, m))
+            P_all[lead:] = Ps[:, :m, :m]
+        return x_all, P_all
     x_all, P_all = np.empty((lead + N, n)), np.empty((lead + N, m, m))
     x_out, P_out = x_all[lead:], P_all[lead:]
     for a in range(0, N, fp.chunk):
@@ -1179,139 +894,7 @@ def _innovation_noise(res: EstimateResult, sig_c: np.ndarray, source: str, chan_
     return out
 
 
-def validate_rest_segments(segments, scale, retry_s=0.0) -> list[tuple[float, float]]:
-    """Check ``rest_segments_s``, ``rest_process_noise_scale`` and ``rest_retry_s``; returns the
-    segments as floats.
-
-    Raises CdgpsError naming every bad segment (not finite, or end before start)."""
-    if (isinstance(scale, bool) or not isinstance(scale, (int, float, np.integer, np.floating))
-            or not (np.isfinite(scale) and scale > 0)):
-        raise CdgpsError(f"--rest-process-noise-scale must be a positive number, got {scale!r}")
-    if (isinstance(retry_s, bool) or not isinstance(retry_s, (int, float, np.integer, np.floating))
-            or not (np.isfinite(retry_s) and retry_s >= 0)):
-        raise CdgpsError(f"--rest-retry-s must be a number of seconds >= 0, got {retry_s!r}")
-    out, bad = [], []
-    for seg in segments or ():
-        try:
-            a, b = (float(v) for v in seg)
-        except (TypeError, ValueError):
-            bad.append(f"{seg!r} (expected START:END in seconds)")
-            continue
-        if not np.isfinite(a) or np.isnan(b) or b == -np.inf:
-            bad.append(f"{a:g}:{b:g} (START must be a finite time, END finite or open)")
-        elif b <= a:
-            bad.append(f"{a:g}:{b:g} (END must be after START)")
-        else:
-            out.append((a, b))
-    srt = sorted(out)
-    bad += [f"{a0:g}:{b0:g} and {a1:g}:{b1:g} overlap" for (a0, b0), (a1, b1) in zip(srt, srt[1:]) if a1 < b0]
-    if bad:
-        raise CdgpsError("--rest: " + "; ".join(bad))
-    return out
-
-
-def zero_velocity_update(x: np.ndarray, P: np.ndarray, nm: int, var: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Kalman update with the pseudo-measurement "modal velocities = 0" (variances ``var``, (nm,)).
-
-    x (p,), P (p, p) with the modal velocities at x[nm:2nm]; Joseph form, so P stays symmetric
-    positive definite.  Returns the updated (x, P) (new arrays)."""
-    v = slice(nm, 2 * nm)
-    S = P[v, v] + np.diag(var)
-    K = cho_solve(cho_factor(S, check_finite=False), P[v, :], check_finite=False).T     # (p, nm)
-    x = x - K @ x[v]
-    IKH = np.eye(len(x))
-    IKH[:, v] -= K
-    P = IKH @ P @ IKH.T + (K * var) @ K.T
-    return x, 0.5 * (P + P.T)
-
-
 PHASE_BLOCK_ROWS = 1 << 20                 # phase rows per block when Y and LOCK are built
-REST_NIS_FAILURES = 3                      # NIS failures in a row that break a rest segment
-REST_ENTRY_POSITION_INFLATION = 100.0      # entering rest: modal position variances × (1 + this)
-
-
-def velocity_nis(x: np.ndarray, P: np.ndarray, nm: int, var: np.ndarray) -> float:
-    """Normalized innovation squared of the zero-velocity pseudo-measurement: v̂ᵀ (P_vv + diag var)⁻¹ v̂
-    with v̂ = x[nm:2nm] (chi-square with nm dof when the structure is at rest)."""
-    v = x[nm:2 * nm]
-    S = P[nm:2 * nm, nm:2 * nm] + np.diag(var)
-    return float(v @ cho_solve(cho_factor(S, check_finite=False), v, check_finite=False))
-
-
-def _rows(Hx: np.ndarray, idx: np.ndarray, p: int, n: int, use_bias_states: bool, mp0: int | None) -> np.ndarray:
-    """Measurement Jacobian (len(idx), p) of channels ``idx`` over the filter's state: the structure's
-    Hx (C, n), a 1 on the channel's bias state (``use_bias_states``) and on its multipath state (at
-    ``mp0`` + channel, when modelled).  Without either it is Hx[idx] itself (p = n)."""
-    if not use_bias_states and mp0 is None:
-        return Hx[idx]
-    H = np.zeros((idx.size, p))
-    H[:, :n] = Hx[idx]
-    rows = np.arange(idx.size)
-    if use_bias_states:
-        H[rows, n + idx] = 1.0
-    if mp0 is not None:
-        H[rows, mp0 + idx] = 1.0
-    return H
-
-
-def rest_motion(x, P, h, Hx, y, bias, usable, n, use_bias_states, r_var, outlier_sigma, bound,
-                mp0=None) -> tuple[str, bool]:
-    """Does an epoch's data contradict "the structure is at rest"?  Returns (reason, nis_failed).
-
-    ``h, Hx``: the measurement model and its Jacobian at x[:n]; ``r_var`` (C,): each channel's
-    measurement variance (m²).
-
-    The reason is non-empty when two or more channels fail the innovation outlier test (one alone
-    is a slip, handled as such); ``nis_failed`` when the normalized innovation squared of the other
-    channels exceeds ``bound(m)`` (the caller breaks the segment after several in a row)."""
-    idx = np.flatnonzero(usable)
-    if idx.size == 0:
-        return "", False
-    H = _rows(Hx, idx, len(x), n, use_bias_states, mp0)
-    b = x[n + idx] if use_bias_states else bias[idx]
-    if mp0 is not None:
-        b = b + x[mp0 + idx]
-    rho = y[idx] - h[idx] - b
-    S = H @ P @ H.T + np.diag(r_var[idx])
-    z = rho / np.sqrt(np.diag(S))
-    out = np.abs(z) > outlier_sigma
-    if out.sum() >= 2:
-        return f"{int(out.sum())} channels beyond {outlier_sigma:g} sigma", False
-    keep = ~out
-    if keep.sum() == 0:
-        return "", False
-    Sk = S[np.ix_(keep, keep)]
-    nis = float(rho[keep] @ cho_solve(cho_factor(Sk, check_finite=False), rho[keep], check_finite=False))
-    if nis > bound(int(keep.sum())):
-        return f"NIS {nis:.1f} over {int(keep.sum())} channels", True
-    return "", False
-
-
-def _true_runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """[(start, end_exclusive)] of the runs of True in a bool array."""
-    m = np.r_[False, np.asarray(mask, dtype=bool), False].astype(np.int8)
-    e = np.flatnonzero(np.diff(m))
-    return list(zip(e[::2].tolist(), e[1::2].tolist()))
-
-
-def rest_mask(time_s: np.ndarray, segments) -> np.ndarray:
-    """(N,) bool: epoch inside any rest segment [start_s, end_s] (both ends included, 1 ns tolerance)."""
-    m = np.zeros(len(time_s), dtype=bool)
-    for a, b in segments:
-        m |= (time_s >= a - 1e-9) & (time_s <= b + 1e-9)
-    return m
-
-
-def _q_segments(at_rest: np.ndarray, Q: np.ndarray, Q_rest: np.ndarray) -> list[tuple[int, int, np.ndarray]]:
-    """Smoother transitions k → k+1 grouped by the process noise of the prediction into k+1:
-    [(k_lo, k_hi, Q)] covering k_lo ≤ k < k_hi, in time order."""
-    N = len(at_rest)
-    if N < 2:
-        return []
-    into = at_rest[1:]                     # transition k → k+1 uses the Q of epoch k+1
-    cuts = np.flatnonzero(np.diff(into.astype(np.int8))) + 1
-    edges = np.r_[0, cuts, N - 1]
-    return [(int(a), int(b), Q_rest if into[a] else Q) for a, b in zip(edges[:-1], edges[1:])]
 
 
 def lock_events(Y: np.ndarray, LOCK: np.ndarray) -> np.ndarray:
@@ -1327,31 +910,3 @@ def lock_events(Y: np.ndarray, LOCK: np.ndarray) -> np.ndarray:
         if kk.size:
             ev[kk, c] = lock_segments(np.full(kk.size, c, dtype=np.int64), kk, lock=LOCK[kk, c]).cause
     return ev
-
-
-def _reinitialize(run, grid, k, opt, sigma, chans, bias, line, x, P, n, use_bias_states, log, mp=None):
-    """Batch re-initialization on a window after epoch k (1995 paper, Fig. 7)."""
-    from cdgps_cli.estimation.initializer import InitOptions, initialize
-
-    t0 = float(grid[k])
-    t1 = min(t0 + opt.reinit_window_s, float(grid[-1]))
-    log(k, None, "integrity failure", f"{opt.reinit_after_epochs} consecutive NIS failures; batch re-initialization on {t0:g}–{t1:g} s")
-    if t1 - t0 < 5.0:
-        log(k, None, "re-initialization", "skipped: not enough data left")
-        return None
-    try:
-        mp_opt = {} if mp is None else {"multipath_sigma_m": mp.sigma_m, "multipath_time_constant_s": mp.time_constant_s}
-        res, traj = initialize(run, InitOptions(start_s=t0, duration_s=t1 - t0, sigma_m=sigma, starts=8, **mp_opt),
-                               return_trajectory=True)
-    except CdgpsError as exc:
-        log(k, None, "re-initialization", f"failed: {exc}")
-        return None
-    kk = int(round((res["state"]["time_s"] - grid[0]) / (grid[1] - grid[0]))) if len(grid) > 1 else k
-    new_bias = {}
-    cidx = {c: i for i, c in enumerate(chans)}
-    for b in res["biases"]:
-        if b["current"] and (b["antenna"], b["transmitter"]) in cidx:
-            new_bias[cidx[(b["antenna"], b["transmitter"])]] = b["bias_m"]
-    log(kk, None, "re-initialization", f"filter restarted at {grid[kk]:g} s from the batch solution "
-        f"({res['n_fixed']} integers fixed)")
-    return kk, np.asarray(res["state"]["x"]), np.asarray(res["state"]["P"]), new_bias, traj["time_s"], traj["x"]

@@ -1,7 +1,8 @@
 """The forward filter over the engine's interfaces (a
 :class:`~cdgps_cli.measurement.model.MeasurementModel` and a :class:`~cdgps_cli.model.dynamics_models.Dynamics`).
 
-:func:`filter_numpy` is the reference path: an iterated extended Kalman filter whose measurement
+:func:`filter_numpy` is the reference path, the one driver (:func:`cdgps_cli.estimation.driver.drive`)
+with this model injected: an iterated extended Kalman filter whose measurement
 update is in information form on the rows whitened by their noise (diagonal σ or the Cholesky
 factor of a full covariance, so R = I after whitening); its loop body is the engine's step
 (:class:`cdgps_cli.estimation.kalman.StepFilter`, :func:`~cdgps_cli.estimation.kalman.iterated_update`).
@@ -14,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from cdgps_cli.estimation.driver import EpochGrid, GridDynamics, RecordingSink, RowsGate, drive
 from cdgps_cli.estimation.kalman import StepFilter, iterated_update
 
 __all__ = ["filter_numpy", "iterated_update", "outlier_gate", "filter_dd_kernel"]
@@ -50,28 +52,14 @@ def filter_numpy(model, dyn, time_s, x0, P0, max_iterations: int = 5, rows_hook=
         Without ``history``: ``x`` (n,), ``P`` (n, n) of the last epoch, ``nis``, ``nis_dof``.
     """
     n, ns = len(time_s), len(x0)
-    m = n if history else 0
-    out = {"x": np.zeros((m, ns)), "P": np.zeros((m, ns, ns)), "A": np.zeros((m, ns, ns)), "Q": np.zeros((m, ns, ns)),
-           "nis": np.full(n, np.nan), "nis_dof": np.zeros(n, dtype=np.int64), "rows": [None] * m}
-    step = StepFilter(x0, P0)
-    identity = bool(getattr(dyn, "identity_transition", False))
-    for k in range(n):
-        if k:
-            A, _, Q = dyn.transition(float(time_s[k] - time_s[k - 1]))
-            if history:
-                out["A"][k], out["Q"][k] = A, Q
-            step.predict(None if identity else A, Q)
-        mk = model.rows(k)
-        if mk is not None and rows_hook is not None:
-            mk = rows_hook(k, mk, step.x, step.P)
-        if mk is not None:
-            out["nis"][k] = step.update(model, mk, max_iterations)
-            out["nis_dof"][k] = mk.z_m.size
-        if history:
-            out["rows"][k] = mk
-            out["x"][k], out["P"][k] = step.x, step.P
+    sink = RecordingSink(n, ns, history)
+    hooks = [] if rows_hook is None else [RowsGate(rows_hook)]
+    ctx = drive(GridDynamics(dyn, time_s), [model], EpochGrid(np.asarray(time_s, float)), StepFilter(x0, P0), hooks,
+                sink, max_iterations=max_iterations)
+    out = {"x": sink.x, "P": sink.P, "A": sink.A, "Q": sink.Q, "nis": ctx.nis, "nis_dof": ctx.nis_dof,
+           "rows": sink.row_list}
     if not history:
-        out["x"], out["P"] = step.x, step.P
+        out["x"], out["P"] = ctx.step.x, ctx.step.P
     return out
 
 
@@ -126,33 +114,25 @@ def filter_dd_kernel(model, dyn, time_s, x0, P0, max_iterations: int = 5, outlie
     stop = np.zeros(N, dtype=np.int8)
     stop[1:][np.abs(dt - dt0) > 1e-9 * max(dt0, 1.0)] = 1
     A, _, Q = dyn.transition(dt0)
-    out = {"x": np.zeros((N, ns)), "P": np.zeros((N, ns, ns)), "A": np.zeros((N, ns, ns)), "Q": np.zeros((N, ns, ns)),
-           "nis": np.full(N, np.nan), "nis_dof": np.zeros(N, dtype=np.int64), "rows": [None] * N}
-    out["A"][1:], out["Q"][1:] = A, Q
+    sink = RecordingSink(N, ns)
+    sink.A[1:], sink.Q[1:] = A, Q
     f, i64 = kernel._f64, kernel._i64
     arrays = (f(pk.L), f(pk.z_m), f(pk.var_m2), f(pk.srows), i64(pk.ant), f(pk.hconst_m), i64(pk.m), stop)
-    step = StepFilter(x0, P0)                                  # the kernel steps step.x, step.P in place
-    hook = outlier_gate(model, outlier_sigma, events, time_s)
-    k = 0
-    while k < N:
-        k, reason = kernel._ekfcore.dd_span(gi, gf, *kernel.csr(A), f(Q), *arrays, step.x, step.P, out["x"],
-                                            out["P"], out["nis"], out["nis_dof"], N, ns, C, k, N,
-                                            int(max_iterations), float(outlier_sigma))
-        if k >= N:
-            break
-        if reason not in (1, 3):                               # a Cholesky failure: not a hook's epoch
+    csr_A, f_Q = kernel.csr(A), f(Q)
+
+    def spans(ctx, k):
+        """The kernel from epoch k (it steps x, P in place) to the first epoch a hook or a new spacing claims."""
+        step = ctx.step
+        step.x, step.P = np.array(step.x, dtype=float), np.array(step.P, dtype=float)
+        k, reason = kernel._ekfcore.dd_span(gi, gf, *csr_A, f_Q, *arrays, step.x, step.P, sink.x, sink.P,
+                                            ctx.nis, ctx.nis_dof, N, ns, C, k, N, int(max_iterations),
+                                            float(outlier_sigma))
+        if k < N and reason not in (1, 3):                     # a Cholesky failure: not a hook's epoch
             raise np.linalg.LinAlgError(f"modal filter: covariance not positive definite at epoch {k}")
-        if k:
-            Ak, _, Qk = dyn.transition(float(time_s[k] - time_s[k - 1]))
-            out["A"][k], out["Q"][k] = Ak, Qk
-            step.predict(Ak, Qk)
-        mk = model.rows(k)
-        mk = hook(k, mk, step.x, step.P) if mk is not None else None
-        if mk is not None:
-            out["rows"][k] = mk
-            out["nis"][k] = step.update(model, mk, max_iterations)
-            out["nis_dof"][k] = mk.z_m.size
-        out["x"][k], out["P"][k] = step.x, step.P
-        step.x, step.P = step.x.copy(), step.P.copy()
-        k += 1
-    return out
+        return k
+
+    ctx = drive(GridDynamics(dyn, time_s), [model], EpochGrid(np.asarray(time_s, float)), StepFilter(x0, P0),
+                [RowsGate(outlier_gate(model, outlier_sigma, events, time_s))], sink, spans=spans,
+                max_iterations=max_iterations)
+    return {"x": sink.x, "P": sink.P, "A": sink.A, "Q": sink.Q, "nis": ctx.nis, "nis_dof": ctx.nis_dof,
+            "rows": sink.row_list}

@@ -29,7 +29,10 @@ s = 10³, is 7e-9 off in x and 5e-8 in P, and s = 10⁸ fails its Cholesky, wher
 2e-13 and 1.5e-15 (benchmarks/window_information_form.py, docs/benchmarks/window-information-form.json).
 
 The first linearization is a backward EKF from INIT's state at the window end (the engine's step,
-:class:`cdgps_cli.estimation.kalman.StepFilter`, on the pseudolite SD model).  The iteration stops
+:class:`cdgps_cli.estimation.kalman.StepFilter`, on the pseudolite SD model; with the compiled kernel
+its filter span, the same step to rounding).  With the kernel the forward and backward loops run in
+C too (``_ekfcore.window_forward`` / ``window_backward``; their numpy twins :func:`_forward_numpy`
+and the loop of :func:`_backward` stay the reference, equal to ~1e-15 relative).  The iteration stops
 when the largest step of a modal position (h depends on nothing else) is below 1e-3 of its σ, so
 the solution is within ~1e-6 σ of the batch's (quadratic convergence from a trajectory that is
 already at the filter's accuracy: 2–3 iterations; exact after 2 on a linear model).  Like the batch, the window
@@ -136,8 +139,9 @@ def _measurements(cfg, wd, x_lin, seg_bias, seg_free):
     n = x_lin.shape[1]
     H = np.empty((N, C, n))
     ytil = np.empty((N, C))
+    model = _phase_model(cfg, wd)
     for k0 in range(0, N, _CHUNK):
-        h, Hk = phase_model(cfg, x_lin[k0:k0 + _CHUNK], wd.ant, wd.tx, jacobian=True)
+        h, Hk = model(x_lin[k0:k0 + _CHUNK], True)
         H[k0:k0 + _CHUNK] = Hk
         ytil[k0:k0 + _CHUNK] = wd.y_m[k0:k0 + _CHUNK] - h + np.einsum("kci,ki->kc", Hk, x_lin[k0:k0 + _CHUNK])
     seg = np.maximum(wd.segment, 0)
@@ -145,6 +149,18 @@ def _measurements(cfg, wd, x_lin, seg_bias, seg_free):
     ytil -= known
     col = np.where((wd.segment >= 0) & seg_free[seg], np.cumsum(seg_free)[seg] - 1, -1)
     return H, ytil, col
+
+
+def _phase_model(cfg, wd):
+    """h (and H) of the window's channels on N states at once: the compiled model when available
+    (:func:`cdgps_cli.estimation.kernel.phase_model_batch`), else :func:`cdgps_cli.measurement.phase.phase_model`
+    (equal to rounding)."""
+    if _compiled():
+        from cdgps_cli.estimation import kernel
+
+        geometry = kernel.pack_geometry(cfg, wd.ant, wd.tx)
+        return lambda x, jacobian=False: kernel.phase_model_batch(geometry, x, jacobian=jacobian)
+    return lambda x, jacobian=False: phase_model(cfg, x, wd.ant, wd.tx, jacobian=jacobian)
 
 
 def _information_rows(H, ytil, col, sigma, n, p, n_mp=0):
@@ -162,22 +178,48 @@ def _information_rows(H, ytil, col, sigma, n, p, n_mp=0):
     Ht[kk, cc, n + n_mp + col[kk, cc]] = 1.0
     yv = np.where(present, ytil, 0.0)
     w = 1.0 / np.broadcast_to(np.asarray(sigma, dtype=float), (C,))**2
-    return np.einsum("kci,c,kcj->kij", Ht, w, Ht), np.einsum("kci,c,kc->ki", Ht, w, yv)
+    Hw = Ht * w[:, None]
+    return np.matmul(Ht.transpose(0, 2, 1), Hw), np.einsum("kci,kc->ki", Hw, yv)
 
 
 def _forward(A_inv, G, H, ytil, col, sigma, n, p, mp=None):
     """Information filter from zero information (but the multipath states' stationary prior);
-    returns the priors (Ȳ, ȳ) and the last posterior."""
+    returns the priors (Ȳ, ȳ) and the last posterior.  The epoch loop runs in the compiled kernel
+    when it is available (``_ekfcore.window_forward``), else in :func:`_forward_numpy`."""
     N, C = H.shape[:2]
     n_mp = C if mp is not None else 0
     info, infv = _information_rows(H, ytil, col, sigma, n, p, n_mp)
+    Y = np.zeros((p, p))
+    if n_mp:
+        Y[n:n + n_mp, n:n + n_mp] = np.eye(n_mp) / mp.sigma_m**2
+    if not _compiled():
+        return _forward_numpy(A_inv, G, info, infv, Y)
+    from cdgps_cli.estimation import kernel
+
+    Ybar = np.zeros((N, p, p))
+    ybar = np.zeros((N, p))
+    yv = np.zeros(p)
+    bad = kernel._ekfcore.window_forward(*kernel.csr(A_inv.T), kernel._f64(G), info, infv, Y, yv, Ybar, ybar,
+                                        N, p, G.shape[1])
+    if bad >= 0:
+        raise np.linalg.LinAlgError(f"INIT's window: I + GᵀMG not positive definite at epoch {bad}")
+    return Ybar, ybar, Y, yv
+
+
+def _compiled() -> bool:
+    """The window's loops in C: the kernel is available and has them (an older build has not)."""
+    from cdgps_cli.estimation import kernel
+
+    return kernel.available() and hasattr(kernel._ekfcore, "window_forward")
+
+
+def _forward_numpy(A_inv, G, info, infv, Y):
+    """:func:`_forward`'s epoch loop in numpy (the reference of the compiled one)."""
+    N, p = infv.shape
     Ybar = np.zeros((N, p, p))
     ybar = np.zeros((N, p))
     r = G.shape[1]
     I_r = np.eye(r)
-    Y = np.zeros((p, p))
-    if n_mp:
-        Y[n:n + n_mp, n:n + n_mp] = np.eye(n_mp) / mp.sigma_m**2
     yv = np.zeros(p)
     for k in range(N):
         if k:
@@ -196,6 +238,8 @@ def _forward(A_inv, G, H, ytil, col, sigma, n, p, mp=None):
 
 
 def _backward(A_inv, Q, Ybar, ybar, Y_end, y_end):
+    """The RTS pass from the prior information (module docstring): smoothed z (N, p), Pz (N, p, p);
+    its epoch loop in the compiled kernel when available (``_ekfcore.window_backward``)."""
     N, p = ybar.shape
     z = np.empty((N, p))
     Pz = np.empty((N, p, p))
@@ -207,6 +251,11 @@ def _backward(A_inv, Q, Ybar, ybar, Y_end, y_end):
     Li = np.linalg.inv(L)
     Pz[-1] = Li.T @ Li
     z[-1] = Pz[-1] @ y_end
+    if _compiled():
+        from cdgps_cli.estimation import kernel
+
+        kernel._ekfcore.window_backward(*kernel.csr(A_inv), kernel._f64(Q), Ybar, ybar, z, Pz, N, p)
+        return z, Pz
     I = np.eye(p)
     for k in range(N - 2, -1, -1):
         QY = Q @ Ybar[k + 1]
@@ -224,8 +273,12 @@ def _backward_ekf(cfg, wd, A_inv, Q, x_end, P_end, seg_bias, sigma):
     N = wd.y_m.shape[0]
     n = len(x_end)
     b = np.where(wd.segment >= 0, seg_bias[np.maximum(wd.segment, 0)], np.nan)
-    model = PseudoliteSD(cfg, wd.y_m - b, wd.ant, wd.tx, sigma)
     Q_back = A_inv @ Q[:n, :n] @ A_inv.T
+    if _compiled():
+        xs = _backward_ekf_compiled(cfg, wd, A_inv, Q_back, x_end, P_end, wd.y_m - b, sigma)
+        if xs is not None:
+            return xs
+    model = PseudoliteSD(cfg, wd.y_m - b, wd.ant, wd.tx, sigma)
     step = StepFilter(x_end, P_end)
     xs = np.empty((N, n))
     xs[-1] = step.x
@@ -236,6 +289,28 @@ def _backward_ekf(cfg, wd, A_inv, Q, x_end, P_end, seg_bias, sigma):
             step.update(model, rows, max_iterations=1)
         xs[k] = step.x
     return xs
+
+
+def _backward_ekf_compiled(cfg, wd, A_inv, Q_back, x_end, P_end, y_m, sigma):
+    """:func:`_backward_ekf` in the compiled filter span (``kernel.ForwardKernel``, the same EKF step
+    to rounding) over the window's epochs reversed, biases already subtracted; None when the span
+    stops early (a covariance not positive definite: the numpy step then runs)."""
+    from cdgps_cli.estimation import kernel
+
+    N, C = y_m.shape
+    n = len(x_end)
+    Yr = np.ascontiguousarray(y_m[::-1])
+    xs = np.empty((N, n))
+    Ps = np.empty((N, n, n))
+    kern = kernel.ForwardKernel(cfg, wd.ant, wd.tx, A_inv, Q_back, np.zeros((n, 0)), sigma, np.inf, 0.99, N + 1,
+                                Yr, np.zeros((N, C), dtype=np.int8), np.zeros((N, 0)), xs, Ps,
+                                np.full((N, C), np.nan), np.full(N, np.nan), np.zeros(N, dtype=np.int64),
+                                np.full((N, C), np.nan))
+    k, _, _, _ = kern.run(1, np.asarray(x_end, float), np.asarray(P_end, float), np.zeros(C), {}, 0, -1)
+    if k < N:
+        return None
+    xs[0] = x_end
+    return xs[::-1].copy()
 
 
 def window_states(run: Run, init: dict, window: tuple[float, float], x_end: np.ndarray,
@@ -310,8 +385,9 @@ def window_states(run: Run, init: dict, window: tuple[float, float], x_end: np.n
     b = seg_bias.copy()
     b[seg_free] = z[-1, nz:]
     resid = np.empty(wd.y_m.shape)
+    model = _phase_model(cfg, wd)
     for k0 in range(0, len(wd.time_s), _CHUNK):
-        resid[k0:k0 + _CHUNK] = wd.y_m[k0:k0 + _CHUNK] - phase_model(cfg, x_lin[k0:k0 + _CHUNK], wd.ant, wd.tx)
+        resid[k0:k0 + _CHUNK] = wd.y_m[k0:k0 + _CHUNK] - model(x_lin[k0:k0 + _CHUNK])
     resid -= np.where(wd.segment >= 0, b[np.maximum(wd.segment, 0)], np.nan)
     if mp is not None:
         resid -= z[:, n:nz]

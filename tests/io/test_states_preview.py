@@ -128,3 +128,39 @@ def test_anti_alias_decimate_keeps_missing_epochs_local():
     y = anti_alias_decimate(x, 10)
     assert np.isnan(y[100, 0]) and np.isfinite(np.delete(y, 100)).all()
     np.testing.assert_allclose(y[25:75, 0], x[::10][25:75, 0], atol=2e-3)      # away from the run's ends
+
+
+@pytest.mark.parametrize("stride", [2, 3, 5, 10, 25])
+def test_preview_filter_is_scipys_design_and_decimation(stride):
+    """The numpy design and decimation (issue 30: ``cdgps estimate`` without importing scipy.signal)
+    equal scipy.signal's firwin / kaiserord taps and upfirdn's output (bit for bit on the machine of
+    the change; 1e-13 allowed for another numpy's summation order)."""
+    import math
+
+    from scipy.signal import firwin, kaiserord, upfirdn
+
+    from cdgps_cli.analysis import preview as pv
+
+    nyq = 1.0 / stride
+    numtaps, beta = kaiserord(pv.STOPBAND_DB, (1.0 - PASSBAND_FRACTION) * nyq)
+    m = max(math.ceil((numtaps - 1) / (2 * stride)), 1)
+    ref = firwin(2 * m * stride + 1, (1.0 + PASSBAND_FRACTION) / 2 * nyq, window=("kaiser", beta))
+    h = pv.preview_filter(stride)
+    np.testing.assert_allclose(h, ref, rtol=0, atol=1e-15)
+    x = np.random.default_rng(stride).normal(size=(400 + stride, 3, 2))
+    half = (h.size - 1) // 2
+    padded = np.concatenate([np.repeat(x[:1], half, axis=0), x, np.repeat(x[-1:], half, axis=0)])
+    y = upfirdn(h, padded, up=1, down=stride, axis=0)
+    want = y[2 * half // stride:][:len(range(0, x.shape[0], stride))]
+    np.testing.assert_allclose(pv._filtered(x, stride), want, rtol=0, atol=1e-13)
+
+
+def test_preview_does_not_import_scipy_signal():
+    import subprocess
+    import sys
+
+    code = ("import sys, numpy as np\nfrom cdgps_cli.analysis.preview import anti_alias_decimate\n"
+            "anti_alias_decimate(np.random.default_rng(0).normal(size=(500, 2)), 10)\n"
+            "print('scipy.signal' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert out == "False"
