@@ -388,19 +388,25 @@ class PackedWriter:
                 os.pwrite(fd, plane[c].tobytes(), (b * self.m + c) * self.n + a)
         self.done += k
 
-    def _differences(self, u: np.ndarray) -> np.ndarray:
-        """:func:`_delta_encode` of one block, continuing from the rows before it (zigzag-coded)."""
+    def _differences(self, u: np.ndarray, block: int = 256) -> np.ndarray:
+        """:func:`_delta_encode` of one block on one copy of it, continuing from the rows before it
+        (the last row of each order's input is carried to the next block)."""
         d = u.copy()
+        k = d.shape[0]
         for level in range(self.delta):
-            inp = d.copy()
-            d[1:] -= inp[:-1]                                           # modulo 2^bits
+            last = d[-1].copy()
+            for end in range(k, 1, -block):                           # from the end: rows still undifferenced
+                start = max(end - block, 1)
+                np.subtract(d[start:end], d[start - 1:end - 1], out=d[start:end])     # modulo 2^bits
             if self._carry[level] is not None:
                 d[0] -= self._carry[level]
-            self._carry[level] = inp[-1].copy()
+            self._carry[level] = last
         s = d.view(d.dtype.str.replace("u", "i"))
-        sign = s >> (8 * d.dtype.itemsize - 1)
-        np.left_shift(s, 1, out=s)
-        np.bitwise_xor(s, sign, out=s)
+        bits = 8 * d.dtype.itemsize
+        for a in range(0, k, block):
+            sign = s[a:a + block] >> (bits - 1)
+            np.left_shift(s[a:a + block], 1, out=s[a:a + block])
+            np.bitwise_xor(s[a:a + block], sign, out=s[a:a + block])
         return d
 
     def finish(self) -> tuple[int, object]:
