@@ -279,19 +279,20 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
                                    "--multipath-tau-s": multipath_time_constant_s is not None})
         return
     from cdgps_cli.estimation.initializer import InitOptions, initialize
+    from cdgps_cli.io.atomic import file_sha256
     from cdgps_cli.io.run import read_run
 
     if structure is not None or receiver_map:
         raise CdgpsError("--structure/--receiver apply to GNSS runs (from 'cdgps ingest --rinex/--ubx'); a structure "
                          "run's RUN.mcap already names its structure config")
-    run = read_run(run_mcap)
+    run = read_run(run_mcap, on_disk=True)   # the phase table read in blocks from disk (init reads its window)
     opt = InitOptions(start_s=start_s, duration_s=duration_s, process_noise=not no_process_noise,
                       fix_integers=not float_only, ratio_threshold=ratio_threshold, partial=not no_partial,
                       starts=starts, max_iterations=max_iterations, sigma_m=sigma_m,
                       multipath_sigma_m=multipath_sigma_m, multipath_time_constant_s=multipath_time_constant_s,
                       progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
     res = initialize(run, opt)
-    res["run_sha256"] = hashlib.sha256(Path(run_mcap).read_bytes()).hexdigest()
+    res["run_sha256"] = file_sha256(Path(run_mcap))      # (in pieces: not the whole file in memory)
     res.pop("elapsed_s", None)          # keep INIT.json byte-identical across runs
     _write_json_atomic(output, res)
     n_seg = len(res["biases"])                      # one bias (and integer) per lock segment
@@ -407,7 +408,7 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
         from cdgps_cli.estimation.rest import validate_detector
 
         validate_detector(rest_window_s, rest_dwell_s, 1.0)
-    run = read_run(run_mcap)
+    run = read_run(run_mcap, on_disk=True)   # the phase table read in blocks from disk (memory flat in the record)
     opt = EstimateOptions(biases=biases, smooth=smooth, sigma_m=sigma_m, nis_probability=nis_probability,
                           outlier_sigma=outlier_sigma, process_noise_scale=process_noise_scale,
                           rest_segments_s=rest_segments, rest_process_noise_scale=rest_process_noise_scale,

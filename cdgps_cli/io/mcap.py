@@ -764,9 +764,12 @@ def open_verified(path: str | Path):
                          f"{str(exc)[:200]}") from None
 
 
-def read_mcap(path: str | Path, topics: list[str] | None = None) -> McapContents:
+def read_mcap(path: str | Path, topics: list[str] | None = None, attachments=None) -> McapContents:
     """Read an MCAP file, every byte checked before any value is used (:func:`open_verified`,
     chunk and attachment CRCs, each metadata record's ``record_sha256``).
+
+    ``attachments(name) -> bool``, when given, chooses the attachments kept in memory (every one's
+    CRC is still checked).
 
     Raises
     ------
@@ -789,7 +792,8 @@ def read_mcap(path: str | Path, topics: list[str] | None = None) -> McapContents
             acc.add(json.loads(message.data))
         if not info.data_section_crc_checked:      # (else every attachment's bytes are in the checked section)
             _check_attachment_crcs(fh, summary, p, zero_ok=False)
-        attachments = {a.name: bytes(a.data) for a in reader.iter_attachments()}
+        keep = attachments or (lambda name: True)
+        attachments = {a.name: bytes(a.data) for a in reader.iter_attachments() if keep(a.name)}
         channels = frozenset(ch.topic for ch in summary.channels.values())
     return McapContents(str(p), cols, attachments, info.metadata, schemas, encodings, chan_meta, channels)
 
