@@ -144,6 +144,10 @@ def _read_table(path: str | Path, columns: tuple, numeric: tuple, optional_numer
         if dup:
             msg.append(f"duplicate column(s) {', '.join(dup)}")
         raise CdgpsError(f"{p}, line 1: " + "; ".join(msg) + f"; expected the header {','.join(columns)}")
+    if FAST_PARSE and all(h == h.strip() for h in head.split(",")):
+        fast = _fast_table(p, opener, columns, numeric, optional_numeric, allow_empty)
+        if fast is not None:
+            return fast, probs
     try:
         with progress.reading(p) as raw, (nullcontext(raw) if opener is open else opener(raw, "rb")) as fh:
             df = pd.read_csv(fh, dtype=str, keep_default_na=False, na_filter=False, engine="c")
@@ -177,6 +181,50 @@ def _read_table(path: str | Path, columns: tuple, numeric: tuple, optional_numer
     return pd.DataFrame(out, columns=list(columns)), probs
 
 
+FAST_PARSE = True
+"""Read a log with typed columns first (:func:`_fast_table`); the text reading below only when that
+finds something to report (tests/io/test_log_fast_path.py compares the two)."""
+
+
+def _fast_table(p: Path, opener, columns: tuple, numeric: tuple, optional_numeric: tuple,
+                allow_empty: bool) -> pd.DataFrame | None:
+    """The table of a valid log read with typed columns (issue 29 item 4: numbers parsed by pandas' C
+    reader as floats, names as categoricals), or None when the log has anything the text reading
+    reports (a value that is not a number, empty or NaN where a number is required, a value outside
+    its bounds, an empty or padded name, a malformed line): that reading then gives the messages.
+    For a valid log both give the same table, bit for bit (the same float parser)."""
+    kinds = {c: (float if c in numeric or c in optional_numeric else "category") for c in columns}
+    try:
+        with progress.reading(p) as raw, (nullcontext(raw) if opener is open else opener(raw, "rb")) as fh:
+            df = pd.read_csv(fh, dtype=kinds, keep_default_na=False, engine="c",
+                             na_values={c: [""] for c in optional_numeric})
+    except (ValueError, TypeError, UnicodeDecodeError, EOFError, OSError, lzma.LZMAError):
+        return None                                   # (pandas' ParserError is a ValueError)
+    if len(df) == 0 and not allow_empty:
+        return None
+    out = {}
+    for c in columns:
+        col = df[c]
+        if c in kinds and kinds[c] is float:
+            vals = col.to_numpy(dtype=float)
+            if (c in numeric and np.isnan(vals).any()) or not _within_bounds(c, vals):
+                return None
+            out[c] = vals
+        else:
+            words = [str(w) for w in col.cat.categories]
+            if any(w == "" or w != w.strip() for w in words) or col.isna().any():
+                return None
+            out[c] = col                              # (categorical: the checks below work on its codes)
+    return pd.DataFrame(out, columns=list(columns))
+
+
+def _within_bounds(c: str, vals: np.ndarray) -> bool:
+    """No value :func:`_check_bounds` would report."""
+    probs = _Problems("")
+    _check_bounds(c, vals, vals, probs)
+    return not probs.items
+
+
 def _check_bounds(c: str, vals: np.ndarray, text: np.ndarray, probs: _Problems) -> None:
     """Rows whose column ``c`` is infinite or outside its plausible range (limits.LOG_BOUNDS); for
     ``time_s`` only the upper bound (infinite and negative times have their own messages)."""
@@ -200,6 +248,14 @@ def _check_time(df: pd.DataFrame, probs: _Problems) -> None:
 
 
 def _check_names(df, col, allowed, probs, what):
+    if isinstance(df[col].dtype, pd.CategoricalDtype):          # (the typed reading: by its few names)
+        cats = df[col].cat.categories
+        unknown = np.flatnonzero(~cats.isin(allowed))
+        if unknown.size:
+            codes = df[col].cat.codes.to_numpy()
+            probs.rows(np.isin(codes, unknown), f"column {col}: {what} not in the config (known: {', '.join(allowed)})",
+                       df[col].to_numpy())
+        return
     v = df[col].to_numpy()
     bad = ~pd.Series(v).isin(allowed).to_numpy() & (v != "")
     probs.rows(bad, f"column {col}: {what} not in the config (known: {', '.join(allowed)})", v)
@@ -230,12 +286,28 @@ def read_receiver_log(path: str | Path, cfg: StructureConfig) -> pd.DataFrame:
     _check_names(df, "antenna", list(cfg.rover_names), probs, "antenna")
     _check_names(df, "transmitter", list(cfg.transmitter_names), probs, "transmitter")
     master = cfg.antenna_names[cfg.master_index]
-    probs.rows(df["master"].to_numpy() != master, f"column master: expected the config's master antenna {master!r}", df["master"].to_numpy())
-    key = pd.DataFrame({"t": df["time_s"], "a": df["antenna"], "x": df["transmitter"]})
-    probs.rows(key.duplicated().to_numpy(), "duplicate row (same time_s, antenna and transmitter as an earlier row)")
+    m = df["master"]
+    if isinstance(m.dtype, pd.CategoricalDtype) and list(m.cat.categories) == [master]:
+        pass                                                     # (the typed reading: every row names it)
+    else:
+        probs.rows(m.to_numpy() != master, f"column master: expected the config's master antenna {master!r}", m.to_numpy())
+    probs.rows(_duplicated_rows(df), "duplicate row (same time_s, antenna and transmitter as an earlier row)")
     probs.raise_if_any()
     df["lock"] = df["lock"].astype(np.int64)
     return df
+
+
+def _duplicated_rows(df: pd.DataFrame) -> np.ndarray:
+    """Rows repeating an earlier row's (time_s, antenna, transmitter).  With categorical names (the
+    typed reading) the key is numeric: the time's bits and the pair of name codes."""
+    a, x = df["antenna"], df["transmitter"]
+    if isinstance(a.dtype, pd.CategoricalDtype) and isinstance(x.dtype, pd.CategoricalDtype):
+        t = df["time_s"].to_numpy(dtype=float) + 0.0                # (-0.0 and 0.0 one key, as in the text reading)
+        pair = a.cat.codes.to_numpy().astype(np.int64) * (len(x.cat.categories) + 1) + x.cat.codes.to_numpy()
+        key = pd.DataFrame({"t": t, "p": pair})
+        return key.duplicated().to_numpy()
+    key = pd.DataFrame({"t": df["time_s"], "a": a, "x": x})
+    return key.duplicated().to_numpy()
 
 
 def _read_named_series(path, columns: tuple, value: str, allowed: list, what: str,
