@@ -81,11 +81,14 @@ class _Problems:
     def __init__(self, path):
         self.path = path
         self.items: list[str] = []
+        self.first_row: int | None = None             # the first row with a problem
+        self.time_s: np.ndarray | None = None         # the rows' times, once read (named in the message)
 
     def rows(self, mask: np.ndarray, what: str, values=None) -> None:
         idx = np.flatnonzero(mask)
         if idx.size == 0:
             return
+        self.first_row = int(idx[0]) if self.first_row is None else min(self.first_row, int(idx[0]))
         shown = idx[:_MAX_LINES_PER_PROBLEM]
         for i in shown:
             extra = f" (got {values[i]!r})" if values is not None else ""
@@ -96,9 +99,21 @@ class _Problems:
     def add(self, msg: str) -> None:
         self.items.append(f"{self.path}: {msg}")
 
+    def when(self) -> str:
+        """``, the first at time_s T s`` (or ``after`` the last readable time before it): where in the
+        record a problem is (a day of hourly logs: which hour)."""
+        if self.first_row is None or self.time_s is None or self.first_row >= self.time_s.size:
+            return ""
+        t = self.time_s[:self.first_row + 1]
+        ok = np.flatnonzero(np.isfinite(t) & (t >= 0))
+        if ok.size == 0:
+            return ""
+        return f", the first at time_s {t[ok[-1]]:g} s" if ok[-1] == self.first_row else \
+            f", the first after time_s {t[ok[-1]]:g} s"
+
     def raise_if_any(self) -> None:
         if self.items:
-            head = f"{self.path}: invalid log ({len(self.items)} problem{'s' if len(self.items) > 1 else ''})"
+            head = f"{self.path}: invalid log ({len(self.items)} problem{'s' if len(self.items) > 1 else ''}{self.when()})"
             raise CdgpsError(head + "\n  - " + "\n  - ".join(self.items))
 
 
@@ -147,6 +162,7 @@ def _read_table(path: str | Path, columns: tuple, numeric: tuple, optional_numer
     if FAST_PARSE and all(h == h.strip() for h in head.split(",")):
         fast = _fast_table(p, opener, columns, numeric, optional_numeric, allow_empty)
         if fast is not None:
+            probs.time_s = fast["time_s"].to_numpy() if "time_s" in fast else None
             return fast, probs
     try:
         with progress.reading(p) as raw, (nullcontext(raw) if opener is open else opener(raw, "rb")) as fh:
@@ -174,6 +190,8 @@ def _read_table(path: str | Path, columns: tuple, numeric: tuple, optional_numer
                 probs.rows(literal_nan, f"column {c}: NaN value")
             _check_bounds(c, vals, col.to_numpy(), probs)
             out[c] = vals
+            if c == "time_s":
+                probs.time_s = vals
         else:
             v = col.to_numpy()
             probs.rows(v == "", f"column {c}: empty value")
