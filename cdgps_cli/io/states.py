@@ -796,6 +796,26 @@ class States:
         self.nis_dof = np.asarray(res.scalars["nis_dof"], dtype=float)
 
 
+def diagnostics(path: str | Path, n_epochs: int) -> tuple:
+    """``(nis (N,), nis_dof (N,) float, events)`` of a STATES.mcap, as :class:`States` reads them,
+    without loading its state arrays (only the NIS attachments and the event messages are read)."""
+    keep = (RESIDUAL_PACKED + "nis", RESIDUAL_PACKED + "nis_dof")
+    c = read_mcap(path, topics=[EVENT_TOPIC], attachments=lambda name: name in keep)
+    if keep[0] not in c.attachments:                     # (older files: from the residual messages)
+        st = States(path)
+        return st.nis, st.nis_dof, st.events
+    c.require_channels(RESIDUAL_TOPIC, EVENT_TOPIC, what="STATES.mcap from 'cdgps estimate'")
+    st = States.__new__(States)
+    st.path, st.time_s = str(path), np.empty(n_epochs)
+    st._read_diagnostics(c)
+    ev = c.topics.get(EVENT_TOPIC)
+    events = []
+    if ev:
+        for i, t in enumerate(ev.times()):
+            events.append({"time_s": float(t), **{k: ev.scalars[k][i] for k in ev.scalars if k != "time_s"}})
+    return st.nis, st.nis_dof, events
+
+
 def _num(v) -> float:
     return float("nan") if v is None else v
 
@@ -827,11 +847,12 @@ class StatesChunks:
     config_name = States.config_name
     config_sha256 = States.config_sha256
 
-    def __init__(self, path: str | Path, topic: str = STATE_TOPIC):
+    def __init__(self, path: str | Path, topic: str = STATE_TOPIC, covariance: bool = False):
         from cdgps_cli.io.mcap import _check_attachment_crcs, open_verified  # noqa: PLC0415
         from cdgps_cli.io.packed_arrays import PackedRows  # noqa: PLC0415
 
         self.path = str(path)
+        self.has_P_xi = False
         self._arrays, self._whole = {}, None
         key = f"{PACKED_PREFIX}{topic}/"
         with open_verified(path) as (_reader, fh, info, summary):
@@ -854,9 +875,14 @@ class StatesChunks:
             if key + "time_s" not in spans:
                 self._whole = States(path, topic, diagnostics=False)
                 self.n_epochs = len(self._whole.time_s)
+                self.has_P_xi = self._whole.P_xi is not None
                 return
+            names = ["time_s", "xi"]
+            if covariance:          # the position covariance (its triangle, or whole), or a forward filter's σ_q
+                names.append(next((n for n in ("P_xi_triu", "P_xi", "sigma_q") if key + n in spans), "P_xi_triu"))
+                self.has_P_xi = names[-1] != "sigma_q"
             try:
-                for name in ("time_s", "xi"):
+                for name in names:
                     self._arrays[name] = PackedRows(read_span(fh, *spans[key + name]), spans[key + name][1],
                                                     f"{path}: {key}{name}")
             except (KeyError, ValueError) as exc:
@@ -879,6 +905,36 @@ class StatesChunks:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+    def series(self, epochs: int):
+        """Consecutive chunks of at most ``epochs`` epochs (a multiple of 1024), first to last, as dicts
+        ``time_s`` (k,), ``q``, ``sigma_q`` (k, n_q), ``xi`` (k, n_pos) and ``P_xi`` (k, n_pos, n_pos)
+        or None: the values :class:`States` gives, bit for bit (q and σ_q computed on the same
+        1024-epoch blocks as the writer; the object must be opened with ``covariance=True``)."""
+        if epochs % _PRODUCT_BLOCK:
+            raise ValueError(f"epochs {epochs!r}: expected a multiple of {_PRODUCT_BLOCK}")
+        if self._whole is not None:
+            w = self._whole
+            for a in range(0, self.n_epochs, epochs):
+                b = a + epochs
+                yield {"time_s": w.time_s[a:b], "q": w.q[a:b], "sigma_q": w.sigma_q[a:b], "xi": w.xi[a:b],
+                       "P_xi": None if w.P_xi is None else w.P_xi[a:b]}
+            return
+        cov_name = next(n for n in ("P_xi_triu", "P_xi", "sigma_q") if n in self._arrays)
+        parts = zip(self._arrays["time_s"].chunks(epochs), self._arrays["xi"].chunks(epochs),
+                    self._arrays[cov_name].chunks(epochs))
+        C = self.output_map
+        for t, xi, cov in parts:
+            k = len(t)
+            xi = xi.reshape(k, self.n_pos)
+            try:
+                P = (_from_triu(cov.reshape(k, -1), self.n_pos) if cov_name == "P_xi_triu"
+                     else cov.reshape(k, self.n_pos, self.n_pos) if cov_name == "P_xi" else None)
+            except ValueError as exc:
+                raise CdgpsError(f"{self.path}: damaged state arrays ({cov_name}): {exc}") from None
+            q = np.concatenate([series_q(C, xi[a:a + _PRODUCT_BLOCK]) for a in range(0, k, _PRODUCT_BLOCK)])
+            yield {"time_s": t.astype(float, copy=False), "q": q, "xi": xi, "P_xi": P,
+                   "sigma_q": cov.reshape(k, -1) if P is None else coordinate_sigma(C, P)}
 
     def chunks(self, epochs: int):
         """Consecutive chunks ``(time_s (k,), q (k, n_q))`` of at most ``epochs`` epochs, first to
