@@ -562,7 +562,7 @@ def evaluate(ctx, truth_dir, states_mcap, converge_s, as_json):
     _echo("\n".join(lines))
 
 
-def _states_and_gyro(states_mcap, gyro_mcap, chunked: bool = False):
+def _states_and_gyro(states_mcap, gyro_mcap, chunked: bool = False, covariance: bool = False):
     """STATES.mcap (state series only; ``chunked``: read in chunks, io.states.StatesChunks) and,
     optionally, the gyro log of a RUN.mcap."""
     from cdgps_cli.io.file_checks import STATES, STRUCTURE_RUN, require_kind
@@ -572,7 +572,7 @@ def _states_and_gyro(states_mcap, gyro_mcap, chunked: bool = False):
     require_kind(states_mcap, STATES, "STATES_MCAP")
     if gyro_mcap:
         require_kind(gyro_mcap, STRUCTURE_RUN, "--gyro")
-    st = StatesChunks(states_mcap) if chunked else States(states_mcap, diagnostics=False)
+    st = StatesChunks(states_mcap, covariance=covariance) if chunked else States(states_mcap, diagnostics=False)
     return st, (read_run(gyro_mcap, phase=False) if gyro_mcap else None)
 
 
@@ -635,7 +635,7 @@ def report():
 def report_static(ctx, states_mcap, gyro_mcap, angle, survey_deg, start_s, end_s, gyro_name, out_dir, as_json, date):
     """Static sensor test (1998 paper Fig. 7): mean vs survey, noise, GPS and gyro drift."""
     from cdgps_cli.report.sensor_reports import static_report
-    st, run = _states_and_gyro(states_mcap, gyro_mcap)
+    st, run = _states_and_gyro(states_mcap, gyro_mcap, chunked=True, covariance=True)   # STATES in chunks (issue 29)
     with progress.stage("static report"):
         d = static_report(st, run, angle, survey_deg, out_dir, start_s, end_s, gyro_name, date=date)
     err = "" if d["error_deg"] is None else f", error {d['error_deg']:+.4f}°"

@@ -121,6 +121,20 @@ def test_static_report_values(static_run, static_out, record_property):
         record_property(k, d[k] if not hasattr(d[k], "item") else d[k].item())
 
 
+def test_static_report_in_chunks_as_whole(static_run, static_out, tmp_path, monkeypatch):
+    """The static report from STATES read in chunks (as `cdgps report static` reads it, issue 29; 1024
+    epochs a chunk here: two chunks) equals the one from the whole record, figures and report.json."""
+    import cdgps_cli.config.options as options
+
+    monkeypatch.setattr(options, "STATES_CHUNK_EPOCHS", 1024)
+    d, out = static_out
+    with StatesChunks(static_run["states"], covariance=True) as st:
+        assert st.n_epochs > 1024
+        c = static_report(st, read_run(static_run["run"], phase=False), "q6+q10", -1.4, tmp_path)
+    assert json.dumps(c, sort_keys=True, default=str) == json.dumps(d, sort_keys=True, default=str)
+    assert (tmp_path / "report.json").read_bytes() == (out / "report.json").read_bytes()
+
+
 def test_static_report_files(static_out):
     d, out = static_out
     assert {p.name for p in out.iterdir()} == {"report.md", "report.json", "report.html", "static.png"}
