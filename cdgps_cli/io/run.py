@@ -356,7 +356,9 @@ def read_run(path: str | Path, phase: bool = True, on_disk: bool = False) -> Run
         if run is not None:
             return run
     want_phase = phase
-    c = read_mcap(path, topics=[ACTUATOR_TOPIC])
+    # without the phase table its packed arrays are not kept in memory (spectra, reports: the gyro log only)
+    c = read_mcap(path, topics=[ACTUATOR_TOPIC],
+                  attachments=None if want_phase else (lambda name: not name.startswith(PHASE_PACKED)))
     if "cdgps.estimate" not in c.metadata:
         c.require_metadata(INGEST_METADATA, "RUN.mcap from 'cdgps ingest'")
     if contents_kind(c) == "gnss":
