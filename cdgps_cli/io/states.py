@@ -224,18 +224,8 @@ def rows_q(C: np.ndarray, x_pos: np.ndarray) -> np.ndarray:
     return rows_matmul(x_pos, C.T)
 
 
-def _triu(P: np.ndarray, block: int = 1024) -> np.ndarray | None:
-    """(N, m(m+1)/2) upper triangles of exactly symmetric (N, m, m) matrices, else None."""
-    i, j = np.triu_indices(P.shape[1])
-    for a in range(0, P.shape[0], block):
-        Pb = P[a:a + block]
-        if not (Pb[:, i, j] == Pb[:, j, i]).all():
-            return None
-    return P[:, i, j]
-
-
 def _from_triu(T: np.ndarray, m: int) -> np.ndarray:
-    """Inverse of :func:`_triu`: symmetric (N, m, m)."""
+    """The symmetric (N, m, m) matrices of their upper triangles (N, m(m+1)/2), row by row (``P_xi_triu``)."""
     i, j = np.triu_indices(m)
     if T.ndim != 2 or T.shape[1] != i.size:
         raise ValueError(f"P_xi_triu of shape {list(T.shape)}: expected (N, {i.size}) for {m} modes")
@@ -245,15 +235,14 @@ def _from_triu(T: np.ndarray, m: int) -> np.ndarray:
     return P
 
 
-def _block(arr, a: int, b: int, release: bool = True) -> np.ndarray:
+def _block(arr, a: int, b: int) -> np.ndarray:
     """Rows a … b−1 of ``arr`` as a copy; when ``arr`` is on disk (an array of
     :class:`cdgps_cli.io.scratch.DiskHistory`), the pages they came from are dropped from memory
     after (their values stay in the file), so reading a record costs the memory of a block."""
     from cdgps_cli.io.scratch import DiskHistory  # noqa: PLC0415
 
     rows = np.array(arr[a:b])
-    if release:
-        DiskHistory.release(arr, a, b)
+    DiskHistory.release(arr, a, b)
     return rows
 
 
