@@ -352,7 +352,12 @@ def read_run(path: str | Path, phase: bool = True, on_disk: bool = False) -> Run
     are read into memory as before.
     """
     if on_disk and phase:
-        run = _read_run_on_disk(path)
+        try:
+            run = _read_run_on_disk(path)
+        except _NoScratch as exc:              # (no room for the scratch files: the table in memory, said)
+            print(f"cdgps: warning: {path}: cannot write the phase table's scratch files ({exc}); it is read "
+                  f"into memory", file=sys.stderr, flush=True)
+            run = None
         if run is not None:
             return run
     want_phase = phase
@@ -416,6 +421,10 @@ def _read_run_on_disk(path: str | Path) -> Run | None:
     return Run(str(path), cfg, phase, gyro, act, c.metadata.get(INGEST_METADATA, {}))
 
 
+class _NoScratch(Exception):
+    """A scratch file of :func:`_phase_on_disk` could not be written (full disk, file-size limit)."""
+
+
 def _phase_on_disk(path, spans: dict, names_json: bytes):
     """The :data:`PHASE_PACKED` columns as a :class:`~cdgps_cli.io.phase_disk.DiskPhase`: each
     decompressed in pieces into a scratch file (the columns of :data:`_PHASE_DEFERRED` on first use);
@@ -438,7 +447,9 @@ def _phase_on_disk(path, spans: dict, names_json: bytes):
                 return column_file(rows.chunks(BLOCK_ROWS), rows.n_rows, dtype, what + key)
             finally:
                 rows.close()
-        except (KeyError, TypeError, ValueError, OSError) as exc:
+        except OSError as exc:                     # writing the scratch files (reading the RUN was checked)
+            raise _NoScratch(exc.strerror or str(exc)) from None
+        except (KeyError, TypeError, ValueError) as exc:
             raise damaged(exc) from None
 
     try:
