@@ -265,8 +265,6 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
     On a GNSS run (RINEX/UBX receivers): float DD solution, LAMBDA integers (ratio test, partial
     fixing) and the fixed static displacement of every rover → INIT.json (docs/gnss-pipeline.md).
     """
-    import hashlib
-
     from cdgps_cli.io.file_checks import GNSS_RUN, RUNS, require_kind
 
     if require_kind(run_mcap, RUNS, "RUN_MCAP") == GNSS_RUN:      # (the file's metadata read once)

@@ -25,7 +25,7 @@ from cdgps_cli.core.records import Series, StateSeries
 from cdgps_cli.io import states as states_io
 from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.io.mcap import CONFIG_ATTACHMENT
-from cdgps_cli.io.states import ESTIMATE_METADATA, INIT_ATTACHMENT, STATE_FILTERED_TOPIC, STATE_TOPIC, States
+from cdgps_cli.io.states import ESTIMATE_METADATA, INIT_ATTACHMENT, STATE_FILTERED_TOPIC, STATE_TOPIC
 from cdgps_cli.io.states_layout import DEFAULT_COVARIANCE, DEFAULT_PREVIEW_RATE_HZ
 
 __all__ = ["structure_series", "write_states", "export_csv", "evaluate"]
