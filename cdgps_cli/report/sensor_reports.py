@@ -91,13 +91,26 @@ def _json_clean(o):
 
 
 def _gyro_table(run) -> tuple[np.ndarray, np.ndarray, list]:
+    """The gyro log as distinct times (T,), rates (T, G) of the config's gyros that are in it (a gap
+    linearly interpolated over the row positions, the ends held: pandas' ``interpolate(limit_direction=
+    "both")``) and their names.  Built with numpy from the table's codes (the pandas pivot of a day's
+    log peaked near 1 GB; the same numbers, ``tests/report/test_sensor_reports.py``)."""
     if run.gyro is None or len(run.gyro) == 0:
         return np.zeros(0), np.zeros((0, 0)), []
-    g = run.gyro.frame()
-    names = [n for n in run.cfg.gyro_names if n in set(g["gyro"])]
-    wide = g.pivot_table(index="time_s", columns="gyro", values="rate_rad_s")
-    wide = wide[names].interpolate(limit_direction="both")
-    return wide.index.to_numpy(dtype=float), wide.to_numpy(dtype=float), names
+    codes, words = run.gyro.codes("gyro")
+    present = set(np.asarray(words, dtype=object)[np.unique(codes)].tolist())
+    names = [n for n in run.cfg.gyro_names if n in present]
+    times, row = np.unique(np.asarray(run.gyro["time_s"], dtype=float), return_inverse=True)
+    rate = np.asarray(run.gyro["rate_rad_s"], dtype=float)
+    wide = np.full((times.size, len(names)), np.nan)
+    for j, name in enumerate(names):
+        mine = codes == words.index(name)
+        wide[row[mine], j] = rate[mine]
+        bad = np.isnan(wide[:, j])
+        if bad.any() and not bad.all():
+            pos = np.arange(times.size)
+            wide[bad, j] = np.interp(pos[bad], pos[~bad], wide[~bad, j])
+    return times, wide, names
 
 
 # ----------------------------------------------------------------------------- spectra

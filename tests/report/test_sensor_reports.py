@@ -545,3 +545,31 @@ def test_static_figure_gps_on_its_own_scale():
     assert "beyond this axis" in " ".join(t.get_text() for t in ax1.get_legend().get_texts())
     import matplotlib.pyplot as plt
     plt.close(fig)
+
+
+def _pandas_gyro_table(run):
+    """The gyro table as the reports built it with pandas before issue 29 (reference for the numpy one)."""
+    g = run.gyro.frame()
+    names = [n for n in run.cfg.gyro_names if n in set(g["gyro"])]
+    wide = g.pivot_table(index="time_s", columns="gyro", values="rate_rad_s")
+    wide = wide[names].interpolate(limit_direction="both")
+    return wide.index.to_numpy(dtype=float), wide.to_numpy(dtype=float), names
+
+
+def test_gyro_table_as_the_pandas_pivot(static_run):
+    """The reports' gyro table (numpy, from the codes) equals the pandas pivot + interpolation it
+    replaced, bit for bit, also with samples missing inside and at both ends of a gyro's series."""
+    from cdgps_cli.report.sensor_reports import _gyro_table
+
+    run = read_run(static_run["run"], phase=False)
+    g = run.gyro
+    codes, _ = g.codes("gyro")
+    keep = np.ones(len(g), dtype=bool)
+    keep[100:160] = False
+    keep[np.flatnonzero(codes == codes[0])[:9]] = False          # one gyro starts late
+    keep[np.flatnonzero(codes == codes[-1])[-5:]] = False        # one ends early
+    for table in (g, g.take(np.flatnonzero(keep))):
+        run.gyro = table
+        a, b = _pandas_gyro_table(run), _gyro_table(run)
+        assert a[2] == b[2] and a[0].tobytes() == b[0].tobytes() and a[1].tobytes() == b[1].tobytes()
+        assert not np.isnan(b[1]).any()
