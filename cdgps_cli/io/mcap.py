@@ -223,6 +223,23 @@ def _column_rows(df, c: str):
     return lambda a, b: col[a:b].tolist()
 
 
+class _Named:
+    """``[i]``: row i's name of a Table's name column, from its codes (no array of names made)."""
+
+    def __init__(self, codes, words):
+        self.codes, self.words = codes, words
+
+    def __getitem__(self, i):
+        return self.words[self.codes[i]]
+
+
+def _column_values(df, c: str):
+    """Column ``c`` indexable by row (a Table's name column through its codes)."""
+    if isinstance(df, Table) and _is_name_column(df, c):
+        return _Named(*df.codes(c))
+    return np.asarray(df[c])
+
+
 def _is_name_column(table, c: str) -> bool:
     try:
         table.codes(c)
@@ -388,7 +405,7 @@ class McapOut:
         t = np.asarray(df["time_s"])
         cuts = np.flatnonzero(np.r_[True, t[1:] != t[:-1], True])
         cols = {c: _column_rows(df, c) for c in array_columns}
-        scal = {c: np.asarray(df[c]) for c in scalar_columns}
+        scal = {c: _column_values(df, c) for c in scalar_columns}
         bar = progress.bar(len(cuts) - 1, f"writing {self.path.name}", "msg")
         for i in range(0, len(cuts) - 1, _MESSAGES_PER_BLOCK):    # Python lists of a block of rows at a time
             block = cuts[i:i + _MESSAGES_PER_BLOCK + 1]

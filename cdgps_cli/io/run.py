@@ -134,10 +134,10 @@ def _attach_phase_packed(out: McapOut, phase: Table) -> None:
         names[col] = list(words)
         out.attach_packed(f"{PHASE_PACKED}{col}_code", codes.astype(np.int32))
     out.attach(PHASE_PACKED + "names.json", json.dumps(names, sort_keys=True).encode(), "application/json")
-    out.attach_packed(PHASE_PACKED + "time_s", phase["time_s"].astype(float))
-    out.attach_packed(PHASE_PACKED + "phase_cycles", phase["phase_cycles"].astype(float))
-    out.attach_packed(PHASE_PACKED + "lock", phase["lock"].astype(np.int64))
-    out.attach_packed(PHASE_PACKED + "snr_dbhz", phase["snr_dbhz"].astype(float))
+    out.attach_packed(PHASE_PACKED + "time_s", phase["time_s"].astype(float, copy=False))      # (no copies: packing
+    out.attach_packed(PHASE_PACKED + "phase_cycles", phase["phase_cycles"].astype(float, copy=False))  # makes its own)
+    out.attach_packed(PHASE_PACKED + "lock", phase["lock"].astype(np.int64, copy=False))
+    out.attach_packed(PHASE_PACKED + "snr_dbhz", phase["snr_dbhz"].astype(float, copy=False))
 
 
 _PHASE_DEFERRED = ("receiver", "master", "snr_dbhz")

@@ -116,3 +116,17 @@ def test_valid_logs_take_the_typed_reading(tmp_path, monkeypatch):
     g.write_text("time_s,gyro,rate_rad_s\n0.0,g1,0.5\n0.1,g1,0.25\n")
     fast, slow = _both(g, logs.read_gyro_log, monkeypatch)
     assert fast == slow and fast[0] == ("table" if "g1" in CFG.gyro_names else "error")
+
+
+@pytest.mark.parametrize("block", [1, 5, 7, 1 << 20])
+def test_duplicates_found_in_blocks_as_in_one_table(tmp_path, monkeypatch, block):
+    """The duplicate-row check cut into blocks between times (tiny blocks here) finds the rows the
+    one-table check finds, the same message; a repeated row across a block edge too."""
+    monkeypatch.setattr(logs, "_DUP_BLOCK_ROWS", block)
+    lines = _log(12)
+    lines.insert(9, lines[7])                         # same time, later in the same epoch
+    lines.insert(30, lines[29])                       # a row right after itself
+    p = tmp_path / "receiver.csv"
+    p.write_text("".join(lines))
+    fast, slow = _both(p, logs.read_receiver_log, monkeypatch)
+    assert fast == slow and fast[0] == "error" and fast[1].count("duplicate row") == 2
