@@ -22,7 +22,7 @@ CFG = REPO_ROOT / "configs" / "testbed-1998.toml"
 @pytest.fixture(scope="module")
 def record(tmp_path_factory):
     d = tmp_path_factory.mktemp("midstream")
-    for args in (("simulate", CFG, "--duration", "120", "--seed", "2", "-o", d / "sim"),
+    for args in (("simulate", CFG, "--duration", "90", "--seed", "2", "-o", d / "sim"),
                  ("ingest", d / "sim" / "receiver.csv", "--config", CFG, "-o", d / "run.mcap"),
                  ("init", d / "run.mcap", "--start", "0", "--duration", "20", "-o", d / "init.json")):
         r = run_cli("-q", *args)

@@ -20,7 +20,7 @@ CFG = REPO_ROOT / "configs" / "testbed-1998.toml"
 @pytest.fixture(scope="module")
 def record(tmp_path_factory):
     d = tmp_path_factory.mktemp("outputs")
-    for args in (("simulate", CFG, "--duration", "260", "--seed", "3", "-o", d / "sim"),
+    for args in (("simulate", CFG, "--duration", "215", "--seed", "3", "-o", d / "sim"),
                  ("ingest", d / "sim" / "receiver.csv", "--config", CFG, "-o", d / "run.mcap"),
                  ("init", d / "run.mcap", "--start", "0", "--duration", "20", "-o", d / "init.json"),
                  ("estimate", d / "run.mcap", "--init", d / "init.json", "--smooth", "-o", d / "states.mcap")):
