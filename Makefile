@@ -38,6 +38,7 @@ studies: venv
 	$(PY) benchmarks/init_success.py
 	$(PY) benchmarks/estimate_accuracy.py
 	$(PY) benchmarks/oma_crosscheck.py
+	$(PY) benchmarks/long_records.py --hours 1 3 6 24 --out docs/benchmarks/long_records.json
 	$(PY) benchmarks/record_length.py
 
 # every headline of the three papers, reproduced: docs/paper-reproduction.md (≈ 10-15 min on 2 cores)

@@ -88,44 +88,69 @@ def _design(stride: int) -> np.ndarray:
     return h / np.sum(h)                                # unit gain at zero frequency
 
 
-def anti_alias_decimate(x: np.ndarray, stride: int) -> np.ndarray:
+PREVIEW_BLOCK_EPOCHS = 16384
+"""Epochs read at a time by :func:`anti_alias_decimate` (its memory does not grow with the record)."""
+
+
+def anti_alias_decimate(x, stride: int, block_epochs: int = PREVIEW_BLOCK_EPOCHS) -> np.ndarray:
     """Low-pass filter ``x`` along its first axis and keep epochs 0, stride, 2·stride, …
 
     Parameters
     ----------
-    x : ndarray (N, ...)
+    x : ndarray (N, ...) or array-like
         A series sampled at constant spacing.  Epochs with a NaN keep their value; each run of
         complete epochs between them is filtered on its own (no NaN spreads over the filter's length).
+        Only ``x.shape`` and row slices ``x[a:b]`` are used, a block of ``block_epochs`` rows at a
+        time, so ``x`` may be a series on disk or computed block by block (issue 29).
     stride : int
         Keep every ``stride``-th epoch (1: ``x`` unchanged).
+    block_epochs : int
+        Rows read at a time (the result does not depend on it: each kept epoch is the same sum of
+        the same products in any cutting).
 
     Returns
     -------
     ndarray (ceil(N / stride), ...)
         The filtered series at the kept epochs (zero phase).
     """
-    x = np.asarray(x, dtype=float)
-    if stride <= 1 or x.shape[0] == 0:
-        return x.copy()
-    out = x[::stride].copy()                             # epochs with a missing value: as they are
-    finite = np.isfinite(x.reshape(x.shape[0], -1)).all(axis=1)
+    n = x.shape[0]
+    step = max(-(-int(block_epochs) // max(stride, 1)), 1) * max(stride, 1)     # whole strides per block
+    if stride <= 1 or n == 0:
+        return np.concatenate([np.array(x[a:a + step], dtype=float) for a in range(0, n, step)]) if n else \
+            np.array(x[0:0], dtype=float)
+    out = np.empty((len(range(0, n, stride)),) + tuple(x.shape[1:]))
+    finite = np.empty(n, dtype=bool)
+    for a in range(0, n, step):                          # epochs with a missing value: as they are
+        rows = np.asarray(x[a:a + step], dtype=float)
+        out[a // stride:a // stride + len(range(0, rows.shape[0], stride))] = rows[::stride]
+        finite[a:a + rows.shape[0]] = np.isfinite(rows.reshape(rows.shape[0], -1)).all(axis=1)
     edges = np.flatnonzero(np.diff(np.r_[0, finite.astype(np.int8), 0]))
     for a, b in zip(edges[::2], edges[1::2]):            # each run of complete epochs on its own
         k0 = -(-a // stride) * stride                    # its first kept epoch
         if k0 < b:
-            out[k0 // stride:k0 // stride + len(range(k0, b, stride))] = _filtered(x[k0:b], stride)
+            _filter_run(x, k0, b, stride, out, step // stride)
     return out
 
 
-def _filtered(x: np.ndarray, stride: int) -> np.ndarray:
-    """:func:`anti_alias_decimate` of a NaN-free series (its ends repeated beyond the record)."""
+def _filter_run(x, k0: int, b: int, stride: int, out: np.ndarray, per_block: int) -> None:
+    """Rows k0 … b−1 of ``x`` (NaN-free) filtered into ``out`` at their kept epochs, ``per_block``
+    kept epochs at a time.  The run's ends are repeated beyond it: kept epoch j of the run is
+    y_j = Σ_t h_t · padded[j·stride + 2·half − t], padded[p] = x[k0 + clip(p − half, 0, L − 1)] (what
+    :func:`scipy.signal.upfirdn` (h, padded, down=stride) gives from its output 2·half/stride on), and
+    each block of kept epochs reads exactly the padded rows it needs (the same terms in the same order
+    as over the whole run)."""
     h = preview_filter(stride)
     half = (h.size - 1) // 2                             # a multiple of stride
-    padded = np.concatenate([np.repeat(x[:1], half, axis=0), x, np.repeat(x[-1:], half, axis=0)])
-    n_out = len(range(0, x.shape[0], stride))
-    # y_j = Σ_i h_i · padded[j·stride + 2·half − i]: the FIR centred on kept epoch j·stride (as
-    # scipy.signal.upfirdn(h, padded, down=stride) from its output 2·half/stride on), in blocks
-    flat = padded.reshape(padded.shape[0], -1)
-    win = np.lib.stride_tricks.sliding_window_view(flat, h.size, axis=0)[::stride][:n_out]   # (n_out, C, taps), a view
-    y = np.einsum("bct,t->bc", win, h[::-1])
-    return y.reshape((n_out,) + x.shape[1:])
+    L = b - k0
+    J = len(range(0, L, stride))
+    step = max(per_block, 1)
+    for j0 in range(0, J, step):
+        j1 = min(j0 + step, J)
+        p = np.arange(j0 * stride, (j1 - 1) * stride + 2 * half + 1)
+        idx = np.clip(p - half, 0, L - 1)
+        lo, hi = int(idx[0]), int(idx[-1]) + 1
+        rows = np.asarray(x[k0 + lo:k0 + hi], dtype=float)[idx - lo]
+        flat = rows.reshape(rows.shape[0], -1)
+        win = np.lib.stride_tricks.sliding_window_view(flat, h.size, axis=0)[::stride][:j1 - j0]  # (n, C, taps), a view
+        y = np.einsum("bct,t->bc", win, h[::-1])
+        out[k0 // stride + j0:k0 // stride + j1] = y.reshape((j1 - j0,) + rows.shape[1:])

@@ -278,8 +278,6 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
     On a GNSS run (RINEX/UBX receivers): float DD solution, LAMBDA integers (ratio test, partial
     fixing) and the fixed static displacement of every rover → INIT.json (docs/gnss-pipeline.md).
     """
-    import hashlib
-
     from cdgps_cli.io.file_checks import GNSS_RUN, RUNS, require_kind
 
     if require_kind(run_mcap, RUNS, "RUN_MCAP") == GNSS_RUN:      # (the file's metadata read once)
@@ -292,19 +290,20 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
                                    "--multipath-tau-s": multipath_time_constant_s is not None})
         return
     from cdgps_cli.estimation.initializer import InitOptions, initialize
+    from cdgps_cli.io.atomic import file_sha256
     from cdgps_cli.io.run import read_run
 
     if structure is not None or receiver_map:
         raise CdgpsError("--structure/--receiver apply to GNSS runs (from 'cdgps ingest --rinex/--ubx'); a structure "
                          "run's RUN.mcap already names its structure config")
-    run = read_run(run_mcap)
+    run = read_run(run_mcap, on_disk=True)   # the phase table read in blocks from disk (init reads its window)
     opt = InitOptions(start_s=start_s, duration_s=duration_s, process_noise=not no_process_noise,
                       fix_integers=not float_only, ratio_threshold=ratio_threshold, partial=not no_partial,
                       starts=starts, max_iterations=max_iterations, sigma_m=sigma_m,
                       multipath_sigma_m=multipath_sigma_m, multipath_time_constant_s=multipath_time_constant_s,
                       progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
     res = initialize(run, opt)
-    res["run_sha256"] = hashlib.sha256(Path(run_mcap).read_bytes()).hexdigest()
+    res["run_sha256"] = file_sha256(Path(run_mcap))      # (in pieces: not the whole file in memory)
     res.pop("elapsed_s", None)          # keep INIT.json byte-identical across runs
     _write_json_atomic(output, res)
     n_seg = len(res["biases"])                      # one bias (and integer) per lock segment
@@ -439,7 +438,7 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
         from cdgps_cli.estimation.rest import validate_detector
 
         validate_detector(rest_window_s, rest_dwell_s, 1.0)
-    run = read_run(run_mcap)
+    run = read_run(run_mcap, on_disk=True)   # the phase table read in blocks from disk (memory flat in the record)
     opt = EstimateOptions(biases=biases, smooth=smooth, sigma_m=sigma_m, nis_probability=nis_probability,
                           outlier_sigma=outlier_sigma, process_noise_scale=process_noise_scale,
                           rest_segments_s=rest_segments, rest_process_noise_scale=rest_process_noise_scale,
@@ -614,7 +613,7 @@ def evaluate(ctx, truth_dir, states_mcap, converge_s, as_json):
     _echo("\n".join(lines))
 
 
-def _states_and_gyro(states_mcap, gyro_mcap, chunked: bool = False):
+def _states_and_gyro(states_mcap, gyro_mcap, chunked: bool = False, covariance: bool = False):
     """STATES.mcap (state series only; ``chunked``: read in chunks, io.states.StatesChunks) and,
     optionally, the gyro log of a RUN.mcap."""
     from cdgps_cli.io.file_checks import STATES, STRUCTURE_RUN, require_kind
@@ -624,7 +623,7 @@ def _states_and_gyro(states_mcap, gyro_mcap, chunked: bool = False):
     require_kind(states_mcap, STATES, "STATES_MCAP")
     if gyro_mcap:
         require_kind(gyro_mcap, STRUCTURE_RUN, "--gyro")
-    st = StatesChunks(states_mcap) if chunked else States(states_mcap, diagnostics=False)
+    st = StatesChunks(states_mcap, covariance=covariance) if chunked else States(states_mcap, diagnostics=False)
     return st, (read_run(gyro_mcap, phase=False) if gyro_mcap else None)
 
 
@@ -691,7 +690,7 @@ def report():
 def report_static(ctx, states_mcap, gyro_mcap, angle, survey_deg, start_s, end_s, gyro_name, out_dir, as_json, date):
     """Static sensor test (1998 paper Fig. 7): mean vs survey, noise, GPS and gyro drift."""
     from cdgps_cli.report.sensor_reports import static_report
-    st, run = _states_and_gyro(states_mcap, gyro_mcap)
+    st, run = _states_and_gyro(states_mcap, gyro_mcap, chunked=True, covariance=True)   # STATES in chunks (issue 29)
     with progress.stage("static report"):
         d = static_report(st, run, angle, survey_deg, out_dir, start_s, end_s, gyro_name, date=date)
     err = "" if d["error_deg"] is None else f", error {d['error_deg']:+.4f}°"

@@ -660,14 +660,14 @@ def _history_out(fp: _ForwardPass, n: int, m: int, forward: bool, lead: int = 0)
             P_all = np.empty((lead + N, m, m))
             P_all[lead:] = Ps[:, :m, :m]
         return x_all, P_all
-    x_all, P_all = np.empty((lead + N, n)), np.empty((lead + N, m, m))
+    x_all, P_all = fp.hist.empty((lead + N, n)), fp.hist.empty((lead + N, m, m))   # (on disk too: issue 29)
     x_out, P_out = x_all[lead:], P_all[lead:]
     for a in range(0, N, fp.chunk):
         b = min(a + fp.chunk, N)
         x_out[a:b] = xs[a:b, :n]
         P_out[a:b] = Ps[a:b, :m, :m]
-        fp.hist.release(xs, a, b)
-        fp.hist.release(Ps, a, b)
+        for arr in (xs, Ps, x_out, P_out):
+            fp.hist.release(arr, a, b)
     return x_all, P_all
 
 
@@ -677,14 +677,14 @@ def _smooth_chunks(fp: _ForwardPass, m: int, lead: int = 0) -> tuple[np.ndarray,
     (its pages then dropped)."""
     xs, Ps, n = fp.xs, fp.Ps, fp.n
     N = len(xs)
-    x_all, P_all = np.empty((lead + N, n)), np.empty((lead + N, m, m))
+    x_all, P_all = fp.hist.empty((lead + N, n)), fp.hist.empty((lead + N, m, m))   # (on disk too: issue 29)
     x_out, P_out = x_all[lead:], P_all[lead:]
 
     def done(a: int, b: int) -> None:
         x_out[a:b] = xs[a:b, :n]
         P_out[a:b] = Ps[a:b, :m, :m]
-        fp.hist.release(xs, a, b)
-        fp.hist.release(Ps, a, b)
+        for arr in (xs, Ps, x_out, P_out):
+            fp.hist.release(arr, a, b)
 
     rts_smooth(fp.A, fp.Qd, fp.Bu, fp.U_in, xs, Ps, fp.extra_q, fp.no_link, in_place=True,
                q_segments=_q_segments(fp.at_rest, fp.Qd, fp.Qd_rest), chunk=fp.chunk, on_done=done)

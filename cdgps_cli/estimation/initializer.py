@@ -133,7 +133,7 @@ def window_snr_dbhz(run: Run, wd: WindowData) -> np.ndarray:
     ph = run.phase
     t = ph["time_s"]
     keep = (t >= wd.time_s[0] - 1e-9) & (t <= wd.time_s[-1] + 1e-9)
-    snr = np.asarray(ph["snr_dbhz"], dtype=float)[keep]
+    snr = np.asarray(ph["snr_dbhz"][keep], dtype=float)        # (the window's rows only: a table on disk)
     ai, ti = row_channel_indices(run.cfg, ph, run.path, rows=keep)
     key = ai * len(run.cfg.transmitter_names) + ti               # each row's channel, by config index
     c_ant, c_tx = channel_indices(run.cfg, [c[0] for c in wd.channels], [c[1] for c in wd.channels])

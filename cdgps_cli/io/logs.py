@@ -81,11 +81,14 @@ class _Problems:
     def __init__(self, path):
         self.path = path
         self.items: list[str] = []
+        self.first_row: int | None = None             # the first row with a problem
+        self.time_s: np.ndarray | None = None         # the rows' times, once read (named in the message)
 
     def rows(self, mask: np.ndarray, what: str, values=None) -> None:
         idx = np.flatnonzero(mask)
         if idx.size == 0:
             return
+        self.first_row = int(idx[0]) if self.first_row is None else min(self.first_row, int(idx[0]))
         shown = idx[:_MAX_LINES_PER_PROBLEM]
         for i in shown:
             extra = f" (got {values[i]!r})" if values is not None else ""
@@ -96,9 +99,21 @@ class _Problems:
     def add(self, msg: str) -> None:
         self.items.append(f"{self.path}: {msg}")
 
+    def when(self) -> str:
+        """``, the first at time_s T s`` (or ``after`` the last readable time before it): where in the
+        record a problem is (a day of hourly logs: which hour)."""
+        if self.first_row is None or self.time_s is None or self.first_row >= self.time_s.size:
+            return ""
+        t = self.time_s[:self.first_row + 1]
+        ok = np.flatnonzero(np.isfinite(t) & (t >= 0))
+        if ok.size == 0:
+            return ""
+        return f", the first at time_s {t[ok[-1]]:g} s" if ok[-1] == self.first_row else \
+            f", the first after time_s {t[ok[-1]]:g} s"
+
     def raise_if_any(self) -> None:
         if self.items:
-            head = f"{self.path}: invalid log ({len(self.items)} problem{'s' if len(self.items) > 1 else ''})"
+            head = f"{self.path}: invalid log ({len(self.items)} problem{'s' if len(self.items) > 1 else ''}{self.when()})"
             raise CdgpsError(head + "\n  - " + "\n  - ".join(self.items))
 
 
@@ -144,6 +159,11 @@ def _read_table(path: str | Path, columns: tuple, numeric: tuple, optional_numer
         if dup:
             msg.append(f"duplicate column(s) {', '.join(dup)}")
         raise CdgpsError(f"{p}, line 1: " + "; ".join(msg) + f"; expected the header {','.join(columns)}")
+    if FAST_PARSE and all(h == h.strip() for h in head.split(",")):
+        fast = _fast_table(p, opener, columns, numeric, optional_numeric, allow_empty)
+        if fast is not None:
+            probs.time_s = fast["time_s"].to_numpy() if "time_s" in fast else None
+            return fast, probs
     try:
         with progress.reading(p) as raw, (nullcontext(raw) if opener is open else opener(raw, "rb")) as fh:
             df = pd.read_csv(fh, dtype=str, keep_default_na=False, na_filter=False, engine="c")
@@ -170,11 +190,57 @@ def _read_table(path: str | Path, columns: tuple, numeric: tuple, optional_numer
                 probs.rows(literal_nan, f"column {c}: NaN value")
             _check_bounds(c, vals, col.to_numpy(), probs)
             out[c] = vals
+            if c == "time_s":
+                probs.time_s = vals
         else:
             v = col.to_numpy()
             probs.rows(v == "", f"column {c}: empty value")
             out[c] = v
     return pd.DataFrame(out, columns=list(columns)), probs
+
+
+FAST_PARSE = True
+"""Read a log with typed columns first (:func:`_fast_table`); the text reading below only when that
+finds something to report (tests/io/test_log_fast_path.py compares the two)."""
+
+
+def _fast_table(p: Path, opener, columns: tuple, numeric: tuple, optional_numeric: tuple,
+                allow_empty: bool) -> pd.DataFrame | None:
+    """The table of a valid log read with typed columns (issue 29 item 4: numbers parsed by pandas' C
+    reader as floats, names as categoricals), or None when the log has anything the text reading
+    reports (a value that is not a number, empty or NaN where a number is required, a value outside
+    its bounds, an empty or padded name, a malformed line): that reading then gives the messages.
+    For a valid log both give the same table, bit for bit (the same float parser)."""
+    kinds = {c: (float if c in numeric or c in optional_numeric else "category") for c in columns}
+    try:
+        with progress.reading(p) as raw, (nullcontext(raw) if opener is open else opener(raw, "rb")) as fh:
+            df = pd.read_csv(fh, dtype=kinds, keep_default_na=False, engine="c",
+                             na_values={c: [""] for c in optional_numeric})
+    except (ValueError, TypeError, UnicodeDecodeError, EOFError, OSError, lzma.LZMAError):
+        return None                                   # (pandas' ParserError is a ValueError)
+    if len(df) == 0 and not allow_empty:
+        return None
+    out = {}
+    for c in columns:
+        col = df[c]
+        if c in kinds and kinds[c] is float:
+            vals = col.to_numpy(dtype=float)
+            if (c in numeric and np.isnan(vals).any()) or not _within_bounds(c, vals):
+                return None
+            out[c] = vals
+        else:
+            words = [str(w) for w in col.cat.categories]
+            if any(w == "" or w != w.strip() for w in words) or col.isna().any():
+                return None
+            out[c] = col                              # (categorical: the checks below work on its codes)
+    return pd.DataFrame(out, columns=list(columns))
+
+
+def _within_bounds(c: str, vals: np.ndarray) -> bool:
+    """No value :func:`_check_bounds` would report."""
+    probs = _Problems("")
+    _check_bounds(c, vals, vals, probs)
+    return not probs.items
 
 
 def _check_bounds(c: str, vals: np.ndarray, text: np.ndarray, probs: _Problems) -> None:
@@ -200,6 +266,14 @@ def _check_time(df: pd.DataFrame, probs: _Problems) -> None:
 
 
 def _check_names(df, col, allowed, probs, what):
+    if isinstance(df[col].dtype, pd.CategoricalDtype):          # (the typed reading: by its few names)
+        cats = df[col].cat.categories
+        unknown = np.flatnonzero(~cats.isin(allowed))
+        if unknown.size:
+            codes = df[col].cat.codes.to_numpy()
+            probs.rows(np.isin(codes, unknown), f"column {col}: {what} not in the config (known: {', '.join(allowed)})",
+                       df[col].to_numpy())
+        return
     v = df[col].to_numpy()
     bad = ~pd.Series(v).isin(allowed).to_numpy() & (v != "")
     probs.rows(bad, f"column {col}: {what} not in the config (known: {', '.join(allowed)})", v)
@@ -230,12 +304,51 @@ def read_receiver_log(path: str | Path, cfg: StructureConfig) -> pd.DataFrame:
     _check_names(df, "antenna", list(cfg.rover_names), probs, "antenna")
     _check_names(df, "transmitter", list(cfg.transmitter_names), probs, "transmitter")
     master = cfg.antenna_names[cfg.master_index]
-    probs.rows(df["master"].to_numpy() != master, f"column master: expected the config's master antenna {master!r}", df["master"].to_numpy())
-    key = pd.DataFrame({"t": df["time_s"], "a": df["antenna"], "x": df["transmitter"]})
-    probs.rows(key.duplicated().to_numpy(), "duplicate row (same time_s, antenna and transmitter as an earlier row)")
+    m = df["master"]
+    if isinstance(m.dtype, pd.CategoricalDtype) and list(m.cat.categories) == [master]:
+        pass                                                     # (the typed reading: every row names it)
+    else:
+        probs.rows(m.to_numpy() != master, f"column master: expected the config's master antenna {master!r}", m.to_numpy())
+    probs.rows(_duplicated_rows(df), "duplicate row (same time_s, antenna and transmitter as an earlier row)")
     probs.raise_if_any()
     df["lock"] = df["lock"].astype(np.int64)
     return df
+
+
+def _duplicated_rows(df: pd.DataFrame) -> np.ndarray:
+    """Rows repeating an earlier row's (time_s, antenna, transmitter).  With categorical names (the
+    typed reading) the key is numeric: the time's bits and the pair of name codes."""
+    a, x = df["antenna"], df["transmitter"]
+    if isinstance(a.dtype, pd.CategoricalDtype) and isinstance(x.dtype, pd.CategoricalDtype):
+        t = df["time_s"].to_numpy(dtype=float)
+        n_x = len(x.cat.categories) + 1
+        a_codes, x_codes = a.cat.codes.to_numpy(), x.cat.codes.to_numpy()
+
+        def dup(r0: int, r1: int) -> np.ndarray:
+            pair = a_codes[r0:r1].astype(np.int64) * n_x + x_codes[r0:r1]
+            # (+0.0: -0.0 and 0.0 one key, as in the text reading)
+            return pd.DataFrame({"t": t[r0:r1] + 0.0, "p": pair}).duplicated().to_numpy()
+
+        if t.size < 2 or not (t[1:] >= t[:-1]).all():            # (times out of order: one table, as before)
+            return dup(0, t.size)
+        # times in order: a repeated row has its time, so blocks cut between times find the same rows
+        # (with the temporaries of a block: the whole table's hash peaked at ~75 bytes a row)
+        out = np.zeros(t.size, dtype=bool)
+        r0 = 0
+        while r0 < t.size:
+            r1 = min(r0 + _DUP_BLOCK_ROWS, t.size)
+            if r1 < t.size:
+                r1 = int(np.searchsorted(t, t[r1], side="left"))      # the block ends before a time's first row
+                r1 = r1 if r1 > r0 else int(np.searchsorted(t, t[r0], side="right"))
+            out[r0:r1] = dup(r0, r1)
+            r0 = r1
+        return out
+    key = pd.DataFrame({"t": df["time_s"], "a": a, "x": x})
+    return key.duplicated().to_numpy()
+
+
+_DUP_BLOCK_ROWS = 1 << 20
+"""Rows per block of the duplicate-row check on a log in time order."""
 
 
 def _read_named_series(path, columns: tuple, value: str, allowed: list, what: str,

@@ -50,7 +50,8 @@ from cdgps_cli.io.atomic import (is_no_room, link_anonymous, open_anonymous, out
                                  temporary_name)
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.table import Table
-from cdgps_cli.io.mcap_integrity import RECORD_SHA256_KEY, check_records, record_sha256, verify_file, warn_once
+from cdgps_cli.io.mcap_integrity import (RECORD_SHA256_KEY, DataSectionDamage, check_records, record_sha256,
+                                         verify_file, warn_once)
 from cdgps_cli.core.timescales import RELATIVE_EPOCH_UTC, TIME_SCALES, unix_ns
 
 INFO_METADATA = "cdgps.info"
@@ -213,6 +214,47 @@ def _streaming_supported(writer: Writer, fh) -> bool:
     if not all(hasattr(writer, "_Writer__" + a) for a in _WRITER_INTERNALS):
         return False
     return writer._Writer__stream is fh and hasattr(writer._Writer__statistics, "attachment_count")
+
+
+_MESSAGES_PER_BLOCK = 4096
+"""Messages whose rows :meth:`McapOut.write_table` turns into Python lists at a time (the lists of a
+whole hour's phase table took ~250 MB)."""
+
+
+def _column_rows(df, c: str):
+    """``rows(a, b)``: rows a … b−1 of column ``c`` of a DataFrame or a
+    :class:`~cdgps_cli.core.table.Table` as a list (a Table's name column from its codes, so no
+    whole-length array of names is made)."""
+    if isinstance(df, Table) and _is_name_column(df, c):
+        codes, words = df.codes(c)
+        return lambda a, b: [words[k] for k in codes[a:b].tolist()]
+    col = np.asarray(df[c])
+    return lambda a, b: col[a:b].tolist()
+
+
+class _Named:
+    """``[i]``: row i's name of a Table's name column, from its codes (no array of names made)."""
+
+    def __init__(self, codes, words):
+        self.codes, self.words = codes, words
+
+    def __getitem__(self, i):
+        return self.words[self.codes[i]]
+
+
+def _column_values(df, c: str):
+    """Column ``c`` indexable by row (a Table's name column through its codes)."""
+    if isinstance(df, Table) and _is_name_column(df, c):
+        return _Named(*df.codes(c))
+    return np.asarray(df[c])
+
+
+def _is_name_column(table, c: str) -> bool:
+    try:
+        table.codes(c)
+        return True
+    except KeyError:
+        return False
 
 
 class McapOut:
@@ -382,13 +424,19 @@ class McapOut:
             return 0
         t = np.asarray(df["time_s"])
         cuts = np.flatnonzero(np.r_[True, t[1:] != t[:-1], True])
-        cols = {c: np.asarray(df[c]) for c in array_columns}
-        lists = {c: v.tolist() for c, v in cols.items()}      # NaN: encoded by write() per the schema
-        scal = {c: np.asarray(df[c]) for c in scalar_columns}
-        for a, b in progress.iterate(zip(cuts[:-1], cuts[1:]), f"writing {self.path.name}", len(cuts) - 1, "msg"):
-            payload = {c: scal[c][a] for c in scalar_columns}
-            payload.update({c: lists[c][a:b] for c in array_columns})
-            self.write(channel_id, t[a], payload)
+        cols = {c: _column_rows(df, c) for c in array_columns}
+        scal = {c: _column_values(df, c) for c in scalar_columns}
+        bar = progress.bar(len(cuts) - 1, f"writing {self.path.name}", "msg")
+        for i in range(0, len(cuts) - 1, _MESSAGES_PER_BLOCK):    # Python lists of a block of rows at a time
+            block = cuts[i:i + _MESSAGES_PER_BLOCK + 1]
+            r0, r1 = int(block[0]), int(block[-1])
+            lists = {c: rows(r0, r1) for c, rows in cols.items()}      # NaN: encoded by write() per the schema
+            for a, b in zip(block[:-1].tolist(), block[1:].tolist()):
+                payload = {c: scal[c][a] for c in scalar_columns}
+                payload.update({c: lists[c][a - r0:b - r0] for c in array_columns})
+                self.write(channel_id, t[a], payload)
+            bar.update(len(block) - 1)
+        bar.close()
         return len(cuts) - 1
 
     def attach(self, name: str, data: bytes, media_type: str = "text/plain") -> None:
@@ -768,7 +816,10 @@ def open_verified(path: str | Path):
     try:
         with open(p, "rb") as raw:
             fh = _InputBoundedFile(raw)
-            info = verify_file(fh, p)
+            try:
+                info = verify_file(fh, p)
+            except DataSectionDamage as exc:
+                raise CdgpsError(f"{exc}{_where_damaged(fh, p)}") from None
             warn_once(info)
             fh.seek(0)
             reader = make_reader(fh, validate_crcs=True)
@@ -789,12 +840,56 @@ def _is_foxglove(schema) -> bool:
     return schema is not None and schema.name.startswith("foxglove.")
 
 
-def read_mcap(path: str | Path, topics: list[str] | None = None) -> McapContents:
+def _where_damaged(fh, path) -> str:
+    """Where a data section that fails its CRC is damaged, from the summary (its own CRC passed):
+    ``"; damaged: the chunk of the messages logged at … (byte N)"`` for the first chunk whose header,
+    decompression or CRC fails, or the attachment whose CRC fails; "" when neither says (issue 29:
+    bad input mid-stream names the file and the time)."""
+    try:
+        fh.seek(0)
+        summary = make_reader(fh, validate_crcs=False).get_summary()
+    except Exception:  # noqa: BLE001 (the summary was checked; anything else: no more to say)
+        return ""
+    if summary is None:
+        return ""
+
+    def fail(what: str) -> CdgpsError:
+        return CdgpsError(what)
+
+    scales = {(ch.metadata or {}).get("time_scale", "relative") for ch in summary.channels.values()}
+    for ci in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
+        try:
+            records_at, crc = _chunk_header(fh, ci, fail)
+            _check_chunk(fh, records_at, ci.compressed_size, ci, crc, {}, fail)
+        except CdgpsError:
+            return f"; damaged: the chunk of the messages logged {_log_span(ci, scales)} (byte {ci.chunk_start_offset})"
+    try:
+        _check_attachment_crcs(fh, summary, path)
+    except CdgpsError as exc:
+        return f"; damaged: {str(exc).split(': ', 1)[-1]}"
+    return ""
+
+
+def _log_span(ci, scales: set) -> str:
+    """A chunk's log-time span in words: run seconds for a relative run, else UTC."""
+    a, b = ci.message_start_time, ci.message_end_time
+    if scales == {"relative"}:
+        return f"at {a / 1e9:g}–{b / 1e9:g} s of the run"
+    import datetime as dt  # noqa: PLC0415
+
+    def utc(ns):
+        return dt.datetime.fromtimestamp(ns / 1e9, dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+    return f"from {utc(a)} to {utc(b)}"
+
+
+def read_mcap(path: str | Path, topics: list[str] | None = None, attachments=None) -> McapContents:
     """Read an MCAP file, every byte checked before any value is used (:func:`open_verified`,
     chunk and attachment CRCs, each metadata record's ``record_sha256``).
 
     ``topics`` None: every channel but those of Foxglove's own schemas (``foxglove.*``, nested
     messages that do not fit :class:`TopicColumns`; read them with the ``mcap`` reader).
+    ``attachments(name) -> bool``, when given, chooses the attachments kept in memory (every one's
+    CRC is still checked).
 
     Raises
     ------
@@ -820,7 +915,8 @@ def read_mcap(path: str | Path, topics: list[str] | None = None) -> McapContents
             acc.add(json.loads(message.data))
         if not info.data_section_crc_checked:      # (else every attachment's bytes are in the checked section)
             _check_attachment_crcs(fh, summary, p, zero_ok=False)
-        attachments = {a.name: bytes(a.data) for a in reader.iter_attachments()}
+        keep = attachments or (lambda name: True)
+        attachments = {a.name: bytes(a.data) for a in reader.iter_attachments() if keep(a.name)}
         channels = frozenset(ch.topic for ch in summary.channels.values())
     return McapContents(str(p), cols, attachments, info.metadata, schemas, encodings, chan_meta, channels)
 

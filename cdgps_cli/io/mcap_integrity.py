@@ -176,9 +176,14 @@ def verify_file(fh, path: str | Path) -> Integrity:
         return info
     got = _crc_range(fh, 0, data_end, buf)
     if got != data_crc:
-        raise CdgpsError(f"{path}: the MCAP data section fails its CRC check (stored {data_crc:#010x}, "
-                         f"computed {got:#010x}): the file is corrupt")
+        raise DataSectionDamage(f"{path}: the MCAP data section fails its CRC check (stored {data_crc:#010x}, "
+                                f"computed {got:#010x}): the file is corrupt")
     return info
+
+
+class DataSectionDamage(CdgpsError):
+    """The data-section CRC fails; :func:`cdgps_cli.io.mcap.open_verified` then says where (the
+    damaged chunk's time span, or the attachment) from the summary, whose own CRC passed."""
 
 
 def warn_once(info: Integrity) -> None:

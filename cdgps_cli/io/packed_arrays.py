@@ -322,3 +322,127 @@ class PackedRows:
             u += carry[level]                                  # modulo 2^bits, as the whole-array sums
             carry[level] = u[-1].copy()
         return u
+
+
+class PackedWriter:
+    """A packed array written from consecutive blocks of rows, in bounded memory: the same bytes as
+    :func:`pack` of the whole array (issue 29: ``cdgps estimate`` writes STATES from a history on disk).
+
+    The byte planes of :func:`pack` run over every epoch, so nothing can be compressed before the last
+    row is given: :meth:`add` differences each block (carrying the previous rows of each order) and
+    writes its bytes to their places in an unlinked temporary file laid out as the planes
+    (plane, column, epoch); :meth:`finish` then compresses that file a piece at a time into a second
+    one and gives the packed bytes' length and their pieces.  zstd's output does not depend on how
+    its input is cut, so the bytes are those of :func:`pack` (``tests/io/test_packed_stream.py``).
+    Memory: one block of rows and a piece of the file, whatever the array's length.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        The whole array's shape (first axis: rows, e.g. epochs).
+    dtype : numpy dtype
+        Its numeric dtype (stored little-endian).
+    delta : {0, 1, 2}
+        As :func:`pack_pieces`.
+    dir : path, optional
+        Where the temporary files go (default: the system's temporary directory).
+    """
+
+    _PIECE = 1 << 20
+
+    def __init__(self, shape: tuple, dtype, delta: int = 0, dir=None):
+        import tempfile
+
+        self.dtype = np.dtype(dtype).newbyteorder("<")
+        if self.dtype.kind not in "biuf":
+            raise ValueError(f"packed arrays hold bool, integer or float numbers, not dtype {self.dtype}")
+        if delta not in DELTA_ORDERS or (delta and self.dtype.kind == "b"):
+            raise ValueError(f"delta {delta!r}: expected one of {DELTA_ORDERS} (0 for bool arrays)")
+        self.shape, self.delta = tuple(int(s) for s in shape), delta
+        if not self.shape:
+            raise ValueError("PackedWriter: a 0-d array is packed whole (pack)")
+        self.n = self.shape[0]
+        self.m = int(np.prod(self.shape[1:], dtype=np.int64))
+        self.done = 0
+        self._carry: list = [None] * delta          # per order: the last row of that order's input
+        self._file = tempfile.TemporaryFile(prefix=".cdgps-pack-", dir=dir)
+
+    def add(self, rows: np.ndarray) -> None:
+        """The next block of rows, (k, *shape[1:]) (converted to the dtype as :func:`pack` does)."""
+        rows = np.asarray(rows)
+        k = rows.shape[0] if rows.ndim else 0
+        if rows.shape[1:] != self.shape[1:] or self.done + k > self.n:
+            raise ValueError(f"rows of shape {list(rows.shape)} after {self.done} of {self.n} rows of shape "
+                             f"{list(self.shape)}")
+        if k == 0:
+            return
+        size = self.dtype.itemsize
+        u = np.ascontiguousarray(rows.astype(self.dtype, copy=False).reshape(k, self.m)).view(_unsigned(size))
+        if self.delta:
+            u = self._differences(u)
+        octets = u.view(np.uint8).reshape(k, self.m, size)
+        fd, a = self._file.fileno(), self.done
+        for b in range(size):
+            plane = np.ascontiguousarray(octets[:, :, b].T)          # (m, k)
+            for c in range(self.m):
+                os.pwrite(fd, plane[c].tobytes(), (b * self.m + c) * self.n + a)
+        self.done += k
+
+    def _differences(self, u: np.ndarray, block: int = 256) -> np.ndarray:
+        """:func:`_delta_encode` of one block on one copy of it, continuing from the rows before it
+        (the last row of each order's input is carried to the next block)."""
+        d = u.copy()
+        k = d.shape[0]
+        for level in range(self.delta):
+            last = d[-1].copy()
+            for end in range(k, 1, -block):                           # from the end: rows still undifferenced
+                start = max(end - block, 1)
+                np.subtract(d[start:end], d[start - 1:end - 1], out=d[start:end])     # modulo 2^bits
+            if self._carry[level] is not None:
+                d[0] -= self._carry[level]
+            self._carry[level] = last
+        s = d.view(d.dtype.str.replace("u", "i"))
+        bits = 8 * d.dtype.itemsize
+        for a in range(0, k, block):
+            sign = s[a:a + block] >> (bits - 1)
+            np.left_shift(s[a:a + block], 1, out=s[a:a + block])
+            np.bitwise_xor(s[a:a + block], sign, out=s[a:a + block])
+        return d
+
+    def finish(self) -> tuple[int, object]:
+        """``(length, pieces)``: the packed bytes' length and an iterator over them (header first).
+        Every row must have been given.  The temporary files close when the pieces are consumed."""
+        import tempfile
+
+        if self.done != self.n:
+            raise ValueError(f"PackedWriter: {self.done} of {self.n} rows given")
+        head = {"dtype": self.dtype.str, "filter": FILTER, "shape": list(self.shape),
+                **({"delta": self.delta} if self.delta else {})}
+        header = json.dumps(head, sort_keys=True).encode()
+        first = MAGIC + _HEAD.pack(len(header)) + header
+        raw_size = self.n * self.m * self.dtype.itemsize
+        packed = tempfile.TemporaryFile(prefix=".cdgps-pack-", dir=None)
+        cobj = zstandard.ZstdCompressor(level=LEVEL).compressobj(size=raw_size)
+        fd = self._file.fileno()
+        for at in range(0, raw_size, self._PIECE):
+            packed.write(cobj.compress(os.pread(fd, min(self._PIECE, raw_size - at), at)))
+        packed.write(cobj.flush())
+        self._file.close()
+        length = len(first) + packed.tell()
+        packed.seek(0)
+
+        def pieces():
+            try:
+                yield first
+                while True:
+                    piece = packed.read(self._PIECE)
+                    if not piece:
+                        return
+                    yield piece
+            finally:
+                packed.close()
+
+        return length, pieces()
+
+    def close(self) -> None:
+        self._file.close()

@@ -32,7 +32,7 @@ from cdgps_cli.core.time_format import format_time, time_scale
 from cdgps_cli.core.timescales import unix_ns
 from cdgps_cli.io.mcap import (ACTUATOR_SCHEMA, ACTUATOR_TOPIC, CONFIG_ATTACHMENT, GYRO_SCHEMA, GYRO_TOPIC, INFO_FORMAT,
                       INFO_METADATA, PHASE_SCHEMA, PHASE_TOPIC, McapOut, TopicColumns, check_indexes, read_mcap,
-                      time_summary)
+                      read_span, time_summary)
 
 PHASE_ARRAYS = ["receiver", "antenna", "transmitter", "phase_cycles", "lock", "snr_dbhz"]
 GYRO_ARRAYS = "arrays/cdgps/gyro/"
@@ -134,10 +134,10 @@ def _attach_phase_packed(out: McapOut, phase: Table) -> None:
         names[col] = list(words)
         out.attach_packed(f"{PHASE_PACKED}{col}_code", codes.astype(np.int32))
     out.attach(PHASE_PACKED + "names.json", json.dumps(names, sort_keys=True).encode(), "application/json")
-    out.attach_packed(PHASE_PACKED + "time_s", phase["time_s"].astype(float))
-    out.attach_packed(PHASE_PACKED + "phase_cycles", phase["phase_cycles"].astype(float))
-    out.attach_packed(PHASE_PACKED + "lock", phase["lock"].astype(np.int64))
-    out.attach_packed(PHASE_PACKED + "snr_dbhz", phase["snr_dbhz"].astype(float))
+    out.attach_packed(PHASE_PACKED + "time_s", phase["time_s"].astype(float, copy=False))      # (no copies: packing
+    out.attach_packed(PHASE_PACKED + "phase_cycles", phase["phase_cycles"].astype(float, copy=False))  # makes its own)
+    out.attach_packed(PHASE_PACKED + "lock", phase["lock"].astype(np.int64, copy=False))
+    out.attach_packed(PHASE_PACKED + "snr_dbhz", phase["snr_dbhz"].astype(float, copy=False))
 
 
 _PHASE_DEFERRED = ("receiver", "master", "snr_dbhz")
@@ -342,13 +342,28 @@ def _read_sequence(paths: list, reader, cfg, period_s, joins: dict, key: str, sa
     return tab
 
 
-def read_run(path: str | Path, phase: bool = True) -> Run:
+def read_run(path: str | Path, phase: bool = True, on_disk: bool = False) -> Run:
     """Read a RUN.mcap written by :func:`write_run` (CRCs validated).
 
     With ``phase=False`` only the gyro and actuator topics are decoded (the phase table is empty).
+    With ``on_disk=True`` the phase table stays on disk and is read a block of rows at a time
+    (:class:`cdgps_cli.io.phase_disk.DiskPhase`; the same values), so memory does not grow with the
+    record (issue 29: ``cdgps estimate`` and ``cdgps init``); files without the packed phase arrays
+    are read into memory as before.
     """
+    if on_disk and phase:
+        try:
+            run = _read_run_on_disk(path)
+        except _NoScratch as exc:              # (no room for the scratch files: the table in memory, said)
+            print(f"cdgps: warning: {path}: cannot write the phase table's scratch files ({exc}); it is read "
+                  f"into memory", file=sys.stderr, flush=True)
+            run = None
+        if run is not None:
+            return run
     want_phase = phase
-    c = read_mcap(path, topics=[ACTUATOR_TOPIC])
+    # without the phase table its packed arrays are not kept in memory (spectra, reports: the gyro log only)
+    c = read_mcap(path, topics=[ACTUATOR_TOPIC],
+                  attachments=None if want_phase else (lambda name: not name.startswith(PHASE_PACKED)))
     if "cdgps.estimate" not in c.metadata:
         c.require_metadata(INGEST_METADATA, "RUN.mcap from 'cdgps ingest'")
     if contents_kind(c) == "gnss":
@@ -374,6 +389,91 @@ def read_run(path: str | Path, phase: bool = True) -> Run:
         gyro = c.topics.get(GYRO_TOPIC, TopicColumns()).table(["gyro", "rate_rad_s"])
     act = c.topics.get(ACTUATOR_TOPIC, TopicColumns()).table(["actuator", "force_n"])
     return Run(str(path), cfg, phase, gyro, act, c.metadata.get(INGEST_METADATA, {}))
+
+
+def _read_run_on_disk(path: str | Path) -> Run | None:
+    """:func:`read_run` with the phase table on disk (None: the file has no packed phase arrays)."""
+    from cdgps_cli.io.mcap import _check_attachment_crcs, attachment_spans, open_verified  # noqa: PLC0415
+
+    with open_verified(path) as (_reader, fh, info, summary):
+        if not info.data_section_crc_checked:
+            _check_attachment_crcs(fh, summary, path, zero_ok=False)
+        spans = attachment_spans(fh, summary, path)
+        if PHASE_PACKED + "names.json" not in spans or "cdgps.estimate" in info.metadata:
+            return None
+        names_json = read_span(fh, *spans[PHASE_PACKED + "names.json"])(spans[PHASE_PACKED + "names.json"][1])
+    # the other topics and attachments (small) as read_run reads them, without the phase arrays
+    c = read_mcap(path, topics=[ACTUATOR_TOPIC], attachments=lambda name: not name.startswith(PHASE_PACKED))
+    c.require_metadata(INGEST_METADATA, "RUN.mcap from 'cdgps ingest'")
+    if contents_kind(c) == "gnss":
+        return None                                            # (read_run names it)
+    if CONFIG_ATTACHMENT not in c.attachments:
+        raise CdgpsError(f"{path}: no {CONFIG_ATTACHMENT} attachment; is this a RUN.mcap from 'cdgps ingest'?")
+    c.require_channels(PHASE_TOPIC, what="RUN.mcap from 'cdgps ingest'")
+    cfg = parse_config(c.attachments[CONFIG_ATTACHMENT].decode("utf-8"), f"{path}:{CONFIG_ATTACHMENT}")
+    phase = _phase_on_disk(path, spans, names_json)
+    gyro = _gyro_from_attachments(c.attachments)
+    if gyro is None:
+        if GYRO_TOPIC in c.channels:
+            c.topics.update(read_mcap(path, topics=[GYRO_TOPIC], attachments=lambda name: False).topics)
+        gyro = c.topics.get(GYRO_TOPIC, TopicColumns()).table(["gyro", "rate_rad_s"])
+    act = c.topics.get(ACTUATOR_TOPIC, TopicColumns()).table(["actuator", "force_n"])
+    return Run(str(path), cfg, phase, gyro, act, c.metadata.get(INGEST_METADATA, {}))
+
+
+class _NoScratch(Exception):
+    """A scratch file of :func:`_phase_on_disk` could not be written (full disk, file-size limit)."""
+
+
+def _phase_on_disk(path, spans: dict, names_json: bytes):
+    """The :data:`PHASE_PACKED` columns as a :class:`~cdgps_cli.io.phase_disk.DiskPhase`: each
+    decompressed in pieces into a scratch file (the columns of :data:`_PHASE_DEFERRED` on first use);
+    damage is the same CdgpsError as :func:`_phase_from_packed`'s."""
+    from cdgps_cli.io.packed_arrays import PackedRows  # noqa: PLC0415
+    from cdgps_cli.io.phase_disk import BLOCK_ROWS, DiskPhase, column_file  # noqa: PLC0415
+
+    what = f"{path}: attachment {PHASE_PACKED}"
+
+    def damaged(exc: Exception) -> CdgpsError:
+        return CdgpsError(f"{path}: damaged phase arrays ({PHASE_PACKED}*): {exc}")
+
+    def column(key: str, n: int | None, dtype):
+        try:
+            with open(path, "rb") as fh:
+                rows = PackedRows(read_span(fh, *spans[PHASE_PACKED + key]), spans[PHASE_PACKED + key][1], what + key)
+            try:
+                if len(rows.shape) != 1 or (n is not None and rows.n_rows != n):
+                    raise ValueError(f"{what}{key}: {list(rows.shape)} values for {n} rows")
+                return column_file(rows.chunks(BLOCK_ROWS), rows.n_rows, dtype, what + key)
+            finally:
+                rows.close()
+        except OSError as exc:                     # writing the scratch files (reading the RUN was checked)
+            raise _NoScratch(exc.strerror or str(exc)) from None
+        except (KeyError, TypeError, ValueError) as exc:
+            raise damaged(exc) from None
+
+    try:
+        names = json.loads(names_json)
+        words = {c: [str(w) for w in names[c]] for c in PHASE_NAME_COLUMNS}
+        missing = [k for k in (*_PHASE_DTYPES, *(c + "_code" for c in PHASE_NAME_COLUMNS)) if PHASE_PACKED + k not in spans]
+        if missing:
+            raise KeyError(f"no {', '.join(missing)}")
+    except (KeyError, TypeError, ValueError) as exc:
+        raise damaged(exc) from None
+    t = column("time_s", None, float)
+    n = t.n
+
+    def later(key, dtype):
+        return lambda: column(key, n, dtype)
+
+    numbers = {c: later(c, dt) if c in _PHASE_DEFERRED else column(c, n, dt)
+               for c, dt in _PHASE_DTYPES.items() if c != "time_s"}
+    codes = {c: (later(c + "_code", np.int32) if c in _PHASE_DEFERRED else column(c + "_code", n, np.int32), words[c])
+             for c in PHASE_NAME_COLUMNS}
+    try:
+        return DiskPhase(n, {"time_s": t, **numbers}, codes, PHASE_COLUMNS, categorical=PHASE_NAME_COLUMNS)
+    except ValueError as exc:                      # names not sorted, codes outside them
+        raise damaged(exc) from None
 
 
 def _categorical_phase(df) -> Table:

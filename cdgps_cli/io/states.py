@@ -49,6 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from cdgps_cli.core import progress
+from cdgps_cli.config.options import STATES_CHUNK_EPOCHS
 from cdgps_cli.config.structure import StructureConfig, parse_config
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.records import CoordinateModel, Series, StateSeries
@@ -261,18 +262,8 @@ def rows_q(C: np.ndarray, x_pos: np.ndarray) -> np.ndarray:
     return rows_matmul(x_pos, C.T)
 
 
-def _triu(P: np.ndarray, block: int = 1024) -> np.ndarray | None:
-    """(N, m(m+1)/2) upper triangles of exactly symmetric (N, m, m) matrices, else None."""
-    i, j = np.triu_indices(P.shape[1])
-    for a in range(0, P.shape[0], block):
-        Pb = P[a:a + block]
-        if not (Pb[:, i, j] == Pb[:, j, i]).all():
-            return None
-    return P[:, i, j]
-
-
 def _from_triu(T: np.ndarray, m: int) -> np.ndarray:
-    """Inverse of :func:`_triu`: symmetric (N, m, m)."""
+    """The symmetric (N, m, m) matrices of their upper triangles (N, m(m+1)/2), row by row (``P_xi_triu``)."""
     i, j = np.triu_indices(m)
     if T.ndim != 2 or T.shape[1] != i.size:
         raise ValueError(f"P_xi_triu of shape {list(T.shape)}: expected (N, {i.size}) for {m} modes")
@@ -282,72 +273,203 @@ def _from_triu(T: np.ndarray, m: int) -> np.ndarray:
     return P
 
 
-def _attach_series(out: McapOut, topic: str, ss: StateSeries, ser: Series, sigma_q: np.ndarray,
-                   with_P_pos: bool, full: bool) -> None:
-    """The packed arrays of one state series (:mod:`cdgps_cli.io.states_layout`)."""
-    npos, X = ss.n_pos, ser.x
-    key = f"{PACKED_PREFIX}{topic}/"
-    out.attach_packed(key + "time_s", np.asarray(ser.time_s, dtype=float))
-    out.attach_packed(key + "xi", X[:, :npos], STATE_DELTA)            # (packing copies what it differences)
-    if ss.n_rate and full:                          # no cdgps command reads ξ̇: every epoch on request only
-        out.attach_packed(key + "xidot", X[:, npos:npos + ss.n_rate], STATE_DELTA)
-    for name, arr in sorted(ser.extra.items()):
-        out.attach_packed(key + name, np.asarray(arr))
-    if full and ser.P.shape[1] > npos:
-        out.attach_packed(key + "P", ser.P, STATE_DELTA)
-    if not with_P_pos:
-        out.attach_packed(key + "sigma_q", sigma_q, STATE_DELTA)
-        return
-    P_pos = ser.P[:, :npos, :npos]
-    T = _triu(P_pos)
-    if T is None:
-        out.attach_packed(key + "P_xi", P_pos, STATE_DELTA)
-    else:
-        out.attach_packed(key + "P_xi_triu", T, STATE_DELTA, overwrite=True)     # T: a new array
+def _block(arr, a: int, b: int) -> np.ndarray:
+    """Rows a … b−1 of ``arr`` as a copy; when ``arr`` is on disk (an array of
+    :class:`cdgps_cli.io.scratch.DiskHistory`), the pages they came from are dropped from memory
+    after (their values stay in the file), so reading a record costs the memory of a block."""
+    from cdgps_cli.io.scratch import DiskHistory  # noqa: PLC0415
+
+    rows = np.array(arr[a:b])
+    DiskHistory.release(arr, a, b)
+    return rows
 
 
-def _write_state_messages(out: McapOut, ch: int, names, sel, ser: Series, q, sq, npos: int, nrate: int,
-                          with_P: bool, pick=None) -> None:
-    """The Foxglove JSON messages of one state series at the epochs ``sel``; ``q`` is the coordinates
-    already there (picked once by the caller, who also draws the angles from it), ``pick(a)`` gives the
-    motion (ξ, ξ̇) there (default ``a[sel]``; anti-aliased by :func:`write_states`'s ``preview``)."""
-    pick = pick or (lambda a: a[sel])
-    X = pick(ser.x[:, :npos + nrate])
-    blocks = [q, sq[sel], X[:, :npos]] + ([X[:, npos:npos + nrate]] if nrate else []) + \
-        ([ser.P[sel, :npos, :npos].reshape(len(sel), -1)] if with_P else [])
+class _LazyRows:
+    """A series (N, ...) given block by block: ``shape`` and row slices ``[a:b]`` (what
+    :func:`cdgps_cli.analysis.preview.anti_alias_decimate` reads).  ``block(c)`` makes the rows
+    c·K … (c+1)·K−1 (K = ``chunk``); the last two blocks made are kept, so the preview filter's
+    overlapping windows do not make a block twice in a row."""
+
+    def __init__(self, shape: tuple, chunk: int, block):
+        self.shape, self.chunk, self._block, self._kept = tuple(shape), chunk, block, {}
+
+    def rows_of(self, c: int) -> np.ndarray:
+        if c not in self._kept:
+            if len(self._kept) >= 2:
+                self._kept.pop(min(self._kept))
+            self._kept[c] = self._block(c)
+        return self._kept[c]
+
+    def __getitem__(self, s: slice) -> np.ndarray:
+        a, b, _ = s.indices(self.shape[0])
+        if b <= a:
+            return np.empty((0,) + self.shape[1:])
+        K = self.chunk
+        return np.concatenate([self.rows_of(c)[max(a - c * K, 0):b - c * K] for c in range(a // K, (b - 1) // K + 1)])
+
+
+def _chunk_of(chunk_epochs: int) -> int:
+    """Epochs per block of the streaming writer: a whole number of :data:`_PRODUCT_BLOCK` (q and σ_q
+    are computed on the same 1024-epoch blocks however the record is cut: the same bits)."""
+    return max(-(-int(chunk_epochs) // _PRODUCT_BLOCK), 1) * _PRODUCT_BLOCK
+
+
+_PRODUCT_BLOCK = 1024
+
+
+def _any_nan(x, npos: int, chunk: int) -> bool:
+    """Any NaN among the positions ξ (the first npos columns of x, (N, n)) (read in blocks)."""
+    return any(bool(np.isnan(_block(x, a, a + chunk)[:, :npos]).any()) for a in range(0, x.shape[0], chunk))
+
+
+def _symmetric(P, npos: int, chunk: int) -> bool:
+    """Every P_ξ (the leading npos × npos block of P, (N, n, n)) exactly symmetric (read in blocks)."""
+    i, j = np.triu_indices(npos)
+    for a in range(0, P.shape[0], chunk):
+        Pb = _block(P[:, :npos, :npos], a, a + chunk)
+        if not (Pb[:, i, j] == Pb[:, j, i]).all():
+            return False
+    return True
+
+
+class _SeriesPass:
+    """One state series read once, block by block: its packed arrays (:class:`PackedWriter`, the
+    bytes of the whole-array packing) and what the JSON channels need at the kept epochs ``sel``
+    (σ_q, P_ξ), so nothing of the record's length is held beyond the kept epochs."""
+
+    def __init__(self, ss: StateSeries, ser: Series, topic: str, C: np.ndarray, sel: np.ndarray, chunk: int,
+                 with_P_pos: bool, full: bool, want_P_sel: bool):
+        from cdgps_cli.io.packed_arrays import PackedWriter  # noqa: PLC0415
+
+        npos, N = ss.n_pos, len(ser.time_s)
+        self.key = f"{PACKED_PREFIX}{topic}/"
+        self.order: list = []                         # (name, PackedWriter) in the whole-record writer's order
+
+        def packer(name, tail, dtype, delta=0):
+            w = PackedWriter((N,) + tuple(tail), dtype, delta)
+            self.order.append((self.key + name, w))
+            return w
+
+        extra = {k: np.asarray(v) for k, v in sorted(ser.extra.items())}
+        p_t = packer("time_s", (), np.float64)
+        p_xi = packer("xi", (npos,), ser.x.dtype, STATE_DELTA)
+        p_xd = packer("xidot", (ss.n_rate,), ser.x.dtype, STATE_DELTA) if ss.n_rate and full else None
+        p_ex = {k: packer(k, v.shape[1:], v.dtype) for k, v in extra.items()}
+        p_P = packer("P", ser.P.shape[1:], ser.P.dtype, STATE_DELTA) if full and ser.P.shape[1] > npos else None
+        triu = with_P_pos and _symmetric(ser.P, npos, chunk)
+        i, j = np.triu_indices(npos)
+        if not with_P_pos:
+            p_cov = packer("sigma_q", (C.shape[0],), np.float64, STATE_DELTA)
+        elif triu:
+            p_cov = packer("P_xi_triu", (i.size,), ser.P.dtype, STATE_DELTA)
+        else:
+            p_cov = packer("P_xi", (npos, npos), ser.P.dtype, STATE_DELTA)
+        nq = C.shape[0]
+        self.sq_sel = np.empty((len(sel), nq))
+        self.P_sel = np.empty((len(sel), npos, npos)) if want_P_sel else None
+        time_s = np.asarray(ser.time_s, dtype=float)
+        for a in range(0, N, chunk):
+            b = min(a + chunk, N)
+            X = _block(ser.x, a, b)
+            P = _block(ser.P, a, b) if p_P is not None else None          # (the whole P: --covariance full)
+            P_pos = P[:, :npos, :npos] if P is not None else _block(ser.P[:, :npos, :npos], a, b)
+            p_t.add(time_s[a:b])
+            p_xi.add(X[:, :npos])
+            if p_xd is not None:
+                p_xd.add(X[:, npos:npos + ss.n_rate])
+            for k, w in p_ex.items():
+                w.add(_block(extra[k], a, b))
+            if p_P is not None:
+                p_P.add(P)
+            sq = coordinate_sigma(C, P_pos)
+            if not with_P_pos:
+                p_cov.add(sq)
+            else:
+                p_cov.add(P_pos[:, i, j] if triu else P_pos)
+            s = slice(np.searchsorted(sel, a), np.searchsorted(sel, b))
+            self.sq_sel[s] = sq[sel[s] - a]
+            if self.P_sel is not None:
+                self.P_sel[s] = P_pos[sel[s] - a]
+
+    def attach(self, out: McapOut) -> None:
+        """The packed arrays, in order (each streamed from its temporary file)."""
+        from cdgps_cli.io.packed_arrays import MEDIA_TYPE  # noqa: PLC0415
+
+        for name, w in self.order:
+            size, pieces = w.finish()
+            out.attach_stream(name, size, pieces, MEDIA_TYPE)
+        self.order = []
+
+    def close(self) -> None:
+        for _, w in self.order:
+            w.close()
+
+
+def _series_rows(ser: Series, C: np.ndarray, npos: int, nrate: int, chunk: int):
+    """The lazy q (N, n_q) and motion ξ, ξ̇ (N, npos + nrate) of a series for the preview."""
+    N = len(ser.time_s)
+
+    def q_block(c):
+        X = _block(ser.x, c * chunk, (c + 1) * chunk)[:, :npos]
+        return np.concatenate([series_q(C, X[a:a + _PRODUCT_BLOCK]) for a in range(0, X.shape[0], _PRODUCT_BLOCK)]) \
+            if X.shape[0] else np.empty((0, C.shape[0]))
+
+    def x_block(c):
+        return _block(ser.x, c * chunk, (c + 1) * chunk)[:, :npos + nrate]
+
+    return _LazyRows((N, C.shape[0]), chunk, q_block), _LazyRows((N, npos + nrate), chunk, x_block)
+
+
+def _write_state_messages(out: McapOut, ch: int, names, times, q, sq, X, P_sel, npos: int, nrate: int,
+                          smoothed: bool) -> None:
+    """The Foxglove JSON messages of one state series at the kept epochs: their times, coordinates
+    ``q``, σ_q ``sq``, motion ``X`` (ξ, ξ̇; anti-aliased by :func:`write_states`'s ``preview``) and,
+    with ``--covariance full``, P_ξ ``P_sel``."""
+    with_P = P_sel is not None
+    blocks = [q, sq, X[:, :npos]] + ([X[:, npos:npos + nrate]] if nrate else []) + \
+        ([P_sel.reshape(len(times), -1)] if with_P else [])
     nq = len(names)
     cuts = np.cumsum([0, nq, nq, npos] + ([nrate] if nrate else []) + ([npos * npos] if with_P else []))
     keys = ["xi"] + (["xidot"] if nrate else []) + (["P_xi"] if with_P else [])
-    for t, row in zip(np.asarray(ser.time_s, dtype=float)[sel].tolist(), np.hstack(blocks).tolist()):
+    for t, row in zip(times.tolist(), np.hstack(blocks).tolist()):
         msg = {"q": dict(zip(names, row[:nq])), "sigma_q": dict(zip(names, row[nq:2 * nq]))}
         for key, a, b in zip(keys, cuts[2:-1].tolist(), cuts[3:].tolist()):
             msg[key] = row[a:b]
-        msg["smoothed"] = ser.smoothed
+        msg["smoothed"] = smoothed
         out.write(ch, t, msg)
 
 
-def _write_residuals(out: McapOut, ss: StateSeries, time_s, sel, nis_bounds=None) -> None:
-    """Residuals, NIS and dof: every epoch packed, the JSON channel at the epochs ``sel`` (with the
-    NIS's 95 % bounds when ``nis_bounds`` is given, see :func:`write_states`)."""
+def _write_residuals(out: McapOut, ss: StateSeries, time_s, sel, chunk: int, nis_bounds=None) -> None:
+    """Residuals, NIS and dof: every epoch packed (streamed), the JSON channel at the epochs ``sel`` (with
+    the NIS's 95 % bounds when ``nis_bounds`` is given, see :func:`write_states`)."""
+    from cdgps_cli.io.packed_arrays import MEDIA_TYPE, PackedWriter  # noqa: PLC0415
+
     # float32 (7 significant digits: nm on cm-level residuals) keeps the file within its RUN's size;
     # the JSON messages carry the float64 values
-    out.attach_packed(RESIDUAL_PACKED + "residual_m", np.asarray(ss.residual_m, dtype=np.float32))
-    out.attach_packed(RESIDUAL_PACKED + "nis", np.asarray(ss.nis, dtype=float))
-    out.attach_packed(RESIDUAL_PACKED + "nis_dof", np.asarray(ss.nis_dof, dtype=np.int64))
+    N = len(time_s)
+    res = ss.residual_m
+    p_r = PackedWriter((N,) + tuple(res.shape[1:]), np.float32)
+    R = np.empty((len(sel),) + tuple(res.shape[1:]))
+    for a in range(0, N, chunk):
+        rows = _block(res, a, a + chunk)
+        p_r.add(rows.astype(np.float32))
+        s = slice(np.searchsorted(sel, a), np.searchsorted(sel, a + chunk))
+        R[s] = np.asarray(rows, dtype=float)[sel[s] - a]
+    nis_all = np.asarray(ss.nis, dtype=float)
+    dof_all = np.asarray(ss.nis_dof, dtype=np.int64)
     out.attach(RESIDUAL_PACKED + "channels.json", json.dumps([list(c) for c in ss.residual_channels]).encode(),
                "application/json")
     ch = out.channel(RESIDUAL_TOPIC, RESIDUAL_SCHEMA if nis_bounds is None else _RESIDUAL_BOUNDS_SCHEMA)
     ants = [c[0] for c in ss.residual_channels]
     txs = [c[1] for c in ss.residual_channels]
-    R = np.asarray(ss.residual_m, dtype=float)[sel]
     used = ~np.isnan(R)
     every = used.all(axis=1).tolist()
-    nis = np.asarray(ss.nis, dtype=float)[sel]
+    nis = nis_all[sel]
     nis_list = [None if bad else v for bad, v in zip(np.isnan(nis).tolist(), nis.tolist())]
-    dof = [int(d) for d in np.asarray(ss.nis_dof)[sel].tolist()]
+    dof = [int(d) for d in dof_all[sel].tolist()]
     bounds = None
     if nis_bounds is not None:
-        lo, hi = nis_bounds(np.asarray(ss.nis_dof)[sel])
+        lo, hi = nis_bounds(dof_all[sel])
         has = ~np.isnan(nis) & (np.asarray(dof) > 0)
         bounds = [None if not h else (a, b) for h, a, b in zip(has.tolist(), np.asarray(lo, dtype=float).tolist(),
                                                                np.asarray(hi, dtype=float).tolist())]
@@ -363,6 +485,10 @@ def _write_residuals(out: McapOut, ss: StateSeries, time_s, sel, nis_bounds=None
         if bounds is not None and bounds[i] is not None:
             msg["nis_lower95"], msg["nis_upper95"] = bounds[i]
         out.write(ch, t, msg)
+    size, pieces = p_r.finish()
+    out.attach_stream(RESIDUAL_PACKED + "residual_m", size, pieces, MEDIA_TYPE)
+    out.attach_packed(RESIDUAL_PACKED + "nis", nis_all)
+    out.attach_packed(RESIDUAL_PACKED + "nis_dof", dof_all)
 
 
 def _description(ss: StateSeries) -> bytes:
@@ -387,17 +513,25 @@ def provenance(run_path: str | Path, init_text: str, run_sha256: str | None = No
 def write_states(ss: StateSeries, out_path: str | Path, metadata: dict, attachments: dict, *,
                  time_scale: str = "relative", covariance: str = DEFAULT_COVARIANCE,
                  preview_rate_hz: float = DEFAULT_PREVIEW_RATE_HZ, angles=(), preview=None, scene=None,
-                 nis_bounds=None) -> dict:
+                 nis_bounds=None, chunk_epochs: int | None = None) -> dict:
     """Write an estimate of any kind to STATES.mcap atomically; returns a summary.
 
     The stage functions building ``ss`` are :func:`cdgps_cli.pipeline.estimate_outputs.write_states`
     (a structure, pseudolite or GNSS run) and :func:`cdgps_cli.pipeline.gnss.gnss_estimate`
     (displacements); this module imports no numerics.
 
+    The record is read a block of ``chunk_epochs`` epochs at a time (issue 29): its arrays may be on
+    disk (:class:`cdgps_cli.io.scratch.DiskHistory`; the pages of a block are dropped once it is read),
+    each packed array is streamed (:class:`cdgps_cli.io.packed_arrays.PackedWriter`) and the JSON
+    channels take only their kept epochs, so the memory is that of a block and of the preview, not of
+    the record.  The file is the same, byte for byte, as the whole-record writer's
+    (``tests/io/test_states_stream.py``).
+
     Parameters
     ----------
     ss : StateSeries
-        The estimate; ``ss.series[STATE_TOPIC]`` is the one reported.
+        The estimate; ``ss.series[STATE_TOPIC]`` is the one reported.  Its arrays are read by row
+        slices only (numpy arrays, or arrays on disk).
     out_path : path
     metadata : dict of str to str
         The ``cdgps.estimate`` metadata (provenance, options, final biases, …); the writer adds
@@ -419,8 +553,9 @@ def write_states(ss: StateSeries, out_path: str | Path, metadata: dict, attachme
     preview : callable, optional
         ``preview(a, stride) -> a at epochs 0, stride, …`` for the motion in the JSON channels
         (q, ξ, ξ̇ and the angles), e.g. :func:`cdgps_cli.analysis.preview.anti_alias_decimate`
-        (low-pass filtered first: no alias of a mode above the preview's Nyquist frequency);
-        default: the samples themselves.  Sigmas, covariances and residuals are sampled.
+        (low-pass filtered first: no alias of a mode above the preview's Nyquist frequency); ``a``
+        is given as an array-like of ``shape`` and row slices (made block by block); default: the
+        samples themselves.  Sigmas, covariances and residuals are sampled.
     scene : optional
         Draws the structure in 3-D (:class:`cdgps_cli.analysis.scene.StructureScene`): the
         :data:`SCENE_TOPIC` channel from the preview's coordinates of the estimate (the same
@@ -430,11 +565,15 @@ def write_states(ss: StateSeries, out_path: str | Path, metadata: dict, attachme
         ``nis_bounds(dof (k,)) -> (lower (k,), upper (k,))``: the NIS's two-sided 95 % chi-square
         interval per epoch, written beside ``nis`` in the residual messages as ``nis_lower95`` and
         ``nis_upper95`` (Foxglove plots NIS against its bounds); None: not written.
+    chunk_epochs : int, optional
+        Epochs read at a time (default :data:`~cdgps_cli.config.options.STATES_CHUNK_EPOCHS`; rounded up
+        to a multiple of 1024; the file does not depend on it).
     """
     if covariance not in COVARIANCE_CHOICES:
         raise ValueError(f"covariance {covariance!r}: expected one of {', '.join(COVARIANCE_CHOICES)}")
     est = ss.series[STATE_TOPIC]
     names, C, full = list(ss.coord_names), np.asarray(ss.output_map, dtype=float), covariance == "full"
+    chunk = _chunk_of(STATES_CHUNK_EPOCHS if chunk_epochs is None else chunk_epochs)
     time_s = np.asarray(est.time_s, dtype=float)
     stride = preview_stride(time_s, preview_rate_hz)
     sel = np.arange(0, len(time_s), stride)
@@ -442,31 +581,35 @@ def write_states(ss: StateSeries, out_path: str | Path, metadata: dict, attachme
                 json_channels_every_epochs=str(stride))
     if preview is not None and stride > 1:
         meta["json_channels_filter"] = "low-pass before decimation (cdgps_cli.analysis.preview)"
-    pick = None if preview is None or stride == 1 else (lambda a: preview(a, stride))
-    nullable = bool(np.isnan(est.x[:, :ss.n_pos]).any())
-    schema = _state_schema(names, full, ss.n_rate > 0, nullable)
+    npos, nrate = ss.n_pos, ss.n_rate
     with McapOut(out_path, time_scale=time_scale) as out, \
             progress.bar(len(ss.series) + 1, f"writing {Path(out_path).name}", "series") as bar:
-        out.pack_in_background()            # a series' arrays are packed while its JSON messages are built
+        out.pack_in_background()            # (the small arrays: written where the whole-record writer wrote them)
+        schema = _state_schema(names, full, nrate > 0, _any_nan(est.x, npos, chunk))
         for topic, ser in ss.series.items():
-            P_pos = ser.P[:, :ss.n_pos, :ss.n_pos]                 # a view: no full-size copy
-            q, sq = series_derived(C, ser.x[:, :ss.n_pos], P_pos)   # as the reader computes them
-            # P_ξ of every series but the forward filter of a smoothed run (its 1-σ only), unless full
-            _attach_series(out, topic, ss, ser, sq, with_P_pos=topic != STATE_FILTERED_TOPIC or full, full=full)
-            q_prev = None            # the preview's coordinates: filtered (or picked) once for the messages and angles
-            if ser.messages or (topic == STATE_TOPIC and (angles or scene is not None)):
-                q_prev = q[sel] if pick is None else pick(q)
-            if ser.messages:
-                _write_state_messages(out, out.channel(topic, schema), names, np.arange(0, len(ser.time_s), stride),
-                                      ser, q_prev, sq, ss.n_pos, ss.n_rate, full, pick)
-            if topic == STATE_TOPIC:
-                _write_angles(out, C, angles, time_s[sel], q_prev, P_pos[sel])
-                if scene is not None:
-                    _write_scene(out, scene, time_s[sel], q[sel] if q_prev is None else q_prev)
-            out.write_packed()              # written before the next series: one series' arrays at a time
-            del q, sq, P_pos
+            with_P_pos = topic != STATE_FILTERED_TOPIC or full     # the forward filter of a smoothed run: its 1-σ
+            sel_t = np.arange(0, len(ser.time_s), stride)
+            sp = _SeriesPass(ss, ser, topic, C, sel_t, chunk, with_P_pos, full,
+                             want_P_sel=(ser.messages and full) or (topic == STATE_TOPIC and bool(angles)))
+            try:
+                q_rows, x_rows = _series_rows(ser, C, npos, nrate, chunk)
+                q_prev = None      # the preview's coordinates: filtered (or picked) once for the messages and angles
+                if ser.messages or (topic == STATE_TOPIC and (angles or scene is not None)):
+                    q_prev = _picked(q_rows, sel_t, stride, preview)
+                if ser.messages:
+                    X = _picked(x_rows, sel_t, stride, preview)
+                    _write_state_messages(out, out.channel(topic, schema), names,
+                                          np.asarray(ser.time_s, dtype=float)[sel_t], q_prev, sp.sq_sel, X,
+                                          sp.P_sel if full else None, npos, nrate, bool(ser.smoothed))
+                if topic == STATE_TOPIC:
+                    _write_angles(out, C, angles, time_s[sel], q_prev, sp.P_sel)
+                    if scene is not None:
+                        _write_scene(out, scene, time_s[sel], q_prev)
+                sp.attach(out)              # written before the next series: one series' arrays at a time
+            finally:
+                sp.close()
             bar.update()
-        _write_residuals(out, ss, time_s, sel, nis_bounds)
+        _write_residuals(out, ss, time_s, sel, chunk, nis_bounds)
         out.write_packed()
         bar.update()
         ch = out.channel(EVENT_TOPIC, event_schema(ss.events))
@@ -483,6 +626,19 @@ def write_states(ss: StateSeries, out_path: str | Path, metadata: dict, attachme
             "covariance": covariance, "json_channels_every_epochs": stride,
             "mean_nis_per_dof": float(np.nanmean(ss.nis[nis_ok] / ss.nis_dof[nis_ok])) if nis_ok.any() else None,
             "event_list": ss.events}
+
+
+def _picked(rows: _LazyRows, sel: np.ndarray, stride: int, preview) -> np.ndarray:
+    """A lazy series at the kept epochs ``sel``: through ``preview`` (anti-aliased) when the JSON
+    channels are decimated, else the samples themselves."""
+    if preview is not None and stride > 1:
+        return preview(rows, stride)
+    out = np.empty((len(sel),) + rows.shape[1:])
+    K = rows.chunk
+    for c in range(0, -(-rows.shape[0] // K)):
+        s = slice(np.searchsorted(sel, c * K), np.searchsorted(sel, (c + 1) * K))
+        out[s] = rows.rows_of(c)[sel[s] - c * K]
+    return out
 
 
 def _legacy_description(cfg: StructureConfig, meta: dict) -> dict:
@@ -688,6 +844,26 @@ class States:
         self.nis_dof = np.asarray(res.scalars["nis_dof"], dtype=float)
 
 
+def diagnostics(path: str | Path, n_epochs: int) -> tuple:
+    """``(nis (N,), nis_dof (N,) float, events)`` of a STATES.mcap, as :class:`States` reads them,
+    without loading its state arrays (only the NIS attachments and the event messages are read)."""
+    keep = (RESIDUAL_PACKED + "nis", RESIDUAL_PACKED + "nis_dof")
+    c = read_mcap(path, topics=[EVENT_TOPIC], attachments=lambda name: name in keep)
+    if keep[0] not in c.attachments:                     # (older files: from the residual messages)
+        st = States(path)
+        return st.nis, st.nis_dof, st.events
+    c.require_channels(RESIDUAL_TOPIC, EVENT_TOPIC, what="STATES.mcap from 'cdgps estimate'")
+    st = States.__new__(States)
+    st.path, st.time_s = str(path), np.empty(n_epochs)
+    st._read_diagnostics(c)
+    ev = c.topics.get(EVENT_TOPIC)
+    events = []
+    if ev:
+        for i, t in enumerate(ev.times()):
+            events.append({"time_s": float(t), **{k: ev.scalars[k][i] for k in ev.scalars if k != "time_s"}})
+    return st.nis, st.nis_dof, events
+
+
 def _num(v) -> float:
     return float("nan") if v is None else v
 
@@ -719,11 +895,12 @@ class StatesChunks:
     config_name = States.config_name
     config_sha256 = States.config_sha256
 
-    def __init__(self, path: str | Path, topic: str = STATE_TOPIC):
+    def __init__(self, path: str | Path, topic: str = STATE_TOPIC, covariance: bool = False):
         from cdgps_cli.io.mcap import _check_attachment_crcs, open_verified  # noqa: PLC0415
         from cdgps_cli.io.packed_arrays import PackedRows  # noqa: PLC0415
 
         self.path = str(path)
+        self.has_P_xi = False
         self._arrays, self._whole = {}, None
         key = f"{PACKED_PREFIX}{topic}/"
         with open_verified(path) as (_reader, fh, info, summary):
@@ -746,9 +923,14 @@ class StatesChunks:
             if key + "time_s" not in spans:
                 self._whole = States(path, topic, diagnostics=False)
                 self.n_epochs = len(self._whole.time_s)
+                self.has_P_xi = self._whole.P_xi is not None
                 return
+            names = ["time_s", "xi"]
+            if covariance:          # the position covariance (its triangle, or whole), or a forward filter's σ_q
+                names.append(next((n for n in ("P_xi_triu", "P_xi", "sigma_q") if key + n in spans), "P_xi_triu"))
+                self.has_P_xi = names[-1] != "sigma_q"
             try:
-                for name in ("time_s", "xi"):
+                for name in names:
                     self._arrays[name] = PackedRows(read_span(fh, *spans[key + name]), spans[key + name][1],
                                                     f"{path}: {key}{name}")
             except (KeyError, ValueError) as exc:
@@ -771,6 +953,36 @@ class StatesChunks:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+    def series(self, epochs: int):
+        """Consecutive chunks of at most ``epochs`` epochs (a multiple of 1024), first to last, as dicts
+        ``time_s`` (k,), ``q``, ``sigma_q`` (k, n_q), ``xi`` (k, n_pos) and ``P_xi`` (k, n_pos, n_pos)
+        or None: the values :class:`States` gives, bit for bit (q and σ_q computed on the same
+        1024-epoch blocks as the writer; the object must be opened with ``covariance=True``)."""
+        if epochs % _PRODUCT_BLOCK:
+            raise ValueError(f"epochs {epochs!r}: expected a multiple of {_PRODUCT_BLOCK}")
+        if self._whole is not None:
+            w = self._whole
+            for a in range(0, self.n_epochs, epochs):
+                b = a + epochs
+                yield {"time_s": w.time_s[a:b], "q": w.q[a:b], "sigma_q": w.sigma_q[a:b], "xi": w.xi[a:b],
+                       "P_xi": None if w.P_xi is None else w.P_xi[a:b]}
+            return
+        cov_name = next(n for n in ("P_xi_triu", "P_xi", "sigma_q") if n in self._arrays)
+        parts = zip(self._arrays["time_s"].chunks(epochs), self._arrays["xi"].chunks(epochs),
+                    self._arrays[cov_name].chunks(epochs))
+        C = self.output_map
+        for t, xi, cov in parts:
+            k = len(t)
+            xi = xi.reshape(k, self.n_pos)
+            try:
+                P = (_from_triu(cov.reshape(k, -1), self.n_pos) if cov_name == "P_xi_triu"
+                     else cov.reshape(k, self.n_pos, self.n_pos) if cov_name == "P_xi" else None)
+            except ValueError as exc:
+                raise CdgpsError(f"{self.path}: damaged state arrays ({cov_name}): {exc}") from None
+            q = np.concatenate([series_q(C, xi[a:a + _PRODUCT_BLOCK]) for a in range(0, k, _PRODUCT_BLOCK)])
+            yield {"time_s": t.astype(float, copy=False), "q": q, "xi": xi, "P_xi": P,
+                   "sigma_q": cov.reshape(k, -1) if P is None else coordinate_sigma(C, P)}
 
     def chunks(self, epochs: int):
         """Consecutive chunks ``(time_s (k,), q (k, n_q))`` of at most ``epochs`` epochs, first to

@@ -26,7 +26,7 @@ from cdgps_cli.core.records import Series, StateSeries
 from cdgps_cli.io import states as states_io
 from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.io.mcap import CONFIG_ATTACHMENT
-from cdgps_cli.io.states import ESTIMATE_METADATA, INIT_ATTACHMENT, STATE_FILTERED_TOPIC, STATE_TOPIC, States
+from cdgps_cli.io.states import ESTIMATE_METADATA, INIT_ATTACHMENT, STATE_FILTERED_TOPIC, STATE_TOPIC
 from cdgps_cli.io.states_layout import DEFAULT_COVARIANCE, DEFAULT_PREVIEW_RATE_HZ
 
 __all__ = ["structure_series", "write_states", "scene_for", "nis_bounds95", "export_csv", "evaluate"]
@@ -158,29 +158,54 @@ def export_csv(states_path: str | Path, out_csv: str | Path, points: str | None 
     :func:`cdgps_cli.model.points.select_points`) adds the lab-frame displacement of those points and its
     1-σ from J U P_ξ Uᵀ Jᵀ: columns ``<point>_d{x,y,z}_m`` and ``sigma_<point>_d{x,y,z}_m``.
     """
-    st = States(states_path)
-    names = list(st.coord_names)
-    bad = ~np.isfinite(st.q).all(axis=1) | ~np.isfinite(st.sigma_q).all(axis=1)
-    if bad.any():
-        raise CdgpsError(f"{states_path}: {int(bad.sum())} of {len(bad)} epoch(s) with non-finite states or sigmas "
-                         f"(first at {st.time_s[np.flatnonzero(bad)[0]]:g} s); nothing written")
-    pts = None
-    if points is not None:
-        from cdgps_cli.model.points import point_columns, select_points
+    from cdgps_cli.config.options import STATES_CHUNK_EPOCHS  # noqa: PLC0415
+    from cdgps_cli.io.states import StatesChunks  # noqa: PLC0415
 
-        pts = select_points(st.require_structure("--points"), points)          # before writing: a bad name leaves no file
+    with StatesChunks(states_path, covariance=True) as st:          # a chunk of epochs at a time (issue 29)
+        names = list(st.coord_names)
+        bad, first_bad = 0, None
+        for ch in st.series(STATES_CHUNK_EPOCHS):                    # first: a bad record writes nothing
+            nonfinite = ~np.isfinite(ch["q"]).all(axis=1) | ~np.isfinite(ch["sigma_q"]).all(axis=1)
+            if nonfinite.any() and first_bad is None:
+                first_bad = float(ch["time_s"][np.flatnonzero(nonfinite)[0]])
+            bad += int(nonfinite.sum())
+        if bad:
+            raise CdgpsError(f"{states_path}: {bad} of {st.n_epochs} epoch(s) with non-finite states or sigmas "
+                             f"(first at {first_bad:g} s); nothing written")
+        pts = None
+        if points is not None:
+            from cdgps_cli.model.points import select_points
+
+            pts = select_points(st.require_structure("--points"), points)      # before writing: a bad name leaves no file
+        out = Path(out_csv)
+        written = {"rows": 0, "columns": None}
+
+        def write(p):
+            with open(p, "w", newline="") as fh:
+                for ch in st.series(STATES_CHUNK_EPOCHS):
+                    df = _export_frame(st, names, pts, ch)
+                    df.to_csv(fh, index=False, header=written["rows"] == 0, lineterminator="\n")
+                    written["rows"] += len(df)
+                    written["columns"] = list(df.columns)
+
+        write_atomic(out, write)
+    return {"output": str(out), "rows": int(written["rows"]), "columns": written["columns"],
+            "points": list(pts.names) if pts is not None else []}
+
+
+def _export_frame(st, names: list, pts, ch: dict):
+    """The CSV rows of one chunk of epochs (as the whole-record export made them)."""
     import pandas as pd  # noqa: PLC0415 (not on the path of `cdgps estimate`)
 
-    df = pd.DataFrame(st.q, columns=names)
+    df = pd.DataFrame(ch["q"], columns=names)
     for i, n in enumerate(names):
-        df["sigma_" + n] = st.sigma_q[:, i]
+        df["sigma_" + n] = ch["sigma_q"][:, i]
     if pts is not None:
-        df = pd.concat([df, pd.DataFrame(point_columns(st.cfg, pts, st.xi, st.P_xi))], axis=1)
-    df.insert(0, "time_s", np.round(st.time_s, 9))
-    out = Path(out_csv)
-    write_atomic(out, lambda p: df.to_csv(p, index=False, lineterminator="\n"))
-    return {"output": str(out), "rows": int(len(df)), "columns": list(df.columns),
-            "points": list(pts.names) if pts is not None else []}
+        from cdgps_cli.model.points import point_columns  # noqa: PLC0415
+
+        df = pd.concat([df, pd.DataFrame(point_columns(st.cfg, pts, ch["xi"], ch["P_xi"]))], axis=1)
+    df.insert(0, "time_s", np.round(ch["time_s"], 9))
+    return df
 
 
 def evaluate(truth_dir: str | Path, states_path: str | Path, converge_s: float = 1.0) -> dict:
@@ -205,44 +230,40 @@ def evaluate(truth_dir: str | Path, states_path: str | Path, converge_s: float =
         tj = json.loads((truth_dir / "truth.json").read_text())
     except (OSError, ValueError) as exc:
         raise CdgpsError(f"{truth_dir}: cannot read truth.csv / truth.json: {exc}") from None
-    st = States(states_path)
-    names = list(st.coord_names)
-    if tj.get("config_sha256") and tj["config_sha256"] != st.config_sha256:    # first: it explains missing columns
-        raise CdgpsError(f"--truth {truth_dir}: simulated with config {tj.get('config')!r} (sha256 "
-                         f"{str(tj['config_sha256'])[:12]}…), but {states_path} estimates config {st.config_name!r} "
-                         f"(sha256 {str(st.config_sha256)[:12]}…); give the truth of the run that was estimated")
-    missing = [n for n in ["time_s", *names] if n not in truth.columns]
-    if missing:
-        raise CdgpsError(f"{truth_dir / 'truth.csv'}: missing column(s) {', '.join(missing)}")
-    tt = np.rint(truth["time_s"].to_numpy() * 1e6).astype(np.int64)
-    te = np.rint(st.time_s * 1e6).astype(np.int64)
-    common, it, ie = np.intersect1d(tt, te, return_indices=True)
-    if common.size == 0:
-        raise CdgpsError("no common epochs between truth and estimate")
-    qt = truth[names].to_numpy()[it]
-    qe = st.q[ie]
-    se = st.sigma_q[ie]
-    time = st.time_s[ie]
-    err = qe - qt
-    after = time >= time[0] + converge_s - 1e-9
+    from cdgps_cli.io.states import StatesChunks, diagnostics  # noqa: PLC0415
+
+    with StatesChunks(states_path, covariance=True) as st:         # a chunk of epochs at a time (issue 29)
+        names = list(st.coord_names)
+        if tj.get("config_sha256") and tj["config_sha256"] != st.config_sha256:    # first: it explains missing columns
+            raise CdgpsError(f"--truth {truth_dir}: simulated with config {tj.get('config')!r} (sha256 "
+                             f"{str(tj['config_sha256'])[:12]}…), but {states_path} estimates config {st.config_name!r} "
+                             f"(sha256 {str(st.config_sha256)[:12]}…); give the truth of the run that was estimated")
+        missing = [n for n in ["time_s", *names] if n not in truth.columns]
+        if missing:
+            raise CdgpsError(f"{truth_dir / 'truth.csv'}: missing column(s) {', '.join(missing)}")
+        nis_all, dof_all, events = diagnostics(states_path, st.n_epochs)
+        tt = np.rint(truth["time_s"].to_numpy() * 1e6).astype(np.int64)
+        te = np.rint(np.concatenate([c["time_s"] for c in st.series(_EVAL_CHUNK)] or [np.empty(0)]) * 1e6).astype(np.int64)
+        common, it, ie = np.intersect1d(tt, te, return_indices=True)
+        if common.size == 0:
+            raise CdgpsError("no common epochs between truth and estimate")
+        qt = truth[names].to_numpy()[it]
+        del truth, tt
+        per = _matched_rows(st, ie, qt, converge_s)
+    time, bad, inside, nees, after, sq_err = (per[k] for k in ("time", "bad", "inside", "nees", "after", "sq_err"))
     if after.sum() < 2:
         raise CdgpsError(f"{states_path}: {common.size} epoch(s) in common with the truth "
                          f"({time[0]:g}–{time[-1]:g} s), {int(after.sum())} after the first {converge_s:g} s "
                          "(--converge-s): too short to evaluate; estimate a longer run")
-    bad = ~np.isfinite(qe).all(axis=1) | ~np.isfinite(se).all(axis=1)
     if bad.any():
         raise CdgpsError(f"{states_path}: {int(bad.sum())} epoch(s) with non-finite states or sigmas "
                          f"(first at {time[np.flatnonzero(bad)[0]]:g} s)")
-    rms = np.sqrt(np.mean(err[after] ** 2, axis=0))
-    xi_t = qt @ np.linalg.pinv(st.output_map).T
-    d = st.xi[ie] - xi_t
     nm = st.n_pos
-    nees = np.einsum("ni,ni->n", d, np.linalg.solve(st.P_xi[ie], d[..., None])[..., 0])
+    rms = np.sqrt(sq_err / after.sum())
     lo, hi = chi2.ppf(0.025, nm), chi2.ppf(0.975, nm)
     na = int(after.sum())
     # time-averaged NEES: 95% interval of the mean of na chi2(nm) samples (if independent)
     mlo, mhi = chi2.ppf(0.025, na * nm) / na, chi2.ppf(0.975, na * nm) / na
-    inside = np.all(np.abs(err) <= 3 * se + 1e-12, axis=1)
     # convergence: first epoch from which the NEES stays below its 99.9% bound for a full second
     bound = chi2.ppf(0.999, nm)
     T = float(np.median(np.diff(time))) if time.size > 1 else 1.0
@@ -264,10 +285,10 @@ def evaluate(truth_dir: str | Path, states_path: str | Path, converge_s: float =
                  "fraction_in_interval": float(np.mean((nees[after] >= lo) & (nees[after] <= hi))),
                  "interval95_mean_if_independent": [float(mlo), float(mhi)]},
     }
-    if st.nis is not None and ((st.nis_dof > 0) & np.isfinite(st.nis)).any():
-        ok = (st.nis_dof > 0) & np.isfinite(st.nis)
-        r = st.nis[ok] / st.nis_dof[ok]
-        inside_nis = (st.nis[ok] >= chi2.ppf(0.025, st.nis_dof[ok])) & (st.nis[ok] <= chi2.ppf(0.975, st.nis_dof[ok]))
+    if nis_all is not None and ((dof_all > 0) & np.isfinite(nis_all)).any():
+        ok = (dof_all > 0) & np.isfinite(nis_all)
+        r = nis_all[ok] / dof_all[ok]
+        inside_nis = (nis_all[ok] >= chi2.ppf(0.025, dof_all[ok])) & (nis_all[ok] <= chi2.ppf(0.975, dof_all[ok]))
         out["nis"] = {"mean_per_dof": float(np.mean(r)), "fraction_in_interval95": float(np.mean(inside_nis))}
     # bias errors: final biases vs truth (latest segment per channel)
     if "final_biases" not in st.metadata:
@@ -287,5 +308,44 @@ def evaluate(truth_dir: str | Path, states_path: str | Path, converge_s: float =
         e = np.array([x[2] for x in errs])
         out["bias_error"] = {"rms_m": float(np.sqrt(np.mean(e**2))), "max_abs_m": float(np.max(np.abs(e))),
                              "wrong_integers": int(np.sum(np.abs(e) > st.wavelength_m / 2)), "channels": len(errs)}
-    out["events"] = len(st.events)
+    out["events"] = len(events)
+    return out
+
+
+_EVAL_CHUNK = 16384
+"""Epochs of STATES read at a time by :func:`evaluate` (a multiple of 1024: the same bits as the whole record)."""
+
+
+def _matched_rows(st, ie: np.ndarray, qt: np.ndarray, converge_s: float) -> dict:
+    """Per epoch in common with the truth (``ie``: their STATES rows, ascending; ``qt``: the truth
+    there), read a chunk of STATES at a time: time, non-finite, within 3σ, NEES and after
+    ``converge_s`` (1-D, (M,)), and the sum of the squared errors after it, (n_q,), added row after
+    row as ``np.mean(err ** 2, axis=0)`` adds them (the same bits)."""
+    M = ie.size
+    xi_t = np.concatenate([qt[a:a + 1024] @ np.linalg.pinv(st.output_map).T for a in range(0, M, 1024)])
+    out = {"time": np.empty(M), "bad": np.empty(M, dtype=bool), "inside": np.empty(M, dtype=bool),
+           "nees": np.empty(M), "after": np.empty(M, dtype=bool)}
+    sq_err = np.zeros(qt.shape[1])
+    t_start = None
+    a = 0
+    for ch in st.series(_EVAL_CHUNK):
+        k = len(ch["time_s"])
+        j0, j1 = np.searchsorted(ie, [a, a + k])
+        rows = ie[j0:j1] - a
+        a += k
+        if j1 == j0:
+            continue
+        time = ch["time_s"][rows]
+        qe, se = ch["q"][rows], ch["sigma_q"][rows]
+        err = qe - qt[j0:j1]
+        t_start = time[0] if t_start is None else t_start
+        after = time >= t_start + converge_s - 1e-9
+        d = ch["xi"][rows] - xi_t[j0:j1]
+        out["time"][j0:j1] = time
+        out["after"][j0:j1] = after
+        out["bad"][j0:j1] = ~np.isfinite(qe).all(axis=1) | ~np.isfinite(se).all(axis=1)
+        out["inside"][j0:j1] = np.all(np.abs(err) <= 3 * se + 1e-12, axis=1)
+        out["nees"][j0:j1] = np.einsum("ni,ni->n", d, np.linalg.solve(ch["P_xi"][rows], d[..., None])[..., 0])
+        sq_err = np.add.reduce(np.vstack([sq_err[None], err[after] ** 2]), axis=0)
+    out["sq_err"] = sq_err
     return out

@@ -40,19 +40,27 @@ def channel_summary(phase: Table, sample_period_s: float) -> list[dict]:
     a_codes, a_names = phase.codes("antenna")               # codes index the sorted names
     t_codes, t_names = phase.codes("transmitter")
     chan = a_codes.astype(np.int64) * len(t_names) + t_codes
-    step = np.rint((t - t.min()) / sample_period_s).astype(np.int64)
-    seg = lock_segments(chan, step, lock=np.asarray(phase["lock"], dtype=np.int64))
+    t0 = t.min()
+    lock_all = phase["lock"]
     rows = np.bincount(chan)
     out = {}
-    for s_first, s_last, c in zip(seg.first.tolist(), seg.last.tolist(), seg.channel.tolist()):
-        if c not in out:                                    # the channel's first segment
-            out[c] = {"antenna": a_names[c // len(t_names)], "transmitter": t_names[c % len(t_names)],
-                      "rows": int(rows[c]), "first_s": float(t[s_first]), "last_s": float(t[s_last]),
-                      "lock_restarts_s": [], "lock_restart_kinds": []}
-            continue
-        out[c]["lock_restarts_s"].append(float(t[s_first]))
-        out[c]["lock_restart_kinds"].append(_KIND[int(seg.cause[s_first])])
-        out[c]["last_s"] = float(t[s_last])
+    # one channel at a time (the rule cuts each channel on its own): temporaries of a channel's rows,
+    # not of the record's (issue 29)
+    for c in np.flatnonzero(rows).tolist():
+        idx = np.flatnonzero(chan == c)
+        tc = t[idx]
+        step = np.rint((tc - t0) / sample_period_s).astype(np.int64)
+        seg = lock_segments(np.full(idx.size, c, dtype=np.int64), step,
+                            lock=np.asarray(lock_all[idx], dtype=np.int64))
+        for s_first, s_last in zip(seg.first.tolist(), seg.last.tolist()):
+            if c not in out:                                # the channel's first segment
+                out[c] = {"antenna": a_names[c // len(t_names)], "transmitter": t_names[c % len(t_names)],
+                          "rows": int(rows[c]), "first_s": float(tc[s_first]), "last_s": float(tc[s_last]),
+                          "lock_restarts_s": [], "lock_restart_kinds": []}
+                continue
+            out[c]["lock_restarts_s"].append(float(tc[s_first]))
+            out[c]["lock_restart_kinds"].append(_KIND[int(seg.cause[s_first])])
+            out[c]["last_s"] = float(tc[s_last])
     for ch in out.values():
         ch["segments"] = 1 + len(ch["lock_restarts_s"])
     return list(out.values())

@@ -91,13 +91,26 @@ def _json_clean(o):
 
 
 def _gyro_table(run) -> tuple[np.ndarray, np.ndarray, list]:
+    """The gyro log as distinct times (T,), rates (T, G) of the config's gyros that are in it (a gap
+    linearly interpolated over the row positions, the ends held: pandas' ``interpolate(limit_direction=
+    "both")``) and their names.  Built with numpy from the table's codes (the pandas pivot of a day's
+    log peaked near 1 GB; the same numbers, ``tests/report/test_sensor_reports.py``)."""
     if run.gyro is None or len(run.gyro) == 0:
         return np.zeros(0), np.zeros((0, 0)), []
-    g = run.gyro.frame()
-    names = [n for n in run.cfg.gyro_names if n in set(g["gyro"])]
-    wide = g.pivot_table(index="time_s", columns="gyro", values="rate_rad_s")
-    wide = wide[names].interpolate(limit_direction="both")
-    return wide.index.to_numpy(dtype=float), wide.to_numpy(dtype=float), names
+    codes, words = run.gyro.codes("gyro")
+    present = set(np.asarray(words, dtype=object)[np.unique(codes)].tolist())
+    names = [n for n in run.cfg.gyro_names if n in present]
+    times, row = np.unique(np.asarray(run.gyro["time_s"], dtype=float), return_inverse=True)
+    rate = np.asarray(run.gyro["rate_rad_s"], dtype=float)
+    wide = np.full((times.size, len(names)), np.nan)
+    for j, name in enumerate(names):
+        mine = codes == words.index(name)
+        wide[row[mine], j] = rate[mine]
+        bad = np.isnan(wide[:, j])
+        if bad.any() and not bad.all():
+            pos = np.arange(times.size)
+            wide[bad, j] = np.interp(pos[bad], pos[~bad], wide[~bad, j])
+    return times, wide, names
 
 
 # ----------------------------------------------------------------------------- spectra
@@ -506,6 +519,31 @@ def _static_caption(data: dict, smoothed: bool | None, no_gyro: str = "no gyro")
     return text
 
 
+def _angle_series(states, coef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Times (N,) and the angle q·coef (N,) of a STATES read in chunks (only these two series are kept)."""
+    from cdgps_cli.config.options import STATES_CHUNK_EPOCHS  # noqa: PLC0415
+
+    t, a = [], []
+    for ch in states.series(STATES_CHUNK_EPOCHS):
+        t.append(ch["time_s"])
+        a.append(ch["q"] @ coef)
+    return (np.concatenate(t), np.concatenate(a)) if t else (np.empty(0), np.empty(0))
+
+
+def _segment_covariance(states, sel: np.ndarray) -> np.ndarray:
+    """P_ξ at the epochs ``sel`` (a mask over all epochs) of a STATES read in chunks."""
+    from cdgps_cli.config.options import STATES_CHUNK_EPOCHS  # noqa: PLC0415
+
+    out, a = [], 0
+    for ch in states.series(STATES_CHUNK_EPOCHS):
+        k = len(ch["time_s"])
+        m = sel[a:a + k]
+        if m.any():
+            out.append(ch["P_xi"][m])
+        a += k
+    return np.concatenate(out) if out else np.empty((0, states.n_pos, states.n_pos))
+
+
 def static_statistics(states, run, angle: str, survey_deg: float | None, start_s: float | None = None,
                       end_s: float | None = None, gyro: str | None = None):
     """The static sensor test's numbers on the rest segment (what :func:`static_report` reports).
@@ -521,8 +559,12 @@ def static_statistics(states, run, angle: str, survey_deg: float | None, start_s
         require_finite(v, name)
     cfg = _structure_config(states, "the static report")
     coef = parse_expression(angle, cfg.coord_names)
-    a_all = states.q @ coef
-    t_all = states.time_s
+    chunked = hasattr(states, "series")             # StatesChunks: the angle's series, then the segment's P_ξ
+    if chunked:
+        t_all, a_all = _angle_series(states, coef)
+    else:
+        a_all = states.q @ coef
+        t_all = states.time_s
     if start_s is None and end_s is None:
         t0, t1 = detect_rest(t_all, a_all)
         how = "detected"
@@ -540,10 +582,11 @@ def static_statistics(states, run, angle: str, survey_deg: float | None, start_s
     t = t_all[sel]
     a = np.degrees(a_all[sel])
     sig = None
-    if hasattr(states, "P_xi"):
+    if getattr(states, "has_P_xi", False) if chunked else hasattr(states, "P_xi"):
         U = np.asarray(cfg.mode_shapes)
         v = coef @ U
-        sig = np.degrees(np.sqrt(np.einsum("i,nij,j->n", v, states.P_xi[sel], v)))
+        P_sel = _segment_covariance(states, sel) if chunked else states.P_xi[sel]
+        sig = np.degrees(np.sqrt(np.einsum("i,nij,j->n", v, P_sel, v)))
     minutes = (t - t[0]) / 60.0
     p = np.polyfit(minutes, a, 1)
     resid = a - np.polyval(p, minutes)

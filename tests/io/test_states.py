@@ -496,16 +496,18 @@ def test_topic_columns_flat_buffers():
 
 def test_write_states_makes_no_full_size_copies(tmp_path, monkeypatch):
     """The per-epoch messages and the packed attachments are written without full-size temporaries:
-    peak traced memory of write_states, packing in line, stays below two (N, n_m, n_m) covariance
-    series (≈ 1.5 here: the mcap library's ~3 MB of chunk buffers; the former writer, which built
-    every .npy and its attachment record in memory, peaked at ≈ 3.5).  Packing in the background
-    (the default: one series' arrays while its messages are built) adds at most one such series."""
+    the writer reads the record in chunks (issue 29), so the peak traced memory of write_states on a
+    record of 8 chunks of 1024 epochs stays below two (N, n_m, n_m) covariance series of the record
+    (the mcap library's chunk buffers are ~3 MB of it; the writer before the packed arrays, which
+    built every .npy and its attachment record in memory, peaked at ≈ 3.5)."""
     import tracemalloc
 
+    from cdgps_cli.io import states as states_io
     from cdgps_cli.io.mcap import McapOut
 
+    monkeypatch.setattr(states_io, "STATES_CHUNK_EPOCHS", 1024)
     cfg = load_config(TESTBED_PATH)
-    n, nm, N = cfg.n_states, cfg.n_modes, 4000
+    n, nm, N = cfg.n_states, cfg.n_modes, 8192
     rng = np.random.default_rng(0)
     t = np.round(np.arange(N) * 0.1, 9)
     x = rng.normal(size=(N, n))

@@ -121,6 +121,20 @@ def test_static_report_values(static_run, static_out, record_property):
         record_property(k, d[k] if not hasattr(d[k], "item") else d[k].item())
 
 
+def test_static_report_in_chunks_as_whole(static_run, static_out, tmp_path, monkeypatch):
+    """The static report from STATES read in chunks (as `cdgps report static` reads it, issue 29; 1024
+    epochs a chunk here: two chunks) equals the one from the whole record, figures and report.json."""
+    import cdgps_cli.config.options as options
+
+    monkeypatch.setattr(options, "STATES_CHUNK_EPOCHS", 1024)
+    d, out = static_out
+    with StatesChunks(static_run["states"], covariance=True) as st:
+        assert st.n_epochs > 1024
+        c = static_report(st, read_run(static_run["run"], phase=False), "q6+q10", -1.4, tmp_path)
+    assert json.dumps(c, sort_keys=True, default=str) == json.dumps(d, sort_keys=True, default=str)
+    assert (tmp_path / "report.json").read_bytes() == (out / "report.json").read_bytes()
+
+
 def test_static_report_files(static_out):
     d, out = static_out
     assert {p.name for p in out.iterdir()} == {"report.md", "report.json", "report.html", "static.png"}
@@ -531,3 +545,31 @@ def test_static_figure_gps_on_its_own_scale():
     assert "beyond this axis" in " ".join(t.get_text() for t in ax1.get_legend().get_texts())
     import matplotlib.pyplot as plt
     plt.close(fig)
+
+
+def _pandas_gyro_table(run):
+    """The gyro table as the reports built it with pandas before issue 29 (reference for the numpy one)."""
+    g = run.gyro.frame()
+    names = [n for n in run.cfg.gyro_names if n in set(g["gyro"])]
+    wide = g.pivot_table(index="time_s", columns="gyro", values="rate_rad_s")
+    wide = wide[names].interpolate(limit_direction="both")
+    return wide.index.to_numpy(dtype=float), wide.to_numpy(dtype=float), names
+
+
+def test_gyro_table_as_the_pandas_pivot(static_run):
+    """The reports' gyro table (numpy, from the codes) equals the pandas pivot + interpolation it
+    replaced, bit for bit, also with samples missing inside and at both ends of a gyro's series."""
+    from cdgps_cli.report.sensor_reports import _gyro_table
+
+    run = read_run(static_run["run"], phase=False)
+    g = run.gyro
+    codes, _ = g.codes("gyro")
+    keep = np.ones(len(g), dtype=bool)
+    keep[100:160] = False
+    keep[np.flatnonzero(codes == codes[0])[:9]] = False          # one gyro starts late
+    keep[np.flatnonzero(codes == codes[-1])[-5:]] = False        # one ends early
+    for table in (g, g.take(np.flatnonzero(keep))):
+        run.gyro = table
+        a, b = _pandas_gyro_table(run), _gyro_table(run)
+        assert a[2] == b[2] and a[0].tobytes() == b[0].tobytes() and a[1].tobytes() == b[1].tobytes()
+        assert not np.isnan(b[1]).any()

@@ -1,0 +1,141 @@
+#!/usr/bin/env python3
+"""Every stage on long records of the testbed at 10 Hz: peak RSS and wall time per stage (issue 29 item 6).
+
+For each ``--hours`` value simulates the testbed (configs/testbed-1998.toml, seed 1, 2 cm noise,
+disturbance scale 1; cached in ``--workdir``/<hours>h/sim) and runs, each as a fresh ``cdgps`` process
+under ``/usr/bin/time`` (peak RSS = the process's maximum resident set size)::
+
+    ingest   cdgps ingest sim/receiver.csv sim/gyro.csv --config testbed -o run.mcap
+    info     cdgps info run.mcap --json
+    init     cdgps init run.mcap --start 0 --duration 60 -o init.json
+    estimate cdgps estimate run.mcap --init init.json --smooth -o states.mcap
+    spectra  cdgps spectra states.mcap --gyro run.mcap -o spectra
+    export   cdgps export states.mcap -o states.csv
+    evaluate cdgps evaluate --truth sim --estimate states.mcap --json
+    report   cdgps report spectrum states.mcap --gyro run.mcap -o report
+
+Each stage's record: wall s, s per hour of record, peak RSS MiB and the 1-minute load average when it
+started (the machine may be shared: memory does not depend on the load, time does).  ``--stages``
+runs some only (e.g. the cheap ones at 24 h); stages whose inputs are missing are skipped.  Writes
+``--out`` (JSON) and prints a markdown table::
+
+    python benchmarks/long_records.py --hours 1 6 --workdir /tmp/long --out docs/benchmarks/long_records.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+CONFIG = ROOT / "configs" / "testbed-1998.toml"
+CDGPS = [sys.executable, "-c", "from cdgps_cli.cli.commands import main; main()"]
+STAGES = ("ingest", "info", "init", "estimate", "spectra", "export", "evaluate", "report")
+
+
+def _args(stage: str, d: Path) -> tuple[list[str], list[Path]]:
+    """The command line of a stage in the record's directory ``d`` and the inputs it needs."""
+    sim, run, st = d / "sim", d / "run.mcap", d / "states.mcap"
+    table = {
+        "ingest": ([str(sim / "receiver.csv"), str(sim / "gyro.csv"), "--config", str(CONFIG), "-o", str(run)],
+                   [sim / "receiver.csv"]),
+        "info": (["--json", str(run)], [run]),
+        "init": ([str(run), "--start", "0", "--duration", "60", "-o", str(d / "init.json")], [run]),
+        "estimate": ([str(run), "--init", str(d / "init.json"), "--smooth", "-o", str(st)], [run, d / "init.json"]),
+        "spectra": ([str(st), "--gyro", str(run), "-o", str(d / "spectra")], [st, run]),
+        "export": ([str(st), "-o", str(d / "states.csv")], [st]),
+        "evaluate": (["--truth", str(sim), "--estimate", str(st), "--json"], [st, sim / "truth.csv"]),
+        "report": (["spectrum", str(st), "--gyro", str(run), "-o", str(d / "report")], [st, run]),
+    }
+    args, needs = table[stage]
+    return [stage, *args], needs
+
+
+def _timed(args: list[str]) -> dict:
+    """Run ``cdgps -q <args>`` under /usr/bin/time: wall s, peak RSS MiB, exit code."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    load = os.getloadavg()[0]
+    t0 = time.perf_counter()
+    p = subprocess.run(["/usr/bin/time", "-f", "__TIME__ %e %M", *CDGPS, "-q", *args], capture_output=True, text=True,
+                       env=env, cwd=ROOT)
+    wall = time.perf_counter() - t0
+    line = [ln for ln in p.stderr.splitlines() if ln.startswith("__TIME__")]
+    rss = float(line[-1].split()[2]) / 1024.0 if line else float("nan")
+    out = {"wall_s": round(wall, 2), "peak_rss_mib": round(rss, 1), "load_1min": round(load, 2), "exit": p.returncode}
+    if p.returncode:
+        out["stderr"] = p.stderr[-600:]
+    return out
+
+
+def simulate(d: Path, hours: float) -> float | None:
+    if (d / "sim" / "receiver.csv").exists() and (d / "sim" / "truth.csv").exists():
+        return None
+    t0 = time.perf_counter()
+    r = _timed(["simulate", str(CONFIG), "--duration", str(int(3600 * hours)), "--seed", "1", "--noise-m", "0.02",
+                "--disturbance-scale", "1", "-o", str(d / "sim")])
+    if r["exit"]:
+        raise SystemExit(f"simulate {hours} h failed: {r.get('stderr')}")
+    return time.perf_counter() - t0
+
+
+def run_record(workdir: Path, hours: float, stages) -> dict:
+    d = workdir / f"{hours:g}h"
+    d.mkdir(parents=True, exist_ok=True)
+    rec = {"hours": hours, "simulate_s": simulate(d, hours), "stages": {}}
+    for stage in stages:
+        args, needs = _args(stage, d)
+        if not all(p.exists() for p in needs):
+            rec["stages"][stage] = {"skipped": "inputs missing"}
+            continue
+        r = _timed(args)
+        r["s_per_hour"] = round(r["wall_s"] / hours, 2)
+        rec["stages"][stage] = r
+        print(f"  {hours:g} h {stage:9s} {r['wall_s']:8.1f} s {r['peak_rss_mib']:8.1f} MiB (load {r['load_1min']:.1f})"
+              + ("" if not r["exit"] else f"  EXIT {r['exit']}"), file=sys.stderr, flush=True)
+    rec["run_mcap_mib"] = round((d / "run.mcap").stat().st_size / 2**20, 1) if (d / "run.mcap").exists() else None
+    return rec
+
+
+def table(records: list[dict]) -> str:
+    hours = [r["hours"] for r in records]
+    head = "| stage | " + " | ".join(f"{h:g} h: peak RSS MiB / s (s per h)" for h in hours) + " |"
+    lines = [head, "|---" * (len(hours) + 1) + "|"]
+    for stage in STAGES:
+        cells = []
+        for r in records:
+            s = r["stages"].get(stage)
+            cells.append("—" if not s or "skipped" in s else
+                         f"{s['peak_rss_mib']:.0f} / {s['wall_s']:.1f} ({s['s_per_hour']:.1f})")
+        lines.append(f"| {stage} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--hours", type=float, nargs="+", default=[1.0, 6.0])
+    ap.add_argument("--stages", nargs="+", choices=STAGES, default=list(STAGES))
+    ap.add_argument("--workdir", type=Path, default=Path("/tmp/cdgps-long-records"))
+    ap.add_argument("--out", type=Path)
+    a = ap.parse_args()
+    records = []
+    for h in a.hours:
+        records.append(run_record(a.workdir, h, a.stages))
+        result = {"config": "configs/testbed-1998.toml (10 Hz), seed 1, 2 cm noise, disturbance scale 1",
+                  "machine": f"{platform.machine()}, {os.cpu_count()} cores (shared)",
+                  "python": platform.python_version(), "records": records,
+                  "note": "peak RSS: /usr/bin/time maximum resident set size of each cdgps process; load_1min: "
+                          "the 1-minute load average when the stage started (times depend on it)"}
+        if a.out:
+            a.out.parent.mkdir(parents=True, exist_ok=True)
+            a.out.write_text(json.dumps(result, indent=1) + "\n")
+    print(table(records))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,755 @@
+"""STATES.mcap (output of ``cdgps estimate``), any kind of estimate: the one writer
+(:func:`write_states`, of a :class:`cdgps_cli.core.records.StateSeries`) and the one reader
+(:class:`States`).  No numerics here: the stage functions that build the record — a structure's
+modal states (pseudolite or GNSS run) in :mod:`cdgps_cli.pipeline.estimate_outputs`, GNSS
+displacement states in :mod:`cdgps_cli.pipeline.gnss` — and CSV export and evaluation are in
+:mod:`cdgps_cli.pipeline`.
+
+Every epoch of every series is stored as packed arrays (lossless, compact; the layout is in
+:mod:`cdgps_cli.io.states_layout`), which :class:`States` reads.  Beside them, the Foxglove
+channels (JSON schema / JSON, ``timestamp {sec, nsec}``) hold one message every
+``json_channels_every_epochs`` epochs (``--foxglove-rate-hz``, default 1 Hz; 0: every epoch):
+
+* ``/cdgps/state`` — the estimate (smoothed when ``--smooth``): ``q`` and ``sigma_q`` as objects
+  keyed by coordinate name (so Foxglove plots ``/cdgps/state.q.q10`` directly), the modal state
+  ``xi``, ``xidot``, ``smoothed``, and with ``--covariance full`` the modal-position covariance
+  ``P_xi`` (row-major n_m×n_m);
+* ``/cdgps/state_filtered`` — the forward filter, only when smoothing;
+* ``/cdgps/angles_deg`` — the section angles reports speak of, in degrees, as flat numbers with
+  plain names so Foxglove's Plot panel plots ``/cdgps/angles_deg.C2_z`` (q6+q10 on the testbed)
+  by name: one per section and axis it rotates about (small-angle sum of its rotation coordinate
+  and, about z, the rigid-body rotation), ``body_z`` for the rigid-body rotation, each with its
+  1-sigma ``sigma_<name>``; the expressions are in the schema's descriptions and the channel's
+  metadata (given by the caller: :func:`cdgps_cli.model.kinematics.section_angles`); absent when the model has no rotations;
+* ``/cdgps/residuals`` — per channel post-fit residual (m), the epoch's NIS (left out where
+  there is none) and its dof;
+* ``/cdgps/events`` — slips, re-acquisitions, outliers, integrity failures and their actions
+  (every event).
+
+``time_s`` is the run's time scale (run seconds, or GPS s for a structure on a GNSS run); log
+times are Unix time (:mod:`cdgps_cli.core.timescales`).  No message holds ``null``
+(:mod:`cdgps_cli.io.mcap`).
+
+Attachments: ``states.json`` (kind, coordinate names and units, the sizes of the state blocks,
+the series), the output map C of q = C ξ (``arrays/output_map``), the packed arrays, ``init.json``,
+and ``config.toml`` for a structure (``gnss_config.toml`` for GNSS displacement states).  Metadata
+``cdgps.estimate``: RUN and INIT sha256, options, final biases, ``covariance``,
+``json_channels_every_epochs`` (``kind = gnss`` for displacement states).  Files of the earlier
+layouts are still read: without ``states.json`` (the description then comes from ``config.toml``,
+which a GNSS estimate wrote as a structure-form displacement model), with ``.npy`` attachments and
+every epoch in JSON, or JSON messages only.
+"""
+
+from __future__ import annotations
+
+# Reference copy of cdgps_cli/io/states.py as of commit 6b76c01 (before the streaming writer, issue 29):
+# the whole-record writer the streaming one must match byte for byte (tests/io/test_states_stream.py).
+# Not used by cdgps itself.
+
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+
+from cdgps_cli.core import progress
+from cdgps_cli.config.structure import StructureConfig, parse_config
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.core.records import CoordinateModel, Series, StateSeries
+from cdgps_cli.io.states_layout import (COVARIANCE_CHOICES, DEFAULT_COVARIANCE, DEFAULT_PREVIEW_RATE_HZ,
+                                        OUTPUT_MAP_PACKED, PACKED_PREFIX, RESIDUAL_PACKED, SERIES_ATTACHMENT,
+                                        STATE_DELTA, STATES_FORMAT, STATES_KINDS)
+from cdgps_cli.io.mcap import (NULLABLE, CONFIG_ATTACHMENT, McapOut, array_schema, attachment_spans, message_schema,
+                               read_mcap, read_span)
+
+STATE_TOPIC = "/cdgps/state"
+STATE_FILTERED_TOPIC = "/cdgps/state_filtered"
+RESIDUAL_TOPIC = "/cdgps/residuals"
+EVENT_TOPIC = "/cdgps/events"
+INIT_ATTACHMENT = "init.json"
+ESTIMATE_METADATA = "cdgps.estimate"
+ANGLES_TOPIC = "/cdgps/angles_deg"
+
+
+def _state_schema(names, with_P: bool, with_rates: bool, nullable: bool) -> dict:
+    obj = {"type": "object", "properties": {n: {"type": "number"} for n in names}}
+    arrays = {"xi": NULLABLE if nullable else "number", **({"xidot": "number"} if with_rates else {}),
+              **({"P_xi": "number"} if with_P else {})}
+    s = array_schema("cdgps.StructureState" if with_rates else "cdgps.DisplacementState", arrays,
+                     {"smoothed": "boolean"})
+    s["properties"]["q"] = dict(obj, description="generalized coordinates (m or rad)" if with_rates else
+                                "displacement from the nominal position, m (E, N, U per rover); a coordinate "
+                                "without a solution at this epoch is left out")
+    s["properties"]["sigma_q"] = dict(obj, description="1-sigma of q")
+    return s
+
+
+RESIDUAL_SCHEMA = array_schema("cdgps.Residuals", {"antenna": "string", "transmitter": "string", "residual_m": "number"},
+                               {"nis": NULLABLE, "nis_dof": "integer"})
+_EVENT_FIELDS = {"antenna": {"type": "string"}, "transmitter": {"type": "string"}, "kind": {"type": "string"},
+                 "action": {"type": "string"},
+                 "velocity_nis": {"type": "number", "description": "rest test statistic (rest events only)"}}
+EVENT_SCHEMA = message_schema("cdgps.Event", _EVENT_FIELDS)
+
+
+def _json_type(v) -> str | None:
+    if isinstance(v, (bool, np.bool_)):
+        return "boolean"
+    if isinstance(v, (int, np.integer)):
+        return "integer"
+    if isinstance(v, (float, np.floating)):
+        return "number"
+    if isinstance(v, str):
+        return "string"
+    return None
+
+
+def event_schema(events: list[dict]) -> dict:
+    """:data:`EVENT_SCHEMA` plus any further detail field the events carry (its JSON type from the
+    values: number when integers and floats mix), so every field is declared for Foxglove."""
+    extra: dict[str, set] = {}
+    for ev in events:
+        for k, v in ev.items():
+            if k != "time_s" and k not in _EVENT_FIELDS and v is not None and not (isinstance(v, float) and v != v):
+                extra.setdefault(k, set()).add(_json_type(v))
+    if not extra:
+        return EVENT_SCHEMA
+    props = dict(_EVENT_FIELDS)
+    for k, types in sorted(extra.items()):
+        if None in types:
+            raise ValueError(f"event field {k!r}: values of an unsupported type")
+        t = types.pop() if len(types) == 1 else ("number" if types <= {"integer", "number"} else None)
+        if t is None:
+            raise ValueError(f"event field {k!r}: values of mixed types {sorted(types)}")
+        props[k] = {"type": t}
+    return message_schema("cdgps.Event", props)
+
+
+def _angles_schema(angles) -> dict:
+    props = {}
+    for name, expr, _ in angles:
+        props[name] = {"type": "number", "description": f"{expr}, degrees"}
+        props["sigma_" + name] = {"type": "number", "description": f"1-sigma of {expr}, degrees"}
+    return message_schema("cdgps.AnglesDeg", props, "section angles in degrees (small-angle sums of coordinates)")
+
+
+def _write_angles(out: McapOut, C: np.ndarray, angles, time_s, q: np.ndarray, P_pos: np.ndarray) -> None:
+    """The :data:`ANGLES_TOPIC` messages: section angles and their 1-sigma, degrees.
+
+    ``angles``: list of (name, expression, coefficients (n_q,)) as
+    :func:`cdgps_cli.model.kinematics.section_angles` gives them (empty: no channel); ``C``: the
+    output map (n_q, n_pos), so an angle's variance is a C P_pos Cᵀ aᵀ."""
+    if not angles:
+        return
+    A = np.array([c for _, _, c in angles])                   # (n_angles, n_q)
+    AU = A @ C                                                # (n_angles, n_pos)
+    names = [n for n, _, _ in angles]
+    sig_names = ["sigma_" + n for n in names]
+    ch = out.channel(ANGLES_TOPIC, _angles_schema(angles),
+                     {"units": "deg", "angles": json.dumps({n: e for n, e, _ in angles})})
+    keys = names + sig_names
+    times = np.asarray(time_s, dtype=float)
+    for a in range(0, times.size, 1024):                      # blocks: no full-length temporaries
+        b = min(a + 1024, times.size)
+        deg = np.degrees(q[a:b] @ A.T)
+        var = np.einsum("ai,nij,aj->na", AU, P_pos[a:b], AU)
+        rows = np.hstack([deg, np.degrees(np.sqrt(np.maximum(var, 0.0)))]).tolist()
+        for t, row in zip(times[a:b].tolist(), rows):
+            out.write(ch, t, dict(zip(keys, row)))
+
+
+def _is_identity(C: np.ndarray) -> bool:
+    return C.shape[0] == C.shape[1] and np.array_equal(C, np.eye(C.shape[0]))
+
+
+def coordinate_sigma(C: np.ndarray, P_pos: np.ndarray, block: int = 1024) -> np.ndarray:
+    """1-σ of q = C x_pos from the position covariances (N, n_pos, n_pos) → (N, n_q).
+
+    ``C``: the output map (n_q, n_pos) (a structure's mode shapes U).  σ_q² = Σ_ij C_qi C_qj P_ij
+    is one matrix product per block of ``block`` epochs, P's rows (flattened) times the
+    (n_pos², n_q) matrix of the products C_qi C_qj; each block is copied to a contiguous array
+    first, so the numbers do not depend on the memory layout of ``P_pos`` (a strided view of the
+    filter's (N, n, n) series or a contiguous array read back) and there is no full-size temporary.
+    With C = I the diagonal itself (NaN where a displacement has no covariance)."""
+    C = np.array(C, dtype=float, order="C")           # a fresh array: the products do not depend on where C came from
+    if _is_identity(C):
+        return np.sqrt(np.maximum(np.einsum("nii->ni", np.asarray(P_pos, dtype=float)), 0.0))
+    nq, m = C.shape
+    K = np.ascontiguousarray((C[:, :, None] * C[:, None, :]).reshape(nq, m * m).T)     # (m², n_q)
+    out = np.empty((P_pos.shape[0], nq))
+    for a in range(0, P_pos.shape[0], block):
+        Pb = np.ascontiguousarray(P_pos[a:a + block], dtype=float).reshape(-1, m * m)
+        out[a:a + block] = np.sqrt(np.maximum(Pb @ K, 0.0))
+    return out
+
+
+def _npy_load(data: bytes) -> np.ndarray:
+    import io
+
+    return np.load(io.BytesIO(data), allow_pickle=False)
+
+
+def preview_stride(time_s: np.ndarray, rate_hz: float) -> int:
+    """Every how many epochs the JSON channels get a message (1: every epoch) for ``rate_hz``."""
+    if rate_hz < 0 or not np.isfinite(rate_hz):
+        raise ValueError(f"preview rate {rate_hz!r} Hz: expected a finite rate ≥ 0 (0: every epoch)")
+    t = np.asarray(time_s, dtype=float)
+    if rate_hz == 0 or t.size < 2:
+        return 1
+    period_s = float(np.median(np.diff(t)))
+    return max(int(round(1.0 / (rate_hz * period_s))), 1) if period_s > 0 else 1
+
+
+def series_derived(C: np.ndarray, x_pos: np.ndarray, P_pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """q = x_pos Cᵀ (N, n_q) and its 1-σ (N, n_q) from x_pos (N, n_pos) and P_pos (N, n_pos, n_pos):
+    what the writer puts in the JSON channels and the reader returns (the same function on the same
+    arrays)."""
+    return series_q(C, x_pos), coordinate_sigma(C, P_pos)
+
+
+def series_q(C: np.ndarray, x_pos: np.ndarray) -> np.ndarray:
+    """q = x_pos Cᵀ (N, n_q) from x_pos (N, n_pos); with C = I a copy of x_pos (NaN stays in its own
+    coordinate)."""
+    C = np.asarray(C, dtype=float)
+    if _is_identity(C):
+        return np.array(x_pos, dtype=float)
+    return np.ascontiguousarray(x_pos, dtype=float) @ C.T
+
+
+def rows_q(C: np.ndarray, x_pos: np.ndarray) -> np.ndarray:
+    """q = x_pos Cᵀ (k, n_q) computed row by row in a fixed order (:func:`cdgps_cli.core.rowmath.rows_matmul`),
+    so a chunk of epochs gives the same bits as the whole record; with C = I a copy of x_pos."""
+    from cdgps_cli.core.rowmath import rows_matmul  # noqa: PLC0415
+
+    C = np.asarray(C, dtype=float)
+    if _is_identity(C):
+        return np.array(x_pos, dtype=float)
+    return rows_matmul(x_pos, C.T)
+
+
+def _triu(P: np.ndarray, block: int = 1024) -> np.ndarray | None:
+    """(N, m(m+1)/2) upper triangles of exactly symmetric (N, m, m) matrices, else None."""
+    i, j = np.triu_indices(P.shape[1])
+    for a in range(0, P.shape[0], block):
+        Pb = P[a:a + block]
+        if not (Pb[:, i, j] == Pb[:, j, i]).all():
+            return None
+    return P[:, i, j]
+
+
+def _from_triu(T: np.ndarray, m: int) -> np.ndarray:
+    """Inverse of :func:`_triu`: symmetric (N, m, m)."""
+    i, j = np.triu_indices(m)
+    if T.ndim != 2 or T.shape[1] != i.size:
+        raise ValueError(f"P_xi_triu of shape {list(T.shape)}: expected (N, {i.size}) for {m} modes")
+    P = np.empty((T.shape[0], m, m))
+    P[:, i, j] = T
+    P[:, j, i] = T
+    return P
+
+
+def _attach_series(out: McapOut, topic: str, ss: StateSeries, ser: Series, sigma_q: np.ndarray,
+                   with_P_pos: bool, full: bool) -> None:
+    """The packed arrays of one state series (:mod:`cdgps_cli.io.states_layout`)."""
+    npos, X = ss.n_pos, ser.x
+    key = f"{PACKED_PREFIX}{topic}/"
+    out.attach_packed(key + "time_s", np.asarray(ser.time_s, dtype=float))
+    out.attach_packed(key + "xi", X[:, :npos], STATE_DELTA)            # (packing copies what it differences)
+    if ss.n_rate and full:                          # no cdgps command reads ξ̇: every epoch on request only
+        out.attach_packed(key + "xidot", X[:, npos:npos + ss.n_rate], STATE_DELTA)
+    for name, arr in sorted(ser.extra.items()):
+        out.attach_packed(key + name, np.asarray(arr))
+    if full and ser.P.shape[1] > npos:
+        out.attach_packed(key + "P", ser.P, STATE_DELTA)
+    if not with_P_pos:
+        out.attach_packed(key + "sigma_q", sigma_q, STATE_DELTA)
+        return
+    P_pos = ser.P[:, :npos, :npos]
+    T = _triu(P_pos)
+    if T is None:
+        out.attach_packed(key + "P_xi", P_pos, STATE_DELTA)
+    else:
+        out.attach_packed(key + "P_xi_triu", T, STATE_DELTA, overwrite=True)     # T: a new array
+
+
+def _write_state_messages(out: McapOut, ch: int, names, sel, ser: Series, q, sq, npos: int, nrate: int,
+                          with_P: bool, pick=None) -> None:
+    """The Foxglove JSON messages of one state series at the epochs ``sel``; ``q`` is the coordinates
+    already there (picked once by the caller, who also draws the angles from it), ``pick(a)`` gives the
+    motion (ξ, ξ̇) there (default ``a[sel]``; anti-aliased by :func:`write_states`'s ``preview``)."""
+    pick = pick or (lambda a: a[sel])
+    X = pick(ser.x[:, :npos + nrate])
+    blocks = [q, sq[sel], X[:, :npos]] + ([X[:, npos:npos + nrate]] if nrate else []) + \
+        ([ser.P[sel, :npos, :npos].reshape(len(sel), -1)] if with_P else [])
+    nq = len(names)
+    cuts = np.cumsum([0, nq, nq, npos] + ([nrate] if nrate else []) + ([npos * npos] if with_P else []))
+    keys = ["xi"] + (["xidot"] if nrate else []) + (["P_xi"] if with_P else [])
+    for t, row in zip(np.asarray(ser.time_s, dtype=float)[sel].tolist(), np.hstack(blocks).tolist()):
+        msg = {"q": dict(zip(names, row[:nq])), "sigma_q": dict(zip(names, row[nq:2 * nq]))}
+        for key, a, b in zip(keys, cuts[2:-1].tolist(), cuts[3:].tolist()):
+            msg[key] = row[a:b]
+        msg["smoothed"] = ser.smoothed
+        out.write(ch, t, msg)
+
+
+def _write_residuals(out: McapOut, ss: StateSeries, time_s, sel) -> None:
+    """Residuals, NIS and dof: every epoch packed, the JSON channel at the epochs ``sel``."""
+    # float32 (7 significant digits: nm on cm-level residuals) keeps the file within its RUN's size;
+    # the JSON messages carry the float64 values
+    out.attach_packed(RESIDUAL_PACKED + "residual_m", np.asarray(ss.residual_m, dtype=np.float32))
+    out.attach_packed(RESIDUAL_PACKED + "nis", np.asarray(ss.nis, dtype=float))
+    out.attach_packed(RESIDUAL_PACKED + "nis_dof", np.asarray(ss.nis_dof, dtype=np.int64))
+    out.attach(RESIDUAL_PACKED + "channels.json", json.dumps([list(c) for c in ss.residual_channels]).encode(),
+               "application/json")
+    ch = out.channel(RESIDUAL_TOPIC, RESIDUAL_SCHEMA)
+    ants = [c[0] for c in ss.residual_channels]
+    txs = [c[1] for c in ss.residual_channels]
+    R = np.asarray(ss.residual_m, dtype=float)[sel]
+    used = ~np.isnan(R)
+    every = used.all(axis=1).tolist()
+    nis = np.asarray(ss.nis, dtype=float)[sel]
+    nis_list = [None if bad else v for bad, v in zip(np.isnan(nis).tolist(), nis.tolist())]
+    dof = [int(d) for d in np.asarray(ss.nis_dof)[sel].tolist()]
+    for i, (t, r) in enumerate(zip(np.asarray(time_s, dtype=float)[sel].tolist(), R.tolist())):
+        if every[i]:
+            a, x = ants, txs
+        else:                                          # the channels used at this epoch
+            u = used[i].tolist()
+            a = [v for v, ok in zip(ants, u) if ok]
+            x = [v for v, ok in zip(txs, u) if ok]
+            r = [v for v, ok in zip(r, u) if ok]
+        out.write(ch, t, {"antenna": a, "transmitter": x, "residual_m": r, "nis": nis_list[i], "nis_dof": dof[i]})
+
+
+def _description(ss: StateSeries) -> bytes:
+    """The :data:`SERIES_ATTACHMENT` of ``ss`` (what the reader needs besides the arrays)."""
+    return json.dumps({
+        "format": STATES_FORMAT, "kind": ss.kind, "coord_names": list(ss.coord_names),
+        "coord_units": list(ss.coord_units), "n_pos": ss.n_pos, "n_rate": int(ss.n_rate),
+        "wavelength_m": float(ss.wavelength_m),
+        "series": {t: {"smoothed": bool(v.smoothed), "extra": sorted(v.extra), "messages": bool(v.messages)}
+                   for t, v in ss.series.items()},
+    }, sort_keys=True, indent=1).encode()
+
+
+def provenance(run_path: str | Path, init_text: str, run_sha256: str | None = None) -> dict:
+    """The RUN and INIT part of the ``cdgps.estimate`` metadata: file name and sha256 of each
+    (``run_sha256``: the RUN's, when the caller has already hashed it)."""
+    run_sha256 = run_sha256 or hashlib.sha256(Path(run_path).read_bytes()).hexdigest()
+    return {"run": Path(run_path).name, "run_sha256": run_sha256,
+            "init_sha256": hashlib.sha256(init_text.encode()).hexdigest()}
+
+
+def write_states(ss: StateSeries, out_path: str | Path, metadata: dict, attachments: dict, *,
+                 time_scale: str = "relative", covariance: str = DEFAULT_COVARIANCE,
+                 preview_rate_hz: float = DEFAULT_PREVIEW_RATE_HZ, angles=(), preview=None) -> dict:
+    """Write an estimate of any kind to STATES.mcap atomically; returns a summary.
+
+    The stage functions building ``ss`` are :func:`cdgps_cli.pipeline.estimate_outputs.write_states`
+    (a structure, pseudolite or GNSS run) and :func:`cdgps_cli.pipeline.gnss.gnss_estimate`
+    (displacements); this module imports no numerics.
+
+    Parameters
+    ----------
+    ss : StateSeries
+        The estimate; ``ss.series[STATE_TOPIC]`` is the one reported.
+    out_path : path
+    metadata : dict of str to str
+        The ``cdgps.estimate`` metadata (provenance, options, final biases, …); the writer adds
+        ``covariance``, ``arrays`` and ``json_channels_every_epochs``.
+    attachments : dict of str to (bytes, str)
+        Further attachments by name: content and media type (``config.toml``, ``init.json``, …).
+    time_scale : {"relative", "gps"}
+        Time scale of the series' ``time_s`` (:mod:`cdgps_cli.core.timescales`).
+    covariance : {"modal", "full"}
+        ``"modal"``: the position covariance P_ξ (n_pos×n_pos) per epoch of every series but the
+        forward filter of a smoothed run (of it, its 1-σ of q only); ``"full"``: also the rates ξ̇
+        of every epoch, the whole state covariance P of every series that has it, P_ξ of every
+        series, and P_ξ in the JSON messages.
+    preview_rate_hz : float
+        Rate of the Foxglove JSON channels, Hz (0: every epoch); see :data:`DEFAULT_PREVIEW_RATE_HZ`.
+    angles : list of (str, str, ndarray (n_q,))
+        The :data:`ANGLES_TOPIC` channel's angles: name, expression, coefficients (rad per
+        coordinate unit); empty: no such channel.
+    preview : callable, optional
+        ``preview(a, stride) -> a at epochs 0, stride, …`` for the motion in the JSON channels
+        (q, ξ, ξ̇ and the angles), e.g. :func:`cdgps_cli.analysis.preview.anti_alias_decimate`
+        (low-pass filtered first: no alias of a mode above the preview's Nyquist frequency);
+        default: the samples themselves.  Sigmas, covariances and residuals are sampled.
+    """
+    if covariance not in COVARIANCE_CHOICES:
+        raise ValueError(f"covariance {covariance!r}: expected one of {', '.join(COVARIANCE_CHOICES)}")
+    est = ss.series[STATE_TOPIC]
+    names, C, full = list(ss.coord_names), np.asarray(ss.output_map, dtype=float), covariance == "full"
+    time_s = np.asarray(est.time_s, dtype=float)
+    stride = preview_stride(time_s, preview_rate_hz)
+    sel = np.arange(0, len(time_s), stride)
+    meta = dict(metadata, covariance=covariance, arrays="packed (cdgps_cli.io.packed_arrays), every epoch",
+                json_channels_every_epochs=str(stride))
+    if preview is not None and stride > 1:
+        meta["json_channels_filter"] = "low-pass before decimation (cdgps_cli.analysis.preview)"
+    pick = None if preview is None or stride == 1 else (lambda a: preview(a, stride))
+    nullable = bool(np.isnan(est.x[:, :ss.n_pos]).any())
+    schema = _state_schema(names, full, ss.n_rate > 0, nullable)
+    with McapOut(out_path, time_scale=time_scale) as out, \
+            progress.bar(len(ss.series) + 1, f"writing {Path(out_path).name}", "series") as bar:
+        out.pack_in_background()            # a series' arrays are packed while its JSON messages are built
+        for topic, ser in ss.series.items():
+            P_pos = ser.P[:, :ss.n_pos, :ss.n_pos]                 # a view: no full-size copy
+            q, sq = series_derived(C, ser.x[:, :ss.n_pos], P_pos)   # as the reader computes them
+            # P_ξ of every series but the forward filter of a smoothed run (its 1-σ only), unless full
+            _attach_series(out, topic, ss, ser, sq, with_P_pos=topic != STATE_FILTERED_TOPIC or full, full=full)
+            q_prev = None            # the preview's coordinates: filtered (or picked) once for the messages and angles
+            if ser.messages or (topic == STATE_TOPIC and angles):
+                q_prev = q[sel] if pick is None else pick(q)
+            if ser.messages:
+                _write_state_messages(out, out.channel(topic, schema), names, np.arange(0, len(ser.time_s), stride),
+                                      ser, q_prev, sq, ss.n_pos, ss.n_rate, full, pick)
+            if topic == STATE_TOPIC:
+                _write_angles(out, C, angles, time_s[sel], q_prev, P_pos[sel])
+            out.write_packed()              # written before the next series: one series' arrays at a time
+            del q, sq, P_pos
+            bar.update()
+        _write_residuals(out, ss, time_s, sel)
+        out.write_packed()
+        bar.update()
+        ch = out.channel(EVENT_TOPIC, event_schema(ss.events))
+        for ev in ss.events:
+            out.write(ch, ev["time_s"], {k: v for k, v in ev.items() if k != "time_s"})
+        out.attach(SERIES_ATTACHMENT, _description(ss), "application/json")
+        out.attach_packed(OUTPUT_MAP_PACKED, C)
+        for name, (data, media) in attachments.items():
+            out.attach(name, data, media)
+        out.metadata(ESTIMATE_METADATA, meta)
+    nis_ok = ss.nis_dof > 0
+    return {"output": str(out_path), "epochs": int(len(time_s)), "start_s": float(time_s[0]),
+            "end_s": float(time_s[-1]), "smoothed": bool(est.smoothed), "events": len(ss.events),
+            "covariance": covariance, "json_channels_every_epochs": stride,
+            "mean_nis_per_dof": float(np.nanmean(ss.nis[nis_ok] / ss.nis_dof[nis_ok])) if nis_ok.any() else None,
+            "event_list": ss.events}
+
+
+def _legacy_description(cfg: StructureConfig, meta: dict) -> dict:
+    """The description of a file written before :data:`SERIES_ATTACHMENT` (from its config.toml:
+    a structure's own, or the displacement model a GNSS estimate wrote in the structure form)."""
+    names = list(cfg.coord_names)
+    if meta.get("kind") == "gnss":
+        return {"kind": "displacement", "coord_names": names, "coord_units": ["m"] * len(names),
+                "n_pos": len(names), "n_rate": 0, "wavelength_m": cfg.wavelength_m, "output_map": np.eye(len(names))}
+    return {"kind": "structure", "coord_names": names, "coord_units": [cfg.coord_unit(n) for n in names],
+            "n_pos": cfg.n_modes, "n_rate": cfg.n_modes, "wavelength_m": cfg.wavelength_m,
+            "output_map": np.asarray(cfg.mode_shapes, dtype=float)}
+
+
+class States:
+    """A STATES.mcap of any kind read back: coordinates, times, q, sigma_q, states, covariances, events.
+
+    Attributes
+    ----------
+    kind : {"structure", "displacement"}
+    cfg : StructureConfig or None
+        The structure config (None for GNSS displacement states).
+    coord_names, coord_units : list of str (n_q,)
+    output_map : (n_q, n_pos) — q = C ξ; n_pos : int; wavelength_m : float (m)
+    time_s : (N,) s
+    q, sigma_q : (N, n_q) coordinate units (m or rad)
+    xi : (N, n_pos); xidot : (N, n_pos) or None (no rates; files written without ``--covariance full``
+        since 2026-12-03, or before the packed arrays)
+    P_xi : (N, n_pos, n_pos) or None (the forward filter of a smoothed run, unless ``--covariance full``)
+    P : (N, n, n) or None (only with ``--covariance full``)
+    extra : dict of str to ndarray (N, ...) — the series' further arrays (e.g. ``n_sat``, ``pdop``)
+    nis, nis_dof : (N,) or None (``diagnostics=False``)
+    events : list of dict; metadata : dict (``cdgps.estimate``)
+    """
+
+    def __init__(self, path: str | Path, topic: str = STATE_TOPIC, diagnostics: bool = True):
+        c = read_mcap(path, topics=[EVENT_TOPIC] if diagnostics else [])
+        self.path = str(path)
+        if "cdgps.ingest" in c.metadata:
+            raise CdgpsError(f"{path}: this is a RUN.mcap (from 'cdgps ingest'), not a STATES.mcap from 'cdgps estimate'")
+        if CONFIG_ATTACHMENT not in c.attachments and SERIES_ATTACHMENT not in c.attachments:
+            raise CdgpsError(f"{path}: no {SERIES_ATTACHMENT} or config attachment; is this a STATES.mcap from "
+                             f"'cdgps estimate'?")
+        what = "STATES.mcap from 'cdgps estimate'"
+        self.metadata = c.require_metadata(ESTIMATE_METADATA, what)
+        if diagnostics:
+            c.require_channels(RESIDUAL_TOPIC, EVENT_TOPIC, what=what)
+        self._describe(c.attachments)
+        self.xidot = self.P = None
+        self.extra = {}
+        key = f"{PACKED_PREFIX}{topic}/"
+        if key + "time_s" in c.attachments:                # packed arrays (every epoch)
+            self._read_packed(c.attachments, key, topic)
+        elif key + "time_s.npy" in c.attachments:        # .npy attachments (older files)
+            self._read_npy(c.attachments, key)
+        else:                                             # messages only (oldest files)
+            self._read_messages(topic)
+        self.nis = self.nis_dof = None
+        if diagnostics and topic in (STATE_TOPIC, STATE_FILTERED_TOPIC):    # (not the single-epoch solutions)
+            self._read_diagnostics(c)
+        ev = c.topics.get(EVENT_TOPIC)
+        self.events = []
+        if ev:
+            for i, t in enumerate(ev.times()):
+                self.events.append({"time_s": float(t), **{k: ev.scalars[k][i] for k in ev.scalars if k != "time_s"}})
+
+    @property
+    def config_name(self) -> str:
+        """Name of the config the estimate was made with (the structure's, or the GNSS run's)."""
+        return self.cfg.name if self.cfg is not None else self.metadata.get("config_name", "")
+
+    @property
+    def config_sha256(self) -> str:
+        return self.cfg.sha256 if self.cfg is not None else self.metadata.get("config_sha256", "")
+
+    def coordinate_model(self):
+        """The structure config, or for states without one (GNSS displacements) their
+        :class:`~cdgps_cli.core.records.CoordinateModel` (names and units, no modes, no gyros)."""
+        if self.cfg is not None:
+            return self.cfg
+        return CoordinateModel(self.config_name, self.config_sha256, tuple(self.coord_names), tuple(self.coord_units))
+
+    def _describe(self, att: dict) -> None:
+        """kind, cfg, coordinates, output map and wavelength, from the description or the config."""
+        cfg = None
+        if CONFIG_ATTACHMENT in att:
+            cfg = parse_config(att[CONFIG_ATTACHMENT].decode(), f"{self.path}:{CONFIG_ATTACHMENT}")
+        if SERIES_ATTACHMENT in att:
+            from cdgps_cli.io.packed_arrays import unpack  # noqa: PLC0415
+
+            try:
+                d = json.loads(att[SERIES_ATTACHMENT])
+                d["output_map"] = unpack(att[OUTPUT_MAP_PACKED], f"{self.path}: {OUTPUT_MAP_PACKED}")
+                if d["output_map"].shape != (len(d["coord_names"]), d["n_pos"]) or d["kind"] not in STATES_KINDS:
+                    raise ValueError(f"output map of shape {list(d['output_map'].shape)} for {len(d['coord_names'])} "
+                                     f"coordinates and {d['n_pos']} positions, kind {d['kind']!r}")
+            except (KeyError, TypeError, ValueError) as exc:
+                raise CdgpsError(f"{self.path}: damaged {SERIES_ATTACHMENT} / {OUTPUT_MAP_PACKED}: {exc}") from None
+        else:
+            d = _legacy_description(cfg, self.metadata)
+        self.kind = d["kind"]
+        self.cfg = cfg if self.kind == "structure" else None
+        self.coord_names, self.coord_units = list(d["coord_names"]), list(d["coord_units"])
+        self.output_map, self.n_pos, self.n_rate = d["output_map"], int(d["n_pos"]), int(d["n_rate"])
+        self.wavelength_m = float(d["wavelength_m"])
+        self._series = d.get("series", {})
+
+    def require_structure(self, what: str) -> StructureConfig:
+        """The structure config, or a CdgpsError saying ``what`` needs a structure's STATES."""
+        if self.cfg is None:
+            raise CdgpsError(f"{self.path}: {what} needs the STATES.mcap of a structure (modal states); this one "
+                             f"holds {self.kind} states ({', '.join(self.coord_names)})")
+        return self.cfg
+
+    def _read_packed(self, att: dict, key: str, topic: str) -> None:
+        from cdgps_cli.io.packed_arrays import unpack  # noqa: PLC0415
+
+        npos = self.n_pos
+
+        def get(name):
+            return unpack(att[key + name], f"{self.path}: {key}{name}")
+        try:
+            self.time_s = get("time_s").astype(float, copy=False)
+            N = self.time_s.shape[0]
+            self.xi = get("xi").reshape(N, npos)
+            if key + "xidot" in att:
+                self.xidot = get("xidot").reshape(N, -1)
+            self.P_xi = sigma_q = None
+            if key + "P_xi_triu" in att:
+                self.P_xi = _from_triu(get("P_xi_triu"), npos)
+            elif key + "P_xi" in att:
+                self.P_xi = get("P_xi").reshape(N, npos, npos)
+            else:                                         # a forward filter stored with its 1-σ only
+                sigma_q = get("sigma_q").reshape(N, -1)
+            if key + "P" in att:
+                self.P = get("P")
+                if self.P.ndim != 3 or self.P.shape[0] != N:
+                    raise ValueError(f"P of shape {list(self.P.shape)} for {N} epochs")
+            for name in self._series.get(topic, {}).get("extra", []):
+                self.extra[name] = get(name)
+                if self.extra[name].shape[:1] != (N,):
+                    raise ValueError(f"{name} of shape {list(self.extra[name].shape)} for {N} epochs")
+        except (KeyError, ValueError) as exc:
+            raise CdgpsError(f"{self.path}: damaged state arrays ({key}*): {exc}") from None
+        if self.time_s.ndim != 1:
+            raise CdgpsError(f"{self.path}: damaged state arrays ({key}time_s of shape {list(self.time_s.shape)})")
+        if self.P_xi is None:
+            self.q, self.sigma_q = series_q(self.output_map, self.xi), sigma_q
+        else:
+            self.q, self.sigma_q = series_derived(self.output_map, self.xi, self.P_xi)
+
+    def _read_npy(self, att: dict, key: str) -> None:
+        try:
+            self.time_s = _npy_load(att[key + "time_s.npy"])
+            self.q = _npy_load(att[key + "q.npy"])
+            self.sigma_q = _npy_load(att[key + "sigma_q.npy"])
+            self.xi = _npy_load(att[key + "xi.npy"])
+            self.P_xi = _npy_load(att[key + "P_xi.npy"])
+            for name in sorted(att):                      # a GNSS run's kinematic n_sat, pdop
+                stem = name[len(key):-len(".npy")] if name.startswith(key) and name.endswith(".npy") else None
+                if stem and stem not in ("time_s", "q", "sigma_q", "xi", "P_xi"):
+                    self.extra[stem] = _npy_load(att[name])
+        except (KeyError, ValueError, OSError) as exc:
+            raise CdgpsError(f"{self.path}: damaged state arrays attachment: {exc}") from None
+
+    def _read_messages(self, topic: str) -> None:
+        tc = read_mcap(self.path, topics=[topic]).topics.get(topic)
+        if tc is None:
+            raise CdgpsError(f"{self.path}: no {topic} messages; is this a STATES.mcap from 'cdgps estimate'?")
+        nm = self.n_pos
+        self.time_s = tc.times()
+        names = list(self.coord_names)
+        nan = float("nan")                            # a coordinate left out (no solution): NaN
+        self.q = np.array([[_num(m.get(n, nan)) for n in names] for m in tc.scalars["q"]], dtype=float)
+        self.sigma_q = np.array([[_num(m.get(n, nan)) for n in names] for m in tc.scalars["sigma_q"]], dtype=float)
+        N = len(self.time_s)
+        self.xi = tc.column("xi").reshape(N, nm)
+        self.P_xi = tc.column("P_xi").reshape(N, nm, nm)
+
+    def _read_diagnostics(self, c) -> None:
+        """NIS and its dof per epoch: packed arrays, or the residual messages of older files."""
+        from cdgps_cli.io.packed_arrays import unpack  # noqa: PLC0415
+
+        N = len(self.time_s)
+        if RESIDUAL_PACKED + "nis" in c.attachments:
+            try:
+                self.nis = unpack(c.attachments[RESIDUAL_PACKED + "nis"], f"{self.path}: {RESIDUAL_PACKED}nis")
+                self.nis_dof = unpack(c.attachments[RESIDUAL_PACKED + "nis_dof"],
+                                      f"{self.path}: {RESIDUAL_PACKED}nis_dof").astype(float)
+            except (KeyError, ValueError) as exc:
+                raise CdgpsError(f"{self.path}: damaged residual arrays ({RESIDUAL_PACKED}*): {exc}") from None
+            if self.nis.shape != (N,) or self.nis_dof.shape != (N,):
+                raise CdgpsError(f"{self.path}: {self.nis.size} NIS value(s) for {N} epoch(s) (damaged file)")
+            return
+        res = read_mcap(self.path, topics=[RESIDUAL_TOPIC]).topics.get(RESIDUAL_TOPIC)
+        if len(res or ()) != N:
+            raise CdgpsError(f"{self.path}: {len(res or ())} {RESIDUAL_TOPIC} message(s) for {N} epoch(s); "
+                             f"'cdgps estimate' writes one per epoch (damaged file)")
+        # NIS is left out of a message without one (the window's epochs): all of them on a run that is
+        # one INIT window, so the column may be missing altogether
+        nis = res.scalars.get("nis") or [None] * len(res.scalars["nis_dof"])
+        self.nis = np.array([np.nan if v is None else v for v in nis], dtype=float)
+        self.nis_dof = np.asarray(res.scalars["nis_dof"], dtype=float)
+
+
+def _num(v) -> float:
+    return float("nan") if v is None else v
+
+
+class StatesChunks:
+    """A STATES.mcap's description and one state series read in consecutive chunks of epochs.
+
+    The same description as :class:`States` (``kind``, ``cfg``, ``coord_names``, ``coord_units``,
+    ``output_map``, ``n_pos``, ``metadata``, :meth:`coordinate_model`), without loading the series:
+    the file's integrity is checked as :func:`cdgps_cli.io.mcap.read_mcap` checks it, then only
+    ``time_s`` and ``xi`` of ``topic`` are decompressed, in pieces, into unlinked temporary files
+    (:class:`cdgps_cli.io.packed_arrays.PackedRows`), so memory does not grow with the record.
+    Files of the earlier layouts (no packed arrays) are read whole by :class:`States` and cut.
+
+    Parameters
+    ----------
+    path : path
+    topic : str
+        The series (default :data:`STATE_TOPIC`).
+
+    Attributes
+    ----------
+    n_epochs : int
+    """
+
+    _describe = States._describe
+    coordinate_model = States.coordinate_model
+    require_structure = States.require_structure
+    config_name = States.config_name
+    config_sha256 = States.config_sha256
+
+    def __init__(self, path: str | Path, topic: str = STATE_TOPIC):
+        from cdgps_cli.io.mcap import _check_attachment_crcs, open_verified  # noqa: PLC0415
+        from cdgps_cli.io.packed_arrays import PackedRows  # noqa: PLC0415
+
+        self.path = str(path)
+        self._arrays, self._whole = {}, None
+        key = f"{PACKED_PREFIX}{topic}/"
+        with open_verified(path) as (_reader, fh, info, summary):
+            if "cdgps.ingest" in info.metadata:
+                raise CdgpsError(f"{path}: this is a RUN.mcap (from 'cdgps ingest'), not a STATES.mcap from "
+                                 f"'cdgps estimate'")
+            if not info.data_section_crc_checked:
+                _check_attachment_crcs(fh, summary, path, zero_ok=False)
+            spans = attachment_spans(fh, summary, path)
+            if CONFIG_ATTACHMENT not in spans and SERIES_ATTACHMENT not in spans:
+                raise CdgpsError(f"{path}: no {SERIES_ATTACHMENT} or config attachment; is this a STATES.mcap from "
+                                 f"'cdgps estimate'?")
+            if ESTIMATE_METADATA not in info.metadata:
+                raise CdgpsError(f"{path}: no {ESTIMATE_METADATA!r} metadata record; expected in a STATES.mcap from "
+                                 f"'cdgps estimate' (damaged or not written by cdgps)")
+            self.metadata = info.metadata[ESTIMATE_METADATA]
+            small = {n: read_span(fh, *spans[n])(spans[n][1]) for n in (CONFIG_ATTACHMENT, SERIES_ATTACHMENT,
+                                                                     OUTPUT_MAP_PACKED) if n in spans}
+            self._describe(small)
+            if key + "time_s" not in spans:
+                self._whole = States(path, topic, diagnostics=False)
+                self.n_epochs = len(self._whole.time_s)
+                return
+            try:
+                for name in ("time_s", "xi"):
+                    self._arrays[name] = PackedRows(read_span(fh, *spans[key + name]), spans[key + name][1],
+                                                    f"{path}: {key}{name}")
+            except (KeyError, ValueError) as exc:
+                self.close()
+                raise CdgpsError(f"{path}: damaged state arrays ({key}*): {exc}") from None
+        t, xi = self._arrays["time_s"], self._arrays["xi"]
+        self.n_epochs = t.n_rows
+        if len(t.shape) != 1 or xi.shape[:1] != (t.n_rows,) or xi.m != self.n_pos:
+            self.close()
+            raise CdgpsError(f"{path}: damaged state arrays ({key}time_s of shape {list(t.shape)}, xi of shape "
+                             f"{list(xi.shape)} for {self.n_pos} positions)")
+
+    def close(self) -> None:
+        """Remove the temporary files (also when the object is collected)."""
+        for a in self._arrays.values():
+            a.close()
+
+    def __enter__(self) -> "StatesChunks":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def chunks(self, epochs: int):
+        """Consecutive chunks ``(time_s (k,), q (k, n_q))`` of at most ``epochs`` epochs, first to
+        last; q = ξ Cᵀ by :func:`rows_q` (the same bits however the record is cut).  Every call
+        starts again from the first epoch."""
+        if self._whole is not None:
+            w = self._whole
+            for a in range(0, self.n_epochs, epochs):
+                yield w.time_s[a:a + epochs], w.q[a:a + epochs]          # (as States reads them)
+            return
+        for t, xi in zip(self._arrays["time_s"].chunks(epochs), self._arrays["xi"].chunks(epochs)):
+            yield t.astype(float, copy=False), rows_q(self.output_map, xi.reshape(len(t), self.n_pos))
+
+
+def reference_anti_alias_decimate(x, stride):
+    """cdgps_cli.analysis.preview.anti_alias_decimate as of commit 6b76c01 (whole arrays)."""
+    from cdgps_cli.analysis.preview import preview_filter
+    from scipy.signal import upfirdn
+
+    def filtered(x):
+        h = preview_filter(stride)
+        half = (h.size - 1) // 2
+        padded = np.concatenate([np.repeat(x[:1], half, axis=0), x, np.repeat(x[-1:], half, axis=0)])
+        y = upfirdn(h, padded, up=1, down=stride, axis=0)
+        first = 2 * half // stride
+        return y[first:first + len(range(0, x.shape[0], stride))]
+
+    x = np.asarray(x, dtype=float)
+    if stride <= 1 or x.shape[0] == 0:
+        return x.copy()
+    out = x[::stride].copy()
+    finite = np.isfinite(x.reshape(x.shape[0], -1)).all(axis=1)
+    edges = np.flatnonzero(np.diff(np.r_[0, finite.astype(np.int8), 0]))
+    for a, b in zip(edges[::2], edges[1::2]):
+        k0 = -(-a // stride) * stride
+        if k0 < b:
+            out[k0 // stride:k0 // stride + len(range(k0, b, stride))] = filtered(x[k0:b])
+    return out

@@ -1,0 +1,257 @@
+"""What is done with a structure estimate: written to STATES.mcap, exported as CSV, evaluated.
+
+* :func:`write_states` — the ``cdgps estimate`` output: :func:`cdgps_cli.io.states.write_states`
+  with the structure's section angles (:func:`cdgps_cli.model.kinematics.section_angles`) for the
+  ``/cdgps/angles_deg`` channel;
+* :func:`export_csv` — ``cdgps export``: coordinates, their 1-σ and, on request, displacements of
+  named points (:mod:`cdgps_cli.model.points`; a structure's STATES only);
+* :func:`evaluate` — ``cdgps evaluate``: RMS error, NEES, NIS and bias errors against simulator truth
+  (any kind of STATES: NEES on the positions ξ through the output map).
+
+The file formats are in :mod:`cdgps_cli.io.states` (which imports no numerics); this module is the
+stage layer that joins them with the model.
+"""
+
+from __future__ import annotations
+
+# Reference copy of cdgps_cli/pipeline/estimate_outputs.py as of commit 61fdc1c (export and evaluate of the
+# whole record in memory, before issue 29 streamed them): tests/pipeline/test_outputs_stream.py compares.
+# Not used by cdgps itself.
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from cdgps_cli import __version__
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.core.records import Series, StateSeries
+from cdgps_cli.io import states as states_io
+from cdgps_cli.io.atomic import write_atomic
+from cdgps_cli.io.mcap import CONFIG_ATTACHMENT
+from cdgps_cli.io.states import ESTIMATE_METADATA, INIT_ATTACHMENT, STATE_FILTERED_TOPIC, STATE_TOPIC, States
+from cdgps_cli.io.states_layout import DEFAULT_COVARIANCE, DEFAULT_PREVIEW_RATE_HZ
+
+__all__ = ["structure_series", "write_states", "export_csv", "evaluate"]
+
+
+def structure_series(res) -> StateSeries:
+    """The :class:`~cdgps_cli.core.records.StateSeries` of a structure estimate ``res``
+    (:class:`cdgps_cli.estimation.filter.EstimateResult` or the same fields): q = U ξ, x = [ξ, ξ̇, …],
+    the smoother's and the forward filter's series when smoothed."""
+    cfg = res.cfg
+    series = {STATE_TOPIC: Series(res.time_s, res.x, res.P, bool(res.smoothed))}
+    if res.smoothed:
+        series[STATE_FILTERED_TOPIC] = Series(res.time_s, res.x_filt, res.P_filt, False)
+    names = list(cfg.coord_names)
+    return StateSeries("structure", names, [cfg.coord_unit(n) for n in names], np.asarray(cfg.mode_shapes, dtype=float),
+                       cfg.n_modes, series, list(res.channels), res.residual_m, res.nis, res.nis_dof, res.events,
+                       cfg.wavelength_m)
+
+
+def write_states(res, run_path: str | Path, init: dict, init_text: str, out_path: str | Path, options: dict,
+                 covariance: str = DEFAULT_COVARIANCE, preview_rate_hz: float | None = None,
+                 run_sha256: str | None = None) -> dict:
+    """Write the structure estimate ``res`` to STATES.mcap atomically; returns the writer's summary.
+
+    Parameters
+    ----------
+    res
+        The estimate (:class:`cdgps_cli.estimation.filter.EstimateResult` or the same fields).
+    run_path, init, init_text, options
+        Provenance recorded in the ``cdgps.estimate`` metadata.
+    out_path : path
+    covariance, preview_rate_hz
+        As :func:`cdgps_cli.io.states.write_states`; the section angles of ``res.cfg``
+        (:func:`cdgps_cli.model.kinematics.section_angles`) make its ``/cdgps/angles_deg`` channel.
+        The preview's motion is low-pass filtered before decimation
+        (:func:`cdgps_cli.analysis.preview.anti_alias_decimate`); ``preview_rate_hz`` None: the rate
+        from the config's highest mode (:func:`preview_rate_hz_for`).
+    run_sha256 : str, optional
+        The RUN's sha256 when the caller has it (``cdgps estimate`` hashed the RUN to check the
+        INIT pairing); else the RUN is hashed here.
+    """
+    from cdgps_cli.model.kinematics import section_angles  # noqa: PLC0415
+    from cdgps_cli.io.run import run_kind  # noqa: PLC0415 (a structure estimated on a GNSS run: GPS time)
+
+    cfg = res.cfg
+    meta = {"cdgps_version": __version__, "created_by": "cdgps estimate", "config_name": cfg.name,
+            "config_sha256": cfg.sha256, **states_io.provenance(run_path, init_text, run_sha256),
+            "options": json.dumps(options, sort_keys=True),
+            "measurement_noise": json.dumps(getattr(res, "noise", {}) or {}, sort_keys=True),
+            "final_biases": json.dumps([{"antenna": a, "transmitter": t, "bias_m": b}
+                                        for (a, t), b in res.biases.items()]),
+            "smoothed": str(res.smoothed).lower(),
+            # where the filter ran in static mode (report static says when its segment did not)
+            "rest_active_s": json.dumps(getattr(res, "rest_active_s", [])),
+            "rest_detection": json.dumps(getattr(res, "rest_detection", None))}
+    window = getattr(res, "window", None)
+    if window:
+        # epochs start_s … end_s come from INIT's batch solution (not from the filter)
+        meta["window"] = json.dumps(window, sort_keys=True)
+    attachments = {CONFIG_ATTACHMENT: (cfg.text.encode(), "application/toml"),
+                   INIT_ATTACHMENT: (init_text.encode(), "application/json")}
+    from cdgps_cli.analysis.preview import anti_alias_decimate  # noqa: PLC0415
+
+    if preview_rate_hz is None:
+        preview_rate_hz = preview_rate_hz_for(cfg, res.time_s)
+    out = states_io.write_states(structure_series(res), out_path, meta, attachments,
+                                 time_scale="gps" if run_kind(run_path) == "gnss" else "relative",
+                                 covariance=covariance, preview_rate_hz=preview_rate_hz, angles=section_angles(cfg),
+                                 preview=anti_alias_decimate)
+    out["window"] = window or None
+    return out
+
+
+def preview_rate_hz_for(cfg, time_s) -> float:
+    """Foxglove preview rate, Hz, for a structure: at least :data:`DEFAULT_PREVIEW_RATE_HZ`, and high
+    enough that the config's highest mode lies in the preview filter's passband
+    (:func:`cdgps_cli.analysis.preview.preview_stride_for_modes`): an epoch rate divided by a whole stride."""
+    from cdgps_cli.analysis.preview import preview_stride_for_modes  # noqa: PLC0415
+
+    t = np.asarray(time_s, dtype=float)
+    period_s = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    if not period_s > 0:
+        return DEFAULT_PREVIEW_RATE_HZ
+    default = states_io.preview_stride(t, DEFAULT_PREVIEW_RATE_HZ)
+    return 1.0 / (period_s * preview_stride_for_modes(period_s, cfg.mode_frequency_hz, default))
+
+
+def export_csv(states_path: str | Path, out_csv: str | Path, points: str | None = None) -> dict:
+    """Write time_s, one column per coordinate and sigma_<name> for each (lines up with truth.csv).
+
+    ``points`` (e.g. ``"antennas"``, ``"all"``, ``"a120,top"``; see
+    :func:`cdgps_cli.model.points.select_points`) adds the lab-frame displacement of those points and its
+    1-σ from J U P_ξ Uᵀ Jᵀ: columns ``<point>_d{x,y,z}_m`` and ``sigma_<point>_d{x,y,z}_m``.
+    """
+    st = States(states_path)
+    names = list(st.coord_names)
+    bad = ~np.isfinite(st.q).all(axis=1) | ~np.isfinite(st.sigma_q).all(axis=1)
+    if bad.any():
+        raise CdgpsError(f"{states_path}: {int(bad.sum())} of {len(bad)} epoch(s) with non-finite states or sigmas "
+                         f"(first at {st.time_s[np.flatnonzero(bad)[0]]:g} s); nothing written")
+    pts = None
+    if points is not None:
+        from cdgps_cli.model.points import point_columns, select_points
+
+        pts = select_points(st.require_structure("--points"), points)          # before writing: a bad name leaves no file
+    import pandas as pd  # noqa: PLC0415 (not on the path of `cdgps estimate`)
+
+    df = pd.DataFrame(st.q, columns=names)
+    for i, n in enumerate(names):
+        df["sigma_" + n] = st.sigma_q[:, i]
+    if pts is not None:
+        df = pd.concat([df, pd.DataFrame(point_columns(st.cfg, pts, st.xi, st.P_xi))], axis=1)
+    df.insert(0, "time_s", np.round(st.time_s, 9))
+    out = Path(out_csv)
+    write_atomic(out, lambda p: df.to_csv(p, index=False, lineterminator="\n"))
+    return {"output": str(out), "rows": int(len(df)), "columns": list(df.columns),
+            "points": list(pts.names) if pts is not None else []}
+
+
+def evaluate(truth_dir: str | Path, states_path: str | Path, converge_s: float = 1.0) -> dict:
+    """Compare a STATES.mcap with simulator truth (truth.csv, truth.json).
+
+    Returns RMS error per coordinate (after ``converge_s`` from the first estimate), NEES on the
+    modal positions with its chi-square 95% interval, NIS statistics, convergence time and bias errors.
+    """
+    import pandas as pd  # noqa: PLC0415 (not on the path of `cdgps estimate`)
+    from scipy.stats import chi2
+
+    from cdgps_cli.core.checks import require_finite
+
+    require_finite(converge_s, "converge_s", nonnegative=True)
+    truth_dir = Path(truth_dir)
+    csv = truth_dir / "truth.csv"
+    for alt in ("truth.csv.xz", "truth.csv.gz"):
+        if not csv.exists() and (truth_dir / alt).exists():
+            csv = truth_dir / alt
+    try:
+        truth = pd.read_csv(csv)
+        tj = json.loads((truth_dir / "truth.json").read_text())
+    except (OSError, ValueError) as exc:
+        raise CdgpsError(f"{truth_dir}: cannot read truth.csv / truth.json: {exc}") from None
+    st = States(states_path)
+    names = list(st.coord_names)
+    if tj.get("config_sha256") and tj["config_sha256"] != st.config_sha256:    # first: it explains missing columns
+        raise CdgpsError(f"--truth {truth_dir}: simulated with config {tj.get('config')!r} (sha256 "
+                         f"{str(tj['config_sha256'])[:12]}…), but {states_path} estimates config {st.config_name!r} "
+                         f"(sha256 {str(st.config_sha256)[:12]}…); give the truth of the run that was estimated")
+    missing = [n for n in ["time_s", *names] if n not in truth.columns]
+    if missing:
+        raise CdgpsError(f"{truth_dir / 'truth.csv'}: missing column(s) {', '.join(missing)}")
+    tt = np.rint(truth["time_s"].to_numpy() * 1e6).astype(np.int64)
+    te = np.rint(st.time_s * 1e6).astype(np.int64)
+    common, it, ie = np.intersect1d(tt, te, return_indices=True)
+    if common.size == 0:
+        raise CdgpsError("no common epochs between truth and estimate")
+    qt = truth[names].to_numpy()[it]
+    qe = st.q[ie]
+    se = st.sigma_q[ie]
+    time = st.time_s[ie]
+    err = qe - qt
+    after = time >= time[0] + converge_s - 1e-9
+    if after.sum() < 2:
+        raise CdgpsError(f"{states_path}: {common.size} epoch(s) in common with the truth "
+                         f"({time[0]:g}–{time[-1]:g} s), {int(after.sum())} after the first {converge_s:g} s "
+                         "(--converge-s): too short to evaluate; estimate a longer run")
+    bad = ~np.isfinite(qe).all(axis=1) | ~np.isfinite(se).all(axis=1)
+    if bad.any():
+        raise CdgpsError(f"{states_path}: {int(bad.sum())} epoch(s) with non-finite states or sigmas "
+                         f"(first at {time[np.flatnonzero(bad)[0]]:g} s)")
+    rms = np.sqrt(np.mean(err[after] ** 2, axis=0))
+    xi_t = qt @ np.linalg.pinv(st.output_map).T
+    d = st.xi[ie] - xi_t
+    nm = st.n_pos
+    nees = np.einsum("ni,ni->n", d, np.linalg.solve(st.P_xi[ie], d[..., None])[..., 0])
+    lo, hi = chi2.ppf(0.025, nm), chi2.ppf(0.975, nm)
+    na = int(after.sum())
+    # time-averaged NEES: 95% interval of the mean of na chi2(nm) samples (if independent)
+    mlo, mhi = chi2.ppf(0.025, na * nm) / na, chi2.ppf(0.975, na * nm) / na
+    inside = np.all(np.abs(err) <= 3 * se + 1e-12, axis=1)
+    # convergence: first epoch from which the NEES stays below its 99.9% bound for a full second
+    bound = chi2.ppf(0.999, nm)
+    T = float(np.median(np.diff(time))) if time.size > 1 else 1.0
+    w = max(int(round(1.0 / T)), 1)
+    ok = nees <= bound
+    run_ok = np.convolve(ok.astype(int), np.ones(w, dtype=int), mode="valid") == w
+    first = np.flatnonzero(run_ok)
+    conv_t = float(time[first[0]] - time[0]) if first.size else None
+    out = {
+        "epochs": int(common.size), "start_s": float(time[0]), "end_s": float(time[-1]),
+        "rms_error": {n: float(v) for n, v in zip(names, rms)},
+        "rms_error_units": {n: (st.cfg.coord_unit_label(n) if st.cfg is not None else u)
+                            for n, u in zip(names, st.coord_units)},
+        "rms_error_deg": {n: float(np.degrees(v)) for n, v, u in zip(names, rms, st.coord_units) if u == "rad"},
+        "within_3sigma_fraction": float(np.mean(inside[after])),
+        "convergence_definition": "first time from which the NEES stays below its 99.9% chi-square bound for 1 s",
+        "convergence_s": conv_t,
+        "nees": {"dof": nm, "mean": float(np.mean(nees[after])), "interval95_single": [float(lo), float(hi)],
+                 "fraction_in_interval": float(np.mean((nees[after] >= lo) & (nees[after] <= hi))),
+                 "interval95_mean_if_independent": [float(mlo), float(mhi)]},
+    }
+    if st.nis is not None and ((st.nis_dof > 0) & np.isfinite(st.nis)).any():
+        ok = (st.nis_dof > 0) & np.isfinite(st.nis)
+        r = st.nis[ok] / st.nis_dof[ok]
+        inside_nis = (st.nis[ok] >= chi2.ppf(0.025, st.nis_dof[ok])) & (st.nis[ok] <= chi2.ppf(0.975, st.nis_dof[ok]))
+        out["nis"] = {"mean_per_dof": float(np.mean(r)), "fraction_in_interval95": float(np.mean(inside_nis))}
+    # bias errors: final biases vs truth (latest segment per channel)
+    if "final_biases" not in st.metadata:
+        raise CdgpsError(f"{states_path}: metadata {ESTIMATE_METADATA!r} has no final_biases (damaged or not a "
+                         f"STATES.mcap from 'cdgps estimate')")
+    try:
+        fb = json.loads(st.metadata["final_biases"])
+    except json.JSONDecodeError as exc:
+        raise CdgpsError(f"{states_path}: metadata final_biases is not valid JSON ({exc.msg}): corrupt file") from None
+    tb = {(b["antenna"], b["transmitter"]): b["bias_m"] for b in tj.get("biases", [])}
+    for s in tj.get("slips", []):
+        if s["time_s"] <= time[-1] + 1e-9:
+            tb[(s["antenna"], s["transmitter"])] = s["bias_m"]
+    errs = [(b["antenna"], b["transmitter"], b["bias_m"] - tb[(b["antenna"], b["transmitter"])])
+            for b in fb if (b["antenna"], b["transmitter"]) in tb and b["bias_m"] is not None and np.isfinite(b["bias_m"])]
+    if errs:
+        e = np.array([x[2] for x in errs])
+        out["bias_error"] = {"rms_m": float(np.sqrt(np.mean(e**2))), "max_abs_m": float(np.max(np.abs(e))),
+                             "wrong_integers": int(np.sum(np.abs(e) > st.wavelength_m / 2)), "channels": len(errs)}
+    out["events"] = len(st.events)
+    return out
