@@ -16,7 +16,7 @@ from mcap.reader import make_reader
 
 from tests._shared import REPO_ROOT, run_cli
 
-CFG = REPO_ROOT / "configs" / "testbed-1998.toml"
+CFG = REPO_ROOT / "configs" / "testbed-1998-lumped.toml"
 
 
 @pytest.fixture(scope="module")
