@@ -19,6 +19,7 @@ import copy
 from dataclasses import dataclass
 
 from cdgps_cli.config.limits import CONFIG_BOUNDS, Bound
+from cdgps_cli.config.options import GNSS_DEFAULTS
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 
 SCHEMA_ID = "https://cdgps.invalid/schema/structure-config.schema.json"
@@ -45,7 +46,8 @@ class Field:
         normalised), ``matrix`` (``size`` × ``size``), ``ref`` (a name of table ``ref``, a
         coordinate of kind ``ref_kind``), ``names`` (a list of names of ``ref``),
         ``per_coordinate`` (``{coordinate = [x, y, z]}``, described as ``what``), ``axis``
-        (x, y, z or a 3-vector), ``axes`` (``{x = coordinate}``; judged by a cross-field check).
+        (x, y, z or a 3-vector), ``paths`` (one file path or a list), ``axes``, ``tables``,
+        ``table``, ``signals``, ``rates`` (judged by cross-field checks).
     schema : dict
         JSON Schema of the value, with its description.
     required : bool
@@ -54,6 +56,9 @@ class Field:
         called with the validation context).
     sign : str
         ``positive`` or ``nonneg`` (numbers; ``nonneg`` also for a vector's elements).
+    expect : str
+        A number's range in words: the bounds of ``schema`` (minimum, exclusiveMaximum …) are then
+        checked too, the message saying ``expected <expect>``.
     size : int or str
         A vector's or matrix's size, or the name of a size known when it is checked
         (``coordinates``: the number of coordinates; ``process_noise``: W's size).
@@ -73,6 +78,7 @@ class Field:
     ref_kind: str = ""
     allow_empty: bool = False
     what: str = ""
+    expect: str = ""
     cross: bool = False
 
     def __iter__(self):
@@ -322,50 +328,65 @@ def structure_json_schema(simulation_defaults: dict) -> dict:
 _POS = {"type": "number", "exclusiveMinimum": 0}
 _FILES = {"oneOf": [_STR, {"type": "array", "items": _STR}]}
 
-#: table path ("gnss", "gnss.antennas.*": every antenna, "gnss.displacement") → key → (required, JSON Schema)
-GNSS_TABLES: dict[str, dict[str, tuple[bool, dict]]] = {
+#: table path ("gnss", "gnss.antennas.*": every antenna, "gnss.displacement") → key → Field (defaults:
+#: cdgps_cli.config.options.GNSS_DEFAULTS; ``expect``: what the JSON Schema's bounds mean, for the message)
+GNSS_TABLES: dict[str, dict[str, Field]] = {
     "gnss": {
         "name": _key(_STR, "run name (default: the file's name)"),
-        "description": _key(_STR, "free text"),
+        "description": _key(_STR, "free text", default=""),
         "master": _key(_STR, "the reference antenna (its position is held)"),
-        "nav": _key(_FILES, "RINEX navigation file(s), relative to this file; globs allowed"),
-        "mask_deg": _key({"type": "number", "minimum": 0, "exclusiveMaximum": 90}, "elevation mask, degrees"),
-        "ratio": _key({"type": "number", "minimum": 1}, "LAMBDA ratio-test threshold"),
+        "nav": _key(_FILES, "RINEX navigation file(s), relative to this file; globs allowed", kind="paths",
+                    what="navigation file paths", default=()),
+        "mask_deg": _key({"type": "number", "minimum": 0, "exclusiveMaximum": 90}, "elevation mask, degrees",
+                         default=GNSS_DEFAULTS["mask_deg"], expect="an elevation mask in [0, 90) degrees"),
+        "ratio": _key({"type": "number", "minimum": 1}, "LAMBDA ratio-test threshold", default=GNSS_DEFAULTS["ratio"],
+                      expect="a ratio-test threshold >= 1"),
         "min_success_rate": _key({"type": "number", "minimum": 0, "exclusiveMaximum": 1},
-                                 "bootstrapped success rate an integer set must reach besides the ratio test"),
-        "partial": _key(_BOOL, "partial fixing when the full set fails the ratio test"),
-        "fix": _key(_BOOL, "fix integers (false: float solution)"),
+                                 "bootstrapped success rate an integer set must reach besides the ratio test",
+                                 default=GNSS_DEFAULTS["min_success_rate"], expect="a probability in [0, 1)"),
+        "partial": _key(_BOOL, "partial fixing when the full set fails the ratio test", default=True),
+        "fix": _key(_BOOL, "fix integers (false: float solution)", default=True),
         "weighting": _key({"type": "string", "enum": ["elevation", "equal"]},
-                          "phase variance a² + b²/sin²(el) or a² + b²"),
-        "sigma_a_m": _key({"type": "number", "minimum": 0}, "phase noise a, m"),
-        "sigma_b_m": _key({"type": "number", "minimum": 0}, "phase noise b (elevation term), m"),
-        "code_ratio": _key(_POS, "code σ / phase σ"),
-        "troposphere": _key(_BOOL, "a priori hydrostatic troposphere"),
-        "max_gap_s": _key(_POS, "a longer gap in a satellite's phase starts a new ambiguity, s"),
+                          "phase variance a² + b²/sin²(el) or a² + b²", default=GNSS_DEFAULTS["weighting"]),
+        "sigma_a_m": _key({"type": "number", "minimum": 0}, "phase noise a, m", default=GNSS_DEFAULTS["sigma_a_m"],
+                          sign="nonneg"),
+        "sigma_b_m": _key({"type": "number", "minimum": 0}, "phase noise b (elevation term), m",
+                          default=GNSS_DEFAULTS["sigma_b_m"], sign="nonneg"),
+        "code_ratio": _key(_POS, "code σ / phase σ", default=GNSS_DEFAULTS["code_ratio"], sign="positive"),
+        "troposphere": _key(_BOOL, "a priori hydrostatic troposphere", default=True),
+        "max_gap_s": _key(_POS, "a longer gap in a satellite's phase starts a new ambiguity, s", sign="positive"),
         "sync_tol_s": _key({"type": "number", "exclusiveMinimum": 0, "maximum": 1},
-                           "base and rover epochs this close are simultaneous, s"),
-        "max_age_s": _key(_POS, "oldest base epoch bridged to a rover epoch, s (RTKLIB's maxage)"),
+                           "base and rover epochs this close are simultaneous, s", default=GNSS_DEFAULTS["sync_tol_s"],
+                           sign="positive", expect="at most 1 s"),
+        "max_age_s": _key(_POS, "oldest base epoch bridged to a rover epoch, s (RTKLIB's maxage)",
+                          default=GNSS_DEFAULTS["max_age_s"], sign="positive"),
         "code_correlation_s": _key({"type": "number", "minimum": 0},
-                                   "code errors as a Gauss-Markov process of this correlation time, s (0: white)"),
+                                   "code errors as a Gauss-Markov process of this correlation time, s (0: white)",
+                                   default=GNSS_DEFAULTS["code_correlation_s"], expect="a correlation time >= 0 s"),
         "epoch_alignment": _key({"type": "string", "enum": ["geometry", "doppler"]},
-                                "how receivers' epochs are brought to one instant"),
-        "signals": _key({"type": "array", "items": _STR}, "signals to use, e.g. [\"G:L1\", \"E:E1\"]"),
+                                "how receivers' epochs are brought to one instant",
+                                default=GNSS_DEFAULTS["epoch_alignment"]),
+        "signals": _key({"type": "array", "items": _STR}, "signals to use, e.g. [\"G:L1\", \"E:E1\"]", kind="signals",
+                        cross=True),
         "iono_threshold_km": _key({"type": "number", "minimum": 0},
-                                  "baselines longer than this estimate the ionosphere, km"),
-        "antennas": _key({"type": "object"}, "one table per antenna: [gnss.antennas.NAME]", True),
-        "displacement": _key({"type": "object"}, "the rovers' motion model"),
+                                  "baselines longer than this estimate the ionosphere, km",
+                                  default=GNSS_DEFAULTS["iono_threshold_km"], sign="positive"),
+        "antennas": _key({"type": "object"}, "one table per antenna: [gnss.antennas.NAME] (a config of settings "
+                         "only has none)", kind="tables", cross=True),
+        "displacement": _key({"type": "object"}, "the rovers' motion model", kind="table", cross=True),
     },
     "gnss.antennas.*": {
         "rinex": _key(_STR, "RINEX observation file (or a quoted glob of consecutive files), relative to this file"),
         "ubx": _key(_STR, "u-blox UBX log (or a quoted glob of consecutive files), relative to this file"),
-        "position_ecef_m": _key(_VEC3, "nominal antenna position, ECEF m (default: the RINEX header's)"),
-        "description": _key(_STR, "free text"),
+        "position_ecef_m": _vec3("nominal antenna position, ECEF m (default: the RINEX header's)"),
+        "description": _text(),
     },
     "gnss.displacement": {
-        "model": _key({"type": "string", "enum": ["static", "random_walk"]}, "static or random-walk E/N/U displacement"),
+        "model": _key({"type": "string", "enum": ["static", "random_walk"]}, "static or random-walk E/N/U displacement",
+                      default="static"),
         "sigma_m_per_sqrt_s": _key({"oneOf": [_POS, {**_VEC3, "items": _POS}]},
-                                   "random-walk rate, m/√s (one number or E, N, U)"),
-        "initial_sigma_m": _key(_POS, "prior σ of the first epoch's position, m"),
+                                   "random-walk rate, m/√s (one number or E, N, U)", kind="rates", cross=True),
+        "initial_sigma_m": _key(_POS, "prior σ of the first epoch's position, m", default=1.0, sign="positive"),
     },
 }
 

@@ -17,6 +17,7 @@ Frames
 from __future__ import annotations
 
 import hashlib
+import os
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,11 +25,10 @@ from pathlib import Path
 import numpy as np
 
 from cdgps_cli.core.errors import CdgpsError, join_problems
-from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli.config.limits import config_range_problems
-from cdgps_cli.config.schema import STRUCTURE_TABLES, Field, gnss_keys, optional_keys, required_keys, simulation_table
-from cdgps_cli.config.validate import (AXES, INVALID, Context, Problems, array_tables, check_ref, check_table,
-                                       full_key)
+from cdgps_cli.config.schema import (GNSS_TABLES, STRUCTURE_TABLES, Field, optional_keys, required_keys,
+                                     simulation_table)
+from cdgps_cli.config.validate import AXES, INVALID, Context, Problems, array_tables, check_ref, check_table
 from cdgps_cli.config.options import GNSS_DEFAULTS
 
 COORD_KINDS = {"translation": "m", "rotation": "rad", "modal": "1"}
@@ -292,28 +292,6 @@ _SIGNED_SIM_KEYS = {"static_angle_deg", "slew_from_deg", "slew_to_deg"}
 #: [simulation] keys that name a coordinate or thrusters
 _SIM_REFS = {"static_angle_coordinate": "coordinates", "pulse_thrusters": "thrusters"}
 _SIM_TABLE = simulation_table(_SIM_DEFAULTS, _SIGNED_SIM_KEYS, _SIM_REFS)
-
-
-class _Checker(Problems):
-    """Problems of a GNSS run config, with the table-reading helpers its parser uses."""
-
-    def number(self, table, key, name, default=None, positive=False, nonneg=False):
-        if name not in table:
-            return default
-        v = super().number(full_key(key, name), table[name], "positive" if positive else "nonneg" if nonneg else "")
-        return default if v is INVALID else v
-
-    def string(self, table, key, name, default=None):
-        if name not in table:
-            return default
-        v = super().name(full_key(key, name), table[name])
-        return default if v is INVALID else v
-
-    def vector(self, table, key, name, size, default=None, unit=False):
-        if name not in table:
-            return default
-        v = super().vector(full_key(key, name), table[name], size, unit)
-        return default if v is INVALID else v
 
 
 def _entries(p: Problems, doc: dict, name: str, ctx: Context, required: bool = False) -> list[tuple[str, dict, dict]]:
@@ -770,10 +748,6 @@ GNSS_WEIGHTINGS = ("elevation", "equal")
 # defaults of the GNSS solver settings: the [gnss] parser, GnssConfig and baseline.BaselineOptions all
 # take them from here (RTKLIB-comparable: 15° mask, ratio 3, a = b = 3 mm, code/phase ratio 100, DTTOL)
 
-# the keys of each table, from the one declaration (config/schema.py, also published as a JSON Schema)
-_GNSS_KEYS = set().union(*gnss_keys("gnss"))
-_GNSS_ANTENNA_KEYS = set().union(*gnss_keys("gnss.antennas.*"))
-_GNSS_DISPLACEMENT_KEYS = set().union(*gnss_keys("gnss.displacement"))
 
 
 @dataclass(frozen=True)
@@ -882,156 +856,101 @@ def load_gnss_config(path: str | Path) -> GnssConfig:
 def parse_gnss_config(text: str, path: str = "<config>", base_dir: str | Path | None = None) -> GnssConfig:
     """Validate a GNSS run config given as text; every problem is listed with its key.
 
+    The ``[gnss]`` table, each ``[gnss.antennas.NAME]`` and ``[gnss.displacement]`` are judged by
+    their declarations (:data:`cdgps_cli.config.schema.GNSS_TABLES`), then the rules across keys.
     ``base_dir`` resolves relative file paths (None: kept as written, e.g. for a config read
     back from a RUN.mcap, whose data are in the file).
     """
     text = _strip_bom(text)
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise CdgpsError(f"{path}: not valid TOML: {exc}") from None
-    chk = _Checker(path)
-    chk.problems += [q for q in _description_problems(doc) if not q.startswith("gnss.description:")]  # checked below
+    doc = _toml(text, path)
+    p = Problems(path)
     for k in sorted(set(doc) - {"gnss"}):
         hint = " (a [baseline] job: only 'cdgps baseline' reads it; see docs/gnss-pipeline.md for the [gnss] form)" \
             if k == "baseline" else " (a GNSS run config has one [gnss] table)"
-        chk.add(k, "unknown top-level key" + hint)
+        p.add(k, "unknown top-level key" + hint)
+        p.problems += _description_problems(doc[k], k)
     g = doc.get("gnss")
     if not isinstance(g, dict):
-        chk.add("gnss", "missing [gnss] table")
-        raise CdgpsError(join_problems(f"{path}: invalid GNSS config", chk.problems))
-    for k in sorted(set(g) - set(_GNSS_KEYS)):
-        chk.add(f"gnss.{k}", f"unknown key (allowed: {', '.join(sorted(_GNSS_KEYS))})")
+        p.add("gnss", "missing [gnss] table")
+        raise CdgpsError(join_problems(f"{path}: invalid GNSS config", p.problems))
+    ctx = Context()
+    v = check_table(p, g, "gnss", GNSS_TABLES["gnss"], ctx)
 
-    def resolve(v: str) -> str:
-        if base_dir is None or Path(v).is_absolute():
-            return v
-        import os  # noqa: PLC0415
+    def resolve(f: str) -> str:
+        if base_dir is None or Path(f).is_absolute():
+            return f
+        return os.path.normpath(str(Path(base_dir) / f))
 
-        return os.path.normpath(str(Path(base_dir) / v))
+    signals = _gnss_signals(g, p)
+    if v["sigma_a_m"] == 0 and v["sigma_b_m"] == 0:
+        p.add("gnss.sigma_a_m", "sigma_a_m and sigma_b_m cannot both be 0")
+    if v["max_age_s"] < v["sync_tol_s"]:
+        p.add("gnss.max_age_s", f"expected at least gnss.sync_tol_s ({v['sync_tol_s']:g} s), got {v['max_age_s']!r}")
+    model, rw, init_sigma = _gnss_displacement(p, g.get("displacement", {}), ctx)
+    ants = _gnss_antennas(p, g.get("antennas", {}), ctx, resolve)
+    master = v["master"]
+    if master is not None and ants and master not in [a.name for a in ants]:
+        p.add("gnss.master", f"{master!r} is not one of gnss.antennas ({', '.join(a.name for a in ants)})")
+    if p.problems:
+        raise CdgpsError(join_problems(f"{path}: invalid GNSS config", p.problems))
+    name = v["name"] or (Path(path).stem if path and not path.startswith("<") else "gnss-run")
+    return GnssConfig(
+        path=path, text=text, sha256=hashlib.sha256(text.encode("utf-8")).hexdigest(), name=name,
+        description=v["description"], master=master, antennas=tuple(ants), nav=tuple(map(resolve, v["nav"])),
+        mask_deg=v["mask_deg"], ratio=v["ratio"], partial=v["partial"], fix=v["fix"], weighting=v["weighting"],
+        sigma_a_m=v["sigma_a_m"], sigma_b_m=v["sigma_b_m"], code_ratio=v["code_ratio"], troposphere=v["troposphere"],
+        max_gap_s=v["max_gap_s"], sync_tol_s=v["sync_tol_s"], max_age_s=v["max_age_s"],
+        code_correlation_s=v["code_correlation_s"], epoch_alignment=v["epoch_alignment"], displacement=model,
+        random_walk_sigma=rw, initial_sigma_m=init_sigma, min_success_rate=v["min_success_rate"], signals=signals,
+        iono_threshold_km=v["iono_threshold_km"],
+    )
 
-    def flag(name, default):
-        v = g.get(name, default)
-        if not isinstance(v, bool):
-            chk.add(f"gnss.{name}", f"expected true or false, got {v!r}")
-            return default
-        return v
 
-    name = chk.string(g, "gnss", "name", Path(path).stem if path and not path.startswith("<") else "gnss-run")
-    description = chk.string(g, "gnss", "description", "")
-    master = chk.string(g, "gnss", "master", None)
-    nav = []
-    if "nav" in g:
-        v = g["nav"]
-        if isinstance(v, str):
-            v = [v]
-        if not isinstance(v, list):
-            chk.add("gnss.nav", f"expected a list of navigation file paths, got {v!r}")
-        else:
-            for i, e in enumerate(v):
-                if not isinstance(e, str) or not e:
-                    chk.add(f"gnss.nav[{i}]", f"expected a file path string, got {e!r}")
-                else:
-                    nav.append(resolve(e))
-    signals = _gnss_signals(g, chk)
-    mask = chk.number(g, "gnss", "mask_deg", GNSS_DEFAULTS["mask_deg"])
-    if mask is not None and not 0.0 <= mask < 90.0:
-        chk.add("gnss.mask_deg", f"expected an elevation mask in [0, 90) degrees, got {mask!r}")
-    ratio = chk.number(g, "gnss", "ratio", GNSS_DEFAULTS["ratio"])
-    if ratio is not None and ratio < 1.0:
-        chk.add("gnss.ratio", f"expected a ratio-test threshold >= 1, got {ratio!r}")
-    weighting = chk.string(g, "gnss", "weighting", GNSS_DEFAULTS["weighting"])
-    if weighting not in GNSS_WEIGHTINGS:
-        chk.add("gnss.weighting", f"expected one of {', '.join(GNSS_WEIGHTINGS)}, got {weighting!r}")
-    sa = chk.number(g, "gnss", "sigma_a_m", GNSS_DEFAULTS["sigma_a_m"], nonneg=True)
-    sb = chk.number(g, "gnss", "sigma_b_m", GNSS_DEFAULTS["sigma_b_m"], nonneg=True)
-    if sa == 0 and sb == 0:
-        chk.add("gnss.sigma_a_m", "sigma_a_m and sigma_b_m cannot both be 0")
-    code_ratio = chk.number(g, "gnss", "code_ratio", GNSS_DEFAULTS["code_ratio"], positive=True)
-    max_gap = chk.number(g, "gnss", "max_gap_s", None, positive=True)
-    sync = chk.number(g, "gnss", "sync_tol_s", GNSS_DEFAULTS["sync_tol_s"], positive=True)
-    if sync is not None and sync > 1.0:
-        chk.add("gnss.sync_tol_s", f"expected at most 1 s, got {sync!r}")
-    max_age = chk.number(g, "gnss", "max_age_s", GNSS_DEFAULTS["max_age_s"], positive=True)
-    code_corr = chk.number(g, "gnss", "code_correlation_s", GNSS_DEFAULTS["code_correlation_s"])
-    if code_corr is not None and code_corr < 0:
-        chk.add("gnss.code_correlation_s", f"expected a correlation time >= 0 s, got {code_corr!r}")
-    if max_age is not None and sync is not None and max_age < sync:
-        chk.add("gnss.max_age_s", f"expected at least gnss.sync_tol_s ({sync:g} s), got {max_age!r}")
-    iono_km = chk.number(g, "gnss", "iono_threshold_km", GNSS_DEFAULTS["iono_threshold_km"], positive=True)
-    min_sr = chk.number(g, "gnss", "min_success_rate", GNSS_DEFAULTS["min_success_rate"])
-    if min_sr is not None and not 0.0 <= min_sr < 1.0:
-        chk.add("gnss.min_success_rate", f"expected a probability in [0, 1), got {min_sr!r}")
-    align = chk.string(g, "gnss", "epoch_alignment", GNSS_DEFAULTS["epoch_alignment"])
-    if align not in ("geometry", "doppler"):
-        chk.add("gnss.epoch_alignment", f"expected \"geometry\" or \"doppler\", got {align!r}")
-
-    # [gnss.displacement]
-    disp = g.get("displacement", {})
-    model, rw, init_sigma = "static", GNSS_DEFAULTS["random_walk_sigma"], GNSS_DEFAULTS["initial_sigma_m"]
+def _gnss_displacement(p: Problems, disp, ctx: Context) -> tuple[str, tuple, float]:
+    """(model, random-walk σ (E, N, U) m/√s, initial σ m) of ``[gnss.displacement]``."""
     if not isinstance(disp, dict):
-        chk.add("gnss.displacement", "expected a table ([gnss.displacement])")
+        p.add("gnss.displacement", "expected a table ([gnss.displacement])")
         disp = {}
-    for k in sorted(set(disp) - _GNSS_DISPLACEMENT_KEYS):
-        chk.add(f"gnss.displacement.{k}", f"unknown key (allowed: {', '.join(sorted(_GNSS_DISPLACEMENT_KEYS))})")
-    model = disp.get("model", "static")
-    if model not in GNSS_DISPLACEMENT_MODELS:
-        chk.add("gnss.displacement.model", f"expected one of {', '.join(repr(m) for m in GNSS_DISPLACEMENT_MODELS)}, got {model!r}")
-        model = "static"
+    v = check_table(p, disp, "gnss.displacement", GNSS_TABLES["gnss.displacement"], ctx)
+    rw = GNSS_DEFAULTS["random_walk_sigma"]
     if "sigma_m_per_sqrt_s" in disp:
-        v = disp["sigma_m_per_sqrt_s"]
-        if isinstance(v, (int, float)) and not isinstance(v, bool):
-            v = [v, v, v]
-        arr = chk.vector({"s": v}, "gnss.displacement", "s", 3, None)
-        if arr is None:
-            chk.problems[-1] = chk.problems[-1].replace("gnss.displacement.s:", "gnss.displacement.sigma_m_per_sqrt_s:")
-        elif np.any(arr <= 0):
-            chk.add("gnss.displacement.sigma_m_per_sqrt_s", f"expected positive values (m/√s), got {v!r}")
-        else:
+        s = disp["sigma_m_per_sqrt_s"]
+        if isinstance(s, (int, float)) and not isinstance(s, bool):
+            s = [s, s, s]
+        arr = p.vector("gnss.displacement.sigma_m_per_sqrt_s", s, 3)
+        if arr is not INVALID and np.any(arr <= 0):
+            p.add("gnss.displacement.sigma_m_per_sqrt_s", f"expected positive values (m/√s), got {s!r}")
+        elif arr is not INVALID:
             rw = tuple(float(x) for x in arr)
         if disp.get("model", "static") == "static":
-            chk.add("gnss.displacement.sigma_m_per_sqrt_s", "only used with model = \"random_walk\" (a static displacement has no process noise)")
-    init_sigma = chk.number(disp, "gnss.displacement", "initial_sigma_m", 1.0, positive=True)
+            p.add("gnss.displacement.sigma_m_per_sqrt_s", "only used with model = \"random_walk\" (a static "
+                                                          "displacement has no process noise)")
+    return v["model"], rw, v["initial_sigma_m"]
 
-    # [gnss.antennas.NAME]
-    ants = []
-    at = g.get("antennas", {})
+
+def _gnss_antennas(p: Problems, at, ctx: Context, resolve) -> list:
+    """The ``[gnss.antennas.NAME]`` tables: one observation file each, a position near the Earth."""
     if not isinstance(at, dict):
-        chk.add("gnss.antennas", "expected tables [gnss.antennas.NAME]")
-        at = {}
+        p.add("gnss.antennas", "expected tables [gnss.antennas.NAME]")
+        return []
+    ants = []
     for an, a in at.items():
         key = f"gnss.antennas.{an}"
         if not isinstance(a, dict):
-            chk.add(key, "expected a table (rinex/ubx file, position_ecef_m)")
+            p.add(key, "expected a table (rinex/ubx file, position_ecef_m)")
             continue
-        for k in sorted(set(a) - _GNSS_ANTENNA_KEYS):
-            chk.add(f"{key}.{k}", f"unknown key (allowed: {', '.join(sorted(_GNSS_ANTENNA_KEYS))})")
-        rinex = chk.string(a, key, "rinex", None)
-        ubx = chk.string(a, key, "ubx", None)
-        if rinex and ubx:
-            chk.add(key, "give one observation file: rinex or ubx, not both")
-        pos = chk.vector(a, key, "position_ecef_m", 3, None)
+        v = check_table(p, a, key, GNSS_TABLES["gnss.antennas.*"], ctx)
+        if v["rinex"] and v["ubx"]:
+            p.add(key, "give one observation file: rinex or ubx, not both")
+        pos = v["position_ecef_m"]
         if pos is not None and np.linalg.norm(pos) < 6.0e6:
-            chk.add(f"{key}.position_ecef_m", f"expected an ECEF position near the Earth's surface (m), got {a['position_ecef_m']!r}")
+            p.add(f"{key}.position_ecef_m", f"expected an ECEF position near the Earth's surface (m), got "
+                                            f"{a['position_ecef_m']!r}")
             pos = None
-        ants.append(GnssAntenna(str(an), resolve(rinex) if rinex else None, resolve(ubx) if ubx else None,
-                                tuple(float(x) for x in pos) if pos is not None else None,
-                                a.get("description", "") if isinstance(a.get("description", ""), str) else ""))
-    if master is not None and ants and master not in [a.name for a in ants]:
-        chk.add("gnss.master", f"{master!r} is not one of gnss.antennas ({', '.join(a.name for a in ants)})")
-
-    if chk.problems:
-        raise CdgpsError(join_problems(f"{path}: invalid GNSS config", chk.problems))
-    return GnssConfig(
-        path=path, text=text, sha256=hashlib.sha256(text.encode("utf-8")).hexdigest(), name=name,
-        description=description or "", master=master, antennas=tuple(ants), nav=tuple(nav),
-        mask_deg=mask, ratio=ratio, partial=flag("partial", True), fix=flag("fix", True), weighting=weighting,
-        sigma_a_m=sa, sigma_b_m=sb, code_ratio=code_ratio, troposphere=flag("troposphere", True),
-        max_gap_s=max_gap, sync_tol_s=sync, max_age_s=max_age, code_correlation_s=code_corr, epoch_alignment=align,
-        displacement=model, random_walk_sigma=rw, initial_sigma_m=init_sigma,
-        min_success_rate=GNSS_DEFAULTS["min_success_rate"] if min_sr is None else min_sr,
-        signals=signals, iono_threshold_km=iono_km,
-    )
+        ants.append(GnssAntenna(str(an), resolve(v["rinex"]) if v["rinex"] else None,
+                                resolve(v["ubx"]) if v["ubx"] else None,
+                                tuple(float(x) for x in pos) if pos is not None else None, v["description"]))
+    return ants
 
 
 def _gnss_signals(g: dict, chk) -> tuple:

@@ -186,11 +186,35 @@ def _names(p: Problems, full: str, v, field, ctx: Context):
     return v
 
 
+def within(schema: dict, x: float) -> bool:
+    """Whether ``x`` is inside the JSON Schema bounds of ``schema``."""
+    return (x >= schema.get("minimum", -math.inf) and x > schema.get("exclusiveMinimum", -math.inf)
+            and x <= schema.get("maximum", math.inf) and x < schema.get("exclusiveMaximum", math.inf))
+
+
+def _paths(p: Problems, full: str, v, field) -> tuple:
+    """One file path or a list of them (non-empty strings)."""
+    v = [v] if isinstance(v, str) else v
+    if not isinstance(v, list):
+        p.add(full, f"expected a list of {field.what}, got {v!r}")
+        return INVALID
+    out = []
+    for i, e in enumerate(v):
+        if not isinstance(e, str) or not e:
+            p.add(f"{full}[{i}]", f"expected a file path string, got {e!r}")
+        else:
+            out.append(e)
+    return tuple(out)
+
+
 def check_value(p: Problems, full: str, v, field, ctx: Context):
     """``v`` judged by its declaration: the checked value, or INVALID (a problem added)."""
     kind = field.kind
     if kind == "number":
-        return p.number(full, v, field.sign)
+        x = p.number(full, v, field.sign)
+        if x is not INVALID and field.expect and not within(field.schema, x):
+            p.add(full, f"expected {field.expect}, got {x!r}")     # (the value is kept, as a sign's is not)
+        return x
     if kind == "name":
         return p.name(full, v)
     if kind == "text":
@@ -224,6 +248,8 @@ def check_value(p: Problems, full: str, v, field, ctx: Context):
         return _axis(p, full, v)
     if kind == "names":
         return _names(p, full, v, field, ctx)
+    if kind == "paths":
+        return _paths(p, full, v, field)
     raise ValueError(f"no check for the field kind {kind!r}")
 
 
@@ -269,6 +295,3 @@ def array_tables(p: Problems, doc: dict, name: str, required: bool) -> list:
         p.add(name, f"at least one [[{name}]] entry is required")
     return v
 
-
-def is_finite_number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)

@@ -60,9 +60,14 @@ def base_configs() -> dict[str, str]:
     return out
 
 
-def _leaves(doc, prefix=()):
-    """Key paths of the first entry of every table / array of tables and of every key in them."""
+def _leaves(doc, prefix=(), deep=False):
+    """Key paths of the first entry of every table / array of tables and of every key in them
+    (``deep``: of nested tables' keys too)."""
     for k, v in doc.items():
+        if deep and isinstance(v, dict):
+            yield prefix + (k,)
+            yield from _leaves(v, prefix + (k,), deep)
+            continue
         if isinstance(v, list) and v and all(isinstance(e, dict) for e in v):
             yield prefix + (k,)
             for i in sorted({0, len(v) - 1}):
@@ -88,11 +93,11 @@ def _edit(doc: dict, path: tuple, value, delete: bool = False) -> str:
     return to_toml(d)
 
 
-def mutated(text: str):
+def mutated(text: str, deep: bool = False):
     """(label, make) of every single-key mutation of a config, plus an unknown key per table;
     ``make()`` writes the mutated config's text."""
     doc = tomllib.loads(text)
-    paths = list(_leaves(doc))
+    paths = list(_leaves(doc, deep=deep))
     for path in paths:
         for m in MUTATIONS:
             yield f"{'.'.join(map(str, path))}={m!r}", (lambda path=path, m=m: _edit(doc, path, m, m is None))
@@ -102,6 +107,56 @@ def mutated(text: str):
             node = node[step]
         if isinstance(node, dict):
             yield f"{'.'.join(map(str, path))}+no_such_key", (lambda path=path: _edit(doc, path + ("no_such_key",), 1))
+
+
+#: a GNSS run config with every key of docs/gnss-pipeline.md set
+GNSS_EVERY_KEY = """
+[gnss]
+name = "every-key"
+description = "all the settings"
+master = "base"
+nav = ["nav/a.rnx", "nav/b.rnx"]
+mask_deg = 10.0
+ratio = 2.5
+min_success_rate = 0.99
+partial = false
+fix = true
+weighting = "equal"
+sigma_a_m = 0.004
+sigma_b_m = 0.002
+code_ratio = 80.0
+troposphere = false
+max_gap_s = 30.0
+sync_tol_s = 0.01
+max_age_s = 5.0
+code_correlation_s = 20.0
+epoch_alignment = "doppler"
+signals = ["G:L1", "E:E1"]
+iono_threshold_km = 12.0
+
+[gnss.displacement]
+model = "random_walk"
+sigma_m_per_sqrt_s = [0.001, 0.002, 0.003]
+initial_sigma_m = 0.5
+
+[gnss.antennas.base]
+rinex = "base.obs"
+position_ecef_m = [-3957199.0, 3310199.0, 3737711.0]
+description = "the master"
+
+[gnss.antennas.rover]
+ubx = "rover.ubx"
+"""
+
+
+def gnss_base_configs() -> dict[str, str]:
+    """name → text of every GNSS run config shipped (configs/) and one with every key."""
+    from cdgps_cli.config.structure import config_kind
+
+    out = {p.name: p.read_text() for p in sorted((ROOT / "configs").glob("*.toml"))
+           if config_kind(p.read_text()) == "gnss"}
+    out["GNSS_EVERY_KEY"] = GNSS_EVERY_KEY
+    return out
 
 
 def _canonical(v):
