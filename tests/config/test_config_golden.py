@@ -4,7 +4,8 @@ single-key mutations of them (3,421 cases: deleted, wrong type, negative, zero, 
 problems — except four intended changes, listed in INTENDED; likewise parse_gnss_config on the
 shipped GNSS run configs, one with every key, and their mutations (640 cases; two intended changes).  The two parsers were compared case
 by case in commit d9976c8 (test_the_declarative_parser_equals_the_hand_checked_one, with the old
-parser as tests/config/_legacy_structure.py); the old parser is gone since.
+parser as tests/config/_legacy_structure.py), the GNSS parsers in commit 648bafd
+(test_the_declarative_gnss_parser_equals_the_hand_checked_one); the old parsers are gone since.
 
 The outcomes are stored as digests (tests/config/data/parse_config_golden.json, written by
 ``python -m tests.config.test_config_golden``); by default every 16th case is checked (a few
@@ -17,6 +18,8 @@ import json
 import os
 import sys
 from pathlib import Path
+
+import pytest
 
 from tests.config import _config_corpus as cc
 
@@ -97,20 +100,12 @@ if __name__ == "__main__":
 
 
 
-# ---- until the hand-written GNSS checks are removed: the comparison itself
 
+@pytest.mark.parametrize("key", ["partial", "fix", "troposphere"])
+def test_a_gnss_flag_of_another_type_is_refused(key):
+    """Found by the golden comparison: ``troposphere = 0`` was taken as true, silently."""
+    from cdgps_cli.config.structure import parse_gnss_config
+    from cdgps_cli.core.errors import CdgpsError
 
-def test_the_declarative_gnss_parser_equals_the_hand_checked_one():
-    from tests.config import _legacy_structure as legacy
-
-    differ = []
-    for label, make in cases():
-        if label.startswith("gnss:"):
-            text = make()
-            o_old = cc.outcome(functools.partial(legacy.parse_gnss_config, base_dir="/b"), text)
-            o_new = cc.outcome(parser(label), text)
-            if o_old != o_new:
-                differ.append(label.split(" ", 1)[1].split("=")[0])
-    assert set(differ) <= {"gnss.weighting", "gnss.epoch_alignment", "gnss.displacement.model",
-                           "gnss.partial", "gnss.fix", "gnss.troposphere"}, sorted(set(differ))
-    assert len(differ) == 94
+    with pytest.raises(CdgpsError, match=f"gnss.{key}: expected true or false, got 0"):
+        parse_gnss_config(f'[gnss]\n{key} = 0\n[gnss.antennas.a]\nrinex = "a.obs"\n')
