@@ -381,9 +381,10 @@ class OutputSet:
     """Where the files of one output set are written: :meth:`path` gives the staging path of a
     file, :attr:`out` the folder it ends up in."""
 
-    def __init__(self, out: Path, staging: Path):
+    def __init__(self, out: Path, staging: Path, reaper=None):
         self.out = out
         self.staging = staging
+        self.reaper = reaper          # (process, pipe) of the watcher of a swap's staging folder, or None
 
     def path(self, name: str) -> Path:
         """Staging path of output file ``name`` (a plain file name)."""
@@ -445,7 +446,7 @@ def output_set(out_dir: str | Path, replaces=()):
         real, staging = _swap_staging(out, created)
         if staging is None:
             staging = _inner_staging(out, created)
-        s = OutputSet(out, staging)
+        s = OutputSet(out, staging, _start_reaper(staging) if real is not None else None)
         ok = False
         try:
             yield s
@@ -462,6 +463,7 @@ def output_set(out_dir: str | Path, replaces=()):
         finally:
             if s.staging.exists():
                 shutil.rmtree(s.staging, ignore_errors=True)
+            _release_reaper(s.reaper)
             if created and not ok and out.is_dir():
                 try:
                     out.rmdir()                        # only if still empty
@@ -489,8 +491,11 @@ def _inner_staging(out: Path, created: bool) -> Path:
 # folder, ``.<name>.tmp<pid>``, and the two folders are exchanged in one step (RENAME_EXCHANGE):
 # every reader, and every kill, sees the whole old folder or the whole new one.  Entries of the old
 # folder outside the command's set are hard-linked into the new one first (sub-folders re-created,
-# their files linked), so they stay; the old folder, now at the sibling's name, is then removed.  A
-# SIGKILL leaves that sibling, removed by the next write there (its process no longer exists).  The
+# their files linked), so they stay; the old folder, now at the sibling's name, is then removed.
+# SIGKILL cannot be caught: a small watcher process (:func:`_start_reaper`, /bin/sh), told "done"
+# when the set is in, removes the sibling if the command dies first — before the exchange the
+# incomplete new set, after it the old folder — so nothing is left; where it could not run, the
+# next write there removes the sibling (its process no longer exists).  The
 # journaled commit inside the folder (above) stays the path where a swap is not possible: another
 # system, a file system without RENAME_EXCHANGE or hard links, a mount point, this process's own
 # current folder, no write permission on the parent.
@@ -542,6 +547,51 @@ def exchange_paths(a: Path, b: Path) -> bool:
     if e in (errno.EINVAL, errno.ENOSYS, errno.EXDEV, errno.EOPNOTSUPP, errno.EBUSY):
         return False
     raise OSError(e, os.strerror(e), str(b))
+
+
+#: the watcher: waits on the pipe; without "d" (its command died) it removes the staging path
+_REAPER_SCRIPT = 'IFS= read -r done <&"$2"; [ "$done" = d ] || rm -rf -- "$1"'
+
+
+def _start_reaper(path: Path):
+    """A watcher that removes ``path`` if this process dies before :func:`_release_reaper` (its own
+    session, so a signal to the command's process group leaves it running); None where it cannot
+    be started (the next write removes what a killed command left)."""
+    import subprocess
+
+    try:
+        r, w = os.pipe()
+    except OSError:
+        return None
+    try:
+        proc = subprocess.Popen(["/bin/sh", "-c", _REAPER_SCRIPT, "cdgps-reaper", str(path), str(r)], pass_fds=(r,),
+                                start_new_session=True, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                stderr=subprocess.DEVNULL)
+    except OSError:
+        os.close(w)
+        return None
+    finally:
+        os.close(r)
+    return proc, w
+
+
+def _release_reaper(reaper) -> None:
+    """Tell the watcher the command is done with its staging path (it then exits, removing nothing)."""
+    import subprocess
+
+    if reaper is None:
+        return
+    proc, w = reaper
+    try:
+        os.write(w, b"d")
+    except OSError:
+        pass
+    finally:
+        os.close(w)
+    try:
+        proc.wait(timeout=5)
+    except subprocess.TimeoutExpired:
+        pass
 
 
 def _swap_staging(out: Path, created: bool) -> tuple[Path | None, Path | None]:

@@ -397,7 +397,8 @@ def test_a_kill_at_each_step_of_the_swap_leaves_the_old_or_the_new_folder(tmp_pa
 
 @swap_only
 def test_sigkilled_child_at_the_exchange_leaves_old_or_new_folder(tmp_path):
-    """A real SIGKILL of a child process just before and just after the exchange."""
+    """A real SIGKILL of a child process just before and just after the exchange: the folder is the
+    whole old or the whole new one, and the watcher removes the sibling the dead process left."""
     for when in ("before", "after"):
         out = _old_folder(tmp_path / when)
         old = _files(out)
@@ -417,9 +418,12 @@ def test_sigkilled_child_at_the_exchange_leaves_old_or_new_folder(tmp_path):
         r = subprocess.run([sys.executable, "-c", script, str(out)], env={**os.environ, "PYTHONPATH": str(ROOT)})
         assert r.returncode == -signal.SIGKILL
         assert _files(out) == (_NEW if when == "after" else old)
-        _write_new(out)                                       # the next write cleans the dead one's sibling
-        assert _files(out) == _NEW
+        t0 = time.monotonic()                                 # the watcher removes the dead one's sibling
+        while len(list((tmp_path / when).iterdir())) > 1 and time.monotonic() - t0 < 10:
+            time.sleep(0.01)
         assert sorted(p.name for p in (tmp_path / when).iterdir()) == ["o"]
+        _write_new(out)
+        assert _files(out) == _NEW
 
 
 @swap_only
@@ -446,3 +450,22 @@ def test_symlinked_output_folder_stays_a_symlink(tmp_path):
     link.symlink_to(out)
     _write_new(link)
     assert link.is_symlink() and _files(out) == _NEW
+
+
+@swap_only
+def test_without_the_watcher_the_next_write_removes_a_killed_sets_sibling(tmp_path, monkeypatch):
+    """Where the watcher cannot start, a SIGKILLed set's sibling is removed by the next write."""
+    out = _old_folder(tmp_path / "w")
+    script = textwrap.dedent("""
+        import os, signal, sys
+        from cdgps_cli.io import atomic
+        atomic._start_reaper = lambda path: None
+        atomic.exchange_paths = lambda a, b: os.kill(os.getpid(), signal.SIGKILL)
+        with atomic.output_set(sys.argv[1], replaces=("a.csv", "b.csv", "c.csv")) as dest:
+            dest.path("a.csv").write_text("new\\n")
+    """)
+    r = subprocess.run([sys.executable, "-c", script, str(out)], env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert r.returncode == -signal.SIGKILL
+    assert len(list((tmp_path / "w").iterdir())) == 2           # o and its .o.tmpPID
+    _write_new(out)
+    assert sorted(p.name for p in (tmp_path / "w").iterdir()) == ["o"] and _files(out) == _NEW
