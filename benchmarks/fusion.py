@@ -198,7 +198,9 @@ def dd_seed(seed: int, duration_s: float, settle_s: float, work: Path) -> dict:
         subprocess.run(cdgps + ["-q"] + st, check=True, env=env, cwd=ROOT)
         wall.append(time.perf_counter() - t0)
     cfg = load_config(CONFIG)
-    truth = pd.read_csv(d / "truth.csv")
+    from cdgps_cli.io.coordinate_columns import coordinate_table
+
+    truth, _ = coordinate_table(pd.read_csv(d / "truth.csv"), cfg)      # q columns named with their units
     jx = np.asarray(cfg.antenna_displacement)[cfg.antenna_names.index("top"), 0]
     g = States(d / "gnss.mcap")
     t_g = g.time_s

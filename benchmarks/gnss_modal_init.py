@@ -76,7 +76,9 @@ def one_seed(seed: int, duration_s: float, window_s: float, tmp: Path, max_facto
         wrong += int(sg["integer_cycles"] != want)
     # antenna motion in the window (truth): largest peak-to-peak displacement of a rover antenna
     import pandas as pd  # noqa: PLC0415
-    tr = pd.read_csv(tmp / "truth.csv")
+    from cdgps_cli.io.coordinate_columns import coordinate_table  # noqa: PLC0415
+
+    tr, _ = coordinate_table(pd.read_csv(tmp / "truth.csv"), cfg)       # psi_rad, ex_m … → bare names
     q = tr[list(cfg.coord_names)].to_numpy()[: int(window_s)]
     p = antenna_positions(cfg, q)
     ptp = float(max(np.linalg.norm(np.ptp(p[:, i, :], axis=0)) for i in range(len(cfg.antenna_names)) if i != cfg.master_index))

@@ -52,6 +52,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from cdgps_cli.config.structure import load_config  # noqa: E402
+from cdgps_cli.io.coordinate_columns import coordinate_table  # noqa: E402
 from cdgps_cli.analysis.spectra import mac  # noqa: E402
 from cdgps_cli.io.states import States  # noqa: E402
 
@@ -233,7 +234,7 @@ def analyse_seed(d: Path, seed: int, duration: float, cfg) -> dict:
     t_ssi = time.perf_counter() - t
     efdd = pyoma_efdd(Y / std, 1.0 / cfg.sample_period_s, Um, fm)
     # SSI on the truth over the same epochs
-    truth = pd.read_csv(d / "sim" / "truth.csv")
+    truth, _ = coordinate_table(pd.read_csv(d / "sim" / "truth.csv"), cfg)   # q1_m, q2_rad … → bare names
     tt = np.rint(truth["time_s"].to_numpy() * 1e6).astype(np.int64)
     keep = np.isin(tt, np.rint(st.time_s * 1e6).astype(np.int64))
     Yt = truth[[cfg.coord_names[i] for i in sel]].to_numpy()[keep]

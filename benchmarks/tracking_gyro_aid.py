@@ -34,6 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from cdgps_cli.config.structure import load_config  # noqa: E402
+from cdgps_cli.io.coordinate_columns import coordinate_table  # noqa: E402
 from cdgps_cli.model.kinematics import antenna_positions, gyro_matrix  # noqa: E402
 from cdgps_cli.pipeline.if_chain import gyro_aid_hz, gyro_rates  # noqa: E402
 from cdgps_cli.sim.if_samples import C_M_S, L1_HZ, Transmitter, line_of_sight_range_m  # noqa: E402
@@ -55,7 +56,7 @@ def main():
         sim = Path(tmp) / "sim"
         subprocess.run([sys.executable, "-m", "cdgps_cli.cli.commands", "-q", "simulate", str(CONFIG), "--duration",
                         str(duration), "--seed", str(seed), "-o", str(sim)], check=True, cwd=ROOT)
-        truth = pd.read_csv(sim / "truth.csv")
+        truth, _ = coordinate_table(pd.read_csv(sim / "truth.csv"), cfg)    # q1_m, q2_rad … → bare names
         measured = gyro_rates(cfg, sim / "gyro.csv")
     t = truth["time_s"].to_numpy()
     q = truth[list(cfg.coord_names)].to_numpy()

@@ -26,6 +26,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from cdgps_cli.report.sensor_reports import _mpl  # noqa: E402  (the reports' plot settings)
+from cdgps_cli.io.coordinate_columns import coordinate_table  # noqa: E402
 from cdgps_cli.io.states import States  # noqa: E402
 
 WIDTH_PX = 900
@@ -51,7 +52,7 @@ def _png(fig_or_path, out: Path) -> None:
 def dof2_figure(states_mcap: Path, truth_dir: Path, init_end_s: float):
     plt = _mpl()
     st = States(states_mcap, diagnostics=False)
-    truth = pd.read_csv(truth_dir / "truth.csv.xz")
+    truth, _ = coordinate_table(pd.read_csv(truth_dir / "truth.csv.xz"), st.cfg)   # bare or q1_m … names
     names = list(st.cfg.coord_names)
     fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True)
     for i, n in enumerate(names):

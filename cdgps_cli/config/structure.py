@@ -17,6 +17,7 @@ Frames
 from __future__ import annotations
 
 import hashlib
+import os
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,12 +25,12 @@ from pathlib import Path
 import numpy as np
 
 from cdgps_cli.core.errors import CdgpsError, join_problems
-from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli.config.limits import config_range_problems
-from cdgps_cli.config.schema import gnss_keys, optional_keys, required_keys
+from cdgps_cli.config.schema import (GNSS_TABLES, STRUCTURE_TABLES, Field, optional_keys, required_keys,
+                                     simulation_table)
+from cdgps_cli.config.validate import AXES, INVALID, Context, Problems, array_tables, check_ref, check_table
 from cdgps_cli.config.options import GNSS_DEFAULTS
 
-AXES = ("x", "y", "z")
 COORD_KINDS = {"translation": "m", "rotation": "rad", "modal": "1"}
 COORD_UNIT_LABELS = {"translation": "m", "rotation": "rad", "modal": "modal amplitude"}
 # a covariance is accepted as symmetric / positive semi-definite within these relative tolerances
@@ -257,7 +258,8 @@ class StructureConfig:
 
 
 # --------------------------------------------------------------------------------------------
-# validation helpers
+# validation: the keys are declared in config/schema.py and judged by config/validate.py; the
+# rules across keys are the short named checks below
 
 _SIM_DEFAULTS = {
     "phase_sigma_m": 0.01,
@@ -287,81 +289,117 @@ _SIM_DEFAULTS = {
 
 #: [simulation] numbers that may be negative (angles)
 _SIGNED_SIM_KEYS = {"static_angle_deg", "slew_from_deg", "slew_to_deg"}
+#: [simulation] keys that name a coordinate or thrusters
+_SIM_REFS = {"static_angle_coordinate": "coordinates", "pulse_thrusters": "thrusters"}
+_SIM_TABLE = simulation_table(_SIM_DEFAULTS, _SIGNED_SIM_KEYS, _SIM_REFS)
 
 
-class _Checker:
-    """Collects problems while walking the TOML document."""
-
-    def __init__(self, path: str):
-        self.path = path
-        self.problems: list[str] = []
-
-    def add(self, key: str, msg: str) -> None:
-        self.problems.append(f"{key}: {msg}")
-
-    def keys(self, table: dict, key: str, required: set, optional: set) -> None:
-        if not isinstance(table, dict):
-            self.add(key, "expected a table")
-            return
-        for k in sorted(set(table) - required - optional):
-            self.add(f"{key}.{k}" if key else k, f"unknown key (allowed: {', '.join(sorted(required | optional))})")
-        for k in sorted(required - set(table)):
-            self.add(f"{key}.{k}" if key else k, "missing required key")
-
-    def number(self, table, key, name, default=None, positive=False, nonneg=False):
-        full = f"{key}.{name}" if key else name
-        if name not in table:
-            return default
-        v = table[name]
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
-            self.add(full, f"expected a finite number, got {v!r}")
-            return default
-        if positive and v <= 0:
-            self.add(full, f"expected a positive number, got {v!r}")
-            return default
-        if nonneg and v < 0:
-            self.add(full, f"expected a non-negative number, got {v!r}")
-            return default
-        return float(v)
-
-    def string(self, table, key, name, default=None):
-        full = f"{key}.{name}" if key else name
-        if name not in table:
-            return default
-        v = table[name]
-        if not isinstance(v, str) or not v:
-            self.add(full, f"expected a non-empty string, got {v!r}")
-            return default
-        bad = next((c for c in v if not c.isprintable()), None)
-        if bad is not None:        # a NUL or newline in a name breaks every file that carries it (issue 32)
-            self.add(full, f"expected printable characters, got {v!r} (contains U+{ord(bad):04X})")
-            return default
-        return v
-
-    def vector(self, table, key, name, size, default=None, unit=False):
-        full = f"{key}.{name}" if key else name
-        if name not in table:
-            return default
-        v = table[name]
-        ok = isinstance(v, list) and all(
-            isinstance(e, (int, float)) and not isinstance(e, bool) and np.isfinite(e) for e in v
-        )
-        if not ok or (size is not None and len(v) != size):
-            want = f"{size} finite numbers" if size is not None else "a list of finite numbers"
-            got = f"{len(v)} values" if isinstance(v, list) else repr(v)
-            self.add(full, f"expected {want}, got {got}")
-            return default
-        arr = np.asarray(v, dtype=float)
-        if unit:
-            n = np.linalg.norm(arr)
-            if n == 0:
-                self.add(full, "expected a non-zero direction vector")
-                return default
-            arr = arr / n
-        return arr
+def _entries(p: Problems, doc: dict, name: str, ctx: Context, required: bool = False) -> list[tuple[str, dict, dict]]:
+    """``(key, table as given, checked values)`` of each entry of the array of tables ``[[name]]``."""
+    fields = STRUCTURE_TABLES[name + "[]"]
+    return [(f"{name}[{i}]", t, check_table(p, t, f"{name}[{i}]", fields, ctx, i))
+            for i, t in enumerate(array_tables(p, doc, name, required))]
 
 
-def _mode_damping(chk: _Checker, m: dict, key: str, rigid: bool, f_hz: float) -> tuple[float, float]:
+def _table(p: Problems, doc: dict, name: str, ctx: Context, fields: dict | None = None) -> tuple[dict, dict]:
+    """``(table as given, checked values)`` of the table ``[name]`` (absent: empty)."""
+    t = doc.get(name, {})
+    vals = check_table(p, t, name, fields or STRUCTURE_TABLES[name], ctx)
+    return (t if isinstance(t, dict) else {}), vals
+
+
+def _unique(p: Problems, names: list, key: str) -> None:
+    seen = set()
+    for i, n in enumerate(names):
+        if n in seen:
+            p.add(f"{key}[{i}].name", f"duplicate name {n!r}")
+        seen.add(n)
+
+
+def _named(p: Problems, entries: list, key: str, ctx: Context) -> list:
+    """The entries' names (each unique), known to later references as table ``key``."""
+    names = [v["name"] for _, _, v in entries]
+    _unique(p, names, key)
+    ctx.names[key] = names
+    return names
+
+
+_AXIS_REFS = {part: Field("ref", {}, ref="coordinates", ref_kind=part) for part in ("translation", "rotation")}
+
+
+def _section_axes(p: Problems, s: dict, key: str, part: str, ctx: Context, used: dict) -> tuple:
+    """A section's ``translation`` or ``rotation`` table → sorted ((axis index, coordinate index), …);
+    each coordinate drives at most one axis of one section."""
+    tbl = s.get(part, {})
+    if not isinstance(tbl, dict):
+        p.add(f"{key}.{part}", "expected a table such as {x = \"q1\"}")
+        return ()
+    items = []
+    for ax, ref in tbl.items():
+        where = f"{key}.{part}.{ax}"
+        if ax not in AXES:
+            p.add(where, "expected an axis x, y or z")
+            continue
+        j = check_ref(p, where, ref, _AXIS_REFS[part], ctx)
+        if j is not INVALID:
+            if j in used:
+                p.add(where, f"coordinate {ref!r} already drives {used[j]}")
+            used[j] = where
+            items.append((AXES.index(ax), j))
+    return tuple(sorted(items))
+
+
+def _sections(p: Problems, doc: dict, ctx: Context) -> list:
+    used: dict[int, str] = {}
+    out = [Section(v["name"], np.asarray(v["pivot_m"], dtype=float), _section_axes(p, s, key, "translation", ctx, used),
+                   _section_axes(p, s, key, "rotation", ctx, used))
+           for key, s, v in _entries(p, doc, "sections", ctx)]
+    _unique(p, [s.name for s in out], "sections")
+    ctx.names["sections"] = [s.name for s in out]
+    return out
+
+
+def _master(p: Problems, ants: list) -> list:
+    """Indices of the master antennas (exactly one allowed), with the rules on them."""
+    masters = [i for i, (_, _, v) in enumerate(ants) if v["master"]]
+    for key, a, _ in ants:
+        if a.get("master") is True and "sigma_m" in a:
+            p.add(f"{key}.sigma_m", "the master is in every channel; give sigma_m on the rover antennas, "
+                                    "transmitters or [[channel_sigma]] entries instead")
+    if len(masters) != 1:
+        p.add("antennas", f"exactly one antenna must have master = true, found {len(masters)}")
+    if len(ants) < 2:
+        p.add("antennas", "at least a master and one other antenna are required")
+    return masters
+
+
+def _transmitter_position(p: Problems, key: str, t: dict, v: dict) -> tuple[np.ndarray, bool]:
+    """(position or direction, far field) of a transmitter: exactly one of position_m or direction."""
+    if ("position_m" in t) == ("direction" in t):
+        p.add(key, "give exactly one of position_m (near field, metres in the lab frame) or direction (far field, "
+                   "unit vector toward the source)")
+        return np.zeros(3), False
+    if "position_m" in t:
+        return (np.zeros(3) if v["position_m"] is None else v["position_m"]), False
+    return (np.array([0.0, 0.0, 1.0]) if v["direction"] is None else v["direction"]), True
+
+
+def _mode_frequency(p: Problems, key: str, m: dict, v: dict) -> float:
+    """A mode's frequency, Hz: 0 for a rigid mode, positive otherwise."""
+    f = v["frequency_hz"]
+    if v["rigid"]:
+        if f is not None and f < 0:
+            p.add(f"{key}.frequency_hz", f"expected a non-negative number, got {m['frequency_hz']!r}")
+        elif f is not None and f != 0.0:
+            p.add(f"{key}.frequency_hz", "a rigid-body mode (rigid = true) must have frequency_hz = 0")
+        return 0.0 if f is None or f < 0 else f
+    if f is not None and f <= 0:
+        p.add(f"{key}.frequency_hz", f"expected a positive number, got {m['frequency_hz']!r}"
+                                     + (" (set rigid = true for a rigid-body mode)" if f == 0 else ""))
+    return 1.0 if f is None or f <= 0 else f
+
+
+def _mode_damping(p: Problems, key: str, m: dict, v: dict, f_hz: float) -> tuple[float, float]:
     """Envelope time constant τ (s) and damping ratio ζ of a [[modes]] entry (exactly one given).
 
     τ = 1/(ζ ω) with ω = 2π f (Table 1 of the 1998 paper); a rigid mode (f = 0) needs τ, the
@@ -369,62 +407,54 @@ def _mode_damping(chk: _Checker, m: dict, key: str, rigid: bool, f_hz: float) ->
     """
     has_tau, has_zeta = "time_constant_s" in m, "damping_ratio" in m
     if has_tau == has_zeta:
-        chk.add(key, "give exactly one of time_constant_s (envelope time constant τ, s) or damping_ratio "
-                     "(ζ, with τ = 1/(ζ·2π·frequency_hz))" + (", not both" if has_tau else ""))
+        p.add(key, "give exactly one of time_constant_s (envelope time constant τ, s) or damping_ratio "
+                   "(ζ, with τ = 1/(ζ·2π·frequency_hz))" + (", not both" if has_tau else ""))
         return 1e9, float("nan")
     omega = 2 * np.pi * f_hz
     if has_tau:
-        tau = chk.number(m, key, "time_constant_s", 1e9, positive=True)
-        return tau, (float("nan") if rigid else 1.0 / (omega * tau))
-    if rigid:
-        chk.add(f"{key}.damping_ratio", "a rigid-body mode has no damping ratio (frequency 0); give time_constant_s, the decay time constant of its rate")
+        tau = 1e9 if v["time_constant_s"] is None else v["time_constant_s"]
+        return tau, (float("nan") if v["rigid"] else 1.0 / (omega * tau))
+    if v["rigid"]:
+        p.add(f"{key}.damping_ratio", "a rigid-body mode has no damping ratio (frequency 0); give time_constant_s, "
+                                      "the decay time constant of its rate")
         return 1e9, float("nan")
-    zeta = chk.number(m, key, "damping_ratio", None, positive=True)
+    zeta = v["damping_ratio"]
     if zeta is None:
         return 1e9, float("nan")
     if zeta >= 1.0:
-        chk.add(f"{key}.damping_ratio", f"expected 0 < ζ < 1 (an underdamped mode), got {zeta!r}")
+        p.add(f"{key}.damping_ratio", f"expected 0 < ζ < 1 (an underdamped mode), got {zeta!r}")
         return 1e9, float("nan")
     return 1.0 / (zeta * omega), zeta
 
 
-def _square_matrix(chk: _Checker, tbl: dict, key: str, size: int):
-    """A size×size list of lists of finite numbers, or None (with a problem recorded)."""
-    v = tbl[key.rsplit(".", 1)[1]]
-    ok = (isinstance(v, list) and len(v) == size and all(
-        isinstance(r, list) and len(r) == size and all(
-            isinstance(e, (int, float)) and not isinstance(e, bool) and np.isfinite(e) for e in r) for r in v))
-    if not ok:
-        got = f"{len(v)} rows" if isinstance(v, list) else repr(v)
-        chk.add(key, f"expected a {size}×{size} matrix (a list of {size} rows of {size} finite numbers), got {got}")
-        return None
-    return np.array(v, dtype=float)
+def _independent_shapes(p: Problems, U: np.ndarray) -> None:
+    s = np.linalg.svd(U, compute_uv=False)
+    if s.size and s.min() <= 1e-12 * max(s.max(), 1e-300):
+        p.add("modes", "mode shapes are linearly dependent (U has deficient column rank)")
 
 
-def _process_noise(chk: _Checker, pn: dict, size: int, space: str):
+def _process_noise(p: Problems, pn: dict, v: dict, size: int, space: str):
     """(sigma (size,), covariance (size, size) or None) from [process_noise]: sigma | covariance | cholesky."""
     given = [k for k in ("sigma", "covariance", "cholesky") if k in pn]
     what = "modes" if space == "modal" else "coordinates"
     if len(given) != 1:
-        chk.add("process_noise", "give exactly one of sigma (diagonal W, one σ per %s), covariance (full W, "
-                "%d×%d) or cholesky (lower-triangular L with W = L·Lᵀ)%s" % (what, size, size,
-                                                                           f"; got {', '.join(given)}" if given else ""))
+        p.add("process_noise", "give exactly one of sigma (diagonal W, one σ per %s), covariance (full W, "
+              "%d×%d) or cholesky (lower-triangular L with W = L·Lᵀ)%s" % (what, size, size,
+                                                                         f"; got {', '.join(given)}" if given else ""))
         return np.zeros(size), None
-    if given[0] == "sigma":
-        sig = chk.vector(pn, "process_noise", "sigma", size, np.zeros(size))
-        if sig is not None and np.any(sig < 0):
-            chk.add("process_noise.sigma", "expected non-negative values")
-        return sig, None
-    key = f"process_noise.{given[0]}"
-    M = _square_matrix(chk, pn, key, size)
+    M = v[given[0]]
     if M is None:
         return np.zeros(size), None
+    if given[0] == "sigma":
+        return M, None
+    key = f"process_noise.{given[0]}"
     scale = max(float(np.max(np.abs(M))), 1e-300)
     if given[0] == "cholesky":
         upper = np.triu(M, 1)
         if np.any(upper != 0):
             i, j = np.argwhere(upper != 0)[0]
-            chk.add(key, f"expected a lower-triangular factor L (W = L·Lᵀ); entry [{i}][{j}] above the diagonal is {float(M[i, j])!r}")
+            p.add(key, f"expected a lower-triangular factor L (W = L·Lᵀ); entry [{i}][{j}] above the diagonal is "
+                       f"{float(M[i, j])!r}")
             return np.zeros(size), None
         W = M @ M.T
     else:
@@ -432,11 +462,12 @@ def _process_noise(chk: _Checker, pn: dict, size: int, space: str):
         asym = np.abs(W - W.T)
         if np.max(asym) > COV_SYMMETRY_REL_TOL * scale:
             i, j = np.unravel_index(np.argmax(asym), W.shape)
-            chk.add(key, f"expected a symmetric matrix; [{i}][{j}] = {float(W[i, j])!r} but [{j}][{i}] = {float(W[j, i])!r}")
+            p.add(key, f"expected a symmetric matrix; [{i}][{j}] = {float(W[i, j])!r} but [{j}][{i}] = "
+                       f"{float(W[j, i])!r}")
             return np.zeros(size), None
         lam = np.linalg.eigvalsh(0.5 * (W + W.T))
         if lam.min() < -COV_PSD_REL_TOL * scale:
-            chk.add(key, f"expected a positive semi-definite covariance; its smallest eigenvalue is {lam.min():.6g}")
+            p.add(key, f"expected a positive semi-definite covariance; its smallest eigenvalue is {lam.min():.6g}")
             return np.zeros(size), None
         W = 0.5 * (W + W.T)
     return np.sqrt(np.maximum(np.diag(W), 0.0)), W
@@ -462,7 +493,14 @@ def gyro_rate_map(sections, gyro_section, gyro_axis, gyro_rotation, rigid_index,
     return G
 
 
-def _check_gyros_observe(chk, sections, g_sec, g_axis, g_rot, rigid_index, U, coord_names, mode_names):
+def _gyro_mounts(p: Problems, gyros: list) -> None:
+    for key, g, _ in gyros:
+        if "section" not in g and "rotation_rad" not in g:
+            p.add(key, "a gyro needs a section (with rotation coordinates) or rotation_rad = {coordinate = [rx, ry, rz]} "
+                       "(its mount's rotation per unit of each coordinate, e.g. FE mode-shape rotations)")
+
+
+def _check_gyros_observe(p, sections, g_sec, g_axis, g_rot, rigid_index, U, coord_names, mode_names):
     """Refuse gyros that read nothing (all-zero row of G) or no mode (zero row of G·U)."""
     G = gyro_rate_map(sections, g_sec, g_axis, g_rot, rigid_index, len(coord_names))
     for g in range(G.shape[0]):
@@ -472,55 +510,36 @@ def _check_gyros_observe(chk, sections, g_sec, g_axis, g_rot, rigid_index, U, co
                 why = f"section {sections[g_sec[g]].name!r} has no rotation coordinates and no rotation_rad is given"
             else:
                 why = "its axis is perpendicular to every rotation of its section / rotation_rad"
-            chk.add(key, f"the gyro reads nothing ({why}); expected a section with rotation = {{axis = coordinate}} "
-                         "or rotation_rad = {coordinate = [rx, ry, rz]} with a component along the gyro's axis")
+            p.add(key, f"the gyro reads nothing ({why}); expected a section with rotation = {{axis = coordinate}} "
+                       "or rotation_rad = {coordinate = [rx, ry, rz]} with a component along the gyro's axis")
         elif U.size and not np.any(np.abs(G[g] @ U) > 1e-12 * np.abs(G[g]).max() * np.abs(U).max()):
-            chk.add(key, f"the gyro senses none of the modes ({', '.join(mode_names)}): the coordinates it reads "
-                         "do not move in any mode shape")
+            p.add(key, f"the gyro senses none of the modes ({', '.join(mode_names)}): the coordinates it reads "
+                       "do not move in any mode shape")
 
 
-def _channel_sigma(chk: _Checker, doc: dict, a_names, masters, t_names) -> list:
-    """[[channel_sigma]] entries → [(antenna, transmitter, sigma_m)]."""
+def _channel_sigma(p: Problems, doc: dict, ctx: Context) -> list:
+    """[[channel_sigma]] entries → [(antenna, transmitter, sigma_m)]; a channel at most once."""
     out, seen = [], set()
-    master = a_names[masters[0]] if len(masters) == 1 else None
-    for i, e in enumerate(_table_list(chk, doc, "channel_sigma", False)):
-        key = f"channel_sigma[{i}]"
-        chk.keys(e, key, *_keys("channel_sigma[]"))
+    a_names, t_names = ctx.names["rover_antennas"], ctx.names["transmitters"]
+    for key, e, v in _entries(p, doc, "channel_sigma", ctx):
         a, t = e.get("antenna"), e.get("transmitter")
-        if "antenna" in e and (a not in a_names or a == master):
-            chk.add(f"{key}.antenna", f"expected a rover antenna ({', '.join(n for n in a_names if n != master)}), got {a!r}")
-        if "transmitter" in e and t not in t_names:
-            chk.add(f"{key}.transmitter", f"expected a transmitter ({', '.join(t_names)}), got {t!r}")
-        sig = chk.number(e, key, "sigma_m", None, positive=True)
         if (a, t) in seen:
-            chk.add(key, f"channel {a}/{t} is given twice")
+            p.add(key, f"channel {a}/{t} is given twice")
         seen.add((a, t))
-        if sig is not None and a in a_names and t in t_names and a != master:
-            out.append((a, t, sig))
+        if v["sigma_m"] is not None and a in a_names and t in t_names and a != ctx.master:
+            out.append((a, t, v["sigma_m"]))
     return out
+
+
+def _point_names(p: Problems, p_names: list, a_names: list) -> None:
+    for i, n in enumerate(p_names):
+        if n in a_names:
+            p.add(f"points[{i}].name", f"{n!r} is already an antenna name (antennas are points too)")
 
 
 def _keys(table: str) -> tuple[set, set]:
     """(required, optional) keys of a table, from the one declaration in :mod:`cdgps_cli.config.schema`."""
     return required_keys(table), optional_keys(table)
-
-
-def _table_list(chk: _Checker, doc: dict, name: str, required: bool) -> list:
-    v = doc.get(name, [])
-    if not isinstance(v, list) or not all(isinstance(e, dict) for e in v):
-        chk.add(name, "expected an array of tables ([[%s]])" % name)
-        return []
-    if required and not v:
-        chk.add(name, f"at least one [[{name}]] entry is required")
-    return v
-
-
-def _unique(chk: _Checker, names: list, key: str) -> None:
-    seen = set()
-    for i, n in enumerate(names):
-        if n in seen:
-            chk.add(f"{key}[{i}].name", f"duplicate name {n!r}")
-        seen.add(n)
 
 
 def load_config(path: str | Path) -> StructureConfig:
@@ -572,320 +591,120 @@ def _description_problems(node, key: str = "") -> list[str]:
     return out
 
 
-def parse_config(text: str, path: str = "<config>") -> StructureConfig:
-    """Validate a structure-model TOML document given as text (see :func:`load_config`)."""
-    text = _strip_bom(text)
+def _toml(text: str, path: str) -> dict:
     try:
-        doc = tomllib.loads(text)
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise CdgpsError(f"{path}: not valid TOML: {exc}") from None
-    chk = _Checker(path)
+
+
+def _raise_problems(p: Problems, ranges: list, header: str) -> None:
+    """All problems at once; a range problem only for keys the checks did not refuse themselves."""
+    if p.problems:
+        own = {q.split(":")[0] for q in p.problems[len(ranges):]}
+        kept = [q for q in ranges if q.split(":")[0] not in own] + p.problems[len(ranges):]
+        raise CdgpsError(join_problems(f"{p.path}: {header}", kept))
+
+
+def parse_config(text: str, path: str = "<config>") -> StructureConfig:
+    """Validate a structure-model TOML document given as text (see :func:`load_config`).
+
+    Each table is judged by its declaration (:data:`cdgps_cli.config.schema.STRUCTURE_TABLES`), in
+    an order where every table's references are known (coordinates before the sections that name
+    them …); then the rules across keys.  Every problem is listed at once, naming file and key.
+    """
+    text = _strip_bom(text)
+    doc = _toml(text, path)
+    p = Problems(path)
     ranges = config_range_problems(doc)                 # plausible bounds (limits.py), first so that
-    chk.problems += ranges                              # later checks guarded by `not chk.problems` skip
-    chk.problems += _description_problems(doc)
-    chk.keys(doc, "", *_keys(""))
+    p.problems += ranges                                # later checks guarded by `not p.problems` skip
+    p.keys(doc, "", *_keys(""))
+    ctx = Context()
+    _, model = _table(p, doc, "model", ctx)
 
-    # [model]
-    model = doc.get("model", {}) if isinstance(doc.get("model", {}), dict) else {}
-    chk.keys(model, "model", *_keys("model"))
-    name = chk.string(model, "model", "name", "unnamed")
-    description = model.get("description", "") if isinstance(model.get("description", ""), str) else ""
-    dt = chk.number(model, "model", "sample_period_s", 0.1, positive=True)
-    wavelength = chk.number(model, "model", "wavelength_m", GPS_L1_WAVELENGTH_M, positive=True)
-    sigma = chk.number(model, "model", "measurement_sigma_m", 0.01, positive=True)
-    mp_sigma = chk.number(model, "model", "multipath_sigma_m", 0.0, nonneg=True)
-    mp_tau = chk.number(model, "model", "multipath_time_constant_s", 30.0, positive=True)
-    lbc = model.get("line_bias_calibrated", True)
-    if not isinstance(lbc, bool):
-        chk.add("model.line_bias_calibrated", f"expected true or false, got {lbc!r}")
-        lbc = True
+    coords = _entries(p, doc, "coordinates", ctx, required=True)
+    coord_names = _named(p, coords, "coordinates", ctx)
+    ctx.coord_kinds = [v["kind"] for _, _, v in coords]
+    ctx.sizes["coordinates"] = n_q = len(coord_names)
+    _, body = _table(p, doc, "body", ctx)
+    rigid_index = body["rigid_rotation"]
+    sections = _sections(p, doc, ctx)
 
-    # [[coordinates]]
-    coords = _table_list(chk, doc, "coordinates", True)
-    coord_names, coord_kinds, coord_units = [], [], []
-    for i, c in enumerate(coords):
-        key = f"coordinates[{i}]"
-        chk.keys(c, key, *_keys("coordinates[]"))
-        coord_names.append(chk.string(c, key, "name", f"?{i}"))
-        coord_units.append(chk.string(c, key, "unit", ""))
-        kind = c.get("kind", "modal")
-        if not isinstance(kind, str) or kind not in COORD_KINDS:
-            chk.add(f"{key}.kind", f"expected one of {sorted(COORD_KINDS)}, got {kind!r}")
-            kind = "modal"
-        coord_kinds.append(kind)
-    _unique(chk, coord_names, "coordinates")
-    n_q = len(coord_names)
-    cindex = {n: i for i, n in enumerate(coord_names)}
+    ants = _entries(p, doc, "antennas", ctx, required=True)
+    a_names = _named(p, ants, "antennas", ctx)
+    masters = _master(p, ants)
 
-    def coord_ref(value, key, kind=None):
-        if not isinstance(value, str) or value not in cindex:
-            chk.add(key, f"expected the name of a coordinate ({', '.join(coord_names)}), got {value!r}")
-            return None
-        j = cindex[value]
-        if kind and coord_kinds[j] != kind:
-            chk.add(key, f"coordinate {value!r} is a {coord_kinds[j]}, expected a {kind}")
-        return j
-
-    # [body]
-    body = doc.get("body", {})
-    chk.keys(body, "body", *_keys("body"))
-    body = body if isinstance(body, dict) else {}
-    origin = chk.vector(body, "body", "origin_m", 3, np.zeros(3))
-    rigid_index = None
-    if "rigid_rotation" in body:
-        rigid_index = coord_ref(body["rigid_rotation"], "body.rigid_rotation", "rotation")
-
-    # [[sections]]
-    sections = []
-    sec_tables = _table_list(chk, doc, "sections", False)
-    used_coords: dict[int, str] = {}
-    for i, s in enumerate(sec_tables):
-        key = f"sections[{i}]"
-        chk.keys(s, key, *_keys("sections[]"))
-        sname = chk.string(s, key, "name", f"?{i}")
-        pivot = chk.vector(s, key, "pivot_m", 3, np.zeros(3))
-        parts = {}
-        for part in ("translation", "rotation"):
-            tbl = s.get(part, {})
-            if not isinstance(tbl, dict):
-                chk.add(f"{key}.{part}", "expected a table such as {x = \"q1\"}")
-                tbl = {}
-            items = []
-            for ax, ref in tbl.items():
-                if ax not in AXES:
-                    chk.add(f"{key}.{part}.{ax}", "expected an axis x, y or z")
-                    continue
-                j = coord_ref(ref, f"{key}.{part}.{ax}", "translation" if part == "translation" else "rotation")
-                if j is not None:
-                    if j in used_coords:
-                        chk.add(f"{key}.{part}.{ax}", f"coordinate {ref!r} already drives {used_coords[j]}")
-                    used_coords[j] = f"{key}.{part}.{ax}"
-                    items.append((AXES.index(ax), j))
-            parts[part] = tuple(sorted(items))
-        sections.append(Section(sname, pivot, parts["translation"], parts["rotation"]))
-    _unique(chk, [s.name for s in sections], "sections")
-    sindex = {s.name: i for i, s in enumerate(sections)}
-
-    def section_ref(tbl, key):
-        if "section" not in tbl:
-            return -1
-        v = tbl["section"]
-        if not isinstance(v, str) or v not in sindex:
-            chk.add(f"{key}.section", f"expected the name of a section ({', '.join(sindex) or 'none defined'}), got {v!r}")
-            return -1
-        return sindex[v]
-
-    # [[antennas]]
-    ants = _table_list(chk, doc, "antennas", True)
-    a_names, a_sec, a_pos, a_disp, a_rx, a_lb, masters, a_sig = [], [], [], [], [], [], [], []
-
-    def per_coordinate_vectors(tbl, key, name, what):
-        """A {coordinate = [x, y, z]} table → (3, n_q) array (zeros where not given)."""
-        out = np.zeros((3, n_q))
-        dtbl = tbl.get(name, {})
-        if not isinstance(dtbl, dict):
-            chk.add(f"{key}.{name}", f"expected a table {what}")
-            return out
-        for ref in dtbl:
-            j = coord_ref(ref, f"{key}.{name}.{ref}")
-            v = chk.vector(dtbl, f"{key}.{name}", ref, 3)
-            if j is not None and v is not None:
-                out[:, j] = v
-        return out
-    for i, a in enumerate(ants):
-        key = f"antennas[{i}]"
-        chk.keys(a, key, *_keys("antennas[]"))
-        a_names.append(chk.string(a, key, "name", f"?{i}"))
-        a_sec.append(section_ref(a, key))
-        a_pos.append(chk.vector(a, key, "position_m", 3, np.zeros(3)))
-        a_rx.append(chk.string(a, key, "receiver", "rx1"))
-        a_lb.append(chk.number(a, key, "line_bias_m", 0.0))
-        m = a.get("master", False)
-        if not isinstance(m, bool):
-            chk.add(f"{key}.master", f"expected true or false, got {m!r}")
-        elif m:
-            masters.append(i)
-        a_sig.append(chk.number(a, key, "sigma_m", np.nan, positive=True))
-        if m is True and "sigma_m" in a:
-            chk.add(f"{key}.sigma_m", "the master is in every channel; give sigma_m on the rover antennas, "
-                                      "transmitters or [[channel_sigma]] entries instead")
-        a_disp.append(per_coordinate_vectors(a, key, "displacement_m", "{coordinate = [dx, dy, dz]} (m per unit coordinate)"))
-    _unique(chk, a_names, "antennas")
-    if len(masters) != 1:
-        chk.add("antennas", f"exactly one antenna must have master = true, found {len(masters)}")
-    if len(ants) < 2:
-        chk.add("antennas", "at least a master and one other antenna are required")
-
-    # [[transmitters]]
-    txs = _table_list(chk, doc, "transmitters", True)
-    t_names, t_pos, far, t_sig = [], [], [], []
-    for i, t in enumerate(txs):
-        key = f"transmitters[{i}]"
-        chk.keys(t, key, *_keys("transmitters[]"))
-        t_names.append(chk.string(t, key, "name", f"?{i}"))
-        t_sig.append(chk.number(t, key, "sigma_m", np.nan, positive=True))
-        if ("position_m" in t) == ("direction" in t):
-            chk.add(key, "give exactly one of position_m (near field, metres in the lab frame) or direction (far field, unit vector toward the source)")
-            t_pos.append(np.zeros(3))
-            far.append(False)
-        elif "position_m" in t:
-            t_pos.append(chk.vector(t, key, "position_m", 3, np.zeros(3)))
-            far.append(False)
-        else:
-            t_pos.append(chk.vector(t, key, "direction", 3, np.array([0.0, 0.0, 1.0]), unit=True))
-            far.append(True)
-    _unique(chk, t_names, "transmitters")
+    txs = _entries(p, doc, "transmitters", ctx, required=True)
+    t_names = _named(p, txs, "transmitters", ctx)
+    t_pos, far = zip(*[_transmitter_position(p, key, t, v) for key, t, v in txs]) if txs else ((), ())
     if far and len(set(far)) > 1:
-        chk.add("transmitters", "mixing near-field (position_m) and far-field (direction) transmitters is not supported")
+        p.add("transmitters", "mixing near-field (position_m) and far-field (direction) transmitters is not supported")
 
-    # [[modes]]
-    modes = _table_list(chk, doc, "modes", True)
-    m_names, m_f, m_tau, m_zeta, shapes = [], [], [], [], []
-    for i, m in enumerate(modes):
-        key = f"modes[{i}]"
-        chk.keys(m, key, *_keys("modes[]"))
-        m_names.append(chk.string(m, key, "name", f"?{i}"))
-        rigid = m.get("rigid", False)
-        if not isinstance(rigid, bool):
-            chk.add(f"{key}.rigid", f"expected true or false, got {rigid!r}")
-            rigid = False
-        if rigid:
-            f = chk.number(m, key, "frequency_hz", 0.0, nonneg=True)
-            if f is not None and f != 0.0:
-                chk.add(f"{key}.frequency_hz", "a rigid-body mode (rigid = true) must have frequency_hz = 0")
-        else:
-            f = chk.number(m, key, "frequency_hz", 1.0, positive=True)
-            if "frequency_hz" in m and m["frequency_hz"] == 0:
-                chk.problems[-1] += " (set rigid = true for a rigid-body mode)"
-        m_f.append(f if f is not None else 1.0)
-        tau, zeta = _mode_damping(chk, m, key, rigid, m_f[-1])
-        m_tau.append(tau)
-        m_zeta.append(zeta)
-        shapes.append(chk.vector(m, key, "shape", n_q, np.zeros(n_q)))
-    _unique(chk, m_names, "modes")
-    U = np.array(shapes).T if shapes else np.zeros((n_q, 0))
-    if shapes and not chk.problems:
-        s = np.linalg.svd(U, compute_uv=False)
-        if s.size and s.min() <= 1e-12 * max(s.max(), 1e-300):
-            chk.add("modes", "mode shapes are linearly dependent (U has deficient column rank)")
+    modes = _entries(p, doc, "modes", ctx, required=True)
+    m_f = [_mode_frequency(p, key, m, v) for key, m, v in modes]
+    m_tau, m_zeta = zip(*[_mode_damping(p, key, m, v, f) for (key, m, v), f in zip(modes, m_f)]) if modes else ((), ())
+    m_names = _named(p, modes, "modes", ctx)
+    U = np.array([v["shape"] for _, _, v in modes]).T if modes else np.zeros((n_q, 0))
+    if modes and not p.problems:
+        _independent_shapes(p, U)
 
-    # [process_noise]
-    pn = doc.get("process_noise", {})
-    chk.keys(pn, "process_noise", *_keys("process_noise"))
-    pn = pn if isinstance(pn, dict) else {}
-    space = pn.get("space", "modal")
-    if space not in ("modal", "coordinates"):
-        chk.add("process_noise.space", f"expected \"modal\" or \"coordinates\", got {space!r}")
-        space = "modal"
-    size = len(m_names) if space == "modal" else n_q
-    pn_sigma, pn_cov = _process_noise(chk, pn, size, space)
+    pn_given = doc.get("process_noise", {})
+    space = pn_given.get("space", "modal") if isinstance(pn_given, dict) else "modal"
+    space = space if space in ("modal", "coordinates") else "modal"
+    ctx.sizes["process_noise"] = len(m_names) if space == "modal" else n_q
+    pn, pn_vals = _table(p, doc, "process_noise", ctx)
+    pn_sigma, pn_cov = _process_noise(p, pn, pn_vals, ctx.sizes["process_noise"], space)
 
-    # [[gyros]]
-    g_names, g_sec, g_axis, g_rot = [], [], [], []
-    for i, g in enumerate(_table_list(chk, doc, "gyros", False)):
-        key = f"gyros[{i}]"
-        chk.keys(g, key, *_keys("gyros[]"))
-        g_names.append(chk.string(g, key, "name", f"?{i}"))
-        g_sec.append(section_ref(g, key))
-        g_rot.append(per_coordinate_vectors(g, key, "rotation_rad", "{coordinate = [rx, ry, rz]} (rad per unit coordinate)"))
-        if "section" not in g and "rotation_rad" not in g:
-            chk.add(key, "a gyro needs a section (with rotation coordinates) or rotation_rad = {coordinate = [rx, ry, rz]} (its mount's rotation per unit of each coordinate, e.g. FE mode-shape rotations)")
-        ax = g.get("axis")
-        if ax in AXES:
-            g_axis.append(np.eye(3)[AXES.index(ax)])
-        else:
-            v = chk.vector(g, key, "axis", 3, None, unit=True) if isinstance(ax, list) else None
-            if v is None and not isinstance(ax, list):
-                chk.add(f"{key}.axis", f"expected x, y, z or a 3-vector, got {ax!r}")
-            g_axis.append(v if v is not None else np.array([0.0, 0.0, 1.0]))
-    _unique(chk, g_names, "gyros")
-    if g_names and not chk.problems:
-        _check_gyros_observe(chk, sections, g_sec, g_axis, g_rot, rigid_index, U, coord_names, m_names)
+    gyros = _entries(p, doc, "gyros", ctx)
+    _gyro_mounts(p, gyros)
+    g_names = _named(p, gyros, "gyros", ctx)
+    g_sec = [v["section"] for _, _, v in gyros]
+    g_axis = [np.asarray(v["axis"], dtype=float) for _, _, v in gyros]
+    g_rot = [v["rotation_rad"] for _, _, v in gyros]
+    if g_names and not p.problems:
+        _check_gyros_observe(p, sections, g_sec, g_axis, g_rot, rigid_index, U, coord_names, m_names)
 
-    channel_over = _channel_sigma(chk, doc, a_names, masters, t_names)
-    p_names, p_sec, p_pos, p_disp = [], [], [], []
-    for i, pt in enumerate(_table_list(chk, doc, "points", False)):
-        key = f"points[{i}]"
-        chk.keys(pt, key, *_keys("points[]"))
-        p_names.append(chk.string(pt, key, "name", f"?{i}"))
-        p_sec.append(section_ref(pt, key))
-        p_pos.append(chk.vector(pt, key, "position_m", 3, np.zeros(3)))
-        p_disp.append(per_coordinate_vectors(pt, key, "displacement_m", "{coordinate = [dx, dy, dz]} (m per unit coordinate)"))
-    _unique(chk, p_names, "points")
-    for i, n in enumerate(p_names):
-        if n in a_names:
-            chk.add(f"points[{i}].name", f"{n!r} is already an antenna name (antennas are points too)")
-
-    # [[thrusters]]
-    u_names, u_sec, u_pos, u_dir, u_max = [], [], [], [], []
-    for i, u in enumerate(_table_list(chk, doc, "thrusters", False)):
-        key = f"thrusters[{i}]"
-        chk.keys(u, key, *_keys("thrusters[]"))
-        u_names.append(chk.string(u, key, "name", f"?{i}"))
-        u_sec.append(section_ref(u, key))
-        u_pos.append(chk.vector(u, key, "position_m", 3, np.zeros(3)))
-        u_dir.append(chk.vector(u, key, "direction", 3, np.array([1.0, 0.0, 0.0]), unit=True))
-        u_max.append(chk.number(u, key, "max_force_n", np.inf, positive=True))
-    _unique(chk, u_names, "thrusters")
-
-    # [simulation]
-    sim = dict(_SIM_DEFAULTS)
-    st = doc.get("simulation", {})
-    chk.keys(st, "simulation", set(), set(_SIM_DEFAULTS))
-    if isinstance(st, dict):
-        for k, v in st.items():
-            if k not in _SIM_DEFAULTS:
-                continue
-            d = _SIM_DEFAULTS[k]
-            if isinstance(d, str):
-                if not isinstance(v, str):
-                    chk.add(f"simulation.{k}", f"expected a string, got {v!r}")
-                    continue
-                if v and k == "static_angle_coordinate" and v not in cindex:
-                    chk.add(f"simulation.{k}", f"expected a coordinate name, got {v!r}")
-            elif isinstance(d, list):
-                if not isinstance(v, list) or not all(isinstance(e, str) and e in u_names for e in v):
-                    bad = [e for e in v if not (isinstance(e, str) and e in u_names)] if isinstance(v, list) else v
-                    chk.add(f"simulation.{k}", f"unknown thruster name(s) {bad!r}: expected a list of thruster names "
-                                               f"({', '.join(u_names) or 'none defined'})")
-                    continue
-            else:
-                v = chk.number(st, "simulation", k, d, nonneg=(k not in _SIGNED_SIM_KEYS))
-            sim[k] = v
-
-    if chk.problems:
-        own = {q.split(":")[0] for q in chk.problems[len(ranges):]}    # a key the checker refused itself
-        kept = [q for q in ranges if q.split(":")[0] not in own] + chk.problems[len(ranges):]
-        raise CdgpsError(join_problems(f"{path}: invalid config", kept))
+    ctx.master = a_names[masters[0]] if len(masters) == 1 else None
+    ctx.names["rover_antennas"] = a_names
+    channel_over = _channel_sigma(p, doc, ctx)
+    points = _entries(p, doc, "points", ctx)
+    _point_names(p, _named(p, points, "points", ctx), a_names)
+    thrusters = _entries(p, doc, "thrusters", ctx)
+    u_names = _named(p, thrusters, "thrusters", ctx)
+    _, sim = _table(p, doc, "simulation", ctx, _SIM_TABLE)
+    _raise_problems(p, ranges, "invalid config")
 
     def ro(a, dtype=float):
         arr = np.array(a, dtype=dtype)
         arr.setflags(write=False)
         return arr
 
+    def col(entries, name, dtype=float):
+        return ro([v[name] for _, _, v in entries], dtype)
+
     return StructureConfig(
         path=path,
         text=text,
         sha256=hashlib.sha256(text.encode("utf-8")).hexdigest(),
-        name=name,
-        description=description,
-        sample_period_s=dt,
-        wavelength_m=wavelength,
-        measurement_sigma_m=sigma,
-        multipath_sigma_m=mp_sigma,
-        multipath_time_constant_s=mp_tau,
-        line_bias_calibrated=lbc,
+        name=model["name"],
+        description=model["description"],
+        sample_period_s=model["sample_period_s"],
+        wavelength_m=model["wavelength_m"],
+        measurement_sigma_m=model["measurement_sigma_m"],
+        multipath_sigma_m=model["multipath_sigma_m"],
+        multipath_time_constant_s=model["multipath_time_constant_s"],
+        line_bias_calibrated=model["line_bias_calibrated"],
         coord_names=tuple(coord_names),
-        coord_kinds=tuple(coord_kinds),
-        body_origin_m=ro(origin),
+        coord_kinds=tuple(ctx.coord_kinds),
+        body_origin_m=ro(body["origin_m"]),
         rigid_index=rigid_index,
         sections=tuple(sections),
         antenna_names=tuple(a_names),
-        antenna_section=ro(a_sec, int),
-        antenna_position_m=ro(np.reshape(a_pos, (-1, 3))),
-        antenna_displacement=ro(np.reshape(a_disp, (-1, 3, n_q))),
-        antenna_receiver=tuple(a_rx),
-        antenna_line_bias_m=ro(a_lb),
+        antenna_section=col(ants, "section", int),
+        antenna_position_m=ro(np.reshape([v["position_m"] for _, _, v in ants], (-1, 3))),
+        antenna_displacement=ro(np.reshape([v["displacement_m"] for _, _, v in ants], (-1, 3, n_q))),
+        antenna_receiver=tuple(v["receiver"] for _, _, v in ants),
+        antenna_line_bias_m=col(ants, "line_bias_m"),
         master_index=masters[0],
         transmitter_names=tuple(t_names),
         transmitter_far_field=bool(far and far[0]),
@@ -897,24 +716,24 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
         process_noise_space=space,
         process_noise_sigma=ro(pn_sigma),
         process_noise_covariance=None if pn_cov is None else ro(pn_cov),
-        coord_unit_labels=tuple(coord_units),
+        coord_unit_labels=tuple(v["unit"] for _, _, v in coords),
         mode_damping_ratio=ro(m_zeta),
         gyro_rotation=ro(np.reshape(g_rot, (-1, 3, n_q))),
-        antenna_sigma_m=ro(a_sig),
-        transmitter_sigma_m=ro(t_sig),
+        antenna_sigma_m=col(ants, "sigma_m"),
+        transmitter_sigma_m=col(txs, "sigma_m"),
         channel_sigma_overrides=tuple(channel_over),
-        point_names=tuple(p_names),
-        point_section=ro(p_sec, int),
-        point_position_m=ro(np.reshape(p_pos, (-1, 3))),
-        point_displacement=ro(np.reshape(p_disp, (-1, 3, n_q))),
+        point_names=tuple(v["name"] for _, _, v in points),
+        point_section=col(points, "section", int),
+        point_position_m=ro(np.reshape([v["position_m"] for _, _, v in points], (-1, 3))),
+        point_displacement=ro(np.reshape([v["displacement_m"] for _, _, v in points], (-1, 3, n_q))),
         gyro_names=tuple(g_names),
         gyro_section=ro(g_sec, int),
         gyro_axis=ro(np.reshape(g_axis, (-1, 3))),
         thruster_names=tuple(u_names),
-        thruster_section=ro(u_sec, int),
-        thruster_position_m=ro(np.reshape(u_pos, (-1, 3))),
-        thruster_direction=ro(np.reshape(u_dir, (-1, 3))),
-        thruster_max_force_n=ro(u_max),
+        thruster_section=col(thrusters, "section", int),
+        thruster_position_m=ro(np.reshape([v["position_m"] for _, _, v in thrusters], (-1, 3))),
+        thruster_direction=ro(np.reshape([v["direction"] for _, _, v in thrusters], (-1, 3))),
+        thruster_max_force_n=col(thrusters, "max_force_n"),
         simulation=sim,
     )
 
@@ -929,10 +748,6 @@ GNSS_WEIGHTINGS = ("elevation", "equal")
 # defaults of the GNSS solver settings: the [gnss] parser, GnssConfig and baseline.BaselineOptions all
 # take them from here (RTKLIB-comparable: 15° mask, ratio 3, a = b = 3 mm, code/phase ratio 100, DTTOL)
 
-# the keys of each table, from the one declaration (config/schema.py, also published as a JSON Schema)
-_GNSS_KEYS = set().union(*gnss_keys("gnss"))
-_GNSS_ANTENNA_KEYS = set().union(*gnss_keys("gnss.antennas.*"))
-_GNSS_DISPLACEMENT_KEYS = set().union(*gnss_keys("gnss.displacement"))
 
 
 @dataclass(frozen=True)
@@ -1041,156 +856,101 @@ def load_gnss_config(path: str | Path) -> GnssConfig:
 def parse_gnss_config(text: str, path: str = "<config>", base_dir: str | Path | None = None) -> GnssConfig:
     """Validate a GNSS run config given as text; every problem is listed with its key.
 
+    The ``[gnss]`` table, each ``[gnss.antennas.NAME]`` and ``[gnss.displacement]`` are judged by
+    their declarations (:data:`cdgps_cli.config.schema.GNSS_TABLES`), then the rules across keys.
     ``base_dir`` resolves relative file paths (None: kept as written, e.g. for a config read
     back from a RUN.mcap, whose data are in the file).
     """
     text = _strip_bom(text)
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise CdgpsError(f"{path}: not valid TOML: {exc}") from None
-    chk = _Checker(path)
-    chk.problems += [q for q in _description_problems(doc) if not q.startswith("gnss.description:")]  # checked below
+    doc = _toml(text, path)
+    p = Problems(path)
     for k in sorted(set(doc) - {"gnss"}):
         hint = " (a [baseline] job: only 'cdgps baseline' reads it; see docs/gnss-pipeline.md for the [gnss] form)" \
             if k == "baseline" else " (a GNSS run config has one [gnss] table)"
-        chk.add(k, "unknown top-level key" + hint)
+        p.add(k, "unknown top-level key" + hint)
+        p.problems += _description_problems(doc[k], k)
     g = doc.get("gnss")
     if not isinstance(g, dict):
-        chk.add("gnss", "missing [gnss] table")
-        raise CdgpsError(join_problems(f"{path}: invalid GNSS config", chk.problems))
-    for k in sorted(set(g) - set(_GNSS_KEYS)):
-        chk.add(f"gnss.{k}", f"unknown key (allowed: {', '.join(sorted(_GNSS_KEYS))})")
+        p.add("gnss", "missing [gnss] table")
+        raise CdgpsError(join_problems(f"{path}: invalid GNSS config", p.problems))
+    ctx = Context()
+    v = check_table(p, g, "gnss", GNSS_TABLES["gnss"], ctx)
 
-    def resolve(v: str) -> str:
-        if base_dir is None or Path(v).is_absolute():
-            return v
-        import os  # noqa: PLC0415
+    def resolve(f: str) -> str:
+        if base_dir is None or Path(f).is_absolute():
+            return f
+        return os.path.normpath(str(Path(base_dir) / f))
 
-        return os.path.normpath(str(Path(base_dir) / v))
+    signals = _gnss_signals(g, p)
+    if v["sigma_a_m"] == 0 and v["sigma_b_m"] == 0:
+        p.add("gnss.sigma_a_m", "sigma_a_m and sigma_b_m cannot both be 0")
+    if v["max_age_s"] < v["sync_tol_s"]:
+        p.add("gnss.max_age_s", f"expected at least gnss.sync_tol_s ({v['sync_tol_s']:g} s), got {v['max_age_s']!r}")
+    model, rw, init_sigma = _gnss_displacement(p, g.get("displacement", {}), ctx)
+    ants = _gnss_antennas(p, g.get("antennas", {}), ctx, resolve)
+    master = v["master"]
+    if master is not None and ants and master not in [a.name for a in ants]:
+        p.add("gnss.master", f"{master!r} is not one of gnss.antennas ({', '.join(a.name for a in ants)})")
+    if p.problems:
+        raise CdgpsError(join_problems(f"{path}: invalid GNSS config", p.problems))
+    name = v["name"] or (Path(path).stem if path and not path.startswith("<") else "gnss-run")
+    return GnssConfig(
+        path=path, text=text, sha256=hashlib.sha256(text.encode("utf-8")).hexdigest(), name=name,
+        description=v["description"], master=master, antennas=tuple(ants), nav=tuple(map(resolve, v["nav"])),
+        mask_deg=v["mask_deg"], ratio=v["ratio"], partial=v["partial"], fix=v["fix"], weighting=v["weighting"],
+        sigma_a_m=v["sigma_a_m"], sigma_b_m=v["sigma_b_m"], code_ratio=v["code_ratio"], troposphere=v["troposphere"],
+        max_gap_s=v["max_gap_s"], sync_tol_s=v["sync_tol_s"], max_age_s=v["max_age_s"],
+        code_correlation_s=v["code_correlation_s"], epoch_alignment=v["epoch_alignment"], displacement=model,
+        random_walk_sigma=rw, initial_sigma_m=init_sigma, min_success_rate=v["min_success_rate"], signals=signals,
+        iono_threshold_km=v["iono_threshold_km"],
+    )
 
-    def flag(name, default):
-        v = g.get(name, default)
-        if not isinstance(v, bool):
-            chk.add(f"gnss.{name}", f"expected true or false, got {v!r}")
-            return default
-        return v
 
-    name = chk.string(g, "gnss", "name", Path(path).stem if path and not path.startswith("<") else "gnss-run")
-    description = chk.string(g, "gnss", "description", "")
-    master = chk.string(g, "gnss", "master", None)
-    nav = []
-    if "nav" in g:
-        v = g["nav"]
-        if isinstance(v, str):
-            v = [v]
-        if not isinstance(v, list):
-            chk.add("gnss.nav", f"expected a list of navigation file paths, got {v!r}")
-        else:
-            for i, e in enumerate(v):
-                if not isinstance(e, str) or not e:
-                    chk.add(f"gnss.nav[{i}]", f"expected a file path string, got {e!r}")
-                else:
-                    nav.append(resolve(e))
-    signals = _gnss_signals(g, chk)
-    mask = chk.number(g, "gnss", "mask_deg", GNSS_DEFAULTS["mask_deg"])
-    if mask is not None and not 0.0 <= mask < 90.0:
-        chk.add("gnss.mask_deg", f"expected an elevation mask in [0, 90) degrees, got {mask!r}")
-    ratio = chk.number(g, "gnss", "ratio", GNSS_DEFAULTS["ratio"])
-    if ratio is not None and ratio < 1.0:
-        chk.add("gnss.ratio", f"expected a ratio-test threshold >= 1, got {ratio!r}")
-    weighting = chk.string(g, "gnss", "weighting", GNSS_DEFAULTS["weighting"])
-    if weighting not in GNSS_WEIGHTINGS:
-        chk.add("gnss.weighting", f"expected one of {', '.join(GNSS_WEIGHTINGS)}, got {weighting!r}")
-    sa = chk.number(g, "gnss", "sigma_a_m", GNSS_DEFAULTS["sigma_a_m"], nonneg=True)
-    sb = chk.number(g, "gnss", "sigma_b_m", GNSS_DEFAULTS["sigma_b_m"], nonneg=True)
-    if sa == 0 and sb == 0:
-        chk.add("gnss.sigma_a_m", "sigma_a_m and sigma_b_m cannot both be 0")
-    code_ratio = chk.number(g, "gnss", "code_ratio", GNSS_DEFAULTS["code_ratio"], positive=True)
-    max_gap = chk.number(g, "gnss", "max_gap_s", None, positive=True)
-    sync = chk.number(g, "gnss", "sync_tol_s", GNSS_DEFAULTS["sync_tol_s"], positive=True)
-    if sync is not None and sync > 1.0:
-        chk.add("gnss.sync_tol_s", f"expected at most 1 s, got {sync!r}")
-    max_age = chk.number(g, "gnss", "max_age_s", GNSS_DEFAULTS["max_age_s"], positive=True)
-    code_corr = chk.number(g, "gnss", "code_correlation_s", GNSS_DEFAULTS["code_correlation_s"])
-    if code_corr is not None and code_corr < 0:
-        chk.add("gnss.code_correlation_s", f"expected a correlation time >= 0 s, got {code_corr!r}")
-    if max_age is not None and sync is not None and max_age < sync:
-        chk.add("gnss.max_age_s", f"expected at least gnss.sync_tol_s ({sync:g} s), got {max_age!r}")
-    iono_km = chk.number(g, "gnss", "iono_threshold_km", GNSS_DEFAULTS["iono_threshold_km"], positive=True)
-    min_sr = chk.number(g, "gnss", "min_success_rate", GNSS_DEFAULTS["min_success_rate"])
-    if min_sr is not None and not 0.0 <= min_sr < 1.0:
-        chk.add("gnss.min_success_rate", f"expected a probability in [0, 1), got {min_sr!r}")
-    align = chk.string(g, "gnss", "epoch_alignment", GNSS_DEFAULTS["epoch_alignment"])
-    if align not in ("geometry", "doppler"):
-        chk.add("gnss.epoch_alignment", f"expected \"geometry\" or \"doppler\", got {align!r}")
-
-    # [gnss.displacement]
-    disp = g.get("displacement", {})
-    model, rw, init_sigma = "static", GNSS_DEFAULTS["random_walk_sigma"], GNSS_DEFAULTS["initial_sigma_m"]
+def _gnss_displacement(p: Problems, disp, ctx: Context) -> tuple[str, tuple, float]:
+    """(model, random-walk σ (E, N, U) m/√s, initial σ m) of ``[gnss.displacement]``."""
     if not isinstance(disp, dict):
-        chk.add("gnss.displacement", "expected a table ([gnss.displacement])")
+        p.add("gnss.displacement", "expected a table ([gnss.displacement])")
         disp = {}
-    for k in sorted(set(disp) - _GNSS_DISPLACEMENT_KEYS):
-        chk.add(f"gnss.displacement.{k}", f"unknown key (allowed: {', '.join(sorted(_GNSS_DISPLACEMENT_KEYS))})")
-    model = disp.get("model", "static")
-    if model not in GNSS_DISPLACEMENT_MODELS:
-        chk.add("gnss.displacement.model", f"expected one of {', '.join(repr(m) for m in GNSS_DISPLACEMENT_MODELS)}, got {model!r}")
-        model = "static"
+    v = check_table(p, disp, "gnss.displacement", GNSS_TABLES["gnss.displacement"], ctx)
+    rw = GNSS_DEFAULTS["random_walk_sigma"]
     if "sigma_m_per_sqrt_s" in disp:
-        v = disp["sigma_m_per_sqrt_s"]
-        if isinstance(v, (int, float)) and not isinstance(v, bool):
-            v = [v, v, v]
-        arr = chk.vector({"s": v}, "gnss.displacement", "s", 3, None)
-        if arr is None:
-            chk.problems[-1] = chk.problems[-1].replace("gnss.displacement.s:", "gnss.displacement.sigma_m_per_sqrt_s:")
-        elif np.any(arr <= 0):
-            chk.add("gnss.displacement.sigma_m_per_sqrt_s", f"expected positive values (m/√s), got {v!r}")
-        else:
+        s = disp["sigma_m_per_sqrt_s"]
+        if isinstance(s, (int, float)) and not isinstance(s, bool):
+            s = [s, s, s]
+        arr = p.vector("gnss.displacement.sigma_m_per_sqrt_s", s, 3)
+        if arr is not INVALID and np.any(arr <= 0):
+            p.add("gnss.displacement.sigma_m_per_sqrt_s", f"expected positive values (m/√s), got {s!r}")
+        elif arr is not INVALID:
             rw = tuple(float(x) for x in arr)
         if disp.get("model", "static") == "static":
-            chk.add("gnss.displacement.sigma_m_per_sqrt_s", "only used with model = \"random_walk\" (a static displacement has no process noise)")
-    init_sigma = chk.number(disp, "gnss.displacement", "initial_sigma_m", 1.0, positive=True)
+            p.add("gnss.displacement.sigma_m_per_sqrt_s", "only used with model = \"random_walk\" (a static "
+                                                          "displacement has no process noise)")
+    return v["model"], rw, v["initial_sigma_m"]
 
-    # [gnss.antennas.NAME]
-    ants = []
-    at = g.get("antennas", {})
+
+def _gnss_antennas(p: Problems, at, ctx: Context, resolve) -> list:
+    """The ``[gnss.antennas.NAME]`` tables: one observation file each, a position near the Earth."""
     if not isinstance(at, dict):
-        chk.add("gnss.antennas", "expected tables [gnss.antennas.NAME]")
-        at = {}
+        p.add("gnss.antennas", "expected tables [gnss.antennas.NAME]")
+        return []
+    ants = []
     for an, a in at.items():
         key = f"gnss.antennas.{an}"
         if not isinstance(a, dict):
-            chk.add(key, "expected a table (rinex/ubx file, position_ecef_m)")
+            p.add(key, "expected a table (rinex/ubx file, position_ecef_m)")
             continue
-        for k in sorted(set(a) - _GNSS_ANTENNA_KEYS):
-            chk.add(f"{key}.{k}", f"unknown key (allowed: {', '.join(sorted(_GNSS_ANTENNA_KEYS))})")
-        rinex = chk.string(a, key, "rinex", None)
-        ubx = chk.string(a, key, "ubx", None)
-        if rinex and ubx:
-            chk.add(key, "give one observation file: rinex or ubx, not both")
-        pos = chk.vector(a, key, "position_ecef_m", 3, None)
+        v = check_table(p, a, key, GNSS_TABLES["gnss.antennas.*"], ctx)
+        if v["rinex"] and v["ubx"]:
+            p.add(key, "give one observation file: rinex or ubx, not both")
+        pos = v["position_ecef_m"]
         if pos is not None and np.linalg.norm(pos) < 6.0e6:
-            chk.add(f"{key}.position_ecef_m", f"expected an ECEF position near the Earth's surface (m), got {a['position_ecef_m']!r}")
+            p.add(f"{key}.position_ecef_m", f"expected an ECEF position near the Earth's surface (m), got "
+                                            f"{a['position_ecef_m']!r}")
             pos = None
-        ants.append(GnssAntenna(str(an), resolve(rinex) if rinex else None, resolve(ubx) if ubx else None,
-                                tuple(float(x) for x in pos) if pos is not None else None,
-                                a.get("description", "") if isinstance(a.get("description", ""), str) else ""))
-    if master is not None and ants and master not in [a.name for a in ants]:
-        chk.add("gnss.master", f"{master!r} is not one of gnss.antennas ({', '.join(a.name for a in ants)})")
-
-    if chk.problems:
-        raise CdgpsError(join_problems(f"{path}: invalid GNSS config", chk.problems))
-    return GnssConfig(
-        path=path, text=text, sha256=hashlib.sha256(text.encode("utf-8")).hexdigest(), name=name,
-        description=description or "", master=master, antennas=tuple(ants), nav=tuple(nav),
-        mask_deg=mask, ratio=ratio, partial=flag("partial", True), fix=flag("fix", True), weighting=weighting,
-        sigma_a_m=sa, sigma_b_m=sb, code_ratio=code_ratio, troposphere=flag("troposphere", True),
-        max_gap_s=max_gap, sync_tol_s=sync, max_age_s=max_age, code_correlation_s=code_corr, epoch_alignment=align,
-        displacement=model, random_walk_sigma=rw, initial_sigma_m=init_sigma,
-        min_success_rate=GNSS_DEFAULTS["min_success_rate"] if min_sr is None else min_sr,
-        signals=signals, iono_threshold_km=iono_km,
-    )
+        ants.append(GnssAntenna(str(an), resolve(v["rinex"]) if v["rinex"] else None,
+                                resolve(v["ubx"]) if v["ubx"] else None,
+                                tuple(float(x) for x in pos) if pos is not None else None, v["description"]))
+    return ants
 
 
 def _gnss_signals(g: dict, chk) -> tuple:

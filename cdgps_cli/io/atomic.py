@@ -13,6 +13,7 @@ import json
 import os
 import shutil
 import signal
+import sys
 import tempfile
 import threading
 from contextlib import contextmanager
@@ -269,8 +270,9 @@ def pid_alive(pid: int) -> bool:
 
 
 def remove_stale_temporaries(path: str | Path) -> None:
-    """Remove ``.<name>.tmp<pid>`` siblings of ``path`` whose process no longer exists (left by
-    SIGKILL or a power cut); those of running processes are left alone."""
+    """Remove ``.<name>.tmp<pid>`` siblings of ``path`` (files, or the folders of :func:`output_set`)
+    whose process no longer exists (left by SIGKILL or a power cut); those of running processes are
+    left alone."""
     path = Path(path)
     prefix = f".{path.name}.tmp"
     try:
@@ -281,7 +283,10 @@ def remove_stale_temporaries(path: str | Path) -> None:
         tail = p.name[len(prefix):]
         if p.name.startswith(prefix) and tail.isdigit() and not pid_alive(int(tail)):
             try:
-                p.unlink()
+                if p.is_dir() and not p.is_symlink():       # a folder set's staging or swapped-out old folder
+                    shutil.rmtree(p)
+                else:
+                    p.unlink()
             except OSError:
                 pass
 
@@ -312,13 +317,21 @@ _COMMIT = ".cdgps-commit-"
 
 
 @contextmanager
-def _folder_lock(folder: Path):
+def _folder_lock(folder: Path, required: bool = True):
+    """flock on ``folder`` for the block (not POSIX: no lock; ``required=False``: none either when
+    the folder cannot be opened, e.g. a parent folder without read permission)."""
     try:
         import fcntl
     except ImportError:                                   # not POSIX: no lock
         yield
         return
-    fd = os.open(folder, os.O_RDONLY)
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        if required:
+            raise
+        yield
+        return
     try:
         fcntl.flock(fd, fcntl.LOCK_EX)
         yield
@@ -368,9 +381,10 @@ class OutputSet:
     """Where the files of one output set are written: :meth:`path` gives the staging path of a
     file, :attr:`out` the folder it ends up in."""
 
-    def __init__(self, out: Path, staging: Path):
+    def __init__(self, out: Path, staging: Path, reaper=None):
         self.out = out
         self.staging = staging
+        self.reaper = reaper          # (process, pipe) of the watcher of a swap's staging folder, or None
 
     def path(self, name: str) -> Path:
         """Staging path of output file ``name`` (a plain file name)."""
@@ -404,13 +418,12 @@ def _commit(s: OutputSet, replaces) -> None:
 
 @contextmanager
 def output_set(out_dir: str | Path, replaces=()):
-    """Write a set of files into ``out_dir`` as a whole (see the comment above).
+    """Write a set of files into ``out_dir`` as a whole (see the comments above).
 
     Parameters
     ----------
     out_dir : path
-        Output folder (created, with its parents, if missing; removed again if the command fails
-        and it is still empty).
+        Output folder (created, with its parents, if missing; not left behind if the command fails).
     replaces : iterable of str
         Every file name the command may write.  On success, those the new set lacks are removed
         from ``out_dir`` (e.g. ``actuators.csv`` of an earlier pulse simulation); files with any
@@ -430,32 +443,240 @@ def output_set(out_dir: str | Path, replaces=()):
     out = Path(out_dir)
     created = not out.exists()
     with sigterm_raises():
-        try:
-            out.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise CdgpsError(f"{out}: cannot create output directory: {exc.strerror or exc}") from None
-        try:
-            with _folder_lock(out):
-                recover_output_folder(out)
-            staging = Path(tempfile.mkdtemp(prefix=f"{_STAGING}{os.getpid()}-", dir=out))
-        except OSError as exc:
-            raise CdgpsError(f"{out}: cannot write into the output directory: {exc.strerror or exc}") from None
-        s = OutputSet(out, staging)
+        real, staging = _swap_staging(out, created)
+        if staging is None:
+            staging = _inner_staging(out, created)
+        s = OutputSet(out, staging, _start_reaper(staging) if real is not None else None)
         ok = False
         try:
             yield s
-            _commit(s, replaces)
+            if real is not None:
+                _commit_swap(s, real, replaces)
+            else:
+                _commit(s, replaces)
             ok = True
         except CdgpsError as exc:
-            raise CdgpsError(str(exc).replace(str(staging), str(out))) from None
+            raise CdgpsError(str(exc).replace(str(s.staging), str(out))) from None
         except OSError as exc:
             name = Path(exc.filename).name if exc.filename else "an output"
             raise output_error(out / name, exc) from None
         finally:
-            if staging.exists():
-                shutil.rmtree(staging, ignore_errors=True)
-            if created and not ok:
+            if s.staging.exists():
+                shutil.rmtree(s.staging, ignore_errors=True)
+            _release_reaper(s.reaper)
+            if created and not ok and out.is_dir():
                 try:
                     out.rmdir()                        # only if still empty
                 except OSError:
                     pass
+
+
+def _inner_staging(out: Path, created: bool) -> Path:
+    """The staging folder inside ``out`` of the journaled commit (created, like ``out``, if missing)."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise CdgpsError(f"{out}: cannot create output directory: {exc.strerror or exc}") from None
+    try:
+        with _folder_lock(out):
+            recover_output_folder(out)
+        return Path(tempfile.mkdtemp(prefix=f"{_STAGING}{os.getpid()}-", dir=out))
+    except OSError as exc:
+        raise CdgpsError(f"{out}: cannot write into the output directory: {exc.strerror or exc}") from None
+
+
+# ----------------------------------------------------------------------------- folder swap
+#
+# Where the system allows it (Linux renameat2), a set is staged in a hidden sibling of the output
+# folder, ``.<name>.tmp<pid>``, and the two folders are exchanged in one step (RENAME_EXCHANGE):
+# every reader, and every kill, sees the whole old folder or the whole new one.  Entries of the old
+# folder outside the command's set are hard-linked into the new one first (sub-folders re-created,
+# their files linked), so they stay; the old folder, now at the sibling's name, is then removed.
+# SIGKILL cannot be caught: a small watcher process (:func:`_start_reaper`, /bin/sh), told "done"
+# when the set is in, removes the sibling if the command dies first — before the exchange the
+# incomplete new set, after it the old folder — so nothing is left; where it could not run, the
+# next write there removes the sibling (its process no longer exists).  The
+# journaled commit inside the folder (above) stays the path where a swap is not possible: another
+# system, a file system without RENAME_EXCHANGE or hard links, a mount point, this process's own
+# current folder, no write permission on the parent.
+
+_AT_FDCWD = -100
+_RENAME_EXCHANGE = 2
+_renameat2 = None
+
+
+def _exchange_function():
+    """libc's ``renameat2`` (glibc 2.28+), or None (another system or libc)."""
+    global _renameat2
+    if _renameat2 is None:
+        _renameat2 = False
+        if sys.platform.startswith("linux"):
+            import ctypes
+
+            try:
+                fn = ctypes.CDLL(None, use_errno=True).renameat2
+            except (OSError, AttributeError):
+                return None
+            fn.argtypes = (ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint)
+            fn.restype = ctypes.c_int
+            _renameat2 = fn
+    return _renameat2 or None
+
+
+def exchange_paths(a: Path, b: Path) -> bool:
+    """Atomically exchange two existing paths (Linux ``renameat2(RENAME_EXCHANGE)``).
+
+    Returns
+    -------
+    bool
+        False, with nothing changed, where the system or the file system has no such call.
+
+    Raises
+    ------
+    OSError
+        For any other failure (permissions, a path that vanished).
+    """
+    fn = _exchange_function()
+    if fn is None:
+        return False
+    import ctypes
+
+    if fn(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE) == 0:
+        return True
+    e = ctypes.get_errno()
+    if e in (errno.EINVAL, errno.ENOSYS, errno.EXDEV, errno.EOPNOTSUPP, errno.EBUSY):
+        return False
+    raise OSError(e, os.strerror(e), str(b))
+
+
+#: the watcher: waits on the pipe; without "d" (its command died) it removes the staging path
+_REAPER_SCRIPT = 'IFS= read -r done <&"$2"; [ "$done" = d ] || rm -rf -- "$1"'
+
+
+def _start_reaper(path: Path):
+    """A watcher that removes ``path`` if this process dies before :func:`_release_reaper` (its own
+    session, so a signal to the command's process group leaves it running); None where it cannot
+    be started (the next write removes what a killed command left)."""
+    import subprocess
+
+    try:
+        r, w = os.pipe()
+    except OSError:
+        return None
+    try:
+        proc = subprocess.Popen(["/bin/sh", "-c", _REAPER_SCRIPT, "cdgps-reaper", str(path), str(r)], pass_fds=(r,),
+                                start_new_session=True, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                stderr=subprocess.DEVNULL)
+    except OSError:
+        os.close(w)
+        return None
+    finally:
+        os.close(r)
+    return proc, w
+
+
+def _release_reaper(reaper) -> None:
+    """Tell the watcher the command is done with its staging path (it then exits, removing nothing)."""
+    import subprocess
+
+    if reaper is None:
+        return
+    proc, w = reaper
+    try:
+        os.write(w, b"d")
+    except OSError:
+        pass
+    finally:
+        os.close(w)
+    try:
+        proc.wait(timeout=5)
+    except subprocess.TimeoutExpired:
+        pass
+
+
+def _swap_staging(out: Path, created: bool) -> tuple[Path | None, Path | None]:
+    """(the real output folder, its hidden sibling staging folder), or (None, None) where the set
+    must use the journaled commit inside the folder instead."""
+    if _exchange_function() is None:
+        return None, None
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise CdgpsError(f"{out}: cannot create output directory: {exc.strerror or exc}") from None
+    real = out.resolve()                                  # a symlink given as -o: its target is swapped
+    if not created and (not real.is_dir() or os.path.ismount(real)):
+        return None, None
+    cwd = Path.cwd().resolve()
+    if real == cwd or real in cwd.parents:                # keep this process's (and its shell's) folder
+        return None, None
+    staging = temporary_name(real)
+    try:
+        if not created:
+            with _folder_lock(real):
+                recover_output_folder(real)               # a journaled commit of an earlier version
+        remove_stale_temporaries(real)
+        staging.mkdir()
+    except OSError:
+        return None, None
+    return real, staging
+
+
+def _link_tree(src: Path, dst: Path) -> None:
+    """``dst`` as a copy of entry ``src`` made of hard links (folders re-created, symlinks copied)."""
+    if src.is_symlink():
+        os.symlink(os.readlink(src), dst)
+    elif src.is_dir():
+        dst.mkdir()
+        for p in src.iterdir():
+            _link_tree(p, dst / p.name)
+        shutil.copystat(src, dst)
+    else:
+        os.link(src, dst, follow_symlinks=False)
+
+
+def _commit_swap(s: OutputSet, real: Path, replaces) -> None:
+    """Swap the staged set in for the folder ``real`` (falls back to the journaled commit)."""
+    new = s.names()
+    for name in new:
+        if (real / name).is_dir() and not (real / name).is_symlink():
+            raise CdgpsError(f"{s.out / name}: is a folder, where this command writes a file; nothing was "
+                             f"replaced (move the folder or choose another output)")
+    with _folder_lock(real.parent, required=False), signals_deferred():
+        if not real.exists():
+            try:
+                os.rename(s.staging, real)                # a new folder: appears complete
+                return
+            except OSError:
+                if not real.is_dir():
+                    raise
+        swapped = _swap_in(s, real, set(new) | set(replaces))
+    if swapped:
+        shutil.rmtree(s.staging, ignore_errors=True)      # the old folder, now at the sibling's name
+        return
+    inner = real / f"{_STAGING}{os.getpid()}-{os.urandom(4).hex()}"
+    os.rename(s.staging, inner)
+    s.staging = inner
+    _commit(s, replaces)
+
+
+def _swap_in(s: OutputSet, real: Path, own: set) -> bool:
+    """Link the entries of ``real`` outside ``own`` into the staging folder and exchange the two;
+    False (staging as it was) where a link or the exchange is not possible."""
+    kept = []
+    try:
+        for p in sorted(real.iterdir()):
+            if p.name not in own:
+                _link_tree(p, s.staging / p.name)
+                kept.append(p.name)
+        shutil.copystat(real, s.staging)                  # the folder's permissions (and ACLs) too
+        if exchange_paths(s.staging, real):
+            return True
+    except OSError:
+        pass
+    for name in kept:
+        q = s.staging / name
+        if q.is_dir() and not q.is_symlink():
+            shutil.rmtree(q, ignore_errors=True)
+        else:
+            q.unlink(missing_ok=True)
+    return False

@@ -40,6 +40,7 @@ from cdgps_cli.control.modulation import PwpfParams, merge_firings, modulate_per
 from cdgps_cli.control.propagation import PulseResponse
 from cdgps_cli.control.slew import slew_reference
 from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.io.coordinate_columns import column_unit
 from cdgps_cli.io.gains_file import gain_sha256
 from cdgps_cli.estimation.loop_filter import INITIAL_ESTIMATE_SIGMA, LoopFilter
 from cdgps_cli.measurement.multipath import model_from
@@ -321,7 +322,8 @@ def actuator_log(cfg: StructureConfig, firings):
 
 
 def controller_log(cfg: StructureConfig, result: ClosedLoopResult, x_ref: np.ndarray):
-    """controller.csv: per epoch the estimate the controller used (coordinates, rad or m), its 1σ,
+    """controller.csv: per epoch the estimate the controller used (``<q>_hat_<unit>``), its 1σ
+    (``<q>_hat_sigma_<unit>``), the reference (``<q>_ref_<unit>``),
     the reference, the EKF's NIS and the thrust requested from every jet's modulator (N)."""
     import pandas as pd
 
@@ -329,12 +331,13 @@ def controller_log(cfg: StructureConfig, result: ClosedLoopResult, x_ref: np.nda
     U = np.asarray(cfg.mode_shapes)
     q_hat = result.x_hat[:, :nm] @ U.T
     cols = {"time_s": result.time_s}
-    for i, c in enumerate(cfg.coord_names):
-        cols[f"{c}_hat"] = np.round(q_hat[:, i], 12)
-    for i, c in enumerate(cfg.coord_names):
-        cols[f"{c}_hat_sigma"] = np.round(result.sigma_q_hat[:, i], 12)
-    for i, c in enumerate(cfg.coord_names):
-        cols[f"{c}_ref"] = np.round(x_ref[:, :nm] @ U[i], 12)
+    units = [column_unit(cfg, c) for c in cfg.coord_names]          # q10_hat_rad … (issue 32: units in names)
+    for i, (c, u) in enumerate(zip(cfg.coord_names, units)):
+        cols[f"{c}_hat_{u}"] = np.round(q_hat[:, i], 12)
+    for i, (c, u) in enumerate(zip(cfg.coord_names, units)):
+        cols[f"{c}_hat_sigma_{u}"] = np.round(result.sigma_q_hat[:, i], 12)
+    for i, (c, u) in enumerate(zip(cfg.coord_names, units)):
+        cols[f"{c}_ref_{u}"] = np.round(x_ref[:, :nm] @ U[i], 12)
     cols["nis"] = np.round(result.nis, 6)
     for j, name in enumerate(cfg.thruster_names):
         cols[f"command_{name}_n"] = np.round(result.command_n[:, j], 9)

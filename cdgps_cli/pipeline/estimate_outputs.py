@@ -25,6 +25,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.records import Series, StateSeries
 from cdgps_cli.io import states as states_io
 from cdgps_cli.io.atomic import write_atomic
+from cdgps_cli.io.coordinate_columns import column_unit, coordinate_column, coordinate_table, sigma_column
 from cdgps_cli.io.mcap import CONFIG_ATTACHMENT
 from cdgps_cli.io.states import ESTIMATE_METADATA, INIT_ATTACHMENT, STATE_FILTERED_TOPIC, STATE_TOPIC
 from cdgps_cli.io.states_layout import DEFAULT_COVARIANCE, DEFAULT_PREVIEW_RATE_HZ
@@ -152,7 +153,8 @@ def preview_rate_hz_for(cfg, time_s) -> float:
 
 
 def export_csv(states_path: str | Path, out_csv: str | Path, points: str | None = None) -> dict:
-    """Write time_s, one column per coordinate and sigma_<name> for each (lines up with truth.csv).
+    """Write time_s, one column per coordinate ``<name>_<unit>`` and ``sigma_<name>_<unit>`` for each
+    (:mod:`cdgps_cli.io.coordinate_columns`; lines up with truth.csv).
 
     ``points`` (e.g. ``"antennas"``, ``"all"``, ``"a120,top"``; see
     :func:`cdgps_cli.model.points.select_points`) adds the lab-frame displacement of those points and its
@@ -197,9 +199,11 @@ def _export_frame(st, names: list, pts, ch: dict):
     """The CSV rows of one chunk of epochs (as the whole-record export made them)."""
     import pandas as pd  # noqa: PLC0415 (not on the path of `cdgps estimate`)
 
-    df = pd.DataFrame(ch["q"], columns=names)
-    for i, n in enumerate(names):
-        df["sigma_" + n] = ch["sigma_q"][:, i]
+    model = st.coordinate_model()
+    units = [column_unit(model, n) for n in names]
+    df = pd.DataFrame(ch["q"], columns=[coordinate_column(n, u) for n, u in zip(names, units)])
+    for i, (n, u) in enumerate(zip(names, units)):
+        df[sigma_column(n, u)] = ch["sigma_q"][:, i]
     if pts is not None:
         from cdgps_cli.model.points import point_columns  # noqa: PLC0415
 
@@ -238,7 +242,8 @@ def evaluate(truth_dir: str | Path, states_path: str | Path, converge_s: float =
             raise CdgpsError(f"--truth {truth_dir}: simulated with config {tj.get('config')!r} (sha256 "
                              f"{str(tj['config_sha256'])[:12]}…), but {states_path} estimates config {st.config_name!r} "
                              f"(sha256 {str(st.config_sha256)[:12]}…); give the truth of the run that was estimated")
-        missing = [n for n in ["time_s", *names] if n not in truth.columns]
+        truth, missing = coordinate_table(truth, st.coordinate_model(), names)    # q1_rad, or a bare q1 (older files)
+        missing = [n for n in ["time_s"] if n not in truth.columns] + missing
         if missing:
             raise CdgpsError(f"{truth_dir / 'truth.csv'}: missing column(s) {', '.join(missing)}")
         nis_all, dof_all, events = diagnostics(states_path, st.n_epochs)

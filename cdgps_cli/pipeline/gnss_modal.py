@@ -56,6 +56,7 @@ import pandas as pd
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli import __version__
 from cdgps_cli.config.structure import StructureConfig
+from cdgps_cli.io.coordinate_columns import coordinate_columns
 from cdgps_cli.config.options import MODAL_INIT_CODE_DD, SCENE_EXAGGERATION, SIM_MASTER_ECEF_M, X_AXIS_AZIMUTH_DEG
 
 from cdgps_cli.core.gps_time import gps_time_str
@@ -810,7 +811,7 @@ def simulate_structure_gnss(out_dir, cfg: StructureConfig, *, master_ecef_m=SIM_
             integers[rx] = {r_["sat"]: int(r_["n_cycles"]) for _, r_ in amb[amb["receiver"] == "rover"].iterrows()}
         write_rinex_nav(dest.path("nav.rnx"), nav, comments=[f"synthetic ephemerides (seed {seed})"], created=stamp)
         sensor_files, sensor_truth = _simulate_sensors(cfg, sim, seed, start_gps_s, dest, say)
-        truth = pd.DataFrame({"time_s": t_gps, **{c: sim.q[:, j] for j, c in enumerate(cfg.coord_names)}})
+        truth = pd.DataFrame({"time_s": t_gps, **{c: sim.q[:, j] for j, c in enumerate(coordinate_columns(cfg))}})
         write_atomic(dest.path("truth.csv"), lambda pth: truth.to_csv(pth, index=False, lineterminator="\n", float_format="%.9f"))
         master_rx = mapping[cfg.antenna_names[cfg.master_index]]
         tj = {"kind": "cdgps gnss structure simulation", "cdgps_version": __version__, "config": cfg.name,

@@ -35,6 +35,7 @@ import pandas as pd
 
 from cdgps_cli.core import progress as _progress
 from cdgps_cli.io.atomic import file_sha256, refuse_input_overwrite, write_atomic
+from cdgps_cli.io.coordinate_columns import coordinate_columns, coordinate_table
 from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.config.options import TRACK_BLOCK_SAMPLES
@@ -237,11 +238,12 @@ def start_pose(cfg: StructureConfig, pose_csv: str | Path, time_s: float) -> np.
         df = pd.read_csv(pose_csv)
     except (OSError, ValueError) as exc:
         raise CdgpsError(f"{pose_csv}: cannot read the pose file: {exc}") from None
-    need = ["time_s", *cfg.coord_names]
-    missing = [c for c in need if c not in df.columns]
+    df, missing = coordinate_table(df, cfg)              # q1_rad, or a bare q1 (files before issue 32)
+    missing = [c for c in ("time_s",) if c not in df.columns] + missing
     if missing:
         raise CdgpsError(f"{pose_csv}: missing column(s) {', '.join(missing)}; expected time_s and the coordinates "
-                         f"{', '.join(cfg.coord_names)} (truth.csv of `cdgps simulate` or the states CSV of `cdgps estimate`)")
+                         f"{', '.join(coordinate_columns(cfg))} (truth.csv of `cdgps simulate` or the states CSV of "
+                         f"`cdgps export`)")
     t = df["time_s"].to_numpy(dtype=float)
     if t.size == 0 or not (t[0] - 1e-9 <= time_s <= t[-1] + 1e-9):
         span = f"{t[0]:g}–{t[-1]:g} s" if t.size else "no rows"

@@ -106,7 +106,10 @@ def read_truth(truth_dir: str | Path, states) -> dict:
         raise CdgpsError(f"--truth {d}: simulated with config {tj.get('config')!r} (sha256 "
                          f"{str(tj['config_sha256'])[:12]}…), but {states.path} estimates config "
                          f"{states.config_name!r} (sha256 {str(states.config_sha256)[:12]}…)")
-    missing = [n for n in ["time_s", *states.coord_names] if n not in truth.columns]
+    from cdgps_cli.io.coordinate_columns import coordinate_table  # noqa: PLC0415
+
+    truth, missing = coordinate_table(truth, states.coordinate_model(), list(states.coord_names))  # q1_m, or bare q1
+    missing = [n for n in ["time_s"] if n not in truth.columns] + missing
     if missing:
         raise CdgpsError(f"{d / 'truth.csv'}: missing column(s) {', '.join(missing)}")
     return {"us": np.rint(truth["time_s"].to_numpy(dtype=float) * 1e6).astype(np.int64),

@@ -12,7 +12,7 @@ a constant plus a random walk — and writes into one directory:
 * ``nav.rnx`` — RINEX 3.04 GPS navigation file (the ephemerides the data were made with: a
   synthetic constellation, or the records of ``--nav``);
 * ``truth.csv`` — ``time_s`` (GPS s of the nominal epochs) and the rover's true displacement
-  ``<rover>_e``, ``<rover>_n``, ``<rover>_u`` (m, local east/north/up at the nominal position);
+  ``<rover>_e_m``, ``<rover>_n_m``, ``<rover>_u_m`` (m, local east/north/up at the nominal position);
   the column names match the estimate's, so ``cdgps evaluate --truth DIR --estimate STATES.mcap``
   compares them;
 * ``truth.json`` — positions, displacement model, slips, the integer ambiguities, settings;
@@ -32,6 +32,7 @@ import pandas as pd
 
 from cdgps_cli import __version__
 from cdgps_cli.io.atomic import output_set, write_atomic, write_bytes_atomic
+from cdgps_cli.io.coordinate_columns import coordinate_column
 from cdgps_cli.config.structure import GnssConfig, gnss_config_toml
 from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
 from cdgps_cli.core.errors import CdgpsError
@@ -275,7 +276,7 @@ def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_
             files[name] = f.name
         write_rinex_nav(dest.path("nav.rnx"), nav, comments=[f"ephemerides used by cdgps simulate-gnss (seed {seed})"],
                         created=stamp)
-        names = [f"{rover}_{c}" for c in "enu"]
+        names = [coordinate_column(f"{rover}_{c}", "m") for c in "enu"]
         truth = pd.DataFrame({"time_s": t_nom, names[0]: offsets[:, 0], names[1]: offsets[:, 1], names[2]: offsets[:, 2]})
         write_atomic(dest.path("truth.csv"), lambda p: truth.to_csv(p, index=False, lineterminator="\n", float_format="%.6f"))
         lat, lon, _ = ecef_to_geodetic(np.asarray(rover_xyz, float))

@@ -39,6 +39,7 @@ import numpy as np
 import pandas as pd
 
 from cdgps_cli.io.atomic import output_set, write_atomic
+from cdgps_cli.io.coordinate_columns import coordinate_table
 from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.model.kinematics import antenna_positions
@@ -303,7 +304,8 @@ def read_structure_truth(sim_dir: str | Path, cfg: StructureConfig) -> tuple[np.
         raise CdgpsError(f"{d}: not a `cdgps simulate` folder (truth.json, truth.csv): {exc}") from None
     if not isinstance(tj, dict) or tj.get("config_sha256") != cfg.sha256:
         raise CdgpsError(f"{d / 'truth.json'}: simulated with another config than {cfg.path} (config_sha256 differs)")
-    missing = [c for c in ("time_s", *cfg.coord_names) if c not in truth.columns]
+    truth, missing = coordinate_table(truth, cfg)        # q1_rad, or a bare q1 (files before issue 32)
+    missing = [c for c in ("time_s",) if c not in truth.columns] + missing
     if missing:
         raise CdgpsError(f"{d / 'truth.csv'}: missing column(s) {', '.join(missing)}")
     t = truth["time_s"].to_numpy(dtype=float)

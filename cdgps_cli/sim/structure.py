@@ -40,6 +40,7 @@ from cdgps_cli.core import progress
 from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.model.dynamics import discrete_model
 from cdgps_cli.io.atomic import output_set, write_atomic
+from cdgps_cli.io.coordinate_columns import coordinate_columns
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.config.limits import check_table_size
 from cdgps_cli.model.kinematics import gyro_matrix
@@ -494,7 +495,7 @@ def write_simulation(result: Simulation, out_dir: str | Path) -> dict:
 
         csv(result.receiver, "receiver.csv")
         csv(result.gyro, "gyro.csv")
-        truth_df = pd.DataFrame(np.round(result.q, 12), columns=list(cfg.coord_names))
+        truth_df = pd.DataFrame(np.round(result.q, 12), columns=coordinate_columns(cfg))     # q1_rad, qx-1_m …
         truth_df.insert(0, "time_s", result.time_s)
         csv(truth_df, "truth.csv")
         for name, df in result.tables.items():

@@ -74,7 +74,8 @@ def test_readme_chain_as_written(tmp_path, repo_root, monkeypatch):
     _cdgps("export", "run1/states.mcap", "--csv", "run1/est.csv")
     est = pd.read_csv("run1/est.csv")
     np.testing.assert_allclose(est["time_s"], truth["time_s"], atol=1e-9)
-    names = [c for c in truth.columns if c != "time_s"]
+    names = [c for c in truth.columns if c != "time_s"]               # q1_rad … (units in the names)
+    assert names[:2] == ["q1_m", "q2_rad"]
     err = est[names].to_numpy() - truth[names].to_numpy()
     sig = est[["sigma_" + n for n in names]].to_numpy()
     assert np.all(np.isfinite(err)) and np.all(sig > 0)

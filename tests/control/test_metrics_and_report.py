@@ -123,7 +123,7 @@ def test_slew_report_gives_the_metrics_on_the_estimate_too(pulse_runs, testbed_p
     assert limits["q10"]["half_width"] == pytest.approx(math.radians(0.5))
     assert all(v is None for k, v in limits.items() if k != "q10")
     c = pd.read_csv(tmp_path / "slew" / "controller.csv")
-    ref = slew_metrics(c["time_s"], np.degrees(c["q10_hat"]), {k: np.degrees(c[f"{k}_hat"]) for k in ("q2", "q5", "q8")},
+    ref = slew_metrics(c["time_s"], np.degrees(c["q10_hat_rad"]), {k: np.degrees(c[f"{k}_hat_rad"]) for k in ("q2", "q5", "q8")},
                        -22.0, 5.0)
     assert est["internal_max_deg"] == pytest.approx(ref["internal_max_deg"], rel=1e-12)
     assert "as estimated" in (tmp_path / "rep" / "report.md").read_text()

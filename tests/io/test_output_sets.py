@@ -151,6 +151,7 @@ def test_simulate_gnss_replaces_receivers_of_an_earlier_run(tmp_path):
 # ----------------------------------------------------------------------------- signals, in this process
 
 def test_sigterm_during_commit_completes_the_set_then_terminates(tmp_path, monkeypatch):
+    monkeypatch.setattr(atomic, "_renameat2", False)        # the journaled commit (no folder swap)
     out = tmp_path / "o"
     with output_set(out) as dest:
         for n in ("a.csv", "b.csv"):
@@ -199,6 +200,7 @@ def test_embedding_programs_sigterm_handler_is_left_alone():
 # ----------------------------------------------------------------------------- recovery after SIGKILL
 
 def test_next_write_rolls_forward_an_interrupted_commit_and_removes_dead_staging(tmp_path):
+    """The journaled commit (where the folder cannot be swapped, or left by an earlier version)."""
     out = tmp_path / "o"
     out.mkdir()
     (out / "a.csv").write_text("new\n")                     # renamed in before the kill
@@ -289,7 +291,7 @@ def test_sigterm_killed_simulate_leaves_seed1_set_and_no_temporaries(tmp_path):
     assert set(seed1) == SIM_SET
     p = _run_until_ready(_SLOW_SIMULATE, tmp_path / "ready",
                          ["simulate", str(TESTBED), "--duration", "5", "--seed", "3", "-o", str(out)])
-    assert any(n.startswith(".cdgps-new-") for n in _hidden(out))      # the new set was under way
+    assert any(n.startswith(".run.tmp") for n in _hidden(tmp_path))     # the new set was under way (beside)
     p.send_signal(signal.SIGTERM)
     _, err = p.communicate(timeout=60)
     assert p.returncode == atomic.TERMINATED_EXIT, err
@@ -316,3 +318,154 @@ def test_output_names_outside_the_folder_are_a_clean_error(tmp_path, name):
         with output_set(tmp_path / "o") as dest:
             dest.path(name)
     assert list(tmp_path.iterdir()) == []
+
+
+# ----------------------------------------------------------------------------- folder swap (issue 32)
+
+swap_only = pytest.mark.skipif(atomic._exchange_function() is None, reason="no renameat2 here")
+
+
+def _old_folder(tmp_path) -> Path:
+    out = tmp_path / "o"
+    with output_set(out, replaces=("a.csv", "b.csv", "c.csv")) as dest:
+        for n in ("a.csv", "b.csv", "c.csv"):
+            dest.path(n).write_text("old\n")
+    (out / "notes.txt").write_text("mine\n")                 # a user's file and folder: kept
+    (out / "sub").mkdir()
+    (out / "sub" / "x").write_text("x\n")
+    return out
+
+
+_NEW = {"a.csv": b"new\n", "b.csv": b"new\n", "notes.txt": b"mine\n", "sub": None}
+
+
+def _write_new(out):
+    with output_set(out, replaces=("a.csv", "b.csv", "c.csv")) as dest:
+        for n in ("a.csv", "b.csv"):
+            dest.path(n).write_text("new\n")
+
+
+@swap_only
+def test_swap_replaces_the_folder_in_one_step_keeping_other_files(tmp_path):
+    out = _old_folder(tmp_path)
+    mode = 0o750
+    out.chmod(mode)
+    _write_new(out)
+    assert _files(out) == _NEW and (out / "sub" / "x").read_text() == "x\n"
+    assert out.stat().st_mode & 0o777 == mode
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o"]
+
+
+@swap_only
+@pytest.mark.parametrize("step", ["before_link", "before_exchange", "after_exchange"])
+def test_a_kill_at_each_step_of_the_swap_leaves_the_old_or_the_new_folder(tmp_path, monkeypatch, step):
+    """A simulated SIGKILL (an exception no cleanup may run for: os._exit is not testable in-process,
+    so the staging sibling is kept from the finally block too) at each step: the folder is the whole
+    old set or the whole new one, and the next write removes what the dead process left."""
+    out = _old_folder(tmp_path)
+    old = _files(out)
+
+    class Killed(BaseException):
+        pass
+
+    def kill(*a, **k):
+        raise Killed()
+
+    real_exchange = atomic.exchange_paths
+    if step == "before_link":
+        monkeypatch.setattr(atomic, "_link_tree", kill)
+    elif step == "before_exchange":
+        monkeypatch.setattr(atomic, "exchange_paths", kill)
+    else:
+        def exchange_then_die(a, b):
+            assert real_exchange(a, b)
+            raise Killed()
+        monkeypatch.setattr(atomic, "exchange_paths", exchange_then_die)
+    monkeypatch.setattr(atomic.shutil, "rmtree", lambda *a, **k: None)      # a killed process cleans nothing
+    with pytest.raises(Killed):
+        _write_new(out)
+    assert _files(out) == (_NEW if step == "after_exchange" else old)
+    leftover = tmp_path / f".o.tmp{os.getpid()}"
+    assert leftover.is_dir()
+    monkeypatch.undo()
+    dead = tmp_path / f".o.tmp{_dead_pid()}"
+    leftover.rename(dead)                                     # as if its process had died
+    _write_new(out)
+    assert _files(out) == _NEW
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o"]
+
+
+@swap_only
+def test_sigkilled_child_at_the_exchange_leaves_old_or_new_folder(tmp_path):
+    """A real SIGKILL of a child process just before and just after the exchange: the folder is the
+    whole old or the whole new one, and the watcher removes the sibling the dead process left."""
+    for when in ("before", "after"):
+        out = _old_folder(tmp_path / when)
+        old = _files(out)
+        script = textwrap.dedent(f"""
+            import os, signal, sys
+            from cdgps_cli.io import atomic
+            real = atomic.exchange_paths
+            def die(a, b):
+                if {when!r} == "after":
+                    real(a, b)
+                os.kill(os.getpid(), signal.SIGKILL)
+            atomic.exchange_paths = die
+            with atomic.output_set(sys.argv[1], replaces=("a.csv", "b.csv", "c.csv")) as dest:
+                for n in ("a.csv", "b.csv"):
+                    dest.path(n).write_text("new\\n")
+        """)
+        r = subprocess.run([sys.executable, "-c", script, str(out)], env={**os.environ, "PYTHONPATH": str(ROOT)})
+        assert r.returncode == -signal.SIGKILL
+        assert _files(out) == (_NEW if when == "after" else old)
+        t0 = time.monotonic()                                 # the watcher removes the dead one's sibling
+        while len(list((tmp_path / when).iterdir())) > 1 and time.monotonic() - t0 < 10:
+            time.sleep(0.01)
+        assert sorted(p.name for p in (tmp_path / when).iterdir()) == ["o"]
+        _write_new(out)
+        assert _files(out) == _NEW
+
+
+@swap_only
+def test_swap_falls_back_to_the_journal_in_the_current_folder(tmp_path, monkeypatch):
+    out = _old_folder(tmp_path)
+    monkeypatch.chdir(out)
+    calls = []
+    monkeypatch.setattr(atomic, "exchange_paths", lambda a, b: calls.append(1))
+    _write_new(out)
+    assert calls == [] and _files(out) == _NEW
+
+
+def test_swap_falls_back_to_the_journal_where_the_exchange_is_refused(tmp_path, monkeypatch):
+    out = _old_folder(tmp_path)
+    monkeypatch.setattr(atomic, "exchange_paths", lambda a, b: False)     # e.g. NFS: EINVAL
+    _write_new(out)
+    assert _files(out) == _NEW
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o"]
+
+
+def test_symlinked_output_folder_stays_a_symlink(tmp_path):
+    out = _old_folder(tmp_path)
+    link = tmp_path / "link"
+    link.symlink_to(out)
+    _write_new(link)
+    assert link.is_symlink() and _files(out) == _NEW
+
+
+@swap_only
+def test_without_the_watcher_the_next_write_removes_a_killed_sets_sibling(tmp_path, monkeypatch):
+    """Where the watcher cannot start, a SIGKILLed set's sibling is removed by the next write."""
+    out = _old_folder(tmp_path / "w")
+    script = textwrap.dedent("""
+        import os, signal, sys
+        from cdgps_cli.io import atomic
+        atomic._start_reaper = lambda path: None
+        atomic.exchange_paths = lambda a, b: os.kill(os.getpid(), signal.SIGKILL)
+        with atomic.output_set(sys.argv[1], replaces=("a.csv", "b.csv", "c.csv")) as dest:
+            dest.path("a.csv").write_text("new\\n")
+    """)
+    r = subprocess.run([sys.executable, "-c", script, str(out)], env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert r.returncode == -signal.SIGKILL
+    assert len(list((tmp_path / "w").iterdir())) == 2           # o and its .o.tmpPID
+    _write_new(out)
+    assert sorted(p.name for p in (tmp_path / "w").iterdir()) == ["o"] and _files(out) == _NEW

@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 import math
 
@@ -24,6 +25,7 @@ from cdgps_cli.cli.commands import main
 from cdgps_cli.config.structure import load_config
 from cdgps_cli.estimation.filter import EstimateOptions, EstimateResult, estimate
 from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.io.coordinate_columns import coordinate_columns
 from cdgps_cli.io.mcap import McapOut
 from cdgps_cli.io.run import read_run, write_run
 from cdgps_cli.sim.structure import SimOptions, simulate, write_simulation
@@ -85,7 +87,8 @@ def test_cli_export_columns_line_up_with_truth(chain):
     r = cli("export", d / "states.mcap", "--csv", d / "est.csv", "--json")
     assert r.exit_code == 0, r.output
     s = json.loads(r.stdout)
-    names = list(cfg.coord_names)
+    names = coordinate_columns(cfg)                                # units in the names: q1_m, q2_rad …
+    assert names[:2] == ["q1_m", "q2_rad"]
     expected = ["time_s", *names, *[f"sigma_{n}" for n in names]]
     assert s["columns"] == expected and s["rows"] == 301
     est = pd.read_csv(d / "est.csv")
@@ -181,8 +184,9 @@ def test_write_states_round_trip(chain, tmp_path):
     df = pd.read_csv(tmp_path / "st.csv")
     assert out["rows"] == len(res.time_s) and list(df.columns) == out["columns"]
     st = States(tmp_path / "st.mcap")
-    np.testing.assert_allclose(df[list(cfg.coord_names)].to_numpy(), st.q, rtol=1e-14, atol=1e-15)
-    np.testing.assert_allclose(df[[f"sigma_{n}" for n in cfg.coord_names]].to_numpy(), st.sigma_q, rtol=1e-14)
+    cols = coordinate_columns(cfg)
+    np.testing.assert_allclose(df[cols].to_numpy(), st.q, rtol=1e-14, atol=1e-15)
+    np.testing.assert_allclose(df[[f"sigma_{n}" for n in cols]].to_numpy(), st.sigma_q, rtol=1e-14)
 
 
 # --------------------------------------------------------------------------------------------
@@ -275,10 +279,27 @@ def test_evaluate_errors(chain, tmp_path):
     (other / "truth.json").write_text(json.dumps({"config_sha256": "0" * 64}))
     with pytest.raises(CdgpsError, match="simulated with config .*, but .* estimates config"):
         evaluate(other, d / "states.mcap")
-    pd.read_csv(d / "sim" / "truth.csv").drop(columns=["q4"]).to_csv(other / "truth.csv", index=False)
+    pd.read_csv(d / "sim" / "truth.csv").drop(columns=["q4_m"]).to_csv(other / "truth.csv", index=False)
     (other / "truth.json").write_text("{}")                # (another config is said first, see above)
-    with pytest.raises(CdgpsError, match="missing column"):
+    with pytest.raises(CdgpsError, match=r"missing column\(s\) q4_m"):
         evaluate(other, d / "states.mcap")
+
+
+def test_evaluate_reads_truth_with_and_without_units_in_the_names(chain, tmp_path):
+    """Issue 32: truth.csv columns carry units (q1_rad); a truth written before (bare q1) gives the
+    same evaluation, and a file with both prefers the suffixed columns."""
+    d = chain["dir"]
+    new = pd.read_csv(d / "sim" / "truth.csv")
+    assert list(new.columns[1:3]) == ["q1_m", "q2_rad"]
+    ref = evaluate(d / "sim", d / "states.mcap")
+    def bare(c):
+        return re.sub(r"_(m|rad)$", "", c)
+    for name, table in (("bare", new.rename(columns=bare)),
+                        ("both", pd.concat([new, new.iloc[:, 1:].rename(columns=bare) + 1.0], axis=1))):
+        (tmp_path / name).mkdir()
+        table.to_csv(tmp_path / name / "truth.csv", index=False)
+        (tmp_path / name / "truth.json").write_bytes((d / "sim" / "truth.json").read_bytes())
+        assert evaluate(tmp_path / name, d / "states.mcap") == ref, name
 
 
 # --------------------------------------------------------------------------------------------

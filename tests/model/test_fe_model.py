@@ -427,7 +427,7 @@ def test_tower_export_points_sigma(tower_chain, tower):
     # the σ is a promise: the true top displacement (truth q through the same shapes) lies within
     # 2σ at about 95 % of the epochs
     truth = pd.read_csv(d / "sim" / "truth.csv").set_index(np.round(pd.read_csv(d / "sim" / "truth.csv")["time_s"], 6))
-    qt = truth.loc[np.round(df["time_s"], 6), list(tower.coord_names)].to_numpy()
+    qt = truth.loc[np.round(df["time_s"], 6), [f"{n}_m" for n in tower.coord_names]].to_numpy()     # qx-1_m …
     Dt = tower.point_displacement[tower.point_names.index("top")]
     for a, ax in enumerate("xy"):
         z = (df[f"top_d{ax}_m"].to_numpy() - qt @ Dt[a]) / df[f"sigma_top_d{ax}_m"].to_numpy()

@@ -137,9 +137,12 @@ def export_csv(states_path: str | Path, out_csv: str | Path, points: str | None 
         pts = select_points(st.require_structure("--points"), points)          # before writing: a bad name leaves no file
     import pandas as pd  # noqa: PLC0415 (not on the path of `cdgps estimate`)
 
-    df = pd.DataFrame(st.q, columns=names)
-    for i, n in enumerate(names):
-        df["sigma_" + n] = st.sigma_q[:, i]
+    from cdgps_cli.io.coordinate_columns import column_unit, coordinate_column, sigma_column
+
+    units = [column_unit(st.coordinate_model(), n) for n in names]     # (issue 32: units in the names)
+    df = pd.DataFrame(st.q, columns=[coordinate_column(n, u) for n, u in zip(names, units)])
+    for i, (n, u) in enumerate(zip(names, units)):
+        df[sigma_column(n, u)] = st.sigma_q[:, i]
     if pts is not None:
         df = pd.concat([df, pd.DataFrame(point_columns(st.cfg, pts, st.xi, st.P_xi))], axis=1)
     df.insert(0, "time_s", np.round(st.time_s, 9))
@@ -177,7 +180,10 @@ def evaluate(truth_dir: str | Path, states_path: str | Path, converge_s: float =
         raise CdgpsError(f"--truth {truth_dir}: simulated with config {tj.get('config')!r} (sha256 "
                          f"{str(tj['config_sha256'])[:12]}…), but {states_path} estimates config {st.config_name!r} "
                          f"(sha256 {str(st.config_sha256)[:12]}…); give the truth of the run that was estimated")
-    missing = [n for n in ["time_s", *names] if n not in truth.columns]
+    from cdgps_cli.io.coordinate_columns import coordinate_table
+
+    truth, missing = coordinate_table(truth, st.coordinate_model(), names)
+    missing = [n for n in ["time_s"] if n not in truth.columns] + missing
     if missing:
         raise CdgpsError(f"{truth_dir / 'truth.csv'}: missing column(s) {', '.join(missing)}")
     tt = np.rint(truth["time_s"].to_numpy() * 1e6).astype(np.int64)

@@ -159,8 +159,8 @@ def test_simulate_with_controller_writes_native_logs(gains_path, testbed_path, t
     act = pd.read_csv(tmp_path / "a" / "actuators.csv")
     assert set(act["actuator"]) <= set(testbed_cfg.thruster_names) and act["force_n"].max() <= 1.4
     ctrl = pd.read_csv(tmp_path / "a" / "controller.csv")
-    assert {"time_s", "q10_hat", "q10_hat_sigma", "q10_ref", "nis"} <= set(ctrl.columns)
-    assert (ctrl["q10_hat_sigma"] > 0).all()
+    assert {"time_s", "q10_hat_rad", "q10_hat_sigma_rad", "q10_ref_rad", "nis"} <= set(ctrl.columns)
+    assert (ctrl["q10_hat_sigma_rad"] > 0).all()
     truth = json.loads((tmp_path / "a" / "truth.json").read_text())
     assert truth["controller"]["feedback"] == "gps" and truth["segments"][1]["kind"] == "slew"
     assert truth["controller"]["estimator_process_noise_scale"] >= 1.0

@@ -81,9 +81,10 @@ def test_geonet_pipeline_equals_baseline_and_rtklib(geonet):
     assert np.all(np.abs(ours - rtk) < 0.0003), (ours - rtk)
     # STATES: the static solution at every epoch, its 1σ, the single-epoch solutions
     csv = pd.read_csv(tmp / "states.csv")
-    assert list(csv.columns) == ["time_s", "0759_e", "0759_n", "0759_u", "sigma_0759_e", "sigma_0759_n", "sigma_0759_u"]
+    assert list(csv.columns) == ["time_s", "0759_e_m", "0759_n_m", "0759_u_m", "sigma_0759_e_m", "sigma_0759_n_m",
+                                 "sigma_0759_u_m"]
     assert len(csv) == 120
-    np.testing.assert_allclose(csv[["0759_e", "0759_n", "0759_u"]].to_numpy(), np.tile(ours, (120, 1)), atol=1e-12)
+    np.testing.assert_allclose(csv[["0759_e_m", "0759_n_m", "0759_u_m"]].to_numpy(), np.tile(ours, (120, 1)), atol=1e-12)
     np.testing.assert_allclose(csv.iloc[0, 4:].to_numpy(), [init["sigma"][f"0759_{c}"] for c in "enu"], rtol=1e-9)
     kin = pd.read_csv(tmp / "kinematic.csv")
     assert len(kin) == 120 and set(kin["n_sat_0759"]) <= {5, 6, 7}
@@ -270,7 +271,7 @@ def test_random_walk_rover_filter_and_smoother(rw_sim):
     assert st.metadata["smoothed"] == "true" and st.metadata["displacement_model"] == "random_walk"
     assert States(tmp / "states.mcap", topic="/cdgps/state_filtered").q.shape == st.q.shape
     truth = pd.read_csv(tmp / "truth.csv")
-    assert truth["rover_u"].max() - truth["rover_u"].min() > 0.03                      # it really wanders
+    assert truth["rover_u_m"].max() - truth["rover_u_m"].min() > 0.03                      # it really wanders
 
 
 

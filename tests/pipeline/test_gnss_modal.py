@@ -91,12 +91,12 @@ def test_modal_states_recover_the_truth_with_honest_sigma(tower):
     for topic, (st, truth) in series.items():
         t = np.round(truth["time_s"].to_numpy(), 3)
         k = np.searchsorted(t, np.round(st.time_s, 3))
-        err = st.q[30:] - truth[list(cfg.coord_names)].to_numpy()[k][30:]
+        err = st.q[30:] - truth[[f"{n}_{'rad' if n == 'psi' else 'm'}" for n in cfg.coord_names]].to_numpy()[k][30:]
         errs[topic] = np.sqrt(np.mean(err**2, axis=0))
     assert np.all(errs["/cdgps/state"] < errs["/cdgps/state_filtered"])
     # CSV export: the structure's coordinates
     df = pd.read_csv(tmp / "states.csv")
-    assert list(df.columns[:4]) == ["time_s", "psi", "ex", "ey"] and len(df) == 601
+    assert list(df.columns[:4]) == ["time_s", "psi_rad", "ex_m", "ey_m"] and len(df) == 601
 
 
 def test_residuals_and_events(tower):

@@ -14,6 +14,7 @@ from click.testing import CliRunner
 
 from cdgps_cli.cli.commands import main
 from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.io.coordinate_columns import coordinate_columns
 from cdgps_cli.io.logs import read_receiver_log
 from cdgps_cli.pipeline.if_chain import track_structure
 from cdgps_cli.sim.if_samples import IfOptions, StructureIf
@@ -216,7 +217,7 @@ def test_gyro_aid_is_the_line_of_sight_doppler_of_what_the_gyros_see(chain, test
     man = read_manifest(d / "if" / "if.json")
     tr = pd.read_csv(d / "sim" / "truth.csv")
     t_q = tr["time_s"].to_numpy()
-    q = tr[[f"q{i + 1}" for i in range(cfg.n_q)]].to_numpy()
+    q = tr[coordinate_columns(cfg)].to_numpy()
     qdot = np.gradient(q, t_q, axis=0, edge_order=2)
     G = gyro_matrix(cfg)
     ideal = (t_q, qdot @ G.T)

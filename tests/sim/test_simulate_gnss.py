@@ -147,8 +147,8 @@ def test_simulate_gnss_command_files_truth_and_determinism(tmp_path):
     files = sorted(p.name for p in (tmp_path / "a").iterdir())
     assert files == ["base.rnx", "config.toml", "nav.rnx", "rover.rnx", "truth.csv", "truth.json"]
     truth = pd.read_csv(tmp_path / "a" / "truth.csv")
-    assert list(truth.columns) == ["time_s", "rover_e", "rover_n", "rover_u"] and len(truth) == 120
-    assert np.allclose(truth[["rover_e", "rover_n", "rover_u"]].to_numpy(), [0.01, 0.02, -0.03])
+    assert list(truth.columns) == ["time_s", "rover_e_m", "rover_n_m", "rover_u_m"] and len(truth) == 120
+    assert np.allclose(truth[["rover_e_m", "rover_n_m", "rover_u_m"]].to_numpy(), [0.01, 0.02, -0.03])
     tj = json.loads((tmp_path / "a" / "truth.json").read_text())
     assert tj["rover"] == "rover" and tj["displacement_enu_m"] == [0.01, 0.02, -0.03] and tj["ambiguities"]
     h, o = read_rinex_obs(tmp_path / "a" / "rover.rnx")
@@ -162,7 +162,7 @@ def test_simulate_gnss_command_files_truth_and_determinism(tmp_path):
                                    "--out", str(tmp_path / "c")])
     assert r3.exit_code == 0, r3.output
     t3 = pd.read_csv(tmp_path / "c" / "truth.csv")
-    assert t3["rover_u"].std() > 0 and "random_walk" in (tmp_path / "c" / "config.toml").read_text()
+    assert t3["rover_u_m"].std() > 0 and "random_walk" in (tmp_path / "c" / "config.toml").read_text()
     r4 = CliRunner().invoke(main, ["simulate-gnss", "--nav", str(DATA / "07590920.05n"), "--start", "2010-01-01",
                                    "--out", str(tmp_path / "d")])
     assert r4.exit_code == 2 and "do not cover" in r4.stderr and not (tmp_path / "d").exists()

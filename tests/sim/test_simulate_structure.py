@@ -4,6 +4,7 @@ static and pulse scenarios, option validation."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +25,8 @@ SMALL_SIGMA = 0.001
 def _read(out: Path):
     rx = pd.read_csv(out / "receiver.csv")
     truth = pd.read_csv(out / "truth.csv")
+    assert list(truth.columns[:3]) == ["time_s", "q1_m", "q2_rad"]            # units in the names (issue 32)
+    truth = truth.rename(columns=lambda c: re.sub(r"_(m|rad)$", "", c))      # bare names below
     info = json.loads((out / "truth.json").read_text())
     return rx, truth, info
 
