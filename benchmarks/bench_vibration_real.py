@@ -154,7 +154,7 @@ def run_pipeline(ds, rover: Path, signals, tmp: Path):
     for key, extra in (("random_walk", []), ("kinematic", ["--kinematic"])):
         _run([CDGPS, "-q", "export", tmp / "states.mcap", *extra, "-o", tmp / f"{key}.csv"])
         d = pd.read_csv(tmp / f"{key}.csv")
-        enu = d[["rover_e", "rover_n", "rover_u"]].to_numpy()
+        enu = d[["rover_e_m", "rover_n_m", "rover_u_m"]].to_numpy()
         out[key] = (d["time_s"].to_numpy(), enu, np.isfinite(enu).all(axis=1))
     return out
 

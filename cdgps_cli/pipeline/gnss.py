@@ -575,14 +575,18 @@ def is_gnss_states(path: str | Path) -> bool:
 
 def export_kinematic_csv(states_path: str | Path, out_csv: str | Path) -> dict:
     """The single-epoch (kinematic) solutions of a GNSS STATES.mcap as CSV: time_s, coordinates,
-    sigma_<name>, n_sat_<rover>, pdop_<rover>."""
+    sigma_<name>, named with their units as ``cdgps export``'s (``rover_e_m``, ``sigma_rover_e_m``;
+    :mod:`cdgps_cli.io.coordinate_columns`), then n_sat_<rover> (a count) and pdop_<rover> (a ratio)."""
+    from cdgps_cli.io.coordinate_columns import column_unit, coordinate_column, sigma_column  # noqa: PLC0415
+
     if not is_gnss_states(states_path):
         raise CdgpsError(f"{states_path}: --kinematic needs a STATES.mcap from 'cdgps estimate' on a GNSS run")
     st = States(states_path, topic=KINEMATIC_TOPIC, diagnostics=False)
     names = list(st.coord_names)
-    df = pd.DataFrame(st.q, columns=names)
-    for i, nm in enumerate(names):
-        df["sigma_" + nm] = st.sigma_q[:, i]
+    units = [column_unit(st.coordinate_model(), n) for n in names]
+    df = pd.DataFrame(st.q, columns=[coordinate_column(n, u) for n, u in zip(names, units)])
+    for i, (nm, u) in enumerate(zip(names, units)):
+        df[sigma_column(nm, u)] = st.sigma_q[:, i]
     rovers = list(dict.fromkeys(n.rsplit("_", 1)[0] for n in names))
     try:
         ns, pd_ = st.extra["n_sat"], st.extra["pdop"]

@@ -19,7 +19,6 @@ from cdgps_cli.control.metrics import (ARRIVED_WITHIN_DEG, BACK_FRACTION, PULSE_
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.provenance import _file, report_date, software
 from cdgps_cli.io.atomic import output_set
-from cdgps_cli.io.coordinate_columns import find_column
 from cdgps_cli.io.gains_file import gain_sha256, read_gains
 from cdgps_cli.report.sensor_reports import REPORT_FILES, _fmt, _html_table, _md_table, _mpl, _save_fig, _write_report
 
@@ -36,24 +35,23 @@ ROLE_LABEL = {"open": "open loop", "closed": "closed loop (GPS estimate)",
               "full_state": "closed loop (true state)", "no_vibration": "no vibration control (GPS estimate)"}
 
 
-def _bare_angles(q: pd.DataFrame) -> pd.DataFrame:
-    """``q`` with the plotted angles under their bare names: ``q10_rad`` (truth.csv since issue 32)
-    preferred, a bare ``q10`` (older files) accepted."""
-    cols = {find_column(q.columns, n, "rad"): n for n in (RIGID_ANGLE, *INTERNAL_ANGLES)}
-    cols.pop(None, None)
-    renamed = {c: n for c, n in cols.items() if c != n}
-    return q.drop(columns=[n for n in renamed.values() if n in q.columns]).rename(columns=renamed)
+_UNITS = ("rad", "m", "1")          # the unit suffixes of coordinate columns (cdgps_cli.io.coordinate_columns)
 
 
-def _bare_estimates(ctrl: pd.DataFrame) -> pd.DataFrame:
-    """controller.csv with ``q10_hat``, ``q10_ref`` … read from ``q10_hat_rad``, ``q10_ref_rad`` (since
-    issue 32; the bare names of older files accepted)."""
-    for k in (RIGID_ANGLE, *INTERNAL_ANGLES):
-        for w in ("hat", "ref"):
-            c = find_column(ctrl.columns, f"{k}_{w}", "rad")
-            if c is not None and c != f"{k}_{w}":
-                ctrl = ctrl.drop(columns=[f"{k}_{w}"], errors="ignore").rename(columns={c: f"{k}_{w}"})
-    return ctrl
+def _bare(table: pd.DataFrame, stems) -> pd.DataFrame:
+    """``table`` with each column ``<stem>_<unit>`` (since issue 32) renamed to its bare ``<stem>``; a
+    bare column of an older file is kept as it is (the suffixed one preferred when a file has both)."""
+    renamed = {}
+    for stem in stems:
+        c = next((f"{stem}_{u}" for u in _UNITS if f"{stem}_{u}" in table.columns), None)
+        if c is not None:
+            renamed[c] = stem
+    return table.drop(columns=[n for n in renamed.values() if n in table.columns]).rename(columns=renamed)
+
+
+def _coordinate_stems(truth: dict) -> list[str]:
+    """The coordinates of a simulation (truth.json's ``coordinates``; the plotted angles for older files)."""
+    return list(truth.get("coordinates") or (RIGID_ANGLE, *INTERNAL_ANGLES))
 
 
 def read_simulation(folder: str | Path, role: str) -> dict:
@@ -68,7 +66,7 @@ def read_simulation(folder: str | Path, role: str) -> dict:
     ctrl = None
     if (d / "controller.csv").exists():
         try:
-            ctrl = _bare_estimates(pd.read_csv(d / "controller.csv"))
+            ctrl = pd.read_csv(d / "controller.csv")
         except ValueError as exc:
             raise CdgpsError(f"{d / 'controller.csv'}: not a readable CSV ({exc})") from None
         files.append(d / "controller.csv")
@@ -77,7 +75,10 @@ def read_simulation(folder: str | Path, role: str) -> dict:
         want = "an open-loop run (simulate without --controller)" if role == "open" else \
             "a closed-loop run (simulate with --controller)"
         raise CdgpsError(f"--{role.replace('_', '-')} {d}: expected {want}")
-    q = _bare_angles(q)                                  # q10_rad, or a bare q10 (files before issue 32)
+    stems = _coordinate_stems(truth)
+    q = _bare(q, stems)                                  # q10_rad, or a bare q10 (files before issue 32)
+    if ctrl is not None:                                 # q10_hat_rad, q10_hat_sigma_rad, q10_ref_rad …
+        ctrl = _bare(ctrl, [f"{n}_{w}" for n in stems for w in ("hat", "hat_sigma", "ref")])
     missing = [c for c in ("time_s", RIGID_ANGLE, *INTERNAL_ANGLES) if c not in q.columns]
     if missing:
         raise CdgpsError(f"{d / 'truth.csv'}: missing columns {', '.join(missing)}")

@@ -129,6 +129,11 @@ def test_slew_report_gives_the_metrics_on_the_estimate_too(pulse_runs, testbed_p
     assert "as estimated" in (tmp_path / "rep" / "report.md").read_text()
 
 
+def _bare_name(column: str) -> str:
+    """truth.csv's ``q6_rad`` / ``q1_m`` (issue 32: units in the names) → ``q6`` / ``q1``."""
+    return column.removesuffix("_rad").removesuffix("_m") if column != "time_s" else column
+
+
 def test_control_reports_check_every_coordinate(pulse_runs, tmp_path):
     """Every generalized coordinate but q10 (q3, q6, q9 included) is in the pulse report, checked from 3 s
     after the pulse against its limit, with the numbers computed from truth.csv."""
@@ -140,7 +145,7 @@ def test_control_reports_check_every_coordinate(pulse_runs, tmp_path):
     assert r.exit_code == 0, r.output
     checks = json.loads(r.stdout)["coordinates"]["closed"]
     assert list(checks) == [f"q{i}" for i in range(1, 10)]
-    q = pd.read_csv(d / "closed" / "truth.csv")
+    q = pd.read_csv(d / "closed" / "truth.csv").rename(columns=_bare_name)
     late = q[q["time_s"] >= 6.0 + 3.0]
     assert checks["q6"]["max_abs"] == pytest.approx(np.degrees(late["q6"].abs().max()), rel=1e-12)
     assert checks["q4"]["max_abs"] == pytest.approx(1000 * late["q4"].abs().max(), rel=1e-12)
@@ -230,7 +235,7 @@ def test_every_coordinate_is_drawn_against_the_limit_the_report_states(pulse_run
     assert r.exit_code == 0, r.output
     limits = json.loads(r.stdout)["coordinate_limits"]
     assert sorted(limits, key=lambda n: int(n[1:])) == [f"q{i}" for i in range(1, 11)]
-    open_q = pd.read_csv(d / "open" / "truth.csv")
+    open_q = pd.read_csv(d / "open" / "truth.csv").rename(columns=_bare_name)
     start = next(s for s in json.loads((d / "closed" / "truth.json").read_text())["segments"] if s["kind"] == "pulse")
     for n, lim in limits.items():
         if n in ("q2", "q5", "q8"):

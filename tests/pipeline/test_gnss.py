@@ -89,7 +89,7 @@ def test_geonet_pipeline_equals_baseline_and_rtklib(geonet):
     kin = pd.read_csv(tmp / "kinematic.csv")
     assert len(kin) == 120 and set(kin["n_sat_0759"]) <= {5, 6, 7}
     good = kin["pdop_0759"] <= 10
-    rms = np.sqrt(((kin.loc[good, ["0759_e", "0759_n", "0759_u"]].to_numpy() - ours) ** 2).mean(axis=0))
+    rms = np.sqrt(((kin.loc[good, ["0759_e_m", "0759_n_m", "0759_u_m"]].to_numpy() - ours) ** 2).mean(axis=0))
     assert good.sum() == 114 and np.all(rms < [0.005, 0.006, 0.012]), rms
     assert np.allclose(rms, [bl["kinematic"]["pdop_le_max"]["rms_about_static_m"][c] for c in "enu"], atol=1e-9)
 

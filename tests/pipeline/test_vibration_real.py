@@ -82,5 +82,5 @@ def test_ingest_init_estimate_recovers_the_vibration(rover, tmp_path):
     assert init["solution"] == "fixed" and init["epochs"]["n_epochs_used"] == N_ROVER
     for name in ("s.csv", "k.csv"):                  # smoothed random-walk states; single-epoch fixed solutions
         d = pd.read_csv(tmp_path / name)
-        enu = d[["rover_e", "rover_n", "rover_u"]].to_numpy()
+        enu = d[["rover_e_m", "rover_n_m", "rover_u_m"]].to_numpy()
         _check(d["time_s"].to_numpy(), enu, np.isfinite(enu).all(axis=1))
