@@ -1,8 +1,7 @@
 """The checks every streaming reader of a STATES.mcap makes before reading its arrays.
 
-:class:`cdgps_cli.report.run_data.StatesBlocks` calls :func:`states_spans` on an open, verified
-file (:func:`cdgps_cli.io.mcap.open_verified`); :class:`cdgps_cli.io.states.StatesChunks` makes the
-same checks (io/states.py, to be switched to this function).
+:class:`cdgps_cli.io.states.StatesChunks` and :class:`cdgps_cli.report.run_data.StatesBlocks` call
+:func:`states_spans` on a file opened by :func:`cdgps_cli.io.mcap.open_verified`.
 """
 
 from __future__ import annotations
