@@ -13,18 +13,16 @@ and ``report.json``.
 from __future__ import annotations
 
 import html
-import json
 from pathlib import Path
 
 import numpy as np
 
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.io.atomic import output_set, write_bytes_atomic
 from cdgps_cli.io.provenance import _file, provenance_rows, report_date, software
 from cdgps_cli.io.solution_formats import Q_FIX, Q_FLOAT, Q_SINGLE, read_pos
 from cdgps_cli.report.envelope import DEFAULT_BINS, EnvelopeBins, envelope_line
-from cdgps_cli.report.run_report import RUN_REPORT_FILES, _Page
-from cdgps_cli.report.sensor_reports import _html_table, _json_clean, _mpl
+from cdgps_cli.report.run_report import _Page
+from cdgps_cli.report.sensor_reports import _html_table, _mpl
 
 QUALITY = {Q_FIX: ("fix", "tab:green"), Q_FLOAT: ("float", "tab:orange"), Q_SINGLE: ("single", "tab:red")}
 #: epochs of any other quality flag (RTKLIB: 3 SBAS, 4 DGPS, 6 PPP), drawn as one class
@@ -96,9 +94,7 @@ def rtk_report(pos_path: str | Path, out_dir: str | Path, date: str | None = Non
     title = f"RTK solution report: {Path(pos_path).name}"
     sub = (f"{n} epochs over {t[-1] - t[0]:g} s from GPS time {t[0]:.1f} s; {sol['frame']} solution file; "
            f"report date {prov['date']}.")
-    with output_set(out_dir, replaces=RUN_REPORT_FILES) as dest:
-        write_bytes_atomic(dest.path("index.html"), page.html(title, sub).encode())
-        write_bytes_atomic(dest.path("report.json"), (json.dumps(_json_clean(data), indent=2) + "\n").encode())
+    page.write(out_dir, title, sub, data)
     return data
 
 
