@@ -132,12 +132,18 @@ def h1995(w: Path, figdir: Path) -> list[Headline]:
 # 1998: static test (Fig. 7), PSD vs gyro (Fig. 8)
 
 
-def _testbed_script():
-    spec = importlib.util.spec_from_file_location("make_testbed_config", ROOT / "scripts" / "make_testbed_config.py")
+def _load_script(relpath: str):
+    """The module of the script ``ROOT / relpath`` (scripts and benchmarks are not a package)."""
+    name = Path(relpath).stem
+    spec = importlib.util.spec_from_file_location(name, ROOT / relpath)
     mod = importlib.util.module_from_spec(spec)
-    sys.modules["make_testbed_config"] = mod
+    sys.modules[name] = mod
     spec.loader.exec_module(mod)
     return mod
+
+
+def _testbed_script():
+    return _load_script("scripts/make_testbed_config.py")
 
 
 def hmodel(w: Path, figdir: Path) -> list[Headline]:
@@ -400,11 +406,7 @@ def hslew(w: Path, figdir: Path, seeds: int) -> list[Headline]:
 
 
 def _tracking_module():
-    spec = importlib.util.spec_from_file_location("tracking_paper", ROOT / "benchmarks" / "tracking_paper.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["tracking_paper"] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    return _load_script("benchmarks/tracking_paper.py")
 
 
 def htracking(w: Path, figdir: Path) -> list[Headline]:

@@ -255,3 +255,16 @@ def _with(opts):
             f = o(f)
         return f
     return deco
+
+
+def _report_outputs(json_help: str = "Print report.json on stdout.", dated_by: str = "the newest input's"):
+    """--date, -o/--output (the report's folder) and --json of the report commands (``dated_by``: whose
+    modification time dates the report by default)."""
+    return _with([
+        click.option("--date", "date", default=None, metavar="ISO_DATE",
+                     help=f"Date printed in the report (default: $SOURCE_DATE_EPOCH, else {dated_by} "
+                          "modification time)."),
+        click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False),
+                     help="Output directory."),
+        click.option("--json", "as_json", is_flag=True, help=json_help),
+    ])

@@ -10,7 +10,7 @@ import click
 from cdgps_cli.config.options import CONTROL_TUNED_WEIGHTS, CONTROL_WEIGHTS
 from cdgps_cli.core import progress
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.cli.app import _warn, _say, _output_option, _emit_json, main
+from cdgps_cli.cli.app import _warn, _say, _output_option, _emit_json, _report_outputs, main
 from cdgps_cli.cli.stage_commands import report
 
 
@@ -24,10 +24,7 @@ from cdgps_cli.cli.stage_commands import report
               help="Closed loop with --feedback truth (what the estimator costs).")
 @click.option("--no-vibration", "no_vibration_dir", type=click.Path(file_okay=False),
               help="Closed loop with --no-vibration-control (Fig. 12).")
-@click.option("--date", "date", default=None, metavar="ISO_DATE",
-              help="Date printed in the report (default: $SOURCE_DATE_EPOCH, else the newest input's modification time).")
-@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False), help="Output directory.")
-@click.option("--json", "as_json", is_flag=True, help="Print report.json on stdout.")
+@_report_outputs()
 @click.pass_context
 def report_control(ctx, gains_json, closed_dir, open_dir, full_state_dir, no_vibration_dir, date, out_dir, as_json):
     """Pulse rejection (Fig. 10) or slew (Figs. 11-12) with the design's poles (Fig. 6)."""

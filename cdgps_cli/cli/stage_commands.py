@@ -17,7 +17,7 @@ from cdgps_cli.io.states_layout import COVARIANCE_CHOICES as _STATES_COVARIANCE
 from cdgps_cli.io.states_layout import DEFAULT_COVARIANCE as _STATES_DEFAULT_COVARIANCE
 from cdgps_cli.io.states_layout import DEFAULT_PREVIEW_RATE_HZ as _STATES_PREVIEW_RATE_HZ
 from cdgps_cli.cli.app import (_echo, _warn, _say, _output_option, _emit_json, main, _parse_named_files,
-                               _write_json_atomic, _with)
+                               _write_json_atomic, _with, _report_outputs)
 
 
 @main.command(short_help="Simulate a structure run → receiver/gyro/truth CSV")
@@ -682,10 +682,7 @@ def report():
 @click.option("--start", "start_s", type=float, default=None, help="Rest segment start, s (default: detected).")
 @click.option("--end", "end_s", type=float, default=None, help="Rest segment end, s (default: detected).")
 @click.option("--gyro-name", default=None, help="Gyro to integrate (default: the one whose axis matches the angle).")
-@click.option("--date", "date", default=None, metavar="ISO_DATE",
-              help="Date printed in the report (default: $SOURCE_DATE_EPOCH, else the newest input's modification time).")
-@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False), help="Output directory.")
-@click.option("--json", "as_json", is_flag=True, help="Print report.json on stdout.")
+@_report_outputs()
 @click.pass_context
 def report_static(ctx, states_mcap, gyro_mcap, angle, survey_deg, start_s, end_s, gyro_name, out_dir, as_json, date):
     """Static sensor test (1998 paper Fig. 7): mean vs survey, noise, GPS and gyro drift."""
@@ -707,10 +704,7 @@ def report_static(ctx, states_mcap, gyro_mcap, angle, survey_deg, start_s, end_s
 @report.command("spectrum", short_help="Dynamic sensor test (1998 Fig. 8): PSDs, modes")
 @click.argument("states_mcap", type=click.Path(dir_okay=False))
 @_with(_spectra_opts)
-@click.option("--date", "date", default=None, metavar="ISO_DATE",
-              help="Date printed in the report (default: $SOURCE_DATE_EPOCH, else the newest input's modification time).")
-@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False), help="Output directory.")
-@click.option("--json", "as_json", is_flag=True, help="Print report.json on stdout.")
+@_report_outputs()
 @click.pass_context
 def report_spectrum(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad, out_dir, as_json, date):
     """Dynamic sensor test (1998 paper Fig. 8): PSDs vs gyros and identified modes vs the model."""
@@ -733,10 +727,7 @@ def report_spectrum(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad
 @click.option("--survey-deg", type=float, default=None, help="Surveyed value of --angle, degrees.")
 @click.option("--no-spectra", is_flag=True, default=False,
               help="Leave out the spectra, modes, MAC and mode shapes (on a long record the slowest part).")
-@click.option("--date", "date", default=None, metavar="ISO_DATE",
-              help="Date printed in the report (default: $SOURCE_DATE_EPOCH, else the newest input's modification time).")
-@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False), help="Output directory.")
-@click.option("--json", "as_json", is_flag=True, help="Print report.json's summary on stdout.")
+@_report_outputs("Print report.json's summary on stdout.")
 @click.pass_context
 def report_run(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad, truth_dir, angle, survey_deg, no_spectra,
                date, out_dir, as_json):
@@ -762,10 +753,7 @@ def report_run(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad, tru
 
 @report.command("rtk", short_help="RTK solution (.pos) as one HTML page: ENU by fix/float, ratio")
 @click.argument("pos_file", type=click.Path(dir_okay=False))
-@click.option("--date", "date", default=None, metavar="ISO_DATE",
-              help="Date printed in the report (default: $SOURCE_DATE_EPOCH, else the input's modification time).")
-@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False), help="Output directory.")
-@click.option("--json", "as_json", is_flag=True, help="Print report.json's summary on stdout.")
+@_report_outputs("Print report.json's summary on stdout.", dated_by="the input's")
 @click.pass_context
 def report_rtk(ctx, pos_file, date, out_dir, as_json):
     """One self-contained HTML page (index.html) for an RTK solution file in RTKLIB's .pos layout

@@ -404,14 +404,33 @@ static int csr_check(const Csr *A, int n, Py_ssize_t nnz)
     return 0;
 }
 
-/* xo = A x + B u (B: n x nu) */
-static void predict_x(const Csr *A, const double *B, const double *u, int nu, const double *x, double *xo, int n)
+/* xo = A x */
+static void csr_matvec(const Csr *A, const double *x, double *xo, int n)
 {
     for (int i = 0; i < n; i++) {
         double s = 0.0;
         for (int64_t z = A->row[i]; z < A->row[i + 1]; z++) s += A->val[z] * x[A->col[z]];
         xo[i] = s;
     }
+}
+
+/* out = (X + X^T) / 2 for n x n row-major X; out may be X */
+static void sym_part(const double *X, double *out, int n)
+{
+    for (int i = 0; i < n; i++) {
+        out[i * n + i] = X[i * n + i];
+        for (int j = i + 1; j < n; j++) {
+            double v = 0.5 * (X[i * n + j] + X[j * n + i]);
+            out[i * n + j] = v;
+            out[j * n + i] = v;
+        }
+    }
+}
+
+/* xo = A x + B u (B: n x nu) */
+static void predict_x(const Csr *A, const double *B, const double *u, int nu, const double *x, double *xo, int n)
+{
+    csr_matvec(A, x, xo, n);
     int any = 0;
     for (int j = 0; j < nu; j++) any |= (u[j] != 0.0);
     if (any) {                          /* B u (thrusters off: exactly zero, skipped) */
@@ -1593,11 +1612,7 @@ static PyObject *py_window_forward(PyObject *self, PyObject *args)
     for (Py_ssize_t k = 0; k < N && bad < 0; k++) {
         if (k > 0) {
             predict_P(&AT, zero, Y, AP, M, P);          /* M = A^-T Y A^-1 (zero: p x p zeros) */
-            for (int i = 0; i < P; i++) {               /* m = A^-T y */
-                double s = 0.0;
-                for (int64_t z = AT.row[i]; z < AT.row[i + 1]; z++) s += AT.val[z] * y[AT.col[z]];
-                m[i] = s;
-            }
+            csr_matvec(&AT, y, m, P);                   /* m = A^-T y */
             if (Rr > 0) {
                 mm_plain(M, G, MG, P, P, Rr);            /* MG = M G (p x r) */
                 mm_plain(GT, MG, S, Rr, P, Rr);          /* S = G^T M G + I */
@@ -1639,14 +1654,8 @@ static PyObject *py_window_forward(PyObject *self, PyObject *args)
                 }
             }
             double *Yb = Ybar + k * pp, *yb = ybar + k * p;
-            for (int i = 0; i < P; i++) {
-                for (int j = i; j < P; j++) {
-                    double v = 0.5 * (M[i * P + j] + M[j * P + i]);
-                    Y[i * P + j] = v;
-                    Y[j * P + i] = v;
-                }
-                y[i] = m[i];
-            }
+            sym_part(M, Y, P);
+            memcpy(y, m, sizeof(double) * p);
             memcpy(Yb, Y, sizeof(double) * pp);
             memcpy(yb, y, sizeof(double) * p);
         }
@@ -1714,11 +1723,7 @@ static PyObject *py_window_backward(PyObject *self, PyObject *args)
             u[i] = zn[i] - s;
         }
         double *zk = z + k * p;
-        for (int i = 0; i < P; i++) {                     /* z[k] = A^-1 u */
-            double s = 0.0;
-            for (int64_t q = Ai.row[i]; q < Ai.row[i + 1]; q++) s += Ai.val[q] * u[Ai.col[q]];
-            zk[i] = s;
-        }
+        csr_matvec(&Ai, u, zk, P);                        /* z[k] = A^-1 u */
         for (int i = 0; i < P; i++)                       /* F = I - QY */
             for (int j = 0; j < P; j++) F[i * P + j] = (i == j ? 1.0 : 0.0) - QY[i * P + j];
         gemm_small(P, 0, F, Pn, NULL, T1);                /* T1 = F Pn */
@@ -1727,12 +1732,7 @@ static PyObject *py_window_backward(PyObject *self, PyObject *args)
         gemm_small(P, 0, F, T2, Q, T1);                   /* T1 = Q + F Pn F^T */
         gemm_small(P, 0, QY, Q, NULL, T2);                /* T2 = QY Q */
         for (Py_ssize_t i = 0; i < pp; i++) T1[i] -= T2[i];
-        for (int i = 0; i < P; i++)                       /* symmetric part (A^-1 X A^-T reads X's rows) */
-            for (int j = i + 1; j < P; j++) {
-                double v = 0.5 * (T1[i * P + j] + T1[j * P + i]);
-                T1[i * P + j] = v;
-                T1[j * P + i] = v;
-            }
+        sym_part(T1, T1, P);                              /* (A^-1 X A^-T reads X's rows) */
         predict_P(&Ai, zero, T1, AP, Pz + k * pp, P);     /* Pz[k] = A^-1 X A^-T (exactly symmetric) */
     }
     Py_END_ALLOW_THREADS

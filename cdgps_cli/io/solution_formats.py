@@ -224,6 +224,10 @@ def read_pos(path) -> dict:
         if len(v) < 13:
             raise CdgpsError(f"{p}, line {i}: expected 13 values after the time (coordinates, Q, ns, 6 σ, age, "
                              f"ratio), got {len(v)}")
+        if not all(math.isfinite(c) for c in v[:3]):
+            raise CdgpsError(f"{p}, line {i}: expected finite coordinates, got {' '.join(f[k:k + 3])!r}")
+        if not all(c >= 0 and c.is_integer() for c in v[3:5]):
+            raise CdgpsError(f"{p}, line {i}: expected whole numbers >= 0 for Q and ns, got {' '.join(f[k + 3:k + 5])!r}")
         rows.append([t, *v])
     a = np.array(rows, dtype=float).reshape(-1, 14)
     return {"frame": frame, "time_gps_s": a[:, 0], "coords": a[:, 1:4], "q": a[:, 4].astype(int),

@@ -57,7 +57,7 @@ from cdgps_cli.io.states_layout import (COVARIANCE_CHOICES, DEFAULT_COVARIANCE, 
                                         OUTPUT_MAP_PACKED, PACKED_PREFIX, RESIDUAL_PACKED, SERIES_ATTACHMENT,
                                         STATE_DELTA, STATES_FORMAT, STATES_KINDS)
 from cdgps_cli.io.foxglove_schema import scene_update_schema
-from cdgps_cli.io.mcap import (NULLABLE, CONFIG_ATTACHMENT, McapOut, array_schema, attachment_spans, message_schema,
+from cdgps_cli.io.mcap import (NULLABLE, CONFIG_ATTACHMENT, McapOut, array_schema, message_schema,
                                read_mcap, read_span, time_ns)
 
 STATE_TOPIC = "/cdgps/state"
@@ -896,27 +896,16 @@ class StatesChunks:
     config_sha256 = States.config_sha256
 
     def __init__(self, path: str | Path, topic: str = STATE_TOPIC, covariance: bool = False):
-        from cdgps_cli.io.mcap import _check_attachment_crcs, open_verified  # noqa: PLC0415
+        from cdgps_cli.io.mcap import open_verified  # noqa: PLC0415
         from cdgps_cli.io.packed_arrays import PackedRows  # noqa: PLC0415
+        from cdgps_cli.io.states_header import states_spans  # noqa: PLC0415
 
         self.path = str(path)
         self.has_P_xi = False
         self._arrays, self._whole = {}, None
         key = f"{PACKED_PREFIX}{topic}/"
         with open_verified(path) as (_reader, fh, info, summary):
-            if "cdgps.ingest" in info.metadata:
-                raise CdgpsError(f"{path}: this is a RUN.mcap (from 'cdgps ingest'), not a STATES.mcap from "
-                                 f"'cdgps estimate'")
-            if not info.data_section_crc_checked:
-                _check_attachment_crcs(fh, summary, path, zero_ok=False)
-            spans = attachment_spans(fh, summary, path)
-            if CONFIG_ATTACHMENT not in spans and SERIES_ATTACHMENT not in spans:
-                raise CdgpsError(f"{path}: no {SERIES_ATTACHMENT} or config attachment; is this a STATES.mcap from "
-                                 f"'cdgps estimate'?")
-            if ESTIMATE_METADATA not in info.metadata:
-                raise CdgpsError(f"{path}: no {ESTIMATE_METADATA!r} metadata record; expected in a STATES.mcap from "
-                                 f"'cdgps estimate' (damaged or not written by cdgps)")
-            self.metadata = info.metadata[ESTIMATE_METADATA]
+            self.metadata, spans = states_spans(path, fh, info, summary)
             small = {n: read_span(fh, *spans[n])(spans[n][1]) for n in (CONFIG_ATTACHMENT, SERIES_ATTACHMENT,
                                                                      OUTPUT_MAP_PACKED) if n in spans}
             self._describe(small)

@@ -62,10 +62,9 @@ def common_time_axis(t_gnss, sensor_times, tol_s: float = SYNC_TOL_S) -> np.ndar
     return allt[keep]
 
 
-def sensor_parts(cfg: StructureConfig, specs, logs: dict, t_common, fuse, hold_out=(), S=None) -> list:
-    """[(name, model)] of the fused sensors: kinds in ``fuse``, names not in ``hold_out``; ``logs``
-    {kind: DataFrame with time_s, sensor and the kind's columns}; S the accelerometers' disturbance
-    selection (None: state [ξ, ξ̇])."""
+def check_fusion_choice(cfg: StructureConfig, specs, fuse, hold_out=()) -> None:
+    """CdgpsError naming the option unless every ``hold_out`` name is a sensor of ``specs`` (the
+    config's) and every kind in ``fuse`` has one."""
     unknown = [h for h in hold_out if h not in {s.name for s in specs}]
     if unknown:
         raise CdgpsError(f"--hold-out: {', '.join(unknown)} is not a sensor of config {cfg.name!r} "
@@ -74,6 +73,13 @@ def sensor_parts(cfg: StructureConfig, specs, logs: dict, t_common, fuse, hold_o
     if lacking:
         raise CdgpsError(f"--fuse {','.join(fuse)}: config {cfg.name!r} has no {', '.join(lacking)} sensor "
                          f"([[accelerometers]], [[tilts]], [[gyros]]; docs/config-format.md)")
+
+
+def sensor_parts(cfg: StructureConfig, specs, logs: dict, t_common, fuse, hold_out=(), S=None) -> list:
+    """[(name, model)] of the fused sensors: kinds in ``fuse``, names not in ``hold_out``; ``logs``
+    {kind: DataFrame with time_s, sensor and the kind's columns}; S the accelerometers' disturbance
+    selection (None: state [ξ, ξ̇])."""
+    check_fusion_choice(cfg, specs, fuse, hold_out)
     n_core = 2 * cfg.n_modes + (0 if S is None else S.shape[1])
     parts = []
     for sp in specs:
@@ -129,7 +135,8 @@ def run_fused(model, dyn, time_s, x0, P0, smooth: bool = True, max_iterations: i
 
 def fusion_choice(cfg: StructureConfig, fuse_option: str | None, hold_out_option=()) -> tuple[tuple, tuple]:
     """(kinds fused, sensors held out): ``--fuse`` (or the config's ``[fusion] fuse``: opt-in, empty by
-    default) and ``--hold-out`` added to ``[fusion] hold_out``."""
+    default) and ``--hold-out`` added to ``[fusion] hold_out``, checked against the config's sensors
+    (:func:`check_fusion_choice`)."""
     from cdgps_cli.config.sensors import fusion_settings  # noqa: PLC0415
 
     st = fusion_settings(cfg)
@@ -137,6 +144,10 @@ def fusion_choice(cfg: StructureConfig, fuse_option: str | None, hold_out_option
     held = tuple(dict.fromkeys(tuple(st["hold_out"]) + tuple(hold_out_option)))
     if held and not kinds:
         raise CdgpsError("--hold-out needs --fuse (or [fusion] fuse in the structure config)")
+    if kinds:                                    # before the run is filtered, not after
+        from cdgps_cli.config.sensors import sensor_specs  # noqa: PLC0415
+
+        check_fusion_choice(cfg, sensor_specs(cfg), kinds, held)
     return kinds, held
 
 

@@ -626,55 +626,23 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
         raise CdgpsError("no fixed DD integers for any rover (INIT.json's nor the modal batch initialization's); "
                          "try a longer span or 'cdgps init' without --float-only")
     model = SatelliteDDModal(cfg, R, tabs, k_of, ant_idx, d_hdr)
-    dyn = ModalZOH(cfg)
     P0 = np.diag(np.r_[np.full(nm, initial_sigma_xi**2), np.full(nm, initial_sigma_xidot**2)])
     say(f"modal EKF over {n} epochs, {len(rover_ants)} rover antenna(s), {nm} modes …")
     gate = EstimateOptions().outlier_sigma if outlier_sigma is None else float(outlier_sigma)
-    outliers: list = []
     fusion = None
     if fuse:
         from cdgps_cli.pipeline.fusion import fuse_with_dd  # noqa: PLC0415
 
         fusion = fuse_with_dd(cfg, model, t_all, sensor_logs or {}, tuple(fuse), tuple(hold_out), x0, P0, smooth=smooth,
                               max_iterations=max_iterations, outlier_sigma=gate, say=say)
-        model, t_all, n, outliers = fusion.dd, fusion.t, fusion.t.size, fusion.outliers_dd
+        model, t_all, outliers = fusion.dd, fusion.t, fusion.outliers_dd
         xf, Pf, meas, xs, Ps = fusion.x_filt, fusion.P_filt, fusion.dd_rows, fusion.x, fusion.P
         nis, nis_dof = fusion.nis, fusion.nis_dof
-    elif kernel.available():
-        fr = filter_dd_kernel(model, dyn, t_all, x0, P0, max_iterations, outlier_sigma=gate, events=outliers)
     else:
-        fr = filter_numpy(model, dyn, t_all, x0, P0, max_iterations,
-                          rows_hook=outlier_gate(model, gate, outliers, t_all))
-    if fusion is None:
-        xf, Pf, meas = fr["x"], fr["P"], fr["rows"]
-        xs, Ps = rts_smooth_transitions(xf, Pf, fr["A"], fr["Q"]) if smooth else (xf, Pf)
-        nis, nis_dof = fr["nis"], fr["nis_dof"]
-
-    # DD residuals of the reported estimate, per (antenna, satellite) channel
-    slot_ants = su.slot_ants
-    chans = sorted({(slot_ants[a], s) for mk in meas if mk is not None for a, s in mk.labels})
-    cidx = {c: i for i, c in enumerate(chans)}
-    resid = np.full((n, len(chans)), np.nan)
-    for k, mk in enumerate(meas):
-        if mk is None:
-            continue
-        h, _ = model.predict(xs[k], mk)
-        cols = [cidx[(slot_ants[a], s)] for a, s in mk.labels]
-        resid[k, cols] = mk.z_m - h
-
-    events = []
-    for i, tb in enumerate(tabs):
-        for ev in tb["events"]:
-            e = dict(ev)
-            if e["antenna"] == mapping[slot_ants[i]]:
-                e["antenna"] = slot_ants[i]
-            events.append(e)
-    for e in outliers:
-        events.append({"time_s": float(e["time_s"]), "antenna": slot_ants[e["label"][0]], "transmitter": e["label"][1],
-                       "kind": "outlier", "action": f"DD not used at this epoch ({e['sigmas']:.1f} σ)"})
-    if fusion is not None:
-        events += fusion.events
-    events.sort(key=lambda e: (e["time_s"], e["antenna"], e["transmitter"], e["kind"]))
+        xf, Pf, meas, xs, Ps, nis, nis_dof, outliers = _filter_dd(model, cfg, t_all, x0, P0, max_iterations, gate,
+                                                                  smooth)
+    chans, resid = _dd_residuals(model, meas, xs, su.slot_ants)
+    events = _modal_events(tabs, mapping, su.slot_ants, outliers, fusion.events if fusion is not None else [])
     biases, integers = _final_biases(su, tabs, init)
     res = SimpleNamespace(cfg=cfg, x=xs, P=Ps, smoothed=bool(smooth), x_filt=xf, P_filt=Pf, time_s=t_all,
                           channels=chans, residual_m=resid, nis=nis, nis_dof=nis_dof, events=events, biases=biases)
@@ -697,6 +665,54 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
         **({"fusion": fusion.summary} if fusion is not None else {}),
     })
     return out
+
+
+def _filter_dd(model, cfg: StructureConfig, t_all, x0, P0, max_iterations: int, gate: float, smooth: bool):
+    """The modal EKF on the DDs alone (compiled kernel when built, numpy otherwise) [+ RTS smoother]:
+    ``(x_filt, P_filt, rows per epoch, x, P, nis, nis_dof, outlier events)``."""
+    outliers: list = []
+    dyn = ModalZOH(cfg)
+    if kernel.available():
+        fr = filter_dd_kernel(model, dyn, t_all, x0, P0, max_iterations, outlier_sigma=gate, events=outliers)
+    else:
+        fr = filter_numpy(model, dyn, t_all, x0, P0, max_iterations,
+                          rows_hook=outlier_gate(model, gate, outliers, t_all))
+    xf, Pf = fr["x"], fr["P"]
+    xs, Ps = rts_smooth_transitions(xf, Pf, fr["A"], fr["Q"]) if smooth else (xf, Pf)
+    return xf, Pf, fr["rows"], xs, Ps, fr["nis"], fr["nis_dof"], outliers
+
+
+def _dd_residuals(model, meas, xs, slot_ants) -> tuple[list, np.ndarray]:
+    """DD residuals of the reported estimate ``xs``, per (antenna, satellite) channel: the sorted
+    channels and the residuals (n, C), m (NaN where the channel was not used)."""
+    chans = sorted({(slot_ants[a], s) for mk in meas if mk is not None for a, s in mk.labels})
+    cidx = {c: i for i, c in enumerate(chans)}
+    resid = np.full((len(meas), len(chans)), np.nan)
+    for k, mk in enumerate(meas):
+        if mk is None:
+            continue
+        h, _ = model.predict(xs[k], mk)
+        cols = [cidx[(slot_ants[a], s)] for a, s in mk.labels]
+        resid[k, cols] = mk.z_m - h
+    return chans, resid
+
+
+def _modal_events(tabs, mapping: dict, slot_ants, outliers, sensor_events) -> list:
+    """The DD tables' events (antennas by structure name), the outlier gate's and the fused sensors',
+    in time order."""
+    events = []
+    for i, tb in enumerate(tabs):
+        for ev in tb["events"]:
+            e = dict(ev)
+            if e["antenna"] == mapping[slot_ants[i]]:
+                e["antenna"] = slot_ants[i]
+            events.append(e)
+    for e in outliers:
+        events.append({"time_s": float(e["time_s"]), "antenna": slot_ants[e["label"][0]], "transmitter": e["label"][1],
+                       "kind": "outlier", "action": f"DD not used at this epoch ({e['sigmas']:.1f} σ)"})
+    events += sensor_events
+    events.sort(key=lambda e: (e["time_s"], e["antenna"], e["transmitter"], e["kind"]))
+    return events
 
 
 # ----------------------------------------------------------------------------------------------

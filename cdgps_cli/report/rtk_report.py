@@ -13,20 +13,28 @@ and ``report.json``.
 from __future__ import annotations
 
 import html
-import json
 from pathlib import Path
 
 import numpy as np
 
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.io.atomic import output_set, write_bytes_atomic
 from cdgps_cli.io.provenance import _file, provenance_rows, report_date, software
 from cdgps_cli.io.solution_formats import Q_FIX, Q_FLOAT, Q_SINGLE, read_pos
 from cdgps_cli.report.envelope import DEFAULT_BINS, EnvelopeBins, envelope_line
-from cdgps_cli.report.run_report import RUN_REPORT_FILES, _Page
-from cdgps_cli.report.sensor_reports import _html_table, _json_clean, _mpl
+from cdgps_cli.report.run_report import _Page
+from cdgps_cli.report.sensor_reports import _html_table, _mpl
 
 QUALITY = {Q_FIX: ("fix", "tab:green"), Q_FLOAT: ("float", "tab:orange"), Q_SINGLE: ("single", "tab:red")}
+#: epochs of any other quality flag (RTKLIB: 3 SBAS, 4 DGPS, 6 PPP), drawn as one class
+OTHER_QUALITY = ("other", "tab:gray")
+
+
+def quality_classes(q: np.ndarray) -> list:
+    """[(label, colour, mask (n,))] of the quality classes present in ``q``: fix, float, single, then
+    every other flag together (so that each epoch is drawn)."""
+    out = [(label, colour, q == k) for k, (label, colour) in QUALITY.items()]
+    out.append((*OTHER_QUALITY, ~np.isin(q, list(QUALITY))))
+    return [c for c in out if c[2].any()]
 
 
 def pos_enu(sol: dict) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
@@ -72,11 +80,13 @@ def rtk_report(pos_path: str | Path, out_dir: str | Path, date: str | None = Non
     src = (f"{Path(pos_path).name}: every epoch ({n}), drawn as the minimum and maximum of each of "
            f"{min(n_bins, n)} bins per quality class.")
     page.section("enu", "Displacement, satellites and ratio")
+    colours = "green fix, orange float, red single" + ("" if np.isin(sol["q"], list(QUALITY)).all()
+                                                        else ", dark grey any other flag")
+    band = ", with the ±1σ the file gives (grey)." if sd is not None else "."
     page.figure("enu", enu_figure(t, enu, sd, sol["q"], n_bins),
                 "East, north and up displacement of the rover about the median position of its fixed epochs "
                 f"(ECEF {ref[0]:.3f}, {ref[1]:.3f}, {ref[2]:.3f} m), mm, each epoch coloured by its solution "
-                "quality (green fix, orange float, red single)" + (", with the ±1σ the file gives (grey)." if sd is
-                                                                   not None else "."), src)
+                f"quality ({colours}){band}", src)
     page.figure("quality", quality_figure(t, sol["ns"], sol["ratio"], sol["q"], n_bins, ratio_threshold(sol["header"])),
                 "Satellites used and the ratio test of the integer fix (log scale; an epoch without one is left out).",
                 src)
@@ -84,9 +94,7 @@ def rtk_report(pos_path: str | Path, out_dir: str | Path, date: str | None = Non
     title = f"RTK solution report: {Path(pos_path).name}"
     sub = (f"{n} epochs over {t[-1] - t[0]:g} s from GPS time {t[0]:.1f} s; {sol['frame']} solution file; "
            f"report date {prov['date']}.")
-    with output_set(out_dir, replaces=RUN_REPORT_FILES) as dest:
-        write_bytes_atomic(dest.path("index.html"), page.html(title, sub).encode())
-        write_bytes_atomic(dest.path("report.json"), (json.dumps(_json_clean(data), indent=2) + "\n").encode())
+    page.write(out_dir, title, sub, data)
     return data
 
 
@@ -144,10 +152,7 @@ def enu_figure(t, enu, sd, q, n_bins: int):
                          1e3 * (enu[:, i:i + 1] + sd[:, i:i + 1]))
             x, _ = _rel_time(band_env.centre_s())
             handles["±1σ (file)"] = ax.fill_between(x, band_env.band_lo[:, 0], band_env.band_hi[:, 0], color="0.8", lw=0)
-        for k, (label, colour) in QUALITY.items():
-            sel = q == k
-            if not sel.any():
-                continue
+        for label, colour, sel in quality_classes(q):
             v = np.where(sel, 1e3 * enu[:, i], np.nan)[:, None]
             env = _envelope(t, v, n_bins)
             x, xlabel = _rel_time(env.centre_s())

@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.io.mcap import CONFIG_ATTACHMENT, attachment_spans, open_verified, read_span
-from cdgps_cli.io.states import (ESTIMATE_METADATA, INIT_ATTACHMENT, STATE_TOPIC, States,
-                                 coordinate_sigma, rows_q)
+from cdgps_cli.io.mcap import CONFIG_ATTACHMENT, open_verified, read_span
+from cdgps_cli.io.states import INIT_ATTACHMENT, STATE_TOPIC, States, coordinate_sigma, rows_q
+from cdgps_cli.io.states_header import states_spans
 from cdgps_cli.io.states_layout import OUTPUT_MAP_PACKED, PACKED_PREFIX, RESIDUAL_PACKED, SERIES_ATTACHMENT
 
 #: the single-epoch (kinematic) solutions of a GNSS run, arrays only, with ``n_sat`` and ``pdop``
@@ -55,26 +55,13 @@ class StatesBlocks:
     config_sha256 = States.config_sha256
 
     def __init__(self, path: str | Path, topic: str = STATE_TOPIC):
-        from cdgps_cli.io.mcap import _check_attachment_crcs  # noqa: PLC0415 (as StatesChunks checks them)
         from cdgps_cli.io.packed_arrays import PackedRows  # noqa: PLC0415
 
         self.path = str(path)
         self._rows, self._whole, self.init, self.channels = {}, None, None, []
         key = f"{PACKED_PREFIX}{topic}/"
         with open_verified(path) as (_reader, fh, info, summary):
-            if "cdgps.ingest" in info.metadata:
-                raise CdgpsError(f"{path}: this is a RUN.mcap (from 'cdgps ingest'), not a STATES.mcap from "
-                                 f"'cdgps estimate'")
-            if not info.data_section_crc_checked:
-                _check_attachment_crcs(fh, summary, path, zero_ok=False)
-            spans = attachment_spans(fh, summary, path)
-            if CONFIG_ATTACHMENT not in spans and SERIES_ATTACHMENT not in spans:
-                raise CdgpsError(f"{path}: no {SERIES_ATTACHMENT} or config attachment; is this a STATES.mcap from "
-                                 f"'cdgps estimate'?")
-            if ESTIMATE_METADATA not in info.metadata:
-                raise CdgpsError(f"{path}: no {ESTIMATE_METADATA!r} metadata record; expected in a STATES.mcap from "
-                                 f"'cdgps estimate'")
-            self.metadata = info.metadata[ESTIMATE_METADATA]
+            self.metadata, spans = states_spans(path, fh, info, summary)
             small = {n: read_span(fh, *spans[n])(spans[n][1]) for n in _SMALL if n in spans}
             self._describe(small)
             self._small_json(small)

@@ -76,6 +76,12 @@ class _Page:
                 f"<h1>{html.escape(title)}</h1><p>{html.escape(subtitle)}</p>"
                 f"<nav class='toc'><b>Contents</b><ol>{toc}</ol></nav>{body}</body></html>\n")
 
+    def write(self, out_dir, title: str, subtitle: str, data: dict) -> None:
+        """``index.html`` (this page) and ``report.json`` (``data``) into ``out_dir``, as one output set."""
+        with output_set(out_dir, replaces=RUN_REPORT_FILES) as dest:
+            write_bytes_atomic(dest.path("index.html"), self.html(title, subtitle).encode())
+            write_bytes_atomic(dest.path("report.json"), (json.dumps(_json_clean(data), indent=2) + "\n").encode())
+
 
 def _display_unit(unit: str) -> tuple[str, float]:
     """The unit a coordinate is plotted in and the factor from its own: rad → deg, m → mm."""
@@ -152,9 +158,7 @@ def run_report(states, out_dir: str | Path, run=None, truth_dir: str | Path | No
     title = f"Run report: {Path(states.path).name} ({states.config_name})"
     sub = (f"{scan.n_epochs} epochs, {_span_text(scan)}, sampled every {scan.period_s:g} s; "
            f"{states.kind} states; report date {prov['date']}.")
-    with output_set(out_dir, replaces=RUN_REPORT_FILES) as dest:
-        write_bytes_atomic(dest.path("index.html"), page.html(title, sub).encode())
-        write_bytes_atomic(dest.path("report.json"), (json.dumps(_json_clean(data), indent=2) + "\n").encode())
+    page.write(out_dir, title, sub, data)
     return data
 
 

@@ -109,3 +109,14 @@ def test_fusion_choice_config_and_options():
     assert fusion_choice(cfg, "tilt") == (("tilt",), ("gyro-top",))              # --fuse replaces [fusion] fuse
     with pytest.raises(CdgpsError, match="--hold-out needs --fuse"):
         fusion_choice(CFG, None, ("acc-mid",))
+
+
+def test_fusion_choice_checks_the_config_sensors_before_the_run_is_filtered():
+    """An unknown --hold-out name or a fused kind the config lacks is refused by fusion_choice itself
+    (was: only in sensor_parts, after the modal batch initialization and setup of a long run)."""
+    from cdgps_cli.pipeline.fusion import fusion_choice
+
+    with pytest.raises(CdgpsError, match=r"--hold-out: nope is not a sensor of config 'tower-fusion'"):
+        fusion_choice(CFG, "accel", ("nope",))
+    with pytest.raises(CdgpsError, match=r"--fuse accel: config 'gnss-tower' has no accel sensor"):
+        fusion_choice(load_config("configs/gnss-tower.toml"), "accel")

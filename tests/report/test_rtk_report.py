@@ -64,3 +64,32 @@ def test_rtk_report_refuses_a_file_that_is_not_a_pos(tmp_path):
     r = CliRunner().invoke(main, ["report", "rtk", str(bad), "-o", str(tmp_path / "rep")])
     assert r.exit_code == 2 and "not an RTKLIB .pos file" in r.output and "Traceback" not in r.output
     assert not (tmp_path / "rep").exists()
+
+
+def test_rtk_page_draws_epochs_of_other_quality_flags(tmp_path):
+    """RTKLIB's Q 4 (DGPS) or 6 (PPP) epochs, even all of them, are drawn as one more class (was: a
+    traceback when no epoch was fix, float or single)."""
+    pos, _ = _pos(tmp_path, "enu")
+    lines = pos.read_text().splitlines()
+    other = [ln if ln.startswith("%") else " ".join(f if i != 5 else "4" for i, f in enumerate(ln.split()))
+             for ln in lines]
+    pos.write_text("\n".join(other) + "\n")
+    out = tmp_path / "rep"
+    r = CliRunner().invoke(main, ["report", "rtk", str(pos), "-o", str(out), "--date", "2026-12-04", "--json"])
+    assert r.exit_code == 0 and "Traceback" not in r.output, r.output
+    assert json.loads(r.stdout)["fraction"] == {"4": 1.0}
+    assert "dark grey any other flag" in (out / "index.html").read_text()
+
+
+@pytest.mark.parametrize("field,value,needle", [(2, "nan", "expected finite coordinates"),
+                                                 (5, "1.5", "expected whole numbers >= 0 for Q and ns"),
+                                                 (6, "-3", "expected whole numbers >= 0 for Q and ns")])
+def test_rtk_report_refuses_a_line_with_bad_values(tmp_path, field, value, needle):
+    pos, _ = _pos(tmp_path, "enu")
+    lines = pos.read_text().splitlines()
+    k = next(i for i, ln in enumerate(lines) if not ln.startswith("%")) + 3
+    lines[k] = " ".join(f if i != field else value for i, f in enumerate(lines[k].split()))
+    pos.write_text("\n".join(lines) + "\n")
+    r = CliRunner().invoke(main, ["report", "rtk", str(pos), "-o", str(tmp_path / "rep")])
+    assert r.exit_code == 2 and f"line {k + 1}: {needle}" in r.output and "Traceback" not in r.output, r.output
+    assert not (tmp_path / "rep").exists()

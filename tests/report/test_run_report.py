@@ -18,6 +18,7 @@ from click.testing import CliRunner
 from PIL import Image
 
 from cdgps_cli.cli.commands import main
+from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.config.structure import load_config
 from cdgps_cli.estimation.filter import EstimateOptions, estimate
 from cdgps_cli.estimation.initializer import InitOptions, initialize
@@ -216,7 +217,7 @@ def test_bad_input_exits_2_and_writes_nothing(free_run, tmp_path):
              "a truth without a coordinate": (["--truth", cut], "missing column(s) q2"),
              "an unknown coordinate": (["--angle", "q6+q99"], "q99"),
              "an unknown spectra coordinate": (["--coords", "q2,q42"], "--coords: unknown coordinate(s) q42"),
-             "a RUN.mcap as the STATES": (None, "")}
+             "a RUN.mcap as the STATES": (None, "STATES_MCAP")}
     for what, (extra, needle) in cases.items():
         out = tmp_path / what.replace(" ", "_")
         args = ["report", "run", free_run["run"] if extra is None else free_run["states"], "-o", out, "--date", DATE]
@@ -224,6 +225,13 @@ def test_bad_input_exits_2_and_writes_nothing(free_run, tmp_path):
         assert r.exit_code == 2, (what, r.output)
         assert needle in r.output and "Traceback" not in r.output, (what, r.output)
         assert not out.exists(), what
+
+
+def test_states_blocks_refuses_a_run_and_a_missing_file(free_run, tmp_path):
+    with pytest.raises(CdgpsError, match="this is a RUN.mcap"):
+        StatesBlocks(free_run["run"])
+    with pytest.raises(CdgpsError, match="no such file"):
+        StatesBlocks(tmp_path / "missing.mcap")
 
 
 @pytest.fixture(scope="module")
