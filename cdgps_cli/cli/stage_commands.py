@@ -559,21 +559,23 @@ def export(ctx, states_mcap, out_csv, kinematic, points, as_json):
         _emit_json(s)
 
 
-@main.command("foxglove-layout", short_help="Foxglove layout for a STATES.mcap → layout JSON")
-@click.argument("states_mcap", type=click.Path(dir_okay=False))
+@main.command("foxglove-layout", short_help="Foxglove layout for a STATES.mcap or RUN.mcap → layout JSON")
+@click.argument("mcap_file", metavar="STATES_OR_RUN_MCAP", type=click.Path(dir_okay=False))
 @_output_option("output", "Layout JSON to write (Foxglove: Layouts → Import from file)")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
-def foxglove_layout(ctx, states_mcap, output, as_json):
-    """A Foxglove layout with the panels set for this kind of STATES.mcap: the structure in 3-D
-    (/cdgps/scene), the angles and coordinates with their 1-sigma, NIS against its 95% chi-square
-    interval, and the events. Import it in Foxglove (Layouts → Import from file), then open the file
-    (docs/file-formats.md, "Open in Foxglove")."""
-    from cdgps_cli.io.file_checks import STATES, require_kind
+def foxglove_layout(ctx, mcap_file, output, as_json):
+    """A Foxglove layout with the panels set for this kind of file. STATES.mcap: the structure in
+    3-D (/cdgps/scene), the angles and coordinates with their 1-sigma, NIS against its 95%
+    chi-square interval, and the events. Structure RUN.mcap: carrier-phase channels (one per antenna),
+    their lock counters and C/N0, the gyro rates, and the phase messages; GNSS RUN.mcap: C/N0 and
+    LLI flags per receiver, and the observations. Import it in Foxglove (Layouts → Import from
+    file), then open the file (docs/file-formats.md, "Open in Foxglove")."""
+    from cdgps_cli.io.file_checks import RUNS, STATES, require_kind
     from cdgps_cli.io.foxglove_layout import write_layout
 
-    require_kind(states_mcap, STATES, "STATES_MCAP")
-    s = write_layout(states_mcap, output)
+    require_kind(mcap_file, STATES + RUNS, "STATES_OR_RUN_MCAP")
+    s = write_layout(mcap_file, output)
     _say(ctx, f"wrote {output}: {len(s['panels'])} panels ({', '.join(s['panels'])})")
     if as_json:
         _emit_json(s)

@@ -389,6 +389,65 @@ def test_shipped_layouts_refer_only_to_what_states_hold(request, tmp_path, name,
     assert json.loads((tmp_path / name).read_text()) == shipped
 
 
+@pytest.mark.parametrize("name,chain", [("cdgps-run-layout.json", "pseudolite"),
+                                        ("cdgps-gnss-run-layout.json", "gnss_sim")])
+def test_shipped_run_layouts_refer_only_to_what_runs_hold(request, tmp_path, name, chain):
+    """The RUN layouts: every topic, field, index and receiver filter exists in a RUN.mcap written
+    here (the demo's testbed config; a simulate-gnss run), the named phase channels sit at their
+    index in every message, and ``cdgps foxglove-layout RUN.mcap`` writes the shipped bytes."""
+    from cdgps_cli.io.foxglove_layout import layout_paths, missing_paths
+
+    fx = request.getfixturevalue(chain)
+    path = (fx[0] if isinstance(fx, tuple) else fx) / "run.mcap"
+    shipped_text = (LAYOUTS / name).read_text()
+    shipped = json.loads(shipped_text)
+    assert sorted(_tree_ids(shipped["layout"])) == sorted(shipped["configById"])
+    paths = layout_paths(shipped)
+    assert missing_paths(shipped, path) == []
+    stale = json.loads(shipped_text)
+    first = next(c for k, c in stale["configById"].items() if k.startswith("Plot!"))["paths"][0]
+    first["value"] = re.sub(r"\[(\d+|:)\]$", "[999]", first["value"])
+    assert missing_paths(stale, path) == [first["value"]]                              # an index past the end fails
+    with open(path, "rb") as fh:
+        msgs = [json.loads(m.data) for _, _, m in make_reader(fh).iter_messages(
+            topics=["/cdgps/phase", "/cdgps/gyro", "/cdgps/gnss/obs"])]
+    if chain == "pseudolite":
+        cfg = shipped["configById"]
+        assert {"Plot!phase", "Plot!lock", "Plot!cn0", "Plot!gyro", "RawMessages!phase"} <= set(cfg)
+        assert "/cdgps/gyro.rate_rad_s[0]" in paths and "(rad/s)" in cfg["Plot!gyro"]["foxglovePanelTitle"]
+        labels = [s["label"] for s in cfg["Plot!phase"]["paths"]]
+        assert [x.split("–")[0] for x in labels] == ["a1", "a2", "a3", "a4", "a5", "a6"]      # one per antenna
+        for s in cfg["Plot!phase"]["paths"]:
+            k = int(re.fullmatch(r"/cdgps/phase\.phase_cycles\[(\d+)\]", s["value"]).group(1))
+            assert all(f"{m['antenna'][k]}–{m['transmitter'][k]}" == s["label"] for m in msgs if "antenna" in m)
+    else:
+        receivers = {m["receiver"] for m in msgs}
+        assert receivers == {"base", "rover"}
+        assert {f'/cdgps/gnss/obs{{receiver=="{r}"}}.snr_dbhz[:]' for r in receivers} <= set(paths)
+        stale["configById"]["Plot!cn0_base"]["paths"][0]["value"] = '/cdgps/gnss/obs{receiver=="nobody"}.snr_dbhz[:]'
+        assert '/cdgps/gnss/obs{receiver=="nobody"}.snr_dbhz[:]' in missing_paths(stale, path)   # the filter counts
+    run_cli("foxglove-layout", path, "-o", tmp_path / name)
+    assert (tmp_path / name).read_text() == shipped_text                                # byte-identical
+
+
+def test_run_layout_with_actuators_and_bad_input(pseudolite, tmp_path):
+    """A RUN with a thruster log gets the forces plot (N); a file that is not an MCAP and a
+    truncated RUN exit 2 naming the file and write nothing."""
+    from cdgps_cli.io.foxglove_layout import missing_paths
+
+    tmp, _ = pseudolite
+    run_cli("foxglove-layout", tmp / "pulse.mcap", "-o", tmp_path / "pulse.json")
+    layout = json.loads((tmp_path / "pulse.json").read_text())
+    assert layout["configById"]["Plot!actuators"]["foxglovePanelTitle"] == "Actuator forces (N)"
+    assert missing_paths(layout, tmp / "pulse.mcap") == []
+    (tmp_path / "text.mcap").write_text("not an mcap\n")
+    (tmp_path / "cut.mcap").write_bytes((tmp / "run.mcap").read_bytes()[:4000])
+    for bad in ("text.mcap", "cut.mcap"):
+        r = CliRunner().invoke(main, ["-q", "foxglove-layout", str(tmp_path / bad), "-o", str(tmp_path / "out.json")])
+        assert r.exit_code == 2 and str(tmp_path / bad) in r.output and "Traceback" not in r.output, r.output
+        assert not (tmp_path / "out.json").exists()
+
+
 def test_scene_follows_the_preview_and_can_be_left_out(pseudolite, tmp_path):
     """The scene's messages sit at the preview epochs of /cdgps/state and draw the antennas where
     the model puts them for that preview's q (exaggeration as asked); ``--scene-exaggeration 0``
