@@ -340,3 +340,11 @@ def test_report_run_on_a_short_record(tmp_path):
     d = _pipeline(tmp_path, DOF2, SimOptions(duration_s=6, seed=1))
     r = cli(["report", "run", str(d["states"]), "-o", str(tmp_path / "o"), "--date", DATE])
     assert r.exit_code == 0 and (tmp_path / "o" / "index.html").exists(), r.output
+
+
+@pytest.mark.parametrize("overlap", ["1", "-0.5"])
+def test_bad_overlap_is_an_option_error_not_a_page_note(free_run, tmp_path, overlap):
+    out = tmp_path / "o"
+    r = cli(["report", "run", str(free_run["states"]), "--overlap", overlap, "-o", str(out), "--date", DATE])
+    assert r.exit_code == 2 and "--overlap" in r.output and "Traceback" not in r.output, r.output
+    assert not out.exists()
