@@ -23,7 +23,9 @@ Outcome of a case: ``ok`` (exit 0), ``clean`` (exit 2, a ``cdgps: error:`` or us
 * ``destroyed``: an input file's sha256 changed;
 * ``partial``: after an error or a kill, something at the output path that is neither absent, nor
   the earlier output exactly, nor the complete output of a clean run (for a folder: every file of
-  one set or the other); ``temporaries``: hidden temporary files left beside the output;
+  one set or the other); ``temporaries``: hidden temporary files left beside the output (after a
+  SIGKILL, which no process can handle: still there after the same command has run once more,
+  whose write removes the stale temporaries of dead processes);
 * ``nondeterministic`` (``determinism`` family): the same command run twice into the same path
   gave different bytes.
 
@@ -36,7 +38,7 @@ cases, over inputs prepared once by :func:`extend_base`.
 
 Usage::
 
-    python benchmarks/fault_campaign.py                          # everything (≈ 1,000 cases)
+    python benchmarks/fault_campaign.py                          # everything (≈ 1,130 cases)
     python benchmarks/fault_campaign.py --sample 300 --seed 2 --jobs 2
     python benchmarks/fault_campaign.py --only killed,overwrite --markdown docs/hardening.md
 """
@@ -204,8 +206,10 @@ def run_case(case: Case, work: Path, idx: int, refs: dict) -> dict:
         complete = ref is not None and ref[1] is not None and _same_output(new, ref[1], d, ref[2])
         if not complete:
             flags.add("partial")
-    hidden = list(out.parent.iterdir()) + (list(out.iterdir()) if out.is_dir() else []) if out is not None else []
-    if any(p.name.startswith(".") and "tmp" in p.name for p in hidden):
+    if _temporaries(out) and case.kill and case.kill[0] == signal.SIGKILL:
+        # a SIGKILLed process cannot clean up: the contract is that the next write removes them
+        subprocess.run(CDGPS + argv, capture_output=True, cwd=d, preexec_fn=_limit_memory, timeout=TIMEOUT_S)
+    if _temporaries(out):
         flags.add("temporaries")
     if case.detect and kind == "ok" and ref is not None:
         shas = [h for h in inputs.values()] + [ref[3]]
@@ -215,6 +219,12 @@ def run_case(case: Case, work: Path, idx: int, refs: dict) -> dict:
     shutil.rmtree(d, ignore_errors=True)
     return {"family": case.family, "name": case.name, "argv": " ".join(case.argv[:1]), "kind": kind, "flags": sorted(flags),
             "rc": rc, "elapsed_s": elapsed, "message": last}
+
+
+def _temporaries(out: Path | None) -> bool:
+    """Hidden temporaries (``.*tmp*``) beside the output or inside an output folder."""
+    hidden = list(out.parent.iterdir()) + (list(out.iterdir()) if out.is_dir() else []) if out is not None else []
+    return any(p.name.startswith(".") and "tmp" in p.name for p in hidden)
 
 
 def _same_twice(argv: list[str], out: Path | None, stdout: bytes, d: Path) -> bool:
@@ -569,7 +579,9 @@ def write_markdown(path: Path, counts: dict, findings: list[dict], command: str,
              "Each case is one `cdgps` process (benchmarks/fault_campaign.py: outcomes and flags defined in its "
              "docstring). *silent*: a damaged MCAP or UBX input accepted with a different result and no warning; "
              "*destroyed*: an input's sha256 changed; *partial*: after an error or a kill, an output that is neither "
-             "absent, the earlier one, nor a complete one; *temporaries*: hidden temporaries left beside the output.",
+             "absent, the earlier one, nor a complete one; *temporaries*: hidden temporaries left beside the output "
+             "(after a SIGKILL: still there once the same command has run again); *nondeterministic*: the same "
+             "command run twice into the same path gave different bytes.",
              *(["", "*read_mcap* rows: single-byte flips read in-process by `read_mcap` (no subprocess); *silent*: "
                  "read without an error but with contents different from the clean file's."]
                if any(f.startswith("read_mcap") for f in counts) else []),
