@@ -23,11 +23,22 @@ Outcome of a case: ``ok`` (exit 0), ``clean`` (exit 2, a ``cdgps: error:`` or us
 * ``destroyed``: an input file's sha256 changed;
 * ``partial``: after an error or a kill, something at the output path that is neither absent, nor
   the earlier output exactly, nor the complete output of a clean run (for a folder: every file of
-  one set or the other); ``temporaries``: hidden temporary files left beside the output.
+  one set or the other); ``temporaries``: hidden temporary files left beside the output (after a
+  SIGKILL, which no process can handle: still there after the same command has run once more,
+  whose write removes the stale temporaries of dead processes);
+* ``nondeterministic`` (``determinism`` family): the same command run twice into the same path
+  gave different bytes.
+
+The commands of the later rounds (``report run``, ``report rtk``, ``foxglove-layout``, ``estimate
+--fuse/--hold-out/--scene-exaggeration``, the sensor logs of ``simulate-gnss-structure`` and
+``ingest --sensor-log``) have their own families (``pos``: an RTKLIB .pos for ``report rtk``;
+``sensor_csv``: an accelerometer log; ``layout``: non-MCAP and damaged inputs of
+``foxglove-layout`` and ``report run``), option cases (``new_options``), kills and determinism
+cases, over inputs prepared once by :func:`extend_base`.
 
 Usage::
 
-    python benchmarks/fault_campaign.py                          # everything (≈ 1,000 cases)
+    python benchmarks/fault_campaign.py                          # everything (≈ 1,130 cases)
     python benchmarks/fault_campaign.py --sample 300 --seed 2 --jobs 2
     python benchmarks/fault_campaign.py --only killed,overwrite --markdown docs/hardening.md
 """
@@ -61,8 +72,10 @@ CDGPS = [str(Path(sys.executable).parent / "cdgps")] if (Path(sys.executable).pa
     else [sys.executable, "-m", "cdgps_cli.cli.commands"]
 #: families whose corruption must be detected (checksummed formats): a different result is "silent"
 DETECT = {"run_mcap", "states_mcap", "gnss_run_mcap", "ubx"}
+#: a fixed report date (reports print the newest input's modification time otherwise)
+DATE = "2026-12-04"
 WARNING_WORDS = ("warning", "corrupt", "checksum", "skipped", "truncated")
-FLAGS = ("silent", "destroyed", "partial", "temporaries")
+FLAGS = ("silent", "destroyed", "partial", "temporaries", "nondeterministic")
 KINDS = ("ok", "clean", "traceback", "timeout", "other", "killed")
 
 
@@ -81,8 +94,9 @@ class Case:
     """One command: argv with ``{M}`` (the mutated input, written as ``input<suffix>`` in the case
     folder) and ``{O}`` (the output stem in the case folder)."""
 
-    def __init__(self, family, name, argv, data=None, suffix="", *, kill=None, old=None, link=None):
+    def __init__(self, family, name, argv, data=None, suffix="", *, kill=None, old=None, link=None, repeat=False):
         self.family, self.name, self.argv, self.data, self.suffix = family, name, argv, data, suffix
+        self.repeat = repeat    # determinism: run twice into the same path, compare the bytes
         self.kill = kill        # (signal, fraction of the clean run time) or None
         self.old = old          # "file" / a folder to copy: an earlier output at the output path
         self.link = link        # overwrite cases: how the output path spells the input
@@ -181,6 +195,9 @@ def run_case(case: Case, work: Path, idx: int, refs: dict) -> dict:
         kind = ("traceback" if "Traceback (most recent call last)" in err else "ok" if rc == 0
                 else "clean" if rc == 2 else "other")
     flags = set()
+    if case.repeat and kind == "ok":
+        if not _same_twice(argv, out, stdout, d):
+            flags.add("nondeterministic")
     if any(p.exists() and _sha(p) != h for p, h in inputs.items()) or any(not p.exists() for p in inputs):
         flags.add("destroyed")
     new = _snapshot(out)
@@ -189,8 +206,10 @@ def run_case(case: Case, work: Path, idx: int, refs: dict) -> dict:
         complete = ref is not None and ref[1] is not None and _same_output(new, ref[1], d, ref[2])
         if not complete:
             flags.add("partial")
-    hidden = list(out.parent.iterdir()) + (list(out.iterdir()) if out.is_dir() else []) if out is not None else []
-    if any(p.name.startswith(".") and "tmp" in p.name for p in hidden):
+    if _temporaries(out) and case.kill and case.kill[0] == signal.SIGKILL:
+        # a SIGKILLed process cannot clean up: the contract is that the next write removes them
+        subprocess.run(CDGPS + argv, capture_output=True, cwd=d, preexec_fn=_limit_memory, timeout=TIMEOUT_S)
+    if _temporaries(out):
         flags.add("temporaries")
     if case.detect and kind == "ok" and ref is not None:
         shas = [h for h in inputs.values()] + [ref[3]]
@@ -200,6 +219,21 @@ def run_case(case: Case, work: Path, idx: int, refs: dict) -> dict:
     shutil.rmtree(d, ignore_errors=True)
     return {"family": case.family, "name": case.name, "argv": " ".join(case.argv[:1]), "kind": kind, "flags": sorted(flags),
             "rc": rc, "elapsed_s": elapsed, "message": last}
+
+
+def _temporaries(out: Path | None) -> bool:
+    """Hidden temporaries (``.*tmp*``) beside the output or inside an output folder."""
+    hidden = list(out.parent.iterdir()) + (list(out.iterdir()) if out.is_dir() else []) if out is not None else []
+    return any(p.name.startswith(".") and "tmp" in p.name for p in hidden)
+
+
+def _same_twice(argv: list[str], out: Path | None, stdout: bytes, d: Path) -> bool:
+    """Determinism: the output and stdout of a second run into the same (emptied) path are the first's."""
+    first = _snapshot(out)
+    if out is not None:
+        shutil.rmtree(out) if out.is_dir() else out.unlink(missing_ok=True)
+    r = subprocess.run(CDGPS + argv, capture_output=True, cwd=d, preexec_fn=_limit_memory, timeout=TIMEOUT_S)
+    return r.returncode == 0 and r.stdout == stdout and _snapshot(out) == first
 
 
 def _same_output(new, ref, d: Path, ref_dir: str) -> bool:
@@ -302,6 +336,143 @@ def killed_cases(p: dict, work: Path, rng: random.Random, per_command: int) -> l
             over = rng.random() < 0.5
             out.append(Case("killed", f"{argv[0]} {sig.name} at {frac:.2f} of the run{' over an earlier output' if over else ''}",
                             argv, kill=(sig, frac), old=earlier if over else None))
+    return out
+
+
+# ---- the commands of the later rounds -------------------------------------------------------------
+
+
+def extend_base(p: dict, work: Path) -> dict:
+    """Inputs of the later commands, prepared once: an RTKLIB .pos (``cdgps rtk`` on the base GNSS
+    simulation), a 10 s tower with sensor logs (simulate-gnss-structure configs/tower-fusion.toml),
+    its RUN and INIT, and a ``report run`` folder and a layout as earlier outputs."""
+    base = work / "base"
+    fus = base / "fus"
+    q = dict(p, pos=base / "rtk.pos", fus=fus, tower=sweep.ROOT / "configs" / "tower-fusion.toml",
+             frun=base / "FRUN.mcap", finit=base / "FINIT.json", old_report=base / "old-report")
+    if (base / "done-later").exists():
+        return q
+    steps = [["rtk", "--base", str(p["obs2"]), "--rover", str(p["obs"]), "--nav", str(p["nav"]), "-o", str(q["pos"])],
+             ["simulate-gnss-structure", str(q["tower"]), "--duration", "10", "--gnss-interval", "0.1", "--seed", "2",
+              "-o", str(fus)],
+             ["ingest", "--config", str(fus / "config.toml"), "-o", str(q["frun"])],
+             ["init", str(q["frun"]), "-o", str(q["finit"])],
+             ["report", "run", str(p["states"]), "--no-spectra", "--date", "2020-01-01", "-o", str(q["old_report"])]]
+    for argv in steps:
+        subprocess.run(CDGPS + ["-q", *argv], check=True, capture_output=True)
+    (base / "done-later").write_text("")
+    return q
+
+
+def _short(argv: list[str]) -> str:
+    return " ".join(Path(a).name if a.startswith("/") else a for a in argv)
+
+
+def _fusion_estimate(q: dict, *extra: str) -> list[str]:
+    return ["estimate", str(q["frun"]), "--init", str(q["finit"]), "--structure", str(q["tower"]), *extra,
+            "-o", "{O}.mcap"]
+
+
+def later_cases(q: dict, rng: random.Random, n_flips: int, per_kill: int) -> list[Case]:
+    """Mutated inputs, options, overwrites, kills and determinism of the later commands."""
+    out = []
+    states, run, init, pos = str(q["states"]), str(q["run"]), str(q["init"]), str(q["pos"])
+    garbage = [("empty file", b""), ("text", b"not a file of this kind\n"), ("binary", bytes(range(256)) * 4),
+               ("MCAP magic only", b"\x89MCAP0\r\n")]
+    pb = q["pos"].read_bytes()
+    for name, data in sweep.truncations(pb) + sweep.flips(pb, n_flips, rng) + garbage[:3] + [
+            ("header only", b"".join(l for l in pb.splitlines(keepends=True) if l.startswith(b"%"))),
+            ("a NaN latitude", pb.replace(b"   35.", b"   nan", 1)),
+            ("epochs reversed", b"".join([l for l in pb.splitlines(keepends=True) if l.startswith(b"%")]
+                                         + [l for l in pb.splitlines(keepends=True) if not l.startswith(b"%")][::-1]))]:
+        out.append(Case("pos", name, ["report", "rtk", "{M}", "--date", DATE, "-o", "{O}"], data, ".pos"))
+    acc = (q["fus"] / "accel.csv").read_bytes()
+    for name, data in sweep.truncations(acc) + sweep.flips(acc, n_flips, rng) + garbage[:2]:
+        out.append(Case("sensor_csv", name, ["ingest", "--config", str(q["fus"] / "config.toml"), "--sensor-log", "{M}",
+                                              "-o", "{O}.mcap"], data, ".csv"))
+    sb = q["states"].read_bytes()
+    layout_inputs = sweep.truncations(sb)[:3] + garbage + [("a RUN", q["run"].read_bytes()),
+                                                           ("a GNSS RUN", q["grun"].read_bytes())]
+    for name, data in layout_inputs:
+        for argv in (["foxglove-layout", "{M}", "-o", "{O}.json"],
+                     ["report", "run", "{M}", "--no-spectra", "--date", DATE, "-o", "{O}"]):
+            out.append(Case("layout", name, argv, data, ".mcap"))
+    for name, data in sweep.flips(sb, n_flips // 2, rng):     # damaged STATES: detected, never a silent page
+        for argv in (["foxglove-layout", "{M}", "-o", "{O}.json"],
+                     ["report", "run", "{M}", "--no-spectra", "--date", DATE, "-o", "{O}"]):
+            c = Case("states_mcap", name, argv, data, ".mcap")
+            c.clean_source = q["states"]
+            out.append(c)
+    for argv in (["foxglove-layout", "{M}", "-o", "{O}.json"],
+                 ["report", "run", "{M}", "--no-spectra", "--date", DATE, "-o", "{O}"]):
+        c = Case("control", "clean STATES.mcap", argv, sb, ".mcap")
+        c.clean_source = q["states"]
+        out.append(c)
+    est = ["estimate", run, "--init", init]
+    opts = [
+        [*est, "--scene-exaggeration", "-1", "-o", "{O}.mcap"], [*est, "--scene-exaggeration", "nan", "-o", "{O}.mcap"],
+        [*est, "--scene-exaggeration", "x", "-o", "{O}.mcap"], [*est, "--scene-exaggeration", "inf", "-o", "{O}.mcap"],
+        [*est, "--scene-exaggeration", "0", "-o", "{O}.mcap"], [*est, "--scene-exaggeration", "1e308", "-o", "{O}.mcap"],
+        [*est, "--fuse", "bogus", "-o", "{O}.mcap"], [*est, "--hold-out", "acc-top", "-o", "{O}.mcap"],
+        _fusion_estimate(q, "--fuse", "bogus"), _fusion_estimate(q, "--fuse", ""),
+        _fusion_estimate(q, "--fuse", "accel,accel,strain"), _fusion_estimate(q, "--hold-out", "acc-top"),
+        _fusion_estimate(q, "--fuse", "accel", "--hold-out", "nope"),
+        _fusion_estimate(q, "--fuse", "accel", "--hold-out", "acc-top", "--hold-out", "acc-mid"),
+        _fusion_estimate(q, "--fuse", "gyro", "--scene-exaggeration", "nan"),
+        _fusion_estimate(q, "--scene-exaggeration", "1e308"),
+        ["estimate", str(q["grun"]), "--init", init, "--fuse", "accel", "-o", "{O}.mcap"],
+        ["ingest", "--config", str(q["fus"] / "config.toml"), "--sensor-log", str(q["fus"] / "nope.csv"), "-o", "{O}.mcap"],
+        ["ingest", "--config", str(q["fus"] / "config.toml"), "--sensor-log", str(q["pos"]), "-o", "{O}.mcap"],
+        ["ingest", str(q["sim"] / "receiver.csv"), "--config", str(q["config"]), "--sensor-log",
+         str(q["fus"] / "accel.csv"), "-o", "{O}.mcap"],
+        ["simulate-gnss-structure", str(q["tower"]), "--duration", "1e12", "-o", "{O}"],
+        ["simulate-gnss-structure", str(q["tower"]), "--duration", "2", "--gnss-interval", "0", "-o", "{O}"],
+        ["simulate-gnss-structure", str(q["tower"]), "--duration", "2", "--gnss-interval", "nan", "-o", "{O}"],
+        ["report", "run", states, "--segment-s", "1e300", "--date", DATE, "-o", "{O}"],
+        ["report", "run", states, "--segment-s", "-1", "--date", DATE, "-o", "{O}"],
+        ["report", "run", states, "--overlap", "1", "--date", DATE, "-o", "{O}"],
+        ["report", "run", states, "--pad", "0", "--date", DATE, "-o", "{O}"],
+        ["report", "run", states, "--coords", "nope", "--date", DATE, "-o", "{O}"],
+        ["report", "run", states, "--angle", "q1", "--survey-deg", "nan", "--date", DATE, "-o", "{O}"],
+        ["report", "run", states, "--angle", "zz9", "--date", DATE, "-o", "{O}"],
+        ["report", "run", states, "--gyro", str(q["grun"]), "--date", DATE, "-o", "{O}"],
+        ["report", "run", states, "--truth", str(q["fus"]), "--date", DATE, "-o", "{O}"],
+        ["report", "run", states, "--date", "yesterday", "-o", "{O}"],
+        ["report", "rtk", pos, "--date", "13/13/13", "-o", "{O}"],
+        ["report", "rtk", states, "-o", "{O}"],
+        ["foxglove-layout", run, "-o", "{O}.json"], ["foxglove-layout", pos, "-o", "{O}.json"],
+    ]
+    out += [Case("new_options", _short(a), a) for a in opts]
+    for argv, src, suffix in ((["foxglove-layout", "{M}", "-o", "{O}"], q["states"], ".mcap"),
+                              (["report", "run", "{M}", "--no-spectra", "-o", "{O}"], q["states"], ".mcap"),
+                              (["report", "rtk", "{M}", "-o", "{O}"], q["pos"], ".pos"),
+                              (["ingest", "--config", str(q["fus"] / "config.toml"), "--sensor-log", "{M}", "-o", "{O}"],
+                               q["fus"] / "accel.csv", ".csv")):
+        for how in ("same", "symlink"):
+            out.append(Case("overwrite", f"{' '.join(argv[:2])} -o {src.name} ({how})", argv, src.read_bytes(), suffix,
+                            link=f"{how}|{{M}}"))
+    kills = [(["report", "run", states, "--date", DATE, "-o", "{O}"], q["old_report"]),
+             (["foxglove-layout", states, "-o", "{O}.json"], "file"),
+             (["report", "rtk", pos, "--date", DATE, "-o", "{O}"], q["old_report"]),
+             (_fusion_estimate(q, "--fuse", "accel,gyro", "--smooth"), "file")]
+    for argv, earlier in kills:
+        for _ in range(per_kill):
+            sig = rng.choice([signal.SIGTERM, signal.SIGKILL])
+            frac, over = rng.uniform(0.05, 0.95), rng.random() < 0.5
+            out.append(Case("killed", f"{' '.join(argv[:2])} {sig.name} at {frac:.2f} of the run"
+                                      f"{' over an earlier output' if over else ''}",
+                            argv, kill=(sig, frac), old=earlier if over else None))
+    det = [["report", "run", states, "--date", DATE, "-o", "{O}"],
+           ["report", "run", states, "--gyro", run, "--truth", str(q["sim"]), "--date", DATE, "-o", "{O}"],
+           ["report", "rtk", pos, "--date", DATE, "-o", "{O}"],
+           ["foxglove-layout", states, "-o", "{O}.json"],
+           _fusion_estimate(q, "--fuse", "accel,gyro", "--hold-out", "acc-mid", "--scene-exaggeration", "20"),
+           ["simulate-gnss-structure", str(q["tower"]), "--duration", "5", "--seed", "3", "-o", "{O}"],
+           ["ingest", "--config", str(q["fus"] / "config.toml"), "-o", "{O}.mcap"],
+           ["export", states, "-o", "{O}.csv"], ["evaluate", "--truth", str(q["sim"]), "--estimate", states, "--json"],
+           ["report", "spectrum", states, "-o", "{O}"],
+           ["estimate", run, "--init", init, "--smooth", "-o", "{O}.mcap"]]
+    out += [Case("determinism", _short(a), a, repeat=True) for a in det]
     return out
 
 
@@ -408,7 +579,9 @@ def write_markdown(path: Path, counts: dict, findings: list[dict], command: str,
              "Each case is one `cdgps` process (benchmarks/fault_campaign.py: outcomes and flags defined in its "
              "docstring). *silent*: a damaged MCAP or UBX input accepted with a different result and no warning; "
              "*destroyed*: an input's sha256 changed; *partial*: after an error or a kill, an output that is neither "
-             "absent, the earlier one, nor a complete one; *temporaries*: hidden temporaries left beside the output.",
+             "absent, the earlier one, nor a complete one; *temporaries*: hidden temporaries left beside the output "
+             "(after a SIGKILL: still there once the same command has run again); *nondeterministic*: the same "
+             "command run twice into the same path gave different bytes.",
              *(["", "*read_mcap* rows: single-byte flips read in-process by `read_mcap` (no subprocess); *silent*: "
                  "read without an error but with contents different from the clean file's."]
                if any(f.startswith("read_mcap") for f in counts) else []),
@@ -459,11 +632,12 @@ def main(argv=None) -> int:
         p = sweep.build_base(work)
         rng = random.Random(args.seed)
         cases = mutated_cases(p, work, rng, args.flips) + overwrite_cases(p) + killed_cases(p, work, rng, args.kills)
+        cases += later_cases(extend_base(p, work), rng, args.flips, args.kills)
         if args.only:
             keep = set(args.only.split(","))
             cases = [c for c in cases if c.family in keep]
         if args.sample is not None:             # killed, overwrite and control cases always run in full
-            full = [c for c in cases if c.family in ("killed", "overwrite", "control")]
+            full = [c for c in cases if c.family in ("killed", "overwrite", "control", "determinism")]
             rest = [c for c in cases if c not in full]
             cases = full + random.Random(args.seed).sample(rest, min(args.sample, len(rest)))
         if any(c.family == "killed" for c in cases):

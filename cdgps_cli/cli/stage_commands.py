@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 
 from cdgps_cli.config.options import (ESTIMATE_DEFAULTS, INIT_MAX_ITERATIONS, INIT_STARTS, RATIO_THRESHOLD,
-                                     SCENE_EXAGGERATION, SPECTRA_DEFAULTS, X_AXIS_AZIMUTH_DEG)
+                                     SCENE_EXAGGERATION, SCENE_EXAGGERATION_MAX, SPECTRA_DEFAULTS, X_AXIS_AZIMUTH_DEG)
 from cdgps_cli.core import progress
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.states_layout import COVARIANCE_CHOICES as _STATES_COVARIANCE
@@ -902,15 +902,16 @@ def _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, a
 
 
 def _scene_factor(text) -> float | str:
-    """--scene-exaggeration: "auto", or a finite factor >= 0."""
+    """--scene-exaggeration: "auto", or a factor in [0, SCENE_EXAGGERATION_MAX]."""
     if str(text).strip().lower() == "auto":
         return "auto"
     try:
         v = float(text)
     except ValueError:
         v = float("nan")
-    if not (v >= 0 and math.isfinite(v)):
-        raise CdgpsError(f"--scene-exaggeration {text!r}: expected a finite factor >= 0 (0: no 3-D scene) or 'auto'")
+    if not 0 <= v <= SCENE_EXAGGERATION_MAX:        # 1e308 drew an overflowed (inf) scene (fault campaign)
+        raise CdgpsError(f"--scene-exaggeration {text!r}: expected a factor in [0, {SCENE_EXAGGERATION_MAX:g}] "
+                         "(0: no 3-D scene) or 'auto'")
     return v
 
 

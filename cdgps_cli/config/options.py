@@ -97,6 +97,8 @@ ESTIMATE_DEFAULTS = {
 #: that draws the 99th-percentile deformation at most SCENE_AUTO_FRACTION of the structure's size; 0: no scene
 SCENE_EXAGGERATION = "auto"
 SCENE_AUTO_FRACTION = 0.05
+#: the largest factor --scene-exaggeration takes (auto goes to 5e8): beyond, the drawn positions overflow to inf
+SCENE_EXAGGERATION_MAX = 1e9
 #: epochs per chunk of the filter's history on disk (cdgps estimate): its pages are dropped from memory
 #: chunk by chunk forward and backward (memory of a chunk, not of the record; the same numbers for any value).
 #: An internal setting of the library (EstimateOptions.chunk_epochs), not a command-line option.

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from cdgps_cli import __version__
-from cdgps_cli.config.options import SCENE_AUTO_FRACTION, SCENE_EXAGGERATION
+from cdgps_cli.config.options import SCENE_AUTO_FRACTION, SCENE_EXAGGERATION, SCENE_EXAGGERATION_MAX
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.records import Series, StateSeries
 from cdgps_cli.io import states as states_io
@@ -132,9 +132,9 @@ def scene_for(cfg, ss: StateSeries, preview_rate_hz: float, exaggeration: float 
         q = states_io.series_q(ss.output_map, est.x[::stride, :ss.n_pos])
         exaggeration = auto_exaggeration(cfg, scene_geometry(cfg), q, SCENE_AUTO_FRACTION)
     exaggeration = float(exaggeration)
-    if not (exaggeration >= 0 and np.isfinite(exaggeration)):
-        raise CdgpsError(f"--scene-exaggeration {exaggeration:g}: expected a finite factor >= 0 (0: no 3-D scene) "
-                         "or 'auto'")
+    if not 0 <= exaggeration <= SCENE_EXAGGERATION_MAX:
+        raise CdgpsError(f"--scene-exaggeration {exaggeration:g}: expected a factor in [0, {SCENE_EXAGGERATION_MAX:g}] "
+                         "(0: no 3-D scene) or 'auto'")
     return StructureScene(cfg, exaggeration, transmitters=transmitters) if exaggeration > 0 else None
 
 

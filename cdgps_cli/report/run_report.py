@@ -130,6 +130,8 @@ def run_report(states, out_dir: str | Path, run=None, truth_dir: str | Path | No
         bad = [c for c in opt.coords if c not in states.coord_names]
         if bad:                                     # an option error, not a record the spectra cannot use
             raise CdgpsError(f"--coords: unknown coordinate(s) {', '.join(bad)} (known: {', '.join(states.coord_names)})")
+    if spectra and not 0 <= opt.overlap < 1:        # was a "No spectra" note on a page that exits 0 (fault campaign)
+        raise CdgpsError(f"--overlap {opt.overlap:g}: expected a fraction of a segment in [0, 1)")
     options = {"--gyro": None if run is None else run.path, "--truth": None if truth_dir is None else str(truth_dir),
                "--angle": angle, "--survey-deg": survey_deg, "--no-spectra": None if spectra else True,
                "--date": date, **{f"--{k.replace('_', '-')}": v

@@ -42,7 +42,7 @@ class Sums:
 
     def add(self, x: np.ndarray) -> None:
         """Add the rows of x (k, m) in order (:func:`column_sums`: any chunking, the same bits)."""
-        x = np.asarray(x, dtype=float).reshape(len(x), -1)
+        x = np.asarray(x, dtype=float).reshape(-1, len(self.n))  # (0, m) too: a chunk with no value
         ok = np.isfinite(x)
         v = np.where(ok, x, 0.0)
         self.n += ok.sum(axis=0)

@@ -485,6 +485,10 @@ def test_scene_follows_the_preview_and_can_be_left_out(pseudolite, tmp_path):
                                     "--scene-exaggeration", "-1", "-o", str(tmp_path / "bad.mcap")])
     assert bad.exit_code == 2 and "--scene-exaggeration" in bad.output and "Traceback" not in bad.output
     assert not (tmp_path / "bad.mcap").exists()
+    huge = CliRunner().invoke(main, ["-q", "estimate", str(tmp / "run.mcap"), "--init", str(tmp / "init.json"),
+                                     "--scene-exaggeration", "1e308", "-o", str(tmp_path / "huge.mcap")])
+    assert huge.exit_code == 2 and "--scene-exaggeration '1e308'" in huge.output, huge.output   # was an inf scene
+    assert not (tmp_path / "huge.mcap").exists()
 
 
 def test_nis_bounds_are_the_chi_square_interval(pseudolite):

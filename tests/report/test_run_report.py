@@ -331,3 +331,28 @@ def test_gnss_states_page_has_the_single_epoch_solutions_and_satellites(tmp_path
     text = (gdir / "index.html").read_text()
     assert set(_images(text)) == {"coordinates", "kinematic", "satellites", "nis", "residuals"}
     assert "ambiguities fixed" in text
+
+
+def test_a_chunk_without_any_nis_value_is_no_error():
+    """Fault campaign: `report run` on a 6 s STATES ended in a reshape ValueError (a chunk whose
+    epochs have no NIS gave a (0,) block)."""
+    from cdgps_cli.report.run_scan import Sums
+
+    s = Sums.zeros(3)
+    s.add(np.empty((0, 3)))
+    s.add(np.array([[1.0, 2.0, 3.0]]))
+    assert s.n.tolist() == [1, 1, 1] and s.mean().tolist() == [1.0, 2.0, 3.0]
+
+
+def test_report_run_on_a_short_record(tmp_path):
+    d = _pipeline(tmp_path, DOF2, SimOptions(duration_s=6, seed=1))
+    r = cli(["report", "run", str(d["states"]), "-o", str(tmp_path / "o"), "--date", DATE])
+    assert r.exit_code == 0 and (tmp_path / "o" / "index.html").exists(), r.output
+
+
+@pytest.mark.parametrize("overlap", ["1", "-0.5"])
+def test_bad_overlap_is_an_option_error_not_a_page_note(free_run, tmp_path, overlap):
+    out = tmp_path / "o"
+    r = cli(["report", "run", str(free_run["states"]), "--overlap", overlap, "-o", str(out), "--date", DATE])
+    assert r.exit_code == 2 and "--overlap" in r.output and "Traceback" not in r.output, r.output
+    assert not out.exists()
