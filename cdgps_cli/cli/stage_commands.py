@@ -559,7 +559,7 @@ def export(ctx, states_mcap, out_csv, kinematic, points, as_json):
         _emit_json(s)
 
 
-@main.command("foxglove-layout", short_help="Foxglove layout for a STATES.mcap or RUN.mcap → layout JSON")
+@main.command("foxglove-layout", short_help="Foxglove layout for a STATES or RUN → JSON")
 @click.argument("mcap_file", metavar="STATES_OR_RUN_MCAP", type=click.Path(dir_okay=False))
 @_output_option("output", "Layout JSON to write (Foxglove: Layouts → Import from file)")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
