@@ -173,13 +173,14 @@ def _span_text(scan) -> str:
 
 def _spectra(states, run, opt, chunk_epochs):
     """Spectra of a structure's states (None for GNSS displacements or a record too short for them:
-    the reason is then in ``error``)."""
+    the reason is then in ``error``).  A ``--segment-s`` the user gave that the record cannot take is
+    an option error (exit 2), not a note: only the default segment falls back to the note."""
     if states.cfg is None:
         return None
     try:
         res, gnames = spectra_result(states, run, opt, chunk_epochs)
     except CdgpsError as exc:
-        if "gyro" in str(exc) and "config" in str(exc):
+        if ("gyro" in str(exc) and "config" in str(exc)) or opt.segment_s is not None:
             raise
         return {"error": str(exc)}
     return {"res": res, "gyros": gnames}

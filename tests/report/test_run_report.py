@@ -356,3 +356,13 @@ def test_bad_overlap_is_an_option_error_not_a_page_note(free_run, tmp_path, over
     r = cli(["report", "run", str(free_run["states"]), "--overlap", overlap, "-o", str(out), "--date", DATE])
     assert r.exit_code == 2 and "--overlap" in r.output and "Traceback" not in r.output, r.output
     assert not out.exists()
+
+
+@pytest.mark.parametrize("segment_s", ["1e9", "0.001"])
+def test_a_segment_the_record_cannot_take_is_an_option_error(free_run, tmp_path, segment_s):
+    """A --segment-s the user gave that the record cannot take exits 2 naming the option (it was a
+    "No spectra" note on a page that exited 0); only the default segment falls back to the note."""
+    out = tmp_path / "o"
+    r = cli(["report", "run", str(free_run["states"]), "--segment-s", segment_s, "-o", str(out), "--date", DATE])
+    assert r.exit_code == 2 and "--segment-s" in r.output and "Traceback" not in r.output, r.output
+    assert not out.exists()
