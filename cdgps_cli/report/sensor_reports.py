@@ -275,15 +275,17 @@ def plot_psd(res, cfg, gnames) -> bytes:
             ax.set_title(f"gyro {g}: angle seen by the gyro axis", fontsize=9)
             ax.set_ylabel("PSD [rad²/Hz]")
             _mark_modes(ax, res, cfg)
-            if i == 0:
-                ax.legend(loc="lower left", fontsize=7)
         for j in range(n, rows * cols):
             axes[j // cols][j % cols].axis("off")
         for ax in axes[-1]:
             ax.set_xlabel("frequency [Hz]")
             _plain_log_ticks(ax)
         fig.suptitle(f"{cfg.name}: GPS- and gyro-based spectra (dashed: model mode frequencies)", fontsize=10)
+        fig.legend(*axes[0][0].get_legend_handles_labels(), loc="upper center", bbox_to_anchor=(0.5, 0.975),
+                   ncol=2, fontsize=8, frameon=False)     # one legend for every panel, outside the data
         fig.text(0.5, 0.005, _mode_key(cfg, res), ha="center", va="bottom", fontsize=7, wrap=True)
+        fig.tight_layout(rect=(0, 0.03, 1, 0.955))
+        return fig
     else:
         fig, ax = plt.subplots(figsize=(10, 4.5))
         for k, v in res["psd"].items():
@@ -294,7 +296,7 @@ def plot_psd(res, cfg, gnames) -> bytes:
         ax.set_ylabel("PSD [unit²/Hz]")
         _plain_log_ticks(ax)
         _mark_modes(ax, res, cfg)
-        ax.legend(fontsize=7, ncol=2, loc="lower left")
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
         ax.set_title(f"{cfg.name}: PSDs of the estimated coordinates (dashed: model modes)")
         fig.text(0.5, 0.005, _mode_key(cfg, res), ha="center", va="bottom", fontsize=7, wrap=True)
     fig.tight_layout(rect=(0, 0.03, 1, 1))
@@ -317,7 +319,7 @@ def plot_fdd(res, cfg):
     ax.set_xlabel("frequency [Hz]")
     ax.set_ylabel("singular value [1/Hz, standardized]")
     ax.set_title("Frequency-domain decomposition of the cross-spectral matrix (dashed: model, red: identified)")
-    ax.legend(fontsize=7, loc="lower left")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     fig.text(0.5, 0.005, _mode_key(cfg, res), ha="center", va="bottom", fontsize=7, wrap=True)
     fig.tight_layout(rect=(0, 0.04, 1, 1))
     return fig
