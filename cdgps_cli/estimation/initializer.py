@@ -30,11 +30,11 @@ import time as _time
 from dataclasses import dataclass, field
 
 import numpy as np
-from cdgps_cli.estimation.chi2 import chi2_quantile
 
 from cdgps_cli.estimation import kernel
-from cdgps_cli.estimation.batch_solver import LinearProblem, LinearSolution, srif_solve
-from cdgps_cli.config.options import INIT_MAX_ITERATIONS, INIT_STARTS, RATIO_THRESHOLD
+from cdgps_cli.estimation.batch_init import (  # noqa: F401  (the engine's names, re-exported)
+    BatchProblem, GaussNewton, GNResult, InitOptions, fix_validation, full_set_ratio)
+from cdgps_cli.estimation.batch_solver import LinearProblem, srif_solve
 from cdgps_cli.config.structure import StructureConfig, channel_sigma_m, scalar_sigma_m
 from cdgps_cli.model.dynamics import discrete_model
 from cdgps_cli.core.errors import CdgpsError
@@ -46,40 +46,6 @@ from cdgps_cli.measurement.multipath import MultipathModel, augment, fit_autocov
 from cdgps_cli.measurement.slips import residual_steps
 from cdgps_cli.measurement.noise import leverage_per_channel, prior_sigma_m, snr_sigma_factor, variance_factors
 from cdgps_cli.core.records import INIT_FORMAT, Run
-
-
-@dataclass
-class InitOptions:
-    """Options of :func:`initialize` (all echoed in INIT.json)."""
-
-    start_s: float | None = None        # window start (default: automatic)
-    duration_s: float | None = None     # window length (default: automatic, up to 60 s)
-    process_noise: bool = True          # False: the 1995 variant (no process noise)
-    fix_integers: bool = True           # LAMBDA + ratio test when line biases are calibrated
-    ratio_threshold: float = RATIO_THRESHOLD
-    partial: bool = True                # partial fixing when the full set fails
-    starts: int = INIT_STARTS                     # initial guesses of the rigid angle (or lowest mode)
-    start_iterations: int = 3           # Gauss–Newton iterations per start before choosing
-    start_window_s: float = 10.0        # starts are compared on this first part of the window
-    finalists: int = 3                  # best starts continued on the whole window
-    fix_validation_probability: float = 0.999  # chi-square test of the cost increase caused by fixing
-    fix_validation_margin: float = 10.0  # … times this margin for model error (e.g. no process noise)
-    max_iterations: int = INIT_MAX_ITERATIONS
-    step_tol_m: float = 1e-5            # convergence: max bias / position step (m)
-    cost_rtol: float = 1e-9             # convergence: relative cost change
-    sigma_m: float | None = None        # measurement noise for every channel (default: config, then estimated)
-    estimate_sigma: bool = True         # per-channel σ from the batch's variance factors (off with sigma_m)
-    sigma_refuse_ratio: float = 4.0     # refuse when one channel's σ̂ exceeds the others' median this many times
-    max_bias_sigma_cycles: float = 0.25  # observability limit on the float biases' sigma
-    min_motion_ratio: float = 2.0       # automatic window: phase motion RMS / noise
-    multipath_sigma_m: float | None = None        # Gauss–Markov multipath σ (default: config; 0 = off)
-    multipath_time_constant_s: float | None = None  # … and its time constant (default: config)
-    progress: object = None             # callable(str) for progress messages
-
-    def echo(self) -> dict:
-        # the multipath overrides are echoed only when given (INIT.json without them is unchanged)
-        return {k: v for k, v in self.__dict__.items()
-                if k != "progress" and not (k.startswith("multipath_") and v is None)}
 
 
 @dataclass
@@ -202,23 +168,13 @@ def choose_window(run: Run, opt: InitOptions, sigma_m: float) -> tuple[float, fl
     return first, first + dur, "automatic (no window with enough motion found; using the first)"
 
 
-@dataclass
-class GNResult:
-    x: np.ndarray
-    b: np.ndarray
-    w: np.ndarray
-    cost: float
-    iterations: int
-    converged: bool
-    lin: object = None
-    history: list = field(default_factory=list)
-
-
 _MODEL_CHUNK = 1024             # epochs per call of the measurement model
 
 
-class _Problem:
-    """Nonlinear batch problem on a window (model, data, bias parametrization)."""
+class _Problem(BatchProblem):
+    """The pseudolite / far-field batch problem on a window: the structure's phase model (compiled),
+    one bias parameter per lock segment, per-channel σ and, optionally, a Gauss–Markov multipath
+    state per channel; the engine is :class:`~cdgps_cli.estimation.batch_init.BatchProblem`."""
 
     def __init__(self, cfg: StructureConfig, wd: WindowData, sigma_m: float, process_noise: bool,
                  known_bias: np.ndarray | None = None, mp: MultipathModel | None = None):
@@ -241,24 +197,13 @@ class _Problem:
             self.n = self.A.shape[0]
         # with multipath the Gram form of the bias-only rows is mostly too ill-conditioned (measured:
         # 30 of 74 solves redone), so the square-root form is used directly
-        self._square_root = True if self.mp is not None else None
+        self.square_root = True if self.mp is not None else None
         # bias parametrization: fixed values (known_bias[s] finite) are moved into y
-        nseg = len(wd.segments)
-        self.known = np.full(nseg, np.nan) if known_bias is None else known_bias
-        free = np.flatnonzero(np.isnan(self.known))
-        self.free = free
-        remap = np.full(nseg + 1, -1, dtype=np.int64)
-        remap[free] = np.arange(free.size)
-        self.bias_index = np.where(wd.segment >= 0, remap[wd.segment], -1)
-        kb = np.where(wd.segment >= 0, np.nan_to_num(self.known, nan=0.0)[np.maximum(wd.segment, 0)], 0.0)
-        self.y = wd.y_m - kb                     # measurement minus known biases
+        self._set_biases(wd.y_m, wd.segment, len(wd.segments), known_bias)
         chan_of_seg = np.array([sg["channel"] for sg in wd.segments], dtype=np.int64)
-        self.free_sig = self.sig_c[chan_of_seg[free]] if free.size else np.zeros(0)
+        # each free bias solved in units of its channel's σ (the rows are divided by it)
+        self.free_sig = self.bias_scale = self.sig_c[chan_of_seg[self.free]] if self.free.size else np.zeros(0)
 
-    def full_bias(self, b_free: np.ndarray) -> np.ndarray:
-        out = self.known.copy()
-        out[self.free] = b_free
-        return out
 
     def predict(self, x: np.ndarray, jacobian: bool = False):
         """h(x) (N, C) and with ``jacobian`` H (N, C, n): the structure's phase model on x[:, :n_dyn]
@@ -305,38 +250,16 @@ class _Problem:
                 h[k0:k0 + _MODEL_CHUNK] = part
         return (h, H) if jacobian else h
 
-    def residual(self, x: np.ndarray, b_free: np.ndarray) -> np.ndarray:
-        h = self.predict(x)
-        bb = np.where(self.bias_index >= 0, b_free[np.maximum(self.bias_index, 0)] if b_free.size else 0.0, 0.0)
-        return self.y - h - bb
+    def data_cost(self, r: np.ndarray) -> float:
+        return np.nansum((r / self.sig_c) ** 2)
 
-    def cost(self, x, b_free, w) -> float:
-        r = self.residual(x, b_free)
-        prior = 0.0 if self.mp is None else float(np.sum((x[0, self.n_dyn:] / self.mp.sigma_m) ** 2))
-        return float(np.nansum((r / self.sig_c) ** 2) + np.sum(w**2)) + prior
+    def x1_cost(self, x: np.ndarray) -> float:
+        return 0.0 if self.mp is None else float(np.sum((x[0, self.n_dyn:] / self.mp.sigma_m) ** 2))
 
-    def propagate(self, x1: np.ndarray) -> np.ndarray:
-        N = len(self.wd.time_s)
-        xs = np.empty((N, self.n))
-        xs[0] = 0.0
-        xs[0, :len(x1)] = x1                     # (multipath states of a structure-only x1: 0)
-        for k in range(1, N):
-            xs[k] = self.A @ xs[k - 1]
-        return xs
-
-    def linear_problem(self, x: np.ndarray, damp_x1: float, x1_ref, damp_b: float, b_ref) -> LinearProblem:
-        """The linearized problem, whitened per channel: rows divided by σ_c, each free bias
-        parameter in units of its channel's σ (b' = b / σ_c), solved with σ = 1."""
-        h, H = self.predict(x, jacobian=True)
-        ytil = self.y - h + np.einsum("nci,ni->nc", H, x)
-        m = self.free.size
+    def whiten(self, H: np.ndarray, ytil: np.ndarray):
+        """Rows divided by their channel's σ; each row touches one bias (no E)."""
         w = 1.0 / self.sig_c
-        fs = self.free_sig
-        x1_mean, x1_info = self.x1_prior(damp_x1, x1_ref)
-        return LinearProblem(
-            A=self.A, Bw_L=self.G, H=H * w[None, :, None], y=ytil * w, bias_index=self.bias_index, n_bias=m,
-            sigma_m=1.0, x1_mean=x1_mean, x1_sqrt_info=x1_info,
-            b_mean=np.asarray(b_ref, dtype=float) / fs, b_sqrt_info=np.diag(np.full(m, damp_b) * fs))
+        return H * w[None, :, None], ytil * w, None
 
     def x1_prior(self, damp: float, x1_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Prior on the first state: the damping (square-root weight ``damp`` about ``x1_ref``) and,
@@ -350,16 +273,6 @@ class _Problem:
             info[nd:] = np.sqrt(tot)
         return mean, np.diag(info)
 
-    def solve(self, lp: LinearProblem) -> LinearSolution:
-        """:func:`srif_solve` on a whitened problem, biases and their information back in metres."""
-        sol = srif_solve(lp, square_root=self._square_root)
-        fs = self.free_sig
-        if not fs.size:
-            return sol
-        n = self.n
-        d = np.r_[np.ones(n), fs]
-        P = None if sol.P_end is None else sol.P_end * d[:, None] * d[None, :]
-        return LinearSolution(sol.x, sol.w, sol.b * fs, sol.cost, sol.R_end / d[None, :], P, sol.rank_deficient)
 
     def leverage(self, x: np.ndarray) -> np.ndarray:
         """Σ_k h_kc per channel of the linearization about x (no damping; Hutchinson probes, all
@@ -373,144 +286,13 @@ class _Problem:
             lp = LinearProblem(A=lp0.A, Bw_L=lp0.Bw_L, H=H, y=eps, bias_index=lp0.bias_index, n_bias=lp0.n_bias,
                                sigma_m=1.0, x1_mean=np.zeros((self.n, K)), x1_sqrt_info=lp0.x1_sqrt_info,
                                b_mean=np.zeros((lp0.n_bias, K)), b_sqrt_info=lp0.b_sqrt_info)
-            sol = srif_solve(lp, square_root=self._square_root)
+            sol = srif_solve(lp, square_root=self.square_root)
             f = np.einsum("nci,nik->nck", H, sol.x)
             if sol.b.size:
                 f = f + np.where((self.bias_index >= 0)[..., None], sol.b[np.maximum(self.bias_index, 0)], 0.0)
             return f
 
         return leverage_per_channel(fitted, present, batched=True)
-
-    def initial_biases(self, x: np.ndarray) -> np.ndarray:
-        """Bias guess per free parameter: mean residual of its segment along trajectory x."""
-        r = self.y - self.predict(x)
-        ok = np.isfinite(r) & (self.bias_index >= 0)
-        m = self.free.size
-        total = np.bincount(self.bias_index[ok], weights=r[ok], minlength=m)
-        count = np.bincount(self.bias_index[ok], minlength=m)
-        return np.where(count > 0, total / np.maximum(count, 1), 0.0)
-
-    def gauss_newton(self, x_init: np.ndarray, b_init: np.ndarray, max_iter: int, opt: InitOptions,
-                     w_init: np.ndarray | None = None, max_retries: int = 12, information: bool = True) -> GNResult:
-        """Gauss–Newton with Levenberg–Marquardt step control on x₁ and b (see :class:`GaussNewton`).
-
-        ``information=False``: the result's ``lin`` (information at the window end) is not needed,
-        so it is not recomputed at the last iterate (None unless the run converged undamped)."""
-        gn = GaussNewton(self, x_init, b_init, max_iter, opt, w_init=w_init, max_retries=max_retries)
-        while gn.step():
-            pass
-        return gn.result(information)
-
-
-def _largest_change(lin, x: np.ndarray, b: np.ndarray) -> float:
-    """Largest change of a bias or of a state (m) from (x, b) to the linear solution ``lin``."""
-    return max(np.max(np.abs(lin.b - b), initial=0.0), np.max(np.abs(lin.x - x), initial=0.0))
-
-
-class GaussNewton:
-    """Gauss–Newton on a :class:`_Problem`, one iteration per :meth:`step` (so that several runs can
-    be advanced in turn), with Levenberg–Marquardt step control on x₁ and b.
-
-    Each iteration first tries the step with the damping reduced tenfold (undamped once it is
-    small), backtracking along it (α = 1, ½, ¼, 1/10) before a step that raises the nonlinear cost
-    is retried with ten times more damping.  Converged when the step (largest change of a bias or
-    of a state) is below ``step_tol_m``, when the cost changes by less than ``cost_rtol`` without
-    damping, or when two successive full undamped steps contract so fast (ratio r ≤ ½) that the
-    steps still to come, about r/(1 − r) × the last one, are below ``step_tol_m``; also converged
-    when every trial raises the cost but the first proposed step is already below ``step_tol_m``
-    (the rise is then rounding in a cost at its minimum, not a failure).
-    """
-
-    def __init__(self, prob: _Problem, x_init: np.ndarray, b_init: np.ndarray, max_iter: int, opt: InitOptions,
-                 w_init: np.ndarray | None = None, max_retries: int = 12):
-        self.prob, self.opt = prob, opt
-        self.max_iter, self.max_retries = max_iter, max_retries
-        self.x, self.b = x_init, b_init
-        self.w = np.zeros((len(x_init) - 1, prob.G.shape[1])) if w_init is None else w_init
-        self.J = prob.cost(self.x, self.b, self.w)
-        self.lam = 0.0
-        self.hist = [self.J]
-        self.converged = False
-        self.lin = None
-        self.it = 0
-        self.done = False
-        self.last = None              # last iteration: (cost decrease, predicted decrease, full undamped step)
-        self._prev_full_step = None
-
-    def step(self) -> bool:
-        """One iteration; False once finished (converged, failed, or out of iterations)."""
-        if self.done or self.it >= self.max_iter:
-            self.done = True
-            return False
-        prob, opt = self.prob, self.opt
-        x, b, w, J = self.x, self.b, self.w, self.J
-        self.it += 1
-        accepted = False
-        first_step = None
-        for _ in range(self.max_retries):
-            sw = self.lam / prob.sigma          # square-root weight of the damping prior
-            lin = prob.solve(prob.linear_problem(x, sw, x[0], sw, b))
-            self.lin = lin
-            if first_step is None:
-                first_step = _largest_change(lin, x, b)
-            # backtracking along the Gauss–Newton step before adding damping
-            for alpha in (1.0, 0.5, 0.25, 0.1):
-                xt = x + alpha * (lin.x - x)
-                bt = b + alpha * (lin.b - b)
-                wt = w + alpha * (lin.w - w)
-                Jn = prob.cost(xt, bt, wt)
-                if np.isfinite(Jn) and Jn <= J * (1 + 1e-12):
-                    accepted = True
-                    break
-            if accepted:
-                break
-            self.lam = max(self.lam * 10.0, 1e-2)
-        if not accepted:
-            # every trial raised the cost; if the first proposed step was already below the step
-            # tolerance, that rise is rounding in the cost at its minimum: converged where we stand
-            self.converged = bool(first_step is not None and first_step < opt.step_tol_m)
-            self.done = True
-            return False
-        full = alpha == 1.0 and sw == 0.0
-        self.last = (J - Jn, J - lin.cost, full)
-        if alpha != 1.0:
-            lin = self.lin = LinearSolutionView(xt, wt, bt, lin)
-        step = _largest_change(lin, x, b)
-        rel = (J - Jn) / max(J, 1e-300)
-        self.x, self.b, self.w, self.J = lin.x, lin.b, lin.w, Jn
-        self.hist.append(Jn)
-        self.lam = self.lam / 10.0 if self.lam > 1e-2 else 0.0
-        prev, self._prev_full_step = self._prev_full_step, (step if full else None)
-        ratio = step / prev if (full and prev) else 1.0
-        if step < opt.step_tol_m or (rel < opt.cost_rtol and self.lam == 0.0) or \
-                (ratio <= 0.5 and step * ratio / (1.0 - ratio) < opt.step_tol_m):
-            self.converged = True
-            self.done = True
-        elif self.it >= self.max_iter:
-            self.done = True
-        return not self.done
-
-    def settled(self) -> bool:
-        """The last iteration was a full undamped step whose cost decrease matched the linearized
-        model's prediction (within a factor 2): the run is in the quadratic region of its minimum."""
-        if self.last is None:
-            return False
-        dJ, pred, full = self.last
-        return full and pred > 0 and 0.5 <= dJ / pred <= 2.0
-
-    def result(self, information: bool = True) -> GNResult:
-        prob = self.prob
-        if self.lin is None or self.lam != 0.0 or not self.converged:
-            self.lin = prob.solve(prob.linear_problem(self.x, 0.0, self.x[0], 0.0, self.b)) if information else None
-        return GNResult(self.x, self.b, self.w, self.J, self.it, self.converged, self.lin, self.hist)
-
-
-class LinearSolutionView:
-    """A partial (line-search) step: trajectory and biases replaced, information kept."""
-
-    def __init__(self, x, w, b, base):
-        self.x, self.w, self.b = x, w, b
-        self.cost, self.R_end, self.P_end, self.rank_deficient = base.cost, base.R_end, base.P_end, base.rank_deficient
 
 
 # a finalist is abandoned when it has settled in a basin whose cost exceeds the best current cost by
@@ -977,11 +759,10 @@ def _fixed_solution(cfg: StructureConfig, win: _Window, fit: _Fit, fix: _Fix, op
     known = np.full(m, np.nan)
     known[fix.fixed] = fix.line[fix.fixed] + cfg.wavelength_m * fix.integers[fix.fixed]
     prob_f = _Problem(cfg, win.wd, prob.sig_c, opt.process_noise, known_bias=known, mp=fit.mp)
-    gf = prob_f.gauss_newton(g.x, g.b[~fix.fixed], opt.max_iterations, opt, w_init=g.w)
     n_obs = int(np.isfinite(prob.y).sum())
     dof_f = max(n_obs - prob.n_dyn - m, 1)     # (the multipath states have their own prior)
     n_fixed = int(fix.fixed.sum())
-    dJ, limit = fix_validation(g.cost, gf.cost, dof_f, n_fixed, opt)
+    gf, dJ, limit = prob_f.refit_fixed(g, g.b[~fix.fixed], opt, dof_f, n_fixed)
     if dJ > limit:
         _say(opt, f"  integer fix rejected by validation: cost increase {dJ:.1f} > {limit:.1f} "
                   f"(chi-square {opt.fix_validation_probability:g}, {n_fixed} dof, margin {opt.fix_validation_margin:g})")
@@ -1111,32 +892,6 @@ def _multipath_record(mp: MultipathModel, wd: WindowData, z_end: np.ndarray, P, 
         rec["P_m2"] = [[float(v) for v in row] for row in P[nd:nd + C, nd:nd + C]]
         rec["cross_P"] = [[float(v) for v in row] for row in P[:nd, nd:nd + C]]
     return rec
-
-
-def full_set_ratio(fx: dict) -> float | None:
-    """The full set's ratio of a :func:`~cdgps_cli.estimation.ambiguity.resolve` result (None when not computed)."""
-    r = fx["ratio_full_set"]
-    return None if r is None or math.isnan(r) else float(r)
-
-
-def fix_note_text(fx: dict, m: int, threshold: float) -> str:
-    """INIT.json's ``integer_fixing`` sentence for a :func:`~cdgps_cli.estimation.ambiguity.resolve` result."""
-    ratio, fixed = full_set_ratio(fx), np.asarray(fx["fixed_mask"], dtype=bool)
-    rtxt = "n/a" if ratio is None else f"{ratio:.2f}"
-    if fixed.all():
-        return f"all {m} integers fixed (ratio {rtxt} ≥ {threshold:g})"
-    if fixed.any():
-        return f"{int(fixed.sum())} of {m} integers fixed by partial fixing (full-set ratio {rtxt})"
-    return fx.get("limit_message") or f"integers not fixed: ratio {rtxt} < {threshold:g}"
-
-
-def fix_validation(cost_float: float, cost_fixed: float, dof_float: int, n_fixed: int, opt) -> tuple[float, float]:
-    """(ΔJ, limit) of the fix validation: with the right integers the cost rises by about a
-    chi-square(n_fixed) amount, scaled by the float solution's cost per degree of freedom; the fix is
-    rejected when ΔJ > limit = ``fix_validation_margin`` × χ²_p(n_fixed), p = ``fix_validation_probability``."""
-    scale = max(cost_float / max(dof_float, 1), 1e-12)
-    limit = opt.fix_validation_margin * float(chi2_quantile(opt.fix_validation_probability, n_fixed))
-    return (cost_fixed - cost_float) / scale, limit
 
 
 NOISE_ITERATIONS = 2            # re-weightings of the batch with the estimated per-channel σ
