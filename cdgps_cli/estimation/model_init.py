@@ -2,14 +2,14 @@
 window of any :class:`~cdgps_cli.measurement.model.MeasurementModel` (full or diagonal noise) with a
 :class:`~cdgps_cli.model.dynamics_models.Dynamics`, then the one integer-fixing policy.
 
-This is the structure path's initializer (:mod:`cdgps_cli.estimation.initializer`, Teague, How &
-Parkinson 1998 Sec. IV.A) generalized over the measurement model: :class:`ModelProblem` offers the
-interface :class:`~cdgps_cli.estimation.initializer.GaussNewton` runs on (cost, linearized problem,
-SRIF solve), the linearized problem being whitened per epoch by the rows' noise (so a full
+The engine is the one batch initializer (:mod:`cdgps_cli.estimation.batch_init`, Teague, How &
+Parkinson 1998 Sec. IV.A), which the structure path (:mod:`cdgps_cli.estimation.initializer`) runs
+too: :class:`ModelProblem` is its thin wrapper for a measurement model (the rows, their prediction,
+the whitening), the linearized problem being whitened per epoch by the rows' noise (so a full
 covariance such as D Σ Dᵀ of double differences is handled exactly: each whitened row then mixes
 several ambiguities, :class:`~cdgps_cli.estimation.batch_solver.LinearProblem` ``E``).  Integers:
 :func:`~cdgps_cli.estimation.ambiguity.resolve` (LAMBDA, ratio, partial fixing: the one policy of every initializer), then the fixed
-solution and its validation (:func:`~cdgps_cli.estimation.initializer.fix_validation`).
+solution and its validation (:func:`~cdgps_cli.estimation.batch_init.fix_validation`).
 
 With the modal dynamics and the satellite-DD model this is the paper's model-aided initialization on
 GNSS double differences (used by :mod:`cdgps_cli.pipeline.gnss_modal`).
@@ -23,14 +23,15 @@ import numpy as np
 
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.estimation.ambiguity import AmbiguityError, resolve
-from cdgps_cli.estimation.batch_solver import LinearProblem, srif_solve
-from cdgps_cli.estimation.initializer import GaussNewton, InitOptions, fix_note_text, fix_validation, full_set_ratio
+from cdgps_cli.estimation.batch_init import BatchProblem, InitOptions, fix_note_text, full_set_ratio
 
 __all__ = ["ModelProblem", "ModelInitResult", "model_batch_init"]
 
 
-class ModelProblem:
-    """The nonlinear batch problem of ``model`` on the regular window ``epochs`` (model epoch indices).
+class ModelProblem(BatchProblem):
+    """The nonlinear batch problem of ``model`` on the regular window ``epochs`` (model epoch indices):
+    the measurement model and its per-epoch whitening over the engine
+    (:class:`~cdgps_cli.estimation.batch_init.BatchProblem`).
 
     Parameters
     ----------
@@ -46,6 +47,8 @@ class ModelProblem:
         The window's rows (default: ``model.rows(k)`` for k in ``epochs``).
     """
 
+    square_root = True
+
     def __init__(self, model, dyn, epochs, dt_s: float, known_bias=None, rows=None):
         self.model = model
         self.rows = [model.rows(k) for k in epochs] if rows is None else rows
@@ -59,52 +62,32 @@ class ModelProblem:
         cols = sorted({int(c) for r in self.rows if r is not None for c in r.segment if c >= 0})
         self.columns = cols                                 # window segment i = model segment column cols[i]
         local = {c: i for i, c in enumerate(cols)}
-        nseg = len(cols)
-        self.known = np.full(nseg, np.nan) if known_bias is None else np.asarray(known_bias, float)
-        self.free = np.flatnonzero(np.isnan(self.known))
-        remap = np.full(nseg, -1, dtype=np.int64)
-        remap[self.free] = np.arange(self.free.size)
-        self.z = np.full((N, C), np.nan)
+        z = np.full((N, C), np.nan)
         self.Linv = np.zeros((N, C, C))
-        self.seg = np.full((N, C), -1, dtype=np.int64)      # window segment of each row
+        seg = np.full((N, C), -1, dtype=np.int64)           # window segment of each row
         var = []
         for k, r in enumerate(self.rows):
             self.Linv[k] = np.eye(C)
             if r is None:
                 continue
             m = r.z_m.size
-            self.z[k, :m] = r.z_m
+            z[k, :m] = r.z_m
             self.Linv[k, :m, :m] = r.whiten(np.eye(m))
-            self.seg[k, :m] = [local[int(c)] if c >= 0 else -1 for c in r.segment]
+            seg[k, :m] = [local[int(c)] if c >= 0 else -1 for c in r.segment]
             v = np.diag(r.covariance())
             var.append(v[r.segment >= 0] if np.any(r.segment >= 0) else v)
-        self.present = np.isfinite(self.z)
+        self.present = np.isfinite(z)
         # scale of the damping prior: the rows with an ambiguity (phase), not e.g. pseudorange rows
         self.sigma = float(np.sqrt(np.mean(np.concatenate(var))))
-        kb = np.where(self.seg >= 0, np.nan_to_num(self.known, nan=0.0)[np.maximum(self.seg, 0)], 0.0)
-        self.bias_index = np.where(self.seg >= 0, remap[np.maximum(self.seg, 0)], -1)
-        # the free biases are solved about a reference each (the window mean of its rows, m): raw DDs
-        # carry λ·N of 1e5–1e6 m, whose cancellation in every cost evaluation would leave a rounding
-        # noise (~1e-7 on a cost of 1e3) above Gauss–Newton's acceptance tolerance near the minimum
-        ok = self.present & (self.bias_index >= 0)
-        cnt = np.bincount(self.bias_index[ok], minlength=self.free.size)
-        tot = np.bincount(self.bias_index[ok], weights=(self.z - kb)[ok], minlength=self.free.size)
-        self.b_offset = np.where(cnt > 0, tot / np.maximum(cnt, 1), 0.0)
-        off = np.append(self.b_offset, 0.0)[self.bias_index]           # (index −1: no bias → 0)
-        self.y = np.where(self.present, self.z - kb - off, np.nan)
+        # the free biases solved about their window means (raw DDs carry λ·N of 1e5–1e6 m)
+        self._set_biases(z, seg, len(cols), None if known_bias is None else np.asarray(known_bias, float), center=True)
         self.E = np.zeros((N, C, self.free.size))
         k, c = np.nonzero(self.bias_index >= 0)
         self.E[k, c, self.bias_index[k, c]] = 1.0
 
-    def full_bias(self, b_free: np.ndarray) -> np.ndarray:
-        """Every window segment's bias, m: the known ones, and the free ``b_free`` (about ``b_offset``)."""
-        out = self.known.copy()
-        out[self.free] = self.b_offset + b_free
-        return out
-
     def predict(self, x: np.ndarray, jacobian: bool = False):
         """h (N, C) and with ``jacobian`` H (N, C, n), zero on absent rows."""
-        N, C = self.z.shape
+        N, C = self.y.shape
         h = np.zeros((N, C))
         H = np.zeros((N, C, self.n))
         for k, r in enumerate(self.rows):
@@ -116,48 +99,13 @@ class ModelProblem:
     def _white(self, v: np.ndarray) -> np.ndarray:
         return np.einsum("kij,kj...->ki...", self.Linv, v)
 
-    def residual(self, x: np.ndarray, b_free: np.ndarray) -> np.ndarray:
-        """z − known biases − h(x) − E b, m (N, C); NaN on absent rows."""
-        eb = self.E @ b_free if b_free.size else 0.0
-        return self.y - self.predict(x) - eb
+    def data_cost(self, r: np.ndarray) -> float:
+        return np.sum(self._white(np.where(self.present, r, 0.0)) ** 2)
 
-    def cost(self, x, b_free, w) -> float:
-        r = np.where(self.present, self.residual(x, b_free), 0.0)
-        return float(np.sum(self._white(r) ** 2) + np.sum(w**2))
-
-    def propagate(self, x1: np.ndarray) -> np.ndarray:
-        xs = np.empty((len(self.rows), self.n))
-        xs[0] = x1
-        for k in range(1, len(xs)):
-            xs[k] = self.A @ xs[k - 1]
-        return xs
-
-    def initial_biases(self, x: np.ndarray) -> np.ndarray:
-        """Bias guess per free parameter: mean residual of its rows along trajectory x."""
-        r = self.y - self.predict(x)
-        ok = self.present & (self.bias_index >= 0)
-        m = self.free.size
-        total = np.bincount(self.bias_index[ok], weights=r[ok], minlength=m)
-        count = np.bincount(self.bias_index[ok], minlength=m)
-        return np.where(count > 0, total / np.maximum(count, 1), 0.0)
-
-    def linear_problem(self, x, damp_x1, x1_ref, damp_b, b_ref) -> LinearProblem:
-        h, H = self.predict(x, jacobian=True)
-        ytil = np.where(self.present, self.y - h + np.einsum("kci,ki->kc", H, x), 0.0)
-        m = self.free.size
-        yw = np.where(self.present, self._white(ytil), np.nan)
-        return LinearProblem(A=self.A, Bw_L=self.G, H=self._white(H), y=yw, bias_index=self.bias_index, n_bias=m,
-                             sigma_m=1.0, x1_mean=np.asarray(x1_ref, float), x1_sqrt_info=np.eye(self.n) * damp_x1,
-                             b_mean=np.asarray(b_ref, float), b_sqrt_info=np.eye(m) * damp_b, E=self._white(self.E))
-
-    def solve(self, lp: LinearProblem):
-        return srif_solve(lp, square_root=True)
-
-    def gauss_newton(self, x_init, b_init, opt: InitOptions, w_init=None):
-        gn = GaussNewton(self, x_init, b_init, opt.max_iterations, opt, w_init=w_init)
-        while gn.step():
-            pass
-        return gn.result(True)
+    def whiten(self, H: np.ndarray, ytil: np.ndarray):
+        """Each epoch's rows whitened by its noise (a full covariance mixes the rows, hence their biases: E)."""
+        yw = np.where(self.present, self._white(np.where(self.present, ytil, 0.0)), np.nan)
+        return self._white(H), yw, self._white(self.E)
 
 
 @dataclass
@@ -197,7 +145,7 @@ def model_batch_init(model, dyn, epochs, dt_s: float, wavelength_m, opt: InitOpt
     opt = opt or InitOptions()
     prob = ModelProblem(model, dyn, epochs, dt_s)
     x = prob.propagate(np.zeros(prob.n) if x1 is None else np.asarray(x1, float))
-    g = prob.gauss_newton(x, prob.initial_biases(x), opt)
+    g = prob.gauss_newton(x, prob.initial_biases(x), opt.max_iterations, opt)
     m, n = prob.free.size, prob.n
     if not g.converged:
         raise CdgpsError(f"batch initialization did not converge in {opt.max_iterations} iterations (cost {g.cost:.4g})")
@@ -230,8 +178,7 @@ def model_batch_init(model, dyn, epochs, dt_s: float, wavelength_m, opt: InitOpt
     if fixed.any():
         known = np.where(fixed, lam * integers, np.nan)
         pf = ModelProblem(model, dyn, epochs, dt_s, known_bias=known, rows=prob.rows)
-        gf = pf.gauss_newton(g.x, b_float[~fixed] - pf.b_offset, opt, w_init=g.w)
-        dJ, limit = fix_validation(g.cost, gf.cost, n_obs - n - m, int(fixed.sum()), opt)
+        gf, dJ, limit = pf.refit_fixed(g, b_float[~fixed] - pf.b_offset, opt, n_obs - n - m, int(fixed.sum()))
         if gf.converged and dJ <= limit:
             Pf = gf.lin.P_end
             res.bias_m, res.x, res.cost = pf.full_bias(gf.b), gf.x, gf.cost
