@@ -1,6 +1,6 @@
 """Every option default in one place (as python-control's ``config.defaults``).
 
-The library's option classes (:class:`~cdgps_cli.estimation.initializer.InitOptions`,
+The library's option classes (:class:`~cdgps_cli.estimation.batch_init.InitOptions`,
 :class:`~cdgps_cli.estimation.baseline.BaselineOptions`, the GNSS run config), the LAMBDA functions
 and the command line all read their defaults from here, so a default is changed in one line and the
 help texts say the same number.  Plausible ranges of options are in :mod:`cdgps_cli.config.limits`.

@@ -21,6 +21,10 @@ Flow (Teague, How & Parkinson 1998 Sec. IV.A; Teague et al. 1995 batch estimator
 4. If line biases are calibrated, fix b = line bias + λ·n with LAMBDA and the ratio test (partial
    fixing of a subset if the whole set fails), then re-solve the states with the integers fixed.
 5. Report the biases, the filter's initial state and covariance at the window end, residuals.
+
+The batch problem and Gauss–Newton are the one engine of :mod:`cdgps_cli.estimation.batch_init`
+(shared with the GNSS modal initialization); :class:`_Problem` is its wrapper here (the phase
+model, per-channel σ, multipath states).
 """
 
 from __future__ import annotations
