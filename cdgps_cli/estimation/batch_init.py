@@ -69,9 +69,12 @@ class InitOptions:
                 if k != "progress" and not (k.startswith("multipath_") and v is None)}
 
 
-
 @dataclass
 class GNResult:
+    """A Gauss–Newton run's outcome: trajectory x (N, n), free biases b (m,), process noise w (N−1, r),
+    cost, iterations, convergence, the linear solution at the end (``lin``: information at the window
+    end) and the cost history."""
+
     x: np.ndarray
     b: np.ndarray
     w: np.ndarray
@@ -105,6 +108,15 @@ class BatchProblem:
     bias_scale: np.ndarray | None = None
     square_root: bool | None = None
     b_offset: np.ndarray | None = None
+
+    def predict(self, x: np.ndarray, jacobian: bool = False):  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def data_cost(self, r: np.ndarray) -> float:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def whiten(self, H: np.ndarray, ytil: np.ndarray):  # pragma: no cover - interface
+        raise NotImplementedError
 
     def _set_biases(self, z: np.ndarray, segment: np.ndarray, n_seg: int, known=None, center: bool = False) -> None:
         """The bias bookkeeping: ``z`` (N, C) data (m, NaN absent), ``segment`` (N, C) window bias
