@@ -112,7 +112,9 @@ def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_s
                    "skipped between frames, a truncated tail) instead of reporting it with a warning.")
 @click.option("--sensor-log", "sensor_logs", multiple=True, type=click.Path(dir_okay=False),
               help="GNSS: a sensor CSV log (accelerometers, tilt meters, gyros; units in the column names, "
-                   "docs/file-formats.md) for 'estimate --fuse'; repeatable. Default: the GNSS config's sensors key.")
+                   "docs/file-formats.md), or [NAME=]FILE.ubx, a u-blox log's ESF-MEAS IMU data (sensors NAME-accel, "
+                   "NAME-gyro; NAME default imu), for 'estimate --fuse'; repeatable. Default: the GNSS config's sensors "
+                   "key. A --ubx receiver log with ESF-MEAS gives sensors ANTENNA-accel, ANTENNA-gyro by itself.")
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="RUN.mcap to write.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
@@ -229,6 +231,9 @@ def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict=F
         _say(ctx, f"  {n}: {c['common_epochs']} epochs in common with {s['master']}" + _grid_note(c))
     if "sensor_logs" in s:
         _say(ctx, f"  sensor logs ({', '.join(s['sensor_logs']['kinds'])}): {', '.join(s['sensor_logs']['files'])}")
+    for n, imu in s.get("receiver_imu", {}).items():
+        _say(ctx, f"  {n}: IMU in the receiver log ({imu['messages']} ESF-MEAS): sensors "
+                  + ", ".join(f"{n}-{k}" for k in imu["kinds"]))
     for w in s["warnings"]:
         _warn(w)
     if as_json:
