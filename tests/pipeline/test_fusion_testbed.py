@@ -82,3 +82,22 @@ def test_refusals_exit_2(runs, tmp_path, args, message):
     r = run_cli("estimate", d / "run.mcap", "--init", d / "init.json", *args, "-o", out)
     assert r.exit_code == 2 and message in r.output and "Traceback" not in r.output, r.output
     assert not out.exists()
+
+
+def test_filter_only_and_thruster_refusal(runs, tmp_path):
+    """Without --smooth the forward filter's states are written; a run with thruster commands is
+    refused (the fused dynamics have no known inputs)."""
+    from types import SimpleNamespace
+
+    from cdgps_cli.core.errors import CdgpsError
+    from cdgps_cli.estimation.filter import EstimateOptions
+    from cdgps_cli.pipeline.fusion import _refuse_pseudolite_options
+
+    d = runs[SEEDS[0]]
+    r = run_cli("-q", "estimate", d / "run.mcap", "--init", d / "init.json", "--fuse", "gyro", "-o", tmp_path / "f.mcap",
+                "--json")
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.stdout)
+    assert s["epochs"] == 301 and not s["smoothed"] and s["fusion"]["added_states"][0] == "g1_bias_gyro_x_rad_s"
+    with pytest.raises(CdgpsError, match="r.mcap has thruster commands"):
+        _refuse_pseudolite_options(SimpleNamespace(actuators=[1], path="r.mcap"), EstimateOptions(), ("gyro",))
