@@ -38,7 +38,7 @@ UNITS = ("m_s2", "rad_s", "rad", "m", "m_s", "1")
 #: a reading's column: <kind>_<axis>_<unit> (any kind: the reader needs no change for a new sensor)
 _COLUMN = re.compile(r"^([a-z]+)_([a-z0-9]+)_(" + "|".join(UNITS) + r")$")
 #: the kinds of the shipped sensors (documentation; the reader takes any kind)
-SENSOR_KINDS = ("accel", "tilt", "gyro")
+SENSOR_KINDS = ("accel", "tilt", "gyro", "strain")
 SENSOR_ATTACHMENT = "sensors/{}.csv"
 _PREFIX = "sensors/"
 
