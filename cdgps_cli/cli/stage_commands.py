@@ -112,7 +112,9 @@ def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_s
                    "skipped between frames, a truncated tail) instead of reporting it with a warning.")
 @click.option("--sensor-log", "sensor_logs", multiple=True, type=click.Path(dir_okay=False),
               help="GNSS: a sensor CSV log (accelerometers, tilt meters, gyros; units in the column names, "
-                   "docs/file-formats.md) for 'estimate --fuse'; repeatable. Default: the GNSS config's sensors key.")
+                   "docs/file-formats.md), or [NAME=]FILE.ubx, a u-blox log's ESF-MEAS IMU data (sensors NAME-accel, "
+                   "NAME-gyro; NAME default imu), for 'estimate --fuse'; repeatable. Default: the GNSS config's sensors "
+                   "key. A --ubx receiver log with ESF-MEAS gives sensors ANTENNA-accel, ANTENNA-gyro by itself.")
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="RUN.mcap to write.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
@@ -229,6 +231,9 @@ def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict=F
         _say(ctx, f"  {n}: {c['common_epochs']} epochs in common with {s['master']}" + _grid_note(c))
     if "sensor_logs" in s:
         _say(ctx, f"  sensor logs ({', '.join(s['sensor_logs']['kinds'])}): {', '.join(s['sensor_logs']['files'])}")
+    for n, imu in s.get("receiver_imu", {}).items():
+        _say(ctx, f"  {n}: IMU in the receiver log ({imu['messages']} ESF-MEAS): sensors "
+                  + ", ".join(f"{n}-{k}" for k in imu["kinds"]))
     for w in s["warnings"]:
         _warn(w)
     if as_json:
@@ -354,8 +359,9 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
                    "double differences instead of the rover displacements (docs/gnss-pipeline.md).")
 @_placement_options
 @click.option("--fuse", "fuse", default=None, metavar="KINDS",
-              help="GNSS runs with --structure: fuse the run's sensor logs of these kinds with the double differences "
-                   "(comma-separated: gyro,accel,tilt; opt-in; default: the structure config's [fusion] fuse). "
+              help="Fuse the run's sensor logs of these kinds with the carrier phases (comma-separated: gyro,accel,tilt; "
+                   "opt-in; default: the structure config's [fusion] fuse): GNSS runs with --structure (double "
+                   "differences), or a structure run's rate gyros (--fuse gyro, single differences). "
                    "A fused gyro is no longer an independent check of the spectra.")
 @click.option("--hold-out", "hold_out", multiple=True, metavar="SENSOR",
               help="With --fuse: keep this sensor out of the fusion, as an independent check (repeatable; adds to "
@@ -409,9 +415,6 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
                            allow_other_run=allow_other_run, scene_exaggeration=_scene_factor(scene_exaggeration),
                            fuse=fuse, hold_out=hold_out)
         return
-    if fuse or hold_out:
-        raise CdgpsError("--fuse/--hold-out apply to GNSS runs with --structure (the sensors are fused with the "
-                         "double differences on the structure's modal state)")
     if foxglove_rate_hz is not None and not (foxglove_rate_hz >= 0 and math.isfinite(foxglove_rate_hz)):
         raise CdgpsError(f"--foxglove-rate-hz must be a finite rate >= 0 (0: every epoch), got {foxglove_rate_hz:g}")
     scene_exaggeration = _scene_factor(scene_exaggeration)
@@ -451,17 +454,30 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
                           history=DiskHistory(Path(output).resolve().parent),
                           keep_covariance="full" if covariance == "full" else "modal",
                           progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
-    _say(ctx, f"estimating {run_mcap} from {init_json} (biases {biases}{', smoothing' if smooth else ''}) …")
+    from cdgps_cli.pipeline.fusion import fusion_choice
+
+    fuse_kinds, held = fusion_choice(run.cfg, fuse, hold_out)
+    _say(ctx, f"estimating {run_mcap} from {init_json} (biases {biases}{', smoothing' if smooth else ''}"
+              f"{', fusing ' + ','.join(fuse_kinds) if fuse_kinds else ''}) …")
     with _init_named(init_json):
-        res = run_ekf(run, init, opt)
+        if fuse_kinds:
+            from cdgps_cli.pipeline.fusion import fuse_with_pseudolite
+
+            res = fuse_with_pseudolite(run, init, opt, fuse_kinds, held)
+        else:
+            res = run_ekf(run, init, opt)
     del run                                  # the phase table is not needed for writing (memory)
     options = opt.echo()
+    if fuse_kinds:
+        options["fusion"] = res.fusion
     if allow_other_run:
         options.update(allow_other_run=True, init_run_sha256=pairing["init_run_sha256"])
     s = write_states(res, run_mcap, init, init_text, output, options, covariance=covariance,
                      preview_rate_hz=foxglove_rate_hz, run_sha256=pairing["run_sha256"],
                      scene_exaggeration=scene_exaggeration)
     s["init_run"] = pairing
+    if fuse_kinds:
+        s["fusion"] = res.fusion
     nis_text = "no filter epoch with data" if s["mean_nis_per_dof"] is None else f"mean NIS/dof {s['mean_nis_per_dof']:.3f}"
     w = s.get("window")
     src = (f"; {w['start_s']:g}–{w['end_s']:g} s from INIT's batch solution, then the filter" if w else "")

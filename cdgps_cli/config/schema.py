@@ -248,8 +248,19 @@ STRUCTURE_TABLES: dict[str, dict[str, Field]] = {
         "sample_period_s": _key(_NUM, "sample period of the log, s (default [model] sample_period_s)", sign="positive"),
         "description": _text(),
     },
+    "strains[]": {
+        "name": _key(_STR, "strain gauge name", True),
+        "point_a": _key(_STR, "antenna or [[points]] name at one end of the gauge", True),
+        "point_b": _key(_STR, "antenna or [[points]] name at the other end", True),
+        "sigma_strain": _key(_NUM, "white noise, strain (dimensionless)", True, sign="positive"),
+        "bias_sigma_strain": _key(_NUM, "prior sigma of its bias (zero drift) state, strain (0: no bias state)",
+                                  sign="nonneg"),
+        "bias_drift_strain_per_sqrt_s": _key(_NUM, "random walk of its bias, strain/sqrt(s)", sign="nonneg"),
+        "sample_period_s": _key(_NUM, "sample period of the log, s (default [model] sample_period_s)", sign="positive"),
+        "description": _text(),
+    },
     "fusion": {
-        "fuse": _key({"type": "array", "items": {"type": "string", "enum": ["gyro", "accel", "tilt"]}},
+        "fuse": _key({"type": "array", "items": {"type": "string", "enum": ["gyro", "accel", "tilt", "strain"]}},
                      "sensor kinds fused with GNSS by 'estimate --structure' (opt-in; --fuse overrides)",
                      kind="names", cross=True),
         "hold_out": _key({"type": "array", "items": _STR},
@@ -283,7 +294,7 @@ def _zeros3(ctx):
 #: the top level: which tables are required (arrays of tables are marked "[]" in STRUCTURE_TABLES)
 TOP_REQUIRED = ("model", "coordinates", "antennas", "transmitters", "modes", "process_noise")
 TOP_OPTIONAL = ("body", "sections", "gyros", "thrusters", "simulation", "channel_sigma", "points",
-                "accelerometers", "tilts", "fusion")
+                "accelerometers", "tilts", "strains", "fusion")
 
 
 def simulation_table(defaults: dict, signed=(), refs=None) -> dict[str, Field]:

@@ -1,4 +1,4 @@
-"""The structure config's fusable sensors (issue 30): ``[[accelerometers]]``, ``[[tilts]]``, the
+"""The structure config's fusable sensors (issue 30): ``[[accelerometers]]``, ``[[tilts]]``, ``[[strains]]``, the
 ``[[gyros]]`` as measurements (their noise keys) and ``[fusion]`` (docs/config-format.md).
 
 Keys are declared in :data:`cdgps_cli.config.schema.STRUCTURE_TABLES` (so the structure parser already
@@ -19,7 +19,7 @@ from cdgps_cli.core.errors import CdgpsError
 
 __all__ = ["SensorSpec", "sensor_specs", "fusion_settings", "FUSABLE_KINDS"]
 
-FUSABLE_KINDS = ("gyro", "accel", "tilt")
+FUSABLE_KINDS = ("gyro", "accel", "tilt", "strain")
 
 
 @dataclass(frozen=True)
@@ -41,10 +41,12 @@ class SensorSpec:
         Their random walk, unit/√s.
     sample_period_s : float
     point : str or None
-        Accelerometers: the antenna or ``[[points]]`` name.
+        Accelerometers: the antenna or ``[[points]]`` name; strain gauges: the gauge's first end.
     section : int
         Section index (−1: body).
     rotation_rad : ndarray (3, n_q) or None
+    point_b : str or None
+        Strain gauges: the gauge's other end.
     """
 
     kind: str
@@ -57,6 +59,7 @@ class SensorSpec:
     point: str | None = None
     section: int = -1
     rotation_rad: np.ndarray | None = None
+    point_b: str | None = None
 
 
 class _Reader:
@@ -131,8 +134,8 @@ def _doc(cfg: StructureConfig) -> dict:
 
 
 def sensor_specs(cfg: StructureConfig) -> list[SensorSpec]:
-    """Every accelerometer, tilt meter and gyro of the config as a :class:`SensorSpec` (config order,
-    accelerometers, then tilt meters, then gyros); CdgpsError listing every bad key."""
+    """Every accelerometer, tilt meter, strain gauge and gyro of the config as a :class:`SensorSpec`
+    (config order: accelerometers, tilt meters, strain gauges, then gyros); CdgpsError listing every bad key."""
     doc, rd, out = _doc(cfg), _Reader(cfg), []
     T = cfg.sample_period_s
     for i, a in enumerate(doc.get("accelerometers", [])):
@@ -157,6 +160,20 @@ def sensor_specs(cfg: StructureConfig) -> list[SensorSpec]:
                               rotation_rad=rd.rotation(t, key)))
         if "section" not in t and "rotation_rad" not in t:
             rd.problems.append(f"{key}: a tilt meter needs a section (with rotation coordinates) or rotation_rad")
+    for i, g in enumerate(doc.get("strains", [])):
+        key = f"strains[{i}]"
+        rd.keys(g, key, "strains[]")
+        ends = [g.get("point_a"), g.get("point_b")]
+        for end, p in zip(("point_a", "point_b"), ends):
+            if p not in cfg.antenna_names and p not in cfg.point_names:
+                rd.problems.append(f"{key}.{end}: {p!r} is not an antenna or [[points]] name "
+                                   f"(antennas: {', '.join(cfg.antenna_names)}; points: {', '.join(cfg.point_names) or 'none'})")
+        if ends[0] == ends[1]:
+            rd.problems.append(f"{key}: point_a and point_b are the same point ({ends[0]!r}); a gauge has two ends")
+        b, d = rd.bias(g, key, "bias_sigma_strain", "bias_drift_strain_per_sqrt_s")
+        out.append(SensorSpec("strain", str(g.get("name")), ("gauge",), rd.num(g, key, "sigma_strain", positive=True), b, d,
+                              rd.num(g, key, "sample_period_s", T, positive=True), point=str(ends[0]),
+                              point_b=str(ends[1])))
     sim = cfg.simulation
     gp = sim.get("gyro_sample_period_s", 0.0) or T
     for i, g in enumerate(doc.get("gyros", [])):

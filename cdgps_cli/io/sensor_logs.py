@@ -15,6 +15,8 @@ long format, units in the column names —
 finite increasing times per sensor; numbers or empty cells) and :func:`sensor_attachments` /
 :func:`sensor_logs_from_attachments` carry the tables into and out of the RUN as attachments
 ``sensors/<kind>.csv`` (canonical CSV text, so the same inputs give the same bytes).
+:func:`read_sensor_log` also takes a u-blox UBX log, whose ESF-MEAS messages (a receiver's IMU)
+give accelerometer and gyro tables of this format (:mod:`cdgps_cli.io.ubx_esf`).
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ import pandas as pd
 
 from cdgps_cli.core.errors import CdgpsError
 
-__all__ = ["SENSOR_KINDS", "UNITS", "SENSOR_ATTACHMENT", "read_sensor_csv", "sensor_attachments", "sensor_logs_from_attachments",
+__all__ = ["SENSOR_KINDS", "UNITS", "SENSOR_ATTACHMENT", "read_sensor_csv", "read_sensor_log", "sensor_log_file", "sensor_attachments", "sensor_logs_from_attachments",
            "write_sensor_csv"]
 
 #: units a reading's column may end with (m/s², rad/s, rad, m, m/s, 1 for a ratio such as strain)
@@ -36,7 +38,7 @@ UNITS = ("m_s2", "rad_s", "rad", "m", "m_s", "1")
 #: a reading's column: <kind>_<axis>_<unit> (any kind: the reader needs no change for a new sensor)
 _COLUMN = re.compile(r"^([a-z]+)_([a-z0-9]+)_(" + "|".join(UNITS) + r")$")
 #: the kinds of the shipped sensors (documentation; the reader takes any kind)
-SENSOR_KINDS = ("accel", "tilt", "gyro")
+SENSOR_KINDS = ("accel", "tilt", "gyro", "strain")
 SENSOR_ATTACHMENT = "sensors/{}.csv"
 _PREFIX = "sensors/"
 
@@ -107,13 +109,54 @@ def write_sensor_csv(path, df: pd.DataFrame) -> None:
     write_bytes_atomic(Path(path), _csv_text(df).encode())
 
 
-def sensor_attachments(paths) -> dict:
-    """{attachment name: CSV bytes} of the sensor logs ``paths`` (one table per kind: two files of one
-    kind are joined; a sensor in two files, or a kind twice at one time, refused)."""
+def _ubx_path(spec: str) -> tuple[str, str] | None:
+    """(sensor name prefix, path) when ``spec`` is a UBX log (``NAME=FILE`` or ``FILE``, read by its
+    first bytes: the UBX sync 0xB5 0x62, or a .ubx name); None for a CSV log."""
+    name, path = "imu", spec
+    head, sep, tail = spec.partition("=")
+    if sep and re.fullmatch(r"[A-Za-z0-9_.-]+", head) and not Path(spec).exists():
+        name, path = head, tail
+    try:
+        with open(path, "rb") as f:
+            first = f.read(2)
+    except OSError:
+        first = b""
+    return (name, path) if first == b"\xb5\x62" or path.lower().endswith(".ubx") else None
+
+
+def sensor_log_file(spec: str | Path) -> str:
+    """The file of a ``--sensor-log`` value (``NAME=FILE.ubx`` or ``FILE``)."""
+    ubx = _ubx_path(str(spec))
+    return str(spec) if ubx is None else ubx[1]
+
+
+def read_sensor_log(spec: str | Path, ref_s: float | None = None) -> list:
+    """[(kind, table)] of a sensor log: a CSV (:func:`read_sensor_csv`), or a u-blox UBX log whose
+    ESF-MEAS messages give an IMU's accelerometer and gyro tables (``[NAME=]FILE``, sensors
+    ``NAME-accel``, ``NAME-gyro``, NAME default ``imu``; :mod:`cdgps_cli.io.ubx_esf`), its time tags
+    placed in GPS seconds in the week nearest ``ref_s`` (GPS s; the GNSS run's first epoch)."""
+    ubx = _ubx_path(str(spec))
+    if ubx is None:
+        return [read_sensor_csv(spec)]
+    from cdgps_cli.io.ubx_esf import read_esf_log  # noqa: PLC0415
+
+    if ref_s is None:
+        raise CdgpsError(f"{ubx[1]}: a UBX sensor log needs the GNSS run's time (its ESF-MEAS time tags are GPS "
+                         "time of week): give it with the receiver files it belongs to")
+    tables, _ = read_esf_log(ubx[1], ref_s, ubx[0])
+    return [(k, _check_table(df, f"{ubx[1]} (ESF-MEAS {k})")[1]) for k, df in tables.items()]
+
+
+def sensor_attachments(paths, ref_s: float | None = None, tables=()) -> dict:
+    """{attachment name: CSV bytes} of the sensor logs ``paths`` (CSV, or UBX ESF-MEAS: :func:`read_sensor_log`
+    with ``ref_s``) and of ``tables`` [(source, kind, table)] read elsewhere (a receiver log's IMU):
+    one table per kind (two sources of one kind are joined; a sensor in two sources refused)."""
     by_kind: dict = {}
     for p in paths:
-        kind, df = read_sensor_csv(p)
-        by_kind.setdefault(kind, []).append((str(p), df))
+        for kind, df in read_sensor_log(p, ref_s):
+            by_kind.setdefault(kind, []).append((str(p), df))
+    for src, kind, df in tables:
+        by_kind.setdefault(kind, []).append((str(src), df))
     out = {}
     for kind, items in by_kind.items():
         seen: dict = {}

@@ -22,12 +22,13 @@ from cdgps_cli.measurement.gyro import RateGyro
 from cdgps_cli.measurement.model import PseudoliteSD, SatelliteDDModal
 from cdgps_cli.measurement.sensor import place
 from cdgps_cli.measurement.stacked import Stacked
+from cdgps_cli.measurement.strain import StrainGauge
 from cdgps_cli.measurement.tilt import TiltMeter
 
 __all__ = ["ModelKind", "REGISTRY", "UNITS", "FUSABLE", "model_from_spec"]
 
-#: units a field name may end with (m, m/s², rad, rad/s)
-UNITS = ("m", "m_s2", "rad", "rad_s")
+#: units a field name may end with (m, m/s², rad, rad/s, 1: a ratio such as strain)
+UNITS = ("m", "m_s2", "rad", "rad_s", "1")
 
 
 @dataclass(frozen=True)
@@ -63,6 +64,12 @@ def _tilt(cfg, rng, n):
 def _gyro(cfg, rng, n):
     g = list(cfg.gyro_names[:2])
     return RateGyro(cfg, g, rng.standard_normal((n, len(g))) * 1e-3, _every_other(n, 1), 2e-3, 2e-3, 2e-5)
+
+
+def _strain(cfg, rng, n):
+    a, b = cfg.rover_names[0], cfg.rover_names[-1]          # (on the testbed: sections C1 and C3)
+    return StrainGauge(cfg, "strain1", a, b, rng.standard_normal((len(range(0, n, 3)), 1)) * 1e-5, _every_other(n, 3),
+                       1e-6, 1e-5, 1e-8)
 
 
 def _gnss(cfg, rng, n):
@@ -113,6 +120,7 @@ REGISTRY: dict[str, ModelKind] = {
     "accel": ModelKind(Accelerometer, "m_s2", _accel),
     "tilt": ModelKind(TiltMeter, "rad", _tilt),
     "gyro": ModelKind(RateGyro, "rad_s", _gyro),
+    "strain": ModelKind(StrainGauge, "1", _strain),
     "gnss_position": ModelKind(GnssPosition, "m", _gnss),
     "pseudolite_sd": ModelKind(PseudoliteSD, "m", _pseudolite),
     "dd_modal": ModelKind(SatelliteDDModal, "m", _dd_modal),
@@ -135,4 +143,7 @@ def model_from_spec(cfg: StructureConfig, spec: SensorSpec, values, k_of, n_core
     if spec.kind == "tilt":
         return TiltMeter(cfg, spec.name, list(spec.axes), values, k_of, spec.sigma, spec.section, spec.rotation_rad,
                          b, spec.bias_drift, n_core=n_core)
+    if spec.kind == "strain":
+        return StrainGauge(cfg, spec.name, spec.point, spec.point_b, values, k_of, spec.sigma, b, spec.bias_drift,
+                           n_core=n_core)
     return RateGyro(cfg, [spec.name], values, k_of, spec.sigma, b, spec.bias_drift, n_core=n_core, name=spec.name)

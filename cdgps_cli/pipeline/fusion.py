@@ -235,3 +235,116 @@ def _sensor_summary(parts, x, rows) -> dict:
                      "final_bias": ({f: float(x[-1, m.bias_offset + j]) for j, f in enumerate(m.fields)}
                                     if m.extra_states else {})}
     return out
+
+
+def run_gyro_table(run) -> dict:
+    """{"gyro": table} in the sensor-log format (``time_s``, ``sensor``, ``gyro_<axis>_rad_s``) from a
+    structure RUN's gyro topic (long table time_s, gyro, rate_rad_s): each gyro's rate in the column
+    its measurement model reads (:class:`cdgps_cli.measurement.gyro.RateGyro` fields); empty: no gyros."""
+    import pandas as pd  # noqa: PLC0415
+
+    from cdgps_cli.config.sensors import sensor_specs  # noqa: PLC0415
+
+    g = run.gyro.frame() if hasattr(run.gyro, "frame") else run.gyro
+    if g is None or not len(g):
+        return {}
+    cfg = run.cfg
+    out = pd.DataFrame({"time_s": g["time_s"].to_numpy(float), "sensor": g["gyro"].astype(str).to_numpy()})
+    rate = g["rate_rad_s"].to_numpy(float)
+    for sp in sensor_specs(cfg):
+        if sp.kind != "gyro":
+            continue
+        field = model_from_spec(cfg, sp, np.zeros((1, 1)), [0], 2 * cfg.n_modes).fields[0]
+        if field not in out:
+            out[field] = np.nan
+        sel = (out["sensor"] == sp.name).to_numpy()
+        out.loc[sel, field] = rate[sel]
+    return {"gyro": out.sort_values(["time_s", "sensor"], kind="stable").reset_index(drop=True)}
+
+
+def _refuse_pseudolite_options(run, opt, fuse) -> None:
+    """CdgpsError naming what the fused pseudolite filter does not (yet) take."""
+    bad = [k for k in fuse if k != "gyro"]
+    if bad:
+        raise CdgpsError(f"--fuse {','.join(fuse)}: a structure (pseudolite) run carries gyro logs only; "
+                         f"{', '.join(bad)} fusion is on GNSS runs with --structure")
+    for flag, on in (("--biases states", opt.biases != "fixed"), ("--rest", bool(opt.rest_segments_s) or opt.rest_auto)):
+        if on:
+            raise CdgpsError(f"--fuse gyro on a structure run: {flag} is not available with fusion (fixed biases, no "
+                             "static mode)")
+    if len(run.actuators):
+        raise CdgpsError(f"--fuse gyro: {run.path} has thruster commands; the fused filter's dynamics have no known "
+                         "inputs yet (estimate without --fuse)")
+
+
+def fuse_with_pseudolite(run, init: dict, opt, fuse, hold_out=()):
+    """``cdgps estimate --fuse gyro`` on a pseudolite (testbed) run: the single differences of INIT's
+    fixed biases stacked with the rate gyros (bias states, random walk as configured) on the modal
+    state, through the one driver (:func:`run_fused`: forward filter with the outlier gate on every
+    row, RTS smoother), from INIT's state at its window end.
+
+    The set-up (epoch grid, phases, channels, σ per channel, INIT's state and biases) is the pseudolite
+    filter's (:class:`cdgps_cli.estimation.filter._ForwardPass`); its integrity hooks (lock restarts,
+    re-bias, batch re-initialization, rest) are not run: a channel whose lock restarts is left out
+    from then on (its bias no longer trusted).
+
+    Returns
+    -------
+    EstimateResult
+        Modal states only (the gyro biases in ``fusion["sensors"]``), epochs from INIT's window end;
+        its ``fusion`` attribute is the JSON-ready summary (``gyro_independent_check`` …).
+    """
+    from cdgps_cli.config.sensors import sensor_specs  # noqa: PLC0415
+    from cdgps_cli.estimation.filter import EstimateResult, _ForwardPass  # noqa: PLC0415
+    from cdgps_cli.estimation.model_filter import outlier_gate  # noqa: PLC0415
+    from cdgps_cli.measurement.model import PseudoliteSD  # noqa: PLC0415
+
+    cfg = run.cfg
+    _refuse_pseudolite_options(run, opt, fuse)
+    fp = _ForwardPass(run, init, opt)                        # set-up only
+    n = 2 * cfg.n_modes
+    logs = run_gyro_table(run)
+    all_specs = sensor_specs(cfg)
+    used = {s.name for s in all_specs if s.kind in fuse and s.name not in hold_out}
+    times = [g.loc[g["sensor"].isin(used), "time_s"].to_numpy(float) for g in logs.values()]
+    t = common_time_axis(fp.grid, times)
+    kk = align_epochs(t, fp.grid, SYNC_TOL_S)
+    y = np.full((t.size, fp.C), np.nan)
+    y[kk >= 0] = fp.Y[kk[kk >= 0]] - fp.bias                   # channels without INIT's bias: NaN, not used
+    after = np.cumsum(fp.EVENT >= 2, axis=0) > 0               # from a lock restart on: the bias is not trusted
+    y[kk >= 0] = np.where(after[kk[kk >= 0]], np.nan, y[kk >= 0])
+    phase = PseudoliteSD(cfg, y, fp.ant, fp.tx, fp.sig_c)
+    parts = sensor_parts(cfg, all_specs, logs, t, fuse, hold_out)
+    model, dyn, P0, names = fusion_problem(cfg, [("phase", phase)], parts, fp.P[:n, :n], disturbance=False)
+    x0 = np.zeros(dyn.n)
+    x0[:n] = fp.x[:n]
+    events: list = []
+    r = run_fused(model, dyn, t, x0, P0, opt.smooth, 1, rows_hook=outlier_gate(model, opt.outlier_sigma, events, t))
+    resid = _phase_residuals(phase, r.x_filt, r.rows, fp.C)
+    ev = [{"time_s": e["time_s"], "antenna": e["label"][1] if e["label"][0] == "phase" else e["label"][0],
+           "transmitter": e["label"][2], "kind": "outlier",
+           "action": f"{'phase' if e['label'][0] == 'phase' else 'sensor reading'} not used at this epoch "
+                     f"({e['sigmas']:.1f} σ)"} for e in events]
+    fusion = {"fused": list(fuse), "hold_out": list(hold_out), "epochs": int(t.size), "phase_epochs": int(fp.N),
+              "added_states": names, "sensors": _sensor_summary(parts, r.x, r.rows), "disturbance_states": False,
+              "gyro_independent_check": "gyro" not in fuse or any(s.kind == "gyro" and s.name in hold_out
+                                                                for s in all_specs)}
+    res = EstimateResult(cfg, t, r.x[:, :n], r.P[:, :n, :n], r.x_filt[:, :n] if opt.smooth else None,
+                         r.P_filt[:, :n, :n] if opt.smooth else None, list(fp.chans), resid, r.nis, r.nis_dof,
+                         events=ev, biases={c: float(b) for c, b in zip(fp.chans, fp.bias) if np.isfinite(b)},
+                         smoothed=bool(opt.smooth), filter_path="numpy",
+                         noise={"sigma_m": float(np.sqrt(np.mean(fp.sig_c**2))), "source": fp.sigma_source})
+    res.fusion = fusion
+    return res
+
+
+def _phase_residuals(phase, x, rows, C: int) -> np.ndarray:
+    """(N, C) post-fit residuals of the single differences at the filtered states (NaN: not used)."""
+    out = np.full((len(rows), C), np.nan)
+    for k, rk in enumerate(rows):
+        sub = _dd_rows(rk, 0)
+        if sub is None:
+            continue
+        h, _ = phase.predict(x[k], sub)
+        out[k, sub.context] = sub.z_m - h
+    return out

@@ -25,7 +25,8 @@ from cdgps_cli.io import gnss_run
 from cdgps_cli.core.gps_time import nominal_interval_s
 from cdgps_cli.core.records import OBS_COLUMNS
 from cdgps_cli.io.gnss_run import LOCK_TIME_CAP_MS, GnssReceiver, IngestInputs, span_text
-from cdgps_cli.io.sensor_logs import sensor_attachments
+from cdgps_cli.io.sensor_logs import sensor_attachments, sensor_log_file
+from cdgps_cli.io.ubx_esf import receiver_imu_tables
 from cdgps_cli.measurement.channels import FIRST, lock_segments, ubx_restarts
 from cdgps_cli.measurement.epoch_pairing import pair_epochs
 from cdgps_cli.model.gps.positioning import ephemeris_coverage, spp_static
@@ -83,11 +84,17 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
     say(f"writing {out_path} …")
     lock = {n: lock_summary(rx, anchor_obs(rx, cfg.signals)) for n, rx in inp.receivers.items()}
     sensors = config_sensor_paths(cfg) if sensor_paths is None else [str(p) for p in sensor_paths]
-    att = sensor_attachments(sensors) if sensors else None
+    ref_s = min(float(rx.raw["time_gps_s"].min()) for rx in inp.receivers.values())
+    imu, imu_info = receiver_imu_tables({n: (inp.pieces or {}).get(n, [p]) for n, (k, p) in inp.files.items()
+                                         if k == "ubx"}, ref_s)
+    att = sensor_attachments(sensors, ref_s, imu) if sensors or imu else None
     s = gnss_run.write_gnss_run(cfg, out_path, inp, pos_src, common, lock, extra_attachments=att,
-                                extra_inputs={f"sensors[{i}]": p for i, p in enumerate(sensors)})
-    if sensors:
-        s["sensor_logs"] = {"files": sensors, "kinds": sorted(k.split("/")[1][:-4] for k in att)}
+                                extra_inputs={f"sensors[{i}]": sensor_log_file(p) for i, p in enumerate(sensors)})
+    if sensors or imu:
+        s["sensor_logs"] = {"files": sensors + [f for a in imu_info.values() for f in a["files"]],
+                            "kinds": sorted(k.split("/")[1][:-4] for k in att)}
+    if imu_info:
+        s["receiver_imu"] = imu_info
     return s
 
 

@@ -868,7 +868,7 @@ def _simulate_sensors(cfg: StructureConfig, sim, seed: int, start_gps_s: float, 
     say(f"simulating {len(specs)} sensor log(s) …")
     logs = simulate_sensor_logs(cfg, specs, sim.time_s, disturbance_truth(cfg, sim.x), seed=seed, time_offset_s=start_gps_s)
     files = []
-    for kind in ("accel", "tilt", "gyro"):
+    for kind in ("accel", "tilt", "gyro", *sorted(set(logs) - {"accel", "tilt", "gyro", "_truth"})):   # (+ strain …)
         if kind in logs:
             write_sensor_csv(dest.path(f"{kind}.csv"), logs[kind])
             files.append(f"{kind}.csv")

@@ -51,4 +51,4 @@ def test_fusion_table():
     assert fusion_settings(cfg) == {"fuse": ("accel", "tilt"), "hold_out": ("acc-mid",)}
     assert fusion_settings(load_config("configs/tower-fusion.toml")) == {"fuse": (), "hold_out": ()}
     with pytest.raises(CdgpsError, match="fusion: expected fuse"):
-        fusion_settings(parse_config(TEXT + '\n[fusion]\nfuse = ["strain"]\n'))
+        fusion_settings(parse_config(TEXT + '\n[fusion]\nfuse = ["wind"]\n'))

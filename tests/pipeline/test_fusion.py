@@ -87,8 +87,8 @@ def test_hold_out_and_missing_logs(case):
         sensor_parts(load_config("configs/gnss-tower.toml"), [], logs, t, ("tilt",))
     with pytest.raises(CdgpsError, match="sensor acc-top: no sample of its log"):
         sensor_parts(CFG, specs, logs, t + 1000.0, ("accel",))
-    with pytest.raises(CdgpsError, match="--fuse accel,strain: unknown sensor kind"):
-        parse_fuse("accel,strain")
+    with pytest.raises(CdgpsError, match="--fuse accel,wind: unknown sensor kind"):
+        parse_fuse("accel,wind")
     assert parse_fuse("gyro, accel,gyro") == ("gyro", "accel")
 
 

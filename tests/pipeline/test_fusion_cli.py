@@ -69,7 +69,7 @@ def test_spectra_says_the_gyro_is_fused(fused):
 
 
 @pytest.mark.parametrize("args,message", [
-    (("--fuse", "accel,strain"), "--fuse accel,strain: unknown sensor kind(s) strain"),
+    (("--fuse", "accel,wind"), "--fuse accel,wind: unknown sensor kind(s) wind"),
     (("--fuse", "accel", "--hold-out", "nope"), "--hold-out: nope is not a sensor"),
     (("--hold-out", "acc-top"), "--hold-out needs --fuse"),
 ])
