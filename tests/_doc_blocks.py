@@ -228,17 +228,24 @@ def _outputs(args: list[str]) -> list[str]:
 
 
 def inventory() -> str:
-    """Per guide: cdgps commands in shell blocks, how many run, and each norun block with its reason."""
-    rows, tot, ran = [], 0, 0
+    """Per guide: cdgps commands in shell blocks, how many run, and each norun block with its reason;
+    the totals of the hand-written guides and of all."""
+    rows, tot, ran, gen = [], 0, 0, 0
     for p in GUIDES:
         shell = [b for b in blocks(p) if b.shell]
         n = sum(len(cdgps_commands(b)) for b in shell)
         r = sum(len(cdgps_commands(b)) for b in shell if not b.norun)
         tot, ran = tot + n, ran + r
-        if shell:
-            rows.append(f"{p.relative_to(ROOT)}: {r} of {n} cdgps commands run, {len(shell)} shell blocks")
+        rel = str(p.relative_to(ROOT))
+        if rel in GENERATED:
+            gen += n
+            rows.append(f"{rel}: {r} of {n} cdgps commands run here; {GENERATED[rel]}")
+        elif shell:
+            rows.append(f"{rel}: {r} of {n} cdgps commands run, {len(shell)} shell blocks")
             rows += [f"  norun {b.where} ({len(cdgps_commands(b))} cdgps): {b.norun}" for b in shell if b.norun]
-    return "\n".join(rows + [f"total: {ran} of {tot} cdgps commands in shell blocks run ({ran / max(tot, 1):.0%})"])
+    hand = tot - gen
+    return "\n".join(rows + [f"hand-written guides: {ran} of {hand} cdgps commands in shell blocks run ({ran / max(hand, 1):.0%})",
+                             f"all guides: {ran} of {tot} ({ran / max(tot, 1):.0%})"])
 
 
 if __name__ == "__main__":
