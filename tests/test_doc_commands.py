@@ -1,7 +1,8 @@
 """Every `cdgps …` command quoted in a shell block of README.md and docs/*.md names a command that
 exists and only options that command has, spelt as its help shows them (issue 33 item 3: guides
 whose commands cannot go stale; issue 32: old spellings in the demo).  Placeholders (FILE, DIR, …)
-and `[…]` optional parts are fine; the values are not run here (the demo and the chains run them)."""
+and `[…]` optional parts are fine; the values are not run here (tests/test_doc_commands_run*.py run
+every shell block not marked norun).  Fences are paired line by line (tests/_doc_blocks.py)."""
 
 from __future__ import annotations
 
@@ -12,18 +13,19 @@ from pathlib import Path
 import click
 import pytest
 
+from _doc_blocks import blocks
 from cdgps_cli.cli.commands import main
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
-FENCE = re.compile(r"```(sh|bash|console|shell|)\n(.*?)```", re.S)
 START = re.compile(r"^(?:\$\s+)?(?:\S*/)?cdgps(?:\s+|$)")
 
 
-def _invocations(text: str) -> list[list[str]]:
-    """Token lists of the cdgps commands in the shell (and plain) code blocks of a markdown text."""
+def _invocations(path: Path) -> list[list[str]]:
+    """Token lists of the cdgps commands in the code blocks of a markdown file (shell blocks, run or
+    not, and ``text`` synopses alike)."""
     out = []
-    for _, block in FENCE.findall(text):
+    for block in (b.text for b in blocks(path)):
         for line in block.replace("\\\n", " ").splitlines():
             for piece in re.split(r"&&|;|\|\|?", line.split(" #")[0]):
                 piece = piece.strip()
@@ -44,7 +46,7 @@ def _command(tokens):
     return cmd, rest
 
 
-CASES = [(p, t) for p in DOCS for t in _invocations(p.read_text())]
+CASES = [(p, t) for p in DOCS for t in _invocations(p)]
 
 
 def test_the_docs_quote_many_commands():

@@ -9,7 +9,10 @@ What is drawn, from the structure config alone (:func:`scene_geometry`):
 * **spokes** from each section pivot to the antennas and named points carried by that section;
 * **antennas** as spheres (the master in red) with their names, named points as small spheres;
 * in one message of its own (:meth:`StructureScene.fixed`): **pseudolites** as cubes at their
-  positions, or far-field transmitters as arrows from the body origin along their directions.
+  positions, or far-field transmitters as arrows from the body origin along their directions;
+* on a GNSS run, **satellites** (:class:`SatelliteSky`, from the run's broadcast geometry): an arrow
+  from the master antenna, as drawn, toward each satellite used at that epoch, with its name at the tip
+  (entity ``satellites`` of every ``/cdgps/scene`` message).
 
 Every node moves as the model says (:func:`cdgps_cli.model.kinematics.point_positions`, q = U ξ).
 The motion is drawn exaggerated: with q_r the coordinates with only the rigid-body rotation kept
@@ -42,7 +45,8 @@ any zoom that shows the structure, and fewer digits to store."""
 
 _COLORS = {"skeleton": (0.25, 0.45, 0.85, 1.0), "spoke": (0.55, 0.7, 0.95, 1.0), "antenna": (1.0, 0.6, 0.1, 1.0),
            "master": (0.9, 0.15, 0.15, 1.0), "point": (0.2, 0.7, 0.9, 1.0), "label": (1.0, 1.0, 1.0, 1.0),
-           "pseudolite": (0.2, 0.75, 0.3, 1.0), "direction": (0.6, 0.6, 0.6, 0.8)}
+           "pseudolite": (0.2, 0.75, 0.3, 1.0), "direction": (0.6, 0.6, 0.6, 0.8),
+           "satellite": (0.95, 0.85, 0.25, 0.9)}
 _IDENTITY = {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}
 
 
@@ -76,6 +80,31 @@ class SceneGeometry:
     skeleton: np.ndarray
     spokes: np.ndarray
     size_m: float
+
+
+@dataclass(frozen=True)
+class SatelliteSky:
+    """Directions toward the satellites a GNSS structure run used, epoch by epoch (structure frame).
+
+    Attributes
+    ----------
+    time_s : ndarray (M,)
+        Epochs, s (the record's time scale), increasing.
+    names : tuple of str (S,)
+        Satellites (``G05``, ``E11`` …).
+    direction : ndarray (M, S, 3)
+        Unit vectors from the master antenna toward each satellite, structure frame; NaN where the
+        satellite was not used at that epoch.
+    """
+
+    time_s: np.ndarray
+    names: tuple
+    direction: np.ndarray
+
+    def at(self, time_s) -> np.ndarray:
+        """The directions (k, S, 3) at the latest epoch at or before each time (the first before it)."""
+        j = np.searchsorted(self.time_s, np.asarray(time_s, dtype=float), side="right") - 1
+        return self.direction[np.clip(j, 0, len(self.time_s) - 1)]
 
 
 def scene_geometry(cfg) -> SceneGeometry:
@@ -231,14 +260,18 @@ class StructureScene:
     transmitters : bool
         Draw the config's transmitters (:meth:`fixed`); not on a GNSS run, where the satellites
         replace them.
+    satellites : SatelliteSky, optional
+        A GNSS run's satellite directions: arrows from the master antenna in every :meth:`updates`
+        message given its epochs' times.
     """
 
-    def __init__(self, cfg, exaggeration: float, transmitters: bool = True):
+    def __init__(self, cfg, exaggeration: float, transmitters: bool = True, satellites: SatelliteSky | None = None):
         if not (exaggeration > 0 and np.isfinite(exaggeration)):
             raise ValueError(f"scene exaggeration {exaggeration!r}: expected a finite factor > 0")
         self.cfg = cfg
         self.exaggeration = float(exaggeration)
         self.transmitters = bool(transmitters)
+        self.satellites = satellites
         self.geometry = scene_geometry(cfg)
         self.decimals = min(max(int(round(-np.log10(RESOLUTION * self.geometry.size_m))), 0), 4)
         self._constant_parts()
@@ -247,15 +280,18 @@ class StructureScene:
                          "nodes": ",".join(self.geometry.names), "size_m": f"{self.geometry.size_m:.6g}",
                          "resolution_m": f"{10.0 ** -self.decimals:g}"}
 
-    def updates(self, q: np.ndarray, stamps_ns) -> list:
+    def updates(self, q: np.ndarray, stamps_ns, time_s=None) -> list:
         """SceneUpdate messages (dicts) at the epochs of ``q`` (k, n_q), log times ``stamps_ns`` (Unix
-        ns); None where q is not finite.  (Constant parts are shared between messages: read-only.)"""
+        ns); None where q is not finite.  ``time_s`` (k,): the epochs' times, for the satellite arrows
+        (drawn when the scene has :attr:`satellites` and the times are given).  (Constant parts are
+        shared between messages: read-only.)"""
         g = self.geometry
         P = np.round(drawn_positions(self.cfg, g, q, self.exaggeration), self.decimals)
         ok = np.isfinite(P.reshape(len(P), -1)).all(axis=1).tolist()
         lifted = np.round(P[:, self._labelled, 2] + self._lift, self.decimals).tolist()
+        sky = [None] * len(P) if self.satellites is None or time_s is None else self.satellites.at(time_s)
         out = []
-        for frame, good, ns, zs in zip(P.tolist(), ok, stamps_ns, lifted):
+        for frame, good, ns, zs, dirs in zip(P.tolist(), ok, stamps_ns, lifted, sky):
             if not good:
                 out.append(None)
                 continue
@@ -264,8 +300,27 @@ class StructureScene:
             spheres = [{"pose": {"position": xyz[k], "orientation": _IDENTITY}, **rest} for k, rest in self._spheres]
             texts = [{"pose": {"position": {"x": xyz[k]["x"], "y": xyz[k]["y"], "z": z}, "orientation": _IDENTITY},
                       **rest} for (k, rest), z in zip(self._texts, zs)]
-            out.append({"deletions": [], "entities": [_entity(ns, "structure", lines=lines, spheres=spheres, texts=texts)]})
+            entities = [_entity(ns, "structure", lines=lines, spheres=spheres, texts=texts)]
+            if dirs is not None:
+                entities.append(self._satellite_entity(ns, frame[self._master], dirs))
+            out.append({"deletions": [], "entities": entities})
         return out
+
+    def _satellite_entity(self, ns: int, master_xyz, dirs: np.ndarray) -> dict:
+        """The ``satellites`` entity: arrows from the master antenna (as drawn) along ``dirs`` (S, 3),
+        the satellites not used (NaN) left out, each named at its tip."""
+        L, m = self.geometry.size_m, np.asarray(master_xyz, dtype=float)
+        arrows, texts = [], []
+        for name, u in zip(self.satellites.names, dirs):
+            if not np.isfinite(u).all():
+                continue
+            turn = {k: round(v, 6) for k, v in _direction_quaternion(u).items()}     # 1e-6: invisible, half the bytes
+            arrows.append({"pose": {"position": _xyz(m.tolist()), "orientation": turn},
+                           "shaft_length": round(0.5 * L, 3), "shaft_diameter": round(0.005 * L, 3),
+                           "head_length": round(0.1 * L, 3), "head_diameter": round(0.02 * L, 3),
+                           "color": _rgba("satellite")})
+            texts.append(_label(np.round(m + 0.65 * L * np.asarray(u, dtype=float), self.decimals), name))
+        return _entity(ns, "satellites", arrows=arrows, texts=texts)
 
     def _constant_parts(self) -> None:
         """What every :meth:`updates` message shares: line heads and node lists, sphere sizes and
@@ -279,6 +334,7 @@ class StructureScene:
             d = round(r * (2.0 if g.kinds[k] != "point" else 1.2), 4)
             self._spheres.append((k, {"size": {"x": d, "y": d, "z": d}, "color": _rgba(g.kinds[k])}))
         self._labelled = [k for k in shown if g.kinds[k] != "point"]
+        self._master = g.kinds.index("master") if "master" in g.kinds else 0
         self._lift = round(3.0 * r, 4)
         self._texts = [(k, {"billboard": True, "font_size": 14.0, "scale_invariant": True, "color": _rgba("label"),
                             "text": g.names[k]}) for k in self._labelled]

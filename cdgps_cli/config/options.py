@@ -99,6 +99,9 @@ SCENE_EXAGGERATION = "auto"
 SCENE_AUTO_FRACTION = 0.05
 #: the largest factor --scene-exaggeration takes (auto goes to 5e8): beyond, the drawn positions overflow to inf
 SCENE_EXAGGERATION_MAX = 1e9
+#: GNSS structure runs: the scene's satellite arrows (directions toward the satellites used) are taken every
+#: this many seconds of the record (a GPS satellite moves about 0.08 deg in 10 s as seen from the ground)
+SCENE_SKY_STEP_S = 10.0
 #: epochs per chunk of the filter's history on disk (cdgps estimate): its pages are dropped from memory
 #: chunk by chunk forward and backward (memory of a chunk, not of the record; the same numbers for any value).
 #: An internal setting of the library (EstimateOptions.chunk_epochs), not a command-line option.

@@ -173,7 +173,7 @@ def _write_scene(out: McapOut, scene, time_s, q: np.ndarray, block: int = 64) ->
     there (k, n_q), and the :data:`SCENE_FIXED_TOPIC` message at the first; returns how many.
 
     ``scene`` (:class:`cdgps_cli.analysis.scene.StructureScene` or the same methods) builds the
-    message dicts: ``updates(q_block, stamps_ns)`` (None where nothing is drawn), ``fixed(stamp_ns)``
+    message dicts: ``updates(q_block, stamps_ns, time_s_block)`` (None where nothing is drawn), ``fixed(stamp_ns)``
     (None: no such channel) and ``metadata`` (the channel metadata)."""
     times = np.asarray(time_s, dtype=float).tolist()
     if scene is None or not times:
@@ -186,7 +186,7 @@ def _write_scene(out: McapOut, scene, time_s, q: np.ndarray, block: int = 64) ->
     ch = out.channel(SCENE_TOPIC, schema, dict(scene.metadata))
     n = 0
     for a in range(0, len(times), block):          # small blocks: a message is ~10 kB of Python objects
-        for t, msg in zip(times[a:a + block], scene.updates(q[a:a + block], ns[a:a + block])):
+        for t, msg in zip(times[a:a + block], scene.updates(q[a:a + block], ns[a:a + block], times[a:a + block])):
             if msg is not None:
                 out.write_raw(ch, t, msg)
                 n += 1

@@ -49,7 +49,8 @@ def structure_series(res) -> StateSeries:
 
 def write_states(res, run_path: str | Path, init: dict, init_text: str, out_path: str | Path, options: dict,
                  covariance: str = DEFAULT_COVARIANCE, preview_rate_hz: float | None = None,
-                 run_sha256: str | None = None, scene_exaggeration: float | str = SCENE_EXAGGERATION) -> dict:
+                 run_sha256: str | None = None, scene_exaggeration: float | str = SCENE_EXAGGERATION,
+                 satellites=None) -> dict:
     """Write the structure estimate ``res`` to STATES.mcap atomically; returns the writer's summary.
 
     Parameters
@@ -70,6 +71,9 @@ def write_states(res, run_path: str | Path, init: dict, init_text: str, out_path
         INIT pairing); else the RUN is hashed here.
     scene_exaggeration : float or "auto"
         Factor on the deformation drawn in the 3-D scene channel (:func:`scene_for`); 0: no scene.
+    satellites : SatelliteSky, optional
+        A GNSS run's satellite directions, drawn as arrows in the scene
+        (:class:`cdgps_cli.analysis.scene.SatelliteSky`).
     """
     from cdgps_cli.model.kinematics import section_angles  # noqa: PLC0415
     from cdgps_cli.io.run import run_kind  # noqa: PLC0415 (a structure estimated on a GNSS run: GPS time)
@@ -97,7 +101,7 @@ def write_states(res, run_path: str | Path, init: dict, init_text: str, out_path
         preview_rate_hz = preview_rate_hz_for(cfg, res.time_s)
     ss = structure_series(res)
     gnss = run_kind(run_path) == "gnss"             # the config's transmitters stand for satellites: not drawn
-    scene = scene_for(cfg, ss, preview_rate_hz, scene_exaggeration, transmitters=not gnss)
+    scene = scene_for(cfg, ss, preview_rate_hz, scene_exaggeration, transmitters=not gnss, satellites=satellites)
     out = states_io.write_states(ss, out_path, meta, attachments, time_scale="gps" if gnss else "relative",
                                  covariance=covariance, preview_rate_hz=preview_rate_hz, angles=section_angles(cfg),
                                  preview=anti_alias_decimate, scene=scene, nis_bounds=nis_bounds95)
@@ -115,10 +119,11 @@ def nis_bounds95(dof):
     return np.atleast_1d(chi2_quantile(0.025, d)), np.atleast_1d(chi2_quantile(0.975, d))
 
 
-def scene_for(cfg, ss: StateSeries, preview_rate_hz: float, exaggeration: float | str, transmitters: bool = True):
+def scene_for(cfg, ss: StateSeries, preview_rate_hz: float, exaggeration: float | str, transmitters: bool = True,
+              satellites=None):
     """The 3-D scene of a structure estimate (:class:`cdgps_cli.analysis.scene.StructureScene`),
     or None when ``exaggeration`` is 0; ``transmitters``: draw the config's transmitters (not on a
-    GNSS run, where the satellites replace them).
+    GNSS run, where ``satellites``, a :class:`~cdgps_cli.analysis.scene.SatelliteSky`, replace them).
 
     ``"auto"``: :func:`cdgps_cli.analysis.scene.auto_exaggeration` on the estimate at the preview
     epochs (:data:`SCENE_AUTO_FRACTION` of the structure's size)."""
@@ -135,7 +140,7 @@ def scene_for(cfg, ss: StateSeries, preview_rate_hz: float, exaggeration: float 
     if not 0 <= exaggeration <= SCENE_EXAGGERATION_MAX:
         raise CdgpsError(f"--scene-exaggeration {exaggeration:g}: expected a factor in [0, {SCENE_EXAGGERATION_MAX:g}] "
                          "(0: no 3-D scene) or 'auto'")
-    return StructureScene(cfg, exaggeration, transmitters=transmitters) if exaggeration > 0 else None
+    return StructureScene(cfg, exaggeration, transmitters=transmitters, satellites=satellites) if exaggeration > 0 else None
 
 
 def preview_rate_hz_for(cfg, time_s) -> float:

@@ -57,7 +57,8 @@ from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli import __version__
 from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.io.coordinate_columns import coordinate_columns
-from cdgps_cli.config.options import MODAL_INIT_CODE_DD, SCENE_EXAGGERATION, SIM_MASTER_ECEF_M, X_AXIS_AZIMUTH_DEG
+from cdgps_cli.config.options import (MODAL_INIT_CODE_DD, SCENE_EXAGGERATION, SCENE_SKY_STEP_S, SIM_MASTER_ECEF_M,
+                                      X_AXIS_AZIMUTH_DEG)
 
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.measurement.differencing import joint_dd_covariance, sd_variance, select_reference
@@ -626,6 +627,7 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
         raise CdgpsError("no fixed DD integers for any rover (INIT.json's nor the modal batch initialization's); "
                          "try a longer span or 'cdgps init' without --float-only")
     model = SatelliteDDModal(cfg, R, tabs, k_of, ant_idx, d_hdr)
+    sky = satellite_sky(model, t_all) if scene_exaggeration != 0 else None
     P0 = np.diag(np.r_[np.full(nm, initial_sigma_xi**2), np.full(nm, initial_sigma_xidot**2)])
     say(f"modal EKF over {n} epochs, {len(rover_ants)} rover antenna(s), {nm} modes …")
     gate = EstimateOptions().outlier_sigma if outlier_sigma is None else float(outlier_sigma)
@@ -654,7 +656,8 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
                **_signal_options(tabs), **({"fusion": fusion.summary} if fusion is not None else {}),
                **(extra_options or {})}
     say(f"writing {out_path} …")
-    out = write_states(res, run.path, init, init_text, out_path, options, scene_exaggeration=scene_exaggeration)
+    out = write_states(res, run.path, init, init_text, out_path, options, scene_exaggeration=scene_exaggeration,
+                       satellites=sky)
     out.update({
         "placement": {"master_ecef_m": list(map(float, xm)), "x_axis_azimuth_deg": float(x_axis_azimuth_deg)},
         "receivers": mapping, "unused_receivers": unused,
@@ -665,6 +668,33 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
         **({"fusion": fusion.summary} if fusion is not None else {}),
     })
     return out
+
+
+def satellite_sky(model: SatelliteDDModal, t_all, step_s: float = SCENE_SKY_STEP_S):
+    """The directions toward the satellites the modal filter uses, for the 3-D scene
+    (:class:`cdgps_cli.analysis.scene.SatelliteSky`): at the first epoch and then every ``step_s``
+    seconds of ``t_all``, the structure-frame unit vector from the master toward each satellite whose
+    DD rows enter (fixed integers) for any rover, from the same broadcast geometry as the measurements."""
+    from cdgps_cli.analysis.scene import SatelliteSky  # noqa: PLC0415
+
+    t = np.asarray(t_all, dtype=float)
+    keep = np.unique(np.searchsorted(t, np.arange(t[0], t[-1] + step_s, step_s) if t.size else t))
+    keep = keep[keep < t.size]
+    names = sorted({tb["d"].sat_names[int(s)] for tb in model.tabs for s in np.unique(tb["d"].sat[tb["use"]])})
+    col = {n: i for i, n in enumerate(names)}
+    D = np.full((keep.size, len(names), 3), np.nan)
+    slot = np.full(t.size, -1)
+    slot[keep] = np.arange(keep.size)
+    for a, tb in enumerate(model.tabs):
+        d, k_of = tb["d"], np.asarray(model.k_of[a])
+        table_k = np.full(len(d.ptr) - 1, -1)                  # table epoch -> model epoch
+        table_k[k_of[k_of >= 0]] = np.flatnonzero(k_of >= 0)
+        row_k = table_k[np.repeat(np.arange(len(d.ptr) - 1), np.diff(d.ptr))]
+        rows = np.flatnonzero(tb["use"] & (row_k >= 0))
+        rows = rows[slot[row_k[rows]] >= 0]
+        u = (d.rover_sat_xyz[rows] - tb["xm"]) @ model.R
+        D[slot[row_k[rows]], [col[d.sat_names[int(s)]] for s in d.sat[rows]]] = u / np.linalg.norm(u, axis=1, keepdims=True)
+    return SatelliteSky(t[keep], tuple(names), D)
 
 
 def _filter_dd(model, cfg: StructureConfig, t_all, x0, P0, max_iterations: int, gate: float, smooth: bool):

@@ -157,3 +157,61 @@ def test_write_raw_refuses_missing_values(tmp_path):
         for bad in (float("nan"), None, float("inf")):
             with pytest.raises(ValueError, match="missing value"):
                 out.write_raw(ch, 2.0, {"deletions": [], "entities": [{"x": [1.0, bad]}]})
+
+
+def _turned_x(q):
+    x, y, z, w = q["x"], q["y"], q["z"], q["w"]
+    return np.array([1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)])      # R(q) e_x
+
+
+def test_satellite_arrows_start_at_the_master_and_follow_the_sky():
+    """A GNSS run's satellites: one arrow per satellite used at the epoch (NaN: not used, no arrow),
+    from the master antenna as drawn, along its direction, named at the tip; the sky's epoch is the
+    latest at or before the message's; every message still valid against the schema."""
+    from cdgps_cli.analysis.scene import SatelliteSky
+
+    cfg = load_config(CONFIGS / "gnss-tower.toml")
+    up, east = np.array([0.0, 0.0, 1.0]), np.array([0.6, 0.0, 0.8])
+    D = np.array([[up, east], [up, [np.nan] * 3]])
+    sky = SatelliteSky(np.array([0.0, 10.0]), ("G01", "E05"), D)
+    np.testing.assert_array_equal(sky.at([-1.0, 0.0, 9.9, 10.0, 99.0])[:, 1, 0], [0.6, 0.6, 0.6, np.nan, np.nan])
+    sc = StructureScene(cfg, 1.0, transmitters=False, satellites=sky)
+    q = 0.01 * np.ones((2, cfg.n_q))
+    msgs = sc.updates(q, [10**9, 2 * 10**9], [5.0, 12.0])
+    v = _validator()
+    for m in msgs:
+        assert not list(v.iter_errors(m)), list(v.iter_errors(m))[:2]
+    first, second = (m["entities"][1] for m in msgs)
+    assert first["id"] == "satellites" and [t["text"] for t in first["texts"]] == ["G01", "E05"]
+    assert [t["text"] for t in second["texts"]] == ["G01"] and len(second["arrows"]) == 1
+    g = sc.geometry
+    master = drawn_positions(cfg, g, q[:1], 1.0)[0][g.kinds.index("master")]
+    for arrow, u in zip(first["arrows"], (up, east)):
+        np.testing.assert_allclose([arrow["pose"]["position"][a] for a in "xyz"], master, atol=0.51 * 10.0 ** -sc.decimals)
+        np.testing.assert_allclose(_turned_x(arrow["pose"]["orientation"]), u, atol=1e-5)
+    assert "satellites" not in [e["id"] for e in sc.updates(q, [10**9, 2 * 10**9])[0]["entities"]]   # no times: none
+
+
+def test_satellite_sky_takes_the_used_rows_of_each_rover():
+    """satellite_sky (pipeline/gnss_modal.py) maps the rows the filter uses to (epoch, satellite)
+    directions in the structure frame, every step_s; rows not used, and rovers' missing epochs, draw nothing."""
+    from types import SimpleNamespace
+
+    from cdgps_cli.pipeline.gnss_modal import satellite_sky
+
+    R = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])      # ECEF -> structure: a quarter turn
+    xm = np.array([10.0, 0.0, 0.0])
+    sats = np.array([[10.0, 0.0, 5.0], [13.0, 4.0, 0.0], [10.0, 3.0, 4.0]])
+    d = SimpleNamespace(ptr=np.array([0, 2, 4, 5]), sat=np.array([0, 1, 0, 2, 2]), sat_names=["G01", "G02", "G03"],
+                        rover_sat_xyz=sats[[0, 1, 0, 2, 2]])
+    tb = {"d": d, "use": np.array([True, False, True, False, True]), "xm": xm}
+    model = SimpleNamespace(tabs=[tb], k_of=[np.array([0, -1, 1, 2])], R=R)      # model epoch 1: the rover has none
+    sky = satellite_sky(model, np.array([0.0, 1.0, 2.0, 3.0]), step_s=1.0)
+    assert sky.names == ("G01", "G03") and sky.time_s.tolist() == [0.0, 1.0, 2.0, 3.0]
+    u = lambda s: (sats[s] - xm) @ R / np.linalg.norm(sats[s] - xm)           # noqa: E731
+    np.testing.assert_allclose(sky.direction[0, 0], u(0))                      # G02 is not used anywhere
+    assert np.isnan(sky.direction[1]).all()                                    # no rows at model epoch 1
+    np.testing.assert_allclose(sky.direction[2, 0], u(0))
+    assert np.isnan(sky.direction[2, 1]).all()                                 # G03 not used at that epoch
+    np.testing.assert_allclose(sky.direction[3, 1], u(2))
+    assert satellite_sky(model, np.array([0.0, 1.0, 2.0, 3.0]), step_s=2.0).time_s.tolist() == [0.0, 2.0]

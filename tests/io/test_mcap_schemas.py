@@ -290,6 +290,18 @@ def test_structure_on_a_gnss_run_opens_everywhere(tmp_path):
     with open(tmp_path / "states.mcap", "rb") as fh:
         _, ch, _ = next(make_reader(fh).iter_messages(topics=["/cdgps/state"]))
     assert ch.metadata["time_scale"] == "gps"
+    # the satellites used, as arrows from the master toward them: every one above the 15° mask
+    # (the structure frame's z is up), each named as RINEX names it
+    with open(tmp_path / "states.mcap", "rb") as fh:
+        rd = make_reader(fh)
+        sky = [json.loads(m.data)["entities"][1] for _, _, m in rd.iter_messages(topics=[SCENE_TOPIC])]
+    assert all(e["id"] == "satellites" and len(e["arrows"]) >= 5 for e in sky)
+    for e in (sky[0], sky[-1]):
+        for arrow in e["arrows"]:
+            o = arrow["pose"]["orientation"]
+            up = 2 * (o["x"] * o["z"] - o["w"] * o["y"])                      # z of R(q) e_x
+            assert up > np.sin(np.radians(15.0)) - 1e-9, arrow
+        assert all(re.fullmatch(r"G\d\d", x["text"]) for x in e["texts"]) and len(e["texts"]) == len(e["arrows"])
 
 
 def test_ubx_run_opens_everywhere(tmp_path):
