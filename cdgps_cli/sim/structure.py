@@ -232,28 +232,57 @@ def simulate(cfg: StructureConfig, opt: SimOptions, trajectory=None) -> Simulati
     Simulation
     """
     _validate(cfg, opt, closed_loop=trajectory is not None)
-    sim = cfg.simulation
     rng = np.random.default_rng(opt.seed)
     model = discrete_model(cfg)
     T = cfg.sample_period_s
     n = int(round(opt.duration_s / T)) + 1
     time_s = np.round(np.arange(n) * T, 9)
+    w = _disturbance(cfg, opt, rng, n, model.Bw.shape[1])
+    x0 = _initial_state(cfg, opt, rng)
+    u, actuators = _thruster_commands(cfg, opt, time_s)
+    extra = {}
+    if trajectory is not None:
+        noise_m = _phase_noise(cfg, opt, copy.deepcopy(rng), n, len(all_channels(cfg)[0]))
+        x, actuators, extra = trajectory(time_s, x0, w, noise_m)
+    else:
+        x = _propagate(model, x0, u, w)
+    U = np.asarray(cfg.mode_shapes)
+    q = x[:, :cfg.n_modes] @ U.T
+    qdot = x[:, cfg.n_modes:] @ U.T
+    truth = {"scenario": opt.scenario, "seed": opt.seed, "duration_s": float(time_s[-1]),
+             "sample_period_s": T, "config": cfg.name, "config_sha256": cfg.sha256,
+             "coordinates": dict(zip(cfg.coord_names, cfg.coord_kinds))}   # kinds: the reports' limits per coordinate
+    if opt.scenario == "static":
+        q, qdot, x, truth["segments"] = _static_rest(cfg, time_s, q, qdot)
+    else:
+        truth["segments"] = _segments(cfg, opt, time_s)
+    truth.update(extra)
+    receiver, truth["biases"], truth["slips"] = _phase_log(cfg, opt, rng, time_s, q)
+    truth.update(_noise_scale_truth(cfg, opt))
+    gyro, truth["gyros"] = _gyro_log(cfg, rng, time_s, qdot)
+    return Simulation(cfg, opt, time_s, q, x, receiver, gyro, actuators, truth)
+
+
+def _disturbance(cfg: StructureConfig, opt: SimOptions, rng, n: int, n_w: int) -> np.ndarray:
+    """The true disturbance input, (n, n_w): the config's process noise scaled by
+    ``disturbance_scale`` (white, or correlated ``w = L z`` with W = L Lᵀ)."""
+    dscale = cfg.simulation["disturbance_scale"] if opt.disturbance_scale is None else opt.disturbance_scale
+    w = rng.standard_normal((n, n_w))
+    if cfg.process_noise_covariance is None:
+        w *= dscale * np.asarray(cfg.process_noise_sigma)
+    else:
+        w = w @ (dscale * cfg.process_noise_factor).T
+    return w
+
+
+def _initial_state(cfg: StructureConfig, opt: SimOptions, rng) -> np.ndarray:
+    """The initial modal state (2 n_m): random modal amplitudes and rates for free and static, nearly
+    at rest otherwise (slew: the rigid-body angle at ``slew_from_deg``)."""
+    sim = cfg.simulation
     nm = cfg.n_modes
     U = np.asarray(cfg.mode_shapes)
     rigid_mode = np.asarray(cfg.mode_frequency_hz) == 0.0
     omega = 2 * np.pi * np.asarray(cfg.mode_frequency_hz)
-
-    # ---- inputs: disturbance and thruster commands
-    n_w = model.Bw.shape[1]
-    dscale = sim["disturbance_scale"] if opt.disturbance_scale is None else opt.disturbance_scale
-    w = rng.standard_normal((n, n_w))
-    if cfg.process_noise_covariance is None:
-        w *= dscale * np.asarray(cfg.process_noise_sigma)
-    else:                                   # correlated forcing: w = L z with W = L Lᵀ
-        w = w @ (dscale * cfg.process_noise_factor).T
-    n_u = len(cfg.thruster_names)
-    u = np.zeros((n, n_u))
-    actuators = None
     x0 = np.zeros(2 * nm)
     amp = np.where(rigid_mode, 0.0, sim["initial_modal_sigma"])
     if opt.scenario in ("free", "static"):
@@ -267,85 +296,95 @@ def simulate(cfg: StructureConfig, opt: SimOptions, trajectory=None) -> Simulati
         x0[:nm] = rng.standard_normal(nm) * amp * 0.02       # nearly at rest
         if opt.scenario == "slew":
             x0[:nm][rigid_mode] = np.radians(sim["slew_from_deg"]) / U[cfg.rigid_index, rigid_mode]
-        names = list(cfg.thruster_names)
-        t0, dur, f = sim["pulse_time_s"], sim["pulse_duration_s"], sim["pulse_force_n"]
-        on = (time_s >= t0 - 1e-9) & (time_s < t0 + dur - 1e-9)
-        rows = []
-        for tname in (sim["pulse_thrusters"] if opt.scenario == "pulse" else []):
-            k = names.index(tname)
-            u[on, k] = f
-            rows.append((t0, tname, f))
-            rows.append((t0 + dur, tname, 0.0))
-        rows.sort(key=lambda r: (r[0], names.index(r[1])))
-        actuators = pd.DataFrame(rows, columns=["time_s", "actuator", "force_n"])
+    return x0
 
-    # ---- propagate the modal state (ZOH on u and w), or run the closed loop
-    extra = {}
-    if trajectory is not None:
-        noise_m = _phase_noise(cfg, opt, copy.deepcopy(rng), n, len(all_channels(cfg)[0]))
-        x, actuators, extra = trajectory(time_s, x0, w, noise_m)
-    else:
-        x = np.empty((n, 2 * nm))
-        x[0] = x0
-        drive = u @ model.B.T + w @ model.Bw.T
-        A_T = model.A.T
-        for k in range(1, n):
-            x[k] = x[k - 1] @ A_T + drive[k - 1]
-    q = x[:, :nm] @ U.T
-    qdot = x[:, nm:] @ U.T
 
-    truth = {"scenario": opt.scenario, "seed": opt.seed, "duration_s": float(time_s[-1]),
-             "sample_period_s": T, "config": cfg.name, "config_sha256": cfg.sha256,
-             "coordinates": dict(zip(cfg.coord_names, cfg.coord_kinds))}   # kinds: the reports' limits per coordinate
-    segments = [{"kind": "motion", "start_s": 0.0, "end_s": float(time_s[-1])}]
-    if opt.scenario == "static":
-        t_rest, t_settle = sim["static_rest_after_s"], sim["static_settle_s"]
-        target = np.zeros(cfg.n_q)
-        if sim["static_angle_coordinate"]:
-            target[cfg.coord_names.index(sim["static_angle_coordinate"])] = np.radians(sim["static_angle_deg"])
-        s = np.clip((time_s - t_rest) / max(t_settle, 1e-9), 0.0, 1.0)
-        blend = 0.5 - 0.5 * np.cos(np.pi * s)                 # smooth 0 → 1
-        dblend = np.where((s > 0) & (s < 1), 0.5 * np.pi * np.sin(np.pi * s) / max(t_settle, 1e-9), 0.0)
-        q_free = q
-        q = (1 - blend)[:, None] * q_free + blend[:, None] * target
-        qdot = (1 - blend)[:, None] * qdot + dblend[:, None] * (target - q_free)
-        Uinv = np.linalg.pinv(U)
-        x = np.hstack([q @ Uinv.T, qdot @ Uinv.T])
-        end = float(time_s[-1])
-        rest_start = t_rest + t_settle
-        segments = [{"kind": "motion", "start_s": 0.0, "end_s": float(min(t_rest, end))}]
-        if t_rest < end:
-            segments.append({"kind": "settling", "start_s": float(t_rest), "end_s": float(min(rest_start, end))})
-        if rest_start < end:
-            segments.append({"kind": "rest", "start_s": float(rest_start), "end_s": end,
-                             "q": {nme: float(v) for nme, v in zip(cfg.coord_names, target)}})
-    elif opt.scenario == "pulse":
-        segments = [{"kind": "rest", "start_s": 0.0, "end_s": float(sim["pulse_time_s"])},
-                    {"kind": "pulse", "start_s": float(sim["pulse_time_s"]),
-                     "end_s": float(sim["pulse_time_s"] + sim["pulse_duration_s"]),
-                     "thrusters": list(sim["pulse_thrusters"]), "force_n": float(sim["pulse_force_n"])},
-                    {"kind": "free", "start_s": float(sim["pulse_time_s"] + sim["pulse_duration_s"]), "end_s": float(time_s[-1])}]
-    elif opt.scenario == "slew":
-        segments = [{"kind": "rest", "start_s": 0.0, "end_s": float(sim["slew_time_s"]),
-                     "rigid_angle_deg": float(sim["slew_from_deg"])},
-                    {"kind": "slew", "start_s": float(sim["slew_time_s"]), "end_s": float(time_s[-1]),
-                     "command_deg": float(sim["slew_to_deg"])}]
-    truth["segments"] = segments
-    truth.update(extra)
+def _thruster_commands(cfg: StructureConfig, opt: SimOptions, time_s: np.ndarray):
+    """(thruster forces (N, n_u) N, the actuator log or None): the pulse scenario fires the
+    config's ``pulse_thrusters``; pulse and slew get a (possibly empty) log, free and static none."""
+    sim = cfg.simulation
+    names = list(cfg.thruster_names)
+    u = np.zeros((len(time_s), len(names)))
+    if opt.scenario in ("free", "static"):
+        return u, None
+    t0, dur, f = sim["pulse_time_s"], sim["pulse_duration_s"], sim["pulse_force_n"]
+    on = (time_s >= t0 - 1e-9) & (time_s < t0 + dur - 1e-9)
+    rows = []
+    for tname in (sim["pulse_thrusters"] if opt.scenario == "pulse" else []):
+        k = names.index(tname)
+        u[on, k] = f
+        rows.append((t0, tname, f))
+        rows.append((t0 + dur, tname, 0.0))
+    rows.sort(key=lambda r: (r[0], names.index(r[1])))
+    return u, pd.DataFrame(rows, columns=["time_s", "actuator", "force_n"])
 
-    receiver, bias_records, slip_records = _phase_log(cfg, opt, rng, time_s, q)
-    truth["biases"] = bias_records
-    truth["slips"] = slip_records
-    if opt.noise_scale:
-        ant, tx = all_channels(cfg)
-        s0 = cfg.simulation["phase_sigma_m"] if opt.phase_sigma_m is None else opt.phase_sigma_m
-        f = noise_scale_per_channel(cfg, opt.noise_scale, ant, tx)
-        truth["noise_scale"] = dict(opt.noise_scale)
-        truth["phase_sigma_m_per_channel"] = {f"{cfg.antenna_names[a]}/{cfg.transmitter_names[t]}": float(s0 * v)
-                                              for a, t, v in zip(ant, tx, f)}
-    gyro, gyro_truth = _gyro_log(cfg, rng, time_s, qdot)
-    truth["gyros"] = gyro_truth
-    return Simulation(cfg, opt, time_s, q, x, receiver, gyro, actuators, truth)
+
+def _propagate(model, x0: np.ndarray, u: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """The open-loop modal state (N, 2 n_m), zero-order hold on ``u`` and ``w``."""
+    x = np.empty((len(u), x0.size))
+    x[0] = x0
+    drive = u @ model.B.T + w @ model.Bw.T
+    A_T = model.A.T
+    for k in range(1, len(u)):
+        x[k] = x[k - 1] @ A_T + drive[k - 1]
+    return x
+
+
+def _static_rest(cfg: StructureConfig, time_s: np.ndarray, q: np.ndarray, qdot: np.ndarray):
+    """The static scenario: the free motion blended smoothly into rest at the surveyed angle.
+    Returns (q, qdot, modal state x, truth segments: motion, settling, rest)."""
+    sim = cfg.simulation
+    t_rest, t_settle = sim["static_rest_after_s"], sim["static_settle_s"]
+    target = np.zeros(cfg.n_q)
+    if sim["static_angle_coordinate"]:
+        target[cfg.coord_names.index(sim["static_angle_coordinate"])] = np.radians(sim["static_angle_deg"])
+    s = np.clip((time_s - t_rest) / max(t_settle, 1e-9), 0.0, 1.0)
+    blend = 0.5 - 0.5 * np.cos(np.pi * s)                 # smooth 0 → 1
+    dblend = np.where((s > 0) & (s < 1), 0.5 * np.pi * np.sin(np.pi * s) / max(t_settle, 1e-9), 0.0)
+    q_free = q
+    q = (1 - blend)[:, None] * q_free + blend[:, None] * target
+    qdot = (1 - blend)[:, None] * qdot + dblend[:, None] * (target - q_free)
+    Uinv = np.linalg.pinv(np.asarray(cfg.mode_shapes))
+    x = np.hstack([q @ Uinv.T, qdot @ Uinv.T])
+    end = float(time_s[-1])
+    rest_start = t_rest + t_settle
+    segments = [{"kind": "motion", "start_s": 0.0, "end_s": float(min(t_rest, end))}]
+    if t_rest < end:
+        segments.append({"kind": "settling", "start_s": float(t_rest), "end_s": float(min(rest_start, end))})
+    if rest_start < end:
+        segments.append({"kind": "rest", "start_s": float(rest_start), "end_s": end,
+                         "q": {nme: float(v) for nme, v in zip(cfg.coord_names, target)}})
+    return q, qdot, x, segments
+
+
+def _segments(cfg: StructureConfig, opt: SimOptions, time_s: np.ndarray) -> list[dict]:
+    """truth.json segments of the free, pulse and slew scenarios."""
+    sim = cfg.simulation
+    end = float(time_s[-1])
+    if opt.scenario == "pulse":
+        t0, t1 = float(sim["pulse_time_s"]), float(sim["pulse_time_s"] + sim["pulse_duration_s"])
+        return [{"kind": "rest", "start_s": 0.0, "end_s": t0},
+                {"kind": "pulse", "start_s": t0, "end_s": t1,
+                 "thrusters": list(sim["pulse_thrusters"]), "force_n": float(sim["pulse_force_n"])},
+                {"kind": "free", "start_s": t1, "end_s": end}]
+    if opt.scenario == "slew":
+        return [{"kind": "rest", "start_s": 0.0, "end_s": float(sim["slew_time_s"]),
+                 "rigid_angle_deg": float(sim["slew_from_deg"])},
+                {"kind": "slew", "start_s": float(sim["slew_time_s"]), "end_s": end,
+                 "command_deg": float(sim["slew_to_deg"])}]
+    return [{"kind": "motion", "start_s": 0.0, "end_s": end}]
+
+
+def _noise_scale_truth(cfg: StructureConfig, opt: SimOptions) -> dict:
+    """truth.json: the ``--noise-scale`` factors and the white phase σ of every channel (empty without them)."""
+    if not opt.noise_scale:
+        return {}
+    ant, tx = all_channels(cfg)
+    s0 = cfg.simulation["phase_sigma_m"] if opt.phase_sigma_m is None else opt.phase_sigma_m
+    f = noise_scale_per_channel(cfg, opt.noise_scale, ant, tx)
+    return {"noise_scale": dict(opt.noise_scale),
+            "phase_sigma_m_per_channel": {f"{cfg.antenna_names[a]}/{cfg.transmitter_names[t]}": float(s0 * v)
+                                          for a, t, v in zip(ant, tx, f)}}
 
 
 def _phase_log(cfg, opt, rng, time_s, q):
