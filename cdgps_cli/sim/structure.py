@@ -84,6 +84,32 @@ class SimOptions:
     noise_scale: dict = field(default_factory=dict)   # {antenna or transmitter name: factor on the white noise σ}
 
 
+def check_receiver_epochs(duration_s: float, sample_period_s: float, gnss_interval_s: float | None = None) -> int:
+    """Receiver epochs of ``simulate-gnss-structure``: the structure is simulated at ``sample_period_s``
+    for ``duration_s`` and every ``gnss_interval_s`` (default: the sample period) becomes a receiver epoch.
+
+    Returns
+    -------
+    int
+        The epoch count; CdgpsError naming ``--gnss-interval`` (or ``--duration``) if it is below 2
+        (one epoch makes no phase track).  An interval that is no whole multiple of the sample
+        period is left to :func:`~cdgps_cli.pipeline.gnss_modal.simulate_structure_gnss`, which refuses it.
+    """
+    T = float(sample_period_s)
+    interval = T if gnss_interval_s is None else float(gnss_interval_s)
+    if not (np.isfinite(duration_s) and duration_s > 0 and np.isfinite(interval) and interval > 0):
+        return 0
+    step = max(int(round(interval / T)), 1)
+    n_truth = int(round(duration_s / T)) + 1
+    n = len(range(0, n_truth, step))
+    if n < 2:
+        what = (f"--gnss-interval {interval:g} s" if gnss_interval_s is not None
+                else f"--duration {duration_s:g} s at the config's sample_period_s {T:g} s")
+        raise CdgpsError(f"{what}: leaves {n} receiver epoch(s) in --duration {duration_s:g} s; expected at least 2 "
+                         f"(an interval of at most {(n_truth - 1) * T:g} s, or a longer --duration)")
+    return n
+
+
 def parse_noise_scale(text: str) -> tuple[str, float]:
     """``NAME:FACTOR`` (``--noise-scale a3:5``) → (name, factor): the white phase noise of every channel
     of antenna or transmitter NAME is multiplied by FACTOR (> 0)."""
