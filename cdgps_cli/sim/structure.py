@@ -414,7 +414,8 @@ def _noise_scale_truth(cfg: StructureConfig, opt: SimOptions) -> dict:
 
 
 def _phase_log(cfg, opt, rng, time_s, q):
-    sim = cfg.simulation
+    """The receiver log (carrier phase, lock count, SNR per visible channel and epoch), the initial
+    bias of every channel and its slip/relock events."""
     lam = cfg.wavelength_m
     n = len(time_s)
     ant, tx = all_channels(cfg)
@@ -424,13 +425,39 @@ def _phase_log(cfg, opt, rng, time_s, q):
     line_bias = cfg.antenna_line_bias_m[ant] - cfg.antenna_line_bias_m[cfg.master_index]
     ant_names = np.array(cfg.antenna_names, dtype=object)[ant]
     tx_names = np.array(cfg.transmitter_names, dtype=object)[tx]
+    visible = _visibility(cfg, opt, time_s, tx)
+    slip_at = _slip_schedule(cfg, opt, rng, time_s, C)
+    y = h + line_bias + noise                                   # range + line bias + error, m (N, C)
+    phase = np.empty((n, C))
+    lock = np.zeros((n, C), dtype=np.int64)
+    bias_records, slip_records = [], []
+    for c in range(C):
+        names = {"antenna": ant_names[c], "transmitter": tx_names[c]}
+        integers, lock[:, c], events = _channel_integers(y[:, c], lam, visible[:, c], slip_at.get(c, []))
+        bias_records.append({**names, "bias_m": float(line_bias[c] + lam * integers[0]),
+                             "integer_cycles": int(integers[0]), "line_bias_m": float(line_bias[c])})
+        slip_records += [{"time_s": float(time_s[k]), **names, "kind": kind, "integer_cycles_before": before,
+                          "integer_cycles_after": new, "bias_m": float(line_bias[c] + lam * new)}
+                         for k, kind, before, new in events]
+        phase[:, c] = y[:, c] / lam + integers
+    slip_records.sort(key=lambda r: (r["time_s"], r["antenna"], r["transmitter"]))
+    return _receiver_table(cfg, rng, time_s, phase, lock, visible, ant_names, tx_names), bias_records, slip_records
 
-    visible = np.ones((n, C), dtype=bool)
+
+def _visibility(cfg, opt, time_s, tx) -> np.ndarray:
+    """(N, C) bool: every channel visible but during its transmitter's outages."""
+    visible = np.ones((len(time_s), len(tx)), dtype=bool)
     for o in opt.outages:
         j = cfg.transmitter_names.index(o.transmitter)
         off = (time_s >= o.start_s - 1e-9) & (time_s < o.start_s + o.duration_s - 1e-9)
         visible[np.ix_(off, tx == j)] = False
-    # cycle slips: explicit plus random ones (random channel, time, ±1..5 cycles)
+    return visible
+
+
+def _slip_schedule(cfg, opt, rng, time_s, C: int) -> dict:
+    """{channel: [(epoch, cycles), …]}: the explicit slips plus random ones (random channel, time,
+    ±1..5 cycles), each at the first epoch at or after its time (none at the first epoch)."""
+    n = len(time_s)
     slips = [(s.time_s, cfg.rover_names.index(s.antenna) * len(cfg.transmitter_names)
               + cfg.transmitter_names.index(s.transmitter), s.cycles) for s in opt.slips]
     for _ in range(opt.random_slips):
@@ -443,44 +470,37 @@ def _phase_log(cfg, opt, rng, time_s, q):
         k = int(np.searchsorted(time_s, t - 1e-9))
         if 0 < k < n:
             slip_at.setdefault(c, []).append((k, cyc))
+    return slip_at
 
-    phase = np.empty((n, C))
-    lock = np.zeros((n, C), dtype=np.int64)
-    bias_records, slip_records = [], []
-    idx = np.arange(n)
-    for c in range(C):
-        # lock segments: contiguous visible runs; a slip splits a run without losing signal
-        vis = visible[:, c]
-        starts = list(np.flatnonzero(vis & ~np.r_[False, vis[:-1]]))
-        events = sorted([(k, "reacquisition", 0) for k in starts[1:]] + [(k, "slip", cyc) for k, cyc in slip_at.get(c, []) if vis[k]])
-        k0 = starts[0] if starts else 0
-        y0 = h[k0, c] + line_bias[c] + noise[k0, c]
-        integer = -int(np.floor(np.round(y0 / lam, 6)))   # phase at lock, as written, in [0, 1)
-        bias_records.append({"antenna": ant_names[c], "transmitter": tx_names[c],
-                             "bias_m": float(line_bias[c] + lam * integer), "integer_cycles": integer,
-                             "line_bias_m": float(line_bias[c])})
-        integers = np.full(n, integer, dtype=np.int64)
-        lock_start = np.full(n, k0)
-        for k, kind, cyc in events:
-            before = int(integers[k])
-            if kind == "slip":
-                new = before + cyc
-            else:
-                y = h[k, c] + line_bias[c] + noise[k, c]
-                new = -int(np.floor(np.round(y / lam, 6)))
-            integers[k:] = new
-            lock_start[k:] = k
-            slip_records.append({"time_s": float(time_s[k]), "antenna": ant_names[c], "transmitter": tx_names[c],
-                                 "kind": kind, "integer_cycles_before": before, "integer_cycles_after": new,
-                                 "bias_m": float(line_bias[c] + lam * new)})
-        phase[:, c] = (h[:, c] + line_bias[c] + noise[:, c]) / lam + integers
-        lock[:, c] = idx - lock_start
-    slip_records.sort(key=lambda r: (r["time_s"], r["antenna"], r["transmitter"]))
 
-    snr = np.round(sim["snr_dbhz"] + rng.standard_normal((n, C)), 1)
+def _channel_integers(y: np.ndarray, lam: float, vis: np.ndarray, slips: list):
+    """One channel's integer ambiguity per epoch (N,) int64, its lock count (N,) and its events
+    ``(epoch, "slip" | "reacquisition", integer before, after)``.  Lock segments are the contiguous
+    visible runs; a slip splits a run without losing signal; at each lock the integer makes the
+    phase as written lie in [0, 1) cycles."""
+    n = len(y)
+    starts = list(np.flatnonzero(vis & ~np.r_[False, vis[:-1]]))
+    todo = sorted([(k, "reacquisition", 0) for k in starts[1:]] + [(k, "slip", cyc) for k, cyc in slips if vis[k]])
+    k0 = starts[0] if starts else 0
+    integers = np.full(n, -int(np.floor(np.round(y[k0] / lam, 6))), dtype=np.int64)
+    lock_start = np.full(n, k0)
+    events = []
+    for k, kind, cyc in todo:
+        before = int(integers[k])
+        new = before + cyc if kind == "slip" else -int(np.floor(np.round(y[k] / lam, 6)))
+        integers[k:] = new
+        lock_start[k:] = k
+        events.append((k, kind, before, new))
+    return integers, np.arange(n) - lock_start, events
+
+
+def _receiver_table(cfg, rng, time_s, phase, lock, visible, ant_names, tx_names) -> pd.DataFrame:
+    """receiver.csv: a row per visible channel and epoch, SNR the config's ``snr_dbhz`` ± 1 dB-Hz."""
+    n, C = phase.shape
+    snr = np.round(cfg.simulation["snr_dbhz"] + rng.standard_normal((n, C)), 1)
     rx_of = {a: cfg.antenna_receiver[i] for i, a in enumerate(cfg.antenna_names)}
     mask = visible.ravel()
-    df = pd.DataFrame({
+    return pd.DataFrame({
         "time_s": np.repeat(time_s, C)[mask],
         "receiver": np.tile(np.array([rx_of[a] for a in ant_names], dtype=object), n)[mask],
         "master": cfg.antenna_names[cfg.master_index],
@@ -490,7 +510,6 @@ def _phase_log(cfg, opt, rng, time_s, q):
         "lock": lock.ravel()[mask],
         "snr_dbhz": snr.ravel()[mask],
     })
-    return df, bias_records, slip_records
 
 
 def _phase_noise(cfg, opt, rng, n, C):
