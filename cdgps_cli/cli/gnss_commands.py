@@ -195,12 +195,14 @@ def simulate_gnss_structure_cmd(ctx, config, duration_s, seed, x_axis_azimuth_de
     from cdgps_cli.config.structure import load_config
     from cdgps_cli.pipeline.gnss_modal import simulate_structure_gnss
     from cdgps_cli.sim.gnss import DEFAULT_MASTER_XYZ, parse_vector
+    from cdgps_cli.sim.structure import check_receiver_epochs
 
     if not duration_s > 0:
         raise CdgpsError(f"--duration must be positive, got {duration_s:g}")
     if not -360.0 <= x_axis_azimuth_deg <= 360.0:
         raise CdgpsError(f"--x-axis-azimuth-deg must be in [-360, 360], got {x_axis_azimuth_deg:g}")
     cfg = load_config(config)
+    check_receiver_epochs(duration_s, cfg.sample_period_s, gnss_interval_s)
     s = simulate_structure_gnss(
         out_dir, cfg, master_ecef_m=parse_vector(master_xyz, "--master-xyz") if master_xyz else DEFAULT_MASTER_XYZ,
         x_axis_azimuth_deg=x_axis_azimuth_deg, duration_s=duration_s, seed=seed,

@@ -21,6 +21,7 @@ import os
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -620,122 +621,142 @@ def parse_config(text: str, path: str = "<config>") -> StructureConfig:
     p.problems += ranges                                # later checks guarded by `not p.problems` skip
     p.keys(doc, "", *_keys(""))
     ctx = Context()
-    _, model = _table(p, doc, "model", ctx)
+    r = SimpleNamespace()                               # the checked tables, in the order they are read
+    _, r.model = _table(p, doc, "model", ctx)
+    _read_frame(p, doc, ctx, r)
+    _read_antennas_transmitters(p, doc, ctx, r)
+    _read_modes(p, doc, ctx, r)
+    _read_gyros(p, doc, ctx, r)
+    _read_channels_points_thrusters(p, doc, ctx, r)
+    _raise_problems(p, ranges, "invalid config")
+    return StructureConfig(path=path, text=text, sha256=hashlib.sha256(text.encode("utf-8")).hexdigest(),
+                           **_model_fields(r.model), **_frame_fields(r), **_antenna_transmitter_fields(r),
+                           **_mode_fields(r), **_sensor_fields(r))
 
-    coords = _entries(p, doc, "coordinates", ctx, required=True)
-    coord_names = _named(p, coords, "coordinates", ctx)
-    ctx.coord_kinds = [v["kind"] for _, _, v in coords]
-    ctx.sizes["coordinates"] = n_q = len(coord_names)
-    _, body = _table(p, doc, "body", ctx)
-    rigid_index = body["rigid_rotation"]
-    sections = _sections(p, doc, ctx)
 
-    ants = _entries(p, doc, "antennas", ctx, required=True)
-    a_names = _named(p, ants, "antennas", ctx)
-    masters = _master(p, ants)
+def _read_frame(p: Problems, doc: dict, ctx: Context, r: SimpleNamespace) -> None:
+    """[[coordinates]], [body] and [[sections]] into ``r`` (coords, coord_names, body, rigid_index, sections)."""
+    r.coords = _entries(p, doc, "coordinates", ctx, required=True)
+    r.coord_names = _named(p, r.coords, "coordinates", ctx)
+    ctx.coord_kinds = r.coord_kinds = [v["kind"] for _, _, v in r.coords]
+    ctx.sizes["coordinates"] = r.n_q = len(r.coord_names)
+    _, r.body = _table(p, doc, "body", ctx)
+    r.rigid_index = r.body["rigid_rotation"]
+    r.sections = _sections(p, doc, ctx)
 
-    txs = _entries(p, doc, "transmitters", ctx, required=True)
-    t_names = _named(p, txs, "transmitters", ctx)
-    t_pos, far = zip(*[_transmitter_position(p, key, t, v) for key, t, v in txs]) if txs else ((), ())
-    if far and len(set(far)) > 1:
+
+def _read_antennas_transmitters(p: Problems, doc: dict, ctx: Context, r: SimpleNamespace) -> None:
+    """[[antennas]] (one master) and [[transmitters]] (all near- or all far-field) into ``r``."""
+    r.ants = _entries(p, doc, "antennas", ctx, required=True)
+    r.a_names = _named(p, r.ants, "antennas", ctx)
+    r.masters = _master(p, r.ants)
+    r.txs = _entries(p, doc, "transmitters", ctx, required=True)
+    r.t_names = _named(p, r.txs, "transmitters", ctx)
+    r.t_pos, r.far = zip(*[_transmitter_position(p, key, t, v) for key, t, v in r.txs]) if r.txs else ((), ())
+    if r.far and len(set(r.far)) > 1:
         p.add("transmitters", "mixing near-field (position_m) and far-field (direction) transmitters is not supported")
 
-    modes = _entries(p, doc, "modes", ctx, required=True)
-    m_f = [_mode_frequency(p, key, m, v) for key, m, v in modes]
-    m_tau, m_zeta = zip(*[_mode_damping(p, key, m, v, f) for (key, m, v), f in zip(modes, m_f)]) if modes else ((), ())
-    m_names = _named(p, modes, "modes", ctx)
-    U = np.array([v["shape"] for _, _, v in modes]).T if modes else np.zeros((n_q, 0))
-    if modes and not p.problems:
-        _independent_shapes(p, U)
 
+def _read_modes(p: Problems, doc: dict, ctx: Context, r: SimpleNamespace) -> None:
+    """[[modes]] (frequency, damping, independent shapes) and [process_noise] (modal or coordinate space) into ``r``."""
+    modes = _entries(p, doc, "modes", ctx, required=True)
+    r.m_f = [_mode_frequency(p, key, m, v) for key, m, v in modes]
+    r.m_tau, r.m_zeta = zip(*[_mode_damping(p, key, m, v, f) for (key, m, v), f in zip(modes, r.m_f)]) if modes else ((), ())
+    r.m_names = _named(p, modes, "modes", ctx)
+    r.U = np.array([v["shape"] for _, _, v in modes]).T if modes else np.zeros((r.n_q, 0))
+    if modes and not p.problems:
+        _independent_shapes(p, r.U)
     pn_given = doc.get("process_noise", {})
     space = pn_given.get("space", "modal") if isinstance(pn_given, dict) else "modal"
-    space = space if space in ("modal", "coordinates") else "modal"
-    ctx.sizes["process_noise"] = len(m_names) if space == "modal" else n_q
+    r.pn_space = space if space in ("modal", "coordinates") else "modal"
+    ctx.sizes["process_noise"] = len(r.m_names) if r.pn_space == "modal" else r.n_q
     pn, pn_vals = _table(p, doc, "process_noise", ctx)
-    pn_sigma, pn_cov = _process_noise(p, pn, pn_vals, ctx.sizes["process_noise"], space)
+    r.pn_sigma, r.pn_cov = _process_noise(p, pn, pn_vals, ctx.sizes["process_noise"], r.pn_space)
 
+
+def _read_gyros(p: Problems, doc: dict, ctx: Context, r: SimpleNamespace) -> None:
+    """[[gyros]] (mounts, and that they observe the rigid rotation) into ``r``."""
     gyros = _entries(p, doc, "gyros", ctx)
     _gyro_mounts(p, gyros)
-    g_names = _named(p, gyros, "gyros", ctx)
-    g_sec = [v["section"] for _, _, v in gyros]
-    g_axis = [np.asarray(v["axis"], dtype=float) for _, _, v in gyros]
-    g_rot = [v["rotation_rad"] for _, _, v in gyros]
-    if g_names and not p.problems:
-        _check_gyros_observe(p, sections, g_sec, g_axis, g_rot, rigid_index, U, coord_names, m_names)
+    r.g_names = _named(p, gyros, "gyros", ctx)
+    r.g_sec = [v["section"] for _, _, v in gyros]
+    r.g_axis = [np.asarray(v["axis"], dtype=float) for _, _, v in gyros]
+    r.g_rot = [v["rotation_rad"] for _, _, v in gyros]
+    if r.g_names and not p.problems:
+        _check_gyros_observe(p, r.sections, r.g_sec, r.g_axis, r.g_rot, r.rigid_index, r.U, r.coord_names, r.m_names)
 
-    ctx.master = a_names[masters[0]] if len(masters) == 1 else None
-    ctx.names["rover_antennas"] = a_names
-    channel_over = _channel_sigma(p, doc, ctx)
-    points = _entries(p, doc, "points", ctx)
-    _point_names(p, _named(p, points, "points", ctx), a_names)
-    thrusters = _entries(p, doc, "thrusters", ctx)
-    u_names = _named(p, thrusters, "thrusters", ctx)
-    _, sim = _table(p, doc, "simulation", ctx, _SIM_TABLE)
-    _raise_problems(p, ranges, "invalid config")
 
-    def ro(a, dtype=float):
-        arr = np.array(a, dtype=dtype)
-        arr.setflags(write=False)
-        return arr
+def _read_channels_points_thrusters(p: Problems, doc: dict, ctx: Context, r: SimpleNamespace) -> None:
+    """[[channel_sigma]], [[points]], [[thrusters]] and [simulation] into ``r`` (they name antennas and sections)."""
+    ctx.master = r.a_names[r.masters[0]] if len(r.masters) == 1 else None
+    ctx.names["rover_antennas"] = r.a_names
+    r.channel_over = _channel_sigma(p, doc, ctx)
+    r.points = _entries(p, doc, "points", ctx)
+    _point_names(p, _named(p, r.points, "points", ctx), r.a_names)
+    r.thrusters = _entries(p, doc, "thrusters", ctx)
+    r.u_names = _named(p, r.thrusters, "thrusters", ctx)
+    _, r.sim = _table(p, doc, "simulation", ctx, _SIM_TABLE)
 
-    def col(entries, name, dtype=float):
-        return ro([v[name] for _, _, v in entries], dtype)
 
-    return StructureConfig(
-        path=path,
-        text=text,
-        sha256=hashlib.sha256(text.encode("utf-8")).hexdigest(),
-        name=model["name"],
-        description=model["description"],
-        sample_period_s=model["sample_period_s"],
-        wavelength_m=model["wavelength_m"],
-        measurement_sigma_m=model["measurement_sigma_m"],
-        multipath_sigma_m=model["multipath_sigma_m"],
-        multipath_time_constant_s=model["multipath_time_constant_s"],
-        line_bias_calibrated=model["line_bias_calibrated"],
-        coord_names=tuple(coord_names),
-        coord_kinds=tuple(ctx.coord_kinds),
-        body_origin_m=ro(body["origin_m"]),
-        rigid_index=rigid_index,
-        sections=tuple(sections),
-        antenna_names=tuple(a_names),
-        antenna_section=col(ants, "section", int),
-        antenna_position_m=ro(np.reshape([v["position_m"] for _, _, v in ants], (-1, 3))),
-        antenna_displacement=ro(np.reshape([v["displacement_m"] for _, _, v in ants], (-1, 3, n_q))),
-        antenna_receiver=tuple(v["receiver"] for _, _, v in ants),
-        antenna_line_bias_m=col(ants, "line_bias_m"),
-        master_index=masters[0],
-        transmitter_names=tuple(t_names),
-        transmitter_far_field=bool(far and far[0]),
-        transmitter_position_m=ro(np.reshape(t_pos, (-1, 3))),
-        mode_names=tuple(m_names),
-        mode_frequency_hz=ro(m_f),
-        mode_time_constant_s=ro(m_tau),
-        mode_shapes=ro(U),
-        process_noise_space=space,
-        process_noise_sigma=ro(pn_sigma),
-        process_noise_covariance=None if pn_cov is None else ro(pn_cov),
-        coord_unit_labels=tuple(v["unit"] for _, _, v in coords),
-        mode_damping_ratio=ro(m_zeta),
-        gyro_rotation=ro(np.reshape(g_rot, (-1, 3, n_q))),
-        antenna_sigma_m=col(ants, "sigma_m"),
-        transmitter_sigma_m=col(txs, "sigma_m"),
-        channel_sigma_overrides=tuple(channel_over),
-        point_names=tuple(v["name"] for _, _, v in points),
-        point_section=col(points, "section", int),
-        point_position_m=ro(np.reshape([v["position_m"] for _, _, v in points], (-1, 3))),
-        point_displacement=ro(np.reshape([v["displacement_m"] for _, _, v in points], (-1, 3, n_q))),
-        gyro_names=tuple(g_names),
-        gyro_section=ro(g_sec, int),
-        gyro_axis=ro(np.reshape(g_axis, (-1, 3))),
-        thruster_names=tuple(u_names),
-        thruster_section=col(thrusters, "section", int),
-        thruster_position_m=ro(np.reshape([v["position_m"] for _, _, v in thrusters], (-1, 3))),
-        thruster_direction=ro(np.reshape([v["direction"] for _, _, v in thrusters], (-1, 3))),
-        thruster_max_force_n=col(thrusters, "max_force_n"),
-        simulation=sim,
-    )
+def _ro(a, dtype=float) -> np.ndarray:
+    """A read-only array of ``a``."""
+    arr = np.array(a, dtype=dtype)
+    arr.setflags(write=False)
+    return arr
+
+
+def _col(entries, name: str, dtype=float) -> np.ndarray:
+    """Key ``name`` of every entry of an array of tables, as a read-only array."""
+    return _ro([v[name] for _, _, v in entries], dtype)
+
+
+def _vectors(entries, name: str) -> np.ndarray:
+    """Key ``name`` (3 numbers) of every entry, read-only (n, 3)."""
+    return _ro(np.reshape([v[name] for _, _, v in entries], (-1, 3)))
+
+
+def _model_fields(model: dict) -> dict:
+    return {k: model[k] for k in ("name", "description", "sample_period_s", "wavelength_m", "measurement_sigma_m",
+                                  "multipath_sigma_m", "multipath_time_constant_s", "line_bias_calibrated")}
+
+
+def _frame_fields(r: SimpleNamespace) -> dict:
+    return {"coord_names": tuple(r.coord_names), "coord_kinds": tuple(r.coord_kinds),
+            "coord_unit_labels": tuple(v["unit"] for _, _, v in r.coords), "body_origin_m": _ro(r.body["origin_m"]),
+            "rigid_index": r.rigid_index, "sections": tuple(r.sections)}
+
+
+def _antenna_transmitter_fields(r: SimpleNamespace) -> dict:
+    ants = r.ants
+    return {"antenna_names": tuple(r.a_names), "antenna_section": _col(ants, "section", int),
+            "antenna_position_m": _vectors(ants, "position_m"),
+            "antenna_displacement": _ro(np.reshape([v["displacement_m"] for _, _, v in ants], (-1, 3, r.n_q))),
+            "antenna_receiver": tuple(v["receiver"] for _, _, v in ants),
+            "antenna_line_bias_m": _col(ants, "line_bias_m"), "master_index": r.masters[0],
+            "antenna_sigma_m": _col(ants, "sigma_m"),
+            "transmitter_names": tuple(r.t_names), "transmitter_far_field": bool(r.far and r.far[0]),
+            "transmitter_position_m": _ro(np.reshape(r.t_pos, (-1, 3))), "transmitter_sigma_m": _col(r.txs, "sigma_m"),
+            "channel_sigma_overrides": tuple(r.channel_over)}
+
+
+def _mode_fields(r: SimpleNamespace) -> dict:
+    return {"mode_names": tuple(r.m_names), "mode_frequency_hz": _ro(r.m_f), "mode_time_constant_s": _ro(r.m_tau),
+            "mode_damping_ratio": _ro(r.m_zeta), "mode_shapes": _ro(r.U), "process_noise_space": r.pn_space,
+            "process_noise_sigma": _ro(r.pn_sigma),
+            "process_noise_covariance": None if r.pn_cov is None else _ro(r.pn_cov)}
+
+
+def _sensor_fields(r: SimpleNamespace) -> dict:
+    """Gyros, points, thrusters and the [simulation] table."""
+    return {"gyro_names": tuple(r.g_names), "gyro_section": _ro(r.g_sec, int), "gyro_axis": _ro(np.reshape(r.g_axis, (-1, 3))),
+            "gyro_rotation": _ro(np.reshape(r.g_rot, (-1, 3, r.n_q))),
+            "point_names": tuple(v["name"] for _, _, v in r.points), "point_section": _col(r.points, "section", int),
+            "point_position_m": _vectors(r.points, "position_m"),
+            "point_displacement": _ro(np.reshape([v["displacement_m"] for _, _, v in r.points], (-1, 3, r.n_q))),
+            "thruster_names": tuple(r.u_names), "thruster_section": _col(r.thrusters, "section", int),
+            "thruster_position_m": _vectors(r.thrusters, "position_m"),
+            "thruster_direction": _vectors(r.thrusters, "direction"),
+            "thruster_max_force_n": _col(r.thrusters, "max_force_n"), "simulation": r.sim}
 
 
 # ============================================================================================

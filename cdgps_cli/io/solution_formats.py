@@ -212,11 +212,15 @@ def read_pos(path) -> dict:
         raise CdgpsError(f"{p}: the column header names no coordinates RTKLIB writes (latitude(deg), x-ecef(m), "
                          f"e-baseline(m)): {cols!r}")
     rows = []
+    n_fields = len(cols.lstrip("%").split()) + 1          # the time label (GPST) heads two fields
     for i, ln in enumerate(lines, 1):
         if not ln.strip() or ln.startswith("%"):
             continue
         f = ln.split()
         t, k = _pos_time(f, p, i)
+        if len(f) < n_fields:
+            raise CdgpsError(f"{p}, line {i}: {len(f)} fields, the column header promises {n_fields} "
+                             f"({' '.join(cols.lstrip('%').split()[-2:])} last); is the file cut short?")
         try:
             v = [float(x) for x in f[k:k + 13]]
         except ValueError:

@@ -25,8 +25,9 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.records import Series, StateSeries
 from cdgps_cli.io import states as states_io
 from cdgps_cli.io.atomic import write_atomic
-from cdgps_cli.io.coordinate_columns import column_unit, coordinate_column, coordinate_table, sigma_column
+from cdgps_cli.io.coordinate_columns import column_unit, coordinate_column, sigma_column
 from cdgps_cli.io.mcap import CONFIG_ATTACHMENT
+from cdgps_cli.io.sim_truth import check_truth_config, read_truth_folder, truth_coordinates
 from cdgps_cli.io.states import ESTIMATE_METADATA, INIT_ATTACHMENT, STATE_FILTERED_TOPIC, STATE_TOPIC
 from cdgps_cli.io.states_layout import DEFAULT_COVARIANCE, DEFAULT_PREVIEW_RATE_HZ
 
@@ -223,34 +224,20 @@ def evaluate(truth_dir: str | Path, states_path: str | Path, converge_s: float =
     Returns RMS error per coordinate (after ``converge_s`` from the first estimate), NEES on the
     modal positions with its chi-square 95% interval, NIS statistics, convergence time and bias errors.
     """
-    import pandas as pd  # noqa: PLC0415 (not on the path of `cdgps estimate`)
     from scipy.stats import chi2
 
     from cdgps_cli.core.checks import require_finite
 
     require_finite(converge_s, "converge_s", nonnegative=True)
-    truth_dir = Path(truth_dir)
-    csv = truth_dir / "truth.csv"
-    for alt in ("truth.csv.xz", "truth.csv.gz"):
-        if not csv.exists() and (truth_dir / alt).exists():
-            csv = truth_dir / alt
-    try:
-        truth = pd.read_csv(csv)
-        tj = json.loads((truth_dir / "truth.json").read_text())
-    except (OSError, ValueError) as exc:
-        raise CdgpsError(f"{truth_dir}: cannot read truth.csv / truth.json: {exc}") from None
+    sim = read_truth_folder(truth_dir, "--truth")
+    tj = sim.info
     from cdgps_cli.io.states import StatesChunks, diagnostics  # noqa: PLC0415
 
     with StatesChunks(states_path, covariance=True) as st:         # a chunk of epochs at a time (issue 29)
         names = list(st.coord_names)
-        if tj.get("config_sha256") and tj["config_sha256"] != st.config_sha256:    # first: it explains missing columns
-            raise CdgpsError(f"--truth {truth_dir}: simulated with config {tj.get('config')!r} (sha256 "
-                             f"{str(tj['config_sha256'])[:12]}…), but {states_path} estimates config {st.config_name!r} "
-                             f"(sha256 {str(st.config_sha256)[:12]}…); give the truth of the run that was estimated")
-        truth, missing = coordinate_table(truth, st.coordinate_model(), names)    # q1_rad, or a bare q1 (older files)
-        missing = [n for n in ["time_s"] if n not in truth.columns] + missing
-        if missing:
-            raise CdgpsError(f"{truth_dir / 'truth.csv'}: missing column(s) {', '.join(missing)}")
+        check_truth_config(sim, st.config_sha256, st.config_name, states_path)    # first: it explains missing columns
+        truth = truth_coordinates(sim, st.coordinate_model(), names)    # q1_rad, or a bare q1 (older files)
+        del sim
         nis_all, dof_all, events = diagnostics(states_path, st.n_epochs)
         tt = np.rint(truth["time_s"].to_numpy() * 1e6).astype(np.int64)
         te = np.rint(np.concatenate([c["time_s"] for c in st.series(_EVAL_CHUNK)] or [np.empty(0)]) * 1e6).astype(np.int64)

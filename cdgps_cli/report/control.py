@@ -8,7 +8,6 @@ writes report.md, report.json and a self-contained report.html with the figures.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +19,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.provenance import _file, report_date, software
 from cdgps_cli.io.atomic import output_set
 from cdgps_cli.io.gains_file import gain_sha256, read_gains
+from cdgps_cli.io.sim_truth import read_truth_folder, require_columns
 from cdgps_cli.report.sensor_reports import REPORT_FILES, _fmt, _html_table, _md_table, _mpl, _save_fig, _write_report
 
 #: internal angles plotted and measured (Figs. 10–12): the longitudinal twists of this model
@@ -55,14 +55,12 @@ def _coordinate_stems(truth: dict) -> list[str]:
 
 
 def read_simulation(folder: str | Path, role: str) -> dict:
-    """truth.json, truth.csv (and controller.csv when closed loop) of a ``cdgps simulate`` folder."""
-    d = Path(folder)
-    try:
-        truth = json.loads((d / "truth.json").read_text(encoding="utf-8"))
-        q = pd.read_csv(d / "truth.csv")
-    except (OSError, ValueError) as exc:
-        raise CdgpsError(f"--{role.replace('_', '-')} {d}: not a `cdgps simulate` folder ({exc})") from None
-    files = [d / "truth.json", d / "truth.csv"]
+    """truth.json, truth.csv (:func:`~cdgps_cli.io.sim_truth.read_truth_folder`) and controller.csv
+    (closed loop) of a ``cdgps simulate`` folder, checked complete and of the loop ``role`` wants."""
+    option = f"--{role.replace('_', '-')}"
+    sim = read_truth_folder(folder, option)
+    d, truth = sim.folder, sim.info
+    files = [sim.json_path, sim.csv_path]
     ctrl = None
     if (d / "controller.csv").exists():
         try:
@@ -70,19 +68,16 @@ def read_simulation(folder: str | Path, role: str) -> dict:
         except ValueError as exc:
             raise CdgpsError(f"{d / 'controller.csv'}: not a readable CSV ({exc})") from None
         files.append(d / "controller.csv")
-    closed = "controller" in truth
-    if (role == "open") == closed:
+    if (role == "open") == ("controller" in truth):
         want = "an open-loop run (simulate without --controller)" if role == "open" else \
             "a closed-loop run (simulate with --controller)"
-        raise CdgpsError(f"--{role.replace('_', '-')} {d}: expected {want}")
+        raise CdgpsError(f"{option} {d}: expected {want}")
     stems = _coordinate_stems(truth)
-    q = _bare(q, stems)                                  # q10_rad, or a bare q10 (files before issue 32)
+    q = _bare(sim.table, stems)                          # q10_rad, or a bare q10 (files before issue 32)
     if ctrl is not None:                                 # q10_hat_rad, q10_hat_sigma_rad, q10_ref_rad …
         ctrl = _bare(ctrl, [f"{n}_{w}" for n in stems for w in ("hat", "hat_sigma", "ref")])
-    missing = [c for c in ("time_s", RIGID_ANGLE, *INTERNAL_ANGLES) if c not in q.columns]
-    if missing:
-        raise CdgpsError(f"{d / 'truth.csv'}: missing columns {', '.join(missing)}")
-    _check_complete(d / "truth.csv", q)
+    require_columns(q, ("time_s", RIGID_ANGLE, *INTERNAL_ANGLES), sim.csv_path)
+    _check_complete(sim.csv_path, q)
     if ctrl is not None:
         _check_complete(d / "controller.csv", ctrl)
         if len(ctrl) != len(q) or not np.array_equal(ctrl["time_s"].to_numpy(), q["time_s"].to_numpy()):

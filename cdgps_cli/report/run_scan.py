@@ -9,7 +9,6 @@ record the sums the summary table needs.  Memory: one block and the bins.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -18,6 +17,7 @@ import numpy as np
 from cdgps_cli.analysis.spectra import column_sums
 from cdgps_cli.config.options import STATES_CHUNK_EPOCHS
 from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.io.sim_truth import check_truth_config, read_truth_folder, truth_coordinates
 from cdgps_cli.estimation.chi2 import chi2_quantile
 from cdgps_cli.report.envelope import DEFAULT_BINS, EnvelopeBins
 
@@ -93,27 +93,12 @@ class Scan:
 def read_truth(truth_dir: str | Path, states) -> dict:
     """The simulator's truth (``truth.csv`` with a column per coordinate, ``truth.json``) of
     ``states``' config: ``{"us": (M,) int64 µs, "q": (M, n_q)}``; CdgpsError naming the file on a
-    missing column or another config."""
-    import pandas as pd  # noqa: PLC0415
-
-    d = Path(truth_dir)
-    try:
-        tj = json.loads((d / "truth.json").read_text(encoding="utf-8"))
-        truth = pd.read_csv(d / "truth.csv")
-    except (OSError, ValueError) as exc:
-        raise CdgpsError(f"--truth {d}: expected a `cdgps simulate` folder with truth.csv and truth.json ({exc})") from None
-    if tj.get("config_sha256") and tj["config_sha256"] != states.config_sha256:
-        raise CdgpsError(f"--truth {d}: simulated with config {tj.get('config')!r} (sha256 "
-                         f"{str(tj['config_sha256'])[:12]}…), but {states.path} estimates config "
-                         f"{states.config_name!r} (sha256 {str(states.config_sha256)[:12]}…)")
-    from cdgps_cli.io.coordinate_columns import coordinate_table  # noqa: PLC0415
-
-    truth, missing = coordinate_table(truth, states.coordinate_model(), list(states.coord_names))  # q1_m, or bare q1
-    missing = [n for n in ["time_s"] if n not in truth.columns] + missing
-    if missing:
-        raise CdgpsError(f"{d / 'truth.csv'}: missing column(s) {', '.join(missing)}")
-    return {"us": np.rint(truth["time_s"].to_numpy(dtype=float) * 1e6).astype(np.int64),
-            "q": truth[list(states.coord_names)].to_numpy(dtype=float), "dir": str(d)}
+    missing column or another config (:mod:`cdgps_cli.io.sim_truth`)."""
+    truth = read_truth_folder(truth_dir, "--truth")
+    check_truth_config(truth, states.config_sha256, states.config_name, states.path)
+    table = truth_coordinates(truth, states.coordinate_model(), list(states.coord_names))  # q1_m, or bare q1
+    return {"us": np.rint(table["time_s"].to_numpy(dtype=float) * 1e6).astype(np.int64),
+            "q": table[list(states.coord_names)].to_numpy(dtype=float), "dir": str(truth.folder)}
 
 
 def _angle_rows(cfg) -> tuple[list, list, np.ndarray]:

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -177,6 +178,88 @@ def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_
         Summary: files, epochs, rows, slips, positions, displacement model.
     """
     say = progress or (lambda m: None)
+    every = _check_pair_options(duration_s, rate_hz, master, rover, master_xyz, rover_xyz, start_gps_s,
+                                clock_offset_ms, clock_drift_ms, master_rate_hz, random_walk_sigma, n_slips)
+    nav, start_gps_s, nav_source = _navigation(nav_paths, start_gps_s, duration_s, seed)
+    run = _PairRun(duration_s=duration_s, rate_hz=rate_hz, seed=seed, start_gps_s=start_gps_s, master=master,
+                   rover=rover, master_xyz=master_xyz, rover_xyz=rover_xyz, every=every,
+                   random_walk_sigma=random_walk_sigma, n_slips=n_slips, code_sigma_m=code_sigma_m,
+                   mask_deg=mask_deg, clock_offset_ms=clock_offset_ms, clock_drift_ms=clock_drift_ms,
+                   raw_tags=raw_tags, master_rate_hz=master_rate_hz, nav_source=nav_source)
+    disp = np.asarray(displacement_enu_m, dtype=np.float64)
+    offsets = _rover_offsets(run, disp)
+    phase_noise, phase_model = _phase_noise_model(phase_sigma_m)
+    sim = _simulate_pair(run, nav, disp, offsets, phase_noise, say)
+    slip_note = _slip_note(run, sim["slips"], say)
+    say(f"writing RINEX: {len(sim['base'])} + {len(sim['rover'])} satellite-epoch records …")
+    out = Path(out_dir)
+    with output_set(out, replaces=previous_simulation_files(out, "cdgps gnss simulation")) as dest:
+        files = _write_pair_rinex(dest, run, sim, nav)
+        names = _write_pair_truth_csv(dest, run, offsets)
+        truth_json = {**_truth_run_fields(run),
+                      **_truth_rover_fields(run, disp, offsets, names, phase_noise, phase_model),
+                      **_truth_event_fields(run, sim, slip_note),
+                      "files": {"rinex": files, "nav": "nav.rnx", "truth": "truth.csv", "config": "config.toml"}}
+        write_bytes_atomic(dest.path("truth.json"), (json.dumps(truth_json, indent=2) + "\n").encode())
+        write_bytes_atomic(dest.path("config.toml"), _pair_config_toml(run, files).encode())
+    amb = sim["ambiguities"]
+    return {
+        "output": str(out), "files": sorted([*files.values(), *GNSS_SIMULATION_FILES]),
+        "epochs": run.n_ep, "records": {master: int(len(sim["base"])), rover: int(len(sim["rover"]))},
+        "satellites": int(pd.concat([sim["base"]["sat"], sim["rover"]["sat"]]).nunique()),
+        "slips": int((amb["kind"] == "slip").sum()), "slips_requested": n_slips, "start": gps_time_str(start_gps_s),
+        "displacement_model": truth_json["displacement_model"], "displacement_enu_m": disp.tolist(),
+    }
+
+
+@dataclass(frozen=True)
+class _PairRun:
+    """The settings of one :func:`simulate_gnss_pair` run, checked (see its parameters)."""
+
+    duration_s: float
+    rate_hz: float
+    seed: int
+    start_gps_s: float
+    master: str
+    rover: str
+    master_xyz: tuple
+    rover_xyz: tuple
+    every: int
+    random_walk_sigma: float | None
+    n_slips: int
+    code_sigma_m: float
+    mask_deg: float
+    clock_offset_ms: tuple
+    clock_drift_ms: tuple
+    raw_tags: bool
+    master_rate_hz: float | None
+    nav_source: object
+
+    @property
+    def interval_s(self) -> float:
+        return 1.0 / self.rate_hz
+
+    @property
+    def n_ep(self) -> int:
+        return int(math.floor(self.duration_s / self.interval_s - 1e-9)) + 1
+
+    @property
+    def slip_mask_deg(self) -> float:
+        return max(float(self.mask_deg), GnssConfig.mask_deg)
+
+    @property
+    def displacement_model(self) -> str:
+        return "random_walk" if self.random_walk_sigma is not None else "static"
+
+    def receiver(self, who: str) -> str:
+        """The antenna name of the simulator's ``"base"`` / ``"rover"``."""
+        return self.master if who == "base" else self.rover
+
+
+def _check_pair_options(duration_s, rate_hz, master, rover, master_xyz, rover_xyz, start_gps_s,
+                        clock_offset_ms, clock_drift_ms, master_rate_hz, random_walk_sigma, n_slips) -> int:
+    """Refuse options out of range (CdgpsError naming the option); returns how many rover epochs
+    make one master epoch."""
     if not (duration_s > 0 and math.isfinite(duration_s)):
         raise CdgpsError(f"--duration must be positive, got {duration_s!r}")
     if not (rate_hz > 0 and math.isfinite(rate_hz)) or rate_hz > 100:
@@ -190,149 +273,192 @@ def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_
     for what, v in (("--clock-offset-ms", clock_offset_ms), ("--clock-drift-ms", clock_drift_ms)):
         if len(v) != 2 or not all(math.isfinite(x) and abs(x) <= 1000.0 for x in v):
             raise CdgpsError(f"{what} expects two offsets (master, rover) within ±1000 ms, got {v!r}")
-    every = 1
-    if master_rate_hz is not None:
-        ratio = rate_hz / master_rate_hz if master_rate_hz > 0 and math.isfinite(master_rate_hz) else math.nan
-        if not (math.isfinite(ratio) and ratio >= 1 and abs(ratio - round(ratio)) < 1e-9):
-            raise CdgpsError(f"--master-rate-hz must divide --rate-hz {rate_hz:g} (rate / master rate a whole number "
-                             f">= 1), got {master_rate_hz!r}")
-        every = int(round(ratio))
+    every = 1 if master_rate_hz is None else _master_every(rate_hz, master_rate_hz)
     if random_walk_sigma is not None and not random_walk_sigma > 0:
         raise CdgpsError(f"--random-walk must be a positive rate (m/√s), got {random_walk_sigma!r}")
     if n_slips < 0:
         raise CdgpsError(f"--slips must be >= 0, got {n_slips}")
-    out = Path(out_dir)
-    interval = 1.0 / rate_hz
     check_table_size(duration_s * rate_hz + 1, 2 * GPS_PRN_SLOTS, PAIR_BYTES_PER_VALUE,
                      "the simulated observation tables", f"--duration {duration_s:g} s at --rate-hz {rate_hz:g}")
-    if nav_paths:
-        navs = [read_rinex_nav(p) for p in nav_paths]
-        nav = pd.concat(navs, ignore_index=True).drop_duplicates(subset=["sat", "toe_gps_s", "iode", "af0_s"])
-        nav = nav.sort_values(["sat", "toe_gps_s"], kind="stable").reset_index(drop=True)
-        if start_gps_s is None:
-            start_gps_s = math.ceil(float(nav["toe_gps_s"].min()) / 3600.0) * 3600.0
-        lo, hi = float(nav["toe_gps_s"].min()) - 7200.0, float(nav["toe_gps_s"].max()) + 7200.0
-        if start_gps_s < lo or start_gps_s + duration_s > hi:
-            raise CdgpsError(f"the navigation data ({gps_time_str(lo)} – {gps_time_str(hi)} with ±2 h validity) do not cover "
-                             f"the simulated span {gps_time_str(start_gps_s)} – {gps_time_str(start_gps_s + duration_s)}; "
-                             f"choose --start/--duration inside it or omit --nav (synthetic constellation)")
-        nav_source = [str(p) for p in nav_paths]
-    else:
+    return every
+
+
+def _master_every(rate_hz: float, master_rate_hz: float) -> int:
+    """``rate_hz / master_rate_hz``, refused unless a whole number >= 1."""
+    ratio = rate_hz / master_rate_hz if master_rate_hz > 0 and math.isfinite(master_rate_hz) else math.nan
+    if not (math.isfinite(ratio) and ratio >= 1 and abs(ratio - round(ratio)) < 1e-9):
+        raise CdgpsError(f"--master-rate-hz must divide --rate-hz {rate_hz:g} (rate / master rate a whole number "
+                         f">= 1), got {master_rate_hz!r}")
+    return int(round(ratio))
+
+
+def _navigation(nav_paths, start_gps_s, duration_s: float, seed: int):
+    """(ephemerides, first epoch GPS s, their source for truth.json): the records of ``nav_paths``,
+    refused unless they cover the span, or a synthetic constellation."""
+    if not nav_paths:
         if start_gps_s is None:
             start_gps_s = gps_seconds(2024, 1, 1)
         nav = synthetic_gps_nav(start_gps_s, duration_s, seed=seed)
-        nav_source = "synthetic constellation (cdgps_cli.model.gps.positioning.synthetic_gps_nav)"
-    n_ep = int(math.floor(duration_s / interval - 1e-9)) + 1
-    t_nom = start_gps_s + np.arange(n_ep) * interval
-    gen = np.random.default_rng(seed + 7919)
-    disp = np.asarray(displacement_enu_m, dtype=np.float64)
-    offsets = np.tile(disp, (n_ep, 1))
-    if random_walk_sigma is not None:
-        steps = gen.normal(0.0, random_walk_sigma * math.sqrt(interval), size=(n_ep, 3))
+        return nav, start_gps_s, "synthetic constellation (cdgps_cli.model.gps.positioning.synthetic_gps_nav)"
+    navs = [read_rinex_nav(p) for p in nav_paths]
+    nav = pd.concat(navs, ignore_index=True).drop_duplicates(subset=["sat", "toe_gps_s", "iode", "af0_s"])
+    nav = nav.sort_values(["sat", "toe_gps_s"], kind="stable").reset_index(drop=True)
+    if start_gps_s is None:
+        start_gps_s = math.ceil(float(nav["toe_gps_s"].min()) / 3600.0) * 3600.0
+    lo, hi = float(nav["toe_gps_s"].min()) - 7200.0, float(nav["toe_gps_s"].max()) + 7200.0
+    if start_gps_s < lo or start_gps_s + duration_s > hi:
+        raise CdgpsError(f"the navigation data ({gps_time_str(lo)} – {gps_time_str(hi)} with ±2 h validity) do not cover "
+                         f"the simulated span {gps_time_str(start_gps_s)} – {gps_time_str(start_gps_s + duration_s)}; "
+                         f"choose --start/--duration inside it or omit --nav (synthetic constellation)")
+    return nav, start_gps_s, [str(p) for p in nav_paths]
+
+
+def _rover_offsets(run: _PairRun, disp: np.ndarray) -> np.ndarray:
+    """The rover's true displacement at every nominal epoch, m (n_ep, 3) ENU: ``disp`` plus the
+    random walk if any (its own generator, seed + 7919)."""
+    gen = np.random.default_rng(run.seed + 7919)
+    offsets = np.tile(disp, (run.n_ep, 1))
+    if run.random_walk_sigma is not None:
+        steps = gen.normal(0.0, run.random_walk_sigma * math.sqrt(run.interval_s), size=(run.n_ep, 3))
         steps[0] = 0.0
         offsets = offsets + np.cumsum(steps, axis=0)
+    return offsets
+
+
+def _phase_noise_model(phase_sigma_m: float | None):
+    """(phase noise argument of the simulator, its description): the estimator's default
+    elevation weighting, or white noise of ``phase_sigma_m`` m (refused if negative)."""
     if phase_sigma_m is None:
         phase_noise = (GnssConfig.sigma_a_m, GnssConfig.sigma_b_m)
-        phase_model = (f"elevation: sigma^2 = a^2 + b^2/sin^2(el) per receiver, a = {phase_noise[0]:g} m, "
-                       f"b = {phase_noise[1]:g} m (the estimator's default weighting)")
-    else:
-        if not (phase_sigma_m >= 0 and math.isfinite(phase_sigma_m)):
-            raise CdgpsError(f"--phase-noise-m must be >= 0, got {phase_sigma_m!r}")
-        phase_noise = float(phase_sigma_m)
-        phase_model = f"white: sigma = {phase_noise:g} m at every elevation"
-    slip_mask_deg = max(float(mask_deg), GnssConfig.mask_deg)
-    say(f"simulating {n_ep} epochs at {rate_hz:g} Hz from {gps_time_str(start_gps_s)} …")
-    sim = simulate_static_pair(nav, np.asarray(master_xyz, float), np.asarray(rover_xyz, float), start_gps_s, duration_s,
-                               interval, seed=seed, mask_rad=math.radians(mask_deg),
-                               phase_sigma_m=phase_noise, code_sigma_m=code_sigma_m,
-                               rover_offset_enu_m=None if random_walk_sigma is None and not disp.any() else offsets,
-                               random_slips=n_slips, slip_mask_rad=math.radians(slip_mask_deg), slip_min_epochs=10,
-                               clock_offset_ms=tuple(map(float, clock_offset_ms)),
-                               clock_drift_ms=tuple(map(float, clock_drift_ms)),
-                               tag_resolution_s=None if raw_tags else 1e-3, base_every=every)
+        return phase_noise, (f"elevation: sigma^2 = a^2 + b^2/sin^2(el) per receiver, a = {phase_noise[0]:g} m, "
+                             f"b = {phase_noise[1]:g} m (the estimator's default weighting)")
+    if not (phase_sigma_m >= 0 and math.isfinite(phase_sigma_m)):
+        raise CdgpsError(f"--phase-noise-m must be >= 0, got {phase_sigma_m!r}")
+    phase_noise = float(phase_sigma_m)
+    return phase_noise, f"white: sigma = {phase_noise:g} m at every elevation"
+
+
+def _simulate_pair(run: _PairRun, nav, disp: np.ndarray, offsets: np.ndarray, phase_noise, say) -> dict:
+    """The observables of both receivers (:func:`simulate_static_pair`); refused if no satellite is seen."""
+    say(f"simulating {run.n_ep} epochs at {run.rate_hz:g} Hz from {gps_time_str(run.start_gps_s)} …")
+    sim = simulate_static_pair(nav, np.asarray(run.master_xyz, float), np.asarray(run.rover_xyz, float),
+                               run.start_gps_s, run.duration_s, run.interval_s, seed=run.seed,
+                               mask_rad=math.radians(run.mask_deg), phase_sigma_m=phase_noise,
+                               code_sigma_m=run.code_sigma_m,
+                               rover_offset_enu_m=None if run.random_walk_sigma is None and not disp.any() else offsets,
+                               random_slips=run.n_slips, slip_mask_rad=math.radians(run.slip_mask_deg),
+                               slip_min_epochs=10, clock_offset_ms=tuple(map(float, run.clock_offset_ms)),
+                               clock_drift_ms=tuple(map(float, run.clock_drift_ms)),
+                               tag_resolution_s=None if run.raw_tags else 1e-3, base_every=run.every)
     if len(sim["base"]) == 0 or len(sim["rover"]) == 0:
         raise CdgpsError("no satellite is visible in the simulated span (check the positions and the navigation data)")
-    slips = sim["slips"]
-    slip_note = None
-    if len(slips) < n_slips:
-        slip_note = (f"{n_slips} slips requested, {len(slips)} simulated: slips are placed only on records tracked at "
-                     f"both receivers above {slip_mask_deg:g} deg with >= 10 such epochs before and after, 5-95 % into "
-                     f"the span, >= 10 epochs apart per satellite, and there are not enough of those")
-        say(f"warning: {slip_note}")
-    say(f"writing RINEX: {len(sim['base'])} + {len(sim['rover'])} satellite-epoch records …")
-    y, mo, d, hh, mi, ss = rinex_calendar(start_gps_s)
+    return sim
+
+
+def _slip_note(run: _PairRun, slips, say) -> str | None:
+    """Why fewer slips were made than requested (also said as a warning), or None."""
+    if len(slips) >= run.n_slips:
+        return None
+    note = (f"{run.n_slips} slips requested, {len(slips)} simulated: slips are placed only on records tracked at "
+            f"both receivers above {run.slip_mask_deg:g} deg with >= 10 such epochs before and after, 5-95 % into "
+            f"the span, >= 10 epochs apart per satellite, and there are not enough of those")
+    say(f"warning: {note}")
+    return note
+
+
+def _write_pair_rinex(dest, run: _PairRun, sim: dict, nav) -> dict:
+    """Write ``<master>.rnx``, ``<rover>.rnx`` and ``nav.rnx``; returns {antenna: observation file name}."""
+    y, mo, d, hh, mi, ss = rinex_calendar(run.start_gps_s)
     stamp = f"{y:04d}{mo:02d}{d:02d} {hh:02d}{mi:02d}{int(ss):02d} UTC"     # reproducible files
-    with output_set(out, replaces=previous_simulation_files(out, "cdgps gnss simulation")) as dest:
-        files = {}
-        for who, name, df in (("base", master, sim["base"]), ("rover", rover, sim["rover"])):
-            hdr = {"marker_name": name, "observer": "cdgps simulate-gnss", "agency": "simulated",
-                   "receiver_type": "CDGPS SIMULATOR", "receiver_version": __version__, "antenna_type": "SIMULATED",
-                   "approx_position_xyz_m": (master_xyz if who == "base" else rover_xyz),
-                   "interval_s": interval * (every if who == "base" else 1),
-                   "comments": [f"simulated by cdgps {__version__}, seed {seed}",
-                                "master: true position" if who == "base" else "rover: NOMINAL position (truth.csv: displacement)"]}
-            f = dest.path(f"{name}.rnx")
-            write_rinex_obs(f, df, hdr, created=stamp)
-            files[name] = f.name
-        write_rinex_nav(dest.path("nav.rnx"), nav, comments=[f"ephemerides used by cdgps simulate-gnss (seed {seed})"],
-                        created=stamp)
-        names = [coordinate_column(f"{rover}_{c}", "m") for c in "enu"]
-        truth = pd.DataFrame({"time_s": t_nom, names[0]: offsets[:, 0], names[1]: offsets[:, 1], names[2]: offsets[:, 2]})
-        write_atomic(dest.path("truth.csv"), lambda p: truth.to_csv(p, index=False, lineterminator="\n", float_format="%.6f"))
-        lat, lon, _ = ecef_to_geodetic(np.asarray(rover_xyz, float))
-        amb = sim["ambiguities"]
-        truth_json = {
-            "kind": "cdgps gnss simulation",
-            "cdgps_version": __version__,
-            "seed": seed, "start_gps_s": start_gps_s, "start": gps_time_str(start_gps_s), "duration_s": duration_s,
-            "rate_hz": rate_hz, "epochs": n_ep,
-            **({"master_rate_hz": master_rate_hz} if every > 1 else {}),
-            "clock_offset_ms": {master: float(clock_offset_ms[0]), rover: float(clock_offset_ms[1])},
-            "clock_drift_ms": {master: float(clock_drift_ms[0]), rover: float(clock_drift_ms[1])},
-            "time_tags": "nominal epoch + clock offset" if raw_tags else "nominal epoch + clock offset rounded to 1 ms",
-            "master": master, "rover": rover,
-            "master_ecef_m": list(map(float, master_xyz)),
-            "rover_nominal_ecef_m": list(map(float, rover_xyz)),
-            "displacement_model": "random_walk" if random_walk_sigma is not None else "static",
-            "displacement_enu_m": disp.tolist(),
-            "random_walk_sigma_m_per_sqrt_s": random_walk_sigma,
-            "rover_mean_ecef_m": (np.asarray(rover_xyz, float) + enu_matrix(lat, lon).T @ offsets.mean(axis=0)).tolist(),
-            "coordinates": names,
-            "phase_sigma_m": list(phase_noise) if isinstance(phase_noise, tuple) else phase_noise,
-            "phase_noise_model": phase_model,
-            "code_sigma_m": code_sigma_m, "code_noise_model": "white",
-            "cn0_model": "C/N0 = 35 + 15 sin(el) dB-Hz (no noise); RINEX S1C and the L1C signal-strength digit from it",
-            "mask_deg": mask_deg,
-            "navigation": nav_source,
-            "slips_requested": n_slips,
-            "slip_mask_deg": slip_mask_deg,
-            "cycle_slips": [{"receiver": master if d["receiver"] == "base" else rover, "sat": d["sat"],
-                             "time_gps_s": d["time_gps_s"], "cycles": d["cycles"], "elevation_deg": d["elevation_deg"]}
-                            for d in slips],
-            **({"slips_note": slip_note} if slip_note else {}),
-            "ambiguities": [{"receiver": master if r["receiver"] == "base" else rover, "sat": r["sat"], "kind": r["kind"],
-                             "from_gps_s": float(r["t_from_s"]), "cycles": int(r["n_cycles"])} for _, r in amb.iterrows()],
-            "frac_bias_cycles": {master if k == "base" else rover: v for k, v in sim["frac_bias_cycles"].items()},
-            "files": {"rinex": files, "nav": "nav.rnx", "truth": "truth.csv", "config": "config.toml"},
-        }
-        write_bytes_atomic(dest.path("truth.json"), (json.dumps(truth_json, indent=2) + "\n").encode())
-        cfg = gnss_config_toml(
-            {master: ("rinex", files[master]), rover: ("rinex", files[rover])}, ["nav.rnx"], master,
-            name=f"simulated-{master}-{rover}",
-            description=f"cdgps simulate-gnss: {duration_s:g} s at {rate_hz:g} Hz, seed {seed}",
-            displacement="random_walk" if random_walk_sigma is not None else "static",
-            sigma_m_per_sqrt_s=random_walk_sigma,
-            comments=["GNSS run config written by cdgps simulate-gnss (format: docs/gnss-pipeline.md).",
-                      f"{master}: master at its true position; {rover}: nominal position in its header,",
-                      "true displacement in truth.csv.  Run:",
-                      "  cdgps ingest --config config.toml -o run.mcap && cdgps init run.mcap -o init.json",
-                      "  cdgps estimate run.mcap --init init.json -o states.mcap && cdgps evaluate --truth . --estimate states.mcap"],
-        )
-        write_bytes_atomic(dest.path("config.toml"), cfg.encode())
+    files = {}
+    for who in ("base", "rover"):
+        name = run.receiver(who)
+        hdr = {"marker_name": name, "observer": "cdgps simulate-gnss", "agency": "simulated",
+               "receiver_type": "CDGPS SIMULATOR", "receiver_version": __version__, "antenna_type": "SIMULATED",
+               "approx_position_xyz_m": (run.master_xyz if who == "base" else run.rover_xyz),
+               "interval_s": run.interval_s * (run.every if who == "base" else 1),
+               "comments": [f"simulated by cdgps {__version__}, seed {run.seed}",
+                            "master: true position" if who == "base" else "rover: NOMINAL position (truth.csv: displacement)"]}
+        f = dest.path(f"{name}.rnx")
+        write_rinex_obs(f, sim[who], hdr, created=stamp)
+        files[name] = f.name
+    write_rinex_nav(dest.path("nav.rnx"), nav, comments=[f"ephemerides used by cdgps simulate-gnss (seed {run.seed})"],
+                    created=stamp)
+    return files
+
+
+def _write_pair_truth_csv(dest, run: _PairRun, offsets: np.ndarray) -> list[str]:
+    """Write truth.csv (nominal epochs, the rover's true ENU displacement); returns its coordinate columns."""
+    names = [coordinate_column(f"{run.rover}_{c}", "m") for c in "enu"]
+    t_nom = run.start_gps_s + np.arange(run.n_ep) * run.interval_s
+    truth = pd.DataFrame({"time_s": t_nom, names[0]: offsets[:, 0], names[1]: offsets[:, 1], names[2]: offsets[:, 2]})
+    write_atomic(dest.path("truth.csv"), lambda p: truth.to_csv(p, index=False, lineterminator="\n", float_format="%.6f"))
+    return names
+
+
+def _truth_run_fields(run: _PairRun) -> dict:
+    """truth.json: the run's settings (seed, span, rates, clocks, receivers and positions)."""
+    m, r = run.master, run.rover
     return {
-        "output": str(out), "files": sorted([*files.values(), "nav.rnx", "truth.csv", "truth.json", "config.toml"]),
-        "epochs": n_ep, "records": {master: int(len(sim["base"])), rover: int(len(sim["rover"]))},
-        "satellites": int(pd.concat([sim["base"]["sat"], sim["rover"]["sat"]]).nunique()),
-        "slips": int((amb["kind"] == "slip").sum()), "slips_requested": n_slips, "start": gps_time_str(start_gps_s),
-        "displacement_model": truth_json["displacement_model"], "displacement_enu_m": disp.tolist(),
+        "kind": "cdgps gnss simulation",
+        "cdgps_version": __version__,
+        "seed": run.seed, "start_gps_s": run.start_gps_s, "start": gps_time_str(run.start_gps_s),
+        "duration_s": run.duration_s, "rate_hz": run.rate_hz, "epochs": run.n_ep,
+        **({"master_rate_hz": run.master_rate_hz} if run.every > 1 else {}),
+        "clock_offset_ms": {m: float(run.clock_offset_ms[0]), r: float(run.clock_offset_ms[1])},
+        "clock_drift_ms": {m: float(run.clock_drift_ms[0]), r: float(run.clock_drift_ms[1])},
+        "time_tags": "nominal epoch + clock offset" if run.raw_tags else "nominal epoch + clock offset rounded to 1 ms",
+        "master": m, "rover": r,
+        "master_ecef_m": list(map(float, run.master_xyz)),
+        "rover_nominal_ecef_m": list(map(float, run.rover_xyz)),
     }
+
+
+def _truth_rover_fields(run: _PairRun, disp, offsets, names, phase_noise, phase_model) -> dict:
+    """truth.json: the displacement model and the noise models."""
+    lat, lon, _ = ecef_to_geodetic(np.asarray(run.rover_xyz, float))
+    return {
+        "displacement_model": run.displacement_model,
+        "displacement_enu_m": disp.tolist(),
+        "random_walk_sigma_m_per_sqrt_s": run.random_walk_sigma,
+        "rover_mean_ecef_m": (np.asarray(run.rover_xyz, float) + enu_matrix(lat, lon).T @ offsets.mean(axis=0)).tolist(),
+        "coordinates": names,
+        "phase_sigma_m": list(phase_noise) if isinstance(phase_noise, tuple) else phase_noise,
+        "phase_noise_model": phase_model,
+        "code_sigma_m": run.code_sigma_m, "code_noise_model": "white",
+        "cn0_model": "C/N0 = 35 + 15 sin(el) dB-Hz (no noise); RINEX S1C and the L1C signal-strength digit from it",
+        "mask_deg": run.mask_deg,
+        "navigation": run.nav_source,
+    }
+
+
+def _truth_event_fields(run: _PairRun, sim: dict, slip_note: str | None) -> dict:
+    """truth.json: the slips, the integer ambiguities and the fractional receiver biases."""
+    return {
+        "slips_requested": run.n_slips,
+        "slip_mask_deg": run.slip_mask_deg,
+        "cycle_slips": [{"receiver": run.receiver(d["receiver"]), "sat": d["sat"], "time_gps_s": d["time_gps_s"],
+                         "cycles": d["cycles"], "elevation_deg": d["elevation_deg"]} for d in sim["slips"]],
+        **({"slips_note": slip_note} if slip_note else {}),
+        "ambiguities": [{"receiver": run.receiver(r["receiver"]), "sat": r["sat"], "kind": r["kind"],
+                         "from_gps_s": float(r["t_from_s"]), "cycles": int(r["n_cycles"])}
+                        for _, r in sim["ambiguities"].iterrows()],
+        "frac_bias_cycles": {run.receiver(k): v for k, v in sim["frac_bias_cycles"].items()},
+    }
+
+
+def _pair_config_toml(run: _PairRun, files: dict) -> str:
+    """config.toml: the GNSS run config of the pair."""
+    m, r = run.master, run.rover
+    return gnss_config_toml(
+        {m: ("rinex", files[m]), r: ("rinex", files[r])}, ["nav.rnx"], m,
+        name=f"simulated-{m}-{r}",
+        description=f"cdgps simulate-gnss: {run.duration_s:g} s at {run.rate_hz:g} Hz, seed {run.seed}",
+        displacement=run.displacement_model,
+        sigma_m_per_sqrt_s=run.random_walk_sigma,
+        comments=["GNSS run config written by cdgps simulate-gnss (format: docs/gnss-pipeline.md).",
+                  f"{m}: master at its true position; {r}: nominal position in its header,",
+                  "true displacement in truth.csv.  Run:",
+                  "  cdgps ingest --config config.toml -o run.mcap && cdgps init run.mcap -o init.json",
+                  "  cdgps estimate run.mcap --init init.json -o states.mcap && cdgps evaluate --truth . --estimate states.mcap"],
+    )

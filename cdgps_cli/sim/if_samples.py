@@ -36,10 +36,9 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from cdgps_cli.io.atomic import output_set, write_atomic
-from cdgps_cli.io.coordinate_columns import coordinate_table
+from cdgps_cli.io.sim_truth import read_truth_folder, truth_coordinates
 from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.model.kinematics import antenna_positions
@@ -296,22 +295,14 @@ def truth_at(tx: Transmitter, delay_s: np.ndarray, time_s: np.ndarray) -> dict:
 
 def read_structure_truth(sim_dir: str | Path, cfg: StructureConfig) -> tuple[np.ndarray, np.ndarray]:
     """(time_s (N,), q (N, n_q)) of a ``cdgps simulate`` folder (truth.csv, truth.json) of ``cfg``."""
-    d = Path(sim_dir)
-    try:
-        tj = json.loads((d / "truth.json").read_text(encoding="utf-8"))
-        truth = pd.read_csv(d / "truth.csv")
-    except (OSError, ValueError) as exc:
-        raise CdgpsError(f"{d}: not a `cdgps simulate` folder (truth.json, truth.csv): {exc}") from None
-    if not isinstance(tj, dict) or tj.get("config_sha256") != cfg.sha256:
-        raise CdgpsError(f"{d / 'truth.json'}: simulated with another config than {cfg.path} (config_sha256 differs)")
-    truth, missing = coordinate_table(truth, cfg)        # q1_rad, or a bare q1 (files before issue 32)
-    missing = [c for c in ("time_s",) if c not in truth.columns] + missing
-    if missing:
-        raise CdgpsError(f"{d / 'truth.csv'}: missing column(s) {', '.join(missing)}")
+    sim = read_truth_folder(sim_dir)
+    if sim.info.get("config_sha256") != cfg.sha256:
+        raise CdgpsError(f"{sim.json_path}: simulated with another config than {cfg.path} (config_sha256 differs)")
+    truth = truth_coordinates(sim, cfg)                  # q1_rad, or a bare q1 (files before issue 32)
     t = truth["time_s"].to_numpy(dtype=float)
     q = truth[list(cfg.coord_names)].to_numpy(dtype=float)
     if t.size < 4 or not (np.all(np.isfinite(t)) and np.all(np.diff(t) > 0) and np.all(np.isfinite(q))):
-        raise CdgpsError(f"{d / 'truth.csv'}: expected at least 4 rows of finite values in increasing time_s")
+        raise CdgpsError(f"{sim.csv_path}: expected at least 4 rows of finite values in increasing time_s")
     return t, q
 
 

@@ -84,6 +84,32 @@ class SimOptions:
     noise_scale: dict = field(default_factory=dict)   # {antenna or transmitter name: factor on the white noise σ}
 
 
+def check_receiver_epochs(duration_s: float, sample_period_s: float, gnss_interval_s: float | None = None) -> int:
+    """Receiver epochs of ``simulate-gnss-structure``: the structure is simulated at ``sample_period_s``
+    for ``duration_s`` and every ``gnss_interval_s`` (default: the sample period) becomes a receiver epoch.
+
+    Returns
+    -------
+    int
+        The epoch count; CdgpsError naming ``--gnss-interval`` (or ``--duration``) if it is below 2
+        (one epoch makes no phase track).  An interval that is no whole multiple of the sample
+        period is left to :func:`~cdgps_cli.pipeline.gnss_modal.simulate_structure_gnss`, which refuses it.
+    """
+    T = float(sample_period_s)
+    interval = T if gnss_interval_s is None else float(gnss_interval_s)
+    if not (np.isfinite(duration_s) and duration_s > 0 and np.isfinite(interval) and interval > 0):
+        return 0
+    step = max(int(round(interval / T)), 1)
+    n_truth = int(round(duration_s / T)) + 1
+    n = len(range(0, n_truth, step))
+    if n < 2:
+        what = (f"--gnss-interval {interval:g} s" if gnss_interval_s is not None
+                else f"--duration {duration_s:g} s at the config's sample_period_s {T:g} s")
+        raise CdgpsError(f"{what}: leaves {n} receiver epoch(s) in --duration {duration_s:g} s; expected at least 2 "
+                         f"(an interval of at most {(n_truth - 1) * T:g} s, or a longer --duration)")
+    return n
+
+
 def parse_noise_scale(text: str) -> tuple[str, float]:
     """``NAME:FACTOR`` (``--noise-scale a3:5``) → (name, factor): the white phase noise of every channel
     of antenna or transmitter NAME is multiplied by FACTOR (> 0)."""
@@ -232,28 +258,57 @@ def simulate(cfg: StructureConfig, opt: SimOptions, trajectory=None) -> Simulati
     Simulation
     """
     _validate(cfg, opt, closed_loop=trajectory is not None)
-    sim = cfg.simulation
     rng = np.random.default_rng(opt.seed)
     model = discrete_model(cfg)
     T = cfg.sample_period_s
     n = int(round(opt.duration_s / T)) + 1
     time_s = np.round(np.arange(n) * T, 9)
+    w = _disturbance(cfg, opt, rng, n, model.Bw.shape[1])
+    x0 = _initial_state(cfg, opt, rng)
+    u, actuators = _thruster_commands(cfg, opt, time_s)
+    extra = {}
+    if trajectory is not None:
+        noise_m = _phase_noise(cfg, opt, copy.deepcopy(rng), n, len(all_channels(cfg)[0]))
+        x, actuators, extra = trajectory(time_s, x0, w, noise_m)
+    else:
+        x = _propagate(model, x0, u, w)
+    U = np.asarray(cfg.mode_shapes)
+    q = x[:, :cfg.n_modes] @ U.T
+    qdot = x[:, cfg.n_modes:] @ U.T
+    truth = {"scenario": opt.scenario, "seed": opt.seed, "duration_s": float(time_s[-1]),
+             "sample_period_s": T, "config": cfg.name, "config_sha256": cfg.sha256,
+             "coordinates": dict(zip(cfg.coord_names, cfg.coord_kinds))}   # kinds: the reports' limits per coordinate
+    if opt.scenario == "static":
+        q, qdot, x, truth["segments"] = _static_rest(cfg, time_s, q, qdot)
+    else:
+        truth["segments"] = _segments(cfg, opt, time_s)
+    truth.update(extra)
+    receiver, truth["biases"], truth["slips"] = _phase_log(cfg, opt, rng, time_s, q)
+    truth.update(_noise_scale_truth(cfg, opt))
+    gyro, truth["gyros"] = _gyro_log(cfg, rng, time_s, qdot)
+    return Simulation(cfg, opt, time_s, q, x, receiver, gyro, actuators, truth)
+
+
+def _disturbance(cfg: StructureConfig, opt: SimOptions, rng, n: int, n_w: int) -> np.ndarray:
+    """The true disturbance input, (n, n_w): the config's process noise scaled by
+    ``disturbance_scale`` (white, or correlated ``w = L z`` with W = L Lᵀ)."""
+    dscale = cfg.simulation["disturbance_scale"] if opt.disturbance_scale is None else opt.disturbance_scale
+    w = rng.standard_normal((n, n_w))
+    if cfg.process_noise_covariance is None:
+        w *= dscale * np.asarray(cfg.process_noise_sigma)
+    else:
+        w = w @ (dscale * cfg.process_noise_factor).T
+    return w
+
+
+def _initial_state(cfg: StructureConfig, opt: SimOptions, rng) -> np.ndarray:
+    """The initial modal state (2 n_m): random modal amplitudes and rates for free and static, nearly
+    at rest otherwise (slew: the rigid-body angle at ``slew_from_deg``)."""
+    sim = cfg.simulation
     nm = cfg.n_modes
     U = np.asarray(cfg.mode_shapes)
     rigid_mode = np.asarray(cfg.mode_frequency_hz) == 0.0
     omega = 2 * np.pi * np.asarray(cfg.mode_frequency_hz)
-
-    # ---- inputs: disturbance and thruster commands
-    n_w = model.Bw.shape[1]
-    dscale = sim["disturbance_scale"] if opt.disturbance_scale is None else opt.disturbance_scale
-    w = rng.standard_normal((n, n_w))
-    if cfg.process_noise_covariance is None:
-        w *= dscale * np.asarray(cfg.process_noise_sigma)
-    else:                                   # correlated forcing: w = L z with W = L Lᵀ
-        w = w @ (dscale * cfg.process_noise_factor).T
-    n_u = len(cfg.thruster_names)
-    u = np.zeros((n, n_u))
-    actuators = None
     x0 = np.zeros(2 * nm)
     amp = np.where(rigid_mode, 0.0, sim["initial_modal_sigma"])
     if opt.scenario in ("free", "static"):
@@ -267,89 +322,100 @@ def simulate(cfg: StructureConfig, opt: SimOptions, trajectory=None) -> Simulati
         x0[:nm] = rng.standard_normal(nm) * amp * 0.02       # nearly at rest
         if opt.scenario == "slew":
             x0[:nm][rigid_mode] = np.radians(sim["slew_from_deg"]) / U[cfg.rigid_index, rigid_mode]
-        names = list(cfg.thruster_names)
-        t0, dur, f = sim["pulse_time_s"], sim["pulse_duration_s"], sim["pulse_force_n"]
-        on = (time_s >= t0 - 1e-9) & (time_s < t0 + dur - 1e-9)
-        rows = []
-        for tname in (sim["pulse_thrusters"] if opt.scenario == "pulse" else []):
-            k = names.index(tname)
-            u[on, k] = f
-            rows.append((t0, tname, f))
-            rows.append((t0 + dur, tname, 0.0))
-        rows.sort(key=lambda r: (r[0], names.index(r[1])))
-        actuators = pd.DataFrame(rows, columns=["time_s", "actuator", "force_n"])
+    return x0
 
-    # ---- propagate the modal state (ZOH on u and w), or run the closed loop
-    extra = {}
-    if trajectory is not None:
-        noise_m = _phase_noise(cfg, opt, copy.deepcopy(rng), n, len(all_channels(cfg)[0]))
-        x, actuators, extra = trajectory(time_s, x0, w, noise_m)
-    else:
-        x = np.empty((n, 2 * nm))
-        x[0] = x0
-        drive = u @ model.B.T + w @ model.Bw.T
-        A_T = model.A.T
-        for k in range(1, n):
-            x[k] = x[k - 1] @ A_T + drive[k - 1]
-    q = x[:, :nm] @ U.T
-    qdot = x[:, nm:] @ U.T
 
-    truth = {"scenario": opt.scenario, "seed": opt.seed, "duration_s": float(time_s[-1]),
-             "sample_period_s": T, "config": cfg.name, "config_sha256": cfg.sha256,
-             "coordinates": dict(zip(cfg.coord_names, cfg.coord_kinds))}   # kinds: the reports' limits per coordinate
-    segments = [{"kind": "motion", "start_s": 0.0, "end_s": float(time_s[-1])}]
-    if opt.scenario == "static":
-        t_rest, t_settle = sim["static_rest_after_s"], sim["static_settle_s"]
-        target = np.zeros(cfg.n_q)
-        if sim["static_angle_coordinate"]:
-            target[cfg.coord_names.index(sim["static_angle_coordinate"])] = np.radians(sim["static_angle_deg"])
-        s = np.clip((time_s - t_rest) / max(t_settle, 1e-9), 0.0, 1.0)
-        blend = 0.5 - 0.5 * np.cos(np.pi * s)                 # smooth 0 → 1
-        dblend = np.where((s > 0) & (s < 1), 0.5 * np.pi * np.sin(np.pi * s) / max(t_settle, 1e-9), 0.0)
-        q_free = q
-        q = (1 - blend)[:, None] * q_free + blend[:, None] * target
-        qdot = (1 - blend)[:, None] * qdot + dblend[:, None] * (target - q_free)
-        Uinv = np.linalg.pinv(U)
-        x = np.hstack([q @ Uinv.T, qdot @ Uinv.T])
-        end = float(time_s[-1])
-        rest_start = t_rest + t_settle
-        segments = [{"kind": "motion", "start_s": 0.0, "end_s": float(min(t_rest, end))}]
-        if t_rest < end:
-            segments.append({"kind": "settling", "start_s": float(t_rest), "end_s": float(min(rest_start, end))})
-        if rest_start < end:
-            segments.append({"kind": "rest", "start_s": float(rest_start), "end_s": end,
-                             "q": {nme: float(v) for nme, v in zip(cfg.coord_names, target)}})
-    elif opt.scenario == "pulse":
-        segments = [{"kind": "rest", "start_s": 0.0, "end_s": float(sim["pulse_time_s"])},
-                    {"kind": "pulse", "start_s": float(sim["pulse_time_s"]),
-                     "end_s": float(sim["pulse_time_s"] + sim["pulse_duration_s"]),
-                     "thrusters": list(sim["pulse_thrusters"]), "force_n": float(sim["pulse_force_n"])},
-                    {"kind": "free", "start_s": float(sim["pulse_time_s"] + sim["pulse_duration_s"]), "end_s": float(time_s[-1])}]
-    elif opt.scenario == "slew":
-        segments = [{"kind": "rest", "start_s": 0.0, "end_s": float(sim["slew_time_s"]),
-                     "rigid_angle_deg": float(sim["slew_from_deg"])},
-                    {"kind": "slew", "start_s": float(sim["slew_time_s"]), "end_s": float(time_s[-1]),
-                     "command_deg": float(sim["slew_to_deg"])}]
-    truth["segments"] = segments
-    truth.update(extra)
+def _thruster_commands(cfg: StructureConfig, opt: SimOptions, time_s: np.ndarray):
+    """(thruster forces (N, n_u) N, the actuator log or None): the pulse scenario fires the
+    config's ``pulse_thrusters``; pulse and slew get a (possibly empty) log, free and static none."""
+    sim = cfg.simulation
+    names = list(cfg.thruster_names)
+    u = np.zeros((len(time_s), len(names)))
+    if opt.scenario in ("free", "static"):
+        return u, None
+    t0, dur, f = sim["pulse_time_s"], sim["pulse_duration_s"], sim["pulse_force_n"]
+    on = (time_s >= t0 - 1e-9) & (time_s < t0 + dur - 1e-9)
+    rows = []
+    for tname in (sim["pulse_thrusters"] if opt.scenario == "pulse" else []):
+        k = names.index(tname)
+        u[on, k] = f
+        rows.append((t0, tname, f))
+        rows.append((t0 + dur, tname, 0.0))
+    rows.sort(key=lambda r: (r[0], names.index(r[1])))
+    return u, pd.DataFrame(rows, columns=["time_s", "actuator", "force_n"])
 
-    receiver, bias_records, slip_records = _phase_log(cfg, opt, rng, time_s, q)
-    truth["biases"] = bias_records
-    truth["slips"] = slip_records
-    if opt.noise_scale:
-        ant, tx = all_channels(cfg)
-        s0 = cfg.simulation["phase_sigma_m"] if opt.phase_sigma_m is None else opt.phase_sigma_m
-        f = noise_scale_per_channel(cfg, opt.noise_scale, ant, tx)
-        truth["noise_scale"] = dict(opt.noise_scale)
-        truth["phase_sigma_m_per_channel"] = {f"{cfg.antenna_names[a]}/{cfg.transmitter_names[t]}": float(s0 * v)
-                                              for a, t, v in zip(ant, tx, f)}
-    gyro, gyro_truth = _gyro_log(cfg, rng, time_s, qdot)
-    truth["gyros"] = gyro_truth
-    return Simulation(cfg, opt, time_s, q, x, receiver, gyro, actuators, truth)
+
+def _propagate(model, x0: np.ndarray, u: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """The open-loop modal state (N, 2 n_m), zero-order hold on ``u`` and ``w``."""
+    x = np.empty((len(u), x0.size))
+    x[0] = x0
+    drive = u @ model.B.T + w @ model.Bw.T
+    A_T = model.A.T
+    for k in range(1, len(u)):
+        x[k] = x[k - 1] @ A_T + drive[k - 1]
+    return x
+
+
+def _static_rest(cfg: StructureConfig, time_s: np.ndarray, q: np.ndarray, qdot: np.ndarray):
+    """The static scenario: the free motion blended smoothly into rest at the surveyed angle.
+    Returns (q, qdot, modal state x, truth segments: motion, settling, rest)."""
+    sim = cfg.simulation
+    t_rest, t_settle = sim["static_rest_after_s"], sim["static_settle_s"]
+    target = np.zeros(cfg.n_q)
+    if sim["static_angle_coordinate"]:
+        target[cfg.coord_names.index(sim["static_angle_coordinate"])] = np.radians(sim["static_angle_deg"])
+    s = np.clip((time_s - t_rest) / max(t_settle, 1e-9), 0.0, 1.0)
+    blend = 0.5 - 0.5 * np.cos(np.pi * s)                 # smooth 0 → 1
+    dblend = np.where((s > 0) & (s < 1), 0.5 * np.pi * np.sin(np.pi * s) / max(t_settle, 1e-9), 0.0)
+    q_free = q
+    q = (1 - blend)[:, None] * q_free + blend[:, None] * target
+    qdot = (1 - blend)[:, None] * qdot + dblend[:, None] * (target - q_free)
+    Uinv = np.linalg.pinv(np.asarray(cfg.mode_shapes))
+    x = np.hstack([q @ Uinv.T, qdot @ Uinv.T])
+    end = float(time_s[-1])
+    rest_start = t_rest + t_settle
+    segments = [{"kind": "motion", "start_s": 0.0, "end_s": float(min(t_rest, end))}]
+    if t_rest < end:
+        segments.append({"kind": "settling", "start_s": float(t_rest), "end_s": float(min(rest_start, end))})
+    if rest_start < end:
+        segments.append({"kind": "rest", "start_s": float(rest_start), "end_s": end,
+                         "q": {nme: float(v) for nme, v in zip(cfg.coord_names, target)}})
+    return q, qdot, x, segments
+
+
+def _segments(cfg: StructureConfig, opt: SimOptions, time_s: np.ndarray) -> list[dict]:
+    """truth.json segments of the free, pulse and slew scenarios."""
+    sim = cfg.simulation
+    end = float(time_s[-1])
+    if opt.scenario == "pulse":
+        t0, t1 = float(sim["pulse_time_s"]), float(sim["pulse_time_s"] + sim["pulse_duration_s"])
+        return [{"kind": "rest", "start_s": 0.0, "end_s": t0},
+                {"kind": "pulse", "start_s": t0, "end_s": t1,
+                 "thrusters": list(sim["pulse_thrusters"]), "force_n": float(sim["pulse_force_n"])},
+                {"kind": "free", "start_s": t1, "end_s": end}]
+    if opt.scenario == "slew":
+        return [{"kind": "rest", "start_s": 0.0, "end_s": float(sim["slew_time_s"]),
+                 "rigid_angle_deg": float(sim["slew_from_deg"])},
+                {"kind": "slew", "start_s": float(sim["slew_time_s"]), "end_s": end,
+                 "command_deg": float(sim["slew_to_deg"])}]
+    return [{"kind": "motion", "start_s": 0.0, "end_s": end}]
+
+
+def _noise_scale_truth(cfg: StructureConfig, opt: SimOptions) -> dict:
+    """truth.json: the ``--noise-scale`` factors and the white phase σ of every channel (empty without them)."""
+    if not opt.noise_scale:
+        return {}
+    ant, tx = all_channels(cfg)
+    s0 = cfg.simulation["phase_sigma_m"] if opt.phase_sigma_m is None else opt.phase_sigma_m
+    f = noise_scale_per_channel(cfg, opt.noise_scale, ant, tx)
+    return {"noise_scale": dict(opt.noise_scale),
+            "phase_sigma_m_per_channel": {f"{cfg.antenna_names[a]}/{cfg.transmitter_names[t]}": float(s0 * v)
+                                          for a, t, v in zip(ant, tx, f)}}
 
 
 def _phase_log(cfg, opt, rng, time_s, q):
-    sim = cfg.simulation
+    """The receiver log (carrier phase, lock count, SNR per visible channel and epoch), the initial
+    bias of every channel and its slip/relock events."""
     lam = cfg.wavelength_m
     n = len(time_s)
     ant, tx = all_channels(cfg)
@@ -359,13 +425,39 @@ def _phase_log(cfg, opt, rng, time_s, q):
     line_bias = cfg.antenna_line_bias_m[ant] - cfg.antenna_line_bias_m[cfg.master_index]
     ant_names = np.array(cfg.antenna_names, dtype=object)[ant]
     tx_names = np.array(cfg.transmitter_names, dtype=object)[tx]
+    visible = _visibility(cfg, opt, time_s, tx)
+    slip_at = _slip_schedule(cfg, opt, rng, time_s, C)
+    y = h + line_bias + noise                                   # range + line bias + error, m (N, C)
+    phase = np.empty((n, C))
+    lock = np.zeros((n, C), dtype=np.int64)
+    bias_records, slip_records = [], []
+    for c in range(C):
+        names = {"antenna": ant_names[c], "transmitter": tx_names[c]}
+        integers, lock[:, c], events = _channel_integers(y[:, c], lam, visible[:, c], slip_at.get(c, []))
+        bias_records.append({**names, "bias_m": float(line_bias[c] + lam * integers[0]),
+                             "integer_cycles": int(integers[0]), "line_bias_m": float(line_bias[c])})
+        slip_records += [{"time_s": float(time_s[k]), **names, "kind": kind, "integer_cycles_before": before,
+                          "integer_cycles_after": new, "bias_m": float(line_bias[c] + lam * new)}
+                         for k, kind, before, new in events]
+        phase[:, c] = y[:, c] / lam + integers
+    slip_records.sort(key=lambda r: (r["time_s"], r["antenna"], r["transmitter"]))
+    return _receiver_table(cfg, rng, time_s, phase, lock, visible, ant_names, tx_names), bias_records, slip_records
 
-    visible = np.ones((n, C), dtype=bool)
+
+def _visibility(cfg, opt, time_s, tx) -> np.ndarray:
+    """(N, C) bool: every channel visible but during its transmitter's outages."""
+    visible = np.ones((len(time_s), len(tx)), dtype=bool)
     for o in opt.outages:
         j = cfg.transmitter_names.index(o.transmitter)
         off = (time_s >= o.start_s - 1e-9) & (time_s < o.start_s + o.duration_s - 1e-9)
         visible[np.ix_(off, tx == j)] = False
-    # cycle slips: explicit plus random ones (random channel, time, ±1..5 cycles)
+    return visible
+
+
+def _slip_schedule(cfg, opt, rng, time_s, C: int) -> dict:
+    """{channel: [(epoch, cycles), …]}: the explicit slips plus random ones (random channel, time,
+    ±1..5 cycles), each at the first epoch at or after its time (none at the first epoch)."""
+    n = len(time_s)
     slips = [(s.time_s, cfg.rover_names.index(s.antenna) * len(cfg.transmitter_names)
               + cfg.transmitter_names.index(s.transmitter), s.cycles) for s in opt.slips]
     for _ in range(opt.random_slips):
@@ -378,44 +470,37 @@ def _phase_log(cfg, opt, rng, time_s, q):
         k = int(np.searchsorted(time_s, t - 1e-9))
         if 0 < k < n:
             slip_at.setdefault(c, []).append((k, cyc))
+    return slip_at
 
-    phase = np.empty((n, C))
-    lock = np.zeros((n, C), dtype=np.int64)
-    bias_records, slip_records = [], []
-    idx = np.arange(n)
-    for c in range(C):
-        # lock segments: contiguous visible runs; a slip splits a run without losing signal
-        vis = visible[:, c]
-        starts = list(np.flatnonzero(vis & ~np.r_[False, vis[:-1]]))
-        events = sorted([(k, "reacquisition", 0) for k in starts[1:]] + [(k, "slip", cyc) for k, cyc in slip_at.get(c, []) if vis[k]])
-        k0 = starts[0] if starts else 0
-        y0 = h[k0, c] + line_bias[c] + noise[k0, c]
-        integer = -int(np.floor(np.round(y0 / lam, 6)))   # phase at lock, as written, in [0, 1)
-        bias_records.append({"antenna": ant_names[c], "transmitter": tx_names[c],
-                             "bias_m": float(line_bias[c] + lam * integer), "integer_cycles": integer,
-                             "line_bias_m": float(line_bias[c])})
-        integers = np.full(n, integer, dtype=np.int64)
-        lock_start = np.full(n, k0)
-        for k, kind, cyc in events:
-            before = int(integers[k])
-            if kind == "slip":
-                new = before + cyc
-            else:
-                y = h[k, c] + line_bias[c] + noise[k, c]
-                new = -int(np.floor(np.round(y / lam, 6)))
-            integers[k:] = new
-            lock_start[k:] = k
-            slip_records.append({"time_s": float(time_s[k]), "antenna": ant_names[c], "transmitter": tx_names[c],
-                                 "kind": kind, "integer_cycles_before": before, "integer_cycles_after": new,
-                                 "bias_m": float(line_bias[c] + lam * new)})
-        phase[:, c] = (h[:, c] + line_bias[c] + noise[:, c]) / lam + integers
-        lock[:, c] = idx - lock_start
-    slip_records.sort(key=lambda r: (r["time_s"], r["antenna"], r["transmitter"]))
 
-    snr = np.round(sim["snr_dbhz"] + rng.standard_normal((n, C)), 1)
+def _channel_integers(y: np.ndarray, lam: float, vis: np.ndarray, slips: list):
+    """One channel's integer ambiguity per epoch (N,) int64, its lock count (N,) and its events
+    ``(epoch, "slip" | "reacquisition", integer before, after)``.  Lock segments are the contiguous
+    visible runs; a slip splits a run without losing signal; at each lock the integer makes the
+    phase as written lie in [0, 1) cycles."""
+    n = len(y)
+    starts = list(np.flatnonzero(vis & ~np.r_[False, vis[:-1]]))
+    todo = sorted([(k, "reacquisition", 0) for k in starts[1:]] + [(k, "slip", cyc) for k, cyc in slips if vis[k]])
+    k0 = starts[0] if starts else 0
+    integers = np.full(n, -int(np.floor(np.round(y[k0] / lam, 6))), dtype=np.int64)
+    lock_start = np.full(n, k0)
+    events = []
+    for k, kind, cyc in todo:
+        before = int(integers[k])
+        new = before + cyc if kind == "slip" else -int(np.floor(np.round(y[k] / lam, 6)))
+        integers[k:] = new
+        lock_start[k:] = k
+        events.append((k, kind, before, new))
+    return integers, np.arange(n) - lock_start, events
+
+
+def _receiver_table(cfg, rng, time_s, phase, lock, visible, ant_names, tx_names) -> pd.DataFrame:
+    """receiver.csv: a row per visible channel and epoch, SNR the config's ``snr_dbhz`` ± 1 dB-Hz."""
+    n, C = phase.shape
+    snr = np.round(cfg.simulation["snr_dbhz"] + rng.standard_normal((n, C)), 1)
     rx_of = {a: cfg.antenna_receiver[i] for i, a in enumerate(cfg.antenna_names)}
     mask = visible.ravel()
-    df = pd.DataFrame({
+    return pd.DataFrame({
         "time_s": np.repeat(time_s, C)[mask],
         "receiver": np.tile(np.array([rx_of[a] for a in ant_names], dtype=object), n)[mask],
         "master": cfg.antenna_names[cfg.master_index],
@@ -425,7 +510,6 @@ def _phase_log(cfg, opt, rng, time_s, q):
         "lock": lock.ravel()[mask],
         "snr_dbhz": snr.ravel()[mask],
     })
-    return df, bias_records, slip_records
 
 
 def _phase_noise(cfg, opt, rng, n, C):

@@ -93,3 +93,20 @@ def test_rtk_report_refuses_a_line_with_bad_values(tmp_path, field, value, needl
     r = CliRunner().invoke(main, ["report", "rtk", str(pos), "-o", str(tmp_path / "rep")])
     assert r.exit_code == 2 and f"line {k + 1}: {needle}" in r.output and "Traceback" not in r.output, r.output
     assert not (tmp_path / "rep").exists()
+
+
+def test_rtk_report_refuses_a_last_line_cut_short(tmp_path):
+    """A .pos with the velocity columns RTKLIB writes after ratio (out-outvel), its last line cut in the
+    velocities: refused naming file and line, with the field count the header promises (was read as whole)."""
+    pos, _ = _pos(tmp_path, "enu")
+    vel = ["vn(m/s)", "ve(m/s)", "vu(m/s)", "sdvn", "sdve", "sdvu", "sdvne", "sdveu", "sdvun"]
+    lines = [ln + "  " + " ".join(vel) if ln.startswith("%  GPST") else ln if ln.startswith("%")
+             else ln + " " + " ".join(["0.0010"] * 9) for ln in pos.read_text().splitlines()]
+    pos.write_text("\n".join(lines) + "\n")
+    r = CliRunner().invoke(main, ["report", "rtk", str(pos), "-o", str(tmp_path / "whole"), "--date", "2026-12-04"])
+    assert r.exit_code == 0, r.output
+    pos.write_text("\n".join(lines)[:-30])                        # cut in the velocities, no final newline
+    r = CliRunner().invoke(main, ["report", "rtk", str(pos), "-o", str(tmp_path / "rep")])
+    assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+    assert f"{pos}, line {len(lines)}: 20 fields, the column header promises 24" in r.output, r.output
+    assert not (tmp_path / "rep").exists()
