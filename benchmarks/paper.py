@@ -419,6 +419,20 @@ def _tracking_module():
     return _load_script("benchmarks/tracking_paper.py")
 
 
+def _noise_suppression_db(tones: dict, above_hz: float = 20.0) -> tuple[float, float, tuple[float, float]]:
+    """Mean dB by which the 3 Hz loop's measured |H| lies below the 15 Hz loop's at tones ≥ ``above_hz``
+    (above both bandwidths, where Alban's "phase-noise suppression" applies), the same from the
+    continuous second-order loops, and the tone band used (Hz)."""
+    from cdgps_cli.tracking.loops import pll2_response  # noqa: PLC0415
+
+    f = [x for x in tones["tones_hz"] if x >= above_hz]
+    gain = {r["run"]: r["gain"] for r in tones["runs"]}
+    idx = [tones["tones_hz"].index(x) for x in f]
+    measured = [20 * math.log10(gain["15 Hz unaided"][i] / gain["3 Hz unaided"][i]) for i in idx]
+    analytic = [20 * math.log10(abs(pll2_response(x, 15.0)) / abs(pll2_response(x, 3.0))) for x in f]
+    return sum(measured) / len(measured), sum(analytic) / len(analytic), (min(f), max(f))
+
+
 def htracking(w: Path, figdir: Path) -> list[Headline]:
     tp = _tracking_module()
     tones, jitter, shared = tp.study_tones(), tp.study_jitter(), tp.study_shared()
@@ -427,6 +441,7 @@ def htracking(w: Path, figdir: Path) -> list[Headline]:
     dyn = {(r["bn_hz"], r["loop"]): r for r in jitter["dynamics"]}
     j15, j3a = dyn[(15.0, "unaided")]["jitter_deg"], dyn[(3.0, "aided")]["jitter_deg"]
     gain_db = 20 * math.log10(j15 / j3a)
+    supp_db, supp_analytic_db, supp_f = _noise_suppression_db(tones)
     tcxo = next(o for o in shared["oscillators"] if o["name"] == "TCXO")
     rows = {r["run"]: r for r in tcxo["rows"]}
     narrow = next((r for k, r in rows.items() if k.startswith("3 Hz + shared")), None)
@@ -437,11 +452,21 @@ def htracking(w: Path, figdir: Path) -> list[Headline]:
                       f"{bw['3 Hz unaided']:.1f} Hz", met=aided_bw is not None and aided_bw > 30, commands=[cmd],
                  values={"tones": tones}, figure="figures/tracking-tones.png"),
         Headline("2003", "abstract", "a 3 Hz aided loop suppresses phase noise 14 dB better than a traditional 15 Hz loop",
-                 ours=f"{gain_db:.1f} dB: jitter {j15:.2f}° (15 Hz unaided) → {j3a:.2f}° (3 Hz, consumer accelerometer aid), "
-                      f"0.5 g at 2 Hz line-of-sight dynamics, 45 dB-Hz", met=gain_db >= 14 - 1,
-                 commands=[cmd], values={"jitter": jitter}, figure="figures/tracking-jitter.png",
-                 note="The paper does not give the dynamics and C/N0 behind its 14 dB; ours are stated, and the ratio "
-                      "depends on them."),
+                 ours=f"{supp_db:.1f} dB: the 3 Hz loop's phase-noise transfer |H| lies that far below the 15 Hz loop's "
+                      f"(phase tones {supp_f[0]:g}–{supp_f[1]:g} Hz, 55 dB-Hz; analytic 20·log10(15/3) = {supp_analytic_db:.1f} dB); "
+                      f"RMS jitter under 0.5 g at 2 Hz dynamics, 45 dB-Hz: {gain_db:.1f} dB ({j15:.2f}° → {j3a:.2f}°, "
+                      "consumer accelerometer aid)", met=abs(supp_db - 14.0) <= 1.0,
+                 commands=[cmd], values={"jitter": jitter, "noise_suppression_db": supp_db,
+                                         "noise_suppression_analytic_db": supp_analytic_db,
+                                         "noise_suppression_band_hz": list(supp_f), "jitter_ratio_db": gain_db},
+                 figure="figures/tracking-jitter.png",
+                 note="14 dB is 20·log10(15/3) = 13.98 dB: the ratio of the two loops' noise transfer H1(s) = K1(τ1 s + 1)/"
+                      "(s² + K1τ1 s + K1) above their bandwidths, where |H1| ≈ K1τ1/ω = 2ζω_n/ω scales with B_n (Alban "
+                      "Eq. 1–2: the reference phase and the phase noise pass through the same H1; aiding removes the "
+                      "dynamics from the reference, not the noise). It is not an RMS-jitter ratio: for white (thermal) "
+                      "noise σ² ∝ B_n gives 10·log10(5) = 7.0 dB, and our jitter ratio under stated dynamics "
+                      f"({gain_db:.1f} dB) depends on the dynamics and C/N0, which the paper does not give. Our measured "
+                      "tones are the unaided 3 and 15 Hz loops; the aided 3 Hz loop passes noise through the same H1."),
         Headline("2003", "abstract", "with low-cost inertial sensors and a typical TCXO the loop works at a 3 Hz bandwidth",
                  ours=(f"TCXO: independent 3 Hz loops lose lock ({rows['independent 3 Hz']['slips']} slips in "
                        f"{tcxo.get('duration_s', shared['duration_s'])} s); 3 Hz channels with a shared clock loop: "
