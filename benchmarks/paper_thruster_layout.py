@@ -18,8 +18,9 @@ the estimator in the loop, seeds 1..N.  Per layout: arrival, the largest |q3/q6/
 |q1/q4/q7| and the jets' saturated fraction.  About 20 s per run.
 
     python benchmarks/paper_thruster_layout.py [--seeds 2]
+    python benchmarks/paper_thruster_layout.py --qx 33.7     # the paper's weight form at the scale Fig. 6 implies
 
-Writes docs/benchmarks/paper-thruster-layout.json.
+Writes docs/benchmarks/paper-thruster-layout.json (with --qx: paper-thruster-layout-qx<W>.json).
 """
 
 from __future__ import annotations
@@ -80,7 +81,10 @@ def slew(cfg_path: Path, gains: Path, seed: int, fraction: float, out: Path) -> 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=2)
+    ap.add_argument("--qx", type=float, default=None,
+                    help="design with --weights paper --qx W (benchmarks/paper_fig6_weights.py) instead of tuned")
     a = ap.parse_args(argv)
+    weights = ("--weights", "tuned") if a.qx is None else ("--weights", "paper", "--qx", f"{a.qx:g}")
     base_acc = rigid_authority(load_config(CONFIG))[2]
     res = {}
     with tempfile.TemporaryDirectory(prefix="cdgps-layout-") as tmp:
@@ -91,7 +95,7 @@ def main(argv=None) -> int:
             acc = rigid_authority(load_config(cfg_path))[2]
             fraction = SLEW_AUTHORITY_FRACTION * base_acc / acc
             gains = w / f"gains-{name}.json"
-            _run("control", "design", cfg_path, "--weights", "tuned", "-o", gains)
+            _run("control", "design", cfg_path, *weights, "-o", gains)
             runs = [slew(cfg_path, gains, s, fraction, w / f"slew-{name}-{s}") for s in range(1, a.seeds + 1)]
             res[name] = {"rigid_authority_ratio": acc / base_acc, "profile_fraction": fraction, "runs": runs}
             print(name, json.dumps(res[name]), flush=True)
@@ -104,8 +108,10 @@ def main(argv=None) -> int:
               f"{'–'.join('none' if v is None else f'{v:.1f}' for v in arr)} | "
               f"{max(x['vertical_deg'] for x in rr):.2f} | {max(x['twist_deg'] for x in rr):.2f} | "
               f"{max(x['lateral_mm'] for x in rr):.1f} | {max(x['saturated'] or 0 for x in rr):.0%} |")
-    (ROOT / "docs" / "benchmarks" / "paper-thruster-layout.json").write_text(
-        json.dumps({"benchmark": "paper_thruster_layout", "seeds": a.seeds, "layouts": res}, indent=1) + "\n")
+    name = "paper-thruster-layout.json" if a.qx is None else f"paper-thruster-layout-qx{a.qx:g}.json"
+    (ROOT / "docs" / "benchmarks" / name).write_text(
+        json.dumps({"benchmark": "paper_thruster_layout", "seeds": a.seeds, "weights": list(weights), "layouts": res},
+                   indent=1) + "\n")
     return 0
 
 
