@@ -27,7 +27,80 @@ def test_quick_paper_reproduction(tmp_path):
     assert static["noise_rms_deg"] < 0.02 and abs(static["error_deg"]) < 0.1
     assert by[("1998", "Sec. V, Fig. 6")]["met"] is False    # not reproduced, and the table says so
     model = by[("1998", "Table 1, Figs. 3–5")]
-    assert model["met"] is False and abs(model["values"]["error_pct"]["swing"] + 10.1) < 0.2   # the 12 m threads
-    assert sum(abs(e) <= 5.0 for e in model["values"]["error_pct"].values()) == 6
+    assert model["met"] is True and max(abs(e) for e in model["values"]["error_pct"].values()) < 2.5
+    assert abs(model["values"]["error_pct_12m_threads"]["swing"] + 10.1) < 0.2   # the paper's 12 m threads: bound
     md = (tmp_path / "paper-reproduction.md").read_text()
     assert md.count("| 199") == len(rows) and "**no**" in md and (tmp_path / "figures" / "paper-static.png").exists()
+
+
+def _paper_module():
+    spec = importlib.util.spec_from_file_location("paper", ROOT / "benchmarks" / "paper.py")
+    paper = importlib.util.module_from_spec(spec)
+    sys.modules["paper"] = paper
+    spec.loader.exec_module(paper)
+    return paper
+
+
+def test_noise_suppression_is_the_high_frequency_ratio_of_the_loops():
+    """Alban 2003's 14 dB: the 15 Hz loop's noise transfer over the 3 Hz loop's above both bandwidths,
+    20·log10(15/3) = 13.98 dB; on tones at the analytic responses the helper returns it, and on tones
+    below 15 Hz (inside the wide loop's band) it would not."""
+    import numpy as np
+
+    from cdgps_cli.tracking.loops import pll2_response
+
+    paper = _paper_module()
+    f = [1.0, 2.0, 20.0, 30.0, 50.0, 70.0]
+    tones = {"tones_hz": f, "runs": [{"run": f"{bn:g} Hz unaided", "gain": np.abs(pll2_response(f, bn)).tolist()}
+                                     for bn in (3.0, 15.0)]}
+    measured, analytic, band = paper._noise_suppression_db(tones)
+    assert band == (20.0, 70.0)
+    assert abs(measured - analytic) < 1e-9 and abs(analytic - 20 * np.log10(5)) < 0.1
+    assert paper._noise_suppression_db(tones, above_hz=1.0)[0] < 11.0
+
+
+def _script(relpath: str):
+    name = Path(relpath).stem
+    spec = importlib.util.spec_from_file_location(name, ROOT / relpath)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_one_weight_scale_gives_both_fig6_settling_times():
+    """benchmarks/paper_fig6_weights.py: on the fitted testbed the paper's weight form with W ≈ 34 (not 5000)
+    puts the moved vibration poles at 5 s and, with the paper's f_rigid, the rigid pole within 10 % of 30 s;
+    the literal W gives ≈ 1.1 s and ≈ 21 s."""
+    from cdgps_cli.config.structure import load_config
+
+    fw = _script("benchmarks/paper_fig6_weights.py")
+    cfg = load_config(ROOT / "configs" / "testbed-1998.toml")
+    rigid, vib, _, _ = fw.settling(cfg, fw.PAPER_STATE_WEIGHT, fw.PAPER_RIGID_FACTOR)
+    assert vib < 1.5 and 19 < rigid < 23
+    w = fw.bisect_log(lambda q: fw.settling(cfg, q, fw.PAPER_RIGID_FACTOR)[1], 1e-2, fw.PAPER_STATE_WEIGHT, 5.0, False)
+    rigid, vib, _, _ = fw.settling(cfg, w, fw.PAPER_RIGID_FACTOR)
+    assert 30 < w < 40 and abs(vib - 5.0) < 0.05 and abs(rigid - 30.0) < 3.0
+
+
+def test_thruster_layout_variant_turns_only_the_named_arms():
+    """benchmarks/paper_thruster_layout.py: the end-y layout has ±y jets on the end sections' arms (no yaw torque
+    on their own section, 4 N·m per N about the centre) and keeps ±x on the centre section; nothing else changes."""
+    import tempfile
+
+    from cdgps_cli.config.structure import load_config
+    from cdgps_cli.control.slew import rigid_authority
+
+    lay = _script("benchmarks/paper_thruster_layout.py")
+    text = (ROOT / "configs" / "testbed-1998.toml").read_text()
+    out = lay.layout_text(text, (1, 2, 5, 6))
+    assert out.count('name = "a1+y"') == 1 and 'name = "a1+x"' not in out and 'name = "a3+x"' in out
+    assert len(out.splitlines()) == len(text.splitlines())
+    differing = [a for a, b in zip(text.splitlines(), out.splitlines()) if a != b]
+    assert len(differing) == 16                                   # 8 jets: name and direction
+    base = rigid_authority(load_config(ROOT / "configs" / "testbed-1998.toml"))[2]
+    with tempfile.TemporaryDirectory() as d:
+        p = Path(d) / "end-y.toml"
+        p.write_text(out)
+        ratio = rigid_authority(load_config(p))[2] / base
+    assert abs(ratio - 3.0) < 1e-6          # one jet per arm pushes: (4 arms·4 m + 2 arms·1 m) / (6 arms·1 m)
