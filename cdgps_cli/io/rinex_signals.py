@@ -22,6 +22,7 @@ from cdgps_cli.core.gps_time import gps_seconds
 from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, glonass_frequency_hz, signal
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.io.rinex import _ObsHeader, _parse_version_line, _read_lines
+from cdgps_cli.io._fixed_width import LineBuffer, Unsupported, decimal_fields, flag_digits
 
 __all__ = ["read_rinex_signals", "SIGNAL_COLUMNS"]
 
@@ -153,13 +154,30 @@ def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None)
     version = hdr.version
     cols = _columns(hdr, list(signals), p)
     slots = {**(glonass_k or {}), **_glonass_slots(lines, end, p)}
-    rows = _parse_v3(lines, end + 1, cols, p) if version >= 3 else _parse_v2(lines, end + 1, hdr, cols, p)
-    df = pd.DataFrame(rows, columns=list(SIGNAL_COLUMNS[:-1]))
+    df = _observations(lines, end + 1, hdr, cols, p)
     df["wavelength_m"] = _wavelengths(df, slots, p)
     info = dict(hdr.info)
     info["signal_codes"] = {k: list(v[3]) for k, v in cols.items()}
     info["glonass_slots"] = slots
     return info, df.sort_values(["time_gps_s", "signal", "sat"], kind="stable").reset_index(drop=True)
+
+
+#: read records with the vectorised reader (False: line by line, the reference it is tested against)
+FAST_PARSE = True
+
+
+def _observations(lines, start, hdr, cols, path) -> pd.DataFrame:
+    """The rows of :data:`SIGNAL_COLUMNS` but the wavelength, in file order (record, then signal).
+
+    The vectorised reader first; a file it does not take (or a malformed one) is read line by line,
+    which gives the same table or the error naming the line."""
+    if FAST_PARSE and cols:
+        try:
+            return _fast_table(lines, start, hdr, cols, path)
+        except (Unsupported, CdgpsError):
+            pass
+    rows = _parse_v3(lines, start, cols, path) if hdr.version >= 3 else _parse_v2(lines, start, hdr, cols, path)
+    return pd.DataFrame(rows, columns=list(SIGNAL_COLUMNS[:-1]))
 
 
 def _wavelengths(df: pd.DataFrame, slots: dict, path) -> np.ndarray:
@@ -223,6 +241,9 @@ def _parse_v3(lines, i, cols, path) -> list:
         t = _epoch_time(ln, 2, path, i + 1)
         for r_off, rec in enumerate(lines[i + 1:i + 1 + nsat]):
             sat = rec[0:3].replace(" ", "0")
+            if not sat:
+                raise CdgpsError(f"{path}:{i + 2 + r_off}: blank line where the epoch's satellite record "
+                                 f"{r_off + 1} of {nsat} was expected")
             for name, (key, ip, ic, _) in cols.items():
                 if sat[0] != key:
                     continue
@@ -269,3 +290,120 @@ def _parse_v2(lines, i, hdr, cols, path) -> list:
                 if not math.isnan(ph):
                     rows.append((t, sat, name, ph, pr, lli))
     return rows
+
+
+def _walk_v3(lines, i, path):
+    """Epochs of a RINEX 3 body: (times (n_ep,), first record line (n_ep,), records (n_ep,)) of the
+    epochs of flag 0/1; Unsupported where the line-by-line reader would stop."""
+    times, first, count = [], [], []
+    n = len(lines)
+    while i < n:
+        ln = lines[i]
+        if not ln.strip():
+            i += 1
+            continue
+        if ln[0] != ">":
+            raise Unsupported("epoch line")
+        flag, nsat = _epoch_counts(ln, 31, path, i + 1)
+        if i + 1 + nsat > n:
+            raise Unsupported("truncated")
+        if flag <= 1:
+            times.append(_epoch_time(ln, 2, path, i + 1))
+            first.append(i + 1)
+            count.append(nsat)
+        i += 1 + nsat
+    return times, first, count
+
+
+def _walk_v2(lines, i, hdr, path):
+    """As :func:`_walk_v3` for RINEX 2, plus the satellite of every record (list of str) and the
+    number of lines per record."""
+    per = math.ceil(len(hdr.info["obs_types"]["*"]) / 5)
+    times, first, count, sats_all = [], [], [], []
+    n = len(lines)
+    while i < n:
+        ln = lines[i]
+        if not ln.strip():
+            i += 1
+            continue
+        flag, nsat = _epoch_counts(ln, 28, path, i + 1)
+        n_head = math.ceil(nsat / 12)
+        if i + n_head + (nsat if flag > 1 else nsat * per) > n:
+            raise Unsupported("truncated")
+        sats = "".join(lines[i + k][32:68] for k in range(n_head))
+        i += n_head
+        if flag > 1:
+            i += nsat
+            continue
+        times.append(_epoch_time(ln, 1, path, i))
+        first.append(i)
+        count.append(nsat)
+        for j in range(nsat):
+            sat = sats[3 * j:3 * j + 3].replace(" ", "0")
+            if not sat:
+                raise Unsupported("satellite list")
+            sats_all.append("G" + sat[1:] if sat[0] in "0G" else sat)
+        i += nsat * per
+    return times, first, count, sats_all, per
+
+
+def _fast_table(lines, start, hdr, cols, path) -> pd.DataFrame:
+    """:func:`_observations` by the vectorised reader (Unsupported: use the line-by-line one)."""
+    v3 = hdr.version >= 3
+    if v3:
+        times, first, count = _walk_v3(lines, start, path)
+        per = 1
+    else:
+        times, first, count, sats_v2, per = _walk_v2(lines, start, hdr, path)
+    count = np.asarray(count, dtype=np.int64)
+    n_rec = int(count.sum())
+    if n_rec == 0:
+        raise Unsupported("no records")
+    first = np.asarray(first, dtype=np.int64)
+    offset = np.concatenate([[0], np.cumsum(count)[:-1]])
+    rec_line = np.repeat(first, count) + per * (np.arange(n_rec) - np.repeat(offset, count))   # first line of every record
+    t_rec = np.repeat(np.asarray(times, dtype=np.float64), count)
+    buf = LineBuffer(lines)
+    if v3:
+        if np.any(buf.length[rec_line] == 0):
+            raise Unsupported("blank record")
+        sat_bytes = buf.gather(rec_line, 0, 3)
+        if np.any(sat_bytes >= 128):
+            raise Unsupported("satellite")
+        sat_bytes[sat_bytes == 32] = 48
+        sats = sat_bytes.view("S3").ravel().astype("U3")
+    else:
+        rec_lines = rec_line[:, None] + np.arange(per)
+        if np.any(buf.length[rec_lines] > 80):
+            raise Unsupported("long record line")
+        sats = np.array(sats_v2, dtype="U3")
+    system = sats.astype("U1")
+    parts = []
+    for s_i, (name, (key, ip, ic, _)) in enumerate(cols.items()):
+        rows = np.flatnonzero(system == (key if v3 else signal(name).system))
+        ph, lli = _field(buf, rec_line[rows], ip, v3)
+        pr = _field(buf, rec_line[rows], ic, v3)[0] if ic >= 0 else np.full(rows.size, math.nan)
+        ok = ~np.isnan(ph)
+        parts.append((rows[ok], s_i, ph[ok], pr[ok], lli[ok]))
+    names = np.array(list(cols), dtype=object)
+    rows = np.concatenate([p[0] for p in parts])
+    if rows.size == 0:
+        raise Unsupported("no observation")       # the line-by-line reader's empty table (object columns)
+    order = np.argsort(rows * len(cols) + np.concatenate([np.full(p[0].size, p[1]) for p in parts]), kind="stable")
+    rows = rows[order]
+    return pd.DataFrame({
+        "time_gps_s": t_rec[rows], "sat": sats[rows].astype(object),
+        "signal": names[np.concatenate([np.full(p[0].size, p[1]) for p in parts])[order]],
+        "phase_cycles": np.concatenate([p[2] for p in parts])[order],
+        "pseudorange_m": np.concatenate([p[3] for p in parts])[order],
+        "lli": np.concatenate([p[4] for p in parts])[order]})
+
+
+def _field(buf: LineBuffer, rec_line: np.ndarray, k: int, v3: bool):
+    """(values, flag digits) of observation ``k`` of the records starting at ``rec_line``."""
+    if v3:
+        line, col = rec_line, 3 + 16 * k
+    else:
+        line, col = rec_line + k // 5, 16 * (k % 5)
+    f = buf.gather(line, col, 15)
+    return decimal_fields(f[:, :14]), flag_digits(f[:, 14])

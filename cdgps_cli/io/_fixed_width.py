@@ -1,0 +1,91 @@
+"""Vectorised reading of fixed-width numeric fields (RINEX observation records) from text lines.
+
+The text's lines are joined once into a byte buffer; a field (column, width) of many lines is
+gathered as a ``(rows, width)`` byte array and converted in numpy.  A decimal field ``[+-]ddd.ddd``
+is read exactly as Python's ``float()`` reads it: the digits form an integer ``N < 10**14`` (exact in
+float64) and the value is ``N / 10**k`` (k digits after the point), one correctly rounded division,
+i.e. the double nearest the decimal number, which is what ``float()`` returns.  Anything else
+(exponents, tabs, non-ASCII, a malformed number) raises :class:`Unsupported`: the caller then reads
+that file with its line-by-line parser, which gives the same values or the same error.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["Unsupported", "LineBuffer", "decimal_fields", "flag_digits"]
+
+_SPACE, _DOT, _PLUS, _MINUS = 32, 46, 43, 45
+_PAD = 64             # blanks after the last line: any field of up to this width can be sliced
+_POW10_INT = 10 ** np.arange(16, dtype=np.int64)
+_POW10_FLOAT = 10.0 ** np.arange(16)
+
+
+class Unsupported(Exception):
+    """A field the vectorised reader does not take; read the file line by line instead."""
+
+
+class LineBuffer:
+    """Text lines joined into one byte buffer, with each line's start and length.
+
+    Parameters
+    ----------
+    lines : list of str
+        Lines without their newline (latin-1 text: one byte per character).
+    """
+
+    def __init__(self, lines: list[str]):
+        self.buf = np.frombuffer(("\n".join(lines) + " " * _PAD).encode("latin-1"), dtype=np.uint8)
+        self.length = np.fromiter(map(len, lines), dtype=np.int64, count=len(lines))
+        self.start = np.zeros(len(lines), dtype=np.int64)
+        np.cumsum(self.length[:-1] + 1, out=self.start[1:])
+
+    def gather(self, line: np.ndarray, col: int, width: int) -> np.ndarray:
+        """Bytes ``[col, col + width)`` of lines ``line`` (n,), as (n, width) uint8; columns past
+        a line's end read as blanks (as a slice of a short line is shorter, and blank)."""
+        if width > _PAD:
+            raise ValueError(f"field width {width} > {_PAD}")
+        windows = np.lib.stride_tricks.sliding_window_view(self.buf, width)
+        start = np.minimum(self.start[line] + col, self.buf.size - width)
+        out = windows[start]                                        # (n, width) copy
+        out[np.arange(width)[None, :] >= (self.length[line] - col)[:, None]] = _SPACE
+        return out
+
+
+def decimal_fields(f: np.ndarray) -> np.ndarray:
+    """The numbers of the (n, w) byte fields ``f`` (w ≤ 14), NaN for blank fields, exactly as
+    ``float(field) if field.strip() else nan``; :class:`Unsupported` for anything but blanks around
+    an optionally signed decimal number."""
+    digit = (f >= 48) & (f <= 57)
+    dot, sign = f == _DOT, (f == _PLUS) | (f == _MINUS)
+    body = f != _SPACE
+    if np.any(body & ~(digit | dot | sign)):
+        raise Unsupported("character")
+    n, w = f.shape
+    cols = np.arange(w)
+    first = np.where(body.any(axis=1), body.argmax(axis=1), w)
+    last = w - 1 - body[:, ::-1].argmax(axis=1)
+    inner = (cols[None, :] >= first[:, None]) & (cols[None, :] <= last[:, None])
+    blank = first == w
+    lead = np.zeros((n, w), dtype=bool)
+    lead[~blank, first[~blank]] = True
+    n_digits = digit.sum(axis=1)
+    if (np.any(inner & ~body) or np.any(sign & ~lead) or np.any(dot.sum(axis=1) > 1)
+            or np.any(~blank & (n_digits == 0))):
+        raise Unsupported("number")
+    right = np.cumsum(digit[:, ::-1], axis=1)[:, ::-1] - digit          # digits right of each column
+    whole = np.where(digit, (f.astype(np.int64) - 48) * _POW10_INT[right], 0).sum(axis=1)
+    k = np.where(dot.any(axis=1), right[np.arange(n), dot.argmax(axis=1)], 0)
+    value = whole.astype(np.float64) / _POW10_FLOAT[k]
+    neg = (f[np.arange(n), np.minimum(first, w - 1)] == _MINUS) & ~blank
+    value = np.where(neg, -value, value)
+    value[blank] = np.nan
+    return value
+
+
+def flag_digits(ch: np.ndarray) -> np.ndarray:
+    """A flag column (n,) of bytes as ``int(c) if c.strip().isdigit() else 0``; Unsupported for
+    non-ASCII bytes (``isdigit`` is true of superscript digits, which ``int`` refuses)."""
+    if np.any(ch >= 128):
+        raise Unsupported("flag")
+    return np.where((ch >= 48) & (ch <= 57), ch.astype(np.int64) - 48, 0)
