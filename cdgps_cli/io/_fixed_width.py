@@ -52,10 +52,42 @@ class LineBuffer:
         return out
 
 
+#: character classes of the F14.3 layout's integer part: blank 0, sign 1, digit 2, anything else 9
+_RANK = np.full(256, 9, dtype=np.int8)
+_RANK[_SPACE] = 0
+_RANK[[_PLUS, _MINUS]] = 1
+_RANK[48:58] = 2
+#: place values of the F14.3 layout's columns (the point's column: 0)
+_F143_WEIGHTS = np.array([10.0 ** (12 - c) for c in range(10)] + [0.0, 100.0, 10.0, 1.0])
+
+
+def _f14_3(f: np.ndarray) -> np.ndarray | None:
+    """The fields of ``f`` (n, 14) when every non-blank one is RINEX's F14.3 (point in column 11, three
+    digits after it, blanks / a sign / digits before it, in that order), else None.  The digits, as
+    float64, times their place values sum exactly (integers < 2**53) before the one division."""
+    blank = ~(f != _SPACE).any(axis=1)
+    rank = _RANK[f[:, :10]]
+    frac = f[:, 11:]
+    ok = (f[:, 10] == _DOT) & ((frac >= 48) & (frac <= 57)).all(axis=1) & (rank != 9).all(axis=1) \
+        & (np.diff(rank, axis=1) >= 0).all(axis=1) & ((rank == 1).sum(axis=1) <= 1)
+    if not np.all(ok | blank):
+        return None
+    digits = np.where(_RANK[f] == 2, f - np.uint8(48), np.uint8(0)).astype(np.float64)
+    digits[:, 10] = 0.0
+    value = (digits @ _F143_WEIGHTS) / 1000.0
+    value = np.where((f[:, :10] == _MINUS).any(axis=1), -value, value)
+    value[blank] = np.nan
+    return value
+
+
 def decimal_fields(f: np.ndarray) -> np.ndarray:
     """The numbers of the (n, w) byte fields ``f`` (w ≤ 14), NaN for blank fields, exactly as
     ``float(field) if field.strip() else nan``; :class:`Unsupported` for anything but blanks around
     an optionally signed decimal number."""
+    if f.shape[1] == 14:
+        value = _f14_3(f)
+        if value is not None:
+            return value
     digit = (f >= 48) & (f <= 57)
     dot, sign = f == _DOT, (f == _PLUS) | (f == _MINUS)
     body = f != _SPACE

@@ -59,6 +59,22 @@ def test_decimal_fields_match_python_float():
     assert np.array_equal(np.signbit(got), np.signbit(want))
 
 
+def test_f14_3_layout_matches_python_float():
+    """Fields all in RINEX's F14.3 layout take the place-value path (the general one is tested above)."""
+    from cdgps_cli.io._fixed_width import _f14_3
+
+    rng = np.random.default_rng(5)
+    vals = np.concatenate([rng.uniform(-9.99e8, 9.99e9, 5000), rng.uniform(-1, 1, 1000), [0.0, -0.0, 9999999999.999]])
+    strings = [f"{v:14.3f}" for v in vals] + [" " * 9 + "-.123", " " * 9 + "+.500", " " * 14, "0000000001.001"]
+    f = _fields(strings)
+    got = _f14_3(f)
+    assert got is not None
+    want = np.array([float(s) if s.strip() else math.nan for s in strings])
+    assert np.array_equal(got, want, equal_nan=True)
+    assert np.array_equal(np.signbit(got), np.signbit(want))
+    assert _f14_3(_fields(["  12345.67890 "])) is None and _f14_3(_fields(["    1 2345.678"])) is None
+
+
 @pytest.mark.parametrize("bad", ["1.2D+03", "1 2", "1.2.3", "-", ".", "5-", "+-3", "nan", "1_0", "\t5", "1e5"])
 def test_decimal_fields_refuse_what_they_do_not_read_exactly(bad):
     with pytest.raises(Unsupported):
