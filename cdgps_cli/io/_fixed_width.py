@@ -40,6 +40,25 @@ class LineBuffer:
         self.start = np.zeros(len(lines), dtype=np.int64)
         np.cumsum(self.length[:-1] + 1, out=self.start[1:])
 
+    @classmethod
+    def from_bytes(cls, data: bytes, lines: list[str]) -> "LineBuffer":
+        """The buffer of ``lines`` split from ``data`` (latin-1, LF-separated, a CR before an LF
+        dropped) without joining them again; Unsupported if the lines are not those of ``data``."""
+        self = cls.__new__(cls)
+        raw = np.frombuffer(data, dtype=np.uint8)
+        lf = np.flatnonzero(raw == 10)
+        n = len(lines)
+        if lf.size < n - 1:
+            raise Unsupported("line count")
+        self.start = np.concatenate([[0], lf[:n - 1] + 1]).astype(np.int64)
+        end = np.concatenate([lf, [raw.size]])[:n]
+        cr = (end > self.start) & (raw[np.maximum(end - 1, 0)] == 13)
+        self.length = end - self.start - cr
+        if n and (self.length[-1] != len(lines[-1]) or self.length[n // 2] != len(lines[n // 2])):
+            raise Unsupported("lines")
+        self.buf = np.concatenate([raw, np.full(_PAD, _SPACE, dtype=np.uint8)])
+        return self
+
     def gather(self, line: np.ndarray, col: int, width: int) -> np.ndarray:
         """Bytes ``[col, col + width)`` of lines ``line`` (n,), as (n, width) uint8; columns past
         a line's end read as blanks (as a slice of a short line is shorter, and blank)."""
@@ -57,26 +76,38 @@ _RANK = np.full(256, 9, dtype=np.int8)
 _RANK[_SPACE] = 0
 _RANK[[_PLUS, _MINUS]] = 1
 _RANK[48:58] = 2
-#: place values of the F14.3 layout's columns (the point's column: 0)
-_F143_WEIGHTS = np.array([10.0 ** (12 - c) for c in range(10)] + [0.0, 100.0, 10.0, 1.0])
 
 
 def _f14_3(f: np.ndarray) -> np.ndarray | None:
     """The fields of ``f`` (n, 14) when every non-blank one is RINEX's F14.3 (point in column 11, three
-    digits after it, blanks / a sign / digits before it, in that order), else None.  The digits, as
-    float64, times their place values sum exactly (integers < 2**53) before the one division."""
-    blank = ~(f != _SPACE).any(axis=1)
-    rank = _RANK[f[:, :10]]
-    frac = f[:, 11:]
-    ok = (f[:, 10] == _DOT) & ((frac >= 48) & (frac <= 57)).all(axis=1) & (rank != 9).all(axis=1) \
-        & (np.diff(rank, axis=1) >= 0).all(axis=1) & ((rank == 1).sum(axis=1) <= 1)
-    if not np.all(ok | blank):
+    digits after it, blanks / a sign / digits before it, in that order), else None.  The digits are
+    accumulated column by column (Horner, float64: integers < 2**53, exact) before the one division."""
+    cols = np.ascontiguousarray(f.T)                     # (14, n): one contiguous row per column
+    body = cols[0] != _SPACE
+    for c in range(1, 14):
+        body |= cols[c] != _SPACE
+    ok = cols[10] == _DOT
+    whole = np.zeros(f.shape[0])
+    prev = np.zeros(f.shape[0], dtype=np.int8)
+    signs = np.zeros(f.shape[0], dtype=np.int8)
+    neg = cols[0] == _MINUS
+    for c in range(10):
+        rank = _RANK[cols[c]]
+        ok &= (rank != 9) & (rank >= prev)
+        signs += rank == 1
+        neg |= cols[c] == _MINUS
+        whole = whole * 10.0 + np.where(rank == 2, cols[c] - np.uint8(48), np.uint8(0))
+        prev = rank
+    for c in (11, 12, 13):
+        d = cols[c] - np.uint8(48)                       # wraps above 9 for anything but a digit
+        ok &= d <= 9
+        whole = whole * 10.0 + d
+    ok &= signs <= 1
+    if not np.all(ok | ~body):
         return None
-    digits = np.where(_RANK[f] == 2, f - np.uint8(48), np.uint8(0)).astype(np.float64)
-    digits[:, 10] = 0.0
-    value = (digits @ _F143_WEIGHTS) / 1000.0
-    value = np.where((f[:, :10] == _MINUS).any(axis=1), -value, value)
-    value[blank] = np.nan
+    value = whole / 1000.0
+    value = np.where(neg, -value, value)
+    value[~body] = np.nan
     return value
 
 

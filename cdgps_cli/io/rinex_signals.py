@@ -21,7 +21,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import gps_seconds
 from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, glonass_frequency_hz, signal
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
-from cdgps_cli.io.rinex import _ObsHeader, _parse_version_line, _read_lines
+from cdgps_cli.io.rinex import _ObsHeader, _parse_version_line, _read_text
 from cdgps_cli.io._fixed_width import LineBuffer, Unsupported, decimal_fields, flag_digits
 
 __all__ = ["read_rinex_signals", "SIGNAL_COLUMNS"]
@@ -93,9 +93,10 @@ def _value(rec: str, k: int, col0: int) -> tuple[float, int]:
 
 
 def _observation_header(path: str | Path):
-    """The file's lines, its parsed observation header and the index of its END OF HEADER line."""
+    """The file's lines, its parsed observation header, the index of its END OF HEADER line and the
+    (decompressed) bytes of the lines."""
     p = Path(path)
-    lines, compressed = _read_lines(p)
+    lines, compressed, data = _read_text(p)
     version, ftype, _ = _parse_version_line(lines, p, compressed, "observation")
     if ftype != "O":
         raise CdgpsError(f"{p}: not a RINEX observation file (type {ftype!r})")
@@ -103,14 +104,14 @@ def _observation_header(path: str | Path):
     end = next((i for i in range(1, len(lines)) if hdr.apply(lines[i], i + 1) == "END OF HEADER"), None)
     if end is None:
         raise CdgpsError(f"{p}: no 'END OF HEADER' line")
-    return lines, hdr, end
+    return lines, hdr, end, data
 
 
 def signals_in_file(path: str | Path) -> list[str]:
     """The signals of :data:`~cdgps_cli.core.signals.SIGNALS` whose carrier phase the observation
     file's header lists (RINEX 3 ``SYS / # / OBS TYPES``, RINEX 2 ``# / TYPES OF OBSERV``), in the
     table's order."""
-    _, hdr, _ = _observation_header(path)
+    hdr = _observation_header(path)[1]
     v3 = hdr.version >= 3
     out = []
     for name, sig in SIGNALS.items():
@@ -150,11 +151,11 @@ def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None)
         signals without ``GLONASS SLOT / FRQ #`` for an observed satellite, a malformed line.
     """
     p = Path(path)
-    lines, hdr, end = _observation_header(p)
+    lines, hdr, end, data = _observation_header(p)
     version = hdr.version
     cols = _columns(hdr, list(signals), p)
     slots = {**(glonass_k or {}), **_glonass_slots(lines, end, p)}
-    df = _observations(lines, end + 1, hdr, cols, p)
+    df = _observations(lines, end + 1, hdr, cols, p, data)
     df["wavelength_m"] = _wavelengths(df, slots, p)
     info = dict(hdr.info)
     info["signal_codes"] = {k: list(v[3]) for k, v in cols.items()}
@@ -166,14 +167,14 @@ def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None)
 FAST_PARSE = True
 
 
-def _observations(lines, start, hdr, cols, path) -> pd.DataFrame:
+def _observations(lines, start, hdr, cols, path, data: bytes | None = None) -> pd.DataFrame:
     """The rows of :data:`SIGNAL_COLUMNS` but the wavelength, in file order (record, then signal).
 
     The vectorised reader first; a file it does not take (or a malformed one) is read line by line,
     which gives the same table or the error naming the line."""
     if FAST_PARSE and cols:
         try:
-            return _fast_table(lines, start, hdr, cols, path)
+            return _fast_table(lines, start, hdr, cols, path, data)
         except (Unsupported, CdgpsError):
             pass
     rows = _parse_v3(lines, start, cols, path) if hdr.version >= 3 else _parse_v2(lines, start, hdr, cols, path)
@@ -347,7 +348,7 @@ def _walk_v2(lines, i, hdr, path):
     return times, first, count, sats_all, per
 
 
-def _fast_table(lines, start, hdr, cols, path) -> pd.DataFrame:
+def _fast_table(lines, start, hdr, cols, path, data: bytes | None = None) -> pd.DataFrame:
     """:func:`_observations` by the vectorised reader (Unsupported: use the line-by-line one)."""
     v3 = hdr.version >= 3
     if v3:
@@ -363,7 +364,7 @@ def _fast_table(lines, start, hdr, cols, path) -> pd.DataFrame:
     offset = np.concatenate([[0], np.cumsum(count)[:-1]])
     rec_line = np.repeat(first, count) + per * (np.arange(n_rec) - np.repeat(offset, count))   # first line of every record
     t_rec = np.repeat(np.asarray(times, dtype=np.float64), count)
-    buf = LineBuffer(lines)
+    buf = LineBuffer(lines) if data is None else LineBuffer.from_bytes(data, lines)
     if v3:
         if np.any(buf.length[rec_line] == 0):
             raise Unsupported("blank record")

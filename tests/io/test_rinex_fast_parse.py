@@ -19,6 +19,12 @@ OBS_FILES = sorted(p for p in SHARED.rglob("*") if p.is_file() and p.name.lower(
 GLO_K = {f"R{i:02d}": 0 for i in range(1, 33)}
 
 
+def _fast_only(path, names):
+    """The vectorised reader's table, without the fallback (raises Unsupported if it would fall back)."""
+    lines, hdr, end, data = rs._observation_header(path)
+    return rs._fast_table(lines, end + 1, hdr, rs._columns(hdr, list(names), path), path, data)
+
+
 def _both(path, names):
     out = []
     for fast in (False, True):
@@ -41,6 +47,7 @@ def test_identical_tables_on_real_files(path):
     pd.testing.assert_frame_equal(old, new, check_exact=True)
     assert np.array_equal(np.signbit(old["phase_cycles"]), np.signbit(new["phase_cycles"]))
     assert len(new) > 0
+    assert len(_fast_only(path, rs.signals_in_file(path))) == len(new)      # no silent fallback
 
 
 def _fields(strings, width=14):
@@ -132,3 +139,22 @@ def test_bad_records_same_outcome_as_line_by_line(tmp_path, what):
         assert str(path) in outcomes[0]
     else:
         pd.testing.assert_frame_equal(outcomes[0], outcomes[1], check_exact=True)
+
+
+@pytest.mark.parametrize("variant", ["crlf", "bom", "no final newline"])
+def test_line_endings_and_bom(tmp_path, variant):
+    src = SHARED / "real-pairs" / "geonet-car" / "3034265G.21O"
+    data = src.read_bytes()
+    if variant == "crlf":
+        data = data.replace(b"\n", b"\r\n")
+    elif variant == "bom":
+        data = b"\xef\xbb\xbf" + data
+    else:
+        data = data.rstrip(b"\n")
+    path = tmp_path / src.name
+    path.write_bytes(data)
+    (_, old), (_, new) = _both(path, ["G:L1", "G:L2", "E:E1"])
+    pd.testing.assert_frame_equal(old, new, check_exact=True)
+    (_, ref), _ = _both(src, ["G:L1", "G:L2", "E:E1"])
+    pd.testing.assert_frame_equal(ref, new, check_exact=True)
+    assert len(_fast_only(path, ["G:L1", "G:L2", "E:E1"])) == len(new)
