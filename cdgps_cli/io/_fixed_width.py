@@ -59,9 +59,10 @@ class LineBuffer:
         self.buf = np.concatenate([raw, np.full(_PAD, _SPACE, dtype=np.uint8)])
         return self
 
-    def gather(self, line: np.ndarray, col: int, width: int) -> np.ndarray:
+    def gather(self, line: np.ndarray, col, width: int) -> np.ndarray:
         """Bytes ``[col, col + width)`` of lines ``line`` (n,), as (n, width) uint8; columns past
-        a line's end read as blanks (as a slice of a short line is shorter, and blank)."""
+        a line's end read as blanks (as a slice of a short line is shorter, and blank).  ``col``: one
+        column, or one per line (n,)."""
         if width > _PAD:
             raise ValueError(f"field width {width} > {_PAD}")
         windows = np.lib.stride_tricks.sliding_window_view(self.buf, width)

@@ -155,30 +155,32 @@ def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None)
     version = hdr.version
     cols = _columns(hdr, list(signals), p)
     slots = {**(glonass_k or {}), **_glonass_slots(lines, end, p)}
-    df = _observations(lines, end + 1, hdr, cols, p, data)
-    df["wavelength_m"] = _wavelengths(df, slots, p)
+    df = _observations(lines, end + 1, hdr, cols, p, data, slots)
     info = dict(hdr.info)
     info["signal_codes"] = {k: list(v[3]) for k, v in cols.items()}
     info["glonass_slots"] = slots
-    return info, df.sort_values(["time_gps_s", "signal", "sat"], kind="stable").reset_index(drop=True)
+    return info, df
 
 
 #: read records with the vectorised reader (False: line by line, the reference it is tested against)
 FAST_PARSE = True
 
 
-def _observations(lines, start, hdr, cols, path, data: bytes | None = None) -> pd.DataFrame:
-    """The rows of :data:`SIGNAL_COLUMNS` but the wavelength, in file order (record, then signal).
+def _observations(lines, start, hdr, cols, path, data: bytes | None = None, slots: dict | None = None) -> pd.DataFrame:
+    """The table of :func:`read_rinex_signals` (columns :data:`SIGNAL_COLUMNS`, sorted by time,
+    signal name, satellite, stable over the file's order: record, then signal).
 
     The vectorised reader first; a file it does not take (or a malformed one) is read line by line,
     which gives the same table or the error naming the line."""
     if FAST_PARSE and cols:
         try:
-            return _fast_table(lines, start, hdr, cols, path, data)
+            return _fast_table(lines, start, hdr, cols, path, data, slots or {})
         except (Unsupported, CdgpsError):
             pass
     rows = _parse_v3(lines, start, cols, path) if hdr.version >= 3 else _parse_v2(lines, start, hdr, cols, path)
-    return pd.DataFrame(rows, columns=list(SIGNAL_COLUMNS[:-1]))
+    df = pd.DataFrame(rows, columns=list(SIGNAL_COLUMNS[:-1]))
+    df["wavelength_m"] = _wavelengths(df, slots or {}, path)
+    return df.sort_values(["time_gps_s", "signal", "sat"], kind="stable").reset_index(drop=True)
 
 
 def _wavelengths(df: pd.DataFrame, slots: dict, path) -> np.ndarray:
@@ -348,7 +350,7 @@ def _walk_v2(lines, i, hdr, path):
     return times, first, count, sats_all, per
 
 
-def _fast_table(lines, start, hdr, cols, path, data: bytes | None = None) -> pd.DataFrame:
+def _fast_table(lines, start, hdr, cols, path, data: bytes | None, slots: dict) -> pd.DataFrame:
     """:func:`_observations` by the vectorised reader (Unsupported: use the line-by-line one)."""
     v3 = hdr.version >= 3
     if v3:
@@ -379,11 +381,27 @@ def _fast_table(lines, start, hdr, cols, path, data: bytes | None = None) -> pd.
             raise Unsupported("long record line")
         sats = np.array(sats_v2, dtype="U3")
     system = sats.astype("U1")
-    parts = []
-    for s_i, (name, (key, ip, ic, _)) in enumerate(cols.items()):
+    rows_of, lines_of, cols_of = [], [], []
+    for name, (key, ip, ic, _) in cols.items():
         rows = np.flatnonzero(system == (key if v3 else signal(name).system))
-        ph, lli = _field(buf, rec_line[rows], ip, v3)
-        pr = _field(buf, rec_line[rows], ic, v3)[0] if ic >= 0 else np.full(rows.size, math.nan)
+        rows_of.append(rows)
+        for k in (ip, ic):
+            if k >= 0:
+                line, col = _field_place(rec_line[rows], k, v3)
+                lines_of.append(line)
+                cols_of.append(np.full(rows.size, col, dtype=np.int64))
+    # every field of every signal at once: one gather, one conversion
+    f = buf.gather(np.concatenate(lines_of), np.concatenate(cols_of), 15)
+    values, flags = decimal_fields(f[:, :14]), flag_digits(f[:, 14])
+    parts, at = [], 0
+    for s_i, (rows, (_, _, ic, _)) in enumerate(zip(rows_of, cols.values())):
+        ph, lli = values[at:at + rows.size], flags[at:at + rows.size]
+        at += rows.size
+        if ic >= 0:
+            pr = values[at:at + rows.size]
+            at += rows.size
+        else:
+            pr = np.full(rows.size, math.nan)
         ok = ~np.isnan(ph)
         parts.append((rows[ok], s_i, ph[ok], pr[ok], lli[ok]))
     names = np.array(list(cols), dtype=object)
@@ -392,19 +410,43 @@ def _fast_table(lines, start, hdr, cols, path, data: bytes | None = None) -> pd.
         raise Unsupported("no observation")       # the line-by-line reader's empty table (object columns)
     order = np.argsort(rows * len(cols) + np.concatenate([np.full(p[0].size, p[1]) for p in parts]), kind="stable")
     rows = rows[order]
+    sig = np.concatenate([np.full(p[0].size, p[1]) for p in parts])[order]
+    sat_names, sat_code = np.unique(sats, return_inverse=True)         # code-point order, as str's
+    sig_rank = np.argsort(np.argsort(names.astype(str), kind="stable"))  # signal index -> rank of its name
+    t = t_rec[rows]
+    final = np.lexsort((sat_code[rows], sig_rank[sig], t))                # stable: file order among equals
+    rows, sig = rows[final], sig[final]
     return pd.DataFrame({
-        "time_gps_s": t_rec[rows], "sat": sats[rows].astype(object),
-        "signal": names[np.concatenate([np.full(p[0].size, p[1]) for p in parts])[order]],
-        "phase_cycles": np.concatenate([p[2] for p in parts])[order],
-        "pseudorange_m": np.concatenate([p[3] for p in parts])[order],
-        "lli": np.concatenate([p[4] for p in parts])[order]})
+        "time_gps_s": t[final], "sat": sats[rows].astype(object), "signal": names[sig],
+        "phase_cycles": np.concatenate([p[2] for p in parts])[order][final],
+        "pseudorange_m": np.concatenate([p[3] for p in parts])[order][final],
+        "lli": np.concatenate([p[4] for p in parts])[order][final],
+        "wavelength_m": _wavelength_array(sats[rows], sig, list(cols), slots, path)})
 
 
-def _field(buf: LineBuffer, rec_line: np.ndarray, k: int, v3: bool):
-    """(values, flag digits) of observation ``k`` of the records starting at ``rec_line``."""
+def _wavelength_array(sats: np.ndarray, sig: np.ndarray, names: list, slots: dict, path) -> np.ndarray:
+    """:func:`_wavelengths` on arrays: ``sats`` (n,) str, ``sig`` (n,) index into ``names``."""
+    lam = np.empty(sats.size)
+    for i in sorted(range(len(names)), key=lambda j: names[j]):       # signal names in order, as groupby
+        idx = np.flatnonzero(sig == i)
+        if idx.size == 0:
+            continue
+        sg = signal(names[i])
+        if not sg.fdma_step_hz:
+            lam[idx] = sg.wavelength_m
+            continue
+        uniq, inv = np.unique(sats[idx], return_inverse=True)
+        absent = sorted(set(uniq.tolist()) - set(slots))
+        if absent:
+            raise CdgpsError(f"{path}: GLONASS frequency numbers absent for {' '.join(absent)} "
+                             "(header line 'GLONASS SLOT / FRQ #' expected, or a GLONASS navigation record of "
+                             "the satellite); FDMA phases need them")
+        lam[idx] = np.array([SPEED_OF_LIGHT_M_S / glonass_frequency_hz(sg, slots[s]) for s in uniq.tolist()])[inv]
+    return lam
+
+
+def _field_place(rec_line: np.ndarray, k: int, v3: bool):
+    """(line (n,), column) of observation ``k`` of the records starting at ``rec_line``."""
     if v3:
-        line, col = rec_line, 3 + 16 * k
-    else:
-        line, col = rec_line + k // 5, 16 * (k % 5)
-    f = buf.gather(line, col, 15)
-    return decimal_fields(f[:, :14]), flag_digits(f[:, 14])
+        return rec_line, 3 + 16 * k
+    return rec_line + k // 5, 16 * (k % 5)

@@ -22,7 +22,7 @@ GLO_K = {f"R{i:02d}": 0 for i in range(1, 33)}
 def _fast_only(path, names):
     """The vectorised reader's table, without the fallback (raises Unsupported if it would fall back)."""
     lines, hdr, end, data = rs._observation_header(path)
-    return rs._fast_table(lines, end + 1, hdr, rs._columns(hdr, list(names), path), path, data)
+    return rs._fast_table(lines, end + 1, hdr, rs._columns(hdr, list(names), path), path, data, GLO_K)
 
 
 def _both(path, names):
@@ -158,3 +158,22 @@ def test_line_endings_and_bom(tmp_path, variant):
     (_, ref), _ = _both(src, ["G:L1", "G:L2", "E:E1"])
     pd.testing.assert_frame_equal(ref, new, check_exact=True)
     assert len(_fast_only(path, ["G:L1", "G:L2", "E:E1"])) == len(new)
+
+
+@pytest.mark.parametrize("variant", ["swapped", "duplicated"])
+def test_epochs_out_of_order_sort_as_before(tmp_path, variant):
+    """Rows sort by (time, signal, satellite), stable over the file's order, as the pandas sort did."""
+    src = SHARED / "real-pairs" / "mosaic-static" / "rover.obs"
+    lines = src.read_text(encoding="latin-1").split("\n")
+    ep = [i for i, ln in enumerate(lines) if ln.startswith(">")]
+    a, b, c = ep[3], ep[4], ep[5]
+    if variant == "swapped":
+        lines = lines[:a] + lines[b:c] + lines[a:b] + lines[c:]
+    else:
+        lines = lines[:c] + lines[a:b] + lines[c:]
+    path = tmp_path / "rover.obs"
+    path.write_text("\n".join(lines), encoding="latin-1")
+    names = ["G:L1", "R:G1", "E:E1", "C:B1I"]
+    (_, old), (_, new) = _both(path, names)
+    pd.testing.assert_frame_equal(old, new, check_exact=True)
+    assert len(_fast_only(path, names)) == len(new)
