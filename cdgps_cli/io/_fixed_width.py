@@ -68,7 +68,11 @@ class LineBuffer:
         windows = np.lib.stride_tricks.sliding_window_view(self.buf, width)
         start = np.minimum(self.start[line] + col, self.buf.size - width)
         out = windows[start]                                        # (n, width) copy
-        out[np.arange(width)[None, :] >= (self.length[line] - col)[:, None]] = _SPACE
+        room = self.length[line] - col                              # characters of the field on its line
+        short = np.flatnonzero(room < width)
+        if short.size:
+            room = room[short]
+            out[short] = np.where(np.arange(width)[None, :] >= room[:, None], np.uint8(_SPACE), out[short])
         return out
 
 
