@@ -8,8 +8,9 @@ Debian build refuses l1+l2+l5) and combined forward/backward processing (``-c``)
 The peer failing (non-zero exit, no solution lines) stops the benchmark with its stderr; a missing
 ``rnx2rtkp`` stops it too unless ``--no-rtklib``.
 
-Figures per case: epochs and fixed epochs of each, seconds per epoch of each whole process and
-their ratio (ours / RTKLIB; < 1: we are faster), and the difference of the fixed-epoch means (ENU,
+Figures per case: epochs and fixed epochs of each, seconds per epoch of each whole process (rounds
+interleaved: cdgps, rnx2rtkp, cdgps, ...; medians) and
+their ratio both ways (ours / RTKLIB, < 1: we are faster; and RTKLIB / ours), and the difference of the fixed-epoch means (ENU,
 mm) where both fix.  Writes ``docs/benchmarks/rtk_rtklib.json``.
 
 cdgps runs as on a user's machine: with bytecode caches (the environment without
@@ -121,7 +122,8 @@ def startup_floor(repeats: int) -> dict:
     return {key: min(v) for key, v in times.items()}
 
 
-def run_rtklib(c, tmp: Path, repeats: int):
+def rtklib_command(c, tmp: Path) -> tuple[list, Path, Path]:
+    """(command, options file, output) of rnx2rtkp on case ``c``; the options file is written."""
     systems = sorted({s[0] for s in c["signals"]})
     xyz = c["base_xyz"] or _header_xyz(c["base"])
     conf = tmp / "rtklib.conf"
@@ -131,36 +133,62 @@ def run_rtklib(c, tmp: Path, repeats: int):
         "pos2-armode=continuous", "pos2-arthres=3", "pos2-gloarmode=off", "out-solformat=xyz", "out-timesys=gpst",
         "ant2-postype=xyz", *(f"ant2-pos{i + 1}={v:.4f}" for i, v in enumerate(xyz)), ""]))
     out = tmp / "rtklib.pos"
-    times = []
-    for _ in range(repeats):
-        sec, p = _timed(["rnx2rtkp", "-k", str(conf), "-o", str(out), str(c["rover"]), str(c["base"]), *map(str, c["navs"])])
-        rows = [ln.split() for ln in out.read_text().splitlines() if ln.strip() and not ln.startswith("%")] if out.exists() else []
-        if p.returncode != 0 or not rows:
-            raise SystemExit(f"rnx2rtkp failed on {c['name']} (exit {p.returncode}, {len(rows)} solution lines):\n"
-                             f"{p.stderr[-2000:]}\noptions:\n{conf.read_text()}")
-        times.append(sec)
-    xyzs = np.array([[float(r[2]), float(r[3]), float(r[4])] for r in rows])
-    q = np.array([int(r[5]) for r in rows])
-    return statistics.median(times), xyzs, q == 1, xyz
+    return ["rnx2rtkp", "-k", str(conf), "-o", str(out), str(c["rover"]), str(c["base"]), *map(str, c["navs"])], conf, out
 
 
-def run_cdgps(c, tmp: Path, repeats: int):
+def run_rtklib_once(c, cmd, conf: Path, out: Path) -> tuple[float, list]:
+    """One timed rnx2rtkp run: (seconds, solution rows); SystemExit with its stderr when it fails."""
+    if out.exists():
+        out.unlink()
+    sec, p = _timed(cmd)
+    rows = [ln.split() for ln in out.read_text().splitlines() if ln.strip() and not ln.startswith("%")] if out.exists() else []
+    if p.returncode != 0 or not rows:
+        raise SystemExit(f"rnx2rtkp failed on {c['name']} (exit {p.returncode}, {len(rows)} solution lines):\n"
+                         f"{p.stderr[-2000:]}\noptions:\n{conf.read_text()}")
+    return sec, rows
+
+
+def cdgps_command(c, tmp: Path) -> tuple[list, Path]:
     out = tmp / "cdgps.csv"
     cmd = [CDGPS, "-q", "rtk", "--base", str(c["base"]), "--rover", str(c["rover"]), *sum((["--nav", str(n)] for n in c["navs"]), []),
            "--signals", ",".join(c["signals"]), "-o", str(out), "--json"]
     if c["base_xyz"]:
         cmd += ["--base-xyz", *map(str, c["base_xyz"])]
-    times = []
-    _timed(cmd, USER_ENV)                              # untimed warm-up: bytecode caches, as on a user's machine
+    return cmd, out
+
+
+def run_cdgps_once(c, cmd) -> tuple[float, subprocess.CompletedProcess]:
+    sec, p = _timed(cmd, USER_ENV)
+    if p.returncode != 0:
+        raise SystemExit(f"cdgps rtk failed on {c['name']}:\n{p.stderr[-2000:]}")
+    return sec, p
+
+
+def run_case(c, tmp: Path, repeats: int, peer: bool) -> dict:
+    """Both programs on case ``c`` in interleaved rounds (cdgps, rnx2rtkp, cdgps, ...), after one untimed
+    cdgps warm-up; medians of ``repeats`` rounds."""
+    cmd_c, out_c = cdgps_command(c, tmp)
+    _timed(cmd_c, USER_ENV)                              # untimed warm-up: bytecode caches, as on a user's machine
+    if peer:
+        cmd_r, conf, out_r = rtklib_command(c, tmp)
+    t_c, t_r = [], []
     for _ in range(repeats):
-        sec, p = _timed(cmd, USER_ENV)
-        if p.returncode != 0:
-            raise SystemExit(f"cdgps rtk failed on {c['name']}:\n{p.stderr[-2000:]}")
-        times.append(sec)
+        sec, p = run_cdgps_once(c, cmd_c)
+        t_c.append(sec)
+        if peer:
+            sec, rows = run_rtklib_once(c, cmd_r, conf, out_r)
+            t_r.append(sec)
     import pandas as pd  # noqa: PLC0415
 
-    d = pd.read_csv(out, comment="#")
-    return statistics.median(times), d[["x_m", "y_m", "z_m"]].to_numpy(), d["fixed"].to_numpy() == 1, json.loads(p.stdout)
+    d = pd.read_csv(out_c, comment="#")
+    res = {"cdgps_s": statistics.median(t_c), "cdgps_xyz": d[["x_m", "y_m", "z_m"]].to_numpy(),
+           "cdgps_fix": d["fixed"].to_numpy() == 1, "summary": json.loads(p.stdout)}
+    if peer:
+        q = np.array([int(r[5]) for r in rows])
+        res.update(rtklib_s=statistics.median(t_r), rtklib_fix=q == 1,
+                   rtklib_xyz=np.array([[float(r[2]), float(r[3]), float(r[4])] for r in rows]),
+                   base_xyz=c["base_xyz"] or _header_xyz(c["base"]))
+    return res
 
 
 def main() -> None:
@@ -174,25 +202,33 @@ def main() -> None:
                        "cpus": os.cpu_count(), "load_average_1min_at_start": round(os.getloadavg()[0], 2)},
            "repeats": repeats,
            "cdgps_runs": "environment without PYTHONDONTWRITEBYTECODE (bytecode caches, as a user's install) and one "
-                         "untimed warm-up run per case; rnx2rtkp timed as is (no warm-up)",
+                         "untimed warm-up run per case; rnx2rtkp timed as is (no warm-up); rounds interleaved "
+                         "(cdgps, rnx2rtkp, cdgps, ...), medians",
+           "ratios": "speed_ratio_per_epoch = cdgps ms/epoch / rnx2rtkp ms/epoch (< 1: cdgps faster); "
+                     "rtklib_over_cdgps_per_epoch its inverse (> 1: cdgps faster)",
            "startup_floor": startup_floor(repeats), "cases": {}}
     print("startup floor", json.dumps(res["startup_floor"]), flush=True)
     floor = res["startup_floor"]["import_cdgps_rtk_path_s"]
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         for c in cases(tmp):
-            sec_c, xyz_c, fix_c, summ = run_cdgps(c, tmp, repeats)
+            r = run_case(c, tmp, repeats, peer)
+            fix_c, sec_c = r["cdgps_fix"], r["cdgps_s"]
+            summ = r["summary"]
             row = {"signals": list(c["signals"]), "epochs": int(len(fix_c)), "cdgps_fixed": int(fix_c.sum()),
                    "cdgps_s": sec_c, "cdgps_ms_per_epoch": 1e3 * sec_c / max(len(fix_c), 1),
                    "cdgps_fixes_rejected": summ["fixes_rejected"], "epoch_pairing": summ["epoch_pairing"]}
             if peer:
-                sec_r, xyz_r, fix_r, bxyz = run_rtklib(c, tmp, repeats)
+                fix_r, sec_r = r["rtklib_fix"], r["rtklib_s"]
                 row.update(rtklib_epochs=int(len(fix_r)), rtklib_fixed=int(fix_r.sum()), rtklib_s=sec_r,
                            rtklib_ms_per_epoch=1e3 * sec_r / max(len(fix_r), 1))
                 row["speed_ratio_per_epoch"] = row["cdgps_ms_per_epoch"] / row["rtklib_ms_per_epoch"]
+                row["rtklib_over_cdgps_per_epoch"] = row["rtklib_ms_per_epoch"] / row["cdgps_ms_per_epoch"]
                 row["speed_ratio_per_epoch_after_imports"] = ((sec_c - floor) / max(len(fix_c), 1)) / (sec_r / max(len(fix_r), 1))
                 if fix_c.any() and fix_r.any():
-                    diff = ecef_to_enu(xyz_c[fix_c], bxyz).mean(axis=0) - ecef_to_enu(xyz_r[fix_r], bxyz).mean(axis=0)
+                    bxyz = r["base_xyz"]
+                    diff = (ecef_to_enu(r["cdgps_xyz"][fix_c], bxyz).mean(axis=0)
+                            - ecef_to_enu(r["rtklib_xyz"][fix_r], bxyz).mean(axis=0))
                     row["fixed_mean_diff_enu_mm"] = [round(1e3 * float(v), 2) for v in diff]
             res["cases"][c["name"]] = row
             print(c["name"], json.dumps({k: v for k, v in row.items() if k != "epoch_pairing"}), flush=True)

@@ -318,23 +318,25 @@ def select_ephemeris(nav: pd.DataFrame, sat: str, t_gps_s, *, max_age_s: float |
     t = np.asarray(t_gps_s, dtype=np.float64)
     scalar = t.ndim == 0
     t1 = np.atleast_1d(t).ravel()
-    recs = nav[nav["sat"] == sat]
-    if recs.empty:
+    rows = np.flatnonzero(nav["sat"].to_numpy() == sat)         # row positions, without sub-frames
+    if rows.size == 0:
         have = sorted(nav["sat"].unique().tolist())
         raise CdgpsError(f"no broadcast ephemeris for {sat} in the navigation data (satellites present: {' '.join(have) or 'none'})")
-    healthy = recs[recs["sv_health"] == 0]
+    healthy = rows[nav["sv_health"].to_numpy()[rows] == 0]
     chosen = np.full(t1.shape, -1, dtype=np.int64)
-    if not healthy.empty:
-        if "transmit_gps_s" in healthy.columns:
-            # argmin keeps the first of equal ages: order by latest transmission first
-            healthy = healthy.sort_values("transmit_gps_s", ascending=False, na_position="last", kind="stable")
-        toe = healthy["toe_gps_s"].to_numpy()
+    if healthy.size:
+        if "transmit_gps_s" in nav.columns:
+            # argmin keeps the first of equal ages: order by latest transmission first (ties and
+            # missing times keep the file's order, missing last: pandas' stable descending sort)
+            healthy = healthy[np.argsort(-nav["transmit_gps_s"].to_numpy(dtype=np.float64)[healthy], kind="stable")]
+        toe = nav["toe_gps_s"].to_numpy()[healthy]
         age = np.abs(t1[:, None] - toe[None, :])
         best = np.argmin(age, axis=1)
         ok = age[np.arange(t1.size), best] <= max_age_s
         chosen = np.where(ok, best, -1)
     bad = chosen < 0
     if bad.any():
+        recs = nav.iloc[rows]
         idx = np.flatnonzero(bad)
         shown = ", ".join(gps_time_str(x) for x in t1[idx[:3]]) + (" …" if idx.size > 3 else "")
         toes = recs.sort_values("toe_gps_s")
@@ -348,7 +350,7 @@ def select_ephemeris(nav: pd.DataFrame, sat: str, t_gps_s, *, max_age_s: float |
             f"no healthy broadcast ephemeris for {sat} within ±{max_age_s / 3600:g} h of {idx.size} of {t1.size} requested time(s) "
             f"({shown}); the navigation data has for {sat}: {lst}"
         )
-    out = healthy.iloc[chosen].reset_index(drop=True)
+    out = nav.iloc[healthy[chosen]].reset_index(drop=True)
     if scalar:
         return out.iloc[0]
     return out
