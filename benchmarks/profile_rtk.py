@@ -4,7 +4,8 @@
 Each case runs once in a child process under cProfile (``python -m cProfile -m cdgps_cli.cli.commands
 rtk ...``, bytecode caches warm); the stages are the cumulative times of the functions that carry
 them: imports (``import`` of the CLI and pipeline modules), reading the observation files
-(``read_rinex_signals``) and navigation files (``read_rinex_nav``), satellite geometry
+(``read_rinex_signals``; a u-blox log: ``_ubx_decoded``, its RXM-RAWX and SFRBX) and navigation
+files (``read_rinex_nav``), satellite geometry
 (``receiver_geometry``: ephemeris selection, orbits, az/el, troposphere), the filter passes
 (``_filter_pass``; of which ambiguity resolution ``_fix``), and the output.  Profiling adds its own
 overhead (≈ ×1.5–2 on the Python-heavy parts): the shares, not the seconds, are the figures.
@@ -30,6 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "docs" / "benchmarks" / "rtk_profile.json"
 STAGES = {"read_observations": ("rinex_signals.py", "read_rinex_signals"),
           "read_navigation": ("rinex.py", "read_rinex_nav"),
+          "read_ubx_log_signals_and_sfrbx": ("gnss_multi.py", "_ubx_decoded"),
           "geometry": ("rtk_multi.py", "receiver_geometry"),
           "filter_passes": ("rtk_multi.py", "_filter_pass"),
           "of_which_ambiguity_fix": ("rtk_multi.py", "_fix"),
