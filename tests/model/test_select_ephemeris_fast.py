@@ -77,3 +77,36 @@ def test_same_rows_and_errors(name, nav):
     assert compared > 0 and errors > 0, name
     with pytest.raises(CdgpsError, match="no broadcast ephemeris for X99"):
         select_ephemeris(nav, "X99", 0.0)
+
+
+@pytest.mark.parametrize("name,nav", list(_navs())[:6] + list(_navs())[-1:], ids=lambda x: x if isinstance(x, str) else "")
+def test_select_ephemerides_one_take(name, nav):
+    """All (satellite, time) pairs at once: the rows of select_ephemeris per satellite, in the pairs' order."""
+    from cdgps_cli.model.gps.orbits import select_ephemerides
+
+    sats_all = sorted(nav["sat"].unique())[:6]
+    max_age = {s: orbits.MAX_EPHEMERIS_AGE_GLONASS_S if s.startswith("R") else orbits.MAX_EPHEMERIS_AGE_S for s in sats_all}
+    good = []
+    for s in sats_all:
+        toe = np.sort(nav.loc[(nav["sat"] == s) & (nav["sv_health"] == 0), "toe_gps_s"].to_numpy())
+        good += [(s, x) for x in np.concatenate([toe, toe + 0.3 * max_age[s]])]
+    if not good:
+        pytest.skip("no healthy records")
+    rng = np.random.default_rng(1)
+    pairs = [good[i] for i in rng.permutation(len(good))]
+    sats = np.array([p[0] for p in pairs], dtype=object)
+    t = np.array([p[1] for p in pairs])
+    parts, order = [], []
+    for sat, idx in pd.Series(sats).groupby(sats).indices.items():
+        parts.append(select_ephemeris(nav, sat, t[idx]))
+        order.append(idx)
+    pos = np.empty(len(sats), dtype=np.int64)
+    pos[np.concatenate(order)] = np.arange(len(sats))
+    want = pd.concat(parts, ignore_index=True).iloc[pos].reset_index(drop=True)
+    pd.testing.assert_frame_equal(select_ephemerides(nav, sats, t), want, check_exact=True)
+    far = np.concatenate([t, [t.min() - 10 * 86400.0]])
+    with pytest.raises(CdgpsError) as a:
+        select_ephemerides(nav, np.concatenate([sats, [sats[0]]]), far)
+    with pytest.raises(CdgpsError) as b:
+        select_ephemeris(nav, sats[0], far[np.concatenate([sats, [sats[0]]]) == sats[0]])
+    assert str(a.value) == str(b.value)
