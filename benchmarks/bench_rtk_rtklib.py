@@ -6,10 +6,13 @@ navigation files; RTKLIB gets an explicit ``-k`` options file (``pos1-navsys`` f
 Debian's ``-sys`` switch turns on other systems too — and ``pos1-frequency`` l1 or l1+l2: the
 Debian build refuses l1+l2+l5) and combined forward/backward processing (``-c``) like our default.
 The peer failing (non-zero exit, no solution lines) stops the benchmark with its stderr; a missing
-``rnx2rtkp`` stops it too unless ``--no-rtklib``.
+``rnx2rtkp`` stops it too unless ``--no-rtklib``.  ``--before TREE`` times another source tree's
+``cdgps rtk`` in the same rounds (before/after figures; its solution lines must be identical);
+``--out FILE`` writes elsewhere than the default.
 
-Figures per case: epochs and fixed epochs of each, seconds per epoch of each whole process and
-their ratio (ours / RTKLIB; < 1: we are faster), and the difference of the fixed-epoch means (ENU,
+Figures per case: epochs and fixed epochs of each, seconds per epoch of each whole process (rounds
+interleaved: cdgps, rnx2rtkp, cdgps, ...; medians) and
+their ratio both ways (ours / RTKLIB, < 1: we are faster; and RTKLIB / ours), and the difference of the fixed-epoch means (ENU,
 mm) where both fix.  Writes ``docs/benchmarks/rtk_rtklib.json``.
 
 cdgps runs as on a user's machine: with bytecode caches (the environment without
@@ -23,7 +26,8 @@ case also gives its ratio with our import time taken off (``speed_ratio_per_epoc
 Cases: the real Septentrio pair (mosaic-static) GPS L1 and multi-GNSS L1+L2; the same pair with a
 u-blox-like base (a quarter of its epochs, ms clock steering; sim/rinex_edit); GEONET 0759→3040
 GPS L1+L2; the Spirent GPS+Galileo set (2 km static rover) L1+L2; the car against a CORS 5 km
-away (geonet-car) GPS+Galileo L1.
+away (geonet-car) GPS+Galileo L1; the u-blox walk's UBX log as base against its own RINEX conversion
+(zero baseline; RTKLIB reads the conversion on both sides).
 """
 
 from __future__ import annotations
@@ -48,8 +52,10 @@ OUT = ROOT / "docs" / "benchmarks" / "rtk_rtklib.json"
 NAVSYS = {"G": 1, "R": 4, "E": 8, "C": 32}
 
 
-def _case(name, base, rover, navs, base_xyz, signals, freq):
-    return {"name": name, "base": base, "rover": rover, "navs": navs, "base_xyz": base_xyz, "signals": signals, "freq": freq}
+def _case(name, base, rover, navs, base_xyz, signals, freq, rtklib_base=None, rtklib_navs=None):
+    """A case; ``rtklib_base`` / ``rtklib_navs``: RTKLIB's inputs where ours are a u-blox log it cannot read."""
+    return {"name": name, "base": base, "rover": rover, "navs": navs, "base_xyz": base_xyz, "signals": signals, "freq": freq,
+            "rtklib_base": rtklib_base or base, "rtklib_navs": navs if rtklib_navs is None else rtklib_navs}
 
 
 def cases(tmp: Path) -> list:
@@ -71,6 +77,7 @@ def cases(tmp: Path) -> list:
     ge = SHARED / "rinex-ge"
     car = SHARED / "real-pairs" / "geonet-car"
     geo = SHARED / "rinex"
+    walk = SHARED / "real-pairs" / "ublox-walk"
     multi = ("G:L1", "G:L2", "R:G1", "R:G2", "E:E1", "E:E5b", "C:B1I", "C:B2I")
     return [
         _case("mosaic-static GPS L1", ms / "base.obs", ms / "rover.obs", [ms / "base.nav"], ms_xyz, ("G:L1",), 1),
@@ -83,6 +90,11 @@ def cases(tmp: Path) -> list:
               ("G:L1", "G:L2", "E:E1", "E:E5b"), 2),
         _case("geonet-car G+E L1", car / "3034265G.21O", car / "SEPT265G.21O", [car / "SEPT2650.21P"],
               (-3959400.631, 3385704.533, 3667523.111), ("G:L1", "E:E1"), 1),
+        # the u-blox reader on the rtk path: the walk's UBX log (RXM-RAWX, SFRBX ephemerides) against its own
+        # RINEX conversion, a zero baseline; RTKLIB gets the conversion on both sides and its navigation file
+        _case("ublox-walk zero baseline, UBX base, G+E L1", walk / "gnss_1730.ubx", walk / "gnss_1730_convbin.obs", [],
+              (-1276975.6547, -4717238.8712, 4087235.6076), ("G:L1", "E:E1"), 1,
+              rtklib_base=walk / "gnss_1730_convbin.obs", rtklib_navs=[walk / "gnss_1730_convbin.nav"]),
     ]
 
 
@@ -121,7 +133,8 @@ def startup_floor(repeats: int) -> dict:
     return {key: min(v) for key, v in times.items()}
 
 
-def run_rtklib(c, tmp: Path, repeats: int):
+def rtklib_command(c, tmp: Path) -> tuple[list, Path, Path]:
+    """(command, options file, output) of rnx2rtkp on case ``c``; the options file is written."""
     systems = sorted({s[0] for s in c["signals"]})
     xyz = c["base_xyz"] or _header_xyz(c["base"])
     conf = tmp / "rtklib.conf"
@@ -131,36 +144,81 @@ def run_rtklib(c, tmp: Path, repeats: int):
         "pos2-armode=continuous", "pos2-arthres=3", "pos2-gloarmode=off", "out-solformat=xyz", "out-timesys=gpst",
         "ant2-postype=xyz", *(f"ant2-pos{i + 1}={v:.4f}" for i, v in enumerate(xyz)), ""]))
     out = tmp / "rtklib.pos"
-    times = []
-    for _ in range(repeats):
-        sec, p = _timed(["rnx2rtkp", "-k", str(conf), "-o", str(out), str(c["rover"]), str(c["base"]), *map(str, c["navs"])])
-        rows = [ln.split() for ln in out.read_text().splitlines() if ln.strip() and not ln.startswith("%")] if out.exists() else []
-        if p.returncode != 0 or not rows:
-            raise SystemExit(f"rnx2rtkp failed on {c['name']} (exit {p.returncode}, {len(rows)} solution lines):\n"
-                             f"{p.stderr[-2000:]}\noptions:\n{conf.read_text()}")
-        times.append(sec)
-    xyzs = np.array([[float(r[2]), float(r[3]), float(r[4])] for r in rows])
-    q = np.array([int(r[5]) for r in rows])
-    return statistics.median(times), xyzs, q == 1, xyz
+    return ["rnx2rtkp", "-k", str(conf), "-o", str(out), str(c["rover"]), str(c["rtklib_base"]),
+            *map(str, c["rtklib_navs"])], conf, out
 
 
-def run_cdgps(c, tmp: Path, repeats: int):
+def run_rtklib_once(c, cmd, conf: Path, out: Path) -> tuple[float, list]:
+    """One timed rnx2rtkp run: (seconds, solution rows); SystemExit with its stderr when it fails."""
+    if out.exists():
+        out.unlink()
+    sec, p = _timed(cmd)
+    rows = [ln.split() for ln in out.read_text().splitlines() if ln.strip() and not ln.startswith("%")] if out.exists() else []
+    if p.returncode != 0 or not rows:
+        raise SystemExit(f"rnx2rtkp failed on {c['name']} (exit {p.returncode}, {len(rows)} solution lines):\n"
+                         f"{p.stderr[-2000:]}\noptions:\n{conf.read_text()}")
+    return sec, rows
+
+
+def cdgps_command(c, tmp: Path) -> tuple[list, Path]:
     out = tmp / "cdgps.csv"
     cmd = [CDGPS, "-q", "rtk", "--base", str(c["base"]), "--rover", str(c["rover"]), *sum((["--nav", str(n)] for n in c["navs"]), []),
            "--signals", ",".join(c["signals"]), "-o", str(out), "--json"]
     if c["base_xyz"]:
         cmd += ["--base-xyz", *map(str, c["base_xyz"])]
-    times = []
-    _timed(cmd, USER_ENV)                              # untimed warm-up: bytecode caches, as on a user's machine
+    return cmd, out
+
+
+def run_cdgps_once(c, cmd) -> tuple[float, subprocess.CompletedProcess]:
+    sec, p = _timed(cmd, USER_ENV)
+    if p.returncode != 0:
+        raise SystemExit(f"cdgps rtk failed on {c['name']}:\n{p.stderr[-2000:]}")
+    return sec, p
+
+
+def _solution_body(path: Path) -> list:
+    """The solution lines of a cdgps CSV without its comment header (which names the output file)."""
+    return [ln for ln in path.read_text().splitlines() if not ln.startswith("#")]
+
+
+def run_case(c, tmp: Path, repeats: int, peer: bool, before: str | None = None) -> dict:
+    """Both programs on case ``c`` in interleaved rounds (cdgps, rnx2rtkp, cdgps, ...), after one untimed
+    cdgps warm-up; medians of ``repeats`` rounds.  ``before``: another source tree (PYTHONPATH) whose
+    ``cdgps rtk`` takes its turn in each round too (``cdgps_before_s``; its CSV must be identical)."""
+    cmd_c, out_c = cdgps_command(c, tmp)
+    _timed(cmd_c, USER_ENV)                              # untimed warm-up: bytecode caches, as on a user's machine
+    if peer:
+        cmd_r, conf, out_r = rtklib_command(c, tmp)
+    if before:
+        env_b = {**USER_ENV, "PYTHONPATH": before}
+        cmd_b = [x if x != str(out_c) else str(out_c) + ".before.csv" for x in cmd_c]
+        _timed(cmd_b, env_b)
+    t_c, t_r, t_b = [], [], []
     for _ in range(repeats):
-        sec, p = _timed(cmd, USER_ENV)
-        if p.returncode != 0:
-            raise SystemExit(f"cdgps rtk failed on {c['name']}:\n{p.stderr[-2000:]}")
-        times.append(sec)
+        sec, p = run_cdgps_once(c, cmd_c)
+        t_c.append(sec)
+        if peer:
+            sec, rows = run_rtklib_once(c, cmd_r, conf, out_r)
+            t_r.append(sec)
+        if before:
+            sec, pb = _timed(cmd_b, env_b)
+            if pb.returncode != 0:
+                raise SystemExit(f"cdgps rtk of {before} failed on {c['name']}:\n{pb.stderr[-2000:]}")
+            t_b.append(sec)
     import pandas as pd  # noqa: PLC0415
 
-    d = pd.read_csv(out, comment="#")
-    return statistics.median(times), d[["x_m", "y_m", "z_m"]].to_numpy(), d["fixed"].to_numpy() == 1, json.loads(p.stdout)
+    d = pd.read_csv(out_c, comment="#")
+    res = {"cdgps_s": statistics.median(t_c), "cdgps_xyz": d[["x_m", "y_m", "z_m"]].to_numpy(),
+           "cdgps_fix": d["fixed"].to_numpy() == 1, "summary": json.loads(p.stdout)}
+    if before:
+        res["cdgps_before_s"] = statistics.median(t_b)
+        res["identical_to_before"] = _solution_body(out_c) == _solution_body(Path(str(out_c) + ".before.csv"))
+    if peer:
+        q = np.array([int(r[5]) for r in rows])
+        res.update(rtklib_s=statistics.median(t_r), rtklib_fix=q == 1,
+                   rtklib_xyz=np.array([[float(r[2]), float(r[3]), float(r[4])] for r in rows]),
+                   base_xyz=c["base_xyz"] or _header_xyz(c["base"]))
+    return res
 
 
 def main() -> None:
@@ -168,38 +226,53 @@ def main() -> None:
 
     repeats = int(sys.argv[sys.argv.index("--repeats") + 1]) if "--repeats" in sys.argv else 3
     peer = "--no-rtklib" not in sys.argv
+    before = sys.argv[sys.argv.index("--before") + 1] if "--before" in sys.argv else None
+    out = Path(sys.argv[sys.argv.index("--out") + 1]) if "--out" in sys.argv else OUT
     if peer and not shutil.which("rnx2rtkp"):
         raise SystemExit("rnx2rtkp not found: apt-get install rtklib (or --no-rtklib for our side only)")
     res = {"machine": {"python": platform.python_version(), "cpu": platform.processor() or platform.machine(),
                        "cpus": os.cpu_count(), "load_average_1min_at_start": round(os.getloadavg()[0], 2)},
            "repeats": repeats,
            "cdgps_runs": "environment without PYTHONDONTWRITEBYTECODE (bytecode caches, as a user's install) and one "
-                         "untimed warm-up run per case; rnx2rtkp timed as is (no warm-up)",
+                         "untimed warm-up run per case; rnx2rtkp timed as is (no warm-up); rounds interleaved "
+                         "(cdgps, rnx2rtkp, cdgps, ...), medians",
+           "ratios": "speed_ratio_per_epoch = cdgps ms/epoch / rnx2rtkp ms/epoch (< 1: cdgps faster); "
+                     "rtklib_over_cdgps_per_epoch its inverse (> 1: cdgps faster)",
            "startup_floor": startup_floor(repeats), "cases": {}}
     print("startup floor", json.dumps(res["startup_floor"]), flush=True)
     floor = res["startup_floor"]["import_cdgps_rtk_path_s"]
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         for c in cases(tmp):
-            sec_c, xyz_c, fix_c, summ = run_cdgps(c, tmp, repeats)
+            r = run_case(c, tmp, repeats, peer, before)
+            fix_c, sec_c = r["cdgps_fix"], r["cdgps_s"]
+            summ = r["summary"]
             row = {"signals": list(c["signals"]), "epochs": int(len(fix_c)), "cdgps_fixed": int(fix_c.sum()),
                    "cdgps_s": sec_c, "cdgps_ms_per_epoch": 1e3 * sec_c / max(len(fix_c), 1),
                    "cdgps_fixes_rejected": summ["fixes_rejected"], "epoch_pairing": summ["epoch_pairing"]}
+            if before:
+                row.update(cdgps_before_s=r["cdgps_before_s"], speed_up_vs_before=r["cdgps_before_s"] / sec_c,
+                           identical_to_before=r["identical_to_before"])
             if peer:
-                sec_r, xyz_r, fix_r, bxyz = run_rtklib(c, tmp, repeats)
+                fix_r, sec_r = r["rtklib_fix"], r["rtklib_s"]
                 row.update(rtklib_epochs=int(len(fix_r)), rtklib_fixed=int(fix_r.sum()), rtklib_s=sec_r,
                            rtklib_ms_per_epoch=1e3 * sec_r / max(len(fix_r), 1))
                 row["speed_ratio_per_epoch"] = row["cdgps_ms_per_epoch"] / row["rtklib_ms_per_epoch"]
+                row["rtklib_over_cdgps_per_epoch"] = row["rtklib_ms_per_epoch"] / row["cdgps_ms_per_epoch"]
                 row["speed_ratio_per_epoch_after_imports"] = ((sec_c - floor) / max(len(fix_c), 1)) / (sec_r / max(len(fix_r), 1))
                 if fix_c.any() and fix_r.any():
-                    diff = ecef_to_enu(xyz_c[fix_c], bxyz).mean(axis=0) - ecef_to_enu(xyz_r[fix_r], bxyz).mean(axis=0)
+                    bxyz = r["base_xyz"]
+                    diff = (ecef_to_enu(r["cdgps_xyz"][fix_c], bxyz).mean(axis=0)
+                            - ecef_to_enu(r["rtklib_xyz"][fix_r], bxyz).mean(axis=0))
                     row["fixed_mean_diff_enu_mm"] = [round(1e3 * float(v), 2) for v in diff]
             res["cases"][c["name"]] = row
             print(c["name"], json.dumps({k: v for k, v in row.items() if k != "epoch_pairing"}), flush=True)
     res["machine"]["load_average_1min_at_end"] = round(os.getloadavg()[0], 2)
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps(res, indent=1) + "\n")
-    print(f"wrote {OUT}")
+    if before:
+        res["before_tree"] = before
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(res, indent=1) + "\n")
+    print(f"wrote {out}")
 
 
 if __name__ == "__main__":

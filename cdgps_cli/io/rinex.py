@@ -61,6 +61,13 @@ _COMPRESSED_MAGIC = (b"\x1f\x8b", b"\x1f\x9d", b"BZh", b"PK\x03\x04")
 
 def _read_lines(path: str | Path) -> tuple[list[str], bool]:
     """Read a (possibly compressed) RINEX file; return its lines and whether it was compressed."""
+    lines, compressed, _ = _read_text(path)
+    return lines, compressed
+
+
+def _read_text(path: str | Path) -> tuple[list[str], bool, bytes]:
+    """:func:`_read_lines` plus the (decompressed) bytes the lines were split from (latin-1: line
+    ``i`` is the bytes between the ``i``-th and ``i+1``-th LF, less a CR before the LF)."""
     p = Path(path)
     try:
         data = p.read_bytes()
@@ -88,10 +95,11 @@ def _read_lines(path: str | Path) -> tuple[list[str], bool]:
     lines = text.split("\n")
     if lines and lines[-1] == "":
         lines.pop()
-    lines = [ln[:-1] if ln.endswith("\r") else ln for ln in lines]
+    if "\r" in text:
+        lines = [ln[:-1] if ln.endswith("\r") else ln for ln in lines]
     if lines:
         lines[0] = lines[0].lstrip("\ufeff\xef\xbb\xbf")
-    return lines, compressed or crinex
+    return lines, compressed or crinex, data
 
 
 def _where(path, lineno: int, compressed: bool) -> str:

@@ -21,7 +21,8 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import gps_seconds
 from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, glonass_frequency_hz, signal
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
-from cdgps_cli.io.rinex import _ObsHeader, _parse_version_line, _read_lines
+from cdgps_cli.io.rinex import _ObsHeader, _parse_version_line, _read_text
+from cdgps_cli.io._fixed_width import LineBuffer, Unsupported, decimal_fields, flag_digits
 
 __all__ = ["read_rinex_signals", "SIGNAL_COLUMNS"]
 
@@ -92,9 +93,10 @@ def _value(rec: str, k: int, col0: int) -> tuple[float, int]:
 
 
 def _observation_header(path: str | Path):
-    """The file's lines, its parsed observation header and the index of its END OF HEADER line."""
+    """The file's lines, its parsed observation header, the index of its END OF HEADER line and the
+    (decompressed) bytes of the lines."""
     p = Path(path)
-    lines, compressed = _read_lines(p)
+    lines, compressed, data = _read_text(p)
     version, ftype, _ = _parse_version_line(lines, p, compressed, "observation")
     if ftype != "O":
         raise CdgpsError(f"{p}: not a RINEX observation file (type {ftype!r})")
@@ -102,14 +104,14 @@ def _observation_header(path: str | Path):
     end = next((i for i in range(1, len(lines)) if hdr.apply(lines[i], i + 1) == "END OF HEADER"), None)
     if end is None:
         raise CdgpsError(f"{p}: no 'END OF HEADER' line")
-    return lines, hdr, end
+    return lines, hdr, end, data
 
 
 def signals_in_file(path: str | Path) -> list[str]:
     """The signals of :data:`~cdgps_cli.core.signals.SIGNALS` whose carrier phase the observation
     file's header lists (RINEX 3 ``SYS / # / OBS TYPES``, RINEX 2 ``# / TYPES OF OBSERV``), in the
     table's order."""
-    _, hdr, _ = _observation_header(path)
+    hdr = _observation_header(path)[1]
     v3 = hdr.version >= 3
     out = []
     for name, sig in SIGNALS.items():
@@ -149,17 +151,36 @@ def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None)
         signals without ``GLONASS SLOT / FRQ #`` for an observed satellite, a malformed line.
     """
     p = Path(path)
-    lines, hdr, end = _observation_header(p)
+    lines, hdr, end, data = _observation_header(p)
     version = hdr.version
     cols = _columns(hdr, list(signals), p)
     slots = {**(glonass_k or {}), **_glonass_slots(lines, end, p)}
-    rows = _parse_v3(lines, end + 1, cols, p) if version >= 3 else _parse_v2(lines, end + 1, hdr, cols, p)
-    df = pd.DataFrame(rows, columns=list(SIGNAL_COLUMNS[:-1]))
-    df["wavelength_m"] = _wavelengths(df, slots, p)
+    df = _observations(lines, end + 1, hdr, cols, p, data, slots)
     info = dict(hdr.info)
     info["signal_codes"] = {k: list(v[3]) for k, v in cols.items()}
     info["glonass_slots"] = slots
-    return info, df.sort_values(["time_gps_s", "signal", "sat"], kind="stable").reset_index(drop=True)
+    return info, df
+
+
+#: read records with the vectorised reader (False: line by line, the reference it is tested against)
+FAST_PARSE = True
+
+
+def _observations(lines, start, hdr, cols, path, data: bytes | None = None, slots: dict | None = None) -> pd.DataFrame:
+    """The table of :func:`read_rinex_signals` (columns :data:`SIGNAL_COLUMNS`, sorted by time,
+    signal name, satellite, stable over the file's order: record, then signal).
+
+    The vectorised reader first; a file it does not take (or a malformed one) is read line by line,
+    which gives the same table or the error naming the line."""
+    if FAST_PARSE and cols:
+        try:
+            return _fast_table(lines, start, hdr, cols, path, data, slots or {})
+        except (Unsupported, CdgpsError):
+            pass
+    rows = _parse_v3(lines, start, cols, path) if hdr.version >= 3 else _parse_v2(lines, start, hdr, cols, path)
+    df = pd.DataFrame(rows, columns=list(SIGNAL_COLUMNS[:-1]))
+    df["wavelength_m"] = _wavelengths(df, slots or {}, path)
+    return df.sort_values(["time_gps_s", "signal", "sat"], kind="stable").reset_index(drop=True)
 
 
 def _wavelengths(df: pd.DataFrame, slots: dict, path) -> np.ndarray:
@@ -223,6 +244,9 @@ def _parse_v3(lines, i, cols, path) -> list:
         t = _epoch_time(ln, 2, path, i + 1)
         for r_off, rec in enumerate(lines[i + 1:i + 1 + nsat]):
             sat = rec[0:3].replace(" ", "0")
+            if not sat:
+                raise CdgpsError(f"{path}:{i + 2 + r_off}: blank line where the epoch's satellite record "
+                                 f"{r_off + 1} of {nsat} was expected")
             for name, (key, ip, ic, _) in cols.items():
                 if sat[0] != key:
                     continue
@@ -269,3 +293,160 @@ def _parse_v2(lines, i, hdr, cols, path) -> list:
                 if not math.isnan(ph):
                     rows.append((t, sat, name, ph, pr, lli))
     return rows
+
+
+def _walk_v3(lines, i, path):
+    """Epochs of a RINEX 3 body: (times (n_ep,), first record line (n_ep,), records (n_ep,)) of the
+    epochs of flag 0/1; Unsupported where the line-by-line reader would stop."""
+    times, first, count = [], [], []
+    n = len(lines)
+    while i < n:
+        ln = lines[i]
+        if not ln.strip():
+            i += 1
+            continue
+        if ln[0] != ">":
+            raise Unsupported("epoch line")
+        flag, nsat = _epoch_counts(ln, 31, path, i + 1)
+        if i + 1 + nsat > n:
+            raise Unsupported("truncated")
+        if flag <= 1:
+            times.append(_epoch_time(ln, 2, path, i + 1))
+            first.append(i + 1)
+            count.append(nsat)
+        i += 1 + nsat
+    return times, first, count
+
+
+def _walk_v2(lines, i, hdr, path):
+    """As :func:`_walk_v3` for RINEX 2, plus the satellite of every record (list of str) and the
+    number of lines per record."""
+    per = math.ceil(len(hdr.info["obs_types"]["*"]) / 5)
+    times, first, count, sats_all = [], [], [], []
+    n = len(lines)
+    while i < n:
+        ln = lines[i]
+        if not ln.strip():
+            i += 1
+            continue
+        flag, nsat = _epoch_counts(ln, 28, path, i + 1)
+        n_head = math.ceil(nsat / 12)
+        if i + n_head + (nsat if flag > 1 else nsat * per) > n:
+            raise Unsupported("truncated")
+        sats = "".join(lines[i + k][32:68] for k in range(n_head))
+        i += n_head
+        if flag > 1:
+            i += nsat
+            continue
+        times.append(_epoch_time(ln, 1, path, i))
+        first.append(i)
+        count.append(nsat)
+        for j in range(nsat):
+            sat = sats[3 * j:3 * j + 3].replace(" ", "0")
+            if not sat:
+                raise Unsupported("satellite list")
+            sats_all.append("G" + sat[1:] if sat[0] in "0G" else sat)
+        i += nsat * per
+    return times, first, count, sats_all, per
+
+
+def _fast_table(lines, start, hdr, cols, path, data: bytes | None, slots: dict) -> pd.DataFrame:
+    """:func:`_observations` by the vectorised reader (Unsupported: use the line-by-line one)."""
+    v3 = hdr.version >= 3
+    if v3:
+        times, first, count = _walk_v3(lines, start, path)
+        per = 1
+    else:
+        times, first, count, sats_v2, per = _walk_v2(lines, start, hdr, path)
+    count = np.asarray(count, dtype=np.int64)
+    n_rec = int(count.sum())
+    if n_rec == 0:
+        raise Unsupported("no records")
+    first = np.asarray(first, dtype=np.int64)
+    offset = np.concatenate([[0], np.cumsum(count)[:-1]])
+    rec_line = np.repeat(first, count) + per * (np.arange(n_rec) - np.repeat(offset, count))   # first line of every record
+    t_rec = np.repeat(np.asarray(times, dtype=np.float64), count)
+    buf = LineBuffer(lines) if data is None else LineBuffer.from_bytes(data, lines)
+    if v3:
+        if np.any(buf.length[rec_line] == 0):
+            raise Unsupported("blank record")
+        sat_bytes = buf.gather(rec_line, 0, 3)
+        if np.any(sat_bytes >= 128):
+            raise Unsupported("satellite")
+        sat_bytes[sat_bytes == 32] = 48
+        sats = sat_bytes.view("S3").ravel().astype("U3")
+    else:
+        rec_lines = rec_line[:, None] + np.arange(per)
+        if np.any(buf.length[rec_lines] > 80):
+            raise Unsupported("long record line")
+        sats = np.array(sats_v2, dtype="U3")
+    system = sats.astype("U1")
+    rows_of, lines_of, cols_of = [], [], []
+    for name, (key, ip, ic, _) in cols.items():
+        rows = np.flatnonzero(system == (key if v3 else signal(name).system))
+        rows_of.append(rows)
+        for k in (ip, ic):
+            if k >= 0:
+                line, col = _field_place(rec_line[rows], k, v3)
+                lines_of.append(line)
+                cols_of.append(np.full(rows.size, col, dtype=np.int64))
+    # every field of every signal at once: one gather, one conversion
+    f = buf.gather(np.concatenate(lines_of), np.concatenate(cols_of), 15)
+    values, flags = decimal_fields(f[:, :14]), flag_digits(f[:, 14])
+    parts, at = [], 0
+    for s_i, (rows, (_, _, ic, _)) in enumerate(zip(rows_of, cols.values())):
+        ph, lli = values[at:at + rows.size], flags[at:at + rows.size]
+        at += rows.size
+        if ic >= 0:
+            pr = values[at:at + rows.size]
+            at += rows.size
+        else:
+            pr = np.full(rows.size, math.nan)
+        ok = ~np.isnan(ph)
+        parts.append((rows[ok], s_i, ph[ok], pr[ok], lli[ok]))
+    names = np.array(list(cols), dtype=object)
+    rows = np.concatenate([p[0] for p in parts])
+    if rows.size == 0:
+        raise Unsupported("no observation")       # the line-by-line reader's empty table (object columns)
+    order = np.argsort(rows * len(cols) + np.concatenate([np.full(p[0].size, p[1]) for p in parts]), kind="stable")
+    rows = rows[order]
+    sig = np.concatenate([np.full(p[0].size, p[1]) for p in parts])[order]
+    sat_names, sat_code = np.unique(sats, return_inverse=True)         # code-point order, as str's
+    sig_rank = np.argsort(np.argsort(names.astype(str), kind="stable"))  # signal index -> rank of its name
+    t = t_rec[rows]
+    final = np.lexsort((sat_code[rows], sig_rank[sig], t))                # stable: file order among equals
+    rows, sig = rows[final], sig[final]
+    return pd.DataFrame({
+        "time_gps_s": t[final], "sat": sats[rows].astype(object), "signal": names[sig],
+        "phase_cycles": np.concatenate([p[2] for p in parts])[order][final],
+        "pseudorange_m": np.concatenate([p[3] for p in parts])[order][final],
+        "lli": np.concatenate([p[4] for p in parts])[order][final],
+        "wavelength_m": _wavelength_array(sats[rows], sig, list(cols), slots, path)})
+
+
+def _wavelength_array(sats: np.ndarray, sig: np.ndarray, names: list, slots: dict, path) -> np.ndarray:
+    """:func:`_wavelengths` on arrays: ``sats`` (n,) str, ``sig`` (n,) index into ``names``."""
+    lam = np.empty(sats.size)
+    for i in sorted(range(len(names)), key=lambda j: names[j]):       # signal names in order, as groupby
+        idx = np.flatnonzero(sig == i)
+        if idx.size == 0:
+            continue
+        sg = signal(names[i])
+        if not sg.fdma_step_hz:
+            lam[idx] = sg.wavelength_m
+            continue
+        uniq, inv = np.unique(sats[idx], return_inverse=True)
+        absent = sorted(set(uniq.tolist()) - set(slots))
+        if absent:
+            raise CdgpsError(f"{path}: GLONASS frequency numbers absent for {' '.join(absent)} "
+                             "(header line 'GLONASS SLOT / FRQ #' expected, or a GLONASS navigation record of "
+                             "the satellite); FDMA phases need them")
+        lam[idx] = np.array([SPEED_OF_LIGHT_M_S / glonass_frequency_hz(sg, slots[s]) for s in uniq.tolist()])[inv]
+    return lam
+
+
+def _field_place(rec_line: np.ndarray, k: int, v3: bool):
+    """(line (n,), column) of observation ``k`` of the records starting at ``rec_line``."""
+    if v3:
+        return rec_line, 3 + 16 * k
+    return rec_line + k // 5, 16 * (k % 5)

@@ -23,6 +23,8 @@ resolution — and slips are flagged only by a per-epoch LLI.
 
 from __future__ import annotations
 
+import copy
+
 import gzip
 import zlib
 from pathlib import Path
@@ -226,10 +228,38 @@ def _repeated_signal_frames(meas: np.ndarray) -> np.ndarray:
     return np.unique(dup >> 24)
 
 
+#: the last log decoded by :func:`_decoded_rawx`, {(path, mtime_ns, size, strict): result}: a command
+#: that reads one log's signals and then its ephemerides frames and decodes it once
+_LAST_DECODED: dict = {}
+
+
 def _decoded_rawx(p: Path, strict: bool, data: bytes | None = None):
     """Frame a UBX log and decode its RXM-RAWX messages: (frames, rtcm, split statistics, message counts,
     epochs, measurements, offsets of undecodable frames, epoch time tags in GPS s); CdgpsError as
-    :func:`read_ubx_log` says.  ``data``: the log's bytes when already read (``p`` then names it)."""
+    :func:`read_ubx_log` says.  ``data``: the log's bytes when already read (``p`` then names it).
+    A file read from disk is decoded once while it is unchanged (same path, modification time and
+    size): the arrays come back read-only, the lists and dicts as copies."""
+    key = None
+    if data is None:
+        try:
+            st = p.stat()
+            key = (str(p.resolve()), st.st_mtime_ns, st.st_size, strict)
+        except OSError:
+            key = None                                     # the read below reports it
+    if key is None or key not in _LAST_DECODED:
+        out = _decode_rawx_log(p, strict, data)
+        for a in out[4:6] + out[7:8]:
+            a.setflags(write=False)
+        if key is None:
+            return out
+        _LAST_DECODED.clear()
+        _LAST_DECODED[key] = out
+    frames, rtcm, stats, counts, epochs, meas, undecodable, t = _LAST_DECODED[key]
+    return list(frames), list(rtcm), copy.deepcopy(stats), dict(counts), epochs, meas, list(undecodable), t
+
+
+def _decode_rawx_log(p: Path, strict: bool, data: bytes | None):
+    """:func:`_decoded_rawx` without its memory of the last log."""
     try:
         data = p.read_bytes() if data is None else data
     except OSError as exc:

@@ -71,7 +71,7 @@ class _Fletcher:
 
     def __init__(self, data: bytes):
         x = np.frombuffer(data, dtype=np.uint8)
-        idx = np.resize(np.arange(256, dtype=np.uint8), x.size)
+        idx = np.tile(np.arange(256, dtype=np.uint8), -(-x.size // 256))[:x.size]     # j mod 256
         self._s = b"\0" + np.cumsum(x, dtype=np.uint8).tobytes()          # bytes: fast int indexing
         self._t = b"\0" + np.cumsum(idx * x, dtype=np.uint8).tobytes()
 
@@ -151,7 +151,8 @@ def split_stream(data: bytes) -> tuple[list, list, dict]:
     ubx: list = []
     rtcm: list = []
     checksum = _Fletcher(data)
-    nxt = (_Next(data, UBX_SYNC), _Next(data, b"$"), _Next(data, bytes((RTCM_PREAMBLE,))))
+    next_ubx, next_nmea, next_rtcm = (_Next(data, UBX_SYNC).from_, _Next(data, b"$").from_,
+                                      _Next(data, bytes((RTCM_PREAMBLE,))).from_)
     pos = 0   # first byte not yet accounted for
     scan = 0  # where the search for the next candidate resumes
 
@@ -166,7 +167,7 @@ def split_stream(data: bytes) -> tuple[list, list, dict]:
             stats[okey].append(k)
 
     while True:
-        ku, kn, kr = (m.from_(scan) for m in nxt)
+        ku, kn, kr = next_ubx(scan), next_nmea(scan), next_rtcm(scan)
         k = min(ku, kn, kr)
         if k >= n:
             stats["skipped_bytes"] += n - pos

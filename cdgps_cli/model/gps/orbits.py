@@ -52,6 +52,7 @@ __all__ = [
     "sat_position_ecef",
     "beidou_geo_rotation",
     "select_ephemeris",
+    "select_ephemerides",
     "sat_position_at_reception",
     "ReceptionGeometry",
     "ecef_to_geodetic",
@@ -313,28 +314,41 @@ def select_ephemeris(nav: pd.DataFrame, sat: str, t_gps_s, *, max_age_s: float |
         |t − toe| ≤ ``max_age_s`` for some of the times; the message lists the uncovered times
         and the toe/health of the records the file has for that satellite.
     """
-    if max_age_s is None:
-        max_age_s = MAX_EPHEMERIS_AGE_GLONASS_S if str(sat).startswith("R") else MAX_EPHEMERIS_AGE_S
     t = np.asarray(t_gps_s, dtype=np.float64)
     scalar = t.ndim == 0
-    t1 = np.atleast_1d(t).ravel()
-    recs = nav[nav["sat"] == sat]
-    if recs.empty:
+    out = nav.iloc[_ephemeris_rows(nav, sat, np.atleast_1d(t).ravel(), max_age_s)].reset_index(drop=True)
+    if scalar:
+        return out.iloc[0]
+    return out
+
+
+def _ephemeris_rows(nav: pd.DataFrame, sat: str, t1: np.ndarray, max_age_s: float | None,
+                    columns: tuple | None = None) -> np.ndarray:
+    """Row positions in ``nav`` of :func:`select_ephemeris`'s choice for ``sat`` at the times ``t1``
+    (N,); CdgpsError as it says.  ``columns``: ``nav``'s sat, sv_health, toe and transmission-time
+    columns as arrays (None: taken from ``nav``), for callers selecting many satellites."""
+    sat_col, health, toe_col, transmit = columns or _ephemeris_columns(nav)
+    if max_age_s is None:
+        max_age_s = MAX_EPHEMERIS_AGE_GLONASS_S if str(sat).startswith("R") else MAX_EPHEMERIS_AGE_S
+    rows = np.flatnonzero(sat_col == sat)                        # row positions, without sub-frames
+    if rows.size == 0:
         have = sorted(nav["sat"].unique().tolist())
         raise CdgpsError(f"no broadcast ephemeris for {sat} in the navigation data (satellites present: {' '.join(have) or 'none'})")
-    healthy = recs[recs["sv_health"] == 0]
+    healthy = rows[health[rows] == 0]
     chosen = np.full(t1.shape, -1, dtype=np.int64)
-    if not healthy.empty:
-        if "transmit_gps_s" in healthy.columns:
-            # argmin keeps the first of equal ages: order by latest transmission first
-            healthy = healthy.sort_values("transmit_gps_s", ascending=False, na_position="last", kind="stable")
-        toe = healthy["toe_gps_s"].to_numpy()
+    if healthy.size:
+        if transmit is not None:
+            # argmin keeps the first of equal ages: order by latest transmission first (ties and
+            # missing times keep the file's order, missing last: pandas' stable descending sort)
+            healthy = healthy[np.argsort(-transmit[healthy], kind="stable")]
+        toe = toe_col[healthy]
         age = np.abs(t1[:, None] - toe[None, :])
         best = np.argmin(age, axis=1)
         ok = age[np.arange(t1.size), best] <= max_age_s
         chosen = np.where(ok, best, -1)
     bad = chosen < 0
     if bad.any():
+        recs = nav.iloc[rows]
         idx = np.flatnonzero(bad)
         shown = ", ".join(gps_time_str(x) for x in t1[idx[:3]]) + (" …" if idx.size > 3 else "")
         toes = recs.sort_values("toe_gps_s")
@@ -348,10 +362,40 @@ def select_ephemeris(nav: pd.DataFrame, sat: str, t_gps_s, *, max_age_s: float |
             f"no healthy broadcast ephemeris for {sat} within ±{max_age_s / 3600:g} h of {idx.size} of {t1.size} requested time(s) "
             f"({shown}); the navigation data has for {sat}: {lst}"
         )
-    out = healthy.iloc[chosen].reset_index(drop=True)
-    if scalar:
-        return out.iloc[0]
-    return out
+    return healthy[chosen]
+
+
+def _ephemeris_columns(nav: pd.DataFrame) -> tuple:
+    """(sat, sv_health, toe_gps_s, transmit_gps_s or None) of ``nav`` as arrays."""
+    transmit = nav["transmit_gps_s"].to_numpy(dtype=np.float64) if "transmit_gps_s" in nav.columns else None
+    return nav["sat"].to_numpy(), nav["sv_health"].to_numpy(), nav["toe_gps_s"].to_numpy(), transmit
+
+
+def select_ephemerides(nav: pd.DataFrame, sats, t_gps_s) -> pd.DataFrame:
+    """:func:`select_ephemeris` for many (satellite, time) pairs at once: row ``i`` is the ephemeris of
+    ``sats[i]`` at ``t_gps_s[i]`` (index 0…N−1), the rows ``select_ephemeris`` chooses, taken from
+    ``nav`` in one ``iloc`` (not one sub-frame per satellite).
+
+    Parameters
+    ----------
+    nav : DataFrame
+        Ephemerides (:func:`~cdgps_cli.io.rinex.read_rinex_nav`).
+    sats : array_like of str, shape (N,)
+    t_gps_s : array_like of float, shape (N,)
+        GPS seconds.
+
+    Raises
+    ------
+    CdgpsError
+        As :func:`select_ephemeris`, for the first satellite in name order that is not covered.
+    """
+    sats = np.asarray(sats)
+    t = np.asarray(t_gps_s, dtype=np.float64).ravel()
+    rows = np.empty(t.size, dtype=np.int64)
+    columns = _ephemeris_columns(nav)
+    for sat, idx in pd.Series(sats).groupby(sats).indices.items():
+        rows[idx] = _ephemeris_rows(nav, sat, t[idx], None, columns)
+    return nav.iloc[rows].reset_index(drop=True)
 
 
 class ReceptionGeometry(NamedTuple):

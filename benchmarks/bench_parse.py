@@ -1,0 +1,136 @@
+#!/usr/bin/env python3
+"""RINEX and UBX reading against ``pandas.read_csv`` of the same bytes (issue 29 item 4).
+
+For every RINEX observation file of the shared data: :func:`cdgps_cli.io.rinex_signals.read_rinex_signals`
+(every signal the file's header lists; the vectorised reader, and the line-by-line one it replaced,
+``FAST_PARSE = False``) and :func:`cdgps_cli.io.rinex.read_rinex_obs` (the GPS L1 table of
+``init``/``ingest``) against ``pandas.read_csv`` of the same file after its header
+(whitespace-separated, every token typed: the C tokenizer over the same bytes).  For every u-blox
+log: :func:`cdgps_cli.io.ubx.read_ubx_log` (framing, checksums, RXM-RAWX decode, SFRBX ephemerides)
+against ``pandas.read_csv`` of a CSV of the same number of bytes (the decoded observation table,
+repeated); a binary log holds ~4× the observations of a CSV of its size, so this peer is generous.
+
+Rounds are interleaved (ours, peer, ours, ...) and each figure is the median of ``--repeat`` rounds;
+the ratio is ours / read_csv (< 1: faster).  Writes ``docs/benchmarks/parse.json``::
+
+    PYTHONPATH=. python benchmarks/bench_parse.py --repeat 7
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import pandas as pd
+
+from cdgps_cli.io import rinex, rinex_signals, ubx
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = ROOT.parent / "shared" / "data"
+OUT = ROOT / "docs" / "benchmarks" / "parse.json"
+GLO_K = {f"R{i:02d}": 0 for i in range(1, 33)}
+
+
+def _time(fn) -> float:
+    t = time.perf_counter()
+    fn()
+    return time.perf_counter() - t
+
+
+def interleaved(fns: dict, repeat: int) -> dict:
+    """Median wall time (s) of each callable, the callables taking turns ``repeat`` times."""
+    for fn in fns.values():
+        fn()                                               # warm-up: imports, caches
+    times = {k: [] for k in fns}
+    for _ in range(repeat):
+        for k, fn in fns.items():
+            times[k].append(_time(fn))
+    return {k: statistics.median(v) for k, v in times.items()}
+
+
+def _slow(path, names):
+    rinex_signals.FAST_PARSE = False
+    try:
+        return rinex_signals.read_rinex_signals(path, names, glonass_k=GLO_K)
+    finally:
+        rinex_signals.FAST_PARSE = True
+
+
+def rinex_case(path: Path, repeat: int) -> dict:
+    names = rinex_signals.signals_in_file(path)
+    text = path.read_text(encoding="latin-1").split("\n")
+    skip = next(i for i, ln in enumerate(text) if ln[60:].strip() == "END OF HEADER") + 1
+    width = max(len(ln.split()) for ln in text[skip:]) + 1
+    fns = {"read_rinex_signals_s": lambda: rinex_signals.read_rinex_signals(path, names, glonass_k=GLO_K),
+           "read_csv_s": lambda: pd.read_csv(path, sep=r"\s+", header=None, skiprows=skip, names=range(width),
+                                             encoding="latin-1", engine="c"),
+           "line_by_line_s": lambda: _slow(path, names)}
+    try:
+        rinex.read_rinex_obs(path, gps_l1_optional=True)
+        fns["read_rinex_obs_s"] = lambda: rinex.read_rinex_obs(path, gps_l1_optional=True)
+    except Exception:                                   # noqa: BLE001 (a file that reader refuses: not timed)
+        pass
+    t = interleaved(fns, repeat)
+    row = {"bytes": path.stat().st_size, "signals": names, **{k: round(v, 5) for k, v in t.items()},
+           "ratio_to_read_csv": round(t["read_rinex_signals_s"] / t["read_csv_s"], 3),
+           "line_by_line_ratio_to_read_csv": round(t["line_by_line_s"] / t["read_csv_s"], 3)}
+    if "read_rinex_obs_s" in t:
+        row["read_rinex_obs_ratio_to_read_csv"] = round(t["read_rinex_obs_s"] / t["read_csv_s"], 3)
+    return row
+
+
+def ubx_case(path: Path, tmp: Path, repeat: int) -> dict:
+    _, obs, _ = ubx.read_ubx_log(path)
+    size = path.stat().st_size
+    one = obs.to_csv(index=False)
+    head, body = one.split("\n", 1)
+    csv = tmp / (path.name + ".csv")
+    reps = max(1, -(-size // max(len(body), 1)))
+    data = (head + "\n" + body * reps).encode()
+    data = data[:data.rfind(b"\n", 0, max(size, len(head) + 2)) + 1]
+    csv.write_bytes(data)
+    def read():
+        ubx._LAST_DECODED.clear()                          # no memory of the previous round's decode
+        return ubx.read_ubx_log(path)
+
+    t = interleaved({"read_ubx_log_s": read,
+                     "read_csv_s": lambda: pd.read_csv(csv)}, repeat)
+    return {"bytes": size, "csv_bytes": len(data), "rawx_rows": len(obs), "csv_rows": data.count(b"\n") - 1,
+            **{k: round(v, 5) for k, v in t.items()},
+            "ratio_to_read_csv": round(t["read_ubx_log_s"] / t["read_csv_s"], 3)}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=7)
+    ap.add_argument("--out", type=Path, default=OUT)
+    a = ap.parse_args()
+    res = {"machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "pandas": pd.__version__,
+                       "load_average_1min_at_start": round(os.getloadavg()[0], 2)},
+           "repeat": a.repeat, "timing": "median of interleaved rounds after one warm-up", "rinex": {}, "ubx": {}}
+    obs = sorted(p for p in SHARED.rglob("*") if p.is_file() and p.name.lower().endswith(("o", ".obs")))
+    for p in obs:
+        res["rinex"][str(p.relative_to(SHARED))] = row = rinex_case(p, a.repeat)
+        print(p.name, json.dumps({k: v for k, v in row.items() if k != "signals"}), flush=True)
+    logs = [SHARED / "real-pairs" / "ublox-walk" / "gnss_1730.ubx", SHARED / "ubx" / "pygpsdata-RXMRAWX.log"]
+    with tempfile.TemporaryDirectory() as d:
+        for p in logs:
+            if p.exists():
+                res["ubx"][str(p.relative_to(SHARED))] = row = ubx_case(p, Path(d), a.repeat)
+                print(p.name, json.dumps(row), flush=True)
+    ratios = [r["ratio_to_read_csv"] for part in ("rinex", "ubx") for r in res[part].values()]
+    res["worst_ratio_to_read_csv"] = max(ratios)
+    res["machine"]["load_average_1min_at_end"] = round(os.getloadavg()[0], 2)
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    a.out.write_text(json.dumps(res, indent=1) + "\n")
+    print("worst ratio", res["worst_ratio_to_read_csv"], "wrote", a.out)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,70 @@
+"""A u-blox log read twice by one command (its signals, then its ephemerides) is framed and decoded
+once; a changed file is decoded again; what callers get cannot alter what the next caller gets."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from cdgps_cli.io import ubx
+
+LOG = Path(__file__).resolve().parents[3] / "shared" / "data" / "real-pairs" / "ublox-walk" / "gnss_1730.ubx"
+
+
+@pytest.fixture
+def counted(monkeypatch):
+    calls = []
+    real = ubx.split_stream
+
+    def split(data):
+        calls.append(len(data))
+        return real(data)
+
+    monkeypatch.setattr(ubx, "split_stream", split)
+    ubx._LAST_DECODED.clear()
+    yield calls
+    ubx._LAST_DECODED.clear()
+
+
+def test_signals_then_log_frame_once(tmp_path, counted):
+    path = tmp_path / LOG.name
+    shutil.copyfile(LOG, path)
+    sig = ubx.read_ubx_signals(path, ["G:L1", "E:E1"])
+    info, obs, nav = ubx.read_ubx_log(path)
+    assert len(counted) == 1
+    ubx._LAST_DECODED.clear()
+    info2, obs2, nav2 = ubx.read_ubx_log(path)                       # from scratch: the same
+    assert len(counted) == 2
+    assert info == info2
+    pd.testing.assert_frame_equal(obs, obs2, check_exact=True)
+    pd.testing.assert_frame_equal(nav, nav2, check_exact=True)
+    pd.testing.assert_frame_equal(sig, ubx.read_ubx_signals(path, ["G:L1", "E:E1"]), check_exact=True)
+
+
+def test_changed_file_is_decoded_again(tmp_path, counted):
+    path = tmp_path / LOG.name
+    data = LOG.read_bytes()
+    path.write_bytes(data)
+    n1 = len(ubx.read_ubx_log(path)[1])
+    path.write_bytes(data[: len(data) // 2])                            # another size: read again
+    n2 = len(ubx.read_ubx_log(path)[1])
+    assert len(counted) == 2 and 0 < n2 < n1
+
+
+def test_callers_cannot_alter_the_memory(tmp_path, counted):
+    path = tmp_path / LOG.name
+    shutil.copyfile(LOG, path)
+    info, _, _ = ubx.read_ubx_log(path)
+    info["bad_rtcm_offsets"].append(123)
+    info["message_counts"].clear()
+    again, _, _ = ubx.read_ubx_log(path)
+    assert again["bad_rtcm_offsets"] == [] and again["message_counts"]
+    _, _, _, _, epochs, meas, _, t = ubx._decoded_rawx(path, False)
+    for a in (epochs, meas, t):
+        with pytest.raises(ValueError):
+            a[:1] = a[1:2]
+    assert np.all(np.diff(t) > 0)
