@@ -14,6 +14,11 @@ under ``/usr/bin/time`` (peak RSS = the process's maximum resident set size)::
     evaluate cdgps evaluate --truth sim --estimate states.mcap --json
     report   cdgps report spectrum states.mcap --gyro run.mcap -o report
 
+``--gnss-hours H`` adds the GNSS row (issue 29: a 24 h static pair at 1 Hz, target < 30 s for the
+whole commands): ``cdgps simulate-gnss --duration 3600 H --rate-hz 1 --slips 30 --seed 1`` (cached in
+``--workdir``/gnss-<H>h), then ``ingest --config``, ``init`` and ``estimate``, each its own process,
+with their sum.
+
 Each stage's record: wall s, s per hour of record, peak RSS MiB and the 1-minute load average when it
 started (the machine may be shared: memory does not depend on the load, time does).  ``--stages``
 runs some only (e.g. the cheap ones at 24 h); stages whose inputs are missing are skipped.  Writes
@@ -102,6 +107,28 @@ def run_record(workdir: Path, hours: float, stages) -> dict:
     return rec
 
 
+def gnss_pair(workdir: Path, hours: float) -> dict:
+    """The GNSS row: a simulated static pair at 1 Hz through ingest, init and estimate."""
+    d = workdir / f"gnss-{hours:g}h"
+    if not (d / "config.toml").exists():
+        r = _timed(["simulate-gnss", "--duration", str(int(3600 * hours)), "--rate-hz", "1", "--slips", "30",
+                    "--seed", "1", "-o", str(d)])
+        if r["exit"]:
+            raise SystemExit(f"simulate-gnss {hours} h failed: {r.get('stderr')}")
+    rec = {"hours": hours, "rate_hz": 1.0, "stages": {}}
+    for stage, args in (("ingest", ["ingest", "--config", str(d / "config.toml"), "-o", str(d / "run.mcap")]),
+                        ("init", ["init", str(d / "run.mcap"), "-o", str(d / "init.json")]),
+                        ("estimate", ["estimate", str(d / "run.mcap"), "--init", str(d / "init.json"),
+                                      "-o", str(d / "states.mcap")])):
+        r = _timed(args)
+        rec["stages"][stage] = r
+        print(f"  GNSS {hours:g} h {stage:9s} {r['wall_s']:8.1f} s {r['peak_rss_mib']:8.1f} MiB (load "
+              f"{r['load_1min']:.1f})" + ("" if not r["exit"] else f"  EXIT {r['exit']}"), file=sys.stderr, flush=True)
+    rec["whole_commands_s"] = round(sum(s["wall_s"] for s in rec["stages"].values()), 2)
+    rec["peak_rss_mib"] = max(s["peak_rss_mib"] for s in rec["stages"].values())
+    return rec
+
+
 def table(records: list[dict]) -> str:
     hours = [r["hours"] for r in records]
     head = "| stage | " + " | ".join(f"{h:g} h: peak RSS MiB / s (s per h)" for h in hours) + " |"
@@ -118,19 +145,23 @@ def table(records: list[dict]) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--hours", type=float, nargs="+", default=[1.0, 6.0])
+    ap.add_argument("--hours", type=float, nargs="*", default=[1.0, 6.0])
     ap.add_argument("--stages", nargs="+", choices=STAGES, default=list(STAGES))
     ap.add_argument("--workdir", type=Path, default=Path("/tmp/cdgps-long-records"))
     ap.add_argument("--out", type=Path)
+    ap.add_argument("--gnss-hours", type=float, help="also the GNSS pair row (a static pair at 1 Hz of this length)")
     a = ap.parse_args()
     records = []
-    for h in a.hours:
-        records.append(run_record(a.workdir, h, a.stages))
+    gnss = gnss_pair(a.workdir, a.gnss_hours) if a.gnss_hours else None
+    for h in [None, *a.hours]:                 # (None: the GNSS row alone is written first)
+        if h is not None:
+            records.append(run_record(a.workdir, h, a.stages))
         result = {"config": "configs/testbed-1998.toml (10 Hz), seed 1, 2 cm noise, disturbance scale 1",
                   "machine": f"{platform.machine()}, {os.cpu_count()} cores (shared)",
                   "python": platform.python_version(), "records": records,
                   "note": "peak RSS: /usr/bin/time maximum resident set size of each cdgps process; load_1min: "
-                          "the 1-minute load average when the stage started (times depend on it)"}
+                          "the 1-minute load average when the stage started (times depend on it)",
+                  **({"gnss_pair": gnss} if gnss else {})}
         if a.out:
             a.out.parent.mkdir(parents=True, exist_ok=True)
             a.out.write_text(json.dumps(result, indent=1) + "\n")
