@@ -19,7 +19,7 @@ whole commands): ``cdgps simulate-gnss --duration 3600 H --rate-hz 1 --slips 30 
 ``--workdir``/gnss-<H>h), then ``ingest --config``, ``init`` and ``estimate``, each its own process,
 with their sum.
 
-Each stage's record: wall s, s per hour of record, peak RSS MiB and the 1-minute load average when it
+Each stage's record: wall s, CPU s (user + system), each per hour of record, peak RSS MiB and the 1-minute load average when it
 started (the machine may be shared: memory does not depend on the load, time does).  ``--stages``
 runs some only (e.g. the cheap ones at 24 h); stages whose inputs are missing are skipped.  Writes
 ``--out`` (JSON) and prints a markdown table::
@@ -67,12 +67,15 @@ def _timed(args: list[str]) -> dict:
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     load = os.getloadavg()[0]
     t0 = time.perf_counter()
-    p = subprocess.run(["/usr/bin/time", "-f", "__TIME__ %e %M", *CDGPS, "-q", *args], capture_output=True, text=True,
-                       env=env, cwd=ROOT)
+    p = subprocess.run(["/usr/bin/time", "-f", "__TIME__ %e %M %U %S", *CDGPS, "-q", *args], capture_output=True,
+                       text=True, env=env, cwd=ROOT)
     wall = time.perf_counter() - t0
     line = [ln for ln in p.stderr.splitlines() if ln.startswith("__TIME__")]
     rss = float(line[-1].split()[2]) / 1024.0 if line else float("nan")
-    out = {"wall_s": round(wall, 2), "peak_rss_mib": round(rss, 1), "load_1min": round(load, 2), "exit": p.returncode}
+    cpu = sum(float(x) for x in line[-1].split()[3:5]) if line else float("nan")
+    # (cpu_s: user + system CPU time, which a loaded machine changes far less than the wall time)
+    out = {"wall_s": round(wall, 2), "cpu_s": round(cpu, 2), "peak_rss_mib": round(rss, 1), "load_1min": round(load, 2),
+           "exit": p.returncode}
     if p.returncode:
         out["stderr"] = p.stderr[-600:]
     return out
@@ -100,6 +103,7 @@ def run_record(workdir: Path, hours: float, stages) -> dict:
             continue
         r = _timed(args)
         r["s_per_hour"] = round(r["wall_s"] / hours, 2)
+        r["cpu_s_per_hour"] = round(r["cpu_s"] / hours, 2)
         rec["stages"][stage] = r
         print(f"  {hours:g} h {stage:9s} {r['wall_s']:8.1f} s {r['peak_rss_mib']:8.1f} MiB (load {r['load_1min']:.1f})"
               + ("" if not r["exit"] else f"  EXIT {r['exit']}"), file=sys.stderr, flush=True)
