@@ -22,13 +22,14 @@ import numpy as np
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.table import Table
 
-__all__ = ["PlaneColumn", "RowColumn", "stream_log", "concat_tables"]
+__all__ = ["PlaneColumn", "RowColumn", "Vocabulary", "concat_tables", "read_pieces", "scratch_file", "stream_log", "unique_sorted",
+           "write_scratch"]
 
 _PIECE_BYTES = 8 << 20
 """Bytes read back from a scratch file at a time."""
 
 
-def _scratch(dir_) -> object:
+def scratch_file(dir_) -> object:
     where = str(dir_) if dir_ is not None and Path(dir_).is_dir() else None
     try:
         return tempfile.TemporaryFile(prefix=".cdgps-ingest-", dir=where)
@@ -37,7 +38,7 @@ def _scratch(dir_) -> object:
                          f"{exc.strerror}") from None
 
 
-def _write(fh, data, dir_) -> None:
+def write_scratch(fh, data, dir_) -> None:
     try:
         fh.write(data)
     except OSError as exc:
@@ -45,7 +46,7 @@ def _write(fh, data, dir_) -> None:
                          f"{exc.strerror or exc}") from None
 
 
-def _read_pieces(fh, piece: int = _PIECE_BYTES):
+def read_pieces(fh, piece: int = _PIECE_BYTES):
     fh.flush()
     fh.seek(0)
     while chunk := fh.read(piece):
@@ -60,19 +61,19 @@ class PlaneColumn:
     def __init__(self, dtype, dir_=None):
         self.dtype = np.dtype(dtype).newbyteorder("<")
         self.dir, self.n = dir_, 0
-        self._files = [_scratch(dir_) for _ in range(self.dtype.itemsize)]
+        self._files = [scratch_file(dir_) for _ in range(self.dtype.itemsize)]
 
     def append(self, values) -> None:
         v = np.ascontiguousarray(values, dtype=self.dtype)
         octets = v.view(np.uint8).reshape(-1, self.dtype.itemsize)
         for b, fh in enumerate(self._files):
-            _write(fh, np.ascontiguousarray(octets[:, b]), self.dir)
+            write_scratch(fh, np.ascontiguousarray(octets[:, b]), self.dir)
         self.n += v.size
 
     def planes(self):
         """The bytes of plane 0, then plane 1, … in pieces."""
         for fh in self._files:
-            yield from _read_pieces(fh)
+            yield from read_pieces(fh)
 
     def close(self) -> None:
         for fh in self._files:
@@ -86,17 +87,17 @@ class RowColumn:
     def __init__(self, dtype, dir_=None):
         self.dtype = np.dtype(dtype).newbyteorder("<")
         self.dir, self.n = dir_, 0
-        self._file = _scratch(dir_)
+        self._file = scratch_file(dir_)
 
     def append(self, values) -> None:
         v = np.ascontiguousarray(values, dtype=self.dtype)
-        _write(self._file, v, self.dir)
+        write_scratch(self._file, v, self.dir)
         self.n += v.size
 
     def pieces(self, lut: np.ndarray | None = None, dtype=None):
         """The column in pieces (arrays), mapped by ``lut`` and cast to ``dtype``."""
         step = max(_PIECE_BYTES // self.dtype.itemsize, 1) * self.dtype.itemsize
-        for chunk in _read_pieces(self._file, step):
+        for chunk in read_pieces(self._file, step):
             v = np.frombuffer(chunk, dtype=self.dtype)
             v = v if lut is None else lut[v]
             yield v if dtype is None else v.astype(dtype, copy=False)
@@ -178,7 +179,7 @@ class _Epochs:
         return out
 
 
-def _unique_sorted(t: np.ndarray) -> np.ndarray:
+def unique_sorted(t: np.ndarray) -> np.ndarray:
     """The distinct values of a non-decreasing array."""
     return t[np.r_[True, t[1:] != t[:-1]]] if t.size else t
 
@@ -244,7 +245,7 @@ class _Join:
     def filter(self, tab: Table) -> Table | None:
         """The rows of whole epochs ``tab`` to keep (None: none, or an error is pending)."""
         t = tab["time_s"]
-        self.cur["epochs"].append(_unique_sorted(t))
+        self.cur["epochs"].append(unique_sorted(t))
         if self.error is not None:
             return None
         if t.size and t[0] <= self.prev_last:
@@ -269,7 +270,7 @@ class _Join:
             return None
         if self.cur["first_used"] is None:
             self.cur["first_used"] = float(t[0])
-        self.cur["used"].append(_unique_sorted(t))
+        self.cur["used"].append(unique_sorted(t))
         if t[-1] >= self.later_first:
             later = t >= self.later_first
             self.digests.append(_epoch_digests(tab.take(later) if not later.all() else tab, self.vocab,

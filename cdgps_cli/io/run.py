@@ -326,7 +326,7 @@ class _PhaseSink:
         self.first_t = self.last_t = None
 
     def add(self, tab: Table) -> None:
-        from cdgps_cli.io.log_stream import _unique_sorted  # noqa: PLC0415
+        from cdgps_cli.io.log_stream import unique_sorted  # noqa: PLC0415
 
         self.messages += self.out.write_table(self.ch, tab, PHASE_ARRAYS, ["master"])
         for c in PHASE_NAME_COLUMNS:
@@ -336,7 +336,7 @@ class _PhaseSink:
         if self.counter is not None:
             self.counter.add(tab)
         t = tab["time_s"]
-        self._epochs.append(_unique_sorted(t))
+        self._epochs.append(unique_sorted(t))
         a, aw = tab.codes("antenna")
         x, xw = tab.codes("transmitter")
         for k in np.unique(a.astype(np.int64) * len(xw) + x).tolist():
@@ -368,13 +368,13 @@ class _PhaseSink:
 def _attach_planes(out: McapOut, name: str, dtype, n: int, planes) -> None:
     """Attach the packed array of ``n`` numbers given as byte planes (compressed into a scratch
     file first: the attachment's length comes before its bytes)."""
-    from cdgps_cli.io.log_stream import _read_pieces, _scratch, _write  # noqa: PLC0415
+    from cdgps_cli.io.log_stream import read_pieces, scratch_file, write_scratch  # noqa: PLC0415
     from cdgps_cli.io.packed_arrays import MEDIA_TYPE, pack_planes  # noqa: PLC0415
 
-    with _scratch(out.path.parent) as tmp:
-        pack_planes(dtype, n, planes, lambda b: _write(tmp, b, out.path.parent))
+    with scratch_file(out.path.parent) as tmp:
+        pack_planes(dtype, n, planes, lambda b: write_scratch(tmp, b, out.path.parent))
         size = tmp.tell()
-        out.attach_stream(name, size, _read_pieces(tmp), MEDIA_TYPE)
+        out.attach_stream(name, size, read_pieces(tmp), MEDIA_TYPE)
 
 
 class _SeriesSink:
