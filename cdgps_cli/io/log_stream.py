@@ -363,13 +363,13 @@ def first_epoch(path: str | Path) -> float:
 def stream_log(paths: list, kind: str, cfg, sink, name_columns, categorical, joins: dict, key: str,
                period_s: float | None = None, sampled: bool = True, block_bytes: int | None = None) -> None:
     """Read the log of ``kind`` given as one file or as consecutive files (``paths``), validated
-    block by block, and give ``sink.add`` its whole epochs in time order (several files: joined as
-    :func:`cdgps_cli.io.run._read_sequence` joined them).  ``paths`` is reordered in place to time
-    order; ``joins[key]`` gets the report and warnings when there are several files.
+    block by block, and give ``sink.add`` its whole epochs in time order (several files: joined by
+    the rule of :func:`cdgps_cli.io.log_sequence.join_tables`, the files of another rate or receiver
+    refused).  ``paths`` is reordered in place to time order; ``joins[key]`` gets the report and
+    warnings when there are several files.
 
     ``period_s``: the record's sample period (None: the median spacing of the data); ``sampled``
     False: an event log (no rate to compare, no gaps)."""
-    from cdgps_cli.core.gps_time import nominal_interval_s  # noqa: PLC0415
     from cdgps_cli.io.logs import LOG_BLOCK_BYTES, valid_blocks  # noqa: PLC0415
 
     block_bytes = LOG_BLOCK_BYTES if block_bytes is None else block_bytes
@@ -386,6 +386,14 @@ def stream_log(paths: list, kind: str, cfg, sink, name_columns, categorical, joi
         if (rest := ep.flush()) is not None:
             sink.add(rest)
         return
+    _stream_files(paths, tables, sink, name_columns, categorical, joins, key, period_s, sampled)
+
+
+def _stream_files(paths: list, tables, sink, name_columns, categorical, joins: dict, key: str, period_s,
+                  sampled: bool) -> None:
+    """:func:`stream_log` of several files (``tables(path)``: a file's validated blocks)."""
+    from cdgps_cli.core.gps_time import nominal_interval_s  # noqa: PLC0415
+
     given = list(paths)
     names = [Path(p).name if len({Path(q).name for q in paths}) == len(paths) else str(p) for p in paths]
     firsts = [first_epoch(p) for p in paths]
