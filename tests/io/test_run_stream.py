@@ -19,6 +19,7 @@ import pytest
 
 import _run_writer_reference as reference
 from cdgps_cli.config.structure import load_config
+from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.run import write_run
 from cdgps_cli.pipeline.ingest import ChannelCounter, channel_summary
 from cdgps_cli.sim.structure import SimOptions, parse_outage, parse_slip, simulate, write_simulation
@@ -101,3 +102,22 @@ def test_repeated_epoch_identical_or_not(sim, tmp_path, change):
     s = _both(tmp_path, rx, None, None, SMALL)
     (ov,) = s["joins"]["receiver_csv"]["overlaps"]
     assert ov["identical"] is (not change) and ov["start_s"] == 3.0
+
+
+def test_files_not_of_one_record_are_refused_naming_them(sim, tmp_path):
+    """Interleaved files (epochs inside an earlier file's span that it lacks) and a file of another
+    rate are refused as the whole-record join refused them, naming the files, with no output."""
+    lines = (sim / "receiver.csv").read_text().splitlines(keepends=True)
+    t = np.array([float(x.split(",", 1)[0]) for x in lines[1:]])
+    step = np.rint(t * 10).astype(int)
+    (tmp_path / "rx_00.csv").write_text(lines[0] + "".join(x for x, k in zip(lines[1:], step) if k % 2 == 0))
+    (tmp_path / "rx_01.csv").write_text(lines[0] + "".join(x for x, k in zip(lines[1:], step) if k % 2 == 1))
+    last_even = t[step % 2 == 0].max()
+    with pytest.raises(CdgpsError, match=rf"rx_01\.csv: epoch 0\.1 s lies inside the span of the earlier file "
+                                         rf"rx_00\.csv \(up to {last_even:g} s\), which does not have it"):
+        write_run(CFG, [tmp_path / "rx_01.csv", tmp_path / "rx_00.csv"], tmp_path / "a.mcap", block_bytes=SMALL)
+    (tmp_path / "rx_00.csv").write_text(lines[0] + "".join(x for x, k in zip(lines[1:], step) if k % 2 == 0 and k < 30))
+    (tmp_path / "rx_01.csv").write_text(lines[0] + "".join(x for x, k in zip(lines[1:], step) if k >= 30))
+    with pytest.raises(CdgpsError, match=r"rx_00\.csv: epoch interval 0\.2 s differs from 0\.1 s in .*rx_01\.csv"):
+        write_run(CFG, [tmp_path / "rx_01.csv", tmp_path / "rx_00.csv"], tmp_path / "a.mcap", block_bytes=SMALL)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rx_00.csv", "rx_01.csv"]
