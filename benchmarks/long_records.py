@@ -14,7 +14,12 @@ under ``/usr/bin/time`` (peak RSS = the process's maximum resident set size)::
     evaluate cdgps evaluate --truth sim --estimate states.mcap --json
     report   cdgps report spectrum states.mcap --gyro run.mcap -o report
 
-Each stage's record: wall s, s per hour of record, peak RSS MiB and the 1-minute load average when it
+``--gnss-hours H`` adds the GNSS row (issue 29: a 24 h static pair at 1 Hz, target < 30 s for the
+whole commands): ``cdgps simulate-gnss --duration 3600 H --rate-hz 1 --slips 30 --seed 1`` (cached in
+``--workdir``/gnss-<H>h), then ``ingest --config``, ``init`` and ``estimate``, each its own process,
+with their sum.
+
+Each stage's record: wall s, CPU s (user + system), each per hour of record, peak RSS MiB and the 1-minute load average when it
 started (the machine may be shared: memory does not depend on the load, time does).  ``--stages``
 runs some only (e.g. the cheap ones at 24 h); stages whose inputs are missing are skipped.  Writes
 ``--out`` (JSON) and prints a markdown table::
@@ -62,12 +67,15 @@ def _timed(args: list[str]) -> dict:
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     load = os.getloadavg()[0]
     t0 = time.perf_counter()
-    p = subprocess.run(["/usr/bin/time", "-f", "__TIME__ %e %M", *CDGPS, "-q", *args], capture_output=True, text=True,
-                       env=env, cwd=ROOT)
+    p = subprocess.run(["/usr/bin/time", "-f", "__TIME__ %e %M %U %S", *CDGPS, "-q", *args], capture_output=True,
+                       text=True, env=env, cwd=ROOT)
     wall = time.perf_counter() - t0
     line = [ln for ln in p.stderr.splitlines() if ln.startswith("__TIME__")]
     rss = float(line[-1].split()[2]) / 1024.0 if line else float("nan")
-    out = {"wall_s": round(wall, 2), "peak_rss_mib": round(rss, 1), "load_1min": round(load, 2), "exit": p.returncode}
+    cpu = sum(float(x) for x in line[-1].split()[3:5]) if line else float("nan")
+    # (cpu_s: user + system CPU time, which a loaded machine changes far less than the wall time)
+    out = {"wall_s": round(wall, 2), "cpu_s": round(cpu, 2), "peak_rss_mib": round(rss, 1), "load_1min": round(load, 2),
+           "exit": p.returncode}
     if p.returncode:
         out["stderr"] = p.stderr[-600:]
     return out
@@ -95,10 +103,33 @@ def run_record(workdir: Path, hours: float, stages) -> dict:
             continue
         r = _timed(args)
         r["s_per_hour"] = round(r["wall_s"] / hours, 2)
+        r["cpu_s_per_hour"] = round(r["cpu_s"] / hours, 2)
         rec["stages"][stage] = r
         print(f"  {hours:g} h {stage:9s} {r['wall_s']:8.1f} s {r['peak_rss_mib']:8.1f} MiB (load {r['load_1min']:.1f})"
               + ("" if not r["exit"] else f"  EXIT {r['exit']}"), file=sys.stderr, flush=True)
     rec["run_mcap_mib"] = round((d / "run.mcap").stat().st_size / 2**20, 1) if (d / "run.mcap").exists() else None
+    return rec
+
+
+def gnss_pair(workdir: Path, hours: float) -> dict:
+    """The GNSS row: a simulated static pair at 1 Hz through ingest, init and estimate."""
+    d = workdir / f"gnss-{hours:g}h"
+    if not (d / "config.toml").exists():
+        r = _timed(["simulate-gnss", "--duration", str(int(3600 * hours)), "--rate-hz", "1", "--slips", "30",
+                    "--seed", "1", "-o", str(d)])
+        if r["exit"]:
+            raise SystemExit(f"simulate-gnss {hours} h failed: {r.get('stderr')}")
+    rec = {"hours": hours, "rate_hz": 1.0, "stages": {}}
+    for stage, args in (("ingest", ["ingest", "--config", str(d / "config.toml"), "-o", str(d / "run.mcap")]),
+                        ("init", ["init", str(d / "run.mcap"), "-o", str(d / "init.json")]),
+                        ("estimate", ["estimate", str(d / "run.mcap"), "--init", str(d / "init.json"),
+                                      "-o", str(d / "states.mcap")])):
+        r = _timed(args)
+        rec["stages"][stage] = r
+        print(f"  GNSS {hours:g} h {stage:9s} {r['wall_s']:8.1f} s {r['peak_rss_mib']:8.1f} MiB (load "
+              f"{r['load_1min']:.1f})" + ("" if not r["exit"] else f"  EXIT {r['exit']}"), file=sys.stderr, flush=True)
+    rec["whole_commands_s"] = round(sum(s["wall_s"] for s in rec["stages"].values()), 2)
+    rec["peak_rss_mib"] = max(s["peak_rss_mib"] for s in rec["stages"].values())
     return rec
 
 
@@ -118,19 +149,23 @@ def table(records: list[dict]) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--hours", type=float, nargs="+", default=[1.0, 6.0])
+    ap.add_argument("--hours", type=float, nargs="*", default=[1.0, 6.0])
     ap.add_argument("--stages", nargs="+", choices=STAGES, default=list(STAGES))
     ap.add_argument("--workdir", type=Path, default=Path("/tmp/cdgps-long-records"))
     ap.add_argument("--out", type=Path)
+    ap.add_argument("--gnss-hours", type=float, help="also the GNSS pair row (a static pair at 1 Hz of this length)")
     a = ap.parse_args()
     records = []
-    for h in a.hours:
-        records.append(run_record(a.workdir, h, a.stages))
+    gnss = gnss_pair(a.workdir, a.gnss_hours) if a.gnss_hours else None
+    for h in [None, *a.hours]:                 # (None: the GNSS row alone is written first)
+        if h is not None:
+            records.append(run_record(a.workdir, h, a.stages))
         result = {"config": "configs/testbed-1998.toml (10 Hz), seed 1, 2 cm noise, disturbance scale 1",
                   "machine": f"{platform.machine()}, {os.cpu_count()} cores (shared)",
                   "python": platform.python_version(), "records": records,
                   "note": "peak RSS: /usr/bin/time maximum resident set size of each cdgps process; load_1min: "
-                          "the 1-minute load average when the stage started (times depend on it)"}
+                          "the 1-minute load average when the stage started (times depend on it)",
+                  **({"gnss_pair": gnss} if gnss else {})}
         if a.out:
             a.out.parent.mkdir(parents=True, exist_ok=True)
             a.out.write_text(json.dumps(result, indent=1) + "\n")

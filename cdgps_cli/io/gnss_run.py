@@ -751,27 +751,47 @@ def _receiver_summary(n, rx: GnssReceiver, lock: dict, pos) -> dict:
             "position_source": pos[0], "position_ecef_m": pos[1]}
 
 
+_OBS_MESSAGES_PER_BLOCK = 4096
+"""Messages whose rows :func:`_write_obs_messages` turns into Python lists at a time (the lists of a
+day's pair took ~0.5 GB: issue 29)."""
+_NULLABLE_OBS = ("phase_cycles", "pseudorange_m", "snr_dbhz", "doppler_hz")
+_INT_OBS = ("lli", "half_cycle", "lock_time_ms")
+
+
 def _write_obs_messages(out: McapOut, ch: int, receivers: dict) -> int:
-    """One message per receiver and epoch, in time order across receivers."""
+    """One message per receiver and epoch, in time order across receivers (the rows of a block of
+    messages made Python lists at a time)."""
     per = []
     for n, rx in receivers.items():
         r = rx.raw
         t = r["time_gps_s"].to_numpy()
         cuts = np.flatnonzero(np.r_[True, t[1:] != t[:-1], True]) if t.size else np.zeros(1, dtype=np.int64)
-        cols = {c: _nullable(r[c].to_numpy()) for c in ("phase_cycles", "pseudorange_m", "snr_dbhz", "doppler_hz")}
-        for c in ("lli", "half_cycle", "lock_time_ms"):
-            cols[c] = r[c].to_numpy().tolist()
-        cols["sat"] = r["sat"].tolist()
+        cols = {c: r[c].to_numpy() for c in (*_NULLABLE_OBS, *_INT_OBS)}
+        cols["sat"] = r["sat"].to_numpy()
         flag = r["epoch_flag"].to_numpy()
         clk = r["clock_offset_s"].to_numpy()
         per.append((n, t, cuts, cols, flag, clk))
     order = sorted(((float(p[1][a]), i, k) for i, p in enumerate(per) for k, a in enumerate(p[2][:-1])))
-    for _, i, k in progress.iterate(order, f"writing {out.path.name}", unit="msg"):
-        n, t, cuts, cols, flag, clk = per[i]
-        a, b = int(cuts[k]), int(cuts[k + 1])
-        payload = {"receiver": n, "epoch_flag": int(flag[a]), "clock_offset_s": None if not np.isfinite(clk[a]) else float(clk[a])}
-        payload.update({c: v[a:b] for c, v in cols.items()})
-        out.write(ch, float(t[a]), payload)
+    bar = progress.bar(len(order), f"writing {out.path.name}", "msg")
+    for start in range(0, len(order), _OBS_MESSAGES_PER_BLOCK):
+        part = order[start:start + _OBS_MESSAGES_PER_BLOCK]
+        lists = {}
+        for i in {i for _, i, _ in part}:
+            ks = [k for _, j, k in part if j == i]
+            cuts, cols = per[i][2], per[i][3]
+            lo, hi = int(cuts[min(ks)]), int(cuts[max(ks) + 1])
+            lists[i] = (lo, {c: (_nullable(v[lo:hi]) if c in _NULLABLE_OBS else v[lo:hi].tolist())
+                             for c, v in cols.items()})
+        for _, i, k in part:
+            n, t, cuts, _, flag, clk = per[i]
+            lo, cols = lists[i]
+            a, b = int(cuts[k]), int(cuts[k + 1])
+            payload = {"receiver": n, "epoch_flag": int(flag[a]),
+                       "clock_offset_s": None if not np.isfinite(clk[a]) else float(clk[a])}
+            payload.update({c: v[a - lo:b - lo] for c, v in cols.items()})
+            out.write(ch, float(t[a]), payload)
+        bar.update(len(part))
+    bar.close()
     return len(order)
 
 

@@ -18,11 +18,12 @@ line (1-based, the header is line 1) and the problem, listing at most a few line
 from __future__ import annotations
 
 import bz2
+import io
 import gzip
 import lzma
 import re
 from collections import Counter
-from contextlib import nullcontext
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
 import numpy as np
@@ -78,43 +79,103 @@ def _not_utf8(p: Path, opener) -> str:
 
 
 class _Problems:
-    def __init__(self, path):
+    """The problems found in one block of a log's rows (row ``i`` of the block is row ``row0 + i`` of
+    the file, line ``row0 + i + 2``).  :class:`LogProblems` gathers the blocks of a file."""
+
+    def __init__(self, path, row0: int = 0):
         self.path = path
-        self.items: list[str] = []
-        self.first_row: int | None = None             # the first row with a problem
-        self.time_s: np.ndarray | None = None         # the rows' times, once read (named in the message)
+        self.row0 = row0
+        self.kinds: dict[str, list] = {}              # what -> [the lines shown, rows with it]
+        self.calls: list[str] = []                    # every check made, in order (with or without rows)
+        self.first_row: int | None = None             # the block's first row with a problem
+        self.time_s: np.ndarray | None = None         # the block's times, once read (named in the message)
 
     def rows(self, mask: np.ndarray, what: str, values=None) -> None:
+        if what not in self.kinds and what not in self.calls:
+            self.calls.append(what)
         idx = np.flatnonzero(mask)
         if idx.size == 0:
             return
         self.first_row = int(idx[0]) if self.first_row is None else min(self.first_row, int(idx[0]))
-        shown = idx[:_MAX_LINES_PER_PROBLEM]
-        for i in shown:
+        shown, n = self.kinds.setdefault(what, [[], 0])
+        for i in idx[:max(_MAX_LINES_PER_PROBLEM - len(shown), 0)]:
             extra = f" (got {values[i]!r})" if values is not None else ""
-            self.items.append(f"{self.path}, line {i + 2}: {what}{extra}")
-        if idx.size > shown.size:
-            self.items.append(f"{self.path}: … and {idx.size - shown.size} more lines with: {what}")
+            shown.append(f"{self.path}, line {self.row0 + i + 2}: {what}{extra}")
+        self.kinds[what][1] = n + int(idx.size)
 
-    def add(self, msg: str) -> None:
-        self.items.append(f"{self.path}: {msg}")
-
-    def when(self) -> str:
-        """``, the first at time_s T s`` (or ``after`` the last readable time before it): where in the
-        record a problem is (a day of hourly logs: which hour)."""
+    def when(self, last_ok_s: float | None = None) -> str:
+        """``, the first at time_s T s`` (or ``after`` the last readable time before it, from an
+        earlier block when this one has none): where in the record a problem is (a day of hourly
+        logs: which hour)."""
         if self.first_row is None or self.time_s is None or self.first_row >= self.time_s.size:
             return ""
         t = self.time_s[:self.first_row + 1]
         ok = np.flatnonzero(np.isfinite(t) & (t >= 0))
         if ok.size == 0:
-            return ""
+            return "" if last_ok_s is None else f", the first after time_s {last_ok_s:g} s"
         return f", the first at time_s {t[ok[-1]]:g} s" if ok[-1] == self.first_row else \
             f", the first after time_s {t[ok[-1]]:g} s"
 
+    def last_ok_s(self) -> float | None:
+        """The block's last finite, non-negative time (None: none)."""
+        if self.time_s is None:
+            return None
+        ok = np.flatnonzero(np.isfinite(self.time_s) & (self.time_s >= 0))
+        return float(self.time_s[ok[-1]]) if ok.size else None
+
     def raise_if_any(self) -> None:
-        if self.items:
-            head = f"{self.path}: invalid log ({len(self.items)} problem{'s' if len(self.items) > 1 else ''}{self.when()})"
-            raise CdgpsError(head + "\n  - " + "\n  - ".join(self.items))
+        probs = LogProblems(self.path)
+        probs.merge(self)
+        probs.raise_if_any()
+
+
+class LogProblems:
+    """The problems of a whole log, gathered block by block (:meth:`merge`): the same message as
+    one reading of the whole file — each kind of problem in the order the checks run, its first
+    few lines, the count of the others, and the time of the first."""
+
+    def __init__(self, path):
+        self.path = path
+        self.order: list[str] = []
+        self.kinds: dict[str, list] = {}
+        self._when: str | None = None
+        self._last_ok: float | None = None
+
+    def merge(self, block: _Problems) -> None:
+        """Add a block's problems (blocks in file order)."""
+        for j, what in enumerate(block.calls):      # each block's checks run in the one order: merge it
+            if what in self.order:
+                continue
+            later = next((self.order.index(w) for w in block.calls[j + 1:] if w in self.order), len(self.order))
+            self.order.insert(later, what)
+        for what, (shown, n) in block.kinds.items():
+            mine = self.kinds.setdefault(what, [[], 0])
+            mine[0].extend(shown[:max(_MAX_LINES_PER_PROBLEM - len(mine[0]), 0)])
+            mine[1] += n
+        if block.kinds and self._when is None:
+            self._when = block.when(self._last_ok)
+        last = block.last_ok_s()
+        self._last_ok = last if last is not None else self._last_ok
+
+    def __bool__(self) -> bool:
+        return bool(self.kinds)
+
+    def items(self) -> list[str]:
+        out = []
+        for what in self.order:
+            if what in self.kinds:
+                shown, n = self.kinds[what]
+                out.extend(shown)
+                if n > len(shown):
+                    out.append(f"{self.path}: … and {n - len(shown)} more lines with: {what}")
+        return out
+
+    def raise_if_any(self) -> None:
+        items = self.items()
+        if items:
+            head = (f"{self.path}: invalid log ({len(items)} problem{'s' if len(items) > 1 else ''}"
+                    f"{self._when or ''})")
+            raise CdgpsError(head + "\n  - " + "\n  - ".join(items))
 
 
 def _parser_error_line(msg: str) -> str:
@@ -126,10 +187,25 @@ def _parser_error_line(msg: str) -> str:
     return f", line {int(m.group(2)) + (1 if m.group(1) == 'row' else 0)}"
 
 
-def _read_table(path: str | Path, columns: tuple, numeric: tuple, optional_numeric: tuple = (),
-                allow_empty: bool = False) -> tuple[pd.DataFrame, _Problems]:
-    p = Path(path)
-    probs = _Problems(str(p))
+def _shift_lines(msg: str, lines: int) -> str:
+    """A pandas tokenizer message about a block of a file (its header, then the block's lines) with
+    its ``line N`` / ``row N`` counted in the file: ``lines`` is the number of the file's lines
+    between the header and the block."""
+    if not lines:
+        return msg
+    return re.sub(r"\b(line|row) (\d+)", lambda m: f"{m.group(1)} {int(m.group(2)) + lines}", msg)
+
+
+LOG_BLOCK_BYTES = 4 << 20
+"""Bytes of CSV text parsed at a time by :func:`log_blocks` (about 90,000 receiver log rows): the
+memory of ``cdgps ingest`` does not grow with the record (issue 29); peak RSS of ``cdgps ingest``
+of a 1 h testbed record: 144 / 181 / 243 / 280 MiB with blocks of 4 / 8 / 16 / 32 MiB, the time
+the same (the JSON messages dominate it)."""
+
+
+def _header(p: Path, columns: tuple):
+    """The log's opener, its header line (raw bytes) and whether the typed reading applies; header
+    problems are a CdgpsError."""
     opener = {".gz": gzip.open, ".xz": lzma.open, ".bz2": bz2.open}.get(p.suffix, open)
     try:
         with opener(p, "rb") as fh:
@@ -159,16 +235,80 @@ def _read_table(path: str | Path, columns: tuple, numeric: tuple, optional_numer
         if dup:
             msg.append(f"duplicate column(s) {', '.join(dup)}")
         raise CdgpsError(f"{p}, line 1: " + "; ".join(msg) + f"; expected the header {','.join(columns)}")
-    if FAST_PARSE and all(h == h.strip() for h in head.split(",")):
-        fast = _fast_table(p, opener, columns, numeric, optional_numeric, allow_empty)
-        if fast is not None:
-            probs.time_s = fast["time_s"].to_numpy() if "time_s" in fast else None
-            return fast, probs
+    return opener, raw, FAST_PARSE and all(h == h.strip() for h in head.split(","))
+
+
+def _whole_file(p: Path, opener):
+    """The log opened for pandas (decompressed), with a progress bar over its bytes."""
+    @contextmanager
+    def source():
+        with progress.reading(p) as raw, (nullcontext(raw) if opener is open else opener(raw, "rb")) as fh:
+            yield fh
+    return source
+
+
+def _text_pieces(p: Path, opener, header: bytes, block_bytes: int):
+    """``(lines_before, source)`` of consecutive pieces of the log's text after the header, each
+    about ``block_bytes`` of whole lines, as pandas sources (the header, then the piece's lines);
+    ``lines_before``: the file's lines between the header and the piece."""
+    lines = 0
     try:
         with progress.reading(p) as raw, (nullcontext(raw) if opener is open else opener(raw, "rb")) as fh:
+            fh.readline(_MAX_HEADER_BYTES + 1)
+            rest = b""
+            while True:
+                data = fh.read(block_bytes)
+                if not data:
+                    break
+                data = rest + data
+                cut = data.rfind(b"\n") + 1
+                if cut == 0:
+                    rest = data
+                    continue
+                piece, rest = data[:cut], data[cut:]
+                yield lines, (lambda b=header + piece: nullcontext(io.BytesIO(b)))
+                lines += piece.count(b"\n")
+            if rest:
+                yield lines, (lambda b=header + rest: nullcontext(io.BytesIO(b)))
+    except (EOFError, OSError, lzma.LZMAError) as exc:
+        raise CdgpsError(f"{p}: cannot read: {exc}") from None
+
+
+def log_blocks(path: str | Path, columns: tuple, numeric: tuple, optional_numeric: tuple = (),
+               allow_empty: bool = False, block_bytes: int | None = LOG_BLOCK_BYTES):
+    """Read a log a block of rows at a time: ``(table, problems)`` per block (the typed reading
+    when it finds nothing to report, else the text reading, which reports), then, after the last
+    block, an empty file is an error.  ``problems`` is the block's :class:`_Problems` (rows of the
+    file); ``block_bytes`` None: the whole file is one block."""
+    p = Path(path)
+    opener, raw, fast = _header(p, columns)
+    pieces = [(0, _whole_file(p, opener))] if block_bytes is None else _text_pieces(p, opener, raw, block_bytes)
+    rows = 0
+    for lines, source in pieces:
+        df, probs = _parse_block(p, opener, source, lines, rows, columns, numeric, optional_numeric,
+                                 allow_empty or block_bytes is not None, fast)
+        rows += len(df)
+        yield df, probs
+    if rows == 0 and not allow_empty:
+        raise CdgpsError(f"{p}: no data rows after the header")
+
+
+def _parse_block(p: Path, opener, source, lines: int, row0: int, columns: tuple, numeric: tuple,
+                 optional_numeric: tuple, allow_empty: bool, fast: bool) -> tuple[pd.DataFrame, _Problems]:
+    probs = _Problems(str(p), row0)
+    if lines:
+        _check_first_line(p, source, lines)
+    if fast:
+        table = _fast_table(p, source, columns, numeric, optional_numeric, allow_empty)
+        if table is not None:
+            probs.time_s = table["time_s"].to_numpy() if "time_s" in table else None
+            return table, probs
+    try:
+        with source() as fh:
             df = pd.read_csv(fh, dtype=str, keep_default_na=False, na_filter=False, engine="c")
     except pd.errors.ParserError as exc:
-        raise CdgpsError(f"{p}{_parser_error_line(str(exc))}: malformed CSV: {str(exc).strip()}") from None
+        msg = _shift_lines(str(exc), lines)
+        raise CdgpsError(f"{p}{_parser_error_line(msg)}: malformed CSV: {msg.strip()}") from None
     except UnicodeDecodeError:
         raise CdgpsError(_not_utf8(p, opener)) from None
     except (EOFError, OSError, lzma.LZMAError) as exc:
@@ -199,21 +339,45 @@ def _read_table(path: str | Path, columns: tuple, numeric: tuple, optional_numer
     return pd.DataFrame(out, columns=list(columns)), probs
 
 
+def _check_first_line(p: Path, source, lines: int) -> None:
+    """A block's first line with more fields than the header is malformed, as in the whole file
+    (pandas would take a first data line with one more field as having an index column): the
+    tokenizer's message for it, counted in the file."""
+    with source() as fh:
+        header = fh.readline()
+        first = b""
+        while not first.strip(b"\r\n"):
+            line = fh.readline()
+            if not line:
+                return
+            first += line
+    try:
+        pd.read_csv(io.BytesIO(header + header + first), dtype=str, keep_default_na=False, na_filter=False,
+                    engine="c")
+    except pd.errors.ParserError as exc:
+        msg = _shift_lines(str(exc), lines - 1)
+        if "Expected" in msg:
+            raise CdgpsError(f"{p}{_parser_error_line(msg)}: malformed CSV: {msg.strip()}") from None
+    except (ValueError, UnicodeDecodeError):
+        return
+
+
 FAST_PARSE = True
 """Read a log with typed columns first (:func:`_fast_table`); the text reading below only when that
 finds something to report (tests/io/test_log_fast_path.py compares the two)."""
 
 
-def _fast_table(p: Path, opener, columns: tuple, numeric: tuple, optional_numeric: tuple,
+def _fast_table(p: Path, source, columns: tuple, numeric: tuple, optional_numeric: tuple,
                 allow_empty: bool) -> pd.DataFrame | None:
-    """The table of a valid log read with typed columns (issue 29 item 4: numbers parsed by pandas' C
-    reader as floats, names as categoricals), or None when the log has anything the text reading
-    reports (a value that is not a number, empty or NaN where a number is required, a value outside
-    its bounds, an empty or padded name, a malformed line): that reading then gives the messages.
-    For a valid log both give the same table, bit for bit (the same float parser)."""
+    """The table of a valid log (or block of one, opened by ``source()``) read with typed columns
+    (issue 29 item 4: numbers parsed by pandas' C reader as floats, names as categoricals), or None
+    when it has anything the text reading reports (a value that is not a number, empty or NaN where
+    a number is required, a value outside its bounds, an empty or padded name, a malformed line):
+    that reading then gives the messages.  For a valid log both give the same table, bit for bit
+    (the same float parser)."""
     kinds = {c: (float if c in numeric or c in optional_numeric else "category") for c in columns}
     try:
-        with progress.reading(p) as raw, (nullcontext(raw) if opener is open else opener(raw, "rb")) as fh:
+        with source() as fh:
             df = pd.read_csv(fh, dtype=kinds, keep_default_na=False, engine="c",
                              na_values={c: [""] for c in optional_numeric})
     except (ValueError, TypeError, UnicodeDecodeError, EOFError, OSError, lzma.LZMAError):
@@ -240,7 +404,7 @@ def _within_bounds(c: str, vals: np.ndarray) -> bool:
     """No value :func:`_check_bounds` would report."""
     probs = _Problems("")
     _check_bounds(c, vals, vals, probs)
-    return not probs.items
+    return not probs.kinds
 
 
 def _check_bounds(c: str, vals: np.ndarray, text: np.ndarray, probs: _Problems) -> None:
@@ -257,12 +421,46 @@ def _check_bounds(c: str, vals: np.ndarray, text: np.ndarray, probs: _Problems) 
     probs.rows(bad, f"column {c}: outside the plausible range {b.text()}", text)
 
 
-def _check_time(df: pd.DataFrame, probs: _Problems) -> None:
+class _Carry:
+    """What the checks of a block need from the blocks before it: the last time (time order) and
+    the duplicate keys of the rows at that time (a repeated row has its time)."""
+
+    def __init__(self):
+        self.last_t: float | None = None
+        self.tail: pd.DataFrame | None = None
+        self.ids: dict = {}                           # name -> number, for the duplicate keys
+
+    def name_ids(self, col: pd.Series) -> np.ndarray:
+        """Each row's name as a number (the same name, the same number in every block)."""
+        if isinstance(col.dtype, pd.CategoricalDtype):
+            codes, words = col.cat.codes.to_numpy(), col.cat.categories
+        else:
+            codes, words = pd.factorize(col.to_numpy())
+        lut = np.array([self.ids.setdefault(str(w), len(self.ids)) for w in words] or [0], dtype=np.int64)
+        return lut[codes]
+
+    def duplicated(self, key: pd.DataFrame) -> np.ndarray:
+        """Rows of ``key`` (the block's) repeating an earlier row's key (of this block, or of the
+        rows before it at the same time)."""
+        n_tail = 0 if self.tail is None else len(self.tail)
+        both = key if not n_tail else pd.concat([self.tail, key], ignore_index=True)
+        dup = both.duplicated().to_numpy()[n_tail:]
+        t = both["t"].to_numpy()
+        if t.size:
+            same = np.flatnonzero(t != t[-1])
+            self.tail = both.iloc[(int(same[-1]) + 1 if same.size else 0):].reset_index(drop=True)
+        return dup
+
+
+def _check_time(df: pd.DataFrame, probs: _Problems, carry: _Carry) -> None:
     t = df["time_s"].to_numpy()
     probs.rows(np.isinf(t), "column time_s: not finite")
     probs.rows(t < 0, "column time_s: negative time", t)
-    back = np.r_[False, np.diff(t) < 0]
+    prev = np.nan if carry.last_t is None else carry.last_t
+    back = np.diff(np.r_[prev, t]) < 0
     probs.rows(back, "time goes backwards (rows must be in time order)", t)
+    if t.size:
+        carry.last_t = float(t[-1])
 
 
 def _check_names(df, col, allowed, probs, what):
@@ -279,23 +477,12 @@ def _check_names(df, col, allowed, probs, what):
     probs.rows(bad, f"column {col}: {what} not in the config (known: {', '.join(allowed)})", v)
 
 
-def read_receiver_log(path: str | Path, cfg: StructureConfig) -> pd.DataFrame:
-    """Read and validate a receiver log against a structure config.
+RECEIVER_NUMERIC = ("time_s", "phase_cycles", "lock")
 
-    Returns
-    -------
-    DataFrame
-        Columns of :data:`RECEIVER_COLUMNS`; ``phase_cycles``, ``snr_dbhz`` (NaN when empty) and
-        ``time_s`` float64, ``lock`` int64.
 
-    Raises
-    ------
-    CdgpsError
-        Missing or unknown columns, non-numeric values, NaN phase, time going backwards,
-        duplicate (time, antenna, transmitter) rows, names unknown to the config.
-    """
-    df, probs = _read_table(path, RECEIVER_COLUMNS, ("time_s", "phase_cycles", "lock"), ("snr_dbhz",))
-    _check_time(df, probs)
+def _check_receiver(df: pd.DataFrame, probs: _Problems, cfg: StructureConfig, carry: _Carry) -> None:
+    """Every check of a receiver log's rows (a block of them, after ``carry``'s)."""
+    _check_time(df, probs, carry)
     ph = df["phase_cycles"].to_numpy()
     probs.rows(np.isinf(ph), "column phase_cycles: infinite phase")
     lock = df["lock"].to_numpy()
@@ -309,59 +496,85 @@ def read_receiver_log(path: str | Path, cfg: StructureConfig) -> pd.DataFrame:
         pass                                                     # (the typed reading: every row names it)
     else:
         probs.rows(m.to_numpy() != master, f"column master: expected the config's master antenna {master!r}", m.to_numpy())
-    probs.rows(_duplicated_rows(df), "duplicate row (same time_s, antenna and transmitter as an earlier row)")
-    probs.raise_if_any()
-    df["lock"] = df["lock"].astype(np.int64)
-    return df
+    # (+0.0: -0.0 and 0.0 one key)
+    key = pd.DataFrame({"t": df["time_s"].to_numpy(dtype=float) + 0.0,
+                        "p": carry.name_ids(df["antenna"]) * (1 << 32) + carry.name_ids(df["transmitter"])})
+    probs.rows(carry.duplicated(key), "duplicate row (same time_s, antenna and transmitter as an earlier row)")
 
 
-def _duplicated_rows(df: pd.DataFrame) -> np.ndarray:
-    """Rows repeating an earlier row's (time_s, antenna, transmitter).  With categorical names (the
-    typed reading) the key is numeric: the time's bits and the pair of name codes."""
-    a, x = df["antenna"], df["transmitter"]
-    if isinstance(a.dtype, pd.CategoricalDtype) and isinstance(x.dtype, pd.CategoricalDtype):
-        t = df["time_s"].to_numpy(dtype=float)
-        n_x = len(x.cat.categories) + 1
-        a_codes, x_codes = a.cat.codes.to_numpy(), x.cat.codes.to_numpy()
-
-        def dup(r0: int, r1: int) -> np.ndarray:
-            pair = a_codes[r0:r1].astype(np.int64) * n_x + x_codes[r0:r1]
-            # (+0.0: -0.0 and 0.0 one key, as in the text reading)
-            return pd.DataFrame({"t": t[r0:r1] + 0.0, "p": pair}).duplicated().to_numpy()
-
-        if t.size < 2 or not (t[1:] >= t[:-1]).all():            # (times out of order: one table, as before)
-            return dup(0, t.size)
-        # times in order: a repeated row has its time, so blocks cut between times find the same rows
-        # (with the temporaries of a block: the whole table's hash peaked at ~75 bytes a row)
-        out = np.zeros(t.size, dtype=bool)
-        r0 = 0
-        while r0 < t.size:
-            r1 = min(r0 + _DUP_BLOCK_ROWS, t.size)
-            if r1 < t.size:
-                r1 = int(np.searchsorted(t, t[r1], side="left"))      # the block ends before a time's first row
-                r1 = r1 if r1 > r0 else int(np.searchsorted(t, t[r0], side="right"))
-            out[r0:r1] = dup(r0, r1)
-            r0 = r1
-        return out
-    key = pd.DataFrame({"t": df["time_s"], "a": a, "x": x})
-    return key.duplicated().to_numpy()
-
-
-_DUP_BLOCK_ROWS = 1 << 20
-"""Rows per block of the duplicate-row check on a log in time order."""
-
-
-def _read_named_series(path, columns: tuple, value: str, allowed: list, what: str,
-                       allow_empty: bool = False) -> pd.DataFrame:
-    """A ``time_s,<name>,<value>`` log: times in order, names from the config, no duplicate rows
-    (``allow_empty``: a header without rows is an empty table instead of an error)."""
-    name = columns[1]
-    df, probs = _read_table(path, columns, ("time_s", value), allow_empty=allow_empty)
-    _check_time(df, probs)
+def _check_named_series(df: pd.DataFrame, probs: _Problems, carry: _Carry, name: str, allowed: list,
+                        what: str) -> None:
+    """Every check of a ``time_s,<name>,<value>`` log's rows (a block of them)."""
+    _check_time(df, probs, carry)
     _check_names(df, name, allowed, probs, what)
-    probs.rows(df.duplicated(["time_s", name]).to_numpy(), f"duplicate row (same time_s and {name} as an earlier row)")
+    key = pd.DataFrame({"t": df["time_s"].to_numpy(dtype=float), "p": carry.name_ids(df[name])})
+    probs.rows(carry.duplicated(key), f"duplicate row (same time_s and {name} as an earlier row)")
+
+
+def _log_spec(kind: str, cfg: StructureConfig) -> tuple:
+    """(columns, numeric, optional numeric, allow_empty, check) of a log kind."""
+    if kind == "receiver":
+        return (RECEIVER_COLUMNS, RECEIVER_NUMERIC, ("snr_dbhz",), False,
+                lambda df, probs, carry: _check_receiver(df, probs, cfg, carry))
+    if kind == "gyro":
+        allowed = list(cfg.gyro_names)
+        return (GYRO_COLUMNS, ("time_s", "rate_rad_s"), (), not cfg.gyro_names,
+                lambda df, probs, carry: _check_named_series(df, probs, carry, "gyro", allowed, "gyro"))
+    if kind == "actuator":
+        allowed = list(cfg.thruster_names)
+        return (ACTUATOR_COLUMNS, ("time_s", "force_n"), (), False,
+                lambda df, probs, carry: _check_named_series(df, probs, carry, "actuator", allowed, "actuator"))
+    raise ValueError(f"log kind {kind!r}: expected receiver, gyro or actuator")
+
+
+def valid_blocks(path: str | Path, kind: str, cfg: StructureConfig, block_bytes: int | None = LOG_BLOCK_BYTES):
+    """A native log read and validated a block of rows at a time (:data:`LOG_BLOCK_BYTES`; None:
+    the whole file at once): yields each block's table (columns as :func:`read_receiver_log`'s,
+    ``lock`` int64) while no problem has been found; after the last block, the problems of the
+    whole file (each named by file, line and time, as one reading of the file names them) are one
+    CdgpsError.  A caller writing the blocks as they come writes to a temporary output (atomic).
+
+    Parameters
+    ----------
+    path : path
+    kind : {"receiver", "gyro", "actuator"}
+    cfg : StructureConfig
+    block_bytes : int or None
+    """
+    columns, numeric, optional, allow_empty, check = _log_spec(kind, cfg)
+    probs, carry = LogProblems(str(Path(path))), _Carry()
+    for df, block in log_blocks(path, columns, numeric, optional, allow_empty, block_bytes):
+        check(df, block, carry)
+        probs.merge(block)
+        if not probs:
+            if "lock" in df:
+                df["lock"] = df["lock"].astype(np.int64)
+            yield df
     probs.raise_if_any()
-    return df
+
+
+def _whole(path, kind: str, cfg: StructureConfig) -> pd.DataFrame:
+    blocks = list(valid_blocks(path, kind, cfg, block_bytes=None))
+    return blocks[0]
+
+
+def read_receiver_log(path: str | Path, cfg: StructureConfig) -> pd.DataFrame:
+    """Read and validate a receiver log against a structure config (the whole file at once;
+    ``cdgps ingest`` streams it with :func:`valid_blocks`).
+
+    Returns
+    -------
+    DataFrame
+        Columns of :data:`RECEIVER_COLUMNS`; ``phase_cycles``, ``snr_dbhz`` (NaN when empty) and
+        ``time_s`` float64, ``lock`` int64.
+
+    Raises
+    ------
+    CdgpsError
+        Missing or unknown columns, non-numeric values, NaN phase, time going backwards,
+        duplicate (time, antenna, transmitter) rows, names unknown to the config.
+    """
+    return _whole(path, "receiver", cfg)
 
 
 def read_gyro_log(path: str | Path, cfg: StructureConfig) -> pd.DataFrame:
@@ -369,10 +582,9 @@ def read_gyro_log(path: str | Path, cfg: StructureConfig) -> pd.DataFrame:
 
     A header-only log (what ``cdgps simulate`` writes for a structure without gyros) is accepted,
     as an empty table, when the config declares no gyros; with gyros in the config it is an error."""
-    return _read_named_series(path, GYRO_COLUMNS, "rate_rad_s", list(cfg.gyro_names), "gyro",
-                              allow_empty=not cfg.gyro_names)
+    return _whole(path, "gyro", cfg)
 
 
 def read_actuator_log(path: str | Path, cfg: StructureConfig) -> pd.DataFrame:
     """Read and validate an actuator log (``time_s,actuator,force_n``)."""
-    return _read_named_series(path, ACTUATOR_COLUMNS, "force_n", list(cfg.thruster_names), "actuator")
+    return _whole(path, "actuator", cfg)

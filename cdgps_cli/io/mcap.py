@@ -178,8 +178,9 @@ def _with_validity(payload: dict, field: str) -> None:
     if vals is None:
         return
     vals = vals.tolist() if isinstance(vals, np.ndarray) else list(vals)
-    valid = [not _missing(x) for x in vals]
-    payload[field] = [x if ok else 0.0 for x, ok in zip(vals, valid)]
+    # (x == x: False for NaN only; the test of _missing without a call per element)
+    valid = [x is not None and (x == x if isinstance(x, float) else True) for x in vals]
+    payload[field] = vals if all(valid) else [x if ok else 0.0 for x, ok in zip(vals, valid)]
     payload[field + VALID_SUFFIX] = valid
 
 

@@ -148,9 +148,31 @@ def pack_pieces(arr: np.ndarray, delta: int = 0, overwrite: bool = False) -> lis
     if delta not in DELTA_ORDERS or (delta and arr.dtype.kind == "b"):
         raise ValueError(f"delta {delta!r}: expected one of {DELTA_ORDERS} (0 for bool arrays)")
     arr = arr.astype(arr.dtype.newbyteorder("<"), copy=False)
-    head = {"dtype": arr.dtype.str, "filter": FILTER, "shape": list(arr.shape), **({"delta": delta} if delta else {})}
+    return [packed_header(arr.dtype, arr.shape, delta), *_compressed_planes(arr, delta, overwrite)]
+
+
+def packed_header(dtype, shape, delta: int = 0) -> bytes:
+    """The bytes before the zstd frame of a packed array of ``dtype`` (little-endian) and ``shape``."""
+    head = {"dtype": np.dtype(dtype).newbyteorder("<").str, "filter": FILTER, "shape": [int(n) for n in shape],
+            **({"delta": delta} if delta else {})}
     header = json.dumps(head, sort_keys=True).encode()
-    return [MAGIC + _HEAD.pack(len(header)) + header, *_compressed_planes(arr, delta, overwrite)]
+    return MAGIC + _HEAD.pack(len(header)) + header
+
+
+def pack_planes(dtype, n: int, planes, write) -> None:
+    """Write the packed bytes of a 1-D array of ``n`` numbers of ``dtype`` (no delta) given as its
+    byte planes: ``planes`` yields, in order, the bytes of plane 0 (every number's first byte), then
+    plane 1, … in pieces of any size; ``write`` takes the packed bytes as they come.  The bytes are
+    :func:`pack`'s for the same array (zstd's output does not depend on how its input is cut), so a
+    column far larger than memory is packed from the disk (``cdgps ingest``)."""
+    dtype = np.dtype(dtype).newbyteorder("<")
+    write(packed_header(dtype, (n,)))
+    cobj = zstandard.ZstdCompressor(level=LEVEL).compressobj(size=n * dtype.itemsize)
+    for piece in planes:
+        out = cobj.compress(piece)
+        if out:
+            write(out)
+    write(cobj.flush())
 
 
 def unpack(data: bytes, what: str = "packed array") -> np.ndarray:

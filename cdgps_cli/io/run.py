@@ -126,18 +126,10 @@ def read_any_run(path: str | Path, phase: bool = True):
     return read_run(path, phase=phase)
 
 
-def _attach_phase_packed(out: McapOut, phase: Table) -> None:
-    """The phase table as :data:`PHASE_PACKED` attachments."""
-    names = {}
-    for col in PHASE_NAME_COLUMNS:
-        codes, words = phase.codes(col)
-        names[col] = list(words)
-        out.attach_packed(f"{PHASE_PACKED}{col}_code", codes.astype(np.int32))
-    out.attach(PHASE_PACKED + "names.json", json.dumps(names, sort_keys=True).encode(), "application/json")
-    out.attach_packed(PHASE_PACKED + "time_s", phase["time_s"].astype(float, copy=False))      # (no copies: packing
-    out.attach_packed(PHASE_PACKED + "phase_cycles", phase["phase_cycles"].astype(float, copy=False))  # makes its own)
-    out.attach_packed(PHASE_PACKED + "lock", phase["lock"].astype(np.int64, copy=False))
-    out.attach_packed(PHASE_PACKED + "snr_dbhz", phase["snr_dbhz"].astype(float, copy=False))
+def _attach_phase_packed(out: McapOut, phase) -> None:
+    """The phase table as :data:`PHASE_PACKED` attachments, from the columns ``phase``
+    (:class:`_PhaseSink`) kept on disk while the messages were written."""
+    phase.attach_packed(out)
 
 
 _PHASE_DEFERRED = ("receiver", "master", "snr_dbhz")
@@ -207,8 +199,14 @@ def epoch_gaps(time_s: np.ndarray, period_s: float) -> list[dict]:
 
 def write_run(cfg: StructureConfig, receiver_csv: str | Path, out_path: str | Path,
               gyro_csv: str | Path | None = None, actuator_csv: str | Path | None = None,
-              channel_summary=None) -> dict:
-    """Validate native CSV logs and write one self-contained RUN.mcap.
+              channel_counter=None, block_bytes: int | None = None) -> dict:
+    """Validate native CSV logs and write one self-contained RUN.mcap, a block of rows at a time.
+
+    The logs are read, validated and written in blocks (:mod:`cdgps_cli.io.log_stream`): the
+    messages as they come, the packed phase columns and the gyro arrays from scratch files at the
+    end, so memory does not grow with the record (issue 29); the file is the one the whole-record
+    writing gave, byte for byte.  A problem anywhere is one CdgpsError naming the file, line and
+    time, and leaves no output (the file is written atomically).
 
     Parameters
     ----------
@@ -218,13 +216,16 @@ def write_run(cfg: StructureConfig, receiver_csv: str | Path, out_path: str | Pa
         Native logs (see :mod:`cdgps_cli.io.logs`); gyro and actuator logs are optional.  Several
         files (a list, or a pattern matching several) are consecutive pieces of one record (hourly
         files): each is validated, and they are joined in time order by their first epoch
-        (:func:`_read_sequence`; the summary's ``joins`` and ``warnings`` say how).
+        (:func:`cdgps_cli.io.log_stream.stream_log`; the summary's ``joins`` and ``warnings`` say how).
     out_path : path
         Output MCAP; written atomically.
-    channel_summary : callable, optional
-        ``channel_summary(phase, sample_period_s) -> list of dict`` with each channel's
-        ``lock_restarts_s`` (:func:`cdgps_cli.pipeline.ingest.channel_summary`, the one
-        lock-segment rule); the summary's ``lock_restarts`` counts them (None without it).
+    channel_counter : callable, optional
+        ``channel_counter(sample_period_s)`` → an object with ``add(phase_block)`` (blocks of the
+        phase table in time order) and ``result()`` (each channel's ``lock_restarts_s`` …:
+        :class:`cdgps_cli.pipeline.ingest.ChannelCounter`, the one lock-segment rule); the
+        summary's ``lock_restarts`` counts them (None without it).
+    block_bytes : int, optional
+        Bytes of CSV text read at a time (default :data:`cdgps_cli.io.logs.LOG_BLOCK_BYTES`).
 
     Returns
     -------
@@ -241,105 +242,197 @@ def write_run(cfg: StructureConfig, receiver_csv: str | Path, out_path: str | Pa
     for k, p in sources.items():
         if p.resolve() == out_path.resolve():
             raise CdgpsError(f"{out_path}: the output would overwrite the input {k}")
-    from cdgps_cli.io.logs import read_actuator_log, read_gyro_log, read_receiver_log  # noqa: PLC0415 (pandas)
+    made = [d for d in [out_path.parent, *out_path.parent.parents] if not d.exists()]
+    try:
+        return _write_run(cfg, files, out_path, channel_counter, block_bytes)
+    except BaseException:
+        for d in made:                              # (folders made for an output not written)
+            try:
+                d.rmdir()
+            except OSError:
+                break
+        raise
+
+
+def _write_run(cfg: StructureConfig, files: dict, out_path: Path, channel_counter, block_bytes) -> dict:
+    from cdgps_cli.io.log_stream import stream_log  # noqa: PLC0415 (pandas)
 
     joins: dict = {}
-    rx = _read_sequence(files["receiver_csv"], read_receiver_log, cfg, cfg.sample_period_s, joins, "receiver_csv")
-    phase = _categorical_phase(rx)
-    gyro = _read_sequence(files["gyro_csv"], read_gyro_log, cfg, None, joins, "gyro_csv") if "gyro_csv" in files else None
-    act = (_read_sequence(files["actuator_csv"], read_actuator_log, cfg, None, joins, "actuator_csv", sampled=False)
-           if "actuator_csv" in files else None)
-    if joins:               # the files in time order (the metadata keys receiver_csv[0], [1] … follow it)
-        sources = {key: Path(p) for k, ps in files.items() for key, p in input_keys(k, ps)}
-    meta = ingest_metadata("structure", cfg, sources, sample_period_s=repr(cfg.sample_period_s))
     with McapOut(out_path, time_scale="relative") as out:     # time_s: run seconds (cdgps_cli.core.timescales)
-        ch = out.channel(PHASE_TOPIC, PHASE_SCHEMA, {"units": "cycles", "wavelength_m": repr(cfg.wavelength_m)})
-        n_phase = out.write_table(ch, phase, PHASE_ARRAYS, ["master"])
-        _attach_phase_packed(out, phase)                    # the same table, read without decoding
-        n_gyro = n_act = 0
-        if gyro is not None and len(gyro):          # (a header-only log of a config without gyros: no topic)
-            n_gyro = out.write_table(out.channel(GYRO_TOPIC, GYRO_SCHEMA, {"units": "rad/s"}), gyro, ["gyro", "rate_rad_s"])
-            # the gyro log also as .npy arrays (fast reading by spectra and reports)
-            codes, names = Table.from_frame(gyro[["gyro"]]).codes("gyro")
-            out.attach(GYRO_ARRAYS + "time_s.npy", _npy(gyro["time_s"].to_numpy(dtype=float)), "application/x-npy")
-            out.attach(GYRO_ARRAYS + "rate_rad_s.npy", _npy(gyro["rate_rad_s"].to_numpy(dtype=float)), "application/x-npy")
-            out.attach(GYRO_ARRAYS + "gyro_index.npy", _npy(codes.astype(np.int64)), "application/x-npy")
-            out.attach(GYRO_ARRAYS + "gyro_names.json", json.dumps(list(names)).encode(), "application/json")
-        if act is not None:
-            n_act = out.write_table(out.channel(ACTUATOR_TOPIC, ACTUATOR_SCHEMA, {"units": "N"}), act, ["actuator", "force_n"])
+        where = out_path.parent
+        phase = _PhaseSink(out, cfg, channel_counter, where)
+        gyro = act = None
+        try:
+            stream_log(files["receiver_csv"], "receiver", cfg, phase, PHASE_NAME_COLUMNS, PHASE_NAME_COLUMNS, joins,
+                       "receiver_csv", cfg.sample_period_s, block_bytes=block_bytes)
+            _attach_phase_packed(out, phase)               # the same table, read without decoding
+            if "gyro_csv" in files:         # (a header-only log of a config without gyros: no topic)
+                gyro = _SeriesSink(out, GYRO_TOPIC, GYRO_SCHEMA, {"units": "rad/s"}, "gyro", "rate_rad_s", where,
+                                   arrays=True)
+                stream_log(files["gyro_csv"], "gyro", cfg, gyro, ["gyro"], [], joins, "gyro_csv", None,
+                           block_bytes=block_bytes)
+                gyro.attach_arrays()        # the gyro log also as .npy arrays (fast reading by spectra and reports)
+            if "actuator_csv" in files:
+                act = _SeriesSink(out, ACTUATOR_TOPIC, ACTUATOR_SCHEMA, {"units": "N"}, "actuator", "force_n", where,
+                                  arrays=False)
+                stream_log(files["actuator_csv"], "actuator", cfg, act, ["actuator"], [], joins, "actuator_csv", None,
+                           sampled=False, block_bytes=block_bytes)
+        finally:
+            for sink in (phase, gyro, act):
+                if sink is not None:
+                    sink.close()
         out.attach(CONFIG_ATTACHMENT, cfg.text.encode("utf-8"), "application/toml")
-        out.metadata(INGEST_METADATA, meta)
-        gaps = epoch_gaps(phase["time_s"], cfg.sample_period_s)
-        chans = None if channel_summary is None else channel_summary(phase, cfg.sample_period_s)
+        # the files in time order (the metadata keys receiver_csv[0], [1] … follow it)
+        sources = {key: Path(p) for k, ps in files.items() for key, p in input_keys(k, ps)}
+        out.metadata(INGEST_METADATA, ingest_metadata("structure", cfg, sources, sample_period_s=repr(cfg.sample_period_s)))
+        gaps = epoch_gaps(phase.epochs(), cfg.sample_period_s)
+        chans = None if phase.counter is None else phase.counter.result()
         out.info_extra[INFO_STRUCTURE_KEY] = json.dumps({"gaps": gaps, **({} if chans is None else {"channels": chans})})
-    t = phase["time_s"]
-    a_codes, _ = phase.codes("antenna")
-    x_codes, x_names = phase.codes("transmitter")
     return {
         "output": str(out_path),
         "config": cfg.name,
         "config_sha256": cfg.sha256,
-        "phase_rows": int(len(phase)), "phase_messages": n_phase,
-        "gyro_rows": int(0 if gyro is None else len(gyro)), "gyro_messages": n_gyro,
-        "actuator_rows": int(0 if act is None else len(act)), "actuator_messages": n_act,
-        "start_s": float(t[0]), "end_s": float(t[-1]),
+        "phase_rows": phase.rows, "phase_messages": phase.messages,
+        "gyro_rows": 0 if gyro is None else gyro.rows, "gyro_messages": 0 if gyro is None else gyro.messages,
+        "actuator_rows": 0 if act is None else act.rows, "actuator_messages": 0 if act is None else act.messages,
+        "start_s": phase.first_t, "end_s": phase.last_t,
         "gaps": gaps,
-        "channels": int(np.unique(a_codes.astype(np.int64) * len(x_names) + x_codes).size),
+        "channels": len(phase.pairs),
         "lock_restarts": None if chans is None else sum(len(c["lock_restarts_s"]) for c in chans),
         **({"joins": {k: j["report"] for k, j in joins.items()},
             "warnings": [w for j in joins.values() for w in j["warnings"]]} if joins else {}),
     }
 
 
+class _PhaseSink:
+    """The receiver log's whole epochs, as they come: their ``/cdgps/phase`` messages written, the
+    columns of the packed phase arrays kept on disk (names as numbers in the order first seen,
+    sorted at the end), the epochs, the channels' summary (``counter``) and counts."""
+
+    _NUMBERS = {"time_s": "<f8", "phase_cycles": "<f8", "lock": "<i8", "snr_dbhz": "<f8"}
+
+    def __init__(self, out: McapOut, cfg: StructureConfig, channel_counter, where: Path):
+        from cdgps_cli.io.log_stream import PlaneColumn, RowColumn, Vocabulary  # noqa: PLC0415
+
+        self.out = out
+        self.ch = out.channel(PHASE_TOPIC, PHASE_SCHEMA, {"units": "cycles", "wavelength_m": repr(cfg.wavelength_m)})
+        self.counter = None if channel_counter is None else channel_counter(cfg.sample_period_s)
+        self.vocab = {c: Vocabulary() for c in PHASE_NAME_COLUMNS}
+        self.codes = {c: RowColumn(np.int32, where) for c in PHASE_NAME_COLUMNS}
+        self.numbers = {c: PlaneColumn(dt, where) for c, dt in self._NUMBERS.items()}
+        self._epochs: list = []
+        self.rows = self.messages = 0
+        self.pairs: set = set()
+        self.first_t = self.last_t = None
+
+    def add(self, tab: Table) -> None:
+        from cdgps_cli.io.log_stream import unique_sorted  # noqa: PLC0415
+
+        self.messages += self.out.write_table(self.ch, tab, PHASE_ARRAYS, ["master"])
+        for c in PHASE_NAME_COLUMNS:
+            self.codes[c].append(self.vocab[c].of(tab, c))
+        for c, col in self.numbers.items():
+            col.append(tab[c])
+        if self.counter is not None:
+            self.counter.add(tab)
+        t = tab["time_s"]
+        self._epochs.append(unique_sorted(t))
+        a, aw = tab.codes("antenna")
+        x, xw = tab.codes("transmitter")
+        for k in np.unique(a.astype(np.int64) * len(xw) + x).tolist():
+            self.pairs.add((aw[k // len(xw)], xw[k % len(xw)]))
+        self.rows += len(tab)
+        self.first_t = float(t[0]) if self.first_t is None else self.first_t
+        self.last_t = float(t[-1])
+
+    def epochs(self) -> np.ndarray:
+        return np.concatenate(self._epochs) if self._epochs else np.array([], dtype=float)
+
+    def attach_packed(self, out: McapOut) -> None:
+        """The :data:`PHASE_PACKED` attachments, packed from the scratch columns."""
+        names = {}
+        for col in PHASE_NAME_COLUMNS:
+            words, lut = self.vocab[col].sorted()
+            names[col] = words
+            _attach_planes(out, f"{PHASE_PACKED}{col}_code", np.int32, self.codes[col].n,
+                           self.codes[col].planes(lut, np.int32))
+        out.attach(PHASE_PACKED + "names.json", json.dumps(names, sort_keys=True).encode(), "application/json")
+        for c, col in self.numbers.items():
+            _attach_planes(out, PHASE_PACKED + c, col.dtype, col.n, col.planes())
+
+    def close(self) -> None:
+        for col in [*self.codes.values(), *self.numbers.values()]:
+            col.close()
+
+
+def _attach_planes(out: McapOut, name: str, dtype, n: int, planes) -> None:
+    """Attach the packed array of ``n`` numbers given as byte planes (compressed into a scratch
+    file first: the attachment's length comes before its bytes)."""
+    from cdgps_cli.io.log_stream import read_pieces, scratch_file, write_scratch  # noqa: PLC0415
+    from cdgps_cli.io.packed_arrays import MEDIA_TYPE, pack_planes  # noqa: PLC0415
+
+    with scratch_file(out.path.parent) as tmp:
+        pack_planes(dtype, n, planes, lambda b: write_scratch(tmp, b, out.path.parent))
+        size = tmp.tell()
+        out.attach_stream(name, size, read_pieces(tmp), MEDIA_TYPE)
+
+
+class _SeriesSink:
+    """A ``time_s,<name>,<value>`` log's whole epochs, as they come: their messages written (the
+    channel registered with the first), and with ``arrays`` the columns of the gyro arrays kept
+    on disk (:data:`GYRO_ARRAYS`, written by :meth:`attach_arrays`)."""
+
+    def __init__(self, out: McapOut, topic: str, schema: dict, meta: dict, name: str, value: str, where: Path,
+                 arrays: bool):
+        from cdgps_cli.io.log_stream import RowColumn, Vocabulary  # noqa: PLC0415
+
+        self.out, self.name, self.value = out, name, value
+        self.topic = (topic, schema, meta)
+        self.ch = None if arrays else out.channel(topic, schema, meta)   # (an actuator topic even without rows)
+        self.rows = self.messages = 0
+        self.vocab = Vocabulary()
+        self.cols = {"time_s": RowColumn("<f8", where), value: RowColumn("<f8", where),
+                     "codes": RowColumn(np.int32, where)} if arrays else {}
+
+    def add(self, tab: Table) -> None:
+        if self.ch is None:
+            self.ch = self.out.channel(*self.topic)
+        self.messages += self.out.write_table(self.ch, tab, [self.name, self.value])
+        if self.cols:
+            self.cols["time_s"].append(tab["time_s"])
+            self.cols[self.value].append(tab[self.value])
+            self.cols["codes"].append(self.vocab.of(tab, self.name))
+        self.rows += len(tab)
+
+    def attach_arrays(self) -> None:
+        """The :data:`GYRO_ARRAYS` attachments (``.npy`` as ``np.save`` writes them), when the log has rows."""
+        from cdgps_cli.io.log_stream import names_json, npy_header  # noqa: PLC0415
+
+        if not self.rows:
+            return
+        words, lut = self.vocab.sorted()
+        for key, col, args in (("time_s.npy", self.cols["time_s"], ()), ("rate_rad_s.npy", self.cols[self.value], ()),
+                               ("gyro_index.npy", self.cols["codes"], (lut.astype(np.int64), np.dtype("<i8")))):
+            dtype = args[1] if args else col.dtype
+            head = npy_header(dtype, col.n)
+            pieces = (memoryview(np.ascontiguousarray(v)).cast("B") for v in col.pieces(*args))
+            self.out.attach_stream(GYRO_ARRAYS + key, len(head) + col.n * dtype.itemsize,
+                                   _chain([head], pieces), "application/x-npy")
+        self.out.attach(GYRO_ARRAYS + "gyro_names.json", names_json(words), "application/json")
+
+    def close(self) -> None:
+        for col in self.cols.values():
+            col.close()
+
+
+def _chain(*parts):
+    for p in parts:
+        yield from p
+
+
 def input_keys(key: str, paths: list) -> list:
     """Metadata keys of a log's files: ``key`` for one file, ``key[0]``, ``key[1]`` … (time order) for several."""
     return [(key, paths[0])] if len(paths) == 1 else [(f"{key}[{i}]", p) for i, p in enumerate(paths)]
-
-
-def _check_same_receivers(paths: list, tabs: list) -> None:
-    """Refuse receiver logs in which an antenna is measured by another receiver than in an earlier
-    file (another receiver: its phase biases do not continue), naming the file, antenna and both."""
-    seen: dict = {}
-    for p, t in zip(paths, tabs):
-        pairs = t[["antenna", "receiver"]].drop_duplicates().itertuples(index=False)
-        for antenna, receiver in pairs:
-            first = seen.setdefault(antenna, (receiver, p))
-            if first[0] != receiver:
-                raise CdgpsError(f"{p}: antenna {antenna} is measured by receiver {receiver!r}, by {first[0]!r} in "
-                                 f"{first[1]}; the files of one record must be one receiver's log per antenna")
-
-
-def _read_sequence(paths: list, reader, cfg, period_s, joins: dict, key: str, sampled: bool = True):
-    """Read a log given as one file or as consecutive files (each validated by ``reader``) and join
-    them in time order (:func:`cdgps_cli.io.log_sequence.join_tables`): an epoch a later file repeats
-    is kept from the earlier file (a warning), the gaps between files are reported, and files of
-    another rate refused.  ``paths`` is reordered in place to time order; ``joins[key]`` gets the
-    report (``files``, ``gaps``, ``overlaps``) and the warnings when there are several files.
-
-    ``period_s``: the record's sample period (None: the median spacing of the data); ``sampled``
-    False: an event log (the actuator commands, rows only when a command changes), which has no
-    rate to compare and no gaps."""
-    from cdgps_cli.core.gps_time import nominal_interval_s  # noqa: PLC0415
-    from cdgps_cli.io.log_sequence import join_tables  # noqa: PLC0415
-
-    if len(paths) == 1:
-        return reader(paths[0], cfg)
-    tabs = [reader(p, cfg) for p in paths]
-    names = [Path(p).name if len({Path(q).name for q in paths}) == len(paths) else str(p) for p in paths]
-    dts = [nominal_interval_s(t["time_s"].to_numpy()) for t in tabs]
-    ref = next((i for i, dt in enumerate(dts) if np.isfinite(dt)), None)
-    for p, dt in zip(paths, dts):
-        if sampled and ref is not None and np.isfinite(dt) and abs(dt - dts[ref]) > 1e-6 * max(dts[ref], 1.0):
-            raise CdgpsError(f"{p}: epoch interval {dt:g} s differs from {dts[ref]:g} s in {paths[ref]}; the files of one "
-                             f"record must have one rate")
-    if "receiver" in tabs[0]:
-        _check_same_receivers(paths, tabs)
-    period = (period_s or nominal_interval_s(np.concatenate([t["time_s"].to_numpy() for t in tabs]))) if sampled \
-        else float("nan")
-    tab, rep, order = join_tables(list(zip(names, tabs)), "time_s", period, what=key)
-    paths[:] = [paths[i] for i in order]
-    joins[key] = {"report": rep.as_dict(), "warnings": rep.warnings}
-    return tab
 
 
 def read_run(path: str | Path, phase: bool = True, on_disk: bool = False) -> Run:
@@ -474,11 +567,6 @@ def _phase_on_disk(path, spans: dict, names_json: bytes):
         return DiskPhase(n, {"time_s": t, **numbers}, codes, PHASE_COLUMNS, categorical=PHASE_NAME_COLUMNS)
     except ValueError as exc:                      # names not sorted, codes outside them
         raise damaged(exc) from None
-
-
-def _categorical_phase(df) -> Table:
-    """The phase table of a receiver log (DataFrame) as the :class:`Run`'s phase Table."""
-    return Table.from_frame(df[PHASE_COLUMNS], name_columns=PHASE_NAME_COLUMNS, categorical=PHASE_NAME_COLUMNS)
 
 
 def _phase_table(tc: TopicColumns, path="RUN.mcap") -> Table:

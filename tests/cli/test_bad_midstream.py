@@ -64,3 +64,25 @@ def test_truncated_last_file_names_the_file_line_and_time(record, tmp_path):
     assert "rx_01.csv" in r.output and f"time_s {last_t:g} s" in r.output, r.output
     assert re.search(rf"rx_01\.csv, line {len(lines) - cut + 1}:", r.output), r.output
     assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["rx_00.csv", "rx_01.csv"]
+
+
+def test_bad_row_late_in_a_streamed_log_names_file_line_and_time(record, tmp_path, monkeypatch):
+    """``ingest`` reads the log a block at a time (small blocks here, as a day's log in 4 MiB ones):
+    a bad row near the end, after many blocks were written to the (unnamed) output, exits 2 naming
+    the file, its line and the time before it, and leaves no RUN.mcap."""
+    from cdgps_cli.io import logs
+
+    monkeypatch.setattr(logs, "LOG_BLOCK_BYTES", 2000)
+    lines = (record / "sim" / "receiver.csv").read_text().splitlines(keepends=True)
+    k = len(lines) - 40
+    f = lines[k].split(",")
+    prev_t = float(f[0])
+    f[5] = "1.5e"
+    lines[k] = ",".join(f)
+    (tmp_path / "rx.csv").write_text("".join(lines))
+    out = tmp_path / "new" / "run.mcap"
+    r = run_cli("-q", "ingest", tmp_path / "rx.csv", "--config", CFG, "-o", out)
+    assert r.exit_code == 2, r.output
+    assert f"rx.csv, line {k + 1}: column phase_cycles: not a number (got '1.5e')" in r.output, r.output
+    assert f"the first at time_s {prev_t:g} s" in r.output and "Traceback" not in r.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rx.csv"]          # (nor the output's folder)

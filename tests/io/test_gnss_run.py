@@ -135,6 +135,20 @@ def test_ingest_simulated_pair_round_trip(simdir, tmp_path):
     assert rov["slips"] == n_slips and info["gnss"]["coordinates"] == ["rover_e", "rover_n", "rover_u"]
 
 
+def test_obs_messages_made_a_block_at_a_time_are_the_same_file(simdir, tmp_path, monkeypatch):
+    """The observation messages' rows become Python lists a block of messages at a time (issue 29:
+    the lists of a whole day took ~0.5 GB); blocks of 5 messages, cut anywhere between the two
+    receivers' interleaved epochs, give the same RUN as one block."""
+    import cdgps_cli.io.gnss_run as gnss_run
+
+    r = run_cli("-q", "ingest", "--config", simdir / "config.toml", "-o", tmp_path / "one.mcap")
+    assert r.exit_code == 0, r.output
+    monkeypatch.setattr(gnss_run, "_OBS_MESSAGES_PER_BLOCK", 5)
+    r = run_cli("-q", "ingest", "--config", simdir / "config.toml", "-o", tmp_path / "blocks.mcap")
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "one.mcap").read_bytes() == (tmp_path / "blocks.mcap").read_bytes()
+
+
 def test_ingest_from_command_line_without_config(simdir, tmp_path):
     out = tmp_path / "cli.mcap"
     r = run_cli("-q", "ingest", "--rinex", f"m={simdir / 'base.rnx'}", "--rinex", f"r={simdir / 'rover.rnx'}",

@@ -118,15 +118,63 @@ def test_valid_logs_take_the_typed_reading(tmp_path, monkeypatch):
     assert fast == slow and fast[0] == ("table" if "g1" in CFG.gyro_names else "error")
 
 
-@pytest.mark.parametrize("block", [1, 5, 7, 1 << 20])
-def test_duplicates_found_in_blocks_as_in_one_table(tmp_path, monkeypatch, block):
-    """The duplicate-row check cut into blocks between times (tiny blocks here) finds the rows the
-    one-table check finds, the same message; a repeated row across a block edge too."""
-    monkeypatch.setattr(logs, "_DUP_BLOCK_ROWS", block)
+def _streamed(path, kind, block_bytes):
+    """The outcome of reading ``path`` a block of ``block_bytes`` at a time (the blocks joined)."""
+    try:
+        blocks = list(logs.valid_blocks(path, kind, CFG, block_bytes=block_bytes))
+    except CdgpsError as exc:
+        return "error", str(exc)
+    df = pd.concat(blocks, ignore_index=True) if len(blocks) > 1 else blocks[0]
+    return "table", {c: (df[c].astype(str).to_numpy().tolist() if df[c].dtype == object or isinstance(
+        df[c].dtype, (pd.CategoricalDtype, pd.StringDtype)) else df[c].to_numpy().tobytes()) for c in df.columns}
+
+
+@pytest.mark.parametrize("block", [1, 5, 7, 100, 1 << 20])
+def test_duplicates_found_in_blocks_as_in_one_table(tmp_path, block):
+    """The duplicate-row check of a log read in blocks (tiny blocks here: one line, a few lines, cut
+    anywhere in an epoch) finds the rows the one-table check finds, the same message; a repeated
+    row across a block edge too."""
     lines = _log(12)
     lines.insert(9, lines[7])                         # same time, later in the same epoch
     lines.insert(30, lines[29])                       # a row right after itself
     p = tmp_path / "receiver.csv"
     p.write_text("".join(lines))
-    fast, slow = _both(p, logs.read_receiver_log, monkeypatch)
-    assert fast == slow and fast[0] == "error" and fast[1].count("duplicate row") == 2
+    whole = _outcome(p, logs.read_receiver_log)
+    assert whole[0] == "error" and whole[1].count("duplicate row") == 2
+    assert _streamed(p, "receiver", block) == whole
+
+
+@pytest.mark.parametrize("block", [1, 37, 400, 1 << 20])
+@pytest.mark.parametrize("change", ["valid", "many-kinds", "late-problem", "bad-line", "backwards-at-edge", "blank-line",
+                                   "padded-number"])
+def test_blocks_give_the_whole_files_outcome(tmp_path, block, change):
+    """A log read in blocks of any size ends as the whole file read at once: the same table (values
+    bit for bit) or the same message — every kind of problem in the checks' order, the first lines
+    of each with their line numbers in the file, the counts, the time of the first problem."""
+    lines = _log(30)
+    if change == "many-kinds":
+        lines[100] = lines[100].replace(",a2,", ",a9,")
+        for k in (3, 50, 90, 91, 92, 93, 94, 95, 110):
+            f = lines[k].split(",")
+            f[5] = "abc"
+            lines[k] = ",".join(f)
+        lines[70] = lines[70].replace(",master,", ",a2,")
+        lines.insert(60, lines[59])
+    elif change == "late-problem":
+        f = lines[-3].split(",")
+        f[0] = "-1"
+        lines[-3] = ",".join(f)
+    elif change == "bad-line":
+        lines[80] = lines[80].rstrip("\n") + ",extra\n"
+    elif change == "backwards-at-edge":
+        lines[41], lines[45] = lines[45], lines[41]
+    elif change == "blank-line":
+        lines.insert(50, "\n")
+        lines[90] = lines[90].replace(",a2,", ",a9,")
+    elif change == "padded-number":
+        lines[20] = lines[20].replace(",rx1,", ",rx1 ,")
+    p = tmp_path / "receiver.csv"
+    p.write_text("".join(lines))
+    whole = _outcome(p, logs.read_receiver_log)
+    assert (whole[0] == "table") == (change in ("valid", "padded-number")), whole      # (names are stripped)
+    assert _streamed(p, "receiver", block) == whole
