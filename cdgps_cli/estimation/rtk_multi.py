@@ -22,6 +22,9 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.signals import signal, SYSTEM_NAMES
 from cdgps_cli.estimation.ambiguity import (SearchLimitError, bootstrap_success_rate, decorrelate, ld_factorize,
                                             ratio_test, search, success_tail)
+from cdgps_cli.estimation.driver import EpochGrid, Hook, drive
+from cdgps_cli.estimation.kalman import NUMPY_INVERSE, StepFilter
+from cdgps_cli.measurement.dd_signals import DDGroupModel
 from cdgps_cli.measurement.epoch_pairing import age_variance_m2, carry_base_slips, pair_epochs
 from cdgps_cli.measurement.noise import correlated_variance_factor
 from cdgps_cli.core.gps_time import nominal_interval_s
@@ -192,13 +195,29 @@ def _epoch_groups(rows, k):
 
 
 class _State:
-    """Ambiguity / ionosphere columns appearing and vanishing with the satellites (``index``: key → column)."""
+    """Ambiguity / ionosphere columns appearing and vanishing with the satellites (``index``: key → column)
+    of the filter ``step`` (a :class:`~cdgps_cli.estimation.kalman.StepFilter`: ``x``, ``P`` are its own)."""
 
-    def __init__(self, n_pos):
+    def __init__(self, n_pos, step=None):
         self.keys = [("pos", i) for i in range(n_pos)]
         self.index = {k: i for i, k in enumerate(self.keys)}
-        self.x = np.zeros(n_pos)
-        self.P = np.eye(n_pos) * 1e4
+        self.step = step if step is not None else StepFilter(np.zeros(n_pos), np.eye(n_pos) * 1e4, NUMPY_INVERSE)
+
+    @property
+    def x(self):
+        return self.step.x
+
+    @x.setter
+    def x(self, value):
+        self.step.x = value
+
+    @property
+    def P(self):
+        return self.step.P
+
+    @P.setter
+    def P(self, value):
+        self.step.P = value
 
     def keep(self, wanted):
         idx = [i for i, k in enumerate(self.keys) if k[0] == "pos" or k in wanted]
@@ -501,7 +520,7 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
             "partial_fixes": int(res["partial"].sum())}
 
 
-def _filter_pass(rows, times, order, opt, base_xyz, origin, iono, progress) -> dict:
+def _filter_pass_legacy(rows, times, order, opt, base_xyz, origin, iono, progress) -> dict:
     """One Kalman pass over the epochs in ``order`` (forward or backward); per epoch (in time order)
     the float and fixed positions (ECEF, m) and covariances, the DD ambiguities fixed, whether only
     a partial set was (the position is then kept as float), the ratio and the satellites used."""
@@ -544,6 +563,108 @@ def _filter_pass(rows, times, order, opt, base_xyz, origin, iono, progress) -> d
             progress(i + 1, n_ep)
     out["fixed"] = np.isfinite(out["fixed_xyz"][:, 0])
     return out
+
+
+#: which loop runs a pass: "drive" (the engine's driver) or "legacy" (the former own loop; golden comparison)
+_ENGINE = "drive"
+
+
+def _filter_pass(rows, times, order, opt, base_xyz, origin, iono, progress) -> dict:
+    """One Kalman pass over the epochs in ``order`` (forward or backward) on the engine's driver
+    (:func:`~cdgps_cli.estimation.driver.drive`): the dynamics :class:`_RtkDynamics`, the DD model
+    :class:`~cdgps_cli.measurement.dd_signals.DDGroupModel`, the hook :class:`_AmbiguityHook` (new
+    and re-biased ambiguity columns, integer fixing, fix-and-hold) and the sink :class:`_FloatSink`.
+    Per epoch (in time order) the float and fixed positions (ECEF, m) and covariances, the DD
+    ambiguities fixed, whether only a partial set was (the position is then kept as float), the
+    ratio and the satellites used."""
+    if _ENGINE == "legacy":
+        return _filter_pass_legacy(rows, times, order, opt, base_xyz, origin, iono, progress)
+    order = np.asarray(list(order), dtype=np.int64)
+    n_ep = times.size
+    out = {"float_xyz": np.full((n_ep, 3), np.nan), "fixed_xyz": np.full((n_ep, 3), np.nan),
+           "float_cov": np.full((n_ep, 3, 3), np.nan), "fixed_cov": np.full((n_ep, 3, 3), np.nan),
+           "n_fixed": np.zeros(n_ep, dtype=np.int64), "ratio": np.full(n_ep, np.nan),
+           "partial": np.zeros(n_ep, dtype=bool), "ns": np.zeros(n_ep, dtype=np.int64)}
+    st = _State(3)
+    model = DDGroupModel(lambda i: _epoch_groups(rows, order[i]), base_xyz, origin)
+    source = EpochGrid(times[order])
+    hook = _AmbiguityHook(st, model, order, opt, iono, out, progress)
+    dyn, sink = _RtkDynamics(st, source.time_s, opt, iono), _FloatSink(order, origin, out)
+    # the first epoch relinearizes up to 4 times (the a-priori position may be metres off), the others twice
+    drive(dyn, [model], EpochGrid(source.time_s[:1]), st.step, hooks=[hook], sink=sink, max_iterations=4)
+    drive(dyn, [model], source, st.step, hooks=[hook], sink=sink, max_iterations=2, k0=1)
+    out["fixed"] = np.isfinite(out["fixed_xyz"][:, 0])
+    return out
+
+
+class _RtkDynamics:
+    """Prediction of the rtk state between the drive's epochs: the position static or a random walk
+    (``mode``), each SD ionosphere a random walk, ambiguities constant; identity transition, Q sized
+    to the state's columns of the moment (|Δt|: a backward pass runs the same model)."""
+
+    identity = True
+
+    def __init__(self, st, time_s, opt, iono):
+        self.st, self.time_s, self.iono = st, time_s, iono
+        self.pos = Static(3) if opt["mode"] == "static" else RandomWalk(3, opt["kinematic_sigma_m_per_sqrt_s"])
+        self.iono_q = opt["iono_rw_m_per_sqrt_s"] ** 2
+
+    def step_into(self, k):
+        dt = abs(float(self.time_s[k] - self.time_s[k - 1]))
+        n = len(self.st.keys)
+        Q = np.zeros((n, n))
+        Q[:3, :3] = self.pos.transition(dt)[2]
+        if self.iono:
+            ion = [j for j, key in enumerate(self.st.keys) if key[0] == "I"]
+            Q[ion, ion] = self.iono_q * dt
+        return None, Q, None
+
+
+class _FloatSink:
+    """The drive's sink: each epoch's float position (ECEF, m) and its covariance, in time order."""
+
+    def __init__(self, order, origin, out):
+        self.order, self.origin, self.out = order, origin, out
+
+    def write(self, i, x, P):
+        k = self.order[i]
+        self.out["float_xyz"][k] = self.origin + x[:3]
+        self.out["float_cov"][k] = P[:3, :3]
+
+    def release_before(self, i):
+        return None
+
+
+class _AmbiguityHook(Hook):
+    """The rtk ambiguity policy as driver hooks: ``prepared`` opens a column per new ambiguity (and
+    ionosphere) and re-biases slipped channels (:func:`_prepare_state`); ``after`` fixes the DD
+    integers (:func:`_fix`, the policy of :meth:`_CarriedDecorrelation.resolve`), records the fixed
+    (or, for a partial set, improved float) position and holds the integers (fix-and-hold)."""
+
+    def __init__(self, st, model, order, opt, iono, out, progress):
+        self.st, self.model, self.order, self.opt, self.iono, self.out = st, model, order, opt, iono, out
+        self.progress, self.carried, self.run = progress, _CarriedDecorrelation(), 0
+
+    def prepared(self, ctx, i):
+        _prepare_state(self.st, self.model.groups, self.opt, self.iono)
+
+    def after(self, ctx, i, i_next):
+        st, groups, opt, out, k = self.st, self.model.groups, self.opt, self.out, self.order[i]
+        fx, n, ratio, fx_cov, partial = (_fix(st, groups, opt, self.carried) if (groups and opt["fix"])
+                                         else (None, 0, np.nan, None, False))
+        origin = self.model.origin
+        if fx is not None and partial:             # part of the set: a better float, not a fixed position
+            out["float_xyz"][k], out["float_cov"][k] = origin + fx, fx_cov
+        elif fx is not None:
+            out["fixed_xyz"][k], out["fixed_cov"][k] = origin + fx, fx_cov
+        self.run = self.run + 1 if (fx is not None and not partial) else 0
+        if opt["fix_and_hold"] and self.run >= opt["hold_after_fixes"]:
+            _hold(st, self.carried.last_fix)
+        out["n_fixed"][k], out["ratio"][k], out["partial"][k] = n, ratio, partial
+        out["ns"][k] = len({s for g in groups for s in g["sats"]})
+        if self.progress is not None:
+            self.progress(i + 1, self.order.size)
+        return i_next
 
 
 def _backward_slips(rows) -> np.ndarray:

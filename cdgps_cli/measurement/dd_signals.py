@@ -34,7 +34,7 @@ import pandas as pd
 from cdgps_cli.core.gps_time import nominal_interval_s
 from cdgps_cli.measurement.differencing import ambiguity_segments, dd_covariance, dd_operator, epoch_pointers
 
-__all__ = ["dd_range", "epoch_rows", "signal_sd_table", "group_key"]
+__all__ = ["dd_range", "epoch_rows", "signal_sd_table", "group_key", "DDGroupModel", "GroupRows"]
 
 
 def group_key(sat: str, signal_name: str) -> str:
@@ -181,3 +181,90 @@ def epoch_rows(x, groups, base_xyz_m, origin_xyz_m, n_state: int, noise_chol=Non
         C[k:k + len(c), k:k + len(c)] = c
         k += len(c)
     return np.concatenate(rs), np.vstack(Hs), np.linalg.cholesky(C)
+
+
+class GroupRows:
+    """One epoch's single differences of signal groups, weighted as their double differences.
+
+    ``z_m`` (2M,) holds the groups' SD phases (M rows, group after group), then their SD ranges;
+    each group's phase block and code block is one block of ``starts``.  A block's DDs ``D z`` with
+    noise ``D Σ Dᵀ`` (Σ = diag(var), SD variances) carry the information of the SDs weighted by
+    ``W = Σ⁻¹ − Σ⁻¹ 1 1ᵀ Σ⁻¹ / (1ᵀ Σ⁻¹ 1)`` whatever the reference (``D 1 = 0``): :meth:`whiten`
+    applies ``B = (I − u uᵀ) Σ^{-1/2}``, ``u = Σ^{-1/2} 1 / ‖Σ^{-1/2} 1‖``, with ``Bᵀ B = W`` (one
+    row per SD, rank m − 1 per block), so the engine's update needs no DD operator and no
+    Cholesky factor of the DD noise.  ``context`` holds what :meth:`DDGroupModel.predict` needs.
+    """
+
+    def __init__(self, z_m, var_m2, sizes, context):
+        self.z_m = z_m
+        self.inv_sigma = 1.0 / np.sqrt(var_m2)
+        self.starts = np.cumsum(sizes) - sizes
+        self.block = np.repeat(np.arange(sizes.size), sizes)
+        norm = np.sqrt(np.add.reduceat(self.inv_sigma ** 2, self.starts))
+        self.u = self.inv_sigma / norm[self.block]
+        self.context = context
+
+    def whiten(self, v):
+        """B v for v (2M,) or (2M, p)."""
+        v = np.asarray(v, dtype=float)
+        if v.ndim == 1:
+            y = v * self.inv_sigma
+            return y - self.u * np.add.reduceat(self.u * y, self.starts)[self.block]
+        y = v * self.inv_sigma[:, None]
+        return y - self.u[:, None] * np.add.reduceat(self.u[:, None] * y, self.starts, axis=0)[self.block]
+
+
+class DDGroupModel:
+    """The engine's measurement model of the multi-GNSS double differences (module docstring).
+
+    ``groups_of(k)`` gives epoch k's signal groups (dicts as for :func:`epoch_rows`, their
+    ``amb_col`` / ``iono_col`` set by the time :meth:`rows` runs: the driver's ``prepared`` hooks
+    open the state columns).  The state is [rover offset from ``origin_xyz_m`` (3, m), SD
+    ambiguities (cycles), SD slant ionosphere at L1 (m)…]; its size is read from the drive's
+    context at :meth:`prepare`.
+    """
+
+    def __init__(self, groups_of, base_xyz_m, origin_xyz_m):
+        self.groups_of = groups_of
+        self.base_xyz = np.asarray(base_xyz_m, dtype=float)
+        self.origin = np.asarray(origin_xyz_m, dtype=float)
+        self.groups, self._ctx = [], None
+
+    def prepare(self, k: int, ctx) -> None:
+        """Epoch k's groups (the hooks that follow open their state columns)."""
+        self.groups, self._ctx = self.groups_of(k), ctx
+
+    def rows(self, k: int):
+        """:class:`GroupRows` of epoch k, or None without a group."""
+        groups = self.groups
+        if not groups:
+            return None
+        sizes = np.array([len(g["sats"]) for g in groups])
+
+        def cat(key):
+            return np.concatenate([g[key] for g in groups])
+
+        M, n = int(sizes.sum()), len(self._ctx.x)
+        amb, ion, lam, mu = cat("amb_col"), cat("iono_col"), cat("lam_m"), cat("mu")
+        H = np.zeros((2 * M, n))
+        H[np.arange(M), amb] = lam
+        has_iono = bool(np.all(ion >= 0))
+        if has_iono:
+            H[np.arange(M), ion] = -mu
+            H[M + np.arange(M), ion] = mu
+        sx = cat("sat_xyz")
+        ctx = {"sat_xyz": sx, "base_rng": np.linalg.norm(cat("sat_base_xyz") - self.base_xyz, axis=1),
+               "lam": lam, "mu": mu, "amb": amb, "ion": ion if has_iono else None, "H": H, "M": M}
+        return GroupRows(np.concatenate([cat("phase_sd_m"), cat("code_sd_m")]),
+                         np.concatenate([cat("var_phase"), cat("var_code")]), np.concatenate([sizes, sizes]), ctx)
+
+    def predict(self, x, rows):
+        """h(x) (2M,) m and H (2M, n) of :meth:`rows`' SDs (the rows' H template, position columns set)."""
+        c = rows.context
+        los = c["sat_xyz"] - (self.origin + x[:3])
+        rng = np.sqrt(np.einsum("ij,ij->i", los, los))
+        H, M = c["H"], c["M"]
+        H[:M, :3] = H[M:, :3] = -los / rng[:, None]
+        geo = rng - c["base_rng"]
+        iono_m = c["mu"] * x[c["ion"]] if c["ion"] is not None else 0.0
+        return np.concatenate([geo + c["lam"] * x[c["amb"]] - iono_m, geo + iono_m]), H
