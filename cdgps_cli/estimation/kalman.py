@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["StepFilter", "iterated_update", "predict", "update", "NUMPY_INVERSE"]
+__all__ = ["StepFilter", "iterated_update", "predict", "update", "LAPACK_CHOLESKY", "NUMPY_INVERSE"]
 
 #: LAPACK potrf / potrs and scipy's solve_triangular, imported on first use: scipy's import
 #: (≈ 0.13 s) stays off the start-up of `cdgps rtk`, whose filter runs on this step too
@@ -56,8 +56,8 @@ class StepFilter:
         The current estimate: predicted after :meth:`predict`, updated after :meth:`update`.
     P : ndarray, shape (n, n)
         Its covariance.
-    linalg : (factor, solve), optional
-        The update's linear algebra (:func:`iterated_update`); default LAPACK Cholesky.
+    linalg : (factor, solve, inverse), optional
+        The update's linear algebra (:func:`iterated_update`); default :data:`LAPACK_CHOLESKY`.
     """
 
     def __init__(self, x, P, linalg=None):
@@ -109,9 +109,10 @@ def iterated_update(model, mk, xbar: np.ndarray, Pbar: np.ndarray, max_iteration
         Predicted state and covariance.
     max_iterations : int
         1: the extended Kalman update.
-    linalg : (factor, solve), optional
-        ``factor(M)`` of an SPD matrix and ``solve(factor, b)`` = M⁻¹ b: LAPACK's Cholesky (default)
-        or :data:`NUMPY_INVERSE` (numpy only: no scipy import, for start-up-bound one-shot commands).
+    linalg : (factor, solve, inverse), optional
+        ``factor(M)`` of an SPD matrix, ``solve(factor, b)`` = M⁻¹ b and ``inverse(factor, eye)`` = M⁻¹:
+        :data:`LAPACK_CHOLESKY` (default) or :data:`NUMPY_INVERSE` (numpy only: no scipy import, for
+        start-up-bound one-shot commands such as `cdgps rtk`).
 
     Returns
     -------
@@ -119,10 +120,10 @@ def iterated_update(model, mk, xbar: np.ndarray, Pbar: np.ndarray, max_iteration
     P : ndarray, shape (n, n)
     nis : float
     """
-    factor, solve = linalg if linalg is not None else (_chol_factor, _chol_solve)
+    factor, solve, inverse = linalg if linalg is not None else LAPACK_CHOLESKY
     zw = mk.whiten(mk.z_m)
     eye = np.eye(len(xbar))
-    Pinv = solve(factor(Pbar), eye)
+    Pinv = inverse(factor(Pbar), eye)
     xi = xbar.copy()
     nis = np.nan
     last = max(int(max_iterations), 1) - 1
@@ -146,12 +147,8 @@ def iterated_update(model, mk, xbar: np.ndarray, Pbar: np.ndarray, max_iteration
         xi = x_new
         if step <= 1e-9 * max(1.0, float(np.max(np.abs(xi)))):
             break
-    P = solve(cf, eye)
+    P = inverse(cf, eye)
     return xi, 0.5 * (P + P.T), nis
-
-
-#: :func:`iterated_update`'s linear algebra in numpy only: the factor is the inverse, a solve its product
-NUMPY_INVERSE = (np.linalg.inv, lambda inv, b: inv @ b)
 
 
 def _chol_factor(M: np.ndarray) -> np.ndarray:
@@ -171,6 +168,12 @@ def _chol_solve(c: np.ndarray, b: np.ndarray) -> np.ndarray:
     if info != 0:
         raise ValueError(f"potrs: illegal value in argument {-info}")
     return x
+
+
+#: :func:`iterated_update`'s linear algebra: LAPACK Cholesky factor, solves with it, M⁻¹ as its solve of I
+LAPACK_CHOLESKY = (_chol_factor, _chol_solve, _chol_solve)
+#: the same in numpy only: the factor is the inverse itself, a solve its product
+NUMPY_INVERSE = (np.linalg.inv, lambda inv, b: inv @ b, lambda inv, eye: inv)
 
 
 class _Whitened:

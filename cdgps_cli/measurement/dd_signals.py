@@ -197,21 +197,21 @@ class GroupRows:
 
     def __init__(self, z_m, var_m2, sizes, context):
         self.z_m = z_m
-        self.inv_sigma = 1.0 / np.sqrt(var_m2)
-        self.starts = np.cumsum(sizes) - sizes
-        self.block = np.repeat(np.arange(sizes.size), sizes)
-        norm = np.sqrt(np.add.reduceat(self.inv_sigma ** 2, self.starts))
-        self.u = self.inv_sigma / norm[self.block]
+        inv_sigma = 1.0 / np.sqrt(var_m2)
+        block = np.repeat(np.arange(sizes.size), sizes)
+        norm2 = np.add.reduceat(inv_sigma * inv_sigma, np.cumsum(sizes) - sizes)
+        rows = np.arange(z_m.size)
+        U = np.zeros((sizes.size, z_m.size))          # block b's row holds its u: Uᵀ U = blockdiag(u uᵀ)
+        U[block, rows] = inv_sigma / np.sqrt(norm2[block])
+        B = -(U.T @ U)
+        B[rows, rows] += 1.0
+        B *= inv_sigma                                 # B (2M, 2M) = (I − blockdiag(u uᵀ)) Σ^{-1/2}
+        self.B = B
         self.context = context
 
     def whiten(self, v):
         """B v for v (2M,) or (2M, p)."""
-        v = np.asarray(v, dtype=float)
-        if v.ndim == 1:
-            y = v * self.inv_sigma
-            return y - self.u * np.add.reduceat(self.u * y, self.starts)[self.block]
-        y = v * self.inv_sigma[:, None]
-        return y - self.u[:, None] * np.add.reduceat(self.u[:, None] * y, self.starts, axis=0)[self.block]
+        return self.B @ v
 
 
 class DDGroupModel:
@@ -253,7 +253,8 @@ class DDGroupModel:
             H[np.arange(M), ion] = -mu
             H[M + np.arange(M), ion] = mu
         sx = cat("sat_xyz")
-        ctx = {"sat_xyz": sx, "base_rng": np.linalg.norm(cat("sat_base_xyz") - self.base_xyz, axis=1),
+        los_b = cat("sat_base_xyz") - self.base_xyz
+        ctx = {"sat_xyz": sx, "base_rng": np.sqrt(np.einsum("ij,ij->i", los_b, los_b)),
                "lam": lam, "mu": mu, "amb": amb, "ion": ion if has_iono else None, "H": H, "M": M}
         return GroupRows(np.concatenate([cat("phase_sd_m"), cat("code_sd_m")]),
                          np.concatenate([cat("var_phase"), cat("var_code")]), np.concatenate([sizes, sizes]), ctx)
