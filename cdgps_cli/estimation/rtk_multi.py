@@ -9,6 +9,14 @@ RandomWalk).  Ionosphere model by baseline length: below ``iono_threshold_km`` (
 DD ionosphere is neglected (short-baseline model: each frequency fixed directly); above it, it is
 estimated ("ionosphere-estimating", prior σ ``iono_sigma_m_per_km`` × length).  GLONASS (FDMA)
 groups are kept float unless ``glonass_fix`` (identical receivers only).
+
+The filter is the engine's: each pass (forward, backward) is one
+:func:`~cdgps_cli.estimation.driver.drive` over the paired epochs with the dynamics
+:class:`_RtkDynamics`, the DD measurement model :class:`~cdgps_cli.measurement.dd_signals.DDGroupModel`
+(the single differences whitened as their double differences) and the ambiguity policy as the hook
+:class:`_AmbiguityHook` (new and re-biased ambiguity columns, integers by LAMBDA with the ratio and
+success-rate tests, fix-and-hold); the step is :class:`~cdgps_cli.estimation.kalman.StepFilter`'s
+iterated update in numpy only (scipy's import stays off `cdgps rtk`'s start-up).
 """
 
 from __future__ import annotations
@@ -382,58 +390,6 @@ def _fix(st, groups, opt, carried):
     return st.x[:3] - dx, len(res["integers"]), res["ratio"], 0.5 * (cov + cov.T), res["partial"]
 
 
-def _epoch_update(xb, Pb, groups, base_xyz, origin, iterations):
-    """The iterated update of one epoch (Gauss–Newton, relinearized at each iterate from the prior
-    ``xb``, ``Pb``), in information form on the single differences.
-
-    Each group's DDs ``D z`` with noise ``D Σ Dᵀ`` (Σ = diag(v), SD variances) carry the same
-    information as the SDs weighted by ``W = Dᵀ (D Σ Dᵀ)⁻¹ D = Σ⁻¹ − Σ⁻¹ 1 1ᵀ Σ⁻¹ / (1ᵀ Σ⁻¹ 1)``
-    whatever the reference (``D 1 = 0``, rank m − 1): the update needs no DD operator and no
-    Cholesky factor of the DD noise.  Per iteration, with H, r the SD rows at the iterate x_i,
-    ``P = (P̄⁻¹ + Hᵀ W H)⁻¹`` and ``x_{i+1} = x̄ + P Hᵀ W (r + H (x_i − x̄))``.
-
-    Returns the updated state (n,) and covariance (n, n).
-    """
-    sizes = np.array([len(g["sats"]) for g in groups])
-    M = int(sizes.sum())
-
-    def cat(key):
-        return np.concatenate([g[key] for g in groups])
-
-    sx, amb, ion = cat("sat_xyz"), cat("amb_col"), cat("iono_col")
-    lam, mu = cat("lam_m"), cat("mu")
-    z = np.concatenate([cat("phase_sd_m"), cat("code_sd_m")])
-    w = 1.0 / np.concatenate([cat("var_phase"), cat("var_code")])
-    sizes2 = np.concatenate([sizes, sizes])                       # phase blocks, then code blocks
-    block = np.repeat(np.arange(2 * sizes.size), sizes2)
-    starts = np.cumsum(sizes2) - sizes2
-    w_sum = np.add.reduceat(w, starts)
-    base_rng = np.linalg.norm(cat("sat_base_xyz") - base_xyz, axis=1)
-    n = xb.size
-    rows = np.arange(M)
-    H = np.zeros((2 * M, n))
-    H[rows, amb] = lam
-    has_iono = bool(np.all(ion >= 0))
-    if has_iono:
-        H[rows, ion] = -mu
-        H[M + rows, ion] = mu
-    P_inv = np.linalg.inv(Pb)
-    x, P = xb, Pb
-    for _ in range(iterations):
-        los = sx - (origin + x[:3])
-        rng = np.sqrt(np.einsum("ij,ij->i", los, los))
-        H[:M, :3] = H[M:, :3] = -los / rng[:, None]
-        geo = rng - base_rng
-        iono_m = mu * x[ion] if has_iono else 0.0
-        r = z - np.concatenate([geo + lam * x[amb] - iono_m, geo + iono_m]) + H @ (x - xb)
-        wH = w[:, None] * H
-        WH = wH - w[:, None] * (np.add.reduceat(wH, starts, axis=0) / w_sum[:, None])[block]
-        P = np.linalg.inv(P_inv + H.T @ WH)
-        P = 0.5 * (P + P.T)
-        x = xb + P @ (WH.T @ r)
-    return x, P
-
-
 #: variance of the fix-and-hold pseudo-measurement of a fixed integer combination, cycles² (RTKLIB's VAR_HOLDAMB)
 HOLD_VARIANCE_CYCLES2 = 0.001
 
@@ -520,55 +476,6 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
             "partial_fixes": int(res["partial"].sum())}
 
 
-def _filter_pass_legacy(rows, times, order, opt, base_xyz, origin, iono, progress) -> dict:
-    """One Kalman pass over the epochs in ``order`` (forward or backward); per epoch (in time order)
-    the float and fixed positions (ECEF, m) and covariances, the DD ambiguities fixed, whether only
-    a partial set was (the position is then kept as float), the ratio and the satellites used."""
-    n_ep = times.size
-    pos_dyn = Static(3) if opt["mode"] == "static" else RandomWalk(3, opt["kinematic_sigma_m_per_sqrt_s"])
-    st = _State(3)
-    out = {"float_xyz": np.full((n_ep, 3), np.nan), "fixed_xyz": np.full((n_ep, 3), np.nan),
-           "float_cov": np.full((n_ep, 3, 3), np.nan), "fixed_cov": np.full((n_ep, 3, 3), np.nan),
-           "n_fixed": np.zeros(n_ep, dtype=np.int64), "ratio": np.full(n_ep, np.nan),
-           "partial": np.zeros(n_ep, dtype=bool), "ns": np.zeros(n_ep, dtype=np.int64)}
-    carried = _CarriedDecorrelation()
-    t_prev, run = None, 0                    # run: consecutive fixed epochs (fix-and-hold waits for hold_after_fixes)
-    for i, k in enumerate(order):
-        t = times[k]
-        groups = _epoch_groups(rows, k)
-        if t_prev is not None:
-            dt = abs(t - t_prev)
-            _, _, Q = pos_dyn.transition(dt)
-            st.P[:3, :3] += Q
-            if iono:
-                ion = [j for j, key in enumerate(st.keys) if key[0] == "I"]
-                st.P[ion, ion] += opt["iono_rw_m_per_sqrt_s"] ** 2 * dt
-        t_prev = t
-        _prepare_state(st, groups, opt, iono)
-        if groups:                           # iterated update (relinearized at the new estimate; same noise)
-            st.x, st.P = _epoch_update(st.x, st.P, groups, base_xyz, origin, 2 if i else 4)
-        fx, n, ratio, fx_cov, partial = _fix(st, groups, opt, carried) if (groups and opt["fix"]) else (None, 0, np.nan, None, False)
-        out["float_xyz"][k] = origin + st.x[:3]
-        out["float_cov"][k] = st.P[:3, :3]
-        if fx is not None and partial:             # part of the set: a better float, not a fixed position
-            out["float_xyz"][k], out["float_cov"][k] = origin + fx, fx_cov
-        elif fx is not None:
-            out["fixed_xyz"][k], out["fixed_cov"][k] = origin + fx, fx_cov
-        run = run + 1 if (fx is not None and not partial) else 0
-        if opt["fix_and_hold"] and run >= opt["hold_after_fixes"]:
-            _hold(st, carried.last_fix)
-        out["n_fixed"][k], out["ratio"][k], out["partial"][k] = n, ratio, partial
-        out["ns"][k] = len({s for g in groups for s in g["sats"]})
-        if progress is not None:
-            progress(i + 1, n_ep)
-    out["fixed"] = np.isfinite(out["fixed_xyz"][:, 0])
-    return out
-
-
-#: which loop runs a pass: "drive" (the engine's driver) or "legacy" (the former own loop; golden comparison)
-_ENGINE = "drive"
-
-
 def _filter_pass(rows, times, order, opt, base_xyz, origin, iono, progress) -> dict:
     """One Kalman pass over the epochs in ``order`` (forward or backward) on the engine's driver
     (:func:`~cdgps_cli.estimation.driver.drive`): the dynamics :class:`_RtkDynamics`, the DD model
@@ -577,8 +484,6 @@ def _filter_pass(rows, times, order, opt, base_xyz, origin, iono, progress) -> d
     Per epoch (in time order) the float and fixed positions (ECEF, m) and covariances, the DD
     ambiguities fixed, whether only a partial set was (the position is then kept as float), the
     ratio and the satellites used."""
-    if _ENGINE == "legacy":
-        return _filter_pass_legacy(rows, times, order, opt, base_xyz, origin, iono, progress)
     order = np.asarray(list(order), dtype=np.int64)
     n_ep = times.size
     out = {"float_xyz": np.full((n_ep, 3), np.nan), "fixed_xyz": np.full((n_ep, 3), np.nan),
