@@ -36,11 +36,14 @@ from cdgps_cli.measurement.dd_signals import DDGroupModel
 from cdgps_cli.measurement.epoch_pairing import age_variance_m2, carry_base_slips, pair_epochs
 from cdgps_cli.measurement.noise import correlated_variance_factor
 from cdgps_cli.core.gps_time import nominal_interval_s
-from cdgps_cli.model.dynamics_models import RandomWalk, Static
+from cdgps_cli.model.dynamics_models import ConstantVelocity, RandomWalk, Static
 from cdgps_cli.model.gps.orbits import OMEGA_E_GPS, azimuth_elevation, ecef_to_geodetic, sat_position_ecef, select_ephemeris
 from cdgps_cli.model.gps.positioning import ephemeris_coverage, tropo_hydrostatic_m
 
-__all__ = ["receiver_geometry", "solve_rtk", "check_common_signals"]
+__all__ = ["receiver_geometry", "solve_rtk", "check_common_signals", "RTK_MODES"]
+
+#: motion models of the rover on the one engine: random-walk position, position + velocity, one position
+RTK_MODES = ("kinematic", "constant-velocity", "static")
 
 _LAMBDA_L1 = signal("G:L1").wavelength_m
 
@@ -490,7 +493,7 @@ def _filter_pass(rows, times, order, opt, base_xyz, origin, iono, progress) -> d
            "float_cov": np.full((n_ep, 3, 3), np.nan), "fixed_cov": np.full((n_ep, 3, 3), np.nan),
            "n_fixed": np.zeros(n_ep, dtype=np.int64), "ratio": np.full(n_ep, np.nan),
            "partial": np.zeros(n_ep, dtype=bool), "ns": np.zeros(n_ep, dtype=np.int64)}
-    st = _State(3)
+    st = _State(_n_motion(opt))
     model = DDGroupModel(lambda i: _epoch_groups(rows, order[i]), base_xyz, origin)
     source = EpochGrid(times[order])
     hook = _AmbiguityHook(st, model, order, opt, iono, out, progress)
@@ -502,27 +505,46 @@ def _filter_pass(rows, times, order, opt, base_xyz, origin, iono, progress) -> d
     return out
 
 
-class _RtkDynamics:
-    """Prediction of the rtk state between the drive's epochs: the position static or a random walk
-    (``mode``), each SD ionosphere a random walk, ambiguities constant; identity transition, Q sized
-    to the state's columns of the moment (|Δt|: a backward pass runs the same model)."""
+def _n_motion(opt) -> int:
+    """Motion states of the rover: position (3), and velocity (3) in constant-velocity mode."""
+    return 6 if opt["mode"] == "constant-velocity" else 3
 
-    identity = True
+
+def _motion_model(opt):
+    """The rover's dynamics for ``mode`` (:data:`RTK_MODES`)."""
+    if opt["mode"] == "static":
+        return Static(3)
+    if opt["mode"] == "constant-velocity":
+        return ConstantVelocity(3, opt["accel_sigma_m_per_s_per_sqrt_s"])
+    return RandomWalk(3, opt["kinematic_sigma_m_per_sqrt_s"])
+
+
+class _RtkDynamics:
+    """Prediction of the rtk state between the drive's epochs: the rover's motion states by
+    :func:`_motion_model` (static, random-walk or constant-velocity position), each SD ionosphere a
+    random walk, ambiguities constant; A and Q sized to the state's columns of the moment (|Δt|: a
+    backward pass runs the same model; A is the identity but in constant-velocity mode)."""
 
     def __init__(self, st, time_s, opt, iono):
         self.st, self.time_s, self.iono = st, time_s, iono
-        self.pos = Static(3) if opt["mode"] == "static" else RandomWalk(3, opt["kinematic_sigma_m_per_sqrt_s"])
+        self.motion = _motion_model(opt)
+        self.identity = self.motion.identity_transition
         self.iono_q = opt["iono_rw_m_per_sqrt_s"] ** 2
 
     def step_into(self, k):
         dt = abs(float(self.time_s[k] - self.time_s[k - 1]))
-        n = len(self.st.keys)
+        n, m = len(self.st.keys), self.motion.n
+        A_m, _, Q_m = self.motion.transition(dt)
         Q = np.zeros((n, n))
-        Q[:3, :3] = self.pos.transition(dt)[2]
+        Q[:m, :m] = Q_m
         if self.iono:
             ion = [j for j, key in enumerate(self.st.keys) if key[0] == "I"]
             Q[ion, ion] = self.iono_q * dt
-        return None, Q, None
+        if self.identity:
+            return None, Q, None
+        A = np.eye(n)
+        A[:m, :m] = A_m
+        return A, Q, None
 
 
 class _FloatSink:
