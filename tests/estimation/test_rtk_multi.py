@@ -15,6 +15,7 @@ from cdgps_cli.io.rinex import read_rinex_nav
 from cdgps_cli.io.rinex_signals import read_rinex_signals
 from cdgps_cli.model.gps.orbits import ecef_to_enu
 from cdgps_cli.measurement.epoch_pairing import pair_epochs
+from cdgps_cli.measurement.dd_signals import epoch_groups, paired_sd_rows
 from tests._shared import REPO_ROOT
 
 GE = REPO_ROOT / ".." / "shared" / "data" / "rinex-ge"
@@ -62,7 +63,7 @@ def test_paired_rows_match_a_merge_per_epoch(pair):
     pairs = pair_epochs(gr["time_gps_s"].to_numpy(), gb["time_gps_s"].to_numpy())
     times = np.intersect1d(gb["time_gps_s"].unique(), gr["time_gps_s"].unique())
     np.testing.assert_array_equal(pairs.rover_time_s, times)      # simultaneous tags: the intersection
-    rows = rtk_multi._paired_rows(gb, gr, pairs, opt)
+    rows = paired_sd_rows(gb, gr, pairs, opt)
     n_groups = 0
     for k, t in enumerate(times):
         eb, er = gb[gb["time_gps_s"] == t], gr[gr["time_gps_s"] == t]
@@ -72,7 +73,7 @@ def test_paired_rows_match_a_merge_per_epoch(pair):
                  (g["wavelength_m"] * (g["phase_cycles_r"] - g["phase_cycles_b"]) + (g["sat_clock_m_r"] - g["sat_clock_m_b"])
                   - (g["trop_m_r"] - g["trop_m_b"])).to_numpy())
                 for name, g in m.groupby("signal", sort=True) if len(g) >= 2]
-        got = rtk_multi._epoch_groups(rows, k)
+        got = epoch_groups(rows, k)
         assert [(g["signal"], list(g["sats"]), g["ref"]) for g in got] == [w[:3] for w in want]
         for g, w in zip(got, want):
             np.testing.assert_array_equal(g["phase_sd_m"], w[3])
@@ -231,8 +232,8 @@ def test_dd_group_rows_carry_the_information_of_the_cholesky_whitened_dd_rows(pa
     sig, nav, b, r = pair
     gb, gr = receiver_geometry(b, nav, BASE), receiver_geometry(r, nav, TRUTH)
     opt = dict(MULTI_GNSS_DEFAULTS)
-    rows = rtk_multi._paired_rows(gb, gr, pair_epochs(gr["time_gps_s"].to_numpy(), gb["time_gps_s"].to_numpy()), opt)
-    groups = rtk_multi._epoch_groups(rows, 3)
+    rows = paired_sd_rows(gb, gr, pair_epochs(gr["time_gps_s"].to_numpy(), gb["time_gps_s"].to_numpy()), opt)
+    groups = epoch_groups(rows, 3)
     assert len(groups) == 4
     st = rtk_multi._State(3)
     rtk_multi._prepare_state(st, groups, opt, 0.5)
