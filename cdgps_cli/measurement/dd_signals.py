@@ -204,6 +204,8 @@ class GroupRows:
     applies ``B = (I − u uᵀ) Σ^{-1/2}``, ``u = Σ^{-1/2} 1 / ‖Σ^{-1/2} 1‖``, with ``Bᵀ B = W`` (one
     row per SD, rank m − 1 per block), so the engine's update needs no DD operator and no
     Cholesky factor of the DD noise.  ``context`` holds what :meth:`DDGroupModel.predict` needs.
+    The NIS the driver computes on these rows has 2M − (number of blocks) degrees of freedom, one
+    fewer per block than ``z_m.size`` (the driver's ``nis_dof``); rtk does not use it.
     """
 
     def __init__(self, z_m, var_m2, sizes, context):
