@@ -316,3 +316,21 @@ def test_rtk_modes_are_validated_by_name():
     assert validate_options({"mode": "constant-velocity"})["mode"] == "constant-velocity"
     with pytest.raises(CdgpsError, match=r"mode: expected one of 'kinematic', 'constant-velocity', 'static', got 'cv'"):
         validate_options({"mode": "cv"})
+
+
+def test_each_rtk_pass_is_a_drive_of_the_engine(pair, monkeypatch):
+    """rtk has no epoch loop of its own: each pass is driver.drive (the first epoch, iterated up to 4
+    times, then the rest) with the DD model and the ambiguity hook."""
+    from cdgps_cli.measurement.dd_signals import DDGroupModel
+
+    calls = []
+    real = rtk_multi.drive
+
+    def spy(dynamics, models, source, init, hooks=(), **kw):
+        calls.append((type(models[0]), [type(h).__name__ for h in hooks], source.n_epochs, kw.get("k0", 0)))
+        return real(dynamics, models, source, init, hooks, **kw)
+
+    monkeypatch.setattr(rtk_multi, "drive", spy)
+    res = _golden_run(pair, {"direction": "combined"})
+    n = res["time_gps_s"].size
+    assert calls == [(DDGroupModel, ["_AmbiguityHook"], 1, 0), (DDGroupModel, ["_AmbiguityHook"], n, 1)] * 2
