@@ -284,8 +284,9 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
               help="Comma-separated signals (G:L1, G:L2, G:L5, E:E1, E:E5a, E:E5b, C:B1I, C:B2I, C:B2a, R:G1, R:G2; "
                    "GLONASS stays float unless --glonass-fix), or 'auto': every one both files hold whose system has "
                    "ephemerides in --nav.")
-@click.option("--mode", type=click.Choice(["kinematic", "static"]), default="kinematic", show_default=True,
-              help="kinematic: random-walk rover position, a solution per epoch; static: one position for the span.")
+@click.option("--mode", type=click.Choice(["kinematic", "constant-velocity", "static"]), default="kinematic", show_default=True,
+              help="kinematic: random-walk rover position, a solution per epoch; constant-velocity: position and "
+                   "velocity, the velocity a random walk (white acceleration); static: one position for the span.")
 @click.option("--base-xyz", nargs=3, type=float, default=None, help="Base ECEF position, m (default: its header).")
 @click.option("--glonass-fix", is_flag=True, default=False,
               help="Fix GLONASS (FDMA) integers too: only for identical base and rover receivers (default: float).")

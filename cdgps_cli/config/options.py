@@ -66,9 +66,10 @@ def toml_value(v) -> str:
 #: multi-GNSS dual-frequency RTK (estimation/rtk_multi.py, docs/gnss-pipeline.md "Multi-GNSS")
 MULTI_GNSS_DEFAULTS = {
     "signals": "auto",                     # every signal both files hold whose system has ephemerides, or a tuple of names
-    "mode": "kinematic",                   # "kinematic" (random-walk position) or "static"
+    "mode": "kinematic",                   # "kinematic" (random-walk position), "constant-velocity" or "static"
     "direction": "combined",               # kinematic: "forward", "backward" or "combined" (both, checked against each other)
     "kinematic_sigma_m_per_sqrt_s": 30.0,  # random-walk rate of the kinematic rover position
+    "accel_sigma_m_per_s_per_sqrt_s": 3.0,  # constant-velocity mode: velocity random walk (white acceleration; RTKLIB's stats-prnaccelh)
     "mask_deg": 15.0, "ratio": RATIO_THRESHOLD, "fix": True, "glonass_fix": False,
     "min_success_rate": GNSS_DEFAULTS["min_success_rate"],  # bootstrapped success rate an integer set must reach (partial set otherwise)
     "code_correlation_s": GNSS_DEFAULTS["code_correlation_s"],  # code errors as a Gauss-Markov process of this correlation time, s (0: white, as RTKLIB)

@@ -23,10 +23,21 @@ for rows already linearized at x̄ (residual ρ = z − h(x̄) and H).
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import solve_triangular
-from scipy.linalg.lapack import dpotrf, dpotrs
 
-__all__ = ["StepFilter", "iterated_update", "predict", "update"]
+__all__ = ["StepFilter", "iterated_update", "predict", "update", "LAPACK_CHOLESKY", "NUMPY_INVERSE"]
+
+#: LAPACK potrf / potrs and scipy's solve_triangular, imported on first use: scipy's import
+#: (≈ 0.13 s) stays off the start-up of `cdgps rtk`, whose filter runs on this step too
+_SCIPY: list = []
+
+
+def _scipy() -> list:
+    """[dpotrf, dpotrs, solve_triangular], imported once."""
+    if not _SCIPY:
+        from scipy.linalg import solve_triangular
+        from scipy.linalg.lapack import dpotrf, dpotrs
+        _SCIPY.extend((dpotrf, dpotrs, solve_triangular))
+    return _SCIPY
 
 
 class StepFilter:
@@ -45,11 +56,14 @@ class StepFilter:
         The current estimate: predicted after :meth:`predict`, updated after :meth:`update`.
     P : ndarray, shape (n, n)
         Its covariance.
+    linalg : (factor, solve, inverse), optional
+        The update's linear algebra (:func:`iterated_update`); default :data:`LAPACK_CHOLESKY`.
     """
 
-    def __init__(self, x, P):
+    def __init__(self, x, P, linalg=None):
         self.x = np.array(x, dtype=float)
         self.P = np.array(P, dtype=float)
+        self.linalg = linalg
 
     def predict(self, A: np.ndarray, Q: np.ndarray, known_input=None) -> None:
         """x̄ = A x (+ known input), P̄ = A P Aᵀ + Q.
@@ -74,11 +88,11 @@ class StepFilter:
         """The iterated update with one epoch's ``rows`` (:class:`~cdgps_cli.measurement.model.Rows`)
         of ``model`` (a :class:`~cdgps_cli.measurement.model.MeasurementModel`), :func:`iterated_update`;
         returns the epoch's NIS (dof ``rows.z_m.size``)."""
-        self.x, self.P, nis = iterated_update(model, rows, self.x, self.P, max_iterations)
+        self.x, self.P, nis = iterated_update(model, rows, self.x, self.P, max_iterations, self.linalg)
         return nis
 
 
-def iterated_update(model, mk, xbar: np.ndarray, Pbar: np.ndarray, max_iterations: int = 5):
+def iterated_update(model, mk, xbar: np.ndarray, Pbar: np.ndarray, max_iterations: int = 5, linalg=None):
     """(x, P, NIS) of one iterated information-form update on the whitened rows ``mk``.
 
     Iterates (Gauss–Newton) while the correction exceeds 1e-9 of the state, at most
@@ -95,6 +109,10 @@ def iterated_update(model, mk, xbar: np.ndarray, Pbar: np.ndarray, max_iteration
         Predicted state and covariance.
     max_iterations : int
         1: the extended Kalman update.
+    linalg : (factor, solve, inverse), optional
+        ``factor(M)`` of an SPD matrix, ``solve(factor, b)`` = M⁻¹ b and ``inverse(factor, eye)`` = M⁻¹:
+        :data:`LAPACK_CHOLESKY` (default) or :data:`NUMPY_INVERSE` (numpy only: no scipy import, for
+        start-up-bound one-shot commands such as `cdgps rtk`).
 
     Returns
     -------
@@ -102,9 +120,10 @@ def iterated_update(model, mk, xbar: np.ndarray, Pbar: np.ndarray, max_iteration
     P : ndarray, shape (n, n)
     nis : float
     """
+    factor, solve, inverse = linalg if linalg is not None else LAPACK_CHOLESKY
     zw = mk.whiten(mk.z_m)
     eye = np.eye(len(xbar))
-    Pinv = _cho_solve(_cho_factor(Pbar), eye)
+    Pinv = inverse(factor(Pbar), eye)
     xi = xbar.copy()
     nis = np.nan
     last = max(int(max_iterations), 1) - 1
@@ -112,15 +131,15 @@ def iterated_update(model, mk, xbar: np.ndarray, Pbar: np.ndarray, max_iteration
         h, H = model.predict(xi, mk)
         H = mk.whiten(H)
         hw = mk.whiten(h)
-        cf = _cho_factor(Pinv + H.T @ H)
+        cf = factor(Pinv + H.T @ H)
         if it == 0:                                 # at x̄: the innovation and its NIS
             v = zw - hw
             hv = H.T @ v
-            nis = float(v @ v - hv @ _cho_solve(cf, hv))
+            nis = float(v @ v - hv @ solve(cf, hv))
         else:                                       # whitened innovation at the iterate
             v = zw - hw - H @ (xbar - xi)
             hv = H.T @ v
-        x_new = xbar + _cho_solve(cf, hv)
+        x_new = xbar + solve(cf, hv)
         if it == last:                              # no convergence test after the last allowed step
             xi = x_new
             break
@@ -128,14 +147,14 @@ def iterated_update(model, mk, xbar: np.ndarray, Pbar: np.ndarray, max_iteration
         xi = x_new
         if step <= 1e-9 * max(1.0, float(np.max(np.abs(xi)))):
             break
-    P = _cho_solve(cf, eye)
+    P = inverse(cf, eye)
     return xi, 0.5 * (P + P.T), nis
 
 
-def _cho_factor(M: np.ndarray) -> np.ndarray:
+def _chol_factor(M: np.ndarray) -> np.ndarray:
     """Upper Cholesky factor of an SPD matrix: LAPACK potrf as ``scipy.linalg.cho_factor`` calls it,
     without its wrapper's per-call cost (the filter calls it twice an epoch)."""
-    c, info = dpotrf(M, lower=0, clean=0)
+    c, info = (_SCIPY or _scipy())[0](M, lower=0, clean=0)
     if info > 0:
         raise np.linalg.LinAlgError(f"{info}-th leading minor of the array is not positive definite")
     if info < 0:
@@ -143,12 +162,18 @@ def _cho_factor(M: np.ndarray) -> np.ndarray:
     return c
 
 
-def _cho_solve(c: np.ndarray, b: np.ndarray) -> np.ndarray:
+def _chol_solve(c: np.ndarray, b: np.ndarray) -> np.ndarray:
     """M⁻¹ b from the factor of :func:`_cho_factor` (LAPACK potrs, as ``scipy.linalg.cho_solve``)."""
-    x, info = dpotrs(c, b, lower=0)
+    x, info = (_SCIPY or _scipy())[1](c, b, lower=0)
     if info != 0:
         raise ValueError(f"potrs: illegal value in argument {-info}")
     return x
+
+
+#: :func:`iterated_update`'s linear algebra: LAPACK Cholesky factor, solves with it, M⁻¹ as its solve of I
+LAPACK_CHOLESKY = (_chol_factor, _chol_solve, _chol_solve)
+#: the same in numpy only: the factor is the inverse itself, a solve its product
+NUMPY_INVERSE = (np.linalg.inv, lambda inv, b: inv @ b, lambda inv, eye: inv)
 
 
 class _Whitened:
@@ -171,6 +196,7 @@ def _whiten(residual_m, H, sigma_m=None, noise_chol=None):
     H = np.asarray(H, dtype=float)
     if noise_chol is not None:
         L = np.asarray(noise_chol, dtype=float)
+        solve_triangular = _scipy()[2]
         return solve_triangular(L, r, lower=True), solve_triangular(L, H, lower=True)
     s = np.broadcast_to(np.asarray(sigma_m, dtype=float), r.shape)
     return r / s, H / s[:, None]

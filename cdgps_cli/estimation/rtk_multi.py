@@ -9,6 +9,14 @@ RandomWalk).  Ionosphere model by baseline length: below ``iono_threshold_km`` (
 DD ionosphere is neglected (short-baseline model: each frequency fixed directly); above it, it is
 estimated ("ionosphere-estimating", prior σ ``iono_sigma_m_per_km`` × length).  GLONASS (FDMA)
 groups are kept float unless ``glonass_fix`` (identical receivers only).
+
+The filter is the engine's: each pass (forward, backward) is one
+:func:`~cdgps_cli.estimation.driver.drive` over the paired epochs with the dynamics
+:class:`_RtkDynamics`, the DD measurement model :class:`~cdgps_cli.measurement.dd_signals.DDGroupModel`
+(the single differences whitened as their double differences) and the ambiguity policy as the hook
+:class:`_AmbiguityHook` (new and re-biased ambiguity columns, integers by LAMBDA with the ratio and
+success-rate tests, fix-and-hold); the step is :class:`~cdgps_cli.estimation.kalman.StepFilter`'s
+iterated update in numpy only (scipy's import stays off `cdgps rtk`'s start-up).
 """
 
 from __future__ import annotations
@@ -22,17 +30,18 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.signals import signal, SYSTEM_NAMES
 from cdgps_cli.estimation.ambiguity import (SearchLimitError, bootstrap_success_rate, decorrelate, ld_factorize,
                                             ratio_test, search, success_tail)
-from cdgps_cli.measurement.epoch_pairing import age_variance_m2, carry_base_slips, pair_epochs
-from cdgps_cli.measurement.noise import correlated_variance_factor
-from cdgps_cli.core.gps_time import nominal_interval_s
-from cdgps_cli.model.dynamics_models import RandomWalk, Static
+from cdgps_cli.estimation.driver import EpochGrid, Hook, drive
+from cdgps_cli.estimation.kalman import NUMPY_INVERSE, StepFilter
+from cdgps_cli.measurement.dd_signals import DDGroupModel, backward_slips, epoch_groups, paired_sd_rows
+from cdgps_cli.measurement.epoch_pairing import pair_epochs
+from cdgps_cli.model.dynamics_models import ConstantVelocity, RandomWalk, Static
 from cdgps_cli.model.gps.orbits import OMEGA_E_GPS, azimuth_elevation, ecef_to_geodetic, sat_position_ecef, select_ephemeris
 from cdgps_cli.model.gps.positioning import ephemeris_coverage, tropo_hydrostatic_m
 
-__all__ = ["receiver_geometry", "solve_rtk", "check_common_signals"]
+__all__ = ["receiver_geometry", "solve_rtk", "check_common_signals", "RTK_MODES"]
 
-_LAMBDA_L1 = signal("G:L1").wavelength_m
-
+#: motion models of the rover on the one engine: random-walk position, position + velocity, one position
+RTK_MODES = ("kinematic", "constant-velocity", "static")
 
 def check_common_signals(base: pd.DataFrame, rover: pd.DataFrame, names, nav, where: dict) -> None:
     """CdgpsError when a signal is not observed by both receivers or a system has no ephemeris."""
@@ -101,104 +110,36 @@ def _row_ephemerides(nav: pd.DataFrame, sats: np.ndarray, t: np.ndarray) -> pd.D
     return pd.concat(parts, ignore_index=True).iloc[pos].reset_index(drop=True)
 
 
-_PAIR_COLS = ["time_gps_s", "sat", "signal", "phase_cycles", "pseudorange_m", "lli", "sx", "sy", "sz", "sat_clock_m",
-              "trop_m"]
-
-
 def _few(sats) -> str:
     """Satellite names, sorted, the first 12 and the count."""
     s = sorted(set(np.asarray(sats).astype(str).tolist()))
     return " ".join(s[:12]) + (f" … ({len(s)})" if len(s) > 12 else "") if s else "no satellite"
 
 
-def _paired_rows(base, rover, pairs, opt) -> dict:
-    """Base and rover rows of the whole run paired on (epoch pair, satellite, signal), once, as numpy columns.
-
-    ``pairs`` (:func:`~cdgps_cli.measurement.epoch_pairing.pair_epochs`) gives each used rover epoch
-    its base epoch; a base epoch may serve several rover epochs (a base with gaps or a lower rate),
-    its slip flags only the first of them.  Rows above the mask (base elevation), ordered by epoch,
-    then signal name, then the base's row order; ``ptr`` (n_ep + 1,) bounds each epoch, ``code``
-    (N,) the signal's index in ``names``.  Per row: ``sats``, ``lam_m``, ``mu``, ``el`` (rad),
-    ``sat_xyz`` / ``sat_base_xyz`` (N, 3, m), ``phase_sd_m`` / ``code_sd_m`` (m, rover − base, each
-    receiver's satellite clock and, when asked, troposphere removed), ``slip``, ``var_phase`` /
-    ``var_code`` (m², the base age's share included).
-    """
-    tb = np.unique(base["time_gps_s"].to_numpy())
-    tr = np.unique(rover["time_gps_s"].to_numpy())
-    n_ep = pairs.rover_time_s.size
-    pair_of_rover = np.full(tr.size, -1, dtype=np.int64)
-    pair_of_rover[pairs.rover_index] = np.arange(n_ep)
-    first_use = np.r_[True, pairs.base_index[1:] != pairs.base_index[:-1]] if n_ep else np.zeros(0, bool)
-    bep = np.searchsorted(tb, base["time_gps_s"].to_numpy())
-    lli_b = carry_base_slips(bep, base["sat"].to_numpy().astype(str) + base["signal"].to_numpy().astype(str),
-                             base["lli"].to_numpy(dtype=np.int64), np.bincount(pairs.base_index, minlength=tb.size))
-    b = base.assign(_row_b=np.arange(len(base)), _bep=bep, lli=lli_b)
-    rep = np.searchsorted(tr, rover["time_gps_s"].to_numpy())
-    ep_r = pair_of_rover[rep]
-    # the rover's slip flags of epochs that are not used move to the channel's next used epoch
-    lli_r = carry_base_slips(rep, rover["sat"].to_numpy().astype(str) + rover["signal"].to_numpy().astype(str),
-                             rover["lli"].to_numpy(dtype=np.int64), (pair_of_rover >= 0).astype(np.int64))
-    r = rover[_PAIR_COLS].assign(_row_r=np.arange(len(rover)), _ep=ep_r, lli=lli_r)[ep_r >= 0]
-    r = r.assign(_bep=pairs.base_index[r["_ep"].to_numpy()])
-    m = b.merge(r, on=["_bep", "sat", "signal"], suffixes=("_b", "_r"))
-    m = m[m["el_rad"] >= np.radians(opt["mask_deg"])]
-    m = m.sort_values(["_ep", "signal", "_row_b", "_row_r"], kind="stable")
-    names, code = np.unique(m["signal"].to_numpy().astype(str), return_inverse=True)
-    epoch = m["_ep"].to_numpy()
-    lam = m["wavelength_m"].to_numpy(dtype=float)
-    el = m["el_rad"].to_numpy(dtype=float)
-    var = 2 * (opt["sigma_a_m"] ** 2 + opt["sigma_b_m"] ** 2 / np.sin(el) ** 2)
-    var_age = age_variance_m2(pairs.age_s[epoch], opt["sync_tol_s"], opt["age_sigma_m_per_s"])
-    dtrop = m["trop_m_r"].to_numpy() - m["trop_m_b"].to_numpy() if opt["troposphere"] else 0.0
-    dclk = m["sat_clock_m_r"].to_numpy() - m["sat_clock_m_b"].to_numpy()
-    slip_b = ((m["lli_b"].to_numpy() & 1) > 0) & first_use[epoch]
-    return {
-        "ptr": np.searchsorted(epoch, np.arange(n_ep + 1)), "names": names, "code": code.reshape(-1),
-        "sats": m["sat"].to_numpy(), "lam_m": lam, "el": el,
-        "mu": (lam / _LAMBDA_L1) ** 2,        # (f_L1 / f)², per satellite (GLONASS FDMA)
-        "sat_xyz": m[["sx_r", "sy_r", "sz_r"]].to_numpy(), "sat_base_xyz": m[["sx_b", "sy_b", "sz_b"]].to_numpy(),
-        "phase_sd_m": lam * (m["phase_cycles_r"].to_numpy() - m["phase_cycles_b"].to_numpy()) + dclk - dtrop,
-        "code_sd_m": m["pseudorange_m_r"].to_numpy() - m["pseudorange_m_b"].to_numpy() + dclk - dtrop,
-        "slip": ((m["lli_r"].to_numpy() & 1) > 0) | slip_b,
-        # LLI bit 1: half-cycle ambiguity not resolved by the receiver (u-blox before it decodes the
-        # data bits): the phase may be off by λ/2; such a row has an ambiguity of its own, never fixed
-        "half": ((m["lli_r"].to_numpy() | m["lli_b"].to_numpy()) & 2) > 0,
-        "var_phase": var + var_age,
-        "var_code": var * opt["code_ratio"] ** 2 * correlated_variance_factor(nominal_interval_s(pairs.rover_time_s),
-                                                                             opt["code_correlation_s"]) + var_age,
-    }
-
-
-_ROW_KEYS = ("sats", "lam_m", "mu", "sat_xyz", "sat_base_xyz", "phase_sd_m", "code_sd_m", "slip", "half", "var_phase",
-             "var_code")
-
-
-def _epoch_groups(rows, k):
-    """Signal groups (≥ 2 satellites) of epoch ``k``: views of :func:`_paired_rows` columns, ``ref`` the
-    highest base elevation."""
-    lo, hi = rows["ptr"][k], rows["ptr"][k + 1]
-    code = rows["code"][lo:hi]
-    cuts = [lo, *(lo + np.flatnonzero(code[1:] != code[:-1]) + 1), hi]
-    groups = []
-    for a, b in zip(cuts[:-1], cuts[1:]):
-        if b - a < 2:
-            continue
-        g = {key: rows[key][a:b] for key in _ROW_KEYS}
-        g["signal"] = str(rows["names"][rows["code"][a]])
-        el = np.where(g["half"], -np.inf, rows["el"][a:b]) if not g["half"].all() else rows["el"][a:b]
-        g["ref"] = int(np.argmax(el))          # highest, preferring satellites without a half-cycle flag
-        groups.append(g)
-    return groups
-
-
 class _State:
-    """Ambiguity / ionosphere columns appearing and vanishing with the satellites (``index``: key → column)."""
+    """Ambiguity / ionosphere columns appearing and vanishing with the satellites (``index``: key → column)
+    of the filter ``step`` (a :class:`~cdgps_cli.estimation.kalman.StepFilter`: ``x``, ``P`` are its own)."""
 
-    def __init__(self, n_pos):
+    def __init__(self, n_pos, step=None):
         self.keys = [("pos", i) for i in range(n_pos)]
         self.index = {k: i for i, k in enumerate(self.keys)}
-        self.x = np.zeros(n_pos)
-        self.P = np.eye(n_pos) * 1e4
+        self.step = step if step is not None else StepFilter(np.zeros(n_pos), np.eye(n_pos) * 1e4, NUMPY_INVERSE)
+
+    @property
+    def x(self):
+        return self.step.x
+
+    @x.setter
+    def x(self, value):
+        self.step.x = value
+
+    @property
+    def P(self):
+        return self.step.P
+
+    @P.setter
+    def P(self, value):
+        self.step.P = value
 
     def keep(self, wanted):
         idx = [i for i, k in enumerate(self.keys) if k[0] == "pos" or k in wanted]
@@ -363,58 +304,6 @@ def _fix(st, groups, opt, carried):
     return st.x[:3] - dx, len(res["integers"]), res["ratio"], 0.5 * (cov + cov.T), res["partial"]
 
 
-def _epoch_update(xb, Pb, groups, base_xyz, origin, iterations):
-    """The iterated update of one epoch (Gauss–Newton, relinearized at each iterate from the prior
-    ``xb``, ``Pb``), in information form on the single differences.
-
-    Each group's DDs ``D z`` with noise ``D Σ Dᵀ`` (Σ = diag(v), SD variances) carry the same
-    information as the SDs weighted by ``W = Dᵀ (D Σ Dᵀ)⁻¹ D = Σ⁻¹ − Σ⁻¹ 1 1ᵀ Σ⁻¹ / (1ᵀ Σ⁻¹ 1)``
-    whatever the reference (``D 1 = 0``, rank m − 1): the update needs no DD operator and no
-    Cholesky factor of the DD noise.  Per iteration, with H, r the SD rows at the iterate x_i,
-    ``P = (P̄⁻¹ + Hᵀ W H)⁻¹`` and ``x_{i+1} = x̄ + P Hᵀ W (r + H (x_i − x̄))``.
-
-    Returns the updated state (n,) and covariance (n, n).
-    """
-    sizes = np.array([len(g["sats"]) for g in groups])
-    M = int(sizes.sum())
-
-    def cat(key):
-        return np.concatenate([g[key] for g in groups])
-
-    sx, amb, ion = cat("sat_xyz"), cat("amb_col"), cat("iono_col")
-    lam, mu = cat("lam_m"), cat("mu")
-    z = np.concatenate([cat("phase_sd_m"), cat("code_sd_m")])
-    w = 1.0 / np.concatenate([cat("var_phase"), cat("var_code")])
-    sizes2 = np.concatenate([sizes, sizes])                       # phase blocks, then code blocks
-    block = np.repeat(np.arange(2 * sizes.size), sizes2)
-    starts = np.cumsum(sizes2) - sizes2
-    w_sum = np.add.reduceat(w, starts)
-    base_rng = np.linalg.norm(cat("sat_base_xyz") - base_xyz, axis=1)
-    n = xb.size
-    rows = np.arange(M)
-    H = np.zeros((2 * M, n))
-    H[rows, amb] = lam
-    has_iono = bool(np.all(ion >= 0))
-    if has_iono:
-        H[rows, ion] = -mu
-        H[M + rows, ion] = mu
-    P_inv = np.linalg.inv(Pb)
-    x, P = xb, Pb
-    for _ in range(iterations):
-        los = sx - (origin + x[:3])
-        rng = np.sqrt(np.einsum("ij,ij->i", los, los))
-        H[:M, :3] = H[M:, :3] = -los / rng[:, None]
-        geo = rng - base_rng
-        iono_m = mu * x[ion] if has_iono else 0.0
-        r = z - np.concatenate([geo + lam * x[amb] - iono_m, geo + iono_m]) + H @ (x - xb)
-        wH = w[:, None] * H
-        WH = wH - w[:, None] * (np.add.reduceat(wH, starts, axis=0) / w_sum[:, None])[block]
-        P = np.linalg.inv(P_inv + H.T @ WH)
-        P = 0.5 * (P + P.T)
-        x = xb + P @ (WH.T @ r)
-    return x, P
-
-
 #: variance of the fix-and-hold pseudo-measurement of a fixed integer combination, cycles² (RTKLIB's VAR_HOLDAMB)
 HOLD_VARIANCE_CYCLES2 = 0.001
 
@@ -477,9 +366,9 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
     if not common:
         raise CdgpsError(f"no common satellites: the base observes {_few(base['sat'])}, the rover {_few(rover['sat'])} "
                          f"(signals asked for); a double difference needs satellites observed at both receivers")
-    rows = _paired_rows(base, rover, pairs, opt)
+    rows = paired_sd_rows(base, rover, pairs, opt)
     n_ep = times.size
-    if not any(_epoch_groups(rows, k) for k in range(n_ep)):
+    if not any(epoch_groups(rows, k) for k in range(n_ep)):
         raise CdgpsError(f"no double differences: no epoch of the {n_ep} paired has two satellites of one signal "
                          f"observed at both receivers above the {opt['mask_deg']:g}° mask")
     fwd = _filter_pass(rows, times, range(n_ep), opt, base_xyz, origin, iono, progress)
@@ -487,7 +376,7 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
     if direction == "forward":
         res = fwd
     else:
-        back_rows = dict(rows, slip=_backward_slips(rows))
+        back_rows = dict(rows, slip=backward_slips(rows))
         bwd = _filter_pass(back_rows, times, range(n_ep - 1, -1, -1), opt, base_xyz, origin, iono, None)
         res = bwd if direction == "backward" else _combine(fwd, bwd)
     ok = res["fixed"]
@@ -502,64 +391,118 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
 
 
 def _filter_pass(rows, times, order, opt, base_xyz, origin, iono, progress) -> dict:
-    """One Kalman pass over the epochs in ``order`` (forward or backward); per epoch (in time order)
-    the float and fixed positions (ECEF, m) and covariances, the DD ambiguities fixed, whether only
-    a partial set was (the position is then kept as float), the ratio and the satellites used."""
+    """One Kalman pass over the epochs in ``order`` (forward or backward) on the engine's driver
+    (:func:`~cdgps_cli.estimation.driver.drive`): the dynamics :class:`_RtkDynamics`, the DD model
+    :class:`~cdgps_cli.measurement.dd_signals.DDGroupModel`, the hook :class:`_AmbiguityHook` (new
+    and re-biased ambiguity columns, integer fixing, fix-and-hold) and the sink :class:`_FloatSink`.
+    Per epoch (in time order) the float and fixed positions (ECEF, m) and covariances, the DD
+    ambiguities fixed, whether only a partial set was (the position is then kept as float), the
+    ratio and the satellites used."""
+    order = np.asarray(list(order), dtype=np.int64)
     n_ep = times.size
-    pos_dyn = Static(3) if opt["mode"] == "static" else RandomWalk(3, opt["kinematic_sigma_m_per_sqrt_s"])
-    st = _State(3)
     out = {"float_xyz": np.full((n_ep, 3), np.nan), "fixed_xyz": np.full((n_ep, 3), np.nan),
            "float_cov": np.full((n_ep, 3, 3), np.nan), "fixed_cov": np.full((n_ep, 3, 3), np.nan),
            "n_fixed": np.zeros(n_ep, dtype=np.int64), "ratio": np.full(n_ep, np.nan),
            "partial": np.zeros(n_ep, dtype=bool), "ns": np.zeros(n_ep, dtype=np.int64)}
-    carried = _CarriedDecorrelation()
-    t_prev, run = None, 0                    # run: consecutive fixed epochs (fix-and-hold waits for hold_after_fixes)
-    for i, k in enumerate(order):
-        t = times[k]
-        groups = _epoch_groups(rows, k)
-        if t_prev is not None:
-            dt = abs(t - t_prev)
-            _, _, Q = pos_dyn.transition(dt)
-            st.P[:3, :3] += Q
-            if iono:
-                ion = [j for j, key in enumerate(st.keys) if key[0] == "I"]
-                st.P[ion, ion] += opt["iono_rw_m_per_sqrt_s"] ** 2 * dt
-        t_prev = t
-        _prepare_state(st, groups, opt, iono)
-        if groups:                           # iterated update (relinearized at the new estimate; same noise)
-            st.x, st.P = _epoch_update(st.x, st.P, groups, base_xyz, origin, 2 if i else 4)
-        fx, n, ratio, fx_cov, partial = _fix(st, groups, opt, carried) if (groups and opt["fix"]) else (None, 0, np.nan, None, False)
-        out["float_xyz"][k] = origin + st.x[:3]
-        out["float_cov"][k] = st.P[:3, :3]
-        if fx is not None and partial:             # part of the set: a better float, not a fixed position
-            out["float_xyz"][k], out["float_cov"][k] = origin + fx, fx_cov
-        elif fx is not None:
-            out["fixed_xyz"][k], out["fixed_cov"][k] = origin + fx, fx_cov
-        run = run + 1 if (fx is not None and not partial) else 0
-        if opt["fix_and_hold"] and run >= opt["hold_after_fixes"]:
-            _hold(st, carried.last_fix)
-        out["n_fixed"][k], out["ratio"][k], out["partial"][k] = n, ratio, partial
-        out["ns"][k] = len({s for g in groups for s in g["sats"]})
-        if progress is not None:
-            progress(i + 1, n_ep)
+    st = _State(_n_motion(opt))
+    model = DDGroupModel(lambda i: epoch_groups(rows, order[i]), base_xyz, origin)
+    source = EpochGrid(times[order])
+    hook = _AmbiguityHook(st, model, order, opt, iono, out, progress)
+    dyn, sink = _RtkDynamics(st, source.time_s, opt, iono), _FloatSink(order, origin, out)
+    # the first epoch relinearizes up to 4 times (the a-priori position may be metres off), the others twice
+    drive(dyn, [model], EpochGrid(source.time_s[:1]), st.step, hooks=[hook], sink=sink, max_iterations=4)
+    drive(dyn, [model], source, st.step, hooks=[hook], sink=sink, max_iterations=2, k0=1)
     out["fixed"] = np.isfinite(out["fixed_xyz"][:, 0])
     return out
 
 
-def _backward_slips(rows) -> np.ndarray:
-    """Slip flags for a pass backward in time: a flag at a channel's row (a new ambiguity from that
-    epoch on) belongs, going backward, to the channel's previous row."""
-    n = rows["sats"].size
-    epoch = np.repeat(np.arange(rows["ptr"].size - 1), np.diff(rows["ptr"]))
-    key = np.char.add(rows["sats"].astype(str), rows["code"].astype(str))
-    order = np.lexsort((epoch, key))
-    k_o, s_o = key[order], rows["slip"][order]
-    nxt = np.zeros(n, dtype=bool)
-    same = k_o[1:] == k_o[:-1]
-    nxt[:-1] = same & s_o[1:]
-    out = np.zeros(n, dtype=bool)
-    out[order] = nxt
-    return out
+def _n_motion(opt) -> int:
+    """Motion states of the rover: position (3), and velocity (3) in constant-velocity mode."""
+    return 6 if opt["mode"] == "constant-velocity" else 3
+
+
+def _motion_model(opt):
+    """The rover's dynamics for ``mode`` (:data:`RTK_MODES`)."""
+    if opt["mode"] == "static":
+        return Static(3)
+    if opt["mode"] == "constant-velocity":
+        return ConstantVelocity(3, opt["accel_sigma_m_per_s_per_sqrt_s"])
+    return RandomWalk(3, opt["kinematic_sigma_m_per_sqrt_s"])
+
+
+class _RtkDynamics:
+    """Prediction of the rtk state between the drive's epochs: the rover's motion states by
+    :func:`_motion_model` (static, random-walk or constant-velocity position), each SD ionosphere a
+    random walk, ambiguities constant; A and Q sized to the state's columns of the moment (|Δt|: a
+    backward pass runs the same model; A is the identity but in constant-velocity mode)."""
+
+    def __init__(self, st, time_s, opt, iono):
+        self.st, self.time_s, self.iono = st, time_s, iono
+        self.motion = _motion_model(opt)
+        self.identity = self.motion.identity_transition
+        self.iono_q = opt["iono_rw_m_per_sqrt_s"] ** 2
+
+    def step_into(self, k):
+        dt = abs(float(self.time_s[k] - self.time_s[k - 1]))
+        n, m = len(self.st.keys), self.motion.n
+        A_m, _, Q_m = self.motion.transition(dt)
+        Q = np.zeros((n, n))
+        Q[:m, :m] = Q_m
+        if self.iono:
+            ion = [j for j, key in enumerate(self.st.keys) if key[0] == "I"]
+            Q[ion, ion] = self.iono_q * dt
+        if self.identity:
+            return None, Q, None
+        A = np.eye(n)
+        A[:m, :m] = A_m
+        return A, Q, None
+
+
+class _FloatSink:
+    """The drive's sink: each epoch's float position (ECEF, m) and its covariance, in time order."""
+
+    def __init__(self, order, origin, out):
+        self.order, self.origin, self.out = order, origin, out
+
+    def write(self, i, x, P):
+        k = self.order[i]
+        self.out["float_xyz"][k] = self.origin + x[:3]
+        self.out["float_cov"][k] = P[:3, :3]
+
+    def release_before(self, i):
+        return None
+
+
+class _AmbiguityHook(Hook):
+    """The rtk ambiguity policy as driver hooks: ``prepared`` opens a column per new ambiguity (and
+    ionosphere) and re-biases slipped channels (:func:`_prepare_state`); ``after`` fixes the DD
+    integers (:func:`_fix`, the policy of :meth:`_CarriedDecorrelation.resolve`), records the fixed
+    (or, for a partial set, improved float) position and holds the integers (fix-and-hold)."""
+
+    def __init__(self, st, model, order, opt, iono, out, progress):
+        self.st, self.model, self.order, self.opt, self.iono, self.out = st, model, order, opt, iono, out
+        self.progress, self.carried, self.run = progress, _CarriedDecorrelation(), 0
+
+    def prepared(self, ctx, i):
+        _prepare_state(self.st, self.model.groups, self.opt, self.iono)
+
+    def after(self, ctx, i, i_next):
+        st, groups, opt, out, k = self.st, self.model.groups, self.opt, self.out, self.order[i]
+        fx, n, ratio, fx_cov, partial = (_fix(st, groups, opt, self.carried) if (groups and opt["fix"])
+                                         else (None, 0, np.nan, None, False))
+        origin = self.model.origin
+        if fx is not None and partial:             # part of the set: a better float, not a fixed position
+            out["float_xyz"][k], out["float_cov"][k] = origin + fx, fx_cov
+        elif fx is not None:
+            out["fixed_xyz"][k], out["fixed_cov"][k] = origin + fx, fx_cov
+        self.run = self.run + 1 if (fx is not None and not partial) else 0
+        if opt["fix_and_hold"] and self.run >= opt["hold_after_fixes"]:
+            _hold(st, self.carried.last_fix)
+        out["n_fixed"][k], out["ratio"][k], out["partial"][k] = n, ratio, partial
+        out["ns"][k] = len({s for g in groups for s in g["sats"]})
+        if self.progress is not None:
+            self.progress(i + 1, self.order.size)
+        return i_next
 
 
 #: χ²(3) at 0.999: forward and backward fixed positions farther apart than this disagree

@@ -21,6 +21,13 @@ lock segments, the SD phase residual at the nominal positions); its DDs, each gr
 reference satellite with D Σ Dᵀ, are formed by :class:`cdgps_cli.measurement.model.SatelliteDDModal`
 with the group as one slot (satellites named ``G05:L2``, so that only rows of one signal correlate
 through the common master).
+
+The rtk path (:mod:`cdgps_cli.estimation.rtk_multi`) pairs the run's base and rover rows once
+(:func:`paired_sd_rows`, on the epochs of :func:`~cdgps_cli.measurement.epoch_pairing.pair_epochs`),
+cuts each epoch into its signal groups (:func:`epoch_groups`) and hands them to the engine's
+measurement model :class:`DDGroupModel`, whose :class:`GroupRows` keep the single differences and
+weight them as their double differences (the information of :func:`epoch_rows`' Cholesky-whitened
+DD rows, without forming D or factoring D Σ Dᵀ).
 """
 
 from __future__ import annotations
@@ -32,9 +39,13 @@ from types import SimpleNamespace
 import pandas as pd
 
 from cdgps_cli.core.gps_time import nominal_interval_s
+from cdgps_cli.core.signals import signal
 from cdgps_cli.measurement.differencing import ambiguity_segments, dd_covariance, dd_operator, epoch_pointers
+from cdgps_cli.measurement.epoch_pairing import age_variance_m2, carry_base_slips
+from cdgps_cli.measurement.noise import correlated_variance_factor
 
-__all__ = ["dd_range", "epoch_rows", "signal_sd_table", "group_key"]
+__all__ = ["dd_range", "epoch_rows", "signal_sd_table", "group_key", "DDGroupModel", "GroupRows", "paired_sd_rows",
+           "epoch_groups", "backward_slips"]
 
 
 def group_key(sat: str, signal_name: str) -> str:
@@ -181,3 +192,199 @@ def epoch_rows(x, groups, base_xyz_m, origin_xyz_m, n_state: int, noise_chol=Non
         C[k:k + len(c), k:k + len(c)] = c
         k += len(c)
     return np.concatenate(rs), np.vstack(Hs), np.linalg.cholesky(C)
+
+
+class GroupRows:
+    """One epoch's single differences of signal groups, weighted as their double differences.
+
+    ``z_m`` (2M,) holds the groups' SD phases (M rows, group after group), then their SD ranges;
+    each group's phase block and code block is one block of ``starts``.  A block's DDs ``D z`` with
+    noise ``D Σ Dᵀ`` (Σ = diag(var), SD variances) carry the information of the SDs weighted by
+    ``W = Σ⁻¹ − Σ⁻¹ 1 1ᵀ Σ⁻¹ / (1ᵀ Σ⁻¹ 1)`` whatever the reference (``D 1 = 0``): :meth:`whiten`
+    applies ``B = (I − u uᵀ) Σ^{-1/2}``, ``u = Σ^{-1/2} 1 / ‖Σ^{-1/2} 1‖``, with ``Bᵀ B = W`` (one
+    row per SD, rank m − 1 per block), so the engine's update needs no DD operator and no
+    Cholesky factor of the DD noise.  ``context`` holds what :meth:`DDGroupModel.predict` needs.
+    The NIS the driver computes on these rows has 2M − (number of blocks) degrees of freedom, one
+    fewer per block than ``z_m.size`` (the driver's ``nis_dof``); rtk does not use it.
+    """
+
+    def __init__(self, z_m, var_m2, sizes, context):
+        self.z_m = z_m
+        inv_sigma = 1.0 / np.sqrt(var_m2)
+        block = np.repeat(np.arange(sizes.size), sizes)
+        norm2 = np.add.reduceat(inv_sigma * inv_sigma, np.cumsum(sizes) - sizes)
+        rows = np.arange(z_m.size)
+        U = np.zeros((sizes.size, z_m.size))          # block b's row holds its u: Uᵀ U = blockdiag(u uᵀ)
+        U[block, rows] = inv_sigma / np.sqrt(norm2[block])
+        B = -(U.T @ U)
+        B[rows, rows] += 1.0
+        B *= inv_sigma                                 # B (2M, 2M) = (I − blockdiag(u uᵀ)) Σ^{-1/2}
+        self.B = B
+        self.context = context
+
+    def whiten(self, v):
+        """B v for v (2M,) or (2M, p)."""
+        return self.B @ v
+
+
+class DDGroupModel:
+    """The engine's measurement model of the multi-GNSS double differences (module docstring).
+
+    ``groups_of(k)`` gives epoch k's signal groups (dicts as for :func:`epoch_rows`, their
+    ``amb_col`` / ``iono_col`` set by the time :meth:`rows` runs: the driver's ``prepared`` hooks
+    open the state columns).  The state is [rover offset from ``origin_xyz_m`` (3, m), SD
+    ambiguities (cycles), SD slant ionosphere at L1 (m)…]; its size is read from the drive's
+    context at :meth:`prepare`.
+    """
+
+    def __init__(self, groups_of, base_xyz_m, origin_xyz_m):
+        self.groups_of = groups_of
+        self.base_xyz = np.asarray(base_xyz_m, dtype=float)
+        self.origin = np.asarray(origin_xyz_m, dtype=float)
+        self.groups, self._ctx = [], None
+
+    def prepare(self, k: int, ctx) -> None:
+        """Epoch k's groups (the hooks that follow open their state columns)."""
+        self.groups, self._ctx = self.groups_of(k), ctx
+
+    def rows(self, k: int):
+        """:class:`GroupRows` of epoch k, or None without a group."""
+        groups = self.groups
+        if not groups:
+            return None
+        sizes = np.array([len(g["sats"]) for g in groups])
+
+        def cat(key):
+            return np.concatenate([g[key] for g in groups])
+
+        M, n = int(sizes.sum()), len(self._ctx.x)
+        amb, ion, lam, mu = cat("amb_col"), cat("iono_col"), cat("lam_m"), cat("mu")
+        H = np.zeros((2 * M, n))
+        H[np.arange(M), amb] = lam
+        has_iono = bool(np.all(ion >= 0))
+        if has_iono:
+            H[np.arange(M), ion] = -mu
+            H[M + np.arange(M), ion] = mu
+        sx = cat("sat_xyz")
+        los_b = cat("sat_base_xyz") - self.base_xyz
+        ctx = {"sat_xyz": sx, "base_rng": np.sqrt(np.einsum("ij,ij->i", los_b, los_b)),
+               "lam": lam, "mu": mu, "amb": amb, "ion": ion if has_iono else None, "H": H, "M": M}
+        return GroupRows(np.concatenate([cat("phase_sd_m"), cat("code_sd_m")]),
+                         np.concatenate([cat("var_phase"), cat("var_code")]), np.concatenate([sizes, sizes]), ctx)
+
+    def predict(self, x, rows):
+        """h(x) (2M,) m and H (2M, n) of :meth:`rows`' SDs (the rows' H template, position columns set)."""
+        c = rows.context
+        los = c["sat_xyz"] - (self.origin + x[:3])
+        rng = np.sqrt(np.einsum("ij,ij->i", los, los))
+        H, M = c["H"], c["M"]
+        H[:M, :3] = H[M:, :3] = -los / rng[:, None]
+        geo = rng - c["base_rng"]
+        iono_m = c["mu"] * x[c["ion"]] if c["ion"] is not None else 0.0
+        return np.concatenate([geo + c["lam"] * x[c["amb"]] - iono_m, geo + iono_m]), H
+
+
+# ----------------------------------------------------------------------------------------------
+# the run's SD rows, paired once, and each epoch's signal groups (the rows of DDGroupModel)
+# ----------------------------------------------------------------------------------------------
+
+_LAMBDA_L1 = signal("G:L1").wavelength_m
+
+_PAIR_COLS = ["time_gps_s", "sat", "signal", "phase_cycles", "pseudorange_m", "lli", "sx", "sy", "sz", "sat_clock_m",
+              "trop_m"]
+
+
+def paired_sd_rows(base, rover, pairs, opt) -> dict:
+    """Base and rover rows of the whole run paired on (epoch pair, satellite, signal), once, as numpy columns.
+
+    ``pairs`` (:func:`~cdgps_cli.measurement.epoch_pairing.pair_epochs`) gives each used rover epoch
+    its base epoch; a base epoch may serve several rover epochs (a base with gaps or a lower rate),
+    its slip flags only the first of them.  Rows above the mask (base elevation), ordered by epoch,
+    then signal name, then the base's row order; ``ptr`` (n_ep + 1,) bounds each epoch, ``code``
+    (N,) the signal's index in ``names``.  Per row: ``sats``, ``lam_m``, ``mu``, ``el`` (rad),
+    ``sat_xyz`` / ``sat_base_xyz`` (N, 3, m), ``phase_sd_m`` / ``code_sd_m`` (m, rover − base, each
+    receiver's satellite clock and, when asked, troposphere removed), ``slip``, ``var_phase`` /
+    ``var_code`` (m², the base age's share included).
+    """
+    tb = np.unique(base["time_gps_s"].to_numpy())
+    tr = np.unique(rover["time_gps_s"].to_numpy())
+    n_ep = pairs.rover_time_s.size
+    pair_of_rover = np.full(tr.size, -1, dtype=np.int64)
+    pair_of_rover[pairs.rover_index] = np.arange(n_ep)
+    first_use = np.r_[True, pairs.base_index[1:] != pairs.base_index[:-1]] if n_ep else np.zeros(0, bool)
+    bep = np.searchsorted(tb, base["time_gps_s"].to_numpy())
+    lli_b = carry_base_slips(bep, base["sat"].to_numpy().astype(str) + base["signal"].to_numpy().astype(str),
+                             base["lli"].to_numpy(dtype=np.int64), np.bincount(pairs.base_index, minlength=tb.size))
+    b = base.assign(_row_b=np.arange(len(base)), _bep=bep, lli=lli_b)
+    rep = np.searchsorted(tr, rover["time_gps_s"].to_numpy())
+    ep_r = pair_of_rover[rep]
+    # the rover's slip flags of epochs that are not used move to the channel's next used epoch
+    lli_r = carry_base_slips(rep, rover["sat"].to_numpy().astype(str) + rover["signal"].to_numpy().astype(str),
+                             rover["lli"].to_numpy(dtype=np.int64), (pair_of_rover >= 0).astype(np.int64))
+    r = rover[_PAIR_COLS].assign(_row_r=np.arange(len(rover)), _ep=ep_r, lli=lli_r)[ep_r >= 0]
+    r = r.assign(_bep=pairs.base_index[r["_ep"].to_numpy()])
+    m = b.merge(r, on=["_bep", "sat", "signal"], suffixes=("_b", "_r"))
+    m = m[m["el_rad"] >= np.radians(opt["mask_deg"])]
+    m = m.sort_values(["_ep", "signal", "_row_b", "_row_r"], kind="stable")
+    names, code = np.unique(m["signal"].to_numpy().astype(str), return_inverse=True)
+    epoch = m["_ep"].to_numpy()
+    lam = m["wavelength_m"].to_numpy(dtype=float)
+    el = m["el_rad"].to_numpy(dtype=float)
+    var = 2 * (opt["sigma_a_m"] ** 2 + opt["sigma_b_m"] ** 2 / np.sin(el) ** 2)
+    var_age = age_variance_m2(pairs.age_s[epoch], opt["sync_tol_s"], opt["age_sigma_m_per_s"])
+    dtrop = m["trop_m_r"].to_numpy() - m["trop_m_b"].to_numpy() if opt["troposphere"] else 0.0
+    dclk = m["sat_clock_m_r"].to_numpy() - m["sat_clock_m_b"].to_numpy()
+    slip_b = ((m["lli_b"].to_numpy() & 1) > 0) & first_use[epoch]
+    return {
+        "ptr": np.searchsorted(epoch, np.arange(n_ep + 1)), "names": names, "code": code.reshape(-1),
+        "sats": m["sat"].to_numpy(), "lam_m": lam, "el": el,
+        "mu": (lam / _LAMBDA_L1) ** 2,        # (f_L1 / f)², per satellite (GLONASS FDMA)
+        "sat_xyz": m[["sx_r", "sy_r", "sz_r"]].to_numpy(), "sat_base_xyz": m[["sx_b", "sy_b", "sz_b"]].to_numpy(),
+        "phase_sd_m": lam * (m["phase_cycles_r"].to_numpy() - m["phase_cycles_b"].to_numpy()) + dclk - dtrop,
+        "code_sd_m": m["pseudorange_m_r"].to_numpy() - m["pseudorange_m_b"].to_numpy() + dclk - dtrop,
+        "slip": ((m["lli_r"].to_numpy() & 1) > 0) | slip_b,
+        # LLI bit 1: half-cycle ambiguity not resolved by the receiver (u-blox before it decodes the
+        # data bits): the phase may be off by λ/2; such a row has an ambiguity of its own, never fixed
+        "half": ((m["lli_r"].to_numpy() | m["lli_b"].to_numpy()) & 2) > 0,
+        "var_phase": var + var_age,
+        "var_code": var * opt["code_ratio"] ** 2 * correlated_variance_factor(nominal_interval_s(pairs.rover_time_s),
+                                                                             opt["code_correlation_s"]) + var_age,
+    }
+
+
+_ROW_KEYS = ("sats", "lam_m", "mu", "sat_xyz", "sat_base_xyz", "phase_sd_m", "code_sd_m", "slip", "half", "var_phase",
+             "var_code")
+
+
+def epoch_groups(rows, k):
+    """Signal groups (≥ 2 satellites) of epoch ``k``: views of :func:`paired_sd_rows` columns, ``ref`` the
+    highest base elevation."""
+    lo, hi = rows["ptr"][k], rows["ptr"][k + 1]
+    code = rows["code"][lo:hi]
+    cuts = [lo, *(lo + np.flatnonzero(code[1:] != code[:-1]) + 1), hi]
+    groups = []
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        if b - a < 2:
+            continue
+        g = {key: rows[key][a:b] for key in _ROW_KEYS}
+        g["signal"] = str(rows["names"][rows["code"][a]])
+        el = np.where(g["half"], -np.inf, rows["el"][a:b]) if not g["half"].all() else rows["el"][a:b]
+        g["ref"] = int(np.argmax(el))          # highest, preferring satellites without a half-cycle flag
+        groups.append(g)
+    return groups
+
+
+def backward_slips(rows) -> np.ndarray:
+    """Slip flags for a pass backward in time: a flag at a channel's row (a new ambiguity from that
+    epoch on) belongs, going backward, to the channel's previous row."""
+    n = rows["sats"].size
+    epoch = np.repeat(np.arange(rows["ptr"].size - 1), np.diff(rows["ptr"]))
+    key = np.char.add(rows["sats"].astype(str), rows["code"].astype(str))
+    order = np.lexsort((epoch, key))
+    k_o, s_o = key[order], rows["slip"][order]
+    nxt = np.zeros(n, dtype=bool)
+    same = k_o[1:] == k_o[:-1]
+    nxt[:-1] = same & s_o[1:]
+    out = np.zeros(n, dtype=bool)
+    out[order] = nxt
+    return out

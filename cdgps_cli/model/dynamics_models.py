@@ -12,6 +12,8 @@ through ``transition(dt_s) -> (A, B, Q)``.  Implementations:
 * :class:`RandomWalk` — each of n coordinates walks with σ (units/√s, one or per coordinate):
   A = I, Q = diag(σ²) dt;
 * :class:`Static` — A = I, Q = 0;
+* :class:`ConstantVelocity` — positions and velocities of n axes, the velocities random walks of σ
+  (units/s/√s: white acceleration): A = [[I, dt I], [0, I]], Q = σ² [[dt³/3, dt²/2], [dt²/2, dt]] ⊗ I;
 * :class:`WithConstants` — another model's states followed by constants (e.g. ambiguities):
   A = diag(A_d, I), B = [B_d; 0], Q = diag(Q_d, 0).
 
@@ -25,7 +27,7 @@ import numpy as np
 from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.model.dynamics import discrete_model
 
-__all__ = ["Dynamics", "ModalZOH", "RandomWalk", "Static", "WithConstants"]
+__all__ = ["Dynamics", "ModalZOH", "RandomWalk", "Static", "ConstantVelocity", "WithConstants"]
 
 
 class Dynamics:
@@ -112,6 +114,25 @@ class Static(RandomWalk):
 
     def __init__(self, n: int):
         super().__init__(n, 0.0)
+
+
+class ConstantVelocity(Dynamics):
+    """``n_axes`` positions followed by their velocities (n = 2 n_axes); each velocity a random walk of
+    σ ``accel_sigma_per_sqrt_s`` (units/s/√s, i.e. white acceleration of that density)."""
+
+    def __init__(self, n_axes: int, accel_sigma_per_sqrt_s: float):
+        s = float(accel_sigma_per_sqrt_s)
+        if not (np.isfinite(s) and s >= 0):
+            raise ValueError(f"accel_sigma_per_sqrt_s must be a number >= 0, got {accel_sigma_per_sqrt_s!r}")
+        self.n_axes, self.sigma = int(n_axes), s
+        self.n, self.n_u = 2 * self.n_axes, 0
+
+    def transition(self, dt_s: float):
+        dt = _check_dt(dt_s)
+        eye = np.eye(self.n_axes)
+        A = np.block([[eye, dt * eye], [np.zeros_like(eye), eye]])
+        Q = self.sigma**2 * np.kron(np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]]), eye)
+        return A, np.zeros((self.n, 0)), Q
 
 
 class WithConstants(Dynamics):

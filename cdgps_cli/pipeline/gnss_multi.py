@@ -23,7 +23,7 @@ from cdgps_cli.config.options import MULTI_GNSS_DEFAULTS
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, signal
-from cdgps_cli.estimation.rtk_multi import check_common_signals, receiver_geometry, solve_rtk
+from cdgps_cli.estimation.rtk_multi import RTK_MODES, check_common_signals, receiver_geometry, solve_rtk
 from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.io.rinex import NAV_SYSTEMS, read_rinex_nav
 from cdgps_cli.io.rinex_signals import read_rinex_signals, signals_in_file
@@ -38,8 +38,8 @@ def validate_options(options: dict) -> dict:
     """Options merged over MULTI_GNSS_DEFAULTS; CdgpsError listing every bad key at once."""
     opt = {**MULTI_GNSS_DEFAULTS, **options}
     bad = [f"{k}: unknown option" for k in options if k not in MULTI_GNSS_DEFAULTS]
-    if opt["mode"] not in ("kinematic", "static"):
-        bad.append(f"mode: expected 'kinematic' or 'static', got {opt['mode']!r}")
+    if opt["mode"] not in RTK_MODES:
+        bad.append(f"mode: expected one of {', '.join(repr(m) for m in RTK_MODES)}, got {opt['mode']!r}")
     if opt["direction"] not in ("forward", "backward", "combined"):
         bad.append(f"direction: expected 'forward', 'backward' or 'combined', got {opt['direction']!r}")
     if not (np.isfinite(float(opt["code_correlation_s"])) and float(opt["code_correlation_s"]) >= 0):

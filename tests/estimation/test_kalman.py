@@ -128,3 +128,23 @@ def test_identity_transition_skips_a_p_at_with_the_same_numbers():
     off = filter_numpy(Linear(z), dyn, t, np.zeros(3), np.eye(3))
     assert np.array_equal(on["x"], off["x"]) and np.array_equal(on["P"], off["P"])
     assert not ModalZOH.identity_transition
+
+
+def test_numpy_inverse_linalg_gives_the_lapack_update():
+    """`NUMPY_INVERSE` (the numpy-only linear algebra `cdgps rtk` steps with, to keep scipy off its
+    start-up) gives the default LAPACK-Cholesky update to rounding: state, covariance and NIS."""
+    from cdgps_cli.estimation.kalman import NUMPY_INVERSE
+
+    model = _Ranges([[0.0, 0.0], [10.0, 0.0], [0.0, 7.0]])
+    xbar, Pbar = np.array([4.5, 2.0]), np.array([[4.0, 0.5], [0.5, 9.0]])
+    sigma = np.array([0.05, 0.1, 0.08])
+    z = model.predict(np.array([3.0, 4.0]), None)[0] + np.array([0.03, -0.05, 0.02])
+    for it in (1, 2, 20):
+        ref = iterated_update(model, _rows(z, sigma), xbar, Pbar, it)
+        got = iterated_update(model, _rows(z, sigma), xbar, Pbar, it, NUMPY_INVERSE)
+        np.testing.assert_allclose(got[0], ref[0], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(got[1], ref[1], rtol=1e-10, atol=1e-15)
+        assert got[2] == pytest.approx(ref[2], rel=1e-10)
+    step = StepFilter(xbar, Pbar, NUMPY_INVERSE)
+    step.update(model, _rows(z, sigma), 20)
+    np.testing.assert_allclose(step.x, iterated_update(model, _rows(z, sigma), xbar, Pbar, 20)[0], rtol=1e-12)

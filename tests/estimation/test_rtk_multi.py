@@ -15,6 +15,7 @@ from cdgps_cli.io.rinex import read_rinex_nav
 from cdgps_cli.io.rinex_signals import read_rinex_signals
 from cdgps_cli.model.gps.orbits import ecef_to_enu
 from cdgps_cli.measurement.epoch_pairing import pair_epochs
+from cdgps_cli.measurement.dd_signals import epoch_groups, paired_sd_rows
 from tests._shared import REPO_ROOT
 
 GE = REPO_ROOT / ".." / "shared" / "data" / "rinex-ge"
@@ -62,7 +63,7 @@ def test_paired_rows_match_a_merge_per_epoch(pair):
     pairs = pair_epochs(gr["time_gps_s"].to_numpy(), gb["time_gps_s"].to_numpy())
     times = np.intersect1d(gb["time_gps_s"].unique(), gr["time_gps_s"].unique())
     np.testing.assert_array_equal(pairs.rover_time_s, times)      # simultaneous tags: the intersection
-    rows = rtk_multi._paired_rows(gb, gr, pairs, opt)
+    rows = paired_sd_rows(gb, gr, pairs, opt)
     n_groups = 0
     for k, t in enumerate(times):
         eb, er = gb[gb["time_gps_s"] == t], gr[gr["time_gps_s"] == t]
@@ -72,7 +73,7 @@ def test_paired_rows_match_a_merge_per_epoch(pair):
                  (g["wavelength_m"] * (g["phase_cycles_r"] - g["phase_cycles_b"]) + (g["sat_clock_m_r"] - g["sat_clock_m_b"])
                   - (g["trop_m_r"] - g["trop_m_b"])).to_numpy())
                 for name, g in m.groupby("signal", sort=True) if len(g) >= 2]
-        got = rtk_multi._epoch_groups(rows, k)
+        got = epoch_groups(rows, k)
         assert [(g["signal"], list(g["sats"]), g["ref"]) for g in got] == [w[:3] for w in want]
         for g, w in zip(got, want):
             np.testing.assert_array_equal(g["phase_sd_m"], w[3])
@@ -220,33 +221,33 @@ def test_combined_covariance_does_not_count_epoch_k_twice():
     np.testing.assert_allclose(out["fixed_xyz"], fx + 1e-4 / 3, atol=1e-12)
 
 
-def test_sd_information_update_equals_the_dd_rows_with_kalman_update(pair, monkeypatch):
-    """The epoch update on the single differences with W = Σ⁻¹ − Σ⁻¹11ᵀΣ⁻¹/1ᵀΣ⁻¹1 gives what the DD
-    rows (dd_signals.epoch_rows, a reference per group, Cholesky-whitened D Σ Dᵀ) with kalman.update
-    gave: same fixed epochs, positions to rounding, on L1 + L2 with the ionosphere estimated too."""
-    from cdgps_cli.estimation import kalman
-    from cdgps_cli.measurement.dd_signals import epoch_rows
+def test_dd_group_rows_carry_the_information_of_the_cholesky_whitened_dd_rows(pair):
+    """The DD model of the engine (measurement/dd_signals.DDGroupModel) keeps the single differences
+    and whitens them by B = (I − uuᵀ)Σ^{-1/2} per group and kind: BᵀB = Dᵀ(DΣDᵀ)⁻¹D, so its normal
+    equations (HᵀWH, HᵀWr, rᵀWr) are those of the DD rows (dd_signals.epoch_rows: a reference per
+    group, Cholesky-whitened D Σ Dᵀ), here on L1 + L2 with the ionosphere columns too."""
+    from types import SimpleNamespace
+    from cdgps_cli.measurement.dd_signals import DDGroupModel, epoch_rows
 
     sig, nav, b, r = pair
     gb, gr = receiver_geometry(b, nav, BASE), receiver_geometry(r, nav, TRUTH)
-
-    def dd_rows_update(xb, Pb, groups, base_xyz, origin, iterations):
-        xi, L = xb.copy(), None
-        for _ in range(iterations):
-            res, H, L = epoch_rows(xi, groups, base_xyz, origin, len(xb), noise_chol=L)
-            xi, P, _ = kalman.update(xb, Pb, res + H @ (xi - xb), H, noise_chol=L)
-        return xi, P
-
-    for opt in ({}, {"iono_threshold_km": 1.0}):
-        new = solve_rtk(gb, gr, BASE, TRUTH, options=opt)
-        assert ("estimated" in new["iono_model"]) == bool(opt)
-        with monkeypatch.context() as m:
-            m.setattr(rtk_multi, "_epoch_update", dd_rows_update)
-            old = solve_rtk(gb, gr, BASE, TRUTH, options=opt)
-        assert new["fixed"].any() and np.array_equal(new["fixed"], old["fixed"])
-        np.testing.assert_allclose(new["float_xyz_m"], old["float_xyz_m"], rtol=0, atol=1e-6)
-        np.testing.assert_allclose(new["fixed_xyz_m"], old["fixed_xyz_m"], rtol=0, atol=1e-6)
-        np.testing.assert_allclose(new["float_cov_m2"], old["float_cov_m2"], rtol=1e-6, atol=1e-12)
+    opt = dict(MULTI_GNSS_DEFAULTS)
+    rows = paired_sd_rows(gb, gr, pair_epochs(gr["time_gps_s"].to_numpy(), gb["time_gps_s"].to_numpy()), opt)
+    groups = epoch_groups(rows, 3)
+    assert len(groups) == 4
+    st = rtk_multi._State(3)
+    rtk_multi._prepare_state(st, groups, opt, 0.5)
+    x = st.x + np.random.default_rng(1).normal(0.0, 0.3, st.x.size)
+    model = DDGroupModel(lambda k: groups, BASE, TRUTH)
+    model.prepare(0, SimpleNamespace(x=x))
+    rw = model.rows(0)
+    h, H = model.predict(x, rw)
+    Hw, vw = rw.whiten(H), rw.whiten(rw.z_m - h)
+    res, Hd, L = epoch_rows(x, groups, BASE, TRUTH, x.size)
+    Hdw, rdw = np.linalg.solve(L, Hd), np.linalg.solve(L, res)
+    np.testing.assert_allclose(Hw.T @ Hw, Hdw.T @ Hdw, rtol=1e-9, atol=1e-9 * np.abs(Hdw.T @ Hdw).max())
+    np.testing.assert_allclose(Hw.T @ vw, Hdw.T @ rdw, rtol=1e-8, atol=1e-8 * np.abs(Hdw.T @ rdw).max())
+    np.testing.assert_allclose(vw @ vw, rdw @ rdw, rtol=1e-9)
 
 
 def test_the_rtk_path_does_not_import_scipy():
@@ -258,3 +259,78 @@ def test_the_rtk_path_does_not_import_scipy():
             "print(sorted(m for m in sys.modules if m.split('.')[0] == 'scipy'))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert out == "[]", out
+
+
+GOLDEN = REPO_ROOT / "tests" / "estimation" / "data" / "rtk_legacy_golden.npz"
+_GOLDEN_CASES = {"static": {"mode": "static"}, "kinematic": {}, "iono": {"iono_threshold_km": 1.0},
+                 "hold": {"fix_and_hold": True}, "backward": {"direction": "backward"}}
+
+
+def _golden_run(pair, opt):
+    sig, nav, b, r = pair
+    x0 = TRUTH + np.array([3.0, -2.0, 4.0])
+    return solve_rtk(receiver_geometry(b, nav, BASE), receiver_geometry(r, nav, x0), BASE, x0, options=opt)
+
+
+@pytest.mark.parametrize("case", sorted(_GOLDEN_CASES))
+def test_rtk_on_the_driver_equals_its_former_own_loop(pair, case):
+    """Issue 28 item 1: rtk's filter runs on the engine's driver (estimation/driver.drive with the DD
+    model measurement/dd_signals.DDGroupModel and the ambiguity hooks).  Its results equal those of
+    rtk's former own epoch loop, recorded in tests/estimation/data/rtk_legacy_golden.npz from that
+    loop on this 20 s Spirent GPS+Galileo L1+L2 pair: same fixed epochs, the same DD ambiguities
+    fixed, positions within 1 µm, covariances to 1e-6 relative."""
+    new = _golden_run(pair, _GOLDEN_CASES[case])
+    old = np.load(GOLDEN)
+    assert np.array_equal(new["fixed"], old[f"{case}_fixed"]) and new["fixed"].any()
+    assert np.array_equal(new["n_dd_ambiguities"], old[f"{case}_n"])
+    for key in ("float_xyz_m", "fixed_xyz_m"):
+        np.testing.assert_allclose(new[key], old[f"{case}_{key}"], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(new["float_cov_m2"], old[f"{case}_float_cov_m2"], rtol=1e-6, atol=1e-12)
+
+
+def test_constant_velocity_mode_on_the_same_engine(pair):
+    """`--mode constant-velocity`: position + velocity (white acceleration) on the same driver, DD model
+    and ambiguity hooks; on the static 2 km rover it fixes every epoch within mm of the truth, and the
+    kinematic (random-walk) answer stays within 1 mm of it."""
+    cv = _golden_run(pair, {"mode": "constant-velocity"})
+    rw = _golden_run(pair, {})
+    assert cv["fixed"].all()
+    e = np.array([ecef_to_enu(x, TRUTH) for x in cv["fixed_xyz_m"]])
+    assert np.abs(e[:, :2]).max() < 0.005 and np.abs(e[:, 2]).max() < 0.01
+    assert np.abs(cv["fixed_xyz_m"] - rw["fixed_xyz_m"]).max() < 0.001
+
+
+def test_constant_velocity_transition():
+    from cdgps_cli.model.dynamics_models import ConstantVelocity
+    A, B, Q = ConstantVelocity(3, 2.0).transition(0.5)
+    x = np.r_[1.0, 2.0, 3.0, 0.1, -0.2, 0.4]
+    np.testing.assert_allclose(A @ x, np.r_[1.05, 1.9, 3.2, 0.1, -0.2, 0.4])
+    assert B.shape == (6, 0)
+    np.testing.assert_allclose(np.diag(Q), 4.0 * np.r_[[0.5**3 / 3] * 3, [0.5] * 3])
+    np.testing.assert_allclose(Q[0, 3], 4.0 * 0.5**2 / 2)
+    assert np.all(np.linalg.eigvalsh(Q) > 0)
+
+
+def test_rtk_modes_are_validated_by_name():
+    from cdgps_cli.pipeline.gnss_multi import validate_options
+    assert validate_options({"mode": "constant-velocity"})["mode"] == "constant-velocity"
+    with pytest.raises(CdgpsError, match=r"mode: expected one of 'kinematic', 'constant-velocity', 'static', got 'cv'"):
+        validate_options({"mode": "cv"})
+
+
+def test_each_rtk_pass_is_a_drive_of_the_engine(pair, monkeypatch):
+    """rtk has no epoch loop of its own: each pass is driver.drive (the first epoch, iterated up to 4
+    times, then the rest) with the DD model and the ambiguity hook."""
+    from cdgps_cli.measurement.dd_signals import DDGroupModel
+
+    calls = []
+    real = rtk_multi.drive
+
+    def spy(dynamics, models, source, init, hooks=(), **kw):
+        calls.append((type(models[0]), [type(h).__name__ for h in hooks], source.n_epochs, kw.get("k0", 0)))
+        return real(dynamics, models, source, init, hooks, **kw)
+
+    monkeypatch.setattr(rtk_multi, "drive", spy)
+    res = _golden_run(pair, {"direction": "combined"})
+    n = res["time_gps_s"].size
+    assert calls == [(DDGroupModel, ["_AmbiguityHook"], 1, 0), (DDGroupModel, ["_AmbiguityHook"], n, 1)] * 2

@@ -354,3 +354,20 @@ def test_a_repeated_epoch_record_is_read_once(files, original):
     d = pd.read_csv(out, comment="#")
     assert len(d) == 301 and np.abs(_enu(d) - _enu(original[1])).max() < 1e-4
 
+
+
+def test_rtk_static_gps_l1_within_0_3_mm_of_rtklib(tmp_path):
+    """Issue 28 item 1 must-not-regress figure: `rtk --mode static` on the real mosaic pair, GPS L1
+    (the one engine: driver, DD model, ambiguity hooks, static motion model) ends within 0.3 mm of
+    RTKLIB's static solution of the same files (both written to 0.1 mm)."""
+    from cdgps_cli.pipeline.gnss_multi import rtk_from_files
+
+    out = tmp_path / "static.csv"
+    s = rtk_from_files(MOSAIC / "base.obs", MOSAIC / "rover.obs", [MOSAIC / "base.nav"], out, base_xyz_m=BASE_XYZ,
+                       options={"signals": ("G:L1",), "mode": "static"})
+    assert s["epochs"] == 301
+    ref = read_pos(MOSAIC / "rtklib" / "gps_l1_static.pos")
+    assert ref["frame"] == "enu" and ref["q"][-1] == 1
+    d = pd.read_csv(out, comment="#")
+    assert d["fixed"].iloc[-1] == 1
+    assert np.all(np.abs(_enu(d)[-1] - ref["coords"][-1]) < 0.00031), (_enu(d)[-1], ref["coords"][-1])
