@@ -928,12 +928,15 @@ def lock_events(Y: np.ndarray, LOCK: np.ndarray, release=None, group: int = 8) -
     time, after which ``release(arr, 0, N)`` (when given: arrays on disk) drops Y's and LOCK's pages."""
     N, C = Y.shape
     ev = np.zeros(Y.shape, dtype=np.int8)
+    step = N if release is None else max(PHASE_BLOCK_ROWS >> 5, 1)
     for g in range(0, C, group):
         cols = range(g, min(g + group, C))
-        Yg, Lg = np.array(Y[:, g:cols.stop]), np.array(LOCK[:, g:cols.stop])
-        if release is not None:
-            release(Y, 0, N)
-            release(LOCK, 0, N)
+        Yg, Lg = np.empty((N, len(cols))), np.empty((N, len(cols)), dtype=LOCK.dtype)
+        for a in range(0, N, step):              # (by blocks of rows: Y's pages dropped behind)
+            Yg[a:a + step], Lg[a:a + step] = Y[a:a + step, g:cols.stop], LOCK[a:a + step, g:cols.stop]
+            if release is not None:
+                release(Y, a, a + step)
+                release(LOCK, a, a + step)
         for j, c in enumerate(cols):
             kk = np.flatnonzero(~np.isnan(Yg[:, j]))
             if kk.size:
