@@ -928,7 +928,7 @@ def lock_events(Y: np.ndarray, LOCK: np.ndarray, release=None, group: int = 8) -
     time, after which ``release(arr, 0, N)`` (when given: arrays on disk) drops Y's and LOCK's pages."""
     N, C = Y.shape
     ev = np.zeros(Y.shape, dtype=np.int8)
-    step = N if release is None else max(PHASE_BLOCK_ROWS >> 5, 1)
+    step = max(N, 1) if release is None else max(PHASE_BLOCK_ROWS >> 5, 1)
     for g in range(0, C, group):
         cols = range(g, min(g + group, C))
         Yg, Lg = np.empty((N, len(cols))), np.empty((N, len(cols)), dtype=LOCK.dtype)
