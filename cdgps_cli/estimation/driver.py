@@ -144,6 +144,7 @@ class HistorySink:
         self.nis = np.full(n_epochs, np.nan)
         self.nis_dof = np.zeros(n_epochs, dtype=np.int64)
         self.released_to = 0
+        self.also = ()          # further (N, …) arrays the owner keeps on the history, released alike
 
     def write(self, k: int, x: np.ndarray, P: np.ndarray) -> None:
         self.xs[k] = x
@@ -155,6 +156,8 @@ class HistorySink:
         if start > self.released_to:
             self.history.release(self.xs, 0, start)
             self.history.release(self.Ps, 0, start)
+            for arr in self.also:
+                self.history.release(arr, 0, start)
             self.released_to = start
 
 

@@ -389,8 +389,10 @@ class _ForwardPass:
         self.sigma = float(np.sqrt(np.mean(self.r_var)))    # their RMS: the re-initialization's batch σ
         chan_of_pair = np.full(n_pairs, -1, dtype=np.int32)
         chan_of_pair[pairs] = [cidx[c] for c in seen]
-        self.Y = np.full((N, C), np.nan)
-        LOCK = np.full((N, C), -1, dtype=np.int32)
+        # (N, C) on the history (on disk with a DiskHistory: pages dropped behind, memory flat in N)
+        hist = self.opt.history
+        self.Y = _scratch(hist, (N, C), np.nan)
+        LOCK = _scratch(hist, (N, C), -1, np.int32)
         phase_cycles, lock = ph["phase_cycles"], ph["lock"]
         for rows in blocks:                           # in row order: a repeated (epoch, channel) keeps its last row
             t, pair_code, sel = block_rows(rows)
@@ -398,7 +400,10 @@ class _ForwardPass:
             c_of = chan_of_pair[pair_code]
             self.Y[k_of, c_of] = phase_cycles[sel] * self.lam
             LOCK[k_of, c_of] = lock[sel]
-        self.EVENT = lock_events(self.Y, LOCK)
+            if k_of.size:
+                _release(hist, (self.Y, LOCK), 0, int(k_of.min()))
+        self.EVENT = lock_events(self.Y, LOCK, release=getattr(hist, "release", None))
+        del LOCK
         self.ant, self.tx = channel_indices(cfg, [c[0] for c in chans], [c[1] for c in chans])
         self.line = cfg.antenna_line_bias_m[self.ant] - cfg.antenna_line_bias_m[cfg.master_index]
         # h(x), H of every channel through the measurement-model interface (the compiled kernel has its own copy)
@@ -414,7 +419,7 @@ class _ForwardPass:
             # no command logged: one row of zeros seen N times (no (N, n_thrusters) array in memory)
             self.U_in = np.broadcast_to(np.zeros(len(cfg.thruster_names)), (self.N, len(cfg.thruster_names)))
             return
-        self.U_in = np.zeros((self.N, len(cfg.thruster_names)))
+        self.U_in = _scratch(self.opt.history, (self.N, len(cfg.thruster_names)), 0.0)
         codes, words = act.codes("actuator")
         t_all, f_all = act["time_s"], act["force_n"]
         names = list(cfg.thruster_names)
@@ -424,6 +429,7 @@ class _ForwardPass:
             times, forces = t_all[rows], f_all[rows]
             idx = np.searchsorted(times, self.grid + 1e-9, side="right") - 1
             self.U_in[:, j] = np.where(idx >= 0, forces[np.maximum(idx, 0)], 0.0)
+            _release(self.opt.history, (self.U_in,), 0, self.N)
 
     def _state_layout(self) -> None:
         """x = [structure (n), bias states (C, biases="states"), multipath states (C, INIT's model)]: A, Q, B."""
@@ -501,9 +507,12 @@ class _ForwardPass:
         self.hist, self.chunk = self.sink.history, self.sink.chunk
         self.xs, self.Ps = self.sink.xs, self.sink.Ps
         self.nis, self.nis_dof = self.sink.nis, self.sink.nis_dof
-        self.resid_all = np.full((self.lead + N, C), np.nan)     # (lead rows for INIT's window)
+        hist = self.opt.history                     # (on disk with a DiskHistory, like xs, Ps)
+        self.resid_all = _scratch(hist, (self.lead + N, C), np.nan)     # (lead rows for INIT's window)
         self.resid = self.resid_all[self.lead:]
-        self.hph = np.full((N, C), np.nan)          # H P⁺ Hᵀ of the noise estimate (the kernel's epochs)
+        self.hph = _scratch(hist, (N, C), np.nan)   # H P⁺ Hᵀ of the noise estimate (the kernel's epochs)
+        # the sink drops these (N, C) rows from memory too, behind the filter
+        self.sink.also = (self.Y, self.resid, self.hph, self.U_in)
         self.events: list = []
         self.rebias: dict[int, list] = {}           # channel → list of (k, y − h(x̄), var_h)
         self.extra_q: dict[int, list] = {}          # epoch → [(state index, added variance)]
@@ -607,7 +616,8 @@ def _finish(fp: _ForwardPass, provisional: bool = False) -> EstimateResult:
                          filter_path=filter_path)
     res.rest_active_s = [[float(grid[a]), float(grid[b - 1])] for a, b in _true_runs(fp.at_rest)]
     chan_est = _channel_noise_estimate(cfg, fp.ant, fp.tx, xs[:, :n], Ps, fp.resid, n, fp.hph,
-                                       release=fp.hist.release)   # (filtered P, before smoothing)
+                                       release=fp.hist.release,   # (filtered P, before smoothing)
+                                       block_rows=fp.chunk if fp.hist.on_disk else None)
     fp.hph = None                           # (N, C): only the noise estimate reads it
     noise = _innovation_noise(res, fp.sig_c, fp.sigma_source, chan_est)
     if provisional and noise.get("adapt"):
@@ -683,7 +693,7 @@ def _smooth_chunks(fp: _ForwardPass, m: int, lead: int = 0) -> tuple[np.ndarray,
     def done(a: int, b: int) -> None:
         x_out[a:b] = xs[a:b, :n]
         P_out[a:b] = Ps[a:b, :m, :m]
-        for arr in (xs, Ps, x_out, P_out):
+        for arr in (xs, Ps, x_out, P_out, fp.U_in):
             fp.hist.release(arr, a, b)
 
     rts_smooth(fp.A, fp.Qd, fp.Bu, fp.U_in, xs, Ps, fp.extra_q, fp.no_link, in_place=True,
@@ -815,7 +825,7 @@ def filter_sigma(init: dict, cfg, chans, opt: EstimateOptions) -> tuple[np.ndarr
 
 
 def _channel_noise_estimate(cfg, ant, tx, xs: np.ndarray, Ps: np.ndarray, resid: np.ndarray, n: int,
-                            hph: np.ndarray | None = None, release=None) -> tuple:
+                            hph: np.ndarray | None = None, release=None, block_rows: int | None = None) -> tuple:
     """Residual-based σ̂_c of every channel (:func:`cdgps_cli.measurement.noise.filter_sigma_estimate`).
 
     Its term H_c P⁺ H_cᵀ (m²) is taken from the filtered covariances Ps (N, p, p) with the Jacobian at
@@ -823,14 +833,23 @@ def _channel_noise_estimate(cfg, ant, tx, xs: np.ndarray, Ps: np.ndarray, resid:
     column).  ``hph`` (N, C), when given, holds that term already for the epochs the compiled kernel
     ran (it is updated in place); the other epochs with a residual are computed here, in chunks
     (``release(arr, start, stop)``, when given, is told after each which rows of xs and Ps it read).
+    ``block_rows``: resid and hph are read in blocks of that many epochs too, their rows released
+    behind (arrays on disk: memory flat in N); the numbers are the same.
     Returns (σ̂ (C,), count (C,)).
     """
     N, C = resid.shape
     nm = cfg.n_modes
     if hph is None:
         hph = np.full((N, C), np.nan)
-    used = np.isfinite(resid)
-    rows = np.flatnonzero((used & ~np.isfinite(hph)).any(axis=1))
+    step = max(N if not block_rows else int(block_rows), 1)
+    rows = []
+    for a in range(0, N, step):                 # the epochs with a residual and no H P Hᵀ yet, by blocks
+        e, h = resid[a:a + step], hph[a:a + step]
+        rows.append(a + np.flatnonzero((np.isfinite(e) & ~np.isfinite(h)).any(axis=1)))
+        if release is not None and block_rows:
+            release(resid, a, a + step)
+            release(hph, a, a + step)
+    rows = np.concatenate(rows) if rows else np.zeros(0, dtype=np.int64)
     bias_states = Ps.shape[1] > n
     for j in range(0, rows.size, 500):
         k = rows[j:j + 500]
@@ -843,7 +862,9 @@ def _channel_noise_estimate(cfg, ant, tx, xs: np.ndarray, Ps: np.ndarray, resid:
         if release is not None:
             release(xs, int(k[0]), int(k[-1]) + 1)
             release(Ps, int(k[0]), int(k[-1]) + 1)
-    return filter_sigma_estimate(resid, hph)
+            if block_rows:
+                release(hph, int(k[0]), int(k[-1]) + 1)
+    return filter_sigma_estimate(resid, hph, block_rows, release if block_rows else None)
 
 
 def _innovation_noise(res: EstimateResult, sig_c: np.ndarray, source: str, chan_est: tuple) -> dict:
@@ -897,16 +918,48 @@ def _innovation_noise(res: EstimateResult, sig_c: np.ndarray, source: str, chan_
 PHASE_BLOCK_ROWS = 1 << 20                 # phase rows per block when Y and LOCK are built
 
 
-def lock_events(Y: np.ndarray, LOCK: np.ndarray) -> np.ndarray:
+def lock_events(Y: np.ndarray, LOCK: np.ndarray, release=None, group: int = 8) -> np.ndarray:
     """Per (epoch, channel) the cause of a new lock segment (:func:`cdgps_cli.measurement.channels.lock_segments`):
     1 = first sighting, 2 = lock restart (slip), 3 = re-acquisition after a gap with a lock counter
     that does not continue; 0 otherwise.  Y, LOCK: (N, C), NaN / −1 = absent.
 
     One channel at a time (a channel's segments depend on its own rows only), so the temporaries
-    are those of one column, not of the record's N·C rows."""
+    are those of one column, not of the record's N·C rows; the columns are copied out ``group`` at a
+    time, after which ``release(arr, 0, N)`` (when given: arrays on disk) drops Y's and LOCK's pages."""
+    N, C = Y.shape
     ev = np.zeros(Y.shape, dtype=np.int8)
-    for c in range(Y.shape[1]):
-        kk = np.flatnonzero(~np.isnan(Y[:, c]))
-        if kk.size:
-            ev[kk, c] = lock_segments(np.full(kk.size, c, dtype=np.int64), kk, lock=LOCK[kk, c]).cause
+    step = max(N, 1) if release is None else max(PHASE_BLOCK_ROWS >> 5, 1)
+    for g in range(0, C, group):
+        cols = range(g, min(g + group, C))
+        Yg, Lg = np.empty((N, len(cols))), np.empty((N, len(cols)), dtype=LOCK.dtype)
+        for a in range(0, N, step):              # (by blocks of rows: Y's pages dropped behind)
+            Yg[a:a + step], Lg[a:a + step] = Y[a:a + step, g:cols.stop], LOCK[a:a + step, g:cols.stop]
+            if release is not None:
+                release(Y, a, a + step)
+                release(LOCK, a, a + step)
+        for j, c in enumerate(cols):
+            kk = np.flatnonzero(~np.isnan(Yg[:, j]))
+            if kk.size:
+                ev[kk, c] = lock_segments(np.full(kk.size, c, dtype=np.int64), kk, lock=Lg[kk, j]).cause
     return ev
+
+
+def _scratch(history, shape: tuple, fill, dtype=np.float64) -> np.ndarray:
+    """An array of ``shape`` filled with ``fill``: ``np.full`` without a history on disk, else one of
+    the history's (:class:`cdgps_cli.io.scratch.DiskHistory`) filled block by block, its pages dropped
+    behind (the values are the same; only where they live differs)."""
+    if not getattr(history, "on_disk", False):
+        return np.full(shape, fill, dtype=dtype)
+    arr = history.empty(shape, dtype)
+    step = max(1, (PHASE_BLOCK_ROWS >> 3))
+    for a in range(0, shape[0], step):
+        arr[a:a + step] = fill
+        history.release(arr, a, a + step)
+    return arr
+
+
+def _release(history, arrays, start: int, stop: int) -> None:
+    """Tell a history on disk that rows start … stop−1 of ``arrays`` can leave memory."""
+    if getattr(history, "on_disk", False) and stop > start:
+        for arr in arrays:
+            history.release(arr, start, stop)

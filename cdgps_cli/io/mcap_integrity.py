@@ -45,6 +45,11 @@ from pathlib import Path
 
 from cdgps_cli.core.errors import CdgpsError
 
+try:                                  # zlib-ng's CRC-32 (carry-less multiply): the same values, ~10x faster
+    from zlib_ng.zlib_ng import crc32 as _crc32
+except ImportError:                   # (optional: zlib's)
+    _crc32 = zlib.crc32
+
 MAGIC = b"\x89MCAP0\r\n"
 RECORD_SHA256_KEY = "record_sha256"
 CDGPS_LIBRARY = "cdgps"
@@ -81,15 +86,77 @@ def record_sha256(name: str, data: dict) -> str:
     return hashlib.sha256(text.encode("utf-8", "surrogatepass")).hexdigest()
 
 
+#: ranges at least this long are checked in parallel parts (zlib.crc32 and os.preadv release the GIL)
+CRC_PARALLEL_MIN_BYTES = 32 << 20
+_CRC_POLY = 0xEDB88320                 # CRC-32 (zlib's), reflected
+
+
+def _gf2_mulmod(a: int, b: int) -> int:
+    """a(x)·b(x) modulo the CRC-32 polynomial, both in the reflected bit order (x⁰ is bit 31)."""
+    m, p = 1 << 31, 0
+    while m:
+        if a & m:
+            p ^= b
+        m >>= 1
+        b = (b >> 1) ^ _CRC_POLY if b & 1 else b >> 1
+    return p
+
+
+def crc32_combine(crc1: int, crc2: int, len2: int) -> int:
+    """CRC-32 of A‖B from crc1 = crc32(A), crc2 = crc32(B) and len(B) (bytes).
+
+    The CRC register is linear over GF(2): feeding B after A multiplies A's register by x^(8·len2)
+    modulo the polynomial; x^(8·len2) is built from the squares x^(2^k) (k ≥ 3), so the cost grows
+    with log(len2), not len2."""
+    factor, sq, n = 1 << 31, 1 << 30, int(len2) * 8        # x⁰, x¹ (reflected), bits to shift
+    while n:
+        if n & 1:
+            factor = _gf2_mulmod(sq, factor)
+        sq = _gf2_mulmod(sq, sq)
+        n >>= 1
+    return _gf2_mulmod(factor, crc1) ^ crc2
+
+
+def _crc_part(fd: int, start: int, end: int, block: int) -> int:
+    """CRC-32 of bytes ``[start, end)`` of descriptor ``fd`` by positioned reads (no shared offset)."""
+    buf = bytearray(block)
+    view, crc, pos = memoryview(buf), 0, start
+    while pos < end:
+        n = os.preadv(fd, [view[:min(end - pos, block)]], pos)
+        if not n:
+            raise EOFError
+        crc = _crc32(view[:n], crc)
+        pos += n
+    return crc
+
+
+def _crc_parallel(fd: int, start: int, end: int, block: int, parts: int) -> int:
+    """CRC-32 of ``[start, end)`` as ``parts`` ranges checked in threads, joined by :func:`crc32_combine`
+    (the same value as one pass)."""
+    from concurrent.futures import ThreadPoolExecutor  # noqa: PLC0415
+
+    bounds = [start + (end - start) * i // parts for i in range(parts + 1)]
+    with ThreadPoolExecutor(parts) as ex:
+        crcs = list(ex.map(lambda i: _crc_part(fd, bounds[i], bounds[i + 1], block), range(parts)))
+    crc = crcs[0]
+    for i in range(1, parts):
+        crc = crc32_combine(crc, crcs[i], bounds[i + 1] - bounds[i])
+    return crc
+
+
 def _crc_range(fh, start: int, end: int, buf: bytearray) -> int:
-    """CRC-32 of the file's bytes ``[start, end)``, read in blocks into ``buf``."""
+    """CRC-32 of the file's bytes ``[start, end)``, read in blocks into ``buf`` (a long range: in
+    parallel parts, one per core up to 4, the same value)."""
+    parts = min(os.cpu_count() or 1, 4)
+    if end - start >= CRC_PARALLEL_MIN_BYTES and parts > 1 and hasattr(os, "preadv"):
+        return _crc_parallel(fh.fileno(), start, end, len(buf), parts)
     fh.seek(start)
     crc, left, view = 0, end - start, memoryview(buf)
     while left > 0:
         n = fh.readinto(view[:min(left, len(buf))])
         if not n:
             raise EOFError
-        crc = zlib.crc32(view[:n], crc)
+        crc = _crc32(view[:n], crc)
         left -= n
     return crc
 

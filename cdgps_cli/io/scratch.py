@@ -78,7 +78,10 @@ class DiskHistory:
         """Drop rows ``start`` … ``stop``−1 of ``arr`` (first axis) from memory; their values stay
         in the file and come back when read.  The pages wholly inside the rows are dropped."""
         mm = getattr(arr, "_mmap", None)
-        if mm is None or stop <= start or arr.ndim == 0:
+        if mm is None or arr.ndim == 0:
+            return
+        start, stop = max(int(start), 0), min(int(stop), arr.shape[0])      # (rows past the end: none)
+        if stop <= start:
             return
         row = arr.strides[0]
         mapped = np.frombuffer(mm, dtype=np.uint8, count=1)           # the mapping's first byte

@@ -133,21 +133,38 @@ def variance_factors(resid_m: np.ndarray, sigma_m: np.ndarray, leverage: np.ndar
             "variance_factor": var / sigma_m**2, "rms_m": rms}
 
 
-def filter_sigma_estimate(resid_m: np.ndarray, hph_m2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def filter_sigma_estimate(resid_m: np.ndarray, hph_m2: np.ndarray, block_rows: int | None = None,
+                          release=None) -> tuple[np.ndarray, np.ndarray]:
     """Residual-based σ per channel in the filter: σ̂² = mean(e² + H P⁺ Hᵀ).
 
     Parameters
     ----------
     resid_m : (N, C) post-fit residuals (m), NaN where the channel was not used.
     hph_m2 : (N, C) H_i P⁺ H_iᵀ per epoch and channel (m²).
+    block_rows : int, optional
+        Read the epochs in blocks of this many rows (temporaries of a block, not of the record).
+        The sums are the same to the bit: each block's rows are added, in order, to the running
+        total (numpy's reduction over the first axis of a C-contiguous array adds row after row).
+    release : callable, optional
+        ``release(arr, start, stop)`` after each block, for both arrays (arrays on disk drop its pages).
 
     Returns
     -------
     (sigma_m (C,), count (C,)): NaN where a channel has no residual.
     """
-    ok = np.isfinite(resid_m) & np.isfinite(hph_m2)
-    cnt = ok.sum(axis=0)
-    tot = np.where(ok, resid_m**2 + hph_m2, 0.0).sum(axis=0)
+    N, C = resid_m.shape
+    step = max(N if not block_rows else int(block_rows), 1)
+    cnt = np.zeros(C, dtype=np.int64)
+    tot = np.zeros(C)
+    for a in range(0, max(N, 1), step):
+        b = min(a + step, N)
+        e, h = resid_m[a:b], hph_m2[a:b]
+        ok = np.isfinite(e) & np.isfinite(h)
+        cnt += ok.sum(axis=0)
+        tot = np.add.reduce(np.vstack([tot[None], np.where(ok, e**2 + h, 0.0)]), axis=0)
+        if release is not None:
+            release(resid_m, a, b)
+            release(hph_m2, a, b)
     with np.errstate(invalid="ignore", divide="ignore"):
         s = np.sqrt(tot / cnt)
     return np.where(cnt > 0, s, np.nan), cnt

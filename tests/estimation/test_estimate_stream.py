@@ -238,3 +238,71 @@ def test_disk_history_full_disk_is_a_cdgps_error(tmp_path, monkeypatch):
     with pytest.raises(CdgpsError, match=r"cannot make a scratch file of \d+ MiB.*No space left"):
         DiskHistory(tmp_path).empty((1024, 64, 64))
     assert list(tmp_path.iterdir()) == []
+
+
+# --- issue 29: the filter's (N, C) arrays on the disk history too, read back in blocks ---------------
+
+def test_noise_sum_in_blocks_equals_whole():
+    """filter_sigma_estimate by blocks of rows gives the same bits as the whole-array sums."""
+    from cdgps_cli.measurement.noise import filter_sigma_estimate
+
+    rng = np.random.default_rng(3)
+    e = rng.normal(scale=0.02, size=(5003, 36))
+    h = rng.uniform(1e-6, 1e-4, size=e.shape)
+    e[rng.random(e.shape) < 0.2] = np.nan
+    h[rng.random(e.shape) < 0.1] = np.nan
+    whole = filter_sigma_estimate(e, h)
+    for block in (1, 37, 4096, 10_000):
+        s, c = filter_sigma_estimate(e, h, block_rows=block)
+        np.testing.assert_array_equal(s, whole[0])
+        np.testing.assert_array_equal(c, whole[1])
+    s0, c0 = filter_sigma_estimate(e[:0], h[:0], block_rows=8)
+    assert s0.shape == (36,) and np.isnan(s0).all() and (c0 == 0).all()
+
+
+def test_lock_events_by_groups_and_blocks_equal_whole(monkeypatch):
+    """lock_events over column groups, rows copied in blocks with pages released, equals one column
+    at a time over the whole arrays."""
+    import cdgps_cli.estimation.filter as F
+
+    rng = np.random.default_rng(4)
+    N, C = 900, 11
+    Y = rng.normal(size=(N, C))
+    Y[rng.random(Y.shape) < 0.15] = np.nan
+    LOCK = np.cumsum(rng.random((N, C)) > 0.02, axis=0).astype(np.int32)
+    LOCK[rng.random(LOCK.shape) < 0.01] = 0
+    ref = F.lock_events(Y, LOCK, group=1)
+    assert (ref > 0).sum() > C                        # first sightings and restarts
+    seen = []
+    monkeypatch.setattr(F, "PHASE_BLOCK_ROWS", 64 << 5)   # blocks of 64 rows
+    got = F.lock_events(Y, LOCK, release=lambda arr, a, b: seen.append((a, b)), group=4)
+    np.testing.assert_array_equal(got, ref)
+    assert (0, 64) in seen and max(b for _, b in seen) >= N
+
+
+def test_filter_arrays_on_disk_history(case, tmp_path, monkeypatch):
+    """With a DiskHistory the phase, residual, H P Hᵀ and input arrays (N, C) are on it (memmaps)
+    and the sink releases them behind the filter; the result is the in-memory one."""
+    import cdgps_cli.estimation.filter as F
+
+    kept = {}
+    orig = F._finish
+
+    def spy(fp, provisional=False):
+        kept.update(Y=fp.Y, resid=fp.resid_all, hph=fp.hph, also=fp.sink.also)
+        return orig(fp, provisional)
+
+    released = []
+    monkeypatch.setattr(F, "_finish", spy)
+    monkeypatch.setattr(DiskHistory, "release", staticmethod(
+        lambda arr, a, b, _r=DiskHistory.release: (released.append((arr.shape, a, b)), _r(arr, a, b))[1]))
+    opt = dict(smooth=True, keep_filtered_covariance="modal", adapt_sigma=False)
+    disk = estimate(case["run"], case["init"], EstimateOptions(**opt, history=DiskHistory(tmp_path),
+                                                                chunk_epochs=CHUNK))
+    for name in ("Y", "resid", "hph"):
+        assert isinstance(kept[name], np.memmap), name
+    assert kept["Y"] is kept["also"][0] and len(kept["also"]) == 4
+    N, C = kept["hph"].shape
+    assert any(s == (N, C) and b >= CHUNK for s, a, b in released)
+    mem = estimate(case["run"], case["init"], EstimateOptions(**opt))
+    _assert_identical(mem, disk, modal=False)

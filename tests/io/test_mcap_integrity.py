@@ -9,6 +9,7 @@ round-trip; zero CRC fields follow the documented policy (docs/hardening.md, "MC
 from __future__ import annotations
 
 import json
+import os
 import struct
 import zlib
 from pathlib import Path
@@ -204,3 +205,26 @@ def test_attachments_of_a_file_without_a_data_section_crc_are_checked_one_by_one
     bad.write_bytes(bytes(raw))
     with pytest.raises(CdgpsError, match=r"attachment 'a\.bin' fails its CRC check"):
         read_mcap(bad)
+
+
+def test_crc32_combine_and_parallel_parts_equal_one_pass(tmp_path, monkeypatch):
+    """The data-section CRC in parallel parts joined by crc32_combine is zlib's one-pass CRC-32."""
+    import random
+    import zlib as _zlib
+
+    from cdgps_cli.io import mcap_integrity as mi
+
+    rng = random.Random(7)
+    for _ in range(200):
+        a, b = os.urandom(rng.randrange(0, 2000)), os.urandom(rng.randrange(0, 2000))
+        assert mi.crc32_combine(_zlib.crc32(a), _zlib.crc32(b), len(b)) == _zlib.crc32(a + b)
+    data = os.urandom(300_001)
+    p = tmp_path / "blob"
+    p.write_bytes(data)
+    monkeypatch.setattr(mi, "CRC_PARALLEL_MIN_BYTES", 1000)
+    monkeypatch.setattr(mi.os, "cpu_count", lambda: 3)
+    with open(p, "rb") as fh:
+        for start, end in ((0, len(data)), (17, 299_000), (5, 900)):
+            assert mi._crc_range(fh, start, end, bytearray(4096)) == _zlib.crc32(data[start:end])
+        with pytest.raises(EOFError):                 # a range past the end of the file
+            mi._crc_range(fh, 0, len(data) + 10, bytearray(4096))
