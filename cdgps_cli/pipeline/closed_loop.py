@@ -299,6 +299,8 @@ def closed_loop_trajectory(cfg: StructureConfig, scenario: str, gains: dict, *, 
                                 "estimator_rule": est.get("rule"),
                                 "estimator_rule_met": est.get("met"),
                                 **({"estimator_multipath": mp.echo()} if mp.active else {}),
+                                **({"estimator_knows_pulse": True} if pulse_known else {}),
+                                **({"actuator": actuator} if actuator != "pwpf" else {}),
                                 "initial_estimate": "the truth, covariance "
                                                     f"({INITIAL_ESTIMATE_SIGMA:g})² I; biases known exactly"}}
         return r.x_true, actuator_log(cfg, r.firings), extra
@@ -363,14 +365,16 @@ def controller_log(cfg: StructureConfig, result: ClosedLoopResult, x_ref: np.nda
 
 def simulate_closed_loop(cfg: StructureConfig, opt, gains: dict, *, vibration_control: bool = True,
                          feedback: str = "gps", pwpf: PwpfParams | None = None, slew_reference_kind: str = "profile",
-                         estimator_noise_scale: float | None = None):
+                         estimator_noise_scale: float | None = None, actuator: str = "pwpf",
+                         pulse_known: bool = False):
     """:func:`cdgps_cli.sim.structure.simulate` with the closed loop in place of the open-loop propagation;
-    the Simulation gains ``controller.csv`` (:func:`controller_log`)."""
+    the Simulation gains ``controller.csv`` (:func:`controller_log`).  Keywords: :func:`closed_loop_trajectory`."""
     record: dict = {}
     hook = closed_loop_trajectory(cfg, opt.scenario, gains, vibration_control=vibration_control,
                                   feedback=feedback, pwpf=pwpf, record=record,
                                   slew_reference_kind=slew_reference_kind,
-                                  estimator_noise_scale=estimator_noise_scale)
+                                  estimator_noise_scale=estimator_noise_scale, actuator=actuator,
+                                  pulse_known=pulse_known)
     sim = simulate(cfg, opt, trajectory=hook)
     sim.tables["controller.csv"] = controller_log(cfg, record["result"], record["x_ref"])
     return sim, record["result"]
