@@ -16,6 +16,11 @@ Modes the regulator does not move (its closed-loop settling equals the open loop
 testbed's swing mode, which the jets cannot force) are exempt.  The filter is linearized about the
 rest state x = 0; R is the config's σ per channel (what the loop's EKF weights with).
 
+The rule answers a pulse the filter does not know.  The paper's time update (Eq. 18) predicts with
+the thruster commands its computer issued; read as including the Fig. 9 pulse, the filter follows it
+with the paper's W itself, and the rule is not needed for the pulse (docs/testbed-model.md, "What
+limits the closed-loop pulse"; ``pulse_known`` of :mod:`cdgps_cli.pipeline.closed_loop`).
+
 Numerics only: arrays in, numbers out.
 """
 

@@ -80,7 +80,7 @@ def run_closed_loop(cfg: StructureConfig, K: np.ndarray, x0: np.ndarray, disturb
                     noise_m: np.ndarray, x_ref: np.ndarray, pulse: Disturbance | None = None, *,
                     pwpf: PwpfParams | None = None, estimator: str = "gps", u_ff=None,
                     process_noise_scale: float = 1.0, planner=None, plan_epochs=(),
-                    multipath=None) -> ClosedLoopResult:
+                    multipath=None, actuator: str = "pwpf", pulse_known: bool = False) -> ClosedLoopResult:
     """Simulate the closed loop for N = len(noise_m) epochs.
 
     Parameters
@@ -115,9 +115,18 @@ def run_closed_loop(cfg: StructureConfig, K: np.ndarray, x0: np.ndarray, disturb
         When active, the filter carries one first-order Gauss–Markov phase-error state per channel
         (:mod:`cdgps_cli.measurement.multipath`, stationary prior) beside the structure's, as the estimation
         pipeline does with ``[model] multipath_sigma_m``.
+    actuator : {"pwpf", "ideal"}
+        On/off jets through the PWPF modulators, or (for comparison only) an ideal continuous force:
+        each jet's request clipped to its maximum force and held over the period.
+    pulse_known : bool
+        The filter predicts with the disturbance pulse's firings too (the paper's time update
+        x̄ = A x + B u with u every firing the computer commanded, Eq. 18); False: the pulse is
+        unknown to it.
     """
     if estimator not in ("gps", "truth"):
         raise CdgpsError(f"estimator: expected 'gps' or 'truth', got {estimator!r}")
+    if actuator not in ("pwpf", "ideal"):
+        raise CdgpsError(f"actuator: expected 'pwpf' or 'ideal', got {actuator!r}")
     if not (np.isfinite(process_noise_scale) and process_noise_scale > 0):
         raise CdgpsError(f"process_noise_scale: expected a positive number, got {process_noise_scale!r}")
     pwpf = PwpfParams() if pwpf is None else pwpf
@@ -172,12 +181,16 @@ def run_closed_loop(cfg: StructureConfig, K: np.ndarray, x0: np.ndarray, disturb
             request[j], f_state[j], on_state[j] = 0.0, 0.0, False
         out.command_n[k] = request
         saturated += int(np.sum(request > fmax))
-        ctrl = modulate_period(request / fmax, f_state, on_state, T, pwpf, fmax)
+        if actuator == "pwpf":
+            ctrl = modulate_period(request / fmax, f_state, on_state, T, pwpf, fmax)
+        else:
+            ctrl = [(j, 0.0, T, float(min(request[j], fmax[j]))) for j in range(m) if request[j] > 0]
         out.firings += [(j, t0 + a, t0 + b, f, "control") for j, a, b, f in ctrl] + \
                        [(j, t0 + a, t0 + b, f, "disturbance") for j, a, b, f in dist]
         known = response(*_columns(ctrl))
-        x = model.A @ x + known + response(*_columns(dist)) + model.Bw @ disturbance_w[k]
-        filt.predict(known)
+        pulse_response = response(*_columns(dist))
+        x = model.A @ x + known + pulse_response + model.Bw @ disturbance_w[k]
+        filt.predict(known + pulse_response if pulse_known else known)
     out.saturated_fraction = saturated / max(N * m, 1)
     out.x_ref = x_ref
     return out
@@ -202,7 +215,8 @@ def _pulse_intervals(pulse: Disturbance | None, jets, t0: float, T: float):
 
 def closed_loop_trajectory(cfg: StructureConfig, scenario: str, gains: dict, *, vibration_control: bool = True,
                            feedback: str = "gps", pwpf: PwpfParams | None = None, record: dict | None = None,
-                           slew_reference_kind: str = "profile", estimator_noise_scale: float | None = None):
+                           slew_reference_kind: str = "profile", estimator_noise_scale: float | None = None,
+                           actuator: str = "pwpf", pulse_known: bool = False):
     """The ``trajectory`` hook of :func:`cdgps_cli.sim.structure.simulate` for a closed-loop run.
 
     Parameters
@@ -223,6 +237,8 @@ def closed_loop_trajectory(cfg: StructureConfig, scenario: str, gains: dict, *, 
     estimator_noise_scale : float, optional
         The in-loop EKF's process-noise scale; None: the separation rule for the gain in use
         (:func:`loop_estimator`).
+    actuator, pulse_known
+        See :func:`run_closed_loop`.
     """
     model = discrete_model(cfg)
     if "sample_period_s" in gains and not math.isclose(float(gains["sample_period_s"]), cfg.sample_period_s,
@@ -263,7 +279,8 @@ def closed_loop_trajectory(cfg: StructureConfig, scenario: str, gains: dict, *, 
             pulse = Disturbance(tuple(sim["pulse_thrusters"]), sim["pulse_time_s"],
                                 sim["pulse_time_s"] + sim["pulse_duration_s"], sim["pulse_force_n"])
         r = run_closed_loop(cfg, K, x0, w, noise_m, x_ref, pulse, pwpf=pwpf, estimator=feedback,
-                            process_noise_scale=est["scale"], planner=planner, plan_epochs=epochs, multipath=mp)
+                            process_noise_scale=est["scale"], planner=planner, plan_epochs=epochs, multipath=mp,
+                            actuator=actuator, pulse_known=pulse_known)
         r.estimator = est
         if record is not None:
             record["result"], record["x_ref"] = r, r.x_ref
@@ -282,6 +299,8 @@ def closed_loop_trajectory(cfg: StructureConfig, scenario: str, gains: dict, *, 
                                 "estimator_rule": est.get("rule"),
                                 "estimator_rule_met": est.get("met"),
                                 **({"estimator_multipath": mp.echo()} if mp.active else {}),
+                                **({"estimator_knows_pulse": True} if pulse_known else {}),
+                                **({"actuator": actuator} if actuator != "pwpf" else {}),
                                 "initial_estimate": "the truth, covariance "
                                                     f"({INITIAL_ESTIMATE_SIGMA:g})² I; biases known exactly"}}
         return r.x_true, actuator_log(cfg, r.firings), extra
@@ -346,14 +365,16 @@ def controller_log(cfg: StructureConfig, result: ClosedLoopResult, x_ref: np.nda
 
 def simulate_closed_loop(cfg: StructureConfig, opt, gains: dict, *, vibration_control: bool = True,
                          feedback: str = "gps", pwpf: PwpfParams | None = None, slew_reference_kind: str = "profile",
-                         estimator_noise_scale: float | None = None):
+                         estimator_noise_scale: float | None = None, actuator: str = "pwpf",
+                         pulse_known: bool = False):
     """:func:`cdgps_cli.sim.structure.simulate` with the closed loop in place of the open-loop propagation;
-    the Simulation gains ``controller.csv`` (:func:`controller_log`)."""
+    the Simulation gains ``controller.csv`` (:func:`controller_log`).  Keywords: :func:`closed_loop_trajectory`."""
     record: dict = {}
     hook = closed_loop_trajectory(cfg, opt.scenario, gains, vibration_control=vibration_control,
                                   feedback=feedback, pwpf=pwpf, record=record,
                                   slew_reference_kind=slew_reference_kind,
-                                  estimator_noise_scale=estimator_noise_scale)
+                                  estimator_noise_scale=estimator_noise_scale, actuator=actuator,
+                                  pulse_known=pulse_known)
     sim = simulate(cfg, opt, trajectory=hook)
     sim.tables["controller.csv"] = controller_log(cfg, record["result"], record["x_ref"])
     return sim, record["result"]
