@@ -37,15 +37,23 @@ SYNC_TOL_S = 1e-4
 
 
 def parse_fuse(text: str | None, option: str = "--fuse") -> tuple:
-    """``"gyro,accel"`` → ("gyro", "accel"); CdgpsError naming ``option`` for an unknown kind."""
-    if not text:
+    """``"gyro,accel"`` → ("gyro", "accel"); ``None`` (option absent) → (). CdgpsError naming ``option``
+    for an unknown kind, a kind given twice, an empty item or an empty value (``--fuse ""`` would
+    otherwise read as if the option were absent)."""
+    if text is None:
         return ()
-    kinds = tuple(dict.fromkeys(k.strip() for k in text.split(",") if k.strip()))
-    bad = [k for k in kinds if k not in FUSABLE_KINDS]
+    items = [k.strip() for k in text.split(",")]
+    expected = f"expected a comma-separated list of {', '.join(FUSABLE_KINDS)}"
+    if not any(items) or not all(items):
+        raise CdgpsError(f"{option} {text!r}: {'empty' if not any(items) else 'an empty item'}; {expected} "
+                         f"(leave {option} out to fuse nothing)")
+    bad = [k for k in items if k not in FUSABLE_KINDS]
     if bad:
-        raise CdgpsError(f"{option} {text}: unknown sensor kind(s) {', '.join(bad)} (expected a comma-separated list of "
-                         f"{', '.join(FUSABLE_KINDS)})")
-    return kinds
+        raise CdgpsError(f"{option} {text}: unknown sensor kind(s) {', '.join(bad)} ({expected})")
+    twice = sorted({k for k in items if items.count(k) > 1})
+    if twice:
+        raise CdgpsError(f"{option} {text}: {', '.join(twice)} given twice; {expected}, each kind once")
+    return tuple(items)
 
 
 def common_time_axis(t_gnss, sensor_times, tol_s: float = SYNC_TOL_S) -> np.ndarray:
@@ -72,7 +80,7 @@ def check_fusion_choice(cfg: StructureConfig, specs, fuse, hold_out=()) -> None:
     lacking = [k for k in fuse if not any(s.kind == k for s in specs)]
     if lacking:
         raise CdgpsError(f"--fuse {','.join(fuse)}: config {cfg.name!r} has no {', '.join(lacking)} sensor "
-                         f"([[accelerometers]], [[tilts]], [[gyros]]; docs/config-format.md)")
+                         f"([[accelerometers]], [[tilts]], [[strains]], [[gyros]]; docs/config-format.md)")
 
 
 def sensor_parts(cfg: StructureConfig, specs, logs: dict, t_common, fuse, hold_out=(), S=None) -> list:

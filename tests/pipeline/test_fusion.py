@@ -89,7 +89,12 @@ def test_hold_out_and_missing_logs(case):
         sensor_parts(CFG, specs, logs, t + 1000.0, ("accel",))
     with pytest.raises(CdgpsError, match="--fuse accel,wind: unknown sensor kind"):
         parse_fuse("accel,wind")
-    assert parse_fuse("gyro, accel,gyro") == ("gyro", "accel")
+    assert parse_fuse("gyro, accel") == ("gyro", "accel") and parse_fuse(None) == ()
+    for text, msg in (("", "--fuse '': empty"), (" , ", "--fuse ' , ': empty"), ("accel,,gyro", "an empty item"),
+                      ("gyro, accel,gyro", "--fuse gyro, accel,gyro: gyro given twice")):
+        with pytest.raises(CdgpsError, match="expected a comma-separated list of gyro") as e:
+            parse_fuse(text)
+        assert msg in str(e.value), text
 
 
 def test_common_time_axis():
