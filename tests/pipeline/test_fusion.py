@@ -114,6 +114,9 @@ def test_fusion_choice_config_and_options():
     assert fusion_choice(cfg, "tilt") == (("tilt",), ("gyro-top",))              # --fuse replaces [fusion] fuse
     with pytest.raises(CdgpsError, match="--hold-out needs --fuse"):
         fusion_choice(CFG, None, ("acc-mid",))
+    with pytest.raises(CdgpsError, match=r"--hold-out acc-top,acc-mid: every accel sensor is held out, so --fuse "
+                                         r"accel would fuse no sensor at all"):      # (ran a fused filter of no sensor)
+        fusion_choice(CFG, "accel", ("acc-top", "acc-mid"))
 
 
 def test_fusion_choice_checks_the_config_sensors_before_the_run_is_filtered():
