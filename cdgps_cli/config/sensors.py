@@ -206,6 +206,8 @@ def fusion_settings(cfg: StructureConfig) -> dict:
     f = _doc(cfg).get("fusion", {})
     fuse, hold = f.get("fuse", []), f.get("hold_out", [])
     bad = [k for k in fuse if k not in FUSABLE_KINDS] if isinstance(fuse, list) else [fuse]
+    if not bad and len(set(fuse)) != len(fuse):
+        raise CdgpsError(f"{cfg.path}: fusion.fuse: a kind given twice in {fuse!r}; expected each kind once")
     if bad or not isinstance(hold, list) or not all(isinstance(h, str) for h in hold):
         raise CdgpsError(f"{cfg.path}: fusion: expected fuse = a list of {', '.join(FUSABLE_KINDS)} and hold_out = a "
                          f"list of sensor names, got fuse = {fuse!r}, hold_out = {hold!r}")

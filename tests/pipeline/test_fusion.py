@@ -112,6 +112,8 @@ def test_fusion_choice_config_and_options():
     cfg = parse_config(text + '\n[fusion]\nfuse = ["accel", "gyro"]\nhold_out = ["gyro-top"]\n')
     assert fusion_choice(cfg, None, ("acc-mid",)) == (("accel", "gyro"), ("gyro-top", "acc-mid"))
     assert fusion_choice(cfg, "tilt") == (("tilt",), ("gyro-top",))              # --fuse replaces [fusion] fuse
+    with pytest.raises(CdgpsError, match=r"fusion.fuse: a kind given twice in \['accel', 'accel'\]"):  # (was read as accel)
+        fusion_choice(parse_config(text + '\n[fusion]\nfuse = ["accel", "accel"]\n', "t.toml"), None)
     with pytest.raises(CdgpsError, match="--hold-out needs --fuse"):
         fusion_choice(CFG, None, ("acc-mid",))
     with pytest.raises(CdgpsError, match=r"--hold-out acc-top,acc-mid: every accel sensor is held out, so --fuse "
