@@ -124,6 +124,16 @@ class _Reader:
         allowed = STRUCTURE_TABLES[table]
         for k in sorted(set(t) - set(allowed)):
             self.problems.append(f"{key}.{k}: unknown key (allowed: {', '.join(sorted(allowed))})")
+        if "name" in allowed and not (isinstance(t.get("name"), str) and t["name"]):
+            self.problems.append(f"{key}.name: expected a non-empty string, got {t.get('name', 'nothing')!r}")
+
+    def tables(self, doc: dict, table: str) -> list:
+        """``[[table]]`` entries of ``doc``; a problem (and none) unless it is an array of tables."""
+        v = doc.get(table, [])
+        if isinstance(v, list) and all(isinstance(e, dict) for e in v):
+            return v
+        self.problems.append(f"{table}: expected an array of tables ([[{table}]]), got {type(v).__name__} {v!r:.60}")
+        return []
 
 
 def _doc(cfg: StructureConfig) -> dict:
@@ -138,7 +148,7 @@ def sensor_specs(cfg: StructureConfig) -> list[SensorSpec]:
     (config order: accelerometers, tilt meters, strain gauges, then gyros); CdgpsError listing every bad key."""
     doc, rd, out = _doc(cfg), _Reader(cfg), []
     T = cfg.sample_period_s
-    for i, a in enumerate(doc.get("accelerometers", [])):
+    for i, a in enumerate(rd.tables(doc, "accelerometers")):
         key = f"accelerometers[{i}]"
         rd.keys(a, key, "accelerometers[]")
         point = a.get("point")
@@ -150,7 +160,7 @@ def sensor_specs(cfg: StructureConfig) -> list[SensorSpec]:
                               rd.num(a, key, "sigma_m_s2", positive=True), b, d,
                               rd.num(a, key, "sample_period_s", T, positive=True), point=str(point),
                               section=-1, rotation_rad=rd.rotation(a, key)))
-    for i, t in enumerate(doc.get("tilts", [])):
+    for i, t in enumerate(rd.tables(doc, "tilts")):
         key = f"tilts[{i}]"
         rd.keys(t, key, "tilts[]")
         b, d = rd.bias(t, key, "bias_sigma_rad", "bias_drift_rad_per_sqrt_s")
@@ -160,7 +170,7 @@ def sensor_specs(cfg: StructureConfig) -> list[SensorSpec]:
                               rotation_rad=rd.rotation(t, key)))
         if "section" not in t and "rotation_rad" not in t:
             rd.problems.append(f"{key}: a tilt meter needs a section (with rotation coordinates) or rotation_rad")
-    for i, g in enumerate(doc.get("strains", [])):
+    for i, g in enumerate(rd.tables(doc, "strains")):
         key = f"strains[{i}]"
         rd.keys(g, key, "strains[]")
         ends = [g.get("point_a"), g.get("point_b")]
@@ -196,6 +206,8 @@ def fusion_settings(cfg: StructureConfig) -> dict:
     f = _doc(cfg).get("fusion", {})
     fuse, hold = f.get("fuse", []), f.get("hold_out", [])
     bad = [k for k in fuse if k not in FUSABLE_KINDS] if isinstance(fuse, list) else [fuse]
+    if not bad and len(set(fuse)) != len(fuse):
+        raise CdgpsError(f"{cfg.path}: fusion.fuse: a kind given twice in {fuse!r}; expected each kind once")
     if bad or not isinstance(hold, list) or not all(isinstance(h, str) for h in hold):
         raise CdgpsError(f"{cfg.path}: fusion: expected fuse = a list of {', '.join(FUSABLE_KINDS)} and hold_out = a "
                          f"list of sensor names, got fuse = {fuse!r}, hold_out = {hold!r}")

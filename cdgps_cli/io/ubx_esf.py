@@ -186,11 +186,24 @@ def _table(kind: str, items: list, ref_s: float, name: str, several: bool, bad: 
     return df
 
 
+def _first_gap(frames, n: int, stats: dict) -> str:
+    """", first at byte K" for a log of UBX frames only (NMEA or RTCM between them leave gaps too)."""
+    if stats["nmea_bytes"] or stats["rtcm_bytes"]:
+        return ""
+    pos = 0
+    for off, _, _, fr in frames:
+        if off > pos:
+            break
+        pos = off + len(fr)
+    return f", first at byte {pos}" if pos < n else ""
+
+
 def read_esf_log(path, ref_s: float, name: str = "imu", *, data: bytes | None = None,
                  strict: bool = True) -> tuple[dict, dict]:
     """Sensor-log tables of the ESF-MEAS messages of a UBX log (:func:`esf_tables`).
 
-    ``strict``: a frame failing its checksum, or a frame cut by the end of the file, is refused
+    ``strict``: a frame failing its checksum, a frame cut by the end of the file, or bytes outside any
+    valid frame (a frame whose sync bytes were damaged is not seen as a frame at all) are refused
     (naming the offsets) — a sensor log given as such; a receiver's log read for its IMU passes
     False (its losses are the receiver's integrity report).  CdgpsError also when the log has no
     ESF-MEAS message.
@@ -200,8 +213,11 @@ def read_esf_log(path, ref_s: float, name: str = "imu", *, data: bytes | None = 
     except OSError as exc:
         raise CdgpsError(f"{path}: cannot read the sensor log: {exc.strerror or exc}") from None
     frames, _, stats = split_stream(data)
-    if strict and (stats["bad_checksum_frames"] or stats["truncated_tail_bytes"]):
+    if strict and (stats["bad_checksum_frames"] or stats["truncated_tail_bytes"] or stats["skipped_bytes"]):
         what = []
+        if stats["skipped_bytes"] and not (stats["bad_checksum_frames"] or stats["truncated_tail_bytes"]):
+            what.append(f"{stats['skipped_bytes']} byte(s) outside any valid frame{_first_gap(frames, len(data), stats)} "
+                        "(e.g. a frame whose sync bytes were damaged: its samples would be lost)")
         if stats["bad_checksum_frames"]:
             what.append(f"{stats['bad_checksum_frames']} UBX frame(s) failing the checksum at byte(s) "
                         + ", ".join(map(str, stats["bad_frame_offsets"])))

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.sensor import SampledSensor, core_size
 
 __all__ = ["StrainGauge", "gauge_map"]
@@ -35,7 +36,8 @@ def gauge_map(cfg, point_a: str, point_b: str) -> tuple[np.ndarray, float]:
     d = ends[1][0] - ends[0][0]
     L = float(np.linalg.norm(d))
     if not L > 0:
-        raise ValueError(f"strain gauge {point_a}–{point_b}: the two points coincide (gauge length 0)")
+        raise CdgpsError(f"{cfg.path}: strains: point_a {point_a!r} and point_b {point_b!r} are at the same place "
+                         "(gauge length 0); expected a gauge between two distinct positions")
     return (d / L) @ (ends[1][1] - ends[0][1]) / L, L
 
 

@@ -37,15 +37,23 @@ SYNC_TOL_S = 1e-4
 
 
 def parse_fuse(text: str | None, option: str = "--fuse") -> tuple:
-    """``"gyro,accel"`` → ("gyro", "accel"); CdgpsError naming ``option`` for an unknown kind."""
-    if not text:
+    """``"gyro,accel"`` → ("gyro", "accel"); ``None`` (option absent) → (). CdgpsError naming ``option``
+    for an unknown kind, a kind given twice, an empty item or an empty value (``--fuse ""`` would
+    otherwise read as if the option were absent)."""
+    if text is None:
         return ()
-    kinds = tuple(dict.fromkeys(k.strip() for k in text.split(",") if k.strip()))
-    bad = [k for k in kinds if k not in FUSABLE_KINDS]
+    items = [k.strip() for k in text.split(",")]
+    expected = f"expected a comma-separated list of {', '.join(FUSABLE_KINDS)}"
+    if not any(items) or not all(items):
+        raise CdgpsError(f"{option} {text!r}: {'empty' if not any(items) else 'an empty item'}; {expected} "
+                         f"(leave {option} out to fuse nothing)")
+    bad = [k for k in items if k not in FUSABLE_KINDS]
     if bad:
-        raise CdgpsError(f"{option} {text}: unknown sensor kind(s) {', '.join(bad)} (expected a comma-separated list of "
-                         f"{', '.join(FUSABLE_KINDS)})")
-    return kinds
+        raise CdgpsError(f"{option} {text}: unknown sensor kind(s) {', '.join(bad)} ({expected})")
+    twice = sorted({k for k in items if items.count(k) > 1})
+    if twice:
+        raise CdgpsError(f"{option} {text}: {', '.join(twice)} given twice; {expected}, each kind once")
+    return tuple(items)
 
 
 def common_time_axis(t_gnss, sensor_times, tol_s: float = SYNC_TOL_S) -> np.ndarray:
@@ -64,7 +72,8 @@ def common_time_axis(t_gnss, sensor_times, tol_s: float = SYNC_TOL_S) -> np.ndar
 
 def check_fusion_choice(cfg: StructureConfig, specs, fuse, hold_out=()) -> None:
     """CdgpsError naming the option unless every ``hold_out`` name is a sensor of ``specs`` (the
-    config's) and every kind in ``fuse`` has one."""
+    config's), every kind in ``fuse`` has one, and not every fused sensor is held out (a kind whose
+    sensors are all held out is allowed: the [fusion] fuse/hold_out of a config may say so)."""
     unknown = [h for h in hold_out if h not in {s.name for s in specs}]
     if unknown:
         raise CdgpsError(f"--hold-out: {', '.join(unknown)} is not a sensor of config {cfg.name!r} "
@@ -72,7 +81,11 @@ def check_fusion_choice(cfg: StructureConfig, specs, fuse, hold_out=()) -> None:
     lacking = [k for k in fuse if not any(s.kind == k for s in specs)]
     if lacking:
         raise CdgpsError(f"--fuse {','.join(fuse)}: config {cfg.name!r} has no {', '.join(lacking)} sensor "
-                         f"([[accelerometers]], [[tilts]], [[gyros]]; docs/config-format.md)")
+                         f"([[accelerometers]], [[tilts]], [[strains]], [[gyros]]; docs/config-format.md)")
+    if fuse and all(s.name in hold_out for s in specs if s.kind in fuse):
+        raise CdgpsError(f"--hold-out {','.join(hold_out)}: every {'/'.join(fuse)} sensor is held out, so --fuse "
+                         f"{','.join(fuse)} would fuse no sensor at all; expected at least one sensor of a fused kind "
+                         "left in (or leave --fuse out)")
 
 
 def sensor_parts(cfg: StructureConfig, specs, logs: dict, t_common, fuse, hold_out=(), S=None) -> list:
@@ -88,8 +101,8 @@ def sensor_parts(cfg: StructureConfig, specs, logs: dict, t_common, fuse, hold_o
         df = logs.get(sp.kind)
         rows = None if df is None else df[df["sensor"] == sp.name]
         if rows is None or rows.empty:
-            raise CdgpsError(f"--fuse {sp.kind}: no log of sensor {sp.name!r} in the run (ingest its CSV with the "
-                             f"GNSS config's sensors key), or keep it out with --hold-out {sp.name}")
+            raise CdgpsError(f"--fuse {sp.kind}: no log of sensor {sp.name!r} in the run (ingest its log: "
+                             f"'ingest --sensor-log', the GNSS config's sensors key, or a structure run's gyro CSV), or keep it out with --hold-out {sp.name}")
         probe = model_from_spec(cfg, sp, np.zeros((1, len(sp.axes))), [0], n_core, S=S)
         missing = [f for f in probe.fields if f not in rows.columns]
         if missing:

@@ -79,6 +79,8 @@ def test_real_esf_log():
 @pytest.mark.parametrize("mutate,message", [
     (lambda b: b[:10] + bytes([b[10] ^ 0xFF]) + b[11:], r"failing the checksum at byte\(s\) 0"),
     (lambda b: b + b[:12], "cut by the end of the file at byte 24"),
+    # a damaged sync byte: the frame is not seen as one (was: its sample silently dropped; fault campaign esf_ubx)
+    (lambda b: b + bytes([b[0] ^ 0xD5]) + b[1:], r"24 byte\(s\) outside any valid frame, first at byte 24"),
 ])
 def test_corrupt_frames_refused_with_offset(tmp_path, mutate, message):
     p = tmp_path / "bad.ubx"

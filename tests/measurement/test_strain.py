@@ -95,3 +95,42 @@ def test_simulated_log_ingested_and_fused(fused_strain):
                    "readings (also --fuse accel without gyro): a start-state problem of the initializer, not of the gauge")
 def test_strain_readings_are_used_from_the_start(fused_strain):
     assert fused_strain[1]["fusion"]["sensors"]["s1"]["samples"] > 250
+
+
+def test_bad_strains_tables_refused_naming_the_key(tmp_path):
+    """[[strains]] without a name, given as a table instead of an array of tables, or between two
+    points at the same place: CdgpsError naming the config and key (were: a sensor named 'None',
+    an AttributeError, a ValueError traceback from simulate-gnss-structure)."""
+    from click.testing import CliRunner
+
+    from cdgps_cli.cli.commands import main
+
+    for text, msg in ((TOWER_TEXT + GAUGE.replace('name = "s1"\n', ""), "strains[0].name: expected a non-empty string"),
+                      (TOWER_TEXT + '\n[strains]\nname = "s"\n', "strains: expected an array of tables ([[strains]])")):
+        with pytest.raises(CdgpsError, match="tower.toml: invalid sensor config") as e:
+            sensor_specs(parse_config(text, "tower.toml"))
+        assert msg in str(e.value)
+    twin = '\n[[points]]\nname = "mid2"\nposition_m = [0.0, 0.0, 100.0]\n'
+    cfg = tmp_path / "tower.toml"
+    cfg.write_text(TOWER_TEXT + GAUGE.replace('"base"', '"mid2"') + twin)
+    out = tmp_path / "sim"
+    r = CliRunner().invoke(main, ["simulate-gnss-structure", str(cfg), "--duration", "2", "--gnss-interval", "0.5",
+                                  "-o", str(out)])
+    assert r.exit_code == 2 and isinstance(r.exception, SystemExit), r.output
+    assert "tower.toml: strains: point_a 'mid2' and point_b 'mid' are at the same place (gauge length 0)" in r.output
+    assert not out.exists()
+
+
+def test_fuse_option_empty_or_twice_exit_2(fused_strain, tmp_path):
+    """``--fuse ""`` ran as if the option were absent; ``--fuse strain,strain`` was read as strain."""
+    from click.testing import CliRunner
+
+    from cdgps_cli.cli.commands import main
+
+    d, _ = fused_strain
+    for value, msg in (("", "--fuse '': empty"), ("strain,strain", "--fuse strain,strain: strain given twice")):
+        out = tmp_path / "f.mcap"
+        r = CliRunner().invoke(main, ["estimate", str(d / "run.mcap"), "--init", str(d / "init.json"), "--structure",
+                                      str(d.parent / "tower.toml"), "--fuse", value, "-o", str(out)])
+        assert r.exit_code == 2 and msg in r.output and "Traceback" not in r.output, r.output
+        assert not out.exists()

@@ -89,7 +89,12 @@ def test_hold_out_and_missing_logs(case):
         sensor_parts(CFG, specs, logs, t + 1000.0, ("accel",))
     with pytest.raises(CdgpsError, match="--fuse accel,wind: unknown sensor kind"):
         parse_fuse("accel,wind")
-    assert parse_fuse("gyro, accel,gyro") == ("gyro", "accel")
+    assert parse_fuse("gyro, accel") == ("gyro", "accel") and parse_fuse(None) == ()
+    for text, msg in (("", "--fuse '': empty"), (" , ", "--fuse ' , ': empty"), ("accel,,gyro", "an empty item"),
+                      ("gyro, accel,gyro", "--fuse gyro, accel,gyro: gyro given twice")):
+        with pytest.raises(CdgpsError, match="expected a comma-separated list of gyro") as e:
+            parse_fuse(text)
+        assert msg in str(e.value), text
 
 
 def test_common_time_axis():
@@ -107,8 +112,13 @@ def test_fusion_choice_config_and_options():
     cfg = parse_config(text + '\n[fusion]\nfuse = ["accel", "gyro"]\nhold_out = ["gyro-top"]\n')
     assert fusion_choice(cfg, None, ("acc-mid",)) == (("accel", "gyro"), ("gyro-top", "acc-mid"))
     assert fusion_choice(cfg, "tilt") == (("tilt",), ("gyro-top",))              # --fuse replaces [fusion] fuse
+    with pytest.raises(CdgpsError, match=r"fusion.fuse: a kind given twice in \['accel', 'accel'\]"):  # (was read as accel)
+        fusion_choice(parse_config(text + '\n[fusion]\nfuse = ["accel", "accel"]\n', "t.toml"), None)
     with pytest.raises(CdgpsError, match="--hold-out needs --fuse"):
         fusion_choice(CFG, None, ("acc-mid",))
+    with pytest.raises(CdgpsError, match=r"--hold-out acc-top,acc-mid: every accel sensor is held out, so --fuse "
+                                         r"accel would fuse no sensor at all"):      # (ran a fused filter of no sensor)
+        fusion_choice(CFG, "accel", ("acc-top", "acc-mid"))
 
 
 def test_fusion_choice_checks_the_config_sensors_before_the_run_is_filtered():
