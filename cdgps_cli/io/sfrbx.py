@@ -76,7 +76,7 @@ def parity_bits(data24: int, d29_prev: int, d30_prev: int) -> int:
     (``data24``, d1 the MSB) after a word ending in D29*, D30*."""
     out = 0
     for prev, mask in _PARITY_MASKS:
-        bit = (d29_prev if prev == 29 else d30_prev) ^ (bin(data24 & mask).count("1") & 1)
+        bit = (d29_prev if prev == 29 else d30_prev) ^ ((data24 & mask).bit_count() & 1)
         out = (out << 1) | bit
     return out
 
@@ -340,14 +340,32 @@ _BDS_GEO = frozenset((1, 2, 3, 4, 5, 59, 60, 61, 62, 63))
 _URAI_M = (2.4, 3.4, 4.85, 6.85, 9.65, 13.65, 24.0, 48.0, 96.0, 192.0, 384.0, 768.0, 1536.0, 3072.0, 6144.0)
 
 
-def bch15_syndrome(codeword15: int) -> int:
-    """Remainder of a 15-bit codeword (first bit = coefficient of X¹⁴) divided by g(X) = X⁴ + X + 1;
-    0 for a valid BCH(15,11) codeword."""
+def _bch15_syndrome_division(codeword15: int) -> int:
+    """:func:`bch15_syndrome` by polynomial long division (builds the table, and checks it in the tests)."""
     r = codeword15 & 0x7FFF
     for k in range(14, 3, -1):
         if r >> k & 1:
             r ^= 0b10011 << (k - 4)
     return r
+
+
+def _bch15_table() -> list[int]:
+    """Syndromes of all 2^15 codewords: the remainder is linear over GF(2), so each is the XOR of
+    the remainders of its set bits."""
+    v = np.arange(1 << 15, dtype=np.int32)
+    table = np.zeros(1 << 15, dtype=np.int32)
+    for k in range(15):
+        table ^= ((v >> k) & 1) * _bch15_syndrome_division(1 << k)
+    return table.tolist()
+
+
+_BCH15_SYNDROME = _bch15_table()
+
+
+def bch15_syndrome(codeword15: int) -> int:
+    """Remainder of a 15-bit codeword (first bit = coefficient of X¹⁴) divided by g(X) = X⁴ + X + 1;
+    0 for a valid BCH(15,11) codeword (a table look-up)."""
+    return _BCH15_SYNDROME[codeword15 & 0x7FFF]
 
 
 def _bch_ok(word30: int, first: bool) -> bool:

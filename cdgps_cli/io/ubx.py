@@ -272,10 +272,13 @@ def _decode_rawx_log(p: Path, strict: bool, data: bytes | None):
     if not data:
         raise CdgpsError(f"{p}: empty file; expected a u-blox UBX binary log")
     frames, rtcm, stats = split_stream(data)
-    counts: dict[str, int] = {}
+    by_id: dict[tuple[int, int], int] = {}
     for _, cls, mid, _ in frames:
+        by_id[cls, mid] = by_id.get((cls, mid), 0) + 1
+    counts: dict[str, int] = {}
+    for (cls, mid), c in by_id.items():                   # in order of first appearance, as frame by frame
         name = _msg_name(cls, mid)
-        counts[name] = counts.get(name, 0) + 1
+        counts[name] = counts.get(name, 0) + c
     if not frames:
         extra = f" ({stats['bad_checksum_frames']} candidate frames failed the checksum)" if stats["bad_checksum_frames"] else ""
         raise CdgpsError(f"{p}: no valid UBX frames found in {len(data)} bytes{extra}; expected a u-blox UBX binary log with RXM-RAWX messages")

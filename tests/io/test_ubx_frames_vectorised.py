@@ -80,3 +80,9 @@ def test_damaged_real_log_frames_identically():
                                   b"\xd3\x00\x02\x3e\xd0" + b"\x00\x00\x00", _rtcm(1005, bytes(17))])
 def test_edge_streams_frame_identically(data):
     _same(data)
+
+
+def test_bch15_syndrome_table_equals_long_division():
+    from cdgps_cli.io.sfrbx import _bch15_syndrome_division, bch15_syndrome
+
+    assert [bch15_syndrome(v) for v in range(1 << 16)] == [_bch15_syndrome_division(v) for v in range(1 << 16)]
