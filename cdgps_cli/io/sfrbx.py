@@ -275,6 +275,43 @@ def inav_word(dwrd: list[int]) -> tuple[int, int] | None:
     return word >> 122, word
 
 
+def inav_words(dwrd: np.ndarray) -> list:
+    """:func:`inav_word` of many page pairs at once.
+
+    Parameters
+    ----------
+    dwrd : uint32 array, shape (m, 8)
+        The eight data words of each RXM-SFRBX Galileo I/NAV payload.
+
+    Returns
+    -------
+    list of (word type, int) or None
+        One per row, as :func:`inav_word` gives it (flags, alert bits and CRC-24Q checked as bit
+        columns; the CRC runs over the rows' 25 bytes side by side).
+    """
+    from cdgps_cli.io.ubx_frames import _CRC24Q  # noqa: PLC0415
+
+    m = len(dwrd)
+    if not m:
+        return []
+    bits = np.unpackbits(np.ascontiguousarray(dwrd, dtype=">u4").view(np.uint8).reshape(m, 32), axis=1)
+    even, odd = bits[:, :128], bits[:, 128:]
+    flags = (even[:, 0] == 0) & (odd[:, 0] == 1) & (even[:, 1] == 0) & (odd[:, 1] == 0)
+    covered = np.packbits(np.concatenate((np.zeros((m, 4), np.uint8), even[:, :114], odd[:, :82]), axis=1), axis=1)
+    table = np.array(_CRC24Q, dtype=np.int64)
+    crc = np.zeros(m, np.int64)
+    for j in range(25):
+        crc = ((crc << 8) & 0xFFFFFF) ^ table[(crc >> 16) ^ covered[:, j]]
+    sent = np.packbits(odd[:, 82:106], axis=1).astype(np.int64)
+    ok = flags & (crc == (sent[:, 0] << 16 | sent[:, 1] << 8 | sent[:, 2]))
+    words = np.packbits(np.concatenate((even[:, 2:114], odd[:, 2:18]), axis=1), axis=1)
+    out: list = [None] * m
+    for i in np.flatnonzero(ok).tolist():
+        w = int.from_bytes(words[i].tobytes(), "big")
+        out[i] = (w >> 122, w)
+    return out
+
+
 def _Word(v: int) -> _Fields:
     """Fields of a 128-bit I/NAV word (the word type is bits 0-5)."""
     return _Fields(v, 128)
@@ -611,6 +648,21 @@ _SFRBX = (0x02, 0x13)
 _SFRB = (0x02, 0x11)
 
 
+def _inav_pages(frames: list) -> dict:
+    """{frame index: :func:`inav_word` result} of every RXM-SFRBX Galileo I/NAV page pair of
+    ``frames`` (the frames :func:`sfrbx_ephemerides` hands to it), decoded together."""
+    at, rows = [], []
+    for i, (_, cls, mid, fr) in enumerate(frames):
+        if (cls, mid) == _SFRBX and len(fr) >= 16 and fr[6] == 2 and fr[10] == 8 and fr[8] in _INAV_SIGNALS \
+                and len(fr) == 16 + 32:
+            at.append(i)
+            rows.append(fr[14:46])
+    if not at:
+        return {}
+    dw = np.frombuffer(b"".join(rows), dtype="<u4").reshape(len(at), 8)
+    return dict(zip(at, inav_words(dw)))
+
+
 def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = False) -> tuple[pd.DataFrame, dict]:
     """GPS, Galileo and BeiDou (D1) — and with ``glonass`` GLONASS — ephemerides from the RXM-SFRBX /
     RXM-SFRB frames of a log.
@@ -650,7 +702,8 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = Fal
     glo_recs: dict[tuple, dict] = {}
     latest: dict[str, dict[int, list[int]]] = {}
     recs: dict[tuple, dict] = {}
-    for _, cls, mid, fr in frames:
+    inav = _inav_pages(frames) if week_ref is not None else {}
+    for i, (_, cls, mid, fr) in enumerate(frames):
         if (cls, mid) not in (_SFRBX, _SFRB):
             continue
         pl = fr[6:-2]
@@ -663,8 +716,7 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = Fal
                 stats["galileo_other_frames"] += 1        # F/NAV (E5a), C/NAV (E6): not I/NAV
                 continue
             if gnss == 2 and week_ref is not None:
-                dw8 = np.frombuffer(pl[8:40], dtype="<u4").tolist()
-                got = inav_word(dw8)
+                got = inav[i]
                 if got is None:
                     stats["galileo_bad_pages"] += 1
                     continue
