@@ -703,6 +703,7 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = Fal
     latest: dict[str, dict[int, list[int]]] = {}
     recs: dict[tuple, dict] = {}
     inav = _inav_pages(frames) if week_ref is not None else {}
+    decoded: set = set()
     for i, (_, cls, mid, fr) in enumerate(frames):
         if (cls, mid) not in (_SFRBX, _SFRB):
             continue
@@ -726,6 +727,10 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = Fal
                     sat = f"E{sv:02d}"
                     have = latest.setdefault(sat, {})
                     have[wtype] = word
+                    seen = (sat, *(have.get(k) for k in (1, 2, 3, 4, 5)))
+                    if seen in decoded:                    # the same five words: the same record
+                        continue
+                    decoded.add(seen)
                     rec = decode_galileo_words(have, sat, week_ref)
                     if rec is not None and 0 <= rec["e"] < 1 and rec["sqrt_a_sqrt_m"] > 0:
                         recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)
@@ -764,6 +769,10 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = Fal
         have = latest.setdefault(sat, {})
         have[sid] = words
         if week_ref is not None and all(k in have for k in (1, 2, 3)):
+            seen = (sat, tuple(have[1]), tuple(have[2]), tuple(have[3]))
+            if seen in decoded:                            # the same three subframes: the same record
+                continue
+            decoded.add(seen)
             rec = decode_gps_subframes(have[1], have[2], have[3], sat, week_ref)
             if rec is not None and 0 <= rec["e"] < 1 and rec["sqrt_a_sqrt_m"] > 0:
                 recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)
