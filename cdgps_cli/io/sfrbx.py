@@ -615,12 +615,13 @@ def _beidou_d2_page(words: list[int], sat: str, latest: dict, recs: dict, stats:
             recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)
 
 
-def _beidou_frame(pl: bytes, sv: int, latest: dict, recs: dict, stats: dict) -> None:
-    """One RXM-SFRBX BeiDou payload: check, keep the subframe, decode when 1-3 of a frame are in."""
+def _beidou_frame(pl: bytes, sv: int, latest: dict, recs: dict, stats: dict, checked: list | None = None) -> None:
+    """One RXM-SFRBX BeiDou payload: check, keep the subframe, decode when 1-3 of a frame are in
+    (``checked``: its words when :func:`_checked_words` already passed them)."""
     if pl[4] != 10:
         stats["beidou_cnav_frames"] += 1
         return
-    words = beidou_words_from_sfrbx(np.frombuffer(pl[8:48], dtype="<u4").tolist())
+    words = checked if checked is not None else beidou_words_from_sfrbx(np.frombuffer(pl[8:48], dtype="<u4").tolist())
     if words is None:
         stats["beidou_bch_failures"] += 1
         return
@@ -646,6 +647,59 @@ _INAV_SIGNALS = frozenset((0, 1, 5))
 (whose reserved byte is 0 and which tracks E1 only); E5a F/NAV and E6 C/NAV frames are counted apart."""
 _SFRBX = (0x02, 0x13)
 _SFRB = (0x02, 0x11)
+
+
+_PARITY_COLUMNS = tuple((31 if prev == 29 else 30, np.uint32(mask)) for prev, mask in _PARITY_MASKS)
+
+
+def _gps_parity_passes(w: np.ndarray) -> np.ndarray:
+    """Rows of ten RXM-SFRBX GPS words (uint32, shape (m, 10)) whose every word passes the parity
+    in the u-blox form (D29*, D30* in bits 31-30): the first test of :func:`gps_words_from_sfrbx`."""
+    data = (w >> 6) & 0xFFFFFF
+    par = np.zeros(w.shape, np.uint32)
+    for prev, mask in _PARITY_COLUMNS:
+        bit = ((w >> prev) & 1) ^ (np.bitwise_count(data & mask) & 1).astype(np.uint32)
+        par = (par << 1) | bit
+    return (par == (w & 0x3F)).all(axis=1)
+
+
+def _beidou_bch_passes(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(rows passing, words in the logical layout) of ten RXM-SFRBX BeiDou words (uint32, shape
+    (m, 10)) that :func:`beidou_words_from_sfrbx` accepts without de-interleaving any word."""
+    syn = np.array(_BCH15_SYNDROME, dtype=np.uint8)
+    w = w & 0x3FFFFFFF
+    flip = (w[:, 0] >> 19) == (BDS_PREAMBLE ^ 0x7FF)
+    w = np.where(flip[:, None], w ^ 0x3FFFFFFF, w)
+    cw1 = ((w[:, 1:] >> 19) & 0x7FF) << 4 | ((w[:, 1:] >> 4) & 0xF)
+    cw2 = ((w[:, 1:] >> 8) & 0x7FF) << 4 | (w[:, 1:] & 0xF)
+    ok = ((w[:, 0] >> 19) == BDS_PREAMBLE) & (syn[w[:, 0] & 0x7FFF] == 0) \
+        & (syn[cw1] == 0).all(axis=1) & (syn[cw2] == 0).all(axis=1)
+    return ok, w
+
+
+def _checked_words(frames: list) -> dict:
+    """{frame index: words} of the RXM-SFRBX GPS L1 C/A and BeiDou D1/D2 subframes of ``frames``
+    that pass their checks as most do (GPS parity in the u-blox form, BeiDou BCH without
+    de-interleaving), checked all at once: what :func:`gps_words_from_sfrbx` /
+    :func:`beidou_words_from_sfrbx` return for them.  The others are left to those functions."""
+    at = {0: [], 3: []}
+    rows: dict = {0: [], 3: []}
+    for i, (_, cls, mid, fr) in enumerate(frames):
+        if (cls, mid) == _SFRBX and len(fr) == 56 and fr[10] == 10 and (fr[6] == 3 or (fr[6] == 0 and fr[8] == 0)):
+            at[fr[6]].append(i)
+            rows[fr[6]].append(fr[14:54])
+    out = {}
+    for g in (0, 3):
+        if not at[g]:
+            continue
+        w = np.frombuffer(b"".join(rows[g]), dtype="<u4").reshape(len(at[g]), 10)
+        if g == 0:
+            ok, words = _gps_parity_passes(w), (w >> 6) & 0xFFFFFF
+        else:
+            ok, words = _beidou_bch_passes(w)
+        good = np.flatnonzero(ok)
+        out.update(zip(np.asarray(at[g])[good].tolist(), words[good].tolist()))
+    return out
 
 
 def _inav_pages(frames: list) -> dict:
@@ -704,6 +758,7 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = Fal
     recs: dict[tuple, dict] = {}
     inav = _inav_pages(frames) if week_ref is not None else {}
     decoded: set = set()
+    checked = _checked_words(frames)
     for i, (_, cls, mid, fr) in enumerate(frames):
         if (cls, mid) not in (_SFRBX, _SFRB):
             continue
@@ -736,7 +791,7 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = Fal
                         recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)
                 continue
             if gnss == 3:
-                _beidou_frame(pl, sv, latest, recs, stats)
+                _beidou_frame(pl, sv, latest, recs, stats, checked.get(i))
                 continue
             if gnss == 6 and glonass:
                 glonass_frame(pl, latest, glo_recs, stats, week_ref)
@@ -749,8 +804,9 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = Fal
             if pl[2] != 0:                 # sigId: L2C / L5 CNAV (u-blox 9), not LNAV
                 stats["gps_cnav_frames"] += 1
                 continue
-            dw = list(np.frombuffer(pl[8:48], dtype="<u4").tolist())
-            words = gps_words_from_sfrbx(dw)
+            words = checked.get(i)
+            if words is None:
+                words = gps_words_from_sfrbx(np.frombuffer(pl[8:48], dtype="<u4").tolist())
             if words is None:
                 stats["parity_failures"] += 1
                 continue

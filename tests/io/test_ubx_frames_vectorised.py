@@ -109,3 +109,35 @@ def test_inav_words_equal_inav_word_page_by_page():
     got = inav_words(dw)
     assert got == [inav_word(r.tolist()) for r in dw]
     assert sum(g is not None for g in got) >= len(real)
+
+
+def test_checked_words_equal_the_per_subframe_checks():
+    """GPS parity and BeiDou BCH checked column-wise give what gps_words_from_sfrbx /
+    beidou_words_from_sfrbx give, on the real log's subframes with bits flipped; the rows they
+    leave out are the ones those functions reject or must de-interleave."""
+    from cdgps_cli.io.sfrbx import _checked_words, beidou_words_from_sfrbx, gps_words_from_sfrbx
+
+    log = SHARED / "real-pairs" / "ublox-walk" / "gnss_1730.ubx"
+    if not log.exists():
+        pytest.skip("no shared u-blox walk log")
+    frames, _, _ = split_stream(log.read_bytes())
+    sub = [f for f in frames if f[1:3] == (2, 0x13) and len(f[3]) == 56 and f[3][6] in (0, 3) and f[3][10] == 10]
+    rng = random.Random(7)
+    damaged = []
+    for off, c, m, fr in sub:
+        b = bytearray(fr)
+        if rng.random() < 0.4:
+            b[14 + rng.randrange(40)] ^= 1 << rng.randrange(8)
+        damaged.append((off, c, m, bytes(b)))
+    every = sub + damaged
+    got = _checked_words(every)
+    n_kept = 0
+    for i, (_, _, _, fr) in enumerate(every):
+        dw = np.frombuffer(fr[14:54], "<u4").tolist()
+        want = gps_words_from_sfrbx(dw) if fr[6] == 0 else beidou_words_from_sfrbx(dw)
+        if i in got:
+            assert got[i] == want
+            n_kept += 1
+        elif fr[6] == 0:
+            assert want is None or fr[8] != 0
+    assert n_kept >= len(sub) // 2
