@@ -259,16 +259,42 @@ def _ubx_candidates(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         s[0] = 0
         s[1:] = x                                          # widen first: a cumsum that casts is slower
         np.cumsum(s, dtype=np.uint32, out=s)
-        ss = np.empty(n + 2, np.uint32)                    # SS_i = sum of S_m, m < i
-        ss[0] = 0
-        np.cumsum(s, dtype=np.uint32, out=ss[1:])
         a, b = start[fit] + 2, end[fit] - 2                # checksum over class ... payload
         ck_a = (s[b] - s[a]) & 0xFF
-        # CK_B = sum over i in [a, b) of (S_{i+1} - S_a) = SS_{b+1} - SS_{a+1} - (b - a) S_a
-        ck_b = (ss[b + 1] - ss[a + 1] - (b - a).astype(np.uint32) * s[a]) & 0xFF
+        # CK_B = sum over i in [a, b) of (S_{i+1} - S_a) = sum of S[a+1 : b+1] - (b - a) S_a
+        ck_b = (_segment_sums(s, a + 1, b + 1) - (b - a).astype(np.uint32) * s[a]) & 0xFF
         ok = (ck_a == x[b]) & (ck_b == x[b + 1])
         status[fit[ok]] = 0
     return start, end, status
+
+
+MAX_LAYERS = 8
+
+
+def _segment_sums(v: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Sums (uint32, wrapping) of ``v[lo:hi]`` for many segments, ``lo`` sorted, ``lo < hi <= v.size - 1``.
+
+    Disjoint segments are summed together by one ``np.add.reduceat``; overlapping ones (a false sync
+    word inside a frame announces a frame of its own) go to later layers of disjoint segments, and
+    past :data:`MAX_LAYERS` layers to one prefix sum of ``v``.
+    """
+    out = np.zeros(lo.size, np.uint32)
+    todo = np.arange(lo.size)
+    for _ in range(MAX_LAYERS):
+        if not todo.size:
+            return out
+        layer = todo[_chain(lo[todo], hi[todo], np.zeros(todo.size, bool))]
+        idx = np.empty(2 * layer.size, np.int64)
+        idx[0::2], idx[1::2] = lo[layer], hi[layer]
+        out[layer] = np.add.reduceat(v, idx, dtype=np.uint32)[0::2]
+        left = np.ones(todo.size, bool)
+        left[np.searchsorted(todo, layer)] = False
+        todo = todo[left]
+    if todo.size:
+        c = np.zeros(v.size + 1, np.uint32)
+        np.cumsum(v, dtype=np.uint32, out=c[1:])
+        out[todo] = c[hi[todo]] - c[lo[todo]]
+    return out
 
 
 _HEX = np.full(256, -1, np.int16)

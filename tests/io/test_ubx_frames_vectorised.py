@@ -83,6 +83,17 @@ def test_edge_streams_frame_identically(data):
     _same(data)
 
 
+def test_deeply_overlapping_candidates_frame_identically():
+    """Forty sync words each announcing a frame over the next ones: more layers of overlapping
+    candidates than the disjoint sums take (the prefix-sum fallback), one genuine frame among them."""
+    from cdgps_cli.io import ubx_frames
+
+    data = b"\xb5\x62\x01\x01\x30\x00" * 40 + _ubx(1, 7, bytes(range(40))) + bytes(100)
+    assert ubx_frames.MAX_LAYERS < 40
+    _same(data)
+    assert len(split_stream(data)[0]) == 1
+
+
 def test_bch15_syndrome_table_equals_long_division():
     from cdgps_cli.io.sfrbx import _bch15_syndrome_division, bch15_syndrome
 
@@ -141,3 +152,15 @@ def test_checked_words_equal_the_per_subframe_checks():
         elif fr[6] == 0:
             assert want is None or fr[8] != 0
     assert n_kept >= len(sub) // 2
+
+
+def test_segment_sums_with_deep_overlaps_equal_direct_sums():
+    """Disjoint layers by reduceat, and the prefix-sum fallback past MAX_LAYERS, both exact (mod 2^32)."""
+    from cdgps_cli.io.ubx_frames import _segment_sums
+
+    rng = np.random.default_rng(3)
+    v = rng.integers(0, 2**32, 5000, dtype=np.uint64).astype(np.uint32)
+    lo = np.sort(rng.integers(0, 4000, 600))
+    hi = lo + 1 + rng.integers(0, 900, lo.size)
+    want = np.array([int(v[a:b].astype(np.uint64).sum()) % 2**32 for a, b in zip(lo, hi)], np.uint32)
+    assert np.array_equal(_segment_sums(v, lo, hi), want)
