@@ -678,13 +678,13 @@ def _beidou_bch_passes(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _checked_words(frames: list) -> dict:
-    """{frame index: words} of the RXM-SFRBX GPS L1 C/A and BeiDou D1/D2 subframes of ``frames``
+    """{frame index: words} (``frames``: (index, class, id, frame bytes)) of the RXM-SFRBX GPS L1 C/A and BeiDou D1/D2 subframes of ``frames``
     that pass their checks as most do (GPS parity in the u-blox form, BeiDou BCH without
     de-interleaving), checked all at once: what :func:`gps_words_from_sfrbx` /
     :func:`beidou_words_from_sfrbx` return for them.  The others are left to those functions."""
     at = {0: [], 3: []}
     rows: dict = {0: [], 3: []}
-    for i, (_, cls, mid, fr) in enumerate(frames):
+    for i, cls, mid, fr in frames:
         if (cls, mid) == _SFRBX and len(fr) == 56 and fr[10] == 10 and (fr[6] == 3 or (fr[6] == 0 and fr[8] == 0)):
             at[fr[6]].append(i)
             rows[fr[6]].append(fr[14:54])
@@ -704,9 +704,9 @@ def _checked_words(frames: list) -> dict:
 
 def _inav_pages(frames: list) -> dict:
     """{frame index: :func:`inav_word` result} of every RXM-SFRBX Galileo I/NAV page pair of
-    ``frames`` (the frames :func:`sfrbx_ephemerides` hands to it), decoded together."""
+    ``frames`` ((index, class, id, frame bytes), as :func:`sfrbx_ephemerides` selects them), decoded together."""
     at, rows = [], []
-    for i, (_, cls, mid, fr) in enumerate(frames):
+    for i, cls, mid, fr in frames:
         if (cls, mid) == _SFRBX and len(fr) >= 16 and fr[6] == 2 and fr[10] == 8 and fr[8] in _INAV_SIGNALS \
                 and len(fr) == 16 + 32:
             at.append(i)
@@ -756,12 +756,11 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = Fal
     glo_recs: dict[tuple, dict] = {}
     latest: dict[str, dict[int, list[int]]] = {}
     recs: dict[tuple, dict] = {}
+    frames = [(i, cls, mid, fr) for i, (_, cls, mid, fr) in enumerate(frames) if cls == 2 and (mid == 0x13 or mid == 0x11)]
     inav = _inav_pages(frames) if week_ref is not None else {}
     decoded: set = set()
     checked = _checked_words(frames)
-    for i, (_, cls, mid, fr) in enumerate(frames):
-        if (cls, mid) not in (_SFRBX, _SFRB):
-            continue
+    for i, cls, mid, fr in frames:
         pl = fr[6:-2]
         stats["sfrbx_frames"] += 1
         if (cls, mid) == _SFRBX:
