@@ -141,7 +141,7 @@ def test_checked_words_equal_the_per_subframe_checks():
             b[14 + rng.randrange(40)] ^= 1 << rng.randrange(8)
         damaged.append((off, c, m, bytes(b)))
     every = sub + damaged
-    got = _checked_words(every)
+    got = _checked_words([(i, c, m, fr) for i, (_, c, m, fr) in enumerate(every)])
     n_kept = 0
     for i, (_, _, _, fr) in enumerate(every):
         dw = np.frombuffer(fr[14:54], "<u4").tolist()
