@@ -386,17 +386,18 @@ def _bch15_syndrome_division(codeword15: int) -> int:
     return r
 
 
-def _bch15_table() -> list[int]:
+def _bch15_table() -> np.ndarray:
     """Syndromes of all 2^15 codewords: the remainder is linear over GF(2), so each is the XOR of
     the remainders of its set bits."""
     v = np.arange(1 << 15, dtype=np.int32)
     table = np.zeros(1 << 15, dtype=np.int32)
     for k in range(15):
         table ^= ((v >> k) & 1) * _bch15_syndrome_division(1 << k)
-    return table.tolist()
+    return table.astype(np.uint8)
 
 
-_BCH15_SYNDROME = _bch15_table()
+_BCH15_TABLE = _bch15_table()
+_BCH15_SYNDROME = _BCH15_TABLE.tolist()
 
 
 def bch15_syndrome(codeword15: int) -> int:
@@ -666,7 +667,7 @@ def _gps_parity_passes(w: np.ndarray) -> np.ndarray:
 def _beidou_bch_passes(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(rows passing, words in the logical layout) of ten RXM-SFRBX BeiDou words (uint32, shape
     (m, 10)) that :func:`beidou_words_from_sfrbx` accepts without de-interleaving any word."""
-    syn = np.array(_BCH15_SYNDROME, dtype=np.uint8)
+    syn = _BCH15_TABLE
     w = w & 0x3FFFFFFF
     flip = (w[:, 0] >> 19) == (BDS_PREAMBLE ^ 0x7FF)
     w = np.where(flip[:, None], w ^ 0x3FFFFFFF, w)
