@@ -269,6 +269,8 @@ def _ubx_candidates(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 MAX_LAYERS = 8
+#: rounds of RTCM 3 checks in the gaps of the chain before :func:`split_stream` walks the stream instead
+MAX_RTCM_ROUNDS = 8
 
 
 def _segment_sums(v: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -410,7 +412,7 @@ def split_stream(data: bytes) -> tuple[list, list, dict]:
     r_type = np.zeros(r_cand.size, np.int64)
     r_ok = np.zeros(r_cand.size, bool)
     u_item = u_status != 1
-    while True:
+    for _ in range(MAX_RTCM_ROUNDS):
         kind = np.concatenate((np.zeros(int(u_item.sum()), np.int8), np.ones(n_start.size, np.int8),
                                np.full(int(r_ok.sum()), 2, np.int8)))
         start = np.concatenate((u_start[u_item], n_start, r_cand[r_ok]))
@@ -430,6 +432,8 @@ def split_stream(data: bytes) -> tuple[list, list, dict]:
             r_end[i], r_type[i], r_ok[i] = _rtcm_at(data, int(r_cand[i]))
             r_ok[i] = bool(r_ok[i] and r_end[i])
             r_tested[i] = True
+    else:                  # RTCM frames found in gaps keep moving the chain (contrived input): walk
+        return _split_stream_walk(data)
     return _collect(data, kind[frames], a, e, limit, n, u_start, u_status, r_cand, r_tested, r_end, r_type, r_ok)
 
 

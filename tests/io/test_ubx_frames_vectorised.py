@@ -164,3 +164,14 @@ def test_segment_sums_with_deep_overlaps_equal_direct_sums():
     hi = lo + 1 + rng.integers(0, 900, lo.size)
     want = np.array([int(v[a:b].astype(np.uint64).sum()) % 2**32 for a, b in zip(lo, hi)], np.uint32)
     assert np.array_equal(_segment_sums(v, lo, hi), want)
+
+
+def test_rtcm_rounds_exhausted_falls_back_to_the_walk(monkeypatch):
+    """Streams whose RTCM 3 frames keep moving the chain past MAX_RTCM_ROUNDS are walked: same result."""
+    from cdgps_cli.io import ubx_frames
+
+    rng = random.Random(8)
+    streams = [_damage(rng, _mixed(rng)) for _ in range(40)]
+    want = [_split_stream_walk(d) for d in streams]
+    monkeypatch.setattr(ubx_frames, "MAX_RTCM_ROUNDS", 1)
+    assert [split_stream(d) for d in streams] == want
