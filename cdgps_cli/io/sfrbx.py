@@ -76,7 +76,7 @@ def parity_bits(data24: int, d29_prev: int, d30_prev: int) -> int:
     (``data24``, d1 the MSB) after a word ending in D29*, D30*."""
     out = 0
     for prev, mask in _PARITY_MASKS:
-        bit = (d29_prev if prev == 29 else d30_prev) ^ (bin(data24 & mask).count("1") & 1)
+        bit = (d29_prev if prev == 29 else d30_prev) ^ ((data24 & mask).bit_count() & 1)
         out = (out << 1) | bit
     return out
 
@@ -275,6 +275,43 @@ def inav_word(dwrd: list[int]) -> tuple[int, int] | None:
     return word >> 122, word
 
 
+def inav_words(dwrd: np.ndarray) -> list:
+    """:func:`inav_word` of many page pairs at once.
+
+    Parameters
+    ----------
+    dwrd : uint32 array, shape (m, 8)
+        The eight data words of each RXM-SFRBX Galileo I/NAV payload.
+
+    Returns
+    -------
+    list of (word type, int) or None
+        One per row, as :func:`inav_word` gives it (flags, alert bits and CRC-24Q checked as bit
+        columns; the CRC runs over the rows' 25 bytes side by side).
+    """
+    from cdgps_cli.io.ubx_frames import _CRC24Q  # noqa: PLC0415
+
+    m = len(dwrd)
+    if not m:
+        return []
+    bits = np.unpackbits(np.ascontiguousarray(dwrd, dtype=">u4").view(np.uint8).reshape(m, 32), axis=1)
+    even, odd = bits[:, :128], bits[:, 128:]
+    flags = (even[:, 0] == 0) & (odd[:, 0] == 1) & (even[:, 1] == 0) & (odd[:, 1] == 0)
+    covered = np.packbits(np.concatenate((np.zeros((m, 4), np.uint8), even[:, :114], odd[:, :82]), axis=1), axis=1)
+    table = np.array(_CRC24Q, dtype=np.int64)
+    crc = np.zeros(m, np.int64)
+    for j in range(25):
+        crc = ((crc << 8) & 0xFFFFFF) ^ table[(crc >> 16) ^ covered[:, j]]
+    sent = np.packbits(odd[:, 82:106], axis=1).astype(np.int64)
+    ok = flags & (crc == (sent[:, 0] << 16 | sent[:, 1] << 8 | sent[:, 2]))
+    words = np.packbits(np.concatenate((even[:, 2:114], odd[:, 2:18]), axis=1), axis=1)
+    out: list = [None] * m
+    for i in np.flatnonzero(ok).tolist():
+        w = int.from_bytes(words[i].tobytes(), "big")
+        out[i] = (w >> 122, w)
+    return out
+
+
 def _Word(v: int) -> _Fields:
     """Fields of a 128-bit I/NAV word (the word type is bits 0-5)."""
     return _Fields(v, 128)
@@ -340,14 +377,33 @@ _BDS_GEO = frozenset((1, 2, 3, 4, 5, 59, 60, 61, 62, 63))
 _URAI_M = (2.4, 3.4, 4.85, 6.85, 9.65, 13.65, 24.0, 48.0, 96.0, 192.0, 384.0, 768.0, 1536.0, 3072.0, 6144.0)
 
 
-def bch15_syndrome(codeword15: int) -> int:
-    """Remainder of a 15-bit codeword (first bit = coefficient of X¹⁴) divided by g(X) = X⁴ + X + 1;
-    0 for a valid BCH(15,11) codeword."""
+def _bch15_syndrome_division(codeword15: int) -> int:
+    """:func:`bch15_syndrome` by polynomial long division (builds the table, and checks it in the tests)."""
     r = codeword15 & 0x7FFF
     for k in range(14, 3, -1):
         if r >> k & 1:
             r ^= 0b10011 << (k - 4)
     return r
+
+
+def _bch15_table() -> np.ndarray:
+    """Syndromes of all 2^15 codewords: the remainder is linear over GF(2), so each is the XOR of
+    the remainders of its set bits."""
+    v = np.arange(1 << 15, dtype=np.int32)
+    table = np.zeros(1 << 15, dtype=np.int32)
+    for k in range(15):
+        table ^= ((v >> k) & 1) * _bch15_syndrome_division(1 << k)
+    return table.astype(np.uint8)
+
+
+_BCH15_TABLE = _bch15_table()
+_BCH15_SYNDROME = _BCH15_TABLE.tolist()
+
+
+def bch15_syndrome(codeword15: int) -> int:
+    """Remainder of a 15-bit codeword (first bit = coefficient of X¹⁴) divided by g(X) = X⁴ + X + 1;
+    0 for a valid BCH(15,11) codeword (a table look-up)."""
+    return _BCH15_SYNDROME[codeword15 & 0x7FFF]
 
 
 def _bch_ok(word30: int, first: bool) -> bool:
@@ -560,12 +616,13 @@ def _beidou_d2_page(words: list[int], sat: str, latest: dict, recs: dict, stats:
             recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)
 
 
-def _beidou_frame(pl: bytes, sv: int, latest: dict, recs: dict, stats: dict) -> None:
-    """One RXM-SFRBX BeiDou payload: check, keep the subframe, decode when 1-3 of a frame are in."""
+def _beidou_frame(pl: bytes, sv: int, latest: dict, recs: dict, stats: dict, checked: list | None = None) -> None:
+    """One RXM-SFRBX BeiDou payload: check, keep the subframe, decode when 1-3 of a frame are in
+    (``checked``: its words when :func:`_checked_words` already passed them)."""
     if pl[4] != 10:
         stats["beidou_cnav_frames"] += 1
         return
-    words = beidou_words_from_sfrbx(np.frombuffer(pl[8:48], dtype="<u4").tolist())
+    words = checked if checked is not None else beidou_words_from_sfrbx(np.frombuffer(pl[8:48], dtype="<u4").tolist())
     if words is None:
         stats["beidou_bch_failures"] += 1
         return
@@ -591,6 +648,74 @@ _INAV_SIGNALS = frozenset((0, 1, 5))
 (whose reserved byte is 0 and which tracks E1 only); E5a F/NAV and E6 C/NAV frames are counted apart."""
 _SFRBX = (0x02, 0x13)
 _SFRB = (0x02, 0x11)
+
+
+_PARITY_COLUMNS = tuple((31 if prev == 29 else 30, np.uint32(mask)) for prev, mask in _PARITY_MASKS)
+
+
+def _gps_parity_passes(w: np.ndarray) -> np.ndarray:
+    """Rows of ten RXM-SFRBX GPS words (uint32, shape (m, 10)) whose every word passes the parity
+    in the u-blox form (D29*, D30* in bits 31-30): the first test of :func:`gps_words_from_sfrbx`."""
+    data = (w >> 6) & 0xFFFFFF
+    par = np.zeros(w.shape, np.uint32)
+    for prev, mask in _PARITY_COLUMNS:
+        bit = ((w >> prev) & 1) ^ (np.bitwise_count(data & mask) & 1).astype(np.uint32)
+        par = (par << 1) | bit
+    return (par == (w & 0x3F)).all(axis=1)
+
+
+def _beidou_bch_passes(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(rows passing, words in the logical layout) of ten RXM-SFRBX BeiDou words (uint32, shape
+    (m, 10)) that :func:`beidou_words_from_sfrbx` accepts without de-interleaving any word."""
+    syn = _BCH15_TABLE
+    w = w & 0x3FFFFFFF
+    flip = (w[:, 0] >> 19) == (BDS_PREAMBLE ^ 0x7FF)
+    w = np.where(flip[:, None], w ^ 0x3FFFFFFF, w)
+    cw1 = ((w[:, 1:] >> 19) & 0x7FF) << 4 | ((w[:, 1:] >> 4) & 0xF)
+    cw2 = ((w[:, 1:] >> 8) & 0x7FF) << 4 | (w[:, 1:] & 0xF)
+    ok = ((w[:, 0] >> 19) == BDS_PREAMBLE) & (syn[w[:, 0] & 0x7FFF] == 0) \
+        & (syn[cw1] == 0).all(axis=1) & (syn[cw2] == 0).all(axis=1)
+    return ok, w
+
+
+def _checked_words(frames: list) -> dict:
+    """{frame index: words} (``frames``: (index, class, id, frame bytes)) of the RXM-SFRBX GPS L1 C/A and BeiDou D1/D2 subframes of ``frames``
+    that pass their checks as most do (GPS parity in the u-blox form, BeiDou BCH without
+    de-interleaving), checked all at once: what :func:`gps_words_from_sfrbx` /
+    :func:`beidou_words_from_sfrbx` return for them.  The others are left to those functions."""
+    at = {0: [], 3: []}
+    rows: dict = {0: [], 3: []}
+    for i, cls, mid, fr in frames:
+        if (cls, mid) == _SFRBX and len(fr) == 56 and fr[10] == 10 and (fr[6] == 3 or (fr[6] == 0 and fr[8] == 0)):
+            at[fr[6]].append(i)
+            rows[fr[6]].append(fr[14:54])
+    out = {}
+    for g in (0, 3):
+        if not at[g]:
+            continue
+        w = np.frombuffer(b"".join(rows[g]), dtype="<u4").reshape(len(at[g]), 10)
+        if g == 0:
+            ok, words = _gps_parity_passes(w), (w >> 6) & 0xFFFFFF
+        else:
+            ok, words = _beidou_bch_passes(w)
+        good = np.flatnonzero(ok)
+        out.update(zip(np.asarray(at[g])[good].tolist(), words[good].tolist()))
+    return out
+
+
+def _inav_pages(frames: list) -> dict:
+    """{frame index: :func:`inav_word` result} of every RXM-SFRBX Galileo I/NAV page pair of
+    ``frames`` ((index, class, id, frame bytes), as :func:`sfrbx_ephemerides` selects them), decoded together."""
+    at, rows = [], []
+    for i, cls, mid, fr in frames:
+        if (cls, mid) == _SFRBX and len(fr) >= 16 and fr[6] == 2 and fr[10] == 8 and fr[8] in _INAV_SIGNALS \
+                and len(fr) == 16 + 32:
+            at.append(i)
+            rows.append(fr[14:46])
+    if not at:
+        return {}
+    dw = np.frombuffer(b"".join(rows), dtype="<u4").reshape(len(at), 8)
+    return dict(zip(at, inav_words(dw)))
 
 
 def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = False) -> tuple[pd.DataFrame, dict]:
@@ -632,9 +757,11 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = Fal
     glo_recs: dict[tuple, dict] = {}
     latest: dict[str, dict[int, list[int]]] = {}
     recs: dict[tuple, dict] = {}
-    for _, cls, mid, fr in frames:
-        if (cls, mid) not in (_SFRBX, _SFRB):
-            continue
+    frames = [(i, cls, mid, fr) for i, (_, cls, mid, fr) in enumerate(frames) if cls == 2 and (mid == 0x13 or mid == 0x11)]
+    inav = _inav_pages(frames) if week_ref is not None else {}
+    decoded: set = set()
+    checked = _checked_words(frames)
+    for i, cls, mid, fr in frames:
         pl = fr[6:-2]
         stats["sfrbx_frames"] += 1
         if (cls, mid) == _SFRBX:
@@ -645,8 +772,7 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = Fal
                 stats["galileo_other_frames"] += 1        # F/NAV (E5a), C/NAV (E6): not I/NAV
                 continue
             if gnss == 2 and week_ref is not None:
-                dw8 = np.frombuffer(pl[8:40], dtype="<u4").tolist()
-                got = inav_word(dw8)
+                got = inav[i]
                 if got is None:
                     stats["galileo_bad_pages"] += 1
                     continue
@@ -656,12 +782,16 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = Fal
                     sat = f"E{sv:02d}"
                     have = latest.setdefault(sat, {})
                     have[wtype] = word
+                    seen = (sat, *(have.get(k) for k in (1, 2, 3, 4, 5)))
+                    if seen in decoded:                    # the same five words: the same record
+                        continue
+                    decoded.add(seen)
                     rec = decode_galileo_words(have, sat, week_ref)
                     if rec is not None and 0 <= rec["e"] < 1 and rec["sqrt_a_sqrt_m"] > 0:
                         recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)
                 continue
             if gnss == 3:
-                _beidou_frame(pl, sv, latest, recs, stats)
+                _beidou_frame(pl, sv, latest, recs, stats, checked.get(i))
                 continue
             if gnss == 6 and glonass:
                 glonass_frame(pl, latest, glo_recs, stats, week_ref)
@@ -674,8 +804,9 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = Fal
             if pl[2] != 0:                 # sigId: L2C / L5 CNAV (u-blox 9), not LNAV
                 stats["gps_cnav_frames"] += 1
                 continue
-            dw = list(np.frombuffer(pl[8:48], dtype="<u4").tolist())
-            words = gps_words_from_sfrbx(dw)
+            words = checked.get(i)
+            if words is None:
+                words = gps_words_from_sfrbx(np.frombuffer(pl[8:48], dtype="<u4").tolist())
             if words is None:
                 stats["parity_failures"] += 1
                 continue
@@ -694,6 +825,10 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = Fal
         have = latest.setdefault(sat, {})
         have[sid] = words
         if week_ref is not None and all(k in have for k in (1, 2, 3)):
+            seen = (sat, tuple(have[1]), tuple(have[2]), tuple(have[3]))
+            if seen in decoded:                            # the same three subframes: the same record
+                continue
+            decoded.add(seen)
             rec = decode_gps_subframes(have[1], have[2], have[3], sat, week_ref)
             if rec is not None and 0 <= rec["e"] < 1 and rec["sqrt_a_sqrt_m"] > 0:
                 recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)

@@ -69,6 +69,7 @@ Galileo E1 C 0, E1 B 1, E5 aI 3, E5 aQ 4, E5 bI 5, E5 bQ 6; BeiDou B1I D1 0, D2 
 B2a 7; GLONASS L1 OF 0, L2 OF 2).  u-blox 8 receivers (protocol < 27) report sigId 0 only: GPS L1 C/A,
 Galileo E1, BeiDou B1I, GLONASS L1."""
 _SYS_LETTER = {0: "G", 2: "E", 3: "C", 6: "R"}
+_GPS_SAT_NAMES = np.array([f"G{v:02d}" for v in range(256)], dtype=object)   # by svId (uint8)
 
 _SYNC = b"\xb5\x62"
 _RAWX = (0x02, 0x15)
@@ -272,10 +273,13 @@ def _decode_rawx_log(p: Path, strict: bool, data: bytes | None):
     if not data:
         raise CdgpsError(f"{p}: empty file; expected a u-blox UBX binary log")
     frames, rtcm, stats = split_stream(data)
-    counts: dict[str, int] = {}
+    by_id: dict[tuple[int, int], int] = {}
     for _, cls, mid, _ in frames:
+        by_id[cls, mid] = by_id.get((cls, mid), 0) + 1
+    counts: dict[str, int] = {}
+    for (cls, mid), c in by_id.items():                   # in order of first appearance, as frame by frame
         name = _msg_name(cls, mid)
-        counts[name] = counts.get(name, 0) + 1
+        counts[name] = counts.get(name, 0) + c
     if not frames:
         extra = f" ({stats['bad_checksum_frames']} candidate frames failed the checksum)" if stats["bad_checksum_frames"] else ""
         raise CdgpsError(f"{p}: no valid UBX frames found in {len(data)} bytes{extra}; expected a u-blox UBX binary log with RXM-RAWX messages")
@@ -405,7 +409,7 @@ def read_ubx_log(path: str | Path, *, strict: bool = False,
     obs = pd.DataFrame(
         {
             "time_gps_s": t[m["epoch"]],
-            "sat": np.array([f"G{v:02d}" for v in m["svId"].tolist()], dtype=object),
+            "sat": _GPS_SAT_NAMES[m["svId"]],
             "phase_l1_cycles": np.where(cp_ok, m["cpMes"], np.nan),
             "pseudorange_l1_m": np.where(pr_ok, m["prMes"], np.nan),
             "doppler_l1_hz": m["doMes"].astype(np.float64),

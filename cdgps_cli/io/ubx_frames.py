@@ -16,6 +16,10 @@ A candidate that fails its check costs one byte (two for a UBX sync) and the sea
 bytes outside accepted frames are counted.  Every candidate's check is bounded (UBX checksums come
 from prefix sums in O(1), an RTCM CRC covers at most 1 029 bytes, an NMEA sentence :data:`NMEA_MAX_CHARS`), so the
 walk is linear in the stream's length whatever its content.
+
+:func:`split_stream` computes that walk with numpy (every UBX checksum and NMEA sentence at once,
+the chain of accepted frames by pointer doubling, RTCM CRCs only where the walk meets them);
+``_split_stream_walk`` is the walk itself in Python, the reference the tests compare it with.
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ import re
 import numpy as np
 
 __all__ = ["NMEA_MAX_CHARS", "RTCM_MAX_PAYLOAD", "crc24q", "split_stream"]
+
 
 UBX_SYNC = b"\xb5\x62"
 RTCM_PREAMBLE = 0xD3
@@ -121,8 +126,11 @@ class _Next:
         return self.at
 
 
-def split_stream(data: bytes) -> tuple[list, list, dict]:
-    """Split a receiver's byte stream into UBX frames, RTCM 3 frames and NMEA sentences.
+def _split_stream_walk(data: bytes) -> tuple[list, list, dict]:
+    """:func:`split_stream` as a walk over the stream in Python (the reference the vectorised one
+    is tested against).
+
+    Split a receiver's byte stream into UBX frames, RTCM 3 frames and NMEA sentences.
 
     Parameters
     ----------
@@ -212,6 +220,251 @@ def split_stream(data: bytes) -> tuple[list, list, dict]:
                     bad("bad_crc_rtcm_frames", "bad_rtcm_offsets", k)
                 scan = k + 1
     stats["rtcm_frames"] = dict(sorted(stats["rtcm_frames"].items()))
+    return ubx, rtcm, stats
+
+
+def _new_stats() -> dict:
+    return {"bad_checksum_frames": 0, "bad_frame_offsets": [], "truncated_tail_bytes": 0, "skipped_bytes": 0,
+            "nmea_sentences": 0, "nmea_bytes": 0, "rtcm_frames": {}, "rtcm_bytes": 0, "bad_crc_rtcm_frames": 0,
+            "bad_rtcm_offsets": []}
+
+
+def _ubx_candidates(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every UBX sync word of the stream ``x`` (uint8), its frame's end and its status.
+
+    Returns
+    -------
+    start, end : int64 arrays, shape (m,)
+        Byte offset of each ``0xB5 0x62`` and of the byte after its checksum (as announced).
+    status : int8 array, shape (m,)
+        0: checksum correct; 1: checksum wrong, or the announced end runs past the stream while a
+        later sync follows; 2: the stream ends inside the frame (a truncated tail: the walk stops).
+    """
+    n = x.size
+    start = np.flatnonzero(x[:-1] == 0xB5)
+    start = start[x[start + 1] == 0x62]
+    status = np.full(start.size, 1, np.int8)
+    end = np.full(start.size, n + 1, np.int64)
+    head = start + 6 <= n
+    status[~head] = 2
+    k = start[head]
+    end[head] = k + 8 + (x[k + 4].astype(np.int64) | (x[k + 5].astype(np.int64) << 8))
+    over = head & (end > n)
+    if start.size and over[-1]:
+        status[-1] = 2                                     # no later sync: a truncated tail
+    fit = np.flatnonzero(head & ~over)
+    if fit.size:
+        # uint32 sums wrap mod 2^32, a multiple of 256, and numpy sums uint32 ~10x faster than uint8
+        s = np.empty(n + 1, np.uint32)                     # S_i = sum of x_j, j < i
+        s[0] = 0
+        s[1:] = x                                          # widen first: a cumsum that casts is slower
+        np.cumsum(s, dtype=np.uint32, out=s)
+        a, b = start[fit] + 2, end[fit] - 2                # checksum over class ... payload
+        ck_a = (s[b] - s[a]) & 0xFF
+        # CK_B = sum over i in [a, b) of (S_{i+1} - S_a) = sum of S[a+1 : b+1] - (b - a) S_a
+        ck_b = (_segment_sums(s, a + 1, b + 1) - (b - a).astype(np.uint32) * s[a]) & 0xFF
+        ok = (ck_a == x[b]) & (ck_b == x[b + 1])
+        status[fit[ok]] = 0
+    return start, end, status
+
+
+MAX_LAYERS = 8
+#: rounds of RTCM 3 checks in the gaps of the chain before :func:`split_stream` walks the stream instead
+MAX_RTCM_ROUNDS = 8
+
+
+def _segment_sums(v: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Sums (uint32, wrapping) of ``v[lo:hi]`` for many segments, ``lo`` sorted, ``lo < hi <= v.size - 1``.
+
+    Disjoint segments are summed together by one ``np.add.reduceat``; overlapping ones (a false sync
+    word inside a frame announces a frame of its own) go to later layers of disjoint segments, and
+    past :data:`MAX_LAYERS` layers to one prefix sum of ``v``.
+    """
+    out = np.zeros(lo.size, np.uint32)
+    todo = np.arange(lo.size)
+    for _ in range(MAX_LAYERS):
+        if not todo.size:
+            return out
+        layer = todo[_chain(lo[todo], hi[todo], np.zeros(todo.size, bool))]
+        idx = np.empty(2 * layer.size, np.int64)
+        idx[0::2], idx[1::2] = lo[layer], hi[layer]
+        out[layer] = np.add.reduceat(v, idx, dtype=np.uint32)[0::2]
+        left = np.ones(todo.size, bool)
+        left[np.searchsorted(todo, layer)] = False
+        todo = todo[left]
+    if todo.size:
+        c = np.zeros(v.size + 1, np.uint32)
+        np.cumsum(v, dtype=np.uint32, out=c[1:])
+        out[todo] = c[hi[todo]] - c[lo[todo]]
+    return out
+
+
+_HEX = np.full(256, -1, np.int16)
+for _i, _c in enumerate(b"0123456789"):
+    _HEX[_c] = _i
+for _i, _c in enumerate(b"abcdef"):
+    _HEX[_c] = _HEX[_c - 32] = 10 + _i
+_ALNUM = np.zeros(256, bool)
+_ALNUM[np.frombuffer(b"ABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789", np.uint8)] = True
+
+
+def _nmea_sentences(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Start and end of every ``$`` of the stream that begins an NMEA sentence :data:`_NMEA`
+    matches with a correct checksum (the test of :func:`_nmea_at`, for all of them at once).
+
+    The sentence can only end at the first LF after its ``$`` (nothing before its end is an LF),
+    so its checksum star sits 3 bytes before that LF, or 4 after a CR.
+    """
+    n = x.size
+    k = np.flatnonzero(x == 0x24).astype(np.int64)
+    k = k[k + 8 <= n]
+    k = k[(x[k + 1] >= 0x41) & (x[k + 1] <= 0x5A)]
+    win = np.zeros((k.size, 7), np.uint8)                 # bytes k+2 .. k+8: talker tail and comma
+    for j in range(7):
+        win[:, j] = x[np.minimum(k + 2 + j, n - 1)]
+    talk = np.argmin(_ALNUM[win], axis=1)                  # first byte not in [A-Z0-9]
+    keep = (talk >= 1) & (talk <= 5) & (win[np.arange(k.size), talk] == 0x2C)
+    k, comma = k[keep], k[keep] + 2 + talk[keep]
+    lf = np.flatnonzero(x == 0x0A)
+    i = np.searchsorted(lf, comma + 1)
+    has = i < lf.size
+    k, comma, e = k[has], comma[has], lf[i[has]]
+    star = e - 3 - (x[e - 1] == 0x0D)
+    keep = (star >= comma + 1) & (star - comma - 1 <= NMEA_MAX_CHARS - 13)
+    k, star, e = k[keep], star[keep], e[keep]
+    keep = (x[star] == 0x2A) & (_HEX[x[star + 1]] >= 0) & (_HEX[x[star + 2]] >= 0)
+    k, star, e = k[keep], star[keep], e[keep]
+    if not k.size:
+        return k, k
+    lens = star - k - 1                                    # bytes between $ and * (>= 3)
+    first = np.concatenate(([0], np.cumsum(lens)[:-1]))
+    idx = np.repeat(k + 1 - first, lens) + np.arange(int(lens.sum()))
+    body = x[idx]
+    printable = np.logical_and.reduceat((body >= 0x20) & (body <= 0x7E), first)
+    check = np.bitwise_xor.reduceat(body, first)
+    ok = printable & (check == _HEX[x[star + 1]] * 16 + _HEX[x[star + 2]])
+    return k[ok], e[ok] + 1
+
+
+def _chain(start: np.ndarray, end: np.ndarray, stop: np.ndarray) -> np.ndarray:
+    """Indices of the items the walk accepts: the first item, then each time the first item
+    starting at or after the previous one's end, up to a stopping item (``start`` sorted).
+
+    Pointer doubling: after step j the marked set holds the first 2^(j+1) items of the walk.
+    """
+    m = start.size
+    if not m:
+        return np.zeros(0, np.int64)
+    succ = np.append(np.searchsorted(start, end), m)       # m: none
+    succ[:m][stop] = m
+    marked = np.zeros(m + 1, bool)
+    marked[0] = True
+    for _ in range(int(m).bit_length() + 1):
+        marked[succ[np.flatnonzero(marked)]] = True
+        succ = succ[succ]
+    return np.flatnonzero(marked[:m])
+
+
+def _inside(q: np.ndarray, a: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """Whether each position ``q`` lies inside one of the disjoint spans [a, e) (a sorted)."""
+    if not a.size:
+        return np.zeros(q.size, bool)
+    j = np.searchsorted(a, q, side="right") - 1
+    return (j >= 0) & (q < e[np.maximum(j, 0)])
+
+
+def split_stream(data: bytes) -> tuple[list, list, dict]:
+    """Split a receiver's byte stream into UBX frames, RTCM 3 frames and NMEA sentences.
+
+    The walk described in the module docstring, computed with numpy: every UBX candidate's
+    checksum at once (prefix sums), every NMEA candidate's sentence at once, then the chain of
+    accepted frames by pointer doubling.  RTCM 3 candidates (a CRC-24Q each) are tested only where
+    the walk would meet them (outside accepted frames), repeating the chain until none is left
+    untested; the result is the walk's, frame for frame and count for count.
+
+    Parameters
+    ----------
+    data : bytes
+        The whole log.
+
+    Returns
+    -------
+    ubx : list of (offset, class, id, frame bytes)
+        Checksum-valid UBX frames (frame bytes from the sync word to the checksum).
+    rtcm : list of (offset, message type, frame bytes)
+        CRC-valid RTCM 3 frames (preamble to CRC).
+    stats : dict
+        ``bad_checksum_frames`` and ``bad_frame_offsets`` (first few): UBX candidates failing the
+        checksum, or whose announced length runs past the end while a later sync follows;
+        ``truncated_tail_bytes`` (a UBX frame cut by the end of the stream); ``bad_crc_rtcm_frames``
+        and ``bad_rtcm_offsets``: RTCM 3 frames failing CRC-24Q; ``nmea_sentences``, ``nmea_bytes``
+        (complete sentences, checksums correct); ``rtcm_frames`` (dict message type -> count) and
+        ``rtcm_bytes``; ``skipped_bytes``: every other byte outside accepted frames (noise, corrupt
+        frames, sentences with a wrong checksum).
+    """
+    x = np.frombuffer(data, np.uint8)
+    n = x.size
+    u_start, u_end, u_status = _ubx_candidates(x)
+    n_start, n_end = _nmea_sentences(x)
+    r_cand = np.flatnonzero(x == RTCM_PREAMBLE).astype(np.int64)
+    r_tested = np.zeros(r_cand.size, bool)
+    r_end = np.zeros(r_cand.size, np.int64)
+    r_type = np.zeros(r_cand.size, np.int64)
+    r_ok = np.zeros(r_cand.size, bool)
+    u_item = u_status != 1
+    for _ in range(MAX_RTCM_ROUNDS):
+        kind = np.concatenate((np.zeros(int(u_item.sum()), np.int8), np.ones(n_start.size, np.int8),
+                               np.full(int(r_ok.sum()), 2, np.int8)))
+        start = np.concatenate((u_start[u_item], n_start, r_cand[r_ok]))
+        end = np.concatenate((u_end[u_item], n_end, r_end[r_ok]))
+        stop = np.concatenate((u_status[u_item] == 2, np.zeros(n_start.size + int(r_ok.sum()), bool)))
+        order = np.argsort(start, kind="stable")
+        kind, start, end, stop = kind[order], start[order], end[order], stop[order]
+        acc = _chain(start, end, stop)
+        last_stop = acc.size and stop[acc[-1]]
+        limit = start[acc[-1]] if last_stop else n
+        frames = acc[:-1] if last_stop else acc
+        a, e = start[frames], end[frames]
+        gap = ~r_tested & (r_cand < limit) & ~_inside(r_cand, a, e)
+        if not gap.any():
+            break
+        for i in np.flatnonzero(gap).tolist():
+            r_end[i], r_type[i], r_ok[i] = _rtcm_at(data, int(r_cand[i]))
+            r_ok[i] = bool(r_ok[i] and r_end[i])
+            r_tested[i] = True
+    else:                  # RTCM frames found in gaps keep moving the chain (contrived input): walk
+        return _split_stream_walk(data)
+    return _collect(data, kind[frames], a, e, limit, n, u_start, u_status, r_cand, r_tested, r_end, r_type, r_ok)
+
+
+def _collect(data, kind, a, e, limit, n, u_start, u_status, r_cand, r_tested, r_end, r_type, r_ok):
+    """The lists and counters of :func:`split_stream` from the accepted spans ``[a, e)`` of each
+    ``kind`` (0 UBX, 1 NMEA, 2 RTCM) and the place ``limit`` where the walk stopped."""
+    stats = _new_stats()
+    ub = (kind == 0)
+    ubx = [(k, data[k + 2], data[k + 3], data[k:j]) for k, j in zip(a[ub].tolist(), e[ub].tolist())]
+    nm = kind == 1
+    stats["nmea_sentences"] = int(nm.sum())
+    stats["nmea_bytes"] = int((e[nm] - a[nm]).sum())
+    rt = kind == 2
+    rtcm = []
+    types: dict = {}
+    for k, j in zip(a[rt].tolist(), e[rt].tolist()):
+        t = int(r_type[np.searchsorted(r_cand, k)])
+        rtcm.append((k, t, data[k:j]))
+        types[t] = types.get(t, 0) + 1
+    stats["rtcm_frames"] = dict(sorted(types.items()))
+    stats["rtcm_bytes"] = int((e[rt] - a[rt]).sum())
+    stats["skipped_bytes"] = int(limit - (e - a).sum())
+    if limit < n:
+        stats["truncated_tail_bytes"] = int(n - limit)
+    bad = u_start[(u_status == 1) & (u_start < limit) & ~_inside(u_start, a, e)]
+    stats["bad_checksum_frames"] = int(bad.size)
+    stats["bad_frame_offsets"] = bad[:MAX_OFFSETS_SHOWN].tolist()
+    plaus = ((r_type >= 1001) & (r_type <= 1300)) | ((r_type >= 4001) & (r_type <= 4095))
+    badr = r_cand[r_tested & ~r_ok & (r_end > 0) & plaus & (r_cand < limit) & ~_inside(r_cand, a, e)]
+    stats["bad_crc_rtcm_frames"] = int(badr.size)
+    stats["bad_rtcm_offsets"] = badr[:MAX_OFFSETS_SHOWN].tolist()
     return ubx, rtcm, stats
 
 
