@@ -275,8 +275,20 @@ def _solve_window(cfg, R, tabs, k_of, ant_idx, d_hdr, idx, dt, options=None, cod
                 ref=select_reference(tb["d"].ptr, tb["d"].sat, tb["d"].el_rover, tb["d"].slip)) for tb in tabs]
     model = SatelliteDDModal(cfg, R, raw, k_of, ant_idx, d_hdr, code=code_dd and all("rc" in tb for tb in tabs))
     lam = [tb.get("lam_m", GPS_L1_WAVELENGTH_M) for tb in tabs]
-    res = model_batch_init(model, ModalZOH(cfg), idx, dt, lambda col: lam[model.segment_keys[col][0]], options or InitOptions())
+    res = model_batch_init(model, ModalZOH(cfg), idx, dt, lambda col: lam[model.segment_keys[col][0]], options or InitOptions(),
+                           prior_cov=modal_prior_covariance(cfg))
     return res, model, lam
+
+
+def modal_prior_covariance(cfg: StructureConfig) -> np.ndarray | None:
+    """The prior covariance of the modal state [ξ, ξ̇] (n = 2 n_m) at any epoch: the stationary
+    covariance of the modal dynamics driven by the configured process noise, at the model's own
+    sample period (the continuous process; a coarser zero-order hold would misstate a mode near
+    its Nyquist frequency).  None when a mode is undamped or rigid (no stationary spread)."""
+    from cdgps_cli.estimation.model_init import stationary_covariance  # noqa: PLC0415
+
+    A, _, Q = ModalZOH(cfg).transition(cfg.sample_period_s)
+    return stationary_covariance(A, Q)
 
 
 def _later_windows(cfg, R, tabs, k_of, ant_idx, d_hdr, t_all, window_s: float, t_from: float,
@@ -626,7 +638,7 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
         raise CdgpsError("no fixed DD integers for any rover (INIT.json's nor the modal batch initialization's); "
                          "try a longer span or 'cdgps init' without --float-only")
     model = SatelliteDDModal(cfg, R, tabs, k_of, ant_idx, d_hdr)
-    P0 = np.diag(np.r_[np.full(nm, initial_sigma_xi**2), np.full(nm, initial_sigma_xidot**2)])
+    x0, P0 = _filter_start(cfg, x0, initial_sigma_xi, initial_sigma_xidot)
     say(f"modal EKF over {n} epochs, {len(rover_ants)} rover antenna(s), {nm} modes …")
     gate = EstimateOptions().outlier_sigma if outlier_sigma is None else float(outlier_sigma)
     fusion = None
@@ -665,6 +677,19 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
         **({"fusion": fusion.summary} if fusion is not None else {}),
     })
     return out
+
+
+def _filter_start(cfg: StructureConfig, x1, initial_sigma_xi: float, initial_sigma_xidot: float):
+    """The filter's start (x0, P0) at the first epoch. With a stationary modal prior
+    (:func:`modal_prior_covariance`) the filter starts from that prior itself, x0 = 0 and P0 = its
+    covariance: the filter then re-reads the window's data once, as the batch did from the same
+    prior, instead of counting them twice (the batch's own x1 and posterior already hold them).
+    Without one, the batch's x1 and the broad ``initial_sigma_xi``/``initial_sigma_xidot``."""
+    nm = cfg.n_modes
+    prior = modal_prior_covariance(cfg)
+    if prior is None:
+        return np.asarray(x1, float), np.diag(np.r_[np.full(nm, initial_sigma_xi**2), np.full(nm, initial_sigma_xidot**2)])
+    return np.zeros(2 * nm), prior
 
 
 def _filter_dd(model, cfg: StructureConfig, t_all, x0, P0, max_iterations: int, gate: float, smooth: bool):
