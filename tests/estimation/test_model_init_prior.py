@@ -6,8 +6,6 @@ by stacking every unknown [x₁, w, b] in one normal matrix)."""
 
 from __future__ import annotations
 
-from types import SimpleNamespace
-
 import numpy as np
 import pytest
 

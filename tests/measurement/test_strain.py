@@ -91,4 +91,6 @@ def test_simulated_log_ingested_and_fused(fused_strain):
 
 
 def test_strain_readings_are_used_from_the_start(fused_strain):
+    """The modal start state is honest (x = 0 on the batch's prior, not an arbitrary 5 Hz mode at the GNSS
+    Nyquist with P0 = I), so the outlier gate keeps the precise gauge from the first sample."""
     assert fused_strain[1]["fusion"]["sensors"]["s1"]["samples"] > 250
