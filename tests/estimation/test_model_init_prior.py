@@ -116,3 +116,17 @@ def test_without_the_prior_the_unseen_mode_is_not_observable():
     A, G = _oscillators()
     with pytest.raises(CdgpsError, match="not observable|singular|converge"):
         model_batch_init(_Model(_data(A, G)), _Dyn(A, G), range(N_EP), DT, 1.0, InitOptions(fix_integers=False))
+
+
+def test_modal_prior_is_the_stationary_sway_plus_the_broad_start():
+    """tower-fusion's process noise is tuned to a stationary sway of about 5 cm, 2 cm, 5 mm, 1 mm at the top
+    (its config); the prior adds the broad start σ; a rigid mode (gnss-tower) leaves the broad part alone."""
+    from cdgps_cli.config.structure import load_config
+    from cdgps_cli.pipeline.gnss_modal import modal_prior_covariance
+
+    P = modal_prior_covariance(load_config("configs/tower-fusion.toml"), 0.0, 0.0)
+    np.testing.assert_allclose(np.sqrt(np.diag(P))[:4], [0.05, 0.02, 0.005, 0.001], rtol=0.01)
+    P1 = modal_prior_covariance(load_config("configs/tower-fusion.toml"), 0.1, 0.2)
+    np.testing.assert_allclose(P1 - P, np.diag([0.01] * 4 + [0.04] * 4), atol=1e-15)
+    np.testing.assert_array_equal(modal_prior_covariance(load_config("configs/gnss-tower.toml"), 1.0, 2.0),
+                                  np.diag([1.0] * 3 + [4.0] * 3))
