@@ -12,7 +12,11 @@ several ambiguities, :class:`~cdgps_cli.estimation.batch_solver.LinearProblem` `
 solution and its validation (:func:`~cdgps_cli.estimation.batch_init.fix_validation`).
 
 With the modal dynamics and the satellite-DD model this is the paper's model-aided initialization on
-GNSS double differences (used by :mod:`cdgps_cli.pipeline.gnss_modal`).
+GNSS double differences (used by :mod:`cdgps_cli.pipeline.gnss_modal`), there with a prior on the
+first state (the stationary covariance of the modal process noise plus a broad start spread): a mode
+at or above the data's Nyquist frequency is not seen by the window, its normal matrix is near-singular
+in that direction, and without the prior the solution there is arbitrary (a 5 Hz mode on 10 Hz GNSS
+came out at tens of m/s).
 """
 
 from __future__ import annotations
@@ -152,7 +156,7 @@ class ModelInitResult:
     ratio: float | None
     note: str
     x: np.ndarray              # (N, n) trajectory of the final solution
-    P_end: np.ndarray | None   # (n, n) state covariance at the window end
+    P_end: np.ndarray | None   # (n, n) state covariance at the window end (posterior with ``prior_cov``)
     cost: float
     cost_per_dof: float
     iterations: int
