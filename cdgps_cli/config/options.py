@@ -19,6 +19,10 @@ PHASE_SIGMA_A_M = 0.003
 PHASE_SIGMA_B_M = 0.003
 #: the modal batch initialization on GNSS also uses pseudorange DDs (σ = code_ratio × the phase σ)
 MODAL_INIT_CODE_DD = True
+#: prior 1σ of the modal positions (config units) and rates (/s) about 0 at the first epoch, beyond the
+#: stationary spread of the process noise: a record need not start in the stationary state
+MODAL_INITIAL_SIGMA_XI = 1.0
+MODAL_INITIAL_SIGMA_XIDOT = 1.0
 
 #: GNSS run config and baseline solver defaults (docs/gnss-pipeline.md)
 #: the DD ionosphere is neglected on baselines shorter than this, km (`cdgps rtk` estimates it at or

@@ -12,7 +12,11 @@ several ambiguities, :class:`~cdgps_cli.estimation.batch_solver.LinearProblem` `
 solution and its validation (:func:`~cdgps_cli.estimation.batch_init.fix_validation`).
 
 With the modal dynamics and the satellite-DD model this is the paper's model-aided initialization on
-GNSS double differences (used by :mod:`cdgps_cli.pipeline.gnss_modal`).
+GNSS double differences (used by :mod:`cdgps_cli.pipeline.gnss_modal`), there with a prior on the
+first state (the stationary covariance of the modal process noise plus a broad start spread): a mode
+at or above the data's Nyquist frequency is not seen by the window, its normal matrix is near-singular
+in that direction, and without the prior the solution there is arbitrary (a 5 Hz mode on 10 Hz GNSS
+came out at tens of m/s).
 """
 
 from __future__ import annotations
@@ -25,7 +29,20 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.estimation.ambiguity import AmbiguityError, resolve
 from cdgps_cli.estimation.batch_init import BatchProblem, InitOptions, fix_note_text, full_set_ratio
 
-__all__ = ["ModelProblem", "ModelInitResult", "model_batch_init"]
+__all__ = ["ModelProblem", "ModelInitResult", "model_batch_init", "stationary_covariance"]
+
+
+def stationary_covariance(A: np.ndarray, Q: np.ndarray) -> np.ndarray | None:
+    """The stationary covariance P = A P Aᵀ + Q of x_{k+1} = A x_k + w_k, cov w = Q: the spread of a
+    state driven by the process noise long enough to forget its start (units of x², (n, n)); None
+    when the dynamics are not strictly stable (spectral radius ≥ 1: an undamped or rigid mode has no
+    stationary spread)."""
+    from scipy.linalg import solve_discrete_lyapunov  # noqa: PLC0415
+
+    if A.size == 0 or np.max(np.abs(np.linalg.eigvals(A))) >= 1.0 - 1e-12:
+        return None
+    P = solve_discrete_lyapunov(A, Q)
+    return 0.5 * (P + P.T)
 
 
 class ModelProblem(BatchProblem):
@@ -45,12 +62,17 @@ class ModelProblem(BatchProblem):
         Per window segment (see ``columns``): the known bias (m), NaN = estimated.
     rows : list of Rows, optional
         The window's rows (default: ``model.rows(k)`` for k in ``epochs``).
+    prior_cov : ndarray (n, n), optional
+        Prior covariance of the first state about 0 (e.g. the dynamics' stationary covariance,
+        :func:`stationary_covariance`): the regulariser of the directions the window does not see
+        (a mode at or above the data's Nyquist frequency), which are otherwise arbitrary.
     """
 
     square_root = True
 
-    def __init__(self, model, dyn, epochs, dt_s: float, known_bias=None, rows=None):
+    def __init__(self, model, dyn, epochs, dt_s: float, known_bias=None, rows=None, prior_cov=None):
         self.model = model
+        self.prior_info = None if prior_cov is None else np.linalg.inv(np.asarray(prior_cov, float))
         self.rows = [model.rows(k) for k in epochs] if rows is None else rows
         self.A, _, _ = dyn.transition(dt_s)
         self.G = dyn.noise_factor(dt_s)
@@ -84,6 +106,19 @@ class ModelProblem(BatchProblem):
         self.E = np.zeros((N, C, self.free.size))
         k, c = np.nonzero(self.bias_index >= 0)
         self.E[k, c, self.bias_index[k, c]] = 1.0
+
+    def x1_cost(self, x: np.ndarray) -> float:
+        """The prior's cost x₁ᵀ P⁻¹ x₁ (0 without a prior)."""
+        return 0.0 if self.prior_info is None else float(x[0] @ self.prior_info @ x[0])
+
+    def x1_prior(self, damp: float, x1_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The damping (square-root weight ``damp`` about ``x1_ref``) and the prior (about 0) as one
+        Gaussian: information Λ = damp² I + P⁻¹, mean Λ⁻¹ damp² x1_ref, square root chol(Λ)ᵀ."""
+        if self.prior_info is None:
+            return super().x1_prior(damp, x1_ref)
+        info = damp**2 * np.eye(self.n) + self.prior_info
+        mean = np.linalg.solve(info, damp**2 * np.asarray(x1_ref, float))
+        return mean, np.linalg.cholesky(0.5 * (info + info.T)).T
 
     def predict(self, x: np.ndarray, jacobian: bool = False):
         """h (N, C) and with ``jacobian`` H (N, C, n), zero on absent rows."""
@@ -121,14 +156,15 @@ class ModelInitResult:
     ratio: float | None
     note: str
     x: np.ndarray              # (N, n) trajectory of the final solution
-    P_end: np.ndarray | None   # (n, n) state covariance at the window end
+    P_end: np.ndarray | None   # (n, n) state covariance at the window end (posterior with ``prior_cov``)
     cost: float
     cost_per_dof: float
     iterations: int
 
 
 def model_batch_init(model, dyn, epochs, dt_s: float, wavelength_m, opt: InitOptions | None = None,
-                     x1: np.ndarray | None = None, max_bias_sigma_cycles: float | None = None) -> ModelInitResult:
+                     x1: np.ndarray | None = None, max_bias_sigma_cycles: float | None = None,
+                     prior_cov: np.ndarray | None = None) -> ModelInitResult:
     """Batch initialization of ``model`` on ``epochs``: float solution, integers, fixed solution.
 
     The biases are λ·(integer) (no line biases: double differences); ``wavelength_m`` is one λ (m)
@@ -140,10 +176,12 @@ def model_batch_init(model, dyn, epochs, dt_s: float, wavelength_m, opt: InitOpt
     is singular, or (``max_bias_sigma_cycles`` given) a float bias has a larger σ.  Without that
     limit a weak direction (e.g. a rigid yaw offset nearly constant over the window, which moves
     every DD like a bias pattern) is left to LAMBDA: its ratio test decides, and the fix validation
-    checks the fixed solution.
+    checks the fixed solution.  ``prior_cov`` (n, n): the first state's prior covariance about 0
+    (:class:`ModelProblem`), in the float and the fixed solutions; ``P_end`` is then the posterior
+    with that prior.
     """
     opt = opt or InitOptions()
-    prob = ModelProblem(model, dyn, epochs, dt_s)
+    prob = ModelProblem(model, dyn, epochs, dt_s, prior_cov=prior_cov)
     x = prob.propagate(np.zeros(prob.n) if x1 is None else np.asarray(x1, float))
     g = prob.gauss_newton(x, prob.initial_biases(x), opt.max_iterations, opt)
     m, n = prob.free.size, prob.n
@@ -177,7 +215,7 @@ def model_batch_init(model, dyn, epochs, dt_s: float, wavelength_m, opt: InitOpt
                           P[:n, :n], g.cost, g.cost / max(n_obs - n - m, 1), g.iterations)
     if fixed.any():
         known = np.where(fixed, lam * integers, np.nan)
-        pf = ModelProblem(model, dyn, epochs, dt_s, known_bias=known, rows=prob.rows)
+        pf = ModelProblem(model, dyn, epochs, dt_s, known_bias=known, rows=prob.rows, prior_cov=prior_cov)
         gf, dJ, limit = pf.refit_fixed(g, b_float[~fixed] - pf.b_offset, opt, n_obs - n - m, int(fixed.sum()))
         if gf.converged and dJ <= limit:
             Pf = gf.lin.P_end

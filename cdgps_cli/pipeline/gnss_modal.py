@@ -31,7 +31,8 @@ runs that model on a GNSS RUN (RINEX/UBX receivers, broadcast ephemerides):
   :mod:`cdgps_cli.model.dynamics` at the epoch spacing, process noise scaled to keep the config's noise
   density), measurement update in information form on the DDs whitened by the Cholesky factor of
   their covariance (R = I), iterated (Gauss-Newton) while the correction is large; prior x = 0 with
-  a broad covariance (``initial_sigma_xi``, ``initial_sigma_xidot``); optional
+  the covariance of :func:`modal_prior_covariance` (the stationary spread of the modal process
+  noise plus ``initial_sigma_xi``, ``initial_sigma_xidot``: the batch initialization's prior too); optional
   Rauch-Tung-Striebel smoother;
 * **output** — STATES.mcap through :func:`cdgps_cli.io.states.write_states` (coordinates = the
   structure's q names, so ``cdgps export`` / ``cdgps evaluate`` work), DD residuals per antenna and
@@ -57,8 +58,8 @@ from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli import __version__
 from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.io.coordinate_columns import coordinate_columns
-from cdgps_cli.config.options import (MODAL_INIT_CODE_DD, SCENE_EXAGGERATION, SCENE_SKY_STEP_S, SIM_MASTER_ECEF_M,
-                                      X_AXIS_AZIMUTH_DEG)
+from cdgps_cli.config.options import (MODAL_INIT_CODE_DD, MODAL_INITIAL_SIGMA_XI, MODAL_INITIAL_SIGMA_XIDOT,
+                                      SCENE_EXAGGERATION, SCENE_SKY_STEP_S, SIM_MASTER_ECEF_M, X_AXIS_AZIMUTH_DEG)
 
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.measurement.differencing import joint_dd_covariance, sd_variance, select_reference
@@ -191,7 +192,8 @@ def _init_window(t_all: np.ndarray, window_s: float) -> tuple[np.ndarray, float]
 
 def modal_batch_initialization(cfg: StructureConfig, R, tabs, k_of, ant_idx, d_hdr, t_all, *,
                                window_s: float = INIT_WINDOW_S, options=None,
-                               max_window_factor: float = INIT_WINDOW_MAX_FACTOR, code_dd: bool = MODAL_INIT_CODE_DD):
+                               max_window_factor: float = INIT_WINDOW_MAX_FACTOR, code_dd: bool = MODAL_INIT_CODE_DD,
+                               prior_cov=None):
     """Model-aided batch initialization of the modal state on the satellite DDs (the paper's method).
 
     On the first ``window_s`` seconds (extended ×INIT_WINDOW_GROWTH, up to INIT_WINDOW_MAX_FACTOR ×
@@ -222,7 +224,7 @@ def modal_batch_initialization(cfg: StructureConfig, R, tabs, k_of, ant_idx, d_h
         # until its ratio test passes; a longer window can only add information
         try:
             idx_w, dt = _init_window(t_all, w_s)
-            res_w, model, lam = _solve_window(cfg, R, tabs, k_of, ant_idx, d_hdr, idx_w, dt, options, code_dd)
+            res_w, model, lam = _solve_window(cfg, R, tabs, k_of, ant_idx, d_hdr, idx_w, dt, options, code_dd, prior_cov)
         except CdgpsError as exc:           # (a longer window refused: the last solved one stands)
             if not tried:
                 raise
@@ -261,13 +263,15 @@ def modal_batch_initialization(cfg: StructureConfig, R, tabs, k_of, ant_idx, d_h
     if tabs and "signal" in tabs[0]:     # signal path: no INIT integers for later segments → later windows
         record["later_segments"], record["later_windows"] = _later_windows(
             cfg, R, apply_modal_record(tabs, record), k_of, ant_idx, d_hdr, t_all, window_s, float(t_all[idx[-1]]) + 1e-6,
-            code_dd)
+            code_dd, prior_cov)
     return apply_modal_record(tabs, record), res.x[0].copy(), record
 
 
-def _solve_window(cfg, R, tabs, k_of, ant_idx, d_hdr, idx, dt, options=None, code_dd: bool = MODAL_INIT_CODE_DD):
+def _solve_window(cfg, R, tabs, k_of, ant_idx, d_hdr, idx, dt, options=None, code_dd: bool = MODAL_INIT_CODE_DD,
+                  prior_cov=None):
     """The batch initialization of every slot's DDs, all ambiguities float, on the epochs ``idx``
-    (:func:`cdgps_cli.estimation.model_init.model_batch_init`): (result, its model, λ per slot).
+    (:func:`cdgps_cli.estimation.model_init.model_batch_init`, x₁'s prior ``prior_cov``, default
+    :func:`modal_prior_covariance`): (result, its model, λ per slot).
     ``code_dd``: with the pseudorange DDs of the slots that have them (``rc``)."""
     from cdgps_cli.estimation.initializer import InitOptions  # noqa: PLC0415
     from cdgps_cli.estimation.model_init import model_batch_init  # noqa: PLC0415
@@ -276,12 +280,31 @@ def _solve_window(cfg, R, tabs, k_of, ant_idx, d_hdr, idx, dt, options=None, cod
                 ref=select_reference(tb["d"].ptr, tb["d"].sat, tb["d"].el_rover, tb["d"].slip)) for tb in tabs]
     model = SatelliteDDModal(cfg, R, raw, k_of, ant_idx, d_hdr, code=code_dd and all("rc" in tb for tb in tabs))
     lam = [tb.get("lam_m", GPS_L1_WAVELENGTH_M) for tb in tabs]
-    res = model_batch_init(model, ModalZOH(cfg), idx, dt, lambda col: lam[model.segment_keys[col][0]], options or InitOptions())
+    res = model_batch_init(model, ModalZOH(cfg), idx, dt, lambda col: lam[model.segment_keys[col][0]], options or InitOptions(),
+                           prior_cov=modal_prior_covariance(cfg) if prior_cov is None else prior_cov)
     return res, model, lam
 
 
+def modal_prior_covariance(cfg: StructureConfig, sigma_xi: float = MODAL_INITIAL_SIGMA_XI,
+                           sigma_xidot: float = MODAL_INITIAL_SIGMA_XIDOT) -> np.ndarray:
+    """The prior covariance (2 n_m, 2 n_m) of the modal state [ξ, ξ̇] at the first epoch, about 0: the
+    stationary covariance of the modal dynamics driven by the configured process noise (at the
+    model's own sample period: the continuous process; a coarser zero-order hold would misstate a
+    mode near its Nyquist frequency; none when a mode is undamped or rigid) plus diag(σ_ξ², σ_ξ̇²)
+    for a record that does not start in the stationary state (a structure released, a storm).
+    The batch initialization's regulariser (a mode the window cannot see, such as one at the GNSS
+    Nyquist frequency, stays at its prior instead of taking any value) and the filter's start."""
+    from cdgps_cli.estimation.model_init import stationary_covariance  # noqa: PLC0415
+
+    nm = cfg.n_modes
+    A, _, Q = ModalZOH(cfg).transition(cfg.sample_period_s)
+    P = stationary_covariance(A, Q)
+    broad = np.diag(np.r_[np.full(nm, float(sigma_xi) ** 2), np.full(nm, float(sigma_xidot) ** 2)])
+    return broad if P is None else P + broad
+
+
 def _later_windows(cfg, R, tabs, k_of, ant_idx, d_hdr, t_all, window_s: float, t_from: float,
-                   code_dd: bool = MODAL_INIT_CODE_DD) -> tuple[list, list]:
+                   code_dd: bool = MODAL_INIT_CODE_DD, prior_cov=None) -> tuple[list, list]:
     """Signal path: integers of the segments starting after the first window (rising satellites, slips).
 
     A window of ``window_s`` opens where the first segment not yet known and observed for at least
@@ -310,7 +333,8 @@ def _later_windows(cfg, R, tabs, k_of, ant_idx, d_hdr, t_all, window_s: float, t
         k0 = int(np.searchsorted(t_all, starts.min()))
         try:
             idx, dt = _init_window(t_all[k0:], window_s)
-            res, model, _ = _solve_window(cfg, R, tabs, k_of, ant_idx, d_hdr, idx + k0, dt, code_dd=code_dd)
+            res, model, _ = _solve_window(cfg, R, tabs, k_of, ant_idx, d_hdr, idx + k0, dt, code_dd=code_dd,
+                                          prior_cov=prior_cov)
         except CdgpsError as exc:
             windows.append({"start_s": float(t_all[k0]), "refused": str(exc)})
             t_from = float(t_all[k0]) + window_s
@@ -533,7 +557,7 @@ def _signal_slots(run, mapping: dict, rover_ants: list, xm: np.ndarray, say) -> 
 
 def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, out_path, *,
                         receivers: dict | None = None, x_axis_azimuth_deg: float = X_AXIS_AZIMUTH_DEG, smooth: bool = False,
-                        initial_sigma_xi: float = 1.0, initial_sigma_xidot: float = 1.0,
+                        initial_sigma_xi: float = MODAL_INITIAL_SIGMA_XI, initial_sigma_xidot: float = MODAL_INITIAL_SIGMA_XIDOT,
                         max_iterations: int = 5, progress=None, extra_options: dict | None = None,
                         batch_init: bool = True, init_window_s: float = INIT_WINDOW_S,
                         outlier_sigma: float | None = None,
@@ -564,15 +588,16 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
     smooth : bool
         Add the Rauch-Tung-Striebel smoother (``/cdgps/state``: smoothed, ``/cdgps/state_filtered``).
     initial_sigma_xi, initial_sigma_xidot : float
-        Prior 1σ of the modal positions and rates about x = 0 at the first epoch (config units).
+        Prior 1σ of the modal positions and rates about x = 0 at the first epoch (config units),
+        added to the stationary spread of the process noise (:func:`modal_prior_covariance`).
     max_iterations : int
         Gauss-Newton iterations of the measurement update (while the correction exceeds 1e-9 of
         the state).
     batch_init : bool
         Model-aided batch initialization on the first ``init_window_s`` seconds
-        (:func:`modal_batch_initialization`): its DD integers replace INIT's in the window and the
-        filter starts from its state at the first epoch (with the broad prior covariance, so that
-        the window's data are not counted twice); False: INIT's integers and x = 0.
+        (:func:`modal_batch_initialization`, on the prior of :func:`modal_prior_covariance`): its DD
+        integers replace INIT's in the window; the filter starts from that same prior (x = 0), not
+        from the batch's x₁, so that the window's data are not counted twice; False: INIT's integers.
     outlier_sigma : float, optional
         Outlier gate: a DD whose innovation exceeds this many σ is not used at that epoch (event
         ``outlier``); default :class:`cdgps_cli.estimation.filter.EstimateOptions`'s.
@@ -604,16 +629,16 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
                          f"longer span / random_walk displacement model)")
 
     nm = cfg.n_modes
-    x0 = np.zeros(2 * nm)
+    prior = modal_prior_covariance(cfg, initial_sigma_xi, initial_sigma_xidot)
     init_record = None
     stored = _stored_record(init, cfg, mapping, x_axis_azimuth_deg) if batch_init else None
     if stored is not None:
         say("modal batch initialization: INIT.json's (from 'cdgps init --structure')")
-        tabs, x0, init_record = apply_modal_record(tabs, stored), np.asarray(stored["x1"], float), stored
+        tabs, init_record = apply_modal_record(tabs, stored), stored
     elif batch_init:
         say(f"modal batch initialization on the first {init_window_s:g} s …")
         try:
-            tabs, x0, init_record = modal_batch_initialization(cfg, R, tabs, k_of, ant_idx, d_hdr, t_all,
+            tabs, _, init_record = modal_batch_initialization(cfg, R, tabs, k_of, ant_idx, d_hdr, t_all, prior_cov=prior,
                                                                window_s=init_window_s,
                                                                max_window_factor=init_window_max_factor,
                                                                code_dd=init_code_dd)
@@ -628,7 +653,9 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
                          "try a longer span or 'cdgps init' without --float-only")
     model = SatelliteDDModal(cfg, R, tabs, k_of, ant_idx, d_hdr)
     sky = satellite_sky(model, t_all) if scene_exaggeration != 0 else None
-    P0 = np.diag(np.r_[np.full(nm, initial_sigma_xi**2), np.full(nm, initial_sigma_xidot**2)])
+    # the filter starts from the batch's prior itself, not from its x₁: it re-reads the window's data
+    # once, as the batch did from that prior (x₁ and its posterior already hold them: counted twice)
+    x0, P0 = np.zeros(2 * nm), prior
     say(f"modal EKF over {n} epochs, {len(rover_ants)} rover antenna(s), {nm} modes …")
     gate = EstimateOptions().outlier_sigma if outlier_sigma is None else float(outlier_sigma)
     fusion = None

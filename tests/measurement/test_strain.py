@@ -90,10 +90,9 @@ def test_simulated_log_ingested_and_fused(fused_strain):
     assert f["fused"] == ["strain"] and f["added_states"] == ["s1_bias_strain_gauge_1"] and f["sensors"]["s1"]["samples"] >= 1
 
 
-@pytest.mark.xfail(strict=True, reason="the modal batch INIT of the GNSS path starts the 5 Hz mode (at the 10 Hz GNSS "
-                   "Nyquist) with a velocity of ~47 m/s at P0 = I; the outlier gate then rejects the precise strain "
-                   "readings (also --fuse accel without gyro): a start-state problem of the initializer, not of the gauge")
 def test_strain_readings_are_used_from_the_start(fused_strain):
+    """The modal start state is honest (x = 0 on the batch's prior, not an arbitrary 5 Hz mode at the GNSS
+    Nyquist with P0 = I), so the outlier gate keeps the precise gauge from the first sample."""
     assert fused_strain[1]["fusion"]["sensors"]["s1"]["samples"] > 250
 
 
