@@ -11,7 +11,7 @@ from cdgps_cli.measurement.registry import model_from_spec
 from cdgps_cli.measurement.strain import StrainGauge
 from cdgps_cli.model.kinematics import antenna_positions
 
-TB = load_config("configs/testbed-1998.toml")
+TB = load_config("configs/testbed-1998-lumped.toml")   # a fixed model: the fitted testbed config may be refitted
 TOWER_TEXT = open("configs/tower-fusion.toml").read()
 GAUGE = '\n[[strains]]\nname = "s1"\npoint_a = "base"\npoint_b = "mid"\nsigma_strain = 1.0e-6\nbias_sigma_strain = 1.0e-5\n'
 
