@@ -8,6 +8,7 @@ a property of the suite.
 
     python benchmarks/suite_cpu.py                 # run the suite (~10 min of CPU on 2 loaded cores)
     python benchmarks/suite_cpu.py --raw rows.json # summarise rows of an earlier run, no rerun
+    python benchmarks/suite_cpu.py --label x --out /tmp/x.json -- tests/core  # a part of the suite
 """
 
 from __future__ import annotations
@@ -28,14 +29,14 @@ OUT = ROOT / "docs" / "benchmarks" / "suite_cpu.json"
 FILE_LIMIT_CPU_S = 60.0          # a file above this makes one loadfile worker the suite's tail
 
 
-def run_suite(raw: Path) -> dict:
-    """Run pytest serially with the plugin; returns the whole run's CPU seconds and the load average."""
+def run_suite(raw: Path, pytest_args: list) -> dict:
+    """Run pytest serially with the plugin (on ``pytest_args``, the whole suite if empty); returns the whole run's CPU seconds and the load average."""
     env = dict(os.environ, SUITE_CPU_RAW=str(raw),
                PYTHONPATH=os.pathsep.join([str(ROOT), str(ROOT / "benchmarks"), os.environ.get("PYTHONPATH", "")]))
     load = os.getloadavg()
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     subprocess.run(["nice", "-n", "10", sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
-                    "-p", "_suite_cpu_plugin"], cwd=ROOT, env=env, check=False)
+                    "-p", "_suite_cpu_plugin", *pytest_args], cwd=ROOT, env=env, check=False)
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     return {"process_cpu_s": round(cpu, 1), "load_average_at_start": [round(v, 2) for v in load]}
@@ -60,11 +61,12 @@ def main() -> None:
     ap.add_argument("--raw", type=Path, help="rows [nodeid, cpu_s, wall_s] of an earlier run (no rerun)")
     ap.add_argument("--label", default="current", help="key of this profile in the output file")
     ap.add_argument("--out", type=Path, default=OUT)
+    ap.add_argument("pytest_args", nargs="*", help="test files or options for pytest (default: the whole suite)")
     a = ap.parse_args()
     run_info: dict = {}
     if a.raw is None:
         a.raw = Path(tempfile.mkdtemp()) / "rows.json"
-        run_info = run_suite(a.raw)
+        run_info = run_suite(a.raw, a.pytest_args)
     result = {**run_info, **summarise(json.loads(a.raw.read_text(encoding="utf-8")))}
     doc = json.loads(a.out.read_text(encoding="utf-8")) if a.out.exists() else {}
     doc.setdefault("machine", {"python": platform.python_version(), "cores": os.cpu_count()})
