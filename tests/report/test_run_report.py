@@ -20,16 +20,15 @@ from PIL import Image
 from cdgps_cli.cli.commands import main
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.config.structure import load_config
-from cdgps_cli.estimation.filter import EstimateOptions, estimate
-from cdgps_cli.estimation.initializer import InitOptions, initialize
-from cdgps_cli.io.run import read_run, write_run
+from cdgps_cli.io.run import read_run
 from cdgps_cli.io.states import States
-from cdgps_cli.pipeline.estimate_outputs import write_states
 from cdgps_cli.report.envelope import EnvelopeBins, envelope_line, minmax_envelope
 from cdgps_cli.report.mac import mac_matrix
 from cdgps_cli.report.run_data import StatesBlocks
 from cdgps_cli.report.run_report import RUN_REPORT_FILES, run_report
-from cdgps_cli.sim.structure import SimOptions, simulate, write_simulation
+from cdgps_cli.sim.structure import SimOptions
+
+from _report_pipeline import pipeline
 
 ROOT = Path(__file__).resolve().parents[2]
 TESTBED = ROOT / "configs" / "testbed-1998-lumped.toml"
@@ -94,24 +93,15 @@ def test_mac_matrix_analytic_cases():
 # ----------------------------------------------------------------------------- the page
 
 def _pipeline(d: Path, cfg_path: Path, sim_opt: SimOptions) -> dict:
-    cfg = load_config(cfg_path)
-    sim = simulate(cfg, sim_opt)
-    write_simulation(sim, d / "sim")
-    write_run(cfg, d / "sim" / "receiver.csv", d / "run.mcap", d / "sim" / "gyro.csv")
-    run = read_run(d / "run.mcap")
-    init = initialize(run, InitOptions())
-    init.pop("elapsed_s", None)
-    text = json.dumps(init, indent=2) + "\n"
-    opt = EstimateOptions(smooth=True)
-    res = estimate(run, json.loads(text), opt)
-    write_states(res, d / "run.mcap", json.loads(text), text, d / "states.mcap", opt.echo())
-    return {"states": d / "states.mcap", "run": d / "run.mcap", "truth": d / "sim"}
+    r = pipeline(d, sim_opt, cfg_path=cfg_path)
+    return {"states": r["states"], "run": r["run"], "truth": r["sim"]}
 
 
 @pytest.fixture(scope="module")
-def free_run(tmp_path_factory):
-    """300 s free vibration of the testbed (the run the spectrum report tests use)."""
-    return _pipeline(tmp_path_factory.mktemp("free"), TESTBED, SimOptions(duration_s=300, seed=7))
+def free_run(testbed_free_run):
+    """300 s free vibration of the testbed (the run the spectrum report tests use: conftest.py)."""
+    r = testbed_free_run
+    return {"states": r["states"], "run": r["run"], "truth": r["sim"]}
 
 
 def cli(args) -> "object":

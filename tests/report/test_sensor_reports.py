@@ -21,40 +21,20 @@ from PIL import Image
 
 from cdgps_cli.cli.commands import main
 from cdgps_cli.config.structure import load_config
-from cdgps_cli.estimation.filter import EstimateOptions, estimate
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.estimation.initializer import InitOptions, initialize
 from cdgps_cli.report.sensor_reports import detect_rest, spectrum_report, static_report
-from cdgps_cli.io.run import read_run, write_run
-from cdgps_cli.sim.structure import SimOptions, simulate, write_simulation
+from cdgps_cli.io.run import read_run
+from cdgps_cli.sim.structure import SimOptions
 from cdgps_cli.analysis.spectra import SpectraOptions
 from cdgps_cli.io.states import States, StatesChunks
-from cdgps_cli.pipeline.estimate_outputs import write_states
+
+from _report_pipeline import pipeline
 
 ROOT = Path(__file__).resolve().parents[2]
 TESTBED = ROOT / "configs" / "testbed-1998-lumped.toml"
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 STATIC_KEYS = {"mean_deg", "survey_deg", "error_deg", "noise_rms_deg", "drift_deg_per_min", "gyro_drift_deg_per_min"}
 MODE_KEYS = {"mode", "model_hz", "gps_hz", "gyro_hz", "error_pct", "damping", "seen"}
-
-
-def pipeline(d: Path, sim_opt: SimOptions, rest_from_truth: bool = False) -> dict:
-    """The whole chain through the library, files as the CLI writes them; ``rest_from_truth``:
-    estimate in static mode from the rest time the experimenter knows (``--rest START:``)."""
-    cfg = load_config(TESTBED)
-    sim = simulate(cfg, sim_opt)
-    write_simulation(sim, d / "sim")
-    write_run(cfg, d / "sim" / "receiver.csv", d / "run.mcap", d / "sim" / "gyro.csv")
-    run = read_run(d / "run.mcap")
-    init = initialize(run, InitOptions())
-    init.pop("elapsed_s", None)
-    text = json.dumps(init, indent=2) + "\n"
-    (d / "init.json").write_text(text)
-    rest = [(s["start_s"], float("inf")) for s in sim.truth["segments"] if s["kind"] == "rest"] if rest_from_truth else []
-    opt = EstimateOptions(smooth=True, rest_segments_s=tuple(rest))
-    res = estimate(run, json.loads(text), opt)
-    write_states(res, d / "run.mcap", json.loads(text), text, d / "states.mcap", opt.echo())
-    return {"dir": d, "truth": sim.truth, "states": d / "states.mcap", "run": d / "run.mcap"}
 
 
 @pytest.fixture(scope="module")
@@ -66,9 +46,10 @@ def static_run(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def free_run(tmp_path_factory):
-    """300 s free vibration (states over the whole record: the 60 s INIT window, the filter after it)."""
-    return pipeline(tmp_path_factory.mktemp("free"), SimOptions(duration_s=300, seed=7))
+def free_run(testbed_free_run):
+    """300 s free vibration (states over the whole record: the 60 s INIT window, the filter after it);
+    the run test_run_report.py uses too (conftest.py)."""
+    return testbed_free_run
 
 
 def check_png(data: bytes) -> tuple[int, int]:
