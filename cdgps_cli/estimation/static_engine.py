@@ -1,0 +1,95 @@
+"""The static baseline on the one engine (issue 28 item 1): DD rows of
+:class:`~cdgps_cli.measurement.dd_signals.DDGroupModel` (the one DD builder), the static model through
+:func:`~cdgps_cli.estimation.driver.drive`.
+
+State: rover offset from ``origin`` (3, m) and one SD ambiguity per lock arc (cycles; an arc is a
+satellite's signal between slips), all sized up front.  With no process noise the filter's final
+state is the batch least-squares solution with the same prior (the information adds up epoch by
+epoch); :func:`static_normal_equations` forms that batch answer directly, as an independent check.
+Work in progress: ``baseline`` and ``init`` still call :func:`~cdgps_cli.estimation.baseline.solve_static_baseline`.
+"""
+
+import numpy as np
+
+from cdgps_cli.estimation.driver import EpochGrid, GridDynamics, drive
+from cdgps_cli.measurement.dd_signals import DDGroupModel, epoch_groups
+from cdgps_cli.model.dynamics_models import Static
+
+
+def arc_columns(rows, n_pos: int = 3) -> np.ndarray:
+    """State column (N,) of each SD row's ambiguity: one per (satellite, signal, arc between slips),
+    numbered from ``n_pos`` in order of first appearance."""
+    n = rows["sats"].size
+    key = np.char.add(rows["sats"].astype(str), rows["code"].astype(str))
+    col, arcs, out = {}, 0, np.empty(n, dtype=np.int64)
+    for i in range(n):
+        k = key[i]
+        if k not in col or rows["slip"][i]:
+            col[k] = n_pos + arcs
+            arcs += 1
+        out[i] = col[k]
+    return out
+
+
+def _groups(rows, cols, k):
+    """Epoch k's signal groups with their ambiguity columns (no ionosphere column)."""
+    lo, hi = rows["ptr"][k], rows["ptr"][k + 1]
+    code, c = rows["code"][lo:hi], cols[lo:hi]
+    out = []
+    for g in epoch_groups(rows, k):
+        sel = code == int(np.flatnonzero(rows["names"] == g["signal"])[0])
+        out.append(dict(g, amb_col=c[sel], iono_col=np.full(int(sel.sum()), -1)))
+    return out
+
+
+def static_prior(rows, cols, n_state: int, sigma_pos_m: float, sigma_amb_cycles: float):
+    """x0 (n,) and P0 (n, n): offset 0, each arc's ambiguity at its first row's (phase − code)/λ."""
+    x0 = np.zeros(n_state)
+    first = np.unique(cols, return_index=True)[1]
+    x0[cols[first]] = (rows["phase_sd_m"][first] - rows["code_sd_m"][first]) / rows["lam_m"][first]
+    x0[cols[first]] = np.round(x0[cols[first]])
+    P0 = np.diag(np.r_[np.full(3, sigma_pos_m**2), np.full(n_state - 3, sigma_amb_cycles**2)])
+    return x0, P0
+
+
+def static_filter(rows, times_s, base_xyz_m, origin_xyz_m, *, sigma_pos_m: float = 100.0,
+                  sigma_amb_cycles: float = 1e3, max_iterations: int = 2):
+    """Static float solution over every epoch through :func:`drive`.
+
+    Returns
+    -------
+    x : ndarray (n,)      [offset (3, m), arc ambiguities (cycles)]
+    P : ndarray (n, n)
+    cols : ndarray (N,)   ambiguity column of each SD row
+    """
+    cols = arc_columns(rows)
+    n = 3 + (int(cols.max()) - 2 if cols.size else 0)
+    x0, P0 = static_prior(rows, cols, n, sigma_pos_m, sigma_amb_cycles)
+    model = DDGroupModel(lambda k: _groups(rows, cols, k), base_xyz_m, origin_xyz_m)
+    ctx = drive(GridDynamics(Static(n), times_s), [model], EpochGrid(np.asarray(times_s, float)), (x0, P0),
+                max_iterations=max_iterations)
+    return ctx.step.x, ctx.step.P, cols
+
+
+class _Ctx:
+    def __init__(self, x):
+        self.x = x
+
+
+def static_normal_equations(rows, n_epochs: int, base_xyz_m, origin_xyz_m, x_lin, x0, P0):
+    """The batch answer: N = P0⁻¹ + Σ_k (B H)ᵀ(B H), x = x_lin + N⁻¹ (P0⁻¹ (x0 − x_lin) + Σ_k (B H)ᵀ B (z − h)),
+    every epoch linearized at ``x_lin`` (one Gauss–Newton step)."""
+    cols = arc_columns(rows)
+    info = np.linalg.inv(P0)
+    Nm, rhs = info.copy(), info @ (x0 - x_lin)
+    model = DDGroupModel(lambda k: _groups(rows, cols, k), base_xyz_m, origin_xyz_m)
+    for k in range(n_epochs):
+        model.prepare(k, _Ctx(x_lin))
+        r = model.rows(k)
+        if r is None:
+            continue
+        h, H = model.predict(x_lin, r)
+        BH, Br = r.whiten(H), r.whiten(r.z_m - h)
+        Nm += BH.T @ BH
+        rhs += BH.T @ Br
+    return x_lin + np.linalg.solve(Nm, rhs), np.linalg.inv(Nm)
