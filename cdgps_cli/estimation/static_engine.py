@@ -12,7 +12,10 @@ Work in progress: ``baseline`` and ``init`` still call :func:`~cdgps_cli.estimat
 import numpy as np
 
 from cdgps_cli.estimation.driver import EpochGrid, GridDynamics, drive
-from cdgps_cli.measurement.dd_signals import DDGroupModel, epoch_groups
+from cdgps_cli.config.options import GNSS_DEFAULTS, MULTI_GNSS_DEFAULTS
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.measurement.dd_signals import DDGroupModel, epoch_groups, paired_sd_rows
+from cdgps_cli.measurement.epoch_pairing import pair_epochs
 from cdgps_cli.model.dynamics_models import Static
 
 
@@ -93,3 +96,80 @@ def static_normal_equations(rows, n_epochs: int, base_xyz_m, origin_xyz_m, x_lin
         Nm += BH.T @ BH
         rhs += BH.T @ Br
     return x_lin + np.linalg.solve(Nm, rhs), np.linalg.inv(Nm)
+
+
+def dd_of_arcs(rows, cols, n_state: int):
+    """DD operator (n_dd, n_state) on the arc ambiguities: per signal, every arc minus the signal's
+    reference arc (the one with the most rows), and the (arc, reference arc) column pairs."""
+    D, pairs = [], []
+    for c in np.unique(rows["code"]):
+        sel = rows["code"] == c
+        arcs, counts = np.unique(cols[sel], return_counts=True)
+        ref = int(arcs[np.argmax(counts)])
+        for a in arcs:
+            if a == ref:
+                continue
+            d = np.zeros(n_state)
+            d[a], d[ref] = 1.0, -1.0
+            D.append(d)
+            pairs.append((int(a), ref))
+    return np.array(D).reshape(-1, n_state), pairs
+
+
+def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_success_rate: float | None = None):
+    """Integers of the static float solution by the shared policy (:func:`~cdgps_cli.estimation.ambiguity.resolve`
+    on the DDs of :func:`dd_of_arcs`) and the position conditioned on them.
+
+    Returns
+    -------
+    dict
+        ``offset_m`` (3,) fixed (float when nothing fixed), ``cov_m2`` (3, 3), ``resolution`` (resolve's
+        dict), ``pairs`` (the DDs' column pairs), ``dd_float`` (n_dd,) cycles.
+    """
+    from cdgps_cli.estimation.ambiguity import resolve
+    D, pairs = dd_of_arcs(rows, cols, x.size)
+    a, Qa = D @ x, D @ P @ D.T
+    res = resolve(a, Qa, ratio, partial=partial, min_success_rate=min_success_rate)
+    m = res["fixed_mask"]
+    off, cov = x[:3].copy(), P[:3, :3].copy()
+    if m.any():
+        Dm = D[m]
+        Pxa = P[:3] @ Dm.T
+        G = np.linalg.solve(Dm @ P @ Dm.T, Pxa.T).T
+        off = off - G @ (Dm @ x - res["integers"][m])
+        cov = cov - G @ Pxa.T
+    return {"offset_m": off, "cov_m2": cov, "resolution": res, "pairs": pairs, "dd_float": a}
+
+
+def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None = None) -> dict:
+    """Static baseline on the one engine: rtk's epoch pairing and SD rows, :func:`static_filter`, :func:`static_fix`.
+
+    Parameters
+    ----------
+    base, rover : DataFrame
+        :func:`~cdgps_cli.estimation.rtk_multi.receiver_geometry` tables.
+    base_xyz_m, rover_xyz0_m : array_like (3,)
+        Known base position and the rover's a-priori position (the offset's origin), ECEF m.
+    options : dict
+        Keys of :data:`~cdgps_cli.config.options.MULTI_GNSS_DEFAULTS` (``ratio``, ``partial``,
+        ``min_success_rate``, the weights and the mask are used).
+
+    Returns
+    -------
+    dict
+        ``offset_m`` (3,) fixed (float when nothing is fixed) ECEF offset from ``rover_xyz0_m``, m;
+        ``cov_m2`` (3, 3); ``float_offset_m`` (3,), ``float_cov_m2`` (3, 3); ``resolution``
+        (:func:`~cdgps_cli.estimation.ambiguity.resolve`'s dict); ``pairs``; ``epochs_used``; ``epoch_pairing``.
+    """
+    opt = {"partial": GNSS_DEFAULTS["partial"], **MULTI_GNSS_DEFAULTS, **(options or {})}
+    pairs = pair_epochs(rover["time_gps_s"].to_numpy(), base["time_gps_s"].to_numpy(),
+                        sync_tol_s=opt["sync_tol_s"], max_age_s=opt["max_age_s"])
+    times = pairs.rover_time_s
+    rows = paired_sd_rows(base, rover, pairs, opt)
+    if rows["sats"].size == 0:
+        raise CdgpsError("no common observations: no satellite observed at both receivers above the mask")
+    x, P, cols = static_filter(rows, times, base_xyz_m, rover_xyz0_m)
+    f = static_fix(x, P, rows, cols, ratio=opt["ratio"], partial=opt["partial"],
+                   min_success_rate=opt["min_success_rate"])
+    return {**f, "float_offset_m": x[:3], "float_cov_m2": P[:3, :3], "epochs_used": int(times.size),
+            "epoch_pairing": pairs.summary}
