@@ -2,9 +2,10 @@
 ``driver.drive`` over every epoch, no process noise, equals the batch normal equations with the same
 prior (an independent computation: information summed over the epochs, one solve) on the real DD rows
 rtk builds (Spirent G+E L1+L2, 60 s; DDGroupModel, the one DD builder).  Measured: they differ by at
-most 2e-8 m, which is the batch's own rounding floor here (a second Gauss-Newton step of the batch
-moves it by 1e-8 m: the SD ambiguities' common mode per block is held by the prior alone), so the
-test asks 1e-7 m (0.1 µm), not the 1e-9 m first aimed at."""
+most 2e-8 m, which is the rounding floor of the ranges themselves: h = ‖sat − rover‖ − ‖sat − base‖
+with ranges of 2e7 m carries 2e7 × 2.2e-16 ≈ 4e-9 m per row, and a second Gauss-Newton step of the
+batch (normal equations or a QR least squares alike) moves the answer by up to 1.7e-8 m.  So the test
+asks 1e-7 m (0.1 µm), not the 1e-9 m first aimed at, which is below what double precision resolves."""
 
 from pathlib import Path
 
