@@ -100,12 +100,19 @@ def static_normal_equations(rows, n_epochs: int, base_xyz_m, origin_xyz_m, x_lin
 
 def dd_of_arcs(rows, cols, n_state: int):
     """DD operator (n_dd, n_state) on the arc ambiguities: per signal, every arc minus the signal's
-    reference arc (the one with the most rows), and the (arc, reference arc) column pairs."""
-    D, pairs = [], []
+    reference arc (the one with the most rows, preferring arcs without a half-cycle flag); the
+    (arc, reference arc) column pairs; and which DDs are integers that may be fixed (n_dd,) bool: not
+    when either arc has a half-cycle flag, nor for a signal whose wavelength differs between
+    satellites (GLONASS FDMA: an SD ambiguity difference in cycles of two wavelengths is no integer)."""
+    D, pairs, fixable = [], [], []
+    half = np.zeros(n_state, dtype=bool)
+    if "half" in rows:
+        half[cols[rows["half"]]] = True
     for c in np.unique(rows["code"]):
         sel = rows["code"] == c
         arcs, counts = np.unique(cols[sel], return_counts=True)
-        ref = int(arcs[np.argmax(counts)])
+        ref = int(arcs[np.lexsort((-counts, half[arcs]))[0]])
+        fdma = np.ptp(rows["lam_m"][sel]) > 0
         for a in arcs:
             if a == ref:
                 continue
@@ -113,7 +120,8 @@ def dd_of_arcs(rows, cols, n_state: int):
             d[a], d[ref] = 1.0, -1.0
             D.append(d)
             pairs.append((int(a), ref))
-    return np.array(D).reshape(-1, n_state), pairs
+            fixable.append(not (fdma or half[a] or half[ref]))
+    return np.array(D).reshape(-1, n_state), pairs, np.array(fixable, dtype=bool)
 
 
 def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_success_rate: float | None = None):
@@ -124,19 +132,24 @@ def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_succ
     -------
     dict
         ``offset_m`` (3,) fixed (float when nothing fixed), ``cov_m2`` (3, 3), ``resolution`` (resolve's
-        dict), ``pairs`` (the DDs' column pairs), ``dd_float`` (n_dd,) cycles.
+        dict, its ``fixed_mask`` / ``integers`` over all DDs: the ones not fixable stay float), ``pairs``
+        (the DDs' column pairs), ``dd_float`` (n_dd,) cycles.
     """
     from cdgps_cli.estimation.ambiguity import resolve
-    D, pairs = dd_of_arcs(rows, cols, x.size)
+    D, pairs, fixable = dd_of_arcs(rows, cols, x.size)
     a, Qa = D @ x, D @ P @ D.T
-    res = resolve(a, Qa, ratio, partial=partial, min_success_rate=min_success_rate)
-    m = res["fixed_mask"]
+    res = resolve(a[fixable], Qa[np.ix_(fixable, fixable)], ratio, partial=partial, min_success_rate=min_success_rate)
+    m = np.zeros(a.size, dtype=bool)
+    m[fixable] = res["fixed_mask"]
+    ints = np.zeros(a.size, dtype=np.int64)
+    ints[fixable] = res["integers"]
+    res = {**res, "fixed_mask": m, "integers": ints}
     off, cov = x[:3].copy(), P[:3, :3].copy()
     if m.any():
         Dm = D[m]
         Pxa = P[:3] @ Dm.T
         G = np.linalg.solve(Dm @ P @ Dm.T, Pxa.T).T
-        off = off - G @ (Dm @ x - res["integers"][m])
+        off = off - G @ (Dm @ x - ints[m])
         cov = cov - G @ Pxa.T
     return {"offset_m": off, "cov_m2": cov, "resolution": res, "pairs": pairs, "dd_float": a}
 

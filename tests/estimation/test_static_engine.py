@@ -56,6 +56,18 @@ def test_arcs_split_at_slips():
     assert arc_columns(rows).tolist() == [3, 4, 3, 5, 3]
 
 
+def test_half_cycle_and_fdma_arcs_are_kept_float():
+    from cdgps_cli.estimation.static_engine import dd_of_arcs
+    rows = {"sats": np.array(["G01", "G02", "G03", "G01", "G02", "G03", "R01", "R02"]),
+            "code": np.array([0, 0, 0, 0, 0, 0, 1, 1]), "slip": np.zeros(8, dtype=bool),
+            "half": np.array([False, False, True, False, False, False, False, False]),
+            "lam_m": np.array([0.19] * 6 + [0.187, 0.1875])}
+    cols = arc_columns(rows)
+    D, pairs, fixable = dd_of_arcs(rows, cols, 3 + cols.max() - 2)
+    assert pairs == [(4, 3), (5, 3), (7, 6)]
+    assert fixable.tolist() == [True, False, False]       # G03 half-cycle flagged, R01/R02 of two wavelengths
+
+
 def test_static_filter_equals_normal_equations(run):
     rows, times, base_xyz, origin = run
     x, P, cols = static_filter(rows, times, base_xyz, origin, max_iterations=2)
