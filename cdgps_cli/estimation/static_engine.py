@@ -1,0 +1,188 @@
+"""The static baseline on the one engine (issue 28 item 1): DD rows of
+:class:`~cdgps_cli.measurement.dd_signals.DDGroupModel` (the one DD builder), the static model through
+:func:`~cdgps_cli.estimation.driver.drive`.
+
+State: rover offset from ``origin`` (3, m) and one SD ambiguity per lock arc (cycles; an arc is a
+satellite's signal between slips), all sized up front.  With no process noise the filter's final
+state is the batch least-squares solution with the same prior (the information adds up epoch by
+epoch); :func:`static_normal_equations` forms that batch answer directly, as an independent check.
+Work in progress: ``baseline`` and ``init`` still call :func:`~cdgps_cli.estimation.baseline.solve_static_baseline`.
+"""
+
+import numpy as np
+
+from cdgps_cli.estimation.driver import EpochGrid, GridDynamics, drive
+from cdgps_cli.config.options import GNSS_DEFAULTS, MULTI_GNSS_DEFAULTS
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.measurement.dd_signals import DDGroupModel, epoch_groups, paired_sd_rows
+from cdgps_cli.measurement.epoch_pairing import pair_epochs
+from cdgps_cli.model.dynamics_models import Static
+
+
+def arc_columns(rows, n_pos: int = 3) -> np.ndarray:
+    """State column (N,) of each SD row's ambiguity: one per (satellite, signal, arc between slips),
+    numbered from ``n_pos`` in order of first appearance."""
+    n = rows["sats"].size
+    key = np.char.add(rows["sats"].astype(str), rows["code"].astype(str))
+    col, arcs, out = {}, 0, np.empty(n, dtype=np.int64)
+    for i in range(n):
+        k = key[i]
+        if k not in col or rows["slip"][i]:
+            col[k] = n_pos + arcs
+            arcs += 1
+        out[i] = col[k]
+    return out
+
+
+def _groups(rows, cols, k):
+    """Epoch k's signal groups with their ambiguity columns (no ionosphere column)."""
+    lo, hi = rows["ptr"][k], rows["ptr"][k + 1]
+    code, c = rows["code"][lo:hi], cols[lo:hi]
+    out = []
+    for g in epoch_groups(rows, k):
+        sel = code == int(np.flatnonzero(rows["names"] == g["signal"])[0])
+        out.append(dict(g, amb_col=c[sel], iono_col=np.full(int(sel.sum()), -1)))
+    return out
+
+
+def static_prior(rows, cols, n_state: int, sigma_pos_m: float, sigma_amb_cycles: float):
+    """x0 (n,) and P0 (n, n): offset 0, each arc's ambiguity at its first row's (phase − code)/λ."""
+    x0 = np.zeros(n_state)
+    first = np.unique(cols, return_index=True)[1]
+    x0[cols[first]] = (rows["phase_sd_m"][first] - rows["code_sd_m"][first]) / rows["lam_m"][first]
+    x0[cols[first]] = np.round(x0[cols[first]])
+    P0 = np.diag(np.r_[np.full(3, sigma_pos_m**2), np.full(n_state - 3, sigma_amb_cycles**2)])
+    return x0, P0
+
+
+def static_filter(rows, times_s, base_xyz_m, origin_xyz_m, *, sigma_pos_m: float = 100.0,
+                  sigma_amb_cycles: float = 1e3, max_iterations: int = 2):
+    """Static float solution over every epoch through :func:`drive`.
+
+    Returns
+    -------
+    x : ndarray (n,)      [offset (3, m), arc ambiguities (cycles)]
+    P : ndarray (n, n)
+    cols : ndarray (N,)   ambiguity column of each SD row
+    """
+    cols = arc_columns(rows)
+    n = 3 + (int(cols.max()) - 2 if cols.size else 0)
+    x0, P0 = static_prior(rows, cols, n, sigma_pos_m, sigma_amb_cycles)
+    model = DDGroupModel(lambda k: _groups(rows, cols, k), base_xyz_m, origin_xyz_m)
+    ctx = drive(GridDynamics(Static(n), times_s), [model], EpochGrid(np.asarray(times_s, float)), (x0, P0),
+                max_iterations=max_iterations)
+    return ctx.step.x, ctx.step.P, cols
+
+
+class _Ctx:
+    def __init__(self, x):
+        self.x = x
+
+
+def static_normal_equations(rows, n_epochs: int, base_xyz_m, origin_xyz_m, x_lin, x0, P0):
+    """The batch answer: N = P0⁻¹ + Σ_k (B H)ᵀ(B H), x = x_lin + N⁻¹ (P0⁻¹ (x0 − x_lin) + Σ_k (B H)ᵀ B (z − h)),
+    every epoch linearized at ``x_lin`` (one Gauss–Newton step)."""
+    cols = arc_columns(rows)
+    info = np.linalg.inv(P0)
+    Nm, rhs = info.copy(), info @ (x0 - x_lin)
+    model = DDGroupModel(lambda k: _groups(rows, cols, k), base_xyz_m, origin_xyz_m)
+    for k in range(n_epochs):
+        model.prepare(k, _Ctx(x_lin))
+        r = model.rows(k)
+        if r is None:
+            continue
+        h, H = model.predict(x_lin, r)
+        BH, Br = r.whiten(H), r.whiten(r.z_m - h)
+        Nm += BH.T @ BH
+        rhs += BH.T @ Br
+    return x_lin + np.linalg.solve(Nm, rhs), np.linalg.inv(Nm)
+
+
+def dd_of_arcs(rows, cols, n_state: int):
+    """DD operator (n_dd, n_state) on the arc ambiguities: per signal, every arc minus the signal's
+    reference arc (the one with the most rows, preferring arcs without a half-cycle flag); the
+    (arc, reference arc) column pairs; and which DDs are integers that may be fixed (n_dd,) bool: not
+    when either arc has a half-cycle flag, nor for a signal whose wavelength differs between
+    satellites (GLONASS FDMA: an SD ambiguity difference in cycles of two wavelengths is no integer)."""
+    D, pairs, fixable = [], [], []
+    half = np.zeros(n_state, dtype=bool)
+    if "half" in rows:
+        half[cols[rows["half"]]] = True
+    for c in np.unique(rows["code"]):
+        sel = rows["code"] == c
+        arcs, counts = np.unique(cols[sel], return_counts=True)
+        ref = int(arcs[np.lexsort((-counts, half[arcs]))[0]])
+        fdma = np.ptp(rows["lam_m"][sel]) > 0
+        for a in arcs:
+            if a == ref:
+                continue
+            d = np.zeros(n_state)
+            d[a], d[ref] = 1.0, -1.0
+            D.append(d)
+            pairs.append((int(a), ref))
+            fixable.append(not (fdma or half[a] or half[ref]))
+    return np.array(D).reshape(-1, n_state), pairs, np.array(fixable, dtype=bool)
+
+
+def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_success_rate: float | None = None):
+    """Integers of the static float solution by the shared policy (:func:`~cdgps_cli.estimation.ambiguity.resolve`
+    on the DDs of :func:`dd_of_arcs`) and the position conditioned on them.
+
+    Returns
+    -------
+    dict
+        ``offset_m`` (3,) fixed (float when nothing fixed), ``cov_m2`` (3, 3), ``resolution`` (resolve's
+        dict, its ``fixed_mask`` / ``integers`` over all DDs: the ones not fixable stay float), ``pairs``
+        (the DDs' column pairs), ``dd_float`` (n_dd,) cycles.
+    """
+    from cdgps_cli.estimation.ambiguity import resolve
+    D, pairs, fixable = dd_of_arcs(rows, cols, x.size)
+    a, Qa = D @ x, D @ P @ D.T
+    res = resolve(a[fixable], Qa[np.ix_(fixable, fixable)], ratio, partial=partial, min_success_rate=min_success_rate)
+    m = np.zeros(a.size, dtype=bool)
+    m[fixable] = res["fixed_mask"]
+    ints = np.zeros(a.size, dtype=np.int64)
+    ints[fixable] = res["integers"]
+    res = {**res, "fixed_mask": m, "integers": ints}
+    off, cov = x[:3].copy(), P[:3, :3].copy()
+    if m.any():
+        Dm = D[m]
+        Pxa = P[:3] @ Dm.T
+        G = np.linalg.solve(Dm @ P @ Dm.T, Pxa.T).T
+        off = off - G @ (Dm @ x - ints[m])
+        cov = cov - G @ Pxa.T
+    return {"offset_m": off, "cov_m2": cov, "resolution": res, "pairs": pairs, "dd_float": a}
+
+
+def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None = None) -> dict:
+    """Static baseline on the one engine: rtk's epoch pairing and SD rows, :func:`static_filter`, :func:`static_fix`.
+
+    Parameters
+    ----------
+    base, rover : DataFrame
+        :func:`~cdgps_cli.estimation.rtk_multi.receiver_geometry` tables.
+    base_xyz_m, rover_xyz0_m : array_like (3,)
+        Known base position and the rover's a-priori position (the offset's origin), ECEF m.
+    options : dict
+        Keys of :data:`~cdgps_cli.config.options.MULTI_GNSS_DEFAULTS` (``ratio``, ``partial``,
+        ``min_success_rate``, the weights and the mask are used).
+
+    Returns
+    -------
+    dict
+        ``offset_m`` (3,) fixed (float when nothing is fixed) ECEF offset from ``rover_xyz0_m``, m;
+        ``cov_m2`` (3, 3); ``float_offset_m`` (3,), ``float_cov_m2`` (3, 3); ``resolution``
+        (:func:`~cdgps_cli.estimation.ambiguity.resolve`'s dict); ``pairs``; ``epochs_used``; ``epoch_pairing``.
+    """
+    opt = {"partial": GNSS_DEFAULTS["partial"], **MULTI_GNSS_DEFAULTS, **(options or {})}
+    pairs = pair_epochs(rover["time_gps_s"].to_numpy(), base["time_gps_s"].to_numpy(),
+                        sync_tol_s=opt["sync_tol_s"], max_age_s=opt["max_age_s"])
+    times = pairs.rover_time_s
+    rows = paired_sd_rows(base, rover, pairs, opt)
+    if rows["sats"].size == 0:
+        raise CdgpsError("no common observations: no satellite observed at both receivers above the mask")
+    x, P, cols = static_filter(rows, times, base_xyz_m, rover_xyz0_m)
+    f = static_fix(x, P, rows, cols, ratio=opt["ratio"], partial=opt["partial"],
+                   min_success_rate=opt["min_success_rate"])
+    return {**f, "float_offset_m": x[:3], "float_cov_m2": P[:3, :3], "epochs_used": int(times.size),
+            "epoch_pairing": pairs.summary}

@@ -1,0 +1,130 @@
+"""The static baseline on the one engine (estimation/static_engine.py): a static filter through
+``driver.drive`` over every epoch, no process noise, equals the batch normal equations with the same
+prior (an independent computation: information summed over the epochs, one solve) on the real DD rows
+rtk builds (Spirent G+E L1+L2, 60 s; DDGroupModel, the one DD builder).  Measured: they differ by at
+most 2e-8 m, which is the rounding floor of the ranges themselves: h = ‖sat − rover‖ − ‖sat − base‖
+with ranges of 2e7 m carries 2e7 × 2.2e-16 ≈ 4e-9 m per row, and a second Gauss-Newton step of the
+batch (normal equations or a QR least squares alike) moves the answer by up to 1.7e-8 m.  So the test
+asks 1e-7 m (0.1 µm), not the 1e-9 m first aimed at, which is below what double precision resolves."""
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from cdgps_cli.estimation import rtk_multi
+from cdgps_cli.estimation.rtk_multi import receiver_geometry, solve_rtk
+from cdgps_cli.estimation.static_engine import arc_columns, static_filter, static_normal_equations, static_prior
+from cdgps_cli.io.rinex import read_rinex_nav
+from cdgps_cli.io.rinex_signals import read_rinex_signals
+from tests._shared import REPO_ROOT
+
+GE = REPO_ROOT / ".." / "shared" / "data" / "rinex-ge"
+BASE = np.array([4157177.06580187, 671230.476590636, 4774767.03105544])
+TRUTH = np.array([4156857.1195929, 673209.028774142, 4774767.03105544])
+pytestmark = pytest.mark.skipif(not GE.exists(), reason="../shared/data/rinex-ge absent")
+
+
+@pytest.fixture(scope="module")
+def run():
+    sig = ["G:L1", "G:L2", "E:E1", "E:E5a"]
+    nav = pd.concat([read_rinex_nav(GE / "RINEX_GN_Spirent.23N"), read_rinex_nav(GE / "RINEX_EN_Spirent.23L", systems=("E",))])
+    _, b = read_rinex_signals(GE / "Base-static_MO_Spirent.obs", sig)
+    _, r = read_rinex_signals(GE / "Rover-static-2km-east_MO_Spirent.obs", sig)
+    t0 = b["time_gps_s"].min()
+    b, r = b[b["time_gps_s"] < t0 + 60], r[r["time_gps_s"] < t0 + 60]
+    seen, original = {}, rtk_multi._filter_pass
+
+    def capture(rows, times, order, opt, base_xyz, origin, iono, progress):
+        seen.setdefault("args", (rows, times, base_xyz, origin))
+        return original(rows, times, order, opt, base_xyz, origin, iono, progress)
+
+    x0 = TRUTH + np.array([0.3, -0.2, 0.4])
+    rtk_multi._filter_pass = capture
+    try:
+        solve_rtk(receiver_geometry(b, nav, BASE), receiver_geometry(r, nav, x0), BASE, x0,
+                  options={"mode": "static", "direction": "forward"})
+    finally:
+        rtk_multi._filter_pass = original
+    return seen["args"]
+
+
+def test_arcs_split_at_slips():
+    rows = {"sats": np.array(["G01", "G02", "G01", "G02", "G01"]), "code": np.zeros(5, dtype=int),
+            "slip": np.array([False, False, False, True, False])}
+    assert arc_columns(rows).tolist() == [3, 4, 3, 5, 3]
+
+
+def test_half_cycle_and_fdma_arcs_are_kept_float():
+    from cdgps_cli.estimation.static_engine import dd_of_arcs
+    rows = {"sats": np.array(["G01", "G02", "G03", "G01", "G02", "G03", "R01", "R02"]),
+            "code": np.array([0, 0, 0, 0, 0, 0, 1, 1]), "slip": np.zeros(8, dtype=bool),
+            "half": np.array([False, False, True, False, False, False, False, False]),
+            "lam_m": np.array([0.19] * 6 + [0.187, 0.1875])}
+    cols = arc_columns(rows)
+    D, pairs, fixable = dd_of_arcs(rows, cols, 3 + cols.max() - 2)
+    assert pairs == [(4, 3), (5, 3), (7, 6)]
+    assert fixable.tolist() == [True, False, False]       # G03 half-cycle flagged, R01/R02 of two wavelengths
+
+
+def test_static_filter_equals_normal_equations(run):
+    rows, times, base_xyz, origin = run
+    x, P, cols = static_filter(rows, times, base_xyz, origin, max_iterations=2)
+    n = x.size
+    x0, P0 = static_prior(rows, cols, n, 100.0, 1e3)
+    xb, Pb = static_normal_equations(rows, times.size, base_xyz, origin, x, x0, P0)  # linearized at the answer
+    assert np.max(np.abs(xb[:3] - x[:3])) < 1e-7
+    np.testing.assert_allclose(np.sqrt(np.diag(Pb)[:3]), np.sqrt(np.diag(P)[:3]), rtol=1e-6)
+    # and the answer is the rover: the float static position within a few cm of the truth
+    assert np.linalg.norm(origin + x[:3] - TRUTH) < 0.05
+
+
+MOSAIC = REPO_ROOT / ".." / "shared" / "data" / "real-pairs" / "mosaic-static"
+GOLDEN = REPO_ROOT / "tests" / "estimation" / "data" / "baseline_golden.json"
+
+
+RINEX = REPO_ROOT / ".." / "shared" / "data" / "rinex"
+CASES = {   # case: base, rover, navigation files (system), master and rover a-priori ECEF (as the golden run), signals
+    "mosaic_gps_l1": (MOSAIC / "base.obs", MOSAIC / "rover.obs", [(MOSAIC / "base.nav", "G")],
+                      [-3817680.727, 3562839.5216, 3650159.2407], [-3817680.9841, 3562840.0688, 3650158.4543], ["G:L1"]),
+    "geonet_gps_l1": (RINEX / "30400920.05o", RINEX / "07590920.05o",
+                      [(RINEX / "30400920.05n", "G"), (RINEX / "07590920.05n", "G")],
+                      [-3978242.4348, 3382841.1715, 3649902.7667], [-3976219.5082, 3382372.5671, 3652512.9849], ["G:L1"]),
+    "spirent_gps_l1": (GE / "Base-static_MO_Spirent.obs", GE / "Rover-static-2km-east_MO_Spirent.obs",
+                       [(GE / "RINEX_GN_Spirent.23N", "G")], [4157177.0658, 671230.4766, 4774767.0311],
+                       [4156857.1196, 673209.0288, 4774767.0311], ["G:L1"]),
+    "spirent_ge_dual_init": (GE / "Base-static_MO_Spirent.obs", GE / "Rover-static-2km-east_MO_Spirent.obs",
+                             [(GE / "RINEX_GN_Spirent.23N", "G"), (GE / "RINEX_EN_Spirent.23L", "E")], list(BASE),
+                             [4156857.1196, 673209.0288, 4774767.0311], ["G:L1", "G:L2", "E:E1", "E:E5a"]),
+}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_engine_matches_golden(case):
+    """Same integers, fixed ENU within 0.1 mm, float within 0.3 mm, σ within 0.1 %, ratio within 10 % of
+    today's solve_static_baseline (measured: fixed ≤ 0.02 mm, float ≤ 0.14 mm, σ ≤ 0.012 %; ratio
+    95.83 / 95.86, 894.7 / 898.9, 30208 / 28391 (6 %), 4824 / 4827: the float solutions differ by
+    the ambiguity prior the filter carries and the batch does not)."""
+    import json
+    from cdgps_cli.estimation.static_engine import static_baseline
+    from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
+    base, rover, navs, master_xyz, rover_xyz, sig = CASES[case]
+    if not Path(base).exists():
+        pytest.skip(f"{base} absent")
+    master_xyz, rover_xyz = np.array(master_xyz), np.array(rover_xyz)
+    nav = pd.concat([read_rinex_nav(n, systems=(s,)) for n, s in navs])
+    _, b = read_rinex_signals(base, sig)
+    _, r = read_rinex_signals(rover, sig)
+    res = static_baseline(receiver_geometry(b, nav, master_xyz), receiver_geometry(r, nav, rover_xyz), master_xyz, rover_xyz)
+    lat, lon, _ = ecef_to_geodetic(rover_xyz)
+    R = np.asarray(enu_matrix(lat, lon))
+    g = json.loads(GOLDEN.read_text())[case]
+    fixed = res["resolution"]["integers"][res["resolution"]["fixed_mask"]].tolist()
+    pivots = len(g["integers"]) - len(fixed)                      # the golden lists each pivot with integer 0
+    assert pivots == len(sig) and sorted(fixed + [0] * pivots) == sorted(i[2] for i in g["integers"])
+    assert res["epochs_used"] == g["n_epochs_used"] and len(fixed) == g["n_fixed"]
+    np.testing.assert_allclose(R @ res["offset_m"], g["fixed_enu_m"], atol=1e-4, rtol=0)
+    np.testing.assert_allclose(R @ res["float_offset_m"], g["float_enu_m"], atol=3e-4, rtol=0)
+    np.testing.assert_allclose(np.sqrt(np.diag(R @ res["cov_m2"] @ R.T)), g["sigma_enu_m"], rtol=1e-3)
+    assert res["resolution"]["ratio"] == pytest.approx(g["ratio"], rel=0.1)
