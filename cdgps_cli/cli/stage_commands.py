@@ -451,7 +451,7 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
                           init_source=str(init_json),
                           # the filter's history on disk beside the output (removed however the run ends),
                           # so memory does not grow with the record; the result holds what STATES stores
-                          history=DiskHistory(Path(output).resolve().parent),
+                          history=DiskHistory(Path(output).resolve().parent, output),
                           keep_covariance="full" if covariance == "full" else "modal",
                           progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
     from cdgps_cli.pipeline.fusion import fusion_choice

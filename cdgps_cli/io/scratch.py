@@ -50,13 +50,16 @@ class DiskHistory:
     dir : path, optional
         Where the temporary files go (the output's directory keeps them on the disk the output is
         written to).
+    output : path, optional
+        The output these files serve, named in the error when one cannot be made.
     """
 
     on_disk = True
 
-    def __init__(self, dir: str | Path | None = None):
+    def __init__(self, dir: str | Path | None = None, output: str | Path | None = None):
         # (a directory that does not exist yet, e.g. the output's before it is written: the system's)
         self.dir = str(dir) if dir is not None and Path(dir).is_dir() else None
+        self.output = None if output is None else str(output)
 
     def empty(self, shape: tuple, dtype=np.float64) -> np.ndarray:
         """An uninitialized C-contiguous array of ``shape`` and ``dtype`` on disk (writable)."""
@@ -70,8 +73,9 @@ class DiskHistory:
                 return np.memmap(fh, dtype=dtype, mode="r+", shape=shape)
         except OSError as exc:
             where = self.dir or tempfile.gettempdir()
-            raise CdgpsError(f"{where}: cannot make a scratch file of {nbytes / 2**20:.0f} MiB for the "
-                             f"filter's history: {exc.strerror}") from None
+            serves = f"{self.output}: " if self.output else ""
+            raise CdgpsError(f"{serves}cannot make a scratch file of {nbytes / 2**20:.0f} MiB in {where} for the "
+                             f"filter's history: {(exc.strerror or str(exc)).lower()}") from None
 
     @staticmethod
     def release(arr: np.ndarray, start: int, stop: int) -> None:
