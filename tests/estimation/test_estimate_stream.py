@@ -235,7 +235,7 @@ def test_disk_history_full_disk_is_a_cdgps_error(tmp_path, monkeypatch):
         raise OSError(errno.ENOSPC, "No space left on device")
 
     monkeypatch.setattr(os, "posix_fallocate", no_room)
-    with pytest.raises(CdgpsError, match=r"cannot make a scratch file of \d+ MiB.*No space left"):
+    with pytest.raises(CdgpsError, match=r"cannot make a scratch file of \d+ MiB.*no space left"):
         DiskHistory(tmp_path).empty((1024, 64, 64))
     assert list(tmp_path.iterdir()) == []
 
