@@ -130,27 +130,7 @@ def _split_stream_walk(data: bytes) -> tuple[list, list, dict]:
     """:func:`split_stream` as a walk over the stream in Python (the reference the vectorised one
     is tested against).
 
-    Split a receiver's byte stream into UBX frames, RTCM 3 frames and NMEA sentences.
-
-    Parameters
-    ----------
-    data : bytes
-        The whole log.
-
-    Returns
-    -------
-    ubx : list of (offset, class, id, frame bytes)
-        Checksum-valid UBX frames (frame bytes from the sync word to the checksum).
-    rtcm : list of (offset, message type, frame bytes)
-        CRC-valid RTCM 3 frames (preamble to CRC).
-    stats : dict
-        ``bad_checksum_frames`` and ``bad_frame_offsets`` (first few): UBX candidates failing the
-        checksum, or whose announced length runs past the end while a later sync follows;
-        ``truncated_tail_bytes`` (a UBX frame cut by the end of the stream); ``bad_crc_rtcm_frames``
-        and ``bad_rtcm_offsets``: RTCM 3 frames failing CRC-24Q; ``nmea_sentences``, ``nmea_bytes``
-        (complete sentences, checksums correct); ``rtcm_frames`` (dict message type → count) and
-        ``rtcm_bytes``; ``skipped_bytes``: every other byte outside accepted frames (noise, corrupt
-        frames, sentences with a wrong checksum).
+    Same parameters, returns and statistics as :func:`split_stream`.
     """
     n = len(data)
     stats = {"bad_checksum_frames": 0, "bad_frame_offsets": [], "truncated_tail_bytes": 0, "skipped_bytes": 0,
