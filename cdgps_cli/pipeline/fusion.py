@@ -11,7 +11,9 @@ The mapping from (structure config, sensor logs, GNSS measurement models) to the
   (:func:`cdgps_cli.model.fusion_dynamics.fusion_dynamics`) and the prior of the added states
   (d: its per-step covariance; biases: their prior σ);
 * :func:`run_fused` — forward filter (:func:`cdgps_cli.estimation.model_filter.filter_numpy`) and
-  RTS smoother (:func:`cdgps_cli.estimation.smoother.rts_smooth_transitions`) over it.
+  RTS smoother (:func:`cdgps_cli.estimation.smoother.rts_smooth_indexed`) over it: each distinct
+  transition (A, Q) stored once, x and P on the given store (on disk for ``cdgps estimate``: memory
+  of a chunk for x, P, whatever the record's length) and smoothed backwards in blocks.
 """
 
 from __future__ import annotations
@@ -24,7 +26,8 @@ from cdgps_cli.config.sensors import FUSABLE_KINDS
 from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.estimation.model_filter import filter_numpy
-from cdgps_cli.estimation.smoother import rts_smooth_transitions
+from cdgps_cli.config.options import ESTIMATE_CHUNK_EPOCHS
+from cdgps_cli.estimation.smoother import rts_smooth_indexed
 from cdgps_cli.measurement.registry import model_from_spec
 from cdgps_cli.measurement.sensor import align_epochs, place
 from cdgps_cli.measurement.stacked import Stacked
@@ -123,14 +126,52 @@ def fusion_problem(cfg: StructureConfig, gnss_parts: list, sensor_parts_: list, 
     return Stacked(list(gnss_parts) + list(sensor_parts_), n), dyn, P0, d_names + names
 
 
-def run_fused(model, dyn, time_s, x0, P0, smooth: bool = True, max_iterations: int = 5, rows_hook=None):
-    """Forward filter and (``smooth``) RTS smoother over the stacked model: SimpleNamespace with ``x``,
-    ``P`` (reported: smoothed or filtered), ``x_filt``, ``P_filt``, ``nis``, ``nis_dof``, ``rows``."""
-    fr = filter_numpy(model, dyn, np.asarray(time_s, float), x0, P0, max_iterations, rows_hook=rows_hook)
-    xs, Ps = rts_smooth_transitions(fr["x"], fr["P"], fr["A"], fr["Q"]) if smooth else (fr["x"], fr["P"])
-    return SimpleNamespace(x=xs, P=Ps, x_filt=fr["x"], P_filt=fr["P"], nis=fr["nis"], nis_dof=fr["nis_dof"], rows=fr["rows"])
+def run_fused(model, dyn, time_s, x0, P0, smooth: bool = True, max_iterations: int = 5, rows_hook=None,
+              store=None, chunk_epochs: int = ESTIMATE_CHUNK_EPOCHS, keep: int | None = None):
+    """Forward filter and (``smooth``) RTS smoother over the stacked model.
 
+    Parameters
+    ----------
+    store : object, optional
+        Where the forward pass keeps x (N, n) and P (N, n, n) for the smoother
+        (:class:`~cdgps_cli.estimation.history.MemoryHistory` by default; ``cdgps estimate`` gives the
+        disk-backed :class:`cdgps_cli.io.scratch.DiskHistory`); pages released every ``chunk_epochs``.
+    keep : int, optional
+        The leading states whose covariance is returned (the modal states); None: all n.
 
+    Returns
+    -------
+    SimpleNamespace
+        ``x``, ``x_filt`` (N, n) in memory; ``P``, ``P_filt`` (N, keep, keep) in memory (``x``, ``P``
+        reported: smoothed or filtered); ``nis``, ``nis_dof``, ``rows``.
+    """
+    fr = filter_numpy(model, dyn, np.asarray(time_s, float), x0, P0, max_iterations, rows_hook=rows_hook,
+                      store=store, chunk_epochs=chunk_epochs)
+    xh, Ph = fr["x"], fr["P"]
+    N, n = xh.shape
+    m = n if keep is None else int(keep)
+    chunk = max(int(chunk_epochs), 1)
+    release = getattr(store, "release", lambda arr, a, b: None)
+    x_filt = np.array(xh)
+    P_filt = np.empty((N, m, m))
+    for a in range(0, N, chunk):
+        P_filt[a:a + chunk] = Ph[a:a + chunk, :m, :m]
+        release(Ph, a, a + chunk)
+    if not smooth:
+        return SimpleNamespace(x=x_filt, P=P_filt, x_filt=x_filt, P_filt=P_filt, nis=fr["nis"],
+                               nis_dof=fr["nis_dof"], rows=fr["rows"])
+    P_s = np.empty((N, m, m))
+
+    def done(a, b):
+        P_s[a:b] = Ph[a:b, :m, :m]
+        release(Ph, a + 1, b)                 # (epoch a is read again by the pass below it)
+
+    rts_smooth_indexed(xh, Ph, *fr["transitions"], chunk=chunk, on_done=done)
+    x_s = np.array(xh)
+    release(xh, 0, N)
+    release(Ph, 0, N)
+    return SimpleNamespace(x=x_s, P=P_s, x_filt=x_filt, P_filt=P_filt, nis=fr["nis"], nis_dof=fr["nis_dof"],
+                           rows=fr["rows"])
 
 
 def fusion_choice(cfg: StructureConfig, fuse_option: str | None, hold_out_option=()) -> tuple[tuple, tuple]:
@@ -164,7 +205,7 @@ def _dd_rows(rows, part: int = 0):
 
 
 def fuse_with_dd(cfg: StructureConfig, dd, t_gnss, logs: dict, fuse, hold_out, x0, P0, *, smooth: bool,
-                 max_iterations: int, outlier_sigma: float, say=None):
+                 max_iterations: int, outlier_sigma: float, say=None, store=None):
     """The GNSS modal estimate with the sensors fused (``cdgps estimate --structure --fuse``).
 
     ``dd`` is the run's :class:`~cdgps_cli.measurement.model.SatelliteDDModal` on the GNSS epochs
@@ -199,8 +240,9 @@ def fuse_with_dd(cfg: StructureConfig, dd, t_gnss, logs: dict, fuse, hold_out, x
     events: list = []
     if say:
         say(f"fused EKF over {t.size} epochs ({t_gnss.size} GNSS), {len(parts)} sensor(s), {dyn.n} states …")
-    r = run_fused(model, dyn, t, x0f, P0f, smooth, max_iterations, rows_hook=outlier_gate(model, outlier_sigma, events, t))
     nm2 = 2 * cfg.n_modes
+    r = run_fused(model, dyn, t, x0f, P0f, smooth, max_iterations, rows_hook=outlier_gate(model, outlier_sigma, events, t),
+                  store=store, keep=nm2)
     dd_rows = [_dd_rows(rk) for rk in r.rows]
     out_dd = [dict(e, label=tuple(e["label"][1:])) for e in events if e["label"][0] == "gnss"]
     out_s = [{"time_s": e["time_s"], "antenna": e["label"][0], "transmitter": e["label"][2], "kind": "outlier",
@@ -319,7 +361,8 @@ def fuse_with_pseudolite(run, init: dict, opt, fuse, hold_out=()):
     x0 = np.zeros(dyn.n)
     x0[:n] = fp.x[:n]
     events: list = []
-    r = run_fused(model, dyn, t, x0, P0, opt.smooth, 1, rows_hook=outlier_gate(model, opt.outlier_sigma, events, t))
+    r = run_fused(model, dyn, t, x0, P0, opt.smooth, 1, rows_hook=outlier_gate(model, opt.outlier_sigma, events, t),
+                  store=opt.history, chunk_epochs=opt.chunk_epochs, keep=n)
     resid = _phase_residuals(phase, r.x_filt, r.rows, fp.C)
     ev = [{"time_s": e["time_s"], "antenna": e["label"][1] if e["label"][0] == "phase" else e["label"][0],
            "transmitter": e["label"][2], "kind": "outlier",

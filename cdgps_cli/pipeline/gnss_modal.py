@@ -540,7 +540,7 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
                         init_window_max_factor: float = INIT_WINDOW_MAX_FACTOR,
                         init_code_dd: bool = MODAL_INIT_CODE_DD,
                         scene_exaggeration: float | str = SCENE_EXAGGERATION, fuse=(), hold_out=(),
-                        sensor_logs: dict | None = None) -> dict:
+                        sensor_logs: dict | None = None, history=None) -> dict:
     """Modal states of a structure from a GNSS RUN and its INIT (integers) → STATES.mcap.
 
     Parameters
@@ -584,6 +584,9 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
         the filter then steps on the union of the GNSS epochs and the sensor samples, the state carries
         the held modal disturbance (with accelerometers) and the sensor biases, and the outputs'
         options and summary carry ``fusion`` (per sensor: samples, residual RMS, final bias).
+    history : object, optional
+        Where the fused filter keeps x, P for the smoother (:func:`cdgps_cli.pipeline.fusion.run_fused`:
+        in memory by default; ``cdgps estimate`` gives a :class:`cdgps_cli.io.scratch.DiskHistory`).
 
     Returns
     -------
@@ -636,7 +639,8 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
         from cdgps_cli.pipeline.fusion import fuse_with_dd  # noqa: PLC0415
 
         fusion = fuse_with_dd(cfg, model, t_all, sensor_logs or {}, tuple(fuse), tuple(hold_out), x0, P0, smooth=smooth,
-                              max_iterations=max_iterations, outlier_sigma=gate, say=say)
+                              max_iterations=max_iterations, outlier_sigma=gate, say=say,
+                              store=history)
         model, t_all, outliers = fusion.dd, fusion.t, fusion.outliers_dd
         xf, Pf, meas, xs, Ps = fusion.x_filt, fusion.P_filt, fusion.dd_rows, fusion.x, fusion.P
         nis, nis_dof = fusion.nis, fusion.nis_dof
