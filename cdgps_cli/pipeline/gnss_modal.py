@@ -67,7 +67,7 @@ from cdgps_cli.model.dynamics_models import ModalZOH
 from cdgps_cli.estimation import kernel
 from cdgps_cli.estimation.filter import EstimateOptions
 from cdgps_cli.estimation.model_filter import filter_dd_kernel, filter_numpy, outlier_gate
-from cdgps_cli.estimation.smoother import rts_smooth_transitions
+from cdgps_cli.estimation.smoother import rts_smooth_indexed
 from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.model.kinematics import antenna_positions
@@ -712,7 +712,7 @@ def _filter_dd(model, cfg: StructureConfig, t_all, x0, P0, max_iterations: int, 
         fr = filter_numpy(model, dyn, t_all, x0, P0, max_iterations,
                           rows_hook=outlier_gate(model, gate, outliers, t_all))
     xf, Pf = fr["x"], fr["P"]
-    xs, Ps = rts_smooth_transitions(xf, Pf, fr["A"], fr["Q"]) if smooth else (xf, Pf)
+    xs, Ps = rts_smooth_indexed(np.array(xf), np.array(Pf), *fr["transitions"]) if smooth else (xf, Pf)
     return xf, Pf, fr["rows"], xs, Ps, fr["nis"], fr["nis_dof"], outliers
 
 
