@@ -170,10 +170,12 @@ class RecordingSink:
     (N, n, n) arrays on demand (zero at k = 0).  x (N, n) and P (N, n, n) are arrays of ``store``
     (``empty(shape)`` / ``release(arr, start, stop)``: :class:`~cdgps_cli.estimation.history.MemoryHistory`
     by default, or the disk-backed :class:`cdgps_cli.io.scratch.DiskHistory`), released in chunks of
-    ``chunk_epochs`` behind the filter.
+    ``chunk_epochs`` behind the filter.  ``keep_rows=False``: only whether epoch k had rows
+    (:attr:`had_rows` (N,) bool), for an owner that makes them again from the model (memory).
     """
 
-    def __init__(self, n_epochs: int, n: int, history: bool = True, store=None, chunk_epochs: int = 1 << 30):
+    def __init__(self, n_epochs: int, n: int, history: bool = True, store=None, chunk_epochs: int = 1 << 30,
+                 keep_rows: bool = True):
         m = n_epochs if history else 0
         self.keep = history
         self.store = store if store is not None else MemoryHistory()
@@ -186,7 +188,9 @@ class RecordingSink:
         self.pairs: list = []
         self.pair_of = np.full(m, -1, dtype=np.int64)
         self._lookup: dict = {}
-        self.row_list = [None] * m
+        self.keep_rows = keep_rows
+        self.row_list = [None] * m if keep_rows else None
+        self.had_rows = np.zeros(m, dtype=bool)
         self.last = None
 
     def write(self, k, x, P) -> None:
@@ -237,7 +241,9 @@ class RecordingSink:
 
     def rows(self, k, rows) -> None:
         if self.keep:
-            self.row_list[k] = rows
+            self.had_rows[k] = True
+            if self.keep_rows:
+                self.row_list[k] = rows
 
     def release_before(self, k) -> None:
         """Drop from memory the chunks of x, P before epoch k's (their values stay in the store)."""

@@ -29,7 +29,7 @@ class FilterResult(dict):
 
     def __init__(self, sink, ctx):
         super().__init__(x=sink.x, P=sink.P, nis=ctx.nis, nis_dof=ctx.nis_dof, rows=sink.row_list,
-                         transitions=(sink.pairs, sink.pair_of))
+                         had_rows=sink.had_rows, transitions=(sink.pairs, sink.pair_of))
         self._sink = sink
 
     def __missing__(self, key):
@@ -40,7 +40,7 @@ class FilterResult(dict):
 
 
 def filter_numpy(model, dyn, time_s, x0, P0, max_iterations: int = 5, rows_hook=None, history: bool = True,
-                 store=None, chunk_epochs: int = 1 << 30) -> dict:
+                 store=None, chunk_epochs: int = 1 << 30, keep_rows: bool = True) -> dict:
     """Iterated EKF over the epochs of ``model`` (reference numpy path).
 
     Each epoch: predict with ``dyn.transition(Δt)``, then the measurement update on the whitened
@@ -66,6 +66,9 @@ def filter_numpy(model, dyn, time_s, x0, P0, max_iterations: int = 5, rows_hook=
         Where x (N, n) and P (N, n, n) are kept (``empty`` / ``release``: the default
         :class:`~cdgps_cli.estimation.history.MemoryHistory`, or :class:`cdgps_cli.io.scratch.DiskHistory`),
         released every ``chunk_epochs`` epochs behind the filter.
+    keep_rows : bool
+        Keep every epoch's rows (False: ``rows`` is None and ``had_rows`` (N,) bool says which epochs
+        had rows; the caller makes them again from the model and its gate's events).
 
     Returns
     -------
@@ -76,7 +79,7 @@ def filter_numpy(model, dyn, time_s, x0, P0, max_iterations: int = 5, rows_hook=
         Without ``history``: ``x`` (n,), ``P`` (n, n) of the last epoch, ``nis``, ``nis_dof``.
     """
     n, ns = len(time_s), len(x0)
-    sink = RecordingSink(n, ns, history, store=store, chunk_epochs=chunk_epochs)
+    sink = RecordingSink(n, ns, history, store=store, chunk_epochs=chunk_epochs, keep_rows=keep_rows)
     hooks = [] if rows_hook is None else [RowsGate(rows_hook)]
     ctx = drive(GridDynamics(dyn, time_s), [model], EpochGrid(np.asarray(time_s, float)), StepFilter(x0, P0), hooks,
                 sink, max_iterations=max_iterations)

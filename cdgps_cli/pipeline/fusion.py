@@ -18,6 +18,7 @@ The mapping from (structure config, sensor logs, GNSS measurement models) to the
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from types import SimpleNamespace
 
 import numpy as np
@@ -127,7 +128,7 @@ def fusion_problem(cfg: StructureConfig, gnss_parts: list, sensor_parts_: list, 
 
 
 def run_fused(model, dyn, time_s, x0, P0, smooth: bool = True, max_iterations: int = 5, rows_hook=None,
-              store=None, chunk_epochs: int = ESTIMATE_CHUNK_EPOCHS, keep: int | None = None):
+              store=None, chunk_epochs: int = ESTIMATE_CHUNK_EPOCHS, keep: int | None = None, gate_events=None):
     """Forward filter and (``smooth``) RTS smoother over the stacked model.
 
     Parameters
@@ -138,15 +139,21 @@ def run_fused(model, dyn, time_s, x0, P0, smooth: bool = True, max_iterations: i
         disk-backed :class:`cdgps_cli.io.scratch.DiskHistory`); pages released every ``chunk_epochs``.
     keep : int, optional
         The leading states whose covariance is returned (the modal states); None: all n.
+    gate_events : list, optional
+        The list ``rows_hook`` appends its drops to (:func:`~cdgps_cli.estimation.model_filter.outlier_gate`,
+        the only hook that changes rows): the rows are then not kept per epoch but made again when
+        read (:class:`GatedRows`: the same rows, memory of none).
 
     Returns
     -------
     SimpleNamespace
         ``x``, ``x_filt`` (N, n) in memory; ``P``, ``P_filt`` (N, keep, keep) in memory (``x``, ``P``
-        reported: smoothed or filtered); ``nis``, ``nis_dof``, ``rows``.
+        reported: smoothed or filtered); ``nis``, ``nis_dof``, ``rows`` (a list, or :class:`GatedRows`).
     """
     fr = filter_numpy(model, dyn, np.asarray(time_s, float), x0, P0, max_iterations, rows_hook=rows_hook,
-                      store=store, chunk_epochs=chunk_epochs)
+                      store=store, chunk_epochs=chunk_epochs, keep_rows=gate_events is None)
+    if gate_events is not None:
+        fr["rows"] = GatedRows(model, fr["had_rows"], gate_events)
     xh, Ph = fr["x"], fr["P"]
     N, n = xh.shape
     m = n if keep is None else int(keep)
@@ -172,6 +179,31 @@ def run_fused(model, dyn, time_s, x0, P0, smooth: bool = True, max_iterations: i
     release(Ph, 0, N)
     return SimpleNamespace(x=x_s, P=P_s, x_filt=x_filt, P_filt=P_filt, nis=fr["nis"], nis_dof=fr["nis_dof"],
                            rows=fr["rows"])
+
+
+class GatedRows(Sequence):
+    """The rows each epoch's update used, made again when read: ``model.rows(k)`` with the outlier
+    gate's drops at k replayed in their order (``events``: ``{"epoch", "label"}``, the worst first, as
+    :func:`~cdgps_cli.estimation.model_filter.outlier_gate` made them), None where the epoch had none
+    (``had_rows`` (N,) bool).  The same arrays as the rows kept in memory, without keeping them."""
+
+    def __init__(self, model, had_rows: np.ndarray, events: list):
+        self.model, self.had_rows = model, np.asarray(had_rows, dtype=bool)
+        self.drops: dict = {}
+        for e in events:
+            self.drops.setdefault(int(e["epoch"]), []).append(e["label"])
+
+    def __len__(self) -> int:
+        return self.had_rows.size
+
+    def __getitem__(self, k):
+        if not self.had_rows[k]:
+            return None
+        rows = self.model.rows(int(k))
+        for label in self.drops.get(int(k), ()):
+            i = rows.labels.index(label)
+            rows = rows.subset(np.delete(np.arange(rows.z_m.size), i))
+        return rows
 
 
 def fusion_choice(cfg: StructureConfig, fuse_option: str | None, hold_out_option=()) -> tuple[tuple, tuple]:
@@ -242,7 +274,7 @@ def fuse_with_dd(cfg: StructureConfig, dd, t_gnss, logs: dict, fuse, hold_out, x
         say(f"fused EKF over {t.size} epochs ({t_gnss.size} GNSS), {len(parts)} sensor(s), {dyn.n} states …")
     nm2 = 2 * cfg.n_modes
     r = run_fused(model, dyn, t, x0f, P0f, smooth, max_iterations, rows_hook=outlier_gate(model, outlier_sigma, events, t),
-                  store=store, keep=nm2)
+                  store=store, keep=nm2, gate_events=events)
     dd_rows = [_dd_rows(rk) for rk in r.rows]
     out_dd = [dict(e, label=tuple(e["label"][1:])) for e in events if e["label"][0] == "gnss"]
     out_s = [{"time_s": e["time_s"], "antenna": e["label"][0], "transmitter": e["label"][2], "kind": "outlier",
@@ -362,7 +394,7 @@ def fuse_with_pseudolite(run, init: dict, opt, fuse, hold_out=()):
     x0[:n] = fp.x[:n]
     events: list = []
     r = run_fused(model, dyn, t, x0, P0, opt.smooth, 1, rows_hook=outlier_gate(model, opt.outlier_sigma, events, t),
-                  store=opt.history, chunk_epochs=opt.chunk_epochs, keep=n)
+                  store=opt.history, chunk_epochs=opt.chunk_epochs, keep=n, gate_events=events)
     resid = _phase_residuals(phase, r.x_filt, r.rows, fp.C)
     ev = [{"time_s": e["time_s"], "antenna": e["label"][1] if e["label"][0] == "phase" else e["label"][0],
            "transmitter": e["label"][2], "kind": "outlier",

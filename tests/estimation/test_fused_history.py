@@ -102,3 +102,32 @@ def test_fused_run_on_disk_in_blocks_equals_the_run_in_memory(tmp_path):
     for name in ("P", "P_filt"):
         assert np.array_equal(getattr(got, name), getattr(ref, name)[:, :2 * nm, :2 * nm]), name
     assert not np.array_equal(got.x, got.x_filt)
+
+
+def test_gated_rows_made_again_equal_the_rows_kept():
+    """With a tight outlier gate (several drops in one epoch), the rows the fused path makes again
+    from the model and the gate's events are the rows the updates used, array for array."""
+    from cdgps_cli.estimation.model_filter import outlier_gate
+    from cdgps_cli.pipeline.fusion import GatedRows
+
+    sim = simulate(CFG, SimOptions(duration_s=2.0, seed=5, scenario="free"))
+    t, nm = sim.time_s, CFG.n_modes
+    logs = simulate_sensor_logs(CFG, sensor_specs(CFG), t, disturbance_truth(CFG, sim.x), seed=5)
+    top = CFG.antenna_names.index("top")
+    p = antenna_positions(CFG, sim.q)[:, top] - antenna_positions(CFG, np.zeros((1, 4)))[0, top]
+    gnss = GnssPosition(CFG, "top", p[::10] + 0.02, align_epochs(t, t[::10]), 0.02)
+    P0m = np.diag(np.r_[np.full(nm, 0.01), np.full(nm, 0.1)])
+    parts = sensor_parts(CFG, sensor_specs(CFG), logs, t, ("accel", "tilt", "gyro"), S=ModalDisturbance(CFG).S)
+    model, dyn, P0, _ = fusion_problem(CFG, [("gnss", gnss)], parts, P0m)
+    ev_a, ev_b = [], []
+    ref = run_fused(model, dyn, t, np.zeros(dyn.n), P0, max_iterations=1, rows_hook=outlier_gate(model, 0.7, ev_a, t))
+    got = run_fused(model, dyn, t, np.zeros(dyn.n), P0, max_iterations=1, rows_hook=outlier_gate(model, 0.7, ev_b, t),
+                    gate_events=ev_b)
+    assert isinstance(got.rows, GatedRows) and len(got.rows) == len(ref.rows)
+    per_epoch = np.bincount([e["epoch"] for e in ev_b])
+    assert per_epoch.max() >= 2 and any(r is None for r in ref.rows)
+    for k, (a, b) in enumerate(zip(ref.rows, got.rows)):
+        assert (a is None) == (b is None), k
+        if a is not None:
+            assert a.labels == b.labels and np.array_equal(a.z_m, b.z_m) and np.array_equal(a.covariance(), b.covariance())
+    assert np.array_equal(got.x, ref.x) and ev_a == ev_b
