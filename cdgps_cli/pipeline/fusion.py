@@ -290,21 +290,23 @@ def fuse_with_dd(cfg: StructureConfig, dd, t_gnss, logs: dict, fuse, hold_out, x
 
 
 def _sensor_summary(parts, x, rows) -> dict:
-    """Per fused sensor: samples, RMS residual of the reported estimate per field, final bias per field."""
-    out = {}
-    for p, (name, m) in enumerate(parts, start=1):
-        res = {f: [] for f in m.fields}
-        n = 0
-        for k, rk in enumerate(rows):
+    """Per fused sensor: samples, RMS residual of the reported estimate per field, final bias per field
+    (one pass over ``rows``: made again per epoch when they are :class:`GatedRows`)."""
+    res = [{f: [] for f in m.fields} for _, m in parts]
+    count = [0] * len(parts)
+    for k, rk in enumerate(rows):
+        for p, (_, m) in enumerate(parts, start=1):
             sub = _dd_rows(rk, p)
             if sub is None:
                 continue
-            n += 1
+            count[p - 1] += 1
             h, _ = m.predict(x[k], sub)
             for (_, f), z, hh in zip(sub.labels, sub.z_m, h):
-                res[f].append(z - hh)
+                res[p - 1][f].append(z - hh)
+    out = {}
+    for (name, m), r, n in zip(parts, res, count):
         out[name] = {"kind": m.kind, "samples": n,
-                     "residual_rms": {f: float(np.sqrt(np.mean(np.square(v)))) if v else None for f, v in res.items()},
+                     "residual_rms": {f: float(np.sqrt(np.mean(np.square(v)))) if v else None for f, v in r.items()},
                      "sigma": {f: float(s) for f, s in zip(m.fields, m.sigma)},
                      "final_bias": ({f: float(x[-1, m.bias_offset + j]) for j, f in enumerate(m.fields)}
                                     if m.extra_states else {})}
