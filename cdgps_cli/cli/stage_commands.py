@@ -973,6 +973,13 @@ def _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json, structure_
         _emit_json(s)
 
 
+def _fused_history(output):
+    """The fused filter's x, P on disk beside the output (removed however the run ends): memory of a chunk."""
+    from cdgps_cli.io.scratch import DiskHistory
+
+    return DiskHistory(Path(output).resolve().parent)
+
+
 def _structure_options(structure, x_axis_azimuth_deg, receiver_map):
     """--structure / --x-axis-azimuth-deg / --receiver of a GNSS run → (StructureConfig, {antenna: receiver})."""
     from cdgps_cli.config.structure import load_config
@@ -1016,7 +1023,7 @@ def _estimate_gnss_modal(ctx, run, init, init_text, output, as_json, smooth, str
     s = gnss_modal_estimate(run, init, init_text, cfg, output, receivers=mapping, x_axis_azimuth_deg=x_axis_azimuth_deg,
                             smooth=smooth, progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)),
                             extra_options=extra, scene_exaggeration=scene_exaggeration, fuse=fuse_kinds, hold_out=held,
-                            sensor_logs=logs)
+                            sensor_logs=logs, history=_fused_history(output) if fuse_kinds else None)
     s["init_run"] = pairing
     _say(ctx, f"wrote {output}: {s['epochs']} epochs, coordinates {', '.join(s['coordinates'])}, mean NIS/dof "
               f"{s['mean_nis_per_dof']:.3f}, {s['events']} events")

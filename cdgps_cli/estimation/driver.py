@@ -162,15 +162,35 @@ class HistorySink:
 
 
 class RecordingSink:
-    """Every epoch's x, P, the transition (A, Q) into it (zero at k = 0) and its rows, in memory
-    (``history=False``: only the last x, P)."""
+    """Every epoch's x, P, the transition (A, Q) into it and its rows (``history=False``: only the
+    last x, P).
 
-    def __init__(self, n_epochs: int, n: int, history: bool = True):
+    Transitions are stored once per distinct (A, Q) pair (:attr:`pairs`) with the pair's number per
+    epoch (:attr:`pair_of` (N,), −1 at k = 0: no transition); :attr:`A` and :attr:`Q` build the
+    (N, n, n) arrays on demand (zero at k = 0).  x (N, n) and P (N, n, n) are arrays of ``store``
+    (``empty(shape)`` / ``release(arr, start, stop)``: :class:`~cdgps_cli.estimation.history.MemoryHistory`
+    by default, or the disk-backed :class:`cdgps_cli.io.scratch.DiskHistory`), released in chunks of
+    ``chunk_epochs`` behind the filter.  ``keep_rows=False``: only whether epoch k had rows
+    (:attr:`had_rows` (N,) bool), for an owner that makes them again from the model (memory).
+    """
+
+    def __init__(self, n_epochs: int, n: int, history: bool = True, store=None, chunk_epochs: int = 1 << 30,
+                 keep_rows: bool = True):
         m = n_epochs if history else 0
         self.keep = history
-        self.x, self.P = np.zeros((m, n)), np.zeros((m, n, n))
-        self.A, self.Q = np.zeros((m, n, n)), np.zeros((m, n, n))
-        self.row_list = [None] * m
+        self.store = store if store is not None else MemoryHistory()
+        self.chunk = max(int(chunk_epochs), 1)
+        self.released_to = 0
+        self.x, self.P = self.store.empty((m, n)), self.store.empty((m, n, n))
+        if not getattr(self.store, "on_disk", False):
+            self.x[...], self.P[...] = 0.0, 0.0            # (as before: epochs never written read as zero)
+        self.n = n
+        self.pairs: list = []
+        self.pair_of = np.full(m, -1, dtype=np.int64)
+        self._lookup: dict = {}
+        self.keep_rows = keep_rows
+        self.row_list = [None] * m if keep_rows else None
+        self.had_rows = np.zeros(m, dtype=bool)
         self.last = None
 
     def write(self, k, x, P) -> None:
@@ -179,16 +199,59 @@ class RecordingSink:
         else:
             self.last = (x, P)
 
+    def _pair(self, A, Q, prev: int) -> int:
+        """The number of pair (A, Q): the previous epoch's when equal (``==`` on every element), else
+        the stored pair with the same bytes, else a new one (never ``prev`` when unequal to it)."""
+        if prev >= 0 and np.array_equal(self.pairs[prev][0], A) and np.array_equal(self.pairs[prev][1], Q):
+            return prev
+        key = (A.tobytes(), Q.tobytes())
+        i = self._lookup.get(key, -1)
+        if i < 0 or i == prev:
+            i = len(self.pairs)
+            self.pairs.append((A.copy(), Q.copy()))
+            self._lookup[key] = i
+        return i
+
     def transition(self, k, A, Q) -> None:
         if self.keep:
-            self.A[k], self.Q[k] = A, Q
+            A = np.eye(self.n) if A is None else np.asarray(A, dtype=np.float64)
+            Q = np.asarray(Q, dtype=np.float64)
+            self.pair_of[k] = self._pair(A, Q, int(self.pair_of[k - 1]) if k > 0 else -1)
+
+    def fill_transitions(self, A, Q) -> None:
+        """The same (A, Q) into every epoch k ≥ 1 (a constant epoch spacing)."""
+        if self.keep and self.pair_of.size > 1:
+            self.pair_of[1:] = self._pair(np.asarray(A, dtype=np.float64), np.asarray(Q, dtype=np.float64), -1)
+
+    def _expand(self, j: int) -> np.ndarray:
+        out = np.zeros((self.pair_of.size, self.n, self.n))
+        for i, pair in enumerate(self.pairs):
+            out[self.pair_of == i] = pair[j]
+        return out
+
+    @property
+    def A(self) -> np.ndarray:
+        """(N, n, n) the transition matrix into each epoch (zero at k = 0), built from :attr:`pairs`."""
+        return self._expand(0)
+
+    @property
+    def Q(self) -> np.ndarray:
+        """(N, n, n) the process noise into each epoch (zero at k = 0), built from :attr:`pairs`."""
+        return self._expand(1)
 
     def rows(self, k, rows) -> None:
         if self.keep:
-            self.row_list[k] = rows
+            self.had_rows[k] = True
+            if self.keep_rows:
+                self.row_list[k] = rows
 
     def release_before(self, k) -> None:
-        return None
+        """Drop from memory the chunks of x, P before epoch k's (their values stay in the store)."""
+        start = (k // self.chunk) * self.chunk
+        if self.keep and start > self.released_to:
+            self.store.release(self.x, 0, start)
+            self.store.release(self.P, 0, start)
+            self.released_to = start
 
 
 class GridDynamics:

@@ -18,10 +18,29 @@ import numpy as np
 from cdgps_cli.estimation.driver import EpochGrid, GridDynamics, RecordingSink, RowsGate, drive
 from cdgps_cli.estimation.kalman import StepFilter, iterated_update
 
-__all__ = ["filter_numpy", "iterated_update", "outlier_gate", "filter_dd_kernel"]
+__all__ = ["FilterResult", "filter_numpy", "iterated_update", "outlier_gate", "filter_dd_kernel"]
 
 
-def filter_numpy(model, dyn, time_s, x0, P0, max_iterations: int = 5, rows_hook=None, history: bool = True) -> dict:
+class FilterResult(dict):
+    """The forward filter's outputs as a dict: ``x``, ``P``, ``nis``, ``nis_dof``, ``rows`` and
+    ``transitions`` = (pairs [(A, Q)], pair_of (N,)) (each distinct transition once,
+    :class:`~cdgps_cli.estimation.driver.RecordingSink`); ``A`` and ``Q`` (N, n, n) are built from them
+    when first asked for."""
+
+    def __init__(self, sink, ctx):
+        super().__init__(x=sink.x, P=sink.P, nis=ctx.nis, nis_dof=ctx.nis_dof, rows=sink.row_list,
+                         had_rows=sink.had_rows, transitions=(sink.pairs, sink.pair_of))
+        self._sink = sink
+
+    def __missing__(self, key):
+        if key not in ("A", "Q"):
+            raise KeyError(key)
+        self[key] = value = getattr(self._sink, key)
+        return value
+
+
+def filter_numpy(model, dyn, time_s, x0, P0, max_iterations: int = 5, rows_hook=None, history: bool = True,
+                 store=None, chunk_epochs: int = 1 << 30, keep_rows: bool = True) -> dict:
     """Iterated EKF over the epochs of ``model`` (reference numpy path).
 
     Each epoch: predict with ``dyn.transition(Δt)``, then the measurement update on the whitened
@@ -43,21 +62,28 @@ def filter_numpy(model, dyn, time_s, x0, P0, max_iterations: int = 5, rows_hook=
     history : bool
         Keep every epoch's x, P, A, Q and rows (False: only the last epoch's x and P, e.g. for a
         large state of constants whose final estimate is what is wanted).
+    store : object, optional
+        Where x (N, n) and P (N, n, n) are kept (``empty`` / ``release``: the default
+        :class:`~cdgps_cli.estimation.history.MemoryHistory`, or :class:`cdgps_cli.io.scratch.DiskHistory`),
+        released every ``chunk_epochs`` epochs behind the filter.
+    keep_rows : bool
+        Keep every epoch's rows (False: ``rows`` is None and ``had_rows`` (N,) bool says which epochs
+        had rows; the caller makes them again from the model and its gate's events).
 
     Returns
     -------
-    dict
-        ``x`` (N, n), ``P`` (N, n, n) filtered; ``A``, ``Q`` (N, n, n) the transition into each
-        epoch (zero at k = 0); ``nis`` (N,), ``nis_dof`` (N,) int; ``rows`` (list of Rows or None).
+    FilterResult
+        ``x`` (N, n), ``P`` (N, n, n) filtered; ``transitions`` (each distinct (A, Q) once and its
+        number per epoch); ``A``, ``Q`` (N, n, n) the transition into each epoch (zero at k = 0, built
+        when asked for); ``nis`` (N,), ``nis_dof`` (N,) int; ``rows`` (list of Rows or None).
         Without ``history``: ``x`` (n,), ``P`` (n, n) of the last epoch, ``nis``, ``nis_dof``.
     """
     n, ns = len(time_s), len(x0)
-    sink = RecordingSink(n, ns, history)
+    sink = RecordingSink(n, ns, history, store=store, chunk_epochs=chunk_epochs, keep_rows=keep_rows)
     hooks = [] if rows_hook is None else [RowsGate(rows_hook)]
     ctx = drive(GridDynamics(dyn, time_s), [model], EpochGrid(np.asarray(time_s, float)), StepFilter(x0, P0), hooks,
                 sink, max_iterations=max_iterations)
-    out = {"x": sink.x, "P": sink.P, "A": sink.A, "Q": sink.Q, "nis": ctx.nis, "nis_dof": ctx.nis_dof,
-           "rows": sink.row_list}
+    out = FilterResult(sink, ctx)
     if not history:
         out["x"], out["P"] = ctx.step.x, ctx.step.P
     return out
@@ -115,7 +141,7 @@ def filter_dd_kernel(model, dyn, time_s, x0, P0, max_iterations: int = 5, outlie
     stop[1:][np.abs(dt - dt0) > 1e-9 * max(dt0, 1.0)] = 1
     A, _, Q = dyn.transition(dt0)
     sink = RecordingSink(N, ns)
-    sink.A[1:], sink.Q[1:] = A, Q
+    sink.fill_transitions(A, Q)
     f, i64 = kernel._f64, kernel._i64
     arrays = (f(pk.L), f(pk.z_m), f(pk.var_m2), f(pk.srows), i64(pk.ant), f(pk.hconst_m), i64(pk.m), stop)
     csr_A, f_Q = kernel.csr(A), f(Q)
@@ -134,5 +160,4 @@ def filter_dd_kernel(model, dyn, time_s, x0, P0, max_iterations: int = 5, outlie
     ctx = drive(GridDynamics(dyn, time_s), [model], EpochGrid(np.asarray(time_s, float)), StepFilter(x0, P0),
                 [RowsGate(outlier_gate(model, outlier_sigma, events, time_s))], sink, spans=spans,
                 max_iterations=max_iterations)
-    return {"x": sink.x, "P": sink.P, "A": sink.A, "Q": sink.Q, "nis": ctx.nis, "nis_dof": ctx.nis_dof,
-            "rows": sink.row_list}
+    return FilterResult(sink, ctx)

@@ -10,7 +10,9 @@ Two entry points: :func:`rts_smooth` — one transition A (and input B) with a p
 recorded extra variances and unlinked epochs (the pseudolite filter, :mod:`cdgps_cli.estimation.filter`);
 :func:`rts_smooth_transitions` — a transition (A_k, Q_k) into every epoch as recorded by the
 forward filter over the interfaces (:func:`cdgps_cli.estimation.model_filter.filter_numpy`: GNSS
-displacement and modal paths), run as one pass per stretch of equal transitions.
+displacement and modal paths), run as one pass per stretch of equal transitions;
+:func:`rts_smooth_indexed` — the same with each distinct transition stored once and its number per
+epoch, in place and in blocks (the forward results may be on disk, :mod:`cdgps_cli.estimation.history`).
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from scipy.linalg import cho_factor, cho_solve
 
 from cdgps_cli.estimation import kernel as ekf_kernel
 
-__all__ = ["rts_smooth", "rts_smooth_transitions"]
+__all__ = ["rts_smooth", "rts_smooth_transitions", "rts_smooth_indexed"]
 
 
 def rts_smooth(A, Q, B, U_in, xf, Pf, extra_q=None, no_link=None, in_place=False, q_segments=None,
@@ -111,4 +113,36 @@ def rts_smooth_transitions(xf, Pf, As, Qs):
     B, U = np.zeros((n, 0)), np.zeros((N, 0))
     for k_lo, k_hi in zip(starts[::-1], ends[::-1]):
         _rts_pass(As[k_lo + 1], Qs[k_lo + 1], B, U[k_lo:k_hi + 1], xs[k_lo:k_hi + 1], Ps[k_lo:k_hi + 1], {}, None)
+    return xs, Ps
+
+
+def rts_smooth_indexed(xs, Ps, pairs, pair_of, chunk=None, on_done=None):
+    """RTS pass in place over filtered (xs, Ps) (N, n), (N, n, n), C-contiguous float64 (in memory or
+    on disk), with the transition into epoch k given as ``pairs[pair_of[k]]`` = (A, Q) (``pair_of[0]``
+    unused): the numbers of :func:`rts_smooth_transitions` on the expanded arrays.
+
+    Consecutive epochs with the same pair form a stretch, smoothed latest first; each stretch runs as
+    passes over at most ``chunk + 1`` epochs, latest first (each ends on an epoch the later pass has
+    smoothed: the same numbers as one pass), and ``on_done(start, stop)`` is called after each with
+    the epochs start … stop−1 that are final (descending), so that the caller can copy them out and
+    release them.  Returns (xs, Ps).
+    """
+    N, n = xs.shape
+    pair_of = np.asarray(pair_of)
+    if N < 2:
+        if on_done is not None and N == 1:
+            on_done(0, 1)
+        return xs, Ps
+    change = np.flatnonzero(pair_of[2:] != pair_of[1:-1])
+    starts = np.r_[0, 1 + change]                              # transition k → k+1 uses pair_of[k+1]
+    ends = np.r_[starts[1:], N - 1]
+    step = N if chunk is None else max(int(chunk), 1)
+    B, U = np.zeros((n, 0)), np.zeros((N, 0))
+    for k_lo, k_hi in zip(starts[::-1], ends[::-1]):
+        A, Q = pairs[pair_of[k_lo + 1]]
+        for b in range(k_hi, k_lo, -step):
+            a = max(b - step, k_lo)
+            _rts_pass(A, Q, B, U[a:b + 1], xs[a:b + 1], Ps[a:b + 1], {}, None)
+            if on_done is not None:
+                on_done(a, b + 1)
     return xs, Ps

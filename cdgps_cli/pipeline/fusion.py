@@ -11,11 +11,14 @@ The mapping from (structure config, sensor logs, GNSS measurement models) to the
   (:func:`cdgps_cli.model.fusion_dynamics.fusion_dynamics`) and the prior of the added states
   (d: its per-step covariance; biases: their prior σ);
 * :func:`run_fused` — forward filter (:func:`cdgps_cli.estimation.model_filter.filter_numpy`) and
-  RTS smoother (:func:`cdgps_cli.estimation.smoother.rts_smooth_transitions`) over it.
+  RTS smoother (:func:`cdgps_cli.estimation.smoother.rts_smooth_indexed`) over it: each distinct
+  transition (A, Q) stored once, x and P on the given store (on disk for ``cdgps estimate``: memory
+  of a chunk for x, P, whatever the record's length) and smoothed backwards in blocks.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from types import SimpleNamespace
 
 import numpy as np
@@ -24,7 +27,8 @@ from cdgps_cli.config.sensors import FUSABLE_KINDS
 from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.estimation.model_filter import filter_numpy
-from cdgps_cli.estimation.smoother import rts_smooth_transitions
+from cdgps_cli.config.options import ESTIMATE_CHUNK_EPOCHS
+from cdgps_cli.estimation.smoother import rts_smooth_indexed
 from cdgps_cli.measurement.registry import model_from_spec
 from cdgps_cli.measurement.sensor import align_epochs, place
 from cdgps_cli.measurement.stacked import Stacked
@@ -136,14 +140,83 @@ def fusion_problem(cfg: StructureConfig, gnss_parts: list, sensor_parts_: list, 
     return Stacked(list(gnss_parts) + list(sensor_parts_), n), dyn, P0, d_names + names
 
 
-def run_fused(model, dyn, time_s, x0, P0, smooth: bool = True, max_iterations: int = 5, rows_hook=None):
-    """Forward filter and (``smooth``) RTS smoother over the stacked model: SimpleNamespace with ``x``,
-    ``P`` (reported: smoothed or filtered), ``x_filt``, ``P_filt``, ``nis``, ``nis_dof``, ``rows``."""
-    fr = filter_numpy(model, dyn, np.asarray(time_s, float), x0, P0, max_iterations, rows_hook=rows_hook)
-    xs, Ps = rts_smooth_transitions(fr["x"], fr["P"], fr["A"], fr["Q"]) if smooth else (fr["x"], fr["P"])
-    return SimpleNamespace(x=xs, P=Ps, x_filt=fr["x"], P_filt=fr["P"], nis=fr["nis"], nis_dof=fr["nis_dof"], rows=fr["rows"])
+def run_fused(model, dyn, time_s, x0, P0, smooth: bool = True, max_iterations: int = 5, rows_hook=None,
+              store=None, chunk_epochs: int = ESTIMATE_CHUNK_EPOCHS, keep: int | None = None, gate_events=None):
+    """Forward filter and (``smooth``) RTS smoother over the stacked model.
+
+    Parameters
+    ----------
+    store : object, optional
+        Where the forward pass keeps x (N, n) and P (N, n, n) for the smoother
+        (:class:`~cdgps_cli.estimation.history.MemoryHistory` by default; ``cdgps estimate`` gives the
+        disk-backed :class:`cdgps_cli.io.scratch.DiskHistory`); pages released every ``chunk_epochs``.
+    keep : int, optional
+        The leading states whose covariance is returned (the modal states); None: all n.
+    gate_events : list, optional
+        The list ``rows_hook`` appends its drops to (:func:`~cdgps_cli.estimation.model_filter.outlier_gate`,
+        the only hook that changes rows): the rows are then not kept per epoch but made again when
+        read (:class:`GatedRows`: the same rows, memory of none).
+
+    Returns
+    -------
+    SimpleNamespace
+        ``x``, ``x_filt`` (N, n) in memory; ``P``, ``P_filt`` (N, keep, keep) in memory (``x``, ``P``
+        reported: smoothed or filtered); ``nis``, ``nis_dof``, ``rows`` (a list, or :class:`GatedRows`).
+    """
+    fr = filter_numpy(model, dyn, np.asarray(time_s, float), x0, P0, max_iterations, rows_hook=rows_hook,
+                      store=store, chunk_epochs=chunk_epochs, keep_rows=gate_events is None)
+    if gate_events is not None:
+        fr["rows"] = GatedRows(model, fr["had_rows"], gate_events)
+    xh, Ph = fr["x"], fr["P"]
+    N, n = xh.shape
+    m = n if keep is None else int(keep)
+    chunk = max(int(chunk_epochs), 1)
+    release = getattr(store, "release", lambda arr, a, b: None)
+    x_filt = np.array(xh)
+    P_filt = np.empty((N, m, m))
+    for a in range(0, N, chunk):
+        P_filt[a:a + chunk] = Ph[a:a + chunk, :m, :m]
+        release(Ph, a, a + chunk)
+    if not smooth:
+        return SimpleNamespace(x=x_filt, P=P_filt, x_filt=x_filt, P_filt=P_filt, nis=fr["nis"],
+                               nis_dof=fr["nis_dof"], rows=fr["rows"])
+    P_s = np.empty((N, m, m))
+
+    def done(a, b):
+        P_s[a:b] = Ph[a:b, :m, :m]
+        release(Ph, a + 1, b)                 # (epoch a is read again by the pass below it)
+
+    rts_smooth_indexed(xh, Ph, *fr["transitions"], chunk=chunk, on_done=done)
+    x_s = np.array(xh)
+    release(xh, 0, N)
+    release(Ph, 0, N)
+    return SimpleNamespace(x=x_s, P=P_s, x_filt=x_filt, P_filt=P_filt, nis=fr["nis"], nis_dof=fr["nis_dof"],
+                           rows=fr["rows"])
 
 
+class GatedRows(Sequence):
+    """The rows each epoch's update used, made again when read: ``model.rows(k)`` with the outlier
+    gate's drops at k replayed in their order (``events``: ``{"epoch", "label"}``, the worst first, as
+    :func:`~cdgps_cli.estimation.model_filter.outlier_gate` made them), None where the epoch had none
+    (``had_rows`` (N,) bool).  The same arrays as the rows kept in memory, without keeping them."""
+
+    def __init__(self, model, had_rows: np.ndarray, events: list):
+        self.model, self.had_rows = model, np.asarray(had_rows, dtype=bool)
+        self.drops: dict = {}
+        for e in events:
+            self.drops.setdefault(int(e["epoch"]), []).append(e["label"])
+
+    def __len__(self) -> int:
+        return self.had_rows.size
+
+    def __getitem__(self, k):
+        if not self.had_rows[k]:
+            return None
+        rows = self.model.rows(int(k))
+        for label in self.drops.get(int(k), ()):
+            i = rows.labels.index(label)
+            rows = rows.subset(np.delete(np.arange(rows.z_m.size), i))
+        return rows
 
 
 def fusion_choice(cfg: StructureConfig, fuse_option: str | None, hold_out_option=()) -> tuple[tuple, tuple]:
@@ -177,7 +250,7 @@ def _dd_rows(rows, part: int = 0):
 
 
 def fuse_with_dd(cfg: StructureConfig, dd, t_gnss, logs: dict, fuse, hold_out, x0, P0, *, smooth: bool,
-                 max_iterations: int, outlier_sigma: float, say=None):
+                 max_iterations: int, outlier_sigma: float, say=None, store=None):
     """The GNSS modal estimate with the sensors fused (``cdgps estimate --structure --fuse``).
 
     ``dd`` is the run's :class:`~cdgps_cli.measurement.model.SatelliteDDModal` on the GNSS epochs
@@ -212,8 +285,9 @@ def fuse_with_dd(cfg: StructureConfig, dd, t_gnss, logs: dict, fuse, hold_out, x
     events: list = []
     if say:
         say(f"fused EKF over {t.size} epochs ({t_gnss.size} GNSS), {len(parts)} sensor(s), {dyn.n} states …")
-    r = run_fused(model, dyn, t, x0f, P0f, smooth, max_iterations, rows_hook=outlier_gate(model, outlier_sigma, events, t))
     nm2 = 2 * cfg.n_modes
+    r = run_fused(model, dyn, t, x0f, P0f, smooth, max_iterations, rows_hook=outlier_gate(model, outlier_sigma, events, t),
+                  store=store, keep=nm2, gate_events=events)
     dd_rows = [_dd_rows(rk) for rk in r.rows]
     out_dd = [dict(e, label=tuple(e["label"][1:])) for e in events if e["label"][0] == "gnss"]
     out_s = [{"time_s": e["time_s"], "antenna": e["label"][0], "transmitter": e["label"][2], "kind": "outlier",
@@ -229,21 +303,23 @@ def fuse_with_dd(cfg: StructureConfig, dd, t_gnss, logs: dict, fuse, hold_out, x
 
 
 def _sensor_summary(parts, x, rows) -> dict:
-    """Per fused sensor: samples, RMS residual of the reported estimate per field, final bias per field."""
-    out = {}
-    for p, (name, m) in enumerate(parts, start=1):
-        res = {f: [] for f in m.fields}
-        n = 0
-        for k, rk in enumerate(rows):
+    """Per fused sensor: samples, RMS residual of the reported estimate per field, final bias per field
+    (one pass over ``rows``: made again per epoch when they are :class:`GatedRows`)."""
+    res = [{f: [] for f in m.fields} for _, m in parts]
+    count = [0] * len(parts)
+    for k, rk in enumerate(rows):
+        for p, (_, m) in enumerate(parts, start=1):
             sub = _dd_rows(rk, p)
             if sub is None:
                 continue
-            n += 1
+            count[p - 1] += 1
             h, _ = m.predict(x[k], sub)
             for (_, f), z, hh in zip(sub.labels, sub.z_m, h):
-                res[f].append(z - hh)
+                res[p - 1][f].append(z - hh)
+    out = {}
+    for (name, m), r, n in zip(parts, res, count):
         out[name] = {"kind": m.kind, "samples": n,
-                     "residual_rms": {f: float(np.sqrt(np.mean(np.square(v)))) if v else None for f, v in res.items()},
+                     "residual_rms": {f: float(np.sqrt(np.mean(np.square(v)))) if v else None for f, v in r.items()},
                      "sigma": {f: float(s) for f, s in zip(m.fields, m.sigma)},
                      "final_bias": ({f: float(x[-1, m.bias_offset + j]) for j, f in enumerate(m.fields)}
                                     if m.extra_states else {})}
@@ -332,7 +408,8 @@ def fuse_with_pseudolite(run, init: dict, opt, fuse, hold_out=()):
     x0 = np.zeros(dyn.n)
     x0[:n] = fp.x[:n]
     events: list = []
-    r = run_fused(model, dyn, t, x0, P0, opt.smooth, 1, rows_hook=outlier_gate(model, opt.outlier_sigma, events, t))
+    r = run_fused(model, dyn, t, x0, P0, opt.smooth, 1, rows_hook=outlier_gate(model, opt.outlier_sigma, events, t),
+                  store=opt.history, chunk_epochs=opt.chunk_epochs, keep=n, gate_events=events)
     resid = _phase_residuals(phase, r.x_filt, r.rows, fp.C)
     ev = [{"time_s": e["time_s"], "antenna": e["label"][1] if e["label"][0] == "phase" else e["label"][0],
            "transmitter": e["label"][2], "kind": "outlier",

@@ -42,7 +42,7 @@ from cdgps_cli import __version__
 from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.estimation.baseline import BaselineOptions, Station, json_safe, solve_static_baseline
 from cdgps_cli.estimation.model_filter import filter_numpy
-from cdgps_cli.estimation.smoother import rts_smooth_transitions
+from cdgps_cli.estimation.smoother import rts_smooth_indexed
 from cdgps_cli.measurement.dd_displacement import SatelliteDDDisplacement, SDObservations
 from cdgps_cli.model.dynamics_models import RandomWalk
 from cdgps_cli.measurement.differencing import dd_weight_blocks, select_reference
@@ -291,7 +291,7 @@ def _random_walk(model: SatelliteDDDisplacement, t: np.ndarray, sigma_rw, p0_sig
     """δx (displacement − static solution) by the engine: the forward filter
     (:func:`~cdgps_cli.estimation.model_filter.filter_numpy`, one update per epoch: the model is linear)
     with random-walk dynamics (A = I, Q = diag(σ²)Δt) from δx = 0 ± ``p0_sigma``, and the RTS
-    smoother (:func:`~cdgps_cli.estimation.smoother.rts_smooth_transitions`) when ``smooth``.
+    smoother (:func:`~cdgps_cli.estimation.smoother.rts_smooth_indexed`) when ``smooth``.
 
     Returns smoothed (or filtered) x (N, 3), P (N, 3, 3), filtered x, P, and NIS (N,) (NaN: no DDs).
     """
@@ -299,7 +299,7 @@ def _random_walk(model: SatelliteDDDisplacement, t: np.ndarray, sigma_rw, p0_sig
     xf, pf = fr["x"], fr["P"]
     if not smooth:
         return xf, pf, xf, pf, fr["nis"]
-    xs, ps = rts_smooth_transitions(xf, pf, fr["A"], fr["Q"])
+    xs, ps = rts_smooth_indexed(np.array(xf), np.array(pf), *fr["transitions"])
     return xs, ps, xf, pf, fr["nis"]
 
 

@@ -68,7 +68,7 @@ from cdgps_cli.model.dynamics_models import ModalZOH
 from cdgps_cli.estimation import kernel
 from cdgps_cli.estimation.filter import EstimateOptions
 from cdgps_cli.estimation.model_filter import filter_dd_kernel, filter_numpy, outlier_gate
-from cdgps_cli.estimation.smoother import rts_smooth_transitions
+from cdgps_cli.estimation.smoother import rts_smooth_indexed
 from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.model.kinematics import antenna_positions
@@ -564,7 +564,7 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
                         init_window_max_factor: float = INIT_WINDOW_MAX_FACTOR,
                         init_code_dd: bool = MODAL_INIT_CODE_DD,
                         scene_exaggeration: float | str = SCENE_EXAGGERATION, fuse=(), hold_out=(),
-                        sensor_logs: dict | None = None) -> dict:
+                        sensor_logs: dict | None = None, history=None) -> dict:
     """Modal states of a structure from a GNSS RUN and its INIT (integers) → STATES.mcap.
 
     Parameters
@@ -609,6 +609,9 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
         the filter then steps on the union of the GNSS epochs and the sensor samples, the state carries
         the held modal disturbance (with accelerometers) and the sensor biases, and the outputs'
         options and summary carry ``fusion`` (per sensor: samples, residual RMS, final bias).
+    history : object, optional
+        Where the fused filter keeps x, P for the smoother (:func:`cdgps_cli.pipeline.fusion.run_fused`:
+        in memory by default; ``cdgps estimate`` gives a :class:`cdgps_cli.io.scratch.DiskHistory`).
 
     Returns
     -------
@@ -663,7 +666,8 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
         from cdgps_cli.pipeline.fusion import fuse_with_dd  # noqa: PLC0415
 
         fusion = fuse_with_dd(cfg, model, t_all, sensor_logs or {}, tuple(fuse), tuple(hold_out), x0, P0, smooth=smooth,
-                              max_iterations=max_iterations, outlier_sigma=gate, say=say)
+                              max_iterations=max_iterations, outlier_sigma=gate, say=say,
+                              store=history)
         model, t_all, outliers = fusion.dd, fusion.t, fusion.outliers_dd
         xf, Pf, meas, xs, Ps = fusion.x_filt, fusion.P_filt, fusion.dd_rows, fusion.x, fusion.P
         nis, nis_dof = fusion.nis, fusion.nis_dof
@@ -735,7 +739,7 @@ def _filter_dd(model, cfg: StructureConfig, t_all, x0, P0, max_iterations: int, 
         fr = filter_numpy(model, dyn, t_all, x0, P0, max_iterations,
                           rows_hook=outlier_gate(model, gate, outliers, t_all))
     xf, Pf = fr["x"], fr["P"]
-    xs, Ps = rts_smooth_transitions(xf, Pf, fr["A"], fr["Q"]) if smooth else (xf, Pf)
+    xs, Ps = rts_smooth_indexed(np.array(xf), np.array(Pf), *fr["transitions"]) if smooth else (xf, Pf)
     return xf, Pf, fr["rows"], xs, Ps, fr["nis"], fr["nis_dof"], outliers
 
 
