@@ -29,6 +29,8 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+from cdgps_cli.pipeline.gnss import rover_segments  # noqa: E402
 CDGPS = [sys.executable, "-m", "cdgps_cli.cli.commands"]
 
 
@@ -59,7 +61,7 @@ def check_integers(init: dict, truth: dict, rover: str, master: str) -> int:
     def sd(sat, t):
         return integer(rover, sat, t) - integer(master, sat, t)
 
-    segs = init["rovers"][rover]["ambiguities"]
+    segs = rover_segments(init, rover)  # INIT v2 keeps them in "biases"
     pivots = [s for s in segs if s["pivot"]]
     wrong = 0
     for s in segs:
