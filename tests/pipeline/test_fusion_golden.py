@@ -22,9 +22,9 @@ from cdgps_cli.io.states import States
 ROOT = Path(__file__).resolve().parents[2]
 TOWER = ROOT / "configs" / "tower-fusion.toml"
 TESTBED = ROOT / "configs" / "testbed-1998.toml"
-GOLDEN = {"tower": "618ad874d6e721faf35129b35defb4819d560d2ab8566c55168dc607adcb9017",
+GOLDEN = {"tower": "6cbddc798a6d6bbd20792dfd778bba2df79fecaa1add614888cca972eca9ad43",
           "testbed": "e15035d831e15052cff751d32a93c72a2e47bd48a2e739216ba5aa1ef473b644"}
-GOLDEN_FUSION = {"tower": ("4611df1743103db22b9fbe83748098493a26e11eb70fca6574b8dc88f50847b6", 447),
+GOLDEN_FUSION = {"tower": ("d81abd10971ce645f106b2f1b552f8ced52f3c75684a6fb90063149b49cd4a2e", 1),
                  "testbed": ("620946e1c767fb625a893f5eb9148ddb3a61661588afcc9295ec7c23b61f5ee3", 0)}
 
 
