@@ -28,6 +28,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests._machine import exact_here, machine
+
 from cdgps_cli.config.structure import load_config
 from cdgps_cli.core.records import memory_run
 from cdgps_cli.estimation.filter import EstimateOptions, estimate
@@ -155,24 +157,8 @@ def compute(name: str) -> dict:
     return out
 
 
-def machine() -> str:
-    """This machine's fingerprint for exact floating-point digests: CPU model, architecture, numpy version."""
-    import platform
-
-    model = ""
-    try:
-        model = next((ln.split(":", 1)[1].strip() for ln in Path("/proc/cpuinfo").read_text().splitlines()
-                      if ln.startswith("model name")), "")
-    except OSError:
-        pass
-    return f"{platform.machine()}|{model or platform.processor()}|numpy {np.__version__}"
-
-
 def _exact() -> bool:
-    env = os.environ.get("GOLDEN_EXACT")
-    if env is not None:
-        return env not in ("0", "")
-    return json.loads(GOLDEN.read_text()).get("_machine") == machine()
+    return exact_here(json.loads(GOLDEN.read_text()).get("_machine"))
 
 
 @pytest.fixture(scope="module")

@@ -19,8 +19,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -28,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+from tests._machine import exact_here, machine
 from click.testing import CliRunner
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -116,22 +116,8 @@ def compute(name: str) -> dict:
     return _static_sky()
 
 
-def machine() -> str:
-    """This machine's fingerprint for exact floating-point digests: CPU model, architecture, numpy version."""
-    model = ""
-    try:
-        model = next((ln.split(":", 1)[1].strip() for ln in Path("/proc/cpuinfo").read_text().splitlines()
-                      if ln.startswith("model name")), "")
-    except OSError:
-        pass
-    return f"{platform.machine()}|{model or platform.processor()}|numpy {np.__version__}"
-
-
 def _exact(golden: dict) -> bool:
-    env = os.environ.get("GOLDEN_EXACT")
-    if env is not None:
-        return env not in ("0", "")
-    return golden.get("_machine") == machine()
+    return exact_here(golden.get("_machine"))
 
 
 @pytest.fixture(scope="module")
