@@ -12,11 +12,18 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def _script(relpath: str):
+    """The module of a script under ROOT (benchmarks are not a package; dataclasses look their module up)."""
+    name = Path(relpath).stem
+    spec = importlib.util.spec_from_file_location(name, ROOT / relpath)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
 def test_quick_paper_reproduction(tmp_path):
-    spec = importlib.util.spec_from_file_location("paper", ROOT / "benchmarks" / "paper.py")
-    paper = importlib.util.module_from_spec(spec)
-    sys.modules["paper"] = paper                              # dataclasses look their module up
-    spec.loader.exec_module(paper)
+    paper = _script("benchmarks/paper.py")
     assert paper.main(["--quick", "--out", str(tmp_path)]) == 0
     rows = json.loads((tmp_path / "benchmarks" / "paper.json").read_text())["headlines"]
     by = {(r["paper"], r["where"]): r for r in rows}
@@ -33,14 +40,6 @@ def test_quick_paper_reproduction(tmp_path):
     assert md.count("| 199") == len(rows) and "**no**" in md and (tmp_path / "figures" / "paper-static.png").exists()
 
 
-def _paper_module():
-    spec = importlib.util.spec_from_file_location("paper", ROOT / "benchmarks" / "paper.py")
-    paper = importlib.util.module_from_spec(spec)
-    sys.modules["paper"] = paper
-    spec.loader.exec_module(paper)
-    return paper
-
-
 def test_noise_suppression_is_the_high_frequency_ratio_of_the_loops():
     """Alban 2003's 14 dB: the 15 Hz loop's noise transfer over the 3 Hz loop's above both bandwidths,
     20·log10(15/3) = 13.98 dB; on tones at the analytic responses the helper returns it, and on tones
@@ -49,7 +48,7 @@ def test_noise_suppression_is_the_high_frequency_ratio_of_the_loops():
 
     from cdgps_cli.tracking.loops import pll2_response
 
-    paper = _paper_module()
+    paper = _script("benchmarks/paper.py")
     f = [1.0, 2.0, 20.0, 30.0, 50.0, 70.0]
     tones = {"tones_hz": f, "runs": [{"run": f"{bn:g} Hz unaided", "gain": np.abs(pll2_response(f, bn)).tolist()}
                                      for bn in (3.0, 15.0)]}
@@ -57,15 +56,6 @@ def test_noise_suppression_is_the_high_frequency_ratio_of_the_loops():
     assert band == (20.0, 70.0)
     assert abs(measured - analytic) < 1e-9 and abs(analytic - 20 * np.log10(5)) < 0.1
     assert paper._noise_suppression_db(tones, above_hz=1.0)[0] < 11.0
-
-
-def _script(relpath: str):
-    name = Path(relpath).stem
-    spec = importlib.util.spec_from_file_location(name, ROOT / relpath)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[name] = mod
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def test_one_weight_scale_gives_both_fig6_settling_times():
