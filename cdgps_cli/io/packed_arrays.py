@@ -63,9 +63,15 @@ def _delta_encode(cols: np.ndarray, order: int, overwrite: bool = False, block: 
         for end in range(n, 1, -block):
             start = max(end - block, 1)
             np.subtract(u[start:end], u[start - 1:end - 1], out=u[start:end])   # modulo 2^bits
+    return _zigzag_in_place(u, block)
+
+
+def _zigzag_in_place(u: np.ndarray, block: int) -> np.ndarray:
+    """Map the signed differences held in unsigned ``u`` to zigzag order in place (0, -1, 1, -2 … →
+    0, 1, 2, 3 …), ``block`` rows at a time; returns ``u``."""
     s = u.view(u.dtype.str.replace("u", "i"))
     bits = 8 * u.dtype.itemsize
-    for a in range(0, n, block):
+    for a in range(0, u.shape[0], block):
         sign = s[a:a + block] >> (bits - 1)
         np.left_shift(s[a:a + block], 1, out=s[a:a + block])
         np.bitwise_xor(s[a:a + block], sign, out=s[a:a + block])
@@ -423,13 +429,7 @@ class PackedWriter:
             if self._carry[level] is not None:
                 d[0] -= self._carry[level]
             self._carry[level] = last
-        s = d.view(d.dtype.str.replace("u", "i"))
-        bits = 8 * d.dtype.itemsize
-        for a in range(0, k, block):
-            sign = s[a:a + block] >> (bits - 1)
-            np.left_shift(s[a:a + block], 1, out=s[a:a + block])
-            np.bitwise_xor(s[a:a + block], sign, out=s[a:a + block])
-        return d
+        return _zigzag_in_place(d, block)
 
     def finish(self) -> tuple[int, object]:
         """``(length, pieces)``: the packed bytes' length and an iterator over them (header first).
