@@ -32,6 +32,7 @@ away (geonet-car) GPS+Galileo L1; the u-blox walk's UBX log as base against its 
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import platform
@@ -224,10 +225,13 @@ def run_case(c, tmp: Path, repeats: int, peer: bool, before: str | None = None) 
 def main() -> None:
     from cdgps_cli.model.gps.orbits import ecef_to_enu  # noqa: PLC0415
 
-    repeats = int(sys.argv[sys.argv.index("--repeats") + 1]) if "--repeats" in sys.argv else 3
-    peer = "--no-rtklib" not in sys.argv
-    before = sys.argv[sys.argv.index("--before") + 1] if "--before" in sys.argv else None
-    out = Path(sys.argv[sys.argv.index("--out") + 1]) if "--out" in sys.argv else OUT
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--repeats", type=int, default=3, help="runs per program and case (median) [3]")
+    ap.add_argument("--no-rtklib", action="store_true", help="time our side only")
+    ap.add_argument("--before", metavar="TREE", help="also time another source tree's `cdgps rtk` in the same rounds")
+    ap.add_argument("--out", type=Path, default=OUT, help=f"result JSON [{OUT}]")
+    args = ap.parse_args()
+    repeats, peer, before, out = args.repeats, not args.no_rtklib, args.before, args.out
     if peer and not shutil.which("rnx2rtkp"):
         raise SystemExit("rnx2rtkp not found: apt-get install rtklib (or --no-rtklib for our side only)")
     res = {"machine": {"python": platform.python_version(), "cpu": platform.processor() or platform.machine(),
