@@ -4,6 +4,8 @@
  *                                  float64, modified in place; returns the operation list [(i, j, mu), ...],
  *                                  or None when an integer mu does not fit 2**62 (the caller then runs the
  *                                  Python reduction on its own copies).
+ *   z_matrix(ops, Z)               ambiguity._z_matrix: Z (n, n) int64, the identity, becomes the product of the
+ *                                  operations; False when _z_matrix would turn to Python integers (bound 2**62).
  *   enumerate(L, d, zs, m, cap, out_z, out_s)
  *                                  the depth-first search of ambiguity._enumerate; out_z (m, n) and out_s (m,)
  *                                  float64 receive the retained candidates (unsorted); returns (count, nodes
@@ -211,6 +213,89 @@ static PyObject *py_reduce(PyObject *self, PyObject *args)
 }
 
 /* ------------------------------------------------------------------------------------------ */
+/* Z from the operation list (ambiguity._z_matrix) */
+
+/* a - mu * b in int64; 0 when it would overflow */
+static int sub_mul(int64_t a, int64_t mu, int64_t b, int64_t *out)
+{
+    if (b != 0 && mu != 0) {
+        if (mu == INT64_MIN || b == INT64_MIN) return 0;
+        int64_t am = mu < 0 ? -mu : mu, ab = b < 0 ? -b : b;
+        if (am > INT64_MAX / ab) return 0;
+    }
+    int64_t p = mu * b;
+    if ((p > 0 && a < INT64_MIN + p) || (p < 0 && a > INT64_MAX + p)) return 0;
+    *out = a - p;
+    return 1;
+}
+
+/* z_matrix(ops, Z): Z (n, n) int64, the identity on entry, becomes the product of the operations.
+ * Returns 1 (done: the same Z as ambiguity._z_matrix), 0 when _z_matrix would have turned to its exact
+ * Python-integer form (the bound on an entry reached 2**62; Z is then left unspecified). */
+static PyObject *py_z_matrix(PyObject *self, PyObject *args)
+{
+    (void)self;
+    PyObject *ops, *oZ;
+    if (!PyArg_ParseTuple(args, "O!O", &PyList_Type, &ops, &oZ)) return NULL;
+    Py_buffer bZ;
+    if (PyObject_GetBuffer(oZ, &bZ, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | PyBUF_WRITABLE) != 0) return NULL;
+    const char *f = bZ.format ? bZ.format : "B";
+    if (*f == '@' || *f == '=') f++;
+    Py_ssize_t n = (Py_ssize_t)floor(sqrt((double)(bZ.len / 8)) + 0.5);
+    if (!((f[0] == 'q' || f[0] == 'l') && f[1] == 0 && bZ.itemsize == 8 && n * n * 8 == bZ.len)) {
+        PyBuffer_Release(&bZ);
+        PyErr_SetString(PyExc_TypeError, "_lambdacore.z_matrix: Z must be a square C-contiguous int64 array");
+        return NULL;
+    }
+    int64_t *Z = bZ.buf;
+    double *bound = malloc((size_t)(n ? n : 1) * sizeof(double));
+    if (!bound) {
+        PyBuffer_Release(&bZ);
+        return PyErr_NoMemory();
+    }
+    for (Py_ssize_t c = 0; c < n; c++) bound[c] = 1.0;
+    int ok = 1, err = 0;
+    Py_ssize_t m = PyList_GET_SIZE(ops);
+    for (Py_ssize_t q = 0; q < m && ok; q++) {
+        PyObject *t = PyList_GET_ITEM(ops, q);
+        long long i, j, mu;
+        if (!PyArg_ParseTuple(t, "LLL", &i, &j, &mu)) {
+            if (PyErr_ExceptionMatches(PyExc_OverflowError)) {     /* an integer beyond int64: Python's turn */
+                PyErr_Clear();
+                ok = 0;
+            } else {
+                err = 1;
+            }
+            break;
+        }
+        if (i < 0 || j < 0 || i >= n || j >= n) {
+            PyErr_SetString(PyExc_ValueError, "_lambdacore.z_matrix: operation index out of range");
+            err = 1;
+            break;
+        }
+        if (mu) {
+            bound[j] += fabs((double)mu) * bound[i];
+            if (bound[j] >= 4611686018427387904.0) { ok = 0; break; }
+            for (Py_ssize_t r = 0; r < n; r++)
+                if (!sub_mul(Z[r * n + j], mu, Z[r * n + i], &Z[r * n + j])) { ok = 0; break; }
+        } else {
+            for (Py_ssize_t r = 0; r < n; r++) {
+                int64_t s = Z[r * n + i];
+                Z[r * n + i] = Z[r * n + j];
+                Z[r * n + j] = s;
+            }
+            double s = bound[i];
+            bound[i] = bound[j];
+            bound[j] = s;
+        }
+    }
+    free(bound);
+    PyBuffer_Release(&bZ);
+    if (err) return NULL;
+    return PyBool_FromLong(ok);
+}
+
+/* ------------------------------------------------------------------------------------------ */
 /* search */
 
 /* ambiguity._retain on arrays: returns the new radius, updates *cnt and *imax */
@@ -346,6 +431,7 @@ done:
 
 static PyMethodDef methods[] = {
     {"reduce", py_reduce, METH_VARARGS, "reduce(L, d, perm_rtol): LAMBDA reduction in place; the operation list (or None)."},
+    {"z_matrix", py_z_matrix, METH_VARARGS, "z_matrix(ops, Z): Z <- product of the operations (Z the identity); False: too large."},
     {"enumerate", py_enumerate, METH_VARARGS,
      "enumerate(L, d, zs, m, cap, out_z, out_s): the integer search; (count, cap exceeded)."},
     {NULL, NULL, 0, NULL}};

@@ -402,8 +402,13 @@ def _z_matrix(ops, n):
 
     Column operations on an int64 array, with a bound on every column's largest entry carried
     along (``|Z_j - mu Z_i| <= b_j + |mu| b_i``): when a bound could reach 2**62 the product is
-    formed again in Python integers, which cannot overflow, and checked."""
+    formed again in Python integers, which cannot overflow, and checked.  The compiled twin
+    (:func:`_kernel`) runs the same steps."""
     Z = np.eye(n, dtype=np.int64)
+    if _kernel() is not None:
+        if not ops:
+            return Z
+        return Z if _lambdacore.z_matrix(ops, Z) else _z_matrix_exact(ops, n)
     bound = [1.0] * n
     for i, j, mu in ops:
         if mu:

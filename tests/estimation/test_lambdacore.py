@@ -71,6 +71,20 @@ def _fixed(a, Q):
     return r["fixed_mask"], r["integers"], np.array([r["ratio"], r["ratio_full_set"], r["success_rate"]])
 
 
+def test_z_matrix_identical(monkeypatch):
+    """Z from the operations: the reductions of the test covariances, and operation lists whose bound
+    reaches 2**62 (the exact Python-integer form: the same Z, or the same error)."""
+    for a, Q in _covariances():
+        ops = amb._reduce(*amb.ld_factorize(Q))[2]
+        Zc = _outcome(lambda o, n: (amb._z_matrix(o, n),), ops, a.size)
+        assert _same(Zc, _python(monkeypatch, _outcome, lambda o, n: (amb._z_matrix(o, n),), ops, a.size))
+    big = 2**40
+    for ops in ([(1, 0, big), (0, 1, big), (1, 0, -big)], [(1, 0, big), (0, 1, 0), (1, 0, big), (0, 1, 3)],
+                [(1, 0, 2**70)], [(1, 0, 3), (0, 1, 0), (2, 1, -2)]):
+        assert _same(_outcome(lambda o: (amb._z_matrix(o, 3),), ops),
+                     _python(monkeypatch, _outcome, lambda o: (amb._z_matrix(o, 3),), ops))
+
+
 def test_search_cap_identical(monkeypatch):
     """A weak float solution that exceeds the node cap: the same error (with the same count of
     candidates found) from both."""
