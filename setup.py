@@ -1,4 +1,5 @@
-"""Build of the optional C kernels ``cdgps_cli.estimation._ekfcore`` and ``cdgps_cli.tracking._trackcore`` (project metadata lives in
+"""Build of the optional C kernels ``cdgps_cli.estimation._ekfcore``, ``cdgps_cli.estimation._lambdacore`` (LAMBDA's
+reduction and integer search) and ``cdgps_cli.tracking._trackcore`` (project metadata lives in
 pyproject.toml).
 
 The extension is plain C against the CPython API and the buffer protocol: no numpy headers, so
@@ -16,6 +17,9 @@ if sys.platform == "win32":
     compile_args = ["/O2"]
 else:
     compile_args = ["-O3", "-std=c99"]
+# the LAMBDA kernels must round every product and sum as the Python loops do (bit-identical integers):
+# no fused multiply-add contraction (gcc's default -ffp-contract=fast would fuse where the target has FMA)
+lambda_args = compile_args if sys.platform == "win32" else [*compile_args, "-ffp-contract=off"]
 
 setup(
     ext_modules=[
@@ -23,6 +27,12 @@ setup(
             "cdgps_cli.estimation._ekfcore",
             sources=["cdgps_cli/estimation/_ekfcore.c"],
             extra_compile_args=compile_args,
+            optional=True,
+        ),
+        Extension(
+            "cdgps_cli.estimation._lambdacore",
+            sources=["cdgps_cli/estimation/_lambdacore.c"],
+            extra_compile_args=lambda_args,
             optional=True,
         ),
         Extension(

@@ -36,10 +36,19 @@ from __future__ import annotations
 
 import math
 import numbers
+import os
 
 import numpy as np
 
 from cdgps_cli.config.options import RATIO_THRESHOLD
+
+try:
+    from cdgps_cli.estimation import _lambdacore
+except ImportError:                      # not compiled (no C compiler at install time): the Python loops
+    _lambdacore = None
+
+#: the API of ``_lambdacore`` this module calls
+LAMBDA_API = 1
 
 __all__ = [
     "bootstrap_success_rate",
@@ -92,6 +101,15 @@ class AmbiguityError(ValueError):
 
 class SearchLimitError(AmbiguityError):
     """The integer search exceeded its node cap (:data:`SEARCH_MAX_NODES` by default)."""
+
+
+def _kernel():
+    """The compiled kernels ``_lambdacore`` (the same arithmetic as :func:`_reduce` and :func:`_enumerate`,
+    bit-identical results), or None when not compiled, of another API, or disabled by the environment
+    variable ``CDGPS_NO_KERNEL`` (anything but ``""`` / ``"0"``, as for the EKF kernel)."""
+    if _lambdacore is None or getattr(_lambdacore, "API", None) != LAMBDA_API:
+        return None
+    return None if os.environ.get("CDGPS_NO_KERNEL", "") not in ("", "0") else _lambdacore
 
 
 def _check_cap(max_nodes):
@@ -249,8 +267,14 @@ def _reduce(L, d, *, z=None, on_tail=None):
     loop over the elements); recording the operations instead of updating ``Z`` makes each O(1)
     in ``z``, and ``Z`` is only materialised when asked for (:func:`decorrelate`).  The
     arithmetic is element for element that of the former list implementation, so the results are
-    bit-identical to it.
+    bit-identical to it.  Without ``z`` and ``on_tail`` the compiled twin (:func:`_kernel`) runs the
+    same steps.
     """
+    if z is None and on_tail is None and _kernel() is not None:
+        Lc, dc = _reduce_inputs(L, d)
+        ops = _lambdacore.reduce(Lc, dc, PERM_RTOL)
+        if ops is not None:          # None: an integer beyond 2**62 (the Python loop handles any size)
+            return Lc, dc, ops
     L, d = _reduce_inputs(L, d)
     n = d.shape[0]
     ops = []
@@ -271,9 +295,9 @@ def _reduce(L, d, *, z=None, on_tail=None):
 
 
 def _reduce_inputs(L, d):
-    """Working copies (float64) of the factors ``L`` (n, n) and ``d`` (n,) of :func:`_reduce`."""
-    L = np.array(L, dtype=float)
-    d = np.array(d, dtype=float)
+    """Working copies (float64, C order) of the factors ``L`` (n, n) and ``d`` (n,) of :func:`_reduce`."""
+    L = np.array(L, dtype=float, order="C")
+    d = np.array(d, dtype=float, order="C")
     n = d.shape[0]
     if d.ndim != 1 or L.shape != (n, n):
         raise AmbiguityError(
@@ -378,8 +402,13 @@ def _z_matrix(ops, n):
 
     Column operations on an int64 array, with a bound on every column's largest entry carried
     along (``|Z_j - mu Z_i| <= b_j + |mu| b_i``): when a bound could reach 2**62 the product is
-    formed again in Python integers, which cannot overflow, and checked."""
+    formed again in Python integers, which cannot overflow, and checked.  The compiled twin
+    (:func:`_kernel`) runs the same steps."""
     Z = np.eye(n, dtype=np.int64)
+    if _kernel() is not None:
+        if not ops:
+            return Z
+        return Z if _lambdacore.z_matrix(ops, Z) else _z_matrix_exact(ops, n)
     bound = [1.0] * n
     for i, j, mu in ops:
         if mu:
@@ -492,9 +521,18 @@ def search(L, d, zs, candidates, *, max_nodes=None):
     below, where numpy's per-call cost exceeds the work); the arithmetic is the same either way.
     """
     L, d, zs, m, cap = _search_inputs(L, d, zs, candidates, max_nodes)
-    out_z, out_s = _enumerate(L, d, zs, m, cap)
+    n = d.shape[0]
+    if _kernel() is not None:
+        out_z, out_s = np.empty((m, n)), np.empty(m)
+        found, over = _lambdacore.enumerate(np.ascontiguousarray(L), np.ascontiguousarray(d),
+                                            np.ascontiguousarray(zs), m, cap, out_z, out_s)
+        if over:
+            raise _limit_error(cap, n, found, m)
+        out_z, out_s = out_z[:found], out_s[:found].tolist()
+    else:
+        out_z, out_s = _enumerate(L, d, zs, m, cap)
     order = sorted(range(len(out_s)), key=out_s.__getitem__)
-    zn = np.array([out_z[i] for i in order], dtype=float).reshape(len(order), d.shape[0])
+    zn = np.array([out_z[i] for i in order], dtype=float).reshape(len(order), n)
     s = np.array([out_s[i] for i in order], dtype=float)
     return zn, s
 
