@@ -79,6 +79,7 @@ MULTI_GNSS_DEFAULTS = {
     "code_correlation_s": GNSS_DEFAULTS["code_correlation_s"],  # code errors as a Gauss-Markov process of this correlation time, s (0: white, as RTKLIB)
     "fix_and_hold": False,                 # feed fixed integers back as measurements (RTKLIB pos2-armode=fix-and-hold)
     "hold_after_fixes": 10,                # … once this many consecutive epochs fixed (RTKLIB pos2-arminfix)
+    "wrong_fix_probability": 0.999,        # while holding: an epoch's NIS above χ²(this) of its DDs resets the ambiguities to float (0: off)
     "sigma_a_m": PHASE_SIGMA_A_M, "sigma_b_m": PHASE_SIGMA_B_M, "code_ratio": 100.0,
     "amb_sigma_cycles": 30.0, "troposphere": True,
     "iono_threshold_km": IONO_THRESHOLD_KM,  # below: DD ionosphere neglected; above: estimated
