@@ -146,14 +146,14 @@ def test_solve_rtk_carried_decorrelation_equals_reduction_from_scratch(pair, mon
     cycles = dict(zip(sorted(keys.unique()), np.random.default_rng(3).integers(-40, 40, keys.nunique())))
     r = r.assign(phase_cycles=r["phase_cycles"] + keys.map(cycles).to_numpy())
     gb, gr = receiver_geometry(b, nav, BASE), receiver_geometry(r, nav, TRUTH)
-    warm = solve_rtk(gb, gr, BASE, TRUTH)
+    warm = solve_rtk(gb, gr, BASE, TRUTH, options={"fix_and_hold": False})   # held integers would move the float
     assert np.abs(warm["fixed_xyz_m"] - TRUTH).max() < 0.005
 
     def from_scratch(self, keys, Qa):      # Z = I: resolve reduces the DD covariance itself, as before
         self.Z = self.Zinv = np.eye(Qa.shape[0], dtype=np.int64)
 
     monkeypatch.setattr(rtk_multi._CarriedDecorrelation, "_update", from_scratch)
-    cold = solve_rtk(gb, gr, BASE, TRUTH)
+    cold = solve_rtk(gb, gr, BASE, TRUTH, options={"fix_and_hold": False})
     assert warm["fixed"].all() and np.array_equal(warm["fixed"], cold["fixed"])
     # the same integers in another integer basis: the fixed positions agree to rounding (1e-9 m)
     np.testing.assert_allclose(warm["fixed_xyz_m"], cold["fixed_xyz_m"], rtol=0, atol=1e-8)
@@ -188,7 +188,7 @@ def _pass(x, P, fixed_x=None, fixed_P=None):
             "fixed_xyz": np.array(fixed_x) if fixed else np.full((n, 3), np.nan),
             "fixed_cov": np.array(fixed_P) if fixed else np.full((n, 3, 3), np.nan),
             "fixed": np.full(n, fixed), "ratio": np.full(n, np.nan), "n_fixed": np.zeros(n, np.int64),
-            "partial": np.zeros(n, bool), "ns": np.zeros(n, np.int64)}
+            "partial": np.zeros(n, bool), "ns": np.zeros(n, np.int64), "wrong_fix_resets": np.zeros(n, bool)}
 
 
 def test_combined_covariance_does_not_count_epoch_k_twice():
@@ -262,8 +262,9 @@ def test_the_rtk_path_does_not_import_scipy():
 
 
 GOLDEN = REPO_ROOT / "tests" / "estimation" / "data" / "rtk_legacy_golden.npz"
-_GOLDEN_CASES = {"static": {"mode": "static"}, "kinematic": {}, "iono": {"iono_threshold_km": 1.0},
-                 "hold": {"fix_and_hold": True}, "backward": {"direction": "backward"}}
+_NO_HOLD = {"fix_and_hold": False}            # recorded before fix-and-hold became the default
+_GOLDEN_CASES = {"static": {"mode": "static", **_NO_HOLD}, "kinematic": _NO_HOLD, "iono": {"iono_threshold_km": 1.0, **_NO_HOLD},
+                 "hold": {"fix_and_hold": True}, "backward": {"direction": "backward", **_NO_HOLD}}
 
 
 def _golden_run(pair, opt):
