@@ -30,7 +30,7 @@ from cdgps_cli.config.options import MULTI_GNSS_DEFAULTS
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.signals import signal, SYSTEM_NAMES
-from cdgps_cli.estimation.ambiguity import (SearchLimitError, bootstrap_success_rate, decorrelate, ld_factorize,
+from cdgps_cli.estimation.ambiguity import (AmbiguityError, SearchLimitError, bootstrap_success_rate, decorrelate, ld_factorize,
                                             ratio_test, search, success_tail)
 from cdgps_cli.estimation.driver import EpochGrid, Hook, drive
 from cdgps_cli.estimation.kalman import NUMPY_INVERSE, StepFilter
@@ -231,6 +231,16 @@ class _CarriedDecorrelation:
         self.Z, self.Zinv = eye, eye         # start again from scratch
         return None
 
+    def _reduced(self, keys, Qa):
+        """``Zᵀ`` and the reduced factors ``L``, ``d`` of ``Zᵀ Qa Z`` (Z carried, else reduced here)."""
+        factors = self._update(keys, Qa)
+        Zt = self.Z.T
+        if factors is not None:
+            return (Zt, *factors)
+        Q = Zt @ Qa @ Zt.T                   # Z restarted (or a caller's Z): reduce here
+        L, d, Z1 = decorrelate(*ld_factorize(0.5 * (Q + Q.T)))
+        return (self.Z @ Z1).T, L, d
+
     def resolve(self, keys, a, Qa, threshold, min_success_rate):
         """Integers of the DD ambiguities ``a`` (n,) cycles, covariance ``Qa`` (n, n) cycles², in the
         decorrelated space ``z = Zᵀ a``: the longest tail of z whose bootstrapped success rate is at
@@ -241,14 +251,16 @@ class _CarriedDecorrelation:
 
         Returns ``accepted``, ``ratio``, ``success_rate`` (of the set tried), ``partial``, ``rows``
         ((m, n) integer rows of Zᵀ fixed) and ``integers`` (m,)."""
-        factors = self._update(keys, Qa)
-        Zt = self.Z.T
-        if factors is None:                  # Z restarted (or a caller's Z): reduce here
-            Q = Zt @ Qa @ Zt.T
-            L, d, Z1 = decorrelate(*ld_factorize(0.5 * (Q + Q.T)))
-            Zt = (self.Z @ Z1).T
-        else:
-            L, d = factors
+        try:
+            Zt, L, d = self._reduced(keys, Qa)
+        except AmbiguityError:               # the carried Z made Zᵀ Qa Z too ill-conditioned: from scratch
+            n = Qa.shape[0]
+            self.Z = self.Zinv = np.eye(n, dtype=np.int64)
+            try:
+                Zt, L, d = self._reduced(keys, Qa)
+            except AmbiguityError:
+                return {"accepted": False, "ratio": np.nan, "success_rate": 0.0, "rows": None, "integers": None,
+                        "partial": False}
         z = Zt @ a
         k = success_tail(d, min_success_rate)
         n = len(z)

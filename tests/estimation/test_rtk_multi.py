@@ -335,3 +335,34 @@ def test_each_rtk_pass_is_a_drive_of_the_engine(pair, monkeypatch):
     res = _golden_run(pair, {"direction": "combined"})
     n = res["time_gps_s"].size
     assert calls == [(DDGroupModel, ["_AmbiguityHook"], 1, 0), (DDGroupModel, ["_AmbiguityHook"], n, 1)] * 2
+
+
+def test_a_decorrelation_beyond_int64_is_retried_from_scratch_then_left_float(monkeypatch):
+    """Real data (mosaic-static G+E+C L1+L2, 47 DD ambiguities) made ``decorrelate`` raise
+    AmbiguityError ("integer entries too large for int64") and ended the whole run: now the carried Z
+    restarts from the identity and, if that fails too, the epoch is simply not fixed."""
+    from cdgps_cli.estimation.ambiguity import AmbiguityError
+
+    rng = np.random.default_rng(2)
+    A = rng.normal(size=(5, 5))
+    Qa = A @ A.T * 0.01 + np.eye(5) * 1e-3
+    a = rng.integers(-9, 9, 5) + rng.normal(scale=0.01, size=5)
+    calls = {"n": 0}
+    real = rtk_multi.decorrelate
+
+    def flaky(L, d, fail_first):
+        calls["n"] += 1
+        if calls["n"] <= fail_first:
+            raise AmbiguityError("decorrelation produced integer entries too large for int64")
+        return real(L, d)
+
+    for fail_first, accepted in ((1, True), (99, False)):
+        calls["n"] = 0
+        monkeypatch.setattr(rtk_multi, "decorrelate", lambda L, d, f=fail_first: flaky(L, d, f))
+        c = rtk_multi._CarriedDecorrelation()
+        c.Z = c.Zinv = np.eye(5, dtype=np.int64)
+        out = c.resolve(("k",), a, Qa, 3.0, 0.999)
+        assert out["accepted"] is accepted and calls["n"] == 2
+        if accepted:                                    # the whole set, right: Zᵀ a's integers map back to round(a)
+            assert not out["partial"]
+            np.testing.assert_allclose(np.linalg.solve(out["rows"].astype(float), out["integers"]), np.rint(a), atol=1e-9)
