@@ -9,7 +9,8 @@ Cases (../shared/data/real-pairs, see their READMEs):
 * mosaic-static run kinematic (GPS L1 and G+E L1): wrong fixes = fixed epochs more than 5 cm from
   the baseline of the two position files;
 * the same rover with a known 3 mm, 0.2 Hz motion added along a line of sight
-  (tests/pipeline/test_vibration_real.py): fixed epochs more than 5 cm from the answer plus the motion.
+  (tests/pipeline/test_vibration_real.py): fixed epochs more than 5 cm from the answer plus the motion;
+* ublox-walk: the UBX log against its own RINEX conversion, a zero baseline (answer 0).
 
 Run: ``PYTHONPATH=. python benchmarks/fix_correctness.py [--option key=value ...] [-o out.json]``;
 results in docs/benchmarks/fix_correctness.json.
@@ -37,6 +38,7 @@ CAR_START = (5083.057, 1707.376, -1.192)        # README: G+E+J L1+L2 static, st
 CAR_END = (5049.078, 1691.873, -1.360)          # README: G+E+J L1 static, end segment fixed mean
 MOSAIC_BASE = (-3817681.1213, 3562839.4311, 3650159.1593)
 MOSAIC_ENU = (-0.2232, -0.9647, 0.0096)         # README: from the two position files
+WALK_BASE = (-1276975.6547, -4717238.8712, 4087235.6076)   # its receiver's first NAV-PVT fix
 WRONG_M = 0.05
 
 
@@ -76,6 +78,18 @@ def mosaic(options, tmp, signals, rover=None, motion=None):
             "rejected": s["fixes_rejected"], "resets": s["wrong_fix_resets"]}
 
 
+def walk(options, tmp):
+    """The u-blox walk's UBX log (base) against its own RINEX conversion (rover): a zero baseline, answer 0."""
+    w = SHARED / "ublox-walk"
+    out = Path(tmp) / "walk.csv"
+    s = rtk_from_files(w / "gnss_1730.ubx", w / "gnss_1730_convbin.obs", [], out, base_xyz_m=WALK_BASE,
+                       options={"signals": ("G:L1", "E:E1"), **options})
+    d = pd.read_csv(out, comment="#")
+    n, wrong, dev = _count(d, d["fixed"].to_numpy() == 1, (0.0, 0.0, 0.0))
+    return {"case": "ublox-walk zero baseline G+E L1 (UBX base, RINEX rover)", "epochs": s["epochs"], "fixed": n,
+            "wrong": wrong, "max_dev_m": dev, "rejected": s["fixes_rejected"], "resets": s["wrong_fix_resets"]}
+
+
 def vibrated_rover(tmp):
     """The mosaic rover with tests/pipeline/test_vibration_real.py's motion; (path, motion(t) -> (n, 3) ENU m)."""
     from cdgps_cli.io.rinex import read_rinex_nav
@@ -95,7 +109,7 @@ def vibrated_rover(tmp):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--option", action="append", default=[], help="rtk option key=value (JSON value)")
-    ap.add_argument("--cases", default="car,mosaic,vib")
+    ap.add_argument("--cases", default="car,mosaic,vib,walk")
     ap.add_argument("-o", "--out")
     a = ap.parse_args(argv)
     options = {k: json.loads(v) for k, v in (o.split("=", 1) for o in a.option)}
@@ -118,6 +132,8 @@ def _cases(cases, options, tmp):
         rows.append(car(options, tmp))
     if "mosaic" in cases:
         rows += [mosaic(options, tmp, s) for s in (("G:L1",), ("E:E1",), ("G:L1", "E:E1"))]
+    if "walk" in cases:
+        rows.append(walk(options, tmp))
     if "vib" in cases:
         p, motion = vibrated_rover(tmp)
         rows.append(mosaic(options, tmp, ("G:L1", "E:E1"), p, motion))
