@@ -305,10 +305,16 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
                    "agree (or one's fix agrees with the other's float); disagreeing fixes are rejected [combined].")
 @click.option("--code-correlation", "code_correlation_s", type=float, default=None,
               help="Correlation time of the code errors, s: their variance is inflated by (1+ρ)/(1−ρ), ρ = e^(−Δt/τ), so "
-                   "a minute of correlated multipath is not taken as 60 independent ranges [0: white, as RTKLIB].")
-@click.option("--fix-and-hold", is_flag=True, default=False,
+                   "a minute of correlated multipath is not taken as 60 independent ranges (0: white, as RTKLIB) "
+                   f"[{__import__('cdgps_cli.config.options', fromlist=['x']).MULTI_GNSS_DEFAULTS['code_correlation_s']:g}].")
+@click.option("--fix-and-hold/--no-fix-and-hold", default=None,
               help="After --hold-after-fixes consecutive fixed epochs, feed the fixed integers back as measurements "
-                   "(RTKLIB's fix-and-hold; a wrong fix is then held too: the combined mode's check still applies).")
+                   "(RTKLIB's fix-and-hold); while held, an epoch that contradicts them (--wrong-fix-probability) "
+                   "sets the ambiguities back to float [on].")
+@click.option("--wrong-fix-probability", "wrong_fix_probability", type=float, default=None,
+              help="Wrong-fix test while integers are held: an epoch whose NIS exceeds this χ² quantile of its DDs "
+                   "resets the ambiguities to float (0: off) "
+                   f"[{__import__('cdgps_cli.config.options', fromlist=['x']).MULTI_GNSS_DEFAULTS['wrong_fix_probability']:g}].")
 @click.option("--hold-after-fixes", "hold_after_fixes", type=click.IntRange(min=1), default=None,
               help="Consecutive fixed epochs before --fix-and-hold holds the integers (RTKLIB pos2-arminfix) "
                    f"[{__import__('cdgps_cli.config.options', fromlist=['x']).MULTI_GNSS_DEFAULTS['hold_after_fixes']}].")
@@ -320,7 +326,8 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (epochs used and why others were not, fixes) on stdout.")
 @click.pass_context
 def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_fix, mask_deg, ratio_threshold, max_age_s,
-        sync_tol_s, direction, code_correlation_s, fix_and_hold, hold_after_fixes, min_success_rate, output, as_json):
+        sync_tol_s, direction, code_correlation_s, fix_and_hold, wrong_fix_probability, hold_after_fixes, min_success_rate,
+        output, as_json):
     """Double differences per constellation and frequency, integers by LAMBDA (docs/gnss-pipeline.md, "Multi-GNSS").
 
     The rover's epochs drive the solution: each takes the nearest base epoch within --max-age (a base
@@ -329,11 +336,11 @@ def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_
     from cdgps_cli.pipeline.gnss_multi import rtk_from_files
 
     options = {"signals": "auto" if signals.strip() == "auto" else tuple(x.strip() for x in signals.split(",") if x.strip()),
-               "mode": mode, "fix_and_hold": fix_and_hold,
-               "glonass_fix": glonass_fix}
+               "mode": mode, "glonass_fix": glonass_fix}
     for key, value in (("mask_deg", mask_deg), ("ratio", ratio_threshold), ("max_age_s", max_age_s),
                        ("sync_tol_s", sync_tol_s), ("direction", direction), ("min_success_rate", min_success_rate),
-                       ("code_correlation_s", code_correlation_s), ("hold_after_fixes", hold_after_fixes)):
+                       ("code_correlation_s", code_correlation_s), ("hold_after_fixes", hold_after_fixes),
+                       ("fix_and_hold", fix_and_hold), ("wrong_fix_probability", wrong_fix_probability)):
         if value is not None:
             options[key] = value
     s = rtk_from_files(base_file, rover_file, list(nav_files), output, base_xyz_m=base_xyz or None, options=options)
@@ -342,7 +349,7 @@ def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_
     ep = s["epoch_pairing"]
     _say(ctx, f"{output}: {s['epochs']} of {ep['rover_epochs']} rover epochs ({ep['bridged']} bridged across base gaps, "
               f"max age {ep['max_age_s']:.3g} s), fixed {s['fixed_pct']:.1f} % ({s['direction']}; "
-              f"{s['fixes_rejected']} fixes rejected where the passes disagree), ionosphere {s['iono_model']}, "
+              f"{s['fixes_rejected']} fixes rejected where the passes disagree, {s['wrong_fix_resets']} held fixes reset), ionosphere {s['iono_model']}, "
               f"signals {' '.join(s['signals'])}")
     if as_json:
         _emit_json({k: v for k, v in s.items()})

@@ -21,6 +21,8 @@ iterated update in numpy only (scipy's import stays off `cdgps rtk`'s start-up).
 
 from __future__ import annotations
 
+from statistics import NormalDist
+
 import numpy as np
 import pandas as pd
 
@@ -28,7 +30,7 @@ from cdgps_cli.config.options import MULTI_GNSS_DEFAULTS
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.signals import signal, SYSTEM_NAMES
-from cdgps_cli.estimation.ambiguity import (SearchLimitError, bootstrap_success_rate, decorrelate, ld_factorize,
+from cdgps_cli.estimation.ambiguity import (AmbiguityError, SearchLimitError, bootstrap_success_rate, decorrelate, ld_factorize,
                                             ratio_test, search, success_tail)
 from cdgps_cli.estimation.driver import EpochGrid, Hook, drive
 from cdgps_cli.estimation.kalman import NUMPY_INVERSE, StepFilter
@@ -229,6 +231,16 @@ class _CarriedDecorrelation:
         self.Z, self.Zinv = eye, eye         # start again from scratch
         return None
 
+    def _reduced(self, keys, Qa):
+        """``Zᵀ`` and the reduced factors ``L``, ``d`` of ``Zᵀ Qa Z`` (Z carried, else reduced here)."""
+        factors = self._update(keys, Qa)
+        Zt = self.Z.T
+        if factors is not None:
+            return (Zt, *factors)
+        Q = Zt @ Qa @ Zt.T                   # Z restarted (or a caller's Z): reduce here
+        L, d, Z1 = decorrelate(*ld_factorize(0.5 * (Q + Q.T)))
+        return (self.Z @ Z1).T, L, d
+
     def resolve(self, keys, a, Qa, threshold, min_success_rate):
         """Integers of the DD ambiguities ``a`` (n,) cycles, covariance ``Qa`` (n, n) cycles², in the
         decorrelated space ``z = Zᵀ a``: the longest tail of z whose bootstrapped success rate is at
@@ -239,14 +251,16 @@ class _CarriedDecorrelation:
 
         Returns ``accepted``, ``ratio``, ``success_rate`` (of the set tried), ``partial``, ``rows``
         ((m, n) integer rows of Zᵀ fixed) and ``integers`` (m,)."""
-        factors = self._update(keys, Qa)
-        Zt = self.Z.T
-        if factors is None:                  # Z restarted (or a caller's Z): reduce here
-            Q = Zt @ Qa @ Zt.T
-            L, d, Z1 = decorrelate(*ld_factorize(0.5 * (Q + Q.T)))
-            Zt = (self.Z @ Z1).T
-        else:
-            L, d = factors
+        try:
+            Zt, L, d = self._reduced(keys, Qa)
+        except AmbiguityError:               # the carried Z made Zᵀ Qa Z too ill-conditioned: from scratch
+            n = Qa.shape[0]
+            self.Z = self.Zinv = np.eye(n, dtype=np.int64)
+            try:
+                Zt, L, d = self._reduced(keys, Qa)
+            except AmbiguityError:
+                return {"accepted": False, "ratio": np.nan, "success_rate": 0.0, "rows": None, "integers": None,
+                        "partial": False}
         z = Zt @ a
         k = success_tail(d, min_success_rate)
         n = len(z)
@@ -387,7 +401,7 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
             "static_xyz_m": last, "epoch_pairing": pairs.summary, "base_age_s": pairs.age_s,
             "float_cov_m2": res["float_cov"], "fixed_cov_m2": np.where(ok[:, None, None], res["fixed_cov"], np.nan),
             "n_satellites": res["ns"], "direction": direction, "fixes_rejected": int(res.get("rejected", 0)),
-            "partial_fixes": int(res["partial"].sum())}
+            "partial_fixes": int(res["partial"].sum()), "wrong_fix_resets": int(res["wrong_fix_resets"].sum())}
 
 
 def _filter_pass(rows, times, order, opt, base_xyz, origin, iono, progress) -> dict:
@@ -403,7 +417,8 @@ def _filter_pass(rows, times, order, opt, base_xyz, origin, iono, progress) -> d
     out = {"float_xyz": np.full((n_ep, 3), np.nan), "fixed_xyz": np.full((n_ep, 3), np.nan),
            "float_cov": np.full((n_ep, 3, 3), np.nan), "fixed_cov": np.full((n_ep, 3, 3), np.nan),
            "n_fixed": np.zeros(n_ep, dtype=np.int64), "ratio": np.full(n_ep, np.nan),
-           "partial": np.zeros(n_ep, dtype=bool), "ns": np.zeros(n_ep, dtype=np.int64)}
+           "partial": np.zeros(n_ep, dtype=bool), "ns": np.zeros(n_ep, dtype=np.int64),
+           "wrong_fix_resets": np.zeros(n_ep, dtype=bool)}
     st = _State(_n_motion(opt))
     model = DDGroupModel(lambda i: epoch_groups(rows, order[i]), base_xyz, origin)
     source = EpochGrid(times[order])
@@ -473,18 +488,63 @@ class _FloatSink:
         return None
 
 
+def chi2_quantile(p: float, dof: int) -> float:
+    """χ² quantile of probability ``p`` with ``dof`` degrees of freedom (Wilson–Hilferty; relative
+    error < 1 % for dof ≥ 3 at p = 0.999; no scipy on `cdgps rtk`'s start-up)."""
+    h = 2.0 / (9.0 * dof)
+    return dof * (1.0 - h + NormalDist().inv_cdf(p) * np.sqrt(h)) ** 3
+
+
+def _float_ambiguities(st, var_cycles2) -> None:
+    """Wrong-fix recovery: every ambiguity column back to float (variance ``var_cycles2``, no
+    correlation with the other states); the next epochs' phases and codes re-estimate them and the
+    integer search starts again."""
+    amb = np.array([j for j, key in enumerate(st.keys) if key[0] == "N"], dtype=np.int64)
+    if amb.size == 0:
+        return
+    P = st.P.copy()
+    P[amb, :] = 0.0
+    P[:, amb] = 0.0
+    P[amb, amb] = var_cycles2
+    st.P = P
+
+
 class _AmbiguityHook(Hook):
     """The rtk ambiguity policy as driver hooks: ``prepared`` opens a column per new ambiguity (and
-    ionosphere) and re-biases slipped channels (:func:`_prepare_state`); ``after`` fixes the DD
-    integers (:func:`_fix`, the policy of :meth:`_CarriedDecorrelation.resolve`), records the fixed
-    (or, for a partial set, improved float) position and holds the integers (fix-and-hold)."""
+    ionosphere) and re-biases slipped channels (:func:`_prepare_state`); ``gate`` keeps the state
+    before the update and ``updated`` checks a held fix against the epoch (wrong-fix detection:
+    while integers are held, an epoch whose NIS exceeds χ²(``wrong_fix_probability``) of its DD
+    degrees of freedom contradicts them — the ambiguities go back to float and the epoch is updated
+    again); ``after`` fixes the DD integers (:func:`_fix`, the policy of
+    :meth:`_CarriedDecorrelation.resolve`), records the fixed (or, for a partial set, improved float)
+    position and holds the integers (fix-and-hold)."""
 
     def __init__(self, st, model, order, opt, iono, out, progress):
         self.st, self.model, self.order, self.opt, self.iono, self.out = st, model, order, opt, iono, out
         self.progress, self.carried, self.run = progress, _CarriedDecorrelation(), 0
+        self.holding, self.prior, self.resets = False, None, 0
 
     def prepared(self, ctx, i):
         _prepare_state(self.st, self.model.groups, self.opt, self.iono)
+
+    def gate(self, ctx, i, model, rows):
+        if self.holding and self.opt["wrong_fix_probability"] > 0:
+            self.prior = (self.st.x.copy(), self.st.P.copy())
+        return rows
+
+    def updated(self, ctx, i, model, rows, nis):
+        if self.prior is None:
+            return
+        prior, self.prior = self.prior, None
+        dof = int(rows.z_m.size) - 2 * len(self.model.groups)    # DDs: one fewer than SDs per phase / code block
+        if dof < 1 or nis <= chi2_quantile(self.opt["wrong_fix_probability"], dof):
+            return
+        self.st.x, self.st.P = prior                  # the held integers contradict this epoch: undo, float, again
+        _float_ambiguities(self.st, self.opt["amb_sigma_cycles"] ** 2)
+        self.st.step.update(model, rows, 2)
+        self.run, self.holding, self.carried = 0, False, _CarriedDecorrelation()
+        self.resets += 1
+        self.out["wrong_fix_resets"][self.order[i]] = True
 
     def after(self, ctx, i, i_next):
         st, groups, opt, out, k = self.st, self.model.groups, self.opt, self.out, self.order[i]
@@ -496,7 +556,8 @@ class _AmbiguityHook(Hook):
         elif fx is not None:
             out["fixed_xyz"][k], out["fixed_cov"][k] = origin + fx, fx_cov
         self.run = self.run + 1 if (fx is not None and not partial) else 0
-        if opt["fix_and_hold"] and self.run >= opt["hold_after_fixes"]:
+        self.holding = bool(opt["fix_and_hold"] and self.run >= opt["hold_after_fixes"])
+        if self.holding:
             _hold(st, self.carried.last_fix)
         out["n_fixed"][k], out["ratio"][k], out["partial"][k] = n, ratio, partial
         out["ns"][k] = len({s for g in groups for s in g["sats"]})
@@ -558,4 +619,5 @@ def _combine(f: dict, b: dict) -> dict:
         out["n_fixed"][k] = max(f["n_fixed"][k], b["n_fixed"][k])
         out["partial"][k] = f["partial"][k] and b["partial"][k]
     out["fixed"] = np.isfinite(out["fixed_xyz"][:, 0])
+    out["wrong_fix_resets"] = f["wrong_fix_resets"] | b["wrong_fix_resets"]
     return out

@@ -44,6 +44,9 @@ def validate_options(options: dict) -> dict:
         bad.append(f"direction: expected 'forward', 'backward' or 'combined', got {opt['direction']!r}")
     if not (np.isfinite(float(opt["code_correlation_s"])) and float(opt["code_correlation_s"]) >= 0):
         bad.append(f"code_correlation_s: expected a number of seconds >= 0, got {opt['code_correlation_s']}")
+    if not 0.0 <= float(opt["wrong_fix_probability"]) < 1.0:
+        bad.append(f"wrong_fix_probability: expected a probability in [0, 1) (0: no wrong-fix test), "
+                   f"got {opt['wrong_fix_probability']}")
     if not 0.0 < float(opt["min_success_rate"]) < 1.0:
         bad.append(f"min_success_rate: expected a probability in (0, 1), got {opt['min_success_rate']}")
     for s in (() if opt["signals"] == "auto" else opt["signals"]):
@@ -151,6 +154,7 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
     return {"epochs": int(len(res["time_gps_s"])), "fixed_pct": float(100 * res["fixed"].mean()),
             "fixed_epochs": int(res["fixed"].sum()), "direction": res["direction"],
             "fixes_rejected": res["fixes_rejected"], "partial_fixes": res["partial_fixes"],
+            "wrong_fix_resets": res["wrong_fix_resets"],
             "static_xyz_m": res["static_xyz_m"].tolist(), "iono_model": res["iono_model"], "signals": sigs,
             "epoch_pairing": ep, "warnings": warnings}
 

@@ -146,14 +146,14 @@ def test_solve_rtk_carried_decorrelation_equals_reduction_from_scratch(pair, mon
     cycles = dict(zip(sorted(keys.unique()), np.random.default_rng(3).integers(-40, 40, keys.nunique())))
     r = r.assign(phase_cycles=r["phase_cycles"] + keys.map(cycles).to_numpy())
     gb, gr = receiver_geometry(b, nav, BASE), receiver_geometry(r, nav, TRUTH)
-    warm = solve_rtk(gb, gr, BASE, TRUTH)
+    warm = solve_rtk(gb, gr, BASE, TRUTH, options={"fix_and_hold": False})   # held integers would move the float
     assert np.abs(warm["fixed_xyz_m"] - TRUTH).max() < 0.005
 
     def from_scratch(self, keys, Qa):      # Z = I: resolve reduces the DD covariance itself, as before
         self.Z = self.Zinv = np.eye(Qa.shape[0], dtype=np.int64)
 
     monkeypatch.setattr(rtk_multi._CarriedDecorrelation, "_update", from_scratch)
-    cold = solve_rtk(gb, gr, BASE, TRUTH)
+    cold = solve_rtk(gb, gr, BASE, TRUTH, options={"fix_and_hold": False})
     assert warm["fixed"].all() and np.array_equal(warm["fixed"], cold["fixed"])
     # the same integers in another integer basis: the fixed positions agree to rounding (1e-9 m)
     np.testing.assert_allclose(warm["fixed_xyz_m"], cold["fixed_xyz_m"], rtol=0, atol=1e-8)
@@ -188,7 +188,7 @@ def _pass(x, P, fixed_x=None, fixed_P=None):
             "fixed_xyz": np.array(fixed_x) if fixed else np.full((n, 3), np.nan),
             "fixed_cov": np.array(fixed_P) if fixed else np.full((n, 3, 3), np.nan),
             "fixed": np.full(n, fixed), "ratio": np.full(n, np.nan), "n_fixed": np.zeros(n, np.int64),
-            "partial": np.zeros(n, bool), "ns": np.zeros(n, np.int64)}
+            "partial": np.zeros(n, bool), "ns": np.zeros(n, np.int64), "wrong_fix_resets": np.zeros(n, bool)}
 
 
 def test_combined_covariance_does_not_count_epoch_k_twice():
@@ -262,8 +262,9 @@ def test_the_rtk_path_does_not_import_scipy():
 
 
 GOLDEN = REPO_ROOT / "tests" / "estimation" / "data" / "rtk_legacy_golden.npz"
-_GOLDEN_CASES = {"static": {"mode": "static"}, "kinematic": {}, "iono": {"iono_threshold_km": 1.0},
-                 "hold": {"fix_and_hold": True}, "backward": {"direction": "backward"}}
+_NO_HOLD = {"fix_and_hold": False}            # recorded before fix-and-hold became the default
+_GOLDEN_CASES = {"static": {"mode": "static", **_NO_HOLD}, "kinematic": _NO_HOLD, "iono": {"iono_threshold_km": 1.0, **_NO_HOLD},
+                 "hold": {"fix_and_hold": True}, "backward": {"direction": "backward", **_NO_HOLD}}
 
 
 def _golden_run(pair, opt):
@@ -334,3 +335,34 @@ def test_each_rtk_pass_is_a_drive_of_the_engine(pair, monkeypatch):
     res = _golden_run(pair, {"direction": "combined"})
     n = res["time_gps_s"].size
     assert calls == [(DDGroupModel, ["_AmbiguityHook"], 1, 0), (DDGroupModel, ["_AmbiguityHook"], n, 1)] * 2
+
+
+def test_a_decorrelation_beyond_int64_is_retried_from_scratch_then_left_float(monkeypatch):
+    """Real data (mosaic-static G+E+C L1+L2, 47 DD ambiguities) made ``decorrelate`` raise
+    AmbiguityError ("integer entries too large for int64") and ended the whole run: now the carried Z
+    restarts from the identity and, if that fails too, the epoch is simply not fixed."""
+    from cdgps_cli.estimation.ambiguity import AmbiguityError
+
+    rng = np.random.default_rng(2)
+    A = rng.normal(size=(5, 5))
+    Qa = A @ A.T * 0.01 + np.eye(5) * 1e-3
+    a = rng.integers(-9, 9, 5) + rng.normal(scale=0.01, size=5)
+    calls = {"n": 0}
+    real = rtk_multi.decorrelate
+
+    def flaky(L, d, fail_first):
+        calls["n"] += 1
+        if calls["n"] <= fail_first:
+            raise AmbiguityError("decorrelation produced integer entries too large for int64")
+        return real(L, d)
+
+    for fail_first, accepted in ((1, True), (99, False)):
+        calls["n"] = 0
+        monkeypatch.setattr(rtk_multi, "decorrelate", lambda L, d, f=fail_first: flaky(L, d, f))
+        c = rtk_multi._CarriedDecorrelation()
+        c.Z = c.Zinv = np.eye(5, dtype=np.int64)
+        out = c.resolve(("k",), a, Qa, 3.0, 0.999)
+        assert out["accepted"] is accepted and calls["n"] == 2
+        if accepted:                                    # the whole set, right: Zᵀ a's integers map back to round(a)
+            assert not out["partial"]
+            np.testing.assert_allclose(np.linalg.solve(out["rows"].astype(float), out["integers"]), np.rint(a), atol=1e-9)

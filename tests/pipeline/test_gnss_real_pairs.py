@@ -250,7 +250,7 @@ def test_car_against_a_cors_5_km_away(tmp_path, hold):
     out = tmp_path / "car.csv"
     r = run_cli("-q", "rtk", "--base", car / "3034265G.21O", "--rover", car / "SEPT265G.21O", "--nav", car / "SEPT2650.21P",
                 "--base-xyz", -3959400.631, 3385704.533, 3667523.111, "--signals", "G:L1,E:E1", "-o", out, "--json",
-                *(["--fix-and-hold"] if hold else []))
+                "--fix-and-hold" if hold else "--no-fix-and-hold")
     assert r.exit_code == 0, r.output
     import json
     s = json.loads(r.stdout)

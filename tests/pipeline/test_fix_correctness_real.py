@@ -1,0 +1,92 @@
+"""Fix correctness of ``rtk`` on real files (issue 28 item 4): fixed epochs and no wrong fix where the
+answer is known, and a wrong fix planted into fix-and-hold is detected and recovered.
+
+Answers from the READMEs of ../shared/data/real-pairs: geonet-car's two standing segments (static
+multi-GNSS solutions), mosaic-static's two position files (run kinematic).  A wrong fix is a fixed
+epoch more than 5 cm (3-D) from the answer (benchmarks/fix_correctness.py counts the same).
+"""
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import cdgps_cli.estimation.rtk_multi as rtk_multi
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.pipeline.gnss_multi import rtk_from_files
+from tests._shared import REPO_ROOT
+
+PAIRS = REPO_ROOT.parent / "shared" / "data" / "real-pairs"
+CAR, MOSAIC = PAIRS / "geonet-car", PAIRS / "mosaic-static"
+pytestmark = pytest.mark.skipif(not CAR.exists() or not MOSAIC.exists(), reason="../shared/data/real-pairs absent")
+CAR_BASE = (-3959400.631, 3385704.533, 3667523.111)
+MOSAIC_BASE = (-3817681.1213, 3562839.4311, 3650159.1593)
+MOSAIC_ENU = (-0.2232, -0.9647, 0.0096)
+RTKLIB_CAR_COMBINED_FIXED = 265          # docs/benchmarks/rtk_rtklib.json, geonet-car G+E L1, forward + backward
+
+
+def _solve(tmp_path, base, rover, nav, base_xyz, signals, **options):
+    out = tmp_path / "sol.csv"
+    s = rtk_from_files(base, rover, [nav], out, base_xyz_m=base_xyz, options={"signals": signals, **options})
+    d = pd.read_csv(out, comment="#")
+    return s, d["time_gps_s"].to_numpy(), d[["e_m", "n_m", "u_m"]].to_numpy(), d["fixed"].to_numpy() == 1
+
+
+def _wrong(enu, fixed, answer) -> int:
+    return int((fixed & (np.linalg.norm(enu - np.asarray(answer), axis=1) > 0.05)).sum())
+
+
+def test_car_fixes_at_least_rtklibs_epochs_and_none_wrong_where_known(tmp_path):
+    s, t, enu, fixed = _solve(tmp_path, CAR / "3034265G.21O", CAR / "SEPT265G.21O", CAR / "SEPT2650.21P", CAR_BASE,
+                              ("G:L1", "E:E1"))
+    t = t - t[0]
+    start, end = t <= 34, t >= 312
+    assert s["fixed_epochs"] >= RTKLIB_CAR_COMBINED_FIXED, s["fixed_epochs"]      # 311 (181 before fix-and-hold)
+    assert (fixed & start).sum() == 35 and (fixed & end).sum() >= 30                # 35 and 34 (RTKLIB G+E+J L1: 39)
+    assert _wrong(enu, fixed & start, (5083.057, 1707.376, -1.192)) == 0
+    assert _wrong(enu, fixed & end, (5049.078, 1691.873, -1.360)) == 0
+
+
+@pytest.mark.parametrize("signals", [("G:L1",), ("E:E1",), ("G:L1", "E:E1")])
+def test_static_pair_run_kinematic_fixes_every_epoch_right(tmp_path, signals):
+    s, _, enu, fixed = _solve(tmp_path, MOSAIC / "base.obs", MOSAIC / "rover.obs", MOSAIC / "base.nav", MOSAIC_BASE, signals)
+    assert fixed.sum() == 301 and _wrong(enu, fixed, MOSAIC_ENU) == 0 and s["wrong_fix_resets"] == 0
+
+
+def _plant_wrong_hold(monkeypatch, at_call):
+    """The ``at_call``-th hold of the run holds its last (decorrelated) integer one cycle off: a wrong fix."""
+    calls = {"n": 0}
+    hold = rtk_multi._hold
+
+    def planted(st, fix):
+        calls["n"] += 1
+        Ts, ints = fix
+        hold(st, (Ts, ints + (np.arange(len(ints)) == len(ints) - 1) if calls["n"] == at_call else ints))
+
+    monkeypatch.setattr(rtk_multi, "_hold", planted)
+    return calls
+
+
+@pytest.mark.parametrize("probability", [0.999, 0.0])
+def test_a_planted_wrong_fix_is_detected_and_recovered(tmp_path, monkeypatch, probability):
+    """One cycle planted into the first hold of the forward pass (GPS L1; the position then sits 3.4 m
+    off): once an epoch contradicts it (NIS test; 58 epochs later here) the ambiguities go back to
+    float and are fixed again, right, to the end; without the test (probability 0) the wrong integer
+    stays held to the end of the file."""
+    calls = _plant_wrong_hold(monkeypatch, 1)
+    s, _, enu, fixed = _solve(tmp_path, MOSAIC / "base.obs", MOSAIC / "rover.obs", MOSAIC / "base.nav", MOSAIC_BASE,
+                              ("G:L1",), direction="forward", wrong_fix_probability=probability)
+    assert calls["n"] > 1
+    wrong = fixed & (np.linalg.norm(enu - np.asarray(MOSAIC_ENU), axis=1) > 0.05)
+    assert wrong.any()                                              # the plant took effect
+    if probability:
+        after = slice(np.flatnonzero(wrong).max() + 1, None)
+        assert s["wrong_fix_resets"] >= 1 and fixed[after].sum() >= 200 and wrong.sum() < 100
+    else:
+        assert s["wrong_fix_resets"] == 0 and wrong.sum() > 250
+
+
+def test_wrong_fix_probability_is_checked(tmp_path):
+    with pytest.raises(CdgpsError, match="wrong_fix_probability"):
+        rtk_from_files(MOSAIC / "base.obs", MOSAIC / "rover.obs", [MOSAIC / "base.nav"], tmp_path / "x.csv",
+                       base_xyz_m=MOSAIC_BASE, options={"wrong_fix_probability": 1.0})
+    assert not (tmp_path / "x.csv").exists()
