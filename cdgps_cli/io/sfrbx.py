@@ -750,6 +750,16 @@ def _stateful_frames(frames: list, week_ref: int | None, glonass: bool, stats: d
     return [frames[k] for k in np.flatnonzero(keep).tolist()]
 
 
+_EMPTY_NAV: list = []
+
+
+def _empty_nav() -> pd.DataFrame:
+    """A copy of ``pd.DataFrame([], columns=NAV_COLUMNS)``, made once (building it costs about 1 ms)."""
+    if not _EMPTY_NAV:
+        _EMPTY_NAV.append(pd.DataFrame([], columns=list(NAV_COLUMNS)))
+    return _EMPTY_NAV[0].copy(deep=True)
+
+
 def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = False) -> tuple[pd.DataFrame, dict]:
     """GPS, Galileo and BeiDou (D1) — and with ``glonass`` GLONASS — ephemerides from the RXM-SFRBX /
     RXM-SFRB frames of a log.
@@ -865,7 +875,7 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = Fal
             rec = decode_gps_subframes(have[1], have[2], have[3], sat, week_ref)
             if rec is not None and 0 <= rec["e"] < 1 and rec["sqrt_a_sqrt_m"] > 0:
                 recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)
-    nav = pd.DataFrame(list(recs.values()), columns=list(NAV_COLUMNS))
+    nav = pd.DataFrame(list(recs.values()), columns=list(NAV_COLUMNS)) if recs else _empty_nav()
     if len(nav):
         for c in ("iode", "codes_l2", "l2p_data_flag", "sv_health", "iodc", "week", "line"):
             nav[c] = nav[c].astype(np.int64)

@@ -146,3 +146,12 @@ def test_l1_sort_as_pandas_and_names_the_first_repeat():
     with pytest.raises(CdgpsError) as old:
         ubx._checked_sorted(Path("x.ubx"), table)
     assert str(new.value) == str(old.value) and "G11" in str(new.value)
+
+
+def test_empty_nav_is_a_fresh_empty_table():
+    from cdgps_cli.core.records import NAV_COLUMNS
+
+    first, _ = sfrbx.sfrbx_ephemerides([], 2381)
+    first.loc[0] = 1.0                                     # a caller's change does not reach the next caller
+    again, _ = sfrbx.sfrbx_ephemerides([], None)
+    pd.testing.assert_frame_equal(again, pd.DataFrame([], columns=list(NAV_COLUMNS)), check_index_type=True)
