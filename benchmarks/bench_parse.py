@@ -29,6 +29,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io import rinex, rinex_signals, ubx
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -110,21 +111,28 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=7)
     ap.add_argument("--out", type=Path, default=OUT)
+    ap.add_argument("--only", choices=("rinex", "ubx"), help="measure one part; the other is kept from --out")
     a = ap.parse_args()
     res = {"machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "pandas": pd.__version__,
                        "load_average_1min_at_start": round(os.getloadavg()[0], 2)},
            "repeat": a.repeat, "timing": "median of interleaved rounds after one warm-up", "rinex": {}, "ubx": {}}
+    if a.only and a.out.exists():
+        kept = json.loads(a.out.read_text())
+        res[{"ubx": "rinex", "rinex": "ubx"}[a.only]] = kept.get({"ubx": "rinex", "rinex": "ubx"}[a.only], {})
     obs = sorted(p for p in SHARED.rglob("*") if p.is_file() and p.name.lower().endswith(("o", ".obs")))
-    for p in obs:
+    for p in obs if a.only != "ubx" else ():
         res["rinex"][str(p.relative_to(SHARED))] = row = rinex_case(p, a.repeat)
         print(p.name, json.dumps({k: v for k, v in row.items() if k != "signals"}), flush=True)
-    logs = [SHARED / "real-pairs" / "ublox-walk" / "gnss_1730.ubx", SHARED / "ubx" / "pygpsdata-RXMRAWX.log"]
+    logs = sorted([*(SHARED / "real-pairs" / "ublox-walk").glob("*.ubx"), *(SHARED / "ubx").glob("*")])
     with tempfile.TemporaryDirectory() as d:
-        for p in logs:
-            if p.exists():
-                res["ubx"][str(p.relative_to(SHARED))] = row = ubx_case(p, Path(d), a.repeat)
-                print(p.name, json.dumps(row), flush=True)
-    ratios = [r["ratio_to_read_csv"] for part in ("rinex", "ubx") for r in res[part].values()]
+        for p in logs if a.only != "rinex" else ():
+            try:
+                row = ubx_case(p, Path(d), a.repeat)
+            except CdgpsError as exc:                      # no RXM-RAWX (legacy RXM-RAW, ESF only): refused
+                row = {"bytes": p.stat().st_size, "refused": str(exc).split(": ", 1)[1][:120]}
+            res["ubx"][str(p.relative_to(SHARED))] = row
+            print(p.name, json.dumps(row), flush=True)
+    ratios = [r["ratio_to_read_csv"] for part in ("rinex", "ubx") for r in res[part].values() if "ratio_to_read_csv" in r]
     res["worst_ratio_to_read_csv"] = max(ratios)
     res["machine"]["load_average_1min_at_end"] = round(os.getloadavg()[0], 2)
     a.out.parent.mkdir(parents=True, exist_ok=True)

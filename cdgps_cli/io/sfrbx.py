@@ -718,6 +718,48 @@ def _inav_pages(frames: list) -> dict:
     return dict(zip(at, inav_words(dw)))
 
 
+def _stateful_frames(frames: list, week_ref: int | None, glonass: bool, stats: dict) -> list:
+    """The frames of ``frames`` ((index, class, id, frame bytes), RXM-SFRBX / RXM-SFRB in log order) that
+    :func:`sfrbx_ephemerides` must look at one by one, in order; the others (wrong length, F/NAV and
+    C/NAV, BeiDou B1C/B2a/B2b, GPS CNAV, systems not decoded) only count, and are counted here into
+    ``stats`` from their header bytes, all at once, as the frame-by-frame walk would count them."""
+    if not frames:
+        return frames
+    head = np.frombuffer(b"".join(fr[6:11] if len(fr) >= 11 else b"\xff" * 5 for _, _, _, fr in frames),
+                         np.uint8).reshape(len(frames), 5).astype(np.int64)
+    n_pl = np.array([len(fr) - 8 for _, _, _, fr in frames], np.int64)
+    is_x = np.array([mid == 0x13 for _, _, mid, _ in frames], bool)
+    gnss, sig, nw = head[:, 0], head[:, 2], head[:, 4]
+    valid = is_x & (n_pl >= 8) & (n_pl == 8 + 4 * nw)
+    inav_sig = np.isin(sig, sorted(_INAV_SIGNALS))
+    gal_other = valid & (gnss == 2) & ((nw != 8) | ~inav_sig)
+    gal_kept = valid & (gnss == 2) & ~gal_other & (week_ref is not None)
+    bds = valid & (gnss == 3)
+    glo = valid & (gnss == 6) & glonass
+    other = valid & ~gal_other & ~gal_kept & ~bds & ~glo & (gnss != 0)
+    gps = valid & (gnss == 0) & (nw == 10)
+    stats["galileo_other_frames"] += int(gal_other.sum())
+    stats["beidou_cnav_frames"] += int((bds & (nw != 10)).sum())
+    stats["gps_cnav_frames"] += int((gps & (sig != 0)).sum())
+    if other.any():
+        codes, first, count = np.unique(gnss[other], return_index=True, return_counts=True)
+        for k in np.argsort(first, kind="stable").tolist():       # in order of first appearance
+            key = str(int(codes[k]))
+            stats["other_systems"][key] = stats["other_systems"].get(key, 0) + int(count[k])
+    keep = ~is_x | gal_kept | (bds & (nw == 10)) | glo | (gps & (sig == 0))
+    return [frames[k] for k in np.flatnonzero(keep).tolist()]
+
+
+_EMPTY_NAV: list = []
+
+
+def _empty_nav() -> pd.DataFrame:
+    """A copy of ``pd.DataFrame([], columns=NAV_COLUMNS)``, made once (building it costs about 1 ms)."""
+    if not _EMPTY_NAV:
+        _EMPTY_NAV.append(pd.DataFrame([], columns=list(NAV_COLUMNS)))
+    return _EMPTY_NAV[0].copy(deep=True)
+
+
 def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = False) -> tuple[pd.DataFrame, dict]:
     """GPS, Galileo and BeiDou (D1) — and with ``glonass`` GLONASS — ephemerides from the RXM-SFRBX /
     RXM-SFRB frames of a log.
@@ -758,12 +800,13 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = Fal
     latest: dict[str, dict[int, list[int]]] = {}
     recs: dict[tuple, dict] = {}
     frames = [(i, cls, mid, fr) for i, (_, cls, mid, fr) in enumerate(frames) if cls == 2 and (mid == 0x13 or mid == 0x11)]
+    stats["sfrbx_frames"] = len(frames)
+    frames = _stateful_frames(frames, week_ref, glonass, stats)
     inav = _inav_pages(frames) if week_ref is not None else {}
     decoded: set = set()
     checked = _checked_words(frames)
     for i, cls, mid, fr in frames:
         pl = fr[6:-2]
-        stats["sfrbx_frames"] += 1
         if (cls, mid) == _SFRBX:
             if len(pl) < 8 or len(pl) != 8 + 4 * pl[4]:
                 continue
@@ -832,7 +875,7 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = Fal
             rec = decode_gps_subframes(have[1], have[2], have[3], sat, week_ref)
             if rec is not None and 0 <= rec["e"] < 1 and rec["sqrt_a_sqrt_m"] > 0:
                 recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)
-    nav = pd.DataFrame(list(recs.values()), columns=list(NAV_COLUMNS))
+    nav = pd.DataFrame(list(recs.values()), columns=list(NAV_COLUMNS)) if recs else _empty_nav()
     if len(nav):
         for c in ("iode", "codes_l2", "l2p_data_flag", "sv_health", "iodc", "week", "line"):
             nav[c] = nav[c].astype(np.int64)

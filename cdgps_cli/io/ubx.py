@@ -174,8 +174,16 @@ bit 1 carrier phase valid, bit 2 half cycle valid, bit 3 half cycle subtracted; 
 of ``prStdev``/``cpStdev`` are the standard deviation indices."""
 
 
-def _decode_rawx(rawx: list) -> tuple[np.ndarray, np.ndarray, list]:
-    """Decode RXM-RAWX frames (offset, frame bytes) in one vectorised pass.
+def _decode_rawx(x: np.ndarray, off: np.ndarray, n_payload: np.ndarray) -> tuple[np.ndarray, np.ndarray, list]:
+    """Decode RXM-RAWX frames in one vectorised pass, gathering their payloads from the log's bytes.
+
+    Parameters
+    ----------
+    x : uint8 array
+        The whole log.
+    off, n_payload : int64 arrays, shape (m,)
+        Byte offset of each checksum-valid RXM-RAWX frame in ``x`` (at its sync word) and its
+        payload length in bytes, in log order.
 
     Returns
     -------
@@ -186,25 +194,22 @@ def _decode_rawx(rawx: list) -> tuple[np.ndarray, np.ndarray, list]:
     undecodable : list of int
         Byte offsets of checksum-valid frames whose payload is not 16 + 32·numMeas bytes long.
     """
-    heads, blocks, offsets, undecodable = [], [], [], []
-    for off, fr in rawx:
-        pl = fr[6:-2]
-        if len(pl) < 16 or len(pl) != 16 + 32 * pl[11]:
-            undecodable.append(off)
-            continue
-        heads.append(pl[:16])
-        blocks.append(pl[16:])
-        offsets.append(off)
-    head = np.frombuffer(b"".join(heads), dtype=_RAWX_HEAD)
+    num = x[np.minimum(off + 17, x.size - 1)].astype(np.int64)           # numMeas, where the payload has it
+    ok = (n_payload >= 16) & (n_payload == 16 + 32 * num)
+    undecodable = off[~ok].tolist()
+    off, num = off[ok], num[ok]
+    head = x[(off + 6)[:, None] + np.arange(16)].view(_RAWX_HEAD)[:, 0]
     epochs = np.empty(len(head), dtype=_RAWX_HEAD.descr + [("offset", "<i8")])
     for f in _RAWX_HEAD.names:
         epochs[f] = head[f]
-    epochs["offset"] = offsets
-    raw = np.frombuffer(b"".join(blocks), dtype=_RAWX_MEAS)
+    epochs["offset"] = off
+    data = x.data
+    raw = np.frombuffer(b"".join([data[a:b] for a, b in zip((off + 22).tolist(), (off + 22 + 32 * num).tolist())]),
+                        dtype=_RAWX_MEAS)
     meas = np.empty(len(raw), dtype=_RAWX_MEAS.descr + [("epoch", "<i8")])
     for f in _RAWX_MEAS.names:
         meas[f] = raw[f]
-    meas["epoch"] = np.repeat(np.arange(len(head)), head["numMeas"].astype(np.int64))
+    meas["epoch"] = np.repeat(np.arange(len(head)), num)
     forged = _repeated_signal_frames(meas)
     if forged.size:       # a frame listing one signal twice is not what a receiver writes (issue 32)
         undecodable = sorted(undecodable + [int(o) for o in epochs["offset"][forged]])
@@ -215,6 +220,17 @@ def _decode_rawx(rawx: list) -> tuple[np.ndarray, np.ndarray, list]:
         meas["epoch"] = new_index[meas["epoch"]]
         epochs = epochs[keep]
     return epochs, meas, undecodable
+
+
+def _decode_rawx_frames(rawx: list) -> tuple[np.ndarray, np.ndarray, list]:
+    """:func:`_decode_rawx` of RXM-RAWX frames given as a list of (byte offset, frame bytes)."""
+    blob = b"".join(fr for _, fr in rawx)
+    at = np.cumsum([0] + [len(fr) for _, fr in rawx])[:-1].astype(np.int64)
+    n_payload = np.array([len(fr) - 8 for _, fr in rawx], np.int64)
+    epochs, meas, bad = _decode_rawx(np.frombuffer(blob, np.uint8), at, n_payload)
+    where = dict(zip(at.tolist(), (o for o, _ in rawx)))
+    epochs["offset"] = [where[int(k)] for k in epochs["offset"]]
+    return epochs, meas, sorted(where[k] for k in bad)
 
 
 def _repeated_signal_frames(meas: np.ndarray) -> np.ndarray:
@@ -273,23 +289,25 @@ def _decode_rawx_log(p: Path, strict: bool, data: bytes | None):
     if not data:
         raise CdgpsError(f"{p}: empty file; expected a u-blox UBX binary log")
     frames, rtcm, stats = split_stream(data)
-    by_id: dict[tuple[int, int], int] = {}
-    for _, cls, mid, _ in frames:
-        by_id[cls, mid] = by_id.get((cls, mid), 0) + 1
+    x = np.frombuffer(data, np.uint8)
+    off = np.array([f[0] for f in frames], np.int64)
+    ids = (x[off + 2].astype(np.int64) << 8) | x[off + 3]
+    codes, first, n_id = np.unique(ids, return_index=True, return_counts=True)
     counts: dict[str, int] = {}
-    for (cls, mid), c in by_id.items():                   # in order of first appearance, as frame by frame
-        name = _msg_name(cls, mid)
-        counts[name] = counts.get(name, 0) + c
+    for k in np.argsort(first, kind="stable").tolist():  # in order of first appearance, as frame by frame
+        name = _msg_name(int(codes[k]) >> 8, int(codes[k]) & 0xFF)
+        counts[name] = counts.get(name, 0) + int(n_id[k])
     if not frames:
         extra = f" ({stats['bad_checksum_frames']} candidate frames failed the checksum)" if stats["bad_checksum_frames"] else ""
         raise CdgpsError(f"{p}: no valid UBX frames found in {len(data)} bytes{extra}; expected a u-blox UBX binary log with RXM-RAWX messages")
-    rawx = [(off, fr) for off, cls, mid, fr in frames if (cls, mid) == _RAWX]
+    is_rawx = ids == (_RAWX[0] << 8 | _RAWX[1])
+    n_rawx = int(is_rawx.sum())
     found = ", ".join(f"{k} ×{v}" for k, v in sorted(counts.items(), key=lambda kv: -kv[1]))
     if stats["nmea_bytes"]:
         found += f", and {stats['nmea_bytes']} bytes of NMEA sentences"
     if stats["skipped_bytes"]:
         found += f", and {stats['skipped_bytes']} bytes of other non-UBX data"
-    if not rawx:
+    if not n_rawx:
         if counts.get("RXM-RAW"):
             raise CdgpsError(
                 f"{p}: no RXM-RAWX messages; this is a legacy u-blox raw log with {counts['RXM-RAW']} RXM-RAW messages "
@@ -301,7 +319,8 @@ def _decode_rawx_log(p: Path, strict: bool, data: bytes | None):
         raise CdgpsError(f"{p}: no RXM-RAWX messages (found: {found}); carrier-phase logging needs RXM-RAWX enabled on "
                          f"the receiver (UBX-CFG-MSG class 0x02 id 0x15, or CFG-MSGOUT-UBX_RXM_RAWX on F9)")
 
-    epochs, meas, undecodable_offsets = _decode_rawx(rawx)
+    rawx_off = off[is_rawx]
+    epochs, meas, undecodable_offsets = _decode_rawx(x, rawx_off, x[rawx_off + 4] | (x[rawx_off + 5].astype(np.int64) << 8))
     undecodable = len(undecodable_offsets)
     if strict:
         problems = integrity_problems(dict(stats, undecodable_frames=undecodable,
@@ -310,7 +329,7 @@ def _decode_rawx_log(p: Path, strict: bool, data: bytes | None):
             raise CdgpsError(f"{p}: corrupt UBX data: {', '.join(problems)} (refused by --strict)")
     n_epochs = len(epochs)
     if n_epochs == 0:
-        raise CdgpsError(f"{p}: none of the {len(rawx)} RXM-RAWX messages could be decoded (each payload must "
+        raise CdgpsError(f"{p}: none of the {n_rawx} RXM-RAWX messages could be decoded (each payload must "
                          f"be 16 + 32·numMeas bytes)")
     t = epochs["week"].astype(np.float64) * 604800.0 + epochs["rcvTow"]
     back = np.flatnonzero(t[1:] < t[:-1])
@@ -404,6 +423,7 @@ def read_ubx_log(path: str | Path, *, strict: bool = False,
         name = _signal_name(code // 256, code % 256)
         signals[name] = signals.get(name, 0) + int(c)
     m = meas[(gnss == 0) & (sig == 0)]
+    m = _sorted_l1(p, m, t)
     trk = m["trkStat"]
     cp_ok, pr_ok = (trk & 2) != 0, (trk & 1) != 0
     obs = pd.DataFrame(
@@ -428,11 +448,8 @@ def read_ubx_log(path: str | Path, *, strict: bool = False,
     if obs.empty:
         sig = ", ".join(f"{k} ×{v}" for k, v in sorted(signals.items(), key=lambda kv: -kv[1]))
         raise CdgpsError(f"{p}: {n_epochs} RXM-RAWX epochs but no GPS L1 C/A measurements (signals found: {sig or 'none'})")
-    dup = obs.duplicated(["time_gps_s", "sat"])
-    if dup.any():
-        r = obs[dup].iloc[0]
-        raise CdgpsError(f"{p}: GPS satellite {r['sat']} appears twice in the RXM-RAWX epoch at GPS time {r['time_gps_s']:.3f} s")
-    obs = obs.sort_values(["time_gps_s", "sat"], kind="stable").reset_index(drop=True)
+    if not np.isfinite(t).all():                          # NaN time tags: pandas' NaN-aware path
+        obs = _checked_sorted(p, obs)
     info = {
         "path": str(p),
         "message_counts": dict(sorted(counts.items())),
@@ -459,6 +476,37 @@ def read_ubx_log(path: str | Path, *, strict: bool = False,
     nav, info["sfrbx"] = sfrbx_ephemerides(frames, week0)
     info["rtcm_base"] = rtcm_station_arp(rtcm)
     return info, obs, nav
+
+
+_GPS_SAT_RANK = np.argsort(np.argsort(_GPS_SAT_NAMES.astype(str), kind="stable"), kind="stable")
+"""Rank of each svId's name ("G05", "G100") in string order: the order of a sort by ``sat``."""
+
+
+def _sorted_l1(p: Path, m: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """The GPS L1 C/A measurements ``m`` sorted by time tag then satellite name (stable), as
+    ``sort_values(["time_gps_s", "sat"], kind="stable")`` sorts the table; CdgpsError naming the first
+    row (in log order) whose (time, satellite) repeats an earlier one.  Unsorted when a time tag is NaN
+    (:func:`_checked_sorted` then sorts and checks the table)."""
+    tm = t[m["epoch"]]
+    if not np.isfinite(t).all():
+        return m
+    rank = _GPS_SAT_RANK[m["svId"]]
+    order = np.lexsort((rank, tm))
+    same = (tm[order][1:] == tm[order][:-1]) & (rank[order][1:] == rank[order][:-1])
+    if same.any():
+        i = int(order[1:][same].min())
+        raise CdgpsError(f"{p}: GPS satellite {_GPS_SAT_NAMES[m['svId'][i]]} appears twice in the RXM-RAWX epoch "
+                         f"at GPS time {tm[i]:.3f} s")
+    return m[order]
+
+
+def _checked_sorted(p: Path, obs: pd.DataFrame) -> pd.DataFrame:
+    """``obs`` checked for a repeated (time, satellite) and sorted by them with pandas."""
+    dup = obs.duplicated(["time_gps_s", "sat"])
+    if dup.any():
+        r = obs[dup].iloc[0]
+        raise CdgpsError(f"{p}: GPS satellite {r['sat']} appears twice in the RXM-RAWX epoch at GPS time {r['time_gps_s']:.3f} s")
+    return obs.sort_values(["time_gps_s", "sat"], kind="stable").reset_index(drop=True)
 
 
 def read_ubx_signals(path: str | Path, names, *, strict: bool = False) -> pd.DataFrame:

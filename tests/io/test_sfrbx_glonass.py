@@ -24,7 +24,7 @@ from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.io.sfrbx import sfrbx_ephemerides
 from cdgps_cli.io.sfrbx_glonass import glonass_string
-from cdgps_cli.io.ubx import _decode_rawx
+from cdgps_cli.io.ubx import _decode_rawx_frames
 from cdgps_cli.io.ubx_frames import split_stream
 from cdgps_cli.model.gps.orbits import azimuth_elevation, ecef_to_geodetic, geodetic_to_ecef, sat_position_at_reception
 from cdgps_cli.model.gps.positioning import tropo_hydrostatic_m
@@ -101,7 +101,7 @@ def test_gpsd_m10_log_strings_and_sky_positions():
 @pytest.fixture(scope="module")
 def f9():
     ubx = _frames("pygpsdata_testobsnavdata.log")
-    ep, meas, _ = _decode_rawx([(o, fr) for o, c, m, fr in ubx if (c, m) == (0x02, 0x15)])
+    ep, meas, _ = _decode_rawx_frames([(o, fr) for o, c, m, fr in ubx if (c, m) == (0x02, 0x15)])
     nav, st = sfrbx_ephemerides(ubx, int(ep["week"][0]), glonass=True)
     return nav, st, ep, meas
 

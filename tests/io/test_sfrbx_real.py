@@ -18,7 +18,7 @@ import pytest
 
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.io.sfrbx import gps_words_from_sfrbx, sfrbx_ephemerides, subframe_id
-from cdgps_cli.io.ubx import _decode_rawx
+from cdgps_cli.io.ubx import _decode_rawx_frames
 from cdgps_cli.io.ubx_frames import split_stream
 from cdgps_cli.model.gps.orbits import azimuth_elevation, ecef_to_geodetic, sat_position_at_reception
 from cdgps_cli.model.gps.positioning import tropo_hydrostatic_m
@@ -46,7 +46,7 @@ def _parity_ok_bitwise(dword: int) -> bool:
 @pytest.fixture(scope="module")
 def log():
     ubx, _, _ = split_stream(LOG.read_bytes())
-    ep, meas, bad = _decode_rawx([(o, fr) for o, c, m, fr in ubx if (c, m) == (0x02, 0x15)])
+    ep, meas, bad = _decode_rawx_frames([(o, fr) for o, c, m, fr in ubx if (c, m) == (0x02, 0x15)])
     assert not bad and len(ep) == 75
     return ubx, ep, meas
 

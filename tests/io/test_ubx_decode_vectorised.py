@@ -1,0 +1,157 @@
+"""The vectorised pieces of the UBX reader (issue 29 item 4) against plain frame-by-frame references
+written here: RXM-RAWX payload gathering (undecodable frames and their byte offsets), the RXM-SFRBX
+counters taken from header bytes, and the (time, satellite) sort and repeated-row check."""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.io import sfrbx, ubx
+from cdgps_cli.io.ubx_frames import split_stream
+
+LOG = Path(__file__).resolve().parents[3] / "shared" / "data" / "real-pairs" / "ublox-walk" / "gnss_1730.ubx"
+
+
+def _frame(cls: int, mid: int, payload: bytes) -> bytes:
+    body = bytes((cls, mid)) + len(payload).to_bytes(2, "little") + payload
+    a = b = 0
+    for v in body:
+        a = (a + v) & 255
+        b = (b + a) & 255
+    return b"\xb5\x62" + body + bytes((a, b))
+
+
+@pytest.fixture(scope="module")
+def log():
+    data = LOG.read_bytes()
+    return data, split_stream(data)[0]
+
+
+def _damaged(data: bytes, frames: list) -> bytes:
+    """The log with three RXM-RAWX frames made undecodable (numMeas + 1, a 2-byte payload, a
+    repeated signal) and a 2-byte RXM-RAWX frame at the very end, checksums valid."""
+    rawx = [(o, f) for o, c, m, f in frames if (c, m) == (2, 0x15)]
+    out, last = [], 0
+    for k, (o, f) in enumerate(rawx[:12]):
+        pl = bytearray(f[6:-2])
+        if k == 3:
+            pl[11] += 1
+        elif k == 7:
+            pl = pl[:2]
+        elif k == 11:
+            pl[48:80] = pl[16:48]
+        else:
+            continue
+        out += [data[last:o], _frame(2, 0x15, bytes(pl))]
+        last = o + len(f)
+    return b"".join(out) + data[last:] + _frame(2, 0x15, b"\x01\x02")
+
+
+def _reference_rawx(frames: list) -> tuple[list, list]:
+    """(rows (offset, svId, cpMes), undecodable offsets) decoded frame by frame with struct."""
+    rows, bad = [], []
+    for o, c, m, f in frames:
+        if (c, m) != (2, 0x15):
+            continue
+        pl = f[6:-2]
+        if len(pl) < 16 or len(pl) != 16 + 32 * pl[11]:
+            bad.append(o)
+            continue
+        meas = [struct.unpack_from("<ddfBBBBHBBBBBB", pl, 16 + 32 * j) for j in range(pl[11])]
+        keys = [(r[3], r[4], r[5]) for r in meas]
+        if len(set(keys)) < len(keys):
+            bad.append(o)
+            continue
+        rows += [(o, r[4], r[1]) for r in meas]
+    return rows, sorted(bad)
+
+
+@pytest.mark.parametrize("damage", [False, True])
+def test_rawx_gathered_as_frame_by_frame(log, damage):
+    data, frames = log
+    if damage:
+        data = _damaged(data, frames)
+        frames = split_stream(data)[0]
+    x = np.frombuffer(data, np.uint8)
+    off = np.array([o for o, c, m, _ in frames if (c, m) == (2, 0x15)], np.int64)
+    n = np.array([len(f) - 8 for _, c, m, f in frames if (c, m) == (2, 0x15)], np.int64)
+    epochs, meas, bad = ubx._decode_rawx(x, off, n)
+    rows, ref_bad = _reference_rawx(frames)
+    assert bad == ref_bad and len(bad) == (4 if damage else 0)
+    got = list(zip(epochs["offset"][meas["epoch"]].tolist(), meas["svId"].tolist(), meas["cpMes"].tolist()))
+    assert got == rows
+    ep2, meas2, bad2 = ubx._decode_rawx_frames([(o, f) for o, c, m, f in frames if (c, m) == (2, 0x15)])
+    assert bad2 == bad and np.array_equal(ep2, epochs) and np.array_equal(meas2, meas)
+
+
+def _sfrbx(gnss: int, sv: int, sig: int, words: int, n_words: int | None = None) -> tuple:
+    n_words = words if n_words is None else n_words
+    return (0, 2, 0x13, _frame(2, 0x13, bytes((gnss, sv, sig, 0, words, 0, 2, 0)) + b"\0" * (4 * n_words)))
+
+
+def test_sfrbx_counters_from_headers(log):
+    """Every kind of frame the decoder only counts, mixed with the real log's, counted as one by one."""
+    _, frames = log
+    extra = [_sfrbx(2, 5, 3, 8), _sfrbx(2, 5, 1, 9), _sfrbx(3, 20, 0, 9), _sfrbx(0, 7, 3, 10), _sfrbx(0, 7, 0, 8),
+             _sfrbx(1, 131, 0, 8), _sfrbx(5, 2, 0, 10), _sfrbx(6, 3, 0, 4), _sfrbx(0, 7, 0, 10, 9),
+             _sfrbx(2, 5, 1, 8)]
+    mixed = frames[:40] + extra + frames[40:] + extra[::-1]
+    for week in (None, 2381):
+        for glonass in (False, True):
+            _, stats = sfrbx.sfrbx_ephemerides(mixed, week, glonass=glonass)
+            ref = {"galileo_other_frames": 0, "beidou_cnav_frames": 0, "gps_cnav_frames": 0, "other_systems": {}}
+            for _, c, m, f in mixed:
+                pl = f[6:-2]
+                if (c, m) != (2, 0x13) or len(pl) < 8 or len(pl) != 8 + 4 * pl[4]:
+                    continue
+                g, s, w = pl[0], pl[2], pl[4]
+                if g == 2 and (w != 8 or s not in (0, 1, 5)):
+                    ref["galileo_other_frames"] += 1
+                elif g == 2 and week is not None:
+                    pass
+                elif g == 3:
+                    ref["beidou_cnav_frames"] += w != 10
+                elif g == 6 and glonass:
+                    pass
+                elif g != 0:
+                    ref["other_systems"][str(g)] = ref["other_systems"].get(str(g), 0) + 1
+                elif w == 10 and s != 0:
+                    ref["gps_cnav_frames"] += 1
+            assert {k: stats[k] for k in ref} == ref
+            assert list(stats["other_systems"]) == list(ref["other_systems"])    # order of first appearance
+            assert stats["sfrbx_frames"] == sum(c == 2 and m in (0x13, 0x11) for _, c, m, _ in mixed)
+
+
+def test_l1_sort_as_pandas_and_names_the_first_repeat():
+    """Sorted by (time, satellite name) as ``sort_values`` sorts the table, G100 before G11; a repeated
+    (time, satellite) across two epochs is named at its first repeat in log order."""
+    meas = np.zeros(7, dtype=[("svId", "u1"), ("epoch", "<i8")])
+    meas["svId"] = [11, 100, 3, 2, 11, 100, 5]
+    meas["epoch"] = [0, 0, 0, 1, 1, 1, 1]
+    t = np.array([10.0, 9.0])
+    got = ubx._sorted_l1(Path("x.ubx"), meas, t)
+    table = pd.DataFrame({"time_gps_s": t[meas["epoch"]], "sat": ubx._GPS_SAT_NAMES[meas["svId"]]})
+    order = table.sort_values(["time_gps_s", "sat"], kind="stable").index.to_numpy()
+    assert np.array_equal(got, meas[order])
+    t = np.array([10.0, 10.0])
+    table = pd.DataFrame({"time_gps_s": t[meas["epoch"]], "sat": ubx._GPS_SAT_NAMES[meas["svId"]]})
+    with pytest.raises(CdgpsError) as new:
+        ubx._sorted_l1(Path("x.ubx"), meas, t)
+    with pytest.raises(CdgpsError) as old:
+        ubx._checked_sorted(Path("x.ubx"), table)
+    assert str(new.value) == str(old.value) and "G11" in str(new.value)
+
+
+def test_empty_nav_is_a_fresh_empty_table():
+    from cdgps_cli.core.records import NAV_COLUMNS
+
+    first, _ = sfrbx.sfrbx_ephemerides([], 2381)
+    first.loc[0] = 1.0                                     # a caller's change does not reach the next caller
+    again, _ = sfrbx.sfrbx_ephemerides([], None)
+    pd.testing.assert_frame_equal(again, pd.DataFrame([], columns=list(NAV_COLUMNS)), check_index_type=True)
