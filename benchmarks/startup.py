@@ -59,6 +59,11 @@ def commands(d: Path, info_run: Path | None) -> dict[str, list[str]]:
 FLOORS = {"python": "pass", "numpy": "import numpy", "numpy_pandas": "import numpy, pandas"}
 
 
+#: the working directory of every child: neutral, so that ``python -c`` (which puts the working directory
+#: first on sys.path) imports cdgps from the tree on PYTHONPATH, not from where the script was started
+CWD = Path(tempfile.gettempdir())
+
+
 def _argv(tree: Path, args: list[str], importtime: bool = False) -> tuple[list[str], dict]:
     code = f"import sys; from cdgps_cli.cli.commands import main; sys.argv = ['cdgps'] + {args!r}; main()"
     return [sys.executable] + (["-X", "importtime"] if importtime else []) + ["-c", code], dict(ENV, PYTHONPATH=str(tree))
@@ -68,7 +73,7 @@ def timed(argv: list[str], env: dict) -> dict:
     """Wall and child CPU seconds of one process (it must succeed)."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
-    p = subprocess.run(argv, env=env, capture_output=True, text=True)
+    p = subprocess.run(argv, env=env, capture_output=True, text=True, cwd=CWD)
     wall = time.perf_counter() - t
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if p.returncode != 0:
@@ -83,7 +88,9 @@ _LINE = re.compile(r"^import time:\s+(\d+) \|\s+(\d+) \|( *)(\S+)$")
 def import_profile(tree: Path, args: list[str], top: int = 10) -> dict:
     """Top-level modules by cumulative import time and the big packages' cumulative times (µs)."""
     argv, env = _argv(tree, args, importtime=True)
-    p = subprocess.run(argv, env=env, capture_output=True, text=True)
+    p = subprocess.run(argv, env=env, capture_output=True, text=True, cwd=CWD)
+    if p.returncode != 0:
+        raise SystemExit(f"{argv[-1][:200]} failed:\n{p.stderr[-2000:]}")
     rows = [m.groups() for m in map(_LINE.match, p.stderr.splitlines()) if m]
     total = sum(int(cum) for _, cum, ind, _ in rows if len(ind) == 1)
     tops = sorted(((int(cum), name) for _, cum, ind, name in rows if len(ind) == 1), reverse=True)[:top]
