@@ -35,6 +35,7 @@ import zlib
 from array import array
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import orjson
@@ -43,7 +44,6 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.opcode import Opcode
 from mcap.records import AttachmentIndex
-from mcap.writer import CompressionType, IndexType, Writer
 
 from cdgps_cli.core import progress
 from cdgps_cli.io.atomic import (is_no_room, link_anonymous, open_anonymous, output_error, remove_stale_temporaries,
@@ -53,6 +53,11 @@ from cdgps_cli.core.table import Table
 from cdgps_cli.io.mcap_integrity import (RECORD_SHA256_KEY, DataSectionDamage, check_records, record_sha256,
                                          verify_file, warn_once)
 from cdgps_cli.core.timescales import RELATIVE_EPOCH_UTC, TIME_SCALES, unix_ns
+
+# mcap.writer is imported where a file is written (McapOut): it loads importlib.metadata, ≈ 20 ms that
+# readers (`cdgps info`, `export`, `spectra`) need not pay (benchmarks/startup.py)
+if TYPE_CHECKING:
+    from mcap.writer import Writer
 
 INFO_METADATA = "cdgps.info"
 """Metadata record :class:`McapOut` writes into every file: ``format`` (:data:`INFO_FORMAT`),
@@ -297,6 +302,8 @@ class McapOut:
                 self._fh = open(self.tmp, "wb")
         except OSError as exc:
             raise CdgpsError(f"{self.path}: cannot write: {exc.strerror}") from None
+        from mcap.writer import CompressionType, Writer  # noqa: PLC0415  (see the module imports)
+
         self.writer = Writer(self._fh, compression=CompressionType.ZSTD, enable_crcs=True,
                              enable_data_crcs=True, chunk_size=1 << 20)
         try:
@@ -554,6 +561,8 @@ class McapOut:
         put(struct.pack("<I", crc))
         w._Writer__data_section_crc = section_crc
         w._Writer__statistics.attachment_count += 1
+        from mcap.writer import IndexType  # noqa: PLC0415
+
         if w._Writer__index_types & IndexType.ATTACHMENT:
             w._Writer__attachment_indexes.append(AttachmentIndex(
                 offset=offset, length=9 + body_len, create_time=0, log_time=0, data_size=size,
