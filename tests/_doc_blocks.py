@@ -195,7 +195,7 @@ def run_block(block: Block, work: Path) -> list[str]:
         cmds = _commands(_lex(line))
         banned = sorted({c[0] for c in cmds} & NEVER)
         assert not banned, f"{block.where}: `{line}` runs {banned}: mark the block <!-- norun: reason -->"
-        if all(CDGPS.match(c[0] + " ") for c in cmds) and not re.search(r"[|<`$]", line):
+        if all(CDGPS.match(c[0] + " ") for c in cmds) and not re.search(r"[|<`$]", _code(line)):
             for words in cmds:
                 _run_cdgps(block, words, work)
                 ran.append(" ".join(words))
@@ -205,6 +205,20 @@ def run_block(block: Block, work: Path) -> list[str]:
             assert r.returncode == 0, f"{block.where}: `{line}` exited {r.returncode}:\n{r.stdout[-2000:]}{r.stderr[-2000:]}"
             ran += [" ".join(c) for c in cmds if CDGPS.match(c[0] + " ")]
     return ran
+
+
+def _code(line: str) -> str:
+    """A shell line without its trailing ``# comment`` (a ``#`` outside quotes that starts a word), so a
+    comment's ``<ant>`` or ``$`` does not send a plain ``cdgps`` command to ``bash``."""
+    quote = None
+    for k, ch in enumerate(line):
+        if quote:
+            quote = None if ch == quote else quote
+        elif ch in "'\"":
+            quote = ch
+        elif ch == "#" and (k == 0 or line[k - 1].isspace()):
+            return line[:k]
+    return line
 
 
 def _run_cdgps(block: Block, words: list[str], work: Path) -> None:

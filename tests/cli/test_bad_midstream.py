@@ -72,9 +72,11 @@ def test_bad_row_late_in_a_streamed_log_names_file_line_and_time(record, tmp_pat
     the file, its line and the time before it, and leaves no RUN.mcap."""
     from cdgps_cli.io import logs
 
-    monkeypatch.setattr(logs, "LOG_BLOCK_BYTES", 2000)
+    block_bytes = 20_000                 # 1.3 MB of log: ~65 blocks before the bad row (2000 B: 650, 6 s more CPU)
+    monkeypatch.setattr(logs, "LOG_BLOCK_BYTES", block_bytes)
     lines = (record / "sim" / "receiver.csv").read_text().splitlines(keepends=True)
     k = len(lines) - 40
+    assert sum(map(len, lines[:k])) > 50 * block_bytes          # the bad row comes after many blocks
     f = lines[k].split(",")
     prev_t = float(f[0])
     f[5] = "1.5e"
