@@ -58,7 +58,7 @@ from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli import __version__
 from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.io.coordinate_columns import coordinate_columns
-from cdgps_cli.config.options import (MODAL_INIT_CODE_DD, MODAL_INITIAL_SIGMA_XI, MODAL_INITIAL_SIGMA_XIDOT,
+from cdgps_cli.config.options import (ESTIMATE_CHUNK_EPOCHS, MODAL_INIT_CODE_DD, MODAL_INITIAL_SIGMA_XI, MODAL_INITIAL_SIGMA_XIDOT,
                                       SCENE_EXAGGERATION, SCENE_SKY_STEP_S, SIM_MASTER_ECEF_M, X_AXIS_AZIMUTH_DEG)
 
 from cdgps_cli.core.gps_time import gps_time_str
@@ -674,7 +674,7 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
     else:
         xf, Pf, meas, xs, Ps, nis, nis_dof, outliers = _filter_dd(model, cfg, t_all, x0, P0, max_iterations, gate,
                                                                   smooth)
-    chans, resid = _dd_residuals(model, meas, xs, su.slot_ants)
+    chans, resid = _dd_residuals(model, meas, xs, su.slot_ants, history)
     events = _modal_events(tabs, mapping, su.slot_ants, outliers, fusion.events if fusion is not None else [])
     biases, integers = _final_biases(su, tabs, init)
     res = SimpleNamespace(cfg=cfg, x=xs, P=Ps, smoothed=bool(smooth), x_filt=xf, P_filt=Pf, time_s=t_all,
@@ -743,18 +743,30 @@ def _filter_dd(model, cfg: StructureConfig, t_all, x0, P0, max_iterations: int, 
     return xf, Pf, fr["rows"], xs, Ps, fr["nis"], fr["nis_dof"], outliers
 
 
-def _dd_residuals(model, meas, xs, slot_ants) -> tuple[list, np.ndarray]:
+def _dd_residuals(model, meas, xs, slot_ants, store=None) -> tuple[list, np.ndarray]:
     """DD residuals of the reported estimate ``xs``, per (antenna, satellite) channel: the sorted
-    channels and the residuals (n, C), m (NaN where the channel was not used)."""
+    channels and the residuals (n, C), m (NaN where the channel was not used).  ``store``: where the
+    residuals live (:class:`cdgps_cli.io.scratch.DiskHistory` for ``cdgps estimate``: on disk, filled
+    a block at a time, pages dropped behind; None: in memory)."""
     chans = sorted({(slot_ants[a], s) for mk in meas if mk is not None for a, s in mk.labels})
     cidx = {c: i for i, c in enumerate(chans)}
-    resid = np.full((len(meas), len(chans)), np.nan)
-    for k, mk in enumerate(meas):
-        if mk is None:
-            continue
-        h, _ = model.predict(xs[k], mk)
-        cols = [cidx[(slot_ants[a], s)] for a, s in mk.labels]
-        resid[k, cols] = mk.z_m - h
+    n = len(meas)
+    resid = np.full((n, len(chans)), np.nan) if store is None else store.empty((n, len(chans)))
+    release = getattr(store, "release", lambda arr, a, b: None)
+    block = ESTIMATE_CHUNK_EPOCHS
+    for a in range(0, n, block):
+        b = min(a + block, n)
+        if store is not None:
+            resid[a:b] = np.nan
+        for k in range(a, b):
+            mk = meas[k]
+            if mk is None:
+                continue
+            h, _ = model.predict(xs[k], mk)
+            cols = [cidx[(slot_ants[i], s)] for i, s in mk.labels]
+            resid[k, cols] = mk.z_m - h
+        release(resid, a, b)
+        release(xs, a, b)
     return chans, resid
 
 
