@@ -746,28 +746,52 @@ def _filter_dd(model, cfg: StructureConfig, t_all, x0, P0, max_iterations: int, 
 def _dd_residuals(model, meas, xs, slot_ants, store=None) -> tuple[list, np.ndarray]:
     """DD residuals of the reported estimate ``xs``, per (antenna, satellite) channel: the sorted
     channels and the residuals (n, C), m (NaN where the channel was not used).  ``store``: where the
-    residuals live (:class:`cdgps_cli.io.scratch.DiskHistory` for ``cdgps estimate``: on disk, filled
-    a block at a time, pages dropped behind; None: in memory)."""
-    chans = sorted({(slot_ants[a], s) for mk in meas if mk is not None for a, s in mk.labels})
-    cidx = {c: i for i, c in enumerate(chans)}
-    n = len(meas)
-    resid = np.full((n, len(chans)), np.nan) if store is None else store.empty((n, len(chans)))
-    release = getattr(store, "release", lambda arr, a, b: None)
-    block = ESTIMATE_CHUNK_EPOCHS
+    residuals live (:class:`cdgps_cli.io.scratch.DiskHistory` for ``cdgps estimate``: on disk, made in
+    one pass over ``meas`` (rows made when read) a block at a time, pages dropped behind)."""
+    bound = _label_bound(model)
+    if store is None or not getattr(store, "on_disk", False) or bound is None:
+        chans = sorted({(slot_ants[a], s) for mk in meas if mk is not None for a, s in mk.labels})
+        cidx = {c: i for i, c in enumerate(chans)}
+        resid = np.full((len(meas), len(chans)), np.nan)
+        for k, mk in enumerate(meas):
+            if mk is None:
+                continue
+            h, _ = model.predict(xs[k], mk)
+            cols = [cidx[(slot_ants[a], s)] for a, s in mk.labels]
+            resid[k, cols] = mk.z_m - h
+        return chans, resid
+    # one pass: columns in order of first appearance (at most ``bound``), then sorted by channel
+    n, block = len(meas), ESTIMATE_CHUNK_EPOCHS
+    first = store.empty((n, bound))
+    seen: dict = {}
     for a in range(0, n, block):
         b = min(a + block, n)
-        if store is not None:
-            resid[a:b] = np.nan
+        first[a:b] = np.nan
         for k in range(a, b):
             mk = meas[k]
             if mk is None:
                 continue
             h, _ = model.predict(xs[k], mk)
-            cols = [cidx[(slot_ants[i], s)] for i, s in mk.labels]
-            resid[k, cols] = mk.z_m - h
-        release(resid, a, b)
-        release(xs, a, b)
+            cols = [seen.setdefault((slot_ants[i], s), len(seen)) for i, s in mk.labels]
+            first[k, cols] = mk.z_m - h
+        store.release(first, a, b)
+        store.release(xs, a, b)
+    chans = sorted(seen)
+    order = [seen[c] for c in chans]
+    resid = store.empty((n, len(chans)))
+    for a in range(0, n, block):
+        resid[a:a + block] = first[a:a + block][:, order]
+        store.release(first, a, a + block)
+        store.release(resid, a, a + block)
     return chans, resid
+
+
+def _label_bound(model) -> int | None:
+    """How many distinct (slot, satellite[/code]) labels ``model``'s rows can carry (None: unknown)."""
+    tabs = getattr(model, "tabs", None)
+    if tabs is None:
+        return None
+    return max(1, sum(len(tb["d"].sat_names) for tb in tabs) * (2 if getattr(model, "code", False) else 1))
 
 
 def _modal_events(tabs, mapping: dict, slot_ants, outliers, sensor_events) -> list:
