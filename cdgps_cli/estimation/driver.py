@@ -34,25 +34,61 @@ filter; the RTS smoother reads them back (:func:`cdgps_cli.estimation.smoother.r
 ``chunk``).  :class:`RecordingSink` keeps the per-epoch transitions and rows too (what
 :func:`cdgps_cli.estimation.model_filter.filter_numpy` returns).
 
-Sources: an :class:`EpochGrid` gives the epoch times and the chunking; measurement models index
-their rows by the source's epoch number.
+Sources (:class:`EpochSource`): ``n_epochs`` and ``blocks(start)``, the epochs in blocks
+(:class:`EpochBlock`: first epoch, times, named arrays), read lazily.  :class:`EpochGrid` holds the
+times in memory (its blocks: the sink's chunks); :class:`BlockSource` reads each block through an
+injected ``read(a, b)`` (e.g. from a RUN on disk) and keeps none.  Before a block's first epoch, the
+driver gives the block to every dynamics, model and hook with a ``load(block)``: a model fed by a
+streaming source takes its rows from the loaded block (:class:`GridDynamics` without ``time_s``
+its times), so memory is that of a block.  Models without ``load`` index whole arrays by the
+source's epoch number, as before.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from cdgps_cli.estimation.history import MemoryHistory
 from cdgps_cli.estimation.kalman import StepFilter
 
-__all__ = ["EpochGrid", "Hook", "RowsGate", "DriveContext", "HistorySink", "RecordingSink", "GridDynamics", "drive"]
+__all__ = ["EpochBlock", "EpochSource", "EpochGrid", "BlockSource", "Hook", "RowsGate", "DriveContext", "HistorySink", "RecordingSink", "GridDynamics", "drive"]
+
+
+@dataclass(frozen=True)
+class EpochBlock:
+    """Consecutive epochs ``start`` … ``stop``−1 of a source: their times (b,) s and, by name, the
+    arrays (b, …) a source reads for them (a RUN's phases, a sensor's samples; empty for a grid)."""
+
+    start: int
+    time_s: np.ndarray
+    data: dict = field(default_factory=dict)
+
+    @property
+    def stop(self) -> int:
+        return self.start + len(self.time_s)
+
+
+@runtime_checkable
+class EpochSource(Protocol):
+    """Where :func:`drive` gets its epochs: ``n_epochs`` and ``blocks(start)``, the blocks from the one
+    holding epoch ``start`` on, in order (read lazily: a source on disk holds one block at a time).
+    The driver hands each block to the dynamics, models and hooks that have ``load(block)`` before
+    its first epoch runs."""
+
+    n_epochs: int
+
+    def blocks(self, start: int = 0) -> Iterator[EpochBlock]:
+        ...
 
 
 @dataclass
 class EpochGrid:
-    """The epochs a drive runs over: times (N,) s and the chunk length (epochs) of its sink."""
+    """The epochs a drive runs over, all in memory: times (N,) s and the chunk length (epochs) of its
+    sink; its blocks are the sink's chunks (times only)."""
 
     time_s: np.ndarray
     chunk_epochs: int = 1 << 30
@@ -60,6 +96,33 @@ class EpochGrid:
     @property
     def n_epochs(self) -> int:
         return len(self.time_s)
+
+    def blocks(self, start: int = 0) -> Iterator[EpochBlock]:
+        K, N = max(int(self.chunk_epochs), 1), self.n_epochs
+        a = (int(start) // K) * K
+        while a < N:
+            yield EpochBlock(a, self.time_s[a:a + K])
+            a += K
+
+
+class BlockSource:
+    """An :class:`EpochSource` read a block at a time: ``read(a, b) -> (time_s (b−a,), {name: (b−a, …)})``
+    for epochs a … b−1 (injected: e.g. rows of a RUN's table on disk; numerics never open files),
+    ``block_epochs`` epochs a block.  Nothing is kept between blocks."""
+
+    def __init__(self, n_epochs: int, read, block_epochs: int = 4096):
+        self.n_epochs = int(n_epochs)
+        self.read = read
+        self.block_epochs = max(int(block_epochs), 1)
+
+    def blocks(self, start: int = 0) -> Iterator[EpochBlock]:
+        K = self.block_epochs
+        a = (int(start) // K) * K
+        while a < self.n_epochs:
+            b = min(a + K, self.n_epochs)
+            time_s, data = self.read(a, b)
+            yield EpochBlock(a, np.asarray(time_s, dtype=float), dict(data))
+            a = b
 
 
 class Hook:
@@ -102,12 +165,13 @@ class DriveContext:
     """What the hooks see: the filter's step (x, P), the source, the sink, per-epoch NIS and its dof."""
 
     step: StepFilter
-    source: EpochGrid
+    source: EpochSource
     sink: object
     nis: np.ndarray
     nis_dof: np.ndarray
     progress: object = None
     extra: dict = field(default_factory=dict)
+    block: EpochBlock | None = None        # the source's block holding the current epoch
 
     @property
     def x(self) -> np.ndarray:
@@ -257,18 +321,49 @@ class RecordingSink:
 class GridDynamics:
     """A :class:`~cdgps_cli.model.dynamics_models.Dynamics` (``transition(dt_s) -> (A, B, Q)``) on the
     source's epoch times: ``step_into(k)`` → (A, or None when the transition is the identity, Q, None)
-    and the A it reports to the sink."""
+    and the A it reports to the sink.  ``time_s`` None: the times come from the source's blocks
+    (``load``), the previous block's last time kept for the step into a block's first epoch."""
 
-    def __init__(self, dyn, time_s: np.ndarray):
-        self.dyn, self.time_s = dyn, np.asarray(time_s, dtype=float)
+    def __init__(self, dyn, time_s: np.ndarray | None = None):
+        self.dyn = dyn
+        self.time_s = None if time_s is None else np.asarray(time_s, dtype=float)
         self.identity = bool(getattr(dyn, "identity_transition", False))
+        self._t, self._first = None, 0        # (streaming) times of epochs _first … of the loaded block
+
+    def load(self, block: EpochBlock) -> None:
+        if self.time_s is not None:
+            return
+        t = np.asarray(block.time_s, dtype=float)
+        if self._t is not None and self._first + len(self._t) == block.start:
+            t = np.concatenate([self._t[-1:], t])          # the previous epoch's time
+            self._t, self._first = t, block.start - 1
+        else:
+            self._t, self._first = t, block.start
 
     def step_into(self, k: int):
-        A, _, Q = self.dyn.transition(float(self.time_s[k] - self.time_s[k - 1]))
+        if self.time_s is not None:
+            t1, t0 = self.time_s[k], self.time_s[k - 1]
+        else:
+            i = k - self._first
+            if i < 1:
+                raise ValueError(f"GridDynamics: epoch {k - 1}'s time is not in the loaded blocks")
+            t1, t0 = self._t[i], self._t[i - 1]
+        A, _, Q = self.dyn.transition(float(t1 - t0))
         return A, Q, None
 
 
-def drive(dynamics, models, source: EpochGrid, init, hooks=(), sink=None, spans=None,
+def _next_block(ctx: "DriveContext", blocks, k: int, loaders) -> int:
+    """Every block up to the one holding epoch k, in order, to each ``load``; that block's stop."""
+    for block in blocks:
+        for load in loaders:
+            load(block)
+        if block.stop > k:
+            ctx.block = block
+            return block.stop
+    raise ValueError(f"drive: the source's blocks end before epoch {k}")
+
+
+def drive(dynamics, models, source: EpochSource, init, hooks=(), sink=None, spans=None,
           max_iterations: int = 1, progress=None, k0: int = 0, on_singular=None) -> DriveContext:
     """The forward filter over the source's epochs (module docstring: the order of one epoch).
 
@@ -280,7 +375,11 @@ def drive(dynamics, models, source: EpochGrid, init, hooks=(), sink=None, spans=
         true: A is reported but not applied (A P Aᵀ = P).
     models : list of MeasurementModel
         ``rows(k)`` → Rows or None and ``predict(x, rows)`` → (h, H); optional ``prepare(k, ctx)``.
-    source : EpochGrid
+    source : EpochSource
+        ``n_epochs`` and ``blocks(start)`` (:class:`EpochGrid`: times in memory; :class:`BlockSource`:
+        read a block at a time); each block goes to the ``load(block)`` of the dynamics, models and
+        hooks that have one before its first epoch runs (every block in order, also those a span or
+        a hook jumps over).
     init : StepFilter or (x0 (p,), P0 (p, p))
         The state entering epoch ``k0`` (a StepFilter is stepped in place).
     hooks : sequence of Hook
@@ -313,11 +412,17 @@ def drive(dynamics, models, source: EpochGrid, init, hooks=(), sink=None, spans=
     write_transition = getattr(sink, "transition", None)
     write_rows = getattr(sink, "rows", None)
     k = int(k0)
+    loaders = [o.load for o in (dynamics, *models, *hooks) if getattr(o, "load", None) is not None]
+    # (from the block of epoch k − 1: the prediction into k reads its time)
+    blocks = source.blocks(max(k - 1, 0)) if hasattr(source, "blocks") else None
+    block_stop = N if blocks is None else -1
     while k < N:
         if spans is not None:
             k = spans(ctx, k)
             if k >= N:
                 break
+        if k >= block_stop:
+            block_stop = _next_block(ctx, blocks, k, loaders)
         sink.release_before(k)
         if k > 0:
             A, Q, u = dynamics.step_into(k)

@@ -58,6 +58,7 @@ from cdgps_cli.core.records import Run
 from cdgps_cli.estimation.window_smoother import batch_window, extend_smoothing, window_states
 from cdgps_cli.estimation.smoother import rts_smooth
 from cdgps_cli.estimation.driver import EpochGrid, HistorySink, drive
+from cdgps_cli.estimation.history import MemoryHistory
 from cdgps_cli.estimation.integrity import (EpochDynamics, LockRestart, NewBiasStates, OutlierGate, PhaseRows, PostFit,
                                             Rebias, Reinit)
 from cdgps_cli.estimation.rest import (REST_ENTRY_POSITION_INFLATION, REST_NIS_FAILURES, StaticMode,
@@ -949,7 +950,9 @@ def _scratch(history, shape: tuple, fill, dtype=np.float64) -> np.ndarray:
     the history's (:class:`cdgps_cli.io.scratch.DiskHistory`) filled block by block, its pages dropped
     behind (the values are the same; only where they live differs)."""
     if not getattr(history, "on_disk", False):
-        return np.full(shape, fill, dtype=dtype)
+        arr = MemoryHistory.empty(shape, dtype)         # (large: base pages, see MemoryHistory.empty)
+        arr[...] = fill
+        return arr
     arr = history.empty(shape, dtype)
     step = max(1, (PHASE_BLOCK_ROWS >> 3))
     for a in range(0, shape[0], step):

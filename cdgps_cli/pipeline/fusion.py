@@ -18,6 +18,7 @@ The mapping from (structure config, sensor logs, GNSS measurement models) to the
 
 from __future__ import annotations
 
+from array import array
 from collections.abc import Sequence
 from types import SimpleNamespace
 
@@ -26,6 +27,7 @@ import numpy as np
 from cdgps_cli.config.sensors import FUSABLE_KINDS
 from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.estimation.history import MemoryHistory
 from cdgps_cli.estimation.model_filter import filter_numpy
 from cdgps_cli.config.options import ESTIMATE_CHUNK_EPOCHS
 from cdgps_cli.estimation.smoother import rts_smooth_indexed
@@ -160,8 +162,8 @@ def run_fused(model, dyn, time_s, x0, P0, smooth: bool = True, max_iterations: i
     Returns
     -------
     SimpleNamespace
-        ``x``, ``x_filt`` (N, n) in memory; ``P``, ``P_filt`` (N, keep, keep) in memory (``x``, ``P``
-        reported: smoothed or filtered); ``nis``, ``nis_dof``, ``rows`` (a list, or :class:`GatedRows`).
+        ``x``, ``x_filt`` (N, n); ``P``, ``P_filt`` (N, keep, keep) (``x``, ``P`` reported: smoothed
+        or filtered), arrays of ``store`` (on disk with a DiskHistory); ``nis``, ``nis_dof``, ``rows`` (a list, or :class:`GatedRows`).
     """
     fr = filter_numpy(model, dyn, np.asarray(time_s, float), x0, P0, max_iterations, rows_hook=rows_hook,
                       store=store, chunk_epochs=chunk_epochs, keep_rows=gate_events is None)
@@ -171,26 +173,31 @@ def run_fused(model, dyn, time_s, x0, P0, smooth: bool = True, max_iterations: i
     N, n = xh.shape
     m = n if keep is None else int(keep)
     chunk = max(int(chunk_epochs), 1)
-    release = getattr(store, "release", lambda arr, a, b: None)
-    x_filt = np.array(xh)
-    P_filt = np.empty((N, m, m))
+    store = store if store is not None else MemoryHistory()
+    release = store.release
+    # the reported series live on the store too (on disk for ``cdgps estimate``: the STATES writer
+    # reads them back a block at a time), copied a chunk at a time, pages dropped behind
+    x_filt, P_filt = store.empty((N, n)), store.empty((N, m, m))
     for a in range(0, N, chunk):
+        x_filt[a:a + chunk] = xh[a:a + chunk]
         P_filt[a:a + chunk] = Ph[a:a + chunk, :m, :m]
-        release(Ph, a, a + chunk)
+        for arr in (xh, Ph, x_filt, P_filt):
+            release(arr, a, a + chunk)
     if not smooth:
         return SimpleNamespace(x=x_filt, P=P_filt, x_filt=x_filt, P_filt=P_filt, nis=fr["nis"],
                                nis_dof=fr["nis_dof"], rows=fr["rows"])
-    P_s = np.empty((N, m, m))
+    P_s = store.empty((N, m, m))
 
     def done(a, b):
         P_s[a:b] = Ph[a:b, :m, :m]
+        release(P_s, a, b)
         release(Ph, a + 1, b)                 # (epoch a is read again by the pass below it)
+        release(xh, a + 1, b)
 
     rts_smooth_indexed(xh, Ph, *fr["transitions"], chunk=chunk, on_done=done)
-    x_s = np.array(xh)
-    release(xh, 0, N)
     release(Ph, 0, N)
-    return SimpleNamespace(x=x_s, P=P_s, x_filt=x_filt, P_filt=P_filt, nis=fr["nis"], nis_dof=fr["nis_dof"],
+    release(xh, 0, N)                         # the smoothed states: the store's array itself (smoothed in place)
+    return SimpleNamespace(x=xh, P=P_s, x_filt=x_filt, P_filt=P_filt, nis=fr["nis"], nis_dof=fr["nis_dof"],
                            rows=fr["rows"])
 
 
@@ -235,6 +242,20 @@ def fusion_choice(cfg: StructureConfig, fuse_option: str | None, hold_out_option
 
         check_fusion_choice(cfg, sensor_specs(cfg), kinds, held)
     return kinds, held
+
+
+class PartRows(Sequence):
+    """The rows of stacked part ``part`` per epoch (:func:`_dd_rows` of ``rows[k]``), made when read:
+    a list of them would hold every epoch's rows in memory."""
+
+    def __init__(self, rows, part: int = 0):
+        self.rows, self.part = rows, part
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def __getitem__(self, k):
+        return _dd_rows(self.rows[k], self.part)
 
 
 def _dd_rows(rows, part: int = 0):
@@ -288,7 +309,7 @@ def fuse_with_dd(cfg: StructureConfig, dd, t_gnss, logs: dict, fuse, hold_out, x
     nm2 = 2 * cfg.n_modes
     r = run_fused(model, dyn, t, x0f, P0f, smooth, max_iterations, rows_hook=outlier_gate(model, outlier_sigma, events, t),
                   store=store, keep=nm2, gate_events=events)
-    dd_rows = [_dd_rows(rk) for rk in r.rows]
+    dd_rows = PartRows(r.rows, 0)
     out_dd = [dict(e, label=tuple(e["label"][1:])) for e in events if e["label"][0] == "gnss"]
     out_s = [{"time_s": e["time_s"], "antenna": e["label"][0], "transmitter": e["label"][2], "kind": "outlier",
               "action": f"sensor reading not used at this epoch ({e['sigmas']:.1f} σ)"} for e in events if e["label"][0] != "gnss"]
@@ -305,7 +326,7 @@ def fuse_with_dd(cfg: StructureConfig, dd, t_gnss, logs: dict, fuse, hold_out, x
 def _sensor_summary(parts, x, rows) -> dict:
     """Per fused sensor: samples, RMS residual of the reported estimate per field, final bias per field
     (one pass over ``rows``: made again per epoch when they are :class:`GatedRows`)."""
-    res = [{f: [] for f in m.fields} for _, m in parts]
+    res = [{f: array("d") for f in m.fields} for _, m in parts]     # (8 bytes a residual, not a float object)
     count = [0] * len(parts)
     for k, rk in enumerate(rows):
         for p, (_, m) in enumerate(parts, start=1):
@@ -319,7 +340,7 @@ def _sensor_summary(parts, x, rows) -> dict:
     out = {}
     for (name, m), r, n in zip(parts, res, count):
         out[name] = {"kind": m.kind, "samples": n,
-                     "residual_rms": {f: float(np.sqrt(np.mean(np.square(v)))) if v else None for f, v in r.items()},
+                     "residual_rms": {f: float(np.sqrt(np.mean(np.square(np.frombuffer(v))))) if v else None for f, v in r.items()},
                      "sigma": {f: float(s) for f, s in zip(m.fields, m.sigma)},
                      "final_bias": ({f: float(x[-1, m.bias_offset + j]) for j, f in enumerate(m.fields)}
                                     if m.extra_states else {})}

@@ -58,7 +58,7 @@ from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli import __version__
 from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.io.coordinate_columns import coordinate_columns
-from cdgps_cli.config.options import (MODAL_INIT_CODE_DD, MODAL_INITIAL_SIGMA_XI, MODAL_INITIAL_SIGMA_XIDOT,
+from cdgps_cli.config.options import (ESTIMATE_CHUNK_EPOCHS, MODAL_INIT_CODE_DD, MODAL_INITIAL_SIGMA_XI, MODAL_INITIAL_SIGMA_XIDOT,
                                       SCENE_EXAGGERATION, SCENE_SKY_STEP_S, SIM_MASTER_ECEF_M, X_AXIS_AZIMUTH_DEG)
 
 from cdgps_cli.core.gps_time import gps_time_str
@@ -674,7 +674,7 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
     else:
         xf, Pf, meas, xs, Ps, nis, nis_dof, outliers = _filter_dd(model, cfg, t_all, x0, P0, max_iterations, gate,
                                                                   smooth)
-    chans, resid = _dd_residuals(model, meas, xs, su.slot_ants)
+    chans, resid = _dd_residuals(model, meas, xs, su.slot_ants, history)
     events = _modal_events(tabs, mapping, su.slot_ants, outliers, fusion.events if fusion is not None else [])
     biases, integers = _final_biases(su, tabs, init)
     res = SimpleNamespace(cfg=cfg, x=xs, P=Ps, smoothed=bool(smooth), x_filt=xf, P_filt=Pf, time_s=t_all,
@@ -743,19 +743,55 @@ def _filter_dd(model, cfg: StructureConfig, t_all, x0, P0, max_iterations: int, 
     return xf, Pf, fr["rows"], xs, Ps, fr["nis"], fr["nis_dof"], outliers
 
 
-def _dd_residuals(model, meas, xs, slot_ants) -> tuple[list, np.ndarray]:
+def _dd_residuals(model, meas, xs, slot_ants, store=None) -> tuple[list, np.ndarray]:
     """DD residuals of the reported estimate ``xs``, per (antenna, satellite) channel: the sorted
-    channels and the residuals (n, C), m (NaN where the channel was not used)."""
-    chans = sorted({(slot_ants[a], s) for mk in meas if mk is not None for a, s in mk.labels})
-    cidx = {c: i for i, c in enumerate(chans)}
-    resid = np.full((len(meas), len(chans)), np.nan)
-    for k, mk in enumerate(meas):
-        if mk is None:
-            continue
-        h, _ = model.predict(xs[k], mk)
-        cols = [cidx[(slot_ants[a], s)] for a, s in mk.labels]
-        resid[k, cols] = mk.z_m - h
+    channels and the residuals (n, C), m (NaN where the channel was not used).  ``store``: where the
+    residuals live (:class:`cdgps_cli.io.scratch.DiskHistory` for ``cdgps estimate``: on disk, made in
+    one pass over ``meas`` (rows made when read) a block at a time, pages dropped behind)."""
+    bound = _label_bound(model)
+    if store is None or not getattr(store, "on_disk", False) or bound is None:
+        chans = sorted({(slot_ants[a], s) for mk in meas if mk is not None for a, s in mk.labels})
+        cidx = {c: i for i, c in enumerate(chans)}
+        resid = np.full((len(meas), len(chans)), np.nan)
+        for k, mk in enumerate(meas):
+            if mk is None:
+                continue
+            h, _ = model.predict(xs[k], mk)
+            cols = [cidx[(slot_ants[a], s)] for a, s in mk.labels]
+            resid[k, cols] = mk.z_m - h
+        return chans, resid
+    # one pass: columns in order of first appearance (at most ``bound``), then sorted by channel
+    n, block = len(meas), ESTIMATE_CHUNK_EPOCHS
+    first = store.empty((n, bound))
+    seen: dict = {}
+    for a in range(0, n, block):
+        b = min(a + block, n)
+        first[a:b] = np.nan
+        for k in range(a, b):
+            mk = meas[k]
+            if mk is None:
+                continue
+            h, _ = model.predict(xs[k], mk)
+            cols = [seen.setdefault((slot_ants[i], s), len(seen)) for i, s in mk.labels]
+            first[k, cols] = mk.z_m - h
+        store.release(first, a, b)
+        store.release(xs, a, b)
+    chans = sorted(seen)
+    order = [seen[c] for c in chans]
+    resid = store.empty((n, len(chans)))
+    for a in range(0, n, block):
+        resid[a:a + block] = first[a:a + block][:, order]
+        store.release(first, a, a + block)
+        store.release(resid, a, a + block)
     return chans, resid
+
+
+def _label_bound(model) -> int | None:
+    """How many distinct (slot, satellite[/code]) labels ``model``'s rows can carry (None: unknown)."""
+    tabs = getattr(model, "tabs", None)
+    if tabs is None:
+        return None
+    return max(1, sum(len(tb["d"].sat_names) for tb in tabs) * (2 if getattr(model, "code", False) else 1))
 
 
 def _modal_events(tabs, mapping: dict, slot_ants, outliers, sensor_events) -> list:

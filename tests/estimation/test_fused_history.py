@@ -96,7 +96,11 @@ def test_fused_run_on_disk_in_blocks_equals_the_run_in_memory(tmp_path):
     CountingDisk.made = 0
     got = run_fused(model, dyn, t, np.zeros(dyn.n), P0, max_iterations=1, store=CountingDisk(tmp_path),
                     chunk_epochs=37, keep=2 * nm)
-    assert CountingDisk.made == 2 and not list(tmp_path.iterdir())   # x and P on disk, nothing left behind
+    # the history's x and P, then the reported x_filt, P_filt and smoothed P on disk (the smoothed x is
+    # the history's, smoothed in place), nothing left behind
+    assert CountingDisk.made == 5 and not list(tmp_path.iterdir())
+    for name in ("x", "P", "x_filt", "P_filt"):
+        assert isinstance(getattr(got, name), np.memmap), name
     for name in ("x", "x_filt", "nis", "nis_dof"):
         assert np.array_equal(getattr(got, name), getattr(ref, name), equal_nan=True), name
     for name in ("P", "P_filt"):
