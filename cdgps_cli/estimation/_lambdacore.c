@@ -24,7 +24,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#define LAMBDA_API 1
+#define LAMBDA_API 2
 
 /* a C-contiguous float64 buffer of ``count`` elements (any count when negative) */
 static int get_f64(PyObject *obj, Py_buffer *v, Py_ssize_t count, int writable, const char *name)
@@ -120,16 +120,24 @@ static int swap_if_shorter(double *L, double *d, int n, Ops *o, int k, double pe
     return 1;
 }
 
+/* ambiguity._reduce_column: column j from row start down, top down, where |L[i, j]| > 1/2 */
+static int reduce_column(double *L, int n, Ops *o, int j, int start)
+{
+    for (int i = start; i < n; i++) {
+        if (!(fabs(L[(Py_ssize_t)i * n + j]) > 0.5)) continue;
+        if (gauss(L, n, o, i, j) < 0) return -1;
+        if (o->overflow) return 0;
+    }
+    return 0;
+}
+
 /* ambiguity._size_reduce: the columns j with work to do, from the right, rows top down */
 static int size_reduce(double *L, int n, Ops *o, const uint8_t *todo)
 {
     for (int j = n - 3; j >= 0; j--) {
         if (!todo[j]) continue;
-        for (int i = j + 2; i < n; i++) {
-            if (!(fabs(L[(Py_ssize_t)i * n + j]) > 0.5)) continue;
-            if (gauss(L, n, o, i, j) < 0) return -1;
-            if (o->overflow) return 0;
-        }
+        if (reduce_column(L, n, o, j, j + 2) < 0) return -1;
+        if (o->overflow) return 0;
     }
     return 0;
 }
@@ -158,7 +166,7 @@ static PyObject *py_reduce(PyObject *self, PyObject *args)
     Py_BEGIN_ALLOW_THREADS
     int k = n - 2;
     while (k >= 0 && !fail && !o.overflow) {
-        if (gauss(L, n, &o, k + 1, k) < 0) { fail = 1; break; }
+        if (reduce_column(L, n, &o, k, k + 1) < 0) { fail = 1; break; }
         if (o.overflow) break;
         int s = swap_if_shorter(L, d, n, &o, k, perm_rtol);
         if (s < 0) { fail = 1; break; }
