@@ -239,7 +239,8 @@ static int sub_mul(int64_t a, int64_t mu, int64_t b, int64_t *out)
 
 /* z_matrix(ops, Z): Z (n, n) int64, the identity on entry, becomes the product of the operations.
  * Returns 1 (done: the same Z as ambiguity._z_matrix), 0 when _z_matrix would have turned to its exact
- * Python-integer form (the bound on an entry reached 2**62; Z is then left unspecified). */
+ * Python-integer form (the next column could reach 2**62 by the bound from the columns' largest
+ * entries; Z is then left unspecified). */
 static PyObject *py_z_matrix(PyObject *self, PyObject *args)
 {
     (void)self;
@@ -282,10 +283,14 @@ static PyObject *py_z_matrix(PyObject *self, PyObject *args)
             break;
         }
         if (mu) {
-            bound[j] += fabs((double)mu) * bound[i];
-            if (bound[j] >= 4611686018427387904.0) { ok = 0; break; }
-            for (Py_ssize_t r = 0; r < n; r++)
+            if (bound[j] + fabs((double)mu) * bound[i] >= 4611686018427387904.0) { ok = 0; break; }
+            double big = 0.0;
+            for (Py_ssize_t r = 0; r < n; r++) {
                 if (!sub_mul(Z[r * n + j], mu, Z[r * n + i], &Z[r * n + j])) { ok = 0; break; }
+                double a = fabs((double)Z[r * n + j]);
+                if (a > big) big = a;
+            }
+            bound[j] = big;
         } else {
             for (Py_ssize_t r = 0; r < n; r++) {
                 int64_t s = Z[r * n + i];

@@ -411,10 +411,12 @@ def _backward(ops, v):
 def _z_matrix(ops, n):
     """Materialise ``Z`` (int64, shape (n, n)) from the recorded operations.
 
-    Column operations on an int64 array, with a bound on every column's largest entry carried
-    along (``|Z_j - mu Z_i| <= b_j + |mu| b_i``): when a bound could reach 2**62 the product is
-    formed again in Python integers, which cannot overflow, and checked.  The compiled twin
-    (:func:`_kernel`) runs the same steps."""
+    Column operations on an int64 array, with every column's largest entry ``b`` kept along: when
+    a transformed column could reach 2**62 (``|Z_j - mu Z_i| <= b_j + |mu| b_i``) the product is
+    formed again in Python integers, which cannot overflow, and checked.  (A bound accumulated
+    through the operations instead of the columns' actual maxima reached 2**62 on real 47x47
+    reductions whose Z entries stay below 30, and sent them to the slow exact form.)  The compiled
+    twin (:func:`_kernel`) runs the same steps."""
     Z = np.eye(n, dtype=np.int64)
     if _kernel() is not None:
         if not ops:
@@ -423,10 +425,10 @@ def _z_matrix(ops, n):
     bound = [1.0] * n
     for i, j, mu in ops:
         if mu:
-            bound[j] += abs(mu) * bound[i]
-            if bound[j] >= 2.0**62:
+            if bound[j] + abs(float(mu)) * bound[i] >= 2.0**62:
                 return _z_matrix_exact(ops, n)
             Z[:, j] -= mu * Z[:, i]
+            bound[j] = float(np.abs(Z[:, j]).max())
         else:
             Z[:, [i, j]] = Z[:, [j, i]]
             bound[i], bound[j] = bound[j], bound[i]
