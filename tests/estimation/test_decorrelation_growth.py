@@ -103,3 +103,20 @@ def test_decorrelation_never_overflows(Q):
     Lr, dr, Z = _check_decorrelation(Q)
     assert np.abs(Z).max() < 10**6
     _python_and_kernel(Q)
+
+
+def test_z_matrix_stays_in_int64_when_its_entries_are_small(monkeypatch):
+    """The overflow guard follows the columns' actual largest entries: a real 47x47 reduction (|Z| < 30)
+    is formed in int64, on the kernel and on the Python loops, not in the exact Python-integer form."""
+    Q = np.load(REAL_Q)
+    L, d = amb.ld_factorize(Q)
+    _, _, ops = amb._reduce(L, d)
+    ref = amb._z_matrix_exact(ops, 47)
+
+    def no_exact(ops, n):
+        raise AssertionError("_z_matrix_exact called")
+
+    monkeypatch.setattr(amb, "_z_matrix_exact", no_exact)
+    np.testing.assert_array_equal(amb._z_matrix(ops, 47), ref)
+    monkeypatch.setenv("CDGPS_NO_KERNEL", "1")
+    np.testing.assert_array_equal(amb._z_matrix(ops, 47), ref)
