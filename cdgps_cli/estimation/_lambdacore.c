@@ -24,7 +24,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#define LAMBDA_API 1
+#define LAMBDA_API 2
 
 /* a C-contiguous float64 buffer of ``count`` elements (any count when negative) */
 static int get_f64(PyObject *obj, Py_buffer *v, Py_ssize_t count, int writable, const char *name)
@@ -120,16 +120,24 @@ static int swap_if_shorter(double *L, double *d, int n, Ops *o, int k, double pe
     return 1;
 }
 
+/* ambiguity._reduce_column: column j from row start down, top down, where |L[i, j]| > 1/2 */
+static int reduce_column(double *L, int n, Ops *o, int j, int start)
+{
+    for (int i = start; i < n; i++) {
+        if (!(fabs(L[(Py_ssize_t)i * n + j]) > 0.5)) continue;
+        if (gauss(L, n, o, i, j) < 0) return -1;
+        if (o->overflow) return 0;
+    }
+    return 0;
+}
+
 /* ambiguity._size_reduce: the columns j with work to do, from the right, rows top down */
 static int size_reduce(double *L, int n, Ops *o, const uint8_t *todo)
 {
     for (int j = n - 3; j >= 0; j--) {
         if (!todo[j]) continue;
-        for (int i = j + 2; i < n; i++) {
-            if (!(fabs(L[(Py_ssize_t)i * n + j]) > 0.5)) continue;
-            if (gauss(L, n, o, i, j) < 0) return -1;
-            if (o->overflow) return 0;
-        }
+        if (reduce_column(L, n, o, j, j + 2) < 0) return -1;
+        if (o->overflow) return 0;
     }
     return 0;
 }
@@ -158,7 +166,7 @@ static PyObject *py_reduce(PyObject *self, PyObject *args)
     Py_BEGIN_ALLOW_THREADS
     int k = n - 2;
     while (k >= 0 && !fail && !o.overflow) {
-        if (gauss(L, n, &o, k + 1, k) < 0) { fail = 1; break; }
+        if (reduce_column(L, n, &o, k, k + 1) < 0) { fail = 1; break; }
         if (o.overflow) break;
         int s = swap_if_shorter(L, d, n, &o, k, perm_rtol);
         if (s < 0) { fail = 1; break; }
@@ -231,7 +239,8 @@ static int sub_mul(int64_t a, int64_t mu, int64_t b, int64_t *out)
 
 /* z_matrix(ops, Z): Z (n, n) int64, the identity on entry, becomes the product of the operations.
  * Returns 1 (done: the same Z as ambiguity._z_matrix), 0 when _z_matrix would have turned to its exact
- * Python-integer form (the bound on an entry reached 2**62; Z is then left unspecified). */
+ * Python-integer form (the next column could reach 2**62 by the bound from the columns' largest
+ * entries; Z is then left unspecified). */
 static PyObject *py_z_matrix(PyObject *self, PyObject *args)
 {
     (void)self;
@@ -274,10 +283,14 @@ static PyObject *py_z_matrix(PyObject *self, PyObject *args)
             break;
         }
         if (mu) {
-            bound[j] += fabs((double)mu) * bound[i];
-            if (bound[j] >= 4611686018427387904.0) { ok = 0; break; }
-            for (Py_ssize_t r = 0; r < n; r++)
+            if (bound[j] + fabs((double)mu) * bound[i] >= 4611686018427387904.0) { ok = 0; break; }
+            double big = 0.0;
+            for (Py_ssize_t r = 0; r < n; r++) {
                 if (!sub_mul(Z[r * n + j], mu, Z[r * n + i], &Z[r * n + j])) { ok = 0; break; }
+                double a = fabs((double)Z[r * n + j]);
+                if (a > big) big = a;
+            }
+            bound[j] = big;
         } else {
             for (Py_ssize_t r = 0; r < n; r++) {
                 int64_t s = Z[r * n + i];

@@ -301,14 +301,17 @@ def _fix(st, groups, opt, carried):
     if not plus:
         return None, 0, np.nan, None, False
     plus, minus = np.concatenate(plus), np.concatenate(minus)
-    T = np.zeros((plus.size, len(st.x)))          # the DD operator on the SD ambiguity columns
-    T[np.arange(plus.size), plus] = 1.0
-    T[np.arange(plus.size), minus] = -1.0
-    a = T @ st.x
-    Qa = T @ st.P @ T.T
+    # the DD operator T (rows e_plus - e_minus on the SD ambiguity columns) applied by indexing:
+    # T x and T P Tᵀ are the same numbers as the products (each entry one difference of two terms)
+    a = st.x[plus] - st.x[minus]
+    TP = st.P[plus] - st.P[minus]
+    Qa = TP[:, plus] - TP[:, minus]
     res = carried.resolve(tuple(keys), a, 0.5 * (Qa + Qa.T), opt["ratio"], opt["min_success_rate"])
     if not res["accepted"]:
         return None, 0, res["ratio"], None, False
+    T = np.zeros((plus.size, len(st.x)))
+    T[np.arange(plus.size), plus] = 1.0
+    T[np.arange(plus.size), minus] = -1.0
     Ts = res["rows"] @ T                                      # the fixed integer combinations of the state
     Qs = Ts @ st.P @ Ts.T
     Pxs = st.P[:3] @ Ts.T
