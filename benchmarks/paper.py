@@ -23,12 +23,15 @@ import datetime
 import importlib.util
 import json
 import math
+import os
 import platform
+import resource
 import shutil
 import subprocess
 import sys
 import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -53,6 +56,8 @@ PAPER_WEIGHT_SEEDS = 3
 OPEN_PULSE_PP_DEG, OPEN_PULSE_TOL = 10.0, 0.3
 #: the pulse with the paper's EKF read literally (Eq. 18 with the pulse in u, the paper's W): W's scale
 PULSE_EQ18_W_SCALE = 1.0
+#: simulations run at once (each is its own `cdgps` process): the 2 cores of the reference machine
+JOBS = int(os.environ.get("CDGPS_PAPER_JOBS", "2"))
 ALL = ("1995", "model", "static", "psd", "fig6", "pulse", "slew", "tracking")
 
 
@@ -82,6 +87,22 @@ def cdgps(*args, cwd=None) -> str:
 
 def cdgps_json(*args) -> dict:
     return json.loads(cdgps(*args, "--json"))
+
+
+def _pmap(fn, items) -> list:
+    """``[fn(*i) for i in items]``, JOBS at a time (the runs are independent subprocesses writing to their
+    own folders, so threads suffice); results in the order of ``items``."""
+    items = list(items)
+    if JOBS <= 1 or len(items) <= 1:
+        return [fn(*i) for i in items]
+    with ThreadPoolExecutor(max_workers=JOBS) as ex:
+        return list(ex.map(lambda i: fn(*i), items))
+
+
+def _cpu_s() -> float:
+    """CPU seconds (user + system) of this process and its finished children so far."""
+    me, ch = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime + ch.ru_utime + ch.ru_stime
 
 
 def _chain(steps) -> dict:
@@ -301,11 +322,21 @@ def hfig6(w: Path, figdir: Path) -> list[Headline]:
              "experiments (below).")]
 
 
-def _pulse(w: Path, seed: int, g: Path, tag: str, extra=()) -> dict:
-    common = ("--scenario", "pulse", "--duration", 20, "--seed", seed, "--disturbance-scale", 0.05)
-    o, c = w / f"pulse-open-{seed}", w / f"pulse-closed-{tag}-{seed}"
+def _pulse_args(seed: int) -> tuple:
+    return ("--scenario", "pulse", "--duration", 20, "--seed", seed, "--disturbance-scale", 0.05)
+
+
+def _open_pulse(w: Path, seed: int) -> Path:
+    """The open-loop pulse of one seed (simulated once, shared by every closed-loop run of that seed)."""
+    o = w / f"pulse-open-{seed}"
     if not o.exists():
-        cdgps("simulate", TESTBED, *common, "-o", o)
+        cdgps("simulate", TESTBED, *_pulse_args(seed), "-o", o)
+    return o
+
+
+def _pulse(w: Path, seed: int, g: Path, tag: str, extra=()) -> dict:
+    common = _pulse_args(seed)
+    o, c = _open_pulse(w, seed), w / f"pulse-closed-{tag}-{seed}"
     cdgps("simulate", TESTBED, *common, "--controller", g, *extra, "-o", c)
     return cdgps_json("report", "control", g, "--open", o, "--closed", c, "--date", "2026-01-01", "-o",
                       w / f"pulse-rep-{tag}-{seed}")
@@ -387,12 +418,15 @@ def _back(seconds: float) -> str:
 def hpulse(w: Path, figdir: Path, seeds: int) -> list[Headline]:
     g, _, cmds = _design(w, EXPERIMENT_WEIGHTS)
     gp, _, cmds_p = _design(w, "paper")
-    run = _pulse_summary([_pulse(w, s, g, EXPERIMENT_WEIGHTS) for s in range(1, seeds + 1)])
-    pap = _pulse_summary([_pulse(w, s, gp, "paper") for s in range(1, min(seeds, PAPER_WEIGHT_SEEDS) + 1)])
     f6 = _fig6_weights()
     g6, _, cmds_6 = _design(w, "paper", f6["qx"])
-    fig6w = _pulse_summary([_pulse(w, s, g6, "fig6") for s in range(1, min(seeds, PAPER_WEIGHT_SEEDS) + 1)])
-    truth = _pulse_summary([_pulse(w, 1, gp, "paper-truth", ("--feedback", "truth"))])
+    npap = min(seeds, PAPER_WEIGHT_SEEDS)
+    _pmap(_open_pulse, [(w, s) for s in range(1, seeds + 1)])        # the open-loop runs first, once per seed
+    reps = _pmap(_pulse, [(w, s, g, EXPERIMENT_WEIGHTS) for s in range(1, seeds + 1)]
+                 + [(w, s, gp, "paper") for s in range(1, npap + 1)] + [(w, s, g6, "fig6") for s in range(1, npap + 1)]
+                 + [(w, 1, gp, "paper-truth", ("--feedback", "truth"))])
+    run, pap = _pulse_summary(reps[:seeds]), _pulse_summary(reps[seeds:seeds + npap])
+    fig6w, truth = _pulse_summary(reps[seeds + npap:seeds + 2 * npap]), _pulse_summary(reps[-1:])
     eq18 = _pulse_summary([_pulse_eq18(w, s, g, f"{EXPERIMENT_WEIGHTS}-eq18") for s in range(1, seeds + 1)])
     dec = _pulse_decomposition(seeds)
     fig = _figure(w / f"pulse-rep-{EXPERIMENT_WEIGHTS}-eq18-1" / "pulse.png", "paper-fig10-pulse.png", figdir)
@@ -468,11 +502,15 @@ def _largest(runs, names):
 def hslew(w: Path, figdir: Path, seeds: int) -> list[Headline]:
     g, _, cmds = _design(w, EXPERIMENT_WEIGHTS)
     gp, _, _ = _design(w, "paper")
-    vib = [_slew(w, s, g, "vib") for s in range(1, seeds + 1)]
-    novib = [_slew(w, s, g, "novib", ("--no-vibration-control",)) for s in range(1, min(seeds, 5) + 1)]
-    pap = [_slew(w, s, gp, "paper") for s in range(1, min(seeds, PAPER_WEIGHT_SEEDS) + 1)]
-    step_v = [_step_slew(w, s, g, "vib") for s in range(1, STEP_SEEDS + 1)]
-    step_nv = [_step_slew(w, s, g, "novib", ("--no-vibration-control",)) for s in range(1, STEP_SEEDS + 1)]
+    nv, npap = min(seeds, 5), min(seeds, PAPER_WEIGHT_SEEDS)
+    runs = _pmap(lambda f, *a: f(*a), [(_slew, w, s, g, "vib") for s in range(1, seeds + 1)]
+                 + [(_slew, w, s, g, "novib", ("--no-vibration-control",)) for s in range(1, nv + 1)]
+                 + [(_slew, w, s, gp, "paper") for s in range(1, npap + 1)]
+                 + [(_step_slew, w, s, g, "vib") for s in range(1, STEP_SEEDS + 1)]
+                 + [(_step_slew, w, s, g, "novib", ("--no-vibration-control",)) for s in range(1, STEP_SEEDS + 1)])
+    vib, runs = runs[:seeds], runs[seeds:]
+    novib, pap, runs = runs[:nv], runs[nv:nv + npap], runs[nv + npap:]
+    step_v, step_nv = runs[:STEP_SEEDS], runs[STEP_SEEDS:]
     layout = _layout_study()
     est = _static_slew_deformation()
     arrived, final = _worst(vib, "arrived_s_after_command"), _worst(vib, "final_error_deg")
@@ -721,12 +759,14 @@ def main(argv=None) -> int:
     rows: list[Headline] = []
     with tempfile.TemporaryDirectory(prefix="cdgps-paper-") as tmp:
         for n in names:
-            t = time.perf_counter()
+            t, cpu = time.perf_counter(), _cpu_s()
             got = RUNNERS[n](Path(tmp), a.out / "figures", a)
+            wall_s, cpu_s = time.perf_counter() - t, _cpu_s() - cpu
             for h in got:
                 h.key = n
+                h.values.setdefault("runner_time_s", {"wall": round(wall_s, 1), "cpu": round(cpu_s, 1), "jobs": JOBS})
             rows += got
-            print(f"{n}: {time.perf_counter() - t:.0f} s: " + "; ".join(f"{h.ours} [{h.met}]" for h in got), flush=True)
+            print(f"{n}: {wall_s:.0f} s ({cpu_s:.0f} CPU s): " + "; ".join(f"{h.ours} [{h.met}]" for h in got), flush=True)
     runtime = time.perf_counter() - t0
     bench = a.out / "benchmarks" / "paper.json"
     if a.only and bench.exists():            # keep the other headlines of the last full run, in ALL's order
