@@ -11,7 +11,7 @@ fresh simulations, plus the tracking studies of ``benchmarks/tracking_paper.py``
 
 Nothing is tuned to fit: a headline that is not reproduced says so with the measurement.
 
-    python benchmarks/paper.py                 # everything (≈ 10-15 min on 2 cores)
+    python benchmarks/paper.py                 # everything (≈ 3 min on 2 quiet cores)
     python benchmarks/paper.py --quick         # 1995, the static test, Fig. 6 (≈ 1 min; what `make test` runs)
     python benchmarks/paper.py --only 1995,fig6 --out /tmp/paper   # some headlines, elsewhere
 """
