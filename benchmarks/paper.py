@@ -791,7 +791,7 @@ def _md(rows: list[Headline], runtime_s: float, quick: bool) -> str:
            + f" on {datetime.date.today().isoformat()}; the numbers are in `docs/benchmarks/paper.json`. Each row gives the "
            "paper's statement, ours, whether it is reproduced, and the commands that measure it. Where the comparison "
            "is not like for like, or a number is not reproduced, the note says why with the measurement; nothing was "
-           "tuned to fit.", "",
+           "tuned to fit. In the commands, `$WORK` is the run's temporary folder.", "",
            "| paper | where | the paper says | we measure | reproduced |", "|---|---|---|---|---|"]
     for h in rows:
         out.append(f"| {h.paper} | {h.where} | {h.claim} | {h.ours} | {mark[h.met]} |")
@@ -811,6 +811,14 @@ def _md(rows: list[Headline], runtime_s: float, quick: bool) -> str:
 RUNNERS = {"1995": lambda w, f, a: h1995(w, f), "model": lambda w, f, a: hmodel(w, f), "static": lambda w, f, a: hstatic(w, f), "psd": lambda w, f, a: hpsd(w, f),
            "fig6": lambda w, f, a: hfig6(w, f), "pulse": lambda w, f, a: hpulse(w, f, a.pulse_seeds),
            "slew": lambda w, f, a: hslew(w, f, a.slew_seeds), "tracking": lambda w, f, a: htracking(w, f)}
+
+
+def _drop_work_folder(rows: list[Headline], tmp: str) -> None:
+    """Write the run's temporary folder as ``$WORK`` in every headline's commands, so the generated page
+    and json do not change from run to run by a random folder name."""
+    for h in rows:
+        h.commands = [c.replace(tmp, "$WORK") for c in h.commands]
+        h.values = json.loads(json.dumps(h.values, default=str).replace(tmp, "$WORK"))
 
 
 def main(argv=None) -> int:
@@ -844,6 +852,7 @@ def main(argv=None) -> int:
         rows = sorted(earlier + rows, key=lambda h: ALL.index(h.key) if h.key in ALL else len(ALL))
         runtime = None
     a.out.mkdir(parents=True, exist_ok=True)
+    _drop_work_folder(rows, tmp)
     (a.out / "paper-reproduction.md").write_text(_md(rows, runtime, a.quick) + "\n")
     bench.parent.mkdir(parents=True, exist_ok=True)
     bench.write_text(json.dumps({"benchmark": "benchmarks/paper.py", "headlines": [asdict(h) for h in rows],

@@ -38,6 +38,8 @@ def test_quick_paper_reproduction(tmp_path):
     assert abs(model["values"]["error_pct_12m_threads"]["swing"] + 10.1) < 0.2   # the paper's 12 m threads: bound
     md = (tmp_path / "paper-reproduction.md").read_text()
     assert md.count("| 199") == len(rows) and "**no**" in md and (tmp_path / "figures" / "paper-static.png").exists()
+    # the run's random temporary folder appears as $WORK, so the page does not change from run to run
+    assert "cdgps-paper-" not in md + (tmp_path / "benchmarks" / "paper.json").read_text() and "$WORK/" in md
 
 
 def test_noise_suppression_is_the_high_frequency_ratio_of_the_loops():
