@@ -154,6 +154,24 @@ def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_succ
     return {"offset_m": off, "cov_m2": cov, "resolution": res, "pairs": pairs, "dd_float": a}
 
 
+#: options the static engine does not honour yet: refused by name rather than silently ignored
+_NOT_YET = {"glonass_fix": "GLONASS ambiguities stay float on the static engine",
+            "fix_and_hold": "fix-and-hold is a kinematic (rtk) option"}
+
+
+def _static_options(options: dict | None) -> dict:
+    """Defaults merged with ``options``; CdgpsError naming an unknown key or one the engine does not honour."""
+    opt = {"partial": GNSS_DEFAULTS["partial"], **MULTI_GNSS_DEFAULTS}
+    unknown = sorted(set(options or {}) - set(opt))
+    if unknown:
+        raise CdgpsError(f"static baseline: unknown option(s) {', '.join(unknown)}; known: {', '.join(sorted(opt))}")
+    opt.update(options or {})
+    for key, why in _NOT_YET.items():
+        if opt[key]:
+            raise CdgpsError(f"static baseline: option {key} = {opt[key]!r} is not supported ({why})")
+    return opt
+
+
 def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None = None) -> dict:
     """Static baseline on the one engine: rtk's epoch pairing and SD rows, :func:`static_filter`, :func:`static_fix`.
 
@@ -165,7 +183,8 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
         Known base position and the rover's a-priori position (the offset's origin), ECEF m.
     options : dict
         Keys of :data:`~cdgps_cli.config.options.MULTI_GNSS_DEFAULTS` (``ratio``, ``partial``,
-        ``min_success_rate``, the weights and the mask are used).
+        ``min_success_rate``, ``fix`` (False: float only, ``resolution`` None), the weights and the mask
+        are used); an unknown key, or ``glonass_fix`` / ``fix_and_hold`` set, raises CdgpsError.
 
     Returns
     -------
@@ -174,7 +193,7 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
         ``cov_m2`` (3, 3); ``float_offset_m`` (3,), ``float_cov_m2`` (3, 3); ``resolution``
         (:func:`~cdgps_cli.estimation.ambiguity.resolve`'s dict); ``pairs``; ``epochs_used``; ``epoch_pairing``.
     """
-    opt = {"partial": GNSS_DEFAULTS["partial"], **MULTI_GNSS_DEFAULTS, **(options or {})}
+    opt = _static_options(options)
     pairs = pair_epochs(rover["time_gps_s"].to_numpy(), base["time_gps_s"].to_numpy(),
                         sync_tol_s=opt["sync_tol_s"], max_age_s=opt["max_age_s"])
     times = pairs.rover_time_s
@@ -182,7 +201,10 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
     if rows["sats"].size == 0:
         raise CdgpsError("no common observations: no satellite observed at both receivers above the mask")
     x, P, cols = static_filter(rows, times, base_xyz_m, rover_xyz0_m)
-    f = static_fix(x, P, rows, cols, ratio=opt["ratio"], partial=opt["partial"],
-                   min_success_rate=opt["min_success_rate"])
+    if not opt["fix"]:
+        f = {"offset_m": x[:3].copy(), "cov_m2": P[:3, :3].copy(), "resolution": None, "pairs": [], "dd_float": None}
+    else:
+        f = static_fix(x, P, rows, cols, ratio=opt["ratio"], partial=opt["partial"],
+                       min_success_rate=opt["min_success_rate"])
     return {**f, "float_offset_m": x[:3], "float_cov_m2": P[:3, :3], "epochs_used": int(times.size),
             "epoch_pairing": pairs.summary}

@@ -128,3 +128,28 @@ def test_engine_matches_golden(case):
     np.testing.assert_allclose(R @ res["float_offset_m"], g["float_enu_m"], atol=3e-4, rtol=0)
     np.testing.assert_allclose(np.sqrt(np.diag(R @ res["cov_m2"] @ R.T)), g["sigma_enu_m"], rtol=1e-3)
     assert res["resolution"]["ratio"] == pytest.approx(g["ratio"], rel=0.1)
+
+
+@pytest.mark.parametrize("options, word", [({"ratoi": 3.0}, "ratoi"), ({"glonass_fix": True}, "glonass_fix"),
+                                           ({"fix_and_hold": True}, "fix_and_hold")])
+def test_static_options_refused_by_name(options, word):
+    """An unknown option, or one the engine does not honour yet, is refused naming it (not ignored)."""
+    from cdgps_cli.core.errors import CdgpsError
+    from cdgps_cli.estimation.static_engine import _static_options
+    with pytest.raises(CdgpsError, match=word):
+        _static_options(options)
+    assert _static_options({"ratio": 2.5})["ratio"] == 2.5
+
+
+def test_static_fix_false_gives_the_float_solution():
+    from cdgps_cli.estimation.static_engine import static_baseline
+    base, rover, navs, master_xyz, rover_xyz, sig = CASES["mosaic_gps_l1"]
+    if not Path(base).exists():
+        pytest.skip(f"{base} absent")
+    master_xyz, rover_xyz = np.array(master_xyz), np.array(rover_xyz)
+    nav = pd.concat([read_rinex_nav(n, systems=(s,)) for n, s in navs])
+    g = [receiver_geometry(read_rinex_signals(f, sig)[1], nav, xyz) for f, xyz in ((base, master_xyz), (rover, rover_xyz))]
+    res = static_baseline(g[0], g[1], master_xyz, rover_xyz, {"fix": False})
+    assert res["resolution"] is None
+    np.testing.assert_array_equal(res["offset_m"], res["float_offset_m"])
+    np.testing.assert_array_equal(res["cov_m2"], res["float_cov_m2"])
