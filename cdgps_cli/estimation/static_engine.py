@@ -184,7 +184,8 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
     options : dict
         Keys of :data:`~cdgps_cli.config.options.MULTI_GNSS_DEFAULTS` (``ratio``, ``partial``,
         ``min_success_rate``, ``fix`` (False: float only, ``resolution`` None), the weights and the mask
-        are used); an unknown key, or ``glonass_fix`` / ``fix_and_hold`` set, raises CdgpsError.
+        are used); an unknown key, or ``glonass_fix`` / ``fix_and_hold`` set, raises CdgpsError, as does a
+        multi-signal baseline at or above ``iono_threshold_km`` (the DD ionosphere is neglected, as ``init``'s).
 
     Returns
     -------
@@ -200,6 +201,10 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
     rows = paired_sd_rows(base, rover, pairs, opt)
     if rows["sats"].size == 0:
         raise CdgpsError("no common observations: no satellite observed at both receivers above the mask")
+    if np.unique(rows["code"]).size > 1:           # multi-signal: the DD ionosphere is neglected (as init's)
+        from cdgps_cli.estimation.baseline import check_iono_rule
+        check_iono_rule("base", "rover", float(np.linalg.norm(np.subtract(rover_xyz0_m, base_xyz_m))),
+                        opt["iono_threshold_km"])
     x, P, cols = static_filter(rows, times, base_xyz_m, rover_xyz0_m)
     if not opt["fix"]:
         f = {"offset_m": x[:3].copy(), "cov_m2": P[:3, :3].copy(), "resolution": None, "pairs": [], "dd_float": None}

@@ -162,3 +162,18 @@ def test_static_fix_false_gives_the_float_solution():
     assert res["resolution"] is None
     np.testing.assert_array_equal(res["offset_m"], res["float_offset_m"])
     np.testing.assert_array_equal(res["cov_m2"], res["float_cov_m2"])
+
+
+def test_static_long_multi_signal_baseline_refused():
+    """A multi-signal baseline at or above iono_threshold_km is refused naming the key (as init's check_iono_rule);
+    the Spirent G+E dual baseline is 2.0 km: refused at a 1 km threshold."""
+    from cdgps_cli.core.errors import CdgpsError
+    from cdgps_cli.estimation.static_engine import static_baseline
+    base, rover, navs, master_xyz, rover_xyz, sig = CASES["spirent_ge_dual_init"]
+    if not Path(base).exists():
+        pytest.skip(f"{base} absent")
+    master_xyz, rover_xyz = np.array(master_xyz), np.array(rover_xyz)
+    nav = pd.concat([read_rinex_nav(n, systems=(s,)) for n, s in navs])
+    g = [receiver_geometry(read_rinex_signals(f, sig)[1], nav, xyz) for f, xyz in ((base, master_xyz), (rover, rover_xyz))]
+    with pytest.raises(CdgpsError, match="iono_threshold_km"):
+        static_baseline(g[0], g[1], master_xyz, rover_xyz, {"iono_threshold_km": 1.0})
