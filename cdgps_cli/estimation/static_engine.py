@@ -172,6 +172,39 @@ def _static_options(options: dict | None) -> dict:
     return opt
 
 
+#: BaselineOptions fields the engine honours, and their engine option names
+_HONOURED = {"mask_deg": "mask_deg", "ratio_threshold": "ratio", "partial": "partial", "fix": "fix",
+             "sigma_a_m": "sigma_a_m", "sigma_b_m": "sigma_b_m", "code_ratio": "code_ratio",
+             "troposphere": "troposphere", "sync_tol_s": "sync_tol_s", "max_age_s": "max_age_s",
+             "code_correlation_s": "code_correlation_s", "min_success_rate": "min_success_rate"}
+#: BaselineOptions fields the engine does not implement: only this value is accepted (the engine's behaviour)
+_FIXED_VALUE = {"weighting": "elevation", "epoch_alignment": "geometry", "motion": "static", "max_gap_s": None,
+                "kinematic_series": False}
+
+
+def options_from_baseline(bopt) -> dict:
+    """:class:`~cdgps_cli.estimation.baseline.BaselineOptions` → :func:`static_baseline` options.
+
+    Fields in ``_HONOURED`` are mapped; a field in ``_FIXED_VALUE`` set otherwise raises CdgpsError naming
+    it; the remaining ones (``max_iterations``, ``initial_sigma_m``, the kinematic-series and random-walk
+    settings) must keep their defaults, else CdgpsError naming them.
+    """
+    from dataclasses import fields
+    out = {}
+    for f in fields(bopt):
+        v = getattr(bopt, f.name)
+        if f.name in _HONOURED:
+            out[_HONOURED[f.name]] = v
+        elif f.name in _FIXED_VALUE:
+            if v != _FIXED_VALUE[f.name]:
+                raise CdgpsError(f"static baseline: option {f.name} = {v!r} is not supported by the static engine "
+                                 f"(only {_FIXED_VALUE[f.name]!r})")
+        elif v != f.default:
+            raise CdgpsError(f"static baseline: option {f.name} = {v!r} is not supported by the static engine "
+                             f"(only its default {f.default!r})")
+    return out
+
+
 def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None = None) -> dict:
     """Static baseline on the one engine: rtk's epoch pairing and SD rows, :func:`static_filter`, :func:`static_fix`.
 

@@ -177,3 +177,17 @@ def test_static_long_multi_signal_baseline_refused():
     g = [receiver_geometry(read_rinex_signals(f, sig)[1], nav, xyz) for f, xyz in ((base, master_xyz), (rover, rover_xyz))]
     with pytest.raises(CdgpsError, match="iono_threshold_km"):
         static_baseline(g[0], g[1], master_xyz, rover_xyz, {"iono_threshold_km": 1.0})
+
+
+def test_baseline_options_mapped_or_refused_by_name():
+    """Every BaselineOptions field is either mapped onto the engine's options or refused naming it."""
+    from cdgps_cli.core.errors import CdgpsError
+    from cdgps_cli.estimation.baseline import BaselineOptions
+    from cdgps_cli.estimation.static_engine import _static_options, options_from_baseline
+    o = options_from_baseline(BaselineOptions(kinematic_series=False, ratio_threshold=2.0, mask_deg=10.0))
+    assert o["ratio"] == 2.0 and o["mask_deg"] == 10.0
+    _static_options(o)                                            # every mapped key is an engine option
+    for bad in ({"weighting": "equal"}, {"epoch_alignment": "doppler"}, {"motion": "random_walk"},
+                {"max_gap_s": 60.0}, {"kinematic_series": True}, {"max_iterations": 3}, {"initial_sigma_m": 5.0}):
+        with pytest.raises(CdgpsError, match=next(iter(bad))):
+            options_from_baseline(BaselineOptions(**{"kinematic_series": False, **bad}))
