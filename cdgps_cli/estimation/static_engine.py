@@ -6,7 +6,9 @@ State: rover offset from ``origin`` (3, m) and one SD ambiguity per lock arc (cy
 satellite's signal between slips), all sized up front.  With no process noise the filter's final
 state is the batch least-squares solution with the same prior (the information adds up epoch by
 epoch); :func:`static_normal_equations` forms that batch answer directly, as an independent check.
-Work in progress: ``baseline`` and ``init`` still call :func:`~cdgps_cli.estimation.baseline.solve_static_baseline`.
+Options: :func:`options_from_baseline` maps BaselineOptions (refusing by name what the engine does
+not implement).  Work in progress: ``baseline`` and ``init`` still call
+:func:`~cdgps_cli.estimation.baseline.solve_static_baseline`.
 """
 
 import numpy as np
