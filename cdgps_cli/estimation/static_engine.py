@@ -6,7 +6,9 @@ State: rover offset from ``origin`` (3, m) and one SD ambiguity per lock arc (cy
 satellite's signal between slips), all sized up front.  With no process noise the filter's final
 state is the batch least-squares solution with the same prior (the information adds up epoch by
 epoch); :func:`static_normal_equations` forms that batch answer directly, as an independent check.
-Work in progress: ``baseline`` and ``init`` still call :func:`~cdgps_cli.estimation.baseline.solve_static_baseline`.
+Options: :func:`options_from_baseline` maps BaselineOptions (refusing by name what the engine does
+not implement).  Work in progress: ``baseline`` and ``init`` still call
+:func:`~cdgps_cli.estimation.baseline.solve_static_baseline`.
 """
 
 import numpy as np
@@ -154,6 +156,57 @@ def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_succ
     return {"offset_m": off, "cov_m2": cov, "resolution": res, "pairs": pairs, "dd_float": a}
 
 
+#: options the static engine does not honour yet: refused by name rather than silently ignored
+_NOT_YET = {"glonass_fix": "GLONASS ambiguities stay float on the static engine",
+            "fix_and_hold": "fix-and-hold is a kinematic (rtk) option"}
+
+
+def _static_options(options: dict | None) -> dict:
+    """Defaults merged with ``options``; CdgpsError naming an unknown key or one the engine does not honour."""
+    opt = {"partial": GNSS_DEFAULTS["partial"], **MULTI_GNSS_DEFAULTS}
+    unknown = sorted(set(options or {}) - set(opt))
+    if unknown:
+        raise CdgpsError(f"static baseline: unknown option(s) {', '.join(unknown)}; known: {', '.join(sorted(opt))}")
+    opt.update(options or {})
+    for key, why in _NOT_YET.items():
+        if opt[key]:
+            raise CdgpsError(f"static baseline: option {key} = {opt[key]!r} is not supported ({why})")
+    return opt
+
+
+#: BaselineOptions fields the engine honours, and their engine option names
+_HONOURED = {"mask_deg": "mask_deg", "ratio_threshold": "ratio", "partial": "partial", "fix": "fix",
+             "sigma_a_m": "sigma_a_m", "sigma_b_m": "sigma_b_m", "code_ratio": "code_ratio",
+             "troposphere": "troposphere", "sync_tol_s": "sync_tol_s", "max_age_s": "max_age_s",
+             "code_correlation_s": "code_correlation_s", "min_success_rate": "min_success_rate"}
+#: BaselineOptions fields the engine does not implement: only this value is accepted (the engine's behaviour)
+_FIXED_VALUE = {"weighting": "elevation", "epoch_alignment": "geometry", "motion": "static", "max_gap_s": None,
+                "kinematic_series": False}
+
+
+def options_from_baseline(bopt) -> dict:
+    """:class:`~cdgps_cli.estimation.baseline.BaselineOptions` → :func:`static_baseline` options.
+
+    Fields in ``_HONOURED`` are mapped; a field in ``_FIXED_VALUE`` set otherwise raises CdgpsError naming
+    it; the remaining ones (``max_iterations``, ``initial_sigma_m``, the kinematic-series and random-walk
+    settings) must keep their defaults, else CdgpsError naming them.
+    """
+    from dataclasses import fields
+    out = {}
+    for f in fields(bopt):
+        v = getattr(bopt, f.name)
+        if f.name in _HONOURED:
+            out[_HONOURED[f.name]] = v
+        elif f.name in _FIXED_VALUE:
+            if v != _FIXED_VALUE[f.name]:
+                raise CdgpsError(f"static baseline: option {f.name} = {v!r} is not supported by the static engine "
+                                 f"(only {_FIXED_VALUE[f.name]!r})")
+        elif v != f.default:
+            raise CdgpsError(f"static baseline: option {f.name} = {v!r} is not supported by the static engine "
+                             f"(only its default {f.default!r})")
+    return out
+
+
 def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None = None) -> dict:
     """Static baseline on the one engine: rtk's epoch pairing and SD rows, :func:`static_filter`, :func:`static_fix`.
 
@@ -165,7 +218,9 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
         Known base position and the rover's a-priori position (the offset's origin), ECEF m.
     options : dict
         Keys of :data:`~cdgps_cli.config.options.MULTI_GNSS_DEFAULTS` (``ratio``, ``partial``,
-        ``min_success_rate``, the weights and the mask are used).
+        ``min_success_rate``, ``fix`` (False: float only, ``resolution`` None), the weights and the mask
+        are used); an unknown key, or ``glonass_fix`` / ``fix_and_hold`` set, raises CdgpsError, as does a
+        multi-signal baseline at or above ``iono_threshold_km`` (the DD ionosphere is neglected, as ``init``'s).
 
     Returns
     -------
@@ -174,15 +229,22 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
         ``cov_m2`` (3, 3); ``float_offset_m`` (3,), ``float_cov_m2`` (3, 3); ``resolution``
         (:func:`~cdgps_cli.estimation.ambiguity.resolve`'s dict); ``pairs``; ``epochs_used``; ``epoch_pairing``.
     """
-    opt = {"partial": GNSS_DEFAULTS["partial"], **MULTI_GNSS_DEFAULTS, **(options or {})}
+    opt = _static_options(options)
     pairs = pair_epochs(rover["time_gps_s"].to_numpy(), base["time_gps_s"].to_numpy(),
                         sync_tol_s=opt["sync_tol_s"], max_age_s=opt["max_age_s"])
     times = pairs.rover_time_s
     rows = paired_sd_rows(base, rover, pairs, opt)
     if rows["sats"].size == 0:
         raise CdgpsError("no common observations: no satellite observed at both receivers above the mask")
+    if np.unique(rows["code"]).size > 1:           # multi-signal: the DD ionosphere is neglected (as init's)
+        from cdgps_cli.estimation.baseline import check_iono_rule
+        check_iono_rule("base", "rover", float(np.linalg.norm(np.subtract(rover_xyz0_m, base_xyz_m))),
+                        opt["iono_threshold_km"])
     x, P, cols = static_filter(rows, times, base_xyz_m, rover_xyz0_m)
-    f = static_fix(x, P, rows, cols, ratio=opt["ratio"], partial=opt["partial"],
-                   min_success_rate=opt["min_success_rate"])
+    if not opt["fix"]:
+        f = {"offset_m": x[:3].copy(), "cov_m2": P[:3, :3].copy(), "resolution": None, "pairs": [], "dd_float": None}
+    else:
+        f = static_fix(x, P, rows, cols, ratio=opt["ratio"], partial=opt["partial"],
+                       min_success_rate=opt["min_success_rate"])
     return {**f, "float_offset_m": x[:3], "float_cov_m2": P[:3, :3], "epochs_used": int(times.size),
             "epoch_pairing": pairs.summary}

@@ -97,6 +97,13 @@ CASES = {   # case: base, rover, navigation files (system), master and rover a-p
     "spirent_ge_dual_init": (GE / "Base-static_MO_Spirent.obs", GE / "Rover-static-2km-east_MO_Spirent.obs",
                              [(GE / "RINEX_GN_Spirent.23N", "G"), (GE / "RINEX_EN_Spirent.23L", "E")], list(BASE),
                              [4156857.1196, 673209.0288, 4774767.0311], ["G:L1", "G:L2", "E:E1", "E:E5a"]),
+    "mosaic_gps_glonass_init": (MOSAIC / "base.obs", MOSAIC / "rover.obs", [(MOSAIC / "base.nav", "G"), (MOSAIC / "base.nav", "R")],
+                                [-3817680.727, 3562839.5216, 3650159.2407], [-3817680.9841, 3562840.0688, 3650158.4543],
+                                ["G:L1", "R:G1"]),
+    "geonet_gps_l1l2_init": (RINEX / "30400920.05o", RINEX / "07590920.05o",
+                             [(RINEX / "30400920.05n", "G"), (RINEX / "07590920.05n", "G")],
+                             [-3978242.4348, 3382841.1715, 3649902.7667], [-3976219.5082, 3382372.5671, 3652512.9849],
+                             ["G:L1", "G:L2"]),
 }
 
 
@@ -104,7 +111,8 @@ CASES = {   # case: base, rover, navigation files (system), master and rover a-p
 def test_engine_matches_golden(case):
     """Same integers, fixed ENU within 0.1 mm, float within 0.3 mm, σ within 0.1 %, ratio within 10 % of
     today's solve_static_baseline (measured: fixed ≤ 0.02 mm, float ≤ 0.14 mm, σ ≤ 0.012 %; ratio
-    95.83 / 95.86, 894.7 / 898.9, 30208 / 28391 (6 %), 4824 / 4827: the float solutions differ by
+    95.83 / 95.86, 894.7 / 898.9, 30208 / 28391 (6 %), 4824 / 4827; mosaic G+R (GLONASS float) fixed
+    ≤ 0.062 mm, ratio 82.1 / 82.1; GEONET L1+L2 fixed ≤ 0.022 mm, ratio 157.5 / 157.7: the float solutions differ by
     the ambiguity prior the filter carries and the batch does not)."""
     import json
     from cdgps_cli.estimation.static_engine import static_baseline
@@ -121,10 +129,65 @@ def test_engine_matches_golden(case):
     R = np.asarray(enu_matrix(lat, lon))
     g = json.loads(GOLDEN.read_text())[case]
     fixed = res["resolution"]["integers"][res["resolution"]["fixed_mask"]].tolist()
-    pivots = len(g["integers"]) - len(fixed)                      # the golden lists each pivot with integer 0
-    assert pivots == len(sig) and sorted(fixed + [0] * pivots) == sorted(i[2] for i in g["integers"])
+    ints = [i[2] for i in g["integers"] if i[2] is not None]       # GLONASS (FDMA) segments: float, None
+    pivots = len(ints) - len(fixed)                                # the golden lists each pivot with integer 0
+    assert pivots == sum(not x.startswith("R:") for x in sig) and sorted(fixed + [0] * pivots) == sorted(ints)
     assert res["epochs_used"] == g["n_epochs_used"] and len(fixed) == g["n_fixed"]
     np.testing.assert_allclose(R @ res["offset_m"], g["fixed_enu_m"], atol=1e-4, rtol=0)
     np.testing.assert_allclose(R @ res["float_offset_m"], g["float_enu_m"], atol=3e-4, rtol=0)
     np.testing.assert_allclose(np.sqrt(np.diag(R @ res["cov_m2"] @ R.T)), g["sigma_enu_m"], rtol=1e-3)
     assert res["resolution"]["ratio"] == pytest.approx(g["ratio"], rel=0.1)
+
+
+@pytest.mark.parametrize("options, word", [({"ratoi": 3.0}, "ratoi"), ({"glonass_fix": True}, "glonass_fix"),
+                                           ({"fix_and_hold": True}, "fix_and_hold")])
+def test_static_options_refused_by_name(options, word):
+    """An unknown option, or one the engine does not honour yet, is refused naming it (not ignored)."""
+    from cdgps_cli.core.errors import CdgpsError
+    from cdgps_cli.estimation.static_engine import _static_options
+    with pytest.raises(CdgpsError, match=word):
+        _static_options(options)
+    assert _static_options({"ratio": 2.5})["ratio"] == 2.5
+
+
+def test_static_fix_false_gives_the_float_solution():
+    from cdgps_cli.estimation.static_engine import static_baseline
+    base, rover, navs, master_xyz, rover_xyz, sig = CASES["mosaic_gps_l1"]
+    if not Path(base).exists():
+        pytest.skip(f"{base} absent")
+    master_xyz, rover_xyz = np.array(master_xyz), np.array(rover_xyz)
+    nav = pd.concat([read_rinex_nav(n, systems=(s,)) for n, s in navs])
+    g = [receiver_geometry(read_rinex_signals(f, sig)[1], nav, xyz) for f, xyz in ((base, master_xyz), (rover, rover_xyz))]
+    res = static_baseline(g[0], g[1], master_xyz, rover_xyz, {"fix": False})
+    assert res["resolution"] is None
+    np.testing.assert_array_equal(res["offset_m"], res["float_offset_m"])
+    np.testing.assert_array_equal(res["cov_m2"], res["float_cov_m2"])
+
+
+def test_static_long_multi_signal_baseline_refused():
+    """A multi-signal baseline at or above iono_threshold_km is refused naming the key (as init's check_iono_rule);
+    the Spirent G+E dual baseline is 2.0 km: refused at a 1 km threshold."""
+    from cdgps_cli.core.errors import CdgpsError
+    from cdgps_cli.estimation.static_engine import static_baseline
+    base, rover, navs, master_xyz, rover_xyz, sig = CASES["spirent_ge_dual_init"]
+    if not Path(base).exists():
+        pytest.skip(f"{base} absent")
+    master_xyz, rover_xyz = np.array(master_xyz), np.array(rover_xyz)
+    nav = pd.concat([read_rinex_nav(n, systems=(s,)) for n, s in navs])
+    g = [receiver_geometry(read_rinex_signals(f, sig)[1], nav, xyz) for f, xyz in ((base, master_xyz), (rover, rover_xyz))]
+    with pytest.raises(CdgpsError, match="iono_threshold_km"):
+        static_baseline(g[0], g[1], master_xyz, rover_xyz, {"iono_threshold_km": 1.0})
+
+
+def test_baseline_options_mapped_or_refused_by_name():
+    """Every BaselineOptions field is either mapped onto the engine's options or refused naming it."""
+    from cdgps_cli.core.errors import CdgpsError
+    from cdgps_cli.estimation.baseline import BaselineOptions
+    from cdgps_cli.estimation.static_engine import _static_options, options_from_baseline
+    o = options_from_baseline(BaselineOptions(kinematic_series=False, ratio_threshold=2.0, mask_deg=10.0))
+    assert o["ratio"] == 2.0 and o["mask_deg"] == 10.0
+    _static_options(o)                                            # every mapped key is an engine option
+    for bad in ({"weighting": "equal"}, {"epoch_alignment": "doppler"}, {"motion": "random_walk"},
+                {"max_gap_s": 60.0}, {"kinematic_series": True}, {"max_iterations": 3}, {"initial_sigma_m": 5.0}):
+        with pytest.raises(CdgpsError, match=next(iter(bad))):
+            options_from_baseline(BaselineOptions(**{"kinematic_series": False, **bad}))
