@@ -455,20 +455,8 @@ def read_rinex_obs(path: str | Path, *, gps_l1_optional: bool = False) -> tuple[
         rows, summary = _parse_obs_v3(lines, end + 1, hdr, cols)
     info = hdr.info
     info.update(summary)
-    obs = pd.DataFrame(
-        {
-            "time_gps_s": np.asarray(rows["t"], dtype=np.float64),
-            "sat": np.asarray(rows["sat"], dtype=object),
-            "phase_l1_cycles": np.asarray(rows["phase"], dtype=np.float64),
-            "lli_l1": np.asarray(rows["lli"], dtype=np.int64),
-            "ssi_l1": np.asarray(rows["ssi"], dtype=np.int64),
-            "pseudorange_l1_m": np.asarray(rows["code"], dtype=np.float64),
-            "snr_l1_dbhz": np.asarray(rows["snr"], dtype=np.float64),
-            "rx_clock_offset_s": np.asarray(rows["clk"], dtype=np.float64),
-            "epoch_flag": np.asarray(rows["flag"], dtype=np.int64),
-        },
-        columns=list(OBS_COLUMNS),
-    )
+    cols_arr = _rows_arrays(rows)
+    obs = pd.DataFrame({name: cols_arr[k] for k, name in _ROW_COLUMNS}, columns=list(OBS_COLUMNS))
     obs = obs.sort_values(["time_gps_s", "sat"], kind="stable").reset_index(drop=True)
     info["gps_satellites"] = sorted(obs["sat"].unique().tolist())
     info["n_gps_epochs"] = int(obs["time_gps_s"].nunique())
@@ -477,8 +465,36 @@ def read_rinex_obs(path: str | Path, *, gps_l1_optional: bool = False) -> tuple[
     return info, obs
 
 
+_ROW_DTYPES = {"t": np.float64, "sat": object, "phase": np.float64, "lli": np.int64, "ssi": np.int64,
+               "code": np.float64, "snr": np.float64, "clk": np.float64, "flag": np.int64}
+_ROW_COLUMNS = (("t", "time_gps_s"), ("sat", "sat"), ("phase", "phase_l1_cycles"), ("lli", "lli_l1"),
+                ("ssi", "ssi_l1"), ("code", "pseudorange_l1_m"), ("snr", "snr_l1_dbhz"),
+                ("clk", "rx_clock_offset_s"), ("flag", "epoch_flag"))
+
+
 def _new_rows() -> dict:
-    return {"t": [], "sat": [], "phase": [], "lli": [], "ssi": [], "code": [], "snr": [], "clk": [], "flag": []}
+    """Row accumulator: per-column lists of scalars (record by record) and ``"_chunks"``, the
+    column arrays already done (bulk blocks and flushed scalars), in file order."""
+    rows = {k: [] for k in _ROW_DTYPES}
+    rows["_chunks"] = []
+    return rows
+
+
+def _flush_rows(rows: dict) -> None:
+    """Move the scalar rows into one chunk of typed arrays (keeps file order with bulk chunks)."""
+    if rows["t"]:
+        rows["_chunks"].append({k: np.asarray(rows[k], dtype=dt) for k, dt in _ROW_DTYPES.items()})
+        for k in _ROW_DTYPES:
+            rows[k] = []
+
+
+def _rows_arrays(rows: dict) -> dict:
+    """Every row as one typed array per column, in the order the rows were added."""
+    _flush_rows(rows)
+    chunks = rows["_chunks"]
+    if not chunks:
+        return {k: np.asarray([], dtype=dt) for k, dt in _ROW_DTYPES.items()}
+    return {k: np.concatenate([c[k] for c in chunks]).astype(dt, copy=False) for k, dt in _ROW_DTYPES.items()}
 
 
 class _Summary:
@@ -761,18 +777,20 @@ def _records_v3_bulk(lines, hdr: _ObsHeader, group, rows, summary) -> None:
     ep = np.repeat(np.arange(count.size), count)[gps]
     grecs = [recs[k] for k in gps.tolist()]
     width = 3 + 16 * max(cols.i_phase, cols.i_code, cols.i_snr) + 16
-    arr = np.array(grecs, dtype=f"U{width}")            # truncated / NUL-padded to the fields needed
-    chars = arr.view(np.uint32).reshape(len(grecs), width)
+    # one byte per character (latin-1, as the text was decoded), truncated / NUL-padded to the
+    # fields needed: a quarter of the memory of a 'U' array
+    arr = np.array([r.encode("latin-1") for r in grecs], dtype=f"S{width}")
+    chars = arr.view(np.uint8).reshape(len(grecs), width)
 
     def field(k):
         c = 3 + 16 * k
-        f = np.ascontiguousarray(chars[:, c:c + 14]).view("U14").ravel()
+        f = np.ascontiguousarray(chars[:, c:c + 14]).view("S14").ravel()
         return f
 
     def to_float(f):
         st = np.char.strip(f)
-        blank = st == ""
-        return np.where(blank, "nan", st).astype(np.float64)
+        blank = st == b""
+        return np.where(blank, b"nan", st).astype(np.float64)
 
     def digit(k, off):
         ch = chars[:, 3 + 16 * k + off].astype(np.int64)
@@ -816,15 +834,11 @@ def _records_v3_bulk(lines, hdr: _ObsHeader, group, rows, summary) -> None:
     ssi = np.where(has_ph, ssi, 0)
     k = np.flatnonzero(keep)
     e = ep[k]
-    rows["t"].extend(np.asarray(t_ep, dtype=np.float64)[e].tolist())
-    rows["sat"].extend(sats[gps[k]].tolist())
-    rows["phase"].extend(phase[k].tolist())
-    rows["lli"].extend(lli[k].tolist())
-    rows["ssi"].extend(ssi[k].tolist())
-    rows["code"].extend(code[k].tolist())
-    rows["snr"].extend(snr[k].tolist())
-    rows["clk"].extend(np.asarray(clk_ep, dtype=np.float64)[e].tolist())
-    rows["flag"].extend(np.asarray(flag_ep, dtype=np.int64)[e].tolist())
+    _flush_rows(rows)
+    rows["_chunks"].append({
+        "t": np.asarray(t_ep, dtype=np.float64)[e], "sat": sats[gps[k]], "phase": phase[k],
+        "lli": lli[k].astype(np.int64), "ssi": ssi[k].astype(np.int64), "code": code[k], "snr": snr[k],
+        "clk": np.asarray(clk_ep, dtype=np.float64)[e], "flag": np.asarray(flag_ep, dtype=np.int64)[e]})
 
 
 # ----------------------------------------------------------------------------------------------

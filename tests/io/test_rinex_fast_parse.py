@@ -177,3 +177,26 @@ def test_epochs_out_of_order_sort_as_before(tmp_path, variant):
     (_, old), (_, new) = _both(path, names)
     pd.testing.assert_frame_equal(old, new, check_exact=True)
     assert len(_fast_only(path, names)) == len(new)
+
+
+def test_row_chunks_keep_file_order_and_dtypes():
+    """Scalar rows (record by record) and bulk chunks interleave in the order they were added."""
+    from cdgps_cli.io import rinex
+
+    rows = rinex._new_rows()
+    scalar = {"t": 1.0, "sat": "G01", "phase": 1.5, "lli": 1, "ssi": 7, "code": 2.5, "snr": 40.0, "clk": 0.0, "flag": 0}
+    for k, v in scalar.items():
+        rows[k].append(v)
+    rinex._flush_rows(rows)
+    rows["_chunks"].append({"t": np.array([2.0, 2.0]), "sat": np.array(["G02", "G03"], dtype=object),
+                            "phase": np.array([3.0, np.nan]), "lli": np.array([0, 2]), "ssi": np.array([5, 0]),
+                            "code": np.array([np.nan, 4.0]), "snr": np.array([41.0, 42.0]),
+                            "clk": np.array([0.1, 0.1]), "flag": np.array([0, 0])})
+    for k, v in scalar.items():
+        rows[k].append(v + 2 if k == "t" else v)
+    out = rinex._rows_arrays(rows)
+    assert out["t"].tolist() == [1.0, 2.0, 2.0, 3.0]
+    assert out["sat"].tolist() == ["G01", "G02", "G03", "G01"]
+    assert out["sat"].dtype == object and out["lli"].dtype == np.int64 and out["t"].dtype == np.float64
+    empty = rinex._rows_arrays(rinex._new_rows())
+    assert all(len(v) == 0 for v in empty.values()) and empty["flag"].dtype == np.int64
