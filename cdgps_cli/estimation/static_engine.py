@@ -163,7 +163,8 @@ _NOT_YET = {"glonass_fix": "GLONASS ambiguities stay float on the static engine"
 
 def _static_options(options: dict | None) -> dict:
     """Defaults merged with ``options``; CdgpsError naming an unknown key or one the engine does not honour."""
-    opt = {"partial": GNSS_DEFAULTS["partial"], **MULTI_GNSS_DEFAULTS}
+    opt = {"partial": GNSS_DEFAULTS["partial"], **MULTI_GNSS_DEFAULTS,
+           "fix_and_hold": False}           # rtk's default holds; a static batch has nothing to hold
     unknown = sorted(set(options or {}) - set(opt))
     if unknown:
         raise CdgpsError(f"static baseline: unknown option(s) {', '.join(unknown)}; known: {', '.join(sorted(opt))}")
