@@ -17,15 +17,7 @@ import pytest
 from cdgps_cli.estimation.driver import (BlockSource, EpochBlock, EpochGrid, EpochSource, GridDynamics, Hook,
                                          RecordingSink, drive)
 from cdgps_cli.measurement.model import MeasurementModel, Rows
-
-
-class _Dyn:
-    identity_transition = False
-
-    def transition(self, dt_s):
-        A = np.array([[1.0, dt_s], [0.0, 1.0]])
-        Q = np.array([[dt_s**3 / 3, dt_s**2 / 2], [dt_s**2 / 2, dt_s]]) * 0.01
-        return A, None, Q
+from tests.estimation.test_driver import _Dyn  # the constant-velocity dynamics of the driver tests
 
 
 class _Whole(MeasurementModel):

@@ -150,14 +150,20 @@ def test_static_options_refused_by_name(options, word):
     assert _static_options({"ratio": 2.5})["ratio"] == 2.5
 
 
-def test_static_fix_false_gives_the_float_solution():
-    from cdgps_cli.estimation.static_engine import static_baseline
-    base, rover, navs, master_xyz, rover_xyz, sig = CASES["mosaic_gps_l1"]
+def _geometries(case):
+    """The golden case's (base, rover) receiver geometries and positions; skip when its files are absent."""
+    base, rover, navs, master_xyz, rover_xyz, sig = CASES[case]
     if not Path(base).exists():
         pytest.skip(f"{base} absent")
     master_xyz, rover_xyz = np.array(master_xyz), np.array(rover_xyz)
     nav = pd.concat([read_rinex_nav(n, systems=(s,)) for n, s in navs])
     g = [receiver_geometry(read_rinex_signals(f, sig)[1], nav, xyz) for f, xyz in ((base, master_xyz), (rover, rover_xyz))]
+    return g, master_xyz, rover_xyz
+
+
+def test_static_fix_false_gives_the_float_solution():
+    from cdgps_cli.estimation.static_engine import static_baseline
+    g, master_xyz, rover_xyz = _geometries("mosaic_gps_l1")
     res = static_baseline(g[0], g[1], master_xyz, rover_xyz, {"fix": False})
     assert res["resolution"] is None
     np.testing.assert_array_equal(res["offset_m"], res["float_offset_m"])
@@ -169,12 +175,7 @@ def test_static_long_multi_signal_baseline_refused():
     the Spirent G+E dual baseline is 2.0 km: refused at a 1 km threshold."""
     from cdgps_cli.core.errors import CdgpsError
     from cdgps_cli.estimation.static_engine import static_baseline
-    base, rover, navs, master_xyz, rover_xyz, sig = CASES["spirent_ge_dual_init"]
-    if not Path(base).exists():
-        pytest.skip(f"{base} absent")
-    master_xyz, rover_xyz = np.array(master_xyz), np.array(rover_xyz)
-    nav = pd.concat([read_rinex_nav(n, systems=(s,)) for n, s in navs])
-    g = [receiver_geometry(read_rinex_signals(f, sig)[1], nav, xyz) for f, xyz in ((base, master_xyz), (rover, rover_xyz))]
+    g, master_xyz, rover_xyz = _geometries("spirent_ge_dual_init")
     with pytest.raises(CdgpsError, match="iono_threshold_km"):
         static_baseline(g[0], g[1], master_xyz, rover_xyz, {"iono_threshold_km": 1.0})
 
