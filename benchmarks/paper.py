@@ -553,8 +553,10 @@ def hslew(w: Path, figdir: Path, seeds: int) -> list[Headline]:
         Headline("1998", "Sec. VI.D, Fig. 11", "slew +14° → −22°: done within 30 s, final angle within 0.5° as measured "
                  "by GPS, internal rotations q2/q5/q8 within 1°",
                  ours=f"arrived within {arrived:.1f} s, final error ≤ {final:.2f}°; q2/q5/q8 within 1° in {ok_internal} of "
-                      f"{seeds} seeds (worst {max(internal):.2f}°; GPS estimate in the loop, weights {EXPERIMENT_WEIGHTS})",
-                 met=arrived <= 30 and final <= 0.5 and ok_internal >= math.ceil(0.95 * seeds), commands=cmds, figure=fig,
+                      f"{seeds} seeds (worst {max(internal):.2f}°; GPS estimate in the loop, weights {EXPERIMENT_WEIGHTS})"
+                      + _centre_final_text(_slew_decomposition()),
+                 met=_two_readings(arrived <= 30 and final <= 0.5 and ok_internal >= math.ceil(0.95 * seeds),
+                                   _slew_decomposition()), commands=cmds, figure=fig,
                  values={"weights": EXPERIMENT_WEIGHTS, "with_vibration_control": vib, "paper_weights": pap},
                  note=f"q2/q5/q8 are the sections' twists about the structure's axis in our model (Fig. 10's 'longitudinal "
                       f"twist'). The structure is forced by {SLEW_DISTURBANCE:g} × the model's process noise throughout, "
@@ -686,6 +688,26 @@ def _slew_dec_note(dec: dict) -> str:
             "one ingredient changed at a time) — " + "; ".join(one(n) for n in labels if n in dec) + ". Neither the "
             "estimator nor the vibration loop nor the weights on the modes that carry q3/q6/q9 change it; raising those "
             "weights only saturates the jets. ")
+
+
+def _centre_final_text(dec: dict) -> str:
+    """The final angle read as the centre antennas measure it (q6 + q10) rather than the rigid-body angle:
+    its largest swing about the target from 30 s after the command, with vibration control
+    (benchmarks/paper_slew_decomposition.py); empty without that study."""
+    if "gps" not in dec:
+        return ""
+    swing = max(r["tail"]["centre"]["max_abs_deg"] for r in dec["gps"])
+    return (f". Read as the centre antennas' angle q6 + q10, the final angle still swings ±{swing:.2f}° about the "
+            f"target 30–60 s after the command ({len(dec['gps'])} seeds of the decomposition): "
+            + ("within" if swing <= 0.5 else "not within") + " 0.5° on that reading")
+
+
+def _two_readings(rigid_met: bool, dec: dict) -> bool | None:
+    """The slew row's mark: met on the rigid-body reading of "final angle"; "see note" (None) when the centre
+    antennas' reading (q6 + q10) is not within 0.5° while the rigid-body one is — the paper does not say which."""
+    if not rigid_met or "gps" not in dec:
+        return rigid_met
+    return True if max(r["tail"]["centre"]["max_abs_deg"] for r in dec["gps"]) <= 0.5 else None
 
 
 def _fig12a_note(dec: dict) -> str:
