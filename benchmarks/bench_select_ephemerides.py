@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Ephemeris selection for every (satellite, epoch) row of a receiver: one ``select_ephemeris``
-sub-frame per satellite concatenated and reordered (what ``estimation.rtk_multi._row_ephemerides``
-does) against ``orbits.select_ephemerides`` (one row-position pass, one ``iloc``), on the shared
+sub-frame per satellite concatenated and reordered (what ``estimation.rtk_multi`` did
+before) against ``orbits.select_ephemerides`` (one row-position pass, one ``iloc``), on the shared
 real pairs; least of ``--repeat`` interleaved calls, the tables compared for equality.  Writes
 ``docs/benchmarks/select_ephemerides.json``::
 
@@ -19,10 +19,22 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from cdgps_cli.estimation.rtk_multi import _row_ephemerides
 from cdgps_cli.model.gps.positioning import ephemeris_coverage
-from cdgps_cli.model.gps.orbits import select_ephemerides
+from cdgps_cli.model.gps.orbits import select_ephemeris, select_ephemerides
 from cdgps_cli.pipeline import gnss_multi as gm
+
+
+def _row_ephemerides(nav: pd.DataFrame, sats: np.ndarray, t: np.ndarray) -> pd.DataFrame:
+    """The former way (rtk's until issue 28's speed work): one ``select_ephemeris`` sub-frame per
+    satellite, concatenated and put back in row order — the reference the one-``iloc`` selection is timed against."""
+    parts, order = [], []
+    for sat, idx in pd.Series(sats).groupby(sats).indices.items():
+        parts.append(select_ephemeris(nav, sat, t[idx]))
+        order.append(idx)
+    pos = np.empty(len(sats), dtype=np.int64)
+    pos[np.concatenate(order)] = np.arange(len(sats))
+    return pd.concat(parts, ignore_index=True).iloc[pos].reset_index(drop=True)
+
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"

@@ -37,7 +37,7 @@ from cdgps_cli.estimation.kalman import NUMPY_INVERSE, StepFilter
 from cdgps_cli.measurement.dd_signals import DDGroupModel, backward_slips, epoch_groups, paired_sd_rows
 from cdgps_cli.measurement.epoch_pairing import pair_epochs
 from cdgps_cli.model.dynamics_models import ConstantVelocity, RandomWalk, Static
-from cdgps_cli.model.gps.orbits import OMEGA_E_GPS, azimuth_elevation, ecef_to_geodetic, sat_position_ecef, select_ephemeris
+from cdgps_cli.model.gps.orbits import OMEGA_E_GPS, azimuth_elevation, ecef_to_geodetic, sat_position_ecef, select_ephemerides
 from cdgps_cli.model.gps.positioning import ephemeris_coverage, tropo_hydrostatic_m
 
 __all__ = ["receiver_geometry", "solve_rtk", "check_common_signals", "RTK_MODES"]
@@ -79,7 +79,7 @@ def receiver_geometry(obs: pd.DataFrame, nav: pd.DataFrame, rx_xyz_m) -> pd.Data
     clk = np.zeros(len(first))
     t = first["time_gps_s"].to_numpy()
     tau = first["pseudorange_m"].to_numpy() / SPEED_OF_LIGHT_M_S
-    eph = _row_ephemerides(nav, first["sat"].to_numpy(), t)      # every row's ephemeris, selected once
+    eph = select_ephemerides(nav, first["sat"].to_numpy(), t)    # every row's ephemeris, selected once
     for _ in range(2):
         xyz, clk = sat_position_ecef(eph, t - tau + clk)           # all satellites and epochs at once
     rx = np.asarray(rx_xyz_m, dtype=float)
@@ -98,18 +98,6 @@ def receiver_geometry(obs: pd.DataFrame, nav: pd.DataFrame, rx_xyz_m) -> pd.Data
     out = df.merge(g, on=["time_gps_s", "sat"], how="left")
     out.attrs["dropped"] = {k: int(v) for k, v in sorted(dropped.items())}
     return out
-
-
-def _row_ephemerides(nav: pd.DataFrame, sats: np.ndarray, t: np.ndarray) -> pd.DataFrame:
-    """The ephemeris of each row (satellite ``sats[i]`` at time ``t[i]``), one table row per row
-    (:func:`~cdgps_cli.model.gps.orbits.select_ephemeris` once per satellite)."""
-    parts, order = [], []
-    for sat, idx in pd.Series(sats).groupby(sats).indices.items():
-        parts.append(select_ephemeris(nav, sat, t[idx]))
-        order.append(idx)
-    pos = np.empty(len(sats), dtype=np.int64)
-    pos[np.concatenate(order)] = np.arange(len(sats))
-    return pd.concat(parts, ignore_index=True).iloc[pos].reset_index(drop=True)
 
 
 def _few(sats) -> str:
