@@ -30,8 +30,8 @@ from cdgps_cli.config.options import MULTI_GNSS_DEFAULTS
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.signals import signal, SYSTEM_NAMES
-from cdgps_cli.estimation.ambiguity import (AmbiguityError, SearchLimitError, bootstrap_success_rate, decorrelate, ld_factorize,
-                                            ratio_test, search, success_tail)
+from cdgps_cli.estimation.ambiguity import (AmbiguityError, SearchLimitError, _reduce, _z_matrix, ld_factorize_symmetric,
+                                            ratio_test, search, success_tail_rate)
 from cdgps_cli.estimation.driver import EpochGrid, Hook, drive
 from cdgps_cli.estimation.kalman import NUMPY_INVERSE, StepFilter
 from cdgps_cli.measurement.dd_signals import DDGroupModel, backward_slips, epoch_groups, paired_sd_rows
@@ -159,8 +159,24 @@ def _amb_key(g, j):
     return ("N", g["signal"], g["sats"][j], bool(g["half"][j]))
 
 
+def _amb_keys(rows) -> list:
+    """:func:`_amb_key` of every row of :func:`~cdgps_cli.measurement.dd_signals.paired_sd_rows`, once for the run."""
+    names = [str(n) for n in rows["names"]]
+    return [("N", names[c], s, h) for c, s, h in zip(rows["code"].tolist(), rows["sats"].tolist(), rows["half"].tolist())]
+
+
+def _groups_with_keys(rows, k, amb_keys):
+    """:func:`~cdgps_cli.measurement.dd_signals.epoch_groups` of epoch ``k``, each group with its
+    rows' ambiguity keys (``amb_keys``, :func:`_amb_keys`)."""
+    groups = epoch_groups(rows, k)
+    for g in groups:
+        a, b = g["rows"]
+        g["amb_keys"] = amb_keys[a:b]
+    return groups
+
+
 def _prepare_state(st, groups, opt, iono):
-    keys = [[_amb_key(g, j) for j in range(len(g["sats"]))] for g in groups]
+    keys = [g["amb_keys"] if "amb_keys" in g else [_amb_key(g, j) for j in range(len(g["sats"]))] for g in groups]
     wanted = {k for ks in keys for k in ks}
     if iono:
         wanted |= {("I", s) for g in groups for s in g["sats"]}
@@ -183,6 +199,13 @@ def _prepare_state(st, groups, opt, iono):
                          else np.full(len(ks), -1, dtype=np.int64))
 
 
+def _decorrelated(L, d):
+    """:func:`~cdgps_cli.estimation.ambiguity.decorrelate`'s ``(L, d, Z)``, with ``Z`` None when the
+    reduction made no operation (Z = I: most epochs, once Z is carried), without forming it."""
+    Lr, dl, ops = _reduce(L, d)
+    return Lr, dl, (_z_matrix(ops, dl.shape[0]) if len(ops) else None)
+
+
 class _CarriedDecorrelation:
     """LAMBDA's integer transformation Z of the DD ambiguities, carried from one epoch to the next.
 
@@ -198,17 +221,20 @@ class _CarriedDecorrelation:
 
     def __init__(self):
         self.keys, self.Z, self.Zinv = None, None, None
-        self.last_fix = None          # (Ts, integers) of the last accepted fix, for fix-and-hold
+        self.last_fix = None          # _fix's (Ts, integers, P, Ts P, Ts P Tsᵀ) of the last accepted fix, for fix-and-hold
 
     def _update(self, keys, Qa):
         """Carry Z to this epoch's ``Qa``; the reduced factors ``(L, d)`` of ``Zᵀ Qa Z`` when they are
         at hand (None when Z had to restart)."""
         n = Qa.shape[0]
-        eye = np.eye(n, dtype=np.int64)
         if keys != self.keys:
+            eye = np.eye(n, dtype=np.int64)
             self.keys, self.Z, self.Zinv = keys, eye, eye
         Q = self.Z.T @ Qa @ self.Z
-        L, d, Z1 = decorrelate(*ld_factorize(0.5 * (Q + Q.T)))
+        L, d, Z1 = _decorrelated(*ld_factorize_symmetric(0.5 * (Q + Q.T)))
+        if Z1 is None:
+            return L, d
+        eye = np.eye(n, dtype=np.int64)
         if np.array_equal(Z1, eye):
             return L, d
         Z = self.Z @ Z1
@@ -226,8 +252,8 @@ class _CarriedDecorrelation:
         if factors is not None:
             return (Zt, *factors)
         Q = Zt @ Qa @ Zt.T                   # Z restarted (or a caller's Z): reduce here
-        L, d, Z1 = decorrelate(*ld_factorize(0.5 * (Q + Q.T)))
-        return (self.Z @ Z1).T, L, d
+        L, d, Z1 = _decorrelated(*ld_factorize_symmetric(0.5 * (Q + Q.T)))
+        return (Zt if Z1 is None else (self.Z @ Z1).T), L, d
 
     def resolve(self, keys, a, Qa, threshold, min_success_rate):
         """Integers of the DD ambiguities ``a`` (n,) cycles, covariance ``Qa`` (n, n) cycles², in the
@@ -250,10 +276,9 @@ class _CarriedDecorrelation:
                 return {"accepted": False, "ratio": np.nan, "success_rate": 0.0, "rows": None, "integers": None,
                         "partial": False}
         z = Zt @ a
-        k = success_tail(d, min_success_rate)
+        k, rate = success_tail_rate(d, min_success_rate)
         n = len(z)
-        out = {"accepted": False, "ratio": np.nan, "success_rate": bootstrap_success_rate(d[k:]) if k < n else 0.0,
-               "rows": None, "integers": None, "partial": 0 < k < n}
+        out = {"accepted": False, "ratio": np.nan, "success_rate": rate, "rows": None, "integers": None, "partial": 0 < k < n}
         if n - k < 1:
             return out
         offset = np.floor(z[k:] + 0.5)
@@ -285,7 +310,8 @@ def _fix(st, groups, opt, carried):
             continue
         plus.append(g["amb_col"][use])
         minus.append(np.full(int(use.sum()), g["amb_col"][ref]))
-        keys.append((g["signal"], tuple(g["sats"]), ref, tuple(np.flatnonzero(g["half"]))))
+        keys.append((tuple(g["amb_keys"]), ref) if "amb_keys" in g
+                    else (g["signal"], tuple(g["sats"]), ref, tuple(np.flatnonzero(g["half"]))))
     if not plus:
         return None, 0, np.nan, None, False
     plus, minus = np.concatenate(plus), np.concatenate(minus)
@@ -297,16 +323,24 @@ def _fix(st, groups, opt, carried):
     res = carried.resolve(tuple(keys), a, 0.5 * (Qa + Qa.T), opt["ratio"], opt["min_success_rate"])
     if not res["accepted"]:
         return None, 0, res["ratio"], None, False
-    T = np.zeros((plus.size, len(st.x)))
-    T[np.arange(plus.size), plus] = 1.0
-    T[np.arange(plus.size), minus] = -1.0
-    Ts = res["rows"] @ T                                      # the fixed integer combinations of the state
-    Qs = Ts @ st.P @ Ts.T
+    Ts = _dd_rows_on_state(res["rows"], plus, minus, len(st.x))   # the fixed integer combinations of the state
+    TsP = Ts @ st.P
+    Qs = TsP @ Ts.T
     Pxs = st.P[:3] @ Ts.T
     dx = Pxs @ np.linalg.solve(Qs, Ts @ st.x - res["integers"])
     cov = st.P[:3, :3] - Pxs @ np.linalg.solve(Qs, Pxs.T)
-    carried.last_fix = (Ts, res["integers"])
+    carried.last_fix = (Ts, res["integers"], st.P, TsP, Qs)
     return st.x[:3] - dx, len(res["integers"]), res["ratio"], 0.5 * (cov + cov.T), res["partial"]
+
+
+def _dd_rows_on_state(rows, plus, minus, n_state):
+    """``rows @ T`` for the DD operator T (row i: +1 at column ``plus[i]``, −1 at ``minus[i]``) of an
+    ``n_state`` state, without forming T: each column of T gathers ``rows``' columns (summed in
+    order; the entries are small integers, so the sums are exact and equal the product's)."""
+    Ts = np.zeros((rows.shape[0], n_state))
+    np.add.at(Ts.T, plus, rows.T)
+    np.subtract.at(Ts.T, minus, rows.T)
+    return Ts
 
 
 #: variance of the fix-and-hold pseudo-measurement of a fixed integer combination, cycles² (RTKLIB's VAR_HOLDAMB)
@@ -315,10 +349,15 @@ HOLD_VARIANCE_CYCLES2 = 0.001
 
 def _hold(st, fix) -> None:
     """Fix-and-hold: the fixed integer combinations ``Ts x = integers`` as measurements of variance
-    :data:`HOLD_VARIANCE_CYCLES2` (RTKLIB ``holdamb``), so the float ambiguities keep the integers."""
-    Ts, ints = fix
-    S = Ts @ st.P @ Ts.T + HOLD_VARIANCE_CYCLES2 * np.eye(len(ints))
-    K = np.linalg.solve(S, Ts @ st.P).T
+    :data:`HOLD_VARIANCE_CYCLES2` (RTKLIB ``holdamb``), so the float ambiguities keep the integers.
+    ``fix`` is :func:`_fix`'s ``(Ts, integers, P, Ts P, Ts P Tsᵀ)``: the products are reused while the
+    state's covariance is still that ``P``."""
+    Ts, ints, P_fix, TsP, Qs = fix
+    if st.P is not P_fix:                 # the state changed since the fix: its products again
+        TsP = Ts @ st.P
+        Qs = TsP @ Ts.T
+    S = Qs + HOLD_VARIANCE_CYCLES2 * np.eye(len(ints))
+    K = np.linalg.solve(S, TsP).T
     st.x = st.x + K @ (ints - Ts @ st.x)
     P = st.P - K @ Ts @ st.P
     st.P = 0.5 * (P + P.T)
@@ -411,7 +450,8 @@ def _filter_pass(rows, times, order, opt, base_xyz, origin, iono, progress) -> d
            "partial": np.zeros(n_ep, dtype=bool), "ns": np.zeros(n_ep, dtype=np.int64),
            "wrong_fix_resets": np.zeros(n_ep, dtype=bool)}
     st = _State(_n_motion(opt))
-    model = DDGroupModel(lambda i: epoch_groups(rows, order[i]), base_xyz, origin)
+    amb_keys = _amb_keys(rows)
+    model = DDGroupModel(lambda i: _groups_with_keys(rows, order[i], amb_keys), base_xyz, origin)
     source = EpochGrid(times[order])
     hook = _AmbiguityHook(st, model, order, opt, iono, out, progress)
     dyn, sink = _RtkDynamics(st, source.time_s, opt, iono), _FloatSink(order, origin, out)

@@ -677,3 +677,25 @@ def test_z_matrix_and_size_reduction_match_the_elementwise_reference():
         size_reduce_loop(L2, ops2)
         assert ops1 == ops2 and np.array_equal(L1, L2)
         assert len(ops1) > 0 or n < 3
+
+
+def test_symmetric_factorisation_and_tail_rate_equal_the_checked_ones():
+    """ld_factorize_symmetric (rtk's per-epoch call, input already symmetrised) returns ld_factorize's
+    factors bit for bit and still refuses an indefinite matrix; success_tail_rate gives success_tail's
+    index and the tail's bootstrapped success rate."""
+    from cdgps_cli.estimation.ambiguity import (bootstrap_success_rate, ld_factorize, ld_factorize_symmetric, success_tail,
+                                                success_tail_rate)
+
+    rng = np.random.default_rng(5)
+    A = rng.normal(size=(9, 9))
+    Q = A @ A.T * 0.02 + np.eye(9) * 1e-3
+    Qs = 0.5 * (Q + Q.T)
+    for got, want in zip(ld_factorize_symmetric(Qs), ld_factorize(Q)):
+        assert np.array_equal(got, want)
+    with pytest.raises(AmbiguityError):
+        ld_factorize_symmetric(np.diag([1.0, -1.0, 2.0]))
+    d = ld_factorize(Q)[1]
+    for p in (0.5, 0.9, 0.999, 0.999999):
+        k, rate = success_tail_rate(d, p)
+        assert k == success_tail(d, p)
+        assert rate == (pytest.approx(bootstrap_success_rate(d[k:]), rel=1e-12) if k < d.size else 0.0)

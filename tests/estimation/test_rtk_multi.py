@@ -348,7 +348,7 @@ def test_a_decorrelation_beyond_int64_is_retried_from_scratch_then_left_float(mo
     Qa = A @ A.T * 0.01 + np.eye(5) * 1e-3
     a = rng.integers(-9, 9, 5) + rng.normal(scale=0.01, size=5)
     calls = {"n": 0}
-    real = rtk_multi.decorrelate
+    real = rtk_multi._decorrelated
 
     def flaky(L, d, fail_first):
         calls["n"] += 1
@@ -358,7 +358,7 @@ def test_a_decorrelation_beyond_int64_is_retried_from_scratch_then_left_float(mo
 
     for fail_first, accepted in ((1, True), (99, False)):
         calls["n"] = 0
-        monkeypatch.setattr(rtk_multi, "decorrelate", lambda L, d, f=fail_first: flaky(L, d, f))
+        monkeypatch.setattr(rtk_multi, "_decorrelated", lambda L, d, f=fail_first: flaky(L, d, f))
         c = rtk_multi._CarriedDecorrelation()
         c.Z = c.Zinv = np.eye(5, dtype=np.int64)
         out = c.resolve(("k",), a, Qa, 3.0, 0.999)
