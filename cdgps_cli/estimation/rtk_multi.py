@@ -84,7 +84,7 @@ def receiver_geometry(obs: pd.DataFrame, nav: pd.DataFrame, rx_xyz_m) -> pd.Data
         xyz, clk = sat_position_ecef(eph, t - tau + clk)           # all satellites and epochs at once
     rx = np.asarray(rx_xyz_m, dtype=float)
     rng = np.linalg.norm(xyz - rx, axis=1)
-    c_rx = pd.Series(first["pseudorange_m"].to_numpy() / SPEED_OF_LIGHT_M_S + clk - rng / SPEED_OF_LIGHT_M_S).groupby(t).transform("median").to_numpy()
+    c_rx = _group_median(first["pseudorange_m"].to_numpy() / SPEED_OF_LIGHT_M_S + clk - rng / SPEED_OF_LIGHT_M_S, t)
     tau = tau - c_rx + clk
     xyz, clk = sat_position_ecef(eph, t - c_rx - tau)
     th = OMEGA_E_GPS * tau
@@ -98,6 +98,19 @@ def receiver_geometry(obs: pd.DataFrame, nav: pd.DataFrame, rx_xyz_m) -> pd.Data
     out = df.merge(g, on=["time_gps_s", "sat"], how="left")
     out.attrs["dropped"] = {k: int(v) for k, v in sorted(dropped.items())}
     return out
+
+
+def _group_median(values, keys):
+    """Median of the finite ``values`` (N,) of each equal ``keys`` (N,), given back for every element:
+    pandas' ``Series.groupby(keys).transform("median")`` (the same numbers: the middle element, or
+    the mean of the two middle ones), in numpy."""
+    uk, inv = np.unique(keys, return_inverse=True)
+    inv = inv.reshape(-1)
+    counts = np.bincount(inv, minlength=uk.size)
+    start = np.cumsum(counts) - counts
+    sv = values[np.lexsort((values, inv))]
+    lo, hi = sv[start + (counts - 1) // 2], sv[start + counts // 2]
+    return np.where(counts % 2 == 1, lo, (lo + hi) / 2)[inv]
 
 
 def _few(sats) -> str:

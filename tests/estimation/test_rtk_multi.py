@@ -366,3 +366,17 @@ def test_a_decorrelation_beyond_int64_is_retried_from_scratch_then_left_float(mo
         if accepted:                                    # the whole set, right: Zᵀ a's integers map back to round(a)
             assert not out["partial"]
             np.testing.assert_allclose(np.linalg.solve(out["rows"].astype(float), out["integers"]), np.rint(a), atol=1e-9)
+
+
+def test_group_median_is_pandas_groupby_median():
+    """receiver_geometry's per-epoch median receiver clock, in numpy: pandas' groupby median exactly
+    (odd and even group sizes, ties, one-element groups, unsorted keys)."""
+    import pandas as pd
+
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        n = int(rng.integers(1, 40))
+        keys = rng.integers(0, int(rng.integers(1, 8)), n).astype(float)
+        values = np.round(rng.normal(size=n), int(rng.integers(0, 4))) * 10.0 ** rng.uniform(-9, 3)
+        want = pd.Series(values).groupby(keys).transform("median").to_numpy()
+        assert np.array_equal(rtk_multi._group_median(values, keys), want)
