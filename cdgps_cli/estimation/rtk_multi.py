@@ -310,7 +310,7 @@ def _fix(st, groups, opt, carried):
     reaches the success rate): the fixed position (or None), the number of (decorrelated)
     ambiguities fixed, the ratio, the fixed position's covariance (3, 3; m², or None) and whether only
     part of the set was fixed."""
-    plus, minus, keys = [], [], []
+    plus, ref_cols, sizes, keys = [], [], [], []
     for g in groups:
         if g["signal"].startswith("R:") and not opt["glonass_fix"]:
             continue
@@ -319,15 +319,19 @@ def _fix(st, groups, opt, carried):
             continue                                  # every satellite of the group has an unresolved half cycle
         use = ~g["half"]                              # DDs of satellites with an unresolved half cycle stay float
         use[ref] = False
-        if not use.any():
+        n_use = int(np.count_nonzero(use))
+        if not n_use:
             continue
         plus.append(g["amb_col"][use])
-        minus.append(np.full(int(use.sum()), g["amb_col"][ref]))
+        ref_cols.append(g["amb_col"][ref])
+        sizes.append(n_use)
         keys.append((tuple(g["amb_keys"]), ref) if "amb_keys" in g
                     else (g["signal"], tuple(g["sats"]), ref, tuple(np.flatnonzero(g["half"]))))
     if not plus:
         return None, 0, np.nan, None, False
-    plus, minus = np.concatenate(plus), np.concatenate(minus)
+    plus = np.concatenate(plus) if len(plus) > 1 else plus[0]
+    ref_cols, sizes = np.array(ref_cols), np.array(sizes)
+    minus = np.repeat(ref_cols, sizes)
     # the DD operator T (rows e_plus - e_minus on the SD ambiguity columns) applied by indexing:
     # T x and T P Tᵀ are the same numbers as the products (each entry one difference of two terms)
     a = st.x[plus] - st.x[minus]
@@ -336,7 +340,7 @@ def _fix(st, groups, opt, carried):
     res = carried.resolve(tuple(keys), a, 0.5 * (Qa + Qa.T), opt["ratio"], opt["min_success_rate"])
     if not res["accepted"]:
         return None, 0, res["ratio"], None, False
-    Ts = _dd_rows_on_state(res["rows"], plus, minus, len(st.x))   # the fixed integer combinations of the state
+    Ts = _dd_rows_on_state(res["rows"], plus, ref_cols, sizes, len(st.x))   # the fixed integer combinations of the state
     TsP = Ts @ st.P
     Qs = TsP @ Ts.T
     Pxs = st.P[:3] @ Ts.T
@@ -346,13 +350,14 @@ def _fix(st, groups, opt, carried):
     return st.x[:3] - dx, len(res["integers"]), res["ratio"], 0.5 * (cov + cov.T), res["partial"]
 
 
-def _dd_rows_on_state(rows, plus, minus, n_state):
-    """``rows @ T`` for the DD operator T (row i: +1 at column ``plus[i]``, −1 at ``minus[i]``) of an
-    ``n_state`` state, without forming T: each column of T gathers ``rows``' columns (summed in
-    order; the entries are small integers, so the sums are exact and equal the product's)."""
+def _dd_rows_on_state(rows, plus, ref_cols, sizes, n_state):
+    """``rows @ T`` (rows: (m, p) integers) for the DD operator T (p, n_state) of groups of ``sizes``
+    DDs, row i +1 at column ``plus[i]`` and −1 at its group's reference column ``ref_cols[g]``,
+    without forming T: the ``plus`` columns (all distinct) are ``rows``' columns, a reference column
+    minus the sum of its group's (integers: the same numbers as the product)."""
     Ts = np.zeros((rows.shape[0], n_state))
-    np.add.at(Ts.T, plus, rows.T)
-    np.subtract.at(Ts.T, minus, rows.T)
+    Ts[:, plus] = rows
+    Ts[:, ref_cols] = -np.add.reduceat(rows, np.cumsum(sizes) - sizes, axis=1)
     return Ts
 
 

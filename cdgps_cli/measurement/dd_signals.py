@@ -234,7 +234,9 @@ class DDGroupModel:
     ``amb_col`` / ``iono_col`` set by the time :meth:`rows` runs: the driver's ``prepared`` hooks
     open the state columns).  The state is [rover offset from ``origin_xyz_m`` (3, m), SD
     ambiguities (cycles), SD slant ionosphere at L1 (m)…]; its size is read from the drive's
-    context at :meth:`prepare`.
+    context at :meth:`prepare`.  Groups that carry ``epoch_rows`` (:func:`epoch_groups`, when an
+    epoch's groups are adjacent rows of the run) give their row columns as that one view instead of
+    being concatenated (the same values).
     """
 
     def __init__(self, groups_of, base_xyz_m, origin_xyz_m):
@@ -253,8 +255,11 @@ class DDGroupModel:
         if not groups:
             return None
         sizes = np.array([len(g["sats"]) for g in groups])
+        whole = groups[0].get("epoch_rows") if len(groups) > 1 else groups[0]
 
         def cat(key):
+            if whole is not None and key in whole:        # the groups' rows are one view already (epoch_groups)
+                return whole[key]
             return np.concatenate([g[key] for g in groups])
 
         M, n = int(sizes.sum()), len(self._ctx.x)
@@ -390,16 +395,24 @@ def _group_layout(epoch, code, el, half, n_ep) -> dict:
 def epoch_groups(rows, k):
     """Signal groups (≥ 2 satellites) of epoch ``k``: views of :func:`paired_sd_rows` columns, ``ref`` the
     highest base elevation (preferring satellites without a half-cycle flag); ``rows`` (a, b) their
-    row range in the run's columns."""
+    row range in the run's columns and, when the epoch's groups are adjacent, ``epoch_rows`` (the
+    row columns of all of them as one view, shared; :meth:`DDGroupModel.rows` uses it)."""
     lay = rows.get("groups")
     if lay is not None:
         names, code = rows["names"], rows["code"]
         groups = []
-        for j in range(lay["ptr"][k], lay["ptr"][k + 1]):
+        j0, j1 = int(lay["ptr"][k]), int(lay["ptr"][k + 1])
+        for j in range(j0, j1):
             a, b = int(lay["start"][j]), int(lay["stop"][j])
             g = {key: rows[key][a:b] for key in _ROW_KEYS}
             g["signal"], g["ref"], g["rows"] = str(names[code[a]]), int(lay["ref"][j]) - a, (a, b)
             groups.append(g)
+        if j1 - j0 > 1:
+            a, b = int(lay["start"][j0]), int(lay["stop"][j1 - 1])
+            if b - a == int((lay["stop"][j0:j1] - lay["start"][j0:j1]).sum()):   # adjacent groups: their rows as one view
+                whole = {key: rows[key][a:b] for key in _ROW_KEYS}
+                for g in groups:
+                    g["epoch_rows"] = whole
         return groups
     lo, hi = rows["ptr"][k], rows["ptr"][k + 1]
     code = rows["code"][lo:hi]

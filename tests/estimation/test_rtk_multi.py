@@ -380,3 +380,17 @@ def test_group_median_is_pandas_groupby_median():
         values = np.round(rng.normal(size=n), int(rng.integers(0, 4))) * 10.0 ** rng.uniform(-9, 3)
         want = pd.Series(values).groupby(keys).transform("median").to_numpy()
         assert np.array_equal(rtk_multi._group_median(values, keys), want)
+
+
+def test_dd_rows_on_state_equal_the_product_with_the_dd_operator():
+    """_fix's integer combinations of the state, built by column: the same numbers as ``rows @ T`` with
+    T the dense DD operator (+1 on each DD's column, −1 on its group's reference column)."""
+    rng = np.random.default_rng(8)
+    sizes = np.array([3, 1, 4])
+    plus = np.array([5, 7, 4, 9, 12, 10, 11, 14])
+    ref_cols = np.array([6, 3, 13])
+    rows = rng.integers(-40, 40, size=(6, plus.size))
+    T = np.zeros((plus.size, 16))
+    T[np.arange(plus.size), plus] = 1.0
+    T[np.arange(plus.size), np.repeat(ref_cols, sizes)] = -1.0
+    assert np.array_equal(rtk_multi._dd_rows_on_state(rows, plus, ref_cols, sizes, 16), rows @ T)
