@@ -638,35 +638,36 @@ def _combine(f: dict, b: dict) -> dict:
     out["rejected"] = 0
     floor = np.eye(3) * 1e-6                                  # 1 mm²: fixed covariances are optimistic
 
-    def merge(xa, Pa, xb, Pb):
-        S = Pa + Pb
-        K = Pa @ np.linalg.inv(S)
-        return xa + K @ (xb - xa), Pa - K @ Pa
+    def merge(xa, Pa, xb, Pb):                                # (m, 3), (m, 3, 3) each: weighted means
+        K = Pa @ np.linalg.inv(Pa + Pb)
+        return xa + (K @ (xb - xa)[:, :, None])[:, :, 0]
 
-    def agree(xa, Pa, xb, Pb) -> bool:
+    def agree(xa, Pa, xb, Pb):
         d = xa - xb
-        return float(d @ np.linalg.solve(Pa + Pb + floor, d)) <= _CHI2_3_999
+        return np.einsum("mi,mi->m", d, np.linalg.solve(Pa + Pb + floor, d[:, :, None])[:, :, 0]) <= _CHI2_3_999
 
-    for k in range(n):
-        out["float_xyz"][k] = merge(f["float_xyz"][k], f["float_cov"][k], b["float_xyz"][k], b["float_cov"][k])[0]
-        out["float_cov"][k] = min(f["float_cov"][k], b["float_cov"][k], key=np.trace)
-        ff, fb = f["fixed"][k], b["fixed"][k]
-        out["fixed_xyz"][k], out["fixed_cov"][k] = np.nan, np.nan
-        if ff and fb:
-            if agree(f["fixed_xyz"][k], f["fixed_cov"][k], b["fixed_xyz"][k], b["fixed_cov"][k]):
-                out["fixed_xyz"][k] = merge(f["fixed_xyz"][k], f["fixed_cov"][k], b["fixed_xyz"][k], b["fixed_cov"][k])[0]
-                out["fixed_cov"][k] = min(f["fixed_cov"][k], b["fixed_cov"][k], key=np.trace)
-            else:
-                out["rejected"] += 1
-        elif ff or fb:
-            src, other = (f, b) if ff else (b, f)
-            if agree(src["fixed_xyz"][k], src["fixed_cov"][k], other["float_xyz"][k], other["float_cov"][k]):
-                out["fixed_xyz"][k], out["fixed_cov"][k] = src["fixed_xyz"][k], src["fixed_cov"][k]
-            else:
-                out["rejected"] += 1
-        out["ratio"][k] = np.nanmax([f["ratio"][k], b["ratio"][k]]) if np.isfinite([f["ratio"][k], b["ratio"][k]]).any() else np.nan
-        out["n_fixed"][k] = max(f["n_fixed"][k], b["n_fixed"][k])
-        out["partial"][k] = f["partial"][k] and b["partial"][k]
+    def smaller(Pa, Pb):                                      # the covariance of least trace (the first when equal)
+        return np.where((np.trace(Pa, axis1=1, axis2=2) <= np.trace(Pb, axis1=1, axis2=2))[:, None, None], Pa, Pb)
+
+    out["float_xyz"] = merge(f["float_xyz"], f["float_cov"], b["float_xyz"], b["float_cov"])
+    out["float_cov"] = smaller(f["float_cov"], b["float_cov"])
+    out["fixed_xyz"][:], out["fixed_cov"][:] = np.nan, np.nan
+    ff, fb = f["fixed"], b["fixed"]
+    both = np.flatnonzero(ff & fb)
+    ok = agree(f["fixed_xyz"][both], f["fixed_cov"][both], b["fixed_xyz"][both], b["fixed_cov"][both])
+    k = both[ok]
+    out["fixed_xyz"][k] = merge(f["fixed_xyz"][k], f["fixed_cov"][k], b["fixed_xyz"][k], b["fixed_cov"][k])
+    out["fixed_cov"][k] = smaller(f["fixed_cov"][k], b["fixed_cov"][k])
+    out["rejected"] += int(both.size - k.size)
+    for src, other, one in ((f, b, ff & ~fb), (b, f, fb & ~ff)):   # one pass fixed: agrees with the other's float?
+        i = np.flatnonzero(one)
+        ok = agree(src["fixed_xyz"][i], src["fixed_cov"][i], other["float_xyz"][i], other["float_cov"][i])
+        out["fixed_xyz"][i[ok]], out["fixed_cov"][i[ok]] = src["fixed_xyz"][i[ok]], src["fixed_cov"][i[ok]]
+        out["rejected"] += int(i.size - ok.sum())
+    fr, br = f["ratio"], b["ratio"]
+    out["ratio"] = np.where(np.isfinite(fr) | np.isfinite(br), np.fmax(fr, br), np.nan)
+    out["n_fixed"] = np.maximum(f["n_fixed"], b["n_fixed"])
+    out["partial"] = f["partial"] & b["partial"]
     out["fixed"] = np.isfinite(out["fixed_xyz"][:, 0])
     out["wrong_fix_resets"] = f["wrong_fix_resets"] | b["wrong_fix_resets"]
     return out
