@@ -21,6 +21,7 @@ iterated update in numpy only (scipy's import stays off `cdgps rtk`'s start-up).
 
 from __future__ import annotations
 
+from bisect import bisect_left
 from statistics import NormalDist
 
 import numpy as np
@@ -178,13 +179,15 @@ def _amb_keys(rows) -> list:
     return [("N", names[c], s, h) for c, s, h in zip(rows["code"].tolist(), rows["sats"].tolist(), rows["half"].tolist())]
 
 
-def _groups_with_keys(rows, k, amb_keys):
+def _groups_with_keys(rows, k, amb_keys, slip_rows):
     """:func:`~cdgps_cli.measurement.dd_signals.epoch_groups` of epoch ``k``, each group with its
-    rows' ambiguity keys (``amb_keys``, :func:`_amb_keys`)."""
+    rows' ambiguity keys (``amb_keys``, :func:`_amb_keys`) and ``slip_at``, the positions of its
+    slipped rows (``slip_rows``: the run's, ascending list)."""
     groups = epoch_groups(rows, k)
     for g in groups:
         a, b = g["rows"]
         g["amb_keys"] = amb_keys[a:b]
+        g["slip_at"] = [r - a for r in slip_rows[bisect_left(slip_rows, a):bisect_left(slip_rows, b)]]
     return groups
 
 
@@ -194,7 +197,7 @@ def _prepare_state(st, groups, opt, iono):
     if iono:
         wanted |= {("I", s) for g in groups for s in g["sats"]}
     for g, ks in zip(groups, keys):
-        for j in np.flatnonzero(g["slip"]):
+        for j in (g["slip_at"] if "slip_at" in g else np.flatnonzero(g["slip"])):
             if ks[j] in st.index:
                 wanted.discard(ks[j])
     st.keep(wanted)
@@ -468,8 +471,8 @@ def _filter_pass(rows, times, order, opt, base_xyz, origin, iono, progress) -> d
            "partial": np.zeros(n_ep, dtype=bool), "ns": np.zeros(n_ep, dtype=np.int64),
            "wrong_fix_resets": np.zeros(n_ep, dtype=bool)}
     st = _State(_n_motion(opt))
-    amb_keys = _amb_keys(rows)
-    model = DDGroupModel(lambda i: _groups_with_keys(rows, order[i], amb_keys), base_xyz, origin)
+    amb_keys, slip_rows = _amb_keys(rows), np.flatnonzero(rows["slip"]).tolist()
+    model = DDGroupModel(lambda i: _groups_with_keys(rows, order[i], amb_keys, slip_rows), base_xyz, origin)
     source = EpochGrid(times[order])
     hook = _AmbiguityHook(st, model, order, opt, iono, out, progress)
     dyn, sink = _RtkDynamics(st, source.time_s, opt, iono), _FloatSink(order, origin, out)
@@ -505,11 +508,19 @@ class _RtkDynamics:
         self.motion = _motion_model(opt)
         self.identity = self.motion.identity_transition
         self.iono_q = opt["iono_rw_m_per_sqrt_s"] ** 2
+        self._last = None
+
+    def _transition(self, dt):
+        """The motion model's (A, B, Q) over ``dt`` s, kept for the last step length (the epochs are
+        mostly evenly spaced; the arrays are only read)."""
+        if self._last is None or self._last[0] != dt:
+            self._last = (dt, self.motion.transition(dt))
+        return self._last[1]
 
     def step_into(self, k):
         dt = abs(float(self.time_s[k] - self.time_s[k - 1]))
         n, m = len(self.st.keys), self.motion.n
-        A_m, _, Q_m = self.motion.transition(dt)
+        A_m, _, Q_m = self._transition(dt)
         Q = np.zeros((n, n))
         Q[:m, :m] = Q_m
         if self.iono:
@@ -609,7 +620,8 @@ class _AmbiguityHook(Hook):
         if self.holding:
             _hold(st, self.carried.last_fix)
         out["n_fixed"][k], out["ratio"][k], out["partial"][k] = n, ratio, partial
-        out["ns"][k] = len({s for g in groups for s in g["sats"]})
+        out["ns"][k] = len({key[2] for g in groups for key in g["amb_keys"]} if groups and "amb_keys" in groups[0]
+                           else {s for g in groups for s in g["sats"]})
         if self.progress is not None:
             self.progress(i + 1, self.order.size)
         return i_next
