@@ -427,13 +427,13 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
         raise CdgpsError(f"no common epochs: none of the rover's {ps['rover_epochs']} epochs has a base epoch within "
                          f"max_age_s = {opt['max_age_s']:g} s (" + "; ".join(f"{n} {r}" for r, n in ps["dropped"].items())
                          + f"; the base has {ps['base_epochs']} epochs)")
-    common = set(base["sat"].astype(str)) & set(rover["sat"].astype(str))
+    common = set(map(str, base["sat"].unique())) & set(map(str, rover["sat"].unique()))
     if not common:
         raise CdgpsError(f"no common satellites: the base observes {_few(base['sat'])}, the rover {_few(rover['sat'])} "
                          f"(signals asked for); a double difference needs satellites observed at both receivers")
     rows = paired_sd_rows(base, rover, pairs, opt)
     n_ep = times.size
-    if not any(epoch_groups(rows, k) for k in range(n_ep)):
+    if not rows["groups"]["start"].size:                     # no epoch has a group of two satellites
         raise CdgpsError(f"no double differences: no epoch of the {n_ep} paired has two satellites of one signal "
                          f"observed at both receivers above the {opt['mask_deg']:g}° mask")
     fwd = _filter_pass(rows, times, range(n_ep), opt, base_xyz, origin, iono, progress)
