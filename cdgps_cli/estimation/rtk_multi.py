@@ -128,6 +128,7 @@ class _State:
         self.keys = [("pos", i) for i in range(n_pos)]
         self.index = {k: i for i, k in enumerate(self.keys)}
         self.step = step if step is not None else StepFilter(np.zeros(n_pos), np.eye(n_pos) * 1e4, NUMPY_INVERSE)
+        self.fix_products = (None, None, None, None)    # _fix's (Ts, P, Ts P, Ts P Tsᵀ), for _hold
 
     @property
     def x(self):
@@ -237,7 +238,7 @@ class _CarriedDecorrelation:
 
     def __init__(self):
         self.keys, self.Z, self.Zinv = None, None, None
-        self.last_fix = None          # _fix's (Ts, integers, P, Ts P, Ts P Tsᵀ) of the last accepted fix, for fix-and-hold
+        self.last_fix = None          # (Ts, integers) of the last accepted fix, for fix-and-hold
 
     def _update(self, keys, Qa):
         """Carry Z to this epoch's ``Qa``; the reduced factors ``(L, d)`` of ``Zᵀ Qa Z`` when they are
@@ -349,7 +350,8 @@ def _fix(st, groups, opt, carried):
     Pxs = st.P[:3] @ Ts.T
     dx = Pxs @ np.linalg.solve(Qs, Ts @ st.x - res["integers"])
     cov = st.P[:3, :3] - Pxs @ np.linalg.solve(Qs, Pxs.T)
-    carried.last_fix = (Ts, res["integers"], st.P, TsP, Qs)
+    carried.last_fix = (Ts, res["integers"])
+    st.fix_products = (Ts, st.P, TsP, Qs)
     return st.x[:3] - dx, len(res["integers"]), res["ratio"], 0.5 * (cov + cov.T), res["partial"]
 
 
@@ -371,10 +373,12 @@ HOLD_VARIANCE_CYCLES2 = 0.001
 def _hold(st, fix) -> None:
     """Fix-and-hold: the fixed integer combinations ``Ts x = integers`` as measurements of variance
     :data:`HOLD_VARIANCE_CYCLES2` (RTKLIB ``holdamb``), so the float ambiguities keep the integers.
-    ``fix`` is :func:`_fix`'s ``(Ts, integers, P, Ts P, Ts P Tsᵀ)``: the products are reused while the
-    state's covariance is still that ``P``."""
-    Ts, ints, P_fix, TsP, Qs = fix
-    if st.P is not P_fix:                 # the state changed since the fix: its products again
+    ``fix`` is ``(Ts, integers)``; the products ``Ts P``, ``Ts P Tsᵀ`` :func:`_fix` left in
+    ``st.fix_products`` are reused while they are of this ``Ts`` and the state's covariance is still
+    theirs (the same numbers as forming them again)."""
+    Ts, ints = fix
+    Ts_fix, P_fix, TsP, Qs = st.fix_products
+    if Ts is not Ts_fix or st.P is not P_fix:     # the state changed since the fix: form them
         TsP = Ts @ st.P
         Qs = TsP @ Ts.T
     S = Qs + HOLD_VARIANCE_CYCLES2 * np.eye(len(ints))
