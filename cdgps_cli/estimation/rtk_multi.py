@@ -348,8 +348,9 @@ def _fix(st, groups, opt, carried):
     TsP = Ts @ st.P
     Qs = TsP @ Ts.T
     Pxs = st.P[:3] @ Ts.T
-    dx = Pxs @ np.linalg.solve(Qs, Ts @ st.x - res["integers"])
-    cov = st.P[:3, :3] - Pxs @ np.linalg.solve(Qs, Pxs.T)
+    sol = np.linalg.solve(Qs, np.column_stack([Ts @ st.x - res["integers"], Pxs.T]))   # one factorisation, 4 columns
+    dx = Pxs @ sol[:, 0]
+    cov = st.P[:3, :3] - Pxs @ sol[:, 1:]
     carried.last_fix = (Ts, res["integers"])
     st.fix_products = (Ts, st.P, TsP, Qs)
     return st.x[:3] - dx, len(res["integers"]), res["ratio"], 0.5 * (cov + cov.T), res["partial"]
