@@ -59,6 +59,7 @@ __all__ = [
     "ld_factorize",
     "ld_factorize_symmetric",
     "decorrelate",
+    "search_reduced",
     "search",
     "lambda_search",
     "ratio_test",
@@ -569,6 +570,22 @@ def search(L, d, zs, candidates, *, max_nodes=None):
     zn = np.array([out_z[i] for i in order], dtype=float).reshape(len(order), n)
     s = np.array([out_s[i] for i in order], dtype=float)
     return zn, s
+
+
+def search_reduced(L, d, zs):
+    """:func:`search` of the best two candidates (default node cap) on factors a caller has just
+    reduced (:func:`ld_factorize` / :func:`decorrelate`: positive ``d``, consistent shapes), without
+    re-checking them: the same ``zn`` (2, n) and ``s`` (2,); SearchLimitError alike."""
+    n = d.shape[0]
+    if _kernel() is None or n < 1:
+        return search(L, d, zs, 2)
+    out_z, out_s = np.empty((2, n)), np.empty(2)
+    found, over = _lambdacore.enumerate(np.ascontiguousarray(L, dtype=float), np.ascontiguousarray(d, dtype=float),
+                                        np.ascontiguousarray(zs, dtype=float), 2, SEARCH_MAX_NODES, out_z, out_s)
+    if over:
+        raise _limit_error(SEARCH_MAX_NODES, n, found, 2)
+    order = np.argsort(out_s[:found], kind="stable")          # as search's sort of the norms (stable)
+    return out_z[order], out_s[order]
 
 
 def _search_inputs(L, d, zs, candidates, max_nodes):

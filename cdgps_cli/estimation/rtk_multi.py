@@ -32,7 +32,7 @@ from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.signals import signal, SYSTEM_NAMES
 from cdgps_cli.estimation.ambiguity import (AmbiguityError, SearchLimitError, _reduce, _z_matrix, ld_factorize_symmetric,
-                                            ratio_test, search, success_tail_rate)
+                                            ratio_test, search_reduced, success_tail_rate)
 from cdgps_cli.estimation.driver import EpochGrid, Hook, drive
 from cdgps_cli.estimation.kalman import NUMPY_INVERSE, StepFilter
 from cdgps_cli.measurement.dd_signals import DDGroupModel, backward_slips, epoch_groups, paired_sd_rows
@@ -300,7 +300,7 @@ class _CarriedDecorrelation:
             return out
         offset = np.floor(z[k:] + 0.5)
         try:
-            zn, sq = search(L[k:, k:], d[k:], z[k:] - offset, 2)
+            zn, sq = search_reduced(L[k:, k:], d[k:], z[k:] - offset)
         except SearchLimitError:
             return out
         accepted, out["ratio"] = ratio_test(sq, threshold)

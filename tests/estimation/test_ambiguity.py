@@ -699,3 +699,18 @@ def test_symmetric_factorisation_and_tail_rate_equal_the_checked_ones():
         k, rate = success_tail_rate(d, p)
         assert k == success_tail(d, p)
         assert rate == (pytest.approx(bootstrap_success_rate(d[k:]), rel=1e-12) if k < d.size else 0.0)
+
+
+def test_search_reduced_equals_search_of_two():
+    """rtk's unchecked search of the best two candidates returns search(..., 2)'s candidates and norms
+    exactly, on reduced factors of random covariances of 1 to 25 ambiguities."""
+    from cdgps_cli.estimation.ambiguity import decorrelate, ld_factorize, search, search_reduced
+
+    rng = np.random.default_rng(12)
+    for n in (1, 2, 5, 12, 25):
+        A = rng.normal(size=(n, n))
+        L, d, _ = decorrelate(*ld_factorize(A @ A.T * 0.05 + np.eye(n) * 1e-3))
+        zs = rng.normal(size=n) * 0.4
+        k = n // 3                                     # a tail, as rtk's partial sets
+        for got, want in zip(search_reduced(L[k:, k:], d[k:], zs[k:]), search(L[k:, k:], d[k:], zs[k:], 2)):
+            assert np.array_equal(got, want)
