@@ -53,10 +53,13 @@ LAMBDA_API = 2
 __all__ = [
     "bootstrap_success_rate",
     "success_tail",
+    "success_tail_rate",
     "AmbiguityError",
     "SearchLimitError",
     "ld_factorize",
+    "ld_factorize_symmetric",
     "decorrelate",
+    "search_reduced",
     "search",
     "lambda_search",
     "ratio_test",
@@ -193,8 +196,27 @@ def ld_factorize(Q):
             f"Q is not symmetric positive definite: not symmetric "
             f"(max |Q - Q^T| = {asym:.3g} > tolerance {tol:.3g})"
         )
-    n = Qa.shape[0]
-    A = 0.5 * (Qa + Qa.T)
+    return ld_factorize_symmetric(0.5 * (Qa + Qa.T))
+
+
+def ld_factorize_symmetric(A):
+    """:func:`ld_factorize` of a matrix already exactly symmetric (e.g. ``0.5 * (Q + Q.T)``): the same
+    factors, without the input checks (shape, finiteness, asymmetry), for per-epoch callers that
+    symmetrise themselves.  A non-finite or indefinite ``A`` still fails, in the Cholesky
+    factorisation or the pivot check (AmbiguityError).
+
+    Parameters
+    ----------
+    A : ndarray, shape (n, n), float64
+        Symmetric covariance, cycles².
+
+    Returns
+    -------
+    L : ndarray, shape (n, n)
+    d : ndarray, shape (n,)
+        As :func:`ld_factorize`.
+    """
+    n = A.shape[0]
     try:
         C = np.linalg.cholesky(A[::-1, ::-1])
     except np.linalg.LinAlgError as exc:
@@ -550,6 +572,22 @@ def search(L, d, zs, candidates, *, max_nodes=None):
     return zn, s
 
 
+def search_reduced(L, d, zs):
+    """:func:`search` of the best two candidates (default node cap) on factors a caller has just
+    reduced (:func:`ld_factorize` / :func:`decorrelate`: positive ``d``, consistent shapes), without
+    re-checking them: the same ``zn`` (2, n) and ``s`` (2,); SearchLimitError alike."""
+    n = d.shape[0]
+    if _kernel() is None or n < 1:
+        return search(L, d, zs, 2)
+    out_z, out_s = np.empty((2, n)), np.empty(2)
+    found, over = _lambdacore.enumerate(np.ascontiguousarray(L, dtype=float), np.ascontiguousarray(d, dtype=float),
+                                        np.ascontiguousarray(zs, dtype=float), 2, SEARCH_MAX_NODES, out_z, out_s)
+    if over:
+        raise _limit_error(SEARCH_MAX_NODES, n, found, 2)
+    order = np.argsort(out_s[:found], kind="stable")          # as search's sort of the norms (stable)
+    return out_z[order], out_s[order]
+
+
 def _search_inputs(L, d, zs, candidates, max_nodes):
     """Checked arrays ``L`` (n, n), ``d`` (n,), ``zs`` (n,), the candidate count and the node cap
     of :func:`search`."""
@@ -871,6 +909,21 @@ def success_tail(d, min_success_rate: float) -> int:
             break
         k = i
     return k
+
+
+def success_tail_rate(d, min_success_rate: float) -> tuple[int, float]:
+    """:func:`success_tail`'s ``k`` and the bootstrapped success rate of the tail ``d[k:]`` (its
+    running product, taken in the same pass; 0.0 when no tail qualifies).  The rate equals
+    :func:`bootstrap_success_rate` of ``d[k:]`` up to the order of the product's rounding."""
+    dd = np.asarray(d, dtype=float).ravel().tolist()
+    p = p_tail = 1.0
+    k = len(dd)
+    for i in range(k - 1, -1, -1):
+        p *= math.erf(1.0 / (2.0 * math.sqrt(2.0 * dd[i])))
+        if p < min_success_rate:
+            break
+        k, p_tail = i, p
+    return k, (p_tail if k < len(dd) else 0.0)
 
 
 def partial_fix(a, Q, threshold=RATIO_THRESHOLD, min_fixed=1, *, max_nodes=None, progress=None,

@@ -21,6 +21,7 @@ iterated update in numpy only (scipy's import stays off `cdgps rtk`'s start-up).
 
 from __future__ import annotations
 
+from bisect import bisect_left
 from statistics import NormalDist
 
 import numpy as np
@@ -30,8 +31,8 @@ from cdgps_cli.config.options import MULTI_GNSS_DEFAULTS
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.signals import signal, SYSTEM_NAMES
-from cdgps_cli.estimation.ambiguity import (AmbiguityError, SearchLimitError, bootstrap_success_rate, decorrelate, ld_factorize,
-                                            ratio_test, search, success_tail)
+from cdgps_cli.estimation.ambiguity import (AmbiguityError, SearchLimitError, _reduce, _z_matrix, ld_factorize_symmetric,
+                                            ratio_test, search_reduced, success_tail_rate)
 from cdgps_cli.estimation.driver import EpochGrid, Hook, drive
 from cdgps_cli.estimation.kalman import NUMPY_INVERSE, StepFilter
 from cdgps_cli.measurement.dd_signals import DDGroupModel, backward_slips, epoch_groups, paired_sd_rows
@@ -84,7 +85,7 @@ def receiver_geometry(obs: pd.DataFrame, nav: pd.DataFrame, rx_xyz_m) -> pd.Data
         xyz, clk = sat_position_ecef(eph, t - tau + clk)           # all satellites and epochs at once
     rx = np.asarray(rx_xyz_m, dtype=float)
     rng = np.linalg.norm(xyz - rx, axis=1)
-    c_rx = pd.Series(first["pseudorange_m"].to_numpy() / SPEED_OF_LIGHT_M_S + clk - rng / SPEED_OF_LIGHT_M_S).groupby(t).transform("median").to_numpy()
+    c_rx = _group_median(first["pseudorange_m"].to_numpy() / SPEED_OF_LIGHT_M_S + clk - rng / SPEED_OF_LIGHT_M_S, t)
     tau = tau - c_rx + clk
     xyz, clk = sat_position_ecef(eph, t - c_rx - tau)
     th = OMEGA_E_GPS * tau
@@ -98,6 +99,19 @@ def receiver_geometry(obs: pd.DataFrame, nav: pd.DataFrame, rx_xyz_m) -> pd.Data
     out = df.merge(g, on=["time_gps_s", "sat"], how="left")
     out.attrs["dropped"] = {k: int(v) for k, v in sorted(dropped.items())}
     return out
+
+
+def _group_median(values, keys):
+    """Median of the finite ``values`` (N,) of each equal ``keys`` (N,), given back for every element:
+    pandas' ``Series.groupby(keys).transform("median")`` (the same numbers: the middle element, or
+    the mean of the two middle ones), in numpy."""
+    uk, inv = np.unique(keys, return_inverse=True)
+    inv = inv.reshape(-1)
+    counts = np.bincount(inv, minlength=uk.size)
+    start = np.cumsum(counts) - counts
+    sv = values[np.lexsort((values, inv))]
+    lo, hi = sv[start + (counts - 1) // 2], sv[start + counts // 2]
+    return np.where(counts % 2 == 1, lo, (lo + hi) / 2)[inv]
 
 
 def _few(sats) -> str:
@@ -114,6 +128,7 @@ class _State:
         self.keys = [("pos", i) for i in range(n_pos)]
         self.index = {k: i for i, k in enumerate(self.keys)}
         self.step = step if step is not None else StepFilter(np.zeros(n_pos), np.eye(n_pos) * 1e4, NUMPY_INVERSE)
+        self.fix_products = (None, None, None, None)    # _fix's (Ts, P, Ts P, Ts P Tsᵀ), for _hold
 
     @property
     def x(self):
@@ -159,13 +174,31 @@ def _amb_key(g, j):
     return ("N", g["signal"], g["sats"][j], bool(g["half"][j]))
 
 
+def _amb_keys(rows) -> list:
+    """:func:`_amb_key` of every row of :func:`~cdgps_cli.measurement.dd_signals.paired_sd_rows`, once for the run."""
+    names = [str(n) for n in rows["names"]]
+    return [("N", names[c], s, h) for c, s, h in zip(rows["code"].tolist(), rows["sats"].tolist(), rows["half"].tolist())]
+
+
+def _groups_with_keys(rows, k, amb_keys, slip_rows):
+    """:func:`~cdgps_cli.measurement.dd_signals.epoch_groups` of epoch ``k``, each group with its
+    rows' ambiguity keys (``amb_keys``, :func:`_amb_keys`) and ``slip_at``, the positions of its
+    slipped rows (``slip_rows``: the run's, ascending list)."""
+    groups = epoch_groups(rows, k)
+    for g in groups:
+        a, b = g["rows"]
+        g["amb_keys"] = amb_keys[a:b]
+        g["slip_at"] = [r - a for r in slip_rows[bisect_left(slip_rows, a):bisect_left(slip_rows, b)]]
+    return groups
+
+
 def _prepare_state(st, groups, opt, iono):
-    keys = [[_amb_key(g, j) for j in range(len(g["sats"]))] for g in groups]
+    keys = [g["amb_keys"] if "amb_keys" in g else [_amb_key(g, j) for j in range(len(g["sats"]))] for g in groups]
     wanted = {k for ks in keys for k in ks}
     if iono:
         wanted |= {("I", s) for g in groups for s in g["sats"]}
     for g, ks in zip(groups, keys):
-        for j in np.flatnonzero(g["slip"]):
+        for j in (g["slip_at"] if "slip_at" in g else np.flatnonzero(g["slip"])):
             if ks[j] in st.index:
                 wanted.discard(ks[j])
     st.keep(wanted)
@@ -181,6 +214,13 @@ def _prepare_state(st, groups, opt, iono):
         g["amb_col"] = np.array([st.index[k] for k in ks], dtype=np.int64)
         g["iono_col"] = (np.array([st.index[("I", s)] for s in g["sats"]], dtype=np.int64) if iono
                          else np.full(len(ks), -1, dtype=np.int64))
+
+
+def _decorrelated(L, d):
+    """:func:`~cdgps_cli.estimation.ambiguity.decorrelate`'s ``(L, d, Z)``, with ``Z`` None when the
+    reduction made no operation (Z = I: most epochs, once Z is carried), without forming it."""
+    Lr, dl, ops = _reduce(L, d)
+    return Lr, dl, (_z_matrix(ops, dl.shape[0]) if len(ops) else None)
 
 
 class _CarriedDecorrelation:
@@ -204,11 +244,14 @@ class _CarriedDecorrelation:
         """Carry Z to this epoch's ``Qa``; the reduced factors ``(L, d)`` of ``Zᵀ Qa Z`` when they are
         at hand (None when Z had to restart)."""
         n = Qa.shape[0]
-        eye = np.eye(n, dtype=np.int64)
         if keys != self.keys:
+            eye = np.eye(n, dtype=np.int64)
             self.keys, self.Z, self.Zinv = keys, eye, eye
         Q = self.Z.T @ Qa @ self.Z
-        L, d, Z1 = decorrelate(*ld_factorize(0.5 * (Q + Q.T)))
+        L, d, Z1 = _decorrelated(*ld_factorize_symmetric(0.5 * (Q + Q.T)))
+        if Z1 is None:
+            return L, d
+        eye = np.eye(n, dtype=np.int64)
         if np.array_equal(Z1, eye):
             return L, d
         Z = self.Z @ Z1
@@ -226,8 +269,8 @@ class _CarriedDecorrelation:
         if factors is not None:
             return (Zt, *factors)
         Q = Zt @ Qa @ Zt.T                   # Z restarted (or a caller's Z): reduce here
-        L, d, Z1 = decorrelate(*ld_factorize(0.5 * (Q + Q.T)))
-        return (self.Z @ Z1).T, L, d
+        L, d, Z1 = _decorrelated(*ld_factorize_symmetric(0.5 * (Q + Q.T)))
+        return (Zt if Z1 is None else (self.Z @ Z1).T), L, d
 
     def resolve(self, keys, a, Qa, threshold, min_success_rate):
         """Integers of the DD ambiguities ``a`` (n,) cycles, covariance ``Qa`` (n, n) cycles², in the
@@ -250,15 +293,14 @@ class _CarriedDecorrelation:
                 return {"accepted": False, "ratio": np.nan, "success_rate": 0.0, "rows": None, "integers": None,
                         "partial": False}
         z = Zt @ a
-        k = success_tail(d, min_success_rate)
+        k, rate = success_tail_rate(d, min_success_rate)
         n = len(z)
-        out = {"accepted": False, "ratio": np.nan, "success_rate": bootstrap_success_rate(d[k:]) if k < n else 0.0,
-               "rows": None, "integers": None, "partial": 0 < k < n}
+        out = {"accepted": False, "ratio": np.nan, "success_rate": rate, "rows": None, "integers": None, "partial": 0 < k < n}
         if n - k < 1:
             return out
         offset = np.floor(z[k:] + 0.5)
         try:
-            zn, sq = search(L[k:, k:], d[k:], z[k:] - offset, 2)
+            zn, sq = search_reduced(L[k:, k:], d[k:], z[k:] - offset)
         except SearchLimitError:
             return out
         accepted, out["ratio"] = ratio_test(sq, threshold)
@@ -272,7 +314,7 @@ def _fix(st, groups, opt, carried):
     reaches the success rate): the fixed position (or None), the number of (decorrelated)
     ambiguities fixed, the ratio, the fixed position's covariance (3, 3; m², or None) and whether only
     part of the set was fixed."""
-    plus, minus, keys = [], [], []
+    plus, ref_cols, sizes, keys = [], [], [], []
     for g in groups:
         if g["signal"].startswith("R:") and not opt["glonass_fix"]:
             continue
@@ -281,14 +323,19 @@ def _fix(st, groups, opt, carried):
             continue                                  # every satellite of the group has an unresolved half cycle
         use = ~g["half"]                              # DDs of satellites with an unresolved half cycle stay float
         use[ref] = False
-        if not use.any():
+        n_use = int(np.count_nonzero(use))
+        if not n_use:
             continue
         plus.append(g["amb_col"][use])
-        minus.append(np.full(int(use.sum()), g["amb_col"][ref]))
-        keys.append((g["signal"], tuple(g["sats"]), ref, tuple(np.flatnonzero(g["half"]))))
+        ref_cols.append(g["amb_col"][ref])
+        sizes.append(n_use)
+        keys.append((tuple(g["amb_keys"]), ref) if "amb_keys" in g
+                    else (g["signal"], tuple(g["sats"]), ref, tuple(np.flatnonzero(g["half"]))))
     if not plus:
         return None, 0, np.nan, None, False
-    plus, minus = np.concatenate(plus), np.concatenate(minus)
+    plus = np.concatenate(plus) if len(plus) > 1 else plus[0]
+    ref_cols, sizes = np.array(ref_cols), np.array(sizes)
+    minus = np.repeat(ref_cols, sizes)
     # the DD operator T (rows e_plus - e_minus on the SD ambiguity columns) applied by indexing:
     # T x and T P Tᵀ are the same numbers as the products (each entry one difference of two terms)
     a = st.x[plus] - st.x[minus]
@@ -297,16 +344,27 @@ def _fix(st, groups, opt, carried):
     res = carried.resolve(tuple(keys), a, 0.5 * (Qa + Qa.T), opt["ratio"], opt["min_success_rate"])
     if not res["accepted"]:
         return None, 0, res["ratio"], None, False
-    T = np.zeros((plus.size, len(st.x)))
-    T[np.arange(plus.size), plus] = 1.0
-    T[np.arange(plus.size), minus] = -1.0
-    Ts = res["rows"] @ T                                      # the fixed integer combinations of the state
-    Qs = Ts @ st.P @ Ts.T
+    Ts = _dd_rows_on_state(res["rows"], plus, ref_cols, sizes, len(st.x))   # the fixed integer combinations of the state
+    TsP = Ts @ st.P
+    Qs = TsP @ Ts.T
     Pxs = st.P[:3] @ Ts.T
-    dx = Pxs @ np.linalg.solve(Qs, Ts @ st.x - res["integers"])
-    cov = st.P[:3, :3] - Pxs @ np.linalg.solve(Qs, Pxs.T)
+    sol = np.linalg.solve(Qs, np.column_stack([Ts @ st.x - res["integers"], Pxs.T]))   # one factorisation, 4 columns
+    dx = Pxs @ sol[:, 0]
+    cov = st.P[:3, :3] - Pxs @ sol[:, 1:]
     carried.last_fix = (Ts, res["integers"])
+    st.fix_products = (Ts, st.P, TsP, Qs)
     return st.x[:3] - dx, len(res["integers"]), res["ratio"], 0.5 * (cov + cov.T), res["partial"]
+
+
+def _dd_rows_on_state(rows, plus, ref_cols, sizes, n_state):
+    """``rows @ T`` (rows: (m, p) integers) for the DD operator T (p, n_state) of groups of ``sizes``
+    DDs, row i +1 at column ``plus[i]`` and −1 at its group's reference column ``ref_cols[g]``,
+    without forming T: the ``plus`` columns (all distinct) are ``rows``' columns, a reference column
+    minus the sum of its group's (integers: the same numbers as the product)."""
+    Ts = np.zeros((rows.shape[0], n_state))
+    Ts[:, plus] = rows
+    Ts[:, ref_cols] = -np.add.reduceat(rows, np.cumsum(sizes) - sizes, axis=1)
+    return Ts
 
 
 #: variance of the fix-and-hold pseudo-measurement of a fixed integer combination, cycles² (RTKLIB's VAR_HOLDAMB)
@@ -315,10 +373,17 @@ HOLD_VARIANCE_CYCLES2 = 0.001
 
 def _hold(st, fix) -> None:
     """Fix-and-hold: the fixed integer combinations ``Ts x = integers`` as measurements of variance
-    :data:`HOLD_VARIANCE_CYCLES2` (RTKLIB ``holdamb``), so the float ambiguities keep the integers."""
+    :data:`HOLD_VARIANCE_CYCLES2` (RTKLIB ``holdamb``), so the float ambiguities keep the integers.
+    ``fix`` is ``(Ts, integers)``; the products ``Ts P``, ``Ts P Tsᵀ`` :func:`_fix` left in
+    ``st.fix_products`` are reused while they are of this ``Ts`` and the state's covariance is still
+    theirs (the same numbers as forming them again)."""
     Ts, ints = fix
-    S = Ts @ st.P @ Ts.T + HOLD_VARIANCE_CYCLES2 * np.eye(len(ints))
-    K = np.linalg.solve(S, Ts @ st.P).T
+    Ts_fix, P_fix, TsP, Qs = st.fix_products
+    if Ts is not Ts_fix or st.P is not P_fix:     # the state changed since the fix: form them
+        TsP = Ts @ st.P
+        Qs = TsP @ Ts.T
+    S = Qs + HOLD_VARIANCE_CYCLES2 * np.eye(len(ints))
+    K = np.linalg.solve(S, TsP).T
     st.x = st.x + K @ (ints - Ts @ st.x)
     P = st.P - K @ Ts @ st.P
     st.P = 0.5 * (P + P.T)
@@ -367,13 +432,13 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
         raise CdgpsError(f"no common epochs: none of the rover's {ps['rover_epochs']} epochs has a base epoch within "
                          f"max_age_s = {opt['max_age_s']:g} s (" + "; ".join(f"{n} {r}" for r, n in ps["dropped"].items())
                          + f"; the base has {ps['base_epochs']} epochs)")
-    common = set(base["sat"].astype(str)) & set(rover["sat"].astype(str))
+    common = set(map(str, base["sat"].unique())) & set(map(str, rover["sat"].unique()))
     if not common:
         raise CdgpsError(f"no common satellites: the base observes {_few(base['sat'])}, the rover {_few(rover['sat'])} "
                          f"(signals asked for); a double difference needs satellites observed at both receivers")
     rows = paired_sd_rows(base, rover, pairs, opt)
     n_ep = times.size
-    if not any(epoch_groups(rows, k) for k in range(n_ep)):
+    if not rows["groups"]["start"].size:                     # no epoch has a group of two satellites
         raise CdgpsError(f"no double differences: no epoch of the {n_ep} paired has two satellites of one signal "
                          f"observed at both receivers above the {opt['mask_deg']:g}° mask")
     fwd = _filter_pass(rows, times, range(n_ep), opt, base_xyz, origin, iono, progress)
@@ -411,7 +476,8 @@ def _filter_pass(rows, times, order, opt, base_xyz, origin, iono, progress) -> d
            "partial": np.zeros(n_ep, dtype=bool), "ns": np.zeros(n_ep, dtype=np.int64),
            "wrong_fix_resets": np.zeros(n_ep, dtype=bool)}
     st = _State(_n_motion(opt))
-    model = DDGroupModel(lambda i: epoch_groups(rows, order[i]), base_xyz, origin)
+    amb_keys, slip_rows = _amb_keys(rows), np.flatnonzero(rows["slip"]).tolist()
+    model = DDGroupModel(lambda i: _groups_with_keys(rows, order[i], amb_keys, slip_rows), base_xyz, origin)
     source = EpochGrid(times[order])
     hook = _AmbiguityHook(st, model, order, opt, iono, out, progress)
     dyn, sink = _RtkDynamics(st, source.time_s, opt, iono), _FloatSink(order, origin, out)
@@ -447,11 +513,19 @@ class _RtkDynamics:
         self.motion = _motion_model(opt)
         self.identity = self.motion.identity_transition
         self.iono_q = opt["iono_rw_m_per_sqrt_s"] ** 2
+        self._last = None
+
+    def _transition(self, dt):
+        """The motion model's (A, B, Q) over ``dt`` s, kept for the last step length (the epochs are
+        mostly evenly spaced; the arrays are only read)."""
+        if self._last is None or self._last[0] != dt:
+            self._last = (dt, self.motion.transition(dt))
+        return self._last[1]
 
     def step_into(self, k):
         dt = abs(float(self.time_s[k] - self.time_s[k - 1]))
         n, m = len(self.st.keys), self.motion.n
-        A_m, _, Q_m = self.motion.transition(dt)
+        A_m, _, Q_m = self._transition(dt)
         Q = np.zeros((n, n))
         Q[:m, :m] = Q_m
         if self.iono:
@@ -551,7 +625,8 @@ class _AmbiguityHook(Hook):
         if self.holding:
             _hold(st, self.carried.last_fix)
         out["n_fixed"][k], out["ratio"][k], out["partial"][k] = n, ratio, partial
-        out["ns"][k] = len({s for g in groups for s in g["sats"]})
+        out["ns"][k] = len({key[2] for g in groups for key in g["amb_keys"]} if groups and "amb_keys" in groups[0]
+                           else {s for g in groups for s in g["sats"]})
         if self.progress is not None:
             self.progress(i + 1, self.order.size)
         return i_next
@@ -580,35 +655,36 @@ def _combine(f: dict, b: dict) -> dict:
     out["rejected"] = 0
     floor = np.eye(3) * 1e-6                                  # 1 mm²: fixed covariances are optimistic
 
-    def merge(xa, Pa, xb, Pb):
-        S = Pa + Pb
-        K = Pa @ np.linalg.inv(S)
-        return xa + K @ (xb - xa), Pa - K @ Pa
+    def merge(xa, Pa, xb, Pb):                                # (m, 3), (m, 3, 3) each: weighted means
+        K = Pa @ np.linalg.inv(Pa + Pb)
+        return xa + (K @ (xb - xa)[:, :, None])[:, :, 0]
 
-    def agree(xa, Pa, xb, Pb) -> bool:
+    def agree(xa, Pa, xb, Pb):
         d = xa - xb
-        return float(d @ np.linalg.solve(Pa + Pb + floor, d)) <= _CHI2_3_999
+        return np.einsum("mi,mi->m", d, np.linalg.solve(Pa + Pb + floor, d[:, :, None])[:, :, 0]) <= _CHI2_3_999
 
-    for k in range(n):
-        out["float_xyz"][k] = merge(f["float_xyz"][k], f["float_cov"][k], b["float_xyz"][k], b["float_cov"][k])[0]
-        out["float_cov"][k] = min(f["float_cov"][k], b["float_cov"][k], key=np.trace)
-        ff, fb = f["fixed"][k], b["fixed"][k]
-        out["fixed_xyz"][k], out["fixed_cov"][k] = np.nan, np.nan
-        if ff and fb:
-            if agree(f["fixed_xyz"][k], f["fixed_cov"][k], b["fixed_xyz"][k], b["fixed_cov"][k]):
-                out["fixed_xyz"][k] = merge(f["fixed_xyz"][k], f["fixed_cov"][k], b["fixed_xyz"][k], b["fixed_cov"][k])[0]
-                out["fixed_cov"][k] = min(f["fixed_cov"][k], b["fixed_cov"][k], key=np.trace)
-            else:
-                out["rejected"] += 1
-        elif ff or fb:
-            src, other = (f, b) if ff else (b, f)
-            if agree(src["fixed_xyz"][k], src["fixed_cov"][k], other["float_xyz"][k], other["float_cov"][k]):
-                out["fixed_xyz"][k], out["fixed_cov"][k] = src["fixed_xyz"][k], src["fixed_cov"][k]
-            else:
-                out["rejected"] += 1
-        out["ratio"][k] = np.nanmax([f["ratio"][k], b["ratio"][k]]) if np.isfinite([f["ratio"][k], b["ratio"][k]]).any() else np.nan
-        out["n_fixed"][k] = max(f["n_fixed"][k], b["n_fixed"][k])
-        out["partial"][k] = f["partial"][k] and b["partial"][k]
+    def smaller(Pa, Pb):                                      # the covariance of least trace (the first when equal)
+        return np.where((np.trace(Pa, axis1=1, axis2=2) <= np.trace(Pb, axis1=1, axis2=2))[:, None, None], Pa, Pb)
+
+    out["float_xyz"] = merge(f["float_xyz"], f["float_cov"], b["float_xyz"], b["float_cov"])
+    out["float_cov"] = smaller(f["float_cov"], b["float_cov"])
+    out["fixed_xyz"][:], out["fixed_cov"][:] = np.nan, np.nan
+    ff, fb = f["fixed"], b["fixed"]
+    both = np.flatnonzero(ff & fb)
+    ok = agree(f["fixed_xyz"][both], f["fixed_cov"][both], b["fixed_xyz"][both], b["fixed_cov"][both])
+    k = both[ok]
+    out["fixed_xyz"][k] = merge(f["fixed_xyz"][k], f["fixed_cov"][k], b["fixed_xyz"][k], b["fixed_cov"][k])
+    out["fixed_cov"][k] = smaller(f["fixed_cov"][k], b["fixed_cov"][k])
+    out["rejected"] += int(both.size - k.size)
+    for src, other, one in ((f, b, ff & ~fb), (b, f, fb & ~ff)):   # one pass fixed: agrees with the other's float?
+        i = np.flatnonzero(one)
+        ok = agree(src["fixed_xyz"][i], src["fixed_cov"][i], other["float_xyz"][i], other["float_cov"][i])
+        out["fixed_xyz"][i[ok]], out["fixed_cov"][i[ok]] = src["fixed_xyz"][i[ok]], src["fixed_cov"][i[ok]]
+        out["rejected"] += int(i.size - ok.sum())
+    fr, br = f["ratio"], b["ratio"]
+    out["ratio"] = np.where(np.isfinite(fr) | np.isfinite(br), np.fmax(fr, br), np.nan)
+    out["n_fixed"] = np.maximum(f["n_fixed"], b["n_fixed"])
+    out["partial"] = f["partial"] & b["partial"]
     out["fixed"] = np.isfinite(out["fixed_xyz"][:, 0])
     out["wrong_fix_resets"] = f["wrong_fix_resets"] | b["wrong_fix_resets"]
     return out

@@ -234,7 +234,9 @@ class DDGroupModel:
     ``amb_col`` / ``iono_col`` set by the time :meth:`rows` runs: the driver's ``prepared`` hooks
     open the state columns).  The state is [rover offset from ``origin_xyz_m`` (3, m), SD
     ambiguities (cycles), SD slant ionosphere at L1 (m)…]; its size is read from the drive's
-    context at :meth:`prepare`.
+    context at :meth:`prepare`.  Groups that carry ``epoch_rows`` (:func:`epoch_groups`, when an
+    epoch's groups are adjacent rows of the run) give their row columns as that one view instead of
+    being concatenated (the same values).
     """
 
     def __init__(self, groups_of, base_xyz_m, origin_xyz_m):
@@ -253,8 +255,11 @@ class DDGroupModel:
         if not groups:
             return None
         sizes = np.array([len(g["sats"]) for g in groups])
+        whole = groups[0].get("epoch_rows") if len(groups) > 1 else groups[0]
 
         def cat(key):
+            if whole is not None and key in whole:        # the groups' rows are one view already (epoch_groups)
+                return whole[key]
             return np.concatenate([g[key] for g in groups])
 
         M, n = int(sizes.sum()), len(self._ctx.x)
@@ -335,8 +340,11 @@ def paired_sd_rows(base, rover, pairs, opt) -> dict:
     dtrop = m["trop_m_r"].to_numpy() - m["trop_m_b"].to_numpy() if opt["troposphere"] else 0.0
     dclk = m["sat_clock_m_r"].to_numpy() - m["sat_clock_m_b"].to_numpy()
     slip_b = ((m["lli_b"].to_numpy() & 1) > 0) & first_use[epoch]
+    half = ((m["lli_r"].to_numpy() | m["lli_b"].to_numpy()) & 2) > 0
+    code = code.reshape(-1)
     return {
-        "ptr": np.searchsorted(epoch, np.arange(n_ep + 1)), "names": names, "code": code.reshape(-1),
+        "groups": _group_layout(epoch, code, el, half, n_ep),
+        "ptr": np.searchsorted(epoch, np.arange(n_ep + 1)), "names": names, "code": code,
         "sats": m["sat"].to_numpy(), "lam_m": lam, "el": el,
         "mu": (lam / _LAMBDA_L1) ** 2,        # (f_L1 / f)², per satellite (GLONASS FDMA)
         "sat_xyz": m[["sx_r", "sy_r", "sz_r"]].to_numpy(), "sat_base_xyz": m[["sx_b", "sy_b", "sz_b"]].to_numpy(),
@@ -345,7 +353,7 @@ def paired_sd_rows(base, rover, pairs, opt) -> dict:
         "slip": ((m["lli_r"].to_numpy() & 1) > 0) | slip_b,
         # LLI bit 1: half-cycle ambiguity not resolved by the receiver (u-blox before it decodes the
         # data bits): the phase may be off by λ/2; such a row has an ambiguity of its own, never fixed
-        "half": ((m["lli_r"].to_numpy() | m["lli_b"].to_numpy()) & 2) > 0,
+        "half": half,
         "var_phase": var + var_age,
         "var_code": var * opt["code_ratio"] ** 2 * correlated_variance_factor(nominal_interval_s(pairs.rover_time_s),
                                                                              opt["code_correlation_s"]) + var_age,
@@ -356,9 +364,56 @@ _ROW_KEYS = ("sats", "lam_m", "mu", "sat_xyz", "sat_base_xyz", "phase_sd_m", "co
              "var_code")
 
 
+def _group_layout(epoch, code, el, half, n_ep) -> dict:
+    """Every epoch's signal groups of ≥ 2 rows at once (rows ordered by epoch, then signal): ``start`` /
+    ``stop`` (G,) row bounds, ``ref`` (G,) the row of the reference satellite (the highest base
+    elevation ``el``, preferring rows without a ``half``-cycle flag unless the group has none; the
+    first of equal ones, as ``argmax``) and ``ptr`` (n_ep + 1,) each epoch's groups."""
+    n = epoch.size
+    new = np.ones(n, dtype=bool)
+    new[1:] = (epoch[1:] != epoch[:-1]) | (code[1:] != code[:-1])
+    start = np.flatnonzero(new)
+    stop = np.r_[start[1:], n].astype(np.int64)
+    keep = stop - start >= 2
+    start, stop = start[keep], stop[keep]
+    if start.size == 0:
+        return {"start": start, "stop": stop, "ref": start.copy(), "ptr": np.zeros(n_ep + 1, dtype=np.int64)}
+    size = stop - start
+    gid = np.repeat(np.arange(start.size), size)
+    first_of = np.cumsum(size) - size                    # each group's first position in ``rows``
+    rows = np.arange(size.sum()) - np.repeat(first_of, size) + np.repeat(start, size)
+    all_half = np.logical_and.reduceat(half[rows], first_of)
+    score = np.where(half[rows] & ~all_half[gid], -np.inf, el[rows])
+    best = np.maximum.reduceat(score, first_of)
+    hit = np.flatnonzero(score == best[gid])
+    first = np.unique(gid[hit], return_index=True)[1]
+    ref = rows[hit[first]]
+    return {"start": start, "stop": stop, "ref": ref,
+            "ptr": np.searchsorted(epoch[start], np.arange(n_ep + 1)).astype(np.int64)}
+
+
 def epoch_groups(rows, k):
     """Signal groups (≥ 2 satellites) of epoch ``k``: views of :func:`paired_sd_rows` columns, ``ref`` the
-    highest base elevation."""
+    highest base elevation (preferring satellites without a half-cycle flag); ``rows`` (a, b) their
+    row range in the run's columns and, when the epoch's groups are adjacent, ``epoch_rows`` (the
+    row columns of all of them as one view, shared; :meth:`DDGroupModel.rows` uses it)."""
+    lay = rows.get("groups")
+    if lay is not None:
+        names, code = rows["names"], rows["code"]
+        groups = []
+        j0, j1 = int(lay["ptr"][k]), int(lay["ptr"][k + 1])
+        for j in range(j0, j1):
+            a, b = int(lay["start"][j]), int(lay["stop"][j])
+            g = {key: rows[key][a:b] for key in _ROW_KEYS}
+            g["signal"], g["ref"], g["rows"] = str(names[code[a]]), int(lay["ref"][j]) - a, (a, b)
+            groups.append(g)
+        if j1 - j0 > 1:
+            a, b = int(lay["start"][j0]), int(lay["stop"][j1 - 1])
+            if b - a == int((lay["stop"][j0:j1] - lay["start"][j0:j1]).sum()):   # adjacent groups: their rows as one view
+                whole = {key: rows[key][a:b] for key in _ROW_KEYS}
+                for g in groups:
+                    g["epoch_rows"] = whole
+        return groups
     lo, hi = rows["ptr"][k], rows["ptr"][k + 1]
     code = rows["code"][lo:hi]
     cuts = [lo, *(lo + np.flatnonzero(code[1:] != code[:-1]) + 1), hi]
@@ -370,6 +425,7 @@ def epoch_groups(rows, k):
         g["signal"] = str(rows["names"][rows["code"][a]])
         el = np.where(g["half"], -np.inf, rows["el"][a:b]) if not g["half"].all() else rows["el"][a:b]
         g["ref"] = int(np.argmax(el))          # highest, preferring satellites without a half-cycle flag
+        g["rows"] = (a, b)
         groups.append(g)
     return groups
 

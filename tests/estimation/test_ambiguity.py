@@ -677,3 +677,40 @@ def test_z_matrix_and_size_reduction_match_the_elementwise_reference():
         size_reduce_loop(L2, ops2)
         assert ops1 == ops2 and np.array_equal(L1, L2)
         assert len(ops1) > 0 or n < 3
+
+
+def test_symmetric_factorisation_and_tail_rate_equal_the_checked_ones():
+    """ld_factorize_symmetric (rtk's per-epoch call, input already symmetrised) returns ld_factorize's
+    factors bit for bit and still refuses an indefinite matrix; success_tail_rate gives success_tail's
+    index and the tail's bootstrapped success rate."""
+    from cdgps_cli.estimation.ambiguity import (bootstrap_success_rate, ld_factorize, ld_factorize_symmetric, success_tail,
+                                                success_tail_rate)
+
+    rng = np.random.default_rng(5)
+    A = rng.normal(size=(9, 9))
+    Q = A @ A.T * 0.02 + np.eye(9) * 1e-3
+    Qs = 0.5 * (Q + Q.T)
+    for got, want in zip(ld_factorize_symmetric(Qs), ld_factorize(Q)):
+        assert np.array_equal(got, want)
+    with pytest.raises(AmbiguityError):
+        ld_factorize_symmetric(np.diag([1.0, -1.0, 2.0]))
+    d = ld_factorize(Q)[1]
+    for p in (0.5, 0.9, 0.999, 0.999999):
+        k, rate = success_tail_rate(d, p)
+        assert k == success_tail(d, p)
+        assert rate == (pytest.approx(bootstrap_success_rate(d[k:]), rel=1e-12) if k < d.size else 0.0)
+
+
+def test_search_reduced_equals_search_of_two():
+    """rtk's unchecked search of the best two candidates returns search(..., 2)'s candidates and norms
+    exactly, on reduced factors of random covariances of 1 to 25 ambiguities."""
+    from cdgps_cli.estimation.ambiguity import decorrelate, ld_factorize, search, search_reduced
+
+    rng = np.random.default_rng(12)
+    for n in (1, 2, 5, 12, 25):
+        A = rng.normal(size=(n, n))
+        L, d, _ = decorrelate(*ld_factorize(A @ A.T * 0.05 + np.eye(n) * 1e-3))
+        zs = rng.normal(size=n) * 0.4
+        k = n // 3                                     # a tail, as rtk's partial sets
+        for got, want in zip(search_reduced(L[k:, k:], d[k:], zs[k:]), search(L[k:, k:], d[k:], zs[k:], 2)):
+            assert np.array_equal(got, want)

@@ -348,7 +348,7 @@ def test_a_decorrelation_beyond_int64_is_retried_from_scratch_then_left_float(mo
     Qa = A @ A.T * 0.01 + np.eye(5) * 1e-3
     a = rng.integers(-9, 9, 5) + rng.normal(scale=0.01, size=5)
     calls = {"n": 0}
-    real = rtk_multi.decorrelate
+    real = rtk_multi._decorrelated
 
     def flaky(L, d, fail_first):
         calls["n"] += 1
@@ -358,7 +358,7 @@ def test_a_decorrelation_beyond_int64_is_retried_from_scratch_then_left_float(mo
 
     for fail_first, accepted in ((1, True), (99, False)):
         calls["n"] = 0
-        monkeypatch.setattr(rtk_multi, "decorrelate", lambda L, d, f=fail_first: flaky(L, d, f))
+        monkeypatch.setattr(rtk_multi, "_decorrelated", lambda L, d, f=fail_first: flaky(L, d, f))
         c = rtk_multi._CarriedDecorrelation()
         c.Z = c.Zinv = np.eye(5, dtype=np.int64)
         out = c.resolve(("k",), a, Qa, 3.0, 0.999)
@@ -366,3 +366,97 @@ def test_a_decorrelation_beyond_int64_is_retried_from_scratch_then_left_float(mo
         if accepted:                                    # the whole set, right: Zᵀ a's integers map back to round(a)
             assert not out["partial"]
             np.testing.assert_allclose(np.linalg.solve(out["rows"].astype(float), out["integers"]), np.rint(a), atol=1e-9)
+
+
+def test_group_median_is_pandas_groupby_median():
+    """receiver_geometry's per-epoch median receiver clock, in numpy: pandas' groupby median exactly
+    (odd and even group sizes, ties, one-element groups, unsorted keys)."""
+    import pandas as pd
+
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        n = int(rng.integers(1, 40))
+        keys = rng.integers(0, int(rng.integers(1, 8)), n).astype(float)
+        values = np.round(rng.normal(size=n), int(rng.integers(0, 4))) * 10.0 ** rng.uniform(-9, 3)
+        want = pd.Series(values).groupby(keys).transform("median").to_numpy()
+        assert np.array_equal(rtk_multi._group_median(values, keys), want)
+
+
+def test_dd_rows_on_state_equal_the_product_with_the_dd_operator():
+    """_fix's integer combinations of the state, built by column: the same numbers as ``rows @ T`` with
+    T the dense DD operator (+1 on each DD's column, −1 on its group's reference column)."""
+    rng = np.random.default_rng(8)
+    sizes = np.array([3, 1, 4])
+    plus = np.array([5, 7, 4, 9, 12, 10, 11, 14])
+    ref_cols = np.array([6, 3, 13])
+    rows = rng.integers(-40, 40, size=(6, plus.size))
+    T = np.zeros((plus.size, 16))
+    T[np.arange(plus.size), plus] = 1.0
+    T[np.arange(plus.size), np.repeat(ref_cols, sizes)] = -1.0
+    assert np.array_equal(rtk_multi._dd_rows_on_state(rows, plus, ref_cols, sizes, 16), rows @ T)
+
+
+def _combine_per_epoch(f, b):
+    """The forward/backward combination epoch by epoch (rtk_multi._combine before it was vectorised)."""
+    floor = np.eye(3) * 1e-6
+    out = {k: np.array(v, copy=True) for k, v in f.items()}
+    out["rejected"] = 0
+
+    def merge(xa, Pa, xb, Pb):
+        K = Pa @ np.linalg.inv(Pa + Pb)
+        return xa + K @ (xb - xa)
+
+    def agree(xa, Pa, xb, Pb):
+        d = xa - xb
+        return float(d @ np.linalg.solve(Pa + Pb + floor, d)) <= rtk_multi._CHI2_3_999
+
+    for k in range(f["fixed"].size):
+        out["float_xyz"][k] = merge(f["float_xyz"][k], f["float_cov"][k], b["float_xyz"][k], b["float_cov"][k])
+        out["float_cov"][k] = min(f["float_cov"][k], b["float_cov"][k], key=np.trace)
+        ff, fb = f["fixed"][k], b["fixed"][k]
+        out["fixed_xyz"][k], out["fixed_cov"][k] = np.nan, np.nan
+        if ff and fb:
+            if agree(f["fixed_xyz"][k], f["fixed_cov"][k], b["fixed_xyz"][k], b["fixed_cov"][k]):
+                out["fixed_xyz"][k] = merge(f["fixed_xyz"][k], f["fixed_cov"][k], b["fixed_xyz"][k], b["fixed_cov"][k])
+                out["fixed_cov"][k] = min(f["fixed_cov"][k], b["fixed_cov"][k], key=np.trace)
+            else:
+                out["rejected"] += 1
+        elif ff or fb:
+            src, other = (f, b) if ff else (b, f)
+            if agree(src["fixed_xyz"][k], src["fixed_cov"][k], other["float_xyz"][k], other["float_cov"][k]):
+                out["fixed_xyz"][k], out["fixed_cov"][k] = src["fixed_xyz"][k], src["fixed_cov"][k]
+            else:
+                out["rejected"] += 1
+        r = [f["ratio"][k], b["ratio"][k]]
+        out["ratio"][k] = np.nanmax(r) if np.isfinite(r).any() else np.nan
+        out["n_fixed"][k] = max(f["n_fixed"][k], b["n_fixed"][k])
+        out["partial"][k] = f["partial"][k] and b["partial"][k]
+    out["fixed"] = np.isfinite(out["fixed_xyz"][:, 0])
+    out["wrong_fix_resets"] = f["wrong_fix_resets"] | b["wrong_fix_resets"]
+    return out
+
+
+def test_combine_vectorised_equals_the_per_epoch_combination():
+    """_combine over all epochs at once gives the per-epoch loop's numbers exactly: merged floats and
+    fixes, agreeing / disagreeing fixes (rejected), one pass fixed, ratios with NaN and inf."""
+    rng = np.random.default_rng(9)
+    n = 400
+
+    def one_pass():
+        A = rng.normal(size=(n, 3, 3)) * rng.choice([1e-3, 1e-2, 0.3], size=(n, 1, 1))
+        cov = A @ A.transpose(0, 2, 1) + np.eye(3) * 1e-6
+        fixed = rng.random(n) < 0.6
+        fx = rng.normal(size=(n, 3)) * rng.choice([0.001, 0.05], size=(n, 1))
+        fx[~fixed] = np.nan
+        fcov = np.where(fixed[:, None, None], cov * 0.01, np.nan)
+        return {"float_xyz": rng.normal(size=(n, 3)) * 0.02, "float_cov": cov, "fixed_xyz": fx, "fixed_cov": fcov,
+                "fixed": fixed, "ratio": rng.choice([np.nan, np.inf, 2.0, 5.5, 30.0], n),
+                "n_fixed": rng.integers(0, 20, n), "partial": rng.random(n) < 0.2, "ns": rng.integers(4, 12, n),
+                "wrong_fix_resets": rng.random(n) < 0.05}
+
+    f, b = one_pass(), one_pass()
+    got, want = rtk_multi._combine(f, b), _combine_per_epoch(f, b)
+    assert 0 < got["rejected"] == want["rejected"] and got["fixed"].sum() > 50
+    for key in want:
+        if key != "rejected":
+            assert np.array_equal(got[key], want[key], equal_nan=True), key

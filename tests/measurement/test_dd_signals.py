@@ -95,3 +95,30 @@ def test_signal_sd_table_dd_is_the_true_integer_per_signal():
         # the code DDs at the true positions: zero to the code noise (simulated σ 0.5 m per receiver → DD σ 1 m)
         code_dd = d.r_code_m[rows] - d.r_code_m[r]
         assert np.all(np.isfinite(code_dd)) and abs(np.mean(code_dd)) < 0.3 and 0.5 < np.std(code_dd) < 1.5, g
+
+
+def test_group_layout_equals_the_per_epoch_cut():
+    """paired_sd_rows' ``groups`` layout (every epoch's groups and references at once) gives the same
+    groups, references and row ranges as cutting each epoch on its own, half-cycle flags included
+    (a reference prefers a satellite without one, unless the whole group has it)."""
+    from cdgps_cli.measurement.dd_signals import _group_layout, epoch_groups
+
+    rng = np.random.default_rng(11)
+    n_ep = 40
+    sizes = rng.integers(0, 9, n_ep)                 # rows per epoch, some epochs empty
+    ptr = np.r_[0, np.cumsum(sizes)]
+    epoch = np.repeat(np.arange(n_ep), sizes)
+    code = np.concatenate([np.sort(rng.integers(0, 3, s)) for s in sizes]).astype(np.int64)
+    el = rng.choice([0.3, 0.5, 0.7, 0.9], ptr[-1])   # ties: the first of equal elevations
+    half = rng.random(ptr[-1]) < 0.4
+    keys = ("sats", "lam_m", "mu", "sat_xyz", "sat_base_xyz", "phase_sd_m", "code_sd_m", "slip", "half", "var_phase", "var_code")
+    rows = {k: np.zeros(ptr[-1]) for k in keys}
+    rows.update(ptr=ptr, code=code, el=el, half=half, names=np.array(["E:E1", "G:L1", "G:L2"]),
+                sats=np.array([f"G{i:02d}" for i in range(ptr[-1])], dtype=object))
+    with_layout = dict(rows, groups=_group_layout(epoch, code, el, half, n_ep))
+    n_groups = 0
+    for k in range(n_ep):
+        fast, slow = epoch_groups(with_layout, k), epoch_groups(rows, k)
+        assert [(g["signal"], g["ref"], g["rows"]) for g in fast] == [(g["signal"], g["ref"], g["rows"]) for g in slow]
+        n_groups += len(fast)
+    assert n_groups > 30
