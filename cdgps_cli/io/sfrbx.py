@@ -630,7 +630,7 @@ def _beidou_frame(pl: bytes, sv: int, latest: dict, recs: dict, stats: dict, che
         stats["beidou_d2_frames"] += 1
         _beidou_d2_page(words, f"C{sv:02d}", latest, recs, stats)
         return
-    fid, _ = d1_subframe_id(words)
+    fid = (words[0] >> 12) & 7                              # FraID, bits 15-17: d1_subframe_id without its SOW
     if fid not in (1, 2, 3):
         return
     stats["beidou_subframes"] += 1
@@ -790,76 +790,62 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = Fal
         ``glonass_unknown_slot`` (with ``glonass``), ``other_systems`` (gnssId → frames: not decoded
         here), ``ephemerides``.
     """
+    stats = _new_stats(glonass)
+    frames = [(i, cls, mid, fr) for i, (_, cls, mid, fr) in enumerate(frames) if cls == 2 and (mid == 0x13 or mid == 0x11)]
+    stats["sfrbx_frames"] = len(frames)
+    frames = _stateful_frames(frames, week_ref, glonass, stats)
+    recs: dict[tuple, dict] = {}
+    glo_recs: dict[tuple, dict] = {}
+    latest: dict[str, dict] = {}
+    gps, gal, bds, glo = [], [], [], []
+    for f in frames:                                       # kept SFRBX frames are well formed (_stateful_frames)
+        g = f[3][6] if f[2] == 0x13 else 0
+        (gps if g == 0 else gal if g == 2 else bds if g == 3 else glo).append(f)
+    _gps_frames(gps, _checked_words(gps), week_ref, latest, recs, stats)
+    if gal:
+        _galileo_frames(gal, _inav_pages(gal), week_ref, latest, recs, stats)
+    checked = _checked_words(bds)
+    for i, _, _, fr in bds:
+        _beidou_frame(fr[6:-2], fr[7], latest, recs, stats, checked.get(i))
+    for _, _, _, fr in glo:
+        glonass_frame(fr[6:-2], latest, glo_recs, stats, week_ref)
+    nav = _nav_table(recs, glo_recs)
+    stats["ephemerides"] = int(len(nav))
+    return nav, stats
+
+
+def _new_stats(glonass: bool) -> dict:
+    """The counters of :func:`sfrbx_ephemerides`, zero."""
     stats = {"sfrbx_frames": 0, "gps_subframes": 0, "parity_failures": 0, "galileo_words": 0, "galileo_bad_pages": 0,
              "beidou_subframes": 0, "beidou_bch_failures": 0, "beidou_d2_frames": 0, "beidou_d2_pages": 0,
              "beidou_cnav_frames": 0, "galileo_other_frames": 0,
              "gps_cnav_frames": 0, "other_systems": {}, "ephemerides": 0}
     if glonass:
         stats.update({"glonass_strings": 0, "glonass_hamming_failures": 0, "glonass_unknown_slot": 0})
-    glo_recs: dict[tuple, dict] = {}
-    latest: dict[str, dict[int, list[int]]] = {}
-    recs: dict[tuple, dict] = {}
-    frames = [(i, cls, mid, fr) for i, (_, cls, mid, fr) in enumerate(frames) if cls == 2 and (mid == 0x13 or mid == 0x11)]
-    stats["sfrbx_frames"] = len(frames)
-    frames = _stateful_frames(frames, week_ref, glonass, stats)
-    inav = _inav_pages(frames) if week_ref is not None else {}
+    return stats
+
+
+def _gps_words(cls_mid: tuple, pl: bytes, checked: list | None, stats: dict) -> tuple[int, list | None]:
+    """(svId, 24-bit data words or None) of a GPS RXM-SFRBX L1 C/A (parity checked; a failure counted)
+    or legacy RXM-SFRB payload (None also for an SFRB of a length or svId not decoded)."""
+    if cls_mid == _SFRBX:
+        words = checked if checked is not None else gps_words_from_sfrbx(np.frombuffer(pl[8:48], dtype="<u4").tolist())
+        if words is None:
+            stats["parity_failures"] += 1
+        return pl[1], words
+    if len(pl) != 42 or not 1 <= pl[1] <= 32:
+        return pl[1], None
+    return pl[1], [w & 0xFFFFFF for w in np.frombuffer(pl[2:42], dtype="<u4").tolist()]
+
+
+def _gps_frames(frames: list, checked: dict, week_ref: int | None, latest: dict, recs: dict, stats: dict) -> None:
+    """The GPS subframes (RXM-SFRBX L1 C/A and RXM-SFRB, in log order) into ``recs``: each satellite's
+    latest subframes 1-3 decoded whenever they change (:func:`decode_gps_subframes`)."""
     decoded: set = set()
-    checked = _checked_words(frames)
     for i, cls, mid, fr in frames:
-        pl = fr[6:-2]
-        if (cls, mid) == _SFRBX:
-            if len(pl) < 8 or len(pl) != 8 + 4 * pl[4]:
-                continue
-            gnss, sv = pl[0], pl[1]
-            if gnss == 2 and (pl[4] != 8 or pl[2] not in _INAV_SIGNALS):
-                stats["galileo_other_frames"] += 1        # F/NAV (E5a), C/NAV (E6): not I/NAV
-                continue
-            if gnss == 2 and week_ref is not None:
-                got = inav[i]
-                if got is None:
-                    stats["galileo_bad_pages"] += 1
-                    continue
-                wtype, word = got
-                if 1 <= wtype <= 5 and 1 <= sv <= 36:
-                    stats["galileo_words"] += 1
-                    sat = f"E{sv:02d}"
-                    have = latest.setdefault(sat, {})
-                    have[wtype] = word
-                    seen = (sat, *(have.get(k) for k in (1, 2, 3, 4, 5)))
-                    if seen in decoded:                    # the same five words: the same record
-                        continue
-                    decoded.add(seen)
-                    rec = decode_galileo_words(have, sat, week_ref)
-                    if rec is not None and 0 <= rec["e"] < 1 and rec["sqrt_a_sqrt_m"] > 0:
-                        recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)
-                continue
-            if gnss == 3:
-                _beidou_frame(pl, sv, latest, recs, stats, checked.get(i))
-                continue
-            if gnss == 6 and glonass:
-                glonass_frame(pl, latest, glo_recs, stats, week_ref)
-                continue
-            if gnss != 0:
-                stats["other_systems"][str(gnss)] = stats["other_systems"].get(str(gnss), 0) + 1
-                continue
-            if pl[4] != 10:
-                continue
-            if pl[2] != 0:                 # sigId: L2C / L5 CNAV (u-blox 9), not LNAV
-                stats["gps_cnav_frames"] += 1
-                continue
-            words = checked.get(i)
-            if words is None:
-                words = gps_words_from_sfrbx(np.frombuffer(pl[8:48], dtype="<u4").tolist())
-            if words is None:
-                stats["parity_failures"] += 1
-                continue
-        else:
-            if len(pl) != 42:
-                continue
-            sv = pl[1]
-            if not 1 <= sv <= 32:
-                continue
-            words = [w & 0xFFFFFF for w in np.frombuffer(pl[2:42], dtype="<u4").tolist()]
+        sv, words = _gps_words((cls, mid), fr[6:-2], checked.get(i), stats)
+        if words is None:
+            continue
         sid = subframe_id(words)
         if sid not in (1, 2, 3) or not 1 <= sv <= 32:
             continue
@@ -867,24 +853,63 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = Fal
         sat = f"G{sv:02d}"
         have = latest.setdefault(sat, {})
         have[sid] = words
-        if week_ref is not None and all(k in have for k in (1, 2, 3)):
-            seen = (sat, tuple(have[1]), tuple(have[2]), tuple(have[3]))
-            if seen in decoded:                            # the same three subframes: the same record
-                continue
-            decoded.add(seen)
-            rec = decode_gps_subframes(have[1], have[2], have[3], sat, week_ref)
-            if rec is not None and 0 <= rec["e"] < 1 and rec["sqrt_a_sqrt_m"] > 0:
-                recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)
-    nav = pd.DataFrame(list(recs.values()), columns=list(NAV_COLUMNS)) if recs else _empty_nav()
-    if len(nav):
-        for c in ("iode", "codes_l2", "l2p_data_flag", "sv_health", "iodc", "week", "line"):
-            nav[c] = nav[c].astype(np.int64)
-        nav = nav.sort_values(["sat", "toe_gps_s", "transmit_gps_s"], kind="stable").reset_index(drop=True)
+        if week_ref is None or not all(k in have for k in (1, 2, 3)):
+            continue
+        seen = (sat, tuple(have[1]), tuple(have[2]), tuple(have[3]))
+        if seen in decoded:                                # the same three subframes: the same record
+            continue
+        decoded.add(seen)
+        rec = decode_gps_subframes(have[1], have[2], have[3], sat, week_ref)
+        if rec is not None and 0 <= rec["e"] < 1 and rec["sqrt_a_sqrt_m"] > 0:
+            recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)
+
+
+def _galileo_frames(frames: list, inav: dict, week_ref: int, latest: dict, recs: dict, stats: dict) -> None:
+    """The Galileo I/NAV page pairs (checked and extracted in ``inav``, log order) into ``recs``: each
+    satellite's latest word types 1-5 decoded whenever they change (:func:`decode_galileo_words`)."""
+    decoded: set = set()
+    for i, _, _, fr in frames:
+        got = inav[i]
+        if got is None:
+            stats["galileo_bad_pages"] += 1
+            continue
+        wtype, word = got
+        sv = fr[7]
+        if not (1 <= wtype <= 5 and 1 <= sv <= 36):
+            continue
+        stats["galileo_words"] += 1
+        sat = f"E{sv:02d}"
+        have = latest.setdefault(sat, {})
+        have[wtype] = word
+        seen = (sat, *(have.get(k) for k in (1, 2, 3, 4, 5)))
+        if seen in decoded:                                # the same five words: the same record
+            continue
+        decoded.add(seen)
+        rec = decode_galileo_words(have, sat, week_ref)
+        if rec is not None and 0 <= rec["e"] < 1 and rec["sqrt_a_sqrt_m"] > 0:
+            recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)
+
+
+_NAV_INT_COLUMNS = ("iode", "codes_l2", "l2p_data_flag", "sv_health", "iodc", "week", "line")
+
+
+def _nav_table(recs: dict, glo_recs: dict) -> pd.DataFrame:
+    """The records as the table :func:`sfrbx_ephemerides` returns (integer columns int64, sorted by
+    satellite, toe, transmission time; GLONASS columns when there are GLONASS records)."""
+    nav = _records_table(list(recs.values()), list(NAV_COLUMNS)) if recs else _empty_nav()
     if glo_recs:
-        glo = pd.DataFrame(list(glo_recs.values()), columns=[*NAV_COLUMNS, *GLONASS_NAV_COLUMNS])
+        glo = _records_table(list(glo_recs.values()), [*NAV_COLUMNS, *GLONASS_NAV_COLUMNS])
         nav = pd.concat([d for d in (nav.reindex(columns=glo.columns), glo) if len(d)], ignore_index=True)
-        for c in ("iode", "codes_l2", "l2p_data_flag", "sv_health", "iodc", "week", "line"):
+        for c in _NAV_INT_COLUMNS:
             nav[c] = nav[c].astype(np.int64)
         nav = nav.sort_values(["sat", "toe_gps_s", "transmit_gps_s"], kind="stable").reset_index(drop=True)
-    stats["ephemerides"] = int(len(nav))
-    return nav, stats
+    return nav
+
+
+def _records_table(rows: list, columns: list) -> pd.DataFrame:
+    """``rows`` (dicts) as a table of ``columns``, integer columns int64, sorted by satellite, toe and
+    transmission time (stable), as ``pd.DataFrame(rows, columns=columns)`` then ``sort_values`` gives it."""
+    nav = pd.DataFrame({c: [r.get(c) for r in rows] for c in columns}, columns=columns)
+    for c in _NAV_INT_COLUMNS:
+        nav[c] = nav[c].astype(np.int64)
+    return nav.sort_values(["sat", "toe_gps_s", "transmit_gps_s"], kind="stable").reset_index(drop=True)
