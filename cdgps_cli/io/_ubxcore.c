@@ -7,8 +7,9 @@
  *   counts: (bad_checksum_frames, truncated_tail_bytes, skipped_bytes, nmea_sentences, nmea_bytes,
  *            rtcm_bytes, bad_crc_rtcm_frames)
  *   bad_*_offsets: lists of the first MAX_SHOWN offsets
- * UBX checksums come from prefix sums (O(1) per candidate), as in the Python walk, so a stream full
- * of false sync words announcing long frames stays linear.  Plain C and the buffer protocol.
+ * UBX checksums are summed over each candidate's bytes until the candidates that failed have cost more
+ * than the stream's length, then come from prefix sums (O(1) per candidate, as in the Python walk), so a
+ * stream full of false sync words announcing long frames stays linear.  Plain C and the buffer protocol.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -96,6 +97,21 @@ static Py_ssize_t nmea_at(const uint8_t *d, Py_ssize_t n, Py_ssize_t k) {
     }
 }
 
+/* S_i = sum of d_j (j < i), T_i = sum of j d_j (j < i), mod 256: the checksum over d[a:b] is
+ * CK_A = S_b - S_a, CK_B = b CK_A - (T_b - T_a) (mod 256), O(1) per candidate */
+static int prefix_sums(const uint8_t *d, Py_ssize_t n, uint8_t **ps, uint8_t **pt) {
+    uint8_t *s = malloc((size_t)n + 1), *t = malloc((size_t)n + 1);
+    if (!s || !t) { free(s); free(t); return -1; }
+    s[0] = t[0] = 0;
+    for (Py_ssize_t j = 0; j < n; j++) {
+        s[j + 1] = (uint8_t)(s[j] + d[j]);
+        t[j + 1] = (uint8_t)(t[j] + (uint8_t)j * d[j]);
+    }
+    *ps = s;
+    *pt = t;
+    return 0;
+}
+
 static int plausible_rtcm(int64_t t) { return (t >= 1001 && t <= 1300) || (t >= 4001 && t <= 4095); }
 
 static PyObject *walk(PyObject *self, PyObject *args) {
@@ -104,15 +120,10 @@ static PyObject *walk(PyObject *self, PyObject *args) {
     if (!PyArg_ParseTuple(args, "y*", &buf)) return NULL;
     const uint8_t *d = buf.buf;
     Py_ssize_t n = buf.len;
-    uint8_t *s = malloc((size_t)n + 1), *t = malloc((size_t)n + 1);
+    uint8_t *s = NULL, *t = NULL;          /* prefix sums, made once direct sums have cost more than n */
+    Py_ssize_t wasted = 0;                 /* bytes summed directly for candidates that failed */
     vec ubx = {0}, rtcm = {0}, badu = {0}, badr = {0};
     PyObject *out = NULL;
-    if (!s || !t) { PyErr_NoMemory(); goto done; }
-    s[0] = t[0] = 0;
-    for (Py_ssize_t j = 0; j < n; j++) {
-        s[j + 1] = (uint8_t)(s[j] + d[j]);
-        t[j + 1] = (uint8_t)(t[j] + (uint8_t)j * d[j]);
-    }
     int64_t n_badu = 0, trunc = 0, skipped = 0, nmea_n = 0, nmea_b = 0, rtcm_b = 0, n_badr = 0;
     Py_ssize_t pos = 0, scan = 0, nu = -1, nn = -1, nr = -1;
     int err = 0;
@@ -132,9 +143,17 @@ static PyObject *walk(PyObject *self, PyObject *args) {
                 bad = 1;
             } else {
                 Py_ssize_t a = k + 2, b = k + 6 + len;
-                uint8_t ck_a = (uint8_t)(s[b] - s[a]);
-                uint8_t ck_b = (uint8_t)((uint8_t)b * ck_a - (uint8_t)(t[b] - t[a]));
+                uint8_t ck_a = 0, ck_b = 0;
+                if (s) {
+                    ck_a = (uint8_t)(s[b] - s[a]);
+                    ck_b = (uint8_t)((uint8_t)b * ck_a - (uint8_t)(t[b] - t[a]));
+                } else {
+                    for (Py_ssize_t q = a; q < b; q++) { ck_a += d[q]; ck_b += ck_a; }
+                }
                 bad = ck_a != d[b] || ck_b != d[b + 1];
+                if (bad && !s && (wasted += b - a) > n) {  /* false syncs: O(1) checksums from here on */
+                    if (prefix_sums(d, n, &s, &t) < 0) { PyErr_NoMemory(); goto done; }
+                }
             }
             if (bad) {
                 n_badu++;

@@ -49,7 +49,8 @@ from cdgps_cli.core.records import GLONASS_NAV_COLUMNS, NAV_COLUMNS
 from cdgps_cli.io.sfrbx_glonass import glonass_frame
 
 __all__ = ["GPS_PI", "URA_M", "BDS_PREAMBLE", "bch15_syndrome", "beidou_words_from_sfrbx", "decode_beidou_d1",
-           "decode_beidou_d2", "decode_galileo_words", "decode_gps_subframes", "inav_word", "gps_words_from_sfrbx", "parity_ok", "sfrbx_ephemerides"]
+           "decode_beidou_d2", "decode_galileo_words", "decode_gps_subframes", "inav_word", "gps_words_from_sfrbx", "parity_ok", "sfrbx_ephemerides",
+           "sfrbx_ephemerides_at"]
 
 GPS_PI = 3.1415926535898
 """The value of π IS-GPS-200 fixes for converting semicircles to radians."""
@@ -161,8 +162,7 @@ def _Bits(words24: list[int]) -> _Fields:
 
 def subframe_id(words24: list[int]) -> int:
     """The subframe ID of the HOW (word 2 bits 20–22), 0 when word 1 lacks the preamble."""
-    b = _Bits(words24)
-    return b.u(43, 3) if b.u(0, 8) == PREAMBLE else 0
+    return (words24[1] >> 2) & 7 if (words24[0] >> 16) & 0xFF == PREAMBLE else 0
 
 
 def decode_gps_subframes(sf1: list[int], sf2: list[int], sf3: list[int], sat: str, week_ref: int) -> dict | None:
@@ -718,17 +718,16 @@ def _inav_pages(frames: list) -> dict:
     return dict(zip(at, inav_words(dw)))
 
 
-def _stateful_frames(frames: list, week_ref: int | None, glonass: bool, stats: dict) -> list:
-    """The frames of ``frames`` ((index, class, id, frame bytes), RXM-SFRBX / RXM-SFRB in log order) that
-    :func:`sfrbx_ephemerides` must look at one by one, in order; the others (wrong length, F/NAV and
-    C/NAV, BeiDou B1C/B2a/B2b, GPS CNAV, systems not decoded) only count, and are counted here into
-    ``stats`` from their header bytes, all at once, as the frame-by-frame walk would count them."""
-    if not frames:
-        return frames
-    head = np.frombuffer(b"".join(fr[6:11] if len(fr) >= 11 else b"\xff" * 5 for _, _, _, fr in frames),
-                         np.uint8).reshape(len(frames), 5).astype(np.int64)
-    n_pl = np.array([len(fr) - 8 for _, _, _, fr in frames], np.int64)
-    is_x = np.array([mid == 0x13 for _, _, mid, _ in frames], bool)
+def _stateful_mask(x: np.ndarray, off: np.ndarray, end: np.ndarray, week_ref: int | None, glonass: bool,
+                   stats: dict) -> np.ndarray:
+    """Which RXM-SFRBX / RXM-SFRB frames (``x[off:end]``, log order) :func:`sfrbx_ephemerides` must look at
+    one by one, in order; the others (wrong length, F/NAV and C/NAV, BeiDou B1C/B2a/B2b, GPS CNAV, systems
+    not decoded) only count, and are counted here into ``stats`` from their header bytes, all at once, as
+    the frame-by-frame walk would count them."""
+    n_pl = end - off - 8
+    head = x[np.minimum(off[:, None] + np.arange(6, 11), x.size - 1)].astype(np.int64)
+    head[n_pl < 3] = 0xFF                                  # too short to have gnssId … numWords
+    is_x = x[off + 3] == 0x13
     gnss, sig, nw = head[:, 0], head[:, 2], head[:, 4]
     valid = is_x & (n_pl >= 8) & (n_pl == 8 + 4 * nw)
     inav_sig = np.isin(sig, sorted(_INAV_SIGNALS))
@@ -746,8 +745,7 @@ def _stateful_frames(frames: list, week_ref: int | None, glonass: bool, stats: d
         for k in np.argsort(first, kind="stable").tolist():       # in order of first appearance
             key = str(int(codes[k]))
             stats["other_systems"][key] = stats["other_systems"].get(key, 0) + int(count[k])
-    keep = ~is_x | gal_kept | (bds & (nw == 10)) | glo | (gps & (sig == 0))
-    return [frames[k] for k in np.flatnonzero(keep).tolist()]
+    return ~is_x | gal_kept | (bds & (nw == 10)) | glo | (gps & (sig == 0))
 
 
 _EMPTY_NAV: list = []
@@ -790,16 +788,32 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = Fal
         ``glonass_unknown_slot`` (with ``glonass``), ``other_systems`` (gnssId → frames: not decoded
         here), ``ephemerides``.
     """
+    blob = b"".join(fr for _, _, _, fr in frames)
+    size = np.fromiter((len(fr) for _, _, _, fr in frames), np.int64, len(frames))
+    end = np.cumsum(size)
+    return sfrbx_ephemerides_at(blob, end - size, end, week_ref, glonass=glonass)
+
+
+def sfrbx_ephemerides_at(data: bytes, off: np.ndarray, end: np.ndarray, week_ref: int | None, *,
+                         glonass: bool = False) -> tuple[pd.DataFrame, dict]:
+    """:func:`sfrbx_ephemerides` of the checksum-valid UBX frames ``data[off[k]:end[k]]`` (int64 arrays, log
+    order), as the framer finds them in a log's bytes; the frames only counted never become Python objects."""
+    x = np.frombuffer(data, np.uint8)
     stats = _new_stats(glonass)
-    frames = [(i, cls, mid, fr) for i, (_, cls, mid, fr) in enumerate(frames) if cls == 2 and (mid == 0x13 or mid == 0x11)]
-    stats["sfrbx_frames"] = len(frames)
-    frames = _stateful_frames(frames, week_ref, glonass, stats)
+    off, end = np.asarray(off, np.int64), np.asarray(end, np.int64)
+    mid = x[off + 3]
+    sel = (x[off + 2] == 2) & ((mid == 0x13) | (mid == 0x11))
+    off, end = off[sel], end[sel]
+    stats["sfrbx_frames"] = int(off.size)
+    keep = _stateful_mask(x, off, end, week_ref, glonass, stats)
+    off, end = off[keep].tolist(), end[keep].tolist()
     recs: dict[tuple, dict] = {}
     glo_recs: dict[tuple, dict] = {}
     latest: dict[str, dict] = {}
     gps, gal, bds, glo = [], [], [], []
-    for f in frames:                                       # kept SFRBX frames are well formed (_stateful_frames)
-        g = f[3][6] if f[2] == 0x13 else 0
+    for a, b in zip(off, end):                             # kept SFRBX frames are well formed (_stateful_mask)
+        f = (a, 2, data[a + 3], data[a:b])
+        g = data[a + 6] if f[2] == 0x13 else 0
         (gps if g == 0 else gal if g == 2 else bds if g == 3 else glo).append(f)
     _gps_frames(gps, _checked_words(gps), week_ref, latest, recs, stats)
     if gal:

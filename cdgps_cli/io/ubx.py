@@ -33,8 +33,8 @@ import numpy as np
 import pandas as pd
 
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.io.sfrbx import sfrbx_ephemerides
-from cdgps_cli.io.ubx_frames import MAX_OFFSETS_SHOWN, rtcm_station_arp, split_stream
+from cdgps_cli.io.sfrbx import sfrbx_ephemerides_at
+from cdgps_cli.io.ubx_frames import MAX_OFFSETS_SHOWN, rtcm_station_arp, split_stream_spans
 
 __all__ = ["INTEGRITY_COUNTS", "UBX_OBS_COLUMNS", "UBX_SIGNALS", "integrity_line", "integrity_problems", "integrity_record",
            "read_ubx_rawx", "read_ubx_signals", "skipped_line"]
@@ -251,8 +251,9 @@ _LAST_DECODED: dict = {}
 
 
 def _decoded_rawx(p: Path, strict: bool, data: bytes | None = None):
-    """Frame a UBX log and decode its RXM-RAWX messages: (frames, rtcm, split statistics, message counts,
-    epochs, measurements, offsets of undecodable frames, epoch time tags in GPS s); CdgpsError as
+    """Frame a UBX log and decode its RXM-RAWX messages: (UBX frames as (log bytes, start, end arrays), rtcm,
+    split statistics, message counts, epochs, measurements, offsets of undecodable frames, epoch time tags
+    in GPS s); CdgpsError as
     :func:`read_ubx_log` says.  ``data``: the log's bytes when already read (``p`` then names it).
     A file read from disk is decoded once while it is unchanged (same path, modification time and
     size): the arrays come back read-only, the lists and dicts as copies."""
@@ -265,14 +266,14 @@ def _decoded_rawx(p: Path, strict: bool, data: bytes | None = None):
             key = None                                     # the read below reports it
     if key is None or key not in _LAST_DECODED:
         out = _decode_rawx_log(p, strict, data)
-        for a in out[4:6] + out[7:8]:
+        for a in out[4:6] + out[7:8] + out[0][1:]:
             a.setflags(write=False)
         if key is None:
             return out
         _LAST_DECODED.clear()
         _LAST_DECODED[key] = out
     frames, rtcm, stats, counts, epochs, meas, undecodable, t = _LAST_DECODED[key]
-    return list(frames), list(rtcm), copy.deepcopy(stats), dict(counts), epochs, meas, list(undecodable), t
+    return frames, list(rtcm), copy.deepcopy(stats), dict(counts), epochs, meas, list(undecodable), t
 
 
 def _decode_rawx_log(p: Path, strict: bool, data: bytes | None):
@@ -288,16 +289,15 @@ def _decode_rawx_log(p: Path, strict: bool, data: bytes | None):
             raise CdgpsError(f"{p}: cannot decompress this gzip file: {exc}") from None
     if not data:
         raise CdgpsError(f"{p}: empty file; expected a u-blox UBX binary log")
-    frames, rtcm, stats = split_stream(data)
+    off, end, rtcm, stats = split_stream_spans(data)
     x = np.frombuffer(data, np.uint8)
-    off = np.array([f[0] for f in frames], np.int64)
     ids = (x[off + 2].astype(np.int64) << 8) | x[off + 3]
     codes, first, n_id = np.unique(ids, return_index=True, return_counts=True)
     counts: dict[str, int] = {}
     for k in np.argsort(first, kind="stable").tolist():  # in order of first appearance, as frame by frame
         name = _msg_name(int(codes[k]) >> 8, int(codes[k]) & 0xFF)
         counts[name] = counts.get(name, 0) + int(n_id[k])
-    if not frames:
+    if not off.size:
         extra = f" ({stats['bad_checksum_frames']} candidate frames failed the checksum)" if stats["bad_checksum_frames"] else ""
         raise CdgpsError(f"{p}: no valid UBX frames found in {len(data)} bytes{extra}; expected a u-blox UBX binary log with RXM-RAWX messages")
     is_rawx = ids == (_RAWX[0] << 8 | _RAWX[1])
@@ -338,7 +338,7 @@ def _decode_rawx_log(p: Path, strict: bool, data: bytes | None):
         raise CdgpsError(f"{p}, byte {epochs['offset'][i]}: RXM-RAWX epoch (week {epochs['week'][i]}, rcvTow "
                          f"{epochs['rcvTow'][i]} s) is earlier than the previous one (byte {epochs['offset'][i - 1]}); "
                          "epochs must be in time order")
-    return frames, rtcm, stats, counts, epochs, meas, undecodable_offsets, t
+    return (data, off, end), rtcm, stats, counts, epochs, meas, undecodable_offsets, t
 
 
 def read_ubx_rawx(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.DataFrame]:
@@ -453,7 +453,7 @@ def read_ubx_log(path: str | Path, *, strict: bool = False,
     info = {
         "path": str(p),
         "message_counts": dict(sorted(counts.items())),
-        "n_frames": len(frames),
+        "n_frames": len(frames[1]),
         "n_epochs": n_epochs,
         "week": week0,
         "leap_seconds": leap,
@@ -473,7 +473,7 @@ def read_ubx_log(path: str | Path, *, strict: bool = False,
         "bad_crc_rtcm_frames": stats["bad_crc_rtcm_frames"],
         "bad_rtcm_offsets": stats["bad_rtcm_offsets"],
     }
-    nav, info["sfrbx"] = sfrbx_ephemerides(frames, week0)
+    nav, info["sfrbx"] = sfrbx_ephemerides_at(*frames, week0)
     info["rtcm_base"] = rtcm_station_arp(rtcm)
     return info, obs, nav
 

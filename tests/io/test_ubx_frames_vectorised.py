@@ -195,3 +195,21 @@ def test_rtcm_rounds_exhausted_falls_back_to_the_walk(monkeypatch):
     want = [_split_stream_walk(d) for d in streams]
     monkeypatch.setattr(ubx_frames, "MAX_RTCM_ROUNDS", 1)
     assert [_split_stream_numpy(d) for d in streams] == want
+
+
+def test_false_syncs_switch_the_compiled_walk_to_prefix_sums():
+    """Sync words announcing long frames that fail: the compiled walk sums them directly until that has cost
+    more than the stream, then from prefix sums; frames on both sides of the switch equal the walk's, and a
+    megabyte of such candidates stays fast (linear)."""
+    import time
+
+    false = b"\xb5\x62\x01\x01\xf0\x00" + bytes(range(40))
+    data = _ubx(1, 7, b"ab") + false * 300 + _ubx(2, 0x15, bytes(30)) + false * 300 + _ubx(1, 7, b"cd")
+    _same(data)
+    assert len(split_stream(data)[0]) == 3
+    if ubx_frames._ubxcore is not None:
+        big = b"\xb5\x62\x01\x01\xff\xff" * 170_000 + _ubx(1, 7, b"ef")
+        t = time.perf_counter()
+        frames, _, stats = ubx_frames._split_stream_compiled(big)
+        assert time.perf_counter() - t < 1.0
+        assert len(frames) == 1 and stats["bad_checksum_frames"] == 170_000
