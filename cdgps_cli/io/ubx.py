@@ -172,6 +172,10 @@ interface descriptions): a 16-byte header, then ``numMeas`` blocks of 32 bytes, 
 ``recStat`` bit 0 leap seconds valid, bit 1 clock reset; ``trkStat`` bit 0 pseudorange valid,
 bit 1 carrier phase valid, bit 2 half cycle valid, bit 3 half cycle subtracted; the low 4 bits
 of ``prStdev``/``cpStdev`` are the standard deviation indices."""
+_RAWX_EPOCH = np.dtype(_RAWX_HEAD.descr + [("offset", "<i8")])
+"""A decoded RXM-RAWX epoch: its header and the byte offset of its frame in the log."""
+_RAWX_ROW = np.dtype(_RAWX_MEAS.descr + [("epoch", "<i8")])
+"""A decoded measurement: its 32 bytes and the index of its epoch."""
 
 
 def _decode_rawx(x: np.ndarray, off: np.ndarray, n_payload: np.ndarray) -> tuple[np.ndarray, np.ndarray, list]:
@@ -198,19 +202,18 @@ def _decode_rawx(x: np.ndarray, off: np.ndarray, n_payload: np.ndarray) -> tuple
     ok = (n_payload >= 16) & (n_payload == 16 + 32 * num)
     undecodable = off[~ok].tolist()
     off, num = off[ok], num[ok]
-    head = x[(off + 6)[:, None] + np.arange(16)].view(_RAWX_HEAD)[:, 0]
-    epochs = np.empty(len(head), dtype=_RAWX_HEAD.descr + [("offset", "<i8")])
-    for f in _RAWX_HEAD.names:
-        epochs[f] = head[f]
-    epochs["offset"] = off
+    rows = np.empty((off.size, 24), np.uint8)              # the 16 header bytes, then the offset
+    rows[:, :16] = x[(off + 6)[:, None] + np.arange(16)]
+    rows[:, 16:] = off.astype("<i8").view(np.uint8).reshape(-1, 8)
+    epochs = rows.view(_RAWX_EPOCH)[:, 0]
     data = x.data
     raw = np.frombuffer(b"".join([data[a:b] for a, b in zip((off + 22).tolist(), (off + 22 + 32 * num).tolist())]),
-                        dtype=_RAWX_MEAS)
-    meas = np.empty(len(raw), dtype=_RAWX_MEAS.descr + [("epoch", "<i8")])
-    for f in _RAWX_MEAS.names:
-        meas[f] = raw[f]
-    meas["epoch"] = np.repeat(np.arange(len(head)), num)
-    forged = _repeated_signal_frames(meas)
+                        np.uint8).reshape(-1, 32)
+    rows = np.empty((raw.shape[0], 40), np.uint8)           # the 32 measurement bytes, then the epoch index
+    rows[:, :32] = raw
+    rows[:, 32:] = np.repeat(np.arange(off.size, dtype="<i8"), num).view(np.uint8).reshape(-1, 8)
+    meas = rows.view(_RAWX_ROW)[:, 0]
+    forged = _repeated_signal_frames(meas, num)
     if forged.size:       # a frame listing one signal twice is not what a receiver writes (issue 32)
         undecodable = sorted(undecodable + [int(o) for o in epochs["offset"][forged]])
         keep = np.ones(len(epochs), bool)
@@ -233,16 +236,21 @@ def _decode_rawx_frames(rawx: list) -> tuple[np.ndarray, np.ndarray, list]:
     return epochs, meas, sorted(where[k] for k in bad)
 
 
-def _repeated_signal_frames(meas: np.ndarray) -> np.ndarray:
+def _repeated_signal_frames(meas: np.ndarray, num: np.ndarray) -> np.ndarray:
     """Indices of RXM-RAWX frames in which one (gnssId, svId, sigId) appears more than once
-    (e.g. a forged frame with numMeas = 255 and a valid checksum)."""
+    (e.g. a forged frame with numMeas = 255 and a valid checksum).
+
+    ``meas`` holds the frames' measurements frame after frame, ``num[k]`` of frame k.  The keys go into
+    one row per frame, padded with values no key takes (2^24 + column), and each row is sorted alone."""
     if not len(meas):
         return np.zeros(0, np.int64)
-    key = (meas["epoch"].astype(np.int64) << 24) | (meas["gnssId"].astype(np.int64) << 16) \
-        | (meas["svId"].astype(np.int64) << 8) | meas["sigId"].astype(np.int64)
-    key = np.sort(key)
-    dup = key[1:][key[1:] == key[:-1]]
-    return np.unique(dup >> 24)
+    width = int(num.max())
+    table = np.broadcast_to(np.arange(width, dtype=np.uint32) + np.uint32(1 << 24), (num.size, width)).copy()
+    col = np.arange(len(meas)) - np.repeat(np.cumsum(num) - num, num)
+    table[meas["epoch"], col] = (meas["gnssId"].astype(np.uint32) << 16) | (meas["svId"].astype(np.uint32) << 8) \
+        | meas["sigId"].astype(np.uint32)
+    table.sort(axis=1)
+    return np.flatnonzero((table[:, 1:] == table[:, :-1]).any(axis=1))
 
 
 #: the last log decoded by :func:`_decoded_rawx`, {(path, mtime_ns, size, strict): result}: a command
