@@ -923,7 +923,13 @@ def _nav_table(recs: dict, glo_recs: dict) -> pd.DataFrame:
 def _records_table(rows: list, columns: list) -> pd.DataFrame:
     """``rows`` (dicts) as a table of ``columns``, integer columns int64, sorted by satellite, toe and
     transmission time (stable), as ``pd.DataFrame(rows, columns=columns)`` then ``sort_values`` gives it."""
-    nav = pd.DataFrame({c: [r.get(c) for r in rows] for c in columns}, columns=columns)
-    for c in _NAV_INT_COLUMNS:
-        nav[c] = nav[c].astype(np.int64)
-    return nav.sort_values(["sat", "toe_gps_s", "transmit_gps_s"], kind="stable").reset_index(drop=True)
+    cols = {c: np.array([r.get(c) for r in rows]) for c in columns}
+    if any(v.dtype == object for c, v in cols.items() if c != "sat"):       # a key missing (None): pandas' way
+        nav = pd.DataFrame(rows, columns=columns)
+        for c in _NAV_INT_COLUMNS:
+            nav[c] = nav[c].astype(np.int64)
+        return nav.sort_values(["sat", "toe_gps_s", "transmit_gps_s"], kind="stable").reset_index(drop=True)
+    order = np.lexsort((cols["transmit_gps_s"], cols["toe_gps_s"], cols["sat"].astype(str)))  # stable, NaN last
+    for c in columns:
+        cols[c] = cols[c][order].astype(np.int64 if c in _NAV_INT_COLUMNS else cols[c].dtype)
+    return pd.DataFrame(cols, columns=columns)

@@ -486,3 +486,34 @@ def test_corrupt_rtcm_frame_is_a_loss_warned_and_refused_by_strict(tmp_path):
     res = CliRunner().invoke(main, ["ingest", "--config", str(cfg), "-o", str(run), "--strict"])
     assert res.exit_code == 2 and "RTCM 3 frames failing the CRC-24Q" in res.output and not run.exists()
     assert "Traceback" not in res.output
+
+
+def test_records_table_equals_pandas_from_records():
+    """The nav table built column by column and sorted by lexsort equals ``pd.DataFrame(records)`` sorted by
+    pandas (stable, NaN last), also with ties, NaN times and a record lacking a key (pandas' path)."""
+    import numpy as np
+    import pandas as pd
+
+    from cdgps_cli.core.records import NAV_COLUMNS
+    from cdgps_cli.io.sfrbx import _NAV_INT_COLUMNS, _records_table
+
+    rng = np.random.default_rng(2)
+    rows = []
+    for k in range(40):
+        r = {c: float(rng.normal()) for c in NAV_COLUMNS}
+        r.update({c: int(rng.integers(0, 3)) for c in _NAV_INT_COLUMNS})
+        r["sat"] = f"{'GEC'[k % 3]}{int(rng.integers(1, 4)):02d}"
+        r["toe_gps_s"] = float(rng.integers(0, 3)) if k % 7 else float("nan")
+        r["transmit_gps_s"] = float(rng.integers(0, 2))
+        rows.append(r)
+
+    def pandas_way(rs):
+        nav = pd.DataFrame(rs, columns=list(NAV_COLUMNS))
+        for c in _NAV_INT_COLUMNS:
+            nav[c] = nav[c].astype(np.int64)
+        return nav.sort_values(["sat", "toe_gps_s", "transmit_gps_s"], kind="stable").reset_index(drop=True)
+
+    pd.testing.assert_frame_equal(_records_table(rows, list(NAV_COLUMNS)), pandas_way(rows), check_exact=True)
+    short = [dict(r) for r in rows]
+    del short[3]["e"]
+    pd.testing.assert_frame_equal(_records_table(short, list(NAV_COLUMNS)), pandas_way(short), check_exact=True)
