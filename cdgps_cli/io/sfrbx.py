@@ -130,12 +130,45 @@ def _dated(rec: dict, week: int, transmit_sow_s: float, toc_sow_s: float, toe_so
     """``rec`` with ``transmit_gps_s``, ``toc_gps_s``, ``toe_gps_s`` (GPS s): seconds of the week
     of ``week``, toc and toe taken in the week nearest the transmission (a toe early in the next
     week is sent at the end of this one)."""
+    rec["transmit_gps_s"] = week * SECONDS_PER_WEEK + transmit_sow_s
+    rec["toc_gps_s"] = _nearest_week_s(week, transmit_sow_s, toc_sow_s)
+    rec["toe_gps_s"] = _nearest_week_s(week, transmit_sow_s, toe_sow_s)
+    return rec
+
+
+def _nearest_week_s(week: int, transmit_sow_s: float, sow_s: float) -> float:
+    """GPS s of the second of week ``sow_s`` in the week nearest the transmission at ``transmit_sow_s``
+    of ``week`` (toc, toe: :func:`_dated`)."""
     base = week * SECONDS_PER_WEEK
     t_tx = base + transmit_sow_s
-    rec["transmit_gps_s"] = t_tx
-    rec["toc_gps_s"] = base + toc_sow_s + SECONDS_PER_WEEK * round((t_tx - base - toc_sow_s) / SECONDS_PER_WEEK)
-    rec["toe_gps_s"] = base + toe_sow_s + SECONDS_PER_WEEK * round((t_tx - base - toe_sow_s) / SECONDS_PER_WEEK)
-    return rec
+    return base + sow_s + SECONDS_PER_WEEK * round((t_tx - base - sow_s) / SECONDS_PER_WEEK)
+
+
+def _gps_record_key(sf1: list[int], sf2: list[int], sf3: list[int], week_ref: int) -> tuple[float, int] | None:
+    """(``toe_gps_s``, ``iode``) of the record :func:`decode_gps_subframes` makes of these subframes, read
+    from the few words that hold them (None where it returns None): a record already kept under that key
+    need not be decoded again."""
+    w1, w2, w3 = sf1[1] & 0xFFFFFF, sf1[2] & 0xFFFFFF, sf1[7] & 0xFFFFFF
+    iode = (sf2[2] & 0xFFFFFF) >> 16
+    if (sf3[9] & 0xFFFFFF) >> 16 != iode or w3 >> 16 != iode:
+        return None
+    wn10 = w2 >> 14
+    week = wn10 + 1024 * round((week_ref - wn10) / 1024)
+    return _nearest_week_s(week, (w1 >> 7) * 6.0 - 6.0, ((sf2[9] & 0xFFFFFF) >> 8) * 16.0), iode
+
+
+def _galileo_record_key(words: dict, week_ref: int) -> tuple[float, int] | None:
+    """(``toe_gps_s``, ``iode``) of the record :func:`decode_galileo_words` makes of ``words`` (None where
+    it returns None), from word types 1 and 5 and the IODnav of 2-4."""
+    if not all(k in words for k in (1, 2, 3, 4, 5)):
+        return None
+    w1, w5 = _Word(words[1]), _Word(words[5])
+    iod = w1.u(6, 10)
+    if any(_Word(words[k]).u(6, 10) != iod for k in (2, 3, 4)):
+        return None
+    wn = w5.u(73, 12) + 1024
+    week = wn + 4096 * round((week_ref - wn) / 4096)
+    return _nearest_week_s(week, float(w5.u(85, 20)), w1.u(16, 14) * 60.0), iod
 
 
 class _Fields:
@@ -873,6 +906,9 @@ def _gps_frames(frames: list, checked: dict, week_ref: int | None, latest: dict,
         if seen in decoded:                                # the same three subframes: the same record
             continue
         decoded.add(seen)
+        key = _gps_record_key(have[1], have[2], have[3], week_ref)
+        if key is None or (sat, *key) in recs:             # not one data set, or a record already kept
+            continue
         rec = decode_gps_subframes(have[1], have[2], have[3], sat, week_ref)
         if rec is not None and 0 <= rec["e"] < 1 and rec["sqrt_a_sqrt_m"] > 0:
             recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)
@@ -899,6 +935,9 @@ def _galileo_frames(frames: list, inav: dict, week_ref: int, latest: dict, recs:
         if seen in decoded:                                # the same five words: the same record
             continue
         decoded.add(seen)
+        key = _galileo_record_key(have, week_ref)
+        if key is None or (sat, *key) in recs:             # incomplete or mixed, or a record already kept
+            continue
         rec = decode_galileo_words(have, sat, week_ref)
         if rec is not None and 0 <= rec["e"] < 1 and rec["sqrt_a_sqrt_m"] > 0:
             recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)

@@ -517,3 +517,49 @@ def test_records_table_equals_pandas_from_records():
     short = [dict(r) for r in rows]
     del short[3]["e"]
     pd.testing.assert_frame_equal(_records_table(short, list(NAV_COLUMNS)), pandas_way(short), check_exact=True)
+
+
+def test_record_keys_equal_the_decoded_records():
+    """The (toe, IODE) read ahead of a decode, by which a record already kept is not decoded again, is the
+    decoded record's (or None with it) for every GPS subframe triple and Galileo word set of the shared logs."""
+    from pathlib import Path
+
+    import pytest
+
+    from cdgps_cli.io import sfrbx
+    from cdgps_cli.io.ubx_frames import split_stream
+
+    shared = Path(__file__).resolve().parents[2].parent / "shared" / "data"
+    logs = [(shared / "real-pairs" / "ublox-walk" / "gnss_1730.ubx", 2381), (shared / "ubx" / "ubx_20080526.ubx", 1480)]
+    if not logs[0][0].exists():
+        pytest.skip("shared u-blox logs not available")
+    seen = {"G": 0, "E": 0}
+    real_gps, real_gal = sfrbx.decode_gps_subframes, sfrbx.decode_galileo_words
+
+    def gps(sf1, sf2, sf3, sat, week_ref):
+        rec = real_gps(sf1, sf2, sf3, sat, week_ref)
+        # the triple with its IODE/IODC disagreeing too (subframe 3's IODE changed)
+        bad3 = list(sf3[:9]) + [sf3[9] ^ 0x010000]
+        for a, b, c in ((sf1, sf2, sf3), (sf1, sf2, bad3)):
+            r = real_gps(a, b, c, sat, week_ref)
+            assert orig[0](a, b, c, week_ref) == (None if r is None else (r["toe_gps_s"], r["iode"]))
+        seen["G"] += 1
+        return rec
+
+    def gal(words, sat, week_ref):
+        rec = real_gal(words, sat, week_ref)
+        assert orig[1](words, week_ref) == (None if rec is None else (rec["toe_gps_s"], rec["iode"]))
+        seen["E"] += 1
+        return rec
+
+    orig = sfrbx._gps_record_key, sfrbx._galileo_record_key
+    try:
+        sfrbx.decode_gps_subframes, sfrbx.decode_galileo_words = gps, gal
+        sfrbx._gps_record_key = lambda *a: (0.0, -1)                  # never kept: every triple decoded, compared
+        sfrbx._galileo_record_key = lambda words, w: (0.0, -1)      # never kept: every set is decoded and compared
+        for path, week in logs:
+            sfrbx.sfrbx_ephemerides(split_stream(path.read_bytes())[0], week)
+    finally:
+        sfrbx.decode_gps_subframes, sfrbx.decode_galileo_words = real_gps, real_gal
+        sfrbx._gps_record_key, sfrbx._galileo_record_key = orig
+    assert seen["G"] >= 50 and seen["E"] >= 20
