@@ -558,12 +558,29 @@ def d2_page_number(words30: list[int]) -> int:
 
 def _record_dates(rec: dict, week: int, sow: int, toc: float, toe: float) -> dict:
     """``rec`` with ``transmit_gps_s``, ``toc_gps_s``, ``toe_gps_s`` from BDT week, SOW, toc, toe (s)."""
-    t_tx = float(bdt_to_gps_s(week, sow))
-    rec["transmit_gps_s"] = t_tx
+    rec["transmit_gps_s"] = float(bdt_to_gps_s(week, sow))
     for key, sow_v in (("toc_gps_s", toc), ("toe_gps_s", toe)):
-        t = float(bdt_to_gps_s(week, sow_v))
-        rec[key] = t + SECONDS_PER_WEEK * round((t_tx - t) / SECONDS_PER_WEEK)
+        rec[key] = _bdt_nearest_week_s(week, sow, sow_v)
     return rec
+
+
+def _bdt_nearest_week_s(week: int, sow: int, sow_v: float) -> float:
+    """GPS s of BDT second of week ``sow_v`` in the week nearest the transmission at ``sow`` of ``week``."""
+    t_tx = float(bdt_to_gps_s(week, sow))
+    t = float(bdt_to_gps_s(week, sow_v))
+    return t + SECONDS_PER_WEEK * round((t_tx - t) / SECONDS_PER_WEEK)
+
+
+def _beidou_record_key(sf1: list[int], sf2: list[int], sf3: list[int]) -> tuple[float, int] | None:
+    """(``toe_gps_s``, ``iode``) of the record :func:`decode_beidou_d1` makes of these subframes (None where
+    it returns None): a record already kept under that key need not be decoded again."""
+    b1, b2, b3 = _D1(sf1), _D1(sf2), _D1(sf3)
+    ids = [(b.u(15, 3), b.u2(18, 8, 30, 12)) for b in (b1, b2, b3)]   # d1_subframe_id
+    sow = ids[0][1]
+    if [i for i, _ in ids] != [1, 2, 3] or ids[1][1] != sow + 6 or ids[2][1] != sow + 12:
+        return None
+    toe = (b2.u(290, 2) << 15 | b3.u2(42, 10, 60, 5)) * 8.0
+    return _bdt_nearest_week_s(b1.u(60, 13), sow, toe), b1.u(287, 5)
 
 
 def decode_beidou_d2(pages: dict, sat: str) -> dict | None:
@@ -671,6 +688,9 @@ def _beidou_frame(pl: bytes, sv: int, latest: dict, recs: dict, stats: dict, che
     have = latest.setdefault(sat, {})
     have[fid] = words
     if fid == 3 and all(k in have for k in (1, 2)):
+        key = _beidou_record_key(have[1], have[2], have[3])
+        if key is None or (sat, *key) in recs:             # not one frame, or a record already kept
+            return
         rec = decode_beidou_d1(have[1], have[2], have[3], sat)
         if rec is not None and 0 <= rec["e"] < 1 and rec["sqrt_a_sqrt_m"] > 0:
             recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)

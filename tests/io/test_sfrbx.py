@@ -521,7 +521,8 @@ def test_records_table_equals_pandas_from_records():
 
 def test_record_keys_equal_the_decoded_records():
     """The (toe, IODE) read ahead of a decode, by which a record already kept is not decoded again, is the
-    decoded record's (or None with it) for every GPS subframe triple and Galileo word set of the shared logs."""
+    decoded record's (or None with it) for every GPS subframe triple, Galileo word set and BeiDou D1 frame of the
+    shared logs (and for triples made inconsistent)."""
     from pathlib import Path
 
     import pytest
@@ -552,14 +553,25 @@ def test_record_keys_equal_the_decoded_records():
         seen["E"] += 1
         return rec
 
-    orig = sfrbx._gps_record_key, sfrbx._galileo_record_key
+    real_bds = sfrbx.decode_beidou_d1
+
+    def bds(sf1, sf2, sf3, sat):
+        rec = real_bds(sf1, sf2, sf3, sat)
+        for a, b, c in ((sf1, sf2, sf3), (sf1, sf3, sf2)):
+            r = real_bds(a, b, c, sat)
+            assert orig[2](a, b, c) == (None if r is None else (r["toe_gps_s"], r["iode"]))
+        seen["C"] = seen.get("C", 0) + 1
+        return rec
+
+    orig = sfrbx._gps_record_key, sfrbx._galileo_record_key, sfrbx._beidou_record_key
     try:
+        sfrbx.decode_beidou_d1, sfrbx._beidou_record_key = bds, lambda *a: (0.0, -1)
         sfrbx.decode_gps_subframes, sfrbx.decode_galileo_words = gps, gal
         sfrbx._gps_record_key = lambda *a: (0.0, -1)                  # never kept: every triple decoded, compared
         sfrbx._galileo_record_key = lambda words, w: (0.0, -1)      # never kept: every set is decoded and compared
         for path, week in logs:
             sfrbx.sfrbx_ephemerides(split_stream(path.read_bytes())[0], week)
     finally:
-        sfrbx.decode_gps_subframes, sfrbx.decode_galileo_words = real_gps, real_gal
-        sfrbx._gps_record_key, sfrbx._galileo_record_key = orig
-    assert seen["G"] >= 50 and seen["E"] >= 20
+        sfrbx.decode_gps_subframes, sfrbx.decode_galileo_words, sfrbx.decode_beidou_d1 = real_gps, real_gal, real_bds
+        sfrbx._gps_record_key, sfrbx._galileo_record_key, sfrbx._beidou_record_key = orig
+    assert seen["G"] >= 50 and seen["E"] >= 20 and seen["C"] >= 20
