@@ -300,7 +300,10 @@ def _decode_rawx_log(p: Path, strict: bool, data: bytes | None):
     off, end, rtcm, stats = split_stream_spans(data)
     x = np.frombuffer(data, np.uint8)
     ids = (x[off + 2].astype(np.int64) << 8) | x[off + 3]
-    codes, first, n_id = np.unique(ids, return_index=True, return_counts=True)
+    n_of = np.bincount(ids, minlength=1)                  # by class·256 + id: no sort of the frames
+    codes = np.flatnonzero(n_of)
+    n_id = n_of[codes]
+    first = np.array([int(np.argmax(ids == c)) for c in codes.tolist()], np.int64)
     counts: dict[str, int] = {}
     for k in np.argsort(first, kind="stable").tolist():  # in order of first appearance, as frame by frame
         name = _msg_name(int(codes[k]) >> 8, int(codes[k]) & 0xFF)
@@ -424,8 +427,10 @@ def read_ubx_log(path: str | Path, *, strict: bool = False,
     leap = int(epochs["leapS"][np.flatnonzero(leap_ok)[-1]]) if leap_ok.any() else None
     reset = (epochs["recStat"] & 2) != 0
     n_resets = int(reset.sum())
-    gnss, sig = meas["gnssId"].astype(np.int64), meas["sigId"].astype(np.int64)
-    pairs, n_pair = np.unique(gnss * 256 + sig, return_counts=True)
+    gnss, sig = meas["gnssId"], meas["sigId"]
+    n_code = np.bincount(gnss.astype(np.int64) * 256 + sig, minlength=1)   # by (gnssId, sigId): no sort
+    pairs = np.flatnonzero(n_code)
+    n_pair = n_code[pairs]
     signals = {}
     for code, c in zip(pairs.tolist(), n_pair.tolist()):
         name = _signal_name(code // 256, code % 256)
