@@ -420,23 +420,33 @@ def read_ubx_log(path: str | Path, *, strict: bool = False,
     """
     p = Path(path)
     frames, rtcm, stats, counts, epochs, meas, undecodable_offsets, t = _decoded_rawx(p, strict, data)
-    undecodable = len(undecodable_offsets)
     n_epochs = len(epochs)
-    week0 = int(epochs["week"][0])
-    leap_ok = (epochs["recStat"] & 1) != 0
-    leap = int(epochs["leapS"][np.flatnonzero(leap_ok)[-1]]) if leap_ok.any() else None
+    signals = _signal_counts(meas)
     reset = (epochs["recStat"] & 2) != 0
-    n_resets = int(reset.sum())
-    gnss, sig = meas["gnssId"], meas["sigId"]
-    n_code = np.bincount(gnss.astype(np.int64) * 256 + sig, minlength=1)   # by (gnssId, sigId): no sort
-    pairs = np.flatnonzero(n_code)
-    n_pair = n_code[pairs]
-    signals = {}
-    for code, c in zip(pairs.tolist(), n_pair.tolist()):
+    obs = _l1_table(p, meas, t, reset)
+    if obs.empty:
+        sig = ", ".join(f"{k} ×{v}" for k, v in sorted(signals.items(), key=lambda kv: -kv[1]))
+        raise CdgpsError(f"{p}: {n_epochs} RXM-RAWX epochs but no GPS L1 C/A measurements (signals found: {sig or 'none'})")
+    info = _log_info(p, epochs, obs, signals, counts, len(frames[1]), stats, undecodable_offsets)
+    nav, info["sfrbx"] = sfrbx_ephemerides_at(*frames, info["week"])
+    info["rtcm_base"] = rtcm_station_arp(rtcm)
+    return info, obs, nav
+
+
+def _signal_counts(meas: np.ndarray) -> dict:
+    """{signal name: measurements} of the RXM-RAWX measurements (``GPS L1_C/A`` …), in (gnssId, sigId) order."""
+    n_code = np.bincount(meas["gnssId"].astype(np.int64) * 256 + meas["sigId"], minlength=1)   # no sort
+    signals: dict = {}
+    for code in np.flatnonzero(n_code).tolist():
         name = _signal_name(code // 256, code % 256)
-        signals[name] = signals.get(name, 0) + int(c)
-    m = meas[(gnss == 0) & (sig == 0)]
-    m = _sorted_l1(p, m, t)
+        signals[name] = signals.get(name, 0) + int(n_code[code])
+    return signals
+
+
+def _l1_table(p: Path, meas: np.ndarray, t: np.ndarray, reset: np.ndarray) -> pd.DataFrame:
+    """The GPS L1 C/A rows of the measurements as the ``obs`` table of :func:`read_ubx_log` (sorted, a
+    repeated (time, satellite) refused); ``reset``: each epoch's clock-reset flag."""
+    m = _sorted_l1(p, meas[(meas["gnssId"] == 0) & (meas["sigId"] == 0)], t)
     trk = m["trkStat"]
     cp_ok, pr_ok = (trk & 2) != 0, (trk & 1) != 0
     obs = pd.DataFrame(
@@ -458,15 +468,24 @@ def read_ubx_log(path: str | Path, *, strict: bool = False,
         },
         columns=list(UBX_OBS_COLUMNS),
     )
-    if obs.empty:
-        sig = ", ".join(f"{k} ×{v}" for k, v in sorted(signals.items(), key=lambda kv: -kv[1]))
-        raise CdgpsError(f"{p}: {n_epochs} RXM-RAWX epochs but no GPS L1 C/A measurements (signals found: {sig or 'none'})")
-    if not np.isfinite(t).all():                          # NaN time tags: pandas' NaN-aware path
+    if len(obs) and not np.isfinite(t).all():             # NaN time tags: pandas' NaN-aware path
         obs = _checked_sorted(p, obs)
+    return obs
+
+
+def _log_info(p: Path, epochs: np.ndarray, obs: pd.DataFrame, signals: dict, counts: dict, n_frames: int,
+              stats: dict, undecodable_offsets: list) -> dict:
+    """The ``info`` of :func:`read_ubx_log` but its ``sfrbx`` and ``rtcm_base``."""
+    leap_ok = (epochs["recStat"] & 1) != 0
+    leap = int(epochs["leapS"][np.flatnonzero(leap_ok)[-1]]) if leap_ok.any() else None
+    undecodable = len(undecodable_offsets)
+    n_epochs = len(epochs)
+    week0 = int(epochs["week"][0])
+    n_resets = int(((epochs["recStat"] & 2) != 0).sum())
     info = {
         "path": str(p),
         "message_counts": dict(sorted(counts.items())),
-        "n_frames": len(frames[1]),
+        "n_frames": n_frames,
         "n_epochs": n_epochs,
         "week": week0,
         "leap_seconds": leap,
@@ -486,9 +505,7 @@ def read_ubx_log(path: str | Path, *, strict: bool = False,
         "bad_crc_rtcm_frames": stats["bad_crc_rtcm_frames"],
         "bad_rtcm_offsets": stats["bad_rtcm_offsets"],
     }
-    nav, info["sfrbx"] = sfrbx_ephemerides_at(*frames, week0)
-    info["rtcm_base"] = rtcm_station_arp(rtcm)
-    return info, obs, nav
+    return info
 
 
 _GPS_SAT_RANK = np.argsort(np.argsort(_GPS_SAT_NAMES.astype(str), kind="stable"), kind="stable")
