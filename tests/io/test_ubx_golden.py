@@ -154,3 +154,14 @@ def test_reader_output_unchanged(golden, name, tmp_path):
 if __name__ == "__main__" and "--write" in sys.argv:
     GOLDEN.write_text(json.dumps(all_outcomes(), indent=1, sort_keys=True) + "\n")
     print("wrote", GOLDEN)
+
+
+@pytest.mark.parametrize("name", ["real-pairs/ublox-walk/gnss_1730.ubx", "walk:noise", "pygps:truncated",
+                                  "walk:strict-damaged", "walk:forged-repeat-signal"])
+def test_numpy_framer_gives_the_same(golden, name, tmp_path, monkeypatch):
+    """Without the compiled walk (``_ubxcore`` not built), the numpy framer gives the golden output too."""
+    from cdgps_cli.io import ubx_frames  # noqa: PLC0415
+
+    monkeypatch.setattr(ubx_frames, "USE_COMPILED", False)
+    data, strict = cases()[name]
+    assert outcome(data, strict, tmp_path) == golden[name]
