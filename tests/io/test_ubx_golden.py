@@ -9,6 +9,7 @@ read by :func:`read_ubx_log` (with GLONASS ephemerides too) and :func:`read_ubx_
 
 from __future__ import annotations
 
+import functools
 import gzip
 import hashlib
 import json
@@ -42,6 +43,7 @@ def _flip(data: bytes, at: int) -> bytes:
     return data[:at] + bytes((data[at] ^ 0x5A,)) + data[at + 1:]
 
 
+@functools.lru_cache(maxsize=1)
 def cases() -> dict[str, tuple[bytes, bool]]:
     """{name: (log bytes, strict)}: the shared logs and damaged copies, built the same way every time."""
     out = {p.relative_to(SHARED).as_posix(): (p.read_bytes(), False)
