@@ -1,5 +1,6 @@
 """Build of the optional C kernels ``cdgps_cli.estimation._ekfcore``, ``cdgps_cli.estimation._lambdacore`` (LAMBDA's
-reduction and integer search) and ``cdgps_cli.tracking._trackcore`` (project metadata lives in
+reduction and integer search), ``cdgps_cli.tracking._trackcore`` and ``cdgps_cli.io._ubxcore`` (the framing walk
+of u-blox logs; without it ``cdgps_cli.io.ubx_frames`` frames with numpy, same result) (project metadata lives in
 pyproject.toml).
 
 The extension is plain C against the CPython API and the buffer protocol: no numpy headers, so
@@ -38,6 +39,12 @@ setup(
         Extension(
             "cdgps_cli.tracking._trackcore",
             sources=["cdgps_cli/tracking/_trackcore.c"],
+            extra_compile_args=compile_args,
+            optional=True,
+        ),
+        Extension(
+            "cdgps_cli.io._ubxcore",
+            sources=["cdgps_cli/io/_ubxcore.c"],
             extra_compile_args=compile_args,
             optional=True,
         ),

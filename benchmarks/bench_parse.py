@@ -9,6 +9,8 @@ For every RINEX observation file of the shared data: :func:`cdgps_cli.io.rinex_s
 log: :func:`cdgps_cli.io.ubx.read_ubx_log` (framing, checksums, RXM-RAWX decode, SFRBX ephemerides)
 against ``pandas.read_csv`` of a CSV of the same number of bytes (the decoded observation table,
 repeated); a binary log holds ~4× the observations of a CSV of its size, so this peer is generous.
+The UBX reader is timed with the compiled framing walk (``cdgps_cli.io._ubxcore``, when built) and
+with the numpy framer it falls back to.
 
 Rounds are interleaved (ours, peer, ours, ...) and each figure is the median of ``--repeat`` rounds;
 the ratio is ours / read_csv (< 1: faster).  Writes ``docs/benchmarks/parse.json``::
@@ -30,7 +32,7 @@ from pathlib import Path
 import pandas as pd
 
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.io import rinex, rinex_signals, ubx
+from cdgps_cli.io import rinex, rinex_signals, ubx, ubx_frames
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"
@@ -96,15 +98,28 @@ def ubx_case(path: Path, tmp: Path, repeat: int) -> dict:
     data = (head + "\n" + body * reps).encode()
     data = data[:data.rfind(b"\n", 0, max(size, len(head) + 2)) + 1]
     csv.write_bytes(data)
-    def read():
+    def read(compiled=True):
         ubx._LAST_DECODED.clear()                          # no memory of the previous round's decode
-        return ubx.read_ubx_log(path)
+        ubx_frames.USE_COMPILED = compiled                 # False: the numpy framer (no _ubxcore built)
+        try:
+            return ubx.read_ubx_log(path)
+        finally:
+            ubx_frames.USE_COMPILED = True
 
-    t = interleaved({"read_ubx_log_s": read,
-                     "read_csv_s": lambda: pd.read_csv(csv)}, repeat)
+    t = interleaved({"read_ubx_log_s": read, "read_csv_s": lambda: pd.read_csv(csv),
+                     "read_ubx_log_numpy_framer_s": lambda: read(False)}, repeat)
+    cpu = {"read_ubx_log_cpu_s": [], "read_csv_cpu_s": []}     # thread CPU time: what the load does not inflate
+    for _ in range(repeat):
+        for k, fn in (("read_ubx_log_cpu_s", read), ("read_csv_cpu_s", lambda: pd.read_csv(csv))):
+            c = time.thread_time()
+            fn()
+            cpu[k].append(time.thread_time() - c)
+    t.update({k: statistics.median(v) for k, v in cpu.items()})
     return {"bytes": size, "csv_bytes": len(data), "rawx_rows": len(obs), "csv_rows": data.count(b"\n") - 1,
-            **{k: round(v, 5) for k, v in t.items()},
-            "ratio_to_read_csv": round(t["read_ubx_log_s"] / t["read_csv_s"], 3)}
+            "compiled_walk": getattr(ubx_frames, "_ubxcore", None) is not None, **{k: round(v, 5) for k, v in t.items()},
+            "ratio_to_read_csv": round(t["read_ubx_log_s"] / t["read_csv_s"], 3),
+            "numpy_framer_ratio_to_read_csv": round(t["read_ubx_log_numpy_framer_s"] / t["read_csv_s"], 3),
+            "cpu_ratio_to_read_csv": round(t["read_ubx_log_cpu_s"] / t["read_csv_cpu_s"], 3)}
 
 
 def main() -> None:

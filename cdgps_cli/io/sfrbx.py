@@ -49,7 +49,8 @@ from cdgps_cli.core.records import GLONASS_NAV_COLUMNS, NAV_COLUMNS
 from cdgps_cli.io.sfrbx_glonass import glonass_frame
 
 __all__ = ["GPS_PI", "URA_M", "BDS_PREAMBLE", "bch15_syndrome", "beidou_words_from_sfrbx", "decode_beidou_d1",
-           "decode_beidou_d2", "decode_galileo_words", "decode_gps_subframes", "inav_word", "gps_words_from_sfrbx", "parity_ok", "sfrbx_ephemerides"]
+           "decode_beidou_d2", "decode_galileo_words", "decode_gps_subframes", "inav_word", "gps_words_from_sfrbx", "parity_ok", "sfrbx_ephemerides",
+           "sfrbx_ephemerides_at"]
 
 GPS_PI = 3.1415926535898
 """The value of π IS-GPS-200 fixes for converting semicircles to radians."""
@@ -129,12 +130,45 @@ def _dated(rec: dict, week: int, transmit_sow_s: float, toc_sow_s: float, toe_so
     """``rec`` with ``transmit_gps_s``, ``toc_gps_s``, ``toe_gps_s`` (GPS s): seconds of the week
     of ``week``, toc and toe taken in the week nearest the transmission (a toe early in the next
     week is sent at the end of this one)."""
+    rec["transmit_gps_s"] = week * SECONDS_PER_WEEK + transmit_sow_s
+    rec["toc_gps_s"] = _nearest_week_s(week, transmit_sow_s, toc_sow_s)
+    rec["toe_gps_s"] = _nearest_week_s(week, transmit_sow_s, toe_sow_s)
+    return rec
+
+
+def _nearest_week_s(week: int, transmit_sow_s: float, sow_s: float) -> float:
+    """GPS s of the second of week ``sow_s`` in the week nearest the transmission at ``transmit_sow_s``
+    of ``week`` (toc, toe: :func:`_dated`)."""
     base = week * SECONDS_PER_WEEK
     t_tx = base + transmit_sow_s
-    rec["transmit_gps_s"] = t_tx
-    rec["toc_gps_s"] = base + toc_sow_s + SECONDS_PER_WEEK * round((t_tx - base - toc_sow_s) / SECONDS_PER_WEEK)
-    rec["toe_gps_s"] = base + toe_sow_s + SECONDS_PER_WEEK * round((t_tx - base - toe_sow_s) / SECONDS_PER_WEEK)
-    return rec
+    return base + sow_s + SECONDS_PER_WEEK * round((t_tx - base - sow_s) / SECONDS_PER_WEEK)
+
+
+def _gps_record_key(sf1: list[int], sf2: list[int], sf3: list[int], week_ref: int) -> tuple[float, int] | None:
+    """(``toe_gps_s``, ``iode``) of the record :func:`decode_gps_subframes` makes of these subframes, read
+    from the few words that hold them (None where it returns None): a record already kept under that key
+    need not be decoded again."""
+    w1, w2, w3 = sf1[1] & 0xFFFFFF, sf1[2] & 0xFFFFFF, sf1[7] & 0xFFFFFF
+    iode = (sf2[2] & 0xFFFFFF) >> 16
+    if (sf3[9] & 0xFFFFFF) >> 16 != iode or w3 >> 16 != iode:
+        return None
+    wn10 = w2 >> 14
+    week = wn10 + 1024 * round((week_ref - wn10) / 1024)
+    return _nearest_week_s(week, (w1 >> 7) * 6.0 - 6.0, ((sf2[9] & 0xFFFFFF) >> 8) * 16.0), iode
+
+
+def _galileo_record_key(words: dict, week_ref: int) -> tuple[float, int] | None:
+    """(``toe_gps_s``, ``iode``) of the record :func:`decode_galileo_words` makes of ``words`` (None where
+    it returns None), from word types 1 and 5 and the IODnav of 2-4."""
+    if not all(k in words for k in (1, 2, 3, 4, 5)):
+        return None
+    w1, w5 = _Word(words[1]), _Word(words[5])
+    iod = w1.u(6, 10)
+    if any(_Word(words[k]).u(6, 10) != iod for k in (2, 3, 4)):
+        return None
+    wn = w5.u(73, 12) + 1024
+    week = wn + 4096 * round((week_ref - wn) / 4096)
+    return _nearest_week_s(week, float(w5.u(85, 20)), w1.u(16, 14) * 60.0), iod
 
 
 class _Fields:
@@ -161,8 +195,7 @@ def _Bits(words24: list[int]) -> _Fields:
 
 def subframe_id(words24: list[int]) -> int:
     """The subframe ID of the HOW (word 2 bits 20–22), 0 when word 1 lacks the preamble."""
-    b = _Bits(words24)
-    return b.u(43, 3) if b.u(0, 8) == PREAMBLE else 0
+    return (words24[1] >> 2) & 7 if (words24[0] >> 16) & 0xFF == PREAMBLE else 0
 
 
 def decode_gps_subframes(sf1: list[int], sf2: list[int], sf3: list[int], sat: str, week_ref: int) -> dict | None:
@@ -525,12 +558,29 @@ def d2_page_number(words30: list[int]) -> int:
 
 def _record_dates(rec: dict, week: int, sow: int, toc: float, toe: float) -> dict:
     """``rec`` with ``transmit_gps_s``, ``toc_gps_s``, ``toe_gps_s`` from BDT week, SOW, toc, toe (s)."""
-    t_tx = float(bdt_to_gps_s(week, sow))
-    rec["transmit_gps_s"] = t_tx
+    rec["transmit_gps_s"] = float(bdt_to_gps_s(week, sow))
     for key, sow_v in (("toc_gps_s", toc), ("toe_gps_s", toe)):
-        t = float(bdt_to_gps_s(week, sow_v))
-        rec[key] = t + SECONDS_PER_WEEK * round((t_tx - t) / SECONDS_PER_WEEK)
+        rec[key] = _bdt_nearest_week_s(week, sow, sow_v)
     return rec
+
+
+def _bdt_nearest_week_s(week: int, sow: int, sow_v: float) -> float:
+    """GPS s of BDT second of week ``sow_v`` in the week nearest the transmission at ``sow`` of ``week``."""
+    t_tx = float(bdt_to_gps_s(week, sow))
+    t = float(bdt_to_gps_s(week, sow_v))
+    return t + SECONDS_PER_WEEK * round((t_tx - t) / SECONDS_PER_WEEK)
+
+
+def _beidou_record_key(sf1: list[int], sf2: list[int], sf3: list[int]) -> tuple[float, int] | None:
+    """(``toe_gps_s``, ``iode``) of the record :func:`decode_beidou_d1` makes of these subframes (None where
+    it returns None): a record already kept under that key need not be decoded again."""
+    b1, b2, b3 = _D1(sf1), _D1(sf2), _D1(sf3)
+    ids = [(b.u(15, 3), b.u2(18, 8, 30, 12)) for b in (b1, b2, b3)]   # d1_subframe_id
+    sow = ids[0][1]
+    if [i for i, _ in ids] != [1, 2, 3] or ids[1][1] != sow + 6 or ids[2][1] != sow + 12:
+        return None
+    toe = (b2.u(290, 2) << 15 | b3.u2(42, 10, 60, 5)) * 8.0
+    return _bdt_nearest_week_s(b1.u(60, 13), sow, toe), b1.u(287, 5)
 
 
 def decode_beidou_d2(pages: dict, sat: str) -> dict | None:
@@ -630,7 +680,7 @@ def _beidou_frame(pl: bytes, sv: int, latest: dict, recs: dict, stats: dict, che
         stats["beidou_d2_frames"] += 1
         _beidou_d2_page(words, f"C{sv:02d}", latest, recs, stats)
         return
-    fid, _ = d1_subframe_id(words)
+    fid = (words[0] >> 12) & 7                              # FraID, bits 15-17: d1_subframe_id without its SOW
     if fid not in (1, 2, 3):
         return
     stats["beidou_subframes"] += 1
@@ -638,6 +688,9 @@ def _beidou_frame(pl: bytes, sv: int, latest: dict, recs: dict, stats: dict, che
     have = latest.setdefault(sat, {})
     have[fid] = words
     if fid == 3 and all(k in have for k in (1, 2)):
+        key = _beidou_record_key(have[1], have[2], have[3])
+        if key is None or (sat, *key) in recs:             # not one frame, or a record already kept
+            return
         rec = decode_beidou_d1(have[1], have[2], have[3], sat)
         if rec is not None and 0 <= rec["e"] < 1 and rec["sqrt_a_sqrt_m"] > 0:
             recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)
@@ -718,17 +771,16 @@ def _inav_pages(frames: list) -> dict:
     return dict(zip(at, inav_words(dw)))
 
 
-def _stateful_frames(frames: list, week_ref: int | None, glonass: bool, stats: dict) -> list:
-    """The frames of ``frames`` ((index, class, id, frame bytes), RXM-SFRBX / RXM-SFRB in log order) that
-    :func:`sfrbx_ephemerides` must look at one by one, in order; the others (wrong length, F/NAV and
-    C/NAV, BeiDou B1C/B2a/B2b, GPS CNAV, systems not decoded) only count, and are counted here into
-    ``stats`` from their header bytes, all at once, as the frame-by-frame walk would count them."""
-    if not frames:
-        return frames
-    head = np.frombuffer(b"".join(fr[6:11] if len(fr) >= 11 else b"\xff" * 5 for _, _, _, fr in frames),
-                         np.uint8).reshape(len(frames), 5).astype(np.int64)
-    n_pl = np.array([len(fr) - 8 for _, _, _, fr in frames], np.int64)
-    is_x = np.array([mid == 0x13 for _, _, mid, _ in frames], bool)
+def _stateful_mask(x: np.ndarray, off: np.ndarray, end: np.ndarray, week_ref: int | None, glonass: bool,
+                   stats: dict) -> np.ndarray:
+    """Which RXM-SFRBX / RXM-SFRB frames (``x[off:end]``, log order) :func:`sfrbx_ephemerides` must look at
+    one by one, in order; the others (wrong length, F/NAV and C/NAV, BeiDou B1C/B2a/B2b, GPS CNAV, systems
+    not decoded) only count, and are counted here into ``stats`` from their header bytes, all at once, as
+    the frame-by-frame walk would count them."""
+    n_pl = end - off - 8
+    head = x[np.minimum(off[:, None] + np.arange(6, 11), x.size - 1)].astype(np.int64)
+    head[n_pl < 3] = 0xFF                                  # too short to have gnssId … numWords
+    is_x = x[off + 3] == 0x13
     gnss, sig, nw = head[:, 0], head[:, 2], head[:, 4]
     valid = is_x & (n_pl >= 8) & (n_pl == 8 + 4 * nw)
     inav_sig = np.isin(sig, sorted(_INAV_SIGNALS))
@@ -746,8 +798,7 @@ def _stateful_frames(frames: list, week_ref: int | None, glonass: bool, stats: d
         for k in np.argsort(first, kind="stable").tolist():       # in order of first appearance
             key = str(int(codes[k]))
             stats["other_systems"][key] = stats["other_systems"].get(key, 0) + int(count[k])
-    keep = ~is_x | gal_kept | (bds & (nw == 10)) | glo | (gps & (sig == 0))
-    return [frames[k] for k in np.flatnonzero(keep).tolist()]
+    return ~is_x | gal_kept | (bds & (nw == 10)) | glo | (gps & (sig == 0))
 
 
 _EMPTY_NAV: list = []
@@ -790,76 +841,78 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = Fal
         ``glonass_unknown_slot`` (with ``glonass``), ``other_systems`` (gnssId → frames: not decoded
         here), ``ephemerides``.
     """
+    blob = b"".join(fr for _, _, _, fr in frames)
+    size = np.fromiter((len(fr) for _, _, _, fr in frames), np.int64, len(frames))
+    end = np.cumsum(size)
+    return sfrbx_ephemerides_at(blob, end - size, end, week_ref, glonass=glonass)
+
+
+def sfrbx_ephemerides_at(data: bytes, off: np.ndarray, end: np.ndarray, week_ref: int | None, *,
+                         glonass: bool = False) -> tuple[pd.DataFrame, dict]:
+    """:func:`sfrbx_ephemerides` of the checksum-valid UBX frames ``data[off[k]:end[k]]`` (int64 arrays, log
+    order), as the framer finds them in a log's bytes; the frames only counted never become Python objects."""
+    x = np.frombuffer(data, np.uint8)
+    stats = _new_stats(glonass)
+    off, end = np.asarray(off, np.int64), np.asarray(end, np.int64)
+    mid = x[off + 3]
+    sel = (x[off + 2] == 2) & ((mid == 0x13) | (mid == 0x11))
+    off, end = off[sel], end[sel]
+    stats["sfrbx_frames"] = int(off.size)
+    keep = _stateful_mask(x, off, end, week_ref, glonass, stats)
+    off, end = off[keep].tolist(), end[keep].tolist()
+    recs: dict[tuple, dict] = {}
+    glo_recs: dict[tuple, dict] = {}
+    latest: dict[str, dict] = {}
+    gps, gal, bds, glo = [], [], [], []
+    for a, b in zip(off, end):                             # kept SFRBX frames are well formed (_stateful_mask)
+        f = (a, 2, data[a + 3], data[a:b])
+        g = data[a + 6] if f[2] == 0x13 else 0
+        (gps if g == 0 else gal if g == 2 else bds if g == 3 else glo).append(f)
+    _gps_frames(gps, _checked_words(gps), week_ref, latest, recs, stats)
+    if gal:
+        _galileo_frames(gal, _inav_pages(gal), week_ref, latest, recs, stats)
+    checked = _checked_words(bds)
+    for i, _, _, fr in bds:
+        _beidou_frame(fr[6:-2], fr[7], latest, recs, stats, checked.get(i))
+    for _, _, _, fr in glo:
+        glonass_frame(fr[6:-2], latest, glo_recs, stats, week_ref)
+    nav = _nav_table(recs, glo_recs)
+    stats["ephemerides"] = int(len(nav))
+    return nav, stats
+
+
+def _new_stats(glonass: bool) -> dict:
+    """The counters of :func:`sfrbx_ephemerides`, zero."""
     stats = {"sfrbx_frames": 0, "gps_subframes": 0, "parity_failures": 0, "galileo_words": 0, "galileo_bad_pages": 0,
              "beidou_subframes": 0, "beidou_bch_failures": 0, "beidou_d2_frames": 0, "beidou_d2_pages": 0,
              "beidou_cnav_frames": 0, "galileo_other_frames": 0,
              "gps_cnav_frames": 0, "other_systems": {}, "ephemerides": 0}
     if glonass:
         stats.update({"glonass_strings": 0, "glonass_hamming_failures": 0, "glonass_unknown_slot": 0})
-    glo_recs: dict[tuple, dict] = {}
-    latest: dict[str, dict[int, list[int]]] = {}
-    recs: dict[tuple, dict] = {}
-    frames = [(i, cls, mid, fr) for i, (_, cls, mid, fr) in enumerate(frames) if cls == 2 and (mid == 0x13 or mid == 0x11)]
-    stats["sfrbx_frames"] = len(frames)
-    frames = _stateful_frames(frames, week_ref, glonass, stats)
-    inav = _inav_pages(frames) if week_ref is not None else {}
+    return stats
+
+
+def _gps_words(cls_mid: tuple, pl: bytes, checked: list | None, stats: dict) -> tuple[int, list | None]:
+    """(svId, 24-bit data words or None) of a GPS RXM-SFRBX L1 C/A (parity checked; a failure counted)
+    or legacy RXM-SFRB payload (None also for an SFRB of a length or svId not decoded)."""
+    if cls_mid == _SFRBX:
+        words = checked if checked is not None else gps_words_from_sfrbx(np.frombuffer(pl[8:48], dtype="<u4").tolist())
+        if words is None:
+            stats["parity_failures"] += 1
+        return pl[1], words
+    if len(pl) != 42 or not 1 <= pl[1] <= 32:
+        return pl[1], None
+    return pl[1], [w & 0xFFFFFF for w in np.frombuffer(pl[2:42], dtype="<u4").tolist()]
+
+
+def _gps_frames(frames: list, checked: dict, week_ref: int | None, latest: dict, recs: dict, stats: dict) -> None:
+    """The GPS subframes (RXM-SFRBX L1 C/A and RXM-SFRB, in log order) into ``recs``: each satellite's
+    latest subframes 1-3 decoded whenever they change (:func:`decode_gps_subframes`)."""
     decoded: set = set()
-    checked = _checked_words(frames)
     for i, cls, mid, fr in frames:
-        pl = fr[6:-2]
-        if (cls, mid) == _SFRBX:
-            if len(pl) < 8 or len(pl) != 8 + 4 * pl[4]:
-                continue
-            gnss, sv = pl[0], pl[1]
-            if gnss == 2 and (pl[4] != 8 or pl[2] not in _INAV_SIGNALS):
-                stats["galileo_other_frames"] += 1        # F/NAV (E5a), C/NAV (E6): not I/NAV
-                continue
-            if gnss == 2 and week_ref is not None:
-                got = inav[i]
-                if got is None:
-                    stats["galileo_bad_pages"] += 1
-                    continue
-                wtype, word = got
-                if 1 <= wtype <= 5 and 1 <= sv <= 36:
-                    stats["galileo_words"] += 1
-                    sat = f"E{sv:02d}"
-                    have = latest.setdefault(sat, {})
-                    have[wtype] = word
-                    seen = (sat, *(have.get(k) for k in (1, 2, 3, 4, 5)))
-                    if seen in decoded:                    # the same five words: the same record
-                        continue
-                    decoded.add(seen)
-                    rec = decode_galileo_words(have, sat, week_ref)
-                    if rec is not None and 0 <= rec["e"] < 1 and rec["sqrt_a_sqrt_m"] > 0:
-                        recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)
-                continue
-            if gnss == 3:
-                _beidou_frame(pl, sv, latest, recs, stats, checked.get(i))
-                continue
-            if gnss == 6 and glonass:
-                glonass_frame(pl, latest, glo_recs, stats, week_ref)
-                continue
-            if gnss != 0:
-                stats["other_systems"][str(gnss)] = stats["other_systems"].get(str(gnss), 0) + 1
-                continue
-            if pl[4] != 10:
-                continue
-            if pl[2] != 0:                 # sigId: L2C / L5 CNAV (u-blox 9), not LNAV
-                stats["gps_cnav_frames"] += 1
-                continue
-            words = checked.get(i)
-            if words is None:
-                words = gps_words_from_sfrbx(np.frombuffer(pl[8:48], dtype="<u4").tolist())
-            if words is None:
-                stats["parity_failures"] += 1
-                continue
-        else:
-            if len(pl) != 42:
-                continue
-            sv = pl[1]
-            if not 1 <= sv <= 32:
-                continue
-            words = [w & 0xFFFFFF for w in np.frombuffer(pl[2:42], dtype="<u4").tolist()]
+        sv, words = _gps_words((cls, mid), fr[6:-2], checked.get(i), stats)
+        if words is None:
+            continue
         sid = subframe_id(words)
         if sid not in (1, 2, 3) or not 1 <= sv <= 32:
             continue
@@ -867,24 +920,75 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = Fal
         sat = f"G{sv:02d}"
         have = latest.setdefault(sat, {})
         have[sid] = words
-        if week_ref is not None and all(k in have for k in (1, 2, 3)):
-            seen = (sat, tuple(have[1]), tuple(have[2]), tuple(have[3]))
-            if seen in decoded:                            # the same three subframes: the same record
-                continue
-            decoded.add(seen)
-            rec = decode_gps_subframes(have[1], have[2], have[3], sat, week_ref)
-            if rec is not None and 0 <= rec["e"] < 1 and rec["sqrt_a_sqrt_m"] > 0:
-                recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)
-    nav = pd.DataFrame(list(recs.values()), columns=list(NAV_COLUMNS)) if recs else _empty_nav()
-    if len(nav):
-        for c in ("iode", "codes_l2", "l2p_data_flag", "sv_health", "iodc", "week", "line"):
-            nav[c] = nav[c].astype(np.int64)
-        nav = nav.sort_values(["sat", "toe_gps_s", "transmit_gps_s"], kind="stable").reset_index(drop=True)
+        if week_ref is None or not all(k in have for k in (1, 2, 3)):
+            continue
+        seen = (sat, tuple(have[1]), tuple(have[2]), tuple(have[3]))
+        if seen in decoded:                                # the same three subframes: the same record
+            continue
+        decoded.add(seen)
+        key = _gps_record_key(have[1], have[2], have[3], week_ref)
+        if key is None or (sat, *key) in recs:             # not one data set, or a record already kept
+            continue
+        rec = decode_gps_subframes(have[1], have[2], have[3], sat, week_ref)
+        if rec is not None and 0 <= rec["e"] < 1 and rec["sqrt_a_sqrt_m"] > 0:
+            recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)
+
+
+def _galileo_frames(frames: list, inav: dict, week_ref: int, latest: dict, recs: dict, stats: dict) -> None:
+    """The Galileo I/NAV page pairs (checked and extracted in ``inav``, log order) into ``recs``: each
+    satellite's latest word types 1-5 decoded whenever they change (:func:`decode_galileo_words`)."""
+    decoded: set = set()
+    for i, _, _, fr in frames:
+        got = inav[i]
+        if got is None:
+            stats["galileo_bad_pages"] += 1
+            continue
+        wtype, word = got
+        sv = fr[7]
+        if not (1 <= wtype <= 5 and 1 <= sv <= 36):
+            continue
+        stats["galileo_words"] += 1
+        sat = f"E{sv:02d}"
+        have = latest.setdefault(sat, {})
+        have[wtype] = word
+        seen = (sat, *(have.get(k) for k in (1, 2, 3, 4, 5)))
+        if seen in decoded:                                # the same five words: the same record
+            continue
+        decoded.add(seen)
+        key = _galileo_record_key(have, week_ref)
+        if key is None or (sat, *key) in recs:             # incomplete or mixed, or a record already kept
+            continue
+        rec = decode_galileo_words(have, sat, week_ref)
+        if rec is not None and 0 <= rec["e"] < 1 and rec["sqrt_a_sqrt_m"] > 0:
+            recs.setdefault((sat, rec["toe_gps_s"], rec["iode"]), rec)
+
+
+_NAV_INT_COLUMNS = ("iode", "codes_l2", "l2p_data_flag", "sv_health", "iodc", "week", "line")
+
+
+def _nav_table(recs: dict, glo_recs: dict) -> pd.DataFrame:
+    """The records as the table :func:`sfrbx_ephemerides` returns (integer columns int64, sorted by
+    satellite, toe, transmission time; GLONASS columns when there are GLONASS records)."""
+    nav = _records_table(list(recs.values()), list(NAV_COLUMNS)) if recs else _empty_nav()
     if glo_recs:
-        glo = pd.DataFrame(list(glo_recs.values()), columns=[*NAV_COLUMNS, *GLONASS_NAV_COLUMNS])
+        glo = _records_table(list(glo_recs.values()), [*NAV_COLUMNS, *GLONASS_NAV_COLUMNS])
         nav = pd.concat([d for d in (nav.reindex(columns=glo.columns), glo) if len(d)], ignore_index=True)
-        for c in ("iode", "codes_l2", "l2p_data_flag", "sv_health", "iodc", "week", "line"):
+        for c in _NAV_INT_COLUMNS:
             nav[c] = nav[c].astype(np.int64)
         nav = nav.sort_values(["sat", "toe_gps_s", "transmit_gps_s"], kind="stable").reset_index(drop=True)
-    stats["ephemerides"] = int(len(nav))
-    return nav, stats
+    return nav
+
+
+def _records_table(rows: list, columns: list) -> pd.DataFrame:
+    """``rows`` (dicts) as a table of ``columns``, integer columns int64, sorted by satellite, toe and
+    transmission time (stable), as ``pd.DataFrame(rows, columns=columns)`` then ``sort_values`` gives it."""
+    cols = {c: np.array([r.get(c) for r in rows]) for c in columns}
+    if any(v.dtype == object for c, v in cols.items() if c != "sat"):       # a key missing (None): pandas' way
+        nav = pd.DataFrame(rows, columns=columns)
+        for c in _NAV_INT_COLUMNS:
+            nav[c] = nav[c].astype(np.int64)
+        return nav.sort_values(["sat", "toe_gps_s", "transmit_gps_s"], kind="stable").reset_index(drop=True)
+    order = np.lexsort((cols["transmit_gps_s"], cols["toe_gps_s"], cols["sat"].astype(str)))  # stable, NaN last
+    for c in columns:
+        cols[c] = cols[c][order].astype(np.int64 if c in _NAV_INT_COLUMNS else cols[c].dtype)
+    return pd.DataFrame(cols, columns=columns)

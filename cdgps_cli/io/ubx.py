@@ -33,8 +33,8 @@ import numpy as np
 import pandas as pd
 
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.io.sfrbx import sfrbx_ephemerides
-from cdgps_cli.io.ubx_frames import MAX_OFFSETS_SHOWN, rtcm_station_arp, split_stream
+from cdgps_cli.io.sfrbx import sfrbx_ephemerides_at
+from cdgps_cli.io.ubx_frames import MAX_OFFSETS_SHOWN, rtcm_station_arp, split_stream_spans
 
 __all__ = ["INTEGRITY_COUNTS", "UBX_OBS_COLUMNS", "UBX_SIGNALS", "integrity_line", "integrity_problems", "integrity_record",
            "read_ubx_rawx", "read_ubx_signals", "skipped_line"]
@@ -172,6 +172,10 @@ interface descriptions): a 16-byte header, then ``numMeas`` blocks of 32 bytes, 
 ``recStat`` bit 0 leap seconds valid, bit 1 clock reset; ``trkStat`` bit 0 pseudorange valid,
 bit 1 carrier phase valid, bit 2 half cycle valid, bit 3 half cycle subtracted; the low 4 bits
 of ``prStdev``/``cpStdev`` are the standard deviation indices."""
+_RAWX_EPOCH = np.dtype(_RAWX_HEAD.descr + [("offset", "<i8")])
+"""A decoded RXM-RAWX epoch: its header and the byte offset of its frame in the log."""
+_RAWX_ROW = np.dtype(_RAWX_MEAS.descr + [("epoch", "<i8")])
+"""A decoded measurement: its 32 bytes and the index of its epoch."""
 
 
 def _decode_rawx(x: np.ndarray, off: np.ndarray, n_payload: np.ndarray) -> tuple[np.ndarray, np.ndarray, list]:
@@ -198,19 +202,18 @@ def _decode_rawx(x: np.ndarray, off: np.ndarray, n_payload: np.ndarray) -> tuple
     ok = (n_payload >= 16) & (n_payload == 16 + 32 * num)
     undecodable = off[~ok].tolist()
     off, num = off[ok], num[ok]
-    head = x[(off + 6)[:, None] + np.arange(16)].view(_RAWX_HEAD)[:, 0]
-    epochs = np.empty(len(head), dtype=_RAWX_HEAD.descr + [("offset", "<i8")])
-    for f in _RAWX_HEAD.names:
-        epochs[f] = head[f]
-    epochs["offset"] = off
+    rows = np.empty((off.size, 24), np.uint8)              # the 16 header bytes, then the offset
+    rows[:, :16] = x[(off + 6)[:, None] + np.arange(16)]
+    rows[:, 16:] = off.astype("<i8").view(np.uint8).reshape(-1, 8)
+    epochs = rows.view(_RAWX_EPOCH)[:, 0]
     data = x.data
     raw = np.frombuffer(b"".join([data[a:b] for a, b in zip((off + 22).tolist(), (off + 22 + 32 * num).tolist())]),
-                        dtype=_RAWX_MEAS)
-    meas = np.empty(len(raw), dtype=_RAWX_MEAS.descr + [("epoch", "<i8")])
-    for f in _RAWX_MEAS.names:
-        meas[f] = raw[f]
-    meas["epoch"] = np.repeat(np.arange(len(head)), num)
-    forged = _repeated_signal_frames(meas)
+                        np.uint8).reshape(-1, 32)
+    rows = np.empty((raw.shape[0], 40), np.uint8)           # the 32 measurement bytes, then the epoch index
+    rows[:, :32] = raw
+    rows[:, 32:] = np.repeat(np.arange(off.size, dtype="<i8"), num).view(np.uint8).reshape(-1, 8)
+    meas = rows.view(_RAWX_ROW)[:, 0]
+    forged = _repeated_signal_frames(meas, num)
     if forged.size:       # a frame listing one signal twice is not what a receiver writes (issue 32)
         undecodable = sorted(undecodable + [int(o) for o in epochs["offset"][forged]])
         keep = np.ones(len(epochs), bool)
@@ -233,16 +236,21 @@ def _decode_rawx_frames(rawx: list) -> tuple[np.ndarray, np.ndarray, list]:
     return epochs, meas, sorted(where[k] for k in bad)
 
 
-def _repeated_signal_frames(meas: np.ndarray) -> np.ndarray:
+def _repeated_signal_frames(meas: np.ndarray, num: np.ndarray) -> np.ndarray:
     """Indices of RXM-RAWX frames in which one (gnssId, svId, sigId) appears more than once
-    (e.g. a forged frame with numMeas = 255 and a valid checksum)."""
+    (e.g. a forged frame with numMeas = 255 and a valid checksum).
+
+    ``meas`` holds the frames' measurements frame after frame, ``num[k]`` of frame k.  The keys go into
+    one row per frame, padded with values no key takes (2^24 + column), and each row is sorted alone."""
     if not len(meas):
         return np.zeros(0, np.int64)
-    key = (meas["epoch"].astype(np.int64) << 24) | (meas["gnssId"].astype(np.int64) << 16) \
-        | (meas["svId"].astype(np.int64) << 8) | meas["sigId"].astype(np.int64)
-    key = np.sort(key)
-    dup = key[1:][key[1:] == key[:-1]]
-    return np.unique(dup >> 24)
+    width = int(num.max())
+    table = np.broadcast_to(np.arange(width, dtype=np.uint32) + np.uint32(1 << 24), (num.size, width)).copy()
+    col = np.arange(len(meas)) - np.repeat(np.cumsum(num) - num, num)
+    table[meas["epoch"], col] = (meas["gnssId"].astype(np.uint32) << 16) | (meas["svId"].astype(np.uint32) << 8) \
+        | meas["sigId"].astype(np.uint32)
+    table.sort(axis=1)
+    return np.flatnonzero((table[:, 1:] == table[:, :-1]).any(axis=1))
 
 
 #: the last log decoded by :func:`_decoded_rawx`, {(path, mtime_ns, size, strict): result}: a command
@@ -251,8 +259,9 @@ _LAST_DECODED: dict = {}
 
 
 def _decoded_rawx(p: Path, strict: bool, data: bytes | None = None):
-    """Frame a UBX log and decode its RXM-RAWX messages: (frames, rtcm, split statistics, message counts,
-    epochs, measurements, offsets of undecodable frames, epoch time tags in GPS s); CdgpsError as
+    """Frame a UBX log and decode its RXM-RAWX messages: (UBX frames as (log bytes, start, end arrays), rtcm,
+    split statistics, message counts, epochs, measurements, offsets of undecodable frames, epoch time tags
+    in GPS s); CdgpsError as
     :func:`read_ubx_log` says.  ``data``: the log's bytes when already read (``p`` then names it).
     A file read from disk is decoded once while it is unchanged (same path, modification time and
     size): the arrays come back read-only, the lists and dicts as copies."""
@@ -265,14 +274,14 @@ def _decoded_rawx(p: Path, strict: bool, data: bytes | None = None):
             key = None                                     # the read below reports it
     if key is None or key not in _LAST_DECODED:
         out = _decode_rawx_log(p, strict, data)
-        for a in out[4:6] + out[7:8]:
+        for a in out[4:6] + out[7:8] + out[0][1:]:
             a.setflags(write=False)
         if key is None:
             return out
         _LAST_DECODED.clear()
         _LAST_DECODED[key] = out
     frames, rtcm, stats, counts, epochs, meas, undecodable, t = _LAST_DECODED[key]
-    return list(frames), list(rtcm), copy.deepcopy(stats), dict(counts), epochs, meas, list(undecodable), t
+    return frames, list(rtcm), copy.deepcopy(stats), dict(counts), epochs, meas, list(undecodable), t
 
 
 def _decode_rawx_log(p: Path, strict: bool, data: bytes | None):
@@ -288,16 +297,18 @@ def _decode_rawx_log(p: Path, strict: bool, data: bytes | None):
             raise CdgpsError(f"{p}: cannot decompress this gzip file: {exc}") from None
     if not data:
         raise CdgpsError(f"{p}: empty file; expected a u-blox UBX binary log")
-    frames, rtcm, stats = split_stream(data)
+    off, end, rtcm, stats = split_stream_spans(data)
     x = np.frombuffer(data, np.uint8)
-    off = np.array([f[0] for f in frames], np.int64)
     ids = (x[off + 2].astype(np.int64) << 8) | x[off + 3]
-    codes, first, n_id = np.unique(ids, return_index=True, return_counts=True)
+    n_of = np.bincount(ids, minlength=1)                  # by class·256 + id: no sort of the frames
+    codes = np.flatnonzero(n_of)
+    n_id = n_of[codes]
+    first = np.array([int(np.argmax(ids == c)) for c in codes.tolist()], np.int64)
     counts: dict[str, int] = {}
     for k in np.argsort(first, kind="stable").tolist():  # in order of first appearance, as frame by frame
         name = _msg_name(int(codes[k]) >> 8, int(codes[k]) & 0xFF)
         counts[name] = counts.get(name, 0) + int(n_id[k])
-    if not frames:
+    if not off.size:
         extra = f" ({stats['bad_checksum_frames']} candidate frames failed the checksum)" if stats["bad_checksum_frames"] else ""
         raise CdgpsError(f"{p}: no valid UBX frames found in {len(data)} bytes{extra}; expected a u-blox UBX binary log with RXM-RAWX messages")
     is_rawx = ids == (_RAWX[0] << 8 | _RAWX[1])
@@ -338,7 +349,7 @@ def _decode_rawx_log(p: Path, strict: bool, data: bytes | None):
         raise CdgpsError(f"{p}, byte {epochs['offset'][i]}: RXM-RAWX epoch (week {epochs['week'][i]}, rcvTow "
                          f"{epochs['rcvTow'][i]} s) is earlier than the previous one (byte {epochs['offset'][i - 1]}); "
                          "epochs must be in time order")
-    return frames, rtcm, stats, counts, epochs, meas, undecodable_offsets, t
+    return (data, off, end), rtcm, stats, counts, epochs, meas, undecodable_offsets, t
 
 
 def read_ubx_rawx(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.DataFrame]:
@@ -409,21 +420,33 @@ def read_ubx_log(path: str | Path, *, strict: bool = False,
     """
     p = Path(path)
     frames, rtcm, stats, counts, epochs, meas, undecodable_offsets, t = _decoded_rawx(p, strict, data)
-    undecodable = len(undecodable_offsets)
     n_epochs = len(epochs)
-    week0 = int(epochs["week"][0])
-    leap_ok = (epochs["recStat"] & 1) != 0
-    leap = int(epochs["leapS"][np.flatnonzero(leap_ok)[-1]]) if leap_ok.any() else None
+    signals = _signal_counts(meas)
     reset = (epochs["recStat"] & 2) != 0
-    n_resets = int(reset.sum())
-    gnss, sig = meas["gnssId"].astype(np.int64), meas["sigId"].astype(np.int64)
-    pairs, n_pair = np.unique(gnss * 256 + sig, return_counts=True)
-    signals = {}
-    for code, c in zip(pairs.tolist(), n_pair.tolist()):
+    obs = _l1_table(p, meas, t, reset)
+    if obs.empty:
+        sig = ", ".join(f"{k} ×{v}" for k, v in sorted(signals.items(), key=lambda kv: -kv[1]))
+        raise CdgpsError(f"{p}: {n_epochs} RXM-RAWX epochs but no GPS L1 C/A measurements (signals found: {sig or 'none'})")
+    info = _log_info(p, epochs, obs, signals, counts, len(frames[1]), stats, undecodable_offsets)
+    nav, info["sfrbx"] = sfrbx_ephemerides_at(*frames, info["week"])
+    info["rtcm_base"] = rtcm_station_arp(rtcm)
+    return info, obs, nav
+
+
+def _signal_counts(meas: np.ndarray) -> dict:
+    """{signal name: measurements} of the RXM-RAWX measurements (``GPS L1_C/A`` …), in (gnssId, sigId) order."""
+    n_code = np.bincount(meas["gnssId"].astype(np.int64) * 256 + meas["sigId"], minlength=1)   # no sort
+    signals: dict = {}
+    for code in np.flatnonzero(n_code).tolist():
         name = _signal_name(code // 256, code % 256)
-        signals[name] = signals.get(name, 0) + int(c)
-    m = meas[(gnss == 0) & (sig == 0)]
-    m = _sorted_l1(p, m, t)
+        signals[name] = signals.get(name, 0) + int(n_code[code])
+    return signals
+
+
+def _l1_table(p: Path, meas: np.ndarray, t: np.ndarray, reset: np.ndarray) -> pd.DataFrame:
+    """The GPS L1 C/A rows of the measurements as the ``obs`` table of :func:`read_ubx_log` (sorted, a
+    repeated (time, satellite) refused); ``reset``: each epoch's clock-reset flag."""
+    m = _sorted_l1(p, meas[(meas["gnssId"] == 0) & (meas["sigId"] == 0)], t)
     trk = m["trkStat"]
     cp_ok, pr_ok = (trk & 2) != 0, (trk & 1) != 0
     obs = pd.DataFrame(
@@ -445,15 +468,24 @@ def read_ubx_log(path: str | Path, *, strict: bool = False,
         },
         columns=list(UBX_OBS_COLUMNS),
     )
-    if obs.empty:
-        sig = ", ".join(f"{k} ×{v}" for k, v in sorted(signals.items(), key=lambda kv: -kv[1]))
-        raise CdgpsError(f"{p}: {n_epochs} RXM-RAWX epochs but no GPS L1 C/A measurements (signals found: {sig or 'none'})")
-    if not np.isfinite(t).all():                          # NaN time tags: pandas' NaN-aware path
+    if len(obs) and not np.isfinite(t).all():             # NaN time tags: pandas' NaN-aware path
         obs = _checked_sorted(p, obs)
+    return obs
+
+
+def _log_info(p: Path, epochs: np.ndarray, obs: pd.DataFrame, signals: dict, counts: dict, n_frames: int,
+              stats: dict, undecodable_offsets: list) -> dict:
+    """The ``info`` of :func:`read_ubx_log` but its ``sfrbx`` and ``rtcm_base``."""
+    leap_ok = (epochs["recStat"] & 1) != 0
+    leap = int(epochs["leapS"][np.flatnonzero(leap_ok)[-1]]) if leap_ok.any() else None
+    undecodable = len(undecodable_offsets)
+    n_epochs = len(epochs)
+    week0 = int(epochs["week"][0])
+    n_resets = int(((epochs["recStat"] & 2) != 0).sum())
     info = {
         "path": str(p),
         "message_counts": dict(sorted(counts.items())),
-        "n_frames": len(frames),
+        "n_frames": n_frames,
         "n_epochs": n_epochs,
         "week": week0,
         "leap_seconds": leap,
@@ -473,9 +505,7 @@ def read_ubx_log(path: str | Path, *, strict: bool = False,
         "bad_crc_rtcm_frames": stats["bad_crc_rtcm_frames"],
         "bad_rtcm_offsets": stats["bad_rtcm_offsets"],
     }
-    nav, info["sfrbx"] = sfrbx_ephemerides(frames, week0)
-    info["rtcm_base"] = rtcm_station_arp(rtcm)
-    return info, obs, nav
+    return info
 
 
 _GPS_SAT_RANK = np.argsort(np.argsort(_GPS_SAT_NAMES.astype(str), kind="stable"), kind="stable")

@@ -486,3 +486,92 @@ def test_corrupt_rtcm_frame_is_a_loss_warned_and_refused_by_strict(tmp_path):
     res = CliRunner().invoke(main, ["ingest", "--config", str(cfg), "-o", str(run), "--strict"])
     assert res.exit_code == 2 and "RTCM 3 frames failing the CRC-24Q" in res.output and not run.exists()
     assert "Traceback" not in res.output
+
+
+def test_records_table_equals_pandas_from_records():
+    """The nav table built column by column and sorted by lexsort equals ``pd.DataFrame(records)`` sorted by
+    pandas (stable, NaN last), also with ties, NaN times and a record lacking a key (pandas' path)."""
+    import numpy as np
+    import pandas as pd
+
+    from cdgps_cli.core.records import NAV_COLUMNS
+    from cdgps_cli.io.sfrbx import _NAV_INT_COLUMNS, _records_table
+
+    rng = np.random.default_rng(2)
+    rows = []
+    for k in range(40):
+        r = {c: float(rng.normal()) for c in NAV_COLUMNS}
+        r.update({c: int(rng.integers(0, 3)) for c in _NAV_INT_COLUMNS})
+        r["sat"] = f"{'GEC'[k % 3]}{int(rng.integers(1, 4)):02d}"
+        r["toe_gps_s"] = float(rng.integers(0, 3)) if k % 7 else float("nan")
+        r["transmit_gps_s"] = float(rng.integers(0, 2))
+        rows.append(r)
+
+    def pandas_way(rs):
+        nav = pd.DataFrame(rs, columns=list(NAV_COLUMNS))
+        for c in _NAV_INT_COLUMNS:
+            nav[c] = nav[c].astype(np.int64)
+        return nav.sort_values(["sat", "toe_gps_s", "transmit_gps_s"], kind="stable").reset_index(drop=True)
+
+    pd.testing.assert_frame_equal(_records_table(rows, list(NAV_COLUMNS)), pandas_way(rows), check_exact=True)
+    short = [dict(r) for r in rows]
+    del short[3]["e"]
+    pd.testing.assert_frame_equal(_records_table(short, list(NAV_COLUMNS)), pandas_way(short), check_exact=True)
+
+
+def test_record_keys_equal_the_decoded_records():
+    """The (toe, IODE) read ahead of a decode, by which a record already kept is not decoded again, is the
+    decoded record's (or None with it) for every GPS subframe triple, Galileo word set and BeiDou D1 frame of the
+    shared logs (and for triples made inconsistent)."""
+    from pathlib import Path
+
+    import pytest
+
+    from cdgps_cli.io import sfrbx
+    from cdgps_cli.io.ubx_frames import split_stream
+
+    shared = Path(__file__).resolve().parents[2].parent / "shared" / "data"
+    logs = [(shared / "real-pairs" / "ublox-walk" / "gnss_1730.ubx", 2381), (shared / "ubx" / "ubx_20080526.ubx", 1480)]
+    if not logs[0][0].exists():
+        pytest.skip("shared u-blox logs not available")
+    seen = {"G": 0, "E": 0}
+    real_gps, real_gal = sfrbx.decode_gps_subframes, sfrbx.decode_galileo_words
+
+    def gps(sf1, sf2, sf3, sat, week_ref):
+        rec = real_gps(sf1, sf2, sf3, sat, week_ref)
+        # the triple with its IODE/IODC disagreeing too (subframe 3's IODE changed)
+        bad3 = list(sf3[:9]) + [sf3[9] ^ 0x010000]
+        for a, b, c in ((sf1, sf2, sf3), (sf1, sf2, bad3)):
+            r = real_gps(a, b, c, sat, week_ref)
+            assert orig[0](a, b, c, week_ref) == (None if r is None else (r["toe_gps_s"], r["iode"]))
+        seen["G"] += 1
+        return rec
+
+    def gal(words, sat, week_ref):
+        rec = real_gal(words, sat, week_ref)
+        assert orig[1](words, week_ref) == (None if rec is None else (rec["toe_gps_s"], rec["iode"]))
+        seen["E"] += 1
+        return rec
+
+    real_bds = sfrbx.decode_beidou_d1
+
+    def bds(sf1, sf2, sf3, sat):
+        rec = real_bds(sf1, sf2, sf3, sat)
+        for a, b, c in ((sf1, sf2, sf3), (sf1, sf3, sf2)):
+            r = real_bds(a, b, c, sat)
+            assert orig[2](a, b, c) == (None if r is None else (r["toe_gps_s"], r["iode"]))
+        seen["C"] = seen.get("C", 0) + 1
+        return rec
+
+    orig = sfrbx._gps_record_key, sfrbx._galileo_record_key, sfrbx._beidou_record_key
+    try:
+        sfrbx.decode_beidou_d1, sfrbx._beidou_record_key = bds, lambda *a: (0.0, -1)
+        sfrbx.decode_gps_subframes, sfrbx.decode_galileo_words = gps, gal
+        sfrbx._gps_record_key = lambda *a: (0.0, -1)                  # never kept: every triple decoded, compared
+        sfrbx._galileo_record_key = lambda words, w: (0.0, -1)      # never kept: every set is decoded and compared
+        for path, week in logs:
+            sfrbx.sfrbx_ephemerides(split_stream(path.read_bytes())[0], week)
+    finally:
+        sfrbx.decode_gps_subframes, sfrbx.decode_galileo_words, sfrbx.decode_beidou_d1 = real_gps, real_gal, real_bds
+        sfrbx._gps_record_key, sfrbx._galileo_record_key, sfrbx._beidou_record_key = orig
+    assert seen["G"] >= 50 and seen["E"] >= 20 and seen["C"] >= 20

@@ -18,13 +18,13 @@ LOG = Path(__file__).resolve().parents[3] / "shared" / "data" / "real-pairs" / "
 @pytest.fixture
 def counted(monkeypatch):
     calls = []
-    real = ubx.split_stream
+    real = ubx.split_stream_spans
 
     def split(data):
         calls.append(len(data))
         return real(data)
 
-    monkeypatch.setattr(ubx, "split_stream", split)
+    monkeypatch.setattr(ubx, "split_stream_spans", split)
     ubx._LAST_DECODED.clear()
     yield calls
     ubx._LAST_DECODED.clear()
@@ -63,8 +63,8 @@ def test_callers_cannot_alter_the_memory(tmp_path, counted):
     info["message_counts"].clear()
     again, _, _ = ubx.read_ubx_log(path)
     assert again["bad_rtcm_offsets"] == [] and again["message_counts"]
-    _, _, _, _, epochs, meas, _, t = ubx._decoded_rawx(path, False)
-    for a in (epochs, meas, t):
+    (_, off, end), _, _, _, epochs, meas, _, t = ubx._decoded_rawx(path, False)
+    for a in (epochs, meas, t, off, end):
         with pytest.raises(ValueError):
             a[:1] = a[1:2]
     assert np.all(np.diff(t) > 0)

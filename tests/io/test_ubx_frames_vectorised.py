@@ -1,6 +1,6 @@
-"""The numpy framer :func:`split_stream` against the byte-by-byte walk it replaced
-(``_split_stream_walk``, issue 29 item 4): the same frames, sentences and counters, byte offsets
-included, on every u-blox log of ../shared/data and on damaged and mixed streams."""
+"""The numpy framer and the compiled walk (``_ubxcore``, where built) behind :func:`split_stream` against
+the byte-by-byte walk in Python (``_split_stream_walk``, issue 29 item 4): the same frames, sentences and
+counters, byte offsets included, on every u-blox log of ../shared/data and on damaged and mixed streams."""
 
 from __future__ import annotations
 
@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cdgps_cli.io.ubx_frames import _split_stream_walk, split_stream
+from cdgps_cli.io import ubx_frames
+from cdgps_cli.io.ubx_frames import _split_stream_numpy, _split_stream_walk, split_stream
 from tests.io.test_ubx_frames import _nmea, _rtcm, _ubx
 
 SHARED = Path(__file__).resolve().parents[2].parent / "shared" / "data"
@@ -21,7 +22,28 @@ MARKS = (0xB5, 0x62, 0x24, 0xD3, 0x0A, 0x0D, 0x2A, 0x2C, 0x41, 0x30)
 
 
 def _same(data: bytes) -> None:
+    want = _split_stream_walk(data)
+    assert _split_stream_numpy(data) == want
+    if ubx_frames._ubxcore is not None:
+        assert ubx_frames._split_stream_compiled(data) == want
+
+
+def test_split_stream_takes_the_compiled_walk_where_built(monkeypatch):
+    data = _ubx(1, 7, b"ab") + _nmea("GPGGA,1") + _rtcm(1005, bytes(17))
+    calls = []
+    monkeypatch.setattr(ubx_frames, "_split_stream_numpy", lambda d: calls.append(d) or _split_stream_walk(d))
     assert split_stream(data) == _split_stream_walk(data)
+    assert bool(calls) == (ubx_frames._ubxcore is None)
+    monkeypatch.setattr(ubx_frames, "USE_COMPILED", False)
+    split_stream(data)
+    assert calls[-1] == data
+
+
+def test_compiled_walk_is_built_here():
+    """The machine that runs the suite has a C compiler: the extension is expected (CI builds it)."""
+    if ubx_frames._ubxcore is None:
+        pytest.skip("cdgps_cli.io._ubxcore not built (optional); the numpy path is what runs")
+    assert ubx_frames._ubxcore.API == 1
 
 
 def test_shared_logs_found():
@@ -86,8 +108,6 @@ def test_edge_streams_frame_identically(data):
 def test_deeply_overlapping_candidates_frame_identically():
     """Forty sync words each announcing a frame over the next ones: more layers of overlapping
     candidates than the disjoint sums take (the prefix-sum fallback), one genuine frame among them."""
-    from cdgps_cli.io import ubx_frames
-
     data = b"\xb5\x62\x01\x01\x30\x00" * 40 + _ubx(1, 7, bytes(range(40))) + bytes(100)
     assert ubx_frames.MAX_LAYERS < 40
     _same(data)
@@ -174,4 +194,22 @@ def test_rtcm_rounds_exhausted_falls_back_to_the_walk(monkeypatch):
     streams = [_damage(rng, _mixed(rng)) for _ in range(40)]
     want = [_split_stream_walk(d) for d in streams]
     monkeypatch.setattr(ubx_frames, "MAX_RTCM_ROUNDS", 1)
-    assert [split_stream(d) for d in streams] == want
+    assert [_split_stream_numpy(d) for d in streams] == want
+
+
+def test_false_syncs_switch_the_compiled_walk_to_prefix_sums():
+    """Sync words announcing long frames that fail: the compiled walk sums them directly until that has cost
+    more than the stream, then from prefix sums; frames on both sides of the switch equal the walk's, and a
+    megabyte of such candidates stays fast (linear)."""
+    import time
+
+    false = b"\xb5\x62\x01\x01\xf0\x00" + bytes(range(40))
+    data = _ubx(1, 7, b"ab") + false * 300 + _ubx(2, 0x15, bytes(30)) + false * 300 + _ubx(1, 7, b"cd")
+    _same(data)
+    assert len(split_stream(data)[0]) == 3
+    if ubx_frames._ubxcore is not None:
+        big = b"\xb5\x62\x01\x01\xff\xff" * 170_000 + _ubx(1, 7, b"ef")
+        t = time.perf_counter()
+        frames, _, stats = ubx_frames._split_stream_compiled(big)
+        assert time.perf_counter() - t < 1.0
+        assert len(frames) == 1 and stats["bad_checksum_frames"] == 170_000
