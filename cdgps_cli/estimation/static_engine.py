@@ -7,8 +7,9 @@ satellite's signal between slips), all sized up front.  With no process noise th
 state is the batch least-squares solution with the same prior (the information adds up epoch by
 epoch); :func:`static_normal_equations` forms that batch answer directly, as an independent check.
 Options: :func:`options_from_baseline` maps BaselineOptions (refusing by name what the engine does
-not implement).  Work in progress: ``baseline`` and ``init`` still call
-:func:`~cdgps_cli.estimation.baseline.solve_static_baseline`.
+not implement).  ``baseline`` and GNSS ``init`` solve here through
+:func:`~cdgps_cli.estimation.baseline.solve_static_baseline` (``engine=True``), which renders the result
+(:func:`arc_table`, :func:`arc_integers`, the states) in its JSON forms.
 """
 
 import numpy as np
