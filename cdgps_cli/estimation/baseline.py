@@ -1398,6 +1398,18 @@ def _run_engine(master: Station, rover: Station, nav, opt: BaselineOptions, xm, 
     return static_baseline(geo[0], geo[1], xm, xr0, eopt)
 
 
+def _engine_or_batch(master: Station, rover: Station, nav, opt: BaselineOptions, xm, xr0, iono_threshold_km,
+                     prepared: tuple, engine: bool):
+    """((float, fix, final) of the static engine, "static_engine"), or (None, "batch (reason)") when the batch
+    solver is to serve (engine not asked for, an option only the batch implements, arcs that are not the segments)."""
+    if not engine:
+        return None, "batch (engine not asked for)"
+    d, sg, w, r_enu = prepared
+    eng = _run_engine(master, rover, nav, opt, xm, xr0, iono_threshold_km)
+    known = eng if isinstance(eng, str) else _engine_solution(d, sg, w, eng, xr0, r_enu, opt)
+    return (None, f"batch ({known})") if isinstance(known, str) else (known, "static_engine")
+
+
 def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, options: BaselineOptions | None = None,
                           *, master_xyz=None, rover_xyz=None, integers: dict | None = None,
                           solution: dict | None = None,
@@ -1436,6 +1448,11 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
     iono_threshold_km : float, optional
         With both stations' signal tables: refuse a baseline (master to rover a priori) at least
         this long, km, since the DD ionosphere is neglected (:func:`check_iono_rule`).  None: no check.
+    engine : bool
+        Solve on the static engine (:func:`~cdgps_cli.estimation.static_engine.static_baseline`) and render its
+        numbers here; the batch below serves when the options or data need it (the result's ``solver`` says which).
+    solution_tol_m : float
+        With ``solution``: how far (m) one least-squares step may move it and it still be taken as given.
 
     Returns
     -------
@@ -1445,7 +1462,7 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
         (ENU displacement, 1σ, ECEF position, baseline from the master), ``ambiguities``
         (counts, ratio, acceptance, per-segment table), ``residuals`` (DD phase RMS),
         ``kinematic`` (single-epoch scatter), ``epochs``, ``satellites``, ``warnings``,
-        ``options``, ``timing_s``.
+        ``options``, ``solver`` ("static_engine" or "batch (reason)"), ``timing_s``.
 
     Raises
     ------
@@ -1470,14 +1487,12 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
     t_prep = lap()
     r_enu = enu_matrix(*ecef_to_geodetic(xr0)[:2])
     sg, w = _segments(d, opt), _weights(d, opt)
-    known = None if integers is None or solution is None else _known_solution(d, sg, w, integers, solution, xr0, r_enu, warnings,
-                                                                                      solution_tol_m)
-    solver = "batch (" + ("integers given" if integers is not None else "engine not asked for") + ")"
-    if known is None and integers is None and engine:
-        eng = _run_engine(master, rover, nav, opt, xm, xr0, iono_threshold_km)
-        known = eng if isinstance(eng, str) else _engine_solution(d, sg, w, eng, xr0, r_enu, opt)
-        solver = f"batch ({known})" if isinstance(known, str) else "static_engine"
-        known = None if isinstance(known, str) else known
+    if integers is not None:
+        solver = "batch (integers given)"
+        known = None if solution is None else _known_solution(d, sg, w, integers, solution, xr0, r_enu, warnings,
+                                                              solution_tol_m)
+    else:
+        known, solver = _engine_or_batch(master, rover, nav, opt, xm, xr0, iono_threshold_km, (d, sg, w, r_enu), engine)
     if known is not None:
         fl, fx, fin = known
         t_float = t_lambda = 0.0
