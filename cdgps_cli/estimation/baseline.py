@@ -908,15 +908,19 @@ def _integer_fix(d: _Data, sg: _Segments, w: _Weights, fl: _Float, opt: Baseline
 #: largest correction (m) the given solution may need to be that of its integers on these data (the fixed
 #: solution's own convergence step); beyond it the solution is solved again from the integers
 _KNOWN_SOLUTION_TOL_M = 1e-6
+#: the same for a solution the static engine made (INIT's ``solver`` "static_engine"): its fixed position
+#: agrees with this module's fixed solution of the same integers within 0.062 mm on the goldens
+ENGINE_SOLUTION_TOL_M = 1e-4
 
 
-def _known_solution(d: _Data, sg: _Segments, w: _Weights, integers: dict, solution: dict, xr0, r_enu, warnings: list):
+def _known_solution(d: _Data, sg: _Segments, w: _Weights, integers: dict, solution: dict, xr0, r_enu, warnings: list,
+                    tol_m: float = _KNOWN_SOLUTION_TOL_M):
     """The fixed solution given whole (e.g. INIT's): every ambiguity an integer or a datum pivot, the
     position ``solution["enu_m"]`` — evaluated there (design, residuals, covariance), not solved again.
 
     Returns (float, fix, final) in the solver's forms, or None when the given integers leave a segment
     float, the data hold GLONASS (FDMA) segments, or the position is not the fixed solution of these
-    integers (one least-squares step would move it more than :data:`_KNOWN_SOLUTION_TOL_M`; a warning
+    integers (one least-squares step would move it more than ``tol_m``; a warning
     says so): the caller then solves from the integers."""
     fixed_mask = np.zeros(sg.free.size, dtype=bool)
     integers_fix = np.zeros(sg.free.size, dtype=np.int64)
@@ -934,7 +938,7 @@ def _known_solution(d: _Data, sg: _Segments, w: _Weights, integers: dict, soluti
     g, r_ph, _ = _residuals(d, xr0 + r_enu.T @ x, r_enu, a_fix, sg.seg, w, code=False)
     nmat, rhs = _accumulate(w.blocks_ph, g, r_ph, np.full(sg.seg.size, -1, dtype=np.int64), 3, _lam(d))
     cf, dx = _solve(nmat, rhs, "fixed solution")
-    if np.max(np.abs(dx)) > _KNOWN_SOLUTION_TOL_M:        # not the solution of these integers on these data
+    if np.max(np.abs(dx)) > tol_m:        # not the solution of these integers on these data
         warnings.append(f"the given solution is {1e3 * float(np.linalg.norm(dx)):.3g} mm from the fixed solution of the "
                         f"given integers on these data; solved again from the integers")
         return None
@@ -1263,10 +1267,154 @@ def check_iono_rule(master: str, rover: str, length_m: float, threshold_km: floa
             f"config to accept the ionosphere's error")
 
 
+# ----------------------------------------------------------------------------------------------
+# the static engine's solution in this solver's forms (issue 28 item 1)
+# ----------------------------------------------------------------------------------------------
+
+
+def _engine_columns(d: _Data, sg: _Segments, arcs: dict):
+    """The engine's state column of every SD segment (n_seg,) matched on (satellite, signal, first epoch
+    within 1 ms), or a string saying why the two sets of arcs differ."""
+    sig = _satellite_signals(d)
+    key = {(s, g, round(float(t), 3)): 3 + i
+           for i, (s, g, t) in enumerate(zip(arcs["sat"], arcs["signal"], arcs["first_s"]))}
+    if len(key) != sg.n_seg:
+        return f"the engine has {len(key)} ambiguity arcs, this solver {sg.n_seg} segments"
+    out = np.empty(sg.n_seg, dtype=np.int64)
+    for k in range(sg.n_seg):
+        s = int(sg.segtab["sat"][k])
+        name = d.sat_names[s].split(":")[0]
+        t = round(float(d.t_label[sg.segtab["first_epoch"][k]]), 3)
+        c = key.get((name, sig[s]["signal"] if sig else "G:L1", t))
+        if c is None:
+            return f"segment {d.sat_names[s]} from {gps_time_str(t)} is no arc of the engine"
+        out[k] = c
+    return out
+
+
+def _datum_map(d: _Data, sg: _Segments, cols, n_state: int) -> np.ndarray:
+    """J (n_seg, n_state): this solver's SD ambiguity of each segment (its pivot at 0) from the engine's arc
+    states, a_k = x_k − (λ_p / λ_k) x_p with p the segment's pivot (the DDs are the same)."""
+    lam_row = np.broadcast_to(np.asarray(_lam(d), dtype=np.float64), d.sat.shape)
+    lam_seg = np.zeros(sg.n_seg)
+    lam_seg[sg.seg] = lam_row
+    piv = sg.pivots[sg.comp]
+    J = np.zeros((sg.n_seg, n_state))
+    J[np.arange(sg.n_seg), cols] += 1.0
+    J[np.arange(sg.n_seg), cols[piv]] -= lam_seg[piv] / lam_seg
+    return J
+
+
+def _nan_none(v):
+    return None if v is None or (isinstance(v, float) and math.isnan(v)) else v
+
+
+def _engine_solution(d: _Data, sg: _Segments, w: _Weights, eng: dict, xr0, r_enu, opt: BaselineOptions):
+    """(float, fix, final) in this solver's forms from :func:`~cdgps_cli.estimation.static_engine.static_baseline`'s
+    result ``eng`` (its float and fixed states and integers): the rendering (segment table, residuals,
+    single-epoch positions) is this module's, every number solved is the engine's.  A string instead when
+    the engine's arcs are not this solver's segments (the caller then solves here)."""
+    cols = _engine_columns(d, sg, eng["arcs"])
+    if isinstance(cols, str):
+        return cols
+    x, P, ai = eng["state"], eng["cov"], eng["arc_integers"]
+    J = _datum_map(d, sg, cols, x.size)
+    Jf = np.vstack([np.hstack([r_enu, np.zeros((3, x.size - 3))]), J[sg.free]])
+    a_fl = J @ x
+    q_fl = Jf @ P @ Jf.T
+    x_fl = r_enu @ x[:3]
+    g, r_ph, r_cd = _residuals(d, xr0 + r_enu.T @ x_fl, r_enu, a_fl, sg.seg, w)
+    sq_ph, n_ph = _quad(w.blocks_ph, r_ph)
+    sq_cd, n_cd = _quad(w.blocks_code, r_cd)
+    dof = n_ph + n_cd - sg.n_par
+    fl = _Float(x_fl, a_fl, q_fl, {"enu_m": x_fl.tolist(), "sigma_enu_m": np.sqrt(np.diag(q_fl)[:3]).tolist(),
+                                   "iterations": 0, "unit_variance": (sq_ph + sq_cd) / dof if dof > 0 else None},
+                g, r_ph, r_cd, n_cd)
+    seg_int = ai[cols] - ai[cols[sg.pivots[sg.comp]]]                   # NaN unless both arcs are fixed
+    fixed_mask = np.isfinite(seg_int[sg.free]) & ~_fdma_segments(d, sg)[sg.free]
+    ints = np.where(fixed_mask, np.nan_to_num(seg_int[sg.free]), 0).astype(np.int64)
+    res = eng["resolution"] or {}
+    fx = _Fix(a_fl[sg.free], q_fl[3:, 3:], fixed_mask, ints, _nan_none(res.get("ratio")),
+              _nan_none(res.get("ratio_full_set")), bool(res.get("accepted", False)), bool(res.get("partial", False)),
+              _nan_none(res.get("success_rate")))
+    n_fixed = int(fixed_mask.sum())
+    if not n_fixed:
+        a_sig = np.zeros(sg.n_seg)
+        a_sig[sg.free] = np.sqrt(np.diag(q_fl)[3:])
+        return fl, fx, _Final(None, x_fl, "float", a_fl, sg.is_pivot.copy(), q_fl[:3, :3], g, r_ph, a_sig)
+    xf, Pf = eng["state_fixed"], eng["cov_fixed"]
+    a_fix = J @ xf
+    known = sg.is_pivot.copy()
+    known[sg.free[fixed_mask]] = True
+    a_fix[sg.free[fixed_mask]] = ints[fixed_mask]
+    a_fix[sg.is_pivot] = 0.0
+    x_fix = r_enu @ xf[:3]
+    q3 = r_enu @ Pf[:3, :3] @ r_enu.T
+    g, r_ph, _ = _residuals(d, xr0 + r_enu.T @ x_fix, r_enu, a_fix, sg.seg, w, code=False)
+    if known.all():      # every ambiguity known: the covariance as estimate evaluates INIT's solution (phase only)
+        nmat, _ = _accumulate(w.blocks_ph, g, r_ph, np.full(sg.seg.size, -1, dtype=np.int64), 3, _lam(d))
+        q3 = cho_solve(cho_factor(nmat), np.eye(3))
+    sq, n_dd = _quad(w.blocks_ph, r_ph)
+    dof = n_dd - 3 - int(np.sum(~known))
+    block = {"enu_m": x_fix.tolist(), "sigma_enu_m": np.sqrt(np.diag(q3)).tolist(), "iterations": 0,
+             "unit_variance": sq / dof if dof > 0 else None,
+             "observations": ("L1 carrier phase only" if getattr(d, "group", None) is None
+                              else f"carrier phase only ({', '.join(d.group_names)})")}
+    kind = "fixed" if n_fixed == int(np.sum(~_fdma_segments(d, sg)[sg.free])) else "partially fixed"
+    a_sig = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", J, Pf, J), 0.0))
+    a_sig[known] = 0.0
+    return fl, fx, _Final(block, x_fix, kind, a_fix, known, q3, g, r_ph, a_sig)
+
+
+def l1_signal_table(obs: pd.DataFrame) -> pd.DataFrame:
+    """GPS L1 rows of an :data:`~cdgps_cli.core.records.OBS_COLUMNS` table (those with a phase) as a signal
+    table (:data:`~cdgps_cli.io.rinex_signals.SIGNAL_COLUMNS`, signal ``G:L1``): the engine's input for the
+    observations this solver uses without signal tables."""
+    o = obs[np.isfinite(obs["phase_l1_cycles"].to_numpy()) & obs["sat"].astype(str).str.startswith("G").to_numpy()]
+    return pd.DataFrame({"time_gps_s": o["time_gps_s"].to_numpy(dtype=np.float64), "sat": o["sat"].to_numpy(),
+                         "signal": "G:L1", "phase_cycles": o["phase_l1_cycles"].to_numpy(dtype=np.float64),
+                         "pseudorange_m": o["pseudorange_l1_m"].to_numpy(dtype=np.float64),
+                         "lli": np.nan_to_num(o["lli_l1"].to_numpy(dtype=np.float64)).astype(np.int64),
+                         "wavelength_m": GPS_L1_WAVELENGTH_M})
+
+
+def _run_engine(master: Station, rover: Station, nav, opt: BaselineOptions, xm, xr0,
+                iono_threshold_km) -> dict | str:
+    """:func:`~cdgps_cli.estimation.static_engine.static_baseline` on the two receivers' signal tables (their
+    GPS L1 rows without them), or the reason (a string) it cannot serve these options."""
+    from cdgps_cli.estimation.rtk_multi import receiver_geometry
+    from cdgps_cli.estimation.static_engine import options_from_baseline, static_baseline
+    from dataclasses import replace
+    render = {"kinematic_series": False, "min_sats_kinematic": BaselineOptions.min_sats_kinematic,
+              "kinematic_max_pdop": BaselineOptions.kinematic_max_pdop}     # this module's rendering, not the engine's
+    try:
+        eopt = options_from_baseline(replace(opt, **render))
+    except CdgpsError as exc:
+        return str(exc).replace("static baseline: ", "")
+    eopt["iono_threshold_km"] = math.inf if iono_threshold_km is None else iono_threshold_km
+    tables = [st.signals if st.signals is not None and master.signals is not None and rover.signals is not None
+              else l1_signal_table(st.obs) for st in (master, rover)]
+    geo = [receiver_geometry(df, nav, xyz) for df, xyz in zip(tables, (xm, xr0))]
+    return static_baseline(geo[0], geo[1], xm, xr0, eopt)
+
+
+def _engine_or_batch(master: Station, rover: Station, nav, opt: BaselineOptions, xm, xr0, iono_threshold_km,
+                     prepared: tuple, engine: bool):
+    """((float, fix, final) of the static engine, "static_engine"), or (None, "batch (reason)") when the batch
+    solver is to serve (engine not asked for, an option only the batch implements, arcs that are not the segments)."""
+    if not engine:
+        return None, "batch (engine not asked for)"
+    d, sg, w, r_enu = prepared
+    eng = _run_engine(master, rover, nav, opt, xm, xr0, iono_threshold_km)
+    known = eng if isinstance(eng, str) else _engine_solution(d, sg, w, eng, xr0, r_enu, opt)
+    return (None, f"batch ({known})") if isinstance(known, str) else (known, "static_engine")
+
+
 def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, options: BaselineOptions | None = None,
                           *, master_xyz=None, rover_xyz=None, integers: dict | None = None,
                           solution: dict | None = None,
-                          keep_work: bool = False, iono_threshold_km: float | None = None) -> dict:
+                          keep_work: bool = False, iono_threshold_km: float | None = None,
+                          engine: bool = False, solution_tol_m: float = _KNOWN_SOLUTION_TOL_M) -> dict:
     """Static baseline from two receivers' RINEX observations (see the module docstring).
 
     Parameters
@@ -1300,6 +1448,11 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
     iono_threshold_km : float, optional
         With both stations' signal tables: refuse a baseline (master to rover a priori) at least
         this long, km, since the DD ionosphere is neglected (:func:`check_iono_rule`).  None: no check.
+    engine : bool
+        Solve on the static engine (:func:`~cdgps_cli.estimation.static_engine.static_baseline`) and render its
+        numbers here; the batch below serves when the options or data need it (the result's ``solver`` says which).
+    solution_tol_m : float
+        With ``solution``: how far (m) one least-squares step may move it and it still be taken as given.
 
     Returns
     -------
@@ -1309,7 +1462,7 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
         (ENU displacement, 1σ, ECEF position, baseline from the master), ``ambiguities``
         (counts, ratio, acceptance, per-segment table), ``residuals`` (DD phase RMS),
         ``kinematic`` (single-epoch scatter), ``epochs``, ``satellites``, ``warnings``,
-        ``options``, ``timing_s``.
+        ``options``, ``solver`` ("static_engine" or "batch (reason)"), ``timing_s``.
 
     Raises
     ------
@@ -1334,7 +1487,12 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
     t_prep = lap()
     r_enu = enu_matrix(*ecef_to_geodetic(xr0)[:2])
     sg, w = _segments(d, opt), _weights(d, opt)
-    known = None if integers is None or solution is None else _known_solution(d, sg, w, integers, solution, xr0, r_enu, warnings)
+    if integers is not None:
+        solver = "batch (integers given)"
+        known = None if solution is None else _known_solution(d, sg, w, integers, solution, xr0, r_enu, warnings,
+                                                              solution_tol_m)
+    else:
+        known, solver = _engine_or_batch(master, rover, nav, opt, xm, xr0, iono_threshold_km, (d, sg, w, r_enu), engine)
     if known is not None:
         fl, fx, fin = known
         t_float = t_lambda = 0.0
@@ -1360,6 +1518,7 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
         "satellites": _satellite_table(d, sg),
         "warnings": warnings,
         "options": asdict(opt),
+        "solver": solver,
         "timing_s": {"prepare": t_prep, "float": t_float, "lambda": t_lambda, "fixed": t_fixed, "kinematic": t_kin,
                      "total": time.perf_counter() - t_start},
     })

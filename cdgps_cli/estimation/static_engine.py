@@ -7,8 +7,9 @@ satellite's signal between slips), all sized up front.  With no process noise th
 state is the batch least-squares solution with the same prior (the information adds up epoch by
 epoch); :func:`static_normal_equations` forms that batch answer directly, as an independent check.
 Options: :func:`options_from_baseline` maps BaselineOptions (refusing by name what the engine does
-not implement).  Work in progress: ``baseline`` and ``init`` still call
-:func:`~cdgps_cli.estimation.baseline.solve_static_baseline`.
+not implement).  ``baseline`` and GNSS ``init`` solve here through
+:func:`~cdgps_cli.estimation.baseline.solve_static_baseline` (``engine=True``), which renders the result
+(:func:`arc_table`, :func:`arc_integers`, the states) in its JSON forms.
 """
 
 import numpy as np
@@ -146,14 +147,15 @@ def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_succ
     ints = np.zeros(a.size, dtype=np.int64)
     ints[fixable] = res["integers"]
     res = {**res, "fixed_mask": m, "integers": ints}
-    off, cov = x[:3].copy(), P[:3, :3].copy()
+    x_fix, P_fix = x.copy(), P.copy()
     if m.any():
         Dm = D[m]
-        Pxa = P[:3] @ Dm.T
+        Pxa = P @ Dm.T
         G = np.linalg.solve(Dm @ P @ Dm.T, Pxa.T).T
-        off = off - G @ (Dm @ x - ints[m])
-        cov = cov - G @ Pxa.T
-    return {"offset_m": off, "cov_m2": cov, "resolution": res, "pairs": pairs, "dd_float": a}
+        x_fix = x - G @ (Dm @ x - ints[m])
+        P_fix = P - G @ Pxa.T
+    return {"offset_m": x_fix[:3].copy(), "cov_m2": P_fix[:3, :3].copy(), "resolution": res, "pairs": pairs,
+            "dd_float": a, "state_fixed": x_fix, "cov_fixed": P_fix}
 
 
 #: options the static engine does not honour yet: refused by name rather than silently ignored
@@ -243,9 +245,34 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
                         opt["iono_threshold_km"])
     x, P, cols = static_filter(rows, times, base_xyz_m, rover_xyz0_m)
     if not opt["fix"]:
-        f = {"offset_m": x[:3].copy(), "cov_m2": P[:3, :3].copy(), "resolution": None, "pairs": [], "dd_float": None}
+        f = {"offset_m": x[:3].copy(), "cov_m2": P[:3, :3].copy(), "resolution": None, "pairs": [], "dd_float": None,
+             "state_fixed": x, "cov_fixed": P}
     else:
         f = static_fix(x, P, rows, cols, ratio=opt["ratio"], partial=opt["partial"],
                        min_success_rate=opt["min_success_rate"])
     return {**f, "float_offset_m": x[:3], "float_cov_m2": P[:3, :3], "epochs_used": int(times.size),
-            "epoch_pairing": pairs.summary}
+            "epoch_pairing": pairs.summary, "state": x, "cov": P, "arcs": arc_table(rows, cols, times),
+            "arc_integers": arc_integers(f, x.size)}
+
+
+def arc_table(rows, cols, times_s) -> dict:
+    """Per state column from 3 (one per arc): ``sat`` (n_arc,) str, ``signal`` str, ``first_s`` (first epoch, GPS s),
+    ``lam_m``."""
+    first = np.unique(cols, return_index=True)[1]          # cols are numbered in order of first appearance
+    epoch = np.searchsorted(rows["ptr"], first, side="right") - 1
+    return {"sat": rows["sats"][first].astype(str), "signal": rows["names"][rows["code"][first]].astype(str),
+            "first_s": np.asarray(times_s, float)[epoch], "lam_m": rows["lam_m"][first]}
+
+
+def arc_integers(fix: dict, n_state: int) -> np.ndarray:
+    """(n_state,) integer of each arc relative to its signal's reference arc (the reference 0), NaN where not
+    fixed (and for the first three, position, entries)."""
+    out = np.full(n_state, np.nan)
+    res = fix["resolution"]
+    if res is None:
+        return out
+    for (a, ref), ok, k in zip(fix["pairs"], res["fixed_mask"], res["integers"]):
+        out[ref] = 0.0
+        if ok:
+            out[a] = float(k)
+    return out

@@ -49,7 +49,7 @@ def baseline_from_files(rinex: dict, nav_paths, master: str, options: BaselineOp
     pos = positions or {}
     try:
         res = solve_static_baseline(stations[master], stations[rover], nav, options, master_xyz=pos.get(master),
-                                    rover_xyz=pos.get(rover))
+                                    rover_xyz=pos.get(rover), engine=True)
     except CdgpsError as exc:
         if str(exc).startswith("the navigation data does not cover"):     # name the files that fell short
             raise CdgpsError(f"{exc} (navigation file(s) given: {', '.join(map(str, nav_paths))})") from None

@@ -40,7 +40,8 @@ import pandas as pd
 
 from cdgps_cli import __version__
 from cdgps_cli.io.atomic import write_atomic
-from cdgps_cli.estimation.baseline import BaselineOptions, Station, json_safe, solve_static_baseline
+from cdgps_cli.estimation.baseline import (ENGINE_SOLUTION_TOL_M, _KNOWN_SOLUTION_TOL_M, BaselineOptions, Station,
+                                           json_safe, solve_static_baseline)
 from cdgps_cli.estimation.model_filter import filter_numpy
 from cdgps_cli.estimation.smoother import rts_smooth_indexed
 from cdgps_cli.measurement.dd_displacement import SatelliteDDDisplacement, SDObservations
@@ -122,7 +123,8 @@ def gnss_init(run: GnssRun, *, options: dict | None = None, progress=None) -> di
         say(f"baseline {run.master} → {r}: float, LAMBDA, fixed …")
         res = solve_static_baseline(stations[run.master], stations[r], run.nav, opt,
                                     master_xyz=_position_args(run, run.master), rover_xyz=_position_args(run, r),
-                                    iono_threshold_km=run.cfg.iono_threshold_km)
+                                    iono_threshold_km=run.cfg.iono_threshold_km,
+                                    engine=True)
         res = json_safe(res)
         sol = res["fixed"] or res["float"]
         amb = res["ambiguities"]
@@ -146,6 +148,7 @@ def gnss_init(run: GnssRun, *, options: dict | None = None, progress=None) -> di
             **({"n_float_glonass": amb["n_float_glonass"]} if "n_float_glonass" in amb else {}),
             "residuals": res["residuals"], "kinematic": res["kinematic"], "epochs": res["epochs"],
             "satellites": res["satellites"], "warnings": res["warnings"], "options": res["options"],
+            "solver": res["solver"],
         }
     states = {k: v for r in rovers.values() for k, v in r["states"].items()}
     sigma = {k: v for r in rovers.values() for k, v in r["sigma"].items()}
@@ -346,7 +349,8 @@ def solve_with_init_integers(run, init: dict, r: str, stations: dict):
     res = solve_static_baseline(stations[run.master], stations[r], run.nav, opt,
                                 master_xyz=_position_args(run, run.master), rover_xyz=_position_args(run, r),
                                 integers=_integers_from_init(init, r), solution=_solution_from_init(init, r),
-                                keep_work=True)
+                                keep_work=True, solution_tol_m=(ENGINE_SOLUTION_TOL_M if rov.get("solver") == "static_engine"
+                                                                else _KNOWN_SOLUTION_TOL_M))
     w = res.pop("_work")
     if not np.allclose(w["xr0"], rov["nominal_ecef_m"], atol=1e-6):
         raise CdgpsError(f"INIT.json: the nominal position of {r} differs from this run's")

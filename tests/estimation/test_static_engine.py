@@ -192,3 +192,43 @@ def test_baseline_options_mapped_or_refused_by_name():
                 {"max_gap_s": 60.0}, {"kinematic_series": True}, {"max_iterations": 3}, {"initial_sigma_m": 5.0}):
         with pytest.raises(CdgpsError, match=next(iter(bad))):
             options_from_baseline(BaselineOptions(**{"kinematic_series": False, **bad}))
+
+
+def _mosaic_stations():
+    from cdgps_cli.estimation.baseline import Station
+    from cdgps_cli.io.rinex import read_rinex_obs
+    if not (MOSAIC / "base.obs").exists():
+        pytest.skip("mosaic pair absent")
+    st = [Station(n, *read_rinex_obs(MOSAIC / f"{n}.obs")) for n in ("base", "rover")]
+    return st, read_rinex_nav(MOSAIC / "base.nav", systems=("G",))
+
+
+def test_baseline_on_the_engine_says_so_and_falls_back_by_name(monkeypatch):
+    """solve_static_baseline(engine=True) reports the engine's numbers ("solver": "static_engine"; its fixed
+    position is the engine's, not the batch's 0.019 mm away); an option only the batch implements, or engine
+    arcs that are not the segments, give the batch's result, bit for bit, with the reason in "solver"."""
+    from cdgps_cli.estimation import static_engine
+    from cdgps_cli.estimation.baseline import BaselineOptions, solve_static_baseline
+    (b, r), nav = _mosaic_stations()
+    batch = solve_static_baseline(b, r, nav)
+    eng = solve_static_baseline(b, r, nav, engine=True)
+    assert batch["solver"] == "batch (engine not asked for)" and eng["solver"] == "static_engine"
+    assert [s["integer"] for s in eng["ambiguities"]["segments"]] == [s["integer"] for s in batch["ambiguities"]["segments"]]
+    dx = np.subtract(eng["fixed"]["enu_m"], batch["fixed"]["enu_m"])
+    assert 1e-6 < np.max(np.abs(dx)) < 1e-4
+    eq = solve_static_baseline(b, r, nav, BaselineOptions(weighting="equal"), engine=True)
+    assert eq["solver"].startswith("batch (option weighting = 'equal'")
+    assert eq["fixed"]["enu_m"] == solve_static_baseline(b, r, nav, BaselineOptions(weighting="equal"))["fixed"]["enu_m"]
+    real = static_engine.arc_table
+    monkeypatch.setattr(static_engine, "arc_table", lambda *a: {k: v[1:] for k, v in real(*a).items()})
+    odd = solve_static_baseline(b, r, nav, engine=True)
+    assert odd["solver"].startswith("batch (the engine has") and odd["fixed"]["enu_m"] == batch["fixed"]["enu_m"]
+
+
+def test_engine_arc_integers_relative_to_the_reference():
+    """arc_integers: the reference arc 0, a fixed arc its DD integer, a float one NaN."""
+    from cdgps_cli.estimation.static_engine import arc_integers
+    fix = {"pairs": [(4, 3), (5, 3)], "resolution": {"fixed_mask": np.array([True, False]), "integers": np.array([7, 2])}}
+    got = arc_integers(fix, 6)
+    np.testing.assert_array_equal(got[3:], [0.0, 7.0, np.nan])
+    assert np.isnan(got[:3]).all() and np.isnan(arc_integers({**fix, "resolution": None}, 6)).all()
