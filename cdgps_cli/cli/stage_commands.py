@@ -402,45 +402,25 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
     if require_kind(run_mcap, RUNS, "RUN_MCAP") == GNSS_RUN:      # (the file's metadata read once)
         with _init_named(init_json):
             _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json,
-                           structure_only={"--biases": biases != "fixed", "--sigma-m": sigma_m is not None,
-                                           "--nis-probability": nis_probability != 0.999, "--outlier-sigma": outlier_sigma != 6.0,
-                                           "--process-noise-scale": process_noise_scale != 1.0,
-                                           "--rest": bool(rest),
-                                           "--rest-process-noise-scale": rest_process_noise_scale != 0.005,
-                                           "--rest-retry-s": rest_retry_s != 1.0,
-                                           "--rest-window-s": rest_window_s != 3.0, "--rest-dwell-s": rest_dwell_s != 2.0,
-                                           "--scene-exaggeration": structure is None and not receiver_map
-                                           and str(scene_exaggeration) != str(SCENE_EXAGGERATION)},
+                           structure_only=_structure_only_given(biases, sigma_m, nis_probability, outlier_sigma,
+                                                                process_noise_scale, rest, rest_process_noise_scale,
+                                                                rest_retry_s, rest_window_s, rest_dwell_s,
+                                                                structure, receiver_map, scene_exaggeration),
                            structure=structure, x_axis_azimuth_deg=x_axis_azimuth_deg, receiver_map=receiver_map,
                            allow_other_run=allow_other_run, scene_exaggeration=_scene_factor(scene_exaggeration),
                            fuse=fuse, hold_out=hold_out)
         return
-    if foxglove_rate_hz is not None and not (foxglove_rate_hz >= 0 and math.isfinite(foxglove_rate_hz)):
-        raise CdgpsError(f"--foxglove-rate-hz must be a finite rate >= 0 (0: every epoch), got {foxglove_rate_hz:g}")
-    scene_exaggeration = _scene_factor(scene_exaggeration)
-    if structure is not None or receiver_map:
-        raise CdgpsError("--structure/--receiver apply to GNSS runs (from 'cdgps ingest --rinex/--ubx'); a structure "
-                         "run already has its config")
-    from cdgps_cli.estimation.filter import EstimateOptions, estimate as run_ekf, validate_rest_segments
+    scene_exaggeration = _check_structure_run_options(foxglove_rate_hz, scene_exaggeration, structure, receiver_map,
+                                                      nis_probability)
+    from cdgps_cli.estimation.filter import EstimateOptions
+    from cdgps_cli.io.file_checks import read_init_json
     from cdgps_cli.io.run import read_run
     from cdgps_cli.io.scratch import DiskHistory
     from cdgps_cli.pipeline.estimate_outputs import write_states
 
-    if not 0.5 < nis_probability < 1.0:
-        raise CdgpsError(f"--nis-probability must be in (0.5, 1), got {nis_probability:g}")
-    from cdgps_cli.io.file_checks import read_init_json
-
     init, init_text = read_init_json(init_json)
     pairing = _check_pairing(ctx, init, init_json, run_mcap, allow_other_run)
-    rest_auto = any(r.strip().lower() == "auto" for r in rest)
-    if rest_auto and len(rest) > 1:
-        raise CdgpsError("--rest auto cannot be combined with declared --rest START:END segments")
-    rest_segments = () if rest_auto else tuple(_parse_rest(r) for r in rest)
-    validate_rest_segments(rest_segments, rest_process_noise_scale, rest_retry_s)
-    if rest_auto:
-        from cdgps_cli.estimation.rest import validate_detector
-
-        validate_detector(rest_window_s, rest_dwell_s, 1.0)
+    rest_auto, rest_segments = _rest_choice(rest, rest_process_noise_scale, rest_retry_s, rest_window_s, rest_dwell_s)
     run = read_run(run_mcap, on_disk=True)   # the phase table read in blocks from disk (memory flat in the record)
     opt = EstimateOptions(biases=biases, smooth=smooth, sigma_m=sigma_m, nis_probability=nis_probability,
                           outlier_sigma=outlier_sigma, process_noise_scale=process_noise_scale,
@@ -454,18 +434,7 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
                           history=DiskHistory(Path(output).resolve().parent, output),
                           keep_covariance="full" if covariance == "full" else "modal",
                           progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
-    from cdgps_cli.pipeline.fusion import fusion_choice
-
-    fuse_kinds, held = fusion_choice(run.cfg, fuse, hold_out)
-    _say(ctx, f"estimating {run_mcap} from {init_json} (biases {biases}{', smoothing' if smooth else ''}"
-              f"{', fusing ' + ','.join(fuse_kinds) if fuse_kinds else ''}) …")
-    with _init_named(init_json):
-        if fuse_kinds:
-            from cdgps_cli.pipeline.fusion import fuse_with_pseudolite
-
-            res = fuse_with_pseudolite(run, init, opt, fuse_kinds, held)
-        else:
-            res = run_ekf(run, init, opt)
+    res, fuse_kinds = _run_structure_filter(ctx, run, init, init_json, run_mcap, opt, fuse, hold_out)
     del run                                  # the phase table is not needed for writing (memory)
     options = opt.echo()
     if fuse_kinds:
@@ -478,35 +447,109 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
     s["init_run"] = pairing
     if fuse_kinds:
         s["fusion"] = res.fusion
+    _say_structure_estimate(ctx, s, res, output)
+    s["measurement_noise"] = res.noise
+    if as_json:
+        _emit_json(s)
+
+
+def _structure_only_given(biases, sigma_m, nis_probability, outlier_sigma, process_noise_scale, rest,
+                          rest_process_noise_scale, rest_retry_s, rest_window_s, rest_dwell_s, structure,
+                          receiver_map, scene_exaggeration) -> dict:
+    """{option: given} of ``cdgps estimate``'s structure-run options (given: not at its default), for
+    the refusal of those a GNSS run does not use."""
+    return {"--biases": biases != "fixed", "--sigma-m": sigma_m is not None,
+            "--nis-probability": nis_probability != 0.999, "--outlier-sigma": outlier_sigma != 6.0,
+            "--process-noise-scale": process_noise_scale != 1.0,
+            "--rest": bool(rest),
+            "--rest-process-noise-scale": rest_process_noise_scale != 0.005,
+            "--rest-retry-s": rest_retry_s != 1.0,
+            "--rest-window-s": rest_window_s != 3.0, "--rest-dwell-s": rest_dwell_s != 2.0,
+            "--scene-exaggeration": structure is None and not receiver_map
+            and str(scene_exaggeration) != str(SCENE_EXAGGERATION)}
+
+
+def _check_structure_run_options(foxglove_rate_hz, scene_exaggeration, structure, receiver_map,
+                                 nis_probability: float) -> float | str:
+    """Refuse a bad ``--foxglove-rate-hz`` (Hz), ``--structure``/``--receiver`` (GNSS runs only) and a
+    ``--nis-probability`` outside (0.5, 1) on a structure run; the scene factor (:func:`_scene_factor`)."""
+    if foxglove_rate_hz is not None and not (foxglove_rate_hz >= 0 and math.isfinite(foxglove_rate_hz)):
+        raise CdgpsError(f"--foxglove-rate-hz must be a finite rate >= 0 (0: every epoch), got {foxglove_rate_hz:g}")
+    scene_exaggeration = _scene_factor(scene_exaggeration)
+    if structure is not None or receiver_map:
+        raise CdgpsError("--structure/--receiver apply to GNSS runs (from 'cdgps ingest --rinex/--ubx'); a structure "
+                         "run already has its config")
+    if not 0.5 < nis_probability < 1.0:
+        raise CdgpsError(f"--nis-probability must be in (0.5, 1), got {nis_probability:g}")
+    return scene_exaggeration
+
+
+def _rest_choice(rest, rest_process_noise_scale: float, rest_retry_s: float, rest_window_s: float,
+                 rest_dwell_s: float) -> tuple[bool, tuple]:
+    """``--rest``: (auto detection?, declared (start_s, end_s) segments), checked with the rest options."""
+    from cdgps_cli.estimation.filter import validate_rest_segments
+
+    rest_auto = any(r.strip().lower() == "auto" for r in rest)
+    if rest_auto and len(rest) > 1:
+        raise CdgpsError("--rest auto cannot be combined with declared --rest START:END segments")
+    rest_segments = () if rest_auto else tuple(_parse_rest(r) for r in rest)
+    validate_rest_segments(rest_segments, rest_process_noise_scale, rest_retry_s)
+    if rest_auto:
+        from cdgps_cli.estimation.rest import validate_detector
+
+        validate_detector(rest_window_s, rest_dwell_s, 1.0)
+    return rest_auto, rest_segments
+
+
+def _run_structure_filter(ctx, run, init: dict, init_json, run_mcap, opt, fuse, hold_out) -> tuple:
+    """The EKF [+ smoother] over a structure run, fused with its gyros when chosen:
+    ``(result, fused sensor kinds)``."""
+    from cdgps_cli.estimation.filter import estimate as run_ekf
+    from cdgps_cli.pipeline.fusion import fusion_choice
+
+    fuse_kinds, held = fusion_choice(run.cfg, fuse, hold_out)
+    _say(ctx, f"estimating {run_mcap} from {init_json} (biases {opt.biases}{', smoothing' if opt.smooth else ''}"
+              f"{', fusing ' + ','.join(fuse_kinds) if fuse_kinds else ''}) …")
+    with _init_named(init_json):
+        if fuse_kinds:
+            from cdgps_cli.pipeline.fusion import fuse_with_pseudolite
+
+            return fuse_with_pseudolite(run, init, opt, fuse_kinds, held), fuse_kinds
+        return run_ekf(run, init, opt), fuse_kinds
+
+
+def _say_structure_estimate(ctx, s: dict, res, output) -> None:
+    """The structure-run estimate's lines on stderr: epochs, NIS, the measurement noise and the first events."""
     nis_text = "no filter epoch with data" if s["mean_nis_per_dof"] is None else f"mean NIS/dof {s['mean_nis_per_dof']:.3f}"
     w = s.get("window")
     src = (f"; {w['start_s']:g}–{w['end_s']:g} s from INIT's batch solution, then the filter" if w else "")
     _say(ctx, f"wrote {output}: {s['epochs']} epochs ({s['start_s']:g}–{s['end_s']:g} s{src}), "
               f"{nis_text}, {s['events']} events")
     if res.noise:
-        nz = res.noise
-        rng_txt = (f", {nz['sigma_m_min'] * 1000:.2f}–{nz['sigma_m_max'] * 1000:.2f} mm per channel"
-                   if nz.get("sigma_m_max", 0) > nz.get("sigma_m_min", 0) else "")
-        worst = nz.get("worst_channel")
-        inno = nz.get("innovation_sigma_m")
-        inno_txt = ("none (no filter epoch with data)" if inno is None or not math.isfinite(inno)
-                    else f"{inno * 1000:.2f} mm")
-        _say(ctx, f"  measurement σ {nz['sigma_m'] * 1000:.2f} mm RMS{rng_txt} ({nz['source']}); innovation-based "
-                  f"estimate {inno_txt}"
-                  + (f"; {worst['channel']} still {worst['relative_variance']:.2f}× the others' variance ratio"
-                     if worst else ""))
-        mpn = res.noise.get("multipath")
-        if mpn:
-            _say(ctx, f"  multipath: Gauss–Markov state per channel, σ {mpn['sigma_m'] * 1000:.2f} mm, τ "
-                      f"{mpn['time_constant_s']:g} s (from INIT.json; filter on the numpy path)")
+        _say_measurement_noise(ctx, res.noise)
     for ev in s["event_list"][:20]:
         ch = f" {ev['antenna']}/{ev['transmitter']}" if ev["antenna"] else ""
         _say(ctx, f"  {ev['time_s']:8.2f} s{ch}: {ev['kind']} → {ev['action']}")
     if len(s["event_list"]) > 20:
         _say(ctx, f"  … {len(s['event_list']) - 20} more events (topic /cdgps/events)")
-    s["measurement_noise"] = res.noise
-    if as_json:
-        _emit_json(s)
+
+
+def _say_measurement_noise(ctx, nz: dict) -> None:
+    """The measurement σ (mm) the filter used, its innovation-based estimate and the multipath states."""
+    rng_txt = (f", {nz['sigma_m_min'] * 1000:.2f}–{nz['sigma_m_max'] * 1000:.2f} mm per channel"
+               if nz.get("sigma_m_max", 0) > nz.get("sigma_m_min", 0) else "")
+    worst = nz.get("worst_channel")
+    inno = nz.get("innovation_sigma_m")
+    inno_txt = ("none (no filter epoch with data)" if inno is None or not math.isfinite(inno)
+                else f"{inno * 1000:.2f} mm")
+    _say(ctx, f"  measurement σ {nz['sigma_m'] * 1000:.2f} mm RMS{rng_txt} ({nz['source']}); innovation-based "
+              f"estimate {inno_txt}"
+              + (f"; {worst['channel']} still {worst['relative_variance']:.2f}× the others' variance ratio"
+                 if worst else ""))
+    mpn = nz.get("multipath")
+    if mpn:
+        _say(ctx, f"  multipath: Gauss–Markov state per channel, σ {mpn['sigma_m'] * 1000:.2f} mm, τ "
+                  f"{mpn['time_constant_s']:g} s (from INIT.json; filter on the numpy path)")
 
 
 @contextmanager

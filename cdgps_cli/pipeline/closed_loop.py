@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -123,31 +124,10 @@ def run_closed_loop(cfg: StructureConfig, K: np.ndarray, x0: np.ndarray, disturb
         x̄ = A x + B u with u every firing the computer commanded, Eq. 18); False: the pulse is
         unknown to it.
     """
-    if estimator not in ("gps", "truth"):
-        raise CdgpsError(f"estimator: expected 'gps' or 'truth', got {estimator!r}")
-    if actuator not in ("pwpf", "ideal"):
-        raise CdgpsError(f"actuator: expected 'pwpf' or 'ideal', got {actuator!r}")
-    if not (np.isfinite(process_noise_scale) and process_noise_scale > 0):
-        raise CdgpsError(f"process_noise_scale: expected a positive number, got {process_noise_scale!r}")
+    _check_loop_options(estimator, actuator, process_noise_scale)
     pwpf = PwpfParams() if pwpf is None else pwpf
-    model = discrete_model(cfg)
-    Ac, Bc, _ = continuous_model(cfg)
-    T = model.T
-    N, n = noise_m.shape[0], model.A.shape[0]
-    m = Bc.shape[1]
-    if K.shape != (m, n):
-        raise CdgpsError(f"gain K: expected shape ({m}, {n}) for this config, got {K.shape}")
-    response = PulseResponse(Ac, Bc, T)
-    ant, tx = all_channels(cfg)
-    h_of = EpochPhaseModel(cfg, ant, tx)
-    sigma = channel_sigma_m(cfg, [(cfg.antenna_names[a], cfg.transmitter_names[t]) for a, t in zip(ant, tx)])
-    pairs = opposing_pairs(cfg.thruster_section, cfg.thruster_position_m, cfg.thruster_direction)
-    fmax = np.asarray(cfg.thruster_max_force_n, dtype=float)
-    pulse_jets = [list(cfg.thruster_names).index(j) for j in pulse.thrusters] if pulse else []
-    filt = LoopFilter(model.A, process_noise_scale * model.Q, len(ant), multipath, T)
-    U = np.asarray(cfg.mode_shapes)
-    nm = U.shape[1]
-
+    lp = _loop_plant(cfg, K, noise_m.shape[0], pulse, multipath, process_noise_scale)
+    N, n, m, T, U = lp.N, lp.n, lp.m, lp.T, lp.U
     x_ref = np.array(x_ref, dtype=float)
     u_ff = None if u_ff is None else np.array(u_ff, dtype=float)
     plan_epochs = set(plan_epochs)
@@ -155,45 +135,100 @@ def run_closed_loop(cfg: StructureConfig, K: np.ndarray, x0: np.ndarray, disturb
                            sigma_hat=np.empty((N, n)), nis=np.empty(N), command_n=np.zeros((N, m)), firings=[],
                            saturated_fraction=0.0, sigma_q_hat=np.empty((N, U.shape[0])))
     x = np.asarray(x0, dtype=float).copy()
-    filt.start(x)
+    lp.filt.start(x)
     f_state, on_state = np.zeros(m), np.zeros(m, dtype=bool)
     saturated = 0
     for k in range(N):
-        h_true, _ = h_of(x)
-        xh, P, nis = filt.update(h_true + noise_m[k], h_of, sigma)
-        out.x_true[k], out.x_hat[k], out.sigma_hat[k], out.nis[k] = x, xh, np.sqrt(np.diag(P)), nis
-        out.sigma_q_hat[k] = np.sqrt(np.einsum("ij,jk,ik->i", U, P[:nm, :nm], U))
-        fb = xh if estimator == "gps" else x
+        fb = _loop_update(lp, out, k, x, noise_m[k], estimator)
         if planner is not None and k in plan_epochs:
-            ref, ff = planner(fb)
-            x_ref[k:] = ref[k:]
-            if ff is not None:
-                u_ff = np.zeros((N, m)) if u_ff is None else u_ff
-                u_ff[k:] = ff[k:]
-            elif u_ff is not None:
-                u_ff[k:] = 0.0
+            u_ff = _replan(planner, fb, k, x_ref, u_ff, N, m)
         error = fb - x_ref[k]
         u = -K @ error if u_ff is None else u_ff[k] - K @ error
-        request = realize_forces(u, pairs)
-        t0 = k * T
-        dist = _pulse_intervals(pulse, pulse_jets, t0, T)
-        for j, _a, _b, _f in dist:                       # jets firing the disturbance leave the loop
-            request[j], f_state[j], on_state[j] = 0.0, 0.0, False
-        out.command_n[k] = request
-        saturated += int(np.sum(request > fmax))
-        if actuator == "pwpf":
-            ctrl = modulate_period(request / fmax, f_state, on_state, T, pwpf, fmax)
-        else:
-            ctrl = [(j, 0.0, T, float(min(request[j], fmax[j]))) for j in range(m) if request[j] > 0]
-        out.firings += [(j, t0 + a, t0 + b, f, "control") for j, a, b, f in ctrl] + \
-                       [(j, t0 + a, t0 + b, f, "disturbance") for j, a, b, f in dist]
-        known = response(*_columns(ctrl))
-        pulse_response = response(*_columns(dist))
-        x = model.A @ x + known + pulse_response + model.Bw @ disturbance_w[k]
-        filt.predict(known + pulse_response if pulse_known else known)
+        ctrl, dist = _actuate(lp, out, k, u, f_state, on_state, pulse, pwpf, actuator)
+        saturated += int(np.sum(out.command_n[k] > lp.fmax))
+        known = lp.response(*_columns(ctrl))
+        pulse_response = lp.response(*_columns(dist))
+        x = lp.model.A @ x + known + pulse_response + lp.model.Bw @ disturbance_w[k]
+        lp.filt.predict(known + pulse_response if pulse_known else known)
     out.saturated_fraction = saturated / max(N * m, 1)
     out.x_ref = x_ref
     return out
+
+
+def _check_loop_options(estimator: str, actuator: str, process_noise_scale: float) -> None:
+    """Refuse an unknown feedback source or actuator, or a non-positive process-noise scale."""
+    if estimator not in ("gps", "truth"):
+        raise CdgpsError(f"estimator: expected 'gps' or 'truth', got {estimator!r}")
+    if actuator not in ("pwpf", "ideal"):
+        raise CdgpsError(f"actuator: expected 'pwpf' or 'ideal', got {actuator!r}")
+    if not (np.isfinite(process_noise_scale) and process_noise_scale > 0):
+        raise CdgpsError(f"process_noise_scale: expected a positive number, got {process_noise_scale!r}")
+
+
+def _loop_plant(cfg: StructureConfig, K: np.ndarray, N: int, pulse: Disturbance | None, multipath,
+                process_noise_scale: float) -> SimpleNamespace:
+    """The loop's fixed parts: discrete model, pulse response, phase model and σ per channel (m),
+    opposing jet pairs, max forces (N), disturbance jets, the loop filter and the mode shapes."""
+    model = discrete_model(cfg)
+    Ac, Bc, _ = continuous_model(cfg)
+    n, m = model.A.shape[0], Bc.shape[1]
+    if K.shape != (m, n):
+        raise CdgpsError(f"gain K: expected shape ({m}, {n}) for this config, got {K.shape}")
+    ant, tx = all_channels(cfg)
+    U = np.asarray(cfg.mode_shapes)
+    return SimpleNamespace(
+        model=model, T=model.T, N=N, n=n, m=m, response=PulseResponse(Ac, Bc, model.T),
+        h_of=EpochPhaseModel(cfg, ant, tx),
+        sigma_m=channel_sigma_m(cfg, [(cfg.antenna_names[a], cfg.transmitter_names[t]) for a, t in zip(ant, tx)]),
+        pairs=opposing_pairs(cfg.thruster_section, cfg.thruster_position_m, cfg.thruster_direction),
+        fmax=np.asarray(cfg.thruster_max_force_n, dtype=float),
+        pulse_jets=[list(cfg.thruster_names).index(j) for j in pulse.thrusters] if pulse else [],
+        filt=LoopFilter(model.A, process_noise_scale * model.Q, len(ant), multipath, model.T),
+        U=U, nm=U.shape[1])
+
+
+def _loop_update(lp: SimpleNamespace, out: ClosedLoopResult, k: int, x: np.ndarray, noise_m: np.ndarray,
+                 estimator: str) -> np.ndarray:
+    """Epoch k's measurement update from the true phases plus ``noise_m`` (C,), m, recorded in ``out``;
+    the state fed back (n,): the estimate, or the truth with ``estimator="truth"``."""
+    h_true, _ = lp.h_of(x)
+    xh, P, nis = lp.filt.update(h_true + noise_m, lp.h_of, lp.sigma_m)
+    out.x_true[k], out.x_hat[k], out.sigma_hat[k], out.nis[k] = x, xh, np.sqrt(np.diag(P)), nis
+    out.sigma_q_hat[k] = np.sqrt(np.einsum("ij,jk,ik->i", lp.U, P[:lp.nm, :lp.nm], lp.U))
+    return xh if estimator == "gps" else x
+
+
+def _replan(planner, fb: np.ndarray, k: int, x_ref: np.ndarray, u_ff, N: int, m: int):
+    """Replace ``x_ref`` (N, n) from epoch k on (in place) by the plan made from ``fb``; the
+    feed-forward (N, m), N, with its part from k on replaced (zero when the plan has none)."""
+    ref, ff = planner(fb)
+    x_ref[k:] = ref[k:]
+    if ff is not None:
+        u_ff = np.zeros((N, m)) if u_ff is None else u_ff
+        u_ff[k:] = ff[k:]
+    elif u_ff is not None:
+        u_ff[k:] = 0.0
+    return u_ff
+
+
+def _actuate(lp: SimpleNamespace, out: ClosedLoopResult, k: int, u: np.ndarray, f_state, on_state,
+             pulse: Disturbance | None, pwpf: PwpfParams, actuator: str) -> tuple[list, list]:
+    """Period k's firings: the command u (m,) realized on the jets (request recorded in ``out``, N),
+    disturbance jets taken from the controller, modulated (``pwpf``) or held (``ideal``);
+    ``(control, disturbance)`` as (jet, start, end, force) lists, times from the period's start."""
+    request = realize_forces(u, lp.pairs)
+    t0 = k * lp.T
+    dist = _pulse_intervals(pulse, lp.pulse_jets, t0, lp.T)
+    for j, _a, _b, _f in dist:                       # jets firing the disturbance leave the loop
+        request[j], f_state[j], on_state[j] = 0.0, 0.0, False
+    out.command_n[k] = request
+    if actuator == "pwpf":
+        ctrl = modulate_period(request / lp.fmax, f_state, on_state, lp.T, pwpf, lp.fmax)
+    else:
+        ctrl = [(j, 0.0, lp.T, float(min(request[j], lp.fmax[j]))) for j in range(lp.m) if request[j] > 0]
+    out.firings += [(j, t0 + a, t0 + b, f, "control") for j, a, b, f in ctrl] + \
+                   [(j, t0 + a, t0 + b, f, "disturbance") for j, a, b, f in dist]
+    return ctrl, dist
 
 
 def _columns(intervals):

@@ -623,9 +623,7 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
 
     say = progress or (lambda m: None)
     su = _modal_setup(run, init, cfg, receivers, x_axis_azimuth_deg, say)
-    mapping, rover_ants, unused, xm, R, tabs = su.mapping, su.rover_ants, su.unused, su.xm, su.R, su.tabs
-    ant_idx, d_hdr, mismatch, t_all, k_of = su.ant_idx, su.d_hdr, su.mismatch, su.t_all, su.k_of
-    n = t_all.size
+    mapping, rover_ants, xm, tabs, t_all = su.mapping, su.rover_ants, su.xm, su.tabs, su.t_all
     if not batch_init and not any(tb["n_fixed"] for tb in tabs):
         raise CdgpsError(f"INIT.json has no fixed integers for any rover ({', '.join(mapping[a] for a in rover_ants)}); "
                          f"the modal model needs fixed DD integers (run 'cdgps init' without --float-only, or with a "
@@ -633,47 +631,23 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
 
     nm = cfg.n_modes
     prior = modal_prior_covariance(cfg, initial_sigma_xi, initial_sigma_xidot)
-    init_record = None
     stored = _stored_record(init, cfg, mapping, x_axis_azimuth_deg) if batch_init else None
-    if stored is not None:
-        say("modal batch initialization: INIT.json's (from 'cdgps init --structure')")
-        tabs, init_record = apply_modal_record(tabs, stored), stored
-    elif batch_init:
-        say(f"modal batch initialization on the first {init_window_s:g} s …")
-        try:
-            tabs, _, init_record = modal_batch_initialization(cfg, R, tabs, k_of, ant_idx, d_hdr, t_all, prior_cov=prior,
-                                                               window_s=init_window_s,
-                                                               max_window_factor=init_window_max_factor,
-                                                               code_dd=init_code_dd)
-        except CdgpsError as exc:
-            init_record = {"method": "INIT's integers (the modal batch initialization refused)", "refused": str(exc)}
-            say(f"  modal batch initialization refused ({exc}); INIT's integers are used")
-        else:
-            say(f"  {init_record['integer_fixing']}; {init_record['agree_with_init']['equal']} of "
-                f"{init_record['agree_with_init']['compared']} equal to INIT's")
-    if not any(tb["use"].any() for tb in tabs):
-        raise CdgpsError("no fixed DD integers for any rover (INIT.json's nor the modal batch initialization's); "
-                         "try a longer span or 'cdgps init' without --float-only")
-    model = SatelliteDDModal(cfg, R, tabs, k_of, ant_idx, d_hdr)
+    tabs, init_record = _modal_integers(cfg, su, tabs, stored, batch_init, prior, init_window_s, init_window_max_factor,
+                                        init_code_dd, say)
+    model = SatelliteDDModal(cfg, su.R, tabs, su.k_of, su.ant_idx, su.d_hdr)
     sky = satellite_sky(model, t_all) if scene_exaggeration != 0 else None
     # the filter starts from the batch's prior itself, not from its x₁: it re-reads the window's data
     # once, as the batch did from that prior (x₁ and its posterior already hold them: counted twice)
     x0, P0 = np.zeros(2 * nm), prior
-    say(f"modal EKF over {n} epochs, {len(rover_ants)} rover antenna(s), {nm} modes …")
+    say(f"modal EKF over {t_all.size} epochs, {len(rover_ants)} rover antenna(s), {nm} modes …")
     gate = EstimateOptions().outlier_sigma if outlier_sigma is None else float(outlier_sigma)
     fusion = None
     if fuse:
-        from cdgps_cli.pipeline.fusion import fuse_with_dd  # noqa: PLC0415
-
-        fusion = fuse_with_dd(cfg, model, t_all, sensor_logs or {}, tuple(fuse), tuple(hold_out), x0, P0, smooth=smooth,
-                              max_iterations=max_iterations, outlier_sigma=gate, say=say,
-                              store=history)
-        model, t_all, outliers = fusion.dd, fusion.t, fusion.outliers_dd
-        xf, Pf, meas, xs, Ps = fusion.x_filt, fusion.P_filt, fusion.dd_rows, fusion.x, fusion.P
-        nis, nis_dof = fusion.nis, fusion.nis_dof
+        fusion, model, t_all, fr = _fused_filter(cfg, model, t_all, sensor_logs, fuse, hold_out, x0, P0, smooth,
+                                                 max_iterations, gate, say, history)
     else:
-        xf, Pf, meas, xs, Ps, nis, nis_dof, outliers = _filter_dd(model, cfg, t_all, x0, P0, max_iterations, gate,
-                                                                  smooth)
+        fr = _filter_dd(model, cfg, t_all, x0, P0, max_iterations, gate, smooth)
+    xf, Pf, meas, xs, Ps, nis, nis_dof, outliers = fr
     chans, resid = _dd_residuals(model, meas, xs, su.slot_ants, history)
     events = _modal_events(tabs, mapping, su.slot_ants, outliers, fusion.events if fusion is not None else [])
     biases, integers = _final_biases(su, tabs, init)
@@ -689,16 +663,64 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
     say(f"writing {out_path} …")
     out = write_states(res, run.path, init, init_text, out_path, options, scene_exaggeration=scene_exaggeration,
                        satellites=sky)
+    return _modal_summary(out, cfg, su, x_axis_azimuth_deg, integers, init_record, fusion)
+
+
+def _modal_summary(out: dict, cfg: StructureConfig, su, x_axis_azimuth_deg: float, integers: dict,
+                   init_record: dict | None, fusion) -> dict:
+    """``out`` (write_states' summary) with the placement (m, deg), the receivers, the nominal-position
+    mismatches (m), the integer counts, the coordinates and the modal init / fusion records."""
     out.update({
-        "placement": {"master_ecef_m": list(map(float, xm)), "x_axis_azimuth_deg": float(x_axis_azimuth_deg)},
-        "receivers": mapping, "unused_receivers": unused,
-        "nominal_mismatch_m": mismatch,
+        "placement": {"master_ecef_m": list(map(float, su.xm)), "x_axis_azimuth_deg": float(x_axis_azimuth_deg)},
+        "receivers": su.mapping, "unused_receivers": su.unused,
+        "nominal_mismatch_m": su.mismatch,
         "integers": integers,
         "coordinates": list(cfg.coord_names),
         **({"modal_init": init_record} if init_record is not None else {}),
         **({"fusion": fusion.summary} if fusion is not None else {}),
     })
     return out
+
+
+def _modal_integers(cfg: StructureConfig, su, tabs: list, stored: dict | None, batch_init: bool, prior: np.ndarray, init_window_s: float,
+                    init_window_max_factor: float, init_code_dd: bool, say) -> tuple[list, dict | None]:
+    """The DD tables with the integers the filter uses (INIT.json's stored modal record, else the
+    modal batch initialization on the first ``init_window_s`` s, else INIT's) and that record (None:
+    INIT's integers without a batch); refused when no rover has a fixed integer."""
+    init_record = None
+    if stored is not None:
+        say("modal batch initialization: INIT.json's (from 'cdgps init --structure')")
+        tabs, init_record = apply_modal_record(tabs, stored), stored
+    elif batch_init:
+        say(f"modal batch initialization on the first {init_window_s:g} s …")
+        try:
+            tabs, _, init_record = modal_batch_initialization(cfg, su.R, tabs, su.k_of, su.ant_idx, su.d_hdr,
+                                                               su.t_all, prior_cov=prior, window_s=init_window_s,
+                                                               max_window_factor=init_window_max_factor,
+                                                               code_dd=init_code_dd)
+        except CdgpsError as exc:
+            init_record = {"method": "INIT's integers (the modal batch initialization refused)", "refused": str(exc)}
+            say(f"  modal batch initialization refused ({exc}); INIT's integers are used")
+        else:
+            say(f"  {init_record['integer_fixing']}; {init_record['agree_with_init']['equal']} of "
+                f"{init_record['agree_with_init']['compared']} equal to INIT's")
+    if not any(tb["use"].any() for tb in tabs):
+        raise CdgpsError("no fixed DD integers for any rover (INIT.json's nor the modal batch initialization's); "
+                         "try a longer span or 'cdgps init' without --float-only")
+    return tabs, init_record
+
+
+def _fused_filter(cfg: StructureConfig, model, t_all, sensor_logs, fuse, hold_out, x0, P0, smooth: bool,
+                  max_iterations: int, gate: float, say, history):
+    """The modal EKF on the DDs fused with the sensors (:func:`cdgps_cli.pipeline.fusion.fuse_with_dd`):
+    ``(fusion, its DD model, its epochs (s), (x_filt, P_filt, rows, x, P, nis, nis_dof, outliers))``."""
+    from cdgps_cli.pipeline.fusion import fuse_with_dd  # noqa: PLC0415
+
+    fusion = fuse_with_dd(cfg, model, t_all, sensor_logs or {}, tuple(fuse), tuple(hold_out), x0, P0, smooth=smooth,
+                          max_iterations=max_iterations, outlier_sigma=gate, say=say, store=history)
+    fr = (fusion.x_filt, fusion.P_filt, fusion.dd_rows, fusion.x, fusion.P, fusion.nis, fusion.nis_dof,
+          fusion.outliers_dd)
+    return fusion, fusion.dd, fusion.t, fr
 
 
 def satellite_sky(model: SatelliteDDModal, t_all, step_s: float = SCENE_SKY_STEP_S):
@@ -848,15 +870,62 @@ def simulate_structure_gnss(out_dir, cfg: StructureConfig, *, master_ecef_m=SIM_
     written config's ``sensors`` (so ``cdgps ingest --config`` attaches them) and their true biases in
     truth.json.
     """
-    from cdgps_cli.config.structure import gnss_config_toml  # noqa: PLC0415
     from cdgps_cli.io.atomic import output_set, write_atomic, write_bytes_atomic  # noqa: PLC0415
     from cdgps_cli.sim.gnss import previous_simulation_files  # noqa: PLC0415
-    from cdgps_cli.model.gps.positioning import simulate_static_pair, synthetic_gps_nav  # noqa: PLC0415
     from cdgps_cli.core.gps_time import gps_seconds  # noqa: PLC0415
-    from cdgps_cli.io.rinex_write import rinex_calendar, write_rinex_nav, write_rinex_obs  # noqa: PLC0415
+    from cdgps_cli.io.rinex_write import rinex_calendar, write_rinex_nav  # noqa: PLC0415
     from cdgps_cli.sim.structure import SimOptions, simulate  # noqa: PLC0415
 
     say = progress or (lambda m: None)
+    signals, step = _check_sim_args(cfg, duration_s, x_axis_azimuth_deg, master_ecef_m, signals, gnss_interval_s)
+    out = Path(out_dir)
+    mapping = {a: (receivers or {}).get(a, a) for a in cfg.antenna_names}
+    sim = simulate(cfg, SimOptions(duration_s=duration_s, seed=seed, scenario="free"))
+    n_truth, T_truth = sim.time_s.size, cfg.sample_period_s
+    n, T = len(range(0, n_truth, step)), T_truth * step         # receiver epochs and interval
+    if start_gps_s is None:
+        start_gps_s = gps_seconds(2024, 1, 1)
+    nav = _sim_nav(signals, start_gps_s, float(sim.time_s[-1]) + T, seed)
+    placement = StructurePlacement(tuple(float(v) for v in master_ecef_m), float(x_axis_azimuth_deg))
+    nominal = nominal_receiver_positions(cfg, placement)
+    y, mo, d, hh, mi, ss = rinex_calendar(start_gps_s)
+    stamp = f"{y:04d}{mo:02d}{d:02d} {hh:02d}{mi:02d}{int(ss):02d} UTC"
+    with output_set(out, replaces=previous_simulation_files(out, "cdgps gnss structure simulation")) as dest:
+        say(f"simulating {n} epochs of {len(mapping)} receivers …")
+        rx_sim = SimpleNamespace(nav=nav, master_ecef_m=master_ecef_m, start_gps_s=start_gps_s, n=n, T=T, seed=seed,
+                                 mask_deg=mask_deg, code_sigma_m=code_sigma_m, signals=signals, stamp=stamp)
+        p_rx = antenna_positions(cfg, sim.q)[::step]             # (n, A, 3) structure frame, receiver epochs
+        files, integers = _simulate_receivers(cfg, p_rx, placement.rotation(), nominal, mapping, rx_sim, dest)
+        write_rinex_nav(dest.path("nav.rnx"), nav, comments=[f"synthetic ephemerides (seed {seed})"], created=stamp)
+        sensor_files, sensor_truth = _simulate_sensors(cfg, sim, seed, start_gps_s, dest, say)
+        truth = pd.DataFrame({"time_s": start_gps_s + sim.time_s,
+                              **{c: sim.q[:, j] for j, c in enumerate(coordinate_columns(cfg))}})
+        write_atomic(dest.path("truth.csv"), lambda pth: truth.to_csv(pth, index=False, lineterminator="\n", float_format="%.9f"))
+        master_rx = mapping[cfg.antenna_names[cfg.master_index]]
+        tj = {"kind": "cdgps gnss structure simulation", "cdgps_version": __version__, "config": cfg.name,
+              "config_sha256": cfg.sha256, "seed": seed, "start_gps_s": start_gps_s, "start": gps_time_str(start_gps_s),
+              "duration_s": float(sim.time_s[-1]), "interval_s": T, "epochs": int(n), "master": master_rx,
+              **({"structure_interval_s": T_truth, "structure_epochs": int(n_truth)} if step > 1 else {}),
+              **({"sensors": sensor_truth} if sensor_truth else {}),
+              "receivers": mapping, "master_ecef_m": list(map(float, master_ecef_m)),
+              "x_axis_azimuth_deg": float(x_axis_azimuth_deg),
+              "nominal_ecef_m": {mapping[a]: list(map(float, v)) for a, v in nominal.items()},
+              "coordinates": list(cfg.coord_names), "x0": sim.x[0].tolist(),
+              "phase_noise": "sigma^2 = a^2 + b^2/sin^2(el) per receiver, a = b = 0.003 m", "code_sigma_m": code_sigma_m,
+              **({"signals": list(signals), "integers": integers} if signals else {})}
+        write_bytes_atomic(dest.path("truth.json"), (json.dumps(tj, indent=2) + "\n").encode())
+        _write_sim_config(dest, cfg, mapping, files, master_rx, random_walk_sigma, signals, sensor_files)
+    return {"output": str(out), "epochs": int(n), "files": files, "master": master_rx, "receivers": mapping,
+            "placement": {"master_ecef_m": list(map(float, master_ecef_m)), "x_axis_azimuth_deg": float(x_axis_azimuth_deg)},
+            "q_range": {c: [float(sim.q[:, j].min()), float(sim.q[:, j].max())] for j, c in enumerate(cfg.coord_names)},
+            "integers": integers, **({"signals": list(signals)} if signals else {}),
+            **({"sensor_logs": sensor_files} if sensor_files else {})}
+
+
+def _check_sim_args(cfg: StructureConfig, duration_s: float, x_axis_azimuth_deg: float, master_ecef_m, signals,
+                    gnss_interval_s: float | None) -> tuple:
+    """Refuse every bad simulation argument at once (one :class:`CdgpsError` naming them all);
+    ``(signals checked, receiver epoch interval in structure sample periods)``."""
     problems = []
     if not (np.isfinite(duration_s) and duration_s > 0):
         problems.append(f"duration_s must be a positive number of seconds, got {duration_s!r}")
@@ -874,82 +943,72 @@ def simulate_structure_gnss(out_dir, cfg: StructureConfig, *, master_ecef_m=SIM_
                         f"got {gnss_interval_s!r}")
     if problems:
         raise CdgpsError("simulate-gnss-structure: " + "; ".join(problems))
-    out = Path(out_dir)
-    mapping = {a: (receivers or {}).get(a, a) for a in cfg.antenna_names}
-    sim = simulate(cfg, SimOptions(duration_s=duration_s, seed=seed, scenario="free"))
-    n_truth = sim.time_s.size
-    n, T_truth, T = len(range(0, n_truth, step)), T, T * step         # receiver epochs and interval
-    if start_gps_s is None:
-        start_gps_s = gps_seconds(2024, 1, 1)
-    t_gps = start_gps_s + sim.time_s
+    return signals, step
+
+
+def _sim_nav(signals, start_gps_s: float, span_s: float, seed: int):
+    """Synthetic broadcast ephemerides over ``span_s`` seconds from ``start_gps_s`` (GPS s): the
+    constellations of ``signals``, or GPS alone (the L1 simulator) when there are none."""
     if signals:
         from cdgps_cli.model.gps.positioning import synthetic_nav  # noqa: PLC0415
 
-        nav = synthetic_nav({g[0] for g in signals}, start_gps_s, float(sim.time_s[-1]) + T, seed=seed)
-    else:
-        nav = synthetic_gps_nav(start_gps_s, float(sim.time_s[-1]) + T, seed=seed)
-    placement = StructurePlacement(tuple(float(v) for v in master_ecef_m), float(x_axis_azimuth_deg))
-    R = placement.rotation()
-    p = antenna_positions(cfg, sim.q)                         # (n, A, 3) structure frame
-    nominal = nominal_receiver_positions(cfg, placement)
-    y, mo, d, hh, mi, ss = rinex_calendar(start_gps_s)
-    stamp = f"{y:04d}{mo:02d}{d:02d} {hh:02d}{mi:02d}{int(ss):02d} UTC"
-    with output_set(out, replaces=previous_simulation_files(out, "cdgps gnss structure simulation")) as dest:
-        files = {}
-        integers = {}
-        say(f"simulating {n} epochs of {len(mapping)} receivers …")
-        p0 = antenna_positions(cfg, np.zeros((1, cfg.n_q)))[0]
-        for i, a in enumerate(cfg.antenna_names):
-            xa = nominal[a]
-            lat, lon, _ = ecef_to_geodetic(xa)
-            off_ecef = (p[::step, i, :] - p0[i]) @ R.T           # displacement from the nominal position, ECEF
-            off_enu = off_ecef @ enu_matrix(lat, lon).T
-            rx = mapping[a]
-            hdr = {"marker_name": rx, "observer": "cdgps gnss_modal simulation", "agency": "simulated",
-                   "receiver_type": "CDGPS SIMULATOR", "receiver_version": __version__, "antenna_type": "SIMULATED",
-                   "approx_position_xyz_m": tuple(float(v) for v in xa), "interval_s": T,
-                   "comments": [f"structure {cfg.name}, antenna {a}: nominal position (q = 0)"]}
-            files[rx] = f"{rx}.rnx"
-            if signals:
-                integers[rx] = _simulate_signal_receiver(dest.path(files[rx]), nav, xa, off_enu, start_gps_s, n, T, signals,
-                                                         seed * 1000 + 17 * (i + 1), mask_deg, code_sigma_m, 5.0 - 2.0 * i,
-                                                         hdr, stamp)
-                continue
-            s = simulate_static_pair(nav, np.asarray(master_ecef_m, float), xa, start_gps_s, n * T, T,
-                                     seed=seed * 1000 + 17 * (i + 1), mask_rad=math.radians(mask_deg),
-                                     phase_sigma_m=(0.003, 0.003), code_sigma_m=code_sigma_m,
-                                     clock_drift_ms=(0.0, 5.0 - 2.0 * i), rover_offset_enu_m=off_enu)
-            write_rinex_obs(dest.path(f"{rx}.rnx"), s["rover"], hdr, created=stamp)
-            amb = s["ambiguities"]
-            integers[rx] = {r_["sat"]: int(r_["n_cycles"]) for _, r_ in amb[amb["receiver"] == "rover"].iterrows()}
-        write_rinex_nav(dest.path("nav.rnx"), nav, comments=[f"synthetic ephemerides (seed {seed})"], created=stamp)
-        sensor_files, sensor_truth = _simulate_sensors(cfg, sim, seed, start_gps_s, dest, say)
-        truth = pd.DataFrame({"time_s": t_gps, **{c: sim.q[:, j] for j, c in enumerate(coordinate_columns(cfg))}})
-        write_atomic(dest.path("truth.csv"), lambda pth: truth.to_csv(pth, index=False, lineterminator="\n", float_format="%.9f"))
-        master_rx = mapping[cfg.antenna_names[cfg.master_index]]
-        tj = {"kind": "cdgps gnss structure simulation", "cdgps_version": __version__, "config": cfg.name,
-              "config_sha256": cfg.sha256, "seed": seed, "start_gps_s": start_gps_s, "start": gps_time_str(start_gps_s),
-              "duration_s": float(sim.time_s[-1]), "interval_s": T, "epochs": int(n), "master": master_rx,
-              **({"structure_interval_s": T_truth, "structure_epochs": int(n_truth)} if step > 1 else {}),
-              **({"sensors": sensor_truth} if sensor_truth else {}),
-              "receivers": mapping, "master_ecef_m": list(map(float, master_ecef_m)),
-              "x_axis_azimuth_deg": float(x_axis_azimuth_deg),
-              "nominal_ecef_m": {mapping[a]: list(map(float, v)) for a, v in nominal.items()},
-              "coordinates": list(cfg.coord_names), "x0": sim.x[0].tolist(),
-              "phase_noise": "sigma^2 = a^2 + b^2/sin^2(el) per receiver, a = b = 0.003 m", "code_sigma_m": code_sigma_m,
-              **({"signals": list(signals), "integers": integers} if signals else {})}
-        write_bytes_atomic(dest.path("truth.json"), (json.dumps(tj, indent=2) + "\n").encode())
-        text = gnss_config_toml({mapping[a]: ("rinex", files[mapping[a]]) for a in cfg.antenna_names}, ["nav.rnx"], master_rx,
-                                name=f"simulated-{cfg.name}", description=f"structure {cfg.name} simulated by cdgps_cli.pipeline.gnss_modal",
-                                displacement="random_walk", sigma_m_per_sqrt_s=random_walk_sigma,
-                                options={**({"signals": list(signals)} if signals else {}),
-                                         **({"sensors": sensor_files} if sensor_files else {})} or None)
-        write_bytes_atomic(dest.path("config.toml"), text.encode())
-    return {"output": str(out), "epochs": int(n), "files": files, "master": master_rx, "receivers": mapping,
-            "placement": {"master_ecef_m": list(map(float, master_ecef_m)), "x_axis_azimuth_deg": float(x_axis_azimuth_deg)},
-            "q_range": {c: [float(sim.q[:, j].min()), float(sim.q[:, j].max())] for j, c in enumerate(cfg.coord_names)},
-            "integers": integers, **({"signals": list(signals)} if signals else {}),
-            **({"sensor_logs": sensor_files} if sensor_files else {})}
+        return synthetic_nav({g[0] for g in signals}, start_gps_s, span_s, seed=seed)
+    from cdgps_cli.model.gps.positioning import synthetic_gps_nav  # noqa: PLC0415
+
+    return synthetic_gps_nav(start_gps_s, span_s, seed=seed)
+
+
+def _simulate_receivers(cfg: StructureConfig, p_rx: np.ndarray, R: np.ndarray, nominal: dict, mapping: dict,
+                        rx_sim: SimpleNamespace, dest) -> tuple[dict, dict]:
+    """One RINEX observation file per antenna (``<receiver>.rnx`` in ``dest``) from the structure's
+    antenna positions at the receiver epochs ``p_rx`` (n, A, 3), m, structure frame, and the
+    structure-to-ECEF rotation ``R``:
+    ``(files by receiver, true integers by receiver)``."""
+    from cdgps_cli.io.rinex_write import write_rinex_obs  # noqa: PLC0415
+    from cdgps_cli.model.gps.positioning import simulate_static_pair  # noqa: PLC0415
+
+    c = rx_sim
+    files, integers = {}, {}
+    p0 = antenna_positions(cfg, np.zeros((1, cfg.n_q)))[0]
+    for i, a in enumerate(cfg.antenna_names):
+        xa = nominal[a]
+        lat, lon, _ = ecef_to_geodetic(xa)
+        off_enu = ((p_rx[:, i, :] - p0[i]) @ R.T) @ enu_matrix(lat, lon).T   # displacement from the nominal position
+        rx = mapping[a]
+        hdr = {"marker_name": rx, "observer": "cdgps gnss_modal simulation", "agency": "simulated",
+               "receiver_type": "CDGPS SIMULATOR", "receiver_version": __version__, "antenna_type": "SIMULATED",
+               "approx_position_xyz_m": tuple(float(v) for v in xa), "interval_s": c.T,
+               "comments": [f"structure {cfg.name}, antenna {a}: nominal position (q = 0)"]}
+        files[rx] = f"{rx}.rnx"
+        rx_seed = c.seed * 1000 + 17 * (i + 1)
+        if c.signals:
+            integers[rx] = _simulate_signal_receiver(dest.path(files[rx]), c.nav, xa, off_enu, c.start_gps_s, c.n, c.T,
+                                                     c.signals, rx_seed, c.mask_deg, c.code_sigma_m, 5.0 - 2.0 * i,
+                                                     hdr, c.stamp)
+            continue
+        s = simulate_static_pair(c.nav, np.asarray(c.master_ecef_m, float), xa, c.start_gps_s, c.n * c.T, c.T,
+                                 seed=rx_seed, mask_rad=math.radians(c.mask_deg),
+                                 phase_sigma_m=(0.003, 0.003), code_sigma_m=c.code_sigma_m,
+                                 clock_drift_ms=(0.0, 5.0 - 2.0 * i), rover_offset_enu_m=off_enu)
+        write_rinex_obs(dest.path(f"{rx}.rnx"), s["rover"], hdr, created=c.stamp)
+        amb = s["ambiguities"]
+        integers[rx] = {r_["sat"]: int(r_["n_cycles"]) for _, r_ in amb[amb["receiver"] == "rover"].iterrows()}
+    return files, integers
+
+
+def _write_sim_config(dest, cfg: StructureConfig, mapping: dict, files: dict, master_rx: str,
+                      random_walk_sigma: float, signals, sensor_files) -> None:
+    """``config.toml`` in ``dest``: the GNSS run config of the simulated files (random-walk displacement
+    with ``random_walk_sigma`` m/√s, the signals and sensor logs when there are)."""
+    from cdgps_cli.config.structure import gnss_config_toml  # noqa: PLC0415
+    from cdgps_cli.io.atomic import write_bytes_atomic  # noqa: PLC0415
+
+    text = gnss_config_toml({mapping[a]: ("rinex", files[mapping[a]]) for a in cfg.antenna_names}, ["nav.rnx"], master_rx,
+                            name=f"simulated-{cfg.name}", description=f"structure {cfg.name} simulated by cdgps_cli.pipeline.gnss_modal",
+                            displacement="random_walk", sigma_m_per_sqrt_s=random_walk_sigma,
+                            options={**({"signals": list(signals)} if signals else {}),
+                                     **({"sensors": sensor_files} if sensor_files else {})} or None)
+    write_bytes_atomic(dest.path("config.toml"), text.encode())
 
 
 def _simulate_sensors(cfg: StructureConfig, sim, seed: int, start_gps_s: float, dest, say) -> tuple[list, dict]:
