@@ -4,7 +4,7 @@ write the ``-o`` output the next one reads (tests/_doc_blocks.py).  A block that
 ``<!-- norun: reason -->`` on the line before its fence; those are counted and listed here, and at
 least 80 % of the ``cdgps`` commands quoted in the hand-written guides' shell blocks run.  The two
 long guides run in their own files (tests/test_doc_commands_run_*.py) so that pytest-xdist's
-``--dist loadfile`` spreads them; README.md's one block, its example pipeline, is run as written by
+``--dist loadfile`` spreads them (docs/commands.md over two, split at a heading); README.md's one block, its example pipeline, is run as written by
 tests/cli/test_user_chains.py::test_readme_chain_as_written (with checks of its outputs), not twice.  The parse-only check of every quoted command's options is
 tests/test_doc_commands.py; the inventory: ``python tests/_doc_blocks.py``."""
 
