@@ -166,12 +166,22 @@ def runnable(path: Path) -> list[Block]:
     return [b for b in blocks(path) if b.shell and not b.norun]
 
 
-def run_guide(path: Path, tmp: Path) -> None:
-    """Run a guide's runnable shell blocks in order in one work directory under ``tmp``; skip the guide
-    (pytest.skip) when a block reads ``../shared`` and it is not there."""
+def split_at_heading(path: Path, heading: str) -> tuple[list[Block], list[Block]]:
+    """A guide's runnable blocks before and after its line ``heading`` (a long guide run by two test files,
+    the second part reading nothing the first wrote); AssertionError if the guide has no such line."""
+    lines = path.read_text().splitlines()
+    assert heading in lines, f"{path.relative_to(ROOT)} has no line {heading!r} (where its blocks are split)"
+    at = lines.index(heading) + 1
+    todo = runnable(path)
+    return [b for b in todo if b.line < at], [b for b in todo if b.line > at]
+
+
+def run_guide(path: Path, tmp: Path, todo: list[Block] | None = None) -> None:
+    """Run a guide's runnable shell blocks (or the part ``todo`` of them) in order in one work directory
+    under ``tmp``; skip the guide (pytest.skip) when a block reads ``../shared`` and it is not there."""
     import pytest  # noqa: PLC0415
 
-    todo = runnable(path)
+    todo = runnable(path) if todo is None else todo
     if not SHARED.exists() and any(needs_shared(b) for b in todo):
         pytest.skip(f"{path.name} reads ../shared/data, not here")
     work = workdir(tmp)

@@ -4,8 +4,11 @@ write the ``-o`` output the next one reads (tests/_doc_blocks.py).  A block that
 ``<!-- norun: reason -->`` on the line before its fence; those are counted and listed here, and at
 least 80 % of the ``cdgps`` commands quoted in the hand-written guides' shell blocks run.  The two
 long guides run in their own files (tests/test_doc_commands_run_*.py) so that pytest-xdist's
-``--dist loadfile`` spreads them.  The parse-only check of every quoted command's options is
-tests/test_doc_commands.py; the inventory: ``python tests/_doc_blocks.py``."""
+``--dist loadfile`` spreads them (docs/commands.md over two files, split at a heading).  Not run twice:
+README.md's one block, its example pipeline, run as written by
+tests/cli/test_user_chains.py::test_readme_chain_as_written (with checks of its outputs), and
+docs/tracking.md's one block, a copy of a block of docs/commands.md.  The parse-only check of every
+quoted command's options is tests/test_doc_commands.py; the inventory: ``python tests/_doc_blocks.py``."""
 
 from __future__ import annotations
 
@@ -15,7 +18,13 @@ from _doc_blocks import GENERATED, GUIDES, ROOT, blocks, cdgps_commands, run_gui
 
 #: guides run by their own test files
 OWN_FILE = {"docs/commands.md", "docs/gnss-pipeline.md"}
-HERE = [p for p in GUIDES if runnable(p) and str(p.relative_to(ROOT)) not in OWN_FILE]
+#: guides whose only runnable block another test runs line by line as written, with checks of its outputs
+#: (test_the_chain_run_elsewhere_is_the_guides_only_block holds them to that)
+RUN_ELSEWHERE = {"README.md": "tests/cli/test_user_chains.py::test_readme_chain_as_written"}
+#: guides whose every runnable block is, word for word, a self-contained block of another guide that runs
+#: (test_a_guide_of_copied_blocks_has_only_copies holds them to that): the same command, not run twice
+COPIES_OF = {"docs/tracking.md": "docs/commands.md"}
+HERE = [p for p in GUIDES if runnable(p) and str(p.relative_to(ROOT)) not in OWN_FILE | set(RUN_ELSEWHERE) | set(COPIES_OF)]
 
 
 @pytest.mark.parametrize("path", HERE, ids=lambda p: str(p.relative_to(ROOT)))
@@ -27,6 +36,24 @@ def test_the_long_guides_have_their_own_files():
     for rel in OWN_FILE:
         stem = rel.split("/")[-1].removesuffix(".md").replace("-", "_")
         assert (ROOT / "tests" / f"test_doc_commands_run_{stem}.py").exists(), rel
+
+
+def test_the_chain_run_elsewhere_is_the_guides_only_block():
+    """README.md's one runnable block is its example pipeline, which test_readme_chain_as_written reads from
+    README.md and runs command by command (in-process, from a directory holding configs/, as here): the
+    same commands, not run a second time here.  A second runnable block, or a changed one, fails here."""
+    from tests.cli.test_user_chains import readme_chain
+
+    (block,) = runnable(ROOT / "README.md")
+    assert [ln.strip() for ln in block.lines()] == readme_chain((ROOT / "README.md").read_text())
+    assert all(c[0] == "cdgps" for ln in block.lines() for c in [ln.split()])
+
+
+def test_a_guide_of_copied_blocks_has_only_copies():
+    for guide, source in COPIES_OF.items():
+        runs = {b.text for b in runnable(ROOT / source)}
+        copies = runnable(ROOT / guide)
+        assert copies and all(b.text in runs for b in copies), f"{guide}: a block not in {source}: run it here"
 
 
 def _all_blocks():

@@ -3,8 +3,10 @@
 * every output byte-identical to the single commands (run here through the CLI, by hand-written
   argument lists), on 2 workers with a worker killed mid-task and a task that fails twice, and on 1 worker;
 * a task failing more often than --retries: the session reported with its message, never dropped;
-* --resume after kill -9 of the batch process: what was recorded is skipped, the rest done, same bytes;
 * --resume skips exactly what is still valid and redoes what an option change touches.
+
+--resume after kill -9 of the batch process and a GNSS session: tests/pipeline/test_batch_dask_resume.py
+(a file of its own, so that pytest-xdist's ``--dist loadfile`` spreads the two).
 
 Paths are recorded inside the outputs (RUN.mcap names its logs, STATES its RUN and INIT), so every
 run writes into the same OUTDIR path and is compared with the reference, then moved away.
@@ -16,11 +18,6 @@ import filecmp
 import json
 import os
 import shutil
-import signal
-import subprocess
-import sys
-import time
-from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
@@ -29,13 +26,9 @@ from cdgps_cli.cli.commands import main
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.pipeline import batch as B
 from cdgps_cli.pipeline.batch_dask import PROFILE_KEY, local_cluster, run_batch
+from tests.pipeline._batch_campaign import CONFIG, DURATION_S, assert_same_tree as _assert_same_tree
 
 distributed = pytest.importorskip("distributed")
-
-ROOT = Path(__file__).resolve().parents[2]
-CONFIG = ROOT / "configs" / "testbed-1998-lumped.toml"
-DURATION_S = 16
-IGNORED = {B.RECORD_DIR, B.CAMPAIGN_FILE, "batch.json", "index.html", "trends.png"}
 
 
 @pytest.fixture(scope="module")
@@ -56,9 +49,6 @@ def campaign(tmp_path_factory):
             "c": "c,s3/receiver.csv,,testbed.toml,2026-11-03,ingest+init+estimate,true,10,\n"}
     # the campaign: a's report (it computes the spectra too), b and c to STATES.mcap
     manifest.write_text(head + rows["a"].format("ingest init estimate report") + rows["b"] + rows["c"])
-    # the kill -9 run: a to its spectra
-    killed = root / "logs" / "killed.csv"
-    killed.write_text(head + rows["a"].format("ingest init estimate spectra"))
     out = root / "out"
     L = root / "logs"
     o = {n: out / n for n in "abc"}
@@ -66,7 +56,6 @@ def campaign(tmp_path_factory):
         ["ingest", L / "s1/receiver.csv", L / "s1/gyro.csv", "--config", L / "testbed.toml", "-o", o["a"] / "run.mcap"],
         ["init", o["a"] / "run.mcap", "--duration", "10", "-o", o["a"] / "init.json"],
         ["estimate", o["a"] / "run.mcap", "--init", o["a"] / "init.json", "--smooth", "-o", o["a"] / "states.mcap"],
-        ["spectra", o["a"] / "states.mcap", "--gyro", o["a"] / "run.mcap", "-o", o["a"] / "spectra"],
         ["report", "spectrum", o["a"] / "states.mcap", "--gyro", o["a"] / "run.mcap", "--date", "2026-12-01",
          "-o", o["a"] / "report"],
         ["ingest", L / "s2/receiver.csv", L / "s2/gyro.csv", "--config", L / "testbed.toml", "-o", o["b"] / "run.mcap"],
@@ -81,7 +70,7 @@ def campaign(tmp_path_factory):
         assert r.exit_code == 0, (argv, r.output)
     ref = root / "reference"
     out.rename(ref)
-    return {"root": root, "manifest": manifest, "killed": killed, "out": out, "ref": ref, "faults": root / "faults"}
+    return {"root": root, "manifest": manifest, "out": out, "ref": ref, "faults": root / "faults"}
 
 
 @pytest.fixture(scope="module")
@@ -106,16 +95,6 @@ def _faults(campaign, *lines):
 def _attempts(campaign, session, stage) -> int:
     p = campaign["faults"] / f"{session}-{stage}.attempts"
     return len(p.read_text().split()) if p.exists() else 0
-
-
-def _assert_same_tree(ref: Path, out: Path, n_files: int) -> None:
-    """``n_files`` files in ``out`` (batch's own files aside), each byte-identical to its namesake in ``ref``."""
-    files = sorted(str(p.relative_to(out)) for p in out.rglob("*")
-                   if p.is_file() and not (set(p.relative_to(out).parts) & IGNORED))
-    assert len(files) == n_files, files
-    for f in files:
-        assert (ref / f).is_file(), f"{f}: not written by the single commands"
-        assert filecmp.cmp(ref / f, out / f, shallow=False), f"{f} differs from the single command's"
 
 
 #: files of the campaign: a (run, init, states, report/ of 7 files), b and c (run, init, states)
@@ -195,26 +174,6 @@ def test_resume_skips_what_holds_and_redoes_what_changed(campaign, client):
     _set_aside(campaign, "run-2-workers")
 
 
-def test_a_gnss_session_gives_the_single_commands_bytes(campaign, client):
-    """RINEX receivers listed in a GNSS config: ingest → init → estimate --smooth."""
-    root = campaign["root"] / "gnss"
-    r = CliRunner().invoke(main, ["-q", "simulate-gnss", "--duration", "60", "--seed", "2", "-o", str(root / "pair")])
-    assert r.exit_code == 0, r.output
-    (root / "m.csv").write_text("session,gnss_config,smooth\npair,pair/config.toml,true\n")
-    o = root / "out" / "pair"
-    for argv in (["ingest", "--config", root / "pair/config.toml", "-o", o / "run.mcap"],
-                 ["init", o / "run.mcap", "-o", o / "init.json"],
-                 ["estimate", o / "run.mcap", "--init", o / "init.json", "--smooth", "-o", o / "states.mcap"]):
-        r = CliRunner().invoke(main, ["-q", *map(str, argv)])
-        assert r.exit_code == 0, (argv, r.output)
-    (root / "out").rename(root / "reference")
-    s = run_batch(root / "m.csv", root / "out", client=client)
-    assert s["counts"] == {"sessions": 1, "done": 1}, s["failures"]
-    (e,) = s["sessions"]
-    assert e["integers_fixed"] == e["integers"] > 0 and e["rovers"]["rover"]["solution"] == "fixed"
-    _assert_same_tree(root / "reference", root / "out", 3)
-
-
 def test_a_task_failing_more_than_retries_is_reported_not_dropped(campaign, client):
     _faults(campaign, "b/ingest raise 5")
     m = campaign["manifest"].with_name("failing.csv")
@@ -242,33 +201,3 @@ def test_a_task_failing_more_than_retries_is_reported_not_dropped(campaign, clie
     assert r.exit_code == 0, r.output
     s = json.loads(r.stdout)
     assert s["counts"] == {"sessions": 1, "done": 1} and s["workers"] == 2
-
-
-@pytest.mark.slow
-def test_resume_after_kill_9_of_the_batch_process(campaign, client):
-    """`cdgps batch` killed with SIGKILL once some stages are recorded; --resume finishes the rest."""
-    _faults(campaign)
-    cdgps = Path(sys.executable).with_name("cdgps")
-    proc = subprocess.Popen([str(cdgps), "-q", "batch", str(campaign["killed"]), "-o", str(campaign["out"]),
-                             "--workers", "1"], start_new_session=True,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
-        deadline = time.monotonic() + 120
-        while not (campaign["out"] / "a" / B.RECORD_DIR / "ingest.json").exists():
-            assert proc.poll() is None and time.monotonic() < deadline, "the batch ended before it was killed"
-            time.sleep(0.02)
-        os.kill(proc.pid, signal.SIGKILL)
-        proc.wait()
-    finally:
-        try:
-            os.killpg(proc.pid, signal.SIGKILL)          # its cluster's processes (started by this test)
-        except ProcessLookupError:
-            pass
-    assert not (campaign["out"] / "batch.json").exists()
-    recorded = {(s, p.stem) for s in "a" for p in (campaign["out"] / s / B.RECORD_DIR).glob("*.json")}
-    assert ("a", "ingest") in recorded and len(recorded) < 4
-    s = run_batch(campaign["killed"], campaign["out"], client=client, resume=True)
-    skipped = {(e["session"], k) for e in s["sessions"] for k, v in e["stages"].items() if v["status"] == "skipped"}
-    assert skipped == recorded                             # exactly what had finished is skipped
-    assert s["counts"] == {"sessions": 1, "done": 1}
-    _assert_same_tree(campaign["ref"], campaign["out"], 3 + 4)
