@@ -993,7 +993,10 @@ def _records_v3_bulk(lines, hdr: _ObsHeader, group, rows, summary) -> None:
     def to_float(f):
         st = np.char.strip(f)
         blank = st == b""
-        return np.where(blank, b"nan", st).astype(np.float64)
+        v = np.where(blank, b"nan", st).astype(np.float64)
+        if not np.all(np.isfinite(v) | blank) or np.any(np.char.count(st, b"_")):
+            raise ValueError("non-finite token")            # 'NaN', 'inf': refused record by record
+        return v
 
     def digit(k, off):
         ch = chars[:, 3 + 16 * k + off].astype(np.int64)

@@ -48,24 +48,37 @@ class BodyLines:
 
     def __init__(self, data: bytes, offset: int):
         raw = np.frombuffer(data, dtype=np.uint8)
-        lf = offset + np.flatnonzero(raw[offset:] == 10)
-        start = np.concatenate([[offset], lf + 1])
-        end = np.concatenate([lf, [raw.size]])
-        if start[-1] == raw.size:                    # text ends with LF: no line after it
-            start, end = start[:-1], end[:-1]
-        cr = (end > start) & (raw[np.maximum(end - 1, 0)] == 13)
-        self.start = start.astype(np.int64)
-        self.length = (end - start - cr).astype(np.int64)
+        lf = np.flatnonzero(raw[offset:] == 10)
+        lf += offset
+        n = lf.size + (lf.size == 0 or lf[-1] + 1 < raw.size)      # text ending in LF: no line after it
+        self.start = np.empty(n, dtype=np.int64)
+        self.start[0] = offset
+        self.start[1:] = lf[:n - 1] + 1
+        end = np.empty(n, dtype=np.int64)
+        end[:lf.size] = lf[:n]
+        end[lf.size:] = raw.size
+        if offset >= raw.size:
+            n = 0
+            self.start, end = self.start[:0], end[:0]
+        self.length = end - self.start
+        self.length -= (self.length > 0) & (raw[np.maximum(end - 1, 0)] == 13)
         self.data = data
         self.buf = raw
-        self.n = self.start.size
+        self.n = n
 
     def gather(self, line: np.ndarray, col: int, width: int) -> np.ndarray:
         """Bytes ``[col, col + width)`` of lines ``line`` as (n, width) uint8, blanks past a line's end."""
-        idx = self.start[line][:, None] + (col + np.arange(width))[None, :]
-        inside = np.arange(width)[None, :] < (self.length[line] - col)[:, None]
-        out = self.buf[np.minimum(idx, self.buf.size - 1)]
-        out[~inside] = 32
+        size = self.buf.size
+        if size < width:
+            raise Unsupported("short file")
+        first = self.start[line] + col
+        out = np.lib.stride_tricks.sliding_window_view(self.buf, width)[np.minimum(first, size - width)]
+        room = self.length[line] - col                    # characters of the field on its line
+        short = np.flatnonzero(room < width)
+        if short.size:
+            keep = np.arange(width)[None, :] < room[short, None]
+            at = np.minimum(first[short, None] + np.arange(width)[None, :], size - 1)
+            out[short] = np.where(keep, self.buf[at], np.uint8(32))
         return out
 
     def text(self, i: int) -> str:
@@ -180,7 +193,7 @@ def epochs_v2(lines: BodyLines, per: int, special=None) -> tuple[dict, list, lis
         if 2 <= flag <= 5:
             if special is None or i + 1 + nsat > n:
                 raise Unsupported("event")
-            t = math.nan if when is None else float(_gps_seconds(*(np.array([v]) for v in _year(when))))
+            t = math.nan if when is None else float(_gps_seconds(*(np.array([v]) for v in _year(when)))[0])
             new_per = special([lines.text(j) for j in range(i + 1, i + 1 + nsat)], flag, t, i, events)
             if new_per is not None:
                 per, segment = new_per, segment + 1

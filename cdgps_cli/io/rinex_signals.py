@@ -23,6 +23,7 @@ from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, glonass_frequency_hz, 
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.io.rinex import _ObsHeader, _parse_version_line, _read_text
 from cdgps_cli.io._fixed_width import LineBuffer, Unsupported, decimal_fields, flag_digits
+from cdgps_cli.io.rinex_body import strict_float
 
 __all__ = ["read_rinex_signals", "SIGNAL_COLUMNS"]
 
@@ -88,7 +89,7 @@ def _value(rec: str, k: int, col0: int) -> tuple[float, int]:
     c = col0 + 16 * k
     f = rec[c:c + 14]
     lli = rec[c + 14:c + 15]
-    v = float(f) if f.strip() else math.nan
+    v = strict_float(f) if f.strip() else math.nan
     return v, (int(lli) if lli.strip().isdigit() else 0)
 
 
@@ -288,11 +289,27 @@ def _parse_v2(lines, i, hdr, cols, path) -> list:
             for name, (_, ip, ic, _) in cols.items():
                 if signal(name).system != sat[0]:
                     continue
-                ph, lli = _value(rec, ip, 0)
-                pr = _value(rec, ic, 0)[0] if ic >= 0 else math.nan
+                try:
+                    ph, lli = _value(rec, ip, 0)
+                    pr = _value(rec, ic, 0)[0] if ic >= 0 else math.nan
+                except ValueError:
+                    bad = i - per + _bad_field(rec, (ip, ic)) // 5
+                    raise CdgpsError(f"{path}:{bad + 1}: malformed observation record of {sat}: "
+                                     f"{lines[bad][:80]!r}") from None
                 if not math.isnan(ph):
                     rows.append((t, sat, name, ph, pr, lli))
     return rows
+
+
+def _bad_field(rec: str, fields) -> int:
+    """The first of the observation indices ``fields`` whose value or LLI ``_value`` refuses."""
+    for k in fields:
+        if k >= 0:
+            try:
+                _value(rec, k, 0)
+            except ValueError:
+                return k
+    return fields[0]
 
 
 def _walk_v3(lines, i, path):
