@@ -516,10 +516,9 @@ def _obs_result(p: Path, hdr: _ObsHeader, summary: dict, cols_arr: dict, sorted_
     return info, obs
 
 
-def _read_obs_fast(p: Path, data: bytes, compressed: bool, gps_l1_optional: bool, block_epochs: int):
-    """:func:`read_rinex_obs` from the bytes: only the header is split into lines, the body is read
-    by :mod:`cdgps_cli.io.rinex_body` in blocks of ``block_epochs`` epochs; Unsupported for a body
-    that reader does not take exactly as the line-by-line one."""
+def _split_header(data: bytes) -> tuple[list[str], int]:
+    """(the header's lines, as :func:`_split_lines` gives them, up to END OF HEADER; the byte offset
+    of the body); Unsupported if the first 'END OF HEADER' in the bytes is not that line's label."""
     at = data.find(b"END OF HEADER")
     if at < 0:
         raise Unsupported("no END OF HEADER")
@@ -528,6 +527,14 @@ def _read_obs_fast(p: Path, data: bytes, compressed: bool, gps_l1_optional: bool
     head = _split_lines(data[:body_at])
     if head[-1][60:80].strip() != "END OF HEADER":
         raise Unsupported("END OF HEADER")
+    return head, body_at
+
+
+def _read_obs_fast(p: Path, data: bytes, compressed: bool, gps_l1_optional: bool, block_epochs: int):
+    """:func:`read_rinex_obs` from the bytes: only the header is split into lines, the body is read
+    by :mod:`cdgps_cli.io.rinex_body` in blocks of ``block_epochs`` epochs; Unsupported for a body
+    that reader does not take exactly as the line-by-line one."""
+    head, body_at = _split_header(data)
     hdr, end, cols = _obs_header(p, head, compressed, gps_l1_optional)
     lines = _body.BodyLines(data, body_at)
     layouts = [cols]

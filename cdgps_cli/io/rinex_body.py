@@ -137,9 +137,11 @@ def _blank_from(lines: BodyLines, i: int) -> bool:
     return lines.n - i <= 64 and all(not lines.text(j).strip() for j in range(i, lines.n))
 
 
-def epochs_v3(lines: BodyLines) -> dict:
+def epochs_v3(lines: BodyLines, events: str = "refuse") -> dict:
     """The epochs of a RINEX 3 body: arrays over epoch lines ``line``, ``flag``, ``nsat``,
-    ``time_gps_s``, ``clk`` (flags 0, 1 and 6 only; Unsupported for anything else)."""
+    ``time_gps_s``, ``clk``.  ``events="refuse"``: flags 0, 1 and 6 only (Unsupported for anything
+    else); ``"skip"``: flags 2-5 too, their time and clock NaN (their lines are skipped), and the
+    flag column must hold a digit."""
     if lines.n == 0:
         raise Unsupported("empty body")
     ep = np.flatnonzero(lines.buf[lines.start] == 62)       # '>' (a blank line reads LF or the next byte)
@@ -147,22 +149,30 @@ def epochs_v3(lines: BodyLines) -> dict:
     if ep.size == 0 or ep[0] != 0:
         raise Unsupported("epoch line")
     f = lines.gather(ep, 0, 35)
+    if events == "skip" and np.any((f[:, 31] < 48) | (f[:, 31] > 57)):
+        raise Unsupported("event flag")
     flag = np.where(f[:, 31] == 32, 0, f[:, 31].astype(np.int64) - 48)
-    if np.any((flag < 0) | (flag > 6) | ((flag > 1) & (flag < 6))):
+    if np.any((flag < 0) | (flag > 6) | (((flag > 1) & (flag < 6)) if events == "refuse" else False)):
         raise Unsupported("event flag")
     nsat = _ints(f[:, 32:35])
     nxt = ep + 1 + nsat
     if not (np.array_equal(nxt[:-1], ep[1:]) and nxt[-1] <= lines.n and _blank_from(lines, int(nxt[-1]))):
         raise Unsupported("layout")                         # blank lines, truncation, stray '>' ...
-    if np.any(f[:, 1] != 32) or np.any(f[:, [6, 9, 12, 15, 29, 30]] != 32):
+    timed = np.flatnonzero((flag <= 1) | (flag == 6)) if events == "skip" else np.arange(ep.size)
+    g = f[timed]
+    if np.any(g[:, 1] != 32) or np.any(g[:, [6, 9, 12, 15, 29, 30]] != 32):
         raise Unsupported("epoch line")
-    y, mo, d = _ints(f[:, 2:6]), _ints(f[:, 7:9]), _ints(f[:, 10:12])
-    h, mi = _ints(f[:, 13:15]), _ints(f[:, 16:18])
-    sec = decimal_fields(np.ascontiguousarray(f[:, 18:29]))
+    y, mo, d = _ints(g[:, 2:6]), _ints(g[:, 7:9]), _ints(g[:, 10:12])
+    h, mi = _ints(g[:, 13:15]), _ints(g[:, 16:18])
+    sec = decimal_fields(np.ascontiguousarray(g[:, 18:29]))
     if np.any(np.isnan(sec)):
         raise Unsupported("seconds")
-    t = _gps_seconds(y, mo, d, h, mi, sec)
-    return {"line": ep, "flag": flag, "nsat": nsat, "time_gps_s": t, "clk": _clocks(lines, ep, 35)}
+    t = np.full(ep.size, np.nan)
+    t[timed] = _gps_seconds(y, mo, d, h, mi, sec)
+    clk = np.full(ep.size, np.nan)
+    if events == "refuse":
+        clk = _clocks(lines, ep, 35)
+    return {"line": ep, "flag": flag, "nsat": nsat, "time_gps_s": t, "clk": clk}
 
 
 def epochs_v2(lines: BodyLines, per: int, special=None) -> tuple[dict, list, list]:

@@ -23,7 +23,8 @@ from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, glonass_frequency_hz, 
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.io.rinex import _ObsHeader, _parse_version_line, _read_text
 from cdgps_cli.io._fixed_width import LineBuffer, Unsupported, decimal_fields, flag_digits
-from cdgps_cli.io.rinex_body import strict_float
+from cdgps_cli.io.rinex import _read_bytes, _split_header
+from cdgps_cli.io.rinex_body import BodyLines, epochs_v3, strict_float
 
 __all__ = ["read_rinex_signals", "SIGNAL_COLUMNS"]
 
@@ -152,11 +153,44 @@ def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None)
         signals without ``GLONASS SLOT / FRQ #`` for an observed satellite, a malformed line.
     """
     p = Path(path)
+    if FAST_PARSE:
+        try:
+            return _read_bytes_v3(p, list(signals), glonass_k)
+        except Unsupported:
+            pass
     lines, hdr, end, data = _observation_header(p)
-    version = hdr.version
     cols = _columns(hdr, list(signals), p)
     slots = {**(glonass_k or {}), **_glonass_slots(lines, end, p)}
     df = _observations(lines, end + 1, hdr, cols, p, data, slots)
+    info = dict(hdr.info)
+    info["signal_codes"] = {k: list(v[3]) for k, v in cols.items()}
+    info["glonass_slots"] = slots
+    return info, df
+
+
+def _read_bytes_v3(p: Path, signals: list, glonass_k) -> tuple[dict, pd.DataFrame]:
+    """:func:`read_rinex_signals` of a RINEX 3 file from its bytes: only the header is split into
+    lines, the body is walked by :mod:`cdgps_cli.io.rinex_body`; Unsupported where the line-based
+    readers must decide (RINEX 2, an odd body, a malformed record)."""
+    data, compressed = _read_bytes(p)
+    head, body_at = _split_header(data)
+    version, ftype, _ = _parse_version_line(head, p, compressed, "observation")
+    if ftype != "O" or version < 3 or not signals:
+        raise Unsupported("not a RINEX 3 observation file")
+    hdr = _ObsHeader(p, version, compressed)
+    end = next(i for i in range(1, len(head)) if hdr.apply(head[i], i + 1) == "END OF HEADER")
+    cols = _columns(hdr, signals, p)
+    slots = {**(glonass_k or {}), **_glonass_slots(head, end, p)}
+    lines = BodyLines(data, body_at)
+    try:
+        ep = epochs_v3(lines, events="skip")
+    except CdgpsError:
+        raise Unsupported("epoch") from None
+    obs = np.flatnonzero(ep["flag"] <= 1)
+    try:
+        df = _table(lines, hdr, cols, p, slots, ep["time_gps_s"][obs], ep["line"][obs] + 1, ep["nsat"][obs], 1, None)
+    except CdgpsError:
+        raise Unsupported("record") from None
     info = dict(hdr.info)
     info["signal_codes"] = {k: list(v[3]) for k, v in cols.items()}
     info["glonass_slots"] = slots
@@ -369,12 +403,20 @@ def _walk_v2(lines, i, hdr, path):
 
 def _fast_table(lines, start, hdr, cols, path, data: bytes | None, slots: dict) -> pd.DataFrame:
     """:func:`_observations` by the vectorised reader (Unsupported: use the line-by-line one)."""
-    v3 = hdr.version >= 3
-    if v3:
+    if hdr.version >= 3:
         times, first, count = _walk_v3(lines, start, path)
-        per = 1
+        per, sats_v2 = 1, None
     else:
         times, first, count, sats_v2, per = _walk_v2(lines, start, hdr, path)
+    buf = LineBuffer(lines) if data is None else LineBuffer.from_bytes(data, lines)
+    return _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2)
+
+
+def _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2) -> pd.DataFrame:
+    """The table of the records of the epochs at ``times`` whose first record line (index into
+    ``buf``, a :class:`LineBuffer` or :class:`BodyLines`) is ``first`` and that have ``count``
+    records of ``per`` lines each (RINEX 2: the records' satellites ``sats_v2``)."""
+    v3 = hdr.version >= 3
     count = np.asarray(count, dtype=np.int64)
     n_rec = int(count.sum())
     if n_rec == 0:
@@ -383,7 +425,6 @@ def _fast_table(lines, start, hdr, cols, path, data: bytes | None, slots: dict) 
     offset = np.concatenate([[0], np.cumsum(count)[:-1]])
     rec_line = np.repeat(first, count) + per * (np.arange(n_rec) - np.repeat(offset, count))   # first line of every record
     t_rec = np.repeat(np.asarray(times, dtype=np.float64), count)
-    buf = LineBuffer(lines) if data is None else LineBuffer.from_bytes(data, lines)
     if v3:
         if np.any(buf.length[rec_line] == 0):
             raise Unsupported("blank record")

@@ -173,3 +173,19 @@ def test_few_decimal_fields_as_many():
     for bad in ("1.2.3", "1e5", "- 5", "nan", "1_0"):
         with pytest.raises(Unsupported):
             decimal_fields(np.frombuffer(bad.ljust(14).encode(), dtype=np.uint8).reshape(1, 14).copy())
+
+
+@pytest.mark.parametrize("path", [p for p in OBS_FILES if p.read_bytes()[:9].strip().startswith(b"3")], ids=lambda p: p.name)
+def test_signals_from_bytes_identical(path):
+    """read_rinex_signals of a RINEX 3 file walks the body in the bytes (no fallback) and gives the
+    line-by-line reader's table."""
+    names = rinex_signals.signals_in_file(path)
+    glo = {f"R{i:02d}": 0 for i in range(1, 33)}
+    rinex_signals.FAST_PARSE = False
+    try:
+        h_ref, ref = rinex_signals.read_rinex_signals(path, names, glonass_k=glo)
+    finally:
+        rinex_signals.FAST_PARSE = True
+    h_new, new = rinex_signals._read_bytes_v3(path, names, glo)
+    assert list(h_ref.items()) == list(h_new.items())
+    pd.testing.assert_frame_equal(ref, new, check_exact=True)
