@@ -432,16 +432,21 @@ def _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2) -> pd
         if np.any(sat_bytes >= 128):
             raise Unsupported("satellite")
         sat_bytes[sat_bytes == 32] = 48
-        sats = sat_bytes.view("S3").ravel().astype("U3")
+        code = (sat_bytes[:, 0].astype(np.int32) << 16) | (sat_bytes[:, 1].astype(np.int32) << 8) | sat_bytes[:, 2]
+        uniq, sat_code = np.unique(code, return_inverse=True)           # ASCII, 3 bytes: the str order
+        sat_names = [bytes([u >> 16, (u >> 8) & 255, u & 255]).decode("ascii") for u in uniq.tolist()]
     else:
         rec_lines = rec_line[:, None] + np.arange(per)
         if np.any(buf.length[rec_lines] > 80):
             raise Unsupported("long record line")
-        sats = np.array(sats_v2, dtype="U3")
-    system = sats.astype("U1")
+        uniq, sat_code = np.unique(np.array(sats_v2, dtype="U3"), return_inverse=True)
+        sat_names = uniq.tolist()
+    sat_code = sat_code.ravel()
+    sat_obj = np.array(sat_names + [None], dtype=object)[:-1]
     rows_of, lines_of, cols_of = [], [], []
     for name, (key, ip, ic, _) in cols.items():
-        rows = np.flatnonzero(system == (key if v3 else signal(name).system))
+        system = key if v3 else signal(name).system
+        rows = np.flatnonzero(np.array([x[:1] == system for x in sat_names])[sat_code])
         rows_of.append(rows)
         for k in (ip, ic):
             if k >= 0:
@@ -469,22 +474,22 @@ def _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2) -> pd
     order = np.argsort(rows * len(cols) + np.concatenate([np.full(p[0].size, p[1]) for p in parts]), kind="stable")
     rows = rows[order]
     sig = np.concatenate([np.full(p[0].size, p[1]) for p in parts])[order]
-    sat_names, sat_code = np.unique(sats, return_inverse=True)         # code-point order, as str's
     sig_rank = np.argsort(np.argsort(names.astype(str), kind="stable"))  # signal index -> rank of its name
     t = t_rec[rows]
     final = np.lexsort((sat_code[rows], sig_rank[sig], t))                # stable: file order among equals
     rows, sig = rows[final], sig[final]
     return pd.DataFrame({
-        "time_gps_s": t[final], "sat": sats[rows].astype(object), "signal": names[sig],
+        "time_gps_s": t[final], "sat": sat_obj[sat_code[rows]], "signal": names[sig],
         "phase_cycles": np.concatenate([p[2] for p in parts])[order][final],
         "pseudorange_m": np.concatenate([p[3] for p in parts])[order][final],
         "lli": np.concatenate([p[4] for p in parts])[order][final],
-        "wavelength_m": _wavelength_array(sats[rows], sig, list(cols), slots, path)})
+        "wavelength_m": _wavelength_array(sat_code[rows], sat_names, sig, list(cols), slots, path)})
 
 
-def _wavelength_array(sats: np.ndarray, sig: np.ndarray, names: list, slots: dict, path) -> np.ndarray:
-    """:func:`_wavelengths` on arrays: ``sats`` (n,) str, ``sig`` (n,) index into ``names``."""
-    lam = np.empty(sats.size)
+def _wavelength_array(sat_code: np.ndarray, sat_names: list, sig: np.ndarray, names: list, slots: dict, path) -> np.ndarray:
+    """:func:`_wavelengths` on arrays: ``sat_code`` (n,) index into ``sat_names``, ``sig`` (n,) index
+    into ``names``."""
+    lam = np.empty(sat_code.size)
     for i in sorted(range(len(names)), key=lambda j: names[j]):       # signal names in order, as groupby
         idx = np.flatnonzero(sig == i)
         if idx.size == 0:
@@ -493,13 +498,14 @@ def _wavelength_array(sats: np.ndarray, sig: np.ndarray, names: list, slots: dic
         if not sg.fdma_step_hz:
             lam[idx] = sg.wavelength_m
             continue
-        uniq, inv = np.unique(sats[idx], return_inverse=True)
-        absent = sorted(set(uniq.tolist()) - set(slots))
+        uniq, inv = np.unique(sat_code[idx], return_inverse=True)
+        present = [sat_names[c] for c in uniq.tolist()]
+        absent = sorted(set(present) - set(slots))
         if absent:
             raise CdgpsError(f"{path}: GLONASS frequency numbers absent for {' '.join(absent)} "
                              "(header line 'GLONASS SLOT / FRQ #' expected, or a GLONASS navigation record of "
                              "the satellite); FDMA phases need them")
-        lam[idx] = np.array([SPEED_OF_LIGHT_M_S / glonass_frequency_hz(sg, slots[s]) for s in uniq.tolist()])[inv]
+        lam[idx] = np.array([SPEED_OF_LIGHT_M_S / glonass_frequency_hz(sg, slots[s]) for s in present])[inv.ravel()]
     return lam
 
 
