@@ -11,9 +11,13 @@ against ``pandas.read_csv`` of a CSV of the same number of bytes (the decoded ob
 repeated); a binary log holds ~4× the observations of a CSV of its size, so this peer is generous.
 
 Rounds are interleaved (ours, peer, ours, ...) and each figure is the median of ``--repeat`` rounds;
-the ratio is ours / read_csv (< 1: faster).  Writes ``docs/benchmarks/parse.json``::
+the ratio is ours / read_csv (< 1: faster).  ``read_rinex_obs`` is timed on its byte-level block-wise
+reader and on the line-by-line one (``rinex.FAST_PARSE = False``) it replaced.  ``--day`` also
+simulates a 24 h 1 Hz RINEX 3 file (``cdgps simulate-gnss``, not timed) and measures the peak RSS
+(``resource``, one child process per reader) and time of ``read_rinex_obs`` on it, both readers, and
+of ``pandas.read_csv``.  Writes ``docs/benchmarks/parse.json``::
 
-    PYTHONPATH=. python benchmarks/bench_parse.py --repeat 7
+    PYTHONPATH=. python benchmarks/bench_parse.py --repeat 7 [--day]
 """
 
 from __future__ import annotations
@@ -23,6 +27,8 @@ import json
 import os
 import platform
 import statistics
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -55,6 +61,45 @@ def interleaved(fns: dict, repeat: int) -> dict:
     return {k: statistics.median(v) for k, v in times.items()}
 
 
+def _obs_line_by_line(path):
+    rinex.FAST_PARSE = False
+    try:
+        return rinex.read_rinex_obs(path, gps_l1_optional=True)
+    finally:
+        rinex.FAST_PARSE = True
+
+
+_CHILD = """
+import resource, sys, time
+import pandas as pd
+from cdgps_cli.io import rinex
+what, path = sys.argv[1], sys.argv[2]
+t = time.perf_counter()
+if what == "read_csv":
+    pd.read_csv(path, sep=r"\\s+", header=None, skiprows=int(sys.argv[3]), names=range(12), engine="c")
+else:
+    rinex.FAST_PARSE = what == "read_rinex_obs"
+    rinex.read_rinex_obs(path)
+print(time.perf_counter() - t, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
+"""
+
+
+def day_case(work: Path) -> dict:
+    """Peak RSS (MiB) and time (s) of reading a simulated 24 h 1 Hz RINEX 3 file, one child each."""
+    subprocess.run([sys.executable, "-m", "cdgps_cli.cli.commands", "-q", "simulate-gnss", "--duration", "86400",
+                    "-o", str(work)], check=True, capture_output=True)
+    path = work / "base.rnx"
+    skip = next(i for i, ln in enumerate(path.open(encoding="latin-1")) if "END OF HEADER" in ln) + 1
+    row = {"file": "simulate-gnss --duration 86400 (base.rnx)", "bytes": path.stat().st_size,
+           "load_average_1min": round(os.getloadavg()[0], 2)}
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    for what in ("read_rinex_obs", "line_by_line", "read_csv", "read_rinex_obs", "line_by_line", "read_csv"):
+        out = subprocess.run([sys.executable, "-c", _CHILD, what, str(path), str(skip)], check=True,
+                             capture_output=True, text=True, env=env).stdout.split()
+        row.setdefault(what, []).append({"s": round(float(out[0]), 3), "peak_rss_mib": round(float(out[1]), 1)})
+    return row
+
+
 def _slow(path, names):
     rinex_signals.FAST_PARSE = False
     try:
@@ -75,6 +120,7 @@ def rinex_case(path: Path, repeat: int) -> dict:
     try:
         rinex.read_rinex_obs(path, gps_l1_optional=True)
         fns["read_rinex_obs_s"] = lambda: rinex.read_rinex_obs(path, gps_l1_optional=True)
+        fns["read_rinex_obs_line_by_line_s"] = lambda: _obs_line_by_line(path)
     except Exception:                                   # noqa: BLE001 (a file that reader refuses: not timed)
         pass
     t = interleaved(fns, repeat)
@@ -83,6 +129,7 @@ def rinex_case(path: Path, repeat: int) -> dict:
            "line_by_line_ratio_to_read_csv": round(t["line_by_line_s"] / t["read_csv_s"], 3)}
     if "read_rinex_obs_s" in t:
         row["read_rinex_obs_ratio_to_read_csv"] = round(t["read_rinex_obs_s"] / t["read_csv_s"], 3)
+        row["read_rinex_obs_line_by_line_ratio_to_read_csv"] = round(t["read_rinex_obs_line_by_line_s"] / t["read_csv_s"], 3)
     return row
 
 
@@ -112,6 +159,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=7)
     ap.add_argument("--out", type=Path, default=OUT)
     ap.add_argument("--only", choices=("rinex", "ubx"), help="measure one part; the other is kept from --out")
+    ap.add_argument("--day", action="store_true", help="also the 24 h RINEX file's peak RSS (simulated, ~1 min)")
     a = ap.parse_args()
     res = {"machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "pandas": pd.__version__,
                        "load_average_1min_at_start": round(os.getloadavg()[0], 2)},
@@ -132,6 +180,16 @@ def main() -> None:
                 row = {"bytes": p.stat().st_size, "refused": str(exc).split(": ", 1)[1][:120]}
             res["ubx"][str(p.relative_to(SHARED))] = row
             print(p.name, json.dumps(row), flush=True)
+    if a.day:
+        with tempfile.TemporaryDirectory() as d:
+            res["rinex_24h_memory"] = day_case(Path(d))
+        print(json.dumps(res["rinex_24h_memory"]), flush=True)
+    elif a.out.exists():
+        res["rinex_24h_memory"] = json.loads(a.out.read_text()).get("rinex_24h_memory", {})
+    res["worst_rinex_obs_ratio_to_read_csv"] = max(
+        (r["read_rinex_obs_ratio_to_read_csv"] for r in res["rinex"].values() if "read_rinex_obs_ratio_to_read_csv" in r), default=None)
+    res["worst_rinex_signals_ratio_to_read_csv"] = max(
+        (r["ratio_to_read_csv"] for r in res["rinex"].values()), default=None)
     ratios = [r["ratio_to_read_csv"] for part in ("rinex", "ubx") for r in res[part].values() if "ratio_to_read_csv" in r]
     res["worst_ratio_to_read_csv"] = max(ratios)
     res["machine"]["load_average_1min_at_end"] = round(os.getloadavg()[0], 2)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import math
+import re
 
 import numpy as np
 
@@ -24,6 +25,7 @@ __all__ = ["BodyLines", "epochs_v3", "epochs_v2", "record_sats", "gps_fields", "
 
 _GPS_EPOCH_ORDINAL = _dt.date(1980, 1, 6).toordinal()
 _POW10 = 10 ** np.arange(8, dtype=np.int64)
+_INT = re.compile(rb" *[0-9]+ *")
 
 
 def strict_float(s) -> float:
@@ -90,6 +92,11 @@ class BodyLines:
 def _ints(f: np.ndarray) -> np.ndarray:
     """Unsigned integers of the byte fields ``f`` (n, w) as ``int`` reads them: blanks around one
     run of ≥ 1 digits; Unsupported otherwise (signs, inner blanks: the line-by-line reader decides)."""
+    if f.shape[0] <= 16:                                    # a few: Python's int (numpy's per-call cost dominates)
+        fields = [bytes(r) for r in f]
+        if not all(_INT.fullmatch(x) for x in fields):
+            raise Unsupported("integer")
+        return np.array([int(x) for x in fields], dtype=np.int64)
     digit = (f >= 48) & (f <= 57)
     n_dig = digit.sum(axis=1)
     w = f.shape[1]
