@@ -505,8 +505,7 @@ def _obs_result(p: Path, hdr: _ObsHeader, summary: dict, cols_arr: dict, sorted_
     info = hdr.info
     info.update(summary)
     # the fast reader's arrays are its own: the table takes them without a copy (half the peak memory)
-    obs = pd.DataFrame({name: cols_arr.pop(k) for k, name in _ROW_COLUMNS}, columns=list(OBS_COLUMNS),
-                       copy=sorted_info is None)
+    obs = pd.DataFrame({name: cols_arr.pop(k) for k, name in _ROW_COLUMNS}, copy=sorted_info is None)   # OBS_COLUMNS' order
     if sorted_info is None:
         obs = obs.sort_values(["time_gps_s", "sat"], kind="stable").reset_index(drop=True)
         info["gps_satellites"] = sorted(obs["sat"].unique().tolist())

@@ -189,3 +189,7 @@ def test_signals_from_bytes_identical(path):
     h_new, new = rinex_signals._read_bytes_v3(path, names, glo)
     assert list(h_ref.items()) == list(h_new.items())
     pd.testing.assert_frame_equal(ref, new, check_exact=True)
+
+
+def test_row_columns_in_table_order():
+    assert tuple(name for _, name in rinex._ROW_COLUMNS) == tuple(rinex.OBS_COLUMNS)
