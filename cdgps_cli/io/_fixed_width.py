@@ -118,7 +118,7 @@ def _f14_3(f: np.ndarray) -> np.ndarray | None:
     return value
 
 
-_SMALL = 48          # fewer fields than this: Python's float, one at a time (numpy's per-call cost dominates)
+_SMALL = 256         # fewer fields than this: Python's float, one at a time (numpy's per-call cost dominates)
 _DECIMAL = re.compile(rb" *[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+) *")
 
 

@@ -15,6 +15,7 @@ from click.testing import CliRunner
 
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io import rinex, rinex_signals
+from cdgps_cli.io import _fixed_width as _fw
 from cdgps_cli.io._fixed_width import Unsupported, decimal_fields
 
 SHARED = Path(__file__).resolve().parents[3] / "shared" / "data"
@@ -165,10 +166,11 @@ def test_block_epochs_must_be_positive():
 def test_few_decimal_fields_as_many():
     """The per-field path for a few fields gives what the vectorised one gives, and refuses the same."""
     rng = np.random.default_rng(5)
-    vals = [f"{v:14.3f}" for v in rng.uniform(-3e8, 3e8, 300)] + [" " * 14, "  -0.000", "1.", "  .5", "+12.25"]
+    vals = [f"{v:14.3f}" for v in rng.uniform(-3e8, 3e8, 600)] + [" " * 14, "  -0.000", "1.", "  .5", "+12.25"]
     f = np.frombuffer("".join(s.ljust(14)[:14] for s in vals).encode(), dtype=np.uint8).reshape(-1, 14).copy()
     many = decimal_fields(f)
     few = np.concatenate([decimal_fields(f[k:k + 10]) for k in range(0, len(f), 10)])
+    assert len(f) > _fw._SMALL
     assert np.array_equal(many, few, equal_nan=True) and np.array_equal(np.signbit(many), np.signbit(few))
     for bad in ("1.2.3", "1e5", "- 5", "nan", "1_0"):
         with pytest.raises(Unsupported):
