@@ -230,15 +230,21 @@ def epochs_v2(lines: BodyLines, per: int, special=None) -> tuple[dict, list, lis
             for k in range(n_head):
                 sl = lines.text(i + k)
                 sats.extend(sl[32 + 3 * j:35 + 3 * j] for j in range(min(12, nsat - 12 * k)))
-        for key, v in (("line", i + n_head), ("flag", flag), ("nsat", nsat), ("time_gps_s", _year(when)),
-                       ("clk", clk), ("epoch_line", i), ("segment", segment)):
-            out[key].append(v)
+        out["line"].append(i + n_head)
+        out["flag"].append(flag)
+        out["nsat"].append(nsat)
+        out["time_gps_s"].append(when)
+        out["clk"].append(clk)
+        out["epoch_line"].append(i)
+        out["segment"].append(segment)
         if flag == 6:
             events.append({"line": i, "flag": 6, "time_gps_s": len(out["line"]) - 1, "labels": []})
         i += n_head + nsat * per
     if not out["line"]:
         raise Unsupported("no epochs")
     ymdhm = np.array([t[:5] for t in out["time_gps_s"]], dtype=np.int64)
+    yy = ymdhm[:, 0]
+    ymdhm[:, 0] = np.where(yy < 100, yy + np.where(yy >= 80, 1900, 2000), yy)   # as _year
     sec = np.array([t[5] for t in out["time_gps_s"]], dtype=np.float64)
     res = {k: np.asarray(v) for k, v in out.items() if k != "time_gps_s"}
     res["time_gps_s"] = _gps_seconds(*ymdhm.T, sec)
