@@ -578,8 +578,12 @@ def _event_reader(hdr: _ObsHeader, layouts: list):
         try:
             _special_records(texts, 0, len(texts), hdr, flag, t, _Events(events), i)
             if flag in (3, 4):
-                layouts.append(_GpsL1Columns(hdr, i))
-                return max(1, -(-layouts[-1].n // 5))
+                new, old = _GpsL1Columns(hdr, i), layouts[-1]
+                same = (new.types, new.phase, new.code, new.snr, new.scale) == (old.types, old.phase, old.code, old.snr, old.scale)
+                if same:                                  # e.g. a splice comment: the same layout goes on
+                    return None
+                layouts.append(new)
+                return max(1, -(-new.n // 5))
         except CdgpsError:
             raise Unsupported("event") from None
         return None

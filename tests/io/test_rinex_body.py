@@ -195,3 +195,20 @@ def test_signals_from_bytes_identical(path):
 
 def test_row_columns_in_table_order():
     assert tuple(name for _, name in rinex._ROW_COLUMNS) == tuple(rinex.OBS_COLUMNS)
+
+
+def test_event_changing_the_observation_types_mid_file(tmp_path):
+    """A flag-4 event whose header lines reorder the types: later records are read with the new
+    layout (a new block segment), as the line-by-line reader does; a comment-only event keeps it."""
+    src = SHARED / "rinex" / "07590920.05o"
+    types = f"{'     4    C1    L1    L2    P2':<60}{'# / TYPES OF OBSERV':<20}"
+
+    def edit(lines, end):
+        ev = [i for i in range(end + 1, len(lines)) if lines[i].startswith(" " * 28 + "4  1")]
+        lines[ev[0] + 1] = types
+
+    path = _edited(tmp_path, src, edit)
+    ref = _read(path, False)
+    _same(ref, _read(path, True, block_epochs=7))
+    _same(ref, _no_fallback(path))
+    assert ref[0]["obs_types"]["*"][:2] == ["C1", "L1"]
