@@ -13,9 +13,13 @@ The UBX reader is timed with the compiled framing walk (``cdgps_cli.io._ubxcore`
 with the numpy framer it falls back to.
 
 Rounds are interleaved (ours, peer, ours, ...) and each figure is the median of ``--repeat`` rounds;
-the ratio is ours / read_csv (< 1: faster).  Writes ``docs/benchmarks/parse.json``::
+the ratio is ours / read_csv (< 1: faster).  ``read_rinex_obs`` is timed on its byte-level block-wise
+reader and on the line-by-line one (``rinex.FAST_PARSE = False``) it replaced.  ``--day`` also
+simulates a 24 h 1 Hz RINEX 3 file (``cdgps simulate-gnss``, not timed) and measures the peak RSS
+(``resource``, one child process per reader) and time of ``read_rinex_obs`` on it, both readers, and
+of ``pandas.read_csv``.  Writes ``docs/benchmarks/parse.json``::
 
-    PYTHONPATH=. python benchmarks/bench_parse.py --repeat 7
+    PYTHONPATH=. python benchmarks/bench_parse.py --repeat 7 [--day]
 """
 
 from __future__ import annotations
@@ -25,6 +29,8 @@ import json
 import os
 import platform
 import statistics
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -46,15 +52,56 @@ def _time(fn) -> float:
     return time.perf_counter() - t
 
 
-def interleaved(fns: dict, repeat: int) -> dict:
-    """Median wall time (s) of each callable, the callables taking turns ``repeat`` times."""
-    for fn in fns.values():
-        fn()                                               # warm-up: imports, caches
+def interleaved(fns: dict, repeat: int, min_total_s: float = 0.0) -> dict:
+    """Median wall time (s) of each callable, the callables taking turns ``repeat`` times, or more
+    (up to 400) so that each round of the quickest one adds to ``min_total_s``: a millisecond call's
+    median needs many rounds on a loaded machine."""
+    warm = {k: _time(fn) for k, fn in fns.items()}        # warm-up: imports, caches
+    rounds = min(400, max(repeat, int(min_total_s / max(min(warm.values()), 1e-4))))
     times = {k: [] for k in fns}
-    for _ in range(repeat):
+    for _ in range(rounds):
         for k, fn in fns.items():
             times[k].append(_time(fn))
     return {k: statistics.median(v) for k, v in times.items()}
+
+
+def _obs_line_by_line(path):
+    rinex.FAST_PARSE = False
+    try:
+        return rinex.read_rinex_obs(path, gps_l1_optional=True)
+    finally:
+        rinex.FAST_PARSE = True
+
+
+_CHILD = """
+import resource, sys, time
+import pandas as pd
+from cdgps_cli.io import rinex
+what, path = sys.argv[1], sys.argv[2]
+t = time.perf_counter()
+if what == "read_csv":
+    pd.read_csv(path, sep=r"\\s+", header=None, skiprows=int(sys.argv[3]), names=range(12), engine="c")
+else:
+    rinex.FAST_PARSE = what == "read_rinex_obs"
+    rinex.read_rinex_obs(path)
+print(time.perf_counter() - t, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
+"""
+
+
+def day_case(work: Path) -> dict:
+    """Peak RSS (MiB) and time (s) of reading a simulated 24 h 1 Hz RINEX 3 file, one child each."""
+    subprocess.run([sys.executable, "-m", "cdgps_cli.cli.commands", "-q", "simulate-gnss", "--duration", "86400",
+                    "-o", str(work)], check=True, capture_output=True)
+    path = work / "base.rnx"
+    skip = next(i for i, ln in enumerate(path.open(encoding="latin-1")) if "END OF HEADER" in ln) + 1
+    row = {"file": "simulate-gnss --duration 86400 (base.rnx)", "bytes": path.stat().st_size,
+           "load_average_1min": round(os.getloadavg()[0], 2)}
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    for what in ("read_rinex_obs", "line_by_line", "read_csv", "read_rinex_obs", "line_by_line", "read_csv"):
+        out = subprocess.run([sys.executable, "-c", _CHILD, what, str(path), str(skip)], check=True,
+                             capture_output=True, text=True, env=env).stdout.split()
+        row.setdefault(what, []).append({"s": round(float(out[0]), 3), "peak_rss_mib": round(float(out[1]), 1)})
+    return row
 
 
 def _slow(path, names):
@@ -77,14 +124,16 @@ def rinex_case(path: Path, repeat: int) -> dict:
     try:
         rinex.read_rinex_obs(path, gps_l1_optional=True)
         fns["read_rinex_obs_s"] = lambda: rinex.read_rinex_obs(path, gps_l1_optional=True)
+        fns["read_rinex_obs_line_by_line_s"] = lambda: _obs_line_by_line(path)
     except Exception:                                   # noqa: BLE001 (a file that reader refuses: not timed)
         pass
-    t = interleaved(fns, repeat)
+    t = interleaved(fns, repeat, min_total_s=0.5)
     row = {"bytes": path.stat().st_size, "signals": names, **{k: round(v, 5) for k, v in t.items()},
            "ratio_to_read_csv": round(t["read_rinex_signals_s"] / t["read_csv_s"], 3),
            "line_by_line_ratio_to_read_csv": round(t["line_by_line_s"] / t["read_csv_s"], 3)}
     if "read_rinex_obs_s" in t:
         row["read_rinex_obs_ratio_to_read_csv"] = round(t["read_rinex_obs_s"] / t["read_csv_s"], 3)
+        row["read_rinex_obs_line_by_line_ratio_to_read_csv"] = round(t["read_rinex_obs_line_by_line_s"] / t["read_csv_s"], 3)
     return row
 
 
@@ -127,10 +176,12 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=7)
     ap.add_argument("--out", type=Path, default=OUT)
     ap.add_argument("--only", choices=("rinex", "ubx"), help="measure one part; the other is kept from --out")
+    ap.add_argument("--day", action="store_true", help="also the 24 h RINEX file's peak RSS (simulated, ~1 min)")
     a = ap.parse_args()
     res = {"machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "pandas": pd.__version__,
                        "load_average_1min_at_start": round(os.getloadavg()[0], 2)},
-           "repeat": a.repeat, "timing": "median of interleaved rounds after one warm-up", "rinex": {}, "ubx": {}}
+           "repeat": a.repeat, "timing": "median of interleaved rounds after one warm-up (RINEX: at least "
+                                         "--repeat rounds, more for files read in milliseconds: 0.5 s of the quickest call, <= 400)", "rinex": {}, "ubx": {}}
     if a.only and a.out.exists():
         kept = json.loads(a.out.read_text())
         res[{"ubx": "rinex", "rinex": "ubx"}[a.only]] = kept.get({"ubx": "rinex", "rinex": "ubx"}[a.only], {})
@@ -147,6 +198,16 @@ def main() -> None:
                 row = {"bytes": p.stat().st_size, "refused": str(exc).split(": ", 1)[1][:120]}
             res["ubx"][str(p.relative_to(SHARED))] = row
             print(p.name, json.dumps(row), flush=True)
+    if a.day:
+        with tempfile.TemporaryDirectory() as d:
+            res["rinex_24h_memory"] = day_case(Path(d))
+        print(json.dumps(res["rinex_24h_memory"]), flush=True)
+    elif a.out.exists():
+        res["rinex_24h_memory"] = json.loads(a.out.read_text()).get("rinex_24h_memory", {})
+    res["worst_rinex_obs_ratio_to_read_csv"] = max(
+        (r["read_rinex_obs_ratio_to_read_csv"] for r in res["rinex"].values() if "read_rinex_obs_ratio_to_read_csv" in r), default=None)
+    res["worst_rinex_signals_ratio_to_read_csv"] = max(
+        (r["ratio_to_read_csv"] for r in res["rinex"].values()), default=None)
     ratios = [r["ratio_to_read_csv"] for part in ("rinex", "ubx") for r in res[part].values() if "ratio_to_read_csv" in r]
     res["worst_ratio_to_read_csv"] = max(ratios)
     res["machine"]["load_average_1min_at_end"] = round(os.getloadavg()[0], 2)

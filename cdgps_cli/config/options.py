@@ -130,3 +130,7 @@ TRACK_DEFAULTS = {"pll_bn_hz": 15.0, "pull_in_s": 0.1}
 #: read in blocks of this many samples in its native type): 2^19 samples are 8 MiB as complex128,
 #: 0.13 s at 4 MHz; results do not depend on it (tests/tracking/test_streaming.py)
 TRACK_BLOCK_SAMPLES = 1 << 19
+#: epochs of a RINEX observation body converted at a time by io.rinex.read_rinex_obs (its fast path):
+#: 4096 epochs of ~40 satellite records are ~2.6 MB of field bytes and their temporaries; the table
+#: does not depend on it (tests/io/test_rinex_body.py)
+RINEX_BLOCK_EPOCHS = 4096

@@ -35,6 +35,10 @@ from cdgps_cli.core.gps_time import GPS_EPOCH, SECONDS_PER_WEEK, gps_seconds, gp
 from cdgps_cli.core.gps_time import BDT_WEEK_OFFSET, GPS_MINUS_BDT_S
 from cdgps_cli.core.records import GLONASS_NAV_COLUMNS, NAV_COLUMNS, OBS_COLUMNS  # noqa: F401  (__all__)
 from cdgps_cli.core.timescales import gps_minus_utc_s
+from cdgps_cli.config.options import RINEX_BLOCK_EPOCHS
+from cdgps_cli.io import rinex_body as _body
+from cdgps_cli.io._fixed_width import Unsupported
+from cdgps_cli.io.rinex_body import strict_float
 
 __all__ = [
     "GPS_EPOCH",
@@ -68,6 +72,12 @@ def _read_lines(path: str | Path) -> tuple[list[str], bool]:
 def _read_text(path: str | Path) -> tuple[list[str], bool, bytes]:
     """:func:`_read_lines` plus the (decompressed) bytes the lines were split from (latin-1: line
     ``i`` is the bytes between the ``i``-th and ``i+1``-th LF, less a CR before the LF)."""
+    data, compressed = _read_bytes(path)
+    return _split_lines(data), compressed, data
+
+
+def _read_bytes(path: str | Path) -> tuple[bytes, bool]:
+    """The (decompressed) bytes of a RINEX file and whether it was compressed."""
     p = Path(path)
     try:
         data = p.read_bytes()
@@ -91,6 +101,11 @@ def _read_text(path: str | Path) -> tuple[list[str], bool, bytes]:
             raise CdgpsError(f"{p}: cannot decompress this {what} file: {msg[-1] if msg else type(exc).__name__}") from None
         if not data:
             raise CdgpsError(f"{p}: decompressed to nothing; truncated or corrupt compressed file")
+    return data, compressed or crinex
+
+
+def _split_lines(data: bytes) -> list[str]:
+    """The lines of ``data`` (latin-1, LF-separated, a CR before an LF and a leading BOM dropped)."""
     text = data.decode("latin-1")
     lines = text.split("\n")
     if lines and lines[-1] == "":
@@ -99,7 +114,7 @@ def _read_text(path: str | Path) -> tuple[list[str], bool, bytes]:
         lines = [ln[:-1] if ln.endswith("\r") else ln for ln in lines]
     if lines:
         lines[0] = lines[0].lstrip("\ufeff\xef\xbb\xbf")
-    return lines, compressed or crinex, data
+    return lines
 
 
 def _where(path, lineno: int, compressed: bool) -> str:
@@ -107,11 +122,13 @@ def _where(path, lineno: int, compressed: bool) -> str:
 
 
 def _float_field(s: str) -> float:
-    """A Fortran-style real (``D`` or ``E`` exponent); NaN for a blank field; ValueError if bad."""
+    """A Fortran-style real (``D`` or ``E`` exponent); NaN for a blank field; ValueError if bad,
+    including the tokens ``nan``, ``inf``, ``infinity`` and digit groups (``1_0``) that Python's
+    ``float`` takes but RINEX never writes."""
     s = s.strip()
     if not s:
         return math.nan
-    return float(s.replace("D", "E").replace("d", "e"))
+    return strict_float(s.replace("D", "E").replace("d", "e"))
 
 
 def _three_floats(body: str) -> tuple[float, float, float]:
@@ -372,7 +389,12 @@ def _flag_digit(ch: str) -> int:
     raise ValueError(ch)
 
 
-def read_rinex_obs(path: str | Path, *, gps_l1_optional: bool = False) -> tuple[dict, pd.DataFrame]:
+#: read the body with the byte-level block-wise reader (False: line by line, the reference it is tested against)
+FAST_PARSE = True
+
+
+def read_rinex_obs(path: str | Path, *, gps_l1_optional: bool = False,
+                   block_epochs: int = RINEX_BLOCK_EPOCHS) -> tuple[dict, pd.DataFrame]:
     """Read a RINEX 2.10/2.11 or 3.0x observation file (plain, compressed or Hatanaka).
 
     Parameters
@@ -418,6 +440,9 @@ def read_rinex_obs(path: str | Path, *, gps_l1_optional: bool = False) -> tuple[
         Accept a RINEX 3 file without GPS observation types (a run anchored on another system,
         :func:`~cdgps_cli.core.signals.anchor_signal`): ``obs`` is then empty and the header's
         ``l1_obs_types`` None.
+    block_epochs : int, default :data:`~cdgps_cli.config.options.RINEX_BLOCK_EPOCHS`
+        Epochs whose records are converted at a time (memory of a block, not of the file, beyond
+        the file's bytes); the result does not depend on it.
 
     Raises
     ------
@@ -427,7 +452,20 @@ def read_rinex_obs(path: str | Path, *, gps_l1_optional: bool = False) -> tuple[
         line number), epochs going backwards, an unsupported time system.
     """
     p = Path(path)
+    if block_epochs < 1:
+        raise ValueError(f"block_epochs must be >= 1, got {block_epochs}")
+    if FAST_PARSE:
+        data, compressed = _read_bytes(p)
+        try:
+            return _read_obs_fast(p, data, compressed, gps_l1_optional, block_epochs)
+        except Unsupported:
+            pass                      # the line-by-line reader: the same table, or the error naming the line
     lines, compressed = _read_lines(p)
+    return _read_obs_lines(p, lines, compressed, gps_l1_optional)
+
+
+def _obs_header(p: Path, lines: list[str], compressed: bool, gps_l1_optional: bool):
+    """(header state, index of the END OF HEADER line, GPS L1 columns) of an observation file."""
     version, ftype, system = _parse_version_line(lines, p, compressed, "observation")
     if ftype != "O":
         kind = {"N": "navigation", "G": "GLONASS navigation", "H": "SBAS navigation", "M": "meteorological", "C": "clock"}.get(ftype, f"type {ftype!r}")
@@ -448,21 +486,202 @@ def read_rinex_obs(path: str | Path, *, gps_l1_optional: bool = False) -> tuple[
     ts = hdr.info["time_system"]
     if ts not in (None, "GPS", "GAL"):
         raise CdgpsError(f"{p}: time system {ts!r} in 'TIME OF FIRST OBS' is not supported; epochs must be in GPS time")
-    cols = _GpsL1Columns(hdr, end + 1)
-    if version < 3:
+    return hdr, end, _GpsL1Columns(hdr, end + 1)
+
+
+def _read_obs_lines(p: Path, lines: list[str], compressed: bool, gps_l1_optional: bool):
+    """:func:`read_rinex_obs` line by line (the reference; every error names its line)."""
+    hdr, end, cols = _obs_header(p, lines, compressed, gps_l1_optional)
+    if hdr.version < 3:
         rows, summary = _parse_obs_v2(lines, end + 1, hdr, cols)
     else:
         rows, summary = _parse_obs_v3(lines, end + 1, hdr, cols)
+    return _obs_result(p, hdr, summary, _rows_arrays(rows), None)
+
+
+def _obs_result(p: Path, hdr: _ObsHeader, summary: dict, cols_arr: dict, sorted_info):
+    """(header, table) from the summary and the row arrays (file order; sorted here unless
+    ``sorted_info`` = (GPS satellites, number of GPS epochs) says they already are)."""
     info = hdr.info
     info.update(summary)
-    cols_arr = _rows_arrays(rows)
-    obs = pd.DataFrame({name: cols_arr[k] for k, name in _ROW_COLUMNS}, columns=list(OBS_COLUMNS))
-    obs = obs.sort_values(["time_gps_s", "sat"], kind="stable").reset_index(drop=True)
-    info["gps_satellites"] = sorted(obs["sat"].unique().tolist())
-    info["n_gps_epochs"] = int(obs["time_gps_s"].nunique())
+    # the fast reader's arrays are its own: the table takes them without a copy (half the peak memory)
+    obs = pd.DataFrame({name: cols_arr.pop(k) for k, name in _ROW_COLUMNS}, copy=sorted_info is None)   # OBS_COLUMNS' order
+    if sorted_info is None:
+        obs = obs.sort_values(["time_gps_s", "sat"], kind="stable").reset_index(drop=True)
+        info["gps_satellites"] = sorted(obs["sat"].unique().tolist())
+        info["n_gps_epochs"] = int(obs["time_gps_s"].nunique())
+    else:
+        info["gps_satellites"], info["n_gps_epochs"] = sorted_info
     if len(obs) == 0 and info["n_epochs"] == 0:
         raise CdgpsError(f"{p}: no observation epochs after the header")
     return info, obs
+
+
+def _split_header(data: bytes) -> tuple[list[str], int]:
+    """(the header's lines, as :func:`_split_lines` gives them, up to END OF HEADER; the byte offset
+    of the body); Unsupported if the first 'END OF HEADER' in the bytes is not that line's label."""
+    at = data.find(b"END OF HEADER")
+    if at < 0:
+        raise Unsupported("no END OF HEADER")
+    nl = data.find(b"\n", at)
+    body_at = len(data) if nl < 0 else nl + 1
+    head = _split_lines(data[:body_at])
+    if head[-1][60:80].strip() != "END OF HEADER":
+        raise Unsupported("END OF HEADER")
+    return head, body_at
+
+
+def _read_obs_fast(p: Path, data: bytes, compressed: bool, gps_l1_optional: bool, block_epochs: int):
+    """:func:`read_rinex_obs` from the bytes: only the header is split into lines, the body is read
+    by :mod:`cdgps_cli.io.rinex_body` in blocks of ``block_epochs`` epochs; Unsupported for a body
+    that reader does not take exactly as the line-by-line one."""
+    head, body_at = _split_header(data)
+    hdr, end, cols = _obs_header(p, head, compressed, gps_l1_optional)
+    lines = _body.BodyLines(data, body_at)
+    layouts = [cols]
+    if hdr.version >= 3:
+        ep, sats_raw, events = _body.epochs_v3(lines), None, []
+        ep["segment"] = np.zeros(ep["line"].size, dtype=np.int64)
+        rec0 = ep["line"] + 1
+    else:
+        ep, sats_raw, events = _body.epochs_v2(lines, max(1, -(-cols.n // 5)), _event_reader(hdr, layouts))
+        rec0, ep["line"] = ep["line"], ep["epoch_line"]
+    obs_ep = np.flatnonzero(ep["flag"] != 6)
+    t = ep["time_gps_s"]
+    if obs_ep.size == 0 or np.any(np.diff(t[obs_ep]) <= 0):
+        raise Unsupported("epoch order")
+    summary = {"n_epochs": int(obs_ep.size), "n_epochs_power_failure": int(np.sum(ep["flag"] == 1))}
+    rows, by_sys, counts = _obs_blocks(lines, hdr, layouts, ep, rec0, obs_ep, sats_raw, block_epochs)
+    del lines, sats_raw
+    summary["satellites_by_system"] = {k: sorted(v) for k, v in sorted(by_sys.items())}
+    summary["n_records_by_system"] = dict(sorted(counts.items()))
+    summary["time_last_obs_gps_s"] = float(t[obs_ep[-1]])
+    if hdr.version >= 3:
+        events = [{"line": int(ep["line"][e]), "flag": 6, "time_gps_s": float(t[e]), "labels": []}
+                  for e in np.flatnonzero(ep["flag"] == 6).tolist()]
+    for ev in events:
+        ev["line"] += end + 2                              # body line index -> file line number
+    summary["events"] = events
+    return _obs_result(p, hdr, summary, *rows)
+
+
+class _Events:
+    def __init__(self, events: list):
+        self.events = events
+
+
+def _event_reader(hdr: _ObsHeader, layouts: list):
+    """The ``special`` callback of :func:`rinex_body.epochs_v2`: applies an event's header lines as
+    the line-by-line reader does; flags 3/4 start a new layout (appended to ``layouts``).  Any error:
+    Unsupported (the line-by-line reader then names the line)."""
+    def special(texts, flag, t, i, events):
+        try:
+            _special_records(texts, 0, len(texts), hdr, flag, t, _Events(events), i)
+            if flag in (3, 4):
+                new, old = _GpsL1Columns(hdr, i), layouts[-1]
+                same = (new.types, new.phase, new.code, new.snr, new.scale) == (old.types, old.phase, old.code, old.snr, old.scale)
+                if same:                                  # e.g. a splice comment: the same layout goes on
+                    return None
+                layouts.append(new)
+                return max(1, -(-new.n // 5))
+        except CdgpsError:
+            raise Unsupported("event") from None
+        return None
+    return special
+
+
+def _obs_blocks(lines, hdr, layouts, ep, rec0, obs_ep, sats_raw, block_epochs):
+    """The GPS rows of the observation epochs ``obs_ep``, converted ``block_epochs`` epochs at a
+    time (and layout by layout): ((row arrays sorted by time and satellite, (GPS satellites, GPS
+    epochs)), satellites by system, records by system)."""
+    v3 = hdr.version >= 3
+    names: dict[str, int] = {}
+    by_sys: dict[str, set] = {}
+    counts: dict[str, int] = {}
+    chunks = []
+    nsat = ep["nsat"][obs_ep]
+    sat_at = np.concatenate([[0], np.cumsum(nsat)])       # v2: offset of each epoch's satellites in sats_raw
+    seg = ep["segment"][obs_ep]
+    for s_i, cols in enumerate(layouts):
+        where = np.flatnonzero(seg == s_i)
+        if where.size == 0:
+            continue
+        per = 1 if v3 else max(1, -(-cols.n // 5))
+        p1 = int(where[-1]) + 1
+        for a in range(int(where[0]), p1, block_epochs):
+            b = min(a + block_epochs, p1)
+            e = obs_ep[a:b]
+            n = ep["nsat"][e]
+            e_rec = np.repeat(np.arange(a, b), n)              # index into obs_ep of every record
+            k = np.arange(e_rec.size) - np.repeat(np.cumsum(n) - n, n)
+            rec_line = np.repeat(rec0[e], n) + k * per
+            if v3:
+                raw = lines.gather(rec_line, 0, 3)
+            else:
+                txt = "".join(x.ljust(3) for x in sats_raw[int(sat_at[a]):int(sat_at[b])])
+                raw = np.frombuffer(txt.encode("latin-1"), dtype=np.uint8).reshape(-1, 3)
+            if raw.shape[0] == 0:
+                continue
+            uniq, inv = _body.record_sats(raw, lambda x: _sat_id(x, hdr.version))
+            for s, c in zip(uniq.tolist(), np.bincount(inv, minlength=uniq.size).tolist()):
+                by_sys.setdefault(s[0], set()).add(s)
+                counts[s[0]] = counts.get(s[0], 0) + c
+            code = np.array([names.setdefault(s, len(names)) for s in uniq.tolist()], dtype=np.int64)
+            gps = np.flatnonzero(np.array([s[0] == "G" for s in uniq.tolist()])[inv])
+            if gps.size:
+                chunks.append(_gps_rows(lines, cols, rec_line[gps], e_rec[gps], code[inv[gps]], v3, per))
+    return _sorted_rows(chunks, names, ep, obs_ep), by_sys, counts
+
+
+def _gps_rows(lines, cols, rec_line, e_rec, code, v3, per) -> dict:
+    """The rows of the GPS records starting at ``rec_line`` (epoch ``e_rec``, satellite ``code``)."""
+    if cols.phase is None:
+        raise Unsupported("GPS records without GPS observation types")
+    phase, ph_flags = _body.gps_fields(lines, rec_line, cols.i_phase, v3, per)
+    nan = np.full(rec_line.size, np.nan)
+    code_m = _body.gps_fields(lines, rec_line, cols.i_code, v3, per)[0] if cols.i_code >= 0 else nan
+    snr = _body.gps_fields(lines, rec_line, cols.i_snr, v3, per)[0] if cols.i_snr >= 0 else nan
+    has_ph = ~np.isnan(phase)
+    lli = _body.flag_values(ph_flags[:, 0], has_ph)
+    ssi = _body.flag_values(ph_flags[:, 1], has_ph)
+    sc = cols.scale
+    if sc["phase"] != 1:
+        phase = phase / sc["phase"]
+    if "code" in sc and sc["code"] != 1:
+        code_m = code_m / sc["code"]
+    if "snr" in sc and sc["snr"] != 1:
+        snr = snr / sc["snr"]
+    k = np.flatnonzero(has_ph | ~np.isnan(code_m))
+    return {"e": e_rec[k], "sat": code[k], "phase": phase[k], "lli": lli[k], "ssi": ssi[k],
+            "code": code_m[k], "snr": snr[k]}
+
+
+def _sorted_rows(chunks, names: dict, ep: dict, obs_ep) -> tuple[dict, tuple]:
+    """Row arrays of the chunks sorted by (time, satellite) as the stable pandas sort does (times
+    strictly increase over ``obs_ep``), and (GPS satellites, number of GPS epochs)."""
+    if not chunks:
+        return {k: np.asarray([], dtype=dt) for k, dt in _ROW_DTYPES.items()}, ([], 0)
+    cat = {k: np.concatenate([c[k] for c in chunks]) for k in chunks[0]}
+    chunks.clear()                                         # the blocks' arrays: freed before the table is built
+    table = sorted(names)
+    rank = np.empty(len(names), dtype=np.int64)
+    rank[[names[s] for s in table]] = np.arange(len(table))
+    key = cat["e"] * len(names) + rank[cat["sat"]]
+    if np.any(np.diff(key) < 0):
+        order = np.argsort(key, kind="stable")
+        cat = {k: v[order] for k, v in cat.items()}
+    e = obs_ep[cat["e"]]
+    present = np.unique(cat["sat"])
+    sat_obj = np.array([None] * len(names), dtype=object)
+    sat_obj[:] = [s for s, _ in sorted(names.items(), key=lambda kv: kv[1])]
+    n_ep = int(np.count_nonzero(np.diff(cat["e"])) + 1)
+    del cat["e"]
+    rows = {"t": ep["time_gps_s"][e], "sat": sat_obj[cat.pop("sat")], "phase": cat.pop("phase"),
+            "lli": cat.pop("lli").astype(np.int64, copy=False), "ssi": cat.pop("ssi").astype(np.int64, copy=False),
+            "code": cat.pop("code"), "snr": cat.pop("snr"), "clk": ep["clk"][e].astype(np.float64, copy=False),
+            "flag": ep["flag"][e].astype(np.int64, copy=False)}
+    gps_sats = sorted(sat_obj[present].tolist())
+    return rows, (gps_sats, n_ep)
 
 
 _ROW_DTYPES = {"t": np.float64, "sat": object, "phase": np.float64, "lli": np.int64, "ssi": np.int64,
@@ -790,7 +1009,10 @@ def _records_v3_bulk(lines, hdr: _ObsHeader, group, rows, summary) -> None:
     def to_float(f):
         st = np.char.strip(f)
         blank = st == b""
-        return np.where(blank, b"nan", st).astype(np.float64)
+        v = np.where(blank, b"nan", st).astype(np.float64)
+        if not np.all(np.isfinite(v) | blank) or np.any(np.char.count(st, b"_")):
+            raise ValueError("non-finite token")            # 'NaN', 'inf': refused record by record
+        return v
 
     def digit(k, off):
         ch = chars[:, 3 + 16 * k + off].astype(np.int64)

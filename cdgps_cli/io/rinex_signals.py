@@ -23,6 +23,8 @@ from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, glonass_frequency_hz, 
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.io.rinex import _ObsHeader, _parse_version_line, _read_text
 from cdgps_cli.io._fixed_width import LineBuffer, Unsupported, decimal_fields, flag_digits
+from cdgps_cli.io.rinex import _read_bytes, _split_header
+from cdgps_cli.io.rinex_body import BodyLines, epochs_v3, strict_float
 
 __all__ = ["read_rinex_signals", "SIGNAL_COLUMNS"]
 
@@ -88,7 +90,7 @@ def _value(rec: str, k: int, col0: int) -> tuple[float, int]:
     c = col0 + 16 * k
     f = rec[c:c + 14]
     lli = rec[c + 14:c + 15]
-    v = float(f) if f.strip() else math.nan
+    v = strict_float(f) if f.strip() else math.nan
     return v, (int(lli) if lli.strip().isdigit() else 0)
 
 
@@ -151,11 +153,44 @@ def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None)
         signals without ``GLONASS SLOT / FRQ #`` for an observed satellite, a malformed line.
     """
     p = Path(path)
+    if FAST_PARSE:
+        try:
+            return _read_bytes_v3(p, list(signals), glonass_k)
+        except Unsupported:
+            pass
     lines, hdr, end, data = _observation_header(p)
-    version = hdr.version
     cols = _columns(hdr, list(signals), p)
     slots = {**(glonass_k or {}), **_glonass_slots(lines, end, p)}
     df = _observations(lines, end + 1, hdr, cols, p, data, slots)
+    info = dict(hdr.info)
+    info["signal_codes"] = {k: list(v[3]) for k, v in cols.items()}
+    info["glonass_slots"] = slots
+    return info, df
+
+
+def _read_bytes_v3(p: Path, signals: list, glonass_k) -> tuple[dict, pd.DataFrame]:
+    """:func:`read_rinex_signals` of a RINEX 3 file from its bytes: only the header is split into
+    lines, the body is walked by :mod:`cdgps_cli.io.rinex_body`; Unsupported where the line-based
+    readers must decide (RINEX 2, an odd body, a malformed record)."""
+    data, compressed = _read_bytes(p)
+    head, body_at = _split_header(data)
+    version, ftype, _ = _parse_version_line(head, p, compressed, "observation")
+    if ftype != "O" or version < 3 or not signals:
+        raise Unsupported("not a RINEX 3 observation file")
+    hdr = _ObsHeader(p, version, compressed)
+    end = next(i for i in range(1, len(head)) if hdr.apply(head[i], i + 1) == "END OF HEADER")
+    cols = _columns(hdr, signals, p)
+    slots = {**(glonass_k or {}), **_glonass_slots(head, end, p)}
+    lines = BodyLines(data, body_at)
+    try:
+        ep = epochs_v3(lines, events="skip")
+    except CdgpsError:
+        raise Unsupported("epoch") from None
+    obs = np.flatnonzero(ep["flag"] <= 1)
+    try:
+        df = _table(lines, hdr, cols, p, slots, ep["time_gps_s"][obs], ep["line"][obs] + 1, ep["nsat"][obs], 1, None)
+    except CdgpsError:
+        raise Unsupported("record") from None
     info = dict(hdr.info)
     info["signal_codes"] = {k: list(v[3]) for k, v in cols.items()}
     info["glonass_slots"] = slots
@@ -288,11 +323,27 @@ def _parse_v2(lines, i, hdr, cols, path) -> list:
             for name, (_, ip, ic, _) in cols.items():
                 if signal(name).system != sat[0]:
                     continue
-                ph, lli = _value(rec, ip, 0)
-                pr = _value(rec, ic, 0)[0] if ic >= 0 else math.nan
+                try:
+                    ph, lli = _value(rec, ip, 0)
+                    pr = _value(rec, ic, 0)[0] if ic >= 0 else math.nan
+                except ValueError:
+                    bad = i - per + _bad_field(rec, (ip, ic)) // 5
+                    raise CdgpsError(f"{path}:{bad + 1}: malformed observation record of {sat}: "
+                                     f"{lines[bad][:80]!r}") from None
                 if not math.isnan(ph):
                     rows.append((t, sat, name, ph, pr, lli))
     return rows
+
+
+def _bad_field(rec: str, fields) -> int:
+    """The first of the observation indices ``fields`` whose value or LLI ``_value`` refuses."""
+    for k in fields:
+        if k >= 0:
+            try:
+                _value(rec, k, 0)
+            except ValueError:
+                return k
+    return fields[0]
 
 
 def _walk_v3(lines, i, path):
@@ -352,12 +403,20 @@ def _walk_v2(lines, i, hdr, path):
 
 def _fast_table(lines, start, hdr, cols, path, data: bytes | None, slots: dict) -> pd.DataFrame:
     """:func:`_observations` by the vectorised reader (Unsupported: use the line-by-line one)."""
-    v3 = hdr.version >= 3
-    if v3:
+    if hdr.version >= 3:
         times, first, count = _walk_v3(lines, start, path)
-        per = 1
+        per, sats_v2 = 1, None
     else:
         times, first, count, sats_v2, per = _walk_v2(lines, start, hdr, path)
+    buf = LineBuffer(lines) if data is None else LineBuffer.from_bytes(data, lines)
+    return _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2)
+
+
+def _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2) -> pd.DataFrame:
+    """The table of the records of the epochs at ``times`` whose first record line (index into
+    ``buf``, a :class:`LineBuffer` or :class:`BodyLines`) is ``first`` and that have ``count``
+    records of ``per`` lines each (RINEX 2: the records' satellites ``sats_v2``)."""
+    v3 = hdr.version >= 3
     count = np.asarray(count, dtype=np.int64)
     n_rec = int(count.sum())
     if n_rec == 0:
@@ -366,7 +425,6 @@ def _fast_table(lines, start, hdr, cols, path, data: bytes | None, slots: dict) 
     offset = np.concatenate([[0], np.cumsum(count)[:-1]])
     rec_line = np.repeat(first, count) + per * (np.arange(n_rec) - np.repeat(offset, count))   # first line of every record
     t_rec = np.repeat(np.asarray(times, dtype=np.float64), count)
-    buf = LineBuffer(lines) if data is None else LineBuffer.from_bytes(data, lines)
     if v3:
         if np.any(buf.length[rec_line] == 0):
             raise Unsupported("blank record")
@@ -374,16 +432,21 @@ def _fast_table(lines, start, hdr, cols, path, data: bytes | None, slots: dict) 
         if np.any(sat_bytes >= 128):
             raise Unsupported("satellite")
         sat_bytes[sat_bytes == 32] = 48
-        sats = sat_bytes.view("S3").ravel().astype("U3")
+        code = (sat_bytes[:, 0].astype(np.int32) << 16) | (sat_bytes[:, 1].astype(np.int32) << 8) | sat_bytes[:, 2]
+        uniq, sat_code = np.unique(code, return_inverse=True)           # ASCII, 3 bytes: the str order
+        sat_names = [bytes([u >> 16, (u >> 8) & 255, u & 255]).decode("ascii") for u in uniq.tolist()]
     else:
         rec_lines = rec_line[:, None] + np.arange(per)
         if np.any(buf.length[rec_lines] > 80):
             raise Unsupported("long record line")
-        sats = np.array(sats_v2, dtype="U3")
-    system = sats.astype("U1")
+        uniq, sat_code = np.unique(np.array(sats_v2, dtype="U3"), return_inverse=True)
+        sat_names = uniq.tolist()
+    sat_code = sat_code.ravel()
+    sat_obj = np.array(sat_names + [None], dtype=object)[:-1]
     rows_of, lines_of, cols_of = [], [], []
     for name, (key, ip, ic, _) in cols.items():
-        rows = np.flatnonzero(system == (key if v3 else signal(name).system))
+        system = key if v3 else signal(name).system
+        rows = np.flatnonzero(np.array([x[:1] == system for x in sat_names])[sat_code])
         rows_of.append(rows)
         for k in (ip, ic):
             if k >= 0:
@@ -411,22 +474,22 @@ def _fast_table(lines, start, hdr, cols, path, data: bytes | None, slots: dict) 
     order = np.argsort(rows * len(cols) + np.concatenate([np.full(p[0].size, p[1]) for p in parts]), kind="stable")
     rows = rows[order]
     sig = np.concatenate([np.full(p[0].size, p[1]) for p in parts])[order]
-    sat_names, sat_code = np.unique(sats, return_inverse=True)         # code-point order, as str's
     sig_rank = np.argsort(np.argsort(names.astype(str), kind="stable"))  # signal index -> rank of its name
     t = t_rec[rows]
     final = np.lexsort((sat_code[rows], sig_rank[sig], t))                # stable: file order among equals
     rows, sig = rows[final], sig[final]
     return pd.DataFrame({
-        "time_gps_s": t[final], "sat": sats[rows].astype(object), "signal": names[sig],
+        "time_gps_s": t[final], "sat": sat_obj[sat_code[rows]], "signal": names[sig],
         "phase_cycles": np.concatenate([p[2] for p in parts])[order][final],
         "pseudorange_m": np.concatenate([p[3] for p in parts])[order][final],
         "lli": np.concatenate([p[4] for p in parts])[order][final],
-        "wavelength_m": _wavelength_array(sats[rows], sig, list(cols), slots, path)})
+        "wavelength_m": _wavelength_array(sat_code[rows], sat_names, sig, list(cols), slots, path)})
 
 
-def _wavelength_array(sats: np.ndarray, sig: np.ndarray, names: list, slots: dict, path) -> np.ndarray:
-    """:func:`_wavelengths` on arrays: ``sats`` (n,) str, ``sig`` (n,) index into ``names``."""
-    lam = np.empty(sats.size)
+def _wavelength_array(sat_code: np.ndarray, sat_names: list, sig: np.ndarray, names: list, slots: dict, path) -> np.ndarray:
+    """:func:`_wavelengths` on arrays: ``sat_code`` (n,) index into ``sat_names``, ``sig`` (n,) index
+    into ``names``."""
+    lam = np.empty(sat_code.size)
     for i in sorted(range(len(names)), key=lambda j: names[j]):       # signal names in order, as groupby
         idx = np.flatnonzero(sig == i)
         if idx.size == 0:
@@ -435,13 +498,14 @@ def _wavelength_array(sats: np.ndarray, sig: np.ndarray, names: list, slots: dic
         if not sg.fdma_step_hz:
             lam[idx] = sg.wavelength_m
             continue
-        uniq, inv = np.unique(sats[idx], return_inverse=True)
-        absent = sorted(set(uniq.tolist()) - set(slots))
+        uniq, inv = np.unique(sat_code[idx], return_inverse=True)
+        present = [sat_names[c] for c in uniq.tolist()]
+        absent = sorted(set(present) - set(slots))
         if absent:
             raise CdgpsError(f"{path}: GLONASS frequency numbers absent for {' '.join(absent)} "
                              "(header line 'GLONASS SLOT / FRQ #' expected, or a GLONASS navigation record of "
                              "the satellite); FDMA phases need them")
-        lam[idx] = np.array([SPEED_OF_LIGHT_M_S / glonass_frequency_hz(sg, slots[s]) for s in uniq.tolist()])[inv]
+        lam[idx] = np.array([SPEED_OF_LIGHT_M_S / glonass_frequency_hz(sg, slots[s]) for s in present])[inv.ravel()]
     return lam
 
 

@@ -1,0 +1,299 @@
+"""Byte-level, block-wise reading of a RINEX observation body (the fast path of ``read_rinex_obs``).
+
+The body is never split into Python strings: its line starts are found once in the (decompressed)
+bytes, the epoch lines are walked (RINEX 3: vectorised; RINEX 2: one Python step per epoch) and the
+satellite records are converted block by block of epochs with :mod:`cdgps_cli.io._fixed_width`, so
+the memory beyond the file's bytes is a few bytes per line plus one block's fields.
+
+Anything this reader does not take exactly as the line-by-line reader of :mod:`cdgps_cli.io.rinex`
+does (a blank or malformed line, an event record of flags 2–5, an exponent, epochs out of order, a
+truncated file, ...) raises :class:`~cdgps_cli.io._fixed_width.Unsupported`: the caller then reads
+the file line by line, which gives the same table or the error naming the line.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import math
+import re
+
+import numpy as np
+
+from cdgps_cli.io._fixed_width import Unsupported, decimal_fields
+
+__all__ = ["BodyLines", "epochs_v3", "epochs_v2", "record_sats", "gps_fields", "strict_float"]
+
+_GPS_EPOCH_ORDINAL = _dt.date(1980, 1, 6).toordinal()
+_POW10 = 10 ** np.arange(8, dtype=np.int64)
+_INT = re.compile(rb" *[0-9]+ *")
+
+
+def strict_float(s) -> float:
+    """``float(s)`` of a finite decimal number (str or bytes); ValueError for anything else
+    (``nan``, ``inf``, ``1_0``: tokens Python's ``float`` takes but RINEX does not write)."""
+    v = float(s)
+    if not math.isfinite(v) or (b"_" in s if isinstance(s, bytes) else "_" in s):
+        raise ValueError(s)
+    return v
+
+
+class BodyLines:
+    """The lines of a RINEX body inside the file's bytes: start and length (CR before LF dropped).
+
+    Parameters
+    ----------
+    data : bytes
+        The whole (decompressed) file.
+    offset : int
+        Byte offset of the body's first line.
+    """
+
+    def __init__(self, data: bytes, offset: int):
+        raw = np.frombuffer(data, dtype=np.uint8)
+        lf = np.flatnonzero(raw[offset:] == 10)
+        lf += offset
+        n = lf.size + (lf.size == 0 or lf[-1] + 1 < raw.size)      # text ending in LF: no line after it
+        self.start = np.empty(n, dtype=np.int64)
+        self.start[0] = offset
+        self.start[1:] = lf[:n - 1] + 1
+        end = np.empty(n, dtype=np.int64)
+        end[:lf.size] = lf[:n]
+        end[lf.size:] = raw.size
+        if offset >= raw.size:
+            n = 0
+            self.start, end = self.start[:0], end[:0]
+        self.length = end - self.start
+        self.length -= (self.length > 0) & (raw[np.maximum(end - 1, 0)] == 13)
+        self.data = data
+        self.buf = raw
+        self.n = n
+
+    def gather(self, line: np.ndarray, col: int, width: int) -> np.ndarray:
+        """Bytes ``[col, col + width)`` of lines ``line`` as (n, width) uint8, blanks past a line's end."""
+        size = self.buf.size
+        if size < width:
+            raise Unsupported("short file")
+        first = self.start[line] + col
+        if first.size <= 64:                              # a few: direct indices (the view's set-up costs more)
+            out = self.buf[np.minimum(first[:, None] + np.arange(width), size - 1)]
+        else:
+            out = np.lib.stride_tricks.sliding_window_view(self.buf, width)[np.minimum(first, size - width)]
+        room = self.length[line] - col                    # characters of the field on its line
+        short = np.flatnonzero(room < width)
+        if short.size:
+            keep = np.arange(width)[None, :] < room[short, None]
+            at = np.minimum(first[short, None] + np.arange(width)[None, :], size - 1)
+            out[short] = np.where(keep, self.buf[at], np.uint8(32))
+        return out
+
+    def text(self, i: int) -> str:
+        """Line ``i`` as str (latin-1)."""
+        s = int(self.start[i])
+        return self.data[s:s + int(self.length[i])].decode("latin-1")
+
+
+def _ints(f: np.ndarray) -> np.ndarray:
+    """Unsigned integers of the byte fields ``f`` (n, w) as ``int`` reads them: blanks around one
+    run of ≥ 1 digits; Unsupported otherwise (signs, inner blanks: the line-by-line reader decides)."""
+    if f.shape[0] <= 16:                                    # a few: Python's int (numpy's per-call cost dominates)
+        fields = [bytes(r) for r in f]
+        if not all(_INT.fullmatch(x) for x in fields):
+            raise Unsupported("integer")
+        return np.array([int(x) for x in fields], dtype=np.int64)
+    digit = (f >= 48) & (f <= 57)
+    n_dig = digit.sum(axis=1)
+    w = f.shape[1]
+    last = w - 1 - np.argmax(digit[:, ::-1], axis=1)
+    first = np.argmax(digit, axis=1)
+    if np.any(~digit & (f != 32)) or np.any(n_dig == 0) or np.any(last - first + 1 != n_dig):
+        raise Unsupported("integer")
+    power = np.clip(last[:, None] - np.arange(w)[None, :], 0, 7)
+    return (np.where(digit, f.astype(np.int64) - 48, 0) * _POW10[power]).sum(axis=1)
+
+
+def _gps_seconds(y, mo, d, h, mi, sec) -> np.ndarray:
+    """``gps_seconds`` on arrays, to the bit: float(whole seconds) + float(seconds of minute)."""
+    ymd = y * 10000 + mo * 100 + d
+    uniq, inv = np.unique(ymd, return_inverse=True)
+    try:
+        days = np.array([_dt.date(int(u) // 10000, int(u) // 100 % 100, int(u) % 100).toordinal()
+                         for u in uniq.tolist()], dtype=np.int64) - _GPS_EPOCH_ORDINAL
+    except ValueError:
+        raise Unsupported("date") from None
+    if np.any(h > 23) or np.any(mi > 59):
+        raise Unsupported("time of day")                   # datetime would take it; keep the reference's path
+    whole = days[inv.ravel()] * 86400 + h * 3600 + mi * 60
+    return whole.astype(np.float64) + sec
+
+
+def _clocks(lines: BodyLines, ep: np.ndarray, col: int) -> np.ndarray:
+    """Receiver clock offset of epoch lines ``ep``: what stands after column ``col``, NaN if blank."""
+    clk = np.full(ep.size, np.nan)
+    has = np.flatnonzero(lines.length[ep] > col)
+    data = lines.data
+    for k in has.tolist():
+        s = int(lines.start[ep[k]])
+        field = data[s + col:s + int(lines.length[ep[k]])]
+        if field.strip():
+            try:
+                clk[k] = strict_float(field)
+            except ValueError:
+                raise Unsupported("clock") from None
+    return clk
+
+
+def _blank_from(lines: BodyLines, i: int) -> bool:
+    """Whether lines ``i`` to the end are blank (the line-by-line readers skip blank lines)."""
+    return lines.n - i <= 64 and all(not lines.text(j).strip() for j in range(i, lines.n))
+
+
+def epochs_v3(lines: BodyLines, events: str = "refuse") -> dict:
+    """The epochs of a RINEX 3 body: arrays over epoch lines ``line``, ``flag``, ``nsat``,
+    ``time_gps_s``, ``clk``.  ``events="refuse"``: flags 0, 1 and 6 only (Unsupported for anything
+    else); ``"skip"``: flags 2-5 too, their time and clock NaN (their lines are skipped), and the
+    flag column must hold a digit."""
+    if lines.n == 0:
+        raise Unsupported("empty body")
+    ep = np.flatnonzero(lines.buf[lines.start] == 62)       # '>' (a blank line reads LF or the next byte)
+    ep = ep[lines.length[ep] > 0]
+    if ep.size == 0 or ep[0] != 0:
+        raise Unsupported("epoch line")
+    f = lines.gather(ep, 0, 35)
+    if events == "skip" and np.any((f[:, 31] < 48) | (f[:, 31] > 57)):
+        raise Unsupported("event flag")
+    flag = np.where(f[:, 31] == 32, 0, f[:, 31].astype(np.int64) - 48)
+    if np.any((flag < 0) | (flag > 6) | (((flag > 1) & (flag < 6)) if events == "refuse" else False)):
+        raise Unsupported("event flag")
+    nsat = _ints(f[:, 32:35])
+    nxt = ep + 1 + nsat
+    if not (np.array_equal(nxt[:-1], ep[1:]) and nxt[-1] <= lines.n and _blank_from(lines, int(nxt[-1]))):
+        raise Unsupported("layout")                         # blank lines, truncation, stray '>' ...
+    timed = np.flatnonzero((flag <= 1) | (flag == 6)) if events == "skip" else np.arange(ep.size)
+    g = f[timed]
+    if np.any(g[:, 1] != 32) or np.any(g[:, [6, 9, 12, 15, 29, 30]] != 32):
+        raise Unsupported("epoch line")
+    y, mo, d = _ints(g[:, 2:6]), _ints(g[:, 7:9]), _ints(g[:, 10:12])
+    h, mi = _ints(g[:, 13:15]), _ints(g[:, 16:18])
+    sec = decimal_fields(np.ascontiguousarray(g[:, 18:29]))
+    if np.any(np.isnan(sec)):
+        raise Unsupported("seconds")
+    t = np.full(ep.size, np.nan)
+    t[timed] = _gps_seconds(y, mo, d, h, mi, sec)
+    clk = np.full(ep.size, np.nan)
+    if events == "refuse":
+        clk = _clocks(lines, ep, 35)
+    return {"line": ep, "flag": flag, "nsat": nsat, "time_gps_s": t, "clk": clk}
+
+
+def epochs_v2(lines: BodyLines, per: int, special=None) -> tuple[dict, list, list]:
+    """The epochs of a RINEX 2 body, one Python step per epoch (the satellite lists sit on the epoch
+    lines): as :func:`epochs_v3` with ``line`` the first record line, ``epoch_line`` the epoch line
+    and ``segment`` (the index of the observation-type layout in force); the raw satellite fields
+    (3 characters) of every record of the flag-0/1 epochs, in file order; the events in file order
+    (flag 6 here, flags 2-5 by ``special(texts, flag, t, epoch_index) -> new lines per record or None``,
+    which applies their header lines; without it they are Unsupported)."""
+    out = {k: [] for k in ("line", "flag", "nsat", "time_gps_s", "clk", "epoch_line", "segment")}
+    sats: list[str] = []
+    events: list[dict] = []
+    i, n, segment = 0, lines.n, 0
+    while i < n:
+        ln = lines.text(i)
+        if not ln.strip():
+            if _blank_from(lines, i):
+                break
+            raise Unsupported("blank line")
+        try:
+            ch, nsat = ln[28:29], int(ln[29:32])
+            flag = 0 if ch in ("", " ") else int(ch)
+            when = tuple(int(ln[k:k + 3]) for k in (0, 3, 6, 9, 12)) + (float(ln[15:26]),) if ln[:26].strip() else None
+        except ValueError:
+            raise Unsupported("epoch line") from None
+        if flag > 6 or nsat < 0 or (when is None and flag < 2) or (when is not None and min(when) < 0):
+            raise Unsupported("epoch line")
+        if 2 <= flag <= 5:
+            if special is None or i + 1 + nsat > n:
+                raise Unsupported("event")
+            t = math.nan if when is None else float(_gps_seconds(*(np.array([v]) for v in _year(when)))[0])
+            new_per = special([lines.text(j) for j in range(i + 1, i + 1 + nsat)], flag, t, i, events)
+            if new_per is not None:
+                per, segment = new_per, segment + 1
+            i += 1 + nsat
+            continue
+        try:
+            clk = strict_float(ln[68:]) if ln[68:].strip() else math.nan
+        except ValueError:
+            raise Unsupported("clock") from None
+        n_head = max(1, -(-nsat // 12))
+        if when is None or i + n_head + nsat * per > n:
+            raise Unsupported("truncated")
+        if flag != 6:
+            for k in range(n_head):
+                sl = lines.text(i + k)
+                sats.extend(sl[32 + 3 * j:35 + 3 * j] for j in range(min(12, nsat - 12 * k)))
+        out["line"].append(i + n_head)
+        out["flag"].append(flag)
+        out["nsat"].append(nsat)
+        out["time_gps_s"].append(when)
+        out["clk"].append(clk)
+        out["epoch_line"].append(i)
+        out["segment"].append(segment)
+        if flag == 6:
+            events.append({"line": i, "flag": 6, "time_gps_s": len(out["line"]) - 1, "labels": []})
+        i += n_head + nsat * per
+    if not out["line"]:
+        raise Unsupported("no epochs")
+    ymdhm = np.array([t[:5] for t in out["time_gps_s"]], dtype=np.int64)
+    yy = ymdhm[:, 0]
+    ymdhm[:, 0] = np.where(yy < 100, yy + np.where(yy >= 80, 1900, 2000), yy)   # as _year
+    sec = np.array([t[5] for t in out["time_gps_s"]], dtype=np.float64)
+    res = {k: np.asarray(v) for k, v in out.items() if k != "time_gps_s"}
+    res["time_gps_s"] = _gps_seconds(*ymdhm.T, sec)
+    res["clk"] = res["clk"].astype(np.float64)
+    for ev in events:
+        if ev["flag"] == 6:                       # the epoch's time, now computed
+            ev["time_gps_s"] = float(res["time_gps_s"][ev["time_gps_s"]])
+    return res, sats, events
+
+
+def _year(when: tuple) -> tuple:
+    """(year, month, day, hour, minute, second) of a RINEX 2 epoch's fields (two-digit year: 1980-2079)."""
+    yy = when[0]
+    return (yy + (1900 if yy >= 80 else 2000) if yy < 100 else yy, *when[1:])
+
+
+def record_sats(raw: np.ndarray, sat_id) -> tuple[np.ndarray, np.ndarray]:
+    """Satellite names of records from their 3-byte fields ``raw`` (n, 3): (names (k,) object, the
+    index of each record's name (n,)); each distinct field is checked once with ``sat_id``
+    (Unsupported where it refuses)."""
+    if np.any(raw >= 128):
+        raise Unsupported("satellite")
+    code = (raw[:, 0].astype(np.int32) << 16) | (raw[:, 1].astype(np.int32) << 8) | raw[:, 2]
+    uniq, inv = np.unique(code, return_inverse=True)
+    names = []
+    for u in uniq.tolist():
+        s = bytes([u >> 16, (u >> 8) & 255, u & 255]).decode("latin-1")
+        try:
+            names.append(sat_id(s))
+        except ValueError:
+            raise Unsupported("satellite") from None
+    return np.array(names, dtype=object), inv.ravel()
+
+
+def gps_fields(lines: BodyLines, rec_line: np.ndarray, k: int, v3: bool, per: int) -> tuple[np.ndarray, np.ndarray]:
+    """Observation ``k`` of the records starting at lines ``rec_line``: (values (n,) float64, NaN if
+    blank; the LLI and SSI bytes (n, 2) uint8)."""
+    if v3:
+        line, col = rec_line, 3 + 16 * k
+    else:
+        line, col = rec_line + k // 5, 16 * (k % 5)
+    f = lines.gather(line, col, 16)
+    return decimal_fields(f[:, :14]), f[:, 14:16]
+
+
+def flag_values(ch: np.ndarray, use: np.ndarray) -> np.ndarray:
+    """LLI / SSI bytes (n,) as ints where ``use``, 0 elsewhere; Unsupported for a used byte that is
+    neither a blank nor a digit."""
+    ok = (ch == 32) | ((ch >= 48) & (ch <= 57))
+    if not np.all(ok | ~use):
+        raise Unsupported("flag")
+    return np.where(use & (ch != 32), ch.astype(np.int64) - 48, 0)
