@@ -232,6 +232,57 @@ _MESSAGE_HEAD_BYTES = _MESSAGE_HEAD.size
 _CHUNK_INTERNALS = ("chunk_builder", "chunk_size", "statistics", "finalize_chunk", "index_types")
 
 
+def row_payload(layout, row: list, tail: dict | None = None) -> dict:
+    """The payload :meth:`McapOut.write_rows` writes for one row (a list of floats; ``layout`` as
+    there)."""
+    payload, at = {}, 0
+    for key, shape in layout:
+        if shape is None:
+            payload[key] = row[at]
+            at += 1
+        elif isinstance(shape, int):
+            payload[key] = row[at:at + shape]
+            at += shape
+        else:
+            payload[key] = dict(zip(shape, row[at:at + len(shape)]))
+            at += len(shape)
+    payload.update(tail or {})
+    return payload
+
+
+def _row_template(layout, tail: dict | None) -> list | None:
+    """The bytes between the numbers of a :meth:`McapOut.write_rows` message after its ``time_s``:
+    m + 1 pieces for m numbers; None when a key or constant would hold the word ``null`` (then
+    :meth:`McapOut.write` takes another encoder)."""
+    keys = [k for k, _ in layout] + list(tail or {})
+    if len(set(keys)) < len(keys) or any(isinstance(s, list) and len(set(s)) < len(s) for _, s in layout):
+        return None                                       # a repeated key: the dict keeps the last
+    seps, pending = [], b""
+    for key, shape in layout:
+        k = orjson.dumps(key)
+        if shape is None:
+            seps.append(pending + b"," + k + b":")
+            pending = b""
+        elif isinstance(shape, int):
+            if shape == 0:
+                pending += b"," + k + b":[]"
+                continue
+            seps.append(pending + b"," + k + b":[")
+            seps.extend([b","] * (shape - 1))
+            pending = b"]"
+        else:
+            if not shape:
+                pending += b"," + k + b":{}"
+                continue
+            names = [orjson.dumps(str(n)) for n in shape]
+            seps.append(pending + b"," + k + b":{" + names[0] + b":")
+            seps.extend(b"," + n + b":" for n in names[1:])
+            pending = b"}"
+    end = orjson.dumps(tail or {})[1:-1]
+    seps.append(pending + (b"," + end if end else b"") + b"}")
+    return None if any(b"null" in p for p in seps) else seps
+
+
 def _framing_supported(writer: Writer) -> bool:
     """Whether :meth:`McapOut._add` can frame messages into the mcap Writer's open chunk itself (its
     private state is as expected: mcap-python 1.x with chunking); else each message goes through
@@ -389,6 +440,53 @@ class McapOut:
             data = self._encode(msg, payload, arrays, others, time_s)
         self._add(channel_id, ns, data)
         self._note(channel_id, msg["time_s"], payload.get("receiver"))
+
+    def write_rows(self, channel_id: int, time_s, layout, values, tail: dict | None = None) -> None:
+        """Write one message per row of ``values`` (k, m): the bytes of :meth:`write` of
+        :func:`row_payload` ``(layout, row, tail)`` at ``time_s[i]``, built from one template per
+        channel (no dict per message; rows with a NaN or infinity go through :meth:`write`, which
+        applies the schema's rules for missing values).
+
+        Parameters
+        ----------
+        channel_id : int
+        time_s : array-like (k,)
+            Payload times, s (the file's time scale).
+        layout : list of (str, list of str or int)
+            The payload's fields in order, each taking the next values of a row: a list of names, a
+            JSON object of those names; an int n, an array of n numbers (0: an empty array); None,
+            one number.
+        values : ndarray (k, m)
+            Float rows; m the total width of ``layout``.
+        tail : dict, optional
+            Constant fields written after them (e.g. ``{"smoothed": True}``).
+        """
+        times = np.asarray(time_s, dtype=float).tolist()
+        values = np.asarray(values, dtype=float)
+        keys = {k for k, _ in layout} | set(tail or {})
+        # arrays with a _valid companion, a receiver, a key holding the word null: write()'s own ways
+        plain = not (self._nullable[channel_id][0] & keys or "receiver" in keys)
+        seps = (_row_template(layout, tail) if plain else None) or ()
+        finite = np.isfinite(values).all(axis=1).tolist() if values.size else [True] * len(times)
+        block = 256                                        # rows whose number texts are held at a time
+        for a in range(0, len(times), block):
+            rows = values[a:a + block]
+            texts = orjson.dumps(rows.ravel().tolist())[1:-1].split(b",") if rows.size else []
+            m = rows.shape[1] if rows.ndim == 2 else 0
+            for i, t in enumerate(times[a:a + block]):
+                if not (seps and finite[a + i]):
+                    self.write(channel_id, t, row_payload(layout, rows[i].tolist(), tail))
+                    continue
+                ns = time_ns(t, self.time_scale)
+                head = b'{"timestamp":{"sec":%d,"nsec":%d},"time_s":%s' % (
+                    ns // 1_000_000_000, ns % 1_000_000_000, orjson.dumps(t))
+                parts = [head]
+                for sep, v in zip(seps, texts[i * m:(i + 1) * m]):
+                    parts.append(sep)
+                    parts.append(v)
+                parts.append(seps[-1])
+                self._add(channel_id, ns, b"".join(parts))
+                self._note(channel_id, t, None)
 
     def write_raw(self, channel_id: int, time_s: float, payload: dict) -> None:
         """Write ``payload`` exactly as given (no ``timestamp`` / ``time_s`` added: a message of a

@@ -157,15 +157,13 @@ def _write_angles(out: McapOut, C: np.ndarray, angles, time_s, q: np.ndarray, P_
     sig_names = ["sigma_" + n for n in names]
     ch = out.channel(ANGLES_TOPIC, _angles_schema(angles),
                      {"units": "deg", "angles": json.dumps({n: e for n, e, _ in angles})})
-    keys = names + sig_names
+    layout = [(k, None) for k in names + sig_names]
     times = np.asarray(time_s, dtype=float)
     for a in range(0, times.size, 1024):                      # blocks: no full-length temporaries
         b = min(a + 1024, times.size)
         deg = np.degrees(q[a:b] @ A.T)
         var = np.einsum("ai,nij,aj->na", AU, P_pos[a:b], AU)
-        rows = np.hstack([deg, np.degrees(np.sqrt(np.maximum(var, 0.0)))]).tolist()
-        for t, row in zip(times[a:b].tolist(), rows):
-            out.write(ch, t, dict(zip(keys, row)))
+        out.write_rows(ch, times[a:b], layout, np.hstack([deg, np.degrees(np.sqrt(np.maximum(var, 0.0)))]))
 
 
 def _write_scene(out: McapOut, scene, time_s, q: np.ndarray, block: int = 64) -> int:
@@ -428,15 +426,9 @@ def _write_state_messages(out: McapOut, ch: int, names, times, q, sq, X, P_sel, 
     with_P = P_sel is not None
     blocks = [q, sq, X[:, :npos]] + ([X[:, npos:npos + nrate]] if nrate else []) + \
         ([P_sel.reshape(len(times), -1)] if with_P else [])
-    nq = len(names)
-    cuts = np.cumsum([0, nq, nq, npos] + ([nrate] if nrate else []) + ([npos * npos] if with_P else []))
-    keys = ["xi"] + (["xidot"] if nrate else []) + (["P_xi"] if with_P else [])
-    for t, row in zip(times.tolist(), np.hstack(blocks).tolist()):
-        msg = {"q": dict(zip(names, row[:nq])), "sigma_q": dict(zip(names, row[nq:2 * nq]))}
-        for key, a, b in zip(keys, cuts[2:-1].tolist(), cuts[3:].tolist()):
-            msg[key] = row[a:b]
-        msg["smoothed"] = smoothed
-        out.write(ch, t, msg)
+    layout = [("q", list(names)), ("sigma_q", list(names)), ("xi", npos)] + ([("xidot", nrate)] if nrate else []) + \
+        ([("P_xi", npos * npos)] if with_P else [])
+    out.write_rows(ch, times, layout, np.hstack(blocks), {"smoothed": smoothed})
 
 
 def _write_residuals(out: McapOut, ss: StateSeries, time_s, sel, chunk: int, nis_bounds=None) -> None:
