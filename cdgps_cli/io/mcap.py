@@ -30,6 +30,7 @@ import contextlib
 import io
 import json
 import os
+import re
 import struct
 import zlib
 from array import array
@@ -283,6 +284,38 @@ def _row_template(layout, tail: dict | None) -> list | None:
     return None if any(b"null" in p for p in seps) else seps
 
 
+class Slot:
+    """A number left open in a message skeleton (:meth:`McapOut.write_skeleton`): column ``i`` of
+    the rows, or (``i`` = -1, -2) the seconds / nanoseconds of the message's log time."""
+
+    __slots__ = ("i",)
+
+    def __init__(self, i: int):
+        self.i = int(i)
+
+
+_SLOT_MARK = "\ue000"                 # (a private-use character: no text of a message holds it)
+_SLOT_TEXT = re.compile(rb'"\xee\x80\x80(-?\d+)\xee\x80\x80"')
+
+
+def _skeleton_template(skeleton: dict) -> tuple[list, list]:
+    """(n + 1 byte pieces, n slot indices) of ``skeleton``'s compact JSON around its :class:`Slot` leaves."""
+    found = []
+
+    def mark(v):
+        if not isinstance(v, Slot):
+            raise TypeError(f"{type(v).__name__} in a message skeleton")
+        found.append(v.i)
+        return f"{_SLOT_MARK}{v.i}{_SLOT_MARK}"
+
+    data = orjson.dumps(skeleton, default=mark)
+    parts = _SLOT_TEXT.split(data)
+    pieces, slots = parts[0::2], [int(i) for i in parts[1::2]]
+    if slots != found or any(b"null" in p or _SLOT_MARK.encode() in p for p in pieces):
+        raise ValueError("message skeleton: a missing value or a text holding the slot mark")
+    return pieces, slots
+
+
 def _framing_supported(writer: Writer) -> bool:
     """Whether :meth:`McapOut._add` can frame messages into the mcap Writer's open chunk itself (its
     private state is as expected: mcap-python 1.x with chunking); else each message goes through
@@ -485,6 +518,32 @@ class McapOut:
                     parts.append(sep)
                     parts.append(v)
                 parts.append(seps[-1])
+                self._add(channel_id, ns, b"".join(parts))
+                self._note(channel_id, t, None)
+
+    def write_skeleton(self, channel_id: int, time_s, skeleton: dict, values) -> None:
+        """Write, at each time ``time_s[i]``, the bytes of :meth:`write_raw` of ``skeleton`` with its
+        :class:`Slot` leaves filled in: ``Slot(j)`` by ``values[i, j]``, ``Slot(-1)`` / ``Slot(-2)`` by
+        the seconds / nanoseconds of the message's log time (one template, no dict per message).
+
+        ``values`` (k, m) must be finite (a ValueError, as :meth:`write_raw` gives for a missing value)."""
+        times = np.asarray(time_s, dtype=float).tolist()
+        values = np.asarray(values, dtype=float)
+        if values.size and not np.isfinite(values).all():
+            raise ValueError(f"messages on {self._topic[channel_id]}: a missing value (NaN or infinity)")
+        pieces, slots = _skeleton_template(skeleton)
+        block = 256                                        # rows whose number texts are held at a time
+        for a in range(0, len(times), block):
+            rows = values[a:a + block]
+            m = rows.shape[1] if rows.ndim == 2 else 0
+            texts = orjson.dumps(rows.ravel().tolist())[1:-1].split(b",") if rows.size else []
+            for i, t in enumerate(times[a:a + block]):
+                ns = time_ns(t, self.time_scale)
+                row = texts[i * m:(i + 1) * m] + [b"%d" % (ns % 1_000_000_000), b"%d" % (ns // 1_000_000_000)]
+                parts = [pieces[0]]
+                for j, piece in zip(slots, pieces[1:]):
+                    parts.append(row[j])                   # (-1: seconds, -2: nanoseconds)
+                    parts.append(piece)
                 self._add(channel_id, ns, b"".join(parts))
                 self._note(channel_id, t, None)
 

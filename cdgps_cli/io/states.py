@@ -57,7 +57,7 @@ from cdgps_cli.io.states_layout import (COVARIANCE_CHOICES, DEFAULT_COVARIANCE, 
                                         OUTPUT_MAP_PACKED, PACKED_PREFIX, RESIDUAL_PACKED, SERIES_ATTACHMENT,
                                         STATE_DELTA, STATES_FORMAT, STATES_KINDS)
 from cdgps_cli.io.foxglove_schema import scene_update_schema
-from cdgps_cli.io.mcap import (NULLABLE, CONFIG_ATTACHMENT, McapOut, array_schema, message_schema,
+from cdgps_cli.io.mcap import (NULLABLE, CONFIG_ATTACHMENT, McapOut, Slot, array_schema, message_schema,
                                read_mcap, read_span, time_ns)
 
 STATE_TOPIC = "/cdgps/state"
@@ -182,12 +182,27 @@ def _write_scene(out: McapOut, scene, time_s, q: np.ndarray, block: int = 64) ->
     if fixed is not None:
         out.write_raw(out.channel(SCENE_FIXED_TOPIC, schema, dict(scene.metadata)), times[0], fixed)
     ch = out.channel(SCENE_TOPIC, schema, dict(scene.metadata))
+    if getattr(scene, "satellites", None) is None and hasattr(scene, "skeleton"):
+        return _write_scene_rows(out, ch, scene, times, q)
     n = 0
     for a in range(0, len(times), block):          # small blocks: a message is ~10 kB of Python objects
         for t, msg in zip(times[a:a + block], scene.updates(q[a:a + block], ns[a:a + block], times[a:a + block])):
             if msg is not None:
                 out.write_raw(ch, t, msg)
                 n += 1
+    return n
+
+
+def _write_scene_rows(out: McapOut, ch: int, scene, times: list, q: np.ndarray, block: int = 1024) -> int:
+    """The :data:`SCENE_TOPIC` messages of a scene without satellites from its one ``skeleton`` and
+    the ``rows`` of numbers (the bytes of ``write_raw`` of its ``updates``; epochs not drawn left out)."""
+    skeleton = scene.skeleton(Slot)
+    t = np.asarray(times, dtype=float)
+    n = 0
+    for a in range(0, len(t), block):
+        vals, ok = scene.rows(q[a:a + block])
+        out.write_skeleton(ch, t[a:a + block][ok], skeleton, vals[ok])
+        n += int(np.count_nonzero(ok))
     return n
 
 

@@ -1,9 +1,12 @@
 """``McapOut.write_rows`` (messages of numbers from one template per channel, issue 30) writes the
 bytes of ``McapOut.write`` of the same payloads: objects of named numbers, arrays (also empty),
 scalars, constants after them, rows with NaN or infinity (left out / refused as ``write`` does),
-extreme floats, nullable arrays (their ``_valid`` companions) and keys holding ``null``."""
+extreme floats, nullable arrays (their ``_valid`` companions) and keys holding ``null``; and the 3-D
+scene from one skeleton (``McapOut.write_skeleton``) writes the bytes of ``write_raw`` of its dicts."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -79,3 +82,42 @@ def test_rows_with_missing_values_as_write(tmp_path):
     with McapOut(tmp_path / "bad.mcap") as o, pytest.raises(ValueError, match="array field"):
         ch = o.channel("/c", message_schema("S", {"x": {"type": "array"}}))
         o.write_rows(ch, [0.0], [("x", 2)], np.array([[1.0, np.nan]]))
+
+
+class _DictsOnly:
+    """A scene seen through its dict messages only (``updates``): the writer's per-message path."""
+
+    def __init__(self, scene):
+        self._s = scene
+        self.metadata, self.satellites = scene.metadata, None
+
+    def fixed(self, ns):
+        return self._s.fixed(ns)
+
+    def updates(self, q, ns, t=None):
+        return self._s.updates(q, ns, t)
+
+
+@pytest.mark.parametrize("config, scale", [("testbed-1998.toml", 10.0), ("teague-1995-2dof.toml", 1.0),
+                                           ("tower-120m-fe.toml", 50.0)])
+def test_scene_from_its_skeleton_is_the_bytes_of_its_dicts(tmp_path, config, scale):
+    """/cdgps/scene from ``skeleton`` + ``rows`` (McapOut.write_skeleton) is, byte for byte, the
+    ``write_raw`` of every ``updates`` dict; epochs not drawn (NaN) are left out alike."""
+    from cdgps_cli.analysis.scene import StructureScene
+    from cdgps_cli.config.structure import load_config
+    from cdgps_cli.io.states import _write_scene
+
+
+    cfg = load_config(Path(__file__).resolve().parents[2] / "configs" / config)
+    rng = np.random.default_rng(2)
+    q = rng.normal(size=(1500, len(cfg.coord_names))) * 10.0 ** rng.integers(-4, -1, size=(1500, 1))
+    q[[3, 700, 1499]] = np.nan
+    t = 50.0 + np.arange(1500) * 0.2
+    scene = StructureScene(cfg, scale)
+    out = {}
+    for how, sc in (("dicts", _DictsOnly(scene)), ("skeleton", scene)):
+        with McapOut(tmp_path / f"{how}.mcap") as o:
+            out[how] = _write_scene(o, sc, t, q)
+        out[how + "_bytes"] = (tmp_path / f"{how}.mcap").read_bytes()
+    assert out["skeleton"] == out["dicts"] == 1497
+    assert out["skeleton_bytes"] == out["dicts_bytes"]
