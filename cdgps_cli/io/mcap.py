@@ -501,24 +501,20 @@ class McapOut:
         plain = not (self._nullable[channel_id][0] & keys or "receiver" in keys)
         seps = (_row_template(layout, tail) if plain else None) or ()
         finite = np.isfinite(values).all(axis=1).tolist() if values.size else [True] * len(times)
+        fmt = b'{"timestamp":{"sec":%d,"nsec":%d},"time_s":%s' + b"%s".join(p.replace(b"%", b"%%") for p in seps)
         block = 256                                        # rows whose number texts are held at a time
         for a in range(0, len(times), block):
-            rows = values[a:a + block]
+            rows, tb = values[a:a + block], times[a:a + block]
             texts = orjson.dumps(rows.ravel().tolist())[1:-1].split(b",") if rows.size else []
+            t_texts = orjson.dumps(tb)[1:-1].split(b",")
             m = rows.shape[1] if rows.ndim == 2 else 0
-            for i, t in enumerate(times[a:a + block]):
+            for i, t in enumerate(tb):
                 if not (seps and finite[a + i]):
                     self.write(channel_id, t, row_payload(layout, rows[i].tolist(), tail))
                     continue
                 ns = time_ns(t, self.time_scale)
-                head = b'{"timestamp":{"sec":%d,"nsec":%d},"time_s":%s' % (
-                    ns // 1_000_000_000, ns % 1_000_000_000, orjson.dumps(t))
-                parts = [head]
-                for sep, v in zip(seps, texts[i * m:(i + 1) * m]):
-                    parts.append(sep)
-                    parts.append(v)
-                parts.append(seps[-1])
-                self._add(channel_id, ns, b"".join(parts))
+                self._add(channel_id, ns, fmt % (ns // 1_000_000_000, ns % 1_000_000_000, t_texts[i],
+                                                 *texts[i * m:(i + 1) * m]))
                 self._note(channel_id, t, None)
 
     def write_skeleton(self, channel_id: int, time_s, skeleton: dict, values) -> None:
@@ -532,6 +528,7 @@ class McapOut:
         if values.size and not np.isfinite(values).all():
             raise ValueError(f"messages on {self._topic[channel_id]}: a missing value (NaN or infinity)")
         pieces, slots = _skeleton_template(skeleton)
+        fmt = b"%s".join(p.replace(b"%", b"%%") for p in pieces)
         block = 256                                        # rows whose number texts are held at a time
         for a in range(0, len(times), block):
             rows = values[a:a + block]
@@ -540,11 +537,7 @@ class McapOut:
             for i, t in enumerate(times[a:a + block]):
                 ns = time_ns(t, self.time_scale)
                 row = texts[i * m:(i + 1) * m] + [b"%d" % (ns % 1_000_000_000), b"%d" % (ns // 1_000_000_000)]
-                parts = [pieces[0]]
-                for j, piece in zip(slots, pieces[1:]):
-                    parts.append(row[j])                   # (-1: seconds, -2: nanoseconds)
-                    parts.append(piece)
-                self._add(channel_id, ns, b"".join(parts))
+                self._add(channel_id, ns, fmt % tuple([row[j] for j in slots]))   # (-1: seconds, -2: nanoseconds)
                 self._note(channel_id, t, None)
 
     def write_raw(self, channel_id: int, time_s: float, payload: dict) -> None:
