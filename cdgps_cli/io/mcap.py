@@ -233,13 +233,13 @@ _MESSAGE_HEAD_BYTES = _MESSAGE_HEAD.size
 _CHUNK_INTERNALS = ("chunk_builder", "chunk_size", "statistics", "finalize_chunk", "index_types")
 
 
-def row_payload(layout, row: list, tail: dict | None = None) -> dict:
+def row_payload(layout, row: list, tail: dict | None = None, head: dict | None = None) -> dict:
     """The payload :meth:`McapOut.write_rows` writes for one row (a list of floats; ``layout`` as
     there)."""
-    payload, at = {}, 0
+    payload, at = dict(head or {}), 0
     for key, shape in layout:
-        if shape is None:
-            payload[key] = row[at]
+        if shape is None or shape == "int":
+            payload[key] = row[at] if shape is None or row[at] != row[at] else int(row[at])
             at += 1
         elif isinstance(shape, int):
             payload[key] = row[at:at + shape]
@@ -251,17 +251,17 @@ def row_payload(layout, row: list, tail: dict | None = None) -> dict:
     return payload
 
 
-def _row_template(layout, tail: dict | None) -> list | None:
+def _row_template(layout, tail: dict | None, head: dict | None = None) -> list | None:
     """The bytes between the numbers of a :meth:`McapOut.write_rows` message after its ``time_s``:
     m + 1 pieces for m numbers; None when a key or constant would hold the word ``null`` (then
     :meth:`McapOut.write` takes another encoder)."""
-    keys = [k for k, _ in layout] + list(tail or {})
+    keys = list(head or {}) + [k for k, _ in layout] + list(tail or {})
     if len(set(keys)) < len(keys) or any(isinstance(s, list) and len(set(s)) < len(s) for _, s in layout):
         return None                                       # a repeated key: the dict keeps the last
-    seps, pending = [], b""
+    seps, pending = [], (b"," + orjson.dumps(head)[1:-1] if head else b"")
     for key, shape in layout:
         k = orjson.dumps(key)
-        if shape is None:
+        if shape is None or shape == "int":
             seps.append(pending + b"," + k + b":")
             pending = b""
         elif isinstance(shape, int):
@@ -474,7 +474,8 @@ class McapOut:
         self._add(channel_id, ns, data)
         self._note(channel_id, msg["time_s"], payload.get("receiver"))
 
-    def write_rows(self, channel_id: int, time_s, layout, values, tail: dict | None = None) -> None:
+    def write_rows(self, channel_id: int, time_s, layout, values, tail: dict | None = None,
+                   head: dict | None = None) -> None:
         """Write one message per row of ``values`` (k, m): the bytes of :meth:`write` of
         :func:`row_payload` ``(layout, row, tail)`` at ``time_s[i]``, built from one template per
         channel (no dict per message; rows with a NaN or infinity go through :meth:`write`, which
@@ -488,18 +489,20 @@ class McapOut:
         layout : list of (str, list of str or int)
             The payload's fields in order, each taking the next values of a row: a list of names, a
             JSON object of those names; an int n, an array of n numbers (0: an empty array); None,
-            one number.
+            one number; ``"int"``, one integer (the value as ``int``).
         values : ndarray (k, m)
             Float rows; m the total width of ``layout``.
-        tail : dict, optional
-            Constant fields written after them (e.g. ``{"smoothed": True}``).
+        tail, head : dict, optional
+            Constant fields written after them (e.g. ``{"smoothed": True}``), and before them.
         """
         times = np.asarray(time_s, dtype=float).tolist()
         values = np.asarray(values, dtype=float)
-        keys = {k for k, _ in layout} | set(tail or {})
+        keys = {k for k, _ in layout} | set(tail or {}) | set(head or {})
         # arrays with a _valid companion, a receiver, a key holding the word null: write()'s own ways
         plain = not (self._nullable[channel_id][0] & keys or "receiver" in keys)
-        seps = (_row_template(layout, tail) if plain else None) or ()
+        seps = (_row_template(layout, tail, head) if plain else None) or ()
+        widths = [1 if s is None or s == "int" else (s if isinstance(s, int) else len(s)) for _, s in layout]
+        int_cols = [c for c, (_, s) in zip(np.cumsum([0] + widths).tolist(), layout) if s == "int"]
         finite = np.isfinite(values).all(axis=1).tolist() if values.size else [True] * len(times)
         fmt = b'{"timestamp":{"sec":%d,"nsec":%d},"time_s":%s' + b"%s".join(p.replace(b"%", b"%%") for p in seps)
         block = 256                                        # rows whose number texts are held at a time
@@ -508,9 +511,12 @@ class McapOut:
             texts = orjson.dumps(rows.ravel().tolist())[1:-1].split(b",") if rows.size else []
             t_texts = orjson.dumps(tb)[1:-1].split(b",")
             m = rows.shape[1] if rows.ndim == 2 else 0
+            for c in int_cols:
+                for i, v in enumerate(rows[:, c].tolist()):
+                    texts[i * m + c] = b"%d" % v if v == v and abs(v) != np.inf else b"null"
             for i, t in enumerate(tb):
                 if not (seps and finite[a + i]):
-                    self.write(channel_id, t, row_payload(layout, rows[i].tolist(), tail))
+                    self.write(channel_id, t, row_payload(layout, rows[i].tolist(), tail, head))
                     continue
                 ns = time_ns(t, self.time_scale)
                 self._add(channel_id, ns, fmt % (ns // 1_000_000_000, ns % 1_000_000_000, t_texts[i],

@@ -480,18 +480,27 @@ def _write_residuals(out: McapOut, ss: StateSeries, time_s, sel, chunk: int, nis
         has = ~np.isnan(nis) & (np.asarray(dof) > 0)
         bounds = [None if not h else (a, b) for h, a, b in zip(has.tolist(), np.asarray(lo, dtype=float).tolist(),
                                                                np.asarray(hi, dtype=float).tolist())]
-    for i, (t, r) in enumerate(zip(np.asarray(time_s, dtype=float)[sel].tolist(), R.tolist())):
-        if every[i]:
-            a, x = ants, txs
-        else:                                          # the channels used at this epoch
+    times = np.asarray(time_s, dtype=float)[sel]
+    # epochs using every channel: one template (the channel names once), NIS and bounds as numbers (NaN: left out)
+    layout = [("residual_m", len(ants)), ("nis", None), ("nis_dof", "int")]
+    cols = [R, nis[:, None], np.asarray(dof, dtype=float)[:, None]]
+    if bounds is not None:
+        layout += [("nis_lower95", None), ("nis_upper95", None)]
+        cols.append(np.array([b if b is not None else (np.nan, np.nan) for b in bounds], dtype=float).reshape(-1, 2))
+    rows = np.hstack(cols)
+    every_arr = np.asarray(every, dtype=bool)
+    cuts = np.flatnonzero(np.r_[True, every_arr[1:] != every_arr[:-1], True]).tolist()
+    for a, b in zip(cuts[:-1], cuts[1:]):              # runs of epochs alike
+        if every[a]:
+            out.write_rows(ch, times[a:b], layout, rows[a:b], head={"antenna": ants, "transmitter": txs})
+            continue
+        for i in range(a, b):                          # the channels used at this epoch
             u = used[i].tolist()
-            a = [v for v, ok in zip(ants, u) if ok]
-            x = [v for v, ok in zip(txs, u) if ok]
-            r = [v for v, ok in zip(r, u) if ok]
-        msg = {"antenna": a, "transmitter": x, "residual_m": r, "nis": nis_list[i], "nis_dof": dof[i]}
-        if bounds is not None and bounds[i] is not None:
-            msg["nis_lower95"], msg["nis_upper95"] = bounds[i]
-        out.write(ch, t, msg)
+            msg = {"antenna": [v for v, ok in zip(ants, u) if ok], "transmitter": [v for v, ok in zip(txs, u) if ok],
+                   "residual_m": [v for v, ok in zip(R[i].tolist(), u) if ok], "nis": nis_list[i], "nis_dof": dof[i]}
+            if bounds is not None and bounds[i] is not None:
+                msg["nis_lower95"], msg["nis_upper95"] = bounds[i]
+            out.write(ch, float(times[i]), msg)
     size, pieces = p_r.finish()
     out.attach_stream(RESIDUAL_PACKED + "residual_m", size, pieces, MEDIA_TYPE)
     out.attach_packed(RESIDUAL_PACKED + "nis", nis_all)

@@ -121,3 +121,68 @@ def test_scene_from_its_skeleton_is_the_bytes_of_its_dicts(tmp_path, config, sca
         out[how + "_bytes"] = (tmp_path / f"{how}.mcap").read_bytes()
     assert out["skeleton"] == out["dicts"] == 1497
     assert out["skeleton_bytes"] == out["dicts_bytes"]
+
+
+def _residuals_per_message(out, ss, time_s, sel, chunk, nis_bounds=None):
+    """The residual channel as written before issue 30's templates: a dict per message (reference)."""
+    from cdgps_cli.io import states as st
+    from cdgps_cli.io.packed_arrays import MEDIA_TYPE, PackedWriter
+
+    N, res = len(time_s), ss.residual_m
+    p_r = PackedWriter((N,) + tuple(res.shape[1:]), np.float32)
+    R = np.empty((len(sel),) + tuple(res.shape[1:]))
+    for a in range(0, N, chunk):
+        rows = st._block(res, a, a + chunk)
+        p_r.add(rows.astype(np.float32))
+        s = slice(np.searchsorted(sel, a), np.searchsorted(sel, a + chunk))
+        R[s] = np.asarray(rows, dtype=float)[sel[s] - a]
+    nis_all, dof_all = np.asarray(ss.nis, dtype=float), np.asarray(ss.nis_dof, dtype=np.int64)
+    out.attach(st.RESIDUAL_PACKED + "channels.json", st.json.dumps([list(c) for c in ss.residual_channels]).encode(),
+               "application/json")
+    ch = out.channel(st.RESIDUAL_TOPIC, st.RESIDUAL_SCHEMA if nis_bounds is None else st._RESIDUAL_BOUNDS_SCHEMA)
+    ants, txs = [c[0] for c in ss.residual_channels], [c[1] for c in ss.residual_channels]
+    used = ~np.isnan(R)
+    every, nis = used.all(axis=1).tolist(), nis_all[sel]
+    nis_list = [None if bad else v for bad, v in zip(np.isnan(nis).tolist(), nis.tolist())]
+    dof = [int(d) for d in dof_all[sel].tolist()]
+    bounds = None
+    if nis_bounds is not None:
+        lo, hi = nis_bounds(dof_all[sel])
+        has = ~np.isnan(nis) & (np.asarray(dof) > 0)
+        bounds = [None if not h else (a, b) for h, a, b in zip(has.tolist(), np.asarray(lo, dtype=float).tolist(),
+                                                               np.asarray(hi, dtype=float).tolist())]
+    for i, (t, r) in enumerate(zip(np.asarray(time_s, dtype=float)[sel].tolist(), R.tolist())):
+        a, x = ants, txs
+        if not every[i]:
+            u = used[i].tolist()
+            a, x, r = ([v for v, ok in zip(seq, u) if ok] for seq in (ants, txs, r))
+        msg = {"antenna": a, "transmitter": x, "residual_m": r, "nis": nis_list[i], "nis_dof": dof[i]}
+        if bounds is not None and bounds[i] is not None:
+            msg["nis_lower95"], msg["nis_upper95"] = bounds[i]
+        out.write(ch, t, msg)
+    size, pieces = p_r.finish()
+    out.attach_stream(st.RESIDUAL_PACKED + "residual_m", size, pieces, MEDIA_TYPE)
+    out.attach_packed(st.RESIDUAL_PACKED + "nis", nis_all)
+    out.attach_packed(st.RESIDUAL_PACKED + "nis_dof", dof_all)
+
+
+@pytest.mark.parametrize("rate", [0.0, 2.0])
+def test_residual_channel_as_a_dict_per_message(tmp_path, monkeypatch, rate):
+    """/cdgps/residuals from templates (runs of epochs using every channel) is, byte for byte, the
+    channel of a dict per message: NIS missing (left out), its 95 % bounds, dof 0, channels unused."""
+    from cdgps_cli.io import states as st
+    from cdgps_cli.pipeline.estimate_outputs import nis_bounds95
+
+    from tests.io.test_states_stream import _structure
+
+    ss = _structure()
+    ss.nis_dof[30:40] = 0
+    ss.residual_m[::3] = np.where(np.isnan(ss.residual_m[::3]), 0.001, ss.residual_m[::3])  # runs of full epochs
+    got = {}
+    for how in ("template", "reference"):
+        with monkeypatch.context() as m:
+            if how == "reference":
+                m.setattr(st, "_write_residuals", _residuals_per_message)
+            st.write_states(ss, tmp_path / f"{how}.mcap", {"x": "1"}, {}, preview_rate_hz=rate, nis_bounds=nis_bounds95)
+        got[how] = (tmp_path / f"{how}.mcap").read_bytes()
+    assert got["template"] == got["reference"]
