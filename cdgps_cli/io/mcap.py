@@ -514,14 +514,18 @@ class McapOut:
             for c in int_cols:
                 for i, v in enumerate(rows[:, c].tolist()):
                     texts[i * m + c] = b"%d" % v if v == v and abs(v) != np.inf else b"null"
+            stamps, datas, kept = [], [], []
             for i, t in enumerate(tb):
                 if not (seps and finite[a + i]):
+                    self._add_many(channel_id, stamps, datas, kept)         # (what came before, in order)
+                    stamps, datas, kept = [], [], []
                     self.write(channel_id, t, row_payload(layout, rows[i].tolist(), tail, head))
                     continue
                 ns = time_ns(t, self.time_scale)
-                self._add(channel_id, ns, fmt % (ns // 1_000_000_000, ns % 1_000_000_000, t_texts[i],
-                                                 *texts[i * m:(i + 1) * m]))
-                self._note(channel_id, t, None)
+                stamps.append(ns)
+                datas.append(fmt % (ns // 1_000_000_000, ns % 1_000_000_000, t_texts[i], *texts[i * m:(i + 1) * m]))
+                kept.append(t)
+            self._add_many(channel_id, stamps, datas, kept)
 
     def write_skeleton(self, channel_id: int, time_s, skeleton: dict, values) -> None:
         """Write, at each time ``time_s[i]``, the bytes of :meth:`write_raw` of ``skeleton`` with its
@@ -540,11 +544,13 @@ class McapOut:
             rows = values[a:a + block]
             m = rows.shape[1] if rows.ndim == 2 else 0
             texts = orjson.dumps(rows.ravel().tolist())[1:-1].split(b",") if rows.size else []
-            for i, t in enumerate(times[a:a + block]):
-                ns = time_ns(t, self.time_scale)
+            tb = times[a:a + block]
+            stamps = [time_ns(t, self.time_scale) for t in tb]
+            datas = []
+            for i, ns in enumerate(stamps):
                 row = texts[i * m:(i + 1) * m] + [b"%d" % (ns % 1_000_000_000), b"%d" % (ns // 1_000_000_000)]
-                self._add(channel_id, ns, fmt % tuple([row[j] for j in slots]))   # (-1: seconds, -2: nanoseconds)
-                self._note(channel_id, t, None)
+                datas.append(fmt % tuple([row[j] for j in slots]))   # (-1: seconds, -2: nanoseconds)
+            self._add_many(channel_id, stamps, datas, tb)
 
     def write_raw(self, channel_id: int, time_s: float, payload: dict) -> None:
         """Write ``payload`` exactly as given (no ``timestamp`` / ``time_s`` added: a message of a
@@ -593,6 +599,51 @@ class McapOut:
             self._seq[channel_id] += 1
             return
         self._frame(channel_id, ns, data)
+
+    def _add_many(self, channel_id: int, stamps_ns: list, datas: list, times_s: list) -> None:
+        """:meth:`_add` and :meth:`_note` (no receiver) of messages of one channel in a row: the same
+        bytes, the file statistics updated once and the chunk's state held in locals."""
+        if not stamps_ns:
+            return
+        if self._index_class is None:
+            for ns, data, t in zip(stamps_ns, datas, times_s):
+                self._add(channel_id, ns, data)
+                self._note(channel_id, t, None)
+            return
+        w = self.writer
+        st, cb, limit, pack = w._Writer__statistics, w._Writer__chunk_builder, self._chunk_size, _MESSAGE_HEAD.pack
+        lo, hi = min(stamps_ns), max(stamps_ns)
+        if st.message_count == 0 or lo < st.message_start_time:
+            st.message_start_time = lo
+        if hi > st.message_end_time:
+            st.message_end_time = hi
+        st.channel_message_counts[channel_id] += len(stamps_ns)
+        st.message_count += len(stamps_ns)
+        seq = self._seq[channel_id]
+        buf, index = cb.record_writer._buffer, None
+        for ns, data in zip(stamps_ns, datas):
+            if cb.num_messages == 0 or ns < cb.message_start_time:
+                cb.message_start_time = ns
+            if ns > cb.message_end_time:
+                cb.message_end_time = ns
+            if index is None:
+                index = cb.message_indices.get(channel_id)
+                if index is None:
+                    index = cb.message_indices[channel_id] = self._index_class(channel_id=channel_id, records=[])
+            at = buf.tell()
+            index.records.append((ns, at))
+            cb.num_messages += 1
+            buf.write(pack(_OPCODE_MESSAGE, 22 + len(data), channel_id, seq, ns, ns))
+            buf.write(data)
+            seq += 1
+            if at + _MESSAGE_HEAD_BYTES + len(data) > limit:
+                w._Writer__finalize_chunk()
+                buf, index = cb.record_writer._buffer, None            # (a new buffer and indexes)
+        self._seq[channel_id] = seq
+        src = self._sources.get(channel_id)
+        if src is not None:
+            src.extend([None] * len(times_s))
+        self._times[channel_id].extend(times_s)
 
     def _frame(self, channel_id: int, ns: int, data: bytes) -> None:
         """What ``Writer.add_message`` does for a chunked file, without its per-message objects: the

@@ -62,3 +62,22 @@ def test_states_framed_as_the_library(tmp_path, monkeypatch, case):
         states.write_states(ss, p, {"x": "1"}, {"init.json": (b"{}", "application/json")}, **kw)
         out[frame] = p.read_bytes()
     assert out[True] == out[False]
+
+
+def test_rows_framed_in_blocks_as_the_library(tmp_path, monkeypatch):
+    """``write_rows`` frames a block of messages at once (``McapOut._add_many``): across chunk
+    boundaries, with rows through ``write`` between them, the library's bytes."""
+    rng = np.random.default_rng(8)
+    vals = rng.normal(size=(3000, 120))
+    vals[::97, 105] = np.nan                      # through write(): a scalar left out
+    layout = [("x", 100), ("s", None)] + [(f"k{i}", None) for i in range(19)]
+    props = {"x": {"type": "array"}, **{k: {"type": "number"} for k, _ in layout[1:]}}
+    got = {}
+    for frame in (False, True):
+        monkeypatch.setattr(mcap_io, "_FRAME_MESSAGES", frame)
+        p = tmp_path / f"{frame}.mcap"
+        with McapOut(p) as out:
+            ch = out.channel("/r", message_schema("R", props))
+            out.write_rows(ch, 10.0 + np.arange(3000) * 0.1, layout, np.hstack([vals[:, :100], vals[:, 100:]]))
+        got[frame] = p.read_bytes()
+    assert len(got[True]) > 3 << 20 and got[True] == got[False]
