@@ -18,7 +18,9 @@ process over the same epochs after the window.  The three are timed in ``--repea
 rounds (FilterPy, then each tree), so that a change of the machine's load hits them alike; the
 ratios (FilterPy's time / cdgps's) are given from the best times and as the median of the rounds.  Targets (issue 30): estimate() ≥ 8×, the whole process ≥ 3×.  The machine load (1-min
 average) is recorded before and after each timing: the machine is shared, compare the ratios of one
-run.  Writes docs/benchmarks/driver.json.  Needs FilterPy (``pip install filterpy``)::
+run.  CPU times (user + system of every thread, the child's for a process) are recorded beside the
+wall times, with their ratios: a loaded machine disturbs them much less (cdgps's background packing
+thread counts in full, so its CPU ratio is, if anything, low).  Writes docs/benchmarks/driver.json.  Needs FilterPy (``pip install filterpy``)::
 
     git archive <commit-before> | tar -x -C /tmp/before   # (and build or copy its _ekfcore*.so)
     python benchmarks/bench_driver.py --tree before=/tmp/before --tree after=.
@@ -30,6 +32,7 @@ import argparse
 import json
 import os
 import platform
+import resource
 import subprocess
 import sys
 import tempfile
@@ -55,12 +58,12 @@ from cdgps_cli.estimation.filter import EstimateOptions, estimate
 from cdgps_cli.io.run import read_run
 run = read_run({run!r})
 init = json.loads(open({init!r}).read())
-best = 1e9
+best = cpu = 1e9
 for _ in range({repeat}):
-    t = time.perf_counter()
+    t, c = time.perf_counter(), time.process_time()
     res = estimate(run, init, EstimateOptions())
-    best = min(best, time.perf_counter() - t)
-print(json.dumps({{"s": best, "epochs": len(res.time_s), "path": res.filter_path,
+    best, cpu = min(best, time.perf_counter() - t), min(cpu, time.process_time() - c)
+print(json.dumps({{"s": best, "cpu_s": cpu, "epochs": len(res.time_s), "path": res.filter_path,
                   "x_end": res.x[-1].tolist(), "window_epochs": (res.window or {{}}).get("epochs")}}))
 """
 
@@ -69,18 +72,30 @@ def load() -> float:
     return os.getloadavg()[0]
 
 
-def _sub(code: str, tree: Path, args=None) -> tuple[float, str]:
+def _children_cpu_s() -> float:
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def _sub(code: str, tree: Path, args=None) -> tuple[float, str, float]:
+    """(wall s, stdout, CPU s: user + system of the child, all its threads) of a fresh process."""
     env = dict(os.environ, PYTHONPATH=str(tree))
-    t = time.perf_counter()
+    t, c = time.perf_counter(), _children_cpu_s()
     p = subprocess.run([sys.executable] + (args or ["-c", code]), capture_output=True, text=True, cwd=tree, env=env)
-    dt = time.perf_counter() - t
+    dt, dc = time.perf_counter() - t, _children_cpu_s() - c
     if p.returncode != 0:
         raise SystemExit(p.stderr[-3000:])
-    return dt, p.stdout
+    return dt, p.stdout, dc
 
 
 def cli(tree: Path, *args) -> float:
-    return _sub("", tree, ["-c", f"from cdgps_cli.cli.commands import main\nmain({list(map(str, args))!r})"])[0]
+    return cli_timed(tree, *args)[0]
+
+
+def cli_timed(tree: Path, *args) -> tuple[float, float]:
+    """(wall s, CPU s) of one ``cdgps`` process."""
+    dt, _, dc = _sub("", tree, ["-c", f"from cdgps_cli.cli.commands import main\nmain({list(map(str, args))!r})"])
+    return dt, dc
 
 
 def setup(d: Path, hours: float, seed: int) -> None:
@@ -111,18 +126,18 @@ def filterpy_setup(d: Path):
     return cfg, init, Z, EpochPhaseModel(cfg, ant, tx), sig, res.x
 
 
-def filterpy_once(fp_in) -> tuple[float, float]:
-    """(seconds, max |x − cdgps's|) of one FilterPy pass."""
+def filterpy_once(fp_in) -> tuple[float, float, float]:
+    """(seconds, max |x − cdgps's|, CPU seconds) of one FilterPy pass."""
     from bench_estimate import filterpy_run
 
     cfg, init, Z, hmodel, sig, x_ref = fp_in
-    t = time.perf_counter()
+    t, c = time.perf_counter(), time.process_time()
     xs = filterpy_run(cfg, init, Z, hmodel, sigma_m=sig)
-    return time.perf_counter() - t, float(np.max(np.abs(xs - x_ref)))
+    return time.perf_counter() - t, float(np.max(np.abs(xs - x_ref))), time.process_time() - c
 
 
 def lib_once(tree: Path, d: Path) -> dict:
-    _, out = _sub(LIB.format(run=str(d / "run.mcap"), init=str(d / "init.json"), repeat=1), tree)
+    _, out, _ = _sub(LIB.format(run=str(d / "run.mcap"), init=str(d / "init.json"), repeat=1), tree)
     return json.loads(out.strip().splitlines()[-1])
 
 
@@ -144,20 +159,22 @@ def main() -> None:
         # interleaved rounds (the machine is shared): FilterPy, then each tree's estimate() and process
         for r in range(a.repeat):
             row = {"load_start": load()}
-            row["filterpy_s"], row["filterpy_max_abs_dx"] = filterpy_once(fp_in)
+            row["filterpy_s"], row["filterpy_max_abs_dx"], row["filterpy_cpu_s"] = filterpy_once(fp_in)
             for name, path in trees:
                 tree = Path(path).resolve()
                 lib = lib_once(tree, d)
-                row[name] = {"estimate_s": lib["s"], "epochs": lib["epochs"], "path": lib["path"],
-                             "window_epochs": lib["window_epochs"], "x_end": lib["x_end"],
-                             "cli_estimate_wall_s": cli(tree, "--quiet", "estimate", d / "run.mcap", "--init",
-                                                        d / "init.json", "-o", d / f"states-{name}-{r}.mcap")}
+                wall, cpu = cli_timed(tree, "--quiet", "estimate", d / "run.mcap", "--init", d / "init.json",
+                                      "-o", d / f"states-{name}-{r}.mcap")
+                row[name] = {"estimate_s": lib["s"], "estimate_cpu_s": lib["cpu_s"], "epochs": lib["epochs"],
+                             "path": lib["path"], "window_epochs": lib["window_epochs"], "x_end": lib["x_end"],
+                             "cli_estimate_wall_s": wall, "cli_estimate_cpu_s": cpu}
             row["load_end"] = load()
             rounds.append(row)
     fp_s = [row["filterpy_s"] for row in rounds]
     res = {"data": {"config": CONFIG.name, "hours": a.hours, "seed": a.seed, "phase_sigma_m": SIGMA,
                     "filterpy_epochs": int(fp_in[2].shape[0])},
            "filterpy": {"best_s": min(fp_s), "per_round_s": fp_s,
+                        "cpu_per_round_s": [row["filterpy_cpu_s"] for row in rounds],
                         "max_abs_state_difference_vs_cdgps": max(row["filterpy_max_abs_dx"] for row in rounds)},
            "loads_per_round": [[row["load_start"], row["load_end"]] for row in rounds]}
     for name, path in trees:
@@ -174,7 +191,16 @@ def main() -> None:
                      "ratio_estimate_vs_filterpy_median_of_rounds": float(np.median(
                          [row["filterpy_s"] / row[name]["estimate_s"] for row in rounds])),
                      "ratio_cli_vs_filterpy_median_of_rounds": float(np.median(
-                         [row["filterpy_s"] / row[name]["cli_estimate_wall_s"] for row in rounds]))}
+                         [row["filterpy_s"] / row[name]["cli_estimate_wall_s"] for row in rounds])),
+                     # CPU time (user + system, every thread): what a loaded machine disturbs least
+                     "estimate_cpu_per_round_s": [p["estimate_cpu_s"] for p in per],
+                     "cli_cpu_per_round_s": [p["cli_estimate_cpu_s"] for p in per],
+                     "ratio_estimate_vs_filterpy_cpu_median_of_rounds": float(np.median(
+                         [row["filterpy_cpu_s"] / row[name]["estimate_cpu_s"] for row in rounds])),
+                     "ratio_cli_vs_filterpy_cpu_median_of_rounds": float(np.median(
+                         [row["filterpy_cpu_s"] / row[name]["cli_estimate_cpu_s"] for row in rounds])),
+                     "ratio_cli_vs_filterpy_cpu_best": min(row["filterpy_cpu_s"] for row in rounds) / min(
+                         p["cli_estimate_cpu_s"] for p in per)}
     if len(names) > 1:
         x0 = np.array(res[names[0]]["x_end"])
         res["max_abs_final_state_difference_between_trees"] = max(
@@ -195,7 +221,9 @@ def main() -> None:
               f"window): {r['ratio_estimate_vs_filterpy_best']:.2f}x FilterPy (median of rounds "
               f"{r['ratio_estimate_vs_filterpy_median_of_rounds']:.2f}x); cdgps estimate process best "
               f"{r['cli_estimate_best_wall_s']:.2f} s: {r['ratio_cli_vs_filterpy_best']:.2f}x (median "
-              f"{r['ratio_cli_vs_filterpy_median_of_rounds']:.2f}x)")
+              f"{r['ratio_cli_vs_filterpy_median_of_rounds']:.2f}x); CPU-time ratios (median of rounds): "
+              f"estimate() {r['ratio_estimate_vs_filterpy_cpu_median_of_rounds']:.2f}x, process "
+              f"{r['ratio_cli_vs_filterpy_cpu_median_of_rounds']:.2f}x (best {r['ratio_cli_vs_filterpy_cpu_best']:.2f}x)")
     print(f"wrote {a.out}")
 
 

@@ -231,8 +231,8 @@ def _pose(v) -> dict:
     return {"position": _xyz(v), "orientation": dict(_IDENTITY)}
 
 
-def _entity(ns: int, entity_id: str, **primitives) -> dict:
-    e = {"timestamp": _stamp(ns), "frame_id": FRAME_ID, "id": entity_id, "lifetime": {"sec": 0, "nsec": 0},
+def _entity(ns, entity_id: str, stamp: dict | None = None, **primitives) -> dict:
+    e = {"timestamp": _stamp(ns) if stamp is None else stamp, "frame_id": FRAME_ID, "id": entity_id, "lifetime": {"sec": 0, "nsec": 0},
          "frame_locked": False, "metadata": []}
     for k in ("arrows", "cubes", "spheres", "cylinders", "lines", "triangles", "texts", "models"):
         e[k] = primitives.get(k, [])
@@ -285,26 +285,51 @@ class StructureScene:
         ns); None where q is not finite.  ``time_s`` (k,): the epochs' times, for the satellite arrows
         (drawn when the scene has :attr:`satellites` and the times are given).  (Constant parts are
         shared between messages: read-only.)"""
-        g = self.geometry
-        P = np.round(drawn_positions(self.cfg, g, q, self.exaggeration), self.decimals)
+        P, lifted = self._drawn(q)
         ok = np.isfinite(P.reshape(len(P), -1)).all(axis=1).tolist()
-        lifted = np.round(P[:, self._labelled, 2] + self._lift, self.decimals).tolist()
         sky = [None] * len(P) if self.satellites is None or time_s is None else self.satellites.at(time_s)
         out = []
-        for frame, good, ns, zs, dirs in zip(P.tolist(), ok, stamps_ns, lifted, sky):
+        for frame, good, ns, zs, dirs in zip(P.tolist(), ok, stamps_ns, lifted.tolist(), sky):
             if not good:
                 out.append(None)
                 continue
-            xyz = [{"x": x, "y": y, "z": z} for x, y, z in frame]
-            lines = [dict(head, points=[xyz[k] for k in idx]) for head, idx in self._lines]
-            spheres = [{"pose": {"position": xyz[k], "orientation": _IDENTITY}, **rest} for k, rest in self._spheres]
-            texts = [{"pose": {"position": {"x": xyz[k]["x"], "y": xyz[k]["y"], "z": z}, "orientation": _IDENTITY},
-                      **rest} for (k, rest), z in zip(self._texts, zs)]
-            entities = [_entity(ns, "structure", lines=lines, spheres=spheres, texts=texts)]
+            msg = self._structure_message(frame, _stamp(ns), zs)
             if dirs is not None:
-                entities.append(self._satellite_entity(ns, frame[self._master], dirs))
-            out.append({"deletions": [], "entities": entities})
+                msg["entities"].append(self._satellite_entity(ns, frame[self._master], dirs))
+            out.append(msg)
         return out
+
+    def skeleton(self, slot) -> dict:
+        """The :meth:`updates` message of an epoch without satellites, its numbers given by
+        ``slot(i)``: column i of :meth:`rows`, ``slot(-1)`` / ``slot(-2)`` the log time's seconds and
+        nanoseconds (a writer fills in the numbers instead of serialising a dict per epoch)."""
+        n = len(self.geometry.names)
+        frame = [[slot(3 * k), slot(3 * k + 1), slot(3 * k + 2)] for k in range(n)]
+        zs = [slot(3 * n + j) for j in range(len(self._labelled))]
+        return self._structure_message(frame, {"sec": slot(-1), "nsec": slot(-2)}, zs)
+
+    def rows(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The numbers of :meth:`skeleton` at the epochs of ``q`` (k, n_q): (k, 3 P + labels) drawn node
+        positions then label heights, m; and which epochs are drawn (finite; :meth:`updates` gives None
+        at the others)."""
+        P, lifted = self._drawn(q)
+        flat = P.reshape(len(P), -1)
+        return np.hstack([flat, lifted]), np.isfinite(flat).all(axis=1)
+
+    def _drawn(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Node positions as drawn (k, P, 3) and label heights (k, labels), rounded to the scene's resolution."""
+        P = np.round(drawn_positions(self.cfg, self.geometry, q, self.exaggeration), self.decimals)
+        return P, np.round(P[:, self._labelled, 2] + self._lift, self.decimals)
+
+    def _structure_message(self, frame, stamp: dict, zs) -> dict:
+        """The SceneUpdate of the structure from node positions ``frame`` (P × [x, y, z]) and label heights ``zs``."""
+        xyz = [{"x": x, "y": y, "z": z} for x, y, z in frame]
+        lines = [dict(head, points=[xyz[k] for k in idx]) for head, idx in self._lines]
+        spheres = [{"pose": {"position": xyz[k], "orientation": _IDENTITY}, **rest} for k, rest in self._spheres]
+        texts = [{"pose": {"position": {"x": xyz[k]["x"], "y": xyz[k]["y"], "z": z}, "orientation": _IDENTITY},
+                  **rest} for (k, rest), z in zip(self._texts, zs)]
+        return {"deletions": [], "entities": [_entity(None, "structure", stamp, lines=lines, spheres=spheres,
+                                                      texts=texts)]}
 
     def _satellite_entity(self, ns: int, master_xyz, dirs: np.ndarray) -> dict:
         """The ``satellites`` entity: arrows from the master antenna (as drawn) along ``dirs`` (S, 3),

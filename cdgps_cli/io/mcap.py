@@ -30,6 +30,7 @@ import contextlib
 import io
 import json
 import os
+import re
 import struct
 import zlib
 from array import array
@@ -210,6 +211,10 @@ def timestamp(time_s: float, time_scale: str = "relative") -> dict:
 
 
 _OPCODE_ATTACHMENT = int(Opcode.ATTACHMENT)
+_OPCODE_MESSAGE = int(Opcode.MESSAGE)
+_FRAME_MESSAGES = True
+"""Messages framed by :meth:`McapOut._frame` (False: each through the mcap library's ``add_message``,
+the reference the framing is tested against)."""
 _WRITER_INTERNALS = ("flush", "stream", "enable_data_crcs", "data_section_crc", "statistics",
                      "index_types", "attachment_indexes")
 
@@ -220,6 +225,121 @@ def _streaming_supported(writer: Writer, fh) -> bool:
     if not all(hasattr(writer, "_Writer__" + a) for a in _WRITER_INTERNALS):
         return False
     return writer._Writer__stream is fh and hasattr(writer._Writer__statistics, "attachment_count")
+
+
+_OPCODE_MESSAGE_INDEX = int(Opcode.MESSAGE_INDEX)
+_MESSAGE_HEAD = struct.Struct("<BQHIQQ")        # opcode, record length, channel, sequence, log time, publish time
+_MESSAGE_HEAD_BYTES = _MESSAGE_HEAD.size
+_CHUNK_INTERNALS = ("chunk_builder", "chunk_size", "statistics", "finalize_chunk", "index_types")
+
+
+def row_payload(layout, row: list, tail: dict | None = None, head: dict | None = None) -> dict:
+    """The payload :meth:`McapOut.write_rows` writes for one row (a list of floats; ``layout`` as
+    there)."""
+    payload, at = dict(head or {}), 0
+    for key, shape in layout:
+        if shape is None or shape == "int":
+            payload[key] = row[at] if shape is None or row[at] != row[at] else int(row[at])
+            at += 1
+        elif isinstance(shape, int):
+            payload[key] = row[at:at + shape]
+            at += shape
+        else:
+            payload[key] = dict(zip(shape, row[at:at + len(shape)]))
+            at += len(shape)
+    payload.update(tail or {})
+    return payload
+
+
+def _row_template(layout, tail: dict | None, head: dict | None = None) -> list | None:
+    """The bytes between the numbers of a :meth:`McapOut.write_rows` message after its ``time_s``:
+    m + 1 pieces for m numbers; None when a key or constant would hold the word ``null`` (then
+    :meth:`McapOut.write` takes another encoder)."""
+    keys = list(head or {}) + [k for k, _ in layout] + list(tail or {})
+    if len(set(keys)) < len(keys) or any(isinstance(s, list) and len(set(s)) < len(s) for _, s in layout):
+        return None                                       # a repeated key: the dict keeps the last
+    seps, pending = [], (b"," + orjson.dumps(head)[1:-1] if head else b"")
+    for key, shape in layout:
+        k = orjson.dumps(key)
+        if shape is None or shape == "int":
+            seps.append(pending + b"," + k + b":")
+            pending = b""
+        elif isinstance(shape, int):
+            if shape == 0:
+                pending += b"," + k + b":[]"
+                continue
+            seps.append(pending + b"," + k + b":[")
+            seps.extend([b","] * (shape - 1))
+            pending = b"]"
+        else:
+            if not shape:
+                pending += b"," + k + b":{}"
+                continue
+            names = [orjson.dumps(str(n)) for n in shape]
+            seps.append(pending + b"," + k + b":{" + names[0] + b":")
+            seps.extend(b"," + n + b":" for n in names[1:])
+            pending = b"}"
+    end = orjson.dumps(tail or {})[1:-1]
+    seps.append(pending + (b"," + end if end else b"") + b"}")
+    return None if any(b"null" in p for p in seps) else seps
+
+
+class Slot:
+    """A number left open in a message skeleton (:meth:`McapOut.write_skeleton`): column ``i`` of
+    the rows, or (``i`` = -1, -2) the seconds / nanoseconds of the message's log time."""
+
+    __slots__ = ("i",)
+
+    def __init__(self, i: int):
+        self.i = int(i)
+
+
+_SLOT_MARK = "\ue000"                 # (a private-use character: no text of a message holds it)
+_SLOT_TEXT = re.compile(rb'"\xee\x80\x80(-?\d+)\xee\x80\x80"')
+
+
+def _skeleton_template(skeleton: dict) -> tuple[list, list]:
+    """(n + 1 byte pieces, n slot indices) of ``skeleton``'s compact JSON around its :class:`Slot` leaves."""
+    found = []
+
+    def mark(v):
+        if not isinstance(v, Slot):
+            raise TypeError(f"{type(v).__name__} in a message skeleton")
+        found.append(v.i)
+        return f"{_SLOT_MARK}{v.i}{_SLOT_MARK}"
+
+    data = orjson.dumps(skeleton, default=mark)
+    parts = _SLOT_TEXT.split(data)
+    pieces, slots = parts[0::2], [int(i) for i in parts[1::2]]
+    if slots != found or any(b"null" in p or _SLOT_MARK.encode() in p for p in pieces):
+        raise ValueError("message skeleton: a missing value or a text holding the slot mark")
+    return pieces, slots
+
+
+def _framing_supported(writer: Writer) -> bool:
+    """Whether :meth:`McapOut._add` can frame messages into the mcap Writer's open chunk itself (its
+    private state is as expected: mcap-python 1.x with chunking); else each message goes through
+    ``Writer.add_message`` (the same bytes, ≈ 20 µs more per message)."""
+    if not all(hasattr(writer, "_Writer__" + a) for a in _CHUNK_INTERNALS):
+        return False
+    cb = writer._Writer__chunk_builder
+    return (cb is not None and hasattr(cb, "message_indices") and hasattr(cb, "num_messages")
+            and hasattr(getattr(cb, "record_writer", None), "_buffer")
+            and hasattr(writer._Writer__statistics, "channel_message_counts"))
+
+
+def _packed_index_class():
+    """``mcap.records.MessageIndex`` whose entries are written with one ``struct`` call (the bytes of
+    its own ``write``, which makes two calls per entry)."""
+    from mcap.records import MessageIndex  # noqa: PLC0415
+
+    class PackedMessageIndex(MessageIndex):
+        def write(self, stream) -> None:
+            flat = [v for entry in self.records for v in entry]
+            stream.write(struct.pack("<BQHI", _OPCODE_MESSAGE_INDEX, 6 + 8 * len(flat), self.channel_id, 8 * len(flat)))
+            stream.write(struct.pack(f"<{len(flat)}Q", *flat))
+
+    return PackedMessageIndex
 
 
 _MESSAGES_PER_BLOCK = 4096
@@ -283,6 +403,7 @@ class McapOut:
         self._schemas: dict[str, int] = {}
         self._seq: dict[int, int] = {}
         self._nullable: dict[int, tuple] = {}
+        self._index_class = None                 # set on entering: McapOut._frame's message index records
         self._packer = None                      # pack_in_background: the worker, and what it packs
         self._deferred: list = []
         self._topic: dict[int, str] = {}
@@ -306,6 +427,8 @@ class McapOut:
 
         self.writer = Writer(self._fh, compression=CompressionType.ZSTD, enable_crcs=True,
                              enable_data_crcs=True, chunk_size=1 << 20)
+        self._chunk_size = 1 << 20
+        self._index_class = _packed_index_class() if _FRAME_MESSAGES and _framing_supported(self.writer) else None
         try:
             self.writer.start(profile=self.profile, library="cdgps")
         except OSError as err:                  # full disk already at the header
@@ -351,6 +474,84 @@ class McapOut:
         self._add(channel_id, ns, data)
         self._note(channel_id, msg["time_s"], payload.get("receiver"))
 
+    def write_rows(self, channel_id: int, time_s, layout, values, tail: dict | None = None,
+                   head: dict | None = None) -> None:
+        """Write one message per row of ``values`` (k, m): the bytes of :meth:`write` of
+        :func:`row_payload` ``(layout, row, tail)`` at ``time_s[i]``, built from one template per
+        channel (no dict per message; rows with a NaN or infinity go through :meth:`write`, which
+        applies the schema's rules for missing values).
+
+        Parameters
+        ----------
+        channel_id : int
+        time_s : array-like (k,)
+            Payload times, s (the file's time scale).
+        layout : list of (str, list of str or int)
+            The payload's fields in order, each taking the next values of a row: a list of names, a
+            JSON object of those names; an int n, an array of n numbers (0: an empty array); None,
+            one number; ``"int"``, one integer (the value as ``int``).
+        values : ndarray (k, m)
+            Float rows; m the total width of ``layout``.
+        tail, head : dict, optional
+            Constant fields written after them (e.g. ``{"smoothed": True}``), and before them.
+        """
+        times = np.asarray(time_s, dtype=float).tolist()
+        values = np.asarray(values, dtype=float)
+        keys = {k for k, _ in layout} | set(tail or {}) | set(head or {})
+        # arrays with a _valid companion, a receiver, a key holding the word null: write()'s own ways
+        plain = not (self._nullable[channel_id][0] & keys or "receiver" in keys)
+        seps = (_row_template(layout, tail, head) if plain else None) or ()
+        widths = [1 if s is None or s == "int" else (s if isinstance(s, int) else len(s)) for _, s in layout]
+        int_cols = [c for c, (_, s) in zip(np.cumsum([0] + widths).tolist(), layout) if s == "int"]
+        finite = np.isfinite(values).all(axis=1).tolist() if values.size else [True] * len(times)
+        fmt = b'{"timestamp":{"sec":%d,"nsec":%d},"time_s":%s' + b"%s".join(p.replace(b"%", b"%%") for p in seps)
+        block = 256                                        # rows whose number texts are held at a time
+        for a in range(0, len(times), block):
+            rows, tb = values[a:a + block], times[a:a + block]
+            texts = orjson.dumps(rows.ravel().tolist())[1:-1].split(b",") if rows.size else []
+            t_texts = orjson.dumps(tb)[1:-1].split(b",")
+            m = rows.shape[1] if rows.ndim == 2 else 0
+            for c in int_cols:
+                for i, v in enumerate(rows[:, c].tolist()):
+                    texts[i * m + c] = b"%d" % v if v == v and abs(v) != np.inf else b"null"
+            stamps, datas, kept = [], [], []
+            for i, t in enumerate(tb):
+                if not (seps and finite[a + i]):
+                    self._add_many(channel_id, stamps, datas, kept)         # (what came before, in order)
+                    stamps, datas, kept = [], [], []
+                    self.write(channel_id, t, row_payload(layout, rows[i].tolist(), tail, head))
+                    continue
+                ns = time_ns(t, self.time_scale)
+                stamps.append(ns)
+                datas.append(fmt % (ns // 1_000_000_000, ns % 1_000_000_000, t_texts[i], *texts[i * m:(i + 1) * m]))
+                kept.append(t)
+            self._add_many(channel_id, stamps, datas, kept)
+
+    def write_skeleton(self, channel_id: int, time_s, skeleton: dict, values) -> None:
+        """Write, at each time ``time_s[i]``, the bytes of :meth:`write_raw` of ``skeleton`` with its
+        :class:`Slot` leaves filled in: ``Slot(j)`` by ``values[i, j]``, ``Slot(-1)`` / ``Slot(-2)`` by
+        the seconds / nanoseconds of the message's log time (one template, no dict per message).
+
+        ``values`` (k, m) must be finite (a ValueError, as :meth:`write_raw` gives for a missing value)."""
+        times = np.asarray(time_s, dtype=float).tolist()
+        values = np.asarray(values, dtype=float)
+        if values.size and not np.isfinite(values).all():
+            raise ValueError(f"messages on {self._topic[channel_id]}: a missing value (NaN or infinity)")
+        pieces, slots = _skeleton_template(skeleton)
+        fmt = b"%s".join(p.replace(b"%", b"%%") for p in pieces)
+        block = 256                                        # rows whose number texts are held at a time
+        for a in range(0, len(times), block):
+            rows = values[a:a + block]
+            m = rows.shape[1] if rows.ndim == 2 else 0
+            texts = orjson.dumps(rows.ravel().tolist())[1:-1].split(b",") if rows.size else []
+            tb = times[a:a + block]
+            stamps = [time_ns(t, self.time_scale) for t in tb]
+            datas = []
+            for i, ns in enumerate(stamps):
+                row = texts[i * m:(i + 1) * m] + [b"%d" % (ns % 1_000_000_000), b"%d" % (ns // 1_000_000_000)]
+                datas.append(fmt % tuple([row[j] for j in slots]))   # (-1: seconds, -2: nanoseconds)
+            self._add_many(channel_id, stamps, datas, tb)
+
     def write_raw(self, channel_id: int, time_s: float, payload: dict) -> None:
         """Write ``payload`` exactly as given (no ``timestamp`` / ``time_s`` added: a message of a
         well-known schema such as ``foxglove.SceneUpdate``) at log time ``time_s`` (the file's time
@@ -391,9 +592,89 @@ class McapOut:
                                       **self.info_extra})
 
     def _add(self, channel_id: int, ns: int, data: bytes) -> None:
-        self.writer.add_message(channel_id=channel_id, log_time=ns, publish_time=ns, data=data,
-                                sequence=self._seq[channel_id])
-        self._seq[channel_id] += 1
+        """Add one message (log and publish time ``ns``, the channel's next sequence number)."""
+        if self._index_class is None:
+            self.writer.add_message(channel_id=channel_id, log_time=ns, publish_time=ns, data=data,
+                                    sequence=self._seq[channel_id])
+            self._seq[channel_id] += 1
+            return
+        self._frame(channel_id, ns, data)
+
+    def _add_many(self, channel_id: int, stamps_ns: list, datas: list, times_s: list) -> None:
+        """:meth:`_add` and :meth:`_note` (no receiver) of messages of one channel in a row: the same
+        bytes, the file statistics updated once and the chunk's state held in locals."""
+        if not stamps_ns:
+            return
+        if self._index_class is None:
+            for ns, data, t in zip(stamps_ns, datas, times_s):
+                self._add(channel_id, ns, data)
+                self._note(channel_id, t, None)
+            return
+        w = self.writer
+        st, cb, limit, pack = w._Writer__statistics, w._Writer__chunk_builder, self._chunk_size, _MESSAGE_HEAD.pack
+        lo, hi = min(stamps_ns), max(stamps_ns)
+        if st.message_count == 0 or lo < st.message_start_time:
+            st.message_start_time = lo
+        if hi > st.message_end_time:
+            st.message_end_time = hi
+        st.channel_message_counts[channel_id] += len(stamps_ns)
+        st.message_count += len(stamps_ns)
+        seq = self._seq[channel_id]
+        buf, index = cb.record_writer._buffer, None
+        for ns, data in zip(stamps_ns, datas):
+            if cb.num_messages == 0 or ns < cb.message_start_time:
+                cb.message_start_time = ns
+            if ns > cb.message_end_time:
+                cb.message_end_time = ns
+            if index is None:
+                index = cb.message_indices.get(channel_id)
+                if index is None:
+                    index = cb.message_indices[channel_id] = self._index_class(channel_id=channel_id, records=[])
+            at = buf.tell()
+            index.records.append((ns, at))
+            cb.num_messages += 1
+            buf.write(pack(_OPCODE_MESSAGE, 22 + len(data), channel_id, seq, ns, ns))
+            buf.write(data)
+            seq += 1
+            if at + _MESSAGE_HEAD_BYTES + len(data) > limit:
+                w._Writer__finalize_chunk()
+                buf, index = cb.record_writer._buffer, None            # (a new buffer and indexes)
+        self._seq[channel_id] = seq
+        src = self._sources.get(channel_id)
+        if src is not None:
+            src.extend([None] * len(times_s))
+        self._times[channel_id].extend(times_s)
+
+    def _frame(self, channel_id: int, ns: int, data: bytes) -> None:
+        """What ``Writer.add_message`` does for a chunked file, without its per-message objects: the
+        file statistics, the chunk's time span and message index, the Message record appended to the
+        chunk's buffer, and the chunk finished once it exceeds its size (the same bytes;
+        ``tests/io/test_mcap_framing.py``)."""
+        w = self.writer
+        st, cb = w._Writer__statistics, w._Writer__chunk_builder
+        if st.message_count == 0 or ns < st.message_start_time:
+            st.message_start_time = ns
+        if ns > st.message_end_time:
+            st.message_end_time = ns
+        st.channel_message_counts[channel_id] += 1
+        st.message_count += 1
+        if cb.num_messages == 0 or ns < cb.message_start_time:
+            cb.message_start_time = ns
+        if ns > cb.message_end_time:
+            cb.message_end_time = ns
+        index = cb.message_indices.get(channel_id)
+        if index is None:
+            index = cb.message_indices[channel_id] = self._index_class(channel_id=channel_id, records=[])
+        buf = cb.record_writer._buffer
+        at = buf.tell()
+        index.records.append((ns, at))
+        cb.num_messages += 1
+        seq = self._seq[channel_id]
+        self._seq[channel_id] = seq + 1
+        buf.write(_MESSAGE_HEAD.pack(_OPCODE_MESSAGE, 22 + len(data), channel_id, seq, ns, ns))
+        buf.write(data)
+        if at + _MESSAGE_HEAD_BYTES + len(data) > self._chunk_size:
+            w._Writer__finalize_chunk()
 
     @staticmethod
     def _encode(msg: dict, payload: dict, arrays, others, time_s) -> bytes:

@@ -57,7 +57,7 @@ from cdgps_cli.io.states_layout import (COVARIANCE_CHOICES, DEFAULT_COVARIANCE, 
                                         OUTPUT_MAP_PACKED, PACKED_PREFIX, RESIDUAL_PACKED, SERIES_ATTACHMENT,
                                         STATE_DELTA, STATES_FORMAT, STATES_KINDS)
 from cdgps_cli.io.foxglove_schema import scene_update_schema
-from cdgps_cli.io.mcap import (NULLABLE, CONFIG_ATTACHMENT, McapOut, array_schema, message_schema,
+from cdgps_cli.io.mcap import (NULLABLE, CONFIG_ATTACHMENT, McapOut, Slot, array_schema, message_schema,
                                read_mcap, read_span, time_ns)
 
 STATE_TOPIC = "/cdgps/state"
@@ -157,15 +157,13 @@ def _write_angles(out: McapOut, C: np.ndarray, angles, time_s, q: np.ndarray, P_
     sig_names = ["sigma_" + n for n in names]
     ch = out.channel(ANGLES_TOPIC, _angles_schema(angles),
                      {"units": "deg", "angles": json.dumps({n: e for n, e, _ in angles})})
-    keys = names + sig_names
+    layout = [(k, None) for k in names + sig_names]
     times = np.asarray(time_s, dtype=float)
     for a in range(0, times.size, 1024):                      # blocks: no full-length temporaries
         b = min(a + 1024, times.size)
         deg = np.degrees(q[a:b] @ A.T)
         var = np.einsum("ai,nij,aj->na", AU, P_pos[a:b], AU)
-        rows = np.hstack([deg, np.degrees(np.sqrt(np.maximum(var, 0.0)))]).tolist()
-        for t, row in zip(times[a:b].tolist(), rows):
-            out.write(ch, t, dict(zip(keys, row)))
+        out.write_rows(ch, times[a:b], layout, np.hstack([deg, np.degrees(np.sqrt(np.maximum(var, 0.0)))]))
 
 
 def _write_scene(out: McapOut, scene, time_s, q: np.ndarray, block: int = 64) -> int:
@@ -184,12 +182,27 @@ def _write_scene(out: McapOut, scene, time_s, q: np.ndarray, block: int = 64) ->
     if fixed is not None:
         out.write_raw(out.channel(SCENE_FIXED_TOPIC, schema, dict(scene.metadata)), times[0], fixed)
     ch = out.channel(SCENE_TOPIC, schema, dict(scene.metadata))
+    if getattr(scene, "satellites", None) is None and hasattr(scene, "skeleton"):
+        return _write_scene_rows(out, ch, scene, times, q)
     n = 0
     for a in range(0, len(times), block):          # small blocks: a message is ~10 kB of Python objects
         for t, msg in zip(times[a:a + block], scene.updates(q[a:a + block], ns[a:a + block], times[a:a + block])):
             if msg is not None:
                 out.write_raw(ch, t, msg)
                 n += 1
+    return n
+
+
+def _write_scene_rows(out: McapOut, ch: int, scene, times: list, q: np.ndarray, block: int = 1024) -> int:
+    """The :data:`SCENE_TOPIC` messages of a scene without satellites from its one ``skeleton`` and
+    the ``rows`` of numbers (the bytes of ``write_raw`` of its ``updates``; epochs not drawn left out)."""
+    skeleton = scene.skeleton(Slot)
+    t = np.asarray(times, dtype=float)
+    n = 0
+    for a in range(0, len(t), block):
+        vals, ok = scene.rows(q[a:a + block])
+        out.write_skeleton(ch, t[a:a + block][ok], skeleton, vals[ok])
+        n += int(np.count_nonzero(ok))
     return n
 
 
@@ -428,15 +441,9 @@ def _write_state_messages(out: McapOut, ch: int, names, times, q, sq, X, P_sel, 
     with_P = P_sel is not None
     blocks = [q, sq, X[:, :npos]] + ([X[:, npos:npos + nrate]] if nrate else []) + \
         ([P_sel.reshape(len(times), -1)] if with_P else [])
-    nq = len(names)
-    cuts = np.cumsum([0, nq, nq, npos] + ([nrate] if nrate else []) + ([npos * npos] if with_P else []))
-    keys = ["xi"] + (["xidot"] if nrate else []) + (["P_xi"] if with_P else [])
-    for t, row in zip(times.tolist(), np.hstack(blocks).tolist()):
-        msg = {"q": dict(zip(names, row[:nq])), "sigma_q": dict(zip(names, row[nq:2 * nq]))}
-        for key, a, b in zip(keys, cuts[2:-1].tolist(), cuts[3:].tolist()):
-            msg[key] = row[a:b]
-        msg["smoothed"] = smoothed
-        out.write(ch, t, msg)
+    layout = [("q", list(names)), ("sigma_q", list(names)), ("xi", npos)] + ([("xidot", nrate)] if nrate else []) + \
+        ([("P_xi", npos * npos)] if with_P else [])
+    out.write_rows(ch, times, layout, np.hstack(blocks), {"smoothed": smoothed})
 
 
 def _write_residuals(out: McapOut, ss: StateSeries, time_s, sel, chunk: int, nis_bounds=None) -> None:
@@ -473,18 +480,27 @@ def _write_residuals(out: McapOut, ss: StateSeries, time_s, sel, chunk: int, nis
         has = ~np.isnan(nis) & (np.asarray(dof) > 0)
         bounds = [None if not h else (a, b) for h, a, b in zip(has.tolist(), np.asarray(lo, dtype=float).tolist(),
                                                                np.asarray(hi, dtype=float).tolist())]
-    for i, (t, r) in enumerate(zip(np.asarray(time_s, dtype=float)[sel].tolist(), R.tolist())):
-        if every[i]:
-            a, x = ants, txs
-        else:                                          # the channels used at this epoch
+    times = np.asarray(time_s, dtype=float)[sel]
+    # epochs using every channel: one template (the channel names once), NIS and bounds as numbers (NaN: left out)
+    layout = [("residual_m", len(ants)), ("nis", None), ("nis_dof", "int")]
+    cols = [R, nis[:, None], np.asarray(dof, dtype=float)[:, None]]
+    if bounds is not None:
+        layout += [("nis_lower95", None), ("nis_upper95", None)]
+        cols.append(np.array([b if b is not None else (np.nan, np.nan) for b in bounds], dtype=float).reshape(-1, 2))
+    rows = np.hstack(cols)
+    every_arr = np.asarray(every, dtype=bool)
+    cuts = np.flatnonzero(np.r_[True, every_arr[1:] != every_arr[:-1], True]).tolist()
+    for a, b in zip(cuts[:-1], cuts[1:]):              # runs of epochs alike
+        if every[a]:
+            out.write_rows(ch, times[a:b], layout, rows[a:b], head={"antenna": ants, "transmitter": txs})
+            continue
+        for i in range(a, b):                          # the channels used at this epoch
             u = used[i].tolist()
-            a = [v for v, ok in zip(ants, u) if ok]
-            x = [v for v, ok in zip(txs, u) if ok]
-            r = [v for v, ok in zip(r, u) if ok]
-        msg = {"antenna": a, "transmitter": x, "residual_m": r, "nis": nis_list[i], "nis_dof": dof[i]}
-        if bounds is not None and bounds[i] is not None:
-            msg["nis_lower95"], msg["nis_upper95"] = bounds[i]
-        out.write(ch, t, msg)
+            msg = {"antenna": [v for v, ok in zip(ants, u) if ok], "transmitter": [v for v, ok in zip(txs, u) if ok],
+                   "residual_m": [v for v, ok in zip(R[i].tolist(), u) if ok], "nis": nis_list[i], "nis_dof": dof[i]}
+            if bounds is not None and bounds[i] is not None:
+                msg["nis_lower95"], msg["nis_upper95"] = bounds[i]
+            out.write(ch, float(times[i]), msg)
     size, pieces = p_r.finish()
     out.attach_stream(RESIDUAL_PACKED + "residual_m", size, pieces, MEDIA_TYPE)
     out.attach_packed(RESIDUAL_PACKED + "nis", nis_all)
