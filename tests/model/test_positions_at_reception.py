@@ -85,3 +85,20 @@ def test_same_error_for_an_uncovered_satellite():
     with pytest.raises(CdgpsError) as got:
         sat_positions_at_reception(nav, sats, t, RX)
     assert str(got.value) == str(want.value)
+
+
+def test_reception_geometry_with_a_shared_selection():
+    """Two receivers' geometry of the same rows from one ephemeris selection: the same bits as each
+    selecting its own (what baseline._prepare could do for the master and the rover)."""
+    from cdgps_cli.model.gps.positioning import reception_geometry  # noqa: PLC0415
+
+    nav = read_rinex_nav(SHARED / "real-pairs" / "mosaic-static" / "base.nav", systems="".join(NAV_SYSTEMS))
+    rng = np.random.default_rng(3)
+    sats, t = _rows(nav, rng)
+    eph = reception_ephemeris(nav, sats, t)
+    for rx in (RX, RX + 3000.0):
+        tt = t - rng.uniform(-1e-3, 1e-3, t.size)
+        a = reception_geometry(nav, sats, t, tt, rx)
+        b = reception_geometry(nav, sats, t, tt, rx, ephemeris=eph)
+        for k in a:
+            np.testing.assert_array_equal(a[k], b[k])

@@ -502,7 +502,8 @@ def match_epochs(t_a_s, t_b_s, *, tol_s: float = 0.025) -> tuple[np.ndarray, np.
 # ----------------------------------------------------------------------------------------------
 
 
-def reception_geometry(nav: pd.DataFrame, sats, t_label_s, t_true_s, rx_ecef_m, *, troposphere: bool = True) -> dict:
+def reception_geometry(nav: pd.DataFrame, sats, t_label_s, t_true_s, rx_ecef_m, *, troposphere: bool = True,
+                       ephemeris=None) -> dict:
     """Satellite geometry for observation rows of one receiver at their true reception times.
 
     Parameters
@@ -520,6 +521,10 @@ def reception_geometry(nav: pd.DataFrame, sats, t_label_s, t_true_s, rx_ecef_m, 
         Receiver position, ECEF m.
     troposphere : bool
         Compute the hydrostatic troposphere (else zeros).
+    ephemeris : ReceptionEphemeris, optional
+        :func:`~cdgps_cli.model.gps.orbits.reception_ephemeris` of (``sats``, ``t_label_s``), for a caller
+        that evaluates the same rows for two receivers (both receivers of a pair share ``sats`` and
+        ``t_label_s``): selected here when absent; the result is the same either way.
 
     Returns
     -------
@@ -531,7 +536,8 @@ def reception_geometry(nav: pd.DataFrame, sats, t_label_s, t_true_s, rx_ecef_m, 
     sats = np.asarray(sats, dtype=object)
     tl = np.asarray(t_label_s, dtype=np.float64)
     tt = np.asarray(t_true_s, dtype=np.float64)
-    xyz, clk, rng, az, el, trop = _rows_geometry(nav, sats, tl, tt, rx_ecef_m, troposphere=troposphere)
+    xyz, clk, rng, az, el, trop = _rows_geometry(nav, sats, tl, tt, rx_ecef_m, troposphere=troposphere,
+                                                 ephemeris=ephemeris)
     return {"sat_xyz_m": xyz, "sat_clock_s": clk, "range_m": rng, "az_rad": az, "el_rad": el, "trop_m": trop}
 
 
