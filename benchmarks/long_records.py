@@ -14,10 +14,17 @@ under ``/usr/bin/time`` (peak RSS = the process's maximum resident set size)::
     evaluate cdgps evaluate --truth sim --estimate states.mcap --json
     report   cdgps report spectrum states.mcap --gyro run.mcap -o report
 
-``--gnss-hours H`` adds the GNSS row (issue 29: a 24 h static pair at 1 Hz, target < 30 s for the
-whole commands): ``cdgps simulate-gnss --duration 3600 H --rate-hz 1 --slips 30 --seed 1`` (cached in
+``--gnss-hours H [H ...]`` adds the GNSS rows (issue 29: a 24 h static pair at 1 Hz, target < 30 s for
+the whole commands): ``cdgps simulate-gnss --duration 3600 H --rate-hz 1 --slips 30 --seed 1`` (cached in
 ``--workdir``/gnss-<H>h), then ``ingest --config``, ``init`` and ``estimate``, each its own process,
-with their sum.
+with their sum.  ``--gnss-before TREE`` runs each of those stages with an earlier source tree right
+before this tree's (``--gnss-rounds`` times; the round with the least CPU is kept) and checks that
+their RUN, init.json and STATES are byte-identical.  Without ``--hours`` the testbed rows already in
+``--out`` are kept::
+
+    git archive <before> | tar -x -C /tmp/before
+    python benchmarks/long_records.py --hours --gnss-hours 1 24 --gnss-before /tmp/before --gnss-rounds 2 \
+        --out docs/benchmarks/long_records.json
 
 Each stage's record: wall s, CPU s (user + system), each per hour of record, peak RSS MiB and the 1-minute load average when it
 started (the machine may be shared: memory does not depend on the load, time does).  ``--stages``
@@ -62,13 +69,14 @@ def _args(stage: str, d: Path) -> tuple[list[str], list[Path]]:
     return [stage, *args], needs
 
 
-def _timed(args: list[str]) -> dict:
-    """Run ``cdgps -q <args>`` under /usr/bin/time: wall s, peak RSS MiB, exit code."""
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
+def _timed(args: list[str], root: Path = ROOT, cwd: Path = ROOT) -> dict:
+    """Run ``cdgps -q <args>`` (the package of source tree ``root``, in directory ``cwd``) under
+    /usr/bin/time: wall s, CPU s, peak RSS MiB, exit code."""
+    env = dict(os.environ, PYTHONPATH=str(root))
     load = os.getloadavg()[0]
     t0 = time.perf_counter()
     p = subprocess.run(["/usr/bin/time", "-f", "__TIME__ %e %M %U %S", *CDGPS, "-q", *args], capture_output=True,
-                       text=True, env=env, cwd=ROOT)
+                       text=True, env=env, cwd=cwd)
     wall = time.perf_counter() - t0
     line = [ln for ln in p.stderr.splitlines() if ln.startswith("__TIME__")]
     rss = float(line[-1].split()[2]) / 1024.0 if line else float("nan")
@@ -111,25 +119,52 @@ def run_record(workdir: Path, hours: float, stages) -> dict:
     return rec
 
 
-def gnss_pair(workdir: Path, hours: float) -> dict:
-    """The GNSS row: a simulated static pair at 1 Hz through ingest, init and estimate."""
+GNSS_STAGES = ("ingest", "init", "estimate")
+
+
+def _gnss_args(stage: str, d: Path) -> list[str]:
+    """A GNSS stage's command line, run in its output directory (the same relative names for every tree,
+    so that their outputs can be compared byte for byte)."""
+    return {"ingest": ["ingest", "--config", str(d / "config.toml"), "-o", "run.mcap"],
+            "init": ["init", "run.mcap", "-o", "init.json"],
+            "estimate": ["estimate", "run.mcap", "--init", "init.json", "-o", "states.mcap"]}[stage]
+
+
+def gnss_pair(workdir: Path, hours: float, before: Path | None = None, rounds: int = 1) -> dict:
+    """The GNSS row: a simulated static pair at 1 Hz through ingest, init and estimate, each its own
+    process.  With ``before`` (a source tree of the earlier code, e.g. ``git archive <commit>``), each
+    stage of that tree runs right before the same stage of this one (``rounds`` times, interleaved),
+    in its own output directory; the outputs of the two are compared byte for byte."""
     d = workdir / f"gnss-{hours:g}h"
     if not (d / "config.toml").exists():
         r = _timed(["simulate-gnss", "--duration", str(int(3600 * hours)), "--rate-hz", "1", "--slips", "30",
                     "--seed", "1", "-o", str(d)])
         if r["exit"]:
             raise SystemExit(f"simulate-gnss {hours} h failed: {r.get('stderr')}")
-    rec = {"hours": hours, "rate_hz": 1.0, "stages": {}}
-    for stage, args in (("ingest", ["ingest", "--config", str(d / "config.toml"), "-o", str(d / "run.mcap")]),
-                        ("init", ["init", str(d / "run.mcap"), "-o", str(d / "init.json")]),
-                        ("estimate", ["estimate", str(d / "run.mcap"), "--init", str(d / "init.json"),
-                                      "-o", str(d / "states.mcap")])):
-        r = _timed(args)
-        rec["stages"][stage] = r
-        print(f"  GNSS {hours:g} h {stage:9s} {r['wall_s']:8.1f} s {r['peak_rss_mib']:8.1f} MiB (load "
-              f"{r['load_1min']:.1f})" + ("" if not r["exit"] else f"  EXIT {r['exit']}"), file=sys.stderr, flush=True)
-    rec["whole_commands_s"] = round(sum(s["wall_s"] for s in rec["stages"].values()), 2)
-    rec["peak_rss_mib"] = max(s["peak_rss_mib"] for s in rec["stages"].values())
+    trees = ([("before", before)] if before else []) + [("after", ROOT)]
+    runs = {name: {s: [] for s in GNSS_STAGES} for name, _ in trees}
+    for _ in range(rounds):
+        for stage in GNSS_STAGES:
+            for name, tree in trees:
+                out = d / name
+                out.mkdir(exist_ok=True)
+                r = _timed(_gnss_args(stage, d), root=tree, cwd=out)
+                runs[name][stage].append(r)
+                print(f"  GNSS {hours:g} h {name:6s} {stage:9s} {r['wall_s']:8.1f} s {r['cpu_s']:7.1f} s CPU "
+                      f"{r['peak_rss_mib']:8.1f} MiB (load {r['load_1min']:.1f})"
+                      + ("" if not r["exit"] else f"  EXIT {r['exit']}"), file=sys.stderr, flush=True)
+    rec = {"hours": hours, "rate_hz": 1.0, "rounds": rounds}
+    for name, _ in trees:
+        # each stage: the round with the least CPU (the machine is shared; wall and load of that round)
+        st = {s: dict(min(v, key=lambda r: r["cpu_s"]), wall_s_rounds=[r["wall_s"] for r in v],
+                      cpu_s_rounds=[r["cpu_s"] for r in v]) for s, v in runs[name].items()}
+        part = {"stages": st, "whole_commands_s": round(sum(x["wall_s"] for x in st.values()), 2),
+                "cpu_s_whole_commands": round(sum(x["cpu_s"] for x in st.values()), 2),
+                "peak_rss_mib": max(x["peak_rss_mib"] for x in st.values())}
+        rec.update(part) if name == "after" else rec.update(before=part)
+    if before:
+        rec["outputs_identical"] = {f: (d / "before" / f).read_bytes() == (d / "after" / f).read_bytes()
+                                    for f in ("run.mcap", "init.json", "states.mcap")}
     return rec
 
 
@@ -153,19 +188,27 @@ def main() -> None:
     ap.add_argument("--stages", nargs="+", choices=STAGES, default=list(STAGES))
     ap.add_argument("--workdir", type=Path, default=Path("/tmp/cdgps-long-records"))
     ap.add_argument("--out", type=Path)
-    ap.add_argument("--gnss-hours", type=float, help="also the GNSS pair row (a static pair at 1 Hz of this length)")
+    ap.add_argument("--gnss-hours", type=float, nargs="*", default=[],
+                    help="also the GNSS pair rows (static pairs at 1 Hz of these lengths; the last is 'gnss_pair')")
+    ap.add_argument("--gnss-before", type=Path, help="a source tree of the earlier code: its GNSS stages run "
+                    "interleaved with this tree's, outputs compared (e.g. git archive <commit> | tar -x -C DIR)")
+    ap.add_argument("--gnss-rounds", type=int, default=1)
     a = ap.parse_args()
     records = []
-    gnss = gnss_pair(a.workdir, a.gnss_hours) if a.gnss_hours else None
-    for h in [None, *a.hours]:                 # (None: the GNSS row alone is written first)
+    # with no --hours, the testbed rows already in --out are kept (a GNSS-only run updates only its rows)
+    old = json.loads(a.out.read_text()) if a.out and a.out.exists() and not a.hours else {}
+    gnss = [gnss_pair(a.workdir, h, a.gnss_before, a.gnss_rounds) for h in a.gnss_hours]
+    for h in [None, *a.hours]:                 # (None: the GNSS rows alone are written first)
         if h is not None:
             records.append(run_record(a.workdir, h, a.stages))
         result = {"config": "configs/testbed-1998.toml (10 Hz), seed 1, 2 cm noise, disturbance scale 1",
                   "machine": f"{platform.machine()}, {os.cpu_count()} cores (shared)",
                   "python": platform.python_version(), "records": records,
                   "note": "peak RSS: /usr/bin/time maximum resident set size of each cdgps process; load_1min: "
-                          "the 1-minute load average when the stage started (times depend on it)",
-                  **({"gnss_pair": gnss} if gnss else {})}
+                          "the 1-minute load average when the stage started (times depend on it)"}
+        result = {**old, **result, "records": old.get("records", records) if not a.hours else records}
+        if gnss:
+            result.update(gnss_pair=gnss[-1], gnss_pairs=gnss)
         if a.out:
             a.out.parent.mkdir(parents=True, exist_ok=True)
             a.out.write_text(json.dumps(result, indent=1) + "\n")

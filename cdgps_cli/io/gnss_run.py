@@ -281,10 +281,12 @@ def _unpack_npz_zst(data: bytes, what: str, text_cols: tuple, dtypes: dict, colu
         df = {c: np.asarray(z[c + "_names"], dtype=object)[z[c + "_index"].astype(np.int64)] for c in text_cols}
         extra = [c for c in optional if c in z.files]
         for c in list(dtypes) + extra:
-            df[c] = z[c].astype(np.float64) if z[c].dtype.kind == "f" else z[c].astype(np.int64)
+            v = z[c]
+            df[c] = v.astype(np.float64 if v.dtype.kind == "f" else np.int64, copy=False)
     except (KeyError, ValueError, OSError, zstandard.ZstdError) as exc:
         raise CdgpsError(f"{what}: damaged observation arrays: {exc}") from None
-    return pd.DataFrame(df, columns=columns + extra)
+    # copy=False: the columns become the frame's blocks as they are (no second, consolidated copy of the table)
+    return pd.DataFrame(df, columns=columns + extra, copy=False)
 
 
 def _npz_zst(raw: pd.DataFrame) -> bytes:

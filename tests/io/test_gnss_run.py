@@ -431,3 +431,26 @@ def test_sfrbx_ephemerides_count_as_a_navigation_source(tmp_path):
     assert "broadcast ephemerides decoded from the UBX logs' RXM-SFRBX" in r.stderr
     assert "no navigation file" not in r.stderr
     assert len(read_gnss_run(tmp_path / "w.mcap").nav) > 0
+
+
+def test_observation_arrays_round_trip_as_float64_and_int64_columns():
+    """The RUN's observation table: every column back with its values, floats as float64 and integers
+    as int64 (the frame is built on the decoded columns without a consolidated copy)."""
+    from cdgps_cli.io.gnss_run import _npz_zst, _raw_from_npz_zst  # noqa: PLC0415
+
+    rng = np.random.default_rng(3)
+    n = 500
+    raw = pd.DataFrame({c: rng.integers(-1, 9, n) for c in RAW_COLUMNS})
+    raw["sat"] = rng.choice(["G01", "G12", "E05"], n).astype(object)
+    for c in ("time_gps_s", "phase_cycles", "pseudorange_m", "clock_offset_s"):
+        raw[c] = rng.normal(0.0, 1e7, n)
+    for c in ("snr_dbhz", "doppler_hz", "cp_std_cycles", "pr_std_m"):
+        raw[c] = rng.normal(0.0, 1e3, n).astype(np.float32).astype(np.float64)
+    raw.loc[::7, "phase_cycles"] = np.nan
+    back = _raw_from_npz_zst(_npz_zst(raw), "test")
+    assert list(back.columns) == list(RAW_COLUMNS)
+    for c in RAW_COLUMNS:
+        want = raw[c].to_numpy()
+        got = back[c].to_numpy()
+        assert got.dtype == (object if c == "sat" else np.float64 if want.dtype.kind == "f" else np.int64), c
+        np.testing.assert_array_equal(got, want)

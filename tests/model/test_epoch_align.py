@@ -72,7 +72,9 @@ def test_doppler_mode_moves_phase_and_range_to_the_grid_time():
         ph = a + b * tt + c * tt**2
         rows.append(table(tags, [f"G0{s_i + 1}"] * 60, ph))
     obs = pd.concat(rows, ignore_index=True).sort_values(["time_gps_s", "sat"]).reset_index(drop=True)
+    before = obs.copy(deep=True)
     out, s = align_receiver(obs, tol_s=0.025, mode="doppler")
+    pd.testing.assert_frame_equal(obs, before)      # the input is not modified (the kept rows are not copied first)
     assert s["corrected"] == 60 and s["rows_dropped_no_rate"] == 0
     np.testing.assert_allclose(out["time_gps_s"], out["grid_gps_s"], atol=0)
     for s_i, (a, b, c) in enumerate([(1e7, -3000.0, 0.5), (2e7, 2500.0, -0.4)]):

@@ -239,7 +239,7 @@ def align_receiver(obs: pd.DataFrame, *, tol_s: float, mode: str = ALIGN_MODES[0
                "grid_s": step, "tolerance_ms": tol * 1e3, "mode": mode}
     k = np.searchsorted(tags, t)
     row_keep = chosen[k]
-    out = obs.loc[row_keep].copy()
+    out = obs.loc[row_keep]              # a new frame (copy-on-write: setting its columns leaves obs alone)
     kk = k[row_keep]
     out["grid_gps_s"] = g_tag[kk]
     out["tag_gps_s"] = tags[kk]

@@ -54,6 +54,9 @@ __all__ = [
     "select_ephemeris",
     "select_ephemerides",
     "sat_position_at_reception",
+    "ReceptionEphemeris",
+    "reception_ephemeris",
+    "sat_positions_at_reception",
     "ReceptionGeometry",
     "ecef_to_geodetic",
     "geodetic_to_ecef",
@@ -476,6 +479,263 @@ def sat_position_at_reception(
         if done:
             break
     return ReceptionGeometry(rot, clk, rng, tau)
+
+
+class ReceptionEphemeris(NamedTuple):
+    """The broadcast ephemeris of every (satellite, time) row, selected once (:func:`reception_ephemeris`).
+
+    Rows are kept grouped by satellite: ``order`` lists the Kepler-orbit rows (GPS, Galileo, BeiDou)
+    satellite after satellite, ``starts`` where each satellite's block begins in it and ``nav_rows``
+    the ephemeris (row of ``kepler``) of each; ``glonass`` lists (satellite, row indices) of the GLONASS
+    satellites, which :func:`sat_positions_at_reception` evaluates one by one.
+    """
+
+    n_rows: int
+    """Number of rows N."""
+    order: np.ndarray
+    """Indices (0…N−1) of the Kepler rows, grouped by satellite in name order, shape (K,)."""
+    starts: np.ndarray
+    """Start of each Kepler satellite's block in ``order``, shape (S,)."""
+    nav_rows: np.ndarray
+    """Ephemeris of each row of ``order``: its position in the navigation table and in ``kepler``, shape (K,)."""
+    kepler: dict
+    """Per ephemeris of the navigation table (arrays of its length): the orbit fields and the
+    time-independent terms of the user algorithm."""
+    glonass: tuple
+    """(satellite, row indices) of each GLONASS satellite."""
+
+
+CHUNK_ROWS = 65536
+"""Rows evaluated together by :func:`sat_positions_at_reception` (whole satellites; at least one):
+the temporaries of the orbit stay a few MB however long the record."""
+
+
+def _sat_blocks(sats: np.ndarray) -> list:
+    """(satellite, row indices) for each distinct satellite in name order; rows keep their order."""
+    codes, names = pd.factorize(sats, sort=True)
+    order = np.argsort(codes, kind="stable")
+    cuts = np.r_[0, np.cumsum(np.bincount(codes[codes >= 0], minlength=len(names)))]
+    order = order[order.size - cuts[-1]:]                  # (rows without a satellite, code −1, sort first)
+    return [(str(names[i]), order[cuts[i]:cuts[i + 1]]) for i in range(len(names))]
+
+
+def reception_ephemeris(nav: pd.DataFrame, sats, t_rx_gps_s, *, max_age_s: float | None = None) -> ReceptionEphemeris:
+    """Select, once, the ephemeris of each (satellite, reception tag) row for :func:`sat_positions_at_reception`.
+
+    The choice is :func:`select_ephemeris`'s for each satellite at its rows' tags (so a caller evaluating
+    the same rows several times, e.g. iterating on the receiver clock, selects them once).
+
+    Parameters
+    ----------
+    nav : DataFrame
+        Ephemerides (:func:`~cdgps_cli.io.rinex.read_rinex_nav`).
+    sats : array_like of str, shape (N,)
+        Satellite of each row.
+    t_rx_gps_s : array_like, shape (N,)
+        Receiver time tag of each row, GPS s (selects the ephemeris).
+    max_age_s : float, optional
+        See :func:`select_ephemeris`.
+
+    Raises
+    ------
+    CdgpsError
+        As :func:`select_ephemeris`, for the first satellite in name order not covered.
+    """
+    sats = np.asarray(sats, dtype=object).ravel()
+    t = np.asarray(t_rx_gps_s, dtype=np.float64).ravel()
+    blocks = _sat_blocks(sats)
+    columns = _ephemeris_columns(nav)
+    kep, glo, rows = [], [], []
+    for sat, idx in blocks:
+        r = _ephemeris_rows(nav, sat, t[idx], max_age_s, columns)
+        if sat.startswith("R"):
+            glo.append((sat, idx))
+        else:
+            kep.append(idx)
+            rows.append(r)
+    sizes = np.array([idx.size for idx in kep], dtype=np.int64)
+    order = np.concatenate(kep) if kep else np.zeros(0, dtype=np.int64)
+    nav_rows = np.concatenate(rows) if rows else np.zeros(0, dtype=np.int64)
+    return ReceptionEphemeris(t.size, order, np.cumsum(np.r_[0, sizes[:-1]]).astype(np.int64) if kep else sizes,
+                              nav_rows, _kepler_constants(nav) if kep else {}, tuple(glo))
+
+
+def _kepler_constants(nav: pd.DataFrame) -> dict:
+    """The orbit fields of every ephemeris of ``nav`` and the time-independent terms of
+    :func:`_kepler_position`, computed by the same operations (so, taken per row, the same values)."""
+    missing = [f for f in _ORBIT_FIELDS if f not in nav.columns]
+    if missing:
+        raise ValueError(f"ephemeris lacks field(s) {', '.join(missing)} (as produced by read_rinex_nav)")
+    p = {f: nav[f].to_numpy(dtype=np.float64) for f in _ORBIT_FIELDS}
+    gm, we, geo, _ = _system_constants(nav["sat"].astype(str).to_numpy())
+    a = p["sqrt_a_sqrt_m"] ** 2
+    e = p["e"]
+    p.update(a=a, n=np.sqrt(gm / a**3) + p["delta_n_rad_per_s"], sqrt_1_e2=np.sqrt(1.0 - e * e),
+             node_rate=p["omega_dot_rad_per_s"] - np.where(geo, 0.0, we), node_toe=we * p["toe_sow_s"],
+             rel=F_RELATIVISTIC * np.sqrt(gm / GM_GPS) * e * p["sqrt_a_sqrt_m"], we=we, geo=geo)
+    return p
+
+
+def _chunks(starts: np.ndarray, n: int, size: int) -> list:
+    """Cut the blocks beginning at ``starts`` (of ``n`` rows) into runs of whole blocks of about
+    ``size`` rows: [(first row, end row, block starts relative to the first row)]."""
+    ends = np.r_[starts[1:], n]
+    out, b0 = [], 0
+    while b0 < starts.size:
+        b1 = max(b0 + 1, int(np.searchsorted(ends, starts[b0] + size, side="right")))
+        out.append((int(starts[b0]), int(ends[b1 - 1]), starts[b0:b1] - starts[b0]))
+        b0 = b1
+    return out
+
+
+class _Blocks:
+    """Consecutive blocks of rows (one per satellite) that iterate until each block has converged on
+    its own, as one call per block would: ``rows`` are the positions of the blocks still iterating
+    (a slice while all are) and ``starts`` their starts within those rows."""
+
+    def __init__(self, starts: np.ndarray, n: int):
+        self.all_starts = starts
+        self.sizes = np.diff(np.r_[starts, n])
+        self.live = np.ones(starts.size, dtype=bool)
+        self.rows = slice(None)
+        self.starts = starts
+
+    def settle(self, going: np.ndarray) -> bool:
+        """Stop the blocks whose ``going`` (one per live block) is False; True while some still go."""
+        if going.all():
+            return True
+        self.live[np.flatnonzero(self.live)[~going]] = False
+        if not self.live.any():
+            return False
+        kept = self.sizes[self.live]
+        self.rows = np.concatenate([np.arange(s, s + k) for s, k in zip(self.all_starts[self.live], kept)])
+        self.starts = np.cumsum(np.r_[0, kept[:-1]]).astype(np.int64)
+        return True
+
+
+def _eccentric_anomaly_blocks(m: np.ndarray, e: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """:func:`_eccentric_anomaly` on consecutive blocks of rows at once (``starts``: where each begins):
+    each block iterates until its own steps are all below 1e-15 rad, as one call per block would, so
+    every value is the per-block call's."""
+    big_e = np.array(m, dtype=np.float64, copy=True)
+    blocks = _Blocks(starts, m.size)
+    for _ in range(30):
+        r = blocks.rows
+        b, es = big_e[r], e[r]
+        d = (b - es * np.sin(b) - m[r]) / (1.0 - es * np.cos(b))
+        big_e[r] = b - d
+        if not blocks.settle(np.logical_or.reduceat(~(np.abs(d) < 1e-15), blocks.starts)):
+            break
+    return big_e
+
+
+def _kepler_blocks(k: dict, t: np.ndarray, starts: np.ndarray, apply_tgd: bool) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_kepler_position` for rows grouped in satellite blocks (``k``: :func:`_kepler_constants`
+    of those rows), position (K, 3) m and clock (K,) s, by the same operations."""
+    tk = t - k["toe_gps_s"]
+    e = k["e"]
+    ek = _eccentric_anomaly_blocks(k["m0_rad"] + k["n"] * tk, e, starts)
+    sin_e, cos_e = np.sin(ek), np.cos(ek)
+    phi = np.arctan2(k["sqrt_1_e2"] * sin_e, cos_e - e) + k["omega_rad"]
+    s2, c2 = np.sin(2.0 * phi), np.cos(2.0 * phi)
+    u = phi + k["cus_rad"] * s2 + k["cuc_rad"] * c2
+    r = k["a"] * (1.0 - e * cos_e) + k["crs_m"] * s2 + k["crc_m"] * c2
+    inc = k["i0_rad"] + k["idot_rad_per_s"] * tk + k["cis_rad"] * s2 + k["cic_rad"] * c2
+    xp, yp = r * np.cos(u), r * np.sin(u)
+    om = k["omega0_rad"] + k["node_rate"] * tk - k["node_toe"]
+    cos_om, sin_om, cos_i = np.cos(om), np.sin(om), np.cos(inc)
+    xyz = np.stack([xp * cos_om - yp * cos_i * sin_om, xp * sin_om + yp * cos_i * cos_om, yp * np.sin(inc)], axis=-1)
+    geo = k["geo"]
+    if np.any(geo):
+        xyz = np.where(geo[..., None], beidou_geo_rotation(xyz, k["we"] * tk), xyz)
+    dt = t - k["toc_gps_s"]
+    clock = k["af0_s"] + k["af1_s_per_s"] * dt + k["af2_s_per_s2"] * dt * dt + k["rel"] * sin_e
+    if apply_tgd:
+        clock = clock - k["tgd_s"]
+    return xyz, clock
+
+
+def sat_positions_at_reception(nav: pd.DataFrame, sats, t_rx_gps_s, rx_ecef_m, *, rx_clock_s=0.0,
+                               apply_tgd: bool = True, max_age_s: float | None = None,
+                               ephemeris: ReceptionEphemeris | None = None) -> ReceptionGeometry:
+    """:func:`sat_position_at_reception` for rows of many satellites at once.
+
+    Every satellite's rows give exactly what one :func:`sat_position_at_reception` call on them gives
+    (the light-time and Kepler iterations stop satellite by satellite, by the same tests), but the
+    orbit is evaluated over all rows together and the ephemerides are selected once.
+
+    Parameters
+    ----------
+    nav : DataFrame
+        Ephemerides.
+    sats : array_like of str, shape (N,)
+        Satellite of each row.
+    t_rx_gps_s : array_like, shape (N,)
+        Receiver time tags of reception, GPS s.
+    rx_ecef_m : array_like, shape (3,) or (N, 3)
+        Receiver antenna position, ECEF m.
+    rx_clock_s : float or array_like (N,), default 0
+        Receiver clock offset, s (true reception time ``t_rx − rx_clock_s``).
+    apply_tgd : bool
+        See :func:`sat_position_ecef`.
+    max_age_s : float, optional
+        See :func:`select_ephemeris`.
+    ephemeris : ReceptionEphemeris, optional
+        :func:`reception_ephemeris` of the same ``sats`` and ``t_rx_gps_s`` (and ``max_age_s``), for
+        callers evaluating the same rows again; selected here when absent.
+
+    Returns
+    -------
+    ReceptionGeometry
+        Arrays over the rows in their given order.
+    """
+    t_rx = np.atleast_1d(np.asarray(t_rx_gps_s, dtype=np.float64)).ravel()
+    rx = np.asarray(rx_ecef_m, dtype=np.float64)
+    if rx.shape != (3,) and rx.shape != (t_rx.size, 3):
+        raise ValueError(f"rx_ecef_m must have shape (3,) or ({t_rx.size}, 3), got {rx.shape}")
+    eph = ephemeris if ephemeris is not None else reception_ephemeris(nav, sats, t_rx, max_age_s=max_age_s)
+    if eph.n_rows != t_rx.size:
+        raise ValueError(f"the ephemeris selection has {eph.n_rows} rows, the times {t_rx.size}")
+    rx_clock = np.broadcast_to(np.asarray(rx_clock_s, dtype=np.float64), t_rx.shape)
+    t_true = t_rx - rx_clock
+    out = (np.empty((t_rx.size, 3)), np.empty(t_rx.size), np.empty(t_rx.size), np.empty(t_rx.size))
+    for sat, idx in eph.glonass:
+        g = sat_position_at_reception(nav, sat, t_rx[idx], rx[idx] if rx.ndim == 2 else rx,
+                                      rx_clock_s=rx_clock[idx], apply_tgd=apply_tgd, max_age_s=max_age_s)
+        for a, v in zip(out, g):
+            a[idx] = v
+    for r0, r1, starts in _chunks(eph.starts, eph.order.size, CHUNK_ROWS):
+        o = eph.order[r0:r1]
+        k = {f: v[eph.nav_rows[r0:r1]] for f, v in eph.kepler.items()}
+        g = _light_time_blocks(k, t_true[o], rx[o] if rx.ndim == 2 else rx, starts, apply_tgd)
+        for a, v in zip(out, g):
+            a[o] = v
+    return ReceptionGeometry(*out)
+
+
+def _light_time_blocks(k: dict, t_true: np.ndarray, rx: np.ndarray, starts: np.ndarray, apply_tgd: bool):
+    """The light-time iteration of :func:`sat_position_at_reception` on satellite blocks of rows, each
+    block stopping on its own test: (position (K, 3), clock, range, travel time)."""
+    n = t_true.size
+    rot, clk, rng = np.empty((n, 3)), np.empty(n), np.empty(n)
+    tau = np.full(n, 0.075)
+    blocks = _Blocks(starts, n)
+    per_row = rx.ndim == 2
+    for _ in range(10):
+        r = blocks.rows
+        sub = {f: v[r] for f, v in k.items()} if isinstance(r, np.ndarray) else k
+        tr = tau[r]
+        xyz, c_r = _kepler_blocks(sub, t_true[r] - tr, blocks.starts, apply_tgd)
+        theta = OMEGA_E_GPS * tr
+        c, s = np.cos(theta), np.sin(theta)
+        rot_r = np.stack([c * xyz[:, 0] + s * xyz[:, 1], -s * xyz[:, 0] + c * xyz[:, 1], xyz[:, 2]], axis=-1)
+        rng_r = np.linalg.norm(rot_r - (rx[r] if per_row else rx), axis=-1)
+        new_tau = rng_r / SPEED_OF_LIGHT_M_S
+        step = np.abs(new_tau - tr)
+        rot[r], clk[r], rng[r], tau[r] = rot_r, c_r, rng_r, new_tau
+        if not blocks.settle(~(np.maximum.reduceat(step, blocks.starts) < 1e-12)):
+            break
+    return rot, clk, rng, tau
 
 
 # ----------------------------------------------------------------------------------------------

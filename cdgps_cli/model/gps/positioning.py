@@ -42,7 +42,9 @@ from cdgps_cli.model.gps.orbits import (
     azimuth_elevation,
     ecef_to_geodetic,
     enu_matrix,
+    reception_ephemeris,
     sat_position_at_reception,
+    sat_positions_at_reception,
 )
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import GPS_EPOCH, nominal_interval_s  # noqa: F401 (re-exported)
@@ -250,18 +252,14 @@ def _groups(sats) -> list:
     return [(names[i], order[cuts[i]:cuts[i + 1]]) for i in range(len(names))]
 
 
-def _rows_geometry(nav, sats, t_label, t_true, rx_ecef, *, troposphere: bool):
-    """Satellite geometry for rows: returns xyz (N,3), clock (N,), range (N,), az, el, trop (N,)."""
+def _rows_geometry(nav, sats, t_label, t_true, rx_ecef, *, troposphere: bool, ephemeris=None):
+    """Satellite geometry for rows: returns xyz (N,3), clock (N,), range (N,), az, el, trop (N,).
+    ``ephemeris``: :func:`~cdgps_cli.model.gps.orbits.reception_ephemeris` of (sats, t_label), if the
+    caller has it (each satellite's rows are exactly a :func:`sat_position_at_reception` call's)."""
     n = t_label.size
-    xyz = np.empty((n, 3))
-    clk = np.empty(n)
-    rng = np.empty(n)
     rx = np.asarray(rx_ecef, dtype=np.float64)
-    per_row = rx.ndim == 2
-    for s, idx in _groups(sats):
-        g = sat_position_at_reception(nav, s, t_label[idx], rx[idx] if per_row else rx,
-                                      rx_clock_s=t_label[idx] - t_true[idx])
-        xyz[idx], clk[idx], rng[idx] = g.xyz_m, g.clock_s, g.range_m
+    g = sat_positions_at_reception(nav, sats, t_label, rx, rx_clock_s=t_label - t_true, ephemeris=ephemeris)
+    xyz, clk, rng = g.xyz_m, g.clock_s, g.range_m
     az, el = azimuth_elevation(rx, xyz)
     if troposphere:
         lat, _, h = ecef_to_geodetic(rx)
@@ -340,9 +338,10 @@ def estimate_receiver_clock(
     idx = np.flatnonzero(have)
     ep_t = np.full(ne, np.nan)
     ep_t[ep] = t
+    eph = reception_ephemeris(nav, sats[idx], t[idx])          # the same rows every pass: selected once
     for _ in range(max(1, iterations)):
         _, dts, rng, _, el, trop = _rows_geometry(nav, sats[idx], t[idx], t[idx] - clk[ep[idx]], rx_ecef_m,
-                                                   troposphere=troposphere)
+                                                   troposphere=troposphere, ephemeris=eph)
         res = (pr[idx] - (rng - SPEED_OF_LIGHT_M_S * dts + trop)) / SPEED_OF_LIGHT_M_S
         use = el > mask_rad
         if not use.any():
@@ -503,7 +502,8 @@ def match_epochs(t_a_s, t_b_s, *, tol_s: float = 0.025) -> tuple[np.ndarray, np.
 # ----------------------------------------------------------------------------------------------
 
 
-def reception_geometry(nav: pd.DataFrame, sats, t_label_s, t_true_s, rx_ecef_m, *, troposphere: bool = True) -> dict:
+def reception_geometry(nav: pd.DataFrame, sats, t_label_s, t_true_s, rx_ecef_m, *, troposphere: bool = True,
+                       ephemeris=None) -> dict:
     """Satellite geometry for observation rows of one receiver at their true reception times.
 
     Parameters
@@ -521,6 +521,10 @@ def reception_geometry(nav: pd.DataFrame, sats, t_label_s, t_true_s, rx_ecef_m, 
         Receiver position, ECEF m.
     troposphere : bool
         Compute the hydrostatic troposphere (else zeros).
+    ephemeris : ReceptionEphemeris, optional
+        :func:`~cdgps_cli.model.gps.orbits.reception_ephemeris` of (``sats``, ``t_label_s``), for a caller
+        that evaluates the same rows for two receivers (both receivers of a pair share ``sats`` and
+        ``t_label_s``): selected here when absent; the result is the same either way.
 
     Returns
     -------
@@ -532,7 +536,8 @@ def reception_geometry(nav: pd.DataFrame, sats, t_label_s, t_true_s, rx_ecef_m, 
     sats = np.asarray(sats, dtype=object)
     tl = np.asarray(t_label_s, dtype=np.float64)
     tt = np.asarray(t_true_s, dtype=np.float64)
-    xyz, clk, rng, az, el, trop = _rows_geometry(nav, sats, tl, tt, rx_ecef_m, troposphere=troposphere)
+    xyz, clk, rng, az, el, trop = _rows_geometry(nav, sats, tl, tt, rx_ecef_m, troposphere=troposphere,
+                                                 ephemeris=ephemeris)
     return {"sat_xyz_m": xyz, "sat_clock_s": clk, "range_m": rng, "az_rad": az, "el_rad": el, "trop_m": trop}
 
 
