@@ -65,7 +65,7 @@ def parse_fuse(text: str | None, option: str = "--fuse") -> tuple:
 def release_freed_heap() -> bool:
     """Give the heap pages freed by the set-up (RUN read, GNSS modal set-up, sensor logs) back to the
     system before the fused filter starts (glibc ``malloc_trim``; elsewhere nothing): the filter's
-    arrays then do not sit on top of them.  15-min tower-fusion run: peak RSS 325 → 261 MiB (issue 29,
+    arrays then do not sit on top of them.  15-min tower-fusion run: peak RSS 321.6 → 251.5 MiB (issue 29,
     docs/record-length.md).  Arithmetic unchanged.  True when the call was made."""
     import ctypes  # noqa: PLC0415
     import sys  # noqa: PLC0415
