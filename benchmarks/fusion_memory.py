@@ -48,6 +48,7 @@ def main() -> None:
     ap.add_argument("--minutes", default="2,5,15")
     ap.add_argument("--rounds", type=int, default=1)
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks" / "fusion_memory.json")
+    ap.add_argument("--before-label", default="export of main 9b902ba", help="what --before is, for the JSON")
     a = ap.parse_args()
     trees = {"before": a.before.resolve(), "after": ROOT}
     results = []
@@ -67,7 +68,7 @@ def main() -> None:
                                                      "loadavg_1min": os.getloadavg()[0]})
             results.append(row)
             print(json.dumps(row), flush=True)
-    a.out.write_text(json.dumps({"command": "python benchmarks/fusion_memory.py --before <export of main 9b902ba> "
+    a.out.write_text(json.dumps({"command": f"python benchmarks/fusion_memory.py --before <{a.before_label}> "
                                             f"--minutes {a.minutes} --rounds {a.rounds}",
                                  "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
                                  "config": "configs/tower-fusion.toml", "fuse": "accel,gyro,tilt",

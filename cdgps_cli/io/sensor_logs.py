@@ -54,14 +54,20 @@ def _kind_of(cols: list, where: str) -> str:
     return kinds.pop()
 
 
-def _check_table(df: pd.DataFrame, where: str) -> tuple[str, pd.DataFrame]:
+def _check_table(df: pd.DataFrame, where: str, parsed: bool = False) -> tuple[str, pd.DataFrame]:
+    """(kind, table) of a table read as text (``parsed``: already read as numbers by :func:`_numeric_table`)."""
     if "gyro" in df.columns and "sensor" not in df.columns:
         df = df.rename(columns={"gyro": "sensor"})
     if list(df.columns[:2]) != ["time_s", "sensor"]:
         raise CdgpsError(f"{where}: the first columns must be time_s, sensor; got {', '.join(map(str, df.columns[:2]))}")
     kind = _kind_of([str(c) for c in df.columns[2:]], where)
-    out = pd.DataFrame({"time_s": pd.to_numeric(df["time_s"], errors="coerce"), "sensor": df["sensor"].astype(str)})
+    out = df if parsed else pd.DataFrame({"time_s": pd.to_numeric(df["time_s"], errors="coerce"),
+                                          "sensor": df["sensor"].astype(str)})
     for c in df.columns[2:]:
+        if parsed:
+            if not np.all(np.isfinite(df[c].dropna().to_numpy())):
+                raise CdgpsError(f"{where}: column {c}: non-finite value")
+            continue
         v = pd.to_numeric(df[c], errors="coerce")
         bad = np.flatnonzero(v.isna().to_numpy() & df[c].notna().to_numpy())
         if bad.size or not np.all(np.isfinite(v.dropna().to_numpy())):
@@ -87,6 +93,9 @@ def read_sensor_csv(path: str | Path) -> tuple[str, pd.DataFrame]:
     """(kind, table) of a sensor CSV log; CdgpsError naming the file, line and column."""
     p = Path(path)
     try:
+        tab = _numeric_table(p.read_bytes())
+        if tab is not None:
+            return _check_table(tab, str(p), parsed=True)
         df = pd.read_csv(p, dtype=str, keep_default_na=False, na_values=[""])
     except FileNotFoundError:
         raise CdgpsError(f"{p}: sensor log not found") from None
@@ -177,10 +186,38 @@ def sensor_logs_from_attachments(attachments: dict, where: str = "RUN.mcap") -> 
     for name, data in attachments.items():
         if not name.startswith(_PREFIX):
             continue
-        try:
-            df = pd.read_csv(io.BytesIO(data), dtype=str, keep_default_na=False, na_values=[""])
-        except (ValueError, pd.errors.ParserError) as exc:
-            raise CdgpsError(f"{where}: damaged attachment {name}: {exc}") from None
-        kind, tab = _check_table(df, f"{where}:{name}")
+        tab = _numeric_table(data)
+        if tab is not None:
+            kind, tab = _check_table(tab, f"{where}:{name}", parsed=True)
+        else:                                 # anything unusual: the text reading, which names the cell
+            try:
+                df = pd.read_csv(io.BytesIO(data), dtype=str, keep_default_na=False, na_values=[""])
+            except (ValueError, pd.errors.ParserError) as exc:
+                raise CdgpsError(f"{where}: damaged attachment {name}: {exc}") from None
+            kind, tab = _check_table(df, f"{where}:{name}")
         out[kind] = tab
     return out
+
+
+#: an empty cell of a CSV line: a comma followed by a comma or the line's end
+_EMPTY_CELL = re.compile(rb",(?=,|\r?\n|\Z)")
+
+
+def _numeric_table(data: bytes):
+    """The table of a sensor CSV parsed straight to floats (no text column per reading: a fraction of
+    the memory and time of the text reading, issue 29), or None when the text reading must decide
+    (a header not ``time_s, sensor|gyro, …``, a cell that is not a number, or a NaN that is not an
+    empty cell, e.g. the word ``nan``).  Values equal the text reading's (pandas' one float parser)."""
+    head = data[:data.find(b"\n")].decode("utf-8", "replace").strip().split(",")
+    if len(head) < 3 or head[0] != "time_s" or head[1] not in ("sensor", "gyro") or len(set(head)) != len(head):
+        return None
+    try:
+        df = pd.read_csv(io.BytesIO(data), dtype={c: np.float64 for c in head if c != head[1]} | {head[1]: str},
+                         keep_default_na=False, na_values=[""])
+    except (ValueError, pd.errors.ParserError):
+        return None
+    if list(df.columns) != head or df[head[1]].isna().any():
+        return None
+    if int(df[head[2:] + ["time_s"]].isna().to_numpy().sum()) != len(_EMPTY_CELL.findall(data)):
+        return None
+    return df

@@ -46,3 +46,40 @@ def test_one_sensor_in_two_files_is_refused(tmp_path):
     b = _write(tmp_path / "b.csv", "time_s,sensor,accel_x_m_s2\n2,s1,0.5\n")
     with pytest.raises(CdgpsError, match="sensor s1 is also in"):
         sensor_attachments([a, b])
+
+
+def _text_reading(data: bytes):
+    """The reading before issue 29's numeric one: every cell as text, then numbers (the reference)."""
+    import io
+
+    from cdgps_cli.io.sensor_logs import _check_table
+
+    return _check_table(pd.read_csv(io.BytesIO(data), dtype=str, keep_default_na=False, na_values=[""]), "ref")
+
+
+@pytest.mark.parametrize("text,fast", [
+    ("time_s,sensor,accel_x_m_s2,accel_z_m_s2\n10.000000001,s1,0.1,\n10.01,s2,,1e-3\n10.02,s1,-3.3e-7,2\n", True),
+    ("time_s,gyro,gyro_y_rad_s\n10.0,g1,0.001\n10.1,g1,0.30000000000000004\n", True),
+    ("time_s,sensor,tilt_x_rad\n10.0,1,nan\n", False),          # the word nan: the text reading decides (refused)
+    ("time_s,sensor,tilt_x_rad\n10.0,a,x\n", False),            # not a number: the text reading names the cell
+])
+def test_numeric_reading_equals_the_text_reading(text, fast):
+    """Sensor logs are parsed straight to floats (issue 29: memory and time of a long fused run); the
+    tables are equal to the text reading's, value for value, and anything unusual goes the old way."""
+    from cdgps_cli.io.sensor_logs import _numeric_table
+
+    data = text.encode()
+    assert (_numeric_table(data) is not None) == fast
+    try:
+        ref = _text_reading(data)
+    except CdgpsError as exc:
+        with pytest.raises(CdgpsError, match="finite number"):
+            sensor_logs_from_attachments({"sensors/x.csv": data})
+        assert "finite number" in str(exc)
+        return
+    kind, got = next(iter(sensor_logs_from_attachments({"sensors/x.csv": data}).items()))
+    assert kind == ref[0] and list(got.columns) == list(ref[1].columns)
+    for c in got.columns:
+        a, b = got[c].to_numpy(), ref[1][c].to_numpy()
+        assert a.dtype == b.dtype and (list(a) == list(b) if a.dtype == object else
+                                       (a.tobytes() == b.tobytes()))
