@@ -644,13 +644,7 @@ def _gps_rows(lines, cols, rec_line, e_rec, code, v3, per) -> dict:
     has_ph = ~np.isnan(phase)
     lli = _body.flag_values(ph_flags[:, 0], has_ph)
     ssi = _body.flag_values(ph_flags[:, 1], has_ph)
-    sc = cols.scale
-    if sc["phase"] != 1:
-        phase = phase / sc["phase"]
-    if "code" in sc and sc["code"] != 1:
-        code_m = code_m / sc["code"]
-    if "snr" in sc and sc["snr"] != 1:
-        snr = snr / sc["snr"]
+    phase, code_m, snr = _unscaled(cols, phase, code_m, snr)
     k = np.flatnonzero(has_ph | ~np.isnan(code_m))
     return {"e": e_rec[k], "sat": code[k], "phase": phase[k], "lli": lli[k], "ssi": ssi[k],
             "code": code_m[k], "snr": snr[k]}
@@ -1045,13 +1039,7 @@ def _records_v3_bulk(lines, hdr: _ObsHeader, group, rows, summary) -> None:
         return
     keep = ~(np.isnan(phase) & np.isnan(code))
     has_ph = ~np.isnan(phase)
-    sc = cols.scale
-    if sc["phase"] != 1:
-        phase = phase / sc["phase"]
-    if "code" in sc and sc["code"] != 1:
-        code = code / sc["code"]
-    if "snr" in sc and sc["snr"] != 1:
-        snr = snr / sc["snr"]
+    phase, code, snr = _unscaled(cols, phase, code, snr)
     lli = np.where(has_ph, lli, 0)
     ssi = np.where(has_ph, ssi, 0)
     k = np.flatnonzero(keep)
@@ -1349,3 +1337,15 @@ def read_rinex_nav(path: str | Path, systems=("G",)) -> pd.DataFrame:
     attrs["n_records_by_system"] = dict(sorted(counts.items()))
     df.attrs.update(attrs)
     return df
+
+
+def _unscaled(cols, phase, code, snr):
+    """Phase, code and SNR divided by the header's SYS / SCALE FACTOR (RINEX 3) where it is not 1."""
+    sc = cols.scale
+    if sc["phase"] != 1:
+        phase = phase / sc["phase"]
+    if "code" in sc and sc["code"] != 1:
+        code = code / sc["code"]
+    if "snr" in sc and sc["snr"] != 1:
+        snr = snr / sc["snr"]
+    return phase, code, snr

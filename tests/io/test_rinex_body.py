@@ -13,6 +13,7 @@ import pandas as pd
 import pytest
 from click.testing import CliRunner
 
+from _rinex_edit import edited_copy as _edited
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io import rinex, rinex_signals
 from cdgps_cli.io import _fixed_width as _fw
@@ -76,15 +77,6 @@ def test_line_endings_compression(tmp_path, variant):
     _same(ref, _read(path, True, block_epochs=5))
     _same(ref, _no_fallback(path))
     pd.testing.assert_frame_equal(_read(src, False)[1], ref[1], check_exact=True)
-
-
-def _edited(tmp_path, src, edit):
-    lines = src.read_text(encoding="latin-1").split("\n")
-    end = next(i for i, ln in enumerate(lines) if "END OF HEADER" in ln)
-    edit(lines, end)
-    out = tmp_path / src.name
-    out.write_text("\n".join(lines), encoding="latin-1")
-    return out
 
 
 def _field(line: str, col: int, text: str) -> str:

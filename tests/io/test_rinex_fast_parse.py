@@ -10,6 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from _rinex_edit import edited_copy as _edited
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io import rinex_signals as rs
 from cdgps_cli.io._fixed_width import Unsupported, decimal_fields, flag_digits
@@ -92,15 +93,6 @@ def test_flag_digits():
     assert flag_digits(np.frombuffer(b" 0 9x\x1c", dtype=np.uint8)).tolist() == [0, 0, 0, 9, 0, 0]
     with pytest.raises(Unsupported):
         flag_digits(np.frombuffer("\xb2".encode("latin-1"), dtype=np.uint8))
-
-
-def _edited(tmp_path, src, edit):
-    lines = src.read_text(encoding="latin-1").split("\n")
-    end = next(i for i, ln in enumerate(lines) if "END OF HEADER" in ln)
-    edit(lines, end)
-    out = tmp_path / src.name
-    out.write_text("\n".join(lines), encoding="latin-1")
-    return out
 
 
 def _phase_col(line, k=0):
