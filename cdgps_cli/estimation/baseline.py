@@ -407,7 +407,7 @@ def _receiver_rows(st: Station, ce: _Epochs, nav: pd.DataFrame, pos, opt: Baseli
     lli_all = carry_slips(st.obs["time_gps_s"].to_numpy(dtype=np.float64), st.obs["sat"].to_numpy(),
                           st.obs["lli_l1"].to_numpy(dtype=np.int64), used)
     lli = lli_all[o["row"].to_numpy()[take]]
-    o = o.iloc[take].copy()
+    o = o.iloc[take]                      # a new frame already (copy-on-write): no second copy
     o["lli_l1"] = np.where(first, lli, lli & ~1)
     o["ep"] = k
     cov = ephemeris_coverage(nav, o["sat"].to_numpy(), t_label[o["ep"].to_numpy()])
