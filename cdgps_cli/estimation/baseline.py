@@ -1379,9 +1379,10 @@ def l1_signal_table(obs: pd.DataFrame) -> pd.DataFrame:
 
 
 def _run_engine(master: Station, rover: Station, nav, opt: BaselineOptions, xm, xr0,
-                iono_threshold_km) -> dict | str:
+                iono_threshold_km, arcs_check=None) -> dict | str:
     """:func:`~cdgps_cli.estimation.static_engine.static_baseline` on the two receivers' signal tables (their
-    GPS L1 rows without them), or the reason (a string) it cannot serve these options."""
+    GPS L1 rows without them), or the reason (a string) it cannot serve these options or (``arcs_check``,
+    before solving) these arcs."""
     from cdgps_cli.estimation.rtk_multi import receiver_geometry
     from cdgps_cli.estimation.static_engine import options_from_baseline, static_baseline
     from dataclasses import replace
@@ -1395,7 +1396,7 @@ def _run_engine(master: Station, rover: Station, nav, opt: BaselineOptions, xm, 
     tables = [st.signals if st.signals is not None and master.signals is not None and rover.signals is not None
               else l1_signal_table(st.obs) for st in (master, rover)]
     geo = [receiver_geometry(df, nav, xyz) for df, xyz in zip(tables, (xm, xr0))]
-    return static_baseline(geo[0], geo[1], xm, xr0, eopt)
+    return static_baseline(geo[0], geo[1], xm, xr0, eopt, arcs_check=arcs_check)
 
 
 def _engine_or_batch(master: Station, rover: Station, nav, opt: BaselineOptions, xm, xr0, iono_threshold_km,
@@ -1405,7 +1406,9 @@ def _engine_or_batch(master: Station, rover: Station, nav, opt: BaselineOptions,
     if not engine:
         return None, "batch (engine not asked for)"
     d, sg, w, r_enu = prepared
-    eng = _run_engine(master, rover, nav, opt, xm, xr0, iono_threshold_km)
+    # arcs that are not the segments are known before the engine solves: no solve to throw away
+    eng = _run_engine(master, rover, nav, opt, xm, xr0, iono_threshold_km,
+                      arcs_check=lambda arcs: _engine_columns(d, sg, arcs))
     known = eng if isinstance(eng, str) else _engine_solution(d, sg, w, eng, xr0, r_enu, opt)
     return (None, f"batch ({known})") if isinstance(known, str) else (known, "static_engine")
 
