@@ -1395,7 +1395,9 @@ def _run_engine(master: Station, rover: Station, nav, opt: BaselineOptions, xm, 
     eopt["iono_threshold_km"] = math.inf if iono_threshold_km is None else iono_threshold_km
     tables = [st.signals if st.signals is not None and master.signals is not None and rover.signals is not None
               else l1_signal_table(st.obs) for st in (master, rover)]
-    geo = [receiver_geometry(df, nav, xyz) for df, xyz in zip(tables, (xm, xr0))]
+    geo = []
+    for xyz in (xm, xr0):                  # each signal table dropped once its geometry is built
+        geo.append(receiver_geometry(tables.pop(0), nav, xyz))
     return static_baseline(geo[0], geo[1], xm, xr0, eopt, arcs_check=arcs_check)
 
 
