@@ -407,7 +407,7 @@ def _receiver_rows(st: Station, ce: _Epochs, nav: pd.DataFrame, pos, opt: Baseli
     lli_all = carry_slips(st.obs["time_gps_s"].to_numpy(dtype=np.float64), st.obs["sat"].to_numpy(),
                           st.obs["lli_l1"].to_numpy(dtype=np.int64), used)
     lli = lli_all[o["row"].to_numpy()[take]]
-    o = o.iloc[take].copy()
+    o = o.iloc[take]                      # a new frame already (copy-on-write): no second copy
     o["lli_l1"] = np.where(first, lli, lli & ~1)
     o["ep"] = k
     cov = ephemeris_coverage(nav, o["sat"].to_numpy(), t_label[o["ep"].to_numpy()])
@@ -1379,9 +1379,10 @@ def l1_signal_table(obs: pd.DataFrame) -> pd.DataFrame:
 
 
 def _run_engine(master: Station, rover: Station, nav, opt: BaselineOptions, xm, xr0,
-                iono_threshold_km) -> dict | str:
+                iono_threshold_km, arcs_check=None) -> dict | str:
     """:func:`~cdgps_cli.estimation.static_engine.static_baseline` on the two receivers' signal tables (their
-    GPS L1 rows without them), or the reason (a string) it cannot serve these options."""
+    GPS L1 rows without them), or the reason (a string) it cannot serve these options or (``arcs_check``,
+    before solving) these arcs."""
     from cdgps_cli.estimation.rtk_multi import receiver_geometry
     from cdgps_cli.estimation.static_engine import options_from_baseline, static_baseline
     from dataclasses import replace
@@ -1394,8 +1395,10 @@ def _run_engine(master: Station, rover: Station, nav, opt: BaselineOptions, xm, 
     eopt["iono_threshold_km"] = math.inf if iono_threshold_km is None else iono_threshold_km
     tables = [st.signals if st.signals is not None and master.signals is not None and rover.signals is not None
               else l1_signal_table(st.obs) for st in (master, rover)]
-    geo = [receiver_geometry(df, nav, xyz) for df, xyz in zip(tables, (xm, xr0))]
-    return static_baseline(geo[0], geo[1], xm, xr0, eopt)
+    geo = []
+    for xyz in (xm, xr0):                  # each signal table dropped once its geometry is built
+        geo.append(receiver_geometry(tables.pop(0), nav, xyz))
+    return static_baseline(geo[0], geo[1], xm, xr0, eopt, arcs_check=arcs_check)
 
 
 def _engine_or_batch(master: Station, rover: Station, nav, opt: BaselineOptions, xm, xr0, iono_threshold_km,
@@ -1405,7 +1408,9 @@ def _engine_or_batch(master: Station, rover: Station, nav, opt: BaselineOptions,
     if not engine:
         return None, "batch (engine not asked for)"
     d, sg, w, r_enu = prepared
-    eng = _run_engine(master, rover, nav, opt, xm, xr0, iono_threshold_km)
+    # arcs that are not the segments are known before the engine solves: no solve to throw away
+    eng = _run_engine(master, rover, nav, opt, xm, xr0, iono_threshold_km,
+                      arcs_check=lambda arcs: _engine_columns(d, sg, arcs))
     known = eng if isinstance(eng, str) else _engine_solution(d, sg, w, eng, xr0, r_enu, opt)
     return (None, f"batch ({known})") if isinstance(known, str) else (known, "static_engine")
 

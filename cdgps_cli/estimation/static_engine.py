@@ -210,7 +210,8 @@ def options_from_baseline(bopt) -> dict:
     return out
 
 
-def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None = None) -> dict:
+def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None = None, *,
+                    arcs_check=None) -> dict | str:
     """Static baseline on the one engine: rtk's epoch pairing and SD rows, :func:`static_filter`, :func:`static_fix`.
 
     Parameters
@@ -231,6 +232,13 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
         ``offset_m`` (3,) fixed (float when nothing is fixed) ECEF offset from ``rover_xyz0_m``, m;
         ``cov_m2`` (3, 3); ``float_offset_m`` (3,), ``float_cov_m2`` (3, 3); ``resolution``
         (:func:`~cdgps_cli.estimation.ambiguity.resolve`'s dict); ``pairs``; ``epochs_used``; ``epoch_pairing``.
+        Or a string: what ``arcs_check`` returned.
+
+    Other Parameters
+    ----------------
+    arcs_check : callable, optional
+        Called with the :func:`arc_table` before the filter runs; when it returns a string, nothing is
+        solved and that string is returned (a caller that cannot use these arcs skips the solve).
     """
     opt = _static_options(options)
     pairs = pair_epochs(rover["time_gps_s"].to_numpy(), base["time_gps_s"].to_numpy(),
@@ -243,6 +251,10 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
         from cdgps_cli.estimation.baseline import check_iono_rule
         check_iono_rule("base", "rover", float(np.linalg.norm(np.subtract(rover_xyz0_m, base_xyz_m))),
                         opt["iono_threshold_km"])
+    if arcs_check is not None:
+        why = arcs_check(arc_table(rows, arc_columns(rows), times))
+        if isinstance(why, str):
+            return why
     x, P, cols = static_filter(rows, times, base_xyz_m, rover_xyz0_m)
     if not opt["fix"]:
         f = {"offset_m": x[:3].copy(), "cov_m2": P[:3, :3].copy(), "resolution": None, "pairs": [], "dd_float": None,

@@ -143,7 +143,7 @@ def processing_obs(rx: GnssReceiver, interval_s: float | None = None) -> pd.Data
         "snr_l1_dbhz": r["snr_dbhz"].to_numpy(dtype=np.float64),
         "rx_clock_offset_s": r["clock_offset_s"].to_numpy(dtype=np.float64),
         "epoch_flag": r["epoch_flag"].to_numpy(dtype=np.int64),
-    }, columns=list(OBS_COLUMNS))
+    }, columns=list(OBS_COLUMNS), copy=False)   # the columns as they are: no consolidated copy of the table
 
 
 def anchor_obs(rx: GnssReceiver, signals, interval_s: float | None = None) -> pd.DataFrame:
