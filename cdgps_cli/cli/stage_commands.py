@@ -388,7 +388,8 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
 def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability, outlier_sigma, process_noise_scale,
              output, as_json, rest=(), rest_process_noise_scale=ESTIMATE_DEFAULTS["rest_process_noise_scale"],
              rest_retry_s=ESTIMATE_DEFAULTS["rest_retry_s"], structure=None, x_axis_azimuth_deg=X_AXIS_AZIMUTH_DEG,
-             receiver_map=(), rest_window_s=3.0, rest_dwell_s=2.0, allow_other_run=False,
+             receiver_map=(), rest_window_s=ESTIMATE_DEFAULTS["rest_window_s"],
+             rest_dwell_s=ESTIMATE_DEFAULTS["rest_dwell_s"], allow_other_run=False,
              covariance=_STATES_DEFAULT_COVARIANCE, foxglove_rate_hz=None, scene_exaggeration=SCENE_EXAGGERATION,
              fuse=None, hold_out=()):
     """Extended Kalman filter (Eq. 16-23) [+ RTS smoother] over a RUN from INIT → STATES.mcap.
@@ -458,13 +459,15 @@ def _structure_only_given(biases, sigma_m, nis_probability, outlier_sigma, proce
                           receiver_map, scene_exaggeration) -> dict:
     """{option: given} of ``cdgps estimate``'s structure-run options (given: not at its default), for
     the refusal of those a GNSS run does not use."""
+    def not_default(**values):           # {--option: given}, against the one home of the defaults
+        return {"--" + k.replace("_", "-"): v != ESTIMATE_DEFAULTS[k] for k, v in values.items()}
+
     return {"--biases": biases != "fixed", "--sigma-m": sigma_m is not None,
-            "--nis-probability": nis_probability != 0.999, "--outlier-sigma": outlier_sigma != 6.0,
-            "--process-noise-scale": process_noise_scale != 1.0,
+            **not_default(nis_probability=nis_probability, outlier_sigma=outlier_sigma,
+                         process_noise_scale=process_noise_scale),
             "--rest": bool(rest),
-            "--rest-process-noise-scale": rest_process_noise_scale != 0.005,
-            "--rest-retry-s": rest_retry_s != 1.0,
-            "--rest-window-s": rest_window_s != 3.0, "--rest-dwell-s": rest_dwell_s != 2.0,
+            **not_default(rest_process_noise_scale=rest_process_noise_scale, rest_retry_s=rest_retry_s,
+                         rest_window_s=rest_window_s, rest_dwell_s=rest_dwell_s),
             "--scene-exaggeration": structure is None and not receiver_map
             and str(scene_exaggeration) != str(SCENE_EXAGGERATION)}
 
