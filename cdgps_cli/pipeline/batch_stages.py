@@ -13,6 +13,7 @@ import hashlib
 import json
 from pathlib import Path
 
+from cdgps_cli.config.options import ESTIMATE_DEFAULTS
 
 
 def run_stage(s, stage: str) -> dict:
@@ -115,11 +116,10 @@ def _estimate(s) -> dict:
     if gnss:
         return _estimate_gnss(s, run_mcap, init_json, init, init_text)
     run = read_run(run_mcap)
-    opt = EstimateOptions(biases=o["biases"], smooth=o["smooth"], sigma_m=None, nis_probability=0.999,
-                          outlier_sigma=6.0, process_noise_scale=o["process_noise_scale"], rest_segments_s=(),
-                          rest_process_noise_scale=0.005, rest_retry_s=1.0, rest_auto=False, rest_window_s=3.0,
-                          rest_dwell_s=2.0, keep_filtered_covariance="modal", init_source=str(init_json),
-                          progress=None)
+    defaults = {k: v for k, v in ESTIMATE_DEFAULTS.items() if k != "process_noise_scale"}   # cdgps estimate's
+    opt = EstimateOptions(biases=o["biases"], smooth=o["smooth"], sigma_m=None,
+                          process_noise_scale=o["process_noise_scale"], rest_segments_s=(), rest_auto=False,
+                          keep_filtered_covariance="modal", init_source=str(init_json), progress=None, **defaults)
     res = estimate(run, init, opt)
     del run
     w = write_states(res, run_mcap, init, init_text, s.path("estimate"), opt.echo())

@@ -14,6 +14,7 @@ run writes into the OUTDIR path of the reference.
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import signal
@@ -26,6 +27,7 @@ import pytest
 from click.testing import CliRunner
 
 from cdgps_cli.cli.commands import main
+from cdgps_cli.io.mcap_integrity import read_metadata
 from cdgps_cli.pipeline import batch as B
 from cdgps_cli.pipeline.batch_dask import run_batch
 from tests.pipeline._batch_campaign import CONFIG, DURATION_S, assert_same_tree as _assert_same_tree
@@ -106,6 +108,8 @@ def test_a_gnss_session_gives_the_single_commands_bytes(tmp_path, inproc):
     root = tmp_path / "gnss"
     r = CliRunner().invoke(main, ["-q", "simulate-gnss", "--duration", "60", "--seed", "2", "-o", str(root / "pair")])
     assert r.exit_code == 0, r.output
+    cfg = root / "pair/config.toml"      # random walk: --smooth changes STATES (a static run's would not)
+    cfg.write_text(cfg.read_text().replace('model = "static"', 'model = "random_walk"', 1))
     (root / "m.csv").write_text("session,gnss_config,smooth\npair,pair/config.toml,true\n")
     o = root / "out" / "pair"
     for argv in (["ingest", "--config", root / "pair/config.toml", "-o", o / "run.mcap"],
@@ -113,6 +117,8 @@ def test_a_gnss_session_gives_the_single_commands_bytes(tmp_path, inproc):
                  ["estimate", o / "run.mcap", "--init", o / "init.json", "--smooth", "-o", o / "states.mcap"]):
         r = CliRunner().invoke(main, ["-q", *map(str, argv)])
         assert r.exit_code == 0, (argv, r.output)
+    meta = read_metadata(o / "states.mcap")
+    assert [json.loads(r["options"])["smooth"] for r in meta.values() if "options" in r] == [True], meta.keys()
     (root / "out").rename(root / "reference")
     s = run_batch(root / "m.csv", root / "out", client=inproc)
     assert s["counts"] == {"sessions": 1, "done": 1}, s["failures"]
