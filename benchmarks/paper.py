@@ -141,7 +141,10 @@ def h1995(w: Path, figdir: Path) -> list[Headline]:
     return [
         Headline("1995", "Sec. V, Fig. 6", "the estimator converged to within 0.3 deg RMS of the q1 and q2 states "
                  "(batch over the first ≈ 2 s, then the EKF)",
-                 ours=f"RMS error q1 {rms['q1']:.3f}°, q2 {rms['q2']:.3f}° over the whole 30 s record",
+                 ours=f"RMS error q1 {rms['q1']:.3f}°, q2 {rms['q2']:.3f}° over the whole 30 s record"
+                      + ("" if max(rms.values()) <= 0.3 else
+                         f" ({100 * (max(rms.values()) / 0.3 - 1):.0f} % above 0.300°: met at the paper's one-figure "
+                         "precision, the table allows 5 %)"),
                  met=max(rms.values()) <= 0.3 * 1.05, commands=cmds, values={"evaluate": ev, "init": init},
                  note=f"NEES mean {ev['nees']['mean']:.2f} for {ev['nees']['dof']} states (expected ≈ {ev['nees']['dof']}): "
                       "the reported σ is optimistic on this record; NIS/dof "
@@ -402,9 +405,12 @@ def _pulse_note(run, eq18, pap, fig6w, truth, f6, dec) -> str:
         return f"{x['ratio']:.2f}/{back}"
 
     t = EXPERIMENT_WEIGHTS
-    return (f"Limits: rotations 1°, translations 17.5 mm (cdgps_cli/control/metrics.py). Met only under one reading: "
+    return (LIMITS_NOTE.format(when="from 3 s after the pulse's end (Sec. VI.C's 'within 3 s')",
+                               rigid="q10 1° about its value at the pulse start (ours; the paper gives no number for it)")
+            + " Met only under one reading, hence 'see note': "
             "the paper's time update x̄ = A x + B u (Eq. 18) uses the commands its computer issued, and the Fig. 9 pulse "
-            "was fired by that computer through the same jets, so we put it in u; the paper does not say so. What "
+            "was fired by that computer through the same jets, so we put it in u; the paper does not say so. "
+            + _pulse_10_seeds() + "What "
             f"limits the loop (`python benchmarks/paper_pulse_decomposition.py`, ratio/back, worst of {dec['seeds']} "
             f"seeds, one ingredient swapped at a time): {t} weights: GPS estimate {fig(t, 'gps')}, true state "
             f"{fig(t, 'truth')}, noise-free phases {fig(t, 'gps-noisefree')}, pulse known to the EKF {fig(t, 'gps-known')}, "
@@ -420,9 +426,41 @@ def _pulse_note(run, eq18, pap, fig6w, truth, f6, dec) -> str:
             f"{_back(truth['back'])}.")
 
 
+#: where the closed-loop reports' limits come from (cdgps report control, "Every coordinate")
+LIMITS_NOTE = ("Every coordinate q1–q10 is checked {when} (`cdgps report control`, 'Every coordinate'; values in "
+               "cdgps_cli/control/metrics.py, sources in cdgps_cli/report/control_coordinates.py): q2/q5/q8 within 1°, the "
+               "paper's bound on the internal rotations (Sec. VI.D); q3/q6/q9 within 1° and q1/q4/q7 within 17.5 mm (1° at "
+               "the 1 m arm) are ours, the paper states no limit for them; {rigid}.")
+
+
+def _pulse_10_seeds() -> str:
+    """The Eq. 18 reading and the default loop over 10 seeds (benchmarks/paper_pulse_decomposition.py --seeds 10),
+    from its recorded JSON; empty without it."""
+    path = ROOT / "docs" / "benchmarks" / "paper_pulse_decomposition_10seeds.json"
+    if not path.exists():
+        return ""
+    r = json.loads(path.read_text())["results"].get(EXPERIMENT_WEIGHTS, {})
+    if not {"gps", "gps-known-W1"} <= set(r):
+        return ""
+
+    def fig(v):
+        back = "not back" if r[v]["back_s"] is None else f"back within {r[v]['back_s']:.1f} s"
+        return f"≤ {r[v]['ratio']:.2f}, {back}"
+    return (f"Over 10 seeds (docs/benchmarks/paper_pulse_decomposition_10seeds.json): that reading {fig('gps-known-W1')} "
+            f"(about one third, not ≤ 1/3 in every seed); the pulse unknown to the EKF {fig('gps')}. ")
+
+
 def _back(seconds: float) -> str:
     """'within X s' (after the pulse), or that it did not come back within the run."""
     return f"within {seconds:.1f} s" if math.isfinite(seconds) else "not within the 14 s left of the run"
+
+
+def _pulse_mark(eq18: dict, run: dict, seeds: int) -> bool | None:
+    """The pulse row's mark: met (about one third, ± 0.02; back within 3 s; every coordinate within its limit in
+    every seed) on both readings; "see note" (None) when only the Eq. 18 reading (pulse in the EKF's u) meets it."""
+    def ok(x):
+        return x["ratio"] <= 1 / 3 + 0.02 and x["back"] <= 3.0 and x["all_within"] == seeds
+    return True if ok(eq18) and ok(run) else (None if ok(eq18) else False)
 
 
 def hpulse(w: Path, figdir: Path, seeds: int) -> list[Headline]:
@@ -454,13 +492,14 @@ def hpulse(w: Path, figdir: Path, seeds: int) -> list[Headline]:
     return [
         Headline("1998", "Sec. VI.C, Fig. 10", "closed loop: q5 and q8 peak at about one third of the first open-loop "
                  "oscillation, and the structure is back within 3 s of the end of the pulse",
-                 ours=f"with the paper's EKF as written (pulse in the time update, Eq. 18; the paper's W): closed/open "
-                      f"peak ratio ≤ {eq18['ratio']:.2f}, back {_back(eq18['back'])}; every coordinate q1–q9 within its "
+                 ours=f"reading the paper's EKF with the pulse in the time update's u (Eq. 18; the paper does not say "
+                      f"so) and the paper's W: closed/open "
+                      f"peak ratio ≤ {eq18['ratio']:.2f}, back {_back(eq18['back'])}; every coordinate q1–q10 within its "
                       f"limit from 3 s after the pulse in {eq18['all_within']} of {seeds} seeds (worst {eq18['worst'][0]} "
                       f"{eq18['worst'][2]:.2f} {eq18['worst'][3]}). With the pulse unknown to the EKF (W scaled by the "
                       f"separation rule): ≤ {run['ratio']:.2f}, back {_back(run['back'])}, {run['all_within']} of {seeds} "
                       f"(worst {k} {worst:.2f} {unit}) ({seeds} seeds, GPS estimate in the loop, weights {EXPERIMENT_WEIGHTS})",
-                 met=eq18["ratio"] <= 1 / 3 + 0.02 and eq18["back"] <= 3.0 and eq18["all_within"] == seeds,
+                 met=_pulse_mark(eq18, run, seeds),
                  commands=cmds + cmds_p + cmds_6 + ["python benchmarks/paper_pulse_decomposition.py  # gps-known-W1: the Eq. 18 reading, in-process"], figure=fig,
                  values={"weights": EXPERIMENT_WEIGHTS, **run, "eq18": eq18, "paper_weights": pap, "fig6_weights": fig6w,
                          "fig6_qx": f6["qx"], "paper_weights_true_state_seed1": truth, "seeds": seeds,
@@ -535,6 +574,7 @@ def hslew(w: Path, figdir: Path, seeds: int) -> list[Headline]:
     vertical, lateral = _largest(vib, ("q3", "q6", "q9")), _largest(vib, ("q1", "q4", "q7"))
     vertical_nv = _largest(novib, ("q3", "q6", "q9"))
     all_within = sum(all(c["within"] is not False for c in r["coordinates"].values()) for r in vib)
+    rigid_ok = sum(r["coordinates"].get("q10", {}).get("within") is True for r in vib)
     final_nv = _worst(novib, "final_error_deg")
     ratios = [nv / v for nv, v in zip(internal_nv, internal)]             # the same seeds 1..len(novib)
     more = [r > 1 for r in ratios]
@@ -558,14 +598,20 @@ def hslew(w: Path, figdir: Path, seeds: int) -> list[Headline]:
                  met=_two_readings(arrived <= 30 and final <= 0.5 and ok_internal >= math.ceil(0.95 * seeds),
                                    _slew_decomposition()), commands=cmds, figure=fig,
                  values={"weights": EXPERIMENT_WEIGHTS, "with_vibration_control": vib, "paper_weights": pap},
-                 note=f"q2/q5/q8 are the sections' twists about the structure's axis in our model (Fig. 10's 'longitudinal "
+                 note="'Final angle within 0.5° as measured by GPS': the paper does not say whether that is the "
+                      "rigid-body angle q10 or the angle the centre section's antennas measure, q6 + q10 (Sec. VI.A's "
+                      "angle); the row is met on the first reading, and marked 'see note' when the second is not within "
+                      "0.5° (the figures above; `python benchmarks/paper_slew_decomposition.py`). "
+                      f"q2/q5/q8 are the sections' twists about the structure's axis in our model (Fig. 10's 'longitudinal "
                       f"twist'). The structure is forced by {SLEW_DISTURBANCE:g} × the model's process noise throughout, "
                       "as in benchmarks/control_experiments.py (the paper's was at rest before the command). " + pap_note),
         Headline("1998", "Sec. VI.D (every coordinate)", "Fig. 11b's text calls the internal angles 'relative vertical "
-                 "axis rotations' and has them within 1°; the other coordinates are not shown",
-                 ours=f"rotations about the vertical q3/q6/q9 up to {max(vertical):.1f}° (over 1° in "
+                 "axis rotations' and has them within 1°; the other coordinates are not shown, and no limit is given "
+                 "for them (issue 31: every coordinate checked against a stated limit)",
+                 ours=f"rotations about the vertical q3/q6/q9 up to {max(vertical):.1f}° (over our 1° in "
                       f"{sum(v > 1.0 for v in vertical)} of {seeds} seeds, least {min(vertical):.1f}°), lateral "
-                      f"translations q1/q4/q7 up to {max(lateral):.1f} mm (limit 17.5 mm); every coordinate within its "
+                      f"translations q1/q4/q7 up to {max(lateral):.1f} mm (our limit 17.5 mm), q10 within 0.5° of the "
+                      f"command from 30 s after it in {rigid_ok} of {seeds}; every coordinate within its "
                       f"limit in {all_within} of {seeds} seeds",
                  met=all_within >= math.ceil(0.95 * seeds),
                  values={"vertical_max_deg": vertical, "lateral_max_mm": lateral, "all_within": all_within,
@@ -580,9 +626,10 @@ def hslew(w: Path, figdir: Path, seeds: int) -> list[Headline]:
                       "longer than the paper's 30 s. Vibration "
                       f"control does not remove it (without it: up to {max(vertical_nv):.1f}°). "
                       + _slew_dec_note(_slew_decomposition()) + _layout_note(layout)
-                      + " Limits (cdgps_cli/control/metrics.py): 1° is the paper's for the internal rotations (Sec. VI.D), "
-                      "applied to every rotation; 17.5 mm (1° at the 1 m arm) is ours; the paper bounds neither q3/q6/q9 "
-                      "nor q1/q4/q7. Derivation and table: docs/testbed-model.md."
+                      + " " + LIMITS_NOTE.format(when="from the command", rigid="q10 within 0.5° of the command from 30 s "
+                                                 "after it, the paper's 'within 30 s', 'final angle within 0.5°'")
+                      + " The row is 'no' against our limits for q3/q6/q9 and q1/q4/q7, not against a number of the "
+                      "paper's. Derivation and table: docs/testbed-model.md."
                       + " The paper's q2/q5/q8 are twists by Sec. VI.C and by Sec. VI.A's centre-section vertical angle "
                       "q6 + q10; if Fig. 11b shows rotations about the vertical, this is not reproduced."),
         Headline("1998", "Fig. 12b", "without vibration control the slew excites significant internal vibrations",
@@ -636,8 +683,8 @@ def _layout_note(layout: dict) -> str:
             f"each layout, {len(next(iter(layout.values()))['runs'])} seeds (`python benchmarks/paper_thruster_layout.py`) — "
             + "; ".join(parts) + ". The rotations about the vertical fall to ≈ 1°, but with the weights tuned for "
             "the ±x layout the loop then saturates the jets and the twists and translations pass their limits; "
-            "the layout needs its own weights, which we have not tuned (the issue forbids tuning to fit), so the config "
-            "keeps ±x.")
+            "the layout needs its own weights, which we have not tuned (the issue asks for a miss to be shown rather than "
+            "tuned until it fits), so the config keeps ±x.")
 
 
 def _static_slew_deformation(times_s=(30.0, 25.0), slew_deg=36.0) -> dict:
@@ -805,6 +852,85 @@ def htracking(w: Path, figdir: Path) -> list[Headline]:
 # ----------------------------------------------------------------------------------------------
 
 
+def _runner_times(rows: list[Headline]) -> tuple[float, float]:
+    """Wall and CPU seconds summed over the runners that measured ``rows`` (each runner once)."""
+    seen = {h.key: h.values.get("runner_time_s") or {} for h in rows}
+    return (sum(t.get("wall", 0.0) for t in seen.values()), sum(t.get("cpu", 0.0) for t in seen.values()))
+
+
+#: issue 31's "What to deliver", sentence by sentence: (what it asks, the headline keys (paper, where) whose marks
+#: and figures answer it, or None, where it is delivered)
+ACCEPTANCE = (
+    ("1. mass and stiffness so that frequencies, damping and shapes agree with Table 1 together",
+     [("1998", "Table 1, Figs. 3–5")],
+     "configs/testbed-1998.toml from `python scripts/make_testbed_config.py`; docs/testbed-model.md (the shapes "
+     "the paper names, MAC ≥ 0.99; Table 1's time constants written into the config, as the paper did, not derived; "
+     "the suspension length fitted, 9.51 m, as the paper's 12 m threads cannot give the swing mode)"),
+    ("1. thruster geometry and force model Υ derived from the described layout, assumptions stated", None,
+     "docs/testbed-model.md 'Force model Υ' (±x and ±z at each arm tip, our reading; the swing mode uncontrollable "
+     "with it); other layouts measured by `python benchmarks/paper_thruster_layout.py`"),
+    ("1. the previous config kept under another name if anything depends on it", None,
+     "configs/testbed-1998-lumped.toml, byte for byte the config before issue 31 (sha256 49bd4822…, the "
+     "config_sha256 of data/testbed-free and data/testbed-static); the tests, the demo and the bundled data use it"),
+    ("2. static test", [("1998", "Sec. VI.A, Fig. 7")], "`cdgps report static` (commands below)"),
+    ("2. PSD against the gyro", [("1998", "Sec. VI.B, Fig. 8")], "`cdgps report spectrum`"),
+    ("2. pulse: open loop ≈ 10° p-p on the twist", [("1998", "Fig. 10 (open loop)")], "`cdgps report control`"),
+    ("2. pulse: closed-loop peak ≤ 1/3, back within 3 s", [("1998", "Sec. VI.C, Fig. 10")],
+     "`cdgps report control`; `python benchmarks/paper_pulse_decomposition.py`"),
+    ("2. slew: within 30 s, final angle within 0.5°, q2/q5/q8 within 1° in ≥ 19 of 20 seeds (estimator in the loop)",
+     [("1998", "Sec. VI.D, Fig. 11")], "`cdgps report control`; `python benchmarks/paper_slew_decomposition.py`"),
+    ("2. the rigid-only contrast of Fig. 12", [("1998", "Fig. 12b"), ("1998", "Fig. 12a")],
+     "`cdgps simulate --no-vibration-control`, `--slew-reference step`"),
+    ("2. every generalized coordinate, q3/q6/q9 included, in the closed-loop reports and checked against a stated "
+     "limit", [("1998", "Sec. VI.D (every coordinate)")],
+     "`cdgps report control`: 'Every coordinate' (q1–q10, a limit row, where each limit comes from) and "
+     "coordinates.png (each coordinate against the same limit). Shown and checked: delivered; the check fails for "
+     "q3/q6/q9 in the slew (the row's mark)"),
+    ("3. 1995: 0.3° RMS attitude, integers", [("1995", "Sec. V, Fig. 6"), ("1995", "Sec. IV")], "`make paper`"),
+    ("3. 1998: Fig. 6 poles", [("1998", "Sec. V, Fig. 6")], "`cdgps control design --weights paper`; "
+     "`python benchmarks/paper_fig6_weights.py`"),
+    ("3. 2003: 3 Hz aided bandwidth, 14 dB, > 30 Hz aided",
+     [("2003", "abstract, §III"), ("2003", "abstract")], "`python benchmarks/tracking_paper.py`"),
+    ("3. one command runs every headline of the three papers and writes this table", None,
+     "`make paper` (`python benchmarks/paper.py`): 1995 ×2, 1998 ×10, 2003 ×3 rows above, with commands and figures"),
+    ("3. in under 15 minutes on 2 cores", None, None),
+    ("3. a short subset in `make test`", None,
+     "tests/test_paper_quick.py runs `benchmarks/paper.py --quick` (1995, Table 1, static test, Fig. 6; ≈ 11 s) "
+     "and fails if a figure leaves its bound or a 'no' turns into 'yes' unannounced"),
+)
+
+
+def _acceptance(rows: list[Headline], runtime_s: float | None, quick: bool) -> list[str]:
+    """Issue 31's acceptance, sentence by sentence: the marks and figures of the rows that answer it."""
+    mark = {True: "yes", False: "**no**", None: "see note"}
+    by = {(h.paper, h.where) for h in rows}
+    wall, cpu = _runner_times(rows)
+    timing = (f"{runtime_s:.0f} s wall for this run" if runtime_s is not None else
+              f"{wall:.0f} s wall, {cpu:.0f} CPU s: the sum of the headlines' last runs (paper.json runner_time_s)")
+    out = ["## Issue 31 acceptance", "",
+           "Issue 31's 'What to deliver', sentence by sentence; the marks are the table's.", "",
+           "| the issue asks | delivered | where | measured |", "|---|---|---|---|"]
+    for ask, keys, where in ACCEPTANCE:
+        if keys is None:
+            done = "yes"
+            got = ""
+            if ask.startswith("3. in under 15"):
+                done, where = ("yes" if (runtime_s or wall) < 900 else "**no**"), f"`make paper`, {JOBS} jobs"
+                got = timing if not quick else f"{timing} (`--quick`: not the full run)"
+        else:
+            hs = [h for h in rows if (h.paper, h.where) in keys]       # 2003 has two rows at "abstract"
+            if any(k not in by for k in keys):
+                done, got = "not run here", "(`--quick`: only " + ", ".join(QUICK) + ")" if quick else "(not run)"
+            else:
+                marks = [h.met for h in hs]
+                done = mark[False if False in marks else (None if None in marks else True)]
+                if ask.startswith("2. every generalized"):
+                    done = f"in the reports and checked: yes; within the limits: {done}"
+                got = "; ".join(f"{h.where}: {h.ours}" for h in hs) if len(hs) > 1 else hs[0].ours
+        out.append(f"| {ask} | {done} | {where} | {got} |")
+    return out
+
+
 def _md(rows: list[Headline], runtime_s: float, quick: bool) -> str:
     mark = {True: "yes", False: "**no**", None: "see note"}
     out = ["# The papers' headlines, reproduced", "",
@@ -817,6 +943,7 @@ def _md(rows: list[Headline], runtime_s: float, quick: bool) -> str:
            "| paper | where | the paper says | we measure | reproduced |", "|---|---|---|---|---|"]
     for h in rows:
         out.append(f"| {h.paper} | {h.where} | {h.claim} | {h.ours} | {mark[h.met]} |")
+    out += ["", *_acceptance(rows, runtime_s, quick)]
     out += ["", "## Each headline", ""]
     for h in rows:
         out += [f"### {h.paper}, {h.where}", "", f"*Paper:* {h.claim}.", "", f"*Ours:* {h.ours}."]

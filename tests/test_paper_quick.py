@@ -38,6 +38,9 @@ def test_quick_paper_reproduction(tmp_path):
     assert abs(model["values"]["error_pct_12m_threads"]["swing"] + 10.1) < 0.2   # the paper's 12 m threads: bound
     md = (tmp_path / "paper-reproduction.md").read_text()
     assert md.count("| 199") == len(rows) and "**no**" in md and (tmp_path / "figures" / "paper-static.png").exists()
+    acceptance = md[md.index("## Issue 31 acceptance"):md.index("## Each headline")]
+    assert acceptance.count("\n| 1. ") == 3 and acceptance.count("\n| 2. ") == 7 and acceptance.count("\n| 3. ") == 6
+    assert "| 3. 1998: Fig. 6 poles | **no** |" in acceptance and "not run here" in acceptance   # --quick: said so
     # the run's random temporary folder appears as $WORK, so the page does not change from run to run
     assert "cdgps-paper-" not in md + (tmp_path / "benchmarks" / "paper.json").read_text() and "$WORK/" in md
 
@@ -96,3 +99,26 @@ def test_thruster_layout_variant_turns_only_the_named_arms():
         p.write_text(out)
         ratio = rigid_authority(load_config(p))[2] / base
     assert abs(ratio - 3.0) < 1e-6          # one jet per arm pushes: (4 arms·4 m + 2 arms·1 m) / (6 arms·1 m)
+
+
+def test_acceptance_marks_follow_the_rows_and_the_time_limit():
+    """The 'Issue 31 acceptance' list takes each item's mark from the rows that answer it (one 'no' makes the
+    item 'no'; a 'see note' without a 'no' makes it 'see note'), says 'not run here' for a missing row, and marks
+    the 15-minute limit 'no' when the headlines' summed wall time passes 900 s; the pulse row is 'see note' when
+    only the Eq. 18 reading meets it."""
+    paper = _script("benchmarks/paper.py")
+    H = paper.Headline
+    t = {"runner_time_s": {"wall": 500.0, "cpu": 800.0, "jobs": 2}}
+    rows = [H("1998", "Fig. 12b", "c", "b-ours", True, key="slew", values=t),
+            H("1998", "Fig. 12a", "c", "a-ours", False, key="slew", values=t),
+            H("1998", "Sec. VI.D, Fig. 11", "c", "s-ours", None, key="slew", values=t),
+            H("1995", "Sec. IV", "c", "i-ours", True, key="1995", values=t)]
+    text = "\n".join(paper._acceptance(rows, None, False))
+    line = lambda start: next(x for x in text.splitlines() if x.startswith("| " + start))  # noqa: E731
+    assert "| **no** |" in line("2. the rigid-only contrast") and "a-ours" in line("2. the rigid-only contrast")
+    assert "| see note |" in line("2. slew:") and "| not run here |" in line("3. 1995")
+    assert "| **no** |" in line("3. in under 15") and "1000 s wall" in line("3. in under 15")   # 500 + 500 s
+    assert "| yes |" in "\n".join(paper._acceptance(rows[:1], 880.0, False)).split("3. in under 15")[1].splitlines()[0]
+    ok, slow = {"ratio": 0.31, "back": 1.3, "all_within": 3}, {"ratio": 0.44, "back": 1.9, "all_within": 3}
+    assert paper._pulse_mark(ok, ok, 3) is True and paper._pulse_mark(ok, slow, 3) is None
+    assert paper._pulse_mark(slow, ok, 3) is False

@@ -21,6 +21,9 @@ TRANSLATION_LIMIT_MM = 1000.0 * np.radians(1.0)
 #: the pulse experiment checks every coordinate from this long after the pulse ends ("the system returned to
 #: the initial configuration within 3 s of the end of the pulse", Sec. VI.C)
 PULSE_BACK_S = 3.0
+#: the slew is "done within 30 s" (Sec. VI.D): the rigid-body angle is checked against
+#: :data:`ARRIVED_WITHIN_DEG` about the command from this long after the command, s
+SLEW_DONE_S = 30.0
 
 
 def first_peak_deg(time_s, angle_deg, after_s: float) -> float:
@@ -85,7 +88,7 @@ def slew_metrics(time_s, rigid_deg, internal_deg: dict, command_deg: float, comm
             "internal_max_deg": {k: float(np.abs(np.asarray(v)[after]).max()) for k, v in internal_deg.items()}}
 
 
-def coordinate_checks(time_s, values: dict, kinds: dict, after_s: float) -> dict:
+def coordinate_checks(time_s, values: dict, kinds: dict, after_s: float, limits: dict | None = None) -> dict:
     """Every coordinate's largest |value| from ``after_s`` on against its limit.
 
     Parameters
@@ -96,12 +99,17 @@ def coordinate_checks(time_s, values: dict, kinds: dict, after_s: float) -> dict
     kinds : dict
         Coordinate name -> ``"rotation"``, ``"translation"`` or another kind (not checked: no limit).
     after_s : float
+        Only samples at ``time_s >= after_s`` count.
+    limits : dict, optional
+        Name -> limit in the reported unit (deg or mm), replacing its kind's default
+        (:data:`ROTATION_LIMIT_DEG`, :data:`TRANSLATION_LIMIT_MM`).
 
     Returns
     -------
     dict
         Name -> ``{"kind", "unit" ("deg" or "mm"), "max_abs", "limit", "within"}``; ``limit`` and
-        ``within`` are None for a kind without a limit.
+        ``within`` are None for a kind without a limit; ``max_abs`` and ``within`` are None when no
+        sample is at or after ``after_s`` (not checked: the run ends before).
     """
     t = np.asarray(time_s)
     sel = t >= after_s
@@ -110,7 +118,9 @@ def coordinate_checks(time_s, values: dict, kinds: dict, after_s: float) -> dict
         kind = kinds.get(name)
         scale, unit, limit = {"rotation": (np.degrees(1.0), "deg", ROTATION_LIMIT_DEG),
                               "translation": (1000.0, "mm", TRANSLATION_LIMIT_MM)}.get(kind, (1.0, "", None))
-        m = float(np.abs(np.asarray(v, dtype=float)[sel]).max() * scale) if sel.any() else float("nan")
+        if limit is not None and limits and name in limits:
+            limit = float(limits[name])
+        m = float(np.abs(np.asarray(v, dtype=float)[sel]).max() * scale) if sel.any() else None
         out[name] = {"kind": kind, "unit": unit, "max_abs": m, "limit": limit,
-                     "within": None if limit is None else bool(m <= limit)}
+                     "within": None if limit is None or m is None else bool(m <= limit)}
     return out

@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from cdgps_cli.control.metrics import (ARRIVED_WITHIN_DEG, BACK_FRACTION, PULSE_BACK_S, ROTATION_LIMIT_DEG,
-                                      TRANSLATION_LIMIT_MM, coordinate_checks, pulse_metrics, slew_metrics)
+from cdgps_cli.control.metrics import (ARRIVED_WITHIN_DEG, BACK_FRACTION, PULSE_BACK_S, coordinate_checks,
+                                      pulse_metrics, slew_metrics)
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.provenance import _file, report_date, software
 from cdgps_cli.io.atomic import output_set
@@ -139,12 +139,14 @@ def control_report(gains_path: str | Path, runs: dict, out_dir: str | Path, date
     from cdgps_cli.report import control_coordinates as cc
 
     names = [n for n in sims["closed"]["q"].columns if n != "time_s"]
-    limits = cc.coordinate_limits(scenario, sims, names)
+    seg = data["slew"] if scenario == "slew" else data["pulse"]
+    checked = cc.checked_limits(scenario, seg, sims["closed"]["truth"].get("coordinates") or {}, sims["closed"]["q"])
+    limits = cc.coordinate_limits(scenario, sims, names, checked)
     figures[cc.COORDINATES_PNG] = cc.coordinates_figure(sims, "closed", limits, cc.coordinate_units(gains, names),
                                                         ROLE_LABEL["closed"])
     captions[cc.COORDINATES_PNG] = cc.coordinates_caption(scenario, limits, ROLE_LABEL["closed"])
-    data["coordinate_limits"] = {n: None if v is None else {"half_width": v[0], "centre": v[1], "from_s": v[2],
-                                                            "statement": v[3]} for n, v in limits.items()}
+    data["coordinate_limits"] = {n: [{"half_width": v[0], "centre": v[1], "from_s": v[2], "statement": v[3]}
+                                     for v in bands] for n, bands in limits.items()}
     plt = _mpl()
     from cdgps_cli.report.control_figures import pole_figure
 
@@ -160,6 +162,7 @@ def control_report(gains_path: str | Path, runs: dict, out_dir: str | Path, date
                                                        "--date": date},
         "inputs": inputs, "software": software(), "date": when["date"], "date_source": when["source"]}})
     data["coordinates"], k_rows, k_header, k_note = _coordinate_section(sims, scenario, data)
+    data["coordinate_limit_sources"] = {n: None if c is None else c["source"] for n, c in checked.items()}
     c_rows, c_header = _controller_rows(sims)
     data["controllers"] = {role: s["truth"]["controller"] for role, s in sims.items() if role != "open"}
     title = f"Control experiment: {scenario}"
@@ -180,29 +183,54 @@ def control_report(gains_path: str | Path, runs: dict, out_dir: str | Path, date
 
 
 def _coordinate_section(sims, scenario: str, data: dict):
-    """Every generalized coordinate but the rigid-body angle, per closed-loop run, against its limit
-    (:func:`cdgps_cli.control.metrics.coordinate_checks`): after the command (slew), from
-    PULSE_BACK_S after the pulse's end (pulse)."""
+    """Every generalized coordinate, q10 included, per closed-loop run, against the limit
+    :func:`cdgps_cli.report.control_coordinates.checked_limits` gives it (the value, where it comes from, from
+    when it applies), with :func:`cdgps_cli.control.metrics.coordinate_checks`."""
+    from cdgps_cli.report.control_coordinates import checked_limits  # noqa: PLC0415
+
     seg = data["slew"] if scenario == "slew" else data["pulse"]
-    after = seg["start_s"] if scenario == "slew" else seg["end_s"] + PULSE_BACK_S
-    checks = {}
+    checks, lims = {}, {}
     for role, s in sims.items():
         kinds = s["truth"].get("coordinates")
         if role == "open" or not kinds:
             continue
-        names = [k for k in kinds if k != RIGID_ANGLE and k in s["q"].columns]
-        checks[role] = coordinate_checks(s["q"]["time_s"].to_numpy(), {k: s["q"][k].to_numpy() for k in names},
-                                         kinds, after)
-    names = list(next(iter(checks.values()), {}))
+        lims = checked_limits(scenario, seg, kinds, s["q"])
+        t = s["q"]["time_s"].to_numpy()
+        checks[role] = {}
+        for n, c in lims.items():            # one call per coordinate: each has its own start and centre
+            after = c["from_s"] if c else seg["start_s"]
+            centre = c["centre"] if c else 0.0
+            checks[role].update(coordinate_checks(t, {n: s["q"][n].to_numpy() - centre}, kinds, after,
+                                                  {n: c["limit"]} if c else None))
+    names = list(lims)
     header = ["run", *names, "all within"]
-    rows = [[ROLE_LABEL[role], *(f"{c[k]['max_abs']:.2f}" + ("" if c[k]["within"] is not False else " ✗") for k in names),
-             "yes" if all(v["within"] is not False for v in c.values()) else "no"] for role, c in checks.items()]
-    when = "after the command" if scenario == "slew" else f"from {PULSE_BACK_S:g} s after the pulse's end"
-    note = (f"Largest |value| {when} (truth), degrees for rotations (limit {ROTATION_LIMIT_DEG:g}°, the paper's "
-            f"internal-rotation bound of Fig. 11), millimetres for translations (limit {TRANSLATION_LIMIT_MM:.1f} mm, "
-            "what 1° gives at 1 m); ✗: over its limit. The rigid-body angle is the table above."
-            if checks else "The simulations predate the per-coordinate kinds in truth.json: not checked.")
+    rows = [["limit", *(_limit_cell(lims[n], scenario) for n in names), ""]]
+    rows += [[ROLE_LABEL[role], *(_check_cell(c[k]) for k in names),
+              "yes" if all(v["within"] is not False for v in c.values()) else "no"] for role, c in checks.items()]
+    if not checks:
+        return checks, [], header, "The simulations predate the per-coordinate kinds in truth.json: not checked."
+    groups = {}
+    for n, c in lims.items():
+        if c is not None:
+            groups.setdefault((c["source"], c["from_s"]), []).append(n)
+    when = "the command" if scenario == "slew" else f"{PULSE_BACK_S:g} s after the pulse's end (the paper's 'within 3 s')"
+    note = (f"Largest |value − centre| (truth) from {when} unless the limit row says otherwise; degrees for rotations, "
+            "millimetres for translations; ✗: over its limit; —: the run ends before the check starts. Where each "
+            "limit comes from: " + "; ".join(f"{', '.join(ns)}: {src}" for (src, _), ns in groups.items()) + ".")
     return checks, rows, header, note
+
+
+def _limit_cell(c, scenario: str) -> str:
+    if c is None:
+        return "none"
+    about = "" if c["centre"] == 0.0 else (f" of {np.degrees(c['centre']):+g}°" if scenario == "slew" else " of its start")
+    return f"≤ {c['limit']:.3g}{'°' if c['unit'] == 'deg' else ' mm'}{about} from {c['from_s']:g} s"
+
+
+def _check_cell(c: dict) -> str:
+    if c["max_abs"] is None:
+        return "—"
+    return f"{c['max_abs']:.2f}" + (" ✗" if c["within"] is False else "")
 
 
 def _controller_rows(sims):

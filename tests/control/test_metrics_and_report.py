@@ -53,6 +53,10 @@ def test_coordinate_checks_limit_every_kind():
     assert c["q1"]["max_abs"] == pytest.approx(17.0) and c["q1"]["within"] is True      # 1 m before 5 s ignored
     assert c["q4"]["within"] is False and c["q4"]["limit"] == pytest.approx(TRANSLATION_LIMIT_MM) == pytest.approx(17.4533, rel=1e-4)
     assert c["xi"]["limit"] is None and c["xi"]["within"] is None
+    c = coordinate_checks(t, v, kinds, 5.0, {"q2": 0.5, "xi": 1.0})     # a per-name limit; no limit stays none
+    assert c["q2"]["limit"] == 0.5 and c["q2"]["within"] is False and c["xi"]["limit"] is None
+    c = coordinate_checks(t, v, kinds, 11.0)                             # the run ends before: not checked
+    assert c["q3"]["max_abs"] is None and c["q3"]["within"] is None
 
 
 def _run(*args):
@@ -118,10 +122,14 @@ def test_slew_report_gives_the_metrics_on_the_estimate_too(pulse_runs, testbed_p
              "--date", "2026-12-02", "--json")
     assert r.exit_code == 0, r.output
     est = json.loads(r.stdout)["metrics"]["closed"]["estimated"]
-    limits = json.loads(r.stdout)["coordinate_limits"]          # slew: the rigid angle's band only
-    assert limits["q10"]["centre"] == pytest.approx(math.radians(-22.0)) and limits["q10"]["from_s"] == 5.0
-    assert limits["q10"]["half_width"] == pytest.approx(math.radians(0.5))
-    assert all(v is None for k, v in limits.items() if k != "q10")
+    limits = json.loads(r.stdout)["coordinate_limits"]     # slew: q10 within 0.5° of the command 30 s after it
+    (q10,) = limits["q10"]
+    assert q10["centre"] == pytest.approx(math.radians(-22.0)) and q10["from_s"] == 5.0 + 30.0
+    assert q10["half_width"] == pytest.approx(math.radians(0.5)) and "paper" in q10["statement"]
+    assert all(len(v) == 1 and v[0]["from_s"] == 5.0 and v[0]["centre"] == 0.0 for k, v in limits.items() if k != "q10")
+    checks = json.loads(r.stdout)["coordinates"]["closed"]          # a 10 s run ends before the 30 s check
+    assert checks["q10"]["max_abs"] is None and checks["q10"]["within"] is None
+    assert "| limit |" in (tmp_path / "rep" / "report.md").read_text()
     c = pd.read_csv(tmp_path / "slew" / "controller.csv")
     ref = slew_metrics(c["time_s"], np.degrees(c["q10_hat_rad"]), {k: np.degrees(c[f"{k}_hat_rad"]) for k in ("q2", "q5", "q8")},
                        -22.0, 5.0)
@@ -135,8 +143,9 @@ def _bare_name(column: str) -> str:
 
 
 def test_control_reports_check_every_coordinate(pulse_runs, tmp_path):
-    """Every generalized coordinate but q10 (q3, q6, q9 included) is in the pulse report, checked from 3 s
-    after the pulse against its limit, with the numbers computed from truth.csv."""
+    """Every generalized coordinate, q3, q6, q9 and q10 included, is in the pulse report, checked from 3 s
+    after the pulse against its limit (q10 about its value at the pulse start), with the numbers computed
+    from truth.csv, and each limit's source named: the paper's for q2/q5/q8, ours for the rest."""
     import pandas as pd
 
     d = pulse_runs
@@ -144,14 +153,23 @@ def test_control_reports_check_every_coordinate(pulse_runs, tmp_path):
              "--date", "2026-12-02", "--json")
     assert r.exit_code == 0, r.output
     checks = json.loads(r.stdout)["coordinates"]["closed"]
-    assert list(checks) == [f"q{i}" for i in range(1, 10)]
+    assert list(checks) == [f"q{i}" for i in range(1, 11)]
     q = pd.read_csv(d / "closed" / "truth.csv").rename(columns=_bare_name)
     late = q[q["time_s"] >= 6.0 + 3.0]
     assert checks["q6"]["max_abs"] == pytest.approx(np.degrees(late["q6"].abs().max()), rel=1e-12)
     assert checks["q4"]["max_abs"] == pytest.approx(1000 * late["q4"].abs().max(), rel=1e-12)
+    at_pulse = np.interp(5.0, q["time_s"], q["q10"])
+    assert checks["q10"]["max_abs"] == pytest.approx(np.degrees((late["q10"] - at_pulse).abs().max()), rel=1e-9)
+    assert checks["q10"]["limit"] == ROTATION_LIMIT_DEG
     assert all(c["within"] == (c["max_abs"] <= c["limit"]) for c in checks.values())
+    src = json.loads(r.stdout)["coordinate_limit_sources"]
+    assert sorted(src, key=lambda n: int(n[1:])) == [f"q{i}" for i in range(1, 11)]
+    assert all(src[n].startswith("the paper's") for n in ("q2", "q5", "q8"))
+    assert all(src[n].startswith("ours") and "paper states no limit" in src[n] for n in ("q1", "q3", "q4", "q6", "q7", "q9"))
+    assert src["q10"].startswith("ours") and "Sec. VI.C" in src["q10"]
     md = (tmp_path / "rep" / "report.md").read_text()
-    assert "## Every coordinate" in md and "| q3 |" in md and "| q9 |" in md
+    assert "## Every coordinate" in md and "| q3 |" in md and "| q9 |" in md and "| q10 |" in md
+    assert "Where each limit comes from" in md and "| limit | ≤ 17.5 mm from 9 s |" in md
 
 
 def _edited_copy(src, dst, edit):
@@ -222,8 +240,9 @@ def test_simulate_refuses_a_gain_of_another_sample_period(pulse_runs, testbed_pa
 
 
 def test_every_coordinate_is_drawn_against_the_limit_the_report_states(pulse_runs, tmp_path):
-    """Issue 33: the closed loop's q1…q10 (q3/q6/q9 included) in coordinates.png; the stated limits are
-    the report's own criteria (pulse: q2, q5, q8 back within 10 % of the open-loop first peak)."""
+    """Issues 31, 33: the closed loop's q1…q10 (q3/q6/q9 included) in coordinates.png, each drawn against
+    the limit the 'Every coordinate' table checks (the same value, centre and start), its title naming the
+    source; after a pulse q2, q5, q8 also carry the 'back within' band (10 % of the open-loop first peak)."""
     import pandas as pd
     from PIL import Image
 
@@ -237,13 +256,19 @@ def test_every_coordinate_is_drawn_against_the_limit_the_report_states(pulse_run
     assert sorted(limits, key=lambda n: int(n[1:])) == [f"q{i}" for i in range(1, 11)]
     open_q = pd.read_csv(d / "open" / "truth.csv").rename(columns=_bare_name)
     start = next(s for s in json.loads((d / "closed" / "truth.json").read_text())["segments"] if s["kind"] == "pulse")
-    for n, lim in limits.items():
+    checks = json.loads(r.stdout)["coordinates"]["closed"]
+    for n, bands in limits.items():
+        checked, *back = bands
+        scale = np.degrees(1.0) if checks[n]["unit"] == "deg" else 1e3
+        assert checked["half_width"] * scale == pytest.approx(checks[n]["limit"]) and checked["from_s"] == 9.0, n
+        assert ("paper, Sec. VI.D" if n in ("q2", "q5", "q8") else "ours; the paper states none") in checked["statement"]
         if n in ("q2", "q5", "q8"):
             peak = first_peak_deg(open_q["time_s"].to_numpy(), open_q[n].to_numpy(), start["start_s"])
-            assert lim["half_width"] == pytest.approx(BACK_FRACTION * peak) and lim["from_s"] == start["start_s"]
+            assert back[0]["half_width"] == pytest.approx(BACK_FRACTION * peak) and back[0]["from_s"] == start["start_s"]
         else:
-            assert lim is None, n
+            assert back == [], n
     im = Image.open(tmp_path / "rep" / "coordinates.png")
     assert im.size[0] >= 1000 and im.size[1] >= 900                 # ten panels at print size
-    assert "Figure" in (tmp_path / "rep" / "report.html").read_text() and "no limit stated" in \
-        json.loads(r.stdout)["captions"]["coordinates.png"]
+    caption = json.loads(r.stdout)["captions"]["coordinates.png"]
+    assert "Figure" in (tmp_path / "rep" / "report.html").read_text() and "checks" in caption
+    assert "no limit" not in caption
