@@ -127,6 +127,27 @@ def dd_of_arcs(rows, cols, n_state: int):
     return np.array(D).reshape(-1, n_state), pairs, np.array(fixable, dtype=bool)
 
 
+def condition_on_integers(x, P, D, ints):
+    """The state conditioned on integer combinations of it, ``D x = ints`` (the fixed solution).
+
+    Parameters
+    ----------
+    x : ndarray (n,)        float state [offset (3, m), arc ambiguities (cycles)]
+    P : ndarray (n, n)      its covariance
+    D : ndarray (m, n)      linearly independent DD operators on the arc ambiguities (m may be 0)
+    ints : ndarray (m,)     their integers, cycles
+
+    Returns
+    -------
+    x_fix : ndarray (n,), P_fix : ndarray (n, n)   copies of x, P when m = 0.
+    """
+    if not len(ints):
+        return x.copy(), P.copy()
+    Pxa = P @ D.T
+    G = np.linalg.solve(D @ P @ D.T, Pxa.T).T
+    return x - G @ (D @ x - ints), P - G @ Pxa.T
+
+
 def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_success_rate: float | None = None):
     """Integers of the static float solution by the shared policy (:func:`~cdgps_cli.estimation.ambiguity.resolve`
     on the DDs of :func:`dd_of_arcs`) and the position conditioned on them.
@@ -147,13 +168,7 @@ def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_succ
     ints = np.zeros(a.size, dtype=np.int64)
     ints[fixable] = res["integers"]
     res = {**res, "fixed_mask": m, "integers": ints}
-    x_fix, P_fix = x.copy(), P.copy()
-    if m.any():
-        Dm = D[m]
-        Pxa = P @ Dm.T
-        G = np.linalg.solve(Dm @ P @ Dm.T, Pxa.T).T
-        x_fix = x - G @ (Dm @ x - ints[m])
-        P_fix = P - G @ Pxa.T
+    x_fix, P_fix = condition_on_integers(x, P, D[m], ints[m])
     return {"offset_m": x_fix[:3].copy(), "cov_m2": P_fix[:3, :3].copy(), "resolution": res, "pairs": pairs,
             "dd_float": a, "state_fixed": x_fix, "cov_fixed": P_fix}
 
@@ -204,7 +219,7 @@ def options_from_baseline(bopt) -> dict:
             if v != _FIXED_VALUE[f.name]:
                 raise CdgpsError(f"static baseline: option {f.name} = {v!r} is not supported by the static engine "
                                  f"(only {_FIXED_VALUE[f.name]!r})")
-        elif v != f.default:
+        elif (tuple(v) if isinstance(v, list) else v) != f.default:        # a JSON list for a tuple default
             raise CdgpsError(f"static baseline: option {f.name} = {v!r} is not supported by the static engine "
                              f"(only its default {f.default!r})")
     return out
