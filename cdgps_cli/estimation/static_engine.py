@@ -14,6 +14,7 @@ not implement).  ``baseline`` and GNSS ``init`` solve here through
 
 import numpy as np
 
+from cdgps_cli.core import progress
 from cdgps_cli.estimation.driver import EpochGrid, GridDynamics, drive
 from cdgps_cli.config.options import GNSS_DEFAULTS, MULTI_GNSS_DEFAULTS
 from cdgps_cli.core.errors import CdgpsError
@@ -72,8 +73,9 @@ def static_filter(rows, times_s, base_xyz_m, origin_xyz_m, *, sigma_pos_m: float
     n = 3 + (int(cols.max()) - 2 if cols.size else 0)
     x0, P0 = static_prior(rows, cols, n, sigma_pos_m, sigma_amb_cycles)
     model = DDGroupModel(lambda k: _groups(rows, cols, k), base_xyz_m, origin_xyz_m)
-    ctx = drive(GridDynamics(Static(n), times_s), [model], EpochGrid(np.asarray(times_s, float)), (x0, P0),
-                max_iterations=max_iterations)
+    with progress.bar(len(times_s), "static baseline (filter)", unit="epoch") as bar:
+        ctx = drive(GridDynamics(Static(n), times_s), [model], EpochGrid(np.asarray(times_s, float)), (x0, P0),
+                    max_iterations=max_iterations, progress=bar)
     return ctx.step.x, ctx.step.P, cols
 
 
@@ -162,7 +164,9 @@ def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_succ
     from cdgps_cli.estimation.ambiguity import resolve
     D, pairs, fixable = dd_of_arcs(rows, cols, x.size)
     a, Qa = D @ x, D @ P @ D.T
-    res = resolve(a[fixable], Qa[np.ix_(fixable, fixable)], ratio, partial=partial, min_success_rate=min_success_rate)
+    with progress.bar(int(fixable.sum()) if partial else 1, "integer fixing (LAMBDA)", unit="subset") as bar:
+        res = resolve(a[fixable], Qa[np.ix_(fixable, fixable)], ratio, partial=partial,
+                      min_success_rate=min_success_rate, progress=lambda done, total: bar.update_to(done))
     m = np.zeros(a.size, dtype=bool)
     m[fixable] = res["fixed_mask"]
     ints = np.zeros(a.size, dtype=np.int64)

@@ -257,3 +257,25 @@ def test_arcs_that_are_not_the_segments_skip_the_solve(monkeypatch):
                                             arcs_check=lambda arcs: np.arange(arcs["sat"].size))
     np.testing.assert_array_equal(plain["state"], checked["state"])
     assert static_engine.static_baseline(g[0], g[1], master_xyz, rover_xyz, arcs_check=lambda arcs: "no") == "no"
+
+
+def test_engine_shows_filter_and_lambda_progress_unless_quiet(monkeypatch, tmp_path):
+    """`cdgps baseline` on the engine: a filter bar (epochs) and a LAMBDA bar on stderr, as the batch's; none with -q;
+    the JSON the same either way."""
+    from cdgps_cli.core import progress
+    from tests._shared import run_cli
+    if not (MOSAIC / "base.obs").exists():
+        pytest.skip("mosaic pair absent")
+    for name, value in (("PLAIN_MIN_S", 0.0), ("PLAIN_INTERVAL_S", 0.0), ("BAR_DELAY_S", 0.0)):
+        monkeypatch.setattr(progress, name, value)
+    args = ("baseline", "--rinex", f"base={MOSAIC / 'base.obs'}", "--rinex", f"rover={MOSAIC / 'rover.obs'}",
+            "--nav", MOSAIC / "base.nav", "--master", "base")
+    try:
+        loud = run_cli(*args, "-o", tmp_path / "loud.json")
+        quiet = run_cli("-q", *args, "-o", tmp_path / "quiet.json")
+    finally:
+        progress.configure(enabled=False, stream=None)
+    assert loud.exit_code == 0 and quiet.exit_code == 0, loud.output + quiet.output
+    assert "static baseline (filter): done" in loud.stderr and "integer fixing (LAMBDA): done" in loud.stderr
+    assert "static baseline (filter)" not in quiet.stderr and "LAMBDA" not in quiet.stderr
+    assert (tmp_path / "loud.json").read_text().replace("loud", "") == (tmp_path / "quiet.json").read_text().replace("quiet", "")
