@@ -1381,7 +1381,13 @@ def _engine_solution(d: _Data, sg: _Segments, w: _Weights, eng: dict, xr0, r_enu
     fixed_mask = np.isfinite(seg_int[sg.free]) & ~_fdma_segments(d, sg)[sg.free]
     ints = np.where(fixed_mask, np.nan_to_num(seg_int[sg.free]), 0).astype(np.int64)
     res = eng["resolution"] or {}
-    fx = _Fix(a_fl[sg.free], q_fl[3:, 3:], fixed_mask, ints, _nan_none(res.get("ratio")),
+    a_res, q_res = a_fl[sg.free], q_fl[3:, 3:]
+    if eng.get("random_walk") is not None:      # the float ambiguities LAMBDA saw: the random-walk filter's
+        Ja = J[sg.free][:, 3:]
+        a_res, q_res = Ja @ eng["random_walk"][0], Ja @ eng["random_walk"][1] @ Ja.T
+        fl.block["motion"] = "random_walk"
+        fl.block["random_walk_sigma_m_per_sqrt_s"] = list(opt.random_walk_sigma)
+    fx = _Fix(a_res, q_res, fixed_mask, ints, _nan_none(res.get("ratio")),
               _nan_none(res.get("ratio_full_set")), bool(res.get("accepted", False)), bool(res.get("partial", False)),
               _nan_none(res.get("success_rate")))
     n_fixed = int(fixed_mask.sum())

@@ -20,7 +20,8 @@ from cdgps_cli.config.options import GNSS_DEFAULTS, MULTI_GNSS_DEFAULTS
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.dd_signals import DDGroupModel, epoch_groups, paired_sd_rows
 from cdgps_cli.measurement.epoch_pairing import pair_epochs
-from cdgps_cli.model.dynamics_models import Static
+from cdgps_cli.model.dynamics_models import Dynamics, Static, WithConstants
+from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
 
 
 def arc_columns(rows, n_pos: int = 3) -> np.ndarray:
@@ -77,6 +78,51 @@ def static_filter(rows, times_s, base_xyz_m, origin_xyz_m, *, sigma_pos_m: float
         ctx = drive(GridDynamics(Static(n), times_s), [model], EpochGrid(np.asarray(times_s, float)), (x0, P0),
                     max_iterations=max_iterations, progress=bar)
     return ctx.step.x, ctx.step.P, cols
+
+
+class EnuRandomWalk(Dynamics):
+    """An ECEF offset (3, m) whose east/north/up components (the local frame at ``origin_xyz_m``) are random
+    walks of σ ``sigma_enu`` (m/√s, three or one): Q = Rᵀ diag(σ²) R Δt, R the ECEF → ENU rotation."""
+
+    identity_transition = True
+
+    def __init__(self, sigma_enu, origin_xyz_m):
+        self.n, self.n_u = 3, 0
+        s = np.broadcast_to(np.asarray(sigma_enu, dtype=float), (3,))
+        R = enu_matrix(*ecef_to_geodetic(np.asarray(origin_xyz_m, dtype=float))[:2])
+        self._Q1 = R.T @ np.diag(s**2) @ R
+
+    def transition(self, dt_s: float):
+        if not (np.isfinite(dt_s) and dt_s > 0):
+            raise ValueError(f"dt_s must be a positive number of seconds, got {dt_s!r}")
+        return np.eye(3), np.zeros((3, 0)), self._Q1 * float(dt_s)
+
+
+def random_walk_float(rows, cols, times_s, base_xyz_m, origin_xyz_m, x_static, *, sigma_rw, initial_sigma_m: float,
+                      sigma_amb_cycles: float = 1e3, max_iterations: int = 2):
+    """Float arc ambiguities of a rover whose position random-walks, through :func:`drive`.
+
+    State [offset (3, m), arc ambiguities (cycles)]: the offset a random walk of σ ``sigma_rw`` (m/√s, per
+    east/north/up component or one for all; :class:`EnuRandomWalk`), the ambiguities constants
+    (:class:`~cdgps_cli.model.dynamics_models.WithConstants`), from the offset of ``x_static`` (the static
+    float solution) ± ``initial_sigma_m`` and :func:`static_prior`'s ambiguities ± ``sigma_amb_cycles``.
+    Constants are not moved by a smoother: their filtered estimate at the last epoch is their posterior given
+    every epoch (what an RTS pass would give).  The ambiguities' prior stays (as :func:`static_filter`'s): the SD
+    arcs' common mode per signal is known only through it, and it is ≈ 10⁻⁶ of the DD information.
+
+    Returns
+    -------
+    a : ndarray (n_arc,) cycles, Q : ndarray (n_arc, n_arc) cycles²
+    """
+    n = x_static.size
+    x0, P0 = static_prior(rows, cols, n, initial_sigma_m, sigma_amb_cycles)
+    x0[:3] = x_static[:3]
+    dyn = WithConstants(EnuRandomWalk(sigma_rw, origin_xyz_m), n - 3)
+    model = DDGroupModel(lambda k: _groups(rows, cols, k), base_xyz_m, origin_xyz_m)
+    with progress.bar(len(times_s), "static baseline (random-walk filter)", unit="epoch") as bar:
+        ctx = drive(GridDynamics(dyn, times_s), [model], EpochGrid(np.asarray(times_s, float)), (x0, P0),
+                    max_iterations=max_iterations, progress=bar)
+    return ctx.step.x[3:].copy(), ctx.step.P[3:, 3:].copy()
 
 
 class _Ctx:
@@ -150,7 +196,8 @@ def condition_on_integers(x, P, D, ints):
     return x - G @ (D @ x - ints), P - G @ Pxa.T
 
 
-def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_success_rate: float | None = None):
+def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_success_rate: float | None = None,
+               amb=None):
     """Integers of the static float solution by the shared policy (:func:`~cdgps_cli.estimation.ambiguity.resolve`
     on the DDs of :func:`dd_of_arcs`) and the position conditioned on them.
 
@@ -163,7 +210,10 @@ def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_succ
     """
     from cdgps_cli.estimation.ambiguity import resolve
     D, pairs, fixable = dd_of_arcs(rows, cols, x.size)
-    a, Qa = D @ x, D @ P @ D.T
+    if amb is None:
+        a, Qa = D @ x, D @ P @ D.T
+    else:                                   # (a, Q) of the arcs from another float (random walk)
+        a, Qa = D[:, 3:] @ amb[0], D[:, 3:] @ amb[1] @ D[:, 3:].T
     with progress.bar(int(fixable.sum()) if partial else 1, "integer fixing (LAMBDA)", unit="subset") as bar:
         res = resolve(a[fixable], Qa[np.ix_(fixable, fixable)], ratio, partial=partial,
                       min_success_rate=min_success_rate, progress=lambda done, total: bar.update_to(done))
@@ -185,7 +235,9 @@ _NOT_YET = {"glonass_fix": "GLONASS ambiguities stay float on the static engine"
 def _static_options(options: dict | None) -> dict:
     """Defaults merged with ``options``; CdgpsError naming an unknown key or one the engine does not honour."""
     opt = {"partial": GNSS_DEFAULTS["partial"], **MULTI_GNSS_DEFAULTS,
-           "fix_and_hold": False}           # rtk's default holds; a static batch has nothing to hold
+           "fix_and_hold": False,           # rtk's default holds; a static batch has nothing to hold
+           "motion": "static", "random_walk_sigma": GNSS_DEFAULTS["random_walk_sigma"],
+           "initial_sigma_m": GNSS_DEFAULTS["initial_sigma_m"]}
     unknown = sorted(set(options or {}) - set(opt))
     if unknown:
         raise CdgpsError(f"static baseline: unknown option(s) {', '.join(unknown)}; known: {', '.join(sorted(opt))}")
@@ -193,6 +245,8 @@ def _static_options(options: dict | None) -> dict:
     for key, why in _NOT_YET.items():
         if opt[key]:
             raise CdgpsError(f"static baseline: option {key} = {opt[key]!r} is not supported ({why})")
+    if opt["motion"] not in ("static", "random_walk"):
+        raise CdgpsError(f"static baseline: option motion = {opt['motion']!r}; expected 'static' or 'random_walk'")
     return opt
 
 
@@ -200,9 +254,10 @@ def _static_options(options: dict | None) -> dict:
 _HONOURED = {"mask_deg": "mask_deg", "ratio_threshold": "ratio", "partial": "partial", "fix": "fix",
              "sigma_a_m": "sigma_a_m", "sigma_b_m": "sigma_b_m", "code_ratio": "code_ratio",
              "troposphere": "troposphere", "sync_tol_s": "sync_tol_s", "max_age_s": "max_age_s",
-             "code_correlation_s": "code_correlation_s", "min_success_rate": "min_success_rate"}
+             "code_correlation_s": "code_correlation_s", "min_success_rate": "min_success_rate",
+             "motion": "motion", "random_walk_sigma": "random_walk_sigma", "initial_sigma_m": "initial_sigma_m"}
 #: BaselineOptions fields the engine does not implement: only this value is accepted (the engine's behaviour)
-_FIXED_VALUE = {"weighting": "elevation", "epoch_alignment": "geometry", "motion": "static", "max_gap_s": None,
+_FIXED_VALUE = {"weighting": "elevation", "epoch_alignment": "geometry", "max_gap_s": None,
                 "kinematic_series": False}
 
 
@@ -275,13 +330,17 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
         if isinstance(why, str):
             return why
     x, P, cols = static_filter(rows, times, base_xyz_m, rover_xyz0_m)
+    rw = None
+    if opt["motion"] == "random_walk" and x.size > 3:
+        rw = random_walk_float(rows, cols, times, base_xyz_m, rover_xyz0_m, x, sigma_rw=opt["random_walk_sigma"],
+                               initial_sigma_m=opt["initial_sigma_m"])
     if not opt["fix"]:
         f = {"offset_m": x[:3].copy(), "cov_m2": P[:3, :3].copy(), "resolution": None, "pairs": [], "dd_float": None,
              "state_fixed": x, "cov_fixed": P}
     else:
         f = static_fix(x, P, rows, cols, ratio=opt["ratio"], partial=opt["partial"],
-                       min_success_rate=opt["min_success_rate"])
-    return {**f, "float_offset_m": x[:3], "float_cov_m2": P[:3, :3], "epochs_used": int(times.size),
+                       min_success_rate=opt["min_success_rate"], amb=rw)
+    return {**f, "random_walk": rw, "float_offset_m": x[:3], "float_cov_m2": P[:3, :3], "epochs_used": int(times.size),
             "epoch_pairing": pairs.summary, "state": x, "cov": P, "arcs": arc_table(rows, cols, times),
             "arc_integers": arc_integers(f, x.size)}
 

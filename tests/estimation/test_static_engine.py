@@ -188,8 +188,12 @@ def test_baseline_options_mapped_or_refused_by_name():
     o = options_from_baseline(BaselineOptions(kinematic_series=False, ratio_threshold=2.0, mask_deg=10.0))
     assert o["ratio"] == 2.0 and o["mask_deg"] == 10.0
     _static_options(o)                                            # every mapped key is an engine option
-    for bad in ({"weighting": "equal"}, {"epoch_alignment": "doppler"}, {"motion": "random_walk"},
-                {"max_gap_s": 60.0}, {"kinematic_series": True}, {"max_iterations": 3}, {"initial_sigma_m": 5.0}):
+    o = options_from_baseline(BaselineOptions(kinematic_series=False, motion="random_walk", initial_sigma_m=5.0))
+    assert o["motion"] == "random_walk" and o["initial_sigma_m"] == 5.0
+    with pytest.raises(CdgpsError, match="motion"):
+        _static_options({"motion": "wobbly"})
+    for bad in ({"weighting": "equal"}, {"epoch_alignment": "doppler"},
+                {"max_gap_s": 60.0}, {"kinematic_series": True}, {"max_iterations": 3}):
         with pytest.raises(CdgpsError, match=next(iter(bad))):
             options_from_baseline(BaselineOptions(**{"kinematic_series": False, **bad}))
 
@@ -279,3 +283,26 @@ def test_engine_shows_filter_and_lambda_progress_unless_quiet(monkeypatch, tmp_p
     assert "static baseline (filter): done" in loud.stderr and "integer fixing (LAMBDA): done" in loud.stderr
     assert "static baseline (filter)" not in quiet.stderr and "LAMBDA" not in quiet.stderr
     assert (tmp_path / "loud.json").read_text().replace("loud", "") == (tmp_path / "quiet.json").read_text().replace("quiet", "")
+
+
+@pytest.mark.parametrize("sigma", [(0.001, 0.001, 0.001), (0.01, 0.01, 0.03)])
+def test_random_walk_float_on_the_engine_equals_the_batch(sigma):
+    """motion = "random_walk" on the engine (drive with an east/north/up random walk of the offset and constant arc
+    ambiguities) equals the batch's random-walk float (an exact least squares, baseline._float_random_walk) on the
+    mosaic pair (301 s): float ambiguities within 1e-3 cycles (measured 2.5e-4, the static engine's own distance
+    from the batch), their σ within 1e-4 relative (1.4e-6), the same integers, fixed position within 0.1 mm
+    (0.019); and it is not the static float (the walk moves the floats by up to 0.7 cycles)."""
+    from cdgps_cli.estimation.baseline import BaselineOptions, solve_static_baseline
+    (b, r), nav = _mosaic_stations()
+    o = BaselineOptions(motion="random_walk", random_walk_sigma=sigma)
+    batch, eng = solve_static_baseline(b, r, nav, o), solve_static_baseline(b, r, nav, o, engine=True)
+    static = solve_static_baseline(b, r, nav, engine=True)
+    assert eng["solver"] == "static_engine" and eng["float"]["motion"] == "random_walk"
+
+    def col(res, k):
+        return np.array([s[k] or 0.0 for s in res["ambiguities"]["segments"]])
+    assert np.max(np.abs(col(eng, "float_cycles") - col(batch, "float_cycles"))) < 1e-3
+    assert np.max(np.abs(col(eng, "float_cycles") - col(static, "float_cycles"))) > 0.05
+    np.testing.assert_allclose(col(eng, "sigma_cycles"), col(batch, "sigma_cycles"), rtol=1e-4)
+    assert col(eng, "integer").tolist() == col(batch, "integer").tolist()
+    assert np.max(np.abs(np.subtract(eng["fixed"]["enu_m"], batch["fixed"]["enu_m"]))) < 1e-4
