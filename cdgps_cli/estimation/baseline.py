@@ -1485,7 +1485,8 @@ def _engine_given(master: Station, rover: Station, nav, opt: BaselineOptions, xm
         found["cols"] = _engine_columns(d, sg, arcs)
         return found["cols"]
 
-    eng = _run_engine(master, rover, nav, replace(opt, fix=False), xm, xr0, None, arcs_check=arcs_check)
+    # the float only (a random-walk float would only feed LAMBDA, which does not run here)
+    eng = _run_engine(master, rover, nav, replace(opt, fix=False, motion="static"), xm, xr0, None, arcs_check=arcs_check)
     if isinstance(eng, str):
         return eng
     cols, x, P = found["cols"], eng["state"], eng["cov"]
