@@ -15,7 +15,7 @@ not implement).  ``baseline`` and GNSS ``init`` solve here through
 import numpy as np
 
 from cdgps_cli.core import progress
-from cdgps_cli.estimation.driver import EpochGrid, GridDynamics, drive
+from cdgps_cli.estimation.driver import EpochGrid, GridDynamics, RecordingSink, drive
 from cdgps_cli.config.options import GNSS_DEFAULTS, MULTI_GNSS_DEFAULTS
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.dd_signals import DDGroupModel, epoch_groups, paired_sd_rows
@@ -76,7 +76,7 @@ def static_filter(rows, times_s, base_xyz_m, origin_xyz_m, *, sigma_pos_m: float
     model = DDGroupModel(lambda k: _groups(rows, cols, k), base_xyz_m, origin_xyz_m)
     with progress.bar(len(times_s), "static baseline (filter)", unit="epoch") as bar:
         ctx = drive(GridDynamics(Static(n), times_s), [model], EpochGrid(np.asarray(times_s, float)), (x0, P0),
-                    max_iterations=max_iterations, progress=bar)
+                    sink=RecordingSink(len(times_s), n, history=False), max_iterations=max_iterations, progress=bar)
     return ctx.step.x, ctx.step.P, cols
 
 
@@ -121,7 +121,7 @@ def random_walk_float(rows, cols, times_s, base_xyz_m, origin_xyz_m, x_static, *
     model = DDGroupModel(lambda k: _groups(rows, cols, k), base_xyz_m, origin_xyz_m)
     with progress.bar(len(times_s), "static baseline (random-walk filter)", unit="epoch") as bar:
         ctx = drive(GridDynamics(dyn, times_s), [model], EpochGrid(np.asarray(times_s, float)), (x0, P0),
-                    max_iterations=max_iterations, progress=bar)
+                    sink=RecordingSink(len(times_s), n, history=False), max_iterations=max_iterations, progress=bar)
     return ctx.step.x[3:].copy(), ctx.step.P[3:, 3:].copy()
 
 

@@ -306,3 +306,21 @@ def test_random_walk_float_on_the_engine_equals_the_batch(sigma):
     np.testing.assert_allclose(col(eng, "sigma_cycles"), col(batch, "sigma_cycles"), rtol=1e-4)
     assert col(eng, "integer").tolist() == col(batch, "integer").tolist()
     assert np.max(np.abs(np.subtract(eng["fixed"]["enu_m"], batch["fixed"]["enu_m"]))) < 1e-4
+
+
+def test_static_filter_keeps_only_the_last_state(run, monkeypatch):
+    """The static (and random-walk) filter keeps no per-epoch history (x (N, n), P (N, n, n): 3.3 GB on a 24 h
+    1 Hz pair with 66 arcs; tracemalloc peak of static_filter 30.0 -> 8.9 MiB on Spirent G+E L1+L2, 601 epochs):
+    the final state is bit for bit that of a run keeping every epoch."""
+    from cdgps_cli.estimation import driver, static_engine
+    rows, times, base_xyz, origin = run
+    x, P, _ = static_filter(rows, times, base_xyz, origin)
+    sinks, real = [], driver.drive
+
+    def keep_all(*a, sink=None, **k):
+        sinks.append(sink)
+        return real(*a, sink=driver.RecordingSink(len(times), x.size), **k)
+    monkeypatch.setattr(static_engine, "drive", keep_all)
+    x2, P2, _ = static_filter(rows, times, base_xyz, origin)
+    assert sinks and not sinks[0].keep and sinks[0].x.shape[0] == 0
+    assert np.array_equal(x, x2) and np.array_equal(P, P2)
