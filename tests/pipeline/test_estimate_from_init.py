@@ -146,3 +146,18 @@ def test_float_only_init_is_not_solved_again(geonet, monkeypatch):
     assert res["solver"] == "given (INIT's position, float ambiguities at it)" and res["solution"] == "float"
     assert w["x_final"].tolist() == former["enu_m"]
     np.testing.assert_allclose(np.sqrt(np.diag(w["q_final"])), former["sigma_enu_m"], rtol=1e-6)
+
+
+def test_an_init_nothing_can_take_is_refused_not_solved_again(geonet, monkeypatch, tmp_path):
+    """A batch INIT whose position is not the solution of its integers on the run, with an option only the batch
+    implements: estimate exits 2 saying to run init again (no traceback, no STATES), and never solves the batch."""
+    d, init = geonet
+    bad = json.loads(json.dumps(init))
+    rov = bad["rovers"]["0759"]
+    rov["solver"], rov["options"]["weighting"] = "batch (test)", "equal"
+    rov["fixed"]["enu_m"][0] += 1e-3
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
+    _no_batch(monkeypatch)
+    r = run_cli("estimate", d / "run.mcap", "--init", tmp_path / "bad.json", "-o", tmp_path / "s.mcap")
+    assert r.exit_code == 2 and "run 'cdgps init' again" in r.stderr and "weighting" in r.stderr, r.output
+    assert "Traceback" not in r.output and not (tmp_path / "s.mcap").exists()
