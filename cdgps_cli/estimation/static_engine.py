@@ -149,12 +149,14 @@ def static_normal_equations(rows, n_epochs: int, base_xyz_m, origin_xyz_m, x_lin
     return x_lin + np.linalg.solve(Nm, rhs), np.linalg.inv(Nm)
 
 
-def dd_of_arcs(rows, cols, n_state: int):
+def dd_of_arcs(rows, cols, n_state: int, glonass_fix: bool = False):
     """DD operator (n_dd, n_state) on the arc ambiguities: per signal, every arc minus the signal's
     reference arc (the one with the most rows, preferring arcs without a half-cycle flag); the
     (arc, reference arc) column pairs; and which DDs are integers that may be fixed (n_dd,) bool: not
     when either arc has a half-cycle flag, nor for a signal whose wavelength differs between
-    satellites (GLONASS FDMA: an SD ambiguity difference in cycles of two wavelengths is no integer)."""
+    satellites (GLONASS FDMA: an SD ambiguity difference in cycles of two wavelengths is no integer)
+    unless ``glonass_fix`` (identical receivers: the arcs' DD in cycles is fixed as an integer, as
+    ``rtk --glonass-fix`` does; :func:`static_baseline` then gives the arcs rtk's prior, see there)."""
     D, pairs, fixable = [], [], []
     half = np.zeros(n_state, dtype=bool)
     if "half" in rows:
@@ -163,7 +165,7 @@ def dd_of_arcs(rows, cols, n_state: int):
         sel = rows["code"] == c
         arcs, counts = np.unique(cols[sel], return_counts=True)
         ref = int(arcs[np.lexsort((-counts, half[arcs]))[0]])
-        fdma = np.ptp(rows["lam_m"][sel]) > 0
+        fdma = np.ptp(rows["lam_m"][sel]) > 0 and not glonass_fix
         for a in arcs:
             if a == ref:
                 continue
@@ -197,7 +199,7 @@ def condition_on_integers(x, P, D, ints):
 
 
 def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_success_rate: float | None = None,
-               amb=None):
+               amb=None, glonass_fix: bool = False):
     """Integers of the static float solution by the shared policy (:func:`~cdgps_cli.estimation.ambiguity.resolve`
     on the DDs of :func:`dd_of_arcs`) and the position conditioned on them.
 
@@ -209,7 +211,7 @@ def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_succ
         (the DDs' column pairs), ``dd_float`` (n_dd,) cycles.
     """
     from cdgps_cli.estimation.ambiguity import resolve
-    D, pairs, fixable = dd_of_arcs(rows, cols, x.size)
+    D, pairs, fixable = dd_of_arcs(rows, cols, x.size, glonass_fix)
     if amb is None:
         a, Qa = D @ x, D @ P @ D.T
     else:                                   # (a, Q) of the arcs from another float (random walk)
@@ -228,8 +230,7 @@ def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_succ
 
 
 #: options the static engine does not honour yet: refused by name rather than silently ignored
-_NOT_YET = {"glonass_fix": "GLONASS ambiguities stay float on the static engine",
-            "fix_and_hold": "fix-and-hold is a kinematic (rtk) option"}
+_NOT_YET = {"fix_and_hold": "fix-and-hold is a kinematic (rtk) option"}
 
 
 def _static_options(options: dict | None) -> dict:
@@ -297,7 +298,8 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
     options : dict
         Keys of :data:`~cdgps_cli.config.options.MULTI_GNSS_DEFAULTS` (``ratio``, ``partial``,
         ``min_success_rate``, ``fix`` (False: float only, ``resolution`` None), the weights and the mask
-        are used); an unknown key, or ``glonass_fix`` / ``fix_and_hold`` set, raises CdgpsError, as does a
+        are used; ``glonass_fix``: the GLONASS DDs fixed too, between identical receivers); an unknown key, or
+        ``fix_and_hold`` set, raises CdgpsError, as does a
         multi-signal baseline at or above ``iono_threshold_km`` (the DD ionosphere is neglected, as ``init``'s).
 
     Returns
@@ -329,17 +331,20 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
         why = arcs_check(arc_table(rows, arc_columns(rows), times))
         if isinstance(why, str):
             return why
-    x, P, cols = static_filter(rows, times, base_xyz_m, rover_xyz0_m)
+    # GLONASS DDs fixed: (λ_i − λ_r)·N_r enters each FDMA DD, so the SD arcs' common mode must be known to a few
+    # cycles — rtk's prior (amb_sigma_cycles about (phase − code)/λ) does it, the weak 1e3-cycle one does not
+    sigma_amb = {"sigma_amb_cycles": opt["amb_sigma_cycles"]} if opt["glonass_fix"] else {}
+    x, P, cols = static_filter(rows, times, base_xyz_m, rover_xyz0_m, **sigma_amb)
     rw = None
     if opt["motion"] == "random_walk" and x.size > 3:
         rw = random_walk_float(rows, cols, times, base_xyz_m, rover_xyz0_m, x, sigma_rw=opt["random_walk_sigma"],
-                               initial_sigma_m=opt["initial_sigma_m"])
+                               initial_sigma_m=opt["initial_sigma_m"], **sigma_amb)
     if not opt["fix"]:
         f = {"offset_m": x[:3].copy(), "cov_m2": P[:3, :3].copy(), "resolution": None, "pairs": [], "dd_float": None,
              "state_fixed": x, "cov_fixed": P}
     else:
         f = static_fix(x, P, rows, cols, ratio=opt["ratio"], partial=opt["partial"],
-                       min_success_rate=opt["min_success_rate"], amb=rw)
+                       min_success_rate=opt["min_success_rate"], amb=rw, glonass_fix=opt["glonass_fix"])
     return {**f, "random_walk": rw, "float_offset_m": x[:3], "float_cov_m2": P[:3, :3], "epochs_used": int(times.size),
             "epoch_pairing": pairs.summary, "state": x, "cov": P, "arcs": arc_table(rows, cols, times),
             "arc_integers": arc_integers(f, x.size)}
