@@ -75,6 +75,7 @@ __all__ = [
     "BaselineOptions",
     "Station",
     "solve_static_baseline",
+    "baseline_from_init",
     "format_summary",
     "json_safe",
 ]
@@ -914,45 +915,91 @@ ENGINE_SOLUTION_TOL_M = 1e-4
 
 
 def _known_solution(d: _Data, sg: _Segments, w: _Weights, integers: dict, solution: dict, xr0, r_enu, warnings: list,
-                    tol_m: float = _KNOWN_SOLUTION_TOL_M):
+                    tol_m: float = _KNOWN_SOLUTION_TOL_M, floats: bool = False):
     """The fixed solution given whole (e.g. INIT's): every ambiguity an integer or a datum pivot, the
     position ``solution["enu_m"]`` — evaluated there (design, residuals, covariance), not solved again.
 
     Returns (float, fix, final) in the solver's forms, or None when the given integers leave a segment
-    float, the data hold GLONASS (FDMA) segments, or the position is not the fixed solution of these
-    integers (one least-squares step would move it more than ``tol_m``; a warning
-    says so): the caller then solves from the integers."""
+    float or the data hold GLONASS (FDMA) segments (unless ``floats``: the float segments' ambiguities are
+    then the phase-only least squares at the given position), or the position is not the fixed solution
+    of these integers (one least-squares step would move it more than ``tol_m``; a warning says so)."""
     fixed_mask = np.zeros(sg.free.size, dtype=bool)
     integers_fix = np.zeros(sg.free.size, dtype=np.int64)
     _given_integers(integers, d, sg, fixed_mask, integers_fix)
-    if not fixed_mask.all() or _fdma_segments(d, sg).any():
+    fdma = _fdma_segments(d, sg)
+    if not floats and (not fixed_mask.all() or fdma.any()):
         return None
     x = np.asarray(solution["enu_m"], dtype=np.float64).reshape(3)
     a_fix = np.zeros(sg.n_seg)
-    a_fix[sg.free] = integers_fix
+    a_fix[sg.free] = np.where(fixed_mask, integers_fix, 0)
+    known = sg.is_pivot.copy()
+    known[sg.free[fixed_mask]] = True
+    unk = np.flatnonzero(~known)
+    par2 = np.full(sg.n_seg, -1, dtype=np.int64)
+    par2[unk] = 3 + np.arange(unk.size)
     keys = [(d.sat_names[int(sg.segtab["sat"][k])], round(float(d.t_label[sg.segtab["first_epoch"][k]]), 3))
             for k in sg.free]
     given = {(str(k[0]), round(float(k[1]), 3)): v for k, v in (solution.get("float_cycles") or {}).items()}
     a_float = np.array([np.nan if given.get(k) is None else float(given[k][0]) for k in keys])
     sig = np.array([np.nan if given.get(k) is None or given[k][1] is None else float(given[k][1]) for k in keys])
     g, r_ph, _ = _residuals(d, xr0 + r_enu.T @ x, r_enu, a_fix, sg.seg, w, code=False)
-    nmat, rhs = _accumulate(w.blocks_ph, g, r_ph, np.full(sg.seg.size, -1, dtype=np.int64), 3, _lam(d))
+    nmat, rhs = _accumulate(w.blocks_ph, g, r_ph, par2[sg.seg], 3 + unk.size, _lam(d))
     cf, dx = _solve(nmat, rhs, "fixed solution")
-    if np.max(np.abs(dx)) > tol_m:        # not the solution of these integers on these data
-        warnings.append(f"the given solution is {1e3 * float(np.linalg.norm(dx)):.3g} mm from the fixed solution of the "
-                        f"given integers on these data; solved again from the integers")
+    if np.max(np.abs(dx[:3])) > tol_m:        # not the solution of these integers on these data
+        warnings.append(f"the given solution is {1e3 * float(np.linalg.norm(dx[:3])):.3g} mm from the fixed solution "
+                        f"of the given integers on these data; solved again from the integers")
         return None
-    q3 = cho_solve(cf, np.eye(3))
+    if unk.size:                              # the float ambiguities at the given position
+        a_fix[unk] += dx[3:]
+        g, r_ph, _ = _residuals(d, xr0 + r_enu.T @ x, r_enu, a_fix, sg.seg, w, code=False)
+    q = cho_solve(cf, np.eye(3 + unk.size))
+    q3 = q[:3, :3]
     sq, n_dd = _quad(w.blocks_ph, r_ph)
+    dof = n_dd - 3 - unk.size
     block = {"enu_m": x.tolist(), "sigma_enu_m": np.sqrt(np.diag(q3)).tolist(), "iterations": 0,
-             "unit_variance": sq / (n_dd - 3) if n_dd > 3 else None,
+             "unit_variance": sq / dof if dof > 0 else None,
              "observations": ("L1 carrier phase only" if getattr(d, "group", None) is None
                               else f"carrier phase only ({', '.join(d.group_names)})"),
-             "given": "position and integers given (not solved again)"}
+             "given": ("position and integers given (not solved again)" if not unk.size else
+                       "position and integers given (not solved again); the float ambiguities at that position")}
+    a_sig = np.zeros(sg.n_seg)
+    a_sig[unk] = np.sqrt(np.diag(q)[3:])
     fl = _Float(x, a_fix.copy(), None, None, g, r_ph, None, 0)
-    fx = _Fix(a_float, np.diag(sig**2) if sig.size else np.zeros((0, 0)), fixed_mask, integers_fix, None, None, True, False)
-    fin = _Final(block, x, "fixed", a_fix, np.ones(sg.n_seg, dtype=bool), q3, g, r_ph, np.zeros(sg.n_seg))
+    fx = _Fix(a_float, np.diag(sig**2) if sig.size else np.zeros((0, 0)), fixed_mask, integers_fix, None, None,
+              bool(fixed_mask.all() or fixed_mask.any()), False)
+    kind = "fixed" if int(fixed_mask.sum()) == int(np.sum(~fdma[sg.free])) else "partially fixed"
+    fin = _Final(block, x, kind, a_fix, known, q3, g, r_ph, a_sig)
     return fl, fx, fin
+
+
+def _known_float(d: _Data, sg: _Segments, w: _Weights, enu_m, xr0, r_enu, tol_m: float):
+    """A float solution given by its position ``enu_m`` (3,) (e.g. a float-only INIT's): the ambiguities and the
+    covariance of the phase and code least squares evaluated there (one step, linear in the ambiguities); None when
+    that step would move the position more than ``tol_m`` (not the float solution of these data)."""
+    x = np.asarray(enu_m, dtype=np.float64).reshape(3)
+    a_seg = np.zeros(sg.n_seg)
+    col = sg.par_of_seg[sg.seg]
+    g, r_ph, r_cd = _residuals(d, xr0 + r_enu.T @ x, r_enu, a_seg, sg.seg, w)
+    n1, b1 = _accumulate(w.blocks_ph, g, r_ph, col, sg.n_par, _lam(d))
+    n2, b2 = _accumulate(w.blocks_code, g, r_cd, None, sg.n_par, _lam(d))
+    cf, dx = _solve(n1 + n2, b1 + b2, "float solution")
+    if np.max(np.abs(dx[:3])) > tol_m:
+        return None
+    a_seg[sg.free] += dx[3:]
+    q = cho_solve(cf, np.eye(sg.n_par))
+    g, r_ph, r_cd = _residuals(d, xr0 + r_enu.T @ x, r_enu, a_seg, sg.seg, w)
+    sq_ph, n_ph = _quad(w.blocks_ph, r_ph)
+    sq_cd, n_cd = _quad(w.blocks_code, r_cd)
+    dof = n_ph + n_cd - sg.n_par
+    block = {"enu_m": x.tolist(), "sigma_enu_m": np.sqrt(np.diag(q)[:3]).tolist(), "iterations": 0,
+             "unit_variance": (sq_ph + sq_cd) / dof if dof > 0 else None,
+             "given": "position given (not solved again); the ambiguities at that position"}
+    fl = _Float(x, a_seg, q, block, g, r_ph, r_cd, n_cd)
+    fx = _Fix(a_seg[sg.free], q[3:, 3:], np.zeros(sg.free.size, dtype=bool), np.zeros(sg.free.size, dtype=np.int64),
+              None, None, False, False)
+    a_sig = np.zeros(sg.n_seg)
+    a_sig[sg.free] = np.sqrt(np.diag(q)[3:])
+    return fl, fx, _Final(None, x, "float", a_seg.copy(), sg.is_pivot.copy(), q[:3, :3], g, r_ph, a_sig)
 
 
 def _fixed_solution(d: _Data, sg: _Segments, w: _Weights, fl: _Float, fx: _Fix, xr0, r_enu,
@@ -1334,7 +1381,13 @@ def _engine_solution(d: _Data, sg: _Segments, w: _Weights, eng: dict, xr0, r_enu
     fixed_mask = np.isfinite(seg_int[sg.free]) & ~_fdma_segments(d, sg)[sg.free]
     ints = np.where(fixed_mask, np.nan_to_num(seg_int[sg.free]), 0).astype(np.int64)
     res = eng["resolution"] or {}
-    fx = _Fix(a_fl[sg.free], q_fl[3:, 3:], fixed_mask, ints, _nan_none(res.get("ratio")),
+    a_res, q_res = a_fl[sg.free], q_fl[3:, 3:]
+    if eng.get("random_walk") is not None:      # the float ambiguities LAMBDA saw: the random-walk filter's
+        Ja = J[sg.free][:, 3:]
+        a_res, q_res = Ja @ eng["random_walk"][0], Ja @ eng["random_walk"][1] @ Ja.T
+        fl.block["motion"] = "random_walk"
+        fl.block["random_walk_sigma_m_per_sqrt_s"] = list(opt.random_walk_sigma)
+    fx = _Fix(a_res, q_res, fixed_mask, ints, _nan_none(res.get("ratio")),
               _nan_none(res.get("ratio_full_set")), bool(res.get("accepted", False)), bool(res.get("partial", False)),
               _nan_none(res.get("success_rate")))
     n_fixed = int(fixed_mask.sum())
@@ -1415,6 +1468,86 @@ def _engine_or_batch(master: Station, rover: Station, nav, opt: BaselineOptions,
     return (None, f"batch ({known})") if isinstance(known, str) else (known, "static_engine")
 
 
+def _engine_given(master: Station, rover: Station, nav, opt: BaselineOptions, xm, xr0, prepared: tuple,
+                  integers: dict):
+    """(float, fix, final) of the static engine's float solution conditioned on the given integers (each fixed
+    segment's DD against its datum pivot, :func:`~cdgps_cli.estimation.static_engine.condition_on_integers`), or
+    the reason (a string) the engine cannot serve these options or arcs.  Nothing is resolved: no LAMBDA."""
+    from dataclasses import replace
+    from cdgps_cli.estimation.static_engine import condition_on_integers
+    d, sg, w, r_enu = prepared
+    fixed_mask = np.zeros(sg.free.size, dtype=bool)
+    integers_fix = np.zeros(sg.free.size, dtype=np.int64)
+    _given_integers(integers, d, sg, fixed_mask, integers_fix)
+    found = {}
+
+    def arcs_check(arcs):
+        found["cols"] = _engine_columns(d, sg, arcs)
+        return found["cols"]
+
+    # the float only (a random-walk float would only feed LAMBDA, which does not run here)
+    eng = _run_engine(master, rover, nav, replace(opt, fix=False, motion="static"), xm, xr0, None, arcs_check=arcs_check)
+    if isinstance(eng, str):
+        return eng
+    cols, x, P = found["cols"], eng["state"], eng["cov"]
+    segs = sg.free[fixed_mask]
+    x_fix, P_fix = condition_on_integers(x, P, _datum_map(d, sg, cols, x.size)[segs], integers_fix[fixed_mask])
+    ai = np.full(x.size, np.nan)
+    ai[cols[sg.is_pivot]] = 0.0
+    ai[cols[segs]] = integers_fix[fixed_mask]
+    eng = dict(eng, state_fixed=x_fix, cov_fixed=P_fix, arc_integers=ai,
+               resolution={"accepted": bool(fixed_mask.any()), "partial": False})
+    return _engine_solution(d, sg, w, eng, xr0, r_enu, opt)
+
+
+def baseline_from_init(master: Station, rover: Station, nav: pd.DataFrame, options: BaselineOptions, *,
+                       integers: dict, solution: dict | None, engine_init: bool, master_xyz=None, rover_xyz=None,
+                       keep_work: bool = True) -> dict:
+    """The static baseline of a solution made before (``cdgps estimate`` on INIT's): nothing is resolved and the
+    batch normal equations do not solve (issue 28 item 1).
+
+    In this order: every ambiguity given an integer → the solution evaluated at ``solution["enu_m"]``
+    (:func:`_known_solution`); ``engine_init`` (the solution is the static engine's) → the engine's float solution
+    conditioned on the given integers (the remaining floats solved with them, as ``init`` did); otherwise the
+    given position with the float ambiguities at it (phase only, as the batch's fixed solution); the other of the
+    last two when one cannot serve (options only the batch implements, a position that is not the solution of
+    the integers on these data); else :class:`CdgpsError`.  Parameters and result as
+    :func:`solve_static_baseline`'s (``integers``, ``solution``: the same forms); ``solver`` says which served.
+    """
+    tol = ENGINE_SOLUTION_TOL_M if engine_init else _KNOWN_SOLUTION_TOL_M
+
+    def decide(prepared, xm, xr0, warnings):
+        d, sg, w, r_enu = prepared
+        fixed = solution is not None and solution.get("enu_m") is not None
+        if fixed:
+            known = _known_solution(d, sg, w, integers, solution, xr0, r_enu, warnings, tol)
+            if known is not None:
+                return known, "given (INIT's solution)"
+
+        def at_position():
+            if fixed:
+                k = _known_solution(d, sg, w, integers, solution, xr0, r_enu, [], tol, floats=True)
+                return "the given position is not the solution of its integers" if k is None else k
+            if solution is None or solution.get("float_enu_m") is None:
+                return "no position given"
+            _given_integers(integers, d, sg, np.zeros(sg.free.size, dtype=bool), np.zeros(sg.free.size, dtype=np.int64))
+            k = _known_float(d, sg, w, solution["float_enu_m"], xr0, r_enu, tol)
+            return "the given float position is not the float solution of these data" if k is None else k
+        tries = [("static_engine (integers given)", lambda: _engine_given(master, rover, nav, options, xm, xr0,
+                                                                           prepared, integers)),
+                 ("given (INIT's position, float ambiguities at it)", at_position)]
+        why = []
+        for name, f in (tries if engine_init else tries[::-1]):
+            known = f()
+            if not isinstance(known, str):
+                return known, name
+            why.append(known)
+        raise CdgpsError(f"the given solution of {rover.name} cannot be used on these data without solving the "
+                         f"baseline again ({'; '.join(why)}); run 'cdgps init' again")
+
+    return _baseline(master, rover, nav, options, master_xyz, rover_xyz, keep_work, None, decide, integers)
+
+
 def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, options: BaselineOptions | None = None,
                           *, master_xyz=None, rover_xyz=None, integers: dict | None = None,
                           solution: dict | None = None,
@@ -1475,8 +1608,22 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
         Missing phase, missing master position, navigation data not covering the span, no
         common epochs or satellites, singular normal equations.
     """
-    t_start = time.perf_counter()
+    def decide(prepared, xm, xr0, warnings):
+        d, sg, w, r_enu = prepared
+        if integers is None:
+            return _engine_or_batch(master, rover, nav, opt, xm, xr0, iono_threshold_km, prepared, engine)
+        return (None if solution is None else _known_solution(d, sg, w, integers, solution, xr0, r_enu, warnings,
+                                                              solution_tol_m)), "batch (integers given)"
+
     opt = options or BaselineOptions()
+    return _baseline(master, rover, nav, opt, master_xyz, rover_xyz, keep_work, iono_threshold_km, decide, integers)
+
+
+def _baseline(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOptions, master_xyz, rover_xyz,
+              keep_work: bool, iono_threshold_km, decide, integers) -> dict:
+    """:func:`solve_static_baseline`'s and :func:`baseline_from_init`'s body: ``decide(prepared, xm, xr0, warnings)``
+    returns ((float, fix, final), solver) of a solution made elsewhere, or (None, solver): the batch below solves."""
+    t_start = time.perf_counter()
     opt.validate()
     warnings: list[str] = []
     xm, xr0, source = _a_priori_positions(master, rover, nav, master_xyz, rover_xyz, warnings)
@@ -1492,12 +1639,7 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
     t_prep = lap()
     r_enu = enu_matrix(*ecef_to_geodetic(xr0)[:2])
     sg, w = _segments(d, opt), _weights(d, opt)
-    if integers is not None:
-        solver = "batch (integers given)"
-        known = None if solution is None else _known_solution(d, sg, w, integers, solution, xr0, r_enu, warnings,
-                                                              solution_tol_m)
-    else:
-        known, solver = _engine_or_batch(master, rover, nav, opt, xm, xr0, iono_threshold_km, (d, sg, w, r_enu), engine)
+    known, solver = decide((d, sg, w, r_enu), xm, xr0, warnings)
     if known is not None:
         fl, fx, fin = known
         t_float = t_lambda = 0.0

@@ -14,12 +14,14 @@ not implement).  ``baseline`` and GNSS ``init`` solve here through
 
 import numpy as np
 
-from cdgps_cli.estimation.driver import EpochGrid, GridDynamics, drive
+from cdgps_cli.core import progress
+from cdgps_cli.estimation.driver import EpochGrid, GridDynamics, RecordingSink, drive
 from cdgps_cli.config.options import GNSS_DEFAULTS, MULTI_GNSS_DEFAULTS
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.dd_signals import DDGroupModel, epoch_groups, paired_sd_rows
 from cdgps_cli.measurement.epoch_pairing import pair_epochs
-from cdgps_cli.model.dynamics_models import Static
+from cdgps_cli.model.dynamics_models import Dynamics, Static, WithConstants
+from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
 
 
 def arc_columns(rows, n_pos: int = 3) -> np.ndarray:
@@ -72,9 +74,55 @@ def static_filter(rows, times_s, base_xyz_m, origin_xyz_m, *, sigma_pos_m: float
     n = 3 + (int(cols.max()) - 2 if cols.size else 0)
     x0, P0 = static_prior(rows, cols, n, sigma_pos_m, sigma_amb_cycles)
     model = DDGroupModel(lambda k: _groups(rows, cols, k), base_xyz_m, origin_xyz_m)
-    ctx = drive(GridDynamics(Static(n), times_s), [model], EpochGrid(np.asarray(times_s, float)), (x0, P0),
-                max_iterations=max_iterations)
+    with progress.bar(len(times_s), "static baseline (filter)", unit="epoch") as bar:
+        ctx = drive(GridDynamics(Static(n), times_s), [model], EpochGrid(np.asarray(times_s, float)), (x0, P0),
+                    sink=RecordingSink(len(times_s), n, history=False), max_iterations=max_iterations, progress=bar)
     return ctx.step.x, ctx.step.P, cols
+
+
+class EnuRandomWalk(Dynamics):
+    """An ECEF offset (3, m) whose east/north/up components (the local frame at ``origin_xyz_m``) are random
+    walks of σ ``sigma_enu`` (m/√s, three or one): Q = Rᵀ diag(σ²) R Δt, R the ECEF → ENU rotation."""
+
+    identity_transition = True
+
+    def __init__(self, sigma_enu, origin_xyz_m):
+        self.n, self.n_u = 3, 0
+        s = np.broadcast_to(np.asarray(sigma_enu, dtype=float), (3,))
+        R = enu_matrix(*ecef_to_geodetic(np.asarray(origin_xyz_m, dtype=float))[:2])
+        self._Q1 = R.T @ np.diag(s**2) @ R
+
+    def transition(self, dt_s: float):
+        if not (np.isfinite(dt_s) and dt_s > 0):
+            raise ValueError(f"dt_s must be a positive number of seconds, got {dt_s!r}")
+        return np.eye(3), np.zeros((3, 0)), self._Q1 * float(dt_s)
+
+
+def random_walk_float(rows, cols, times_s, base_xyz_m, origin_xyz_m, x_static, *, sigma_rw, initial_sigma_m: float,
+                      sigma_amb_cycles: float = 1e3, max_iterations: int = 2):
+    """Float arc ambiguities of a rover whose position random-walks, through :func:`drive`.
+
+    State [offset (3, m), arc ambiguities (cycles)]: the offset a random walk of σ ``sigma_rw`` (m/√s, per
+    east/north/up component or one for all; :class:`EnuRandomWalk`), the ambiguities constants
+    (:class:`~cdgps_cli.model.dynamics_models.WithConstants`), from the offset of ``x_static`` (the static
+    float solution) ± ``initial_sigma_m`` and :func:`static_prior`'s ambiguities ± ``sigma_amb_cycles``.
+    Constants are not moved by a smoother: their filtered estimate at the last epoch is their posterior given
+    every epoch (what an RTS pass would give).  The ambiguities' prior stays (as :func:`static_filter`'s): the SD
+    arcs' common mode per signal is known only through it, and it is ≈ 10⁻⁶ of the DD information.
+
+    Returns
+    -------
+    a : ndarray (n_arc,) cycles, Q : ndarray (n_arc, n_arc) cycles²
+    """
+    n = x_static.size
+    x0, P0 = static_prior(rows, cols, n, initial_sigma_m, sigma_amb_cycles)
+    x0[:3] = x_static[:3]
+    dyn = WithConstants(EnuRandomWalk(sigma_rw, origin_xyz_m), n - 3)
+    model = DDGroupModel(lambda k: _groups(rows, cols, k), base_xyz_m, origin_xyz_m)
+    with progress.bar(len(times_s), "static baseline (random-walk filter)", unit="epoch") as bar:
+        ctx = drive(GridDynamics(dyn, times_s), [model], EpochGrid(np.asarray(times_s, float)), (x0, P0),
+                    sink=RecordingSink(len(times_s), n, history=False), max_iterations=max_iterations, progress=bar)
+    return ctx.step.x[3:].copy(), ctx.step.P[3:, 3:].copy()
 
 
 class _Ctx:
@@ -101,12 +149,14 @@ def static_normal_equations(rows, n_epochs: int, base_xyz_m, origin_xyz_m, x_lin
     return x_lin + np.linalg.solve(Nm, rhs), np.linalg.inv(Nm)
 
 
-def dd_of_arcs(rows, cols, n_state: int):
+def dd_of_arcs(rows, cols, n_state: int, glonass_fix: bool = False):
     """DD operator (n_dd, n_state) on the arc ambiguities: per signal, every arc minus the signal's
     reference arc (the one with the most rows, preferring arcs without a half-cycle flag); the
     (arc, reference arc) column pairs; and which DDs are integers that may be fixed (n_dd,) bool: not
     when either arc has a half-cycle flag, nor for a signal whose wavelength differs between
-    satellites (GLONASS FDMA: an SD ambiguity difference in cycles of two wavelengths is no integer)."""
+    satellites (GLONASS FDMA: an SD ambiguity difference in cycles of two wavelengths is no integer)
+    unless ``glonass_fix`` (identical receivers: the arcs' DD in cycles is fixed as an integer, as
+    ``rtk --glonass-fix`` does; :func:`static_baseline` then gives the arcs rtk's prior, see there)."""
     D, pairs, fixable = [], [], []
     half = np.zeros(n_state, dtype=bool)
     if "half" in rows:
@@ -115,7 +165,7 @@ def dd_of_arcs(rows, cols, n_state: int):
         sel = rows["code"] == c
         arcs, counts = np.unique(cols[sel], return_counts=True)
         ref = int(arcs[np.lexsort((-counts, half[arcs]))[0]])
-        fdma = np.ptp(rows["lam_m"][sel]) > 0
+        fdma = np.ptp(rows["lam_m"][sel]) > 0 and not glonass_fix
         for a in arcs:
             if a == ref:
                 continue
@@ -127,7 +177,29 @@ def dd_of_arcs(rows, cols, n_state: int):
     return np.array(D).reshape(-1, n_state), pairs, np.array(fixable, dtype=bool)
 
 
-def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_success_rate: float | None = None):
+def condition_on_integers(x, P, D, ints):
+    """The state conditioned on integer combinations of it, ``D x = ints`` (the fixed solution).
+
+    Parameters
+    ----------
+    x : ndarray (n,)        float state [offset (3, m), arc ambiguities (cycles)]
+    P : ndarray (n, n)      its covariance
+    D : ndarray (m, n)      linearly independent DD operators on the arc ambiguities (m may be 0)
+    ints : ndarray (m,)     their integers, cycles
+
+    Returns
+    -------
+    x_fix : ndarray (n,), P_fix : ndarray (n, n)   copies of x, P when m = 0.
+    """
+    if not len(ints):
+        return x.copy(), P.copy()
+    Pxa = P @ D.T
+    G = np.linalg.solve(D @ P @ D.T, Pxa.T).T
+    return x - G @ (D @ x - ints), P - G @ Pxa.T
+
+
+def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_success_rate: float | None = None,
+               amb=None, glonass_fix: bool = False):
     """Integers of the static float solution by the shared policy (:func:`~cdgps_cli.estimation.ambiguity.resolve`
     on the DDs of :func:`dd_of_arcs`) and the position conditioned on them.
 
@@ -139,34 +211,34 @@ def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_succ
         (the DDs' column pairs), ``dd_float`` (n_dd,) cycles.
     """
     from cdgps_cli.estimation.ambiguity import resolve
-    D, pairs, fixable = dd_of_arcs(rows, cols, x.size)
-    a, Qa = D @ x, D @ P @ D.T
-    res = resolve(a[fixable], Qa[np.ix_(fixable, fixable)], ratio, partial=partial, min_success_rate=min_success_rate)
+    D, pairs, fixable = dd_of_arcs(rows, cols, x.size, glonass_fix)
+    if amb is None:
+        a, Qa = D @ x, D @ P @ D.T
+    else:                                   # (a, Q) of the arcs from another float (random walk)
+        a, Qa = D[:, 3:] @ amb[0], D[:, 3:] @ amb[1] @ D[:, 3:].T
+    with progress.bar(int(fixable.sum()) if partial else 1, "integer fixing (LAMBDA)", unit="subset") as bar:
+        res = resolve(a[fixable], Qa[np.ix_(fixable, fixable)], ratio, partial=partial,
+                      min_success_rate=min_success_rate, progress=lambda done, total: bar.update_to(done))
     m = np.zeros(a.size, dtype=bool)
     m[fixable] = res["fixed_mask"]
     ints = np.zeros(a.size, dtype=np.int64)
     ints[fixable] = res["integers"]
     res = {**res, "fixed_mask": m, "integers": ints}
-    x_fix, P_fix = x.copy(), P.copy()
-    if m.any():
-        Dm = D[m]
-        Pxa = P @ Dm.T
-        G = np.linalg.solve(Dm @ P @ Dm.T, Pxa.T).T
-        x_fix = x - G @ (Dm @ x - ints[m])
-        P_fix = P - G @ Pxa.T
+    x_fix, P_fix = condition_on_integers(x, P, D[m], ints[m])
     return {"offset_m": x_fix[:3].copy(), "cov_m2": P_fix[:3, :3].copy(), "resolution": res, "pairs": pairs,
             "dd_float": a, "state_fixed": x_fix, "cov_fixed": P_fix}
 
 
 #: options the static engine does not honour yet: refused by name rather than silently ignored
-_NOT_YET = {"glonass_fix": "GLONASS ambiguities stay float on the static engine",
-            "fix_and_hold": "fix-and-hold is a kinematic (rtk) option"}
+_NOT_YET = {"fix_and_hold": "fix-and-hold is a kinematic (rtk) option"}
 
 
 def _static_options(options: dict | None) -> dict:
     """Defaults merged with ``options``; CdgpsError naming an unknown key or one the engine does not honour."""
     opt = {"partial": GNSS_DEFAULTS["partial"], **MULTI_GNSS_DEFAULTS,
-           "fix_and_hold": False}           # rtk's default holds; a static batch has nothing to hold
+           "fix_and_hold": False,           # rtk's default holds; a static batch has nothing to hold
+           "motion": "static", "random_walk_sigma": GNSS_DEFAULTS["random_walk_sigma"],
+           "initial_sigma_m": GNSS_DEFAULTS["initial_sigma_m"]}
     unknown = sorted(set(options or {}) - set(opt))
     if unknown:
         raise CdgpsError(f"static baseline: unknown option(s) {', '.join(unknown)}; known: {', '.join(sorted(opt))}")
@@ -174,6 +246,8 @@ def _static_options(options: dict | None) -> dict:
     for key, why in _NOT_YET.items():
         if opt[key]:
             raise CdgpsError(f"static baseline: option {key} = {opt[key]!r} is not supported ({why})")
+    if opt["motion"] not in ("static", "random_walk"):
+        raise CdgpsError(f"static baseline: option motion = {opt['motion']!r}; expected 'static' or 'random_walk'")
     return opt
 
 
@@ -181,9 +255,10 @@ def _static_options(options: dict | None) -> dict:
 _HONOURED = {"mask_deg": "mask_deg", "ratio_threshold": "ratio", "partial": "partial", "fix": "fix",
              "sigma_a_m": "sigma_a_m", "sigma_b_m": "sigma_b_m", "code_ratio": "code_ratio",
              "troposphere": "troposphere", "sync_tol_s": "sync_tol_s", "max_age_s": "max_age_s",
-             "code_correlation_s": "code_correlation_s", "min_success_rate": "min_success_rate"}
+             "code_correlation_s": "code_correlation_s", "min_success_rate": "min_success_rate",
+             "motion": "motion", "random_walk_sigma": "random_walk_sigma", "initial_sigma_m": "initial_sigma_m"}
 #: BaselineOptions fields the engine does not implement: only this value is accepted (the engine's behaviour)
-_FIXED_VALUE = {"weighting": "elevation", "epoch_alignment": "geometry", "motion": "static", "max_gap_s": None,
+_FIXED_VALUE = {"weighting": "elevation", "epoch_alignment": "geometry", "max_gap_s": None,
                 "kinematic_series": False}
 
 
@@ -204,7 +279,7 @@ def options_from_baseline(bopt) -> dict:
             if v != _FIXED_VALUE[f.name]:
                 raise CdgpsError(f"static baseline: option {f.name} = {v!r} is not supported by the static engine "
                                  f"(only {_FIXED_VALUE[f.name]!r})")
-        elif v != f.default:
+        elif (tuple(v) if isinstance(v, list) else v) != f.default:        # a JSON list for a tuple default
             raise CdgpsError(f"static baseline: option {f.name} = {v!r} is not supported by the static engine "
                              f"(only its default {f.default!r})")
     return out
@@ -223,7 +298,8 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
     options : dict
         Keys of :data:`~cdgps_cli.config.options.MULTI_GNSS_DEFAULTS` (``ratio``, ``partial``,
         ``min_success_rate``, ``fix`` (False: float only, ``resolution`` None), the weights and the mask
-        are used); an unknown key, or ``glonass_fix`` / ``fix_and_hold`` set, raises CdgpsError, as does a
+        are used; ``glonass_fix``: the GLONASS DDs fixed too, between identical receivers); an unknown key, or
+        ``fix_and_hold`` set, raises CdgpsError, as does a
         multi-signal baseline at or above ``iono_threshold_km`` (the DD ionosphere is neglected, as ``init``'s).
 
     Returns
@@ -255,14 +331,21 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
         why = arcs_check(arc_table(rows, arc_columns(rows), times))
         if isinstance(why, str):
             return why
-    x, P, cols = static_filter(rows, times, base_xyz_m, rover_xyz0_m)
+    # GLONASS DDs fixed: (λ_i − λ_r)·N_r enters each FDMA DD, so the SD arcs' common mode must be known to a few
+    # cycles — rtk's prior (amb_sigma_cycles about (phase − code)/λ) does it, the weak 1e3-cycle one does not
+    sigma_amb = {"sigma_amb_cycles": opt["amb_sigma_cycles"]} if opt["glonass_fix"] else {}
+    x, P, cols = static_filter(rows, times, base_xyz_m, rover_xyz0_m, **sigma_amb)
+    rw = None
+    if opt["motion"] == "random_walk" and x.size > 3:
+        rw = random_walk_float(rows, cols, times, base_xyz_m, rover_xyz0_m, x, sigma_rw=opt["random_walk_sigma"],
+                               initial_sigma_m=opt["initial_sigma_m"], **sigma_amb)
     if not opt["fix"]:
         f = {"offset_m": x[:3].copy(), "cov_m2": P[:3, :3].copy(), "resolution": None, "pairs": [], "dd_float": None,
              "state_fixed": x, "cov_fixed": P}
     else:
         f = static_fix(x, P, rows, cols, ratio=opt["ratio"], partial=opt["partial"],
-                       min_success_rate=opt["min_success_rate"])
-    return {**f, "float_offset_m": x[:3], "float_cov_m2": P[:3, :3], "epochs_used": int(times.size),
+                       min_success_rate=opt["min_success_rate"], amb=rw, glonass_fix=opt["glonass_fix"])
+    return {**f, "random_walk": rw, "float_offset_m": x[:3], "float_cov_m2": P[:3, :3], "epochs_used": int(times.size),
             "epoch_pairing": pairs.summary, "state": x, "cov": P, "arcs": arc_table(rows, cols, times),
             "arc_integers": arc_integers(f, x.size)}
 

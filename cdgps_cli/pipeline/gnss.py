@@ -40,8 +40,8 @@ import pandas as pd
 
 from cdgps_cli import __version__
 from cdgps_cli.io.atomic import write_atomic
-from cdgps_cli.estimation.baseline import (ENGINE_SOLUTION_TOL_M, _KNOWN_SOLUTION_TOL_M, BaselineOptions, Station,
-                                           json_safe, solve_static_baseline)
+from cdgps_cli.estimation.baseline import (BaselineOptions, Station, baseline_from_init, json_safe,
+                                           solve_static_baseline)
 from cdgps_cli.estimation.model_filter import filter_numpy
 from cdgps_cli.estimation.smoother import rts_smooth_indexed
 from cdgps_cli.measurement.dd_displacement import SatelliteDDDisplacement, SDObservations
@@ -321,20 +321,26 @@ def _integers_from_init(init: dict, r: str) -> dict:
 
 
 def _solution_from_init(init: dict, r: str) -> dict | None:
-    """INIT's fixed static solution of rover ``r`` for :func:`solve_static_baseline` (``solution``): its
-    ENU displacement and each segment's float value and σ (cycles); None without a fixed block."""
-    fixed = (init["rovers"].get(r) or {}).get("fixed")
-    if not fixed or fixed.get("enu_m") is None:
+    """INIT's static solution of rover ``r`` for :func:`~cdgps_cli.estimation.baseline.baseline_from_init`
+    (``solution``): its fixed ENU displacement (``enu_m``, None without a fixed block), its float one
+    (``float_enu_m``) and each segment's float value and σ (cycles); None without either block."""
+    rov = init["rovers"].get(r) or {}
+    fixed, flt = rov.get("fixed") or {}, rov.get("float") or {}
+    if fixed.get("enu_m") is None and flt.get("enu_m") is None:
         return None
     floats = {(str(s["sat"]), float(s["first_gps_s"])): (s.get("float_cycles"), s.get("sigma_cycles"))
               for s in rover_segments(init, r) if not s.get("pivot")}
-    return {"enu_m": [float(v) for v in fixed["enu_m"]], "float_cycles": floats}
+    return {"enu_m": None if fixed.get("enu_m") is None else [float(v) for v in fixed["enu_m"]],
+            "float_enu_m": None if flt.get("enu_m") is None else [float(v) for v in flt["enu_m"]],
+            "float_cycles": floats}
 
 
 def solve_with_init_integers(run, init: dict, r: str, stations: dict):
-    """Rover ``r``'s baseline with INIT's options, integers and fixed solution (no kinematic series):
-    evaluated at INIT's solution when every integer is fixed (nothing is solved again), else the
-    fixed solution solved from INIT's integers.
+    """Rover ``r``'s baseline with INIT's options, integers and fixed solution (no kinematic series), never
+    solved again (:func:`~cdgps_cli.estimation.baseline.baseline_from_init`): evaluated at INIT's solution when
+    every integer is fixed; with float (partially fixed, GLONASS) segments the static engine's float solution
+    conditioned on INIT's integers for an engine INIT, INIT's position with the float ambiguities at it for a
+    batch one.
 
     Returns (baseline result, its working data ``_work``, INIT's rover entry, the BaselineOptions); raises CdgpsError when
     INIT's options are not valid or its nominal position is not this run's.
@@ -346,11 +352,10 @@ def solve_with_init_integers(run, init: dict, r: str, stations: dict):
     except TypeError as exc:
         raise CdgpsError(f"INIT.json: bad options for {r}: {exc}") from None
     opt = BaselineOptions(**{**asdict(opt), "kinematic_series": False})
-    res = solve_static_baseline(stations[run.master], stations[r], run.nav, opt,
-                                master_xyz=_position_args(run, run.master), rover_xyz=_position_args(run, r),
-                                integers=_integers_from_init(init, r), solution=_solution_from_init(init, r),
-                                keep_work=True, solution_tol_m=(ENGINE_SOLUTION_TOL_M if rov.get("solver") == "static_engine"
-                                                                else _KNOWN_SOLUTION_TOL_M))
+    res = baseline_from_init(stations[run.master], stations[r], run.nav, opt,
+                             master_xyz=_position_args(run, run.master), rover_xyz=_position_args(run, r),
+                             integers=_integers_from_init(init, r), solution=_solution_from_init(init, r),
+                             engine_init=rov.get("solver") == "static_engine")
     w = res.pop("_work")
     if not np.allclose(w["xr0"], rov["nominal_ecef_m"], atol=1e-6):
         raise CdgpsError(f"INIT.json: the nominal position of {r} differs from this run's")

@@ -26,6 +26,7 @@ from cdgps_cli.model.gps.orbits import ecef_to_enu
 from cdgps_cli.model.gps.positioning import simulate_static_pair, synthetic_gps_nav
 from cdgps_cli.pipeline.gnss import KINEMATIC_TOPIC, rover_segments
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
+from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import gps_seconds
 from cdgps_cli.io.states import States
 
@@ -181,10 +182,11 @@ def test_static_simulation_recovers_the_truth(static_sim):
     assert len(slips) == len(tracked) and all(e["action"].startswith("new ambiguity, fixed") for e in slips)
 
 
-def test_estimate_does_not_solve_the_baseline_again(static_sim):
+def test_estimate_does_not_solve_the_baseline_again(static_sim, geonet):
     """estimate takes INIT's fixed solution as it is (issue 28 item 1): no float solution, no LAMBDA,
-    no iterations — the same states, bit for bit, as when it solved them again; an INIT position that
-    is not the solution of its integers is solved again, with a warning."""
+    no iterations — the same states, bit for bit, as when it solved them again; an engine INIT position that
+    is not the solution of its integers gets the engine's float solution conditioned on INIT's integers
+    (a warning says so), not the batch; a batch INIT's, when the engine cannot serve, a clear error."""
     from cdgps_cli.io.gnss_run import read_gnss_run
     from cdgps_cli.pipeline.gnss import _stations, solve_with_init_integers
 
@@ -194,24 +196,36 @@ def test_estimate_does_not_solve_the_baseline_again(static_sim):
     assert res["fixed"]["given"].startswith("position and integers given") and res["timing_s"]["float"] == 0.0
     assert w["x_final"].tolist() == [init["states"][f"rover_{c}"] for c in "enu"]     # exactly INIT's
     assert np.array_equal(States(tmp / "states.mcap").q[0], w["x_final"])
-    moved = json.loads(json.dumps(init))
-    moved["rovers"]["rover"]["fixed"]["enu_m"][0] += 1e-4
-    res2, w2, _, _ = solve_with_init_integers(run, moved, "rover", _stations(run))
-    assert "given" not in res2["fixed"] and any("solved again from the integers" in m for m in res2["warnings"])
-    np.testing.assert_allclose(w2["x_final"], w["x_final"], atol=1e-9)
+    gtmp, ginit, _ = geonet
+    assert ginit["rovers"]["0759"]["solver"] == "static_engine"
+    grun = read_gnss_run(gtmp / "run.mcap")
+    x_init = np.array(ginit["rovers"]["0759"]["fixed"]["enu_m"])
+    moved = json.loads(json.dumps(ginit))
+    moved["rovers"]["0759"]["fixed"]["enu_m"][0] += 1e-3
+    res2, w2, _, _ = solve_with_init_integers(grun, moved, "0759", _stations(grun))
+    assert res2["solver"] == "static_engine (integers given)" and any("solved again from the integers" in m
+                                                                      for m in res2["warnings"])
+    np.testing.assert_allclose(w2["x_final"], x_init, atol=1e-9)        # the engine's solution of these integers
+    if init["rovers"]["rover"]["solver"] != "static_engine":           # a batch INIT the engine cannot serve
+        moved = json.loads(json.dumps(init))
+        moved["rovers"]["rover"]["fixed"]["enu_m"][0] += 1e-4
+        with pytest.raises(CdgpsError, match="run 'cdgps init' again"):
+            solve_with_init_integers(run, moved, "rover", _stations(run))
 
 
-def test_estimate_uses_the_integers_of_init(static_sim, tmp_path):
-    tmp, init = static_sim
-    bad = json.loads(json.dumps(init))
-    seg = next(b for b in bad["biases"] if b["rover"] == "rover" and not b["pivot"])
+def test_estimate_uses_the_integers_of_init(static_sim, geonet, tmp_path):
+    gtmp, ginit, _ = geonet
+    bad = json.loads(json.dumps(ginit))
+    seg = next(b for b in bad["biases"] if not b["pivot"])
     seg["integer_cycles"] += 1
-    (tmp_path / "bad.json").write_text(json.dumps(bad))
-    r = run_cli("-q", "estimate", tmp / "run.mcap", "--init", tmp_path / "bad.json", "-o", tmp_path / "s.mcap")
+    (tmp_path / "gbad.json").write_text(json.dumps(bad))
+    r = run_cli("-q", "estimate", gtmp / "run.mcap", "--init", tmp_path / "gbad.json", "-o", tmp_path / "s.mcap")
     assert r.exit_code == 0, r.output
     q = States(tmp_path / "s.mcap").q[0]
-    good = np.array([init["states"][f"rover_{c}"] for c in "enu"])
+    good = np.array(ginit["rovers"]["0759"]["fixed"]["enu_m"])
     assert np.linalg.norm(q - good) > 0.002                            # a wrong integer moves the solution
+    tmp, init = static_sim
+    bad = json.loads(json.dumps(init))
     # an INIT whose segments do not match, or from another run: clear errors, no output
     bad["biases"] = [b for b in bad["biases"] if b["rover"] == "rover"][1:]
     (tmp_path / "bad2.json").write_text(json.dumps(bad))
@@ -225,7 +239,7 @@ def test_estimate_uses_the_integers_of_init(static_sim, tmp_path):
     assert r.exit_code == 2 and "--biases: structure-run option" in r.stderr
     r = run_cli("init", tmp / "run.mcap", "--start", "10", "-o", tmp_path / "i.json")
     assert r.exit_code == 2 and "--start" in r.stderr
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.json", "bad2.json", "other.json", "s.mcap"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad2.json", "gbad.json", "other.json", "s.mcap"]
 
 
 def test_init_options_float_only_and_ratio(static_sim, tmp_path):

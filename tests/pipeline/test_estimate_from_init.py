@@ -1,0 +1,163 @@
+"""``estimate`` on a GNSS run never solves the baseline again (issue 28 item 1), also when INIT leaves
+ambiguities float: GLONASS (FDMA) segments on the mosaic pair (GPS L1 + GLONASS G1) and a partially
+fixed INIT (one GEONET integer withdrawn).  The batch solver is made to raise; the states are INIT's
+(an engine INIT: the engine's float solution conditioned on INIT's integers, as ``init`` made it), and
+within 0.1 mm of what the former path (the batch solved again from INIT's integers) gives."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cdgps_cli.estimation import ambiguity, baseline
+from cdgps_cli.io.gnss_run import read_gnss_run
+from cdgps_cli.io.states import States
+from cdgps_cli.pipeline import gnss
+from tests._shared import REPO_ROOT, run_cli
+
+SHARED = REPO_ROOT.parent / "shared" / "data"
+MOSAIC = SHARED / "real-pairs" / "mosaic-static"
+GEONET_OBS = SHARED / "rinex" / "30400920.05o"
+pytestmark = pytest.mark.skipif(not (MOSAIC.exists() and GEONET_OBS.exists()), reason="../shared/data absent")
+
+
+def _ingest_init(d: Path, lines: list) -> dict:
+    (d / "run.toml").write_text("\n".join(lines) + "\n")
+    for args in (("ingest", "--config", d / "run.toml", "-o", d / "run.mcap"),
+                 ("init", d / "run.mcap", "-o", d / "init.json")):
+        r = run_cli("-q", *args)
+        assert r.exit_code == 0, (args, r.output)
+    return json.loads((d / "init.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def mosaic_gr(tmp_path_factory):
+    d = tmp_path_factory.mktemp("gr")
+    m = MOSAIC
+    return d, _ingest_init(d, ["[gnss]", 'master = "base"', f'nav = ["{m / "base.nav"}"]', 'signals = ["G:L1", "R:G1"]',
+                               '[gnss.antennas."base"]', f'rinex = "{m / "base.obs"}"',
+                               '[gnss.antennas."rover"]', f'rinex = "{m / "rover.obs"}"'])
+
+
+@pytest.fixture(scope="module")
+def geonet(tmp_path_factory):
+    d = tmp_path_factory.mktemp("geonet")
+    text = (REPO_ROOT / "configs" / "geonet-0759-3040.toml").read_text().replace("../../shared", str(SHARED.parent))
+    return d, _ingest_init(d, text.splitlines())
+
+
+def _no_batch(monkeypatch):
+    """Every way of solving the baseline again raises."""
+    def boom(*a, **k):
+        raise AssertionError("the baseline was solved again")
+    monkeypatch.setattr(gnss, "solve_static_baseline", boom)
+    monkeypatch.setattr(baseline, "solve_static_baseline", boom)
+    for name in ("_float_solution", "_integer_fix", "_fixed_solution", "resolve"):
+        monkeypatch.setattr(baseline, name, boom)
+    monkeypatch.setattr(ambiguity, "resolve", boom)
+
+
+def _estimate(d: Path, init: dict, name: str) -> States:
+    (d / f"{name}.json").write_text(json.dumps(init))
+    r = run_cli("-q", "estimate", d / "run.mcap", "--init", d / f"{name}.json", "-o", d / f"{name}.mcap")
+    assert r.exit_code == 0, r.output
+    return States(d / f"{name}.mcap")
+
+
+def _former_path(d: Path, init: dict, rover: str) -> np.ndarray:
+    """The batch solved again from INIT's integers (the former estimate path)."""
+    run = read_gnss_run(d / "run.mcap")
+    st = gnss._stations(run)
+    opt = baseline.BaselineOptions(**{k: (tuple(v) if isinstance(v, list) else v)
+                                      for k, v in init["rovers"][rover]["options"].items()
+                                      if k in baseline.BaselineOptions.__dataclass_fields__})
+    res = baseline.solve_static_baseline(st[run.master], st[rover], run.nav, opt,
+                                         master_xyz=gnss._position_args(run, run.master),
+                                         rover_xyz=gnss._position_args(run, rover),
+                                         integers=gnss._integers_from_init(init, rover))
+    return np.array(res["fixed"]["enu_m"]), np.array(res["fixed"]["sigma_enu_m"])
+
+
+def test_glonass_init_is_not_solved_again(mosaic_gr, monkeypatch):
+    d, init = mosaic_gr
+    rov = init["rovers"]["rover"]
+    assert rov["solver"] == "static_engine" and rov.get("n_float_glonass", 0) > 0
+    former, _ = _former_path(d, init, "rover")
+    _no_batch(monkeypatch)
+    st = _estimate(d, init, "gr")
+    assert st.q[0].tolist() == rov["fixed"]["enu_m"]                   # INIT's solution, bit for bit
+    assert st.sigma_q[0].tolist() == rov["fixed"]["sigma_enu_m"]
+    assert np.max(np.abs(st.q[0] - former)) < 1e-4
+
+
+def test_partially_fixed_init_is_not_solved_again(geonet, monkeypatch):
+    """One integer withdrawn from GEONET's engine INIT: the engine conditions on the others (not the batch), and
+    a batch INIT of that partial solution is evaluated at its position (the floats at it), equal to the batch's."""
+    d, init = geonet
+    assert init["rovers"]["0759"]["solver"] == "static_engine"
+    part = json.loads(json.dumps(init))
+    b = next(b for b in part["biases"] if not b["pivot"])
+    b.update(fixed=False, integer_cycles=None)
+    former, former_sigma = _former_path(d, part, "0759")
+    with monkeypatch.context() as mp:
+        _no_batch(mp)
+        st = _estimate(d, part, "partial")
+        run = read_gnss_run(d / "run.mcap")
+        res, w, _, _ = gnss.solve_with_init_integers(run, part, "0759", gnss._stations(run))
+    assert res["solver"] == "static_engine (integers given)" and res["solution"] == "partially fixed"
+    assert res["ambiguities"]["n_fixed"] == init["n_fixed"] - 1
+    assert np.max(np.abs(st.q[0] - former)) < 1e-4
+    # the same partial solution as a batch INIT: taken at its position, the float ambiguity solved at it
+    part["rovers"]["0759"]["solver"] = "batch (test)"
+    part["rovers"]["0759"]["fixed"]["enu_m"] = former.tolist()
+    with monkeypatch.context() as mp:
+        _no_batch(mp)
+        res2, w2, _, _ = gnss.solve_with_init_integers(run, part, "0759", gnss._stations(run))
+    assert res2["solver"] == "given (INIT's position, float ambiguities at it)"
+    assert w2["x_final"].tolist() == former.tolist()
+    np.testing.assert_allclose(np.sqrt(np.diag(w2["q_final"])), former_sigma, rtol=1e-6)
+
+
+def test_float_only_init_is_not_solved_again(geonet, monkeypatch):
+    """A float-only INIT: an engine one is the engine's float solution again (INIT's, bit for bit); a batch one
+    is evaluated at its float position, equal to the batch's float solution."""
+    d, _ = geonet
+    r = run_cli("-q", "init", d / "run.mcap", "--float-only", "-o", d / "float.json")
+    assert r.exit_code == 0, r.output
+    init = json.loads((d / "float.json").read_text())
+    rov = init["rovers"]["0759"]
+    assert rov["solver"] == "static_engine" and rov["fixed"] is None
+    run = read_gnss_run(d / "run.mcap")
+    former = baseline.solve_static_baseline(*(gnss._stations(run)[n] for n in (run.master, "0759")), run.nav,
+                                            baseline.BaselineOptions.from_gnss_config(run.cfg, kinematic_series=False,
+                                                                                      fix=False),
+                                            master_xyz=gnss._position_args(run, run.master),
+                                            rover_xyz=gnss._position_args(run, "0759"))["float"]
+    with monkeypatch.context() as mp:
+        _no_batch(mp)
+        st = _estimate(d, init, "float_states")
+        assert st.q[0].tolist() == rov["float"]["enu_m"] and st.sigma_q[0].tolist() == rov["float"]["sigma_enu_m"]
+        init["rovers"]["0759"]["solver"] = "batch (test)"
+        init["rovers"]["0759"]["float"]["enu_m"] = former["enu_m"]
+        res, w, _, _ = gnss.solve_with_init_integers(run, init, "0759", gnss._stations(run))
+    assert res["solver"] == "given (INIT's position, float ambiguities at it)" and res["solution"] == "float"
+    assert w["x_final"].tolist() == former["enu_m"]
+    np.testing.assert_allclose(np.sqrt(np.diag(w["q_final"])), former["sigma_enu_m"], rtol=1e-6)
+
+
+def test_an_init_nothing_can_take_is_refused_not_solved_again(geonet, monkeypatch, tmp_path):
+    """A batch INIT whose position is not the solution of its integers on the run, with an option only the batch
+    implements: estimate exits 2 saying to run init again (no traceback, no STATES), and never solves the batch."""
+    d, init = geonet
+    bad = json.loads(json.dumps(init))
+    rov = bad["rovers"]["0759"]
+    rov["solver"], rov["options"]["weighting"] = "batch (test)", "equal"
+    rov["fixed"]["enu_m"][0] += 1e-3
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
+    _no_batch(monkeypatch)
+    r = run_cli("estimate", d / "run.mcap", "--init", tmp_path / "bad.json", "-o", tmp_path / "s.mcap")
+    assert r.exit_code == 2 and "run 'cdgps init' again" in r.stderr and "weighting" in r.stderr, r.output
+    assert "Traceback" not in r.output and not (tmp_path / "s.mcap").exists()
