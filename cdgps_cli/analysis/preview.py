@@ -70,9 +70,8 @@ def preview_filter(stride: int) -> np.ndarray:
 def _design(stride: int) -> np.ndarray:
     """The windowed-sinc design of ``scipy.signal.firwin`` / ``kaiserord`` (Kaiser's formulas, Oppenheim &
     Schafer), written here so that ``cdgps estimate`` does not import scipy.signal (≈ 0.4 s of a
-    process); equal to scipy's taps to ~1e-16 (tests/io/test_states_preview.py)."""
-    from scipy.special import i0  # noqa: PLC0415
-
+    process) nor scipy.special (numpy's i0 for the Kaiser window); equal to scipy's taps to ~1e-16
+    (tests/io/test_states_preview.py)."""
     nyq = 1.0 / stride                                  # preview Nyquist, in units of the input's
     width = (1.0 - PASSBAND_FRACTION) * nyq
     A = STOPBAND_DB                                     # kaiserord: taps and β for this attenuation
@@ -84,7 +83,7 @@ def _design(stride: int) -> np.ndarray:
     n = np.arange(L, dtype=float) - 0.5 * (L - 1)
     h = cutoff * np.sinc(cutoff * n)
     alpha = (L - 1) / 2.0
-    h = h * (i0(beta * np.sqrt(1 - ((np.arange(L) - alpha) / alpha) ** 2.0)) / i0(beta))
+    h = h * (np.i0(beta * np.sqrt(1 - ((np.arange(L) - alpha) / alpha) ** 2.0)) / np.i0(beta))
     return h / np.sum(h)                                # unit gain at zero frequency
 
 

@@ -22,7 +22,6 @@ iterated update in numpy only (scipy's import stays off `cdgps rtk`'s start-up).
 from __future__ import annotations
 
 from bisect import bisect_left
-from statistics import NormalDist
 
 import numpy as np
 import pandas as pd
@@ -33,6 +32,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.signals import signal, SYSTEM_NAMES
 from cdgps_cli.estimation.ambiguity import (AmbiguityError, SearchLimitError, _reduce, _z_matrix, ld_factorize_symmetric,
                                             ratio_test, search_reduced, success_tail_rate)
+from cdgps_cli.estimation.chi2 import chi2_quantile
 from cdgps_cli.estimation.driver import EpochGrid, Hook, drive
 from cdgps_cli.estimation.kalman import NUMPY_INVERSE, StepFilter
 from cdgps_cli.measurement.dd_signals import DDGroupModel, backward_slips, epoch_groups, paired_sd_rows
@@ -551,13 +551,6 @@ class _FloatSink:
 
     def release_before(self, i):
         return None
-
-
-def chi2_quantile(p: float, dof: int) -> float:
-    """χ² quantile of probability ``p`` with ``dof`` degrees of freedom (Wilson–Hilferty; relative
-    error < 1 % for dof ≥ 3 at p = 0.999; no scipy on `cdgps rtk`'s start-up)."""
-    h = 2.0 / (9.0 * dof)
-    return dof * (1.0 - h + NormalDist().inv_cdf(p) * np.sqrt(h)) ** 3
 
 
 def _float_ambiguities(st, var_cycles2) -> None:

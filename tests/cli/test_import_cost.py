@@ -33,9 +33,13 @@ def test_estimate_path_loads_no_plotting_dask_sparse_or_pandas():
     reader, STATES writer); a run's tables are numpy columns (core/table.Table), so no pandas."""
     loaded = _modules_after("import cdgps_cli.estimation.filter, cdgps_cli.io.run, cdgps_cli.io.states, "
                             "cdgps_cli.pipeline.estimate_outputs, cdgps_cli.model.kinematics, "
-                            "cdgps_cli.estimation.initializer, cdgps_cli.io.file_checks")
+                            "cdgps_cli.estimation.initializer, cdgps_cli.io.file_checks, cdgps_cli.analysis.preview\n"
+                            "from cdgps_cli.estimation.chi2 import chi2_quantile\n"
+                            "chi2_quantile(0.999, [1, 2, 30])\n"
+                            "cdgps_cli.analysis.preview.preview_filter(10)")
     assert "numpy" in loaded and "cdgps_cli.estimation.filter" in loaded        # the probe itself works
-    for name in ("matplotlib", "dask", "distributed", "scipy.sparse", "scipy.stats", "scipy.optimize", "pandas"):
+    for name in ("matplotlib", "dask", "distributed", "scipy.sparse", "scipy.stats", "scipy.optimize", "pandas",
+                 "scipy.special"):
         assert name not in loaded, name
 
 
