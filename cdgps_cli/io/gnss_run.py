@@ -58,7 +58,7 @@ from cdgps_cli.core.gps_time import nominal_interval_s
 
 __all__ = [
     "GNSS_OBS_TOPIC", "GNSS_EPHEMERIS_TOPIC", "RAW_COLUMNS", "GnssReceiver", "GnssRun", "is_gnss_run",
-    "IngestInputs", "read_ingest_inputs", "nominal_positions", "write_gnss_run", "read_gnss_run", "run_kind", "gnss_run_info", "default_config_text",
+    "IngestInputs", "read_ingest_inputs", "nominal_positions", "write_gnss_run", "read_gnss_run", "SOLVER_COLUMNS", "run_kind", "gnss_run_info", "default_config_text",
 ]
 
 GNSS_OBS_TOPIC = "/cdgps/gnss/obs"
@@ -274,15 +274,18 @@ def _pack_npz_zst(tab: pd.DataFrame, text_cols: tuple, dtypes: dict) -> bytes:
 
 
 def _unpack_npz_zst(data: bytes, what: str, text_cols: tuple, dtypes: dict, columns: list,
-                    optional: tuple = ()) -> pd.DataFrame:
+                    optional: tuple = (), keep=None) -> pd.DataFrame:
     """The table of :func:`_pack_npz_zst` (floats as float64, integers as int64; the ``optional`` numeric
-    columns when stored); CdgpsError when damaged."""
+    columns when stored; ``keep``: only these numeric columns, else all); CdgpsError when damaged."""
     import zstandard  # noqa: PLC0415
 
     try:
         z = np.load(io.BytesIO(zstandard.ZstdDecompressor().decompress(data)), allow_pickle=False)
         df = {c: np.asarray(z[c + "_names"], dtype=object)[z[c + "_index"].astype(np.int64)] for c in text_cols}
         extra = [c for c in optional if c in z.files]
+        if keep is not None:
+            dtypes = {c: d for c, d in dtypes.items() if c in keep}
+            columns = [c for c in columns if c in keep or c in text_cols]
         for c in list(dtypes) + extra:
             v = z[c]
             df[c] = v.astype(np.float64 if v.dtype.kind == "f" else np.int64, copy=False)
@@ -296,8 +299,8 @@ def _npz_zst(raw: pd.DataFrame) -> bytes:
     return _pack_npz_zst(raw, ("sat",), _DTYPES)
 
 
-def _raw_from_npz_zst(data: bytes, what: str) -> pd.DataFrame:
-    return _unpack_npz_zst(data, what, ("sat",), _DTYPES, list(RAW_COLUMNS))
+def _raw_from_npz_zst(data: bytes, what: str, columns=None) -> pd.DataFrame:
+    return _unpack_npz_zst(data, what, ("sat",), _DTYPES, list(RAW_COLUMNS), keep=columns)
 
 
 _SIGNAL_DTYPES = {"time_gps_s": np.float64, "phase_cycles": np.float64, "pseudorange_m": np.float64, "lli": np.int8,
@@ -865,8 +868,18 @@ def is_gnss_run(contents) -> bool:
     return contents_kind(contents) == "gnss"
 
 
-def read_gnss_run(path: str | Path, contents=None) -> GnssRun:
-    """Read a GNSS RUN.mcap written by :func:`ingest_gnss` (CRCs validated; attachments only)."""
+SOLVER_COLUMNS = tuple(c for c in RAW_COLUMNS if c not in ("doppler_hz", "sub_half", "cp_std_cycles", "pr_std_m",
+                                                              "clock_reset"))
+"""The raw columns ``init`` and ``estimate`` read (:func:`cdgps_cli.pipeline.gnss_ingest.processing_obs`,
+``anchor_obs``, the epoch and clock checks): :func:`read_gnss_run` ``columns=`` leaves the others
+(≈ 33 MiB per receiver of a day at 1 Hz) undecoded."""
+
+
+def read_gnss_run(path: str | Path, contents=None, columns=None) -> GnssRun:
+    """Read a GNSS RUN.mcap written by :func:`ingest_gnss` (CRCs validated; attachments only).
+
+    ``columns``: the receivers' raw tables hold only these of :data:`RAW_COLUMNS` (e.g.
+    :data:`SOLVER_COLUMNS`; the time, satellite and what a stage reads), None: all."""
     c = contents if contents is not None else read_mcap(path, topics=[])
     if not is_gnss_run(c):
         raise CdgpsError(f"{path}: not a GNSS RUN.mcap (no {RECEIVERS_ATTACHMENT}); is this a run from "
@@ -888,7 +901,7 @@ def read_gnss_run(path: str | Path, contents=None) -> GnssRun:
         key = OBS_ATTACHMENT.format(i)
         if key not in c.attachments:
             raise CdgpsError(f"{path}: no {key} attachment (observations of {rj.get('name')})")
-        raw = _raw_from_npz_zst(c.attachments[key], f"{path}:{key}")
+        raw = _raw_from_npz_zst(c.attachments[key], f"{path}:{key}", columns)
         skey = SIGNALS_ATTACHMENT.format(i)
         if cfg.signals and skey not in c.attachments:
             raise CdgpsError(f"{path}: no {skey} attachment (signals of {rj.get('name')}) although the config lists signals")
