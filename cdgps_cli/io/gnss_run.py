@@ -270,7 +270,9 @@ def _pack_npz_zst(tab: pd.DataFrame, text_cols: tuple, dtypes: dict) -> bytes:
         arrays[c] = tab[c].to_numpy().astype(dt)
     buf = io.BytesIO()
     np.savez(buf, **arrays)
-    return zstandard.ZstdCompressor(level=3).compress(buf.getvalue())
+    arrays.clear()                                  # (the arrays are in the archive: not held while compressing)
+    with buf.getbuffer() as archive:                # (no copy of the archive)
+        return zstandard.ZstdCompressor(level=3).compress(archive)
 
 
 def _unpack_npz_zst(data: bytes, what: str, text_cols: tuple, dtypes: dict, columns: list,
