@@ -47,7 +47,6 @@ import json
 from pathlib import Path
 
 import numpy as np
-import orjson
 
 from cdgps_cli.core import progress
 from cdgps_cli.config.options import STATES_CHUNK_EPOCHS
@@ -495,75 +494,17 @@ def _write_residuals(out: McapOut, ss: StateSeries, time_s, sel, chunk: int, nis
         if every[a]:
             out.write_rows(ch, times[a:b], layout, rows[a:b], head={"antenna": ants, "transmitter": txs})
             continue
-        _write_used_channels(out, ch, times[a:b], used[a:b], R[a:b], nis_list[a:b], dof[a:b],
-                             None if bounds is None else bounds[a:b], ants, txs)
+        for i in range(a, b):                          # the channels used at this epoch
+            u = used[i].tolist()
+            msg = {"antenna": [v for v, ok in zip(ants, u) if ok], "transmitter": [v for v, ok in zip(txs, u) if ok],
+                   "residual_m": [v for v, ok in zip(R[i].tolist(), u) if ok], "nis": nis_list[i], "nis_dof": dof[i]}
+            if bounds is not None and bounds[i] is not None:
+                msg["nis_lower95"], msg["nis_upper95"] = bounds[i]
+            out.write(ch, float(times[i]), msg)
     size, pieces = p_r.finish()
     out.attach_stream(RESIDUAL_PACKED + "residual_m", size, pieces, MEDIA_TYPE)
     out.attach_packed(RESIDUAL_PACKED + "nis", nis_all)
     out.attach_packed(RESIDUAL_PACKED + "nis_dof", dof_all)
-
-
-def _residual_message(ants, txs, R_i, used_i, nis, dof, bound) -> dict:
-    """The residual message's payload of an epoch using the channels ``used_i`` (for :meth:`McapOut.write`)."""
-    u = used_i.tolist()
-    msg = {"antenna": [v for v, ok in zip(ants, u) if ok], "transmitter": [v for v, ok in zip(txs, u) if ok],
-           "residual_m": [v for v, ok in zip(R_i.tolist(), u) if ok], "nis": nis, "nis_dof": dof}
-    if bound is not None:
-        msg["nis_lower95"], msg["nis_upper95"] = bound
-    return msg
-
-
-_RESIDUAL_MESSAGES_PER_BLOCK = 4096
-"""Epochs whose residual messages' texts :func:`_write_used_channels` holds at a time."""
-
-
-def _write_used_channels(out: McapOut, ch: int, times, used, R, nis: list, dof: list, bounds, ants, txs) -> None:
-    """The residual messages of epochs that do not use every channel: the bytes of :meth:`McapOut.write`
-    of :func:`_residual_message` of each, made from the texts of all their values at once (one orjson
-    call per field; issue 29: a GNSS day has such an epoch every second); a message whose text would
-    hold ``null`` (a value the schema has no place for) goes through :meth:`McapOut.write`."""
-    block = _RESIDUAL_MESSAGES_PER_BLOCK
-    for a in range(0, len(times), block):
-        t = np.asarray(times[a:a + block], dtype=float).tolist()
-        u = used[a:a + block]
-        rows, cols = np.nonzero(u)                      # (row-major: each epoch's channels in their order)
-        ends = np.cumsum(np.bincount(rows, minlength=len(t))).tolist()
-        spans = list(zip([0, *ends[:-1]], ends))
-        fields = [(b',"antenna":[', _message_texts(np.asarray(ants, dtype=object)[cols].tolist(), spans)),
-                  (b'],"transmitter":[', _message_texts(np.asarray(txs, dtype=object)[cols].tolist(), spans)),
-                  (b'],"residual_m":[', _message_texts(np.asarray(R[a:a + block])[u].tolist(), spans))]
-        t_texts = orjson.dumps(t)[1:-1].split(b",") if t else []
-        stamps, datas, kept = [], [], []
-        for i, ns_t in enumerate(t):
-            ns = time_ns(ns_t, out.time_scale)
-            bound = None if bounds is None else bounds[a + i]
-            data = b"".join([b'{"timestamp":{"sec":%d,"nsec":%d},"time_s":' % (ns // 1_000_000_000, ns % 1_000_000_000),
-                             t_texts[i], *[k + v[i] for k, v in fields], b"]", _scalar_text("nis", nis[a + i]),
-                             b',"nis_dof":%d' % dof[a + i],
-                             *([] if bound is None else [_scalar_text("nis_lower95", bound[0]),
-                                                         _scalar_text("nis_upper95", bound[1])]), b"}"])
-            if b"null" in data:                         # write()'s own rules for what the schema cannot hold
-                out.write_encoded(ch, kept, stamps, datas)
-                stamps, datas, kept = [], [], []
-                out.write(ch, ns_t, _residual_message(ants, txs, R[a + i], u[i], nis[a + i], dof[a + i], bound))
-                continue
-            stamps.append(ns)
-            datas.append(data)
-            kept.append(ns_t)
-        out.write_encoded(ch, kept, stamps, datas)
-
-
-def _message_texts(values: list, spans: list) -> list:
-    """Per message m, the JSON text of the array ``values[a:b]`` without its brackets, (a, b) = ``spans[m]``."""
-    per = orjson.dumps([values[a:b] for a, b in spans])[2:-2].split(b"],[")
-    if len(per) != len(spans):                          # (a text holding "],[": each on its own)
-        per = [orjson.dumps(values[a:b])[1:-1] for a, b in spans]
-    return per
-
-
-def _scalar_text(key: str, v) -> bytes:
-    """``,"key":v`` in compact JSON, or nothing for a missing ``v`` (None or NaN: left out, as :meth:`McapOut.write`)."""
-    return b"" if v is None or v != v else b',"' + key.encode() + b'":' + orjson.dumps(v)
 
 
 def _description(ss: StateSeries) -> bytes:
