@@ -924,10 +924,10 @@ def _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, a
     from click.core import ParameterSource
 
     from cdgps_cli.pipeline.gnss import gnss_init
-    from cdgps_cli.io.gnss_run import read_gnss_run
+    from cdgps_cli.io.gnss_run import SOLVER_COLUMNS, read_gnss_run
 
     _reject_structure_options(structure_only, "'cdgps init'")
-    run = read_gnss_run(run_mcap)
+    run = read_gnss_run(run_mcap, columns=SOLVER_COLUMNS)
     over = {}
     if ctx.get_parameter_source("ratio_threshold") != ParameterSource.DEFAULT:
         over["ratio_threshold"] = ratio_threshold
@@ -981,7 +981,7 @@ def _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json, structure_
                    x_axis_azimuth_deg=X_AXIS_AZIMUTH_DEG, receiver_map=(), allow_other_run=False,
                    scene_exaggeration=SCENE_EXAGGERATION, fuse=None, hold_out=()):
     from cdgps_cli.pipeline.gnss import gnss_estimate
-    from cdgps_cli.io.gnss_run import read_gnss_run
+    from cdgps_cli.io.gnss_run import SOLVER_COLUMNS, read_gnss_run
 
     _reject_structure_options(structure_only, "'cdgps estimate'")
     from cdgps_cli.io.file_checks import read_init_json
@@ -989,7 +989,7 @@ def _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json, structure_
     init, init_text = read_init_json(init_json)
     pairing = _check_pairing(ctx, init, init_json, run_mcap, allow_other_run)
     extra = {"allow_other_run": True, "init_run_sha256": pairing["init_run_sha256"]} if allow_other_run else None
-    run = read_gnss_run(run_mcap)
+    run = read_gnss_run(run_mcap, columns=SOLVER_COLUMNS)
     if structure is not None or receiver_map:
         _estimate_gnss_modal(ctx, run, init, init_text, output, as_json, smooth, structure, x_axis_azimuth_deg,
                              receiver_map, extra, pairing, scene_exaggeration, fuse=fuse, hold_out=hold_out)

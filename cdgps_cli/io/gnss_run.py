@@ -30,12 +30,14 @@ Layout (format details in docs/gnss-pipeline.md):
 from __future__ import annotations
 
 import io
+import itertools
 import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import orjson
 import pandas as pd
 
 from cdgps_cli.core import progress
@@ -43,7 +45,8 @@ from cdgps_cli.core.checks import header_position_m
 from cdgps_cli.io.atomic import path_for_config
 from cdgps_cli.config.structure import GnssConfig, gnss_config_toml, parse_gnss_config
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.io.mcap import CONFIG_ATTACHMENT, McapOut, array_schema, message_schema, read_mcap
+from cdgps_cli.io.mcap import (CONFIG_ATTACHMENT, VALID_SUFFIX, McapOut, array_schema, message_schema, read_mcap,
+                               time_ns)
 from cdgps_cli.io.run import INGEST_METADATA, contents_kind, ingest_metadata, input_keys, run_kind
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.core.records import GLONASS_NAV_COLUMNS, NAV_COLUMNS
@@ -55,7 +58,7 @@ from cdgps_cli.core.gps_time import nominal_interval_s
 
 __all__ = [
     "GNSS_OBS_TOPIC", "GNSS_EPHEMERIS_TOPIC", "RAW_COLUMNS", "GnssReceiver", "GnssRun", "is_gnss_run",
-    "IngestInputs", "read_ingest_inputs", "nominal_positions", "write_gnss_run", "read_gnss_run", "run_kind", "gnss_run_info", "default_config_text",
+    "IngestInputs", "read_ingest_inputs", "nominal_positions", "write_gnss_run", "read_gnss_run", "SOLVER_COLUMNS", "run_kind", "gnss_run_info", "default_config_text",
 ]
 
 GNSS_OBS_TOPIC = "/cdgps/gnss/obs"
@@ -173,7 +176,7 @@ def _raw_from_rinex(obs: pd.DataFrame) -> pd.DataFrame:
         "epoch_flag": obs["epoch_flag"].to_numpy(dtype=np.int64),
         "clock_offset_s": obs["rx_clock_offset_s"].to_numpy(dtype=np.float64),
         "clock_reset": np.full(n, -1, dtype=np.int64),
-    })
+    }, copy=False)
 
 
 def _raw_from_ubx(obs: pd.DataFrame) -> pd.DataFrame:
@@ -195,7 +198,7 @@ def _raw_from_ubx(obs: pd.DataFrame) -> pd.DataFrame:
         "epoch_flag": np.zeros(n, dtype=np.int64),
         "clock_offset_s": np.full(n, np.nan),
         "clock_reset": obs["clock_reset"].to_numpy(dtype=bool).astype(np.int64),
-    })
+    }, copy=False)
 
 
 def read_receiver_file(name: str, kind: str, path: str | Path, *, strict: bool = False,
@@ -267,19 +270,24 @@ def _pack_npz_zst(tab: pd.DataFrame, text_cols: tuple, dtypes: dict) -> bytes:
         arrays[c] = tab[c].to_numpy().astype(dt)
     buf = io.BytesIO()
     np.savez(buf, **arrays)
-    return zstandard.ZstdCompressor(level=3).compress(buf.getvalue())
+    arrays.clear()                                  # (the arrays are in the archive: not held while compressing)
+    with buf.getbuffer() as archive:                # (no copy of the archive)
+        return zstandard.ZstdCompressor(level=3).compress(archive)
 
 
 def _unpack_npz_zst(data: bytes, what: str, text_cols: tuple, dtypes: dict, columns: list,
-                    optional: tuple = ()) -> pd.DataFrame:
+                    optional: tuple = (), keep=None) -> pd.DataFrame:
     """The table of :func:`_pack_npz_zst` (floats as float64, integers as int64; the ``optional`` numeric
-    columns when stored); CdgpsError when damaged."""
+    columns when stored; ``keep``: only these numeric columns, else all); CdgpsError when damaged."""
     import zstandard  # noqa: PLC0415
 
     try:
         z = np.load(io.BytesIO(zstandard.ZstdDecompressor().decompress(data)), allow_pickle=False)
         df = {c: np.asarray(z[c + "_names"], dtype=object)[z[c + "_index"].astype(np.int64)] for c in text_cols}
         extra = [c for c in optional if c in z.files]
+        if keep is not None:
+            dtypes = {c: d for c, d in dtypes.items() if c in keep}
+            columns = [c for c in columns if c in keep or c in text_cols]
         for c in list(dtypes) + extra:
             v = z[c]
             df[c] = v.astype(np.float64 if v.dtype.kind == "f" else np.int64, copy=False)
@@ -293,8 +301,8 @@ def _npz_zst(raw: pd.DataFrame) -> bytes:
     return _pack_npz_zst(raw, ("sat",), _DTYPES)
 
 
-def _raw_from_npz_zst(data: bytes, what: str) -> pd.DataFrame:
-    return _unpack_npz_zst(data, what, ("sat",), _DTYPES, list(RAW_COLUMNS))
+def _raw_from_npz_zst(data: bytes, what: str, columns=None) -> pd.DataFrame:
+    return _unpack_npz_zst(data, what, ("sat",), _DTYPES, list(RAW_COLUMNS), keep=columns)
 
 
 _SIGNAL_DTYPES = {"time_gps_s": np.float64, "phase_cycles": np.float64, "pseudorange_m": np.float64, "lli": np.int8,
@@ -761,8 +769,12 @@ _INT_OBS = ("lli", "half_cycle", "lock_time_ms")
 
 
 def _write_obs_messages(out: McapOut, ch: int, receivers: dict) -> int:
-    """One message per receiver and epoch, in time order across receivers (the rows of a block of
-    messages made Python lists at a time)."""
+    """One message per receiver and epoch, in time order across receivers.
+
+    The bytes of :meth:`McapOut.write` of each epoch's payload (:func:`_obs_payload`), made from the
+    texts of a block of rows' values (one orjson call per column and block, no dict per message;
+    issue 29: 10 s of a day's ingest went to the dicts); a message whose text would hold ``null``
+    (a value the schema has no place for, e.g. an infinity) goes through :meth:`McapOut.write`."""
     per = []
     for n, rx in receivers.items():
         r = rx.raw
@@ -774,27 +786,78 @@ def _write_obs_messages(out: McapOut, ch: int, receivers: dict) -> int:
         clk = r["clock_offset_s"].to_numpy()
         per.append((n, t, cuts, cols, flag, clk))
     order = sorted(((float(p[1][a]), i, k) for i, p in enumerate(per) for k, a in enumerate(p[2][:-1])))
+    heads = [b'{"timestamp":{"sec":%d,"nsec":%d},"time_s":%s,"receiver":' + orjson.dumps(p[0]).replace(b"%", b"%%")
+             + b',"epoch_flag":%d' for p in per]
     bar = progress.bar(len(order), f"writing {out.path.name}", "msg")
     for start in range(0, len(order), _OBS_MESSAGES_PER_BLOCK):
         part = order[start:start + _OBS_MESSAGES_PER_BLOCK]
-        lists = {}
+        bodies = {}
         for i in {i for _, i, _ in part}:
             ks = [k for _, j, k in part if j == i]
-            cuts, cols = per[i][2], per[i][3]
-            lo, hi = int(cuts[min(ks)]), int(cuts[max(ks) + 1])
-            lists[i] = (lo, {c: (_nullable(v[lo:hi]) if c in _NULLABLE_OBS else v[lo:hi].tolist())
-                             for c, v in cols.items()})
-        for _, i, k in part:
+            k0 = min(ks)
+            bodies[i] = (k0, _obs_bodies(per[i][3], per[i][2][k0:max(ks) + 2]))
+        times, stamps, datas, names = [], [], [], []
+        time_texts = orjson.dumps([t for t, _, _ in part])[1:-1].split(b",")
+        for (t_s, i, k), t_text in zip(part, time_texts):
             n, t, cuts, _, flag, clk = per[i]
-            lo, cols = lists[i]
-            a, b = int(cuts[k]), int(cuts[k + 1])
-            payload = {"receiver": n, "epoch_flag": int(flag[a]),
-                       "clock_offset_s": None if not np.isfinite(clk[a]) else float(clk[a])}
-            payload.update({c: v[a - lo:b - lo] for c, v in cols.items()})
-            out.write(ch, float(t[a]), payload)
+            k0, body = bodies[i]
+            a = int(cuts[k])
+            ns = time_ns(t_s, out.time_scale)
+            c = clk[a]
+            data = b"".join([heads[i] % (ns // 1_000_000_000, ns % 1_000_000_000, t_text, int(flag[a])),
+                             b',"clock_offset_s":' + orjson.dumps(float(c)) if math.isfinite(c) else b"", body[k - k0]])
+            if b"null" in data:               # write()'s own rules for what the schema cannot hold
+                out.write_encoded(ch, times, stamps, datas, names)
+                times, stamps, datas, names = [], [], [], []
+                out.write(ch, t_s, _obs_payload(per[i], a, int(cuts[k + 1])))
+                continue
+            times.append(t_s)
+            stamps.append(ns)
+            datas.append(data)
+            names.append(n)
+        out.write_encoded(ch, times, stamps, datas, names)
         bar.update(len(part))
     bar.close()
     return len(order)
+
+
+def _obs_bodies(cols: dict, cuts: np.ndarray) -> list:
+    """The JSON text of the array fields of :func:`_obs_payload` (``_valid`` companions after their
+    field; a missing value as 0 and ``false`` in its companion, as :meth:`McapOut.write` writes it),
+    from the comma before the first to the closing brace, of each message of rows cuts[m] … cuts[m+1]−1."""
+    lo, hi = int(cuts[0]), int(cuts[-1])
+    bounds = list(zip((cuts[:-1] - lo).tolist(), (cuts[1:] - lo).tolist()))
+    parts = []
+    for c, v in cols.items():
+        v = v[lo:hi]
+        missing = np.isnan(v) if (c in _NULLABLE_OBS and v.dtype.kind == "f") else None
+        vals = v if missing is None or not missing.any() else np.where(missing, 0.0, v)
+        parts += _field_texts(c, vals.tolist(), bounds, not parts)
+        if c in _NULLABLE_OBS:
+            ok = np.ones(v.size, dtype=bool) if missing is None else ~missing
+            parts += _field_texts(c + VALID_SUFFIX, ok.tolist(), bounds, False)
+    parts.append(itertools.repeat(b"]}"))
+    return [b"".join(p) for p in zip(*parts)]
+
+
+def _field_texts(key: str, values: list, bounds: list, first: bool) -> list:
+    """(the key's text, repeated; the array's text per message) of one field: message m holds
+    ``values[a:b]``, (a, b) = ``bounds[m]`` (none empty)."""
+    text = orjson.dumps([values[a:b] for a, b in bounds])
+    per_message = text[2:-2].split(b"],[")
+    if len(per_message) != len(bounds):               # (a text holding "],[": each message on its own)
+        per_message = [orjson.dumps(values[a:b])[1:-1] for a, b in bounds]
+    return [itertools.repeat((b',"' if first else b'],"') + orjson.dumps(key)[1:-1] + b'":['), per_message]
+
+
+def _obs_payload(p: tuple, a: int, b: int) -> dict:
+    """The payload of the observation message of rows a … b−1 of a receiver (``p`` as in
+    :func:`_write_obs_messages`), for :meth:`McapOut.write`."""
+    n, _, _, cols, flag, clk = p
+    payload = {"receiver": n, "epoch_flag": int(flag[a]),
+               "clock_offset_s": None if not np.isfinite(clk[a]) else float(clk[a])}
+    payload.update({c: (_nullable(v[a:b]) if c in _NULLABLE_OBS else v[a:b].tolist()) for c, v in cols.items()})
+    return payload
 
 
 # ----------------------------------------------------------------------------------------------
@@ -807,8 +870,18 @@ def is_gnss_run(contents) -> bool:
     return contents_kind(contents) == "gnss"
 
 
-def read_gnss_run(path: str | Path, contents=None) -> GnssRun:
-    """Read a GNSS RUN.mcap written by :func:`ingest_gnss` (CRCs validated; attachments only)."""
+SOLVER_COLUMNS = tuple(c for c in RAW_COLUMNS if c not in ("doppler_hz", "sub_half", "cp_std_cycles", "pr_std_m",
+                                                              "clock_reset"))
+"""The raw columns ``init`` and ``estimate`` read (:func:`cdgps_cli.pipeline.gnss_ingest.processing_obs`,
+``anchor_obs``, the epoch and clock checks): :func:`read_gnss_run` ``columns=`` leaves the others
+(≈ 33 MiB per receiver of a day at 1 Hz) undecoded."""
+
+
+def read_gnss_run(path: str | Path, contents=None, columns=None) -> GnssRun:
+    """Read a GNSS RUN.mcap written by :func:`ingest_gnss` (CRCs validated; attachments only).
+
+    ``columns``: the receivers' raw tables hold only these of :data:`RAW_COLUMNS` (e.g.
+    :data:`SOLVER_COLUMNS`; the time, satellite and what a stage reads), None: all."""
     c = contents if contents is not None else read_mcap(path, topics=[])
     if not is_gnss_run(c):
         raise CdgpsError(f"{path}: not a GNSS RUN.mcap (no {RECEIVERS_ATTACHMENT}); is this a run from "
@@ -830,7 +903,7 @@ def read_gnss_run(path: str | Path, contents=None) -> GnssRun:
         key = OBS_ATTACHMENT.format(i)
         if key not in c.attachments:
             raise CdgpsError(f"{path}: no {key} attachment (observations of {rj.get('name')})")
-        raw = _raw_from_npz_zst(c.attachments[key], f"{path}:{key}")
+        raw = _raw_from_npz_zst(c.attachments[key], f"{path}:{key}", columns)
         skey = SIGNALS_ATTACHMENT.format(i)
         if cfg.signals and skey not in c.attachments:
             raise CdgpsError(f"{path}: no {skey} attachment (signals of {rj.get('name')}) although the config lists signals")

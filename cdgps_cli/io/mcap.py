@@ -600,15 +600,23 @@ class McapOut:
             return
         self._frame(channel_id, ns, data)
 
-    def _add_many(self, channel_id: int, stamps_ns: list, datas: list, times_s: list) -> None:
-        """:meth:`_add` and :meth:`_note` (no receiver) of messages of one channel in a row: the same
-        bytes, the file statistics updated once and the chunk's state held in locals."""
+    def write_encoded(self, channel_id: int, times_s: list, stamps_ns: list, datas: list,
+                      receivers: list | None = None) -> None:
+        """Write messages already encoded (each ``datas[i]`` the bytes :meth:`write` would give for
+        its payload at ``times_s[i]``, log time ``stamps_ns[i]`` = :func:`time_ns` of it), in order;
+        ``receivers[i]``: the payload's scalar ``receiver`` (for :data:`INFO_METADATA`), or None."""
+        self._add_many(channel_id, stamps_ns, datas, times_s, receivers)
+
+    def _add_many(self, channel_id: int, stamps_ns: list, datas: list, times_s: list,
+                  receivers: list | None = None) -> None:
+        """:meth:`_add` and :meth:`_note` (with ``receivers[i]``, or none) of messages of one channel
+        in a row: the same bytes, the file statistics updated once and the chunk's state held in locals."""
         if not stamps_ns:
             return
         if self._index_class is None:
-            for ns, data, t in zip(stamps_ns, datas, times_s):
+            for i, (ns, data, t) in enumerate(zip(stamps_ns, datas, times_s)):
                 self._add(channel_id, ns, data)
-                self._note(channel_id, t, None)
+                self._note(channel_id, t, None if receivers is None else receivers[i])
             return
         w = self.writer
         st, cb, limit, pack = w._Writer__statistics, w._Writer__chunk_builder, self._chunk_size, _MESSAGE_HEAD.pack
@@ -640,8 +648,18 @@ class McapOut:
                 w._Writer__finalize_chunk()
                 buf, index = cb.record_writer._buffer, None            # (a new buffer and indexes)
         self._seq[channel_id] = seq
+        self._note_many(channel_id, times_s, receivers)
+
+    def _note_many(self, channel_id: int, times_s: list, receivers: list | None) -> None:
+        """:meth:`_note` of messages in a row (``receivers`` None: none holds a scalar ``receiver``)."""
         src = self._sources.get(channel_id)
-        if src is not None:
+        if receivers is not None:
+            scalars = [None if isinstance(r, list) or _missing(r) else r for r in receivers]
+            if src is None and any(r is not None for r in scalars):
+                src = self._sources[channel_id] = [None] * len(self._times[channel_id])
+            if src is not None:
+                src.extend(scalars)
+        elif src is not None:
             src.extend([None] * len(times_s))
         self._times[channel_id].extend(times_s)
 
