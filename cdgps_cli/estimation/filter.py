@@ -367,7 +367,11 @@ class _ForwardPass:
             """The kept rows of a block (time ≥ t0): their times, pair codes and the selection."""
             t = time_all[rows]
             keep = t >= t0 - 1e-9
-            sel = rows if keep.all() else np.arange(rows.start, rows.stop)[keep]
+            first = int(np.argmax(keep)) if keep.any() else keep.size
+            if keep[first:].all():                 # the kept rows one run (time-ordered rows): a slice, read as one
+                sel = slice(rows.start + first, rows.stop)
+            else:
+                sel = np.arange(rows.start, rows.stop)[keep]
             a_idx, t_idx = ph.index_in("antenna", cfg.antenna_names, sel), ph.index_in("transmitter", cfg.transmitter_names, sel)
             return time_all[sel], a_idx * nT + t_idx, sel
 
