@@ -344,37 +344,21 @@ class _ForwardPass:
         time_all = ph["time_s"]
         R = len(time_all)
         blocks = [slice(a, min(a + PHASE_BLOCK_ROWS, R)) for a in range(0, R, PHASE_BLOCK_ROWS)]
-        t_last = -np.inf                              # the last kept time (≥ t0)
-        for rows in blocks:
-            t = time_all[rows]
-            t = t[t >= t0 - 1e-9]
-            if t.size:
-                t_last = max(t_last, float(t.max()))
-        if not np.isfinite(t_last):
+        scan = _scan_phase_rows(ph, blocks, t0, cfg)
+        if not np.isfinite(scan.t_last):
             raise CdgpsError(f"{opt.init_source}: state.time_s = {t0:g} s is after the last epoch of {run.path} "
                              f"({float(time_all.max()) if R else float('nan'):g} s): no phase data to "
                              f"filter; expected the INIT.json of this run")
-        bad = {"antenna": set(), "transmitter": set()}
-        for rows in blocks:                           # names the config does not have, in any row
-            for col, names in (("antenna", cfg.antenna_names), ("transmitter", cfg.transmitter_names)):
-                bad[col].update(ph.names_not_in(col, names, rows))
-        if bad["antenna"] or bad["transmitter"]:
+        if scan.unknown_names:
             row_channel_indices(cfg, ph, run.path)    # (raises the error naming them)
+        t_last, counts, n_pairs = scan.t_last, scan.pair_counts, scan.pair_counts.size
         nT = len(cfg.transmitter_names)
-        n_pairs = len(cfg.antenna_names) * nT
 
         def block_rows(rows):
             """The kept rows of a block (time ≥ t0): their times, pair codes and the selection."""
-            t = time_all[rows]
-            keep = t >= t0 - 1e-9
-            sel = rows if keep.all() else np.arange(rows.start, rows.stop)[keep]
-            a_idx, t_idx = ph.index_in("antenna", cfg.antenna_names, sel), ph.index_in("transmitter", cfg.transmitter_names, sel)
-            return time_all[sel], a_idx * nT + t_idx, sel
+            sel = _kept_rows(time_all, rows, t0)
+            return time_all[sel], scan.pair_of_joint[scan.joint(sel)], sel
 
-        counts = np.zeros(n_pairs, dtype=np.int64)
-        for rows in blocks:
-            _, pair_code, _ = block_rows(rows)
-            counts += np.bincount(pair_code, minlength=n_pairs)
         N = self.N = int(round((t_last - t0) / T)) + 1
         self.grid = t0 + np.arange(N) * T
         # each row's channel as (antenna, transmitter) indices in the config: pair codes ascend in the
@@ -943,6 +927,64 @@ def lock_events(Y: np.ndarray, LOCK: np.ndarray, release=None, group: int = 8) -
             if kk.size:
                 ev[kk, c] = lock_segments(np.full(kk.size, c, dtype=np.int64), kk, lock=Lg[kk, j]).cause
     return ev
+
+
+def _kept_rows(time_all, rows: slice, t0: float):
+    """The rows of block ``rows`` at or after ``t0`` (s): a slice when they are one run (a time-ordered
+    RUN: read as one), else their indices."""
+    keep = time_all[rows] >= t0 - 1e-9
+    first = int(np.argmax(keep)) if keep.any() else keep.size
+    if keep[first:].all():
+        return slice(rows.start + first, rows.stop)
+    return np.arange(rows.start, rows.stop)[keep]
+
+
+@dataclass
+class _PhaseScan:
+    """One pass over a RUN's phase rows (:func:`_scan_phase_rows`)."""
+    t_last: float                  # the last time at or after t0, s (−inf: none)
+    unknown_names: bool            # some row names an antenna or transmitter the config does not have
+    pair_counts: np.ndarray        # (n_antennas · n_transmitters,) kept rows per config channel pair
+    pair_of_joint: np.ndarray      # config pair code of each (antenna word, transmitter word) code, −1: none
+    joint: object                  # rows → their (antenna word, transmitter word) codes
+
+
+def _scan_phase_rows(ph, blocks, t0: float, cfg) -> _PhaseScan:
+    """The last kept time, whether some row names what the config lacks, and the kept rows per channel
+    pair, from the name columns' codes in one pass (block by block: memory of a block)."""
+    (a_codes, a_words), (t_codes, t_words) = ph.codes("antenna"), ph.codes("transmitter")
+    n_tw = max(len(t_words), 1)
+    lut_a = _word_positions(a_words, cfg.antenna_names)
+    lut_t = _word_positions(t_words, cfg.transmitter_names)
+    used_a, used_t = np.zeros(len(a_words), np.int64), np.zeros(len(t_words), np.int64)
+    joint_counts = np.zeros(max(len(a_words), 1) * n_tw, np.int64)
+    t_last = -np.inf
+    for rows in blocks:
+        t, ca, ct = ph["time_s"][rows], np.asarray(a_codes[rows]), np.asarray(t_codes[rows])
+        used_a += np.bincount(ca, minlength=used_a.size)
+        used_t += np.bincount(ct, minlength=used_t.size)
+        keep = t >= t0 - 1e-9
+        if keep.any():
+            t_last = max(t_last, float(t[keep].max()))
+            joint_counts += np.bincount(ca[keep].astype(np.int64) * n_tw + ct[keep], minlength=joint_counts.size)
+    unknown = bool((lut_a[used_a > 0] < 0).any() or (lut_t[used_t > 0] < 0).any())
+    nT = len(cfg.transmitter_names)
+    pos_a, pos_t = np.full(joint_counts.size // n_tw, -1, np.int64), np.full(n_tw, -1, np.int64)
+    pos_a[:lut_a.size], pos_t[:lut_t.size] = lut_a, lut_t
+    ja, jt = np.divmod(np.arange(joint_counts.size), n_tw)
+    a, t = pos_a[ja], pos_t[jt]
+    pair_of_joint = np.where((a >= 0) & (t >= 0), a * nT + t, -1)
+    ok = pair_of_joint >= 0
+    pair_counts = np.bincount(pair_of_joint[ok], weights=joint_counts[ok],
+                              minlength=len(cfg.antenna_names) * nT).astype(np.int64)
+    return _PhaseScan(t_last, unknown, pair_counts, pair_of_joint,
+                      lambda sel: np.asarray(a_codes[sel]).astype(np.int64) * n_tw + np.asarray(t_codes[sel]))
+
+
+def _word_positions(words, names) -> np.ndarray:
+    """(len(words),) position of each word in ``names``, −1 where it is not there."""
+    where = {w: i for i, w in enumerate(names)}
+    return np.array([where.get(w, -1) for w in words], dtype=np.int64)
 
 
 def _scratch(history, shape: tuple, fill, dtype=np.float64) -> np.ndarray:

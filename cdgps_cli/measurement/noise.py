@@ -161,7 +161,12 @@ def filter_sigma_estimate(resid_m: np.ndarray, hph_m2: np.ndarray, block_rows: i
         e, h = resid_m[a:b], hph_m2[a:b]
         ok = np.isfinite(e) & np.isfinite(h)
         cnt += ok.sum(axis=0)
-        tot = np.add.reduce(np.vstack([tot[None], np.where(ok, e**2 + h, 0.0)]), axis=0)
+        w = e**2
+        w += h
+        w[~ok] = 0.0
+        if w.shape[0]:
+            w[0] += tot                                   # (tot + row 0) + row 1 + …: the running total, in order
+            tot = np.add.reduce(w, axis=0)
         if release is not None:
             release(resid_m, a, b)
             release(hph_m2, a, b)
