@@ -1542,8 +1542,8 @@ def baseline_from_init(master: Station, rover: Station, nav: pd.DataFrame, optio
             if not isinstance(known, str):
                 return known, name
             why.append(known)
-        raise CdgpsError(f"the given solution of {rover.name} cannot be used on these data without solving the "
-                         f"baseline again ({'; '.join(why)}); run 'cdgps init' again")
+        raise CdgpsError(f"INIT.json: the solution of {rover.name} cannot be used on these data without solving "
+                         f"the baseline again ({'; '.join(why)}); run 'cdgps init' again")
 
     return _baseline(master, rover, nav, options, master_xyz, rover_xyz, keep_work, None, decide, integers)
 
