@@ -30,12 +30,15 @@ from cdgps_cli.cli.app import (_warn, _say, _output_option, _named_by_flags, _em
               help="Phase weights: a²+b²/sin²(el) or equal [elevation].")
 @click.option("--no-partial", is_flag=True, help="Do not try partial fixing when the full set fails the ratio test.")
 @click.option("--float-only", is_flag=True, help="Do not fix integers (float solution only).")
+@click.option("--glonass-fix", is_flag=True,
+              help="Fix GLONASS double differences as integers too (identical receivers only: their inter-frequency "
+                   "biases cancel); else GLONASS stays float.")
 @click.option("--no-troposphere", is_flag=True, help="No a priori hydrostatic troposphere.")
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="Result JSON to write.")
 @click.option("--json", "as_json", is_flag=True, help="Also print the result JSON on stdout.")
 @click.pass_context
 def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, min_success_rate, max_age_s, weighting, no_partial,
-                 float_only, no_troposphere, output, as_json):
+                 float_only, glonass_fix, no_troposphere, output, as_json):
     """Static baseline from two receivers' RINEX L1 phase: float, LAMBDA integers, fixed → JSON."""
     import dataclasses
 
@@ -77,6 +80,8 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, min_su
         changes["partial"] = False
     if float_only:
         changes["fix"] = False
+    if glonass_fix:
+        changes["glonass_fix"] = True
     if no_troposphere:
         changes["troposphere"] = False
     flags = {"mask_deg": "--mask-deg", "ratio_threshold": "--ratio", "max_age_s": "--max-age", "weighting": "--weighting",

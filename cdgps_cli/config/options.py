@@ -45,7 +45,10 @@ GNSS_DEFAULTS = {"mask_deg": 15.0, "ratio": RATIO_THRESHOLD, "partial": True, "w
                  "iono_threshold_km": IONO_THRESHOLD_KM,
                  # an integer set (or partial subset) is fixed only if its bootstrapped success rate reaches this,
                  # besides the ratio test (partial ambiguity resolution with a success-rate criterion)
-                 "min_success_rate": 0.999}
+                 "min_success_rate": 0.999,
+                 # GLONASS double differences fixed as integers: only between identical receivers (their
+                 # inter-frequency biases cancel); otherwise GLONASS ambiguities stay float
+                 "glonass_fix": False}
 
 #: `cdgps control design` weights by default: "paper", the 1998 paper's Sec. V numbers
 #: (Q_x* = 5000 diag(1, …, 1, 0.01), Q_x = diag(Q_x*, 0.01 Q_x*), Q_u = I; cdgps_cli.control.lqr.PAPER_*)
@@ -74,7 +77,7 @@ MULTI_GNSS_DEFAULTS = {
     "direction": "combined",               # kinematic: "forward", "backward" or "combined" (both, checked against each other)
     "kinematic_sigma_m_per_sqrt_s": 30.0,  # random-walk rate of the kinematic rover position
     "accel_sigma_m_per_s_per_sqrt_s": 3.0,  # constant-velocity mode: velocity random walk (white acceleration; RTKLIB's stats-prnaccelh)
-    "mask_deg": 15.0, "ratio": RATIO_THRESHOLD, "fix": True, "glonass_fix": False,
+    "mask_deg": 15.0, "ratio": RATIO_THRESHOLD, "fix": True, "glonass_fix": GNSS_DEFAULTS["glonass_fix"],
     "min_success_rate": GNSS_DEFAULTS["min_success_rate"],  # bootstrapped success rate an integer set must reach (partial set otherwise)
     "code_correlation_s": GNSS_DEFAULTS["code_correlation_s"],  # code errors as a Gauss-Markov process of this correlation time, s (0: white)
     # feed fixed integers back as measurements (RTKLIB pos2-armode=fix-and-hold), checked by the wrong-fix test below:

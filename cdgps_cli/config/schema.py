@@ -402,6 +402,8 @@ GNSS_TABLES: dict[str, dict[str, Field]] = {
                                  "bootstrapped success rate an integer set must reach besides the ratio test",
                                  default=GNSS_DEFAULTS["min_success_rate"], expect="a probability in [0, 1)"),
         "partial": _key(_BOOL, "partial fixing when the full set fails the ratio test", default=True),
+        "glonass_fix": _key(_BOOL, "GLONASS double differences fixed as integers (identical receivers only; "
+                            "else float)", default=GNSS_DEFAULTS["glonass_fix"]),
         "fix": _key(_BOOL, "fix integers (false: float solution)", default=True),
         "weighting": _key({"type": "string", "enum": ["elevation", "equal"]},
                           "phase variance a² + b²/sin²(el) or a² + b²", default=GNSS_DEFAULTS["weighting"]),

@@ -827,6 +827,7 @@ class GnssConfig:
     max_age_s: float = GNSS_DEFAULTS["max_age_s"]
     code_correlation_s: float = GNSS_DEFAULTS["code_correlation_s"]
     min_success_rate: float = GNSS_DEFAULTS["min_success_rate"]
+    glonass_fix: bool = GNSS_DEFAULTS["glonass_fix"]
     epoch_alignment: str = GNSS_DEFAULTS["epoch_alignment"]
     displacement: str = "static"
     random_walk_sigma: tuple = GNSS_DEFAULTS["random_walk_sigma"]
@@ -923,6 +924,7 @@ def parse_gnss_config(text: str, path: str = "<config>", base_dir: str | Path | 
         max_gap_s=v["max_gap_s"], sync_tol_s=v["sync_tol_s"], max_age_s=v["max_age_s"],
         code_correlation_s=v["code_correlation_s"], epoch_alignment=v["epoch_alignment"], displacement=model,
         random_walk_sigma=rw, initial_sigma_m=init_sigma, min_success_rate=v["min_success_rate"], signals=signals,
+        glonass_fix=v["glonass_fix"],
         iono_threshold_km=v["iono_threshold_km"],
     )
 

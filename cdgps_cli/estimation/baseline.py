@@ -145,6 +145,9 @@ class BaselineOptions:
     min_success_rate : float
         Besides the ratio test, the integer set (or partial subset) must reach this bootstrapped
         success rate (Teunissen 1998) to be fixed; 0 turns the criterion off.
+    glonass_fix : bool
+        GLONASS double differences fixed as integers (identical receivers only: their inter-frequency
+        biases cancel); the static engine only (the batch keeps GLONASS float and refuses the option).
     """
 
     mask_deg: float = GNSS_DEFAULTS["mask_deg"]
@@ -169,6 +172,7 @@ class BaselineOptions:
     random_walk_sigma: tuple = GNSS_DEFAULTS["random_walk_sigma"]
     initial_sigma_m: float = GNSS_DEFAULTS["initial_sigma_m"]
     min_success_rate: float = GNSS_DEFAULTS["min_success_rate"]
+    glonass_fix: bool = GNSS_DEFAULTS["glonass_fix"]
 
     @classmethod
     def from_gnss_config(cls, cfg, **overrides) -> "BaselineOptions":
@@ -179,7 +183,8 @@ class BaselineOptions:
                   code_ratio=cfg.code_ratio, troposphere=cfg.troposphere, max_gap_s=cfg.max_gap_s,
                   sync_tol_s=cfg.sync_tol_s, max_age_s=cfg.max_age_s, code_correlation_s=cfg.code_correlation_s,
                   epoch_alignment=cfg.epoch_alignment, motion=cfg.displacement, random_walk_sigma=tuple(cfg.random_walk_sigma),
-                  initial_sigma_m=cfg.initial_sigma_m, min_success_rate=cfg.min_success_rate)
+                  initial_sigma_m=cfg.initial_sigma_m, min_success_rate=cfg.min_success_rate,
+                  glonass_fix=cfg.glonass_fix)
         kw.update(overrides)
         return cls(**kw)
 
@@ -221,6 +226,8 @@ class BaselineOptions:
             p.append(f"random_walk_sigma must be three positive numbers (m/√s), got {self.random_walk_sigma!r}")
         if not (isinstance(self.min_success_rate, (int, float)) and 0.0 <= self.min_success_rate < 1.0):
             p.append(f"min_success_rate must be a probability in [0, 1), got {self.min_success_rate!r}")
+        if not isinstance(self.glonass_fix, bool):
+            p.append(f"glonass_fix must be true or false, got {self.glonass_fix!r}")
         if not (math.isfinite(self.initial_sigma_m) and self.initial_sigma_m > 0):
             p.append(f"initial_sigma_m must be > 0, got {self.initial_sigma_m!r}")
         if not (isinstance(self.min_sats_kinematic, int) and self.min_sats_kinematic >= 4):
@@ -721,6 +728,7 @@ class _Fix(NamedTuple):
     accepted: bool
     partial: bool
     success_rate: float | None = None   # bootstrapped success rate of the fixed set (of the full set if none)
+    glonass_fixed: np.ndarray | None = None   # (n_seg,) GLONASS segments whose DD the engine fixed (glonass_fix)
 
 
 class _Final(NamedTuple):
@@ -1222,14 +1230,25 @@ def _fdma_count(seg_rows: list) -> dict:
     return {"n_float_glonass": n} if n else {}
 
 
+_GLONASS_FIXED_REASON = ("GLONASS fixed by the static engine (glonass_fix, identical receivers): its DD integer is "
+                         "N_i − N_r in each satellite's own cycles; this table's datum shows the engine's fixed value "
+                         "as a bias (m)")
+
+
 def _ambiguity_summary(sg: _Segments, fx: _Fix, opt: BaselineOptions, seg_rows: list) -> dict:
+    glonass = {}
+    if fx.glonass_fixed is not None and fx.glonass_fixed.any():
+        for k in np.flatnonzero(fx.glonass_fixed):
+            seg_rows[k] = dict(seg_rows[k], reason=_GLONASS_FIXED_REASON, fixed_by_engine=True)
+        glonass = {"n_glonass_fixed_by_engine": int(fx.glonass_fixed.sum())}
     return {
         "n_segments": int(sg.n_seg),
         "n_pivots": int(sg.pivots.size),
         "n_estimated": int(sg.free.size),
         "n_fixed": int(fx.fixed_mask.sum()),
         "n_half_cycle_excluded": int(np.sum(sg.seg_half[sg.free])),
-        **_fdma_count(seg_rows),
+        **_fdma_count([r for r in seg_rows if not r.get("fixed_by_engine")]),
+        **glonass,
         "ratio": fx.ratio,
         "ratio_full_set": fx.ratio_full,
         "ratio_threshold": opt.ratio_threshold,
@@ -1389,7 +1408,8 @@ def _engine_solution(d: _Data, sg: _Segments, w: _Weights, eng: dict, xr0, r_enu
         fl.block["random_walk_sigma_m_per_sqrt_s"] = list(opt.random_walk_sigma)
     fx = _Fix(a_res, q_res, fixed_mask, ints, _nan_none(res.get("ratio")),
               _nan_none(res.get("ratio_full_set")), bool(res.get("accepted", False)), bool(res.get("partial", False)),
-              _nan_none(res.get("success_rate")))
+              _nan_none(res.get("success_rate")),
+              (np.isfinite(seg_int) & _fdma_segments(d, sg) & ~sg.is_pivot) if opt.glonass_fix else None)
     n_fixed = int(fixed_mask.sum())
     if not n_fixed:
         a_sig = np.zeros(sg.n_seg)
@@ -1640,6 +1660,9 @@ def _baseline(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineO
     r_enu = enu_matrix(*ecef_to_geodetic(xr0)[:2])
     sg, w = _segments(d, opt), _weights(d, opt)
     known, solver = decide((d, sg, w, r_enu), xm, xr0, warnings)
+    if known is None and opt.glonass_fix:
+        raise CdgpsError(f"glonass_fix: GLONASS integers are fixed by the static engine only, which cannot solve "
+                         f"{rover.name} here: {solver}")
     if known is not None:
         fl, fx, fin = known
         t_float = t_lambda = 0.0

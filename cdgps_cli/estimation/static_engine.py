@@ -256,7 +256,8 @@ _HONOURED = {"mask_deg": "mask_deg", "ratio_threshold": "ratio", "partial": "par
              "sigma_a_m": "sigma_a_m", "sigma_b_m": "sigma_b_m", "code_ratio": "code_ratio",
              "troposphere": "troposphere", "sync_tol_s": "sync_tol_s", "max_age_s": "max_age_s",
              "code_correlation_s": "code_correlation_s", "min_success_rate": "min_success_rate",
-             "motion": "motion", "random_walk_sigma": "random_walk_sigma", "initial_sigma_m": "initial_sigma_m"}
+             "motion": "motion", "random_walk_sigma": "random_walk_sigma", "initial_sigma_m": "initial_sigma_m",
+             "glonass_fix": "glonass_fix"}
 #: BaselineOptions fields the engine does not implement: only this value is accepted (the engine's behaviour)
 _FIXED_VALUE = {"weighting": "elevation", "epoch_alignment": "geometry", "max_gap_s": None,
                 "kinematic_series": False}

@@ -145,7 +145,7 @@ def gnss_init(run: GnssRun, *, options: dict | None = None, progress=None) -> di
             "accepted": amb["accepted"], "partial": amb["partial"], "n_segments": amb["n_segments"],
             "n_fixed": amb["n_fixed"], "n_estimated": amb["n_estimated"],
             "n_half_cycle_excluded": amb["n_half_cycle_excluded"],
-            **({"n_float_glonass": amb["n_float_glonass"]} if "n_float_glonass" in amb else {}),
+            **{k: amb[k] for k in ("n_float_glonass", "n_glonass_fixed_by_engine") if k in amb},
             "residuals": res["residuals"], "kinematic": res["kinematic"], "epochs": res["epochs"],
             "satellites": res["satellites"], "warnings": res["warnings"], "options": res["options"],
             "solver": res["solver"],
