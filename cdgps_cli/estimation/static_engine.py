@@ -3,8 +3,8 @@
 :func:`~cdgps_cli.estimation.driver.drive`.
 
 State: rover offset from ``origin`` (3, m) and one SD ambiguity per lock arc (cycles; an arc is a
-satellite's signal between slips), all sized up front.  With no process noise the filter's final
-state is the batch least-squares solution with the same prior (the information adds up epoch by
+satellite's signal between slips and outages, :func:`arc_columns`), all sized up front.  With no process
+noise the filter's final state is the batch least-squares solution with the same prior (the information adds up epoch by
 epoch); :func:`static_normal_equations` forms that batch answer directly, as an independent check.
 Options: :func:`options_from_baseline` maps BaselineOptions (refusing by name what the engine does
 not implement).  ``baseline`` and GNSS ``init`` solve here through
@@ -18,23 +18,36 @@ from cdgps_cli.estimation.driver import EpochGrid, GridDynamics, drive
 from cdgps_cli.config.options import GNSS_DEFAULTS, MULTI_GNSS_DEFAULTS
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.dd_signals import DDGroupModel, epoch_groups, paired_sd_rows
+from cdgps_cli.measurement.differencing import ambiguity_segments
 from cdgps_cli.measurement.epoch_pairing import pair_epochs
 from cdgps_cli.model.dynamics_models import Static
 
 
-def arc_columns(rows, n_pos: int = 3) -> np.ndarray:
-    """State column (N,) of each SD row's ambiguity: one per (satellite, signal, arc between slips),
-    numbered from ``n_pos`` in order of first appearance."""
+def arc_columns(rows, times_s=None, *, max_gap_s: float | None = None, n_pos: int = 3) -> np.ndarray:
+    """State column (N,) of each SD row's ambiguity, numbered from ``n_pos`` in order of first appearance.
+
+    One column per (satellite, signal) lock arc, cut by the batch solver's rule
+    (:func:`~cdgps_cli.measurement.differencing.ambiguity_segments`, the one home of that rule and its
+    default): a new arc at a slip flag and, with ``times_s`` (n_ep,) the epochs' times (s), after a gap in
+    the channel's rows of more than ``max_gap_s`` (None: 1.5 × the median epoch spacing), so a satellite
+    that sets and rises again, or a tracking outage, starts a new ambiguity.  Without ``times_s``: slips only.
+    """
     n = rows["sats"].size
+    if n == 0:
+        return np.empty(0, dtype=np.int64)
     key = np.char.add(rows["sats"].astype(str), rows["code"].astype(str))
-    col, arcs, out = {}, 0, np.empty(n, dtype=np.int64)
-    for i in range(n):
-        k = key[i]
-        if k not in col or rows["slip"][i]:
-            col[k] = n_pos + arcs
-            arcs += 1
-        out[i] = col[k]
-    return out
+    channel = np.unique(key, return_inverse=True)[1].ravel()
+    if times_s is None:                    # rows in time order; no gap limit
+        step = np.arange(n)
+        seg, tab = ambiguity_segments(step, channel, rows["slip"], epoch_time_s=step.astype(float), max_gap_s=np.inf)
+    else:
+        epoch = np.searchsorted(rows["ptr"], np.arange(n), side="right") - 1
+        seg, tab = ambiguity_segments(epoch, channel, rows["slip"], epoch_time_s=times_s, max_gap_s=max_gap_s)
+    first = np.full(tab["sat"].size, n, dtype=np.int64)
+    np.minimum.at(first, seg, np.arange(n))
+    rank = np.empty(first.size, dtype=np.int64)
+    rank[np.argsort(first, kind="stable")] = np.arange(first.size)
+    return n_pos + rank[seg]
 
 
 def _groups(rows, cols, k):
@@ -59,8 +72,9 @@ def static_prior(rows, cols, n_state: int, sigma_pos_m: float, sigma_amb_cycles:
 
 
 def static_filter(rows, times_s, base_xyz_m, origin_xyz_m, *, sigma_pos_m: float = 100.0,
-                  sigma_amb_cycles: float = 1e3, max_iterations: int = 2):
-    """Static float solution over every epoch through :func:`drive`.
+                  sigma_amb_cycles: float = 1e3, max_iterations: int = 2, cols=None):
+    """Static float solution over every epoch through :func:`drive`; ``cols`` (N,) the rows' ambiguity
+    columns (default: :func:`arc_columns` of ``rows`` and ``times_s`` with the default gap limit).
 
     Returns
     -------
@@ -68,7 +82,7 @@ def static_filter(rows, times_s, base_xyz_m, origin_xyz_m, *, sigma_pos_m: float
     P : ndarray (n, n)
     cols : ndarray (N,)   ambiguity column of each SD row
     """
-    cols = arc_columns(rows)
+    cols = arc_columns(rows, times_s) if cols is None else cols
     n = 3 + (int(cols.max()) - 2 if cols.size else 0)
     x0, P0 = static_prior(rows, cols, n, sigma_pos_m, sigma_amb_cycles)
     model = DDGroupModel(lambda k: _groups(rows, cols, k), base_xyz_m, origin_xyz_m)
@@ -82,10 +96,11 @@ class _Ctx:
         self.x = x
 
 
-def static_normal_equations(rows, n_epochs: int, base_xyz_m, origin_xyz_m, x_lin, x0, P0):
+def static_normal_equations(rows, n_epochs: int, base_xyz_m, origin_xyz_m, x_lin, x0, P0, cols=None):
     """The batch answer: N = P0⁻¹ + Σ_k (B H)ᵀ(B H), x = x_lin + N⁻¹ (P0⁻¹ (x0 − x_lin) + Σ_k (B H)ᵀ B (z − h)),
-    every epoch linearized at ``x_lin`` (one Gauss–Newton step)."""
-    cols = arc_columns(rows)
+    every epoch linearized at ``x_lin`` (one Gauss–Newton step); ``cols`` as :func:`static_filter`'s
+    (default: slips only)."""
+    cols = arc_columns(rows) if cols is None else cols
     info = np.linalg.inv(P0)
     Nm, rhs = info.copy(), info @ (x0 - x_lin)
     model = DDGroupModel(lambda k: _groups(rows, cols, k), base_xyz_m, origin_xyz_m)
@@ -166,7 +181,8 @@ _NOT_YET = {"glonass_fix": "GLONASS ambiguities stay float on the static engine"
 def _static_options(options: dict | None) -> dict:
     """Defaults merged with ``options``; CdgpsError naming an unknown key or one the engine does not honour."""
     opt = {"partial": GNSS_DEFAULTS["partial"], **MULTI_GNSS_DEFAULTS,
-           "fix_and_hold": False}           # rtk's default holds; a static batch has nothing to hold
+           "fix_and_hold": False,           # rtk's default holds; a static batch has nothing to hold
+           "max_gap_s": None}               # arcs: ambiguity_segments' gap limit (None: its default)
     unknown = sorted(set(options or {}) - set(opt))
     if unknown:
         raise CdgpsError(f"static baseline: unknown option(s) {', '.join(unknown)}; known: {', '.join(sorted(opt))}")
@@ -181,9 +197,10 @@ def _static_options(options: dict | None) -> dict:
 _HONOURED = {"mask_deg": "mask_deg", "ratio_threshold": "ratio", "partial": "partial", "fix": "fix",
              "sigma_a_m": "sigma_a_m", "sigma_b_m": "sigma_b_m", "code_ratio": "code_ratio",
              "troposphere": "troposphere", "sync_tol_s": "sync_tol_s", "max_age_s": "max_age_s",
-             "code_correlation_s": "code_correlation_s", "min_success_rate": "min_success_rate"}
+             "code_correlation_s": "code_correlation_s", "min_success_rate": "min_success_rate",
+             "max_gap_s": "max_gap_s"}
 #: BaselineOptions fields the engine does not implement: only this value is accepted (the engine's behaviour)
-_FIXED_VALUE = {"weighting": "elevation", "epoch_alignment": "geometry", "motion": "static", "max_gap_s": None,
+_FIXED_VALUE = {"weighting": "elevation", "epoch_alignment": "geometry", "motion": "static",
                 "kinematic_series": False}
 
 
@@ -251,11 +268,12 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
         from cdgps_cli.estimation.baseline import check_iono_rule
         check_iono_rule("base", "rover", float(np.linalg.norm(np.subtract(rover_xyz0_m, base_xyz_m))),
                         opt["iono_threshold_km"])
+    cols = arc_columns(rows, times, max_gap_s=opt["max_gap_s"])
     if arcs_check is not None:
-        why = arcs_check(arc_table(rows, arc_columns(rows), times))
+        why = arcs_check(arc_table(rows, cols, times))
         if isinstance(why, str):
             return why
-    x, P, cols = static_filter(rows, times, base_xyz_m, rover_xyz0_m)
+    x, P, cols = static_filter(rows, times, base_xyz_m, rover_xyz0_m, cols=cols)
     if not opt["fix"]:
         f = {"offset_m": x[:3].copy(), "cov_m2": P[:3, :3].copy(), "resolution": None, "pairs": [], "dd_float": None,
              "state_fixed": x, "cov_fixed": P}

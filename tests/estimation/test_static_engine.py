@@ -56,6 +56,25 @@ def test_arcs_split_at_slips():
     assert arc_columns(rows).tolist() == [3, 4, 3, 5, 3]
 
 
+def test_arcs_split_after_an_outage_by_the_segments_rule():
+    """A (satellite, signal) absent longer than the gap limit (default 1.5 × the median epoch spacing, the batch's
+    ambiguity_segments rule) starts a new arc; a slip does too; without times only slips cut; an explicit
+    max_gap_s longer than the outage bridges it."""
+    # epochs 0..5 at 1 s, epoch 3 missing from G02's rows (sets and rises): G01 every epoch
+    sats = ["G01", "G02", "G01", "G02", "G01", "G01", "G02", "G01", "G01", "G02"]   # epoch 4: any satellite order
+    ep = [0, 0, 1, 1, 2, 3, 4, 4, 5, 5]
+    n_ep = 6
+    rows = {"sats": np.array(sats), "code": np.zeros(len(sats), dtype=int), "slip": np.zeros(len(sats), dtype=bool),
+            "ptr": np.searchsorted(ep, np.arange(n_ep + 1))}
+    times = 100.0 + np.arange(n_ep)
+    # G02 rows: epochs 0, 1, 4, 5 -> gap of 3 s > 1.5 s: a new arc at epoch 4
+    assert arc_columns(rows, times).tolist() == [3, 4, 3, 4, 3, 3, 5, 3, 3, 5]
+    assert arc_columns(rows).tolist() == [3, 4, 3, 4, 3, 3, 4, 3, 3, 4]          # slips only
+    assert arc_columns(rows, times, max_gap_s=3.5).tolist() == arc_columns(rows).tolist()
+    rows["slip"][4] = True                                           # a slip on G01 at epoch 2
+    assert arc_columns(rows, times).tolist() == [3, 4, 3, 4, 5, 5, 6, 5, 5, 6]
+
+
 def test_half_cycle_and_fdma_arcs_are_kept_float():
     from cdgps_cli.estimation.static_engine import dd_of_arcs
     rows = {"sats": np.array(["G01", "G02", "G03", "G01", "G02", "G03", "R01", "R02"]),
@@ -73,7 +92,7 @@ def test_static_filter_equals_normal_equations(run):
     x, P, cols = static_filter(rows, times, base_xyz, origin, max_iterations=2)
     n = x.size
     x0, P0 = static_prior(rows, cols, n, 100.0, 1e3)
-    xb, Pb = static_normal_equations(rows, times.size, base_xyz, origin, x, x0, P0)  # linearized at the answer
+    xb, Pb = static_normal_equations(rows, times.size, base_xyz, origin, x, x0, P0, cols=cols)  # linearized at the answer
     assert np.max(np.abs(xb[:3] - x[:3])) < 1e-7
     np.testing.assert_allclose(np.sqrt(np.diag(Pb)[:3]), np.sqrt(np.diag(P)[:3]), rtol=1e-6)
     # and the answer is the rover: the float static position within a few cm of the truth
@@ -188,8 +207,9 @@ def test_baseline_options_mapped_or_refused_by_name():
     o = options_from_baseline(BaselineOptions(kinematic_series=False, ratio_threshold=2.0, mask_deg=10.0))
     assert o["ratio"] == 2.0 and o["mask_deg"] == 10.0
     _static_options(o)                                            # every mapped key is an engine option
+    assert options_from_baseline(BaselineOptions(kinematic_series=False, max_gap_s=60.0))["max_gap_s"] == 60.0
     for bad in ({"weighting": "equal"}, {"epoch_alignment": "doppler"}, {"motion": "random_walk"},
-                {"max_gap_s": 60.0}, {"kinematic_series": True}, {"max_iterations": 3}, {"initial_sigma_m": 5.0}):
+                {"kinematic_series": True}, {"max_iterations": 3}, {"initial_sigma_m": 5.0}):
         with pytest.raises(CdgpsError, match=next(iter(bad))):
             options_from_baseline(BaselineOptions(**{"kinematic_series": False, **bad}))
 
@@ -257,3 +277,24 @@ def test_arcs_that_are_not_the_segments_skip_the_solve(monkeypatch):
                                             arcs_check=lambda arcs: np.arange(arcs["sat"].size))
     np.testing.assert_array_equal(plain["state"], checked["state"])
     assert static_engine.static_baseline(g[0], g[1], master_xyz, rover_xyz, arcs_check=lambda arcs: "no") == "no"
+
+
+def test_a_satellite_that_sets_and_rises_is_served_by_the_engine():
+    """G13 absent from the mosaic rover for 60 s mid-record (sets and rises): the batch starts a new segment,
+    and so does the engine (before: 9 arcs against 10 segments, the batch served); the engine now serves, with
+    the batch's segments and integers, its fixed position within 0.1 mm of the batch's."""
+    from cdgps_cli.estimation.baseline import solve_static_baseline
+    (b, r), nav = _mosaic_stations()
+    o = r.obs
+    t = o["time_gps_s"].to_numpy()
+    t0 = np.unique(t)[150]
+    out = (o["sat"].astype(str) == "G13").to_numpy() & (t >= t0) & (t < t0 + 60)
+    r = r._replace(obs=o[~out].reset_index(drop=True))
+    batch = solve_static_baseline(b, r, nav)
+    eng = solve_static_baseline(b, r, nav, engine=True)
+    assert eng["solver"] == "static_engine" and eng["ambiguities"]["n_segments"] == batch["ambiguities"]["n_segments"]
+    seg = [(s["sat"], s["first_gps_s"]) for s in batch["ambiguities"]["segments"]]
+    assert sum(s == "G13" for s, _ in seg) == 2
+    assert [(s["sat"], s["first_gps_s"], s["integer"]) for s in eng["ambiguities"]["segments"]] == \
+        [(s["sat"], s["first_gps_s"], s["integer"]) for s in batch["ambiguities"]["segments"]]
+    assert np.max(np.abs(np.subtract(eng["fixed"]["enu_m"], batch["fixed"]["enu_m"]))) < 1e-4
