@@ -14,7 +14,7 @@ not implement).  ``baseline`` and GNSS ``init`` solve here through
 
 import numpy as np
 
-from cdgps_cli.estimation.driver import EpochGrid, GridDynamics, drive
+from cdgps_cli.estimation.driver import EpochGrid, GridDynamics, RecordingSink, drive
 from cdgps_cli.config.options import GNSS_DEFAULTS, MULTI_GNSS_DEFAULTS
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.dd_signals import DDGroupModel, epoch_groups, paired_sd_rows
@@ -86,8 +86,10 @@ def static_filter(rows, times_s, base_xyz_m, origin_xyz_m, *, sigma_pos_m: float
     n = 3 + (int(cols.max()) - 2 if cols.size else 0)
     x0, P0 = static_prior(rows, cols, n, sigma_pos_m, sigma_amb_cycles)
     model = DDGroupModel(lambda k: _groups(rows, cols, k), base_xyz_m, origin_xyz_m)
+    # only the last state is kept (a whole record's x, P per epoch: 86400 × 90² × 8 B = 5.6 GB for a 24 h pair)
+    sink = RecordingSink(len(times_s), n, history=False, keep_rows=False)
     ctx = drive(GridDynamics(Static(n), times_s), [model], EpochGrid(np.asarray(times_s, float)), (x0, P0),
-                max_iterations=max_iterations)
+                sink=sink, max_iterations=max_iterations)
     return ctx.step.x, ctx.step.P, cols
 
 
@@ -261,7 +263,7 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
     pairs = pair_epochs(rover["time_gps_s"].to_numpy(), base["time_gps_s"].to_numpy(),
                         sync_tol_s=opt["sync_tol_s"], max_age_s=opt["max_age_s"])
     times = pairs.rover_time_s
-    rows = paired_sd_rows(base, rover, pairs, opt)
+    rows = paired_sd_rows(base, rover, pairs, opt, mask_rover=True)     # the mask at both receivers, as the batch's
     if rows["sats"].size == 0:
         raise CdgpsError("no common observations: no satellite observed at both receivers above the mask")
     if np.unique(rows["code"]).size > 1:           # multi-signal: the DD ionosphere is neglected (as init's)
@@ -273,7 +275,9 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
         why = arcs_check(arc_table(rows, cols, times))
         if isinstance(why, str):
             return why
-    x, P, cols = static_filter(rows, times, base_xyz_m, rover_xyz0_m, cols=cols)
+    # the arcs' prior σ: rtk's (amb_sigma_cycles); 1e3 cycles left P of a 24 h pair (σ down to 1e-4 m) too
+    # ill-conditioned to factor (LinAlgError after 68323 epochs)
+    x, P, cols = static_filter(rows, times, base_xyz_m, rover_xyz0_m, cols=cols, sigma_amb_cycles=opt["amb_sigma_cycles"])
     if not opt["fix"]:
         f = {"offset_m": x[:3].copy(), "cov_m2": P[:3, :3].copy(), "resolution": None, "pairs": [], "dd_float": None,
              "state_fixed": x, "cov_fixed": P}

@@ -298,3 +298,27 @@ def test_a_satellite_that_sets_and_rises_is_served_by_the_engine():
     assert [(s["sat"], s["first_gps_s"], s["integer"]) for s in eng["ambiguities"]["segments"]] == \
         [(s["sat"], s["first_gps_s"], s["integer"]) for s in batch["ambiguities"]["segments"]]
     assert np.max(np.abs(np.subtract(eng["fixed"]["enu_m"], batch["fixed"]["enu_m"]))) < 1e-4
+
+
+def test_engine_masks_at_both_receivers_and_matches_offset_tags():
+    """The engine's rows are masked at both receivers, as the batch's (``paired_sd_rows(mask_rover=True)``; rtk's
+    default masks at the base only and is unchanged), so a rising satellite's first rows agree with the
+    batch's; its arcs are matched to the batch's epochs by nearest epoch, not exact tag (a receiver clock
+    offsets the rover's tags by ms: the 24 h simulated pair's by up to 5 ms)."""
+    from cdgps_cli.estimation.baseline import _engine_epochs
+    from cdgps_cli.measurement.dd_signals import paired_sd_rows
+    from cdgps_cli.measurement.epoch_pairing import pair_epochs
+    from cdgps_cli.estimation.static_engine import _static_options
+    g, _, _ = _geometries("mosaic_gps_l1")
+    base, rover = g
+    rover = rover.copy()
+    low = np.flatnonzero((rover["sat"].astype(str) == "G13").to_numpy())[:10]
+    rover.loc[rover.index[low], "el_rad"] = 0.0                       # below the mask at the rover only
+    opt = _static_options(None)
+    pairs = pair_epochs(rover["time_gps_s"].to_numpy(), base["time_gps_s"].to_numpy(), sync_tol_s=opt["sync_tol_s"],
+                        max_age_s=opt["max_age_s"])
+    n_base = paired_sd_rows(base, rover, pairs, opt)["sats"].size
+    both = paired_sd_rows(base, rover, pairs, opt, mask_rover=True)
+    assert n_base - both["sats"].size == 10 and both["ptr"][-1] == both["sats"].size
+    np.testing.assert_array_equal(_engine_epochs([10.0, 11.0, 12.0], [10.004, 11.499, 11.5001, 12.6, 9.0]),
+                                  [0, 1, 2, -1, -1])
