@@ -198,7 +198,11 @@ def test_estimate_does_not_solve_the_baseline_again(static_sim):
     moved["rovers"]["rover"]["fixed"]["enu_m"][0] += 1e-4
     res2, w2, _, _ = solve_with_init_integers(run, moved, "rover", _stations(run))
     assert "given" not in res2["fixed"] and any("solved again from the integers" in m for m in res2["warnings"])
-    np.testing.assert_allclose(w2["x_final"], w["x_final"], atol=1e-9)
+    # solved again by the batch from the same integers: INIT's position bit for bit when the batch made INIT,
+    # within 0.02 mm when the engine did (this record's arcs split after outages as the batch's segments do, so
+    # the engine serves; measured 5.1 µm)
+    engine = init["rovers"]["rover"]["solver"] == "static_engine"
+    np.testing.assert_allclose(w2["x_final"], w["x_final"], atol=2e-5 if engine else 1e-9)
 
 
 def test_estimate_uses_the_integers_of_init(static_sim, tmp_path):
