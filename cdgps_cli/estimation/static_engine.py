@@ -277,7 +277,8 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
             return why
     # the arcs' prior σ: rtk's (amb_sigma_cycles); 1e3 cycles left P of a 24 h pair (σ down to 1e-4 m) too
     # ill-conditioned to factor (LinAlgError after 68323 epochs)
-    x, P, cols = static_filter(rows, times, base_xyz_m, rover_xyz0_m, cols=cols, sigma_amb_cycles=opt["amb_sigma_cycles"])
+    x, P, cols = static_filter(rows, times, base_xyz_m, rover_xyz0_m, cols=cols,
+                               sigma_amb_cycles=opt["amb_sigma_cycles"])
     if not opt["fix"]:
         f = {"offset_m": x[:3].copy(), "cov_m2": P[:3, :3].copy(), "resolution": None, "pairs": [], "dd_float": None,
              "state_fixed": x, "cov_fixed": P}
