@@ -1338,22 +1338,35 @@ def check_iono_rule(master: str, rover: str, length_m: float, threshold_km: floa
 # ----------------------------------------------------------------------------------------------
 
 
+def _engine_epochs(t_label, time_s) -> np.ndarray:
+    """Index (n,) of this solver's epoch nearest each of the engine's epoch times ``time_s`` (rover time
+    tags, s), −1 where none is within half the epoch spacing (the rover's clock may offset its tags by ms)."""
+    t = np.asarray(t_label, dtype=np.float64)
+    x = np.asarray(time_s, dtype=np.float64)
+    if t.size == 0:
+        return np.full(x.size, -1, dtype=np.int64)
+    half = 0.5 * float(np.median(np.diff(t))) if t.size > 1 else np.inf
+    i = np.searchsorted(0.5 * (t[1:] + t[:-1]), x)
+    return np.where(np.abs(t[i] - x) < half, i, -1).astype(np.int64)
+
+
 def _engine_columns(d: _Data, sg: _Segments, arcs: dict):
-    """The engine's state column of every SD segment (n_seg,) matched on (satellite, signal, first epoch
-    within 1 ms), or a string saying why the two sets of arcs differ."""
+    """The engine's state column of every SD segment (n_seg,) matched on (satellite, signal, first epoch:
+    the one of this solver's epochs nearest the arc's first time tag), or a string saying why the two
+    sets of arcs differ."""
     sig = _satellite_signals(d)
-    key = {(s, g, round(float(t), 3)): 3 + i
-           for i, (s, g, t) in enumerate(zip(arcs["sat"], arcs["signal"], arcs["first_s"]))}
-    if len(key) != sg.n_seg:
+    epoch = _engine_epochs(d.t_label, arcs["first_s"])
+    key = {(s, g, int(e)): 3 + i for i, (s, g, e) in enumerate(zip(arcs["sat"], arcs["signal"], epoch))}
+    if len(key) != sg.n_seg or (epoch < 0).any():
         return f"the engine has {len(key)} ambiguity arcs, this solver {sg.n_seg} segments"
     out = np.empty(sg.n_seg, dtype=np.int64)
     for k in range(sg.n_seg):
         s = int(sg.segtab["sat"][k])
         name = d.sat_names[s].split(":")[0]
-        t = round(float(d.t_label[sg.segtab["first_epoch"][k]]), 3)
-        c = key.get((name, sig[s]["signal"] if sig else "G:L1", t))
+        e = int(sg.segtab["first_epoch"][k])
+        c = key.get((name, sig[s]["signal"] if sig else "G:L1", e))
         if c is None:
-            return f"segment {d.sat_names[s]} from {gps_time_str(t)} is no arc of the engine"
+            return f"segment {d.sat_names[s]} from {gps_time_str(float(d.t_label[e]))} is no arc of the engine"
         out[k] = c
     return out
 

@@ -3,8 +3,8 @@
 :func:`~cdgps_cli.estimation.driver.drive`.
 
 State: rover offset from ``origin`` (3, m) and one SD ambiguity per lock arc (cycles; an arc is a
-satellite's signal between slips), all sized up front.  With no process noise the filter's final
-state is the batch least-squares solution with the same prior (the information adds up epoch by
+satellite's signal between slips and outages, :func:`arc_columns`), all sized up front.  With no process
+noise the filter's final state is the batch least-squares solution with the same prior (the information adds up epoch by
 epoch); :func:`static_normal_equations` forms that batch answer directly, as an independent check.
 Options: :func:`options_from_baseline` maps BaselineOptions (refusing by name what the engine does
 not implement).  ``baseline`` and GNSS ``init`` solve here through
@@ -19,24 +19,37 @@ from cdgps_cli.estimation.driver import EpochGrid, GridDynamics, RecordingSink, 
 from cdgps_cli.config.options import GNSS_DEFAULTS, MULTI_GNSS_DEFAULTS
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.dd_signals import DDGroupModel, epoch_groups, paired_sd_rows
+from cdgps_cli.measurement.differencing import ambiguity_segments
 from cdgps_cli.measurement.epoch_pairing import pair_epochs
 from cdgps_cli.model.dynamics_models import Dynamics, Static, WithConstants
 from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
 
 
-def arc_columns(rows, n_pos: int = 3) -> np.ndarray:
-    """State column (N,) of each SD row's ambiguity: one per (satellite, signal, arc between slips),
-    numbered from ``n_pos`` in order of first appearance."""
+def arc_columns(rows, times_s=None, *, max_gap_s: float | None = None, n_pos: int = 3) -> np.ndarray:
+    """State column (N,) of each SD row's ambiguity, numbered from ``n_pos`` in order of first appearance.
+
+    One column per (satellite, signal) lock arc, cut by the batch solver's rule
+    (:func:`~cdgps_cli.measurement.differencing.ambiguity_segments`, the one home of that rule and its
+    default): a new arc at a slip flag and, with ``times_s`` (n_ep,) the epochs' times (s), after a gap in
+    the channel's rows of more than ``max_gap_s`` (None: 1.5 × the median epoch spacing), so a satellite
+    that sets and rises again, or a tracking outage, starts a new ambiguity.  Without ``times_s``: slips only.
+    """
     n = rows["sats"].size
+    if n == 0:
+        return np.empty(0, dtype=np.int64)
     key = np.char.add(rows["sats"].astype(str), rows["code"].astype(str))
-    col, arcs, out = {}, 0, np.empty(n, dtype=np.int64)
-    for i in range(n):
-        k = key[i]
-        if k not in col or rows["slip"][i]:
-            col[k] = n_pos + arcs
-            arcs += 1
-        out[i] = col[k]
-    return out
+    channel = np.unique(key, return_inverse=True)[1].ravel()
+    if times_s is None:                    # rows in time order; no gap limit
+        step = np.arange(n)
+        seg, tab = ambiguity_segments(step, channel, rows["slip"], epoch_time_s=step.astype(float), max_gap_s=np.inf)
+    else:
+        epoch = np.searchsorted(rows["ptr"], np.arange(n), side="right") - 1
+        seg, tab = ambiguity_segments(epoch, channel, rows["slip"], epoch_time_s=times_s, max_gap_s=max_gap_s)
+    first = np.full(tab["sat"].size, n, dtype=np.int64)
+    np.minimum.at(first, seg, np.arange(n))
+    rank = np.empty(first.size, dtype=np.int64)
+    rank[np.argsort(first, kind="stable")] = np.arange(first.size)
+    return n_pos + rank[seg]
 
 
 def _groups(rows, cols, k):
@@ -61,8 +74,9 @@ def static_prior(rows, cols, n_state: int, sigma_pos_m: float, sigma_amb_cycles:
 
 
 def static_filter(rows, times_s, base_xyz_m, origin_xyz_m, *, sigma_pos_m: float = 100.0,
-                  sigma_amb_cycles: float = 1e3, max_iterations: int = 2):
-    """Static float solution over every epoch through :func:`drive`.
+                  sigma_amb_cycles: float = 1e3, max_iterations: int = 2, cols=None):
+    """Static float solution over every epoch through :func:`drive`; ``cols`` (N,) the rows' ambiguity
+    columns (default: :func:`arc_columns` of ``rows`` and ``times_s`` with the default gap limit).
 
     Returns
     -------
@@ -70,13 +84,15 @@ def static_filter(rows, times_s, base_xyz_m, origin_xyz_m, *, sigma_pos_m: float
     P : ndarray (n, n)
     cols : ndarray (N,)   ambiguity column of each SD row
     """
-    cols = arc_columns(rows)
+    cols = arc_columns(rows, times_s) if cols is None else cols
     n = 3 + (int(cols.max()) - 2 if cols.size else 0)
     x0, P0 = static_prior(rows, cols, n, sigma_pos_m, sigma_amb_cycles)
     model = DDGroupModel(lambda k: _groups(rows, cols, k), base_xyz_m, origin_xyz_m)
+    # only the last state is kept (a whole record's x, P per epoch: 86400 × 90² × 8 B = 5.6 GB for a 24 h pair)
+    sink = RecordingSink(len(times_s), n, history=False, keep_rows=False)
     with progress.bar(len(times_s), "static baseline (filter)", unit="epoch") as bar:
         ctx = drive(GridDynamics(Static(n), times_s), [model], EpochGrid(np.asarray(times_s, float)), (x0, P0),
-                    sink=RecordingSink(len(times_s), n, history=False), max_iterations=max_iterations, progress=bar)
+                    sink=sink, max_iterations=max_iterations, progress=bar)
     return ctx.step.x, ctx.step.P, cols
 
 
@@ -130,10 +146,11 @@ class _Ctx:
         self.x = x
 
 
-def static_normal_equations(rows, n_epochs: int, base_xyz_m, origin_xyz_m, x_lin, x0, P0):
+def static_normal_equations(rows, n_epochs: int, base_xyz_m, origin_xyz_m, x_lin, x0, P0, cols=None):
     """The batch answer: N = P0⁻¹ + Σ_k (B H)ᵀ(B H), x = x_lin + N⁻¹ (P0⁻¹ (x0 − x_lin) + Σ_k (B H)ᵀ B (z − h)),
-    every epoch linearized at ``x_lin`` (one Gauss–Newton step)."""
-    cols = arc_columns(rows)
+    every epoch linearized at ``x_lin`` (one Gauss–Newton step); ``cols`` as :func:`static_filter`'s
+    (default: slips only)."""
+    cols = arc_columns(rows) if cols is None else cols
     info = np.linalg.inv(P0)
     Nm, rhs = info.copy(), info @ (x0 - x_lin)
     model = DDGroupModel(lambda k: _groups(rows, cols, k), base_xyz_m, origin_xyz_m)
@@ -238,7 +255,8 @@ def _static_options(options: dict | None) -> dict:
     opt = {"partial": GNSS_DEFAULTS["partial"], **MULTI_GNSS_DEFAULTS,
            "fix_and_hold": False,           # rtk's default holds; a static batch has nothing to hold
            "motion": "static", "random_walk_sigma": GNSS_DEFAULTS["random_walk_sigma"],
-           "initial_sigma_m": GNSS_DEFAULTS["initial_sigma_m"]}
+           "initial_sigma_m": GNSS_DEFAULTS["initial_sigma_m"],
+           "max_gap_s": None}               # arcs: ambiguity_segments' gap limit (None: its default)
     unknown = sorted(set(options or {}) - set(opt))
     if unknown:
         raise CdgpsError(f"static baseline: unknown option(s) {', '.join(unknown)}; known: {', '.join(sorted(opt))}")
@@ -257,9 +275,9 @@ _HONOURED = {"mask_deg": "mask_deg", "ratio_threshold": "ratio", "partial": "par
              "troposphere": "troposphere", "sync_tol_s": "sync_tol_s", "max_age_s": "max_age_s",
              "code_correlation_s": "code_correlation_s", "min_success_rate": "min_success_rate",
              "motion": "motion", "random_walk_sigma": "random_walk_sigma", "initial_sigma_m": "initial_sigma_m",
-             "glonass_fix": "glonass_fix"}
+             "glonass_fix": "glonass_fix", "max_gap_s": "max_gap_s"}
 #: BaselineOptions fields the engine does not implement: only this value is accepted (the engine's behaviour)
-_FIXED_VALUE = {"weighting": "elevation", "epoch_alignment": "geometry", "max_gap_s": None,
+_FIXED_VALUE = {"weighting": "elevation", "epoch_alignment": "geometry",
                 "kinematic_series": False}
 
 
@@ -321,25 +339,28 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
     pairs = pair_epochs(rover["time_gps_s"].to_numpy(), base["time_gps_s"].to_numpy(),
                         sync_tol_s=opt["sync_tol_s"], max_age_s=opt["max_age_s"])
     times = pairs.rover_time_s
-    rows = paired_sd_rows(base, rover, pairs, opt)
+    rows = paired_sd_rows(base, rover, pairs, opt, mask_rover=True)     # the mask at both receivers, as the batch's
     if rows["sats"].size == 0:
         raise CdgpsError("no common observations: no satellite observed at both receivers above the mask")
     if np.unique(rows["code"]).size > 1:           # multi-signal: the DD ionosphere is neglected (as init's)
         from cdgps_cli.estimation.baseline import check_iono_rule
         check_iono_rule("base", "rover", float(np.linalg.norm(np.subtract(rover_xyz0_m, base_xyz_m))),
                         opt["iono_threshold_km"])
+    cols = arc_columns(rows, times, max_gap_s=opt["max_gap_s"])
     if arcs_check is not None:
-        why = arcs_check(arc_table(rows, arc_columns(rows), times))
+        why = arcs_check(arc_table(rows, cols, times))
         if isinstance(why, str):
             return why
-    # GLONASS DDs fixed: (λ_i − λ_r)·N_r enters each FDMA DD, so the SD arcs' common mode must be known to a few
-    # cycles — rtk's prior (amb_sigma_cycles about (phase − code)/λ) does it, the weak 1e3-cycle one does not
-    sigma_amb = {"sigma_amb_cycles": opt["amb_sigma_cycles"]} if opt["glonass_fix"] else {}
-    x, P, cols = static_filter(rows, times, base_xyz_m, rover_xyz0_m, **sigma_amb)
+    # the arcs' prior σ: rtk's (amb_sigma_cycles) — 1e3 cycles left P of a 24 h pair (σ down to 1e-4 m) too
+    # ill-conditioned to factor (LinAlgError after 68323 epochs); with GLONASS DDs fixed, (λ_i − λ_r)·N_r enters
+    # each FDMA DD, so the SD arcs' common mode must be known to a few cycles, which this prior also gives
+    sigma_amb = {"sigma_amb_cycles": opt["amb_sigma_cycles"]}
+    x, P, cols = static_filter(rows, times, base_xyz_m, rover_xyz0_m, cols=cols, **sigma_amb)
     rw = None
     if opt["motion"] == "random_walk" and x.size > 3:
         rw = random_walk_float(rows, cols, times, base_xyz_m, rover_xyz0_m, x, sigma_rw=opt["random_walk_sigma"],
-                               initial_sigma_m=opt["initial_sigma_m"], **sigma_amb)
+                               initial_sigma_m=opt["initial_sigma_m"],
+                               **(sigma_amb if opt["glonass_fix"] else {}))
     if not opt["fix"]:
         f = {"offset_m": x[:3].copy(), "cov_m2": P[:3, :3].copy(), "resolution": None, "pairs": [], "dd_float": None,
              "state_fixed": x, "cov_fixed": P}

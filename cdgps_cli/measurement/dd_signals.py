@@ -299,12 +299,13 @@ _PAIR_COLS = ["time_gps_s", "sat", "signal", "phase_cycles", "pseudorange_m", "l
               "trop_m"]
 
 
-def paired_sd_rows(base, rover, pairs, opt) -> dict:
+def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False) -> dict:
     """Base and rover rows of the whole run paired on (epoch pair, satellite, signal), once, as numpy columns.
 
     ``pairs`` (:func:`~cdgps_cli.measurement.epoch_pairing.pair_epochs`) gives each used rover epoch
     its base epoch; a base epoch may serve several rover epochs (a base with gaps or a lower rate),
-    its slip flags only the first of them.  Rows above the mask (base elevation), ordered by epoch,
+    its slip flags only the first of them.  Rows above the mask (base elevation; with ``mask_rover`` the
+    rover's too, as the batch baseline solver's, so that a rising satellite's first rows agree), ordered by epoch,
     then signal name, then the base's row order; ``ptr`` (n_ep + 1,) bounds each epoch, ``code``
     (N,) the signal's index in ``names``.  Per row: ``sats``, ``lam_m``, ``mu``, ``el`` (rad),
     ``sat_xyz`` / ``sat_base_xyz`` (N, 3, m), ``phase_sd_m`` / ``code_sd_m`` (m, rover − base, each
@@ -326,10 +327,16 @@ def paired_sd_rows(base, rover, pairs, opt) -> dict:
     # the rover's slip flags of epochs that are not used move to the channel's next used epoch
     lli_r = carry_base_slips(rep, rover["sat"].to_numpy().astype(str) + rover["signal"].to_numpy().astype(str),
                              rover["lli"].to_numpy(dtype=np.int64), (pair_of_rover >= 0).astype(np.int64))
-    r = rover[_PAIR_COLS].assign(_row_r=np.arange(len(rover)), _ep=ep_r, lli=lli_r)[ep_r >= 0]
+    r = rover[_PAIR_COLS].assign(_row_r=np.arange(len(rover)), _ep=ep_r, lli=lli_r)
+    if mask_rover:
+        r = r.assign(_el_r=rover["el_rad"].to_numpy())
+    r = r[ep_r >= 0]
     r = r.assign(_bep=pairs.base_index[r["_ep"].to_numpy()])
     m = b.merge(r, on=["_bep", "sat", "signal"], suffixes=("_b", "_r"))
-    m = m[m["el_rad"] >= np.radians(opt["mask_deg"])]
+    above = m["el_rad"].to_numpy() >= np.radians(opt["mask_deg"])
+    if mask_rover:
+        above &= m["_el_r"].to_numpy() >= np.radians(opt["mask_deg"])
+    m = m[above]
     m = m.sort_values(["_ep", "signal", "_row_b", "_row_r"], kind="stable")
     names, code = np.unique(m["signal"].to_numpy().astype(str), return_inverse=True)
     epoch = m["_ep"].to_numpy()

@@ -56,6 +56,25 @@ def test_arcs_split_at_slips():
     assert arc_columns(rows).tolist() == [3, 4, 3, 5, 3]
 
 
+def test_arcs_split_after_an_outage_by_the_segments_rule():
+    """A (satellite, signal) absent longer than the gap limit (default 1.5 × the median epoch spacing, the batch's
+    ambiguity_segments rule) starts a new arc; a slip does too; without times only slips cut; an explicit
+    max_gap_s longer than the outage bridges it."""
+    # epochs 0..5 at 1 s, epoch 3 missing from G02's rows (sets and rises): G01 every epoch
+    sats = ["G01", "G02", "G01", "G02", "G01", "G01", "G02", "G01", "G01", "G02"]   # epoch 4: any satellite order
+    ep = [0, 0, 1, 1, 2, 3, 4, 4, 5, 5]
+    n_ep = 6
+    rows = {"sats": np.array(sats), "code": np.zeros(len(sats), dtype=int), "slip": np.zeros(len(sats), dtype=bool),
+            "ptr": np.searchsorted(ep, np.arange(n_ep + 1))}
+    times = 100.0 + np.arange(n_ep)
+    # G02 rows: epochs 0, 1, 4, 5 -> gap of 3 s > 1.5 s: a new arc at epoch 4
+    assert arc_columns(rows, times).tolist() == [3, 4, 3, 4, 3, 3, 5, 3, 3, 5]
+    assert arc_columns(rows).tolist() == [3, 4, 3, 4, 3, 3, 4, 3, 3, 4]          # slips only
+    assert arc_columns(rows, times, max_gap_s=3.5).tolist() == arc_columns(rows).tolist()
+    rows["slip"][4] = True                                           # a slip on G01 at epoch 2
+    assert arc_columns(rows, times).tolist() == [3, 4, 3, 4, 5, 5, 6, 5, 5, 6]
+
+
 def test_half_cycle_and_fdma_arcs_are_kept_float():
     from cdgps_cli.estimation.static_engine import dd_of_arcs
     rows = {"sats": np.array(["G01", "G02", "G03", "G01", "G02", "G03", "R01", "R02"]),
@@ -73,7 +92,7 @@ def test_static_filter_equals_normal_equations(run):
     x, P, cols = static_filter(rows, times, base_xyz, origin, max_iterations=2)
     n = x.size
     x0, P0 = static_prior(rows, cols, n, 100.0, 1e3)
-    xb, Pb = static_normal_equations(rows, times.size, base_xyz, origin, x, x0, P0)  # linearized at the answer
+    xb, Pb = static_normal_equations(rows, times.size, base_xyz, origin, x, x0, P0, cols=cols)  # linearized at the answer
     assert np.max(np.abs(xb[:3] - x[:3])) < 1e-7
     np.testing.assert_allclose(np.sqrt(np.diag(Pb)[:3]), np.sqrt(np.diag(P)[:3]), rtol=1e-6)
     # and the answer is the rover: the float static position within a few cm of the truth
@@ -191,8 +210,9 @@ def test_baseline_options_mapped_or_refused_by_name():
     assert o["motion"] == "random_walk" and o["initial_sigma_m"] == 5.0
     with pytest.raises(CdgpsError, match="motion"):
         _static_options({"motion": "wobbly"})
+    assert options_from_baseline(BaselineOptions(kinematic_series=False, max_gap_s=60.0))["max_gap_s"] == 60.0
     for bad in ({"weighting": "equal"}, {"epoch_alignment": "doppler"},
-                {"max_gap_s": 60.0}, {"kinematic_series": True}, {"max_iterations": 3}):
+                {"kinematic_series": True}, {"max_iterations": 3}):
         with pytest.raises(CdgpsError, match=next(iter(bad))):
             options_from_baseline(BaselineOptions(**{"kinematic_series": False, **bad}))
 
@@ -343,3 +363,48 @@ def test_glonass_fix_between_identical_receivers():
     enu_fix = R @ (rover_xyz + fix["offset_m"] - master_xyz)
     enu_flt = R @ (rover_xyz + flt["offset_m"] - master_xyz)
     assert np.max(np.abs(enu_fix - rtklib)) < 5e-4 and abs(enu_flt[1] - rtklib[1]) > 1.5e-3
+
+
+def test_a_satellite_that_sets_and_rises_is_served_by_the_engine():
+    """G13 absent from the mosaic rover for 60 s mid-record (sets and rises): the batch starts a new segment,
+    and so does the engine (before: 9 arcs against 10 segments, the batch served); the engine now serves, with
+    the batch's segments and integers, its fixed position within 0.1 mm of the batch's."""
+    from cdgps_cli.estimation.baseline import solve_static_baseline
+    (b, r), nav = _mosaic_stations()
+    o = r.obs
+    t = o["time_gps_s"].to_numpy()
+    t0 = np.unique(t)[150]
+    out = (o["sat"].astype(str) == "G13").to_numpy() & (t >= t0) & (t < t0 + 60)
+    r = r._replace(obs=o[~out].reset_index(drop=True))
+    batch = solve_static_baseline(b, r, nav)
+    eng = solve_static_baseline(b, r, nav, engine=True)
+    assert eng["solver"] == "static_engine" and eng["ambiguities"]["n_segments"] == batch["ambiguities"]["n_segments"]
+    seg = [(s["sat"], s["first_gps_s"]) for s in batch["ambiguities"]["segments"]]
+    assert sum(s == "G13" for s, _ in seg) == 2
+    assert [(s["sat"], s["first_gps_s"], s["integer"]) for s in eng["ambiguities"]["segments"]] == \
+        [(s["sat"], s["first_gps_s"], s["integer"]) for s in batch["ambiguities"]["segments"]]
+    assert np.max(np.abs(np.subtract(eng["fixed"]["enu_m"], batch["fixed"]["enu_m"]))) < 1e-4
+
+
+def test_engine_masks_at_both_receivers_and_matches_offset_tags():
+    """The engine's rows are masked at both receivers, as the batch's (``paired_sd_rows(mask_rover=True)``; rtk's
+    default masks at the base only and is unchanged), so a rising satellite's first rows agree with the
+    batch's; its arcs are matched to the batch's epochs by nearest epoch, not exact tag (a receiver clock
+    offsets the rover's tags by ms: the 24 h simulated pair's by up to 5 ms)."""
+    from cdgps_cli.estimation.baseline import _engine_epochs
+    from cdgps_cli.measurement.dd_signals import paired_sd_rows
+    from cdgps_cli.measurement.epoch_pairing import pair_epochs
+    from cdgps_cli.estimation.static_engine import _static_options
+    g, _, _ = _geometries("mosaic_gps_l1")
+    base, rover = g
+    rover = rover.copy()
+    low = np.flatnonzero((rover["sat"].astype(str) == "G13").to_numpy())[:10]
+    rover.loc[rover.index[low], "el_rad"] = 0.0                       # below the mask at the rover only
+    opt = _static_options(None)
+    pairs = pair_epochs(rover["time_gps_s"].to_numpy(), base["time_gps_s"].to_numpy(), sync_tol_s=opt["sync_tol_s"],
+                        max_age_s=opt["max_age_s"])
+    n_base = paired_sd_rows(base, rover, pairs, opt)["sats"].size
+    both = paired_sd_rows(base, rover, pairs, opt, mask_rover=True)
+    assert n_base - both["sats"].size == 10 and both["ptr"][-1] == both["sats"].size
+    np.testing.assert_array_equal(_engine_epochs([10.0, 11.0, 12.0], [10.004, 11.499, 11.5001, 12.6, 9.0]),
+                                  [0, 1, 2, -1, -1])
