@@ -33,6 +33,7 @@ import numpy as np
 import pandas as pd
 
 from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.io import ubx_frames
 from cdgps_cli.io.sfrbx import sfrbx_ephemerides_at
 from cdgps_cli.io.ubx_frames import MAX_OFFSETS_SHOWN, rtcm_station_arp, split_stream_spans
 
@@ -206,14 +207,7 @@ def _decode_rawx(x: np.ndarray, off: np.ndarray, n_payload: np.ndarray) -> tuple
     rows[:, :16] = x[(off + 6)[:, None] + np.arange(16)]
     rows[:, 16:] = off.astype("<i8").view(np.uint8).reshape(-1, 8)
     epochs = rows.view(_RAWX_EPOCH)[:, 0]
-    data = x.data
-    raw = np.frombuffer(b"".join([data[a:b] for a, b in zip((off + 22).tolist(), (off + 22 + 32 * num).tolist())]),
-                        np.uint8).reshape(-1, 32)
-    rows = np.empty((raw.shape[0], 40), np.uint8)           # the 32 measurement bytes, then the epoch index
-    rows[:, :32] = raw
-    rows[:, 32:] = np.repeat(np.arange(off.size, dtype="<i8"), num).view(np.uint8).reshape(-1, 8)
-    meas = rows.view(_RAWX_ROW)[:, 0]
-    forged = _repeated_signal_frames(meas, num)
+    meas, forged = _rawx_rows(x, off, num)
     if forged.size:       # a frame listing one signal twice is not what a receiver writes (issue 32)
         undecodable = sorted(undecodable + [int(o) for o in epochs["offset"][forged]])
         keep = np.ones(len(epochs), bool)
@@ -223,6 +217,24 @@ def _decode_rawx(x: np.ndarray, off: np.ndarray, n_payload: np.ndarray) -> tuple
         meas["epoch"] = new_index[meas["epoch"]]
         epochs = epochs[keep]
     return epochs, meas, undecodable
+
+
+def _rawx_rows(x: np.ndarray, off: np.ndarray, num: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The measurements of the decodable RXM-RAWX frames at ``off`` (``num[k]`` each) as :data:`_RAWX_ROW`
+    records, frame after frame, and the indices of the frames repeating a signal (:func:`_repeated_signal_frames`):
+    by the compiled ``_ubxcore.rawx_rows`` where it is built (one pass), else with numpy (the same arrays)."""
+    if ubx_frames.USE_COMPILED and hasattr(ubx_frames._ubxcore, "rawx_rows"):
+        rows = np.empty((int(num.sum()), 40), np.uint8)
+        forged = np.frombuffer(ubx_frames._ubxcore.rawx_rows(x, off.astype(np.int64), rows), np.int64)
+        return rows.view(_RAWX_ROW)[:, 0], forged
+    data = x.data
+    raw = np.frombuffer(b"".join([data[a:b] for a, b in zip((off + 22).tolist(), (off + 22 + 32 * num).tolist())]),
+                        np.uint8).reshape(-1, 32)
+    rows = np.empty((raw.shape[0], 40), np.uint8)           # the 32 measurement bytes, then the epoch index
+    rows[:, :32] = raw
+    rows[:, 32:] = np.repeat(np.arange(off.size, dtype="<i8"), num).view(np.uint8).reshape(-1, 8)
+    meas = rows.view(_RAWX_ROW)[:, 0]
+    return meas, _repeated_signal_frames(meas, num)
 
 
 def _decode_rawx_frames(rawx: list) -> tuple[np.ndarray, np.ndarray, list]:
