@@ -165,17 +165,35 @@ def test_l1_sort_as_pandas_and_names_the_first_repeat():
     meas["svId"] = [11, 100, 3, 2, 11, 100, 5]
     meas["epoch"] = [0, 0, 0, 1, 1, 1, 1]
     t = np.array([10.0, 9.0])
-    got = ubx._sorted_l1(Path("x.ubx"), meas, t)
-    table = pd.DataFrame({"time_gps_s": t[meas["epoch"]], "sat": ubx._GPS_SAT_NAMES[meas["svId"]]})
-    order = table.sort_values(["time_gps_s", "sat"], kind="stable").index.to_numpy()
-    assert np.array_equal(got, meas[order])
+    for t in (np.array([10.0, 9.0]), np.array([9.0, 10.0])):       # epochs back in time (lexsort), in order (one key)
+        got = ubx._sorted_l1(Path("x.ubx"), meas, np.arange(7), t)
+        table = pd.DataFrame({"time_gps_s": t[meas["epoch"]], "sat": ubx._GPS_SAT_NAMES[meas["svId"]]})
+        order = table.sort_values(["time_gps_s", "sat"], kind="stable").index.to_numpy()
+        assert np.array_equal(got, meas[order])
+    sel = np.array([1, 2, 4, 6])
+    assert np.array_equal(ubx._sorted_l1(Path("x.ubx"), meas, sel, t), meas[sel[[1, 0, 3, 2]]])
     t = np.array([10.0, 10.0])
     table = pd.DataFrame({"time_gps_s": t[meas["epoch"]], "sat": ubx._GPS_SAT_NAMES[meas["svId"]]})
     with pytest.raises(CdgpsError) as new:
-        ubx._sorted_l1(Path("x.ubx"), meas, t)
+        ubx._sorted_l1(Path("x.ubx"), meas, np.arange(7), t)
     with pytest.raises(CdgpsError) as old:
         ubx._checked_sorted(Path("x.ubx"), table)
     assert str(new.value) == str(old.value) and "G11" in str(new.value)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_time_rank_order_is_lexsort(seed):
+    """The one-key sort gives ``np.lexsort((rank, time))`` wherever the times do not decrease (ties of
+    time and rank kept in row order), and falls back to it where they do."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 400))
+    tm = np.sort(rng.integers(0, 20, n)).astype(np.float64) * 0.1
+    if seed == 5:
+        tm = tm[::-1].copy()
+    rank = rng.integers(0, 256, n)
+    if seed == 4:
+        rank[:] = 7
+    assert np.array_equal(ubx._time_rank_order(tm, rank), np.lexsort((rank, tm)))
 
 
 def test_empty_nav_is_a_fresh_empty_table():
