@@ -114,6 +114,21 @@ static int prefix_sums(const uint8_t *d, Py_ssize_t n, uint8_t **ps, uint8_t **p
     return 0;
 }
 
+/* the UBX checksum over d[a:b] summed directly, 8 bytes a step: after bytes x0..x7, CK_A grows by their sum
+ * and CK_B by 8 CK_A + 8 x0 + 7 x1 + ... + 1 x7 (32-bit sums wrap mod 2^32, a multiple of 256) */
+static void fletcher(const uint8_t *d, Py_ssize_t a, Py_ssize_t b, uint8_t *ck_a, uint8_t *ck_b) {
+    uint32_t sa = 0, sb = 0;
+    Py_ssize_t q = a;
+    for (; q + 8 <= b; q += 8) {
+        const uint8_t *x = d + q;
+        sb += 8 * sa + 8u * x[0] + 7u * x[1] + 6u * x[2] + 5u * x[3] + 4u * x[4] + 3u * x[5] + 2u * x[6] + x[7];
+        sa += (uint32_t)x[0] + x[1] + x[2] + x[3] + x[4] + x[5] + x[6] + x[7];
+    }
+    for (; q < b; q++) { sa += d[q]; sb += sa; }
+    *ck_a = (uint8_t)sa;
+    *ck_b = (uint8_t)sb;
+}
+
 static int plausible_rtcm(int64_t t) { return (t >= 1001 && t <= 1300) || (t >= 4001 && t <= 4095); }
 
 static PyObject *walk(PyObject *self, PyObject *args) {
@@ -150,7 +165,7 @@ static PyObject *walk(PyObject *self, PyObject *args) {
                     ck_a = (uint8_t)(s[b] - s[a]);
                     ck_b = (uint8_t)((uint8_t)b * ck_a - (uint8_t)(t[b] - t[a]));
                 } else {
-                    for (Py_ssize_t q = a; q < b; q++) { ck_a += d[q]; ck_b += ck_a; }
+                    fletcher(d, a, b, &ck_a, &ck_b);
                 }
                 bad = ck_a != d[b] || ck_b != d[b + 1];
                 if (bad && !s && (wasted += b - a) > n) {  /* false syncs: O(1) checksums from here on */
