@@ -96,7 +96,8 @@ def _ints(f: np.ndarray) -> np.ndarray:
     """Unsigned integers of the byte fields ``f`` (n, w) as ``int`` reads them: blanks around one
     run of ≥ 1 digits; Unsupported otherwise (signs, inner blanks: the line-by-line reader decides)."""
     if f.shape[0] <= 16:                                    # a few: Python's int (numpy's per-call cost dominates)
-        fields = [bytes(r) for r in f]
+        raw, w = f.tobytes(), f.shape[1]                    # one bytes object, sliced: no bytes() per row
+        fields = [raw[i:i + w] for i in range(0, len(raw), w)] if w else [b""] * f.shape[0]
         if not all(_INT.fullmatch(x) for x in fields):
             raise Unsupported("integer")
         return np.array([int(x) for x in fields], dtype=np.int64)
