@@ -44,6 +44,7 @@ def test_compiled_walk_is_built_here():
     if ubx_frames._ubxcore is None:
         pytest.skip("cdgps_cli.io._ubxcore not built (optional); the numpy path is what runs")
     assert ubx_frames._ubxcore.API == 1
+    assert hasattr(ubx_frames._ubxcore, "rawx_rows"), "stale _ubxcore build: rebuild cdgps_cli/io/_ubxcore.c"
 
 
 def test_shared_logs_found():
