@@ -11,6 +11,7 @@ that file with its line-by-line parser, which gives the same values or the same 
 
 from __future__ import annotations
 
+import math
 import re
 
 import numpy as np
@@ -125,15 +126,16 @@ _DECIMAL = re.compile(rb" *[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+) *")
 def _few_decimals(f: np.ndarray) -> np.ndarray:
     """:func:`decimal_fields` of a few fields: the same values (``float`` of the same decimal) and the
     same refusals (only blanks around an optionally signed decimal number)."""
-    out = np.empty(f.shape[0])
-    for k, field in enumerate(map(bytes, f)):
-        if _DECIMAL.fullmatch(field):
-            out[k] = float(field)
+    raw, w = f.tobytes(), f.shape[1]                     # one bytes object, sliced: no bytes() per row
+    match, nan, out = _DECIMAL.fullmatch, math.nan, []
+    for field in ([raw[i:i + w] for i in range(0, len(raw), w)] if w else [b""] * f.shape[0]):
+        if match(field):
+            out.append(float(field))
         elif field.strip(b" "):
             raise Unsupported("number")
         else:
-            out[k] = np.nan
-    return out
+            out.append(nan)
+    return np.array(out, dtype=np.float64).reshape(f.shape[0])
 
 
 def decimal_fields(f: np.ndarray) -> np.ndarray:

@@ -7,6 +7,8 @@
  *   counts: (bad_checksum_frames, truncated_tail_bytes, skipped_bytes, nmea_sentences, nmea_bytes,
  *            rtcm_bytes, bad_crc_rtcm_frames)
  *   bad_*_offsets: lists of the first MAX_SHOWN offsets
+ * rawx_rows(buffer, offsets, out) -> forged: the RXM-RAWX measurements of ubx._decode_rawx gathered as its 40-byte
+ *   rows, and the frames listing one signal twice (ubx._repeated_signal_frames), in one pass.
  * UBX checksums are summed over each candidate's bytes until the candidates that failed have cost more
  * than the stream's length, then come from prefix sums (O(1) per candidate, as in the Python walk), so a
  * stream full of false sync words announcing long frames stays linear.  Plain C and the buffer protocol.
@@ -112,6 +114,21 @@ static int prefix_sums(const uint8_t *d, Py_ssize_t n, uint8_t **ps, uint8_t **p
     return 0;
 }
 
+/* the UBX checksum over d[a:b] summed directly, 8 bytes a step: after bytes x0..x7, CK_A grows by their sum
+ * and CK_B by 8 CK_A + 8 x0 + 7 x1 + ... + 1 x7 (32-bit sums wrap mod 2^32, a multiple of 256) */
+static void fletcher(const uint8_t *d, Py_ssize_t a, Py_ssize_t b, uint8_t *ck_a, uint8_t *ck_b) {
+    uint32_t sa = 0, sb = 0;
+    Py_ssize_t q = a;
+    for (; q + 8 <= b; q += 8) {
+        const uint8_t *x = d + q;
+        sb += 8 * sa + 8u * x[0] + 7u * x[1] + 6u * x[2] + 5u * x[3] + 4u * x[4] + 3u * x[5] + 2u * x[6] + x[7];
+        sa += (uint32_t)x[0] + x[1] + x[2] + x[3] + x[4] + x[5] + x[6] + x[7];
+    }
+    for (; q < b; q++) { sa += d[q]; sb += sa; }
+    *ck_a = (uint8_t)sa;
+    *ck_b = (uint8_t)sb;
+}
+
 static int plausible_rtcm(int64_t t) { return (t >= 1001 && t <= 1300) || (t >= 4001 && t <= 4095); }
 
 static PyObject *walk(PyObject *self, PyObject *args) {
@@ -148,7 +165,7 @@ static PyObject *walk(PyObject *self, PyObject *args) {
                     ck_a = (uint8_t)(s[b] - s[a]);
                     ck_b = (uint8_t)((uint8_t)b * ck_a - (uint8_t)(t[b] - t[a]));
                 } else {
-                    for (Py_ssize_t q = a; q < b; q++) { ck_a += d[q]; ck_b += ck_a; }
+                    fletcher(d, a, b, &ck_a, &ck_b);
                 }
                 bad = ck_a != d[b] || ck_b != d[b + 1];
                 if (bad && !s && (wasted += b - a) > n) {  /* false syncs: O(1) checksums from here on */
@@ -222,8 +239,69 @@ done:
     return out;
 }
 
+/* open-addressing set of one frame's (gnssId, svId, sigId) keys: 512 slots for at most 255 keys, a slot
+ * belonging to the frame whose stamp it carries (no clearing between frames) */
+#define KEY_SLOTS 512
+static int seen_before(uint32_t *key, uint32_t *stamp, uint32_t frame, uint32_t v) {
+    uint32_t h = (v * 2654435761u) >> 23;
+    for (;; h = (h + 1) & (KEY_SLOTS - 1)) {
+        if (stamp[h] != frame) { stamp[h] = frame; key[h] = v; return 0; }
+        if (key[h] == v) return 1;
+    }
+}
+
+/* rawx_rows(buffer, offsets, out) -> forged
+ *   offsets: int64 buffer, the sync-word offsets of RXM-RAWX frames whose payload is 16 + 32*numMeas bytes
+ *   out    : writable buffer of 40 bytes per measurement of those frames: each measurement's 32 bytes, then the
+ *            index of its frame (int64, little-endian), frame after frame (the rows of ubx._decode_rawx)
+ *   forged : bytes, int64 indices of the frames listing one (gnssId, svId, sigId) more than once */
+static PyObject *rawx_rows(PyObject *self, PyObject *args) {
+    Py_buffer buf, obuf, rbuf;
+    if (!PyArg_ParseTuple(args, "y*y*w*", &buf, &obuf, &rbuf)) return NULL;
+    const uint8_t *d = buf.buf;
+    const int64_t *off = obuf.buf;
+    uint8_t *out = rbuf.buf;
+    Py_ssize_t n = buf.len, m = obuf.len / (Py_ssize_t)sizeof(int64_t), cap = rbuf.len, used = 0;
+    PyObject *res = NULL;
+    vec forged = {0};
+    uint32_t key[KEY_SLOTS], stamp[KEY_SLOTS];
+    memset(stamp, 0, sizeof stamp);
+    int err = 0;
+    for (Py_ssize_t k = 0; k < m; k++) {
+        int64_t a = off[k];
+        Py_ssize_t num = (a >= 0 && a + 17 < n) ? d[a + 17] : -1;
+        if (num < 0 || a + 22 + 32 * num > n || used + 40 * num > cap) {
+            PyErr_SetString(PyExc_ValueError, "rawx_rows: a frame runs past the log or the output");
+            goto done;
+        }
+        const uint8_t *src = d + a + 22;
+        uint8_t e[8];
+        int twice = 0;
+        for (int b = 0; b < 8; b++) e[b] = (uint8_t)((uint64_t)k >> (8 * b));
+        for (Py_ssize_t j = 0; j < num; j++, src += 32, used += 40) {
+            memcpy(out + used, src, 32);
+            memcpy(out + used + 32, e, 8);
+            twice |= seen_before(key, stamp, (uint32_t)k + 1,
+                                 ((uint32_t)src[20] << 16) | ((uint32_t)src[21] << 8) | src[22]);
+        }
+        if (twice) err |= push(&forged, k);
+    }
+    if (used != cap) {
+        PyErr_SetString(PyExc_ValueError, "rawx_rows: the output is not 40 bytes per measurement");
+        goto done;
+    }
+    if (err) { PyErr_NoMemory(); goto done; }
+    static const char empty[1] = {0};
+    res = Py_BuildValue("y#", forged.v ? (const char *)forged.v : empty, forged.n * (Py_ssize_t)sizeof(int64_t));
+done:
+    free(forged.v);
+    PyBuffer_Release(&buf); PyBuffer_Release(&obuf); PyBuffer_Release(&rbuf);
+    return res;
+}
+
 static PyMethodDef methods[] = {
     {"walk", walk, METH_VARARGS, "Walk a UBX/NMEA/RTCM 3 byte stream: the frames and counters of ubx_frames._split_stream_walk."},
+    {"rawx_rows", rawx_rows, METH_VARARGS, "RXM-RAWX measurements as 40-byte rows and the frames repeating a signal."},
     {NULL, NULL, 0, NULL},
 };
 

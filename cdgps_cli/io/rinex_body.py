@@ -96,7 +96,8 @@ def _ints(f: np.ndarray) -> np.ndarray:
     """Unsigned integers of the byte fields ``f`` (n, w) as ``int`` reads them: blanks around one
     run of ≥ 1 digits; Unsupported otherwise (signs, inner blanks: the line-by-line reader decides)."""
     if f.shape[0] <= 16:                                    # a few: Python's int (numpy's per-call cost dominates)
-        fields = [bytes(r) for r in f]
+        raw, w = f.tobytes(), f.shape[1]                    # one bytes object, sliced: no bytes() per row
+        fields = [raw[i:i + w] for i in range(0, len(raw), w)] if w else [b""] * f.shape[0]
         if not all(_INT.fullmatch(x) for x in fields):
             raise Unsupported("integer")
         return np.array([int(x) for x in fields], dtype=np.int64)
@@ -111,17 +112,38 @@ def _ints(f: np.ndarray) -> np.ndarray:
     return (np.where(digit, f.astype(np.int64) - 48, 0) * _POW10[power]).sum(axis=1)
 
 
+#: the date and time fields of a RINEX 3 epoch line (year, month, day, hour, minute): columns
+_DATE_FIELDS = ((2, 6), (7, 9), (10, 12), (13, 15), (16, 18))
+
+
+def _date_ints(g: np.ndarray) -> tuple[np.ndarray, ...]:
+    """(year, month, day, hour, minute) of RINEX 3 epoch lines ``g`` (n, ≥ 18 bytes) in one :func:`_ints`
+    call: each field right-aligned in 4 columns behind blanks (blanks around the digits change neither
+    what ``int`` takes nor its value)."""
+    f = np.full((g.shape[0], 5, 4), 32, dtype=np.uint8)
+    for j, (a, b) in enumerate(_DATE_FIELDS):
+        f[:, j, 4 - (b - a):] = g[:, a:b]
+    return tuple(_ints(f.reshape(-1, 4)).reshape(-1, 5).T)
+
+
 def _gps_seconds(y, mo, d, h, mi, sec) -> np.ndarray:
     """``gps_seconds`` on arrays, to the bit: float(whole seconds) + float(seconds of minute)."""
     ymd = y * 10000 + mo * 100 + d
-    uniq, inv = np.unique(ymd, return_inverse=True)
+    if ymd.size <= 64:                                     # a few epochs: a dict (np.unique's set-up costs more)
+        uniq, inv = list(dict.fromkeys(ymd.tolist())), None
+    else:
+        uniq, inv = np.unique(ymd, return_inverse=True)
+        uniq = uniq.tolist()
     try:
-        days = np.array([_dt.date(int(u) // 10000, int(u) // 100 % 100, int(u) % 100).toordinal()
-                         for u in uniq.tolist()], dtype=np.int64) - _GPS_EPOCH_ORDINAL
+        days = np.array([_dt.date(u // 10000, u // 100 % 100, u % 100).toordinal() for u in uniq],
+                        dtype=np.int64) - _GPS_EPOCH_ORDINAL
     except ValueError:
         raise Unsupported("date") from None
     if np.any(h > 23) or np.any(mi > 59):
         raise Unsupported("time of day")                   # datetime would take it; keep the reference's path
+    if inv is None:
+        where = {u: i for i, u in enumerate(uniq)}
+        inv = np.array([where[u] for u in ymd.tolist()], dtype=np.int64)
     whole = days[inv.ravel()] * 86400 + h * 3600 + mi * 60
     return whole.astype(np.float64) + sec
 
@@ -172,8 +194,7 @@ def epochs_v3(lines: BodyLines, events: str = "refuse") -> dict:
     g = f[timed]
     if np.any(g[:, 1] != 32) or np.any(g[:, [6, 9, 12, 15, 29, 30]] != 32):
         raise Unsupported("epoch line")
-    y, mo, d = _ints(g[:, 2:6]), _ints(g[:, 7:9]), _ints(g[:, 10:12])
-    h, mi = _ints(g[:, 13:15]), _ints(g[:, 16:18])
+    y, mo, d, h, mi = _date_ints(g)
     sec = decimal_fields(np.ascontiguousarray(g[:, 18:29]))
     if np.any(np.isnan(sec)):
         raise Unsupported("seconds")

@@ -23,7 +23,7 @@ from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, glonass_frequency_hz, 
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.io.rinex import _ObsHeader, _parse_version_line, _read_text
 from cdgps_cli.io._fixed_width import LineBuffer, Unsupported, decimal_fields, flag_digits
-from cdgps_cli.io.rinex import _read_bytes, _split_header
+from cdgps_cli.io.rinex import _read_bytes, _split_header, _split_lines
 from cdgps_cli.io.rinex_body import BodyLines, epochs_v3, strict_float
 
 __all__ = ["read_rinex_signals", "SIGNAL_COLUMNS"]
@@ -94,11 +94,16 @@ def _value(rec: str, k: int, col0: int) -> tuple[float, int]:
     return v, (int(lli) if lli.strip().isdigit() else 0)
 
 
-def _observation_header(path: str | Path):
+def _observation_header(path: str | Path, read: tuple[bytes, bool] | None = None):
     """The file's lines, its parsed observation header, the index of its END OF HEADER line and the
-    (decompressed) bytes of the lines."""
+    (decompressed) bytes of the lines; ``read``: the file's (decompressed) bytes and whether it was
+    compressed, when already read (:func:`cdgps_cli.io.rinex._read_bytes`)."""
     p = Path(path)
-    lines, compressed, data = _read_text(p)
+    if read is None:
+        lines, compressed, data = _read_text(p)
+    else:
+        data, compressed = read
+        lines = _split_lines(data)
     version, ftype, _ = _parse_version_line(lines, p, compressed, "observation")
     if ftype != "O":
         raise CdgpsError(f"{p}: not a RINEX observation file (type {ftype!r})")
@@ -153,12 +158,14 @@ def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None)
         signals without ``GLONASS SLOT / FRQ #`` for an observed satellite, a malformed line.
     """
     p = Path(path)
+    read = None
     if FAST_PARSE:
+        read = _read_bytes(p)
         try:
-            return _read_bytes_v3(p, list(signals), glonass_k)
+            return _read_bytes_v3(p, list(signals), glonass_k, read)
         except Unsupported:
             pass
-    lines, hdr, end, data = _observation_header(p)
+    lines, hdr, end, data = _observation_header(p, read)           # the bytes read (and decompressed) once
     cols = _columns(hdr, list(signals), p)
     slots = {**(glonass_k or {}), **_glonass_slots(lines, end, p)}
     df = _observations(lines, end + 1, hdr, cols, p, data, slots)
@@ -168,11 +175,12 @@ def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None)
     return info, df
 
 
-def _read_bytes_v3(p: Path, signals: list, glonass_k) -> tuple[dict, pd.DataFrame]:
-    """:func:`read_rinex_signals` of a RINEX 3 file from its bytes: only the header is split into
-    lines, the body is walked by :mod:`cdgps_cli.io.rinex_body`; Unsupported where the line-based
-    readers must decide (RINEX 2, an odd body, a malformed record)."""
-    data, compressed = _read_bytes(p)
+def _read_bytes_v3(p: Path, signals: list, glonass_k, read: tuple[bytes, bool] | None = None) -> tuple[dict, pd.DataFrame]:
+    """:func:`read_rinex_signals` of a RINEX 3 file from its bytes (``read``: the (decompressed) bytes and
+    whether the file was compressed): only the header is split into lines, the body is walked by
+    :mod:`cdgps_cli.io.rinex_body`; Unsupported where the line-based readers must decide (RINEX 2, an
+    odd body, a malformed record)."""
+    data, compressed = _read_bytes(p) if read is None else read
     head, body_at = _split_header(data)
     version, ftype, _ = _parse_version_line(head, p, compressed, "observation")
     if ftype != "O" or version < 3 or not signals:
@@ -483,7 +491,7 @@ def _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2) -> pd
         "phase_cycles": np.concatenate([p[2] for p in parts])[order][final],
         "pseudorange_m": np.concatenate([p[3] for p in parts])[order][final],
         "lli": np.concatenate([p[4] for p in parts])[order][final],
-        "wavelength_m": _wavelength_array(sat_code[rows], sat_names, sig, list(cols), slots, path)})
+        "wavelength_m": _wavelength_array(sat_code[rows], sat_names, sig, list(cols), slots, path)}, copy=False)
 
 
 def _wavelength_array(sat_code: np.ndarray, sat_names: list, sig: np.ndarray, names: list, slots: dict, path) -> np.ndarray:

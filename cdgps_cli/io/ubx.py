@@ -33,6 +33,7 @@ import numpy as np
 import pandas as pd
 
 from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.io import ubx_frames
 from cdgps_cli.io.sfrbx import sfrbx_ephemerides_at
 from cdgps_cli.io.ubx_frames import MAX_OFFSETS_SHOWN, rtcm_station_arp, split_stream_spans
 
@@ -206,14 +207,7 @@ def _decode_rawx(x: np.ndarray, off: np.ndarray, n_payload: np.ndarray) -> tuple
     rows[:, :16] = x[(off + 6)[:, None] + np.arange(16)]
     rows[:, 16:] = off.astype("<i8").view(np.uint8).reshape(-1, 8)
     epochs = rows.view(_RAWX_EPOCH)[:, 0]
-    data = x.data
-    raw = np.frombuffer(b"".join([data[a:b] for a, b in zip((off + 22).tolist(), (off + 22 + 32 * num).tolist())]),
-                        np.uint8).reshape(-1, 32)
-    rows = np.empty((raw.shape[0], 40), np.uint8)           # the 32 measurement bytes, then the epoch index
-    rows[:, :32] = raw
-    rows[:, 32:] = np.repeat(np.arange(off.size, dtype="<i8"), num).view(np.uint8).reshape(-1, 8)
-    meas = rows.view(_RAWX_ROW)[:, 0]
-    forged = _repeated_signal_frames(meas, num)
+    meas, forged = _rawx_rows(x, off, num)
     if forged.size:       # a frame listing one signal twice is not what a receiver writes (issue 32)
         undecodable = sorted(undecodable + [int(o) for o in epochs["offset"][forged]])
         keep = np.ones(len(epochs), bool)
@@ -223,6 +217,24 @@ def _decode_rawx(x: np.ndarray, off: np.ndarray, n_payload: np.ndarray) -> tuple
         meas["epoch"] = new_index[meas["epoch"]]
         epochs = epochs[keep]
     return epochs, meas, undecodable
+
+
+def _rawx_rows(x: np.ndarray, off: np.ndarray, num: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The measurements of the decodable RXM-RAWX frames at ``off`` (``num[k]`` each) as :data:`_RAWX_ROW`
+    records, frame after frame, and the indices of the frames repeating a signal (:func:`_repeated_signal_frames`):
+    by the compiled ``_ubxcore.rawx_rows`` where it is built (one pass), else with numpy (the same arrays)."""
+    if ubx_frames.USE_COMPILED and hasattr(ubx_frames._ubxcore, "rawx_rows"):
+        rows = np.empty((int(num.sum()), 40), np.uint8)
+        forged = np.frombuffer(ubx_frames._ubxcore.rawx_rows(x, off.astype(np.int64), rows), np.int64)
+        return rows.view(_RAWX_ROW)[:, 0], forged
+    data = x.data
+    raw = np.frombuffer(b"".join([data[a:b] for a, b in zip((off + 22).tolist(), (off + 22 + 32 * num).tolist())]),
+                        np.uint8).reshape(-1, 32)
+    rows = np.empty((raw.shape[0], 40), np.uint8)           # the 32 measurement bytes, then the epoch index
+    rows[:, :32] = raw
+    rows[:, 32:] = np.repeat(np.arange(off.size, dtype="<i8"), num).view(np.uint8).reshape(-1, 8)
+    meas = rows.view(_RAWX_ROW)[:, 0]
+    return meas, _repeated_signal_frames(meas, num)
 
 
 def _decode_rawx_frames(rawx: list) -> tuple[np.ndarray, np.ndarray, list]:
@@ -423,11 +435,11 @@ def read_ubx_log(path: str | Path, *, strict: bool = False,
     n_epochs = len(epochs)
     signals = _signal_counts(meas)
     reset = (epochs["recStat"] & 2) != 0
-    obs = _l1_table(p, meas, t, reset)
+    obs, gps_sats = _l1_table(p, meas, t, reset)
     if obs.empty:
         sig = ", ".join(f"{k} ×{v}" for k, v in sorted(signals.items(), key=lambda kv: -kv[1]))
         raise CdgpsError(f"{p}: {n_epochs} RXM-RAWX epochs but no GPS L1 C/A measurements (signals found: {sig or 'none'})")
-    info = _log_info(p, epochs, obs, signals, counts, len(frames[1]), stats, undecodable_offsets)
+    info = _log_info(p, epochs, gps_sats, signals, counts, len(frames[1]), stats, undecodable_offsets)
     nav, info["sfrbx"] = sfrbx_ephemerides_at(*frames, info["week"])
     info["rtcm_base"] = rtcm_station_arp(rtcm)
     return info, obs, nav
@@ -443,10 +455,11 @@ def _signal_counts(meas: np.ndarray) -> dict:
     return signals
 
 
-def _l1_table(p: Path, meas: np.ndarray, t: np.ndarray, reset: np.ndarray) -> pd.DataFrame:
+def _l1_table(p: Path, meas: np.ndarray, t: np.ndarray, reset: np.ndarray) -> tuple[pd.DataFrame, list]:
     """The GPS L1 C/A rows of the measurements as the ``obs`` table of :func:`read_ubx_log` (sorted, a
-    repeated (time, satellite) refused); ``reset``: each epoch's clock-reset flag."""
-    m = _sorted_l1(p, meas[(meas["gnssId"] == 0) & (meas["sigId"] == 0)], t)
+    repeated (time, satellite) refused) and its satellites (sorted names); ``reset``: each epoch's
+    clock-reset flag."""
+    m = _sorted_l1(p, meas, np.flatnonzero((meas["gnssId"] == 0) & (meas["sigId"] == 0)), t)
     trk = m["trkStat"]
     cp_ok, pr_ok = (trk & 2) != 0, (trk & 1) != 0
     obs = pd.DataFrame(
@@ -465,17 +478,18 @@ def _l1_table(p: Path, meas: np.ndarray, t: np.ndarray, reset: np.ndarray) -> pd
             "pr_std_m": 0.01 * 2.0 ** (m["prStdev"] & 15).astype(np.int64),
             "cp_std_cycles": 0.004 * (m["cpStdev"] & 15).astype(np.int64),
             "clock_reset": reset[m["epoch"]],
-        },
-        columns=list(UBX_OBS_COLUMNS),
+        },                                                 # in UBX_OBS_COLUMNS' order
+        copy=False,                                        # fresh arrays, none a view of the (cached) measurements
     )
     if len(obs) and not np.isfinite(t).all():             # NaN time tags: pandas' NaN-aware path
         obs = _checked_sorted(p, obs)
-    return obs
+    return obs, sorted(_GPS_SAT_NAMES[np.unique(m["svId"])].tolist())
 
 
-def _log_info(p: Path, epochs: np.ndarray, obs: pd.DataFrame, signals: dict, counts: dict, n_frames: int,
+def _log_info(p: Path, epochs: np.ndarray, gps_sats: list, signals: dict, counts: dict, n_frames: int,
               stats: dict, undecodable_offsets: list) -> dict:
-    """The ``info`` of :func:`read_ubx_log` but its ``sfrbx`` and ``rtcm_base``."""
+    """The ``info`` of :func:`read_ubx_log` but its ``sfrbx`` and ``rtcm_base`` (``gps_sats``: the names of
+    the satellites of the ``obs`` table, sorted)."""
     leap_ok = (epochs["recStat"] & 1) != 0
     leap = int(epochs["leapS"][np.flatnonzero(leap_ok)[-1]]) if leap_ok.any() else None
     undecodable = len(undecodable_offsets)
@@ -490,7 +504,7 @@ def _log_info(p: Path, epochs: np.ndarray, obs: pd.DataFrame, signals: dict, cou
         "week": week0,
         "leap_seconds": leap,
         "signal_counts": dict(sorted(signals.items())),
-        "gps_satellites": sorted(obs["sat"].unique().tolist()),
+        "gps_satellites": gps_sats,
         "n_clock_resets": int(n_resets),
         "bad_checksum_frames": stats["bad_checksum_frames"],
         "bad_frame_offsets": stats["bad_frame_offsets"][:_MAX_SHOWN],
@@ -512,22 +526,43 @@ _GPS_SAT_RANK = np.argsort(np.argsort(_GPS_SAT_NAMES.astype(str), kind="stable")
 """Rank of each svId's name ("G05", "G100") in string order: the order of a sort by ``sat``."""
 
 
-def _sorted_l1(p: Path, m: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """The GPS L1 C/A measurements ``m`` sorted by time tag then satellite name (stable), as
+def _sorted_l1(p: Path, meas: np.ndarray, sel: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """The GPS L1 C/A measurements ``meas[sel]`` sorted by time tag then satellite name (stable), as
     ``sort_values(["time_gps_s", "sat"], kind="stable")`` sorts the table; CdgpsError naming the first
     row (in log order) whose (time, satellite) repeats an earlier one.  Unsorted when a time tag is NaN
     (:func:`_checked_sorted` then sorts and checks the table)."""
-    tm = t[m["epoch"]]
     if not np.isfinite(t).all():
-        return m
-    rank = _GPS_SAT_RANK[m["svId"]]
-    order = np.lexsort((rank, tm))
+        return meas[sel]
+    tm = t[meas["epoch"][sel]]
+    rank = _GPS_SAT_RANK[meas["svId"][sel]]
+    order = _time_rank_order(tm, rank)
     same = (tm[order][1:] == tm[order][:-1]) & (rank[order][1:] == rank[order][:-1])
     if same.any():
         i = int(order[1:][same].min())
-        raise CdgpsError(f"{p}: GPS satellite {_GPS_SAT_NAMES[m['svId'][i]]} appears twice in the RXM-RAWX epoch "
-                         f"at GPS time {tm[i]:.3f} s")
-    return m[order]
+        raise CdgpsError(f"{p}: GPS satellite {_GPS_SAT_NAMES[meas['svId'][sel[i]]]} appears twice in the RXM-RAWX "
+                         f"epoch at GPS time {tm[i]:.3f} s")
+    return _take_rows(meas, sel[order])
+
+
+def _time_rank_order(tm: np.ndarray, rank: np.ndarray) -> np.ndarray:
+    """``np.lexsort((rank, tm))`` (stable), by one integer sort where the time tags do not decrease along the
+    rows (RXM-RAWX epochs in time order, the rows epoch after epoch): each row's key is the index of its
+    time tag among the distinct ones, times 256, plus its satellite's rank (< 256)."""
+    if tm.size < 2 or np.any(tm[1:] < tm[:-1]):
+        return np.lexsort((rank, tm))
+    key = np.empty(tm.size, np.int64)
+    key[0] = 0
+    np.cumsum(tm[1:] != tm[:-1], out=key[1:])
+    key *= 256
+    key += rank
+    return np.argsort(key, kind="stable")
+
+
+def _take_rows(meas: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """``meas[idx]`` for records such as :data:`_RAWX_ROW`, gathered as rows of bytes (numpy copies packed
+    records field by field, several times slower)."""
+    raw = np.ascontiguousarray(meas).view(np.uint8).reshape(-1, meas.dtype.itemsize)
+    return raw[idx].view(meas.dtype)[:, 0]
 
 
 def _checked_sorted(p: Path, obs: pd.DataFrame) -> pd.DataFrame:

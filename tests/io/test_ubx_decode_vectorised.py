@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.io import sfrbx, ubx
+from cdgps_cli.io import sfrbx, ubx, ubx_frames
 from cdgps_cli.io.ubx_frames import split_stream
 
 LOG = Path(__file__).resolve().parents[3] / "shared" / "data" / "real-pairs" / "ublox-walk" / "gnss_1730.ubx"
@@ -72,8 +72,12 @@ def _reference_rawx(frames: list) -> tuple[list, list]:
     return rows, sorted(bad)
 
 
+@pytest.mark.parametrize("compiled", [True, False])
 @pytest.mark.parametrize("damage", [False, True])
-def test_rawx_gathered_as_frame_by_frame(log, damage):
+def test_rawx_gathered_as_frame_by_frame(log, damage, compiled, monkeypatch):
+    if compiled and not hasattr(ubx_frames._ubxcore, "rawx_rows"):
+        pytest.skip("cdgps_cli.io._ubxcore not built with rawx_rows (optional)")
+    monkeypatch.setattr(ubx_frames, "USE_COMPILED", compiled)
     data, frames = log
     if damage:
         data = _damaged(data, frames)
@@ -88,6 +92,32 @@ def test_rawx_gathered_as_frame_by_frame(log, damage):
     assert got == rows
     ep2, meas2, bad2 = ubx._decode_rawx_frames([(o, f) for o, c, m, f in frames if (c, m) == (2, 0x15)])
     assert bad2 == bad and np.array_equal(ep2, epochs) and np.array_equal(meas2, meas)
+
+
+def test_compiled_rawx_rows_equal_numpy(log, monkeypatch):
+    """``_ubxcore.rawx_rows`` gives the numpy gather's rows and repeated-signal frames exactly (a frame
+    repeating a signal, frames of 0 and 255 measurements among them)."""
+    if not hasattr(ubx_frames._ubxcore, "rawx_rows"):
+        pytest.skip("cdgps_cli.io._ubxcore not built with rawx_rows (optional)")
+    data, frames = log
+    rawx = [f for _, c, m, f in frames if (c, m) == (2, 0x15)][:6]
+    pl = bytearray(rawx[2][6:-2])
+    pl[48:80] = pl[16:48]                                  # frame 2 lists its first signal twice
+    rng = np.random.default_rng(7)
+    big = bytes(rawx[0][6:22]) + rng.integers(0, 256, 32 * 255, dtype=np.uint8).tobytes()
+    bodies = [bytes(rawx[0][6:-2]), bytes(rawx[1][6:-2]), bytes(pl), bytes(rawx[3][6:22]), big]
+    bodies[3] = bodies[3][:11] + b"\0" + bodies[3][12:]      # numMeas 0
+    bodies[4] = bodies[4][:11] + b"\xff" + bodies[4][12:]    # numMeas 255
+    blob = b"".join(_frame(2, 0x15, b) for b in bodies)
+    x = np.frombuffer(blob, np.uint8)
+    off = np.cumsum([0] + [len(b) + 8 for b in bodies])[:-1].astype(np.int64)
+    num = x[off + 17].astype(np.int64)
+    got = ubx._rawx_rows(x, off, num)
+    monkeypatch.setattr(ubx_frames, "USE_COMPILED", False)
+    ref = ubx._rawx_rows(x, off, num)
+    assert got[0].tobytes() == ref[0].tobytes() and got[0].dtype == ref[0].dtype
+    assert got[1].tolist() == ref[1].tolist() and 2 in ref[1].tolist()
+    assert len(ref[0]) == int(num.sum()) == rawx[0][17] + rawx[1][17] + pl[11] + 0 + 255
 
 
 def _sfrbx(gnss: int, sv: int, sig: int, words: int, n_words: int | None = None) -> tuple:
@@ -135,17 +165,35 @@ def test_l1_sort_as_pandas_and_names_the_first_repeat():
     meas["svId"] = [11, 100, 3, 2, 11, 100, 5]
     meas["epoch"] = [0, 0, 0, 1, 1, 1, 1]
     t = np.array([10.0, 9.0])
-    got = ubx._sorted_l1(Path("x.ubx"), meas, t)
-    table = pd.DataFrame({"time_gps_s": t[meas["epoch"]], "sat": ubx._GPS_SAT_NAMES[meas["svId"]]})
-    order = table.sort_values(["time_gps_s", "sat"], kind="stable").index.to_numpy()
-    assert np.array_equal(got, meas[order])
+    for t in (np.array([10.0, 9.0]), np.array([9.0, 10.0])):       # epochs back in time (lexsort), in order (one key)
+        got = ubx._sorted_l1(Path("x.ubx"), meas, np.arange(7), t)
+        table = pd.DataFrame({"time_gps_s": t[meas["epoch"]], "sat": ubx._GPS_SAT_NAMES[meas["svId"]]})
+        order = table.sort_values(["time_gps_s", "sat"], kind="stable").index.to_numpy()
+        assert np.array_equal(got, meas[order])
+    sel = np.array([1, 2, 4, 6])
+    assert np.array_equal(ubx._sorted_l1(Path("x.ubx"), meas, sel, t), meas[sel[[1, 0, 3, 2]]])
     t = np.array([10.0, 10.0])
     table = pd.DataFrame({"time_gps_s": t[meas["epoch"]], "sat": ubx._GPS_SAT_NAMES[meas["svId"]]})
     with pytest.raises(CdgpsError) as new:
-        ubx._sorted_l1(Path("x.ubx"), meas, t)
+        ubx._sorted_l1(Path("x.ubx"), meas, np.arange(7), t)
     with pytest.raises(CdgpsError) as old:
         ubx._checked_sorted(Path("x.ubx"), table)
     assert str(new.value) == str(old.value) and "G11" in str(new.value)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_time_rank_order_is_lexsort(seed):
+    """The one-key sort gives ``np.lexsort((rank, time))`` wherever the times do not decrease (ties of
+    time and rank kept in row order), and falls back to it where they do."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 400))
+    tm = np.sort(rng.integers(0, 20, n)).astype(np.float64) * 0.1
+    if seed == 5:
+        tm = tm[::-1].copy()
+    rank = rng.integers(0, 256, n)
+    if seed == 4:
+        rank[:] = 7
+    assert np.array_equal(ubx._time_rank_order(tm, rank), np.lexsort((rank, tm)))
 
 
 def test_empty_nav_is_a_fresh_empty_table():

@@ -44,6 +44,7 @@ def test_compiled_walk_is_built_here():
     if ubx_frames._ubxcore is None:
         pytest.skip("cdgps_cli.io._ubxcore not built (optional); the numpy path is what runs")
     assert ubx_frames._ubxcore.API == 1
+    assert hasattr(ubx_frames._ubxcore, "rawx_rows"), "stale _ubxcore build: rebuild cdgps_cli/io/_ubxcore.c"
 
 
 def test_shared_logs_found():
@@ -213,3 +214,17 @@ def test_false_syncs_switch_the_compiled_walk_to_prefix_sums():
         frames, _, stats = ubx_frames._split_stream_compiled(big)
         assert time.perf_counter() - t < 1.0
         assert len(frames) == 1 and stats["bad_checksum_frames"] == 170_000
+
+
+def test_checksums_of_every_length_and_byte_frame_identically():
+    """The compiled walk sums checksums 8 bytes a step: frames of every payload length 0-40 (every
+    remainder of the step) with byte values up to 255, each good and with either checksum byte off by one."""
+    rng = np.random.default_rng(29)
+    parts = []
+    for n in range(41):
+        for bad in (None, -2, -1):
+            fr = bytearray(_ubx(2, 0x13, bytes(rng.integers(200, 256, n, dtype=np.uint8))))
+            if bad is not None:
+                fr[bad] = (fr[bad] + 1) & 0xFF
+            parts.append(bytes(fr))
+    _same(b"".join(parts))

@@ -1,0 +1,84 @@
+"""The fixed costs cut for small RINEX files (issue 29 item 4): the epoch-line date fields read in one
+integer conversion, few epochs' dates without ``np.unique``, and a RINEX 2 file read once by
+``read_rinex_signals`` (the fast RINEX 3 reader declining it hands its bytes on); the same values and
+refusals as before."""
+
+from __future__ import annotations
+
+import datetime as dt
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cdgps_cli.core.gps_time import gps_seconds
+from cdgps_cli.io import rinex, rinex_body, rinex_signals
+from cdgps_cli.io._fixed_width import Unsupported
+
+SHARED = Path(__file__).resolve().parents[3] / "shared" / "data"
+GLO_K = {f"R{i:02d}": 0 for i in range(1, 33)}
+
+
+def _fields_one_by_one(g):
+    return tuple(rinex_body._ints(g[:, a:b]) for a, b in rinex_body._DATE_FIELDS)
+
+
+def _epoch_lines(rows: list[bytes]) -> np.ndarray:
+    return np.frombuffer(b"".join(r.ljust(35)[:35] for r in rows), np.uint8).reshape(-1, 35).copy()
+
+
+@pytest.mark.parametrize("n", [1, 3, 4, 40])                     # 5·n fields: Python's int and the numpy path
+def test_date_fields_in_one_call_as_one_by_one(n):
+    rng = np.random.default_rng(n)
+    rows = [b"> %4d %2d %2d %2d %2d %10.7f  0 12" % (rng.integers(1980, 2100), rng.integers(1, 13),
+                                                     rng.integers(1, 29), rng.integers(0, 24), rng.integers(0, 60),
+                                                     rng.random() * 60) for _ in range(n)]
+    rows[0] = b"> 2021 09 22 00 00 0.0000000  0 12"                 # zero-padded fields
+    g = _epoch_lines(rows)
+    got, ref = rinex_body._date_ints(g), _fields_one_by_one(g)
+    assert all(a.dtype == np.int64 and np.array_equal(a, b) for a, b in zip(got, ref, strict=True))
+
+
+@pytest.mark.parametrize("bad", [b"> 2021  9 2x  0  0  0.0000000  0 12", b"> 2021  9    0  0  0.0000000  0 12",
+                                 b"> 2021 -9 22  0  0  0.0000000  0 12", b"> 20 1  9 22  0  0  0.0000000  0 12"])
+@pytest.mark.parametrize("n", [1, 40])
+def test_date_fields_refused_as_one_by_one(bad, n):
+    g = _epoch_lines([b"> 2021  9 22  0  0  0.0000000  0 12"] * (n - 1) + [bad])
+    with pytest.raises(Unsupported):
+        _fields_one_by_one(g)
+    with pytest.raises(Unsupported):
+        rinex_body._date_ints(g)
+
+
+@pytest.mark.parametrize("n", [1, 5, 64, 65, 300])              # the dict path (<= 64 epochs) and np.unique's
+def test_gps_seconds_few_and_many_epochs(n):
+    rng = np.random.default_rng(n)
+    days = rng.integers(0, 4, n)                                    # repeated dates, out of order
+    y, mo, d = np.full(n, 2020), np.full(n, 2), 27 + days
+    mo = np.where(d > 29, 3, mo)
+    d = np.where(d > 29, d - 29, d)
+    h, mi, sec = rng.integers(0, 24, n), rng.integers(0, 60, n), rng.random(n) * 60
+    got = rinex_body._gps_seconds(y, mo, d, h, mi, sec)
+    ref = [gps_seconds(*map(int, v[:5]), float(v[5])) for v in zip(y, mo, d, h, mi, sec)]
+    assert got.tolist() == ref
+    with pytest.raises(Unsupported):
+        rinex_body._gps_seconds(np.append(y, 2021), np.append(mo, 2), np.append(d, 29), np.append(h, 0),
+                                np.append(mi, 0), np.append(sec, 0.0))
+
+
+@pytest.mark.skipif(not (SHARED / "rinex" / "demo.10o").exists(), reason="../shared/data absent")
+@pytest.mark.parametrize("name", ["demo.10o", "demo3.10o"])
+def test_signals_file_read_once(monkeypatch, name):
+    """A RINEX 2 file (the fast RINEX 3 reader declines it) and a RINEX 3 file are read from disk once,
+    and give the line-by-line reader's table."""
+    path = SHARED / "rinex" / name
+    names = rinex_signals.signals_in_file(path)
+    calls = []
+    real = rinex._read_bytes
+    monkeypatch.setattr(rinex_signals, "_read_bytes", lambda p: calls.append(p) or real(p))
+    monkeypatch.setattr(rinex, "_read_bytes", lambda p: calls.append(p) or real(p))
+    info, df = rinex_signals.read_rinex_signals(path, names, glonass_k=GLO_K)
+    assert len(calls) == 1
+    monkeypatch.setattr(rinex_signals, "FAST_PARSE", False)
+    info_ref, ref = rinex_signals.read_rinex_signals(path, names, glonass_k=GLO_K)
+    assert df.equals(ref) and list(df.dtypes) == list(ref.dtypes) and info == info_ref
