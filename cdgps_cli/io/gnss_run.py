@@ -67,7 +67,6 @@ RECEIVERS_ATTACHMENT = "gnss/receivers.json"
 EPHEMERIS_ATTACHMENT = "gnss/ephemeris.json"
 OBS_ATTACHMENT = "gnss/obs/{}.npz.zst"
 SIGNALS_ATTACHMENT = "gnss/signals/{}.npz.zst"
-LOCK_TIME_CAP_MS = 64500.0
 
 RAW_COLUMNS = {
     "time_gps_s": "receiver time tag, GPS s",

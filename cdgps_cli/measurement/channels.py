@@ -28,7 +28,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["FIRST", "RESTART", "REACQUIRED", "LockTime", "LockSegments", "lock_segments", "ubx_restarts"]
+from cdgps_cli.core.constants import LOCK_TIME_CAP_MS
+from cdgps_cli.core.gps_time import nominal_interval_s
+
+__all__ = ["FIRST", "RESTART", "REACQUIRED", "LockTime", "LockSegments", "lock_segments", "ubx_restarts", "ubx_loss_of_lock"]
 
 FIRST = 1          # the channel's first row
 RESTART = 2        # the receiver restarted lock (flag, reset, lock indicator) without a gap
@@ -187,3 +190,32 @@ def ubx_restarts(sat, time_s, lock_time_ms, interval_s: float, cap_ms: float) ->
     seg = lock_segments(sat, np.asarray(time_s, dtype=np.float64), lock=np.asarray(lock_time_ms, dtype=np.float64),
                         lock_time=LockTime(1e3, cap_ms, tol_ms), max_step=np.inf)
     return seg.cause == RESTART
+
+
+def ubx_loss_of_lock(t, channel, phase, lock_time_ms, half, interval_s: float | None = None) -> np.ndarray:
+    """Loss-of-lock bits of u-blox rows (see :func:`cdgps_cli.pipeline.gnss_ingest.processing_obs`): bit 0 where the lock time of the
+    row's channel (satellite, or satellite and signal) restarted or the half-cycle ambiguity became
+    resolved, bit 1 while it is unresolved; 0 on rows without a phase.
+
+    Parameters
+    ----------
+    t : array_like (n,)  time tags, GPS s
+    channel : array_like (n,)  satellite (or satellite-signal) of each row
+    phase : array_like (n,)  carrier phase (NaN: none)
+    lock_time_ms : array_like (n,)  RXM-RAWX lock times, ms
+    half : array_like of bool (n,)  half-cycle ambiguity unresolved
+    interval_s : float, optional  nominal epoch interval, s (default: from the tags)
+    """
+    t = np.asarray(t, dtype=np.float64)
+    sat = np.asarray(channel)
+    half = np.asarray(half, dtype=bool)
+    lli = np.zeros(t.size, dtype=np.int64)
+    ok = np.flatnonzero(np.isfinite(np.asarray(phase, dtype=np.float64)))
+    o = ok[np.lexsort((t[ok], sat[ok]))]                 # by channel, then time
+    dt_nom = interval_s if interval_s else nominal_interval_s(t)
+    restart = ubx_restarts(sat[o], t[o], np.asarray(lock_time_ms, dtype=np.float64)[o], dt_nom, LOCK_TIME_CAP_MS)
+    same = np.r_[False, sat[o][1:] == sat[o][:-1]]
+    h_o = half[o]
+    resolved_now = same & ~h_o & np.r_[False, h_o[:-1]]
+    lli[o] = np.where(restart | resolved_now, 1, 0) | np.where(h_o, 2, 0)
+    return lli

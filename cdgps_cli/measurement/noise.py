@@ -25,7 +25,6 @@ import math
 import numpy as np
 
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.config.structure import channel_sigma_m
 
 HUTCHINSON_PROBES = 8        # random probes of the leverage trace per channel
 HUTCHINSON_SEED = 20260601   # fixed: same data → same estimate (byte-identical outputs)
@@ -66,6 +65,7 @@ def prior_sigma_m(cfg, channels, override_m: float | None = None, snr_dbhz=None)
         if not (np.isfinite(override_m) and override_m > 0):
             raise CdgpsError(f"--sigma-m must be a positive number of metres, got {override_m!r}")
         return np.full(len(channels), float(override_m))
+    from cdgps_cli.config.structure import channel_sigma_m  # noqa: PLC0415 (the config reader: not on the rtk path)
     out = np.asarray(channel_sigma_m(cfg, list(channels)), dtype=float).reshape(len(channels))
     if not np.all(np.isfinite(out) & (out > 0)):
         raise CdgpsError(f"{cfg.name}: measurement sigma must be positive for every channel")

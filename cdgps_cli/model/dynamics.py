@@ -14,11 +14,14 @@ acceleration in the units of the config, as in both papers.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.model.kinematics import thruster_forcing
+
+if TYPE_CHECKING:  # annotations only: the config reader (TOML, schema) is not on the rtk path
+    from cdgps_cli.config.structure import StructureConfig
 
 
 @dataclass(frozen=True)

@@ -22,10 +22,14 @@ through ``transition(dt_s) -> (A, B, Q)``.  Implementations:
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.model.dynamics import discrete_model
+
+if TYPE_CHECKING:  # annotations only: the config reader (TOML, schema) is not on the rtk path
+    from cdgps_cli.config.structure import StructureConfig
 
 __all__ = ["Dynamics", "ModalZOH", "RandomWalk", "Static", "ConstantVelocity", "WithConstants"]
 

@@ -12,9 +12,12 @@ shapes at the point from finite-element software).  All functions are vectorized
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from cdgps_cli.config.structure import StructureConfig, gyro_rate_map
+if TYPE_CHECKING:  # annotations only: the config reader (TOML, schema) is not on the rtk path
+    from cdgps_cli.config.structure import StructureConfig
 
 
 def _rot(axis: int, angle: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -152,6 +155,7 @@ def gyro_matrix(cfg: StructureConfig) -> np.ndarray:
     about its axes, its mode-shape rotations (``rotation_rad``) and the rigid-body rate about the
     vertical (see :func:`cdgps_cli.config.structure.gyro_rate_map`).
     """
+    from cdgps_cli.config.structure import gyro_rate_map  # noqa: PLC0415 (see the module imports)
     return gyro_rate_map(cfg.sections, cfg.gyro_section, cfg.gyro_axis, cfg.gyro_rotation, cfg.rigid_index, cfg.n_q)
 
 

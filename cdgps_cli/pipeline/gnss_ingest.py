@@ -24,10 +24,10 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io import gnss_run
 from cdgps_cli.core.gps_time import nominal_interval_s
 from cdgps_cli.core.records import OBS_COLUMNS
-from cdgps_cli.io.gnss_run import LOCK_TIME_CAP_MS, GnssReceiver, IngestInputs, span_text
+from cdgps_cli.io.gnss_run import GnssReceiver, IngestInputs, span_text
 from cdgps_cli.io.sensor_logs import sensor_attachments, sensor_log_file
 from cdgps_cli.io.ubx_esf import receiver_imu_tables
-from cdgps_cli.measurement.channels import FIRST, lock_segments, ubx_restarts
+from cdgps_cli.measurement.channels import FIRST, lock_segments, ubx_loss_of_lock  # noqa: F401 (ubx_loss_of_lock: re-exported)
 from cdgps_cli.measurement.epoch_pairing import pair_epochs
 from cdgps_cli.model.gps.positioning import ephemeris_coverage, spp_static
 
@@ -174,35 +174,6 @@ def anchor_obs(rx: GnssReceiver, signals, interval_s: float | None = None) -> pd
         "pseudorange_l1_m": s["pseudorange_m"].to_numpy(dtype=np.float64), "snr_l1_dbhz": np.full(t.size, np.nan),
         "rx_clock_offset_s": clk, "epoch_flag": flag.astype(np.int64),
     }, columns=list(OBS_COLUMNS)).reset_index(drop=True)
-
-
-def ubx_loss_of_lock(t, channel, phase, lock_time_ms, half, interval_s: float | None = None) -> np.ndarray:
-    """Loss-of-lock bits of u-blox rows (see :func:`processing_obs`): bit 0 where the lock time of the
-    row's channel (satellite, or satellite and signal) restarted or the half-cycle ambiguity became
-    resolved, bit 1 while it is unresolved; 0 on rows without a phase.
-
-    Parameters
-    ----------
-    t : array_like (n,)  time tags, GPS s
-    channel : array_like (n,)  satellite (or satellite-signal) of each row
-    phase : array_like (n,)  carrier phase (NaN: none)
-    lock_time_ms : array_like (n,)  RXM-RAWX lock times, ms
-    half : array_like of bool (n,)  half-cycle ambiguity unresolved
-    interval_s : float, optional  nominal epoch interval, s (default: from the tags)
-    """
-    t = np.asarray(t, dtype=np.float64)
-    sat = np.asarray(channel)
-    half = np.asarray(half, dtype=bool)
-    lli = np.zeros(t.size, dtype=np.int64)
-    ok = np.flatnonzero(np.isfinite(np.asarray(phase, dtype=np.float64)))
-    o = ok[np.lexsort((t[ok], sat[ok]))]                 # by channel, then time
-    dt_nom = interval_s if interval_s else nominal_interval_s(t)
-    restart = ubx_restarts(sat[o], t[o], np.asarray(lock_time_ms, dtype=np.float64)[o], dt_nom, LOCK_TIME_CAP_MS)
-    same = np.r_[False, sat[o][1:] == sat[o][:-1]]
-    h_o = half[o]
-    resolved_now = same & ~h_o & np.r_[False, h_o[:-1]]
-    lli[o] = np.where(restart | resolved_now, 1, 0) | np.where(h_o, 2, 0)
-    return lli
 
 
 def signal_obs(rx: GnssReceiver, interval_s: float | None = None) -> pd.DataFrame | None:

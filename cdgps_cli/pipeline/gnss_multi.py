@@ -280,7 +280,7 @@ def _ubx_decoded(path: str, mtime_ns: int, size: int):
     """A u-blox log read once per command: its summary (RTCM base position), every signal's table
     with loss of lock from the lock times and half-cycle status, and its SFRBX ephemerides."""
     from cdgps_cli.io.ubx import UBX_SIGNALS, read_ubx_log, read_ubx_signals  # noqa: PLC0415
-    from cdgps_cli.pipeline.gnss_ingest import ubx_loss_of_lock  # noqa: PLC0415
+    from cdgps_cli.measurement.channels import ubx_loss_of_lock  # noqa: PLC0415 (not the ingest pipeline: its imports are the MCAP run's)
 
     tab = read_ubx_signals(path, list(UBX_SIGNALS))
     key = (tab["sat"].astype(str) + ":" + tab["signal"].astype(str)).to_numpy()

@@ -42,4 +42,18 @@ def test_rtk_loads_no_plotting_dask_scipy_or_mcap(tmp_path):
                          "--nav", str(MOSAIC / "base.nav"), "--signals", "G:L1",
                          "--base-xyz", "-3817681.1213", "3562839.4311", "3650159.1593", "-o", str(tmp_path / "r.csv")])
     assert "numpy" in loaded and (tmp_path / "r.csv").is_file()
-    assert not [m for m in NEVER + ("mcap", "zstandard") if m in loaded], sorted(loaded)
+    # nor the structure-config reader (TOML, schema, validation): rtk takes its options from the command line
+    assert not [m for m in NEVER + ("mcap", "zstandard", "cdgps_cli.config.structure", "tomllib") if m in loaded], \
+        sorted(loaded)
+
+
+def test_rtk_on_a_ublox_log_loads_neither_the_ingest_pipeline_nor_mcap(tmp_path):
+    """A UBX base's loss-of-lock bits come from measurement.channels, not from the ingest pipeline
+    (whose imports, the MCAP run reader/writer and the structure config, are another command's)."""
+    walk = REPO_ROOT.parent / "shared" / "data" / "real-pairs" / "ublox-walk"
+    loaded = _loaded_by(["-q", "rtk", "--base", str(walk / "gnss_1730.ubx"), "--rover", str(walk / "gnss_1730_convbin.obs"),
+                         "--signals", "G:L1,E:E1", "--base-xyz", "-1276975.6547", "-4717238.8712", "4087235.6076",
+                         "-o", str(tmp_path / "r.csv")])
+    assert "cdgps_cli.io.ubx" in loaded and (tmp_path / "r.csv").is_file()      # the probe itself works
+    assert not [m for m in NEVER + ("mcap", "zstandard", "cdgps_cli.pipeline.gnss_ingest", "cdgps_cli.io.gnss_run",
+                                    "cdgps_cli.config.structure", "tomllib") if m in loaded], sorted(loaded)
