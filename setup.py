@@ -1,6 +1,7 @@
 """Build of the optional C kernels ``cdgps_cli.estimation._ekfcore``, ``cdgps_cli.estimation._lambdacore`` (LAMBDA's
 reduction and integer search), ``cdgps_cli.tracking._trackcore`` and ``cdgps_cli.io._ubxcore`` (the framing walk
-of u-blox logs; without it ``cdgps_cli.io.ubx_frames`` frames with numpy, same result) (project metadata lives in
+of u-blox logs and the RXM-RAWX measurement rows; without it ``cdgps_cli.io.ubx_frames`` and the RAWX decoder use
+numpy, same result) (project metadata lives in
 pyproject.toml).
 
 The extension is plain C against the CPython API and the buffer protocol: no numpy headers, so
