@@ -163,9 +163,9 @@ def iterated_update(model, mk, xbar: np.ndarray, Pbar: np.ndarray, max_iteration
 def iterated_update_covariance(model, mk, xbar: np.ndarray, Pbar: np.ndarray, max_iterations: int = 5):
     """(x, P, NIS) of :func:`iterated_update` in covariance form: O(n² m) an epoch, no n × n factor.
 
-    With whitened rows (noise I) linearized at the iterate x_i: S = H P̄ Hᵀ + I (m × m, Cholesky
-    S = L Lᵀ), K = P̄ Hᵀ S⁻¹, x_{i+1} = x̄ + K (z_w − h_w(x_i) − H (x̄ − x_i)); NIS = νᵀ S⁻¹ ν at x̄;
-    P⁺ = P̄ − W Wᵀ with W = P̄ Hᵀ L⁻ᵀ (the symmetric form of (I − K H) P̄) at the last linearization.
+    With whitened rows (noise I) linearized at the iterate x_i: S = H P̄ Hᵀ + I (m × m, Cholesky),
+    K = P̄ Hᵀ S⁻¹, x_{i+1} = x̄ + K (z_w − h_w(x_i) − H (x̄ − x_i)); NIS = νᵀ S⁻¹ ν at x̄;
+    P⁺ = P̄ − P̄ Hᵀ S⁻¹ H P̄ (the symmetric form of (I − K H) P̄) at the last linearization.
     Algebraically equal to :func:`iterated_update` (matrix inversion lemma); same iteration rule.
 
     Parameters
@@ -179,7 +179,6 @@ def iterated_update_covariance(model, mk, xbar: np.ndarray, Pbar: np.ndarray, ma
     P : ndarray, shape (n, n)
     nis : float
     """
-    solve_triangular = (_SCIPY or _scipy())[2]
     zw = mk.whiten(mk.z_m)
     xi = xbar.copy()
     nis = np.nan
@@ -191,12 +190,12 @@ def iterated_update_covariance(model, mk, xbar: np.ndarray, Pbar: np.ndarray, ma
         U = Pbar @ H.T                              # P̄ Hᵀ (n, m)
         S = H @ U
         S[np.diag_indices_from(S)] += 1.0
-        L = _chol_factor(S).T                       # lower: S = L Lᵀ
+        c = _chol_factor(S)                         # S = H P̄ Hᵀ + I (m, m)
         v = zw - hw if it == 0 else zw - hw - H @ (xbar - xi)
-        a = solve_triangular(L, v, lower=True, check_finite=False)      # L⁻¹ ν
+        sv = _chol_solve(c, v)                      # S⁻¹ ν
         if it == 0:
-            nis = float(a @ a)
-        x_new = xbar + U @ solve_triangular(L, a, lower=True, trans="T", check_finite=False)
+            nis = float(v @ sv)
+        x_new = xbar + U @ sv
         if it == last:
             xi = x_new
             break
@@ -204,8 +203,7 @@ def iterated_update_covariance(model, mk, xbar: np.ndarray, Pbar: np.ndarray, ma
         xi = x_new
         if step <= 1e-9 * max(1.0, float(np.max(np.abs(xi)))):
             break
-    W = solve_triangular(L, U.T, lower=True, check_finite=False)        # L⁻¹ H P̄ (m, n): W Wᵀ above is Wᵀ W here
-    P = Pbar - W.T @ W
+    P = Pbar - U @ _chol_solve(c, U.T)              # P̄ − P̄ Hᵀ S⁻¹ H P̄
     return xi, 0.5 * (P + P.T), nis
 
 
