@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["StepFilter", "iterated_update", "predict", "update", "LAPACK_CHOLESKY", "NUMPY_INVERSE"]
+__all__ = ["StepFilter", "iterated_update", "iterated_update_covariance", "predict", "update", "LAPACK_CHOLESKY", "NUMPY_INVERSE"]
 
 #: LAPACK potrf / potrs and scipy's solve_triangular, imported on first use: scipy's import
 #: (≈ 0.13 s) stays off the start-up of `cdgps rtk`, whose filter runs on this step too
@@ -58,12 +58,18 @@ class StepFilter:
         Its covariance.
     linalg : (factor, solve, inverse), optional
         The update's linear algebra (:func:`iterated_update`); default :data:`LAPACK_CHOLESKY`.
+    form : {"information", "covariance"}
+        The update: :func:`iterated_update` (default; O(n³) an epoch) or
+        :func:`iterated_update_covariance` (O(n² m): for large states with few rows an epoch).
     """
 
-    def __init__(self, x, P, linalg=None):
+    def __init__(self, x, P, linalg=None, form: str = "information"):
+        if form not in ("information", "covariance"):
+            raise ValueError(f"form must be 'information' or 'covariance', got {form!r}")
         self.x = np.array(x, dtype=float)
         self.P = np.array(P, dtype=float)
         self.linalg = linalg
+        self.form = form
 
     def predict(self, A: np.ndarray, Q: np.ndarray, known_input=None) -> None:
         """x̄ = A x (+ known input), P̄ = A P Aᵀ + Q.
@@ -88,7 +94,10 @@ class StepFilter:
         """The iterated update with one epoch's ``rows`` (:class:`~cdgps_cli.measurement.model.Rows`)
         of ``model`` (a :class:`~cdgps_cli.measurement.model.MeasurementModel`), :func:`iterated_update`;
         returns the epoch's NIS (dof ``rows.z_m.size``)."""
-        self.x, self.P, nis = iterated_update(model, rows, self.x, self.P, max_iterations, self.linalg)
+        if self.form == "covariance":
+            self.x, self.P, nis = iterated_update_covariance(model, rows, self.x, self.P, max_iterations)
+        else:
+            self.x, self.P, nis = iterated_update(model, rows, self.x, self.P, max_iterations, self.linalg)
         return nis
 
 
@@ -148,6 +157,53 @@ def iterated_update(model, mk, xbar: np.ndarray, Pbar: np.ndarray, max_iteration
         if step <= 1e-9 * max(1.0, float(np.max(np.abs(xi)))):
             break
     P = inverse(cf, eye)
+    return xi, 0.5 * (P + P.T), nis
+
+
+def iterated_update_covariance(model, mk, xbar: np.ndarray, Pbar: np.ndarray, max_iterations: int = 5):
+    """(x, P, NIS) of :func:`iterated_update` in covariance form: O(n² m) an epoch, no n × n factor.
+
+    With whitened rows (noise I) linearized at the iterate x_i: S = H P̄ Hᵀ + I (m × m, Cholesky),
+    K = P̄ Hᵀ S⁻¹, x_{i+1} = x̄ + K (z_w − h_w(x_i) − H (x̄ − x_i)); NIS = νᵀ S⁻¹ ν at x̄;
+    P⁺ = P̄ − P̄ Hᵀ S⁻¹ H P̄ (the symmetric form of (I − K H) P̄) at the last linearization.
+    Algebraically equal to :func:`iterated_update` (matrix inversion lemma); same iteration rule.
+
+    Parameters
+    ----------
+    model, mk, xbar, Pbar, max_iterations
+        As :func:`iterated_update`.
+
+    Returns
+    -------
+    x : ndarray, shape (n,)
+    P : ndarray, shape (n, n)
+    nis : float
+    """
+    zw = mk.whiten(mk.z_m)
+    xi = xbar.copy()
+    nis = np.nan
+    last = max(int(max_iterations), 1) - 1
+    for it in range(last + 1):
+        h, H = model.predict(xi, mk)
+        H = mk.whiten(H)
+        hw = mk.whiten(h)
+        U = Pbar @ H.T                              # P̄ Hᵀ (n, m)
+        S = H @ U
+        S[np.diag_indices_from(S)] += 1.0
+        c = _chol_factor(S)                         # S = H P̄ Hᵀ + I (m, m)
+        v = zw - hw if it == 0 else zw - hw - H @ (xbar - xi)
+        sv = _chol_solve(c, v)                      # S⁻¹ ν
+        if it == 0:
+            nis = float(v @ sv)
+        x_new = xbar + U @ sv
+        if it == last:
+            xi = x_new
+            break
+        step = np.max(np.abs(x_new - xi))
+        xi = x_new
+        if step <= 1e-9 * max(1.0, float(np.max(np.abs(xi)))):
+            break
+    P = Pbar - U @ _chol_solve(c, U.T)              # P̄ − P̄ Hᵀ S⁻¹ H P̄
     return xi, 0.5 * (P + P.T), nis
 
 

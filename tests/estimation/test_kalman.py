@@ -148,3 +148,39 @@ def test_numpy_inverse_linalg_gives_the_lapack_update():
     step = StepFilter(xbar, Pbar, NUMPY_INVERSE)
     step.update(model, _rows(z, sigma), 20)
     np.testing.assert_allclose(step.x, iterated_update(model, _rows(z, sigma), xbar, Pbar, 20)[0], rtol=1e-12)
+
+
+class _Linear(MeasurementModel):
+    """h = H x (plus a small quadratic term when ``curv``: the iteration relinearizes)."""
+
+    def __init__(self, H, curv=0.0):
+        self.H, self.curv, self.n_state = H, curv, H.shape[1]
+
+    def predict(self, x, rows):
+        return self.H @ x + self.curv * (self.H @ x) ** 2, self.H * (1.0 + 2.0 * self.curv * (self.H @ x))[:, None]
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_covariance_form_equals_the_information_form(seed):
+    from cdgps_cli.estimation.kalman import iterated_update_covariance
+    g = np.random.default_rng(100 + seed)
+    n, m = 30 + seed, 4 + seed
+    M = g.normal(size=(n, n))
+    Pbar = M @ M.T / n + np.diag(np.r_[np.full(3, 1e-2), np.full(n - 3, 1.0)])
+    xbar = g.normal(size=n)
+    model = _Linear(g.normal(size=(m, n)), curv=0.01 * (seed % 2))
+    C = g.normal(size=(m, m))
+    rows = _rows(g.normal(size=m), chol=np.linalg.cholesky(C @ C.T + np.eye(m))) if seed % 3 == 0 \
+        else _rows(g.normal(size=m), sigma=g.uniform(0.5, 2.0, m))
+    for its in (1, 2, 5):
+        x1, P1, nis1 = iterated_update(model, rows, xbar, Pbar, its)
+        x2, P2, nis2 = iterated_update_covariance(model, rows, xbar, Pbar, its)
+        scale = np.max(np.abs(P1))
+        assert np.max(np.abs(P2 - P1)) <= 1e-12 * scale * n
+        assert np.max(np.abs(x2 - x1)) <= 1e-12 * max(1.0, np.max(np.abs(x1))) * n
+        assert nis2 == pytest.approx(nis1, rel=1e-11)
+    step = StepFilter(xbar, Pbar, form="covariance")        # the StepFilter option selects it
+    step.update(model, rows, 2)
+    np.testing.assert_allclose(step.x, iterated_update(model, rows, xbar, Pbar, 2)[0], rtol=1e-11, atol=1e-12)
+    with pytest.raises(ValueError, match="form"):
+        StepFilter(xbar, Pbar, form="joseph")
