@@ -55,12 +55,10 @@ def arc_columns(rows, times_s=None, *, max_gap_s: float | None = None, n_pos: in
 
 def _groups(rows, cols, k):
     """Epoch k's signal groups with their ambiguity columns (no ionosphere column)."""
-    lo, hi = rows["ptr"][k], rows["ptr"][k + 1]
-    code, c = rows["code"][lo:hi], cols[lo:hi]
     out = []
     for g in epoch_groups(rows, k):
-        sel = code == int(np.flatnonzero(rows["names"] == g["signal"])[0])
-        out.append(dict(g, amb_col=c[sel], iono_col=np.full(int(sel.sum()), -1)))
+        a, b = g["rows"]                          # the group's rows in the run's columns
+        out.append(dict(g, amb_col=cols[a:b], iono_col=np.full(b - a, -1)))
     return out
 
 
