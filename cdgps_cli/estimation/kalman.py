@@ -130,9 +130,26 @@ def iterated_update(model, mk, xbar: np.ndarray, Pbar: np.ndarray, max_iteration
     nis : float
     """
     factor, solve, inverse = linalg if linalg is not None else LAPACK_CHOLESKY
-    zw = mk.whiten(mk.z_m)
     eye = np.eye(len(xbar))
     Pinv = inverse(factor(Pbar), eye)
+
+    def correction(H, v, first):                    # (P⁻¹ + HᵀH)⁻¹ Hᵀ ν, its NIS at x̄, the factor
+        cf = factor(Pinv + H.T @ H)
+        hv = H.T @ v
+        dx = solve(cf, hv)
+        return dx, (float(v @ v - hv @ dx) if first else None), cf
+
+    xi, nis, cf = _gauss_newton(model, mk, xbar, max_iterations, correction)
+    P = inverse(cf, eye)
+    return xi, 0.5 * (P + P.T), nis
+
+
+def _gauss_newton(model, mk, xbar: np.ndarray, max_iterations: int, correction):
+    """The iteration both update forms share: at each iterate x_i the whitened innovation
+    ν = z_w − h_w(x_i) − H (x̄ − x_i) (at x̄: z_w − h_w(x̄)), x_{i+1} = x̄ + Δx from
+    ``correction(H, ν, first) → (Δx, NIS at x̄ or None, what the covariance needs)``, until the step is
+    ≤ 1e-9 of the state or ``max_iterations``.  Returns (x, NIS, the last correction's third item)."""
+    zw = mk.whiten(mk.z_m)
     xi = xbar.copy()
     nis = np.nan
     last = max(int(max_iterations), 1) - 1
@@ -140,15 +157,11 @@ def iterated_update(model, mk, xbar: np.ndarray, Pbar: np.ndarray, max_iteration
         h, H = model.predict(xi, mk)
         H = mk.whiten(H)
         hw = mk.whiten(h)
-        cf = factor(Pinv + H.T @ H)
-        if it == 0:                                 # at x̄: the innovation and its NIS
-            v = zw - hw
-            hv = H.T @ v
-            nis = float(v @ v - hv @ solve(cf, hv))
-        else:                                       # whitened innovation at the iterate
-            v = zw - hw - H @ (xbar - xi)
-            hv = H.T @ v
-        x_new = xbar + solve(cf, hv)
+        v = zw - hw if it == 0 else zw - hw - H @ (xbar - xi)
+        dx, nis_it, keep = correction(H, v, it == 0)
+        if it == 0:
+            nis = nis_it
+        x_new = xbar + dx
         if it == last:                              # no convergence test after the last allowed step
             xi = x_new
             break
@@ -156,8 +169,7 @@ def iterated_update(model, mk, xbar: np.ndarray, Pbar: np.ndarray, max_iteration
         xi = x_new
         if step <= 1e-9 * max(1.0, float(np.max(np.abs(xi)))):
             break
-    P = inverse(cf, eye)
-    return xi, 0.5 * (P + P.T), nis
+    return xi, nis, keep
 
 
 def iterated_update_covariance(model, mk, xbar: np.ndarray, Pbar: np.ndarray, max_iterations: int = 5):
@@ -179,30 +191,15 @@ def iterated_update_covariance(model, mk, xbar: np.ndarray, Pbar: np.ndarray, ma
     P : ndarray, shape (n, n)
     nis : float
     """
-    zw = mk.whiten(mk.z_m)
-    xi = xbar.copy()
-    nis = np.nan
-    last = max(int(max_iterations), 1) - 1
-    for it in range(last + 1):
-        h, H = model.predict(xi, mk)
-        H = mk.whiten(H)
-        hw = mk.whiten(h)
+    def correction(H, v, first):                    # P̄ Hᵀ S⁻¹ ν, its NIS at x̄, (P̄ Hᵀ, factor of S)
         U = Pbar @ H.T                              # P̄ Hᵀ (n, m)
         S = H @ U
         S[np.diag_indices_from(S)] += 1.0
         c = _chol_factor(S)                         # S = H P̄ Hᵀ + I (m, m)
-        v = zw - hw if it == 0 else zw - hw - H @ (xbar - xi)
         sv = _chol_solve(c, v)                      # S⁻¹ ν
-        if it == 0:
-            nis = float(v @ sv)
-        x_new = xbar + U @ sv
-        if it == last:
-            xi = x_new
-            break
-        step = np.max(np.abs(x_new - xi))
-        xi = x_new
-        if step <= 1e-9 * max(1.0, float(np.max(np.abs(xi)))):
-            break
+        return U @ sv, (float(v @ sv) if first else None), (U, c)
+
+    xi, nis, (U, c) = _gauss_newton(model, mk, xbar, max_iterations, correction)
     P = Pbar - U @ _chol_solve(c, U.T)              # P̄ − P̄ Hᵀ S⁻¹ H P̄
     return xi, 0.5 * (P + P.T), nis
 
