@@ -145,6 +145,8 @@ def chi2_quantile(probability, dof):
     Numerical Recipes, 3rd ed., §6.2 (series and continued fraction of the incomplete gamma function).
     """
     p, k = np.broadcast_arrays(np.asarray(probability, dtype=float), np.asarray(dof, dtype=float))
-    out = np.fromiter((_scalar(float(pi), float(ki)) for pi, ki in zip(p.ravel(), k.ravel())),
-                      dtype=float, count=p.size).reshape(p.shape)
-    return out[()]
+    key = np.empty(p.size, dtype=complex)                 # (p, dof) as one sortable key
+    key.real, key.imag = p.ravel(), k.ravel()
+    pairs, row = np.unique(key, return_inverse=True)
+    values = np.fromiter((_scalar(float(c.real), float(c.imag)) for c in pairs), dtype=float, count=len(pairs))
+    return values[row.ravel()].reshape(p.shape)[()]     # each distinct (p, dof) once (a per-epoch dof array)
