@@ -32,6 +32,7 @@ attached as ``gnss_config.toml``.
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import asdict
 from pathlib import Path
 
@@ -330,9 +331,23 @@ def _solution_from_init(init: dict, r: str) -> dict | None:
         return None
     floats = {(str(s["sat"]), float(s["first_gps_s"])): (s.get("float_cycles"), s.get("sigma_cycles"))
               for s in rover_segments(init, r) if not s.get("pivot")}
-    return {"enu_m": None if fixed.get("enu_m") is None else [float(v) for v in fixed["enu_m"]],
-            "float_enu_m": None if flt.get("enu_m") is None else [float(v) for v in flt["enu_m"]],
+    return {"enu_m": _enu_from_init(fixed, f"rovers.{r}.fixed.enu_m"),
+            "float_enu_m": _enu_from_init(flt, f"rovers.{r}.float.enu_m"),
             "float_cycles": floats}
+
+
+def _enu_from_init(block: dict, key: str) -> list | None:
+    """``block["enu_m"]`` as 3 floats (None when absent); CdgpsError naming ``key`` unless 3 finite numbers."""
+    v = block.get("enu_m")
+    if v is None:
+        return None
+    try:
+        out = [float(x) for x in v]
+    except (TypeError, ValueError):
+        out = []
+    if len(out) != 3 or not all(math.isfinite(x) for x in out):
+        raise CdgpsError(f"INIT.json: {key}: expected 3 finite numbers (m), got {v!r}")
+    return out
 
 
 def solve_with_init_integers(run, init: dict, r: str, stations: dict):
@@ -346,6 +361,10 @@ def solve_with_init_integers(run, init: dict, r: str, stations: dict):
     INIT's options are not valid or its nominal position is not this run's.
     """
     rov = init["rovers"][r]
+    if rov.get("n_glonass_fixed_by_engine"):
+        raise CdgpsError(f"INIT.json: {r}'s GLONASS DDs were fixed by the static engine (glonass_fix), and INIT does "
+                         f"not carry those integers yet, so 'cdgps estimate' cannot take its solution without solving "
+                         f"again; for estimate, run 'cdgps init' without glonass_fix")
     o = dict(rov.get("options") or {})
     try:
         opt = BaselineOptions(**{k: v for k, v in o.items() if k in BaselineOptions.__dataclass_fields__})

@@ -162,3 +162,14 @@ def test_an_init_nothing_can_take_is_refused_not_solved_again(geonet, monkeypatc
     assert r.exit_code == 2 and "run 'cdgps init' again" in r.stderr and "weighting" in r.stderr, r.output
     assert f"cdgps: error: {tmp_path / 'bad.json'}: the solution of 0759 cannot be used" in r.stderr, r.stderr
     assert "Traceback" not in r.output and not (tmp_path / "s.mcap").exists()
+
+
+def test_a_non_finite_init_position_is_refused(geonet, tmp_path):
+    """INIT.json's fixed ENU with a NaN: exit 2 naming the file and key, no STATES (it was solved from the integers)."""
+    d, init = geonet
+    bad = json.loads(json.dumps(init))
+    bad["rovers"]["0759"]["fixed"]["enu_m"][0] = float("nan")
+    (tmp_path / "nan.json").write_text(json.dumps(bad))
+    r = run_cli("estimate", d / "run.mcap", "--init", tmp_path / "nan.json", "-o", tmp_path / "s.mcap")
+    assert r.exit_code == 2 and f"{tmp_path / 'nan.json'}: rovers.0759.fixed.enu_m: expected 3 finite" in r.stderr, r.output
+    assert "Traceback" not in r.output and not (tmp_path / "s.mcap").exists()
