@@ -368,22 +368,26 @@ static void upper_inverse(const double *restrict R, double *restrict V, double *
     }
 }
 
-/* inverse of an SPD matrix by Cholesky: out = R^-1 R^-T (exactly symmetric); work: 2 n^2 + n */
+/* inverse of an SPD matrix by Cholesky: out = R^-1 R^-T (exactly symmetric); work: 2 n^2 + n.
+   out[i][j] = sum_{k >= j} V[i][k] V[j][k] (j >= i), each summed over ascending k from 0.0 as a dot
+   product would; the accumulators of row i advance together along k (T = V^T, in R's place: its row k
+   is column k of V, contiguous), so they are independent chains and vectorize, with the same values. */
 static int chol_inv(const double *restrict M, double *restrict out, double *restrict work, int n)
 {
-    double *R = work, *V = work + n * n;
+    double *R = work, *V = work + n * n, *T = work;
     if (cholesky_upper(M, R, n) != 0) return -1;
     upper_inverse(R, V, V + n * n, n);
-    /* out[i][j] = sum_{k >= j} V[i][k] V[j][k] (j >= i): row-contiguous dot products */
+    for (int k = 0; k < n; k++)
+        for (int j = 0; j < n; j++) T[k * n + j] = V[j * n + k];
     for (int i = 0; i < n; i++) {
         const double *Vi = V + i * n;
-        for (int j = i; j < n; j++) {
-            const double *Vj = V + j * n;
-            double s = 0.0;
-            for (int k = j; k < n; k++) s += Vi[k] * Vj[k];
-            out[i * n + j] = s;
-            out[j * n + i] = s;
+        double *o = out + i * n;
+        for (int j = i; j < n; j++) o[j] = 0.0;
+        for (int k = i; k < n; k++) {
+            const double v = Vi[k], *Tk = T + k * n;
+            for (int j = i; j <= k; j++) o[j] += v * Tk[j];
         }
+        for (int j = i + 1; j < n; j++) out[j * n + i] = o[j];
     }
     return 0;
 }
@@ -478,6 +482,27 @@ static double quad_nm(const double *P, int n, const double *H, int nm)
         s += t * H[a];
     }
     return s;
+}
+
+/* s[i] = H_i P H_i^T for the m rows idx[i] of H (rows of nm; P's leading nm x nm block), each summed in
+   quad_nm's order; the m rows' accumulators advance together (T: the rows transposed, nm x m; t: m). */
+static void quad_rows(const double *restrict P, int n, const double *restrict H, int nm, const int *restrict idx,
+                      int m, double *restrict T, double *restrict t, double *restrict s)
+{
+    for (int i = 0; i < m; i++) {
+        const double *Hc = H + (Py_ssize_t)idx[i] * nm;
+        for (int b = 0; b < nm; b++) T[b * m + i] = Hc[b];
+        s[i] = 0.0;
+    }
+    for (int a = 0; a < nm; a++) {
+        const double *Pa = P + a * n, *Ta = T + a * m;
+        for (int i = 0; i < m; i++) t[i] = 0.0;
+        for (int b = 0; b < nm; b++) {
+            const double p = Pa[b], *Tb = T + b * m;
+            for (int i = 0; i < m; i++) t[i] += p * Tb[i];
+        }
+        for (int i = 0; i < m; i++) s[i] += t[i] * Ta[i];
+    }
 }
 
 /* ------------------------------------------------------------------------------------------ */
@@ -607,7 +632,8 @@ static PyObject *py_filter_span(PyObject *self, PyObject *args)
 
     /* scratch */
     Py_ssize_t wm = model_work_size(&g);
-    Py_ssize_t total = wm + 2 * n + 6 * nn + n + C + C * nm + C + nm + C * nm + C + C + C * nm;
+    Py_ssize_t total = wm + 2 * n + 6 * nn + n + C + C * nm + C + nm + C * nm + C + C + C * nm
+                       + nm * nm + nm + nm * C + 2 * C;
     work = malloc(sizeof(double) * (total + 1));
     int *used = malloc(sizeof(int) * (C + 1));
     if (!work || !used) {
@@ -622,6 +648,8 @@ static PyObject *py_filter_span(PyObject *self, PyObject *args)
     double *h = cw + 2 * nn + n, *Hm = h + C;
     double *rho = Hm + C * nm, *grad = rho + C, *Hu = grad + nm, *wr = Hu + C * nm;   /* wr: 1/R of used rows */
     double *hf = wr + C, *Hf = hf + C;          /* the model at the filtered state (hph) */
+    double *acc = Hf + C * nm, *wrow = acc + nm * nm;  /* H^T R^-1 H's upper triangle; one row of R^-1 H */
+    double *HT = wrow + nm, *qt = HT + nm * C, *quad = qt + C;   /* quad_rows: scratch and H P H^T */
     Py_ssize_t k = k0, fr = fail_run;
     int reason = STOP_END;
 
@@ -650,11 +678,11 @@ static PyObject *py_filter_span(PyObject *self, PyObject *args)
             if (!isnan(y[c]) && !isnan(bias[c])) used[m++] = (int)c;
         /* innovations and the per-channel outlier test: S_ii = H_i Pmm H_i^T + R_i */
         int outlier = 0;
+        quad_rows(Pp, ni, Hm, nm, used, m, HT, qt, quad);
         for (int i = 0; i < m; i++) {
             int c = used[i];
-            const double *Hc = Hm + c * nm;
             rho[i] = y[c] - h[c] - bias[c];
-            double s = quad_nm(Pp, (int)n, Hc, nm) + r_var[c];
+            double s = quad[i] + r_var[c];
             wr[i] = 1.0 / r_var[c];
             if (fabs(rho[i] / sqrt(s)) > outlier_sigma) { outlier = 1; break; }
         }
@@ -669,17 +697,29 @@ static PyObject *py_filter_span(PyObject *self, PyObject *args)
             for (int i = 0; i < m; i++) memcpy(Hu + i * nm, Hm + used[i] * nm, sizeof(double) * nm);
             double rr = 0.0;
             for (int i = 0; i < m; i++) rr += wr[i] * rho[i] * rho[i];
+            /* g = H^T R^-1 rho and H^T R^-1 H, every entry summed over the rows i in order from 0.0;
+               the entries' accumulators advance together, row by row (independent chains) */
             for (int a = 0; a < nm; a++) {
-                double ga = 0.0;
-                for (int i = 0; i < m; i++) ga += Hu[i * nm + a] * (wr[i] * rho[i]);
-                grad[a] = ga;
+                grad[a] = 0.0;
+                for (int bb = a; bb < nm; bb++) acc[a * nm + bb] = 0.0;
+            }
+            for (int i = 0; i < m; i++) {
+                const double *Hi = Hu + i * nm;
+                const double wrho = wr[i] * rho[i];
+                for (int bb = 0; bb < nm; bb++) wrow[bb] = wr[i] * Hi[bb];
+                for (int a = 0; a < nm; a++) {
+                    const double ha = Hi[a];
+                    double *ac = acc + a * nm;
+                    grad[a] += ha * wrho;
+                    for (int bb = a; bb < nm; bb++) ac[bb] += ha * wrow[bb];
+                }
+            }
+            for (int a = 0; a < nm; a++)
                 for (int bb = a; bb < nm; bb++) {
-                    double v = 0.0;
-                    for (int i = 0; i < m; i++) v += Hu[i * nm + a] * (wr[i] * Hu[i * nm + bb]);
+                    double v = acc[a * nm + bb];
                     Yi[a * n + bb] += v;
                     if (bb != a) Yi[bb * n + a] += v;
                 }
-            }
             if (chol_inv(Yi, Pn, cw, ni)) { reason = STOP_CHOLESKY; break; }
             /* NIS = rho^T S^-1 rho = rho^T R^-1 rho - g^T Pn g (Woodbury), g = H^T R^-1 rho; x = xp + Pn g */
             for (int i = 0; i < ni; i++) xn[i] = 0.0;
@@ -712,10 +752,8 @@ static PyObject *py_filter_span(PyObject *self, PyObject *args)
             /* the residual noise estimate's H P H^T, Jacobian at the filtered state */
             model_eval(&g, xk, hf, Hf, mw);
             double *qk = hph + k * C;
-            for (int i = 0; i < m; i++) {
-                int c = used[i];
-                qk[c] = quad_nm(Pk, ni, Hf + c * nm, nm);
-            }
+            quad_rows(Pk, ni, Hf, nm, used, m, HT, qt, quad);
+            for (int i = 0; i < m; i++) qk[used[i]] = quad[i];
         }
         memcpy(x, xk, sizeof(double) * n);
         memcpy(P, Pk, sizeof(double) * nn);

@@ -17,7 +17,7 @@ import numpy as np
 
 __all__ = ["MemoryHistory", "SMALL_PAGES_BYTES"]
 
-#: arrays of at least this many bytes get an anonymous mapping of base pages (:meth:`MemoryHistory.empty`)
+#: arrays of at least this many bytes get an anonymous mapping of base pages, populated (:meth:`MemoryHistory.empty`)
 SMALL_PAGES_BYTES = 4 << 20
 
 
@@ -31,11 +31,16 @@ class MemoryHistory:
         """``np.empty``; from :data:`SMALL_PAGES_BYTES` on, an anonymous mapping of its own (base
         pages: numpy asks the kernel for transparent huge pages on large arrays, and on a busy
         machine their first touch waits for memory compaction — about half of a cold
-        ``estimate()`` on the testbed hour; the values are the same)."""
+        ``estimate()`` on the testbed hour; the values are the same), its pages populated at once
+        (``MAP_POPULATE`` where the platform has it): the history is written in full by the filter
+        anyway, and one populating call costs about half of faulting its base pages in one by one
+        (93 MB of covariances on the testbed hour: ≈ 0.07 s against ≈ 0.14 s; ``estimate()``'s CPU
+        time 0.66 → 0.59 s)."""
         nbytes = int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
         if nbytes < SMALL_PAGES_BYTES:
             return np.empty(shape, dtype=dtype)
-        return np.frombuffer(mmap.mmap(-1, nbytes), dtype=dtype).reshape(shape)
+        flags = mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS | getattr(mmap, "MAP_POPULATE", 0)
+        return np.frombuffer(mmap.mmap(-1, nbytes, flags=flags), dtype=dtype).reshape(shape)
 
     @staticmethod
     def release(arr: np.ndarray, start: int, stop: int) -> None:
