@@ -436,7 +436,7 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
     if not common:
         raise CdgpsError(f"no common satellites: the base observes {_few(base['sat'])}, the rover {_few(rover['sat'])} "
                          f"(signals asked for); a double difference needs satellites observed at both receivers")
-    rows = paired_sd_rows(base, rover, pairs, opt)
+    rows = paired_sd_rows(base, rover, pairs, opt, mask_rover=True)     # the mask at both receivers, as RTKLIB's
     n_ep = times.size
     if not rows["groups"]["start"].size:                     # no epoch has a group of two satellites
         raise CdgpsError(f"no double differences: no epoch of the {n_ep} paired has two satellites of one signal "

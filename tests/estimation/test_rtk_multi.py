@@ -460,3 +460,20 @@ def test_combine_vectorised_equals_the_per_epoch_combination():
     for key in want:
         if key != "rejected":
             assert np.array_equal(got[key], want[key], equal_nan=True), key
+
+
+def test_rtk_masks_at_both_receivers_as_rtklib(pair):
+    """A satellite below the elevation mask at the rover (above it at the base) is not used, as in RTKLIB
+    (rtkpos.c: ``selsat`` masks on the base's elevation and ``zdres`` leaves each receiver's satellites below
+    the mask without a residual), and as the static engine's rows (``paired_sd_rows(mask_rover=True)``)."""
+    sig, nav, b, r = pair
+    rg = receiver_geometry(r, nav, TRUTH)
+    t_rover = np.unique(rg["time_gps_s"].to_numpy())
+    low = (rg["sat"].astype(str) == "G05").to_numpy() & (rg["time_gps_s"].to_numpy() < t_rover[5])
+    assert low.any()
+    rg.loc[low, "el_rad"] = 0.0                         # below the mask at the rover only, first 5 epochs
+    bg = receiver_geometry(b, nav, BASE)
+    full = solve_rtk(bg, receiver_geometry(r, nav, TRUTH), BASE, TRUTH)
+    res = solve_rtk(bg, rg, BASE, TRUTH)
+    assert (res["n_satellites"][:5] == full["n_satellites"][:5] - 1).all()
+    assert (res["n_satellites"][5:] == full["n_satellites"][5:]).all()

@@ -388,7 +388,7 @@ def test_a_satellite_that_sets_and_rises_is_served_by_the_engine():
 
 def test_engine_masks_at_both_receivers_and_matches_offset_tags():
     """The engine's rows are masked at both receivers, as the batch's (``paired_sd_rows(mask_rover=True)``; rtk's
-    default masks at the base only and is unchanged), so a rising satellite's first rows agree with the
+    too, as RTKLIB's), so a rising satellite's first rows agree with the
     batch's; its arcs are matched to the batch's epochs by nearest epoch, not exact tag (a receiver clock
     offsets the rover's tags by ms: the 24 h simulated pair's by up to 5 ms)."""
     from cdgps_cli.estimation.baseline import _engine_epochs
