@@ -42,6 +42,7 @@ from scipy.linalg import cho_factor, cho_solve
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M, SPEED_OF_LIGHT_M_S
 from cdgps_cli.core import progress
 from cdgps_cli.core.checks import header_position_m
+from cdgps_cli.core.signals import SIGNALS
 from cdgps_cli.estimation.ambiguity import AmbiguityError, resolve
 from cdgps_cli.estimation.model_filter import filter_numpy
 from cdgps_cli.measurement.dd_displacement import SatelliteDDDisplacement, SDObservations
@@ -729,6 +730,7 @@ class _Fix(NamedTuple):
     partial: bool
     success_rate: float | None = None   # bootstrapped success rate of the fixed set (of the full set if none)
     glonass_fixed: np.ndarray | None = None   # (n_seg,) GLONASS segments whose DD the engine fixed (glonass_fix)
+    glonass_dd: np.ndarray | None = None      # (n_seg,) their DD integers N_i − N_p (own cycles; pivot 0), NaN: none
 
 
 class _Final(NamedTuple):
@@ -1231,15 +1233,33 @@ def _fdma_count(seg_rows: list) -> dict:
 
 
 _GLONASS_FIXED_REASON = ("GLONASS fixed by the static engine (glonass_fix, identical receivers): its DD integer is "
-                         "N_i − N_r in each satellite's own cycles; this table's datum shows the engine's fixed value "
-                         "as a bias (m)")
+                         "N_i − N_r in each satellite's own cycles (dd_integer_cycles); this table's datum shows the "
+                         "engine's fixed value as a bias (m)")
+
+
+def fdma_channel(signal: str, wavelength_m: float) -> int:
+    """GLONASS frequency number k (−7 … 6) of an FDMA ``signal`` (e.g. ``"R:G1"``) at ``wavelength_m``."""
+    sig = SIGNALS[signal]
+    return int(round((SPEED_OF_LIGHT_M_S / wavelength_m - sig.frequency_hz) / sig.fdma_step_hz))
+
+
+def _glonass_integer_rows(sg: _Segments, fx: _Fix, seg_rows: list) -> None:
+    """Each GLONASS segment row with a DD integer the engine fixed (glonass_fix) gets it: ``dd_integer_cycles``
+    (N_i − N_p, each satellite in its own cycles, against its datum pivot ``reference``; 0 on the pivot), and
+    ``fdma_channel`` (frequency number k) with ``reference_fdma_channel``; the fixed ones ``fixed_by_engine``."""
+    for k in np.flatnonzero(np.isfinite(fx.glonass_dd)):
+        row, piv = seg_rows[k], seg_rows[int(sg.pivots[sg.comp[k]])]
+        ids = {"dd_integer_cycles": int(fx.glonass_dd[k]),
+               "fdma_channel": fdma_channel(row["signal"], row["wavelength_m"]),
+               "reference_fdma_channel": fdma_channel(piv["signal"], piv["wavelength_m"])}
+        seg_rows[k] = dict(row, **ids, **({"reason": _GLONASS_FIXED_REASON, "fixed_by_engine": True}
+                                          if fx.glonass_fixed[k] else {}))
 
 
 def _ambiguity_summary(sg: _Segments, fx: _Fix, opt: BaselineOptions, seg_rows: list) -> dict:
     glonass = {}
     if fx.glonass_fixed is not None and fx.glonass_fixed.any():
-        for k in np.flatnonzero(fx.glonass_fixed):
-            seg_rows[k] = dict(seg_rows[k], reason=_GLONASS_FIXED_REASON, fixed_by_engine=True)
+        _glonass_integer_rows(sg, fx, seg_rows)
         glonass = {"n_glonass_fixed_by_engine": int(fx.glonass_fixed.sum())}
     return {
         "n_segments": int(sg.n_seg),
@@ -1419,10 +1439,10 @@ def _engine_solution(d: _Data, sg: _Segments, w: _Weights, eng: dict, xr0, r_enu
         a_res, q_res = Ja @ eng["random_walk"][0], Ja @ eng["random_walk"][1] @ Ja.T
         fl.block["motion"] = "random_walk"
         fl.block["random_walk_sigma_m_per_sqrt_s"] = list(opt.random_walk_sigma)
+    glo = np.where(_fdma_segments(d, sg) & np.isfinite(seg_int), seg_int, np.nan) if opt.glonass_fix else None
     fx = _Fix(a_res, q_res, fixed_mask, ints, _nan_none(res.get("ratio")),
               _nan_none(res.get("ratio_full_set")), bool(res.get("accepted", False)), bool(res.get("partial", False)),
-              _nan_none(res.get("success_rate")),
-              (np.isfinite(seg_int) & _fdma_segments(d, sg) & ~sg.is_pivot) if opt.glonass_fix else None)
+              _nan_none(res.get("success_rate")), None if glo is None else np.isfinite(glo) & ~sg.is_pivot, glo)
     n_fixed = int(fixed_mask.sum())
     if not n_fixed:
         a_sig = np.zeros(sg.n_seg)
