@@ -1521,10 +1521,46 @@ def _engine_or_batch(master: Station, rover: Station, nav, opt: BaselineOptions,
     return (None, f"batch ({known})") if isinstance(known, str) else (known, "static_engine")
 
 
+def _given_glonass(given: dict, d: _Data, sg: _Segments, rover: str) -> tuple[np.ndarray, np.ndarray]:
+    """The GLONASS DD integers given (INIT's of a glonass_fix solution, ``{(satellite, first epoch s): {"dd",
+    "channel", "reference", "pivot"}}`` for every GLONASS segment, ``dd`` None where not fixed) on these data's
+    FDMA segments: (segments (m,), their integers N_i − N_p (m,), own cycles against the datum pivot p).
+
+    Raises CdgpsError ``INIT.json: …`` naming what does not match: a GLONASS segment without an entry or an
+    entry without a segment, another FDMA channel, another reference (datum pivot)."""
+    fdma = np.flatnonzero(_fdma_segments(d, sg))
+    here = {(d.sat_names[int(sg.segtab["sat"][k])], round(float(d.t_label[sg.segtab["first_epoch"][k]]), 3)): int(k)
+            for k in fdma}
+    init = {(str(n), round(float(t), 3)): v for (n, t), v in given.items()}
+    bad = [f"no entry for {n} from {gps_time_str(t)}" for n, t in here if (n, t) not in init]
+    bad += [f"an entry for {n} from {gps_time_str(t)}, which these data do not have" for n, t in init if (n, t) not in here]
+    sig = _satellite_signals(d)
+    segs, ints = [], []
+    for (n, t), k in here.items():
+        v = init.get((n, t))
+        if v is None:
+            continue
+        s, p = int(sg.segtab["sat"][k]), int(sg.pivots[sg.comp[k]])
+        ch, ref = fdma_channel(sig[s]["signal"], sig[s]["wavelength_m"]), d.sat_names[int(sg.segtab["sat"][p])]
+        if v["channel"] != ch:
+            bad.append(f"{n} from {gps_time_str(t)} has FDMA channel {v['channel']} in INIT, {ch} in this run")
+        if v["reference"] != ref or bool(v["pivot"]) != bool(sg.is_pivot[k]):
+            bad.append(f"{n} from {gps_time_str(t)} is against {v['reference']} in INIT, {ref} in this run")
+        if v["dd"] is not None and not sg.is_pivot[k]:
+            segs.append(k)
+            ints.append(v["dd"])
+    if bad:
+        raise CdgpsError(f"INIT.json: the GLONASS integers (dd_integer_cycles) of {rover} do not match this run's "
+                         f"{len(here)} GLONASS segments: {'; '.join(bad[:5])}"
+                         + (f" (and {len(bad) - 5} more)" if len(bad) > 5 else ""))
+    return np.array(segs, dtype=np.int64), np.array(ints, dtype=np.int64)
+
+
 def _engine_given(master: Station, rover: Station, nav, opt: BaselineOptions, xm, xr0, prepared: tuple,
-                  integers: dict):
+                  integers: dict, glonass: tuple | None = None):
     """(float, fix, final) of the static engine's float solution conditioned on the given integers (each fixed
-    segment's DD against its datum pivot, :func:`~cdgps_cli.estimation.static_engine.condition_on_integers`), or
+    segment's DD against its datum pivot, and ``glonass``'s (segments, integers) from :func:`_given_glonass`,
+    the GLONASS DDs N_i − N_p in cycles, :func:`~cdgps_cli.estimation.static_engine.condition_on_integers`), or
     the reason (a string) the engine cannot serve these options or arcs.  Nothing is resolved: no LAMBDA."""
     from dataclasses import replace
     from cdgps_cli.estimation.static_engine import condition_on_integers
@@ -1544,10 +1580,16 @@ def _engine_given(master: Station, rover: Station, nav, opt: BaselineOptions, xm
         return eng
     cols, x, P = found["cols"], eng["state"], eng["cov"]
     segs = sg.free[fixed_mask]
-    x_fix, P_fix = condition_on_integers(x, P, _datum_map(d, sg, cols, x.size)[segs], integers_fix[fixed_mask])
+    g_segs, g_ints = glonass if glonass is not None else (np.zeros(0, dtype=np.int64),) * 2
+    D_glo = np.zeros((g_segs.size, x.size))                 # N_i − N_p: each arc in its own cycles
+    D_glo[np.arange(g_segs.size), cols[g_segs]] = 1.0
+    D_glo[np.arange(g_segs.size), cols[sg.pivots[sg.comp[g_segs]]]] = -1.0
+    x_fix, P_fix = condition_on_integers(x, P, np.vstack([_datum_map(d, sg, cols, x.size)[segs], D_glo]),
+                                         np.r_[integers_fix[fixed_mask], g_ints])
     ai = np.full(x.size, np.nan)
     ai[cols[sg.is_pivot]] = 0.0
     ai[cols[segs]] = integers_fix[fixed_mask]
+    ai[cols[g_segs]] = g_ints
     eng = dict(eng, state_fixed=x_fix, cov_fixed=P_fix, arc_integers=ai,
                resolution={"accepted": bool(fixed_mask.any()), "partial": False})
     return _engine_solution(d, sg, w, eng, xr0, r_enu, opt)
@@ -1555,7 +1597,7 @@ def _engine_given(master: Station, rover: Station, nav, opt: BaselineOptions, xm
 
 def baseline_from_init(master: Station, rover: Station, nav: pd.DataFrame, options: BaselineOptions, *,
                        integers: dict, solution: dict | None, engine_init: bool, master_xyz=None, rover_xyz=None,
-                       keep_work: bool = True) -> dict:
+                       keep_work: bool = True, glonass_integers: dict | None = None) -> dict:
     """The static baseline of a solution made before (``cdgps estimate`` on INIT's): nothing is resolved and the
     batch normal equations do not solve (issue 28 item 1).
 
@@ -1566,11 +1608,14 @@ def baseline_from_init(master: Station, rover: Station, nav: pd.DataFrame, optio
     last two when one cannot serve (options only the batch implements, a position that is not the solution of
     the integers on these data); else :class:`CdgpsError`.  Parameters and result as
     :func:`solve_static_baseline`'s (``integers``, ``solution``: the same forms); ``solver`` says which served.
+    ``glonass_integers`` (a glonass_fix INIT's GLONASS DD integers, :func:`_given_glonass`'s form): the engine
+    conditions on them too, and only the engine may serve (the other ways keep GLONASS float).
     """
     tol = ENGINE_SOLUTION_TOL_M if engine_init else _KNOWN_SOLUTION_TOL_M
 
     def decide(prepared, xm, xr0, warnings):
         d, sg, w, r_enu = prepared
+        glo = None if glonass_integers is None else _given_glonass(glonass_integers, d, sg, rover.name)
         fixed = solution is not None and solution.get("enu_m") is not None
         if fixed:
             known = _known_solution(d, sg, w, integers, solution, xr0, r_enu, warnings, tol)
@@ -1587,10 +1632,10 @@ def baseline_from_init(master: Station, rover: Station, nav: pd.DataFrame, optio
             k = _known_float(d, sg, w, solution["float_enu_m"], xr0, r_enu, tol)
             return "the given float position is not the float solution of these data" if k is None else k
         tries = [("static_engine (integers given)", lambda: _engine_given(master, rover, nav, options, xm, xr0,
-                                                                           prepared, integers)),
+                                                                           prepared, integers, glo)),
                  ("given (INIT's position, float ambiguities at it)", at_position)]
         why = []
-        for name, f in (tries if engine_init else tries[::-1]):
+        for name, f in (tries[:1] if glo is not None else tries if engine_init else tries[::-1]):
             known = f()
             if not isinstance(known, str):
                 return known, name

@@ -1,7 +1,8 @@
 """``glonass_fix`` through a GNSS run config (issue 28 item 3): `init` fixes the GLONASS DDs between the two
-identical Septentrio mosaic-X5 receivers on the static engine and the INIT says so; `estimate` refuses that INIT
-(it does not carry the GLONASS integers yet, and re-solving them as float gave the GLONASS-float baseline, 1.8 mm
-away), and a setting only the batch solver serves is refused rather than silently leaving GLONASS float."""
+identical Septentrio mosaic-X5 receivers on the static engine and INIT carries their DD integers; `estimate`
+conditions on all of INIT's integers (GPS and GLONASS) without solving again, and refuses GLONASS integers that do
+not match the run's arcs; a setting only the batch solver serves is refused rather than silently leaving GLONASS
+float."""
 
 from __future__ import annotations
 
@@ -11,6 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cdgps_cli.estimation import ambiguity, baseline, static_engine
+from cdgps_cli.io.gnss_run import read_gnss_run
+from cdgps_cli.io.states import States
+from cdgps_cli.pipeline import gnss
 from tests._shared import REPO_ROOT, run_cli
 
 MOSAIC = REPO_ROOT.parent / "shared" / "data" / "real-pairs" / "mosaic-static"
@@ -65,11 +70,72 @@ def test_init_carries_the_glonass_integers(glonass_fixed):
     assert all(abs(b["float_cycles"] - b["dd_integer_cycles"]) < 0.1 for b in glo if not b["pivot"])
 
 
-def test_estimate_refuses_a_glonass_fix_init_for_now(glonass_fixed, tmp_path):
+def _no_solve(monkeypatch):
+    """Every batch solver, the engine's integer fixing and LAMBDA raise: estimate may only condition."""
+    def boom(*a, **k):
+        raise AssertionError("the baseline was solved again")
+    monkeypatch.setattr(gnss, "solve_static_baseline", boom)
+    for name in ("solve_static_baseline", "_float_solution", "_integer_fix", "_fixed_solution", "_lambda_fix",
+                 "resolve"):
+        monkeypatch.setattr(baseline, name, boom)
+    monkeypatch.setattr(static_engine, "static_fix", boom)
+    monkeypatch.setattr(ambiguity, "resolve", boom)
+
+
+def _estimate(d: Path, init: dict, name: str):
+    (d / f"{name}.json").write_text(json.dumps(init))
+    return run_cli("-q", "estimate", d / "run.mcap", "--init", d / f"{name}.json", "-o", d / f"{name}.mcap")
+
+
+def test_estimate_conditions_on_the_glonass_integers(glonass_fixed, monkeypatch):
+    """STATES are INIT's fixed baseline bit for bit (the engine's float conditioned on the 8 GPS and 6 GLONASS
+    integers, as init made it), never solved again; a GLONASS integer changed by one moves them."""
     d, init, _ = glonass_fixed
-    r = run_cli("-q", "estimate", d / "run.mcap", "--init", d / "init.json", "-o", tmp_path / "s.mcap")
-    assert r.exit_code == 2 and "glonass_fix" in r.stderr and str(d / "init.json") in r.stderr, r.output
+    rov = init["rovers"]["rover"]
+    with monkeypatch.context() as mp:
+        _no_solve(mp)
+        r = _estimate(d, init, "states")
+        assert r.exit_code == 0, r.output
+        run = read_gnss_run(d / "run.mcap")
+        res, _, _, _ = gnss.solve_with_init_integers(run, init, "rover", gnss._stations(run))
+    assert res["solver"] == "static_engine (integers given)" and res["solution"] == "fixed"
+    assert res["ambiguities"]["n_glonass_fixed_by_engine"] == 6 and res["ambiguities"]["n_fixed"] == 8
+    st = States(d / "states.mcap")
+    assert (st.q == np.array(rov["fixed"]["enu_m"])).all()                    # bit for bit, every epoch
+    assert (st.sigma_q == np.array(rov["fixed"]["sigma_enu_m"])).all()
+    wrong = json.loads(json.dumps(init))
+    next(b for b in wrong["biases"] if b.get("fixed_by_engine"))["dd_integer_cycles"] += 1
+    assert _estimate(d, wrong, "wrong").exit_code == 0
+    assert np.max(np.abs(States(d / "wrong.mcap").q[0] - st.q[0])) > 1e-3       # the GLONASS integers are used
+
+
+@pytest.mark.parametrize("edit, what", [
+    (lambda b: b.update(segment_start_s=b["segment_start_s"] + 60), "no entry for R03:G1 from"),
+    (lambda b: b.update(fdma_channel=b["fdma_channel"] - 1), "R03:G1 from 2024-06-24 08:20:00 GPST has FDMA channel 4"),
+    (lambda b: b.update(reference="R11:G1"), "is against R11:G1 in INIT, R01:G1 in this run"),
+    (lambda b: b.update(dd_integer_cycles=5.5), "dd_integer_cycles must be an integer"),
+])
+def test_glonass_integers_that_do_not_match_the_run_are_refused(glonass_fixed, tmp_path, edit, what):
+    d, init, _ = glonass_fixed
+    bad = json.loads(json.dumps(init))
+    edit(next(b for b in bad["biases"] if b["satellite"] == "R03:G1"))
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
+    r = run_cli("-q", "estimate", d / "run.mcap", "--init", tmp_path / "bad.json", "-o", tmp_path / "s.mcap")
+    assert r.exit_code == 2 and str(tmp_path / "bad.json") in r.stderr and what in r.stderr, r.output
     assert "Traceback" not in r.output and not (tmp_path / "s.mcap").exists()
+
+
+def test_a_glonass_fix_init_written_before_it_carried_the_integers(glonass_fixed, tmp_path):
+    """An INIT from before (no dd_integer_cycles) stays readable: refused with what to do, never re-solved float."""
+    d, init, _ = glonass_fixed
+    old = json.loads(json.dumps(init))
+    for b in old["biases"]:
+        for k in ("dd_integer_cycles", "fdma_channel", "reference_fdma_channel"):
+            b.pop(k, None)
+    (tmp_path / "old.json").write_text(json.dumps(old))
+    r = run_cli("-q", "estimate", d / "run.mcap", "--init", tmp_path / "old.json", "-o", tmp_path / "s.mcap")
+    assert r.exit_code == 2 and str(tmp_path / "old.json") in r.stderr and "run 'cdgps init' again" in r.stderr
+    assert "dd_integer_cycles" in r.stderr and "Traceback" not in r.output and not (tmp_path / "s.mcap").exists()
 
 
 def test_glonass_fix_with_a_batch_only_setting_is_refused(tmp_path):
