@@ -191,8 +191,16 @@ def _signals_summary(run: GnssRun, rovers: dict) -> dict:
             "dd_groups": "per constellation and frequency slot, own reference satellite; no inter-system or "
                          "inter-frequency DD; one ambiguity per satellite-signal lock segment; integers of all "
                          "groups fixed as one set (LAMBDA, ratio test, partial fixing)"
-                         + ("; GLONASS (FDMA) groups float: one bias (m) per lock segment, wavelength per satellite, "
-                            "never passed to LAMBDA" if any(str(g).startswith("R:") for g in run.cfg.signals) else "")}
+                         + (_glonass_groups(rovers) if any(str(g).startswith("R:") for g in run.cfg.signals) else "")}
+
+
+def _glonass_groups(rovers: dict) -> str:
+    """How the GLONASS (FDMA) groups were treated, for :func:`_signals_summary`."""
+    if any((v.get("options") or {}).get("glonass_fix") for v in rovers.values()):
+        return ("; GLONASS (FDMA) groups fixed too (glonass_fix, identical receivers): DD integers N_i − N_r in each "
+                "satellite's own cycles (biases: dd_integer_cycles, fdma_channel), wavelength per satellite")
+    return ("; GLONASS (FDMA) groups float: one bias (m) per lock segment, wavelength per satellite, "
+            "never passed to LAMBDA")
 
 
 def gnss_biases(master: str, rover: str, segments: list) -> list:

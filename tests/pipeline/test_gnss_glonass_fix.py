@@ -68,6 +68,7 @@ def test_init_carries_the_glonass_integers(glonass_fixed):
     # the DD integers the engine fixed; the bias form of the fixed solution (float_cycles = DD + x_r·(1 − λ_r/λ_i), x_r the reference's SD ambiguity) is near them
     assert [b["dd_integer_cycles"] for b in glo if not b["pivot"]] == [5, 16, 19, 12, 18, 12]
     assert all(abs(b["float_cycles"] - b["dd_integer_cycles"]) < 0.1 for b in glo if not b["pivot"])
+    assert "GLONASS (FDMA) groups fixed too (glonass_fix" in init["dd_groups"] and "groups float" not in init["dd_groups"]
 
 
 def _no_solve(monkeypatch):
