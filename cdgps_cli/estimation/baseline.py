@@ -1443,8 +1443,9 @@ def _engine_solution(d: _Data, sg: _Segments, w: _Weights, eng: dict, xr0, r_enu
     fx = _Fix(a_res, q_res, fixed_mask, ints, _nan_none(res.get("ratio")),
               _nan_none(res.get("ratio_full_set")), bool(res.get("accepted", False)), bool(res.get("partial", False)),
               _nan_none(res.get("success_rate")), None if glo is None else np.isfinite(glo) & ~sg.is_pivot, glo)
+    n_glo = int(fx.glonass_fixed.sum()) if fx.glonass_fixed is not None else 0     # GLONASS DDs fixed too
     n_fixed = int(fixed_mask.sum())
-    if not n_fixed:
+    if not n_fixed + n_glo:
         a_sig = np.zeros(sg.n_seg)
         a_sig[sg.free] = np.sqrt(np.diag(q_fl)[3:])
         return fl, fx, _Final(None, x_fl, "float", a_fl, sg.is_pivot.copy(), q_fl[:3, :3], g, r_ph, a_sig)
@@ -1466,7 +1467,9 @@ def _engine_solution(d: _Data, sg: _Segments, w: _Weights, eng: dict, xr0, r_enu
              "unit_variance": sq / dof if dof > 0 else None,
              "observations": ("L1 carrier phase only" if getattr(d, "group", None) is None
                               else f"carrier phase only ({', '.join(d.group_names)})")}
-    kind = "fixed" if n_fixed == int(np.sum(~_fdma_segments(d, sg)[sg.free])) else "partially fixed"
+    fdma = _fdma_segments(d, sg)[sg.free]
+    kind = ("fixed" if n_fixed + n_glo == int(np.sum(~fdma)) + (int(fdma.sum()) if opt.glonass_fix else 0)
+            else "partially fixed")
     a_sig = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", J, Pf, J), 0.0))
     a_sig[known] = 0.0
     return fl, fx, _Final(block, x_fix, kind, a_fix, known, q3, g, r_ph, a_sig)
@@ -1591,7 +1594,7 @@ def _engine_given(master: Station, rover: Station, nav, opt: BaselineOptions, xm
     ai[cols[segs]] = integers_fix[fixed_mask]
     ai[cols[g_segs]] = g_ints
     eng = dict(eng, state_fixed=x_fix, cov_fixed=P_fix, arc_integers=ai,
-               resolution={"accepted": bool(fixed_mask.any()), "partial": False})
+               resolution={"accepted": bool(fixed_mask.any() or g_segs.size), "partial": False})
     return _engine_solution(d, sg, w, eng, xr0, r_enu, opt)
 
 

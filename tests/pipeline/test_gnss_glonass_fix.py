@@ -23,10 +23,10 @@ pytestmark = pytest.mark.skipif(not MOSAIC.exists(), reason="../shared/data abse
 RTKLIB_MULTI_GNSS_L1_STATIC_ENU_M = np.array([-0.2238, -0.9651, 0.0079])    # the data's README
 
 
-def _config(d: Path, *extra: str) -> Path:
+def _config(d: Path, *extra: str, signals: str = '["G:L1", "R:G1"]') -> Path:
     p = d / "run.toml"
     p.write_text("\n".join(["[gnss]", 'master = "base"', f'nav = ["{MOSAIC / "base.nav"}"]',
-                            'signals = ["G:L1", "R:G1"]', *extra,
+                            f"signals = {signals}", *extra,
                             '[gnss.antennas."base"]', f'rinex = "{MOSAIC / "base.obs"}"',
                             '[gnss.antennas."rover"]', f'rinex = "{MOSAIC / "rover.obs"}"']) + "\n")
     return p
@@ -108,6 +108,25 @@ def test_estimate_conditions_on_the_glonass_integers(glonass_fixed, monkeypatch)
     next(b for b in wrong["biases"] if b.get("fixed_by_engine"))["dd_integer_cycles"] += 1
     assert _estimate(d, wrong, "wrong").exit_code == 0
     assert np.max(np.abs(States(d / "wrong.mcap").q[0] - st.q[0])) > 1e-3       # the GLONASS integers are used
+
+
+def test_glonass_alone_is_fixed_and_estimate_keeps_it(tmp_path, monkeypatch):
+    """GLONASS G1 alone with glonass_fix: the engine's 6 DDs make the solution fixed (it was reported float, the
+    fix dropped: 82 mm from RTKLIB's G+R static), within 6 mm of RTKLIB's multi-GNSS L1 static; estimate gives it
+    bit for bit without solving."""
+    cfg = _config(tmp_path, "glonass_fix = true", signals='["R:G1"]')
+    assert run_cli("-q", "ingest", "--config", cfg, "-o", tmp_path / "run.mcap").exit_code == 0
+    assert run_cli("-q", "init", tmp_path / "run.mcap", "-o", tmp_path / "init.json").exit_code == 0
+    init = json.loads((tmp_path / "init.json").read_text())
+    rov = init["rovers"]["rover"]
+    assert rov["solution"] == "fixed" and rov["n_glonass_fixed_by_engine"] == 6 and rov["accepted"]
+    enu = np.asarray(rov["baseline_enu_from_master_m"])
+    assert np.max(np.abs(enu - RTKLIB_MULTI_GNSS_L1_STATIC_ENU_M)) < 6e-3, enu
+    with monkeypatch.context() as mp:
+        _no_solve(mp)
+        assert _estimate(tmp_path, init, "states").exit_code == 0
+    st = States(tmp_path / "states.mcap")
+    assert (st.q == np.array(rov["fixed"]["enu_m"])).all() and (st.sigma_q == np.array(rov["fixed"]["sigma_enu_m"])).all()
 
 
 @pytest.mark.parametrize("edit, what", [
