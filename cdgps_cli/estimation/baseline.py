@@ -42,6 +42,7 @@ from scipy.linalg import cho_factor, cho_solve
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M, SPEED_OF_LIGHT_M_S
 from cdgps_cli.core import progress
 from cdgps_cli.core.checks import header_position_m
+from cdgps_cli.core.signals import SIGNALS
 from cdgps_cli.estimation.ambiguity import AmbiguityError, resolve
 from cdgps_cli.estimation.model_filter import filter_numpy
 from cdgps_cli.measurement.dd_displacement import SatelliteDDDisplacement, SDObservations
@@ -729,6 +730,7 @@ class _Fix(NamedTuple):
     partial: bool
     success_rate: float | None = None   # bootstrapped success rate of the fixed set (of the full set if none)
     glonass_fixed: np.ndarray | None = None   # (n_seg,) GLONASS segments whose DD the engine fixed (glonass_fix)
+    glonass_dd: np.ndarray | None = None      # (n_seg,) their DD integers N_i − N_p (own cycles; pivot 0), NaN: none
 
 
 class _Final(NamedTuple):
@@ -1231,15 +1233,33 @@ def _fdma_count(seg_rows: list) -> dict:
 
 
 _GLONASS_FIXED_REASON = ("GLONASS fixed by the static engine (glonass_fix, identical receivers): its DD integer is "
-                         "N_i − N_r in each satellite's own cycles; this table's datum shows the engine's fixed value "
-                         "as a bias (m)")
+                         "N_i − N_r in each satellite's own cycles (dd_integer_cycles); this table's datum shows the "
+                         "engine's fixed value as a bias (m)")
+
+
+def fdma_channel(signal: str, wavelength_m: float) -> int:
+    """GLONASS frequency number k (−7 … 6) of an FDMA ``signal`` (e.g. ``"R:G1"``) at ``wavelength_m``."""
+    sig = SIGNALS[signal]
+    return int(round((SPEED_OF_LIGHT_M_S / wavelength_m - sig.frequency_hz) / sig.fdma_step_hz))
+
+
+def _glonass_integer_rows(sg: _Segments, fx: _Fix, seg_rows: list) -> None:
+    """Each GLONASS segment row with a DD integer the engine fixed (glonass_fix) gets it: ``dd_integer_cycles``
+    (N_i − N_p, each satellite in its own cycles, against its datum pivot ``reference``; 0 on the pivot), and
+    ``fdma_channel`` (frequency number k) with ``reference_fdma_channel``; the fixed ones ``fixed_by_engine``."""
+    for k in np.flatnonzero(np.isfinite(fx.glonass_dd)):
+        row, piv = seg_rows[k], seg_rows[int(sg.pivots[sg.comp[k]])]
+        ids = {"dd_integer_cycles": int(fx.glonass_dd[k]),
+               "fdma_channel": fdma_channel(row["signal"], row["wavelength_m"]),
+               "reference_fdma_channel": fdma_channel(piv["signal"], piv["wavelength_m"])}
+        seg_rows[k] = dict(row, **ids, **({"reason": _GLONASS_FIXED_REASON, "fixed_by_engine": True}
+                                          if fx.glonass_fixed[k] else {}))
 
 
 def _ambiguity_summary(sg: _Segments, fx: _Fix, opt: BaselineOptions, seg_rows: list) -> dict:
     glonass = {}
     if fx.glonass_fixed is not None and fx.glonass_fixed.any():
-        for k in np.flatnonzero(fx.glonass_fixed):
-            seg_rows[k] = dict(seg_rows[k], reason=_GLONASS_FIXED_REASON, fixed_by_engine=True)
+        _glonass_integer_rows(sg, fx, seg_rows)
         glonass = {"n_glonass_fixed_by_engine": int(fx.glonass_fixed.sum())}
     return {
         "n_segments": int(sg.n_seg),
@@ -1419,12 +1439,13 @@ def _engine_solution(d: _Data, sg: _Segments, w: _Weights, eng: dict, xr0, r_enu
         a_res, q_res = Ja @ eng["random_walk"][0], Ja @ eng["random_walk"][1] @ Ja.T
         fl.block["motion"] = "random_walk"
         fl.block["random_walk_sigma_m_per_sqrt_s"] = list(opt.random_walk_sigma)
+    glo = np.where(_fdma_segments(d, sg) & np.isfinite(seg_int), seg_int, np.nan) if opt.glonass_fix else None
     fx = _Fix(a_res, q_res, fixed_mask, ints, _nan_none(res.get("ratio")),
               _nan_none(res.get("ratio_full_set")), bool(res.get("accepted", False)), bool(res.get("partial", False)),
-              _nan_none(res.get("success_rate")),
-              (np.isfinite(seg_int) & _fdma_segments(d, sg) & ~sg.is_pivot) if opt.glonass_fix else None)
+              _nan_none(res.get("success_rate")), None if glo is None else np.isfinite(glo) & ~sg.is_pivot, glo)
+    n_glo = int(fx.glonass_fixed.sum()) if fx.glonass_fixed is not None else 0     # GLONASS DDs fixed too
     n_fixed = int(fixed_mask.sum())
-    if not n_fixed:
+    if not n_fixed + n_glo:
         a_sig = np.zeros(sg.n_seg)
         a_sig[sg.free] = np.sqrt(np.diag(q_fl)[3:])
         return fl, fx, _Final(None, x_fl, "float", a_fl, sg.is_pivot.copy(), q_fl[:3, :3], g, r_ph, a_sig)
@@ -1446,7 +1467,9 @@ def _engine_solution(d: _Data, sg: _Segments, w: _Weights, eng: dict, xr0, r_enu
              "unit_variance": sq / dof if dof > 0 else None,
              "observations": ("L1 carrier phase only" if getattr(d, "group", None) is None
                               else f"carrier phase only ({', '.join(d.group_names)})")}
-    kind = "fixed" if n_fixed == int(np.sum(~_fdma_segments(d, sg)[sg.free])) else "partially fixed"
+    fdma = _fdma_segments(d, sg)[sg.free]
+    kind = ("fixed" if n_fixed + n_glo == int(np.sum(~fdma)) + (int(fdma.sum()) if opt.glonass_fix else 0)
+            else "partially fixed")
     a_sig = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", J, Pf, J), 0.0))
     a_sig[known] = 0.0
     return fl, fx, _Final(block, x_fix, kind, a_fix, known, q3, g, r_ph, a_sig)
@@ -1501,10 +1524,46 @@ def _engine_or_batch(master: Station, rover: Station, nav, opt: BaselineOptions,
     return (None, f"batch ({known})") if isinstance(known, str) else (known, "static_engine")
 
 
+def _given_glonass(given: dict, d: _Data, sg: _Segments, rover: str) -> tuple[np.ndarray, np.ndarray]:
+    """The GLONASS DD integers given (INIT's of a glonass_fix solution, ``{(satellite, first epoch s): {"dd",
+    "channel", "reference", "pivot"}}`` for every GLONASS segment, ``dd`` None where not fixed) on these data's
+    FDMA segments: (segments (m,), their integers N_i − N_p (m,), own cycles against the datum pivot p).
+
+    Raises CdgpsError ``INIT.json: …`` naming what does not match: a GLONASS segment without an entry or an
+    entry without a segment, another FDMA channel, another reference (datum pivot)."""
+    fdma = np.flatnonzero(_fdma_segments(d, sg))
+    here = {(d.sat_names[int(sg.segtab["sat"][k])], round(float(d.t_label[sg.segtab["first_epoch"][k]]), 3)): int(k)
+            for k in fdma}
+    init = {(str(n), round(float(t), 3)): v for (n, t), v in given.items()}
+    bad = [f"no entry for {n} from {gps_time_str(t)}" for n, t in here if (n, t) not in init]
+    bad += [f"an entry for {n} from {gps_time_str(t)}, which these data do not have" for n, t in init if (n, t) not in here]
+    sig = _satellite_signals(d)
+    segs, ints = [], []
+    for (n, t), k in here.items():
+        v = init.get((n, t))
+        if v is None:
+            continue
+        s, p = int(sg.segtab["sat"][k]), int(sg.pivots[sg.comp[k]])
+        ch, ref = fdma_channel(sig[s]["signal"], sig[s]["wavelength_m"]), d.sat_names[int(sg.segtab["sat"][p])]
+        if v["channel"] != ch:
+            bad.append(f"{n} from {gps_time_str(t)} has FDMA channel {v['channel']} in INIT, {ch} in this run")
+        if v["reference"] != ref or bool(v["pivot"]) != bool(sg.is_pivot[k]):
+            bad.append(f"{n} from {gps_time_str(t)} is against {v['reference']} in INIT, {ref} in this run")
+        if v["dd"] is not None and not sg.is_pivot[k]:
+            segs.append(k)
+            ints.append(v["dd"])
+    if bad:
+        raise CdgpsError(f"INIT.json: the GLONASS integers (dd_integer_cycles) of {rover} do not match this run's "
+                         f"{len(here)} GLONASS segments: {'; '.join(bad[:5])}"
+                         + (f" (and {len(bad) - 5} more)" if len(bad) > 5 else ""))
+    return np.array(segs, dtype=np.int64), np.array(ints, dtype=np.int64)
+
+
 def _engine_given(master: Station, rover: Station, nav, opt: BaselineOptions, xm, xr0, prepared: tuple,
-                  integers: dict):
+                  integers: dict, glonass: tuple | None = None):
     """(float, fix, final) of the static engine's float solution conditioned on the given integers (each fixed
-    segment's DD against its datum pivot, :func:`~cdgps_cli.estimation.static_engine.condition_on_integers`), or
+    segment's DD against its datum pivot, and ``glonass``'s (segments, integers) from :func:`_given_glonass`,
+    the GLONASS DDs N_i − N_p in cycles, :func:`~cdgps_cli.estimation.static_engine.condition_on_integers`), or
     the reason (a string) the engine cannot serve these options or arcs.  Nothing is resolved: no LAMBDA."""
     from dataclasses import replace
     from cdgps_cli.estimation.static_engine import condition_on_integers
@@ -1524,18 +1583,24 @@ def _engine_given(master: Station, rover: Station, nav, opt: BaselineOptions, xm
         return eng
     cols, x, P = found["cols"], eng["state"], eng["cov"]
     segs = sg.free[fixed_mask]
-    x_fix, P_fix = condition_on_integers(x, P, _datum_map(d, sg, cols, x.size)[segs], integers_fix[fixed_mask])
+    g_segs, g_ints = glonass if glonass is not None else (np.zeros(0, dtype=np.int64),) * 2
+    D_glo = np.zeros((g_segs.size, x.size))                 # N_i − N_p: each arc in its own cycles
+    D_glo[np.arange(g_segs.size), cols[g_segs]] = 1.0
+    D_glo[np.arange(g_segs.size), cols[sg.pivots[sg.comp[g_segs]]]] = -1.0
+    x_fix, P_fix = condition_on_integers(x, P, np.vstack([_datum_map(d, sg, cols, x.size)[segs], D_glo]),
+                                         np.r_[integers_fix[fixed_mask], g_ints])
     ai = np.full(x.size, np.nan)
     ai[cols[sg.is_pivot]] = 0.0
     ai[cols[segs]] = integers_fix[fixed_mask]
+    ai[cols[g_segs]] = g_ints
     eng = dict(eng, state_fixed=x_fix, cov_fixed=P_fix, arc_integers=ai,
-               resolution={"accepted": bool(fixed_mask.any()), "partial": False})
+               resolution={"accepted": bool(fixed_mask.any() or g_segs.size), "partial": False})
     return _engine_solution(d, sg, w, eng, xr0, r_enu, opt)
 
 
 def baseline_from_init(master: Station, rover: Station, nav: pd.DataFrame, options: BaselineOptions, *,
                        integers: dict, solution: dict | None, engine_init: bool, master_xyz=None, rover_xyz=None,
-                       keep_work: bool = True) -> dict:
+                       keep_work: bool = True, glonass_integers: dict | None = None) -> dict:
     """The static baseline of a solution made before (``cdgps estimate`` on INIT's): nothing is resolved and the
     batch normal equations do not solve (issue 28 item 1).
 
@@ -1546,11 +1611,14 @@ def baseline_from_init(master: Station, rover: Station, nav: pd.DataFrame, optio
     last two when one cannot serve (options only the batch implements, a position that is not the solution of
     the integers on these data); else :class:`CdgpsError`.  Parameters and result as
     :func:`solve_static_baseline`'s (``integers``, ``solution``: the same forms); ``solver`` says which served.
+    ``glonass_integers`` (a glonass_fix INIT's GLONASS DD integers, :func:`_given_glonass`'s form): the engine
+    conditions on them too, and only the engine may serve (the other ways keep GLONASS float).
     """
     tol = ENGINE_SOLUTION_TOL_M if engine_init else _KNOWN_SOLUTION_TOL_M
 
     def decide(prepared, xm, xr0, warnings):
         d, sg, w, r_enu = prepared
+        glo = None if glonass_integers is None else _given_glonass(glonass_integers, d, sg, rover.name)
         fixed = solution is not None and solution.get("enu_m") is not None
         if fixed:
             known = _known_solution(d, sg, w, integers, solution, xr0, r_enu, warnings, tol)
@@ -1567,10 +1635,10 @@ def baseline_from_init(master: Station, rover: Station, nav: pd.DataFrame, optio
             k = _known_float(d, sg, w, solution["float_enu_m"], xr0, r_enu, tol)
             return "the given float position is not the float solution of these data" if k is None else k
         tries = [("static_engine (integers given)", lambda: _engine_given(master, rover, nav, options, xm, xr0,
-                                                                           prepared, integers)),
+                                                                           prepared, integers, glo)),
                  ("given (INIT's position, float ambiguities at it)", at_position)]
         why = []
-        for name, f in (tries if engine_init else tries[::-1]):
+        for name, f in (tries[:1] if glo is not None else tries if engine_init else tries[::-1]):
             known = f()
             if not isinstance(known, str):
                 return known, name

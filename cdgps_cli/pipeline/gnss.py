@@ -191,8 +191,16 @@ def _signals_summary(run: GnssRun, rovers: dict) -> dict:
             "dd_groups": "per constellation and frequency slot, own reference satellite; no inter-system or "
                          "inter-frequency DD; one ambiguity per satellite-signal lock segment; integers of all "
                          "groups fixed as one set (LAMBDA, ratio test, partial fixing)"
-                         + ("; GLONASS (FDMA) groups float: one bias (m) per lock segment, wavelength per satellite, "
-                            "never passed to LAMBDA" if any(str(g).startswith("R:") for g in run.cfg.signals) else "")}
+                         + (_glonass_groups(rovers) if any(str(g).startswith("R:") for g in run.cfg.signals) else "")}
+
+
+def _glonass_groups(rovers: dict) -> str:
+    """How the GLONASS (FDMA) groups were treated, for :func:`_signals_summary`."""
+    if any((v.get("options") or {}).get("glonass_fix") for v in rovers.values()):
+        return ("; GLONASS (FDMA) groups fixed too (glonass_fix, identical receivers): DD integers N_i − N_r in each "
+                "satellite's own cycles (biases: dd_integer_cycles, fdma_channel), wavelength per satellite")
+    return ("; GLONASS (FDMA) groups float: one bias (m) per lock segment, wavelength per satellite, "
+            "never passed to LAMBDA")
 
 
 def gnss_biases(master: str, rover: str, segments: list) -> list:
@@ -317,6 +325,29 @@ def _integers_from_init(init: dict, r: str) -> dict:
     return out
 
 
+def _glonass_integers_from_init(init: dict, r: str) -> dict | None:
+    """The GLONASS DD integers of rover ``r`` in an INIT whose GLONASS DDs the static engine fixed (glonass_fix),
+    for :func:`~cdgps_cli.estimation.baseline.baseline_from_init`: ``{(satellite, first_gps_s): {"dd", "channel",
+    "reference", "pivot"}}`` of every GLONASS segment (``dd`` None where not fixed); None when none was fixed.
+    CdgpsError when INIT says they were fixed but does not carry them (written before it did) or one is no integer."""
+    if not (init["rovers"][r] or {}).get("n_glonass_fixed_by_engine"):
+        return None
+    segs = [s for s in rover_segments(init, r) if str(s["sat"]).startswith("R")]
+    if not any("dd_integer_cycles" in s for s in segs):
+        raise CdgpsError(f"INIT.json: {r}'s GLONASS DDs were fixed by the static engine (glonass_fix), but this INIT "
+                         f"does not carry their integers (no dd_integer_cycles: written before INIT held them); "
+                         f"run 'cdgps init' again")
+    out = {}
+    for s in segs:
+        v = s.get("dd_integer_cycles")
+        if v is not None and (isinstance(v, bool) or not isinstance(v, int)):
+            raise CdgpsError(f"INIT.json: biases entry {s['sat']} of {r}: dd_integer_cycles must be an integer, "
+                             f"got {v!r}")
+        out[(str(s["sat"]), float(s["first_gps_s"]))] = {"dd": v, "channel": s.get("fdma_channel"),
+                                                         "reference": s.get("reference"), "pivot": bool(s["pivot"])}
+    return out
+
+
 # ----------------------------------------------------------------------------------------------
 # estimate
 
@@ -354,17 +385,13 @@ def solve_with_init_integers(run, init: dict, r: str, stations: dict):
     """Rover ``r``'s baseline with INIT's options, integers and fixed solution (no kinematic series), never
     solved again (:func:`~cdgps_cli.estimation.baseline.baseline_from_init`): evaluated at INIT's solution when
     every integer is fixed; with float (partially fixed, GLONASS) segments the static engine's float solution
-    conditioned on INIT's integers for an engine INIT, INIT's position with the float ambiguities at it for a
-    batch one.
+    conditioned on INIT's integers for an engine INIT (a glonass_fix INIT's GLONASS DD integers too, and then
+    only so), INIT's position with the float ambiguities at it for a batch one.
 
     Returns (baseline result, its working data ``_work``, INIT's rover entry, the BaselineOptions); raises CdgpsError when
     INIT's options are not valid or its nominal position is not this run's.
     """
     rov = init["rovers"][r]
-    if rov.get("n_glonass_fixed_by_engine"):
-        raise CdgpsError(f"INIT.json: {r}'s GLONASS DDs were fixed by the static engine (glonass_fix), and INIT does "
-                         f"not carry those integers yet, so 'cdgps estimate' cannot take its solution without solving "
-                         f"again; for estimate, run 'cdgps init' without glonass_fix")
     o = dict(rov.get("options") or {})
     try:
         opt = BaselineOptions(**{k: v for k, v in o.items() if k in BaselineOptions.__dataclass_fields__})
@@ -374,7 +401,8 @@ def solve_with_init_integers(run, init: dict, r: str, stations: dict):
     res = baseline_from_init(stations[run.master], stations[r], run.nav, opt,
                              master_xyz=_position_args(run, run.master), rover_xyz=_position_args(run, r),
                              integers=_integers_from_init(init, r), solution=_solution_from_init(init, r),
-                             engine_init=rov.get("solver") == "static_engine")
+                             engine_init=rov.get("solver") == "static_engine",
+                             glonass_integers=_glonass_integers_from_init(init, r))
     w = res.pop("_work")
     if not np.allclose(w["xr0"], rov["nominal_ecef_m"], atol=1e-6):
         raise CdgpsError(f"INIT.json: the nominal position of {r} differs from this run's")
@@ -509,8 +537,11 @@ def _events(rover: str, master: str, res: dict, w: dict) -> list:
         s_name = d.sat_names[int(segtab["sat"][k])]
         t0 = float(d.t_label[segtab["first_epoch"][k]])
         info = segs[k]
+        by_engine = bool(info.get("fixed_by_engine"))          # a GLONASS DD the engine fixed (glonass_fix)
         fix_txt = ("datum (pivot)" if info["pivot"] else
-                   (f"fixed to {info['integer']}" if info["fixed"] else "float (not fixed)"))
+                   (f"fixed to {info['integer']}" if info["fixed"] else
+                    f"GLONASS DD fixed to {info.get('dd_integer_cycles')} against {info.get('reference')}"
+                    if by_engine else "float (not fixed)"))
         if s_name in seen_sat:
             i0 = first_row[k]
             if d.slip_rover[i0] or d.slip_base[i0]:
@@ -524,8 +555,11 @@ def _events(rover: str, master: str, res: dict, w: dict) -> list:
                 who, kind = rover, "tracking gap / below mask"
             ev.append({"time_s": t0, "antenna": who, "transmitter": s_name, "kind": kind,
                        "action": f"new ambiguity, {fix_txt}"})
+        elif by_engine:
+            ev.append({"time_s": t0, "antenna": rover, "transmitter": s_name, "kind": "GLONASS DD fixed (glonass_fix)",
+                       "action": f"{fix_txt} in the static solution; no per-epoch DD"})
         elif not (info["fixed"] or info["pivot"]):
-            glo = "reason" in info                 # GLONASS (FDMA): float by design, never fixed
+            glo = "reason" in info                 # GLONASS (FDMA): float unless glonass_fix
             ev.append({"time_s": t0, "antenna": rover, "transmitter": s_name,
                        "kind": "GLONASS (FDMA) float bias" if glo else "ambiguity not fixed",
                        "action": "float bias (m) in the static solution; no per-epoch DD" if glo

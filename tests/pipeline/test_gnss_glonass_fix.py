@@ -1,7 +1,8 @@
 """``glonass_fix`` through a GNSS run config (issue 28 item 3): `init` fixes the GLONASS DDs between the two
-identical Septentrio mosaic-X5 receivers on the static engine and the INIT says so; `estimate` refuses that INIT
-(it does not carry the GLONASS integers yet, and re-solving them as float gave the GLONASS-float baseline, 1.8 mm
-away), and a setting only the batch solver serves is refused rather than silently leaving GLONASS float."""
+identical Septentrio mosaic-X5 receivers on the static engine and INIT carries their DD integers; `estimate`
+conditions on all of INIT's integers (GPS and GLONASS) without solving again, and refuses GLONASS integers that do
+not match the run's arcs; a setting only the batch solver serves is refused rather than silently leaving GLONASS
+float."""
 
 from __future__ import annotations
 
@@ -11,6 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cdgps_cli.estimation import ambiguity, baseline, static_engine
+from cdgps_cli.io.gnss_run import read_gnss_run
+from cdgps_cli.io.states import States
+from cdgps_cli.pipeline import gnss
 from tests._shared import REPO_ROOT, run_cli
 
 MOSAIC = REPO_ROOT.parent / "shared" / "data" / "real-pairs" / "mosaic-static"
@@ -18,29 +23,139 @@ pytestmark = pytest.mark.skipif(not MOSAIC.exists(), reason="../shared/data abse
 RTKLIB_MULTI_GNSS_L1_STATIC_ENU_M = np.array([-0.2238, -0.9651, 0.0079])    # the data's README
 
 
-def _config(d: Path, *extra: str) -> Path:
+def _config(d: Path, *extra: str, signals: str = '["G:L1", "R:G1"]') -> Path:
     p = d / "run.toml"
     p.write_text("\n".join(["[gnss]", 'master = "base"', f'nav = ["{MOSAIC / "base.nav"}"]',
-                            'signals = ["G:L1", "R:G1"]', *extra,
+                            f"signals = {signals}", *extra,
                             '[gnss.antennas."base"]', f'rinex = "{MOSAIC / "base.obs"}"',
                             '[gnss.antennas."rover"]', f'rinex = "{MOSAIC / "rover.obs"}"']) + "\n")
     return p
 
 
-def test_init_fixes_glonass_and_estimate_refuses_it_for_now(tmp_path):
-    cfg = _config(tmp_path, "glonass_fix = true")
-    assert run_cli("-q", "ingest", "--config", cfg, "-o", tmp_path / "run.mcap").exit_code == 0
-    r = run_cli("init", tmp_path / "run.mcap", "-o", tmp_path / "init.json")
-    assert r.exit_code == 0 and "(+6 GLONASS fixed)" in r.stderr, r.output
-    rov = json.loads((tmp_path / "init.json").read_text())["rovers"]["rover"]
+@pytest.fixture(scope="module")
+def glonass_fixed(tmp_path_factory):
+    """The mosaic G+R run and its glonass_fix INIT (directory, INIT dict, init's stderr)."""
+    d = tmp_path_factory.mktemp("glofix")
+    assert run_cli("-q", "ingest", "--config", _config(d, "glonass_fix = true"), "-o", d / "run.mcap").exit_code == 0
+    r = run_cli("init", d / "run.mcap", "-o", d / "init.json")
+    assert r.exit_code == 0, r.output
+    return d, json.loads((d / "init.json").read_text()), r.stderr
+
+
+def test_init_fixes_glonass(glonass_fixed):
+    _, init, stderr = glonass_fixed
+    assert "(+6 GLONASS fixed)" in stderr
+    rov = init["rovers"]["rover"]
     assert rov["solver"] == "static_engine" and rov["n_glonass_fixed_by_engine"] == 6 and rov["n_fixed"] == 8
     assert "n_float_glonass" not in rov and rov["options"]["glonass_fix"] is True
     enu = np.asarray(rov["baseline_enu_from_master_m"])
     assert np.max(np.abs(enu - RTKLIB_MULTI_GNSS_L1_STATIC_ENU_M)) < 5e-4, enu
-    # estimate cannot take it yet (INIT does not carry the GLONASS integers): refused, not re-solved as float
-    r = run_cli("-q", "estimate", tmp_path / "run.mcap", "--init", tmp_path / "init.json", "-o", tmp_path / "s.mcap")
-    assert r.exit_code == 2 and "glonass_fix" in r.stderr and str(tmp_path / "init.json") in r.stderr, r.output
+
+
+def test_init_carries_the_glonass_integers(glonass_fixed):
+    """Each GLONASS bias entry holds its DD integer against its reference (N_i − N_r, own cycles; 0 on the
+    reference) and both FDMA channels; the channels are the RINEX header's (GLONASS SLOT / FRQ #)."""
+    _, init, _ = glonass_fixed
+    glo = [b for b in init["biases"] if b["satellite"].startswith("R")]
+    header = {"R01": 1, "R03": 5, "R11": 0, "R12": -1, "R17": 4, "R18": -3, "R24": 2}     # rover.obs line 40
+    assert len(glo) == 7 and sum(b.get("fixed_by_engine", False) for b in glo) == 6
+    (ref,) = [b for b in glo if b["pivot"]]
+    assert ref["dd_integer_cycles"] == 0 and "fixed_by_engine" not in ref
+    for b in glo:
+        assert isinstance(b["dd_integer_cycles"], int) and b["reference"] == ref["satellite"]
+        assert b["fdma_channel"] == header[b["satellite"][:3]] and b["reference_fdma_channel"] == header["R01"]
+        assert b["integer_cycles"] is None and b["fixed"] is False          # the one-wavelength SD form stays GPS's
+    # the DD integers the engine fixed; the bias form of the fixed solution (float_cycles = DD + x_r·(1 − λ_r/λ_i), x_r the reference's SD ambiguity) is near them
+    assert [b["dd_integer_cycles"] for b in glo if not b["pivot"]] == [5, 16, 19, 12, 18, 12]
+    assert all(abs(b["float_cycles"] - b["dd_integer_cycles"]) < 0.1 for b in glo if not b["pivot"])
+    assert "GLONASS (FDMA) groups fixed too (glonass_fix" in init["dd_groups"] and "groups float" not in init["dd_groups"]
+
+
+def _no_solve(monkeypatch):
+    """Every batch solver, the engine's integer fixing and LAMBDA raise: estimate may only condition."""
+    def boom(*a, **k):
+        raise AssertionError("the baseline was solved again")
+    monkeypatch.setattr(gnss, "solve_static_baseline", boom)
+    for name in ("solve_static_baseline", "_float_solution", "_integer_fix", "_fixed_solution", "_lambda_fix",
+                 "resolve"):
+        monkeypatch.setattr(baseline, name, boom)
+    monkeypatch.setattr(static_engine, "static_fix", boom)
+    monkeypatch.setattr(ambiguity, "resolve", boom)
+
+
+def _estimate(d: Path, init: dict, name: str):
+    (d / f"{name}.json").write_text(json.dumps(init))
+    return run_cli("-q", "estimate", d / "run.mcap", "--init", d / f"{name}.json", "-o", d / f"{name}.mcap")
+
+
+def test_estimate_conditions_on_the_glonass_integers(glonass_fixed, monkeypatch):
+    """STATES are INIT's fixed baseline bit for bit (the engine's float conditioned on the 8 GPS and 6 GLONASS
+    integers, as init made it), never solved again; a GLONASS integer changed by one moves them."""
+    d, init, _ = glonass_fixed
+    rov = init["rovers"]["rover"]
+    with monkeypatch.context() as mp:
+        _no_solve(mp)
+        r = _estimate(d, init, "states")
+        assert r.exit_code == 0, r.output
+        run = read_gnss_run(d / "run.mcap")
+        res, _, _, _ = gnss.solve_with_init_integers(run, init, "rover", gnss._stations(run))
+    assert res["solver"] == "static_engine (integers given)" and res["solution"] == "fixed"
+    assert res["ambiguities"]["n_glonass_fixed_by_engine"] == 6 and res["ambiguities"]["n_fixed"] == 8
+    st = States(d / "states.mcap")
+    assert (st.q == np.array(rov["fixed"]["enu_m"])).all()                    # bit for bit, every epoch
+    assert (st.sigma_q == np.array(rov["fixed"]["sigma_enu_m"])).all()
+    wrong = json.loads(json.dumps(init))
+    next(b for b in wrong["biases"] if b.get("fixed_by_engine"))["dd_integer_cycles"] += 1
+    assert _estimate(d, wrong, "wrong").exit_code == 0
+    assert np.max(np.abs(States(d / "wrong.mcap").q[0] - st.q[0])) > 1e-3       # the GLONASS integers are used
+
+
+def test_glonass_alone_is_fixed_and_estimate_keeps_it(tmp_path, monkeypatch):
+    """GLONASS G1 alone with glonass_fix: the engine's 6 DDs make the solution fixed (it was reported float, the
+    fix dropped: 82 mm from RTKLIB's G+R static), within 6 mm of RTKLIB's multi-GNSS L1 static; estimate gives it
+    bit for bit without solving."""
+    cfg = _config(tmp_path, "glonass_fix = true", signals='["R:G1"]')
+    assert run_cli("-q", "ingest", "--config", cfg, "-o", tmp_path / "run.mcap").exit_code == 0
+    assert run_cli("-q", "init", tmp_path / "run.mcap", "-o", tmp_path / "init.json").exit_code == 0
+    init = json.loads((tmp_path / "init.json").read_text())
+    rov = init["rovers"]["rover"]
+    assert rov["solution"] == "fixed" and rov["n_glonass_fixed_by_engine"] == 6 and rov["accepted"]
+    enu = np.asarray(rov["baseline_enu_from_master_m"])
+    assert np.max(np.abs(enu - RTKLIB_MULTI_GNSS_L1_STATIC_ENU_M)) < 6e-3, enu
+    with monkeypatch.context() as mp:
+        _no_solve(mp)
+        assert _estimate(tmp_path, init, "states").exit_code == 0
+    st = States(tmp_path / "states.mcap")
+    assert (st.q == np.array(rov["fixed"]["enu_m"])).all() and (st.sigma_q == np.array(rov["fixed"]["sigma_enu_m"])).all()
+
+
+@pytest.mark.parametrize("edit, what", [
+    (lambda b: b.update(segment_start_s=b["segment_start_s"] + 60), "no entry for R03:G1 from"),
+    (lambda b: b.update(fdma_channel=b["fdma_channel"] - 1), "R03:G1 from 2024-06-24 08:20:00 GPST has FDMA channel 4"),
+    (lambda b: b.update(reference="R11:G1"), "is against R11:G1 in INIT, R01:G1 in this run"),
+    (lambda b: b.update(dd_integer_cycles=5.5), "dd_integer_cycles must be an integer"),
+])
+def test_glonass_integers_that_do_not_match_the_run_are_refused(glonass_fixed, tmp_path, edit, what):
+    d, init, _ = glonass_fixed
+    bad = json.loads(json.dumps(init))
+    edit(next(b for b in bad["biases"] if b["satellite"] == "R03:G1"))
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
+    r = run_cli("-q", "estimate", d / "run.mcap", "--init", tmp_path / "bad.json", "-o", tmp_path / "s.mcap")
+    assert r.exit_code == 2 and str(tmp_path / "bad.json") in r.stderr and what in r.stderr, r.output
     assert "Traceback" not in r.output and not (tmp_path / "s.mcap").exists()
+
+
+def test_a_glonass_fix_init_written_before_it_carried_the_integers(glonass_fixed, tmp_path):
+    """An INIT from before (no dd_integer_cycles) stays readable: refused with what to do, never re-solved float."""
+    d, init, _ = glonass_fixed
+    old = json.loads(json.dumps(init))
+    for b in old["biases"]:
+        for k in ("dd_integer_cycles", "fdma_channel", "reference_fdma_channel"):
+            b.pop(k, None)
+    (tmp_path / "old.json").write_text(json.dumps(old))
+    r = run_cli("-q", "estimate", d / "run.mcap", "--init", tmp_path / "old.json", "-o", tmp_path / "s.mcap")
+    assert r.exit_code == 2 and str(tmp_path / "old.json") in r.stderr and "run 'cdgps init' again" in r.stderr
+    assert "dd_integer_cycles" in r.stderr and "Traceback" not in r.output and not (tmp_path / "s.mcap").exists()
 
 
 def test_glonass_fix_with_a_batch_only_setting_is_refused(tmp_path):
