@@ -948,9 +948,11 @@ def _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, a
     for r, v in res["rovers"].items():
         ratio = v["ratio"] if v["ratio"] is None or isinstance(v["ratio"], str) else f"{v['ratio']:.1f}"
         st = ", ".join(f"{k} {x:+.4f} ± {v['sigma'][k]:.4f}" for k, x in v["states"].items())
+        n_glo_fixed = int(v.get("n_glonass_fixed_by_engine") or 0)     # (counted in n_estimated, not in n_fixed)
         glo = (f" ({v['n_float_glonass']} GLONASS float)" if v.get("n_float_glonass") else "") + \
-            (f" (+{v['n_glonass_fixed_by_engine']} GLONASS fixed)" if v.get("n_glonass_fixed_by_engine") else "")
-        _say(ctx, f"INIT {run.master} → {r}: {v['solution']}, {v['n_fixed']} of {v['n_estimated']} integers fixed{glo}, "
+            (f" ({n_glo_fixed} of them GLONASS DDs, glonass_fix)" if n_glo_fixed else "")
+        _say(ctx, f"INIT {run.master} → {r}: {v['solution']}, {v['n_fixed'] + n_glo_fixed} of {v['n_estimated']} "
+                  f"integers fixed{glo}, "
                   f"ratio {ratio} (threshold {v['ratio_threshold']:g}); static displacement (m): {st}")
     if "modal_init" in res:
         mi = res["modal_init"]

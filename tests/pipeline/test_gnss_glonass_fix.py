@@ -44,7 +44,7 @@ def glonass_fixed(tmp_path_factory):
 
 def test_init_fixes_glonass(glonass_fixed):
     _, init, stderr = glonass_fixed
-    assert "(+6 GLONASS fixed)" in stderr
+    assert "14 of 14 integers fixed (6 of them GLONASS DDs, glonass_fix)" in stderr
     rov = init["rovers"]["rover"]
     assert rov["solver"] == "static_engine" and rov["n_glonass_fixed_by_engine"] == 6 and rov["n_fixed"] == 8
     assert "n_float_glonass" not in rov and rov["options"]["glonass_fix"] is True
@@ -116,7 +116,8 @@ def test_glonass_alone_is_fixed_and_estimate_keeps_it(tmp_path, monkeypatch):
     bit for bit without solving."""
     cfg = _config(tmp_path, "glonass_fix = true", signals='["R:G1"]')
     assert run_cli("-q", "ingest", "--config", cfg, "-o", tmp_path / "run.mcap").exit_code == 0
-    assert run_cli("-q", "init", tmp_path / "run.mcap", "-o", tmp_path / "init.json").exit_code == 0
+    r = run_cli("init", tmp_path / "run.mcap", "-o", tmp_path / "init.json")
+    assert r.exit_code == 0 and "6 of 6 integers fixed (6 of them GLONASS DDs" in r.stderr, r.stderr
     init = json.loads((tmp_path / "init.json").read_text())
     rov = init["rovers"]["rover"]
     assert rov["solution"] == "fixed" and rov["n_glonass_fixed_by_engine"] == 6 and rov["accepted"]
