@@ -17,7 +17,6 @@ import argparse
 import functools
 import json
 import resource
-import sys
 import time
 from pathlib import Path
 
@@ -37,6 +36,7 @@ def _reset_peak() -> None:
 
 
 RECORD: list[dict] = []
+STACK: list[list[float]] = []          # running peak of each wrapped call in progress (nested calls)
 
 
 def _wrap(mod, name: str) -> None:
@@ -47,14 +47,20 @@ def _wrap(mod, name: str) -> None:
     @functools.wraps(f)
     def g(*a, **k):
         before = _rss_mib("VmRSS")
+        if STACK:                          # the caller's peak so far, before the mark is reset
+            STACK[-1][0] = max(STACK[-1][0], _rss_mib("VmHWM"))
         _reset_peak()
+        STACK.append([before])
         c0, w0 = time.process_time(), time.perf_counter()
         try:
             return f(*a, **k)
         finally:
-            RECORD.append({"function": f"{mod.__name__.split('.')[-1]}.{name}", "cpu_s": time.process_time() - c0,
-                           "wall_s": time.perf_counter() - w0, "rss_before_mib": before,
-                           "peak_mib": _rss_mib("VmHWM")})
+            peak = max(STACK.pop()[0], _rss_mib("VmHWM"))
+            if STACK:
+                STACK[-1][0] = max(STACK[-1][0], peak)
+            RECORD.append({"function": f"{mod.__name__.split('.')[-1]}.{name}", "depth": len(STACK),
+                           "cpu_s": time.process_time() - c0, "wall_s": time.perf_counter() - w0,
+                           "rss_before_mib": before, "rss_after_mib": _rss_mib("VmRSS"), "peak_mib": peak})
     setattr(mod, name, g)
 
 
@@ -68,8 +74,13 @@ def main() -> None:
     from cdgps_cli.estimation import baseline
     from cdgps_cli.io.gnss_run import SOLVER_COLUMNS, read_gnss_run
     from cdgps_cli.pipeline import gnss
-    for name in ("_prepare", "_data_from_engine", "_segments", "_weights", "_run_engine"):
+    from cdgps_cli.estimation import rtk_multi, static_engine
+    for name in ("_prepare", "_segments", "_weights", "_run_engine", "_engine_solution", "_known_solution",
+                 "_single_epoch_positions", "_residual_summary"):
         _wrap(baseline, name)
+    _wrap(rtk_multi, "receiver_geometry")
+    for name in ("paired_sd_rows", "static_filter", "random_walk_float", "static_fix"):
+        _wrap(static_engine, name)
     c0, w0 = time.process_time(), time.perf_counter()
     run = read_gnss_run(a.run, columns=SOLVER_COLUMNS)
     read = {"function": "read_gnss_run", "cpu_s": time.process_time() - c0, "wall_s": time.perf_counter() - w0,
@@ -82,8 +93,11 @@ def main() -> None:
         gnss.gnss_estimate(run, json.loads(text), text, a.out)
     total = {"function": "whole (in process)", "cpu_s": time.process_time(), "wall_s": time.perf_counter() - w0,
              "peak_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
-    json.dump({"stage": a.stage, "calls": [read, *RECORD, total]}, sys.stdout, indent=1)
-    print()
+    print(f"{a.stage}: function, depth, CPU s, wall s, RSS before / after / peak MiB")
+    for r in [read, *RECORD, total]:
+        print(f"  {r['function']:32s} {r.get('depth', 0)} {r['cpu_s']:7.2f} {r['wall_s']:7.2f} "
+              f"{r.get('rss_before_mib', float('nan')):7.0f} {r.get('rss_after_mib', float('nan')):7.0f} "
+              f"{r['peak_mib']:7.0f}")
 
 
 if __name__ == "__main__":

@@ -1484,19 +1484,42 @@ def _run_engine(master: Station, rover: Station, nav, opt: BaselineOptions, xm, 
     geo = []
     for xyz in (xm, xr0):                  # each signal table dropped once its geometry is built
         geo.append(receiver_geometry(tables.pop(0), nav, xyz))
-    return static_baseline(geo[0], geo[1], xm, xr0, eopt, arcs_check=arcs_check)
+    # the tables handed over (not held here): static_baseline releases them once its SD rows are built
+    return static_baseline(geo.pop(0), geo.pop(0), xm, xr0, eopt, arcs_check=arcs_check)
+
+
+def _engine_first(master: Station, rover: Station, nav, opt: BaselineOptions, xm, xr0, iono_threshold_km,
+                  prepared):
+    """:func:`_run_engine` before this module's batch tables exist: ``prepared()`` (:func:`_prepare`, the segments
+    and weights) is first called by the engine's arc check, once the engine has released its receiver geometry
+    (the peak of a long record's ``init``: ≈ 620 MiB on the 24 h pair) and holds only its SD rows, instead of
+    the tables (≈ 310 MiB) being built before and held beside that geometry; arcs that are not the segments
+    still stop it before it solves.  Returns its result (state, covariance, arc table, integers: small), the
+    reason it cannot serve (a string), or the CdgpsError it raised (not :func:`_prepare`'s): raised by
+    :func:`_engine_or_batch` once :func:`_prepare` has run, whose messages on bad input come first, as before."""
+    try:
+        return _run_engine(master, rover, nav, opt, xm, xr0, iono_threshold_km,
+                           arcs_check=lambda arcs: _engine_columns(*prepared()[:2], arcs))
+    except CdgpsError as exc:
+        if getattr(exc, "from_prepare", False):        # the batch tables' own message: passed on as it is
+            raise
+        return exc
 
 
 def _engine_or_batch(master: Station, rover: Station, nav, opt: BaselineOptions, xm, xr0, iono_threshold_km,
-                     prepared: tuple, engine: bool):
+                     prepared: tuple, engine: bool, solved=None):
     """((float, fix, final) of the static engine, "static_engine"), or (None, "batch (reason)") when the batch
-    solver is to serve (engine not asked for, an option only the batch implements, arcs that are not the segments)."""
+    solver is to serve (engine not asked for, an option only the batch implements, arcs that are not the segments).
+    ``solved``: :func:`_engine_first`'s answer (the engine already ran; arcs that are not the segments are then
+    found after its solve), else the engine runs here, its arcs checked before it solves."""
     if not engine:
         return None, "batch (engine not asked for)"
     d, sg, w, r_enu = prepared
+    if isinstance(solved, CdgpsError):
+        raise solved
     # arcs that are not the segments are known before the engine solves: no solve to throw away
-    eng = _run_engine(master, rover, nav, opt, xm, xr0, iono_threshold_km,
-                      arcs_check=lambda arcs: _engine_columns(d, sg, arcs))
+    eng = solved if solved is not None else _run_engine(master, rover, nav, opt, xm, xr0, iono_threshold_km,
+                                                        arcs_check=lambda arcs: _engine_columns(d, sg, arcs))
     known = eng if isinstance(eng, str) else _engine_solution(d, sg, w, eng, xr0, r_enu, opt)
     return (None, f"batch ({known})") if isinstance(known, str) else (known, "static_engine")
 
@@ -1641,21 +1664,31 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
         Missing phase, missing master position, navigation data not covering the span, no
         common epochs or satellites, singular normal equations.
     """
+    solved = {}
+
+    def first(xm, xr0, prepared):    # the engine's geometry released before the batch tables are built
+        if engine and integers is None:
+            solved["engine"] = _engine_first(master, rover, nav, opt, xm, xr0, iono_threshold_km, prepared)
+
     def decide(prepared, xm, xr0, warnings):
         d, sg, w, r_enu = prepared
         if integers is None:
-            return _engine_or_batch(master, rover, nav, opt, xm, xr0, iono_threshold_km, prepared, engine)
+            return _engine_or_batch(master, rover, nav, opt, xm, xr0, iono_threshold_km, prepared, engine,
+                                    solved.pop("engine", None))
         return (None if solution is None else _known_solution(d, sg, w, integers, solution, xr0, r_enu, warnings,
                                                               solution_tol_m)), "batch (integers given)"
 
     opt = options or BaselineOptions()
-    return _baseline(master, rover, nav, opt, master_xyz, rover_xyz, keep_work, iono_threshold_km, decide, integers)
+    return _baseline(master, rover, nav, opt, master_xyz, rover_xyz, keep_work, iono_threshold_km, decide, integers,
+                     first)
 
 
 def _baseline(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOptions, master_xyz, rover_xyz,
-              keep_work: bool, iono_threshold_km, decide, integers) -> dict:
+              keep_work: bool, iono_threshold_km, decide, integers, first=None) -> dict:
     """:func:`solve_static_baseline`'s and :func:`baseline_from_init`'s body: ``decide(prepared, xm, xr0, warnings)``
-    returns ((float, fix, final), solver) of a solution made elsewhere, or (None, solver): the batch below solves."""
+    returns ((float, fix, final), solver) of a solution made elsewhere, or (None, solver): the batch below solves;
+    ``first(xm, xr0, prepared)``, when given, runs before the batch tables are built (``prepared()`` builds them
+    once, when first called; the time of ``first`` besides them counts as the solve's)."""
     t_start = time.perf_counter()
     opt.validate()
     warnings: list[str] = []
@@ -1668,10 +1701,32 @@ def _baseline(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineO
         clock.append(time.perf_counter())
         return clock[-1] - clock[-2]
 
-    d = _prepare(master, rover, nav, opt, xm, xr0, warnings)
-    t_prep = lap()
     r_enu = enu_matrix(*ecef_to_geodetic(xr0)[:2])
-    sg, w = _segments(d, opt), _weights(d, opt)
+    cache = {}
+
+    def prepared():
+        """(data, segments, weights, r_enu), built once; a CdgpsError of :func:`_prepare` raised again on each call."""
+        if "error" in cache:
+            raise cache["error"]
+        if "tables" not in cache:
+            t0 = time.perf_counter()
+            try:
+                d = _prepare(master, rover, nav, opt, xm, xr0, warnings)
+            except CdgpsError as exc:
+                exc.from_prepare = True
+                cache["error"] = exc
+                raise
+            cache["t_prep"] = time.perf_counter() - t0
+            cache["tables"] = (d, _segments(d, opt), _weights(d, opt), r_enu)
+        return cache["tables"]
+
+    t_first = 0.0
+    if first is not None:
+        first(xm, xr0, prepared)
+        t_first = lap() - cache.get("t_prep", 0.0)
+    d, sg, w, _ = prepared()
+    lap()
+    t_prep = cache["t_prep"]
     known, solver = decide((d, sg, w, r_enu), xm, xr0, warnings)
     if known is None and opt.glonass_fix:
         raise CdgpsError(f"glonass_fix: GLONASS integers are fixed by the static engine only, which cannot solve "
@@ -1679,10 +1734,10 @@ def _baseline(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineO
     if known is not None:
         fl, fx, fin = known
         t_float = t_lambda = 0.0
-        t_fixed = lap()
+        t_fixed = lap() + t_first
     else:
         fl = _float_solution(d, sg, w, xr0, r_enu, opt)
-        t_float = lap()
+        t_float = lap() + t_first             # with the engine's solve, when it ran first and the batch serves
         fx = _integer_fix(d, sg, w, fl, opt, integers, warnings)
         t_lambda = lap()
         fin = _fixed_solution(d, sg, w, fl, fx, xr0, r_enu, opt)
