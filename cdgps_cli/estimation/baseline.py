@@ -1076,26 +1076,40 @@ def _residual_summary(d: _Data, w: _Weights, r_ph, n_dd_code: int) -> dict:
     }
 
 
+def known_phase_blocks(d: _Data, var_ph, refs_ph: list, blocks_ph: list, usable) -> list:
+    """The DD phase weight blocks (rows, P) of the rows ``usable`` (N,) bool (those whose ambiguity is known), every
+    signal group's with its own reference (:func:`select_reference` keeping a satellite while it does not slip);
+    when every row is usable they are the phase weights' own ``blocks_ph`` (references ``refs_ph``): the same
+    calls on the same arrays, so not made again (a day at 1 Hz: ≈ 1 s each).  Returns ``[(rows, P), ...]`` in
+    group order, and the references used, one (n_ep,) array per group."""
+    if np.all(usable):
+        return blocks_ph, list(refs_ph)
+    blocks, refs = [], []
+    for m in _group_masks(d):
+        u = usable if m is None else usable & m
+        ref_k = select_reference(d.ptr, d.sat, d.el_rover, d.slip, usable=u)
+        blocks += dd_weight_blocks(d.ptr, var_ph, ref_k, usable=u)
+        refs.append(ref_k)
+    return blocks, refs
+
+
 def _single_epoch_positions(d: _Data, w: _Weights, fin: _Final, seg, opt: BaselineOptions):
     """Every epoch solved alone from its phase DDs (all signal groups) with the known ambiguities →
     (epoch, ENU m, n_sat, PDOP, covariance m²) by epoch, or None when no epoch has enough satellites.
     ``n_sat`` counts satellite-signal rows; an epoch needs ``min_sats_kinematic`` − 1 DDs."""
-    usable = fin.known_seg[seg]
     n_ep = d.t_label.size
     nmat, rhs, gcg = np.zeros((n_ep, 3, 3)), np.zeros((n_ep, 3)), np.zeros((n_ep, 3, 3))
     n_sat, n_dd = np.zeros(n_ep, dtype=np.int64), np.zeros(n_ep, dtype=np.int64)
-    for m in _group_masks(d):
-        u = usable if m is None else usable & m
-        ref_k = select_reference(d.ptr, d.sat, d.el_rover, d.slip, usable=u)
-        for rows, p in dd_weight_blocks(d.ptr, w.var_ph, ref_k, usable=u):
-            gk, rk = fin.g[rows], fin.r_ph[rows]
-            ep = d.epoch[rows[:, 0]]
-            nmat[ep] += np.einsum("kic,kij,kjd->kcd", gk, p, gk)
-            rhs[ep] += np.einsum("kic,kij,kj->kc", gk, p, rk)
-            gc = gk - gk.mean(axis=1, keepdims=True)       # geometry with the clock (group bias) eliminated
-            gcg[ep] += np.einsum("kic,kid->kcd", gc, gc)
-            n_sat[ep] += rows.shape[1]
-            n_dd[ep] += rows.shape[1] - 1
+    blocks, _ = known_phase_blocks(d, w.var_ph, w.refs_ph, w.blocks_ph, fin.known_seg[seg])
+    for rows, p in blocks:
+        gk, rk = fin.g[rows], fin.r_ph[rows]
+        ep = d.epoch[rows[:, 0]]
+        nmat[ep] += np.einsum("kic,kij,kjd->kcd", gk, p, gk)
+        rhs[ep] += np.einsum("kic,kij,kj->kc", gk, p, rk)
+        gc = gk - gk.mean(axis=1, keepdims=True)       # geometry with the clock (group bias) eliminated
+        gcg[ep] += np.einsum("kic,kid->kcd", gc, gc)
+        n_sat[ep] += rows.shape[1]
+        n_dd[ep] += rows.shape[1] - 1
     ep = np.flatnonzero(n_dd >= opt.min_sats_kinematic - 1)
     if not ep.size:
         return None
@@ -1318,7 +1332,7 @@ def _work(d: _Data, sg: _Segments, w: _Weights, fin: _Final, xr0, xm, r_enu, kin
     """The solver's working arrays for the GNSS pipeline's estimators (``keep_work``)."""
     return {
         "data": d, "seg": sg.seg, "segtab": sg.segtab, "is_pivot": sg.is_pivot, "seg_half": sg.seg_half,
-        "known_seg": fin.known_seg, "a_seg": fin.a_seg, "var_ph": w.var_ph, "ref_ph": w.ref_ph, "refs_ph": w.refs_ph, "xr0": xr0, "xm": xm,
+        "known_seg": fin.known_seg, "a_seg": fin.a_seg, "var_ph": w.var_ph, "ref_ph": w.ref_ph, "refs_ph": w.refs_ph, "blocks_ph": w.blocks_ph, "xr0": xr0, "xm": xm,
         "r_enu": r_enu, "x_final": np.asarray(fin.x), "q_final": fin.q3, "r_ph": fin.r_ph, "g": fin.g,
         "kinematic": kin_arrays,
     }
@@ -1507,19 +1521,42 @@ def _run_engine(master: Station, rover: Station, nav, opt: BaselineOptions, xm, 
     geo = []
     for xyz in (xm, xr0):                  # each signal table dropped once its geometry is built
         geo.append(receiver_geometry(tables.pop(0), nav, xyz))
-    return static_baseline(geo[0], geo[1], xm, xr0, eopt, arcs_check=arcs_check)
+    # the tables handed over (not held here): static_baseline releases them once its SD rows are built
+    return static_baseline(geo.pop(0), geo.pop(0), xm, xr0, eopt, arcs_check=arcs_check)
+
+
+def _engine_first(master: Station, rover: Station, nav, opt: BaselineOptions, xm, xr0, iono_threshold_km,
+                  prepared):
+    """:func:`_run_engine` before this module's batch tables exist: ``prepared()`` (:func:`_prepare`, the segments
+    and weights) is first called by the engine's arc check, once the engine has released its receiver geometry
+    (the peak of a long record's ``init``: ≈ 620 MiB on the 24 h pair) and holds only its SD rows, instead of
+    the tables (≈ 310 MiB) being built before and held beside that geometry; arcs that are not the segments
+    still stop it before it solves.  Returns its result (state, covariance, arc table, integers: small), the
+    reason it cannot serve (a string), or the CdgpsError it raised (not :func:`_prepare`'s): raised by
+    :func:`_engine_or_batch` once :func:`_prepare` has run, whose messages on bad input come first, as before."""
+    try:
+        return _run_engine(master, rover, nav, opt, xm, xr0, iono_threshold_km,
+                           arcs_check=lambda arcs: _engine_columns(*prepared()[:2], arcs))
+    except CdgpsError as exc:
+        if getattr(exc, "from_prepare", False):        # the batch tables' own message: passed on as it is
+            raise
+        return exc
 
 
 def _engine_or_batch(master: Station, rover: Station, nav, opt: BaselineOptions, xm, xr0, iono_threshold_km,
-                     prepared: tuple, engine: bool):
+                     prepared: tuple, engine: bool, solved=None):
     """((float, fix, final) of the static engine, "static_engine"), or (None, "batch (reason)") when the batch
-    solver is to serve (engine not asked for, an option only the batch implements, arcs that are not the segments)."""
+    solver is to serve (engine not asked for, an option only the batch implements, arcs that are not the segments).
+    ``solved``: :func:`_engine_first`'s answer (the engine already ran; arcs that are not the segments are then
+    found after its solve), else the engine runs here, its arcs checked before it solves."""
     if not engine:
         return None, "batch (engine not asked for)"
     d, sg, w, r_enu = prepared
+    if isinstance(solved, CdgpsError):
+        raise solved
     # arcs that are not the segments are known before the engine solves: no solve to throw away
-    eng = _run_engine(master, rover, nav, opt, xm, xr0, iono_threshold_km,
-                      arcs_check=lambda arcs: _engine_columns(d, sg, arcs))
+    eng = solved if solved is not None else _run_engine(master, rover, nav, opt, xm, xr0, iono_threshold_km,
+                                                        arcs_check=lambda arcs: _engine_columns(d, sg, arcs))
     known = eng if isinstance(eng, str) else _engine_solution(d, sg, w, eng, xr0, r_enu, opt)
     return (None, f"batch ({known})") if isinstance(known, str) else (known, "static_engine")
 
@@ -1709,21 +1746,31 @@ def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, op
         Missing phase, missing master position, navigation data not covering the span, no
         common epochs or satellites, singular normal equations.
     """
+    solved = {}
+
+    def first(xm, xr0, prepared):    # the engine's geometry released before the batch tables are built
+        if engine and integers is None:
+            solved["engine"] = _engine_first(master, rover, nav, opt, xm, xr0, iono_threshold_km, prepared)
+
     def decide(prepared, xm, xr0, warnings):
         d, sg, w, r_enu = prepared
         if integers is None:
-            return _engine_or_batch(master, rover, nav, opt, xm, xr0, iono_threshold_km, prepared, engine)
+            return _engine_or_batch(master, rover, nav, opt, xm, xr0, iono_threshold_km, prepared, engine,
+                                    solved.pop("engine", None))
         return (None if solution is None else _known_solution(d, sg, w, integers, solution, xr0, r_enu, warnings,
                                                               solution_tol_m)), "batch (integers given)"
 
     opt = options or BaselineOptions()
-    return _baseline(master, rover, nav, opt, master_xyz, rover_xyz, keep_work, iono_threshold_km, decide, integers)
+    return _baseline(master, rover, nav, opt, master_xyz, rover_xyz, keep_work, iono_threshold_km, decide, integers,
+                     first)
 
 
 def _baseline(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOptions, master_xyz, rover_xyz,
-              keep_work: bool, iono_threshold_km, decide, integers) -> dict:
+              keep_work: bool, iono_threshold_km, decide, integers, first=None) -> dict:
     """:func:`solve_static_baseline`'s and :func:`baseline_from_init`'s body: ``decide(prepared, xm, xr0, warnings)``
-    returns ((float, fix, final), solver) of a solution made elsewhere, or (None, solver): the batch below solves."""
+    returns ((float, fix, final), solver) of a solution made elsewhere, or (None, solver): the batch below solves;
+    ``first(xm, xr0, prepared)``, when given, runs before the batch tables are built (``prepared()`` builds them
+    once, when first called; the time of ``first`` besides them counts as the solve's)."""
     t_start = time.perf_counter()
     opt.validate()
     warnings: list[str] = []
@@ -1736,10 +1783,32 @@ def _baseline(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineO
         clock.append(time.perf_counter())
         return clock[-1] - clock[-2]
 
-    d = _prepare(master, rover, nav, opt, xm, xr0, warnings)
-    t_prep = lap()
     r_enu = enu_matrix(*ecef_to_geodetic(xr0)[:2])
-    sg, w = _segments(d, opt), _weights(d, opt)
+    cache = {}
+
+    def prepared():
+        """(data, segments, weights, r_enu), built once; a CdgpsError of :func:`_prepare` raised again on each call."""
+        if "error" in cache:
+            raise cache["error"]
+        if "tables" not in cache:
+            t0 = time.perf_counter()
+            try:
+                d = _prepare(master, rover, nav, opt, xm, xr0, warnings)
+            except CdgpsError as exc:
+                exc.from_prepare = True
+                cache["error"] = exc
+                raise
+            cache["t_prep"] = time.perf_counter() - t0
+            cache["tables"] = (d, _segments(d, opt), _weights(d, opt), r_enu)
+        return cache["tables"]
+
+    t_first = 0.0
+    if first is not None:
+        first(xm, xr0, prepared)
+        t_first = lap() - cache.get("t_prep", 0.0)
+    d, sg, w, _ = prepared()
+    lap()
+    t_prep = cache["t_prep"]
     known, solver = decide((d, sg, w, r_enu), xm, xr0, warnings)
     if known is None and opt.glonass_fix:
         raise CdgpsError(f"glonass_fix: GLONASS integers are fixed by the static engine only, which cannot solve "
@@ -1747,10 +1816,10 @@ def _baseline(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineO
     if known is not None:
         fl, fx, fin = known
         t_float = t_lambda = 0.0
-        t_fixed = lap()
+        t_fixed = lap() + t_first
     else:
         fl = _float_solution(d, sg, w, xr0, r_enu, opt)
-        t_float = lap()
+        t_float = lap() + t_first             # with the engine's solve, when it ran first and the batch serves
         fx = _integer_fix(d, sg, w, fl, opt, integers, warnings)
         t_lambda = lap()
         fin = _fixed_solution(d, sg, w, fl, fx, xr0, r_enu, opt)

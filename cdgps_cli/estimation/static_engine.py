@@ -340,6 +340,7 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
                         sync_tol_s=opt["sync_tol_s"], max_age_s=opt["max_age_s"])
     times = pairs.rover_time_s
     rows = paired_sd_rows(base, rover, pairs, opt, mask_rover=True)     # the mask at both receivers, as the batch's
+    del base, rover          # the geometry tables (a long record's largest) are not held through the check and solve
     if rows["sats"].size == 0:
         raise CdgpsError("no common observations: no satellite observed at both receivers above the mask")
     if np.unique(rows["code"]).size > 1:           # multi-signal: the DD ionosphere is neglected (as init's)

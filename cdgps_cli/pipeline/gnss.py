@@ -42,12 +42,11 @@ import pandas as pd
 from cdgps_cli import __version__
 from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.estimation.baseline import (BaselineOptions, Station, baseline_from_init, json_safe,
-                                           solve_static_baseline)
+                                           known_phase_blocks, solve_static_baseline)
 from cdgps_cli.estimation.model_filter import filter_numpy
 from cdgps_cli.estimation.smoother import rts_smooth_indexed
 from cdgps_cli.measurement.dd_displacement import SatelliteDDDisplacement, SDObservations
 from cdgps_cli.model.dynamics_models import RandomWalk
-from cdgps_cli.measurement.differencing import dd_weight_blocks, select_reference
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.records import INIT_FORMAT, Series, StateSeries, init_kind
@@ -286,17 +285,15 @@ def _epoch_information(w: dict, use: np.ndarray):
     dof = np.zeros(n_ep, dtype=np.int64)
     has = np.zeros(n_ep, dtype=bool)
     r = w["r_ph"]
-    groups = []
-    for u in _group_use(d, use):
-        ref = select_reference(d.ptr, d.sat, d.el_rover, d.slip, usable=u)
-        for rows, p in dd_weight_blocks(d.ptr, w["var_ph"], ref, usable=u):
-            ep = d.epoch[rows[:, 0]]
-            rk = r[rows]
-            c[ep] += np.einsum("ki,kij,kj->k", rk, p, rk)
-            dof[ep] += rows.shape[1] - 1
-            has[ep] = True
-        groups.append((u, ref))
-    return c, dof, has, groups
+    # every row usable (all ambiguities known): the solver's own phase weights, not formed again
+    blocks, refs = known_phase_blocks(d, w["var_ph"], w["refs_ph"], w["blocks_ph"], use)
+    for rows, p in blocks:
+        ep = d.epoch[rows[:, 0]]
+        rk = r[rows]
+        c[ep] += np.einsum("ki,kij,kj->k", rk, p, rk)
+        dof[ep] += rows.shape[1] - 1
+        has[ep] = True
+    return c, dof, has, list(zip(_group_use(d, use), refs))
 
 
 def _random_walk(model: SatelliteDDDisplacement, t: np.ndarray, sigma_rw, p0_sigma: float, smooth: bool):
@@ -458,6 +455,7 @@ def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path
         fixed_any = res["ambiguities"]["n_fixed"] > 0
         use = w["known_seg"][w["seg"]] if fixed_any else np.ones(w["seg"].size, dtype=bool)
         c, dof, has, groups = _epoch_information(w, use)
+        w.pop("blocks_ph", None)            # the solver's phase weights, no longer needed (a day at 1 Hz: ≈ 60 MiB)
         if model == "static":
             q[idx, sl] = x_fin
             P[idx, sl, sl] = w["q_final"]

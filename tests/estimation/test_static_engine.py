@@ -408,3 +408,54 @@ def test_engine_masks_at_both_receivers_and_matches_offset_tags():
     assert n_base - both["sats"].size == 10 and both["ptr"][-1] == both["sats"].size
     np.testing.assert_array_equal(_engine_epochs([10.0, 11.0, 12.0], [10.004, 11.499, 11.5001, 12.6, 9.0]),
                                   [0, 1, 2, -1, -1])
+
+
+def test_batch_tables_are_built_after_the_engine_released_its_geometry(monkeypatch):
+    """``init``/``baseline`` on the engine: the batch tables (``baseline._prepare``: 310 MiB on the 24 h pair) are
+    built only once the engine has released its receiver geometry (the peak: 24 h init 1262 → 936 MiB), from
+    its arc check, so arcs that are not the segments still skip the solve; the result is the one of the former
+    order (tables first), bit for bit; a bad input still gets ``_prepare``'s own message."""
+    import gc
+    import weakref
+    from cdgps_cli.core.errors import CdgpsError
+    from cdgps_cli.estimation import baseline, static_engine
+    (b, r), nav = _mosaic_stations()
+    real_prepare, real_geometry, real_filter = baseline._prepare, rtk_multi.receiver_geometry, static_engine.static_filter
+    made, order = [], []
+
+    def geometry(*a, **k):
+        out = real_geometry(*a, **k)
+        made.append(weakref.ref(out))
+        return out
+
+    def prepare(*a, **k):
+        gc.collect()
+        order.append(("prepare", len(made), sum(w() is not None for w in made)))
+        return real_prepare(*a, **k)
+
+    def filt(*a, **k):
+        order.append(("filter",))
+        return real_filter(*a, **k)
+    monkeypatch.setattr(rtk_multi, "receiver_geometry", geometry)
+    monkeypatch.setattr(baseline, "_prepare", prepare)
+    monkeypatch.setattr(static_engine, "static_filter", filt)
+    got = baseline.solve_static_baseline(b, r, nav, engine=True)
+    assert order == [("prepare", 2, 0), ("filter",)]          # both geometries built and released, then the solve
+    # the former order: tables first, the engine's arcs checked against them before it solves
+    xm, xr0, _ = baseline._a_priori_positions(b, r, nav, None, None, [])
+    d = real_prepare(b, r, nav, baseline.BaselineOptions(), xm, xr0, [])
+    r_enu = baseline.enu_matrix(*baseline.ecef_to_geodetic(xr0)[:2])
+    opt = baseline.BaselineOptions()
+    sg = baseline._segments(d, opt)
+    (fl, fx, fin), solver = baseline._engine_or_batch(b, r, nav, opt, xm, xr0, None,
+                                                     (d, sg, baseline._weights(d, opt), r_enu), True)
+    assert got["solver"] == solver == "static_engine" and got["fixed"]["enu_m"] == fin.x.tolist()
+    assert got["float"]["enu_m"] == fl.x.tolist() and got["fixed"]["sigma_enu_m"] == fin.block["sigma_enu_m"]
+    assert got["ambiguities"]["segments"] == baseline._segment_table(d, sg, fx, fin)
+    monkeypatch.undo()
+    far = r._replace(obs=r.obs.assign(time_gps_s=r.obs["time_gps_s"] + 86400.0))
+    with pytest.raises(CdgpsError) as engine_first:
+        baseline.solve_static_baseline(b, far, nav, engine=True)
+    with pytest.raises(CdgpsError) as batch:
+        baseline.solve_static_baseline(b, far, nav)
+    assert str(engine_first.value) == str(batch.value)
