@@ -19,7 +19,7 @@ from cdgps_cli.estimation.driver import EpochGrid, GridDynamics, RecordingSink, 
 from cdgps_cli.estimation.kalman import StepFilter
 from cdgps_cli.config.options import GNSS_DEFAULTS, MULTI_GNSS_DEFAULTS
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.measurement.dd_signals import DDGroupModel, epoch_groups, paired_sd_rows
+from cdgps_cli.measurement.dd_signals import DDGroupModel, RunDDModel, epoch_groups, paired_sd_rows
 from cdgps_cli.measurement.differencing import ambiguity_segments
 from cdgps_cli.measurement.epoch_pairing import pair_epochs
 from cdgps_cli.model.dynamics_models import Dynamics, Static, WithConstants
@@ -62,6 +62,14 @@ def _groups(rows, cols, k):
     return out
 
 
+def _model(rows, cols, base_xyz_m, origin_xyz_m):
+    """The DD model of ``rows`` with ambiguity columns ``cols``: :class:`RunDDModel` (whole-block layout) when
+    the rows carry :func:`paired_sd_rows`' group layout, else DDGroupModel over :func:`_groups` (the same rows)."""
+    if rows.get("groups") is not None:
+        return RunDDModel(rows, cols, base_xyz_m, origin_xyz_m)
+    return DDGroupModel(lambda k: _groups(rows, cols, k), base_xyz_m, origin_xyz_m)
+
+
 def static_prior(rows, cols, n_state: int, sigma_pos_m: float, sigma_amb_cycles: float):
     """x0 (n,) and P0 (n, n): offset 0, each arc's ambiguity at its first row's (phase − code)/λ."""
     x0 = np.zeros(n_state)
@@ -86,7 +94,7 @@ def static_filter(rows, times_s, base_xyz_m, origin_xyz_m, *, sigma_pos_m: float
     cols = arc_columns(rows, times_s) if cols is None else cols
     n = 3 + (int(cols.max()) - 2 if cols.size else 0)
     x0, P0 = static_prior(rows, cols, n, sigma_pos_m, sigma_amb_cycles)
-    model = DDGroupModel(lambda k: _groups(rows, cols, k), base_xyz_m, origin_xyz_m)
+    model = _model(rows, cols, base_xyz_m, origin_xyz_m)
     # only the last state is kept (a whole record's x, P per epoch: 86400 × 90² × 8 B = 5.6 GB for a 24 h pair)
     sink = RecordingSink(len(times_s), n, history=False, keep_rows=False)
     with progress.bar(len(times_s), "static baseline (filter)", unit="epoch") as bar:
@@ -134,7 +142,7 @@ def random_walk_float(rows, cols, times_s, base_xyz_m, origin_xyz_m, x_static, *
     x0, P0 = static_prior(rows, cols, n, initial_sigma_m, sigma_amb_cycles)
     x0[:3] = x_static[:3]
     dyn = WithConstants(EnuRandomWalk(sigma_rw, origin_xyz_m), n - 3)
-    model = DDGroupModel(lambda k: _groups(rows, cols, k), base_xyz_m, origin_xyz_m)
+    model = _model(rows, cols, base_xyz_m, origin_xyz_m)
     with progress.bar(len(times_s), "static baseline (random-walk filter)", unit="epoch") as bar:
         ctx = drive(GridDynamics(dyn, times_s), [model], EpochGrid(np.asarray(times_s, float)),
                     StepFilter(x0, P0, form="covariance"), sink=RecordingSink(len(times_s), n, history=False), max_iterations=max_iterations, progress=bar)
@@ -153,7 +161,7 @@ def static_normal_equations(rows, n_epochs: int, base_xyz_m, origin_xyz_m, x_lin
     cols = arc_columns(rows) if cols is None else cols
     info = np.linalg.inv(P0)
     Nm, rhs = info.copy(), info @ (x0 - x_lin)
-    model = DDGroupModel(lambda k: _groups(rows, cols, k), base_xyz_m, origin_xyz_m)
+    model = _model(rows, cols, base_xyz_m, origin_xyz_m)
     for k in range(n_epochs):
         model.prepare(k, _Ctx(x_lin))
         r = model.rows(k)
