@@ -19,7 +19,7 @@ from cdgps_cli.estimation.driver import EpochGrid, GridDynamics, RecordingSink, 
 from cdgps_cli.estimation.kalman import StepFilter
 from cdgps_cli.config.options import GNSS_DEFAULTS, MULTI_GNSS_DEFAULTS
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.measurement.dd_signals import DDGroupModel, RunDDModel, epoch_groups, paired_sd_rows
+from cdgps_cli.measurement.dd_signals import DDGroupModel, RunDDModel, channel_index, epoch_groups, paired_sd_rows
 from cdgps_cli.measurement.differencing import ambiguity_segments
 from cdgps_cli.measurement.epoch_pairing import pair_epochs
 from cdgps_cli.model.dynamics_models import Dynamics, Static, WithConstants
@@ -38,8 +38,7 @@ def arc_columns(rows, times_s=None, *, max_gap_s: float | None = None, n_pos: in
     n = rows["sats"].size
     if n == 0:
         return np.empty(0, dtype=np.int64)
-    key = np.char.add(rows["sats"].astype(str), rows["code"].astype(str))
-    channel = np.unique(key, return_inverse=True)[1].ravel()
+    channel = channel_index(rows["sats"], rows["code"])
     if times_s is None:                    # rows in time order; no gap limit
         step = np.arange(n)
         seg, tab = ambiguity_segments(step, channel, rows["slip"], epoch_time_s=step.astype(float), max_gap_s=np.inf)

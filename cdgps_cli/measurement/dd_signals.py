@@ -45,7 +45,7 @@ from cdgps_cli.measurement.epoch_pairing import age_variance_m2, carry_base_slip
 from cdgps_cli.measurement.noise import correlated_variance_factor
 
 __all__ = ["dd_range", "epoch_rows", "signal_sd_table", "group_key", "DDGroupModel", "GroupRows", "RunDDModel",
-           "whitening_matrix", "paired_sd_rows", "epoch_groups", "backward_slips"]
+           "whitening_matrix", "paired_sd_rows", "epoch_groups", "backward_slips", "channel_index"]
 
 
 def group_key(sat: str, signal_name: str) -> str:
@@ -540,12 +540,25 @@ def epoch_groups(rows, k):
     return groups
 
 
+def channel_index(sats, code) -> np.ndarray:
+    """Channel (N,) of each row: the index of its key ``sat + str(code)`` among the sorted distinct keys
+    (what ``np.unique(np.char.add(sats.astype(str), code.astype(str)), return_inverse=True)[1]`` gives),
+    with the strings formed for the distinct (satellite, code) pairs only."""
+    sats, code = np.asarray(sats), np.asarray(code, dtype=np.int64).ravel()
+    if sats.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    s_id, s_names = pd.factorize(sats.ravel())
+    pair, inv = np.unique(s_id.astype(np.int64) * (int(code.max()) + 1) + code, return_inverse=True)
+    keys = np.char.add(np.asarray(s_names)[pair // (int(code.max()) + 1)].astype(str), (pair % (int(code.max()) + 1)).astype(str))
+    return np.unique(keys, return_inverse=True)[1].ravel()[inv.ravel()].astype(np.int64)
+
+
 def backward_slips(rows) -> np.ndarray:
     """Slip flags for a pass backward in time: a flag at a channel's row (a new ambiguity from that
     epoch on) belongs, going backward, to the channel's previous row."""
     n = rows["sats"].size
     epoch = np.repeat(np.arange(rows["ptr"].size - 1), np.diff(rows["ptr"]))
-    key = np.char.add(rows["sats"].astype(str), rows["code"].astype(str))
+    key = channel_index(rows["sats"], rows["code"])        # the order of the strings sat + code
     order = np.lexsort((epoch, key))
     k_o, s_o = key[order], rows["slip"][order]
     nxt = np.zeros(n, dtype=bool)

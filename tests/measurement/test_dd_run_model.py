@@ -112,3 +112,38 @@ def test_whitening_matrix_is_the_block_product():
     assert _same(whitening_matrix(u, inv, block), B)
     assert _same(GroupRows(np.zeros(u.size), var, sizes, None).B, B)
     assert np.signbit(B[0, 5]) and np.signbit(whitening_matrix(u, inv, block)[0, 5])
+
+
+def test_channel_index_is_the_sorted_key_strings():
+    from cdgps_cli.measurement.dd_signals import channel_index
+    rng = np.random.default_rng(1)
+    names = np.array(["G01", "G11", "G1", "E05", "R24", "C01"], dtype=object)
+    sats, code = names[rng.integers(0, names.size, 500)], rng.integers(0, 12, 500)
+    sats[:2], code[:2] = ["G1", "G11"], [11, 1]                 # "G111" twice: one channel, as the strings say
+    for s in (sats, sats.astype(str)):
+        want = np.unique(np.char.add(s.astype(str), code.astype(str)), return_inverse=True)[1].ravel()
+        assert np.array_equal(channel_index(s, code), want)
+    assert channel_index(np.array([], dtype=object), np.array([], dtype=int)).size == 0
+
+
+def test_arc_columns_and_backward_slips_as_before(run):
+    """arc_columns and backward_slips on channel_index: the same as on the sat + code strings."""
+    from cdgps_cli.measurement.dd_signals import backward_slips
+    rows, cols, times = run
+    key = np.char.add(rows["sats"].astype(str), rows["code"].astype(str))
+    epoch = np.repeat(np.arange(rows["ptr"].size - 1), np.diff(rows["ptr"]))
+    order = np.lexsort((epoch, key))
+    nxt = np.zeros(key.size, dtype=bool)
+    nxt[:-1] = (key[order][1:] == key[order][:-1]) & rows["slip"][order][1:]
+    want = np.zeros(key.size, dtype=bool)
+    want[order] = nxt
+    assert np.array_equal(backward_slips(rows), want)
+    # arc_columns as it was: channels from np.unique of the strings
+    from cdgps_cli.measurement.differencing import ambiguity_segments
+    channel = np.unique(key, return_inverse=True)[1].ravel()
+    seg, tab = ambiguity_segments(epoch, channel, rows["slip"], epoch_time_s=times, max_gap_s=None)
+    first = np.full(tab["sat"].size, key.size, dtype=np.int64)
+    np.minimum.at(first, seg, np.arange(key.size))
+    rank = np.empty(first.size, dtype=np.int64)
+    rank[np.argsort(first, kind="stable")] = np.arange(first.size)
+    assert np.array_equal(se.arc_columns(rows, times), 3 + rank[seg]) and cols.max() > 10
