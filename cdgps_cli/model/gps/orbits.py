@@ -53,6 +53,9 @@ __all__ = [
     "beidou_geo_rotation",
     "select_ephemeris",
     "select_ephemerides",
+    "EphemerisRows",
+    "ephemeris_rows",
+    "sat_position_rows",
     "sat_position_at_reception",
     "ReceptionEphemeris",
     "reception_ephemeris",
@@ -399,6 +402,61 @@ def select_ephemerides(nav: pd.DataFrame, sats, t_gps_s) -> pd.DataFrame:
     for sat, idx in pd.Series(sats).groupby(sats).indices.items():
         rows[idx] = _ephemeris_rows(nav, sat, t[idx], None, columns)
     return nav.iloc[rows].reset_index(drop=True)
+
+
+class EphemerisRows(NamedTuple):
+    """The ephemeris of every (satellite, time) row, selected once (:func:`ephemeris_rows`), laid out for
+    :func:`sat_position_rows` to evaluate at any times (no per-row DataFrame)."""
+
+    rows: np.ndarray
+    """Position in the navigation table of each row's ephemeris (:func:`select_ephemerides`' choice), shape (N,)."""
+    kepler: np.ndarray
+    """Indices (0…N−1) of the Kepler-orbit rows (GPS, Galileo, BeiDou), in row order, shape (K,)."""
+    constants: dict
+    """:func:`_kepler_constants` of the navigation table taken at those rows' ephemerides (arrays (K,))."""
+    glonass: np.ndarray
+    """Indices of the GLONASS rows, shape (G,)."""
+    glonass_eph: pd.DataFrame | None
+    """Their ephemerides (rows of the navigation table), or None without GLONASS."""
+
+
+def ephemeris_rows(nav: pd.DataFrame, sats, t_gps_s) -> EphemerisRows:
+    """:func:`select_ephemerides`' choice for each (satellite, time) row, as row positions and orbit constants.
+
+    ``sat_position_rows(ephemeris_rows(nav, sats, t), tt)`` is ``sat_position_ecef(select_ephemerides(nav, sats, t), tt)``
+    value for value (the same ephemerides, the same operations, Kepler's equation iterated over all the Kepler rows
+    until all have converged), without the DataFrame of N ephemerides.  CdgpsError as :func:`select_ephemerides`.
+    """
+    sats = np.asarray(sats, dtype=object).ravel()
+    t = np.asarray(t_gps_s, dtype=np.float64).ravel()
+    rows = np.empty(t.size, dtype=np.int64)
+    columns = _ephemeris_columns(nav)
+    for sat, idx in _sat_blocks(sats):                      # satellites in name order, as select_ephemerides
+        rows[idx] = _ephemeris_rows(nav, sat, t[idx], None, columns)
+    glo_nav = nav["sat"].astype(str).str.startswith("R").to_numpy()
+    is_glo = glo_nav[rows]
+    kepler, glonass = np.flatnonzero(~is_glo), np.flatnonzero(is_glo)
+    consts = {f: v[rows[kepler]] for f, v in _kepler_constants(nav).items()} if kepler.size else {}
+    return EphemerisRows(rows, kepler, consts, glonass,
+                         nav.iloc[rows[glonass]].reset_index(drop=True) if glonass.size else None)
+
+
+def sat_position_rows(eph: EphemerisRows, t_gps_s, *, apply_tgd: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`sat_position_ecef` of the rows of :func:`ephemeris_rows` at times ``t_gps_s`` (N,): position (N, 3) m
+    and clock (N,) s, every value the one ``sat_position_ecef`` gives on :func:`select_ephemerides`' table."""
+    t = np.asarray(t_gps_s, dtype=np.float64).ravel()
+    if t.size != eph.rows.size:
+        raise ValueError(f"the ephemeris selection has {eph.rows.size} rows, the times {t.size}")
+    if t.size == 0:
+        return np.empty((0, 3)), np.empty(0)
+    if not eph.glonass.size:
+        return _kepler_blocks(eph.constants, t, np.zeros(1, dtype=np.int64), apply_tgd)
+    xyz, clock = np.empty((t.size, 3)), np.empty(t.size)
+    xyz[eph.glonass], clock[eph.glonass] = _glonass_record_position(eph.glonass_eph, t[eph.glonass])
+    if eph.kepler.size:     # one block: Kepler's equation iterated until every Kepler row has converged
+        xyz[eph.kepler], clock[eph.kepler] = _kepler_blocks(eph.constants, t[eph.kepler], np.zeros(1, dtype=np.int64),
+                                                            apply_tgd)
+    return xyz, clock
 
 
 class ReceptionGeometry(NamedTuple):
