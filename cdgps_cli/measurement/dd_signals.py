@@ -422,13 +422,14 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False) -> dict
     pair_of_rover[pairs.rover_index] = np.arange(n_ep)
     first_use = np.r_[True, pairs.base_index[1:] != pairs.base_index[:-1]] if n_ep else np.zeros(0, bool)
     bep = np.searchsorted(tb, base["time_gps_s"].to_numpy())
-    lli_b = carry_base_slips(bep, base["sat"].to_numpy().astype(str) + base["signal"].to_numpy().astype(str),
+    # channels by (satellite, signal): the classes of the strings sat + signal, formed per distinct pair
+    lli_b = carry_base_slips(bep, channel_index(base["sat"].to_numpy(), base["signal"].to_numpy()),
                              base["lli"].to_numpy(dtype=np.int64), np.bincount(pairs.base_index, minlength=tb.size))
     b = base.assign(_row_b=np.arange(len(base)), _bep=bep, lli=lli_b)
     rep = np.searchsorted(tr, rover["time_gps_s"].to_numpy())
     ep_r = pair_of_rover[rep]
     # the rover's slip flags of epochs that are not used move to the channel's next used epoch
-    lli_r = carry_base_slips(rep, rover["sat"].to_numpy().astype(str) + rover["signal"].to_numpy().astype(str),
+    lli_r = carry_base_slips(rep, channel_index(rover["sat"].to_numpy(), rover["signal"].to_numpy()),
                              rover["lli"].to_numpy(dtype=np.int64), (pair_of_rover >= 0).astype(np.int64))
     r = rover[_PAIR_COLS].assign(_row_r=np.arange(len(rover)), _ep=ep_r, lli=lli_r)
     if mask_rover:
@@ -441,7 +442,7 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False) -> dict
         above &= m["_el_r"].to_numpy() >= np.radians(opt["mask_deg"])
     m = m[above]
     m = m.sort_values(["_ep", "signal", "_row_b", "_row_r"], kind="stable")
-    names, code = np.unique(m["signal"].to_numpy().astype(str), return_inverse=True)
+    names, code = _sorted_codes(m["signal"].to_numpy())
     epoch = m["_ep"].to_numpy()
     lam = m["wavelength_m"].to_numpy(dtype=float)
     el = m["el_rad"].to_numpy(dtype=float)
@@ -468,6 +469,14 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False) -> dict
         "var_code": var * opt["code_ratio"] ** 2 * correlated_variance_factor(nominal_interval_s(pairs.rover_time_s),
                                                                              opt["code_correlation_s"]) + var_age,
     }
+
+
+def _sorted_codes(values):
+    """``np.unique(values.astype(str), return_inverse=True)``: the sorted distinct strings and each value's
+    index among them, the strings formed for the distinct values only."""
+    ids, uniq = pd.factorize(np.asarray(values).ravel())
+    names, to_sorted = np.unique(np.asarray(uniq).astype(str), return_inverse=True)
+    return names, to_sorted.ravel()[ids]
 
 
 _ROW_KEYS = ("sats", "lam_m", "mu", "sat_xyz", "sat_base_xyz", "phase_sd_m", "code_sd_m", "slip", "half", "var_phase",
@@ -541,15 +550,18 @@ def epoch_groups(rows, k):
 
 
 def channel_index(sats, code) -> np.ndarray:
-    """Channel (N,) of each row: the index of its key ``sat + str(code)`` among the sorted distinct keys
-    (what ``np.unique(np.char.add(sats.astype(str), code.astype(str)), return_inverse=True)[1]`` gives),
-    with the strings formed for the distinct (satellite, code) pairs only."""
-    sats, code = np.asarray(sats), np.asarray(code, dtype=np.int64).ravel()
+    """Channel (N,) of each row: the index of its key ``str(sat) + str(code)`` among the sorted distinct keys
+    (what ``np.unique(np.char.add(sats.astype(str), code.astype(str)), return_inverse=True)[1]`` gives), with
+    the strings formed for the distinct (satellite, code) pairs only.  ``code`` (N,): ints or strings (e.g.
+    signal names)."""
+    sats, code = np.asarray(sats).ravel(), np.asarray(code).ravel()
     if sats.size == 0:
         return np.zeros(0, dtype=np.int64)
-    s_id, s_names = pd.factorize(sats.ravel())
-    pair, inv = np.unique(s_id.astype(np.int64) * (int(code.max()) + 1) + code, return_inverse=True)
-    keys = np.char.add(np.asarray(s_names)[pair // (int(code.max()) + 1)].astype(str), (pair % (int(code.max()) + 1)).astype(str))
+    s_id, s_names = pd.factorize(sats)
+    c_id, c_names = pd.factorize(code)
+    n_c = len(c_names)
+    pair, inv = np.unique(s_id.astype(np.int64) * n_c + c_id, return_inverse=True)
+    keys = np.char.add(np.asarray(s_names)[pair // n_c].astype(str), np.asarray(c_names)[pair % n_c].astype(str))
     return np.unique(keys, return_inverse=True)[1].ravel()[inv.ravel()].astype(np.int64)
 
 

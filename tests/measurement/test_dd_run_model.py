@@ -147,3 +147,16 @@ def test_arc_columns_and_backward_slips_as_before(run):
     rank = np.empty(first.size, dtype=np.int64)
     rank[np.argsort(first, kind="stable")] = np.arange(first.size)
     assert np.array_equal(se.arc_columns(rows, times), 3 + rank[seg]) and cols.max() > 10
+
+
+def test_channel_index_takes_signal_names_and_codes_as_strings():
+    from cdgps_cli.measurement.dd_signals import _sorted_codes, channel_index
+    rng = np.random.default_rng(2)
+    sats = np.array(["G05", "E11", "G5", "R01"], dtype=object)[rng.integers(0, 4, 300)]
+    sig = np.array(["G:L1", "E:E5a", "5G:L1", "R:G1"], dtype=object)[rng.integers(0, 4, 300)]
+    sats[:2], sig[:2] = ["G05", "G0"], ["G:L1", "5G:L1"]           # "G05G:L1" twice: one channel, as the strings say
+    want = np.unique(sats.astype(str) + sig.astype(str), return_inverse=True)[1].ravel()
+    assert np.array_equal(channel_index(sats, sig), want)
+    names, code = np.unique(sig.astype(str), return_inverse=True)
+    got = _sorted_codes(sig)
+    assert np.array_equal(got[0], names) and np.array_equal(got[1], code.ravel())
