@@ -21,8 +21,10 @@ def _same(a, b) -> bool:
 
 
 @pytest.mark.skipif(not NAVS, reason="../shared/data navigation files absent")
-@pytest.mark.parametrize("tgd", [True, False])
-def test_rows_give_sat_position_ecef_bit_for_bit(tgd):
+@pytest.mark.parametrize("tgd,chunk", [(True, 65536), (False, 65536), (True, 7)])
+def test_rows_give_sat_position_ecef_bit_for_bit(tgd, chunk, monkeypatch):
+    from cdgps_cli.model.gps import orbits
+    monkeypatch.setattr(orbits, "CHUNK_ROWS", chunk)        # the orbit after Kepler's equation, chunk by chunk
     rng = np.random.default_rng(5)
     navs = NAVS + [("all", pd.concat([n for _, n in NAVS], ignore_index=True))]
     for name, nav in navs:

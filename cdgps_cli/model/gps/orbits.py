@@ -413,7 +413,8 @@ class EphemerisRows(NamedTuple):
     kepler: np.ndarray
     """Indices (0…N−1) of the Kepler-orbit rows (GPS, Galileo, BeiDou), in row order, shape (K,)."""
     constants: dict
-    """:func:`_kepler_constants` of the navigation table taken at those rows' ephemerides (arrays (K,))."""
+    """:func:`_kepler_constants` of the navigation table (arrays of its length), taken at ``rows[kepler]``
+    chunk by chunk."""
     glonass: np.ndarray
     """Indices of the GLONASS rows, shape (G,)."""
     glonass_eph: pd.DataFrame | None
@@ -436,7 +437,7 @@ def ephemeris_rows(nav: pd.DataFrame, sats, t_gps_s) -> EphemerisRows:
     glo_nav = nav["sat"].astype(str).str.startswith("R").to_numpy()
     is_glo = glo_nav[rows]
     kepler, glonass = np.flatnonzero(~is_glo), np.flatnonzero(is_glo)
-    consts = {f: v[rows[kepler]] for f, v in _kepler_constants(nav).items()} if kepler.size else {}
+    consts = _kepler_constants(nav) if kepler.size else {}
     return EphemerisRows(rows, kepler, consts, glonass,
                          nav.iloc[rows[glonass]].reset_index(drop=True) if glonass.size else None)
 
@@ -449,13 +450,19 @@ def sat_position_rows(eph: EphemerisRows, t_gps_s, *, apply_tgd: bool = True) ->
         raise ValueError(f"the ephemeris selection has {eph.rows.size} rows, the times {t.size}")
     if t.size == 0:
         return np.empty((0, 3)), np.empty(0)
-    if not eph.glonass.size:
-        return _kepler_blocks(eph.constants, t, np.zeros(1, dtype=np.int64), apply_tgd)
     xyz, clock = np.empty((t.size, 3)), np.empty(t.size)
-    xyz[eph.glonass], clock[eph.glonass] = _glonass_record_position(eph.glonass_eph, t[eph.glonass])
-    if eph.kepler.size:     # one block: Kepler's equation iterated until every Kepler row has converged
-        xyz[eph.kepler], clock[eph.kepler] = _kepler_blocks(eph.constants, t[eph.kepler], np.zeros(1, dtype=np.int64),
-                                                            apply_tgd)
+    if eph.glonass.size:
+        xyz[eph.glonass], clock[eph.glonass] = _glonass_record_position(eph.glonass_eph, t[eph.glonass])
+    if eph.kepler.size:
+        c, kep = eph.constants, eph.kepler
+        nav_k, tq = eph.rows[kep], t[kep]
+        tk = tq - c["toe_gps_s"][nav_k]
+        # one block: Kepler's equation iterated over all the Kepler rows until every one has converged
+        ek = _eccentric_anomaly_blocks(c["m0_rad"][nav_k] + c["n"][nav_k] * tk, c["e"][nav_k], np.zeros(1, dtype=np.int64))
+        for a in range(0, kep.size, CHUNK_ROWS):        # the rest elementwise, chunk by chunk (temporaries of MB)
+            s = slice(a, a + CHUNK_ROWS)
+            kc = {f: v[nav_k[s]] for f, v in c.items()}
+            xyz[kep[s]], clock[kep[s]] = _kepler_at_anomaly(kc, tq[s], tk[s], ek[s], apply_tgd)
     return xyz, clock
 
 
@@ -691,8 +698,14 @@ def _kepler_blocks(k: dict, t: np.ndarray, starts: np.ndarray, apply_tgd: bool) 
     """:func:`_kepler_position` for rows grouped in satellite blocks (``k``: :func:`_kepler_constants`
     of those rows), position (K, 3) m and clock (K,) s, by the same operations."""
     tk = t - k["toe_gps_s"]
+    ek = _eccentric_anomaly_blocks(k["m0_rad"] + k["n"] * tk, k["e"], starts)
+    return _kepler_at_anomaly(k, t, tk, ek, apply_tgd)
+
+
+def _kepler_at_anomaly(k: dict, t: np.ndarray, tk: np.ndarray, ek: np.ndarray, apply_tgd: bool):
+    """The rest of :func:`_kepler_blocks` once the eccentric anomaly ``ek`` is known (``tk`` = t − toe):
+    elementwise, so any slice of rows gives those rows' values."""
     e = k["e"]
-    ek = _eccentric_anomaly_blocks(k["m0_rad"] + k["n"] * tk, e, starts)
     sin_e, cos_e = np.sin(ek), np.cos(ek)
     phi = np.arctan2(k["sqrt_1_e2"] * sin_e, cos_e - e) + k["omega_rad"]
     s2, c2 = np.sin(2.0 * phi), np.cos(2.0 * phi)
