@@ -365,6 +365,19 @@ class RunDDModel(DDGroupModel):
                          lam=run["lam_m"][idx], mu=run["mu"][idx], run_ep=run_ep, view=view,
                          gptr=g["ptr"][k0:k1 + 1] - j0, start=g["start"][j0:j1], stop=g["stop"][j0:j1])
 
+    def predict(self, x, rows):
+        """:meth:`DDGroupModel.predict` without an ionosphere state: h = [ρ_r − ρ_b + λ N, ρ_r − ρ_b] (the
+        same values: its ``− 0.0`` and ``+ 0.0`` of a zero ionosphere change no bit, ρ_r − ρ_b never being −0.0)."""
+        c = rows.context
+        los = c["sat_xyz"] - (self.origin + x[:3])
+        rng = np.sqrt(np.einsum("ij,ij->i", los, los))
+        H, M = c["H"], c["M"]
+        H[:M, :3] = H[M:, :3] = -los / rng[:, None]
+        h = np.empty(2 * M)
+        geo = np.subtract(rng, c["base_rng"], out=h[M:])
+        np.add(geo, c["lam"] * x[c["amb"]], out=h[:M])
+        return h, H
+
     def _positions(self, lay: _RunBlock, e: int, M: int):
         """Satellite positions (rover's, base's) of the block's epoch ``e`` (M rows), as DDGroupModel.rows takes them."""
         sx, sb = self.run["sat_xyz"], self.run["sat_base_xyz"]
