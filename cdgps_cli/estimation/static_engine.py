@@ -1,5 +1,6 @@
 """The static baseline on the one engine (issue 28 item 1): DD rows of
-:class:`~cdgps_cli.measurement.dd_signals.DDGroupModel` (the one DD builder), the static model through
+:class:`~cdgps_cli.measurement.dd_signals.DDGroupModel` (the one DD builder; its whole-run layout
+:class:`~cdgps_cli.measurement.dd_signals.RunDDModel`, the same numbers), the static model through
 :func:`~cdgps_cli.estimation.driver.drive`.
 
 State: rover offset from ``origin`` (3, m) and one SD ambiguity per lock arc (cycles; an arc is a

@@ -27,7 +27,8 @@ The rtk path (:mod:`cdgps_cli.estimation.rtk_multi`) pairs the run's base and ro
 cuts each epoch into its signal groups (:func:`epoch_groups`) and hands them to the engine's
 measurement model :class:`DDGroupModel`, whose :class:`GroupRows` keep the single differences and
 weight them as their double differences (the information of :func:`epoch_rows`' Cholesky-whitened
-DD rows, without forming D or factoring D Σ Dᵀ).
+DD rows, without forming D or factoring D Σ Dᵀ).  The static engine's model, :class:`RunDDModel`, is
+DDGroupModel over fixed ambiguity columns with the rows laid out block of epochs by block (the same numbers).
 """
 
 from __future__ import annotations
