@@ -38,7 +38,7 @@ from cdgps_cli.estimation.kalman import NUMPY_INVERSE, StepFilter
 from cdgps_cli.measurement.dd_signals import DDGroupModel, backward_slips, epoch_groups, paired_sd_rows
 from cdgps_cli.measurement.epoch_pairing import pair_epochs
 from cdgps_cli.model.dynamics_models import ConstantVelocity, RandomWalk, Static
-from cdgps_cli.model.gps.orbits import OMEGA_E_GPS, azimuth_elevation, ecef_to_geodetic, sat_position_ecef, select_ephemerides
+from cdgps_cli.model.gps.orbits import OMEGA_E_GPS, azimuth_elevation, ecef_to_geodetic, ephemeris_rows, sat_position_rows
 from cdgps_cli.model.gps.positioning import ephemeris_coverage, tropo_hydrostatic_m
 
 __all__ = ["receiver_geometry", "solve_rtk", "check_common_signals", "RTK_MODES"]
@@ -80,14 +80,14 @@ def receiver_geometry(obs: pd.DataFrame, nav: pd.DataFrame, rx_xyz_m) -> pd.Data
     clk = np.zeros(len(first))
     t = first["time_gps_s"].to_numpy()
     tau = first["pseudorange_m"].to_numpy() / SPEED_OF_LIGHT_M_S
-    eph = select_ephemerides(nav, first["sat"].to_numpy(), t)    # every row's ephemeris, selected once
+    eph = ephemeris_rows(nav, first["sat"].to_numpy(), t)        # every row's ephemeris, selected once
     for _ in range(2):
-        xyz, clk = sat_position_ecef(eph, t - tau + clk)           # all satellites and epochs at once
+        xyz, clk = sat_position_rows(eph, t - tau + clk)           # all satellites and epochs at once
     rx = np.asarray(rx_xyz_m, dtype=float)
     rng = np.linalg.norm(xyz - rx, axis=1)
     c_rx = _group_median(first["pseudorange_m"].to_numpy() / SPEED_OF_LIGHT_M_S + clk - rng / SPEED_OF_LIGHT_M_S, t)
     tau = tau - c_rx + clk
-    xyz, clk = sat_position_ecef(eph, t - c_rx - tau)
+    xyz, clk = sat_position_rows(eph, t - c_rx - tau)
     th = OMEGA_E_GPS * tau
     c, s = np.cos(th), np.sin(th)
     rot = np.stack([c * xyz[:, 0] + s * xyz[:, 1], -s * xyz[:, 0] + c * xyz[:, 1], xyz[:, 2]], axis=-1)

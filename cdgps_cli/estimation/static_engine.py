@@ -1,5 +1,6 @@
 """The static baseline on the one engine (issue 28 item 1): DD rows of
-:class:`~cdgps_cli.measurement.dd_signals.DDGroupModel` (the one DD builder), the static model through
+:class:`~cdgps_cli.measurement.dd_signals.DDGroupModel` (the one DD builder; its whole-run layout
+:class:`~cdgps_cli.measurement.dd_signals.RunDDModel`, the same numbers), the static model through
 :func:`~cdgps_cli.estimation.driver.drive`.
 
 State: rover offset from ``origin`` (3, m) and one SD ambiguity per lock arc (cycles; an arc is a
@@ -19,7 +20,7 @@ from cdgps_cli.estimation.driver import EpochGrid, GridDynamics, RecordingSink, 
 from cdgps_cli.estimation.kalman import StepFilter
 from cdgps_cli.config.options import GNSS_DEFAULTS, MULTI_GNSS_DEFAULTS
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.measurement.dd_signals import DDGroupModel, epoch_groups, paired_sd_rows
+from cdgps_cli.measurement.dd_signals import DDGroupModel, RunDDModel, channel_index, epoch_groups, paired_sd_rows
 from cdgps_cli.measurement.differencing import ambiguity_segments
 from cdgps_cli.measurement.epoch_pairing import pair_epochs
 from cdgps_cli.model.dynamics_models import Dynamics, Static, WithConstants
@@ -38,8 +39,7 @@ def arc_columns(rows, times_s=None, *, max_gap_s: float | None = None, n_pos: in
     n = rows["sats"].size
     if n == 0:
         return np.empty(0, dtype=np.int64)
-    key = np.char.add(rows["sats"].astype(str), rows["code"].astype(str))
-    channel = np.unique(key, return_inverse=True)[1].ravel()
+    channel = channel_index(rows["sats"], rows["code"])
     if times_s is None:                    # rows in time order; no gap limit
         step = np.arange(n)
         seg, tab = ambiguity_segments(step, channel, rows["slip"], epoch_time_s=step.astype(float), max_gap_s=np.inf)
@@ -60,6 +60,14 @@ def _groups(rows, cols, k):
         a, b = g["rows"]                          # the group's rows in the run's columns
         out.append(dict(g, amb_col=cols[a:b], iono_col=np.full(b - a, -1)))
     return out
+
+
+def _model(rows, cols, base_xyz_m, origin_xyz_m):
+    """The DD model of ``rows`` with ambiguity columns ``cols``: :class:`RunDDModel` (whole-block layout) when
+    the rows carry :func:`paired_sd_rows`' group layout, else DDGroupModel over :func:`_groups` (the same rows)."""
+    if rows.get("groups") is not None:
+        return RunDDModel(rows, cols, base_xyz_m, origin_xyz_m)
+    return DDGroupModel(lambda k: _groups(rows, cols, k), base_xyz_m, origin_xyz_m)
 
 
 def static_prior(rows, cols, n_state: int, sigma_pos_m: float, sigma_amb_cycles: float):
@@ -86,7 +94,7 @@ def static_filter(rows, times_s, base_xyz_m, origin_xyz_m, *, sigma_pos_m: float
     cols = arc_columns(rows, times_s) if cols is None else cols
     n = 3 + (int(cols.max()) - 2 if cols.size else 0)
     x0, P0 = static_prior(rows, cols, n, sigma_pos_m, sigma_amb_cycles)
-    model = DDGroupModel(lambda k: _groups(rows, cols, k), base_xyz_m, origin_xyz_m)
+    model = _model(rows, cols, base_xyz_m, origin_xyz_m)
     # only the last state is kept (a whole record's x, P per epoch: 86400 × 90² × 8 B = 5.6 GB for a 24 h pair)
     sink = RecordingSink(len(times_s), n, history=False, keep_rows=False)
     with progress.bar(len(times_s), "static baseline (filter)", unit="epoch") as bar:
@@ -134,7 +142,7 @@ def random_walk_float(rows, cols, times_s, base_xyz_m, origin_xyz_m, x_static, *
     x0, P0 = static_prior(rows, cols, n, initial_sigma_m, sigma_amb_cycles)
     x0[:3] = x_static[:3]
     dyn = WithConstants(EnuRandomWalk(sigma_rw, origin_xyz_m), n - 3)
-    model = DDGroupModel(lambda k: _groups(rows, cols, k), base_xyz_m, origin_xyz_m)
+    model = _model(rows, cols, base_xyz_m, origin_xyz_m)
     with progress.bar(len(times_s), "static baseline (random-walk filter)", unit="epoch") as bar:
         ctx = drive(GridDynamics(dyn, times_s), [model], EpochGrid(np.asarray(times_s, float)),
                     StepFilter(x0, P0, form="covariance"), sink=RecordingSink(len(times_s), n, history=False), max_iterations=max_iterations, progress=bar)
@@ -153,7 +161,7 @@ def static_normal_equations(rows, n_epochs: int, base_xyz_m, origin_xyz_m, x_lin
     cols = arc_columns(rows) if cols is None else cols
     info = np.linalg.inv(P0)
     Nm, rhs = info.copy(), info @ (x0 - x_lin)
-    model = DDGroupModel(lambda k: _groups(rows, cols, k), base_xyz_m, origin_xyz_m)
+    model = _model(rows, cols, base_xyz_m, origin_xyz_m)
     for k in range(n_epochs):
         model.prepare(k, _Ctx(x_lin))
         r = model.rows(k)

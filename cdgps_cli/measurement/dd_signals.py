@@ -27,7 +27,8 @@ The rtk path (:mod:`cdgps_cli.estimation.rtk_multi`) pairs the run's base and ro
 cuts each epoch into its signal groups (:func:`epoch_groups`) and hands them to the engine's
 measurement model :class:`DDGroupModel`, whose :class:`GroupRows` keep the single differences and
 weight them as their double differences (the information of :func:`epoch_rows`' Cholesky-whitened
-DD rows, without forming D or factoring D Σ Dᵀ).
+DD rows, without forming D or factoring D Σ Dᵀ).  The static engine's model, :class:`RunDDModel`, is
+DDGroupModel over fixed ambiguity columns with the rows laid out block of epochs by block (the same numbers).
 """
 
 from __future__ import annotations
@@ -44,8 +45,8 @@ from cdgps_cli.measurement.differencing import ambiguity_segments, dd_covariance
 from cdgps_cli.measurement.epoch_pairing import age_variance_m2, carry_base_slips
 from cdgps_cli.measurement.noise import correlated_variance_factor
 
-__all__ = ["dd_range", "epoch_rows", "signal_sd_table", "group_key", "DDGroupModel", "GroupRows", "paired_sd_rows",
-           "epoch_groups", "backward_slips"]
+__all__ = ["dd_range", "epoch_rows", "signal_sd_table", "group_key", "DDGroupModel", "GroupRows", "RunDDModel",
+           "whitening_matrix", "paired_sd_rows", "epoch_groups", "backward_slips", "channel_index"]
 
 
 def group_key(sat: str, signal_name: str) -> str:
@@ -194,6 +195,21 @@ def epoch_rows(x, groups, base_xyz_m, origin_xyz_m, n_state: int, noise_chol=Non
     return np.concatenate(rs), np.vstack(Hs), np.linalg.cholesky(C)
 
 
+def whitening_matrix(u, inv_sigma, block) -> np.ndarray:
+    """B (p, p) = (I − blockdiag(u uᵀ)) Σ^{-1/2} of :class:`GroupRows`, from ``u`` (p,) (each block's
+    Σ^{-1/2} 1 / ‖Σ^{-1/2} 1‖), ``inv_sigma`` (p,) = Σ^{-1/2} and ``block`` (p,) each row's block.
+
+    Entry by entry what ``−(Uᵀ U) + I`` then ``· inv_sigma`` gives (U (blocks, p) holding each block's u in
+    its row): within a block −u_i u_j (Uᵀ U sums one product and zeros), +1 on the diagonal; across blocks
+    −0.0 (the negated zero sum); so every bit is that product's."""
+    B = np.multiply.outer(u, u)
+    B[block[:, None] != block[None, :]] = 0.0
+    np.negative(B, out=B)
+    B.flat[::B.shape[0] + 1] += 1.0
+    B *= inv_sigma
+    return B
+
+
 class GroupRows:
     """One epoch's single differences of signal groups, weighted as their double differences.
 
@@ -209,18 +225,19 @@ class GroupRows:
     """
 
     def __init__(self, z_m, var_m2, sizes, context):
-        self.z_m = z_m
         inv_sigma = 1.0 / np.sqrt(var_m2)
         block = np.repeat(np.arange(sizes.size), sizes)
         norm2 = np.add.reduceat(inv_sigma * inv_sigma, np.cumsum(sizes) - sizes)
-        rows = np.arange(z_m.size)
-        U = np.zeros((sizes.size, z_m.size))          # block b's row holds its u: Uᵀ U = blockdiag(u uᵀ)
-        U[block, rows] = inv_sigma / np.sqrt(norm2[block])
-        B = -(U.T @ U)
-        B[rows, rows] += 1.0
-        B *= inv_sigma                                 # B (2M, 2M) = (I − blockdiag(u uᵀ)) Σ^{-1/2}
-        self.B = B
+        self.z_m = z_m
+        self.B = whitening_matrix(inv_sigma / np.sqrt(norm2[block]), inv_sigma, block)
         self.context = context
+
+    @classmethod
+    def from_parts(cls, z_m, B, context) -> "GroupRows":
+        """Rows whose whitening ``B`` (:func:`whitening_matrix`) is already formed."""
+        self = cls.__new__(cls)
+        self.z_m, self.B, self.context = z_m, B, context
+        return self
 
     def whiten(self, v):
         """B v for v (2M,) or (2M, p)."""
@@ -289,6 +306,106 @@ class DDGroupModel:
         return np.concatenate([geo + c["lam"] * x[c["amb"]] - iono_m, geo + iono_m]), H
 
 
+class _RunBlock(SimpleNamespace):
+    """:class:`RunDDModel`'s layout of epochs ``k0`` … ``k1 − 1`` (see there)."""
+
+
+class RunDDModel(DDGroupModel):
+    """:class:`DDGroupModel` over a whole run's SD rows (:func:`paired_sd_rows`, with its ``groups`` layout)
+    with fixed ambiguity columns ``cols`` (N,) and no ionosphere state: the static engine's model.
+
+    The rows of every epoch's groups (:func:`epoch_groups`: each epoch's groups one after the other) are laid
+    out for a block of ``block_epochs`` epochs at once, with whole-block numpy: their columns gathered,
+    each epoch's SD phases then SD ranges side by side (``z``), their Σ^{-1/2} and whitening weights ``u``
+    (:class:`GroupRows`).  An epoch's :meth:`rows` then takes views and forms only its H template, its base
+    ranges and B (:func:`whitening_matrix`), every number the one DDGroupModel forms from
+    ``static_engine._groups`` (the same elementwise operations on the same values, the same sums)."""
+
+    def __init__(self, rows, cols, base_xyz_m, origin_xyz_m, *, block_epochs: int = 4096):
+        super().__init__(None, base_xyz_m, origin_xyz_m)
+        self.run, self.cols = rows, np.asarray(cols, dtype=np.int64)
+        self.block_epochs = max(int(block_epochs), 1)
+        self._lay = None
+
+    def prepare(self, k: int, ctx) -> None:
+        """Only the drive's context (the epoch's layout is made by :meth:`rows`)."""
+        self._ctx = ctx
+
+    def _block(self, k: int) -> _RunBlock:
+        lay = self._lay
+        if lay is None or not lay.k0 <= k < lay.k1:
+            lay = self._lay = self._layout(k, min(k + self.block_epochs, self.run["ptr"].size - 1))
+        return lay
+
+    def _layout(self, k0: int, k1: int) -> _RunBlock:
+        run, g = self.run, self.run["groups"]
+        j0, j1 = int(g["ptr"][k0]), int(g["ptr"][k1])
+        size = (g["stop"][j0:j1] - g["start"][j0:j1]).astype(np.int64)
+        first = np.cumsum(size) - size                          # each group's first compacted row
+        n = int(size.sum())
+        idx = np.arange(n) - np.repeat(first - g["start"][j0:j1], size)      # run rows, group after group
+        cptr = np.r_[first, n][g["ptr"][k0:k1 + 1] - j0]        # each epoch's compacted rows
+        m_ep = np.diff(cptr)
+        shift = np.repeat(cptr[:-1], m_ep)                      # phase of row i at i + cptr[e], code M_e later
+        at_p, at_c = np.arange(n) + shift, np.arange(n) + shift + np.repeat(m_ep, m_ep)
+        gid = np.repeat(np.arange(size.size), size)
+        z, inv, u, blk = np.empty(2 * n), np.empty(2 * n), np.empty(2 * n), np.empty(2 * n, dtype=np.int64)
+        for key, at, b in (("phase", at_p, 2 * gid), ("code", at_c, 2 * gid + 1)):
+            z[at] = run[f"{key}_sd_m"][idx]
+            inv_sigma = 1.0 / np.sqrt(run[f"var_{key}"][idx])
+            norm2 = np.add.reduceat(inv_sigma * inv_sigma, first) if n else np.zeros(0)
+            inv[at], u[at], blk[at] = inv_sigma, inv_sigma / np.sqrt(norm2[gid]), b
+        # an epoch whose rows are adjacent in the run takes its satellite positions as views of the run's
+        # (N, 3) arrays, as epoch_groups gives them, the others as np.concatenate of its groups' views (their
+        # memory order, e.g. pandas' column-major, decides how einsum sums ‖los‖²): the same arrays
+        run_ep = idx[np.minimum(cptr[:-1], max(n - 1, 0))] if n else np.zeros(k1 - k0, dtype=np.int64)
+        step = np.r_[False, idx[1:] - idx[:-1] != 1] if n else np.zeros(0, dtype=bool)
+        jumps = np.r_[0, np.cumsum(step)] if n else np.zeros(1, dtype=np.int64)
+        view = (jumps[cptr[1:]] - jumps[np.minimum(cptr[:-1] + 1, n)] == 0) if n else np.zeros(k1 - k0, dtype=bool)
+        return _RunBlock(k0=k0, k1=k1, cptr=cptr, z=z, inv=inv, u=u, blk=blk, amb=self.cols[idx],
+                         lam=run["lam_m"][idx], mu=run["mu"][idx], run_ep=run_ep, view=view,
+                         gptr=g["ptr"][k0:k1 + 1] - j0, start=g["start"][j0:j1], stop=g["stop"][j0:j1])
+
+    def predict(self, x, rows):
+        """:meth:`DDGroupModel.predict` without an ionosphere state: h = [ρ_r − ρ_b + λ N, ρ_r − ρ_b] (the
+        same values: its ``− 0.0`` and ``+ 0.0`` of a zero ionosphere change no bit, ρ_r − ρ_b never being −0.0)."""
+        c = rows.context
+        los = c["sat_xyz"] - (self.origin + x[:3])
+        rng = np.sqrt(np.einsum("ij,ij->i", los, los))
+        H, M = c["H"], c["M"]
+        H[:M, :3] = H[M:, :3] = -los / rng[:, None]
+        h = np.empty(2 * M)
+        geo = np.subtract(rng, c["base_rng"], out=h[M:])
+        np.add(geo, c["lam"] * x[c["amb"]], out=h[:M])
+        return h, H
+
+    def _positions(self, lay: _RunBlock, e: int, M: int):
+        """Satellite positions (rover's, base's) of the block's epoch ``e`` (M rows), as DDGroupModel.rows takes them."""
+        sx, sb = self.run["sat_xyz"], self.run["sat_base_xyz"]
+        if lay.view[e]:
+            r0 = int(lay.run_ep[e])
+            return sx[r0:r0 + M], sb[r0:r0 + M]
+        spans = [(int(a), int(b)) for a, b in zip(lay.start[lay.gptr[e]:lay.gptr[e + 1]], lay.stop[lay.gptr[e]:lay.gptr[e + 1]])]
+        return np.concatenate([sx[a:b] for a, b in spans]), np.concatenate([sb[a:b] for a, b in spans])
+
+    def rows(self, k: int):
+        """:class:`GroupRows` of epoch k (views of its block's layout), or None without a group."""
+        lay = self._block(k)
+        a, b = int(lay.cptr[k - lay.k0]), int(lay.cptr[k - lay.k0 + 1])
+        if a == b:
+            return None
+        M, n = b - a, len(self._ctx.x)
+        amb, lam = lay.amb[a:b], lay.lam[a:b]
+        H = np.zeros((2 * M, n))
+        H[np.arange(M), amb] = lam
+        sx, sb = self._positions(lay, k - lay.k0, M)
+        los_b = sb - self.base_xyz
+        ctx = {"sat_xyz": sx, "base_rng": np.sqrt(np.einsum("ij,ij->i", los_b, los_b)), "lam": lam,
+               "mu": lay.mu[a:b], "amb": amb, "ion": None, "H": H, "M": M}
+        zs = slice(2 * a, 2 * b)
+        return GroupRows.from_parts(lay.z[zs], whitening_matrix(lay.u[zs], lay.inv[zs], lay.blk[zs]), ctx)
+
+
 # ----------------------------------------------------------------------------------------------
 # the run's SD rows, paired once, and each epoch's signal groups (the rows of DDGroupModel)
 # ----------------------------------------------------------------------------------------------
@@ -319,13 +436,14 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False) -> dict
     pair_of_rover[pairs.rover_index] = np.arange(n_ep)
     first_use = np.r_[True, pairs.base_index[1:] != pairs.base_index[:-1]] if n_ep else np.zeros(0, bool)
     bep = np.searchsorted(tb, base["time_gps_s"].to_numpy())
-    lli_b = carry_base_slips(bep, base["sat"].to_numpy().astype(str) + base["signal"].to_numpy().astype(str),
+    # channels by (satellite, signal): the classes of the strings sat + signal, formed per distinct pair
+    lli_b = carry_base_slips(bep, channel_index(base["sat"].to_numpy(), base["signal"].to_numpy()),
                              base["lli"].to_numpy(dtype=np.int64), np.bincount(pairs.base_index, minlength=tb.size))
     b = base.assign(_row_b=np.arange(len(base)), _bep=bep, lli=lli_b)
     rep = np.searchsorted(tr, rover["time_gps_s"].to_numpy())
     ep_r = pair_of_rover[rep]
     # the rover's slip flags of epochs that are not used move to the channel's next used epoch
-    lli_r = carry_base_slips(rep, rover["sat"].to_numpy().astype(str) + rover["signal"].to_numpy().astype(str),
+    lli_r = carry_base_slips(rep, channel_index(rover["sat"].to_numpy(), rover["signal"].to_numpy()),
                              rover["lli"].to_numpy(dtype=np.int64), (pair_of_rover >= 0).astype(np.int64))
     r = rover[_PAIR_COLS].assign(_row_r=np.arange(len(rover)), _ep=ep_r, lli=lli_r)
     if mask_rover:
@@ -338,7 +456,7 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False) -> dict
         above &= m["_el_r"].to_numpy() >= np.radians(opt["mask_deg"])
     m = m[above]
     m = m.sort_values(["_ep", "signal", "_row_b", "_row_r"], kind="stable")
-    names, code = np.unique(m["signal"].to_numpy().astype(str), return_inverse=True)
+    names, code = _sorted_codes(m["signal"].to_numpy())
     epoch = m["_ep"].to_numpy()
     lam = m["wavelength_m"].to_numpy(dtype=float)
     el = m["el_rad"].to_numpy(dtype=float)
@@ -365,6 +483,14 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False) -> dict
         "var_code": var * opt["code_ratio"] ** 2 * correlated_variance_factor(nominal_interval_s(pairs.rover_time_s),
                                                                              opt["code_correlation_s"]) + var_age,
     }
+
+
+def _sorted_codes(values):
+    """``np.unique(values.astype(str), return_inverse=True)``: the sorted distinct strings and each value's
+    index among them, the strings formed for the distinct values only."""
+    ids, uniq = pd.factorize(np.asarray(values).ravel())
+    names, to_sorted = np.unique(np.asarray(uniq).astype(str), return_inverse=True)
+    return names, to_sorted.ravel()[ids]
 
 
 _ROW_KEYS = ("sats", "lam_m", "mu", "sat_xyz", "sat_base_xyz", "phase_sd_m", "code_sd_m", "slip", "half", "var_phase",
@@ -437,12 +563,28 @@ def epoch_groups(rows, k):
     return groups
 
 
+def channel_index(sats, code) -> np.ndarray:
+    """Channel (N,) of each row: the index of its key ``str(sat) + str(code)`` among the sorted distinct keys
+    (what ``np.unique(np.char.add(sats.astype(str), code.astype(str)), return_inverse=True)[1]`` gives), with
+    the strings formed for the distinct (satellite, code) pairs only.  ``code`` (N,): ints or strings (e.g.
+    signal names)."""
+    sats, code = np.asarray(sats).ravel(), np.asarray(code).ravel()
+    if sats.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    s_id, s_names = pd.factorize(sats)
+    c_id, c_names = pd.factorize(code)
+    n_c = len(c_names)
+    pair, inv = np.unique(s_id.astype(np.int64) * n_c + c_id, return_inverse=True)
+    keys = np.char.add(np.asarray(s_names)[pair // n_c].astype(str), np.asarray(c_names)[pair % n_c].astype(str))
+    return np.unique(keys, return_inverse=True)[1].ravel()[inv.ravel()].astype(np.int64)
+
+
 def backward_slips(rows) -> np.ndarray:
     """Slip flags for a pass backward in time: a flag at a channel's row (a new ambiguity from that
     epoch on) belongs, going backward, to the channel's previous row."""
     n = rows["sats"].size
     epoch = np.repeat(np.arange(rows["ptr"].size - 1), np.diff(rows["ptr"]))
-    key = np.char.add(rows["sats"].astype(str), rows["code"].astype(str))
+    key = channel_index(rows["sats"], rows["code"])        # the order of the strings sat + code
     order = np.lexsort((epoch, key))
     k_o, s_o = key[order], rows["slip"][order]
     nxt = np.zeros(n, dtype=bool)

@@ -53,6 +53,9 @@ __all__ = [
     "beidou_geo_rotation",
     "select_ephemeris",
     "select_ephemerides",
+    "EphemerisRows",
+    "ephemeris_rows",
+    "sat_position_rows",
     "sat_position_at_reception",
     "ReceptionEphemeris",
     "reception_ephemeris",
@@ -401,6 +404,68 @@ def select_ephemerides(nav: pd.DataFrame, sats, t_gps_s) -> pd.DataFrame:
     return nav.iloc[rows].reset_index(drop=True)
 
 
+class EphemerisRows(NamedTuple):
+    """The ephemeris of every (satellite, time) row, selected once (:func:`ephemeris_rows`), laid out for
+    :func:`sat_position_rows` to evaluate at any times (no per-row DataFrame)."""
+
+    rows: np.ndarray
+    """Position in the navigation table of each row's ephemeris (:func:`select_ephemerides`' choice), shape (N,)."""
+    kepler: np.ndarray
+    """Indices (0…N−1) of the Kepler-orbit rows (GPS, Galileo, BeiDou), in row order, shape (K,)."""
+    constants: dict
+    """:func:`_kepler_constants` of the navigation table (arrays of its length), taken at ``rows[kepler]``
+    chunk by chunk."""
+    glonass: np.ndarray
+    """Indices of the GLONASS rows, shape (G,)."""
+    glonass_eph: pd.DataFrame | None
+    """Their ephemerides (rows of the navigation table), or None without GLONASS."""
+
+
+def ephemeris_rows(nav: pd.DataFrame, sats, t_gps_s) -> EphemerisRows:
+    """:func:`select_ephemerides`' choice for each (satellite, time) row, as row positions and orbit constants.
+
+    ``sat_position_rows(ephemeris_rows(nav, sats, t), tt)`` is ``sat_position_ecef(select_ephemerides(nav, sats, t), tt)``
+    value for value (the same ephemerides, the same operations, Kepler's equation iterated over all the Kepler rows
+    until all have converged), without the DataFrame of N ephemerides.  CdgpsError as :func:`select_ephemerides`.
+    """
+    sats = np.asarray(sats, dtype=object).ravel()
+    t = np.asarray(t_gps_s, dtype=np.float64).ravel()
+    rows = np.empty(t.size, dtype=np.int64)
+    columns = _ephemeris_columns(nav)
+    for sat, idx in _sat_blocks(sats):                      # satellites in name order, as select_ephemerides
+        rows[idx] = _ephemeris_rows(nav, sat, t[idx], None, columns)
+    glo_nav = nav["sat"].astype(str).str.startswith("R").to_numpy()
+    is_glo = glo_nav[rows]
+    kepler, glonass = np.flatnonzero(~is_glo), np.flatnonzero(is_glo)
+    consts = _kepler_constants(nav) if kepler.size else {}
+    return EphemerisRows(rows, kepler, consts, glonass,
+                         nav.iloc[rows[glonass]].reset_index(drop=True) if glonass.size else None)
+
+
+def sat_position_rows(eph: EphemerisRows, t_gps_s, *, apply_tgd: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`sat_position_ecef` of the rows of :func:`ephemeris_rows` at times ``t_gps_s`` (N,): position (N, 3) m
+    and clock (N,) s, every value the one ``sat_position_ecef`` gives on :func:`select_ephemerides`' table."""
+    t = np.asarray(t_gps_s, dtype=np.float64).ravel()
+    if t.size != eph.rows.size:
+        raise ValueError(f"the ephemeris selection has {eph.rows.size} rows, the times {t.size}")
+    if t.size == 0:
+        return np.empty((0, 3)), np.empty(0)
+    xyz, clock = np.empty((t.size, 3)), np.empty(t.size)
+    if eph.glonass.size:
+        xyz[eph.glonass], clock[eph.glonass] = _glonass_record_position(eph.glonass_eph, t[eph.glonass])
+    if eph.kepler.size:
+        c, kep = eph.constants, eph.kepler
+        nav_k, tq = eph.rows[kep], t[kep]
+        tk = tq - c["toe_gps_s"][nav_k]
+        # one block: Kepler's equation iterated over all the Kepler rows until every one has converged
+        ek = _eccentric_anomaly_blocks(c["m0_rad"][nav_k] + c["n"][nav_k] * tk, c["e"][nav_k], np.zeros(1, dtype=np.int64))
+        for a in range(0, kep.size, CHUNK_ROWS):        # the rest elementwise, chunk by chunk (temporaries of MB)
+            s = slice(a, a + CHUNK_ROWS)
+            kc = {f: v[nav_k[s]] for f, v in c.items()}
+            xyz[kep[s]], clock[kep[s]] = _kepler_at_anomaly(kc, tq[s], tk[s], ek[s], apply_tgd)
+    return xyz, clock
+
+
 class ReceptionGeometry(NamedTuple):
     """Result of :func:`sat_position_at_reception` (arrays over the reception times)."""
 
@@ -633,8 +698,14 @@ def _kepler_blocks(k: dict, t: np.ndarray, starts: np.ndarray, apply_tgd: bool) 
     """:func:`_kepler_position` for rows grouped in satellite blocks (``k``: :func:`_kepler_constants`
     of those rows), position (K, 3) m and clock (K,) s, by the same operations."""
     tk = t - k["toe_gps_s"]
+    ek = _eccentric_anomaly_blocks(k["m0_rad"] + k["n"] * tk, k["e"], starts)
+    return _kepler_at_anomaly(k, t, tk, ek, apply_tgd)
+
+
+def _kepler_at_anomaly(k: dict, t: np.ndarray, tk: np.ndarray, ek: np.ndarray, apply_tgd: bool):
+    """The rest of :func:`_kepler_blocks` once the eccentric anomaly ``ek`` is known (``tk`` = t − toe):
+    elementwise, so any slice of rows gives those rows' values."""
     e = k["e"]
-    ek = _eccentric_anomaly_blocks(k["m0_rad"] + k["n"] * tk, e, starts)
     sin_e, cos_e = np.sin(ek), np.cos(ek)
     phi = np.arctan2(k["sqrt_1_e2"] * sin_e, cos_e - e) + k["omega_rad"]
     s2, c2 = np.sin(2.0 * phi), np.cos(2.0 * phi)

@@ -1,0 +1,162 @@
+"""RunDDModel (the static engine's DD model laid out block by block) gives, epoch by epoch, the very
+rows, whitening, H and prediction of DDGroupModel over ``static_engine._groups`` (bit for bit), on the
+real DD rows of the Spirent G+E L1+L2 pair, with epochs whose groups are not adjacent in the run (a
+signal seen by one satellite only) and blocks that cut the record anywhere."""
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from cdgps_cli.config.options import MULTI_GNSS_DEFAULTS
+from cdgps_cli.estimation import static_engine as se
+from cdgps_cli.estimation.rtk_multi import receiver_geometry
+from cdgps_cli.io.rinex import read_rinex_nav
+from cdgps_cli.io.rinex_signals import read_rinex_signals
+from cdgps_cli.measurement.dd_signals import DDGroupModel, GroupRows, RunDDModel, paired_sd_rows, whitening_matrix
+from cdgps_cli.measurement.epoch_pairing import pair_epochs
+from tests._shared import REPO_ROOT
+
+GE = REPO_ROOT / ".." / "shared" / "data" / "rinex-ge"
+BASE = np.array([4157177.06580187, 671230.476590636, 4774767.03105544])
+ROVER = np.array([4156857.1195929, 673209.028774142, 4774767.03105544]) + np.array([0.3, -0.2, 0.4])
+
+
+@pytest.fixture(scope="module")
+def run():
+    if not GE.exists():
+        pytest.skip("../shared/data/rinex-ge absent")
+    sig = ["G:L1", "G:L2", "E:E1", "E:E5a"]
+    nav = pd.concat([read_rinex_nav(GE / "RINEX_GN_Spirent.23N"), read_rinex_nav(GE / "RINEX_EN_Spirent.23L", systems=("E",))])
+    _, b = read_rinex_signals(GE / "Base-static_MO_Spirent.obs", sig)
+    _, r = read_rinex_signals(GE / "Rover-static-2km-east_MO_Spirent.obs", sig)
+    t0 = b["time_gps_s"].min()
+    b, r = b[b["time_gps_s"] < t0 + 40], r[r["time_gps_s"] < t0 + 40]
+    # from 10 s on, E:E5a (between E:E1 and G:L1 in the rows) is seen by one satellite only in every other epoch: a lone row between two groups
+    t = r["time_gps_s"].to_numpy()
+    l2 = (r["signal"] == "E:E5a").to_numpy()
+    lone = l2 & (t >= t0 + 10) & (np.round(t - t0) % 2 == 0)
+    first_l2 = r[lone].groupby("time_gps_s").head(1).index
+    r = r[~lone | r.index.isin(first_l2)]
+    gb, gr = receiver_geometry(b, nav, BASE), receiver_geometry(r, nav, ROVER)
+    opt = {**se._static_options({}), **MULTI_GNSS_DEFAULTS}
+    pairs = pair_epochs(gr["time_gps_s"].to_numpy(), gb["time_gps_s"].to_numpy(), sync_tol_s=opt["sync_tol_s"],
+                        max_age_s=opt["max_age_s"])
+    rows = paired_sd_rows(gb, gr, pairs, opt, mask_rover=True)
+    return rows, se.arc_columns(rows, pairs.rover_time_s), pairs.rover_time_s
+
+
+class _Ctx:
+    def __init__(self, x):
+        self.x = x
+
+
+def _same(a, b) -> bool:
+    a, b = np.asarray(a), np.asarray(b)
+    return a.shape == b.shape and a.dtype == b.dtype and a.tobytes() == b.tobytes()
+
+
+def test_the_record_has_epochs_with_groups_apart(run):
+    rows = run[0]
+    g = rows["groups"]
+    apart = [k for k in range(rows["ptr"].size - 1) if g["ptr"][k + 1] - g["ptr"][k] > 1
+             and g["stop"][g["ptr"][k + 1] - 1] - g["start"][g["ptr"][k]]
+             != (g["stop"] - g["start"])[g["ptr"][k]:g["ptr"][k + 1]].sum()]
+    assert 5 <= len(apart) < rows["ptr"].size - 1          # both kinds of epoch are tested
+
+
+@pytest.mark.parametrize("block_epochs", [1, 7, 4096])
+def test_rows_and_prediction_are_ddgroupmodel_bit_for_bit(run, block_epochs):
+    rows, cols, times = run
+    n = int(cols.max()) + 1
+    x = np.random.default_rng(3).normal(size=n) * np.r_[0.5, 0.5, 0.5, np.full(n - 3, 40.0)]
+    ctx = _Ctx(x)
+    old = DDGroupModel(lambda k: se._groups(rows, cols, k), BASE, ROVER)
+    new = RunDDModel(rows, cols, BASE, ROVER, block_epochs=block_epochs)
+    for k in range(times.size):
+        old.prepare(k, ctx)
+        new.prepare(k, ctx)
+        a, b = old.rows(k), new.rows(k)
+        assert (a is None) == (b is None)
+        if a is None:
+            continue
+        assert _same(a.z_m, b.z_m) and _same(a.B, b.B), k
+        for key in ("sat_xyz", "base_rng", "lam", "amb", "H"):
+            assert _same(a.context[key], b.context[key]), (k, key)
+        assert b.context["ion"] is None and a.context["ion"] is None and a.context["M"] == b.context["M"]
+        (ha, Ha), (hb, Hb) = old.predict(x, a), new.predict(x, b)
+        assert _same(ha, hb) and _same(Ha, Hb), k
+        assert _same(a.whiten(Ha), b.whiten(Hb)) and _same(a.whiten(a.z_m - ha), b.whiten(b.z_m - hb)), k
+
+
+def test_static_filter_on_the_run_model_is_the_groups_model(run, monkeypatch):
+    rows, cols, times = run
+    x1, P1, _ = se.static_filter(rows, times, BASE, ROVER, cols=cols)
+    monkeypatch.setattr(se, "_model", lambda rows, cols, b, o: DDGroupModel(lambda k: se._groups(rows, cols, k), b, o))
+    x0, P0, _ = se.static_filter(rows, times, BASE, ROVER, cols=cols)
+    assert _same(x0, x1) and _same(P0, P1)
+
+
+def test_whitening_matrix_is_the_block_product():
+    """B = (I − blockdiag(u uᵀ)) Σ^{-1/2} as GroupRows formed it from Uᵀ U, −0.0 across blocks included."""
+    rng = np.random.default_rng(0)
+    sizes = np.array([3, 1, 4, 2])
+    var = rng.uniform(1e-6, 1e-2, sizes.sum())
+    block = np.repeat(np.arange(sizes.size), sizes)
+    inv = 1.0 / np.sqrt(var)
+    u = inv / np.sqrt(np.add.reduceat(inv * inv, np.cumsum(sizes) - sizes)[block])
+    U = np.zeros((sizes.size, u.size))
+    U[block, np.arange(u.size)] = u
+    B = -(U.T @ U)
+    B[np.arange(u.size), np.arange(u.size)] += 1.0
+    B *= inv
+    assert _same(whitening_matrix(u, inv, block), B)
+    assert _same(GroupRows(np.zeros(u.size), var, sizes, None).B, B)
+    assert np.signbit(B[0, 5]) and np.signbit(whitening_matrix(u, inv, block)[0, 5])
+
+
+def test_channel_index_is_the_sorted_key_strings():
+    from cdgps_cli.measurement.dd_signals import channel_index
+    rng = np.random.default_rng(1)
+    names = np.array(["G01", "G11", "G1", "E05", "R24", "C01"], dtype=object)
+    sats, code = names[rng.integers(0, names.size, 500)], rng.integers(0, 12, 500)
+    sats[:2], code[:2] = ["G1", "G11"], [11, 1]                 # "G111" twice: one channel, as the strings say
+    for s in (sats, sats.astype(str)):
+        want = np.unique(np.char.add(s.astype(str), code.astype(str)), return_inverse=True)[1].ravel()
+        assert np.array_equal(channel_index(s, code), want)
+    assert channel_index(np.array([], dtype=object), np.array([], dtype=int)).size == 0
+
+
+def test_arc_columns_and_backward_slips_as_before(run):
+    """arc_columns and backward_slips on channel_index: the same as on the sat + code strings."""
+    from cdgps_cli.measurement.dd_signals import backward_slips
+    rows, cols, times = run
+    key = np.char.add(rows["sats"].astype(str), rows["code"].astype(str))
+    epoch = np.repeat(np.arange(rows["ptr"].size - 1), np.diff(rows["ptr"]))
+    order = np.lexsort((epoch, key))
+    nxt = np.zeros(key.size, dtype=bool)
+    nxt[:-1] = (key[order][1:] == key[order][:-1]) & rows["slip"][order][1:]
+    want = np.zeros(key.size, dtype=bool)
+    want[order] = nxt
+    assert np.array_equal(backward_slips(rows), want)
+    # arc_columns as it was: channels from np.unique of the strings
+    from cdgps_cli.measurement.differencing import ambiguity_segments
+    channel = np.unique(key, return_inverse=True)[1].ravel()
+    seg, tab = ambiguity_segments(epoch, channel, rows["slip"], epoch_time_s=times, max_gap_s=None)
+    first = np.full(tab["sat"].size, key.size, dtype=np.int64)
+    np.minimum.at(first, seg, np.arange(key.size))
+    rank = np.empty(first.size, dtype=np.int64)
+    rank[np.argsort(first, kind="stable")] = np.arange(first.size)
+    assert np.array_equal(se.arc_columns(rows, times), 3 + rank[seg]) and cols.max() > 10
+
+
+def test_channel_index_takes_signal_names_and_codes_as_strings():
+    from cdgps_cli.measurement.dd_signals import _sorted_codes, channel_index
+    rng = np.random.default_rng(2)
+    sats = np.array(["G05", "E11", "G5", "R01"], dtype=object)[rng.integers(0, 4, 300)]
+    sig = np.array(["G:L1", "E:E5a", "5G:L1", "R:G1"], dtype=object)[rng.integers(0, 4, 300)]
+    sats[:2], sig[:2] = ["G05", "G0"], ["G:L1", "5G:L1"]           # "G05G:L1" twice: one channel, as the strings say
+    want = np.unique(sats.astype(str) + sig.astype(str), return_inverse=True)[1].ravel()
+    assert np.array_equal(channel_index(sats, sig), want)
+    names, code = np.unique(sig.astype(str), return_inverse=True)
+    got = _sorted_codes(sig)
+    assert np.array_equal(got[0], names) and np.array_equal(got[1], code.ravel())
