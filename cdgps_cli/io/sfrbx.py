@@ -320,24 +320,15 @@ def inav_words(dwrd: np.ndarray) -> list:
     -------
     list of (word type, int) or None
         One per row, as :func:`inav_word` gives it (flags, alert bits and CRC-24Q checked as bit
-        columns; the CRC runs over the rows' 25 bytes side by side).
+        columns, :func:`cdgps_cli.io.sfrbx_batch.inav_bits`).
     """
-    from cdgps_cli.io.ubx_frames import _CRC24Q  # noqa: PLC0415
+    from cdgps_cli.io.sfrbx_batch import inav_bits  # noqa: PLC0415 (it imports this module)
 
     m = len(dwrd)
     if not m:
         return []
-    bits = np.unpackbits(np.ascontiguousarray(dwrd, dtype=">u4").view(np.uint8).reshape(m, 32), axis=1)
-    even, odd = bits[:, :128], bits[:, 128:]
-    flags = (even[:, 0] == 0) & (odd[:, 0] == 1) & (even[:, 1] == 0) & (odd[:, 1] == 0)
-    covered = np.packbits(np.concatenate((np.zeros((m, 4), np.uint8), even[:, :114], odd[:, :82]), axis=1), axis=1)
-    table = np.array(_CRC24Q, dtype=np.int64)
-    crc = np.zeros(m, np.int64)
-    for j in range(25):
-        crc = ((crc << 8) & 0xFFFFFF) ^ table[(crc >> 16) ^ covered[:, j]]
-    sent = np.packbits(odd[:, 82:106], axis=1).astype(np.int64)
-    ok = flags & (crc == (sent[:, 0] << 16 | sent[:, 1] << 8 | sent[:, 2]))
-    words = np.packbits(np.concatenate((even[:, 2:114], odd[:, 2:18]), axis=1), axis=1)
+    ok, bits = inav_bits(dwrd)
+    words = np.packbits(bits, axis=1)
     out: list = [None] * m
     for i in np.flatnonzero(ok).tolist():
         w = int.from_bytes(words[i].tobytes(), "big")
@@ -862,6 +853,8 @@ def sfrbx_ephemerides_at(data: bytes, off: np.ndarray, end: np.ndarray, week_ref
     sel = (x[off + 2] == 2) & ((mid == 0x13) | (mid == 0x11))
     off, end = off[sel], end[sel]
     stats["sfrbx_frames"] = int(off.size)
+    if not off.size:
+        return _empty_nav(), stats
     keep = _stateful_mask(x, off, end, week_ref, glonass, stats)
     if BATCH:
         return _batch_ephemerides(data, x, off[keep], end[keep], week_ref, stats)

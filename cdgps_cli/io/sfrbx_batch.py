@@ -34,7 +34,24 @@ from cdgps_cli.io.ubx_frames import _CRC24Q
 
 W_S = 604800.0
 """Seconds per week."""
-_CRC24Q_TABLE = np.array(_CRC24Q, dtype=np.int64)
+
+
+def _crc24q_byte_tables(n: int) -> np.ndarray:
+    """(n, 256) int64: the CRC-24Q (initial value 0) of an n-byte message whose only non-zero byte is
+    byte k with value v.  The CRC is linear over GF(2), so a message's CRC is the XOR over its bytes of
+    ``table[k, byte_k]``.  Row n-1 is the byte-wise table; each earlier row is the next one carried
+    through one more zero byte."""
+    table = np.array(_CRC24Q, dtype=np.int64)
+    out = np.empty((n, 256), np.int64)
+    out[n - 1] = table
+    for k in range(n - 2, -1, -1):
+        c = out[k + 1]
+        out[k] = ((c << 8) & 0xFFFFFF) ^ table[c >> 16]
+    return out
+
+
+_INAV_CRC = _crc24q_byte_tables(25)
+"""CRC-24Q contributions of each byte of the 25 bytes an I/NAV page pair's CRC covers."""
 _URA = np.array(sf.URA_M, dtype=np.float64)
 _URAI = np.array(sf._URAI_M, dtype=np.float64)
 _INAV_SIGNALS = np.array(sorted(sf._INAV_SIGNALS))
@@ -303,9 +320,7 @@ def inav_bits(dwrd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     even, odd = bits[:, :128], bits[:, 128:]
     flags = (even[:, 0] == 0) & (odd[:, 0] == 1) & (even[:, 1] == 0) & (odd[:, 1] == 0)
     covered = np.packbits(np.concatenate((np.zeros((m, 4), np.uint8), even[:, :114], odd[:, :82]), axis=1), axis=1)
-    crc = np.zeros(m, np.int64)
-    for j in range(25):
-        crc = ((crc << 8) & 0xFFFFFF) ^ _CRC24Q_TABLE[(crc >> 16) ^ covered[:, j]]
+    crc = np.bitwise_xor.reduce(_INAV_CRC[np.arange(25), covered], axis=1)
     sent = np.packbits(odd[:, 82:106], axis=1).astype(np.int64)
     ok = flags & (crc == (sent[:, 0] << 16 | sent[:, 1] << 8 | sent[:, 2]))
     return ok, np.concatenate((even[:, 2:114], odd[:, 2:18]), axis=1)
