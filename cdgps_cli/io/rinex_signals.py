@@ -175,12 +175,24 @@ def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None)
     return info, df
 
 
+def _rinex2_by_first_line(data: bytes) -> bool:
+    """The bytes begin with a RINEX VERSION / TYPE line of a version below 3 (False when unsure)."""
+    if data[60:80].rstrip() != b"RINEX VERSION / TYPE":
+        return False
+    try:
+        return float(data[:9]) < 3
+    except ValueError:
+        return False
+
+
 def _read_bytes_v3(p: Path, signals: list, glonass_k, read: tuple[bytes, bool] | None = None) -> tuple[dict, pd.DataFrame]:
     """:func:`read_rinex_signals` of a RINEX 3 file from its bytes (``read``: the (decompressed) bytes and
     whether the file was compressed): only the header is split into lines, the body is walked by
     :mod:`cdgps_cli.io.rinex_body`; Unsupported where the line-based readers must decide (RINEX 2, an
     odd body, a malformed record)."""
     data, compressed = _read_bytes(p) if read is None else read
+    if _rinex2_by_first_line(data):
+        raise Unsupported("RINEX 2")                       # told by the first line: no header split for nothing
     head, body_at = _split_header(data)
     version, ftype, _ = _parse_version_line(head, p, compressed, "observation")
     if ftype != "O" or version < 3 or not signals:
@@ -452,9 +464,12 @@ def _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2) -> pd
     sat_code = sat_code.ravel()
     sat_obj = np.array(sat_names + [None], dtype=object)[:-1]
     rows_of, lines_of, cols_of = [], [], []
+    of_system: dict = {}                                   # the records of each system, found once
     for name, (key, ip, ic, _) in cols.items():
         system = key if v3 else signal(name).system
-        rows = np.flatnonzero(np.array([x[:1] == system for x in sat_names])[sat_code])
+        if system not in of_system:
+            of_system[system] = np.flatnonzero(np.array([x[:1] == system for x in sat_names])[sat_code])
+        rows = of_system[system]
         rows_of.append(rows)
         for k in (ip, ic):
             if k >= 0:
@@ -482,29 +497,31 @@ def _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2) -> pd
     order = np.argsort(rows * len(cols) + np.concatenate([np.full(p[0].size, p[1]) for p in parts]), kind="stable")
     rows = rows[order]
     sig = np.concatenate([np.full(p[0].size, p[1]) for p in parts])[order]
-    sig_rank = np.argsort(np.argsort(names.astype(str), kind="stable"))  # signal index -> rank of its name
+    rank_of = {n: r for r, n in enumerate(sorted(cols))}
+    sig_rank = np.array([rank_of[n] for n in cols], dtype=np.int64)    # signal index -> rank of its name
     t = t_rec[rows]
     final = np.lexsort((sat_code[rows], sig_rank[sig], t))                # stable: file order among equals
     rows, sig = rows[final], sig[final]
-    return pd.DataFrame({
-        "time_gps_s": t[final], "sat": sat_obj[sat_code[rows]], "signal": names[sig],
-        "phase_cycles": np.concatenate([p[2] for p in parts])[order][final],
-        "pseudorange_m": np.concatenate([p[3] for p in parts])[order][final],
-        "lli": np.concatenate([p[4] for p in parts])[order][final],
-        "wavelength_m": _wavelength_array(sat_code[rows], sat_names, sig, list(cols), slots, path)}, copy=False)
+    take = order[final]                                                   # into the parts, concatenated
+    sat_c = sat_code[rows]
+    lam = _wavelength_array(sat_c, sat_names, sig, list(cols), slots, path)
+    df = pd.DataFrame({
+        "time_gps_s": t[final], "sat": sat_obj[sat_c], "signal": names[sig],
+        "phase_cycles": np.concatenate([p[2] for p in parts])[take],
+        "pseudorange_m": np.concatenate([p[3] for p in parts])[take],
+        "lli": np.concatenate([p[4] for p in parts])[take], "wavelength_m": lam}, copy=False)
+    return df
 
 
 def _wavelength_array(sat_code: np.ndarray, sat_names: list, sig: np.ndarray, names: list, slots: dict, path) -> np.ndarray:
     """:func:`_wavelengths` on arrays: ``sat_code`` (n,) index into ``sat_names``, ``sig`` (n,) index
-    into ``names``."""
-    lam = np.empty(sat_code.size)
-    for i in sorted(range(len(names)), key=lambda j: names[j]):       # signal names in order, as groupby
+    into ``names``.  A CDMA signal's wavelength by one look-up per row; the FDMA ones per satellite,
+    in signal-name order (the first with a satellite lacking its frequency number raises)."""
+    sigs = [signal(n) for n in names]
+    lam = np.array([math.nan if sg.fdma_step_hz else sg.wavelength_m for sg in sigs], dtype=np.float64)[sig]
+    for i in sorted((j for j, sg in enumerate(sigs) if sg.fdma_step_hz), key=lambda j: names[j]):
         idx = np.flatnonzero(sig == i)
         if idx.size == 0:
-            continue
-        sg = signal(names[i])
-        if not sg.fdma_step_hz:
-            lam[idx] = sg.wavelength_m
             continue
         uniq, inv = np.unique(sat_code[idx], return_inverse=True)
         present = [sat_names[c] for c in uniq.tolist()]
@@ -513,7 +530,7 @@ def _wavelength_array(sat_code: np.ndarray, sat_names: list, sig: np.ndarray, na
             raise CdgpsError(f"{path}: GLONASS frequency numbers absent for {' '.join(absent)} "
                              "(header line 'GLONASS SLOT / FRQ #' expected, or a GLONASS navigation record of "
                              "the satellite); FDMA phases need them")
-        lam[idx] = np.array([SPEED_OF_LIGHT_M_S / glonass_frequency_hz(sg, slots[s]) for s in present])[inv.ravel()]
+        lam[idx] = np.array([SPEED_OF_LIGHT_M_S / glonass_frequency_hz(sigs[i], slots[s]) for s in present])[inv.ravel()]
     return lam
 
 
