@@ -180,6 +180,8 @@ def epochs_v3(lines: BodyLines, events: str = "refuse") -> dict:
     ep = ep[lines.length[ep] > 0]
     if ep.size == 0 or ep[0] != 0:
         raise Unsupported("epoch line")
+    if ep.size <= FEW_EPOCHS:
+        return _few_epochs_v3(lines, ep, events)
     f = lines.gather(ep, 0, 35)
     if events == "skip" and np.any((f[:, 31] < 48) | (f[:, 31] > 57)):
         raise Unsupported("event flag")
@@ -204,6 +206,50 @@ def epochs_v3(lines: BodyLines, events: str = "refuse") -> dict:
     if events == "refuse":
         clk = _clocks(lines, ep, 35)
     return {"line": ep, "flag": flag, "nsat": nsat, "time_gps_s": t, "clk": clk}
+
+
+FEW_EPOCHS = 8
+"""At most this many epoch lines: :func:`epochs_v3` reads them one by one in Python (numpy's per-call
+set-up costs more than the lines; the same arrays and refusals)."""
+_V3_BLANK_COLUMNS = (1, 6, 9, 12, 15, 29, 30)
+
+
+def _few_epochs_v3(lines: BodyLines, ep: np.ndarray, events: str) -> dict:
+    """:func:`epochs_v3` of a few epoch lines ``ep`` (body line indices, the first 0), line by line."""
+    if lines.buf.size < 35:
+        raise Unsupported("short file")                    # as BodyLines.gather
+    data = lines.data
+    f = [data[s:s + min(n, 35)].ljust(35) for s, n in zip(lines.start[ep].tolist(), lines.length[ep].tolist())]
+    if events == "skip" and not all(48 <= x[31] <= 57 for x in f):
+        raise Unsupported("event flag")
+    flag = [0 if x[31] == 32 else x[31] - 48 for x in f]
+    if not all(0 <= v <= 6 and not (events == "refuse" and 1 < v < 6) for v in flag):
+        raise Unsupported("event flag")
+    if not all(_INT.fullmatch(x[32:35]) for x in f):
+        raise Unsupported("integer")
+    nsat = [int(x[32:35]) for x in f]
+    at = ep.tolist()
+    nxt = [a + 1 + n for a, n in zip(at, nsat)]
+    if not (nxt[:-1] == at[1:] and nxt[-1] <= lines.n and _blank_from(lines, nxt[-1])):
+        raise Unsupported("layout")
+    timed = [k for k, v in enumerate(flag) if v <= 1 or v == 6] if events == "skip" else list(range(len(f)))
+    g = [f[k] for k in timed]
+    if any(x[c] != 32 for x in g for c in _V3_BLANK_COLUMNS):
+        raise Unsupported("epoch line")
+    fields = [x[a:b] for x in g for a, b in _DATE_FIELDS]
+    if not all(_INT.fullmatch(v) for v in fields):
+        raise Unsupported("integer")
+    ymdhm = [int(v) for v in fields]
+    sec = decimal_fields(np.frombuffer(b"".join(x[18:29] for x in g), np.uint8).reshape(len(g), 11)).tolist()
+    if any(math.isnan(v) for v in sec):
+        raise Unsupported("seconds")
+    t = np.full(ep.size, np.nan)
+    if g:
+        y, mo, d, h, mi = (np.array(ymdhm[j::5], dtype=np.int64) for j in range(5))
+        t[timed] = _gps_seconds(y, mo, d, h, mi, np.array(sec, dtype=np.float64))
+    clk = _clocks(lines, ep, 35) if events == "refuse" else np.full(ep.size, np.nan)
+    return {"line": ep, "flag": np.array(flag, dtype=np.int64), "nsat": np.array(nsat, dtype=np.int64),
+            "time_gps_s": t, "clk": clk}
 
 
 def epochs_v2(lines: BodyLines, per: int, special=None) -> tuple[dict, list, list]:

@@ -82,3 +82,51 @@ def test_signals_file_read_once(monkeypatch, name):
     monkeypatch.setattr(rinex_signals, "FAST_PARSE", False)
     info_ref, ref = rinex_signals.read_rinex_signals(path, names, glonass_k=GLO_K)
     assert df.equals(ref) and list(df.dtypes) == list(ref.dtypes) and info == info_ref
+
+
+def _epochs_or_refusal(lines, events):
+    try:
+        return rinex_body.epochs_v3(lines, events=events)
+    except Unsupported:
+        return None
+
+
+@pytest.mark.parametrize("name", ["rinex/demo3.10o", "real-pairs/mosaic-static/base.obs", "real-pairs/geonet-car/SEPT265G.21O"])
+def test_few_epoch_lines_read_one_by_one_as_the_arrays_read_them(name, monkeypatch):
+    """RINEX 3 bodies of 1-8 epochs (the file's first ones, and copies with one byte changed: flags, counts,
+    dates, blanks, '>' moved): the line-by-line reading of a few epoch lines gives the arrays, dtypes and
+    refusals of the array reading."""
+    path = SHARED / name
+    if not path.exists():
+        pytest.skip(f"{name} not available")
+    data, _ = rinex._read_bytes(path)
+    _, at = rinex._split_header(data)
+    body = data[at:]
+    starts = [i for i in range(min(len(body), 200_000)) if body[i] == 62 and (i == 0 or body[i - 1] == 10)][:9]
+    rng = np.random.default_rng(7)
+    outcomes = {"read": 0, "refused": 0}
+    for k in range(1, len(starts)):
+        chunk = body[:starts[k]]
+        for v in [chunk] + [_one_byte_changed(chunk, starts[:k], rng) for _ in range(16)]:
+            lines = rinex_body.BodyLines(data[:at] + v, at)
+            for events in ("refuse", "skip"):
+                monkeypatch.setattr(rinex_body, "FEW_EPOCHS", 0)
+                ref = _epochs_or_refusal(lines, events)
+                monkeypatch.setattr(rinex_body, "FEW_EPOCHS", 8)
+                got = _epochs_or_refusal(lines, events)
+                assert (ref is None) == (got is None)
+                outcomes["refused" if ref is None else "read"] += 1
+                if ref is not None:
+                    assert list(ref) == list(got)
+                    for key in ref:
+                        assert ref[key].dtype == got[key].dtype
+                        np.testing.assert_array_equal(ref[key], got[key])
+    assert outcomes["read"] > 10 and outcomes["refused"] > 10
+
+
+def _one_byte_changed(chunk: bytes, epoch_starts: list, rng) -> bytes:
+    """``chunk`` with one byte changed, mostly in an epoch line (its first 40 columns)."""
+    b = bytearray(chunk)
+    at = int(rng.choice(epoch_starts)) + int(rng.integers(40)) if rng.random() < 0.8 else int(rng.integers(len(b)))
+    b[min(at, len(b) - 1)] = int(rng.choice([32, 45, 46, 48, 49, 50, 54, 55, 57, 62, 65, 10]))
+    return bytes(b)
