@@ -515,23 +515,28 @@ def _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2) -> pd
 
 def _wavelength_array(sat_code: np.ndarray, sat_names: list, sig: np.ndarray, names: list, slots: dict, path) -> np.ndarray:
     """:func:`_wavelengths` on arrays: ``sat_code`` (n,) index into ``sat_names``, ``sig`` (n,) index
-    into ``names``.  A CDMA signal's wavelength by one look-up per row; the FDMA ones per satellite,
-    in signal-name order (the first with a satellite lacking its frequency number raises)."""
+    into ``names``.  A (signal, satellite) table of wavelengths, then one look-up per row: a CDMA
+    signal's for every satellite, an FDMA one's for the satellites it has rows of, signals in name
+    order (the first with a satellite lacking its frequency number raises)."""
     sigs = [signal(n) for n in names]
-    lam = np.array([math.nan if sg.fdma_step_hz else sg.wavelength_m for sg in sigs], dtype=np.float64)[sig]
-    for i in sorted((j for j, sg in enumerate(sigs) if sg.fdma_step_hz), key=lambda j: names[j]):
-        idx = np.flatnonzero(sig == i)
-        if idx.size == 0:
-            continue
-        uniq, inv = np.unique(sat_code[idx], return_inverse=True)
-        present = [sat_names[c] for c in uniq.tolist()]
-        absent = sorted(set(present) - set(slots))
+    table = np.empty((len(names), len(sat_names)), dtype=np.float64)
+    fdma = sorted((j for j, sg in enumerate(sigs) if sg.fdma_step_hz), key=lambda j: names[j])
+    if fdma:
+        has = np.zeros(table.shape, dtype=bool)
+        has[sig, sat_code] = True
+    for i, sg in enumerate(sigs):
+        if i not in fdma:
+            table[i] = sg.wavelength_m
+    for i in fdma:
+        present = [(c, sat_names[c]) for c in np.flatnonzero(has[i]).tolist()]
+        absent = sorted({s for _, s in present} - set(slots))
         if absent:
             raise CdgpsError(f"{path}: GLONASS frequency numbers absent for {' '.join(absent)} "
                              "(header line 'GLONASS SLOT / FRQ #' expected, or a GLONASS navigation record of "
                              "the satellite); FDMA phases need them")
-        lam[idx] = np.array([SPEED_OF_LIGHT_M_S / glonass_frequency_hz(sigs[i], slots[s]) for s in present])[inv.ravel()]
-    return lam
+        for c, s in present:
+            table[i, c] = SPEED_OF_LIGHT_M_S / glonass_frequency_hz(sigs[i], slots[s])
+    return table[sig, sat_code]
 
 
 def _field_place(rec_line: np.ndarray, k: int, v3: bool):
