@@ -130,3 +130,18 @@ def _one_byte_changed(chunk: bytes, epoch_starts: list, rng) -> bytes:
     at = int(rng.choice(epoch_starts)) + int(rng.integers(40)) if rng.random() < 0.8 else int(rng.integers(len(b)))
     b[min(at, len(b) - 1)] = int(rng.choice([32, 45, 46, 48, 49, 50, 54, 55, 57, 62, 65, 10]))
     return bytes(b)
+
+
+@pytest.mark.parametrize("n", [0, 1, 5, 256, 257, 600])
+def test_distinct_is_np_unique_with_inverse(n):
+    """The satellites' distinct values and indices, by a dict for few records, as ``np.unique`` gives them
+    (integer codes of RINEX 3 names; RINEX 2 names as <= 3-character str)."""
+    rng = np.random.default_rng(n)
+    codes = rng.integers(0x473030, 0x473040, n)
+    names = [rng.choice(["G01", "G1", "R24", "R 3", "E11", "S20", "G10"]) for _ in range(n)]
+    names = [str(x) for x in names]
+    for values, ref in ((codes, np.unique(codes, return_inverse=True)),
+                        (names, np.unique(np.array(names, dtype="U3"), return_inverse=True))):
+        uniq, inv = rinex_signals._distinct(values)
+        assert uniq == ref[0].tolist() and [type(u) for u in uniq] == [type(u) for u in ref[0].tolist()]
+        np.testing.assert_array_equal(inv, ref[1].ravel())
