@@ -662,10 +662,12 @@ def _gps_rows(lines, cols, rec_line, e_rec, code, v3, per) -> dict:
     """The rows of the GPS records starting at ``rec_line`` (epoch ``e_rec``, satellite ``code``)."""
     if cols.phase is None:
         raise Unsupported("GPS records without GPS observation types")
-    phase, ph_flags = _body.gps_fields(lines, rec_line, cols.i_phase, v3, per)
+    ks = [cols.i_phase] + [k for k in (cols.i_code, cols.i_snr) if k >= 0]
+    got = iter(_body.gps_fields_of(lines, rec_line, ks, v3))     # phase, then code and SNR where listed
+    phase, ph_flags = next(got)
     nan = np.full(rec_line.size, np.nan)
-    code_m = _body.gps_fields(lines, rec_line, cols.i_code, v3, per)[0] if cols.i_code >= 0 else nan
-    snr = _body.gps_fields(lines, rec_line, cols.i_snr, v3, per)[0] if cols.i_snr >= 0 else nan
+    code_m = next(got)[0] if cols.i_code >= 0 else nan
+    snr = next(got)[0] if cols.i_snr >= 0 else nan
     has_ph = ~np.isnan(phase)
     lli = _body.flag_values(ph_flags[:, 0], has_ph)
     ssi = _body.flag_values(ph_flags[:, 1], has_ph)

@@ -21,7 +21,7 @@ import numpy as np
 
 from cdgps_cli.io._fixed_width import Unsupported, decimal_fields
 
-__all__ = ["BodyLines", "epochs_v3", "epochs_v2", "record_sats", "gps_fields", "strict_float"]
+__all__ = ["BodyLines", "epochs_v3", "epochs_v2", "record_sats", "gps_fields_of", "strict_float"]
 
 _GPS_EPOCH_ORDINAL = _dt.date(1980, 1, 6).toordinal()
 _POW10 = 10 ** np.arange(8, dtype=np.int64)
@@ -346,15 +346,21 @@ def record_sats(raw: np.ndarray, sat_id) -> tuple[np.ndarray, np.ndarray]:
     return np.array(names, dtype=object), inv.ravel()
 
 
-def gps_fields(lines: BodyLines, rec_line: np.ndarray, k: int, v3: bool, per: int) -> tuple[np.ndarray, np.ndarray]:
-    """Observation ``k`` of the records starting at lines ``rec_line``: (values (n,) float64, NaN if
-    blank; the LLI and SSI bytes (n, 2) uint8)."""
+def gps_fields_of(lines: BodyLines, rec_line: np.ndarray, ks: list, v3: bool) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Observations ``ks`` of the records starting at lines ``rec_line`` (RINEX 2: observation k on the
+    record's line k // 5), each as (values (n,) float64, NaN if blank; the LLI and SSI bytes (n, 2)
+    uint8): one gather and one conversion for all of them (each field converted alone: the values of
+    one call per observation; Unsupported when any field is malformed)."""
+    n = rec_line.size
     if v3:
-        line, col = rec_line, 3 + 16 * k
+        line = np.tile(rec_line, len(ks))
+        col = np.repeat(np.array([3 + 16 * k for k in ks], dtype=np.int64), n)
     else:
-        line, col = rec_line + k // 5, 16 * (k % 5)
+        line = np.concatenate([rec_line + k // 5 for k in ks])
+        col = np.repeat(np.array([16 * (k % 5) for k in ks], dtype=np.int64), n)
     f = lines.gather(line, col, 16)
-    return decimal_fields(f[:, :14]), f[:, 14:16]
+    values = decimal_fields(f[:, :14])
+    return [(values[j * n:(j + 1) * n], f[j * n:(j + 1) * n, 14:16]) for j in range(len(ks))]
 
 
 def flag_values(ch: np.ndarray, use: np.ndarray) -> np.ndarray:
