@@ -54,7 +54,6 @@ _INAV_CRC = _crc24q_byte_tables(25)
 """CRC-24Q contributions of each byte of the 25 bytes an I/NAV page pair's CRC covers."""
 _URA = np.array(sf.URA_M, dtype=np.float64)
 _URAI = np.array(sf._URAI_M, dtype=np.float64)
-_INAV_SIGNALS = np.array(sorted(sf._INAV_SIGNALS))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -107,6 +106,7 @@ class FieldTable:
 
 
 def _f(signed: bool, *pieces) -> tuple:
+    """A :class:`FieldTable` entry: (signed, ((block, first bit, bits), …))."""
     return signed, pieces
 
 
