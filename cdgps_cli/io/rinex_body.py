@@ -21,7 +21,7 @@ import numpy as np
 
 from cdgps_cli.io._fixed_width import Unsupported, decimal_fields
 
-__all__ = ["BodyLines", "epochs_v3", "epochs_v2", "record_sats", "gps_fields_of", "strict_float"]
+__all__ = ["BodyLines", "epochs_v3", "epochs_v2", "record_sats", "distinct", "gps_fields_of", "strict_float"]
 
 _GPS_EPOCH_ORDINAL = _dt.date(1980, 1, 6).toordinal()
 _POW10 = 10 ** np.arange(8, dtype=np.int64)
@@ -328,6 +328,23 @@ def _year(when: tuple) -> tuple:
     return (yy + (1900 if yy >= 80 else 2000) if yy < 100 else yy, *when[1:])
 
 
+FEW_RECORDS = 256
+"""At most this many values: :func:`distinct` by a dict (np.unique's set-up costs more)."""
+
+
+def distinct(values) -> tuple[list, np.ndarray]:
+    """(the distinct values, sorted, as a list; each value's index among them): ``np.unique(values,
+    return_inverse=True)`` of an int array or of a list of str of at most 3 characters (as "U3")."""
+    if len(values) > FEW_RECORDS:
+        arr = np.array(values, dtype="U3") if isinstance(values, list) else np.asarray(values)
+        uniq, inv = np.unique(arr, return_inverse=True)
+        return uniq.tolist(), inv.ravel()
+    vals = values.tolist() if isinstance(values, np.ndarray) else values
+    uniq = sorted(set(vals))
+    where = {u: i for i, u in enumerate(uniq)}
+    return uniq, np.array([where[v] for v in vals], dtype=np.intp)
+
+
 def record_sats(raw: np.ndarray, sat_id) -> tuple[np.ndarray, np.ndarray]:
     """Satellite names of records from their 3-byte fields ``raw`` (n, 3): (names (k,) object, the
     index of each record's name (n,)); each distinct field is checked once with ``sat_id``
@@ -335,15 +352,15 @@ def record_sats(raw: np.ndarray, sat_id) -> tuple[np.ndarray, np.ndarray]:
     if np.any(raw >= 128):
         raise Unsupported("satellite")
     code = (raw[:, 0].astype(np.int32) << 16) | (raw[:, 1].astype(np.int32) << 8) | raw[:, 2]
-    uniq, inv = np.unique(code, return_inverse=True)
+    uniq, inv = distinct(code)
     names = []
-    for u in uniq.tolist():
+    for u in uniq:
         s = bytes([u >> 16, (u >> 8) & 255, u & 255]).decode("latin-1")
         try:
             names.append(sat_id(s))
         except ValueError:
             raise Unsupported("satellite") from None
-    return np.array(names, dtype=object), inv.ravel()
+    return np.array(names, dtype=object), inv
 
 
 def gps_fields_of(lines: BodyLines, rec_line: np.ndarray, ks: list, v3: bool) -> list[tuple[np.ndarray, np.ndarray]]:

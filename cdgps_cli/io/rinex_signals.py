@@ -24,7 +24,7 @@ from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.io.rinex import _ObsHeader, _parse_version_line, _read_text
 from cdgps_cli.io._fixed_width import LineBuffer, Unsupported, decimal_fields, flag_digits
 from cdgps_cli.io.rinex import _read_bytes, _split_header, _split_lines
-from cdgps_cli.io.rinex_body import BodyLines, epochs_v3, strict_float
+from cdgps_cli.io.rinex_body import BodyLines, distinct, epochs_v3, strict_float
 
 __all__ = ["read_rinex_signals", "SIGNAL_COLUMNS"]
 
@@ -432,22 +432,6 @@ def _fast_table(lines, start, hdr, cols, path, data: bytes | None, slots: dict) 
     return _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2)
 
 
-_FEW_RECORDS = 256
-
-
-def _distinct(values) -> tuple[list, np.ndarray]:
-    """(the distinct values, sorted, as a list; each value's index among them) — ``np.unique(values,
-    return_inverse=True)`` — by a dict for a few values (np.unique's set-up costs more)."""
-    if len(values) > _FEW_RECORDS:
-        uniq, inv = np.unique(np.asarray(values) if not isinstance(values, list) else np.array(values, dtype="U3"),
-                              return_inverse=True)
-        return uniq.tolist(), inv.ravel()
-    vals = values.tolist() if isinstance(values, np.ndarray) else values
-    uniq = sorted(set(vals))
-    where = {u: i for i, u in enumerate(uniq)}
-    return uniq, np.array([where[v] for v in vals], dtype=np.intp)
-
-
 def _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2) -> pd.DataFrame:
     """The table of the records of the epochs at ``times`` whose first record line (index into
     ``buf``, a :class:`LineBuffer` or :class:`BodyLines`) is ``first`` and that have ``count``
@@ -469,13 +453,13 @@ def _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2) -> pd
             raise Unsupported("satellite")
         sat_bytes[sat_bytes == 32] = 48
         code = (sat_bytes[:, 0].astype(np.int32) << 16) | (sat_bytes[:, 1].astype(np.int32) << 8) | sat_bytes[:, 2]
-        uniq, sat_code = _distinct(code)                                # ASCII, 3 bytes: the str order
+        uniq, sat_code = distinct(code)                                 # ASCII, 3 bytes: the str order
         sat_names = [bytes([u >> 16, (u >> 8) & 255, u & 255]).decode("ascii") for u in uniq]
     else:
         rec_lines = rec_line[:, None] + np.arange(per)
         if np.any(buf.length[rec_lines] > 80):
             raise Unsupported("long record line")
-        sat_names, sat_code = _distinct(sats_v2)                       # str of <= 3 characters
+        sat_names, sat_code = distinct(sats_v2)                        # str of <= 3 characters
     sat_code = sat_code.ravel()
     sat_obj = np.array(sat_names + [None], dtype=object)[:-1]
     rows_of, lines_of, cols_of = [], [], []

@@ -142,6 +142,6 @@ def test_distinct_is_np_unique_with_inverse(n):
     names = [str(x) for x in names]
     for values, ref in ((codes, np.unique(codes, return_inverse=True)),
                         (names, np.unique(np.array(names, dtype="U3"), return_inverse=True))):
-        uniq, inv = rinex_signals._distinct(values)
+        uniq, inv = rinex_body.distinct(values)
         assert uniq == ref[0].tolist() and [type(u) for u in uniq] == [type(u) for u in ref[0].tolist()]
         np.testing.assert_array_equal(inv, ref[1].ravel())
