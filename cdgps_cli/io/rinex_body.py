@@ -126,8 +126,14 @@ def _date_ints(g: np.ndarray) -> tuple[np.ndarray, ...]:
     return tuple(_ints(f.reshape(-1, 4)).reshape(-1, 5).T)
 
 
+FEW_DATES = 16
+"""At most this many epochs: :func:`_gps_seconds` in Python (numpy's per-call set-up costs more)."""
+
+
 def _gps_seconds(y, mo, d, h, mi, sec) -> np.ndarray:
     """``gps_seconds`` on arrays, to the bit: float(whole seconds) + float(seconds of minute)."""
+    if len(y) <= FEW_DATES:
+        return _few_gps_seconds(y, mo, d, h, mi, sec)
     ymd = y * 10000 + mo * 100 + d
     if ymd.size <= 64:                                     # a few epochs: a dict (np.unique's set-up costs more)
         uniq, inv = list(dict.fromkeys(ymd.tolist())), None
@@ -146,6 +152,23 @@ def _gps_seconds(y, mo, d, h, mi, sec) -> np.ndarray:
         inv = np.array([where[u] for u in ymd.tolist()], dtype=np.int64)
     whole = days[inv.ravel()] * 86400 + h * 3600 + mi * 60
     return whole.astype(np.float64) + sec
+
+
+def _few_gps_seconds(y, mo, d, h, mi, sec) -> np.ndarray:
+    """:func:`_gps_seconds` of a few epochs, one by one: the same values (integer whole seconds, then one
+    float addition) and refusals."""
+    days: dict = {}
+    out = []
+    for yy, mm, dd, hh, mn, ss in zip(*(np.asarray(a).tolist() for a in (y, mo, d, h, mi, sec))):
+        if (yy, mm, dd) not in days:
+            try:
+                days[yy, mm, dd] = _dt.date(yy, mm, dd).toordinal() - _GPS_EPOCH_ORDINAL
+            except ValueError:
+                raise Unsupported("date") from None
+        if hh > 23 or mn > 59:
+            raise Unsupported("time of day")
+        out.append(float(days[yy, mm, dd] * 86400 + hh * 3600 + mn * 60) + ss)
+    return np.array(out, dtype=np.float64)
 
 
 def _clocks(lines: BodyLines, ep: np.ndarray, col: int) -> np.ndarray:

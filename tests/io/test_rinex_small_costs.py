@@ -145,3 +145,27 @@ def test_distinct_is_np_unique_with_inverse(n):
         uniq, inv = rinex_body.distinct(values)
         assert uniq == ref[0].tolist() and [type(u) for u in uniq] == [type(u) for u in ref[0].tolist()]
         np.testing.assert_array_equal(inv, ref[1].ravel())
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_few_epochs_gps_seconds_as_the_array_path(seed, monkeypatch):
+    """Epoch times of up to 16 epochs in Python: the values (to the bit) and refusals (bad date, hour > 23,
+    minute > 59) of the array path."""
+    rng = np.random.default_rng(seed)
+    for n in (0, 1, 3, 16):
+        for _ in range(40):
+            y = rng.integers(1980, 2100, n)
+            mo, d = rng.integers(1, 13, n), rng.integers(1, 32, n)
+            h, mi = rng.integers(0, 25, n), rng.integers(0, 61, n)
+            sec = np.round(rng.uniform(0, 60, n), int(rng.integers(0, 8)))
+            out = []
+            for few in (0, 16):
+                monkeypatch.setattr(rinex_body, "FEW_DATES", few)
+                try:
+                    out.append(rinex_body._gps_seconds(y, mo, d, h, mi, sec))
+                except Unsupported as exc:
+                    out.append(str(exc))
+            if isinstance(out[0], str):
+                assert isinstance(out[1], str)
+            else:
+                assert out[0].dtype == out[1].dtype and out[0].tobytes() == out[1].tobytes()
