@@ -169,3 +169,52 @@ def test_few_epochs_gps_seconds_as_the_array_path(seed, monkeypatch):
                 assert isinstance(out[1], str)
             else:
                 assert out[0].dtype == out[1].dtype and out[0].tobytes() == out[1].tobytes()
+
+
+def _few_decimals_by_regex(f):
+    """The per-field reading before: the pattern of a decimal number, then ``float``."""
+    from cdgps_cli.io._fixed_width import _DECIMAL
+
+    out = []
+    for row in f:
+        field = row.tobytes()
+        if _DECIMAL.fullmatch(field):
+            out.append(float(field))
+        elif field.strip(b" "):
+            raise Unsupported("number")
+        else:
+            out.append(np.nan)
+    return np.array(out, dtype=np.float64)
+
+
+@pytest.mark.parametrize("width", [0, 1, 3, 11, 14])
+def test_few_decimals_by_float_as_by_the_pattern(width):
+    """Fields of digits, signs, dots and blanks (and a few other bytes: e, E, _, n, i, tab) in random
+    arrangements: one ``float`` per field reads and refuses exactly what the decimal pattern did."""
+    from cdgps_cli.io._fixed_width import _few_decimals
+
+    rng = np.random.default_rng(width)
+    alphabet = np.frombuffer(b"0123456789+-. " + b"    " + b"012.", np.uint8)
+    odd = np.frombuffer(b"eE_ni\t\\", np.uint8)
+    outcomes = {"read": 0, "refused": 0}
+    for _ in range(3000):
+        n = int(rng.integers(1, 4))
+        f = alphabet[rng.integers(0, alphabet.size, (n, width))]
+        if width and rng.random() < 0.1:
+            f[int(rng.integers(n)), int(rng.integers(width))] = odd[int(rng.integers(odd.size))]
+        if width and rng.random() < 0.3:                  # right-aligned numbers, as writers write them
+            text = f"{rng.uniform(-1e4, 1e4):.{int(rng.integers(0, 4))}f}"[-width:].rjust(width)
+            f[0] = np.frombuffer(text.encode(), np.uint8)
+        try:
+            ref = _few_decimals_by_regex(f)
+        except Unsupported:
+            ref = None
+        try:
+            got = _few_decimals(np.ascontiguousarray(f))
+        except Unsupported:
+            got = None
+        assert (ref is None) == (got is None), f.tobytes()
+        if ref is not None:
+            assert ref.tobytes() == got.tobytes()
+        outcomes["refused" if ref is None else "read"] += 1
+    assert outcomes["read"] > 50 and (outcomes["refused"] > 50 or width == 0)
