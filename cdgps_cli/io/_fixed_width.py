@@ -121,20 +121,25 @@ def _f14_3(f: np.ndarray) -> np.ndarray | None:
 
 _SMALL = 256         # fewer fields than this: Python's float, one at a time (numpy's per-call cost dominates)
 _DECIMAL = re.compile(rb" *[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+) *")
+"""What a number field may hold: blanks around an optionally signed decimal number."""
+_DECIMAL_BYTES = b"0123456789+-. "
 
 
 def _few_decimals(f: np.ndarray) -> np.ndarray:
     """:func:`decimal_fields` of a few fields: the same values (``float`` of the same decimal) and the
-    same refusals (only blanks around an optionally signed decimal number)."""
+    same refusals (only blanks around an optionally signed decimal number, :data:`_DECIMAL`).  With no
+    byte but digits, signs, dots and blanks, ``float`` takes exactly what :data:`_DECIMAL` matches (it
+    strips the blanks; no exponent, ``inf``/``nan`` or ``_`` can be spelled), so each field is one
+    ``float`` call; an all-blank field is NaN."""
     raw, w = f.tobytes(), f.shape[1]                     # one bytes object, sliced: no bytes() per row
-    match, nan, out = _DECIMAL.fullmatch, math.nan, []
-    for field in ([raw[i:i + w] for i in range(0, len(raw), w)] if w else [b""] * f.shape[0]):
-        if match(field):
-            out.append(float(field))
-        elif field.strip(b" "):
-            raise Unsupported("number")
-        else:
-            out.append(nan)
+    if raw.translate(None, _DECIMAL_BYTES):              # any other byte: a field that is not a number
+        raise Unsupported("number")
+    blank, nan, out = b" " * w, math.nan, []
+    try:
+        for field in ([raw[i:i + w] for i in range(0, len(raw), w)] if w else [b""] * f.shape[0]):
+            out.append(nan if field == blank else float(field))
+    except ValueError:
+        raise Unsupported("number") from None
     return np.array(out, dtype=np.float64).reshape(f.shape[0])
 
 

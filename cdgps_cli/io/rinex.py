@@ -228,57 +228,68 @@ class _ObsHeader:
     def apply(self, line: str, lineno: int) -> str:
         """Apply one header line; return its label."""
         label = line[60:80].strip()
-        body = line[:60]
-        info = self.info
-        try:
-            if label == "COMMENT":
-                info["comments"].append(body.rstrip())
-            elif label == "MARKER NAME":
-                info["marker_name"] = body.strip()
-            elif label == "MARKER NUMBER":
-                info["marker_number"] = body.strip()
-            elif label == "OBSERVER / AGENCY":
-                info["observer"], info["agency"] = body[:20].strip(), body[20:60].strip()
-            elif label == "REC # / TYPE / VERS":
-                info["receiver_number"] = body[:20].strip()
-                info["receiver_type"] = body[20:40].strip()
-                info["receiver_version"] = body[40:60].strip()
-            elif label == "ANT # / TYPE":
-                info["antenna_number"] = body[:20].strip()
-                info["antenna_type"] = body[20:40].strip()
-            elif label == "APPROX POSITION XYZ":
-                info["approx_position_xyz_m"] = _three_floats(body)
-            elif label == "ANTENNA: DELTA H/E/N":
-                info["antenna_delta_hen_m"] = _three_floats(body)
-            elif label == "WAVELENGTH FACT L1/2":
-                nsat_list = body[12:18].strip()
-                if not nsat_list or int(nsat_list) == 0:  # default factors (no satellite list)
-                    info["wavelength_factor_l1"] = int(body[:6])
-            elif label == "INTERVAL":
-                info["interval_s"] = float(body[:10])
-            elif label == "TIME OF FIRST OBS":
-                y, mo, d, h, mi = (int(body[i : i + 6]) for i in (0, 6, 12, 18, 24))
-                sec = float(body[30:43])
-                info["time_system"] = body[48:51].strip() or None
-                info["time_first_obs_gps_s"] = gps_seconds(y, mo, d, h, mi, sec)
-                info["time_first_obs"] = f"{y:04d}-{mo:02d}-{d:02d} {h:02d}:{mi:02d}:{sec:010.7f}"
-            elif label == "LEAP SECONDS":
-                info["leap_seconds"] = int(body[:6])
-            elif label == "RCV CLOCK OFFS APPL":
-                info["rcv_clock_offset_applied"] = bool(int(body[:6]))
-            elif label == "SIGNAL STRENGTH UNIT":
-                info["signal_strength_unit"] = body[:20].strip() or None
-            elif label == "# / TYPES OF OBSERV":
-                self._types_v2(body, lineno)
-            elif label == "SYS / # / OBS TYPES":
-                self._types_v3(body, lineno)
-            elif label == "SYS / SCALE FACTOR":
-                self._scale_v3(body, lineno)
-        except CdgpsError:
-            raise
-        except (ValueError, IndexError):
-            raise self.error(lineno, f"malformed header line '{label}': {line.rstrip()!r}") from None
+        read = _HEADER_READERS.get(label)
+        if read is not None:                               # a label the reader keeps something of
+            try:
+                read(self, line[:60], lineno)
+            except CdgpsError:
+                raise
+            except (ValueError, IndexError):
+                raise self.error(lineno, f"malformed header line '{label}': {line.rstrip()!r}") from None
         return label
+
+    def _comment(self, body: str, lineno: int) -> None:
+        self.info["comments"].append(body.rstrip())
+
+    def _marker_name(self, body: str, lineno: int) -> None:
+        self.info["marker_name"] = body.strip()
+
+    def _marker_number(self, body: str, lineno: int) -> None:
+        self.info["marker_number"] = body.strip()
+
+    def _observer(self, body: str, lineno: int) -> None:
+        self.info["observer"], self.info["agency"] = body[:20].strip(), body[20:60].strip()
+
+    def _receiver(self, body: str, lineno: int) -> None:
+        info = self.info
+        info["receiver_number"] = body[:20].strip()
+        info["receiver_type"] = body[20:40].strip()
+        info["receiver_version"] = body[40:60].strip()
+
+    def _antenna(self, body: str, lineno: int) -> None:
+        self.info["antenna_number"] = body[:20].strip()
+        self.info["antenna_type"] = body[20:40].strip()
+
+    def _position(self, body: str, lineno: int) -> None:
+        self.info["approx_position_xyz_m"] = _three_floats(body)
+
+    def _delta_hen(self, body: str, lineno: int) -> None:
+        self.info["antenna_delta_hen_m"] = _three_floats(body)
+
+    def _wavelength_fact(self, body: str, lineno: int) -> None:
+        nsat_list = body[12:18].strip()
+        if not nsat_list or int(nsat_list) == 0:          # default factors (no satellite list)
+            self.info["wavelength_factor_l1"] = int(body[:6])
+
+    def _interval(self, body: str, lineno: int) -> None:
+        self.info["interval_s"] = float(body[:10])
+
+    def _first_obs(self, body: str, lineno: int) -> None:
+        info = self.info
+        y, mo, d, h, mi = (int(body[i : i + 6]) for i in (0, 6, 12, 18, 24))
+        sec = float(body[30:43])
+        info["time_system"] = body[48:51].strip() or None
+        info["time_first_obs_gps_s"] = gps_seconds(y, mo, d, h, mi, sec)
+        info["time_first_obs"] = f"{y:04d}-{mo:02d}-{d:02d} {h:02d}:{mi:02d}:{sec:010.7f}"
+
+    def _leap_seconds(self, body: str, lineno: int) -> None:
+        self.info["leap_seconds"] = int(body[:6])
+
+    def _clock_applied(self, body: str, lineno: int) -> None:
+        self.info["rcv_clock_offset_applied"] = bool(int(body[:6]))
+
+    def _strength_unit(self, body: str, lineno: int) -> None:
+        self.info["signal_strength_unit"] = body[:20].strip() or None
 
     def _types_v2(self, body: str, lineno: int) -> None:
         if self._pending_types is None or body[:6].strip():
@@ -328,6 +339,20 @@ class _ObsHeader:
     def finish(self, lineno: int) -> None:
         if self._pending_types is not None:
             raise self.error(lineno, f"observation types list incomplete ({len(self._pending_types[2])} of {self._pending_types[1]})")
+
+
+_HEADER_READERS = {
+    "COMMENT": _ObsHeader._comment, "MARKER NAME": _ObsHeader._marker_name,
+    "MARKER NUMBER": _ObsHeader._marker_number, "OBSERVER / AGENCY": _ObsHeader._observer,
+    "REC # / TYPE / VERS": _ObsHeader._receiver, "ANT # / TYPE": _ObsHeader._antenna,
+    "APPROX POSITION XYZ": _ObsHeader._position, "ANTENNA: DELTA H/E/N": _ObsHeader._delta_hen,
+    "WAVELENGTH FACT L1/2": _ObsHeader._wavelength_fact, "INTERVAL": _ObsHeader._interval,
+    "TIME OF FIRST OBS": _ObsHeader._first_obs, "LEAP SECONDS": _ObsHeader._leap_seconds,
+    "RCV CLOCK OFFS APPL": _ObsHeader._clock_applied, "SIGNAL STRENGTH UNIT": _ObsHeader._strength_unit,
+    "# / TYPES OF OBSERV": _ObsHeader._types_v2, "SYS / # / OBS TYPES": _ObsHeader._types_v3,
+    "SYS / SCALE FACTOR": _ObsHeader._scale_v3,
+}
+"""Header label → the :class:`_ObsHeader` method reading it (one look-up per line, not a chain of tests)."""
 
 
 class _GpsL1Columns:
@@ -637,10 +662,12 @@ def _gps_rows(lines, cols, rec_line, e_rec, code, v3, per) -> dict:
     """The rows of the GPS records starting at ``rec_line`` (epoch ``e_rec``, satellite ``code``)."""
     if cols.phase is None:
         raise Unsupported("GPS records without GPS observation types")
-    phase, ph_flags = _body.gps_fields(lines, rec_line, cols.i_phase, v3, per)
+    ks = [cols.i_phase] + [k for k in (cols.i_code, cols.i_snr) if k >= 0]
+    got = iter(_body.gps_fields_of(lines, rec_line, ks, v3))     # phase, then code and SNR where listed
+    phase, ph_flags = next(got)
     nan = np.full(rec_line.size, np.nan)
-    code_m = _body.gps_fields(lines, rec_line, cols.i_code, v3, per)[0] if cols.i_code >= 0 else nan
-    snr = _body.gps_fields(lines, rec_line, cols.i_snr, v3, per)[0] if cols.i_snr >= 0 else nan
+    code_m = next(got)[0] if cols.i_code >= 0 else nan
+    snr = next(got)[0] if cols.i_snr >= 0 else nan
     has_ph = ~np.isnan(phase)
     lli = _body.flag_values(ph_flags[:, 0], has_ph)
     ssi = _body.flag_values(ph_flags[:, 1], has_ph)

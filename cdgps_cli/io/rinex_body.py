@@ -21,7 +21,7 @@ import numpy as np
 
 from cdgps_cli.io._fixed_width import Unsupported, decimal_fields
 
-__all__ = ["BodyLines", "epochs_v3", "epochs_v2", "record_sats", "gps_fields", "strict_float"]
+__all__ = ["BodyLines", "epochs_v3", "epochs_v2", "record_sats", "distinct", "gps_fields_of", "strict_float"]
 
 _GPS_EPOCH_ORDINAL = _dt.date(1980, 1, 6).toordinal()
 _POW10 = 10 ** np.arange(8, dtype=np.int64)
@@ -126,8 +126,14 @@ def _date_ints(g: np.ndarray) -> tuple[np.ndarray, ...]:
     return tuple(_ints(f.reshape(-1, 4)).reshape(-1, 5).T)
 
 
+FEW_DATES = 16
+"""At most this many epochs: :func:`_gps_seconds` in Python (numpy's per-call set-up costs more)."""
+
+
 def _gps_seconds(y, mo, d, h, mi, sec) -> np.ndarray:
     """``gps_seconds`` on arrays, to the bit: float(whole seconds) + float(seconds of minute)."""
+    if len(y) <= FEW_DATES:
+        return _few_gps_seconds(y, mo, d, h, mi, sec)
     ymd = y * 10000 + mo * 100 + d
     if ymd.size <= 64:                                     # a few epochs: a dict (np.unique's set-up costs more)
         uniq, inv = list(dict.fromkeys(ymd.tolist())), None
@@ -146,6 +152,23 @@ def _gps_seconds(y, mo, d, h, mi, sec) -> np.ndarray:
         inv = np.array([where[u] for u in ymd.tolist()], dtype=np.int64)
     whole = days[inv.ravel()] * 86400 + h * 3600 + mi * 60
     return whole.astype(np.float64) + sec
+
+
+def _few_gps_seconds(y, mo, d, h, mi, sec) -> np.ndarray:
+    """:func:`_gps_seconds` of a few epochs, one by one: the same values (integer whole seconds, then one
+    float addition) and refusals."""
+    days: dict = {}
+    out = []
+    for yy, mm, dd, hh, mn, ss in zip(*(np.asarray(a).tolist() for a in (y, mo, d, h, mi, sec))):
+        if (yy, mm, dd) not in days:
+            try:
+                days[yy, mm, dd] = _dt.date(yy, mm, dd).toordinal() - _GPS_EPOCH_ORDINAL
+            except ValueError:
+                raise Unsupported("date") from None
+        if hh > 23 or mn > 59:
+            raise Unsupported("time of day")
+        out.append(float(days[yy, mm, dd] * 86400 + hh * 3600 + mn * 60) + ss)
+    return np.array(out, dtype=np.float64)
 
 
 def _clocks(lines: BodyLines, ep: np.ndarray, col: int) -> np.ndarray:
@@ -180,6 +203,8 @@ def epochs_v3(lines: BodyLines, events: str = "refuse") -> dict:
     ep = ep[lines.length[ep] > 0]
     if ep.size == 0 or ep[0] != 0:
         raise Unsupported("epoch line")
+    if ep.size <= FEW_EPOCHS:
+        return _few_epochs_v3(lines, ep, events)
     f = lines.gather(ep, 0, 35)
     if events == "skip" and np.any((f[:, 31] < 48) | (f[:, 31] > 57)):
         raise Unsupported("event flag")
@@ -204,6 +229,50 @@ def epochs_v3(lines: BodyLines, events: str = "refuse") -> dict:
     if events == "refuse":
         clk = _clocks(lines, ep, 35)
     return {"line": ep, "flag": flag, "nsat": nsat, "time_gps_s": t, "clk": clk}
+
+
+FEW_EPOCHS = 8
+"""At most this many epoch lines: :func:`epochs_v3` reads them one by one in Python (numpy's per-call
+set-up costs more than the lines; the same arrays and refusals)."""
+_V3_BLANK_COLUMNS = (1, 6, 9, 12, 15, 29, 30)
+
+
+def _few_epochs_v3(lines: BodyLines, ep: np.ndarray, events: str) -> dict:
+    """:func:`epochs_v3` of a few epoch lines ``ep`` (body line indices, the first 0), line by line."""
+    if lines.buf.size < 35:
+        raise Unsupported("short file")                    # as BodyLines.gather
+    data = lines.data
+    f = [data[s:s + min(n, 35)].ljust(35) for s, n in zip(lines.start[ep].tolist(), lines.length[ep].tolist())]
+    if events == "skip" and not all(48 <= x[31] <= 57 for x in f):
+        raise Unsupported("event flag")
+    flag = [0 if x[31] == 32 else x[31] - 48 for x in f]
+    if not all(0 <= v <= 6 and not (events == "refuse" and 1 < v < 6) for v in flag):
+        raise Unsupported("event flag")
+    if not all(_INT.fullmatch(x[32:35]) for x in f):
+        raise Unsupported("integer")
+    nsat = [int(x[32:35]) for x in f]
+    at = ep.tolist()
+    nxt = [a + 1 + n for a, n in zip(at, nsat)]
+    if not (nxt[:-1] == at[1:] and nxt[-1] <= lines.n and _blank_from(lines, nxt[-1])):
+        raise Unsupported("layout")
+    timed = [k for k, v in enumerate(flag) if v <= 1 or v == 6] if events == "skip" else list(range(len(f)))
+    g = [f[k] for k in timed]
+    if any(x[c] != 32 for x in g for c in _V3_BLANK_COLUMNS):
+        raise Unsupported("epoch line")
+    fields = [x[a:b] for x in g for a, b in _DATE_FIELDS]
+    if not all(_INT.fullmatch(v) for v in fields):
+        raise Unsupported("integer")
+    ymdhm = [int(v) for v in fields]
+    sec = decimal_fields(np.frombuffer(b"".join(x[18:29] for x in g), np.uint8).reshape(len(g), 11)).tolist()
+    if any(math.isnan(v) for v in sec):
+        raise Unsupported("seconds")
+    t = np.full(ep.size, np.nan)
+    if g:
+        y, mo, d, h, mi = (np.array(ymdhm[j::5], dtype=np.int64) for j in range(5))
+        t[timed] = _gps_seconds(y, mo, d, h, mi, np.array(sec, dtype=np.float64))
+    clk = _clocks(lines, ep, 35) if events == "refuse" else np.full(ep.size, np.nan)
+    return {"line": ep, "flag": np.array(flag, dtype=np.int64), "nsat": np.array(nsat, dtype=np.int64),
+            "time_gps_s": t, "clk": clk}
 
 
 def epochs_v2(lines: BodyLines, per: int, special=None) -> tuple[dict, list, list]:
@@ -282,6 +351,23 @@ def _year(when: tuple) -> tuple:
     return (yy + (1900 if yy >= 80 else 2000) if yy < 100 else yy, *when[1:])
 
 
+FEW_RECORDS = 256
+"""At most this many values: :func:`distinct` by a dict (np.unique's set-up costs more)."""
+
+
+def distinct(values) -> tuple[list, np.ndarray]:
+    """(the distinct values, sorted, as a list; each value's index among them): ``np.unique(values,
+    return_inverse=True)`` of an int array or of a list of str of at most 3 characters (as "U3")."""
+    if len(values) > FEW_RECORDS:
+        arr = np.array(values, dtype="U3") if isinstance(values, list) else np.asarray(values)
+        uniq, inv = np.unique(arr, return_inverse=True)
+        return uniq.tolist(), inv.ravel()
+    vals = values.tolist() if isinstance(values, np.ndarray) else values
+    uniq = sorted(set(vals))
+    where = {u: i for i, u in enumerate(uniq)}
+    return uniq, np.array([where[v] for v in vals], dtype=np.intp)
+
+
 def record_sats(raw: np.ndarray, sat_id) -> tuple[np.ndarray, np.ndarray]:
     """Satellite names of records from their 3-byte fields ``raw`` (n, 3): (names (k,) object, the
     index of each record's name (n,)); each distinct field is checked once with ``sat_id``
@@ -289,26 +375,32 @@ def record_sats(raw: np.ndarray, sat_id) -> tuple[np.ndarray, np.ndarray]:
     if np.any(raw >= 128):
         raise Unsupported("satellite")
     code = (raw[:, 0].astype(np.int32) << 16) | (raw[:, 1].astype(np.int32) << 8) | raw[:, 2]
-    uniq, inv = np.unique(code, return_inverse=True)
+    uniq, inv = distinct(code)
     names = []
-    for u in uniq.tolist():
+    for u in uniq:
         s = bytes([u >> 16, (u >> 8) & 255, u & 255]).decode("latin-1")
         try:
             names.append(sat_id(s))
         except ValueError:
             raise Unsupported("satellite") from None
-    return np.array(names, dtype=object), inv.ravel()
+    return np.array(names, dtype=object), inv
 
 
-def gps_fields(lines: BodyLines, rec_line: np.ndarray, k: int, v3: bool, per: int) -> tuple[np.ndarray, np.ndarray]:
-    """Observation ``k`` of the records starting at lines ``rec_line``: (values (n,) float64, NaN if
-    blank; the LLI and SSI bytes (n, 2) uint8)."""
+def gps_fields_of(lines: BodyLines, rec_line: np.ndarray, ks: list, v3: bool) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Observations ``ks`` of the records starting at lines ``rec_line`` (RINEX 2: observation k on the
+    record's line k // 5), each as (values (n,) float64, NaN if blank; the LLI and SSI bytes (n, 2)
+    uint8): one gather and one conversion for all of them (each field converted alone: the values of
+    one call per observation; Unsupported when any field is malformed)."""
+    n = rec_line.size
     if v3:
-        line, col = rec_line, 3 + 16 * k
+        line = np.tile(rec_line, len(ks))
+        col = np.repeat(np.array([3 + 16 * k for k in ks], dtype=np.int64), n)
     else:
-        line, col = rec_line + k // 5, 16 * (k % 5)
+        line = np.concatenate([rec_line + k // 5 for k in ks])
+        col = np.repeat(np.array([16 * (k % 5) for k in ks], dtype=np.int64), n)
     f = lines.gather(line, col, 16)
-    return decimal_fields(f[:, :14]), f[:, 14:16]
+    values = decimal_fields(f[:, :14])
+    return [(values[j * n:(j + 1) * n], f[j * n:(j + 1) * n, 14:16]) for j in range(len(ks))]
 
 
 def flag_values(ch: np.ndarray, use: np.ndarray) -> np.ndarray:

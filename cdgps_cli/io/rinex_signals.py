@@ -24,7 +24,7 @@ from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.io.rinex import _ObsHeader, _parse_version_line, _read_text
 from cdgps_cli.io._fixed_width import LineBuffer, Unsupported, decimal_fields, flag_digits
 from cdgps_cli.io.rinex import _read_bytes, _split_header, _split_lines
-from cdgps_cli.io.rinex_body import BodyLines, epochs_v3, strict_float
+from cdgps_cli.io.rinex_body import BodyLines, distinct, epochs_v3, strict_float
 
 __all__ = ["read_rinex_signals", "SIGNAL_COLUMNS"]
 
@@ -175,12 +175,24 @@ def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None)
     return info, df
 
 
+def _rinex2_by_first_line(data: bytes) -> bool:
+    """The bytes begin with a RINEX VERSION / TYPE line of a version below 3 (False when unsure)."""
+    if data[60:80].rstrip() != b"RINEX VERSION / TYPE":
+        return False
+    try:
+        return float(data[:9]) < 3
+    except ValueError:
+        return False
+
+
 def _read_bytes_v3(p: Path, signals: list, glonass_k, read: tuple[bytes, bool] | None = None) -> tuple[dict, pd.DataFrame]:
     """:func:`read_rinex_signals` of a RINEX 3 file from its bytes (``read``: the (decompressed) bytes and
     whether the file was compressed): only the header is split into lines, the body is walked by
     :mod:`cdgps_cli.io.rinex_body`; Unsupported where the line-based readers must decide (RINEX 2, an
     odd body, a malformed record)."""
     data, compressed = _read_bytes(p) if read is None else read
+    if _rinex2_by_first_line(data):
+        raise Unsupported("RINEX 2")                       # told by the first line: no header split for nothing
     head, body_at = _split_header(data)
     version, ftype, _ = _parse_version_line(head, p, compressed, "observation")
     if ftype != "O" or version < 3 or not signals:
@@ -441,20 +453,22 @@ def _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2) -> pd
             raise Unsupported("satellite")
         sat_bytes[sat_bytes == 32] = 48
         code = (sat_bytes[:, 0].astype(np.int32) << 16) | (sat_bytes[:, 1].astype(np.int32) << 8) | sat_bytes[:, 2]
-        uniq, sat_code = np.unique(code, return_inverse=True)           # ASCII, 3 bytes: the str order
-        sat_names = [bytes([u >> 16, (u >> 8) & 255, u & 255]).decode("ascii") for u in uniq.tolist()]
+        uniq, sat_code = distinct(code)                                 # ASCII, 3 bytes: the str order
+        sat_names = [bytes([u >> 16, (u >> 8) & 255, u & 255]).decode("ascii") for u in uniq]
     else:
         rec_lines = rec_line[:, None] + np.arange(per)
         if np.any(buf.length[rec_lines] > 80):
             raise Unsupported("long record line")
-        uniq, sat_code = np.unique(np.array(sats_v2, dtype="U3"), return_inverse=True)
-        sat_names = uniq.tolist()
+        sat_names, sat_code = distinct(sats_v2)                        # str of <= 3 characters
     sat_code = sat_code.ravel()
     sat_obj = np.array(sat_names + [None], dtype=object)[:-1]
     rows_of, lines_of, cols_of = [], [], []
+    of_system: dict = {}                                   # the records of each system, found once
     for name, (key, ip, ic, _) in cols.items():
         system = key if v3 else signal(name).system
-        rows = np.flatnonzero(np.array([x[:1] == system for x in sat_names])[sat_code])
+        if system not in of_system:
+            of_system[system] = np.flatnonzero(np.array([x[:1] == system for x in sat_names])[sat_code])
+        rows = of_system[system]
         rows_of.append(rows)
         for k in (ip, ic):
             if k >= 0:
@@ -482,39 +496,46 @@ def _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2) -> pd
     order = np.argsort(rows * len(cols) + np.concatenate([np.full(p[0].size, p[1]) for p in parts]), kind="stable")
     rows = rows[order]
     sig = np.concatenate([np.full(p[0].size, p[1]) for p in parts])[order]
-    sig_rank = np.argsort(np.argsort(names.astype(str), kind="stable"))  # signal index -> rank of its name
+    rank_of = {n: r for r, n in enumerate(sorted(cols))}
+    sig_rank = np.array([rank_of[n] for n in cols], dtype=np.int64)    # signal index -> rank of its name
     t = t_rec[rows]
     final = np.lexsort((sat_code[rows], sig_rank[sig], t))                # stable: file order among equals
     rows, sig = rows[final], sig[final]
-    return pd.DataFrame({
-        "time_gps_s": t[final], "sat": sat_obj[sat_code[rows]], "signal": names[sig],
-        "phase_cycles": np.concatenate([p[2] for p in parts])[order][final],
-        "pseudorange_m": np.concatenate([p[3] for p in parts])[order][final],
-        "lli": np.concatenate([p[4] for p in parts])[order][final],
-        "wavelength_m": _wavelength_array(sat_code[rows], sat_names, sig, list(cols), slots, path)}, copy=False)
+    take = order[final]                                                   # into the parts, concatenated
+    sat_c = sat_code[rows]
+    lam = _wavelength_array(sat_c, sat_names, sig, list(cols), slots, path)
+    df = pd.DataFrame({
+        "time_gps_s": t[final], "sat": sat_obj[sat_c], "signal": names[sig],
+        "phase_cycles": np.concatenate([p[2] for p in parts])[take],
+        "pseudorange_m": np.concatenate([p[3] for p in parts])[take],
+        "lli": np.concatenate([p[4] for p in parts])[take], "wavelength_m": lam}, copy=False)
+    return df
 
 
 def _wavelength_array(sat_code: np.ndarray, sat_names: list, sig: np.ndarray, names: list, slots: dict, path) -> np.ndarray:
     """:func:`_wavelengths` on arrays: ``sat_code`` (n,) index into ``sat_names``, ``sig`` (n,) index
-    into ``names``."""
-    lam = np.empty(sat_code.size)
-    for i in sorted(range(len(names)), key=lambda j: names[j]):       # signal names in order, as groupby
-        idx = np.flatnonzero(sig == i)
-        if idx.size == 0:
-            continue
-        sg = signal(names[i])
-        if not sg.fdma_step_hz:
-            lam[idx] = sg.wavelength_m
-            continue
-        uniq, inv = np.unique(sat_code[idx], return_inverse=True)
-        present = [sat_names[c] for c in uniq.tolist()]
-        absent = sorted(set(present) - set(slots))
+    into ``names``.  A (signal, satellite) table of wavelengths, then one look-up per row: a CDMA
+    signal's for every satellite, an FDMA one's for the satellites it has rows of, signals in name
+    order (the first with a satellite lacking its frequency number raises)."""
+    sigs = [signal(n) for n in names]
+    table = np.empty((len(names), len(sat_names)), dtype=np.float64)
+    fdma = sorted((j for j, sg in enumerate(sigs) if sg.fdma_step_hz), key=lambda j: names[j])
+    if fdma:
+        has = np.zeros(table.shape, dtype=bool)
+        has[sig, sat_code] = True
+    for i, sg in enumerate(sigs):
+        if i not in fdma:
+            table[i] = sg.wavelength_m
+    for i in fdma:
+        present = [(c, sat_names[c]) for c in np.flatnonzero(has[i]).tolist()]
+        absent = sorted({s for _, s in present} - set(slots))
         if absent:
             raise CdgpsError(f"{path}: GLONASS frequency numbers absent for {' '.join(absent)} "
                              "(header line 'GLONASS SLOT / FRQ #' expected, or a GLONASS navigation record of "
                              "the satellite); FDMA phases need them")
-        lam[idx] = np.array([SPEED_OF_LIGHT_M_S / glonass_frequency_hz(sg, slots[s]) for s in present])[inv.ravel()]
-    return lam
+        for c, s in present:
+            table[i, c] = SPEED_OF_LIGHT_M_S / glonass_frequency_hz(sigs[i], slots[s])
+    return table[sig, sat_code]
 
 
 def _field_place(rec_line: np.ndarray, k: int, v3: bool):

@@ -320,24 +320,15 @@ def inav_words(dwrd: np.ndarray) -> list:
     -------
     list of (word type, int) or None
         One per row, as :func:`inav_word` gives it (flags, alert bits and CRC-24Q checked as bit
-        columns; the CRC runs over the rows' 25 bytes side by side).
+        columns, :func:`cdgps_cli.io.sfrbx_batch.inav_bits`).
     """
-    from cdgps_cli.io.ubx_frames import _CRC24Q  # noqa: PLC0415
+    from cdgps_cli.io.sfrbx_batch import inav_bits  # noqa: PLC0415 (it imports this module)
 
     m = len(dwrd)
     if not m:
         return []
-    bits = np.unpackbits(np.ascontiguousarray(dwrd, dtype=">u4").view(np.uint8).reshape(m, 32), axis=1)
-    even, odd = bits[:, :128], bits[:, 128:]
-    flags = (even[:, 0] == 0) & (odd[:, 0] == 1) & (even[:, 1] == 0) & (odd[:, 1] == 0)
-    covered = np.packbits(np.concatenate((np.zeros((m, 4), np.uint8), even[:, :114], odd[:, :82]), axis=1), axis=1)
-    table = np.array(_CRC24Q, dtype=np.int64)
-    crc = np.zeros(m, np.int64)
-    for j in range(25):
-        crc = ((crc << 8) & 0xFFFFFF) ^ table[(crc >> 16) ^ covered[:, j]]
-    sent = np.packbits(odd[:, 82:106], axis=1).astype(np.int64)
-    ok = flags & (crc == (sent[:, 0] << 16 | sent[:, 1] << 8 | sent[:, 2]))
-    words = np.packbits(np.concatenate((even[:, 2:114], odd[:, 2:18]), axis=1), axis=1)
+    ok, bits = inav_bits(dwrd)
+    words = np.packbits(bits, axis=1)
     out: list = [None] * m
     for i in np.flatnonzero(ok).tolist():
         w = int.from_bytes(words[i].tobytes(), "big")
@@ -801,6 +792,10 @@ def _stateful_mask(x: np.ndarray, off: np.ndarray, end: np.ndarray, week_ref: in
     return ~is_x | gal_kept | (bds & (nw == 10)) | glo | (gps & (sig == 0))
 
 
+BATCH = True
+"""Decode GPS, Galileo and BeiDou D1 subframes all at once (:mod:`cdgps_cli.io.sfrbx_batch`); False: frame
+by frame, in log order (the reference the batch decoding is tested against: the same table and counters)."""
+
 _EMPTY_NAV: list = []
 
 
@@ -858,7 +853,11 @@ def sfrbx_ephemerides_at(data: bytes, off: np.ndarray, end: np.ndarray, week_ref
     sel = (x[off + 2] == 2) & ((mid == 0x13) | (mid == 0x11))
     off, end = off[sel], end[sel]
     stats["sfrbx_frames"] = int(off.size)
+    if not off.size:
+        return _empty_nav(), stats
     keep = _stateful_mask(x, off, end, week_ref, glonass, stats)
+    if BATCH:
+        return _batch_ephemerides(data, x, off[keep], end[keep], week_ref, stats)
     off, end = off[keep].tolist(), end[keep].tolist()
     recs: dict[tuple, dict] = {}
     glo_recs: dict[tuple, dict] = {}
@@ -879,6 +878,37 @@ def sfrbx_ephemerides_at(data: bytes, off: np.ndarray, end: np.ndarray, week_ref
     nav = _nav_table(recs, glo_recs)
     stats["ephemerides"] = int(len(nav))
     return nav, stats
+
+
+def _batch_ephemerides(data: bytes, x: np.ndarray, off: np.ndarray, end: np.ndarray, week_ref: int | None,
+                       stats: dict) -> tuple[pd.DataFrame, dict]:
+    """:func:`sfrbx_ephemerides_at` of the frames :func:`_stateful_mask` keeps, GPS, Galileo and BeiDou D1
+    decoded all at once (:mod:`cdgps_cli.io.sfrbx_batch`), GLONASS frame by frame."""
+    from cdgps_cli.io import sfrbx_batch  # noqa: PLC0415 (it imports this module)
+
+    latest: dict[str, dict] = {}
+    parts, d2 = sfrbx_batch.records(data, off, end, week_ref, latest, stats)
+    glo_recs: dict[tuple, dict] = {}
+    is_glo = (x[off + 3] == 0x13) & (x[np.minimum(off + 6, x.size - 1)] == 6)
+    for a, b in zip(off[is_glo].tolist(), end[is_glo].tolist()):
+        glonass_frame(data[a + 6:b - 2], latest, glo_recs, stats, week_ref)
+    nav = _nav_table({}, glo_recs, _columns_table(parts, d2))
+    stats["ephemerides"] = int(len(nav))
+    return nav, stats
+
+
+def _columns_table(parts: list, d2: list) -> pd.DataFrame:
+    """:func:`_records_table` of records given as column arrays (``parts``, each NAV_COLUMNS → array) and
+    as dicts (``d2``)."""
+    if d2:
+        parts = [*parts, {c: np.array([r[c] for r in d2]) for c in NAV_COLUMNS}]
+    if not parts:
+        return _empty_nav()
+    cols = {c: np.concatenate([p[c] for p in parts]) if len(parts) > 1 else parts[0][c] for c in NAV_COLUMNS}
+    order = np.lexsort((cols["transmit_gps_s"], cols["toe_gps_s"], cols["sat"].astype(str)))
+    for c in NAV_COLUMNS:
+        cols[c] = cols[c][order].astype(np.int64 if c in _NAV_INT_COLUMNS else cols[c].dtype)
+    return pd.DataFrame(cols, columns=list(NAV_COLUMNS))
 
 
 def _new_stats(glonass: bool) -> dict:
@@ -966,10 +996,12 @@ def _galileo_frames(frames: list, inav: dict, week_ref: int, latest: dict, recs:
 _NAV_INT_COLUMNS = ("iode", "codes_l2", "l2p_data_flag", "sv_health", "iodc", "week", "line")
 
 
-def _nav_table(recs: dict, glo_recs: dict) -> pd.DataFrame:
+def _nav_table(recs: dict, glo_recs: dict, nav: pd.DataFrame | None = None) -> pd.DataFrame:
     """The records as the table :func:`sfrbx_ephemerides` returns (integer columns int64, sorted by
-    satellite, toe, transmission time; GLONASS columns when there are GLONASS records)."""
-    nav = _records_table(list(recs.values()), list(NAV_COLUMNS)) if recs else _empty_nav()
+    satellite, toe, transmission time; GLONASS columns when there are GLONASS records); ``nav``: the
+    table of the records but GLONASS, already made (``recs`` then unused)."""
+    if nav is None:
+        nav = _records_table(list(recs.values()), list(NAV_COLUMNS)) if recs else _empty_nav()
     if glo_recs:
         glo = _records_table(list(glo_recs.values()), [*NAV_COLUMNS, *GLONASS_NAV_COLUMNS])
         nav = pd.concat([d for d in (nav.reindex(columns=glo.columns), glo) if len(d)], ignore_index=True)

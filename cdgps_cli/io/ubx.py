@@ -275,13 +275,13 @@ def _decoded_rawx(p: Path, strict: bool, data: bytes | None = None):
     split statistics, message counts, epochs, measurements, offsets of undecodable frames, epoch time tags
     in GPS s); CdgpsError as
     :func:`read_ubx_log` says.  ``data``: the log's bytes when already read (``p`` then names it).
-    A file read from disk is decoded once while it is unchanged (same path, modification time and
-    size): the arrays come back read-only, the lists and dicts as copies."""
+    A file read from disk is decoded once while it is unchanged (same file — device and inode, by
+    whatever path —, modification time and size): the arrays come back read-only, the lists and dicts as copies."""
     key = None
     if data is None:
         try:
             st = p.stat()
-            key = (str(p.resolve()), st.st_mtime_ns, st.st_size, strict)
+            key = (st.st_dev, st.st_ino, st.st_mtime_ns, st.st_size, strict)   # the file, by any path to it
         except OSError:
             key = None                                     # the read below reports it
     if key is None or key not in _LAST_DECODED:

@@ -82,3 +82,139 @@ def test_signals_file_read_once(monkeypatch, name):
     monkeypatch.setattr(rinex_signals, "FAST_PARSE", False)
     info_ref, ref = rinex_signals.read_rinex_signals(path, names, glonass_k=GLO_K)
     assert df.equals(ref) and list(df.dtypes) == list(ref.dtypes) and info == info_ref
+
+
+def _epochs_or_refusal(lines, events):
+    try:
+        return rinex_body.epochs_v3(lines, events=events)
+    except Unsupported:
+        return None
+
+
+@pytest.mark.parametrize("name", ["rinex/demo3.10o", "real-pairs/mosaic-static/base.obs", "real-pairs/geonet-car/SEPT265G.21O"])
+def test_few_epoch_lines_read_one_by_one_as_the_arrays_read_them(name, monkeypatch):
+    """RINEX 3 bodies of 1-8 epochs (the file's first ones, and copies with one byte changed: flags, counts,
+    dates, blanks, '>' moved): the line-by-line reading of a few epoch lines gives the arrays, dtypes and
+    refusals of the array reading."""
+    path = SHARED / name
+    if not path.exists():
+        pytest.skip(f"{name} not available")
+    data, _ = rinex._read_bytes(path)
+    _, at = rinex._split_header(data)
+    body = data[at:]
+    starts = [i for i in range(min(len(body), 200_000)) if body[i] == 62 and (i == 0 or body[i - 1] == 10)][:9]
+    rng = np.random.default_rng(7)
+    outcomes = {"read": 0, "refused": 0}
+    for k in range(1, len(starts)):
+        chunk = body[:starts[k]]
+        for v in [chunk] + [_one_byte_changed(chunk, starts[:k], rng) for _ in range(16)]:
+            lines = rinex_body.BodyLines(data[:at] + v, at)
+            for events in ("refuse", "skip"):
+                monkeypatch.setattr(rinex_body, "FEW_EPOCHS", 0)
+                ref = _epochs_or_refusal(lines, events)
+                monkeypatch.setattr(rinex_body, "FEW_EPOCHS", 8)
+                got = _epochs_or_refusal(lines, events)
+                assert (ref is None) == (got is None)
+                outcomes["refused" if ref is None else "read"] += 1
+                if ref is not None:
+                    assert list(ref) == list(got)
+                    for key in ref:
+                        assert ref[key].dtype == got[key].dtype
+                        np.testing.assert_array_equal(ref[key], got[key])
+    assert outcomes["read"] > 10 and outcomes["refused"] > 10
+
+
+def _one_byte_changed(chunk: bytes, epoch_starts: list, rng) -> bytes:
+    """``chunk`` with one byte changed, mostly in an epoch line (its first 40 columns)."""
+    b = bytearray(chunk)
+    at = int(rng.choice(epoch_starts)) + int(rng.integers(40)) if rng.random() < 0.8 else int(rng.integers(len(b)))
+    b[min(at, len(b) - 1)] = int(rng.choice([32, 45, 46, 48, 49, 50, 54, 55, 57, 62, 65, 10]))
+    return bytes(b)
+
+
+@pytest.mark.parametrize("n", [0, 1, 5, 256, 257, 600])
+def test_distinct_is_np_unique_with_inverse(n):
+    """The satellites' distinct values and indices, by a dict for few records, as ``np.unique`` gives them
+    (integer codes of RINEX 3 names; RINEX 2 names as <= 3-character str)."""
+    rng = np.random.default_rng(n)
+    codes = rng.integers(0x473030, 0x473040, n)
+    names = [rng.choice(["G01", "G1", "R24", "R 3", "E11", "S20", "G10"]) for _ in range(n)]
+    names = [str(x) for x in names]
+    for values, ref in ((codes, np.unique(codes, return_inverse=True)),
+                        (names, np.unique(np.array(names, dtype="U3"), return_inverse=True))):
+        uniq, inv = rinex_body.distinct(values)
+        assert uniq == ref[0].tolist() and [type(u) for u in uniq] == [type(u) for u in ref[0].tolist()]
+        np.testing.assert_array_equal(inv, ref[1].ravel())
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_few_epochs_gps_seconds_as_the_array_path(seed, monkeypatch):
+    """Epoch times of up to 16 epochs in Python: the values (to the bit) and refusals (bad date, hour > 23,
+    minute > 59) of the array path."""
+    rng = np.random.default_rng(seed)
+    for n in (0, 1, 3, 16):
+        for _ in range(40):
+            y = rng.integers(1980, 2100, n)
+            mo, d = rng.integers(1, 13, n), rng.integers(1, 32, n)
+            h, mi = rng.integers(0, 25, n), rng.integers(0, 61, n)
+            sec = np.round(rng.uniform(0, 60, n), int(rng.integers(0, 8)))
+            out = []
+            for few in (0, 16):
+                monkeypatch.setattr(rinex_body, "FEW_DATES", few)
+                try:
+                    out.append(rinex_body._gps_seconds(y, mo, d, h, mi, sec))
+                except Unsupported as exc:
+                    out.append(str(exc))
+            if isinstance(out[0], str):
+                assert isinstance(out[1], str)
+            else:
+                assert out[0].dtype == out[1].dtype and out[0].tobytes() == out[1].tobytes()
+
+
+def _few_decimals_by_regex(f):
+    """The per-field reading before: the pattern of a decimal number, then ``float``."""
+    from cdgps_cli.io._fixed_width import _DECIMAL
+
+    out = []
+    for row in f:
+        field = row.tobytes()
+        if _DECIMAL.fullmatch(field):
+            out.append(float(field))
+        elif field.strip(b" "):
+            raise Unsupported("number")
+        else:
+            out.append(np.nan)
+    return np.array(out, dtype=np.float64)
+
+
+@pytest.mark.parametrize("width", [0, 1, 3, 11, 14])
+def test_few_decimals_by_float_as_by_the_pattern(width):
+    """Fields of digits, signs, dots and blanks (and a few other bytes: e, E, _, n, i, tab) in random
+    arrangements: one ``float`` per field reads and refuses exactly what the decimal pattern did."""
+    from cdgps_cli.io._fixed_width import _few_decimals
+
+    rng = np.random.default_rng(width)
+    alphabet = np.frombuffer(b"0123456789+-. " + b"    " + b"012.", np.uint8)
+    odd = np.frombuffer(b"eE_ni\t\\", np.uint8)
+    outcomes = {"read": 0, "refused": 0}
+    for _ in range(3000):
+        n = int(rng.integers(1, 4))
+        f = alphabet[rng.integers(0, alphabet.size, (n, width))]
+        if width and rng.random() < 0.1:
+            f[int(rng.integers(n)), int(rng.integers(width))] = odd[int(rng.integers(odd.size))]
+        if width and rng.random() < 0.3:                  # right-aligned numbers, as writers write them
+            text = f"{rng.uniform(-1e4, 1e4):.{int(rng.integers(0, 4))}f}"[-width:].rjust(width)
+            f[0] = np.frombuffer(text.encode(), np.uint8)
+        try:
+            ref = _few_decimals_by_regex(f)
+        except Unsupported:
+            ref = None
+        try:
+            got = _few_decimals(np.ascontiguousarray(f))
+        except Unsupported:
+            got = None
+        assert (ref is None) == (got is None), f.tobytes()
+        if ref is not None:
+            assert ref.tobytes() == got.tobytes()
+        outcomes["refused" if ref is None else "read"] += 1
+    assert outcomes["read"] > 50 and (outcomes["refused"] > 50 or width == 0)

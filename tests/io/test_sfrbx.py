@@ -564,7 +564,9 @@ def test_record_keys_equal_the_decoded_records():
         return rec
 
     orig = sfrbx._gps_record_key, sfrbx._galileo_record_key, sfrbx._beidou_record_key
+    batch = sfrbx.BATCH
     try:
+        sfrbx.BATCH = False                                           # the frame-by-frame walk: it reads the keys
         sfrbx.decode_beidou_d1, sfrbx._beidou_record_key = bds, lambda *a: (0.0, -1)
         sfrbx.decode_gps_subframes, sfrbx.decode_galileo_words = gps, gal
         sfrbx._gps_record_key = lambda *a: (0.0, -1)                  # never kept: every triple decoded, compared
@@ -574,4 +576,5 @@ def test_record_keys_equal_the_decoded_records():
     finally:
         sfrbx.decode_gps_subframes, sfrbx.decode_galileo_words, sfrbx.decode_beidou_d1 = real_gps, real_gal, real_bds
         sfrbx._gps_record_key, sfrbx._galileo_record_key, sfrbx._beidou_record_key = orig
+        sfrbx.BATCH = batch
     assert seen["G"] >= 50 and seen["E"] >= 20 and seen["C"] >= 20

@@ -68,3 +68,27 @@ def test_callers_cannot_alter_the_memory(tmp_path, counted):
         with pytest.raises(ValueError):
             a[:1] = a[1:2]
     assert np.all(np.diff(t) > 0)
+
+
+def test_the_memory_knows_the_file_not_its_name(tmp_path, counted):
+    """A symlink to the log is the same file (decoded once); another file moved over the log's name with
+    the same size and modification time is another file (decoded again)."""
+    import os
+
+    path = tmp_path / LOG.name
+    shutil.copyfile(LOG, path)
+    link = tmp_path / "link.ubx"
+    link.symlink_to(path)
+    n1 = len(ubx.read_ubx_log(path)[1])
+    info, obs, _ = ubx.read_ubx_log(link)
+    assert len(counted) == 1 and len(obs) == n1 and info["path"] == str(link)
+    data = bytearray(LOG.read_bytes())
+    cut = len(data) // 2
+    data[cut:] = bytes(len(data) - cut)                                 # the second half zeroed: fewer epochs
+    other = tmp_path / "other.ubx"
+    other.write_bytes(bytes(data))
+    st = path.stat()
+    os.utime(other, ns=(st.st_atime_ns, st.st_mtime_ns))
+    os.replace(other, path)
+    n2 = len(ubx.read_ubx_log(path)[1])
+    assert len(counted) == 2 and 0 < n2 < n1
