@@ -189,6 +189,19 @@ _GPS = FieldTable({
 }, 240, 3)
 
 
+def _kepler_lsb(f: dict, toe) -> dict:
+    """The orbit's Keplerian fields in SI units from their raw integers, with the scale factors (LSBs) that GPS LNAV
+    (IS-GPS-200 Table 20-III) and Galileo I/NAV (OS SIS ICD Table 60) share; ``toe`` (s of week) placed in the
+    column order of the ephemeris table."""
+    pi = sf.GPS_PI
+    return {"crs_m": f["crs"] * 2.0**-5, "delta_n_rad_per_s": f["dn"] * 2.0**-43 * pi,
+            "m0_rad": f["m0"] * 2.0**-31 * pi, "cuc_rad": f["cuc"] * 2.0**-29, "e": f["e"] * 2.0**-33,
+            "cus_rad": f["cus"] * 2.0**-29, "sqrt_a_sqrt_m": f["sqrta"] * 2.0**-19, "toe_sow_s": toe,
+            "cic_rad": f["cic"] * 2.0**-29, "omega0_rad": f["omega0"] * 2.0**-31 * pi, "cis_rad": f["cis"] * 2.0**-29,
+            "i0_rad": f["i0"] * 2.0**-31 * pi, "crc_m": f["crc"] * 2.0**-5, "omega_rad": f["omega"] * 2.0**-31 * pi,
+            "omega_dot_rad_per_s": f["omegadot"] * 2.0**-43 * pi, "idot_rad_per_s": f["idot"] * 2.0**-43 * pi}
+
+
 def gps_columns(bits: np.ndarray, week_ref: int) -> tuple[dict, np.ndarray]:
     """:func:`~cdgps_cli.io.sfrbx.decode_gps_subframes` of many sets: (column → array, set decodable).
 
@@ -200,15 +213,9 @@ def gps_columns(bits: np.ndarray, week_ref: int) -> tuple[dict, np.ndarray]:
     tow_sf1 = f["tow"] * 6.0 - 6.0
     toc, toe = f["toc"] * 16.0, f["toe"] * 16.0
     ura = f["ura"]
-    pi = sf.GPS_PI
     cols = {
         "af0_s": f["af0"] * 2.0**-31, "af1_s_per_s": f["af1"] * 2.0**-43, "af2_s_per_s2": f["af2"] * 2.0**-55,
-        "iode": iode, "crs_m": f["crs"] * 2.0**-5, "delta_n_rad_per_s": f["dn"] * 2.0**-43 * pi,
-        "m0_rad": f["m0"] * 2.0**-31 * pi, "cuc_rad": f["cuc"] * 2.0**-29, "e": f["e"] * 2.0**-33,
-        "cus_rad": f["cus"] * 2.0**-29, "sqrt_a_sqrt_m": f["sqrta"] * 2.0**-19, "toe_sow_s": toe,
-        "cic_rad": f["cic"] * 2.0**-29, "omega0_rad": f["omega0"] * 2.0**-31 * pi, "cis_rad": f["cis"] * 2.0**-29,
-        "i0_rad": f["i0"] * 2.0**-31 * pi, "crc_m": f["crc"] * 2.0**-5, "omega_rad": f["omega"] * 2.0**-31 * pi,
-        "omega_dot_rad_per_s": f["omegadot"] * 2.0**-43 * pi, "idot_rad_per_s": f["idot"] * 2.0**-43 * pi,
+        "iode": iode, **_kepler_lsb(f, toe),
         "codes_l2": f["codes_l2"], "week": week, "l2p_data_flag": f["l2p"],
         "sv_accuracy_m": np.where(ura < _URA.size, _URA[np.minimum(ura, _URA.size - 1)], 6144.0 * 2),
         "sv_health": f["health"], "tgd_s": f["tgd"] * 2.0**-31, "iodc": f["iodc"], "transmit_sow_s": tow_sf1,
@@ -293,15 +300,9 @@ def galileo_columns(bits: np.ndarray, week_ref: int) -> tuple[dict, np.ndarray]:
     week = _full_week(f["wn"] + 1024, week_ref, 4096)
     tow = f["tow"].astype(np.float64)
     toe, toc = f["toe"] * 60.0, f["toc"] * 60.0
-    pi = sf.GPS_PI
     cols = {
         "af0_s": f["af0"] * 2.0**-34, "af1_s_per_s": f["af1"] * 2.0**-46, "af2_s_per_s2": f["af2"] * 2.0**-59,
-        "iode": iod, "crs_m": f["crs"] * 2.0**-5, "delta_n_rad_per_s": f["dn"] * 2.0**-43 * pi,
-        "m0_rad": f["m0"] * 2.0**-31 * pi, "cuc_rad": f["cuc"] * 2.0**-29, "e": f["e"] * 2.0**-33,
-        "cus_rad": f["cus"] * 2.0**-29, "sqrt_a_sqrt_m": f["sqrta"] * 2.0**-19, "toe_sow_s": toe,
-        "cic_rad": f["cic"] * 2.0**-29, "omega0_rad": f["omega0"] * 2.0**-31 * pi, "cis_rad": f["cis"] * 2.0**-29,
-        "i0_rad": f["i0"] * 2.0**-31 * pi, "crc_m": f["crc"] * 2.0**-5, "omega_rad": f["omega"] * 2.0**-31 * pi,
-        "omega_dot_rad_per_s": f["omegadot"] * 2.0**-43 * pi, "idot_rad_per_s": f["idot"] * 2.0**-43 * pi,
+        "iode": iod, **_kepler_lsb(f, toe),
         "codes_l2": 513, "week": week, "l2p_data_flag": 0, "sv_accuracy_m": _sisa_m(f["sisa"]),
         "sv_health": f["h72"] | (f["h69"] << 1) | (f["h71"] << 6) | (f["h67"] << 7),
         "tgd_s": f["bgd"] * 2.0**-32, "iodc": iod, "transmit_sow_s": tow, "fit_interval_h": float("nan"), "line": -1,
