@@ -333,7 +333,8 @@ def fuse_with_dd(cfg: StructureConfig, dd, t_gnss, logs: dict, fuse, hold_out, x
     out_s = [{"time_s": e["time_s"], "antenna": e["label"][0], "transmitter": e["label"][2], "kind": "outlier",
               "action": f"sensor reading not used at this epoch ({e['sigmas']:.1f} σ)"} for e in events if e["label"][0] != "gnss"]
     summary = {"fused": list(fuse), "hold_out": list(hold_out), "epochs": int(t.size), "gnss_epochs": int(t_gnss.size),
-               "added_states": names, "sensors": _sensor_summary(parts, r.x, r.rows),
+               "added_states": names,
+               "sensors": _sensor_summary(parts, r.x, r.rows, release=None if store is None else store.release),
                "disturbance_states": bool(accel),
                "gyro_independent_check": "gyro" not in fuse or any(s.kind == "gyro" and s.name in hold_out
                                                                  for s in all_specs)}
@@ -342,12 +343,16 @@ def fuse_with_dd(cfg: StructureConfig, dd, t_gnss, logs: dict, fuse, hold_out, x
                            outliers_dd=out_dd, events=out_s, summary=summary)
 
 
-def _sensor_summary(parts, x, rows) -> dict:
+def _sensor_summary(parts, x, rows, release=None, block: int = ESTIMATE_CHUNK_EPOCHS) -> dict:
     """Per fused sensor: samples, RMS residual of the reported estimate per field, final bias per field
-    (one pass over ``rows``: made again per epoch when they are :class:`GatedRows`)."""
+    (one pass over ``rows``: made again per epoch when they are :class:`GatedRows`).  ``release``: the
+    store's (:meth:`cdgps_cli.io.scratch.DiskHistory.release`), the pages of ``x`` read are dropped
+    every ``block`` epochs behind the pass (issue 29: else all of x on disk is back in memory)."""
     res = [{f: array("d") for f in m.fields} for _, m in parts]     # (8 bytes a residual, not a float object)
     count = [0] * len(parts)
     for k, rk in enumerate(rows):
+        if release is not None and k and k % block == 0:
+            release(x, k - block, k)
         for p, (_, m) in enumerate(parts, start=1):
             sub = _dd_rows(rk, p)
             if sub is None:
@@ -363,6 +368,8 @@ def _sensor_summary(parts, x, rows) -> dict:
                      "sigma": {f: float(s) for f, s in zip(m.fields, m.sigma)},
                      "final_bias": ({f: float(x[-1, m.bias_offset + j]) for j, f in enumerate(m.fields)}
                                     if m.extra_states else {})}
+    if release is not None:
+        release(x, 0, len(x))
     return out
 
 
