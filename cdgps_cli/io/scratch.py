@@ -25,7 +25,11 @@ import numpy as np
 
 from cdgps_cli.core.errors import CdgpsError
 
-__all__ = ["DiskHistory"]
+__all__ = ["DiskHistory", "FAULT_AROUND_BYTES"]
+
+#: how far from a read page fault Linux maps a file's cached pages as well (``fault_around_bytes``,
+#: 64 KiB by default): :meth:`DiskHistory.release` drops that much more on each side of its rows
+FAULT_AROUND_BYTES = 64 * 1024
 
 
 def _reserve(fd: int, nbytes: int) -> None:
@@ -84,7 +88,9 @@ class DiskHistory:
         two at the ends too: the mapping is a shared one of the file, so the other rows on those
         pages keep their values (in the file) and come back when next read.  (Dropping only the pages
         wholly inside the rows kept every page of a run of short ranges resident: the fused smoother's
-        stretches of 2–25 epochs, ≈ 4 MiB per minute of a 100 Hz record, issue 29.)"""
+        stretches of 2–25 epochs, ≈ 4 MiB per minute of a 100 Hz record, issue 29.)  The range is
+        widened by :data:`FAULT_AROUND_BYTES` on each side: a read of a row next to released ones maps
+        the file's cached pages around it again (the kernel's fault-around), which would otherwise stay."""
         mm = getattr(arr, "_mmap", None)
         if mm is None or arr.ndim == 0:
             return
@@ -96,7 +102,7 @@ class DiskHistory:
         origin = arr.__array_interface__["data"][0] - mapped.__array_interface__["data"][0]
         del mapped
         page = mmap.PAGESIZE
-        a = (origin + start * row) // page * page
-        b = min(-(-(origin + stop * row) // page) * page, len(mm))
+        a = max(origin + start * row - FAULT_AROUND_BYTES, 0) // page * page
+        b = min(-(-(origin + stop * row + FAULT_AROUND_BYTES) // page) * page, len(mm))
         if b > a:
             mm.madvise(mmap.MADV_DONTNEED, a, b - a)
