@@ -634,6 +634,7 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
     stored = _stored_record(init, cfg, mapping, x_axis_azimuth_deg) if batch_init else None
     tabs, init_record = _modal_integers(cfg, su, tabs, stored, batch_init, prior, init_window_s, init_window_max_factor,
                                         init_code_dd, say)
+    su.tabs = tabs = _filter_tables(tabs)          # (the baselines' working arrays are let go here)
     model = SatelliteDDModal(cfg, su.R, tabs, su.k_of, su.ant_idx, su.d_hdr)
     sky = satellite_sky(model, t_all) if scene_exaggeration != 0 else None
     # the filter starts from the batch's prior itself, not from its x₁: it re-reads the window's data
@@ -679,6 +680,24 @@ def _modal_summary(out: dict, cfg: StructureConfig, su, x_axis_azimuth_deg: floa
         **({"modal_init": init_record} if init_record is not None else {}),
         **({"fusion": fusion.summary} if fusion is not None else {}),
     })
+    return out
+
+
+#: what the filter, the sky, the residuals, the events and the summary read of a DD table
+_FILTER_KEYS = ("ref", "use", "xm", "xr0", "r0", "var_rover", "var_master", "seg", "code_ratio", "events", "n_fixed",
+                "n_estimated", "a_seg", "lam_m", "signal")
+
+
+def _filter_tables(tabs: list) -> list:
+    """The DD tables with the integers applied, holding only what the modal filter and the outputs read
+    (:data:`_FILTER_KEYS`, and of the baseline data ``ptr``, ``sat``, ``sat_names``, ``rover_sat_xyz``):
+    the baselines' results and working arrays (``res``, ``w``, the raw SD residuals, the rest of the
+    SD table) are not kept through the filter (issue 29: ≈ 100–150 bytes per SD row)."""
+    out = []
+    for tb in tabs:
+        d = tb["d"]
+        slim = SimpleNamespace(ptr=d.ptr, sat=d.sat, sat_names=d.sat_names, rover_sat_xyz=d.rover_sat_xyz)
+        out.append({**{k: tb[k] for k in _FILTER_KEYS if k in tb}, "d": slim})
     return out
 
 
