@@ -293,7 +293,8 @@ def fuse_with_dd(cfg: StructureConfig, dd, t_gnss, logs: dict, fuse, hold_out, x
     """The GNSS modal estimate with the sensors fused (``cdgps estimate --structure --fuse``).
 
     ``dd`` is the run's :class:`~cdgps_cli.measurement.model.SatelliteDDModal` on the GNSS epochs
-    ``t_gnss``; it is re-indexed onto the common time axis of the GNSS epochs and the fused sensors'
+    ``t_gnss``; ``logs`` {kind: table}, or a function returning it (called here, after the GNSS set-up:
+    the tables are then not held through it, and are let go once the sensors' models are made); it is re-indexed onto the common time axis of the GNSS epochs and the fused sensors'
     samples, stacked with the sensors, filtered (outlier gate on every row) and smoothed.
 
     Returns
@@ -310,6 +311,7 @@ def fuse_with_dd(cfg: StructureConfig, dd, t_gnss, logs: dict, fuse, hold_out, x
     all_specs = sensor_specs(cfg)
     specs = [s for s in all_specs if s.kind in fuse and s.name not in hold_out]
     used = {s.name for s in specs}
+    logs = logs() if callable(logs) else logs
     times = [g.loc[g["sensor"].isin(used), "time_s"].to_numpy(float) for k, g in logs.items() if k in fuse]
     t = common_time_axis(t_gnss, times)
     kk = align_epochs(t, t_gnss, SYNC_TOL_S)
@@ -318,6 +320,7 @@ def fuse_with_dd(cfg: StructureConfig, dd, t_gnss, logs: dict, fuse, hold_out, x
     accel = any(s.kind == "accel" for s in specs)
     S = ModalDisturbance(cfg).S if accel else None
     parts = sensor_parts(cfg, all_specs, logs, t, fuse, hold_out, S=S)
+    del logs, times                              # (the parts hold what the filter reads of them)
     model, dyn, P0f, names = fusion_problem(cfg, [("gnss", dd2)], parts, P0, disturbance=accel)
     x0f = np.zeros(dyn.n)
     x0f[:x0.size] = x0

@@ -564,7 +564,7 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
                         init_window_max_factor: float = INIT_WINDOW_MAX_FACTOR,
                         init_code_dd: bool = MODAL_INIT_CODE_DD,
                         scene_exaggeration: float | str = SCENE_EXAGGERATION, fuse=(), hold_out=(),
-                        sensor_logs: dict | None = None, history=None) -> dict:
+                        sensor_logs=None, history=None) -> dict:
     """Modal states of a structure from a GNSS RUN and its INIT (integers) → STATES.mcap.
 
     Parameters
@@ -605,7 +605,8 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
         The 3-D scene's factor on the deformation (:func:`cdgps_cli.pipeline.estimate_outputs.scene_for`).
     fuse, hold_out, sensor_logs : optional
         Sensor kinds fused with the DDs (``gyro``, ``accel``, ``tilt``; issue 30), sensor names kept
-        out, and the run's sensor logs {kind: table} (:func:`cdgps_cli.pipeline.fusion.fuse_with_dd`):
+        out, and the run's sensor logs {kind: table}, or a function returning them (read when the fused
+        filter starts, after the GNSS set-up: issue 29) (:func:`cdgps_cli.pipeline.fusion.fuse_with_dd`):
         the filter then steps on the union of the GNSS epochs and the sensor samples, the state carries
         the held modal disturbance (with accelerometers) and the sensor biases, and the outputs'
         options and summary carry ``fusion`` (per sensor: samples, residual RMS, final bias).

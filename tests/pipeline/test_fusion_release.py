@@ -44,3 +44,4 @@ def test_sensor_summary_with_releases_equals_without(tmp_path):
     for a, b in seen:
         covered[a:b] = True
     assert covered.all() and len(seen) > len(t) // 7 - 1
+
