@@ -1061,10 +1061,11 @@ def _estimate_gnss_modal(ctx, run, init, init_text, output, as_json, smooth, str
     fuse_kinds, held = fusion_choice(cfg, fuse, hold_out)
     logs = None
     if fuse_kinds:
-        from cdgps_cli.io.sensor_logs import sensor_logs_from_attachments
-        from cdgps_cli.io.mcap import read_mcap
+        from functools import partial
 
-        logs = sensor_logs_from_attachments(read_mcap(run.path, topics=[]).attachments, run.path)
+        from cdgps_cli.io.sensor_logs import read_run_sensor_logs
+
+        logs = partial(read_run_sensor_logs, run.path)          # (read after the GNSS set-up, issue 29)
         _say(ctx, f"fusing {', '.join(fuse_kinds)} with the double differences"
                   + (f" (held out: {', '.join(held)})" if held else "") + " …")
     _say(ctx, f"estimating the modal model of {cfg.name} from {run.path} and its INIT"

@@ -30,7 +30,7 @@ import pandas as pd
 
 from cdgps_cli.core.errors import CdgpsError
 
-__all__ = ["SENSOR_KINDS", "UNITS", "SENSOR_ATTACHMENT", "read_sensor_csv", "read_sensor_log", "sensor_log_file", "sensor_attachments", "sensor_logs_from_attachments",
+__all__ = ["SENSOR_KINDS", "UNITS", "SENSOR_ATTACHMENT", "read_sensor_csv", "read_sensor_log", "sensor_log_file", "sensor_attachments", "sensor_logs_from_attachments", "read_run_sensor_logs",
            "write_sensor_csv"]
 
 #: units a reading's column may end with (m/s², rad/s, rad, m, m/s, 1 for a ratio such as strain)
@@ -197,6 +197,15 @@ def sensor_logs_from_attachments(attachments: dict, where: str = "RUN.mcap") -> 
             kind, tab = _check_table(df, f"{where}:{name}")
         out[kind] = tab
     return out
+
+
+def read_run_sensor_logs(path: str | Path) -> dict:
+    """{kind: table} of the sensor logs attached to the RUN at ``path`` (:func:`sensor_logs_from_attachments`),
+    only the ``sensors/`` attachments kept in memory (every attachment's CRC still checked)."""
+    from cdgps_cli.io.mcap import read_mcap  # noqa: PLC0415
+
+    c = read_mcap(path, topics=[], attachments=lambda name: name.startswith(_PREFIX))
+    return sensor_logs_from_attachments(c.attachments, str(path))
 
 
 #: an empty cell of a CSV line: a comma followed by a comma or the line's end

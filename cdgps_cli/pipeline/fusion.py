@@ -293,7 +293,8 @@ def fuse_with_dd(cfg: StructureConfig, dd, t_gnss, logs: dict, fuse, hold_out, x
     """The GNSS modal estimate with the sensors fused (``cdgps estimate --structure --fuse``).
 
     ``dd`` is the run's :class:`~cdgps_cli.measurement.model.SatelliteDDModal` on the GNSS epochs
-    ``t_gnss``; it is re-indexed onto the common time axis of the GNSS epochs and the fused sensors'
+    ``t_gnss``; ``logs`` {kind: table}, or a function returning it (called here, after the GNSS set-up:
+    the tables are then not held through it, and are let go once the sensors' models are made); it is re-indexed onto the common time axis of the GNSS epochs and the fused sensors'
     samples, stacked with the sensors, filtered (outlier gate on every row) and smoothed.
 
     Returns
@@ -310,6 +311,7 @@ def fuse_with_dd(cfg: StructureConfig, dd, t_gnss, logs: dict, fuse, hold_out, x
     all_specs = sensor_specs(cfg)
     specs = [s for s in all_specs if s.kind in fuse and s.name not in hold_out]
     used = {s.name for s in specs}
+    logs = logs() if callable(logs) else logs
     times = [g.loc[g["sensor"].isin(used), "time_s"].to_numpy(float) for k, g in logs.items() if k in fuse]
     t = common_time_axis(t_gnss, times)
     kk = align_epochs(t, t_gnss, SYNC_TOL_S)
@@ -318,6 +320,7 @@ def fuse_with_dd(cfg: StructureConfig, dd, t_gnss, logs: dict, fuse, hold_out, x
     accel = any(s.kind == "accel" for s in specs)
     S = ModalDisturbance(cfg).S if accel else None
     parts = sensor_parts(cfg, all_specs, logs, t, fuse, hold_out, S=S)
+    del logs, times                              # (the parts hold what the filter reads of them)
     model, dyn, P0f, names = fusion_problem(cfg, [("gnss", dd2)], parts, P0, disturbance=accel)
     x0f = np.zeros(dyn.n)
     x0f[:x0.size] = x0
@@ -333,7 +336,8 @@ def fuse_with_dd(cfg: StructureConfig, dd, t_gnss, logs: dict, fuse, hold_out, x
     out_s = [{"time_s": e["time_s"], "antenna": e["label"][0], "transmitter": e["label"][2], "kind": "outlier",
               "action": f"sensor reading not used at this epoch ({e['sigmas']:.1f} σ)"} for e in events if e["label"][0] != "gnss"]
     summary = {"fused": list(fuse), "hold_out": list(hold_out), "epochs": int(t.size), "gnss_epochs": int(t_gnss.size),
-               "added_states": names, "sensors": _sensor_summary(parts, r.x, r.rows),
+               "added_states": names,
+               "sensors": _sensor_summary(parts, r.x, r.rows, release=None if store is None else store.release),
                "disturbance_states": bool(accel),
                "gyro_independent_check": "gyro" not in fuse or any(s.kind == "gyro" and s.name in hold_out
                                                                  for s in all_specs)}
@@ -342,12 +346,16 @@ def fuse_with_dd(cfg: StructureConfig, dd, t_gnss, logs: dict, fuse, hold_out, x
                            outliers_dd=out_dd, events=out_s, summary=summary)
 
 
-def _sensor_summary(parts, x, rows) -> dict:
+def _sensor_summary(parts, x, rows, release=None, block: int = ESTIMATE_CHUNK_EPOCHS) -> dict:
     """Per fused sensor: samples, RMS residual of the reported estimate per field, final bias per field
-    (one pass over ``rows``: made again per epoch when they are :class:`GatedRows`)."""
+    (one pass over ``rows``: made again per epoch when they are :class:`GatedRows`).  ``release``: the
+    store's (:meth:`cdgps_cli.io.scratch.DiskHistory.release`), the pages of ``x`` read are dropped
+    every ``block`` epochs behind the pass (issue 29: else all of x on disk is back in memory)."""
     res = [{f: array("d") for f in m.fields} for _, m in parts]     # (8 bytes a residual, not a float object)
     count = [0] * len(parts)
     for k, rk in enumerate(rows):
+        if release is not None and k and k % block == 0:
+            release(x, k - block, k)
         for p, (_, m) in enumerate(parts, start=1):
             sub = _dd_rows(rk, p)
             if sub is None:
@@ -363,6 +371,8 @@ def _sensor_summary(parts, x, rows) -> dict:
                      "sigma": {f: float(s) for f, s in zip(m.fields, m.sigma)},
                      "final_bias": ({f: float(x[-1, m.bias_offset + j]) for j, f in enumerate(m.fields)}
                                     if m.extra_states else {})}
+    if release is not None:
+        release(x, 0, len(x))
     return out
 
 

@@ -564,7 +564,7 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
                         init_window_max_factor: float = INIT_WINDOW_MAX_FACTOR,
                         init_code_dd: bool = MODAL_INIT_CODE_DD,
                         scene_exaggeration: float | str = SCENE_EXAGGERATION, fuse=(), hold_out=(),
-                        sensor_logs: dict | None = None, history=None) -> dict:
+                        sensor_logs=None, history=None) -> dict:
     """Modal states of a structure from a GNSS RUN and its INIT (integers) → STATES.mcap.
 
     Parameters
@@ -605,7 +605,8 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
         The 3-D scene's factor on the deformation (:func:`cdgps_cli.pipeline.estimate_outputs.scene_for`).
     fuse, hold_out, sensor_logs : optional
         Sensor kinds fused with the DDs (``gyro``, ``accel``, ``tilt``; issue 30), sensor names kept
-        out, and the run's sensor logs {kind: table} (:func:`cdgps_cli.pipeline.fusion.fuse_with_dd`):
+        out, and the run's sensor logs {kind: table}, or a function returning them (read when the fused
+        filter starts, after the GNSS set-up: issue 29) (:func:`cdgps_cli.pipeline.fusion.fuse_with_dd`):
         the filter then steps on the union of the GNSS epochs and the sensor samples, the state carries
         the held modal disturbance (with accelerometers) and the sensor biases, and the outputs'
         options and summary carry ``fusion`` (per sensor: samples, residual RMS, final bias).
@@ -634,6 +635,7 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
     stored = _stored_record(init, cfg, mapping, x_axis_azimuth_deg) if batch_init else None
     tabs, init_record = _modal_integers(cfg, su, tabs, stored, batch_init, prior, init_window_s, init_window_max_factor,
                                         init_code_dd, say)
+    su.tabs = tabs = _filter_tables(tabs)          # (the baselines' working arrays are let go here)
     model = SatelliteDDModal(cfg, su.R, tabs, su.k_of, su.ant_idx, su.d_hdr)
     sky = satellite_sky(model, t_all) if scene_exaggeration != 0 else None
     # the filter starts from the batch's prior itself, not from its x₁: it re-reads the window's data
@@ -679,6 +681,24 @@ def _modal_summary(out: dict, cfg: StructureConfig, su, x_axis_azimuth_deg: floa
         **({"modal_init": init_record} if init_record is not None else {}),
         **({"fusion": fusion.summary} if fusion is not None else {}),
     })
+    return out
+
+
+#: what the filter, the sky, the residuals, the events and the summary read of a DD table
+_FILTER_KEYS = ("ref", "use", "xm", "xr0", "r0", "var_rover", "var_master", "seg", "code_ratio", "events", "n_fixed",
+                "n_estimated", "a_seg", "lam_m", "signal")
+
+
+def _filter_tables(tabs: list) -> list:
+    """The DD tables with the integers applied, holding only what the modal filter and the outputs read
+    (:data:`_FILTER_KEYS`, and of the baseline data ``ptr``, ``sat``, ``sat_names``, ``rover_sat_xyz``):
+    the baselines' results and working arrays (``res``, ``w``, the raw SD residuals, the rest of the
+    SD table) are not kept through the filter (issue 29: ≈ 100–150 bytes per SD row)."""
+    out = []
+    for tb in tabs:
+        d = tb["d"]
+        slim = SimpleNamespace(ptr=d.ptr, sat=d.sat, sat_names=d.sat_names, rover_sat_xyz=d.rover_sat_xyz)
+        out.append({**{k: tb[k] for k in _FILTER_KEYS if k in tb}, "d": slim})
     return out
 
 

@@ -46,6 +46,15 @@ def test_simulated_logs_and_run_attachments(fused):
     assert set(logs) == {"accel", "tilt", "gyro"} and np.allclose(logs["accel"]["accel_x_m_s2"], acc["accel_x_m_s2"])
 
 
+def test_run_sensor_logs_read_alone_equal_those_of_all_attachments(fused):
+    """``estimate --fuse`` reads the logs after the GNSS set-up, only the sensors/ attachments (issue 29)."""
+    from cdgps_cli.io.sensor_logs import read_run_sensor_logs
+
+    ref = sensor_logs_from_attachments(read_mcap(fused / "run.mcap", topics=[]).attachments)
+    got = read_run_sensor_logs(fused / "run.mcap")
+    assert sorted(got) == sorted(ref) and all(got[k].equals(ref[k]) for k in ref)
+
+
 def test_fused_states_and_summary(fused):
     g, f = States(fused / "gnss.mcap"), States(fused / "fused.mcap")
     assert g.time_s.size == 201 and f.time_s.size == 2001

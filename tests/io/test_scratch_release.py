@@ -1,0 +1,77 @@
+"""DiskHistory.release on short ranges (issue 29, helper ``fused29``): released a few rows at a time,
+as the fused smoother's short stretches do, every page of the array leaves memory (the pages at the
+ends of each range too) and every value comes back when read."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cdgps_cli.io.scratch import DiskHistory
+
+pytestmark = pytest.mark.skipif(not Path("/proc/self/smaps").exists(), reason="needs /proc/self/smaps (Linux)")
+
+
+def _mapping_rss_kib(arr: np.ndarray) -> int:
+    """Resident kiB of the mapping that holds ``arr``'s first byte (/proc/self/smaps)."""
+    addr = arr.__array_interface__["data"][0]
+    inside = False
+    with open("/proc/self/smaps") as fh:
+        for ln in fh:
+            head = ln.split()[0]
+            if "-" in head and ":" not in head:
+                lo, hi = (int(v, 16) for v in head.split("-"))
+                inside = lo <= addr < hi
+            elif inside and head == "Rss:":
+                return int(ln.split()[1])
+    raise AssertionError("mapping not found")
+
+
+@pytest.mark.parametrize("shape, step", [((4096, 8, 8), 3), ((4096, 18), 2), ((1500, 18, 18), 5)])
+def test_release_in_short_ranges_drops_every_page_and_keeps_values(tmp_path, shape, step):
+    h = DiskHistory(tmp_path)
+    a = h.empty(shape)
+    a[:] = np.arange(shape[0], dtype=float).reshape((-1,) + (1,) * (len(shape) - 1))
+    full = _mapping_rss_kib(a)
+    assert full >= a.nbytes // 1024 - 8
+    n = shape[0]
+    for top in range(n, 0, -step):                    # latest first, a few rows at a time (the smoother's order)
+        h.release(a, max(top - step, 0), top)
+    assert _mapping_rss_kib(a) <= 8                   # (rows of 144 and 512 bytes: no range holds a whole page)
+    assert np.array_equal(a[:, ...].reshape(n, -1)[:, 0], np.arange(n, dtype=float))     # read back from the file
+
+
+def test_release_keeps_the_other_rows_of_an_end_page_written(tmp_path):
+    h = DiskHistory(tmp_path)
+    a = h.empty((100, 8, 8))                          # 512-byte rows: 8 to a page
+    a[:] = 1.0
+    a[10:12] = 2.0
+    h.release(a, 9, 10)                               # the page of rows 8 … 15 leaves memory …
+    a[13] = 3.0                                       # … and comes back when written
+    h.release(a, 12, 13)
+    assert a[10, 0, 0] == 2.0 and a[13, 7, 7] == 3.0 and a[9, 1, 1] == 1.0 and a[99, 7, 7] == 1.0
+    h.release(a, 95, 200)                             # (past the end: up to the end)
+    assert a[99, 0, 0] == 1.0
+
+
+def test_stretches_read_and_written_then_released_leave_memory(tmp_path):
+    """The smoother's order: short stretches of rows, latest first, each read and written in place and
+    then released but for its lowest row (read again by the stretch below).  Reading next to released
+    rows maps the file's pages around them again (the kernel's fault-around): those leave too."""
+    h = DiskHistory(tmp_path)
+    n = 12001
+    a = h.empty((n, 18, 18))                          # 2592-byte rows, 30 MiB
+    for c in range(0, n, 4096):
+        a[c:c + 4096] = 1.0
+        h.release(a, c, c + 4096)
+    rng = np.random.default_rng(0)
+    b = n - 1
+    while b > 0:
+        lo = max(b - int(rng.integers(2, 25)), 0)
+        a[lo:b + 1] *= 2.0
+        h.release(a, lo + 1, b + 1)
+        b = lo
+    assert _mapping_rss_kib(a) < a.nbytes // 1024 // 4          # (without the widening: ≈ 2/3 of it stays)
+    assert a[0, 0, 0] == 2.0 and a[n - 1, 17, 17] == 2.0 and np.all(a[5000] == 2.0)
