@@ -178,15 +178,15 @@ def _gauss_newton(model, mk, xbar: np.ndarray, max_iterations: int, correction, 
         if it == last:                              # no convergence test after the last allowed step
             xi = x_new
             break
-        step = np.max(np.abs(x_new - xi))
+        step = abs(x_new - xi).max()
         xi = x_new
-        if step <= 1e-9 * max(1.0, float(np.max(np.abs(xi)))):
+        if step <= 1e-9 * max(1.0, float(abs(xi).max())):
             break
     return xi, nis, keep
 
 
 def iterated_update_covariance(model, mk, xbar: np.ndarray, Pbar: np.ndarray, max_iterations: int = 5,
-                               sparse: bool = False):
+                               sparse: bool = True):
     """(x, P, NIS) of :func:`iterated_update` in covariance form: O(n² m) an epoch, no n × n factor.
 
     With whitened rows (noise I) linearized at the iterate x_i: S = H P̄ Hᵀ + I (m × m, Cholesky),
@@ -197,8 +197,8 @@ def iterated_update_covariance(model, mk, xbar: np.ndarray, Pbar: np.ndarray, ma
     The fast path (``sparse``, taken when H has columns that are zero in every row, e.g. the static
     engine's ≈ 90 states of which an epoch's rows touch the position and their own ≈ 10 arcs): only
     H's non-zero columns a enter, U = P̄[:, a] H_aᵀ (n × m, O(n |a| m)), S = H_a U[a] + I = Rᵀ R,
-    V = R⁻ᵀ Uᵀ (m × n) and P⁺ = P̄ − Vᵀ V (one rank-m correction, formed symmetric: exactly symmetric
-    when P̄ is, so it is not symmetrized again).  The same values as the dense form to rounding
+    [V | w] = R⁻ᵀ [Uᵀ | ν] (one triangular solve), x_{i+1} = x̄ + Vᵀ w, NIS = wᵀ w and P⁺ = P̄ − Vᵀ V
+    (one rank-m correction, formed symmetric: exactly symmetric when P̄ is, so it is not symmetrized again).  The same values as the dense form to rounding
     (tests/estimation/test_kalman.py); ``sparse=False`` or H without a zero column: the dense form.
 
     Parameters
@@ -214,34 +214,44 @@ def iterated_update_covariance(model, mk, xbar: np.ndarray, Pbar: np.ndarray, ma
     P : ndarray, shape (n, n)
     nis : float
     """
-    def correction(H, v, first, a):                 # P̄ Hᵀ S⁻¹ ν, its NIS at x̄, (P̄ Hᵀ, factor of S, a)
-        U = Pbar @ H.T if a is None else Pbar[:, a] @ H.T      # P̄ Hᵀ (n, m)
-        S = H @ (U if a is None else U[a])
-        S.ravel()[::S.shape[0] + 1] += 1.0          # (S is a new C-contiguous array: its diagonal)
-        c = _chol_factor(S)                         # S = H P̄ Hᵀ + I (m, m)
-        sv = _chol_solve(c, v)                      # S⁻¹ ν
-        return U @ sv, (float(v @ sv) if first else None), (U, c, a)
+    def correction(H, v, first, a):                 # P̄ Hᵀ S⁻¹ ν, its NIS at x̄, what P⁺ needs
+        if a is None:                               # dense: (P̄ Hᵀ, factor of S)
+            U = Pbar @ H.T                          # P̄ Hᵀ (n, m)
+            S = H @ U
+            S.ravel()[::S.shape[0] + 1] += 1.0      # (S is a new C-contiguous array: its diagonal)
+            c = _chol_factor(S)                     # S = H P̄ Hᵀ + I (m, m)
+            sv = _chol_solve(c, v)                  # S⁻¹ ν
+            return U @ sv, (float(v @ sv) if first else None), (U, c)
+        U = Pbar[:, a] @ H.T                        # P̄ Hᵀ (n, m) from H's non-zero columns
+        S = H @ U[a]
+        S.ravel()[::S.shape[0] + 1] += 1.0
+        c = _chol_factor(S)                         # S = Rᵀ R
+        m, n = U.T.shape
+        B = np.empty((m, n + 1), order="F")
+        B[:, :n], B[:, n] = U.T, v
+        W = _tri_solve_upper_t(c, B)                # R⁻ᵀ [Uᵀ | ν] in one solve: [V | w]
+        V, w = W[:, :n], W[:, n]                    # K ν = Vᵀ w, νᵀ S⁻¹ ν = wᵀ w, U S⁻¹ Uᵀ = Vᵀ V
+        return V.T @ w, (float(w @ w) if first else None), (V, None)
 
-    xi, nis, (U, c, a) = _gauss_newton(model, mk, xbar, max_iterations, correction, sparse)
-    if a is None:
+    xi, nis, (U, c) = _gauss_newton(model, mk, xbar, max_iterations, correction, sparse)
+    if c is not None:
         P = Pbar - U @ _chol_solve(c, U.T)          # P̄ − P̄ Hᵀ S⁻¹ H P̄
         return xi, 0.5 * (P + P.T), nis
-    V = _tri_solve_upper_t(c, U.T)                  # R⁻ᵀ Uᵀ (m, n): Vᵀ V = U S⁻¹ Uᵀ
-    G = V.T @ V                                     # (numpy's syrk for a product with its own transpose)
+    G = U.T @ U                                     # Vᵀ V (numpy's syrk for a product with its own transpose)
     np.subtract(Pbar, G, out=G)
     return xi, G, nis
 
 
 def _active_columns(H: np.ndarray):
     """Indices of H's columns with a non-zero entry, or None when every column has one (nothing to skip)."""
-    nz = H.any(axis=0)
-    return None if nz.all() else np.flatnonzero(nz)
+    a = H.any(axis=0).nonzero()[0]
+    return None if a.size == H.shape[1] else a
 
 
 def _tri_solve_upper_t(c: np.ndarray, b: np.ndarray) -> np.ndarray:
     """R⁻ᵀ b for the upper Cholesky factor R in ``c`` (:func:`_chol_factor`; LAPACK trtrs, its lower
-    triangle not read)."""
-    x, info = (_SCIPY or _scipy())[3](c, b, lower=0, trans=1)
+    triangle not read); ``b`` (a Fortran-ordered temporary) may be overwritten."""
+    x, info = (_SCIPY or _scipy())[3](c, b, lower=0, trans=1, overwrite_b=1)
     if info != 0:
         raise np.linalg.LinAlgError(f"trtrs: info {info}")
     return x

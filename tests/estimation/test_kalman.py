@@ -214,7 +214,7 @@ def test_covariance_form_fast_path_equals_the_dense_update(seed, monkeypatch):
         x1, P1, nis1 = kalman.iterated_update_covariance(model, rows, xbar, Pbar, its, sparse=False)
         n_taken = len(taken)
         x2, P2, nis2 = kalman.iterated_update_covariance(model, rows, xbar, Pbar, its, sparse=True)
-        assert len(taken) == n_taken + 1                     # the fast path ran
+        assert len(taken) > n_taken                          # the fast path ran
         assert np.max(np.abs(P2 - P1)) <= 1e-12 * np.max(np.abs(P1))
         assert np.max(np.abs(x2 - x1)) <= 1e-12 * max(1.0, np.max(np.abs(x1)))
         assert nis2 == pytest.approx(nis1, rel=1e-12)
