@@ -9,8 +9,8 @@ dynamics predict, and which integrity hooks run.  One epoch k:
 1. ``spans(ctx, k)`` (optional): a compiled kernel runs the epochs no hook claims from k on and
    returns the first epoch that needs this loop (its stop codes are the hooks' contract);
 2. ``sink.release_before(k)``: the sink may drop from memory the chunks it is done with;
-3. prediction into k (k > 0): ``dynamics.step_into(k)`` → (A or None for the identity, Q or None for no process noise, known
-   input or None), :meth:`~cdgps_cli.estimation.kalman.StepFilter.predict`;
+3. prediction into k (k > 0): ``dynamics.step_into(k)`` → (A or None for the identity, Q or None for
+   no process noise, known input or None), :meth:`~cdgps_cli.estimation.kalman.StepFilter.predict`;
 4. ``hook.before_rows(ctx, k)`` for every hook, in order (lock restart, rest / zero-velocity update);
 5. ``model.prepare(k, ctx)`` for the models that have it (evaluate h(x̄) once for the epoch's
    hooks), then ``hook.prepared(ctx, k)`` (new bias states, re-bias);

@@ -198,8 +198,9 @@ def iterated_update_covariance(model, mk, xbar: np.ndarray, Pbar: np.ndarray, ma
     engine's ≈ 90 states of which an epoch's rows touch the position and their own ≈ 10 arcs): only
     H's non-zero columns a enter, U = P̄[:, a] H_aᵀ (n × m, O(n |a| m)), S = H_a U[a] + I = Rᵀ R,
     [V | w] = R⁻ᵀ [Uᵀ | ν] (one triangular solve), x_{i+1} = x̄ + Vᵀ w, NIS = wᵀ w and P⁺ = P̄ − Vᵀ V
-    (one rank-m correction, formed symmetric: exactly symmetric when P̄ is, so it is not symmetrized again).  The same values as the dense form to rounding
-    (tests/estimation/test_kalman.py); ``sparse=False`` or H without a zero column: the dense form.
+    (one rank-m correction, formed symmetric: exactly symmetric when P̄ is, so it is not symmetrized
+    again).  The same values as the dense form to rounding (tests/estimation/test_kalman.py);
+    ``sparse=False`` or H without a zero column: the dense form.
 
     Parameters
     ----------
