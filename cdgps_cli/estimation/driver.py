@@ -9,8 +9,8 @@ dynamics predict, and which integrity hooks run.  One epoch k:
 1. ``spans(ctx, k)`` (optional): a compiled kernel runs the epochs no hook claims from k on and
    returns the first epoch that needs this loop (its stop codes are the hooks' contract);
 2. ``sink.release_before(k)``: the sink may drop from memory the chunks it is done with;
-3. prediction into k (k > 0): ``dynamics.step_into(k)`` → (A or None for the identity, Q, known
-   input or None), :meth:`~cdgps_cli.estimation.kalman.StepFilter.predict`;
+3. prediction into k (k > 0): ``dynamics.step_into(k)`` → (A or None for the identity, Q or None for
+   no process noise, known input or None), :meth:`~cdgps_cli.estimation.kalman.StepFilter.predict`;
 4. ``hook.before_rows(ctx, k)`` for every hook, in order (lock restart, rest / zero-velocity update);
 5. ``model.prepare(k, ctx)`` for the models that have it (evaluate h(x̄) once for the epoch's
    hooks), then ``hook.prepared(ctx, k)`` (new bias states, re-bias);
@@ -279,7 +279,7 @@ class RecordingSink:
     def transition(self, k, A, Q) -> None:
         if self.keep:
             A = np.eye(self.n) if A is None else np.asarray(A, dtype=np.float64)
-            Q = np.asarray(Q, dtype=np.float64)
+            Q = np.zeros((self.n, self.n)) if Q is None else np.asarray(Q, dtype=np.float64)
             self.pair_of[k] = self._pair(A, Q, int(self.pair_of[k - 1]) if k > 0 else -1)
 
     def fill_transitions(self, A, Q) -> None:
@@ -321,14 +321,19 @@ class RecordingSink:
 class GridDynamics:
     """A :class:`~cdgps_cli.model.dynamics_models.Dynamics` (``transition(dt_s) -> (A, B, Q)``) on the
     source's epoch times: ``step_into(k)`` → (A, or None when the transition is the identity, Q, None)
-    and the A it reports to the sink.  ``time_s`` None: the times come from the source's blocks
+    and the A it reports to the sink; Q None too when the dynamics has no process noise and the identity
+    transition (``zero_process_noise``, e.g. :class:`~cdgps_cli.model.dynamics_models.Static`: the
+    prediction leaves x and P as they are).  The last step length's (A, Q) is kept (the arrays are only
+    read): evenly spaced epochs build them once.  ``time_s`` None: the times come from the source's blocks
     (``load``), the previous block's last time kept for the step into a block's first epoch."""
 
     def __init__(self, dyn, time_s: np.ndarray | None = None):
         self.dyn = dyn
         self.time_s = None if time_s is None else np.asarray(time_s, dtype=float)
         self.identity = bool(getattr(dyn, "identity_transition", False))
+        self.still = self.identity and bool(getattr(dyn, "zero_process_noise", False))
         self._t, self._first = None, 0        # (streaming) times of epochs _first … of the loaded block
+        self._last = None                     # (dt_s, A, Q) of the last step length
 
     def load(self, block: EpochBlock) -> None:
         if self.time_s is not None:
@@ -348,8 +353,11 @@ class GridDynamics:
             if i < 1:
                 raise ValueError(f"GridDynamics: epoch {k - 1}'s time is not in the loaded blocks")
             t1, t0 = self._t[i], self._t[i - 1]
-        A, _, Q = self.dyn.transition(float(t1 - t0))
-        return A, Q, None
+        dt = float(t1 - t0)
+        if self._last is None or self._last[0] != dt:       # (a new step length is checked by transition)
+            A, _, Q = self.dyn.transition(dt)
+            self._last = (dt, None if self.still else A, None if self.still else Q)
+        return self._last[1], self._last[2], None
 
 
 def _next_block(ctx: "DriveContext", blocks, k: int, loaders) -> int:
@@ -370,9 +378,9 @@ def drive(dynamics, models, source: EpochSource, init, hooks=(), sink=None, span
     Parameters
     ----------
     dynamics : object
-        ``step_into(k) -> (A (p, p) or None, Q (p, p), known input (p,) or None)``: the prediction
-        into epoch k (:class:`GridDynamics` adapts a ``transition(dt_s)`` dynamics); ``identity``
-        true: A is reported but not applied (A P Aᵀ = P).
+        ``step_into(k) -> (A (p, p) or None, Q (p, p) or None, known input (p,) or None)``: the
+        prediction into epoch k (:class:`GridDynamics` adapts a ``transition(dt_s)`` dynamics); ``identity``
+        true: A is reported but not applied (A P Aᵀ = P); A and Q None: no process noise (P̄ = P).
     models : list of MeasurementModel
         ``rows(k)`` → Rows or None and ``predict(x, rows)`` → (h, H); optional ``prepare(k, ctx)``.
     source : EpochSource

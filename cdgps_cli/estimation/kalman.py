@@ -32,11 +32,11 @@ _SCIPY: list = []
 
 
 def _scipy() -> list:
-    """[dpotrf, dpotrs, solve_triangular], imported once."""
+    """[dpotrf, dpotrs, solve_triangular, dtrtrs], imported once."""
     if not _SCIPY:
         from scipy.linalg import solve_triangular
-        from scipy.linalg.lapack import dpotrf, dpotrs
-        _SCIPY.extend((dpotrf, dpotrs, solve_triangular))
+        from scipy.linalg.lapack import dpotrf, dpotrs, dtrtrs
+        _SCIPY.extend((dpotrf, dpotrs, solve_triangular, dtrtrs))
     return _SCIPY
 
 
@@ -77,14 +77,16 @@ class StepFilter:
         Parameters
         ----------
         A, Q : ndarray, shape (n, n)
-            Transition and process-noise covariance over the step; A None for the identity.
+            Transition and process-noise covariance over the step; A None for the identity, Q None
+            (with A None) for no process noise.
         known_input : ndarray, shape (n,), optional
             The state change due to known inputs over the step (e.g. B u, or the exact response
             to fired thruster pulses).
         """
         if A is None:                   # the identity: A x and A P Aᵀ are x and P, exactly
             x = self.x
-            self.P = self.P + Q
+            if Q is not None:           # None: no process noise (P̄ = P, as P + 0 would give)
+                self.P = self.P + Q
         else:
             x = A @ self.x
             self.P = A @ self.P @ A.T + Q
@@ -133,7 +135,7 @@ def iterated_update(model, mk, xbar: np.ndarray, Pbar: np.ndarray, max_iteration
     eye = np.eye(len(xbar))
     Pinv = inverse(factor(Pbar), eye)
 
-    def correction(H, v, first):                    # (P⁻¹ + HᵀH)⁻¹ Hᵀ ν, its NIS at x̄, the factor
+    def correction(H, v, first, _a):                # (P⁻¹ + HᵀH)⁻¹ Hᵀ ν, its NIS at x̄, the factor
         cf = factor(Pinv + H.T @ H)
         hv = H.T @ v
         dx = solve(cf, hv)
@@ -144,35 +146,47 @@ def iterated_update(model, mk, xbar: np.ndarray, Pbar: np.ndarray, max_iteration
     return xi, 0.5 * (P + P.T), nis
 
 
-def _gauss_newton(model, mk, xbar: np.ndarray, max_iterations: int, correction):
+def _gauss_newton(model, mk, xbar: np.ndarray, max_iterations: int, correction, sparse: bool = False):
     """The iteration both update forms share: at each iterate x_i the whitened innovation
     ν = z_w − h_w(x_i) − H (x̄ − x_i) (at x̄: z_w − h_w(x̄)), x_{i+1} = x̄ + Δx from
-    ``correction(H, ν, first) → (Δx, NIS at x̄ or None, what the covariance needs)``, until the step is
-    ≤ 1e-9 of the state or ``max_iterations``.  Returns (x, NIS, the last correction's third item)."""
+    ``correction(H, ν, first, a) → (Δx, NIS at x̄ or None, what the covariance needs)``, until the step is
+    ≤ 1e-9 of the state or ``max_iterations`` (the rule: a second iteration only when the first step is
+    not negligible).  ``sparse``: H is cut to its non-zero columns ``a`` (:func:`_active_columns`) before
+    it is whitened, and ``correction`` gets H[:, a] and a (else H whole and a None); Δx is of the whole
+    state either way.  Returns (x, NIS, the last correction's third item)."""
     zw = mk.whiten(mk.z_m)
     xi = xbar.copy()
     nis = np.nan
     last = max(int(max_iterations), 1) - 1
     for it in range(last + 1):
         h, H = model.predict(xi, mk)
+        a = None
+        if sparse:
+            a = _active_columns(H)
+            if a is not None:
+                H = H[:, a]
         H = mk.whiten(H)
         hw = mk.whiten(h)
-        v = zw - hw if it == 0 else zw - hw - H @ (xbar - xi)
-        dx, nis_it, keep = correction(H, v, it == 0)
+        if it == 0:
+            v = zw - hw
+        else:
+            v = zw - hw - H @ ((xbar - xi) if a is None else (xbar[a] - xi[a]))
+        dx, nis_it, keep = correction(H, v, it == 0, a)
         if it == 0:
             nis = nis_it
         x_new = xbar + dx
         if it == last:                              # no convergence test after the last allowed step
             xi = x_new
             break
-        step = np.max(np.abs(x_new - xi))
+        step = abs(x_new - xi).max()
         xi = x_new
-        if step <= 1e-9 * max(1.0, float(np.max(np.abs(xi)))):
+        if step <= 1e-9 * max(1.0, float(abs(xi).max())):
             break
     return xi, nis, keep
 
 
-def iterated_update_covariance(model, mk, xbar: np.ndarray, Pbar: np.ndarray, max_iterations: int = 5):
+def iterated_update_covariance(model, mk, xbar: np.ndarray, Pbar: np.ndarray, max_iterations: int = 5,
+                               sparse: bool = True):
     """(x, P, NIS) of :func:`iterated_update` in covariance form: O(n² m) an epoch, no n × n factor.
 
     With whitened rows (noise I) linearized at the iterate x_i: S = H P̄ Hᵀ + I (m × m, Cholesky),
@@ -180,10 +194,20 @@ def iterated_update_covariance(model, mk, xbar: np.ndarray, Pbar: np.ndarray, ma
     P⁺ = P̄ − P̄ Hᵀ S⁻¹ H P̄ (the symmetric form of (I − K H) P̄) at the last linearization.
     Algebraically equal to :func:`iterated_update` (matrix inversion lemma); same iteration rule.
 
+    The fast path (``sparse``, taken when H has columns that are zero in every row, e.g. the static
+    engine's ≈ 90 states of which an epoch's rows touch the position and their own ≈ 10 arcs): only
+    H's non-zero columns a enter, U = P̄[:, a] H_aᵀ (n × m, O(n |a| m)), S = H_a U[a] + I = Rᵀ R,
+    [V | w] = R⁻ᵀ [Uᵀ | ν] (one triangular solve), x_{i+1} = x̄ + Vᵀ w, NIS = wᵀ w and P⁺ = P̄ − Vᵀ V
+    (one rank-m correction, formed symmetric: exactly symmetric when P̄ is, so it is not symmetrized
+    again).  The same values as the dense form to rounding (tests/estimation/test_kalman.py);
+    ``sparse=False`` or H without a zero column: the dense form.
+
     Parameters
     ----------
     model, mk, xbar, Pbar, max_iterations
         As :func:`iterated_update`.
+    sparse : bool
+        Work on H's non-zero columns when it has zero ones.
 
     Returns
     -------
@@ -191,17 +215,47 @@ def iterated_update_covariance(model, mk, xbar: np.ndarray, Pbar: np.ndarray, ma
     P : ndarray, shape (n, n)
     nis : float
     """
-    def correction(H, v, first):                    # P̄ Hᵀ S⁻¹ ν, its NIS at x̄, (P̄ Hᵀ, factor of S)
-        U = Pbar @ H.T                              # P̄ Hᵀ (n, m)
-        S = H @ U
-        S[np.diag_indices_from(S)] += 1.0
-        c = _chol_factor(S)                         # S = H P̄ Hᵀ + I (m, m)
-        sv = _chol_solve(c, v)                      # S⁻¹ ν
-        return U @ sv, (float(v @ sv) if first else None), (U, c)
+    def correction(H, v, first, a):                 # P̄ Hᵀ S⁻¹ ν, its NIS at x̄, what P⁺ needs
+        if a is None:                               # dense: (P̄ Hᵀ, factor of S)
+            U = Pbar @ H.T                          # P̄ Hᵀ (n, m)
+            S = H @ U
+            S.ravel()[::S.shape[0] + 1] += 1.0      # (S is a new C-contiguous array: its diagonal)
+            c = _chol_factor(S)                     # S = H P̄ Hᵀ + I (m, m)
+            sv = _chol_solve(c, v)                  # S⁻¹ ν
+            return U @ sv, (float(v @ sv) if first else None), (U, c)
+        U = Pbar[:, a] @ H.T                        # P̄ Hᵀ (n, m) from H's non-zero columns
+        S = H @ U[a]
+        S.ravel()[::S.shape[0] + 1] += 1.0
+        c = _chol_factor(S)                         # S = Rᵀ R
+        m, n = U.T.shape
+        B = np.empty((m, n + 1), order="F")
+        B[:, :n], B[:, n] = U.T, v
+        W = _tri_solve_upper_t(c, B)                # R⁻ᵀ [Uᵀ | ν] in one solve: [V | w]
+        V, w = W[:, :n], W[:, n]                    # K ν = Vᵀ w, νᵀ S⁻¹ ν = wᵀ w, U S⁻¹ Uᵀ = Vᵀ V
+        return V.T @ w, (float(w @ w) if first else None), (V, None)
 
-    xi, nis, (U, c) = _gauss_newton(model, mk, xbar, max_iterations, correction)
-    P = Pbar - U @ _chol_solve(c, U.T)              # P̄ − P̄ Hᵀ S⁻¹ H P̄
-    return xi, 0.5 * (P + P.T), nis
+    xi, nis, (U, c) = _gauss_newton(model, mk, xbar, max_iterations, correction, sparse)
+    if c is not None:
+        P = Pbar - U @ _chol_solve(c, U.T)          # P̄ − P̄ Hᵀ S⁻¹ H P̄
+        return xi, 0.5 * (P + P.T), nis
+    G = U.T @ U                                     # Vᵀ V (numpy's syrk for a product with its own transpose)
+    np.subtract(Pbar, G, out=G)
+    return xi, G, nis
+
+
+def _active_columns(H: np.ndarray):
+    """Indices of H's columns with a non-zero entry, or None when every column has one (nothing to skip)."""
+    a = H.any(axis=0).nonzero()[0]
+    return None if a.size == H.shape[1] else a
+
+
+def _tri_solve_upper_t(c: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """R⁻ᵀ b for the upper Cholesky factor R in ``c`` (:func:`_chol_factor`; LAPACK trtrs, its lower
+    triangle not read); ``b`` (a Fortran-ordered temporary) may be overwritten."""
+    x, info = (_SCIPY or _scipy())[3](c, b, lower=0, trans=1, overwrite_b=1)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"trtrs: info {info}")
+    return x
 
 
 def _chol_factor(M: np.ndarray) -> np.ndarray:

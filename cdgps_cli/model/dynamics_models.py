@@ -36,11 +36,13 @@ __all__ = ["Dynamics", "ModalZOH", "RandomWalk", "Static", "ConstantVelocity", "
 
 class Dynamics:
     """Interface: ``n`` states, ``n_u`` inputs, ``transition(dt_s)`` and ``noise_factor(dt_s)``;
-    ``identity_transition``: A is the identity for every step (a filter may then skip A P Aᵀ)."""
+    ``identity_transition``: A is the identity for every step (a filter may then skip A P Aᵀ);
+    ``zero_process_noise``: Q is zero for every step (with the identity a filter may skip the prediction)."""
 
     n: int
     n_u: int
     identity_transition: bool = False
+    zero_process_noise: bool = False
 
     def transition(self, dt_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
         """(A (n, n), B (n, n_u), Q (n, n)) for a step of ``dt_s`` seconds."""
@@ -103,6 +105,7 @@ class RandomWalk(Dynamics):
         self.sigma = float(s) if s.ndim == 0 else s.copy()
         self.identity_transition = True
         self._last = None
+        self.zero_process_noise = bool(np.all(s == 0))
 
     def transition(self, dt_s: float):
         """(A, B, Q) over ``dt_s``; the last spacing's arrays are kept (read-only) and given again for the
@@ -158,6 +161,10 @@ class WithConstants(Dynamics):
     @property
     def identity_transition(self) -> bool:
         return self.dyn.identity_transition
+
+    @property
+    def zero_process_noise(self) -> bool:
+        return bool(getattr(self.dyn, "zero_process_noise", False))
 
     def transition(self, dt_s: float):
         A, B, Q = self.dyn.transition(dt_s)

@@ -186,3 +186,44 @@ def test_rows_gate_adapts_a_rows_hook():
 
     r = Rows(np.zeros(1), [("a", 0)], np.full(1, -1), sigma_m=np.ones(1))
     assert RowsGate(fn).gate(Ctx(), 4, None, r) is r and calls == [4]
+
+
+def test_static_dynamics_skips_the_prediction_bit_for_bit():
+    """A Static dynamics (identity, no process noise) is not predicted at all (A and Q None from
+    GridDynamics) and a transition is built once per step length: x, P, NIS and the recorded (A, Q) are
+    those of the same filter with the prediction P + 0 done every epoch; a bad step length still raises."""
+    from cdgps_cli.model.dynamics_models import Static, WithConstants
+    import pytest
+
+    class _Plain:                                   # Static without its flags: predicted every epoch
+        def __init__(self, n):
+            self.n, self.n_u, self.identity_transition = n, 0, False
+            self.calls = 0
+
+        def transition(self, dt_s):
+            self.calls += 1
+            return np.eye(self.n), np.zeros((self.n, 0)), np.zeros((self.n, self.n))
+
+    rng = np.random.default_rng(3)
+    N = 40
+    t = np.r_[np.arange(20) * 1.0, 20.5 + np.arange(20) * 1.0]          # two step lengths
+    z = rng.normal(size=(N, 1))
+    model = _Linear([[1.0, 0.5]], z, [0.1])
+    x0, P0 = np.zeros(2), np.eye(2)
+    runs = []
+    for dyn in (Static(2), WithConstants(Static(1), 1), _Plain(2)):
+        g = GridDynamics(dyn, t)
+        if not isinstance(dyn, _Plain):
+            assert g.still and g.step_into(1) == (None, None, None)
+        sink = RecordingSink(N, 2)
+        ctx = drive(g, [model], EpochGrid(t), (x0, P0), sink=sink, max_iterations=2)
+        runs.append((sink.x, sink.P, ctx.nis, sink.A, sink.Q))
+    assert runs[2][0].any() and runs[2][1].any()
+    for r in runs[:2]:
+        for a, b in zip(r, runs[2]):
+            assert np.array_equal(a, b)
+    cached = _Plain(2)
+    drive(GridDynamics(cached, t), [model], EpochGrid(t), (x0, P0), sink=RecordingSink(N, 2))
+    assert cached.calls == 3                        # 1.0 s, 1.5 s, then 1.0 s again
+    with pytest.raises(ValueError, match="dt_s"):
+        GridDynamics(Static(2), np.array([0.0, 1.0, 1.0])).step_into(2)

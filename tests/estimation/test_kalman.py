@@ -184,3 +184,60 @@ def test_covariance_form_equals_the_information_form(seed):
     np.testing.assert_allclose(step.x, iterated_update(model, rows, xbar, Pbar, 2)[0], rtol=1e-11, atol=1e-12)
     with pytest.raises(ValueError, match="form"):
         StepFilter(xbar, Pbar, form="joseph")
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_covariance_form_fast_path_equals_the_dense_update(seed, monkeypatch):
+    """The covariance form's fast path (H's non-zero columns only, P⁺ = P̄ − Vᵀ V) gives the dense
+    covariance-form update (``sparse=False``) to 1e-12 on random cases whose H has zero columns (as the
+    static engine's: position + the epoch's arcs of ≈ 90 states), for 1, 2 and 5 iterations, with a diagonal
+    and a full noise; P⁺ exactly symmetric.  The fast path must have been taken (counted), and H without a
+    zero column takes the dense form (bit for bit)."""
+    from cdgps_cli.estimation import kalman
+    taken = []
+    real = kalman._tri_solve_upper_t
+    monkeypatch.setattr(kalman, "_tri_solve_upper_t", lambda c, b: taken.append(1) or real(c, b))
+    g = np.random.default_rng(200 + seed)
+    n, m = 40 + 10 * seed, 6 + 2 * seed
+    M = g.normal(size=(n, n))
+    Pbar = M @ M.T / n + np.diag(np.r_[np.full(3, 1e-2), np.full(n - 3, 1.0)])
+    Pbar = 0.5 * (Pbar + Pbar.T)
+    xbar = g.normal(size=n)
+    H = np.zeros((m, n))
+    act = np.r_[0, 1, 2, 3 + np.sort(g.choice(n - 3, 5 + seed, replace=False))]
+    H[:, act] = g.normal(size=(m, act.size))
+    model = _Linear(H, curv=0.01 * (seed % 2))
+    C = g.normal(size=(m, m))
+    rows = _rows(g.normal(size=m), chol=np.linalg.cholesky(C @ C.T + np.eye(m))) if seed % 2 == 0 \
+        else _rows(g.normal(size=m), sigma=g.uniform(0.5, 2.0, m))
+    for its in (1, 2, 5):
+        x1, P1, nis1 = kalman.iterated_update_covariance(model, rows, xbar, Pbar, its, sparse=False)
+        n_taken = len(taken)
+        x2, P2, nis2 = kalman.iterated_update_covariance(model, rows, xbar, Pbar, its, sparse=True)
+        assert len(taken) > n_taken                          # the fast path ran
+        assert np.max(np.abs(P2 - P1)) <= 1e-12 * np.max(np.abs(P1))
+        assert np.max(np.abs(x2 - x1)) <= 1e-12 * max(1.0, np.max(np.abs(x1)))
+        assert nis2 == pytest.approx(nis1, rel=1e-12)
+        assert np.array_equal(P2, P2.T)
+    full = _Linear(g.normal(size=(m, n)))                    # no zero column: the dense form itself
+    n_taken = len(taken)
+    dense = kalman.iterated_update_covariance(full, rows, xbar, Pbar, 2, sparse=False)
+    got = kalman.iterated_update_covariance(full, rows, xbar, Pbar, 2, sparse=True)
+    assert len(taken) == n_taken
+    assert np.array_equal(got[0], dense[0]) and np.array_equal(got[1], dense[1]) and got[2] == dense[2]
+
+
+def test_fast_path_would_fail_on_a_wrong_update(monkeypatch):
+    """The check above can fail: a fast path that drops the rank-m correction's last row is caught."""
+    from cdgps_cli.estimation import kalman
+    real = kalman._tri_solve_upper_t
+    monkeypatch.setattr(kalman, "_tri_solve_upper_t", lambda c, b: real(c, b)[:-1])
+    g = np.random.default_rng(7)
+    n, m = 30, 5
+    Pbar = np.eye(n) * 2.0
+    H = np.zeros((m, n))
+    H[:, :8] = g.normal(size=(m, 8))
+    rows = _rows(g.normal(size=m), sigma=np.ones(m))
+    P1 = kalman.iterated_update_covariance(_Linear(H), rows, np.zeros(n), Pbar, 1, sparse=False)[1]
+    P2 = kalman.iterated_update_covariance(_Linear(H), rows, np.zeros(n), Pbar, 1, sparse=True)[1]
+    assert np.max(np.abs(P2 - P1)) > 1e-6
