@@ -280,6 +280,9 @@ time (GPS seconds of week), ``week`` = the GPS week of t_b; the Kepler elements 
 #: ``bias_m``, ``sigma_m`` (0 when fixed), ``integer_cycles`` (None when not fixed), ``fixed``,
 #: ``segment_start_s``, ``segment_end_s`` and the channel — ``antenna``/``transmitter`` for a
 #: structure, ``rover``/``satellite``/``reference`` (and ``master``) for satellite double differences.
+#: A GLONASS entry (FDMA: no common wavelength) keeps ``integer_cycles`` None and ``fixed`` false; with
+#: ``glonass_fix`` it also carries ``dd_integer_cycles`` (N_i − N_r, each satellite in its own cycles; 0 on the
+#: reference), ``fdma_channel`` and ``reference_fdma_channel`` — optional keys, so older INITs stay readable.
 INIT_FORMAT = "cdgps.init/2"
 #: the GNSS INIT's ``kind`` before version 2 (no ``format``, no ``biases``): still read
 LEGACY_GNSS_INIT_KIND = "cdgps gnss init"
