@@ -312,13 +312,31 @@ def _random_walk(model: SatelliteDDDisplacement, t: np.ndarray, sigma_rw, p0_sig
     return xs, ps, xf, pf, fr["nis"]
 
 
+#: the largest |integer| (cycles) an INIT's ambiguity may hold: 2³¹ cycles of 19 cm are 400,000 km, far beyond
+#: any arc's double difference, and within the int64 arrays the solvers hold them in
+INIT_INTEGER_LIMIT = 2**31
+
+
+def _init_integer(v, what: str):
+    """``v`` (an INIT integer: None, or an integral number within ±:data:`INIT_INTEGER_LIMIT`) as int or None;
+    CdgpsError naming ``what`` otherwise."""
+    if v is None:
+        return None
+    ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and float(v).is_integer()
+    if not ok or abs(v) >= INIT_INTEGER_LIMIT:
+        raise CdgpsError(f"INIT.json: {what}: expected an integer of at most ±{INIT_INTEGER_LIMIT} cycles, got {v!r}")
+    return int(v)
+
+
 def _integers_from_init(init: dict, r: str) -> dict:
     out = {}
     for s in rover_segments(init, r):
         try:
-            out[(str(s["sat"]), float(s["first_gps_s"]))] = s.get("integer") if s.get("fixed") or s.get("pivot") else None
+            key = (str(s["sat"]), float(s["first_gps_s"]))
+            v = s.get("integer") if s.get("fixed") or s.get("pivot") else None
         except (KeyError, TypeError, ValueError):
             raise CdgpsError("INIT.json: malformed ambiguity segment (needs sat, first_gps_s, integer)") from None
+        out[key] = _init_integer(v, f"biases entry {key[0]} of {r}: integer_cycles")
     return out
 
 
@@ -326,20 +344,31 @@ def _glonass_integers_from_init(init: dict, r: str) -> dict | None:
     """The GLONASS DD integers of rover ``r`` in an INIT whose GLONASS DDs the static engine fixed (glonass_fix),
     for :func:`~cdgps_cli.estimation.baseline.baseline_from_init`: ``{(satellite, first_gps_s): {"dd", "channel",
     "reference", "pivot"}}`` of every GLONASS segment (``dd`` None where not fixed); None when none was fixed.
-    CdgpsError when INIT says they were fixed but does not carry them (written before it did) or one is no integer."""
-    if not (init["rovers"][r] or {}).get("n_glonass_fixed_by_engine"):
-        return None
+
+    Whether they were fixed is read from both records INIT keeps of it, the rover's ``n_glonass_fixed_by_engine``
+    and the entries' ``fixed_by_engine``, which must agree; every fixed entry must carry its integer, a pivot 0.
+    CdgpsError otherwise (an INIT written before INIT held them, or edited): a GLONASS-float solution, 1.8 mm from
+    the fixed one on the mosaic pair, is never given in its place."""
     segs = [s for s in rover_segments(init, r) if str(s["sat"]).startswith("R")]
-    if not any("dd_integer_cycles" in s for s in segs):
+    claimed = (init["rovers"][r] or {}).get("n_glonass_fixed_by_engine") or 0
+    flagged = [s for s in segs if s.get("fixed_by_engine") and not s.get("pivot")]
+    if not claimed and not flagged:
+        return None
+    if claimed and not any("dd_integer_cycles" in s for s in segs):
         raise CdgpsError(f"INIT.json: {r}'s GLONASS DDs were fixed by the static engine (glonass_fix), but this INIT "
                          f"does not carry their integers (no dd_integer_cycles: written before INIT held them); "
                          f"run 'cdgps init' again")
+    if claimed != len(flagged):
+        raise CdgpsError(f"INIT.json: rovers.{r}.n_glonass_fixed_by_engine = {claimed!r}, but {len(flagged)} GLONASS "
+                         f"biases entries say fixed_by_engine: the two records of the glonass_fix integers disagree")
     out = {}
     for s in segs:
-        v = s.get("dd_integer_cycles")
-        if v is not None and (isinstance(v, bool) or not isinstance(v, int)):
-            raise CdgpsError(f"INIT.json: biases entry {s['sat']} of {r}: dd_integer_cycles must be an integer, "
-                             f"got {v!r}")
+        what = f"biases entry {s['sat']} of {r}: dd_integer_cycles"
+        v = _init_integer(s.get("dd_integer_cycles"), what)
+        if v is None and s.get("fixed_by_engine") and not s.get("pivot"):
+            raise CdgpsError(f"INIT.json: {what}: missing, but the entry says fixed_by_engine")
+        if s.get("pivot") and v not in (None, 0):
+            raise CdgpsError(f"INIT.json: {what}: {v} on a reference (pivot) entry, where it is 0 by definition")
         out[(str(s["sat"]), float(s["first_gps_s"]))] = {"dd": v, "channel": s.get("fdma_channel"),
                                                          "reference": s.get("reference"), "pivot": bool(s["pivot"])}
     return out

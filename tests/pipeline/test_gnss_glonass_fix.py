@@ -134,7 +134,7 @@ def test_glonass_alone_is_fixed_and_estimate_keeps_it(tmp_path, monkeypatch):
     (lambda b: b.update(segment_start_s=b["segment_start_s"] + 60), "no entry for R03:G1 from"),
     (lambda b: b.update(fdma_channel=b["fdma_channel"] - 1), "R03:G1 from 2024-06-24 08:20:00 GPST has FDMA channel 4"),
     (lambda b: b.update(reference="R11:G1"), "is against R11:G1 in INIT, R01:G1 in this run"),
-    (lambda b: b.update(dd_integer_cycles=5.5), "dd_integer_cycles must be an integer"),
+    (lambda b: b.update(dd_integer_cycles=5.5), "dd_integer_cycles: expected an integer"),
 ])
 def test_glonass_integers_that_do_not_match_the_run_are_refused(glonass_fixed, tmp_path, edit, what):
     d, init, _ = glonass_fixed
@@ -171,3 +171,41 @@ def test_glonass_fix_must_be_a_boolean(tmp_path):
     cfg = _config(tmp_path, 'glonass_fix = "yes"')
     r = run_cli("-q", "ingest", "--config", cfg, "-o", tmp_path / "run.mcap")
     assert r.exit_code == 2 and "glonass_fix" in r.stderr and "Traceback" not in r.output, r.output
+
+
+def _edited_estimate(glonass_fixed, tmp_path, edit):
+    """``estimate`` on a copy of the glonass_fix INIT changed by ``edit(init)``: (result, the INIT's path, STATES path)."""
+    d, init, _ = glonass_fixed
+    bad = json.loads(json.dumps(init))
+    edit(bad)
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
+    out = tmp_path / "s.mcap"
+    return run_cli("-q", "estimate", d / "run.mcap", "--init", tmp_path / "bad.json", "-o", out), tmp_path / "bad.json", out
+
+
+def _entry(init, system, key, pivot=False):
+    return next(b for b in init["biases"] if b["satellite"].startswith(system) and b["pivot"] == pivot
+                and b.get(key) is not None)
+
+
+@pytest.mark.parametrize("name, edit, says", [
+    # an integer beyond int64 gave an OverflowError traceback (review of this session's merges)
+    ("GLONASS DD beyond int64", lambda i: _entry(i, "R", "dd_integer_cycles").update(dd_integer_cycles=10**30),
+     "dd_integer_cycles: expected an integer"),
+    ("GPS integer beyond int64", lambda i: _entry(i, "G", "integer_cycles").update(integer_cycles=10**30),
+     "integer_cycles: expected an integer"),
+    # a fixed entry without its integer: estimate conditioned on 5 of 6 and moved 1.2 mm, silently
+    ("fixed entry without its integer", lambda i: _entry(i, "R", "dd_integer_cycles").update(dd_integer_cycles=None),
+     "missing, but the entry says fixed_by_engine"),
+    # the rover's count zeroed: estimate gave the GLONASS-float baseline (1.8 mm off), silently
+    ("count zeroed", lambda i: i["rovers"]["rover"].update(n_glonass_fixed_by_engine=0), "disagree"),
+    ("count too large", lambda i: i["rovers"]["rover"].update(n_glonass_fixed_by_engine=99), "disagree"),
+    ("pivot not 0", lambda i: _entry(i, "R", "dd_integer_cycles", pivot=True).update(dd_integer_cycles=3),
+     "where it is 0 by definition"),
+])
+def test_an_inconsistent_glonass_fix_init_is_refused(glonass_fixed, tmp_path, name, edit, says):
+    """Exit 2 naming the INIT file and what is wrong, no traceback, no STATES; never a silent GLONASS-float or
+    partly conditioned solution."""
+    r, path, out = _edited_estimate(glonass_fixed, tmp_path, edit)
+    assert r.exit_code == 2 and str(path) in r.stderr and says in r.stderr, (name, r.output)
+    assert "Traceback" not in r.output and not out.exists()
