@@ -104,20 +104,11 @@ class RandomWalk(Dynamics):
         self.n, self.n_u = int(n), 0
         self.sigma = float(s) if s.ndim == 0 else s.copy()
         self.identity_transition = True
-        self._last = None
         self.zero_process_noise = bool(np.all(s == 0))
 
     def transition(self, dt_s: float):
-        """(A, B, Q) over ``dt_s``; the last spacing's arrays are kept (read-only) and given again for the
-        same spacing (a filter on a regular grid asks for the same step every epoch)."""
         dt = _check_dt(dt_s)
-        if self._last is not None and self._last[0] == dt:
-            return self._last[1]
-        out = (np.eye(self.n), np.zeros((self.n, 0)), np.eye(self.n) * self.sigma**2 * dt)
-        for a in out:
-            a.setflags(write=False)
-        self._last = (dt, out)
-        return out
+        return np.eye(self.n), np.zeros((self.n, 0)), np.eye(self.n) * self.sigma**2 * dt
 
     def noise_factor(self, dt_s: float) -> np.ndarray:
         dt = _check_dt(dt_s)
