@@ -19,6 +19,7 @@ from cdgps_cli.core import progress
 from cdgps_cli.estimation.driver import EpochGrid, GridDynamics, RecordingSink, drive
 from cdgps_cli.estimation.kalman import StepFilter
 from cdgps_cli.config.options import GNSS_DEFAULTS, MULTI_GNSS_DEFAULTS
+from cdgps_cli.config.structure import GNSS_WEIGHTINGS
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.dd_signals import DDGroupModel, RunDDModel, channel_index, epoch_groups, paired_sd_rows
 from cdgps_cli.measurement.differencing import ambiguity_segments
@@ -274,6 +275,9 @@ def _static_options(options: dict | None) -> dict:
             raise CdgpsError(f"static baseline: option {key} = {opt[key]!r} is not supported ({why})")
     if opt["motion"] not in ("static", "random_walk"):
         raise CdgpsError(f"static baseline: option motion = {opt['motion']!r}; expected 'static' or 'random_walk'")
+    if opt["weighting"] not in GNSS_WEIGHTINGS:
+        raise CdgpsError(f"static baseline: option weighting = {opt['weighting']!r}; expected "
+                         f"{' or '.join(repr(w) for w in GNSS_WEIGHTINGS)}")
     return opt
 
 
@@ -283,10 +287,9 @@ _HONOURED = {"mask_deg": "mask_deg", "ratio_threshold": "ratio", "partial": "par
              "troposphere": "troposphere", "sync_tol_s": "sync_tol_s", "max_age_s": "max_age_s",
              "code_correlation_s": "code_correlation_s", "min_success_rate": "min_success_rate",
              "motion": "motion", "random_walk_sigma": "random_walk_sigma", "initial_sigma_m": "initial_sigma_m",
-             "glonass_fix": "glonass_fix", "max_gap_s": "max_gap_s"}
+             "glonass_fix": "glonass_fix", "max_gap_s": "max_gap_s", "weighting": "weighting"}
 #: BaselineOptions fields the engine does not implement: only this value is accepted (the engine's behaviour)
-_FIXED_VALUE = {"weighting": "elevation", "epoch_alignment": "geometry",
-                "kinematic_series": False}
+_FIXED_VALUE = {"epoch_alignment": "geometry", "kinematic_series": False}
 
 
 def options_from_baseline(bopt) -> dict:

@@ -52,6 +52,8 @@ def validate_options(options: dict) -> dict:
     for s in (() if opt["signals"] == "auto" else opt["signals"]):
         if s not in SIGNALS:
             bad.append(f"signals: unknown signal {s!r} (known: {', '.join(SIGNALS)})")
+    if opt["weighting"] not in ("elevation", "equal"):
+        bad.append(f"weighting: expected 'elevation' or 'equal', got {opt['weighting']!r}")
     if not 0 <= float(opt["mask_deg"]) < 90:
         bad.append(f"mask_deg: expected a value in [0, 90), got {opt['mask_deg']}")
     hold = opt["hold_after_fixes"]

@@ -154,12 +154,12 @@ def test_an_init_nothing_can_take_is_refused_not_solved_again(geonet, monkeypatc
     d, init = geonet
     bad = json.loads(json.dumps(init))
     rov = bad["rovers"]["0759"]
-    rov["solver"], rov["options"]["weighting"] = "batch (test)", "equal"
+    rov["solver"], rov["options"]["epoch_alignment"] = "batch (test)", "doppler"
     rov["fixed"]["enu_m"][0] += 1e-3
     (tmp_path / "bad.json").write_text(json.dumps(bad))
     _no_batch(monkeypatch)
     r = run_cli("estimate", d / "run.mcap", "--init", tmp_path / "bad.json", "-o", tmp_path / "s.mcap")
-    assert r.exit_code == 2 and "run 'cdgps init' again" in r.stderr and "weighting" in r.stderr, r.output
+    assert r.exit_code == 2 and "run 'cdgps init' again" in r.stderr and "epoch_alignment" in r.stderr, r.output
     assert f"cdgps: error: {tmp_path / 'bad.json'}: the solution of 0759 cannot be used" in r.stderr, r.stderr
     assert "Traceback" not in r.output and not (tmp_path / "s.mcap").exists()
 
