@@ -295,9 +295,10 @@ _FIXED_VALUE = {"epoch_alignment": "geometry", "kinematic_series": False}
 def options_from_baseline(bopt) -> dict:
     """:class:`~cdgps_cli.estimation.baseline.BaselineOptions` → :func:`static_baseline` options.
 
-    Fields in ``_HONOURED`` are mapped; a field in ``_FIXED_VALUE`` set otherwise raises CdgpsError naming
-    it; the remaining ones (``max_iterations``, ``initial_sigma_m``, the kinematic-series and random-walk
-    settings) must keep their defaults, else CdgpsError naming them.
+    Fields in ``_HONOURED`` are mapped (``weighting`` too: the SD rows' variance, :func:`paired_sd_rows`); a field in
+    ``_FIXED_VALUE`` set otherwise raises CdgpsError naming it; the remaining ones (``max_iterations``, the batch's
+    Gauss–Newton cap, which the engine's one pass has no equivalent of; the kinematic-series settings, which the
+    caller renders) must keep their defaults, else CdgpsError naming them.
     """
     from dataclasses import fields
     out = {}
@@ -327,8 +328,8 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
         Known base position and the rover's a-priori position (the offset's origin), ECEF m.
     options : dict
         Keys of :data:`~cdgps_cli.config.options.MULTI_GNSS_DEFAULTS` (``ratio``, ``partial``,
-        ``min_success_rate``, ``fix`` (False: float only, ``resolution`` None), the weights and the mask
-        are used; ``glonass_fix``: the GLONASS DDs fixed too, between identical receivers); an unknown key, or
+        ``min_success_rate``, ``fix`` (False: float only, ``resolution`` None), the weights (``weighting``,
+        ``sigma_a_m``, ``sigma_b_m``, ``code_ratio``) and the mask are used; ``glonass_fix``: the GLONASS DDs fixed too, between identical receivers); an unknown key, or
         ``fix_and_hold`` set, raises CdgpsError, as does a
         multi-signal baseline at or above ``iono_threshold_km`` (the DD ionosphere is neglected, as ``init``'s).
 
