@@ -36,6 +36,10 @@ IONO_THRESHOLD_KM = 10.0
 #: stability ``stats-clkstab`` 5·10⁻¹² s/s × c = 1.5 mm/s)
 EPOCH_PAIRING_DEFAULTS = {"sync_tol_s": 0.025, "max_age_s": 30.0, "age_sigma_m_per_s": 5e-12 * 299792458.0}
 
+#: the phase weightings of every GNSS solver: SD variance a² + b²/sin²(el) or a² + b² per receiver
+#: (measurement/differencing.sd_variance)
+GNSS_WEIGHTINGS = ("elevation", "equal")
+
 GNSS_DEFAULTS = {"mask_deg": 15.0, "ratio": RATIO_THRESHOLD, "partial": True, "weighting": "elevation",
                  "troposphere": True, "sigma_a_m": PHASE_SIGMA_A_M, "sigma_b_m": PHASE_SIGMA_B_M,
                  "code_ratio": 100.0, "sync_tol_s": EPOCH_PAIRING_DEFAULTS["sync_tol_s"],

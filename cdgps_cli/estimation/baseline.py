@@ -47,8 +47,7 @@ from cdgps_cli.estimation.ambiguity import AmbiguityError, resolve
 from cdgps_cli.estimation.model_filter import filter_numpy
 from cdgps_cli.measurement.dd_displacement import SatelliteDDDisplacement, SDObservations
 from cdgps_cli.model.dynamics_models import RandomWalk, WithConstants
-from cdgps_cli.config.options import GNSS_DEFAULTS
-from cdgps_cli.config.structure import GNSS_WEIGHTINGS
+from cdgps_cli.config.options import GNSS_DEFAULTS, GNSS_WEIGHTINGS
 from cdgps_cli.measurement.differencing import (
     ambiguity_datum,
     ambiguity_segments,

@@ -18,8 +18,7 @@ import numpy as np
 from cdgps_cli.core import progress
 from cdgps_cli.estimation.driver import EpochGrid, GridDynamics, RecordingSink, drive
 from cdgps_cli.estimation.kalman import StepFilter
-from cdgps_cli.config.options import GNSS_DEFAULTS, MULTI_GNSS_DEFAULTS
-from cdgps_cli.config.structure import GNSS_WEIGHTINGS
+from cdgps_cli.config.options import GNSS_DEFAULTS, GNSS_WEIGHTINGS, MULTI_GNSS_DEFAULTS
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.dd_signals import DDGroupModel, RunDDModel, channel_index, epoch_groups, paired_sd_rows
 from cdgps_cli.measurement.differencing import ambiguity_segments

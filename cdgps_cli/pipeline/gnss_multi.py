@@ -19,8 +19,7 @@ import pandas as pd
 
 from cdgps_cli.config.limits import GEOCENTRIC_RANGE_M
 from cdgps_cli import __version__
-from cdgps_cli.config.options import MULTI_GNSS_DEFAULTS
-from cdgps_cli.config.structure import GNSS_WEIGHTINGS
+from cdgps_cli.config.options import GNSS_WEIGHTINGS, MULTI_GNSS_DEFAULTS
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, signal
