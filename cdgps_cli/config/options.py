@@ -36,6 +36,10 @@ IONO_THRESHOLD_KM = 10.0
 #: stability ``stats-clkstab`` 5·10⁻¹² s/s × c = 1.5 mm/s)
 EPOCH_PAIRING_DEFAULTS = {"sync_tol_s": 0.025, "max_age_s": 30.0, "age_sigma_m_per_s": 5e-12 * 299792458.0}
 
+#: the phase weightings of every GNSS solver: SD variance a² + b²/sin²(el) or a² + b² per receiver
+#: (measurement/differencing.sd_variance)
+GNSS_WEIGHTINGS = ("elevation", "equal")
+
 GNSS_DEFAULTS = {"mask_deg": 15.0, "ratio": RATIO_THRESHOLD, "partial": True, "weighting": "elevation",
                  "troposphere": True, "sigma_a_m": PHASE_SIGMA_A_M, "sigma_b_m": PHASE_SIGMA_B_M,
                  "code_ratio": 100.0, "sync_tol_s": EPOCH_PAIRING_DEFAULTS["sync_tol_s"],
@@ -87,6 +91,7 @@ MULTI_GNSS_DEFAULTS = {
     "hold_after_fixes": 10,                # … once this many consecutive epochs fixed (RTKLIB pos2-arminfix)
     "wrong_fix_probability": 0.999,        # while holding: an epoch's NIS above χ²(this) of its DDs resets the ambiguities to float (0: off)
     "sigma_a_m": PHASE_SIGMA_A_M, "sigma_b_m": PHASE_SIGMA_B_M, "code_ratio": 100.0,
+    "weighting": GNSS_DEFAULTS["weighting"],  # SD variance a² + b²/sin²(el) ("elevation") or a² + b² ("equal"), per receiver
     "amb_sigma_cycles": 30.0, "troposphere": True,
     "iono_threshold_km": IONO_THRESHOLD_KM,  # below: DD ionosphere neglected; above: estimated
     "iono_sigma_m_per_km": 0.002,          # prior σ of the SD slant ionosphere per km of baseline

@@ -30,7 +30,7 @@ from cdgps_cli.config.limits import config_range_problems
 from cdgps_cli.config.schema import (GNSS_TABLES, STRUCTURE_TABLES, Field, optional_keys, required_keys,
                                      simulation_table)
 from cdgps_cli.config.validate import AXES, INVALID, Context, Problems, array_tables, check_ref, check_table
-from cdgps_cli.config.options import GNSS_DEFAULTS
+from cdgps_cli.config.options import GNSS_DEFAULTS, GNSS_WEIGHTINGS  # noqa: F401 (GNSS_WEIGHTINGS re-exported)
 
 COORD_KINDS = {"translation": "m", "rotation": "rad", "modal": "1"}
 COORD_UNIT_LABELS = {"translation": "m", "rotation": "rad", "modal": "modal amplitude"}
@@ -765,7 +765,6 @@ def _sensor_fields(r: SimpleNamespace) -> dict:
 # ============================================================================================
 
 GNSS_DISPLACEMENT_MODELS = ("static", "random_walk")
-GNSS_WEIGHTINGS = ("elevation", "equal")
 # defaults of the GNSS solver settings: the [gnss] parser, GnssConfig and baseline.BaselineOptions all
 # take them from here (RTKLIB-comparable: 15° mask, ratio 3, a = b = 3 mm, code/phase ratio 100, DTTOL)
 

@@ -47,8 +47,7 @@ from cdgps_cli.estimation.ambiguity import AmbiguityError, resolve
 from cdgps_cli.estimation.model_filter import filter_numpy
 from cdgps_cli.measurement.dd_displacement import SatelliteDDDisplacement, SDObservations
 from cdgps_cli.model.dynamics_models import RandomWalk, WithConstants
-from cdgps_cli.config.options import GNSS_DEFAULTS
-from cdgps_cli.config.structure import GNSS_WEIGHTINGS
+from cdgps_cli.config.options import GNSS_DEFAULTS, GNSS_WEIGHTINGS
 from cdgps_cli.measurement.differencing import (
     ambiguity_datum,
     ambiguity_segments,
@@ -1596,29 +1595,46 @@ def _given_glonass(given: dict, d: _Data, sg: _Segments, rover: str) -> tuple[np
     return np.array(segs, dtype=np.int64), np.array(ints, dtype=np.int64)
 
 
-def _engine_given(master: Station, rover: Station, nav, opt: BaselineOptions, xm, xr0, prepared: tuple,
-                  integers: dict, glonass: tuple | None = None):
-    """(float, fix, final) of the static engine's float solution conditioned on the given integers (each fixed
-    segment's DD against its datum pivot, and ``glonass``'s (segments, integers) from :func:`_given_glonass`,
-    the GLONASS DDs N_i − N_p in cycles, :func:`~cdgps_cli.estimation.static_engine.condition_on_integers`), or
-    the reason (a string) the engine cannot serve these options or arcs.  Nothing is resolved: no LAMBDA."""
+def _engine_float(master: Station, rover: Station, nav, opt: BaselineOptions, xm, xr0, prepared, check=None):
+    """The static engine's float solution (static, nothing fixed) and its state column of every SD segment:
+    (:func:`_run_engine`'s result, columns (n_seg,)), or the reason (a string) the engine cannot serve these
+    options or arcs.  ``prepared()`` (this module's batch tables, built once) is first called from the engine's arc
+    check, once the engine has released its receiver geometry (as :func:`_engine_first`); ``check(d, sg)``, when
+    given, then runs there, before the filter (a CdgpsError of the given integers stops it before it solves)."""
     from dataclasses import replace
-    from cdgps_cli.estimation.static_engine import condition_on_integers
-    d, sg, w, r_enu = prepared
-    fixed_mask = np.zeros(sg.free.size, dtype=bool)
-    integers_fix = np.zeros(sg.free.size, dtype=np.int64)
-    _given_integers(integers, d, sg, fixed_mask, integers_fix)
     found = {}
 
     def arcs_check(arcs):
+        d, sg = prepared()[:2]
+        if check is not None:
+            check(d, sg)
         found["cols"] = _engine_columns(d, sg, arcs)
         return found["cols"]
 
     # the float only (a random-walk float would only feed LAMBDA, which does not run here)
     eng = _run_engine(master, rover, nav, replace(opt, fix=False, motion="static"), xm, xr0, None, arcs_check=arcs_check)
+    return eng if isinstance(eng, str) else (eng, found["cols"])
+
+
+def _engine_given(master: Station, rover: Station, nav, opt: BaselineOptions, xm, xr0, prepared: tuple,
+                  integers: dict, glonass: tuple | None = None, solved=None):
+    """(float, fix, final) of the static engine's float solution conditioned on the given integers (each fixed
+    segment's DD against its datum pivot, and ``glonass``'s (segments, integers) from :func:`_given_glonass`,
+    the GLONASS DDs N_i − N_p in cycles, :func:`~cdgps_cli.estimation.static_engine.condition_on_integers`), or
+    the reason (a string) the engine cannot serve these options or arcs.  Nothing is resolved: no LAMBDA.
+    ``solved``: :func:`_engine_float`'s answer when the engine already ran before ``prepared`` existed (or the
+    CdgpsError it raised, raised here), else it runs here."""
+    from cdgps_cli.estimation.static_engine import condition_on_integers
+    d, sg, w, r_enu = prepared
+    fixed_mask = np.zeros(sg.free.size, dtype=bool)
+    integers_fix = np.zeros(sg.free.size, dtype=np.int64)
+    _given_integers(integers, d, sg, fixed_mask, integers_fix)
+    if isinstance(solved, CdgpsError):
+        raise solved
+    eng = solved if solved is not None else _engine_float(master, rover, nav, opt, xm, xr0, lambda: prepared)
     if isinstance(eng, str):
         return eng
-    cols, x, P = found["cols"], eng["state"], eng["cov"]
+    (eng, cols), x, P = eng, eng[0]["state"], eng[0]["cov"]
     segs = sg.free[fixed_mask]
     g_segs, g_ints = glonass if glonass is not None else (np.zeros(0, dtype=np.int64),) * 2
     D_glo = np.zeros((g_segs.size, x.size))                 # N_i − N_p: each arc in its own cycles
@@ -1633,6 +1649,18 @@ def _engine_given(master: Station, rover: Station, nav, opt: BaselineOptions, xm
     eng = dict(eng, state_fixed=x_fix, cov_fixed=P_fix, arc_integers=ai,
                resolution={"accepted": bool(fixed_mask.any() or g_segs.size), "partial": False})
     return _engine_solution(d, sg, w, eng, xr0, r_enu, opt)
+
+
+def _engine_needed_first(integers: dict, solution: dict | None, engine_init: bool, glonass_integers) -> bool:
+    """Whether :func:`baseline_from_init` will condition the engine's float on the integers (so that the engine is
+    run before the batch tables are built): a glonass_fix INIT, or an engine INIT that leaves a segment float or has
+    no fixed position (INIT's fully fixed solution is evaluated at its position instead).  Only the order depends
+    on it: when it guesses wrong the engine runs where it did before (or runs unused), the result the same."""
+    if glonass_integers is not None:
+        return True
+    fully_fixed = (solution is not None and solution.get("enu_m") is not None
+                   and all(v is not None for v in integers.values()))
+    return engine_init and not fully_fixed
 
 
 def baseline_from_init(master: Station, rover: Station, nav: pd.DataFrame, options: BaselineOptions, *,
@@ -1652,6 +1680,21 @@ def baseline_from_init(master: Station, rover: Station, nav: pd.DataFrame, optio
     conditions on them too, and only the engine may serve (the other ways keep GLONASS float).
     """
     tol = ENGINE_SOLUTION_TOL_M if engine_init else _KNOWN_SOLUTION_TOL_M
+    solved = {}
+
+    def check(d, sg):           # what decide checks before the engine serves: mismatches stop it before it solves
+        if glonass_integers is not None:
+            _given_glonass(glonass_integers, d, sg, rover.name)
+        _given_integers(integers, d, sg, np.zeros(sg.free.size, dtype=bool), np.zeros(sg.free.size, dtype=np.int64))
+
+    def first(xm, xr0, prepared):    # the engine's geometry released before the batch tables are built
+        if _engine_needed_first(integers, solution, engine_init, glonass_integers):
+            try:
+                solved["engine"] = _engine_float(master, rover, nav, options, xm, xr0, prepared, check)
+            except CdgpsError as exc:
+                if getattr(exc, "from_prepare", False):     # the batch tables' own message: passed on as it is
+                    raise
+                solved["engine"] = exc              # raised where the engine would have run (decide's checks first)
 
     def decide(prepared, xm, xr0, warnings):
         d, sg, w, r_enu = prepared
@@ -1672,7 +1715,8 @@ def baseline_from_init(master: Station, rover: Station, nav: pd.DataFrame, optio
             k = _known_float(d, sg, w, solution["float_enu_m"], xr0, r_enu, tol)
             return "the given float position is not the float solution of these data" if k is None else k
         tries = [("static_engine (integers given)", lambda: _engine_given(master, rover, nav, options, xm, xr0,
-                                                                           prepared, integers, glo)),
+                                                                           prepared, integers, glo,
+                                                                           solved.pop("engine", None))),
                  ("given (INIT's position, float ambiguities at it)", at_position)]
         why = []
         for name, f in (tries[:1] if glo is not None else tries if engine_init else tries[::-1]):
@@ -1683,7 +1727,7 @@ def baseline_from_init(master: Station, rover: Station, nav: pd.DataFrame, optio
         raise CdgpsError(f"INIT.json: the solution of {rover.name} cannot be used on these data without solving "
                          f"the baseline again ({'; '.join(why)}); run 'cdgps init' again")
 
-    return _baseline(master, rover, nav, options, master_xyz, rover_xyz, keep_work, None, decide, integers)
+    return _baseline(master, rover, nav, options, master_xyz, rover_xyz, keep_work, None, decide, integers, first)
 
 
 def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, options: BaselineOptions | None = None,

@@ -18,7 +18,7 @@ import numpy as np
 from cdgps_cli.core import progress
 from cdgps_cli.estimation.driver import EpochGrid, GridDynamics, RecordingSink, drive
 from cdgps_cli.estimation.kalman import StepFilter
-from cdgps_cli.config.options import GNSS_DEFAULTS, MULTI_GNSS_DEFAULTS
+from cdgps_cli.config.options import GNSS_DEFAULTS, GNSS_WEIGHTINGS, MULTI_GNSS_DEFAULTS
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.dd_signals import DDGroupModel, RunDDModel, channel_index, epoch_groups, paired_sd_rows
 from cdgps_cli.measurement.differencing import ambiguity_segments
@@ -274,6 +274,9 @@ def _static_options(options: dict | None) -> dict:
             raise CdgpsError(f"static baseline: option {key} = {opt[key]!r} is not supported ({why})")
     if opt["motion"] not in ("static", "random_walk"):
         raise CdgpsError(f"static baseline: option motion = {opt['motion']!r}; expected 'static' or 'random_walk'")
+    if opt["weighting"] not in GNSS_WEIGHTINGS:
+        raise CdgpsError(f"static baseline: option weighting = {opt['weighting']!r}; expected "
+                         f"{' or '.join(repr(w) for w in GNSS_WEIGHTINGS)}")
     return opt
 
 
@@ -283,18 +286,18 @@ _HONOURED = {"mask_deg": "mask_deg", "ratio_threshold": "ratio", "partial": "par
              "troposphere": "troposphere", "sync_tol_s": "sync_tol_s", "max_age_s": "max_age_s",
              "code_correlation_s": "code_correlation_s", "min_success_rate": "min_success_rate",
              "motion": "motion", "random_walk_sigma": "random_walk_sigma", "initial_sigma_m": "initial_sigma_m",
-             "glonass_fix": "glonass_fix", "max_gap_s": "max_gap_s"}
+             "glonass_fix": "glonass_fix", "max_gap_s": "max_gap_s", "weighting": "weighting"}
 #: BaselineOptions fields the engine does not implement: only this value is accepted (the engine's behaviour)
-_FIXED_VALUE = {"weighting": "elevation", "epoch_alignment": "geometry",
-                "kinematic_series": False}
+_FIXED_VALUE = {"epoch_alignment": "geometry", "kinematic_series": False}
 
 
 def options_from_baseline(bopt) -> dict:
     """:class:`~cdgps_cli.estimation.baseline.BaselineOptions` → :func:`static_baseline` options.
 
-    Fields in ``_HONOURED`` are mapped; a field in ``_FIXED_VALUE`` set otherwise raises CdgpsError naming
-    it; the remaining ones (``max_iterations``, ``initial_sigma_m``, the kinematic-series and random-walk
-    settings) must keep their defaults, else CdgpsError naming them.
+    Fields in ``_HONOURED`` are mapped (``weighting`` too: the SD rows' variance, :func:`paired_sd_rows`); a field in
+    ``_FIXED_VALUE`` set otherwise raises CdgpsError naming it; the remaining ones (``max_iterations``, the batch's
+    Gauss–Newton cap, which the engine's one pass has no equivalent of; the kinematic-series settings, which the
+    caller renders) must keep their defaults, else CdgpsError naming them.
     """
     from dataclasses import fields
     out = {}
@@ -324,8 +327,8 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
         Known base position and the rover's a-priori position (the offset's origin), ECEF m.
     options : dict
         Keys of :data:`~cdgps_cli.config.options.MULTI_GNSS_DEFAULTS` (``ratio``, ``partial``,
-        ``min_success_rate``, ``fix`` (False: float only, ``resolution`` None), the weights and the mask
-        are used; ``glonass_fix``: the GLONASS DDs fixed too, between identical receivers); an unknown key, or
+        ``min_success_rate``, ``fix`` (False: float only, ``resolution`` None), the weights (``weighting``,
+        ``sigma_a_m``, ``sigma_b_m``, ``code_ratio``) and the mask are used; ``glonass_fix``: the GLONASS DDs fixed too, between identical receivers); an unknown key, or
         ``fix_and_hold`` set, raises CdgpsError, as does a
         multi-signal baseline at or above ``iono_threshold_km`` (the DD ionosphere is neglected, as ``init``'s).
 

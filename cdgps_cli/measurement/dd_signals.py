@@ -41,7 +41,7 @@ import pandas as pd
 
 from cdgps_cli.core.gps_time import nominal_interval_s
 from cdgps_cli.core.signals import signal
-from cdgps_cli.measurement.differencing import ambiguity_segments, dd_covariance, dd_operator, epoch_pointers
+from cdgps_cli.measurement.differencing import ambiguity_segments, dd_covariance, dd_operator, epoch_pointers, sd_variance
 from cdgps_cli.measurement.epoch_pairing import age_variance_m2, carry_base_slips
 from cdgps_cli.measurement.noise import correlated_variance_factor
 
@@ -460,7 +460,7 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False) -> dict
     epoch = m["_ep"].to_numpy()
     lam = m["wavelength_m"].to_numpy(dtype=float)
     el = m["el_rad"].to_numpy(dtype=float)
-    var = 2 * (opt["sigma_a_m"] ** 2 + opt["sigma_b_m"] ** 2 / np.sin(el) ** 2)
+    var = sd_variance(el, el, sigma_a_m=opt["sigma_a_m"], sigma_b_m=opt["sigma_b_m"], weighting=opt["weighting"])
     var_age = age_variance_m2(pairs.age_s[epoch], opt["sync_tol_s"], opt["age_sigma_m_per_s"])
     dtrop = m["trop_m_r"].to_numpy() - m["trop_m_b"].to_numpy() if opt["troposphere"] else 0.0
     dclk = m["sat_clock_m_r"].to_numpy() - m["sat_clock_m_b"].to_numpy()

@@ -19,7 +19,7 @@ import pandas as pd
 
 from cdgps_cli.config.limits import GEOCENTRIC_RANGE_M
 from cdgps_cli import __version__
-from cdgps_cli.config.options import MULTI_GNSS_DEFAULTS
+from cdgps_cli.config.options import GNSS_WEIGHTINGS, MULTI_GNSS_DEFAULTS
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, signal
@@ -52,6 +52,8 @@ def validate_options(options: dict) -> dict:
     for s in (() if opt["signals"] == "auto" else opt["signals"]):
         if s not in SIGNALS:
             bad.append(f"signals: unknown signal {s!r} (known: {', '.join(SIGNALS)})")
+    if opt["weighting"] not in GNSS_WEIGHTINGS:
+        bad.append(f"weighting: expected {' or '.join(map(repr, GNSS_WEIGHTINGS))}, got {opt['weighting']!r}")
     if not 0 <= float(opt["mask_deg"]) < 90:
         bad.append(f"mask_deg: expected a value in [0, 90), got {opt['mask_deg']}")
     hold = opt["hold_after_fixes"]

@@ -154,12 +154,12 @@ def test_an_init_nothing_can_take_is_refused_not_solved_again(geonet, monkeypatc
     d, init = geonet
     bad = json.loads(json.dumps(init))
     rov = bad["rovers"]["0759"]
-    rov["solver"], rov["options"]["weighting"] = "batch (test)", "equal"
+    rov["solver"], rov["options"]["epoch_alignment"] = "batch (test)", "doppler"
     rov["fixed"]["enu_m"][0] += 1e-3
     (tmp_path / "bad.json").write_text(json.dumps(bad))
     _no_batch(monkeypatch)
     r = run_cli("estimate", d / "run.mcap", "--init", tmp_path / "bad.json", "-o", tmp_path / "s.mcap")
-    assert r.exit_code == 2 and "run 'cdgps init' again" in r.stderr and "weighting" in r.stderr, r.output
+    assert r.exit_code == 2 and "run 'cdgps init' again" in r.stderr and "epoch_alignment" in r.stderr, r.output
     assert f"cdgps: error: {tmp_path / 'bad.json'}: the solution of 0759 cannot be used" in r.stderr, r.stderr
     assert "Traceback" not in r.output and not (tmp_path / "s.mcap").exists()
 
@@ -173,3 +173,42 @@ def test_a_non_finite_init_position_is_refused(geonet, tmp_path):
     r = run_cli("estimate", d / "run.mcap", "--init", tmp_path / "nan.json", "-o", tmp_path / "s.mcap")
     assert r.exit_code == 2 and f"{tmp_path / 'nan.json'}: rovers.0759.fixed.enu_m: expected 3 finite" in r.stderr, r.output
     assert "Traceback" not in r.output and not (tmp_path / "s.mcap").exists()
+
+
+@pytest.mark.parametrize("case", ["geonet", "mosaic_gr"])
+def test_the_engine_runs_before_the_batch_tables_exist(case, request, monkeypatch):
+    """An INIT the engine conditions (GEONET partially fixed, mosaic GPS + GLONASS float): the engine builds its
+    receiver geometry and releases it before ``_prepare``'s batch tables are built (from its arc check), then
+    filters — the order of ``init``'s engine, so the two never peak together; the solver is still the engine's."""
+    import gc
+    import weakref
+    from cdgps_cli.estimation import rtk_multi, static_engine
+    d, init = request.getfixturevalue(case)
+    rover = "0759" if case == "geonet" else "rover"
+    if case == "geonet":
+        init = json.loads(json.dumps(init))
+        next(b for b in init["biases"] if not b["pivot"]).update(fixed=False, integer_cycles=None)
+    seen, geo = [], []
+    real_geo, real_prep, real_filter = rtk_multi.receiver_geometry, baseline._prepare, static_engine.static_filter
+
+    def geometry(*a, **k):
+        out = real_geo(*a, **k)
+        geo.append(weakref.ref(out))
+        seen.append("geometry")
+        return out
+
+    def prepare(*a, **k):
+        gc.collect()
+        seen.append("prepare" + (" (geometry held)" if any(r() is not None for r in geo) else ""))
+        return real_prep(*a, **k)
+
+    def static_filter(*a, **k):
+        seen.append("filter")
+        return real_filter(*a, **k)
+    monkeypatch.setattr(rtk_multi, "receiver_geometry", geometry)
+    monkeypatch.setattr(baseline, "_prepare", prepare)
+    monkeypatch.setattr(static_engine, "static_filter", static_filter)
+    run = read_gnss_run(d / "run.mcap")
+    res, _, _, _ = gnss.solve_with_init_integers(run, init, rover, gnss._stations(run))
+    assert res["solver"] == "static_engine (integers given)"
+    assert seen == ["geometry", "geometry", "prepare", "filter"], seen
