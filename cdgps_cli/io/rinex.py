@@ -60,7 +60,9 @@ _L1_ATTRIBUTES = "CWPYXSLMN"
 # reading and decompression
 # ----------------------------------------------------------------------------------------------
 
-_COMPRESSED_MAGIC = (b"\x1f\x8b", b"\x1f\x9d", b"BZh", b"PK\x03\x04")
+#: leading bytes of the compressed files the RINEX readers open (gzip, Unix compress, bzip2, zip)
+COMPRESSED_MAGIC = (b"\x1f\x8b", b"\x1f\x9d", b"BZh", b"PK\x03\x04")
+_COMPRESSED_MAGIC = COMPRESSED_MAGIC
 
 
 def _read_lines(path: str | Path) -> tuple[list[str], bool]:

@@ -25,7 +25,7 @@ from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, signal
 from cdgps_cli.estimation.rtk_multi import RTK_MODES, check_common_signals, receiver_geometry, solve_rtk
 from cdgps_cli.io.atomic import write_atomic
-from cdgps_cli.io.rinex import NAV_SYSTEMS, read_rinex_nav
+from cdgps_cli.io.rinex import COMPRESSED_MAGIC, NAV_SYSTEMS, read_rinex_nav
 from cdgps_cli.io.rinex_signals import read_rinex_signals, signals_in_file
 from cdgps_cli.io.solution_formats import Q_FIX, Q_FLOAT, finite_or, geojson_text, nmea_gga_text, pos_text
 from cdgps_cli.model.gps.orbits import ecef_to_enu, ecef_to_geodetic, enu_matrix
@@ -94,7 +94,8 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
     """Solve base → rover and write ``out_csv``; returns the summary (fix rate, static position …)."""
     opt = validate_options(options or {})
     warnings = []
-    sigs = _auto_signals(base_path, rover_path, nav_paths, warnings) if opt["signals"] == "auto" else list(opt["signals"])
+    auto = opt["signals"] == "auto"
+    sigs = _auto_signals(base_path, rover_path, nav_paths, warnings) if auto else list(opt["signals"])
     opt["signals"] = tuple(sigs)
     systems = sorted({signal(s).system for s in sigs})
     for c in systems:
@@ -121,6 +122,9 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
     if nav_error is not None:
         raise nav_error
     b, r = (_first_of_repeated_epochs(df, path, who, warnings) for df, path, who in ((b, base_path, "base"), (r, rover_path, "rover")))
+    if auto:                # a header may list a signal its records never hold: 'auto' keeps those both files observe
+        sigs, b, r = _observed_signals(sigs, b, r, {"base": base_path, "rover": rover_path}, warnings)
+        opt["signals"] = tuple(sigs)
     check_common_signals(b, r, sigs, nav, {"base": str(base_path), "rover": str(rover_path), "nav": ", ".join(map(str, nav_paths))})
     bx = np.asarray(base_xyz_m if base_xyz_m is not None else hb["approx_position_xyz_m"] or (), dtype=float)
     if bx.shape != (3,):
@@ -146,7 +150,7 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
         if str(exc).startswith(("no common epochs", "no common satellites", "no double differences")):
             raise CdgpsError(f"{rover_path} (rover) and {base_path} (base): {exc}") from None
         raise
-    ep = res["epoch_pairing"]
+    ep = _count_epochs_without_geometry(res["epoch_pairing"], r, gr)
     if ep["dropped"]:
         warnings.append(f"{rover_path} (rover): {sum(ep['dropped'].values())} of {ep['rover_epochs']} epochs not used: "
                         + "; ".join(f"{n} {why}" for why, n in ep["dropped"].items())
@@ -266,13 +270,16 @@ def _geometry(df, nav, xyz, path, who, nav_paths):
 
 
 def is_ubx_log(path) -> bool:
-    """Whether the file is a u-blox log (UBX frames) rather than a RINEX text file: its first line is
-    not a RINEX header line and a UBX sync word appears in its first 64 KiB."""
+    """Whether the file is a u-blox log (UBX frames) rather than a RINEX text file: it is not compressed (the
+    RINEX readers open gzip / compress / bzip2 / zip files, whose bytes may hold a UBX sync word by chance), its
+    first line is not a RINEX header line and a UBX sync word appears in its first 64 KiB."""
     try:
         with open(path, "rb") as f:
             head = f.read(65536)
     except OSError as exc:
         raise CdgpsError(f"{path}: cannot read ({exc.strerror})") from None
+    if head.startswith(COMPRESSED_MAGIC):
+        return False
     first = head.split(b"\n", 1)[0]
     return b"RINEX VERSION / TYPE" not in first and b"\xb5\x62" in head
 
@@ -307,6 +314,38 @@ def _read_observations(path, sigs, glo_k) -> tuple[dict, pd.DataFrame]:
     base = info.get("rtcm_base")
     return ({"approx_position_xyz_m": base["arp_ecef_m"] if base else None},
             tab[tab["signal"].isin(list(sigs))].reset_index(drop=True))
+
+
+#: why a rover epoch read from its file never reached the epoch pairing
+NO_GEOMETRY = "without a satellite position (no pseudorange, or no healthy ephemeris)"
+
+
+def _count_epochs_without_geometry(pairing: dict, rover: pd.DataFrame, geometry: pd.DataFrame) -> dict:
+    """The epoch pairing's summary with the rover epochs read but left without a geometry row (every row of the
+    epoch lacked a pseudorange, or an ephemeris covering it) counted too: in ``rover_epochs`` and in ``dropped``."""
+    n = np.setdiff1d(rover["time_gps_s"].to_numpy(), geometry["time_gps_s"].to_numpy()).size
+    if not n:
+        return pairing
+    return {**pairing, "rover_epochs": pairing["rover_epochs"] + n, "dropped": {**pairing["dropped"], NO_GEOMETRY: n}}
+
+
+def _observed_signals(sigs: list, base: pd.DataFrame, rover: pd.DataFrame, paths: dict, warnings: list):
+    """(signals, base rows, rover rows) of the signals ``sigs`` that both receivers' records hold a phase of; each
+    signal dropped (a header's observation type no record fills) is named in a warning; CdgpsError when none is left."""
+    held = {who: set(df["signal"].unique()) for who, df in (("base", base), ("rover", rover))}
+    keep = [s for s in sigs if s in held["base"] and s in held["rover"]]
+    for s in sigs:
+        if s not in keep:
+            empty = [who for who in ("base", "rover") if s not in held[who]]
+            warnings.append(f"{s} not used: listed in the header of {' and '.join(f'{paths[w]} ({w})' for w in empty)}"
+                            f" but no record holds its phase")
+    if not keep:
+        raise CdgpsError(f"{paths['base']} (base) and {paths['rover']} (rover) share no signal with phase "
+                         f"observations: base holds {' '.join(sorted(held['base'])) or 'none'}, rover "
+                         f"{' '.join(sorted(held['rover'])) or 'none'}")
+    if len(keep) == len(sigs):
+        return sigs, base, rover
+    return (keep, *(df[df["signal"].isin(keep).to_numpy()].reset_index(drop=True) for df in (base, rover)))
 
 
 def _ubx_signals(path) -> list[str]:
