@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from cdgps_cli.estimation import compiled
+
 __all__ = ["StepFilter", "iterated_update", "iterated_update_covariance", "predict", "update", "LAPACK_CHOLESKY", "NUMPY_INVERSE"]
 
 #: LAPACK potrf / potrs and scipy's solve_triangular, imported on first use: scipy's import
@@ -215,6 +217,13 @@ def iterated_update_covariance(model, mk, xbar: np.ndarray, Pbar: np.ndarray, ma
     P : ndarray, shape (n, n)
     nis : float
     """
+    if sparse:
+        terms = getattr(model, "range_terms", None)
+        if terms is not None:                       # the static engine's rows: the compiled twin of this path
+            out = _compiled_range_update(terms(mk), mk, xbar, Pbar, max_iterations)
+            if out is not None:
+                return out
+
     def correction(H, v, first, a):                 # P̄ Hᵀ S⁻¹ ν, its NIS at x̄, what P⁺ needs
         if a is None:                               # dense: (P̄ Hᵀ, factor of S)
             U = Pbar @ H.T                          # P̄ Hᵀ (n, m)
@@ -241,6 +250,69 @@ def iterated_update_covariance(model, mk, xbar: np.ndarray, Pbar: np.ndarray, ma
     G = U.T @ U                                     # Vᵀ V (numpy's syrk for a product with its own transpose)
     np.subtract(Pbar, G, out=G)
     return xi, G, nis
+
+
+#: the compiled update (``_ekfcore.sd_update``) with its BLAS / LAPACK routines set, or False; None: not looked up
+_SD_KERNEL: list = [None]
+
+
+def _sd_kernel():
+    """``_ekfcore.sd_update`` once its routines are set: numpy's own CBLAS dgemm / dgemv / dsyrk / ddot (the ones
+    its matmul calls, from the OpenBLAS numpy bundles) and scipy's LAPACK dpotrf / dtrtrs (those of
+    :func:`_chol_factor` and :func:`_tri_solve_upper_t`, through ``scipy.linalg.cython_lapack``); False when the
+    extension, the library or a symbol is not found, or CDGPS_NO_KERNEL is set (then the numpy path runs)."""
+    if not compiled.available():
+        return False
+    if _SD_KERNEL[0] is None:
+        _SD_KERNEL[0] = False
+        fn = getattr(compiled._ekfcore, "sd_update", None)
+        addresses = _blas_lapack_addresses() if fn is not None else None
+        if addresses is not None:
+            compiled._ekfcore.sd_set_routines(*addresses)
+            _SD_KERNEL[0] = fn
+    return _SD_KERNEL[0]
+
+
+def _blas_lapack_addresses():
+    """(dgemm, dgemv, dsyrk, ddot, dpotrf, dtrtrs) addresses, or None: the CBLAS of numpy's bundled ILP64
+    OpenBLAS (``scipy_cblas_*64_``, the library numpy's matmul calls) and scipy's cython_lapack routines."""
+    import ctypes
+    import glob
+    import os
+    libs = sorted(glob.glob(os.path.join(os.path.dirname(os.path.dirname(np.__file__)), "numpy.libs",
+                                         "libscipy_openblas64_*.so")))
+    cfg = np.show_config(mode="dicts").get("Build Dependencies", {}).get("blas", {})
+    if len(libs) != 1 or cfg.get("name") != "scipy-openblas" or "USE64BITINT" not in cfg.get("openblas configuration", ""):
+        return None
+    try:
+        lib = ctypes.CDLL(libs[0])
+        blas = [ctypes.cast(getattr(lib, f"scipy_cblas_{f}64_"), ctypes.c_void_p).value
+                for f in ("dgemm", "dgemv", "dsyrk", "ddot")]
+        from scipy.linalg import cython_lapack
+        get_name, get_pointer = ctypes.pythonapi.PyCapsule_GetName, ctypes.pythonapi.PyCapsule_GetPointer
+        get_name.restype, get_name.argtypes = ctypes.c_char_p, [ctypes.py_object]
+        get_pointer.restype, get_pointer.argtypes = ctypes.c_void_p, [ctypes.py_object, ctypes.c_char_p]
+        caps = [cython_lapack.__pyx_capi__[f] for f in ("dpotrf", "dtrtrs")]
+        lapack = [get_pointer(c, get_name(c)) for c in caps]
+    except (OSError, AttributeError, KeyError, ImportError):
+        return None
+    out = blas + lapack
+    return out if all(out) else None
+
+
+def _compiled_range_update(terms, mk, xbar, Pbar, max_iterations):
+    """:func:`iterated_update_covariance`'s sparse path in C for rows whose model gives ``range_terms``
+    (:class:`~cdgps_cli.measurement.dd_signals.RunDDModel`: (sat_xyz (M, 3), base ranges (M,), λ (M,), ambiguity
+    columns (M,), origin (3,)), rows ``z_m`` (2M,) whitened by ``B`` (2M, 2M)); (x, P, NIS), the same bits, or
+    None when the kernel is off or does not cover the case (the numpy path then runs)."""
+    fn = _sd_kernel()
+    if not fn or terms is None:
+        return None
+    sat_xyz, base_rng, lam, amb, origin = terms
+    n = xbar.size
+    x, P = np.empty(n), np.empty((n, n))
+    nis = fn(Pbar, xbar, mk.B, mk.z_m, sat_xyz, base_rng, lam, amb, origin, int(max_iterations), x, P)
+    return None if nis is None else (x, P, nis)
 
 
 def _active_columns(H: np.ndarray):

@@ -379,6 +379,13 @@ class RunDDModel(DDGroupModel):
         np.add(geo, c["lam"] * x[c["amb"]], out=h[:M])
         return h, H
 
+    def range_terms(self, rows):
+        """What :meth:`predict` reads of ``rows``: (sat_xyz (M, 3), base ranges (M,), λ (M,), ambiguity columns
+        (M,), origin (3,)); the engine's compiled update evaluates h and H from them
+        (:func:`cdgps_cli.estimation.kalman.iterated_update_covariance`)."""
+        c = rows.context
+        return c["sat_xyz"], c["base_rng"], c["lam"], c["amb"], self.origin
+
     def _positions(self, lay: _RunBlock, e: int, M: int):
         """Satellite positions (rover's, base's) of the block's epoch ``e`` (M rows), as DDGroupModel.rows takes them."""
         sx, sb = self.run["sat_xyz"], self.run["sat_base_xyz"]
