@@ -8,6 +8,9 @@
  *   filter_span(...) -> (k_stop, fail_run, reason)    steady-state epochs k0 .. k_stop-1
  *   rts(...) -> -1 or failing epoch                   RTS pass over filtered arrays
  *   dd_span(...) -> (k_stop, reason)                  whitened full-noise (DD) iterated EKF span
+ *   sd_update(...) -> NIS or None                     the static engine's covariance-form update of one epoch
+ *                                                     (kalman.iterated_update_covariance on RunDDModel rows;
+ *                                                     numpy's own BLAS calls, so the same bits: see there)
  *
  * filter_span stops, without touching the outputs of that epoch, at the first epoch that needs the
  * Python logic of ekf.estimate (a lock event, a channel being re-biased, an innovation outlier, a
@@ -1843,61 +1846,83 @@ static int sd_buf(PyObject *obj, Buf *b, char kind, Py_ssize_t count, int writab
     return 0;
 }
 
-/* sd_update(P, xbar, B, z, sat_xyz, base_rng, lam, amb, origin, max_iterations, x_out, P_out) -> NIS or None */
+/* an (M, 3) float64 array of any strides; its memory order as numpy's ``arr - v`` makes it (C: 1, F: 0), or -1
+ * (not covered: the caller falls back to numpy) */
+static int sd_rows3(PyObject *obj, Py_buffer *v, int *held, Py_ssize_t M)
+{
+    if (PyObject_GetBuffer(obj, v, PyBUF_RECORDS_RO) != 0) { PyErr_Clear(); return -1; }
+    *held = 1;
+    if (v->ndim != 2 || v->shape[0] != M || v->shape[1] != 3 || v->itemsize != 8 || !v->format
+        || strcmp(v->format, "d") != 0 || !v->strides)
+        return -1;
+    const Py_ssize_t s0 = v->strides[0], s1 = v->strides[1];
+    if (s1 == 8 && s0 >= 24) return 1;
+    if (s0 == 8 && s1 >= 8 * M) return 0;
+    return -1;
+}
+
+/* ‖row i of (M, 3) ``v`` − o‖ as numpy's ``np.sqrt(np.einsum("ij,ij->i", l, l))`` of ``l = v − o``: einsum sums
+ * a C-ordered row as (l0² + l2²) + l1², an F-ordered one as (l0² + l1²) + l2²; ``los`` (M, 3) gets l */
+static void sd_ranges(const Py_buffer *v, int c_order, Py_ssize_t M, const double o[3], double *los, double *rng)
+{
+    const char *base = (const char *)v->buf;
+    const Py_ssize_t s0 = v->strides[0], s1 = v->strides[1];
+    for (Py_ssize_t i = 0; i < M; i++) {
+        const char *row = base + i * s0;
+        const double l0 = *(const double *)row - o[0], l1 = *(const double *)(row + s1) - o[1],
+                     l2 = *(const double *)(row + 2 * s1) - o[2];
+        const double q0 = l0 * l0, q1 = l1 * l1, q2 = l2 * l2;
+        rng[i] = sqrt(c_order ? (q0 + q2) + q1 : (q0 + q1) + q2);
+        if (los) { los[3 * i] = l0; los[3 * i + 1] = l1; los[3 * i + 2] = l2; }
+    }
+}
+
+/* sd_update(P, xbar, z, u, inv_sigma, block, sat_xyz, sat_base_xyz, base_xyz, lam, amb, origin, max_iterations,
+ *           x_out, P_out) -> NIS or None */
 static PyObject *py_sd_update(PyObject *self, PyObject *args)
 {
-    PyObject *o[12];
+    PyObject *o[15];
     long long max_it_ll;
-    if (!PyArg_ParseTuple(args, "OOOOOOOOOLOO", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &o[6], &o[7], &o[8],
-                          &max_it_ll, &o[10], &o[11]))
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOOLOO", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &o[6], &o[7], &o[8],
+                          &o[9], &o[10], &o[11], &max_it_ll, &o[13], &o[14]))
         return NULL;
     if (!SD.gemm) Py_RETURN_NONE;
-    enum { NB = 11 };
+    enum { NB = 12 };
     Buf b[NB];
     memset(b, 0, sizeof b);
     PyObject *ret = NULL;
     double *work = NULL;
-    Py_buffer sxv;
-    int sx_held = 0;
+    Py_buffer sxv, sbv;
+    int sx_held = 0, sb_held = 0;
     /* sizes from xbar and z */
     if (PyObject_GetBuffer(o[1], &b[1].view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) != 0) { PyErr_Clear(); goto none; }
     b[1].held = 1;
     const Py_ssize_t n = b[1].view.len / 8;
-    if (PyObject_GetBuffer(o[3], &b[3].view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) != 0) { PyErr_Clear(); goto none; }
-    b[3].held = 1;
-    const Py_ssize_t p = b[3].view.len / 8, M = p / 2;
+    if (PyObject_GetBuffer(o[2], &b[2].view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) != 0) { PyErr_Clear(); goto none; }
+    b[2].held = 1;
+    const Py_ssize_t p = b[2].view.len / 8, M = p / 2;
     release_all(b, NB);
     if (M < 2 || p != 2 * M || n < 4) goto none;
-    if (sd_buf(o[0], &b[0], 'd', n * n, 0) || sd_buf(o[1], &b[1], 'd', n, 0) || sd_buf(o[2], &b[2], 'd', p * p, 0)
-        || sd_buf(o[3], &b[3], 'd', p, 0) || sd_buf(o[5], &b[5], 'd', M, 0) || sd_buf(o[6], &b[6], 'd', M, 0)
-        || sd_buf(o[7], &b[7], 'q', M, 0) || sd_buf(o[8], &b[8], 'd', 3, 0) || sd_buf(o[10], &b[10], 'd', n, 1)
-        || sd_buf(o[11], &b[9], 'd', n * n, 1))
+    if (sd_buf(o[0], &b[0], 'd', n * n, 0) || sd_buf(o[1], &b[1], 'd', n, 0) || sd_buf(o[2], &b[2], 'd', p, 0)
+        || sd_buf(o[3], &b[3], 'd', p, 0) || sd_buf(o[4], &b[4], 'd', p, 0) || sd_buf(o[5], &b[5], 'q', p, 0)
+        || sd_buf(o[8], &b[6], 'd', 3, 0) || sd_buf(o[9], &b[7], 'd', M, 0) || sd_buf(o[10], &b[8], 'q', M, 0)
+        || sd_buf(o[11], &b[9], 'd', 3, 0) || sd_buf(o[13], &b[10], 'd', n, 1) || sd_buf(o[14], &b[11], 'd', n * n, 1))
         goto none;
-    /* the satellite positions (M, 3), any strides: numpy's ``sat_xyz - o`` is C- or F-ordered as they are,
-     * and einsum sums a C-ordered row as (l0² + l2²) + l1², an F-ordered one as (l0² + l1²) + l2² */
-    if (PyObject_GetBuffer(o[4], &sxv, PyBUF_RECORDS_RO) != 0) { PyErr_Clear(); goto none; }
-    sx_held = 1;
-    if (sxv.ndim != 2 || sxv.shape[0] != M || sxv.shape[1] != 3 || sxv.itemsize != 8 || !sxv.format
-        || strcmp(sxv.format, "d") != 0 || !sxv.strides)
-        goto none;
-    const Py_ssize_t s0 = sxv.strides[0], s1 = sxv.strides[1];
-    int c_order;
-    if (s1 == 8 && s0 >= 24) c_order = 1;
-    else if (s0 == 8 && s1 >= 8 * M) c_order = 0;
-    else goto none;
-    const char *sxp = (const char *)sxv.buf;
-    const double *P = b[0].view.buf, *xbar = b[1].view.buf, *Bw = b[2].view.buf, *z = b[3].view.buf;
-    const double *base_rng = b[5].view.buf, *lam = b[6].view.buf, *origin = b[8].view.buf;
-    const int64_t *amb = b[7].view.buf;
-    double *x_out = b[10].view.buf, *P_out = b[9].view.buf;
+    const int c_order = sd_rows3(o[6], &sxv, &sx_held, M), cb_order = sd_rows3(o[7], &sbv, &sb_held, M);
+    if (c_order < 0 || cb_order < 0) goto none;
+    const double *P = b[0].view.buf, *xbar = b[1].view.buf, *z = b[2].view.buf, *u = b[3].view.buf;
+    const double *inv = b[4].view.buf, *base_xyz = b[6].view.buf, *lam = b[7].view.buf, *origin = b[9].view.buf;
+    const int64_t *blkid = b[5].view.buf, *amb = b[8].view.buf;
+    double *x_out = b[10].view.buf, *P_out = b[11].view.buf;
     const int64_t na = 3 + M;
     if (na >= n) goto none;                               /* every column active: the dense form */
     for (Py_ssize_t i = 0; i < M; i++)
         if (amb[i] < 3 || amb[i] >= n || !(lam[i] != 0.0)) goto none;
     /* work, each block 64-byte aligned: a and each row's rank among them (int64), zw, h, hw, v, g (p), xi, xn,
-     * dx (n), d (na), Hpos (M*3), Ha, Hw (p*na), Pa (n*na), U (n*p), Ua (na*p), S, c (p*p), W (p*(n+1)), G (n*n) */
+     * dx (n), d (na), Hpos (M*3), Ha, Hw (p*na), Pa (n*na), U (n*p), Ua (na*p), S, c (p*p), W (p*(n+1)), G (n*n),
+     * B (p*p), the base ranges (M), los (M*3), the ranges (M) */
     const Py_ssize_t len[] = {na, M, p, p, p, p, p, n, n, n, na, 3 * M, p * na, p * na, n * na, n * p, na * p,
-                              p * p, p * p, p * (n + 1), n * n};
+                              p * p, p * p, p * (n + 1), n * n, p * p, M, 3 * M, M};
     enum { NW = sizeof len / sizeof len[0] };
     double *blk[NW];
     Py_ssize_t total = 0;
@@ -1908,7 +1933,16 @@ static PyObject *py_sd_update(PyObject *self, PyObject *args)
     int64_t *a = (int64_t *)blk[0], *col_of_row = (int64_t *)blk[1];
     double *zw = blk[2], *h = blk[3], *hw = blk[4], *v = blk[5], *g = blk[6], *xi = blk[7], *xn = blk[8];
     double *dx = blk[9], *d = blk[10], *Hpos = blk[11], *Ha = blk[12], *Hw = blk[13], *Pa = blk[14], *U = blk[15];
-    double *Ua = blk[16], *S = blk[17], *cf = blk[18], *W = blk[19], *G = blk[20];
+    double *Ua = blk[16], *S = blk[17], *cf = blk[18], *W = blk[19], *G = blk[20], *Bw = blk[21];
+    double *base_rng = blk[22], *los = blk[23], *rng = blk[24];
+    /* B = (I − blockdiag(u uᵀ)) Σ^{-1/2} as whitening_matrix forms it (−0.0 across blocks) and the base ranges */
+    for (Py_ssize_t i = 0; i < p; i++)
+        for (Py_ssize_t j = 0; j < p; j++) {
+            double e = blkid[i] == blkid[j] ? -(u[i] * u[j]) : -0.0;
+            if (i == j) e += 1.0;
+            Bw[i * p + j] = e * inv[j];
+        }
+    sd_ranges(&sbv, cb_order, M, base_xyz, NULL, base_rng);
     /* the active columns: 0, 1, 2 and the rows' ambiguities, ascending (H.any(axis=0).nonzero()) */
     a[0] = 0; a[1] = 1; a[2] = 2;
     for (Py_ssize_t i = 0; i < M; i++) {                  /* insertion sort of (column, row) */
@@ -1928,17 +1962,16 @@ static PyObject *py_sd_update(PyObject *self, PyObject *args)
         for (Py_ssize_t r = 0; r < n; r++) Pa[j * n + r] = P[r * n + a[j]];
     for (int it = 0; it <= last; it++) {
         /* predict: h(x_i) and the position columns of H (RunDDModel.predict) */
-        const double o0 = origin[0] + xi[0], o1 = origin[1] + xi[1], o2 = origin[2] + xi[2];
+        const double o[3] = {origin[0] + xi[0], origin[1] + xi[1], origin[2] + xi[2]};
         int active[3] = {0, 0, 0};
+        sd_ranges(&sxv, c_order, M, o, los, rng);
         for (Py_ssize_t i = 0; i < M; i++) {
-            const double *row0 = (const double *)(sxp + i * s0);
-            const double l0 = *row0 - o0, l1 = *(const double *)((const char *)row0 + s1) - o1,
-                         l2 = *(const double *)((const char *)row0 + 2 * s1) - o2;
-            const double q0 = l0 * l0, q1 = l1 * l1, q2 = l2 * l2;
-            const double rng = sqrt(c_order ? (q0 + q2) + q1 : (q0 + q1) + q2);
-            Hpos[3 * i] = (-l0) / rng; Hpos[3 * i + 1] = (-l1) / rng; Hpos[3 * i + 2] = (-l2) / rng;
-            for (int j = 0; j < 3; j++) active[j] |= (Hpos[3 * i + j] != 0.0);
-            const double geo = rng - base_rng[i];
+            const double r = rng[i];
+            for (int j = 0; j < 3; j++) {
+                Hpos[3 * i + j] = (-los[3 * i + j]) / r;
+                active[j] |= (Hpos[3 * i + j] != 0.0);
+            }
+            const double geo = r - base_rng[i];
             h[M + i] = geo;
             h[i] = geo + lam[i] * xi[amb[i]];
         }
@@ -1999,6 +2032,7 @@ none:
 done:
     free(work);
     if (sx_held) PyBuffer_Release(&sxv);
+    if (sb_held) PyBuffer_Release(&sbv);
     release_all(b, NB);
     return ret;
 }

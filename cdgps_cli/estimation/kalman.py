@@ -18,6 +18,13 @@ and applies, relinearizing h at the iterate x_i (Gauss–Newton),
 (the last is νᵀ(H P̄ Hᵀ + C)⁻¹ν by the matrix inversion lemma).  1998 paper Eq. (16)–(23) in
 information form; both noise kinds of the architecture's filter.  :func:`update` is the same step
 for rows already linearized at x̄ (residual ρ = z − h(x̄) and H).
+
+The static engine's rows (:class:`~cdgps_cli.measurement.dd_signals.RunDDModel`, ≈ 10 DD rows on ≈ 90 states
+an epoch, 86 400 epochs a day at 1 Hz) take :func:`iterated_update_covariance`'s sparse path in C
+(``_ekfcore.sd_update``): the model's h, H and whitening and the update's products, with the very BLAS / LAPACK
+calls numpy's matmul and scipy's wrappers make for them (numpy's bundled CBLAS, scipy's cython_lapack) and
+numpy's elementwise order, so x, P and NIS are the numpy path's bit for bit (tests/estimation/
+test_kalman_compiled.py); a case it does not cover, or CDGPS_NO_KERNEL, runs the numpy path.
 """
 
 from __future__ import annotations
@@ -72,6 +79,7 @@ class StepFilter:
         self.P = np.array(P, dtype=float)
         self.linalg = linalg
         self.form = form
+        self.kernel = None      # the compiled covariance update, looked up at the first update (CDGPS_NO_KERNEL then)
 
     def predict(self, A: np.ndarray, Q: np.ndarray, known_input=None) -> None:
         """x̄ = A x (+ known input), P̄ = A P Aᵀ + Q.
@@ -99,7 +107,10 @@ class StepFilter:
         of ``model`` (a :class:`~cdgps_cli.measurement.model.MeasurementModel`), :func:`iterated_update`;
         returns the epoch's NIS (dof ``rows.z_m.size``)."""
         if self.form == "covariance":
-            self.x, self.P, nis = iterated_update_covariance(model, rows, self.x, self.P, max_iterations)
+            if self.kernel is None:
+                self.kernel = _sd_kernel()
+            self.x, self.P, nis = iterated_update_covariance(model, rows, self.x, self.P, max_iterations,
+                                                             kernel=self.kernel)
         else:
             self.x, self.P, nis = iterated_update(model, rows, self.x, self.P, max_iterations, self.linalg)
         return nis
@@ -188,7 +199,7 @@ def _gauss_newton(model, mk, xbar: np.ndarray, max_iterations: int, correction, 
 
 
 def iterated_update_covariance(model, mk, xbar: np.ndarray, Pbar: np.ndarray, max_iterations: int = 5,
-                               sparse: bool = True):
+                               sparse: bool = True, kernel=None):
     """(x, P, NIS) of :func:`iterated_update` in covariance form: O(n² m) an epoch, no n × n factor.
 
     With whitened rows (noise I) linearized at the iterate x_i: S = H P̄ Hᵀ + I (m × m, Cholesky),
@@ -210,6 +221,10 @@ def iterated_update_covariance(model, mk, xbar: np.ndarray, Pbar: np.ndarray, ma
         As :func:`iterated_update`.
     sparse : bool
         Work on H's non-zero columns when it has zero ones.
+    kernel : callable or False, optional
+        The compiled twin of the sparse path for a model with ``range_terms`` (the static engine's
+        :class:`~cdgps_cli.measurement.dd_signals.RunDDModel`; ``_ekfcore.sd_update``, the same bits), as
+        :func:`_sd_kernel` gives it (False: numpy only; None: looked up, which reads CDGPS_NO_KERNEL).
 
     Returns
     -------
@@ -220,7 +235,7 @@ def iterated_update_covariance(model, mk, xbar: np.ndarray, Pbar: np.ndarray, ma
     if sparse:
         terms = getattr(model, "range_terms", None)
         if terms is not None:                       # the static engine's rows: the compiled twin of this path
-            out = _compiled_range_update(terms(mk), mk, xbar, Pbar, max_iterations)
+            out = _compiled_range_update(terms(mk), mk, xbar, Pbar, max_iterations, kernel)
             if out is not None:
                 return out
 
@@ -300,18 +315,20 @@ def _blas_lapack_addresses():
     return out if all(out) else None
 
 
-def _compiled_range_update(terms, mk, xbar, Pbar, max_iterations):
+def _compiled_range_update(terms, mk, xbar, Pbar, max_iterations, kernel=None):
     """:func:`iterated_update_covariance`'s sparse path in C for rows whose model gives ``range_terms``
-    (:class:`~cdgps_cli.measurement.dd_signals.RunDDModel`: (sat_xyz (M, 3), base ranges (M,), λ (M,), ambiguity
-    columns (M,), origin (3,)), rows ``z_m`` (2M,) whitened by ``B`` (2M, 2M)); (x, P, NIS), the same bits, or
-    None when the kernel is off or does not cover the case (the numpy path then runs)."""
-    fn = _sd_kernel()
+    (:meth:`cdgps_cli.measurement.dd_signals.RunDDModel.range_terms`: the satellite positions as seen by rover
+    and base, the base position, λ, the ambiguity columns, the origin and the whitening's u, Σ^{-1/2} and blocks;
+    rows ``z_m`` (2M,)); (x, P, NIS), the same bits, or None when the kernel is off or does not cover the case
+    (the numpy path then runs).  ``kernel``: :func:`_sd_kernel`'s answer when the caller has it (None: asked)."""
+    fn = _sd_kernel() if kernel is None else kernel
     if not fn or terms is None:
         return None
-    sat_xyz, base_rng, lam, amb, origin = terms
+    sat_xyz, sat_base_xyz, base_xyz, lam, amb, origin, u, inv_sigma, block = terms
     n = xbar.size
     x, P = np.empty(n), np.empty((n, n))
-    nis = fn(Pbar, xbar, mk.B, mk.z_m, sat_xyz, base_rng, lam, amb, origin, int(max_iterations), x, P)
+    nis = fn(Pbar, xbar, mk.z_m, u, inv_sigma, block, sat_xyz, sat_base_xyz, base_xyz, lam, amb, origin,
+             int(max_iterations), x, P)
     return None if nis is None else (x, P, nis)
 
 

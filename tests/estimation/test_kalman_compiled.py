@@ -35,17 +35,16 @@ def test_compiled_update_is_the_numpy_update_epoch_by_epoch(run, kernel, monkeyp
     seen = {"compiled": 0, "c_order": 0, "f_order": 0, "second_iteration": 0}
     numpy_path = kalman.iterated_update_covariance
 
-    def both(model, mk, xbar, Pbar, max_it=5, sparse=True):
-        monkeypatch.setenv("CDGPS_NO_KERNEL", "1")
-        want = numpy_path(model, mk, xbar, Pbar, max_it, sparse)
-        monkeypatch.delenv("CDGPS_NO_KERNEL")
+    def both(model, mk, xbar, Pbar, max_it=5, sparse=True, kernel=None):
+        assert kernel is kalman._sd_kernel()                # the filter looked it up once
+        want = numpy_path(model, mk, xbar, Pbar, max_it, sparse, kernel=False)
         got = kalman._compiled_range_update(model.range_terms(mk), mk, xbar, Pbar, max_it)
         assert got is not None
         assert _same(got[0], want[0]) and _same(got[1], want[1]) and _same(got[2], want[2])
         sx = mk.context["sat_xyz"]
         seen["compiled"] += 1
         seen["c_order" if sx.strides[1] == 8 else "f_order"] += 1
-        seen["second_iteration"] += int(not _same(want[0], numpy_path(model, mk, xbar, Pbar, 1, sparse)[0]))
+        seen["second_iteration"] += int(not _same(want[0], numpy_path(model, mk, xbar, Pbar, 1, sparse, kernel=False)[0]))
         return want
 
     monkeypatch.setattr(kalman, "iterated_update_covariance", both)
@@ -58,7 +57,7 @@ def test_static_filter_with_and_without_the_kernel(run, kernel, monkeypatch):  #
     rows, cols, times = run
     x1, P1, _ = se.static_filter(rows, times, BASE, ROVER, cols=cols)
     monkeypatch.setenv("CDGPS_NO_KERNEL", "1")
-    assert kalman._compiled_range_update((None,) * 5, None, None, None, 2) is None
+    assert kalman._compiled_range_update((None,) * 9, None, None, None, 2) is None
     x0, P0, _ = se.static_filter(rows, times, BASE, ROVER, cols=cols)
     assert _same(x0, x1) and _same(P0, P1)
 
@@ -76,21 +75,45 @@ def _epoch(run, k=12):  # noqa: F811
 
 def test_cases_it_does_not_cover_go_back_to_numpy(run, kernel):  # noqa: F811
     model, mk, xbar, Pbar = _epoch(run)
-    sx, rb, lam, amb, origin = model.range_terms(mk)
+    terms = model.range_terms(mk)
+    sx, sb, base, lam, amb, origin, u, inv, blk = terms
     upd = kalman._compiled_range_update
-    assert upd((sx, rb, lam, amb, origin), mk, xbar, Pbar, 2) is not None
+
+    def with_(**kw):
+        t = {**dict(zip(("sx", "sb", "base", "lam", "amb", "origin", "u", "inv", "blk"), terms)), **kw}
+        return upd(tuple(t.values()), mk, xbar, Pbar, 2)
+
+    assert with_() is not None
     dup = amb.copy()
     dup[1] = dup[0]
-    assert upd((sx, rb, lam, dup, origin), mk, xbar, Pbar, 2) is None              # two rows on one column
-    assert upd((sx, rb, lam, np.minimum(amb, 2), origin), mk, xbar, Pbar, 2) is None   # a position column
+    assert with_(amb=dup) is None                                   # two rows on one column
+    assert with_(amb=np.minimum(amb, 2)) is None                    # a position column
     zero = lam.copy()
     zero[0] = 0.0
-    assert upd((sx, rb, zero, amb, origin), mk, xbar, Pbar, 2) is None             # an inactive column
-    n_dense = 3 + lam.size                                                          # every column active: dense form
-    assert upd((sx, rb, lam, np.arange(3, n_dense), origin), mk, xbar[:n_dense], Pbar[:n_dense, :n_dense], 2) is None
-    assert upd((np.ascontiguousarray(sx[:, ::-1]), rb, lam, amb, origin), mk, xbar, Pbar, 2) is not None
-    assert upd((sx[::-1, ::-1], rb, lam, amb, origin), mk, xbar, Pbar, 2) is None     # negative strides
-    assert upd((sx, rb, lam, amb, origin), mk, xbar, np.asfortranarray(Pbar + np.triu(Pbar, 1) * 1e-9), 2) is None
+    assert with_(lam=zero) is None                                  # an inactive column
+    n_dense = 3 + lam.size                                          # every column active: the dense form
+    assert upd((sx, sb, base, lam, np.arange(3, n_dense), origin, u, inv, blk), mk, xbar[:n_dense],
+               Pbar[:n_dense, :n_dense], 2) is None
+    assert with_(sx=np.ascontiguousarray(sx[:, ::-1]), sb=np.ascontiguousarray(sb)) is not None
+    assert with_(sx=sx[::-1, ::-1]) is None                         # negative strides
+    assert with_(sb=sb[::-1]) is None
+    assert upd(terms, mk, xbar, np.asfortranarray(Pbar + np.triu(Pbar, 1) * 1e-9), 2) is None
+    assert with_(blk=blk.astype(np.int32)) is None                  # not the layout's int64
+
+
+def test_rows_form_their_whitening_and_h_template_on_first_use(run):  # noqa: F811
+    """RunDDModel's rows hold B, the base ranges and H unformed until the numpy path reads them."""
+    model, mk, xbar, Pbar = _epoch(run)
+    assert mk._B is None and "H" not in mk.context and "base_rng" not in mk.context
+    kalman.iterated_update_covariance(model, mk, xbar, Pbar, 2)
+    if kalman._sd_kernel():                                         # the compiled update formed neither
+        assert mk._B is None and "H" not in mk.context and "base_rng" not in mk.context
+    B = mk.B
+    assert mk.B is B
+    H = mk.context["H"]
+    assert mk.context["H"] is H and H.shape == (mk.z_m.size, xbar.size)
+    with pytest.raises(KeyError):
+        mk.context["nothing"]
 
 
 def test_a_covariance_that_is_not_positive_definite_raises_as_before(run, kernel):  # noqa: F811
