@@ -8,6 +8,9 @@
  *   filter_span(...) -> (k_stop, fail_run, reason)    steady-state epochs k0 .. k_stop-1
  *   rts(...) -> -1 or failing epoch                   RTS pass over filtered arrays
  *   dd_span(...) -> (k_stop, reason)                  whitened full-noise (DD) iterated EKF span
+ *   sd_update(...) -> NIS or None                     the static engine's covariance-form update of one epoch
+ *                                                     (kalman.iterated_update_covariance on RunDDModel rows;
+ *                                                     numpy's own BLAS calls, so the same bits: see there)
  *
  * filter_span stops, without touching the outputs of that epoch, at the first epoch that needs the
  * Python logic of ekf.estimate (a lock event, a channel being re-biased, an innovation outlier, a
@@ -1781,6 +1784,259 @@ done:
     return ret;
 }
 
+/* ------------------------------------------------------------------------------------------ */
+/* the static engine's per-epoch update: kalman.iterated_update_covariance's sparse path on the rows of
+ * measurement.dd_signals.RunDDModel, the same BLAS / LAPACK calls with the same arguments as numpy's matmul
+ * and scipy's potrf / trtrs wrappers make for it (so the same bits), the elementwise steps as numpy does them.
+ *
+ * The BLAS routines are numpy's own (its bundled OpenBLAS, ILP64 CBLAS), the LAPACK ones scipy's
+ * (cython_lapack), their addresses set once by sd_set_routines (kalman._sd_kernel).  The caller falls back to
+ * the numpy path when sd_update returns None (a layout or case this replica does not cover, a factor that
+ * fails: numpy then raises as before). */
+
+enum { CB_ROW = 101, CB_COL = 102, CB_NOTRANS = 111, CB_TRANS = 112, CB_UPPER = 121 };
+typedef void (*cb_dgemm_t)(int, int, int, int64_t, int64_t, int64_t, double, const double *, int64_t,
+                           const double *, int64_t, double, double *, int64_t);
+typedef void (*cb_dgemv_t)(int, int, int64_t, int64_t, double, const double *, int64_t, const double *, int64_t,
+                           double, double *, int64_t);
+typedef void (*cb_dsyrk_t)(int, int, int, int64_t, int64_t, double, const double *, int64_t, double, double *,
+                           int64_t);
+typedef double (*cb_ddot_t)(int64_t, const double *, int64_t, const double *, int64_t);
+typedef void (*lp_dpotrf_t)(char *, int *, double *, int *, int *);
+typedef void (*lp_dtrtrs_t)(char *, char *, char *, int *, int *, double *, int *, double *, int *, int *);
+
+static struct {
+    cb_dgemm_t gemm; cb_dgemv_t gemv; cb_dsyrk_t syrk; cb_ddot_t dot; lp_dpotrf_t potrf; lp_dtrtrs_t trtrs;
+} SD = {0};
+
+static PyObject *py_sd_set_routines(PyObject *self, PyObject *args)
+{
+    unsigned long long a[6];
+    if (!PyArg_ParseTuple(args, "KKKKKK", &a[0], &a[1], &a[2], &a[3], &a[4], &a[5])) return NULL;
+    for (int i = 0; i < 6; i++)
+        if (!a[i]) { PyErr_SetString(PyExc_ValueError, "_ekfcore.sd_set_routines: null address"); return NULL; }
+    SD.gemm = (cb_dgemm_t)(uintptr_t)a[0]; SD.gemv = (cb_dgemv_t)(uintptr_t)a[1];
+    SD.syrk = (cb_dsyrk_t)(uintptr_t)a[2]; SD.dot = (cb_ddot_t)(uintptr_t)a[3];
+    SD.potrf = (lp_dpotrf_t)(uintptr_t)a[4]; SD.trtrs = (lp_dtrtrs_t)(uintptr_t)a[5];
+    Py_RETURN_NONE;
+}
+
+/* numpy's A @ x for A (m, k) C-contiguous, x contiguous (its gemv: column-major Aᵀ, transposed) */
+static void np_mv(const double *A, int64_t m, int64_t k, const double *x, double *y)
+{
+    SD.gemv(CB_COL, CB_TRANS, k, m, 1.0, A, k, x, 1, 0.0, y, 1);
+}
+
+/* numpy's A @ B (m, q) for A (m, k) and B (k, q), each C-contiguous or, ``at`` / ``bt``, Fortran-ordered (given
+ * as its C-contiguous transpose): numpy's gemm, a Fortran-ordered operand passed transposed */
+static void np_mm(const double *A, int at, int64_t m, int64_t k, const double *B, int bt, int64_t q, double *C)
+{
+    SD.gemm(CB_ROW, at ? CB_TRANS : CB_NOTRANS, bt ? CB_TRANS : CB_NOTRANS, m, q, k, 1.0, A, at ? m : k, B,
+            bt ? k : q, 0.0, C, q);
+}
+
+/* a buffer of float64 / int64 ``count`` elements, C-contiguous (0), else -1 with no error set (the caller
+ * falls back to numpy) */
+static int sd_buf(PyObject *obj, Buf *b, char kind, Py_ssize_t count, int writable)
+{
+    if (get_buf(obj, b, kind, count, writable, "sd_update") != 0) {
+        PyErr_Clear();
+        return -1;
+    }
+    return 0;
+}
+
+/* an (M, 3) float64 array of any strides; its memory order as numpy's ``arr - v`` makes it (C: 1, F: 0), or -1
+ * (not covered: the caller falls back to numpy) */
+static int sd_rows3(PyObject *obj, Py_buffer *v, int *held, Py_ssize_t M)
+{
+    if (PyObject_GetBuffer(obj, v, PyBUF_RECORDS_RO) != 0) { PyErr_Clear(); return -1; }
+    *held = 1;
+    if (v->ndim != 2 || v->shape[0] != M || v->shape[1] != 3 || v->itemsize != 8 || !v->format
+        || strcmp(v->format, "d") != 0 || !v->strides)
+        return -1;
+    const Py_ssize_t s0 = v->strides[0], s1 = v->strides[1];
+    if (s1 == 8 && s0 >= 24) return 1;
+    if (s0 == 8 && s1 >= 8 * M) return 0;
+    return -1;
+}
+
+/* ‖row i of (M, 3) ``v`` − o‖ as numpy's ``np.sqrt(np.einsum("ij,ij->i", l, l))`` of ``l = v − o``: einsum sums
+ * a C-ordered row as (l0² + l2²) + l1², an F-ordered one as (l0² + l1²) + l2²; ``los`` (M, 3) gets l */
+static void sd_ranges(const Py_buffer *v, int c_order, Py_ssize_t M, const double o[3], double *los, double *rng)
+{
+    const char *base = (const char *)v->buf;
+    const Py_ssize_t s0 = v->strides[0], s1 = v->strides[1];
+    for (Py_ssize_t i = 0; i < M; i++) {
+        const char *row = base + i * s0;
+        const double l0 = *(const double *)row - o[0], l1 = *(const double *)(row + s1) - o[1],
+                     l2 = *(const double *)(row + 2 * s1) - o[2];
+        const double q0 = l0 * l0, q1 = l1 * l1, q2 = l2 * l2;
+        rng[i] = sqrt(c_order ? (q0 + q2) + q1 : (q0 + q1) + q2);
+        if (los) { los[3 * i] = l0; los[3 * i + 1] = l1; los[3 * i + 2] = l2; }
+    }
+}
+
+/* sd_update(P, xbar, z, u, inv_sigma, block, sat_xyz, sat_base_xyz, base_xyz, lam, amb, origin, max_iterations,
+ *           x_out, P_out) -> NIS or None */
+static PyObject *py_sd_update(PyObject *self, PyObject *args)
+{
+    PyObject *o[15];
+    long long max_it_ll;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOOLOO", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &o[6], &o[7], &o[8],
+                          &o[9], &o[10], &o[11], &max_it_ll, &o[13], &o[14]))
+        return NULL;
+    if (!SD.gemm) Py_RETURN_NONE;
+    enum { NB = 12 };
+    Buf b[NB];
+    memset(b, 0, sizeof b);
+    PyObject *ret = NULL;
+    double *work = NULL;
+    Py_buffer sxv, sbv;
+    int sx_held = 0, sb_held = 0;
+    /* sizes from xbar and z */
+    if (PyObject_GetBuffer(o[1], &b[1].view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) != 0) { PyErr_Clear(); goto none; }
+    b[1].held = 1;
+    const Py_ssize_t n = b[1].view.len / 8;
+    if (PyObject_GetBuffer(o[2], &b[2].view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) != 0) { PyErr_Clear(); goto none; }
+    b[2].held = 1;
+    const Py_ssize_t p = b[2].view.len / 8, M = p / 2;
+    release_all(b, NB);
+    if (M < 2 || p != 2 * M || n < 4) goto none;
+    if (sd_buf(o[0], &b[0], 'd', n * n, 0) || sd_buf(o[1], &b[1], 'd', n, 0) || sd_buf(o[2], &b[2], 'd', p, 0)
+        || sd_buf(o[3], &b[3], 'd', p, 0) || sd_buf(o[4], &b[4], 'd', p, 0) || sd_buf(o[5], &b[5], 'q', p, 0)
+        || sd_buf(o[8], &b[6], 'd', 3, 0) || sd_buf(o[9], &b[7], 'd', M, 0) || sd_buf(o[10], &b[8], 'q', M, 0)
+        || sd_buf(o[11], &b[9], 'd', 3, 0) || sd_buf(o[13], &b[10], 'd', n, 1) || sd_buf(o[14], &b[11], 'd', n * n, 1))
+        goto none;
+    const int c_order = sd_rows3(o[6], &sxv, &sx_held, M), cb_order = sd_rows3(o[7], &sbv, &sb_held, M);
+    if (c_order < 0 || cb_order < 0) goto none;
+    const double *P = b[0].view.buf, *xbar = b[1].view.buf, *z = b[2].view.buf, *u = b[3].view.buf;
+    const double *inv = b[4].view.buf, *base_xyz = b[6].view.buf, *lam = b[7].view.buf, *origin = b[9].view.buf;
+    const int64_t *blkid = b[5].view.buf, *amb = b[8].view.buf;
+    double *x_out = b[10].view.buf, *P_out = b[11].view.buf;
+    const int64_t na = 3 + M;
+    if (na >= n) goto none;                               /* every column active: the dense form */
+    for (Py_ssize_t i = 0; i < M; i++)
+        if (amb[i] < 3 || amb[i] >= n || !(lam[i] != 0.0)) goto none;
+    /* work, each block 64-byte aligned: a and each row's rank among them (int64), zw, h, hw, v, g (p), xi, xn,
+     * dx (n), d (na), Hpos (M*3), Ha, Hw (p*na), Pa (n*na), U (n*p), Ua (na*p), S, c (p*p), W (p*(n+1)), G (n*n),
+     * B (p*p), the base ranges (M), los (M*3), the ranges (M) */
+    const Py_ssize_t len[] = {na, M, p, p, p, p, p, n, n, n, na, 3 * M, p * na, p * na, n * na, n * p, na * p,
+                              p * p, p * p, p * (n + 1), n * n, p * p, M, 3 * M, M};
+    enum { NW = sizeof len / sizeof len[0] };
+    double *blk[NW];
+    Py_ssize_t total = 0;
+    for (int i = 0; i < NW; i++) total += (len[i] + 7) / 8 * 8;
+    work = aligned_alloc(64, total * sizeof(double));
+    if (!work) { PyErr_NoMemory(); goto done; }
+    for (int i = 0, off = 0; i < NW; off += (int)((len[i] + 7) / 8 * 8), i++) blk[i] = work + off;
+    int64_t *a = (int64_t *)blk[0], *col_of_row = (int64_t *)blk[1];
+    double *zw = blk[2], *h = blk[3], *hw = blk[4], *v = blk[5], *g = blk[6], *xi = blk[7], *xn = blk[8];
+    double *dx = blk[9], *d = blk[10], *Hpos = blk[11], *Ha = blk[12], *Hw = blk[13], *Pa = blk[14], *U = blk[15];
+    double *Ua = blk[16], *S = blk[17], *cf = blk[18], *W = blk[19], *G = blk[20], *Bw = blk[21];
+    double *base_rng = blk[22], *los = blk[23], *rng = blk[24];
+    /* B = (I − blockdiag(u uᵀ)) Σ^{-1/2} as whitening_matrix forms it (−0.0 across blocks) and the base ranges */
+    for (Py_ssize_t i = 0; i < p; i++)
+        for (Py_ssize_t j = 0; j < p; j++) {
+            double e = blkid[i] == blkid[j] ? -(u[i] * u[j]) : -0.0;
+            if (i == j) e += 1.0;
+            Bw[i * p + j] = e * inv[j];
+        }
+    sd_ranges(&sbv, cb_order, M, base_xyz, NULL, base_rng);
+    /* the active columns: 0, 1, 2 and the rows' ambiguities, ascending (H.any(axis=0).nonzero()) */
+    a[0] = 0; a[1] = 1; a[2] = 2;
+    for (Py_ssize_t i = 0; i < M; i++) {                  /* insertion sort of (column, row) */
+        Py_ssize_t j = 3 + i;
+        while (j > 3 && a[j - 1] > amb[i]) { a[j] = a[j - 1]; j--; }
+        if (j > 3 && a[j - 1] == amb[i]) goto none;       /* two rows on one column: numpy's path */
+        a[j] = amb[i];
+    }
+    for (Py_ssize_t i = 0; i < M; i++)
+        for (Py_ssize_t j = 3; j < na; j++)
+            if (a[j] == amb[i]) { col_of_row[i] = j; break; }
+    const int last = (int)((max_it_ll > 1 ? max_it_ll : 1) - 1);
+    double nis = NAN;
+    np_mv(Bw, p, p, z, zw);                               /* zw = B z */
+    memcpy(xi, xbar, n * sizeof(double));
+    for (Py_ssize_t j = 0; j < na; j++)                   /* P̄[:, a], Fortran-ordered as numpy makes it */
+        for (Py_ssize_t r = 0; r < n; r++) Pa[j * n + r] = P[r * n + a[j]];
+    for (int it = 0; it <= last; it++) {
+        /* predict: h(x_i) and the position columns of H (RunDDModel.predict) */
+        const double o[3] = {origin[0] + xi[0], origin[1] + xi[1], origin[2] + xi[2]};
+        int active[3] = {0, 0, 0};
+        sd_ranges(&sxv, c_order, M, o, los, rng);
+        for (Py_ssize_t i = 0; i < M; i++) {
+            const double r = rng[i];
+            for (int j = 0; j < 3; j++) {
+                Hpos[3 * i + j] = (-los[3 * i + j]) / r;
+                active[j] |= (Hpos[3 * i + j] != 0.0);
+            }
+            const double geo = r - base_rng[i];
+            h[M + i] = geo;
+            h[i] = geo + lam[i] * xi[amb[i]];
+        }
+        if (!active[0] || !active[1] || !active[2]) goto none;
+        memset(Ha, 0, p * na * sizeof(double));           /* H[:, a], Fortran-ordered as numpy makes it */
+        for (Py_ssize_t i = 0; i < M; i++) {
+            for (int j = 0; j < 3; j++) Ha[j * p + i] = Ha[j * p + M + i] = Hpos[3 * i + j];
+            Ha[col_of_row[i] * p + i] = lam[i];
+        }
+        np_mm(Bw, 0, p, p, Ha, 1, na, Hw);                /* H_w = B H[:, a] */
+        np_mv(Bw, p, p, h, hw);                           /* h_w = B h */
+        if (it == 0) {
+            for (Py_ssize_t r = 0; r < p; r++) v[r] = zw[r] - hw[r];
+        } else {                                          /* ν = z_w − h_w − H_w (x̄[a] − x_i[a]) */
+            for (Py_ssize_t j = 0; j < na; j++) d[j] = xbar[a[j]] - xi[a[j]];
+            np_mv(Hw, p, na, d, g);
+            for (Py_ssize_t r = 0; r < p; r++) v[r] = (zw[r] - hw[r]) - g[r];
+        }
+        np_mm(Pa, 1, n, na, Hw, 1, p, U);                 /* U = P̄[:, a] H_wᵀ */
+        for (Py_ssize_t j = 0; j < na; j++) memcpy(Ua + j * p, U + a[j] * p, p * sizeof(double));
+        np_mm(Hw, 0, p, na, Ua, 0, p, S);                 /* S = H_w U[a] + I */
+        for (Py_ssize_t r = 0; r < p; r++) S[r * p + r] += 1.0;
+        for (Py_ssize_t r = 0; r < p; r++)                /* potrf's Fortran-ordered copy */
+            for (Py_ssize_t c = 0; c < p; c++) cf[r + c * p] = S[r * p + c];
+        int pi = (int)p, info = 0, nrhs = (int)(n + 1);
+        char up = 'U', tr = 'T', nd = 'N';
+        SD.potrf(&up, &pi, cf, &pi, &info);
+        if (info != 0) goto none;
+        memcpy(W, U, n * p * sizeof(double));             /* [Uᵀ | ν] Fortran-ordered: U's rows, then ν */
+        memcpy(W + n * p, v, p * sizeof(double));
+        SD.trtrs(&up, &tr, &nd, &pi, &nrhs, cf, &pi, W, &pi, &info);
+        if (info != 0) goto none;
+        SD.gemv(CB_COL, CB_TRANS, p, n, 1.0, W, p, W + n * p, 1, 0.0, dx, 1);      /* Δx = Vᵀ w */
+        if (it == 0) nis = 0.0 + SD.dot(p, W + n * p, 1, W + n * p, 1);              /* wᵀ w */
+        for (Py_ssize_t r = 0; r < n; r++) xn[r] = xbar[r] + dx[r];
+        if (it == last) { memcpy(xi, xn, n * sizeof(double)); break; }
+        double step = 0.0, mx = 0.0;
+        int nan_step = 0, nan_mx = 0;
+        for (Py_ssize_t r = 0; r < n; r++) {
+            const double s = fabs(xn[r] - xi[r]), m = fabs(xn[r]);
+            if (s != s) nan_step = 1; else if (s > step) step = s;
+            if (m != m) nan_mx = 1; else if (m > mx) mx = m;
+        }
+        memcpy(xi, xn, n * sizeof(double));
+        const double scale = (nan_mx || !(mx > 1.0)) ? 1.0 : mx;
+        if (!nan_step && step <= 1e-9 * scale) break;
+    }
+    /* P⁺ = P̄ − Vᵀ V: numpy's syrk of the product with its own transpose, its upper triangle copied down */
+    SD.syrk(CB_ROW, CB_UPPER, CB_NOTRANS, n, p, 1.0, W, p, 0.0, G, n);
+    for (Py_ssize_t i = 0; i < n; i++)
+        for (Py_ssize_t j = i + 1; j < n; j++) G[j * n + i] = G[i * n + j];
+    for (Py_ssize_t r = 0; r < n * n; r++) P_out[r] = P[r] - G[r];
+    memcpy(x_out, xi, n * sizeof(double));
+    ret = PyFloat_FromDouble(nis);
+    goto done;
+none:
+    ret = Py_NewRef(Py_None);
+done:
+    free(work);
+    if (sx_held) PyBuffer_Release(&sxv);
+    if (sb_held) PyBuffer_Release(&sbv);
+    release_all(b, NB);
+    return ret;
+}
+
 static PyMethodDef methods[] = {
     {"phase_model", py_phase_model, METH_VARARGS, "phase_model(gi, gf, x, h, H): h(x) and H[:, :n_m] of one state."},
     {"filter_span", py_filter_span, METH_VARARGS, "Forward EKF (fixed biases) over steady-state epochs."},
@@ -1792,6 +2048,8 @@ static PyMethodDef methods[] = {
     {"srif_smooth", py_srif_smooth, METH_VARARGS, "Dyer-McReynolds smoother pass of the batch solver."},
     {"window_forward", py_window_forward, METH_VARARGS, "Information filter of INIT's window (from zero information)."},
     {"window_backward", py_window_backward, METH_VARARGS, "RTS pass of INIT's window from the prior information."},
+    {"sd_set_routines", py_sd_set_routines, METH_VARARGS, "Addresses of numpy's CBLAS dgemm, dgemv, dsyrk, ddot and scipy's LAPACK dpotrf, dtrtrs."},
+    {"sd_update", py_sd_update, METH_VARARGS, "The static engine's sparse covariance-form update of one epoch (RunDDModel rows)."},
     {NULL, NULL, 0, NULL},
 };
 

@@ -18,11 +18,20 @@ and applies, relinearizing h at the iterate x_i (Gauss–Newton),
 (the last is νᵀ(H P̄ Hᵀ + C)⁻¹ν by the matrix inversion lemma).  1998 paper Eq. (16)–(23) in
 information form; both noise kinds of the architecture's filter.  :func:`update` is the same step
 for rows already linearized at x̄ (residual ρ = z − h(x̄) and H).
+
+The static engine's rows (:class:`~cdgps_cli.measurement.dd_signals.RunDDModel`, ≈ 10 DD rows on ≈ 90 states
+an epoch, 86 400 epochs a day at 1 Hz) take :func:`iterated_update_covariance`'s sparse path in C
+(``_ekfcore.sd_update``): the model's h, H and whitening and the update's products, with the very BLAS / LAPACK
+calls numpy's matmul and scipy's wrappers make for them (numpy's bundled CBLAS, scipy's cython_lapack) and
+numpy's elementwise order, so x, P and NIS are the numpy path's bit for bit (tests/estimation/
+test_kalman_compiled.py); a case it does not cover, or CDGPS_NO_KERNEL, runs the numpy path.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from cdgps_cli.estimation import compiled
 
 __all__ = ["StepFilter", "iterated_update", "iterated_update_covariance", "predict", "update", "LAPACK_CHOLESKY", "NUMPY_INVERSE"]
 
@@ -70,6 +79,7 @@ class StepFilter:
         self.P = np.array(P, dtype=float)
         self.linalg = linalg
         self.form = form
+        self.kernel = None      # the compiled covariance update, looked up at the first update (CDGPS_NO_KERNEL then)
 
     def predict(self, A: np.ndarray, Q: np.ndarray, known_input=None) -> None:
         """x̄ = A x (+ known input), P̄ = A P Aᵀ + Q.
@@ -97,7 +107,10 @@ class StepFilter:
         of ``model`` (a :class:`~cdgps_cli.measurement.model.MeasurementModel`), :func:`iterated_update`;
         returns the epoch's NIS (dof ``rows.z_m.size``)."""
         if self.form == "covariance":
-            self.x, self.P, nis = iterated_update_covariance(model, rows, self.x, self.P, max_iterations)
+            if self.kernel is None:
+                self.kernel = _sd_kernel()
+            self.x, self.P, nis = iterated_update_covariance(model, rows, self.x, self.P, max_iterations,
+                                                             kernel=self.kernel)
         else:
             self.x, self.P, nis = iterated_update(model, rows, self.x, self.P, max_iterations, self.linalg)
         return nis
@@ -186,7 +199,7 @@ def _gauss_newton(model, mk, xbar: np.ndarray, max_iterations: int, correction, 
 
 
 def iterated_update_covariance(model, mk, xbar: np.ndarray, Pbar: np.ndarray, max_iterations: int = 5,
-                               sparse: bool = True):
+                               sparse: bool = True, kernel=None):
     """(x, P, NIS) of :func:`iterated_update` in covariance form: O(n² m) an epoch, no n × n factor.
 
     With whitened rows (noise I) linearized at the iterate x_i: S = H P̄ Hᵀ + I (m × m, Cholesky),
@@ -208,6 +221,10 @@ def iterated_update_covariance(model, mk, xbar: np.ndarray, Pbar: np.ndarray, ma
         As :func:`iterated_update`.
     sparse : bool
         Work on H's non-zero columns when it has zero ones.
+    kernel : callable or False, optional
+        The compiled twin of the sparse path for a model with ``range_terms`` (the static engine's
+        :class:`~cdgps_cli.measurement.dd_signals.RunDDModel`; ``_ekfcore.sd_update``, the same bits), as
+        :func:`_sd_kernel` gives it (False: numpy only; None: looked up, which reads CDGPS_NO_KERNEL).
 
     Returns
     -------
@@ -215,6 +232,13 @@ def iterated_update_covariance(model, mk, xbar: np.ndarray, Pbar: np.ndarray, ma
     P : ndarray, shape (n, n)
     nis : float
     """
+    if sparse:
+        terms = getattr(model, "range_terms", None)
+        if terms is not None:                       # the static engine's rows: the compiled twin of this path
+            out = _compiled_range_update(terms(mk), mk, xbar, Pbar, max_iterations, kernel)
+            if out is not None:
+                return out
+
     def correction(H, v, first, a):                 # P̄ Hᵀ S⁻¹ ν, its NIS at x̄, what P⁺ needs
         if a is None:                               # dense: (P̄ Hᵀ, factor of S)
             U = Pbar @ H.T                          # P̄ Hᵀ (n, m)
@@ -241,6 +265,71 @@ def iterated_update_covariance(model, mk, xbar: np.ndarray, Pbar: np.ndarray, ma
     G = U.T @ U                                     # Vᵀ V (numpy's syrk for a product with its own transpose)
     np.subtract(Pbar, G, out=G)
     return xi, G, nis
+
+
+#: the compiled update (``_ekfcore.sd_update``) with its BLAS / LAPACK routines set, or False; None: not looked up
+_SD_KERNEL: list = [None]
+
+
+def _sd_kernel():
+    """``_ekfcore.sd_update`` once its routines are set: numpy's own CBLAS dgemm / dgemv / dsyrk / ddot (the ones
+    its matmul calls, from the OpenBLAS numpy bundles) and scipy's LAPACK dpotrf / dtrtrs (those of
+    :func:`_chol_factor` and :func:`_tri_solve_upper_t`, through ``scipy.linalg.cython_lapack``); False when the
+    extension, the library or a symbol is not found, or CDGPS_NO_KERNEL is set (then the numpy path runs)."""
+    if not compiled.available():
+        return False
+    if _SD_KERNEL[0] is None:
+        _SD_KERNEL[0] = False
+        fn = getattr(compiled._ekfcore, "sd_update", None)
+        addresses = _blas_lapack_addresses() if fn is not None else None
+        if addresses is not None:
+            compiled._ekfcore.sd_set_routines(*addresses)
+            _SD_KERNEL[0] = fn
+    return _SD_KERNEL[0]
+
+
+def _blas_lapack_addresses():
+    """(dgemm, dgemv, dsyrk, ddot, dpotrf, dtrtrs) addresses, or None: the CBLAS of numpy's bundled ILP64
+    OpenBLAS (``scipy_cblas_*64_``, the library numpy's matmul calls) and scipy's cython_lapack routines."""
+    import ctypes
+    import glob
+    import os
+    libs = sorted(glob.glob(os.path.join(os.path.dirname(os.path.dirname(np.__file__)), "numpy.libs",
+                                         "libscipy_openblas64_*.so")))
+    cfg = np.show_config(mode="dicts").get("Build Dependencies", {}).get("blas", {})
+    if len(libs) != 1 or cfg.get("name") != "scipy-openblas" or "USE64BITINT" not in cfg.get("openblas configuration", ""):
+        return None
+    try:
+        lib = ctypes.CDLL(libs[0])
+        blas = [ctypes.cast(getattr(lib, f"scipy_cblas_{f}64_"), ctypes.c_void_p).value
+                for f in ("dgemm", "dgemv", "dsyrk", "ddot")]
+        from scipy.linalg import cython_lapack
+        get_name, get_pointer = ctypes.pythonapi.PyCapsule_GetName, ctypes.pythonapi.PyCapsule_GetPointer
+        get_name.restype, get_name.argtypes = ctypes.c_char_p, [ctypes.py_object]
+        get_pointer.restype, get_pointer.argtypes = ctypes.c_void_p, [ctypes.py_object, ctypes.c_char_p]
+        caps = [cython_lapack.__pyx_capi__[f] for f in ("dpotrf", "dtrtrs")]
+        lapack = [get_pointer(c, get_name(c)) for c in caps]
+    except (OSError, AttributeError, KeyError, ImportError):
+        return None
+    out = blas + lapack
+    return out if all(out) else None
+
+
+def _compiled_range_update(terms, mk, xbar, Pbar, max_iterations, kernel=None):
+    """:func:`iterated_update_covariance`'s sparse path in C for rows whose model gives ``range_terms``
+    (:meth:`cdgps_cli.measurement.dd_signals.RunDDModel.range_terms`: the satellite positions as seen by rover
+    and base, the base position, λ, the ambiguity columns, the origin and the whitening's u, Σ^{-1/2} and blocks;
+    rows ``z_m`` (2M,)); (x, P, NIS), the same bits, or None when the kernel is off or does not cover the case
+    (the numpy path then runs).  ``kernel``: :func:`_sd_kernel`'s answer when the caller has it (None: asked)."""
+    fn = _sd_kernel() if kernel is None else kernel
+    if not fn or terms is None:
+        return None
+    sat_xyz, sat_base_xyz, base_xyz, lam, amb, origin, u, inv_sigma, block = terms
+    n = xbar.size
+    x, P = np.empty(n), np.empty((n, n))
+    nis = fn(Pbar, xbar, mk.z_m, u, inv_sigma, block, sat_xyz, sat_base_xyz, base_xyz, lam, amb, origin,
+             int(max_iterations), x, P)
+    return None if nis is None else (x, P, nis)
 
 
 def _active_columns(H: np.ndarray):

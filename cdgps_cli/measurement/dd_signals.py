@@ -389,21 +389,60 @@ class RunDDModel(DDGroupModel):
         return np.concatenate([sx[a:b] for a, b in spans]), np.concatenate([sb[a:b] for a, b in spans])
 
     def rows(self, k: int):
-        """:class:`GroupRows` of epoch k (views of its block's layout), or None without a group."""
+        """:class:`GroupRows` of epoch k (views of its block's layout), or None without a group; its whitening B,
+        base ranges and H template are formed on first use (:class:`_RunRows`: the engine's compiled update
+        reads the terms they are made of, :meth:`range_terms`)."""
         lay = self._block(k)
         a, b = int(lay.cptr[k - lay.k0]), int(lay.cptr[k - lay.k0 + 1])
         if a == b:
             return None
-        M, n = b - a, len(self._ctx.x)
-        amb, lam = lay.amb[a:b], lay.lam[a:b]
-        H = np.zeros((2 * M, n))
-        H[np.arange(M), amb] = lam
+        M = b - a
         sx, sb = self._positions(lay, k - lay.k0, M)
-        los_b = sb - self.base_xyz
-        ctx = {"sat_xyz": sx, "base_rng": np.sqrt(np.einsum("ij,ij->i", los_b, los_b)), "lam": lam,
-               "mu": lay.mu[a:b], "amb": amb, "ion": None, "H": H, "M": M}
+        ctx = _RunContext(sat_xyz=sx, lam=lay.lam[a:b], mu=lay.mu[a:b], amb=lay.amb[a:b], ion=None, M=M,
+                          _sb=sb, _base=self.base_xyz, _n=len(self._ctx.x))
         zs = slice(2 * a, 2 * b)
-        return GroupRows.from_parts(lay.z[zs], whitening_matrix(lay.u[zs], lay.inv[zs], lay.blk[zs]), ctx)
+        return _RunRows(lay.z[zs], lay.u[zs], lay.inv[zs], lay.blk[zs], ctx)
+
+    def range_terms(self, rows):
+        """What :meth:`predict` and the rows' whitening are made of: (sat_xyz (M, 3), the base's satellite positions
+        (M, 3), the base position (3,), λ (M,), ambiguity columns (M,), origin (3,), and B's u, Σ^{-1/2} and blocks
+        (2M,) of :func:`whitening_matrix`); the engine's compiled update forms h, H, B and the base ranges from
+        them as :meth:`rows` and :meth:`predict` do (:func:`cdgps_cli.estimation.kalman.iterated_update_covariance`)."""
+        c = rows.context
+        return (c["sat_xyz"], c["_sb"], c["_base"], c["lam"], c["amb"], self.origin, rows.u, rows.inv, rows.blk)
+
+
+class _RunContext(dict):
+    """:meth:`RunDDModel.rows`' context: ``base_rng`` (M,) (‖base's satellite − base‖) and the ``H`` template
+    (2M, n) (λ at each row's ambiguity column) made on first use, as DDGroupModel.rows makes them."""
+
+    def __missing__(self, key):
+        if key == "base_rng":
+            los_b = self["_sb"] - self["_base"]
+            value = np.sqrt(np.einsum("ij,ij->i", los_b, los_b))
+        elif key == "H":
+            M = self["M"]
+            value = np.zeros((2 * M, self["_n"]))
+            value[np.arange(M), self["amb"]] = self["lam"]
+        else:
+            raise KeyError(key)
+        self[key] = value
+        return value
+
+
+class _RunRows(GroupRows):
+    """:class:`GroupRows` whose whitening ``B`` (:func:`whitening_matrix` of ``u``, ``inv``, ``blk``) is formed on
+    first use."""
+
+    def __init__(self, z_m, u, inv, blk, context):
+        self.z_m, self.u, self.inv, self.blk, self.context = z_m, u, inv, blk, context
+        self._B = None
+
+    @property
+    def B(self) -> np.ndarray:
+        if self._B is None:
+            self._B = whitening_matrix(self.u, self.inv, self.blk)
+        return self._B
 
 
 # ----------------------------------------------------------------------------------------------
