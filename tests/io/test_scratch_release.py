@@ -4,11 +4,13 @@ ends of each range too) and every value comes back when read."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from cdgps_cli.io import scratch
 from cdgps_cli.io.scratch import DiskHistory
 
 pytestmark = pytest.mark.skipif(not Path("/proc/self/smaps").exists(), reason="needs /proc/self/smaps (Linux)")
@@ -75,3 +77,43 @@ def test_stretches_read_and_written_then_released_leave_memory(tmp_path):
         b = lo
     assert _mapping_rss_kib(a) < a.nbytes // 1024 // 4          # (without the widening: ≈ 2/3 of it stays)
     assert a[0, 0, 0] == 2.0 and a[n - 1, 17, 17] == 2.0 and np.all(a[5000] == 2.0)
+
+
+def _cached(fd: int, offset: int, nbytes: int) -> bool:
+    """Whether bytes offset … offset + nbytes of the file are all in the page cache (a read that must
+    not wait for the disk: ``RWF_NOWAIT``)."""
+    buf = bytearray(nbytes)
+    try:
+        return os.preadv(fd, [buf], offset, os.RWF_NOWAIT) == nbytes
+    except BlockingIOError:
+        return False
+
+
+@pytest.mark.skipif(not hasattr(os, "RWF_NOWAIT") or scratch._SYNC_FILE_RANGE is None,
+                    reason="needs preadv RWF_NOWAIT and sync_file_range (Linux)")
+def test_release_of_a_chunk_takes_its_pages_out_of_the_page_cache(tmp_path):
+    """A release of at least DROP_CACHE_MIN_BYTES writes the rows to disk and drops them from the page
+    cache (the file of a day's history no longer fills the system's memory); shorter ones leave the
+    cache alone; every value comes back when read."""
+    h = DiskHistory(tmp_path)
+    a = h.empty((3000, 18, 18))                       # 2592-byte rows, 7.4 MiB
+    a[:] = np.arange(3000, dtype=float)[:, None, None]
+    fd, row = scratch._FDS[a._mmap], a.strides[0]
+    assert _cached(fd, 0, a.nbytes)
+    h.release(a, 2990, 3000)                          # 25 kB: unmapped, still cached
+    assert _cached(fd, 2990 * row // 4096 * 4096, 4096)
+    h.release(a, 0, 1000)                             # 2.5 MiB: written and dropped
+    assert not _cached(fd, 4096, 4096) and not _cached(fd, 900 * row, 4096)
+    assert _cached(fd, 2000 * row, 4096)              # (the rows not released stay)
+    assert np.array_equal(a[:, 3, 4], np.arange(3000, dtype=float))
+
+
+def test_drop_cached_keeps_the_values_of_a_file_written_by_write(tmp_path):
+    path = tmp_path / "f"
+    data = np.random.default_rng(1).bytes(3 << 20)
+    with open(path, "wb") as fh:
+        fh.write(data)
+        fh.flush()
+        scratch.drop_cached(fh.fileno(), 0, len(data))
+        scratch.drop_cached(fh.fileno(), 0, 0)        # (nothing)
+    assert path.read_bytes() == data
