@@ -268,6 +268,8 @@ class PackedRows:
     """
 
     _PIECE = 1 << 20
+    #: reads of the scratch file of at least this many bytes are dropped from the page cache after
+    _DROP_READ = 1 << 16
 
     def __init__(self, read, length: int, what: str = "packed array"):
         import tempfile
@@ -302,7 +304,10 @@ class PackedRows:
                 left -= len(data)
                 return data
 
+        from cdgps_cli.io.scratch import DropBehind  # noqa: PLC0415
+
         out = 0
+        behind = DropBehind(self._file)            # (out of the page cache as written: see chunks)
         with zstandard.ZstdDecompressor().stream_reader(_Span(), read_size=self._PIECE, closefd=False) as z:
             while True:
                 raw = z.read(self._PIECE)
@@ -312,6 +317,8 @@ class PackedRows:
                 if out > size:
                     break
                 self._file.write(raw)
+                behind.wrote(len(raw))
+        behind.close()
         if out != size or left:
             raise ValueError(f"{out if out <= size else 'more'} bytes of content for shape {list(self.shape)} "
                              f"of {self.dtype.str}")
@@ -325,6 +332,8 @@ class PackedRows:
         Each call starts again from the first row (several passes over the same array)."""
         if rows < 1:
             raise ValueError(f"rows {rows!r}: expected a positive number of rows per block")
+        from cdgps_cli.io.scratch import drop_cached  # noqa: PLC0415
+
         size, n, m = self.dtype.itemsize, self.n_rows, self.m
         carry = [np.zeros(m, dtype=_unsigned(size)) for _ in range(self.delta)]
         fd = self._file.fileno()
@@ -334,6 +343,8 @@ class PackedRows:
             for b in range(size):
                 for c in range(m):
                     block[:, c, b] = np.frombuffer(os.pread(fd, k, (b * m + c) * n + a), dtype=np.uint8)
+                    if k >= self._DROP_READ:        # (read from the disk: not kept in the page cache either)
+                        drop_cached(fd, (b * m + c) * n + a, k)
             u = block.view(_unsigned(size)).reshape(k, m)
             if self.delta:
                 u = self._undo_delta(u, carry)

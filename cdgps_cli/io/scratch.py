@@ -28,7 +28,7 @@ import numpy as np
 
 from cdgps_cli.core.errors import CdgpsError
 
-__all__ = ["DiskHistory", "FAULT_AROUND_BYTES", "DROP_CACHE_MIN_BYTES", "drop_cached"]
+__all__ = ["DiskHistory", "FAULT_AROUND_BYTES", "DROP_CACHE_MIN_BYTES", "DropBehind", "drop_cached"]
 
 #: how far from a read page fault Linux maps a file's cached pages as well (``fault_around_bytes``,
 #: 64 KiB by default): :meth:`DiskHistory.release` drops that much more on each side of its rows
@@ -76,6 +76,35 @@ def drop_cached(fd: int, offset: int, nbytes: int) -> None:
         return                                  # (not written: leave the pages, the kernel writes them later)
     if hasattr(os, "posix_fadvise"):
         os.posix_fadvise(fd, offset, nbytes, os.POSIX_FADV_DONTNEED)
+
+
+class DropBehind:
+    """A scratch file written from its start, front to back (``fh.write``), whose bytes leave the
+    page cache behind the writer (:func:`drop_cached`) every ``step`` bytes: call :meth:`wrote`
+    after each write and :meth:`close` after the last (the file's object is flushed first).
+
+    Parameters
+    ----------
+    fh : file object
+        Open for writing, at offset 0.
+    step : int
+        Bytes written between two drops.
+    """
+
+    def __init__(self, fh, step: int = 8 * DROP_CACHE_MIN_BYTES):
+        self.fh, self.step, self.done, self.dropped = fh, int(step), 0, 0
+
+    def wrote(self, nbytes: int) -> None:
+        self.done += int(nbytes)
+        if self.done - self.dropped >= self.step:
+            self.close()
+
+    def close(self) -> None:
+        """Drop every byte written so far."""
+        if self.done > self.dropped:
+            self.fh.flush()
+            drop_cached(self.fh.fileno(), self.dropped, self.done - self.dropped)
+            self.dropped = self.done
 
 
 def _reserve(fd: int, nbytes: int) -> None:
