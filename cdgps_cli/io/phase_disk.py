@@ -20,7 +20,7 @@ import tempfile
 import numpy as np
 
 from cdgps_cli.core.table import Table
-from cdgps_cli.io.scratch import DROP_CACHE_MIN_BYTES, DropBehind, drop_cached
+from cdgps_cli.io.scratch import DROP_CACHE_MIN_BYTES, DropBehind, forget_cached
 
 __all__ = ["DiskColumn", "DiskPhase", "BLOCK_ROWS"]
 
@@ -65,7 +65,7 @@ class DiskColumn:
             if got != out.nbytes:
                 raise OSError(f"short read of a phase column's scratch file ({got} of {out.nbytes} bytes)")
             if got >= DROP_CACHE_MIN_BYTES:        # (a block: out of the page cache again, see column_file)
-                drop_cached(self._file.fileno(), a * self.dtype.itemsize, got)
+                forget_cached(self._file.fileno(), a * self.dtype.itemsize, got)
         return out
 
     def blocks(self, rows: int = BLOCK_ROWS):

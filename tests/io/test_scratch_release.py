@@ -91,10 +91,11 @@ def _cached(fd: int, offset: int, nbytes: int) -> bool:
 
 @pytest.mark.skipif(not hasattr(os, "RWF_NOWAIT") or scratch._SYNC_FILE_RANGE is None,
                     reason="needs preadv RWF_NOWAIT and sync_file_range (Linux)")
-def test_release_of_a_chunk_takes_its_pages_out_of_the_page_cache(tmp_path):
-    """A release of at least DROP_CACHE_MIN_BYTES writes the rows to disk and drops them from the page
-    cache (the file of a day's history no longer fills the system's memory); shorter ones leave the
-    cache alone; every value comes back when read."""
+def test_release_of_a_chunk_takes_its_pages_out_of_the_page_cache(tmp_path, monkeypatch):
+    """A release of at least DROP_CACHE_MIN_BYTES starts writing the rows to disk, and the next such
+    release drops them from the page cache (the file of a day's history no longer fills the system's
+    memory); shorter ones leave the cache alone; every value comes back when read."""
+    monkeypatch.setattr(scratch, "SCRATCH_CACHE_BYTES", 0)           # (past the process's budget)
     h = DiskHistory(tmp_path)
     a = h.empty((3000, 18, 18))                       # 2592-byte rows, 7.4 MiB
     a[:] = np.arange(3000, dtype=float)[:, None, None]
@@ -102,7 +103,8 @@ def test_release_of_a_chunk_takes_its_pages_out_of_the_page_cache(tmp_path):
     assert _cached(fd, 0, a.nbytes)
     h.release(a, 2990, 3000)                          # 25 kB: unmapped, still cached
     assert _cached(fd, 2990 * row // 4096 * 4096, 4096)
-    h.release(a, 0, 1000)                             # 2.5 MiB: written and dropped
+    h.release(a, 0, 1000)                             # 2.5 MiB: being written …
+    h.release(a, 1000, 1500)                          # … and dropped at the next release
     assert not _cached(fd, 4096, 4096) and not _cached(fd, 900 * row, 4096)
     assert _cached(fd, 2000 * row, 4096)              # (the rows not released stay)
     assert np.array_equal(a[:, 3, 4], np.arange(3000, dtype=float))
@@ -117,3 +119,38 @@ def test_drop_cached_keeps_the_values_of_a_file_written_by_write(tmp_path):
         scratch.drop_cached(fh.fileno(), 0, len(data))
         scratch.drop_cached(fh.fileno(), 0, 0)        # (nothing)
     assert path.read_bytes() == data
+
+
+@pytest.mark.skipif(not hasattr(os, "RWF_NOWAIT"), reason="needs preadv RWF_NOWAIT (Linux)")
+def test_under_the_budget_releases_leave_the_page_cache_alone(tmp_path, monkeypatch):
+    """Until the scratch files pass SCRATCH_CACHE_BYTES nothing is written or dropped (a short record
+    costs no disk writes); past it, they are."""
+    monkeypatch.setattr(scratch, "SCRATCH_CACHE_BYTES", 6 << 20)
+    monkeypatch.setattr(scratch, "_PUSHED", [0])
+    h = DiskHistory(tmp_path)
+    a = h.empty((3000, 18, 18))
+    a[:] = 1.0
+    fd, row = scratch._FDS[a._mmap], a.strides[0]
+    h.release(a, 0, 1000)
+    h.release(a, 1000, 2000)                          # 5 MiB pushed: under the budget
+    assert _cached(fd, 0, 2000 * row // 4096 * 4096) and not scratch.over_budget()
+    h.release(a, 2000, 3000)                          # 7.4 MiB: past it, rows 2000 … being written
+    h.release(a, 0, 1000)                             # (and dropped at the next push)
+    assert scratch.over_budget() and not _cached(fd, 2100 * row, 4096)
+
+
+def test_bytes_pushed_again_count_once(monkeypatch):
+    """The budget counts the bytes of a file once: a prefix released again and again (HistorySink) or a
+    backward sweep; ``fresh`` gives the count of scattered ranges (PackedWriter's planes)."""
+    monkeypatch.setattr(scratch, "SCRATCH_CACHE_BYTES", 1 << 60)
+    monkeypatch.setattr(scratch, "_PUSHED", [0])
+    forward, backward, planes = scratch.Behind(-1), scratch.Behind(-1), scratch.Behind(-1)
+    for b in range(10, 101, 10):
+        forward.push([(0, b)])
+    assert scratch._PUSHED[0] == 100
+    for b in range(100, 0, -10):
+        backward.push([(b - 10, 10)])
+        backward.push([(b - 10, 10)])
+    assert scratch._PUSHED[0] == 200
+    planes.push([(j * 1000, 10) for j in range(5)], fresh=50)
+    assert scratch._PUSHED[0] == 250
