@@ -26,6 +26,7 @@ naming the file.
 
 from __future__ import annotations
 
+import bisect
 import contextlib
 import io
 import json
@@ -33,6 +34,7 @@ import os
 import re
 import struct
 import zlib
+from itertools import accumulate
 from array import array
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -541,7 +543,11 @@ class McapOut:
             t_texts = orjson.dumps(tb)[1:-1].split(b",")
             if seps and all(finite[a:a + block]):          # (every row by the template: the numbers at once)
                 stamps = unix_ns_list(tb, self.time_scale)
-                cols = [_group_texts(rows, c0, c1, c0 in int_cols) for c0, c1 in groups]
+                m = rows.shape[1] if rows.ndim == 2 else 0
+                flat = orjson.dumps(rows.ravel().tolist())[1:-1].split(b",") if rows.size and any(
+                    c1 == c0 + 1 and c0 not in int_cols for c0, c1 in groups) else []
+                cols = [flat[c0::m] if c1 == c0 + 1 and c0 not in int_cols else _group_texts(rows, c0, c1, c0 in int_cols)
+                        for c0, c1 in groups]
                 self._add_many(channel_id, stamps,
                                [fmt_g % (ns // 1_000_000_000, ns % 1_000_000_000, tt, *g)
                                 for ns, tt, g in zip(stamps, t_texts, zip(*cols) if cols else [()] * len(tb))], tb)
@@ -665,17 +671,16 @@ class McapOut:
         st.channel_message_counts[channel_id] += len(stamps_ns)
         st.message_count += len(stamps_ns)
         seq = self._seq[channel_id]
-        n, i = len(datas), 0
+        lens = list(map(len, datas))
+        ends = list(accumulate([ln + _MESSAGE_HEAD_BYTES for ln in lens]))     # each message's end, from the first's start
+        n, i, base = len(datas), 0, 0
         while i < n:                                   # the messages up to the one that fills the chunk, at once
             buf = cb.record_writer._buffer
-            at = buf.tell()
-            j, offsets = i, []
-            while j < n:
-                offsets.append(at)
-                at += _MESSAGE_HEAD_BYTES + len(datas[j])
-                j += 1
-                if at > limit:                         # (this message fills the chunk: finished after it)
-                    break
+            at0 = buf.tell()
+            j = min(bisect.bisect_right(ends, limit - at0 + base, i) + 1, n)  # (the one ending past the limit too)
+            offsets = [at0 - base + e for e in [base, *ends[i:j - 1]]]
+            at = at0 - base + ends[j - 1]
+            base = ends[j - 1]
             seg = stamps_ns[i:j]
             lo_seg, hi_seg = min(seg), max(seg)        # (as message by message: the first of a chunk sets its start)
             if cb.num_messages == 0 or lo_seg < cb.message_start_time:
@@ -687,14 +692,14 @@ class McapOut:
                 index = cb.message_indices[channel_id] = self._index_class(channel_id=channel_id, records=[])
             index.records.extend(zip(seg, offsets))
             cb.num_messages += j - i
-            parts = []
-            for k, (ns, data) in enumerate(zip(seg, datas[i:j]), seq):
-                parts.append(pack(_OPCODE_MESSAGE, 22 + len(data), channel_id, k, ns, ns))
-                parts.append(data)
+            parts = [b""] * (2 * (j - i))
+            parts[::2] = [pack(_OPCODE_MESSAGE, 22 + ln, channel_id, k, ns, ns)
+                          for k, (ns, ln) in enumerate(zip(seg, lens[i:j]), seq)]
+            parts[1::2] = datas[i:j]
             buf.write(b"".join(parts))
             seq += j - i
             if at > limit:
-                w._Writer__finalize_chunk()            # (a new buffer and indexes)
+                w._Writer__finalize_chunk()            # (a new buffer and indexes: this message filled the chunk)
             i = j
         self._seq[channel_id] = seq
         self._note_many(channel_id, times_s, receivers)
