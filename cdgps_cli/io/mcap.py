@@ -537,16 +537,17 @@ class McapOut:
         groups = _comma_groups(seps, int_cols) if seps else []
         fmt_g = b'{"timestamp":{"sec":%d,"nsec":%d},"time_s":%s' + \
             b"%s".join(seps[c].replace(b"%", b"%%") for c in [c for c, _ in groups] + [len(seps) - 1]) if seps else b""
-        block = 1024                                       # rows whose number texts are held at a time
+        # rows whose number texts are held at a time: about 16k numbers (memory of a block, not of the record)
+        block = max(64, min(2048, (1 << 14) // max(values.shape[1] if values.ndim == 2 else 1, 1)))
         for a in range(0, len(times), block):
             rows, tb = values[a:a + block], times[a:a + block]
             t_texts = orjson.dumps(tb)[1:-1].split(b",")
             if seps and all(finite[a:a + block]):          # (every row by the template: the numbers at once)
                 stamps = unix_ns_list(tb, self.time_scale)
-                m = rows.shape[1] if rows.ndim == 2 else 0
-                flat = orjson.dumps(rows.ravel().tolist())[1:-1].split(b",") if rows.size and any(
-                    c1 == c0 + 1 and c0 not in int_cols for c0, c1 in groups) else []
-                cols = [flat[c0::m] if c1 == c0 + 1 and c0 not in int_cols else _group_texts(rows, c0, c1, c0 in int_cols)
+                singles = [c0 for c0, c1 in groups if c1 == c0 + 1 and c0 not in int_cols]   # (their texts at once)
+                flat = orjson.dumps(rows[:, singles].ravel().tolist())[1:-1].split(b",") if singles and len(tb) else []
+                where = {c: j for j, c in enumerate(singles)}
+                cols = [flat[where[c0]::len(singles)] if c0 in where else _group_texts(rows, c0, c1, c0 in int_cols)
                         for c0, c1 in groups]
                 self._add_many(channel_id, stamps,
                                [fmt_g % (ns // 1_000_000_000, ns % 1_000_000_000, tt, *g)
