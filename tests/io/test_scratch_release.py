@@ -154,3 +154,19 @@ def test_bytes_pushed_again_count_once(monkeypatch):
     assert scratch._PUSHED[0] == 200
     planes.push([(j * 1000, 10) for j in range(5)], fresh=50)
     assert scratch._PUSHED[0] == 250
+
+
+@pytest.mark.skipif(not Path("/proc/self/fd").exists(), reason="needs /proc/self/fd (Linux)")
+def test_the_descriptor_kept_for_page_cache_drops_closes_with_the_array(tmp_path):
+    import gc
+
+    h = DiskHistory(tmp_path)
+    before = len(list(Path("/proc/self/fd").iterdir()))
+    arrays = [h.empty((100, 18)) for _ in range(5)]
+    views = [a[10:] for a in arrays]
+    del arrays
+    gc.collect()
+    assert len(list(Path("/proc/self/fd").iterdir())) > before       # (the views keep their files)
+    del views
+    gc.collect()
+    assert len(list(Path("/proc/self/fd").iterdir())) == before
