@@ -319,12 +319,14 @@ class PackedRows:
                 self._file.write(raw)
                 behind.wrote(len(raw))
         behind.close()
+        self._behind = behind                      # (its bytes count in the scratch budget until close)
         if out != size or left:
             raise ValueError(f"{out if out <= size else 'more'} bytes of content for shape {list(self.shape)} "
                              f"of {self.dtype.str}")
 
     def close(self) -> None:
         self._file.close()
+        self._behind = None
 
     def chunks(self, rows: int):
         """Blocks of up to ``rows`` consecutive rows, first to last: arrays (k, *shape[1:]) of the dtype.
@@ -490,10 +492,11 @@ class PackedWriter:
         behind.wrote(len(out))
         behind.close()
         self._file.close()
+        self._behind = None
         length = len(first) + packed.tell()
         packed.seek(0)
 
-        def pieces():
+        def pieces(_behind=behind):                # (the packed file's bytes count until it is closed)
             try:
                 yield first
                 at = 0
@@ -511,3 +514,4 @@ class PackedWriter:
 
     def close(self) -> None:
         self._file.close()
+        self._behind = None

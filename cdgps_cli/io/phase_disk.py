@@ -171,7 +171,9 @@ def column_file(chunks, n: int, dtype, what: str, dir=None) -> DiskColumn:
         fh.close()
         raise ValueError(f"{what}: {done} values for {n} rows")
     behind.close()
-    return DiskColumn(fh, n, dtype)
+    col = DiskColumn(fh, n, dtype)
+    col._behind = behind                           # (its bytes count in the scratch budget while the file lives)
+    return col
 
 
 class _Later:

@@ -89,13 +89,14 @@ def forget_cached(fd: int, offset: int, nbytes: int) -> None:
         os.posix_fadvise(fd, offset, nbytes, os.POSIX_FADV_DONTNEED)
 
 
-_PUSHED = [0]                   # bytes given to Behind.push in this process (ranges given again count again)
+_PUSHED = [0]                   # bytes written to the scratch files still open (as Behind.push was told)
 
 
 def over_budget() -> bool:
-    """Whether the scratch files written so far (as :meth:`Behind.push` was told) are past
-    :data:`cdgps_cli.config.options.SCRATCH_CACHE_BYTES`: only then are their pages written and
-    dropped (under it, a short record's scratch files never reach the disk, as before)."""
+    """Whether the scratch files open now hold more than
+    :data:`cdgps_cli.config.options.SCRATCH_CACHE_BYTES` (as :meth:`Behind.push` was told; a file's
+    bytes stop counting when its :class:`Behind` goes, with the file): only then are their pages
+    written and dropped (under it, a short record's scratch files never reach the disk, as before)."""
     return _PUSHED[0] > SCRATCH_CACHE_BYTES
 
 
@@ -116,19 +117,24 @@ class Behind:
     def __init__(self, fd: int):
         self.fd, self.pending = fd, []
         self.lo = self.hi = 0                       # the bytes pushed so far (a forward or backward sweep)
+        self.counted, self._into = 0, _PUSHED       # of them in _PUSHED (taken out when this goes)
+
+    def __del__(self):
+        self._into[0] -= self.counted
 
     def push(self, ranges, fresh: int | None = None) -> None:
         """``ranges``: (offset, nbytes) pairs just written (nothing done under :func:`over_budget`).
         ``fresh``: how many of their bytes are new to the file (None: the range of a sweep forward or
         backward, where bytes pushed again, e.g. a released prefix, count once)."""
         ranges = [(int(o), int(n)) for o, n in ranges if n > 0]
-        if fresh is not None:
-            _PUSHED[0] += int(fresh)
+        new = 0 if fresh is None else int(fresh)
         for o, n in ranges if fresh is None else ():
             if self.hi <= self.lo:
                 self.lo = self.hi = o
-            _PUSHED[0] += max(min(o + n, self.lo) - o, 0) + max(o + n - max(o, self.hi), 0)
+            new += max(min(o + n, self.lo) - o, 0) + max(o + n - max(o, self.hi), 0)
             self.lo, self.hi = min(self.lo, o), max(self.hi, o + n)
+        self.counted += new
+        self._into[0] += new
         if not over_budget():
             return
         if _SYNC_FILE_RANGE is not None:

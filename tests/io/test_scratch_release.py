@@ -170,3 +170,25 @@ def test_the_descriptor_kept_for_page_cache_drops_closes_with_the_array(tmp_path
     del views
     gc.collect()
     assert len(list(Path("/proc/self/fd").iterdir())) == before
+
+
+def test_the_budget_counts_the_scratch_files_still_open(tmp_path, monkeypatch):
+    """A scratch file's bytes leave the budget with the file (a long-lived process, e.g. a batch of
+    estimates, does not end up dropping every later file behind)."""
+    import gc
+
+    from cdgps_cli.io.phase_disk import column_file
+
+    monkeypatch.setattr(scratch, "SCRATCH_CACHE_BYTES", 1 << 60)
+    monkeypatch.setattr(scratch, "_PUSHED", [0])
+    h = DiskHistory(tmp_path)
+    a = h.empty((2000, 18, 18))
+    h.release(a, 0, 1000)
+    col = column_file([np.zeros(300_000)], 300_000, np.float64, "c")
+    assert scratch._PUSHED[0] == 1000 * a.strides[0] + 2_400_000
+    del a
+    gc.collect()
+    assert scratch._PUSHED[0] == 2_400_000
+    del col
+    gc.collect()
+    assert scratch._PUSHED[0] == 0
