@@ -123,6 +123,12 @@ SCENE_SKY_STEP_S = 10.0
 #: chunk by chunk forward and backward (memory of a chunk, not of the record; the same numbers for any value).
 #: An internal setting of the library (EstimateOptions.chunk_epochs), not a command-line option.
 ESTIMATE_CHUNK_EPOCHS = 4096
+#: bytes of open scratch files (the history on disk, the RUN's columns, packed arrays being written) a
+#: process leaves in the page cache; past them each scratch file is written to disk and dropped from the
+#: cache behind its writer (cdgps_cli.io.scratch.Behind): a short record costs no disk writes (the 1 h
+#: testbed estimate peaks at 215 MiB), a day's record no more memory than this.  An internal setting,
+#: not a command-line option.
+SCRATCH_CACHE_BYTES = 512 << 20
 #: structure frame on a GNSS run: azimuth of the structure's x axis, degrees from north (90: x = East)
 X_AXIS_AZIMUTH_DEG = 90.0
 #: `cdgps spectra` (:class:`cdgps_cli.analysis.spectra.SpectraOptions`): Welch segment overlap and FFT padding

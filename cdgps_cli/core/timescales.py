@@ -95,3 +95,22 @@ def unix_ns(time_s, scale: str) -> int:
         sec = whole + GPS_EPOCH_UNIX_S - bisect.bisect_right(_LEAP_GPS_LIST, whole)   # (gps_minus_utc_s, per call)
         return sec * 1_000_000_000 + int(round((t - whole) * 1e9))
     raise ValueError(f"time scale {scale!r}: expected one of {', '.join(TIME_SCALES)}")
+
+
+def unix_ns_list(times_s, scale: str) -> list[int]:
+    """:func:`unix_ns` of each of ``times_s`` (a list or 1-D array of floats): the same integers,
+    computed as arrays (the same double operations; numpy's ``rint`` rounds halves to even as
+    Python's ``round``), one by one where a time is not finite or too large for int64 nanoseconds."""
+    t = np.asarray(times_s, dtype=float)
+    if scale not in TIME_SCALES:
+        raise ValueError(f"time scale {scale!r}: expected one of {', '.join(TIME_SCALES)}")
+    if t.size == 0:
+        return []
+    if not (np.isfinite(t).all() and np.abs(t).max() < 4e9):
+        return [unix_ns(v, scale) for v in t.tolist()]
+    if scale == "relative":
+        return np.rint(t * 1e9).astype(np.int64).tolist()
+    whole = np.floor(t)
+    leap = np.searchsorted(_LEAP_GPS_S, whole, side="right")
+    sec = whole.astype(np.int64) + GPS_EPOCH_UNIX_S - leap
+    return (sec * 1_000_000_000 + np.rint((t - whole) * 1e9).astype(np.int64)).tolist()

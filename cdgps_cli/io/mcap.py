@@ -26,6 +26,7 @@ naming the file.
 
 from __future__ import annotations
 
+import bisect
 import contextlib
 import io
 import json
@@ -33,6 +34,7 @@ import os
 import re
 import struct
 import zlib
+from itertools import accumulate
 from array import array
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -53,7 +55,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.table import Table
 from cdgps_cli.io.mcap_integrity import (RECORD_SHA256_KEY, DataSectionDamage, check_records, record_sha256,
                                          verify_file, warn_once)
-from cdgps_cli.core.timescales import RELATIVE_EPOCH_UTC, TIME_SCALES, unix_ns
+from cdgps_cli.core.timescales import RELATIVE_EPOCH_UTC, TIME_SCALES, unix_ns, unix_ns_list
 
 # mcap.writer is imported where a file is written (McapOut): it loads importlib.metadata, ≈ 20 ms that
 # readers (`cdgps info`, `export`, `spectra`) need not pay (benchmarks/startup.py)
@@ -249,6 +251,33 @@ def row_payload(layout, row: list, tail: dict | None = None, head: dict | None =
             at += len(shape)
     payload.update(tail or {})
     return payload
+
+
+def _comma_groups(seps: list, int_cols) -> list[tuple[int, int]]:
+    """The columns of a :meth:`McapOut.write_rows` template as runs (c0, c1) written together: the
+    numbers of one array (only ``,`` between them) form one run, every other column (an object
+    member, a scalar, an integer) its own."""
+    m, out, c = len(seps) - 1, [], 0
+    ints = set(int_cols)
+    while c < m:
+        d = c + 1
+        while d < m and seps[d] == b"," and c not in ints and d not in ints:
+            d += 1
+        out.append((c, d))
+        c = d
+    return out
+
+
+def _group_texts(rows: np.ndarray, c0: int, c1: int, integer: bool) -> list[bytes]:
+    """Per row of ``rows`` (k, m), finite: the JSON text of columns c0 … c1−1 joined by commas (the
+    number texts of :func:`json_bytes`; ``integer``: one column written as an integer)."""
+    if integer:
+        return [b"%d" % v for v in rows[:, c0].tolist()]
+    if c1 == c0 + 1:
+        return orjson.dumps(rows[:, c0].tolist())[1:-1].split(b",") if rows.shape[0] else []
+    if not rows.shape[0]:
+        return []
+    return orjson.dumps(rows[:, c0:c1].tolist())[2:-2].split(b"],[")
 
 
 def _row_template(layout, tail: dict | None, head: dict | None = None) -> list | None:
@@ -505,11 +534,26 @@ class McapOut:
         int_cols = [c for c, (_, s) in zip(np.cumsum([0] + widths).tolist(), layout) if s == "int"]
         finite = np.isfinite(values).all(axis=1).tolist() if values.size else [True] * len(times)
         fmt = b'{"timestamp":{"sec":%d,"nsec":%d},"time_s":%s' + b"%s".join(p.replace(b"%", b"%%") for p in seps)
-        block = 256                                        # rows whose number texts are held at a time
+        groups = _comma_groups(seps, int_cols) if seps else []
+        fmt_g = b'{"timestamp":{"sec":%d,"nsec":%d},"time_s":%s' + \
+            b"%s".join(seps[c].replace(b"%", b"%%") for c in [c for c, _ in groups] + [len(seps) - 1]) if seps else b""
+        # rows whose number texts are held at a time: about 16k numbers (memory of a block, not of the record)
+        block = max(64, min(2048, (1 << 14) // max(values.shape[1] if values.ndim == 2 else 1, 1)))
         for a in range(0, len(times), block):
             rows, tb = values[a:a + block], times[a:a + block]
-            texts = orjson.dumps(rows.ravel().tolist())[1:-1].split(b",") if rows.size else []
             t_texts = orjson.dumps(tb)[1:-1].split(b",")
+            if seps and all(finite[a:a + block]):          # (every row by the template: the numbers at once)
+                stamps = unix_ns_list(tb, self.time_scale)
+                singles = [c0 for c0, c1 in groups if c1 == c0 + 1 and c0 not in int_cols]   # (their texts at once)
+                flat = orjson.dumps(rows[:, singles].ravel().tolist())[1:-1].split(b",") if singles and len(tb) else []
+                where = {c: j for j, c in enumerate(singles)}
+                cols = [flat[where[c0]::len(singles)] if c0 in where else _group_texts(rows, c0, c1, c0 in int_cols)
+                        for c0, c1 in groups]
+                self._add_many(channel_id, stamps,
+                               [fmt_g % (ns // 1_000_000_000, ns % 1_000_000_000, tt, *g)
+                                for ns, tt, g in zip(stamps, t_texts, zip(*cols) if cols else [()] * len(tb))], tb)
+                continue
+            texts = orjson.dumps(rows.ravel().tolist())[1:-1].split(b",") if rows.size else []
             m = rows.shape[1] if rows.ndim == 2 else 0
             for c in int_cols:
                 for i, v in enumerate(rows[:, c].tolist()):
@@ -628,25 +672,36 @@ class McapOut:
         st.channel_message_counts[channel_id] += len(stamps_ns)
         st.message_count += len(stamps_ns)
         seq = self._seq[channel_id]
-        buf, index = cb.record_writer._buffer, None
-        for ns, data in zip(stamps_ns, datas):
-            if cb.num_messages == 0 or ns < cb.message_start_time:
-                cb.message_start_time = ns
-            if ns > cb.message_end_time:
-                cb.message_end_time = ns
+        lens = list(map(len, datas))
+        ends = list(accumulate([ln + _MESSAGE_HEAD_BYTES for ln in lens]))     # each message's end, from the first's start
+        n, i, base = len(datas), 0, 0
+        while i < n:                                   # the messages up to the one that fills the chunk, at once
+            buf = cb.record_writer._buffer
+            at0 = buf.tell()
+            j = min(bisect.bisect_right(ends, limit - at0 + base, i) + 1, n)  # (the one ending past the limit too)
+            offsets = [at0 - base + e for e in [base, *ends[i:j - 1]]]
+            at = at0 - base + ends[j - 1]
+            base = ends[j - 1]
+            seg = stamps_ns[i:j]
+            lo_seg, hi_seg = min(seg), max(seg)        # (as message by message: the first of a chunk sets its start)
+            if cb.num_messages == 0 or lo_seg < cb.message_start_time:
+                cb.message_start_time = lo_seg
+            if hi_seg > cb.message_end_time:
+                cb.message_end_time = hi_seg
+            index = cb.message_indices.get(channel_id)
             if index is None:
-                index = cb.message_indices.get(channel_id)
-                if index is None:
-                    index = cb.message_indices[channel_id] = self._index_class(channel_id=channel_id, records=[])
-            at = buf.tell()
-            index.records.append((ns, at))
-            cb.num_messages += 1
-            buf.write(pack(_OPCODE_MESSAGE, 22 + len(data), channel_id, seq, ns, ns))
-            buf.write(data)
-            seq += 1
-            if at + _MESSAGE_HEAD_BYTES + len(data) > limit:
-                w._Writer__finalize_chunk()
-                buf, index = cb.record_writer._buffer, None            # (a new buffer and indexes)
+                index = cb.message_indices[channel_id] = self._index_class(channel_id=channel_id, records=[])
+            index.records.extend(zip(seg, offsets))
+            cb.num_messages += j - i
+            parts = [b""] * (2 * (j - i))
+            parts[::2] = [pack(_OPCODE_MESSAGE, 22 + ln, channel_id, k, ns, ns)
+                          for k, (ns, ln) in enumerate(zip(seg, lens[i:j]), seq)]
+            parts[1::2] = datas[i:j]
+            buf.write(b"".join(parts))
+            seq += j - i
+            if at > limit:
+                w._Writer__finalize_chunk()            # (a new buffer and indexes: this message filled the chunk)
+            i = j
         self._seq[channel_id] = seq
         self._note_many(channel_id, times_s, receivers)
 

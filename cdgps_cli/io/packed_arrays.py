@@ -268,6 +268,8 @@ class PackedRows:
     """
 
     _PIECE = 1 << 20
+    #: reads of the scratch file of at least this many bytes are dropped from the page cache after
+    _DROP_READ = 1 << 16
 
     def __init__(self, read, length: int, what: str = "packed array"):
         import tempfile
@@ -302,7 +304,10 @@ class PackedRows:
                 left -= len(data)
                 return data
 
+        from cdgps_cli.io.scratch import DropBehind  # noqa: PLC0415
+
         out = 0
+        behind = DropBehind(self._file)            # (out of the page cache as written: see chunks)
         with zstandard.ZstdDecompressor().stream_reader(_Span(), read_size=self._PIECE, closefd=False) as z:
             while True:
                 raw = z.read(self._PIECE)
@@ -312,12 +317,16 @@ class PackedRows:
                 if out > size:
                     break
                 self._file.write(raw)
+                behind.wrote(len(raw))
+        behind.close()
+        self._behind = behind                      # (its bytes count in the scratch budget until close)
         if out != size or left:
             raise ValueError(f"{out if out <= size else 'more'} bytes of content for shape {list(self.shape)} "
                              f"of {self.dtype.str}")
 
     def close(self) -> None:
         self._file.close()
+        self._behind = None
 
     def chunks(self, rows: int):
         """Blocks of up to ``rows`` consecutive rows, first to last: arrays (k, *shape[1:]) of the dtype.
@@ -325,6 +334,8 @@ class PackedRows:
         Each call starts again from the first row (several passes over the same array)."""
         if rows < 1:
             raise ValueError(f"rows {rows!r}: expected a positive number of rows per block")
+        from cdgps_cli.io.scratch import forget_cached  # noqa: PLC0415
+
         size, n, m = self.dtype.itemsize, self.n_rows, self.m
         carry = [np.zeros(m, dtype=_unsigned(size)) for _ in range(self.delta)]
         fd = self._file.fileno()
@@ -334,6 +345,8 @@ class PackedRows:
             for b in range(size):
                 for c in range(m):
                     block[:, c, b] = np.frombuffer(os.pread(fd, k, (b * m + c) * n + a), dtype=np.uint8)
+                    if k >= self._DROP_READ:        # (read from the disk: not kept in the page cache either)
+                        forget_cached(fd, (b * m + c) * n + a, k)
             u = block.view(_unsigned(size)).reshape(k, m)
             if self.delta:
                 u = self._undo_delta(u, carry)
@@ -377,6 +390,8 @@ class PackedWriter:
     """
 
     _PIECE = 1 << 20
+    #: bytes of rows written between two page-cache drops of the plane file (:meth:`_drop_written`)
+    _DROP_BYTES = 16 << 20
 
     def __init__(self, shape: tuple, dtype, delta: int = 0, dir=None):
         import tempfile
@@ -394,6 +409,7 @@ class PackedWriter:
         self.done = 0
         self._carry: list = [None] * delta          # per order: the last row of that order's input
         self._file = tempfile.TemporaryFile(prefix=".cdgps-pack-", dir=dir)
+        self._dropped, self._behind = 0, None       # rows out of the page cache (_drop_written)
 
     def add(self, rows: np.ndarray) -> None:
         """The next block of rows, (k, *shape[1:]) (converted to the dtype as :func:`pack` does)."""
@@ -415,6 +431,22 @@ class PackedWriter:
             for c in range(self.m):
                 os.pwrite(fd, plane[c].tobytes(), (b * self.m + c) * self.n + a)
         self.done += k
+        if (self.done - self._dropped) * self.m * size >= self._DROP_BYTES:
+            self._drop_written()
+
+    def _drop_written(self) -> None:
+        """Take the rows written since the last call out of the page cache, in every (plane, column)
+        run of the file (the pages wholly inside them; :func:`cdgps_cli.io.scratch.drop_cached`): the
+        file is as large as the array (≈ 620 MB for a day's STATES of the testbed) and is read only
+        by :meth:`finish`."""
+        from cdgps_cli.io.scratch import Behind  # noqa: PLC0415
+
+        if self._behind is None:
+            self._behind = Behind(self._file.fileno())
+        a, k = self._dropped, self.done - self._dropped
+        self._behind.push([(j * self.n + a, k) for j in range(self.m * self.dtype.itemsize)],
+                          fresh=k * self.m * self.dtype.itemsize)
+        self._dropped = self.done
 
     def _differences(self, u: np.ndarray, block: int = 256) -> np.ndarray:
         """:func:`_delta_encode` of one block on one copy of it, continuing from the rows before it
@@ -443,23 +475,37 @@ class PackedWriter:
         header = json.dumps(head, sort_keys=True).encode()
         first = MAGIC + _HEAD.pack(len(header)) + header
         raw_size = self.n * self.m * self.dtype.itemsize
+        from cdgps_cli.io.scratch import DropBehind, forget_cached  # noqa: PLC0415
+
         packed = tempfile.TemporaryFile(prefix=".cdgps-pack-", dir=None)
+        behind = DropBehind(packed)                 # (both scratch files kept out of the page cache)
         cobj = zstandard.ZstdCompressor(level=LEVEL).compressobj(size=raw_size)
         fd = self._file.fileno()
         for at in range(0, raw_size, self._PIECE):
-            packed.write(cobj.compress(os.pread(fd, min(self._PIECE, raw_size - at), at)))
-        packed.write(cobj.flush())
+            piece = os.pread(fd, min(self._PIECE, raw_size - at), at)
+            forget_cached(fd, at, len(piece))
+            out = cobj.compress(piece)
+            packed.write(out)
+            behind.wrote(len(out))
+        out = cobj.flush()
+        packed.write(out)
+        behind.wrote(len(out))
+        behind.close()
         self._file.close()
+        self._behind = None
         length = len(first) + packed.tell()
         packed.seek(0)
 
-        def pieces():
+        def pieces(_behind=behind):                # (the packed file's bytes count until it is closed)
             try:
                 yield first
+                at = 0
                 while True:
                     piece = packed.read(self._PIECE)
                     if not piece:
                         return
+                    forget_cached(packed.fileno(), at, len(piece))
+                    at += len(piece)
                     yield piece
             finally:
                 packed.close()
@@ -468,3 +514,4 @@ class PackedWriter:
 
     def close(self) -> None:
         self._file.close()
+        self._behind = None

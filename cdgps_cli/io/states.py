@@ -470,9 +470,7 @@ def _write_residuals(out: McapOut, ss: StateSeries, time_s, sel, chunk: int, nis
     ants = [c[0] for c in ss.residual_channels]
     txs = [c[1] for c in ss.residual_channels]
     used = ~np.isnan(R)
-    every = used.all(axis=1).tolist()
     nis = nis_all[sel]
-    nis_list = [None if bad else v for bad, v in zip(np.isnan(nis).tolist(), nis.tolist())]
     dof = [int(d) for d in dof_all[sel].tolist()]
     bounds = None
     if nis_bounds is not None:
@@ -483,28 +481,39 @@ def _write_residuals(out: McapOut, ss: StateSeries, time_s, sel, chunk: int, nis
     times = np.asarray(time_s, dtype=float)[sel]
     # epochs using every channel: one template (the channel names once), NIS and bounds as numbers (NaN: left out)
     layout = [("residual_m", len(ants)), ("nis", None), ("nis_dof", "int")]
-    cols = [R, nis[:, None], np.asarray(dof, dtype=float)[:, None]]
+    cols = [nis[:, None], np.asarray(dof, dtype=float)[:, None]]
     if bounds is not None:
         layout += [("nis_lower95", None), ("nis_upper95", None)]
         cols.append(np.array([b if b is not None else (np.nan, np.nan) for b in bounds], dtype=float).reshape(-1, 2))
-    rows = np.hstack(cols)
-    every_arr = np.asarray(every, dtype=bool)
-    cuts = np.flatnonzero(np.r_[True, every_arr[1:] != every_arr[:-1], True]).tolist()
-    for a, b in zip(cuts[:-1], cuts[1:]):              # runs of epochs alike
-        if every[a]:
-            out.write_rows(ch, times[a:b], layout, rows[a:b], head={"antenna": ants, "transmitter": txs})
-            continue
-        for i in range(a, b):                          # the channels used at this epoch
-            u = used[i].tolist()
-            msg = {"antenna": [v for v, ok in zip(ants, u) if ok], "transmitter": [v for v, ok in zip(txs, u) if ok],
-                   "residual_m": [v for v, ok in zip(R[i].tolist(), u) if ok], "nis": nis_list[i], "nis_dof": dof[i]}
-            if bounds is not None and bounds[i] is not None:
-                msg["nis_lower95"], msg["nis_upper95"] = bounds[i]
-            out.write(ch, float(times[i]), msg)
+    _write_residual_runs(out, ch, times, layout, R, np.hstack(cols), used, ants, txs)
     size, pieces = p_r.finish()
     out.attach_stream(RESIDUAL_PACKED + "residual_m", size, pieces, MEDIA_TYPE)
     out.attach_packed(RESIDUAL_PACKED + "nis", nis_all)
     out.attach_packed(RESIDUAL_PACKED + "nis_dof", dof_all)
+
+
+def _write_residual_runs(out: McapOut, ch: int, times, layout, R, rest, used, ants, txs) -> None:
+    """The residual messages, a run of epochs using the same channels at a time (one
+    :meth:`McapOut.write_rows <cdgps_cli.io.mcap.McapOut.write_rows>` each: one template, no dict
+    per message).  ``R`` (k, C): the residuals of every channel; ``rest`` (k, …) the other fields of
+    ``layout``; ``used`` (k, C): the channels with a residual.  Each message is what
+    :meth:`McapOut.write` gives for the payload of the used channels only (``antenna``,
+    ``transmitter``, ``residual_m``, then the NIS fields, a NaN one left out), as it was written
+    epoch by epoch before (``tests/io/test_states_residual_runs.py``)."""
+    n_ch = used.shape[1]
+    k = len(times)
+    change = np.flatnonzero((used[1:] != used[:-1]).any(axis=1)) + 1 if k > 1 else np.empty(0, dtype=np.int64)
+    cuts = [0, *change.tolist(), k] if k else [0]
+    for a, b in zip(cuts[:-1], cuts[1:]):              # runs of epochs alike
+        idx = np.flatnonzero(used[a])
+        if idx.size == n_ch:
+            out.write_rows(ch, times[a:b], layout, np.hstack([R[a:b], rest[a:b]]),
+                           head={"antenna": ants, "transmitter": txs})
+            continue
+        picked = idx.tolist()
+        run_layout = [("residual_m", idx.size)] + layout[1:]
+        out.write_rows(ch, times[a:b], run_layout, np.hstack([R[a:b, idx], rest[a:b]]),
+                       head={"antenna": [ants[j] for j in picked], "transmitter": [txs[j] for j in picked]})
 
 
 def _description(ss: StateSeries) -> bytes:

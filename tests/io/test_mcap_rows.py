@@ -18,6 +18,7 @@ LAYOUTS = {
     "flat": ([("C1_z", None), ("body_z", None), ("sigma_C1_z", None)], None),
     "empty_obj": ([("q", []), ("v", 1)], {"k": "text", "n": 3}),
     "null_key": ([("nullish", None), ("x", 2)], None),
+    "ints": ([("r", 4), ("n", "int"), ("y", 2), ("z", None), ("w", 1)], None),
 }
 
 
@@ -44,10 +45,12 @@ def _values(rng, k, m):
 @pytest.mark.parametrize("case", sorted(LAYOUTS) + ["nullable"])
 def test_rows_are_the_bytes_of_write(tmp_path, case, scale):
     layout, tail = LAYOUTS.get(case, ([("x", 3)], None))
-    m = sum(1 if s is None else (s if isinstance(s, int) else len(s)) for _, s in layout)
+    m = sum(1 if s is None or s == "int" else (s if isinstance(s, int) else len(s)) for _, s in layout)
     rng = np.random.default_rng(len(case))
     t = (1.4e9 if scale == "gps" else 0.0) + np.cumsum(rng.random(2100))
     vals = _values(rng, len(t), m)
+    if case == "ints":
+        vals[:, 4] = np.round(vals[:, 4])
     if case == "nullable":
         vals[vals != vals] = 0.5                   # (NaN in a nullable array: write()'s companions)
         vals[3, 0] = np.nan
@@ -186,3 +189,32 @@ def test_residual_channel_as_a_dict_per_message(tmp_path, monkeypatch, rate):
             st.write_states(ss, tmp_path / f"{how}.mcap", {"x": "1"}, {}, preview_rate_hz=rate, nis_bounds=nis_bounds95)
         got[how] = (tmp_path / f"{how}.mcap").read_bytes()
     assert got["template"] == got["reference"]
+
+
+@pytest.mark.parametrize("scale", ["relative", "gps"])
+def test_residual_runs_of_the_same_channels_as_a_dict_per_message(tmp_path, monkeypatch, scale):
+    """Runs of epochs using the same channels (some, none, all; one run per write_rows) give, byte for
+    byte, the channel of a dict per message, in either time scale (issue 29: the 24 h GNSS pair)."""
+    from cdgps_cli.io import states as st
+    from cdgps_cli.pipeline.estimate_outputs import nis_bounds95
+
+    from tests.io.test_states_stream import _structure
+
+    ss = _structure()
+    R = ss.residual_m
+    R[np.isnan(R)] = 0.002
+    R[10:60, 1] = np.nan                              # a run without channel 1
+    R[60:64] = np.nan                                 # epochs without any channel
+    R[64:70, ::2] = np.nan
+    R[71, 0] = np.nan                                 # a single epoch
+    ss.nis[65:68] = np.nan
+    ss.nis_dof[66:69] = 0
+    got = {}
+    for how in ("runs", "reference"):
+        with monkeypatch.context() as m:
+            if how == "reference":
+                m.setattr(st, "_write_residuals", _residuals_per_message)
+            st.write_states(ss, tmp_path / f"{how}.mcap", {"x": "1"}, {}, preview_rate_hz=0.0, nis_bounds=nis_bounds95,
+                            time_scale=scale)
+        got[how] = (tmp_path / f"{how}.mcap").read_bytes()
+    assert got["runs"] == got["reference"]

@@ -55,3 +55,30 @@ def test_bool_rows_and_misuse():
     with pytest.raises(ValueError, match="3 of 4 rows"):
         w.finish()
     w.close()
+
+
+@pytest.mark.parametrize("drop_bytes", [1, 5000, 1 << 16])
+def test_plane_file_dropped_from_the_page_cache_as_written_gives_the_same_bytes(monkeypatch, drop_bytes):
+    """The plane file leaves the page cache every ``_DROP_BYTES`` of rows (issue 29): the same bytes,
+    whatever the cutting; a block's pages are out of the cache once it is dropped (Linux)."""
+    import os
+
+    from cdgps_cli.io import scratch
+
+    monkeypatch.setattr(PackedWriter, "_DROP_BYTES", drop_bytes)
+    monkeypatch.setattr(scratch, "SCRATCH_CACHE_BYTES", 0)           # (past the process's budget)
+    arr = np.random.default_rng(3).normal(size=(20_000, 3, 3)).cumsum(axis=0)
+    for delta in (0, 2):
+        assert _streamed(arr, delta, 4096) == pack(arr, delta)
+    if not hasattr(os, "RWF_NOWAIT") or scratch._SYNC_FILE_RANGE is None:
+        return
+    w = PackedWriter(arr.shape, arr.dtype, 0)
+    w.add(arr[:16384])                                # (being written …)
+    w.add(arr[16384:18000])                           # (… and dropped from the cache)
+    fd = w._file.fileno()
+    try:
+        got = os.preadv(fd, [bytearray(4096)], 8192, os.RWF_NOWAIT)     # (plane 0, column 0, rows 8192 …)
+    except BlockingIOError:
+        got = 0
+    assert got < 4096
+    w.close()

@@ -6,6 +6,7 @@ STATES.mcap, byte for byte, as on the table in memory (as the command line now r
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ from cdgps_cli.estimation.filter import EstimateOptions, estimate
 from cdgps_cli.estimation.initializer import InitOptions, initialize
 from cdgps_cli.io.phase_disk import DiskPhase, column_file
 from cdgps_cli.io.run import read_run, write_run
+from cdgps_cli.io import scratch
 from cdgps_cli.io.scratch import DiskHistory
 from cdgps_cli.pipeline.estimate_outputs import write_states
 from cdgps_cli.sim.structure import SimOptions, parse_slip, simulate, write_simulation
@@ -84,3 +86,32 @@ def test_init_and_estimate_on_disk_as_in_memory(run_file, tmp_path):
     write_states(r_mem, run_file, i_mem, text, tmp_path / "mem.mcap", opt.echo())
     write_states(r_disk, run_file, i_mem, text, tmp_path / "disk.mcap", opt.echo())
     assert (tmp_path / "mem.mcap").read_bytes() == (tmp_path / "disk.mcap").read_bytes()
+
+
+@pytest.mark.skipif(not hasattr(os, "RWF_NOWAIT") or scratch._SYNC_FILE_RANGE is None,
+                    reason="needs preadv RWF_NOWAIT and sync_file_range (Linux)")
+def test_column_file_and_packed_rows_leave_the_page_cache(tmp_path, monkeypatch):
+    """The scratch files of a RUN's columns (PackedRows' planes, then the column) are dropped from the
+    page cache behind the writer, and a block read back leaves it again (issue 29: a day's columns
+    no longer fill the system's memory); the values are the same."""
+    from cdgps_cli.io.packed_arrays import PackedRows, pack
+
+    monkeypatch.setattr(scratch, "SCRATCH_CACHE_BYTES", 0)           # (past the process's budget)
+
+    def cached(fd, offset, nbytes):
+        try:
+            return os.preadv(fd, [bytearray(nbytes)], offset, os.RWF_NOWAIT) == nbytes
+        except BlockingIOError:
+            return False
+
+    values = np.cumsum(np.random.default_rng(2).normal(size=3 << 17))        # 3 MiB of float64
+    data = pack(values)
+    rows = PackedRows(lambda k, _at=[0]: (data[_at[0]:_at[0] + k], _at.__setitem__(0, _at[0] + k))[0], len(data))
+    assert not cached(rows._file.fileno(), 0, 4096) and not cached(rows._file.fileno(), 2 << 20, 4096)
+    col = column_file(rows.chunks(1 << 16), values.size, np.float64, "t")
+    rows.close()
+    fd = col._file.fileno()
+    assert not any(cached(fd, at, 4096) for at in range(0, values.nbytes, 1 << 20))
+    assert np.array_equal(col.read(0, 1 << 17), values[:1 << 17])              # 1 MiB: read, then dropped
+    assert not cached(fd, 0, 4096)
+    assert col[5] == values[5] and np.array_equal(np.asarray(col), values)
