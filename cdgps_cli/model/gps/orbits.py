@@ -22,6 +22,7 @@ All positions are ECEF (WGS-84), m; angles rad; times GPS seconds since 1980-01-
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping
 from typing import NamedTuple
 
@@ -33,6 +34,11 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.core.records import GLONASS_NAV_COLUMNS
 from cdgps_cli.model.gps.glonass_orbit import glonass_position
+
+try:
+    from cdgps_cli.model.gps import _orbitcore
+except ImportError:                      # the optional extension is not built: the numpy functions below
+    _orbitcore = None
 
 __all__ = [
     "GM_GPS",
@@ -453,7 +459,10 @@ def sat_position_rows(eph: EphemerisRows, t_gps_s, *, apply_tgd: bool = True) ->
     xyz, clock = np.empty((t.size, 3)), np.empty(t.size)
     if eph.glonass.size:
         xyz[eph.glonass], clock[eph.glonass] = _glonass_record_position(eph.glonass_eph, t[eph.glonass])
-    if eph.kepler.size:
+    if eph.kepler.size and kernel_available():
+        xyz[eph.kepler], clock[eph.kepler] = _kepler_compiled(_packed_constants(eph.constants), eph.rows[eph.kepler],
+                                                              t[eph.kepler], apply_tgd)
+    elif eph.kepler.size:
         c, kep = eph.constants, eph.kepler
         nav_k, tq = eph.rows[kep], t[kep]
         tk = tq - c["toe_gps_s"][nav_k]
@@ -775,8 +784,15 @@ def sat_positions_at_reception(nav: pd.DataFrame, sats, t_rx_gps_s, rx_ecef_m, *
                                       rx_clock_s=rx_clock[idx], apply_tgd=apply_tgd, max_age_s=max_age_s)
         for a, v in zip(out, g):
             a[idx] = v
+    packed = _packed_constants(eph.kepler) if eph.order.size and kernel_available() else None
+    if packed is not None:
+        rx = np.ascontiguousarray(rx)
+        order = np.ascontiguousarray(eph.order, dtype=np.int64)
     for r0, r1, starts in _chunks(eph.starts, eph.order.size, CHUNK_ROWS):
         o = eph.order[r0:r1]
+        if packed is not None:
+            _light_time_compiled(packed, eph.nav_rows[r0:r1], t_true[o], rx, order[r0:r1], starts, apply_tgd, out)
+            continue
         k = {f: v[eph.nav_rows[r0:r1]] for f, v in eph.kepler.items()}
         g = _light_time_blocks(k, t_true[o], rx[o] if rx.ndim == 2 else rx, starts, apply_tgd)
         for a, v in zip(out, g):
@@ -807,6 +823,78 @@ def _light_time_blocks(k: dict, t_true: np.ndarray, rx: np.ndarray, starts: np.n
         if not blocks.settle(~(np.maximum.reduceat(step, blocks.starts) < 1e-12)):
             break
     return rot, clk, rng, tau
+
+
+# ----------------------------------------------------------------------------------------------
+# the compiled kernel (cdgps_cli.model.gps._orbitcore): the same values as the numpy functions above
+# ----------------------------------------------------------------------------------------------
+
+_CORE_API = 1
+_CORE_FIELDS = ("toe_gps_s", "m0_rad", "n", "e", "sqrt_1_e2", "omega_rad", "cus_rad", "cuc_rad", "a", "crs_m", "crc_m",
+                "i0_rad", "idot_rad_per_s", "cis_rad", "cic_rad", "omega0_rad", "node_rate", "node_toe", "geo", "we",
+                "toc_gps_s", "af0_s", "af1_s_per_s", "af2_s_per_s2", "rel", "tgd_s")
+"""Columns of the kernel's ephemeris matrix, in the order of its enum (``K_TOE`` … ``K_TGD``)."""
+
+
+def kernel_available() -> bool:
+    """True when the compiled orbit kernel is importable, current, and not disabled by the environment
+    variable ``CDGPS_NO_KERNEL`` (anything but ``""`` / ``"0"``: the rule of :mod:`cdgps_cli.estimation.compiled`)."""
+    if os.environ.get("CDGPS_NO_KERNEL", "") not in ("", "0"):
+        return False
+    return (_orbitcore is not None and getattr(_orbitcore, "API", None) == _CORE_API
+            and getattr(_orbitcore, "NK", None) == len(_CORE_FIELDS))
+
+
+def _packed_constants(k: dict) -> np.ndarray:
+    """:func:`_kepler_constants` as the kernel's matrix, one row per ephemeris (n_eph, len(_CORE_FIELDS))."""
+    return np.ascontiguousarray(np.column_stack([np.asarray(k[f], dtype=np.float64) for f in _CORE_FIELDS]))
+
+
+def _core_state(n: int, n_blocks: int) -> tuple:
+    """The kernel's per-row state (zero: nothing kept), its (y, x) of the true anomaly and the live blocks."""
+    return (np.zeros((n, _orbitcore.NS)), np.zeros(n, dtype=np.int64), np.zeros(n), np.zeros(n),
+            np.ones(n_blocks, dtype=np.uint8))
+
+
+def _core_kepler(kc: np.ndarray, rows: np.ndarray, t: np.ndarray, starts: np.ndarray, state: tuple, memo: bool,
+                 apply_tgd: bool, xyz: np.ndarray, clk: np.ndarray) -> None:
+    """Position (xyz) and clock (clk) of the rows of the live blocks at times ``t``: Kepler's equation in C,
+    numpy's arctan2 of the true anomaly (a SIMD routine, not libm's atan2), the rest in C."""
+    s, info, yat, xat, live = state
+    _orbitcore.anomaly(kc, rows, t, starts, live, s, info, yat, xat, memo)
+    nu = np.arctan2(yat, xat)
+    _orbitcore.kepler(kc, rows, t, starts, live, s, info, nu, xyz, clk, apply_tgd,
+                      float(np.cos(BEIDOU_GEO_TILT_RAD)), float(np.sin(BEIDOU_GEO_TILT_RAD)))
+
+
+def _kepler_compiled(kc: np.ndarray, rows: np.ndarray, t: np.ndarray, apply_tgd: bool) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`sat_position_rows`' Kepler rows in C: one block (Kepler's equation iterated until all rows have
+    converged), position (K, 3) m and clock (K,) s."""
+    n = t.size
+    xyz, clk = np.empty((n, 3)), np.empty(n)
+    starts = np.zeros(1, dtype=np.int64)
+    _core_kepler(kc, np.ascontiguousarray(rows, dtype=np.int64), np.ascontiguousarray(t, dtype=np.float64), starts,
+                 _core_state(n, 1), False, apply_tgd, xyz, clk)
+    return xyz, clk
+
+
+def _light_time_compiled(kc: np.ndarray, rows: np.ndarray, t_true: np.ndarray, rx: np.ndarray, order: np.ndarray,
+                         starts: np.ndarray, apply_tgd: bool, out: tuple) -> None:
+    """:func:`_light_time_blocks` in C, written into rows ``order`` of ``out`` (position (N, 3), clock, range,
+    travel time), value for value.  ``kc``: :func:`_packed_constants` of the navigation table; ``rows``: each
+    row's ephemeris in it; ``t_true`` (K,) the rows' true reception times; ``rx`` (3,) or (N, 3)."""
+    n = t_true.size
+    rows = np.ascontiguousarray(rows, dtype=np.int64)
+    starts = np.ascontiguousarray(starts, dtype=np.int64)
+    state = _core_state(n, starts.size)
+    live = state[4]
+    xyz, clk = np.zeros((n, 3)), np.zeros(n)
+    tau = np.full(n, 0.075)
+    for it in range(10):
+        _core_kepler(kc, rows, t_true - tau, starts, state, it > 0, apply_tgd, xyz, clk)
+        if not _orbitcore.light(xyz, clk, starts, live, tau, rx, rx.ndim == 2, order, *out, OMEGA_E_GPS,
+                                SPEED_OF_LIGHT_M_S):
+            break
 
 
 # ----------------------------------------------------------------------------------------------
