@@ -30,6 +30,9 @@
  *   for the rows of the live blocks: the Sagnac rotation by omega_e tau, the range to rx ((3,), or (N, 3) read at
  *   order), tau <- range / c, written to row order[i] of rot (N, 3), clock, range and travel (N); a block stops
  *   when all its steps |range/c - tau| are below 1e-12 s (live cleared).
+ * newton(K, rows, t, ek, state): one block of all rows (orbits.sat_position_rows), E into ek (n), state uint8 (n)
+ *   scratch; anomaly_trig(K, rows, ek, sin, cos, yat, xat); orbit(K, rows, t, sin, cos, nu, xyz, clk, apply_tgd,
+ *   cos_tilt, sin_tilt): the same in pieces, so that the rest runs chunk by chunk (small temporaries).
  * Plain C against the CPython buffer protocol, no numpy headers (as _ekfcore.c).
  */
 #define PY_SSIZE_T_CLEAN
@@ -393,10 +396,144 @@ static PyObject *py_light(PyObject *self, PyObject *args)
     return PyLong_FromSsize_t(going);
 }
 
+/* One block of all n rows (orbits.sat_position_rows): E after the block's Newton iterations, into ek; fixed points
+ * are not stepped again (state, n bytes, scratch). */
+static PyObject *py_newton(PyObject *self, PyObject *args)
+{
+    PyObject *o[5];
+    if (!PyArg_ParseTuple(args, "OOOOO", &o[0], &o[1], &o[2], &o[3], &o[4])) return NULL;
+    Bufs bs = {.n = 0};
+    const double *K, *t;
+    const int64_t *rows;
+    double *ek;
+    uint8_t *fixed;
+    if (!(t = take(&bs, o[2], 0, 0, "t"))) {
+        release(&bs);
+        return NULL;
+    }
+    const Py_ssize_t n = bs.b[0].len / (Py_ssize_t)sizeof(double);
+    if (!(K = take(&bs, o[0], 0, 0, "K")) || !(rows = take(&bs, o[1], 0, n * (Py_ssize_t)sizeof(int64_t), "rows")) ||
+        !(ek = take(&bs, o[3], 1, n * (Py_ssize_t)sizeof(double), "ek")) || !(fixed = take(&bs, o[4], 1, n, "state"))) {
+        release(&bs);
+        return NULL;
+    }
+    const Py_ssize_t n_eph = bs.b[1].len / (Py_ssize_t)(NK * sizeof(double));
+    for (Py_ssize_t i = 0; i < n; ++i)
+        if (rows[i] < 0 || rows[i] >= n_eph) {
+            release(&bs);
+            PyErr_SetString(PyExc_IndexError, "_orbitcore: an ephemeris row is out of range");
+            return NULL;
+        }
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t i = 0; i < n; ++i) {
+        ek[i] = mean_anomaly(K + rows[i] * NK, t[i]);
+        fixed[i] = 0;
+    }
+    for (int it = 1; it <= MAX_NEWTON; ++it) {
+        int big = 0;
+        for (Py_ssize_t i = 0; i < n; ++i) {
+            if (fixed[i]) continue;
+            const double *k = K + rows[i] * NK;
+            const double m = mean_anomaly(k, t[i]), e = k[K_E], b = ek[i];
+            double sn, cs;
+            SINCOS(b, &sn, &cs);
+            const double d = (b - e * sn - m) / (1.0 - e * cs);
+            const double nb = b - d;
+            if (!(fabs(d) < 1e-15)) big = 1;
+            else if (same_bits(nb, b)) fixed[i] = 1;
+            ek[i] = nb;
+        }
+        if (!big) break;
+    }
+    Py_END_ALLOW_THREADS
+    release(&bs);
+    Py_RETURN_NONE;
+}
+
+/* sin E, cos E and the arctangent's (y, x) of rows with E known: sn, cs, yat, xat (n). */
+static PyObject *py_anomaly_trig(PyObject *self, PyObject *args)
+{
+    PyObject *o[7];
+    if (!PyArg_ParseTuple(args, "OOOOOOO", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &o[6])) return NULL;
+    Bufs bs = {.n = 0};
+    const double *K, *ek;
+    const int64_t *rows;
+    double *sn, *cs, *yat, *xat;
+    if (!(ek = take(&bs, o[2], 0, 0, "ek"))) {
+        release(&bs);
+        return NULL;
+    }
+    const Py_ssize_t n = bs.b[0].len / (Py_ssize_t)sizeof(double), need = n * (Py_ssize_t)sizeof(double);
+    if (!(K = take(&bs, o[0], 0, 0, "K")) || !(rows = take(&bs, o[1], 0, n * (Py_ssize_t)sizeof(int64_t), "rows")) ||
+        !(sn = take(&bs, o[3], 1, need, "sin")) || !(cs = take(&bs, o[4], 1, need, "cos")) ||
+        !(yat = take(&bs, o[5], 1, need, "yat")) || !(xat = take(&bs, o[6], 1, need, "xat"))) {
+        release(&bs);
+        return NULL;
+    }
+    const Py_ssize_t n_eph = bs.b[1].len / (Py_ssize_t)(NK * sizeof(double));
+    for (Py_ssize_t i = 0; i < n; ++i)
+        if (rows[i] < 0 || rows[i] >= n_eph) {
+            release(&bs);
+            PyErr_SetString(PyExc_IndexError, "_orbitcore: an ephemeris row is out of range");
+            return NULL;
+        }
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t i = 0; i < n; ++i) {
+        const double *k = K + rows[i] * NK;
+        SINCOS(ek[i], sn + i, cs + i);
+        yat[i] = k[K_SQ1E2] * sn[i];
+        xat[i] = cs[i] - k[K_E];
+    }
+    Py_END_ALLOW_THREADS
+    release(&bs);
+    Py_RETURN_NONE;
+}
+
+/* Position and clock of rows with sin E, cos E and the true anomaly known: xyz (n, 3), clk (n). */
+static PyObject *py_orbit(PyObject *self, PyObject *args)
+{
+    PyObject *o[8];
+    int tgd;
+    double ct, st;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOpdd", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &o[6], &o[7], &tgd, &ct, &st))
+        return NULL;
+    Bufs bs = {.n = 0};
+    const double *K, *t, *sn, *cs, *nu;
+    const int64_t *rows;
+    double *xyz, *clk;
+    if (!(t = take(&bs, o[2], 0, 0, "t"))) {
+        release(&bs);
+        return NULL;
+    }
+    const Py_ssize_t n = bs.b[0].len / (Py_ssize_t)sizeof(double), need = n * (Py_ssize_t)sizeof(double);
+    if (!(K = take(&bs, o[0], 0, 0, "K")) || !(rows = take(&bs, o[1], 0, n * (Py_ssize_t)sizeof(int64_t), "rows")) ||
+        !(sn = take(&bs, o[3], 0, need, "sin")) || !(cs = take(&bs, o[4], 0, need, "cos")) ||
+        !(nu = take(&bs, o[5], 0, need, "nu")) || !(xyz = take(&bs, o[6], 1, 3 * need, "xyz")) ||
+        !(clk = take(&bs, o[7], 1, need, "clk"))) {
+        release(&bs);
+        return NULL;
+    }
+    const Py_ssize_t n_eph = bs.b[1].len / (Py_ssize_t)(NK * sizeof(double));
+    for (Py_ssize_t i = 0; i < n; ++i)
+        if (rows[i] < 0 || rows[i] >= n_eph) {
+            release(&bs);
+            PyErr_SetString(PyExc_IndexError, "_orbitcore: an ephemeris row is out of range");
+            return NULL;
+        }
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t i = 0; i < n; ++i) kepler_row(K + rows[i] * NK, t[i], sn[i], cs[i], nu[i], tgd, ct, st, xyz + 3 * i, clk + i);
+    Py_END_ALLOW_THREADS
+    release(&bs);
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"anomaly", py_anomaly, METH_VARARGS, "Kepler's equation on the live blocks (see the file's header)."},
     {"kepler", py_kepler, METH_VARARGS, "Position and clock of the rows evaluated by anomaly (see the header)."},
     {"light", py_light, METH_VARARGS, "One light-time step of the live blocks; returns the blocks still going."},
+    {"newton", py_newton, METH_VARARGS, "Kepler's equation on all rows as one block (see the header)."},
+    {"anomaly_trig", py_anomaly_trig, METH_VARARGS, "sin E, cos E and the true anomaly's (y, x)."},
+    {"orbit", py_orbit, METH_VARARGS, "Position and clock from sin E, cos E and the true anomaly."},
     {NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef moddef = {
@@ -406,7 +543,7 @@ static struct PyModuleDef moddef = {
 PyMODINIT_FUNC PyInit__orbitcore(void)
 {
     PyObject *m = PyModule_Create(&moddef);
-    if (m && (PyModule_AddIntConstant(m, "API", 1) < 0 || PyModule_AddIntConstant(m, "NK", NK) < 0 ||
+    if (m && (PyModule_AddIntConstant(m, "API", 2) < 0 || PyModule_AddIntConstant(m, "NK", NK) < 0 ||
               PyModule_AddIntConstant(m, "NS", NS) < 0)) {
         Py_DECREF(m);
         return NULL;

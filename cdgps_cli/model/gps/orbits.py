@@ -460,8 +460,11 @@ def sat_position_rows(eph: EphemerisRows, t_gps_s, *, apply_tgd: bool = True) ->
     if eph.glonass.size:
         xyz[eph.glonass], clock[eph.glonass] = _glonass_record_position(eph.glonass_eph, t[eph.glonass])
     if eph.kepler.size and kernel_available():
-        xyz[eph.kepler], clock[eph.kepler] = _kepler_compiled(_packed_constants(eph.constants), eph.rows[eph.kepler],
-                                                              t[eph.kepler], apply_tgd)
+        kc = _packed_constants(eph.constants)
+        if eph.glonass.size:
+            xyz[eph.kepler], clock[eph.kepler] = _kepler_compiled(kc, eph.rows[eph.kepler], t[eph.kepler], apply_tgd)
+        else:                                          # every row a Kepler row, in order: written in place
+            _kepler_compiled(kc, eph.rows, t, apply_tgd, (xyz, clock))
     elif eph.kepler.size:
         c, kep = eph.constants, eph.kepler
         nav_k, tq = eph.rows[kep], t[kep]
@@ -785,13 +788,16 @@ def sat_positions_at_reception(nav: pd.DataFrame, sats, t_rx_gps_s, rx_ecef_m, *
         for a, v in zip(out, g):
             a[idx] = v
     packed = _packed_constants(eph.kepler) if eph.order.size and kernel_available() else None
+    chunks = _chunks(eph.starts, eph.order.size, CHUNK_ROWS)
     if packed is not None:
         rx = np.ascontiguousarray(rx)
         order = np.ascontiguousarray(eph.order, dtype=np.int64)
-    for r0, r1, starts in _chunks(eph.starts, eph.order.size, CHUNK_ROWS):
+        scratch = _Scratch(max(r1 - r0 for r0, r1, _ in chunks))
+    for r0, r1, starts in chunks:
         o = eph.order[r0:r1]
         if packed is not None:
-            _light_time_compiled(packed, eph.nav_rows[r0:r1], t_true[o], rx, order[r0:r1], starts, apply_tgd, out)
+            _light_time_compiled(packed, eph.nav_rows[r0:r1], t_true[o], rx, order[r0:r1], starts, apply_tgd, out,
+                                 scratch)
             continue
         k = {f: v[eph.nav_rows[r0:r1]] for f, v in eph.kepler.items()}
         g = _light_time_blocks(k, t_true[o], rx[o] if rx.ndim == 2 else rx, starts, apply_tgd)
@@ -829,7 +835,7 @@ def _light_time_blocks(k: dict, t_true: np.ndarray, rx: np.ndarray, starts: np.n
 # the compiled kernel (cdgps_cli.model.gps._orbitcore): the same values as the numpy functions above
 # ----------------------------------------------------------------------------------------------
 
-_CORE_API = 1
+_CORE_API = 2
 _CORE_FIELDS = ("toe_gps_s", "m0_rad", "n", "e", "sqrt_1_e2", "omega_rad", "cus_rad", "cuc_rad", "a", "crs_m", "crc_m",
                 "i0_rad", "idot_rad_per_s", "cis_rad", "cic_rad", "omega0_rad", "node_rate", "node_toe", "geo", "we",
                 "toc_gps_s", "af0_s", "af1_s_per_s", "af2_s_per_s2", "rel", "tgd_s")
@@ -857,42 +863,67 @@ def _core_state(n: int, n_blocks: int) -> tuple:
 
 
 def _core_kepler(kc: np.ndarray, rows: np.ndarray, t: np.ndarray, starts: np.ndarray, state: tuple, memo: bool,
-                 apply_tgd: bool, xyz: np.ndarray, clk: np.ndarray) -> None:
+                 apply_tgd: bool, xyz: np.ndarray, clk: np.ndarray, nu: np.ndarray | None = None) -> None:
     """Position (xyz) and clock (clk) of the rows of the live blocks at times ``t``: Kepler's equation in C,
-    numpy's arctan2 of the true anomaly (a SIMD routine, not libm's atan2), the rest in C."""
+    numpy's arctan2 of the true anomaly (a SIMD routine, not libm's atan2; into ``nu`` when given), the rest in C."""
     s, info, yat, xat, live = state
     _orbitcore.anomaly(kc, rows, t, starts, live, s, info, yat, xat, memo)
-    nu = np.arctan2(yat, xat)
+    nu = np.arctan2(yat, xat, out=nu)
     _orbitcore.kepler(kc, rows, t, starts, live, s, info, nu, xyz, clk, apply_tgd,
                       float(np.cos(BEIDOU_GEO_TILT_RAD)), float(np.sin(BEIDOU_GEO_TILT_RAD)))
 
 
-def _kepler_compiled(kc: np.ndarray, rows: np.ndarray, t: np.ndarray, apply_tgd: bool) -> tuple[np.ndarray, np.ndarray]:
+def _kepler_compiled(kc: np.ndarray, rows: np.ndarray, t: np.ndarray, apply_tgd: bool,
+                     out: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
     """:func:`sat_position_rows`' Kepler rows in C: one block (Kepler's equation iterated until all rows have
-    converged), position (K, 3) m and clock (K,) s."""
+    converged), then the rest chunk by chunk (temporaries of MB), position (K, 3) m and clock (K,) s (written
+    into ``out``, C-contiguous float64 arrays of those shapes, when given)."""
     n = t.size
-    xyz, clk = np.empty((n, 3)), np.empty(n)
-    starts = np.zeros(1, dtype=np.int64)
-    _core_kepler(kc, np.ascontiguousarray(rows, dtype=np.int64), np.ascontiguousarray(t, dtype=np.float64), starts,
-                 _core_state(n, 1), False, apply_tgd, xyz, clk)
+    rows = np.ascontiguousarray(rows, dtype=np.int64)
+    t = np.ascontiguousarray(t, dtype=np.float64)
+    ek = np.empty(n)
+    _orbitcore.newton(kc, rows, t, ek, np.empty(n, dtype=np.uint8))
+    xyz, clk = out if out is not None else (np.empty((n, 3)), np.empty(n))
+    ct, st = float(np.cos(BEIDOU_GEO_TILT_RAD)), float(np.sin(BEIDOU_GEO_TILT_RAD))
+    for a in range(0, n, CHUNK_ROWS):
+        s = slice(a, a + CHUNK_ROWS)
+        m = ek[s].size
+        sn, cs, yat, xat = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
+        _orbitcore.anomaly_trig(kc, rows[s], ek[s], sn, cs, yat, xat)
+        _orbitcore.orbit(kc, rows[s], t[s], sn, cs, np.arctan2(yat, xat), xyz[s], clk[s], apply_tgd, ct, st)
     return xyz, clk
 
 
+class _Scratch:
+    """The light-time kernel's buffers for chunks of up to ``n`` rows, allocated once per
+    :func:`sat_positions_at_reception` call (fresh pages for every chunk cost more than the arithmetic)."""
+
+    def __init__(self, n: int):
+        self.state = np.empty((n, _orbitcore.NS))          # no initial value needed: the first call sets every row
+        self.info = np.empty(n, dtype=np.int64)
+        self.yx = np.zeros((2, n))                           # finite values for np.arctan2 in rows not evaluated
+        self.f = np.empty((4, n))                            # clock, travel time, time, true anomaly
+        self.xyz = np.empty((n, 3))
+
+    def take(self, n: int, n_blocks: int) -> tuple:
+        """(state tuple for :func:`_core_kepler`, xyz, clock, τ = 0.075, time, true anomaly) for ``n`` rows."""
+        tau = self.f[1, :n]
+        tau.fill(0.075)
+        return ((self.state[:n], self.info[:n], self.yx[0, :n], self.yx[1, :n], np.ones(n_blocks, dtype=np.uint8)),
+                self.xyz[:n], self.f[0, :n], tau, self.f[2, :n], self.f[3, :n])
+
+
 def _light_time_compiled(kc: np.ndarray, rows: np.ndarray, t_true: np.ndarray, rx: np.ndarray, order: np.ndarray,
-                         starts: np.ndarray, apply_tgd: bool, out: tuple) -> None:
+                         starts: np.ndarray, apply_tgd: bool, out: tuple, scratch: _Scratch) -> None:
     """:func:`_light_time_blocks` in C, written into rows ``order`` of ``out`` (position (N, 3), clock, range,
     travel time), value for value.  ``kc``: :func:`_packed_constants` of the navigation table; ``rows``: each
     row's ephemeris in it; ``t_true`` (K,) the rows' true reception times; ``rx`` (3,) or (N, 3)."""
-    n = t_true.size
     rows = np.ascontiguousarray(rows, dtype=np.int64)
     starts = np.ascontiguousarray(starts, dtype=np.int64)
-    state = _core_state(n, starts.size)
-    live = state[4]
-    xyz, clk = np.zeros((n, 3)), np.zeros(n)
-    tau = np.full(n, 0.075)
+    state, xyz, clk, tau, t, nu = scratch.take(t_true.size, starts.size)
     for it in range(10):
-        _core_kepler(kc, rows, t_true - tau, starts, state, it > 0, apply_tgd, xyz, clk)
-        if not _orbitcore.light(xyz, clk, starts, live, tau, rx, rx.ndim == 2, order, *out, OMEGA_E_GPS,
+        _core_kepler(kc, rows, np.subtract(t_true, tau, out=t), starts, state, it > 0, apply_tgd, xyz, clk, nu)
+        if not _orbitcore.light(xyz, clk, starts, state[4], tau, rx, rx.ndim == 2, order, *out, OMEGA_E_GPS,
                                 SPEED_OF_LIGHT_M_S):
             break
 
