@@ -97,3 +97,25 @@ def test_kept_rows_give_a_fresh_evaluation():
         orbits._core_kepler(kc, rows, t2, second, state, True, True, xyz, clk)
         want = _numpy_blocks(k, t2, second)
         _assert_same((xyz, clk), want)
+
+
+def test_azimuth_elevation_and_niell_kernel_is_numpy(monkeypatch):
+    """The rotation to east/north/up (einsum's sums) and the Niell mapping of one receiver, in C: the same bits,
+    at satellites all around (below the horizon too) and receivers north and south, high and below the ellipsoid."""
+    from cdgps_cli.model.gps.orbits import azimuth_elevation, elevation, geodetic_to_ecef  # noqa: PLC0415
+    from cdgps_cli.model.gps.positioning import (  # noqa: PLC0415
+        day_of_year, niell_hydrostatic_mapping, tropo_hydrostatic_m)
+
+    rng = np.random.default_rng(13)
+    for n in (1, 2, 7, 5000):
+        sat = rng.normal(0.0, 1.6e7, (n, 3))
+        t = 1_300_000_000.0 + rng.uniform(0.0, 4e7, n)
+        for lat, lon, h in ((0.8, 2.4, 40.0), (-0.6, -1.0, 2500.0), (0.1, 0.3, -30.0), (-1.4, 3.0, 0.0)):
+            rx = geodetic_to_ecef(lat, lon, h)
+            got, want = _both(monkeypatch, lambda: azimuth_elevation(rx, sat))
+            _assert_same(got, want)
+            _assert_same(_both(monkeypatch, lambda: (elevation(rx, sat),))[0], want[1:])
+            el = np.r_[want[1][:-1], 1e-6] if n > 1 else want[1]
+            got, want = _both(monkeypatch, lambda: (niell_hydrostatic_mapping(el, lat, h, day_of_year(t)),
+                                                    tropo_hydrostatic_m(el, lat, h, t)))
+            _assert_same(got, want)

@@ -33,6 +33,8 @@
  * newton(K, rows, t, ek, state): one block of all rows (orbits.sat_position_rows), E into ek (n), state uint8 (n)
  *   scratch; anomaly_trig(K, rows, ek, sin, cos, yat, xat); orbit(K, rows, t, sin, cos, nu, xyz, clk, apply_tgd,
  *   cos_tilt, sin_tilt): the same in pieces, so that the rest runs chunk by chunk (small temporaries).
+ * enu(R, rx, xyz, out) and niell(el, doy, p, out): orbits.azimuth_elevation's rotation to east/north/up and
+ *   positioning.niell_hydrostatic_mapping for one receiver (same values; cos/sin from libm as numpy's).
  * Plain C against the CPython buffer protocol, no numpy headers (as _ekfcore.c).
  */
 #define PY_SSIZE_T_CLEAN
@@ -521,7 +523,83 @@ static PyObject *py_orbit(PyObject *self, PyObject *args)
             return NULL;
         }
     Py_BEGIN_ALLOW_THREADS
-    for (Py_ssize_t i = 0; i < n; ++i) kepler_row(K + rows[i] * NK, t[i], sn[i], cs[i], nu[i], tgd, ct, st, xyz + 3 * i, clk + i);
+    for (Py_ssize_t i = 0; i < n; ++i)
+        kepler_row(K + rows[i] * NK, t[i], sn[i], cs[i], nu[i], tgd, ct, st, xyz + 3 * i, clk + i);
+    Py_END_ALLOW_THREADS
+    release(&bs);
+    Py_RETURN_NONE;
+}
+
+/* East/north/up of satellites seen from one receiver (orbits.azimuth_elevation's einsum of R with xyz - rx):
+ * out (n, 3); each component summed as numpy's einsum sums three products, (r0 d0 + r2 d2) + r1 d1. */
+static PyObject *py_enu(PyObject *self, PyObject *args)
+{
+    PyObject *o[4];
+    if (!PyArg_ParseTuple(args, "OOOO", &o[0], &o[1], &o[2], &o[3])) return NULL;
+    Bufs bs = {.n = 0};
+    const double *R, *rx, *xyz;
+    double *out;
+    if (!(xyz = take(&bs, o[2], 0, 0, "xyz"))) {
+        release(&bs);
+        return NULL;
+    }
+    const Py_ssize_t n = bs.b[0].len / (Py_ssize_t)(3 * sizeof(double));
+    if (!(R = take(&bs, o[0], 0, 9 * (Py_ssize_t)sizeof(double), "R")) ||
+        !(rx = take(&bs, o[1], 0, 3 * (Py_ssize_t)sizeof(double), "rx")) ||
+        !(out = take(&bs, o[3], 1, 3 * n * (Py_ssize_t)sizeof(double), "out"))) {
+        release(&bs);
+        return NULL;
+    }
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t i = 0; i < n; ++i) {
+        const double d0 = xyz[3 * i] - rx[0], d1 = xyz[3 * i + 1] - rx[1], d2 = xyz[3 * i + 2] - rx[2];
+        for (int k = 0; k < 3; ++k) {
+            const double *r = R + 3 * k;
+            out[3 * i + k] = (r[0] * d0 + r[2] * d2) + r[1] * d1;
+        }
+    }
+    Py_END_ALLOW_THREADS
+    release(&bs);
+    Py_RETURN_NONE;
+}
+
+/* The Marini continued fraction normalised to 1 at zenith (positioning._marini). */
+static double marini(double s, double a, double b, double c)
+{
+    return (1.0 + a / (1.0 + b / (1.0 + c))) / (s + a / (s + b / (s + c)));
+}
+
+/* Niell's hydrostatic mapping (positioning.niell_hydrostatic_mapping) at one latitude and height, as numpy evaluates
+ * it: el, doy (n) -> out (n); p (11) = the a, b, c interpolated averages and amplitudes at the latitude, the
+ * seasonal phase offset (0 or 0.5), the height (m) and the three coefficients of the height correction. */
+static PyObject *py_niell(PyObject *self, PyObject *args)
+{
+    PyObject *o[4];
+    if (!PyArg_ParseTuple(args, "OOOO", &o[0], &o[1], &o[2], &o[3])) return NULL;
+    Bufs bs = {.n = 0};
+    const double *el, *doy, *p;
+    double *out;
+    if (!(el = take(&bs, o[0], 0, 0, "el"))) {
+        release(&bs);
+        return NULL;
+    }
+    const Py_ssize_t n = bs.b[0].len / (Py_ssize_t)sizeof(double), need = n * (Py_ssize_t)sizeof(double);
+    if (!(doy = take(&bs, o[1], 0, need, "doy")) || !(p = take(&bs, o[2], 0, 11 * (Py_ssize_t)sizeof(double), "p")) ||
+        !(out = take(&bs, o[3], 1, need, "out"))) {
+        release(&bs);
+        return NULL;
+    }
+    const double two_pi = 2.0 * 3.141592653589793;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t i = 0; i < n; ++i) {
+        const double y = (doy[i] - 28.0) / 365.25 + p[6];
+        const double cosy = cos(two_pi * y);
+        const double a = p[0] - p[3] * cosy, b = p[1] - p[4] * cosy, c = p[2] - p[5] * cosy;
+        const double e = el[i], s = sin(e > 1e-6 ? e : 1e-6);
+        const double m = marini(s, a, b, c);
+        const double dm = (1.0 / s - marini(s, p[8], p[9], p[10])) * p[7] / 1e3;
+        out[i] = e > 0.0 ? m + dm : 0.0;
+    }
     Py_END_ALLOW_THREADS
     release(&bs);
     Py_RETURN_NONE;
@@ -534,6 +612,8 @@ static PyMethodDef methods[] = {
     {"newton", py_newton, METH_VARARGS, "Kepler's equation on all rows as one block (see the header)."},
     {"anomaly_trig", py_anomaly_trig, METH_VARARGS, "sin E, cos E and the true anomaly's (y, x)."},
     {"orbit", py_orbit, METH_VARARGS, "Position and clock from sin E, cos E and the true anomaly."},
+    {"enu", py_enu, METH_VARARGS, "East/north/up of satellites from one receiver (einsum's sums)."},
+    {"niell", py_niell, METH_VARARGS, "Niell hydrostatic mapping at one latitude and height."},
     {NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef moddef = {
@@ -543,7 +623,7 @@ static struct PyModuleDef moddef = {
 PyMODINIT_FUNC PyInit__orbitcore(void)
 {
     PyObject *m = PyModule_Create(&moddef);
-    if (m && (PyModule_AddIntConstant(m, "API", 2) < 0 || PyModule_AddIntConstant(m, "NK", NK) < 0 ||
+    if (m && (PyModule_AddIntConstant(m, "API", 3) < 0 || PyModule_AddIntConstant(m, "NK", NK) < 0 ||
               PyModule_AddIntConstant(m, "NS", NS) < 0)) {
         Py_DECREF(m);
         return NULL;

@@ -13,7 +13,7 @@
 * :func:`sat_position_at_reception` — light-time iteration with the Earth-rotation (Sagnac)
   correction: satellite position at transmission, expressed in the ECEF frame at reception.
 * :func:`ecef_to_geodetic`, :func:`geodetic_to_ecef` (WGS-84), :func:`enu_matrix`,
-  :func:`ecef_to_enu`, :func:`azimuth_elevation`.
+  :func:`ecef_to_enu`, :func:`azimuth_elevation`, :func:`elevation`.
 
 All positions are ECEF (WGS-84), m; angles rad; times GPS seconds since 1980-01-06 (see
 :mod:`cdgps_cli.io.rinex`); clock corrections s (positive: the satellite clock is ahead, so
@@ -72,6 +72,7 @@ __all__ = [
     "enu_matrix",
     "ecef_to_enu",
     "azimuth_elevation",
+    "elevation",
 ]
 
 GM_GPS = 3.986005e14
@@ -835,7 +836,7 @@ def _light_time_blocks(k: dict, t_true: np.ndarray, rx: np.ndarray, starts: np.n
 # the compiled kernel (cdgps_cli.model.gps._orbitcore): the same values as the numpy functions above
 # ----------------------------------------------------------------------------------------------
 
-_CORE_API = 2
+_CORE_API = 3
 _CORE_FIELDS = ("toe_gps_s", "m0_rad", "n", "e", "sqrt_1_e2", "omega_rad", "cus_rad", "cuc_rad", "a", "crs_m", "crc_m",
                 "i0_rad", "idot_rad_per_s", "cis_rad", "cic_rad", "omega0_rad", "node_rate", "node_toe", "geo", "we",
                 "toc_gps_s", "af0_s", "af1_s_per_s", "af2_s_per_s2", "rel", "tgd_s")
@@ -1026,12 +1027,27 @@ def azimuth_elevation(rx_ecef_m, sat_ecef_m) -> tuple[np.ndarray, np.ndarray]:
     -------
     az_rad, el_rad : ndarray, shape (...)
     """
-    rx = np.asarray(rx_ecef_m, dtype=np.float64)
-    lat, lon, _ = ecef_to_geodetic(rx)
-    r = enu_matrix(lat, lon)
-    d = np.asarray(sat_ecef_m, dtype=np.float64) - rx
-    enu = np.einsum("...ij,...j->...i", r, d)
-    e, n, u = enu[..., 0], enu[..., 1], enu[..., 2]
+    e, n, u = _enu_components(rx_ecef_m, sat_ecef_m)
     az = np.mod(np.arctan2(e, n), 2.0 * np.pi)
     el = np.arctan2(u, np.hypot(e, n))
     return az, el
+
+
+def elevation(rx_ecef_m, sat_ecef_m) -> np.ndarray:
+    """The elevation of :func:`azimuth_elevation` alone (the same values), rad, shape (...)."""
+    e, n, u = _enu_components(rx_ecef_m, sat_ecef_m)
+    return np.arctan2(u, np.hypot(e, n))
+
+
+def _enu_components(rx_ecef_m, sat_ecef_m) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """East, north and up of the satellites from the receiver, m (views of one (..., 3) array)."""
+    rx = np.asarray(rx_ecef_m, dtype=np.float64)
+    lat, lon, _ = ecef_to_geodetic(rx)
+    r = enu_matrix(lat, lon)
+    sat = np.asarray(sat_ecef_m, dtype=np.float64)
+    if rx.shape == (3,) and sat.ndim == 2 and sat.shape[1] == 3 and kernel_available():
+        enu = np.empty(sat.shape)                  # one pass in C, the einsum's sums (tested equal)
+        _orbitcore.enu(np.ascontiguousarray(r), rx, np.ascontiguousarray(sat), enu)
+    else:
+        enu = np.einsum("...ij,...j->...i", r, sat - rx)
+    return enu[..., 0], enu[..., 1], enu[..., 2]
