@@ -21,7 +21,7 @@
  *   K     float64 (n_eph, NK): per ephemeris the fields of orbits._CORE_FIELDS (the order of the enum below);
  *   rows  int64 (n): ephemeris (row of K) of each row;  t float64 (n): evaluation times, GPS s;
  *   starts int64 (nb): first row of each block;  live uint8 (nb): blocks to evaluate;
- *   S     float64 (n, NS) and info int64 (n): the per-row state kept between calls (zero at first);
+ *   S     float64 (n, NS) and info int64 (n): the per-row state kept between calls (any values when memo is 0);
  *   yat, xat float64 (n), written: sqrt(1-e^2) sin E and cos E - e of the rows evaluated (REDO in info);
  *   memo  int: rows whose time equals the previous call's may keep their orbit.
  * kepler(K, rows, t, starts, live, S, info, nu, xyz, clk, apply_tgd, cos_tilt, sin_tilt)
@@ -33,8 +33,8 @@
  * newton(K, rows, t, ek, state): one block of all rows (orbits.sat_position_rows), E into ek (n), state uint8 (n)
  *   scratch; anomaly_trig(K, rows, ek, sin, cos, yat, xat); orbit(K, rows, t, sin, cos, nu, xyz, clk, apply_tgd,
  *   cos_tilt, sin_tilt): the same in pieces, so that the rest runs chunk by chunk (small temporaries).
- * enu(R, rx, xyz, out) and niell(el, doy, p, out): orbits.azimuth_elevation's rotation to east/north/up and
- *   positioning.niell_hydrostatic_mapping for one receiver (same values; cos/sin from libm as numpy's).
+ * enu(R, rx, xyz, out) and niell(el, doy, p, out): orbits.azimuth_elevation's rotation to east/north/up (the sums
+ *   in the order of numpy's einsum, checked against it) and positioning.niell_hydrostatic_mapping for one receiver.
  * Plain C against the CPython buffer protocol, no numpy headers (as _ekfcore.c).
  */
 #define PY_SSIZE_T_CLEAN

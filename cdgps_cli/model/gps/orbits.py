@@ -15,6 +15,11 @@
 * :func:`ecef_to_geodetic`, :func:`geodetic_to_ecef` (WGS-84), :func:`enu_matrix`,
   :func:`ecef_to_enu`, :func:`azimuth_elevation`, :func:`elevation`.
 
+The many-row functions (:func:`sat_positions_at_reception`, :func:`sat_position_rows`, :func:`azimuth_elevation`
+of one receiver) run in the optional compiled kernel ``cdgps_cli.model.gps._orbitcore`` when it is built and
+``CDGPS_NO_KERNEL`` is unset: the same values bit for bit as their numpy code, which runs otherwise
+(tests/model/test_orbitcore.py).
+
 All positions are ECEF (WGS-84), m; angles rad; times GPS seconds since 1980-01-06 (see
 :mod:`cdgps_cli.io.rinex`); clock corrections s (positive: the satellite clock is ahead, so
 ``t_gps = t_sv - clock_s``).  Functions are pure and take numpy arrays.
