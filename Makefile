@@ -7,7 +7,7 @@ DEMO   := build/demo
 
 .PHONY: demo test venv clean bench studies paper
 
-$(VENV)/.installed: pyproject.toml setup.py cdgps_cli/estimation/_ekfcore.c cdgps_cli/estimation/_lambdacore.c cdgps_cli/tracking/_trackcore.c cdgps_cli/io/_ubxcore.c
+$(VENV)/.installed: pyproject.toml setup.py cdgps_cli/estimation/_ekfcore.c cdgps_cli/estimation/_lambdacore.c cdgps_cli/tracking/_trackcore.c cdgps_cli/io/_ubxcore.c cdgps_cli/model/gps/_orbitcore.c
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[test]'

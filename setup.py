@@ -25,6 +25,8 @@ lambda_args = compile_args if sys.platform == "win32" else [*compile_args, "-ffp
 # the filter kernel: sqrt without errno (the same correctly rounded values, but inlined: no libm call per
 # square root, loops free to vectorize); ~6 % of `estimate()` on the testbed hour, STATES byte-identical
 ekf_args = compile_args if sys.platform == "win32" else [*compile_args, "-fno-math-errno"]
+# the orbit kernel must give the numpy functions' values bit for bit: no fused multiply-add, sqrt inlined
+orbit_args = compile_args if sys.platform == "win32" else [*compile_args, "-ffp-contract=off", "-fno-math-errno"]
 
 setup(
     ext_modules=[
@@ -44,6 +46,12 @@ setup(
             "cdgps_cli.tracking._trackcore",
             sources=["cdgps_cli/tracking/_trackcore.c"],
             extra_compile_args=compile_args,
+            optional=True,
+        ),
+        Extension(
+            "cdgps_cli.model.gps._orbitcore",
+            sources=["cdgps_cli/model/gps/_orbitcore.c"],
+            extra_compile_args=orbit_args,
             optional=True,
         ),
         Extension(

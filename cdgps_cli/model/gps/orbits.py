@@ -13,7 +13,12 @@
 * :func:`sat_position_at_reception` — light-time iteration with the Earth-rotation (Sagnac)
   correction: satellite position at transmission, expressed in the ECEF frame at reception.
 * :func:`ecef_to_geodetic`, :func:`geodetic_to_ecef` (WGS-84), :func:`enu_matrix`,
-  :func:`ecef_to_enu`, :func:`azimuth_elevation`.
+  :func:`ecef_to_enu`, :func:`azimuth_elevation`, :func:`elevation`.
+
+The many-row functions (:func:`sat_positions_at_reception`, :func:`sat_position_rows`, :func:`azimuth_elevation`
+of one receiver) run in the optional compiled kernel ``cdgps_cli.model.gps._orbitcore`` when it is built and
+``CDGPS_NO_KERNEL`` is unset: the same values bit for bit as their numpy code, which runs otherwise
+(tests/model/test_orbitcore.py).
 
 All positions are ECEF (WGS-84), m; angles rad; times GPS seconds since 1980-01-06 (see
 :mod:`cdgps_cli.io.rinex`); clock corrections s (positive: the satellite clock is ahead, so
@@ -22,6 +27,7 @@ All positions are ECEF (WGS-84), m; angles rad; times GPS seconds since 1980-01-
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping
 from typing import NamedTuple
 
@@ -33,6 +39,11 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.core.records import GLONASS_NAV_COLUMNS
 from cdgps_cli.model.gps.glonass_orbit import glonass_position
+
+try:
+    from cdgps_cli.model.gps import _orbitcore
+except ImportError:                      # the optional extension is not built: the numpy functions below
+    _orbitcore = None
 
 __all__ = [
     "GM_GPS",
@@ -66,6 +77,7 @@ __all__ = [
     "enu_matrix",
     "ecef_to_enu",
     "azimuth_elevation",
+    "elevation",
 ]
 
 GM_GPS = 3.986005e14
@@ -453,7 +465,13 @@ def sat_position_rows(eph: EphemerisRows, t_gps_s, *, apply_tgd: bool = True) ->
     xyz, clock = np.empty((t.size, 3)), np.empty(t.size)
     if eph.glonass.size:
         xyz[eph.glonass], clock[eph.glonass] = _glonass_record_position(eph.glonass_eph, t[eph.glonass])
-    if eph.kepler.size:
+    if eph.kepler.size and kernel_available():
+        kc = _packed_constants(eph.constants)
+        if eph.glonass.size:
+            xyz[eph.kepler], clock[eph.kepler] = _kepler_compiled(kc, eph.rows[eph.kepler], t[eph.kepler], apply_tgd)
+        else:                                          # every row a Kepler row, in order: written in place
+            _kepler_compiled(kc, eph.rows, t, apply_tgd, (xyz, clock))
+    elif eph.kepler.size:
         c, kep = eph.constants, eph.kepler
         nav_k, tq = eph.rows[kep], t[kep]
         tk = tq - c["toe_gps_s"][nav_k]
@@ -775,8 +793,18 @@ def sat_positions_at_reception(nav: pd.DataFrame, sats, t_rx_gps_s, rx_ecef_m, *
                                       rx_clock_s=rx_clock[idx], apply_tgd=apply_tgd, max_age_s=max_age_s)
         for a, v in zip(out, g):
             a[idx] = v
-    for r0, r1, starts in _chunks(eph.starts, eph.order.size, CHUNK_ROWS):
+    packed = _packed_constants(eph.kepler) if eph.order.size and kernel_available() else None
+    chunks = _chunks(eph.starts, eph.order.size, CHUNK_ROWS)
+    if packed is not None:
+        rx = np.ascontiguousarray(rx)
+        order = np.ascontiguousarray(eph.order, dtype=np.int64)
+        scratch = _Scratch(max(r1 - r0 for r0, r1, _ in chunks))
+    for r0, r1, starts in chunks:
         o = eph.order[r0:r1]
+        if packed is not None:
+            _light_time_compiled(packed, eph.nav_rows[r0:r1], t_true[o], rx, order[r0:r1], starts, apply_tgd, out,
+                                 scratch)
+            continue
         k = {f: v[eph.nav_rows[r0:r1]] for f, v in eph.kepler.items()}
         g = _light_time_blocks(k, t_true[o], rx[o] if rx.ndim == 2 else rx, starts, apply_tgd)
         for a, v in zip(out, g):
@@ -807,6 +835,103 @@ def _light_time_blocks(k: dict, t_true: np.ndarray, rx: np.ndarray, starts: np.n
         if not blocks.settle(~(np.maximum.reduceat(step, blocks.starts) < 1e-12)):
             break
     return rot, clk, rng, tau
+
+
+# ----------------------------------------------------------------------------------------------
+# the compiled kernel (cdgps_cli.model.gps._orbitcore): the same values as the numpy functions above
+# ----------------------------------------------------------------------------------------------
+
+_CORE_API = 3
+_CORE_FIELDS = ("toe_gps_s", "m0_rad", "n", "e", "sqrt_1_e2", "omega_rad", "cus_rad", "cuc_rad", "a", "crs_m", "crc_m",
+                "i0_rad", "idot_rad_per_s", "cis_rad", "cic_rad", "omega0_rad", "node_rate", "node_toe", "geo", "we",
+                "toc_gps_s", "af0_s", "af1_s_per_s", "af2_s_per_s2", "rel", "tgd_s")
+"""Columns of the kernel's ephemeris matrix, in the order of its enum (``K_TOE`` … ``K_TGD``)."""
+
+
+def kernel_available() -> bool:
+    """True when the compiled orbit kernel is importable, current, and not disabled by the environment
+    variable ``CDGPS_NO_KERNEL`` (anything but ``""`` / ``"0"``: the rule of :mod:`cdgps_cli.estimation.compiled`)."""
+    if os.environ.get("CDGPS_NO_KERNEL", "") not in ("", "0"):
+        return False
+    return (_orbitcore is not None and getattr(_orbitcore, "API", None) == _CORE_API
+            and getattr(_orbitcore, "NK", None) == len(_CORE_FIELDS))
+
+
+def _packed_constants(k: dict) -> np.ndarray:
+    """:func:`_kepler_constants` as the kernel's matrix, one row per ephemeris (n_eph, len(_CORE_FIELDS))."""
+    return np.ascontiguousarray(np.column_stack([np.asarray(k[f], dtype=np.float64) for f in _CORE_FIELDS]))
+
+
+def _core_state(n: int, n_blocks: int) -> tuple:
+    """The kernel's per-row state (zero: nothing kept), its (y, x) of the true anomaly and the live blocks."""
+    return (np.zeros((n, _orbitcore.NS)), np.zeros(n, dtype=np.int64), np.zeros(n), np.zeros(n),
+            np.ones(n_blocks, dtype=np.uint8))
+
+
+def _core_kepler(kc: np.ndarray, rows: np.ndarray, t: np.ndarray, starts: np.ndarray, state: tuple, memo: bool,
+                 apply_tgd: bool, xyz: np.ndarray, clk: np.ndarray, nu: np.ndarray | None = None) -> None:
+    """Position (xyz) and clock (clk) of the rows of the live blocks at times ``t``: Kepler's equation in C,
+    numpy's arctan2 of the true anomaly (a SIMD routine, not libm's atan2; into ``nu`` when given), the rest in C."""
+    s, info, yat, xat, live = state
+    _orbitcore.anomaly(kc, rows, t, starts, live, s, info, yat, xat, memo)
+    nu = np.arctan2(yat, xat, out=nu)
+    _orbitcore.kepler(kc, rows, t, starts, live, s, info, nu, xyz, clk, apply_tgd,
+                      float(np.cos(BEIDOU_GEO_TILT_RAD)), float(np.sin(BEIDOU_GEO_TILT_RAD)))
+
+
+def _kepler_compiled(kc: np.ndarray, rows: np.ndarray, t: np.ndarray, apply_tgd: bool,
+                     out: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`sat_position_rows`' Kepler rows in C: one block (Kepler's equation iterated until all rows have
+    converged), then the rest chunk by chunk (temporaries of MB), position (K, 3) m and clock (K,) s (written
+    into ``out``, C-contiguous float64 arrays of those shapes, when given)."""
+    n = t.size
+    rows = np.ascontiguousarray(rows, dtype=np.int64)
+    t = np.ascontiguousarray(t, dtype=np.float64)
+    ek = np.empty(n)
+    _orbitcore.newton(kc, rows, t, ek, np.empty(n, dtype=np.uint8))
+    xyz, clk = out if out is not None else (np.empty((n, 3)), np.empty(n))
+    ct, st = float(np.cos(BEIDOU_GEO_TILT_RAD)), float(np.sin(BEIDOU_GEO_TILT_RAD))
+    for a in range(0, n, CHUNK_ROWS):
+        s = slice(a, a + CHUNK_ROWS)
+        m = ek[s].size
+        sn, cs, yat, xat = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
+        _orbitcore.anomaly_trig(kc, rows[s], ek[s], sn, cs, yat, xat)
+        _orbitcore.orbit(kc, rows[s], t[s], sn, cs, np.arctan2(yat, xat), xyz[s], clk[s], apply_tgd, ct, st)
+    return xyz, clk
+
+
+class _Scratch:
+    """The light-time kernel's buffers for chunks of up to ``n`` rows, allocated once per
+    :func:`sat_positions_at_reception` call (fresh pages for every chunk cost more than the arithmetic)."""
+
+    def __init__(self, n: int):
+        self.state = np.empty((n, _orbitcore.NS))          # no initial value needed: the first call sets every row
+        self.info = np.empty(n, dtype=np.int64)
+        self.yx = np.zeros((2, n))                           # finite values for np.arctan2 in rows not evaluated
+        self.f = np.empty((4, n))                            # clock, travel time, time, true anomaly
+        self.xyz = np.empty((n, 3))
+
+    def take(self, n: int, n_blocks: int) -> tuple:
+        """(state tuple for :func:`_core_kepler`, xyz, clock, τ = 0.075, time, true anomaly) for ``n`` rows."""
+        tau = self.f[1, :n]
+        tau.fill(0.075)
+        return ((self.state[:n], self.info[:n], self.yx[0, :n], self.yx[1, :n], np.ones(n_blocks, dtype=np.uint8)),
+                self.xyz[:n], self.f[0, :n], tau, self.f[2, :n], self.f[3, :n])
+
+
+def _light_time_compiled(kc: np.ndarray, rows: np.ndarray, t_true: np.ndarray, rx: np.ndarray, order: np.ndarray,
+                         starts: np.ndarray, apply_tgd: bool, out: tuple, scratch: _Scratch) -> None:
+    """:func:`_light_time_blocks` in C, written into rows ``order`` of ``out`` (position (N, 3), clock, range,
+    travel time), value for value.  ``kc``: :func:`_packed_constants` of the navigation table; ``rows``: each
+    row's ephemeris in it; ``t_true`` (K,) the rows' true reception times; ``rx`` (3,) or (N, 3)."""
+    rows = np.ascontiguousarray(rows, dtype=np.int64)
+    starts = np.ascontiguousarray(starts, dtype=np.int64)
+    state, xyz, clk, tau, t, nu = scratch.take(t_true.size, starts.size)
+    for it in range(10):
+        _core_kepler(kc, rows, np.subtract(t_true, tau, out=t), starts, state, it > 0, apply_tgd, xyz, clk, nu)
+        if not _orbitcore.light(xyz, clk, starts, state[4], tau, rx, rx.ndim == 2, order, *out, OMEGA_E_GPS,
+                                SPEED_OF_LIGHT_M_S):
+            break
 
 
 # ----------------------------------------------------------------------------------------------
@@ -907,12 +1032,27 @@ def azimuth_elevation(rx_ecef_m, sat_ecef_m) -> tuple[np.ndarray, np.ndarray]:
     -------
     az_rad, el_rad : ndarray, shape (...)
     """
-    rx = np.asarray(rx_ecef_m, dtype=np.float64)
-    lat, lon, _ = ecef_to_geodetic(rx)
-    r = enu_matrix(lat, lon)
-    d = np.asarray(sat_ecef_m, dtype=np.float64) - rx
-    enu = np.einsum("...ij,...j->...i", r, d)
-    e, n, u = enu[..., 0], enu[..., 1], enu[..., 2]
+    e, n, u = _enu_components(rx_ecef_m, sat_ecef_m)
     az = np.mod(np.arctan2(e, n), 2.0 * np.pi)
     el = np.arctan2(u, np.hypot(e, n))
     return az, el
+
+
+def elevation(rx_ecef_m, sat_ecef_m) -> np.ndarray:
+    """The elevation of :func:`azimuth_elevation` alone (the same values), rad, shape (...)."""
+    e, n, u = _enu_components(rx_ecef_m, sat_ecef_m)
+    return np.arctan2(u, np.hypot(e, n))
+
+
+def _enu_components(rx_ecef_m, sat_ecef_m) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """East, north and up of the satellites from the receiver, m (views of one (..., 3) array)."""
+    rx = np.asarray(rx_ecef_m, dtype=np.float64)
+    lat, lon, _ = ecef_to_geodetic(rx)
+    r = enu_matrix(lat, lon)
+    sat = np.asarray(sat_ecef_m, dtype=np.float64)
+    if rx.shape == (3,) and sat.ndim == 2 and sat.shape[1] == 3 and kernel_available():
+        enu = np.empty(sat.shape)                  # one pass in C, the einsum's sums (tested equal)
+        _orbitcore.enu(np.ascontiguousarray(r), rx, np.ascontiguousarray(sat), enu)
+    else:
+        enu = np.einsum("...ij,...j->...i", r, sat - rx)
+    return enu[..., 0], enu[..., 1], enu[..., 2]

@@ -35,12 +35,15 @@ import numpy as np
 import pandas as pd
 
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
-from cdgps_cli.model.gps.orbits import (
+from cdgps_cli.model.gps.orbits import (  # noqa: I001
+    _orbitcore,
+    kernel_available,
     GM_GPS,
     MAX_EPHEMERIS_AGE_GLONASS_S,
     MAX_EPHEMERIS_AGE_S,
     azimuth_elevation,
     ecef_to_geodetic,
+    elevation,
     enu_matrix,
     reception_ephemeris,
     sat_position_at_reception,
@@ -170,10 +173,18 @@ def niell_hydrostatic_mapping(el_rad, lat_rad, h_m, doy) -> np.ndarray:
     el = np.asarray(el_rad, dtype=np.float64)
     lat_deg = np.degrees(np.asarray(lat_rad, dtype=np.float64))
     h = np.asarray(h_m, dtype=np.float64)
-    y = (np.asarray(doy, dtype=np.float64) - 28.0) / 365.25 + np.where(lat_deg < 0.0, 0.5, 0.0)
-    cosy = np.cos(2.0 * np.pi * y)
+    doy = np.asarray(doy, dtype=np.float64)
     alat = np.abs(lat_deg)
     grid = np.array([15.0, 30.0, 45.0, 60.0, 75.0])
+    if lat_deg.ndim == 0 and h.ndim == 0 and doy.shape == el.shape and el.size and kernel_available():
+        # one receiver: one pass in C, the same operations (tested equal)
+        p = [np.interp(alat, grid, t[k]) for t in (_NMF_AVG, _NMF_AMP) for k in range(3)]
+        out = np.empty(el.shape)
+        _orbitcore.niell(np.ascontiguousarray(el), np.ascontiguousarray(doy),
+                         np.array([*p, np.where(lat_deg < 0.0, 0.5, 0.0), h, *_NMF_HEIGHT], dtype=np.float64), out)
+        return out
+    y = (doy - 28.0) / 365.25 + np.where(lat_deg < 0.0, 0.5, 0.0)
+    cosy = np.cos(2.0 * np.pi * y)
     coef = [np.interp(alat, grid, _NMF_AVG[k]) - np.interp(alat, grid, _NMF_AMP[k]) * cosy for k in range(3)]
     sin_el = np.sin(np.maximum(el, 1e-6))
     m = _marini(sin_el, *coef)
@@ -252,15 +263,16 @@ def _groups(sats) -> list:
     return [(names[i], order[cuts[i]:cuts[i + 1]]) for i in range(len(names))]
 
 
-def _rows_geometry(nav, sats, t_label, t_true, rx_ecef, *, troposphere: bool, ephemeris=None):
+def _rows_geometry(nav, sats, t_label, t_true, rx_ecef, *, troposphere: bool, ephemeris=None, azimuth: bool = True):
     """Satellite geometry for rows: returns xyz (N,3), clock (N,), range (N,), az, el, trop (N,).
     ``ephemeris``: :func:`~cdgps_cli.model.gps.orbits.reception_ephemeris` of (sats, t_label), if the
-    caller has it (each satellite's rows are exactly a :func:`sat_position_at_reception` call's)."""
+    caller has it (each satellite's rows are exactly a :func:`sat_position_at_reception` call's).
+    ``azimuth`` False: az is None (callers that use the elevation only; el is the same)."""
     n = t_label.size
     rx = np.asarray(rx_ecef, dtype=np.float64)
     g = sat_positions_at_reception(nav, sats, t_label, rx, rx_clock_s=t_label - t_true, ephemeris=ephemeris)
     xyz, clk, rng = g.xyz_m, g.clock_s, g.range_m
-    az, el = azimuth_elevation(rx, xyz)
+    az, el = azimuth_elevation(rx, xyz) if azimuth else (None, elevation(rx, xyz))
     if troposphere:
         lat, _, h = ecef_to_geodetic(rx)
         trop = tropo_hydrostatic_m(el, lat, h, t_true)
@@ -341,7 +353,7 @@ def estimate_receiver_clock(
     eph = reception_ephemeris(nav, sats[idx], t[idx])          # the same rows every pass: selected once
     for _ in range(max(1, iterations)):
         _, dts, rng, _, el, trop = _rows_geometry(nav, sats[idx], t[idx], t[idx] - clk[ep[idx]], rx_ecef_m,
-                                                   troposphere=troposphere, ephemeris=eph)
+                                                   troposphere=troposphere, ephemeris=eph, azimuth=False)
         res = (pr[idx] - (rng - SPEED_OF_LIGHT_M_S * dts + trop)) / SPEED_OF_LIGHT_M_S
         use = el > mask_rad
         if not use.any():
@@ -418,7 +430,7 @@ def spp_static(
     clk = np.zeros(ne)
     for it in range(max_iterations):
         near = np.linalg.norm(x) > 6.3e6
-        xyz, dts, rng, _, el, trop = _rows_geometry(nav, sats, t, t - clk[ep], x, troposphere=near)
+        xyz, dts, rng, _, el, trop = _rows_geometry(nav, sats, t, t - clk[ep], x, troposphere=near, azimuth=False)
         use = (el > mask_rad) if near and np.linalg.norm(x) < 6.5e6 else np.ones(el.size, dtype=bool)
         res = pr - (rng - SPEED_OF_LIGHT_M_S * dts + trop)
         g = -(xyz - x) / rng[:, None]
