@@ -623,6 +623,10 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
     from cdgps_cli.pipeline.estimate_outputs import write_states  # noqa: PLC0415
 
     say = progress or (lambda m: None)
+    if fuse:                    # (large arrays mapped on their own from here on: freed, they leave RSS; issue 29)
+        from cdgps_cli.pipeline.fusion import map_large_blocks  # noqa: PLC0415
+
+        map_large_blocks()
     su = _modal_setup(run, init, cfg, receivers, x_axis_azimuth_deg, say)
     mapping, rover_ants, xm, tabs, t_all = su.mapping, su.rover_ants, su.xm, su.tabs, su.t_all
     if not batch_init and not any(tb["n_fixed"] for tb in tabs):
