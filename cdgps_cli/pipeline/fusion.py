@@ -80,6 +80,32 @@ def release_freed_heap() -> bool:
     return True
 
 
+#: glibc ``mallopt`` parameter number of the mmap threshold (malloc.h ``M_MMAP_THRESHOLD``)
+_M_MMAP_THRESHOLD = -3
+#: blocks at least this large are mapped on their own and unmapped when freed, bytes (glibc's default
+#: starting value; fixed, so that glibc does not raise it as large blocks are freed)
+MMAP_THRESHOLD_BYTES = 128 * 1024
+
+
+def map_large_blocks(threshold_bytes: int = MMAP_THRESHOLD_BYTES) -> bool:
+    """Fix glibc's mmap threshold at ``threshold_bytes`` for the rest of the process (``mallopt``;
+    elsewhere nothing).  glibc otherwise raises the threshold to the size of each mapped block freed, so
+    after the first large arrays every array of the record's size comes from the heap, whose freed
+    pages stay in RSS between the set-up's steps (issue 29); fixed, each array at least that large is
+    its own mapping, returned to the system when freed.  Arithmetic unchanged.  True when the call
+    was made."""
+    import ctypes  # noqa: PLC0415
+    import sys  # noqa: PLC0415
+
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        mallopt = ctypes.CDLL("libc.so.6").mallopt
+    except (OSError, AttributeError):              # not glibc (musl …)
+        return False
+    return bool(mallopt(_M_MMAP_THRESHOLD, int(threshold_bytes)))
+
+
 def common_time_axis(t_gnss, sensor_times, tol_s: float = SYNC_TOL_S) -> np.ndarray:
     """The union of the GNSS epochs and the sensor samples within their span (samples within
     ``tol_s`` of an epoch merged into it), sorted, s."""

@@ -150,11 +150,23 @@ def _rover_tables(run, init, r, stations, progress):
     if not n_fixed:
         ev.append({"time_s": float(d.t_label[0]), "antenna": r, "transmitter": "", "kind": "no integer fixed",
                    "action": "receiver not used"})
-    tb = {"res": res, "w": w, "d": d, "r_raw": r_raw, "rc": rc, "code_ratio": float(opt.code_ratio),
-          "seg": w["seg"], "var_rover": va, "var_master": vm,
+    # only what the modal integers, the filter and the outputs read is kept (issue 29): not the baseline's
+    # result, working arrays (weights, per-epoch blocks, residuals) nor the rest of its SD table
+    tb = {"res": None, "w": {"known_seg": w["known_seg"]}, "d": _slim_data(d), "r_raw": r_raw, "rc": rc,
+          "code_ratio": float(opt.code_ratio), "seg": w["seg"], "var_rover": va, "var_master": vm,
           "events": ev, "n_fixed": int(n_fixed), "n_estimated": int(res["ambiguities"]["n_estimated"]),
           "xr0": np.asarray(w["xr0"], float), "xm": np.asarray(w["xm"], float)}
     return _set_integers(tb, w["a_seg"], use)
+
+
+#: the fields of a baseline's SD table (:class:`cdgps_cli.estimation.baseline._Data`) read after
+#: :func:`_rover_tables`: by :func:`_set_integers`, the modal batch initialization, the filter and the outputs
+_SETUP_DATA_FIELDS = ("ptr", "epoch", "sat", "sat_names", "t_label", "el_rover", "slip", "rover_sat_xyz")
+
+
+def _slim_data(d) -> SimpleNamespace:
+    """The baseline SD table ``d`` reduced to :data:`_SETUP_DATA_FIELDS` (the same arrays, not copies)."""
+    return SimpleNamespace(**{k: getattr(d, k) for k in _SETUP_DATA_FIELDS})
 
 
 def _set_integers(tb: dict, a_seg: np.ndarray, use: np.ndarray) -> dict:
@@ -623,6 +635,10 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
     from cdgps_cli.pipeline.estimate_outputs import write_states  # noqa: PLC0415
 
     say = progress or (lambda m: None)
+    if fuse:                    # (large arrays mapped on their own from here on: freed, they leave RSS; issue 29)
+        from cdgps_cli.pipeline.fusion import map_large_blocks  # noqa: PLC0415
+
+        map_large_blocks()
     su = _modal_setup(run, init, cfg, receivers, x_axis_azimuth_deg, say)
     mapping, rover_ants, xm, tabs, t_all = su.mapping, su.rover_ants, su.xm, su.tabs, su.t_all
     if not batch_init and not any(tb["n_fixed"] for tb in tabs):

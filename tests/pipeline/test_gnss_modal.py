@@ -287,3 +287,24 @@ def test_the_window_grows_until_every_integer_is_fixed(tower, tmp_path, monkeypa
     # a window fixed at once is not extended and records no attempts
     mi60 = gnss_modal_estimate(run, json.loads(text), text, cfg, tmp_path / "h.mcap", init_window_s=60.0)["modal_init"]
     assert "windows_tried" not in mi60 and mi60["window"]["epochs"] == 60
+
+
+def test_the_set_up_keeps_only_what_the_modal_filter_reads(tower):
+    """Issue 29: each rover's table keeps neither the baseline's result nor its working arrays, and of
+    its SD table only the fields read after the set-up (the same arrays, not copies)."""
+    from cdgps_cli.io.gnss_run import read_gnss_run
+    from cdgps_cli.pipeline import gnss_modal
+    from cdgps_cli.pipeline.gnss import _stations, solve_with_init_integers
+
+    tmp, cfg, _, init, _, _ = tower
+    run = read_gnss_run(tmp / "run.mcap")
+    su = gnss_modal._modal_setup(run, init, cfg, None, 90.0, lambda m: None)
+    for tb in su.tabs:
+        assert tb["res"] is None and set(tb["w"]) == {"known_seg"}
+        assert set(vars(tb["d"])) == set(gnss_modal._SETUP_DATA_FIELDS)
+    _, w, _, _ = solve_with_init_integers(run, init, run.rovers[0], _stations(run))
+    d, slim = w["data"], su.tabs[0]["d"]
+    for k in gnss_modal._SETUP_DATA_FIELDS:
+        a = getattr(slim, k)
+        assert a == getattr(d, k) if isinstance(a, list) else np.array_equal(a, getattr(d, k))
+    assert np.array_equal(su.tabs[0]["w"]["known_seg"], w["known_seg"])
