@@ -54,7 +54,7 @@ def _glonass_slots(lines, end, path) -> dict:
     column, as some writers pack them without the separating blank ("R11 -5R19 +3")."""
     out = {}
     for i, ln in enumerate(lines[1:end], start=2):
-        if ln[60:80].strip() == "GLONASS SLOT / FRQ #":
+        if "GLONASS SLOT / FRQ #" in ln and ln[60:80].strip() == "GLONASS SLOT / FRQ #":   # one C search first
             body = ln[4:60]
             found = _SLOT.findall(body)
             if body.strip() and not found:
