@@ -48,11 +48,12 @@ RTK_MODES = ("kinematic", "constant-velocity", "static")
 
 def check_common_signals(base: pd.DataFrame, rover: pd.DataFrame, names, nav, where: dict) -> None:
     """CdgpsError when a signal is not observed by both receivers or a system has no ephemeris."""
+    present = {who: set(df["signal"].unique().tolist()) for who, df in (("base", base), ("rover", rover))}  # one pass each
     for name in names:
-        for who, df in (("base", base), ("rover", rover)):
-            if not (df["signal"] == name).any():
+        for who in ("base", "rover"):
+            if name not in present[who]:
                 raise CdgpsError(f"{where[who]} ({who}): no {name} phase observations; the receivers must share "
-                                 f"every signal asked for (present: {', '.join(sorted(df['signal'].unique()))})")
+                                 f"every signal asked for (present: {', '.join(sorted(present[who]))})")
     have = set(nav["sat"].str[0])
     for sysc in sorted({signal(n).system for n in names}):
         if sysc not in have:
@@ -76,7 +77,8 @@ def receiver_geometry(obs: pd.DataFrame, nav: pd.DataFrame, rx_xyz_m) -> pd.Data
     if df.empty:
         raise CdgpsError(f"no observation is covered by the navigation data (satellites without a healthy "
                          f"ephemeris covering their epochs: {' '.join(sorted(dropped)) or 'none'})")
-    first = df.drop_duplicates(["time_gps_s", "sat"])
+    group, at_first = _first_of_pairs(df["time_gps_s"].to_numpy(), df["sat"].to_numpy())
+    first = df.iloc[at_first]                   # df.drop_duplicates(["time_gps_s", "sat"]): the first row of each pair
     clk = np.zeros(len(first))
     t = first["time_gps_s"].to_numpy()
     tau = first["pseudorange_m"].to_numpy() / SPEED_OF_LIGHT_M_S
@@ -94,11 +96,27 @@ def receiver_geometry(obs: pd.DataFrame, nav: pd.DataFrame, rx_xyz_m) -> pd.Data
     _, el = azimuth_elevation(rx, rot)
     lat, _, h = ecef_to_geodetic(rx)
     trop = tropo_hydrostatic_m(el, lat, h, t)
-    g = pd.DataFrame({"time_gps_s": t, "sat": first["sat"].to_numpy(), "sx": rot[:, 0], "sy": rot[:, 1], "sz": rot[:, 2],
-                      "sat_clock_m": SPEED_OF_LIGHT_M_S * clk, "el_rad": el, "trop_m": trop})
-    out = df.merge(g, on=["time_gps_s", "sat"], how="left")
+    # every row gets its (epoch, satellite) pair's geometry: df.merge(geometry, on=[time, sat], how="left")'s table
+    out = df.reset_index(drop=True)
+    out.attrs = {}                              # the merge's table keeps none of the reader's notes
+    for name, v in (("sx", rot[:, 0]), ("sy", rot[:, 1]), ("sz", rot[:, 2]), ("sat_clock_m", SPEED_OF_LIGHT_M_S * clk),
+                    ("el_rad", el), ("trop_m", trop)):
+        out[name] = v[group]
     out.attrs["dropped"] = {k: int(v) for k, v in sorted(dropped.items())}
     return out
+
+
+def _first_of_pairs(t, sats):
+    """The (time, satellite) pairs of rows ``t`` (N,), ``sats`` (N,) in order of first appearance:
+    each row's pair index (N,) and the row of each pair's first appearance (the rows
+    ``drop_duplicates`` keeps, in their order).  Times are compared exactly, as a merge on them does."""
+    t_code = pd.factorize(t)[0]
+    s_code, s_names = pd.factorize(sats)
+    group = pd.factorize(t_code.astype(np.int64) * max(len(s_names), 1) + s_code)[0]
+    # codes are numbered in order of first appearance: a row is its pair's first exactly when its code
+    # exceeds every code before it
+    at_first = np.flatnonzero(group > np.r_[-1, np.maximum.accumulate(group)[:-1]]) if group.size else group
+    return group, at_first
 
 
 def _group_median(values, keys):

@@ -156,10 +156,10 @@ def _gps_seconds(y, mo, d, h, mi, sec) -> np.ndarray:
 
 def _few_gps_seconds(y, mo, d, h, mi, sec) -> np.ndarray:
     """:func:`_gps_seconds` of a few epochs, one by one: the same values (integer whole seconds, then one
-    float addition) and refusals."""
+    float addition) and refusals; the arguments arrays, or lists of Python ints / floats."""
     days: dict = {}
     out = []
-    for yy, mm, dd, hh, mn, ss in zip(*(np.asarray(a).tolist() for a in (y, mo, d, h, mi, sec))):
+    for yy, mm, dd, hh, mn, ss in zip(*(a if isinstance(a, list) else np.asarray(a).tolist() for a in (y, mo, d, h, mi, sec))):
         if (yy, mm, dd) not in days:
             try:
                 days[yy, mm, dd] = _dt.date(yy, mm, dd).toordinal() - _GPS_EPOCH_ORDINAL
@@ -267,9 +267,8 @@ def _few_epochs_v3(lines: BodyLines, ep: np.ndarray, events: str) -> dict:
     if any(math.isnan(v) for v in sec):
         raise Unsupported("seconds")
     t = np.full(ep.size, np.nan)
-    if g:
-        y, mo, d, h, mi = (np.array(ymdhm[j::5], dtype=np.int64) for j in range(5))
-        t[timed] = _gps_seconds(y, mo, d, h, mi, np.array(sec, dtype=np.float64))
+    if g:                     # at most FEW_EPOCHS <= FEW_DATES: _gps_seconds' Python path, on the lists themselves
+        t[timed] = _few_gps_seconds(*(ymdhm[j::5] for j in range(5)), sec)
     clk = _clocks(lines, ep, 35) if events == "refuse" else np.full(ep.size, np.nan)
     return {"line": ep, "flag": np.array(flag, dtype=np.int64), "nsat": np.array(nsat, dtype=np.int64),
             "time_gps_s": t, "clk": clk}

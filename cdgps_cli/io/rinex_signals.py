@@ -23,7 +23,7 @@ from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, glonass_frequency_hz, 
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.io.rinex import _ObsHeader, _parse_version_line, _read_text
 from cdgps_cli.io._fixed_width import LineBuffer, Unsupported, decimal_fields, flag_digits
-from cdgps_cli.io.rinex import _read_bytes, _split_header, _split_lines
+from cdgps_cli.io.rinex import _frame, _read_bytes, _split_header, _split_lines
 from cdgps_cli.io.rinex_body import BodyLines, distinct, epochs_v3, strict_float
 
 __all__ = ["read_rinex_signals", "SIGNAL_COLUMNS"]
@@ -54,7 +54,7 @@ def _glonass_slots(lines, end, path) -> dict:
     column, as some writers pack them without the separating blank ("R11 -5R19 +3")."""
     out = {}
     for i, ln in enumerate(lines[1:end], start=2):
-        if ln[60:80].strip() == "GLONASS SLOT / FRQ #":
+        if "GLONASS SLOT / FRQ #" in ln and ln[60:80].strip() == "GLONASS SLOT / FRQ #":   # one C search first
             body = ln[4:60]
             found = _SLOT.findall(body)
             if body.strip() and not found:
@@ -504,11 +504,11 @@ def _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2) -> pd
     take = order[final]                                                   # into the parts, concatenated
     sat_c = sat_code[rows]
     lam = _wavelength_array(sat_c, sat_names, sig, list(cols), slots, path)
-    df = pd.DataFrame({
+    df = _frame({
         "time_gps_s": t[final], "sat": sat_obj[sat_c], "signal": names[sig],
         "phase_cycles": np.concatenate([p[2] for p in parts])[take],
         "pseudorange_m": np.concatenate([p[3] for p in parts])[take],
-        "lli": np.concatenate([p[4] for p in parts])[take], "wavelength_m": lam}, copy=False)
+        "lli": np.concatenate([p[4] for p in parts])[take], "wavelength_m": lam})
     return df
 
 

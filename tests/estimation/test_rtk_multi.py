@@ -477,3 +477,37 @@ def test_rtk_masks_at_both_receivers_as_rtklib(pair):
     res = solve_rtk(bg, rg, BASE, TRUTH)
     assert (res["n_satellites"][:5] == full["n_satellites"][:5] - 1).all()
     assert (res["n_satellites"][5:] == full["n_satellites"][5:]).all()
+
+
+def test_first_of_pairs_is_drop_duplicates_and_merge():
+    """receiver_geometry's pairing of rows to their (epoch, satellite): the rows ``drop_duplicates``
+    keeps, in their order, and for every row the index of its pair (what the left merge did)."""
+    import pandas as pd
+
+    from cdgps_cli.estimation.rtk_multi import _first_of_pairs
+
+    rng = np.random.default_rng(5)
+    t = rng.choice([0.0, 1.0, 2.5, 1e9 + 0.999], 300)
+    sats = rng.choice(np.array(["G01", "E11", "R02", "C30"], dtype=object), 300)
+    group, at_first = _first_of_pairs(t, sats)
+    df = pd.DataFrame({"time_gps_s": t, "sat": sats})
+    first = df.drop_duplicates(["time_gps_s", "sat"])
+    np.testing.assert_array_equal(at_first, first.index.to_numpy())
+    g = first.assign(k=np.arange(len(first)))
+    np.testing.assert_array_equal(group, df.merge(g, on=["time_gps_s", "sat"], how="left")["k"].to_numpy())
+    group0, at0 = _first_of_pairs(np.array([]), np.array([], dtype=object))
+    assert group0.size == 0 and at0.size == 0
+
+
+def test_check_common_signals_names_the_missing_signal_and_what_is_present():
+    import pandas as pd
+
+    from cdgps_cli.core.errors import CdgpsError
+    from cdgps_cli.estimation.rtk_multi import check_common_signals
+
+    base = pd.DataFrame({"signal": ["G:L1", "G:L2", "G:L1"]})
+    rover = pd.DataFrame({"signal": ["G:L1", "E:E1"]})
+    nav = pd.DataFrame({"sat": ["G01", "E11"]})
+    check_common_signals(base, rover, ["G:L1"], nav, {"base": "b.obs", "rover": "r.obs", "nav": "n"})
+    with pytest.raises(CdgpsError, match=r"r\.obs \(rover\): no G:L2 phase observations.*present: E:E1, G:L1\)"):
+        check_common_signals(base, rover, ["G:L1", "G:L2"], nav, {"base": "b.obs", "rover": "r.obs", "nav": "n"})

@@ -218,3 +218,27 @@ def test_few_decimals_by_float_as_by_the_pattern(width):
             assert ref.tobytes() == got.tobytes()
         outcomes["refused" if ref is None else "read"] += 1
     assert outcomes["read"] > 50 and (outcomes["refused"] > 50 or width == 0)
+
+
+def test_reader_tables_are_the_dict_constructors_tables():
+    """rinex._frame (the readers' table builder) gives pd.DataFrame(columns, copy=...)'s table: values,
+    dtypes (object str arrays -> pandas' str), column index and its dtype, RangeIndex; copy=True owns
+    its arrays; an empty column set and mismatched lengths go to the constructor (its table / error)."""
+    import numpy as np
+    import pandas as pd
+    import pytest
+
+    from cdgps_cli.io.rinex import _frame
+
+    cols = {"time_gps_s": np.arange(4.0), "sat": np.array(["G01", "R02", "E11", "C30"], dtype=object),
+            "lli": np.array([0, 1, 0, 2], dtype=np.int64), "snr": np.array([np.nan, 1.5, 2.0, 3.0], dtype=np.float32)}
+    for copy in (False, True):
+        ref, got = pd.DataFrame(cols, copy=copy), _frame(cols, copy=copy)
+        pd.testing.assert_frame_equal(got, ref, check_exact=True)
+        assert got.columns.dtype == ref.columns.dtype and type(got.index) is type(ref.index)
+    owned = _frame(cols, copy=True)
+    cols["time_gps_s"][0] = 99.0
+    assert owned["time_gps_s"].iloc[0] == 0.0
+    pd.testing.assert_frame_equal(_frame({}), pd.DataFrame({}))
+    with pytest.raises(ValueError):
+        _frame({"a": np.arange(3.0), "b": np.arange(2.0)})

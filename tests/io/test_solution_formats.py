@@ -51,3 +51,32 @@ def test_gga_sentences_fit_82_characters_with_seven_decimal_minutes():
     deg = int(float(f[2]) // 100) + (float(f[2]) % 100) / 60
     assert abs(deg - lat[0]) < 1e-9
     assert lines[3].split(",")[7] == "99"
+
+
+def test_csv_text_is_pandas_to_csv_byte_for_byte():
+    """The rtk CSV writer gives pandas' ``to_csv(index=False, float_format="%.4f")`` bytes: NaN empty,
+    -0.0 and rounding to -0.0000, integers, booleans, large values, no rows; infinite values, string
+    columns and one-column tables go to pandas itself (the same bytes by construction)."""
+    import io
+
+    import pandas as pd
+
+    from cdgps_cli.io.solution_formats import csv_text
+
+    rng = np.random.default_rng(3)
+    x = rng.normal(0, 1e3, 50)
+    x[[1, 7]] = np.nan
+    x[[2, 3, 4]] = (-0.0, -0.00004, 0.00005)
+    cases = [
+        {"t": np.arange(50) * 0.1 + 1.4e9, "x": x, "n": rng.integers(-5, 40, 50), "b": rng.random(50) < 0.5,
+         "f32": rng.normal(size=50).astype(np.float32), "big": rng.normal(0, 1e12, 50)},
+        {"a": np.array([], float), "b": np.array([], np.int64)},
+        {"a": np.array([1.0, np.inf]), "b": np.array([1, 2])},
+        {"a": np.array([1.0, 2.0]), "s": np.array(["G01", "E02"], dtype=object)},
+        {"a": np.array([np.nan, 2.0])},
+    ]
+    for cols in cases:
+        buf = io.StringIO()
+        pd.DataFrame(cols).to_csv(buf, index=False, float_format="%.4f")
+        assert csv_text(cols, "%.4f") == buf.getvalue()
+    assert csv_text({"a": np.array([np.nan, 1.0]), "b": np.array([1, 2])}) == "a,b\n,1\n1.0000,2\n"

@@ -177,3 +177,25 @@ def test_a_satellite_missing_from_the_navigation_file_is_dropped_with_a_warning(
     assert len(s["warnings"]) == 2 and all("C20 (40 epochs)" in w for w in s["warnings"])
     assert "base.obs (base)" in s["warnings"][0] and "rover.obs (rover)" in s["warnings"][1]
     assert s["fixed_pct"] > 90 and np.linalg.norm(ecef_to_enu(np.array(s["static_xyz_m"]), ROVER)) < 0.005
+
+
+def test_ubx_loss_of_lock_channels_as_integers_give_the_string_channels_bits():
+    """rtk's u-blox rows: loss-of-lock bits from integer channel codes equal those from "sat:signal" strings."""
+    import numpy as np
+
+    from cdgps_cli.io.ubx import UBX_SIGNALS, read_ubx_signals
+    from cdgps_cli.measurement.channels import ubx_loss_of_lock
+    from cdgps_cli.pipeline import gnss_multi
+
+    from tests._shared import REPO_ROOT
+
+    log = REPO_ROOT / ".." / "shared" / "data" / "real-pairs" / "ublox-walk" / "gnss_1730.ubx"
+    if not log.exists():
+        pytest.skip("../shared/data/real-pairs/ublox-walk absent")
+    tab = read_ubx_signals(log, list(UBX_SIGNALS))
+    key = (tab["sat"].astype(str) + ":" + tab["signal"].astype(str)).to_numpy()
+    lli = ubx_loss_of_lock(tab["time_gps_s"].to_numpy(), key, tab["phase_cycles"].to_numpy(),
+                           tab["lock_time_ms"].to_numpy(dtype=np.float64), tab["half_cycle"].to_numpy() == 1)
+    gnss_multi._ubx_decoded.cache_clear()
+    _, got, _ = gnss_multi._ubx(log)
+    assert (lli != 0).any() and np.array_equal(got["lli"].to_numpy(), lli)
