@@ -16,7 +16,10 @@ The filter is the engine's: each pass (forward, backward) is one
 (the single differences whitened as their double differences) and the ambiguity policy as the hook
 :class:`_AmbiguityHook` (new and re-biased ambiguity columns, integers by LAMBDA with the ratio and
 success-rate tests, fix-and-hold); the step is :class:`~cdgps_cli.estimation.kalman.StepFilter`'s
-iterated update in numpy only (scipy's import stays off `cdgps rtk`'s start-up).
+iterated update in numpy only (scipy's import stays off `cdgps rtk`'s start-up).  In combined mode the
+two passes are independent until :func:`_combine`: the backward one runs in a child process forked
+beside the forward one (:mod:`cdgps_cli.core.beside`; the same bits, serial with ``CDGPS_SERIAL=1``
+or on one CPU).
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ import numpy as np
 import pandas as pd
 
 from cdgps_cli.config.options import MULTI_GNSS_DEFAULTS
+from cdgps_cli.core import beside
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.signals import signal, SYSTEM_NAMES
@@ -459,14 +463,20 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
     if not rows["groups"]["start"].size:                     # no epoch has a group of two satellites
         raise CdgpsError(f"no double differences: no epoch of the {n_ep} paired has two satellites of one signal "
                          f"observed at both receivers above the {opt['mask_deg']:g}° mask")
-    fwd = _filter_pass(rows, times, range(n_ep), opt, base_xyz, origin, iono, progress)
     direction = "forward" if opt["mode"] == "static" else opt["direction"]
-    if direction == "forward":
-        res = fwd
-    else:
-        back_rows = dict(rows, slip=backward_slips(rows))
-        bwd = _filter_pass(back_rows, times, range(n_ep - 1, -1, -1), opt, base_xyz, origin, iono, None)
-        res = bwd if direction == "backward" else _combine(fwd, bwd)
+    back_rows = dict(rows, slip=backward_slips(rows)) if direction != "forward" else None
+
+    def backward(bar=None):
+        return _filter_pass(back_rows, times, range(n_ep - 1, -1, -1), opt, base_xyz, origin, iono, bar)
+
+    if direction == "backward":
+        res = backward(progress)
+    elif direction == "forward":
+        res = _filter_pass(rows, times, range(n_ep), opt, base_xyz, origin, iono, progress)
+    else:                                     # the two passes are independent: the backward one on the second core
+        with beside.start(backward) as job:
+            fwd = _filter_pass(rows, times, range(n_ep), opt, base_xyz, origin, iono, progress)
+            res = _combine(fwd, job.result())
     ok = res["fixed"]
     last = res["fixed_xyz"][-1] if ok[-1] else res["float_xyz"][-1]
     return {"time_gps_s": times, "float_xyz_m": res["float_xyz"], "fixed_xyz_m": np.where(ok[:, None], res["fixed_xyz"], np.nan),

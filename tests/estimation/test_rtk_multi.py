@@ -332,6 +332,7 @@ def test_each_rtk_pass_is_a_drive_of_the_engine(pair, monkeypatch):
         return real(dynamics, models, source, init, hooks, **kw)
 
     monkeypatch.setattr(rtk_multi, "drive", spy)
+    monkeypatch.setenv("CDGPS_SERIAL", "1")            # both passes in this process, where the spy sees them
     res = _golden_run(pair, {"direction": "combined"})
     n = res["time_gps_s"].size
     assert calls == [(DDGroupModel, ["_AmbiguityHook"], 1, 0), (DDGroupModel, ["_AmbiguityHook"], n, 1)] * 2

@@ -1,0 +1,89 @@
+"""cdgps_cli.core.beside: a computation forked beside the caller gives fn()'s value, its errors, and
+falls back to the caller's own process when it cannot fork or the child dies."""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+
+import numpy as np
+import pytest
+
+from cdgps_cli.core import beside
+
+needs_fork = pytest.mark.skipif(not beside.forking_allowed(), reason="no fork or a single CPU here")
+
+
+@needs_fork
+def test_result_computed_in_a_child_equals_the_callers():
+    parent = os.getpid()
+    x = np.random.default_rng(0).normal(size=(200, 200))
+
+    def work():
+        return os.getpid(), np.linalg.inv(x) @ x
+
+    job = beside.start(work)
+    assert job.forked
+    pid, value = job.result()
+    assert pid != parent
+    np.testing.assert_array_equal(value, work()[1])           # bit for bit: the same code on the same data
+
+
+@needs_fork
+def test_a_large_result_comes_back_whole():
+    job = beside.start(lambda: np.arange(3_000_000, dtype=np.float64))   # 24 MB: far beyond a pipe's buffer
+    np.testing.assert_array_equal(job.result(), np.arange(3_000_000, dtype=np.float64))
+
+
+@needs_fork
+def test_an_error_in_the_child_is_raised_in_the_caller():
+    def fails():
+        raise ValueError("epoch 7: no satellites")
+
+    with pytest.raises(ValueError, match="epoch 7: no satellites"):
+        beside.start(fails).result()
+
+
+@needs_fork
+def test_an_unpicklable_error_becomes_a_runtime_error_naming_it():
+    class Local(Exception):                                  # a local class does not pickle
+        pass
+
+    def fails():
+        raise Local("odd")
+
+    with pytest.raises(RuntimeError, match="Local: odd"):
+        beside.start(fails).result()
+
+
+@needs_fork
+def test_a_child_that_dies_is_computed_again_here():
+    parent = os.getpid()
+
+    def work():
+        if os.getpid() != parent:
+            os.kill(os.getpid(), signal.SIGKILL)             # killed before it answers (out of memory, say)
+        return "computed here"
+
+    job = beside.start(work)
+    assert job.result() == "computed here" and not job.forked
+
+
+@needs_fork
+def test_cancel_kills_a_running_child():
+    job = beside.start(lambda: time.sleep(60))
+    pid = job._pid
+    t0 = time.perf_counter()
+    with job:
+        pass                                                  # leaving the block without collecting cancels
+    assert time.perf_counter() - t0 < 5
+    with pytest.raises(ChildProcessError):
+        os.waitpid(pid, os.WNOHANG)                           # reaped: no zombie left
+
+
+def test_serial_when_asked(monkeypatch):
+    monkeypatch.setenv("CDGPS_SERIAL", "1")
+    assert not beside.forking_allowed()
+    job = beside.start(os.getpid)
+    assert not job.forked and job.result() == os.getpid()
