@@ -72,3 +72,20 @@ def exact_here(recorded_machine: str | None) -> bool:
 def float_tolerance(recorded_machine: str | None, rtol: float) -> float:
     """``rtol`` on the machine that made the record, else at least :data:`CROSS_MACHINE_RTOL`."""
     return rtol if exact_here(recorded_machine) else max(rtol, CROSS_MACHINE_RTOL)
+
+
+def assert_json_close(a, b, where: str, abs_tol: float = 1e-15) -> None:
+    """``a`` (computed here) has ``b``'s structure, its non-floats exactly and its floats within
+    :data:`CROSS_MACHINE_RTOL` (plus ``abs_tol``); ``where`` names the failing element."""
+    if isinstance(b, dict):
+        assert isinstance(a, dict) and a.keys() == b.keys(), where
+        for k in b:
+            assert_json_close(a[k], b[k], f"{where}.{k}", abs_tol)
+    elif isinstance(b, list):
+        assert isinstance(a, list) and len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b)):
+            assert_json_close(x, y, f"{where}[{i}]", abs_tol)
+    elif isinstance(b, float):
+        assert abs(a - b) <= CROSS_MACHINE_RTOL * abs(b) + abs_tol, f"{where}: {a!r} != {b!r}"
+    else:
+        assert a == b, where

@@ -23,7 +23,7 @@ from click.testing import CliRunner
 from cdgps_cli.cli.commands import main
 from cdgps_cli.io.mcap import read_mcap
 from cdgps_cli.io.states import STATE_FILTERED_TOPIC, STATE_TOPIC, States
-from tests._machine import CROSS_MACHINE_RTOL
+from tests._machine import CROSS_MACHINE_RTOL, assert_json_close
 
 ROOT = Path(__file__).resolve().parents[2]
 FMT = ROOT / "tests" / "data" / "format-2026-12-03"
@@ -124,23 +124,7 @@ def test_gnss_evaluate_reads_both_layouts(gnss):
     old, new = (json.loads(cli("evaluate", "--truth", FMT / "gnss-truth", "--estimate", f, "--json"))
                 for f in (FMT / "gnss-states.mcap", gnss / "new.mcap"))
     assert old["rms_error_units"] == new["rms_error_units"] == {"rover_e": "m", "rover_n": "m", "rover_u": "m"}
-    _same_json(new, old, "evaluate")
-
-
-def _same_json(a, b, where: str) -> None:
-    """Same structure and exact non-floats; floats within the cross-machine tolerance."""
-    if isinstance(b, dict):
-        assert isinstance(a, dict) and a.keys() == b.keys(), where
-        for k in b:
-            _same_json(a[k], b[k], f"{where}.{k}")
-    elif isinstance(b, list):
-        assert isinstance(a, list) and len(a) == len(b), where
-        for i, (x, y) in enumerate(zip(a, b)):
-            _same_json(x, y, f"{where}[{i}]")
-    elif isinstance(b, float):
-        assert a == pytest.approx(b, rel=CROSS_MACHINE_RTOL, abs=1e-15), where
-    else:
-        assert a == b, where
+    assert_json_close(new, old, "evaluate")
 
 
 def test_gnss_structure_states_of_main(tmp_path):

@@ -28,7 +28,7 @@ from click.testing import CliRunner
 
 from cdgps_cli.cli.commands import main
 from cdgps_cli.io.states import States
-from tests._machine import CROSS_MACHINE_RTOL, exact_here, machine
+from tests._machine import CROSS_MACHINE_RTOL, assert_json_close, exact_here, machine
 
 ROOT = Path(__file__).resolve().parents[2]
 TOWER = ROOT / "configs" / "tower-fusion.toml"
@@ -93,22 +93,6 @@ def fusion_digest(path) -> tuple:
     return hashlib.sha256(json.dumps(summary, sort_keys=True).encode()).hexdigest(), len(s.events)
 
 
-def _close_json(a, b, where: str) -> None:
-    """Same structure, exact non-floats, floats within the cross-machine tolerance."""
-    if isinstance(b, dict):
-        assert isinstance(a, dict) and a.keys() == b.keys(), where
-        for k in b:
-            _close_json(a[k], b[k], f"{where}.{k}")
-    elif isinstance(b, list):
-        assert isinstance(a, list) and len(a) == len(b), where
-        for i, (x, y) in enumerate(zip(a, b)):
-            _close_json(x, y, f"{where}[{i}]")
-    elif isinstance(b, float):
-        assert a == pytest.approx(b, rel=CROSS_MACHINE_RTOL, abs=1e-12), where
-    else:
-        assert a == b, where
-
-
 def check(path, name: str) -> None:
     golden = json.loads(GOLDEN.read_text())
     want, got = golden[name], record(path)
@@ -123,7 +107,7 @@ def check(path, name: str) -> None:
         assert g["nan"] == w["nan"], f"{name}/{k}: NaN pattern"
         np.testing.assert_allclose(g["value"], w["value"], rtol=CROSS_MACHINE_RTOL,
                                    atol=CROSS_MACHINE_RTOL * w["max_abs"], err_msg=f"{name}/{k}")
-    _close_json(got["fusion"], want["fusion"], f"{name}/fusion")
+    assert_json_close(got["fusion"], want["fusion"], f"{name}/fusion", abs_tol=1e-12)
 
 
 @pytest.fixture(scope="module")
