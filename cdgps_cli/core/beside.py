@@ -11,8 +11,8 @@ It runs ``fn()`` in the calling process instead (same result, one core) when:
 
 * the platform has no ``fork`` or the process may use only one CPU (``os.sched_getaffinity``);
 * the environment variable ``CDGPS_SERIAL`` is set (anything but ``""`` / ``"0"``);
-* the fork fails, or the child dies without an answer (killed, out of memory): ``fn()`` is run
-  again in the parent, so a lost child costs time, never a result.
+* the fork fails, the child dies without an answer (killed, out of memory) or its answer does not
+  unpickle: ``fn()`` is run again in the parent, so a lost child costs time, never a result.
 
 An exception raised by ``fn()`` in the child is raised again by :meth:`Beside.result` in the parent
 (the same type and message when it pickles, else a ``RuntimeError`` naming it). The child writes
@@ -59,7 +59,11 @@ class Beside:
         if not data or not os.WIFEXITED(status) or os.WEXITSTATUS(status) != 0:
             self.forked = False
             return self._fn()                                     # the child died: compute it here
-        ok, value = pickle.loads(data)
+        try:
+            ok, value = pickle.loads(data)
+        except Exception:                                         # an error that pickles but does not unpickle
+            self.forked = False
+            return self._fn()
         if ok:
             return value
         raise value

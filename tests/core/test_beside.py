@@ -57,6 +57,20 @@ def test_an_unpicklable_error_becomes_a_runtime_error_naming_it():
         beside.start(fails).result()
 
 
+class _OddInit(Exception):
+    def __init__(self, a, b):                                # pickles as _OddInit(message): does not unpickle
+        super().__init__(f"{a}/{b}")
+
+
+@needs_fork
+def test_an_error_that_does_not_unpickle_is_raised_by_the_callers_own_run():
+    def fails():
+        raise _OddInit(1, 2)
+
+    with pytest.raises(_OddInit, match="1/2"):
+        beside.start(fails).result()
+
+
 @needs_fork
 def test_a_child_that_dies_is_computed_again_here():
     parent = os.getpid()
