@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import re
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -256,14 +257,29 @@ def _wavelengths(df: pd.DataFrame, slots: dict, path) -> np.ndarray:
 
 
 def _epoch_time(line: str, a: int, path, lineno) -> float:
+    """GPS seconds of an epoch line (``a`` = 2: RINEX 3 ``> yyyy mm dd hh mm ss.sssssss``; 1: RINEX 2,
+    two-digit year): :func:`~cdgps_cli.core.gps_time.gps_seconds`'s value, the day's seconds looked up
+    once per date (:func:`_day_seconds`)."""
     try:
         if a == 2:   # RINEX 3
-            y, mo, d, h, mi = (int(line[x:y_]) for x, y_ in ((2, 6), (7, 9), (10, 12), (13, 15), (16, 18)))
-            return gps_seconds(y, mo, d, h, mi, float(line[18:29]))
-        yy, mo, d, h, mi = (int(line[x:y_]) for x, y_ in ((1, 3), (4, 6), (7, 9), (10, 12), (13, 15)))
-        return gps_seconds(yy + (1900 if yy >= 80 else 2000), mo, d, h, mi, float(line[15:26]))
+            day = _day_seconds(2, line[2:12])
+            return float(day + int(line[13:15]) * 3600 + int(line[16:18]) * 60) + float(line[18:29])
+        day = _day_seconds(1, line[1:9])
+        return float(day + int(line[10:12]) * 3600 + int(line[13:15]) * 60) + float(line[15:26])
     except ValueError:
         raise CdgpsError(f"{path}:{lineno}: malformed epoch line {line[:60]!r}") from None
+
+
+@lru_cache(maxsize=4096)
+def _day_seconds(a: int, date: str) -> int:
+    """GPS seconds of 00:00 of an epoch line's date field (``a`` = 2: ``yyyy mm dd``; 1: ``yy mm dd``),
+    an integer (ValueError when malformed)."""
+    if a == 2:
+        y, mo, d = int(date[0:4]), int(date[5:7]), int(date[8:10])
+    else:
+        yy, mo, d = int(date[0:2]), int(date[3:5]), int(date[6:8])
+        y = yy + (1900 if yy >= 80 else 2000)
+    return int(gps_seconds(y, mo, d))
 
 
 def _epoch_counts(line: str, col: int, path, lineno: int) -> tuple[int, int]:
@@ -394,6 +410,7 @@ def _walk_v2(lines, i, hdr, path):
     number of lines per record."""
     per = math.ceil(len(hdr.info["obs_types"]["*"]) / 5)
     times, first, count, sats_all = [], [], [], []
+    seen: dict = {}
     n = len(lines)
     while i < n:
         ln = lines[i]
@@ -412,13 +429,24 @@ def _walk_v2(lines, i, hdr, path):
         times.append(_epoch_time(ln, 1, path, i))
         first.append(i)
         count.append(nsat)
-        for j in range(nsat):
-            sat = sats[3 * j:3 * j + 3].replace(" ", "0")
-            if not sat:
-                raise Unsupported("satellite list")
-            sats_all.append("G" + sat[1:] if sat[0] in "0G" else sat)
+        names = seen.get((sats, nsat))                     # consecutive epochs mostly list the same satellites
+        if names is None:
+            names = seen[(sats, nsat)] = _v2_satellites(sats, nsat)
+        sats_all.extend(names)
         i += nsat * per
     return times, first, count, sats_all, per
+
+
+def _v2_satellites(sats: str, nsat: int) -> list:
+    """The ``nsat`` satellite names of a RINEX 2 epoch's satellite list (3 characters each, blanks read as
+    0, no system letter or 0 read as GPS); Unsupported when the list is shorter."""
+    names = []
+    for j in range(nsat):
+        sat = sats[3 * j:3 * j + 3].replace(" ", "0")
+        if not sat:
+            raise Unsupported("satellite list")
+        names.append("G" + sat[1:] if sat[0] in "0G" else sat)
+    return names
 
 
 def _fast_table(lines, start, hdr, cols, path, data: bytes | None, slots: dict) -> pd.DataFrame:
