@@ -46,6 +46,7 @@ import pandas as pd
 
 from cdgps_cli.core.gps_time import bdt_to_gps_s
 from cdgps_cli.core.records import GLONASS_NAV_COLUMNS, NAV_COLUMNS
+from cdgps_cli.io.rinex import _frame
 from cdgps_cli.io.sfrbx_glonass import glonass_frame
 
 __all__ = ["GPS_PI", "URA_M", "BDS_PREAMBLE", "bch15_syndrome", "beidou_words_from_sfrbx", "decode_beidou_d1",
@@ -908,7 +909,7 @@ def _columns_table(parts: list, d2: list) -> pd.DataFrame:
     order = np.lexsort((cols["transmit_gps_s"], cols["toe_gps_s"], cols["sat"].astype(str)))
     for c in NAV_COLUMNS:
         cols[c] = cols[c][order].astype(np.int64 if c in _NAV_INT_COLUMNS else cols[c].dtype)
-    return pd.DataFrame(cols, columns=list(NAV_COLUMNS))
+    return _frame(cols)                                    # pd.DataFrame(cols, columns=list(NAV_COLUMNS))'s table
 
 
 def _new_stats(glonass: bool) -> dict:
