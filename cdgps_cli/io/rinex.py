@@ -668,7 +668,7 @@ def _obs_blocks(lines, hdr, layouts, ep, rec0, obs_ep, sats_raw, block_epochs):
             if v3:
                 raw = lines.gather(rec_line, 0, 3)
             else:
-                txt = "".join(x.ljust(3) for x in sats_raw[int(sat_at[a]):int(sat_at[b])])
+                txt = "".join(sats_raw[int(sat_at[a]):int(sat_at[b])])       # 3 characters each
                 raw = np.frombuffer(txt.encode("latin-1"), dtype=np.uint8).reshape(-1, 3)
             if raw.shape[0] == 0:
                 continue

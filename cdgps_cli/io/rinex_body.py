@@ -278,12 +278,14 @@ def epochs_v2(lines: BodyLines, per: int, special=None) -> tuple[dict, list, lis
     """The epochs of a RINEX 2 body, one Python step per epoch (the satellite lists sit on the epoch
     lines): as :func:`epochs_v3` with ``line`` the first record line, ``epoch_line`` the epoch line
     and ``segment`` (the index of the observation-type layout in force); the raw satellite fields
-    (3 characters) of every record of the flag-0/1 epochs, in file order; the events in file order
+    (3 characters, blank-padded) of every record of the flag-0/1 epochs, in file order; the events in file order
     (flag 6 here, flags 2-5 by ``special(texts, flag, t, epoch_index) -> new lines per record or None``,
     which applies their header lines; without it they are Unsupported)."""
     out = {k: [] for k in ("line", "flag", "nsat", "time_gps_s", "clk", "epoch_line", "segment")}
     sats: list[str] = []
     events: list[dict] = []
+    dates: dict[str, tuple] = {}                  # an epoch line's date fields, read once per date
+    sat_lists: dict[tuple, list] = {}             # a satellite-list line's fields, once per distinct list
     i, n, segment = 0, lines.n, 0
     while i < n:
         ln = lines.text(i)
@@ -294,7 +296,12 @@ def epochs_v2(lines: BodyLines, per: int, special=None) -> tuple[dict, list, lis
         try:
             ch, nsat = ln[28:29], int(ln[29:32])
             flag = 0 if ch in ("", " ") else int(ch)
-            when = tuple(int(ln[k:k + 3]) for k in (0, 3, 6, 9, 12)) + (float(ln[15:26]),) if ln[:26].strip() else None
+            when = None
+            if ln[:26].strip():
+                date = dates.get(ln[:9])
+                if date is None:
+                    date = dates[ln[:9]] = (int(ln[0:3]), int(ln[3:6]), int(ln[6:9]))
+                when = date + (int(ln[9:12]), int(ln[12:15]), float(ln[15:26]))
         except ValueError:
             raise Unsupported("epoch line") from None
         if flag > 6 or nsat < 0 or (when is None and flag < 2) or (when is not None and min(when) < 0):
@@ -317,8 +324,12 @@ def epochs_v2(lines: BodyLines, per: int, special=None) -> tuple[dict, list, lis
             raise Unsupported("truncated")
         if flag != 6:
             for k in range(n_head):
-                sl = lines.text(i + k)
-                sats.extend(sl[32 + 3 * j:35 + 3 * j] for j in range(min(12, nsat - 12 * k)))
+                sl = ln if k == 0 else lines.text(i + k)
+                m = min(12, nsat - 12 * k)
+                fields = sat_lists.get((sl[32:68], m))
+                if fields is None:
+                    fields = sat_lists[(sl[32:68], m)] = [sl[32 + 3 * j:35 + 3 * j].ljust(3) for j in range(m)]
+                sats.extend(fields)
         out["line"].append(i + n_head)
         out["flag"].append(flag)
         out["nsat"].append(nsat)
