@@ -3,9 +3,9 @@ machine that recorded them (the project's rule: never compare digests made on an
 the tolerance of a float recorded elsewhere.
 
 The fingerprint names the CPU by its family, model and SIMD flags, not only by its marketing name:
-two machines both called "AMD EPYC" (Zen 1, family 23 model 1, AVX2; and a later Zen with AVX-512)
-run different OpenBLAS and libm kernels, and a record made on one did not reproduce bit for bit on
-the other (2026-12-05).
+two machines both called "AMD EPYC" with the same numpy (this one: Zen 1, family 23 model 1, AVX2 only; and
+the one the earlier records were made on) gave other bits: records made on one did not reproduce bit for
+bit on the other (2026-12-05), as their BLAS and libm kernels are chosen by the CPU.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import numpy as np
 
 #: relative tolerance (and, times the quantity's largest magnitude, absolute floor) of a float
 #: recorded on another machine: round-off of 1e-16 grows through the batches and filters. Measured
-#: between two AMD EPYC machines (Zen 1 against a later Zen) on the same code and numpy 2.4.6: real
+#: between two AMD EPYC machines (Zen 1 against the earlier records' machine) on the same code and numpy 2.4.6: real
 #: GEONET float baseline 5.6e-6 relative on its smallest component (1.9e-8 m), its ratio test
 #: 3.1e-6, modal states 1.1e-7, STATES q 9.3e-6 relative on an element (1.7e-8 m absolute).
 #: Still far below any intended change of arithmetic (>= 1e-4 in every golden so far).

@@ -15,7 +15,7 @@ Tolerances (one per quantity, kept with it):
   BLAS/compiler (round-off ~1e-16 grown through the filters) and nothing an intended change of
   arithmetic makes.  On another machine than the one that made the record (its fingerprint,
   ``_machine``, is stored; ``tests/_machine.py``) both are widened to ``CROSS_MACHINE_RTOL`` (1e-5):
-  the real GEONET batch moved by 5.6e-6 relative (1.9e-8 m) between a Zen 1 and a later AMD EPYC.
+  the real GEONET batch moved by 5.6e-6 relative (1.9e-8 m) between a Zen 1 and the AMD EPYC that made the first record.
 * ``PEAK`` — identified modes (spectral peak frequency, damping, MAC): relative 1e-6, because peak
   interpolation and damping fits amplify round-off (the numpy and compiled filter paths, equal to
   ~1e-13 in the states, move a peak by up to 9e-8); still far below any intended change (≥ 1e-4 here).
