@@ -33,6 +33,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from cdgps_cli import __version__
+from cdgps_cli.core import heap
 from cdgps_cli.core.errors import CdgpsError
 
 #: the stages in the order they run; each needs the outputs of those it depends on
@@ -697,15 +698,10 @@ def release_memory() -> None:
     session (its resident memory grew by ≈ 40-60 MB over the first sessions without it; see
     docs/batch.md).  A no-op where there is no glibc.
     """
-    import ctypes
-    import ctypes.util
     import gc
 
     gc.collect()
-    try:
-        ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim(0)
-    except (OSError, AttributeError):
-        pass
+    heap.trim()
 
 
 def _reset_peak_rss() -> None:

@@ -26,6 +26,7 @@ from datetime import date, datetime, timezone
 from datetime import time as dtime
 from pathlib import Path
 
+from cdgps_cli.core import heap
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.pipeline import batch as B
 
@@ -56,7 +57,7 @@ EXIT_BATCH_FAILED = 4
 #: glibc mallopt parameters, and the values :class:`WorkerSettings` gives a worker started with a fixed
 #: trim threshold: the mmap threshold at glibc's own dynamic maximum (32 MiB on 64-bit), the trim
 #: threshold at twice that (what glibc's adaptive rule reaches), so that arrays are heap memory again
-M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3
+M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = heap.M_TRIM_THRESHOLD, heap.M_MMAP_THRESHOLD
 MMAP_THRESHOLD_B = 32 * 1024 * 1024
 
 try:
@@ -121,14 +122,9 @@ def _malloc_thresholds(worker_value: str | None, wanted: str | None) -> str:
         return "glibc defaults (no MALLOC_TRIM_THRESHOLD_)"
     if wanted is not None:
         return f"kept MALLOC_TRIM_THRESHOLD_={worker_value} (set in the batch's environment)"
-    import ctypes
-    import ctypes.util
-
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        ok = libc.mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_B) and libc.mallopt(M_TRIM_THRESHOLD, 2 * MMAP_THRESHOLD_B)
-    except (OSError, AttributeError):
+    if not heap.available():
         return f"MALLOC_TRIM_THRESHOLD_={worker_value} kept (no glibc mallopt)"
+    ok = heap.set_option(M_MMAP_THRESHOLD, MMAP_THRESHOLD_B) and heap.set_option(M_TRIM_THRESHOLD, 2 * MMAP_THRESHOLD_B)
     return (f"MALLOC_TRIM_THRESHOLD_={worker_value} overridden: mmap threshold {MMAP_THRESHOLD_B} B, trim threshold "
             f"{2 * MMAP_THRESHOLD_B} B" if ok else f"MALLOC_TRIM_THRESHOLD_={worker_value} kept (mallopt refused)")
 

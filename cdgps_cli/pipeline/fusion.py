@@ -26,6 +26,7 @@ import numpy as np
 
 from cdgps_cli.config.sensors import FUSABLE_KINDS
 from cdgps_cli.config.structure import StructureConfig
+from cdgps_cli.core import heap
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.estimation.history import MemoryHistory
 from cdgps_cli.estimation.model_filter import filter_numpy
@@ -64,46 +65,26 @@ def parse_fuse(text: str | None, option: str = "--fuse") -> tuple:
 
 def release_freed_heap() -> bool:
     """Give the heap pages freed by the set-up (RUN read, GNSS modal set-up, sensor logs) back to the
-    system before the fused filter starts (glibc ``malloc_trim``; elsewhere nothing): the filter's
-    arrays then do not sit on top of them.  15-min tower-fusion run: peak RSS 321.6 → 251.5 MiB (issue 29,
-    docs/record-length.md).  Arithmetic unchanged.  True when the call was made."""
-    import ctypes  # noqa: PLC0415
-    import sys  # noqa: PLC0415
-
-    if not sys.platform.startswith("linux"):
-        return False
-    try:
-        trim = ctypes.CDLL("libc.so.6").malloc_trim
-    except (OSError, AttributeError):              # not glibc (musl …)
-        return False
-    trim(0)
-    return True
+    system before the fused filter starts (glibc ``malloc_trim``, :func:`cdgps_cli.core.heap.trim`;
+    elsewhere nothing): the filter's arrays then do not sit on top of them.  15-min tower-fusion run: peak
+    RSS 321.6 → 251.5 MiB (issue 29, docs/record-length.md).  Arithmetic unchanged.  True when the call
+    was made."""
+    return heap.trim()
 
 
-#: glibc ``mallopt`` parameter number of the mmap threshold (malloc.h ``M_MMAP_THRESHOLD``)
-_M_MMAP_THRESHOLD = -3
 #: blocks at least this large are mapped on their own and unmapped when freed, bytes (glibc's default
 #: starting value; fixed, so that glibc does not raise it as large blocks are freed)
 MMAP_THRESHOLD_BYTES = 128 * 1024
 
 
 def map_large_blocks(threshold_bytes: int = MMAP_THRESHOLD_BYTES) -> bool:
-    """Fix glibc's mmap threshold at ``threshold_bytes`` for the rest of the process (``mallopt``;
-    elsewhere nothing).  glibc otherwise raises the threshold to the size of each mapped block freed, so
-    after the first large arrays every array of the record's size comes from the heap, whose freed
-    pages stay in RSS between the set-up's steps (issue 29); fixed, each array at least that large is
-    its own mapping, returned to the system when freed.  Arithmetic unchanged.  True when the call
-    was made."""
-    import ctypes  # noqa: PLC0415
-    import sys  # noqa: PLC0415
-
-    if not sys.platform.startswith("linux"):
-        return False
-    try:
-        mallopt = ctypes.CDLL("libc.so.6").mallopt
-    except (OSError, AttributeError):              # not glibc (musl …)
-        return False
-    return bool(mallopt(_M_MMAP_THRESHOLD, int(threshold_bytes)))
+    """Fix glibc's mmap threshold at ``threshold_bytes`` for the rest of the process (``mallopt``,
+    :func:`cdgps_cli.core.heap.set_option`; elsewhere nothing).  glibc otherwise raises the threshold to
+    the size of each mapped block freed, so after the first large arrays every array of the record's size
+    comes from the heap, whose freed pages stay in RSS between the set-up's steps (issue 29); fixed, each
+    array at least that large is its own mapping, returned to the system when freed.  Arithmetic
+    unchanged.  True when the call was made."""
+    return heap.set_option(heap.M_MMAP_THRESHOLD, threshold_bytes)
 
 
 def common_time_axis(t_gnss, sensor_times, tol_s: float = SYNC_TOL_S) -> np.ndarray:
