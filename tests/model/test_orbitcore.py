@@ -119,3 +119,25 @@ def test_azimuth_elevation_and_niell_kernel_is_numpy(monkeypatch):
             got, want = _both(monkeypatch, lambda: (niell_hydrostatic_mapping(el, lat, h, day_of_year(t)),
                                                     tropo_hydrostatic_m(el, lat, h, t)))
             _assert_same(got, want)
+
+
+@pytest.mark.skipif(orbits._orbitcore is None, reason="compiled orbit kernel not built")
+def test_every_entry_refuses_an_ephemeris_row_out_of_range():
+    """The four entry points that index the ephemeris table check every row first (IndexError, no read
+    outside the table)."""
+    core = orbits._orbitcore
+    kc = np.zeros((2, len(orbits._CORE_FIELDS)))
+    n = 3
+    for bad in (-1, 2):
+        rows = np.array([0, bad, 1], dtype=np.int64)
+        t, ek, z = np.zeros(n), np.zeros(n), np.zeros(n)
+        calls = {
+            "newton": lambda: core.newton(kc, rows, t, ek, np.empty(n, dtype=np.uint8)),
+            "anomaly_trig": lambda: core.anomaly_trig(kc, rows, ek, *(np.empty(n) for _ in range(4))),
+            "orbit": lambda: core.orbit(kc, rows, t, z, z, z, np.empty((n, 3)), np.empty(n), False, 1.0, 0.0),
+            "anomaly": lambda: core.anomaly(kc, rows, t, np.array([0], dtype=np.int64), np.ones(1, dtype=np.uint8),
+                                            *orbits._core_state(n, 1)[:4], False),
+        }
+        for name, call in calls.items():
+            with pytest.raises(IndexError, match="ephemeris row is out of range"):
+                call()

@@ -223,12 +223,24 @@ static void *take(Bufs *bs, PyObject *obj, int writable, Py_ssize_t need, const 
     return b->buf;
 }
 
+/* Every ephemeris row index within the table K (a buffer of NK doubles per ephemeris); 0 (IndexError set)
+   otherwise. */
+static int rows_in_range(const int64_t *rows, Py_ssize_t n, const Py_buffer *K)
+{
+    const Py_ssize_t n_eph = K->len / (Py_ssize_t)(NK * sizeof(double));
+    for (Py_ssize_t i = 0; i < n; ++i)
+        if (rows[i] < 0 || rows[i] >= n_eph) {
+            PyErr_SetString(PyExc_IndexError, "_orbitcore: an ephemeris row is out of range");
+            return 0;
+        }
+    return 1;
+}
+
 /* rows, t, starts, live (common to anomaly and kepler); n from t, nb from starts. */
 static int blocks_args(Bufs *bs, PyObject *ok, PyObject *orows, PyObject *ot, PyObject *ostarts, PyObject *olive,
                        const double **K, const int64_t **rows, const double **t, const int64_t **starts,
                        uint8_t **live, Py_ssize_t *n, Py_ssize_t *nb)
 {
-    Py_buffer *b;
     if (!(*t = take(bs, ot, 0, 0, "t"))) return -1;
     *n = bs->b[bs->n - 1].len / (Py_ssize_t)sizeof(double);
     if (!(*starts = take(bs, ostarts, 0, 0, "starts"))) return -1;
@@ -236,13 +248,7 @@ static int blocks_args(Bufs *bs, PyObject *ok, PyObject *orows, PyObject *ot, Py
     if (!(*rows = take(bs, orows, 0, *n * (Py_ssize_t)sizeof(int64_t), "rows"))) return -1;
     if (!(*live = take(bs, olive, 1, *nb, "live"))) return -1;
     if (!(*K = take(bs, ok, 0, 0, "K"))) return -1;
-    b = &bs->b[bs->n - 1];
-    const Py_ssize_t n_eph = b->len / (Py_ssize_t)(NK * sizeof(double));
-    for (Py_ssize_t i = 0; i < *n; ++i)
-        if ((*rows)[i] < 0 || (*rows)[i] >= n_eph) {
-            PyErr_SetString(PyExc_IndexError, "_orbitcore: an ephemeris row is out of range");
-            return -1;
-        }
+    if (!rows_in_range(*rows, *n, &bs->b[bs->n - 1])) return -1;
     for (Py_ssize_t j = 0; j < *nb; ++j)
         if ((*starts)[j] < 0 || (*starts)[j] > *n || (j > 0 && (*starts)[j] < (*starts)[j - 1])) {
             PyErr_SetString(PyExc_ValueError, "_orbitcore: block starts must increase within the rows");
@@ -419,13 +425,10 @@ static PyObject *py_newton(PyObject *self, PyObject *args)
         release(&bs);
         return NULL;
     }
-    const Py_ssize_t n_eph = bs.b[1].len / (Py_ssize_t)(NK * sizeof(double));
-    for (Py_ssize_t i = 0; i < n; ++i)
-        if (rows[i] < 0 || rows[i] >= n_eph) {
-            release(&bs);
-            PyErr_SetString(PyExc_IndexError, "_orbitcore: an ephemeris row is out of range");
-            return NULL;
-        }
+    if (!rows_in_range(rows, n, &bs.b[1])) {
+        release(&bs);
+        return NULL;
+    }
     Py_BEGIN_ALLOW_THREADS
     for (Py_ssize_t i = 0; i < n; ++i) {
         ek[i] = mean_anomaly(K + rows[i] * NK, t[i]);
@@ -472,13 +475,10 @@ static PyObject *py_anomaly_trig(PyObject *self, PyObject *args)
         release(&bs);
         return NULL;
     }
-    const Py_ssize_t n_eph = bs.b[1].len / (Py_ssize_t)(NK * sizeof(double));
-    for (Py_ssize_t i = 0; i < n; ++i)
-        if (rows[i] < 0 || rows[i] >= n_eph) {
-            release(&bs);
-            PyErr_SetString(PyExc_IndexError, "_orbitcore: an ephemeris row is out of range");
-            return NULL;
-        }
+    if (!rows_in_range(rows, n, &bs.b[1])) {
+        release(&bs);
+        return NULL;
+    }
     Py_BEGIN_ALLOW_THREADS
     for (Py_ssize_t i = 0; i < n; ++i) {
         const double *k = K + rows[i] * NK;
@@ -515,13 +515,10 @@ static PyObject *py_orbit(PyObject *self, PyObject *args)
         release(&bs);
         return NULL;
     }
-    const Py_ssize_t n_eph = bs.b[1].len / (Py_ssize_t)(NK * sizeof(double));
-    for (Py_ssize_t i = 0; i < n; ++i)
-        if (rows[i] < 0 || rows[i] >= n_eph) {
-            release(&bs);
-            PyErr_SetString(PyExc_IndexError, "_orbitcore: an ephemeris row is out of range");
-            return NULL;
-        }
+    if (!rows_in_range(rows, n, &bs.b[1])) {
+        release(&bs);
+        return NULL;
+    }
     Py_BEGIN_ALLOW_THREADS
     for (Py_ssize_t i = 0; i < n; ++i)
         kepler_row(K + rows[i] * NK, t[i], sn[i], cs[i], nu[i], tgd, ct, st, xyz + 3 * i, clk + i);
