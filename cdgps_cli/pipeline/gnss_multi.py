@@ -117,8 +117,8 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
     # GLONASS frequency numbers: the observation header's, else the navigation records'
     glo_k = ({sat: int(k) for sat, k in nav.dropna(subset=["glonass_k"]).groupby("sat")["glonass_k"].first().items()}
              if "glonass_k" in nav.columns else {})
-    hb, b = _read_observations(base_path, sigs, glo_k)
-    hr, r = _read_observations(rover_path, sigs, glo_k)
+    hb, b = _read_observations(base_path, sigs, glo_k, "base", warnings)
+    hr, r = _read_observations(rover_path, sigs, glo_k, "rover", warnings)
     if nav_error is not None:
         raise nav_error
     b, r = (_first_of_repeated_epochs(df, path, who, warnings) for df, path, who in ((b, base_path, "base"), (r, rover_path, "rover")))
@@ -308,13 +308,19 @@ def _ubx(path):
     return _ubx_decoded(str(path), st.st_mtime_ns, st.st_size)
 
 
-def _read_observations(path, sigs, glo_k) -> tuple[dict, pd.DataFrame]:
+def _read_observations(path, sigs, glo_k, who: str, warnings: list) -> tuple[dict, pd.DataFrame]:
     """A receiver's header (``approx_position_xyz_m``) and signal table, from RINEX or from a u-blox
     log's RXM-RAWX (loss of lock from the lock times and half-cycle status; the position from its
-    RTCM 1005/1006 when it has one)."""
+    RTCM 1005/1006 when it has one; what the log lost — bad checksums, skipped bytes, a frame cut by
+    the end of the file — named in ``warnings``, as ``ingest`` does)."""
     if not is_ubx_log(path):
         return read_rinex_signals(path, sigs, glo_k)
+    from cdgps_cli.io.ubx import integrity_problems  # noqa: PLC0415
+
     info, tab, _ = _ubx(path)
+    problems = integrity_problems(info)
+    if problems:
+        warnings.append(f"{path} ({who}): skipped: {'; '.join(problems)}")
     base = info.get("rtcm_base")
     return ({"approx_position_xyz_m": base["arp_ecef_m"] if base else None},
             tab[tab["signal"].isin(list(sigs))].reset_index(drop=True))

@@ -199,3 +199,21 @@ def test_ubx_loss_of_lock_channels_as_integers_give_the_string_channels_bits():
     gnss_multi._ubx_decoded.cache_clear()
     _, got, _ = gnss_multi._ubx(log)
     assert (lli != 0).any() and np.array_equal(got["lli"].to_numpy(), lli)
+
+
+def test_rtk_names_what_a_cut_ublox_log_lost(tmp_path):
+    """A u-blox base log cut mid-frame (a receiver stopped while writing): rtk solves with what is whole and
+    says in its warnings what was skipped, as ingest does; the whole log gives no such warning."""
+    walk = REPO_ROOT / ".." / "shared" / "data" / "real-pairs" / "ublox-walk"
+    if not walk.exists():
+        pytest.skip("../shared/data/real-pairs/ublox-walk absent")
+    cut = tmp_path / "cut.ubx"
+    cut.write_bytes((walk / "gnss_1730.ubx").read_bytes()[:700_000])
+    xyz = (-1276975.6547, -4717238.8712, 4087235.6076)
+    rover = walk / "gnss_1730_convbin.obs"
+    s = rtk_from_files(cut, rover, [], tmp_path / "cut.csv", base_xyz_m=xyz, options={"signals": ("G:L1",)})
+    lost = [w for w in s["warnings"] if w.startswith(f"{cut} (base): skipped: ")]
+    assert len(lost) == 1 and "bytes of a truncated frame at the end" in lost[0], s["warnings"]
+    whole = rtk_from_files(walk / "gnss_1730.ubx", rover, [], tmp_path / "whole.csv", base_xyz_m=xyz,
+                           options={"signals": ("G:L1",)})
+    assert not [w for w in whole["warnings"] if "skipped:" in w]
