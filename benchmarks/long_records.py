@@ -26,7 +26,10 @@ their RUN, init.json and STATES are byte-identical.  Without ``--hours`` the tes
     python benchmarks/long_records.py --hours --gnss-hours 1 24 --gnss-before /tmp/before --gnss-rounds 2 \
         --out docs/benchmarks/long_records.json
 
-Each stage's record: wall s, CPU s (user + system), each per hour of record, peak RSS MiB and the 1-minute load average when it
+Each stage's record: wall s, CPU s (user + system), each per hour of record, peak RSS MiB (``/usr/bin/time``: one
+process's), ``peak_tree_pss_mib`` (benchmarks/tree_memory.py: the proportional set sizes of the command and every
+process it forks, summed, sampled every 0.1 s — what a command using two cores holds in all) with
+``max_processes``, and the 1-minute load average when it
 started (the machine may be shared: memory does not depend on the load, time does).  ``--stages``
 runs some only (e.g. the cheap ones at 24 h); stages whose inputs are missing are skipped.  Writes
 ``--out`` (JSON) and prints a markdown table::
@@ -42,11 +45,15 @@ import os
 import platform
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIG = ROOT / "configs" / "testbed-1998.toml"
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import tree_memory  # noqa: E402  (benchmarks/tree_memory.py)
+
 CDGPS = [sys.executable, "-c", "from cdgps_cli.cli.commands import main; main()"]
 STAGES = ("ingest", "info", "init", "estimate", "spectra", "export", "evaluate", "report")
 
@@ -75,15 +82,18 @@ def _timed(args: list[str], root: Path = ROOT, cwd: Path = ROOT) -> dict:
     env = dict(os.environ, PYTHONPATH=str(root))
     load = os.getloadavg()[0]
     t0 = time.perf_counter()
-    p = subprocess.run(["/usr/bin/time", "-f", "__TIME__ %e %M %U %S", *CDGPS, "-q", *args], capture_output=True,
-                       text=True, env=env, cwd=cwd)
+    with tempfile.TemporaryFile("w+") as err:
+        tree = tree_memory.measure(["/usr/bin/time", "-f", "__TIME__ %e %M %U %S", *CDGPS, "-q", *args],
+                                   stdout=subprocess.DEVNULL, stderr=err, text=True, env=env, cwd=cwd)
+        err.seek(0)
+        p = subprocess.CompletedProcess(args, tree["exit"], "", err.read())
     wall = time.perf_counter() - t0
     line = [ln for ln in p.stderr.splitlines() if ln.startswith("__TIME__")]
     rss = float(line[-1].split()[2]) / 1024.0 if line else float("nan")
     cpu = sum(float(x) for x in line[-1].split()[3:5]) if line else float("nan")
     # (cpu_s: user + system CPU time, which a loaded machine changes far less than the wall time)
     out = {"wall_s": round(wall, 2), "cpu_s": round(cpu, 2), "peak_rss_mib": round(rss, 1), "load_1min": round(load, 2),
-           "exit": p.returncode}
+           "exit": p.returncode, "peak_tree_pss_mib": tree["peak_tree_pss_mib"], "max_processes": tree["max_processes"] - 1}
     if p.returncode:
         out["stderr"] = p.stderr[-600:]
     return out
@@ -151,7 +161,8 @@ def gnss_pair(workdir: Path, hours: float, before: Path | None = None, rounds: i
                 r = _timed(_gnss_args(stage, d), root=tree, cwd=out)
                 runs[name][stage].append(r)
                 print(f"  GNSS {hours:g} h {name:6s} {stage:9s} {r['wall_s']:8.1f} s {r['cpu_s']:7.1f} s CPU "
-                      f"{r['peak_rss_mib']:8.1f} MiB (load {r['load_1min']:.1f})"
+                      f"{r['peak_rss_mib']:8.1f} MiB ({r['peak_tree_pss_mib']:.1f} MiB PSS over {r['max_processes']} "
+                      f"process(es)) (load {r['load_1min']:.1f})"
                       + ("" if not r["exit"] else f"  EXIT {r['exit']}"), file=sys.stderr, flush=True)
     rec = {"hours": hours, "rate_hz": 1.0, "rounds": rounds}
     for name, _ in trees:
@@ -160,7 +171,8 @@ def gnss_pair(workdir: Path, hours: float, before: Path | None = None, rounds: i
                       cpu_s_rounds=[r["cpu_s"] for r in v]) for s, v in runs[name].items()}
         part = {"stages": st, "whole_commands_s": round(sum(x["wall_s"] for x in st.values()), 2),
                 "cpu_s_whole_commands": round(sum(x["cpu_s"] for x in st.values()), 2),
-                "peak_rss_mib": max(x["peak_rss_mib"] for x in st.values())}
+                "peak_rss_mib": max(x["peak_rss_mib"] for x in st.values()),
+                "peak_tree_pss_mib": max(x["peak_tree_pss_mib"] for x in st.values())}
         rec.update(part) if name == "after" else rec.update(before=part)
     if before:
         rec["outputs_identical"] = {f: (d / "before" / f).read_bytes() == (d / "after" / f).read_bytes()

@@ -40,7 +40,7 @@ import pandas as pd
 from scipy.linalg import cho_factor, cho_solve
 
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M, SPEED_OF_LIGHT_M_S
-from cdgps_cli.core import progress
+from cdgps_cli.core import beside, progress
 from cdgps_cli.core.checks import header_position_m
 from cdgps_cli.core.signals import SIGNALS
 from cdgps_cli.estimation.ambiguity import AmbiguityError, resolve
@@ -437,14 +437,26 @@ def _receiver_rows(st: Station, ce: _Epochs, nav: pd.DataFrame, pos, opt: Baseli
     return o, clk, tag
 
 
+def _both_receivers(master_fn, rover_fn, warnings: list) -> tuple:
+    """``(master_fn(w), rover_fn(w))``, the master's computed beside the rover's on a second core
+    (:func:`cdgps_cli.core.beside.both`: the same values bit for bit); each appends its warnings to its
+    own list, joined to ``warnings`` master first, and an error is the master's first, as in turn."""
+    w_m, w_r = [], []
+    out = beside.both(lambda: (master_fn(w_m), w_m), lambda: rover_fn(w_r))
+    warnings.extend(out[0][1])
+    warnings.extend(w_r)
+    return out[0][0], out[1]
+
+
 def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOptions,
              master_xyz, rover_xyz, warnings: list) -> _Data:
     """The pair's single differences in the common epochs above the mask, with geometry and clocks."""
     mask = math.radians(opt.mask_deg)
     ce = _common_epochs(master, rover, opt, warnings)
     t_label, n_ep = ce.t_label, ce.t_label.size
-    om, clk_m, tag_m = _receiver_rows(master, ce, nav, master_xyz, opt, warnings)
-    orv, clk_r, tag_r = _receiver_rows(rover, ce, nav, rover_xyz, opt, warnings)
+    (om, clk_m, tag_m), (orv, clk_r, tag_r) = _both_receivers(
+        lambda w: _receiver_rows(master, ce, nav, master_xyz, opt, w),
+        lambda w: _receiver_rows(rover, ce, nav, rover_xyz, opt, w), warnings)
     om = om[np.isfinite(om["phase_l1_cycles"].to_numpy())]
     orv = orv[np.isfinite(orv["phase_l1_cycles"].to_numpy())]
     j = pd.merge(orv, om, on=["ep", "sat"], suffixes=("_r", "_b"), how="inner", sort=True)
@@ -453,8 +465,10 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
                          f"in any of the {n_ep} common epochs")
     sat_r = j["sat"].to_numpy()
     ep = j["ep"].to_numpy()
-    gb = reception_geometry(nav, sat_r, t_label[ep], j["t_true_b"].to_numpy(), master_xyz, troposphere=opt.troposphere)
-    gr = reception_geometry(nav, sat_r, t_label[ep], j["t_true_r"].to_numpy(), rover_xyz, troposphere=opt.troposphere)
+    t_ep = t_label[ep]
+    gb, gr = beside.both(
+        lambda: reception_geometry(nav, sat_r, t_ep, j["t_true_b"].to_numpy(), master_xyz, troposphere=opt.troposphere),
+        lambda: reception_geometry(nav, sat_r, t_ep, j["t_true_r"].to_numpy(), rover_xyz, troposphere=opt.troposphere))
     keep = (gb["el_rad"] >= mask) & (gr["el_rad"] >= mask)
     below = pd.Series(sat_r[~keep]).value_counts()
     # epochs with fewer than two satellites form no double difference
@@ -1488,11 +1502,19 @@ def _engine_solution(d: _Data, sg: _Segments, w: _Weights, eng: dict, xr0, r_enu
     return fl, fx, _Final(block, x_fix, kind, a_fix, known, q3, g, r_ph, a_sig)
 
 
+def _starts_with(values: np.ndarray, prefix: str) -> np.ndarray:
+    """``Series(values).astype(str).str.startswith(prefix)`` (a missing value: False) with the test made
+    once per distinct value (a day's table of a few dozen satellites: 1 M rows, 0.08 s instead of 0.34)."""
+    codes, distinct = pd.factorize(values)
+    hit = np.array([str(v).startswith(prefix) for v in distinct] + [False], dtype=bool)
+    return hit[codes]                                     # code −1 (missing) takes the appended False
+
+
 def l1_signal_table(obs: pd.DataFrame) -> pd.DataFrame:
     """GPS L1 rows of an :data:`~cdgps_cli.core.records.OBS_COLUMNS` table (those with a phase) as a signal
     table (:data:`~cdgps_cli.io.rinex_signals.SIGNAL_COLUMNS`, signal ``G:L1``): the engine's input for the
     observations this solver uses without signal tables."""
-    o = obs[np.isfinite(obs["phase_l1_cycles"].to_numpy()) & obs["sat"].astype(str).str.startswith("G").to_numpy()]
+    o = obs[np.isfinite(obs["phase_l1_cycles"].to_numpy()) & _starts_with(obs["sat"].to_numpy(), "G")]
     return pd.DataFrame({"time_gps_s": o["time_gps_s"].to_numpy(dtype=np.float64), "sat": o["sat"].to_numpy(),
                          "signal": "G:L1", "phase_cycles": o["phase_l1_cycles"].to_numpy(dtype=np.float64),
                          "pseudorange_m": o["pseudorange_l1_m"].to_numpy(dtype=np.float64),
@@ -1517,9 +1539,12 @@ def _run_engine(master: Station, rover: Station, nav, opt: BaselineOptions, xm, 
     eopt["iono_threshold_km"] = math.inf if iono_threshold_km is None else iono_threshold_km
     tables = [st.signals if st.signals is not None and master.signals is not None and rover.signals is not None
               else l1_signal_table(st.obs) for st in (master, rover)]
-    geo = []
-    for xyz in (xm, xr0):                  # each signal table dropped once its geometry is built
-        geo.append(receiver_geometry(tables.pop(0), nav, xyz))
+    t_m, t_r = tables
+    del tables
+    # the master's geometry beside the rover's (a second core); each signal table dropped once its
+    # geometry is built (the master's stays in this process only while a child computes it)
+    geo = list(beside.both(lambda: receiver_geometry(t_m, nav, xm), lambda: receiver_geometry(t_r, nav, xr0)))
+    del t_m, t_r
     # the tables handed over (not held here): static_baseline releases them once its SD rows are built
     return static_baseline(geo.pop(0), geo.pop(0), xm, xr0, eopt, arcs_check=arcs_check)
 

@@ -101,3 +101,48 @@ def test_serial_when_asked(monkeypatch):
     assert not beside.forking_allowed()
     job = beside.start(os.getpid)
     assert not job.forked and job.result() == os.getpid()
+
+
+def test_both_gives_the_two_values_in_order():
+    a, b = beside.both(lambda: np.arange(5.0), lambda: "here")
+    np.testing.assert_array_equal(a, np.arange(5.0))
+    assert b == "here"
+
+
+@pytest.mark.parametrize("serial", [False, True])
+def test_both_raises_the_first_error_as_the_calls_in_turn_would(monkeypatch, serial):
+    if serial:
+        monkeypatch.setenv("CDGPS_SERIAL", "1")
+
+    def first_fails():
+        raise ValueError("master: no ephemeris")
+
+    def second_fails():
+        raise KeyError("rover")
+
+    with pytest.raises(ValueError, match="master: no ephemeris"):
+        beside.both(first_fails, second_fails)
+    with pytest.raises(KeyError, match="rover"):
+        beside.both(lambda: 1, second_fails)
+    with pytest.raises(ValueError, match="master"):
+        beside.both(first_fails, lambda: 2)
+
+
+def test_both_in_turn_without_a_second_core(monkeypatch):
+    monkeypatch.setenv("CDGPS_SERIAL", "1")
+    order = []
+    assert beside.both(lambda: order.append("first") or 1, lambda: order.append("second") or 2) == (1, 2)
+    assert order == ["first", "second"]
+
+
+@needs_fork
+def test_a_result_that_does_not_pickle_is_computed_here():
+    parent = os.getpid()
+
+    def work():
+        if os.getpid() != parent:
+            return [np.zeros(10), lambda: None]               # the lambda stops pickle part-way through the message
+        return "computed here"
+
+    job = beside.start(work)
+    assert job.result() == "computed here" and not job.forked

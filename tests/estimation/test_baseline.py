@@ -473,3 +473,45 @@ def test_known_phase_blocks_are_the_weights_own_when_every_ambiguity_is_known(na
     blocks, refs = bl.known_phase_blocks(d, w["var_ph"], w["refs_ph"], w["blocks_ph"], some)
     used = np.concatenate([rows.ravel() for rows, _ in blocks])
     assert used.size and some[used].all() and not np.array_equal(refs[0], w["refs_ph"][0])
+
+
+def _assert_same(a, b, where="result"):
+    """Equal to the bit: dicts key by key, tables and arrays element by element (NaN equals NaN)."""
+    if isinstance(a, dict):
+        assert isinstance(b, dict) and list(a) == list(b), where
+        for k in a:
+            _assert_same(a[k], b[k], f"{where}[{k!r}]")
+    elif isinstance(a, pd.DataFrame):
+        pd.testing.assert_frame_equal(a, b, check_exact=True, obj=where)
+    elif isinstance(a, (np.ndarray, pd.Series)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=where, strict=True)
+    elif isinstance(a, (list, tuple)):
+        assert type(a) is type(b) and len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b)):
+            _assert_same(x, y, f"{where}[{i}]")
+    elif isinstance(a, float) and math.isnan(a):
+        assert isinstance(b, float) and math.isnan(b), where
+    else:
+        assert a == b, where
+
+
+def test_receivers_computed_side_by_side_give_the_serial_bits(small, nav, monkeypatch):
+    """The pair's two receivers are computed on two cores (core.beside.both): the same result, bit for bit,
+    and the same warnings in the same order as one after the other."""
+    from cdgps_cli.core import beside
+    if not beside.forking_allowed():
+        pytest.skip("no second core here")
+    side_by_side = _solve(small, nav)
+    monkeypatch.setenv("CDGPS_SERIAL", "1")
+    in_turn = _solve(small, nav)
+    for r in (side_by_side, in_turn):
+        r.pop("timing_s")                                   # wall times: the one thing that may differ
+    _assert_same(side_by_side, in_turn)
+
+
+@pytest.mark.parametrize("serial", ["0", "1"])
+def test_when_both_receivers_fail_the_master_is_named_first(small, monkeypatch, serial):
+    monkeypatch.setenv("CDGPS_SERIAL", serial)
+    other = read_rinex_nav(DATA / "brdc1820_subset.10n")
+    with pytest.raises(CdgpsError, match=r"does not cover the observations of 3040"):
+        _solve(small, other)
