@@ -25,23 +25,27 @@ from cdgps_cli.core.errors import CdgpsError
 
 @dataclass(frozen=True)
 class Bound:
-    """Closed interval ``[lo, hi]`` of a value with its unit; ``lo_open``: ``lo`` itself refused."""
+    """Closed interval ``[lo, hi]`` of a value with its unit; ``lo_open`` / ``hi_open``: ``lo`` / ``hi``
+    itself refused."""
 
     lo: float
     hi: float
     unit: str = ""
     lo_open: bool = False
+    hi_open: bool = False
 
     def contains(self, v: float) -> bool:
-        return (v > self.lo if self.lo_open else v >= self.lo) and v <= self.hi
+        return (v > self.lo if self.lo_open else v >= self.lo) and (v < self.hi if self.hi_open else v <= self.hi)
 
     def text(self) -> str:
         u = f" {self.unit}" if self.unit else ""
-        return f"{'(' if self.lo_open else '['}{self.lo:g}, {self.hi:g}]{u}"
+        return f"{'(' if self.lo_open else '['}{self.lo:g}, {self.hi:g}{')' if self.hi_open else ']'}{u}"
 
 
 _LENGTH = Bound(-1e7, 1e7, "m")          # a structure in a lab or on Earth: within 10,000 km
 _SIGMA = Bound(0.0, 100.0, "m", lo_open=True)
+#: an elevation mask (every GNSS command's option and the config's ``[gnss] mask_deg``): the one home of its range
+MASK_DEG = Bound(0.0, 90.0, "deg", hi_open=True)
 _DURATION = Bound(0.0, 1e9, "s")         # 31.7 years
 _NOISE = Bound(0.0, 100.0, "m")          # a simulated noise or multipath σ (0 = none)
 _SCALE = Bound(0.0, 1e3)                 # a simulated disturbance scale
@@ -124,7 +128,7 @@ OPTION_BOUNDS: dict[str, Bound] = {
     "pad": Bound(1, 64),
     "converge_s": Bound(0.0, 1e9, "s"),
     "survey_deg": Bound(-360.0, 360.0, "deg"),
-    "mask_deg": Bound(-90.0, 90.0, "deg"),
+    "mask_deg": MASK_DEG,
     "rate_hz": Bound(0.0, 1000.0, "Hz", lo_open=True),
     "foxglove_rate_hz": Bound(0.0, 1e6, "Hz"),
     "random_walk": Bound(0.0, 10.0, "m/√s"),

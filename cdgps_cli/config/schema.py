@@ -18,7 +18,7 @@ from __future__ import annotations
 import copy
 from dataclasses import dataclass
 
-from cdgps_cli.config.limits import CONFIG_BOUNDS, Bound
+from cdgps_cli.config.limits import CONFIG_BOUNDS, MASK_DEG, Bound
 from cdgps_cli.config.options import GNSS_DEFAULTS
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 
@@ -332,7 +332,14 @@ def optional_keys(table: str) -> set[str]:
 
 def _apply_bound(schema: dict, b: Bound) -> None:
     schema["exclusiveMinimum" if b.lo_open else "minimum"] = b.lo
-    schema["maximum"] = b.hi
+    schema["exclusiveMaximum" if b.hi_open else "maximum"] = b.hi
+
+
+def _bound_schema(b: Bound) -> dict:
+    """The JSON Schema of a number within ``b``."""
+    schema = {"type": "number"}
+    _apply_bound(schema, b)
+    return schema
 
 
 def _bounded(path: str, schema: dict) -> dict:
@@ -394,8 +401,8 @@ GNSS_TABLES: dict[str, dict[str, Field]] = {
         "master": _key(_STR, "the reference antenna (its position is held)"),
         "nav": _key(_FILES, "RINEX navigation file(s), relative to this file; globs allowed", kind="paths",
                     what="navigation file paths", default=()),
-        "mask_deg": _key({"type": "number", "minimum": 0, "exclusiveMaximum": 90}, "elevation mask, degrees",
-                         default=GNSS_DEFAULTS["mask_deg"], expect="an elevation mask in [0, 90) degrees"),
+        "mask_deg": _key(_bound_schema(MASK_DEG), "elevation mask, degrees",
+                         default=GNSS_DEFAULTS["mask_deg"], expect=f"an elevation mask in {MASK_DEG.text()}"),
         "ratio": _key({"type": "number", "minimum": 1}, "LAMBDA ratio-test threshold", default=GNSS_DEFAULTS["ratio"],
                       expect="a ratio-test threshold >= 1"),
         "min_success_rate": _key({"type": "number", "minimum": 0, "exclusiveMaximum": 1},

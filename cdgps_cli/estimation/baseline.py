@@ -47,6 +47,7 @@ from cdgps_cli.estimation.ambiguity import AmbiguityError, resolve
 from cdgps_cli.estimation.model_filter import filter_numpy
 from cdgps_cli.measurement.dd_displacement import SatelliteDDDisplacement, SDObservations
 from cdgps_cli.model.dynamics_models import RandomWalk, WithConstants
+from cdgps_cli.config.limits import MASK_DEG
 from cdgps_cli.config.options import GNSS_DEFAULTS, GNSS_WEIGHTINGS
 from cdgps_cli.measurement.differencing import (
     ambiguity_datum,
@@ -191,8 +192,8 @@ class BaselineOptions:
     def validate(self) -> None:
         """Raise :class:`CdgpsError` listing every invalid setting."""
         p = []
-        if not (math.isfinite(self.mask_deg) and 0.0 <= self.mask_deg < 90.0):
-            p.append(f"mask_deg must be in [0, 90) degrees, got {self.mask_deg!r}")
+        if not (math.isfinite(self.mask_deg) and MASK_DEG.contains(self.mask_deg)):
+            p.append(f"mask_deg must be in {MASK_DEG.text()}, got {self.mask_deg!r}")
         if not (math.isfinite(self.ratio_threshold) and self.ratio_threshold >= 1.0):
             p.append(f"ratio threshold must be a number >= 1, got {self.ratio_threshold!r}")
         if self.weighting not in GNSS_WEIGHTINGS:

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from cdgps_cli.config.limits import GEOCENTRIC_RANGE_M
+from cdgps_cli.config.limits import GEOCENTRIC_RANGE_M, MASK_DEG
 from cdgps_cli import __version__
 from cdgps_cli.config.options import GNSS_WEIGHTINGS, MULTI_GNSS_DEFAULTS
 from cdgps_cli.core.errors import CdgpsError
@@ -54,8 +54,8 @@ def validate_options(options: dict) -> dict:
             bad.append(f"signals: unknown signal {s!r} (known: {', '.join(SIGNALS)})")
     if opt["weighting"] not in GNSS_WEIGHTINGS:
         bad.append(f"weighting: expected {' or '.join(map(repr, GNSS_WEIGHTINGS))}, got {opt['weighting']!r}")
-    if not 0 <= float(opt["mask_deg"]) < 90:
-        bad.append(f"mask_deg: expected a value in [0, 90), got {opt['mask_deg']}")
+    if not MASK_DEG.contains(float(opt["mask_deg"])):
+        bad.append(f"mask_deg: expected a value in {MASK_DEG.text()}, got {opt['mask_deg']}")
     hold = opt["hold_after_fixes"]
     if isinstance(hold, bool) or not isinstance(hold, (int, np.integer)) or hold < 1:
         bad.append(f"hold_after_fixes: expected a whole number of consecutive fixed epochs >= 1 before fix-and-hold "

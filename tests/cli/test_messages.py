@@ -220,7 +220,7 @@ def test_baseline_names_the_flag_not_the_field(tmp_path):
         pytest.skip("../shared/data/rinex absent")
     r = cli("-q", "baseline", "--rinex", f"A={g / '07590920.05o'}", "--rinex", f"B={g / '30400920.05o'}",
             "--nav", g / "07590920.05n", "--master", "B", "--mask-deg", "-10", "-o", tmp_path / "b.json")
-    refused(r, "--mask-deg must be in [0, 90) degrees, got -10")
+    refused(r, "--mask-deg -10: outside the plausible range [0, 90) deg")
     assert "mask_deg" not in r.stderr and not (tmp_path / "b.json").exists()
 
 
