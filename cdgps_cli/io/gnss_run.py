@@ -40,7 +40,7 @@ import numpy as np
 import orjson
 import pandas as pd
 
-from cdgps_cli.core import progress
+from cdgps_cli.core import beside, progress
 from cdgps_cli.core.checks import header_position_m
 from cdgps_cli.io.atomic import path_for_config
 from cdgps_cli.config.structure import GnssConfig, gnss_config_toml, parse_gnss_config
@@ -198,6 +198,24 @@ def _raw_from_ubx(obs: pd.DataFrame) -> pd.DataFrame:
         "clock_offset_s": np.full(n, np.nan),
         "clock_reset": obs["clock_reset"].to_numpy(dtype=bool).astype(np.int64),
     }, copy=False)
+
+
+def _read_single_files(files: dict, pieces: dict, say, strict: bool, l1_opt: bool) -> dict:
+    """The receivers, each given as one file: the first read beside the others
+    (:func:`cdgps_cli.core.beside.both`: on a second core, the same tables bit for bit; its error, if
+    any, raised first, as when read in turn)."""
+    single = [(n, kind) for n, (kind, _) in files.items()]
+    for n, kind in single:
+        say(f"reading {kind.upper()} {files[n][1]} ({n}) …")
+
+    def read(n, kind):
+        return read_receiver_file(n, kind, pieces[n][0], strict=strict, gps_l1_optional=l1_opt)
+
+    if len(single) < 2:
+        return {n: read(n, kind) for n, kind in single}
+    first = single[0]
+    rest = beside.both(lambda: read(*first), lambda: [read(n, kind) for n, kind in single[1:]])
+    return dict(zip((n for n, _ in single), [rest[0], *rest[1]]))
 
 
 def read_receiver_file(name: str, kind: str, path: str | Path, *, strict: bool = False,
@@ -517,7 +535,11 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
     from cdgps_cli.core.signals import anchor_signal  # noqa: PLC0415
 
     l1_opt = anchor_signal(cfg.signals) is not None       # epochs and clocks from another signal: GPS L1 not needed
+    if all(len(ps) == 1 for ps in pieces.values()):
+        receivers = _read_single_files(files, pieces, say, strict, l1_opt)
     for n, (kind, p) in files.items():
+        if n in receivers:
+            continue
         say(f"reading {kind.upper()} {p} ({n}) …")
         if len(pieces[n]) == 1:
             receivers[n] = read_receiver_file(n, kind, pieces[n][0], strict=strict, gps_l1_optional=l1_opt)
