@@ -5,7 +5,8 @@ by side (issue 29, helper `fusedisk`) → docs/benchmarks/fusion_memory.json.
 
 Per duration the record is made once (simulate-gnss-structure → ingest → init, this tree); then the
 ``estimate`` command runs as a child process under each tree (``PYTHONPATH``), in interleaved
-rounds; its peak RSS (``os.wait4`` → ``ru_maxrss``) and wall time are recorded with the load average.
+rounds; its peak RSS (``/usr/bin/time``: the process's own), the peak PSS summed over it and any process it
+forks (benchmarks/tree_memory.py) and wall time are recorded with the load average.
 
 Example::
 
@@ -25,21 +26,26 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import tree_memory  # noqa: E402  (benchmarks/tree_memory.py)
+
 CFG = ROOT / "configs" / "tower-fusion.toml"
 CDGPS = Path(sys.executable).with_name("cdgps")
 
 
-def run(tree: Path, *args) -> tuple[float, float]:
-    """(peak RSS MiB, wall s) of ``cdgps -q args`` with ``tree`` on PYTHONPATH."""
+def run(tree: Path, *args) -> tuple[float, float, float]:
+    """(peak RSS MiB of the command's process, peak PSS MiB summed over it and the processes it forks
+    (benchmarks/tree_memory.py), wall s) of ``cdgps -q args`` with ``tree`` on PYTHONPATH."""
     env = dict(os.environ, PYTHONPATH=str(tree))
-    t0 = time.perf_counter()
-    p = subprocess.Popen([str(CDGPS), "-q", *map(str, args)], env=env, stdout=subprocess.DEVNULL,
-                         stderr=subprocess.PIPE)
-    _, status, ru = os.wait4(p.pid, 0)
-    wall = time.perf_counter() - t0
-    if status != 0:
-        raise SystemExit(f"{args[0]} failed under {tree}: {p.stderr.read().decode()[-2000:]}")
-    return ru.ru_maxrss / 1024.0, wall
+    with tempfile.TemporaryFile("w+") as err:
+        res = tree_memory.measure(["/usr/bin/time", "-f", "__TIME__ %M", str(CDGPS), "-q", *map(str, args)],
+                                  env=env, stdout=subprocess.DEVNULL, stderr=err, text=True)
+        err.seek(0)
+        text = err.read()
+    if res["exit"] != 0:
+        raise SystemExit(f"{args[0]} failed under {tree}: {text[-2000:]}")
+    rss_kib = float([ln for ln in text.splitlines() if ln.startswith("__TIME__")][-1].split()[1])
+    return rss_kib / 1024.0, res["peak_tree_pss_mib"], res["wall_s"]
 
 
 def main() -> None:
@@ -62,9 +68,10 @@ def main() -> None:
             row = {"minutes": minutes, "epochs_100hz": int(round(minutes * 6000)) + 1}
             for r in range(a.rounds):
                 for name in (("before", "after") if r % 2 == 0 else ("after", "before")):
-                    rss, wall = run(trees[name], "estimate", d / "run.mcap", "--init", d / "init.json", "--structure",
+                    rss, pss, wall = run(trees[name], "estimate", d / "run.mcap", "--init", d / "init.json", "--structure",
                                     CFG, "--smooth", "--fuse", "accel,gyro,tilt", "-o", d / f"{name}.mcap")
-                    row.setdefault(name, []).append({"peak_rss_mib": round(rss, 1), "wall_s": round(wall, 2),
+                    row.setdefault(name, []).append({"peak_rss_mib": round(rss, 1), "peak_tree_pss_mib": pss,
+                                                     "wall_s": round(wall, 2),
                                                      "loadavg_1min": os.getloadavg()[0]})
             results.append(row)
             print(json.dumps(row), flush=True)
