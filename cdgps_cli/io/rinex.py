@@ -165,6 +165,13 @@ def _check_version(version: float, path, kind: str) -> None:
         )
 
 
+def _range_note(exc: ValueError) -> str:
+    """': month must be in 1..12' for a date or time field out of its range (datetime's or
+    :func:`~cdgps_cli.core.gps_time.check_time_of_day`'s words), '' for a field that is no number."""
+    text = str(exc)
+    return f": {text}" if ("must be in" in text or "out of range" in text) else ""
+
+
 def _sat_id(s: str, version: float) -> str:
     """Normalise a satellite field ('G05', 'G 5', ' 5' in RINEX 2) to 'G05'; ValueError if bad."""
     s = s.rstrip()
@@ -851,8 +858,8 @@ def _parse_obs_v2(lines: list[str], start: int, hdr: _ObsHeader, cols: _GpsL1Col
                 sec = float(line[15:26])
                 year = yy + (1900 if yy >= 80 else 2000) if yy < 100 else yy
                 t = gps_seconds(year, mo, dd, hh, mi, sec)
-            except ValueError:
-                raise hdr.error(lineno, f"malformed epoch date/time {line[:26]!r}") from None
+            except ValueError as exc:
+                raise hdr.error(lineno, f"malformed epoch date/time {line[:26]!r}{_range_note(exc)}") from None
         elif flag < 2:
             raise hdr.error(lineno, f"observation epoch line without a date/time: {line[:80]!r}")
         if 2 <= flag <= 5:
@@ -962,8 +969,8 @@ def _parse_obs_v3(lines: list[str], start: int, hdr: _ObsHeader, cols: _GpsL1Col
                 year, mo, dd, hh, mi = (int(line[a:b]) for a, b in ((2, 6), (7, 9), (10, 12), (13, 15), (16, 18)))
                 sec = float(line[18:29])
                 t = gps_seconds(year, mo, dd, hh, mi, sec)
-            except ValueError:
-                raise hdr.error(lineno, f"malformed epoch date/time {line[2:29]!r}") from None
+            except ValueError as exc:
+                raise hdr.error(lineno, f"malformed epoch date/time {line[2:29]!r}{_range_note(exc)}") from None
         elif flag < 2:
             raise hdr.error(lineno, f"observation epoch line without a date/time: {line[:80]!r}")
         if 2 <= flag <= 5:

@@ -19,10 +19,10 @@ import numpy as np
 import pandas as pd
 
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.core.gps_time import gps_seconds
+from cdgps_cli.core.gps_time import check_time_of_day, gps_seconds
 from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, glonass_frequency_hz, signal
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
-from cdgps_cli.io.rinex import _ObsHeader, _parse_version_line, _read_text
+from cdgps_cli.io.rinex import _ObsHeader, _parse_version_line, _range_note, _read_text, _sat_id
 from cdgps_cli.io._fixed_width import LineBuffer, Unsupported, decimal_fields, flag_digits
 from cdgps_cli.io.rinex import _frame, _read_bytes, _split_header, _split_lines
 from cdgps_cli.io.rinex_body import BodyLines, distinct, epochs_v3, strict_float
@@ -263,11 +263,14 @@ def _epoch_time(line: str, a: int, path, lineno) -> float:
     try:
         if a == 2:   # RINEX 3
             day = _day_seconds(2, line[2:12])
-            return float(day + int(line[13:15]) * 3600 + int(line[16:18]) * 60) + float(line[18:29])
-        day = _day_seconds(1, line[1:9])
-        return float(day + int(line[10:12]) * 3600 + int(line[13:15]) * 60) + float(line[15:26])
-    except ValueError:
-        raise CdgpsError(f"{path}:{lineno}: malformed epoch line {line[:60]!r}") from None
+            h, mi, sec = int(line[13:15]), int(line[16:18]), float(line[18:29])
+        else:
+            day = _day_seconds(1, line[1:9])
+            h, mi, sec = int(line[10:12]), int(line[13:15]), float(line[15:26])
+        check_time_of_day(h, mi, sec)
+        return float(day + h * 3600 + mi * 60) + sec
+    except ValueError as exc:
+        raise CdgpsError(f"{path}:{lineno}: malformed epoch line {line[:60]!r}{_range_note(exc)}") from None
 
 
 @lru_cache(maxsize=4096)

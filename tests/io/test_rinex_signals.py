@@ -92,3 +92,31 @@ def test_a_truncated_file_names_the_epoch_line(tmp_path: Path):
         read_rinex_signals(p2, ["G:L1", "G:L2"])
     _, whole = read_rinex_signals(REPO_ROOT / "tests" / "data" / "07590920.05o", ["G:L1", "G:L2"])
     assert len(whole) > 0
+
+
+V3_EPOCH = "> 2023 01 08 10 00  0.0000000  0  2"
+
+
+@pytest.mark.parametrize("epoch, why", [
+    ("> 2023 01 08 10 00 61.0000000  0  2", r"second must be in \[0, 61\), got 61.0"),
+    ("> 2023 01 08 25 00  0.0000000  0  2", "hour must be in 0..23, got 25"),
+    ("> 2023 01 08 10 60  0.0000000  0  2", "minute must be in 0..59, got 60"),
+    ("> 2023 13 08 10 00  0.0000000  0  2", "month must be in 1..12"),
+])
+def test_impossible_epoch_time_refused_by_both_readers(tmp_path: Path, epoch, why):
+    # second 61 used to be read as the next minute's second 1 (rtk bridged the wrong base epoch: fixed 99 % -> 0 %)
+    p = tmp_path / "t.obs"
+    p.write_text(HDR.replace(V3_EPOCH, epoch))
+    with pytest.raises(CdgpsError, match=rf"t\.obs:5: malformed epoch line .*: {why}"):
+        read_rinex_signals(p, ["G:L1"])
+    from cdgps_cli.io.rinex import read_rinex_obs
+    with pytest.raises(CdgpsError, match=rf"t\.obs, line 5: malformed epoch date/time .*: {why}"):
+        read_rinex_obs(p)
+
+
+def test_leap_second_60_is_still_read(tmp_path: Path):
+    p = tmp_path / "t.obs"
+    p.write_text(HDR.replace(V3_EPOCH, "> 2023 01 08 10 00 60.5000000  0  2"))
+    _, df = read_rinex_signals(p, ["G:L1"])
+    assert df["time_gps_s"].iloc[0] % 60 == pytest.approx(0.5)
+
