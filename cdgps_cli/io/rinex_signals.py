@@ -321,6 +321,7 @@ def _parse_v3(lines, i, cols, path) -> list:
             if not sat:
                 raise CdgpsError(f"{path}:{i + 2 + r_off}: blank line where the epoch's satellite record "
                                  f"{r_off + 1} of {nsat} was expected")
+            _check_satellite(rec[0:3], 3, path, i + 2 + r_off, "at the start of an observation record")
             for name, (key, ip, ic, _) in cols.items():
                 if sat[0] != key:
                     continue
@@ -349,12 +350,15 @@ def _parse_v2(lines, i, hdr, cols, path) -> list:
         if i + math.ceil(nsat / 12) + n_rec > len(lines):
             raise _truncated(path, i + 1, nsat, len(lines) - i - 1)
         sats = "".join(lines[i + k][32:68] for k in range(math.ceil(nsat / 12)))
+        epoch_line = i + 1
         i += math.ceil(nsat / 12)
         if flag > 1:
             i += nsat
             continue
-        t = _epoch_time(ln, 1, path, i)
+        t = _epoch_time(ln, 1, path, epoch_line)
         for j in range(nsat):
+            _check_satellite(sats[3 * j:3 * j + 3], 2, path, epoch_line + j // 12,
+                             f"(satellite {j + 1} of the {nsat} the epoch line announces)")
             sat = sats[3 * j:3 * j + 3].replace(" ", "0")
             sat = "G" + sat[1:] if sat[0] in "0G" else sat
             rec = "".join(lines[i + k].rstrip("\n").ljust(80) for k in range(per))
@@ -372,6 +376,24 @@ def _parse_v2(lines, i, hdr, cols, path) -> list:
                 if not math.isnan(ph):
                     rows.append((t, sat, name, ph, pr, lli))
     return rows
+
+
+def _is_satellite(raw: str, version: int) -> bool:
+    try:
+        _sat_id(raw, version)
+    except ValueError:
+        return False
+    return True
+
+
+def _check_satellite(raw: str, version: int, path, lineno: int, where: str) -> None:
+    """Refuse a satellite field that is no system letter and number (garbage, a short satellite list):
+    its records would be skipped as another system's, unseen."""
+    try:
+        _sat_id(raw, version)
+    except ValueError:
+        raise CdgpsError(f"{path}:{lineno}: malformed satellite identifier {raw!r} {where} (a system letter "
+                         f"G, R, E, S, J, C or I and a two-digit number expected)") from None
 
 
 def _bad_field(rec: str, fields) -> int:
@@ -446,7 +468,7 @@ def _v2_satellites(sats: str, nsat: int) -> list:
     names = []
     for j in range(nsat):
         sat = sats[3 * j:3 * j + 3].replace(" ", "0")
-        if not sat:
+        if not sat or not _is_satellite(sats[3 * j:3 * j + 3], 2):
             raise Unsupported("satellite list")
         names.append("G" + sat[1:] if sat[0] in "0G" else sat)
     return names
@@ -486,6 +508,8 @@ def _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2) -> pd
         code = (sat_bytes[:, 0].astype(np.int32) << 16) | (sat_bytes[:, 1].astype(np.int32) << 8) | sat_bytes[:, 2]
         uniq, sat_code = distinct(code)                                 # ASCII, 3 bytes: the str order
         sat_names = [bytes([u >> 16, (u >> 8) & 255, u & 255]).decode("ascii") for u in uniq]
+        if not all(_is_satellite(x, 3) for x in sat_names):
+            raise Unsupported("satellite")                              # the line-by-line reader names it
     else:
         rec_lines = rec_line[:, None] + np.arange(per)
         if np.any(buf.length[rec_lines] > 80):

@@ -120,3 +120,26 @@ def test_leap_second_60_is_still_read(tmp_path: Path):
     _, df = read_rinex_signals(p, ["G:L1"])
     assert df["time_gps_s"].iloc[0] % 60 == pytest.approx(0.5)
 
+
+@pytest.mark.parametrize("raw", ["@@g", "X05", "G x"])
+def test_garbage_satellite_record_refused_not_skipped(tmp_path: Path, raw):
+    # a record whose first three columns are no satellite was skipped as another system's, unseen
+    p = tmp_path / "s.obs"
+    p.write_text(HDR.replace("G05  20028872", raw + "  20028872"))
+    with pytest.raises(CdgpsError, match=rf"s\.obs:7: malformed satellite identifier '{raw}' at the start of an "
+                                         r"observation record \(a system letter"):
+        read_rinex_signals(p, ["G:L1"])
+
+
+def test_rinex2_short_or_garbage_satellite_list_named(tmp_path: Path):
+    # a RINEX 2 satellite list shorter than the count (an epoch line cut) ended in an IndexError traceback
+    from tests.io._rinex_edit import edited_copy
+    src = REPO_ROOT / "tests" / "data" / "07590920.05o"
+    for name, edit in (("short", lambda ln: ln[:41]), ("letter", lambda ln: ln[:32] + "X03" + ln[35:])):
+        def cut(lines, end):
+            lines[end + 1] = edit(lines[end + 1])
+        (tmp_path / name).mkdir()
+        p = edited_copy(tmp_path / name, src, cut)
+        with pytest.raises(CdgpsError, match=r"07590920\.05o:18: malformed satellite identifier '(|X03)' \(satellite "
+                                             r"[14] of the 8 the epoch line announces\)"):
+            read_rinex_signals(p, ["G:L1"])
