@@ -1376,11 +1376,11 @@ def read_rinex_nav(path: str | Path, systems=("G",)) -> pd.DataFrame:
         # RINEX 3.05 adds a fourth broadcast-orbit line to GLONASS records
         nrec = _NAV_LINES[sysc] + (1 if sysc == "R" and version >= 3.05 else 0)
         counts[sysc] = counts.get(sysc, 0) + 1
+        if i + nrec > n:       # a cut file, whichever system's record it ends in
+            raise CdgpsError(f"{_where(p, lineno, compressed)}: ephemeris record truncated: {nrec} lines expected, the file ends after {n - i}")
         if sysc not in systems:
             i += nrec
             continue
-        if i + nrec > n:
-            raise CdgpsError(f"{_where(p, lineno, compressed)}: ephemeris record truncated: {nrec} lines expected, the file ends after {n - i}")
         if sysc == "R":
             glonass.append(_glonass_record(lines, i, v3, p, compressed))
         else:

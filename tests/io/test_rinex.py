@@ -685,3 +685,15 @@ def test_rinex_305_mixed_navigation_with_five_line_glonass_records():
     assert gps.attrs["n_records_by_system"] == {"C": 28, "G": 15, "R": 20}
     allsys = read_rinex_nav(path, systems=("G", "C", "R"))
     assert len(allsys) == 15 + 28 + 20 and allsys["glonass_k"].notna().sum() == 20
+
+
+def test_nav_file_cut_in_a_record_of_a_system_not_read_is_refused(tmp_path):
+    # a mixed navigation file cut inside its last (GLONASS, 5 lines in RINEX 3.05) record was read for GPS as if whole (ingest: exit 0)
+    lines = (DATA / "MOJN00DNK_R_20201770000_subset.rnx").read_text().splitlines()
+    last = max(i for i, ln in enumerate(lines) if ln[:1] == "R" and ln[1:3].isdigit())
+    p = tmp_path / "cut.rnx"
+    p.write_text("\n".join(lines[:last + 2]) + "\n")
+    with pytest.raises(CdgpsError, match=rf"cut\.rnx, line {last + 1}: ephemeris record truncated: 5 lines expected, "
+                                         r"the file ends after 2"):
+        read_rinex_nav(p, systems=("G",))
+    assert len(read_rinex_nav(DATA / "MOJN00DNK_R_20201770000_subset.rnx", systems=("G",))) == 15
