@@ -1291,13 +1291,27 @@ def _with_glonass(df: pd.DataFrame, glonass: list) -> pd.DataFrame:
     return df
 
 
+#: RINEX file types (RINEX VERSION / TYPE, column 21) that are surely no navigation file
+_NOT_NAVIGATION = {"O": "observation", "M": "meteorological", "C": "clock"}
+
+
 def nav_file_systems(path: str | Path) -> tuple[str, ...]:
     """Systems whose ephemerides a navigation file can hold, from its first line only: a RINEX 3 file
     its header system (all of :data:`NAV_SYSTEMS` for a mixed ``M`` file), RINEX 2 ``N`` GPS and
-    ``G`` GLONASS.  Lets a reader skip a Galileo-only file when it wants GPS (instead of refusing it)."""
+    ``G`` GLONASS.  Lets a reader skip a Galileo-only file when it wants GPS (instead of refusing it).
+
+    Raises
+    ------
+    CdgpsError
+        An observation, meteorological or clock file (``--nav`` given the wrong file: it was skipped
+        unseen beside a navigation file that holds the systems wanted).
+    """
     p = Path(path)
     lines, compressed = _read_lines(p)
     version, ftype, system = _parse_version_line(lines[:1], p, compressed, "navigation")
+    if ftype in _NOT_NAVIGATION:
+        raise CdgpsError(f"{p}: this is a RINEX {_NOT_NAVIGATION[ftype]} file, not a navigation file (RINEX VERSION / "
+                         f"TYPE says {ftype!r})")
     if version >= 3:
         return NAV_SYSTEMS if system in ("M", " ", "") else (system,)
     return {"N": ("G",), "G": ("R",)}.get(ftype, ())

@@ -697,3 +697,14 @@ def test_nav_file_cut_in_a_record_of_a_system_not_read_is_refused(tmp_path):
                                          r"the file ends after 2"):
         read_rinex_nav(p, systems=("G",))
     assert len(read_rinex_nav(DATA / "MOJN00DNK_R_20201770000_subset.rnx", systems=("G",))) == 15
+
+
+def test_observation_file_given_as_navigation_beside_a_real_one_is_refused():
+    # ingest/baseline --nav brdc.n --nav station.o skipped the observation file unseen (exit 0)
+    from cdgps_cli.io.gnss_run import merge_nav
+    from cdgps_cli.io.rinex import nav_file_systems
+
+    with pytest.raises(CdgpsError, match=r"07590920\.05o: this is a RINEX observation file, not a navigation file"):
+        merge_nav([DATA / "07590920.05n", DATA / "07590920.05o"])
+    assert nav_file_systems(DATA / "07590920.05n") == ("G",) and nav_file_systems(DATA / "brdc3050_subset.12g") == ("R",)
+    assert len(merge_nav([DATA / "07590920.05n", DATA / "brdc3050_subset.12g"])) == len(read_rinex_nav(DATA / "07590920.05n"))
