@@ -236,7 +236,20 @@ def _observations(lines, start, hdr, cols, path, data: bytes | None = None, slot
     rows = _parse_v3(lines, start, cols, path) if hdr.version >= 3 else _parse_v2(lines, start, hdr, cols, path)
     df = pd.DataFrame(rows, columns=list(SIGNAL_COLUMNS[:-1]))
     df["wavelength_m"] = _wavelengths(df, slots or {}, path)
-    return df.sort_values(["time_gps_s", "signal", "sat"], kind="stable").reset_index(drop=True)
+    times = df["time_gps_s"].to_numpy()
+    df = df.sort_values(["time_gps_s", "signal", "sat"], kind="stable").reset_index(drop=True)
+    return _noting_time_order(df, times)
+
+
+def _noting_time_order(df: pd.DataFrame, times) -> pd.DataFrame:
+    """``df`` (sorted by time) with ``attrs["epochs_out_of_order"]`` = (count, GPS s of the first) of the
+    epochs whose time, in file order ``times``, is earlier than the one before (a file's epochs swapped:
+    read in time order, the caller warns), when there are any."""
+    t = np.asarray(times, dtype=np.float64)
+    back = np.flatnonzero(np.diff(t) < 0) + 1 if t.size > 1 else np.empty(0, dtype=np.int64)
+    if back.size:
+        df.attrs["epochs_out_of_order"] = (int(back.size), float(t[back[0]]))
+    return df
 
 
 def _wavelengths(df: pd.DataFrame, slots: dict, path) -> np.ndarray:
@@ -564,7 +577,7 @@ def _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2) -> pd
         "phase_cycles": np.concatenate([p[2] for p in parts])[take],
         "pseudorange_m": np.concatenate([p[3] for p in parts])[take],
         "lli": np.concatenate([p[4] for p in parts])[take], "wavelength_m": lam})
-    return df
+    return _noting_time_order(df, times)
 
 
 def _wavelength_array(sat_code: np.ndarray, sat_names: list, sig: np.ndarray, names: list, slots: dict, path) -> np.ndarray:

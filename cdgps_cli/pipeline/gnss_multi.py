@@ -322,7 +322,12 @@ def _read_observations(path, sigs, glo_k, who: str, warnings: list) -> tuple[dic
     RTCM 1005/1006 when it has one; what the log lost — bad checksums, skipped bytes, a frame cut by
     the end of the file — named in ``warnings``, as ``ingest`` does)."""
     if not is_ubx_log(path):
-        return read_rinex_signals(path, sigs, glo_k)
+        header, obs = read_rinex_signals(path, sigs, glo_k)
+        back = obs.attrs.pop("epochs_out_of_order", None)
+        if back:
+            warnings.append(f"{path} ({who}): {back[0]} epoch(s) written out of time order (first: "
+                            f"{gps_time_str(back[1])}, after a later one), read in time order")
+        return header, obs
     from cdgps_cli.io.ubx import integrity_problems  # noqa: PLC0415
 
     info, tab, _ = _ubx(path)

@@ -143,3 +143,25 @@ def test_rinex2_short_or_garbage_satellite_list_named(tmp_path: Path):
         with pytest.raises(CdgpsError, match=r"07590920\.05o:18: malformed satellite identifier '(|X03)' \(satellite "
                                              r"[14] of the 8 the epoch line announces\)"):
             read_rinex_signals(p, ["G:L1"])
+
+
+def test_epochs_out_of_time_order_are_noted_for_the_caller(tmp_path: Path):
+    # rtk read a file with two epochs swapped in time order without a word (ingest and baseline refuse it)
+    from tests.io._rinex_edit import edited_copy
+    from cdgps_cli.io import rinex_signals
+
+    src = REPO_ROOT / "tests" / "data" / "07590920.05o"
+
+    def swap(lines, end):
+        lines[end + 1:end + 19] = lines[end + 10:end + 19] + lines[end + 1:end + 10]
+
+    p = edited_copy(tmp_path, src, swap)
+    for fast in (True, False):
+        rinex_signals.FAST_PARSE = fast
+        try:
+            _, df = read_rinex_signals(p, ["G:L1"])
+            _, ok = read_rinex_signals(src, ["G:L1"])
+        finally:
+            rinex_signals.FAST_PARSE = True
+        assert df.attrs["epochs_out_of_order"] == (1, ok["time_gps_s"].iloc[0]) and "epochs_out_of_order" not in ok.attrs
+        assert df.equals(ok)

@@ -238,3 +238,18 @@ def test_auto_signals_name_a_damaged_navigation_file(tmp_path):
     with pytest.raises(CdgpsError, match=r"share no signal with ephemerides in any file \(no --nav given\)"):
         rtk_from_files(obs, obs, [], out)
     assert not out.exists()
+
+
+def test_rtk_warns_of_epochs_out_of_time_order(tmp_path):
+    from tests.io._rinex_edit import edited_copy
+
+    obs = REPO_ROOT / "tests" / "data" / "07590920.05o"
+
+    def swap(lines, end):
+        lines[end + 1:end + 19] = lines[end + 10:end + 19] + lines[end + 1:end + 10]
+
+    rover = edited_copy(tmp_path, obs, swap)
+    s = rtk_from_files(obs, rover, [REPO_ROOT / "tests" / "data" / "07590920.05n"], tmp_path / "x.csv",
+                       options={"signals": ("G:L1",)})
+    assert any(f"{rover} (rover): 1 epoch(s) written out of time order (first: 2005-04-02 00:00:00 GPST" in w
+               for w in s["warnings"]), s["warnings"]
