@@ -1187,11 +1187,12 @@ def _glonass_record(lines: list[str], i: int, v3: bool, p, compressed: bool) -> 
         for k in range(1, 4):
             cl = lines[i + k]
             vals.extend(_float_field(cl[cont + 19 * q: cont + 19 * (q + 1)]) for q in range(4))
-    except (ValueError, IndexError):
-        raise CdgpsError(f"{_where(p, i + 1, compressed)}: malformed GLONASS ephemeris record: {ln.rstrip()!r}") from None
+        t_utc = gps_seconds(y, mo, d, h, mi, sec)       # a month 13 or an hour 25: ValueError, named below
+    except (ValueError, IndexError) as exc:
+        note = _range_note(exc) if isinstance(exc, ValueError) else ""
+        raise CdgpsError(f"{_where(p, i + 1, compressed)}: malformed GLONASS ephemeris record: {ln.rstrip()!r}{note}") from None
     if len(vals) < 14 or any(math.isnan(v) for v in vals[:14]):
         raise CdgpsError(f"{_where(p, i + 1, compressed)}: GLONASS ephemeris record of {sat} has blank required field(s)")
-    t_utc = gps_seconds(y, mo, d, h, mi, sec)
     leap = gps_minus_utc_s(t_utc + 18.0)
     toe = t_utc + leap
     period = SECONDS_PER_WEEK if v3 else 86400.0

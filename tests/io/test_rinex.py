@@ -708,3 +708,21 @@ def test_observation_file_given_as_navigation_beside_a_real_one_is_refused():
         merge_nav([DATA / "07590920.05n", DATA / "07590920.05o"])
     assert nav_file_systems(DATA / "07590920.05n") == ("G",) and nav_file_systems(DATA / "brdc3050_subset.12g") == ("R",)
     assert len(merge_nav([DATA / "07590920.05n", DATA / "brdc3050_subset.12g"])) == len(read_rinex_nav(DATA / "07590920.05n"))
+
+
+@pytest.mark.parametrize("src, first, month, systems, why", [
+    ("brdc3050_subset.12g", lambda ln: ln[:2].strip().isdigit(), slice(6, 8), ("R",), "GLONASS .*: month must be in 1..12"),
+    ("MOJN00DNK_R_20201770000_subset.rnx", lambda ln: ln.startswith("R"), slice(9, 11), ("G", "R"),
+     "GLONASS .*: month must be in 1..12"),
+    ("07590920.05n", lambda ln: ln[:2].strip().isdigit(), slice(6, 8), ("G",), "first line of an ephemeris record"),
+])
+def test_nav_record_with_an_impossible_date_names_the_line(tmp_path, src, first, month, systems, why):
+    # a GLONASS record with month 13 ended in a ValueError traceback (rtk --signals auto on the mosaic base.nav: exit 1)
+    lines = (DATA / src).read_text().splitlines()
+    end = next(i for i, ln in enumerate(lines) if "END OF HEADER" in ln)
+    i = next(k for k in range(end + 1, len(lines)) if first(lines[k]))
+    lines[i] = lines[i][:month.start] + "13" + lines[i][month.stop:]
+    p = tmp_path / "bad.nav"
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(CdgpsError, match=rf"bad\.nav, line {i + 1}: malformed {why}"):
+        read_rinex_nav(p, systems=systems)
