@@ -31,9 +31,37 @@ def gps_seconds(year: int, month: int, day: int, hour: int = 0, minute: int = 0,
     float
         GPS seconds, s.  The whole-second part is computed in integers, so the result is as exact
         as a float64 allows (0.24 µs around 2020).
+
+    Raises
+    ------
+    ValueError
+        A date that does not exist (month 13, 30 February), or a time of day outside
+        :func:`check_time_of_day`'s ranges.
     """
+    check_time_of_day(hour, minute, second)
     days = _dt.date(int(year), int(month), int(day)).toordinal() - _GPS_EPOCH_ORDINAL
     return float(days * 86400 + int(hour) * 3600 + int(minute) * 60) + float(second)
+
+
+#: seconds of a minute are below this (60.x is let through: a UTC file's leap second)
+SECOND_MAX = 61.0
+
+
+def check_time_of_day(hour, minute, second) -> None:
+    """Refuse a clock time that cannot be: hour outside 0-23, minute outside 0-59, second outside
+    [0, :data:`SECOND_MAX`) (a RINEX epoch line of second 61 or hour 25 is damage, not a later time).
+
+    Raises
+    ------
+    ValueError
+        Naming the field and its range (callers add the file and line).
+    """
+    if not 0 <= hour <= 23:
+        raise ValueError(f"hour must be in 0..23, got {hour}")
+    if not 0 <= minute <= 59:
+        raise ValueError(f"minute must be in 0..59, got {minute}")
+    if not 0 <= second < SECOND_MAX:
+        raise ValueError(f"second must be in [0, {SECOND_MAX:g}), got {second}")
 
 
 def gps_time_str(t_gps_s: float) -> str:

@@ -13,6 +13,7 @@ import json
 import os
 import shutil
 import signal
+import stat
 import sys
 import tempfile
 import threading
@@ -42,10 +43,33 @@ def open_anonymous(directory: Path):
     return os.fdopen(fd, "wb")
 
 
+def refuse_special_file(path: str | Path, option: str = "") -> None:
+    """Refuse an output path where a device, pipe or socket is (``/dev/null``, ``/dev/stdout``, a FIFO):
+    the rename that makes a write atomic would replace the device node itself by a regular file (as root,
+    ``-o /dev/full`` replaced /dev/full).
+
+    Raises
+    ------
+    CdgpsError
+        Naming the option, the path and what is there; nothing has been written.
+    """
+    try:
+        mode = os.stat(path).st_mode
+    except (OSError, ValueError):
+        return
+    if stat.S_ISREG(mode) or stat.S_ISDIR(mode):
+        return
+    kind = ("a character device" if stat.S_ISCHR(mode) else "a block device" if stat.S_ISBLK(mode)
+            else "a pipe (FIFO)" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode) else "not a regular file")
+    raise CdgpsError(f"{option + ' ' if option else ''}{path} is {kind}: cdgps writes a complete new file and renames "
+                     f"it into place, which would replace it (refused, nothing written); give a regular file path")
+
+
 def link_anonymous(fh, path: Path) -> None:
     """Give the complete unnamed file ``fh`` (:func:`open_anonymous`) the name ``path``, replacing
     what is there: linked under its hidden temporary name, then renamed (atomic), so a reader never
     sees a partial file and the temporary exists only for the instant between the two calls."""
+    refuse_special_file(path)
     fh.flush()
     tmp = temporary_name(path)
     tmp.unlink(missing_ok=True)
@@ -85,6 +109,7 @@ def write_atomic(path: str | Path, writer: Callable[[Path], None]) -> None:
         If the directory cannot be created or the file cannot be written.
     """
     path = Path(path)
+    refuse_special_file(path)
     tmp = temporary_name(path)
     with sigterm_raises():
         try:
@@ -167,7 +192,8 @@ def refuse_input_overwrite(outputs, inputs) -> None:
 
 
 def refuse_output_collisions(outputs) -> None:
-    """Refuse an empty output path, and two outputs of one command that are the same file.
+    """Refuse an empty output path, one where a device or pipe is (:func:`refuse_special_file`), and two
+    outputs of one command that are the same file.
 
     Parameters
     ----------
@@ -185,6 +211,7 @@ def refuse_output_collisions(outputs) -> None:
     for opt, path, _ in outputs:
         if not str(path).strip():
             raise CdgpsError(f"{opt}: expected a file or folder path, got an empty string")
+        refuse_special_file(path, opt)
         key = os.path.realpath(path)
         if key in seen:
             raise CdgpsError(f"{opt} {path} is the same path as {seen[key]}: the second output would replace the "

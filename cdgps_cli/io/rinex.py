@@ -165,6 +165,13 @@ def _check_version(version: float, path, kind: str) -> None:
         )
 
 
+def _range_note(exc: ValueError) -> str:
+    """': month must be in 1..12' for a date or time field out of its range (datetime's or
+    :func:`~cdgps_cli.core.gps_time.check_time_of_day`'s words), '' for a field that is no number."""
+    text = str(exc)
+    return f": {text}" if ("must be in" in text or "out of range" in text) else ""
+
+
 def _sat_id(s: str, version: float) -> str:
     """Normalise a satellite field ('G05', 'G 5', ' 5' in RINEX 2) to 'G05'; ValueError if bad."""
     s = s.rstrip()
@@ -851,8 +858,8 @@ def _parse_obs_v2(lines: list[str], start: int, hdr: _ObsHeader, cols: _GpsL1Col
                 sec = float(line[15:26])
                 year = yy + (1900 if yy >= 80 else 2000) if yy < 100 else yy
                 t = gps_seconds(year, mo, dd, hh, mi, sec)
-            except ValueError:
-                raise hdr.error(lineno, f"malformed epoch date/time {line[:26]!r}") from None
+            except ValueError as exc:
+                raise hdr.error(lineno, f"malformed epoch date/time {line[:26]!r}{_range_note(exc)}") from None
         elif flag < 2:
             raise hdr.error(lineno, f"observation epoch line without a date/time: {line[:80]!r}")
         if 2 <= flag <= 5:
@@ -962,8 +969,8 @@ def _parse_obs_v3(lines: list[str], start: int, hdr: _ObsHeader, cols: _GpsL1Col
                 year, mo, dd, hh, mi = (int(line[a:b]) for a, b in ((2, 6), (7, 9), (10, 12), (13, 15), (16, 18)))
                 sec = float(line[18:29])
                 t = gps_seconds(year, mo, dd, hh, mi, sec)
-            except ValueError:
-                raise hdr.error(lineno, f"malformed epoch date/time {line[2:29]!r}") from None
+            except ValueError as exc:
+                raise hdr.error(lineno, f"malformed epoch date/time {line[2:29]!r}{_range_note(exc)}") from None
         elif flag < 2:
             raise hdr.error(lineno, f"observation epoch line without a date/time: {line[:80]!r}")
         if 2 <= flag <= 5:
@@ -1180,11 +1187,12 @@ def _glonass_record(lines: list[str], i: int, v3: bool, p, compressed: bool) -> 
         for k in range(1, 4):
             cl = lines[i + k]
             vals.extend(_float_field(cl[cont + 19 * q: cont + 19 * (q + 1)]) for q in range(4))
-    except (ValueError, IndexError):
-        raise CdgpsError(f"{_where(p, i + 1, compressed)}: malformed GLONASS ephemeris record: {ln.rstrip()!r}") from None
+        t_utc = gps_seconds(y, mo, d, h, mi, sec)       # a month 13 or an hour 25: ValueError, named below
+    except (ValueError, IndexError) as exc:
+        note = _range_note(exc) if isinstance(exc, ValueError) else ""
+        raise CdgpsError(f"{_where(p, i + 1, compressed)}: malformed GLONASS ephemeris record: {ln.rstrip()!r}{note}") from None
     if len(vals) < 14 or any(math.isnan(v) for v in vals[:14]):
         raise CdgpsError(f"{_where(p, i + 1, compressed)}: GLONASS ephemeris record of {sat} has blank required field(s)")
-    t_utc = gps_seconds(y, mo, d, h, mi, sec)
     leap = gps_minus_utc_s(t_utc + 18.0)
     toe = t_utc + leap
     period = SECONDS_PER_WEEK if v3 else 86400.0
@@ -1284,13 +1292,27 @@ def _with_glonass(df: pd.DataFrame, glonass: list) -> pd.DataFrame:
     return df
 
 
+#: RINEX file types (RINEX VERSION / TYPE, column 21) that are surely no navigation file
+_NOT_NAVIGATION = {"O": "observation", "M": "meteorological", "C": "clock"}
+
+
 def nav_file_systems(path: str | Path) -> tuple[str, ...]:
     """Systems whose ephemerides a navigation file can hold, from its first line only: a RINEX 3 file
     its header system (all of :data:`NAV_SYSTEMS` for a mixed ``M`` file), RINEX 2 ``N`` GPS and
-    ``G`` GLONASS.  Lets a reader skip a Galileo-only file when it wants GPS (instead of refusing it)."""
+    ``G`` GLONASS.  Lets a reader skip a Galileo-only file when it wants GPS (instead of refusing it).
+
+    Raises
+    ------
+    CdgpsError
+        An observation, meteorological or clock file (``--nav`` given the wrong file: it was skipped
+        unseen beside a navigation file that holds the systems wanted).
+    """
     p = Path(path)
     lines, compressed = _read_lines(p)
     version, ftype, system = _parse_version_line(lines[:1], p, compressed, "navigation")
+    if ftype in _NOT_NAVIGATION:
+        raise CdgpsError(f"{p}: this is a RINEX {_NOT_NAVIGATION[ftype]} file, not a navigation file (RINEX VERSION / "
+                         f"TYPE says {ftype!r})")
     if version >= 3:
         return NAV_SYSTEMS if system in ("M", " ", "") else (system,)
     return {"N": ("G",), "G": ("R",)}.get(ftype, ())
@@ -1369,11 +1391,11 @@ def read_rinex_nav(path: str | Path, systems=("G",)) -> pd.DataFrame:
         # RINEX 3.05 adds a fourth broadcast-orbit line to GLONASS records
         nrec = _NAV_LINES[sysc] + (1 if sysc == "R" and version >= 3.05 else 0)
         counts[sysc] = counts.get(sysc, 0) + 1
+        if i + nrec > n:       # a cut file, whichever system's record it ends in
+            raise CdgpsError(f"{_where(p, lineno, compressed)}: ephemeris record truncated: {nrec} lines expected, the file ends after {n - i}")
         if sysc not in systems:
             i += nrec
             continue
-        if i + nrec > n:
-            raise CdgpsError(f"{_where(p, lineno, compressed)}: ephemeris record truncated: {nrec} lines expected, the file ends after {n - i}")
         if sysc == "R":
             glonass.append(_glonass_record(lines, i, v3, p, compressed))
         else:

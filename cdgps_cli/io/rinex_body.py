@@ -19,6 +19,7 @@ import re
 
 import numpy as np
 
+from cdgps_cli.core.gps_time import SECOND_MAX
 from cdgps_cli.io._fixed_width import Unsupported, decimal_fields
 
 __all__ = ["BodyLines", "epochs_v3", "epochs_v2", "record_sats", "distinct", "gps_fields_of", "strict_float"]
@@ -145,8 +146,8 @@ def _gps_seconds(y, mo, d, h, mi, sec) -> np.ndarray:
                         dtype=np.int64) - _GPS_EPOCH_ORDINAL
     except ValueError:
         raise Unsupported("date") from None
-    if np.any(h > 23) or np.any(mi > 59):
-        raise Unsupported("time of day")                   # datetime would take it; keep the reference's path
+    if np.any((h < 0) | (h > 23)) or np.any((mi < 0) | (mi > 59)) or np.any((sec < 0) | (sec >= SECOND_MAX)):
+        raise Unsupported("time of day")                   # the reference path names the line and field
     if inv is None:
         where = {u: i for i, u in enumerate(uniq)}
         inv = np.array([where[u] for u in ymd.tolist()], dtype=np.int64)
@@ -165,7 +166,7 @@ def _few_gps_seconds(y, mo, d, h, mi, sec) -> np.ndarray:
                 days[yy, mm, dd] = _dt.date(yy, mm, dd).toordinal() - _GPS_EPOCH_ORDINAL
             except ValueError:
                 raise Unsupported("date") from None
-        if hh > 23 or mn > 59:
+        if not (0 <= hh <= 23 and 0 <= mn <= 59 and 0 <= ss < SECOND_MAX):
             raise Unsupported("time of day")
         out.append(float(days[yy, mm, dd] * 86400 + hh * 3600 + mn * 60) + ss)
     return np.array(out, dtype=np.float64)

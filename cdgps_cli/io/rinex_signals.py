@@ -19,10 +19,10 @@ import numpy as np
 import pandas as pd
 
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.core.gps_time import gps_seconds
+from cdgps_cli.core.gps_time import check_time_of_day, gps_seconds
 from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, glonass_frequency_hz, signal
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
-from cdgps_cli.io.rinex import _ObsHeader, _parse_version_line, _read_text
+from cdgps_cli.io.rinex import _ObsHeader, _parse_version_line, _range_note, _read_text, _sat_id
 from cdgps_cli.io._fixed_width import LineBuffer, Unsupported, decimal_fields, flag_digits
 from cdgps_cli.io.rinex import _frame, _read_bytes, _split_header, _split_lines
 from cdgps_cli.io.rinex_body import BodyLines, distinct, epochs_v3, strict_float
@@ -236,7 +236,20 @@ def _observations(lines, start, hdr, cols, path, data: bytes | None = None, slot
     rows = _parse_v3(lines, start, cols, path) if hdr.version >= 3 else _parse_v2(lines, start, hdr, cols, path)
     df = pd.DataFrame(rows, columns=list(SIGNAL_COLUMNS[:-1]))
     df["wavelength_m"] = _wavelengths(df, slots or {}, path)
-    return df.sort_values(["time_gps_s", "signal", "sat"], kind="stable").reset_index(drop=True)
+    times = df["time_gps_s"].to_numpy()
+    df = df.sort_values(["time_gps_s", "signal", "sat"], kind="stable").reset_index(drop=True)
+    return _noting_time_order(df, times)
+
+
+def _noting_time_order(df: pd.DataFrame, times) -> pd.DataFrame:
+    """``df`` (sorted by time) with ``attrs["epochs_out_of_order"]`` = (count, GPS s of the first) of the
+    epochs whose time, in file order ``times``, is earlier than the one before (a file's epochs swapped:
+    read in time order, the caller warns), when there are any."""
+    t = np.asarray(times, dtype=np.float64)
+    back = np.flatnonzero(np.diff(t) < 0) + 1 if t.size > 1 else np.empty(0, dtype=np.int64)
+    if back.size:
+        df.attrs["epochs_out_of_order"] = (int(back.size), float(t[back[0]]))
+    return df
 
 
 def _wavelengths(df: pd.DataFrame, slots: dict, path) -> np.ndarray:
@@ -263,11 +276,14 @@ def _epoch_time(line: str, a: int, path, lineno) -> float:
     try:
         if a == 2:   # RINEX 3
             day = _day_seconds(2, line[2:12])
-            return float(day + int(line[13:15]) * 3600 + int(line[16:18]) * 60) + float(line[18:29])
-        day = _day_seconds(1, line[1:9])
-        return float(day + int(line[10:12]) * 3600 + int(line[13:15]) * 60) + float(line[15:26])
-    except ValueError:
-        raise CdgpsError(f"{path}:{lineno}: malformed epoch line {line[:60]!r}") from None
+            h, mi, sec = int(line[13:15]), int(line[16:18]), float(line[18:29])
+        else:
+            day = _day_seconds(1, line[1:9])
+            h, mi, sec = int(line[10:12]), int(line[13:15]), float(line[15:26])
+        check_time_of_day(h, mi, sec)
+        return float(day + h * 3600 + mi * 60) + sec
+    except ValueError as exc:
+        raise CdgpsError(f"{path}:{lineno}: malformed epoch line {line[:60]!r}{_range_note(exc)}") from None
 
 
 @lru_cache(maxsize=4096)
@@ -318,6 +334,7 @@ def _parse_v3(lines, i, cols, path) -> list:
             if not sat:
                 raise CdgpsError(f"{path}:{i + 2 + r_off}: blank line where the epoch's satellite record "
                                  f"{r_off + 1} of {nsat} was expected")
+            _check_satellite(rec[0:3], 3, path, i + 2 + r_off, "at the start of an observation record")
             for name, (key, ip, ic, _) in cols.items():
                 if sat[0] != key:
                     continue
@@ -346,12 +363,15 @@ def _parse_v2(lines, i, hdr, cols, path) -> list:
         if i + math.ceil(nsat / 12) + n_rec > len(lines):
             raise _truncated(path, i + 1, nsat, len(lines) - i - 1)
         sats = "".join(lines[i + k][32:68] for k in range(math.ceil(nsat / 12)))
+        epoch_line = i + 1
         i += math.ceil(nsat / 12)
         if flag > 1:
             i += nsat
             continue
-        t = _epoch_time(ln, 1, path, i)
+        t = _epoch_time(ln, 1, path, epoch_line)
         for j in range(nsat):
+            _check_satellite(sats[3 * j:3 * j + 3], 2, path, epoch_line + j // 12,
+                             f"(satellite {j + 1} of the {nsat} the epoch line announces)")
             sat = sats[3 * j:3 * j + 3].replace(" ", "0")
             sat = "G" + sat[1:] if sat[0] in "0G" else sat
             rec = "".join(lines[i + k].rstrip("\n").ljust(80) for k in range(per))
@@ -369,6 +389,24 @@ def _parse_v2(lines, i, hdr, cols, path) -> list:
                 if not math.isnan(ph):
                     rows.append((t, sat, name, ph, pr, lli))
     return rows
+
+
+def _is_satellite(raw: str, version: int) -> bool:
+    try:
+        _sat_id(raw, version)
+    except ValueError:
+        return False
+    return True
+
+
+def _check_satellite(raw: str, version: int, path, lineno: int, where: str) -> None:
+    """Refuse a satellite field that is no system letter and number (garbage, a short satellite list):
+    its records would be skipped as another system's, unseen."""
+    try:
+        _sat_id(raw, version)
+    except ValueError:
+        raise CdgpsError(f"{path}:{lineno}: malformed satellite identifier {raw!r} {where} (a system letter "
+                         f"G, R, E, S, J, C or I and a two-digit number expected)") from None
 
 
 def _bad_field(rec: str, fields) -> int:
@@ -443,7 +481,7 @@ def _v2_satellites(sats: str, nsat: int) -> list:
     names = []
     for j in range(nsat):
         sat = sats[3 * j:3 * j + 3].replace(" ", "0")
-        if not sat:
+        if not sat or not _is_satellite(sats[3 * j:3 * j + 3], 2):
             raise Unsupported("satellite list")
         names.append("G" + sat[1:] if sat[0] in "0G" else sat)
     return names
@@ -483,6 +521,8 @@ def _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2) -> pd
         code = (sat_bytes[:, 0].astype(np.int32) << 16) | (sat_bytes[:, 1].astype(np.int32) << 8) | sat_bytes[:, 2]
         uniq, sat_code = distinct(code)                                 # ASCII, 3 bytes: the str order
         sat_names = [bytes([u >> 16, (u >> 8) & 255, u & 255]).decode("ascii") for u in uniq]
+        if not all(_is_satellite(x, 3) for x in sat_names):
+            raise Unsupported("satellite")                              # the line-by-line reader names it
     else:
         rec_lines = rec_line[:, None] + np.arange(per)
         if np.any(buf.length[rec_lines] > 80):
@@ -537,7 +577,7 @@ def _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2) -> pd
         "phase_cycles": np.concatenate([p[2] for p in parts])[take],
         "pseudorange_m": np.concatenate([p[3] for p in parts])[take],
         "lli": np.concatenate([p[4] for p in parts])[take], "wavelength_m": lam})
-    return df
+    return _noting_time_order(df, times)
 
 
 def _wavelength_array(sat_code: np.ndarray, sat_names: list, sig: np.ndarray, names: list, slots: dict, path) -> np.ndarray:

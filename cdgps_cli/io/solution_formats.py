@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.core.gps_time import GPS_EPOCH
+from cdgps_cli.core.gps_time import GPS_EPOCH, check_time_of_day
 from cdgps_cli.core.timescales import gps_minus_utc_s
 
 __all__ = ["POS_FRAMES", "pos_text", "nmea_gga_text", "geojson_text", "csv_text", "read_pos", "finite_or", "Q_FIX",
@@ -210,12 +210,14 @@ def _pos_time(fields: list[str], path, lineno) -> tuple[float, int]:
         if "/" in fields[0]:
             y, mo, d = (int(x) for x in fields[0].split("/"))
             hh, mm, ss = fields[1].split(":")
+            check_time_of_day(int(hh), int(mm), float(ss))      # 00:59:61 is damage, not 01:00:01
             base = (_dt.datetime(y, mo, d, int(hh), int(mm)) - GPS_EPOCH).total_seconds()
             return base + float(ss), 2
         return int(fields[0]) * 604800.0 + float(fields[1]), 2
-    except (ValueError, IndexError):
+    except (ValueError, IndexError) as exc:
+        note = f" ({exc})" if "must be in" in str(exc) else ""
         raise CdgpsError(f"{path}, line {lineno}: expected a time 'YYYY/MM/DD hh:mm:ss.sss' or 'week seconds', "
-                         f"got {' '.join(fields[:2])!r}") from None
+                         f"got {' '.join(fields[:2])!r}{note}") from None
 
 
 def read_pos(path) -> dict:

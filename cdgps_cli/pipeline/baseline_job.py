@@ -53,6 +53,8 @@ def baseline_from_files(rinex: dict, nav_paths, master: str, options: BaselineOp
     except CdgpsError as exc:
         if str(exc).startswith("the navigation data does not cover"):     # name the files that fell short
             raise CdgpsError(f"{exc} (navigation file(s) given: {', '.join(map(str, nav_paths))})") from None
+        if not any(str(p) in str(exc) for p in rinex.values()):   # the solver's words name no file
+            raise CdgpsError(f"baseline {master} ({rinex[master]}) → {rover} ({rinex[rover]}): {exc}") from None
         raise
     res["inputs"] = {"rinex": {k: str(v) for k, v in rinex.items()}, "nav": [str(p) for p in nav_paths]}
     return res

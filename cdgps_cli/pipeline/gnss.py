@@ -107,6 +107,13 @@ def _check_master_position(run: GnssRun):
 # init
 
 
+def _naming_run(exc: CdgpsError, run: GnssRun, what: str) -> CdgpsError:
+    """``exc`` with the RUN file and ``what`` in front, unless its message already names the file
+    (a solver's 'float solution: the normal equations are singular' named neither)."""
+    text = str(exc)
+    return exc if str(run.path) in text else CdgpsError(f"{run.path}: {what}: {text}")
+
+
 def gnss_init(run: GnssRun, *, options: dict | None = None, progress=None) -> dict:
     """Float solution, LAMBDA integers and fixed static solution of every rover → INIT dict.
 
@@ -121,10 +128,13 @@ def gnss_init(run: GnssRun, *, options: dict | None = None, progress=None) -> di
     rovers, segments = {}, {}
     for r in run.rovers:
         say(f"baseline {run.master} → {r}: float, LAMBDA, fixed …")
-        res = solve_static_baseline(stations[run.master], stations[r], run.nav, opt,
-                                    master_xyz=_position_args(run, run.master), rover_xyz=_position_args(run, r),
-                                    iono_threshold_km=run.cfg.iono_threshold_km,
-                                    engine=True)
+        try:
+            res = solve_static_baseline(stations[run.master], stations[r], run.nav, opt,
+                                        master_xyz=_position_args(run, run.master), rover_xyz=_position_args(run, r),
+                                        iono_threshold_km=run.cfg.iono_threshold_km,
+                                        engine=True)
+        except CdgpsError as exc:
+            raise _naming_run(exc, run, f"baseline {run.master} → {r}") from None
         res = json_safe(res)
         sol = res["fixed"] or res["float"]
         amb = res["ambiguities"]

@@ -73,6 +73,15 @@ def validate_options(options: dict) -> dict:
     return opt
 
 
+def _holds_none_of(exc: CdgpsError) -> bool:
+    """Whether a navigation reader's error only says the file holds no ephemerides of the systems asked
+    for (a Galileo file when GPS is wanted): the file is passed over; any other error (a truncated,
+    malformed or missing file) is the user's to see."""
+    text = str(exc)
+    return any(m in text for m in ("ephemeris records (records found by system", "navigation file for system",
+                                   "GLONASS navigation file"))
+
+
 def _nav(paths, systems) -> pd.DataFrame:
     tabs = []
     for p in paths:
@@ -80,8 +89,7 @@ def _nav(paths, systems) -> pd.DataFrame:
         try:
             tabs.append(read_rinex_nav(p, systems=sysc))
         except CdgpsError as exc:
-            if ("ephemeris records" not in str(exc) and "navigation file for system" not in str(exc)
-                    and "GLONASS navigation file" not in str(exc)):
+            if not _holds_none_of(exc):
                 raise
     if not tabs:
         raise CdgpsError(f"no usable ephemerides in {', '.join(map(str, paths))} for systems {', '.join(systems)}")
@@ -314,7 +322,12 @@ def _read_observations(path, sigs, glo_k, who: str, warnings: list) -> tuple[dic
     RTCM 1005/1006 when it has one; what the log lost — bad checksums, skipped bytes, a frame cut by
     the end of the file — named in ``warnings``, as ``ingest`` does)."""
     if not is_ubx_log(path):
-        return read_rinex_signals(path, sigs, glo_k)
+        header, obs = read_rinex_signals(path, sigs, glo_k)
+        back = obs.attrs.pop("epochs_out_of_order", None)
+        if back:
+            warnings.append(f"{path} ({who}): {back[0]} epoch(s) written out of time order (first: "
+                            f"{gps_time_str(back[1])}, after a later one), read in time order")
+        return header, obs
     from cdgps_cli.io.ubx import integrity_problems  # noqa: PLC0415
 
     info, tab, _ = _ubx(path)
@@ -383,19 +396,23 @@ def _auto_signals(base_path, rover_path, nav_paths, warnings: list) -> list[str]
     for p in nav_paths:
         try:
             have |= set(read_rinex_nav(p, systems=tuple(systems))["sat"].str[0])
-        except CdgpsError:
-            continue
+        except CdgpsError as exc:
+            if not _holds_none_of(exc):
+                raise
     if not nav_paths:
         ubx_nav = _ubx_nav((base_path, rover_path))
         have = set(ubx_nav["sat"].str[0]) if ubx_nav is not None else set()
     use = [s for s in both if signal(s).system in have]
     lost = sorted({signal(s).system for s in both} - have)
+    source = (', '.join(map(str, nav_paths)) if nav_paths else
+              "the RXM-SFRBX frames of the u-blox logs (no --nav given)"
+              if any(is_ubx_log(p) for p in (base_path, rover_path)) else "any file (no --nav given)")
     if lost:
         warnings.append(f"signals of {', '.join(SYSTEM_NAMES.get(c, c) for c in lost)} held by both files are not used: "
-                        f"no ephemerides for them in {', '.join(map(str, nav_paths))}")
+                        f"no ephemerides for them in {source}")
     if not use:
         raise CdgpsError(f"{base_path} (base) and {rover_path} (rover) share no signal with ephemerides in "
-                         f"{', '.join(map(str, nav_paths))}: base holds {' '.join(sorted(held[0])) or 'none'}, rover "
+                         f"{source}: base holds {' '.join(sorted(held[0])) or 'none'}, rover "
                          f"{' '.join(sorted(held[1])) or 'none'}")
     return use
 

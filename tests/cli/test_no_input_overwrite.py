@@ -123,3 +123,34 @@ def test_two_outputs_on_one_path_are_refused(tmp_path):
     (tmp_path / "d").mkdir()
     with pytest.raises(Exception, match="--figure .* is the same path as -o"):
         refuse_output_collisions([("-o", str(tmp_path / "a"), False), ("--figure", f"{tmp_path}/d/../a", False)])
+
+
+@pytest.mark.parametrize("path,cmd", [c for c in COMMANDS if c[0][-1] not in NO_OUTPUT], ids=lambda c: " ".join(c) if isinstance(c, tuple) else "")
+def test_command_refuses_an_output_where_a_pipe_is(tmp_path, path, cmd):
+    """The atomic rename replaced a device or FIFO at the output path by a regular file (run as root,
+    `rtk -o /dev/full` replaced /dev/full); every command now refuses it before any work."""
+    import stat
+
+    args, _ = _invocation(cmd, tmp_path, "same")
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    args[-1] = str(fifo)
+    r = CliRunner().invoke(main, ["-q", *path, *args])
+    assert r.exit_code == 2 and f"{fifo} is a pipe (FIFO)" in r.stderr and "refused, nothing written" in r.stderr, (args, r.output)
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode)
+
+
+def test_atomic_writers_refuse_a_device_or_pipe(tmp_path):
+    import stat
+
+    from cdgps_cli.core.errors import CdgpsError
+    from cdgps_cli.io.atomic import write_bytes_atomic
+
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    with pytest.raises(CdgpsError, match=r"fifo is a pipe \(FIFO\): cdgps writes a complete new file"):
+        write_bytes_atomic(fifo, b"x")
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode)
+    write_bytes_atomic(tmp_path / "plain", b"x")
+    write_bytes_atomic(tmp_path / "plain", b"y")
+    assert (tmp_path / "plain").read_bytes() == b"y"

@@ -685,3 +685,44 @@ def test_rinex_305_mixed_navigation_with_five_line_glonass_records():
     assert gps.attrs["n_records_by_system"] == {"C": 28, "G": 15, "R": 20}
     allsys = read_rinex_nav(path, systems=("G", "C", "R"))
     assert len(allsys) == 15 + 28 + 20 and allsys["glonass_k"].notna().sum() == 20
+
+
+def test_nav_file_cut_in_a_record_of_a_system_not_read_is_refused(tmp_path):
+    # a mixed navigation file cut inside its last (GLONASS, 5 lines in RINEX 3.05) record was read for GPS as if whole (ingest: exit 0)
+    lines = (DATA / "MOJN00DNK_R_20201770000_subset.rnx").read_text().splitlines()
+    last = max(i for i, ln in enumerate(lines) if ln[:1] == "R" and ln[1:3].isdigit())
+    p = tmp_path / "cut.rnx"
+    p.write_text("\n".join(lines[:last + 2]) + "\n")
+    with pytest.raises(CdgpsError, match=rf"cut\.rnx, line {last + 1}: ephemeris record truncated: 5 lines expected, "
+                                         r"the file ends after 2"):
+        read_rinex_nav(p, systems=("G",))
+    assert len(read_rinex_nav(DATA / "MOJN00DNK_R_20201770000_subset.rnx", systems=("G",))) == 15
+
+
+def test_observation_file_given_as_navigation_beside_a_real_one_is_refused():
+    # ingest/baseline --nav brdc.n --nav station.o skipped the observation file unseen (exit 0)
+    from cdgps_cli.io.gnss_run import merge_nav
+    from cdgps_cli.io.rinex import nav_file_systems
+
+    with pytest.raises(CdgpsError, match=r"07590920\.05o: this is a RINEX observation file, not a navigation file"):
+        merge_nav([DATA / "07590920.05n", DATA / "07590920.05o"])
+    assert nav_file_systems(DATA / "07590920.05n") == ("G",) and nav_file_systems(DATA / "brdc3050_subset.12g") == ("R",)
+    assert len(merge_nav([DATA / "07590920.05n", DATA / "brdc3050_subset.12g"])) == len(read_rinex_nav(DATA / "07590920.05n"))
+
+
+@pytest.mark.parametrize("src, first, month, systems, why", [
+    ("brdc3050_subset.12g", lambda ln: ln[:2].strip().isdigit(), slice(6, 8), ("R",), "GLONASS .*: month must be in 1..12"),
+    ("MOJN00DNK_R_20201770000_subset.rnx", lambda ln: ln.startswith("R"), slice(9, 11), ("G", "R"),
+     "GLONASS .*: month must be in 1..12"),
+    ("07590920.05n", lambda ln: ln[:2].strip().isdigit(), slice(6, 8), ("G",), "first line of an ephemeris record"),
+])
+def test_nav_record_with_an_impossible_date_names_the_line(tmp_path, src, first, month, systems, why):
+    # a GLONASS record with month 13 ended in a ValueError traceback (rtk --signals auto on the mosaic base.nav: exit 1)
+    lines = (DATA / src).read_text().splitlines()
+    end = next(i for i, ln in enumerate(lines) if "END OF HEADER" in ln)
+    i = next(k for k in range(end + 1, len(lines)) if first(lines[k]))
+    lines[i] = lines[i][:month.start] + "13" + lines[i][month.stop:]
+    p = tmp_path / "bad.nav"
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(CdgpsError, match=rf"bad\.nav, line {i + 1}: malformed {why}"):
+        read_rinex_nav(p, systems=systems)

@@ -92,3 +92,76 @@ def test_a_truncated_file_names_the_epoch_line(tmp_path: Path):
         read_rinex_signals(p2, ["G:L1", "G:L2"])
     _, whole = read_rinex_signals(REPO_ROOT / "tests" / "data" / "07590920.05o", ["G:L1", "G:L2"])
     assert len(whole) > 0
+
+
+V3_EPOCH = "> 2023 01 08 10 00  0.0000000  0  2"
+
+
+@pytest.mark.parametrize("epoch, why", [
+    ("> 2023 01 08 10 00 61.0000000  0  2", r"second must be in \[0, 61\), got 61.0"),
+    ("> 2023 01 08 25 00  0.0000000  0  2", "hour must be in 0..23, got 25"),
+    ("> 2023 01 08 10 60  0.0000000  0  2", "minute must be in 0..59, got 60"),
+    ("> 2023 13 08 10 00  0.0000000  0  2", "month must be in 1..12"),
+])
+def test_impossible_epoch_time_refused_by_both_readers(tmp_path: Path, epoch, why):
+    # second 61 used to be read as the next minute's second 1 (rtk bridged the wrong base epoch: fixed 99 % -> 0 %)
+    p = tmp_path / "t.obs"
+    p.write_text(HDR.replace(V3_EPOCH, epoch))
+    with pytest.raises(CdgpsError, match=rf"t\.obs:5: malformed epoch line .*: {why}"):
+        read_rinex_signals(p, ["G:L1"])
+    from cdgps_cli.io.rinex import read_rinex_obs
+    with pytest.raises(CdgpsError, match=rf"t\.obs, line 5: malformed epoch date/time .*: {why}"):
+        read_rinex_obs(p)
+
+
+def test_leap_second_60_is_still_read(tmp_path: Path):
+    p = tmp_path / "t.obs"
+    p.write_text(HDR.replace(V3_EPOCH, "> 2023 01 08 10 00 60.5000000  0  2"))
+    _, df = read_rinex_signals(p, ["G:L1"])
+    assert df["time_gps_s"].iloc[0] % 60 == pytest.approx(0.5)
+
+
+@pytest.mark.parametrize("raw", ["@@g", "X05", "G x"])
+def test_garbage_satellite_record_refused_not_skipped(tmp_path: Path, raw):
+    # a record whose first three columns are no satellite was skipped as another system's, unseen
+    p = tmp_path / "s.obs"
+    p.write_text(HDR.replace("G05  20028872", raw + "  20028872"))
+    with pytest.raises(CdgpsError, match=rf"s\.obs:7: malformed satellite identifier '{raw}' at the start of an "
+                                         r"observation record \(a system letter"):
+        read_rinex_signals(p, ["G:L1"])
+
+
+def test_rinex2_short_or_garbage_satellite_list_named(tmp_path: Path):
+    # a RINEX 2 satellite list shorter than the count (an epoch line cut) ended in an IndexError traceback
+    from tests.io._rinex_edit import edited_copy
+    src = REPO_ROOT / "tests" / "data" / "07590920.05o"
+    for name, edit in (("short", lambda ln: ln[:41]), ("letter", lambda ln: ln[:32] + "X03" + ln[35:])):
+        def cut(lines, end):
+            lines[end + 1] = edit(lines[end + 1])
+        (tmp_path / name).mkdir()
+        p = edited_copy(tmp_path / name, src, cut)
+        with pytest.raises(CdgpsError, match=r"07590920\.05o:18: malformed satellite identifier '(|X03)' \(satellite "
+                                             r"[14] of the 8 the epoch line announces\)"):
+            read_rinex_signals(p, ["G:L1"])
+
+
+def test_epochs_out_of_time_order_are_noted_for_the_caller(tmp_path: Path):
+    # rtk read a file with two epochs swapped in time order without a word (ingest and baseline refuse it)
+    from tests.io._rinex_edit import edited_copy
+    from cdgps_cli.io import rinex_signals
+
+    src = REPO_ROOT / "tests" / "data" / "07590920.05o"
+
+    def swap(lines, end):
+        lines[end + 1:end + 19] = lines[end + 10:end + 19] + lines[end + 1:end + 10]
+
+    p = edited_copy(tmp_path, src, swap)
+    for fast in (True, False):
+        rinex_signals.FAST_PARSE = fast
+        try:
+            _, df = read_rinex_signals(p, ["G:L1"])
+            _, ok = read_rinex_signals(src, ["G:L1"])
+        finally:
+            rinex_signals.FAST_PARSE = True
+        assert df.attrs["epochs_out_of_order"] == (1, ok["time_gps_s"].iloc[0]) and "epochs_out_of_order" not in ok.attrs
+        assert df.equals(ok)

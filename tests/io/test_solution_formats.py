@@ -80,3 +80,21 @@ def test_csv_text_is_pandas_to_csv_byte_for_byte():
         pd.DataFrame(cols).to_csv(buf, index=False, float_format="%.4f")
         assert csv_text(cols, "%.4f") == buf.getvalue()
     assert csv_text({"a": np.array([np.nan, 1.0]), "b": np.array([1, 2])}) == "a,b\n,1\n1.0000,2\n"
+
+
+def test_pos_time_of_day_out_of_range_names_the_line(tmp_path):
+    # a last line at 00:59:61 was read as 01:00:01 (report rtk: exit 0)
+    import pytest
+
+    from cdgps_cli.core.errors import CdgpsError
+
+    n = 3
+    text = pos_text(T0 + np.arange(n), np.tile([35.1, 136.9, 104.8], (n, 1)), np.full(n, Q_FIX), np.full(n, 9),
+                    np.tile(np.eye(3) * 1e-4, (n, 1, 1)), np.zeros(n), np.full(n, 5.0), frame="llh", header=["program : test"])
+    lines = text.splitlines()
+    last = len(lines) - 1
+    lines[last] = lines[last][:17] + "61" + lines[last][19:]
+    p = tmp_path / "s.pos"
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(CdgpsError, match=rf"s\.pos, line {last + 1}: expected a time .* \(second must be in \[0, 61\), got 61"):
+        read_pos(p)

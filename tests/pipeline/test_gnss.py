@@ -421,3 +421,28 @@ def test_single_receiver_run_is_refused_by_init(tmp_path):
     assert r.exit_code == 0, r.output
     r = run_cli("init", tmp_path / "one.mcap", "-o", tmp_path / "i.json")
     assert r.exit_code == 2 and "only the master receiver 'b'" in r.stderr and not (tmp_path / "i.json").exists()
+
+
+def test_a_solver_error_names_the_run_and_the_files(tmp_path, monkeypatch):
+    # 'cdgps init' of a RUN from a badly damaged u-blox log said only 'float solution: the normal equations are
+    # singular (...)', naming no file; 'cdgps baseline' the same
+    import cdgps_cli.pipeline.baseline_job as baseline_job
+    import cdgps_cli.pipeline.gnss as gnss
+
+    def singular(*args, **kwargs):
+        raise CdgpsError("float solution: the normal equations are singular (too few satellites or epochs for the unknowns)")
+
+    d = tmp_path / "s"
+    assert run_cli("-q", "simulate-gnss", "--duration", "60", "--out", d).exit_code == 0
+    rinex = sorted(d.glob("*.rnx"))
+    obs = [p for p in rinex if p.name != "nav.rnx"]
+    args = [x for k, p in zip("ab", obs) for x in ("--rinex", f"{k}={p}")] + ["--nav", d / "nav.rnx", "--master", "a"]
+    r = run_cli("-q", "ingest", *args, "-o", tmp_path / "run.mcap")
+    assert r.exit_code == 0, r.output
+    monkeypatch.setattr(gnss, "solve_static_baseline", singular)
+    monkeypatch.setattr(baseline_job, "solve_static_baseline", singular)
+    r = run_cli("init", tmp_path / "run.mcap", "-o", tmp_path / "i.json")
+    assert r.exit_code == 2 and f"{tmp_path / 'run.mcap'}: baseline a → b: float solution: the normal equations" in r.stderr, r.output
+    r = run_cli("baseline", *args, "-o", tmp_path / "b.json")
+    assert r.exit_code == 2 and f"baseline a ({obs[0]}) → b ({obs[1]}): float solution" in r.stderr, r.output
+    assert not (tmp_path / "i.json").exists() and not (tmp_path / "b.json").exists()

@@ -16,6 +16,7 @@ import pandas as pd
 import pytest
 
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
+from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import gps_seconds
 from cdgps_cli.core.signals import glonass_frequency_hz, signal
 from cdgps_cli.io.rinex import read_rinex_nav
@@ -217,3 +218,38 @@ def test_rtk_names_what_a_cut_ublox_log_lost(tmp_path):
     whole = rtk_from_files(walk / "gnss_1730.ubx", rover, [], tmp_path / "whole.csv", base_xyz_m=xyz,
                            options={"signals": ("G:L1",)})
     assert not [w for w in whole["warnings"] if "skipped:" in w]
+
+
+def test_auto_signals_name_a_damaged_navigation_file(tmp_path):
+    # --signals auto used to swallow every navigation-file error: a cut or garbled nav file was reported as
+    # 'share no signal with ephemerides in NAV' (no line, no reason); only 'no records of these systems' is passed over
+    obs = REPO_ROOT / "tests" / "data" / "07590920.05o"
+    lines = (REPO_ROOT / "tests" / "data" / "07590920.05n").read_text().splitlines()
+    end = next(i for i, ln in enumerate(lines) if "END OF HEADER" in ln)
+    cut = tmp_path / "cut.05n"
+    cut.write_text("\n".join(lines[:end + 5]) + "\n")
+    out = tmp_path / "x.csv"
+    with pytest.raises(CdgpsError, match=rf"cut\.05n, line {end + 2}: ephemeris record truncated: 8 lines expected"):
+        rtk_from_files(obs, obs, [cut], out)
+    garbled = tmp_path / "garbled.05n"
+    garbled.write_text("\n".join(lines[:end + 3] + ["garbage garbage"] + lines[end + 4:]) + "\n")
+    with pytest.raises(CdgpsError, match=rf"garbled\.05n, line {end + 4}: malformed broadcast-orbit line 2"):
+        rtk_from_files(obs, obs, [garbled], out)
+    with pytest.raises(CdgpsError, match=r"share no signal with ephemerides in any file \(no --nav given\)"):
+        rtk_from_files(obs, obs, [], out)
+    assert not out.exists()
+
+
+def test_rtk_warns_of_epochs_out_of_time_order(tmp_path):
+    from tests.io._rinex_edit import edited_copy
+
+    obs = REPO_ROOT / "tests" / "data" / "07590920.05o"
+
+    def swap(lines, end):
+        lines[end + 1:end + 19] = lines[end + 10:end + 19] + lines[end + 1:end + 10]
+
+    rover = edited_copy(tmp_path, obs, swap)
+    s = rtk_from_files(obs, rover, [REPO_ROOT / "tests" / "data" / "07590920.05n"], tmp_path / "x.csv",
+                       options={"signals": ("G:L1",)})
+    assert any(f"{rover} (rover): 1 epoch(s) written out of time order (first: 2005-04-02 00:00:00 GPST" in w
+               for w in s["warnings"]), s["warnings"]
