@@ -492,14 +492,18 @@ def read_rinex_obs(path: str | Path, *, gps_l1_optional: bool = False,
 
 
 _COLUMN_INDEXES: dict = {}
+_STR_ARRAY_TYPES: dict = {}
 
 
 def _frame(columns: dict, copy: bool = False) -> pd.DataFrame:
     """``pd.DataFrame(columns, copy=copy)`` of 1-D arrays of one length (object arrays of str become
     pandas' str columns, as there), for a reader's table: built by ``DataFrame._from_arrays`` with a
     column index made once per column set, which skips the dict constructor's per-call set-up (≈ 30 %
-    of building a table of a few rows; a 7 kB file's table).  Falls back to the constructor if the
-    pandas at hand lacks that method or refuses the arrays."""
+    of building a table of a few rows; a 7 kB file's table).  Columns that are all numpy numbers,
+    booleans or str objects are handed over as pandas stores them (:func:`_stored_arrays`), without
+    its per-column checks (``verify_integrity=False``: ≈ 100 µs instead of ≈ 250 µs for a 9-column
+    table); anything else goes through those checks.  Falls back to the constructor if the pandas at
+    hand lacks that method or refuses the arrays."""
     names = tuple(columns)
     if len(names) == 0:
         return pd.DataFrame(columns, copy=copy)
@@ -508,10 +512,61 @@ def _frame(columns: dict, copy: bool = False) -> pd.DataFrame:
     if idx is None:
         idx = _COLUMN_INDEXES[names] = pd.DataFrame(columns=list(names)).columns   # the dtype the constructor gives
     try:
-        return pd.DataFrame._from_arrays(arrays, columns=idx, index=pd.RangeIndex(len(arrays[0])),
-                                         verify_integrity=True)
+        stored = _stored_arrays(arrays)
+        return pd.DataFrame._from_arrays(stored or arrays, columns=idx, index=pd.RangeIndex(len(arrays[0])),
+                                         verify_integrity=stored is None)
     except (AttributeError, TypeError, ValueError):
         return pd.DataFrame(columns, copy=copy)
+
+
+def _stored_arrays(arrays: list) -> list | None:
+    """The column arrays as the DataFrame constructor stores them (its ``sanitize_array``), or None
+    when one is not a 1-D numpy array of numbers, booleans (kept as they are) or of ``str`` objects
+    only (the constructor's str extension array, made as it makes it; a column holding anything else,
+    or no rows, is left to the constructor's checks)."""
+    out = []
+    for a in arrays:
+        if type(a) is not np.ndarray or a.ndim != 1:
+            return None
+        kind = a.dtype.kind
+        if kind in "fiub" and a.dtype.isnative:
+            out.append(a)
+        elif kind == "O" and len(a) and _is_str_array(a):
+            made = _str_array(a)
+            if made is None:
+                return None
+            out.append(made)
+        else:
+            return None
+    return out
+
+
+def _str_array(a: np.ndarray):
+    """The str extension array the DataFrame constructor makes of an object array holding only ``str``
+    (``StringDtype(na_value=nan)``'s array from the sequence, as pandas' object inference does); None
+    when pandas does not infer a str dtype (``future.infer_string`` off, pandas < 3: object column)."""
+    if not _using_string_dtype():
+        return None
+    dtype = pd.StringDtype(na_value=np.nan)
+    cls = _STR_ARRAY_TYPES.get(dtype.storage)
+    if cls is None:
+        cls = _STR_ARRAY_TYPES[dtype.storage] = dtype.construct_array_type()
+    return cls._from_sequence(a, dtype=dtype)
+
+
+try:                                            # pandas' own tests of what its constructor infers
+    from pandas._config import using_string_dtype as _using_string_dtype
+    from pandas._libs.lib import is_string_array as _is_string_array
+
+    def _is_str_array(a: np.ndarray) -> bool:
+        """Every element of the object array is a ``str`` (C loop)."""
+        return bool(_is_string_array(a, skipna=False))
+except ImportError:                             # pragma: no cover - another pandas: the constructor's checks
+    def _using_string_dtype() -> bool:
+        return False
+
+    def _is_str_array(a: np.ndarray) -> bool:
+        return False
 
 
 def _obs_header(p: Path, lines: list[str], compressed: bool, gps_l1_optional: bool):
