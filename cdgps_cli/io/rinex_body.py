@@ -19,7 +19,7 @@ import re
 
 import numpy as np
 
-from cdgps_cli.io._fixed_width import Unsupported, decimal_fields
+from cdgps_cli.io._fixed_width import Unsupported, decimal_fields, windows
 
 __all__ = ["BodyLines", "epochs_v3", "epochs_v2", "record_sats", "distinct", "gps_fields_of", "strict_float"]
 
@@ -69,15 +69,15 @@ class BodyLines:
         self.n = n
 
     def gather(self, line: np.ndarray, col: int, width: int) -> np.ndarray:
-        """Bytes ``[col, col + width)`` of lines ``line`` as (n, width) uint8, blanks past a line's end."""
+        """Bytes ``[col, col + width)`` of lines ``line`` as (n, width) uint8, blanks past a line's end;
+        ``col``: one column, or one per line (n,)."""
         size = self.buf.size
         if size < width:
             raise Unsupported("short file")
+        if line.size <= FEW_FIELDS:
+            return self._gather_few(line, col, width)
         first = self.start[line] + col
-        if first.size <= 64:                              # a few: direct indices (the view's set-up costs more)
-            out = self.buf[np.minimum(first[:, None] + np.arange(width), size - 1)]
-        else:
-            out = np.lib.stride_tricks.sliding_window_view(self.buf, width)[np.minimum(first, size - width)]
+        out = windows(self.buf, width)[np.minimum(first, size - width)]
         room = self.length[line] - col                    # characters of the field on its line
         short = np.flatnonzero(room < width)
         if short.size:
@@ -86,10 +86,25 @@ class BodyLines:
             out[short] = np.where(keep, self.buf[at], np.uint8(32))
         return out
 
+    def _gather_few(self, line: np.ndarray, col, width: int) -> np.ndarray:
+        """:meth:`gather` of a few fields, sliced from the bytes one by one (numpy's per-call set-up
+        costs more): each field is the line's bytes from ``col`` up to its end, at most ``width``
+        (none when the line ends before ``col``), padded with blanks."""
+        start = self.start[line]
+        first = start + col
+        stop = np.minimum(start + self.length[line], first + width)
+        data = self.data
+        fields = [data[a:b].ljust(width) for a, b in zip(first.tolist(), stop.tolist())]
+        return np.frombuffer(bytearray(b"".join(fields)), dtype=np.uint8).reshape(line.size, width)
+
     def text(self, i: int) -> str:
         """Line ``i`` as str (latin-1)."""
         s = int(self.start[i])
         return self.data[s:s + int(self.length[i])].decode("latin-1")
+
+
+FEW_FIELDS = 64
+"""At most this many fields: :meth:`BodyLines.gather` slices them from the bytes in Python."""
 
 
 def _ints(f: np.ndarray) -> np.ndarray:
@@ -413,10 +428,16 @@ def gps_fields_of(lines: BodyLines, rec_line: np.ndarray, ks: list, v3: bool) ->
     return [(values[j * n:(j + 1) * n], f[j * n:(j + 1) * n, 14:16]) for j in range(len(ks))]
 
 
+#: a flag byte's value (a digit's, 0 for a blank) and whether it is one (blank or digit): look-up tables
+_FLAG_VALUE = np.zeros(256, dtype=np.int64)
+_FLAG_VALUE[48:58] = np.arange(10)
+_FLAG_OK = np.zeros(256, dtype=bool)
+_FLAG_OK[[32, *range(48, 58)]] = True
+
+
 def flag_values(ch: np.ndarray, use: np.ndarray) -> np.ndarray:
     """LLI / SSI bytes (n,) as ints where ``use``, 0 elsewhere; Unsupported for a used byte that is
-    neither a blank nor a digit."""
-    ok = (ch == 32) | ((ch >= 48) & (ch <= 57))
-    if not np.all(ok | ~use):
+    neither a blank nor a digit.  By two 256-entry tables (a few numpy calls: a small file's cost)."""
+    if not _FLAG_OK[ch][use].all():
         raise Unsupported("flag")
-    return np.where(use & (ch != 32), ch.astype(np.int64) - 48, 0)
+    return _FLAG_VALUE[ch] * use

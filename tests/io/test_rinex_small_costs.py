@@ -242,3 +242,67 @@ def test_reader_tables_are_the_dict_constructors_tables():
     pd.testing.assert_frame_equal(_frame({}), pd.DataFrame({}))
     with pytest.raises(ValueError):
         _frame({"a": np.arange(3.0), "b": np.arange(2.0)})
+
+
+def _random_body(rng) -> tuple[bytes, int]:
+    """A header-like prefix and a body of random lines (lengths 0-90, some CRLF, some Latin-1 bytes, with
+    or without a final LF): bytes and the body's offset."""
+    head = b"x" * int(rng.integers(0, 5)) + b"\n"
+    lines = []
+    for _ in range(int(rng.integers(1, 90))):
+        n = int(rng.integers(0, 91))
+        text = bytes(rng.choice(np.frombuffer(b" 0123456789.-G>\xe9", np.uint8), n).tolist())
+        lines.append(text + (b"\r" if rng.random() < 0.2 else b""))
+    body = b"\n".join(lines) + (b"\n" if rng.random() < 0.7 else b"")
+    return head + body, len(head)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_few_fields_gathered_in_python_as_by_numpy(seed, monkeypatch):
+    """BodyLines.gather of up to FEW_FIELDS fields (sliced in Python) gives the numpy path's bytes, dtype,
+    shape and writability: one column or one per line, fields past a line's end, CR endings, width 1-16."""
+    rng = np.random.default_rng(seed)
+    for _ in range(60):
+        data, at = _random_body(rng)
+        lines = rinex_body.BodyLines(data, at)
+        n = int(rng.integers(0, 65))
+        line = rng.integers(0, lines.n, n).astype(np.int64)
+        width = int(rng.integers(1, 17))
+        col = int(rng.integers(0, 90)) if rng.random() < 0.5 else rng.integers(0, 90, n).astype(np.int64)
+        out = []
+        for few in (0, 64):
+            monkeypatch.setattr(rinex_body, "FEW_FIELDS", few)
+            try:
+                out.append(lines.gather(line, col, width))
+            except Unsupported:
+                out.append(None)
+        ref, got = out
+        assert (ref is None) == (got is None)
+        if ref is not None:
+            assert got.dtype == ref.dtype and got.shape == ref.shape and got.flags.writeable
+            assert got.tobytes() == ref.tobytes()
+
+
+def test_flag_values_by_tables_as_by_comparisons():
+    """flag_values' look-up tables: the values (int64) and refusals of the byte comparisons they replaced."""
+    def by_comparisons(ch, use):
+        ok = (ch == 32) | ((ch >= 48) & (ch <= 57))
+        if not np.all(ok | ~use):
+            raise Unsupported("flag")
+        return np.where(use & (ch != 32), ch.astype(np.int64) - 48, 0)
+
+    rng = np.random.default_rng(11)
+    odd = np.array([32, 48, 49, 57, 58, 47, 0, 255, 65, 13], np.uint8)
+    for n in (0, 1, 15, 300):
+        for _ in range(300):
+            ch = rng.choice(odd if rng.random() < 0.3 else odd[:4], n)
+            use = rng.random(n) < 0.7
+            out = []
+            for f in (by_comparisons, rinex_body.flag_values):
+                try:
+                    out.append(f(ch, use))
+                except Unsupported:
+                    out.append(None)
+            assert (out[0] is None) == (out[1] is None)
+            if out[0] is not None:
+                assert out[0].dtype == out[1].dtype and np.array_equal(out[0], out[1])
