@@ -704,8 +704,8 @@ def _obs_blocks(lines, hdr, layouts, ep, rec0, obs_ep, sats_raw, block_epochs):
     by_sys: dict[str, set] = {}
     counts: dict[str, int] = {}
     chunks = []
-    nsat = ep["nsat"][obs_ep]
-    sat_at = np.concatenate([[0], np.cumsum(nsat)])       # v2: offset of each epoch's satellites in sats_raw
+    if not v3:                                             # v2: offset of each epoch's satellites in sats_raw
+        sat_at = np.concatenate([[0], np.cumsum(ep["nsat"][obs_ep])])
     seg = ep["segment"][obs_ep]
     for s_i, cols in enumerate(layouts):
         where = np.flatnonzero(seg == s_i)
@@ -728,11 +728,12 @@ def _obs_blocks(lines, hdr, layouts, ep, rec0, obs_ep, sats_raw, block_epochs):
             if raw.shape[0] == 0:
                 continue
             uniq, inv = _body.record_sats(raw, lambda x: _sat_id(x, hdr.version))
-            for s, c in zip(uniq.tolist(), np.bincount(inv, minlength=uniq.size).tolist()):
+            uniq = uniq.tolist()
+            for s, c in zip(uniq, np.bincount(inv, minlength=len(uniq)).tolist()):
                 by_sys.setdefault(s[0], set()).add(s)
                 counts[s[0]] = counts.get(s[0], 0) + c
-            code = np.array([names.setdefault(s, len(names)) for s in uniq.tolist()], dtype=np.int64)
-            gps = np.flatnonzero(np.array([s[0] == "G" for s in uniq.tolist()])[inv])
+            code = np.array([names.setdefault(s, len(names)) for s in uniq], dtype=np.int64)
+            gps = np.flatnonzero(np.array([s[0] == "G" for s in uniq])[inv])
             if gps.size:
                 chunks.append(_gps_rows(lines, cols, rec_line[gps], e_rec[gps], code[inv[gps]], v3, per))
     return _sorted_rows(chunks, names, ep, obs_ep), by_sys, counts
@@ -762,20 +763,20 @@ def _sorted_rows(chunks, names: dict, ep: dict, obs_ep) -> tuple[dict, tuple]:
     strictly increase over ``obs_ep``), and (GPS satellites, number of GPS epochs)."""
     if not chunks:
         return {k: np.asarray([], dtype=dt) for k, dt in _ROW_DTYPES.items()}, ([], 0)
-    cat = {k: np.concatenate([c[k] for c in chunks]) for k in chunks[0]}
+    cat = chunks[0] if len(chunks) == 1 else {k: np.concatenate([c[k] for c in chunks]) for k in chunks[0]}
     chunks.clear()                                         # the blocks' arrays: freed before the table is built
     table = sorted(names)
     rank = np.empty(len(names), dtype=np.int64)
     rank[[names[s] for s in table]] = np.arange(len(table))
     key = cat["e"] * len(names) + rank[cat["sat"]]
-    if np.any(np.diff(key) < 0):
+    if (key[1:] < key[:-1]).any():
         order = np.argsort(key, kind="stable")
         cat = {k: v[order] for k, v in cat.items()}
     e = obs_ep[cat["e"]]
-    present = np.unique(cat["sat"])
+    present = np.flatnonzero(np.bincount(cat["sat"], minlength=len(names)))   # np.unique's values, sorted
     sat_obj = np.array([None] * len(names), dtype=object)
     sat_obj[:] = [s for s, _ in sorted(names.items(), key=lambda kv: kv[1])]
-    n_ep = int(np.count_nonzero(np.diff(cat["e"])) + 1)
+    n_ep = int(np.count_nonzero(cat["e"][1:] != cat["e"][:-1]) + 1)
     del cat["e"]
     rows = {"t": ep["time_gps_s"][e], "sat": sat_obj[cat.pop("sat")], "phase": cat.pop("phase"),
             "lli": cat.pop("lli").astype(np.int64, copy=False), "ssi": cat.pop("ssi").astype(np.int64, copy=False),

@@ -397,6 +397,8 @@ def record_sats(raw: np.ndarray, sat_id) -> tuple[np.ndarray, np.ndarray]:
     """Satellite names of records from their 3-byte fields ``raw`` (n, 3): (names (k,) object, the
     index of each record's name (n,)); each distinct field is checked once with ``sat_id``
     (Unsupported where it refuses)."""
+    if raw.shape[0] <= FEW_RECORDS:
+        return _few_record_sats(raw, sat_id)
     if np.any(raw >= 128):
         raise Unsupported("satellite")
     code = (raw[:, 0].astype(np.int32) << 16) | (raw[:, 1].astype(np.int32) << 8) | raw[:, 2]
@@ -409,6 +411,24 @@ def record_sats(raw: np.ndarray, sat_id) -> tuple[np.ndarray, np.ndarray]:
         except ValueError:
             raise Unsupported("satellite") from None
     return np.array(names, dtype=object), inv
+
+
+def _few_record_sats(raw: np.ndarray, sat_id) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`record_sats` of a few records, on the fields as bytes (3 bytes each: their order is the order
+    of the integer codes :func:`record_sats` sorts), without numpy's per-call set-up."""
+    blob = raw.tobytes()
+    if not blob.isascii():
+        raise Unsupported("satellite")
+    fields = [blob[i:i + 3] for i in range(0, len(blob), 3)]
+    uniq = sorted(set(fields))
+    where = {u: i for i, u in enumerate(uniq)}
+    names = []
+    for u in uniq:
+        try:
+            names.append(sat_id(u.decode("latin-1")))
+        except ValueError:
+            raise Unsupported("satellite") from None
+    return np.array(names, dtype=object), np.array([where[f] for f in fields], dtype=np.intp)
 
 
 def gps_fields_of(lines: BodyLines, rec_line: np.ndarray, ks: list, v3: bool) -> list[tuple[np.ndarray, np.ndarray]]:

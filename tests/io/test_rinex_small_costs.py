@@ -306,3 +306,34 @@ def test_flag_values_by_tables_as_by_comparisons():
             assert (out[0] is None) == (out[1] is None)
             if out[0] is not None:
                 assert out[0].dtype == out[1].dtype and np.array_equal(out[0], out[1])
+
+
+@pytest.mark.parametrize("version", [2.11, 3.04])
+def test_few_record_sats_as_by_integer_codes(version, monkeypatch):
+    """record_sats of up to FEW_RECORDS records (distinct 3-byte fields in Python) gives the names, dtypes,
+    indices and refusals of the integer-code path: RINEX 2 and 3 satellite fields, blanks, bad systems,
+    non-ASCII bytes."""
+    rng = np.random.default_rng(int(version * 100))
+    good = [b"G05", b"G 5", b" 5 ", b"R24", b"E11", b"C30", b"S20", b"J01", b"G10", b" 12", b"M01", b"I03"]
+    bad = [b"X01", b"G5a", b"\xe905", b"  ", b"G  ", b"   "]
+    sat_id = lambda s: rinex._sat_id(s, version)                       # noqa: E731
+    outcomes = {"read": 0, "refused": 0}
+    for n in (0, 1, 3, 22, 256):
+        for _ in range(60):
+            pool = good + (bad if rng.random() < 0.3 else [])
+            raw = np.frombuffer(b"".join(pool[int(i)].ljust(3)[:3] for i in rng.integers(0, len(pool), n)),
+                                np.uint8).reshape(n, 3)
+            out = []
+            for few in (0, 256):
+                monkeypatch.setattr(rinex_body, "FEW_RECORDS", few)
+                try:
+                    out.append(rinex_body.record_sats(raw, sat_id))
+                except Unsupported:
+                    out.append(None)
+            ref, got = out
+            assert (ref is None) == (got is None)
+            outcomes["refused" if ref is None else "read"] += 1
+            if ref is not None:
+                assert ref[0].dtype == got[0].dtype and ref[0].tolist() == got[0].tolist()
+                assert ref[1].dtype == got[1].dtype and np.array_equal(ref[1], got[1])
+    assert outcomes["read"] > 20 and outcomes["refused"] > 20
