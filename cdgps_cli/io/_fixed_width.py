@@ -189,6 +189,11 @@ def decimal_fields(f: np.ndarray) -> np.ndarray:
 def flag_digits(ch: np.ndarray) -> np.ndarray:
     """A flag column (n,) of bytes as ``int(c) if c.strip().isdigit() else 0``; Unsupported for
     non-ASCII bytes (``isdigit`` is true of superscript digits, which ``int`` refuses)."""
-    if np.any(ch >= 128):
+    if (ch >= 128).any():
         raise Unsupported("flag")
-    return np.where((ch >= 48) & (ch <= 57), ch.astype(np.int64) - 48, 0)
+    return _DIGIT_VALUE[ch]
+
+
+_DIGIT_VALUE = np.zeros(256, dtype=np.int64)
+_DIGIT_VALUE[48:58] = np.arange(10)
+"""A byte's digit value, 0 for any other byte (:func:`flag_digits`' look-up table)."""

@@ -25,6 +25,7 @@ from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.io.rinex import _ObsHeader, _parse_version_line, _read_text
 from cdgps_cli.io._fixed_width import LineBuffer, Unsupported, decimal_fields, flag_digits
 from cdgps_cli.io.rinex import _frame, _read_bytes, _split_header, _split_lines
+from cdgps_cli.io import rinex_body
 from cdgps_cli.io.rinex_body import BodyLines, distinct, epochs_v3, strict_float
 
 __all__ = ["read_rinex_signals", "SIGNAL_COLUMNS"]
@@ -473,24 +474,9 @@ def _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2) -> pd
     offset = np.concatenate([[0], np.cumsum(count)[:-1]])
     rec_line = np.repeat(first, count) + per * (np.arange(n_rec) - np.repeat(offset, count))   # first line of every record
     t_rec = np.repeat(np.asarray(times, dtype=np.float64), count)
-    if v3:
-        if np.any(buf.length[rec_line] == 0):
-            raise Unsupported("blank record")
-        sat_bytes = buf.gather(rec_line, 0, 3)
-        if np.any(sat_bytes >= 128):
-            raise Unsupported("satellite")
-        sat_bytes[sat_bytes == 32] = 48
-        code = (sat_bytes[:, 0].astype(np.int32) << 16) | (sat_bytes[:, 1].astype(np.int32) << 8) | sat_bytes[:, 2]
-        uniq, sat_code = distinct(code)                                 # ASCII, 3 bytes: the str order
-        sat_names = [bytes([u >> 16, (u >> 8) & 255, u & 255]).decode("ascii") for u in uniq]
-    else:
-        rec_lines = rec_line[:, None] + np.arange(per)
-        if np.any(buf.length[rec_lines] > 80):
-            raise Unsupported("long record line")
-        sat_names, sat_code = distinct(sats_v2)                        # str of <= 3 characters
-    sat_code = sat_code.ravel()
+    sat_names, sat_code = _record_satellites(buf, rec_line, per, v3, sats_v2)
     sat_obj = np.array(sat_names + [None], dtype=object)[:-1]
-    rows_of, lines_of, cols_of = [], [], []
+    rows_of, lines_of, cols_of, n_of = [], [], [], []
     of_system: dict = {}                                   # the records of each system, found once
     for name, (key, ip, ic, _) in cols.items():
         system = key if v3 else signal(name).system
@@ -502,9 +488,10 @@ def _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2) -> pd
             if k >= 0:
                 line, col = _field_place(rec_line[rows], k, v3)
                 lines_of.append(line)
-                cols_of.append(np.full(rows.size, col, dtype=np.int64))
+                cols_of.append(col)
+                n_of.append(rows.size)
     # every field of every signal at once: one gather, one conversion
-    f = buf.gather(np.concatenate(lines_of), np.concatenate(cols_of), 15)
+    f = buf.gather(np.concatenate(lines_of), np.repeat(np.array(cols_of, dtype=np.int64), n_of), 15)
     values, flags = decimal_fields(f[:, :14]), flag_digits(f[:, 14])
     parts, at = [], 0
     for s_i, (rows, (_, _, ic, _)) in enumerate(zip(rows_of, cols.values())):
@@ -521,9 +508,9 @@ def _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2) -> pd
     rows = np.concatenate([p[0] for p in parts])
     if rows.size == 0:
         raise Unsupported("no observation")       # the line-by-line reader's empty table (object columns)
-    order = np.argsort(rows * len(cols) + np.concatenate([np.full(p[0].size, p[1]) for p in parts]), kind="stable")
-    rows = rows[order]
-    sig = np.concatenate([np.full(p[0].size, p[1]) for p in parts])[order]
+    sig = np.repeat(np.arange(len(parts)), [p[0].size for p in parts])        # each row's signal index
+    order = np.argsort(rows * len(cols) + sig, kind="stable")
+    rows, sig = rows[order], sig[order]
     rank_of = {n: r for r, n in enumerate(sorted(cols))}
     sig_rank = np.array([rank_of[n] for n in cols], dtype=np.int64)    # signal index -> rank of its name
     t = t_rec[rows]
@@ -538,6 +525,43 @@ def _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2) -> pd
         "pseudorange_m": np.concatenate([p[3] for p in parts])[take],
         "lli": np.concatenate([p[4] for p in parts])[take], "wavelength_m": lam})
     return df
+
+
+def _record_satellites(buf, rec_line: np.ndarray, per: int, v3: bool, sats_v2) -> tuple[list, np.ndarray]:
+    """(the records' satellite names, sorted; each record's index into them (n,)): RINEX 3 from the first
+    3 bytes of the records starting at ``rec_line`` (blanks read as 0; Unsupported for a blank record
+    line or a non-ASCII byte), RINEX 2 from ``sats_v2`` (Unsupported for a record line longer than 80
+    characters)."""
+    if not v3:
+        rec_lines = rec_line[:, None] + np.arange(per)
+        if np.any(buf.length[rec_lines] > 80):
+            raise Unsupported("long record line")
+        sat_names, sat_code = distinct(sats_v2)                        # str of <= 3 characters
+        return sat_names, sat_code.ravel()
+    if (buf.length[rec_line] == 0).any():
+        raise Unsupported("blank record")
+    sat_bytes = buf.gather(rec_line, 0, 3)
+    if rec_line.size <= rinex_body.FEW_RECORDS:
+        return _few_v3_satellites(sat_bytes)
+    if np.any(sat_bytes >= 128):
+        raise Unsupported("satellite")
+    sat_bytes[sat_bytes == 32] = 48
+    code = (sat_bytes[:, 0].astype(np.int32) << 16) | (sat_bytes[:, 1].astype(np.int32) << 8) | sat_bytes[:, 2]
+    uniq, sat_code = distinct(code)                                     # ASCII, 3 bytes: the str order
+    return [bytes([u >> 16, (u >> 8) & 255, u & 255]).decode("ascii") for u in uniq], sat_code.ravel()
+
+
+def _few_v3_satellites(sat_bytes: np.ndarray) -> tuple[list, np.ndarray]:
+    """:func:`_record_satellites` of a few RINEX 3 records' satellite fields (n, 3), as 3-byte strings
+    (their order is the order of the integer codes of the numpy path), without numpy's per-call set-up."""
+    blob = sat_bytes.tobytes()
+    if not blob.isascii():
+        raise Unsupported("satellite")
+    blob = blob.replace(b" ", b"0")
+    fields = [blob[i:i + 3] for i in range(0, len(blob), 3)]
+    uniq = sorted(set(fields))
+    where = {u: i for i, u in enumerate(uniq)}
+    return [u.decode("ascii") for u in uniq], np.array([where[f] for f in fields], dtype=np.intp)
 
 
 def _wavelength_array(sat_code: np.ndarray, sat_names: list, sig: np.ndarray, names: list, slots: dict, path) -> np.ndarray:

@@ -337,3 +337,29 @@ def test_few_record_sats_as_by_integer_codes(version, monkeypatch):
                 assert ref[0].dtype == got[0].dtype and ref[0].tolist() == got[0].tolist()
                 assert ref[1].dtype == got[1].dtype and np.array_equal(ref[1], got[1])
     assert outcomes["read"] > 20 and outcomes["refused"] > 20
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_few_v3_satellites_as_by_integer_codes(seed, monkeypatch):
+    """read_rinex_signals' satellites of up to FEW_RECORDS RINEX 3 records (3-byte strings) are the integer-code
+    path's: names, indices (dtype too), refusals of non-ASCII bytes and blank record lines."""
+    rng = np.random.default_rng(seed)
+    pool = [b"G05", b"G 5", b"R24", b"E11", b"C 3", b"S20", b"J01", b"G10", b"   ", b"\xe905"]
+    for n in (1, 2, 22, 256):
+        for _ in range(40):
+            fields = [pool[int(i)] for i in rng.integers(0, len(pool) - (rng.random() < 0.7), n)]
+            data = b"\n".join(f + b" 123.456" if f.strip() or rng.random() < 0.8 else b"" for f in fields) + b"\n"
+            lines = rinex_body.BodyLines(data, 0)
+            rec_line = np.arange(n, dtype=np.int64)
+            out = []
+            for few in (0, 256):
+                monkeypatch.setattr(rinex_body, "FEW_RECORDS", few)
+                try:
+                    out.append(rinex_signals._record_satellites(lines, rec_line, 1, True, None))
+                except Unsupported as exc:
+                    out.append(str(exc))
+            ref, got = out
+            if isinstance(ref, str):
+                assert got == ref
+            else:
+                assert got[0] == ref[0] and got[1].dtype == ref[1].dtype and np.array_equal(got[1], ref[1])
