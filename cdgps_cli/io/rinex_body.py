@@ -50,6 +50,10 @@ class BodyLines:
 
     def __init__(self, data: bytes, offset: int):
         raw = np.frombuffer(data, dtype=np.uint8)
+        if raw.size - offset <= FEW_BYTES:
+            self.start, self.length = _few_line_bounds(data, offset)
+            self.data, self.buf, self.n = data, raw, self.start.size
+            return
         lf = np.flatnonzero(raw[offset:] == 10)
         lf += offset
         n = lf.size + (lf.size == 0 or lf[-1] + 1 < raw.size)      # text ending in LF: no line after it
@@ -101,6 +105,25 @@ class BodyLines:
         """Line ``i`` as str (latin-1)."""
         s = int(self.start[i])
         return self.data[s:s + int(self.length[i])].decode("latin-1")
+
+
+FEW_BYTES = 4096
+"""A body of at most this many bytes: :class:`BodyLines` finds its lines in Python (numpy's per-call set-up
+costs more)."""
+
+
+def _few_line_bounds(data: bytes, offset: int) -> tuple[np.ndarray, np.ndarray]:
+    """(start, length) int64 arrays of the lines of ``data`` from ``offset``, as :class:`BodyLines`' numpy
+    path finds them: LF-separated, none after a final LF, a CR before the LF (or the end) not counted."""
+    starts, lengths = [], []
+    size, at = len(data), offset
+    while at < size:
+        end = data.find(b"\n", at)
+        stop = size if end < 0 else end
+        starts.append(at)
+        lengths.append(stop - at - (stop > at and data[stop - 1] == 13))
+        at = size if end < 0 else end + 1
+    return np.array(starts, dtype=np.int64), np.array(lengths, dtype=np.int64)
 
 
 FEW_FIELDS = 64

@@ -24,7 +24,7 @@ from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, glonass_frequency_hz, 
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.io.rinex import _ObsHeader, _parse_version_line, _read_text
 from cdgps_cli.io._fixed_width import LineBuffer, Unsupported, decimal_fields, flag_digits
-from cdgps_cli.io.rinex import _frame, _read_bytes, _split_header, _split_lines
+from cdgps_cli.io.rinex import _as_path, _frame, _read_bytes, _split_header, _split_lines
 from cdgps_cli.io import rinex_body
 from cdgps_cli.io.rinex_body import BodyLines, distinct, epochs_v3, strict_float
 
@@ -100,7 +100,7 @@ def _observation_header(path: str | Path, read: tuple[bytes, bool] | None = None
     """The file's lines, its parsed observation header, the index of its END OF HEADER line and the
     (decompressed) bytes of the lines; ``read``: the file's (decompressed) bytes and whether it was
     compressed, when already read (:func:`cdgps_cli.io.rinex._read_bytes`)."""
-    p = Path(path)
+    p = _as_path(path)
     if read is None:
         lines, compressed, data = _read_text(p)
     else:
@@ -110,7 +110,7 @@ def _observation_header(path: str | Path, read: tuple[bytes, bool] | None = None
     if ftype != "O":
         raise CdgpsError(f"{p}: not a RINEX observation file (type {ftype!r})")
     hdr = _ObsHeader(p, version, compressed)
-    end = next((i for i in range(1, len(lines)) if hdr.apply(lines[i], i + 1) == "END OF HEADER"), None)
+    end = hdr.apply_header(lines)
     if end is None:
         raise CdgpsError(f"{p}: no 'END OF HEADER' line")
     return lines, hdr, end, data
@@ -159,7 +159,7 @@ def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None)
         A signal absent from the header (file, what was expected, what the file has), GLONASS
         signals without ``GLONASS SLOT / FRQ #`` for an observed satellite, a malformed line.
     """
-    p = Path(path)
+    p = _as_path(path)
     read = None
     if FAST_PARSE:
         read = _read_bytes(p)
@@ -200,7 +200,7 @@ def _read_bytes_v3(p: Path, signals: list, glonass_k, read: tuple[bytes, bool] |
     if ftype != "O" or version < 3 or not signals:
         raise Unsupported("not a RINEX 3 observation file")
     hdr = _ObsHeader(p, version, compressed)
-    end = next(i for i in range(1, len(head)) if hdr.apply(head[i], i + 1) == "END OF HEADER")
+    end = hdr.apply_header(head)
     cols = _columns(hdr, signals, p)
     slots = {**(glonass_k or {}), **_glonass_slots(head, end, p)}
     lines = BodyLines(data, body_at)

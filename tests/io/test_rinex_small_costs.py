@@ -340,6 +340,25 @@ def test_few_record_sats_as_by_integer_codes(version, monkeypatch):
 
 
 @pytest.mark.parametrize("seed", range(3))
+def test_few_bytes_body_lines_as_numpy(seed, monkeypatch):
+    """BodyLines of a body of up to FEW_BYTES bytes (lines found in Python): the starts, lengths (int64),
+    count of the numpy path: LF, CRLF, lone CRs, blank lines, no final LF, an offset at or past the end."""
+    rng = np.random.default_rng(seed)
+    for _ in range(800):
+        n = int(rng.integers(0, 300))
+        data = bytes(rng.choice(np.frombuffer(b"ab \r\n\n\r>", np.uint8), n).tolist())
+        offset = int(rng.integers(0, n + 2))
+        out = []
+        for few in (-1, 4096):
+            monkeypatch.setattr(rinex_body, "FEW_BYTES", few)
+            lines = rinex_body.BodyLines(data, offset)
+            out.append((lines.start, lines.length, lines.n))
+        (s0, l0, n0), (s1, l1, n1) = out
+        assert n0 == n1 and s0.dtype == s1.dtype == l0.dtype == l1.dtype == np.int64
+        assert np.array_equal(s0, s1) and np.array_equal(l0, l1)
+
+
+@pytest.mark.parametrize("seed", range(3))
 def test_few_v3_satellites_as_by_integer_codes(seed, monkeypatch):
     """read_rinex_signals' satellites of up to FEW_RECORDS RINEX 3 records (3-byte strings) are the integer-code
     path's: names, indices (dtype too), refusals of non-ASCII bytes and blank record lines."""
@@ -363,3 +382,49 @@ def test_few_v3_satellites_as_by_integer_codes(seed, monkeypatch):
                 assert got == ref
             else:
                 assert got[0] == ref[0] and got[1].dtype == ref[1].dtype and np.array_equal(got[1], ref[1])
+
+
+def _header_by_apply(path, lines):
+    """The header state and END OF HEADER index of applying ``lines[1:]`` one by one (the reference), or the error."""
+    hdr = rinex._ObsHeader(path, 3.04, False)
+    try:
+        end = next((i for i in range(1, len(lines)) if hdr.apply(lines[i], i + 1) == "END OF HEADER"), None)
+    except Exception as exc:                                  # noqa: BLE001
+        return repr(exc)
+    return hdr.info, end
+
+
+def _header_by_apply_header(path, lines):
+    hdr = rinex._ObsHeader(path, 3.04, False)
+    try:
+        end = hdr.apply_header(lines)
+    except Exception as exc:                                  # noqa: BLE001
+        return repr(exc)
+    return hdr.info, end
+
+
+def test_apply_header_as_line_by_line():
+    """_ObsHeader.apply_header (unread labels passed over) gives the header, END OF HEADER index and errors of
+    applying every line: the headers of the test and shared RINEX files, and copies with one header line's
+    field changed (malformed numbers, a lost END OF HEADER, continuation lines first)."""
+    paths = [p for d in (SHARED, Path(__file__).resolve().parents[1] / "data") if d.exists() for p in sorted(d.rglob("*"))
+             if p.is_file() and p.name.lower().endswith(("o", ".obs"))]
+    rng = np.random.default_rng(5)
+    outcomes = {"read": 0, "refused": 0}
+    for path in paths:
+        data, _ = rinex._read_bytes(path)
+        lines = rinex._split_lines(data[:data.find(b"END OF HEADER") + 20])
+        variants = [lines]
+        for _ in range(30):
+            v = list(lines)
+            i = int(rng.integers(1, len(v)))
+            at = int(rng.integers(0, 60))
+            v[i] = v[i][:at] + str(rng.choice(["x", "9", " ", "-", "."])) + v[i][at + 1:]
+            if rng.random() < 0.1:
+                v = v[:i] + v[i + 1:]
+            variants.append(v)
+        for v in variants:
+            ref, got = _header_by_apply(path, v), _header_by_apply_header(path, v)
+            assert got == ref
+            outcomes["refused" if isinstance(ref, str) else "read"] += 1
+    assert outcomes["read"] > 20 and outcomes["refused"] > 5, outcomes
