@@ -539,11 +539,36 @@ def _frame(columns: dict, copy: bool = False) -> pd.DataFrame:
         return pd.DataFrame(columns, copy=copy)
 
 
+def _frame_as_given(columns: dict) -> pd.DataFrame:
+    """``pd.DataFrame(columns, copy=False)``'s table of 1-D arrays of one length: each column its own block,
+    holding the array it was given (numbers, booleans) or the str array made of it, as there; built from
+    :func:`_stored_arrays` without the constructor's per-column checks (≈ 220 µs instead of ≈ 520 µs for a
+    14-column table of 3842 rows).  Anything else, or a pandas without these internals: the constructor."""
+    names = tuple(columns)
+    stored = _stored_arrays(list(columns.values())) if names and _arrays_to_mgr is not None else None
+    if stored is not None:
+        idx = _COLUMN_INDEXES.get(names)
+        if idx is None:
+            idx = _COLUMN_INDEXES[names] = pd.DataFrame(columns=list(names)).columns
+        try:
+            mgr = _arrays_to_mgr(stored, idx, pd.RangeIndex(len(stored[0])), verify_integrity=False, consolidate=False)
+            return pd.DataFrame._from_mgr(mgr, axes=mgr.axes)
+        except (AttributeError, TypeError, ValueError):
+            pass
+    return pd.DataFrame(columns, copy=False)
+
+
+try:                                            # the block manager of the dict constructor
+    from pandas.core.internals.construction import arrays_to_mgr as _arrays_to_mgr
+except ImportError:                             # pragma: no cover - another pandas: the constructor
+    _arrays_to_mgr = None
+
+
 def _stored_arrays(arrays: list) -> list | None:
     """The column arrays as the DataFrame constructor stores them (its ``sanitize_array``), or None
-    when one is not a 1-D numpy array of numbers, booleans (kept as they are) or of ``str`` objects
-    only (the constructor's str extension array, made as it makes it; a column holding anything else,
-    or no rows, is left to the constructor's checks)."""
+    when one is not a 1-D numpy array of numbers, booleans (kept as they are), of numpy str (``<U``) or
+    of ``str`` objects only (the constructor's str extension array, made as it makes it; an object
+    column holding anything else, or no rows, is left to the constructor's checks)."""
     out = []
     for a in arrays:
         if type(a) is not np.ndarray or a.ndim != 1:
@@ -551,7 +576,7 @@ def _stored_arrays(arrays: list) -> list | None:
         kind = a.dtype.kind
         if kind in "fiub" and a.dtype.isnative:
             out.append(a)
-        elif kind == "O" and len(a) and _is_str_array(a):
+        elif kind == "U" or (kind == "O" and len(a) and _is_str_array(a)):
             made = _str_array(a)
             if made is None:
                 return None
@@ -562,9 +587,9 @@ def _stored_arrays(arrays: list) -> list | None:
 
 
 def _str_array(a: np.ndarray):
-    """The str extension array the DataFrame constructor makes of an object array holding only ``str``
-    (``StringDtype(na_value=nan)``'s array from the sequence, as pandas' object inference does); None
-    when pandas does not infer a str dtype (``future.infer_string`` off, pandas < 3: object column)."""
+    """The str extension array the DataFrame constructor makes of a numpy str array or an object array
+    holding only ``str`` (``StringDtype(na_value=nan)``'s array from the sequence, as pandas' object
+    inference does); None when pandas does not infer a str dtype (``future.infer_string`` off, pandas < 3)."""
     if not _using_string_dtype():
         return None
     dtype = pd.StringDtype(na_value=np.nan)

@@ -34,6 +34,7 @@ import pandas as pd
 
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io import ubx_frames
+from cdgps_cli.io.rinex import _frame_as_given
 from cdgps_cli.io.sfrbx import sfrbx_ephemerides_at
 from cdgps_cli.io.ubx_frames import MAX_OFFSETS_SHOWN, rtcm_station_arp, split_stream_spans
 
@@ -462,7 +463,7 @@ def _l1_table(p: Path, meas: np.ndarray, t: np.ndarray, reset: np.ndarray) -> tu
     m = _sorted_l1(p, meas, np.flatnonzero((meas["gnssId"] == 0) & (meas["sigId"] == 0)), t)
     trk = m["trkStat"]
     cp_ok, pr_ok = (trk & 2) != 0, (trk & 1) != 0
-    obs = pd.DataFrame(
+    obs = _frame_as_given(
         {
             "time_gps_s": t[m["epoch"]],
             "sat": _GPS_SAT_NAMES[m["svId"]],
@@ -478,9 +479,8 @@ def _l1_table(p: Path, meas: np.ndarray, t: np.ndarray, reset: np.ndarray) -> tu
             "pr_std_m": 0.01 * 2.0 ** (m["prStdev"] & 15).astype(np.int64),
             "cp_std_cycles": 0.004 * (m["cpStdev"] & 15).astype(np.int64),
             "clock_reset": reset[m["epoch"]],
-        },                                                 # in UBX_OBS_COLUMNS' order
-        copy=False,                                        # fresh arrays, none a view of the (cached) measurements
-    )
+        },                                                 # in UBX_OBS_COLUMNS' order; fresh arrays, none a view of
+    )                                                      # the (cached) measurements: pd.DataFrame(..., copy=False)
     if len(obs) and not np.isfinite(t).all():             # NaN time tags: pandas' NaN-aware path
         obs = _checked_sorted(p, obs)
     return obs, sorted(_GPS_SAT_NAMES[np.unique(m["svId"])].tolist())

@@ -75,6 +75,8 @@ TABLES = {
     "bytes_objects": {"o": _obj([b"G01", b"G02"])},
     "float_objects": {"o": _obj([1.0, 2.5])},
     "unicode_array": {"s": np.array(["G01", "G02"]), "x": np.zeros(2)},
+    "unicode_wide": {"s": np.array(["G01", "é\udcff", ""]), "t": np.array(["a", "bb", "ccc"], dtype="<U7")},
+    "unicode_empty": {"s": np.array([], dtype="<U3"), "x": np.zeros(0)},
     "big_endian": {"x": np.arange(3, dtype=">f8"), "i": np.arange(3, dtype=">i8")},
     "datetime": {"d": np.array(["2021-01-01", "2021-01-02"], dtype="datetime64[ns]")},
     "list_column": {"x": [1.0, 2.0], "y": np.zeros(2)},
@@ -91,10 +93,23 @@ def test_frame_is_the_constructors_table(name, copy):
     _same_table(got, _checked_frame(cols, copy=copy))
 
 
+@pytest.mark.parametrize("name", TABLES)
+def test_frame_as_given_is_the_constructors_table_without_copy(name):
+    """_frame_as_given: ``pd.DataFrame(columns, copy=False)``'s table, block for block (one per column), and its
+    blocks hold the numeric arrays given, as the constructor's do."""
+    cols = TABLES[name]
+    got, ref = rinex._frame_as_given(cols), pd.DataFrame(cols, copy=False)
+    _same_table(got, ref)
+    for c, v in cols.items():
+        if isinstance(v, np.ndarray) and v.dtype.kind in "fiub":
+            assert np.shares_memory(got[c].to_numpy(), v) == np.shares_memory(ref[c].to_numpy(), v), c
+
+
 def test_fast_path_taken_for_numbers_and_str_only():
     assert rinex._stored_arrays(list(TABLES["str_float_int"].values())) is not None
     assert rinex._stored_arrays(list(TABLES["int_bool_uint"].values())) is not None
-    for name in ("empty", "str_and_none", "mixed_objects", "unicode_array", "big_endian", "list_column"):
+    assert rinex._stored_arrays(list(TABLES["unicode_array"].values())) is not None
+    for name in ("empty", "str_and_none", "mixed_objects", "bytes_objects", "big_endian", "list_column"):
         assert rinex._stored_arrays(list(TABLES[name].values())) is None, name
 
 
@@ -122,14 +137,17 @@ def test_random_tables(seed):
         n = int(rng.integers(0, 40))
         cols = {}
         for k in range(int(rng.integers(1, 8))):
-            kind = rng.choice(["f8", "f4", "i8", "i4", "u1", "?", "str"])
+            kind = rng.choice(["f8", "f4", "i8", "i4", "u1", "?", "str", "U3"])
             if kind == "str":
                 cols[f"c{k}"] = _obj([f"G{int(v):02d}" for v in rng.integers(0, 40, n)])
+            elif kind == "U3":
+                cols[f"c{k}"] = np.array([f"R{int(v)}" for v in rng.integers(0, 40, n)], dtype="<U3")
             else:
                 cols[f"c{k}"] = (rng.normal(size=n) * 100).astype(kind)
         got = rinex._frame(cols)
         _same_table(got, pd.DataFrame(cols), blocks=False)
         _same_table(got, _checked_frame(cols))
+        _same_table(rinex._frame_as_given(cols), pd.DataFrame(cols, copy=False))
 
 
 @pytest.mark.parametrize("path", OBS_FILES, ids=lambda p: p.parent.name + "/" + p.name)
@@ -162,8 +180,8 @@ def test_rinex_readers_tables_as_by_the_checked_path(path, monkeypatch):
 
 @pytest.mark.parametrize("path", UBX_FILES, ids=lambda p: p.parent.name + "/" + p.name)
 def test_ubx_reader_tables_as_by_the_checked_path(path, monkeypatch):
-    """Every u-blox log of the shared and test data: the observation and ephemeris tables (the latter built
-    by ``_frame``) are those of pandas' checked construction."""
+    """Every u-blox log of the shared and test data: the observation table (built by ``_frame_as_given``) and
+    the ephemeris table (by ``_frame``) are those of pandas' checked construction, block layout included."""
     out = []
     for stored in (rinex._stored_arrays, lambda arrays: None):
         monkeypatch.setattr(rinex, "_stored_arrays", stored)
