@@ -481,6 +481,6 @@ _FLAG_OK[[32, *range(48, 58)]] = True
 def flag_values(ch: np.ndarray, use: np.ndarray) -> np.ndarray:
     """LLI / SSI bytes (n,) as ints where ``use``, 0 elsewhere; Unsupported for a used byte that is
     neither a blank nor a digit.  By two 256-entry tables (a few numpy calls: a small file's cost)."""
-    if not _FLAG_OK[ch][use].all():
+    if not (_FLAG_OK[ch] | ~use).all():
         raise Unsupported("flag")
     return _FLAG_VALUE[ch] * use
