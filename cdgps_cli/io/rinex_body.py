@@ -211,18 +211,17 @@ def _few_gps_seconds(y, mo, d, h, mi, sec) -> np.ndarray:
 
 def _clocks(lines: BodyLines, ep: np.ndarray, col: int) -> np.ndarray:
     """Receiver clock offset of epoch lines ``ep``: what stands after column ``col``, NaN if blank."""
-    clk = np.full(ep.size, np.nan)
-    has = np.flatnonzero(lines.length[ep] > col)
-    data = lines.data
-    for k in has.tolist():
-        s = int(lines.start[ep[k]])
-        field = data[s + col:s + int(lines.length[ep[k]])]
+    data, nan, clk = lines.data, math.nan, []
+    for s, n in zip(lines.start[ep].tolist(), lines.length[ep].tolist()):
+        field = data[s + col:s + n] if n > col else b""
         if field.strip():
             try:
-                clk[k] = strict_float(field)
+                clk.append(strict_float(field))
             except ValueError:
                 raise Unsupported("clock") from None
-    return clk
+        else:
+            clk.append(nan)
+    return np.array(clk, dtype=np.float64)
 
 
 def _blank_from(lines: BodyLines, i: int) -> bool:
@@ -237,7 +236,7 @@ def epochs_v3(lines: BodyLines, events: str = "refuse") -> dict:
     flag column must hold a digit."""
     if lines.n == 0:
         raise Unsupported("empty body")
-    ep = np.flatnonzero(lines.buf[lines.start] == 62)       # '>' (a blank line reads LF or the next byte)
+    ep = (lines.buf[lines.start] == 62).nonzero()[0]       # '>' (a blank line reads LF or the next byte)
     ep = ep[lines.length[ep] > 0]
     if ep.size == 0 or ep[0] != 0:
         raise Unsupported("epoch line")
@@ -461,11 +460,11 @@ def gps_fields_of(lines: BodyLines, rec_line: np.ndarray, ks: list, v3: bool) ->
     one call per observation; Unsupported when any field is malformed)."""
     n = rec_line.size
     if v3:
-        line = np.tile(rec_line, len(ks))
-        col = np.repeat(np.array([3 + 16 * k for k in ks], dtype=np.int64), n)
+        line = np.concatenate([rec_line] * len(ks))       # np.tile's values, without its Python wrapper
+        col = np.array([3 + 16 * k for k in ks], dtype=np.int64).repeat(n)
     else:
         line = np.concatenate([rec_line + k // 5 for k in ks])
-        col = np.repeat(np.array([16 * (k % 5) for k in ks], dtype=np.int64), n)
+        col = np.array([16 * (k % 5) for k in ks], dtype=np.int64).repeat(n)
     f = lines.gather(line, col, 16)
     values = decimal_fields(f[:, :14])
     return [(values[j * n:(j + 1) * n], f[j * n:(j + 1) * n, 14:16]) for j in range(len(ks))]

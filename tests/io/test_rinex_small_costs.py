@@ -428,3 +428,38 @@ def test_apply_header_as_line_by_line():
             assert got == ref
             outcomes["refused" if isinstance(ref, str) else "read"] += 1
     assert outcomes["read"] > 20 and outcomes["refused"] > 5, outcomes
+
+
+def _clocks_by_index(lines, ep, col):
+    """The receiver clocks as read before (a NaN array, filled epoch by epoch where the line is longer than col)."""
+    clk = np.full(ep.size, np.nan)
+    for k in np.flatnonzero(lines.length[ep] > col).tolist():
+        s = int(lines.start[ep[k]])
+        field = lines.data[s + col:s + int(lines.length[ep[k]])]
+        if field.strip():
+            try:
+                clk[k] = rinex_body.strict_float(field)
+            except ValueError:
+                raise Unsupported("clock") from None
+    return clk
+
+
+def test_clocks_as_by_index():
+    """rinex_body._clocks (one pass over the lines' bounds as lists): the values (bits), NaN for blank or short
+    lines, and refusals (nan, inf, exponents are numbers; letters are not) of the indexed reading."""
+    rng = np.random.default_rng(2)
+    tails = [b"", b"   ", b"  -0.123456789012", b"   0.000000000000", b"1e-3", b"  nan", b" 12_0", b" x", b"+5.", b"  -.5  "]
+    for _ in range(400):
+        rows = [b"> 2021 09 22 00 00  0.0000000  0  0" + tails[int(i)] for i in rng.integers(0, len(tails), 5)]
+        rows = [r[:int(rng.integers(20, len(r) + 1))] if rng.random() < 0.2 else r for r in rows]
+        lines = rinex_body.BodyLines(b"\n".join(rows) + b"\n", 0)
+        ep = rng.permutation(lines.n)[:int(rng.integers(0, lines.n + 1))].astype(np.int64)
+        out = []
+        for f in (_clocks_by_index, rinex_body._clocks):
+            try:
+                out.append(f(lines, ep, 35))
+            except Unsupported:
+                out.append(None)
+        assert (out[0] is None) == (out[1] is None)
+        if out[0] is not None:
+            assert out[1].dtype == np.float64 and out[0].tobytes() == out[1].tobytes()
