@@ -422,7 +422,7 @@ def beidou_records(x: np.ndarray, off: np.ndarray, latest: dict, d2_recs: dict, 
         else:
             words[i], good[i] = got, True
     sv = x[off + 7].astype(np.int64)
-    geo = np.isin(sv, sorted(sf._BDS_GEO))
+    geo = sf._BDS_GEO_BYTE[sv]                             # np.isin(sv, _BDS_GEO): sv is a byte
     for i in np.flatnonzero(good & geo).tolist():
         stats["beidou_d2_frames"] += 1
         sf._beidou_d2_page(words[i].tolist(), f"C{int(sv[i]):02d}", latest, d2_recs, stats)

@@ -227,3 +227,10 @@ def test_std_tables_and_shared_signal_codes_as_per_measurement():
     got = ubx._l1_table(Path("x.ubx"), meas, t, reset, (code == 0).nonzero()[0])
     pd.testing.assert_frame_equal(got[0], ref[0], check_exact=True)
     assert got[1] == ref[1]
+
+
+def test_byte_membership_tables_are_isin():
+    """The I/NAV signal and BeiDou GEO look-up tables (indexed by a header byte) are np.isin of every byte value."""
+    v = np.arange(256)
+    assert np.array_equal(sfrbx._INAV_SIGNAL_BYTE[v], np.isin(v, sorted(sfrbx._INAV_SIGNALS)))
+    assert np.array_equal(sfrbx._BDS_GEO_BYTE[v], np.isin(v, sorted(sfrbx._BDS_GEO)))
