@@ -54,6 +54,10 @@ __all__ = [
 # GPS L1 tracking modes in order of preference (RINEX 3 attribute letters): C/A first, since the
 # project's receivers track C/A; then the semi-codeless P(Y) variants and the L1C signal.
 _L1_ATTRIBUTES = "CWPYXSLMN"
+#: the RINEX 3 L1 phase, code and SNR types in that order of preference ({"L": ("L1C", "L1W", …), "C": …, "S": …})
+_L1_TYPES = {k: tuple(f"{k}1{a}" for a in _L1_ATTRIBUTES) for k in "LCS"}
+#: the system letters of satellite fields (:func:`_sat_id`)
+_SYSTEM_LETTERS = frozenset("GRESJCIM")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -173,6 +177,8 @@ def _check_version(version: float, path, kind: str) -> None:
 
 def _sat_id(s: str, version: float) -> str:
     """Normalise a satellite field ('G05', 'G 5', ' 5' in RINEX 2) to 'G05'; ValueError if bad."""
+    if len(s) == 3 and s[0] in _SYSTEM_LETTERS and "0" <= s[1] <= "9" and "0" <= s[2] <= "9":
+        return s                                           # already 'G05' (what the steps below give it)
     s = s.rstrip()
     if len(s) < 2:
         raise ValueError(s)
@@ -238,26 +244,32 @@ class _ObsHeader:
         label = line[60:80].strip()
         read = _HEADER_READERS.get(label)
         if read is not None:                               # a label the reader keeps something of
-            try:
-                read(self, line[:60], lineno)
-            except CdgpsError:
-                raise
-            except (ValueError, IndexError):
-                raise self.error(lineno, f"malformed header line '{label}': {line.rstrip()!r}") from None
+            self._read(read, line, label, lineno)
         return label
 
     def apply_header(self, lines: list[str]) -> int | None:
         """Apply the header lines ``lines[1:]`` (as :meth:`apply`, line by line) up to the first one
-        labelled END OF HEADER; its index, None if there is none.  Lines whose label nothing is read
-        of are passed over without a call."""
+        labelled END OF HEADER; its index, None if there is none."""
         readers = _HEADER_READERS
         for i in range(1, len(lines)):
-            label = lines[i][60:80].strip()
-            if label in readers:
-                self.apply(lines[i], i + 1)
+            line = lines[i]
+            label = line[60:80].strip()
+            read = readers.get(label)
+            if read is not None:
+                self._read(read, line, label, i + 1)
             elif label == "END OF HEADER":
                 return i
         return None
+
+    def _read(self, read, line: str, label: str, lineno: int) -> None:
+        """``read`` (a :data:`_HEADER_READERS` method) of the header line ``line``; a malformed one is an
+        error naming the file, line number and label."""
+        try:
+            read(self, line[:60], lineno)
+        except CdgpsError:
+            raise
+        except (ValueError, IndexError):
+            raise self.error(lineno, f"malformed header line '{label}': {line.rstrip()!r}") from None
 
     def _comment(self, body: str, lineno: int) -> None:
         self.info["comments"].append(body.rstrip())
@@ -403,10 +415,10 @@ class _GpsL1Columns:
             code = next((c for c in ("C1", "P1") if c in types), None)
             snr = "S1" if "S1" in types else None
         else:
-            phase = next((f"L1{a}" for a in _L1_ATTRIBUTES if f"L1{a}" in types), None)
+            phase = next((c for c in _L1_TYPES["L"] if c in types), None)
             attr = phase[2] if phase else "C"
-            code = next((c for c in [f"C1{attr}"] + [f"C1{a}" for a in _L1_ATTRIBUTES] if c in types), None)
-            snr = next((c for c in [f"S1{attr}"] + [f"S1{a}" for a in _L1_ATTRIBUTES] if c in types), None)
+            code = next((c for c in (f"C1{attr}", *_L1_TYPES["C"]) if c in types), None)
+            snr = next((c for c in (f"S1{attr}", *_L1_TYPES["S"]) if c in types), None)
         if phase is None:
             where = "'# / TYPES OF OBSERV'" if not v3 else "'SYS / # / OBS TYPES' for G"
             raise CdgpsError(

@@ -463,3 +463,36 @@ def test_clocks_as_by_index():
         assert (out[0] is None) == (out[1] is None)
         if out[0] is not None:
             assert out[1].dtype == np.float64 and out[0].tobytes() == out[1].tobytes()
+
+
+def _sat_id_steps(s: str, version: float) -> str:
+    """rinex._sat_id as it was: the normalising steps for every field."""
+    s = s.rstrip()
+    if len(s) < 2:
+        raise ValueError(s)
+    s = s.rjust(3)
+    system = s[0] if s[0] != " " else ("G" if version < 3 else "")
+    if system not in "GRESJCIM" or not system:
+        raise ValueError(s)
+    prn = s[1:3].strip()
+    if not prn.isdigit():
+        raise ValueError(s)
+    return f"{system}{int(prn):02d}"
+
+
+def test_sat_id_fast_path_as_the_steps():
+    """_sat_id's shortcut for fields already 'G05': every field of up to 3 characters over blanks, digits (ASCII
+    and not), system letters and others, RINEX 2 and 3: the value or the error message of the steps."""
+    import itertools
+
+    alphabet = " 0159GRESJCIMXg\u00b2\u0663\t"
+    for n in (0, 1, 2, 3):
+        for chars in itertools.product(alphabet, repeat=n):
+            for version in (2.11, 3.04):
+                out = []
+                for f in (_sat_id_steps, rinex._sat_id):
+                    try:
+                        out.append(f("".join(chars), version))
+                    except ValueError as exc:
+                        out.append(("error", str(exc)))
+                assert out[0] == out[1], (chars, version)
