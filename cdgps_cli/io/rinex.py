@@ -532,9 +532,9 @@ def _frame(columns: dict, copy: bool = False) -> pd.DataFrame:
     pandas' str columns, as there), for a reader's table: built by ``DataFrame._from_arrays`` with a
     column index made once per column set, which skips the dict constructor's per-call set-up (≈ 30 %
     of building a table of a few rows; a 7 kB file's table).  Columns that are all numpy numbers,
-    booleans or str objects are handed over as pandas stores them (:func:`_stored_arrays`), without
-    its per-column checks (``verify_integrity=False``: ≈ 100 µs instead of ≈ 250 µs for a 9-column
-    table); anything else goes through those checks.  Falls back to the constructor if the pandas at
+    booleans, numpy str or str objects are handed over as pandas stores them (:func:`_stored_arrays`),
+    without its per-column checks (``verify_integrity=False``: ≈ 100 µs instead of ≈ 250 µs for a
+    9-column table); anything else goes through those checks.  Falls back to the constructor if the pandas at
     hand lacks that method or refuses the arrays."""
     names = tuple(columns)
     if len(names) == 0:
