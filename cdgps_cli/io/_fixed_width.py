@@ -16,7 +16,7 @@ import re
 
 import numpy as np
 
-__all__ = ["Unsupported", "LineBuffer", "decimal_fields", "flag_digits"]
+__all__ = ["Unsupported", "LineBuffer", "decimal_fields", "flag_digits", "windows"]
 
 _SPACE, _DOT, _PLUS, _MINUS = 32, 46, 43, 45
 _PAD = 64             # blanks after the last line: any field of up to this width can be sliced
@@ -26,6 +26,13 @@ _POW10_FLOAT = 10.0 ** np.arange(16)
 
 class Unsupported(Exception):
     """A field the vectorised reader does not take; read the file line by line instead."""
+
+
+def windows(buf: np.ndarray, width: int) -> np.ndarray:
+    """Every run of ``width`` consecutive bytes of the contiguous 1-D uint8 array ``buf`` (``len(buf) >= width``), as a
+    read-only (len - width + 1, width) view: ``sliding_window_view(buf, width)``'s array, made directly
+    (≈ 3 µs instead of ≈ 45 µs: a small file's fields are gathered several times)."""
+    return np.ndarray((buf.size - width + 1, width), dtype=np.uint8, buffer=buf, strides=(1, 1))
 
 
 class LineBuffer:
@@ -68,9 +75,8 @@ class LineBuffer:
         column, or one per line (n,)."""
         if width > _PAD:
             raise ValueError(f"field width {width} > {_PAD}")
-        windows = np.lib.stride_tricks.sliding_window_view(self.buf, width)
         start = np.minimum(self.start[line] + col, self.buf.size - width)
-        out = windows[start]                                        # (n, width) copy
+        out = windows(self.buf, width)[start]                       # (n, width) copy
         room = self.length[line] - col                              # characters of the field on its line
         short = np.flatnonzero(room < width)
         if short.size:
@@ -183,6 +189,11 @@ def decimal_fields(f: np.ndarray) -> np.ndarray:
 def flag_digits(ch: np.ndarray) -> np.ndarray:
     """A flag column (n,) of bytes as ``int(c) if c.strip().isdigit() else 0``; Unsupported for
     non-ASCII bytes (``isdigit`` is true of superscript digits, which ``int`` refuses)."""
-    if np.any(ch >= 128):
+    if (ch >= 128).any():
         raise Unsupported("flag")
-    return np.where((ch >= 48) & (ch <= 57), ch.astype(np.int64) - 48, 0)
+    return _DIGIT_VALUE[ch]
+
+
+_DIGIT_VALUE = np.zeros(256, dtype=np.int64)
+_DIGIT_VALUE[48:58] = np.arange(10)
+"""A byte's digit value, 0 for any other byte (:func:`flag_digits`' look-up table)."""

@@ -20,7 +20,7 @@ import re
 import numpy as np
 
 from cdgps_cli.core.gps_time import SECOND_MAX
-from cdgps_cli.io._fixed_width import Unsupported, decimal_fields
+from cdgps_cli.io._fixed_width import Unsupported, decimal_fields, windows
 
 __all__ = ["BodyLines", "epochs_v3", "epochs_v2", "record_sats", "distinct", "gps_fields_of", "strict_float"]
 
@@ -51,6 +51,10 @@ class BodyLines:
 
     def __init__(self, data: bytes, offset: int):
         raw = np.frombuffer(data, dtype=np.uint8)
+        if raw.size - offset <= FEW_BYTES:
+            self.start, self.length = _few_line_bounds(data, offset)
+            self.data, self.buf, self.n = data, raw, self.start.size
+            return
         lf = np.flatnonzero(raw[offset:] == 10)
         lf += offset
         n = lf.size + (lf.size == 0 or lf[-1] + 1 < raw.size)      # text ending in LF: no line after it
@@ -70,15 +74,15 @@ class BodyLines:
         self.n = n
 
     def gather(self, line: np.ndarray, col: int, width: int) -> np.ndarray:
-        """Bytes ``[col, col + width)`` of lines ``line`` as (n, width) uint8, blanks past a line's end."""
+        """Bytes ``[col, col + width)`` of lines ``line`` as (n, width) uint8, blanks past a line's end;
+        ``col``: one column, or one per line (n,)."""
         size = self.buf.size
         if size < width:
             raise Unsupported("short file")
+        if line.size <= FEW_FIELDS:
+            return self._gather_few(line, col, width)
         first = self.start[line] + col
-        if first.size <= 64:                              # a few: direct indices (the view's set-up costs more)
-            out = self.buf[np.minimum(first[:, None] + np.arange(width), size - 1)]
-        else:
-            out = np.lib.stride_tricks.sliding_window_view(self.buf, width)[np.minimum(first, size - width)]
+        out = windows(self.buf, width)[np.minimum(first, size - width)]
         room = self.length[line] - col                    # characters of the field on its line
         short = np.flatnonzero(room < width)
         if short.size:
@@ -87,10 +91,44 @@ class BodyLines:
             out[short] = np.where(keep, self.buf[at], np.uint8(32))
         return out
 
+    def _gather_few(self, line: np.ndarray, col, width: int) -> np.ndarray:
+        """:meth:`gather` of a few fields, sliced from the bytes one by one (numpy's per-call set-up
+        costs more): each field is the line's bytes from ``col`` up to its end, at most ``width``
+        (none when the line ends before ``col``), padded with blanks."""
+        start = self.start[line]
+        first = start + col
+        stop = np.minimum(start + self.length[line], first + width)
+        data = self.data
+        fields = [data[a:b].ljust(width) for a, b in zip(first.tolist(), stop.tolist())]
+        return np.frombuffer(bytearray(b"".join(fields)), dtype=np.uint8).reshape(line.size, width)
+
     def text(self, i: int) -> str:
         """Line ``i`` as str (latin-1)."""
         s = int(self.start[i])
         return self.data[s:s + int(self.length[i])].decode("latin-1")
+
+
+FEW_BYTES = 4096
+"""A body of at most this many bytes: :class:`BodyLines` finds its lines in Python (numpy's per-call set-up
+costs more)."""
+
+
+def _few_line_bounds(data: bytes, offset: int) -> tuple[np.ndarray, np.ndarray]:
+    """(start, length) int64 arrays of the lines of ``data`` from ``offset``, as :class:`BodyLines`' numpy
+    path finds them: LF-separated, none after a final LF, a CR before the LF (or the end) not counted."""
+    starts, lengths = [], []
+    size, at = len(data), offset
+    while at < size:
+        end = data.find(b"\n", at)
+        stop = size if end < 0 else end
+        starts.append(at)
+        lengths.append(stop - at - (stop > at and data[stop - 1] == 13))
+        at = size if end < 0 else end + 1
+    return np.array(starts, dtype=np.int64), np.array(lengths, dtype=np.int64)
+
+
+FEW_FIELDS = 64
+"""At most this many fields: :meth:`BodyLines.gather` slices them from the bytes in Python."""
 
 
 def _ints(f: np.ndarray) -> np.ndarray:
@@ -174,18 +212,17 @@ def _few_gps_seconds(y, mo, d, h, mi, sec) -> np.ndarray:
 
 def _clocks(lines: BodyLines, ep: np.ndarray, col: int) -> np.ndarray:
     """Receiver clock offset of epoch lines ``ep``: what stands after column ``col``, NaN if blank."""
-    clk = np.full(ep.size, np.nan)
-    has = np.flatnonzero(lines.length[ep] > col)
-    data = lines.data
-    for k in has.tolist():
-        s = int(lines.start[ep[k]])
-        field = data[s + col:s + int(lines.length[ep[k]])]
+    data, nan, clk = lines.data, math.nan, []
+    for s, n in zip(lines.start[ep].tolist(), lines.length[ep].tolist()):
+        field = data[s + col:s + n] if n > col else b""
         if field.strip():
             try:
-                clk[k] = strict_float(field)
+                clk.append(strict_float(field))
             except ValueError:
                 raise Unsupported("clock") from None
-    return clk
+        else:
+            clk.append(nan)
+    return np.array(clk, dtype=np.float64)
 
 
 def _blank_from(lines: BodyLines, i: int) -> bool:
@@ -200,7 +237,7 @@ def epochs_v3(lines: BodyLines, events: str = "refuse") -> dict:
     flag column must hold a digit."""
     if lines.n == 0:
         raise Unsupported("empty body")
-    ep = np.flatnonzero(lines.buf[lines.start] == 62)       # '>' (a blank line reads LF or the next byte)
+    ep = (lines.buf[lines.start] == 62).nonzero()[0]       # '>' (a blank line reads LF or the next byte)
     ep = ep[lines.length[ep] > 0]
     if ep.size == 0 or ep[0] != 0:
         raise Unsupported("epoch line")
@@ -383,6 +420,8 @@ def record_sats(raw: np.ndarray, sat_id) -> tuple[np.ndarray, np.ndarray]:
     """Satellite names of records from their 3-byte fields ``raw`` (n, 3): (names (k,) object, the
     index of each record's name (n,)); each distinct field is checked once with ``sat_id``
     (Unsupported where it refuses)."""
+    if raw.shape[0] <= FEW_RECORDS:
+        return _few_record_sats(raw, sat_id)
     if np.any(raw >= 128):
         raise Unsupported("satellite")
     code = (raw[:, 0].astype(np.int32) << 16) | (raw[:, 1].astype(np.int32) << 8) | raw[:, 2]
@@ -397,6 +436,24 @@ def record_sats(raw: np.ndarray, sat_id) -> tuple[np.ndarray, np.ndarray]:
     return np.array(names, dtype=object), inv
 
 
+def _few_record_sats(raw: np.ndarray, sat_id) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`record_sats` of a few records, on the fields as bytes (3 bytes each: their order is the order
+    of the integer codes :func:`record_sats` sorts), without numpy's per-call set-up."""
+    blob = raw.tobytes()
+    if not blob.isascii():
+        raise Unsupported("satellite")
+    fields = [blob[i:i + 3] for i in range(0, len(blob), 3)]
+    uniq = sorted(set(fields))
+    where = {u: i for i, u in enumerate(uniq)}
+    names = []
+    for u in uniq:
+        try:
+            names.append(sat_id(u.decode("latin-1")))
+        except ValueError:
+            raise Unsupported("satellite") from None
+    return np.array(names, dtype=object), np.array([where[f] for f in fields], dtype=np.intp)
+
+
 def gps_fields_of(lines: BodyLines, rec_line: np.ndarray, ks: list, v3: bool) -> list[tuple[np.ndarray, np.ndarray]]:
     """Observations ``ks`` of the records starting at lines ``rec_line`` (RINEX 2: observation k on the
     record's line k // 5), each as (values (n,) float64, NaN if blank; the LLI and SSI bytes (n, 2)
@@ -404,20 +461,26 @@ def gps_fields_of(lines: BodyLines, rec_line: np.ndarray, ks: list, v3: bool) ->
     one call per observation; Unsupported when any field is malformed)."""
     n = rec_line.size
     if v3:
-        line = np.tile(rec_line, len(ks))
-        col = np.repeat(np.array([3 + 16 * k for k in ks], dtype=np.int64), n)
+        line = np.concatenate([rec_line] * len(ks))       # np.tile's values, without its Python wrapper
+        col = np.array([3 + 16 * k for k in ks], dtype=np.int64).repeat(n)
     else:
         line = np.concatenate([rec_line + k // 5 for k in ks])
-        col = np.repeat(np.array([16 * (k % 5) for k in ks], dtype=np.int64), n)
+        col = np.array([16 * (k % 5) for k in ks], dtype=np.int64).repeat(n)
     f = lines.gather(line, col, 16)
     values = decimal_fields(f[:, :14])
     return [(values[j * n:(j + 1) * n], f[j * n:(j + 1) * n, 14:16]) for j in range(len(ks))]
 
 
+#: a flag byte's value (a digit's, 0 for a blank) and whether it is one (blank or digit): look-up tables
+_FLAG_VALUE = np.zeros(256, dtype=np.int64)
+_FLAG_VALUE[48:58] = np.arange(10)
+_FLAG_OK = np.zeros(256, dtype=bool)
+_FLAG_OK[[32, *range(48, 58)]] = True
+
+
 def flag_values(ch: np.ndarray, use: np.ndarray) -> np.ndarray:
     """LLI / SSI bytes (n,) as ints where ``use``, 0 elsewhere; Unsupported for a used byte that is
-    neither a blank nor a digit."""
-    ok = (ch == 32) | ((ch >= 48) & (ch <= 57))
-    if not np.all(ok | ~use):
+    neither a blank nor a digit.  By two 256-entry tables (a few numpy calls: a small file's cost)."""
+    if not (_FLAG_OK[ch] | ~use).all():
         raise Unsupported("flag")
-    return np.where(use & (ch != 32), ch.astype(np.int64) - 48, 0)
+    return _FLAG_VALUE[ch] * use

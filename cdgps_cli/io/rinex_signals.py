@@ -24,7 +24,8 @@ from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, glonass_frequency_hz, 
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.io.rinex import _ObsHeader, _parse_version_line, _range_note, _read_text, _sat_id
 from cdgps_cli.io._fixed_width import LineBuffer, Unsupported, decimal_fields, flag_digits
-from cdgps_cli.io.rinex import _frame, _read_bytes, _split_header, _split_lines
+from cdgps_cli.io.rinex import _as_path, _frame, _read_bytes, _split_header, _split_lines
+from cdgps_cli.io import rinex_body
 from cdgps_cli.io.rinex_body import BodyLines, distinct, epochs_v3, strict_float
 
 __all__ = ["read_rinex_signals", "SIGNAL_COLUMNS"]
@@ -99,7 +100,7 @@ def _observation_header(path: str | Path, read: tuple[bytes, bool] | None = None
     """The file's lines, its parsed observation header, the index of its END OF HEADER line and the
     (decompressed) bytes of the lines; ``read``: the file's (decompressed) bytes and whether it was
     compressed, when already read (:func:`cdgps_cli.io.rinex._read_bytes`)."""
-    p = Path(path)
+    p = _as_path(path)
     if read is None:
         lines, compressed, data = _read_text(p)
     else:
@@ -109,7 +110,7 @@ def _observation_header(path: str | Path, read: tuple[bytes, bool] | None = None
     if ftype != "O":
         raise CdgpsError(f"{p}: not a RINEX observation file (type {ftype!r})")
     hdr = _ObsHeader(p, version, compressed)
-    end = next((i for i in range(1, len(lines)) if hdr.apply(lines[i], i + 1) == "END OF HEADER"), None)
+    end = hdr.apply_header(lines)
     if end is None:
         raise CdgpsError(f"{p}: no 'END OF HEADER' line")
     return lines, hdr, end, data
@@ -158,7 +159,7 @@ def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None)
         A signal absent from the header (file, what was expected, what the file has), GLONASS
         signals without ``GLONASS SLOT / FRQ #`` for an observed satellite, a malformed line.
     """
-    p = Path(path)
+    p = _as_path(path)
     read = None
     if FAST_PARSE:
         read = _read_bytes(p)
@@ -199,7 +200,7 @@ def _read_bytes_v3(p: Path, signals: list, glonass_k, read: tuple[bytes, bool] |
     if ftype != "O" or version < 3 or not signals:
         raise Unsupported("not a RINEX 3 observation file")
     hdr = _ObsHeader(p, version, compressed)
-    end = next(i for i in range(1, len(head)) if hdr.apply(head[i], i + 1) == "END OF HEADER")
+    end = hdr.apply_header(head)
     cols = _columns(hdr, signals, p)
     slots = {**(glonass_k or {}), **_glonass_slots(head, end, p)}
     lines = BodyLines(data, body_at)
@@ -207,7 +208,7 @@ def _read_bytes_v3(p: Path, signals: list, glonass_k, read: tuple[bytes, bool] |
         ep = epochs_v3(lines, events="skip")
     except CdgpsError:
         raise Unsupported("epoch") from None
-    obs = np.flatnonzero(ep["flag"] <= 1)
+    obs = (ep["flag"] <= 1).nonzero()[0]
     try:
         df = _table(lines, hdr, cols, p, slots, ep["time_gps_s"][obs], ep["line"][obs] + 1, ep["nsat"][obs], 1, None)
     except CdgpsError:
@@ -508,43 +509,27 @@ def _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2) -> pd
     if n_rec == 0:
         raise Unsupported("no records")
     first = np.asarray(first, dtype=np.int64)
-    offset = np.concatenate([[0], np.cumsum(count)[:-1]])
-    rec_line = np.repeat(first, count) + per * (np.arange(n_rec) - np.repeat(offset, count))   # first line of every record
-    t_rec = np.repeat(np.asarray(times, dtype=np.float64), count)
-    if v3:
-        if np.any(buf.length[rec_line] == 0):
-            raise Unsupported("blank record")
-        sat_bytes = buf.gather(rec_line, 0, 3)
-        if np.any(sat_bytes >= 128):
-            raise Unsupported("satellite")
-        sat_bytes[sat_bytes == 32] = 48
-        code = (sat_bytes[:, 0].astype(np.int32) << 16) | (sat_bytes[:, 1].astype(np.int32) << 8) | sat_bytes[:, 2]
-        uniq, sat_code = distinct(code)                                 # ASCII, 3 bytes: the str order
-        sat_names = [bytes([u >> 16, (u >> 8) & 255, u & 255]).decode("ascii") for u in uniq]
-        if not all(_is_satellite(x, 3) for x in sat_names):
-            raise Unsupported("satellite")                              # the line-by-line reader names it
-    else:
-        rec_lines = rec_line[:, None] + np.arange(per)
-        if np.any(buf.length[rec_lines] > 80):
-            raise Unsupported("long record line")
-        sat_names, sat_code = distinct(sats_v2)                        # str of <= 3 characters
-    sat_code = sat_code.ravel()
+    offset = np.concatenate([[0], count.cumsum()[:-1]])         # (array methods: numpy's wrappers cost µs each)
+    rec_line = first.repeat(count) + per * (np.arange(n_rec) - offset.repeat(count))   # first line of every record
+    t_rec = np.asarray(times, dtype=np.float64).repeat(count)
+    sat_names, sat_code = _record_satellites(buf, rec_line, per, v3, sats_v2)
     sat_obj = np.array(sat_names + [None], dtype=object)[:-1]
-    rows_of, lines_of, cols_of = [], [], []
+    rows_of, lines_of, cols_of, n_of = [], [], [], []
     of_system: dict = {}                                   # the records of each system, found once
     for name, (key, ip, ic, _) in cols.items():
         system = key if v3 else signal(name).system
         if system not in of_system:
-            of_system[system] = np.flatnonzero(np.array([x[:1] == system for x in sat_names])[sat_code])
+            of_system[system] = np.array([x[:1] == system for x in sat_names])[sat_code].nonzero()[0]
         rows = of_system[system]
         rows_of.append(rows)
         for k in (ip, ic):
             if k >= 0:
                 line, col = _field_place(rec_line[rows], k, v3)
                 lines_of.append(line)
-                cols_of.append(np.full(rows.size, col, dtype=np.int64))
+                cols_of.append(col)
+                n_of.append(rows.size)
     # every field of every signal at once: one gather, one conversion
-    f = buf.gather(np.concatenate(lines_of), np.concatenate(cols_of), 15)
+    f = buf.gather(np.concatenate(lines_of), np.array(cols_of, dtype=np.int64).repeat(n_of), 15)
     values, flags = decimal_fields(f[:, :14]), flag_digits(f[:, 14])
     parts, at = [], 0
     for s_i, (rows, (_, _, ic, _)) in enumerate(zip(rows_of, cols.values())):
@@ -561,9 +546,9 @@ def _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2) -> pd
     rows = np.concatenate([p[0] for p in parts])
     if rows.size == 0:
         raise Unsupported("no observation")       # the line-by-line reader's empty table (object columns)
-    order = np.argsort(rows * len(cols) + np.concatenate([np.full(p[0].size, p[1]) for p in parts]), kind="stable")
-    rows = rows[order]
-    sig = np.concatenate([np.full(p[0].size, p[1]) for p in parts])[order]
+    sig = np.arange(len(parts)).repeat([p[0].size for p in parts])         # each row's signal index
+    order = (rows * len(cols) + sig).argsort(kind="stable")
+    rows, sig = rows[order], sig[order]
     rank_of = {n: r for r, n in enumerate(sorted(cols))}
     sig_rank = np.array([rank_of[n] for n in cols], dtype=np.int64)    # signal index -> rank of its name
     t = t_rec[rows]
@@ -578,6 +563,48 @@ def _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2) -> pd
         "pseudorange_m": np.concatenate([p[3] for p in parts])[take],
         "lli": np.concatenate([p[4] for p in parts])[take], "wavelength_m": lam})
     return _noting_time_order(df, times)
+
+
+def _record_satellites(buf, rec_line: np.ndarray, per: int, v3: bool, sats_v2) -> tuple[list, np.ndarray]:
+    """(the records' satellite names, sorted; each record's index into them (n,)): RINEX 3 from the first
+    3 bytes of the records starting at ``rec_line`` (blanks read as 0; Unsupported for a blank record
+    line or a non-ASCII byte), RINEX 2 from ``sats_v2`` (Unsupported for a record line longer than 80
+    characters)."""
+    if not v3:
+        rec_lines = rec_line[:, None] + np.arange(per)
+        if np.any(buf.length[rec_lines] > 80):
+            raise Unsupported("long record line")
+        sat_names, sat_code = distinct(sats_v2)                        # str of <= 3 characters
+        return sat_names, sat_code.ravel()
+    if (buf.length[rec_line] == 0).any():
+        raise Unsupported("blank record")
+    sat_bytes = buf.gather(rec_line, 0, 3)
+    if rec_line.size <= rinex_body.FEW_RECORDS:
+        sat_names, sat_code = _few_v3_satellites(sat_bytes)
+    else:
+        if np.any(sat_bytes >= 128):
+            raise Unsupported("satellite")
+        sat_bytes[sat_bytes == 32] = 48
+        code = (sat_bytes[:, 0].astype(np.int32) << 16) | (sat_bytes[:, 1].astype(np.int32) << 8) | sat_bytes[:, 2]
+        uniq, sat_code = distinct(code)                                 # ASCII, 3 bytes: the str order
+        sat_names = [bytes([u >> 16, (u >> 8) & 255, u & 255]).decode("ascii") for u in uniq]
+        sat_code = sat_code.ravel()
+    if not all(_is_satellite(x, 3) for x in sat_names):
+        raise Unsupported("satellite")                                  # the line-by-line reader names it
+    return sat_names, sat_code
+
+
+def _few_v3_satellites(sat_bytes: np.ndarray) -> tuple[list, np.ndarray]:
+    """:func:`_record_satellites` of a few RINEX 3 records' satellite fields (n, 3), as 3-byte strings
+    (their order is the order of the integer codes of the numpy path), without numpy's per-call set-up."""
+    blob = sat_bytes.tobytes()
+    if not blob.isascii():
+        raise Unsupported("satellite")
+    blob = blob.replace(b" ", b"0")
+    fields = [blob[i:i + 3] for i in range(0, len(blob), 3)]
+    uniq = sorted(set(fields))
+    where = {u: i for i, u in enumerate(uniq)}
+    return [u.decode("ascii") for u in uniq], np.array([where[f] for f in fields], dtype=np.intp)
 
 
 def _wavelength_array(sat_code: np.ndarray, sat_names: list, sig: np.ndarray, names: list, slots: dict, path) -> np.ndarray:
@@ -595,7 +622,7 @@ def _wavelength_array(sat_code: np.ndarray, sat_names: list, sig: np.ndarray, na
         if i not in fdma:
             table[i] = sg.wavelength_m
     for i in fdma:
-        present = [(c, sat_names[c]) for c in np.flatnonzero(has[i]).tolist()]
+        present = [(c, sat_names[c]) for c in has[i].nonzero()[0].tolist()]
         absent = sorted({s for _, s in present} - set(slots))
         if absent:
             raise CdgpsError(f"{path}: GLONASS frequency numbers absent for {' '.join(absent)} "

@@ -399,6 +399,8 @@ def decode_galileo_words(words: dict, sat: str, week_ref: int) -> dict | None:
 BDS_PREAMBLE = 0b11100010010
 """The 11-bit preamble of every BeiDou D1/D2 subframe."""
 _BDS_GEO = frozenset((1, 2, 3, 4, 5, 59, 60, 61, 62, 63))
+_BDS_GEO_BYTE = np.isin(np.arange(256), sorted(_BDS_GEO))
+"""Whether a byte value (svId) is one of :data:`_BDS_GEO` (a look-up table)."""
 _URAI_M = (2.4, 3.4, 4.85, 6.85, 9.65, 13.65, 24.0, 48.0, 96.0, 192.0, 384.0, 768.0, 1536.0, 3072.0, 6144.0)
 
 
@@ -689,6 +691,8 @@ def _beidou_frame(pl: bytes, sv: int, latest: dict, recs: dict, stats: dict, che
 
 
 _INAV_SIGNALS = frozenset((0, 1, 5))
+_INAV_SIGNAL_BYTE = np.isin(np.arange(256), sorted(_INAV_SIGNALS))
+"""Whether a byte value is one of :data:`_INAV_SIGNALS` (a look-up table: ``np.isin``'s set-up costs more)."""
 """RXM-SFRBX sigIds of Galileo I/NAV frames: E1-B (1) and E5b-I (5) on u-blox 9 and later, 0 on u-blox 8
 (whose reserved byte is 0 and which tracks E1 only); E5a F/NAV and E6 C/NAV frames are counted apart."""
 _SFRBX = (0x02, 0x13)
@@ -775,7 +779,7 @@ def _stateful_mask(x: np.ndarray, off: np.ndarray, end: np.ndarray, week_ref: in
     is_x = x[off + 3] == 0x13
     gnss, sig, nw = head[:, 0], head[:, 2], head[:, 4]
     valid = is_x & (n_pl >= 8) & (n_pl == 8 + 4 * nw)
-    inav_sig = np.isin(sig, sorted(_INAV_SIGNALS))
+    inav_sig = _INAV_SIGNAL_BYTE[sig]                      # np.isin(sig, _INAV_SIGNALS): sig is a byte
     gal_other = valid & (gnss == 2) & ((nw != 8) | ~inav_sig)
     gal_kept = valid & (gnss == 2) & ~gal_other & (week_ref is not None)
     bds = valid & (gnss == 3)
@@ -908,7 +912,7 @@ def _columns_table(parts: list, d2: list) -> pd.DataFrame:
     cols = {c: np.concatenate([p[c] for p in parts]) if len(parts) > 1 else parts[0][c] for c in NAV_COLUMNS}
     order = np.lexsort((cols["transmit_gps_s"], cols["toe_gps_s"], cols["sat"].astype(str)))
     for c in NAV_COLUMNS:
-        cols[c] = cols[c][order].astype(np.int64 if c in _NAV_INT_COLUMNS else cols[c].dtype)
+        cols[c] = cols[c][order].astype(np.int64 if c in _NAV_INT_COLUMNS else cols[c].dtype, copy=False)   # fresh: no copy
     return _frame(cols)                                    # pd.DataFrame(cols, columns=list(NAV_COLUMNS))'s table
 
 

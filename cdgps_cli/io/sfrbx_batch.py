@@ -124,11 +124,11 @@ def latest_of_type(sat: np.ndarray, typ: np.ndarray, k: int) -> np.ndarray:
         −1 where that satellite has had no row of that type yet.
     """
     n = sat.size
-    order = np.argsort(sat, kind="stable")                 # by satellite, log order within
+    order = sat.argsort(kind="stable")                     # by satellite, log order within
     s = sat[order]
     base = np.zeros(n, np.int64)
     if n:
-        base[1:] = np.cumsum(s[1:] != s[:-1]) * (n + 1)    # per satellite, above every earlier one's
+        base[1:] = (s[1:] != s[:-1]).cumsum() * (n + 1)    # per satellite, above every earlier one's
     t = typ[order]
     out = np.empty((n, k), np.int64)
     for j in range(k):
@@ -144,25 +144,28 @@ def first_per_key(sat: np.ndarray, toe: np.ndarray, iode: np.ndarray) -> np.ndar
         return np.arange(m)
     o = np.lexsort((np.arange(m), iode, toe, sat))
     new = np.ones(m, bool)
-    new[1:] = (np.diff(sat[o]) != 0) | (toe[o][1:] != toe[o][:-1]) | (np.diff(iode[o]) != 0)
-    return np.sort(o[new])
+    so, to, io = sat[o], toe[o], iode[o]                   # sat, iode integers: np.diff(x) != 0 is x[1:] != x[:-1]
+    new[1:] = (so[1:] != so[:-1]) | (to[1:] != to[:-1]) | (io[1:] != io[:-1])
+    first = o[new]
+    first.sort()
+    return first
 
 
 def _nearest_week_s(week: np.ndarray, transmit_sow_s: np.ndarray, sow_s: np.ndarray) -> np.ndarray:
     """:func:`cdgps_cli.io.sfrbx._nearest_week_s` of arrays (the same float operations)."""
     base = week * W_S
     t_tx = base + transmit_sow_s
-    return base + sow_s + W_S * np.round((t_tx - base - sow_s) / W_S)
+    return base + sow_s + W_S * ((t_tx - base - sow_s) / W_S).round()
 
 
 def _full_week(wn: np.ndarray, week_ref: int, modulus: int) -> np.ndarray:
     """``wn + modulus·round((week_ref − wn)/modulus)``: a truncated week number completed (Python's round)."""
-    return wn + modulus * np.round((week_ref - wn) / modulus).astype(np.int64)
+    return wn + modulus * ((week_ref - wn) / modulus).round().astype(np.int64)
 
 
 def _kept(sat_no: np.ndarray, prefix: str, cols: dict, ok: np.ndarray) -> dict:
     """The valid records (decodable, 0 ≤ e < 1, √a > 0), the first of each (sat, toe, IODE) in order."""
-    valid = np.flatnonzero(ok & (cols["e"] >= 0) & (cols["e"] < 1) & (cols["sqrt_a_sqrt_m"] > 0))
+    valid = (ok & (cols["e"] >= 0) & (cols["e"] < 1) & (cols["sqrt_a_sqrt_m"] > 0)).nonzero()[0]
     keep = valid[first_per_key(sat_no[valid], cols["toe_gps_s"][valid], cols["iode"][valid])]
     out = {"sat": np.array([f"{prefix}{v:02d}" for v in sat_no[keep].tolist()], dtype="<U3")}
     for c in sf.NAV_COLUMNS[1:]:
@@ -247,14 +250,14 @@ def gps_records(x: np.ndarray, off: np.ndarray, week_ref: int | None, stats: dic
         n_pl = (x[off + 4].astype(np.int64) | (x[off + 5].astype(np.int64) << 8))
     good = np.where(is_x, sf._gps_parity_passes(w), (n_pl == 42) & (sv >= 1) & (sv <= 32))
     words = np.where(is_x[:, None], (w >> 6) & 0xFFFFFF, w & 0xFFFFFF)
-    for i in np.flatnonzero(is_x & ~good).tolist():        # the ICD parity chain, frame by frame
+    for i in (is_x & ~good).nonzero()[0].tolist():         # the ICD parity chain, frame by frame
         got = sf.gps_words_from_sfrbx(w[i].tolist())
         if got is None:
             stats["parity_failures"] += 1
         else:
             words[i], good[i] = got, True
     sid = np.where((words[:, 0] >> 16) & 0xFF == sf.PREAMBLE, (words[:, 1] >> 2) & 7, 0)
-    use = np.flatnonzero(good & (sid >= 1) & (sid <= 3) & (sv >= 1) & (sv <= 32))
+    use = (good & (sid >= 1) & (sid <= 3) & (sv >= 1) & (sv <= 32)).nonzero()[0]
     stats["gps_subframes"] += int(use.size)
     if week_ref is None or not use.size:
         return None
@@ -287,9 +290,8 @@ _GAL = FieldTable({
 
 def _sisa_m(index: np.ndarray) -> np.ndarray:
     """:func:`cdgps_cli.io.sfrbx._sisa_m` of an int array (the same float operations)."""
-    return np.select([index < 50, index < 75, index < 100, index < 126],
-                     [index * 0.01, 0.5 + (index - 50) * 0.02, 1.0 + (index - 75) * 0.04, 2.0 + (index - 100) * 0.16],
-                     np.nan)
+    return np.where(index < 50, index * 0.01, np.where(index < 75, 0.5 + (index - 50) * 0.02, np.where(    # np.select's
+        index < 100, 1.0 + (index - 75) * 0.04, np.where(index < 126, 2.0 + (index - 100) * 0.16, np.nan))))
 
 
 def galileo_columns(bits: np.ndarray, week_ref: int) -> tuple[dict, np.ndarray]:
@@ -334,7 +336,7 @@ def galileo_records(x: np.ndarray, off: np.ndarray, week_ref: int, stats: dict) 
     stats["galileo_bad_pages"] += int(off.size - ok.sum())
     wtype = bits[:, :6].astype(np.int64) @ (1 << np.arange(5, -1, -1))
     sv = x[off + 7].astype(np.int64)
-    use = np.flatnonzero(ok & (wtype >= 1) & (wtype <= 5) & (sv >= 1) & (sv <= 36))
+    use = (ok & (wtype >= 1) & (wtype <= 5) & (sv >= 1) & (sv <= 36)).nonzero()[0]
     stats["galileo_words"] += int(use.size)
     if not use.size:
         return None
@@ -372,7 +374,7 @@ def _bdt_nearest_week_s(week: np.ndarray, sow: np.ndarray, sow_v: np.ndarray) ->
     """:func:`cdgps_cli.io.sfrbx._bdt_nearest_week_s` of arrays."""
     t_tx = bdt_to_gps_s(week, sow)
     t = bdt_to_gps_s(week, sow_v)
-    return t + W_S * np.round((t_tx - t) / W_S)
+    return t + W_S * ((t_tx - t) / W_S).round()
 
 
 def beidou_columns(bits: np.ndarray) -> tuple[dict, np.ndarray]:
@@ -415,19 +417,19 @@ def beidou_records(x: np.ndarray, off: np.ndarray, latest: dict, d2_recs: dict, 
     w = np.ascontiguousarray(x[off[:, None] + np.arange(14, 54)]).view("<u4").reshape(off.size, 10)
     good, words = sf._beidou_bch_passes(w)
     words = words.astype(np.int64)
-    for i in np.flatnonzero(~good).tolist():                # de-interleaved words, frame by frame
+    for i in (~good).nonzero()[0].tolist():                 # de-interleaved words, frame by frame
         got = sf.beidou_words_from_sfrbx(w[i].tolist())
         if got is None:
             stats["beidou_bch_failures"] += 1
         else:
             words[i], good[i] = got, True
     sv = x[off + 7].astype(np.int64)
-    geo = np.isin(sv, sorted(sf._BDS_GEO))
-    for i in np.flatnonzero(good & geo).tolist():
+    geo = sf._BDS_GEO_BYTE[sv]                             # np.isin(sv, _BDS_GEO): sv is a byte
+    for i in (good & geo).nonzero()[0].tolist():
         stats["beidou_d2_frames"] += 1
         sf._beidou_d2_page(words[i].tolist(), f"C{int(sv[i]):02d}", latest, d2_recs, stats)
     fid = (words[:, 0] >> 12) & 7
-    use = np.flatnonzero(good & ~geo & (fid >= 1) & (fid <= 3))
+    use = (good & ~geo & (fid >= 1) & (fid <= 3)).nonzero()[0]
     stats["beidou_subframes"] += int(use.size)
     if not use.size:
         return None

@@ -34,6 +34,7 @@ import pandas as pd
 
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io import ubx_frames
+from cdgps_cli.io.rinex import _frame_as_given
 from cdgps_cli.io.sfrbx import sfrbx_ephemerides_at
 from cdgps_cli.io.ubx_frames import MAX_OFFSETS_SHOWN, rtcm_station_arp, split_stream_spans
 
@@ -433,9 +434,10 @@ def read_ubx_log(path: str | Path, *, strict: bool = False,
     p = Path(path)
     frames, rtcm, stats, counts, epochs, meas, undecodable_offsets, t = _decoded_rawx(p, strict, data)
     n_epochs = len(epochs)
-    signals = _signal_counts(meas)
+    code = _signal_codes(meas)                         # one pass over the measurements' ids, for both
+    signals = _signal_counts(meas, code)
     reset = (epochs["recStat"] & 2) != 0
-    obs, gps_sats = _l1_table(p, meas, t, reset)
+    obs, gps_sats = _l1_table(p, meas, t, reset, (code == 0).nonzero()[0])
     if obs.empty:
         sig = ", ".join(f"{k} ×{v}" for k, v in sorted(signals.items(), key=lambda kv: -kv[1]))
         raise CdgpsError(f"{p}: {n_epochs} RXM-RAWX epochs but no GPS L1 C/A measurements (signals found: {sig or 'none'})")
@@ -445,9 +447,15 @@ def read_ubx_log(path: str | Path, *, strict: bool = False,
     return info, obs, nav
 
 
-def _signal_counts(meas: np.ndarray) -> dict:
-    """{signal name: measurements} of the RXM-RAWX measurements (``GPS L1_C/A`` …), in (gnssId, sigId) order."""
-    n_code = np.bincount(meas["gnssId"].astype(np.int64) * 256 + meas["sigId"], minlength=1)   # no sort
+def _signal_codes(meas: np.ndarray) -> np.ndarray:
+    """gnssId·256 + sigId of each RXM-RAWX measurement (int64; 0: GPS L1 C/A)."""
+    return meas["gnssId"].astype(np.int64) * 256 + meas["sigId"]
+
+
+def _signal_counts(meas: np.ndarray, code: np.ndarray | None = None) -> dict:
+    """{signal name: measurements} of the RXM-RAWX measurements (``GPS L1_C/A`` …), in (gnssId, sigId) order;
+    ``code``: their :func:`_signal_codes`, when already at hand."""
+    n_code = np.bincount(_signal_codes(meas) if code is None else code, minlength=1)   # no sort
     signals: dict = {}
     for code in np.flatnonzero(n_code).tolist():
         name = _signal_name(code // 256, code % 256)
@@ -455,14 +463,17 @@ def _signal_counts(meas: np.ndarray) -> dict:
     return signals
 
 
-def _l1_table(p: Path, meas: np.ndarray, t: np.ndarray, reset: np.ndarray) -> tuple[pd.DataFrame, list]:
+def _l1_table(p: Path, meas: np.ndarray, t: np.ndarray, reset: np.ndarray,
+              sel: np.ndarray | None = None) -> tuple[pd.DataFrame, list]:
     """The GPS L1 C/A rows of the measurements as the ``obs`` table of :func:`read_ubx_log` (sorted, a
     repeated (time, satellite) refused) and its satellites (sorted names); ``reset``: each epoch's
-    clock-reset flag."""
-    m = _sorted_l1(p, meas, np.flatnonzero((meas["gnssId"] == 0) & (meas["sigId"] == 0)), t)
+    clock-reset flag; ``sel``: the indices of the GPS L1 C/A measurements, when already at hand."""
+    if sel is None:
+        sel = np.flatnonzero((meas["gnssId"] == 0) & (meas["sigId"] == 0))
+    m = _sorted_l1(p, meas, sel, t)
     trk = m["trkStat"]
     cp_ok, pr_ok = (trk & 2) != 0, (trk & 1) != 0
-    obs = pd.DataFrame(
+    obs = _frame_as_given(
         {
             "time_gps_s": t[m["epoch"]],
             "sat": _GPS_SAT_NAMES[m["svId"]],
@@ -475,15 +486,14 @@ def _l1_table(p: Path, meas: np.ndarray, t: np.ndarray, reset: np.ndarray) -> tu
             "pr_valid": pr_ok,
             "half_cycle_resolved": (trk & 4) != 0,
             "sub_half_subtracted": (trk & 8) != 0,
-            "pr_std_m": 0.01 * 2.0 ** (m["prStdev"] & 15).astype(np.int64),
-            "cp_std_cycles": 0.004 * (m["cpStdev"] & 15).astype(np.int64),
+            "pr_std_m": _PR_STD_M[m["prStdev"] & 15],
+            "cp_std_cycles": _CP_STD_CYCLES[m["cpStdev"] & 15],
             "clock_reset": reset[m["epoch"]],
-        },                                                 # in UBX_OBS_COLUMNS' order
-        copy=False,                                        # fresh arrays, none a view of the (cached) measurements
-    )
+        },                                                 # in UBX_OBS_COLUMNS' order; fresh arrays, none a view of
+    )                                                      # the (cached) measurements: pd.DataFrame(..., copy=False)
     if len(obs) and not np.isfinite(t).all():             # NaN time tags: pandas' NaN-aware path
         obs = _checked_sorted(p, obs)
-    return obs, sorted(_GPS_SAT_NAMES[np.unique(m["svId"])].tolist())
+    return obs, sorted(_GPS_SAT_NAMES[np.bincount(m["svId"], minlength=1).nonzero()[0]].tolist())   # np.unique's
 
 
 def _log_info(p: Path, epochs: np.ndarray, gps_sats: list, signals: dict, counts: dict, n_frames: int,
@@ -521,6 +531,11 @@ def _log_info(p: Path, epochs: np.ndarray, gps_sats: list, signals: dict, counts
     }
     return info
 
+
+_PR_STD_M = 0.01 * 2.0 ** np.arange(16, dtype=np.int64)
+_CP_STD_CYCLES = 0.004 * np.arange(16, dtype=np.int64)
+"""Pseudorange and carrier-phase standard deviations (m, cycles) of RXM-RAWX's 4-bit indices: 0.01·2^i, 0.004·i
+(the same float operations as on each measurement's index, made once)."""
 
 _GPS_SAT_RANK = np.argsort(np.argsort(_GPS_SAT_NAMES.astype(str), kind="stable"), kind="stable")
 """Rank of each svId's name ("G05", "G100") in string order: the order of a sort by ``sat``."""

@@ -171,3 +171,30 @@ def test_field_table_reads_split_and_signed_fields():
     for name, (signed, pieces) in {"a": (False, ((0, 3, 5),)), "b": (True, ((0, 30, 4), (1, 0, 6))),
                                    "c": (True, ((1, 2, 32),))}.items():
         assert got[name].tolist() == [ref(r, pieces, signed) for r in bits]
+
+
+def test_sisa_and_first_per_key_as_select_and_diff():
+    """_sisa_m by nested np.where is np.select's value for every 8-bit index (and the scalar decoder's); first_per_key
+    by slice comparisons gives the indices np.diff's comparisons gave, on random keys with repeats."""
+    idx = np.arange(-2, 260, dtype=np.int64)
+    ref = np.select([idx < 50, idx < 75, idx < 100, idx < 126],
+                    [idx * 0.01, 0.5 + (idx - 50) * 0.02, 1.0 + (idx - 75) * 0.04, 2.0 + (idx - 100) * 0.16], np.nan)
+    got = sfrbx_batch._sisa_m(idx)
+    assert got.dtype == ref.dtype and got.tobytes() == ref.tobytes()
+    assert [sfrbx._sisa_m(int(i)) for i in range(126)] == got[2:128].tolist()
+
+    def by_diff(sat, toe, iode):
+        m = sat.size
+        if m < 2:
+            return np.arange(m)
+        o = np.lexsort((np.arange(m), iode, toe, sat))
+        new = np.ones(m, bool)
+        new[1:] = (np.diff(sat[o]) != 0) | (toe[o][1:] != toe[o][:-1]) | (np.diff(iode[o]) != 0)
+        return np.sort(o[new])
+
+    rng = np.random.default_rng(4)
+    for n in (0, 1, 2, 5, 50, 300):
+        sat, iode = rng.integers(1, 6, n), rng.integers(0, 4, n)
+        toe = rng.choice([0.0, 16.0, 7200.0, np.nan], n)
+        got, ref = sfrbx_batch.first_per_key(sat, toe, iode), by_diff(sat, toe, iode)
+        assert got.dtype == ref.dtype and np.array_equal(got, ref)

@@ -203,3 +203,34 @@ def test_empty_nav_is_a_fresh_empty_table():
     first.loc[0] = 1.0                                     # a caller's change does not reach the next caller
     again, _ = sfrbx.sfrbx_ephemerides([], None)
     pd.testing.assert_frame_equal(again, pd.DataFrame([], columns=list(NAV_COLUMNS)), check_index_type=True)
+
+
+def test_std_tables_and_shared_signal_codes_as_per_measurement():
+    """The standard deviations by 16-entry tables are the per-measurement formulas to the bit, and the L1 table
+    and signal counts from the signal codes computed once are those of the fields read again."""
+    k = np.arange(16, dtype=np.uint8)
+    assert ubx._PR_STD_M[k].tobytes() == (0.01 * 2.0 ** k.astype(np.int64)).tobytes()
+    assert ubx._CP_STD_CYCLES[k].tobytes() == (0.004 * k.astype(np.int64)).tobytes()
+    rng = np.random.default_rng(3)
+    meas = np.zeros(400, ubx._RAWX_ROW)
+    meas["gnssId"] = rng.choice([0, 0, 2, 3, 6], 400)
+    meas["sigId"] = rng.choice([0, 0, 1, 3], 400)
+    meas["svId"] = np.concatenate([rng.permutation(np.arange(1, 41)) for _ in range(10)])   # once an epoch each
+    meas["epoch"] = np.arange(400) // 40
+    meas["prStdev"], meas["cpStdev"] = rng.integers(0, 256, 400), rng.integers(0, 256, 400)
+    meas["cpMes"], meas["trkStat"] = rng.normal(size=400), rng.integers(0, 16, 400)
+    t = 1e9 + np.arange(10, dtype=np.float64)
+    reset = np.zeros(10, bool)
+    code = ubx._signal_codes(meas)
+    assert ubx._signal_counts(meas, code) == ubx._signal_counts(meas)
+    ref = ubx._l1_table(Path("x.ubx"), meas, t, reset)
+    got = ubx._l1_table(Path("x.ubx"), meas, t, reset, (code == 0).nonzero()[0])
+    pd.testing.assert_frame_equal(got[0], ref[0], check_exact=True)
+    assert got[1] == ref[1]
+
+
+def test_byte_membership_tables_are_isin():
+    """The I/NAV signal and BeiDou GEO look-up tables (indexed by a header byte) are np.isin of every byte value."""
+    v = np.arange(256)
+    assert np.array_equal(sfrbx._INAV_SIGNAL_BYTE[v], np.isin(v, sorted(sfrbx._INAV_SIGNALS)))
+    assert np.array_equal(sfrbx._BDS_GEO_BYTE[v], np.isin(v, sorted(sfrbx._BDS_GEO)))

@@ -228,3 +228,19 @@ def test_checksums_of_every_length_and_byte_frame_identically():
                 fr[bad] = (fr[bad] + 1) & 0xFF
             parts.append(bytes(fr))
     _same(b"".join(parts))
+
+
+def test_long_checksums_frame_identically():
+    """The compiled walk sums checksums 16 bytes a step (SSE2 where the compiler targets it): frames of payload
+    lengths 0-300 (every remainder of the step, several blocks) and a few of kilobytes, bytes up to 255 (the
+    widest sums), each good and with either checksum byte off by one."""
+    rng = np.random.default_rng(16)
+    parts = []
+    for n in [*range(301), 1000, 1021, 4096, 8191, 20000]:
+        for bad in (None, -2, -1):
+            payload = rng.integers(0, 256, n, dtype=np.uint8) if n % 2 else np.full(n, 255, np.uint8)
+            fr = bytearray(_ubx(2, 0x13, payload.tobytes()))
+            if bad is not None:
+                fr[bad] = (fr[bad] + 1) & 0xFF
+            parts.append(bytes(fr))
+    _same(b"".join(parts))
