@@ -335,6 +335,10 @@ def _parse_v3(lines, i, cols, path) -> list:
             if not sat:
                 raise CdgpsError(f"{path}:{i + 2 + r_off}: blank line where the epoch's satellite record "
                                  f"{r_off + 1} of {nsat} was expected")
+            if rec.startswith(">"):
+                raise CdgpsError(f"{path}:{i + 2 + r_off}: an epoch line where satellite record {r_off + 1} of "
+                                 f"{nsat} of the epoch at line {i + 1} was expected (the epoch announces more "
+                                 f"satellites than it holds)")
             _check_satellite(rec[0:3], 3, path, i + 2 + r_off, "at the start of an observation record")
             for name, (key, ip, ic, _) in cols.items():
                 if sat[0] != key:

@@ -438,6 +438,7 @@ def test_batch_tables_are_built_after_the_engine_released_its_geometry(monkeypat
     def filt(*a, **k):
         order.append(("filter",))
         return real_filter(*a, **k)
+    monkeypatch.setenv("CDGPS_SERIAL", "1")            # both receivers in this process, where the spies see them
     monkeypatch.setattr(rtk_multi, "receiver_geometry", geometry)
     monkeypatch.setattr(baseline, "_prepare", prepare)
     monkeypatch.setattr(static_engine, "static_filter", filt)

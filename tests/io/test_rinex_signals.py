@@ -131,6 +131,16 @@ def test_garbage_satellite_record_refused_not_skipped(tmp_path: Path, raw):
         read_rinex_signals(p, ["G:L1"])
 
 
+def test_epoch_announcing_more_satellites_than_it_holds_is_named(tmp_path: Path):
+    # an epoch line where a satellite record was due was called a "malformed satellite identifier '> 2'"
+    p = tmp_path / "n.obs"
+    two = HDR.replace("G05  20028872.875 9 105252416.357 9\n", "")
+    p.write_text(two + "> 2023 01 08 10 00  1.0000000  0  1\nG05  20028872.875 9 105252416.357 9\n")
+    with pytest.raises(CdgpsError, match=r"n\.obs:7: an epoch line where satellite record 2 of 2 of the epoch at "
+                                         r"line 5 was expected \(the epoch announces more satellites"):
+        read_rinex_signals(p, ["G:L1"])
+
+
 def test_rinex2_short_or_garbage_satellite_list_named(tmp_path: Path):
     # a RINEX 2 satellite list shorter than the count (an epoch line cut) ended in an IndexError traceback
     from tests.io._rinex_edit import edited_copy

@@ -205,6 +205,7 @@ def test_the_engine_runs_before_the_batch_tables_exist(case, request, monkeypatc
     def static_filter(*a, **k):
         seen.append("filter")
         return real_filter(*a, **k)
+    monkeypatch.setenv("CDGPS_SERIAL", "1")            # both receivers in this process, where the spies see them
     monkeypatch.setattr(rtk_multi, "receiver_geometry", geometry)
     monkeypatch.setattr(baseline, "_prepare", prepare)
     monkeypatch.setattr(static_engine, "static_filter", static_filter)

@@ -69,5 +69,7 @@ def test_a_miscounted_epoch_is_refused_with_file_and_line(tmp_path):
     out = tmp_path / "bad.csv"
     r = run_cli("rtk", "--base", OBS, "--rover", DATA / "noDoppler_excerpt.23o.gz", "--nav", NAV, "-o", out)
     assert r.exit_code == 2
-    assert "noDoppler_excerpt.23o.gz:98:" in r.output and "Traceback" not in r.output
+    # line 62's epoch announces 35 satellites and holds 34: line 97, the next epoch line, is where the 35th was due
+    assert "noDoppler_excerpt.23o.gz:97: an epoch line where satellite record 35 of 35 of the epoch at line 62" \
+        in r.output and "Traceback" not in r.output
     assert not out.exists() and not list(tmp_path.iterdir())
