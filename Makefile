@@ -17,9 +17,10 @@ venv: $(VENV)/.installed
 
 # the suite on up to 4 cores (pytest-xdist; a test file stays on one worker, so its module fixtures run once).
 # Bytecode caching on even where the environment turns it off (PYTHONDONTWRITEBYTECODE): the suite starts
-# hundreds of `cdgps` processes, each would recompile the package (tests/cli: 17.1 s -> 12.0 s wall on 2 cores)
+# hundreds of `cdgps` processes, each would recompile the package (tests/cli: 17.1 s -> 12.0 s wall on 2 cores).
+# The 15 slowest tests over 5 s are listed at the end, so a CI log shows where the suite's time goes.
 test: venv
-	env -u PYTHONDONTWRITEBYTECODE $(PY) -m pytest -q -n logical --maxprocesses 4 --dist loadfile
+	env -u PYTHONDONTWRITEBYTECODE $(PY) -m pytest -q -n logical --maxprocesses 4 --dist loadfile --durations=15 --durations-min=5
 
 demo: venv
 	bash scripts/demo.sh $(CDGPS) $(DEMO)
