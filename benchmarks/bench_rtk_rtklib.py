@@ -12,8 +12,8 @@ The peer failing (non-zero exit, no solution lines) stops the benchmark with its
 
 Figures per case: epochs and fixed epochs of each, seconds per epoch of each whole process (rounds
 interleaved: cdgps, rnx2rtkp, cdgps, ...; medians) and
-their ratio both ways (ours / RTKLIB, < 1: we are faster; and RTKLIB / ours), and the difference of the fixed-epoch means (ENU,
-mm) where both fix.  Writes ``docs/benchmarks/rtk_rtklib.json``.
+their ratio both ways (ours / RTKLIB, < 1: we are faster; and RTKLIB / ours), the difference of the fixed-epoch means (ENU,
+mm; a static rover's figure) and, epoch by epoch where both fixed, the median and largest 3-D difference (mm).  Writes ``docs/benchmarks/rtk_rtklib.json``.
 
 cdgps runs as on a user's machine: with bytecode caches (the environment without
 ``PYTHONDONTWRITEBYTECODE``, which a development shell may set: every run would recompile our
@@ -177,6 +177,15 @@ def run_cdgps_once(c, cmd) -> tuple[float, subprocess.CompletedProcess]:
     return sec, p
 
 
+def _gpst_s(day: str, clock: str) -> float:
+    """Seconds of GPS time of an rnx2rtkp solution line's ``yyyy/mm/dd hh:mm:ss.sss`` (out-timesys=gpst)."""
+    from datetime import datetime  # noqa: PLC0415
+
+    d = datetime.strptime(day, "%Y/%m/%d") - datetime(1980, 1, 6)
+    h, m, sec = clock.split(":")
+    return d.days * 86400.0 + 3600.0 * int(h) + 60.0 * int(m) + float(sec)
+
+
 def _solution_body(path: Path) -> list:
     """The solution lines of a cdgps CSV without its comment header (which names the output file)."""
     return [ln for ln in path.read_text().splitlines() if not ln.startswith("#")]
@@ -210,6 +219,7 @@ def run_case(c, tmp: Path, repeats: int, peer: bool, before: str | None = None) 
 
     d = pd.read_csv(out_c, comment="#")
     res = {"cdgps_s": statistics.median(t_c), "cdgps_xyz": d[["x_m", "y_m", "z_m"]].to_numpy(),
+           "cdgps_t": d["time_gps_s"].to_numpy(),
            "cdgps_fix": d["fixed"].to_numpy() == 1, "summary": json.loads(p.stdout)}
     if before:
         res["cdgps_before_s"] = statistics.median(t_b)
@@ -217,9 +227,31 @@ def run_case(c, tmp: Path, repeats: int, peer: bool, before: str | None = None) 
     if peer:
         q = np.array([int(r[5]) for r in rows])
         res.update(rtklib_s=statistics.median(t_r), rtklib_fix=q == 1,
+                   rtklib_t=np.array([_gpst_s(r[0], r[1]) for r in rows]),
                    rtklib_xyz=np.array([[float(r[2]), float(r[3]), float(r[4])] for r in rows]),
                    base_xyz=c["base_xyz"] or _header_xyz(c["base"]))
     return res
+
+
+def both_fixed_epochs(r: dict) -> dict:
+    """Epoch by epoch where both programs fixed (times within 0.1 s: RTKLIB tags a solution with the receiver
+    time corrected by its clock, cdgps with the rover's own tag): how many, and the median and
+    largest 3-D distance between the two positions (mm).  The difference of the fixed means above only
+    means something for a static rover: a moving one's mean depends on which epochs each fixed."""
+    tc, tr = r["cdgps_t"][r["cdgps_fix"]], r["rtklib_t"][r["rtklib_fix"]]
+    xc, xr = r["cdgps_xyz"][r["cdgps_fix"]], r["rtklib_xyz"][r["rtklib_fix"]]
+    j = np.clip(np.searchsorted(tr, tc), 0, max(tr.size - 1, 0))
+    if not tr.size:
+        return {"both_fixed_epochs": 0}
+    k = np.where((j > 0) & (np.abs(tr[j - 1] - tc) < np.abs(tr[j] - tc)), j - 1, j)
+    same = np.abs(tr[k] - tc) < 0.1
+    dist_mm = 1e3 * np.linalg.norm(xc[same] - xr[k[same]], axis=1)
+    out = {"both_fixed_epochs": int(same.sum())}
+    if same.any():
+        out.update(both_fixed_median_3d_diff_mm=round(float(np.median(dist_mm)), 2),
+                   both_fixed_max_3d_diff_mm=round(float(dist_mm.max()), 2),
+                   both_fixed_over_10cm=int((dist_mm > 100).sum()))
+    return out
 
 
 def main() -> None:
@@ -269,6 +301,7 @@ def main() -> None:
                     diff = (ecef_to_enu(r["cdgps_xyz"][fix_c], bxyz).mean(axis=0)
                             - ecef_to_enu(r["rtklib_xyz"][fix_r], bxyz).mean(axis=0))
                     row["fixed_mean_diff_enu_mm"] = [round(1e3 * float(v), 2) for v in diff]
+                    row.update(both_fixed_epochs(r))
             res["cases"][c["name"]] = row
             print(c["name"], json.dumps({k: v for k, v in row.items() if k != "epoch_pairing"}), flush=True)
     res["machine"]["load_average_1min_at_end"] = round(os.getloadavg()[0], 2)
