@@ -72,9 +72,12 @@ def receiver_geometry(obs: pd.DataFrame, nav: pd.DataFrame, rx_xyz_m) -> pd.Data
     iteration on the receiver position is needed); adds ``sx, sy, sz`` (m), ``sat_clock_m`` (c·dt_sat at
     transmission, m), ``el_rad``, ``trop_m``.  Observations
     of satellites without a healthy ephemeris covering them are dropped; ``attrs["dropped"]`` counts
-    them per satellite.  CdgpsError when none is left.
+    them per satellite.  Rows without a pseudorange of their own are dropped too; ``attrs["no_code"]``
+    counts them per signal.  CdgpsError when none is left.
     """
-    df = obs[np.isfinite(obs["pseudorange_m"])].copy()
+    has_code = np.isfinite(obs["pseudorange_m"].to_numpy())
+    no_code = obs["signal"].to_numpy()[~has_code]
+    df = obs[has_code].copy()
     covered = ephemeris_coverage(nav, df["sat"].to_numpy(), df["time_gps_s"].to_numpy())
     dropped = df.loc[~covered].groupby("sat")["time_gps_s"].nunique().to_dict()
     df = df[covered]
@@ -107,6 +110,7 @@ def receiver_geometry(obs: pd.DataFrame, nav: pd.DataFrame, rx_xyz_m) -> pd.Data
                     ("el_rad", el), ("trop_m", trop)):
         out[name] = v[group]
     out.attrs["dropped"] = {k: int(v) for k, v in sorted(dropped.items())}
+    out.attrs["no_code"] = {str(k): int(v) for k, v in zip(*np.unique(no_code, return_counts=True))} if no_code.size else {}
     return out
 
 

@@ -145,6 +145,9 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
     warnings += [f"{path} ({who}): observations of {len(d)} satellite(s) without a healthy ephemeris covering them "
                  f"dropped: " + ", ".join(f"{s} ({n} epochs)" for s, n in d.items())
                  for who, path, d in (("base", base_path, gb.attrs["dropped"]), ("rover", rover_path, gr.attrs["dropped"])) if d]
+    warnings += [f"{path} ({who}): {sum(d.values())} phase observation(s) without a pseudorange of their own not used: "
+                 + ", ".join(f"{sig} {n}" for sig, n in d.items())
+                 for who, path, d in (("base", base_path, gb.attrs["no_code"]), ("rover", rover_path, gr.attrs["no_code"])) if d]
     gb.attrs, gr.attrs = {}, {}
     try:
         if rx_from_spp:             # a single-point origin is metres off: the rover's troposphere (≈ 0.3 mm per

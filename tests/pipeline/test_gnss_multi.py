@@ -253,3 +253,20 @@ def test_rtk_warns_of_epochs_out_of_time_order(tmp_path):
                        options={"signals": ("G:L1",)})
     assert any(f"{rover} (rover): 1 epoch(s) written out of time order (first: 2005-04-02 00:00:00 GPST" in w
                for w in s["warnings"]), s["warnings"]
+
+
+def test_rtk_names_phase_observations_without_their_own_pseudorange(tmp_path):
+    # L2 phase without an L2 code of its own was dropped by receiver_geometry without a word
+    data = REPO_ROOT / "tests" / "data"
+    obs = data / "14601736.18o"
+    s = rtk_from_files(obs, obs, [data / "14601736.18n"], tmp_path / "z.csv", options={"signals": ("G:L1", "G:L2")})
+    from cdgps_cli.io.rinex_signals import read_rinex_signals
+
+    _, df = read_rinex_signals(obs, ["G:L1", "G:L2"])
+    n = int((~np.isfinite(df["pseudorange_m"].to_numpy()) & (df["signal"] == "G:L2").to_numpy()).sum())
+    assert n > 0 and (~np.isfinite(df["pseudorange_m"].to_numpy())).sum() == n     # only L2 rows lack their code
+    for who in ("base", "rover"):
+        assert f"{obs} ({who}): {n} phase observation(s) without a pseudorange of their own not used: G:L2 {n}" \
+            in s["warnings"], s["warnings"]
+    s1 = rtk_from_files(obs, obs, [data / "14601736.18n"], tmp_path / "l1.csv", options={"signals": ("G:L1",)})
+    assert not any("without a pseudorange" in w for w in s1["warnings"])
