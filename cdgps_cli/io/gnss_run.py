@@ -520,7 +520,8 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
         raise CdgpsError(f"--master is required: which of {', '.join(files)} is the reference receiver at a known position")
     if master not in files:
         raise CdgpsError(f"master {master!r} is not one of the receivers given: {', '.join(files)}")
-    nav_list = list(cfg.nav) if nav_paths is None else [str(p) for p in nav_paths]
+    nav_list = expand_paths(list(cfg.nav), f"{cfg.path}: [gnss] nav") if nav_paths is None else \
+        expand_paths([str(p) for p in nav_paths], "--nav")
     out_path = Path(out_path)
     for n, ps in pieces.items():
         for p in ps:

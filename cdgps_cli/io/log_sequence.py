@@ -52,7 +52,8 @@ def expand_paths(items, what: str) -> list[str]:
     Raises
     ------
     CdgpsError
-        A pattern that matches no file; a file given twice.
+        A pattern that matches no file; a file name that does not exist (named with ``what``, e.g. the
+        config and key that give it); a file given twice.
     """
     out: list[str] = []
     for it in items:
@@ -62,6 +63,8 @@ def expand_paths(items, what: str) -> list[str]:
             if not hits:
                 raise CdgpsError(f"{what}: the pattern {it!r} matches no file")
             out.extend(hits)
+        elif not Path(it).exists():
+            raise CdgpsError(f"{what}: {it}: cannot read: no such file")
         else:
             out.append(it)
     seen: dict[str, str] = {}

@@ -98,9 +98,18 @@ def _nav(paths, systems) -> pd.DataFrame:
     return nav
 
 
+def _refuse_empty(path, who: str) -> None:
+    """An empty receiver file is named as such: from its bytes neither reader can tell which it should be."""
+    p = Path(path)
+    if p.is_file() and p.stat().st_size == 0:
+        raise CdgpsError(f"{path} ({who}): empty file; expected a RINEX observation file or a u-blox UBX log")
+
+
 def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None, options: dict | None = None) -> dict:
     """Solve base → rover and write ``out_csv``; returns the summary (fix rate, static position …)."""
     opt = validate_options(options or {})
+    for path, who in ((base_path, "base"), (rover_path, "rover")):
+        _refuse_empty(path, who)
     warnings = []
     auto = opt["signals"] == "auto"
     sigs = _auto_signals(base_path, rover_path, nav_paths, warnings) if auto else list(opt["signals"])

@@ -454,3 +454,20 @@ def test_observation_arrays_round_trip_as_float64_and_int64_columns():
         got = back[c].to_numpy()
         assert got.dtype == (object if c == "sat" else np.float64 if want.dtype.kind == "f" else np.int64), c
         np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("key, line", [("[gnss.antennas.rover] rinex", 'rinex = "nope/rover.obs"'),
+                                       ("[gnss] nav", 'nav = ["nope.nav"]')])
+def test_ingest_names_the_config_key_of_a_missing_file(tmp_path, key, line):
+    # the message named the missing file but not the config and key that point to it
+    data = ROOT / "tests" / "data"
+    cfg = tmp_path / "run.toml"
+    rover = line if "rinex" in line else f'rinex = "{data / "07590920.05o"}"'     # a zero baseline
+    nav = line if "nav" in line else f'nav = ["{data / "07590920.05n"}"]'
+    cfg.write_text(f'[gnss]\nmaster = "base"\n{nav}\n\n[gnss.antennas.base]\nrinex = "{data / "07590920.05o"}"\n\n'
+                   f'[gnss.antennas.rover]\n{rover}\n')
+    out = tmp_path / "run.mcap"
+    r = CliRunner().invoke(main, ["ingest", "--config", str(cfg), "-o", str(out)])
+    assert r.exit_code == 2 and "Traceback" not in r.output
+    assert f"run.toml: {key}: {tmp_path / 'nope'}" in r.output and "cannot read: no such file" in r.output, r.output
+    assert not out.exists()

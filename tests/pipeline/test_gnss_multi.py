@@ -270,3 +270,15 @@ def test_rtk_names_phase_observations_without_their_own_pseudorange(tmp_path):
             in s["warnings"], s["warnings"]
     s1 = rtk_from_files(obs, obs, [data / "14601736.18n"], tmp_path / "l1.csv", options={"signals": ("G:L1",)})
     assert not any("without a pseudorange" in w for w in s1["warnings"])
+
+
+@pytest.mark.parametrize("name", ["empty.ubx", "empty.obs"])
+def test_rtk_calls_an_empty_receiver_file_empty_whatever_its_name(tmp_path, name):
+    # an empty .ubx was "empty file; expected a RINEX file"
+    empty = tmp_path / name
+    empty.write_bytes(b"")
+    data = REPO_ROOT / "tests" / "data"
+    with pytest.raises(CdgpsError, match=rf"{name} \(base\): empty file; expected a RINEX observation file or a "
+                                         r"u-blox UBX log"):
+        rtk_from_files(empty, data / "07590920.05o", [data / "07590920.05n"], tmp_path / "x.csv")
+    assert not (tmp_path / "x.csv").exists()
