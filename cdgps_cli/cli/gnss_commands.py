@@ -122,17 +122,21 @@ def config_cmd(ctx, rinex, ubx, nav, master, displacement, sigma, name, output, 
     if sigma is not None and displacement != "random_walk":
         raise CdgpsError("--sigma is the random-walk process noise: use it with --displacement random_walk")
     notes: list = []
+    warnings: list = []
     text = starter_gnss_config(_parse_named(rinex, "--rinex"), _parse_named(ubx, "--ubx"), list(nav), master,
                                displacement=displacement, sigma_m_per_sqrt_s=sigma,
-                               relative_to=Path(output).resolve().parent, name=name, notes=notes)
+                               relative_to=Path(output).resolve().parent, name=name, notes=notes, warnings=warnings)
     _write_text_atomic(output, text)
+    for w in warnings:
+        _warn(w)
     for n in notes:
         click.echo(f"cdgps: note: {n}", err=True)
     _say(ctx, f"wrote {output}")
     if as_json:
         from cdgps_cli.config.structure import load_gnss_config
 
-        _emit_json({"output": output, "config": load_gnss_config(output).summary(), "notes": notes})
+        _emit_json({"output": output, "config": load_gnss_config(output).summary(), "notes": notes,
+                    "warnings": warnings})
 
 
 @main.command("baseline-config", short_help="Starter baseline job TOML from RINEX headers")

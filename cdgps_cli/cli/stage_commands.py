@@ -215,10 +215,11 @@ def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict=F
     s = ingest_gnss(cfg, output, rinex=rx or None, ubx=ub or None, nav_paths=list(nav) if nav else None, master=master,
                     progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)), strict=strict,
                     sensor_paths=list(sensor_logs) if sensor_logs else None)
+    from cdgps_cli.io.gnss_run import ubx_loss_warning
+
     for n, g in s["integrity"].items():        # lost data is reported even with --quiet
         if g["problems"]:
-            _warn(f"{g['file']} ({n}): corrupt UBX data, skipped: {', '.join(g['problems'])}; "
-                  f"{g['n_frames']} frames read (the run lacks what was lost; 'ingest --strict' refuses such a log)")
+            _warn(ubx_loss_warning(n, g))
         if g.get("other_protocols"):
             _say(ctx, f"  {g['file']} ({n}): skipped other protocols' frames between the UBX frames: {g['other_protocols']}")
     _say(ctx, f"wrote {output}: GNSS run {s['config']}, master {s['master']}, {len(s['receivers'])} receiver(s), "

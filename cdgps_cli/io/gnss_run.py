@@ -733,6 +733,15 @@ def write_gnss_run(cfg: GnssConfig, out_path: str | Path, inp: IngestInputs, pos
     return summary
 
 
+def ubx_loss_warning(name: str, record: dict) -> str | None:
+    """The warning of a UBX receiver's integrity record (``file``, ``n_frames``, ``problems``: one entry of
+    :func:`_ubx_integrity`), None for a clean log; ``ingest`` and ``config`` say it alike."""
+    if not record.get("problems"):
+        return None
+    return (f"{record['file']} ({name}): corrupt UBX data, skipped: {', '.join(record['problems'])}; "
+            f"{record['n_frames']} frames read (the run lacks what was lost; 'ingest --strict' refuses such a log)")
+
+
 def _ubx_integrity(receivers: dict, files: dict) -> dict:
     """Per UBX receiver: ``file`` (as given), the integrity counters of its read summary and
     ``problems`` (the worded losses; empty for a clean log)."""
@@ -993,13 +1002,15 @@ def gnss_run_info(path: str | Path, contents, common_epochs=None, lock_summary=N
 
 def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), master: str | None = None, *,
                         displacement: str = "static", sigma_m_per_sqrt_s=None, relative_to: Path | None = None,
-                        name: str | None = None, notes: list | None = None, master_position=None) -> str:
+                        name: str | None = None, notes: list | None = None, warnings: list | None = None,
+                        master_position=None) -> str:
     """Text of a GNSS run config for the given files; the headers are read and summarised in
     comments (marker, receiver, antenna, span, header position).  The master defaults to the first
     RINEX antenna with a header position (or a UBX log with an RTCM 1005/1006 station position);
     paths are written relative to ``relative_to``.  A UBX master's ``position_ecef_m`` is the
     RTCM 1005/1006 antenna reference point, else the mean single-point position (said in the
-    comments and appended to ``notes``).  The text is parsed back and its positions checked."""
+    comments and appended to ``notes``).  A UBX log that lost data (bad checksums, skipped bytes, a cut
+    frame) is named in ``warnings`` as ``ingest`` names it.  The text is parsed back and its positions checked."""
     ubx = ubx or {}
     if not rinex and not ubx:
         raise CdgpsError("give at least one receiver file (--rinex/--ubx ANTENNA=FILE)")
@@ -1031,6 +1042,10 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
     ubx_rx = {}
     for n, p in ubx.items():
         rx = ubx_rx[n] = read_receiver_file(n, "ubx", p)
+        lost = ubx_loss_warning(n, {"file": str(p), "n_frames": int(rx.info.get("n_frames") or 0),
+                                    "problems": integrity_problems(rx.info)})
+        if lost and warnings is not None:
+            warnings.append(lost)
         t = np.unique(rx.raw["time_gps_s"].to_numpy())
         base = rx.info.get("rtcm_base")
         sf = rx.info.get("sfrbx") or {}

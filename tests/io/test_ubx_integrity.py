@@ -179,3 +179,25 @@ def test_clean_log_and_nmea_between_frames_are_not_losses(clean, tmp_path):
 def test_strict_is_for_gnss_files(tmp_path):
     r = _cli("ingest", "r.csv", "--config", "c.toml", "--strict", "-o", tmp_path / "o.mcap")
     assert r.exit_code == 2 and "--strict applies to GNSS receiver files" in r.stderr
+
+
+
+def test_config_warns_of_a_damaged_log_as_ingest_does(tmp_path):
+    # 'cdgps config' wrote a starter config from a damaged log without a word while 'ingest' warned
+    walk = SHARED.parents[1] / "real-pairs" / "ublox-walk" / "gnss_1730.ubx"
+    if not walk.is_file():
+        pytest.skip(f"shared test data not available: {walk}")
+    data = bytearray(walk.read_bytes())
+    for k in range(1000, len(data), len(data) // 5):          # a byte of five frames: checksums fail
+        data[k] ^= 0xFF
+    p = tmp_path / "damaged.ubx"
+    p.write_bytes(bytes(data))
+    r = _cli("-q", "ingest", "--ubx", f"A={p}", "-o", tmp_path / "run.mcap")
+    said = [ln for ln in r.stderr.splitlines() if "corrupt UBX data" in ln]
+    r = _cli("-q", "config", "--ubx", f"A={p}", "-o", tmp_path / "run.toml", "--json")
+    assert r.exit_code == 0, r.stderr
+    warn = [ln for ln in r.stderr.splitlines() if "corrupt UBX data" in ln]
+    assert len(said) == 1 and warn == said                                    # the same words, even with -q
+    assert json.loads(r.stdout)["warnings"] == [said[0].removeprefix("cdgps: warning: ")]
+    r = _cli("-q", "config", "--ubx", f"A={walk}", "-o", tmp_path / "clean.toml", "--json")
+    assert r.exit_code == 0 and "corrupt" not in r.stderr and json.loads(r.stdout)["warnings"] == []
