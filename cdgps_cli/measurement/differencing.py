@@ -236,6 +236,15 @@ def select_reference(ptr, sat, elevation_rad, slip=None, *, usable=None) -> np.n
     ndarray of int64, shape (n_epochs,)
         Row index of the reference of each epoch, −1 where the epoch has fewer than two usable
         rows.
+
+    Notes
+    -----
+    The choice is sequential (a reference is kept while it lasts), but it changes seldom: each epoch's
+    highest satellite is found for all epochs at once, and the current reference is followed over
+    blocks of epochs (:data:`REFERENCE_LOOKAHEAD` at first, doubling while it lasts) until the first
+    epoch where it is missing or slips.  The rows are those of an epoch-by-epoch loop over the rules
+    above (ties: the higher satellite, then the lower satellite index, then the earlier row); that loop
+    is the tests' oracle (``tests/measurement/test_differencing.py``).
     """
     ptr = np.asarray(ptr, dtype=np.int64)
     sv = np.asarray(sat, dtype=np.int64)
@@ -245,25 +254,79 @@ def select_reference(ptr, sat, elevation_rad, slip=None, *, usable=None) -> np.n
     ok = np.ones(n, dtype=bool) if usable is None else np.asarray(usable, dtype=bool)
     ne = ptr.size - 1
     ref = np.full(ne, -1, dtype=np.int64)
+    epoch = np.repeat(np.arange(ne), np.diff(ptr))
+    valid = np.flatnonzero(np.bincount(epoch[ok], minlength=ne) >= 2)
+    if valid.size == 0:
+        return ref
+    if np.isnan(el[ok]).any():                      # NaN compares as neither higher nor lower: the loop's order
+        return _select_reference_loop(ptr, sv, el, sl, ok)
+    best = _highest_rows(epoch, sv, el, ok, ok & ~sl, ne)
+    good = ok & ~sl
+    pos, cur, look = 0, -1, REFERENCE_LOOKAHEAD
+    while pos < valid.size:
+        if cur < 0:                                 # no reference yet, or it just ended: the highest
+            e = valid[pos]
+            ref[e] = best[e]
+            cur, pos, look = int(sv[best[e]]), pos + 1, REFERENCE_LOOKAHEAD
+            continue
+        block = valid[pos:pos + look]
+        rows = _first_rows_of(cur, block, ptr, sv, good)
+        stop = np.flatnonzero(rows < 0)
+        kept = stop[0] if stop.size else block.size
+        ref[block[:kept]] = rows[:kept]
+        pos += kept
+        if stop.size:
+            cur = -1
+        else:
+            look *= 2
+    return ref
+
+
+#: Epochs the current reference is first followed over before the next block (doubling while it lasts).
+REFERENCE_LOOKAHEAD = 256
+
+
+def _select_reference_loop(ptr, sv, el, sl, ok) -> np.ndarray:
+    """:func:`select_reference` epoch by epoch, as its rules read (arrays already converted)."""
+    ne = ptr.size - 1
+    ref = np.full(ne, -1, dtype=np.int64)
     cur = -1
     el_l, sv_l, sl_l, ok_l = el.tolist(), sv.tolist(), sl.tolist(), ok.tolist()
     for k in range(ne):
-        a, b = int(ptr[k]), int(ptr[k + 1])
-        rows = [i for i in range(a, b) if ok_l[i]]
+        rows = [i for i in range(int(ptr[k]), int(ptr[k + 1])) if ok_l[i]]
         if len(rows) < 2:
             continue
-        pick = -1
-        if cur >= 0:
-            for i in rows:
-                if sv_l[i] == cur and not sl_l[i]:
-                    pick = i
-                    break
+        pick = next((i for i in rows if sv_l[i] == cur and not sl_l[i]), -1) if cur >= 0 else -1
         if pick < 0:
             cand = [i for i in rows if not sl_l[i]] or rows
             pick = max(cand, key=lambda i: (el_l[i], -sv_l[i]))
             cur = sv_l[pick]
         ref[k] = pick
     return ref
+
+
+def _highest_rows(epoch, sv, el, ok, good, ne) -> np.ndarray:
+    """Each epoch's highest row (ties: lower satellite index, then earlier row) among its usable rows
+    that do not slip, or among all its usable rows when every one slips; −1 without a usable row."""
+    has_good = np.bincount(epoch[good], minlength=ne) > 0
+    cand = np.flatnonzero(ok & (good | ~has_good[epoch]))
+    order = cand[np.lexsort((cand, sv[cand], -el[cand], epoch[cand]))]
+    first = np.ones(order.size, dtype=bool)
+    first[1:] = epoch[order[1:]] != epoch[order[:-1]]
+    best = np.full(ne, -1, dtype=np.int64)
+    best[epoch[order[first]]] = order[first]
+    return best
+
+
+def _first_rows_of(sat_index: int, epochs, ptr, sv, good) -> np.ndarray:
+    """In each of ``epochs`` (sorted), the first row of satellite ``sat_index`` that is usable and does
+    not slip, −1 where there is none."""
+    a, b = ptr[epochs[0]], ptr[epochs[-1] + 1]
+    hit = a + np.flatnonzero(good[a:b] & (sv[a:b] == sat_index))
+    if hit.size == 0:
+        return np.full(epochs.size, -1, dtype=np.int64)
+    j = np.minimum(np.searchsorted(hit, ptr[epochs]), hit.size - 1)
+    return np.where((hit[j] >= ptr[epochs]) & (hit[j] < ptr[epochs + 1]), hit[j], -1)
 
 
 def dd_operator(n: int, ref: int) -> np.ndarray:

@@ -189,6 +189,49 @@ def test_reference_changes_when_it_slips():
     assert [int(sat[r]) for r in ref] == [1, 1, 1, 1]
 
 
+def _random_rows(rng, n_epochs, n_sats, p_slip, p_unusable, p_missing, round_el):
+    """Epoch rows of random satellites (in random order, sometimes a satellite twice) with elevations
+    rounded to ``round_el`` degrees (ties), slips and unusable rows."""
+    ep, sat = [], []
+    for k in range(n_epochs):
+        seen = rng.permutation(n_sats)[: max(0, n_sats - rng.binomial(n_sats, p_missing))]
+        if seen.size and rng.random() < 0.05:
+            seen = np.r_[seen, seen[:1]]                     # a satellite twice in one epoch
+        ep += [k] * seen.size
+        sat += seen.tolist()
+    ep, sat = np.array(ep, dtype=np.int64), np.array(sat, dtype=np.int64)
+    el = np.round(rng.uniform(5, 85, ep.size) / round_el) * round_el * D2R
+    return ep, sat, el, rng.random(ep.size) < p_slip, rng.random(ep.size) >= p_unusable
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_reference_rows_are_the_epoch_by_epoch_loops(seed):
+    """The blockwise choice gives the rows of the rule applied epoch by epoch (the former code), with ties,
+    duplicated satellites, slips, unusable rows, empty epochs and references lasting past the look-ahead."""
+    from cdgps_cli.measurement.differencing import REFERENCE_LOOKAHEAD, _select_reference_loop
+
+    rng = np.random.default_rng(seed)
+    n_epochs = int(rng.choice([1, 3, 40, REFERENCE_LOOKAHEAD * 5 + 7]))
+    p_slip = [0.0, 0.002, 0.05, 0.9][seed % 4]
+    ep, sat, el, slip, usable = _random_rows(rng, n_epochs, int(rng.integers(1, 9)), p_slip,
+                                             [0.0, 0.1, 0.5][seed % 3], [0.0, 0.2][seed % 2], [0.001, 5.0][seed % 2])
+    ptr = epoch_pointers(ep, n_epochs)                     # epochs without rows too
+    want = _select_reference_loop(ptr, sat, el, slip, usable)
+    np.testing.assert_array_equal(select_reference(ptr, sat, el, slip, usable=usable), want)
+    np.testing.assert_array_equal(select_reference(ptr, sat, el), _select_reference_loop(
+        ptr, sat, el, np.zeros(sat.size, bool), np.ones(sat.size, bool)))
+
+
+def test_reference_with_nan_elevations_follows_the_loop():
+    ep, sat, el = _rows([{1: 40, 2: 60, 3: 20}, {1: 45, 2: 58, 3: 25}])
+    el[1] = np.nan
+    ptr = epoch_pointers(ep)
+    from cdgps_cli.measurement.differencing import _select_reference_loop
+
+    np.testing.assert_array_equal(select_reference(ptr, sat, el),
+                                  _select_reference_loop(ptr, sat, el, np.zeros(6, bool), np.ones(6, bool)))
+
+
 def test_double_differences_against_reference_rows():
     epochs = [{1: 40, 2: 60, 3: 20}, {1: 72, 3: 33}]
     ep, sat, el = _rows(epochs)
