@@ -45,17 +45,19 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, min_su
     from cdgps_cli.estimation.baseline import BaselineOptions, format_summary, json_safe
     from cdgps_cli.pipeline.baseline_job import baseline_from_files, load_baseline_job
 
-    positions = {}
+    positions, origins = {}, {}
     if job:
         cfg = load_baseline_job(job)
         stations, navs, mst, opt = cfg["rinex"], cfg["nav"], cfg["master"], cfg["options"]
-        positions = cfg.get("positions", {})
+        positions, origins = cfg.get("positions", {}), cfg.get("origins", {})
     else:
         stations, navs, mst, opt = {}, [], None, BaselineOptions()
     if rinex:
         stations = _parse_named(rinex, "--rinex", "station", "NAME=PATH")
+        origins = {k: v for k, v in origins.items() if k != "rinex"}     # named by --rinex, not the job
     if nav:
         navs = list(nav)
+        origins = {k: v for k, v in origins.items() if k != "nav"}
     mst = master or mst
     if len(stations) != 2:
         raise CdgpsError(f"give exactly two stations with --rinex NAME=PATH (or --config), got {len(stations)}")
@@ -91,7 +93,8 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, min_su
     rover = next(n for n in stations if n != mst)
     _say(ctx, f"baseline {mst} → {rover}: {len(navs)} navigation file(s), mask {opt.mask_deg:g}°, ratio {opt.ratio_threshold:g} …")
     res = json_safe(baseline_from_files(stations, navs, mst, opt,
-                                        positions={k: v for k, v in positions.items() if k in stations}))
+                                        positions={k: v for k, v in positions.items() if k in stations},
+                                        origins=origins))
     if job:
         res["inputs"]["config"] = str(job)
     timing = res.pop("timing_s", {})        # wall-clock: stderr only, so the file is byte-identical across runs

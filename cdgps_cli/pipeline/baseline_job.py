@@ -18,7 +18,7 @@ from cdgps_cli.estimation.baseline import BaselineOptions, Station, solve_static
 from cdgps_cli.io.gnss_run import merge_nav
 from cdgps_cli.io.rinex import read_rinex_obs
 
-__all__ = ["load_stations", "baseline_from_files", "load_baseline_job"]
+__all__ = ["load_stations", "baseline_from_files", "load_baseline_job", "refuse_missing_files"]
 
 
 def load_stations(rinex: dict, nav_paths) -> tuple[dict, pd.DataFrame]:
@@ -33,17 +33,34 @@ def load_stations(rinex: dict, nav_paths) -> tuple[dict, pd.DataFrame]:
     return stations, merge_nav(nav_paths, ("G",))     # GPS files only; a Galileo-only file beside them is skipped
 
 
+def refuse_missing_files(rinex: dict, nav_paths, origins: dict | None = None) -> None:
+    """A receiver or navigation file that does not exist is named with where it was given.
+
+    ``origins`` is a job's ``{"rinex": {station: source}, "nav": source}``, a source being e.g.
+    ``"job.toml: [gnss.antennas.B] rinex"``; files without one are named by their option
+    (``--rinex NAME``, ``--nav``)."""
+    origins = origins or {}
+    from_job = origins.get("rinex", {})
+    given = [(from_job.get(n, f"--rinex {n}"), p) for n, p in rinex.items()]
+    given += [(origins.get("nav", "--nav"), p) for p in nav_paths]
+    for where, path in given:
+        if not Path(path).exists():
+            raise CdgpsError(f"{where}: {path}: cannot read: no such file")
+
+
 def baseline_from_files(rinex: dict, nav_paths, master: str, options: BaselineOptions | None = None,
-                        positions: dict | None = None) -> dict:
+                        positions: dict | None = None, origins: dict | None = None) -> dict:
     """Read the files and solve (:func:`solve_static_baseline`); ``rinex`` maps exactly two station
     names to observation files, ``master`` is one of them; ``positions`` optionally gives
-    ``{name: ECEF m}`` instead of the RINEX header positions."""
+    ``{name: ECEF m}`` instead of the RINEX header positions; ``origins`` names where each path was
+    given (:func:`refuse_missing_files`)."""
     if len(rinex) != 2:
         raise CdgpsError(f"a baseline needs exactly two RINEX observation files (NAME=PATH), got {len(rinex)}: "
                          f"{', '.join(rinex) or 'none'}")
     if master not in rinex:
         raise CdgpsError(f"master {master!r} is not one of the stations given: {', '.join(rinex)}")
     (options or BaselineOptions()).validate()
+    refuse_missing_files(rinex, nav_paths, origins)
     stations, nav = load_stations(rinex, nav_paths)
     rover = next(n for n in rinex if n != master)
     pos = positions or {}
@@ -77,8 +94,9 @@ def load_baseline_job(path) -> dict:
     -------
     dict
         ``name``, ``master``, ``rinex`` ({name: Path}), ``nav`` ([Path]), ``options``
-        (:class:`BaselineOptions`) and ``positions`` ({name: ECEF m} given in the file; the
-        others come from the RINEX headers).
+        (:class:`BaselineOptions`), ``positions`` ({name: ECEF m} given in the file; the
+        others come from the RINEX headers) and ``origins`` (the file and key that give each
+        station's file and the navigation files, for :func:`refuse_missing_files`).
 
     Raises
     ------
@@ -146,8 +164,9 @@ def load_baseline_job(path) -> dict:
         opt.validate()
     except CdgpsError as exc:
         raise CdgpsError(f"{p}: {exc}") from None
+    origins = {"rinex": {n: f"{p}: [baseline.rinex] {n}" for n in rinex}, "nav": f"{p}: [baseline] nav"}
     return {"name": b.get("name", p.stem), "master": b["master"], "rinex": rinex, "nav": nav, "options": opt,
-            "positions": {}}
+            "positions": {}, "origins": origins}
 
 
 def _job_from_gnss_config(p: Path, text: str) -> dict:
@@ -175,4 +194,6 @@ def _job_from_gnss_config(p: Path, text: str) -> dict:
         raise CdgpsError(f"{p}: {exc}") from None
     return {"name": cfg.name, "master": cfg.master, "rinex": {a.name: Path(a.rinex) for a in cfg.antennas},
             "nav": [Path(n) for n in cfg.nav], "options": opt,
-            "positions": {a.name: a.position_ecef_m for a in cfg.antennas if a.position_ecef_m is not None}}
+            "positions": {a.name: a.position_ecef_m for a in cfg.antennas if a.position_ecef_m is not None},
+            "origins": {"rinex": {a.name: f"{p}: [gnss.antennas.{a.name}] rinex" for a in cfg.antennas},
+                        "nav": f"{p}: [gnss] nav"}}

@@ -86,3 +86,31 @@ def test_old_baseline_job_form_still_loads_and_gnss_positions_are_used(tmp_path)
     bad.write_text('[gnss]\nmaster = "a"\n[gnss.antennas.a]\nubx = "a.ubx"\n')
     with pytest.raises(CdgpsError, match=r"not usable as a baseline job: 3 problems"):
         load_baseline_job(bad)
+
+
+@pytest.mark.parametrize("form", ["gnss", "baseline"])
+@pytest.mark.parametrize("missing", ["rinex", "nav"])
+def test_baseline_names_the_job_key_of_a_missing_file(tmp_path, form, missing):
+    # 'baseline --config' said "PATH: cannot read: No such file or directory", without the job file and key
+    obs, nav = shared("07590920.05o"), shared("07590920.05n")
+    rover = "gone.obs" if missing == "rinex" else str(obs)
+    navs = "gone.nav" if missing == "nav" else str(nav)
+    job = tmp_path / "job.toml"
+    if form == "gnss":
+        job.write_text(f'[gnss]\nmaster = "A"\nnav = ["{navs}"]\n[gnss.antennas.A]\nrinex = "{obs}"\n'
+                       f'[gnss.antennas.B]\nrinex = "{rover}"\n')
+        key = "[gnss.antennas.B] rinex" if missing == "rinex" else "[gnss] nav"
+    else:
+        job.write_text(f'[baseline]\nmaster = "A"\nnav = ["{navs}"]\n[baseline.rinex]\nA = "{obs}"\nB = "{rover}"\n')
+        key = "[baseline.rinex] B" if missing == "rinex" else "[baseline] nav"
+    out = tmp_path / "b.json"
+    r = CliRunner().invoke(main, ["baseline", "--config", str(job), "-o", str(out)])
+    assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+    gone = tmp_path / ("gone.obs" if missing == "rinex" else "gone.nav")
+    assert f"{job}: {key}: {gone}: cannot read: no such file" in r.output, r.output
+    assert not out.exists()
+    # given on the command line instead, the file is named by its option
+    opt = ["--rinex", f"A={obs}", "--rinex", "B=gone.obs"] if missing == "rinex" else ["--nav", "gone.nav"]
+    r = CliRunner().invoke(main, ["baseline", "--config", str(job), *opt, "-o", str(out)])
+    assert r.exit_code == 2, r.output
+    assert ("--rinex B: gone.obs" if missing == "rinex" else "--nav: gone.nav") in r.output, r.output
