@@ -31,8 +31,8 @@ from cdgps_cli.report.envelope import DEFAULT_BINS
 from cdgps_cli.report.mac import mac_matrix
 from cdgps_cli.report.run_data import KINEMATIC_TOPIC, StatesBlocks
 from cdgps_cli.report.run_scan import CHI2_LOWER, CHI2_UPPER, read_truth, scan_series, scan_states
-from cdgps_cli.report.sensor_reports import (_CSS, _fmt, _html_table, _json_clean, _mpl, _png, plot_fdd, plot_psd,
-                                             plot_static, spectra_result, static_statistics)
+from cdgps_cli.report.sensor_reports import (_CSS, _fmt, _html_table, _json_clean, _mpl, _png, check_gyro_run, plot_fdd,
+                                             plot_psd, plot_static, spectra_result, static_statistics)
 
 RUN_REPORT_FILES = ("index.html", "report.json")
 
@@ -88,13 +88,6 @@ def _display_unit(unit: str) -> tuple[str, float]:
     return {"rad": ("deg", float(np.degrees(1.0))), "m": ("mm", 1e3)}.get(unit, (unit, 1.0))
 
 
-def _check_inputs(states, run) -> None:
-    if run is not None and run.cfg is not None and states.config_sha256 and run.cfg.sha256 != states.config_sha256:
-        raise CdgpsError(f"--gyro {run.path}: ingested with config {run.cfg.name!r} (sha256 {run.cfg.sha256[:12]}…), "
-                         f"but {states.path} estimates config {states.config_name!r} (sha256 "
-                         f"{states.config_sha256[:12]}…); give the RUN.mcap of the same structure")
-
-
 def run_report(states, out_dir: str | Path, run=None, truth_dir: str | Path | None = None,
                spectra_opt=None, angle: str | None = None, survey_deg: float | None = None,
                date: str | None = None, n_bins: int = DEFAULT_BINS,
@@ -121,7 +114,7 @@ def run_report(states, out_dir: str | Path, run=None, truth_dir: str | Path | No
     """
     from cdgps_cli.analysis.spectra import SpectraOptions  # noqa: PLC0415
 
-    _check_inputs(states, run)
+    check_gyro_run(states, run)
     if angle is not None and states.cfg is None:
         raise CdgpsError(f"--angle: {states.path} holds {states.kind} states ({', '.join(states.coord_names)}); "
                          "the static-survey section needs a structure's STATES.mcap")

@@ -138,6 +138,15 @@ def run_spectra(states, run, opt, out_dir: str | Path, dest: OutputSet | None = 
     return _write_spectra(states, res, gnames, dest)
 
 
+def check_gyro_run(states, run) -> None:
+    """The gyro RUN.mcap (``--gyro``) must have been ingested with the config ``states`` estimates; a
+    CdgpsError naming both files and both configs otherwise."""
+    if run is not None and run.cfg is not None and states.config_sha256 and run.cfg.sha256 != states.config_sha256:
+        raise CdgpsError(f"--gyro {run.path}: ingested with config {run.cfg.name!r} (sha256 {run.cfg.sha256[:12]}…), "
+                         f"but {states.path} estimates config {states.config_name!r} (sha256 "
+                         f"{states.config_sha256[:12]}…); give the RUN.mcap of the same structure")
+
+
 def spectra_result(states, run, opt, chunk_epochs: int = STATES_CHUNK_EPOCHS) -> tuple[dict, list]:
     """The spectra of ``states`` (and the gyros of ``run``, or None): ``(result, gyro names)``, the
     result of :func:`cdgps_cli.analysis.spectra.spectra_of_chunks`; nothing written."""
@@ -146,8 +155,7 @@ def spectra_result(states, run, opt, chunk_epochs: int = STATES_CHUNK_EPOCHS) ->
     cfg = _coordinate_model(states)
     gt, gr, gnames = (np.zeros(0), None, [])
     if run is not None:
-        if run.cfg.sha256 != cfg.sha256:
-            raise CdgpsError("the gyro RUN.mcap was ingested with a different structure config than the states")
+        check_gyro_run(states, run)
         gt, gr, gnames = _gyro_table(run)
         if len(gnames) != len(cfg.gyro_names):
             gr = None if not gnames else gr
