@@ -15,6 +15,7 @@ import numpy as np
 
 from cdgps_cli.config.schema import STRUCTURE_TABLES
 from cdgps_cli.config.structure import AXES, StructureConfig
+from cdgps_cli.core import toml_text
 from cdgps_cli.core.errors import CdgpsError
 
 __all__ = ["SensorSpec", "sensor_specs", "fusion_settings", "FUSABLE_KINDS"]
@@ -138,7 +139,7 @@ class _Reader:
 
 def _doc(cfg: StructureConfig) -> dict:
     try:
-        return tomllib.loads(cfg.text.lstrip("\ufeff"))
+        return toml_text.loads(cfg.text.lstrip("\ufeff"))
     except tomllib.TOMLDecodeError as exc:          # (load_config already parsed it)
         raise CdgpsError(f"{cfg.path}: not valid TOML: {exc}") from None
 

@@ -25,6 +25,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from cdgps_cli.core import toml_text
 from cdgps_cli.core.errors import CdgpsError, join_problems
 from cdgps_cli.config.limits import config_range_problems
 from cdgps_cli.config.schema import (GNSS_TABLES, STRUCTURE_TABLES, Field, optional_keys, required_keys,
@@ -594,7 +595,7 @@ def _description_problems(node, key: str = "") -> list[str]:
 
 def _toml(text: str, path: str) -> dict:
     try:
-        return tomllib.loads(text)
+        return toml_text.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise CdgpsError(f"{path}: not valid TOML: {exc}") from None
 
@@ -858,7 +859,7 @@ def config_kind(text: str) -> str:
     """``"gnss"`` for a GNSS run config (``[gnss]`` table) or a baseline job (``[baseline]``),
     ``"structure"`` otherwise (also for text that is not valid TOML: its loader reports that)."""
     try:
-        doc = tomllib.loads(_strip_bom(text))
+        doc = toml_text.loads(_strip_bom(text))
     except tomllib.TOMLDecodeError:
         return "structure"
     return "gnss" if ("gnss" in doc or "baseline" in doc) and "model" not in doc else "structure"

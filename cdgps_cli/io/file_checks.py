@@ -110,10 +110,7 @@ def read_init_json(path: str | Path) -> tuple[dict, str]:
         line = raw.count(b"\n", 0, exc.start) + 1
         raise CdgpsError(f"{path}, line {line}: not UTF-8 text (byte {raw[exc.start]:#04x} at offset {exc.start}); "
                          f"expected the INIT.json written by 'cdgps init'") from None
-    depth = _json_depth_exceeded(text)
-    if depth is not None:
-        raise CdgpsError(f"{path}, line {text.count(chr(10), 0, depth) + 1}: JSON nested deeper than "
-                         f"{MAX_JSON_DEPTH} levels; expected the INIT.json written by 'cdgps init'")
+    refuse_deep_json(text, path, "the INIT.json written by 'cdgps init'")
     try:
         doc = json.loads(text)
     except json.JSONDecodeError as exc:
@@ -121,6 +118,16 @@ def read_init_json(path: str | Path) -> tuple[dict, str]:
     if not isinstance(doc, dict):
         raise CdgpsError(f"{path}: expected a JSON object from 'cdgps init'")
     return doc, text
+
+
+def refuse_deep_json(text: str, path: str | Path, expected: str) -> None:
+    """CdgpsError naming ``path`` and the line where the JSON ``text`` nests deeper than
+    :data:`MAX_JSON_DEPTH`, before it is parsed (:func:`json.loads` would end in a RecursionError, a
+    traceback); ``expected`` says what the file should be ("the INIT.json written by 'cdgps init'")."""
+    depth = _json_depth_exceeded(text)
+    if depth is not None:
+        raise CdgpsError(f"{path}, line {text.count(chr(10), 0, depth) + 1}: JSON nested deeper than "
+                         f"{MAX_JSON_DEPTH} levels; expected {expected}")
 
 
 def _json_depth_exceeded(text: str) -> int | None:

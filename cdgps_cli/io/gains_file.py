@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from cdgps_cli.io.atomic import file_sha256, write_bytes_atomic
+from cdgps_cli.io.file_checks import refuse_deep_json
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.provenance import software
 
@@ -65,7 +66,9 @@ def read_gains(path: str | Path, config_path: str | Path | None = None) -> dict:
         The record with ``A``, ``B``, ``Qx``, ``Qu`` and ``K`` as float arrays.
     """
     try:
-        doc = json.loads(Path(path).read_text(encoding="utf-8"))
+        text = Path(path).read_text(encoding="utf-8")
+        refuse_deep_json(text, path, "a GAINS.json written by 'cdgps control design'")
+        doc = json.loads(text)
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise CdgpsError(f"{path}: not a readable GAINS.json ({exc})") from None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT or doc.get("version") != VERSION:

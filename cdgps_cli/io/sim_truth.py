@@ -15,6 +15,7 @@ from pathlib import Path
 
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.coordinate_columns import coordinate_table
+from cdgps_cli.io.file_checks import refuse_deep_json
 
 #: the truth table and its compressed forms, in the order they are looked for
 TRUTH_CSV_NAMES = ("truth.csv", "truth.csv.xz", "truth.csv.gz")
@@ -64,7 +65,9 @@ def read_truth_folder(folder: str | Path, option: str | None = None) -> Simulati
     d = Path(folder)
     csv = next((d / n for n in TRUTH_CSV_NAMES if (d / n).exists()), d / TRUTH_CSV_NAMES[0])
     try:
-        info = json.loads((d / "truth.json").read_text(encoding="utf-8"))
+        text = (d / "truth.json").read_text(encoding="utf-8")
+        refuse_deep_json(text, d / "truth.json", "the truth.json of a `cdgps simulate` folder")
+        info = json.loads(text)
         table = pd.read_csv(csv)
     except (OSError, ValueError) as exc:
         where = f"{option} {d}" if option else str(d)

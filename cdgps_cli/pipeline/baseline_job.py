@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from cdgps_cli.core import toml_text
 from cdgps_cli.core.errors import CdgpsError, join_problems
 from cdgps_cli.estimation.baseline import BaselineOptions, Station, solve_static_baseline
 from cdgps_cli.io.gnss_run import merge_nav
@@ -107,7 +108,7 @@ def load_baseline_job(path) -> dict:
     try:
         text = p.read_text()
         text = text[1:] if text.startswith("\ufeff") else text     # a UTF-8 byte-order mark
-        doc = tomllib.loads(text)
+        doc = toml_text.loads(text)
     except OSError as exc:
         raise CdgpsError(f"{p}: cannot read: {exc.strerror or exc}") from None
     except tomllib.TOMLDecodeError as exc:

@@ -238,8 +238,10 @@ def _toml_rows(text: str, probs: _Problems) -> list:
     column of a key are found by scanning the text (tomllib does not keep them)."""
     import tomllib
 
+    from cdgps_cli.core import toml_text
+
     try:
-        doc = tomllib.loads(text)
+        doc = toml_text.loads(text)
     except tomllib.TOMLDecodeError as exc:
         m = re.search(r"\(at line (\d+), column (\d+)\)", str(exc))
         probs.add(int(m.group(1)) if m else None, int(m.group(2)) if m else None, "", f"not valid TOML: {exc}")

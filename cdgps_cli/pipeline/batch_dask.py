@@ -279,6 +279,8 @@ def parse_cluster_options(items) -> dict:
     """
     import tomllib
 
+    from cdgps_cli.core import toml_text
+
     out = {}
     for it in items:
         key, eq, text = it.partition("=")
@@ -289,7 +291,7 @@ def parse_cluster_options(items) -> dict:
         if key in out:
             raise CdgpsError(f"--cluster-option {key}: given twice")
         try:
-            v = tomllib.loads(f"v = {text.strip()}")["v"]
+            v = toml_text.loads(f"v = {text.strip()}")["v"]
         except tomllib.TOMLDecodeError:
             v = text.strip()
         out[key] = text.strip() if isinstance(v, (date, dtime)) else v     # walltime=01:00:00 stays text

@@ -101,11 +101,12 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
 def config_sensor_paths(cfg: GnssConfig) -> list:
     """The ``[gnss] sensors`` logs of a GNSS run config, resolved against its directory (globs expanded)."""
     import tomllib  # noqa: PLC0415
+    from cdgps_cli.core import toml_text  # noqa: PLC0415
 
     from cdgps_cli.io.log_sequence import expand_paths  # noqa: PLC0415
 
     try:
-        items = tomllib.loads(cfg.text.lstrip("\ufeff")).get("gnss", {}).get("sensors", [])
+        items = toml_text.loads(cfg.text.lstrip("\ufeff")).get("gnss", {}).get("sensors", [])
     except tomllib.TOMLDecodeError:
         return []
     items = [items] if isinstance(items, str) else items

@@ -36,6 +36,7 @@ import pandas as pd
 from cdgps_cli.core import progress as _progress
 from cdgps_cli.io.atomic import file_sha256, refuse_input_overwrite, write_atomic
 from cdgps_cli.io.coordinate_columns import coordinate_columns, coordinate_table
+from cdgps_cli.io.file_checks import refuse_deep_json
 from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.config.options import TRACK_BLOCK_SAMPLES
@@ -67,7 +68,9 @@ def read_manifest(path: str | Path) -> dict:
     """The manifest ``if.json`` of :func:`simulate_if`, checked (keys, format, the files' sizes)."""
     p = Path(path)
     try:
-        man = json.loads(p.read_text(encoding="utf-8"))
+        text = p.read_text(encoding="utf-8")
+        refuse_deep_json(text, p, "the if.json written by 'cdgps simulate-if'")
+        man = json.loads(text)
     except (OSError, ValueError) as exc:
         raise CdgpsError(f"{p}: cannot read the IF manifest: {exc}") from None
     if not isinstance(man, dict) or man.get("format") != MANIFEST_FORMAT:

@@ -263,6 +263,49 @@ def test_unreadable_init_json(base, tmp_path, kind, words):
     assert_clean_error(r, bad, "line ", words)
 
 
+# ---- TOML and JSON nested hundreds of levels deep: tomllib and json recurse until RecursionError --------
+
+
+DEEP_TOML = "a = " + "[" * 5000 + "]" * 5000 + "\n"
+DEEP_JSON = "{\"format\": " + "[" * 100_000 + "]" * 100_000 + "}"
+
+
+@pytest.mark.parametrize("command", ["ingest", "simulate", "baseline", "batch", "control"])
+def test_deeply_nested_toml_is_a_toml_error_naming_the_file(base, tmp_path, command):
+    # each died with "RecursionError: maximum recursion depth exceeded" (batch: exit 4, "the batch itself failed")
+    deep = tmp_path / "deep.toml"
+    deep.write_text(DEEP_TOML)
+    out = tmp_path / "out"
+    argv = {"ingest": ["ingest", base / "sim" / "receiver.csv", "--config", deep, "-o", out],
+            "simulate": ["simulate", deep, "--duration", 1, "-o", out],
+            "baseline": ["baseline", "--config", deep, "-o", out],
+            "batch": ["batch", deep, "-o", out],
+            "control": ["control", "design", deep, "-o", out]}[command]
+    r = _run(*argv)
+    assert_clean_error(r, deep, "not valid TOML", "nested too deeply")
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("what", ["if.json", "GAINS.json", "truth.json"])
+def test_deeply_nested_json_inputs_are_named_with_the_line(base, tmp_path, dof2_path, what):
+    # track-structure, simulate --controller, report control and evaluate died with a RecursionError
+    deep = tmp_path / ("truth" if what == "truth.json" else "") / what
+    deep.parent.mkdir(exist_ok=True)
+    deep.write_text(DEEP_JSON)
+    out = tmp_path / "out"
+    if what == "if.json":
+        r = _run("track-structure", deep, "--config", dof2_path, "-o", out)
+    elif what == "GAINS.json":
+        r = _run("report", "control", deep, "--open", base / "sim", "--closed", base / "sim", "-o", out)
+    else:
+        (deep.parent / "truth.csv").write_bytes((base / "sim" / "truth.csv").read_bytes())
+        states = tmp_path / "states.mcap"
+        assert _run("estimate", base / "RUN.mcap", "--init", base / "INIT.json", "-o", states).exit_code == 0
+        r = _run("evaluate", "--truth", deep.parent, "--estimate", states)
+    assert_clean_error(r, deep, "line 1: JSON nested deeper than 64 levels", what)
+    assert not out.exists()
+
+
 def test_init_time_before_the_run_is_refused_not_allocated(base, tmp_path):
     """time_s = -1e9 s would size the filter grid at ~8e9 epochs (74.5 GiB in the campaign)."""
     init = json.loads((base / "INIT.json").read_text())

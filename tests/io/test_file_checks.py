@@ -170,3 +170,12 @@ def test_cli_rest_auto_recorded(two_runs):
     r = cli("estimate", d / "a" / "run.mcap", "--init", d / "a" / "init.json", "--rest", "auto", "--rest-window-s", "0",
             "-o", d / "bad.mcap")
     assert r.exit_code == 2 and "--rest-window-s" in r.stderr and nothing_written(d, "bad.mcap")
+
+
+def test_refuse_deep_json_names_the_file_line_and_what_was_expected(tmp_path):
+    from cdgps_cli.io.file_checks import MAX_JSON_DEPTH, refuse_deep_json
+
+    refuse_deep_json('{"a": [[1], {"b": "[[[[[[["}]}', "x.json", "X")       # brackets in strings do not count
+    refuse_deep_json("[" * MAX_JSON_DEPTH + "]" * MAX_JSON_DEPTH, "x.json", "X")
+    with pytest.raises(CdgpsError, match=r"^x\.json, line 2: JSON nested deeper than 64 levels; expected a GAINS\.json$"):
+        refuse_deep_json("{\n" + "[" * 10_000 + "]" * 10_000 + "}", "x.json", "a GAINS.json")
