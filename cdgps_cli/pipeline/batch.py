@@ -35,6 +35,7 @@ from pathlib import Path
 from cdgps_cli import __version__
 from cdgps_cli.core import heap
 from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.config.limits import OPTION_BOUNDS
 
 #: the stages in the order they run; each needs the outputs of those it depends on
 STAGES = ("ingest", "init", "estimate", "spectra", "report")
@@ -65,20 +66,21 @@ class Option:
     kind: str                 # "float", "bool", "str", "choice:a|b"
     default: object
     flag: str
+    bound: str | None = None  # the command's parameter in config.limits.OPTION_BOUNDS: the same range as the flag
 
 
 #: per-session options and the stage command flag each one is (defaults: the commands' defaults)
 OPTIONS = {
-    "init_start_s": Option("init", "float", None, "--start"),
-    "init_duration_s": Option("init", "float", None, "--duration"),
+    "init_start_s": Option("init", "float", None, "--start", "start_s"),
+    "init_duration_s": Option("init", "float", None, "--duration", "duration_s"),
     "float_only": Option("init", "bool", False, "--float-only"),
-    "ratio": Option("init", "float", 3.0, "--ratio"),
-    "init_sigma_m": Option("init", "float", None, "--sigma-m"),
+    "ratio": Option("init", "float", 3.0, "--ratio", "ratio_threshold"),
+    "init_sigma_m": Option("init", "float", None, "--sigma-m", "sigma_m"),
     "smooth": Option("estimate", "bool", False, "--smooth"),
     "biases": Option("estimate", "choice:fixed|states", "fixed", "--biases"),
-    "process_noise_scale": Option("estimate", "float", 1.0, "--process-noise-scale"),
+    "process_noise_scale": Option("estimate", "float", 1.0, "--process-noise-scale", "process_noise_scale"),
     "coords": Option("spectra", "str", None, "--coords"),
-    "segment_s": Option("spectra", "float", None, "--segment-s"),
+    "segment_s": Option("spectra", "float", None, "--segment-s", "segment_s"),
     "date": Option("report", "str", None, "--date"),
 }
 #: spectra options are the report's too (`cdgps report spectrum` computes the same spectra)
@@ -423,6 +425,9 @@ def _option(k: str, o: Option, v, bad):
             return o.default
         if k != "init_start_s" and x <= 0:
             bad(k, f"must be > 0 ({o.flag}), got {v!r}")
+            return o.default
+        if o.bound is not None and not OPTION_BOUNDS[o.bound].contains(x):      # what the command refuses
+            bad(k, f"outside the plausible range {OPTION_BOUNDS[o.bound].text()} ({o.flag}), got {v!r}")
             return o.default
         return x
     if not isinstance(v, str):

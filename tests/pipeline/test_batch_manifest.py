@@ -156,6 +156,27 @@ def test_toml_manifest_and_its_mistakes(folder):
     assert p.startswith(f"{folder / 'bad.toml'}:3:") and "not valid TOML" in p
 
 
+def test_options_outside_the_commands_ranges_are_refused_as_the_commands_refuse_them(folder):
+    # ratio = 1e308 ran (init never fixes), while 'cdgps init --ratio 1e308' is refused: the manifest
+    # checked only finite and > 0, not the flags' plausible ranges (config.limits.OPTION_BOUNDS)
+    (folder / "m.toml").write_text(
+        '[[session]]\nsession = "a"\nreceiver_csv = "rx.csv"\nconfig = "cfg.toml"\n'
+        'ratio = 1e308\ninit_start_s = 1e300\ninit_duration_s = 1e12\ninit_sigma_m = 1e9\n'
+        'process_noise_scale = 1e9\nsegment_s = 1e12\n')
+    m = str(folder / "m.toml")
+    _assert_exactly(_problems(folder / "m.toml"), [
+        f"{m}:5:1: ratio: outside the plausible range [1, 1e+12] (--ratio), got 1e+308",
+        f"{m}:6:1: init_start_s: outside the plausible range [-1e+10, 1e+10] s (--start)",
+        f"{m}:7:1: init_duration_s: outside the plausible range [0, 1e+09] s (--duration)",
+        f"{m}:8:1: init_sigma_m: outside the plausible range [1e-06, 100] m (--sigma-m)",
+        f"{m}:9:1: process_noise_scale: outside the plausible range (0, 1e+06] (--process-noise-scale)",
+        f"{m}:10:1: segment_s: outside the plausible range (0, 1e+09] s (--segment-s)"])
+    (folder / "m.toml").write_text('[[session]]\nsession = "a"\nreceiver_csv = "rx.csv"\nconfig = "cfg.toml"\n'
+                                   'ratio = 2.5\ninit_start_s = -3\ninit_sigma_m = 0.002\n')
+    (s,) = B.read_manifest(folder / "m.toml")
+    assert s.options["ratio"] == 2.5 and s.options["init_start_s"] == -3.0
+
+
 def test_unreadable_manifests(folder):
     for name, text, words in (("m.txt", "x", "a .csv or a .toml"), ("e.csv", "", "empty manifest"),
                               ("h.csv", "session,receiver_csv\n", "no session")):
