@@ -36,6 +36,12 @@ IONO_THRESHOLD_KM = 10.0
 #: stability ``stats-clkstab`` 5·10⁻¹² s/s × c = 1.5 mm/s)
 EPOCH_PAIRING_DEFAULTS = {"sync_tol_s": 0.025, "max_age_s": 30.0, "age_sigma_m_per_s": 5e-12 * 299792458.0}
 
+#: the rover's troposphere is computed at its a-priori position (RINEX APPROX POSITION XYZ or a
+#: single-point position); a solution this far (m) from it moves the origin there and solves again (the
+#: hydrostatic delay changes ≈ 0.3 mm per metre of height, about 1 mm of height per metre at a 15° mask;
+#: RTKLIB evaluates it at its current estimate: a header 17.5 m high put the GEONET car +13 mm above it)
+ROVER_ORIGIN_TOL_M = 1.0
+
 #: the phase weightings of every GNSS solver: SD variance a² + b²/sin²(el) or a² + b² per receiver
 #: (measurement/differencing.sd_variance)
 GNSS_WEIGHTINGS = ("elevation", "equal")

@@ -45,7 +45,7 @@ from cdgps_cli.model.dynamics_models import ConstantVelocity, RandomWalk, Static
 from cdgps_cli.model.gps.orbits import OMEGA_E_GPS, azimuth_elevation, ecef_to_geodetic, ephemeris_rows, sat_position_rows
 from cdgps_cli.model.gps.positioning import ephemeris_coverage, tropo_hydrostatic_m
 
-__all__ = ["receiver_geometry", "solve_rtk", "check_common_signals", "RTK_MODES"]
+__all__ = ["receiver_geometry", "troposphere_at_epochs", "solve_rtk", "check_common_signals", "RTK_MODES"]
 
 #: motion models of the rover on the one engine: random-walk position, position + velocity, one position
 RTK_MODES = ("kinematic", "constant-velocity", "static")
@@ -111,6 +111,37 @@ def receiver_geometry(obs: pd.DataFrame, nav: pd.DataFrame, rx_xyz_m) -> pd.Data
         out[name] = v[group]
     out.attrs["dropped"] = {k: int(v) for k, v in sorted(dropped.items())}
     out.attrs["no_code"] = {str(k): int(v) for k, v in zip(*np.unique(no_code, return_counts=True))} if no_code.size else {}
+    return out
+
+
+def troposphere_at_epochs(geometry: pd.DataFrame, time_s: np.ndarray, xyz_m: np.ndarray) -> pd.DataFrame:
+    """``geometry`` (:func:`receiver_geometry`) with ``trop_m`` evaluated at each epoch's own position.
+
+    :func:`receiver_geometry` evaluates the troposphere at one position for the whole record; the
+    hydrostatic delay changes by about 0.3 mm per metre of height (times the mapping), so a rover that
+    climbs, or whose a-priori position is metres off, needs it where it is at each epoch, as RTKLIB
+    evaluates it at its current estimate.  The elevation stays the table's (a kilometre moves it by
+    less than 0.01°).
+
+    Parameters
+    ----------
+    geometry : DataFrame
+        Rows with ``time_gps_s`` and ``el_rad``.
+    time_s : ndarray (n,)
+        Sorted epoch times, GPS s.
+    xyz_m : ndarray (n, 3)
+        ECEF position (m) of each epoch; rows of an epoch without one (not in ``time_s`` or NaN) keep
+        their ``trop_m``.
+    """
+    t = geometry["time_gps_s"].to_numpy()
+    k = np.clip(np.searchsorted(time_s, t), 0, max(time_s.size - 1, 0))
+    at = (time_s.size > 0) & (time_s[k] == t) if time_s.size else np.zeros(t.size, dtype=bool)
+    lat, _, h = ecef_to_geodetic(np.asarray(xyz_m, dtype=float))
+    at &= np.isfinite(h[k]) if time_s.size else at
+    out = geometry.copy()
+    trop = out["trop_m"].to_numpy().copy()
+    trop[at] = tropo_hydrostatic_m(out["el_rad"].to_numpy()[at], lat[k[at]], h[k[at]], t[at])
+    out["trop_m"] = trop
     return out
 
 

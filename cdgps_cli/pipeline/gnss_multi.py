@@ -19,11 +19,12 @@ import pandas as pd
 
 from cdgps_cli.config.limits import GEOCENTRIC_RANGE_M, MASK_DEG
 from cdgps_cli import __version__
-from cdgps_cli.config.options import GNSS_WEIGHTINGS, MULTI_GNSS_DEFAULTS
+from cdgps_cli.config.options import GNSS_WEIGHTINGS, MULTI_GNSS_DEFAULTS, ROVER_ORIGIN_TOL_M
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, signal
-from cdgps_cli.estimation.rtk_multi import RTK_MODES, check_common_signals, receiver_geometry, solve_rtk
+from cdgps_cli.estimation.rtk_multi import (RTK_MODES, check_common_signals, receiver_geometry, solve_rtk,
+                                            troposphere_at_epochs)
 from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.io.rinex import COMPRESSED_MAGIC, NAV_SYSTEMS, read_rinex_nav
 from cdgps_cli.io.rinex_signals import read_rinex_signals, signals_in_file
@@ -166,6 +167,17 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
             gr = _geometry(r, nav, rx, rover_path, "rover", nav_paths)
             gr.attrs = {}
         res = solve_rtk(gb, gr, bx, rx, options=opt)
+        xyz_ep = _fixed_positions(res)
+        moved = np.nanmedian(xyz_ep, axis=0) - rx if np.isfinite(xyz_ep).any() else np.zeros(3)
+        per_epoch = _heights_differ(xyz_ep, rx) or np.linalg.norm(moved) > ROVER_ORIGIN_TOL_M
+        if per_epoch:                # the rover's troposphere was computed where it is not: again where it is
+            if np.linalg.norm(moved) > ROVER_ORIGIN_TOL_M:
+                warnings.append(_origin_moved_note(rover_path, rx, moved, rx_from_spp))
+                rx = rx + moved
+                gr = _geometry(r, nav, rx, rover_path, "rover", nav_paths)
+                gr.attrs = {}
+            gr = troposphere_at_epochs(gr, res["time_gps_s"], xyz_ep)
+            res = solve_rtk(gb, gr, bx, rx, options=opt)
     except CdgpsError as exc:
         if str(exc).startswith(("no common epochs", "no common satellites", "no double differences")):
             raise CdgpsError(f"{rover_path} (rover) and {base_path} (base): {exc}") from None
@@ -182,6 +194,7 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
             "fixes_rejected": res["fixes_rejected"], "partial_fixes": res["partial_fixes"],
             "wrong_fix_resets": res["wrong_fix_resets"],
             "static_xyz_m": res["static_xyz_m"].tolist(), "iono_model": res["iono_model"], "signals": sigs,
+            "rover_troposphere": "at each epoch's solution" if per_epoch else "at the a-priori position",
             "epoch_pairing": ep, "warnings": warnings}
 
 
@@ -273,6 +286,28 @@ def _rover_origin(header: dict, obs: pd.DataFrame, nav, base_xyz, path, warnings
                     f"{' '.join(f'{v:g}' for v in hx)}); the a-priori position is the mean single-point position from "
                     f"its {sig} pseudoranges, refined by a float solution")
     return np.asarray(x, dtype=float), True
+
+
+def _fixed_positions(res: dict) -> np.ndarray:
+    """ECEF position (m) of each fixed epoch of a :func:`solve_rtk` solution, NaN rows elsewhere (a float
+    position may be metres off: it says nothing about where the rover's troposphere is)."""
+    return np.where(res["fixed"][:, None], res["fixed_xyz_m"], np.nan)
+
+
+def _heights_differ(xyz_m: np.ndarray, origin_m: np.ndarray) -> bool:
+    """Whether an epoch's height is more than :data:`ROVER_ORIGIN_TOL_M` from the origin's."""
+    h = ecef_to_geodetic(xyz_m)[2]
+    return bool(np.any(np.abs(h[np.isfinite(h)] - ecef_to_geodetic(origin_m)[2]) > ROVER_ORIGIN_TOL_M))
+
+
+def _origin_moved_note(path, rx, moved, from_spp: bool) -> str:
+    """The warning that the rover's a-priori position was moved to its solution (up = height change, m)."""
+    lat, lon, _ = ecef_to_geodetic(rx)
+    up = float(enu_matrix(lat, lon)[2] @ moved)
+    source = "single-point position" if from_spp else "APPROX POSITION XYZ"
+    return (f"{path} (rover): its {source} is {np.linalg.norm(moved):.1f} m from the solution (height {up:+.1f} m), "
+            f"more than {ROVER_ORIGIN_TOL_M:g} m: solved again from the solution's median position, with the rover's "
+            f"troposphere at each epoch's position (about 1 mm of height per metre of height error otherwise)")
 
 
 def _geometry(df, nav, xyz, path, who, nav_paths):

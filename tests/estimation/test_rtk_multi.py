@@ -512,3 +512,31 @@ def test_check_common_signals_names_the_missing_signal_and_what_is_present():
     check_common_signals(base, rover, ["G:L1"], nav, {"base": "b.obs", "rover": "r.obs", "nav": "n"})
     with pytest.raises(CdgpsError, match=r"r\.obs \(rover\): no G:L2 phase observations.*present: E:E1, G:L1\)"):
         check_common_signals(base, rover, ["G:L1", "G:L2"], nav, {"base": "b.obs", "rover": "r.obs", "nav": "n"})
+
+
+def test_troposphere_at_epochs_uses_each_epochs_height():
+    """Rows of an epoch with a position get the hydrostatic delay at that position (each checked
+    against the one-receiver evaluation); rows of an epoch without one (NaN, or not in the solution)
+    keep theirs; 100 m higher is 27 mm less zenith delay (Saastamoinen near sea level: ≈ 0.27 mm per metre)."""
+    import pandas as pd
+
+    from cdgps_cli.estimation.rtk_multi import troposphere_at_epochs
+    from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
+    from cdgps_cli.model.gps.positioning import tropo_hydrostatic_m
+
+    x0 = np.array([-3959400.631, 3385704.533, 3667523.111])
+    lat, lon, h0 = ecef_to_geodetic(x0)
+    up = enu_matrix(lat, lon)[2]
+    t_ep = np.array([100.0, 101.0, 102.0])
+    xyz = np.stack([x0 + 20.0 * up, np.full(3, np.nan), x0 + 120.0 * up])
+    geo = pd.DataFrame({"time_gps_s": [100.0, 100.0, 101.0, 102.0, 105.0], "el_rad": np.radians([90.0, 20.0, 30.0, 90.0, 40.0]),
+                        "trop_m": [9.0, 9.0, 9.0, 9.0, 9.0]})
+    out = troposphere_at_epochs(geo, t_ep, xyz)
+    trop = out["trop_m"].to_numpy()
+    for i, e in ((0, 0), (1, 0), (3, 2)):
+        la, _, h = ecef_to_geodetic(xyz[e])
+        np.testing.assert_allclose(trop[i], tropo_hydrostatic_m(geo["el_rad"].to_numpy()[i:i + 1], la, h, geo["time_gps_s"][i])[0],
+                                   rtol=1e-12)     # (the one-receiver kernel in C: last bits)
+    assert trop[2] == 9.0 and trop[4] == 9.0                  # no position at 101 s; 105 s not in the solution
+    assert geo["trop_m"].tolist() == [9.0] * 5                # the input table is not modified
+    assert 0.025 < trop[0] - trop[3] < 0.030                  # zenith, 20 m against 120 m above the station: 27 mm

@@ -11,6 +11,7 @@ import pandas as pd
 import pytest
 
 import cdgps_cli.estimation.rtk_multi as rtk_multi
+import cdgps_cli.pipeline.gnss_multi as gnss_multi
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.pipeline.gnss_multi import rtk_from_files
 from tests._shared import REPO_ROOT
@@ -53,9 +54,15 @@ def test_static_pair_run_kinematic_fixes_every_epoch_right(tmp_path, signals):
 
 
 def _plant_wrong_hold(monkeypatch, at_call):
-    """The ``at_call``-th hold of the run holds its last (decorrelated) integer one cycle off: a wrong fix."""
+    """The ``at_call``-th hold of each solve holds its last (decorrelated) integer one cycle off: a wrong
+    fix (rtk solves again when a fixed epoch's height is metres from the rover's origin: the plant is
+    made in that solve too)."""
     calls = {"n": 0}
-    hold = rtk_multi._hold
+    hold, solve = rtk_multi._hold, gnss_multi.solve_rtk
+
+    def each_solve(*args, **kwargs):
+        calls["n"] = 0
+        return solve(*args, **kwargs)
 
     def planted(st, fix):
         calls["n"] += 1
@@ -63,6 +70,7 @@ def _plant_wrong_hold(monkeypatch, at_call):
         hold(st, (Ts, ints + (np.arange(len(ints)) == len(ints) - 1) if calls["n"] == at_call else ints))
 
     monkeypatch.setattr(rtk_multi, "_hold", planted)
+    monkeypatch.setattr(gnss_multi, "solve_rtk", each_solve)
     return calls
 
 
