@@ -66,6 +66,7 @@ from cdgps_cli.model.gps.positioning import (
     nominal_interval_s,
     reception_geometry,
     spp_static,
+    tropo_hydrostatic_m,
 )
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.measurement.epoch_pairing import age_variance_m2, pair_epochs, rows_for_pairs
@@ -248,6 +249,9 @@ class Station(NamedTuple):
     header: dict
     obs: pd.DataFrame
     signals: pd.DataFrame | None = None
+    #: where the receiver's troposphere is evaluated (ECEF m; None: at its a-priori position), see
+    #: :func:`solve_static_baseline`
+    troposphere_xyz_m: np.ndarray | None = None
 
 
 # ----------------------------------------------------------------------------------------------
@@ -504,7 +508,19 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
                          ce.interval_s, info, warnings)
     else:
         d = _sd_data(j, sel, gb, gr, t_label, ce.interval_s, info)
+    d = _rover_troposphere_moved(d, rover, rover_xyz, opt)
     return d._replace(age_var_m2=age_var_ep[d.epoch]) if np.any(age_var_ep > 0) else d
+
+
+def _rover_troposphere_moved(d: _Data, rover: Station, rover_xyz, opt: BaselineOptions) -> _Data:
+    """``d`` with the rover's hydrostatic delay evaluated at ``rover.troposphere_xyz_m`` instead of its a-priori
+    position ``rover_xyz`` (the same elevations: a kilometre moves them by less than 0.01°)."""
+    if rover.troposphere_xyz_m is None or not opt.troposphere:
+        return d
+    t = d.t_label[d.epoch]
+    at = [ecef_to_geodetic(np.asarray(x, dtype=np.float64)) for x in (rover.troposphere_xyz_m, rover_xyz)]
+    moved = [tropo_hydrostatic_m(d.el_rover, lat, h, t) for lat, _, h in at]
+    return d._replace(rover_clk_trop_m=d.rover_clk_trop_m + (moved[0] - moved[1]))
 
 
 def _signal_data(master: Station, rover: Station, l1_rows, clocks, j, t_label, nav, xyz, opt: BaselineOptions,
@@ -1546,6 +1562,10 @@ def _run_engine(master: Station, rover: Station, nav, opt: BaselineOptions, xm, 
     # geometry is built (the master's stays in this process only while a child computes it)
     geo = list(beside.both(lambda: receiver_geometry(t_m, nav, xm), lambda: receiver_geometry(t_r, nav, xr0)))
     del t_m, t_r
+    if rover.troposphere_xyz_m is not None and opt.troposphere:
+        from cdgps_cli.estimation.rtk_multi import troposphere_at_epochs
+        t_ep = np.unique(geo[1]["time_gps_s"].to_numpy())
+        geo[1] = troposphere_at_epochs(geo[1], t_ep, np.tile(np.asarray(rover.troposphere_xyz_m, float), (t_ep.size, 1)))
     # the tables handed over (not held here): static_baseline releases them once its SD rows are built
     return static_baseline(geo.pop(0), geo.pop(0), xm, xr0, eopt, arcs_check=arcs_check)
 
@@ -1757,6 +1777,38 @@ def baseline_from_init(master: Station, rover: Station, nav: pd.DataFrame, optio
 
 
 def solve_static_baseline(master: Station, rover: Station, nav: pd.DataFrame, options: BaselineOptions | None = None,
+                          **kwargs) -> dict:
+    """Static baseline from two receivers' RINEX observations (see the module docstring); parameters and
+    result as :func:`_solve_static_baseline_once`, whose docstring holds them.
+
+    The rover's troposphere is first evaluated at its a-priori position (``rover_xyz``, the RINEX header's
+    APPROX POSITION XYZ or a single-point position).  When the solution lies more than
+    :data:`~cdgps_cli.config.options.ROVER_ORIGIN_TOL_M` from it, the baseline is solved again with the
+    rover's delay at that solution (``rover.troposphere_xyz_m``; about 0.8 mm of height per metre
+    otherwise), the a-priori position staying the origin of the reported offsets; the result's
+    ``rover_troposphere_ecef_m`` then says where, and a warning why.
+    """
+    from cdgps_cli.config.options import ROVER_ORIGIN_TOL_M
+
+    res = _solve_static_baseline_once(master, rover, nav, options, **kwargs)
+    opt = options or BaselineOptions()
+    sol, apriori = res.get("rover_ecef_m"), res.get("rover_apriori_ecef_m")
+    if (not opt.troposphere or rover.troposphere_xyz_m is not None or sol is None or apriori is None
+            or not np.all(np.isfinite(sol)) or np.linalg.norm(np.subtract(sol, apriori)) <= ROVER_ORIGIN_TOL_M):
+        return res
+    moved = np.subtract(sol, apriori)
+    lat, lon, _ = ecef_to_geodetic(np.asarray(apriori, dtype=np.float64))
+    up = float(enu_matrix(lat, lon)[2] @ moved)
+    res = _solve_static_baseline_once(master, rover._replace(troposphere_xyz_m=np.asarray(sol, dtype=np.float64)), nav,
+                                      options, **kwargs)
+    res["warnings"].append(f"{rover.name}: the solution is {np.linalg.norm(moved):.1f} m from the a-priori position "
+                           f"({res['rover_apriori_source']}; height {up:+.1f} m), more than {ROVER_ORIGIN_TOL_M:g} m: "
+                           f"solved again with its troposphere at the first solution")
+    res["rover_troposphere_ecef_m"] = [float(v) for v in sol]
+    return res
+
+
+def _solve_static_baseline_once(master: Station, rover: Station, nav: pd.DataFrame, options: BaselineOptions | None = None,
                           *, master_xyz=None, rover_xyz=None, integers: dict | None = None,
                           solution: dict | None = None,
                           keep_work: bool = False, iono_threshold_km: float | None = None,

@@ -147,6 +147,7 @@ def gnss_init(run: GnssRun, *, options: dict | None = None, progress=None) -> di
             "nominal_ecef_m": res["rover_apriori_ecef_m"],
             "nominal_source": res["rover_apriori_source"],
             "rover_ecef_m": res["rover_ecef_m"],
+            **({"rover_troposphere_ecef_m": res["rover_troposphere_ecef_m"]} if "rover_troposphere_ecef_m" in res else {}),
             "baseline_enu_from_master_m": res["baseline_enu_from_master_m"],
             "baseline_length_m": res["baseline_length_m"],
             "float": res["float"], "fixed": res["fixed"],
@@ -417,6 +418,18 @@ def _enu_from_init(block: dict, key: str) -> list | None:
     return out
 
 
+def _init_position(v, r: str) -> np.ndarray:
+    """INIT's ``rover_troposphere_ecef_m`` of rover ``r``: three finite numbers (m), else CdgpsError."""
+    try:
+        x = np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError):
+        x = np.zeros(0)
+    if x.shape != (3,) or not np.all(np.isfinite(x)):
+        raise CdgpsError(f"INIT.json: rovers.{r}.rover_troposphere_ecef_m: expected three finite ECEF "
+                         f"coordinates (m), got {v!r}")
+    return x
+
+
 def solve_with_init_integers(run, init: dict, r: str, stations: dict):
     """Rover ``r``'s baseline with INIT's options, integers and fixed solution (no kinematic series), never
     solved again (:func:`~cdgps_cli.estimation.baseline.baseline_from_init`): evaluated at INIT's solution when
@@ -434,7 +447,9 @@ def solve_with_init_integers(run, init: dict, r: str, stations: dict):
     except TypeError as exc:
         raise CdgpsError(f"INIT.json: bad options for {r}: {exc}") from None
     opt = BaselineOptions(**{**asdict(opt), "kinematic_series": False})
-    res = baseline_from_init(stations[run.master], stations[r], run.nav, opt,
+    trop = rov.get("rover_troposphere_ecef_m")           # where init evaluated the rover's troposphere
+    rover = stations[r] if trop is None else stations[r]._replace(troposphere_xyz_m=_init_position(trop, r))
+    res = baseline_from_init(stations[run.master], rover, run.nav, opt,
                              master_xyz=_position_args(run, run.master), rover_xyz=_position_args(run, r),
                              integers=_integers_from_init(init, r), solution=_solution_from_init(init, r),
                              engine_init=rov.get("solver") == "static_engine",

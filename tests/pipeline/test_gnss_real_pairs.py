@@ -418,12 +418,11 @@ def test_car_heights_agree_with_rtklib_where_both_fix(tmp_path):
     assert np.linalg.norm(diff, axis=1).max() < 0.05
 
 
-@pytest.mark.xfail(strict=True, reason="baseline/init/estimate evaluate the rover's troposphere at its a-priori "
-                   "position: a RINEX header 15 m high moves the fixed height by 10.7 mm (rtk is fixed; "
-                   "docs/gnss-pipeline.md, 'The car's +15 mm was ours')")
 def test_baseline_does_not_depend_on_a_header_15_m_high(tmp_path):
     """The static baseline (the solver of `baseline` and `init`) of the mosaic pair with the rover's
-    APPROX POSITION XYZ as written and moved 15 m up: the fixed rover positions must agree within 1 mm."""
+    APPROX POSITION XYZ as written and moved 15 m up: the fixed rover positions agree within 1 mm (they
+    were 10.8 mm apart with the rover's troposphere at the a-priori position; now a solution more than
+    1 m from it is solved again with the troposphere there, which the result and a warning say)."""
     import json
 
     from cdgps_cli.model.gps.orbits import enu_matrix
@@ -445,4 +444,40 @@ def test_baseline_does_not_depend_on_a_header_15_m_high(tmp_path):
         s = json.loads(r.stdout)
         assert s["solution"] == "fixed"
         fixed.append(np.asarray(s["fixed"]["rover_ecef_m"]))
+        assert ("rover_troposphere_ecef_m" in s) == (rover != MOSAIC / "rover.obs")
     assert np.linalg.norm(fixed[1] - fixed[0]) < 0.001, np.linalg.norm(fixed[1] - fixed[0])
+
+
+def test_init_and_estimate_do_not_depend_on_a_header_15_m_high(tmp_path):
+    """ingest → init → estimate of the mosaic pair with the rover's header moved 15 m up: init's fixed
+    rover position is the one of the header as written within 1 mm (10.8 mm apart before), INIT.json says
+    where the rover's troposphere was evaluated, and estimate evaluates it there too (its static solution
+    is INIT's, bit for bit)."""
+    import json
+
+    from cdgps_cli.model.gps.orbits import enu_matrix
+
+    lines = (MOSAIC / "rover.obs").read_text().splitlines()
+    for i, ln in enumerate(lines):
+        if ln[60:].strip() == "APPROX POSITION XYZ":
+            x = np.array([float(v) for v in ln[:60].split()])
+            lat, lon, _ = ecef_to_geodetic(x)
+            lines[i] = "".join(f"{v:14.4f}" for v in x + 15.0 * enu_matrix(lat, lon)[2]).ljust(60) + "APPROX POSITION XYZ"
+    (tmp_path / "rover_hi.obs").write_text("\n".join(lines) + "\n")
+    fixed = {}
+    for name, rover in (("as_written", MOSAIC / "rover.obs"), ("high", tmp_path / "rover_hi.obs")):
+        d = tmp_path / name
+        d.mkdir()
+        (d / "cfg.toml").write_text(
+            f'[gnss]\nname = "{name}"\nmaster = "base"\nnav = ["{MOSAIC / "base.nav"}"]\n\n'
+            f'[gnss.antennas.base]\nrinex = "{MOSAIC / "base.obs"}"\nposition_ecef_m = {BASE_XYZ.tolist()}\n\n'
+            f'[gnss.antennas.rover]\nrinex = "{rover}"\n')
+        for args in (("ingest", "--config", d / "cfg.toml", "-o", d / "run.mcap"), ("init", d / "run.mcap", "-o", d / "init.json"),
+                     ("estimate", d / "run.mcap", "--init", d / "init.json", "-o", d / "states.mcap", "--json")):
+            r = run_cli("-q", *args)
+            assert r.exit_code == 0, r.output
+        rov = json.loads((d / "init.json").read_text())["rovers"]["rover"]
+        assert ("rover_troposphere_ecef_m" in rov) == (name == "high")
+        assert json.loads(r.stdout)["rovers"]["rover"]["static_enu_m"] == rov["states"]
+        fixed[name] = np.asarray(rov["rover_ecef_m"])
+    assert np.linalg.norm(fixed["high"] - fixed["as_written"]) < 0.001
