@@ -166,18 +166,8 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
             rx = np.median(rough["float_xyz_m"], axis=0)
             gr = _geometry(r, nav, rx, rover_path, "rover", nav_paths)
             gr.attrs = {}
-        res = solve_rtk(gb, gr, bx, rx, options=opt)
-        xyz_ep = _fixed_positions(res)
-        moved = np.nanmedian(xyz_ep, axis=0) - rx if np.isfinite(xyz_ep).any() else np.zeros(3)
-        per_epoch = _heights_differ(xyz_ep, rx) or np.linalg.norm(moved) > ROVER_ORIGIN_TOL_M
-        if per_epoch:                # the rover's troposphere was computed where it is not: again where it is
-            if np.linalg.norm(moved) > ROVER_ORIGIN_TOL_M:
-                warnings.append(_origin_moved_note(rover_path, rx, moved, rx_from_spp))
-                rx = rx + moved
-                gr = _geometry(r, nav, rx, rover_path, "rover", nav_paths)
-                gr.attrs = {}
-            gr = troposphere_at_epochs(gr, res["time_gps_s"], xyz_ep)
-            res = solve_rtk(gb, gr, bx, rx, options=opt)
+        res, gr, per_epoch = _solve_where_the_rover_is(gb, gr, bx, rx, opt, rover=(r, rover_path, rx_from_spp),
+                                                       nav=(nav, nav_paths), warnings=warnings)
     except CdgpsError as exc:
         if str(exc).startswith(("no common epochs", "no common satellites", "no double differences")):
             raise CdgpsError(f"{rover_path} (rover) and {base_path} (base): {exc}") from None
@@ -286,6 +276,28 @@ def _rover_origin(header: dict, obs: pd.DataFrame, nav, base_xyz, path, warnings
                     f"{' '.join(f'{v:g}' for v in hx)}); the a-priori position is the mean single-point position from "
                     f"its {sig} pseudoranges, refined by a float solution")
     return np.asarray(x, dtype=float), True
+
+
+def _solve_where_the_rover_is(gb, gr, bx, rx, opt: dict, *, rover: tuple, nav: tuple, warnings: list):
+    """:func:`solve_rtk`, solved again when its fixed epochs show the rover's troposphere was computed where the
+    rover is not (a height or the fixed median more than :data:`ROVER_ORIGIN_TOL_M` from the origin ``rx``): the
+    origin moved to the fixed median when that is far (a warning says so), the delay at each fixed epoch's
+    position.  ``rover`` is (observation table, path, whether ``rx`` is a single-point position), ``nav`` (table,
+    paths).  Returns (solution, the rover's geometry table, whether it was solved again)."""
+    r, rover_path, rx_from_spp = rover
+    res = solve_rtk(gb, gr, bx, rx, options=opt)
+    xyz_ep = _fixed_positions(res)
+    moved = np.nanmedian(xyz_ep, axis=0) - rx if np.isfinite(xyz_ep).any() else np.zeros(3)
+    far = np.linalg.norm(moved) > ROVER_ORIGIN_TOL_M
+    if not (far or _heights_differ(xyz_ep, rx)):
+        return res, gr, False
+    if far:
+        warnings.append(_origin_moved_note(rover_path, rx, moved, rx_from_spp))
+        rx = rx + moved
+        gr = _geometry(r, nav[0], rx, rover_path, "rover", nav[1])
+        gr.attrs = {}
+    gr = troposphere_at_epochs(gr, res["time_gps_s"], xyz_ep)
+    return solve_rtk(gb, gr, bx, rx, options=opt), gr, True
 
 
 def _fixed_positions(res: dict) -> np.ndarray:
