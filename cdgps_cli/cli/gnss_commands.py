@@ -319,6 +319,10 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
               help="Correlation time of the code errors, s: their variance is inflated by (1+ρ)/(1−ρ), ρ = e^(−Δt/τ), so "
                    "a minute of correlated multipath is not taken as 60 independent ranges (0: white, as RTKLIB) "
                    f"[{__import__('cdgps_cli.config.options', fromlist=['x']).MULTI_GNSS_DEFAULTS['code_correlation_s']:g}].")
+@click.option("--code-noise", "code_noise", type=click.Choice(["auto", "model"]), default=None,
+              help="auto: scale the code variance by the files' own code noise, each receiver's code-minus-carrier "
+                   "averaged over 30 s against the model (a u-blox M8P: x47, geodetic receivers: x1), so the float σ "
+                   "and the integer tests are honest; model: the code σ as modelled [auto].")
 @click.option("--fix-and-hold/--no-fix-and-hold", default=None,
               help="After --hold-after-fixes consecutive fixed epochs, feed the fixed integers back as measurements "
                    "(RTKLIB's fix-and-hold); while held, an epoch that contradicts them (--wrong-fix-probability) "
@@ -338,8 +342,8 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (epochs used and why others were not, fixes) on stdout.")
 @click.pass_context
 def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_fix, mask_deg, ratio_threshold, max_age_s,
-        sync_tol_s, direction, code_correlation_s, fix_and_hold, wrong_fix_probability, hold_after_fixes, min_success_rate,
-        output, as_json):
+        sync_tol_s, direction, code_correlation_s, code_noise, fix_and_hold, wrong_fix_probability, hold_after_fixes,
+        min_success_rate, output, as_json):
     """Double differences per constellation and frequency, integers by LAMBDA (docs/gnss-pipeline.md, "Multi-GNSS").
 
     The rover's epochs drive the solution: each takes the nearest base epoch within --max-age (a base
@@ -351,7 +355,8 @@ def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_
                "mode": mode, "glonass_fix": glonass_fix}
     for key, value in (("mask_deg", mask_deg), ("ratio", ratio_threshold), ("max_age_s", max_age_s),
                        ("sync_tol_s", sync_tol_s), ("direction", direction), ("min_success_rate", min_success_rate),
-                       ("code_correlation_s", code_correlation_s), ("hold_after_fixes", hold_after_fixes),
+                       ("code_correlation_s", code_correlation_s), ("code_noise", code_noise),
+                       ("hold_after_fixes", hold_after_fixes),
                        ("fix_and_hold", fix_and_hold), ("wrong_fix_probability", wrong_fix_probability)):
         if value is not None:
             options[key] = value
@@ -361,7 +366,8 @@ def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_
     ep = s["epoch_pairing"]
     _say(ctx, f"{output}: {s['epochs']} of {ep['rover_epochs']} rover epochs ({ep['bridged']} bridged across base gaps, "
               f"max age {ep['max_age_s']:.3g} s), fixed {s['fixed_pct']:.1f} % ({s['direction']}; "
-              f"{s['fixes_rejected']} fixes rejected where the passes disagree, {s['wrong_fix_resets']} held fixes reset), ionosphere {s['iono_model']}, "
-              f"signals {' '.join(s['signals'])}")
+              f"{s['fixes_rejected']} fixes rejected where the passes disagree, {s['wrong_fix_resets']} held fixes reset, "
+              f"{s['ambiguities_released']} single ambiguities released), ionosphere {s['iono_model']}, "
+              f"signals {' '.join(s['signals'])}, code variance x{s['code_noise']['variance_factor']:.3g} ({s['code_noise']['mode']})")
     if as_json:
         _emit_json({k: v for k, v in s.items()})

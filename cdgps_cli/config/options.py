@@ -46,6 +46,11 @@ ROVER_ORIGIN_TOL_M = 1.0
 #: (measurement/differencing.sd_variance)
 GNSS_WEIGHTINGS = ("elevation", "equal")
 
+#: code_noise "auto" (measurement/noise.code_noise_factor): the window over which the code errors' mean is
+#: compared with the model's (s), the chunks each arc's code-minus-carrier is detrended over (s), and the fewest
+#: full windows for an estimate (fewer: the model's variance, factor 1), and the smallest factor applied
+CODE_NOISE_WINDOW_S, CODE_NOISE_CHUNK_S, CODE_NOISE_MIN_WINDOWS, CODE_NOISE_MIN_FACTOR = 30.0, 300.0, 10, 1.5
+
 GNSS_DEFAULTS = {"mask_deg": 15.0, "ratio": RATIO_THRESHOLD, "partial": True, "weighting": "elevation",
                  "troposphere": True, "sigma_a_m": PHASE_SIGMA_A_M, "sigma_b_m": PHASE_SIGMA_B_M,
                  "code_ratio": 100.0, "sync_tol_s": EPOCH_PAIRING_DEFAULTS["sync_tol_s"],
@@ -90,6 +95,9 @@ MULTI_GNSS_DEFAULTS = {
     "mask_deg": 15.0, "ratio": RATIO_THRESHOLD, "fix": True, "glonass_fix": GNSS_DEFAULTS["glonass_fix"],
     "min_success_rate": GNSS_DEFAULTS["min_success_rate"],  # bootstrapped success rate an integer set must reach (partial set otherwise)
     "code_correlation_s": GNSS_DEFAULTS["code_correlation_s"],  # code errors as a Gauss-Markov process of this correlation time, s (0: white)
+    # "auto": the code variance scaled by what the files' own code-minus-carrier shows over CODE_NOISE_WINDOW_S
+    # (measurement/noise.code_noise_factor; a u-blox M8P: 39, geodetic receivers ≈ 1); "model": as modelled
+    "code_noise": "auto",
     # feed fixed integers back as measurements (RTKLIB pos2-armode=fix-and-hold), checked by the wrong-fix test below:
     # the real car (geonet-car G+E L1) 181 -> 311 of 360 epochs fixed, none wrong where the answer is known
     # (benchmarks/fix_correctness.py, docs/benchmarks/fix_correctness.json)

@@ -29,7 +29,8 @@ from bisect import bisect_left
 import numpy as np
 import pandas as pd
 
-from cdgps_cli.config.options import MULTI_GNSS_DEFAULTS
+from cdgps_cli.config.options import (CODE_NOISE_CHUNK_S, CODE_NOISE_MIN_FACTOR, CODE_NOISE_MIN_WINDOWS, CODE_NOISE_WINDOW_S,
+                                     MULTI_GNSS_DEFAULTS)
 from cdgps_cli.core import beside
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.core.errors import CdgpsError
@@ -40,7 +41,9 @@ from cdgps_cli.estimation.chi2 import chi2_quantile
 from cdgps_cli.estimation.driver import EpochGrid, Hook, drive
 from cdgps_cli.estimation.kalman import NUMPY_INVERSE, StepFilter
 from cdgps_cli.measurement.dd_signals import DDGroupModel, backward_slips, epoch_groups, paired_sd_rows
+from cdgps_cli.measurement.differencing import sd_variance
 from cdgps_cli.measurement.epoch_pairing import pair_epochs
+from cdgps_cli.measurement.noise import code_noise_factor
 from cdgps_cli.model.dynamics_models import ConstantVelocity, RandomWalk, Static
 from cdgps_cli.model.gps.orbits import OMEGA_E_GPS, azimuth_elevation, ecef_to_geodetic, ephemeris_rows, sat_position_rows
 from cdgps_cli.model.gps.positioning import ephemeris_coverage, tropo_hydrostatic_m
@@ -424,6 +427,15 @@ def _dd_rows_on_state(rows, plus, ref_cols, sizes, n_state):
     return Ts
 
 
+#: largest 3-D σ (m, √trace of the covariance) of a position reported fixed: integers held on too few satellites
+#: or with too weak a geometry do not set the position to centimetres (a u-blox rover that lost the phase of six
+#: of ten satellites for one epoch kept three held integers: σ_up 0.3 m, 16 cm off); such an epoch is float
+MAX_FIXED_SIGMA_M = 0.1
+
+#: epochs a single released ambiguity (:func:`_one_to_release`) has to be fixed again in before every ambiguity
+#: is released (:meth:`_AmbiguityHook._check_release`)
+RELEASE_RECOVERY_EPOCHS = 20
+
 #: variance of the fix-and-hold pseudo-measurement of a fixed integer combination, cycles² (RTKLIB's VAR_HOLDAMB)
 HOLD_VARIANCE_CYCLES2 = 0.001
 
@@ -493,6 +505,8 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
     if not common:
         raise CdgpsError(f"no common satellites: the base observes {_few(base['sat'])}, the rover {_few(rover['sat'])} "
                          f"(signals asked for); a double difference needs satellites observed at both receivers")
+    code_noise = receivers_code_noise(base, rover, opt)
+    opt["code_variance_factor"] = code_noise["factor"]
     rows = paired_sd_rows(base, rover, pairs, opt, mask_rover=True)     # the mask at both receivers, as RTKLIB's
     n_ep = times.size
     if not rows["groups"]["start"].size:                     # no epoch has a group of two satellites
@@ -520,7 +534,37 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
             "static_xyz_m": last, "epoch_pairing": pairs.summary, "base_age_s": pairs.age_s,
             "float_cov_m2": res["float_cov"], "fixed_cov_m2": np.where(ok[:, None, None], res["fixed_cov"], np.nan),
             "n_satellites": res["ns"], "direction": direction, "fixes_rejected": int(res.get("rejected", 0)),
-            "partial_fixes": int(res["partial"].sum()), "wrong_fix_resets": int(res["wrong_fix_resets"].sum())}
+            "partial_fixes": int(res["partial"].sum()), "wrong_fix_resets": int(res["wrong_fix_resets"].sum()),
+            "code_noise": code_noise,
+            "ambiguities_released": int(res["released"].sum())}
+
+
+def receivers_code_noise(base: pd.DataFrame, rover: pd.DataFrame, opt: dict) -> dict:
+    """The code variance factor of option ``code_noise``: "model", 1; "auto", the larger of the base's and the
+    rover's :func:`~cdgps_cli.measurement.noise.code_noise_factor` over their rows above the mask (at least 1:
+    codes better than their model keep it, as does an estimate within 3σ of 1 or below
+    :data:`~cdgps_cli.config.options.CODE_NOISE_MIN_FACTOR`; a receiver without enough full windows counts 1).
+    Returns
+    ``{"mode", "factor", "base", "rover", "windows"}`` (the receivers' estimates, NaN where not made)."""
+    if opt["code_noise"] == "model":
+        return {"mode": "model", "factor": 1.0, "base": np.nan, "rover": np.nan, "windows": {"base": 0, "rover": 0}}
+    got, windows = {}, {}
+    for who, g in (("base", base), ("rover", rover)):
+        el = g["el_rad"].to_numpy(dtype=np.float64)
+        above = el >= np.radians(opt["mask_deg"])
+        var = 0.5 * opt["code_ratio"] ** 2 * sd_variance(el[above], el[above], sigma_a_m=opt["sigma_a_m"],
+                                                          sigma_b_m=opt["sigma_b_m"], weighting=opt["weighting"])
+        ch = pd.factorize(g["sat"].astype(str).to_numpy()[above] + "/" + g["signal"].astype(str).to_numpy()[above])[0]
+        got[who], windows[who] = code_noise_factor(
+            g["time_gps_s"].to_numpy()[above], ch, g["pseudorange_m"].to_numpy(dtype=np.float64)[above],
+            (g["phase_cycles"].to_numpy(dtype=np.float64) * g["wavelength_m"].to_numpy(dtype=np.float64))[above],
+            (g["lli"].to_numpy(dtype=np.int64)[above] & 1) > 0, var, window_s=CODE_NOISE_WINDOW_S,
+            chunk_s=CODE_NOISE_CHUNK_S, min_windows=CODE_NOISE_MIN_WINDOWS)
+    # an estimate within 3σ of 1 (relative σ √(2/n) for n windows), or below 1.5 (σ × 1.22), is the model's own
+    # variance: no factor (white codes at their model give 0.97-1.23 on 480 windows)
+    known = [f for who, f in got.items()
+             if np.isfinite(f) and f > max(CODE_NOISE_MIN_FACTOR, 1.0 + 3.0 * np.sqrt(2.0 / windows[who]))]
+    return {"mode": "auto", "factor": float(max([1.0, *known])), **got, "windows": windows}
 
 
 def _filter_pass(rows, times, order, opt, base_xyz, origin, iono, progress) -> dict:
@@ -537,7 +581,7 @@ def _filter_pass(rows, times, order, opt, base_xyz, origin, iono, progress) -> d
            "float_cov": np.full((n_ep, 3, 3), np.nan), "fixed_cov": np.full((n_ep, 3, 3), np.nan),
            "n_fixed": np.zeros(n_ep, dtype=np.int64), "ratio": np.full(n_ep, np.nan),
            "partial": np.zeros(n_ep, dtype=bool), "ns": np.zeros(n_ep, dtype=np.int64),
-           "wrong_fix_resets": np.zeros(n_ep, dtype=bool)}
+           "wrong_fix_resets": np.zeros(n_ep, dtype=bool), "released": np.zeros(n_ep, dtype=bool)}
     st = _State(_n_motion(opt))
     amb_keys, slip_rows = _amb_keys(rows), np.flatnonzero(rows["slip"]).tolist()
     model = DDGroupModel(lambda i: _groups_with_keys(rows, order[i], amb_keys, slip_rows), base_xyz, origin)
@@ -616,18 +660,66 @@ class _FloatSink:
         return None
 
 
+def epoch_nis(model, rows, x, P, phase_only: bool = False) -> tuple[float, int]:
+    """NIS of an epoch's DDs at the state ``x`` (n,), ``P`` (n, n) before their update, and its degrees of
+    freedom (one fewer than the SDs per group and kind); ``phase_only``: of the DD phases alone.
+
+    The wrong-fix test of held integers takes the phases alone: a wrong integer leaves a DD phase residual
+    of a sizeable part of a cycle, while the codes, even when the position is metres off, add little against
+    their noise (a one-cycle wrong fix planted 2 m off on the mosaic pair: the codes added 5 to a phase NIS
+    of 27 over 8 more degrees of freedom, which would have delayed the detection by 30 epochs), and a real
+    receiver's code multipath, taken as white, sets the test off every few minutes (a u-blox M8P pair: DD
+    code residuals of 1.5–5 m against one reference while every phase residual stayed below a quarter
+    cycle).  Rows whitened as in
+    :class:`~cdgps_cli.measurement.dd_signals.GroupRows` (noise ``I − u uᵀ`` per group; ν and H have no
+    component along u, so ``S = H P Hᵀ + I`` gives the DD statistic).
+    """
+    M = int(rows.context["M"])
+    h, H = model.predict(x, rows)
+    k = M if phase_only else rows.z_m.size
+    B = rows.B[:k, :k]                         # block-diagonal: the phase blocks, then the code blocks
+    nu = B @ (rows.z_m[:k] - h[:k])
+    Hw = B @ H[:k]
+    S = Hw @ P @ Hw.T + np.eye(k)
+    return float(nu @ np.linalg.solve(S, nu)), k - len(model.groups) * (1 if phase_only else 2)
+
+
+def _released(P, cols, var_cycles2) -> np.ndarray:
+    """``P`` with the ambiguity columns ``cols`` back to float: variance ``var_cycles2``, no correlation
+    with the other states (a copy)."""
+    P = P.copy()
+    P[cols, :] = 0.0
+    P[:, cols] = 0.0
+    P[cols, cols] = var_cycles2
+    return P
+
+
 def _float_ambiguities(st, var_cycles2) -> None:
-    """Wrong-fix recovery: every ambiguity column back to float (variance ``var_cycles2``, no
-    correlation with the other states); the next epochs' phases and codes re-estimate them and the
-    integer search starts again."""
+    """Wrong-fix recovery: every ambiguity column back to float (:func:`_released`); the next epochs'
+    phases and codes re-estimate them and the integer search starts again."""
     amb = np.array([j for j, key in enumerate(st.keys) if key[0] == "N"], dtype=np.int64)
-    if amb.size == 0:
-        return
-    P = st.P.copy()
-    P[amb, :] = 0.0
-    P[:, amb] = 0.0
-    P[amb, amb] = var_cycles2
-    st.P = P
+    if amb.size:
+        st.P = _released(st.P, amb, var_cycles2)
+
+
+def _one_to_release(model, rows, x, P, cols, var_cycles2, probability) -> int | None:
+    """The one ambiguity column among ``cols`` whose release (:func:`_released`) brings the epoch's DDs
+    (:func:`epoch_nis`) back within χ²(``probability``) of their degrees of freedom (one fewer), the release
+    that explains them best; None when no single one does.
+
+    A held fix contradicted by one epoch is most often one channel that slipped by whole or half
+    cycles without a loss-of-lock flag (u-blox receivers flag half-cycle slips late, or not at all),
+    not a wrong integer set: releasing that channel alone keeps the others' integers, so the position
+    stays fixed instead of floating for minutes while every ambiguity converges again (RTKLIB drops
+    such an outlier from its update)."""
+    best, best_nis, dof1 = None, np.inf, None
+    for c in cols.tolist():
+        nis, dof = epoch_nis(model, rows, x, _released(P, np.array([c]), var_cycles2), phase_only=True)
+        if nis < best_nis:
+            best, best_nis, dof1 = c, nis, dof - 1
+    if best is None or dof1 < 1 or best_nis > chi2_quantile(probability, dof1):
+        return None
+    return best
 
 
 class _AmbiguityHook(Hook):
@@ -643,13 +735,13 @@ class _AmbiguityHook(Hook):
     def __init__(self, st, model, order, opt, iono, out, progress):
         self.st, self.model, self.order, self.opt, self.iono, self.out = st, model, order, opt, iono, out
         self.progress, self.carried, self.run = progress, _CarriedDecorrelation(), 0
-        self.holding, self.prior, self.resets = False, None, 0
+        self.holding, self.prior, self.resets, self.released_at = False, None, 0, None
 
     def prepared(self, ctx, i):
         _prepare_state(self.st, self.model.groups, self.opt, self.iono)
 
     def gate(self, ctx, i, model, rows):
-        if self.holding and self.opt["wrong_fix_probability"] > 0:
+        if (self.holding or self.released_at is not None) and self.opt["wrong_fix_probability"] > 0:
             self.prior = (self.st.x.copy(), self.st.P.copy())
         return rows
 
@@ -657,26 +749,55 @@ class _AmbiguityHook(Hook):
         if self.prior is None:
             return
         prior, self.prior = self.prior, None
-        dof = int(rows.z_m.size) - 2 * len(self.model.groups)    # DDs: one fewer than SDs per phase / code block
-        if dof < 1 or nis <= chi2_quantile(self.opt["wrong_fix_probability"], dof):
+        p = self.opt["wrong_fix_probability"]
+        nis, dof = epoch_nis(model, rows, *prior, phase_only=True)
+        if dof < 1 or nis <= chi2_quantile(p, dof):
             return
         self.st.x, self.st.P = prior                  # the held integers contradict this epoch: undo, float, again
-        _float_ambiguities(self.st, self.opt["amb_sigma_cycles"] ** 2)
+        var = self.opt["amb_sigma_cycles"] ** 2
+        cols = np.unique(np.concatenate([g["amb_col"] for g in self.model.groups]))
+        one = None if self.released_at is not None else _one_to_release(model, rows, self.st.x, self.st.P, cols, var, p)
+        if one is None:          # not one channel, or a second contradiction before the first was fixed: all float
+            _float_ambiguities(self.st, var)
+            self.resets += 1
+            self.out["wrong_fix_resets"][self.order[i]] = True
+            self.released_at = None
+        else:                                         # one channel slipped unflagged: only its ambiguity
+            self.st.P = _released(self.st.P, np.array([one]), var)
+            self.out["released"][self.order[i]] = True
+            self.released_at = i
         self.st.step.update(model, rows, 2)
         self.run, self.holding, self.carried = 0, False, _CarriedDecorrelation()
-        self.resets += 1
-        self.out["wrong_fix_resets"][self.order[i]] = True
+
+    def _check_release(self, i, k):
+        """After one ambiguity was released (:func:`_one_to_release`) the phase test goes on at every epoch
+        (:meth:`updated`) until the set is fixed again.  A second contradiction before that, or no fix within
+        :data:`RELEASE_RECOVERY_EPOCHS` epochs, means the rest of the held set was wrong too (a wrong fix can
+        look like one slipped channel for an epoch, its error then lingering in every other ambiguity):
+        every ambiguity goes back to float.  Fixed again in time, the release stands."""
+        if self.released_at is None:
+            return
+        if self.run:
+            self.released_at = None
+        elif i - self.released_at >= RELEASE_RECOVERY_EPOCHS:
+            _float_ambiguities(self.st, self.opt["amb_sigma_cycles"] ** 2)
+            self.carried, self.released_at = _CarriedDecorrelation(), None
+            self.resets += 1
+            self.out["wrong_fix_resets"][k] = True
 
     def after(self, ctx, i, i_next):
         st, groups, opt, out, k = self.st, self.model.groups, self.opt, self.out, self.order[i]
         fx, n, ratio, fx_cov, partial = (_fix(st, groups, opt, self.carried) if (groups and opt["fix"])
                                          else (None, 0, np.nan, None, False))
         origin = self.model.origin
+        if fx is not None and not partial and np.trace(fx_cov) > MAX_FIXED_SIGMA_M ** 2:
+            partial = True                         # integers fixed, but too few or too weak to set the position
         if fx is not None and partial:             # part of the set: a better float, not a fixed position
             out["float_xyz"][k], out["float_cov"][k] = origin + fx, fx_cov
         elif fx is not None:
             out["fixed_xyz"][k], out["fixed_cov"][k] = origin + fx, fx_cov
         self.run = self.run + 1 if (fx is not None and not partial) else 0
+        self._check_release(i, k)
         self.holding = bool(opt["fix_and_hold"] and self.run >= opt["hold_after_fixes"])
         if self.holding:
             _hold(st, self.carried.last_fix)
@@ -743,4 +864,5 @@ def _combine(f: dict, b: dict) -> dict:
     out["partial"] = f["partial"] & b["partial"]
     out["fixed"] = np.isfinite(out["fixed_xyz"][:, 0])
     out["wrong_fix_resets"] = f["wrong_fix_resets"] | b["wrong_fix_resets"]
+    out["released"] = f["released"] | b["released"]
     return out

@@ -262,6 +262,7 @@ def _static_options(options: dict | None) -> dict:
     """Defaults merged with ``options``; CdgpsError naming an unknown key or one the engine does not honour."""
     opt = {"partial": GNSS_DEFAULTS["partial"], **MULTI_GNSS_DEFAULTS,
            "fix_and_hold": False,           # rtk's default holds; a static batch has nothing to hold
+           "code_noise": "model",           # baseline / init weight the codes as modelled (rtk: "auto")
            "motion": "static", "random_walk_sigma": GNSS_DEFAULTS["random_walk_sigma"],
            "initial_sigma_m": GNSS_DEFAULTS["initial_sigma_m"],
            "max_gap_s": None}               # arcs: ambiguity_segments' gap limit (None: its default)

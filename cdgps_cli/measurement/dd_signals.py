@@ -520,7 +520,8 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False) -> dict
         "half": half,
         "var_phase": var + var_age,
         "var_code": var * opt["code_ratio"] ** 2 * correlated_variance_factor(nominal_interval_s(pairs.rover_time_s),
-                                                                             opt["code_correlation_s"]) + var_age,
+                                                                             opt["code_correlation_s"])
+                    * opt.get("code_variance_factor", 1.0) + var_age,
     }
 
 

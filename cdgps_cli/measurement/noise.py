@@ -237,3 +237,94 @@ def correlated_variance_factor(interval_s: float, correlation_s: float) -> float
         return 1.0
     rho = math.exp(-interval_s / correlation_s)
     return (1.0 + rho) / (1.0 - rho)
+
+
+def code_noise_factor(time_s, channel, code_m, phase_m, slip, var_model_m2, *, window_s: float, chunk_s: float,
+                      min_windows: int) -> tuple[float, int]:
+    """How much more a receiver's code errors weigh when averaged than its code model says, from its own
+    code-minus-carrier (CMC).
+
+    ``code − phase`` (both in metres) of one channel removes the geometry and the clocks and leaves twice
+    the ionosphere, the ambiguity and the code's own error (multipath and noise; the phase's are ~100x
+    smaller).  Each arc of a channel (a new one after a slip flag, a gap of more than 1.5 epochs or a jump
+    over 20 m) is cut into chunks of ``chunk_s`` s, and a quadratic in time is removed from each (the
+    ambiguity and the slow ionosphere); what remains is averaged over windows of ``window_s`` s.  The
+    factor is ``Σ mean_w² / Σ (mean model variance_w / n_w)``, each chunk's sum scaled by k/(k − 3) for
+    the three parameters fitted over its k windows: the variance of the window means against what white
+    errors of the modelled variance would give.  A filter that takes the codes as white with the model's
+    variance counts ``window_s`` s of a receiver with a factor F as worth F times more than they are:
+    multiplying the code variance by F makes their average honest over that span.
+
+    Parameters
+    ----------
+    time_s : array_like (N,)
+        Epoch of each row, s.
+    channel : array_like of int (N,)
+        Channel (satellite and signal) of each row.
+    code_m, phase_m : array_like (N,)
+        Pseudorange and carrier phase, m (NaN: missing; such rows are not used).
+    slip : array_like of bool (N,)
+        Loss of lock at the row.
+    var_model_m2 : array_like (N,)
+        The model's variance of the row's code, m².
+    window_s, chunk_s : float
+        Averaging window and detrending chunk, s.
+    min_windows : int
+        Fewest full windows for an estimate.
+
+    Returns
+    -------
+    factor : float
+        The variance factor (NaN when fewer than ``min_windows`` full windows were found).
+    n_windows : int
+    """
+    t = np.asarray(time_s, dtype=np.float64)
+    ch = np.asarray(channel, dtype=np.int64)
+    cmc = np.asarray(code_m, dtype=np.float64) - np.asarray(phase_m, dtype=np.float64)
+    ok = np.isfinite(cmc) & np.isfinite(t)
+    t, ch, cmc = t[ok], ch[ok], cmc[ok]
+    sl, var = np.asarray(slip, dtype=bool)[ok], np.asarray(var_model_m2, dtype=np.float64)[ok]
+    if t.size < 2:
+        return math.nan, 0
+    order = np.lexsort((t, ch))
+    t, ch, cmc, sl, var = t[order], ch[order], cmc[order], sl[order], var[order]
+    steps = np.diff(np.unique(t))
+    step = float(np.median(steps)) if steps.size else math.nan
+    if not (math.isfinite(step) and step > 0):
+        return math.nan, 0
+    new = np.r_[True, (ch[1:] != ch[:-1]) | sl[1:] | (np.diff(t) > 1.5 * step) | (np.abs(np.diff(cmc)) > 20.0)]
+    arc = np.cumsum(new) - 1
+    t_arc0 = t[new][arc]
+    chunk_key = np.cumsum(np.r_[True, (arc[1:] != arc[:-1]) |
+                                (np.floor((t[1:] - t_arc0[1:]) / chunk_s) != np.floor((t[:-1] - t_arc0[:-1]) / chunk_s))]) - 1
+    first = np.r_[True, chunk_key[1:] != chunk_key[:-1]]
+    u = t - t[first][chunk_key]
+    r = _detrended(u, cmc, chunk_key)
+    per_window = max(int(round(window_s / step)), 1)
+    wkey = np.cumsum(np.r_[True, (chunk_key[1:] != chunk_key[:-1]) |
+                           (np.floor(u[1:] / window_s) != np.floor(u[:-1] / window_s))]) - 1
+    n_w = np.bincount(wkey)
+    full = (n_w >= 0.9 * per_window) & np.isfinite(np.bincount(wkey, weights=r))
+    mean_w = np.bincount(wkey, weights=np.nan_to_num(r)) / np.maximum(n_w, 1)
+    white_w = np.bincount(wkey, weights=var) / np.maximum(n_w, 1) ** 2
+    chunk_of_w = chunk_key[np.r_[True, wkey[1:] != wkey[:-1]]]
+    k = np.bincount(chunk_of_w, weights=full.astype(float))
+    use = full & (k[chunk_of_w] >= 4)
+    if int(use.sum()) < min_windows:
+        return math.nan, int(use.sum())
+    scale = k[chunk_of_w[use]] / (k[chunk_of_w[use]] - 3.0)      # the quadratic took 3 of each chunk's k windows
+    return float(np.sum(scale * mean_w[use] ** 2) / np.sum(white_w[use])), int(use.sum())
+
+
+def _detrended(u, y, group) -> np.ndarray:
+    """``y`` minus the least-squares quadratic in ``u`` of its group (NaN for groups of fewer than 3 rows)."""
+    n = group.max() + 1
+    s = [np.bincount(group, weights=u ** p, minlength=n) for p in range(5)]
+    b = [np.bincount(group, weights=y * u ** p, minlength=n) for p in range(3)]
+    A = np.stack([np.stack([s[i + j] for j in range(3)], axis=-1) for i in range(3)], axis=-2)   # (n, 3, 3)
+    good = (s[0] >= 3) & (np.abs(np.linalg.det(A)) > 1e-300)
+    c = np.full((n, 3), np.nan)
+    if good.any():
+        c[good] = np.linalg.solve(A[good], np.stack(b, axis=-1)[good][:, :, None])[:, :, 0]
+    cg = c[group]
+    return y - (cg[:, 0] + cg[:, 1] * u + cg[:, 2] * u * u)

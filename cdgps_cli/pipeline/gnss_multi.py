@@ -45,6 +45,8 @@ def validate_options(options: dict) -> dict:
         bad.append(f"direction: expected 'forward', 'backward' or 'combined', got {opt['direction']!r}")
     if not (np.isfinite(float(opt["code_correlation_s"])) and float(opt["code_correlation_s"]) >= 0):
         bad.append(f"code_correlation_s: expected a number of seconds >= 0, got {opt['code_correlation_s']}")
+    if opt["code_noise"] not in ("auto", "model"):
+        bad.append(f"code_noise: expected 'auto' or 'model', got {opt['code_noise']!r}")
     if not 0.0 <= float(opt["wrong_fix_probability"]) < 1.0:
         bad.append(f"wrong_fix_probability: expected a probability in [0, 1) (0: no wrong-fix test), "
                    f"got {opt['wrong_fix_probability']}")
@@ -182,10 +184,18 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
     return {"epochs": int(len(res["time_gps_s"])), "fixed_pct": float(100 * res["fixed"].mean()),
             "fixed_epochs": int(res["fixed"].sum()), "direction": res["direction"],
             "fixes_rejected": res["fixes_rejected"], "partial_fixes": res["partial_fixes"],
-            "wrong_fix_resets": res["wrong_fix_resets"],
+            "wrong_fix_resets": res["wrong_fix_resets"], "ambiguities_released": res["ambiguities_released"],
+            "code_noise": _code_noise_summary(res["code_noise"]),
             "static_xyz_m": res["static_xyz_m"].tolist(), "iono_model": res["iono_model"], "signals": sigs,
             "rover_troposphere": "at each epoch's solution" if per_epoch else "at the a-priori position",
             "epoch_pairing": ep, "warnings": warnings}
+
+
+def _code_noise_summary(c: dict) -> dict:
+    """:func:`~cdgps_cli.estimation.rtk_multi.receivers_code_noise` for JSON (an estimate not made: null)."""
+    return {"mode": c["mode"], "variance_factor": c["factor"],
+            "estimates": {w: (float(c[w]) if np.isfinite(c[w]) else None) for w in ("base", "rover")},
+            "windows": c["windows"]}
 
 
 OUTPUT_FORMATS = {".pos": "RTKLIB .pos", ".nmea": "NMEA GGA", ".gga": "NMEA GGA", ".geojson": "GeoJSON", ".csv": "CSV"}

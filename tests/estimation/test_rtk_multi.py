@@ -188,7 +188,8 @@ def _pass(x, P, fixed_x=None, fixed_P=None):
             "fixed_xyz": np.array(fixed_x) if fixed else np.full((n, 3), np.nan),
             "fixed_cov": np.array(fixed_P) if fixed else np.full((n, 3, 3), np.nan),
             "fixed": np.full(n, fixed), "ratio": np.full(n, np.nan), "n_fixed": np.zeros(n, np.int64),
-            "partial": np.zeros(n, bool), "ns": np.zeros(n, np.int64), "wrong_fix_resets": np.zeros(n, bool)}
+            "partial": np.zeros(n, bool), "ns": np.zeros(n, np.int64), "wrong_fix_resets": np.zeros(n, bool),
+            "released": np.zeros(n, bool)}
 
 
 def test_combined_covariance_does_not_count_epoch_k_twice():
@@ -262,9 +263,9 @@ def test_the_rtk_path_does_not_import_scipy():
 
 
 GOLDEN = REPO_ROOT / "tests" / "estimation" / "data" / "rtk_legacy_golden.npz"
-_NO_HOLD = {"fix_and_hold": False}            # recorded before fix-and-hold became the default
+_NO_HOLD = {"fix_and_hold": False, "code_correlation_s": 0.0}   # recorded before fix-and-hold and 30 s codes became the default
 _GOLDEN_CASES = {"static": {"mode": "static", **_NO_HOLD}, "kinematic": _NO_HOLD, "iono": {"iono_threshold_km": 1.0, **_NO_HOLD},
-                 "hold": {"fix_and_hold": True}, "backward": {"direction": "backward", **_NO_HOLD}}
+                 "hold": {"fix_and_hold": True, "code_correlation_s": 0.0}, "backward": {"direction": "backward", **_NO_HOLD}}
 
 
 def _golden_run(pair, opt):
@@ -434,6 +435,7 @@ def _combine_per_epoch(f, b):
         out["partial"][k] = f["partial"][k] and b["partial"][k]
     out["fixed"] = np.isfinite(out["fixed_xyz"][:, 0])
     out["wrong_fix_resets"] = f["wrong_fix_resets"] | b["wrong_fix_resets"]
+    out["released"] = f["released"] | b["released"]
     return out
 
 
@@ -453,7 +455,7 @@ def test_combine_vectorised_equals_the_per_epoch_combination():
         return {"float_xyz": rng.normal(size=(n, 3)) * 0.02, "float_cov": cov, "fixed_xyz": fx, "fixed_cov": fcov,
                 "fixed": fixed, "ratio": rng.choice([np.nan, np.inf, 2.0, 5.5, 30.0], n),
                 "n_fixed": rng.integers(0, 20, n), "partial": rng.random(n) < 0.2, "ns": rng.integers(4, 12, n),
-                "wrong_fix_resets": rng.random(n) < 0.05}
+                "wrong_fix_resets": rng.random(n) < 0.05, "released": rng.random(n) < 0.05}
 
     f, b = one_pass(), one_pass()
     got, want = rtk_multi._combine(f, b), _combine_per_epoch(f, b)
@@ -540,3 +542,39 @@ def test_troposphere_at_epochs_uses_each_epochs_height():
     assert trop[2] == 9.0 and trop[4] == 9.0                  # no position at 101 s; 105 s not in the solution
     assert geo["trop_m"].tolist() == [9.0] * 5                # the input table is not modified
     assert 0.025 < trop[0] - trop[3] < 0.030                  # zenith, 20 m against 120 m above the station: 27 mm
+
+
+def test_epoch_nis_is_the_double_differences_nis():
+    """rtk_multi.epoch_nis on whitened SD rows equals the NIS of explicit double differences (brute force:
+    D (z − h) against D (H P Hᵀ + Σ) Dᵀ, D the DD operator of each group against its first row), for the
+    phases alone and for phases and codes; its degrees of freedom are the DDs'."""
+    from types import SimpleNamespace
+
+    from cdgps_cli.measurement.dd_signals import GroupRows
+
+    rng = np.random.default_rng(11)
+    sizes = np.array([5, 3])                        # two signal groups
+    M, n = int(sizes.sum()), 9
+    Hlin = rng.normal(size=(2 * M, n))
+    P = np.cov(rng.normal(size=(n, 40))) * 0.1
+    x = rng.normal(size=n)
+    var = np.r_[rng.uniform(1e-5, 4e-5, M), rng.uniform(0.1, 0.4, M)]
+    z = Hlin @ x + rng.normal(size=2 * M) * np.sqrt(var) + rng.normal(size=2 * M) * 0.01
+    rows = GroupRows(z, var, np.r_[sizes, sizes], {"M": M})
+    model = SimpleNamespace(groups=[{}, {}], predict=lambda xx, r: (Hlin @ xx, Hlin))
+
+    def brute(k):
+        blocks = [(0, 5), (5, 8), (8, 13), (13, 16)][:2 if k == M else 4]
+        D = np.zeros((sum(b - a - 1 for a, b in blocks), k))
+        r = 0
+        for a, b in blocks:
+            for j in range(a + 1, b):
+                D[r, j], D[r, a] = 1.0, -1.0
+                r += 1
+        d = D @ (z[:k] - Hlin[:k] @ x)
+        C = D @ (Hlin[:k] @ P @ Hlin[:k].T + np.diag(var[:k])) @ D.T
+        return float(d @ np.linalg.solve(C, d)), D.shape[0]
+
+    for phase_only, k in ((True, M), (False, 2 * M)):
+        got, want = rtk_multi.epoch_nis(model, rows, x, P, phase_only=phase_only), brute(k)
+        assert got[1] == want[1] and got[0] == pytest.approx(want[0], rel=1e-9), (got, want)

@@ -247,3 +247,72 @@ def test_correlated_variance_factor_against_ar1_samples():
     assert correlated_variance_factor(1.0, 60.0) == pytest.approx(120.0, rel=0.01)
     with pytest.raises(ValueError):
         correlated_variance_factor(1.0, -1.0)
+
+
+# ----------------------------------------------------------------------------------------------
+# code_noise_factor: the variance of 30 s means of the code-minus-carrier against the model's
+
+
+def _cmc_channels(rng, n_ch=8, n=1800, step=1.0, sigma=0.5, rho=0.0, slips=()):
+    """Rows of ``n_ch`` channels, ``n`` epochs each: code = ambiguity·λ-like offset + quadratic ionosphere +
+    AR(1) error (σ, lag-1 correlation ρ), phase = offset; a slip at epoch k of channel c jumps the offset."""
+    t, ch, code, phase, slip = [], [], [], [], []
+    for c in range(n_ch):
+        tt = np.arange(n) * step
+        e = np.empty(n)
+        e[0] = rng.normal() * sigma
+        w = rng.normal(size=n) * sigma * np.sqrt(1 - rho ** 2)
+        for k in range(1, n):
+            e[k] = rho * e[k - 1] + w[k]
+        offset = np.full(n, rng.uniform(-1e3, 1e3))
+        s = np.zeros(n, dtype=bool)
+        for cc, k in slips:
+            if cc == c:
+                offset[k:] += 37.0 * 0.19
+                s[k] = True
+        iono = 2e-6 * (tt - 900.0) ** 2 + 1e-3 * tt
+        t.append(tt); ch.append(np.full(n, c)); phase.append(offset - iono); code.append(offset + iono + e); slip.append(s)
+    return [np.concatenate(a) for a in (t, ch, code, phase, slip)]
+
+
+def _factor(t, ch, code, phase, slip, var, **kw):
+    from cdgps_cli.measurement.noise import code_noise_factor
+
+    return code_noise_factor(t, ch, code, phase, slip, var, **{"window_s": 30.0, "chunk_s": 300.0, "min_windows": 10, **kw})
+
+
+def test_code_noise_factor_white_codes_at_their_model_give_one():
+    """White errors of the modelled σ: the 30 s means scatter as σ²/30, factor ≈ 1 (± 3 √(2/n)), whatever the
+    offsets, the ionosphere's quadratic and the slips (a slip starts a new arc)."""
+    rng = np.random.default_rng(1)
+    t, ch, code, phase, slip = _cmc_channels(rng, slips=((2, 700), (5, 1234)))
+    f, n = _factor(t, ch, code, phase, slip, np.full(t.size, 0.25))
+    assert n >= 400 and abs(f - 1.0) < 3 * np.sqrt(2 / n), (f, n)
+
+
+def test_code_noise_factor_scales_with_the_variance_against_the_model():
+    rng = np.random.default_rng(2)
+    t, ch, code, phase, slip = _cmc_channels(rng, sigma=1.0)
+    f, n = _factor(t, ch, code, phase, slip, np.full(t.size, 0.25))         # errors of σ 1 m, model 0.5 m
+    assert abs(f / 4.0 - 1.0) < 3 * np.sqrt(2 / n), (f, n)
+
+
+def test_code_noise_factor_of_correlated_codes_is_the_variance_of_their_mean():
+    """AR(1) errors (ρ = e^(−1/10): τ = 10 s) against a white model of the same σ: the factor is the variance
+    of a 30-sample mean of AR(1) over that of white samples, 1 + 2 Σ_{k<30} (1 − k/30) ρ^k (brute force)."""
+    rng = np.random.default_rng(3)
+    rho = np.exp(-1 / 10)
+    t, ch, code, phase, slip = _cmc_channels(rng, n_ch=16, sigma=0.5, rho=rho)
+    f, n = _factor(t, ch, code, phase, slip, np.full(t.size, 0.25))
+    k = np.arange(1, 30)
+    want = 1 + 2 * np.sum((1 - k / 30) * rho ** k)                            # 12.3
+    assert abs(f / want - 1.0) < 0.25, (f, want, n)
+
+
+def test_code_noise_factor_without_enough_windows_is_nan():
+    rng = np.random.default_rng(4)
+    t, ch, code, phase, slip = _cmc_channels(rng, n_ch=1, n=200)
+    f, n = _factor(t, ch, code, phase, slip, np.full(t.size, 0.25))
+    assert np.isnan(f) and n < 10
+    f, n = _factor(t[:1], ch[:1], code[:1], phase[:1], slip[:1], np.full(1, 0.25))
+    assert np.isnan(f) and n == 0

@@ -378,7 +378,9 @@ def test_zero_baseline_rover_troposphere_where_the_rover_is(tmp_path):
     own UBX log as the base: the conversion's APPROX POSITION XYZ is 13.7 m from the antenna (10.9 m
     low), and with the rover's troposphere evaluated there the fixed heights sat 4.3 mm low (RMS
     4.9 mm).  rtk now solves again with the rover's troposphere at each fixed epoch's position, as
-    RTKLIB evaluates it at its current estimate, says so, and the zero baseline is zero."""
+    RTKLIB evaluates it at its current estimate, says so, and the zero baseline is zero.  (Ten epochs
+    whose three or four held integers leave the position's σ above MAX_FIXED_SIGMA_M are reported
+    float: 525 fixed of 536.)"""
     walk = SHARED / "real-pairs" / "ublox-walk"
     out = tmp_path / "zero.csv"
     r = run_cli("rtk", "--base", walk / "gnss_1730.ubx", "--rover", walk / "gnss_1730_convbin.obs", "--signals", "G:L1,E:E1",
@@ -390,7 +392,7 @@ def test_zero_baseline_rover_troposphere_where_the_rover_is(tmp_path):
     assert "its APPROX POSITION XYZ is 13.7 m from the solution (height +10.9 m)" in r.stderr
     d = pd.read_csv(out, comment="#")
     f = d[d["fixed"] == 1]
-    assert len(f) >= 530
+    assert len(f) >= 520
     assert np.abs(np.median(_enu(f), axis=0)).max() < 0.0005                       # was 4.3 mm in height
     assert np.sqrt(np.mean(_enu(f) ** 2, axis=0)).max() < 0.001                    # was 4.9 mm
 
