@@ -96,7 +96,23 @@ def cases(tmp: Path) -> list:
         _case("ublox-walk zero baseline, UBX base, G+E L1", walk / "gnss_1730.ubx", walk / "gnss_1730_convbin.obs", [],
               (-1276975.6547, -4717238.8712, 4087235.6076), ("G:L1", "E:E1"), 1,
               rtklib_base=walk / "gnss_1730_convbin.obs", rtklib_navs=[walk / "gnss_1730_convbin.nav"]),
+        *_m8p_cases(),
     ]
+
+
+def _m8p_cases() -> list:
+    """``--m8p DIR``: issue 28's u-blox M8P pair (jdesbonnet/GNSS_RTK_data 20181004, no licence: fetched locally;
+    DIR holds convbin's base1.obs, rover1.obs, base1.nav and the OSi CORS glw1277m.18o / .18n of its zip) and the
+    CORS to the M8P base, GPS L1, the base position process1.sh gives RTKLIB."""
+    if "--m8p" not in sys.argv:
+        return []
+    d = Path(sys.argv[sys.argv.index("--m8p") + 1])
+    out = [_case("u-blox M8P pair GPS L1", d / "base1.obs", d / "rover1.obs", [d / "base1.nav"],
+                 (3774090.1382928407, -601663.0449456355, 5089319.199168801), ("G:L1",), 1)]
+    if (d / "glw1277m.18o").exists():
+        out.append(_case("CORS GLW1 to the M8P base GPS L1", d / "glw1277m.18o", d / "base1.obs", [d / "glw1277m.18n"],
+                         _header_xyz(d / "glw1277m.18o"), ("G:L1",), 1))
+    return out
 
 
 def _header_xyz(path: Path):
@@ -262,6 +278,8 @@ def main() -> None:
     ap.add_argument("--no-rtklib", action="store_true", help="time our side only")
     ap.add_argument("--before", metavar="TREE", help="also time another source tree's `cdgps rtk` in the same rounds")
     ap.add_argument("--out", type=Path, default=OUT, help=f"result JSON [{OUT}]")
+    ap.add_argument("--m8p", type=Path, metavar="DIR", help="also issue 28's u-blox M8P pair and the CORS to its base "
+                    "(jdesbonnet/GNSS_RTK_data 20181004, converted by convbin into DIR; see _m8p_cases)")
     args = ap.parse_args()
     repeats, peer, before, out = args.repeats, not args.no_rtklib, args.before, args.out
     if peer and not shutil.which("rnx2rtkp"):

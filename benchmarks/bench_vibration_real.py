@@ -30,7 +30,8 @@ cancels); its ephemerides are the log's own RXM-SFRBX ones (4 GPS, 7 Galileo), w
 the edit and (GPS records only: Debian rnx2rtkp produces no solution from the file with the Galileo
 records, not investigated) for RTKLIB, whose base there is the unedited RINEX of the same log.  Writes ``docs/benchmarks/vibration_real.json``.
 
-Run: ``PYTHONPATH=. .venv/bin/python benchmarks/bench_vibration_real.py [--quick] [--no-rtklib] [--only DATA]``;
+Run: ``PYTHONPATH=. .venv/bin/python benchmarks/bench_vibration_real.py [--quick] [--no-rtklib] [--only DATA]
+[--m8p DIR] [--out JSON]``;
 ``--sweep`` adds the random-walk σ sweep (:func:`rw_sigma_sweep`) to the existing JSON.
 """
 
@@ -75,8 +76,17 @@ def _unit(az_deg, el_deg):
 
 
 def datasets():
-    """name → base, rover, navs, base ECEF, rover a-priori ECEF, signal sets {label: (signals, RTKLIB freq)}, t0, keep."""
-    return {
+    """name → base, rover, navs, base ECEF, rover a-priori ECEF, signal sets {label: (signals, RTKLIB freq)}, t0, keep.
+    ``--m8p DIR`` adds the u-blox M8P pair of jdesbonnet/GNSS_RTK_data (2018-10-04 12:37, static, 0.33 m;
+    no licence: not in ../shared, fetched locally): DIR holds convbin's base1.obs, rover1.obs and base1.nav
+    (``convbin -od -os -oi -ot -f 1`` of base-20181004-1236.ubx and rover-20181004-1237.ubx)."""
+    extra = {}
+    if "--m8p" in sys.argv:
+        d = Path(sys.argv[sys.argv.index("--m8p") + 1])
+        extra["u-blox M8P pair"] = dict(base=d / "base1.obs", rover=d / "rover1.obs", navs=[d / "base1.nav"],
+                                        base_xyz=(3774090.1382928407, -601663.0449456355, 5089319.199168801),
+                                        t0=None, keep=None, signals={"GPS L1": (("G:L1",), 1)})
+    return {**extra,
         "mosaic-static": dict(base=MS / "base.obs", rover=MS / "rover.obs", navs=[MS / "base.nav"],
                               base_xyz=(-3817681.1213, 3562839.4311, 3650159.1593), t0=1403252400.0, keep=None,
                               signals={"GPS L1": (("G:L1",), 1), "GPS+Galileo L1": (("G:L1", "E:E1"), 1)}),
@@ -302,9 +312,10 @@ def main() -> None:
                               f"{(r.get('clean_difference') or {}).get('amplitude_error_pct')}", flush=True)
     res["seconds"] = round(time.perf_counter() - t_start, 1)
     res["machine"]["load_average_1min_at_end"] = round(os.getloadavg()[0], 2)
+    out = Path(sys.argv[sys.argv.index("--out") + 1]) if "--out" in sys.argv else OUT
     if not quick:
-        OUT.write_text(json.dumps(res, indent=1) + "\n")
-        print(f"wrote {OUT}")
+        out.write_text(json.dumps(res, indent=1) + "\n")
+        print(f"wrote {out}")
 
 
 def _rover_xyz(ds) -> np.ndarray:

@@ -246,9 +246,11 @@ def code_noise_factor(time_s, channel, code_m, phase_m, slip, var_model_m2, *, w
 
     ``code − phase`` (both in metres) of one channel removes the geometry and the clocks and leaves twice
     the ionosphere, the ambiguity and the code's own error (multipath and noise; the phase's are ~100x
-    smaller).  Each arc of a channel (a new one after a slip flag, a gap of more than 1.5 epochs or a jump
-    over 20 m) is cut into chunks of ``chunk_s`` s, and a quadratic in time is removed from each (the
-    ambiguity and the slow ionosphere); what remains is averaged over windows of ``window_s`` s.  The
+    smaller).  Each arc of a channel (a new one after a slip flag, a gap longer than a window and 1.5
+    epochs, or a jump over 20 m) is cut into chunks of ``chunk_s`` s, and a quadratic in time is removed
+    from each (the ambiguity and the slow ionosphere); what remains is averaged over windows of
+    ``window_s`` s holding at least three rows (a receiver that logs with gaps, as a u-blox base
+    interleaving RTCM, has fewer rows a window, each weighing more).  The
     factor is ``Σ mean_w² / Σ (mean model variance_w / n_w)``, each chunk's sum scaled by k/(k − 3) for
     the three parameters fitted over its k windows: the variance of the window means against what white
     errors of the modelled variance would give.  A filter that takes the codes as white with the model's
@@ -292,7 +294,8 @@ def code_noise_factor(time_s, channel, code_m, phase_m, slip, var_model_m2, *, w
     step = float(np.median(steps)) if steps.size else math.nan
     if not (math.isfinite(step) and step > 0):
         return math.nan, 0
-    new = np.r_[True, (ch[1:] != ch[:-1]) | sl[1:] | (np.diff(t) > 1.5 * step) | (np.abs(np.diff(cmc)) > 20.0)]
+    gap = max(1.5 * step, window_s)          # a logging gap shorter than a window keeps the arc (no slip flag)
+    new = np.r_[True, (ch[1:] != ch[:-1]) | sl[1:] | (np.diff(t) > gap) | (np.abs(np.diff(cmc)) > 20.0)]
     arc = np.cumsum(new) - 1
     t_arc0 = t[new][arc]
     chunk_key = np.cumsum(np.r_[True, (arc[1:] != arc[:-1]) |
@@ -300,11 +303,10 @@ def code_noise_factor(time_s, channel, code_m, phase_m, slip, var_model_m2, *, w
     first = np.r_[True, chunk_key[1:] != chunk_key[:-1]]
     u = t - t[first][chunk_key]
     r = _detrended(u, cmc, chunk_key)
-    per_window = max(int(round(window_s / step)), 1)
     wkey = np.cumsum(np.r_[True, (chunk_key[1:] != chunk_key[:-1]) |
                            (np.floor(u[1:] / window_s) != np.floor(u[:-1] / window_s))]) - 1
     n_w = np.bincount(wkey)
-    full = (n_w >= 0.9 * per_window) & np.isfinite(np.bincount(wkey, weights=r))
+    full = (n_w >= 3) & np.isfinite(np.bincount(wkey, weights=r))
     mean_w = np.bincount(wkey, weights=np.nan_to_num(r)) / np.maximum(n_w, 1)
     white_w = np.bincount(wkey, weights=var) / np.maximum(n_w, 1) ** 2
     chunk_of_w = chunk_key[np.r_[True, wkey[1:] != wkey[:-1]]]
