@@ -40,7 +40,7 @@ from cdgps_cli.estimation.ambiguity import (AmbiguityError, SearchLimitError, _r
 from cdgps_cli.estimation.chi2 import chi2_quantile
 from cdgps_cli.estimation.driver import EpochGrid, Hook, drive
 from cdgps_cli.estimation.kalman import NUMPY_INVERSE, StepFilter
-from cdgps_cli.measurement.dd_signals import DDGroupModel, backward_slips, epoch_groups, paired_sd_rows
+from cdgps_cli.measurement.dd_signals import DDGroupModel, backward_slips, channel_index, epoch_groups, paired_sd_rows
 from cdgps_cli.measurement.differencing import sd_variance
 from cdgps_cli.measurement.epoch_pairing import pair_epochs
 from cdgps_cli.measurement.noise import code_noise_factor
@@ -48,7 +48,8 @@ from cdgps_cli.model.dynamics_models import ConstantVelocity, RandomWalk, Static
 from cdgps_cli.model.gps.orbits import OMEGA_E_GPS, azimuth_elevation, ecef_to_geodetic, ephemeris_rows, sat_position_rows
 from cdgps_cli.model.gps.positioning import ephemeris_coverage, tropo_hydrostatic_m
 
-__all__ = ["receiver_geometry", "troposphere_at_epochs", "solve_rtk", "check_common_signals", "RTK_MODES"]
+__all__ = ["receiver_geometry", "troposphere_at_epochs", "receivers_code_noise", "solve_rtk", "check_common_signals",
+           "RTK_MODES"]
 
 #: motion models of the rover on the one engine: random-walk position, position + velocity, one position
 RTK_MODES = ("kinematic", "constant-velocity", "static")
@@ -459,7 +460,7 @@ def _hold(st, fix) -> None:
 
 
 def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m, *, options: dict | None = None,
-              progress=None) -> dict:
+              progress=None, code_noise: dict | None = None) -> dict:
     """Epoch-by-epoch multi-GNSS RTK (kinematic) or static solution.
 
     Parameters
@@ -471,6 +472,9 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
         Known base position and the rover's a-priori position, ECEF m.
     options : dict
         Keys of :data:`cdgps_cli.config.options.MULTI_GNSS_DEFAULTS`.
+    code_noise : dict, optional
+        :func:`receivers_code_noise` of these observations and options, when the caller has it (a second
+        solve of the same files); found here otherwise.
 
     Returns
     -------
@@ -505,7 +509,7 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
     if not common:
         raise CdgpsError(f"no common satellites: the base observes {_few(base['sat'])}, the rover {_few(rover['sat'])} "
                          f"(signals asked for); a double difference needs satellites observed at both receivers")
-    code_noise = receivers_code_noise(base, rover, opt)
+    code_noise = receivers_code_noise(base, rover, opt) if code_noise is None else code_noise
     opt["code_variance_factor"] = code_noise["factor"]
     rows = paired_sd_rows(base, rover, pairs, opt, mask_rover=True)     # the mask at both receivers, as RTKLIB's
     n_ep = times.size
@@ -554,7 +558,7 @@ def receivers_code_noise(base: pd.DataFrame, rover: pd.DataFrame, opt: dict) -> 
         above = el >= np.radians(opt["mask_deg"])
         var = 0.5 * opt["code_ratio"] ** 2 * sd_variance(el[above], el[above], sigma_a_m=opt["sigma_a_m"],
                                                           sigma_b_m=opt["sigma_b_m"], weighting=opt["weighting"])
-        ch = pd.factorize(g["sat"].astype(str).to_numpy()[above] + "/" + g["signal"].astype(str).to_numpy()[above])[0]
+        ch = channel_index(g["sat"].to_numpy()[above], g["signal"].to_numpy()[above])
         got[who], windows[who] = code_noise_factor(
             g["time_gps_s"].to_numpy()[above], ch, g["pseudorange_m"].to_numpy(dtype=np.float64)[above],
             (g["phase_cycles"].to_numpy(dtype=np.float64) * g["wavelength_m"].to_numpy(dtype=np.float64))[above],

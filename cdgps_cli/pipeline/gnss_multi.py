@@ -23,8 +23,8 @@ from cdgps_cli.config.options import GNSS_WEIGHTINGS, MULTI_GNSS_DEFAULTS, ROVER
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, signal
-from cdgps_cli.estimation.rtk_multi import (RTK_MODES, check_common_signals, receiver_geometry, solve_rtk,
-                                            troposphere_at_epochs)
+from cdgps_cli.estimation.rtk_multi import (RTK_MODES, check_common_signals, receiver_geometry, receivers_code_noise,
+                                            solve_rtk, troposphere_at_epochs)
 from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.io.rinex import COMPRESSED_MAGIC, NAV_SYSTEMS, read_rinex_nav
 from cdgps_cli.io.rinex_signals import read_rinex_signals, signals_in_file
@@ -161,15 +161,16 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
                  + ", ".join(f"{sig} {n}" for sig, n in d.items())
                  for who, path, d in (("base", base_path, gb.attrs["no_code"]), ("rover", rover_path, gr.attrs["no_code"])) if d]
     gb.attrs, gr.attrs = {}, {}
+    code_noise = receivers_code_noise(gb, gr, opt)       # the observations' own: the same for every solve below
     try:
         if rx_from_spp:             # a single-point origin is metres off: the rover's troposphere (≈ 0.3 mm per
             # metre of height) is computed there, so move the origin to the float solution's median first
-            rough = solve_rtk(gb, gr, bx, rx, options={**opt, "fix": False, "direction": "forward"})
+            rough = solve_rtk(gb, gr, bx, rx, options={**opt, "fix": False, "direction": "forward"}, code_noise=code_noise)
             rx = np.median(rough["float_xyz_m"], axis=0)
             gr = _geometry(r, nav, rx, rover_path, "rover", nav_paths)
             gr.attrs = {}
         res, gr, per_epoch = _solve_where_the_rover_is(gb, gr, bx, rx, opt, rover=(r, rover_path, rx_from_spp),
-                                                       nav=(nav, nav_paths), warnings=warnings)
+                                                       nav=(nav, nav_paths), code_noise=code_noise, warnings=warnings)
     except CdgpsError as exc:
         if str(exc).startswith(("no common epochs", "no common satellites", "no double differences")):
             raise CdgpsError(f"{rover_path} (rover) and {base_path} (base): {exc}") from None
@@ -181,21 +182,22 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
                         + f" (max_age_s {opt['max_age_s']:g} s)")
     text = solution_text(res, sigs, opt, out_csv, bx, inputs=(rover_path, base_path, *nav_paths))
     write_atomic(out_csv, lambda tmp: Path(tmp).write_text(text, newline=""))
+    return {**_summary(res, per_epoch), "signals": sigs, "epoch_pairing": ep, "warnings": warnings}
+
+
+def _summary(res: dict, per_epoch: bool) -> dict:
+    """The JSON summary's fields of a :func:`solve_rtk` solution (``per_epoch``: solved again with the rover's
+    troposphere at each fixed epoch)."""
+    c = res["code_noise"]
     return {"epochs": int(len(res["time_gps_s"])), "fixed_pct": float(100 * res["fixed"].mean()),
             "fixed_epochs": int(res["fixed"].sum()), "direction": res["direction"],
             "fixes_rejected": res["fixes_rejected"], "partial_fixes": res["partial_fixes"],
             "wrong_fix_resets": res["wrong_fix_resets"], "ambiguities_released": res["ambiguities_released"],
-            "code_noise": _code_noise_summary(res["code_noise"]),
-            "static_xyz_m": res["static_xyz_m"].tolist(), "iono_model": res["iono_model"], "signals": sigs,
-            "rover_troposphere": "at each epoch's solution" if per_epoch else "at the a-priori position",
-            "epoch_pairing": ep, "warnings": warnings}
-
-
-def _code_noise_summary(c: dict) -> dict:
-    """:func:`~cdgps_cli.estimation.rtk_multi.receivers_code_noise` for JSON (an estimate not made: null)."""
-    return {"mode": c["mode"], "variance_factor": c["factor"],
-            "estimates": {w: (float(c[w]) if np.isfinite(c[w]) else None) for w in ("base", "rover")},
-            "windows": c["windows"]}
+            "code_noise": {"mode": c["mode"], "variance_factor": c["factor"],       # an estimate not made: null
+                           "estimates": {w: (float(c[w]) if np.isfinite(c[w]) else None) for w in ("base", "rover")},
+                           "windows": c["windows"]},
+            "static_xyz_m": res["static_xyz_m"].tolist(), "iono_model": res["iono_model"],
+            "rover_troposphere": "at each epoch's solution" if per_epoch else "at the a-priori position"}
 
 
 OUTPUT_FORMATS = {".pos": "RTKLIB .pos", ".nmea": "NMEA GGA", ".gga": "NMEA GGA", ".geojson": "GeoJSON", ".csv": "CSV"}
@@ -288,14 +290,15 @@ def _rover_origin(header: dict, obs: pd.DataFrame, nav, base_xyz, path, warnings
     return np.asarray(x, dtype=float), True
 
 
-def _solve_where_the_rover_is(gb, gr, bx, rx, opt: dict, *, rover: tuple, nav: tuple, warnings: list):
+def _solve_where_the_rover_is(gb, gr, bx, rx, opt: dict, *, rover: tuple, nav: tuple, code_noise: dict, warnings: list):
     """:func:`solve_rtk`, solved again when its fixed epochs show the rover's troposphere was computed where the
     rover is not (a height or the fixed median more than :data:`ROVER_ORIGIN_TOL_M` from the origin ``rx``): the
     origin moved to the fixed median when that is far (a warning says so), the delay at each fixed epoch's
     position.  ``rover`` is (observation table, path, whether ``rx`` is a single-point position), ``nav`` (table,
-    paths).  Returns (solution, the rover's geometry table, whether it was solved again)."""
+    paths), ``code_noise`` the observations' :func:`receivers_code_noise`.  Returns (solution, the rover's geometry
+    table, whether it was solved again)."""
     r, rover_path, rx_from_spp = rover
-    res = solve_rtk(gb, gr, bx, rx, options=opt)
+    res = solve_rtk(gb, gr, bx, rx, options=opt, code_noise=code_noise)
     xyz_ep = _fixed_positions(res)
     moved = np.nanmedian(xyz_ep, axis=0) - rx if np.isfinite(xyz_ep).any() else np.zeros(3)
     far = np.linalg.norm(moved) > ROVER_ORIGIN_TOL_M
@@ -307,7 +310,7 @@ def _solve_where_the_rover_is(gb, gr, bx, rx, opt: dict, *, rover: tuple, nav: t
         gr = _geometry(r, nav[0], rx, rover_path, "rover", nav[1])
         gr.attrs = {}
     gr = troposphere_at_epochs(gr, res["time_gps_s"], xyz_ep)
-    return solve_rtk(gb, gr, bx, rx, options=opt), gr, True
+    return solve_rtk(gb, gr, bx, rx, options=opt, code_noise=code_noise), gr, True
 
 
 def _fixed_positions(res: dict) -> np.ndarray:
