@@ -59,6 +59,8 @@ __all__ = [
     "ld_factorize",
     "ld_factorize_symmetric",
     "decorrelate",
+    "resolve_cascaded",
+    "conditioned_on_integers",
     "search_reduced",
     "search",
     "lambda_search",
@@ -1150,3 +1152,65 @@ def resolve(a, Q, threshold=RATIO_THRESHOLD, *, partial=True, max_nodes=None, pr
     res["partial"] = 0 < res["n_fixed"] < n
     res["limit_message"] = limit
     return res
+
+
+def conditioned_on_integers(a, Q, fixed_mask, integers):
+    """The float ambiguities not in ``fixed_mask`` given the fixed ones equal ``integers`` (cycles).
+
+    ``â_r|f = â_r − Q_rf Q_ff⁻¹ (â_f − z_f)`` and ``Q_r|f = Q_rr − Q_rf Q_ff⁻¹ Q_fr`` (the Gaussian
+    conditional; Teunissen 1995's conditional float of the remaining ambiguities).  Returns ``(a_r, Q_r)``,
+    shapes (r,) and (r, r), ``Q_r`` exactly symmetric.
+    """
+    m = np.asarray(fixed_mask, dtype=bool)
+    f, r = np.flatnonzero(m), np.flatnonzero(~m)
+    K = np.linalg.solve(Q[np.ix_(f, f)], Q[np.ix_(f, r)]).T          # Q_rf Q_ff⁻¹
+    a_r = a[r] - K @ (a[f] - np.asarray(integers)[f])
+    Q_r = Q[np.ix_(r, r)] - K @ Q[np.ix_(f, r)]
+    return a_r, 0.5 * (Q_r + Q_r.T)
+
+
+def resolve_cascaded(a, Q, threshold=RATIO_THRESHOLD, *, max_nodes=None, progress=None, min_success_rate=None,
+                     max_stages: int = 10):
+    """Partial fixing repeated on what is left, conditioned on what is fixed (cascaded partial resolution).
+
+    :func:`resolve` (partial) fixes the largest subset that passes; the remaining ambiguities are then
+    conditioned on those integers, ``â_r|f = â_r − Q_rf Q_ff⁻¹ (â_f − z_f)``, ``Q_r|f = Q_rr − Q_rf Q_ff⁻¹ Q_fr``
+    (the float solution with the fixed ones known exactly), and resolved again under the same ratio test and
+    success-rate criterion, until a stage fixes nothing or nothing is left.  A static baseline's float with
+    many short lock arcs (a u-blox receiver's slips and half-cycle flags) passes with a subset of its long arcs
+    only; once those are fixed the position is known to millimetres and the short arcs' conditional floats are
+    close to integers.  Each stage trusts the integers of the stages before it: a wrong fix propagates, as in
+    any bootstrapped fixing, so every stage keeps the ratio test and success-rate criterion of the first.
+
+    Parameters
+    ----------
+    a, Q, threshold, max_nodes, progress, min_success_rate
+        As for :func:`resolve` (``progress`` serves the first stage only).
+    max_stages : int
+        Most stages (the first included).
+
+    Returns
+    -------
+    dict
+        :func:`resolve`'s keys for the first stage (``ratio``, ``ratio_full_set``, ``success_rate``, …) with
+        ``fixed_mask``, ``integers``, ``n_fixed``, ``accepted`` and ``partial`` over all stages, and ``stages``:
+        one ``{"candidates", "fixed", "ratio"}`` per stage (ambiguities offered, fixed, the stage's ratio).
+    """
+    a = np.asarray(a, dtype=np.float64)
+    Q = np.asarray(Q, dtype=np.float64)
+    res = resolve(a, Q, threshold, partial=True, max_nodes=max_nodes, progress=progress,
+                  min_success_rate=min_success_rate)
+    mask, ints = res["fixed_mask"].copy(), res["integers"].copy()
+    stages = [{"candidates": int(a.size), "fixed": int(mask.sum()), "ratio": float(res["ratio"])}]
+    while len(stages) < max_stages and mask.any() and not mask.all():
+        r = np.flatnonzero(~mask)
+        a_r, Q_r = conditioned_on_integers(a, Q, mask, ints)
+        more = resolve(a_r, Q_r, threshold, partial=True, max_nodes=max_nodes, min_success_rate=min_success_rate)
+        stages.append({"candidates": int(r.size), "fixed": int(more["n_fixed"]), "ratio": float(more["ratio"])})
+        if not more["n_fixed"]:
+            break
+        mask[r[more["fixed_mask"]]] = True
+        ints[r[more["fixed_mask"]]] = more["integers"][more["fixed_mask"]]
+    n = int(mask.sum())
+    return {**res, "fixed_mask": mask, "integers": np.where(mask, ints, 0), "n_fixed": n, "accepted": n > 0,
+            "partial": 0 < n < a.size, "stages": stages}

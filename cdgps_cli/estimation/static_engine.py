@@ -225,8 +225,10 @@ def condition_on_integers(x, P, D, ints):
 
 def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_success_rate: float | None = None,
                amb=None, glonass_fix: bool = False):
-    """Integers of the static float solution by the shared policy (:func:`~cdgps_cli.estimation.ambiguity.resolve`
-    on the DDs of :func:`dd_of_arcs`) and the position conditioned on them.
+    """Integers of the static float solution by the shared policy on the DDs of :func:`dd_of_arcs`: with
+    ``partial``, :func:`~cdgps_cli.estimation.ambiguity.resolve_cascaded` (the largest subset that passes, then
+    the rest conditioned on it, again, until a stage fixes nothing); else the full set only
+    (:func:`~cdgps_cli.estimation.ambiguity.resolve`).  The position is conditioned on every integer fixed.
 
     Returns
     -------
@@ -235,15 +237,16 @@ def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_succ
         dict, its ``fixed_mask`` / ``integers`` over all DDs: the ones not fixable stay float), ``pairs``
         (the DDs' column pairs), ``dd_float`` (n_dd,) cycles.
     """
-    from cdgps_cli.estimation.ambiguity import resolve
+    from cdgps_cli.estimation.ambiguity import resolve, resolve_cascaded
     D, pairs, fixable = dd_of_arcs(rows, cols, x.size, glonass_fix)
     if amb is None:
         a, Qa = D @ x, D @ P @ D.T
     else:                                   # (a, Q) of the arcs from another float (random walk)
         a, Qa = D[:, 3:] @ amb[0], D[:, 3:] @ amb[1] @ D[:, 3:].T
     with progress.bar(int(fixable.sum()) if partial else 1, "integer fixing (LAMBDA)", unit="subset") as bar:
-        res = resolve(a[fixable], Qa[np.ix_(fixable, fixable)], ratio, partial=partial,
-                      min_success_rate=min_success_rate, progress=lambda done, total: bar.update_to(done))
+        solve = resolve_cascaded if partial else resolve
+        res = solve(a[fixable], Qa[np.ix_(fixable, fixable)], ratio, min_success_rate=min_success_rate,
+                    progress=lambda done, total: bar.update_to(done), **({} if partial else {"partial": False}))
     m = np.zeros(a.size, dtype=bool)
     m[fixable] = res["fixed_mask"]
     ints = np.zeros(a.size, dtype=np.int64)
