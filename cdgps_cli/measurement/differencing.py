@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cdgps_cli.config.options import PHASE_SIGMA_A_M, PHASE_SIGMA_B_M
+from cdgps_cli.config.options import ARC_MAX_OUTAGE_EPOCHS, PHASE_SIGMA_A_M, PHASE_SIGMA_B_M
 from cdgps_cli.measurement.channels import lock_segments
 
 __all__ = [
@@ -134,7 +134,8 @@ def ambiguity_segments(epoch, sat, slip, *, epoch_time_s=None, max_gap_s: float 
     epoch_time_s : array_like, shape (n_epochs,), optional
         Time of each epoch, s (for ``max_gap_s``).
     max_gap_s : float, optional
-        Largest time step within a segment, s (default: 1.5 × the median epoch spacing).
+        Largest time step within a segment, s (default: (:data:`~cdgps_cli.config.options.ARC_MAX_OUTAGE_EPOCHS`
+        + 1.5) × the median epoch spacing: up to 5 missing epochs without a slip flag keep the ambiguity).
     reset_epochs : array_like of int, optional
         Epochs at which every satellite restarts.
 
@@ -152,7 +153,7 @@ def ambiguity_segments(epoch, sat, slip, *, epoch_time_s=None, max_gap_s: float 
         tt = np.asarray(epoch_time_s, dtype=np.float64)
         if max_gap_s is None:
             ut = np.unique(tt)
-            max_gap_s = 1.5 * float(np.median(np.diff(ut))) if ut.size > 1 else np.inf
+            max_gap_s = (ARC_MAX_OUTAGE_EPOCHS + 1.5) * float(np.median(np.diff(ut))) if ut.size > 1 else np.inf
         step, max_step = (tt[ep] if ep.size else tt[:0]), max_gap_s
     else:
         step, max_step = ep, 1

@@ -57,22 +57,38 @@ def test_arcs_split_at_slips():
 
 
 def test_arcs_split_after_an_outage_by_the_segments_rule():
-    """A (satellite, signal) absent longer than the gap limit (default 1.5 × the median epoch spacing, the batch's
-    ambiguity_segments rule) starts a new arc; a slip does too; without times only slips cut; an explicit
-    max_gap_s longer than the outage bridges it."""
-    # epochs 0..5 at 1 s, epoch 3 missing from G02's rows (sets and rises): G01 every epoch
-    sats = ["G01", "G02", "G01", "G02", "G01", "G01", "G02", "G01", "G01", "G02"]   # epoch 4: any satellite order
-    ep = [0, 0, 1, 1, 2, 3, 4, 4, 5, 5]
-    n_ep = 6
-    rows = {"sats": np.array(sats), "code": np.zeros(len(sats), dtype=int), "slip": np.zeros(len(sats), dtype=bool),
-            "ptr": np.searchsorted(ep, np.arange(n_ep + 1))}
-    times = 100.0 + np.arange(n_ep)
-    # G02 rows: epochs 0, 1, 4, 5 -> gap of 3 s > 1.5 s: a new arc at epoch 4
-    assert arc_columns(rows, times).tolist() == [3, 4, 3, 4, 3, 3, 5, 3, 3, 5]
-    assert arc_columns(rows).tolist() == [3, 4, 3, 4, 3, 3, 4, 3, 3, 4]          # slips only
-    assert arc_columns(rows, times, max_gap_s=3.5).tolist() == arc_columns(rows).tolist()
-    rows["slip"][4] = True                                           # a slip on G01 at epoch 2
-    assert arc_columns(rows, times).tolist() == [3, 4, 3, 4, 5, 5, 6, 5, 5, 6]
+    """A (satellite, signal) absent longer than the gap limit (default (ARC_MAX_OUTAGE_EPOCHS + 1.5) × the median
+    epoch spacing, the batch's ambiguity_segments rule: RTKLIB's outage count, 5) starts a new arc, a shorter
+    outage without a slip flag keeps it; a slip cuts; without times only slips cut; an explicit max_gap_s
+    decides instead of the default."""
+    from cdgps_cli.config.options import ARC_MAX_OUTAGE_EPOCHS
+    assert ARC_MAX_OUTAGE_EPOCHS == 5
+
+    def rows_with_g02_missing(missing, n_ep=14):
+        # G01 every epoch; G02 every epoch but ``missing``; epochs at 1 s
+        sats, ep = [], []
+        for k in range(n_ep):
+            for s in ("G01", "G02"):
+                if not (s == "G02" and k in missing):
+                    sats.append(s)
+                    ep.append(k)
+        rows = {"sats": np.array(sats), "code": np.zeros(len(sats), dtype=int), "slip": np.zeros(len(sats), dtype=bool),
+                "ptr": np.searchsorted(ep, np.arange(n_ep + 1))}
+        return rows, 100.0 + np.arange(n_ep), np.array(sats) == "G02"
+
+    rows, times, g02 = rows_with_g02_missing(range(3, 8))          # 5 epochs missing (a 6 s gap): one arc
+    cols = arc_columns(rows, times)
+    assert set(cols[g02]) == {4} and set(cols[~g02]) == {3}
+    rows, times, g02 = rows_with_g02_missing(range(3, 9))          # 6 epochs missing (7 s > 6.5 s): a new arc
+    cols = arc_columns(rows, times)
+    assert cols[g02].tolist() == [4, 4, 4] + [5] * 5 and set(cols[~g02]) == {3}
+    assert set(arc_columns(rows)[g02]) == {4}                                    # slips only
+    assert set(arc_columns(rows, times, max_gap_s=7.5)[g02]) == {4}
+    rows, times, g02 = rows_with_g02_missing([3])                  # one epoch missing, cut at an explicit 1.5 s
+    assert set(arc_columns(rows, times)[g02]) == {4}
+    assert arc_columns(rows, times, max_gap_s=1.5)[g02].tolist() == [4, 4, 4] + [5] * 10
+    rows["slip"][4] = True                                         # a slip on G01 at epoch 2
+    assert arc_columns(rows, times)[~g02].tolist() == [3, 3] + [5] * 12
 
 
 def test_half_cycle_and_fdma_arcs_are_kept_float():

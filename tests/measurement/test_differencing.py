@@ -293,10 +293,15 @@ def test_segments_from_lli_gaps_and_resets():
             slip.append(s == 1 and k == 4)
     ep, sat, slip = np.array(ep), np.array(sat), np.array(slip)
     t = 1000.0 + 30.0 * np.arange(10)
-    seg, tab = ambiguity_segments(ep, sat, slip, epoch_time_s=t, reset_epochs=[7])
+    seg, tab = ambiguity_segments(ep, sat, slip, epoch_time_s=t, reset_epochs=[7], max_gap_s=45.0)
     got = sorted(zip(tab["sat"].tolist(), tab["first_epoch"].tolist(), tab["last_epoch"].tolist(), tab["n_rows"].tolist()))
     assert got == [(1, 0, 3, 4), (1, 4, 6, 3), (1, 7, 9, 3), (2, 0, 3, 4), (2, 6, 6, 1), (2, 7, 9, 3),
                    (3, 0, 6, 7), (3, 7, 9, 3)]
+    # the default gap limit, (ARC_MAX_OUTAGE_EPOCHS + 1.5) x 30 s: sat 2's two missing epochs keep its ambiguity
+    _, tab_d = ambiguity_segments(ep, sat, slip, epoch_time_s=t, reset_epochs=[7])
+    got_d = sorted(zip(tab_d["sat"].tolist(), tab_d["first_epoch"].tolist(), tab_d["last_epoch"].tolist()))
+    assert [g for g in got_d if g[0] == 2] == [(2, 0, 6), (2, 7, 9)]
+    assert [g for g in got_d if g[0] != 2] == [g[:3] for g in got if g[0] != 2]
     # each row's segment is consistent with the table
     for i in range(ep.size):
         s = seg[i]
