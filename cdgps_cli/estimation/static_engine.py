@@ -175,31 +175,50 @@ def static_normal_equations(rows, n_epochs: int, base_xyz_m, origin_xyz_m, x_lin
 
 
 def dd_of_arcs(rows, cols, n_state: int, glonass_fix: bool = False):
-    """DD operator (n_dd, n_state) on the arc ambiguities: per signal, every arc minus the signal's
-    reference arc (the one with the most rows, preferring arcs without a half-cycle flag); the
-    (arc, reference arc) column pairs; and which DDs are integers that may be fixed (n_dd,) bool: not
-    when either arc has a half-cycle flag, nor for a signal whose wavelength differs between
-    satellites (GLONASS FDMA: an SD ambiguity difference in cycles of two wavelengths is no integer)
-    unless ``glonass_fix`` (identical receivers: the arcs' DD in cycles is fixed as an integer, as
-    ``rtk --glonass-fix`` does; :func:`static_baseline` then gives the arcs rtk's prior, see there)."""
+    """DD operator (n_dd, n_state) on the arc ambiguities: per signal and per connected set of its arcs (arcs
+    seen in a common epoch are connected; a gap that every satellite's arc ends in leaves two sets, whose SD
+    ambiguities have no common datum), every arc minus the set's reference arc (the one with the most rows,
+    preferring arcs without a half-cycle flag); the (arc, reference arc) column pairs; and which DDs are
+    integers that may be fixed (n_dd,) bool: not when either arc has a half-cycle flag, nor for a signal whose
+    wavelength differs between satellites (GLONASS FDMA: an SD ambiguity difference in cycles of two
+    wavelengths is no integer) unless ``glonass_fix`` (identical receivers: the arcs' DD in cycles is fixed as
+    an integer, as ``rtk --glonass-fix`` does; :func:`static_baseline` then gives the arcs rtk's prior, see
+    there).  Without ``rows["ptr"]`` (epoch bounds) a signal's arcs are taken as one set."""
     D, pairs, fixable = [], [], []
     half = np.zeros(n_state, dtype=bool)
     if "half" in rows:
         half[cols[rows["half"]]] = True
     for c in np.unique(rows["code"]):
         sel = rows["code"] == c
-        arcs, counts = np.unique(cols[sel], return_counts=True)
-        ref = int(arcs[np.lexsort((-counts, half[arcs]))[0]])
         fdma = np.ptp(rows["lam_m"][sel]) > 0 and not glonass_fix
-        for a in arcs:
-            if a == ref:
-                continue
-            d = np.zeros(n_state)
-            d[a], d[ref] = 1.0, -1.0
-            D.append(d)
-            pairs.append((int(a), ref))
-            fixable.append(not (fdma or half[a] or half[ref]))
+        for arcs, counts in _connected_arc_sets(rows, cols, sel):
+            ref = int(arcs[np.lexsort((-counts, half[arcs]))[0]])
+            for a in arcs:
+                if a == ref:
+                    continue
+                d = np.zeros(n_state)
+                d[a], d[ref] = 1.0, -1.0
+                D.append(d)
+                pairs.append((int(a), ref))
+                fixable.append(not (fdma or half[a] or half[ref]))
     return np.array(D).reshape(-1, n_state), pairs, np.array(fixable, dtype=bool)
+
+
+def _connected_arc_sets(rows, cols, sel):
+    """The arcs (columns) of the rows ``sel`` grouped into sets connected through common epochs, each as
+    (arcs ascending, their row counts), the sets in order of their smallest column."""
+    arcs, inverse, counts = np.unique(cols[sel], return_inverse=True, return_counts=True)
+    if "ptr" not in rows or arcs.size < 2:
+        return [(arcs, counts)]
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    epoch = (np.searchsorted(rows["ptr"], np.arange(sel.size), side="right") - 1)[sel]
+    order = np.lexsort((inverse, epoch))
+    e, a = epoch[order], inverse.ravel()[order]
+    same = e[1:] == e[:-1]                               # consecutive rows of one epoch: their arcs connect
+    graph = coo_matrix((np.ones(int(same.sum())), (a[:-1][same], a[1:][same])), shape=(arcs.size, arcs.size))
+    n, label = connected_components(graph, directed=False)
+    return [(arcs[label == k], counts[label == k]) for k in range(n)]
 
 
 def condition_on_integers(x, P, D, ints):

@@ -91,6 +91,24 @@ def test_arcs_split_after_an_outage_by_the_segments_rule():
     assert arc_columns(rows, times)[~g02].tolist() == [3, 3] + [5] * 12
 
 
+def test_dds_are_formed_within_each_connected_set_of_arcs():
+    """Two blocks of epochs with no arc in common (every arc cut by a gap): each block's arcs minus its own
+    reference (the arc with the most rows), never across blocks (no common datum: such a DD has only the
+    prior's σ); without epoch bounds one set, as before."""
+    from cdgps_cli.estimation.static_engine import dd_of_arcs
+    # epochs 0-2: G01, G02, G03 (arcs 3, 4, 5; G02 also in epoch 3); epochs 4-5: G01, G03 (arcs 6, 7)
+    sats = ["G01", "G02", "G03"] * 3 + ["G02"] + ["G01", "G03"] * 2
+    ep = [0, 0, 0, 1, 1, 1, 2, 2, 2, 3, 4, 4, 5, 5]
+    cols = np.array([3, 4, 5] * 3 + [4] + [6, 7] * 2)
+    rows = {"sats": np.array(sats), "code": np.zeros(len(sats), dtype=int), "slip": np.zeros(len(sats), bool),
+            "lam_m": np.full(len(sats), 0.19), "ptr": np.searchsorted(ep, np.arange(7))}
+    D, pairs, fixable = dd_of_arcs(rows, cols, 8)
+    assert pairs == [(3, 4), (5, 4), (7, 6)] and fixable.all()      # G02's arc (4 rows) is block 1's reference
+    assert np.array_equal(D @ np.arange(8.0), [-1.0, 1.0, 1.0])
+    del rows["ptr"]
+    assert dd_of_arcs(rows, cols, 8)[1] == [(3, 4), (5, 4), (6, 4), (7, 4)]
+
+
 def test_half_cycle_and_fdma_arcs_are_kept_float():
     from cdgps_cli.estimation.static_engine import dd_of_arcs
     rows = {"sats": np.array(["G01", "G02", "G03", "G01", "G02", "G03", "R01", "R02"]),
