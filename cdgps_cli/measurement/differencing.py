@@ -122,6 +122,11 @@ def ambiguity_segments(epoch, sat, slip, *, epoch_time_s=None, max_gap_s: float 
     any skipped epoch index when times are not given), and at every row of a ``reset_epochs``
     epoch (e.g. epoch flag 1, power failure): the one lock-segment rule,
     :func:`cdgps_cli.measurement.channels.lock_segments`, with the satellite as the channel.
+    With times, a satellite missing from an epoch that has rows of other satellites also starts a
+    new segment when it returns (a receiver that lost that signal alone may not flag it: a car's
+    Septentrio rover kept LLI clear after 2–6 s outages of single satellites, whose phase did not
+    continue); an epoch with no rows at all (a receiver that wrote no carrier phase there, a logging
+    gap) keeps every segment, up to ``max_gap_s`` (``inf``: no gap of either kind cuts).
 
     Parameters
     ----------
@@ -135,7 +140,7 @@ def ambiguity_segments(epoch, sat, slip, *, epoch_time_s=None, max_gap_s: float 
         Time of each epoch, s (for ``max_gap_s``).
     max_gap_s : float, optional
         Largest time step within a segment, s (default: (:data:`~cdgps_cli.config.options.ARC_MAX_OUTAGE_EPOCHS`
-        + 1.5) × the median epoch spacing: up to 5 missing epochs without a slip flag keep the ambiguity).
+        + 1.5) × the median epoch spacing: up to 5 epochs without any row keep the ambiguity).
     reset_epochs : array_like of int, optional
         Epochs at which every satellite restarts.
 
@@ -160,6 +165,8 @@ def ambiguity_segments(epoch, sat, slip, *, epoch_time_s=None, max_gap_s: float 
     reset = None
     if reset_epochs is not None and len(reset_epochs):
         reset = np.isin(ep, np.asarray(reset_epochs, dtype=np.int64))
+    if epoch_time_s is not None and np.isfinite(max_gap_s):       # an infinite limit: gaps never cut
+        sl = sl | _returns_after_own_outage(ep, sv)
     ls = lock_segments(sv, step, slip=sl, max_step=max_step, reset=reset)
     table = {
         "sat": ls.channel.astype(np.int64),
@@ -168,6 +175,19 @@ def ambiguity_segments(epoch, sat, slip, *, epoch_time_s=None, max_gap_s: float 
         "n_rows": ls.n_rows,
     }
     return ls.segment, table
+
+
+def _returns_after_own_outage(ep: np.ndarray, sv: np.ndarray) -> np.ndarray:
+    """Rows (N,) whose satellite's previous row lies before an epoch that has rows of other satellites: the
+    satellite alone was missing there (see :func:`ambiguity_segments`)."""
+    out = np.zeros(ep.size, dtype=bool)
+    if ep.size < 2:
+        return out
+    rank = np.searchsorted(np.unique(ep), ep)          # the row's epoch among the epochs that have rows
+    order = np.lexsort((ep, sv))
+    r, s = rank[order], sv[order]
+    out[order[1:]] = (s[1:] == s[:-1]) & (r[1:] - r[:-1] > 1)
+    return out
 
 
 def ambiguity_datum(epoch, seg, n_seg: int) -> tuple[np.ndarray, np.ndarray]:

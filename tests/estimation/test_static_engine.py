@@ -57,37 +57,38 @@ def test_arcs_split_at_slips():
 
 
 def test_arcs_split_after_an_outage_by_the_segments_rule():
-    """A (satellite, signal) absent longer than the gap limit (default (ARC_MAX_OUTAGE_EPOCHS + 1.5) × the median
-    epoch spacing, the batch's ambiguity_segments rule: RTKLIB's outage count, 5) starts a new arc, a shorter
-    outage without a slip flag keeps it; a slip cuts; without times only slips cut; an explicit max_gap_s
-    decides instead of the default."""
+    """The batch's ambiguity_segments rule: a (satellite, signal) missing from epochs that have other rows starts a
+    new arc when it returns, however short the outage; epochs with no rows at all (a receiver that wrote no phase)
+    keep every arc up to the gap limit (default (ARC_MAX_OUTAGE_EPOCHS + 1.5) × the median epoch spacing: RTKLIB's
+    outage count, 5); a slip cuts; without times only slips cut; an explicit max_gap_s sets the limit."""
     from cdgps_cli.config.options import ARC_MAX_OUTAGE_EPOCHS
     assert ARC_MAX_OUTAGE_EPOCHS == 5
 
-    def rows_with_g02_missing(missing, n_ep=14):
-        # G01 every epoch; G02 every epoch but ``missing``; epochs at 1 s
+    def rows_of(present, n_ep=14):
+        """G01 and G02 at 1 s epochs, where ``present(sat, epoch)``."""
         sats, ep = [], []
         for k in range(n_ep):
             for s in ("G01", "G02"):
-                if not (s == "G02" and k in missing):
+                if present(s, k):
                     sats.append(s)
                     ep.append(k)
         rows = {"sats": np.array(sats), "code": np.zeros(len(sats), dtype=int), "slip": np.zeros(len(sats), dtype=bool),
                 "ptr": np.searchsorted(ep, np.arange(n_ep + 1))}
         return rows, 100.0 + np.arange(n_ep), np.array(sats) == "G02"
 
-    rows, times, g02 = rows_with_g02_missing(range(3, 8))          # 5 epochs missing (a 6 s gap): one arc
+    rows, times, g02 = rows_of(lambda s, k: not (s == "G02" and k == 3))      # G02 alone missing one epoch
+    cols = arc_columns(rows, times)
+    assert cols[g02].tolist() == [4, 4, 4] + [5] * 10 and set(cols[~g02]) == {3}
+    assert set(arc_columns(rows)[g02]) == {4}                                # slips only
+    rows, times, g02 = rows_of(lambda s, k: not 3 <= k <= 7)                 # no rows at all for 5 epochs (6 s)
     cols = arc_columns(rows, times)
     assert set(cols[g02]) == {4} and set(cols[~g02]) == {3}
-    rows, times, g02 = rows_with_g02_missing(range(3, 9))          # 6 epochs missing (7 s > 6.5 s): a new arc
+    assert set(arc_columns(rows, times, max_gap_s=1.5)[g02]) == {4, 6}       # an explicit limit cuts
+    rows, times, g02 = rows_of(lambda s, k: not 3 <= k <= 8)                 # 6 epochs (7 s > 6.5 s): new arcs
     cols = arc_columns(rows, times)
-    assert cols[g02].tolist() == [4, 4, 4] + [5] * 5 and set(cols[~g02]) == {3}
-    assert set(arc_columns(rows)[g02]) == {4}                                    # slips only
-    assert set(arc_columns(rows, times, max_gap_s=7.5)[g02]) == {4}
-    rows, times, g02 = rows_with_g02_missing([3])                  # one epoch missing, cut at an explicit 1.5 s
-    assert set(arc_columns(rows, times)[g02]) == {4}
-    assert arc_columns(rows, times, max_gap_s=1.5)[g02].tolist() == [4, 4, 4] + [5] * 10
-    rows["slip"][4] = True                                         # a slip on G01 at epoch 2
+    assert set(cols[g02]) == {4, 6} and set(cols[~g02]) == {3, 5}
+    rows, times, g02 = rows_of(lambda s, k: True)
+    rows["slip"][4] = True                                                   # a slip on G01 at epoch 2
     assert arc_columns(rows, times)[~g02].tolist() == [3, 3] + [5] * 12
 
 

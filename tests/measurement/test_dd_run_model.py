@@ -42,8 +42,7 @@ def run():
     pairs = pair_epochs(gr["time_gps_s"].to_numpy(), gb["time_gps_s"].to_numpy(), sync_tol_s=opt["sync_tol_s"],
                         max_age_s=opt["max_age_s"])
     rows = paired_sd_rows(gb, gr, pairs, opt, mask_rover=True)
-    # every other epoch's lone E:E5a row a new arc (a 2 s gap cut at 1.5 s): epochs whose rows touch only some columns
-    return rows, se.arc_columns(rows, pairs.rover_time_s, max_gap_s=1.5), pairs.rover_time_s
+    return rows, se.arc_columns(rows, pairs.rover_time_s), pairs.rover_time_s
 
 
 class _Ctx:

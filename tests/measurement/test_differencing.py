@@ -297,17 +297,25 @@ def test_segments_from_lli_gaps_and_resets():
     got = sorted(zip(tab["sat"].tolist(), tab["first_epoch"].tolist(), tab["last_epoch"].tolist(), tab["n_rows"].tolist()))
     assert got == [(1, 0, 3, 4), (1, 4, 6, 3), (1, 7, 9, 3), (2, 0, 3, 4), (2, 6, 6, 1), (2, 7, 9, 3),
                    (3, 0, 6, 7), (3, 7, 9, 3)]
-    # the default gap limit, (ARC_MAX_OUTAGE_EPOCHS + 1.5) x 30 s: sat 2's two missing epochs keep its ambiguity
+    # the default gap limit, (ARC_MAX_OUTAGE_EPOCHS + 1.5) x 30 s, is longer than sat 2's outage, but sats 1
+    # and 3 have rows in those epochs: sat 2 alone was missing, and it starts a new segment all the same
     _, tab_d = ambiguity_segments(ep, sat, slip, epoch_time_s=t, reset_epochs=[7])
-    got_d = sorted(zip(tab_d["sat"].tolist(), tab_d["first_epoch"].tolist(), tab_d["last_epoch"].tolist()))
-    assert [g for g in got_d if g[0] == 2] == [(2, 0, 6), (2, 7, 9)]
-    assert [g for g in got_d if g[0] != 2] == [g[:3] for g in got if g[0] != 2]
+    got_d = sorted(zip(tab_d["sat"].tolist(), tab_d["first_epoch"].tolist(), tab_d["last_epoch"].tolist(),
+                       tab_d["n_rows"].tolist()))
+    assert got_d == got
+    # epochs 4 and 5 without any row (a receiver that wrote no phase there): every segment goes on across them
+    keep = (ep < 4) | (ep > 5)
+    _, tab_w = ambiguity_segments(ep[keep], sat[keep], np.zeros(keep.sum(), bool), epoch_time_s=t)
+    assert sorted(zip(tab_w["sat"].tolist(), tab_w["first_epoch"].tolist(), tab_w["last_epoch"].tolist())) == \
+        [(1, 0, 9), (2, 0, 9), (3, 0, 9)]
+    _, tab_s = ambiguity_segments(ep[keep], sat[keep], np.zeros(keep.sum(), bool), epoch_time_s=t, max_gap_s=45.0)
+    assert tab_s["sat"].size == 6                      # an explicit limit shorter than the gap cuts every one
     # each row's segment is consistent with the table
     for i in range(ep.size):
         s = seg[i]
         assert tab["sat"][s] == sat[i] and tab["first_epoch"][s] <= ep[i] <= tab["last_epoch"][s]
-    # a longer allowed gap joins sat 2 across its 2-epoch outage; without times, epoch indices decide
-    _, tab2 = ambiguity_segments(ep, sat, slip, epoch_time_s=t, max_gap_s=100.0)
+    # no gap limit joins sat 2 across its 2-epoch outage; without times, epoch indices decide
+    _, tab2 = ambiguity_segments(ep, sat, slip, epoch_time_s=t, max_gap_s=np.inf)
     assert np.sum(tab2["sat"] == 2) == 1
     _, tab3 = ambiguity_segments(ep, sat, slip)
     assert np.sum(tab3["sat"] == 2) == 2

@@ -152,3 +152,48 @@ def test_the_code_noise_of_the_real_receivers(tmp_path):
                    code_noise="model")
     assert s["code_noise"] == {"mode": "model", "variance_factor": 1.0, "estimates": {"base": None, "rover": None},
                                "windows": {"base": 0, "rover": 0}}
+
+
+def _rover_without_epochs(tmp_path, first: int, count: int):
+    """The mosaic rover with ``count`` whole epochs (from its ``first``-th) removed: a logging gap of every
+    satellite, no loss-of-lock flag after it."""
+    lines = (MOSAIC / "rover.obs").read_text().splitlines(keepends=True)
+    starts = [i for i, ln in enumerate(lines) if ln.startswith(">")]
+    cut = set(range(starts[first], starts[first + count]))
+    p = tmp_path / f"rover_gap{count}.obs"
+    p.write_text("".join(ln for i, ln in enumerate(lines) if i not in cut))
+    return p
+
+
+@pytest.mark.parametrize("count, bridged", [(5, True), (6, False)])
+def test_a_whole_epoch_gap_keeps_the_ambiguities_up_to_five_epochs(tmp_path, monkeypatch, count, bridged):
+    """ARC_MAX_OUTAGE_EPOCHS (RTKLIB's outage count, 5): a rover that wrote no epoch for 5 s keeps every
+    ambiguity in `rtk`'s filter and in the static engine's arcs (`baseline`, `init`); 6 missing epochs (7 s,
+    beyond (5 + 1.5) s) start new ones in both (forward, the first epochs after it are then float again).  No
+    wrong fix either way, and the static answer moves by less than 2 mm."""
+    rover = _rover_without_epochs(tmp_path, 150, count)
+    added = []
+    original_add = rtk_multi._State.add
+    monkeypatch.setattr(rtk_multi._State, "add", lambda st, key, value, var: (
+        added.append(key) if key[0] == "N" else None, original_add(st, key, value, var))[1])
+    s, t, enu, fixed = _solve(tmp_path, MOSAIC / "base.obs", rover, MOSAIC / "base.nav", MOSAIC_BASE, ("G:L1",),
+                              direction="forward")
+    n_sats = len({k[2] for k in added})
+    new_after_gap = len(added) - len(set(added))          # keys added a second time
+    assert (new_after_gap == 0) if bridged else (new_after_gap >= n_sats - 1), (added, n_sats)
+    after = t > t[149]                                    # the epochs after the gap
+    if bridged:                                           # the held integers go on: every epoch after it fixed
+        assert fixed[after].all(), fixed[after]
+    else:                                                 # new float ambiguities: a few epochs to fix again (7)
+        assert not fixed[after][0] and fixed[after].sum() >= after.sum() - 15, fixed[after]
+    assert _wrong(enu, fixed, MOSAIC_ENU) == 0
+    from cdgps_cli.pipeline.baseline_job import baseline_from_files
+    clean = baseline_from_files({"base": MOSAIC / "base.obs", "rover": MOSAIC / "rover.obs"}, [MOSAIC / "base.nav"],
+                                "base", positions={"base": MOSAIC_BASE})
+    gap = baseline_from_files({"base": MOSAIC / "base.obs", "rover": rover}, [MOSAIC / "base.nav"], "base",
+                              positions={"base": MOSAIC_BASE})
+    n_clean, n_gap = clean["ambiguities"]["n_segments"], gap["ambiguities"]["n_segments"]
+    assert (n_gap == n_clean) if bridged else (n_gap >= n_clean + n_sats - 1), (n_clean, n_gap, n_sats)
+    assert gap["ambiguities"]["n_fixed"] == gap["ambiguities"]["n_estimated"]
+    enu = np.array(gap["baseline_enu_from_master_m"])
+    assert np.linalg.norm(enu - np.array(clean["baseline_enu_from_master_m"])) < 0.002
