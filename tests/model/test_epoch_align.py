@@ -21,6 +21,7 @@ from cdgps_cli.model.gps.epoch_align import (
     common_epochs,
     grid_step_s,
     pair_epochs,
+    sampling_interval_s,
 )
 from cdgps_cli.io.rinex import OBS_COLUMNS, gps_seconds
 
@@ -43,6 +44,41 @@ def table(t, sat, phase, lli=None, pr=None):
                                             (0.5, 0.5), (math.nan, 1.0)])
 def test_grid_step(interval, step):
     assert grid_step_s(interval) == pytest.approx(step, abs=1e-12)
+
+
+def _gappy(step, n, rng, jitter=0.0):
+    """``n`` epochs of a receiver sampling every ``step`` s that skips 0-9 samples at a time (spacings 1-10
+    steps, median about 3: a u-blox base interleaving RTCM), tags jittered by up to ``jitter`` s."""
+    k = np.cumsum(rng.choice(np.arange(1, 11), size=n, p=np.r_[0.25, 0.18, 0.12, 0.1, 0.1, np.full(5, 0.05)]))
+    return T0 + k * step - 0.009 + rng.uniform(-jitter, jitter, size=n)
+
+
+@pytest.mark.parametrize("step", [1.0, 0.1, 5.0])
+def test_sampling_interval_of_a_log_with_gaps(step):
+    rng = np.random.default_rng(7)
+    t = _gappy(step, 300, rng, jitter=0.001 * step)
+    assert np.median(np.diff(t)) > 2.5 * step                 # the median spacing is not the sampling interval
+    assert sampling_interval_s(t) == pytest.approx(step, abs=1e-12)
+    assert sampling_interval_s(T0 + step * np.arange(50)) == pytest.approx(step, abs=1e-12)   # no gaps
+
+
+def test_sampling_interval_falls_back_to_the_median_spacing():
+    rng = np.random.default_rng(3)
+    t = T0 + np.cumsum(rng.uniform(0.7, 2.9, size=200))      # no common sampling interval
+    d = np.diff(t)
+    assert sampling_interval_s(t) == pytest.approx(round(float(np.median(d)), 3))
+    assert math.isnan(sampling_interval_s([T0])) and sampling_interval_s([T0, T0 + 2.0]) == 2.0
+
+
+def test_a_rover_that_logs_with_gaps_keeps_every_epoch():
+    """The rover's own grid is its sampling interval (1 s), not its median spacing (3 s): every epoch of a
+    u-blox-like log with gaps and tags 9 ms before the second is kept (issue 28: the CORS -> M8P base pair kept
+    76 of 283)."""
+    rng = np.random.default_rng(11)
+    t = _gappy(1.0, 120, rng)
+    obs = table(np.repeat(t, 2), np.tile(["G01", "G02"], t.size), np.arange(2 * t.size, dtype=float))
+    out, info = align_receiver(obs, tol_s=0.025, mode="geometry")
+    assert info["grid_s"] == 1.0 and info["dropped_off_grid"] == 0 and len(out) == len(obs)
 
 
 def test_geometry_mode_keeps_the_observations_and_reports_the_epochs():

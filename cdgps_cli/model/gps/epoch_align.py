@@ -43,7 +43,8 @@ import pandas as pd
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli.core.gps_time import nominal_interval_s
 
-__all__ = ["ALIGN_MODES", "ON_GRID_S", "RATE_MAX_SPAN_INTERVALS", "grid_step_s", "align_receiver", "pair_epochs",
+__all__ = ["ALIGN_MODES", "ON_GRID_S", "RATE_MAX_SPAN_INTERVALS", "grid_step_s", "sampling_interval_s", "align_receiver",
+           "pair_epochs",
            "carry_slips", "common_epochs", "phase_rate"]
 
 #: How off-grid epochs are handled (see the module docstring); the first is the default.
@@ -69,6 +70,27 @@ def grid_step_s(interval_s: float) -> float:
     if interval_s >= 1.0 and abs(interval_s - round(interval_s)) < 0.05 * interval_s:
         return float(round(interval_s))
     return round(interval_s, 3)
+
+
+#: share of a receiver's epoch spacings that must be whole multiples of its sampling interval (sampling_interval_s)
+SAMPLING_MULTIPLES_SHARE = 0.9
+
+
+def sampling_interval_s(t_s) -> float:
+    """The interval a receiver samples at, s: the grid (:func:`grid_step_s`) of the 5th percentile of its epoch
+    spacings when at least :data:`SAMPLING_MULTIPLES_SHARE` of the spacings are whole multiples of it (within
+    5 %), else the median spacing (:func:`~cdgps_cli.core.gps_time.nominal_interval_s`).  A log with gaps (a
+    u-blox base interleaving RTCM: spacings of 1, 2, 3 … s, median 3 s) samples at 1 s; its median spacing
+    would put two epochs in three off the grid."""
+    u = np.unique(np.asarray(t_s, dtype=np.float64))
+    if u.size < 3:
+        return nominal_interval_s(u)
+    d = np.diff(u)
+    step = grid_step_s(float(np.percentile(d, 5)))
+    k = d / step
+    if np.mean(np.abs(k - np.round(k)) <= 0.05) >= SAMPLING_MULTIPLES_SHARE:
+        return step
+    return nominal_interval_s(u)
 
 
 def _grid(t_s: np.ndarray, step_s: float):
@@ -149,7 +171,7 @@ def phase_rate(t, sat, phase, lli, interval_s):
 def _epoch_grid(tags, tol_s, step_s=None):
     """Grid step, effective tolerance, grid time and offset of each distinct tag, within the
     tolerance, and chosen (within it and the nearest on its grid time)."""
-    step = grid_step_s(nominal_interval_s(tags)) if step_s is None else float(step_s)
+    step = grid_step_s(sampling_interval_s(tags)) if step_s is None else float(step_s)
     tol = min(float(tol_s), step / 3.0)
     g_tag, d_tag = _grid(tags, step)
     keep_tag = np.abs(d_tag) <= tol
