@@ -798,7 +798,7 @@ def _a_priori_positions(master: Station, rover: Station, nav, master_xyz, rover_
 def _segments(d: _Data, opt: BaselineOptions) -> _Segments:
     """Ambiguity segments, datum pivots and the parameter index of every free segment."""
     seg, segtab = ambiguity_segments(d.epoch, d.sat, d.slip, epoch_time_s=d.t_label, max_gap_s=opt.max_gap_s,
-                                     reset_epochs=d.reset_epochs)
+                                     reset_epochs=d.reset_epochs, half=d.half)
     n_seg = segtab["sat"].size
     pivots, comp = ambiguity_datum(_block_of_row(d)[0], seg, n_seg)     # one datum per signal group
     is_pivot = np.zeros(n_seg, dtype=bool)

@@ -42,10 +42,12 @@ def arc_columns(rows, times_s=None, *, max_gap_s: float | None = None, n_pos: in
     channel = channel_index(rows["sats"], rows["code"])
     if times_s is None:                    # rows in time order; no gap limit
         step = np.arange(n)
-        seg, tab = ambiguity_segments(step, channel, rows["slip"], epoch_time_s=step.astype(float), max_gap_s=np.inf)
+        seg, tab = ambiguity_segments(step, channel, rows["slip"], epoch_time_s=step.astype(float), max_gap_s=np.inf,
+                                      half=rows.get("half"))
     else:
         epoch = np.searchsorted(rows["ptr"], np.arange(n), side="right") - 1
-        seg, tab = ambiguity_segments(epoch, channel, rows["slip"], epoch_time_s=times_s, max_gap_s=max_gap_s)
+        seg, tab = ambiguity_segments(epoch, channel, rows["slip"], epoch_time_s=times_s, max_gap_s=max_gap_s,
+                                      half=rows.get("half"))
     first = np.full(tab["sat"].size, n, dtype=np.int64)
     np.minimum.at(first, seg, np.arange(n))
     rank = np.empty(first.size, dtype=np.int64)

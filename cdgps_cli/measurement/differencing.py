@@ -114,7 +114,7 @@ def sd_variance(el_rover_rad, el_base_rad, *, sigma_a_m: float = PHASE_SIGMA_A_M
 
 
 def ambiguity_segments(epoch, sat, slip, *, epoch_time_s=None, max_gap_s: float | None = None,
-                       reset_epochs=None) -> tuple[np.ndarray, dict]:
+                       reset_epochs=None, half=None) -> tuple[np.ndarray, dict]:
     """Assign each SD row to an ambiguity: one per satellite and continuous lock segment.
 
     A new segment (new ambiguity) starts at a satellite's first row, at a row whose ``slip`` flag
@@ -126,7 +126,10 @@ def ambiguity_segments(epoch, sat, slip, *, epoch_time_s=None, max_gap_s: float 
     new segment when it returns (a receiver that lost that signal alone may not flag it: a car's
     Septentrio rover kept LLI clear after 2–6 s outages of single satellites, whose phase did not
     continue); an epoch with no rows at all (a receiver that wrote no carrier phase there, a logging
-    gap) keeps every segment, up to ``max_gap_s`` (``inf``: no gap of either kind cuts).
+    gap) keeps every segment, up to ``max_gap_s`` (``inf``: no gap of either kind cuts).  With ``half``, a row
+    whose half-cycle flag differs from its satellite's previous row starts a new segment too (`rtk`'s rule: the
+    rows before a u-blox receiver resolves the half cycle are an arc of their own, kept float; the rest is
+    fixable — the flag clearing without a slip flag leaves the phase continuous, as RTKLIB takes it).
 
     Parameters
     ----------
@@ -143,6 +146,8 @@ def ambiguity_segments(epoch, sat, slip, *, epoch_time_s=None, max_gap_s: float 
         + 1.5) × the median epoch spacing: up to 5 epochs without any row keep the ambiguity).
     reset_epochs : array_like of int, optional
         Epochs at which every satellite restarts.
+    half : array_like of bool, shape (N,), optional
+        Half-cycle ambiguity unresolved at this row (LLI bit 1 at either receiver).
 
     Returns
     -------
@@ -167,6 +172,8 @@ def ambiguity_segments(epoch, sat, slip, *, epoch_time_s=None, max_gap_s: float 
         reset = np.isin(ep, np.asarray(reset_epochs, dtype=np.int64))
     if epoch_time_s is not None and np.isfinite(max_gap_s):       # an infinite limit: gaps never cut
         sl = sl | _returns_after_own_outage(ep, sv)
+    if half is not None:
+        sl = sl | _flag_changes(ep, sv, np.asarray(half, dtype=bool))
     ls = lock_segments(sv, step, slip=sl, max_step=max_step, reset=reset)
     table = {
         "sat": ls.channel.astype(np.int64),
@@ -175,6 +182,17 @@ def ambiguity_segments(epoch, sat, slip, *, epoch_time_s=None, max_gap_s: float 
         "n_rows": ls.n_rows,
     }
     return ls.segment, table
+
+
+def _flag_changes(ep: np.ndarray, sv: np.ndarray, flag: np.ndarray) -> np.ndarray:
+    """Rows (N,) whose ``flag`` differs from their satellite's previous row's."""
+    out = np.zeros(ep.size, dtype=bool)
+    if ep.size < 2:
+        return out
+    order = np.lexsort((ep, sv))
+    s, f = sv[order], flag[order]
+    out[order[1:]] = (s[1:] == s[:-1]) & (f[1:] != f[:-1])
+    return out
 
 
 def _returns_after_own_outage(ep: np.ndarray, sv: np.ndarray) -> np.ndarray:

@@ -118,8 +118,10 @@ def test_half_cycle_and_fdma_arcs_are_kept_float():
             "lam_m": np.array([0.19] * 6 + [0.187, 0.1875])}
     cols = arc_columns(rows)
     D, pairs, fixable = dd_of_arcs(rows, cols, 3 + cols.max() - 2)
-    assert pairs == [(4, 3), (5, 3), (7, 6)]
-    assert fixable.tolist() == [True, False, False]       # G03 half-cycle flagged, R01/R02 of two wavelengths
+    # G03's flagged first row is an arc of its own (kept float); its second row, the flag cleared, a new fixable
+    # arc (the segments rule splits where the flag changes, as rtk's keys do); R01/R02: two wavelengths
+    assert pairs == [(4, 3), (5, 3), (6, 3), (8, 7)]
+    assert fixable.tolist() == [True, False, True, False]
 
 
 def test_static_filter_equals_normal_equations(run):

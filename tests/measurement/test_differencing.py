@@ -335,3 +335,18 @@ def test_datum_one_pivot_per_connected_set():
     seg2 = np.array([0, 1, 2, 0, 1, 5, 3, 4, 3, 4])
     pivots2, _ = ambiguity_datum(ep, seg2, 6)
     assert 0 in pivots2 or 1 in pivots2
+
+
+def test_a_half_cycle_flag_that_comes_or_goes_starts_a_new_segment():
+    """rtk's rule in the segments (a u-blox rover: LLI bit 1 on a satellite's first two rows after a slip, then
+    clear without a slip flag): the flagged rows are a segment of their own (kept float), the rest is one
+    fixable segment; a flag that comes back starts a third; without ``half``, one segment."""
+    ep = np.arange(10)
+    sat = np.zeros(10, dtype=int)
+    slip = np.zeros(10, dtype=bool)
+    half = np.array([True, True] + [False] * 5 + [True] + [False] * 2)
+    seg, tab = ambiguity_segments(ep, sat, slip, epoch_time_s=ep.astype(float), half=half)
+    assert seg.tolist() == [0, 0, 1, 1, 1, 1, 1, 2, 3, 3]
+    assert tab["n_rows"].tolist() == [2, 5, 1, 2]
+    seg, _ = ambiguity_segments(ep, sat, slip, epoch_time_s=ep.astype(float))
+    assert set(seg.tolist()) == {0}
