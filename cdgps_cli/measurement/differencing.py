@@ -124,8 +124,8 @@ def ambiguity_segments(epoch, sat, slip, *, epoch_time_s=None, max_gap_s: float 
     :func:`cdgps_cli.measurement.channels.lock_segments`, with the satellite as the channel.
     With times, a satellite missing from an epoch that has rows of other satellites also starts a
     new segment when it returns (a receiver that lost that signal alone may not flag it: a car's
-    Septentrio rover kept LLI clear after 2–6 s outages of single satellites, whose phase did not
-    continue); an epoch with no rows at all (a receiver that wrote no carrier phase there, a logging
+    Septentrio rover kept LLI clear after 2–6 s outages of single satellites, and bridging them cost
+    `rtk` 61 of the car's 303 fixed epochs); an epoch with no rows at all (a receiver that wrote no carrier phase there, a logging
     gap) keeps every segment, up to ``max_gap_s`` (``inf``: no gap of either kind cuts).  With ``half``, a row
     whose half-cycle flag differs from its satellite's previous row starts a new segment too (`rtk`'s rule: the
     rows before a u-blox receiver resolves the half cycle are an arc of their own, kept float; the rest is
