@@ -29,13 +29,6 @@ MODAL_INITIAL_SIGMA_XIDOT = 1.0
 #: above; `cdgps init` with [gnss] signals, which always neglects it, refuses there: gnss.iono_threshold_km)
 IONO_THRESHOLD_KM = 10.0
 
-#: epochs without any carrier phase (a receiver that wrote none at an epoch, a logging gap) that every ambiguity
-#: survives when no loss of lock is flagged (RINEX LLI bit 0 covers "since the previous observation"); a longer
-#: gap starts new ones (RTKLIB's outage count ``pos2-aroutcnt``, same default).  The gap limit of an ambiguity
-#: segment is (this + 1.5) × the median epoch spacing (measurement/differencing.ambiguity_segments; `rtk`'s
-#: filter the same); a satellite missing while others are seen starts a new ambiguity when it returns
-ARC_MAX_OUTAGE_EPOCHS = 5
-
 #: pairing base epochs with rover epochs (measurement/epoch_pairing.py), every GNSS command:
 #: ``sync_tol_s`` a base epoch this close to a rover epoch is simultaneous (RTKLIB's DTTOL, 25 ms);
 #: ``max_age_s`` the oldest base epoch bridged across a base gap (RTKLIB's ``pos2-maxage`` default, 30 s);

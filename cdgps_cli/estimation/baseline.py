@@ -126,7 +126,9 @@ class BaselineOptions:
         Off-grid epochs modelled at their own reception instants, or their phase and range moved
         to the grid time by carrier-phase rate × offset.
     max_gap_s : float or None
-        Largest gap within one ambiguity segment, s (None: 1.5 × the epoch interval).
+        Largest gap within one ambiguity segment, s (None: no limit — a satellite missing while others are
+        observed starts a new segment, an epoch with no observation at all does not;
+        :func:`~cdgps_cli.measurement.differencing.ambiguity_segments`).
     min_sats_kinematic : int
         Satellites with known ambiguities needed for a single-epoch position.
     kinematic_max_pdop : float

@@ -29,12 +29,11 @@ from bisect import bisect_left
 import numpy as np
 import pandas as pd
 
-from cdgps_cli.config.options import (ARC_MAX_OUTAGE_EPOCHS, CODE_NOISE_CHUNK_S, CODE_NOISE_MIN_FACTOR,
-                                     CODE_NOISE_MIN_WINDOWS, CODE_NOISE_WINDOW_S, MULTI_GNSS_DEFAULTS)
+from cdgps_cli.config.options import (CODE_NOISE_CHUNK_S, CODE_NOISE_MIN_FACTOR, CODE_NOISE_MIN_WINDOWS, CODE_NOISE_WINDOW_S,
+                                     MULTI_GNSS_DEFAULTS)
 from cdgps_cli.core import beside
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.core.gps_time import nominal_interval_s
 from cdgps_cli.core.signals import signal, SYSTEM_NAMES
 from cdgps_cli.estimation.ambiguity import (AmbiguityError, SearchLimitError, _reduce, _z_matrix, ld_factorize_symmetric,
                                             ratio_test, search_reduced, success_tail_rate)
@@ -591,8 +590,7 @@ def _filter_pass(rows, times, order, opt, base_xyz, origin, iono, progress) -> d
     amb_keys, slip_rows = _amb_keys(rows), np.flatnonzero(rows["slip"]).tolist()
     model = DDGroupModel(lambda i: _groups_with_keys(rows, order[i], amb_keys, slip_rows), base_xyz, origin)
     source = EpochGrid(times[order])
-    gap = (ARC_MAX_OUTAGE_EPOCHS + 1.5) * nominal_interval_s(times) if n_ep > 1 else np.inf
-    hook = _AmbiguityHook(st, model, order, {**opt, "arc_max_gap_s": gap}, iono, out, progress, source.time_s)
+    hook = _AmbiguityHook(st, model, order, opt, iono, out, progress)
     dyn, sink = _RtkDynamics(st, source.time_s, opt, iono), _FloatSink(order, origin, out)
     # the first epoch relinearizes up to 4 times (the a-priori position may be metres off), the others twice
     drive(dyn, [model], EpochGrid(source.time_s[:1]), st.step, hooks=[hook], sink=sink, max_iterations=4)
@@ -738,19 +736,12 @@ class _AmbiguityHook(Hook):
     :meth:`_CarriedDecorrelation.resolve`), records the fixed (or, for a partial set, improved float)
     position and holds the integers (fix-and-hold)."""
 
-    def __init__(self, st, model, order, opt, iono, out, progress, time_s=None):
+    def __init__(self, st, model, order, opt, iono, out, progress):
         self.st, self.model, self.order, self.opt, self.iono, self.out = st, model, order, opt, iono, out
-        self.time_s, self.t_rows = time_s, None       # the pass's epoch times (s); the last epoch with rows
         self.progress, self.carried, self.run = progress, _CarriedDecorrelation(), 0
         self.holding, self.prior, self.resets, self.released_at = False, None, 0, None
 
     def prepared(self, ctx, i):
-        if not self.model.groups:
-            return
-        t = float(self.time_s[i]) if self.time_s is not None else None
-        if t is not None and self.t_rows is not None and abs(t - self.t_rows) > self.opt["arc_max_gap_s"]:
-            self.st.keep(set())                       # no phase for longer than the segments rule bridges: new arcs
-        self.t_rows = t
         _prepare_state(self.st, self.model.groups, self.opt, self.iono)
 
     def gate(self, ctx, i, model, rows):

@@ -32,9 +32,10 @@ def arc_columns(rows, times_s=None, *, max_gap_s: float | None = None, n_pos: in
 
     One column per (satellite, signal) lock arc, cut by the batch solver's rule
     (:func:`~cdgps_cli.measurement.differencing.ambiguity_segments`, the one home of that rule and its
-    default): a new arc at a slip flag and, with ``times_s`` (n_ep,) the epochs' times (s), after a gap in
-    the channel's rows of more than ``max_gap_s`` (None: 1.5 × the median epoch spacing), so a satellite
-    that sets and rises again, or a tracking outage, starts a new ambiguity.  Without ``times_s``: slips only.
+    default): a new arc at a slip flag or a half-cycle flag that comes or goes and, with ``times_s`` (n_ep,)
+    the epochs' times (s), where the channel was missing from an epoch that has other rows (a satellite that
+    sets and rises again, a tracking outage) or after a gap longer than ``max_gap_s`` (None: no limit; an
+    epoch without any row cuts no arc).  Without ``times_s``: slips and half-cycle flags only.
     """
     n = rows["sats"].size
     if n == 0:
@@ -43,7 +44,7 @@ def arc_columns(rows, times_s=None, *, max_gap_s: float | None = None, n_pos: in
     if times_s is None:                    # rows in time order; no gap limit
         step = np.arange(n)
         seg, tab = ambiguity_segments(step, channel, rows["slip"], epoch_time_s=step.astype(float), max_gap_s=np.inf,
-                                      half=rows.get("half"))
+                                      half=rows.get("half"), own_outages=False)
     else:
         epoch = np.searchsorted(rows["ptr"], np.arange(n), side="right") - 1
         seg, tab = ambiguity_segments(epoch, channel, rows["slip"], epoch_time_s=times_s, max_gap_s=max_gap_s,

@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cdgps_cli.config.options import ARC_MAX_OUTAGE_EPOCHS, PHASE_SIGMA_A_M, PHASE_SIGMA_B_M
+from cdgps_cli.config.options import PHASE_SIGMA_A_M, PHASE_SIGMA_B_M
 from cdgps_cli.measurement.channels import lock_segments
 
 __all__ = [
@@ -114,7 +114,7 @@ def sd_variance(el_rover_rad, el_base_rad, *, sigma_a_m: float = PHASE_SIGMA_A_M
 
 
 def ambiguity_segments(epoch, sat, slip, *, epoch_time_s=None, max_gap_s: float | None = None,
-                       reset_epochs=None, half=None) -> tuple[np.ndarray, dict]:
+                       reset_epochs=None, half=None, own_outages: bool = True) -> tuple[np.ndarray, dict]:
     """Assign each SD row to an ambiguity: one per satellite and continuous lock segment.
 
     A new segment (new ambiguity) starts at a satellite's first row, at a row whose ``slip`` flag
@@ -122,11 +122,13 @@ def ambiguity_segments(epoch, sat, slip, *, epoch_time_s=None, max_gap_s: float 
     any skipped epoch index when times are not given), and at every row of a ``reset_epochs``
     epoch (e.g. epoch flag 1, power failure): the one lock-segment rule,
     :func:`cdgps_cli.measurement.channels.lock_segments`, with the satellite as the channel.
-    With times, a satellite missing from an epoch that has rows of other satellites also starts a
-    new segment when it returns (a receiver that lost that signal alone may not flag it: a car's
-    Septentrio rover kept LLI clear after 2–6 s outages of single satellites, and bridging them cost
-    `rtk` 61 of the car's 303 fixed epochs); an epoch with no rows at all (a receiver that wrote no carrier phase there, a logging
-    gap) keeps every segment, up to ``max_gap_s`` (``inf``: no gap of either kind cuts).  With ``half``, a row
+    With times and ``own_outages``, a satellite missing from an epoch that has rows of other
+    satellites starts a new segment when it returns, however short the outage (a receiver that lost
+    that signal alone may not flag it: a car's Septentrio rover kept LLI clear after 2–6 s outages of
+    single satellites, and bridging them cost `rtk` 61 of the car's 303 fixed epochs).  Epochs with
+    no rows at all (a receiver that wrote no carrier phase there, a base logging with gaps) cut no
+    segment by default: RINEX's loss-of-lock flag covers "since the previous observation", and RTKLIB
+    counts an outage only over the epochs it processes, so a gap in the log is no outage.  With ``half``, a row
     whose half-cycle flag differs from its satellite's previous row starts a new segment too (`rtk`'s rule: the
     rows before a u-blox receiver resolves the half cycle are an arc of their own, kept float; the rest is
     fixable — the flag clearing without a slip flag leaves the phase continuous, as RTKLIB takes it).
@@ -142,12 +144,13 @@ def ambiguity_segments(epoch, sat, slip, *, epoch_time_s=None, max_gap_s: float 
     epoch_time_s : array_like, shape (n_epochs,), optional
         Time of each epoch, s (for ``max_gap_s``).
     max_gap_s : float, optional
-        Largest time step within a segment, s (default: (:data:`~cdgps_cli.config.options.ARC_MAX_OUTAGE_EPOCHS`
-        + 1.5) × the median epoch spacing: up to 5 epochs without any row keep the ambiguity).
+        Largest time step within a segment, s (default: none; ``gnss.max_gap_s`` sets one).
     reset_epochs : array_like of int, optional
         Epochs at which every satellite restarts.
     half : array_like of bool, shape (N,), optional
         Half-cycle ambiguity unresolved at this row (LLI bit 1 at either receiver).
+    own_outages : bool
+        Cut a satellite's segment where it alone was missing (with times).
 
     Returns
     -------
@@ -162,15 +165,14 @@ def ambiguity_segments(epoch, sat, slip, *, epoch_time_s=None, max_gap_s: float 
     if epoch_time_s is not None:
         tt = np.asarray(epoch_time_s, dtype=np.float64)
         if max_gap_s is None:
-            ut = np.unique(tt)
-            max_gap_s = (ARC_MAX_OUTAGE_EPOCHS + 1.5) * float(np.median(np.diff(ut))) if ut.size > 1 else np.inf
+            max_gap_s = np.inf
         step, max_step = (tt[ep] if ep.size else tt[:0]), max_gap_s
     else:
         step, max_step = ep, 1
     reset = None
     if reset_epochs is not None and len(reset_epochs):
         reset = np.isin(ep, np.asarray(reset_epochs, dtype=np.int64))
-    if epoch_time_s is not None and np.isfinite(max_gap_s):       # an infinite limit: gaps never cut
+    if epoch_time_s is not None and own_outages:
         sl = sl | _returns_after_own_outage(ep, sv)
     if half is not None:
         sl = sl | _flag_changes(ep, sv, np.asarray(half, dtype=bool))

@@ -297,8 +297,8 @@ def test_segments_from_lli_gaps_and_resets():
     got = sorted(zip(tab["sat"].tolist(), tab["first_epoch"].tolist(), tab["last_epoch"].tolist(), tab["n_rows"].tolist()))
     assert got == [(1, 0, 3, 4), (1, 4, 6, 3), (1, 7, 9, 3), (2, 0, 3, 4), (2, 6, 6, 1), (2, 7, 9, 3),
                    (3, 0, 6, 7), (3, 7, 9, 3)]
-    # the default gap limit, (ARC_MAX_OUTAGE_EPOCHS + 1.5) x 30 s, is longer than sat 2's outage, but sats 1
-    # and 3 have rows in those epochs: sat 2 alone was missing, and it starts a new segment all the same
+    # no gap limit by default, but sats 1 and 3 have rows in sat 2's missing epochs: sat 2 alone was missing,
+    # and it starts a new segment all the same
     _, tab_d = ambiguity_segments(ep, sat, slip, epoch_time_s=t, reset_epochs=[7])
     got_d = sorted(zip(tab_d["sat"].tolist(), tab_d["first_epoch"].tolist(), tab_d["last_epoch"].tolist(),
                        tab_d["n_rows"].tolist()))
@@ -314,8 +314,8 @@ def test_segments_from_lli_gaps_and_resets():
     for i in range(ep.size):
         s = seg[i]
         assert tab["sat"][s] == sat[i] and tab["first_epoch"][s] <= ep[i] <= tab["last_epoch"][s]
-    # no gap limit joins sat 2 across its 2-epoch outage; without times, epoch indices decide
-    _, tab2 = ambiguity_segments(ep, sat, slip, epoch_time_s=t, max_gap_s=np.inf)
+    # no gap limit and own outages not cut join sat 2 across its 2-epoch outage; without times, epoch indices decide
+    _, tab2 = ambiguity_segments(ep, sat, slip, epoch_time_s=t, max_gap_s=np.inf, own_outages=False)
     assert np.sum(tab2["sat"] == 2) == 1
     _, tab3 = ambiguity_segments(ep, sat, slip)
     assert np.sum(tab3["sat"] == 2) == 2
