@@ -585,7 +585,8 @@ def _filter_pass(rows, times, order, opt, base_xyz, origin, iono, progress) -> d
            "float_cov": np.full((n_ep, 3, 3), np.nan), "fixed_cov": np.full((n_ep, 3, 3), np.nan),
            "n_fixed": np.zeros(n_ep, dtype=np.int64), "ratio": np.full(n_ep, np.nan),
            "partial": np.zeros(n_ep, dtype=bool), "ns": np.zeros(n_ep, dtype=np.int64),
-           "wrong_fix_resets": np.zeros(n_ep, dtype=bool), "released": np.zeros(n_ep, dtype=bool)}
+           "wrong_fix_resets": np.zeros(n_ep, dtype=bool), "released": np.zeros(n_ep, dtype=bool),
+           "held": np.zeros(n_ep, dtype=bool)}
     st = _State(_n_motion(opt))
     amb_keys, slip_rows = _amb_keys(rows), np.flatnonzero(rows["slip"]).tolist()
     model = DDGroupModel(lambda i: _groups_with_keys(rows, order[i], amb_keys, slip_rows), base_xyz, origin)
@@ -803,6 +804,7 @@ class _AmbiguityHook(Hook):
         self.run = self.run + 1 if (fx is not None and not partial) else 0
         self._check_release(i, k)
         self.holding = bool(opt["fix_and_hold"] and self.run >= opt["hold_after_fixes"])
+        out["held"][k] = self.holding and self.released_at is None
         if self.holding:
             _hold(st, self.carried.last_fix)
         out["n_fixed"][k], out["ratio"][k], out["partial"][k] = n, ratio, partial
@@ -819,9 +821,18 @@ _CHI2_3_999 = 16.266
 
 def _combine(f: dict, b: dict) -> dict:
     """Forward and backward passes combined per epoch (RTKLIB's combined mode, with a check):
-    fixed where both are fixed and agree (their weighted mean), or one is fixed and agrees with the
-    other's float; where the two fixes disagree (χ² of the difference over 0.999 of χ²(3)) one of
-    them is wrong and the epoch is float.  Floats are combined as a weighted mean too.
+    fixed where both are fixed and agree (their weighted mean), or one is fixed and either holds its
+    integers (``held``: fixed for ``hold_after_fixes`` epochs in a row, each epoch's DD phases tested
+    against them since — the validation over time) or agrees with the other's float; where the two
+    fixes disagree (χ² of the difference over 0.999 of χ²(3)) one of them is wrong and the epoch is
+    float.  Floats are combined as a weighted mean too.
+
+    A fresh fix of one pass is checked against the other's float, whose σ is honest on a static real
+    rover but not on a moving u-blox one (error / σ 2.4–4.5 RMS on jdesbonnet 20181009: code errors
+    correlated beyond the code-noise window); a held fix needs no such check (20181009: 800 → 1353
+    fixed epochs, RTKLIB 927, the 386 of 391 newly fixed epochs RTKLIB fixes too within 5 cm of its
+    fix, the other five where RTKLIB's isolated fixes jump off its own float track), while the M8P
+    pair's wrong fresh fixes (a multipath wave, 5–6 cm off, within 10 epochs of a release) stay rejected.
 
     Both passes' estimates at epoch k hold epoch k's measurements, so they are not independent:
     their weighted mean is kept, but not the covariance of a merge of independent estimates, which
@@ -859,7 +870,8 @@ def _combine(f: dict, b: dict) -> dict:
     out["rejected"] += int(both.size - k.size)
     for src, other, one in ((f, b, ff & ~fb), (b, f, fb & ~ff)):   # one pass fixed: agrees with the other's float?
         i = np.flatnonzero(one)
-        ok = agree(src["fixed_xyz"][i], src["fixed_cov"][i], other["float_xyz"][i], other["float_cov"][i])
+        ok = src["held"][i] | agree(src["fixed_xyz"][i], src["fixed_cov"][i], other["float_xyz"][i],
+                                    other["float_cov"][i])
         out["fixed_xyz"][i[ok]], out["fixed_cov"][i[ok]] = src["fixed_xyz"][i[ok]], src["fixed_cov"][i[ok]]
         out["rejected"] += int(i.size - ok.sum())
     fr, br = f["ratio"], b["ratio"]
@@ -869,4 +881,5 @@ def _combine(f: dict, b: dict) -> dict:
     out["fixed"] = np.isfinite(out["fixed_xyz"][:, 0])
     out["wrong_fix_resets"] = f["wrong_fix_resets"] | b["wrong_fix_resets"]
     out["released"] = f["released"] | b["released"]
+    out["held"] = f["held"] | b["held"]
     return out

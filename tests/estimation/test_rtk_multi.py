@@ -189,7 +189,7 @@ def _pass(x, P, fixed_x=None, fixed_P=None):
             "fixed_cov": np.array(fixed_P) if fixed else np.full((n, 3, 3), np.nan),
             "fixed": np.full(n, fixed), "ratio": np.full(n, np.nan), "n_fixed": np.zeros(n, np.int64),
             "partial": np.zeros(n, bool), "ns": np.zeros(n, np.int64), "wrong_fix_resets": np.zeros(n, bool),
-            "released": np.zeros(n, bool)}
+            "released": np.zeros(n, bool), "held": np.zeros(n, bool)}
 
 
 def test_combined_covariance_does_not_count_epoch_k_twice():
@@ -425,7 +425,8 @@ def _combine_per_epoch(f, b):
                 out["rejected"] += 1
         elif ff or fb:
             src, other = (f, b) if ff else (b, f)
-            if agree(src["fixed_xyz"][k], src["fixed_cov"][k], other["float_xyz"][k], other["float_cov"][k]):
+            if src["held"][k] or agree(src["fixed_xyz"][k], src["fixed_cov"][k], other["float_xyz"][k],
+                                       other["float_cov"][k]):
                 out["fixed_xyz"][k], out["fixed_cov"][k] = src["fixed_xyz"][k], src["fixed_cov"][k]
             else:
                 out["rejected"] += 1
@@ -436,7 +437,28 @@ def _combine_per_epoch(f, b):
     out["fixed"] = np.isfinite(out["fixed_xyz"][:, 0])
     out["wrong_fix_resets"] = f["wrong_fix_resets"] | b["wrong_fix_resets"]
     out["released"] = f["released"] | b["released"]
+    out["held"] = f["held"] | b["held"]
     return out
+
+
+def test_a_held_fix_needs_no_agreement_with_the_other_passs_float():
+    """One pass fixed, the other float 0.5 m away with a 5 cm σ (a moving u-blox rover's optimistic float): a
+    fresh fix is rejected, a held one (fixed ``hold_after_fixes`` epochs in a row, its DD phases tested since)
+    kept; two fixes that disagree are rejected whether held or not."""
+    from cdgps_cli.estimation.rtk_multi import _combine
+
+    n, eye = 4, np.eye(3)
+    fx = np.tile([1.0, 2.0, 3.0], (n, 1))
+    fwd = _pass(fx + [0.5, 0.0, 0.0], np.tile(0.05**2 * eye, (n, 1, 1)))
+    bwd = _pass(fx + [0.001, 0.0, 0.0], np.tile(0.05**2 * eye, (n, 1, 1)), fx, np.tile(1e-6 * eye, (n, 1, 1)))
+    bwd["held"][2:] = True
+    out = _combine(fwd, bwd)
+    assert out["fixed"].tolist() == [False, False, True, True] and out["rejected"] == 2
+    np.testing.assert_array_equal(out["fixed_xyz"][2:], fx[2:])
+    fwd2 = _pass(fwd["float_xyz"], fwd["float_cov"], fx + [0.2, 0.0, 0.0], np.tile(1e-6 * eye, (n, 1, 1)))
+    fwd2["held"][:] = True
+    out = _combine(fwd2, bwd)
+    assert not out["fixed"].any() and out["rejected"] == n
 
 
 def test_combine_vectorised_equals_the_per_epoch_combination():
@@ -455,7 +477,8 @@ def test_combine_vectorised_equals_the_per_epoch_combination():
         return {"float_xyz": rng.normal(size=(n, 3)) * 0.02, "float_cov": cov, "fixed_xyz": fx, "fixed_cov": fcov,
                 "fixed": fixed, "ratio": rng.choice([np.nan, np.inf, 2.0, 5.5, 30.0], n),
                 "n_fixed": rng.integers(0, 20, n), "partial": rng.random(n) < 0.2, "ns": rng.integers(4, 12, n),
-                "wrong_fix_resets": rng.random(n) < 0.05, "released": rng.random(n) < 0.05}
+                "wrong_fix_resets": rng.random(n) < 0.05, "released": rng.random(n) < 0.05,
+                "held": fixed & (rng.random(n) < 0.5)}
 
     f, b = one_pass(), one_pass()
     got, want = rtk_multi._combine(f, b), _combine_per_epoch(f, b)
