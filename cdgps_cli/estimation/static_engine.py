@@ -21,7 +21,7 @@ from cdgps_cli.estimation.kalman import StepFilter
 from cdgps_cli.config.options import GNSS_DEFAULTS, GNSS_WEIGHTINGS, MULTI_GNSS_DEFAULTS
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.dd_signals import DDGroupModel, RunDDModel, channel_index, epoch_groups, paired_sd_rows
-from cdgps_cli.measurement.differencing import ambiguity_segments
+from cdgps_cli.measurement.differencing import ambiguity_datum, ambiguity_segments
 from cdgps_cli.measurement.epoch_pairing import pair_epochs
 from cdgps_cli.model.dynamics_models import Dynamics, Static, WithConstants
 from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
@@ -208,20 +208,15 @@ def dd_of_arcs(rows, cols, n_state: int, glonass_fix: bool = False):
 
 
 def _connected_arc_sets(rows, cols, sel):
-    """The arcs (columns) of the rows ``sel`` grouped into sets connected through common epochs, each as
-    (arcs ascending, their row counts), the sets in order of their smallest column."""
+    """The arcs (columns) of the rows ``sel`` grouped into sets connected through common epochs
+    (:func:`~cdgps_cli.measurement.differencing.ambiguity_datum`'s components), each as (arcs ascending, their
+    row counts), the sets in order of their smallest column."""
     arcs, inverse, counts = np.unique(cols[sel], return_inverse=True, return_counts=True)
     if "ptr" not in rows or arcs.size < 2:
         return [(arcs, counts)]
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
     epoch = (np.searchsorted(rows["ptr"], np.arange(sel.size), side="right") - 1)[sel]
-    order = np.lexsort((inverse, epoch))
-    e, a = epoch[order], inverse.ravel()[order]
-    same = e[1:] == e[:-1]                               # consecutive rows of one epoch: their arcs connect
-    graph = coo_matrix((np.ones(int(same.sum())), (a[:-1][same], a[1:][same])), shape=(arcs.size, arcs.size))
-    n, label = connected_components(graph, directed=False)
-    return [(arcs[label == k], counts[label == k]) for k in range(n)]
+    _, comp = ambiguity_datum(epoch, inverse.ravel(), arcs.size)
+    return [(arcs[comp == k], counts[comp == k]) for k in range(int(comp.max()) + 1)]
 
 
 def condition_on_integers(x, P, D, ints):

@@ -172,10 +172,8 @@ def ambiguity_segments(epoch, sat, slip, *, epoch_time_s=None, max_gap_s: float 
     reset = None
     if reset_epochs is not None and len(reset_epochs):
         reset = np.isin(ep, np.asarray(reset_epochs, dtype=np.int64))
-    if epoch_time_s is not None and own_outages:
-        sl = sl | _returns_after_own_outage(ep, sv)
-    if half is not None:
-        sl = sl | _flag_changes(ep, sv, np.asarray(half, dtype=bool))
+    sl = sl | _channel_restarts(ep, sv, own_outages=epoch_time_s is not None and own_outages,
+                                half=None if half is None else np.asarray(half, dtype=bool))
     ls = lock_segments(sv, step, slip=sl, max_step=max_step, reset=reset)
     table = {
         "sat": ls.channel.astype(np.int64),
@@ -186,27 +184,22 @@ def ambiguity_segments(epoch, sat, slip, *, epoch_time_s=None, max_gap_s: float 
     return ls.segment, table
 
 
-def _flag_changes(ep: np.ndarray, sv: np.ndarray, flag: np.ndarray) -> np.ndarray:
-    """Rows (N,) whose ``flag`` differs from their satellite's previous row's."""
+def _channel_restarts(ep: np.ndarray, sv: np.ndarray, *, own_outages: bool, half) -> np.ndarray:
+    """Rows (N,) that start a new segment besides the slip flags (see :func:`ambiguity_segments`): with
+    ``own_outages``, the satellite's previous row lies before an epoch that has rows of other satellites (it
+    alone was missing there); with ``half`` (N,) bool, the half-cycle flag differs from the previous row's."""
     out = np.zeros(ep.size, dtype=bool)
-    if ep.size < 2:
+    if ep.size < 2 or not (own_outages or half is not None):
         return out
-    order = np.lexsort((ep, sv))
-    s, f = sv[order], flag[order]
-    out[order[1:]] = (s[1:] == s[:-1]) & (f[1:] != f[:-1])
-    return out
-
-
-def _returns_after_own_outage(ep: np.ndarray, sv: np.ndarray) -> np.ndarray:
-    """Rows (N,) whose satellite's previous row lies before an epoch that has rows of other satellites: the
-    satellite alone was missing there (see :func:`ambiguity_segments`)."""
-    out = np.zeros(ep.size, dtype=bool)
-    if ep.size < 2:
-        return out
-    rank = np.searchsorted(np.unique(ep), ep)          # the row's epoch among the epochs that have rows
-    order = np.lexsort((ep, sv))
-    r, s = rank[order], sv[order]
-    out[order[1:]] = (s[1:] == s[:-1]) & (r[1:] - r[:-1] > 1)
+    order = np.lexsort((ep, sv))                        # each satellite's rows in epoch order
+    cut = np.zeros(ep.size - 1, dtype=bool)
+    if own_outages:
+        cut |= np.diff(np.searchsorted(np.unique(ep), ep)[order]) > 1    # ranks among the epochs with rows
+    if half is not None:
+        h = half[order]
+        cut |= h[1:] != h[:-1]
+    s = sv[order]
+    out[order[1:]] = (s[1:] == s[:-1]) & cut
     return out
 
 
