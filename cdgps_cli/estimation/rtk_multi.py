@@ -494,21 +494,8 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
     origin = np.asarray(rover_xyz0_m, float)
     length_km = np.linalg.norm(origin - base_xyz) / 1e3
     iono = opt["iono_sigma_m_per_km"] * length_km if length_km >= opt["iono_threshold_km"] else 0.0
-    try:
-        pairs = pair_epochs(rover["time_gps_s"].to_numpy(), base["time_gps_s"].to_numpy(),
-                            sync_tol_s=opt["sync_tol_s"], max_age_s=opt["max_age_s"])
-    except ValueError as exc:
-        raise CdgpsError(f"invalid rtk options: {exc}") from None
+    pairs = _paired_epochs(base, rover, opt)
     times = pairs.rover_time_s
-    if times.size == 0:
-        ps = pairs.summary
-        raise CdgpsError(f"no common epochs: none of the rover's {ps['rover_epochs']} epochs has a base epoch within "
-                         f"max_age_s = {opt['max_age_s']:g} s (" + "; ".join(f"{n} {r}" for r, n in ps["dropped"].items())
-                         + f"; the base has {ps['base_epochs']} epochs)")
-    common = set(map(str, base["sat"].unique())) & set(map(str, rover["sat"].unique()))
-    if not common:
-        raise CdgpsError(f"no common satellites: the base observes {_few(base['sat'])}, the rover {_few(rover['sat'])} "
-                         f"(signals asked for); a double difference needs satellites observed at both receivers")
     code_noise = receivers_code_noise(base, rover, opt) if code_noise is None else code_noise
     opt["code_variance_factor"] = code_noise["factor"]
     rows = paired_sd_rows(base, rover, pairs, opt, mask_rover=True)     # the mask at both receivers, as RTKLIB's
@@ -517,19 +504,7 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
         raise CdgpsError(f"no double differences: no epoch of the {n_ep} paired has two satellites of one signal "
                          f"observed at both receivers above the {opt['mask_deg']:g}° mask")
     direction = "forward" if opt["mode"] == "static" else opt["direction"]
-    back_rows = dict(rows, slip=backward_slips(rows)) if direction != "forward" else None
-
-    def backward(bar=None):
-        return _filter_pass(back_rows, times, range(n_ep - 1, -1, -1), opt, base_xyz, origin, iono, bar)
-
-    if direction == "backward":
-        res = backward(progress)
-    elif direction == "forward":
-        res = _filter_pass(rows, times, range(n_ep), opt, base_xyz, origin, iono, progress)
-    else:                                     # the two passes are independent: the backward one on the second core
-        with beside.start(backward) as job:
-            fwd = _filter_pass(rows, times, range(n_ep), opt, base_xyz, origin, iono, progress)
-            res = _combine(fwd, job.result())
+    res = _passes(rows, times, direction, opt, base_xyz, origin, iono, progress)
     ok = res["fixed"]
     last = res["fixed_xyz"][-1] if ok[-1] else res["float_xyz"][-1]
     return {"time_gps_s": times, "float_xyz_m": res["float_xyz"], "fixed_xyz_m": np.where(ok[:, None], res["fixed_xyz"], np.nan),
@@ -541,6 +516,44 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
             "partial_fixes": int(res["partial"].sum()), "wrong_fix_resets": int(res["wrong_fix_resets"].sum()),
             "code_noise": code_noise,
             "ambiguities_released": int(res["released"].sum())}
+
+
+def _paired_epochs(base: pd.DataFrame, rover: pd.DataFrame, opt: dict):
+    """:func:`~cdgps_cli.measurement.epoch_pairing.pair_epochs` of the two tables; CdgpsError for bad pairing
+    options, no common epoch (with the drop reasons) or no common satellite."""
+    try:
+        pairs = pair_epochs(rover["time_gps_s"].to_numpy(), base["time_gps_s"].to_numpy(),
+                            sync_tol_s=opt["sync_tol_s"], max_age_s=opt["max_age_s"])
+    except ValueError as exc:
+        raise CdgpsError(f"invalid rtk options: {exc}") from None
+    if pairs.rover_time_s.size == 0:
+        ps = pairs.summary
+        raise CdgpsError(f"no common epochs: none of the rover's {ps['rover_epochs']} epochs has a base epoch within "
+                         f"max_age_s = {opt['max_age_s']:g} s (" + "; ".join(f"{n} {r}" for r, n in ps["dropped"].items())
+                         + f"; the base has {ps['base_epochs']} epochs)")
+    common = set(map(str, base["sat"].unique())) & set(map(str, rover["sat"].unique()))
+    if not common:
+        raise CdgpsError(f"no common satellites: the base observes {_few(base['sat'])}, the rover {_few(rover['sat'])} "
+                         f"(signals asked for); a double difference needs satellites observed at both receivers")
+    return pairs
+
+
+def _passes(rows, times, direction: str, opt, base_xyz, origin, iono, progress) -> dict:
+    """The forward pass, the backward pass (slip flags moved by :func:`backward_slips`), or both on two cores
+    and :func:`_combine`d, per ``direction``."""
+    n_ep = times.size
+    back_rows = dict(rows, slip=backward_slips(rows)) if direction != "forward" else None
+
+    def backward(bar=None):
+        return _filter_pass(back_rows, times, range(n_ep - 1, -1, -1), opt, base_xyz, origin, iono, bar)
+
+    if direction == "backward":
+        return backward(progress)
+    if direction == "forward":
+        return _filter_pass(rows, times, range(n_ep), opt, base_xyz, origin, iono, progress)
+    with beside.start(backward) as job:       # the two passes are independent: the backward one on the second core
+        fwd = _filter_pass(rows, times, range(n_ep), opt, base_xyz, origin, iono, progress)
+        return _combine(fwd, job.result())
 
 
 def receivers_code_noise(base: pd.DataFrame, rover: pd.DataFrame, opt: dict) -> dict:
