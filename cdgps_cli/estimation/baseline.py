@@ -612,10 +612,11 @@ def _accumulate(blocks, g, r, col, n_par: int, lam):
     for rows, p in blocks:
         gk = g[rows]                       # (K, n, 3)
         rk = r[rows]                       # (K, n)
-        pg = np.einsum("kij,kjc->kic", p, gk)
-        pr = np.einsum("kij,kj->ki", p, rk)
-        nmat[:3, :3] += np.einsum("kic,kid->cd", gk, pg)
-        rhs[:3] += np.einsum("kic,ki->c", gk, pr)
+        pg = p @ gk                        # batched matmul (BLAS), not einsum's loops: a day at 1 Hz 1.1 -> 0.2 s
+        pr = (p @ rk[:, :, None])[:, :, 0]
+        g2 = gk.reshape(-1, 3)
+        nmat[:3, :3] += g2.T @ pg.reshape(-1, 3)
+        rhs[:3] += g2.T @ pr.ravel()
         if col is None:
             continue
         c = col[rows]
@@ -647,7 +648,7 @@ def _quad(blocks, r) -> tuple[float, int]:
     s, m = 0.0, 0
     for rows, p in blocks:
         rk = r[rows]
-        s += float(np.einsum("ki,kij,kj->", rk, p, rk))
+        s += float(np.sum(rk * (p @ rk[:, :, None])[:, :, 0]))
         m += rows.shape[0] * (rows.shape[1] - 1)
     return s, m
 
@@ -860,7 +861,7 @@ def _float_solution(d: _Data, sg: _Segments, w: _Weights, xr0, r_enu, opt: Basel
         cf, dx = _solve(nmat, rhs, "float solution")
         x_enu = x_enu + dx[:3]
         a_seg[sg.free] += dx[3:]
-        if np.max(np.abs(dx[:3])) < 1e-5 and (dx.size == 3 or np.max(np.abs(dx[3:])) < 1e-4):
+        if np.max(np.abs(dx[:3])) < _FLOAT_STOP_M and (dx.size == 3 or np.max(np.abs(dx[3:])) < 1e-4):
             break
     q_float = cho_solve(cf, np.eye(sg.n_par))
     g, r_ph, r_cd = _residuals(d, xr0 + r_enu.T @ x_enu, r_enu, a_seg, sg.seg, w)
@@ -951,6 +952,10 @@ def _integer_fix(d: _Data, sg: _Segments, w: _Weights, fl: _Float, opt: Baseline
 #: largest correction (m) the given solution may need to be that of its integers on these data (the fixed
 #: solution's own convergence step); beyond it the solution is solved again from the integers
 _KNOWN_SOLUTION_TOL_M = 1e-6
+#: the float solution stops once its position step is below this (m): a given float position (a float-only
+#: INIT's) is that solution when one more step from it is below it too (its convergence is not quadratic:
+#: geonet's float stops after a step below 1e-5 m, and one more step moves it 1.2e-6 m)
+_FLOAT_STOP_M = 1e-5
 #: the same for a solution the static engine made (INIT's ``solver`` "static_engine"): its fixed position
 #: agrees with this module's fixed solution of the same integers within 0.062 mm on the goldens
 ENGINE_SOLUTION_TOL_M = 1e-4
@@ -1136,10 +1141,12 @@ def _single_epoch_positions(d: _Data, w: _Weights, fin: _Final, seg, opt: Baseli
     for rows, p in blocks:
         gk, rk = fin.g[rows], fin.r_ph[rows]
         ep = d.epoch[rows[:, 0]]
-        nmat[ep] += np.einsum("kic,kij,kjd->kcd", gk, p, gk)
-        rhs[ep] += np.einsum("kic,kij,kj->kc", gk, p, rk)
+        gt = np.swapaxes(gk, 1, 2)
+        pg = p @ gk
+        nmat[ep] += gt @ pg
+        rhs[ep] += (np.swapaxes(pg, 1, 2) @ rk[:, :, None])[:, :, 0]
         gc = gk - gk.mean(axis=1, keepdims=True)       # geometry with the clock (group bias) eliminated
-        gcg[ep] += np.einsum("kic,kid->kcd", gc, gc)
+        gcg[ep] += np.swapaxes(gc, 1, 2) @ gc
         n_sat[ep] += rows.shape[1]
         n_dd[ep] += rows.shape[1] - 1
     ep = np.flatnonzero(n_dd >= opt.min_sats_kinematic - 1)
@@ -1760,7 +1767,7 @@ def baseline_from_init(master: Station, rover: Station, nav: pd.DataFrame, optio
             if solution is None or solution.get("float_enu_m") is None:
                 return "no position given"
             _given_integers(integers, d, sg, np.zeros(sg.free.size, dtype=bool), np.zeros(sg.free.size, dtype=np.int64))
-            k = _known_float(d, sg, w, solution["float_enu_m"], xr0, r_enu, tol)
+            k = _known_float(d, sg, w, solution["float_enu_m"], xr0, r_enu, max(tol, _FLOAT_STOP_M))
             return "the given float position is not the float solution of these data" if k is None else k
         tries = [("static_engine (integers given)", lambda: _engine_given(master, rover, nav, options, xm, xr0,
                                                                            prepared, integers, glo,

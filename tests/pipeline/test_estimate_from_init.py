@@ -189,7 +189,7 @@ def test_the_engine_runs_before_the_batch_tables_exist(case, request, monkeypatc
         init = json.loads(json.dumps(init))
         next(b for b in init["biases"] if not b["pivot"]).update(fixed=False, integer_cycles=None)
     seen, geo = [], []
-    real_geo, real_prep, real_filter = rtk_multi.receiver_geometry, baseline._prepare, static_engine.static_filter
+    real_geo, real_prep, real_filter = rtk_multi.receiver_geometry, baseline._prepare, static_engine.static_least_squares
 
     def geometry(*a, **k):
         out = real_geo(*a, **k)
@@ -208,7 +208,7 @@ def test_the_engine_runs_before_the_batch_tables_exist(case, request, monkeypatc
     monkeypatch.setenv("CDGPS_SERIAL", "1")            # both receivers in this process, where the spies see them
     monkeypatch.setattr(rtk_multi, "receiver_geometry", geometry)
     monkeypatch.setattr(baseline, "_prepare", prepare)
-    monkeypatch.setattr(static_engine, "static_filter", static_filter)
+    monkeypatch.setattr(static_engine, "static_least_squares", static_filter)
     run = read_gnss_run(d / "run.mcap")
     res, _, _, _ = gnss.solve_with_init_integers(run, init, rover, gnss._stations(run))
     assert res["solver"] == "static_engine (integers given)"
