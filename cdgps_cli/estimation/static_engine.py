@@ -149,8 +149,6 @@ def static_least_squares(rows, cols, n_state: int, base_xyz_m, origin_xyz_m, *, 
     P : ndarray (n_state, n_state)
         Its covariance, N⁻¹.
     """
-    import scipy.linalg
-
     x0, P0 = static_prior(rows, cols, n_state, sigma_pos_m, sigma_amb_cycles)
     info0 = np.diag(1.0 / np.diag(P0))
     g = _batch_rows(rows, cols, base_xyz_m)
@@ -161,13 +159,17 @@ def static_least_squares(rows, cols, n_state: int, base_xyz_m, origin_xyz_m, *, 
         nmat, rhs = _normal_equations(g, n_state, origin, p_lin)
         nmat += info0 + amb_info
         rhs += info0 @ x0
-        c = scipy.linalg.cho_factor(nmat, lower=False)
-        x = scipy.linalg.cho_solve(c, rhs)
+        # equilibrated (the offset's information is ~1e10 times the arcs' prior) and factored by numpy's LAPACK:
+        # rtk's path imports no scipy (its start-up time)
+        d = 1.0 / np.sqrt(np.diag(nmat))
+        lower = np.linalg.cholesky(nmat * d[:, None] * d[None, :])
+        inv_lower = np.linalg.solve(lower, np.eye(n_state))
+        x = d * (inv_lower.T @ (inv_lower @ (d * rhs)))
         step = float(np.max(np.abs(x[:3] - p_lin)))
         p_lin = x[:3].copy()
         if step < tol_m:
             break
-    P = scipy.linalg.cho_solve(c, np.eye(n_state))
+    P = (inv_lower.T @ inv_lower) * d[:, None] * d[None, :]
     return x, 0.5 * (P + P.T)
 
 
@@ -414,14 +416,24 @@ def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_succ
 _NOT_YET = {"fix_and_hold": "fix-and-hold is a kinematic (rtk) option"}
 
 
+def static_option_names() -> set:
+    """The option keys :func:`static_baseline` knows."""
+    return set(_option_defaults())
+
+
+def _option_defaults() -> dict:
+    """The engine's options and their defaults (the rtk options' own, :data:`MULTI_GNSS_DEFAULTS`, and these)."""
+    return {"partial": GNSS_DEFAULTS["partial"], **MULTI_GNSS_DEFAULTS,
+            "fix_and_hold": False,           # rtk's default holds; a static batch has nothing to hold
+            "code_noise": "model",           # baseline / init weight the codes as modelled (rtk: "auto")
+            "motion": "static", "random_walk_sigma": GNSS_DEFAULTS["random_walk_sigma"],
+            "initial_sigma_m": GNSS_DEFAULTS["initial_sigma_m"],
+            "max_gap_s": None}               # arcs: ambiguity_segments' gap limit (None: its default)
+
+
 def _static_options(options: dict | None) -> dict:
     """Defaults merged with ``options``; CdgpsError naming an unknown key or one the engine does not honour."""
-    opt = {"partial": GNSS_DEFAULTS["partial"], **MULTI_GNSS_DEFAULTS,
-           "fix_and_hold": False,           # rtk's default holds; a static batch has nothing to hold
-           "code_noise": "model",           # baseline / init weight the codes as modelled (rtk: "auto")
-           "motion": "static", "random_walk_sigma": GNSS_DEFAULTS["random_walk_sigma"],
-           "initial_sigma_m": GNSS_DEFAULTS["initial_sigma_m"],
-           "max_gap_s": None}               # arcs: ambiguity_segments' gap limit (None: its default)
+    opt = _option_defaults()
     unknown = sorted(set(options or {}) - set(opt))
     if unknown:
         raise CdgpsError(f"static baseline: unknown option(s) {', '.join(unknown)}; known: {', '.join(sorted(opt))}")
@@ -505,13 +517,9 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
         solved and that string is returned (a caller that cannot use these arcs skips the solve).
     """
     opt = _static_options(options)
-    pairs = pair_epochs(rover["time_gps_s"].to_numpy(), base["time_gps_s"].to_numpy(),
-                        sync_tol_s=opt["sync_tol_s"], max_age_s=opt["max_age_s"])
-    times = pairs.rover_time_s
-    rows = paired_sd_rows(base, rover, pairs, opt, mask_rover=True)     # the mask at both receivers, as the batch's
+    pairs, rows = _paired_rows(base, rover, opt)
     del base, rover          # the geometry tables (a long record's largest) are not held through the check and solve
-    if rows["sats"].size == 0:
-        raise CdgpsError("no common observations: no satellite observed at both receivers above the mask")
+    times = pairs.rover_time_s
     if np.unique(rows["code"]).size > 1:           # multi-signal: the DD ionosphere is neglected (as init's)
         from cdgps_cli.estimation.baseline import check_iono_rule
         check_iono_rule("base", "rover", float(np.linalg.norm(np.subtract(rover_xyz0_m, base_xyz_m))),
@@ -541,6 +549,30 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
     return {**f, "random_walk": rw, "float_offset_m": x[:3], "float_cov_m2": P[:3, :3], "epochs_used": int(times.size),
             "epoch_pairing": pairs.summary, "state": x, "cov": P, "arcs": arc_table(rows, cols, times),
             "arc_integers": arc_integers(f, x.size)}
+
+
+def _paired_rows(base, rover, opt: dict):
+    """rtk's epoch pairing of the two geometry tables and their SD rows (the mask at both receivers, as the
+    batch's); CdgpsError when no satellite is common."""
+    pairs = pair_epochs(rover["time_gps_s"].to_numpy(), base["time_gps_s"].to_numpy(),
+                        sync_tol_s=opt["sync_tol_s"], max_age_s=opt["max_age_s"])
+    rows = paired_sd_rows(base, rover, pairs, opt, mask_rover=True)
+    if rows["sats"].size == 0:
+        raise CdgpsError("no common observations: no satellite observed at both receivers above the mask")
+    return pairs, rows
+
+
+def static_float_offset(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None = None) -> np.ndarray:
+    """The rover's static float offset (3,) from ``rover_xyz0_m``, ECEF m: :func:`static_baseline`'s float solution
+    without its checks (the DD ionosphere neglected whatever the baseline's length) or its fixing, for a caller
+    that only needs to know where the rover is to a metre (rtk's a-priori position).  ``options`` as
+    :func:`static_baseline`'s."""
+    opt = _static_options(options)
+    pairs, rows = _paired_rows(base, rover, opt)
+    cols = arc_columns(rows, pairs.rover_time_s, max_gap_s=opt["max_gap_s"])
+    n_state = 3 + (int(cols.max()) - 2 if cols.size else 0)
+    x, _ = static_least_squares(rows, cols, n_state, base_xyz_m, rover_xyz0_m, sigma_amb_cycles=opt["amb_sigma_cycles"])
+    return x[:3].copy()
 
 
 def arc_table(rows, cols, times_s) -> dict:

@@ -169,6 +169,13 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
             rx = np.median(rough["float_xyz_m"], axis=0)
             gr = _geometry(r, nav, rx, rover_path, "rover", nav_paths)
             gr.attrs = {}
+        else:                       # a header position may be metres off too (u-blox converters): one static float
+            moved = _static_float_offset(gb, gr, bx, rx, opt)        # batch (≈ 0.1 s) places the origin first
+            if np.linalg.norm(moved) > ROVER_ORIGIN_TOL_M:
+                warnings.append(_origin_moved_note(rover_path, rx, moved, False, "its static float solution"))
+                rx = rx + moved
+                gr = _geometry(r, nav, rx, rover_path, "rover", nav_paths)
+                gr.attrs = {}
         res, gr, per_epoch = _solve_where_the_rover_is(gb, gr, bx, rx, opt, rover=(r, rover_path, rx_from_spp),
                                                        nav=(nav, nav_paths), code_noise=code_noise, warnings=warnings)
     except CdgpsError as exc:
@@ -313,6 +320,21 @@ def _solve_where_the_rover_is(gb, gr, bx, rx, opt: dict, *, rover: tuple, nav: t
     return solve_rtk(gb, gr, bx, rx, options=opt, code_noise=code_noise), gr, True
 
 
+def _static_float_offset(gb, gr, bx, rx, opt: dict) -> np.ndarray:
+    """The rover's static float offset from ``rx`` (ECEF m) by the static engine's batch (no fixing), with rtk's
+    signals, mask, weights and epoch pairing; zeros when that batch cannot serve these data (the solve that follows
+    reports their errors).  For a moving rover it is a mean position: the origin only needs to be where the rover is
+    to a metre (its troposphere and the linearization)."""
+    from cdgps_cli.estimation.static_engine import static_float_offset, static_option_names
+    keys = static_option_names()
+    try:
+        off = static_float_offset(gb, gr, bx, rx, {**{k: v for k, v in opt.items() if k in keys},
+                                                   "fix": False, "fix_and_hold": False, "code_noise": "model"})
+    except (CdgpsError, np.linalg.LinAlgError):
+        return np.zeros(3)
+    return off if np.all(np.isfinite(off)) else np.zeros(3)
+
+
 def _fixed_positions(res: dict) -> np.ndarray:
     """ECEF position (m) of each fixed epoch of a :func:`solve_rtk` solution, NaN rows elsewhere (a float
     position may be metres off: it says nothing about where the rover's troposphere is)."""
@@ -325,11 +347,16 @@ def _heights_differ(xyz_m: np.ndarray, origin_m: np.ndarray) -> bool:
     return bool(np.any(np.abs(h[np.isfinite(h)] - ecef_to_geodetic(origin_m)[2]) > ROVER_ORIGIN_TOL_M))
 
 
-def _origin_moved_note(path, rx, moved, from_spp: bool) -> str:
-    """The warning that the rover's a-priori position was moved to its solution (up = height change, m)."""
+def _origin_moved_note(path, rx, moved, from_spp: bool, to: str = "") -> str:
+    """The warning that the rover's a-priori position was moved to its solution (up = height change, m); ``to``
+    names where it was moved before solving (default: solved again from the solution's median position)."""
     lat, lon, _ = ecef_to_geodetic(rx)
     up = float(enu_matrix(lat, lon)[2] @ moved)
     source = "single-point position" if from_spp else "APPROX POSITION XYZ"
+    if to:
+        return (f"{path} (rover): its {source} is {np.linalg.norm(moved):.1f} m from {to} (height {up:+.1f} m), "
+                f"more than {ROVER_ORIGIN_TOL_M:g} m: the rover's a-priori position (its troposphere, about 1 mm of "
+                f"height per metre of height error otherwise) moved there before solving")
     return (f"{path} (rover): its {source} is {np.linalg.norm(moved):.1f} m from the solution (height {up:+.1f} m), "
             f"more than {ROVER_ORIGIN_TOL_M:g} m: solved again from the solution's median position, with the rover's "
             f"troposphere at each epoch's position (about 1 mm of height per metre of height error otherwise)")

@@ -373,23 +373,26 @@ def test_rtk_static_gps_l1_within_0_3_mm_of_rtklib(tmp_path):
     assert np.all(np.abs(_enu(d)[-1] - ref["coords"][-1]) < 0.00031), (_enu(d)[-1], ref["coords"][-1])
 
 
-def test_zero_baseline_rover_troposphere_where_the_rover_is(tmp_path):
+def test_zero_baseline_rover_troposphere_where_the_rover_is(tmp_path, monkeypatch):
     """A zero baseline must come out zero.  The u-blox walk's RINEX conversion as the rover against its
     own UBX log as the base: the conversion's APPROX POSITION XYZ is 13.7 m from the antenna (10.9 m
     low), and with the rover's troposphere evaluated there the fixed heights sat 4.3 mm low (RMS
-    4.9 mm).  rtk now solves again with the rover's troposphere at each fixed epoch's position, as
-    RTKLIB evaluates it at its current estimate, says so, and the zero baseline is zero.  (Ten epochs
-    whose three or four held integers leave the position's σ above MAX_FIXED_SIGMA_M are reported
-    float: 525 fixed of 536.)"""
+    4.9 mm).  rtk now moves the rover's a-priori position to its static float solution before solving
+    (one batch, no second solve; it solved again with the troposphere at each fixed epoch's position
+    before), says so, and the zero baseline is zero.  (Ten epochs whose three or four held integers
+    leave the position's σ above MAX_FIXED_SIGMA_M are reported float: 525 fixed of 536.)"""
     walk = SHARED / "real-pairs" / "ublox-walk"
     out = tmp_path / "zero.csv"
+    import cdgps_cli.pipeline.gnss_multi as gm
+    solves, real = [], gm.solve_rtk
+    monkeypatch.setattr(gm, "solve_rtk", lambda *a, **k: solves.append(1) or real(*a, **k))
     r = run_cli("rtk", "--base", walk / "gnss_1730.ubx", "--rover", walk / "gnss_1730_convbin.obs", "--signals", "G:L1,E:E1",
                 "--base-xyz", -1276975.6547, -4717238.8712, 4087235.6076, "-o", out, "--json")
     assert r.exit_code == 0, r.output
     import json
     s = json.loads(r.stdout)
-    assert s["rover_troposphere"] == "at each epoch's solution"
-    assert "its APPROX POSITION XYZ is 13.7 m from the solution (height +10.9 m)" in r.stderr
+    assert s["rover_troposphere"] == "at the a-priori position" and len(solves) == 1          # was 2
+    assert "its APPROX POSITION XYZ is 13.7 m from its static float solution (height +10.9 m)" in r.stderr
     d = pd.read_csv(out, comment="#")
     f = d[d["fixed"] == 1]
     assert len(f) >= 520
