@@ -33,6 +33,7 @@ import io
 import itertools
 import json
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -45,8 +46,8 @@ from cdgps_cli.core.checks import header_position_m
 from cdgps_cli.io.atomic import path_for_config
 from cdgps_cli.config.structure import GnssConfig, gnss_config_toml, parse_gnss_config
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.io.mcap import (CONFIG_ATTACHMENT, VALID_SUFFIX, McapOut, array_schema, message_schema, read_mcap,
-                               time_ns)
+from cdgps_cli.core.timescales import unix_ns_list
+from cdgps_cli.io.mcap import CONFIG_ATTACHMENT, VALID_SUFFIX, McapOut, array_schema, message_schema, read_mcap
 from cdgps_cli.io.run import INGEST_METADATA, contents_kind, ingest_metadata, input_keys, run_kind
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.core.records import GLONASS_NAV_COLUMNS, NAV_COLUMNS
@@ -710,11 +711,17 @@ def write_gnss_run(cfg: GnssConfig, out_path: str | Path, inp: IngestInputs, pos
             tab = {c: _json_safe(nav[c].tolist()) for c in cols}
             out.attach(EPHEMERIS_ATTACHMENT, json.dumps(tab).encode(), "application/json")
         ch = out.channel(GNSS_OBS_TOPIC, OBS_SCHEMA, {"units": "cycles, m, dB-Hz, Hz, ms"})
-        n_msg = _write_obs_messages(out, ch, receivers)
-        for i, (n, rx) in enumerate(receivers.items()):
-            out.attach(OBS_ATTACHMENT.format(i), _npz_zst(rx.raw), "application/x-npz+zstd")
-            if rx.signals is not None:
-                out.attach(SIGNALS_ATTACHMENT.format(i), _signals_npz_zst(rx.signals), "application/x-npz+zstd")
+        # the observation archives are packed in a worker thread while the messages are built (numpy's copies
+        # and zstd release the GIL: a day's pair 8.8 -> 8.0 s), and attached after them, in order, as before
+        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="cdgps-archive") as pool:
+            packed = []
+            for i, (n, rx) in enumerate(receivers.items()):
+                packed.append((OBS_ATTACHMENT.format(i), pool.submit(_npz_zst, rx.raw)))
+                if rx.signals is not None:
+                    packed.append((SIGNALS_ATTACHMENT.format(i), pool.submit(_signals_npz_zst, rx.signals)))
+            n_msg = _write_obs_messages(out, ch, receivers)
+            for name, fut in packed:
+                out.attach(name, fut.result(), "application/x-npz+zstd")
         out.attach(RECEIVERS_ATTACHMENT, json.dumps(_json_safe(rx_json), indent=1).encode(), "application/json")
         out.attach(CONFIG_ATTACHMENT, cfg.text.encode("utf-8"), "application/toml")
         for name, data in (extra_attachments or {}).items():
@@ -828,12 +835,12 @@ def _write_obs_messages(out: McapOut, ch: int, receivers: dict) -> int:
             k0 = min(ks)
             bodies[i] = (k0, _obs_bodies(per[i][3], per[i][2][k0:max(ks) + 2]))
         times, stamps, datas, names = [], [], [], []
-        time_texts = orjson.dumps([t for t, _, _ in part])[1:-1].split(b",")
-        for (t_s, i, k), t_text in zip(part, time_texts):
+        part_times = [t for t, _, _ in part]
+        time_texts = orjson.dumps(part_times)[1:-1].split(b",")
+        for (t_s, i, k), t_text, ns in zip(part, time_texts, unix_ns_list(part_times, out.time_scale)):
             n, t, cuts, _, flag, clk = per[i]
             k0, body = bodies[i]
             a = int(cuts[k])
-            ns = time_ns(t_s, out.time_scale)
             c = clk[a]
             data = b"".join([heads[i] % (ns // 1_000_000_000, ns % 1_000_000_000, t_text, int(flag[a])),
                              b',"clock_offset_s":' + orjson.dumps(float(c)) if math.isfinite(c) else b"", body[k - k0]])
@@ -857,7 +864,7 @@ def _obs_bodies(cols: dict, cuts: np.ndarray) -> list:
     field; a missing value as 0 and ``false`` in its companion, as :meth:`McapOut.write` writes it),
     from the comma before the first to the closing brace, of each message of rows cuts[m] … cuts[m+1]−1."""
     lo, hi = int(cuts[0]), int(cuts[-1])
-    bounds = list(zip((cuts[:-1] - lo).tolist(), (cuts[1:] - lo).tolist()))
+    bounds = (cuts[:-1] - lo, cuts[1:] - lo)
     parts = []
     for c, v in cols.items():
         v = v[lo:hi]
@@ -871,13 +878,19 @@ def _obs_bodies(cols: dict, cuts: np.ndarray) -> list:
     return [b"".join(p) for p in zip(*parts)]
 
 
-def _field_texts(key: str, values: list, bounds: list, first: bool) -> list:
+def _field_texts(key: str, values: list, bounds: tuple, first: bool) -> list:
     """(the key's text, repeated; the array's text per message) of one field: message m holds
-    ``values[a:b]``, (a, b) = ``bounds[m]`` (none empty)."""
-    text = orjson.dumps([values[a:b] for a, b in bounds])
-    per_message = text[2:-2].split(b"],[")
-    if len(per_message) != len(bounds):               # (a text holding "],[": each message on its own)
-        per_message = [orjson.dumps(values[a:b])[1:-1] for a, b in bounds]
+    ``values[a[m]:b[m]]``, (a, b) = ``bounds`` (int arrays; no message empty).  One orjson text of all the
+    values, cut at the commas between them (each value's text is the same alone or in a list): no list per
+    message (a day's pair: 0.7 s of ingest)."""
+    a, b = bounds
+    text = orjson.dumps(values)
+    commas = np.flatnonzero(np.frombuffer(text, dtype=np.uint8) == ord(","))
+    if commas.size == len(values) - 1:
+        starts, ends = np.r_[1, commas + 1], np.r_[commas, len(text) - 1]      # value i: text[starts[i]:ends[i]]
+        per_message = [text[i:j] for i, j in zip(starts[a].tolist(), ends[b - 1].tolist())]
+    else:                                             # (a value holding a comma: each message on its own)
+        per_message = [orjson.dumps(values[i:j])[1:-1] for i, j in zip(a.tolist(), b.tolist())]
     return [itertools.repeat((b',"' if first else b'],"') + orjson.dumps(key)[1:-1] + b'":['), per_message]
 
 
