@@ -109,7 +109,7 @@ def static_filter(rows, times_s, base_xyz_m, origin_xyz_m, *, sigma_pos_m: float
 
 def static_least_squares(rows, cols, n_state: int, base_xyz_m, origin_xyz_m, *, sigma_pos_m: float = 100.0,
                          sigma_amb_cycles: float = 1e3, tol_m: float = 1e-7, max_iterations: int = 8,
-                         chunk_pairs: int = 1 << 21):
+                         chunk_pairs: int = 1 << 19):
     """The static float solution as one batch: what :func:`static_filter` converges to, at O(N) cost.
 
     With no process noise the filter's information adds up epoch by epoch, so its final state is the
