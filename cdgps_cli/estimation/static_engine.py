@@ -1,12 +1,14 @@
 """The static baseline on the one engine (issue 28 item 1): DD rows of
 :class:`~cdgps_cli.measurement.dd_signals.DDGroupModel` (the one DD builder; its whole-run layout
 :class:`~cdgps_cli.measurement.dd_signals.RunDDModel`, the same numbers), the static model through
-:func:`~cdgps_cli.estimation.driver.drive`.
+:func:`~cdgps_cli.estimation.driver.drive` (:func:`static_filter`, the random-walk float).
 
 State: rover offset from ``origin`` (3, m) and one SD ambiguity per lock arc (cycles; an arc is a
 satellite's signal between slips and outages, :func:`arc_columns`), all sized up front.  With no process
 noise the filter's final state is the batch least-squares solution with the same prior (the information adds up epoch by
-epoch); :func:`static_normal_equations` forms that batch answer directly, as an independent check.
+epoch): :func:`static_least_squares` forms it from every epoch at once and is what :func:`static_baseline` solves
+with (a day at 1 Hz: 0.9 s against the filter's 7 s); the filter and :func:`static_normal_equations` (the per-epoch
+whitened rows at the answer) are its independent checks.
 Options: :func:`options_from_baseline` maps BaselineOptions (refusing by name what the engine does
 not implement).  ``baseline`` and GNSS ``init`` solve here through
 :func:`~cdgps_cli.estimation.baseline.solve_static_baseline` (``engine=True``), which renders the result
