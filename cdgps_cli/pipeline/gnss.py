@@ -464,14 +464,7 @@ def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path
                   progress=None, extra_options: dict | None = None) -> dict:
     """Per-epoch displacement states of every rover from INIT's integers → STATES.mcap."""
     say = progress or (lambda m: None)
-    if not is_gnss_init(init):
-        raise CdgpsError("INIT.json is not from 'cdgps init' on a GNSS run (kind "
-                         f"{init.get('kind') if isinstance(init, dict) else None!r})")
-    if init.get("config_sha256") != run.cfg.sha256 or set(init.get("rovers", {})) != set(run.rovers) \
-            or init.get("master") != run.master:
-        raise CdgpsError(f"INIT.json was made from another run (config {init.get('config_name')!r}, master "
-                         f"{init.get('master')!r}, rovers {', '.join(init.get('rovers', {}))}) than {run.path} "
-                         f"(config {run.cfg.name!r}, master {run.master!r}, rovers {', '.join(run.rovers)})")
+    _check_init_of_run(init, run)
     stations = _stations(run)
     _check_master_position(run)
     model = run.cfg.displacement
@@ -485,92 +478,127 @@ def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path
     # common time axis: every matched epoch of any rover
     t_all = np.unique(np.concatenate([w["data"].t_label for _, w, _ in per.values()]))
     names = [f"{r}_{c}" for r in run.rovers for c in "enu"]
-    nq = len(names)
-    n = t_all.size
-    q = np.full((n, nq), np.nan)
-    P = np.zeros((n, nq, nq))
-    qf = np.full((n, nq), np.nan) if (model == "random_walk" and smooth) else None
-    Pf = np.zeros((n, nq, nq)) if qf is not None else None
-    kq = np.full((n, nq), np.nan)
-    kP = np.zeros((n, nq, nq))
-    kin_n = np.zeros((n, len(run.rovers)), dtype=np.int64)
-    kin_pdop = np.full((n, len(run.rovers)), np.nan)
-    res_cols = []
-    res_vals = []
-    nis_sum = np.zeros(n)
-    dof_tot = np.zeros(n, dtype=np.int64)
+    a = _EstimateArrays(t_all.size, len(names), len(run.rovers), model == "random_walk" and smooth)
     summary_rovers = {}
     for j, r in enumerate(run.rovers):
-        res, w, rov = per[r]
-        d = w["data"]
+        res, w, _ = per[r]
         sl = slice(3 * j, 3 * j + 3)
-        idx = np.searchsorted(t_all, d.t_label)
-        x_fin = w["x_final"]
-        fixed_any = res["ambiguities"]["n_fixed"] > 0
-        use = w["known_seg"][w["seg"]] if fixed_any else np.ones(w["seg"].size, dtype=bool)
-        c, dof, has, groups = _epoch_information(w, use)
-        w.pop("blocks_ph", None)            # the solver's phase weights, no longer needed (a day at 1 Hz: ≈ 60 MiB)
-        if model == "static":
-            q[idx, sl] = x_fin
-            P[idx, sl, sl] = w["q_final"]
-            dx = np.zeros((d.t_label.size, 3))
-            nis = np.where(has, c, np.nan)
-        else:
-            dd = SatelliteDDDisplacement(d.ptr, d.sat, d.sat_names, w["g"],
-                                         [SDObservations(w["r_ph"], w["var_ph"], ref, usable=u) for u, ref in groups])
-            xs, ps, xf, pf, nis = _random_walk(dd, d.t_label, run.cfg.random_walk_sigma, run.cfg.initial_sigma_m, smooth)
-            q[idx, sl] = x_fin + xs
-            P[idx, sl, sl] = ps
-            dx = xs
-            if qf is not None:
-                qf[idx, sl] = x_fin + xf
-                Pf[idx, sl, sl] = pf
-        dof_tot[idx] += np.where(has, dof, 0)
-        nis_sum[idx] += np.where(has, np.nan_to_num(nis), 0.0)
-        # DD residuals (m) of the reported estimate, per satellite, against the epoch's reference
-        e = w["r_ph"] - np.einsum("ic,ic->i", w["g"], dx[d.epoch])
-        sats = np.array(d.sat_names, dtype=object)
-        tab = np.full((d.t_label.size, len(d.sat_names)), np.nan)
-        for u, ref in groups:                   # each group's DDs against its own reference
-            ref_row = ref[d.epoch]
-            ok = u & (ref_row >= 0) & (np.arange(e.size) != ref_row)
-            tab[d.epoch[ok], d.sat[ok]] = (e - e[np.maximum(ref_row, 0)])[ok]
-        for s_i, s in enumerate(sats):
-            res_cols.append((r, s))
-            col = np.full(n, np.nan)
-            col[idx] = tab[:, s_i]
-            res_vals.append(col)
-        # kinematic
-        ka = w["kinematic"]
-        if ka is not None:
-            ki = idx[ka["epoch"]]
-            kq[ki, sl] = ka["enu_m"]
-            kP[ki, sl, sl] = ka["cov_m2"]
-            kin_n[ki, j] = ka["n_sat"]
-            kin_pdop[ki, j] = ka["pdop"]
-        kin = res["kinematic"]
-        summary_rovers[r] = {
-            "solution": res["solution"], "n_fixed": res["ambiguities"]["n_fixed"],
-            "n_estimated": res["ambiguities"]["n_estimated"],
-            "static_enu_m": dict(zip(names[sl], x_fin.tolist())),
-            "static_sigma_m": dict(zip(names[sl], np.sqrt(np.diag(w["q_final"])).tolist())),
-            "kinematic_rms_m": kin["rms_about_static_m"] if kin else None,
-            "kinematic_rms_pdop_le_max_m": (kin.get("pdop_le_max") or {}).get("rms_about_static_m") if kin else None,
-            "kinematic_epochs": kin["n_epochs"] if kin else 0,
-            "dd_phase_rms_m": res["residuals"]["dd_phase_rms_m"],
-            "reference_changes": res["epochs"]["n_reference_changes"],
-        }
-    residual_m = np.column_stack(res_vals) if res_vals else np.zeros((n, 0))
-    nis_tot = np.where(dof_tot > 0, nis_sum, np.nan)
+        idx = np.searchsorted(t_all, w["data"].t_label)
+        dx, groups = _rover_states(a, w, res, sl, idx, model, run.cfg, smooth)
+        a.residuals(r, w, dx, groups, idx)
+        a.kinematic(w["kinematic"], idx, sl, j)
+        summary_rovers[r] = _rover_summary(res, w, names[sl])
     events.sort(key=lambda e: (e["time_s"], e["antenna"], e["transmitter"], e["kind"]))
     say(f"writing {out_path} …")
     meta_extra = {"rovers": summary_rovers,
                   "options": {**_signals_summary(run, {r: v[0] for r, v in per.items()}), **(extra_options or {})}}
-    out = _write_gnss_states(run, init, init_text, out_path, names, t_all, q, P, qf, Pf, kq, kP, kin_n, kin_pdop,
-                             res_cols, residual_m, nis_tot, dof_tot, events, smooth and model == "random_walk",
-                             meta_extra)
+    residual_m = np.column_stack(a.res_vals) if a.res_vals else np.zeros((t_all.size, 0))
+    out = _write_gnss_states(run, init, init_text, out_path, names, t_all, a.q, a.P, a.qf, a.Pf, a.kq, a.kP, a.kin_n,
+                             a.kin_pdop, a.res_cols, residual_m, np.where(a.dof_tot > 0, a.nis_sum, np.nan), a.dof_tot,
+                             events, smooth and model == "random_walk", meta_extra)
     out.update({"displacement_model": model, "rovers": summary_rovers, "coordinates": names})
     return out
+
+
+def _check_init_of_run(init: dict, run: GnssRun) -> None:
+    """CdgpsError unless INIT is a GNSS INIT made from this run (its config, master and rovers)."""
+    if not is_gnss_init(init):
+        raise CdgpsError("INIT.json is not from 'cdgps init' on a GNSS run (kind "
+                         f"{init.get('kind') if isinstance(init, dict) else None!r})")
+    if init.get("config_sha256") != run.cfg.sha256 or set(init.get("rovers", {})) != set(run.rovers) \
+            or init.get("master") != run.master:
+        raise CdgpsError(f"INIT.json was made from another run (config {init.get('config_name')!r}, master "
+                         f"{init.get('master')!r}, rovers {', '.join(init.get('rovers', {}))}) than {run.path} "
+                         f"(config {run.cfg.name!r}, master {run.master!r}, rovers {', '.join(run.rovers)})")
+
+
+class _EstimateArrays:
+    """:func:`gnss_estimate`'s per-epoch arrays on the common time axis (n epochs, nq = 3 per rover): the
+    states q (n, nq) and covariances P (n, nq, nq), the filtered ones qf, Pf (random walk, smoothed), the
+    single-epoch (kinematic) ones kq, kP with their satellite counts and PDOP per rover, the NIS summed over
+    the rovers with its degrees of freedom, and the DD residual columns (rover, satellite)."""
+
+    def __init__(self, n: int, nq: int, n_rovers: int, filtered: bool):
+        self.n = n
+        self.q, self.P = np.full((n, nq), np.nan), np.zeros((n, nq, nq))
+        self.qf = np.full((n, nq), np.nan) if filtered else None
+        self.Pf = np.zeros((n, nq, nq)) if filtered else None
+        self.kq, self.kP = np.full((n, nq), np.nan), np.zeros((n, nq, nq))
+        self.kin_n = np.zeros((n, n_rovers), dtype=np.int64)
+        self.kin_pdop = np.full((n, n_rovers), np.nan)
+        self.nis_sum, self.dof_tot = np.zeros(n), np.zeros(n, dtype=np.int64)
+        self.res_cols, self.res_vals = [], []
+
+    def residuals(self, r: str, w: dict, dx, groups, idx) -> None:
+        """Rover ``r``'s DD residuals (m) of the reported estimate (``dx`` (epochs, 3) from the static solution),
+        per satellite, each group's DDs against its own reference."""
+        d = w["data"]
+        e = w["r_ph"] - np.einsum("ic,ic->i", w["g"], dx[d.epoch])
+        tab = np.full((d.t_label.size, len(d.sat_names)), np.nan)
+        for u, ref in groups:
+            ref_row = ref[d.epoch]
+            ok = u & (ref_row >= 0) & (np.arange(e.size) != ref_row)
+            tab[d.epoch[ok], d.sat[ok]] = (e - e[np.maximum(ref_row, 0)])[ok]
+        for s_i, s in enumerate(np.array(d.sat_names, dtype=object)):
+            self.res_cols.append((r, s))
+            col = np.full(self.n, np.nan)
+            col[idx] = tab[:, s_i]
+            self.res_vals.append(col)
+
+    def kinematic(self, ka: dict | None, idx, sl: slice, j: int) -> None:
+        """Rover j's single-epoch positions (``w["kinematic"]``), where it has them."""
+        if ka is None:
+            return
+        ki = idx[ka["epoch"]]
+        self.kq[ki, sl] = ka["enu_m"]
+        self.kP[ki, sl, sl] = ka["cov_m2"]
+        self.kin_n[ki, j] = ka["n_sat"]
+        self.kin_pdop[ki, j] = ka["pdop"]
+
+
+def _rover_states(a: _EstimateArrays, w: dict, res: dict, sl: slice, idx, model: str, cfg, smooth: bool):
+    """One rover's states into ``a`` (columns ``sl``, epochs ``idx``): the static solution, or it plus the random
+    walk (smoothed when asked); its NIS and degrees of freedom added.  Returns the displacement from the static
+    solution per epoch (m) and the signal groups (usable rows, references)."""
+    d, x_fin = w["data"], w["x_final"]
+    fixed_any = res["ambiguities"]["n_fixed"] > 0
+    use = w["known_seg"][w["seg"]] if fixed_any else np.ones(w["seg"].size, dtype=bool)
+    c, dof, has, groups = _epoch_information(w, use)
+    w.pop("blocks_ph", None)            # the solver's phase weights, no longer needed (a day at 1 Hz: ≈ 60 MiB)
+    if model == "static":
+        a.q[idx, sl] = x_fin
+        a.P[idx, sl, sl] = w["q_final"]
+        dx = np.zeros((d.t_label.size, 3))
+        nis = np.where(has, c, np.nan)
+    else:
+        dd = SatelliteDDDisplacement(d.ptr, d.sat, d.sat_names, w["g"],
+                                     [SDObservations(w["r_ph"], w["var_ph"], ref, usable=u) for u, ref in groups])
+        xs, ps, xf, pf, nis = _random_walk(dd, d.t_label, cfg.random_walk_sigma, cfg.initial_sigma_m, smooth)
+        a.q[idx, sl] = x_fin + xs
+        a.P[idx, sl, sl] = ps
+        dx = xs
+        if a.qf is not None:
+            a.qf[idx, sl] = x_fin + xf
+            a.Pf[idx, sl, sl] = pf
+    a.dof_tot[idx] += np.where(has, dof, 0)
+    a.nis_sum[idx] += np.where(has, np.nan_to_num(nis), 0.0)
+    return dx, groups
+
+
+def _rover_summary(res: dict, w: dict, names: list) -> dict:
+    """The STATES metadata's entry of one rover (``names``: its three coordinate names)."""
+    kin = res["kinematic"]
+    return {
+        "solution": res["solution"], "n_fixed": res["ambiguities"]["n_fixed"],
+        "n_estimated": res["ambiguities"]["n_estimated"],
+        "static_enu_m": dict(zip(names, w["x_final"].tolist())),
+        "static_sigma_m": dict(zip(names, np.sqrt(np.diag(w["q_final"])).tolist())),
+        "kinematic_rms_m": kin["rms_about_static_m"] if kin else None,
+        "kinematic_rms_pdop_le_max_m": (kin.get("pdop_le_max") or {}).get("rms_about_static_m") if kin else None,
+        "kinematic_epochs": kin["n_epochs"] if kin else 0,
+        "dd_phase_rms_m": res["residuals"]["dd_phase_rms_m"],
+        "reference_changes": res["epochs"]["n_reference_changes"],
+    }
 
 
 def _events(rover: str, master: str, res: dict, w: dict) -> list:
