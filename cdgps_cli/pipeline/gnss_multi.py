@@ -163,19 +163,8 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
     gb.attrs, gr.attrs = {}, {}
     code_noise = receivers_code_noise(gb, gr, opt)       # the observations' own: the same for every solve below
     try:
-        if rx_from_spp:             # a single-point origin is metres off: the rover's troposphere (≈ 0.3 mm per
-            # metre of height) is computed there, so move the origin to the float solution's median first
-            rough = solve_rtk(gb, gr, bx, rx, options={**opt, "fix": False, "direction": "forward"}, code_noise=code_noise)
-            rx = np.median(rough["float_xyz_m"], axis=0)
-            gr = _geometry(r, nav, rx, rover_path, "rover", nav_paths)
-            gr.attrs = {}
-        else:                       # a header position may be metres off too (u-blox converters): one static float
-            moved = _static_float_offset(gb, gr, bx, rx, opt)        # batch (≈ 0.1 s) places the origin first
-            if np.linalg.norm(moved) > ROVER_ORIGIN_TOL_M:
-                warnings.append(_origin_moved_note(rover_path, rx, moved, False, "its static float solution"))
-                rx = rx + moved
-                gr = _geometry(r, nav, rx, rover_path, "rover", nav_paths)
-                gr.attrs = {}
+        rx, gr = _place_rover(gb, gr, bx, rx, opt, rover=(r, rover_path, rx_from_spp), nav=(nav, nav_paths),
+                              warnings=warnings)
         res, gr, per_epoch = _solve_where_the_rover_is(gb, gr, bx, rx, opt, rover=(r, rover_path, rx_from_spp),
                                                        nav=(nav, nav_paths), code_noise=code_noise, warnings=warnings)
     except CdgpsError as exc:
@@ -318,6 +307,23 @@ def _solve_where_the_rover_is(gb, gr, bx, rx, opt: dict, *, rover: tuple, nav: t
         gr.attrs = {}
     gr = troposphere_at_epochs(gr, res["time_gps_s"], xyz_ep)
     return solve_rtk(gb, gr, bx, rx, options=opt, code_noise=code_noise), gr, True
+
+
+def _place_rover(gb, gr, bx, rx, opt: dict, *, rover: tuple, nav: tuple, warnings: list):
+    """The rover's origin moved to its static float solution (:func:`_static_float_offset`) when that is more than
+    :data:`ROVER_ORIGIN_TOL_M` away, with its geometry recomputed there: a single-point origin is metres off, and so
+    may a header's be (u-blox converters), and the rover's troposphere (≈ 0.3 mm per metre of height) is computed at
+    the origin.  ``rover`` is (observation table, path, whether ``rx`` is a single-point position), ``nav`` (table,
+    paths).  Returns (origin, geometry)."""
+    r, rover_path, from_spp = rover
+    moved = _static_float_offset(gb, gr, bx, rx, opt)
+    if np.linalg.norm(moved) <= ROVER_ORIGIN_TOL_M:
+        return rx, gr
+    if not from_spp:                      # (a single-point origin's own warning already says it is refined)
+        warnings.append(_origin_moved_note(rover_path, rx, moved, False, "its static float solution"))
+    gr = _geometry(r, nav[0], rx + moved, rover_path, "rover", nav[1])
+    gr.attrs = {}
+    return rx + moved, gr
 
 
 def _static_float_offset(gb, gr, bx, rx, opt: dict) -> np.ndarray:
