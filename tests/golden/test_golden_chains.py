@@ -78,3 +78,26 @@ def test_compare_flags_what_it_must(monkeypatch):
     fails = gc.compare("demo", got, same_machine=False)
     assert [f.split(":")[0] for f in fails] == ["quantities changed", "free/init/fixed", "free/init/integer_cycles",
                                                 "free/smoothed/time_s"], fails
+
+
+def test_float_solutions_have_their_own_cross_machine_tolerance():
+    """A GNSS float position may move 5e-4 m between machines (not on the record's), 2e-3 m nowhere; a
+    fixed-solution state keeps the 1e-5 relative of every other float."""
+    import json
+
+    import golden_chains as gc
+
+    stored = json.loads(gc.golden_path("gnss").read_text())["quantities"]
+
+    def moved(name: str, by: float) -> gc.Numbers:
+        got = gc.Numbers()
+        got.items = json.loads(json.dumps(stored))
+        got.items[name]["value"][0] += by
+        return got
+
+    name = "rw/init/rover/float_enu_m"
+    assert gc.compare("gnss", moved(name, 5e-4), same_machine=False) == []
+    assert [f.split(":")[0] for f in gc.compare("gnss", moved(name, 5e-4), same_machine=True)] == [name]
+    assert [f.split(":")[0] for f in gc.compare("gnss", moved(name, 2e-3), same_machine=False)] == [name]
+    states = "rw/init/rover/states_m"
+    assert [f.split(":")[0] for f in gc.compare("gnss", moved(states, 5e-4), same_machine=False)] == [states]
