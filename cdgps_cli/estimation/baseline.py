@@ -1590,7 +1590,7 @@ def _engine_first(master: Station, rover: Station, nav, opt: BaselineOptions, xm
     :func:`_engine_or_batch` once :func:`_prepare` has run, whose messages on bad input come first, as before."""
     try:
         return _run_engine(master, rover, nav, opt, xm, xr0, iono_threshold_km,
-                           arcs_check=lambda arcs: _engine_columns(*prepared()[:2], arcs))
+                           arcs_check=lambda arcs: _engine_columns(*prepared(weights=False)[:2], arcs))
     except CdgpsError as exc:
         if getattr(exc, "from_prepare", False):        # the batch tables' own message: passed on as it is
             raise
@@ -1660,7 +1660,7 @@ def _engine_float(master: Station, rover: Station, nav, opt: BaselineOptions, xm
     found = {}
 
     def arcs_check(arcs):
-        d, sg = prepared()[:2]
+        d, sg = prepared(weights=False)[:2]
         if check is not None:
             check(d, sg)
         found["cols"] = _engine_columns(d, sg, arcs)
@@ -1686,7 +1686,8 @@ def _engine_given(master: Station, rover: Station, nav, opt: BaselineOptions, xm
     _given_integers(integers, d, sg, fixed_mask, integers_fix)
     if isinstance(solved, CdgpsError):
         raise solved
-    eng = solved if solved is not None else _engine_float(master, rover, nav, opt, xm, xr0, lambda: prepared)
+    eng = solved if solved is not None else _engine_float(master, rover, nav, opt, xm, xr0,
+                                                          lambda weights=True: prepared)
     if isinstance(eng, str):
         return eng
     (eng, cols), x, P = eng, eng[0]["state"], eng[0]["cov"]
@@ -1917,8 +1918,10 @@ def _baseline(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineO
     r_enu = enu_matrix(*ecef_to_geodetic(xr0)[:2])
     cache = {}
 
-    def prepared():
-        """(data, segments, weights, r_enu), built once; a CdgpsError of :func:`_prepare` raised again on each call."""
+    def prepared(weights: bool = True):
+        """(data, segments, weights, r_enu), built once; a CdgpsError of :func:`_prepare` raised again on each call.
+        ``weights=False`` (the engine's arc check): the weights (≈ 130 bytes an SD row) stay unbuilt (None) until
+        asked for, so they are not held beside the engine's solve."""
         if "error" in cache:
             raise cache["error"]
         if "tables" not in cache:
@@ -1930,7 +1933,12 @@ def _baseline(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineO
                 cache["error"] = exc
                 raise
             cache["t_prep"] = time.perf_counter() - t0
-            cache["tables"] = (d, _segments(d, opt), _weights(d, opt), r_enu)
+            cache["tables"] = (d, _segments(d, opt), None, r_enu)
+        d, sg, w, _ = cache["tables"]
+        if weights and w is None:
+            t0 = time.perf_counter()
+            cache["tables"] = (d, sg, _weights(d, opt), r_enu)
+            cache["t_prep"] += time.perf_counter() - t0
         return cache["tables"]
 
     t_first = 0.0

@@ -468,7 +468,8 @@ def test_engine_masks_at_both_receivers_and_matches_offset_tags():
 def test_batch_tables_are_built_after_the_engine_released_its_geometry(monkeypatch):
     """``init``/``baseline`` on the engine: the batch tables (``baseline._prepare``: 310 MiB on the 24 h pair) are
     built only once the engine has released its receiver geometry (the peak: 24 h init 1262 → 936 MiB), from
-    its arc check, so arcs that are not the segments still skip the solve; the result is the one of the former
+    its arc check, so arcs that are not the segments still skip the solve, and their DD weights only after the
+    engine's solve (a 10 Hz hour: init's peak 433 → 416 MB); the result is the one of the former
     order (tables first), bit for bit; a bad input still gets ``_prepare``'s own message."""
     import gc
     import weakref
@@ -494,9 +495,15 @@ def test_batch_tables_are_built_after_the_engine_released_its_geometry(monkeypat
     monkeypatch.setenv("CDGPS_SERIAL", "1")            # both receivers in this process, where the spies see them
     monkeypatch.setattr(rtk_multi, "receiver_geometry", geometry)
     monkeypatch.setattr(baseline, "_prepare", prepare)
+    def weights(*a, **k):
+        order.append(("weights",))
+        return real_weights(*a, **k)
+    real_weights = baseline._weights
     monkeypatch.setattr(static_engine, "static_least_squares", filt)
+    monkeypatch.setattr(baseline, "_weights", weights)
     got = baseline.solve_static_baseline(b, r, nav, engine=True)
-    assert order == [("prepare", 2, 0), ("filter",)]          # both geometries built and released, then the solve
+    # both geometries built and released, then the solve, then the batch's weights
+    assert order == [("prepare", 2, 0), ("filter",), ("weights",)]
     # the former order: tables first, the engine's arcs checked against them before it solves
     xm, xr0, _ = baseline._a_priori_positions(b, r, nav, None, None, [])
     d = real_prepare(b, r, nav, baseline.BaselineOptions(), xm, xr0, [])
