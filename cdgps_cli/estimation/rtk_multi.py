@@ -60,8 +60,10 @@ def check_common_signals(base: pd.DataFrame, rover: pd.DataFrame, names, nav, wh
     for name in names:
         for who in ("base", "rover"):
             if name not in present[who]:
+                held = (f"present: {', '.join(sorted(present[who]))}" if present[who] else
+                        f"it holds none of {', '.join(names)}; --signals auto takes every signal both files hold")
                 raise CdgpsError(f"{where[who]} ({who}): no {name} phase observations; the receivers must share "
-                                 f"every signal asked for (present: {', '.join(sorted(present[who]))})")
+                                 f"every signal asked for ({held})")
     have = set(nav["sat"].str[0])
     for sysc in sorted({signal(n).system for n in names}):
         if sysc not in have:

@@ -537,6 +537,11 @@ def test_check_common_signals_names_the_missing_signal_and_what_is_present():
     check_common_signals(base, rover, ["G:L1"], nav, {"base": "b.obs", "rover": "r.obs", "nav": "n"})
     with pytest.raises(CdgpsError, match=r"r\.obs \(rover\): no G:L2 phase observations.*present: E:E1, G:L1\)"):
         check_common_signals(base, rover, ["G:L1", "G:L2"], nav, {"base": "b.obs", "rover": "r.obs", "nav": "n"})
+    # a reader that kept only the signals asked for: nothing to list, the way out named instead of "present: )"
+    with pytest.raises(CdgpsError, match=r"b\.obs \(base\): no E:E1 phase observations; the receivers must share every "
+                                         r"signal asked for \(it holds none of E:E1; --signals auto takes every signal"):
+        check_common_signals(base[base["signal"] == "E:E1"], rover, ["E:E1"], nav,
+                             {"base": "b.obs", "rover": "r.obs", "nav": "n"})
 
 
 def test_troposphere_at_epochs_uses_each_epochs_height():
