@@ -478,7 +478,7 @@ def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path
     # common time axis: every matched epoch of any rover
     t_all = np.unique(np.concatenate([w["data"].t_label for _, w, _ in per.values()]))
     names = [f"{r}_{c}" for r in run.rovers for c in "enu"]
-    a = _EstimateArrays(t_all.size, len(names), len(run.rovers), model == "random_walk" and smooth)
+    a = _EstimateArrays(t_all, len(names), len(run.rovers), model == "random_walk" and smooth)
     summary_rovers = {}
     for j, r in enumerate(run.rovers):
         res, w, _ = per[r]
@@ -513,13 +513,14 @@ def _check_init_of_run(init: dict, run: GnssRun) -> None:
 
 
 class _EstimateArrays:
-    """:func:`gnss_estimate`'s per-epoch arrays on the common time axis (n epochs, nq = 3 per rover): the
+    """:func:`gnss_estimate`'s per-epoch arrays on the common time axis (``t``, n epochs, nq = 3 per rover): the
     states q (n, nq) and covariances P (n, nq, nq), the filtered ones qf, Pf (random walk, smoothed), the
     single-epoch (kinematic) ones kq, kP with their satellite counts and PDOP per rover, the NIS summed over
     the rovers with its degrees of freedom, and the DD residual columns (rover, satellite)."""
 
-    def __init__(self, n: int, nq: int, n_rovers: int, filtered: bool):
-        self.n = n
+    def __init__(self, t: np.ndarray, nq: int, n_rovers: int, filtered: bool):
+        self.t = t
+        self.n = n = t.size
         self.q, self.P = np.full((n, nq), np.nan), np.zeros((n, nq, nq))
         self.qf = np.full((n, nq), np.nan) if filtered else None
         self.Pf = np.zeros((n, nq, nq)) if filtered else None
@@ -557,32 +558,45 @@ class _EstimateArrays:
 
 
 def _rover_states(a: _EstimateArrays, w: dict, res: dict, sl: slice, idx, model: str, cfg, smooth: bool):
-    """One rover's states into ``a`` (columns ``sl``, epochs ``idx``): the static solution, or it plus the random
-    walk (smoothed when asked); its NIS and degrees of freedom added.  Returns the displacement from the static
-    solution per epoch (m) and the signal groups (usable rows, references)."""
+    """One rover's states into ``a`` (columns ``sl``) at every epoch of the common axis, its own (``idx``) and the
+    other rovers' (a rover without observations there: the static solution, which holds at any epoch, or the random
+    walk carried through the gap by the filter and smoother, its σ growing); its NIS and degrees of freedom added
+    at its own epochs.  Returns the displacement from the static solution at its epochs (m) and the signal groups
+    (usable rows, references)."""
     d, x_fin = w["data"], w["x_final"]
     fixed_any = res["ambiguities"]["n_fixed"] > 0
     use = w["known_seg"][w["seg"]] if fixed_any else np.ones(w["seg"].size, dtype=bool)
     c, dof, has, groups = _epoch_information(w, use)
     w.pop("blocks_ph", None)            # the solver's phase weights, no longer needed (a day at 1 Hz: ≈ 60 MiB)
     if model == "static":
-        a.q[idx, sl] = x_fin
-        a.P[idx, sl, sl] = w["q_final"]
+        a.q[:, sl] = x_fin
+        a.P[:, sl, sl] = w["q_final"]
         dx = np.zeros((d.t_label.size, 3))
         nis = np.where(has, c, np.nan)
     else:
-        dd = SatelliteDDDisplacement(d.ptr, d.sat, d.sat_names, w["g"],
-                                     [SDObservations(w["r_ph"], w["var_ph"], ref, usable=u) for u, ref in groups])
-        xs, ps, xf, pf, nis = _random_walk(dd, d.t_label, cfg.random_walk_sigma, cfg.initial_sigma_m, smooth)
-        a.q[idx, sl] = x_fin + xs
-        a.P[idx, sl, sl] = ps
-        dx = xs
+        ptr = _pointers_on_axis(d.ptr, idx, a.n)
+        obs = []
+        for u, ref in groups:
+            ref_all = np.full(a.n, -1, dtype=np.int64)
+            ref_all[idx] = ref
+            obs.append(SDObservations(w["r_ph"], w["var_ph"], ref_all, usable=u))
+        dd = SatelliteDDDisplacement(ptr, d.sat, d.sat_names, w["g"], obs)
+        xs, ps, xf, pf, nis_all = _random_walk(dd, a.t, cfg.random_walk_sigma, cfg.initial_sigma_m, smooth)
+        a.q[:, sl] = x_fin + xs
+        a.P[:, sl, sl] = ps
+        dx, nis = xs[idx], nis_all[idx]
         if a.qf is not None:
-            a.qf[idx, sl] = x_fin + xf
-            a.Pf[idx, sl, sl] = pf
+            a.qf[:, sl] = x_fin + xf
+            a.Pf[:, sl, sl] = pf
     a.dof_tot[idx] += np.where(has, dof, 0)
     a.nis_sum[idx] += np.where(has, np.nan_to_num(nis), 0.0)
     return dx, groups
+
+
+def _pointers_on_axis(ptr, idx, n: int) -> np.ndarray:
+    """Epoch pointers (n + 1,) of a rover's rows (its pointers ``ptr``) on a common axis of ``n`` epochs, its own
+    epochs at ``idx`` (increasing): an axis epoch it lacks holds no rows."""
+    return np.asarray(ptr, dtype=np.int64)[np.searchsorted(idx, np.arange(n + 1), side="left")]
 
 
 def _rover_summary(res: dict, w: dict, names: list) -> dict:
