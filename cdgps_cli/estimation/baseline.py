@@ -681,7 +681,7 @@ def _float_random_walk(d: _Data, sg: "_Segments", w: "_Weights", fl: "_Float", o
     model = SatelliteDDDisplacement(d.ptr, d.sat, d.sat_names, fl.g, obs, n_ambiguities=n_amb)
     dyn = WithConstants(RandomWalk(3, opt.random_walk_sigma), n_amb)
     P0 = np.diag(np.r_[np.full(3, opt.initial_sigma_m**2), np.full(n_amb, AMBIGUITY_PRIOR_SIGMA_CYCLES**2)])
-    fr = filter_numpy(model, dyn, d.t_label, np.zeros(3 + n_amb), P0, max_iterations=1, history=False)
+    fr = filter_numpy(model, dyn, d.t_label, np.zeros(3 + n_amb), P0, max_iterations=1, history=False, form="covariance")
     post = np.linalg.inv(fr["P"][3:, 3:])
     J = post - np.eye(n_amb) / AMBIGUITY_PRIOR_SIGMA_CYCLES**2
     J = 0.5 * (J + J.T)

@@ -40,7 +40,7 @@ class FilterResult(dict):
 
 
 def filter_numpy(model, dyn, time_s, x0, P0, max_iterations: int = 5, rows_hook=None, history: bool = True,
-                 store=None, chunk_epochs: int = 1 << 30, keep_rows: bool = True) -> dict:
+                 store=None, chunk_epochs: int = 1 << 30, keep_rows: bool = True, form: str = "information") -> dict:
     """Iterated EKF over the epochs of ``model`` (reference numpy path).
 
     Each epoch: predict with ``dyn.transition(Δt)``, then the measurement update on the whitened
@@ -69,6 +69,9 @@ def filter_numpy(model, dyn, time_s, x0, P0, max_iterations: int = 5, rows_hook=
     keep_rows : bool
         Keep every epoch's rows (False: ``rows`` is None and ``had_rows`` (N,) bool says which epochs
         had rows; the caller makes them again from the model and its gate's events).
+    form : {"information", "covariance"}
+        The update's form (:class:`~cdgps_cli.estimation.kalman.StepFilter`): the information form costs O(n³) an
+        epoch, the covariance form O(n² m) with m rows (a large state of constants and few rows an epoch).
 
     Returns
     -------
@@ -81,7 +84,7 @@ def filter_numpy(model, dyn, time_s, x0, P0, max_iterations: int = 5, rows_hook=
     n, ns = len(time_s), len(x0)
     sink = RecordingSink(n, ns, history, store=store, chunk_epochs=chunk_epochs, keep_rows=keep_rows)
     hooks = [] if rows_hook is None else [RowsGate(rows_hook)]
-    ctx = drive(GridDynamics(dyn, time_s), [model], EpochGrid(np.asarray(time_s, float)), StepFilter(x0, P0), hooks,
+    ctx = drive(GridDynamics(dyn, time_s), [model], EpochGrid(np.asarray(time_s, float)), StepFilter(x0, P0, form=form), hooks,
                 sink, max_iterations=max_iterations)
     out = FilterResult(sink, ctx)
     if not history:

@@ -380,10 +380,18 @@ def test_cli_errors(tmp_path):
 
 
 
-def test_random_walk_float_ambiguities_equal_the_dense_joint_least_squares():
+def test_random_walk_float_ambiguities_equal_the_dense_joint_least_squares(monkeypatch):
     """bl._float_random_walk (the engine's forward filter on [δx, a], prior on a removed) against the
     joint least-squares problem over every epoch's position and the ambiguities, solved densely
-    (positions eliminated by the Schur complement) with DDs formed epoch by epoch from dd_operator."""
+    (positions eliminated by the Schur complement) with DDs formed epoch by epoch from dd_operator.
+    The filter's update is the covariance form, O(n² m) an epoch, never the information form's O(n³): a real
+    moving u-blox rover with 594 lock segments took 168 s in ``init`` that way, 6.3 s now (the float
+    ambiguities the same to 4e-8 cycles, their σ to 3e-9 relative)."""
+    from cdgps_cli.estimation import kalman
+
+    def information_form(*a, **k):
+        raise AssertionError("the random-walk float ran an information-form (O(n³)) update")
+    monkeypatch.setattr(kalman, "iterated_update", information_form)
     from types import SimpleNamespace
 
     from cdgps_cli.measurement.differencing import dd_operator, epoch_pointers, select_reference
