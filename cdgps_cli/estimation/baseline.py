@@ -1424,14 +1424,17 @@ def _engine_epochs(t_label, time_s) -> np.ndarray:
 
 
 def _engine_columns(d: _Data, sg: _Segments, arcs: dict):
-    """The engine's state column of every SD segment (n_seg,) matched on (satellite, signal, first epoch:
-    the one of this solver's epochs nearest the arc's first time tag), or a string saying why the two
-    sets of arcs differ."""
+    """The engine's state column of every SD segment (n_seg,) matched on (satellite, signal, first epoch in a
+    double difference: the one of this solver's epochs nearest that time tag), or a string saying why the two
+    sets of arcs differ.  An engine arc never in a double difference (its rows alone in their epochs: a satellite
+    seen by itself at the end of a record) holds only its prior and has no segment here (this solver drops the
+    rows of epochs with fewer than two satellites): it is left out of the match."""
     sig = _satellite_signals(d)
-    epoch = _engine_epochs(d.t_label, arcs["first_s"])
-    key = {(s, g, int(e)): 3 + i for i, (s, g, e) in enumerate(zip(arcs["sat"], arcs["signal"], epoch))}
+    in_dd = np.flatnonzero(np.isfinite(arcs["first_dd_s"]))
+    epoch = _engine_epochs(d.t_label, arcs["first_dd_s"][in_dd])
+    key = {(arcs["sat"][i], arcs["signal"][i], int(e)): 3 + int(i) for i, e in zip(in_dd, epoch)}
     if len(key) != sg.n_seg or (epoch < 0).any():
-        return f"the engine has {len(key)} ambiguity arcs, this solver {sg.n_seg} segments"
+        return f"the engine has {len(key)} ambiguity arcs in double differences, this solver {sg.n_seg} segments"
     out = np.empty(sg.n_seg, dtype=np.int64)
     for k in range(sg.n_seg):
         s = int(sg.segtab["sat"][k])

@@ -580,11 +580,29 @@ def static_float_offset(base, rover, base_xyz_m, rover_xyz0_m, options: dict | N
 
 def arc_table(rows, cols, times_s) -> dict:
     """Per state column from 3 (one per arc): ``sat`` (n_arc,) str, ``signal`` str, ``first_s`` (first epoch, GPS s),
-    ``lam_m``."""
+    ``lam_m``, and ``first_dd_s``: the first epoch where the arc is in a double difference (a signal group of at
+    least two satellites, :func:`~cdgps_cli.measurement.dd_signals.paired_sd_rows`' ``groups``), NaN for an arc
+    that never is (its rows are alone in their epochs' groups: no information but the prior's).  Without the
+    group layout ``first_dd_s`` is ``first_s``."""
+    times_s = np.asarray(times_s, float)
     first = np.unique(cols, return_index=True)[1]          # cols are numbered in order of first appearance
     epoch = np.searchsorted(rows["ptr"], first, side="right") - 1
-    return {"sat": rows["sats"][first].astype(str), "signal": rows["names"][rows["code"][first]].astype(str),
-            "first_s": np.asarray(times_s, float)[epoch], "lam_m": rows["lam_m"][first]}
+    table = {"sat": rows["sats"][first].astype(str), "signal": rows["names"][rows["code"][first]].astype(str),
+             "first_s": times_s[epoch], "lam_m": rows["lam_m"][first]}
+    lay = rows.get("groups")
+    if lay is None:
+        table["first_dd_s"] = table["first_s"].copy()
+        return table
+    in_dd = np.zeros(cols.size + 1, dtype=np.int64)
+    np.add.at(in_dd, lay["start"], 1)
+    np.add.at(in_dd, lay["stop"], -1)
+    rows_dd = np.flatnonzero(np.cumsum(in_dd[:-1]) > 0)
+    arcs_dd, first_dd = np.unique(cols[rows_dd], return_index=True)
+    first_dd_s = np.full(first.size, np.nan)
+    first_dd_s[np.searchsorted(cols[first], arcs_dd)] = times_s[np.searchsorted(rows["ptr"], rows_dd[first_dd],
+                                                                                side="right") - 1]
+    table["first_dd_s"] = first_dd_s
+    return table
 
 
 def arc_integers(fix: dict, n_state: int) -> np.ndarray:

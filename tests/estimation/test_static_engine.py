@@ -522,3 +522,37 @@ def test_batch_tables_are_built_after_the_engine_released_its_geometry(monkeypat
     with pytest.raises(CdgpsError) as batch:
         baseline.solve_static_baseline(b, far, nav)
     assert str(engine_first.value) == str(batch.value)
+
+
+def test_an_arc_alone_in_its_epochs_does_not_send_the_baseline_to_the_batch():
+    """GEONET 3040 → 0759 at a 50° mask: G11 rises alone above it (its first rows in epochs without a second
+    satellite, so in no double difference).  The engine's arc began there, the batch's segment at its first
+    double difference, and the unequal first epochs sent every such baseline to the batch ("segment G11 … is no
+    arc of the engine").  Arcs are now matched at their first double difference (``arc_table``'s
+    ``first_dd_s``): the engine serves, its fixed position within 0.1 mm of the batch's (0.02 mm at 50°, 0.05 mm at
+    30°, where there is no such arc and nothing changes)."""
+    from cdgps_cli.estimation.baseline import ENGINE_SOLUTION_TOL_M, BaselineOptions, Station, solve_static_baseline
+    from cdgps_cli.estimation.static_engine import arc_table
+    from cdgps_cli.io.rinex import read_rinex_obs
+    if not (RINEX / "30400920.05o").exists():
+        pytest.skip("GEONET pair absent")
+    m, r = (Station(n, *read_rinex_obs(RINEX / f)) for n, f in (("3040", "30400920.05o"), ("0759", "07590920.05o")))
+    nav = read_rinex_nav(RINEX / "30400920.05n")
+    got = {}
+    for mask in (30.0, 50.0):
+        opt = BaselineOptions(mask_deg=mask)
+        eng = solve_static_baseline(m, r, nav, opt, engine=True)
+        bat = solve_static_baseline(m, r, nav, opt)
+        assert eng["solver"] == "static_engine", eng["solver"]
+        # (the engine's and the batch's fixed positions of the same integers: within ENGINE_SOLUTION_TOL_M)
+        assert np.abs(np.subtract(eng["fixed"]["enu_m"], bat["fixed"]["enu_m"])).max() < ENGINE_SOLUTION_TOL_M
+        got[mask] = eng
+    assert got[50.0]["ambiguities"]["n_fixed"] == got[50.0]["ambiguities"]["n_estimated"]
+    # the table itself: an arc whose first row is alone starts its double differences at its next epoch;
+    # an arc always alone has none (NaN)
+    rows = {"ptr": np.array([0, 2, 4, 6]), "sats": np.array(["G01", "G02", "G01", "G05", "G01", "G03"]),
+            "names": np.array(["G:L1"]), "code": np.zeros(6, dtype=np.int64), "lam_m": np.full(6, 0.19),
+            "groups": {"start": np.array([0, 4]), "stop": np.array([2, 6])}}        # epoch 1: no group of two
+    tab = arc_table(rows, np.array([3, 4, 3, 5, 6, 7]), np.array([10.0, 11.0, 12.0]))
+    np.testing.assert_array_equal(tab["first_s"], [10.0, 10.0, 11.0, 12.0, 12.0])
+    np.testing.assert_array_equal(tab["first_dd_s"], [10.0, 10.0, np.nan, 12.0, 12.0])
