@@ -103,7 +103,8 @@ def cases(tmp: Path) -> list:
 def _m8p_cases() -> list:
     """``--m8p DIR``: issue 28's u-blox M8P pair (jdesbonnet/GNSS_RTK_data 20181004, no licence: fetched locally;
     DIR holds convbin's base1.obs, rover1.obs, base1.nav and the OSi CORS glw1277m.18o / .18n of its zip) and the
-    CORS to the M8P base, GPS L1, the base position process1.sh gives RTKLIB."""
+    CORS to the M8P base and to its rover (196 m, a CORS-to-u-blox pair as issue 28's held-out one), GPS L1, the base
+    position process1.sh gives RTKLIB."""
     if "--m8p" not in sys.argv:
         return []
     d = Path(sys.argv[sys.argv.index("--m8p") + 1])
@@ -111,6 +112,8 @@ def _m8p_cases() -> list:
                  (3774090.1382928407, -601663.0449456355, 5089319.199168801), ("G:L1",), 1)]
     if (d / "glw1277m.18o").exists():
         out.append(_case("CORS GLW1 to the M8P base GPS L1", d / "glw1277m.18o", d / "base1.obs", [d / "glw1277m.18n"],
+                         _header_xyz(d / "glw1277m.18o"), ("G:L1",), 1))
+        out.append(_case("CORS GLW1 to the M8P rover GPS L1", d / "glw1277m.18o", d / "rover1.obs", [d / "glw1277m.18n"],
                          _header_xyz(d / "glw1277m.18o"), ("G:L1",), 1))
     return out
 
