@@ -75,17 +75,31 @@ def _unit(az_deg, el_deg):
     return np.array([math.cos(e) * math.sin(a), math.cos(e) * math.cos(a), math.sin(e)])
 
 
+def _header_xyz(path: Path) -> tuple:
+    """A RINEX file's APPROX POSITION XYZ, ECEF m."""
+    for ln in Path(path).read_text(errors="replace").splitlines():
+        if ln[60:].strip() == "APPROX POSITION XYZ":
+            return tuple(float(x) for x in ln[:60].split())
+    raise SystemExit(f"{path}: no APPROX POSITION XYZ")
+
+
 def datasets():
     """name → base, rover, navs, base ECEF, rover a-priori ECEF, signal sets {label: (signals, RTKLIB freq)}, t0, keep.
     ``--m8p DIR`` adds the u-blox M8P pair of jdesbonnet/GNSS_RTK_data (2018-10-04 12:37, static, 0.33 m;
     no licence: not in ../shared, fetched locally): DIR holds convbin's base1.obs, rover1.obs and base1.nav
-    (``convbin -od -os -oi -ot -f 1`` of base-20181004-1236.ubx and rover-20181004-1237.ubx)."""
+    (``convbin -od -os -oi -ot -f 1`` of base-20181004-1236.ubx and rover-20181004-1237.ubx), and, when DIR also
+    holds the OSi CORS glw1277m.18o / .18n of the same repository's zip, the CORS to the M8P rover (196 m)."""
     extra = {}
     if "--m8p" in sys.argv:
         d = Path(sys.argv[sys.argv.index("--m8p") + 1])
         extra["u-blox M8P pair"] = dict(base=d / "base1.obs", rover=d / "rover1.obs", navs=[d / "base1.nav"],
                                         base_xyz=(3774090.1382928407, -601663.0449456355, 5089319.199168801),
                                         t0=None, keep=None, signals={"GPS L1": (("G:L1",), 1)})
+        cors = d / "glw1277m.18o"
+        if cors.exists():          # the OSi CORS GLW1 (Leica, RINEX 2.11 at 5 s) 196 m from the M8P rover
+            extra["CORS GLW1 to the M8P rover"] = dict(base=cors, rover=d / "rover1.obs", navs=[d / "glw1277m.18n"],
+                                                       base_xyz=_header_xyz(cors), t0=None, keep=None,
+                                                       signals={"GPS L1": (("G:L1",), 1)})
     return {**extra,
         "mosaic-static": dict(base=MS / "base.obs", rover=MS / "rover.obs", navs=[MS / "base.nav"],
                               base_xyz=(-3817681.1213, 3562839.4311, 3650159.1593), t0=1403252400.0, keep=None,

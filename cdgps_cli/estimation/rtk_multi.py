@@ -500,7 +500,8 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
     times = pairs.rover_time_s
     code_noise = receivers_code_noise(base, rover, opt) if code_noise is None else code_noise
     opt["code_variance_factor"] = code_noise["factor"]
-    rows = paired_sd_rows(base, rover, pairs, opt, mask_rover=True)     # the mask at both receivers, as RTKLIB's
+    rows = paired_sd_rows(base, rover, pairs, opt, mask_rover=True,    # the mask at both receivers, as RTKLIB's
+                          base_xyz_m=base_xyz)
     n_ep = times.size
     if not rows["groups"]["start"].size:                     # no epoch has a group of two satellites
         raise CdgpsError(f"no double differences: no epoch of the {n_ep} paired has two satellites of one signal "
