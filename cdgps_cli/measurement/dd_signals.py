@@ -569,7 +569,8 @@ def _interpolate_base(m: pd.DataFrame, b: pd.DataFrame, tb: np.ndarray, pairs, o
     ok &= np.where(later, (lli1 & 1) == 0, (lli0 & 1) == 0)              # no loss of lock between t₀ and t₁
     ok &= (lli1 & 2) == (lli0 & 2)
     # every row of the rover epoch's signal group, or none
-    grp = pd.factorize(pd.Series(ep).astype(str) + "|" + m["signal"].astype(str).to_numpy())[0]
+    sig_code = pd.factorize(m["signal"].to_numpy())[0].astype(np.int64)
+    grp = np.unique(ep.astype(np.int64) * (int(sig_code.max()) + 1) + sig_code, return_inverse=True)[1].ravel()
     ok &= np.bincount(grp, weights=~ok, minlength=grp.max() + 1)[grp] == 0
     if not ok.any():
         return m, age
