@@ -478,12 +478,13 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
         lambda: reception_geometry(nav, sat_r, t_ep, j["t_true_r"].to_numpy(), rover_xyz, troposphere=opt.troposphere))
     keep = (gb["el_rad"] >= mask) & (gr["el_rad"] >= mask)
     below = pd.Series(sat_r[~keep]).value_counts()
-    # epochs with fewer than two satellites form no double difference: their rows go, but a slip flagged on such a
-    # row moves to its satellite's next row (the engine keeps the row, its arc starting there)
-    masked = keep.copy()
+    # epochs with fewer than two satellites form no double difference: their rows go, and a slip flagged on a row
+    # that goes (there, or below the mask) moves to its satellite's next row that stays (the engine's arc starts there)
     cnt = np.bincount(ep[keep], minlength=n_ep)
     keep &= cnt[ep] >= 2
-    j = _carry_lone_slips(j, sat_r, ep, masked & ~keep, keep)
+    if not keep.all():
+        j = j.assign(**{c: carry_slips(ep.astype(np.float64), sat_r, j[c].to_numpy(dtype=np.int64), keep)
+                        for c in ("lli_l1_r", "lli_l1_b")})
     if keep.sum() < 2:
         raise CdgpsError(f"no double differences: fewer than two satellites of {_where(master)} and {_where(rover)} "
                          f"in common above the {opt.mask_deg:g}° mask at every common epoch ({n_ep} epochs, {_span(t_label)})")
@@ -515,31 +516,6 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
         d = _sd_data(j, sel, gb, gr, t_label, ce.interval_s, info)
     d = _rover_troposphere_moved(d, rover, rover_xyz, opt)
     return d._replace(age_var_m2=age_var_ep[d.epoch]) if np.any(age_var_ep > 0) else d
-
-
-def _carry_lone_slips(j: pd.DataFrame, sat, ep, lone, keep) -> pd.DataFrame:
-    """``j`` with the slip bit (LLI bit 0) of each ``lone`` row (above the mask, in an epoch of one satellite) set on
-    its satellite's next kept row, at the same receiver: the ambiguity changed there, though that epoch forms no
-    double difference (``j`` itself is not modified)."""
-    cols = ("lli_l1_r", "lli_l1_b")
-    flagged = lone & np.any([(np.nan_to_num(j[c].to_numpy()).astype(np.int64) & 1) > 0 for c in cols], axis=0)
-    if not flagged.any():
-        return j
-    order = np.lexsort((ep, sat))
-    pos = np.empty(order.size, dtype=np.int64)
-    pos[order] = np.arange(order.size)                 # each row's place among its satellite's rows in time
-    kept_pos = np.sort(pos[keep])
-    j = j.copy()
-    for c in cols:
-        lli = np.nan_to_num(j[c].to_numpy()).astype(np.int64)
-        src = np.flatnonzero(flagged & ((lli & 1) > 0))
-        k = np.searchsorted(kept_pos, pos[src], side="right")
-        ok = k < kept_pos.size
-        nxt = order[kept_pos[k[ok]]]
-        nxt = nxt[sat[nxt] == sat[src[ok]]]            # the same satellite's next kept row, if it has one
-        lli[nxt] |= 1
-        j[c] = lli
-    return j
 
 
 def _rover_troposphere_moved(d: _Data, rover: Station, rover_xyz, opt: BaselineOptions) -> _Data:

@@ -529,22 +529,32 @@ def test_a_slip_flagged_in_a_dropped_lone_epoch_moves_to_the_satellites_next_row
     """The batch drops the rows of epochs with a single satellite above the mask (no double difference); a slip
     flagged on such a row used to go with it, so the satellite's segment ran on across the slip.  It now moves
     to that satellite's next kept row at the same receiver (the engine keeps the lone row, its arc starting
-    there).  On the 20181004 river-trail walk (an M8P rover) that was the one difference between the engine's
-    arcs and these segments: with it, a baseline sweep of eight real pairs x four option sets is the engine's in
-    all 32 runs (30 before)."""
-    import pandas as pd
+    there; the one mechanism of dropped rows' flags, ``epoch_align.carry_slips``).  On the 20181004 river-trail walk
+    (an M8P rover) that was the one difference between the engine's arcs and these segments: with it, a baseline
+    sweep of eight real pairs x four option sets is the engine's in all 32 runs (30 before).  Here: GEONET at a 50°
+    mask, where G11 rises alone above it; a slip flag put on its last lone row reaches its first kept row."""
+    from cdgps_cli.io.rinex import read_rinex_obs
 
-    #            epoch 0: G01 G02 | epoch 1: G01 alone (slip at the rover) | epoch 2: G01 G02 | epoch 3: G03 alone (slip)
-    sat = np.array(["G01", "G02", "G01", "G01", "G02", "G03"])
-    ep = np.array([0, 0, 1, 2, 2, 3])
-    keep = np.array([True, True, False, True, True, False])
-    lone = ~keep
-    j = pd.DataFrame({"lli_l1_r": [0, 0, 1, 0, 2, 1], "lli_l1_b": [0, 0, 0, 0, 0, 0]})
-    out = bl._carry_lone_slips(j, sat, ep, lone, keep)
-    assert out["lli_l1_r"].tolist() == [0, 0, 1, 1, 2, 1]          # G01's next kept row (epoch 2) slips; G02's half bit kept
-    assert out["lli_l1_b"].tolist() == [0, 0, 0, 0, 0, 0]
-    assert j["lli_l1_r"].tolist() == [0, 0, 1, 0, 2, 1]            # the input is not modified
-    assert bl._carry_lone_slips(j, sat, ep, np.zeros(6, dtype=bool), keep) is j      # nothing lone: the same table
-    # the base's flag moves on the base's column
-    jb = pd.DataFrame({"lli_l1_r": [0, 0, 0, 0, 0, 0], "lli_l1_b": [0, 0, 1, 0, 0, 0]})
-    assert bl._carry_lone_slips(jb, sat, ep, lone, keep)["lli_l1_b"].tolist() == [0, 0, 1, 1, 0, 0]
+    files = {n: shared(n) for n in ("30400920.05o", "07590920.05o", "30400920.05n")}
+    m = Station("3040", *read_rinex_obs(files["30400920.05o"]))
+    r = Station("0759", *read_rinex_obs(files["07590920.05o"]))
+    nav = read_rinex_nav(files["30400920.05n"])
+    opt = BaselineOptions(mask_deg=50.0)
+    xm, xr0, _ = bl._a_priori_positions(m, r, nav, None, None, [])
+
+    def g11_first_kept(rover):
+        d = bl._prepare(m, rover, nav, opt, xm, xr0, [])
+        rows = np.flatnonzero(np.array(d.sat_names)[d.sat] == "G11")
+        return d, rows[np.argmin(d.epoch[rows])]
+
+    d, k = g11_first_kept(r)
+    t_kept = d.t_label[d.epoch[k]]
+    assert not d.slip[k]
+    obs = r.obs
+    g11 = np.flatnonzero((obs["sat"].to_numpy() == "G11") & (obs["time_gps_s"].to_numpy() < t_kept - 1.0)
+                         & np.isfinite(obs["phase_l1_cycles"].to_numpy()))
+    lone = g11[np.argmax(obs["time_gps_s"].to_numpy()[g11])]       # its last row before: alone above 50°
+    lli = obs["lli_l1"].to_numpy().copy()
+    lli[lone] |= 1
+    d2, k2 = g11_first_kept(r._replace(obs=obs.assign(lli_l1=lli)))
+    assert d2.t_label[d2.epoch[k2]] == t_kept and d2.slip[k2] and d2.slip_rover[k2]
