@@ -1904,6 +1904,37 @@ def _solve_static_baseline_once(master: Station, rover: Station, nav: pd.DataFra
                      first)
 
 
+class _BatchTables:
+    """:func:`_baseline`'s batch tables (data, segments, weights, r_enu), built once when first called (``prepare()``:
+    :func:`_prepare`'s data); a CdgpsError of it raised again on each call, marked ``from_prepare``.  A call with
+    ``weights=False`` (the engine's arc check) leaves the weights (≈ 130 bytes an SD row) unbuilt (None) until asked
+    for, so they are not held beside the engine's solve.  ``t_prep``: the seconds spent building them."""
+
+    def __init__(self, prepare, opt: BaselineOptions, r_enu):
+        self._prepare, self._opt, self._r_enu = prepare, opt, r_enu
+        self._tables, self._error, self.t_prep = None, None, 0.0
+
+    def __call__(self, weights: bool = True) -> tuple:
+        if self._error is not None:
+            raise self._error
+        if self._tables is None:
+            t0 = time.perf_counter()
+            try:
+                d = self._prepare()
+            except CdgpsError as exc:
+                exc.from_prepare = True
+                self._error = exc
+                raise
+            self.t_prep += time.perf_counter() - t0
+            self._tables = (d, _segments(d, self._opt), None, self._r_enu)
+        d, sg, w, _ = self._tables
+        if weights and w is None:
+            t0 = time.perf_counter()
+            self._tables = (d, sg, _weights(d, self._opt), self._r_enu)
+            self.t_prep += time.perf_counter() - t0
+        return self._tables
+
+
 def _baseline(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOptions, master_xyz, rover_xyz,
               keep_work: bool, iono_threshold_km, decide, integers, first=None) -> dict:
     """:func:`solve_static_baseline`'s and :func:`baseline_from_init`'s body: ``decide(prepared, xm, xr0, warnings)``
@@ -1923,38 +1954,15 @@ def _baseline(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineO
         return clock[-1] - clock[-2]
 
     r_enu = enu_matrix(*ecef_to_geodetic(xr0)[:2])
-    cache = {}
-
-    def prepared(weights: bool = True):
-        """(data, segments, weights, r_enu), built once; a CdgpsError of :func:`_prepare` raised again on each call.
-        ``weights=False`` (the engine's arc check): the weights (≈ 130 bytes an SD row) stay unbuilt (None) until
-        asked for, so they are not held beside the engine's solve."""
-        if "error" in cache:
-            raise cache["error"]
-        if "tables" not in cache:
-            t0 = time.perf_counter()
-            try:
-                d = _prepare(master, rover, nav, opt, xm, xr0, warnings)
-            except CdgpsError as exc:
-                exc.from_prepare = True
-                cache["error"] = exc
-                raise
-            cache["t_prep"] = time.perf_counter() - t0
-            cache["tables"] = (d, _segments(d, opt), None, r_enu)
-        d, sg, w, _ = cache["tables"]
-        if weights and w is None:
-            t0 = time.perf_counter()
-            cache["tables"] = (d, sg, _weights(d, opt), r_enu)
-            cache["t_prep"] += time.perf_counter() - t0
-        return cache["tables"]
+    prepared = _BatchTables(lambda: _prepare(master, rover, nav, opt, xm, xr0, warnings), opt, r_enu)
 
     t_first = 0.0
     if first is not None:
         first(xm, xr0, prepared)
-        t_first = lap() - cache.get("t_prep", 0.0)
+        t_first = lap() - prepared.t_prep
     d, sg, w, _ = prepared()
     lap()
-    t_prep = cache["t_prep"]
+    t_prep = prepared.t_prep
     known, solver = decide((d, sg, w, r_enu), xm, xr0, warnings)
     if known is None and opt.glonass_fix:
         raise CdgpsError(f"glonass_fix: GLONASS integers are fixed by the static engine only, which cannot solve "
