@@ -515,7 +515,11 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
     else:
         d = _sd_data(j, sel, gb, gr, t_label, ce.interval_s, info)
     d = _rover_troposphere_moved(d, rover, rover_xyz, opt)
-    return d._replace(age_var_m2=age_var_ep[d.epoch]) if np.any(age_var_ep > 0) else d
+    if not np.any(age_var_ep > 0):
+        return d
+    d, n_interp = _interpolated_base(d, master, rover, ce.grid[master.name], tag_r, nav, master_xyz, opt)
+    d.info["epoch_pairing"] = dict(d.info["epoch_pairing"], interpolated=n_interp)
+    return d
 
 
 def _rover_troposphere_moved(d: _Data, rover: Station, rover_xyz, opt: BaselineOptions) -> _Data:
@@ -527,6 +531,68 @@ def _rover_troposphere_moved(d: _Data, rover: Station, rover_xyz, opt: BaselineO
     at = [ecef_to_geodetic(np.asarray(x, dtype=np.float64)) for x in (rover.troposphere_xyz_m, rover_xyz)]
     moved = [tropo_hydrostatic_m(d.el_rover, lat, h, t) for lat, _, h in at]
     return d._replace(rover_clk_trop_m=d.rover_clk_trop_m + (moved[0] - moved[1]))
+
+
+def _interpolated_base(d: _Data, master: Station, rover: Station, base_grid, rover_tag_s, nav, master_xyz,
+                       opt: BaselineOptions) -> tuple[_Data, int]:
+    """``d`` with the base's phase and range of each bridged rover epoch interpolated to the rover's time between
+    the base epochs on both sides, and every row's age variance (``age_var_m2``), as the static engine's and rtk's
+    rows have them: :func:`~cdgps_cli.measurement.base_interpolation.interpolate_base` on the base rows of
+    :func:`_base_rows_around` (the engine's own).  ``base_grid``: the base's distinct epoch times and its epoch of
+    each common epoch; ``rover_tag_s`` (n_ep,): the rover's time of each.  Returns it and the number of rover
+    epochs interpolated (in at least one signal group)."""
+    from cdgps_cli.measurement.base_interpolation import BASE_ROW_COLUMNS as cols, interpolate_base
+    t_base = base_grid[0][base_grid[1]]                          # (n_ep,) each common epoch's base time
+    age_ep = rover_tag_s - t_base
+    bridged = np.abs(age_ep) > opt.sync_tol_s
+    b, tb = _base_rows_around(master, rover, nav, master_xyz, t_base, bridged, opt)
+    b0 = np.clip(np.searchsorted(tb, t_base), 0, max(tb.size - 1, 0))
+    b0 = np.where((tb.size > 0) & (tb[b0] == t_base), b0, -1)
+    sig = _satellite_signals(d)
+    sat = np.array([n.split(":")[0] for n in d.sat_names], dtype=object)
+    signal_of = np.array([v["signal"] for v in sig] if sig else ["G:L1"] * len(sat), dtype=object)
+    at0 = b[list(cols)].rename(columns={c: c + "_b" for c in cols[3:]})
+    m = pd.DataFrame({"_ep": d.epoch, "_bep": b0[d.epoch], "sat": sat[d.sat], "signal": signal_of[d.sat],
+                      "wavelength_m": np.broadcast_to(np.asarray(_lam(d), dtype=np.float64), d.epoch.shape)})
+    m = m.merge(at0, on=["_bep", "sat", "signal"], how="left", sort=False)
+    age = age_ep[d.epoch]
+    if len(m) != d.epoch.size or tb.size == 0:          # a repeated base row: the nearest epoch's, as the engine's
+        return d._replace(age_var_m2=age_variance_m2(age, opt.sync_tol_s)), 0
+    ph0, rg0 = m["phase_cycles_b"].to_numpy(dtype=float), m["pseudorange_m_b"].to_numpy(dtype=float)
+    ph, rg, age_i, done = interpolate_base(m.assign(_bep=np.maximum(m["_bep"].to_numpy(), 0)), b, tb,
+                                           rover_tag_s[d.epoch], base_xyz_m=master_xyz, sync_tol_s=opt.sync_tol_s,
+                                           max_age_s=opt.max_age_s, troposphere=opt.troposphere)
+    age = np.where(done, age_i, age)
+    d = d._replace(y_phase_m=d.y_phase_m - np.where(done, m["wavelength_m"].to_numpy() * (ph - ph0), 0.0),
+                   y_code_m=d.y_code_m - np.where(done, rg - rg0, 0.0),
+                   age_var_m2=age_variance_m2(age, opt.sync_tol_s))
+    return d, int(np.unique(d.epoch[done]).size)
+
+
+def _base_rows_around(master: Station, rover: Station, nav, master_xyz, t_base, bridged, opt: BaselineOptions):
+    """The base rows the static engine pairs (its signal table, :func:`_run_engine`'s, without the rows
+    :func:`~cdgps_cli.estimation.rtk_multi.receiver_geometry` drops, slip flags carried as
+    :func:`~cdgps_cli.measurement.base_interpolation.base_rows` carries them for the base epochs ``t_base``
+    used) with their geometry, at the base epochs on both sides of each ``bridged`` common epoch only; and the
+    distinct epoch times of all of them (GPS s)."""
+    from cdgps_cli.estimation.rtk_multi import receiver_geometry
+    from cdgps_cli.measurement.base_interpolation import base_rows
+    tab = (master.signals if master.signals is not None and rover.signals is not None
+           else l1_signal_table(master.obs))
+    t = tab["time_gps_s"].to_numpy(dtype=np.float64)
+    tab = tab[np.isfinite(tab["pseudorange_m"].to_numpy(dtype=np.float64))
+              & ephemeris_coverage(nav, tab["sat"].to_numpy(), t)]
+    tb = np.unique(tab["time_gps_s"].to_numpy(dtype=np.float64))
+    if tb.size == 0:
+        return tab.assign(_bep=np.zeros(0, np.int64)), tb
+    used = np.searchsorted(tb, t_base)
+    ok = (used < tb.size) & (tb[np.minimum(used, tb.size - 1)] == t_base)
+    b = base_rows(tab, tb, np.bincount(used[ok], minlength=tb.size))
+    near = np.searchsorted(tb, t_base[bridged])
+    need = np.zeros(tb.size + 1, dtype=bool)
+    need[np.clip(np.r_[near - 1, near, near + 1], 0, tb.size)] = True
+    b = b[need[b["_bep"].to_numpy()]]
+    return receiver_geometry(b, nav, master_xyz), tb
 
 
 def _signal_data(master: Station, rover: Station, l1_rows, clocks, j, t_label, nav, xyz, opt: BaselineOptions,

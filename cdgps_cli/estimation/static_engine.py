@@ -520,7 +520,7 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
         solved and that string is returned (a caller that cannot use these arcs skips the solve).
     """
     opt = _static_options(options)
-    pairs, rows = _paired_rows(base, rover, opt)
+    pairs, rows = _paired_rows(base, rover, opt, base_xyz_m)
     del base, rover          # the geometry tables (a long record's largest) are not held through the check and solve
     times = pairs.rover_time_s
     if np.unique(rows["code"]).size > 1:           # multi-signal: the DD ionosphere is neglected (as init's)
@@ -554,12 +554,13 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
             "arc_integers": arc_integers(f, x.size)}
 
 
-def _paired_rows(base, rover, opt: dict):
+def _paired_rows(base, rover, opt: dict, base_xyz_m):
     """rtk's epoch pairing of the two geometry tables and their SD rows (the mask at both receivers, as the
-    batch's); CdgpsError when no satellite is common."""
+    batch's; a bridged rover epoch's base observations interpolated to its time, as rtk's and the batch's);
+    CdgpsError when no satellite is common."""
     pairs = pair_epochs(rover["time_gps_s"].to_numpy(), base["time_gps_s"].to_numpy(),
                         sync_tol_s=opt["sync_tol_s"], max_age_s=opt["max_age_s"])
-    rows = paired_sd_rows(base, rover, pairs, opt, mask_rover=True)
+    rows = paired_sd_rows(base, rover, pairs, opt, mask_rover=True, base_xyz_m=base_xyz_m)
     if rows["sats"].size == 0:
         raise CdgpsError("no common observations: no satellite observed at both receivers above the mask")
     return pairs, rows
@@ -571,7 +572,7 @@ def static_float_offset(base, rover, base_xyz_m, rover_xyz0_m, options: dict | N
     that only needs to know where the rover is to a metre (rtk's a-priori position).  ``options`` as
     :func:`static_baseline`'s."""
     opt = _static_options(options)
-    pairs, rows = _paired_rows(base, rover, opt)
+    pairs, rows = _paired_rows(base, rover, opt, base_xyz_m)
     cols = arc_columns(rows, pairs.rover_time_s, max_gap_s=opt["max_gap_s"])
     n_state = 3 + (int(cols.max()) - 2 if cols.size else 0)
     x, _ = static_least_squares(rows, cols, n_state, base_xyz_m, rover_xyz0_m, sigma_amb_cycles=opt["amb_sigma_cycles"])

@@ -42,7 +42,8 @@ import pandas as pd
 from cdgps_cli.core.gps_time import nominal_interval_s
 from cdgps_cli.core.signals import signal
 from cdgps_cli.measurement.differencing import ambiguity_segments, dd_covariance, dd_operator, epoch_pointers, sd_variance
-from cdgps_cli.measurement.epoch_pairing import age_variance_m2, carry_base_slips
+from cdgps_cli.measurement.base_interpolation import base_rows, interpolate_base
+from cdgps_cli.measurement.epoch_pairing import age_variance_m2, carry_base_slips, channel_index
 from cdgps_cli.measurement.noise import correlated_variance_factor
 
 __all__ = ["dd_range", "epoch_rows", "signal_sd_table", "group_key", "DDGroupModel", "GroupRows", "RunDDModel",
@@ -469,7 +470,8 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False, base_xy
     ``var_code`` (m², the base age's share included).
 
     With ``base_xyz_m`` (the base position, ECEF m), a bridged rover epoch that has base epochs on both sides within
-    the maximum age takes the base's observations interpolated to its time (:func:`_interpolate_base`) instead of
+    the maximum age takes the base's observations interpolated to its time
+    (:func:`~cdgps_cli.measurement.base_interpolation.interpolate_base`) instead of
     the nearest base epoch's alone.
     """
     tb = np.unique(base["time_gps_s"].to_numpy())
@@ -478,11 +480,7 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False, base_xy
     pair_of_rover = np.full(tr.size, -1, dtype=np.int64)
     pair_of_rover[pairs.rover_index] = np.arange(n_ep)
     first_use = np.r_[True, pairs.base_index[1:] != pairs.base_index[:-1]] if n_ep else np.zeros(0, bool)
-    bep = np.searchsorted(tb, base["time_gps_s"].to_numpy())
-    # channels by (satellite, signal): the classes of the strings sat + signal, formed per distinct pair
-    lli_b = carry_base_slips(bep, channel_index(base["sat"].to_numpy(), base["signal"].to_numpy()),
-                             base["lli"].to_numpy(dtype=np.int64), np.bincount(pairs.base_index, minlength=tb.size))
-    b = base.assign(_row_b=np.arange(len(base)), _bep=bep, lli=lli_b)
+    b = base_rows(base, tb, np.bincount(pairs.base_index, minlength=tb.size))
     rep = np.searchsorted(tr, rover["time_gps_s"].to_numpy())
     ep_r = pair_of_rover[rep]
     # the rover's slip flags of epochs that are not used move to the channel's next used epoch
@@ -501,7 +499,10 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False, base_xy
     m = m.sort_values(["_ep", "signal", "_row_b", "_row_r"], kind="stable")
     age = pairs.age_s[m["_ep"].to_numpy()]
     if base_xyz_m is not None:
-        m, age = _interpolate_base(m, b, tb, pairs, opt, base_xyz_m)
+        ph_b, rg_b, age, _ = interpolate_base(m, b, tb, pairs.rover_time_s[m["_ep"].to_numpy()], base_xyz_m=base_xyz_m,
+                                              sync_tol_s=opt["sync_tol_s"], max_age_s=opt["max_age_s"],
+                                              troposphere=opt["troposphere"])
+        m = m.assign(phase_cycles_b=ph_b, pseudorange_m_b=rg_b)
     names, code = _sorted_codes(m["signal"].to_numpy())
     epoch = m["_ep"].to_numpy()
     lam = m["wavelength_m"].to_numpy(dtype=float)
@@ -530,67 +531,6 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False, base_xy
                                                                              opt["code_correlation_s"])
                     * opt.get("code_variance_factor", 1.0) + var_age,
     }
-
-
-def _interpolate_base(m: pd.DataFrame, b: pd.DataFrame, tb: np.ndarray, pairs, opt, base_xyz_m):
-    """The paired rows ``m`` with the base's phase and range of each bridged rover epoch interpolated to the rover's
-    time between the two base epochs around it, and each row's effective age (s) for its variance.
-
-    The base's observation minus its model ``M = ρ − c·dt_sat (+ T)`` (range from ``base_xyz_m``, satellite clock
-    and troposphere of each base epoch's own geometry) is taken linearly between the base epochs t₀ (the nearest,
-    whose geometry the row keeps) and t₁ (the other side of the rover time t): the base phase becomes
-    ``φ₀ + w [(φ₁ − φ₀) − (M₁ − M₀)/λ]``, ``w = |t − t₀| / |t₁ − t₀|``, and the range likewise.  What the base
-    epoch's age costs otherwise — the satellite clock's departure from its broadcast drift, ≈ 0.3 mm per second of
-    age on a real 5 s CORS — then cancels to first order (with the nearest epoch alone it repeats at the base's
-    rate: a 0.2 Hz sawtooth in the position of a 1 Hz rover against a 5 s CORS).  Only where every row of the
-    rover epoch's signal group has its satellite at t₁ with no slip or half-cycle change between: the receiver
-    clock's part of the interpolation is common to the group, so its double differences cancel it.  Such a row's
-    age becomes ``|t − t₀| (1 − w)`` (zero at either base epoch)."""
-    ep = m["_ep"].to_numpy()
-    t = pairs.rover_time_s[ep]
-    b0 = m["_bep"].to_numpy()
-    age = t - tb[b0]
-    side = np.where(age > 0, 1, -1)
-    b1 = b0 + side
-    inside = (np.abs(age) > opt["sync_tol_s"]) & (b1 >= 0) & (b1 < tb.size)
-    b1 = np.where(inside, b1, -1)
-    inside &= np.abs(t - tb[np.clip(b1, 0, tb.size - 1)]) <= opt["max_age_s"]
-    if not inside.any():
-        return m, age
-    cols = ["_bep", "sat", "signal", "phase_cycles", "pseudorange_m", "sx", "sy", "sz", "sat_clock_m", "trop_m", "lli"]
-    other = b[cols].rename(columns={c: c + "_1" for c in cols[3:]}).rename(columns={"_bep": "_b1"})
-    o = pd.DataFrame({"_b1": np.where(inside, b1, -1), "sat": m["sat"].to_numpy(), "signal": m["signal"].to_numpy()})
-    o = o.merge(other, on=["_b1", "sat", "signal"], how="left", sort=False)
-    if len(o) != len(m):                       # a repeated base row at t₁: no interpolation anywhere (the nearest)
-        return m, age
-    lli0, lli1 = m["lli_b"].to_numpy(), np.nan_to_num(o["lli_1"].to_numpy(), nan=-1).astype(np.int64)
-    later = side > 0
-    ok = inside & (lli1 >= 0) & np.isfinite(o["phase_cycles_1"].to_numpy()) & np.isfinite(o["pseudorange_m_1"].to_numpy())
-    ok &= np.where(later, (lli1 & 1) == 0, (lli0 & 1) == 0)              # no loss of lock between t₀ and t₁
-    ok &= (lli1 & 2) == (lli0 & 2)
-    # every row of the rover epoch's signal group, or none
-    sig_code = pd.factorize(m["signal"].to_numpy())[0].astype(np.int64)
-    grp = np.unique(ep.astype(np.int64) * (int(sig_code.max()) + 1) + sig_code, return_inverse=True)[1].ravel()
-    ok &= np.bincount(grp, weights=~ok, minlength=grp.max() + 1)[grp] == 0
-    if not ok.any():
-        return m, age
-    xb = np.asarray(base_xyz_m, dtype=np.float64)
-    trop = opt["troposphere"]
-
-    def model(sx, sy, sz, clk, tr):
-        return np.sqrt((sx - xb[0]) ** 2 + (sy - xb[1]) ** 2 + (sz - xb[2]) ** 2) - clk + (tr if trop else 0.0)
-
-    k = np.flatnonzero(ok)
-    m0 = model(*(m[c].to_numpy()[k] for c in ("sx_b", "sy_b", "sz_b", "sat_clock_m_b", "trop_m_b")))
-    m1 = model(*(o[c].to_numpy()[k] for c in ("sx_1", "sy_1", "sz_1", "sat_clock_m_1", "trop_m_1")))
-    w = np.abs(age[k]) / np.abs(tb[b1[k]] - tb[b0[k]])
-    lam = m["wavelength_m"].to_numpy(dtype=float)[k]
-    phase, rng = m["phase_cycles_b"].to_numpy(dtype=float).copy(), m["pseudorange_m_b"].to_numpy(dtype=float).copy()
-    phase[k] += w * ((o["phase_cycles_1"].to_numpy()[k] - phase[k]) - (m1 - m0) / lam)
-    rng[k] += w * ((o["pseudorange_m_1"].to_numpy()[k] - rng[k]) - (m1 - m0))
-    age = age.copy()
-    age[k] = np.abs(age[k]) * (1.0 - w)
-    return m.assign(phase_cycles_b=phase, pseudorange_m_b=rng), age
 
 
 def _sorted_codes(values):
@@ -669,22 +609,6 @@ def epoch_groups(rows, k):
         g["rows"] = (a, b)
         groups.append(g)
     return groups
-
-
-def channel_index(sats, code) -> np.ndarray:
-    """Channel (N,) of each row: the index of its key ``str(sat) + str(code)`` among the sorted distinct keys
-    (what ``np.unique(np.char.add(sats.astype(str), code.astype(str)), return_inverse=True)[1]`` gives), with
-    the strings formed for the distinct (satellite, code) pairs only.  ``code`` (N,): ints or strings (e.g.
-    signal names)."""
-    sats, code = np.asarray(sats).ravel(), np.asarray(code).ravel()
-    if sats.size == 0:
-        return np.zeros(0, dtype=np.int64)
-    s_id, s_names = pd.factorize(sats)
-    c_id, c_names = pd.factorize(code)
-    n_c = len(c_names)
-    pair, inv = np.unique(s_id.astype(np.int64) * n_c + c_id, return_inverse=True)
-    keys = np.char.add(np.asarray(s_names)[pair // n_c].astype(str), np.asarray(c_names)[pair % n_c].astype(str))
-    return np.unique(keys, return_inverse=True)[1].ravel()[inv.ravel()].astype(np.int64)
 
 
 def backward_slips(rows) -> np.ndarray:

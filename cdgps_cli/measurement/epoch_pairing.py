@@ -33,10 +33,12 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+import pandas as pd
 
 from cdgps_cli.config.options import EPOCH_PAIRING_DEFAULTS
 
-__all__ = ["EpochPairs", "pair_epochs", "age_variance_m2", "carry_base_slips", "rows_for_pairs", "DROP_REASONS"]
+__all__ = ["EpochPairs", "pair_epochs", "age_variance_m2", "carry_base_slips", "rows_for_pairs", "DROP_REASONS",
+           "channel_index"]
 
 #: why a rover epoch is not used, in the order the summary lists them
 DROP_REASONS = ("duplicate rover epoch", "before the first base epoch", "after the last base epoch",
@@ -213,3 +215,19 @@ def rows_for_pairs(row_epoch, pair_epoch) -> tuple[np.ndarray, np.ndarray, np.nd
     take = np.repeat(np.arange(re.size, dtype=np.int64), count)
     offset = np.arange(take.size, dtype=np.int64) - np.repeat(np.cumsum(count) - count, count)
     return take, np.repeat(start, count) + offset, offset == 0
+
+
+def channel_index(sats, code) -> np.ndarray:
+    """Channel (N,) of each row: the index of its key ``str(sat) + str(code)`` among the sorted distinct keys
+    (what ``np.unique(np.char.add(sats.astype(str), code.astype(str)), return_inverse=True)[1]`` gives), with
+    the strings formed for the distinct (satellite, code) pairs only.  ``code`` (N,): ints or strings (e.g.
+    signal names)."""
+    sats, code = np.asarray(sats).ravel(), np.asarray(code).ravel()
+    if sats.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    s_id, s_names = pd.factorize(sats)
+    c_id, c_names = pd.factorize(code)
+    n_c = len(c_names)
+    pair, inv = np.unique(s_id.astype(np.int64) * n_c + c_id, return_inverse=True)
+    keys = np.char.add(np.asarray(s_names)[pair // n_c].astype(str), np.asarray(c_names)[pair % n_c].astype(str))
+    return np.unique(keys, return_inverse=True)[1].ravel()[inv.ravel()].astype(np.int64)

@@ -1,0 +1,137 @@
+"""A base receiver's observations carried to the rover's epochs between two of its own (issue 28 item 2).
+
+A rover epoch without a base epoch at its time is paired with the nearest base epoch within the maximum age
+(:func:`~cdgps_cli.measurement.epoch_pairing.pair_epochs`).  Its single differences then carry what the base's
+observation minus its model does over that age: above all the satellite clock's departure from its broadcast drift,
+≈ 0.3 mm per second of age on a real 5 s CORS, which with the nearest epoch alone repeats at the base's rate (a
+0.2 Hz sawtooth in the position of a 1 Hz rover against a 5 s CORS, in the band of a structure's modes).
+:func:`interpolate_base` takes the base's observation minus its model linearly between the base epochs on both
+sides of the rover's time instead; the rtk path (:func:`~cdgps_cli.measurement.dd_signals.paired_sd_rows`) and the
+batch baseline solver (:mod:`cdgps_cli.estimation.baseline`) both call it on the rows of :func:`base_rows`, so the
+two see the same numbers.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from cdgps_cli.measurement.epoch_pairing import carry_base_slips, channel_index
+
+__all__ = ["base_rows", "interpolate_base", "BASE_ROW_COLUMNS"]
+
+#: Columns :func:`interpolate_base` reads of each base row (a geometry table of
+#: :func:`~cdgps_cli.estimation.rtk_multi.receiver_geometry`, through :func:`base_rows`).
+BASE_ROW_COLUMNS = ("_bep", "sat", "signal", "phase_cycles", "pseudorange_m", "sx", "sy", "sz", "sat_clock_m",
+                    "trop_m", "lli")
+
+
+def base_rows(base: pd.DataFrame, tb: np.ndarray, use_count: np.ndarray) -> pd.DataFrame:
+    """The base's rows as the paired rows see them: ``_row_b`` (its row), ``_bep`` (its epoch's index in ``tb``)
+    and ``lli`` with each loss-of-lock flag of an epoch that pairs with no rover epoch moved to the channel's next
+    epoch that does, and a flag given once when a base epoch serves several rover epochs
+    (:func:`~cdgps_cli.measurement.epoch_pairing.carry_base_slips`).
+
+    Parameters
+    ----------
+    base : DataFrame
+        The base's rows (``time_gps_s``, ``sat``, ``signal``, ``lli`` and what the caller reads later).
+    tb : ndarray (n_b,)
+        The base's distinct epoch times, GPS s, increasing (every row's time among them).
+    use_count : ndarray of int (n_b,)
+        How many rover epochs each base epoch serves.
+    """
+    bep = np.searchsorted(tb, base["time_gps_s"].to_numpy())
+    lli = carry_base_slips(bep, channel_index(base["sat"].to_numpy(), base["signal"].to_numpy()),
+                           base["lli"].to_numpy(dtype=np.int64), use_count)
+    return base.assign(_row_b=np.arange(len(base)), _bep=bep, lli=lli)
+
+
+def interpolate_base(m: pd.DataFrame, b: pd.DataFrame, tb: np.ndarray, time_s: np.ndarray, *, base_xyz_m,
+                     sync_tol_s: float, max_age_s: float, troposphere: bool):
+    """The base's phase and range of the paired rows ``m``, interpolated to the rover's time where it lies between
+    two base epochs, and each row's effective age.
+
+    The base's observation minus its model ``M = ρ − c·dt_sat (+ T)`` (range from ``base_xyz_m``, satellite clock
+    and troposphere of each base epoch's own geometry) is taken linearly between the base epochs t₀ (the paired
+    one, whose geometry the row keeps) and t₁ (the other side of the rover time t): the base phase becomes
+    ``φ₀ + w [(φ₁ − φ₀) − (M₁ − M₀)/λ]``, ``w = |t − t₀| / |t₁ − t₀|``, and the range likewise.  Only where t₁ is
+    within ``max_age_s`` of t and every row of the rover epoch's signal group has its satellite at t₁ with no slip
+    or half-cycle change between (and a finite observation at both): the receiver clock's part of the
+    interpolation is then common to the group, and its double differences cancel it.  Such a row's age becomes
+    ``|t − t₀| (1 − w)`` (zero at either base epoch).
+
+    Parameters
+    ----------
+    m : DataFrame (N rows)
+        Paired rows: ``_ep`` (the rover epoch), ``_bep`` (index of t₀ in ``tb``), ``sat``, ``signal``,
+        ``wavelength_m`` and the base row at t₀: ``phase_cycles_b``, ``pseudorange_m_b``, ``sx_b``, ``sy_b``,
+        ``sz_b``, ``sat_clock_m_b``, ``trop_m_b`` (m) and ``lli_b`` (as :func:`base_rows` gives it; NaN where the
+        row has no base row there: never interpolated, nor its group).
+    b : DataFrame
+        Base rows of :func:`base_rows` with :data:`BASE_ROW_COLUMNS` (at least those at the epochs t₁).
+    tb : ndarray (n_b,)
+        The base's distinct epoch times, GPS s.
+    time_s : ndarray (N,)
+        Each row's rover time, GPS s.
+    base_xyz_m : array_like (3,)
+        Base position, ECEF m.
+    sync_tol_s, max_age_s : float
+        Tags within ``sync_tol_s`` are simultaneous (nothing to interpolate); t₁ at most ``max_age_s`` from t.
+    troposphere : bool
+        Whether the model includes the troposphere ``trop_m``.
+
+    Returns
+    -------
+    phase_cycles_b, pseudorange_m_b, age_s : ndarray (N,)
+        The base's phase (cycles) and range (m) for each row (t₀'s where not interpolated) and the age (s) its
+        variance is to take (``t − t₀`` where not interpolated).
+    interpolated : ndarray of bool (N,)
+        The rows interpolated.
+    """
+    phase = m["phase_cycles_b"].to_numpy(dtype=float)
+    rng = m["pseudorange_m_b"].to_numpy(dtype=float)
+    ep = m["_ep"].to_numpy()
+    b0 = m["_bep"].to_numpy()
+    age = np.asarray(time_s, dtype=float) - tb[b0]
+    side = np.where(age > 0, 1, -1)
+    b1 = b0 + side
+    inside = (np.abs(age) > sync_tol_s) & (b1 >= 0) & (b1 < tb.size)
+    b1 = np.where(inside, b1, -1)
+    inside &= np.abs(time_s - tb[np.clip(b1, 0, tb.size - 1)]) <= max_age_s
+    if not inside.any():
+        return phase, rng, age, np.zeros(age.size, dtype=bool)
+    cols = list(BASE_ROW_COLUMNS)
+    other = b[cols].rename(columns={c: c + "_1" for c in cols[3:]}).rename(columns={"_bep": "_b1"})
+    o = pd.DataFrame({"_b1": np.where(inside, b1, -1), "sat": m["sat"].to_numpy(), "signal": m["signal"].to_numpy()})
+    o = o.merge(other, on=["_b1", "sat", "signal"], how="left", sort=False)
+    if len(o) != len(m):                       # a repeated base row at t₁: no interpolation anywhere (the nearest)
+        return phase, rng, age, np.zeros(age.size, dtype=bool)
+    lli0 = np.nan_to_num(m["lli_b"].to_numpy(dtype=float), nan=-1).astype(np.int64)
+    lli1 = np.nan_to_num(o["lli_1"].to_numpy(dtype=float), nan=-1).astype(np.int64)
+    later = side > 0
+    ok = inside & (lli0 >= 0) & (lli1 >= 0) & np.isfinite(phase) & np.isfinite(rng)
+    ok &= np.isfinite(o["phase_cycles_1"].to_numpy(dtype=float)) & np.isfinite(o["pseudorange_m_1"].to_numpy(dtype=float))
+    ok &= np.where(later, (lli1 & 1) == 0, (lli0 & 1) == 0)              # no loss of lock between t₀ and t₁
+    ok &= (lli1 & 2) == (lli0 & 2)
+    # every row of the rover epoch's signal group, or none
+    sig_code = pd.factorize(m["signal"].to_numpy())[0].astype(np.int64)
+    grp = np.unique(ep.astype(np.int64) * (int(sig_code.max()) + 1) + sig_code, return_inverse=True)[1].ravel()
+    ok &= np.bincount(grp, weights=~ok, minlength=grp.max() + 1)[grp] == 0
+    if not ok.any():
+        return phase, rng, age, ok
+    xb = np.asarray(base_xyz_m, dtype=np.float64)
+
+    def model(sx, sy, sz, clk, tr):
+        return np.sqrt((sx - xb[0]) ** 2 + (sy - xb[1]) ** 2 + (sz - xb[2]) ** 2) - clk + (tr if troposphere else 0.0)
+
+    k = np.flatnonzero(ok)
+    m0 = model(*(m[c].to_numpy(dtype=float)[k] for c in ("sx_b", "sy_b", "sz_b", "sat_clock_m_b", "trop_m_b")))
+    m1 = model(*(o[c].to_numpy(dtype=float)[k] for c in ("sx_1", "sy_1", "sz_1", "sat_clock_m_1", "trop_m_1")))
+    w = np.abs(age[k]) / np.abs(tb[b1[k]] - tb[b0[k]])
+    lam = m["wavelength_m"].to_numpy(dtype=float)[k]
+    phase, rng, age = phase.copy(), rng.copy(), age.copy()
+    phase[k] += w * ((o["phase_cycles_1"].to_numpy(dtype=float)[k] - phase[k]) - (m1 - m0) / lam)
+    rng[k] += w * ((o["pseudorange_m_1"].to_numpy(dtype=float)[k] - rng[k]) - (m1 - m0))
+    age[k] = np.abs(age[k]) * (1.0 - w)
+    return phase, rng, age, ok
