@@ -111,8 +111,8 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, min_su
 @click.option("--ubx", "ubx", multiple=True, metavar="ANTENNA=FILE", help="u-blox UBX log (RXM-RAWX) of an antenna.")
 @click.option("--nav", "nav", multiple=True, type=click.Path(dir_okay=False), help="RINEX GPS navigation file.")
 @click.option("--master", default=None, help="Reference antenna (default: the first RINEX one with a header position).")
-@click.option("--displacement", type=click.Choice(["static", "random_walk"]), default="static", show_default=True,
-              help="Rover displacement model.")
+@click.option("--displacement", type=click.Choice(["static", "random_walk", "constant_velocity"]), default="static",
+              show_default=True, help="Rover displacement model.")
 @click.option("--sigma", "sigma", type=float, default=None, help="random_walk process noise, m/√s per component [0.001].")
 @click.option("--name", default=None, help="Run name (default: the antenna names).")
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="Config TOML to write.")
@@ -122,8 +122,9 @@ def config_cmd(ctx, rinex, ubx, nav, master, displacement, sigma, name, output, 
     """Write a starter GNSS run config from the receiver files' headers (for ingest and baseline)."""
     from cdgps_cli.pipeline.gnss_ingest import starter_gnss_config
 
-    if sigma is not None and displacement != "random_walk":
-        raise CdgpsError("--sigma is the random-walk process noise: use it with --displacement random_walk")
+    if sigma is not None and displacement == "static":
+        raise CdgpsError("--sigma is the random-walk process noise: use it with --displacement random_walk (or "
+                         "constant_velocity, whose init resolves the integers on the random-walk float)")
     notes: list = []
     warnings: list = []
     text = starter_gnss_config(_parse_named(rinex, "--rinex"), _parse_named(ubx, "--ubx"), list(nav), master,
@@ -241,6 +242,9 @@ def simulate_gnss_structure_cmd(ctx, config, duration_s, seed, x_axis_azimuth_de
               help="Rover's true displacement from its nominal position, m.")
 @click.option("--random-walk", "random_walk", type=float, default=None, metavar="SIGMA",
               help="Rover also random-walks with SIGMA m/√s per component (config model random_walk).")
+@click.option("--constant-velocity", "accel_sigma", type=float, default=None, metavar="SIGMA",
+              help="Rover's velocity random-walks with SIGMA m/s/√s per component, from rest (white acceleration; "
+                   "config model constant_velocity). Not with --random-walk.")
 @click.option("--slips", "n_slips", type=int, default=0, show_default=True, help="Random LLI-flagged cycle slips.")
 @click.option("--phase-noise-m", type=float, default=None,
               help="Undifferenced white phase noise, m [default: the elevation model sigma^2 = a^2 + b^2/sin^2(el), "
@@ -258,8 +262,8 @@ def simulate_gnss_structure_cmd(ctx, config, duration_s, seed, x_axis_azimuth_de
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
 def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover, master_xyz, rover_xyz, displacement,
-                      random_walk, n_slips, phase_noise_m, code_noise_m, clock_offset, clock_drift, raw_tags,
-                      master_rate_hz, out_dir, as_json):
+                      random_walk, accel_sigma, n_slips, phase_noise_m, code_noise_m, clock_offset, clock_drift,
+                      raw_tags, master_rate_hz, out_dir, as_json):
     """Simulate a master + rover GPS L1 pair → RINEX 3 obs/nav files, truth.csv/json, config.toml.
 
     The rover antenna is displaced from its nominal (header) position by --displacement (plus a
@@ -276,7 +280,7 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
         n_slips=n_slips, phase_sigma_m=phase_noise_m, code_sigma_m=code_noise_m,
         clock_offset_ms=parse_vector(clock_offset, "--clock-offset-ms", 2),
         clock_drift_ms=parse_vector(clock_drift, "--clock-drift-ms", 2), raw_tags=raw_tags,
-        master_rate_hz=master_rate_hz,
+        master_rate_hz=master_rate_hz, accel_sigma=accel_sigma,
         progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
     _say(ctx, f"wrote {', '.join(s['files'])} to {out_dir}/: {s['epochs']} epochs, {s['satellites']} satellites, "
               f"{s['slips']} slips, {s['displacement_model']} rover")

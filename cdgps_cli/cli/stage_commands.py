@@ -396,7 +396,7 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
     """Extended Kalman filter (Eq. 16-23) [+ RTS smoother] over a RUN from INIT → STATES.mcap.
 
     On a GNSS run: per-epoch rover displacement states <ant>_e/_n/_u with 1σ from INIT's
-    integers (static: the batch solution; random_walk: Kalman filter [+ RTS smoother]), plus
+    integers (static: the batch solution; random_walk / constant_velocity: Kalman filter [+ RTS smoother]), plus
     single-epoch solutions, DD residuals and slip/reference events (docs/gnss-pipeline.md).
     """
     from cdgps_cli.io.file_checks import GNSS_RUN, RUNS, require_kind
@@ -1001,7 +1001,7 @@ def _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json, structure_
     if fuse or hold_out:
         raise CdgpsError("--fuse/--hold-out need --structure (the sensors are fused on the structure's modal state)")
     _say(ctx, f"estimating {run_mcap} from {init_json} ({run.cfg.displacement} displacement"
-              f"{', smoothing' if smooth and run.cfg.displacement == 'random_walk' else ''}) …")
+              f"{', smoothing' if smooth and run.cfg.displacement != 'static' else ''}) …")
     s = gnss_estimate(run, init, init_text, output, smooth=smooth,
                       progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)), extra_options=extra)
     s["init_run"] = pairing

@@ -57,6 +57,9 @@ GNSS_DEFAULTS = {"mask_deg": 15.0, "ratio": RATIO_THRESHOLD, "partial": True, "w
                  "max_age_s": EPOCH_PAIRING_DEFAULTS["max_age_s"], "epoch_alignment": "geometry",
                  "code_correlation_s": 0.0,
                  "random_walk_sigma": (0.001, 0.001, 0.001), "initial_sigma_m": 1.0,
+                 # [gnss.displacement] model = "constant_velocity": each E/N/U velocity a random walk of this
+                 # density (white acceleration, m/s/√s); a structure's few-mm motion, not a vehicle's (rtk: 3.0)
+                 "accel_sigma_m_per_s_per_sqrt_s": 0.1,
                  "iono_threshold_km": IONO_THRESHOLD_KM,
                  # an integer set (or partial subset) is fixed only if its bootstrapped success rate reaches this,
                  # besides the ratio test (partial ambiguity resolution with a success-rate criterion)

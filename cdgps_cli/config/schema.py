@@ -451,11 +451,14 @@ GNSS_TABLES: dict[str, dict[str, Field]] = {
         "description": _text(),
     },
     "gnss.displacement": {
-        "model": _key({"type": "string", "enum": ["static", "random_walk"]}, "static or random-walk E/N/U displacement",
-                      default="static"),
+        "model": _key({"type": "string", "enum": ["static", "random_walk", "constant_velocity"]},
+                      "static, random-walk or constant-velocity E/N/U displacement", default="static"),
         "sigma_m_per_sqrt_s": _key({"oneOf": [_POS, {**_VEC3, "items": _POS}]},
                                    "random-walk rate, m/√s (one number or E, N, U)", kind="rates", cross=True),
         "initial_sigma_m": _key(_POS, "prior σ of the first epoch's position, m", default=1.0, sign="positive"),
+        "accel_sigma_m_per_s_per_sqrt_s": _key(_POS, "constant_velocity: white-acceleration density of each E/N/U "
+                                                     "velocity, m/s/√s", default=GNSS_DEFAULTS["accel_sigma_m_per_s_per_sqrt_s"],
+                                               sign="positive"),
     },
 }
 

@@ -765,7 +765,7 @@ def _sensor_fields(r: SimpleNamespace) -> dict:
 # Format: docs/gnss-pipeline.md.  Additive: the structure-model schema above is unchanged.
 # ============================================================================================
 
-GNSS_DISPLACEMENT_MODELS = ("static", "random_walk")
+GNSS_DISPLACEMENT_MODELS = ("static", "random_walk", "constant_velocity")
 # defaults of the GNSS solver settings: the [gnss] parser, GnssConfig and baseline.BaselineOptions all
 # take them from here (RTKLIB-comparable: 15° mask, ratio 3, a = b = 3 mm, code/phase ratio 100, DTTOL)
 
@@ -801,8 +801,10 @@ class GnssConfig:
 
     The processing settings mirror :class:`~cdgps_cli.estimation.baseline.BaselineOptions` (see
     :meth:`cdgps_cli.estimation.baseline.BaselineOptions.from_gnss_config`); the displacement model says how the rover states evolve:
-    ``static`` (one E/N/U displacement per rover for the whole run) or ``random_walk`` (E/N/U
-    displacements that wander with white-noise rates of ``random_walk_sigma`` m/√s).
+    ``static`` (one E/N/U displacement per rover for the whole run), ``random_walk`` (E/N/U
+    displacements that wander with white-noise rates of ``random_walk_sigma`` m/√s) or ``constant_velocity``
+    (E/N/U displacements and velocities, each velocity a random walk of ``accel_sigma_m_per_s_per_sqrt_s``: white
+    acceleration; ``init`` resolves the integers with the random-walk float of ``random_walk_sigma``).
     """
 
     path: str
@@ -832,6 +834,7 @@ class GnssConfig:
     displacement: str = "static"
     random_walk_sigma: tuple = GNSS_DEFAULTS["random_walk_sigma"]
     initial_sigma_m: float = GNSS_DEFAULTS["initial_sigma_m"]
+    accel_sigma_m_per_s_per_sqrt_s: float = GNSS_DEFAULTS["accel_sigma_m_per_s_per_sqrt_s"]
     iono_threshold_km: float = GNSS_DEFAULTS["iono_threshold_km"]
     """With ``signals``: ``cdgps init`` refuses a baseline at least this long, km (the displacement path
     neglects the DD ionosphere; ``cdgps rtk`` estimates it)."""
@@ -850,7 +853,9 @@ class GnssConfig:
         return {
             "name": self.name, "path": self.path, "config_sha256": self.sha256, "master": self.master,
             "antennas": list(self.antenna_names), "nav": list(self.nav), "displacement": self.displacement,
-            "random_walk_sigma_m_per_sqrt_s": list(self.random_walk_sigma) if self.displacement == "random_walk" else None,
+            "random_walk_sigma_m_per_sqrt_s": list(self.random_walk_sigma) if self.displacement != "static" else None,
+            "accel_sigma_m_per_s_per_sqrt_s": (self.accel_sigma_m_per_s_per_sqrt_s
+                                               if self.displacement == "constant_velocity" else None),
             "mask_deg": self.mask_deg, "ratio": self.ratio,
         }
 
@@ -908,7 +913,7 @@ def parse_gnss_config(text: str, path: str = "<config>", base_dir: str | Path | 
         p.add("gnss.sigma_a_m", "sigma_a_m and sigma_b_m cannot both be 0")
     if v["max_age_s"] < v["sync_tol_s"]:
         p.add("gnss.max_age_s", f"expected at least gnss.sync_tol_s ({v['sync_tol_s']:g} s), got {v['max_age_s']!r}")
-    model, rw, init_sigma = _gnss_displacement(p, g.get("displacement", {}), ctx)
+    model, rw, init_sigma, accel = _gnss_displacement(p, g.get("displacement", {}), ctx)
     ants = _gnss_antennas(p, g.get("antennas", {}), ctx, resolve)
     master = v["master"]
     if master is not None and ants and master not in [a.name for a in ants]:
@@ -923,14 +928,15 @@ def parse_gnss_config(text: str, path: str = "<config>", base_dir: str | Path | 
         sigma_a_m=v["sigma_a_m"], sigma_b_m=v["sigma_b_m"], code_ratio=v["code_ratio"], troposphere=v["troposphere"],
         max_gap_s=v["max_gap_s"], sync_tol_s=v["sync_tol_s"], max_age_s=v["max_age_s"],
         code_correlation_s=v["code_correlation_s"], epoch_alignment=v["epoch_alignment"], displacement=model,
-        random_walk_sigma=rw, initial_sigma_m=init_sigma, min_success_rate=v["min_success_rate"], signals=signals,
+        random_walk_sigma=rw, initial_sigma_m=init_sigma, accel_sigma_m_per_s_per_sqrt_s=accel,
+        min_success_rate=v["min_success_rate"], signals=signals,
         glonass_fix=v["glonass_fix"],
         iono_threshold_km=v["iono_threshold_km"],
     )
 
 
-def _gnss_displacement(p: Problems, disp, ctx: Context) -> tuple[str, tuple, float]:
-    """(model, random-walk σ (E, N, U) m/√s, initial σ m) of ``[gnss.displacement]``."""
+def _gnss_displacement(p: Problems, disp, ctx: Context) -> tuple[str, tuple, float, float]:
+    """(model, random-walk σ (E, N, U) m/√s, initial σ m, white-acceleration σ m/s/√s) of ``[gnss.displacement]``."""
     if not isinstance(disp, dict):
         p.add("gnss.displacement", "expected a table ([gnss.displacement])")
         disp = {}
@@ -948,7 +954,9 @@ def _gnss_displacement(p: Problems, disp, ctx: Context) -> tuple[str, tuple, flo
         if disp.get("model", "static") == "static":
             p.add("gnss.displacement.sigma_m_per_sqrt_s", "only used with model = \"random_walk\" (a static "
                                                           "displacement has no process noise)")
-    return v["model"], rw, v["initial_sigma_m"]
+    if "accel_sigma_m_per_s_per_sqrt_s" in disp and disp.get("model", "static") != "constant_velocity":
+        p.add("gnss.displacement.accel_sigma_m_per_s_per_sqrt_s", "only used with model = \"constant_velocity\"")
+    return v["model"], rw, v["initial_sigma_m"], v["accel_sigma_m_per_s_per_sqrt_s"]
 
 
 def _gnss_antennas(p: Problems, at, ctx: Context, resolve) -> list:
@@ -1000,7 +1008,8 @@ def _toml_str(s: str) -> str:
 
 def gnss_config_toml(antennas: dict, nav=(), master: str | None = None, *, name: str | None = None,
                      description: str = "", displacement: str = "static", sigma_m_per_sqrt_s=None,
-                     positions: dict | None = None, comments=(), options: dict | None = None) -> str:
+                     positions: dict | None = None, comments=(), options: dict | None = None,
+                     accel_sigma_m_per_s_per_sqrt_s: float | None = None) -> str:
     """Text of a GNSS run config (the format :func:`parse_gnss_config` reads).
 
     Parameters
@@ -1017,6 +1026,8 @@ def gnss_config_toml(antennas: dict, nav=(), master: str | None = None, *, name:
         Comment lines written at the top.
     options : dict, optional
         Extra ``[gnss]`` keys (mask_deg, ratio, …), written in this order.
+    accel_sigma_m_per_s_per_sqrt_s : float, optional
+        With ``displacement = "constant_velocity"``: its white acceleration (default: the defaults').
     """
     master = master or next(iter(antennas), None)
     out = [f"# {c}" if c else "#" for c in comments]
@@ -1044,11 +1055,18 @@ def gnss_config_toml(antennas: dict, nav=(), master: str | None = None, *, name:
                                                                    else repr(float(v)))
         out.append(f"{k} = {val}" + (f"    # {notes[k]}" if k in notes else ""))
     out += ["", "[gnss.displacement]",
-            f"model = {_toml_str(displacement)}    # \"static\" or \"random_walk\" E/N/U displacement of each rover"]
-    if displacement == "random_walk":
+            f"model = {_toml_str(displacement)}    # \"static\", \"random_walk\" or \"constant_velocity\" E/N/U "
+            f"displacement of each rover"]
+    if displacement != "static":
         sig = sigma_m_per_sqrt_s if sigma_m_per_sqrt_s is not None else 0.001
         sig_txt = repr(float(sig)) if np.isscalar(sig) else "[" + ", ".join(repr(float(x)) for x in sig) + "]"
-        out.append(f"sigma_m_per_sqrt_s = {sig_txt}    # random-walk process noise per component, m/sqrt(s)")
+        out.append(f"sigma_m_per_sqrt_s = {sig_txt}    # random-walk process noise per component, m/sqrt(s)"
+                   + (" (init's float)" if displacement == "constant_velocity" else ""))
+    if displacement == "constant_velocity":
+        acc = (GNSS_DEFAULTS["accel_sigma_m_per_s_per_sqrt_s"] if accel_sigma_m_per_s_per_sqrt_s is None
+               else float(accel_sigma_m_per_s_per_sqrt_s))
+        out.append(f"accel_sigma_m_per_s_per_sqrt_s = {acc!r}    "
+                   f"# white acceleration of each velocity, m/s/sqrt(s)")
     for an, (kind, path) in antennas.items():
         out += ["", f"[gnss.antennas.{_toml_str(an)}]"]
         if path is not None:

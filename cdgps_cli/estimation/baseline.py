@@ -186,7 +186,9 @@ class BaselineOptions:
                   weighting=cfg.weighting, sigma_a_m=cfg.sigma_a_m, sigma_b_m=cfg.sigma_b_m,
                   code_ratio=cfg.code_ratio, troposphere=cfg.troposphere, max_gap_s=cfg.max_gap_s,
                   sync_tol_s=cfg.sync_tol_s, max_age_s=cfg.max_age_s, code_correlation_s=cfg.code_correlation_s,
-                  epoch_alignment=cfg.epoch_alignment, motion=cfg.displacement, random_walk_sigma=tuple(cfg.random_walk_sigma),
+                  epoch_alignment=cfg.epoch_alignment, random_walk_sigma=tuple(cfg.random_walk_sigma),
+                  # a constant-velocity rover's integers: resolved on the random-walk float (the weaker motion prior)
+                  motion="random_walk" if cfg.displacement == "constant_velocity" else cfg.displacement,
                   initial_sigma_m=cfg.initial_sigma_m, min_success_rate=cfg.min_success_rate,
                   glonass_fix=cfg.glonass_fix)
         kw.update(overrides)

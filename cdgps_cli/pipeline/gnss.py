@@ -13,6 +13,7 @@ correlations between the baselines of several rovers through the common master a
 * :func:`gnss_estimate` — per-epoch displacement states with 1σ, using INIT's integers:
 
   - ``static``: the batch (fixed) solution at every epoch (its 1σ from the batch covariance);
+  - ``constant_velocity``: as ``random_walk`` with the state [displacement, velocity] (white acceleration);
   - ``random_walk``: the engine's forward filter over the epochs on the DD phases with the fixed
     integers (:class:`~cdgps_cli.measurement.dd_displacement.SatelliteDDDisplacement`, random-walk
     dynamics, process noise ``σ²·Δt`` per component); ``--smooth`` adds the engine's
@@ -315,7 +316,28 @@ def _random_walk(model: SatelliteDDDisplacement, t: np.ndarray, sigma_rw, p0_sig
 
     Returns smoothed (or filtered) x (N, 3), P (N, 3, 3), filtered x, P, and NIS (N,) (NaN: no DDs).
     """
-    fr = filter_numpy(model, RandomWalk(3, sigma_rw), t, np.zeros(3), np.eye(3) * p0_sigma**2, max_iterations=1)
+    return _filtered(model, RandomWalk(3, sigma_rw), t, np.eye(3) * p0_sigma**2, smooth)
+
+
+def _constant_velocity(model: SatelliteDDDisplacement, t: np.ndarray, accel_sigma: float, p0_sigma: float,
+                       smooth: bool):
+    """δx as :func:`_random_walk`, with constant-velocity dynamics instead: the state [δx, v] (E/N/U, m and m/s;
+    :class:`~cdgps_cli.model.dynamics_models.ConstantVelocity`, each velocity a random walk of ``accel_sigma``
+    m/s/√s, white acceleration), the DDs seeing δx only (the model stacked on the six states,
+    :class:`~cdgps_cli.measurement.stacked.Stacked`), from δx = 0 ± ``p0_sigma`` and v = 0 ± ``p0_sigma`` per second.
+    Returns the displacement's part of each (x (N, 3), P (N, 3, 3)) as :func:`_random_walk`."""
+    from cdgps_cli.measurement.stacked import Stacked  # noqa: PLC0415
+    from cdgps_cli.model.dynamics_models import ConstantVelocity  # noqa: PLC0415
+    out = _filtered(Stacked([("dd", model)], n_state=6), ConstantVelocity(3, accel_sigma), t,
+                    np.eye(6) * p0_sigma**2, smooth)
+    xs, ps, xf, pf, nis = out
+    return (np.asarray(xs)[:, :3], np.asarray(ps)[:, :3, :3], np.asarray(xf)[:, :3], np.asarray(pf)[:, :3, :3], nis)
+
+
+def _filtered(model, dyn, t: np.ndarray, P0: np.ndarray, smooth: bool):
+    """The engine's forward filter of ``model`` under ``dyn`` from x = 0 ± ``P0`` (one update per epoch: the model is
+    linear) and, when ``smooth``, its RTS pass: (x, P) smoothed (or filtered), (x, P) filtered, NIS (N,)."""
+    fr = filter_numpy(model, dyn, t, np.zeros(P0.shape[0]), P0, max_iterations=1)
     xf, pf = fr["x"], fr["P"]
     if not smooth:
         return xf, pf, xf, pf, fr["nis"]
@@ -478,7 +500,7 @@ def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path
     # common time axis: every matched epoch of any rover
     t_all = np.unique(np.concatenate([w["data"].t_label for _, w, _ in per.values()]))
     names = [f"{r}_{c}" for r in run.rovers for c in "enu"]
-    a = _EstimateArrays(t_all, len(names), len(run.rovers), model == "random_walk" and smooth)
+    a = _EstimateArrays(t_all, len(names), len(run.rovers), model != "static" and smooth)
     summary_rovers = {}
     for j, r in enumerate(run.rovers):
         res, w, _ = per[r]
@@ -495,7 +517,7 @@ def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path
     residual_m = np.column_stack(a.res_vals) if a.res_vals else np.zeros((t_all.size, 0))
     out = _write_gnss_states(run, init, init_text, out_path, names, t_all, a.q, a.P, a.qf, a.Pf, a.kq, a.kP, a.kin_n,
                              a.kin_pdop, a.res_cols, residual_m, np.where(a.dof_tot > 0, a.nis_sum, np.nan), a.dof_tot,
-                             events, smooth and model == "random_walk", meta_extra)
+                             events, smooth and model != "static", meta_extra)
     out.update({"displacement_model": model, "rovers": summary_rovers, "coordinates": names})
     return out
 
@@ -581,7 +603,9 @@ def _rover_states(a: _EstimateArrays, w: dict, res: dict, sl: slice, idx, model:
             ref_all[idx] = ref
             obs.append(SDObservations(w["r_ph"], w["var_ph"], ref_all, usable=u))
         dd = SatelliteDDDisplacement(ptr, d.sat, d.sat_names, w["g"], obs)
-        xs, ps, xf, pf, nis_all = _random_walk(dd, a.t, cfg.random_walk_sigma, cfg.initial_sigma_m, smooth)
+        xs, ps, xf, pf, nis_all = (
+            _random_walk(dd, a.t, cfg.random_walk_sigma, cfg.initial_sigma_m, smooth) if model == "random_walk" else
+            _constant_velocity(dd, a.t, cfg.accel_sigma_m_per_s_per_sqrt_s, cfg.initial_sigma_m, smooth))
         a.q[:, sl] = x_fin + xs
         a.P[:, sl, sl] = ps
         dx, nis = xs[idx], nis_all[idx]
@@ -697,6 +721,9 @@ def _write_gnss_states(run, init, init_text, out_path, names, t, q, P, qf, Pf, k
             "config_sha256": run.cfg.sha256, **states_io.provenance(run.path, init_text),
             "options": json.dumps({"smooth": bool(smoothed), "displacement_model": model,
                                    "random_walk_sigma_m_per_sqrt_s": list(run.cfg.random_walk_sigma) if model == "random_walk" else None,
+                                   **({"accel_sigma_m_per_s_per_sqrt_s": run.cfg.accel_sigma_m_per_s_per_sqrt_s,
+                                       "init_random_walk_sigma_m_per_sqrt_s": list(run.cfg.random_walk_sigma)}
+                                      if model == "constant_velocity" else {}),
                                    **meta_extra.get("options", {})},
                                   sort_keys=True),
             "final_biases": json.dumps(biases), "smoothed": str(bool(smoothed)).lower(), "displacement_model": model,

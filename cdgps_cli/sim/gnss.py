@@ -120,7 +120,8 @@ def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_
                        displacement_enu_m=(0.031, -0.022, 0.017), random_walk_sigma: float | None = None,
                        n_slips: int = 0, phase_sigma_m: float | None = None, code_sigma_m: float = 0.5,
                        mask_deg: float = 10.0, clock_offset_ms=(0.0, 0.0), clock_drift_ms=(-4.0, 5.0),
-                       raw_tags: bool = False, master_rate_hz: float | None = None, progress=None) -> dict:
+                       raw_tags: bool = False, master_rate_hz: float | None = None,
+                       accel_sigma: float | None = None, progress=None) -> dict:
     """Simulate a master and a (displaced) rover and write RINEX, truth and config files.
 
     Parameters
@@ -145,6 +146,10 @@ def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_
         Rover's constant displacement from its nominal position, m (E, N, U).
     random_walk_sigma : float, optional
         If given, the rover also random-walks with this white-noise rate per component, m/√s.
+    accel_sigma : float, optional
+        If given (instead of ``random_walk_sigma``), the rover's velocity random-walks with this rate per
+        component (white acceleration, m/s/√s; from rest), sampled exactly at the epochs: the constant-velocity
+        model's process, and the config's ``constant_velocity`` displacement model.
     n_slips : int
         Random cycle slips (LLI-flagged), each at a random receiver and record among those the
         run's config will use — satellite tracked at both receivers above the config's mask
@@ -179,11 +184,13 @@ def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_
     """
     say = progress or (lambda m: None)
     every = _check_pair_options(duration_s, rate_hz, master, rover, master_xyz, rover_xyz, start_gps_s,
-                                clock_offset_ms, clock_drift_ms, master_rate_hz, random_walk_sigma, n_slips)
+                                clock_offset_ms, clock_drift_ms, master_rate_hz, random_walk_sigma, n_slips,
+                                accel_sigma)
     nav, start_gps_s, nav_source = _navigation(nav_paths, start_gps_s, duration_s, seed)
     run = _PairRun(duration_s=duration_s, rate_hz=rate_hz, seed=seed, start_gps_s=start_gps_s, master=master,
                    rover=rover, master_xyz=master_xyz, rover_xyz=rover_xyz, every=every,
-                   random_walk_sigma=random_walk_sigma, n_slips=n_slips, code_sigma_m=code_sigma_m,
+                   random_walk_sigma=random_walk_sigma, accel_sigma=accel_sigma, n_slips=n_slips,
+                   code_sigma_m=code_sigma_m,
                    mask_deg=mask_deg, clock_offset_ms=clock_offset_ms, clock_drift_ms=clock_drift_ms,
                    raw_tags=raw_tags, master_rate_hz=master_rate_hz, nav_source=nav_source)
     disp = np.asarray(displacement_enu_m, dtype=np.float64)
@@ -226,6 +233,7 @@ class _PairRun:
     rover_xyz: tuple
     every: int
     random_walk_sigma: float | None
+    accel_sigma: float | None
     n_slips: int
     code_sigma_m: float
     mask_deg: float
@@ -249,6 +257,8 @@ class _PairRun:
 
     @property
     def displacement_model(self) -> str:
+        if self.accel_sigma is not None:
+            return "constant_velocity"
         return "random_walk" if self.random_walk_sigma is not None else "static"
 
     def receiver(self, who: str) -> str:
@@ -257,7 +267,8 @@ class _PairRun:
 
 
 def _check_pair_options(duration_s, rate_hz, master, rover, master_xyz, rover_xyz, start_gps_s,
-                        clock_offset_ms, clock_drift_ms, master_rate_hz, random_walk_sigma, n_slips) -> int:
+                        clock_offset_ms, clock_drift_ms, master_rate_hz, random_walk_sigma, n_slips,
+                        accel_sigma=None) -> int:
     """Refuse options out of range (CdgpsError naming the option); returns how many rover epochs
     make one master epoch."""
     if not (duration_s > 0 and math.isfinite(duration_s)):
@@ -276,6 +287,10 @@ def _check_pair_options(duration_s, rate_hz, master, rover, master_xyz, rover_xy
     every = 1 if master_rate_hz is None else _master_every(rate_hz, master_rate_hz)
     if random_walk_sigma is not None and not random_walk_sigma > 0:
         raise CdgpsError(f"--random-walk must be a positive rate (m/√s), got {random_walk_sigma!r}")
+    if accel_sigma is not None and not accel_sigma > 0:
+        raise CdgpsError(f"--constant-velocity must be a positive rate (m/s/√s), got {accel_sigma!r}")
+    if accel_sigma is not None and random_walk_sigma is not None:
+        raise CdgpsError("--random-walk and --constant-velocity are two motion models: give one")
     if n_slips < 0:
         raise CdgpsError(f"--slips must be >= 0, got {n_slips}")
     check_table_size(duration_s * rate_hz + 1, 2 * GPS_PRN_SLOTS, PAIR_BYTES_PER_VALUE,
@@ -322,6 +337,17 @@ def _rover_offsets(run: _PairRun, disp: np.ndarray) -> np.ndarray:
         steps = gen.normal(0.0, run.random_walk_sigma * math.sqrt(run.interval_s), size=(run.n_ep, 3))
         steps[0] = 0.0
         offsets = offsets + np.cumsum(steps, axis=0)
+    if run.accel_sigma is not None:               # (position, velocity) per axis: x_k = A x_{k−1} + w, w ~ N(0, Q)
+        dt = run.interval_s
+        A = np.array([[1.0, dt], [0.0, 1.0]])
+        L = np.linalg.cholesky(run.accel_sigma**2 * np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]]))
+        w = gen.normal(size=(run.n_ep, 2, 3))
+        x = np.zeros((2, 3))
+        path = np.zeros((run.n_ep, 3))
+        for k in range(1, run.n_ep):
+            x = A @ x + L @ w[k]
+            path[k] = x[0]
+        offsets = offsets + path
     return offsets
 
 
@@ -421,6 +447,7 @@ def _truth_rover_fields(run: _PairRun, disp, offsets, names, phase_noise, phase_
         "displacement_model": run.displacement_model,
         "displacement_enu_m": disp.tolist(),
         "random_walk_sigma_m_per_sqrt_s": run.random_walk_sigma,
+        "accel_sigma_m_per_s_per_sqrt_s": run.accel_sigma,
         "rover_mean_ecef_m": (np.asarray(run.rover_xyz, float) + enu_matrix(lat, lon).T @ offsets.mean(axis=0)).tolist(),
         "coordinates": names,
         "phase_sigma_m": list(phase_noise) if isinstance(phase_noise, tuple) else phase_noise,
@@ -455,7 +482,7 @@ def _pair_config_toml(run: _PairRun, files: dict) -> str:
         name=f"simulated-{m}-{r}",
         description=f"cdgps simulate-gnss: {run.duration_s:g} s at {run.rate_hz:g} Hz, seed {run.seed}",
         displacement=run.displacement_model,
-        sigma_m_per_sqrt_s=run.random_walk_sigma,
+        sigma_m_per_sqrt_s=run.random_walk_sigma, accel_sigma_m_per_s_per_sqrt_s=run.accel_sigma,
         comments=["GNSS run config written by cdgps simulate-gnss (format: docs/gnss-pipeline.md).",
                   f"{m}: master at its true position; {r}: nominal position in its header,",
                   "true displacement in truth.csv.  Run:",
