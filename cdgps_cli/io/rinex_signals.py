@@ -106,10 +106,11 @@ def _observation_header(path: str | Path, read: tuple[bytes, bool] | None = None
     else:
         data, compressed = read
         lines = _split_lines(data)
-    version, ftype, _ = _parse_version_line(lines, p, compressed, "observation")
+    version, ftype, system = _parse_version_line(lines, p, compressed, "observation")
     if ftype != "O":
         raise CdgpsError(f"{p}: not a RINEX observation file (type {ftype!r})")
     hdr = _ObsHeader(p, version, compressed)
+    hdr.info["satellite_system"] = system or "G"          # RINEX 2: blank means GPS
     end = hdr.apply_header(lines)
     if end is None:
         raise CdgpsError(f"{p}: no 'END OF HEADER' line")
@@ -122,9 +123,12 @@ def signals_in_file(path: str | Path) -> list[str]:
     table's order."""
     hdr = _observation_header(path)[1]
     v3 = hdr.version >= 3
+    # RINEX 2's types serve every system of the file (read here: GPS and GLONASS): both in a mixed ("M") file, its
+    # own system else (a GPS-only file holds no GLONASS signal)
+    v2_systems = ("G", "R") if hdr.info["satellite_system"] == "M" else (hdr.info["satellite_system"],)
     out = []
     for name, sig in SIGNALS.items():
-        if not v3 and sig.system not in ("G", "R"):
+        if not v3 and (sig.system not in v2_systems or sig.system not in ("G", "R")):
             continue
         if _codes(hdr.info["obs_types"].get(sig.system if v3 else "*", []), name, v3) is not None:
             out.append(name)
@@ -196,10 +200,11 @@ def _read_bytes_v3(p: Path, signals: list, glonass_k, read: tuple[bytes, bool] |
     if _rinex2_by_first_line(data):
         raise Unsupported("RINEX 2")                       # told by the first line: no header split for nothing
     head, body_at = _split_header(data)
-    version, ftype, _ = _parse_version_line(head, p, compressed, "observation")
+    version, ftype, system = _parse_version_line(head, p, compressed, "observation")
     if ftype != "O" or version < 3 or not signals:
         raise Unsupported("not a RINEX 3 observation file")
     hdr = _ObsHeader(p, version, compressed)
+    hdr.info["satellite_system"] = system or "G"          # as the line-by-line reader's header
     end = hdr.apply_header(head)
     cols = _columns(hdr, signals, p)
     slots = {**(glonass_k or {}), **_glonass_slots(head, end, p)}

@@ -316,29 +316,50 @@ def _place_rover(gb, gr, bx, rx, opt: dict, *, rover: tuple, nav: tuple, warning
     the origin.  ``rover`` is (observation table, path, whether ``rx`` is a single-point position), ``nav`` (table,
     paths).  Returns (origin, geometry)."""
     r, rover_path, from_spp = rover
-    moved = _static_float_offset(gb, gr, bx, rx, opt)
+    moved, to, apart_m = _static_float_offset(gb, gr, bx, rx, opt)
+    if opt["mode"] == "static" and apart_m is not None:
+        warnings.append(f"{rover_path} (rover): the rover moves (its static float solution is {apart_m:.0f} m from the "
+                        f"mean position of its code), and --mode static assumes it does not: its static solution is "
+                        f"not where it is; use --mode kinematic")
     if np.linalg.norm(moved) <= ROVER_ORIGIN_TOL_M:
         return rx, gr
     if not from_spp:                      # (a single-point origin's own warning already says it is refined)
-        warnings.append(_origin_moved_note(rover_path, rx, moved, False, "its static float solution"))
+        warnings.append(_origin_moved_note(rover_path, rx, moved, False, to))
     gr = _geometry(r, nav[0], rx + moved, rover_path, "rover", nav[1])
     gr.attrs = {}
     return rx + moved, gr
 
 
-def _static_float_offset(gb, gr, bx, rx, opt: dict) -> np.ndarray:
-    """The rover's static float offset from ``rx`` (ECEF m) by the static engine's batch (no fixing), with rtk's
-    signals, mask, weights and epoch pairing; zeros when that batch cannot serve these data (the solve that follows
-    reports their errors).  For a moving rover it is a mean position: the origin only needs to be where the rover is
-    to a metre (its troposphere and the linearization)."""
+def _static_float_offset(gb, gr, bx, rx, opt: dict) -> tuple:
+    """The rover's offset from ``rx`` (ECEF m) to where it is, what that is (for the warning) and, when the rover
+    moves, how far its static float solution is from the code's mean position (m; else None): its static float
+    solution by the static engine's batch (no fixing), with rtk's signals, mask, weights and epoch pairing; or, when
+    that lies more than :data:`MOVING_ROVER_FLOAT_M` from the same least squares on the code alone (the phase of a
+    moving rover fits no static position), the code's mean position.  Zeros when that batch cannot serve these
+    data (the solve that follows reports their errors).  The origin only needs to be where the rover is to a metre
+    (its troposphere and the linearization)."""
     from cdgps_cli.estimation.static_engine import static_float_offset, static_option_names
     keys = static_option_names()
     try:
-        off = static_float_offset(gb, gr, bx, rx, {**{k: v for k, v in opt.items() if k in keys},
-                                                   "fix": False, "fix_and_hold": False, "code_noise": "model"})
+        off, code_only = static_float_offset(gb, gr, bx, rx, {**{k: v for k, v in opt.items() if k in keys},
+                                                              "fix": False, "fix_and_hold": False, "code_noise": "model"})
+        if not np.all(np.isfinite(off)):
+            return np.zeros(3), "", None
+        if np.linalg.norm(off) <= ROVER_ORIGIN_TOL_M:
+            return off, "its static float solution", None
+        code = code_only()
     except (CdgpsError, np.linalg.LinAlgError):
-        return np.zeros(3)
-    return off if np.all(np.isfinite(off)) else np.zeros(3)
+        return np.zeros(3), "", None
+    apart = float(np.linalg.norm(off - code))
+    if np.all(np.isfinite(code)) and apart > MOVING_ROVER_FLOAT_M:
+        return code, (f"the mean position of its code (the rover moves: its static float solution, {apart:.0f} m "
+                      f"away, fits no static position)"), apart
+    return off, "its static float solution", None
+
+
+#: a static float solution this far (m) from the code's mean position is not where the rover is: it moves (a static
+#: rover's two agree to about a metre, the code's multipath; a 40 m walk put the static float 770 m away)
+MOVING_ROVER_FLOAT_M = 20.0
 
 
 def _fixed_positions(res: dict) -> np.ndarray:

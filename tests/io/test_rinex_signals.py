@@ -175,3 +175,15 @@ def test_epochs_out_of_time_order_are_noted_for_the_caller(tmp_path: Path):
             rinex_signals.FAST_PARSE = True
         assert df.attrs["epochs_out_of_order"] == (1, ok["time_gps_s"].iloc[0]) and "epochs_out_of_order" not in ok.attrs
         assert df.equals(ok)
+
+
+def test_a_gps_only_rinex_2_file_holds_no_glonass_signal():
+    """RINEX 2's observation types serve every system of the file: a "G (GPS)" file (GEONET 3040) lists GPS
+    signals only (before: GLONASS too, and rtk warned that GLONASS signals held by both files were not used),
+    a mixed one GPS and GLONASS."""
+    from cdgps_cli.io.rinex_signals import signals_in_file
+    r2 = REPO_ROOT / ".." / "shared" / "data" / "rinex"
+    if not (r2 / "30400920.05o").exists():
+        pytest.skip("../shared/data/rinex absent")
+    assert signals_in_file(r2 / "30400920.05o") == ["G:L1", "G:L2"]
+    assert signals_in_file(r2 / "demo.10o") == ["G:L1", "G:L2", "R:G1", "R:G2"]

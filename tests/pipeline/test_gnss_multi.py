@@ -282,3 +282,38 @@ def test_rtk_calls_an_empty_receiver_file_empty_whatever_its_name(tmp_path, name
                                          r"u-blox UBX log"):
         rtk_from_files(empty, data / "07590920.05o", [data / "07590920.05n"], tmp_path / "x.csv")
     assert not (tmp_path / "x.csv").exists()
+
+
+def test_no_warning_about_glonass_for_gps_only_rinex_2_files():
+    """rtk's automatic signals on the GEONET pair (RINEX 2.10, "G (GPS)", a GPS navigation file) name no system
+    the files do not hold."""
+    from cdgps_cli.pipeline.gnss_multi import _auto_signals
+    r2 = REPO_ROOT / ".." / "shared" / "data" / "rinex"
+    if not (r2 / "30400920.05o").exists():
+        pytest.skip("../shared/data/rinex absent")
+    warnings: list = []
+    assert _auto_signals(r2 / "30400920.05o", r2 / "07590920.05o", [r2 / "30400920.05n"], warnings) == ["G:L1", "G:L2"]
+    assert warnings == []
+
+
+def test_a_moving_rover_is_placed_at_its_code_mean_and_static_mode_says_it_moves(tmp_path):
+    """The rover's a-priori position (its troposphere) is its static float solution when that is where the rover is;
+    a moving rover's phase fits no static position (a simulated 5-min walk, random walk 2 m/√s: 682 m away; a real
+    40 m u-blox walk: 789 m), so there the code's mean position serves instead, and ``--mode static`` says that
+    the rover moves.  A static rover whose header is 15 m off keeps its static float solution, and no warning."""
+    from cdgps_cli.sim.gnss import simulate_gnss_pair
+    walk, still = tmp_path / "walk", tmp_path / "still"
+    simulate_gnss_pair(walk, duration_s=300.0, seed=3, random_walk_sigma=2.0)
+    simulate_gnss_pair(still, duration_s=120.0, seed=3, displacement_enu_m=(9.0, -12.0, 0.5))
+
+    def run(d, mode):
+        s = rtk_from_files(d / "base.rnx", d / "rover.rnx", [d / "nav.rnx"], tmp_path / f"{d.name}-{mode}.csv",
+                           options={"mode": mode})
+        return s, " | ".join(s["warnings"])
+
+    (s_st, w_st), (s_kin, w_kin) = run(walk, "static"), run(walk, "kinematic")
+    assert "the rover moves (its static float solution is" in w_st and "use --mode kinematic" in w_st
+    assert "from the mean position of its code (the rover moves" in w_kin and "--mode static assumes" not in w_kin
+    assert s_kin["fixed_pct"] > 95.0
+    s, w = run(still, "static")
+    assert "its static float solution" in w and "the rover moves" not in w and s["fixed_pct"] > 95.0
