@@ -467,7 +467,8 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False, base_xy
     (N,) the signal's index in ``names``.  Per row: ``sats``, ``lam_m``, ``mu``, ``el`` (rad),
     ``sat_xyz`` / ``sat_base_xyz`` (N, 3, m), ``phase_sd_m`` / ``code_sd_m`` (m, rover − base, each
     receiver's satellite clock and, when asked, troposphere removed), ``slip``, ``var_phase`` /
-    ``var_code`` (m², the base age's share included).
+    ``var_code`` (m², the base age's share included); ``interpolated_epochs``: how many rover epochs took the
+    base interpolated (in at least one signal group).
 
     With ``base_xyz_m`` (the base position, ECEF m), a bridged rover epoch that has base epochs on both sides within
     the maximum age takes the base's observations interpolated to its time
@@ -498,11 +499,13 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False, base_xy
     m = m[above]
     m = m.sort_values(["_ep", "signal", "_row_b", "_row_r"], kind="stable")
     age = pairs.age_s[m["_ep"].to_numpy()]
+    n_interpolated = 0
     if base_xyz_m is not None:
-        ph_b, rg_b, age, _ = interpolate_base(m, b, tb, pairs.rover_time_s[m["_ep"].to_numpy()], base_xyz_m=base_xyz_m,
+        ph_b, rg_b, age, done = interpolate_base(m, b, tb, pairs.rover_time_s[m["_ep"].to_numpy()], base_xyz_m=base_xyz_m,
                                               sync_tol_s=opt["sync_tol_s"], max_age_s=opt["max_age_s"],
                                               troposphere=opt["troposphere"])
         m = m.assign(phase_cycles_b=ph_b, pseudorange_m_b=rg_b)
+        n_interpolated = int(np.unique(m["_ep"].to_numpy()[done]).size)
     names, code = _sorted_codes(m["signal"].to_numpy())
     epoch = m["_ep"].to_numpy()
     lam = m["wavelength_m"].to_numpy(dtype=float)
@@ -517,6 +520,7 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False, base_xy
     return {
         "groups": _group_layout(epoch, code, el, half, n_ep),
         "ptr": np.searchsorted(epoch, np.arange(n_ep + 1)), "names": names, "code": code,
+        "interpolated_epochs": n_interpolated,
         "sats": m["sat"].to_numpy(), "lam_m": lam, "el": el,
         "mu": (lam / _LAMBDA_L1) ** 2,        # (f_L1 / f)², per satellite (GLONASS FDMA)
         "sat_xyz": m[["sx_r", "sy_r", "sz_r"]].to_numpy(), "sat_base_xyz": m[["sx_b", "sy_b", "sz_b"]].to_numpy(),

@@ -227,3 +227,8 @@ def test_a_base_every_5_s_is_interpolated_to_the_rover_epochs():
             assert sat_cut in holed["sats"][sl] and np.array_equal(holed["phase_sd_m"][sl], near_rows["phase_sd_m"][sl])
         else:
             assert sat_cut not in holed["sats"][sl] and not np.array_equal(holed["phase_sd_m"][sl], near_rows["phase_sd_m"][sl])
+    # the count the summaries report: every bridged rover epoch with a base epoch on both sides; fewer with the hole
+    bridged_inside = int(np.sum(inside & ~np.isin(tr, tb[every5])))
+    assert rows_of(gb_all[every5], base_xyz_m=BASE)["interpolated_epochs"] == bridged_inside
+    assert rows_of(gb_all[every5])["interpolated_epochs"] == 0
+    assert holed["interpolated_epochs"] < bridged_inside
