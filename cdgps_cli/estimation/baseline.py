@@ -524,6 +524,26 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
     return d
 
 
+#: DD phase residuals of a static solution beyond this rms (m) are not noise, multipath or an unmodelled ionosphere
+#: (millimetres to decimetres) but a rover that moves: its static solution is nowhere, and its "fixed" integers
+#: fit nothing (a simulated 5-min walk: 9.9 m rms, "fixed" 670 m away with σ 0.4 mm; the real car of
+#: real-pairs/geonet-car: 26 m; the 20181009 u-blox walk: 5.6 m; the real static pairs: 2–10 mm)
+STATIC_FIT_LIMIT_M = 1.0
+
+
+def _check_static_fit(opt: BaselineOptions, residuals: dict, rover: Station) -> None:
+    """CdgpsError when a static solution's DD phase residuals (rms, m) exceed :data:`STATIC_FIT_LIMIT_M`: the rover
+    moves, and its static solution (and any integers fixed on it) would be reported as if it did not."""
+    rms = residuals.get("dd_phase_rms_m")
+    if opt.motion != "static" or rms is None or not rms > STATIC_FIT_LIMIT_M:
+        return
+    raise CdgpsError(f"{_where(rover)}: the double-difference phase residuals of its static solution have an rms of "
+                     f"{rms:.3g} m, more than {STATIC_FIT_LIMIT_M:g} m (a static antenna's are millimetres to "
+                     f"decimetres): the rover moves, so no static position fits it.  For a moving antenna use "
+                     f"[gnss.displacement] model = \"random_walk\" (or \"constant_velocity\") in the run's config, or "
+                     f"'cdgps rtk'")
+
+
 def _rover_troposphere_moved(d: _Data, rover: Station, rover_xyz, opt: BaselineOptions) -> _Data:
     """``d`` with the rover's hydrostatic delay evaluated at ``rover.troposphere_xyz_m`` instead of its a-priori
     position ``rover_xyz`` (the same elevations: a kilometre moves them by less than 0.01°)."""
@@ -2047,6 +2067,7 @@ def _baseline(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineO
         fin = _fixed_solution(d, sg, w, fl, fx, xr0, r_enu, opt)
         t_fixed = lap()
     residuals = _residual_summary(d, w, fin.r_ph, fl.n_dd_code)
+    _check_static_fit(opt, residuals, rover)
     ka = _single_epoch_positions(d, w, fin, sg.seg, opt) if fx.fixed_mask.any() else None
     kin = None if ka is None else _kinematic_summary(d, ka, fin.x, opt)
     t_kin = lap()

@@ -558,3 +558,28 @@ def test_a_slip_flagged_in_a_dropped_lone_epoch_moves_to_the_satellites_next_row
     lli[lone] |= 1
     d2, k2 = g11_first_kept(r._replace(obs=obs.assign(lli_l1=lli)))
     assert d2.t_label[d2.epoch[k2]] == t_kept and d2.slip[k2] and d2.slip_rover[k2]
+
+
+def test_a_static_solution_of_a_moving_rover_is_refused(tmp_path):
+    """A static baseline (``baseline``, ``init`` with the static model) of a rover that moves: its DD phase residuals
+    are metres (a simulated 5-min walk, random walk 2 m/√s: 9.9 m rms; before, INIT said "fixed, 10 of 10
+    integers", 670 m from the rover with σ 0.4 mm) → CdgpsError naming the rover, the rms and the models that fit;
+    the same rover with the random-walk model, and a static rover, are solved."""
+    from cdgps_cli.io.rinex import read_rinex_obs
+    from cdgps_cli.sim.gnss import simulate_gnss_pair
+    walk, still = tmp_path / "walk", tmp_path / "still"
+    simulate_gnss_pair(walk, duration_s=300.0, seed=3, random_walk_sigma=2.0)
+    simulate_gnss_pair(still, duration_s=300.0, seed=3)
+
+    def stations(d):
+        return [Station(n, *read_rinex_obs(d / f"{n}.rnx")) for n in ("base", "rover")], read_rinex_nav(d / "nav.rnx")
+
+    (b, r), nav = stations(walk)
+    with pytest.raises(CdgpsError, match=r"rover \(.*rover.rnx\): the double-difference phase residuals of its static "
+                                         r"solution have an rms of [0-9.]+ m, more than 1 m.*random_walk"):
+        solve_static_baseline(b, r, nav)
+    rw = solve_static_baseline(b, r, nav, BaselineOptions(motion="random_walk", random_walk_sigma=(2.0, 2.0, 2.0)))
+    assert rw["residuals"]["dd_phase_rms_m"] > bl.STATIC_FIT_LIMIT_M          # the static summary's: not checked
+    (b, r), nav = stations(still)
+    ok = solve_static_baseline(b, r, nav)
+    assert ok["solution"] == "fixed" and ok["residuals"]["dd_phase_rms_m"] < 0.02
