@@ -517,9 +517,9 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
     else:
         d = _sd_data(j, sel, gb, gr, t_label, ce.interval_s, info)
     d = _rover_troposphere_moved(d, rover, rover_xyz, opt)
-    if not np.any(age_var_ep > 0):
-        return d
-    d, n_interp = _interpolated_base(d, master, rover, ce.grid[master.name], tag_r, nav, master_xyz, opt)
+    n_interp = 0
+    if np.any(age_var_ep > 0):
+        d, n_interp = _interpolated_base(d, master, rover, ce.grid[master.name], tag_r, nav, master_xyz, opt)
     d.info["epoch_pairing"] = dict(d.info["epoch_pairing"], interpolated=n_interp)
     return d
 
@@ -533,15 +533,19 @@ STATIC_FIT_LIMIT_M = 1.0
 
 def _check_static_fit(opt: BaselineOptions, residuals: dict, rover: Station) -> None:
     """CdgpsError when a static solution's DD phase residuals (rms, m) exceed :data:`STATIC_FIT_LIMIT_M`: the rover
-    moves, and its static solution (and any integers fixed on it) would be reported as if it did not."""
+    moves (the excess on every satellite) or the phase jumps where the receiver flagged no slip (on a few), and
+    its static solution (and any integers fixed on it) would be reported as if neither."""
     rms = residuals.get("dd_phase_rms_m")
     if opt.motion != "static" or rms is None or not rms > STATIC_FIT_LIMIT_M:
         return
+    per = sorted((residuals.get("per_satellite_rms_m") or {}).items(), key=lambda kv: -kv[1])
+    worst = ", ".join(f"{s} {v:.3g} m" for s, v in per[:4])
     raise CdgpsError(f"{_where(rover)}: the double-difference phase residuals of its static solution have an rms of "
                      f"{rms:.3g} m, more than {STATIC_FIT_LIMIT_M:g} m (a static antenna's are millimetres to "
-                     f"decimetres): the rover moves, so no static position fits it.  For a moving antenna use "
-                     f"[gnss.displacement] model = \"random_walk\" (or \"constant_velocity\") in the run's config, or "
-                     f"'cdgps rtk'")
+                     f"decimetres; largest per satellite: {worst}): the rover moves (large on every satellite) or its "
+                     f"phase jumps where the receiver flagged no cycle slip (large on a few), and no static position "
+                     f"fits it.  For a moving antenna: [gnss.displacement] model = \"random_walk\" (or "
+                     f"\"constant_velocity\") in a run's config, or 'cdgps rtk'")
 
 
 def _rover_troposphere_moved(d: _Data, rover: Station, rover_xyz, opt: BaselineOptions) -> _Data:
@@ -573,7 +577,8 @@ def _interpolated_base(d: _Data, master: Station, rover: Station, base_grid, rov
     sig = _satellite_signals(d)
     sat = np.array([n.split(":")[0] for n in d.sat_names], dtype=object)
     signal_of = np.array([v["signal"] for v in sig] if sig else ["G:L1"] * len(sat), dtype=object)
-    at0 = b[list(cols)].rename(columns={c: c + "_b" for c in cols[3:]})
+    cols = list(cols) + [c for c in ("eph_row",) if c in b.columns]          # the same ephemeris at t₀ and t₁
+    at0 = b[cols].rename(columns={c: c + "_b" for c in cols[3:]})
     m = pd.DataFrame({"_ep": d.epoch, "_bep": b0[d.epoch], "sat": sat[d.sat], "signal": signal_of[d.sat],
                       "wavelength_m": np.broadcast_to(np.asarray(_lam(d), dtype=np.float64), d.epoch.shape)})
     m = m.merge(at0, on=["_bep", "sat", "signal"], how="left", sort=False)

@@ -76,7 +76,8 @@ def receiver_geometry(obs: pd.DataFrame, nav: pd.DataFrame, rx_xyz_m) -> pd.Data
 
     τ = P/c − clk_rx + dt_sat, clk_rx the epoch's median clock from the nominal position (so no
     iteration on the receiver position is needed); adds ``sx, sy, sz`` (m), ``sat_clock_m`` (c·dt_sat at
-    transmission, m), ``el_rad``, ``trop_m``.  Observations
+    transmission, m), ``el_rad``, ``trop_m`` and ``eph_row`` (the row of ``nav`` whose ephemeris gave them: two
+    rows' models are comparable only from one ephemeris).  Observations
     of satellites without a healthy ephemeris covering them are dropped; ``attrs["dropped"]`` counts
     them per satellite.  Rows without a pseudorange of their own are dropped too; ``attrs["no_code"]``
     counts them per signal.  CdgpsError when none is left.
@@ -113,7 +114,7 @@ def receiver_geometry(obs: pd.DataFrame, nav: pd.DataFrame, rx_xyz_m) -> pd.Data
     out = df.reset_index(drop=True)
     out.attrs = {}                              # the merge's table keeps none of the reader's notes
     for name, v in (("sx", rot[:, 0]), ("sy", rot[:, 1]), ("sz", rot[:, 2]), ("sat_clock_m", SPEED_OF_LIGHT_M_S * clk),
-                    ("el_rad", el), ("trop_m", trop)):
+                    ("el_rad", el), ("trop_m", trop), ("eph_row", eph.rows)):
         out[name] = v[group]
     out.attrs["dropped"] = {k: int(v) for k, v in sorted(dropped.items())}
     out.attrs["no_code"] = {str(k): int(v) for k, v in zip(*np.unique(no_code, return_counts=True))} if no_code.size else {}

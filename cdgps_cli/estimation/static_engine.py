@@ -572,7 +572,7 @@ def static_float_offset(base, rover, base_xyz_m, rover_xyz0_m, options: dict | N
     that only needs to know where the rover is to a metre (rtk's a-priori position); and a function giving the
     same least squares on the code alone (the phase rows' variance :data:`_UNUSED_VARIANCE_M2`): the rover's mean
     position when it moves (the phase of a moving rover fits no static position: a walk of 40 m put the static float
-    770 m away).  ``options`` as :func:`static_baseline`'s."""
+    789 m away).  ``options`` as :func:`static_baseline`'s."""
     opt = _static_options(options)
     pairs, rows = _paired_rows(base, rover, opt, base_xyz_m)
     cols = arc_columns(rows, pairs.rover_time_s, max_gap_s=opt["max_gap_s"])

@@ -57,8 +57,10 @@ def interpolate_base(m: pd.DataFrame, b: pd.DataFrame, tb: np.ndarray, time_s: n
     one, whose geometry the row keeps) and t₁ (the other side of the rover time t): the base phase becomes
     ``φ₀ + w [(φ₁ − φ₀) − (M₁ − M₀)/λ]``, ``w = |t − t₀| / |t₁ − t₀|``, and the range likewise.  Only where t₁ is
     within ``max_age_s`` of t and every row of the rover epoch's signal group has its satellite at t₁ with no slip
-    or half-cycle change between (and a finite observation at both): the receiver clock's part of the
-    interpolation is then common to the group, and its double differences cancel it.  Such a row's age becomes
+    or half-cycle change between (and a finite observation at both), from the same broadcast ephemeris as at t₀
+    (when the rows carry ``eph_row``: across a change of ephemeris M₁ − M₀ holds the jump between the two, up to
+    decimetres, which the observations do not): the receiver clock's part of the interpolation is then common to
+    the group, and its double differences cancel it.  Such a row's age becomes
     ``|t − t₀| (1 − w)`` (zero at either base epoch).
 
     Parameters
@@ -69,7 +71,8 @@ def interpolate_base(m: pd.DataFrame, b: pd.DataFrame, tb: np.ndarray, time_s: n
         ``sz_b``, ``sat_clock_m_b``, ``trop_m_b`` (m) and ``lli_b`` (as :func:`base_rows` gives it; NaN where the
         row has no base row there: never interpolated, nor its group).
     b : DataFrame
-        Base rows of :func:`base_rows` with :data:`BASE_ROW_COLUMNS` (at least those at the epochs t₁).
+        Base rows of :func:`base_rows` with :data:`BASE_ROW_COLUMNS` (at least those at the epochs t₁), and
+        ``eph_row`` when ``m`` has ``eph_row_b``.
     tb : ndarray (n_b,)
         The base's distinct epoch times, GPS s.
     time_s : ndarray (N,)
@@ -101,7 +104,8 @@ def interpolate_base(m: pd.DataFrame, b: pd.DataFrame, tb: np.ndarray, time_s: n
     inside &= np.abs(time_s - tb[np.clip(b1, 0, tb.size - 1)]) <= max_age_s
     if not inside.any():
         return phase, rng, age, np.zeros(age.size, dtype=bool)
-    cols = list(BASE_ROW_COLUMNS)
+    same_eph = "eph_row" in b.columns and "eph_row_b" in m.columns
+    cols = list(BASE_ROW_COLUMNS) + (["eph_row"] if same_eph else [])
     other = b[cols].rename(columns={c: c + "_1" for c in cols[3:]}).rename(columns={"_bep": "_b1"})
     o = pd.DataFrame({"_b1": np.where(inside, b1, -1), "sat": m["sat"].to_numpy(), "signal": m["signal"].to_numpy()})
     o = o.merge(other, on=["_b1", "sat", "signal"], how="left", sort=False)
@@ -114,6 +118,8 @@ def interpolate_base(m: pd.DataFrame, b: pd.DataFrame, tb: np.ndarray, time_s: n
     ok &= np.isfinite(o["phase_cycles_1"].to_numpy(dtype=float)) & np.isfinite(o["pseudorange_m_1"].to_numpy(dtype=float))
     ok &= np.where(later, (lli1 & 1) == 0, (lli0 & 1) == 0)              # no loss of lock between t₀ and t₁
     ok &= (lli1 & 2) == (lli0 & 2)
+    if same_eph:                                   # one ephemeris at t₀ and t₁: M₁ − M₀ is the satellite's motion
+        ok &= o["eph_row_1"].to_numpy(dtype=float) == m["eph_row_b"].to_numpy(dtype=float)
     # every row of the rover epoch's signal group, or none
     sig_code = pd.factorize(m["signal"].to_numpy())[0].astype(np.int64)
     grp = np.unique(ep.astype(np.int64) * (int(sig_code.max()) + 1) + sig_code, return_inverse=True)[1].ravel()

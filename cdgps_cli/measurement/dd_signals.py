@@ -487,13 +487,18 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False, base_xy
     # the rover's slip flags of epochs that are not used move to the channel's next used epoch
     lli_r = carry_base_slips(rep, channel_index(rover["sat"].to_numpy(), rover["signal"].to_numpy()),
                              rover["lli"].to_numpy(dtype=np.int64), (pair_of_rover >= 0).astype(np.int64))
-    r = rover[_PAIR_COLS].assign(_row_r=np.arange(len(rover)), _ep=ep_r, lli=lli_r)
+    r = rover[_PAIR_COLS + [c for c in ("eph_row",) if c in rover.columns]].assign(_row_r=np.arange(len(rover)),
+                                                                                    _ep=ep_r, lli=lli_r)
     if mask_rover:
         r = r.assign(_el_r=rover["el_rad"].to_numpy())
     r = r[ep_r >= 0]
     r = r.assign(_bep=pairs.base_index[r["_ep"].to_numpy()])
     m = b.merge(r, on=["_bep", "sat", "signal"], suffixes=("_b", "_r"))
     above = m["el_rad"].to_numpy() >= np.radians(opt["mask_deg"])
+    if "eph_row_b" in m.columns and "eph_row_r" in m.columns:
+        # one single difference, one ephemeris: a bridged base epoch on the other side of a change of broadcast
+        # ephemeris than its rover epoch would put the jump between the two (up to decimetres) into the row
+        above &= m["eph_row_b"].to_numpy() == m["eph_row_r"].to_numpy()
     if mask_rover:
         above &= m["_el_r"].to_numpy() >= np.radians(opt["mask_deg"])
     m = m[above]

@@ -8,13 +8,15 @@ takes the base epoch nearest to it in time (the earlier on a tie):
   steer their clocks differently (u-blox tags at .990/.991 s against .991/.992 s; GEONET tags at
   hh:mm:ss.999 against whole seconds);
 * **bridged** when ``sync_tol_s < |t − t_b| ≤ max_age_s`` — a base that logs with gaps, or at a
-  lower rate (a 1 s or 5 s base under a 10 Hz rover).  The base observation is used as recorded:
-  the solvers model each receiver's ranges, satellite clocks and troposphere at that receiver's own
-  reception instant, so the receiver clocks still cancel in the double difference and the
-  satellites' motion over the age is modelled exactly; what is not modelled (the drift of the
-  broadcast satellite clock, the atmosphere's change) grows with the age, and the single
-  difference's σ grows with it: ``σ_age = age_sigma_m_per_s × |age|`` (RTKLIB's
-  satellite-clock-stability term, same default).  This is how RTKLIB processes a base with a
+  lower rate (a 1 s or 5 s base under a 10 Hz rover).  The solvers model each receiver's ranges,
+  satellite clocks and troposphere at that receiver's own reception instant, so the receiver clocks
+  still cancel in the double difference and the satellites' motion over the age is modelled
+  exactly; the base's observation minus that model is interpolated to the rover's time between the
+  base epochs on both sides where that is safe (:mod:`cdgps_cli.measurement.base_interpolation`),
+  else the nearest epoch's is used as recorded.  What is not modelled (the drift of the broadcast
+  satellite clock, the atmosphere's change) grows with the age, and the single difference's σ grows
+  with it: ``σ_age = age_sigma_m_per_s × |age|`` (RTKLIB's satellite-clock-stability term, same
+  default; the age of an interpolated row is |age|(1 − w)).  This is how RTKLIB processes a base with a
   differential age (``rtkpos.c``), here in both time directions because the whole record is there;
 * **dropped** otherwise: the rover epoch lies before the base's first epoch, after its last, or
   inside a base gap longer than twice ``max_age_s``; a repeated rover time tag (the same epoch

@@ -310,8 +310,8 @@ def _solve_where_the_rover_is(gb, gr, bx, rx, opt: dict, *, rover: tuple, nav: t
 
 
 def _place_rover(gb, gr, bx, rx, opt: dict, *, rover: tuple, nav: tuple, warnings: list):
-    """The rover's origin moved to its static float solution (:func:`_static_float_offset`) when that is more than
-    :data:`ROVER_ORIGIN_TOL_M` away, with its geometry recomputed there: a single-point origin is metres off, and so
+    """The rover's origin moved to where it is (:func:`_static_float_offset`: its static float solution, or a moving
+    rover's code mean) when that is more than :data:`ROVER_ORIGIN_TOL_M` away, with its geometry recomputed there: a single-point origin is metres off, and so
     may a header's be (u-blox converters), and the rover's troposphere (≈ 0.3 mm per metre of height) is computed at
     the origin.  ``rover`` is (observation table, path, whether ``rx`` is a single-point position), ``nav`` (table,
     paths).  Returns (origin, geometry)."""
@@ -352,13 +352,13 @@ def _static_float_offset(gb, gr, bx, rx, opt: dict) -> tuple:
         return np.zeros(3), "", None
     apart = float(np.linalg.norm(off - code))
     if np.all(np.isfinite(code)) and apart > MOVING_ROVER_FLOAT_M:
-        return code, (f"the mean position of its code (the rover moves: its static float solution, {apart:.0f} m "
-                      f"away, fits no static position)"), apart
+        return code, (f"the mean position of its code (its static float solution, {apart:.0f} m away, fits no "
+                      f"static position: the rover moves)"), apart
     return off, "its static float solution", None
 
 
 #: a static float solution this far (m) from the code's mean position is not where the rover is: it moves (a static
-#: rover's two agree to about a metre, the code's multipath; a 40 m walk put the static float 770 m away)
+#: rover's two agree to about a metre, the code's multipath; a 40 m walk put the static float 789 m away)
 MOVING_ROVER_FLOAT_M = 20.0
 
 
@@ -381,7 +381,7 @@ def _origin_moved_note(path, rx, moved, from_spp: bool, to: str = "") -> str:
     up = float(enu_matrix(lat, lon)[2] @ moved)
     source = "single-point position" if from_spp else "APPROX POSITION XYZ"
     if to:
-        return (f"{path} (rover): its {source} is {np.linalg.norm(moved):.1f} m from {to} (height {up:+.1f} m), "
+        return (f"{path} (rover): its {source} is {np.linalg.norm(moved):.1f} m (height {up:+.1f} m) from {to}, "
                 f"more than {ROVER_ORIGIN_TOL_M:g} m: the rover's a-priori position (its troposphere, about 1 mm of "
                 f"height per metre of height error otherwise) moved there before solving")
     return (f"{path} (rover): its {source} is {np.linalg.norm(moved):.1f} m from the solution (height {up:+.1f} m), "

@@ -119,3 +119,19 @@ def test_base_rows_carry_a_slip_of_an_unused_epoch_to_the_next_used_one():
     assert out["_bep"].tolist() == [0, 0, 1, 1, 2, 2] and out["_row_b"].tolist() == list(range(6))
     assert out["lli"].tolist() == [0, 0, 1, 0, 1, 0]           # G01's flag at 5 s (serving no rover epoch) also at 10 s
     assert base_rows(b, TB, np.array([1, 1, 1]))["lli"].tolist() == [0, 0, 1, 0, 0, 0]
+
+
+def test_no_interpolation_across_a_change_of_ephemeris():
+    """With ``eph_row`` (the ephemeris of each row's model), a satellite whose ephemeris at t₁ is not the one at t₀
+    keeps its group on the nearest epoch: M₁ − M₀ would hold the jump between the two ephemerides."""
+    b = _base()
+    b["eph_row"] = np.where((b["time_gps_s"] >= 5.0) & (b["sat"] == "G07"), 2, 1)     # G07's changes before 5 s
+    m = _paired(b, [2.0, 3.0, 7.0])
+    m["eph_row_b"] = np.where((m["_bep"] >= 1) & (m["sat"] == "G07"), 2, 1)
+    _, _, _, done = interpolate_base(m, b, TB, m["t"].to_numpy(), base_xyz_m=XB, sync_tol_s=0.025, max_age_s=30.0,
+                                     troposphere=True)
+    # G07's ephemeris changes between 0 and 5 s (not between 5 and 10 s): the epochs at 2 and 3 s keep the nearest
+    assert done.reshape(3, 3).all(axis=1).tolist() == [False, False, True]
+    m0 = _paired(_base(), [2.0, 3.0, 7.0])
+    assert interpolate_base(m0, _base(), TB, m0["t"].to_numpy(), base_xyz_m=XB, sync_tol_s=0.025, max_age_s=30.0,
+                            troposphere=True)[3].all()          # without the column: every group, as before
