@@ -602,13 +602,9 @@ def _base_rows_around(master: Station, rover: Station, nav, master_xyz, t_base, 
     :func:`~cdgps_cli.measurement.base_interpolation.base_rows` carries them for the base epochs ``t_base``
     used) with their geometry, at the base epochs on both sides of each ``bridged`` common epoch only; and the
     distinct epoch times of all of them (GPS s)."""
-    from cdgps_cli.estimation.rtk_multi import receiver_geometry
+    from cdgps_cli.estimation.rtk_multi import geometry_rows, receiver_geometry
     from cdgps_cli.measurement.base_interpolation import base_rows
-    tab = (master.signals if master.signals is not None and rover.signals is not None
-           else l1_signal_table(master.obs))
-    t = tab["time_gps_s"].to_numpy(dtype=np.float64)
-    tab = tab[np.isfinite(tab["pseudorange_m"].to_numpy(dtype=np.float64))
-              & ephemeris_coverage(nav, tab["sat"].to_numpy(), t)]
+    tab = geometry_rows(_engine_table(master, rover, master), nav)
     tb = np.unique(tab["time_gps_s"].to_numpy(dtype=np.float64))
     if tb.size == 0:
         return tab.assign(_bep=np.zeros(0, np.int64)), tb
@@ -1663,8 +1659,7 @@ def _run_engine(master: Station, rover: Station, nav, opt: BaselineOptions, xm, 
     except CdgpsError as exc:
         return str(exc).replace("static baseline: ", "")
     eopt["iono_threshold_km"] = math.inf if iono_threshold_km is None else iono_threshold_km
-    tables = [st.signals if st.signals is not None and master.signals is not None and rover.signals is not None
-              else l1_signal_table(st.obs) for st in (master, rover)]
+    tables = [_engine_table(master, rover, st) for st in (master, rover)]
     t_m, t_r = tables
     del tables
     # the master's geometry beside the rover's (a second core); each signal table dropped once its
@@ -1677,6 +1672,13 @@ def _run_engine(master: Station, rover: Station, nav, opt: BaselineOptions, xm, 
         geo[1] = troposphere_at_epochs(geo[1], t_ep, np.tile(np.asarray(rover.troposphere_xyz_m, float), (t_ep.size, 1)))
     # the tables handed over (not held here): static_baseline releases them once its SD rows are built
     return static_baseline(geo.pop(0), geo.pop(0), xm, xr0, eopt, arcs_check=arcs_check)
+
+
+def _engine_table(master: Station, rover: Station, st: Station) -> pd.DataFrame:
+    """The signal table the static engine takes of receiver ``st`` (one of ``master``, ``rover``): its signals when
+    both receivers have them, else its GPS L1 rows (:func:`l1_signal_table`)."""
+    return (st.signals if st.signals is not None and master.signals is not None and rover.signals is not None
+            else l1_signal_table(st.obs))
 
 
 def _engine_first(master: Station, rover: Station, nav, opt: BaselineOptions, xm, xr0, iono_threshold_km,

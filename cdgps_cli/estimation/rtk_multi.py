@@ -87,7 +87,7 @@ def receiver_geometry(obs: pd.DataFrame, nav: pd.DataFrame, rx_xyz_m) -> pd.Data
     df = obs[has_code].copy()
     covered = ephemeris_coverage(nav, df["sat"].to_numpy(), df["time_gps_s"].to_numpy())
     dropped = df.loc[~covered].groupby("sat")["time_gps_s"].nunique().to_dict()
-    df = df[covered]
+    df = df[covered]                                # (geometry_rows: the same selection)
     if df.empty:
         raise CdgpsError(f"no observation is covered by the navigation data (satellites without a healthy "
                          f"ephemeris covering their epochs: {' '.join(sorted(dropped)) or 'none'})")
@@ -119,6 +119,16 @@ def receiver_geometry(obs: pd.DataFrame, nav: pd.DataFrame, rx_xyz_m) -> pd.Data
     out.attrs["dropped"] = {k: int(v) for k, v in sorted(dropped.items())}
     out.attrs["no_code"] = {str(k): int(v) for k, v in zip(*np.unique(no_code, return_counts=True))} if no_code.size else {}
     return out
+
+
+def geometry_rows(obs: pd.DataFrame, nav: pd.DataFrame) -> pd.DataFrame:
+    """The rows of ``obs`` :func:`receiver_geometry` keeps: those with a pseudorange of their own and a healthy
+    ephemeris covering them (a caller that must see the same rows without their geometry)."""
+    has_code = np.isfinite(obs["pseudorange_m"].to_numpy(dtype=np.float64))
+    covered = np.zeros(len(obs), dtype=bool)
+    covered[has_code] = ephemeris_coverage(nav, obs["sat"].to_numpy()[has_code],
+                                           obs["time_gps_s"].to_numpy(dtype=np.float64)[has_code])
+    return obs[covered]
 
 
 def troposphere_at_epochs(geometry: pd.DataFrame, time_s: np.ndarray, xyz_m: np.ndarray) -> pd.DataFrame:
