@@ -317,10 +317,10 @@ def _place_rover(gb, gr, bx, rx, opt: dict, *, rover: tuple, nav: tuple, warning
     paths).  Returns (origin, geometry)."""
     r, rover_path, from_spp = rover
     moved, to, apart_m = _static_float_offset(gb, gr, bx, rx, opt)
-    if opt["mode"] == "static" and apart_m is not None:
-        warnings.append(f"{rover_path} (rover): the rover moves (its static float solution is {apart_m:.0f} m from the "
-                        f"mean position of its code), and --mode static assumes it does not: its static solution is "
-                        f"not where it is; use --mode kinematic")
+    if opt["mode"] == "static" and apart_m is not None:     # as init's static fit (baseline._check_static_fit)
+        raise CdgpsError(f"{rover_path} (rover): the rover moves (its static float solution is {apart_m:.0f} m from the "
+                         f"mean position of its code: its phase fits no static position), and --mode static assumes it "
+                         f"does not; use --mode kinematic (or constant-velocity)")
     if np.linalg.norm(moved) <= ROVER_ORIGIN_TOL_M:
         return rx, gr
     if not from_spp:                      # (a single-point origin's own warning already says it is refined)

@@ -296,11 +296,11 @@ def test_no_warning_about_glonass_for_gps_only_rinex_2_files():
     assert warnings == []
 
 
-def test_a_moving_rover_is_placed_at_its_code_mean_and_static_mode_says_it_moves(tmp_path):
+def test_a_moving_rover_is_placed_at_its_code_mean_and_static_mode_is_refused(tmp_path):
     """The rover's a-priori position (its troposphere) is its static float solution when that is where the rover is;
     a moving rover's phase fits no static position (a simulated 5-min walk, random walk 2 m/√s: 682 m away; a real
-    40 m u-blox walk: 789 m), so there the code's mean position serves instead, and ``--mode static`` says that
-    the rover moves.  A static rover whose header is 15 m off keeps its static float solution, and no warning."""
+    40 m u-blox walk: 789 m), so there the code's mean position serves instead, and ``--mode static`` is refused
+    (exit 2: the rover moves, as init refuses a static solution that fits no static rover).  A static rover whose header is 15 m off keeps its static float solution, and no warning."""
     from cdgps_cli.sim.gnss import simulate_gnss_pair
     walk, still = tmp_path / "walk", tmp_path / "still"
     simulate_gnss_pair(walk, duration_s=300.0, seed=3, random_walk_sigma=2.0)
@@ -311,8 +311,10 @@ def test_a_moving_rover_is_placed_at_its_code_mean_and_static_mode_says_it_moves
                            options={"mode": mode})
         return s, " | ".join(s["warnings"])
 
-    (s_st, w_st), (s_kin, w_kin) = run(walk, "static"), run(walk, "kinematic")
-    assert "the rover moves (its static float solution is" in w_st and "use --mode kinematic" in w_st
+    with pytest.raises(CdgpsError, match=r"rover.rnx \(rover\): the rover moves \(its static float solution is \d+ m "
+                                         r"from the mean position of its code.*use --mode kinematic"):
+        run(walk, "static")
+    s_kin, w_kin = run(walk, "kinematic")
     assert "from the mean position of its code (its static float solution" in w_kin and "--mode static assumes" not in w_kin
     assert s_kin["fixed_pct"] > 95.0
     s, w = run(still, "static")
