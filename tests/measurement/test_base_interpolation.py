@@ -135,3 +135,35 @@ def test_no_interpolation_across_a_change_of_ephemeris():
     m0 = _paired(_base(), [2.0, 3.0, 7.0])
     assert interpolate_base(m0, _base(), TB, m0["t"].to_numpy(), base_xyz_m=XB, sync_tol_s=0.025, max_age_s=30.0,
                             troposphere=True)[3].all()          # without the column: every group, as before
+
+
+def test_each_signal_group_is_interpolated_on_its_own_with_its_rows_wavelengths():
+    """Two signal groups per rover epoch (GPS L1 and GLONASS G1, whose satellites have wavelengths of their own): a
+    slip of R02 between 0 and 5 s keeps the GLONASS group of the epoch at 2 s on its nearest epoch and not its GPS
+    group; at 7 s both groups are interpolated, each row with its own wavelength (every group recovers its
+    satellites' linear truth up to a common term)."""
+    lam_r = {"R01": 0.18713, "R02": 0.18740, "R03": 0.18768}           # FDMA: one per satellite
+    to_r = dict(zip(SATS, lam_r))
+    gps = _base()
+    glo = _base().assign(signal="R:G1", sat=lambda d: d["sat"].map(to_r))
+    glo["wavelength_m"] = glo["sat"].map(lam_r)
+    glo["phase_cycles"] = glo["pseudorange_m"] / glo["wavelength_m"]
+    glo.loc[(glo["time_gps_s"] == 5.0) & (glo["sat"] == "R02"), "lli"] = 1
+    both = pd.concat([gps, glo], ignore_index=True).drop(columns=["_bep", "_row_b"])
+    b = base_rows(both.sort_values(["time_gps_s", "signal", "sat"], kind="stable").reset_index(drop=True), TB,
+                  np.ones(TB.size, dtype=np.int64))
+    rows = [dict(_ep=e, _bep=int(np.argmin(np.abs(TB - t))), sat=s, signal=sig, t=t, truth=g,
+                 wavelength_m=LAM if sig == "G:L1" else lam_r[s])
+            for e, t in enumerate([2.0, 7.0]) for sig in ("G:L1", "R:G1")
+            for g, s in ((g, g if sig == "G:L1" else to_r[g]) for g in SATS)]
+    m = pd.DataFrame(rows)
+    at0 = b[list(BASE_ROW_COLUMNS)].rename(columns={c: c + "_b" for c in BASE_ROW_COLUMNS[3:]})
+    m = m.merge(at0, on=["_bep", "sat", "signal"], how="left", sort=False)
+    phase, _, _, done = interpolate_base(m, b, TB, m["t"].to_numpy(), base_xyz_m=XB, sync_tol_s=0.025,
+                                         max_age_s=30.0, troposphere=True)
+    assert done.reshape(4, 3).all(axis=1).tolist() == [True, False, True, True]    # (2 s: GPS, GLONASS), (7 s: …)
+    model0 = (np.linalg.norm(m[["sx_b", "sy_b", "sz_b"]].to_numpy() - XB, axis=1) - m["sat_clock_m_b"].to_numpy()
+              + m["trop_m_b"].to_numpy())
+    lin = (m["truth"].map(ALPHA) + m["truth"].map(BETA) * m["t"]).to_numpy()
+    left = (phase * m["wavelength_m"].to_numpy() - model0 - lin).reshape(4, 3)[[0, 2, 3]]
+    np.testing.assert_allclose(left - left[:, :1], 0.0, atol=1e-6)
