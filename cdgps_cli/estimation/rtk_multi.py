@@ -82,12 +82,10 @@ def receiver_geometry(obs: pd.DataFrame, nav: pd.DataFrame, rx_xyz_m) -> pd.Data
     them per satellite.  Rows without a pseudorange of their own are dropped too; ``attrs["no_code"]``
     counts them per signal.  CdgpsError when none is left.
     """
-    has_code = np.isfinite(obs["pseudorange_m"].to_numpy())
+    has_code, usable = _geometry_mask(obs, nav)
     no_code = obs["signal"].to_numpy()[~has_code]
-    df = obs[has_code].copy()
-    covered = ephemeris_coverage(nav, df["sat"].to_numpy(), df["time_gps_s"].to_numpy())
-    dropped = df.loc[~covered].groupby("sat")["time_gps_s"].nunique().to_dict()
-    df = df[covered]                                # (geometry_rows: the same selection)
+    dropped = obs.loc[has_code & ~usable].groupby("sat")["time_gps_s"].nunique().to_dict()
+    df = obs[usable].copy()
     if df.empty:
         raise CdgpsError(f"no observation is covered by the navigation data (satellites without a healthy "
                          f"ephemeris covering their epochs: {' '.join(sorted(dropped)) or 'none'})")
@@ -124,11 +122,16 @@ def receiver_geometry(obs: pd.DataFrame, nav: pd.DataFrame, rx_xyz_m) -> pd.Data
 def geometry_rows(obs: pd.DataFrame, nav: pd.DataFrame) -> pd.DataFrame:
     """The rows of ``obs`` :func:`receiver_geometry` keeps: those with a pseudorange of their own and a healthy
     ephemeris covering them (a caller that must see the same rows without their geometry)."""
+    return obs[_geometry_mask(obs, nav)[1]]
+
+
+def _geometry_mask(obs: pd.DataFrame, nav: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+    """(rows with a pseudorange, rows with one and a healthy ephemeris covering them) of ``obs``, (N,) bool each."""
     has_code = np.isfinite(obs["pseudorange_m"].to_numpy(dtype=np.float64))
-    covered = np.zeros(len(obs), dtype=bool)
-    covered[has_code] = ephemeris_coverage(nav, obs["sat"].to_numpy()[has_code],
-                                           obs["time_gps_s"].to_numpy(dtype=np.float64)[has_code])
-    return obs[covered]
+    usable = np.zeros(len(obs), dtype=bool)
+    usable[has_code] = ephemeris_coverage(nav, obs["sat"].to_numpy()[has_code],
+                                          obs["time_gps_s"].to_numpy(dtype=np.float64)[has_code])
+    return has_code, usable
 
 
 def troposphere_at_epochs(geometry: pd.DataFrame, time_s: np.ndarray, xyz_m: np.ndarray) -> pd.DataFrame:

@@ -94,36 +94,15 @@ def interpolate_base(m: pd.DataFrame, b: pd.DataFrame, tb: np.ndarray, time_s: n
     """
     phase = m["phase_cycles_b"].to_numpy(dtype=float)
     rng = m["pseudorange_m_b"].to_numpy(dtype=float)
-    ep = m["_ep"].to_numpy()
     b0 = m["_bep"].to_numpy()
     age = np.asarray(time_s, dtype=float) - tb[b0]
-    side = np.where(age > 0, 1, -1)
-    b1 = b0 + side
-    inside = (np.abs(age) > sync_tol_s) & (b1 >= 0) & (b1 < tb.size)
-    b1 = np.where(inside, b1, -1)
-    inside &= np.abs(time_s - tb[np.clip(b1, 0, tb.size - 1)]) <= max_age_s
+    b1, inside = _far_epochs(b0, age, tb, time_s, sync_tol_s, max_age_s)
     if not inside.any():
         return phase, rng, age, np.zeros(age.size, dtype=bool)
-    same_eph = "eph_row" in b.columns and "eph_row_b" in m.columns
-    cols = list(BASE_ROW_COLUMNS) + (["eph_row"] if same_eph else [])
-    other = b[cols].rename(columns={c: c + "_1" for c in cols[3:]}).rename(columns={"_bep": "_b1"})
-    o = pd.DataFrame({"_b1": np.where(inside, b1, -1), "sat": m["sat"].to_numpy(), "signal": m["signal"].to_numpy()})
-    o = o.merge(other, on=["_b1", "sat", "signal"], how="left", sort=False)
-    if len(o) != len(m):                       # a repeated base row at t₁: no interpolation anywhere (the nearest)
+    o = _rows_at(b, m, np.where(inside, b1, -1), "eph_row_b" in m.columns)
+    if o is None:                              # a repeated base row at t₁: no interpolation anywhere (the nearest)
         return phase, rng, age, np.zeros(age.size, dtype=bool)
-    lli0 = np.nan_to_num(m["lli_b"].to_numpy(dtype=float), nan=-1).astype(np.int64)
-    lli1 = np.nan_to_num(o["lli_1"].to_numpy(dtype=float), nan=-1).astype(np.int64)
-    later = side > 0
-    ok = inside & (lli0 >= 0) & (lli1 >= 0) & np.isfinite(phase) & np.isfinite(rng)
-    ok &= np.isfinite(o["phase_cycles_1"].to_numpy(dtype=float)) & np.isfinite(o["pseudorange_m_1"].to_numpy(dtype=float))
-    ok &= np.where(later, (lli1 & 1) == 0, (lli0 & 1) == 0)              # no loss of lock between t₀ and t₁
-    ok &= (lli1 & 2) == (lli0 & 2)
-    if same_eph:                                   # one ephemeris at t₀ and t₁: M₁ − M₀ is the satellite's motion
-        ok &= o["eph_row_1"].to_numpy(dtype=float) == m["eph_row_b"].to_numpy(dtype=float)
-    # every row of the rover epoch's signal group, or none
-    sig_code = pd.factorize(m["signal"].to_numpy())[0].astype(np.int64)
-    grp = np.unique(ep.astype(np.int64) * (int(sig_code.max()) + 1) + sig_code, return_inverse=True)[1].ravel()
-    ok &= np.bincount(grp, weights=~ok, minlength=grp.max() + 1)[grp] == 0
+    ok = _whole_groups(m, inside & _row_qualifies(m, o, age > 0, phase, rng))
     if not ok.any():
         return phase, rng, age, ok
     xb = np.asarray(base_xyz_m, dtype=np.float64)
@@ -141,3 +120,47 @@ def interpolate_base(m: pd.DataFrame, b: pd.DataFrame, tb: np.ndarray, time_s: n
     rng[k] += w * ((o["pseudorange_m_1"].to_numpy(dtype=float)[k] - rng[k]) - (m1 - m0))
     age[k] = np.abs(age[k]) * (1.0 - w)
     return phase, rng, age, ok
+
+
+def _far_epochs(b0, age, tb, time_s, sync_tol_s: float, max_age_s: float):
+    """Each row's base epoch t₁ on the other side of its rover time (index into ``tb``, −1: none) and whether it is
+    one to interpolate towards (the row not simultaneous with t₀, t₁ existing within ``max_age_s``)."""
+    b1 = b0 + np.where(age > 0, 1, -1)
+    inside = (np.abs(age) > sync_tol_s) & (b1 >= 0) & (b1 < tb.size)
+    b1 = np.where(inside, b1, -1)
+    inside &= np.abs(time_s - tb[np.clip(b1, 0, tb.size - 1)]) <= max_age_s
+    return b1, inside
+
+
+def _rows_at(b: pd.DataFrame, m: pd.DataFrame, b1, with_eph: bool) -> pd.DataFrame | None:
+    """The base row at t₁ (epoch ``b1``, −1: none) of each row of ``m``, columns suffixed ``_1`` (missing: NaN);
+    None when a base row is repeated there (the merge would not be row for row)."""
+    cols = list(BASE_ROW_COLUMNS) + (["eph_row"] if with_eph and "eph_row" in b.columns else [])
+    other = b[cols].rename(columns={c: c + "_1" for c in cols[3:]}).rename(columns={"_bep": "_b1"})
+    o = pd.DataFrame({"_b1": b1, "sat": m["sat"].to_numpy(), "signal": m["signal"].to_numpy()})
+    o = o.merge(other, on=["_b1", "sat", "signal"], how="left", sort=False)
+    return o if len(o) == len(m) else None
+
+
+def _row_qualifies(m: pd.DataFrame, o: pd.DataFrame, later, phase, rng) -> np.ndarray:
+    """Whether each row may be interpolated by itself: finite observations and flags at t₀ (``m``) and t₁ (``o``),
+    no loss of lock between them (the flag at the later of the two), the same half-cycle status and, when the rows
+    carry it, the same ephemeris (M₁ − M₀ is then the satellite's motion, not a jump between ephemerides)."""
+    lli0 = np.nan_to_num(m["lli_b"].to_numpy(dtype=float), nan=-1).astype(np.int64)
+    lli1 = np.nan_to_num(o["lli_1"].to_numpy(dtype=float), nan=-1).astype(np.int64)
+    ok = (lli0 >= 0) & (lli1 >= 0) & np.isfinite(phase) & np.isfinite(rng)
+    ok &= np.isfinite(o["phase_cycles_1"].to_numpy(dtype=float)) & np.isfinite(o["pseudorange_m_1"].to_numpy(dtype=float))
+    ok &= np.where(later, (lli1 & 1) == 0, (lli0 & 1) == 0)
+    ok &= (lli1 & 2) == (lli0 & 2)
+    if "eph_row_1" in o.columns:
+        ok &= o["eph_row_1"].to_numpy(dtype=float) == m["eph_row_b"].to_numpy(dtype=float)
+    return ok
+
+
+def _whole_groups(m: pd.DataFrame, ok: np.ndarray) -> np.ndarray:
+    """``ok`` kept only where every row of the rover epoch's signal group (``_ep``, ``signal``) has it."""
+    sig_code = pd.factorize(m["signal"].to_numpy())[0].astype(np.int64)
+    grp = np.unique(m["_ep"].to_numpy().astype(np.int64) * (int(sig_code.max()) + 1) + sig_code,
+                    return_inverse=True)[1].ravel()
+    return ok & (np.bincount(grp, weights=~ok, minlength=grp.max() + 1)[grp] == 0)
+

@@ -503,14 +503,7 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False, base_xy
         above &= m["_el_r"].to_numpy() >= np.radians(opt["mask_deg"])
     m = m[above]
     m = m.sort_values(["_ep", "signal", "_row_b", "_row_r"], kind="stable")
-    age = pairs.age_s[m["_ep"].to_numpy()]
-    n_interpolated = 0
-    if base_xyz_m is not None:
-        ph_b, rg_b, age, done = interpolate_base(m, b, tb, pairs.rover_time_s[m["_ep"].to_numpy()], base_xyz_m=base_xyz_m,
-                                              sync_tol_s=opt["sync_tol_s"], max_age_s=opt["max_age_s"],
-                                              troposphere=opt["troposphere"])
-        m = m.assign(phase_cycles_b=ph_b, pseudorange_m_b=rg_b)
-        n_interpolated = int(np.unique(m["_ep"].to_numpy()[done]).size)
+    m, age, n_interpolated = _base_at_rover_times(m, b, tb, pairs, opt, base_xyz_m)
     names, code = _sorted_codes(m["signal"].to_numpy())
     epoch = m["_ep"].to_numpy()
     lam = m["wavelength_m"].to_numpy(dtype=float)
@@ -540,6 +533,19 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False, base_xy
                                                                              opt["code_correlation_s"])
                     * opt.get("code_variance_factor", 1.0) + var_age,
     }
+
+
+def _base_at_rover_times(m: pd.DataFrame, b: pd.DataFrame, tb: np.ndarray, pairs, opt, base_xyz_m):
+    """The paired rows ``m`` with their base observations interpolated to the rover's times when ``base_xyz_m`` is
+    given (:func:`~cdgps_cli.measurement.base_interpolation.interpolate_base`), each row's age (s) and the number
+    of rover epochs interpolated."""
+    ep = m["_ep"].to_numpy()
+    if base_xyz_m is None:
+        return m, pairs.age_s[ep], 0
+    ph_b, rg_b, age, done = interpolate_base(m, b, tb, pairs.rover_time_s[ep], base_xyz_m=base_xyz_m,
+                                             sync_tol_s=opt["sync_tol_s"], max_age_s=opt["max_age_s"],
+                                             troposphere=opt["troposphere"])
+    return m.assign(phase_cycles_b=ph_b, pseudorange_m_b=rg_b), age, int(np.unique(ep[done]).size)
 
 
 def _sorted_codes(values):
