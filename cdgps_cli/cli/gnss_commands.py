@@ -289,10 +289,13 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
 
 
 @main.command(short_help="Multi-GNSS, multi-frequency RTK of a pair → CSV")
-@click.option("--base", "base_file", required=True, type=click.Path(dir_okay=False),
-              help="Base observations: RINEX, or a u-blox log (RXM-RAWX; its RTCM 1005/1006 position is used).")
-@click.option("--rover", "rover_file", required=True, type=click.Path(dir_okay=False),
-              help="Rover observations: RINEX, or a u-blox log (RXM-RAWX).")
+@click.option("--base", "base_file", required=True, multiple=True, type=click.Path(dir_okay=False),
+              help="Base observations: RINEX, or a u-blox log (RXM-RAWX; its RTCM 1005/1006 position is used). "
+                   "Repeated, or a quoted glob pattern: the base's consecutive files (hourly, daily), joined in time "
+                   "order into one record.")
+@click.option("--rover", "rover_file", required=True, multiple=True, type=click.Path(dir_okay=False),
+              help="Rover observations: RINEX, or a u-blox log (RXM-RAWX); repeated, or a quoted glob pattern, as "
+                   "--base.")
 @click.option("--nav", "nav_files", multiple=True, type=click.Path(dir_okay=False),
               help="RINEX navigation file(s) with the GPS / Galileo / BeiDou / GLONASS ephemerides (repeatable); "
                    "without it, the u-blox logs' RXM-SFRBX ephemerides.")
@@ -364,7 +367,8 @@ def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_
                        ("fix_and_hold", fix_and_hold), ("wrong_fix_probability", wrong_fix_probability)):
         if value is not None:
             options[key] = value
-    s = rtk_from_files(base_file, rover_file, list(nav_files), output, base_xyz_m=base_xyz or None, options=options)
+    s = rtk_from_files(list(base_file), list(rover_file), list(nav_files), output, base_xyz_m=base_xyz or None,
+                       options=options)
     for w in s["warnings"]:
         _warn(w)
     ep = s["epoch_pairing"]

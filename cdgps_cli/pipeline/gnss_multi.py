@@ -26,6 +26,8 @@ from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, signal
 from cdgps_cli.estimation.rtk_multi import (RTK_MODES, check_common_signals, receiver_geometry, receivers_code_noise,
                                             solve_rtk, troposphere_at_epochs)
 from cdgps_cli.io.atomic import write_atomic
+from cdgps_cli.io.gnss_sequence import pieces_text
+from cdgps_cli.io.log_sequence import expand_paths, join_tables
 from cdgps_cli.io.rinex import COMPRESSED_MAGIC, NAV_SYSTEMS, read_rinex_nav
 from cdgps_cli.io.rinex_signals import read_rinex_signals, signals_in_file
 from cdgps_cli.io.solution_formats import Q_FIX, Q_FLOAT, csv_text, finite_or, geojson_text, nmea_gga_text, pos_text
@@ -109,13 +111,21 @@ def _refuse_empty(path, who: str) -> None:
 
 
 def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None, options: dict | None = None) -> dict:
-    """Solve base → rover and write ``out_csv``; returns the summary (fix rate, static position …)."""
+    """Solve base → rover and write ``out_csv``; returns the summary (fix rate, static position …).
+
+    ``base_path`` and ``rover_path`` are each a file, or a list of files and quoted glob patterns:
+    consecutive files of one receiver (hourly or daily), joined in time order into one record
+    (:func:`_read_receiver`)."""
     opt = validate_options(options or {})
-    for path, who in ((base_path, "base"), (rover_path, "rover")):
-        _refuse_empty(path, who)
+    base_files, rover_files = (expand_paths(_as_list(p), f"--{who}") for p, who in ((base_path, "base"), (rover_path, "rover")))
+    nav_paths = expand_paths(list(nav_paths), "--nav") if nav_paths else []
+    for files, who in ((base_files, "base"), (rover_files, "rover")):
+        for path in files:
+            _refuse_empty(path, who)
+    base_path, rover_path = pieces_text(base_files), pieces_text(rover_files)
     warnings = []
     auto = opt["signals"] == "auto"
-    sigs = _auto_signals(base_path, rover_path, nav_paths, warnings) if auto else list(opt["signals"])
+    sigs = _auto_signals(base_files, rover_files, nav_paths, warnings) if auto else list(opt["signals"])
     opt["signals"] = tuple(sigs)
     systems = sorted({signal(s).system for s in sigs})
     for c in systems:
@@ -126,19 +136,19 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
         if nav_paths:
             nav, nav_error = _nav(nav_paths, systems), None
         else:
-            nav = _ubx_nav((base_path, rover_path))
+            nav = _ubx_nav((*base_files, *rover_files))
             nav_error = None if nav is not None else CdgpsError(
                 f"no broadcast ephemerides: no --nav given and neither {base_path} nor {rover_path} is a u-blox log "
                 f"with RXM-SFRBX ephemerides")
             nav = nav[nav["sat"].str[0].isin(systems)] if nav is not None else pd.DataFrame()
-            nav_paths = [f"RXM-SFRBX of {', '.join(str(p) for p in (base_path, rover_path) if is_ubx_log(p))}"]
+            nav_paths = [f"RXM-SFRBX of {', '.join(str(p) for p in (*base_files, *rover_files) if is_ubx_log(p))}"]
     except CdgpsError as exc:
         nav, nav_error = pd.DataFrame(), exc
     # GLONASS frequency numbers: the observation header's, else the navigation records'
     glo_k = ({sat: int(k) for sat, k in nav.dropna(subset=["glonass_k"]).groupby("sat")["glonass_k"].first().items()}
              if "glonass_k" in nav.columns else {})
-    hb, b = _read_observations(base_path, sigs, glo_k, "base", warnings)
-    hr, r = _read_observations(rover_path, sigs, glo_k, "rover", warnings)
+    hb, b = _read_receiver(base_files, sigs, glo_k, "base", warnings)
+    hr, r = _read_receiver(rover_files, sigs, glo_k, "rover", warnings)
     if nav_error is not None:
         raise nav_error
     b, r = (_first_of_repeated_epochs(df, path, who, warnings) for df, path, who in ((b, base_path, "base"), (r, rover_path, "rover")))
@@ -176,7 +186,7 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
         warnings.append(f"{rover_path} (rover): {sum(ep['dropped'].values())} of {ep['rover_epochs']} epochs not used: "
                         + "; ".join(f"{n} {why}" for why, n in ep["dropped"].items())
                         + f" (max_age_s {opt['max_age_s']:g} s)")
-    text = solution_text(res, sigs, opt, out_csv, bx, inputs=(rover_path, base_path, *nav_paths))
+    text = solution_text(res, sigs, opt, out_csv, bx, inputs=(*rover_files, *base_files, *nav_paths))
     write_atomic(out_csv, lambda tmp: Path(tmp).write_text(text, newline=""))
     return {**_summary(res, per_epoch), "signals": sigs, "epoch_pairing": ep, "warnings": warnings}
 
@@ -442,6 +452,38 @@ def _ubx(path):
     return _ubx_decoded(str(path), st.st_mtime_ns, st.st_size)
 
 
+def _as_list(paths) -> list:
+    return [paths] if isinstance(paths, (str, Path)) else list(paths)
+
+
+#: header fields that must agree between the files of one receiver's record: another receiver, site or antenna
+#: (other clock, biases, phase centre), or another tracking mode of a signal (another phase bias), is not one record
+ONE_RECEIVER_FIELDS = ("marker_name", "receiver_type", "antenna_type", "signal_codes")
+
+
+def _read_receiver(files: list, sigs, glo_k, who: str, warnings: list) -> tuple[dict, pd.DataFrame]:
+    """A receiver's header and signal table (:func:`_read_observations`) from its file, or from its consecutive
+    files (hourly, daily) joined in time order into one record: an epoch a later file repeats is taken from the
+    earlier file, files that interleave are refused (:func:`~cdgps_cli.io.log_sequence.join_tables`), and the
+    files must be of one receiver (:data:`ONE_RECEIVER_FIELDS`; the header of the first file in time order is
+    kept)."""
+    if len(files) == 1:
+        return _read_observations(files[0], sigs, glo_k, who, warnings)
+    reads = [_read_observations(p, sigs, glo_k, who, warnings) for p in files]
+    tab, report, order = join_tables([(str(p), df) for p, (_, df) in zip(files, reads)], "time_gps_s", np.nan,
+                                     gps_time_str, what=f"{pieces_text(files)} ({who})")
+    first = order[0]
+    for i in order[1:]:
+        for key in ONE_RECEIVER_FIELDS:
+            a, b = reads[first][0].get(key), reads[i][0].get(key)
+            if a is not None and b is not None and a != b:
+                raise CdgpsError(f"{files[i]} ({who}): {key} {b!r} differs from {a!r} in {files[first]}: the files "
+                                 f"are not one receiver's record")
+    warnings.extend(report.warnings)
+    tab.attrs = {}
+    return reads[first][0], tab
+
+
 def _read_observations(path, sigs, glo_k, who: str, warnings: list) -> tuple[dict, pd.DataFrame]:
     """A receiver's header (``approx_position_xyz_m``) and signal table, from RINEX or from a u-blox
     log's RXM-RAWX (loss of lock from the lock times and half-cycle status; the position from its
@@ -512,10 +554,13 @@ def _ubx_nav(paths) -> pd.DataFrame | None:
     return nav
 
 
-def _auto_signals(base_path, rover_path, nav_paths, warnings: list) -> list[str]:
-    """Every signal both observation files hold whose system has ephemerides in the navigation files
-    (systems the navigation data lack are named in a warning); CdgpsError when none is left."""
-    held = [set(_ubx_signals(p) if is_ubx_log(p) else signals_in_file(p)) for p in (base_path, rover_path)]
+def _auto_signals(base_files, rover_files, nav_paths, warnings: list) -> list[str]:
+    """Every signal both receivers' files hold (a receiver's files together) whose system has ephemerides in the
+    navigation files (systems the navigation data lack are named in a warning); CdgpsError when none is left."""
+    base_files, rover_files = _as_list(base_files), _as_list(rover_files)
+    held = [set().union(*(_ubx_signals(p) if is_ubx_log(p) else signals_in_file(p) for p in files))
+            for files in (base_files, rover_files)]
+    base_path, rover_path = pieces_text(base_files), pieces_text(rover_files)
     both = [s for s in SIGNALS if s in held[0] and s in held[1]]
     systems = sorted({signal(s).system for s in both if signal(s).system in NAV_SYSTEMS})
     have = set()
@@ -526,13 +571,13 @@ def _auto_signals(base_path, rover_path, nav_paths, warnings: list) -> list[str]
             if not _holds_none_of(exc):
                 raise
     if not nav_paths:
-        ubx_nav = _ubx_nav((base_path, rover_path))
+        ubx_nav = _ubx_nav((*base_files, *rover_files))
         have = set(ubx_nav["sat"].str[0]) if ubx_nav is not None else set()
     use = [s for s in both if signal(s).system in have]
     lost = sorted({signal(s).system for s in both} - have)
     source = (', '.join(map(str, nav_paths)) if nav_paths else
               "the RXM-SFRBX frames of the u-blox logs (no --nav given)"
-              if any(is_ubx_log(p) for p in (base_path, rover_path)) else "any file (no --nav given)")
+              if any(is_ubx_log(p) for p in (*base_files, *rover_files)) else "any file (no --nav given)")
     if lost:
         warnings.append(f"signals of {', '.join(SYSTEM_NAMES.get(c, c) for c in lost)} held by both files are not used: "
                         f"no ephemerides for them in {source}")

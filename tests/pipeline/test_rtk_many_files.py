@@ -1,0 +1,105 @@
+"""``cdgps rtk`` with a receiver's consecutive files (hourly or daily logs, as CORS networks publish
+them) given as one record: ``--base`` repeated or a quoted glob.
+
+The real mosaic-static pair (RINEX 3.04, 301 epochs at 1 s) is cut into pieces: the base into
+three files that overlap by 10 epochs, given out of time order; the rover into two.  The joined
+solution must equal the one-file solution row for row (only the ``inp file`` header lines differ),
+and files that are not one record (another receiver, interleaved epochs) are refused with exit 2,
+naming the file, and nothing written.
+"""
+
+import json
+import re
+
+import pytest
+
+from tests._shared import REPO_ROOT, run_cli
+
+MOSAIC = REPO_ROOT.parent / "shared" / "data" / "real-pairs" / "mosaic-static"
+pytestmark = pytest.mark.skipif(not MOSAIC.exists(), reason="../shared/data/real-pairs absent")
+SPAN = 90          # epochs of the pair used (seconds)
+
+
+def _split(text: str) -> tuple[str, list[str]]:
+    """RINEX 3 observation text → (header, the epoch records, each its '>' line and body)."""
+    head, body = text.split("END OF HEADER", 1)
+    head += "END OF HEADER" + body[:body.index("\n") + 1]
+    body = body[body.index("\n") + 1:]
+    epochs = [">" + e for e in body.split("\n>")]
+    epochs[0] = epochs[0][1:]
+    return head, [e if e.endswith("\n") else e + "\n" for e in epochs]
+
+
+def _write(path, head: str, epochs: list[str]) -> None:
+    path.write_text(head + "".join(epochs))
+
+
+@pytest.fixture(scope="module")
+def pieces(tmp_path_factory):
+    d = tmp_path_factory.mktemp("many_files")
+    bh, be = _split((MOSAIC / "base.obs").read_text())
+    rh, re_ = _split((MOSAIC / "rover.obs").read_text())
+    be, re_ = be[:SPAN], re_[:SPAN]
+    _write(d / "base.obs", bh, be)
+    _write(d / "rover.obs", rh, re_)
+    _write(d / "base_a.obs", bh, be[:40])
+    _write(d / "base_b.obs", bh, be[30:70])       # 10 epochs repeated from base_a
+    _write(d / "base_c.obs", bh, be[70:])
+    _write(d / "rover_1.obs", rh, re_[:45])
+    _write(d / "rover_2.obs", rh, re_[45:])
+    other = bh.replace("SEPT MOSAIC-X5      4.14.4", "SEPT POLARX5        5.4.0 ")
+    assert other != bh
+    _write(d / "base_other_receiver.obs", other, be[70:])
+    _write(d / "base_odd.obs", bh, be[0:40:2])
+    _write(d / "base_even_late.obs", bh, be[1:40:2])       # epochs inside base_odd's span that it lacks
+    return d
+
+
+def _body(path) -> list[str]:
+    return [ln for ln in path.read_text().splitlines() if not ln.startswith("%")]
+
+
+def _rtk(d, out, *args):
+    return run_cli("-q", "rtk", *args, "--nav", MOSAIC / "base.nav", "--signals", "G:L1", "-o", out, "--json")
+
+
+def test_a_receivers_files_joined_give_the_one_file_solution(pieces, tmp_path):
+    one = _rtk(pieces, tmp_path / "one.pos", "--base", pieces / "base.obs", "--rover", pieces / "rover.obs")
+    assert one.exit_code == 0, one.output
+    many = _rtk(pieces, tmp_path / "many.pos", "--base", pieces / "base_c.obs", "--base", pieces / "base_a.obs",
+                "--base", pieces / "base_b.obs", "--rover", str(pieces / "rover_*.obs"))
+    assert many.exit_code == 0, many.output
+    body = _body(tmp_path / "one.pos")
+    assert len(body) == SPAN and _body(tmp_path / "many.pos") == body
+    s_one, s_many = (json.loads(r.stdout[r.stdout.index("{"):]) for r in (one, many))
+    assert s_many["epochs"] == s_one["epochs"] == SPAN
+    assert s_many["fixed_epochs"] == s_one["fixed_epochs"] > 0
+    assert s_many["epoch_pairing"]["base_epochs"] == SPAN
+    # every file is named as an input, in time order within each receiver
+    inputs = re.findall(r"^% inp file  : (.*)$", (tmp_path / "many.pos").read_text(), re.M)
+    assert [i.rsplit("/", 1)[-1] for i in inputs] == ["rover_1.obs", "rover_2.obs", "base_c.obs", "base_a.obs",
+                                                       "base_b.obs", "base.nav"]
+
+
+@pytest.mark.parametrize("bases, words", [
+    (["base_a.obs", "base_other_receiver.obs"], ["base_other_receiver.obs", "receiver_type", "not one receiver"]),
+    (["base_odd.obs", "base_even_late.obs"], ["base_even_late.obs", "base_odd.obs", "not consecutive"]),
+    (["base_a.obs", "base_a.obs"], ["--base", "given twice"]),
+    (["base_[xyz].obs"], ["--base", "matches no file"]),
+])
+def test_files_that_are_not_one_record_are_refused(pieces, tmp_path, bases, words):
+    out = tmp_path / "out.pos"
+    args = [a for b in bases for a in ("--base", pieces / b)]
+    r = _rtk(pieces, out, *args, "--rover", pieces / "rover.obs")
+    assert r.exit_code == 2, r.output
+    assert "Traceback" not in r.output
+    assert all(w in r.output for w in words), r.output
+    assert not out.exists()
+
+
+def test_an_output_that_is_one_of_the_inputs_is_refused(pieces, tmp_path):
+    rover = tmp_path / "rover_2.obs"
+    rover.write_text((pieces / "rover_2.obs").read_text())
+    r = _rtk(pieces, rover, "--base", pieces / "base.obs", "--rover", pieces / "rover_1.obs", "--rover", rover)
+    assert r.exit_code == 2 and "would overwrite an input" in r.output, r.output
+    assert rover.read_text() == (pieces / "rover_2.obs").read_text()
