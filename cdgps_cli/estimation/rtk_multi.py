@@ -202,6 +202,7 @@ class _State:
     of the filter ``step`` (a :class:`~cdgps_cli.estimation.kalman.StepFilter`: ``x``, ``P`` are its own)."""
 
     def __init__(self, n_pos, step=None):
+        self.n_motion = n_pos
         self.keys = [("pos", i) for i in range(n_pos)]
         self.index = {k: i for i, k in enumerate(self.keys)}
         self.step = step if step is not None else StepFilter(np.zeros(n_pos), np.eye(n_pos) * 1e4, NUMPY_INVERSE)
@@ -424,13 +425,14 @@ def _fix(st, groups, opt, carried):
     Ts = _dd_rows_on_state(res["rows"], plus, ref_cols, sizes, len(st.x))   # the fixed integer combinations of the state
     TsP = Ts @ st.P
     Qs = TsP @ Ts.T
-    Pxs = st.P[:3] @ Ts.T
-    sol = np.linalg.solve(Qs, np.column_stack([Ts @ st.x - res["integers"], Pxs.T]))   # one factorisation, 4 columns
+    m = st.n_motion                                   # position, and velocity in constant-velocity mode
+    Pxs = st.P[:m] @ Ts.T
+    sol = np.linalg.solve(Qs, np.column_stack([Ts @ st.x - res["integers"], Pxs.T]))   # one factorisation, m + 1 columns
     dx = Pxs @ sol[:, 0]
-    cov = st.P[:3, :3] - Pxs @ sol[:, 1:]
+    cov = st.P[:m, :m] - Pxs @ sol[:, 1:]
     carried.last_fix = (Ts, res["integers"])
     st.fix_products = (Ts, st.P, TsP, Qs)
-    return st.x[:3] - dx, len(res["integers"]), res["ratio"], 0.5 * (cov + cov.T), res["partial"]
+    return st.x[:m] - dx, len(res["integers"]), res["ratio"], 0.5 * (cov + cov.T), res["partial"]
 
 
 def _dd_rows_on_state(rows, plus, ref_cols, sizes, n_state):
@@ -500,7 +502,9 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
         (the last epoch's fixed, else float, position — the static solution in static mode),
         ``float_cov_m2`` / ``fixed_cov_m2`` (n, 3, 3; ECEF, m²; NaN where not fixed), ``n_satellites`` (n,),
         ``epoch_pairing`` (the summary of :func:`~cdgps_cli.measurement.epoch_pairing.pair_epochs`: rover
-        epochs used, bridged, dropped with reasons) and ``base_age_s`` (n,; rover − base time, s).
+        epochs used, bridged, dropped with reasons) and ``base_age_s`` (n,; rover − base time, s); in
+        constant-velocity mode the velocity too, ``float_vel_m_s`` / ``fixed_vel_m_s`` (n, 3; ECEF, m/s) and
+        ``float_vel_cov_m2_s2`` / ``fixed_vel_cov_m2_s2`` (n, 3, 3), fixed where the position is.
     """
     opt = {**MULTI_GNSS_DEFAULTS, **(options or {})}
     if opt["fix_and_hold"] and not int(opt["hold_after_fixes"]) >= 1:     # the run counter starts at 0: nothing to hold yet
@@ -533,7 +537,19 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
             "n_satellites": res["ns"], "direction": direction, "fixes_rejected": int(res.get("rejected", 0)),
             "partial_fixes": int(res["partial"].sum()), "wrong_fix_resets": int(res["wrong_fix_resets"].sum()),
             "code_noise": code_noise,
-            "ambiguities_released": int(res["released"].sum())}
+            "ambiguities_released": int(res["released"].sum()),
+            **_velocities(res, ok)}
+
+
+def _velocities(res: dict, ok) -> dict:
+    """Constant-velocity mode's velocity of a solution (ECEF, m/s; covariance m²/s²; fixed: NaN where not fixed),
+    as ``float_vel_m_s``, ``float_vel_cov_m2_s2``, ``fixed_vel_m_s``, ``fixed_vel_cov_m2_s2``; no keys in the
+    other modes."""
+    if "float_vel" not in res:
+        return {}
+    return {"float_vel_m_s": res["float_vel"], "float_vel_cov_m2_s2": res["float_vel_cov"],
+            "fixed_vel_m_s": np.where(ok[:, None], res["fixed_vel"], np.nan),
+            "fixed_vel_cov_m2_s2": np.where(ok[:, None, None], res["fixed_vel_cov"], np.nan)}
 
 
 def _paired_epochs(base: pd.DataFrame, rover: pd.DataFrame, opt: dict):
@@ -618,17 +634,26 @@ def _filter_pass(rows, times, order, opt, base_xyz, origin, iono, progress) -> d
            "partial": np.zeros(n_ep, dtype=bool), "ns": np.zeros(n_ep, dtype=np.int64),
            "wrong_fix_resets": np.zeros(n_ep, dtype=bool), "released": np.zeros(n_ep, dtype=bool),
            "held": np.zeros(n_ep, dtype=bool)}
+    if _n_motion(opt) == 6:                        # constant-velocity mode: the velocity too (ECEF, m/s)
+        out.update({key: np.full(out[like].shape, np.nan) for key, like in _VELOCITY_KEYS.items()})
     st = _State(_n_motion(opt))
     amb_keys, slip_rows = _amb_keys(rows), np.flatnonzero(rows["slip"]).tolist()
     model = DDGroupModel(lambda i: _groups_with_keys(rows, order[i], amb_keys, slip_rows), base_xyz, origin)
     source = EpochGrid(times[order])
-    hook = _AmbiguityHook(st, model, order, opt, iono, out, progress)
-    dyn, sink = _RtkDynamics(st, source.time_s, opt, iono), _FloatSink(order, origin, out)
+    # the passes step |Δt| (:class:`_RtkDynamics`): a backward pass's velocity state is minus the rover's
+    v_sign = -1.0 if n_ep > 1 and order[1] < order[0] else 1.0
+    hook = _AmbiguityHook(st, model, order, opt, iono, out, progress, v_sign)
+    dyn, sink = _RtkDynamics(st, source.time_s, opt, iono), _FloatSink(order, origin, out, v_sign)
     # the first epoch relinearizes up to 4 times (the a-priori position may be metres off), the others twice
     drive(dyn, [model], EpochGrid(source.time_s[:1]), st.step, hooks=[hook], sink=sink, max_iterations=4)
     drive(dyn, [model], source, st.step, hooks=[hook], sink=sink, max_iterations=2, k0=1)
     out["fixed"] = np.isfinite(out["fixed_xyz"][:, 0])
     return out
+
+
+#: constant-velocity mode's velocity arrays of a pass (ECEF, m/s; covariance m²/s²) → the position arrays they mirror
+_VELOCITY_KEYS = {"float_vel": "float_xyz", "float_vel_cov": "float_cov", "fixed_vel": "fixed_xyz",
+                  "fixed_vel_cov": "fixed_cov"}
 
 
 def _n_motion(opt) -> int:
@@ -682,15 +707,19 @@ class _RtkDynamics:
 
 
 class _FloatSink:
-    """The drive's sink: each epoch's float position (ECEF, m) and its covariance, in time order."""
+    """The drive's sink: each epoch's float position (ECEF, m) and its covariance, in time order; in
+    constant-velocity mode the velocity (m/s, ``v_sign`` × the state's) and its covariance too."""
 
-    def __init__(self, order, origin, out):
-        self.order, self.origin, self.out = order, origin, out
+    def __init__(self, order, origin, out, v_sign=1.0):
+        self.order, self.origin, self.out, self.v_sign = order, origin, out, v_sign
 
     def write(self, i, x, P):
         k = self.order[i]
         self.out["float_xyz"][k] = self.origin + x[:3]
         self.out["float_cov"][k] = P[:3, :3]
+        if "float_vel" in self.out:
+            self.out["float_vel"][k] = self.v_sign * x[3:6]
+            self.out["float_vel_cov"][k] = P[3:6, 3:6]
 
     def release_before(self, i):
         return None
@@ -768,8 +797,9 @@ class _AmbiguityHook(Hook):
     :meth:`_CarriedDecorrelation.resolve`), records the fixed (or, for a partial set, improved float)
     position and holds the integers (fix-and-hold)."""
 
-    def __init__(self, st, model, order, opt, iono, out, progress):
+    def __init__(self, st, model, order, opt, iono, out, progress, v_sign=1.0):
         self.st, self.model, self.order, self.opt, self.iono, self.out = st, model, order, opt, iono, out
+        self.v_sign = v_sign                       # the rover's velocity per velocity state (-1: a backward pass)
         self.progress, self.carried, self.run = progress, _CarriedDecorrelation(), 0
         self.holding, self.prior, self.resets, self.released_at = False, None, 0, None
 
@@ -826,12 +856,13 @@ class _AmbiguityHook(Hook):
         fx, n, ratio, fx_cov, partial = (_fix(st, groups, opt, self.carried) if (groups and opt["fix"])
                                          else (None, 0, np.nan, None, False))
         origin = self.model.origin
-        if fx is not None and not partial and np.trace(fx_cov) > MAX_FIXED_SIGMA_M ** 2:
+        if fx is not None and not partial and np.trace(fx_cov[:3, :3]) > MAX_FIXED_SIGMA_M ** 2:
             partial = True                         # integers fixed, but too few or too weak to set the position
-        if fx is not None and partial:             # part of the set: a better float, not a fixed position
-            out["float_xyz"][k], out["float_cov"][k] = origin + fx, fx_cov
-        elif fx is not None:
-            out["fixed_xyz"][k], out["fixed_cov"][k] = origin + fx, fx_cov
+        if fx is not None:                         # part of the set: a better float, not a fixed position
+            kind = "float" if partial else "fixed"
+            out[f"{kind}_xyz"][k], out[f"{kind}_cov"][k] = origin + fx[:3], fx_cov[:3, :3]
+            if f"{kind}_vel" in out:
+                out[f"{kind}_vel"][k], out[f"{kind}_vel_cov"][k] = self.v_sign * fx[3:6], fx_cov[3:6, 3:6]
         self.run = self.run + 1 if (fx is not None and not partial) else 0
         self._check_release(i, k)
         self.holding = bool(opt["fix_and_hold"] and self.run >= opt["hold_after_fixes"])
@@ -889,21 +920,25 @@ def _combine(f: dict, b: dict) -> dict:
     def smaller(Pa, Pb):                                      # the covariance of least trace (the first when equal)
         return np.where((np.trace(Pa, axis1=1, axis2=2) <= np.trace(Pb, axis1=1, axis2=2))[:, None, None], Pa, Pb)
 
-    out["float_xyz"] = merge(f["float_xyz"], f["float_cov"], b["float_xyz"], b["float_cov"])
-    out["float_cov"] = smaller(f["float_cov"], b["float_cov"])
-    out["fixed_xyz"][:], out["fixed_cov"][:] = np.nan, np.nan
+    pairs = [("xyz", "cov"), ("vel", "vel_cov")] if "float_vel" in f else [("xyz", "cov")]
+    for x, c in pairs:           # the velocity (constant-velocity mode) combined as the position, epoch by epoch
+        out[f"float_{x}"] = merge(f[f"float_{x}"], f[f"float_{c}"], b[f"float_{x}"], b[f"float_{c}"])
+        out[f"float_{c}"] = smaller(f[f"float_{c}"], b[f"float_{c}"])
+        out[f"fixed_{x}"][:], out[f"fixed_{c}"][:] = np.nan, np.nan
     ff, fb = f["fixed"], b["fixed"]
     both = np.flatnonzero(ff & fb)
     ok = agree(f["fixed_xyz"][both], f["fixed_cov"][both], b["fixed_xyz"][both], b["fixed_cov"][both])
     k = both[ok]
-    out["fixed_xyz"][k] = merge(f["fixed_xyz"][k], f["fixed_cov"][k], b["fixed_xyz"][k], b["fixed_cov"][k])
-    out["fixed_cov"][k] = smaller(f["fixed_cov"][k], b["fixed_cov"][k])
+    for x, c in pairs:
+        out[f"fixed_{x}"][k] = merge(f[f"fixed_{x}"][k], f[f"fixed_{c}"][k], b[f"fixed_{x}"][k], b[f"fixed_{c}"][k])
+        out[f"fixed_{c}"][k] = smaller(f[f"fixed_{c}"][k], b[f"fixed_{c}"][k])
     out["rejected"] += int(both.size - k.size)
     for src, other, one in ((f, b, ff & ~fb), (b, f, fb & ~ff)):   # one pass fixed: agrees with the other's float?
         i = np.flatnonzero(one)
         ok = src["held"][i] | agree(src["fixed_xyz"][i], src["fixed_cov"][i], other["float_xyz"][i],
                                     other["float_cov"][i])
-        out["fixed_xyz"][i[ok]], out["fixed_cov"][i[ok]] = src["fixed_xyz"][i[ok]], src["fixed_cov"][i[ok]]
+        for x, c in pairs:
+            out[f"fixed_{x}"][i[ok]], out[f"fixed_{c}"][i[ok]] = src[f"fixed_{x}"][i[ok]], src[f"fixed_{c}"][i[ok]]
         out["rejected"] += int(i.size - ok.sum())
     fr, br = f["ratio"], b["ratio"]
     out["ratio"] = np.where(np.isfinite(fr) | np.isfinite(br), np.fmax(fr, br), np.nan)

@@ -91,7 +91,8 @@ def _signed_root(c):
     return np.sign(c) * np.sqrt(np.abs(c))
 
 
-def pos_text(time_gps_s, coords, q, ns, cov, age_s, ratio, *, frame: str, header: list[str]) -> str:
+def pos_text(time_gps_s, coords, q, ns, cov, age_s, ratio, *, frame: str, header: list[str],
+             velocity_neu=None) -> str:
     """An RTKLIB ``.pos`` file.
 
     Parameters
@@ -110,6 +111,10 @@ def pos_text(time_gps_s, coords, q, ns, cov, age_s, ratio, *, frame: str, header
     frame : {"llh", "xyz", "enu"}
     header : list of str
         Lines for the ``%`` header (program, inputs, options, reference position …).
+    velocity_neu : tuple of array_like, optional
+        The velocity in the local north, east, up axes (n, 3; m/s) and its covariance (n, 3, 3; m²/s²),
+        written as RTKLIB's nine velocity columns after ``ratio`` (``vn ve vu`` and ``sdvn sdve sdvu sdvne
+        sdveu sdvun``, its ``out-outvel`` layout).
     """
     if frame not in POS_FRAMES:
         raise ValueError(f"frame: expected one of {', '.join(POS_FRAMES)}, got {frame!r}")
@@ -123,14 +128,33 @@ def pos_text(time_gps_s, coords, q, ns, cov, age_s, ratio, *, frame: str, header
     out.append("% (Q=1:fix,2:float,5:single,ns=# of satellites; " +
                ("lat/lon/height=WGS84/ellipsoidal" if frame == "llh" else "ECEF" if frame == "xyz" else "e/n/u-baseline=WGS84")
                + ")")
+    vel = _velocity_fields(velocity_neu, c.shape[0])
     out.append(f"%  GPST                  {names[0]:>14s} {names[1]:>14s} {names[2]:>14s}   Q  ns "
-               + " ".join(f"{n:>8s}" for n in sd_names) + "  age(s)  ratio")
+               + " ".join(f"{n:>8s}" for n in sd_names) + "  age(s)  ratio" + (_POS_VELOCITY_HEAD if vel else ""))
     fmt = "{:14.9f} {:14.9f} {:10.4f}" if frame == "llh" else "{:14.4f} {:14.4f} {:14.4f}"
     for k in range(c.shape[0]):
         out.append(f"{_calendar(float(time_gps_s[k]))} " + fmt.format(*c[k]) + f" {int(q[k]):3d} {int(ns[k]):3d} "
                    + " ".join(f"{_unsigned_zero(v, 4):8.4f}" for v in (*sd[k], *cr[k]))
-                   + f" {_unsigned_zero(age_s[k], 2):6.2f} {float(ratio[k]):6.1f}")
+                   + f" {_unsigned_zero(age_s[k], 2):6.2f} {float(ratio[k]):6.1f}" + (vel[k] if vel else ""))
     return "\n".join(out) + "\n"
+
+
+#: RTKLIB's velocity column heads (``out-outvel``), after ``ratio``
+_POS_VELOCITY_HEAD = ("    vn(m/s)    ve(m/s)    vu(m/s)      sdvn     sdve     sdvu    sdvne    sdveu    sdvun")
+
+
+def _velocity_fields(velocity_neu, n: int) -> list[str] | None:
+    """Each epoch's velocity columns of a ``.pos`` line (:func:`pos_text`), or None without a velocity."""
+    if velocity_neu is None:
+        return None
+    v, C = (np.asarray(a, dtype=float) for a in velocity_neu)
+    if v.shape != (n, 3) or C.shape != (n, 3, 3):
+        raise ValueError(f"velocity_neu: expected shapes ({n}, 3) and ({n}, 3, 3), got {v.shape} and {C.shape}")
+    sd = np.sqrt(np.abs(np.stack([C[:, i, i] for i in range(3)], axis=1)))
+    cr = np.stack([_signed_root(C[:, i, j]) for i, j in ((0, 1), (1, 2), (2, 0))], axis=1)
+    return [" " + " ".join(f"{_unsigned_zero(x, 5):10.5f}" for x in v[k]) + " "
+            + f"{_unsigned_zero(sd[k, 0], 5):9.5f} " + " ".join(f"{_unsigned_zero(x, 5):8.5f}" for x in (*sd[k, 1:], *cr[k]))
+            for k in range(n)]
 
 
 def _unsigned_zero(value, decimals: int) -> float:
@@ -190,18 +214,30 @@ def nmea_gga_text(time_gps_s, lat_deg, lon_deg, height_m, q, ns, age_s) -> str:
     return "\r\n".join(out) + "\r\n"
 
 
-def geojson_text(time_gps_s, lat_deg, lon_deg, height_m, q, ns, sigma_enu_m, *, properties: dict) -> str:
+def geojson_text(time_gps_s, lat_deg, lon_deg, height_m, q, ns, sigma_enu_m, *, properties: dict,
+                 velocity_enu=None) -> str:
     """A GeoJSON FeatureCollection of one Point per epoch ([lon, lat, h], WGS84), with the epoch's
-    ``time_gps_s``, ``q``, ``ns`` and ``sigma_e_m``/``sigma_n_m``/``sigma_u_m``."""
+    ``time_gps_s``, ``q``, ``ns`` and ``sigma_e_m``/``sigma_n_m``/``sigma_u_m``; with ``velocity_enu``
+    (the velocity (n, 3) and its σ (n, 3) in the local east, north, up axes, m/s) also ``ve_m_s`` … and
+    ``sigma_ve_m_s`` …."""
     sig = np.asarray(sigma_enu_m, dtype=float)
     feats = [{"type": "Feature",
               "geometry": {"type": "Point", "coordinates": [round(float(lon_deg[k]), 10), round(float(lat_deg[k]), 10),
                                                             round(float(height_m[k]), 4)]},
               "properties": {"time_gps_s": float(time_gps_s[k]), "q": int(q[k]), "ns": int(ns[k]),
                              "sigma_e_m": round(float(sig[k, 0]), 5), "sigma_n_m": round(float(sig[k, 1]), 5),
-                             "sigma_u_m": round(float(sig[k, 2]), 5)}}
+                             "sigma_u_m": round(float(sig[k, 2]), 5), **_velocity_properties(velocity_enu, k)}}
              for k in range(len(time_gps_s))]
     return json.dumps({"type": "FeatureCollection", "properties": properties, "features": feats}, indent=1) + "\n"
+
+
+def _velocity_properties(velocity_enu, k: int) -> dict:
+    """Epoch ``k``'s velocity properties of a GeoJSON point (:func:`geojson_text`); none without a velocity."""
+    if velocity_enu is None:
+        return {}
+    v, sd = velocity_enu
+    return {**{f"v{a}_m_s": round(float(v[k, i]), 5) for i, a in enumerate("enu")},
+            **{f"sigma_v{a}_m_s": round(float(sd[k, i]), 5) for i, a in enumerate("enu")}}
 
 
 def _pos_time(fields: list[str], path, lineno) -> tuple[float, int]:

@@ -223,11 +223,27 @@ def _solution_columns(res, base_xyz):
     return xyz, cov, q, np.degrees(lat), np.degrees(lon), h, enu, cov_enu
 
 
+def _velocity_enu(res, lat_deg, lon_deg):
+    """Constant-velocity mode's velocity per epoch (fixed where fixed, else float) in the local east, north, up
+    axes at the rover (n, 3; m/s) and its covariance (n, 3, 3; m²/s²); None in the other modes."""
+    if "float_vel_m_s" not in res:
+        return None
+    fixed = res["fixed"]
+    v = np.where(fixed[:, None], res["fixed_vel_m_s"], res["float_vel_m_s"])
+    C = np.where(fixed[:, None, None], res["fixed_vel_cov_m2_s2"], res["float_vel_cov_m2_s2"])
+    R = enu_matrix(np.radians(lat_deg), np.radians(lon_deg))          # (n, 3, 3) rows e, n, u
+    return np.einsum("nij,nj->ni", R, v), np.einsum("nij,njk,nlk->nil", R, C, R)
+
+
 def solution_text(res: dict, sigs, opt: dict, out_path, base_xyz, *, inputs=()) -> str:
     """The solution as the text of the format ``out_path``'s suffix names (:data:`OUTPUT_FORMATS`;
     any other suffix: CSV).  CSV columns: ``time_gps_s, x_m, y_m, z_m, fixed, n_dd_ambiguities, ratio,
-    n_satellites, age_s, e_m, n_m, u_m`` (ENU baseline from the base) and ``sigma_e_m, sigma_n_m, sigma_u_m``."""
+    n_satellites, age_s, e_m, n_m, u_m`` (ENU baseline from the base) and ``sigma_e_m, sigma_n_m, sigma_u_m``;
+    in constant-velocity mode also the velocity in the rover's east, north, up axes, ``ve_m_s, vn_m_s, vu_m_s``,
+    and its ``sigma_ve_m_s, sigma_vn_m_s, sigma_vu_m_s`` (in ``.pos``: RTKLIB's velocity columns, in GeoJSON:
+    each point's properties)."""
     xyz, cov, q, lat, lon, h, enu, cov_enu = _solution_columns(res, base_xyz)
+    vel = _velocity_enu(res, lat, lon)
     t, ns, age = res["time_gps_s"], res["n_satellites"], res["base_age_s"]
     ratio = np.array([finite_or(r, 0.0) for r in res["ratio"]])
     sig_enu = np.sqrt(np.abs(np.einsum("nii->ni", cov_enu)))
@@ -239,12 +255,14 @@ def solution_text(res: dict, sigs, opt: dict, out_path, base_xyz, *, inputs=()) 
         header = [f"program   : {desc}", *(f"inp file  : {p}" for p in inputs),
                   f"ref pos   : {np.degrees(bl):.9f} {np.degrees(bo):.9f} {bh:.4f}"]
         cov_neu = cov_enu[:, [1, 0, 2]][:, :, [1, 0, 2]]
-        return pos_text(t, np.c_[lat, lon, h], q, ns, cov_neu, age, ratio, frame="llh", header=header)
+        neu = None if vel is None else (vel[0][:, [1, 0, 2]], vel[1][:, [1, 0, 2]][:, :, [1, 0, 2]])
+        return pos_text(t, np.c_[lat, lon, h], q, ns, cov_neu, age, ratio, frame="llh", header=header, velocity_neu=neu)
     if suffix in (".nmea", ".gga"):
         return nmea_gga_text(t, lat, lon, h, q, ns, age)
     if suffix == ".geojson":
         return geojson_text(t, lat, lon, h, q, ns, sig_enu, properties={"program": desc, "inputs": [str(p) for p in inputs],
-                                                                        "height": "ellipsoidal (WGS84), m"})
+                                                                        "height": "ellipsoidal (WGS84), m"},
+                            velocity_enu=None if vel is None else (vel[0], np.sqrt(np.abs(np.einsum("nii->ni", vel[1])))))
     buf = _io.StringIO()
     for s in sigs:
         buf.write(f"# signal {s} wavelength_m {signal(s).wavelength_m:.9f}\n" if not signal(s).fdma_step_hz
@@ -257,9 +275,19 @@ def solution_text(res: dict, sigs, opt: dict, out_path, base_xyz, *, inputs=()) 
                         "fixed": res["fixed"].astype(int), "n_dd_ambiguities": res["n_dd_ambiguities"],
                         "ratio": res["ratio"], "n_satellites": ns, "age_s": age,
                         "e_m": enu[:, 0], "n_m": enu[:, 1], "u_m": enu[:, 2],
-                        "sigma_e_m": sig_enu[:, 0], "sigma_n_m": sig_enu[:, 1], "sigma_u_m": sig_enu[:, 2]},
+                        "sigma_e_m": sig_enu[:, 0], "sigma_n_m": sig_enu[:, 1], "sigma_u_m": sig_enu[:, 2],
+                        **_velocity_columns(vel)},
                        float_format="%.4f"))
     return buf.getvalue()
+
+
+def _velocity_columns(vel) -> dict:
+    """The CSV's velocity columns (m/s) of :func:`_velocity_enu`'s result; none without a velocity."""
+    if vel is None:
+        return {}
+    v, sd = vel[0], np.sqrt(np.abs(np.einsum("nii->ni", vel[1])))
+    return {**{f"v{a}_m_s": v[:, i] for i, a in enumerate("enu")},
+            **{f"sigma_v{a}_m_s": sd[:, i] for i, a in enumerate("enu")}}
 
 
 _GEOCENTRIC_RANGE_M = GEOCENTRIC_RANGE_M          # one home: config/limits.py
@@ -305,7 +333,7 @@ def _solve_where_the_rover_is(gb, gr, bx, rx, opt: dict, *, rover: tuple, nav: t
     table, whether it was solved again)."""
     r, rover_path, rx_from_spp = rover
     res = solve_rtk(gb, gr, bx, rx, options=opt, code_noise=code_noise)
-    xyz_ep = _fixed_positions(res)
+    xyz_ep = _troposphere_positions(res, rx)
     moved = np.nanmedian(xyz_ep, axis=0) - rx if np.isfinite(xyz_ep).any() else np.zeros(3)
     far = np.linalg.norm(moved) > ROVER_ORIGIN_TOL_M
     if not (far or _heights_differ(xyz_ep, rx)):
@@ -376,6 +404,21 @@ def _fixed_positions(res: dict) -> np.ndarray:
     """ECEF position (m) of each fixed epoch of a :func:`solve_rtk` solution, NaN rows elsewhere (a float
     position may be metres off: it says nothing about where the rover's troposphere is)."""
     return np.where(res["fixed"][:, None], res["fixed_xyz_m"], np.nan)
+
+
+def _troposphere_positions(res: dict, origin_m: np.ndarray) -> np.ndarray:
+    """Where the rover is at each epoch, for its troposphere (ECEF m; NaN rows: at the origin): the fixed position
+    of a fixed epoch, else the float position when its height is off the origin's by more than three times its
+    3-D σ and :data:`ROVER_ORIGIN_TOL_M` (a rover that climbs, and whose phases fix nothing while its troposphere
+    is computed at the origin: a simulated rover 1 km up had its float 1 m high and no fix); a float position
+    within that says nothing about where the rover's troposphere is."""
+    xyz = _fixed_positions(res)
+    flt = res["float_xyz_m"]
+    dh = np.abs(ecef_to_geodetic(flt)[2] - ecef_to_geodetic(origin_m)[2])
+    sigma = np.sqrt(np.abs(np.trace(res["float_cov_m2"], axis1=1, axis2=2)))
+    away = ~res["fixed"] & np.isfinite(dh) & (dh > np.maximum(ROVER_ORIGIN_TOL_M, 3.0 * sigma))
+    xyz[away] = flt[away]
+    return xyz
 
 
 def _heights_differ(xyz_m: np.ndarray, origin_m: np.ndarray) -> bool:

@@ -12,7 +12,8 @@ a constant plus a random walk — and writes into one directory:
 * ``nav.rnx`` — RINEX 3.04 GPS navigation file (the ephemerides the data were made with: a
   synthetic constellation, or the records of ``--nav``);
 * ``truth.csv`` — ``time_s`` (GPS s of the nominal epochs) and the rover's true displacement
-  ``<rover>_e_m``, ``<rover>_n_m``, ``<rover>_u_m`` (m, local east/north/up at the nominal position);
+  ``<rover>_e_m``, ``<rover>_n_m``, ``<rover>_u_m`` (m, local east/north/up at the nominal position),
+  with ``--constant-velocity`` also its true velocity ``<rover>_ve_m_s`` … (m/s, the same axes);
   the column names match the estimate's, so ``cdgps evaluate --truth DIR --estimate STATES.mcap``
   compares them;
 * ``truth.json`` — positions, displacement model, slips, the integer ambiguities, settings;
@@ -194,7 +195,7 @@ def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_
                    mask_deg=mask_deg, clock_offset_ms=clock_offset_ms, clock_drift_ms=clock_drift_ms,
                    raw_tags=raw_tags, master_rate_hz=master_rate_hz, nav_source=nav_source)
     disp = np.asarray(displacement_enu_m, dtype=np.float64)
-    offsets = _rover_offsets(run, disp)
+    offsets, velocity = _rover_offsets(run, disp)
     phase_noise, phase_model = _phase_noise_model(phase_sigma_m)
     sim = _simulate_pair(run, nav, disp, offsets, phase_noise, say)
     slip_note = _slip_note(run, sim["slips"], say)
@@ -202,7 +203,7 @@ def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_
     out = Path(out_dir)
     with output_set(out, replaces=previous_simulation_files(out, "cdgps gnss simulation")) as dest:
         files = _write_pair_rinex(dest, run, sim, nav)
-        names = _write_pair_truth_csv(dest, run, offsets)
+        names = _write_pair_truth_csv(dest, run, offsets, velocity)
         truth_json = {**_truth_run_fields(run),
                       **_truth_rover_fields(run, disp, offsets, names, phase_noise, phase_model),
                       **_truth_event_fields(run, sim, slip_note),
@@ -328,9 +329,10 @@ def _navigation(nav_paths, start_gps_s, duration_s: float, seed: int):
     return nav, start_gps_s, [str(p) for p in nav_paths]
 
 
-def _rover_offsets(run: _PairRun, disp: np.ndarray) -> np.ndarray:
+def _rover_offsets(run: _PairRun, disp: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
     """The rover's true displacement at every nominal epoch, m (n_ep, 3) ENU: ``disp`` plus the
-    random walk if any (its own generator, seed + 7919)."""
+    random walk if any (its own generator, seed + 7919); and its true velocity (n_ep, 3; m/s ENU) with
+    ``accel_sigma`` (the constant-velocity process), else None."""
     gen = np.random.default_rng(run.seed + 7919)
     offsets = np.tile(disp, (run.n_ep, 1))
     if run.random_walk_sigma is not None:
@@ -343,12 +345,12 @@ def _rover_offsets(run: _PairRun, disp: np.ndarray) -> np.ndarray:
         L = np.linalg.cholesky(run.accel_sigma**2 * np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]]))
         w = gen.normal(size=(run.n_ep, 2, 3))
         x = np.zeros((2, 3))
-        path = np.zeros((run.n_ep, 3))
+        path, velocity = np.zeros((run.n_ep, 3)), np.zeros((run.n_ep, 3))
         for k in range(1, run.n_ep):
             x = A @ x + L @ w[k]
-            path[k] = x[0]
-        offsets = offsets + path
-    return offsets
+            path[k], velocity[k] = x[0], x[1]
+        return offsets + path, velocity
+    return offsets, None
 
 
 def _phase_noise_model(phase_sigma_m: float | None):
@@ -413,11 +415,14 @@ def _write_pair_rinex(dest, run: _PairRun, sim: dict, nav) -> dict:
     return files
 
 
-def _write_pair_truth_csv(dest, run: _PairRun, offsets: np.ndarray) -> list[str]:
-    """Write truth.csv (nominal epochs, the rover's true ENU displacement); returns its coordinate columns."""
+def _write_pair_truth_csv(dest, run: _PairRun, offsets: np.ndarray, velocity: np.ndarray | None = None) -> list[str]:
+    """Write truth.csv (nominal epochs, the rover's true ENU displacement, and its velocity ``<rover>_ve_m_s`` …
+    when given); returns its coordinate columns."""
     names = [coordinate_column(f"{run.rover}_{c}", "m") for c in "enu"]
     t_nom = run.start_gps_s + np.arange(run.n_ep) * run.interval_s
-    truth = pd.DataFrame({"time_s": t_nom, names[0]: offsets[:, 0], names[1]: offsets[:, 1], names[2]: offsets[:, 2]})
+    truth = pd.DataFrame({"time_s": t_nom, names[0]: offsets[:, 0], names[1]: offsets[:, 1], names[2]: offsets[:, 2],
+                          **({} if velocity is None else
+                             {f"{run.rover}_v{c}_m_s": velocity[:, i] for i, c in enumerate("enu")})})
     write_atomic(dest.path("truth.csv"), lambda p: truth.to_csv(p, index=False, lineterminator="\n", float_format="%.6f"))
     return names
 

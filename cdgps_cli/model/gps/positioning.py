@@ -731,13 +731,15 @@ def simulate_static_pair(
     for name, x in stations.items():
         frac = float(gen.uniform(-0.5, 0.5))
         fracs[name] = frac
-        lat, _, h = ecef_to_geodetic(x)
+        # the troposphere where the receiver is at each epoch (a rover that climbs: ≈ 0.3 mm per metre of height)
+        lat, _, h = ecef_to_geodetic(track[name]) if name in track else ecef_to_geodetic(x)
         recs = []
         for s, idx_all, vis, geo in per_sat:
             idx = idx_all[vis]
             rho, dts, el = (a[vis] for a in geo[name])
             tt = t_true[name][idx]
-            trop = tropo_hydrostatic_m(el, lat, h, tt) if troposphere else np.zeros(idx.size)
+            at = (lat[idx], h[idx]) if name in track else (lat, h)
+            trop = tropo_hydrostatic_m(el, *at, tt) if troposphere else np.zeros(idx.size)
             seg_start = np.concatenate([[True], np.diff(idx) > 1])
             seg_id = np.cumsum(seg_start) - 1
             n_int = gen.integers(-2_000_000, 2_000_000, size=int(seg_id.max()) + 1)
