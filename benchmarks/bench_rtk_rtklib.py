@@ -97,6 +97,7 @@ def cases(tmp: Path) -> list:
               (-1276975.6547, -4717238.8712, 4087235.6076), ("G:L1", "E:E1"), 1,
               rtklib_base=walk / "gnss_1730_convbin.obs", rtklib_navs=[walk / "gnss_1730_convbin.nav"]),
         *_m8p_cases(),
+        *_f9p_cases(),
     ]
 
 
@@ -116,6 +117,20 @@ def _m8p_cases() -> list:
         out.append(_case("CORS GLW1 to the M8P rover GPS L1", d / "glw1277m.18o", d / "rover1.obs", [d / "glw1277m.18n"],
                          _header_xyz(d / "glw1277m.18o"), ("G:L1",), 1))
     return out
+
+
+def _f9p_cases() -> list:
+    """``--f9p DIR``: a real static F9P-class pair 1.23 km apart, 15 s, 4 h (geofis/ppk at 9d6602d, GPL-3.0: fetched
+    locally; DIR is its ``example-rinex`` folder, base/ and rover/ each with the convbin RINEX 3.04 of 2022-02-25),
+    G+E+C L1 and L1 + L2, the base at its header position."""
+    if "--f9p" not in sys.argv:
+        return []
+    d = Path(sys.argv[sys.argv.index("--f9p") + 1])
+    base, rover = d / "base" / "2022-02-25_00-00-00_GNSS-1.obs", d / "rover" / "2022-02-25_13-26-06_GNSS-1.obs"
+    navs = [d / "base" / "2022-02-25_00-00-00_GNSS-1.nav"]
+    return [_case("F9P pair 1.2 km G+E+C L1", base, rover, navs, _header_xyz(base), ("G:L1", "E:E1", "C:B1I"), 1),
+            _case("F9P pair 1.2 km G+E+C L1+L2", base, rover, navs, _header_xyz(base),
+                  ("G:L1", "G:L2", "E:E1", "E:E5b", "C:B1I"), 2)]
 
 
 def _header_xyz(path: Path):
@@ -281,6 +296,8 @@ def main() -> None:
     ap.add_argument("--no-rtklib", action="store_true", help="time our side only")
     ap.add_argument("--before", metavar="TREE", help="also time another source tree's `cdgps rtk` in the same rounds")
     ap.add_argument("--out", type=Path, default=OUT, help=f"result JSON [{OUT}]")
+    ap.add_argument("--f9p", type=Path, metavar="DIR", help="also a real F9P pair (geofis/ppk example-rinex fetched into "
+                    "DIR; see _f9p_cases)")
     ap.add_argument("--m8p", type=Path, metavar="DIR", help="also issue 28's u-blox M8P pair and the CORS to its base "
                     "(jdesbonnet/GNSS_RTK_data 20181004, converted by convbin into DIR; see _m8p_cases)")
     args = ap.parse_args()
