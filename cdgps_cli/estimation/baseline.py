@@ -439,11 +439,48 @@ def _receiver_rows(st: Station, ce: _Epochs, nav: pd.DataFrame, pos, opt: Baseli
                         f"healthy broadcast ephemeris within ±2 h and are not used")
     o = o[cov]
     ep = o["ep"].to_numpy()
-    clk = estimate_receiver_clock(ep, o["sat"].to_numpy(), o["time_gps_s"].to_numpy(),
-                                  o["pseudorange_l1_m"].to_numpy(), nav, pos, n_epochs=n_ep,
-                                  troposphere=opt.troposphere, what=_where(st))
+    c_ep, c_sat, c_t, c_pr = _clock_rows(st, o, tag, t_label, nav)
+    clk = estimate_receiver_clock(c_ep, c_sat, c_t, c_pr, nav, pos, n_epochs=n_ep, troposphere=opt.troposphere,
+                                  what=_where(st))
     o["t_true"] = o["time_gps_s"].to_numpy() - clk[ep]
     return o, clk, tag
+
+
+#: systems whose pseudoranges give a receiver's clock with the anchor's (CDMA: one range model for all satellites)
+_CLOCK_SYSTEMS = ("G", "E", "C")
+
+
+def _clock_rows(st: Station, o: pd.DataFrame, tag: np.ndarray, t_label: np.ndarray, nav: pd.DataFrame) -> tuple:
+    """The rows (epoch, satellite, time tag, pseudorange m) a receiver's clock is estimated from: its GPS L1 rows
+    ``o`` (covered by ``nav``); with a signal table, one pseudorange per satellite and epoch of every GPS, Galileo
+    and BeiDou signal recorded at the epochs' tags ``tag`` (GPS s; NaN: no epoch) and covered by ``nav``.
+
+    Every system's codes, as :func:`~cdgps_cli.estimation.rtk_multi.receiver_geometry` takes them: where the anchor
+    has one or two satellites with an ephemeris the clock from them alone can be far off or missing and
+    interpolated (a real F9P pair whose GPS ephemerides begin 34 min into the record: 88 µs against its Galileo
+    clock, which put the Galileo rows' satellites centimetres off in the double differences); the systems' biases
+    (tens of ns) move a satellite by micrometres."""
+    if st.signals is None:
+        return (o["ep"].to_numpy(), o["sat"].to_numpy(), o["time_gps_s"].to_numpy(), o["pseudorange_l1_m"].to_numpy())
+    sig = st.signals
+    pr = sig["pseudorange_m"].to_numpy(dtype=np.float64)
+    keep = np.flatnonzero(sig["sat"].astype(str).str[0].isin(_CLOCK_SYSTEMS).to_numpy() & np.isfinite(pr))
+    t = sig["time_gps_s"].to_numpy(dtype=np.float64)[keep]
+    have = np.flatnonzero(np.isfinite(tag))
+    if not have.size:
+        return (o["ep"].to_numpy(), o["sat"].to_numpy(), o["time_gps_s"].to_numpy(), o["pseudorange_l1_m"].to_numpy())
+    order = have[np.argsort(tag[have], kind="stable")]
+    tt = tag[order]
+    i = np.clip(np.searchsorted(tt, t), 1, tt.size - 1) if tt.size > 1 else np.zeros(t.size, dtype=np.int64)
+    if tt.size > 1:
+        i = np.where(np.abs(tt[i - 1] - t) <= np.abs(tt[i] - t), i - 1, i)
+    at = np.abs(tt[i] - t) <= 1e-6                   # a row belongs to the epoch whose tag is its own
+    rows = pd.DataFrame({"ep": order[i[at]], "sat": sig["sat"].to_numpy()[keep][at], "t": t[at], "pr": pr[keep][at]})
+    rows = rows.drop_duplicates(["ep", "sat"], keep="first")
+    rows = rows[ephemeris_coverage(nav, rows["sat"].to_numpy(), t_label[rows["ep"].to_numpy()])]
+    if rows.empty:
+        return (o["ep"].to_numpy(), o["sat"].to_numpy(), o["time_gps_s"].to_numpy(), o["pseudorange_l1_m"].to_numpy())
+    return rows["ep"].to_numpy(), rows["sat"].to_numpy(), rows["t"].to_numpy(), rows["pr"].to_numpy()
 
 
 def _both_receivers(master_fn, rover_fn, warnings: list) -> tuple:
