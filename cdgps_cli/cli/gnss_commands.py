@@ -115,10 +115,14 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, min_su
               show_default=True, help="Rover displacement model.")
 @click.option("--sigma", "sigma", type=float, default=None, help="random_walk process noise, m/√s per component [0.001].")
 @click.option("--name", default=None, help="Run name (default: the antenna names).")
+@click.option("--signals", default="auto", show_default=True,
+              help="[gnss] signals: 'auto' (every signal all receivers hold whose system has ephemerides in --nav, "
+                   "or in the u-blox logs' RXM-SFRBX; as 'cdgps rtk'), or comma-separated names (G:L1,E:E1,...). "
+                   "GPS L1 alone writes no key (the GPS L1 path).")
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="Config TOML to write.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (the written config as it loads, notes) on stdout.")
 @click.pass_context
-def config_cmd(ctx, rinex, ubx, nav, master, displacement, sigma, name, output, as_json):
+def config_cmd(ctx, rinex, ubx, nav, master, displacement, sigma, name, signals, output, as_json):
     """Write a starter GNSS run config from the receiver files' headers (for ingest and baseline)."""
     from cdgps_cli.pipeline.gnss_ingest import starter_gnss_config
 
@@ -127,9 +131,11 @@ def config_cmd(ctx, rinex, ubx, nav, master, displacement, sigma, name, output, 
                          "constant_velocity, whose init resolves the integers on the random-walk float)")
     notes: list = []
     warnings: list = []
+    sig = "auto" if signals.strip() == "auto" else [x.strip() for x in signals.split(",") if x.strip()]
     text = starter_gnss_config(_parse_named(rinex, "--rinex"), _parse_named(ubx, "--ubx"), list(nav), master,
                                displacement=displacement, sigma_m_per_sqrt_s=sigma,
-                               relative_to=Path(output).resolve().parent, name=name, notes=notes, warnings=warnings)
+                               relative_to=Path(output).resolve().parent, name=name, notes=notes, warnings=warnings,
+                               signals=sig)
     _write_text_atomic(output, text)
     for w in warnings:
         _warn(w)

@@ -1016,9 +1016,10 @@ def gnss_run_info(path: str | Path, contents, common_epochs=None, lock_summary=N
 def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), master: str | None = None, *,
                         displacement: str = "static", sigma_m_per_sqrt_s=None, relative_to: Path | None = None,
                         name: str | None = None, notes: list | None = None, warnings: list | None = None,
-                        master_position=None) -> str:
+                        master_position=None, signals=None) -> str:
     """Text of a GNSS run config for the given files; the headers are read and summarised in
-    comments (marker, receiver, antenna, span, header position).  The master defaults to the first
+    comments (marker, receiver, antenna, span, header position); ``signals`` (names) become ``[gnss] signals``
+    unless they are GPS L1 alone (the GPS L1 path, no key).  The master defaults to the first
     RINEX antenna with a header position (or a UBX log with an RTCM 1005/1006 station position);
     paths are written relative to ``relative_to``.  A UBX master's ``position_ecef_m`` is the
     RTCM 1005/1006 antenna reference point, else the mean single-point position (said in the
@@ -1094,9 +1095,11 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
         if notes is not None:
             notes.append(f"{master} ({Path(ubx[master]).name}): no RTCM 1005/1006 base position in the log; "
                          f"position_ecef_m is the mean single-point position (metre level), not a surveyed one")
+    sig = list(signals or ())
     text = gnss_config_toml(files, [rel(p) for p in nav_paths], master, name=name or "-".join(files),
                             displacement=displacement, sigma_m_per_sqrt_s=sigma_m_per_sqrt_s, comments=comments,
-                            positions=positions or None)
+                            positions=positions or None,
+                            options={"signals": sig} if sig and sig != ["G:L1"] else None)
     cfg = parse_gnss_config(text, "<starter config>")         # it must load, and say what was written
     for n, pos in positions.items():
         back = cfg.antenna(n).position_ecef_m

@@ -319,10 +319,31 @@ def _run_common_epochs(run: gnss_run.GnssRun) -> dict:
     return common
 
 
-def starter_gnss_config(*args, **kwargs) -> str:
+def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), master: str | None = None, *,
+                        signals="auto", **kwargs) -> str:
     """:func:`cdgps_cli.io.gnss_run.starter_gnss_config` with a single-point position for a UBX
-    master whose log has no RTCM 1005/1006 (:func:`spp_master_position`)."""
-    return gnss_run.starter_gnss_config(*args, master_position=spp_master_position, **kwargs)
+    master whose log has no RTCM 1005/1006 (:func:`spp_master_position`) and ``signals``: "auto" — every
+    signal all receivers hold whose system has ephemerides in the navigation files (or the u-blox logs'
+    RXM-SFRBX), as ``cdgps rtk --signals auto`` (:func:`cdgps_cli.pipeline.gnss_multi.common_signals`;
+    systems without ephemerides named in ``kwargs["warnings"]``) — or a list of signal names."""
+    from cdgps_cli.pipeline.gnss_multi import common_signals  # noqa: PLC0415
+
+    if signals != "auto":
+        from cdgps_cli.core.signals import SIGNALS  # noqa: PLC0415
+
+        bad = [x for x in signals or () if x not in SIGNALS]
+        if bad or not signals:
+            raise CdgpsError(f"--signals: expected 'auto' or signal names, got {', '.join(map(repr, bad)) or 'none'} "
+                             f"(known: {', '.join(SIGNALS)})")
+    if signals == "auto":
+        files = {**(rinex or {}), **(ubx or {})}
+        try:
+            signals = common_signals(files, list(nav_paths), kwargs.get("warnings") if kwargs.get("warnings") is not None
+                                     else []) if files else None
+        except CdgpsError:     # no signal with ephemerides: the GPS L1 path, whose checks say what is missing
+            signals = None
+    return gnss_run.starter_gnss_config(rinex, ubx, nav_paths, master, master_position=spp_master_position,
+                                        signals=signals, **kwargs)
 
 
 def spp_master_position(name: str, path, rx: "gnss_run.GnssReceiver", nav_paths, ubx_rx: dict) -> tuple:

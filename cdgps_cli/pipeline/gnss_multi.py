@@ -34,7 +34,7 @@ from cdgps_cli.io.solution_formats import Q_FIX, Q_FLOAT, csv_text, finite_or, g
 from cdgps_cli.model.gps.orbits import ecef_to_enu, ecef_to_geodetic, enu_matrix
 from cdgps_cli.model.gps.positioning import ephemeris_coverage, spp_static
 
-__all__ = ["validate_options", "rtk_from_files"]
+__all__ = ["validate_options", "rtk_from_files", "common_signals"]
 
 
 def validate_options(options: dict) -> dict:
@@ -600,12 +600,19 @@ def _ubx_nav(paths) -> pd.DataFrame | None:
 def _auto_signals(base_files, rover_files, nav_paths, warnings: list) -> list[str]:
     """Every signal both receivers' files hold (a receiver's files together) whose system has ephemerides in the
     navigation files (systems the navigation data lack are named in a warning); CdgpsError when none is left."""
-    base_files, rover_files = _as_list(base_files), _as_list(rover_files)
-    held = [set().union(*(_ubx_signals(p) if is_ubx_log(p) else signals_in_file(p) for p in files))
-            for files in (base_files, rover_files)]
-    base_path, rover_path = pieces_text(base_files), pieces_text(rover_files)
-    both = [s for s in SIGNALS if s in held[0] and s in held[1]]
-    systems = sorted({signal(s).system for s in both if signal(s).system in NAV_SYSTEMS})
+    return common_signals({"base": _as_list(base_files), "rover": _as_list(rover_files)}, nav_paths, warnings)
+
+
+def common_signals(receivers: dict, nav_paths, warnings: list) -> list[str]:
+    """Every signal all ``receivers`` hold (name → its files, a receiver's files together) whose system has
+    ephemerides in ``nav_paths`` (without any: in the u-blox logs' RXM-SFRBX frames), in :data:`SIGNALS` order:
+    ``rtk``'s ``--signals auto`` and ``config``'s.  Systems the navigation data lack are named in a warning;
+    CdgpsError when no signal is left."""
+    files = {n: _as_list(f) for n, f in receivers.items()}
+    held = {n: set().union(*(_ubx_signals(p) if is_ubx_log(p) else signals_in_file(p) for p in fs))
+            for n, fs in files.items()}
+    every = [s for s in SIGNALS if all(s in h for h in held.values())]
+    systems = sorted({signal(s).system for s in every if signal(s).system in NAV_SYSTEMS})
     have = set()
     for p in nav_paths:
         try:
@@ -613,21 +620,24 @@ def _auto_signals(base_files, rover_files, nav_paths, warnings: list) -> list[st
         except CdgpsError as exc:
             if not _holds_none_of(exc):
                 raise
+    all_files = [p for fs in files.values() for p in fs]
     if not nav_paths:
-        ubx_nav = _ubx_nav((*base_files, *rover_files))
+        ubx_nav = _ubx_nav(all_files)
         have = set(ubx_nav["sat"].str[0]) if ubx_nav is not None else set()
-    use = [s for s in both if signal(s).system in have]
-    lost = sorted({signal(s).system for s in both} - have)
+    use = [s for s in every if signal(s).system in have]
+    lost = sorted({signal(s).system for s in every} - have)
     source = (', '.join(map(str, nav_paths)) if nav_paths else
               "the RXM-SFRBX frames of the u-blox logs (no --nav given)"
-              if any(is_ubx_log(p) for p in (*base_files, *rover_files)) else "any file (no --nav given)")
+              if any(is_ubx_log(p) for p in all_files) else "any file (no --nav given)")
     if lost:
-        warnings.append(f"signals of {', '.join(SYSTEM_NAMES.get(c, c) for c in lost)} held by both files are not used: "
-                        f"no ephemerides for them in {source}")
+        warnings.append(f"signals of {', '.join(SYSTEM_NAMES.get(c, c) for c in lost)} held by "
+                        f"{'both files' if len(files) == 2 else 'every receiver'} are not used: no ephemerides for "
+                        f"them in {source}")
     if not use:
-        raise CdgpsError(f"{base_path} (base) and {rover_path} (rover) share no signal with ephemerides in "
-                         f"{source}: base holds {' '.join(sorted(held[0])) or 'none'}, rover "
-                         f"{' '.join(sorted(held[1])) or 'none'}")
+        raise CdgpsError(f"{' and '.join(f'{pieces_text(fs)} ({n})' for n, fs in files.items())} share no signal with "
+                         f"ephemerides in {source}: "
+                         + ", ".join(f"{n} {'holds ' if i == 0 else ''}{' '.join(sorted(held[n])) or 'none'}"
+                                     for i, n in enumerate(files)))
     return use
 
 

@@ -162,13 +162,11 @@ def _init(d, base, rover, name, signals=None):
     import json
     cfg = d / f"{name}.toml"
     r = run_cli("-q", "config", "--rinex", f"base={base}", "--rinex", f"rover={rover}", "--nav", MOSAIC / "base.nav",
-                "--master", "base", "-o", cfg)
+                "--master", "base", "--signals", ",".join(signals or ["G:L1"]), "-o", cfg)
     assert r.exit_code == 0, r.output
     text = cfg.read_text()              # the base at base_position.txt (its header is 0.4 m off), as RTKLIB ran
     head, tail = text.split('[gnss.antennas."base"]\n', 1)
     text = head + '[gnss.antennas."base"]\n' + f"position_ecef_m = [{', '.join(map(str, BASE_XYZ))}]\n" + tail
-    if signals:
-        text = text.replace("[gnss]\n", f"[gnss]\nsignals = {json.dumps(signals)}\n", 1)
     cfg.write_text(text)
     for args in (("ingest", "--config", cfg, "-o", d / f"{name}.mcap"), ("init", d / f"{name}.mcap", "-o", d / f"{name}.json")):
         r = run_cli("-q", *args)
