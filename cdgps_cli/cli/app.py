@@ -224,14 +224,16 @@ def _parse_named(items, option: str, what: str = "antenna", form: str = "ANTENNA
     return out
 
 
-def _parse_named_files(items, option: str) -> dict:
-    """ANTENNA=FILE options of ``ingest`` (--rinex/--ubx) → {antenna: [file or pattern, …]}: an antenna
-    repeated, or a quoted glob pattern, gives its consecutive files (joined into one record)."""
+def _parse_named_files(items, option: str, name_word: str = "ANTENNA") -> dict:
+    """ANTENNA=FILE options of ``ingest`` (--rinex/--ubx; ``baseline``'s NAME=PATH, ``name_word`` NAME) →
+    {antenna: [file or pattern, …]}: an antenna repeated, or a quoted glob pattern, gives its consecutive files
+    (joined into one record)."""
     out: dict = {}
+    file_word = "PATH" if name_word == "NAME" else "FILE"
     for it in items:
         name, sep, path = it.partition("=")
         if not sep or not name.strip() or not path.strip():
-            raise CdgpsError(f"{option} expects ANTENNA=FILE or ANTENNA='PATTERN' (e.g. 3040=30400920.05o, "
+            raise CdgpsError(f"{option} expects {name_word}={file_word} or {name_word}='PATTERN' (e.g. 3040=30400920.05o, "
                              f"rover='rover_*.obs'), got {it!r}")
         out.setdefault(name.strip(), []).append(path.strip())
     return out

@@ -10,13 +10,15 @@ import click
 from cdgps_cli.config.options import GNSS_DEFAULTS, X_AXIS_AZIMUTH_DEG
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.cli.app import (_warn, _say, _output_option, _named_by_flags, _emit_json, main, _parse_named,
-                               _write_json_atomic, _write_text_atomic)
+                               _parse_named_files, _write_json_atomic, _write_text_atomic)
 
 
 @main.command("baseline", short_help="Static baseline of two RINEX receivers → JSON")
 @click.option("--config", "job", type=click.Path(dir_okay=False), default=None,
               help="Baseline job TOML (files, master, options; see docs/geonet.md). Options below override it.")
-@click.option("--rinex", "rinex", multiple=True, metavar="NAME=PATH", help="RINEX observation file of a station (give two).")
+@click.option("--rinex", "rinex", multiple=True, metavar="NAME=PATH",
+              help="RINEX observation file of a station (give two). A station repeated, or NAME='PATTERN' (quoted "
+                   "glob), gives its consecutive files (hourly, daily): one record.")
 @click.option("--nav", "nav", multiple=True, type=click.Path(dir_okay=False), help="RINEX GPS navigation file (repeatable).")
 @click.option("--master", default=None, help="Station held at its RINEX header position (the reference).")
 @click.option("--mask-deg", type=float, default=None, help=f"Elevation mask, degrees [{GNSS_DEFAULTS['mask_deg']:g}].")
@@ -53,7 +55,7 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, min_su
     else:
         stations, navs, mst, opt = {}, [], None, BaselineOptions()
     if rinex:
-        stations = _parse_named(rinex, "--rinex", "station", "NAME=PATH")
+        stations = _parse_named_files(rinex, "--rinex", "NAME")
         origins = {k: v for k, v in origins.items() if k != "rinex"}     # named by --rinex, not the job
     if nav:
         navs = list(nav)

@@ -29,7 +29,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import gps_time_str, nominal_interval_s
 from cdgps_cli.io.log_sequence import join_tables
 
-__all__ = ["check_same_receiver", "join_receivers", "pieces_text", "join_signal_tables", "ubx_bytes",
+__all__ = ["check_same_receiver", "refuse_another_receiver", "join_receivers", "pieces_text", "join_signal_tables", "ubx_bytes",
            "ubx_sequence_ephemerides"]
 
 _MUST_AGREE = ("receiver_type", "marker_name", "antenna_type", "l1_obs_types")
@@ -73,12 +73,8 @@ def check_same_receiver(name: str, rxs: list, paths: list) -> list[str]:
     dts = [_interval(rx) for rx in rxs]
     i0 = next((i for i, d in enumerate(dts) if math.isfinite(d)), None)
     dt0, p_dt0 = (math.nan, p0) if i0 is None else (dts[i0], paths[i0])
+    refuse_another_receiver(name, [rx.header for rx in rxs], paths)
     for rx, p, dt in zip(rxs[1:], paths[1:], dts[1:]):
-        for k in _MUST_AGREE:
-            a, b = first.header.get(k), rx.header.get(k)
-            if a != b:
-                raise CdgpsError(f"{p} ({name}): {k} {b!r} differs from {a!r} in {p0}; the files of one antenna must be "
-                                 f"one receiver's record (same receiver, marker, antenna and L1 observation codes)")
         if math.isfinite(dt) and math.isfinite(dt0) and abs(dt - dt0) > 1e-6 * max(dt0, 1.0):
             raise CdgpsError(f"{p} ({name}): epoch interval {dt:g} s differs from {dt0:g} s in {p_dt0}; the files of one "
                              f"record must have one rate (resample them to one interval first)")
@@ -87,6 +83,19 @@ def check_same_receiver(name: str, rxs: list, paths: list) -> list[str]:
             warnings.append(f"{name}: {p} differs from {p0} in {', '.join(diff)} (not used: the first file's header "
                             f"is kept)")
     return warnings
+
+
+def refuse_another_receiver(name: str, headers: list, paths: list, fields=_MUST_AGREE) -> None:
+    """CdgpsError when the headers of a receiver's files (in time order, ``paths`` alike) differ in one of
+    ``fields`` (default: the receiver, marker, antenna and L1 observation codes): another receiver, site or
+    antenna, or another tracking mode of a signal, is not one record."""
+    h0, p0 = headers[0], paths[0]
+    for h, p in zip(headers[1:], paths[1:]):
+        for k in fields:
+            a, b = h0.get(k), h.get(k)
+            if a != b:
+                raise CdgpsError(f"{p} ({name}): {k} {b!r} differs from {a!r} in {p0}; the files of one antenna must be "
+                                 f"one receiver's record (same receiver, marker, antenna and observation codes)")
 
 
 def _merged_info(infos: list[dict], reps: dict) -> dict:

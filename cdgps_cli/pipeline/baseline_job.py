@@ -8,6 +8,7 @@ and hands the solver its :class:`~cdgps_cli.estimation.baseline.Station` records
 
 from __future__ import annotations
 
+import math
 import tomllib
 from pathlib import Path
 
@@ -16,22 +17,39 @@ import pandas as pd
 from cdgps_cli.core import toml_text
 from cdgps_cli.core.errors import CdgpsError, join_problems
 from cdgps_cli.estimation.baseline import BaselineOptions, Station, solve_static_baseline
+from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.io.gnss_run import merge_nav
+from cdgps_cli.io.gnss_sequence import pieces_text, refuse_another_receiver
+from cdgps_cli.io.log_sequence import expand_paths, is_pattern, join_tables
 from cdgps_cli.io.rinex import read_rinex_obs
 
 __all__ = ["load_stations", "baseline_from_files", "load_baseline_job", "refuse_missing_files"]
 
 
-def load_stations(rinex: dict, nav_paths) -> tuple[dict, pd.DataFrame]:
-    """Read RINEX observation files (``{name: path}``) and navigation files into Stations and one
-    ephemeris table (duplicates across files removed)."""
+def load_stations(rinex: dict, nav_paths, warnings: list | None = None) -> tuple[dict, pd.DataFrame]:
+    """Read RINEX observation files (``{name: path}``, or ``{name: [paths and quoted glob patterns]}``: a station's
+    consecutive files, hourly or daily, joined in time order into one record as ``ingest`` joins them; their joins'
+    warnings into ``warnings``) and navigation files into Stations and one ephemeris table (duplicates across
+    files removed)."""
     if not nav_paths:
         raise CdgpsError("no navigation file given (--nav): GPS broadcast ephemerides are needed for satellite positions")
     stations = {}
     for name, path in rinex.items():
-        h, o = read_rinex_obs(path)
-        stations[name] = Station(name, h, o)
+        stations[name] = _read_station(name, path, warnings if warnings is not None else [])
     return stations, merge_nav(nav_paths, ("G",))     # GPS files only; a Galileo-only file beside them is skipped
+
+
+def _read_station(name: str, path, warnings: list) -> Station:
+    """One station from its file, or from its consecutive files joined (:func:`load_stations`)."""
+    files = expand_paths([path] if isinstance(path, (str, Path)) else list(path), f"--rinex {name}")
+    reads = [read_rinex_obs(p) for p in files]
+    if len(reads) == 1:
+        return Station(name, *reads[0])
+    tab, report, order = join_tables([(str(p), o) for p, (_, o) in zip(files, reads)], "time_gps_s", math.nan,
+                                     gps_time_str, what=name)
+    refuse_another_receiver(name, [reads[i][0] for i in order], [files[i] for i in order])
+    warnings.extend(report.warnings)
+    return Station(name, reads[order[0]][0], tab)
 
 
 def refuse_missing_files(rinex: dict, nav_paths, origins: dict | None = None) -> None:
@@ -45,8 +63,9 @@ def refuse_missing_files(rinex: dict, nav_paths, origins: dict | None = None) ->
     given = [(from_job.get(n, f"--rinex {n}"), p) for n, p in rinex.items()]
     given += [(origins.get("nav", "--nav"), p) for p in nav_paths]
     for where, path in given:
-        if not Path(path).exists():
-            raise CdgpsError(f"{where}: {path}: cannot read: no such file")
+        for p in ([path] if isinstance(path, (str, Path)) else path):
+            if not Path(p).exists() and not is_pattern(str(p)):      # a pattern is expanded (and checked) when read
+                raise CdgpsError(f"{where}: {p}: cannot read: no such file")
 
 
 def baseline_from_files(rinex: dict, nav_paths, master: str, options: BaselineOptions | None = None,
@@ -62,7 +81,12 @@ def baseline_from_files(rinex: dict, nav_paths, master: str, options: BaselineOp
         raise CdgpsError(f"master {master!r} is not one of the stations given: {', '.join(rinex)}")
     (options or BaselineOptions()).validate()
     refuse_missing_files(rinex, nav_paths, origins)
-    stations, nav = load_stations(rinex, nav_paths)
+    rinex = {k: expand_paths([v] if isinstance(v, (str, Path)) else list(v), (origins or {}).get("rinex", {}).get(k, f"--rinex {k}"))
+             for k, v in rinex.items()}
+    rinex = {k: v[0] if len(v) == 1 else v for k, v in rinex.items()}     # one file: its name, as before
+    joins: list = []
+    stations, nav = load_stations(rinex, nav_paths, joins)
+    shown = {k: v if isinstance(v, (str, Path)) else pieces_text(v) for k, v in rinex.items()}
     rover = next(n for n in rinex if n != master)
     pos = positions or {}
     try:
@@ -71,10 +95,13 @@ def baseline_from_files(rinex: dict, nav_paths, master: str, options: BaselineOp
     except CdgpsError as exc:
         if str(exc).startswith("the navigation data does not cover"):     # name the files that fell short
             raise CdgpsError(f"{exc} (navigation file(s) given: {', '.join(map(str, nav_paths))})") from None
-        if not any(str(p) in str(exc) for p in rinex.values()):   # the solver's words name no file
-            raise CdgpsError(f"baseline {master} ({rinex[master]}) → {rover} ({rinex[rover]}): {exc}") from None
+        if not any(str(p) in str(exc) for p in shown.values()):   # the solver's words name no file
+            raise CdgpsError(f"baseline {master} ({shown[master]}) → {rover} ({shown[rover]}): {exc}") from None
         raise
-    res["inputs"] = {"rinex": {k: str(v) for k, v in rinex.items()}, "nav": [str(p) for p in nav_paths]}
+    res["inputs"] = {"rinex": {k: str(v) if isinstance(v, (str, Path)) else [str(p) for p in v] for k, v in rinex.items()},
+                     "nav": [str(p) for p in nav_paths]}
+    if joins:
+        res["warnings"] = [*joins, *res.get("warnings", [])]
     return res
 
 

@@ -26,7 +26,7 @@ from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, signal
 from cdgps_cli.estimation.rtk_multi import (RTK_MODES, check_common_signals, receiver_geometry, receivers_code_noise,
                                             solve_rtk, troposphere_at_epochs)
 from cdgps_cli.io.atomic import write_atomic
-from cdgps_cli.io.gnss_sequence import pieces_text
+from cdgps_cli.io.gnss_sequence import pieces_text, refuse_another_receiver
 from cdgps_cli.io.log_sequence import expand_paths, join_tables
 from cdgps_cli.io.rinex import COMPRESSED_MAGIC, NAV_SYSTEMS, read_rinex_nav
 from cdgps_cli.io.rinex_signals import read_rinex_signals, signals_in_file
@@ -515,16 +515,10 @@ def _read_receiver(files: list, sigs, glo_k, who: str, warnings: list) -> tuple[
     reads = [_read_observations(p, sigs, glo_k, who, warnings) for p in files]
     tab, report, order = join_tables([(str(p), df) for p, (_, df) in zip(files, reads)], "time_gps_s", np.nan,
                                      gps_time_str, what=f"{pieces_text(files)} ({who})")
-    first = order[0]
-    for i in order[1:]:
-        for key in ONE_RECEIVER_FIELDS:
-            a, b = reads[first][0].get(key), reads[i][0].get(key)
-            if a is not None and b is not None and a != b:
-                raise CdgpsError(f"{files[i]} ({who}): {key} {b!r} differs from {a!r} in {files[first]}: the files "
-                                 f"are not one receiver's record")
+    refuse_another_receiver(who, [reads[i][0] for i in order], [files[i] for i in order], ONE_RECEIVER_FIELDS)
     warnings.extend(report.warnings)
     tab.attrs = {}
-    return reads[first][0], tab
+    return reads[order[0]][0], tab
 
 
 def _read_observations(path, sigs, glo_k, who: str, warnings: list) -> tuple[dict, pd.DataFrame]:

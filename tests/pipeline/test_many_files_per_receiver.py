@@ -1,4 +1,4 @@
-"""``cdgps rtk`` with a receiver's consecutive files (hourly or daily logs, as CORS networks publish
+"""``cdgps rtk`` and ``cdgps baseline`` with a receiver's consecutive files (hourly or daily logs, as CORS networks publish
 them) given as one record: ``--base`` repeated or a quoted glob.
 
 The real mosaic-static pair (RINEX 3.04, 301 epochs at 1 s) is cut into pieces: the base into
@@ -82,7 +82,7 @@ def test_a_receivers_files_joined_give_the_one_file_solution(pieces, tmp_path):
 
 
 @pytest.mark.parametrize("bases, words", [
-    (["base_a.obs", "base_other_receiver.obs"], ["base_other_receiver.obs", "receiver_type", "not one receiver"]),
+    (["base_a.obs", "base_other_receiver.obs"], ["base_other_receiver.obs", "receiver_type", "one receiver's record"]),
     (["base_odd.obs", "base_even_late.obs"], ["base_even_late.obs", "base_odd.obs", "not consecutive"]),
     (["base_a.obs", "base_a.obs"], ["--base", "given twice"]),
     (["base_[xyz].obs"], ["--base", "matches no file"]),
@@ -103,3 +103,24 @@ def test_an_output_that_is_one_of_the_inputs_is_refused(pieces, tmp_path):
     r = _rtk(pieces, rover, "--base", pieces / "base.obs", "--rover", pieces / "rover_1.obs", "--rover", rover)
     assert r.exit_code == 2 and "would overwrite an input" in r.output, r.output
     assert rover.read_text() == (pieces / "rover_2.obs").read_text()
+
+
+def test_baseline_joins_a_stations_files_as_rtk_does(pieces, tmp_path):
+    nav = MOSAIC / "base.nav"
+    one = run_cli("-q", "baseline", "--rinex", f"base={pieces / 'base.obs'}", "--rinex", f"rover={pieces / 'rover.obs'}",
+                  "--nav", nav, "--master", "base", "-o", tmp_path / "one.json")
+    assert one.exit_code == 0, one.output
+    many = run_cli("-q", "baseline", "--rinex", f"base={pieces / 'base_c.obs'}", "--rinex", f"base={pieces / 'base_a.obs'}",
+                   "--rinex", f"base={pieces / 'base_b.obs'}", "--rinex", f"rover={pieces / 'rover_*.obs'}",
+                   "--nav", nav, "--master", "base", "-o", tmp_path / "many.json")
+    assert many.exit_code == 0, many.output
+    a, b = (json.loads((tmp_path / f).read_text()) for f in ("one.json", "many.json"))
+    assert b["inputs"]["rinex"]["base"][0].endswith("base_c.obs") and len(b["inputs"]["rinex"]["rover"]) == 2
+    for d in (a, b):
+        d.pop("inputs")
+        d.pop("warnings", None)
+    assert a == b
+    bad = run_cli("-q", "baseline", "--rinex", f"base={pieces / 'base_a.obs'}",
+                  "--rinex", f"base={pieces / 'base_other_receiver.obs'}", "--rinex", f"rover={pieces / 'rover.obs'}",
+                  "--nav", nav, "--master", "base", "-o", tmp_path / "bad.json")
+    assert bad.exit_code == 2 and "one receiver's record" in bad.output and not (tmp_path / "bad.json").exists()
