@@ -64,7 +64,8 @@ def _listed_files(name: str, path: str) -> list[tuple[str, str]]:
 
             if config_kind(Path(path).read_text(errors="replace")) == "gnss":
                 cfg = load_gnss_config(path)
-                out += [(f"{path} antenna {a.name}", f) for a in cfg.antennas for f in (a.rinex, a.ubx) if f]
+                out += [(f"{path} antenna {a.name}", str(f)) for a in cfg.antennas for v in (a.rinex, a.ubx) if v
+                        for f in (v if isinstance(v, (list, tuple)) else (v,))]
                 out += [(f"{path} nav", str(v)) for v in cfg.nav]
     except (CdgpsError, OSError, ValueError, KeyError, TypeError):
         pass
@@ -88,7 +89,20 @@ def command_paths(command: click.Command, params: dict) -> tuple[list, list]:
                 inputs += [(f"{_spelling(p)} ({what})", f, False) for what, f in _listed_files(p.name, str(v))]
         elif _is_named_files(p):
             inputs += [(_spelling(p), str(v).partition("=")[2].strip(), False) for v in values if "=" in str(v)]
-    return outputs, inputs
+    return outputs, _with_pattern_matches(inputs)
+
+
+def _with_pattern_matches(inputs: list) -> list:
+    """``inputs`` and, for each given as a quoted glob pattern (a receiver's consecutive files), every file it matches:
+    an output that is one of them is refused as a named input is."""
+    import glob  # noqa: PLC0415   (io.log_sequence's is_pattern would load pandas into every command)
+    from pathlib import Path  # noqa: PLC0415
+
+    out = list(inputs)
+    for spelling, path, _ in inputs:
+        if glob.has_magic(path) and not Path(path).exists():
+            out += [(spelling, m, False) for m in sorted(glob.glob(path))]
+    return out
 
 
 class GuardedCommand(click.Command):

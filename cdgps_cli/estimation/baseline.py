@@ -439,21 +439,43 @@ def _receiver_rows(st: Station, ce: _Epochs, nav: pd.DataFrame, pos, opt: Baseli
                         f"healthy broadcast ephemeris within ±2 h and are not used")
     o = o[cov]
     ep = o["ep"].to_numpy()
-    c_ep, c_sat, c_t, c_pr = _clock_rows(st, o, tag, t_label, nav)
-    clk = estimate_receiver_clock(c_ep, c_sat, c_t, c_pr, nav, pos, n_epochs=n_ep, troposphere=opt.troposphere,
-                                  what=_where(st))
+    clk = _receiver_clock(st, o, tag, t_label, nav, pos, opt)
     o["t_true"] = o["time_gps_s"].to_numpy() - clk[ep]
     return o, clk, tag
+
+
+def _receiver_clock(st: Station, o: pd.DataFrame, tag: np.ndarray, t_label: np.ndarray, nav: pd.DataFrame, pos,
+                    opt: BaselineOptions) -> np.ndarray:
+    """The receiver's clock at each common epoch, s: from its GPS L1 rows ``o`` (each epoch's own, as before); with a
+    signal table, from :func:`_clock_rows` estimated once per time tag and given to every epoch of that tag (a
+    master epoch bridged to several rover epochs is one measurement instant); epochs without a tag take it
+    interpolated (no row of this receiver uses them)."""
+    n_ep = t_label.size
+    rows = _clock_rows(st, tag, t_label, nav)
+    if rows is None:
+        return estimate_receiver_clock(o["ep"].to_numpy(), o["sat"].to_numpy(), o["time_gps_s"].to_numpy(),
+                                       o["pseudorange_l1_m"].to_numpy(), nav, pos, n_epochs=n_ep,
+                                       troposphere=opt.troposphere, what=_where(st))
+    k_tag, n_tag, c_sat, c_t, c_pr, tag_of_epoch = rows
+    c = estimate_receiver_clock(k_tag, c_sat, c_t, c_pr, nav, pos, n_epochs=n_tag, troposphere=opt.troposphere,
+                                what=_where(st))
+    have = tag_of_epoch >= 0
+    clk = np.zeros(n_ep)
+    clk[have] = c[tag_of_epoch[have]]
+    if not have.all():
+        clk[~have] = np.interp(np.flatnonzero(~have), np.flatnonzero(have), clk[have])
+    return clk
 
 
 #: systems whose pseudoranges give a receiver's clock with the anchor's (CDMA: one range model for all satellites)
 _CLOCK_SYSTEMS = ("G", "E", "C")
 
 
-def _clock_rows(st: Station, o: pd.DataFrame, tag: np.ndarray, t_label: np.ndarray, nav: pd.DataFrame) -> tuple:
-    """The rows (epoch, satellite, time tag, pseudorange m) a receiver's clock is estimated from: its GPS L1 rows
-    ``o`` (covered by ``nav``); with a signal table, one pseudorange per satellite and epoch of every GPS, Galileo
-    and BeiDou signal recorded at the epochs' tags ``tag`` (GPS s; NaN: no epoch) and covered by ``nav``.
+def _clock_rows(st: Station, tag: np.ndarray, t_label: np.ndarray, nav: pd.DataFrame):
+    """The rows a receiver's clock is estimated from when it has a signal table: one pseudorange per satellite
+    and time tag of every GPS, Galileo and BeiDou signal recorded at the common epochs' tags ``tag`` (GPS s; NaN:
+    no epoch) and covered by ``nav``, as (tag index, number of tags, satellites, time tags, pseudoranges m, each
+    epoch's tag index (−1: none)); None without a signal table, or when no row qualifies (the GPS L1 rows serve).
 
     Every system's codes, as :func:`~cdgps_cli.estimation.rtk_multi.receiver_geometry` takes them: where the anchor
     has one or two satellites with an ephemeris the clock from them alone can be far off or missing and
@@ -461,26 +483,31 @@ def _clock_rows(st: Station, o: pd.DataFrame, tag: np.ndarray, t_label: np.ndarr
     clock, which put the Galileo rows' satellites centimetres off in the double differences); the systems' biases
     (tens of ns) move a satellite by micrometres."""
     if st.signals is None:
-        return (o["ep"].to_numpy(), o["sat"].to_numpy(), o["time_gps_s"].to_numpy(), o["pseudorange_l1_m"].to_numpy())
+        return None
     sig = st.signals
     pr = sig["pseudorange_m"].to_numpy(dtype=np.float64)
     keep = np.flatnonzero(sig["sat"].astype(str).str[0].isin(_CLOCK_SYSTEMS).to_numpy() & np.isfinite(pr))
     t = sig["time_gps_s"].to_numpy(dtype=np.float64)[keep]
-    have = np.flatnonzero(np.isfinite(tag))
-    if not have.size:
-        return (o["ep"].to_numpy(), o["sat"].to_numpy(), o["time_gps_s"].to_numpy(), o["pseudorange_l1_m"].to_numpy())
-    order = have[np.argsort(tag[have], kind="stable")]
-    tt = tag[order]
+    have = np.isfinite(tag)
+    if not have.any():
+        return None
+    tt, inv = np.unique(tag[have], return_inverse=True)        # one clock per measurement instant
+    tag_of_epoch = np.full(tag.size, -1, dtype=np.int64)
+    tag_of_epoch[have] = inv
     i = np.clip(np.searchsorted(tt, t), 1, tt.size - 1) if tt.size > 1 else np.zeros(t.size, dtype=np.int64)
     if tt.size > 1:
         i = np.where(np.abs(tt[i - 1] - t) <= np.abs(tt[i] - t), i - 1, i)
-    at = np.abs(tt[i] - t) <= 1e-6                   # a row belongs to the epoch whose tag is its own
-    rows = pd.DataFrame({"ep": order[i[at]], "sat": sig["sat"].to_numpy()[keep][at], "t": t[at], "pr": pr[keep][at]})
-    rows = rows.drop_duplicates(["ep", "sat"], keep="first")
-    rows = rows[ephemeris_coverage(nav, rows["sat"].to_numpy(), t_label[rows["ep"].to_numpy()])]
+    at = np.abs(tt[i] - t) <= 1e-6                   # a row belongs to the tag that is its own
+    rows = pd.DataFrame({"k": i[at], "sat": sig["sat"].to_numpy()[keep][at], "t": t[at], "pr": pr[keep][at]})
+    rows = rows.drop_duplicates(["k", "sat"], keep="first")
+    # the ephemeris serving each tag: that of its first epoch's label (the bridged epochs' labels are within max age)
+    first = np.unique(inv, return_index=True)[1]      # each tag's first epoch (tags 0 … n − 1 in order)
+    label_of_tag = t_label[np.flatnonzero(have)[first]]
+    rows = rows[ephemeris_coverage(nav, rows["sat"].to_numpy(), label_of_tag[rows["k"].to_numpy()])]
     if rows.empty:
-        return (o["ep"].to_numpy(), o["sat"].to_numpy(), o["time_gps_s"].to_numpy(), o["pseudorange_l1_m"].to_numpy())
-    return rows["ep"].to_numpy(), rows["sat"].to_numpy(), rows["t"].to_numpy(), rows["pr"].to_numpy()
+        return None
+    return (rows["k"].to_numpy(), tt.size, rows["sat"].to_numpy(), rows["t"].to_numpy(), rows["pr"].to_numpy(),
+            tag_of_epoch)
 
 
 def _both_receivers(master_fn, rover_fn, warnings: list) -> tuple:

@@ -335,13 +335,18 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
         if bad or not signals:
             raise CdgpsError(f"--signals: expected 'auto' or signal names, got {', '.join(map(repr, bad)) or 'none'} "
                              f"(known: {', '.join(SIGNALS)})")
+        twice = sorted({x for x in signals if list(signals).count(x) > 1})
+        if twice:
+            raise CdgpsError(f"--signals: {', '.join(twice)} given twice")
     if signals == "auto":
         files = {**(rinex or {}), **(ubx or {})}
+        said: list = []
         try:
-            signals = common_signals(files, list(nav_paths), kwargs.get("warnings") if kwargs.get("warnings") is not None
-                                     else []) if files else None
+            signals = common_signals(files, list(nav_paths), said) if files else None
         except CdgpsError:     # no signal with ephemerides: the GPS L1 path, whose checks say what is missing
-            signals = None
+            signals, said = None, []
+        if kwargs.get("warnings") is not None:
+            kwargs["warnings"].extend(said)
     return gnss_run.starter_gnss_config(rinex, ubx, nav_paths, master, master_position=spp_master_position,
                                         signals=signals, **kwargs)
 

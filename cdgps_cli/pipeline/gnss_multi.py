@@ -118,7 +118,7 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
     (:func:`_read_receiver`)."""
     opt = validate_options(options or {})
     base_files, rover_files = (expand_paths(_as_list(p), f"--{who}") for p, who in ((base_path, "base"), (rover_path, "rover")))
-    nav_paths = expand_paths(list(nav_paths), "--nav") if nav_paths else []
+    nav_paths = _navigation_files(nav_paths)
     for files, who in ((base_files, "base"), (rover_files, "rover")):
         for path in files:
             _refuse_empty(path, who)
@@ -493,6 +493,16 @@ def _ubx_decoded(path: str, mtime_ns: int, size: int):
 def _ubx(path):
     st = Path(path).stat()
     return _ubx_decoded(str(path), st.st_mtime_ns, st.st_size)
+
+
+def _navigation_files(items) -> list:
+    """``--nav`` files and quoted glob patterns, expanded, each file once (a file named twice, or matched by two
+    patterns, is read once: its ephemerides would be merged anyway)."""
+    out: dict = {}
+    for it in items or ():
+        for p in expand_paths([it], "--nav"):
+            out.setdefault(str(Path(p).resolve()), p)
+    return list(out.values())
 
 
 def _as_list(paths) -> list:

@@ -124,3 +124,20 @@ def test_baseline_joins_a_stations_files_as_rtk_does(pieces, tmp_path):
                   "--rinex", f"base={pieces / 'base_other_receiver.obs'}", "--rinex", f"rover={pieces / 'rover.obs'}",
                   "--nav", nav, "--master", "base", "-o", tmp_path / "bad.json")
     assert bad.exit_code == 2 and "one receiver's record" in bad.output and not (tmp_path / "bad.json").exists()
+
+
+@pytest.mark.parametrize("command", ["rtk", "baseline"])
+def test_an_output_matched_by_an_input_pattern_is_refused(pieces, tmp_path, command):
+    """A quoted glob's files are inputs too: writing over one of them is refused, as over a named input."""
+    for name in ("rover_1.obs", "rover_2.obs"):
+        (tmp_path / name).write_text((pieces / name).read_text())
+    victim = tmp_path / "rover_2.obs"
+    before = victim.read_text()
+    pattern = str(tmp_path / "rover_*.obs")
+    if command == "rtk":
+        r = _rtk(pieces, victim, "--base", pieces / "base.obs", "--rover", pattern)
+    else:
+        r = run_cli("-q", "baseline", "--rinex", f"base={pieces / 'base.obs'}", "--rinex", f"rover={pattern}",
+                    "--nav", MOSAIC / "base.nav", "--master", "base", "-o", victim)
+    assert r.exit_code == 2 and "would overwrite an input" in r.output, r.output
+    assert victim.read_text() == before
