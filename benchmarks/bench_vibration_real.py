@@ -186,8 +186,8 @@ def run_pipeline(ds, rover: Path, signals, tmp: Path, model: str = "random_walk"
     for key, extra in ((model, []), ("kinematic", ["--kinematic"]))[:2 if model == "random_walk" else 1]:
         _run([CDGPS, "-q", "export", tmp / "states.mcap", *extra, "-o", tmp / f"{key}.csv"])
         d = pd.read_csv(tmp / f"{key}.csv")
-        enu = d[["rover_e_m", "rover_n_m", "rover_u_m"]].to_numpy()
-        out[key] = (d["time_s"].to_numpy(), enu, np.isfinite(enu).all(axis=1))
+        enu = d[["rover_e_m", "rover_n_m", "rover_u_m"]].to_numpy(dtype=np.float64)      # (an empty series too)
+        out[key] = (d["time_s"].to_numpy(dtype=np.float64), enu, np.isfinite(enu).all(axis=1))
     if model == "random_walk" and "--cv" in sys.argv:
         out.update(run_pipeline(ds, rover, signals, tmp, "constant_velocity"))
     return out
