@@ -100,7 +100,7 @@ def _with_pattern_matches(inputs: list) -> list:
 
     out = list(inputs)
     for spelling, path, _ in inputs:
-        if glob.has_magic(path) and not Path(path).exists():
+        if glob.has_magic(path) and not Path(path).is_file():        # as io.log_sequence.expand_paths decides
             out += [(spelling, m, False) for m in sorted(glob.glob(path))]
     return out
 

@@ -1134,24 +1134,33 @@ def resolve(a, Q, threshold=RATIO_THRESHOLD, *, partial=True, max_nodes=None, pr
         ints = np.zeros(n, dtype=np.int64)
         res = {"fixed_mask": mask, "integers": ints, "n_fixed": 0, "subsets_searched": 1, "search_limited": 0}
         limit = None
-        try:
-            cands, s = lambda_search(a, Q, 2, max_nodes=max_nodes)
-        except SearchLimitError as exc:
-            res.update(ratio=math.nan, ratio_full_set=math.nan, search_limited=1)
-            limit = str(exc)
+        if n == 0:       # nothing to fix (every ambiguity float: GLONASS alone, not glonass_fix): an empty set
+            res.update(ratio=math.nan, ratio_full_set=math.nan, success_rate=1.0, subsets_searched=0)
         else:
-            ok, ratio = ratio_test(s, threshold)
-            res.update(ratio=float(ratio), ratio_full_set=float(ratio), success_rate=_success_rate(Q) if n else 1.0)
-            if ok and (min_success_rate is None or res["success_rate"] >= min_success_rate):
-                mask[:] = True
-                ints[:] = cands[0]
-                res["n_fixed"] = n
+            limit = _search_full_set(a, Q, threshold, max_nodes, min_success_rate, res)
         if progress is not None:
             progress(1, 1)
     res["accepted"] = res["n_fixed"] > 0
     res["partial"] = 0 < res["n_fixed"] < n
     res["limit_message"] = limit
     return res
+
+
+def _search_full_set(a, Q, threshold, max_nodes, min_success_rate, res: dict):
+    """:func:`resolve`'s full-set LAMBDA search and ratio test, into ``res`` (its mask and integers filled when
+    accepted); the search-limit message, or None."""
+    try:
+        cands, s = lambda_search(a, Q, 2, max_nodes=max_nodes)
+    except SearchLimitError as exc:
+        res.update(ratio=math.nan, ratio_full_set=math.nan, search_limited=1)
+        return str(exc)
+    ok, ratio = ratio_test(s, threshold)
+    res.update(ratio=float(ratio), ratio_full_set=float(ratio), success_rate=_success_rate(Q))
+    if ok and (min_success_rate is None or res["success_rate"] >= min_success_rate):
+        res["fixed_mask"][:] = True
+        res["integers"][:] = cands[0]
+        res["n_fixed"] = res["fixed_mask"].size
+    return None
 
 
 def conditioned_on_integers(a, Q, fixed_mask, integers):

@@ -361,10 +361,16 @@ def _without_fdma(signals, notes: list | None):
     from cdgps_cli.core.signals import signal as signal_of  # noqa: PLC0415
 
     glo = [s for s in signals if signal_of(s).fdma_step_hz]
+    cdma = [s for s in signals if not signal_of(s).fdma_step_hz]
+    if glo and not cdma:          # GLONASS alone has ephemerides: it carries the run (float)
+        if notes is not None:
+            notes.append(f"only GLONASS ({', '.join(glo)}) has ephemerides for every receiver: the run is GLONASS "
+                         f"alone, its ambiguities float")
+        return glo
     if glo and notes is not None:
         notes.append(f"GLONASS ({', '.join(glo)}), held by every receiver, is left out of [gnss] signals: the "
                      f"displacement path would keep it float; give --signals with it to use it")
-    return [s for s in signals if not signal_of(s).fdma_step_hz] or None
+    return cdma or None
 
 
 def spp_master_position(name: str, path, rx: "gnss_run.GnssReceiver", nav_paths, ubx_rx: dict) -> tuple:

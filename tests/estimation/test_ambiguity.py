@@ -16,6 +16,7 @@ from cdgps_cli.estimation.ambiguity import (
     ld_factorize,
     partial_fix,
     ratio_test,
+    resolve,
     search,
 )
 
@@ -714,3 +715,11 @@ def test_search_reduced_equals_search_of_two():
         k = n // 3                                     # a tail, as rtk's partial sets
         for got, want in zip(search_reduced(L[k:, k:], d[k:], zs[k:]), search(L[k:, k:], d[k:], zs[k:], 2)):
             assert np.array_equal(got, want)
+
+
+def test_resolve_on_an_empty_set_fixes_nothing_without_an_error():
+    """Every ambiguity float (GLONASS alone): the shared policy gets no ambiguity, and answers that nothing is fixed."""
+    for partial in (True, False):
+        res = resolve(np.zeros(0), np.zeros((0, 0)), partial=partial)
+        assert res["n_fixed"] == 0 and not res["accepted"] and not res["partial"]
+        assert np.isnan(res["ratio"]) and res["fixed_mask"].size == 0

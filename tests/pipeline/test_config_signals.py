@@ -44,3 +44,17 @@ def test_bad_lists_exit_2_naming_the_option(tmp_path, bad, words):
     r, g = _config(tmp_path, "--signals", bad)
     assert r.exit_code == 2 and g is None and "Traceback" not in r.output
     assert all(w in r.output for w in words), r.output
+
+
+def test_a_glonass_only_run_goes_through_init_float(tmp_path):
+    """GLONASS alone (FDMA, never fixed without glonass_fix): ``init`` has no integer to fix and reports a float
+    solution (LAMBDA on an empty set was a traceback)."""
+    r, g = _config(tmp_path, "--signals", "R:G1")
+    assert r.exit_code == 0 and g["signals"] == ["R:G1"]
+    for args in (("ingest", "--config", tmp_path / "c.toml", "-o", tmp_path / "r.mcap"),
+                 ("init", tmp_path / "r.mcap", "-o", tmp_path / "i.json")):
+        res = run_cli("-q", *args)
+        assert res.exit_code == 0 and "Traceback" not in res.output, (args, res.output)
+    import json
+    rov = json.loads((tmp_path / "i.json").read_text())["rovers"]["rover"]
+    assert rov["solution"] == "float" and rov["n_fixed"] == 0
