@@ -589,7 +589,7 @@ def _checked_sorted(p: Path, obs: pd.DataFrame) -> pd.DataFrame:
     return obs.sort_values(["time_gps_s", "sat"], kind="stable").reset_index(drop=True)
 
 
-def read_ubx_signals(path: str | Path, names, *, strict: bool = False) -> pd.DataFrame:
+def read_ubx_signals(path: str | Path, names, *, strict: bool = False, data: bytes | None = None) -> pd.DataFrame:
     """The RXM-RAWX measurements of the signals ``names`` (``G:L1``, ``E:E1`` …) of a UBX log as a
     multi-signal table.
 
@@ -601,6 +601,9 @@ def read_ubx_signals(path: str | Path, names, *, strict: bool = False) -> pd.Dat
         Signal names of :data:`UBX_SIGNALS`.
     strict : bool
         As :func:`read_ubx_log`.
+    data : bytes, optional
+        The log's bytes when already read (consecutive logs joined; ``path`` then names them), as
+        :func:`read_ubx_log`.
 
     Returns
     -------
@@ -623,7 +626,7 @@ def read_ubx_signals(path: str | Path, names, *, strict: bool = False) -> pd.Dat
     if bad:
         raise CdgpsError(f"{p}: signal(s) {', '.join(bad)} cannot come from u-blox RXM-RAWX (it carries "
                          f"{', '.join(UBX_SIGNALS)})")
-    _, _, _, _, epochs, meas, _, t = _decoded_rawx(p, strict)
+    _, _, _, _, epochs, meas, _, t = _decoded_rawx(p, strict, data)
     tabs = []
     for name in names:
         for rank, (g, sid) in enumerate(UBX_SIGNALS[name]):

@@ -475,10 +475,16 @@ def is_ubx_log(path) -> bool:
 def _ubx_decoded(path: str, mtime_ns: int, size: int):
     """A u-blox log read once per command: its summary (RTCM base position), every signal's table
     with loss of lock from the lock times and half-cycle status, and its SFRBX ephemerides."""
+    return _ubx_table(path)
+
+
+def _ubx_table(path: str, data: bytes | None = None):
+    """:func:`_ubx_decoded`'s decoding of a log (``data``: its bytes when joined from consecutive logs, ``path``
+    naming them)."""
     from cdgps_cli.io.ubx import UBX_SIGNALS, read_ubx_log, read_ubx_signals  # noqa: PLC0415
     from cdgps_cli.measurement.channels import ubx_loss_of_lock  # noqa: PLC0415 (not the ingest pipeline: its imports are the MCAP run's)
 
-    tab = read_ubx_signals(path, list(UBX_SIGNALS))
+    tab = read_ubx_signals(path, list(UBX_SIGNALS), data=data)
     # each row's channel (satellite and signal) as one integer: the same channels as "sat:signal" strings, whose
     # sort and comparisons cost 3x more (the loss-of-lock bits depend on the channels, not on their order)
     sat_code, _ = pd.factorize(tab["sat"])
@@ -486,7 +492,7 @@ def _ubx_decoded(path: str, mtime_ns: int, size: int):
     key = sat_code.astype(np.int64) * max(len(sig_names), 1) + sig_code
     tab["lli"] = ubx_loss_of_lock(tab["time_gps_s"].to_numpy(), key, tab["phase_cycles"].to_numpy(),
                                   tab["lock_time_ms"].to_numpy(dtype=np.float64), tab["half_cycle"].to_numpy() == 1)
-    info, _, nav = read_ubx_log(path)
+    info, _, nav = read_ubx_log(path, data=data)
     return info, tab.drop(columns=["lock_time_ms", "half_cycle"]), nav
 
 
@@ -522,13 +528,35 @@ def _read_receiver(files: list, sigs, glo_k, who: str, warnings: list) -> tuple[
     kept)."""
     if len(files) == 1:
         return _read_observations(files[0], sigs, glo_k, who, warnings)
-    reads = [_read_observations(p, sigs, glo_k, who, warnings) for p in files]
+    ubx = all(is_ubx_log(p) for p in files)
+    said: list = []               # consecutive u-blox logs are decoded again as one stream (below): not their pieces'
+    reads = [_read_observations(p, sigs, glo_k, who, said) for p in files]
     tab, report, order = join_tables([(str(p), df) for p, (_, df) in zip(files, reads)], "time_gps_s", np.nan,
                                      gps_time_str, what=f"{pieces_text(files)} ({who})")
     refuse_another_receiver(who, [reads[i][0] for i in order], [files[i] for i in order], ONE_RECEIVER_FIELDS)
-    warnings.extend(report.warnings)
+    if ubx:          # one byte stream in time order: a frame cut by a file boundary is whole again, as ingest joins
+        return _ubx_stream([files[i] for i in order], sigs, who, warnings)
+    warnings.extend(said + report.warnings)
     tab.attrs = {}
     return reads[order[0]][0], tab
+
+
+def _ubx_stream(files: list, sigs, who: str, warnings: list) -> tuple[dict, pd.DataFrame]:
+    """Consecutive u-blox logs of one receiver (in time order) read as one log: their bytes joined, decoded as
+    :func:`_read_observations` decodes one (the position of the last RTCM 1005/1006; what the stream lost named
+    in ``warnings``)."""
+    from cdgps_cli.io.gnss_sequence import ubx_bytes  # noqa: PLC0415
+    from cdgps_cli.io.ubx import integrity_problems  # noqa: PLC0415
+
+    name = pieces_text(files)
+    data = b"".join(ubx_bytes(p) for p in files)
+    info, tab, _ = _ubx_table(name, data)
+    problems = integrity_problems(info)
+    if problems:
+        warnings.append(f"{name} ({who}): skipped: {'; '.join(problems)}")
+    base = info.get("rtcm_base")
+    return ({"approx_position_xyz_m": base["arp_ecef_m"] if base else None},
+            tab[tab["signal"].isin(list(sigs))].reset_index(drop=True))
 
 
 def _read_observations(path, sigs, glo_k, who: str, warnings: list) -> tuple[dict, pd.DataFrame]:

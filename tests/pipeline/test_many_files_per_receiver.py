@@ -141,3 +141,26 @@ def test_an_output_matched_by_an_input_pattern_is_refused(pieces, tmp_path, comm
                     "--nav", MOSAIC / "base.nav", "--master", "base", "-o", victim)
     assert r.exit_code == 2 and "would overwrite an input" in r.output, r.output
     assert victim.read_text() == before
+
+
+WALK = REPO_ROOT.parent / "shared" / "data" / "real-pairs" / "ublox-walk"
+
+
+@pytest.mark.skipif(not WALK.exists(), reason="../shared/data/real-pairs/ublox-walk absent")
+def test_consecutive_ubx_logs_are_one_byte_stream(tmp_path):
+    """A real u-blox log cut into three files at arbitrary bytes (frames cut in two, as a logger rotating its
+    files does): given out of order, they are decoded as one stream, so the solution is the whole log's (decoded
+    one by one, a frame cut at each boundary was lost)."""
+    log = (WALK / "gnss_1730.ubx").read_bytes()
+    cuts = [0, len(log) // 3 + 7, 2 * len(log) // 3 + 3, len(log)]
+    for i in range(3):
+        (tmp_path / f"part{i}.ubx").write_bytes(log[cuts[i]:cuts[i + 1]])
+    args = ["--rover", WALK / "gnss_1730_convbin.obs", "--signals", "G:L1,E:E1",
+            "--base-xyz", "-1276975.6547", "-4717238.8712", "4087235.6076"]
+    one = run_cli("-q", "rtk", "--base", WALK / "gnss_1730.ubx", *args, "-o", tmp_path / "one.csv")
+    many = run_cli("-q", "rtk", "--base", tmp_path / "part2.ubx", "--base", tmp_path / "part0.ubx",
+                   "--base", tmp_path / "part1.ubx", *args, "-o", tmp_path / "many.csv")
+    assert one.exit_code == 0 and many.exit_code == 0, (one.output, many.output)
+    body = [ln for ln in (tmp_path / "one.csv").read_text().splitlines() if not ln.startswith("#")]
+    assert len(body) > 100
+    assert [ln for ln in (tmp_path / "many.csv").read_text().splitlines() if not ln.startswith("#")] == body
