@@ -98,7 +98,8 @@ def datasets():
         d = Path(sys.argv[sys.argv.index("--m8p") + 1])
         extra["u-blox M8P pair"] = dict(base=d / "base1.obs", rover=d / "rover1.obs", navs=[d / "base1.nav"],
                                         base_xyz=(3774090.1382928407, -601663.0449456355, 5089319.199168801),
-                                        t0=None, keep=None, signals={"GPS L1": (("G:L1",), 1)})
+                                        t0=None, keep=None, signals={"GPS L1": (("G:L1",), 1),
+                                                                     "GPS+GLONASS L1": (("G:L1", "R:G1"), 1)})
         cors = d / "glw1277m.18o"
         if cors.exists():          # the OSi CORS GLW1 (Leica, RINEX 2.11 at 5 s) 196 m from the M8P rover
             extra["CORS GLW1 to the M8P rover"] = dict(base=cors, rover=d / "rover1.obs", navs=[d / "glw1277m.18n"],

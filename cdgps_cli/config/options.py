@@ -42,6 +42,12 @@ EPOCH_PAIRING_DEFAULTS = {"sync_tol_s": 0.025, "max_age_s": 30.0, "age_sigma_m_p
 #: RTKLIB evaluates it at its current estimate: a header 17.5 m high put the GEONET car +13 mm above it)
 ROVER_ORIGIN_TOL_M = 1.0
 
+#: variance factor of a GLONASS (FDMA) code single difference while GLONASS is float (not glonass_fix): the
+#: receivers' code biases differ from channel to channel and do not cancel (u-blox: decimetres to metres), so the
+#: GLONASS codes weigh 10×σ less than the others.  On the real M8P pair with a random-walk float they pulled the GPS
+#: floats 0.1–0.2 cycle off (2 of 68 integers fixed; 23 with this factor, as many as the static model fixes)
+GLONASS_FLOAT_CODE_VARIANCE_FACTOR = 100.0
+
 #: the phase weightings of every GNSS solver: SD variance a² + b²/sin²(el) or a² + b² per receiver
 #: (measurement/differencing.sd_variance)
 GNSS_WEIGHTINGS = ("elevation", "equal")

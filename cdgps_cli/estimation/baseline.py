@@ -69,6 +69,7 @@ from cdgps_cli.model.gps.positioning import (
     tropo_hydrostatic_m,
 )
 from cdgps_cli.core.gps_time import gps_time_str
+from cdgps_cli.measurement.dd_signals import glonass_code_factor
 from cdgps_cli.measurement.epoch_pairing import age_variance_m2, pair_epochs, rows_for_pairs
 from cdgps_cli.measurement.noise import correlated_variance_factor
 from cdgps_cli.model.gps.epoch_align import ALIGN_MODES, align_receiver, carry_slips
@@ -974,6 +975,8 @@ def _weights(d: _Data, opt: BaselineOptions) -> _Weights:
     """SD variances and DD weights of the phase rows and of the code rows (its own references)."""
     var_ph = sd_variance(d.el_rover, d.el_base, sigma_a_m=opt.sigma_a_m, sigma_b_m=opt.sigma_b_m, weighting=opt.weighting)
     var_code = var_ph * opt.code_ratio**2 * correlated_variance_factor(d.interval_s, opt.code_correlation_s)
+    if len(d.sat_names):
+        var_code = var_code * glonass_code_factor(np.asarray(d.sat_names, dtype=object)[d.sat], opt.glonass_fix)
     age_var = getattr(d, "age_var_m2", None)
     if age_var is not None:                       # a bridged base epoch: σ grows with its age (epoch_pairing)
         var_ph, var_code = var_ph + age_var, var_code + age_var

@@ -531,8 +531,20 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False, base_xy
         "var_phase": var + var_age,
         "var_code": var * opt["code_ratio"] ** 2 * correlated_variance_factor(nominal_interval_s(pairs.rover_time_s),
                                                                              opt["code_correlation_s"])
-                    * opt.get("code_variance_factor", 1.0) + var_age,
+                    * opt.get("code_variance_factor", 1.0)
+                    * glonass_code_factor(m["sat"].to_numpy(), bool(opt.get("glonass_fix", False))) + var_age,
     }
+
+
+def glonass_code_factor(sats, glonass_fix: bool) -> np.ndarray | float:
+    """Per row, the code variance factor of a GLONASS satellite while GLONASS is float
+    (:data:`~cdgps_cli.config.options.GLONASS_FLOAT_CODE_VARIANCE_FACTOR`), else 1."""
+    from cdgps_cli.config.options import GLONASS_FLOAT_CODE_VARIANCE_FACTOR  # noqa: PLC0415
+
+    if glonass_fix:
+        return 1.0
+    s = np.asarray(sats).astype(str)
+    return np.where(np.char.startswith(s, "R"), GLONASS_FLOAT_CODE_VARIANCE_FACTOR, 1.0)
 
 
 def _base_at_rover_times(m: pd.DataFrame, b: pd.DataFrame, tb: np.ndarray, pairs, opt, base_xyz_m):

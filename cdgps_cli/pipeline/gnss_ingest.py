@@ -347,30 +347,8 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
             signals, said = None, []
         if kwargs.get("warnings") is not None:
             kwargs["warnings"].extend(said)
-        signals = _without_fdma(signals, kwargs.get("notes"))
     return gnss_run.starter_gnss_config(rinex, ubx, nav_paths, master, master_position=spp_master_position,
                                         signals=signals, **kwargs)
-
-
-def _without_fdma(signals, notes: list | None):
-    """``config``'s automatic signals without GLONASS (FDMA), named in ``notes``: the displacement path keeps their
-    ambiguities float, and with a random-walk float they cost the CDMA integers (the M8P pair at 0.1 m/√s: 2 of 68
-    integers fixed with G1, 21 of 34 without); ``--signals`` adds them on purpose."""
-    if not signals:
-        return signals
-    from cdgps_cli.core.signals import signal as signal_of  # noqa: PLC0415
-
-    glo = [s for s in signals if signal_of(s).fdma_step_hz]
-    cdma = [s for s in signals if not signal_of(s).fdma_step_hz]
-    if glo and not cdma:          # GLONASS alone has ephemerides: it carries the run (float)
-        if notes is not None:
-            notes.append(f"only GLONASS ({', '.join(glo)}) has ephemerides for every receiver: the run is GLONASS "
-                         f"alone, its ambiguities float")
-        return glo
-    if glo and notes is not None:
-        notes.append(f"GLONASS ({', '.join(glo)}), held by every receiver, is left out of [gnss] signals: the "
-                     f"displacement path would keep it float; give --signals with it to use it")
-    return cdma or None
 
 
 def spp_master_position(name: str, path, rx: "gnss_run.GnssReceiver", nav_paths, ubx_rx: dict) -> tuple:

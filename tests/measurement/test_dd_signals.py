@@ -122,3 +122,16 @@ def test_group_layout_equals_the_per_epoch_cut():
         assert [(g["signal"], g["ref"], g["rows"]) for g in fast] == [(g["signal"], g["ref"], g["rows"]) for g in slow]
         n_groups += len(fast)
     assert n_groups > 30
+
+
+def test_glonass_codes_weigh_less_while_glonass_is_float():
+    """GLONASS code variance × GLONASS_FLOAT_CODE_VARIANCE_FACTOR while float (inter-channel code biases that do not
+    cancel), × 1 with glonass_fix (identical receivers) and for every other system."""
+    from cdgps_cli.config.options import GLONASS_FLOAT_CODE_VARIANCE_FACTOR
+    from cdgps_cli.measurement.dd_signals import glonass_code_factor
+
+    sats = np.array(["G05", "R07", "E11", "C20", "R21:G1", "G05:L1"], dtype=object)
+    f = glonass_code_factor(sats, glonass_fix=False)
+    assert GLONASS_FLOAT_CODE_VARIANCE_FACTOR > 1
+    assert f.tolist() == [1.0, GLONASS_FLOAT_CODE_VARIANCE_FACTOR, 1.0, 1.0, GLONASS_FLOAT_CODE_VARIANCE_FACTOR, 1.0]
+    assert np.all(glonass_code_factor(sats, glonass_fix=True) == 1.0)

@@ -1,6 +1,6 @@
 """``cdgps config --signals``: the starter config's ``[gnss] signals`` chosen as ``cdgps rtk --signals auto`` chooses
-them (one function, ``gnss_multi.common_signals``), GLONASS left out with a note, a list given on purpose kept, and
-bad lists refused with exit 2 naming the option."""
+them (one function, ``gnss_multi.common_signals``), a list given on purpose kept, and bad lists refused with exit 2
+naming the option."""
 
 import tomllib
 
@@ -20,15 +20,14 @@ def _config(tmp_path, *extra):
     return r, (tomllib.loads(out.read_text())["gnss"] if out.exists() else None)
 
 
-def test_auto_writes_every_common_cdma_signal_and_names_glonass_in_a_note(tmp_path):
+def test_auto_writes_every_signal_both_files_hold_as_rtk_chooses_them(tmp_path):
     from cdgps_cli.pipeline.gnss_multi import common_signals
 
     r, g = _config(tmp_path)
     assert r.exit_code == 0, r.output
     both = common_signals({"base": [MOSAIC / "base.obs"], "rover": [MOSAIC / "rover.obs"]}, [MOSAIC / "base.nav"], [])
-    assert {"R:G1", "E:E1", "C:B1I"} <= set(both)                        # the premise: four systems in both files
-    assert g["signals"] == [s for s in both if not s.startswith("R:")]
-    assert "GLONASS (R:G1, R:G2)" in r.output and "left out" in r.output
+    assert {"G:L1", "R:G1", "E:E1", "C:B1I"} <= set(both)                 # the premise: four systems in both files
+    assert g["signals"] == both
 
 
 def test_a_list_given_is_written_as_given_and_gps_l1_alone_writes_no_key(tmp_path):
