@@ -546,11 +546,17 @@ def _ubx_stream(files: list, sigs, who: str, warnings: list) -> tuple[dict, pd.D
     :func:`_read_observations` decodes one (the position of the last RTCM 1005/1006; what the stream lost named
     in ``warnings``)."""
     from cdgps_cli.io.gnss_sequence import ubx_bytes  # noqa: PLC0415
-    from cdgps_cli.io.ubx import integrity_problems  # noqa: PLC0415
 
     name = pieces_text(files)
-    data = b"".join(ubx_bytes(p) for p in files)
-    info, tab, _ = _ubx_table(name, data)
+    return _ubx_receiver(name, _ubx_table(name, b"".join(ubx_bytes(p) for p in files)), sigs, who, warnings)
+
+
+def _ubx_receiver(name, decoded: tuple, sigs, who: str, warnings: list) -> tuple[dict, pd.DataFrame]:
+    """A decoded u-blox log (``_ubx_table``'s) as a receiver's header (the last RTCM 1005/1006 position) and signal
+    table of ``sigs``; what the log lost named in ``warnings``."""
+    from cdgps_cli.io.ubx import integrity_problems  # noqa: PLC0415
+
+    info, tab, _ = decoded
     problems = integrity_problems(info)
     if problems:
         warnings.append(f"{name} ({who}): skipped: {'; '.join(problems)}")
@@ -571,15 +577,7 @@ def _read_observations(path, sigs, glo_k, who: str, warnings: list) -> tuple[dic
             warnings.append(f"{path} ({who}): {back[0]} epoch(s) written out of time order (first: "
                             f"{gps_time_str(back[1])}, after a later one), read in time order")
         return header, obs
-    from cdgps_cli.io.ubx import integrity_problems  # noqa: PLC0415
-
-    info, tab, _ = _ubx(path)
-    problems = integrity_problems(info)
-    if problems:
-        warnings.append(f"{path} ({who}): skipped: {'; '.join(problems)}")
-    base = info.get("rtcm_base")
-    return ({"approx_position_xyz_m": base["arp_ecef_m"] if base else None},
-            tab[tab["signal"].isin(list(sigs))].reset_index(drop=True))
+    return _ubx_receiver(path, _ubx(path), sigs, who, warnings)
 
 
 #: why a rover epoch read from its file never reached the epoch pairing
