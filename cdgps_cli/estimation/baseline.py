@@ -70,7 +70,7 @@ from cdgps_cli.model.gps.positioning import (
 )
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.measurement.dd_signals import glonass_code_factor
-from cdgps_cli.measurement.epoch_pairing import age_variance_m2, pair_epochs, rows_for_pairs
+from cdgps_cli.measurement.epoch_pairing import age_variance_m2, nearest_tags, pair_epochs, rows_for_pairs
 from cdgps_cli.measurement.noise import correlated_variance_factor
 from cdgps_cli.model.gps.epoch_align import ALIGN_MODES, align_receiver, carry_slips
 
@@ -495,10 +495,7 @@ def _clock_rows(st: Station, tag: np.ndarray, t_label: np.ndarray, nav: pd.DataF
     tt, inv = np.unique(tag[have], return_inverse=True)        # one clock per measurement instant
     tag_of_epoch = np.full(tag.size, -1, dtype=np.int64)
     tag_of_epoch[have] = inv
-    i = np.clip(np.searchsorted(tt, t), 1, tt.size - 1) if tt.size > 1 else np.zeros(t.size, dtype=np.int64)
-    if tt.size > 1:
-        i = np.where(np.abs(tt[i - 1] - t) <= np.abs(tt[i] - t), i - 1, i)
-    at = np.abs(tt[i] - t) <= 1e-6                   # a row belongs to the tag that is its own
+    i, at = nearest_tags(tt, t)                       # a row belongs to the tag that is its own
     rows = pd.DataFrame({"k": i[at], "sat": sig["sat"].to_numpy()[keep][at], "t": t[at], "pr": pr[keep][at]})
     rows = rows.drop_duplicates(["k", "sat"], keep="first")
     # the ephemeris serving each tag: that of its first epoch's label (the bridged epochs' labels are within max age)
@@ -975,8 +972,8 @@ def _weights(d: _Data, opt: BaselineOptions) -> _Weights:
     """SD variances and DD weights of the phase rows and of the code rows (its own references)."""
     var_ph = sd_variance(d.el_rover, d.el_base, sigma_a_m=opt.sigma_a_m, sigma_b_m=opt.sigma_b_m, weighting=opt.weighting)
     var_code = var_ph * opt.code_ratio**2 * correlated_variance_factor(d.interval_s, opt.code_correlation_s)
-    if len(d.sat_names):
-        var_code = var_code * glonass_code_factor(np.asarray(d.sat_names, dtype=object)[d.sat], opt.glonass_fix)
+    if len(d.sat_names) and not opt.glonass_fix:  # per satellite name, then by each row's satellite index
+        var_code = var_code * glonass_code_factor(list(d.sat_names), False)[d.sat]
     age_var = getattr(d, "age_var_m2", None)
     if age_var is not None:                       # a bridged base epoch: σ grows with its age (epoch_pairing)
         var_ph, var_code = var_ph + age_var, var_code + age_var

@@ -33,7 +33,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.signals import SIGNALS
 from cdgps_cli.measurement.dd_signals import group_key
 from cdgps_cli.measurement.differencing import epoch_pointers
-from cdgps_cli.measurement.epoch_pairing import rows_for_pairs
+from cdgps_cli.measurement.epoch_pairing import nearest_tags, rows_for_pairs
 from cdgps_cli.model.gps.epoch_align import carry_slips
 from cdgps_cli.model.gps.positioning import ephemeris_coverage, reception_geometry
 
@@ -55,10 +55,8 @@ def _rows_at_epochs(sig: pd.DataFrame, l1_rows: pd.DataFrame, clk: np.ndarray, w
     if tt.size == 0:
         raise CdgpsError(f"{what}: no epoch with observations of the anchor signal (GPS L1, or the first of [gnss] "
                          f"signals without G:L1) in common with the other receiver")
-    i = np.clip(np.searchsorted(tt, t), 1, tt.size - 1) if tt.size > 1 else np.zeros(t.size, dtype=np.int64)
-    if tt.size > 1:
-        i = np.where(np.abs(tt[i - 1] - t) <= np.abs(tt[i] - t), i - 1, i)
-    ok = (np.abs(tt[i] - t) <= _TAG_MATCH_S) & np.isfinite(sig["phase_cycles"].to_numpy(dtype=np.float64))
+    i, at = nearest_tags(tt, t, _TAG_MATCH_S)
+    ok = at & np.isfinite(sig["phase_cycles"].to_numpy(dtype=np.float64))
     key = (sig["sat"].astype(str) + ":" + sig["signal"].astype(str)).to_numpy()
     lli = carry_slips(t, key, sig["lli"].to_numpy(dtype=np.int64), ok)
     # a base epoch serving several rover epochs gives its rows to each, its slip flags to the first

@@ -38,7 +38,7 @@ def is_pattern(name: str) -> bool:
     return any(c in str(name) for c in _GLOB_CHARS)
 
 
-def expand_paths(items, what: str) -> list[str]:
+def expand_paths(items, what: str, repeats: str = "refuse") -> list[str]:
     """The files of ``items``: each a file name, or a glob pattern (its matches, in name order;
     a name that exists as a file is taken literally even with glob characters).
 
@@ -48,6 +48,9 @@ def expand_paths(items, what: str) -> list[str]:
         File names and patterns, as given.
     what : str
         What they are, for the messages (``"--rinex 3040"``, ``"RECEIVER_CSV"``).
+    repeats : {"refuse", "once"}
+        A file given twice (by name or pattern): refused (a record's pieces), or kept once (files whose
+        contents are merged, e.g. navigation files).
 
     Raises
     ------
@@ -70,10 +73,10 @@ def expand_paths(items, what: str) -> list[str]:
     seen: dict[str, str] = {}
     for p in out:
         key = str(Path(p).resolve())
-        if key in seen:
+        if key in seen and repeats != "once":
             raise CdgpsError(f"{what}: the file {p} is given twice")
-        seen[key] = p
-    return out
+        seen.setdefault(key, p)
+    return list(seen.values())
 
 
 @dataclass

@@ -543,8 +543,9 @@ def glonass_code_factor(sats, glonass_fix: bool) -> np.ndarray | float:
 
     if glonass_fix:
         return 1.0
-    s = np.asarray(sats).astype(str)
-    return np.where(np.char.startswith(s, "R"), GLONASS_FLOAT_CODE_VARIANCE_FACTOR, 1.0)
+    code, names = pd.factorize(np.asarray(sats, dtype=object))     # the few satellites, not every row's string
+    per_name = np.array([GLONASS_FLOAT_CODE_VARIANCE_FACTOR if str(n).startswith("R") else 1.0 for n in names])
+    return per_name[code] if per_name.size else np.ones(code.size)
 
 
 def _base_at_rover_times(m: pd.DataFrame, b: pd.DataFrame, tb: np.ndarray, pairs, opt, base_xyz_m):

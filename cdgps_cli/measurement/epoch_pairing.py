@@ -219,6 +219,21 @@ def rows_for_pairs(row_epoch, pair_epoch) -> tuple[np.ndarray, np.ndarray, np.nd
     return take, np.repeat(start, count) + offset, offset == 0
 
 
+def nearest_tags(tags_s: np.ndarray, t_s: np.ndarray, tol_s: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+    """For each time ``t_s`` the index of the nearest of the sorted ``tags_s`` (ties: the earlier) and whether it
+    is within ``tol_s`` — a row belongs to the epoch whose time tag is its own (GPS s; one tag: index 0)."""
+    tags = np.asarray(tags_s, dtype=np.float64)
+    t = np.asarray(t_s, dtype=np.float64)
+    if tags.size == 0:
+        return np.zeros(t.size, dtype=np.int64), np.zeros(t.size, dtype=bool)
+    if tags.size == 1:
+        i = np.zeros(t.size, dtype=np.int64)
+    else:
+        i = np.clip(np.searchsorted(tags, t), 1, tags.size - 1)
+        i = np.where(np.abs(tags[i - 1] - t) <= np.abs(tags[i] - t), i - 1, i)
+    return i, np.abs(tags[i] - t) <= tol_s
+
+
 def channel_index(sats, code) -> np.ndarray:
     """Channel (N,) of each row: the index of its key ``str(sat) + str(code)`` among the sorted distinct keys
     (what ``np.unique(np.char.add(sats.astype(str), code.astype(str)), return_inverse=True)[1]`` gives), with

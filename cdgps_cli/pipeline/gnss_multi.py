@@ -118,7 +118,8 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
     (:func:`_read_receiver`)."""
     opt = validate_options(options or {})
     base_files, rover_files = (expand_paths(_as_list(p), f"--{who}") for p, who in ((base_path, "base"), (rover_path, "rover")))
-    nav_paths = _navigation_files(nav_paths)
+    # a navigation file named twice, or matched by two patterns, is read once (its ephemerides are merged anyway)
+    nav_paths = expand_paths(list(nav_paths or ()), "--nav", repeats="once")
     for files, who in ((base_files, "base"), (rover_files, "rover")):
         for path in files:
             _refuse_empty(path, who)
@@ -225,14 +226,15 @@ def _solution_columns(res, base_xyz):
 
 def _velocity_enu(res, lat_deg, lon_deg):
     """Constant-velocity mode's velocity per epoch (fixed where fixed, else float) in the local east, north, up
-    axes at the rover (n, 3; m/s) and its covariance (n, 3, 3; m²/s²); None in the other modes."""
+    axes at the rover (n, 3; m/s), its covariance (n, 3, 3; m²/s²) and σ (n, 3; m/s); None in the other modes."""
     if "float_vel_m_s" not in res:
         return None
     fixed = res["fixed"]
     v = np.where(fixed[:, None], res["fixed_vel_m_s"], res["float_vel_m_s"])
     C = np.where(fixed[:, None, None], res["fixed_vel_cov_m2_s2"], res["float_vel_cov_m2_s2"])
     R = enu_matrix(np.radians(lat_deg), np.radians(lon_deg))          # (n, 3, 3) rows e, n, u
-    return np.einsum("nij,nj->ni", R, v), np.einsum("nij,njk,nlk->nil", R, C, R)
+    C_enu = np.einsum("nij,njk,nlk->nil", R, C, R)
+    return np.einsum("nij,nj->ni", R, v), C_enu, np.sqrt(np.abs(np.einsum("nii->ni", C_enu)))
 
 
 def solution_text(res: dict, sigs, opt: dict, out_path, base_xyz, *, inputs=()) -> str:
@@ -262,7 +264,7 @@ def solution_text(res: dict, sigs, opt: dict, out_path, base_xyz, *, inputs=()) 
     if suffix == ".geojson":
         return geojson_text(t, lat, lon, h, q, ns, sig_enu, properties={"program": desc, "inputs": [str(p) for p in inputs],
                                                                         "height": "ellipsoidal (WGS84), m"},
-                            velocity_enu=None if vel is None else (vel[0], np.sqrt(np.abs(np.einsum("nii->ni", vel[1])))))
+                            velocity_enu=None if vel is None else (vel[0], vel[2]))
     buf = _io.StringIO()
     for s in sigs:
         buf.write(f"# signal {s} wavelength_m {signal(s).wavelength_m:.9f}\n" if not signal(s).fdma_step_hz
@@ -285,7 +287,7 @@ def _velocity_columns(vel) -> dict:
     """The CSV's velocity columns (m/s) of :func:`_velocity_enu`'s result; none without a velocity."""
     if vel is None:
         return {}
-    v, sd = vel[0], np.sqrt(np.abs(np.einsum("nii->ni", vel[1])))
+    v, _, sd = vel
     return {**{f"v{a}_m_s": v[:, i] for i, a in enumerate("enu")},
             **{f"sigma_v{a}_m_s": sd[:, i] for i, a in enumerate("enu")}}
 
@@ -499,16 +501,6 @@ def _ubx_table(path: str, data: bytes | None = None):
 def _ubx(path):
     st = Path(path).stat()
     return _ubx_decoded(str(path), st.st_mtime_ns, st.st_size)
-
-
-def _navigation_files(items) -> list:
-    """``--nav`` files and quoted glob patterns, expanded, each file once (a file named twice, or matched by two
-    patterns, is read once: its ephemerides would be merged anyway)."""
-    out: dict = {}
-    for it in items or ():
-        for p in expand_paths([it], "--nav"):
-            out.setdefault(str(Path(p).resolve()), p)
-    return list(out.values())
 
 
 def _as_list(paths) -> list:
