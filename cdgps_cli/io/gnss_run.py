@@ -1013,6 +1013,42 @@ def gnss_run_info(path: str | Path, contents, common_epochs=None, lock_summary=N
 # starter configs from the files' headers
 
 
+def _rinex_comments(n: str, p, comments: list) -> bool:
+    """A starter config's comment lines on antenna ``n``'s RINEX file ``p`` (marker, receiver, antenna, span, header
+    position); whether the header has a position."""
+    rx = read_receiver_file(n, "rinex", p)
+    h = rx.header
+    t = np.unique(rx.raw["time_gps_s"].to_numpy())
+    pos = header_position_m(h)
+    comments.append(f"{n}: {Path(p).name}, RINEX {float(h.get('version') or 0):.2f}, marker {h.get('marker_name') or '?'}, receiver "
+                    f"{h.get('receiver_type') or '?'}, antenna {h.get('antenna_type') or '?'}, {t.size} epochs "
+                    f"{span_text(t)} every {nominal_interval_s(t):g} s,")
+    comments.append(f"    header position {('(' + ', '.join(f'{v:.4f}' for v in pos) + ')') if pos is not None else 'none'}")
+    return pos is not None
+
+
+def _ubx_comments(n: str, p, comments: list, warnings: list | None):
+    """A starter config's comment lines on antenna ``n``'s u-blox log ``p`` (span, satellites, SFRBX ephemerides,
+    RTCM 1005/1006 position); what the log lost into ``warnings``.  Returns the log read."""
+    rx = read_receiver_file(n, "ubx", p)
+    lost = ubx_loss_warning(n, {"file": str(p), "n_frames": int(rx.info.get("n_frames") or 0),
+                                "problems": integrity_problems(rx.info)})
+    if lost and warnings is not None:
+        warnings.append(lost)
+    t = np.unique(rx.raw["time_gps_s"].to_numpy())
+    base = rx.info.get("rtcm_base")
+    sf = rx.info.get("sfrbx") or {}
+    comments.append(f"{n}: {Path(p).name}, u-blox RXM-RAWX, {t.size} epochs {span_text(t)}, GPS satellites "
+                    f"{', '.join(rx.info.get('gps_satellites') or [])}; {int(sf.get('ephemerides') or 0)} GPS "
+                    f"ephemerides from RXM-SFRBX")
+    if base:
+        extra = f", {base['distinct']} distinct positions in {base['count']} messages: the last is used" \
+            if base["distinct"] > 1 else ""
+        comments.append(f"    position: RTCM {base['message']} antenna reference point of station "
+                        f"{base['station_id']} ({', '.join(f'{v:.4f}' for v in base['arp_ecef_m'])}){extra}")
+    return rx
+
+
 def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), master: str | None = None, *,
                         displacement: str = "static", sigma_m_per_sqrt_s=None, relative_to: Path | None = None,
                         name: str | None = None, notes: list | None = None, warnings: list | None = None,
@@ -1041,38 +1077,17 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
     files = {}
     with_pos = []
     for n, p in rinex.items():
-        rx = read_receiver_file(n, "rinex", p)
-        h = rx.header
-        t = np.unique(rx.raw["time_gps_s"].to_numpy())
-        pos = header_position_m(h)
-        if pos is not None:
+        if _rinex_comments(n, p, comments):
             with_pos.append(n)
-        comments.append(f"{n}: {Path(p).name}, RINEX {float(h.get('version') or 0):.2f}, marker {h.get('marker_name') or '?'}, receiver "
-                        f"{h.get('receiver_type') or '?'}, antenna {h.get('antenna_type') or '?'}, {t.size} epochs "
-                        f"{span_text(t)} every {nominal_interval_s(t):g} s,")
-        comments.append(f"    header position {('(' + ', '.join(f'{v:.4f}' for v in pos) + ')') if pos is not None else 'none'}")
         files[n] = ("rinex", rel(p))
     positions: dict = {}
     ubx_rx = {}
     for n, p in ubx.items():
-        rx = ubx_rx[n] = read_receiver_file(n, "ubx", p)
-        lost = ubx_loss_warning(n, {"file": str(p), "n_frames": int(rx.info.get("n_frames") or 0),
-                                    "problems": integrity_problems(rx.info)})
-        if lost and warnings is not None:
-            warnings.append(lost)
-        t = np.unique(rx.raw["time_gps_s"].to_numpy())
-        base = rx.info.get("rtcm_base")
-        sf = rx.info.get("sfrbx") or {}
-        comments.append(f"{n}: {Path(p).name}, u-blox RXM-RAWX, {t.size} epochs {span_text(t)}, GPS satellites "
-                        f"{', '.join(rx.info.get('gps_satellites') or [])}; {int(sf.get('ephemerides') or 0)} GPS "
-                        f"ephemerides from RXM-SFRBX")
+        ubx_rx[n] = _ubx_comments(n, p, comments, warnings)
+        base = ubx_rx[n].info.get("rtcm_base")
         if base:
             positions[n] = tuple(base["arp_ecef_m"])
             with_pos.append(n)
-            extra = f", {base['distinct']} distinct positions in {base['count']} messages: the last is used" \
-                if base["distinct"] > 1 else ""
-            comments.append(f"    position: RTCM {base['message']} antenna reference point of station "
-                            f"{base['station_id']} ({', '.join(f'{v:.4f}' for v in base['arp_ecef_m'])}){extra}")
         files[n] = ("ubx", rel(p))
     for p in nav_paths:
         from cdgps_cli.io.rinex import NAV_SYSTEMS  # noqa: PLC0415

@@ -696,31 +696,9 @@ def simulate_static_pair(
             raise ValueError(f"rover_offset_enu_m must have shape ({n_ep}, 3), got {off.shape}")
         lat_r, lon_r, _ = ecef_to_geodetic(stations["rover"])
         track["rover"] = stations["rover"] + off @ enu_matrix(lat_r, lon_r)
-    clock, tag, t_true = {}, {}, {}
-    for j, name in enumerate(stations):
-        clock[name] = clock_drift_ms[j] * 1e-3 * (t_nom - t_start_s) / max(duration_s, 1e-9) + clock_offset_ms[j] * 1e-3
-        if tag_resolution_s == 1e-3:
-            tag[name] = t_nom + np.round(clock[name] * 1e3) * 1e-3
-        elif tag_resolution_s:
-            tag[name] = t_nom + np.round(clock[name] / tag_resolution_s) * tag_resolution_s
-        else:
-            tag[name] = t_nom + clock[name]
-        t_true[name] = tag[name] - clock[name]
-    per_sat = []
-    for s in sats:
-        idx = np.flatnonzero(ephemeris_coverage(nav, np.full(n_ep, s, dtype=object), t_nom))
-        if idx.size == 0:
-            continue
-        geo = {}
-        vis = np.ones(idx.size, dtype=bool)
-        for name, x in stations.items():
-            xs = track[name][idx] if name in track else x
-            g = sat_position_at_reception(nav, s, t_nom[idx], xs, rx_clock_s=t_nom[idx] - t_true[name][idx])
-            el = azimuth_elevation(xs, g.xyz_m)[1]
-            vis &= el > mask_rad
-            geo[name] = (g.range_m, g.clock_s, el)
-        if vis.any():
-            per_sat.append((s, idx, vis, geo))
+    clock, tag, t_true = _receiver_clocks(stations, t_nom, t_start_s, duration_s, clock_drift_ms, clock_offset_ms,
+                                          tag_resolution_s)
+    per_sat = _visible_geometry(nav, sats, stations, track, t_nom, t_true, mask_rad)
     drawn = _draw_random_slips(per_sat, t_nom, int(random_slips), mask_rad if slip_mask_rad is None else slip_mask_rad,
                                max(int(slip_min_epochs), 1), np.random.default_rng(seed + 104_729))
     slips = [(*sl, False) for sl in slips] + [(*sl, True) for sl in drawn]
@@ -746,19 +724,7 @@ def simulate_static_pair(
             amb = n_int[seg_id].astype(np.float64)
             for j in np.flatnonzero(seg_start):
                 amb_rows.append((name, s, "lock", float(t_nom[idx[j]]), int(n_int[seg_id[j]])))
-            lli = np.zeros(idx.size, dtype=np.int64)
-            for rx_name, sl_sat, sl_t, cyc, rnd in slips:
-                if rx_name != name or sl_sat != s:
-                    continue
-                after = t_nom[idx] >= sl_t
-                if after.any():  # the slip shifts the rest of the lock segment it falls in
-                    j0 = int(np.argmax(after))
-                    hit = after & (seg_id == seg_id[j0])
-                    amb = amb + np.where(hit, float(cyc), 0.0)
-                    lli[j0] |= 1
-                    amb_rows.append((name, s, "slip", float(t_nom[idx[j0]]), int(cyc)))
-                    applied.append({"receiver": name, "sat": s, "time_gps_s": float(t_nom[idx[j0]]), "cycles": int(cyc),
-                                    "elevation_deg": round(math.degrees(float(el[j0])), 3), "random": rnd})
+            amb, lli = _apply_slips(name, s, t_nom[idx], seg_id, el, amb, slips, amb_rows, applied)
             common = rho + SPEED_OF_LIGHT_M_S * (clock[name][idx] - dts) + trop
             recs.append(pd.DataFrame({
                 "time_gps_s": tag[name][idx],
@@ -790,6 +756,65 @@ def simulate_static_pair(
         "clock_s": clock,
         "slips": sorted(applied, key=lambda d: d["random"]),
     }
+
+
+def _receiver_clocks(stations: dict, t_nom, t_start_s, duration_s, clock_drift_ms, clock_offset_ms,
+                     tag_resolution_s) -> tuple[dict, dict, dict]:
+    """:func:`simulate_static_pair`'s receiver clocks per nominal epoch (s; offset + linear drift), time tags
+    (nominal + clock, rounded to ``tag_resolution_s``) and true reception times (tag − clock), per station."""
+    clock, tag, t_true = {}, {}, {}
+    for j, name in enumerate(stations):
+        clock[name] = clock_drift_ms[j] * 1e-3 * (t_nom - t_start_s) / max(duration_s, 1e-9) + clock_offset_ms[j] * 1e-3
+        if tag_resolution_s == 1e-3:
+            tag[name] = t_nom + np.round(clock[name] * 1e3) * 1e-3
+        elif tag_resolution_s:
+            tag[name] = t_nom + np.round(clock[name] / tag_resolution_s) * tag_resolution_s
+        else:
+            tag[name] = t_nom + clock[name]
+        t_true[name] = tag[name] - clock[name]
+    return clock, tag, t_true
+
+
+def _visible_geometry(nav, sats, stations: dict, track: dict, t_nom, t_true: dict, mask_rad: float) -> list:
+    """Per satellite with an ephemeris: (sat, its covered epochs, visible at both stations above ``mask_rad``,
+    {station: (range m, satellite clock s, elevation rad)}) at each station's true reception times (the rover on
+    its ``track`` when it moves)."""
+    per_sat = []
+    for s in sats:
+        idx = np.flatnonzero(ephemeris_coverage(nav, np.full(t_nom.size, s, dtype=object), t_nom))
+        if idx.size == 0:
+            continue
+        geo = {}
+        vis = np.ones(idx.size, dtype=bool)
+        for name, x in stations.items():
+            xs = track[name][idx] if name in track else x
+            g = sat_position_at_reception(nav, s, t_nom[idx], xs, rx_clock_s=t_nom[idx] - t_true[name][idx])
+            el = azimuth_elevation(xs, g.xyz_m)[1]
+            vis &= el > mask_rad
+            geo[name] = (g.range_m, g.clock_s, el)
+        if vis.any():
+            per_sat.append((s, idx, vis, geo))
+    return per_sat
+
+
+def _apply_slips(name: str, s: str, t: np.ndarray, seg_id: np.ndarray, el: np.ndarray, amb: np.ndarray, slips: list,
+                 amb_rows: list, applied: list) -> tuple[np.ndarray, np.ndarray]:
+    """Station ``name``'s slips of satellite ``s`` (records at nominal times ``t``): each shifts the rest of the lock
+    segment it falls in by its cycles and flags its first record (LLI bit 0); recorded in ``amb_rows`` and
+    ``applied``.  Returns the ambiguities (cycles) and LLI per record."""
+    lli = np.zeros(t.size, dtype=np.int64)
+    for rx_name, sl_sat, sl_t, cyc, rnd in slips:
+        if rx_name != name or sl_sat != s:
+            continue
+        after = t >= sl_t
+        if after.any():
+            j0 = int(np.argmax(after))
+            amb = amb + np.where(after & (seg_id == seg_id[j0]), float(cyc), 0.0)
+            lli[j0] |= 1
+            amb_rows.append((name, s, "slip", float(t[j0]), int(cyc)))
+            applied.append({"receiver": name, "sat": s, "time_gps_s": float(t[j0]), "cycles": int(cyc),
+                            "elevation_deg": round(math.degrees(float(el[j0])), 3), "random": rnd})
+    return amb, lli
 
 
 def _decimate(df: pd.DataFrame, every: int) -> pd.DataFrame:
