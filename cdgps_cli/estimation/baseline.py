@@ -1127,25 +1127,14 @@ def _known_solution(d: _Data, sg: _Segments, w: _Weights, integers: dict, soluti
     float or the data hold GLONASS (FDMA) segments (unless ``floats``: the float segments' ambiguities are
     then the phase-only least squares at the given position), or the position is not the fixed solution
     of these integers (one least-squares step would move it more than ``tol_m``; a warning says so)."""
-    fixed_mask = np.zeros(sg.free.size, dtype=bool)
-    integers_fix = np.zeros(sg.free.size, dtype=np.int64)
-    _given_integers(integers, d, sg, fixed_mask, integers_fix)
+    fixed_mask, integers_fix = _integer_masks(integers, d, sg)
     fdma = _fdma_segments(d, sg)
     if not floats and (not fixed_mask.all() or fdma.any()):
         return None
     x = np.asarray(solution["enu_m"], dtype=np.float64).reshape(3)
-    a_fix = np.zeros(sg.n_seg)
-    a_fix[sg.free] = np.where(fixed_mask, integers_fix, 0)
-    known = sg.is_pivot.copy()
-    known[sg.free[fixed_mask]] = True
-    unk = np.flatnonzero(~known)
+    a_fix, known, unk = _known_ambiguities(sg, fixed_mask, integers_fix)
     par2 = np.full(sg.n_seg, -1, dtype=np.int64)
     par2[unk] = 3 + np.arange(unk.size)
-    keys = [(d.sat_names[int(sg.segtab["sat"][k])], round(float(d.t_label[sg.segtab["first_epoch"][k]]), 3))
-            for k in sg.free]
-    given = {(str(k[0]), round(float(k[1]), 3)): v for k, v in (solution.get("float_cycles") or {}).items()}
-    a_float = np.array([np.nan if given.get(k) is None else float(given[k][0]) for k in keys])
-    sig = np.array([np.nan if given.get(k) is None or given[k][1] is None else float(given[k][1]) for k in keys])
     g, r_ph, _ = _residuals(d, xr0 + r_enu.T @ x, r_enu, a_fix, sg.seg, w, code=False)
     nmat, rhs = _accumulate(w.blocks_ph, g, r_ph, par2[sg.seg], 3 + unk.size, _lam(d))
     cf, dx = _solve(nmat, rhs, "fixed solution")
@@ -1157,23 +1146,106 @@ def _known_solution(d: _Data, sg: _Segments, w: _Weights, integers: dict, soluti
         a_fix[unk] += dx[3:]
         g, r_ph, _ = _residuals(d, xr0 + r_enu.T @ x, r_enu, a_fix, sg.seg, w, code=False)
     q = cho_solve(cf, np.eye(3 + unk.size))
-    q3 = q[:3, :3]
-    sq, n_dd = _quad(w.blocks_ph, r_ph)
-    dof = n_dd - 3 - unk.size
-    block = {"enu_m": x.tolist(), "sigma_enu_m": np.sqrt(np.diag(q3)).tolist(), "iterations": 0,
+    a_sig = np.zeros(sg.n_seg)
+    a_sig[unk] = np.sqrt(np.diag(q)[3:])
+    how = ("position and integers given (not solved again)" if not unk.size else
+           "position and integers given (not solved again); the float ambiguities at that position")
+    return _evaluated(d, sg, w, solution, (fixed_mask, integers_fix), _Final(None, x, "", a_fix, known, q[:3, :3], g,
+                                                                          r_ph, a_sig), how)
+
+
+def _given_solution(d: _Data, sg: _Segments, w: _Weights, integers: dict, solution: dict, xr0, r_enu,
+                    warnings: list):
+    """A partially fixed solution given whole (INIT's): position ``solution["enu_m"]`` and its covariance
+    ``cov_enu_m2``, the integers, and each float segment's value and σ in it (``solution_cycles``
+    ``{(satellite, first s): (cycles, σ)}``) — evaluated, nothing solved (no normal equations).
+
+    The values are INIT's on these data when the DD phase residuals they leave are INIT's, satellite by
+    satellite (``solution["residuals"]``, :func:`_residual_summary`'s, within 1e-9 relative); else None with a
+    warning, as when a value is missing.  Returns (float, fix, final) in the solver's forms."""
+    fixed_mask, integers_fix = _integer_masks(integers, d, sg)
+    a_fix, known, unk = _known_ambiguities(sg, fixed_mask, integers_fix)
+    keys = _segment_keys(d, sg)
+    given = _given_values(solution.get("solution_cycles"), [keys[k] for k in unk])
+    cov, ref = solution.get("cov_enu_m2"), (solution.get("residuals") or {}).get("per_satellite_rms_m")
+    if given is None or cov is None or not ref or not unk.size:
+        return None
+    x = np.asarray(solution["enu_m"], dtype=np.float64).reshape(3)
+    a_fix[unk] = given[0]
+    g, r_ph, _ = _residuals(d, xr0 + r_enu.T @ x, r_enu, a_fix, sg.seg, w, code=False)
+    here = _residual_summary(d, w, r_ph, 0)["per_satellite_rms_m"]
+    if set(here) != set(ref) or not all(math.isclose(here[k], float(ref[k]), rel_tol=1e-9, abs_tol=1e-12)
+                                        for k in here):
+        warnings.append("the given float ambiguities do not leave INIT's residuals on these data; solved again")
+        return None
+    a_sig = np.zeros(sg.n_seg)
+    a_sig[unk] = given[1]
+    q3 = np.asarray(cov, dtype=np.float64).reshape(3, 3)
+    return _evaluated(d, sg, w, solution, (fixed_mask, integers_fix), _Final(None, x, "", a_fix, known, q3, g, r_ph,
+                                                                          a_sig),
+                      "position, integers and the float ambiguities given (not solved again)")
+
+
+def _integer_masks(integers: dict, d: _Data, sg: _Segments) -> tuple:
+    """(fixed mask, integers) of the free segments from integers given (:func:`_given_integers`)."""
+    fixed_mask = np.zeros(sg.free.size, dtype=bool)
+    integers_fix = np.zeros(sg.free.size, dtype=np.int64)
+    _given_integers(integers, d, sg, fixed_mask, integers_fix)
+    return fixed_mask, integers_fix
+
+
+def _known_ambiguities(sg: _Segments, fixed_mask, integers_fix) -> tuple:
+    """(SD ambiguities, cycles: the integers, 0 elsewhere; known mask (pivot or fixed); the unknown segments)."""
+    a_fix = np.zeros(sg.n_seg)
+    a_fix[sg.free] = np.where(fixed_mask, integers_fix, 0)
+    known = sg.is_pivot.copy()
+    known[sg.free[fixed_mask]] = True
+    return a_fix, known, np.flatnonzero(~known)
+
+
+def _evaluated(d: _Data, sg: _Segments, w: _Weights, solution: dict, fixed: tuple, fin: _Final, how: str) -> tuple:
+    """(float, fix, final) of a solution evaluated at given values (``fin``: its position, ambiguities, known
+    mask, covariance, design, residuals and σ; ``fixed``: the free segments' fixed mask and integers)."""
+    fixed_mask, integers_fix = fixed
+    n_unk = int(np.sum(~fin.known_seg))
+    sq, n_dd = _quad(w.blocks_ph, fin.r_ph)
+    dof = n_dd - 3 - n_unk
+    block = {"enu_m": fin.x.tolist(), "sigma_enu_m": np.sqrt(np.diag(fin.q3)).tolist(), "iterations": 0,
              "unit_variance": sq / dof if dof > 0 else None,
              "observations": ("L1 carrier phase only" if getattr(d, "group", None) is None
                               else f"carrier phase only ({', '.join(d.group_names)})"),
-             "given": ("position and integers given (not solved again)" if not unk.size else
-                       "position and integers given (not solved again); the float ambiguities at that position")}
-    a_sig = np.zeros(sg.n_seg)
-    a_sig[unk] = np.sqrt(np.diag(q)[3:])
-    fl = _Float(x, a_fix.copy(), None, None, g, r_ph, None, 0)
+             "given": how}
+    keys = _segment_keys(d, sg)
+    a_float, sig = _given_values(solution.get("float_cycles"), [keys[k] for k in sg.free], partial=True)
+    fl = _Float(fin.x, fin.a_seg.copy(), None, None, fin.g, fin.r_ph, None, 0)
     fx = _Fix(a_float, np.diag(sig**2) if sig.size else np.zeros((0, 0)), fixed_mask, integers_fix, None, None,
-              bool(fixed_mask.all() or fixed_mask.any()), False)
+              bool(fixed_mask.any()), False)
+    fdma = _fdma_segments(d, sg)
     kind = "fixed" if int(fixed_mask.sum()) == int(np.sum(~fdma[sg.free])) else "partially fixed"
-    fin = _Final(block, x, kind, a_fix, known, q3, g, r_ph, a_sig)
-    return fl, fx, fin
+    return fl, fx, fin._replace(block=block, kind=kind)
+
+
+def _segment_keys(d: _Data, sg: _Segments) -> list:
+    """(satellite, first epoch's time tag s, rounded to 1 ms) of every segment: how INIT names them."""
+    return [(d.sat_names[int(sg.segtab["sat"][k])], round(float(d.t_label[sg.segtab["first_epoch"][k]]), 3))
+            for k in range(sg.n_seg)]
+
+
+def _given_values(given: dict | None, keys: list, partial: bool = False):
+    """(values, σ) (cycles, arrays in ``keys``' order) of ``given`` ``{(satellite, first s): (value, σ)}``;
+    None when one is missing or not finite, unless ``partial`` (NaN there)."""
+    given = {(str(k[0]), round(float(k[1]), 3)): v for k, v in (given or {}).items()}
+    out = np.full((2, len(keys)), np.nan)
+    for i, k in enumerate(keys):
+        v = given.get(k)
+        for j in (0, 1):
+            try:
+                out[j, i] = float(v[j])
+            except (TypeError, ValueError, IndexError):
+                pass
+    if not partial and not np.all(np.isfinite(out)):
+        return None
+    return out[0], out[1]
 
 
 def _known_float(d: _Data, sg: _Segments, w: _Weights, enu_m, xr0, r_enu, tol_m: float):
@@ -1393,11 +1465,21 @@ def _segment_table(d: _Data, sg: _Segments, fx: _Fix, fin: _Final) -> list:
             "first_gps_s": float(d.t_label[sg.segtab["first_epoch"][k]]),
             "last_gps_s": float(d.t_label[sg.segtab["last_epoch"][k]]),
             **(sig[int(sg.segtab["sat"][k])] if sig else {}),
+            **_solution_value(fin, k),
         })
     fdma = _fdma_segments(d, sg) if sig else np.zeros(sg.n_seg, dtype=bool)
     for k in np.flatnonzero(fdma):
         rows[k] = _fdma_row(rows[k], rows[k]["wavelength_m"], float(fin.a_seg[k]), float(fin.a_sigma[k]))
     return rows
+
+
+def _solution_value(fin: _Final, k: int) -> dict:
+    """A float segment's value and σ in a (partially) fixed solution (cycles; conditioned on the fixed
+    integers), which ``estimate`` evaluates instead of solving again; nothing for a known segment or a float
+    solution."""
+    if fin.block is None or fin.known_seg[k] or fin.a_sigma is None:
+        return {}
+    return {"solution_cycles": float(fin.a_seg[k]), "solution_sigma_cycles": float(fin.a_sigma[k])}
 
 
 def _satellite_signals(d: _Data) -> list:
@@ -1520,7 +1602,7 @@ def _result(master: Station, rover: Station, xm, xr0, source: str, r_enu, fl: _F
         "baseline_enu_from_master_m": base_enu.tolist(),
         "baseline_length_m": float(np.linalg.norm(xr_final - xm)),
         "float": _block(fl.block, fl.x),
-        "fixed": _block(fin.block, fin.x) if fin.block else None,
+        "fixed": (dict(_block(fin.block, fin.x), cov_enu_m2=np.asarray(fin.q3).tolist()) if fin.block else None),
     }
 
 
@@ -1878,6 +1960,9 @@ def _engine_needed_first(integers: dict, solution: dict | None, engine_init: boo
     run before the batch tables are built): a glonass_fix INIT, or an engine INIT that leaves a segment float or has
     no fixed position (INIT's fully fixed solution is evaluated at its position instead).  Only the order depends
     on it: when it guesses wrong the engine runs where it did before (or runs unused), the result the same."""
+    if glonass_integers is None and solution is not None and solution.get("enu_m") is not None \
+            and solution.get("cov_enu_m2") is not None and solution.get("solution_cycles"):
+        return False                    # a partially fixed INIT with its float segments' values: evaluated
     if glonass_integers is not None:
         return True
     fully_fixed = (solution is not None and solution.get("enu_m") is not None
@@ -1926,6 +2011,11 @@ def baseline_from_init(master: Station, rover: Station, nav: pd.DataFrame, optio
             known = _known_solution(d, sg, w, integers, solution, xr0, r_enu, warnings, tol)
             if known is not None:
                 return known, "given (INIT's solution)"
+            # (a glonass_fix INIT's GLONASS values hold its pivots' own arc values, which INIT does not: the
+            # engine conditions on its GLONASS integers again)
+            known = None if glo is not None else _given_solution(d, sg, w, integers, solution, xr0, r_enu, warnings)
+            if known is not None:
+                return known, "given (INIT's solution, its float ambiguities too)"
 
         def at_position():
             if fixed:

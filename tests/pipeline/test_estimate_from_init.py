@@ -43,6 +43,22 @@ def mosaic_gr(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
+def mosaic_partial(tmp_path_factory):
+    d = tmp_path_factory.mktemp("partial")
+    m = MOSAIC
+    (d / "run.toml").write_text("\n".join([
+        "[gnss]", 'master = "base"', f'nav = ["{m / "base.nav"}"]',
+        'signals = ["G:L1", "G:L2", "E:E1", "E:E5b", "C:B1I"]', "[gnss.displacement]", 'model = "random_walk"',
+        "sigma_m_per_sqrt_s = 0.3", '[gnss.antennas."base"]', f'rinex = "{m / "base.obs"}"',
+        '[gnss.antennas."rover"]', f'rinex = "{m / "rover.obs"}"']) + "\n")
+    for args in (("ingest", "--config", d / "run.toml", "-o", d / "run.mcap"),
+                 ("init", d / "run.mcap", "--ratio", "500", "-o", d / "init.json")):
+        r = run_cli("-q", *args)
+        assert r.exit_code == 0, (args, r.output)
+    return d, json.loads((d / "init.json").read_text())
+
+
+@pytest.fixture(scope="module")
 def geonet(tmp_path_factory):
     d = tmp_path_factory.mktemp("geonet")
     text = (REPO_ROOT / "configs" / "geonet-0759-3040.toml").read_text().replace("../../shared", str(SHARED.parent))
@@ -81,16 +97,66 @@ def _former_path(d: Path, init: dict, rover: str) -> np.ndarray:
     return np.array(res["fixed"]["enu_m"]), np.array(res["fixed"]["sigma_enu_m"])
 
 
+def _without_solution_values(init: dict) -> dict:
+    """A copy of INIT without its float segments' values at the solution (as INIT was before it held them)."""
+    out = json.loads(json.dumps(init))
+    for b in out["biases"]:
+        b.pop("solution_cycles", None)
+        b.pop("solution_sigma_cycles", None)
+    return out
+
+
+def _no_engine(monkeypatch):
+    """Neither the batch nor the static engine may solve."""
+    def boom(*a, **k):
+        raise AssertionError("the static engine ran again")
+    _no_batch(monkeypatch)
+    monkeypatch.setattr(baseline, "_run_engine", boom)
+
+
 def test_glonass_init_is_not_solved_again(mosaic_gr, monkeypatch):
+    """GLONASS float segments: INIT's values of them at its solution are evaluated, the engine does not run; the
+    states are those of the engine's float conditioned on INIT's integers (an INIT without those values)."""
     d, init = mosaic_gr
     rov = init["rovers"]["rover"]
     assert rov["solver"] == "static_engine" and rov.get("n_float_glonass", 0) > 0
     former, _ = _former_path(d, init, "rover")
-    _no_batch(monkeypatch)
-    st = _estimate(d, init, "gr")
+    conditioned = _estimate(d, _without_solution_values(init), "gr_engine")
+    with monkeypatch.context() as mp:
+        _no_engine(mp)
+        st = _estimate(d, init, "gr")
     assert st.q[0].tolist() == rov["fixed"]["enu_m"]                   # INIT's solution, bit for bit
     assert st.sigma_q[0].tolist() == rov["fixed"]["sigma_enu_m"]
     assert np.max(np.abs(st.q[0] - former)) < 1e-4
+    np.testing.assert_allclose(st.q, conditioned.q, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(st.sigma_q, conditioned.sigma_q, rtol=1e-12, atol=0)
+
+
+def test_a_partially_fixed_engine_init_is_evaluated_not_solved(mosaic_partial, monkeypatch):
+    """A real partially fixed engine INIT (the mosaic pair, every signal, random walk 0.3 m/√s, ratio 500: 32 of
+    41 integers): estimate evaluates INIT's position, integers and float segments' values (the engine does not
+    run); its states equal those of the engine's float conditioned on INIT's integers, the former path."""
+    d, init = mosaic_partial
+    rov = init["rovers"]["rover"]
+    assert rov["solver"] == "static_engine" and rov["solution"] == "partially fixed", rov["solution"]
+    floats = [b for b in init["biases"] if not b["fixed"] and not b["pivot"]]
+    assert floats and all(isinstance(b.get("solution_cycles"), float) for b in floats)
+    assert np.shape(rov["fixed"]["cov_enu_m2"]) == (3, 3)
+    conditioned = _estimate(d, _without_solution_values(init), "partial_engine")
+    with monkeypatch.context() as mp:
+        _no_engine(mp)
+        st = _estimate(d, init, "partial_given")
+        run = read_gnss_run(d / "run.mcap")
+        res, _, _, _ = gnss.solve_with_init_integers(run, init, "rover", gnss._stations(run))
+    assert res["solver"] == "given (INIT's solution, its float ambiguities too)"
+    assert res["solution"] == "partially fixed" and res["ambiguities"]["n_fixed"] == rov["n_fixed"]
+    np.testing.assert_allclose(st.q, conditioned.q, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(st.sigma_q, conditioned.sigma_q, rtol=1e-12, atol=0)
+    # a float segment's value moved by a tenth of a cycle is not INIT's solution on these data: the engine serves
+    moved = json.loads(json.dumps(init))
+    next(b for b in moved["biases"] if b.get("solution_cycles") is not None)["solution_cycles"] += 0.1
+    res2, _, _, _ = gnss.solve_with_init_integers(run, moved, "rover", gnss._stations(run))
+    assert res2["solver"] == "static_engine (integers given)"
 
 
 def test_partially_fixed_init_is_not_solved_again(geonet, monkeypatch):
@@ -185,8 +251,8 @@ def test_the_engine_runs_before_the_batch_tables_exist(case, request, monkeypatc
     from cdgps_cli.estimation import rtk_multi, static_engine
     d, init = request.getfixturevalue(case)
     rover = "0759" if case == "geonet" else "rover"
+    init = _without_solution_values(init)        # (INIT's float segments at its solution would be evaluated)
     if case == "geonet":
-        init = json.loads(json.dumps(init))
         next(b for b in init["biases"] if not b["pivot"]).update(fixed=False, integer_cycles=None)
     seen, geo = [], []
     real_geo, real_prep, real_filter = rtk_multi.receiver_geometry, baseline._prepare, static_engine.static_least_squares
