@@ -574,7 +574,7 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
         "below_mask_sd_rows": {str(k): int(v) for k, v in below.items()},
     }
     if master.signals is not None and rover.signals is not None:
-        d = _signal_data(master, rover, (om, orv), (clk_m, clk_r), j, t_label, nav, (master_xyz, rover_xyz), opt,
+        d = _signal_data(master, rover, (tag_m, tag_r), (clk_m, clk_r), j, t_label, nav, (master_xyz, rover_xyz), opt,
                          ce.interval_s, info, warnings)
     else:
         d = _sd_data(j, sel, gb, gr, t_label, ce.interval_s, info)
@@ -680,16 +680,16 @@ def _base_rows_around(master: Station, rover: Station, nav, master_xyz, t_base, 
     return receiver_geometry(b, nav, master_xyz), tb
 
 
-def _signal_data(master: Station, rover: Station, l1_rows, clocks, j, t_label, nav, xyz, opt: BaselineOptions,
+def _signal_data(master: Station, rover: Station, tags, clocks, j, t_label, nav, xyz, opt: BaselineOptions,
                  interval: float, info: dict, warnings: list) -> _Data:
-    """The signal groups' SD rows (:func:`~cdgps_cli.estimation.baseline_signals.signal_sd_fields`) on the
-    epochs and clocks of the GPS L1 rows; receiver resets from the L1 epoch flags."""
+    """The signal groups' SD rows (:func:`~cdgps_cli.estimation.baseline_signals.signal_sd_fields`) at the common
+    epochs' time tags (``tags``: master's, rover's) and clocks; receiver resets from the L1 epoch flags."""
     from cdgps_cli.estimation.baseline_signals import signal_sd_fields  # noqa: PLC0415
 
     if opt.epoch_alignment != "geometry":
         raise CdgpsError(f"epoch_alignment {opt.epoch_alignment!r} is not available with [gnss] signals: the signal "
                          f"rows are modelled at their own reception instants (use epoch_alignment = \"geometry\")")
-    f = signal_sd_fields(master.signals, rover.signals, l1_rows[0], l1_rows[1], clocks[0], clocks[1], t_label, nav,
+    f = signal_sd_fields(master.signals, rover.signals, tags[0], tags[1], clocks[0], clocks[1], t_label, nav,
                          xyz[0], xyz[1], mask_rad=math.radians(opt.mask_deg), troposphere=opt.troposphere,
                          names=(_where(master), _where(rover)), warnings=warnings)
     reset = np.unique(j["ep"].to_numpy()[(j["epoch_flag_r"].to_numpy() == 1) | (j["epoch_flag_b"].to_numpy() == 1)])

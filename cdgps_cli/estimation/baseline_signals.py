@@ -42,15 +42,16 @@ __all__ = ["signal_sd_fields"]
 _TAG_MATCH_S = 1e-6
 
 
-def _rows_at_epochs(sig: pd.DataFrame, l1_rows: pd.DataFrame, clk: np.ndarray, what: str) -> pd.DataFrame:
+def _rows_at_epochs(sig: pd.DataFrame, tag: np.ndarray, clk: np.ndarray, what: str) -> pd.DataFrame:
     """The signal rows recorded at the receiver's differenced epochs, with ``ep`` and ``t_true``.
 
-    ``l1_rows`` are the receiver's GPS L1 rows in the common epochs (``time_gps_s`` = time tag,
-    ``ep``); a signal row belongs to the epoch whose tag equals its own (within 1 µs).  Slip flags
-    of rows that are not used move to the next used row of that satellite and signal."""
-    tags = l1_rows[["time_gps_s", "ep"]].drop_duplicates().sort_values("ep", kind="stable")
-    te = tags["ep"].to_numpy()
-    tt = np.unique(tags["time_gps_s"].to_numpy())
+    ``tag`` (n_ep,) is the receiver's time tag of each common epoch (GPS s; NaN: none); a signal row belongs
+    to the epoch whose tag equals its own (within 1 µs), whichever systems have an ephemeris there (an epoch
+    whose GPS satellites have none yet is kept for the others: a real F9P pair lost its first 40 epochs so).
+    Slip flags of rows that are not used move to the next used row of that satellite and signal."""
+    te = np.flatnonzero(np.isfinite(tag))
+    tags = pd.DataFrame({"time_gps_s": tag[te], "ep": te})
+    tt = np.unique(tag[te])
     t = sig["time_gps_s"].to_numpy(dtype=np.float64)
     if tt.size == 0:
         raise CdgpsError(f"{what}: no epoch with observations of the anchor signal (GPS L1, or the first of [gnss] "
@@ -99,7 +100,7 @@ def _group_info(order: list, grp: np.ndarray, sats: np.ndarray, lam: np.ndarray)
     return out
 
 
-def signal_sd_fields(master_sig: pd.DataFrame, rover_sig: pd.DataFrame, l1_master: pd.DataFrame, l1_rover: pd.DataFrame,
+def signal_sd_fields(master_sig: pd.DataFrame, rover_sig: pd.DataFrame, tag_m: np.ndarray, tag_r: np.ndarray,
                      clk_m: np.ndarray, clk_r: np.ndarray, t_label: np.ndarray, nav: pd.DataFrame, xm, xr,
                      *, mask_rad: float, troposphere: bool, names: tuple, warnings: list) -> dict:
     """The signal groups' SD rows as the fields of the baseline solver's data table.
@@ -109,8 +110,8 @@ def signal_sd_fields(master_sig: pd.DataFrame, rover_sig: pd.DataFrame, l1_maste
     master_sig, rover_sig : DataFrame
         The receivers' signal tables (``time_gps_s``, ``sat``, ``signal``, ``phase_cycles``,
         ``pseudorange_m``, ``lli``, ``wavelength_m``).
-    l1_master, l1_rover : DataFrame
-        Their GPS L1 rows in the common epochs (``time_gps_s``, ``ep``).
+    tag_m, tag_r : ndarray (n_ep,)
+        Their time tags of the common epochs, GPS s (NaN: the receiver has no epoch there).
     clk_m, clk_r : ndarray (n_ep,)
         Receiver clocks per common epoch, s.
     t_label : ndarray (n_ep,)
@@ -136,8 +137,8 @@ def signal_sd_fields(master_sig: pd.DataFrame, rover_sig: pd.DataFrame, l1_maste
         ``az_rover``, ``slip``, ``half``, ``slip_rover``, ``slip_base`` (per row), ``group`` (per row),
         ``group_names``, ``lam_m`` (per row, m), and ``info`` (rows, satellites per signal).
     """
-    b = _rows_at_epochs(master_sig, l1_master, clk_m, names[0])
-    r = _rows_at_epochs(rover_sig, l1_rover, clk_r, names[1])
+    b = _rows_at_epochs(master_sig, tag_m, clk_m, names[0])
+    r = _rows_at_epochs(rover_sig, tag_r, clk_r, names[1])
     cols = ["ep", "sat", "signal", "phase_cycles", "pseudorange_m", "lli", "wavelength_m", "t_true"]
     j = pd.merge(r[cols], b[cols], on=["ep", "sat", "signal"], suffixes=("_r", "_b"), how="inner")
     if len(j) == 0:
