@@ -1018,6 +1018,8 @@ def _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json, structure_
         _say(ctx, f"  {_gps_time(ev['time_s'])} {ev['antenna']}/{ev['transmitter']}: {ev['kind']} → {ev['action']}")
     if len(s["event_list"]) > 20:
         _say(ctx, f"  … {len(s['event_list']) - 20} more events (topic /cdgps/events)")
+    for w in s["warnings"]:
+        _warn(w)
     if as_json:
         s = dict(s)
         _emit_json(s)

@@ -48,6 +48,12 @@ ROVER_ORIGIN_TOL_M = 1.0
 #: floats 0.1–0.2 cycle off (2 of 68 integers fixed; 23 with this factor, as many as the static model fixes)
 GLONASS_FLOAT_CODE_VARIANCE_FACTOR = 100.0
 
+#: ``estimate`` on a GNSS run warns when the mean NIS per degree of freedom of its DDs is above this (≈ 1 when the
+#: model holds): the real pairs give 0.002–0.8 (static) and 0.45–4.4 (constant velocity, a u-blox walk with 8 of
+#: 217 integers); a car on the Spirent simulator under a 1 mm/√s random walk gave 5·10⁵, a simulated rover wandering
+#: 5 m under one 8·10², both without a word before
+NIS_MISFIT_PER_DOF = 10.0
+
 #: the phase weightings of every GNSS solver: SD variance a² + b²/sin²(el) or a² + b² per receiver
 #: (measurement/differencing.sd_variance)
 GNSS_WEIGHTINGS = ("elevation", "equal")

@@ -90,3 +90,10 @@ def coordinate_table(df, model, names=None):
     for n, col in found.items():
         out[n] = col.to_numpy()
     return out, missing
+
+
+def velocity_name(name: str) -> str:
+    """The velocity of a GNSS displacement coordinate ``<rover>_<e|n|u>``: ``<rover>_v<e|n|u>`` (its CSV
+    column ``<rover>_ve_m_s``, as ``cdgps rtk``'s ``ve_m_s``)."""
+    base, axis = name.rsplit("_", 1)
+    return f"{base}_v{axis}"

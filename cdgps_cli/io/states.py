@@ -73,15 +73,17 @@ SCENE_FIXED_TOPIC = "/cdgps/scene_fixed"
 """The transmitters drawn in 3-D (``foxglove.SceneUpdate``), one message at the first epoch."""
 
 
-def _state_schema(names, with_P: bool, with_rates: bool, nullable: bool) -> dict:
+def _state_schema(names, with_P: bool, with_rates: bool, nullable: bool, structure: bool = True) -> dict:
     obj = {"type": "object", "properties": {n: {"type": "number"} for n in names}}
     arrays = {"xi": NULLABLE if nullable else "number", **({"xidot": "number"} if with_rates else {}),
               **({"P_xi": "number"} if with_P else {})}
-    s = array_schema("cdgps.StructureState" if with_rates else "cdgps.DisplacementState", arrays,
+    s = array_schema("cdgps.StructureState" if with_rates and structure else "cdgps.DisplacementState", arrays,
                      {"smoothed": "boolean"})
-    s["properties"]["q"] = dict(obj, description="generalized coordinates (m or rad)" if with_rates else
-                                "displacement from the nominal position, m (E, N, U per rover); a coordinate "
+    s["properties"]["q"] = dict(obj, description="generalized coordinates (m or rad)" if with_rates and structure
+                                else "displacement from the nominal position, m (E, N, U per rover); a coordinate "
                                 "without a solution at this epoch is left out")
+    if with_rates and not structure:
+        s["properties"]["xidot"]["description"] = "velocity of each displacement, m/s (constant-velocity model)"
     s["properties"]["sigma_q"] = dict(obj, description="1-sigma of q")
     return s
 
@@ -366,7 +368,9 @@ class _SeriesPass:
         extra = {k: np.asarray(v) for k, v in sorted(ser.extra.items())}
         p_t = packer("time_s", (), np.float64)
         p_xi = packer("xi", (npos,), ser.x.dtype, STATE_DELTA)
-        p_xd = packer("xidot", (ss.n_rate,), ser.x.dtype, STATE_DELTA) if ss.n_rate and full else None
+        rates = ss.n_rate and (full or ss.kind == "displacement")      # a displacement's velocity: always
+        p_xd = packer("xidot", (ss.n_rate,), ser.x.dtype, STATE_DELTA) if rates else None
+        p_sxd = packer("sigma_xidot", (ss.n_rate,), np.float64, STATE_DELTA) if rates and not full else None
         p_ex = {k: packer(k, v.shape[1:], v.dtype) for k, v in extra.items()}
         p_P = packer("P", ser.P.shape[1:], ser.P.dtype, STATE_DELTA) if full and ser.P.shape[1] > npos else None
         triu = with_P_pos and _symmetric(ser.P, npos, chunk)
@@ -390,6 +394,9 @@ class _SeriesPass:
             p_xi.add(X[:, :npos])
             if p_xd is not None:
                 p_xd.add(X[:, npos:npos + ss.n_rate])
+            if p_sxd is not None:
+                r = slice(npos, npos + ss.n_rate)
+                p_sxd.add(np.sqrt(np.einsum("kii->ki", _block(ser.P, a, b)[:, r, r])))
             for k, w in p_ex.items():
                 w.add(_block(extra[k], a, b))
             if p_P is not None:
@@ -610,7 +617,7 @@ def write_states(ss: StateSeries, out_path: str | Path, metadata: dict, attachme
     with McapOut(out_path, time_scale=time_scale) as out, \
             progress.bar(len(ss.series) + 1, f"writing {Path(out_path).name}", "series") as bar:
         out.pack_in_background()            # (the small arrays: written where the whole-record writer wrote them)
-        schema = _state_schema(names, full, nrate > 0, _any_nan(est.x, npos, chunk))
+        schema = _state_schema(names, full, nrate > 0, _any_nan(est.x, npos, chunk), ss.kind == "structure")
         for topic, ser in ss.series.items():
             with_P_pos = topic != STATE_FILTERED_TOPIC or full     # the forward filter of a smoothed run: its 1-σ
             sel_t = np.arange(0, len(ser.time_s), stride)
@@ -690,8 +697,11 @@ class States:
     output_map : (n_q, n_pos) — q = C ξ; n_pos : int; wavelength_m : float (m)
     time_s : (N,) s
     q, sigma_q : (N, n_q) coordinate units (m or rad)
-    xi : (N, n_pos); xidot : (N, n_pos) or None (no rates; files written without ``--covariance full``
-        since 2026-12-03, or before the packed arrays)
+    xi : (N, n_pos); xidot : (N, n_rate) or None (no rates: a structure's files written without
+        ``--covariance full`` since 2026-12-03, or before the packed arrays; GNSS displacements but those of
+        the constant-velocity model, whose velocities are the rates, m/s)
+    sigma_xidot : (N, n_rate) or None — 1σ of the rates (a constant-velocity displacement's, without
+        ``--covariance full``; with it, from P)
     P_xi : (N, n_pos, n_pos) or None (the forward filter of a smoothed run, unless ``--covariance full``)
     P : (N, n, n) or None (only with ``--covariance full``)
     extra : dict of str to ndarray (N, ...) — the series' further arrays (e.g. ``n_sat``, ``pdop``)
@@ -712,7 +722,7 @@ class States:
         if diagnostics:
             c.require_channels(RESIDUAL_TOPIC, EVENT_TOPIC, what=what)
         self._describe(c.attachments)
-        self.xidot = self.P = None
+        self.xidot = self.sigma_xidot = self.P = None
         self.extra = {}
         key = f"{PACKED_PREFIX}{topic}/"
         if key + "time_s" in c.attachments:                # packed arrays (every epoch)
@@ -791,6 +801,8 @@ class States:
             self.xi = get("xi").reshape(N, npos)
             if key + "xidot" in att:
                 self.xidot = get("xidot").reshape(N, -1)
+            if key + "sigma_xidot" in att:
+                self.sigma_xidot = get("sigma_xidot").reshape(N, -1)
             self.P_xi = sigma_q = None
             if key + "P_xi_triu" in att:
                 self.P_xi = _from_triu(get("P_xi_triu"), npos)
@@ -943,6 +955,8 @@ class StatesChunks:
             if covariance:          # the position covariance (its triangle, or whole), or a forward filter's σ_q
                 names.append(next((n for n in ("P_xi_triu", "P_xi", "sigma_q") if key + n in spans), "P_xi_triu"))
                 self.has_P_xi = names[-1] != "sigma_q"
+                if self.kind == "displacement":     # a constant-velocity displacement's velocities and their σ
+                    names += [n for n in ("xidot", "sigma_xidot") if key + n in spans]
             try:
                 for name in names:
                     self._arrays[name] = PackedRows(read_span(fh, *spans[key + name]), spans[key + name][1],
@@ -972,7 +986,8 @@ class StatesChunks:
         """Consecutive chunks of at most ``epochs`` epochs (a multiple of 1024), first to last, as dicts
         ``time_s`` (k,), ``q``, ``sigma_q`` (k, n_q), ``xi`` (k, n_pos) and ``P_xi`` (k, n_pos, n_pos)
         or None: the values :class:`States` gives, bit for bit (q and σ_q computed on the same
-        1024-epoch blocks as the writer; the object must be opened with ``covariance=True``)."""
+        1024-epoch blocks as the writer; the object must be opened with ``covariance=True``); and a
+        displacement's ``xidot``, ``sigma_xidot`` (k, n_rate) where it has them (constant velocity), else None."""
         if epochs % _PRODUCT_BLOCK:
             raise ValueError(f"epochs {epochs!r}: expected a multiple of {_PRODUCT_BLOCK}")
         if self._whole is not None:
@@ -980,13 +995,16 @@ class StatesChunks:
             for a in range(0, self.n_epochs, epochs):
                 b = a + epochs
                 yield {"time_s": w.time_s[a:b], "q": w.q[a:b], "sigma_q": w.sigma_q[a:b], "xi": w.xi[a:b],
-                       "P_xi": None if w.P_xi is None else w.P_xi[a:b]}
+                       "P_xi": None if w.P_xi is None else w.P_xi[a:b],
+                       **{k: (None if getattr(w, k) is None or self.kind != "displacement" else getattr(w, k)[a:b])
+                          for k in ("xidot", "sigma_xidot")}}
             return
         cov_name = next(n for n in ("P_xi_triu", "P_xi", "sigma_q") if n in self._arrays)
+        rates = [n for n in ("xidot", "sigma_xidot") if n in self._arrays]
         parts = zip(self._arrays["time_s"].chunks(epochs), self._arrays["xi"].chunks(epochs),
-                    self._arrays[cov_name].chunks(epochs))
+                    self._arrays[cov_name].chunks(epochs), *(self._arrays[n].chunks(epochs) for n in rates))
         C = self.output_map
-        for t, xi, cov in parts:
+        for t, xi, cov, *rate_parts in parts:
             k = len(t)
             xi = xi.reshape(k, self.n_pos)
             try:
@@ -996,7 +1014,8 @@ class StatesChunks:
                 raise CdgpsError(f"{self.path}: damaged state arrays ({cov_name}): {exc}") from None
             q = np.concatenate([series_q(C, xi[a:a + _PRODUCT_BLOCK]) for a in range(0, k, _PRODUCT_BLOCK)])
             yield {"time_s": t.astype(float, copy=False), "q": q, "xi": xi, "P_xi": P,
-                   "sigma_q": cov.reshape(k, -1) if P is None else coordinate_sigma(C, P)}
+                   "sigma_q": cov.reshape(k, -1) if P is None else coordinate_sigma(C, P),
+                   "xidot": None, "sigma_xidot": None, **{n: v.reshape(k, -1) for n, v in zip(rates, rate_parts)}}
 
     def chunks(self, epochs: int):
         """Consecutive chunks ``(time_s (k,), q (k, n_q))`` of at most ``epochs`` epochs, first to

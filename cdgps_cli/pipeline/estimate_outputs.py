@@ -160,7 +160,8 @@ def preview_rate_hz_for(cfg, time_s) -> float:
 
 def export_csv(states_path: str | Path, out_csv: str | Path, points: str | None = None) -> dict:
     """Write time_s, one column per coordinate ``<name>_<unit>`` and ``sigma_<name>_<unit>`` for each
-    (:mod:`cdgps_cli.io.coordinate_columns`; lines up with truth.csv).
+    (:mod:`cdgps_cli.io.coordinate_columns`; lines up with truth.csv); a constant-velocity GNSS displacement's
+    velocities follow, ``<rover>_ve_m_s`` … and ``sigma_<rover>_ve_m_s`` … (m/s).
 
     ``points`` (e.g. ``"antennas"``, ``"all"``, ``"a120,top"``; see
     :func:`cdgps_cli.model.points.select_points`) adds the lab-frame displacement of those points and its
@@ -210,6 +211,12 @@ def _export_frame(st, names: list, pts, ch: dict):
     df = pd.DataFrame(ch["q"], columns=[coordinate_column(n, u) for n, u in zip(names, units)])
     for i, (n, u) in enumerate(zip(names, units)):
         df[sigma_column(n, u)] = ch["sigma_q"][:, i]
+    if ch.get("xidot") is not None:              # a constant-velocity displacement's velocities, m/s
+        from cdgps_cli.io.coordinate_columns import velocity_name  # noqa: PLC0415
+        for i, n in enumerate(names):
+            df[coordinate_column(velocity_name(n), "m_s")] = ch["xidot"][:, i]
+        for i, n in enumerate(names):
+            df[sigma_column(velocity_name(n), "m_s")] = ch["sigma_xidot"][:, i]
     if pts is not None:
         from cdgps_cli.model.points import point_columns  # noqa: PLC0415
 

@@ -41,6 +41,7 @@ import numpy as np
 import pandas as pd
 
 from cdgps_cli import __version__
+from cdgps_cli.config.options import NIS_MISFIT_PER_DOF
 from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.estimation.baseline import (BaselineOptions, Station, baseline_from_init, json_safe,
                                            known_phase_blocks, solve_static_baseline)
@@ -325,13 +326,12 @@ def _constant_velocity(model: SatelliteDDDisplacement, t: np.ndarray, accel_sigm
     :class:`~cdgps_cli.model.dynamics_models.ConstantVelocity`, each velocity a random walk of ``accel_sigma``
     m/s/√s, white acceleration), the DDs seeing δx only (the model stacked on the six states,
     :class:`~cdgps_cli.measurement.stacked.Stacked`), from δx = 0 ± ``p0_sigma`` and v = 0 ± ``p0_sigma`` per second.
-    Returns the displacement's part of each (x (N, 3), P (N, 3, 3)) as :func:`_random_walk`."""
+    Returns the six states of each as :func:`_random_walk` its three (x (N, 6), P (N, 6, 6): [δx, v], m and m/s)."""
     from cdgps_cli.measurement.stacked import Stacked  # noqa: PLC0415
     from cdgps_cli.model.dynamics_models import ConstantVelocity  # noqa: PLC0415
-    out = _filtered(Stacked([("dd", model)], n_state=6), ConstantVelocity(3, accel_sigma), t,
-                    np.eye(6) * p0_sigma**2, smooth)
-    xs, ps, xf, pf, nis = out
-    return (np.asarray(xs)[:, :3], np.asarray(ps)[:, :3, :3], np.asarray(xf)[:, :3], np.asarray(pf)[:, :3, :3], nis)
+    xs, ps, xf, pf, nis = _filtered(Stacked([("dd", model)], n_state=6), ConstantVelocity(3, accel_sigma), t,
+                                    np.eye(6) * p0_sigma**2, smooth)
+    return np.asarray(xs), np.asarray(ps), np.asarray(xf), np.asarray(pf), nis
 
 
 def _filtered(model, dyn, t: np.ndarray, P0: np.ndarray, smooth: bool):
@@ -505,7 +505,8 @@ def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path
     # common time axis: every matched epoch of any rover
     t_all = np.unique(np.concatenate([w["data"].t_label for _, w, _ in per.values()]))
     names = [f"{r}_{c}" for r in run.rovers for c in "enu"]
-    a = _EstimateArrays(t_all, len(names), len(run.rovers), model != "static" and smooth)
+    a = _EstimateArrays(t_all, len(names), len(run.rovers), model != "static" and smooth,
+                        rates=model == "constant_velocity")
     summary_rovers = {}
     for j, r in enumerate(run.rovers):
         res, w, _ = per[r]
@@ -523,8 +524,22 @@ def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path
     out = _write_gnss_states(run, init, init_text, out_path, names, t_all, a.q, a.P, a.qf, a.Pf, a.kq, a.kP, a.kin_n,
                              a.kin_pdop, a.res_cols, residual_m, np.where(a.dof_tot > 0, a.nis_sum, np.nan), a.dof_tot,
                              events, smooth and model != "static", meta_extra)
-    out.update({"displacement_model": model, "rovers": summary_rovers, "coordinates": names})
+    out.update({"displacement_model": model, "rovers": summary_rovers, "coordinates": names,
+                "warnings": _misfit_warnings(out.get("mean_nis_per_dof"), model)})
     return out
+
+
+def _misfit_warnings(nis_per_dof: float | None, model: str) -> list:
+    """A warning when the DDs' mean NIS per degree of freedom is far above 1 (:data:`NIS_MISFIT_PER_DOF`): the
+    displacement model cannot follow the rover, or the integers are wrong, and the states' σ do not hold."""
+    if nis_per_dof is None or not nis_per_dof > NIS_MISFIT_PER_DOF:
+        return []
+    noise = {"random_walk": "sigma_m_per_sqrt_s", "constant_velocity": "accel_sigma_m_per_s_per_sqrt_s (and "
+             "init's sigma_m_per_sqrt_s)"}.get(model)
+    return [f"the double differences' mean NIS per degree of freedom is {nis_per_dof:.3g} (about 1 when the model "
+            f"holds): the {model} displacement model "
+            + (f"or its process noise ([gnss.displacement] {noise}) " if noise else "")
+            + "does not follow this rover, or its integers are wrong; the states and their sigma do not hold"]
 
 
 def _check_init_of_run(init: dict, run: GnssRun) -> None:
@@ -545,13 +560,15 @@ class _EstimateArrays:
     single-epoch (kinematic) ones kq, kP with their satellite counts and PDOP per rover, the NIS summed over
     the rovers with its degrees of freedom, and the DD residual columns (rover, satellite)."""
 
-    def __init__(self, t: np.ndarray, nq: int, n_rovers: int, filtered: bool):
+    def __init__(self, t: np.ndarray, nq: int, n_rovers: int, filtered: bool, rates: bool = False):
         self.t = t
         self.n = n = t.size
-        self.q, self.P = np.full((n, nq), np.nan), np.zeros((n, nq, nq))
-        self.qf = np.full((n, nq), np.nan) if filtered else None
-        self.Pf = np.zeros((n, nq, nq)) if filtered else None
-        self.kq, self.kP = np.full((n, nq), np.nan), np.zeros((n, nq, nq))
+        self.nq = nq
+        nx = 2 * nq if rates else nq          # the positions, then (constant velocity) their velocities
+        self.q, self.P = np.full((n, nx), np.nan), np.zeros((n, nx, nx))
+        self.qf = np.full((n, nx), np.nan) if filtered else None
+        self.Pf = np.zeros((n, nx, nx)) if filtered else None
+        self.kq, self.kP = np.full((n, nx), np.nan), np.zeros((n, nx, nx))
         self.kin_n = np.zeros((n, n_rovers), dtype=np.int64)
         self.kin_pdop = np.full((n, n_rovers), np.nan)
         self.nis_sum, self.dof_tot = np.zeros(n), np.zeros(n, dtype=np.int64)
@@ -611,12 +628,14 @@ def _rover_states(a: _EstimateArrays, w: dict, res: dict, sl: slice, idx, model:
         xs, ps, xf, pf, nis_all = (
             _random_walk(dd, a.t, cfg.random_walk_sigma, cfg.initial_sigma_m, smooth) if model == "random_walk" else
             _constant_velocity(dd, a.t, cfg.accel_sigma_m_per_s_per_sqrt_s, cfg.initial_sigma_m, smooth))
-        a.q[:, sl] = x_fin + xs
-        a.P[:, sl, sl] = ps
-        dx, nis = xs[idx], nis_all[idx]
+        cols = np.r_[np.arange(sl.start, sl.stop), a.nq + np.arange(sl.start, sl.stop)][:xs.shape[1]]
+        origin = np.r_[x_fin, np.zeros(xs.shape[1] - 3)]        # (the velocities' origin: 0)
+        a.q[:, cols] = origin + xs
+        a.P[:, cols[:, None], cols] = ps
+        dx, nis = xs[idx, :3], nis_all[idx]
         if a.qf is not None:
-            a.qf[:, sl] = x_fin + xf
-            a.Pf[:, sl, sl] = pf
+            a.qf[:, cols] = origin + xf
+            a.Pf[:, cols[:, None], cols] = pf
     a.dof_tot[idx] += np.where(has, dof, 0)
     a.nis_sum[idx] += np.where(has, np.nan_to_num(nis), 0.0)
     return dx, groups
@@ -742,8 +761,8 @@ def _write_gnss_states(run, init, init_text, out_path, names, t, q, P, qf, Pf, k
     kP[np.isnan(kq)] = np.nan                  # no single-epoch solution of a rover: no covariance either
     series[KINEMATIC_TOPIC] = Series(t[have], kq[have], kP[have], False,
                                      {"n_sat": kin_n[have], "pdop": kin_pdop[have]}, messages=False)
-    ss = StateSeries("displacement", list(names), ["m"] * len(names), np.eye(len(names)), 0, series, list(res_cols),
-                     residual_m, nis, nis_dof, events, GPS_L1_WAVELENGTH_M)
+    ss = StateSeries("displacement", list(names), ["m"] * len(names), np.eye(len(names)), q.shape[1] - len(names),
+                     series, list(res_cols), residual_m, nis, nis_dof, events, GPS_L1_WAVELENGTH_M)
     attachments = {GNSS_CONFIG_ATTACHMENT: (run.cfg.text.encode(), "application/toml"),
                    INIT_ATTACHMENT: (init_text.encode(), "application/json")}
     # Foxglove channels at every epoch (GNSS epochs are 1 s or longer: the arrays dominate the size)

@@ -479,6 +479,16 @@ def _truth_event_fields(run: _PairRun, sim: dict, slip_note: str | None) -> dict
     }
 
 
+def _init_float_sigma(run: _PairRun) -> float | None:
+    """``sigma_m_per_sqrt_s`` of the pair's config: the random walk simulated, or for a constant-velocity rover the
+    random walk ``init``'s float needs to follow it — three times the velocity's σ at the record's end,
+    ``3 σ_a √T`` (m/s, a step per second; at least 1 mm/√s).  The earlier 1 mm/√s left a rover wandering 5 m in
+    5 min (σ_a 1 mm/s/√s) with no integer fixed and the whole chain's NEES at 10⁸, without a word."""
+    if run.accel_sigma is None:
+        return run.random_walk_sigma
+    return max(1e-3, 3.0 * run.accel_sigma * math.sqrt(run.duration_s))
+
+
 def _pair_config_toml(run: _PairRun, files: dict) -> str:
     """config.toml: the GNSS run config of the pair."""
     m, r = run.master, run.rover
@@ -487,7 +497,7 @@ def _pair_config_toml(run: _PairRun, files: dict) -> str:
         name=f"simulated-{m}-{r}",
         description=f"cdgps simulate-gnss: {run.duration_s:g} s at {run.rate_hz:g} Hz, seed {run.seed}",
         displacement=run.displacement_model,
-        sigma_m_per_sqrt_s=run.random_walk_sigma, accel_sigma_m_per_s_per_sqrt_s=run.accel_sigma,
+        sigma_m_per_sqrt_s=_init_float_sigma(run), accel_sigma_m_per_s_per_sqrt_s=run.accel_sigma,
         comments=["GNSS run config written by cdgps simulate-gnss (format: docs/gnss-pipeline.md).",
                   f"{m}: master at its true position; {r}: nominal position in its header,",
                   "true displacement in truth.csv.  Run:",

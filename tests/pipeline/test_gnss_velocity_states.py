@@ -1,0 +1,101 @@
+"""The constant-velocity model's velocities in STATES and in ``cdgps export`` (``rover_ve_m_s`` … and their σ), and
+the warning ``estimate`` gives when its model cannot follow the rover.
+
+* A simulated rover whose velocity random-walks at 1 mm/s/√s (``simulate-gnss --constant-velocity``: the model's
+  own process, sampled exactly; it wanders ≈ 5 m in 5 min), run through the chain as the simulator's config says:
+  the exported velocities against the true ones are honest (error / σ RMS ≈ 1) and equal the time derivative of
+  the exported positions (an independent check: the smoother's states are one trajectory); a random-walk
+  model's STATES have no velocity columns.
+* The same rover with init's random walk at 1 mm/√s (the simulator's config before it took ``3 σ_a √T``): no
+  integer fixed, and ``estimate`` says the model does not hold (mean NIS per DoF ≈ 800) instead of nothing.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from cdgps_cli.io.states import States
+from tests._shared import run_cli
+
+ACCEL = 0.001        # m/s/√s
+
+
+@pytest.fixture(scope="module")
+def rover(tmp_path_factory):
+    d = tmp_path_factory.mktemp("cv")
+    r = run_cli("-q", "simulate-gnss", "--duration", 300, "--constant-velocity", ACCEL, "--seed", 3, "-o", d)
+    assert r.exit_code == 0, r.output
+    return d
+
+
+def _chain(d, config, tag: str):
+    for args in (("ingest", "--config", config, "-o", d / f"{tag}.mcap"),
+                 ("init", d / f"{tag}.mcap", "-o", d / f"{tag}_init.json")):
+        r = run_cli("-q", *args)
+        assert r.exit_code == 0, (args, r.output)
+    r = run_cli("estimate", d / f"{tag}.mcap", "--init", d / f"{tag}_init.json", "--smooth", "-o",
+                d / f"{tag}_states.mcap", "--json")
+    assert r.exit_code == 0, r.output
+    return json.loads(r.stdout), r.stderr
+
+
+def test_the_simulators_config_follows_its_rover(rover):
+    text = (rover / "config.toml").read_text()
+    sigma = float(re.search(r"^sigma_m_per_sqrt_s = ([0-9.eE+-]+)", text, re.M).group(1))
+    assert sigma == pytest.approx(3 * ACCEL * 300**0.5)          # 3 σ of the velocity at the end, m/s per √s
+
+
+def test_velocities_are_exported_and_honest(rover, tmp_path):
+    s, err = _chain(rover, rover / "config.toml", "cv")
+    assert s["warnings"] == [] and "warning" not in err, err
+    init = json.loads((rover / "cv_init.json").read_text())
+    assert init["rovers"]["rover"]["n_fixed"] == init["rovers"]["rover"]["n_estimated"]
+    st = States(rover / "cv_states.mcap", diagnostics=False)
+    assert st.xidot.shape == st.q.shape and st.sigma_xidot.shape == st.q.shape
+    r = run_cli("-q", "export", rover / "cv_states.mcap", "-o", tmp_path / "s.csv")
+    assert r.exit_code == 0, r.output
+    out = pd.read_csv(tmp_path / "s.csv")
+    vel = [f"rover_v{c}_m_s" for c in "enu"]
+    assert list(out.columns[-6:]) == vel + [f"sigma_{v}" for v in vel]
+    truth = pd.read_csv(rover / "truth.csv")
+    m = out.merge(truth, on="time_s", suffixes=("", "_true"))
+    assert len(m) == len(out) == 300
+    err_v = m[vel].to_numpy() - m[[v + "_true" for v in vel]].to_numpy()
+    z = err_v / m[[f"sigma_{v}" for v in vel]].to_numpy()
+    rms = np.sqrt((z**2).mean(0))
+    assert np.all((0.8 < rms) & (rms < 1.3)), rms
+    assert np.sqrt((err_v**2).mean()) < 0.2 * truth[[v for v in vel]].to_numpy().std()   # it follows the rover
+    t = out["time_s"].to_numpy()
+    for c in "enu":                           # the smoothed positions' derivative is the smoothed velocity
+        d = np.gradient(out[f"rover_{c}_m"].to_numpy(), t) - out[f"rover_v{c}_m_s"].to_numpy()
+        assert np.sqrt(np.mean(d**2)) < 0.1 * out[f"sigma_rover_v{c}_m_s"].mean(), c
+
+
+def test_a_random_walk_has_no_velocity_columns(rover, tmp_path):
+    cfg = tmp_path / "rw.toml"
+    text = (rover / "config.toml").read_text().replace('model = "constant_velocity"', 'model = "random_walk"')
+    cfg.write_text(re.sub(r"^accel_sigma_m_per_s_per_sqrt_s = .*$", "", text, flags=re.M)
+                   .replace('"base.rnx"', f'"{rover / "base.rnx"}"').replace('"rover.rnx"', f'"{rover / "rover.rnx"}"')
+                   .replace('"nav.rnx"', f'"{rover / "nav.rnx"}"'))
+    _chain(tmp_path, cfg, "rw")
+    assert States(tmp_path / "rw_states.mcap", diagnostics=False).xidot is None
+    r = run_cli("-q", "export", tmp_path / "rw_states.mcap", "-o", tmp_path / "rw.csv")
+    assert r.exit_code == 0, r.output
+    assert not any("_v" in c and c.endswith("_m_s") for c in pd.read_csv(tmp_path / "rw.csv").columns)
+
+
+def test_a_model_that_cannot_follow_the_rover_is_said(rover, tmp_path):
+    cfg = tmp_path / "bad.toml"
+    text = re.sub(r"^sigma_m_per_sqrt_s = .*$", "sigma_m_per_sqrt_s = 0.001", (rover / "config.toml").read_text(),
+                  flags=re.M)
+    cfg.write_text(text.replace('"base.rnx"', f'"{rover / "base.rnx"}"').replace('"rover.rnx"', f'"{rover / "rover.rnx"}"')
+                   .replace('"nav.rnx"', f'"{rover / "nav.rnx"}"'))
+    s, err = _chain(tmp_path, cfg, "bad")
+    assert s["mean_nis_per_dof"] > 100
+    assert len(s["warnings"]) == 1 and "mean NIS per degree of freedom" in s["warnings"][0]
+    assert "cdgps: warning: the double differences' mean NIS" in err and "sigma_m_per_sqrt_s" in err, err
