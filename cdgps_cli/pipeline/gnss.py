@@ -512,10 +512,11 @@ def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path
         res, w, _ = per[r]
         sl = slice(3 * j, 3 * j + 3)
         idx = np.searchsorted(t_all, w["data"].t_label)
-        dx, groups = _rover_states(a, w, res, sl, idx, model, run.cfg, smooth)
+        dx, groups, n_blind = _rover_states(a, w, res, sl, idx, model, run.cfg, smooth)
         a.residuals(r, w, dx, groups, idx)
         a.kinematic(w["kinematic"], idx, sl, j)
-        summary_rovers[r] = _rover_summary(res, w, names[sl])
+        summary_rovers[r] = dict(_rover_summary(res, w, names[sl]), epochs=int(idx.size),
+                                 epochs_without_fixed_dd=n_blind)
     events.sort(key=lambda e: (e["time_s"], e["antenna"], e["transmitter"], e["kind"]))
     say(f"writing {out_path} …")
     meta_extra = {"rovers": summary_rovers,
@@ -525,7 +526,26 @@ def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path
                              a.kin_pdop, a.res_cols, residual_m, np.where(a.dof_tot > 0, a.nis_sum, np.nan), a.dof_tot,
                              events, smooth and model != "static", meta_extra)
     out.update({"displacement_model": model, "rovers": summary_rovers, "coordinates": names,
-                "warnings": _misfit_warnings(out.get("mean_nis_per_dof"), model)})
+                "warnings": _blind_warnings(summary_rovers, model) + _misfit_warnings(out.get("mean_nis_per_dof"),
+                                                                                      model)})
+    return out
+
+
+#: ``estimate`` warns when more than this share of a moving rover's epochs have no double difference of fixed
+#: ambiguities (its states there are the model's prediction alone): the real u-blox walk of 20181009 with 4 of
+#: 590 integers fixed had none at any of its 2072 epochs, and its STATES held the static solution, ± 1 m, silently
+BLIND_EPOCHS_SHARE = 0.1
+
+
+def _blind_warnings(rovers: dict, model: str) -> list:
+    """A warning per rover (random walk, constant velocity) whose epochs mostly carry no DD of fixed ambiguities."""
+    out = []
+    for r, v in rovers.items():
+        n, m = v["epochs_without_fixed_dd"], v["epochs"]
+        if model != "static" and m and n > BLIND_EPOCHS_SHARE * m:
+            out.append(f"{r}: {n} of its {m} epochs have no double difference of fixed ambiguities ({v['n_fixed']} of "
+                       f"{v['n_estimated']} integers fixed): its {model} states there are the model's prediction "
+                       f"alone, not a measurement (cdgps rtk gives a float solution at such epochs)")
     return out
 
 
@@ -605,8 +625,8 @@ def _rover_states(a: _EstimateArrays, w: dict, res: dict, sl: slice, idx, model:
     """One rover's states into ``a`` (columns ``sl``) at every epoch of the common axis, its own (``idx``) and the
     other rovers' (a rover without observations there: the static solution, which holds at any epoch, or the random
     walk carried through the gap by the filter and smoother, its σ growing); its NIS and degrees of freedom added
-    at its own epochs.  Returns the displacement from the static solution at its epochs (m) and the signal groups
-    (usable rows, references)."""
+    at its own epochs.  Returns the displacement from the static solution at its epochs (m), the signal groups
+    (usable rows, references) and how many of its epochs have no DD of known ambiguities."""
     d, x_fin = w["data"], w["x_final"]
     fixed_any = res["ambiguities"]["n_fixed"] > 0
     use = w["known_seg"][w["seg"]] if fixed_any else np.ones(w["seg"].size, dtype=bool)
@@ -638,7 +658,7 @@ def _rover_states(a: _EstimateArrays, w: dict, res: dict, sl: slice, idx, model:
             a.Pf[:, cols[:, None], cols] = pf
     a.dof_tot[idx] += np.where(has, dof, 0)
     a.nis_sum[idx] += np.where(has, np.nan_to_num(nis), 0.0)
-    return dx, groups
+    return dx, groups, int(np.sum(~has))
 
 
 def _pointers_on_axis(ptr, idx, n: int) -> np.ndarray:
