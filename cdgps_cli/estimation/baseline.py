@@ -440,14 +440,15 @@ def _receiver_rows(st: Station, ce: _Epochs, nav: pd.DataFrame, pos, opt: Baseli
                         f"healthy broadcast ephemeris within ±2 h and are not used")
     o = o[cov]
     ep = o["ep"].to_numpy()
-    clk = _receiver_clock(st, o, tag, t_label, nav, pos, opt)
+    clk, measured = _receiver_clock(st, o, tag, t_label, nav, pos, opt)
     o["t_true"] = o["time_gps_s"].to_numpy() - clk[ep]
-    return o, clk, tag
+    return o, clk, tag, measured
 
 
 def _receiver_clock(st: Station, o: pd.DataFrame, tag: np.ndarray, t_label: np.ndarray, nav: pd.DataFrame, pos,
-                    opt: BaselineOptions) -> np.ndarray:
-    """The receiver's clock at each common epoch, s: from its GPS L1 rows ``o`` (each epoch's own, as before); with a
+                    opt: BaselineOptions) -> tuple:
+    """The receiver's clock at each common epoch, s, and whether it was measured there (a code with an ephemeris
+    above the horizon; else interpolated): from its GPS L1 rows ``o`` (each epoch's own, as before); with a
     signal table, from :func:`_clock_rows` estimated once per time tag and given to every epoch of that tag (a
     master epoch bridged to several rover epochs is one measurement instant); epochs without a tag take it
     interpolated (no row of this receiver uses them)."""
@@ -456,16 +457,18 @@ def _receiver_clock(st: Station, o: pd.DataFrame, tag: np.ndarray, t_label: np.n
     if rows is None:
         return estimate_receiver_clock(o["ep"].to_numpy(), o["sat"].to_numpy(), o["time_gps_s"].to_numpy(),
                                        o["pseudorange_l1_m"].to_numpy(), nav, pos, n_epochs=n_ep,
-                                       troposphere=opt.troposphere, what=_where(st))
+                                       troposphere=opt.troposphere, what=_where(st), return_measured=True)
     k_tag, n_tag, c_sat, c_t, c_pr, tag_of_epoch = rows
-    c = estimate_receiver_clock(k_tag, c_sat, c_t, c_pr, nav, pos, n_epochs=n_tag, troposphere=opt.troposphere,
-                                what=_where(st))
+    c, good = estimate_receiver_clock(k_tag, c_sat, c_t, c_pr, nav, pos, n_epochs=n_tag,
+                                      troposphere=opt.troposphere, what=_where(st), return_measured=True)
     have = tag_of_epoch >= 0
     clk = np.zeros(n_ep)
     clk[have] = c[tag_of_epoch[have]]
     if not have.all():
         clk[~have] = np.interp(np.flatnonzero(~have), np.flatnonzero(have), clk[have])
-    return clk
+    measured = np.zeros(n_ep, dtype=bool)
+    measured[have] = good[tag_of_epoch[have]]
+    return clk, measured
 
 
 #: systems whose pseudoranges give a receiver's clock with the anchor's (CDMA: one range model for all satellites)
@@ -525,7 +528,7 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
     mask = math.radians(opt.mask_deg)
     ce = _common_epochs(master, rover, opt, warnings)
     t_label, n_ep = ce.t_label, ce.t_label.size
-    (om, clk_m, tag_m), (orv, clk_r, tag_r) = _both_receivers(
+    (om, clk_m, tag_m, meas_m), (orv, clk_r, tag_r, meas_r) = _both_receivers(
         lambda w: _receiver_rows(master, ce, nav, master_xyz, opt, w),
         lambda w: _receiver_rows(rover, ce, nav, rover_xyz, opt, w), warnings)
     om = om[np.isfinite(om["phase_l1_cycles"].to_numpy())]
@@ -574,8 +577,8 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
         "below_mask_sd_rows": {str(k): int(v) for k, v in below.items()},
     }
     if master.signals is not None and rover.signals is not None:
-        d = _signal_data(master, rover, (tag_m, tag_r), (clk_m, clk_r), j, t_label, nav, (master_xyz, rover_xyz), opt,
-                         ce.interval_s, info, warnings)
+        d = _signal_data(master, rover, _clocked_tags((tag_m, tag_r), (meas_m, meas_r), (master, rover), warnings),
+                         (clk_m, clk_r), j, t_label, nav, (master_xyz, rover_xyz), opt, ce.interval_s, info, warnings)
     else:
         d = _sd_data(j, sel, gb, gr, t_label, ce.interval_s, info)
     d = _rover_troposphere_moved(d, rover, rover_xyz, opt)
@@ -678,6 +681,21 @@ def _base_rows_around(master: Station, rover: Station, nav, master_xyz, t_base, 
     need[np.clip(np.r_[near - 1, near, near + 1], 0, tb.size)] = True
     b = b[need[b["_bep"].to_numpy()]]
     return receiver_geometry(b, nav, master_xyz), tb
+
+
+def _clocked_tags(tags: tuple, measured: tuple, stations: tuple, warnings: list) -> tuple:
+    """Each receiver's time tags (n_ep,) where its clock was measured, NaN elsewhere: the signal rows of an epoch
+    whose clock is only interpolated (no code with an ephemeris there: e.g. GPS + GLONASS while the GPS
+    ephemerides have not begun; a drifting or jumping clock would put the rows' satellites metres off) are not
+    used, and a warning counts them."""
+    out = []
+    for tag, ok, st in zip(tags, measured, stations):
+        lost = np.isfinite(tag) & ~ok
+        if lost.any():
+            warnings.append(f"{st.name}: {int(lost.sum())} epoch(s) without a code from a satellite with an ephemeris "
+                            f"(GPS, Galileo, BeiDou) to find its clock: their signal rows are not used")
+        out.append(np.where(ok, tag, np.nan))
+    return tuple(out)
 
 
 def _signal_data(master: Station, rover: Station, tags, clocks, j, t_label, nav, xyz, opt: BaselineOptions,
@@ -1162,7 +1180,8 @@ def _given_solution(d: _Data, sg: _Segments, w: _Weights, integers: dict, soluti
 
     The values are INIT's on these data when the DD phase residuals they leave are INIT's, satellite by
     satellite (``solution["residuals"]``, :func:`_residual_summary`'s, within 1e-9 relative); else None with a
-    warning, as when a value is missing.  Returns (float, fix, final) in the solver's forms."""
+    warning.  None without a warning when a value, the covariance or the residuals are missing (an INIT written
+    before it held them).  Returns (float, fix, final) in the solver's forms."""
     fixed_mask, integers_fix = _integer_masks(integers, d, sg)
     a_fix, known, unk = _known_ambiguities(sg, fixed_mask, integers_fix)
     keys = _segment_keys(d, sg)
@@ -1219,7 +1238,7 @@ def _evaluated(d: _Data, sg: _Segments, w: _Weights, solution: dict, fixed: tupl
     a_float, sig = _given_values(solution.get("float_cycles"), [keys[k] for k in sg.free], partial=True)
     fl = _Float(fin.x, fin.a_seg.copy(), None, None, fin.g, fin.r_ph, None, 0)
     fx = _Fix(a_float, np.diag(sig**2) if sig.size else np.zeros((0, 0)), fixed_mask, integers_fix, None, None,
-              bool(fixed_mask.any()), False)
+              bool(fixed_mask.all() or fixed_mask.any()), False)
     fdma = _fdma_segments(d, sg)
     kind = "fixed" if int(fixed_mask.sum()) == int(np.sum(~fdma[sg.free])) else "partially fixed"
     return fl, fx, fin._replace(block=block, kind=kind)

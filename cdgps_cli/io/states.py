@@ -368,7 +368,8 @@ class _SeriesPass:
         extra = {k: np.asarray(v) for k, v in sorted(ser.extra.items())}
         p_t = packer("time_s", (), np.float64)
         p_xi = packer("xi", (npos,), ser.x.dtype, STATE_DELTA)
-        rates = ss.n_rate and (full or ss.kind == "displacement")      # a displacement's velocity: always
+        rates = (ss.n_rate and ser.x.shape[1] >= npos + ss.n_rate       # (a series of positions only: none)
+                 and (full or ss.kind == "displacement"))                # a displacement's velocity: always
         p_xd = packer("xidot", (ss.n_rate,), ser.x.dtype, STATE_DELTA) if rates else None
         p_sxd = packer("sigma_xidot", (ss.n_rate,), np.float64, STATE_DELTA) if rates and not full else None
         p_ex = {k: packer(k, v.shape[1:], v.dtype) for k, v in extra.items()}

@@ -516,7 +516,7 @@ def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path
         a.residuals(r, w, dx, groups, idx)
         a.kinematic(w["kinematic"], idx, sl, j)
         summary_rovers[r] = dict(_rover_summary(res, w, names[sl]), epochs=int(idx.size),
-                                 epochs_without_fixed_dd=n_blind)
+                                 epochs_without_fixed_dd=n_blind if res["ambiguities"]["n_fixed"] else int(idx.size))
     events.sort(key=lambda e: (e["time_s"], e["antenna"], e["transmitter"], e["kind"]))
     say(f"writing {out_path} …")
     meta_extra = {"rovers": summary_rovers,
@@ -538,11 +538,17 @@ BLIND_EPOCHS_SHARE = 0.1
 
 
 def _blind_warnings(rovers: dict, model: str) -> list:
-    """A warning per rover (random walk, constant velocity) whose epochs mostly carry no DD of fixed ambiguities."""
+    """A warning per rover (random walk, constant velocity) with no integer fixed, or whose epochs mostly carry no
+    DD of fixed ambiguities."""
     out = []
     for r, v in rovers.items():
         n, m = v["epochs_without_fixed_dd"], v["epochs"]
-        if model != "static" and m and n > BLIND_EPOCHS_SHARE * m:
+        if model != "static" and m and not v["n_fixed"]:
+            out.append(f"{r}: none of its {v['n_estimated']} integers is fixed: its {model} states use the double "
+                       f"differences with INIT's static float ambiguities taken as exact, which a rover that moves "
+                       f"does not give (its states and sigma do not hold); cdgps rtk gives a float solution that "
+                       f"follows it")
+        elif model != "static" and m and n > BLIND_EPOCHS_SHARE * m:
             out.append(f"{r}: {n} of its {m} epochs have no double difference of fixed ambiguities ({v['n_fixed']} of "
                        f"{v['n_estimated']} integers fixed): its {model} states there are the model's prediction "
                        f"alone, not a measurement (cdgps rtk gives a float solution at such epochs)")
@@ -779,7 +785,8 @@ def _write_gnss_states(run, init, init_text, out_path, names, t, q, P, qf, Pf, k
     have = ~np.all(np.isnan(kq), axis=1)
     kP = kP.copy()
     kP[np.isnan(kq)] = np.nan                  # no single-epoch solution of a rover: no covariance either
-    series[KINEMATIC_TOPIC] = Series(t[have], kq[have], kP[have], False,
+    nq = len(names)                            # (single-epoch solutions: positions only, no velocities)
+    series[KINEMATIC_TOPIC] = Series(t[have], kq[have][:, :nq], kP[have][:, :nq, :nq], False,
                                      {"n_sat": kin_n[have], "pdop": kin_pdop[have]}, messages=False)
     ss = StateSeries("displacement", list(names), ["m"] * len(names), np.eye(len(names)), q.shape[1] - len(names),
                      series, list(res_cols), residual_m, nis, nis_dof, events, GPS_L1_WAVELENGTH_M)

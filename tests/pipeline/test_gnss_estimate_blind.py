@@ -59,3 +59,17 @@ def test_epochs_without_fixed_double_differences_are_counted_and_said(pair):
     # one DD for 26 epochs measures almost nothing: the states' σ stay at decimetres, not the mm of a fix
     assert States(d / "all.mcap", diagnostics=False).sigma_q.max() < 0.01
     assert States(d / "one.mcap", diagnostics=False).sigma_q.min() > 0.1
+
+
+def test_a_float_only_init_of_a_moving_rover_is_said(pair):
+    """With no integer fixed, the states use every DD with INIT's static float ambiguities taken as exact, which a
+    moving rover's static float does not give (the review: NEES ≈ 5000 on this kind of rover, NIS ≈ 1, no word):
+    every epoch is counted and a warning says so."""
+    d, _ = pair
+    r = run_cli("-q", "init", d / "run.mcap", "--float-only", "-o", d / "float.json")
+    assert r.exit_code == 0, r.output
+    s, err = _estimate(d, json.loads((d / "float.json").read_text()), "float")
+    rov = s["rovers"]["rover"]
+    assert rov["n_fixed"] == 0 and rov["epochs_without_fixed_dd"] == rov["epochs"] == 300
+    assert len(s["warnings"]) == 1 and "none of its" in s["warnings"][0] and "integers is fixed" in s["warnings"][0]
+    assert "cdgps: warning: rover: none of its" in err, err

@@ -294,6 +294,7 @@ def estimate_receiver_clock(
     troposphere: bool = True,
     iterations: int = 3,
     what: str = "receiver",
+    return_measured: bool = False,
 ) -> np.ndarray:
     """Receiver clock offset per epoch from L1 pseudoranges at a known receiver position.
 
@@ -333,11 +334,14 @@ def estimate_receiver_clock(
         Passes (≥ 2 needed for the reception-time effect).
     what : str
         Name used in error messages.
+    return_measured : bool
+        Also return which epochs had a usable pseudorange (the others' clock is interpolated).
 
     Returns
     -------
     ndarray, shape (n_epochs,)
-        Receiver clock offset dt_rx (time tag − GPS time), s.
+        Receiver clock offset dt_rx (time tag − GPS time), s; with ``return_measured`` (that, a bool
+        (n_epochs,) array).
 
     Raises
     ------
@@ -378,7 +382,7 @@ def estimate_receiver_clock(
                                                               ep_t[np.isfinite(ep_t)]))
             new[~good] = np.interp(tt[~good], tt[good], new[good])
         clk = new
-    return clk
+    return (clk, good) if return_measured else clk
 
 
 def _rate_along_satellites(sats: np.ndarray, t_s: np.ndarray, value: np.ndarray) -> np.ndarray:
