@@ -120,7 +120,8 @@ def test_geonet_needs_the_true_reception_times(monkeypatch):
     """Geometry at the time tags instead of tag − receiver clock: metre-level DD errors (the batch solver's
     geometry: the static engine, which ``baseline`` calls, has its own and is kept out here)."""
     files = [shared(n) for n in ("30400920.05o", "07590920.05o", "30400920.05n")]
-    monkeypatch.setattr(bl, "estimate_receiver_clock", lambda *a, **k: np.zeros(k["n_epochs"]))
+    monkeypatch.setattr(bl, "estimate_receiver_clock",
+                        lambda *a, **k: (np.zeros(k["n_epochs"]), np.ones(k["n_epochs"], dtype=bool)))
     monkeypatch.setattr(bl, "_run_engine", lambda *a, **k: "the batch solver under test")
     r = baseline_from_files({"3040": files[0], "0759": files[1]}, [files[2]], "3040")
     assert r["residuals"]["dd_phase_rms_m"] > 0.05
