@@ -949,6 +949,7 @@ class _Final(NamedTuple):
     g: np.ndarray
     r_ph: np.ndarray
     a_sigma: np.ndarray | None = None   # (n_seg,) 1σ of a_seg, cycles (0: known)
+    pivot_arc: np.ndarray | None = None  # (n_seg,) a glonass_fix solution's GLONASS pivots' own arc values x_p, cycles
 
 
 def _a_priori_positions(master: Station, rover: Station, nav, master_xyz, rover_xyz, warnings: list):
@@ -1173,7 +1174,7 @@ def _known_solution(d: _Data, sg: _Segments, w: _Weights, integers: dict, soluti
 
 
 def _given_solution(d: _Data, sg: _Segments, w: _Weights, integers: dict, solution: dict, xr0, r_enu,
-                    warnings: list):
+                    warnings: list, glonass: tuple | None = None):
     """A partially fixed solution given whole (INIT's): position ``solution["enu_m"]`` and its covariance
     ``cov_enu_m2``, the integers, and each float segment's value and σ in it (``solution_cycles``
     ``{(satellite, first s): (cycles, σ)}``) — evaluated, nothing solved (no normal equations).
@@ -1181,7 +1182,9 @@ def _given_solution(d: _Data, sg: _Segments, w: _Weights, integers: dict, soluti
     The values are INIT's on these data when the DD phase residuals they leave are INIT's, satellite by
     satellite (``solution["residuals"]``, :func:`_residual_summary`'s, within 1e-9 relative); else None with a
     warning.  None without a warning when a value, the covariance or the residuals are missing (an INIT written
-    before it held them).  Returns (float, fix, final) in the solver's forms."""
+    before it held them).  ``glonass``: a glonass_fix solution's GLONASS DD integers (:func:`_given_glonass`'s
+    segments and integers; :func:`_glonass_values_agree` checks them first), reported as the engine reports them.
+    Returns (float, fix, final) in the solver's forms."""
     fixed_mask, integers_fix = _integer_masks(integers, d, sg)
     a_fix, known, unk = _known_ambiguities(sg, fixed_mask, integers_fix)
     keys = _segment_keys(d, sg)
@@ -1200,9 +1203,44 @@ def _given_solution(d: _Data, sg: _Segments, w: _Weights, integers: dict, soluti
     a_sig = np.zeros(sg.n_seg)
     a_sig[unk] = given[1]
     q3 = np.asarray(cov, dtype=np.float64).reshape(3, 3)
-    return _evaluated(d, sg, w, solution, (fixed_mask, integers_fix), _Final(None, x, "", a_fix, known, q3, g, r_ph,
-                                                                          a_sig),
-                      "position, integers and the float ambiguities given (not solved again)")
+    fl, fx, fin = _evaluated(d, sg, w, solution, (fixed_mask, integers_fix),
+                             _Final(None, x, "", a_fix, known, q3, g, r_ph, a_sig),
+                             "position, integers and the float ambiguities given (not solved again)")
+    return (fl, fx, fin) if glonass is None else (fl, *_with_glonass_integers(d, sg, fx, fin, glonass))
+
+
+def _with_glonass_integers(d: _Data, sg: _Segments, fx: _Fix, fin: _Final, glonass: tuple) -> tuple:
+    """(fix, final) of :func:`_given_solution` with a glonass_fix solution's GLONASS DD integers recorded as
+    :func:`_engine_solution` records them (each fixed segment's N_k − N_p, its pivot's 0) and its kind counting them."""
+    segs, ints = glonass
+    fdma = _fdma_segments(d, sg)
+    dd = np.full(sg.n_seg, np.nan)
+    dd[segs] = ints
+    dd[np.unique(sg.pivots[sg.comp[segs]])] = 0.0
+    glo_fixed = np.zeros(sg.n_seg, dtype=bool)
+    glo_fixed[segs] = True
+    fixed_all = int(fx.fixed_mask.sum()) + segs.size == sg.free.size
+    fx = fx._replace(glonass_fixed=glo_fixed & fdma, glonass_dd=dd, accepted=True)
+    return fx, fin._replace(kind="fixed" if fixed_all else "partially fixed")
+
+
+def _glonass_values_agree(d: _Data, sg: _Segments, solution: dict, glonass: tuple) -> bool:
+    """Whether a glonass_fix solution's GLONASS values are its GLONASS DD integers: each fixed segment's value
+    a_k = N_k − N_p + x_p (1 − λ_p/λ_k) (:func:`_datum_map`; x_p its pivot's own arc value,
+    ``solution["pivot_arc_cycles"]``) within 1e-6 cycle.  An edited integer, or a value missing, sends the
+    solve to the engine, which conditions on the integers given."""
+    segs, ints = glonass
+    keys = _segment_keys(d, sg)
+    piv = sg.pivots[sg.comp[segs]]
+    vals = _given_values(solution.get("solution_cycles"), [keys[k] for k in segs])
+    arcs = _given_values({k: (v, 0.0) for k, v in (solution.get("pivot_arc_cycles") or {}).items()},
+                         [keys[k] for k in piv])
+    if vals is None or arcs is None:
+        return False
+    lam = np.zeros(sg.n_seg)
+    lam[sg.seg] = np.broadcast_to(np.asarray(_lam(d), dtype=np.float64), d.sat.shape)
+    want = ints + arcs[0] * (1.0 - lam[piv] / lam[segs])
+    return bool(np.all(np.abs(vals[0] - want) < 1e-6))
 
 
 def _integer_masks(integers: dict, d: _Data, sg: _Segments) -> tuple:
@@ -1494,8 +1532,11 @@ def _segment_table(d: _Data, sg: _Segments, fx: _Fix, fin: _Final) -> list:
 
 def _solution_value(fin: _Final, k: int) -> dict:
     """A float segment's value and σ in a (partially) fixed solution (cycles; conditioned on the fixed
-    integers), which ``estimate`` evaluates instead of solving again; nothing for a known segment or a float
-    solution."""
+    integers), which ``estimate`` evaluates instead of solving again; a glonass_fix solution's GLONASS pivot: its
+    own arc value x_p (cycles; a GLONASS segment's value is N_k − N_p + x_p (1 − λ_p/λ_k)); nothing for another
+    known segment or a float solution."""
+    if fin.block is not None and fin.pivot_arc is not None and np.isfinite(fin.pivot_arc[k]):
+        return {"pivot_arc_cycles": float(fin.pivot_arc[k])}
     if fin.block is None or fin.known_seg[k] or fin.a_sigma is None:
         return {}
     return {"solution_cycles": float(fin.a_seg[k]), "solution_sigma_cycles": float(fin.a_sigma[k])}
@@ -1786,7 +1827,12 @@ def _engine_solution(d: _Data, sg: _Segments, w: _Weights, eng: dict, xr0, r_enu
             else "partially fixed")
     a_sig = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", J, Pf, J), 0.0))
     a_sig[known] = 0.0
-    return fl, fx, _Final(block, x_fix, kind, a_fix, known, q3, g, r_ph, a_sig)
+    piv_arc = None
+    if glo is not None and np.isfinite(glo).any():     # what estimate needs to evaluate the GLONASS values again
+        piv_arc = np.full(sg.n_seg, np.nan)
+        fdma_piv = _fdma_segments(d, sg) & sg.is_pivot
+        piv_arc[fdma_piv] = xf[cols[fdma_piv]]
+    return fl, fx, _Final(block, x_fix, kind, a_fix, known, q3, g, r_ph, a_sig, piv_arc)
 
 
 def _starts_with(values: np.ndarray, prefix: str) -> np.ndarray:
@@ -1979,8 +2025,8 @@ def _engine_needed_first(integers: dict, solution: dict | None, engine_init: boo
     run before the batch tables are built): a glonass_fix INIT, or an engine INIT that leaves a segment float or has
     no fixed position (INIT's fully fixed solution is evaluated at its position instead).  Only the order depends
     on it: when it guesses wrong the engine runs where it did before (or runs unused), the result the same."""
-    if glonass_integers is None and solution is not None and solution.get("enu_m") is not None \
-            and solution.get("cov_enu_m2") is not None and solution.get("solution_cycles"):
+    if solution is not None and solution.get("enu_m") is not None and solution.get("cov_enu_m2") is not None \
+            and solution.get("solution_cycles") and (glonass_integers is None or solution.get("pivot_arc_cycles")):
         return False                    # a partially fixed INIT with its float segments' values: evaluated
     if glonass_integers is not None:
         return True
@@ -2030,9 +2076,8 @@ def baseline_from_init(master: Station, rover: Station, nav: pd.DataFrame, optio
             known = _known_solution(d, sg, w, integers, solution, xr0, r_enu, warnings, tol)
             if known is not None:
                 return known, "given (INIT's solution)"
-            # (a glonass_fix INIT's GLONASS values hold its pivots' own arc values, which INIT does not: the
-            # engine conditions on its GLONASS integers again)
-            known = None if glo is not None else _given_solution(d, sg, w, integers, solution, xr0, r_enu, warnings)
+            known = (_given_solution(d, sg, w, integers, solution, xr0, r_enu, warnings, glo)
+                     if glo is None or _glonass_values_agree(d, sg, solution, glo) else None)
             if known is not None:
                 return known, "given (INIT's solution, its float ambiguities too)"
 

@@ -416,7 +416,8 @@ def _solution_from_init(init: dict, r: str) -> dict | None:
     (``solution``): its fixed ENU displacement (``enu_m``, None without a fixed block), its float one
     (``float_enu_m``), each segment's float value and σ (cycles), and, of a partially fixed solution, each float
     segment's value and σ in it (``solution_cycles``) with the fixed position's covariance (``cov_enu_m2``, m²)
-    and the DD residuals they leave (``residuals``); None without either block."""
+    and the DD residuals they leave (``residuals``), a glonass_fix solution's GLONASS pivots' own arc values
+    (``pivot_arc_cycles``); None without either block."""
     rov = init["rovers"].get(r) or {}
     fixed, flt = rov.get("fixed") or {}, rov.get("float") or {}
     if fixed.get("enu_m") is None and flt.get("enu_m") is None:
@@ -425,10 +426,12 @@ def _solution_from_init(init: dict, r: str) -> dict | None:
     floats = {(str(s["sat"]), float(s["first_gps_s"])): (s.get("float_cycles"), s.get("sigma_cycles")) for s in segs}
     at_solution = {(str(s["sat"]), float(s["first_gps_s"])): (s["solution_cycles"], s.get("solution_sigma_cycles"))
                    for s in segs if s.get("solution_cycles") is not None}
+    pivot_arcs = {(str(s["sat"]), float(s["first_gps_s"])): s["pivot_arc_cycles"]
+                  for s in rover_segments(init, r) if s.get("pivot") and s.get("pivot_arc_cycles") is not None}
     return {"enu_m": _enu_from_init(fixed, f"rovers.{r}.fixed.enu_m"),
             "float_enu_m": _enu_from_init(flt, f"rovers.{r}.float.enu_m"),
             "float_cycles": floats, "solution_cycles": at_solution, "cov_enu_m2": fixed.get("cov_enu_m2"),
-            "residuals": rov.get("residuals")}
+            "residuals": rov.get("residuals"), "pivot_arc_cycles": pivot_arcs}
 
 
 def _enu_from_init(block: dict, key: str) -> list | None:

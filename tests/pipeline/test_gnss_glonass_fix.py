@@ -90,20 +90,36 @@ def _estimate(d: Path, init: dict, name: str):
 
 def test_estimate_conditions_on_the_glonass_integers(glonass_fixed, monkeypatch):
     """STATES are INIT's fixed baseline bit for bit (the engine's float conditioned on the 8 GPS and 6 GLONASS
-    integers, as init made it), never solved again; a GLONASS integer changed by one moves them."""
+    integers, as init made it), never solved again: INIT's values are evaluated (its GLONASS values agree with its
+    GLONASS integers and pivots' arc values), the engine does not run, and the states equal those of the engine
+    conditioned again (an INIT without those values); a GLONASS integer changed by one no longer agrees with the
+    values, so the engine conditions on it, and the states move."""
     d, init, _ = glonass_fixed
     rov = init["rovers"]["rover"]
+    assert sum("pivot_arc_cycles" in b for b in init["biases"]) >= 1
     with monkeypatch.context() as mp:
         _no_solve(mp)
+        mp.setattr(baseline, "_run_engine", lambda *a, **k: (_ for _ in ()).throw(AssertionError("engine ran")))
         r = _estimate(d, init, "states")
         assert r.exit_code == 0, r.output
         run = read_gnss_run(d / "run.mcap")
         res, _, _, _ = gnss.solve_with_init_integers(run, init, "rover", gnss._stations(run))
-    assert res["solver"] == "static_engine (integers given)" and res["solution"] == "fixed"
+    assert res["solver"] == "given (INIT's solution, its float ambiguities too)" and res["solution"] == "fixed"
     assert res["ambiguities"]["n_glonass_fixed_by_engine"] == 6 and res["ambiguities"]["n_fixed"] == 8
     st = States(d / "states.mcap")
     assert (st.q == np.array(rov["fixed"]["enu_m"])).all()                    # bit for bit, every epoch
     assert (st.sigma_q == np.array(rov["fixed"]["sigma_enu_m"])).all()
+    older = json.loads(json.dumps(init))                  # an INIT without the values: the engine conditions again
+    for b in older["biases"]:
+        for k in ("solution_cycles", "solution_sigma_cycles", "pivot_arc_cycles"):
+            b.pop(k, None)
+    with monkeypatch.context() as mp:
+        _no_solve(mp)
+        assert _estimate(d, older, "older").exit_code == 0
+        res_old, _, _, _ = gnss.solve_with_init_integers(run, older, "rover", gnss._stations(run))
+    assert res_old["solver"] == "static_engine (integers given)"
+    assert res_old["ambiguities"]["n_glonass_fixed_by_engine"] == 6 and res_old["solution"] == "fixed"
+    np.testing.assert_allclose(States(d / "older.mcap").q, st.q, rtol=0, atol=1e-12)
     wrong = json.loads(json.dumps(init))
     next(b for b in wrong["biases"] if b.get("fixed_by_engine"))["dd_integer_cycles"] += 1
     assert _estimate(d, wrong, "wrong").exit_code == 0
