@@ -1216,7 +1216,7 @@ def _with_glonass_integers(d: _Data, sg: _Segments, fx: _Fix, fin: _Final, glona
     fdma = _fdma_segments(d, sg)
     dd = np.full(sg.n_seg, np.nan)
     dd[segs] = ints
-    dd[np.unique(sg.pivots[sg.comp[segs]])] = 0.0
+    dd[fdma & sg.is_pivot] = 0.0                  # every GLONASS pivot, as the engine's conditioning records them
     glo_fixed = np.zeros(sg.n_seg, dtype=bool)
     glo_fixed[segs] = True
     fixed_all = int(fx.fixed_mask.sum()) + segs.size == sg.free.size

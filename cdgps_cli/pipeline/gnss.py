@@ -518,8 +518,9 @@ def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path
         dx, groups, n_blind = _rover_states(a, w, res, sl, idx, model, run.cfg, smooth)
         a.residuals(r, w, dx, groups, idx)
         a.kinematic(w["kinematic"], idx, sl, j)
-        summary_rovers[r] = dict(_rover_summary(res, w, names[sl]), epochs=int(idx.size),
-                                 epochs_without_fixed_dd=n_blind if res["ambiguities"]["n_fixed"] else int(idx.size))
+        n_fix = res["ambiguities"]["n_fixed"] + res["ambiguities"].get("n_glonass_fixed_by_engine", 0)
+        summary_rovers[r] = dict(_rover_summary(res, w, names[sl]), epochs=int(idx.size), n_fixed_with_glonass=n_fix,
+                                 epochs_without_fixed_dd=n_blind if n_fix else int(idx.size))
     events.sort(key=lambda e: (e["time_s"], e["antenna"], e["transmitter"], e["kind"]))
     say(f"writing {out_path} …")
     meta_extra = {"rovers": summary_rovers,
@@ -546,7 +547,7 @@ def _blind_warnings(rovers: dict, model: str) -> list:
     out = []
     for r, v in rovers.items():
         n, m = v["epochs_without_fixed_dd"], v["epochs"]
-        if model != "static" and m and not v["n_fixed"]:
+        if model != "static" and m and not v["n_fixed_with_glonass"]:
             out.append(f"{r}: none of its {v['n_estimated']} integers is fixed: its {model} states use the double "
                        f"differences with INIT's static float ambiguities taken as exact, which a rover that moves "
                        f"does not give (its states and sigma do not hold); cdgps rtk gives a float solution that "

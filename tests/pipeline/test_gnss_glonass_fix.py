@@ -227,3 +227,23 @@ def test_an_inconsistent_glonass_fix_init_is_refused(glonass_fixed, tmp_path, na
     r, path, out = _edited_estimate(glonass_fixed, tmp_path, edit)
     assert r.exit_code == 2 and str(path) in r.stderr and says in r.stderr, (name, r.output)
     assert "Traceback" not in r.output and not out.exists()
+
+
+def test_glonass_only_fixed_rover_is_not_called_unfixed(tmp_path):
+    """GLONASS G1 alone with glonass_fix and a random-walk rover: its 6 integers are GLONASS DDs (``n_fixed`` counts
+    GPS-like integers only, 0 here); estimate must neither say that none is fixed nor count its epochs as blind
+    (a review found both)."""
+    cfg = _config(tmp_path, "glonass_fix = true", signals='["R:G1"]')
+    text = cfg.read_text().replace('[gnss.antennas."base"]', '[gnss.displacement]\nmodel = "random_walk"\n'
+                                   'sigma_m_per_sqrt_s = 0.001\n[gnss.antennas."base"]')
+    cfg.write_text(text)
+    assert run_cli("-q", "ingest", "--config", cfg, "-o", tmp_path / "run.mcap").exit_code == 0
+    assert run_cli("-q", "init", tmp_path / "run.mcap", "-o", tmp_path / "init.json").exit_code == 0
+    r = run_cli("estimate", tmp_path / "run.mcap", "--init", tmp_path / "init.json", "-o", tmp_path / "s.mcap",
+                "--json")
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.stdout)
+    rov = s["rovers"]["rover"]
+    assert rov["n_fixed"] == 0 and rov["n_fixed_with_glonass"] == 6
+    assert rov["epochs_without_fixed_dd"] < 0.1 * rov["epochs"] and s["warnings"] == [], s["warnings"]
+    assert "warning" not in r.stderr, r.stderr
