@@ -407,7 +407,8 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
                            structure_only=_structure_only_given(biases, sigma_m, nis_probability, outlier_sigma,
                                                                 process_noise_scale, rest, rest_process_noise_scale,
                                                                 rest_retry_s, rest_window_s, rest_dwell_s,
-                                                                structure, receiver_map, scene_exaggeration),
+                                                                structure, receiver_map, scene_exaggeration,
+                                                                covariance, foxglove_rate_hz),
                            structure=structure, x_axis_azimuth_deg=x_axis_azimuth_deg, receiver_map=receiver_map,
                            allow_other_run=allow_other_run, scene_exaggeration=_scene_factor(scene_exaggeration),
                            fuse=fuse, hold_out=hold_out)
@@ -457,7 +458,8 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
 
 def _structure_only_given(biases, sigma_m, nis_probability, outlier_sigma, process_noise_scale, rest,
                           rest_process_noise_scale, rest_retry_s, rest_window_s, rest_dwell_s, structure,
-                          receiver_map, scene_exaggeration) -> dict:
+                          receiver_map, scene_exaggeration, covariance=_STATES_DEFAULT_COVARIANCE,
+                          foxglove_rate_hz=None) -> dict:
     """{option: given} of ``cdgps estimate``'s structure-run options (given: not at its default), for
     the refusal of those a GNSS run does not use."""
     def not_default(**values):           # {--option: given}, against the one home of the defaults
@@ -470,7 +472,10 @@ def _structure_only_given(biases, sigma_m, nis_probability, outlier_sigma, proce
             **not_default(rest_process_noise_scale=rest_process_noise_scale, rest_retry_s=rest_retry_s,
                          rest_window_s=rest_window_s, rest_dwell_s=rest_dwell_s),
             "--scene-exaggeration": structure is None and not receiver_map
-            and str(scene_exaggeration) != str(SCENE_EXAGGERATION)}
+            and str(scene_exaggeration) != str(SCENE_EXAGGERATION),
+            # (a GNSS run's STATES: the positions' covariance and every epoch in the JSON channels; these were
+            # ignored without a word)
+            "--covariance": covariance != _STATES_DEFAULT_COVARIANCE, "--foxglove-rate-hz": foxglove_rate_hz is not None}
 
 
 def _check_structure_run_options(foxglove_rate_hz, scene_exaggeration, structure, receiver_map,

@@ -16,3 +16,12 @@ def test_each_option_off_its_default_is_given_alone():
         given = _structure_only_given(**{**_AT_DEFAULTS, key: value * 0.5})
         flag = "--" + key.replace("_", "-")
         assert given[flag] and sum(given.values()) == 1, (key, given)
+
+
+def test_a_gnss_runs_states_options_are_given_when_set():
+    """--covariance full and --foxglove-rate-hz shape a structure run's STATES; a GNSS run's were written the one way
+    whatever they said, without a word: now refused (exit 2) like the other structure-run options."""
+    given = _structure_only_given(**_AT_DEFAULTS, covariance="full")
+    assert given["--covariance"] and sum(given.values()) == 1
+    given = _structure_only_given(**_AT_DEFAULTS, foxglove_rate_hz=0.0)
+    assert given["--foxglove-rate-hz"] and sum(given.values()) == 1
