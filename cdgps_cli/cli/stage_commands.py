@@ -960,6 +960,8 @@ def _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, a
         _say(ctx, f"INIT {run.master} → {r}: {v['solution']}, {v['n_fixed'] + n_glo_fixed} of {v['n_estimated']} "
                   f"integers fixed{glo}, "
                   f"ratio {ratio} (threshold {v['ratio_threshold']:g}); static displacement (m): {st}")
+        for w in v["warnings"]:              # (they were only in INIT.json)
+            _warn(f"baseline {run.master} → {r}: {w}")
     if "modal_init" in res:
         mi = res["modal_init"]
         if "refused" in mi:

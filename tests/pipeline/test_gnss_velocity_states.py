@@ -7,7 +7,8 @@ the warning ``estimate`` gives when its model cannot follow the rover.
   the exported positions (an independent check: the smoother's states are one trajectory); a random-walk
   model's STATES have no velocity columns.
 * The same rover with init's random walk at 1 mm/√s (the simulator's config before it took ``3 σ_a √T``): no
-  integer fixed, and ``estimate`` says the model does not hold (mean NIS per DoF ≈ 800) instead of nothing.
+  integer fixed; ``init`` says its static float does not fit a rover that moves, and ``estimate`` that the model
+  does not hold (mean NIS per DoF ≈ 800), instead of nothing.
 """
 
 from __future__ import annotations
@@ -96,6 +97,11 @@ def test_a_model_that_cannot_follow_the_rover_is_said(rover, tmp_path):
     cfg.write_text(text.replace('"base.rnx"', f'"{rover / "base.rnx"}"').replace('"rover.rnx"', f'"{rover / "rover.rnx"}"')
                    .replace('"nav.rnx"', f'"{rover / "nav.rnx"}"'))
     s, err = _chain(tmp_path, cfg, "bad")
+    r = run_cli("-q", "init", tmp_path / "bad.mcap", "-o", tmp_path / "again.json")       # init says it first
+    assert r.exit_code == 0 and "cdgps: warning: baseline base → rover: no integer fixed, and the static float does " \
+        "not fit the data" in r.stderr, r.stderr
+    rov = json.loads((tmp_path / "again.json").read_text())["rovers"]["rover"]
+    assert any("no integer fixed" in w for w in rov["warnings"])
     assert s["mean_nis_per_dof"] > 100
     assert any("mean NIS per degree of freedom" in w for w in s["warnings"]), s["warnings"]
     assert any("none of its 10 integers is fixed" in w for w in s["warnings"]), s["warnings"]
