@@ -2312,6 +2312,9 @@ def _baseline(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineO
     })
     if keep_work:
         result["_work"] = _work(d, sg, w, fin, xr0, xm, r_enu, ka if kin is not None else None)
+        # GLONASS segments whose DD integer a glonass_fix solution holds: known to the estimators too
+        result["_work"]["glonass_known"] = (np.zeros(sg.n_seg, dtype=bool) if fx.glonass_fixed is None
+                                            else np.asarray(fx.glonass_fixed, dtype=bool))
     return result
 
 

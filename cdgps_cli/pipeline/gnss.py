@@ -653,8 +653,9 @@ def _rover_states(a: _EstimateArrays, w: dict, res: dict, sl: slice, idx, model:
     at its own epochs.  Returns the displacement from the static solution at its epochs (m), the signal groups
     (usable rows, references) and how many of its epochs have no DD of known ambiguities."""
     d, x_fin = w["data"], w["x_final"]
-    fixed_any = res["ambiguities"]["n_fixed"] > 0
-    use = w["known_seg"][w["seg"]] if fixed_any else np.ones(w["seg"].size, dtype=bool)
+    known = w["known_seg"] | w.get("glonass_known", False)      # (a glonass_fix solution's GLONASS DDs too)
+    fixed_any = res["ambiguities"]["n_fixed"] + res["ambiguities"].get("n_glonass_fixed_by_engine", 0) > 0
+    use = known[w["seg"]] if fixed_any else np.ones(w["seg"].size, dtype=bool)
     c, dof, has, groups = _epoch_information(w, use)
     w.pop("blocks_ph", None)            # the solver's phase weights, no longer needed (a day at 1 Hz: ≈ 60 MiB)
     if model == "static":

@@ -247,3 +247,28 @@ def test_glonass_only_fixed_rover_is_not_called_unfixed(tmp_path):
     assert rov["n_fixed"] == 0 and rov["n_fixed_with_glonass"] == 6
     assert rov["epochs_without_fixed_dd"] < 0.1 * rov["epochs"] and s["warnings"] == [], s["warnings"]
     assert "warning" not in r.stderr, r.stderr
+
+
+def test_glonass_dds_a_solution_fixed_feed_the_states(tmp_path):
+    """A random-walk rover with glonass_fix: estimate's states take the GLONASS DDs whose integers INIT holds, not only
+    the GPS ones (they were left out: correct, but information lost) — every epoch has the GLONASS satellites' DDs
+    more than with GLONASS float, the σ are smaller, and the DDs still fit (mean NIS per DoF of the same order)."""
+    runs = {}
+    for tag, extra in (("float", ()), ("fix", ("glonass_fix = true",))):
+        d = tmp_path / tag
+        d.mkdir()
+        cfg = _config(d, *extra)
+        cfg.write_text(cfg.read_text().replace('[gnss.antennas."base"]', '[gnss.displacement]\nmodel = "random_walk"\n'
+                                               'sigma_m_per_sqrt_s = 0.001\n[gnss.antennas."base"]'))
+        assert run_cli("-q", "ingest", "--config", cfg, "-o", d / "run.mcap").exit_code == 0
+        assert run_cli("-q", "init", d / "run.mcap", "-o", d / "init.json").exit_code == 0
+        r = run_cli("-q", "estimate", d / "run.mcap", "--init", d / "init.json", "-o", d / "s.mcap", "--json")
+        assert r.exit_code == 0, r.output
+        runs[tag] = (json.loads(r.stdout), States(d / "s.mcap"))
+    (s_float, st_float), (s_fix, st_fix) = runs["float"], runs["fix"]
+    assert s_fix["rovers"]["rover"]["n_fixed_with_glonass"] > s_float["rovers"]["rover"]["n_fixed_with_glonass"]
+    extra_dof = st_fix.nis_dof - st_float.nis_dof
+    assert extra_dof.min() >= 0 and np.median(extra_dof) >= 3, np.unique(extra_dof)
+    assert np.median(st_fix.sigma_q) < 0.9 * np.median(st_float.sigma_q)
+    assert s_fix["mean_nis_per_dof"] < 3 * max(s_float["mean_nis_per_dof"], 0.3), (s_fix["mean_nis_per_dof"],
+                                                                                   s_float["mean_nis_per_dof"])
