@@ -1056,9 +1056,8 @@ def _float_solution(d: _Data, sg: _Segments, w: _Weights, xr0, r_enu, opt: Basel
 def _given_integers(integers: dict, d: _Data, sg: _Segments, fixed_mask, integers_fix) -> None:
     """Apply integers given per (satellite, first epoch) of each segment (e.g. INIT's), checking that
     they name exactly these data's segments and datum; fills ``fixed_mask`` / ``integers_fix``."""
-    given = {(str(k[0]), round(float(k[1]), 3)): v for k, v in integers.items()}
-    keys = [(d.sat_names[int(sg.segtab["sat"][k])], round(float(d.t_label[sg.segtab["first_epoch"][k]]), 3))
-            for k in range(sg.n_seg)]
+    given = _keyed(integers)
+    keys = _segment_keys(d, sg)
     unknown = [f"{k[0]} from {gps_time_str(k[1])}" for k in keys if k not in given]
     extra = [f"{k[0]} from {gps_time_str(k[1])}" for k in given if k not in set(keys)]
     if unknown or extra:
@@ -1288,10 +1287,15 @@ def _segment_keys(d: _Data, sg: _Segments) -> list:
             for k in range(sg.n_seg)]
 
 
+def _keyed(given: dict) -> dict:
+    """``given`` ``{(satellite, first s): …}`` keyed as :func:`_segment_keys` names the segments."""
+    return {(str(k[0]), round(float(k[1]), 3)): v for k, v in given.items()}
+
+
 def _given_values(given: dict | None, keys: list, partial: bool = False):
     """(values, σ) (cycles, arrays in ``keys``' order) of ``given`` ``{(satellite, first s): (value, σ)}``;
     None when one is missing or not finite, unless ``partial`` (NaN there)."""
-    given = {(str(k[0]), round(float(k[1]), 3)): v for k, v in (given or {}).items()}
+    given = _keyed(given or {})
     out = np.full((2, len(keys)), np.nan)
     for i, k in enumerate(keys):
         v = given.get(k)
@@ -1935,10 +1939,9 @@ def _given_glonass(given: dict, d: _Data, sg: _Segments, rover: str) -> tuple[np
 
     Raises CdgpsError ``INIT.json: …`` naming what does not match: a GLONASS segment without an entry or an
     entry without a segment, another FDMA channel, another reference (datum pivot)."""
-    fdma = np.flatnonzero(_fdma_segments(d, sg))
-    here = {(d.sat_names[int(sg.segtab["sat"][k])], round(float(d.t_label[sg.segtab["first_epoch"][k]]), 3)): int(k)
-            for k in fdma}
-    init = {(str(n), round(float(t), 3)): v for (n, t), v in given.items()}
+    keys = _segment_keys(d, sg)
+    here = {keys[k]: int(k) for k in np.flatnonzero(_fdma_segments(d, sg))}
+    init = _keyed(given)
     bad = [f"no entry for {n} from {gps_time_str(t)}" for n, t in here if (n, t) not in init]
     bad += [f"an entry for {n} from {gps_time_str(t)}, which these data do not have" for n, t in init if (n, t) not in here]
     sig = _satellite_signals(d)

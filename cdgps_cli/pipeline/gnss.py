@@ -191,14 +191,17 @@ def gnss_init(run: GnssRun, *, options: dict | None = None, progress=None) -> di
     }
 
 
+def n_fixed_with_glonass(ambiguities: dict) -> int:
+    """Integers a solution fixed: ``n_fixed`` and the GLONASS DDs a glonass_fix solution fixed (counted apart)."""
+    return int(ambiguities["n_fixed"]) + int(ambiguities.get("n_glonass_fixed_by_engine") or 0)
+
+
 def _moving_unfixed_warning(res: dict, model: str) -> list:
     """A warning for a rover under a moving model with no integer fixed whose static float does not fit (unit
     variance above :data:`NIS_MISFIT_PER_DOF`): it moves, and neither its static displacement nor its σ describe
     it (a simulated 5 m wander under a 1 mm/√s walk: 69 m off, σ 2 cm, silently)."""
-    amb, flt = res["ambiguities"], res["float"] or {}
-    n_fixed = amb["n_fixed"] + amb.get("n_glonass_fixed_by_engine", 0)
-    uv = flt.get("unit_variance")
-    if model == "static" or n_fixed or uv is None or not uv > NIS_MISFIT_PER_DOF:
+    uv = (res["float"] or {}).get("unit_variance")
+    if model == "static" or n_fixed_with_glonass(res["ambiguities"]) or uv is None or not uv > NIS_MISFIT_PER_DOF:
         return []
     return [f"no integer fixed, and the static float does not fit the data (unit variance {uv:.3g}): the rover moves "
             f"more than its {model} model lets init's float follow ([gnss.displacement] sigma_m_per_sqrt_s); its static "
@@ -437,12 +440,11 @@ def _solution_from_init(init: dict, r: str) -> dict | None:
     fixed, flt = rov.get("fixed") or {}, rov.get("float") or {}
     if fixed.get("enu_m") is None and flt.get("enu_m") is None:
         return None
-    segs = [s for s in rover_segments(init, r) if not s.get("pivot")]
-    floats = {(str(s["sat"]), float(s["first_gps_s"])): (s.get("float_cycles"), s.get("sigma_cycles")) for s in segs}
-    at_solution = {(str(s["sat"]), float(s["first_gps_s"])): (s["solution_cycles"], s.get("solution_sigma_cycles"))
-                   for s in segs if s.get("solution_cycles") is not None}
-    pivot_arcs = {(str(s["sat"]), float(s["first_gps_s"])): s["pivot_arc_cycles"]
-                  for s in rover_segments(init, r) if s.get("pivot") and s.get("pivot_arc_cycles") is not None}
+    keyed = [((str(s["sat"]), float(s["first_gps_s"])), s) for s in rover_segments(init, r)]
+    floats = {k: (s.get("float_cycles"), s.get("sigma_cycles")) for k, s in keyed if not s.get("pivot")}
+    at_solution = {k: (s["solution_cycles"], s.get("solution_sigma_cycles")) for k, s in keyed
+                   if not s.get("pivot") and s.get("solution_cycles") is not None}
+    pivot_arcs = {k: s["pivot_arc_cycles"] for k, s in keyed if s.get("pivot") and s.get("pivot_arc_cycles") is not None}
     return {"enu_m": _enu_from_init(fixed, f"rovers.{r}.fixed.enu_m"),
             "float_enu_m": _enu_from_init(flt, f"rovers.{r}.float.enu_m"),
             "float_cycles": floats, "solution_cycles": at_solution, "cov_enu_m2": fixed.get("cov_enu_m2"),
@@ -533,7 +535,7 @@ def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path
         dx, groups, n_blind = _rover_states(a, w, res, sl, idx, model, run.cfg, smooth)
         a.residuals(r, w, dx, groups, idx)
         a.kinematic(w["kinematic"], idx, sl, j)
-        n_fix = res["ambiguities"]["n_fixed"] + res["ambiguities"].get("n_glonass_fixed_by_engine", 0)
+        n_fix = n_fixed_with_glonass(res["ambiguities"])
         summary_rovers[r] = dict(_rover_summary(res, w, names[sl]), epochs=int(idx.size), n_fixed_with_glonass=n_fix,
                                  epochs_without_fixed_dd=n_blind if n_fix else int(idx.size))
     events.sort(key=lambda e: (e["time_s"], e["antenna"], e["transmitter"], e["kind"]))
@@ -654,7 +656,7 @@ def _rover_states(a: _EstimateArrays, w: dict, res: dict, sl: slice, idx, model:
     (usable rows, references) and how many of its epochs have no DD of known ambiguities."""
     d, x_fin = w["data"], w["x_final"]
     known = w["known_seg"] | w.get("glonass_known", False)      # (a glonass_fix solution's GLONASS DDs too)
-    fixed_any = res["ambiguities"]["n_fixed"] + res["ambiguities"].get("n_glonass_fixed_by_engine", 0) > 0
+    fixed_any = n_fixed_with_glonass(res["ambiguities"]) > 0
     use = known[w["seg"]] if fixed_any else np.ones(w["seg"].size, dtype=bool)
     c, dof, has, groups = _epoch_information(w, use)
     w.pop("blocks_ph", None)            # the solver's phase weights, no longer needed (a day at 1 Hz: ≈ 60 MiB)
