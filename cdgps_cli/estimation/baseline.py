@@ -1188,15 +1188,14 @@ def _given_solution(d: _Data, sg: _Segments, w: _Weights, integers: dict, soluti
     a_fix, known, unk = _known_ambiguities(sg, fixed_mask, integers_fix)
     keys = _segment_keys(d, sg)
     given = _given_values(solution.get("solution_cycles"), [keys[k] for k in unk])
-    cov, ref = solution.get("cov_enu_m2"), (solution.get("residuals") or {}).get("per_satellite_rms_m")
+    res = solution.get("residuals")
+    cov, ref = solution.get("cov_enu_m2"), res.get("per_satellite_rms_m") if isinstance(res, dict) else None
     if given is None or cov is None or not ref or not unk.size:
         return None
     x = np.asarray(solution["enu_m"], dtype=np.float64).reshape(3)
     a_fix[unk] = given[0]
     g, r_ph, _ = _residuals(d, xr0 + r_enu.T @ x, r_enu, a_fix, sg.seg, w, code=False)
-    here = _residual_summary(d, w, r_ph, 0)["per_satellite_rms_m"]
-    if set(here) != set(ref) or not all(math.isclose(here[k], float(ref[k]), rel_tol=1e-9, abs_tol=1e-12)
-                                        for k in here):
+    if not _same_residuals(_residual_summary(d, w, r_ph, 0)["per_satellite_rms_m"], ref):
         warnings.append("the given float ambiguities do not leave INIT's residuals on these data; solved again")
         return None
     a_sig = np.zeros(sg.n_seg)
@@ -1206,6 +1205,16 @@ def _given_solution(d: _Data, sg: _Segments, w: _Weights, integers: dict, soluti
                              _Final(None, x, "", a_fix, known, q3, g, r_ph, a_sig),
                              "position, integers and the float ambiguities given (not solved again)")
     return (fl, fx, fin) if glonass is None else (fl, *_with_glonass_integers(d, sg, fx, fin, glonass))
+
+
+def _same_residuals(here: dict, ref) -> bool:
+    """Whether per-satellite DD residual rms ``here`` are ``ref``'s (INIT's) to 1e-9 relative; False for a ``ref``
+    that is not such a table (an edited INIT)."""
+    try:
+        return set(here) == set(ref) and all(math.isclose(here[k], float(ref[k]), rel_tol=1e-9, abs_tol=1e-12)
+                                             for k in here)
+    except (TypeError, ValueError):
+        return False
 
 
 def _with_glonass_integers(d: _Data, sg: _Segments, fx: _Fix, fin: _Final, glonass: tuple) -> tuple:

@@ -447,8 +447,25 @@ def _solution_from_init(init: dict, r: str) -> dict | None:
     pivot_arcs = {k: s["pivot_arc_cycles"] for k, s in keyed if s.get("pivot") and s.get("pivot_arc_cycles") is not None}
     return {"enu_m": _enu_from_init(fixed, f"rovers.{r}.fixed.enu_m"),
             "float_enu_m": _enu_from_init(flt, f"rovers.{r}.float.enu_m"),
-            "float_cycles": floats, "solution_cycles": at_solution, "cov_enu_m2": fixed.get("cov_enu_m2"),
+            "float_cycles": floats, "solution_cycles": at_solution,
+            "cov_enu_m2": _cov_from_init(fixed, f"rovers.{r}.fixed.cov_enu_m2"),
             "residuals": rov.get("residuals"), "pivot_arc_cycles": pivot_arcs}
+
+
+def _cov_from_init(block: dict, key: str) -> np.ndarray | None:
+    """``block["cov_enu_m2"]`` as a (3, 3) array (None when absent: an INIT written before it held it); CdgpsError
+    naming ``key`` unless a symmetric 3 × 3 matrix of finite numbers with a positive diagonal (m²)."""
+    v = block.get("cov_enu_m2")
+    if v is None:
+        return None
+    try:
+        c = np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError):
+        c = np.zeros(0)
+    if c.shape != (3, 3) or not np.all(np.isfinite(c)) or not np.all(np.diag(c) > 0) or not np.allclose(c, c.T):
+        raise CdgpsError(f"INIT.json: {key}: expected a symmetric 3 x 3 covariance of finite numbers with a positive "
+                         f"diagonal (m^2), got {v!r}")
+    return c
 
 
 def _enu_from_init(block: dict, key: str) -> list | None:

@@ -279,3 +279,34 @@ def test_the_engine_runs_before_the_batch_tables_exist(case, request, monkeypatc
     res, _, _, _ = gnss.solve_with_init_integers(run, init, rover, gnss._stations(run))
     assert res["solver"] == "static_engine (integers given)"
     assert seen == ["geometry", "geometry", "prepare", "filter"], seen
+
+
+@pytest.mark.parametrize("cov", ["abc", [[1.0, 2.0], [3.0, 4.0]], [[float("nan"), 0, 0], [0, 1, 0], [0, 0, 1]],
+                                 [[1, 0, 0], [0, -1, 0], [0, 0, 1]]])
+def test_a_bad_init_covariance_is_refused(mosaic_partial, tmp_path, cov):
+    """INIT's fixed.cov_enu_m2 not a symmetric 3 x 3 of finite numbers with a positive diagonal: exit 2 naming the
+    file and key, no traceback, no STATES."""
+    d, init = mosaic_partial
+    bad = json.loads(json.dumps(init))
+    bad["rovers"]["rover"]["fixed"]["cov_enu_m2"] = cov
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
+    r = run_cli("estimate", d / "run.mcap", "--init", tmp_path / "bad.json", "-o", tmp_path / "s.mcap")
+    assert r.exit_code == 2 and f"{tmp_path / 'bad.json'}: rovers.rover.fixed.cov_enu_m2: expected a symmetric" \
+        in r.stderr, r.output
+    assert "Traceback" not in r.output and not (tmp_path / "s.mcap").exists()
+
+
+@pytest.mark.parametrize("residuals", ["x", {"per_satellite_rms_m": "abc"}, {"per_satellite_rms_m": {"C01:B1I": "abc"}}])
+def test_a_malformed_init_residual_table_sends_estimate_to_the_engine(mosaic_partial, tmp_path, residuals):
+    """INIT's residuals, which the evaluated path checks its values against, damaged: not INIT's solution on these
+    data, so the engine conditions on the integers again (as for an INIT without the values), no traceback."""
+    d, init = mosaic_partial
+    bad = json.loads(json.dumps(init))
+    rov = bad["rovers"]["rover"]
+    rov["residuals"] = (dict(rov["residuals"], per_satellite_rms_m=dict(rov["residuals"]["per_satellite_rms_m"],
+                                                                        **residuals["per_satellite_rms_m"]))
+                        if isinstance(residuals, dict) and isinstance(residuals["per_satellite_rms_m"], dict)
+                        else residuals)
+    run = read_gnss_run(d / "run.mcap")
+    res, _, _, _ = gnss.solve_with_init_integers(run, bad, "rover", gnss._stations(run))
+    assert res["solver"] == "static_engine (integers given)"
