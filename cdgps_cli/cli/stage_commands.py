@@ -917,6 +917,15 @@ def _gnss_info_lines(g: dict) -> list:
 # GNSS pipeline from real (or simulated) receiver files: docs/gnss-pipeline.md
 
 
+def _init_states_label(init: dict) -> str:
+    """What ``init`` prints its rovers' states as: a static rover's displacement; under a moving model the mean
+    (static) position over the record, which ``estimate``'s states move about."""
+    model = init.get("displacement_model") or "static"
+    if model == "static":
+        return "static displacement (m)"
+    return f"static displacement (the mean over the record; the origin of estimate's {model} states, m)"
+
+
 def _reject_structure_options(given: dict, what: str) -> None:
     used = [k for k, v in given.items() if v]
     if used:
@@ -959,7 +968,7 @@ def _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, a
             (f" ({n_glo_fixed} of them GLONASS DDs, glonass_fix)" if n_glo_fixed else "")
         _say(ctx, f"INIT {run.master} → {r}: {v['solution']}, {v['n_fixed'] + n_glo_fixed} of {v['n_estimated']} "
                   f"integers fixed{glo}, "
-                  f"ratio {ratio} (threshold {v['ratio_threshold']:g}); static displacement (m): {st}")
+                  f"ratio {ratio} (threshold {v['ratio_threshold']:g}); {_init_states_label(res)}: {st}")
         for w in v["warnings"]:              # (they were only in INIT.json)
             _warn(f"baseline {run.master} → {r}: {w}")
     if "modal_init" in res:

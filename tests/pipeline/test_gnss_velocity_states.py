@@ -106,3 +106,14 @@ def test_a_model_that_cannot_follow_the_rover_is_said(rover, tmp_path):
     assert any("mean NIS per degree of freedom" in w for w in s["warnings"]), s["warnings"]
     assert any("none of its 10 integers is fixed" in w for w in s["warnings"]), s["warnings"]
     assert "cdgps: warning: the double differences' mean NIS" in err and "sigma_m_per_sqrt_s" in err, err
+
+
+def test_init_says_what_its_states_are_under_a_moving_model(rover, tmp_path):
+    """Under constant velocity INIT's states are the record's mean (static) position, the origin estimate's
+    states move about: init says so instead of calling them the rover's static displacement."""
+    r = run_cli("-q", "ingest", "--config", rover / "config.toml", "-o", tmp_path / "run.mcap")
+    assert r.exit_code == 0, r.output
+    r = run_cli("init", tmp_path / "run.mcap", "-o", tmp_path / "init.json")
+    assert r.exit_code == 0, r.output
+    line = next(ln for ln in r.stderr.splitlines() if ln.startswith("INIT "))
+    assert "the mean over the record; the origin of estimate's constant_velocity states, m): rover_e " in line, line
