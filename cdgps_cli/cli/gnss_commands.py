@@ -353,13 +353,14 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
 @click.option("--min-success-rate", type=float, default=None,
               help="Bootstrapped success rate an integer set must reach; when the whole set does not, the part that "
                    "does is fixed and the epoch stays float [0.999].")
+@click.option("--float-only", is_flag=True, help="Do not fix integers (float solution only; RTKLIB pos2-armode=off).")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Output: .pos (RTKLIB, lat/lon/height), .nmea/.gga (NMEA GGA), .geojson, or CSV (any other suffix).")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (epochs used and why others were not, fixes) on stdout.")
 @click.pass_context
 def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_fix, mask_deg, ratio_threshold, max_age_s,
         sync_tol_s, direction, code_correlation_s, code_noise, fix_and_hold, wrong_fix_probability, hold_after_fixes,
-        min_success_rate, output, as_json):
+        min_success_rate, float_only, output, as_json):
     """Double differences per constellation and frequency, integers by LAMBDA (docs/gnss-pipeline.md, "Multi-GNSS").
 
     The rover's epochs drive the solution: each takes the nearest base epoch within --max-age (a base
@@ -369,6 +370,8 @@ def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_
 
     options = {"signals": "auto" if signals.strip() == "auto" else tuple(x.strip() for x in signals.split(",") if x.strip()),
                "mode": mode, "glonass_fix": glonass_fix}
+    if float_only:
+        options["fix"] = False
     for key, value in (("mask_deg", mask_deg), ("ratio", ratio_threshold), ("max_age_s", max_age_s),
                        ("sync_tol_s", sync_tol_s), ("direction", direction), ("min_success_rate", min_success_rate),
                        ("code_correlation_s", code_correlation_s), ("code_noise", code_noise),

@@ -330,3 +330,27 @@ def _detrended(u, y, group) -> np.ndarray:
         c[good] = np.linalg.solve(A[good], np.stack(b, axis=-1)[good][:, :, None])[:, :, 0]
     cg = c[group]
     return y - (cg[:, 0] + cg[:, 1] * u + cg[:, 2] * u * u)
+
+
+def effective_sample_size(series) -> float:
+    """How many independent samples a serially correlated series (n,) is worth: n / (1 + 2 Σ ρ_k), ρ_k its
+    autocorrelation at lag k summed while positive (the initial positive sequence, Geyer 1992); n when the
+    series is constant, 0 when it is empty.
+
+    A float position that converges over minutes changes slowly: 600 epochs of it are worth 3–6 samples of its
+    error (the real and simulated pairs of ``rtk``'s float variance factor), which the mean of a statistic over
+    those epochs must be judged by.  The autocorrelation by FFT: O(n log n)."""
+    z = np.asarray(series, dtype=np.float64)
+    n = z.size
+    if n == 0:
+        return 0.0
+    z = z - z.mean()
+    v = float(np.dot(z, z))
+    if v == 0.0:
+        return float(n)
+    size = 1 << (2 * n - 1).bit_length()
+    f = np.fft.rfft(z, size)
+    rho = np.fft.irfft(f * np.conj(f), size)[1:n // 2] / v
+    neg = np.flatnonzero(rho <= 0.0)
+    s = float(rho[:neg[0] if neg.size else rho.size].sum())
+    return n / (1.0 + 2.0 * s)

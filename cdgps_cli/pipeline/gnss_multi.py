@@ -187,9 +187,27 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
         warnings.append(f"{rover_path} (rover): {sum(ep['dropped'].values())} of {ep['rover_epochs']} epochs not used: "
                         + "; ".join(f"{n} {why}" for why, n in ep["dropped"].items())
                         + f" (max_age_s {opt['max_age_s']:g} s)")
+    warnings += _float_variance_warning(res)
     text = solution_text(res, sigs, opt, out_csv, bx, inputs=(*rover_files, *base_files, *nav_paths))
     write_atomic(out_csv, lambda tmp: Path(tmp).write_text(text, newline=""))
     return {**_summary(res, per_epoch), "signals": sigs, "epoch_pairing": ep, "warnings": warnings}
+
+
+#: above this variance factor of the float positions (σ doubled) ``rtk`` says that it scaled them
+FLOAT_VARIANCE_WARNING = 4.0
+
+
+def _float_variance_warning(res: dict) -> list:
+    """A warning when the float positions' σ were scaled by more than :data:`FLOAT_VARIANCE_WARNING`
+    (:func:`~cdgps_cli.estimation.rtk_multi.float_variance_factor`)."""
+    fv = res.get("float_variance") or {}
+    k = fv.get("factor")
+    if k is None or not k > FLOAT_VARIANCE_WARNING:
+        return []
+    return [f"the forward and backward float solutions disagree by {k:.3g} times the variance their σ give (more "
+            f"than the {fv['threshold']:.3g} chance allows for {fv['independent_samples']:.3g} independent samples; "
+            f"the receivers' errors are correlated in time, e.g. code multipath): the float epochs' σ are scaled by "
+            f"{k ** 0.5:.3g} (float_variance in the summary)"]
 
 
 def _summary(res: dict, per_epoch: bool) -> dict:
@@ -200,6 +218,7 @@ def _summary(res: dict, per_epoch: bool) -> dict:
             "fixed_epochs": int(res["fixed"].sum()), "direction": res["direction"],
             "fixes_rejected": res["fixes_rejected"], "partial_fixes": res["partial_fixes"],
             "wrong_fix_resets": res["wrong_fix_resets"], "ambiguities_released": res["ambiguities_released"],
+            "float_variance": res["float_variance"],      # combined mode (the passes' disagreement); null for one pass
             "code_noise": {"mode": c["mode"], "variance_factor": c["factor"],       # an estimate not made: null
                            "estimates": {w: (float(c[w]) if np.isfinite(c[w]) else None) for w in ("base", "rover")},
                            "windows": c["windows"]},

@@ -316,3 +316,42 @@ def test_code_noise_factor_without_enough_windows_is_nan():
     assert np.isnan(f) and n < 10
     f, n = _factor(t[:1], ch[:1], code[:1], phase[:1], slip[:1], np.full(1, 0.25))
     assert np.isnan(f) and n == 0
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# effective_sample_size: what a serially correlated series is worth in independent samples
+
+
+def _ess_by_lags(z) -> float:
+    """The same sum, lag by lag (a direct loop, not the FFT)."""
+    z = np.asarray(z, dtype=float) - np.mean(z)
+    v = float(np.dot(z, z))
+    s = 0.0
+    for k in range(1, z.size // 2):
+        r = float(np.dot(z[:-k], z[k:])) / v
+        if r <= 0:
+            break
+        s += r
+    return z.size / (1 + 2 * s)
+
+
+def test_effective_sample_size_of_white_and_ar1_series():
+    from cdgps_cli.measurement.noise import effective_sample_size
+    rng = np.random.default_rng(3)
+    white = rng.standard_normal(20_000)
+    assert effective_sample_size(white) == pytest.approx(20_000, rel=0.1)
+    rho = 0.9                                       # AR(1): n (1 − ρ) / (1 + ρ) = n / 19
+    ar = np.zeros(20_000)
+    e = rng.standard_normal(ar.size)
+    for k in range(1, ar.size):
+        ar[k] = rho * ar[k - 1] + e[k]
+    assert effective_sample_size(ar) == pytest.approx(20_000 * (1 - rho) / (1 + rho), rel=0.25)
+    for z in (white[:777], ar[:1500], np.sin(np.arange(300) / 20.0)):
+        assert effective_sample_size(z) == pytest.approx(_ess_by_lags(z), rel=1e-9)
+
+
+def test_effective_sample_size_edge_cases():
+    from cdgps_cli.measurement.noise import effective_sample_size
+    assert effective_sample_size([]) == 0.0
+    assert effective_sample_size(np.full(50, 2.5)) == 50.0
+    assert effective_sample_size([1.0]) == 1.0

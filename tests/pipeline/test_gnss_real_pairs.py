@@ -17,7 +17,7 @@ import pytest
 from cdgps_cli.io.rinex import read_rinex_nav
 from cdgps_cli.io.solution_formats import read_pos
 from cdgps_cli.model.gps.orbits import ecef_to_enu, ecef_to_geodetic
-from cdgps_cli.sim.rinex_edit import edit_rinex3_obs, range_change_of_motion
+from cdgps_cli.sim.rinex_edit import edit_rinex3_obs, epoch_times_gps_s, range_change_of_motion
 from tests._shared import REPO_ROOT, run_cli
 
 SHARED = REPO_ROOT.parent / "shared" / "data"
@@ -43,7 +43,8 @@ def files(tmp_path_factory):
     (d / "base_5s.obs").write_text(edit_rinex3_obs(base, keep=lambda t: round(t) % 5 == 0))
     nav = read_rinex_nav(MOSAIC / "base.nav", systems=("G",))
     rover0 = BASE_XYZ + np.array([-0.2556, -0.6052, -0.7812])
-    vib = range_change_of_motion(nav, rover0, lambda t: (VIB_AMP_M * np.sin(2 * np.pi * VIB_HZ * (t - T0)), 0.0, 0.0))
+    vib = range_change_of_motion(nav, rover0, lambda t: (VIB_AMP_M * np.sin(2 * np.pi * VIB_HZ * (t - T0)), 0.0, 0.0),
+                                 times_gps_s=epoch_times_gps_s(rover))        # (vectorized: 4.3 -> 0.1 s, the same text)
     (d / "rover_vib.obs").write_text(edit_rinex3_obs(rover, range_change_m=vib))
     return d
 
