@@ -339,6 +339,10 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
               help="auto: scale the code variance by the files' own code noise, each receiver's code-minus-carrier "
                    "averaged over 30 s against the model (a u-blox M8P: x47, geodetic receivers: x1), so the float σ "
                    "and the integer tests are honest; model: the code σ as modelled [auto].")
+@click.option("--age-noise", "age_noise", type=click.Choice(["auto", "model"]), default=None,
+              help="auto: a bridged base observation's σ grows by what the base's own observations minus their model "
+                   "drift per second (at least RTKLIB's 1.5 mm/s; a 2008 Crescent base: 10 mm/s); model: 1.5 mm/s "
+                   "[auto].")
 @click.option("--fix-and-hold/--no-fix-and-hold", default=None,
               help="After --hold-after-fixes consecutive fixed epochs, feed the fixed integers back as measurements "
                    "(RTKLIB's fix-and-hold); while held, an epoch that contradicts them (--wrong-fix-probability) "
@@ -359,8 +363,8 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (epochs used and why others were not, fixes) on stdout.")
 @click.pass_context
 def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_fix, mask_deg, ratio_threshold, max_age_s,
-        sync_tol_s, direction, code_correlation_s, code_noise, fix_and_hold, wrong_fix_probability, hold_after_fixes,
-        min_success_rate, float_only, output, as_json):
+        sync_tol_s, direction, code_correlation_s, code_noise, age_noise, fix_and_hold, wrong_fix_probability,
+        hold_after_fixes, min_success_rate, float_only, output, as_json):
     """Double differences per constellation and frequency, integers by LAMBDA (docs/gnss-pipeline.md, "Multi-GNSS").
 
     The rover's epochs drive the solution: each takes the nearest base epoch within --max-age (a base
@@ -374,7 +378,7 @@ def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_
         options["fix"] = False
     for key, value in (("mask_deg", mask_deg), ("ratio", ratio_threshold), ("max_age_s", max_age_s),
                        ("sync_tol_s", sync_tol_s), ("direction", direction), ("min_success_rate", min_success_rate),
-                       ("code_correlation_s", code_correlation_s), ("code_noise", code_noise),
+                       ("code_correlation_s", code_correlation_s), ("code_noise", code_noise), ("age_noise", age_noise),
                        ("hold_after_fixes", hold_after_fixes),
                        ("fix_and_hold", fix_and_hold), ("wrong_fix_probability", wrong_fix_probability)):
         if value is not None:

@@ -113,6 +113,11 @@ MULTI_GNSS_DEFAULTS = {
     # "auto": the code variance scaled by what the files' own code-minus-carrier shows over CODE_NOISE_WINDOW_S
     # (measurement/noise.code_noise_factor; a u-blox M8P: 39, geodetic receivers ≈ 1); "model": as modelled
     "code_noise": "auto",
+    # "auto": the σ a bridged base observation gains per second of age is what the base's own observations minus
+    # their model do over that age (measurement/base_interpolation.base_drift_m_per_s), at least age_sigma_m_per_s
+    # (RTKLIB's 1.5 mm/s); "model": age_sigma_m_per_s alone.  Real bases: a 2008 Crescent 10 mm/s, mosaic 2.1,
+    # the u-blox M8P 1.3, Leica CORS 0.9
+    "age_noise": "auto",
     # feed fixed integers back as measurements (RTKLIB pos2-armode=fix-and-hold), checked by the wrong-fix test below:
     # the real car (geonet-car G+E L1) 181 -> 311 of 360 epochs fixed, none wrong where the answer is known
     # (benchmarks/fix_correctness.py, docs/benchmarks/fix_correctness.json)

@@ -43,6 +43,7 @@ from cdgps_cli.estimation.kalman import NUMPY_INVERSE, StepFilter
 from cdgps_cli.measurement.dd_signals import DDGroupModel, backward_slips, channel_index, epoch_groups, paired_sd_rows
 from cdgps_cli.measurement.differencing import sd_variance
 from cdgps_cli.measurement.epoch_pairing import pair_epochs
+from cdgps_cli.measurement.base_interpolation import base_drift_m_per_s
 from cdgps_cli.measurement.noise import code_noise_factor, effective_sample_size
 from cdgps_cli.model.dynamics_models import ConstantVelocity, RandomWalk, Static
 from cdgps_cli.model.gps.orbits import OMEGA_E_GPS, azimuth_elevation, ecef_to_geodetic, ephemeris_rows, sat_position_rows
@@ -518,6 +519,8 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
     times = pairs.rover_time_s
     code_noise = receivers_code_noise(base, rover, opt) if code_noise is None else code_noise
     opt["code_variance_factor"] = code_noise["factor"]
+    age_noise = base_age_noise(base, pairs, base_xyz, opt)
+    opt["age_sigma_m_per_s"] = age_noise["sigma_m_per_s"]
     rows = paired_sd_rows(base, rover, pairs, opt, mask_rover=True,    # the mask at both receivers, as RTKLIB's
                           base_xyz_m=base_xyz)
     n_ep = times.size
@@ -536,7 +539,7 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
             "float_cov_m2": res["float_cov"], "fixed_cov_m2": np.where(ok[:, None, None], res["fixed_cov"], np.nan),
             "n_satellites": res["ns"], "direction": direction, "fixes_rejected": int(res.get("rejected", 0)),
             "partial_fixes": int(res["partial"].sum()), "wrong_fix_resets": int(res["wrong_fix_resets"].sum()),
-            "code_noise": code_noise,
+            "code_noise": code_noise, "age_noise": age_noise,
             "ambiguities_released": int(res["released"].sum()),
             "float_variance": res.get("float_variance"),
             **_velocities(res, ok)}
@@ -591,6 +594,27 @@ def _passes(rows, times, direction: str, opt, base_xyz, origin, iono, progress) 
         bwd = job.result()
     out = _combine(fwd, bwd)
     return _with_float_variance_factor(out, fwd, bwd) if not opt["fix"] else dict(out, float_variance=None)
+
+
+def base_age_noise(base: pd.DataFrame, pairs, base_xyz, opt: dict) -> dict:
+    """The σ per second of base age of option ``age_noise``: "model", ``age_sigma_m_per_s``; "auto", the base's own
+    drift (:func:`~cdgps_cli.measurement.base_interpolation.base_drift_m_per_s` over its rows above the mask) where
+    it exceeds that, when some rover epoch is bridged (else nothing to weigh).  Returns ``{"mode",
+    "sigma_m_per_s", "estimate_m_per_s"}``.
+
+    Measured (GPS L1, docs/gnss-pipeline.md, session 20): a Crescent base of 2008 (RTKLIB's test data) 10 mm/s,
+    its first rover epochs extrapolated 25–29 s and fixed 0.2 m off with σ 3–8 cm at 1.5 mm/s, none off at the
+    estimate; mosaic 2.1, the u-blox M8P base 1.3 (1.5 kept), the Leica CORS GLW1 0.9."""
+    floor = float(opt["age_sigma_m_per_s"])
+    out = {"mode": opt["age_noise"], "sigma_m_per_s": floor, "estimate_m_per_s": None}
+    if opt["age_noise"] != "auto" or not pairs.summary.get("bridged"):
+        return out
+    est = base_drift_m_per_s(base, base_xyz, troposphere=opt["troposphere"], max_age_s=float(opt["max_age_s"]),
+                             mask_rad=np.radians(opt["mask_deg"]))["estimate_m_per_s"]
+    out["estimate_m_per_s"] = est
+    if est is not None and est > floor:
+        out["sigma_m_per_s"] = est
+    return out
 
 
 def receivers_code_noise(base: pd.DataFrame, rover: pd.DataFrame, opt: dict) -> dict:

@@ -18,7 +18,7 @@ import pandas as pd
 
 from cdgps_cli.measurement.epoch_pairing import carry_base_slips, channel_index
 
-__all__ = ["base_rows", "interpolate_base", "BASE_ROW_COLUMNS"]
+__all__ = ["base_rows", "interpolate_base", "BASE_ROW_COLUMNS", "observation_model_m", "base_drift_m_per_s"]
 
 #: Columns :func:`interpolate_base` reads of each base row (a geometry table of
 #: :func:`~cdgps_cli.estimation.rtk_multi.receiver_geometry`, through :func:`base_rows`).
@@ -108,7 +108,7 @@ def interpolate_base(m: pd.DataFrame, b: pd.DataFrame, tb: np.ndarray, time_s: n
     xb = np.asarray(base_xyz_m, dtype=np.float64)
 
     def model(sx, sy, sz, clk, tr):
-        return np.sqrt((sx - xb[0]) ** 2 + (sy - xb[1]) ** 2 + (sz - xb[2]) ** 2) - clk + (tr if troposphere else 0.0)
+        return observation_model_m(sx, sy, sz, clk, tr, xb, troposphere)
 
     k = np.flatnonzero(ok)
     m0 = model(*(m[c].to_numpy(dtype=float)[k] for c in ("sx_b", "sy_b", "sz_b", "sat_clock_m_b", "trop_m_b")))
@@ -120,6 +120,101 @@ def interpolate_base(m: pd.DataFrame, b: pd.DataFrame, tb: np.ndarray, time_s: n
     rng[k] += w * ((o["pseudorange_m_1"].to_numpy(dtype=float)[k] - rng[k]) - (m1 - m0))
     age[k] = np.abs(age[k]) * (1.0 - w)
     return phase, rng, age, ok
+
+
+def observation_model_m(sx, sy, sz, clk, tr, base_xyz_m, troposphere: bool):
+    """What the base observes of a satellite but for its clock and ambiguity, m: the range from ``base_xyz_m`` (ECEF
+    m) to the satellite at (``sx``, ``sy``, ``sz``) minus its clock ``clk`` (m), plus the troposphere ``tr`` (m)
+    when ``troposphere``."""
+    xb = np.asarray(base_xyz_m, dtype=np.float64)
+    return np.sqrt((sx - xb[0]) ** 2 + (sy - xb[1]) ** 2 + (sz - xb[2]) ** 2) - clk + (tr if troposphere else 0.0)
+
+
+#: lags (in base epochs) at which :func:`base_drift_m_per_s` compares a channel with itself
+DRIFT_LAG_STEPS = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256)
+#: differences a lag needs to count in :func:`base_drift_m_per_s`
+DRIFT_MIN_DIFFERENCES = 30
+
+
+def base_drift_m_per_s(base: pd.DataFrame, base_xyz_m, *, troposphere: bool, max_age_s: float,
+                       mask_rad: float = 0.0) -> dict:
+    """How fast the base's observation minus its model departs from itself, m per s of age: the σ a base
+    observation carried to a rover epoch ``age`` seconds away gains (:func:`interpolate_base` where it cannot
+    interpolate, the nearest epoch's alone).
+
+    Per channel and epoch, u = λφ − M (M :func:`observation_model_m`: range, satellite clock, troposphere), less the
+    mean of the epoch's channels of that signal (the receiver clock; epochs with three channels or more).  Along
+    each arc (no loss of lock, one broadcast ephemeris, no gap beyond ``max_age_s``) the differences of u over
+    :data:`DRIFT_LAG_STEPS` base epochs, whose time spans L stay within ``max_age_s``, have a robust variance s²(L)
+    (1.4826 · MAD)²; s²(L) = c² + a² L² is fitted (relative residuals) and ``a`` is the drift.  What it holds: the
+    satellite clocks' departure from their broadcast drift, the base position's error seen through each
+    satellite's motion, ionosphere changes; the per-epoch noise goes to c.
+
+    Parameters
+    ----------
+    base : DataFrame
+        The base's geometry rows (:func:`~cdgps_cli.estimation.rtk_multi.receiver_geometry`: ``time_gps_s``,
+        ``sat``, ``signal``, ``phase_cycles``, ``wavelength_m``, ``sx``/``sy``/``sz``, ``sat_clock_m``,
+        ``trop_m``, ``lli``, ``el_rad``; ``eph_row`` when there).
+    base_xyz_m : array_like (3,)
+        Base position, ECEF m.
+    troposphere : bool
+        Whether the model includes ``trop_m``.
+    max_age_s : float
+        The longest age a base observation is carried over, s.
+    mask_rad : float
+        Rows below this elevation are left out.
+
+    Returns
+    -------
+    dict
+        ``estimate_m_per_s`` (None: fewer than two lags of :data:`DRIFT_MIN_DIFFERENCES` differences), ``lags_s``
+        and ``sd_m`` (each lag's mean span and robust σ of the differences), ``noise_m`` (c).
+    """
+    none = {"estimate_m_per_s": None, "lags_s": [], "sd_m": [], "noise_m": None}
+    ph = base["phase_cycles"].to_numpy(dtype=float)
+    keep = np.isfinite(ph) & (base["el_rad"].to_numpy(dtype=float) >= mask_rad)
+    if keep.sum() < DRIFT_MIN_DIFFERENCES:
+        return none
+    b = base[keep]
+    u = b["wavelength_m"].to_numpy(dtype=float) * ph[keep] - observation_model_m(
+        *(b[c].to_numpy(dtype=float) for c in ("sx", "sy", "sz", "sat_clock_m", "trop_m")), base_xyz_m, troposphere)
+    t = b["time_gps_s"].to_numpy(dtype=float)
+    ch = channel_index(b["sat"].to_numpy(), b["signal"].to_numpy())
+    sig = pd.factorize(b["signal"].to_numpy())[0]
+    grp = pd.factorize(pd.MultiIndex.from_arrays([t, sig]))[0]
+    n_in = np.bincount(grp)
+    u = u - (np.bincount(grp, weights=u) / n_in)[grp]           # the receiver clock out
+    ok = n_in[grp] >= 3
+    eph = b["eph_row"].to_numpy() if "eph_row" in b.columns else np.zeros(t.size, dtype=np.int64)
+    order = np.lexsort((t, ch))                                 # by channel, then time
+    o = order[ok[order]]
+    t, u, ch, lli, eph = t[o], u[o], ch[o], b["lli"].to_numpy(dtype=np.int64)[o], eph[o]
+    new = np.r_[True, (ch[1:] != ch[:-1]) | ((lli[1:] & 1) > 0) | (eph[1:] != eph[:-1]) | (np.diff(t) > max_age_s)]
+    arc = np.cumsum(new)
+    lags, sds = [], []
+    for k in DRIFT_LAG_STEPS:
+        if k >= t.size:
+            break
+        same = arc[k:] == arc[:-k]
+        span = (t[k:] - t[:-k])[same]
+        span_ok = span <= max_age_s
+        if span_ok.sum() < DRIFT_MIN_DIFFERENCES:
+            if span.size and np.median(span) > max_age_s:
+                break
+            continue
+        d = (u[k:] - u[:-k])[same][span_ok]
+        lags.append(float(np.mean(span[span_ok])))
+        sds.append(1.4826 * float(np.median(np.abs(d - np.median(d)))))
+    if len(lags) < 2:
+        return dict(none, lags_s=lags, sd_m=sds)
+    L, s2 = np.asarray(lags), np.asarray(sds) ** 2
+    w = 1.0 / np.maximum(s2, 1e-12)                              # relative residuals
+    (c2, a2), *_ = np.linalg.lstsq(np.c_[w, L**2 * w], np.ones(L.size), rcond=None)
+    if a2 < 0 or c2 < 0:                                         # one term alone: the other at 0
+        c2 = max(c2, 0.0)
+        a2 = max(float(np.sum(w**2 * L**2 * (s2 - c2))) / float(np.sum(w**2 * L**4)), 0.0)
+    return {"estimate_m_per_s": float(np.sqrt(a2)), "lags_s": lags, "sd_m": sds, "noise_m": float(np.sqrt(c2))}
 
 
 def _far_epochs(b0, age, tb, time_s, sync_tol_s: float, max_age_s: float):

@@ -49,6 +49,8 @@ def validate_options(options: dict) -> dict:
         bad.append(f"code_correlation_s: expected a number of seconds >= 0, got {opt['code_correlation_s']}")
     if opt["code_noise"] not in ("auto", "model"):
         bad.append(f"code_noise: expected 'auto' or 'model', got {opt['code_noise']!r}")
+    if opt["age_noise"] not in ("auto", "model"):
+        bad.append(f"age_noise: expected 'auto' or 'model', got {opt['age_noise']!r}")
     if not 0.0 <= float(opt["wrong_fix_probability"]) < 1.0:
         bad.append(f"wrong_fix_probability: expected a probability in [0, 1) (0: no wrong-fix test), "
                    f"got {opt['wrong_fix_probability']}")
@@ -219,6 +221,7 @@ def _summary(res: dict, per_epoch: bool) -> dict:
             "fixes_rejected": res["fixes_rejected"], "partial_fixes": res["partial_fixes"],
             "wrong_fix_resets": res["wrong_fix_resets"], "ambiguities_released": res["ambiguities_released"],
             "float_variance": res["float_variance"],      # combined mode (the passes' disagreement); null for one pass
+            "age_noise": res["age_noise"],
             "code_noise": {"mode": c["mode"], "variance_factor": c["factor"],       # an estimate not made: null
                            "estimates": {w: (float(c[w]) if np.isfinite(c[w]) else None) for w in ("base", "rover")},
                            "windows": c["windows"]},

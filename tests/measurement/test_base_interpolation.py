@@ -167,3 +167,63 @@ def test_each_signal_group_is_interpolated_on_its_own_with_its_rows_wavelengths(
     lin = (m["truth"].map(ALPHA) + m["truth"].map(BETA) * m["t"]).to_numpy()
     left = (phase * m["wavelength_m"].to_numpy() - model0 - lin).reshape(4, 3)[[0, 2, 3]]
     np.testing.assert_allclose(left - left[:, :1], 0.0, atol=1e-6)
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# base_drift_m_per_s: how fast the base's observation minus its model departs from itself
+
+
+def _drifting_base(rate_sigma_m_s: float, noise_m: float, seed: int = 2, n_sats: int = 8, n_ep: int = 600,
+                   slips: dict | None = None) -> pd.DataFrame:
+    """A 1 Hz base whose observation minus model is, per satellite, an offset + a constant rate drawn with σ
+    ``rate_sigma_m_s`` + white noise ``noise_m`` + a common receiver clock; ``slips`` {(epoch, sat index): cycles}
+    jumps the phase from that epoch on, flagged (LLI bit 0)."""
+    rng = np.random.default_rng(seed)
+    rate = rng.normal(0.0, rate_sigma_m_s, n_sats)
+    offset = rng.normal(0.0, 5.0, n_sats)
+    rows = []
+    jump = np.zeros(n_sats)
+    for k in range(n_ep):
+        t = float(k)
+        for i in range(n_sats):
+            flagged = (slips or {}).get((k, i))
+            if flagged:
+                jump[i] += flagged * LAM
+            sat_xyz = np.array([2.0e7 + 1.0e6 * i, 1.0e7 - 7.0e2 * t, 1.5e7 + 2.5e3 * t])
+            clk, trop = 12.0 + 0.01 * t + i, 2.3 + 0.001 * t
+            model = np.linalg.norm(sat_xyz - XB) - clk + trop
+            obs_m = model + offset[i] + rate[i] * t + rng.normal(0.0, noise_m) + _clock_m(t) + jump[i]
+            rows.append(dict(time_gps_s=t, sat=f"G{i + 1:02d}", signal="G:L1", phase_cycles=obs_m / LAM,
+                             sx=sat_xyz[0], sy=sat_xyz[1], sz=sat_xyz[2], sat_clock_m=clk, trop_m=trop,
+                             lli=1 if flagged else 0, wavelength_m=LAM, el_rad=0.8))
+    return pd.DataFrame(rows), rate
+
+
+def test_base_drift_is_the_spread_of_the_satellites_rates():
+    from cdgps_cli.measurement.base_interpolation import base_drift_m_per_s
+    b, rate = _drifting_base(0.01, 0.002)
+    out = base_drift_m_per_s(b, XB, troposphere=True, max_age_s=30.0)
+    # the epoch's mean out (the receiver clock): each channel keeps rate − mean rate, whose spread the lags show
+    spread = float(np.std(rate - rate.mean()))
+    assert out["estimate_m_per_s"] == pytest.approx(spread, rel=0.35), (out, spread)
+    assert out["lags_s"][0] == 1.0 and max(out["lags_s"]) <= 30.0 and out["noise_m"] < 0.01
+
+
+def test_base_drift_of_white_noise_alone_is_near_zero_whatever_the_slips():
+    from cdgps_cli.measurement.base_interpolation import base_drift_m_per_s
+    b, _ = _drifting_base(0.0, 0.003)
+    out = base_drift_m_per_s(b, XB, troposphere=True, max_age_s=30.0)
+    assert out["estimate_m_per_s"] < 2e-4 and out["noise_m"] == pytest.approx(0.003 * np.sqrt(2) * np.sqrt(7 / 8), rel=0.2)
+    slipped, _ = _drifting_base(0.0, 0.003, slips={(100, 2): 1000, (350, 5): -77})
+    again = base_drift_m_per_s(slipped, XB, troposphere=True, max_age_s=30.0)
+    assert again["estimate_m_per_s"] < 2e-4
+    unflagged = slipped.assign(lli=0)                    # the few differences across an unflagged jump: the MAD
+    assert base_drift_m_per_s(unflagged, XB, troposphere=True, max_age_s=30.0)["estimate_m_per_s"] < 2e-4
+
+
+def test_base_drift_needs_two_lags_within_the_maximum_age():
+    from cdgps_cli.measurement.base_interpolation import base_drift_m_per_s
+    b, _ = _drifting_base(0.01, 0.002, n_ep=80)
+    sparse = b[(b["time_gps_s"] % 30) == 0]                       # a 30 s base: one lag within 30 s
+    assert base_drift_m_per_s(sparse, XB, troposphere=True, max_age_s=30.0)["estimate_m_per_s"] is None
+    assert base_drift_m_per_s(b.iloc[:20], XB, troposphere=True, max_age_s=30.0)["estimate_m_per_s"] is None

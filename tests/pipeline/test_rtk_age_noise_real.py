@@ -1,0 +1,66 @@
+"""The σ a bridged base observation gains per second of age, from the base itself (``rtk --age-noise auto``,
+rtk_multi.base_age_noise, base_interpolation.base_drift_m_per_s), on the real mosaic pair
+(../shared/data/real-pairs/mosaic-static) with its base's first 30 s cut, so that the rover's first 30 epochs take
+a base observation carried up to 30 s back.
+
+Every satellite's observations at both receivers get a range that grows at a rate of its own (σ 10 mm/s, as the
+satellite clocks of a 2008 base pair that RTKLIB's test data hold depart from their broadcast drift): it cancels
+where the receivers observe at the same time, and shows in the carried epochs as rate × age.  With RTKLIB's
+1.5 mm/s some of those epochs are "fixed" 5–7 cm off; with the base's own drift none is."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from cdgps_cli.sim.rinex_edit import edit_rinex3_obs, epoch_times_gps_s
+from tests._shared import REPO_ROOT, run_cli
+
+MOSAIC = REPO_ROOT.parent / "shared" / "data" / "real-pairs" / "mosaic-static"
+BASE_XYZ = (-3817681.1213, 3562839.4311, 3650159.1593)
+pytestmark = pytest.mark.skipif(not MOSAIC.exists(), reason="../shared/data/real-pairs absent")
+
+
+@pytest.fixture(scope="module")
+def drifting(tmp_path_factory):
+    d = tmp_path_factory.mktemp("age")
+    base, rover = (MOSAIC / "base.obs").read_text(), (MOSAIC / "rover.obs").read_text()
+    t0 = epoch_times_gps_s(base)[0]
+    rng = np.random.default_rng(1)
+    rate: dict = {}
+
+    def drift(t, sats):
+        return np.array([rate.setdefault(s, rng.normal(0.0, 0.01)) * (t - t0) for s in sats])
+
+    (d / "base.obs").write_text(edit_rinex3_obs(base, keep=lambda t: t >= t0 + 30, range_change_m=drift))
+    (d / "rover.obs").write_text(edit_rinex3_obs(rover, range_change_m=drift))
+    return d
+
+
+def _rtk(d, mode: str):
+    r = run_cli("-q", "rtk", "--base", d / "base.obs", "--rover", d / "rover.obs", "--nav", MOSAIC / "base.nav",
+                "--base-xyz", *BASE_XYZ, "--signals", "G:L1", "--age-noise", mode, "-o", d / f"{mode}.csv", "--json")
+    assert r.exit_code == 0, r.output
+    s, df = json.loads(r.stdout), pd.read_csv(d / f"{mode}.csv", comment="#")
+    enu, age, fixed = df[["e_m", "n_m", "u_m"]].to_numpy(), df["age_s"].to_numpy(), df["fixed"].to_numpy() == 1
+    err = np.linalg.norm(enu - enu[(np.abs(age) < 0.1) & fixed].mean(axis=0), axis=1)
+    sigma = np.linalg.norm(df[["sigma_e_m", "sigma_n_m", "sigma_u_m"]].to_numpy(), axis=1)
+    return s, age, fixed, err, sigma
+
+
+def test_the_bases_own_drift_weighs_the_carried_epochs(drifting):
+    s_m, age, fixed_m, err_m, sigma_m = _rtk(drifting, "model")
+    s_a, _, fixed_a, err_a, sigma_a = _rtk(drifting, "auto")
+    assert s_m["epochs"] == s_a["epochs"] == 301 and int((np.abs(age) > 0.1).sum()) == 30
+    assert s_m["age_noise"] == {"mode": "model", "sigma_m_per_s": pytest.approx(5e-12 * 299792458.0),
+                                "estimate_m_per_s": None}
+    assert 0.004 < s_a["age_noise"]["estimate_m_per_s"] == s_a["age_noise"]["sigma_m_per_s"] < 0.012
+    assert int((fixed_m & (err_m > 0.05)).sum()) >= 3               # RTKLIB's σ: carried epochs fixed 5-7 cm off
+    assert int((fixed_a & (err_a > 0.05)).sum()) == 0
+    carried = np.abs(age) > 0.1
+    z_m, z_a = (np.max(e[carried] / s[carried]) for e, s in ((err_m, sigma_m), (err_a, sigma_a)))
+    assert z_a < 0.8 * z_m and z_a < 1.0, (z_m, z_a)                # 3-D error / 3-D σ: 1.13 -> 0.70
+    assert fixed_a[~carried].sum() == fixed_m[~carried].sum()         # the simultaneous epochs fix as before
