@@ -428,7 +428,7 @@ def _receiver_rows(st: Station, ce: _Epochs, nav: pd.DataFrame, pos, opt: Baseli
     o = o.iloc[take]                      # a new frame already (copy-on-write): no second copy
     o["lli_l1"] = np.where(first, lli, lli & ~1)
     o["ep"] = k
-    cov = ephemeris_coverage(nav, o["sat"].to_numpy(), t_label[o["ep"].to_numpy()])
+    cov = _covered(nav, o["sat"].to_numpy(), t_label[o["ep"].to_numpy()], o["time_gps_s"].to_numpy())
     if not cov.any():
         tn = nav["toe_gps_s"].to_numpy()
         raise CdgpsError(f"the navigation data does not cover the observations of {_where(st)}: observations "
@@ -443,6 +443,20 @@ def _receiver_rows(st: Station, ce: _Epochs, nav: pd.DataFrame, pos, opt: Baseli
     clk, measured = _receiver_clock(st, o, tag, t_label, nav, pos, opt)
     o["t_true"] = o["time_gps_s"].to_numpy() - clk[ep]
     return o, clk, tag, measured
+
+
+#: a row's ephemeris must cover its time tag this far on either side: the receiver clock puts its reception time
+#: there (milliseconds; a tag 5 ms before a window opens on a real F9P's edited log stopped init)
+COVERAGE_MARGIN_S = 1.0
+
+
+def _covered(nav: pd.DataFrame, sats, label_s, tag_s) -> np.ndarray:
+    """Which rows have a healthy broadcast ephemeris at their epoch's label ``label_s`` and within
+    :data:`COVERAGE_MARGIN_S` of their time tag ``tag_s`` (GPS s), where the receiver clock and the satellites'
+    geometry are evaluated."""
+    tag_s = np.asarray(tag_s, dtype=np.float64)
+    return (ephemeris_coverage(nav, sats, label_s) & ephemeris_coverage(nav, sats, tag_s - COVERAGE_MARGIN_S)
+            & ephemeris_coverage(nav, sats, tag_s + COVERAGE_MARGIN_S))
 
 
 def _receiver_clock(st: Station, o: pd.DataFrame, tag: np.ndarray, t_label: np.ndarray, nav: pd.DataFrame, pos,
@@ -504,7 +518,7 @@ def _clock_rows(st: Station, tag: np.ndarray, t_label: np.ndarray, nav: pd.DataF
     # the ephemeris serving each tag: that of its first epoch's label (the bridged epochs' labels are within max age)
     first = np.unique(inv, return_index=True)[1]      # each tag's first epoch (tags 0 … n − 1 in order)
     label_of_tag = t_label[np.flatnonzero(have)[first]]
-    rows = rows[ephemeris_coverage(nav, rows["sat"].to_numpy(), label_of_tag[rows["k"].to_numpy()])]
+    rows = rows[_covered(nav, rows["sat"].to_numpy(), label_of_tag[rows["k"].to_numpy()], rows["t"].to_numpy())]
     if rows.empty:
         return None
     return (rows["k"].to_numpy(), tt.size, rows["sat"].to_numpy(), rows["t"].to_numpy(), rows["pr"].to_numpy(),
