@@ -1016,9 +1016,12 @@ def gnss_run_info(path: str | Path, contents, common_epochs=None, lock_summary=N
 def _rinex_comments(n: str, p, comments: list) -> bool:
     """A starter config's comment lines on antenna ``n``'s RINEX file ``p`` (marker, receiver, antenna, span, header
     position); whether the header has a position."""
-    rx = read_receiver_file(n, "rinex", p)
+    rx = read_receiver_file(n, "rinex", p, gps_l1_optional=True)       # (a file of other systems: the run's signals say)
     h = rx.header
     t = np.unique(rx.raw["time_gps_s"].to_numpy())
+    if t.size == 0:                                   # no GPS L1 phase: the epochs of the signals the file holds
+        from cdgps_cli.io.rinex_signals import read_rinex_signals, signals_in_file  # noqa: PLC0415
+        t = np.unique(read_rinex_signals(p, signals_in_file(p))[1]["time_gps_s"].to_numpy())
     pos = header_position_m(h)
     comments.append(f"{n}: {Path(p).name}, RINEX {float(h.get('version') or 0):.2f}, marker {h.get('marker_name') or '?'}, receiver "
                     f"{h.get('receiver_type') or '?'}, antenna {h.get('antenna_type') or '?'}, {t.size} epochs "

@@ -57,3 +57,45 @@ def test_a_glonass_only_run_goes_through_init_float(tmp_path):
     import json
     rov = json.loads((tmp_path / "i.json").read_text())["rovers"]["rover"]
     assert rov["solution"] == "float" and rov["n_fixed"] == 0
+
+
+def _one_system(text: str, system: str) -> str:
+    """A RINEX 3 observation file's text with the records and observation types of ``system`` alone (the epoch
+    lines' satellite counts set to what is left)."""
+    lines = text.splitlines()
+    end = next(i for i, ln in enumerate(lines) if ln[60:].strip() == "END OF HEADER")
+    head, keep = [], True
+    for ln in lines[:end + 1]:
+        if ln[60:].strip() == "SYS / # / OBS TYPES":
+            keep = ln[0] == system if ln[0] != " " else keep        # a continuation line follows its system
+            if not keep:
+                continue
+        head.append(ln)
+    body, i = [], end + 1
+    while i < len(lines):
+        n = int(lines[i][32:35])
+        recs = [r for r in lines[i + 1:i + 1 + n] if r[0] == system]
+        body += [lines[i][:32] + f"{len(recs):3d}" + lines[i][35:], *recs]
+        i += 1 + n
+    return "\n".join(head + body) + "\n"
+
+
+def test_a_galileo_only_pair_gets_a_config_that_init_fixes(tmp_path):
+    """Files holding Galileo alone (no GPS observation type in their headers): config wrote nothing ("GPS L1
+    carrier phase is needed", from reading the GPS L1 table for its comments); the run's signals say what is
+    needed, with ``--signals`` as with ``auto``."""
+    for who in ("base", "rover"):
+        (tmp_path / f"{who}.obs").write_text(_one_system((MOSAIC / f"{who}.obs").read_text(), "E"))
+    files = ("--rinex", f"base={tmp_path / 'base.obs'}", "--rinex", f"rover={tmp_path / 'rover.obs'}",
+             "--nav", MOSAIC / "base.nav")
+    for extra, name in (((), "auto.toml"), (("--signals", "E:E1,E:E5a"), "given.toml")):
+        r = run_cli("-q", "config", *files, *extra, "-o", tmp_path / name)
+        assert r.exit_code == 0, r.output
+        g = tomllib.loads((tmp_path / name).read_text())["gnss"]
+        assert g["signals"] and all(s.startswith("E:") for s in g["signals"])
+        assert "301 epochs" in (tmp_path / name).read_text()
+    r = run_cli("-q", "ingest", "--config", tmp_path / "given.toml", "-o", tmp_path / "run.mcap")
+    assert r.exit_code == 0, r.output
+    r = run_cli("init", tmp_path / "run.mcap", "-o", tmp_path / "init.json")
+    assert r.exit_code == 0, r.output
+    assert "INIT base → rover: fixed" in r.stderr, r.stderr
