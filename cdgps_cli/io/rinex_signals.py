@@ -155,7 +155,9 @@ def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None)
         The RINEX header (as :func:`cdgps_cli.io.rinex.read_rinex_obs`) plus ``signal_codes``
         ({signal: [phase type, code type]}) and ``glonass_slots`` ({sat: k}).
     obs : DataFrame
-        Columns :data:`SIGNAL_COLUMNS`; rows with a phase value, epochs of flag 0/1 only.
+        Columns :data:`SIGNAL_COLUMNS`; rows with a phase value, epochs of flag 0/1 only.  ``attrs["file_epochs"]``:
+        how many distinct observation epochs the file holds, those without a phase of ``signals`` too (the
+        vectorised readers; absent from the line-by-line one's).
 
     Raises
     ------
@@ -218,6 +220,7 @@ def _read_bytes_v3(p: Path, signals: list, glonass_k, read: tuple[bytes, bool] |
         df = _table(lines, hdr, cols, p, slots, ep["time_gps_s"][obs], ep["line"][obs] + 1, ep["nsat"][obs], 1, None)
     except CdgpsError:
         raise Unsupported("record") from None
+    df.attrs["file_epochs"] = int(np.unique(ep["time_gps_s"][obs]).size)
     info = dict(hdr.info)
     info["signal_codes"] = {k: list(v[3]) for k, v in cols.items()}
     info["glonass_slots"] = slots
@@ -505,7 +508,9 @@ def _fast_table(lines, start, hdr, cols, path, data: bytes | None, slots: dict) 
     else:
         times, first, count, sats_v2, per = _walk_v2(lines, start, hdr, path)
     buf = LineBuffer(lines) if data is None else LineBuffer.from_bytes(data, lines)
-    return _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2)
+    df = _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2)
+    df.attrs["file_epochs"] = int(np.unique(np.asarray(times, dtype=np.float64)).size)
+    return df
 
 
 def _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2) -> pd.DataFrame:

@@ -184,7 +184,7 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
         if str(exc).startswith(("no common epochs", "no common satellites", "no double differences")):
             raise CdgpsError(f"{rover_path} (rover) and {base_path} (base): {exc}") from None
         raise
-    ep = _count_epochs_without_geometry(res["epoch_pairing"], r, gr)
+    ep = _count_epochs_without_phase(_count_epochs_without_geometry(res["epoch_pairing"], r, gr), hr, r)
     if ep["dropped"]:
         warnings.append(f"{rover_path} (rover): {sum(ep['dropped'].values())} of {ep['rover_epochs']} epochs not used: "
                         + "; ".join(f"{n} {why}" for why, n in ep["dropped"].items())
@@ -552,7 +552,7 @@ def _read_receiver(files: list, sigs, glo_k, who: str, warnings: list) -> tuple[
         return _ubx_stream([files[i] for i in order], sigs, who, warnings)
     warnings.extend(said + report.warnings)
     tab.attrs = {}
-    return reads[order[0]][0], tab
+    return {**reads[order[0]][0], "file_epochs": None}, tab        # (epochs a later file repeats: not counted)
 
 
 def _ubx_stream(files: list, sigs, who: str, warnings: list) -> tuple[dict, pd.DataFrame]:
@@ -575,7 +575,8 @@ def _ubx_receiver(name, decoded: tuple, sigs, who: str, warnings: list) -> tuple
     if problems:
         warnings.append(f"{name} ({who}): skipped: {'; '.join(problems)}")
     base = info.get("rtcm_base")
-    return ({"approx_position_xyz_m": base["arp_ecef_m"] if base else None},
+    return ({"approx_position_xyz_m": base["arp_ecef_m"] if base else None,
+             "file_epochs": int(np.unique(tab["time_gps_s"].to_numpy()).size)},
             tab[tab["signal"].isin(list(sigs))].reset_index(drop=True))
 
 
@@ -586,6 +587,7 @@ def _read_observations(path, sigs, glo_k, who: str, warnings: list) -> tuple[dic
     the end of the file — named in ``warnings``, as ``ingest`` does)."""
     if not is_ubx_log(path):
         header, obs = read_rinex_signals(path, sigs, glo_k)
+        header["file_epochs"] = obs.attrs.pop("file_epochs", None)
         back = obs.attrs.pop("epochs_out_of_order", None)
         if back:
             warnings.append(f"{path} ({who}): {back[0]} epoch(s) written out of time order (first: "
@@ -605,6 +607,22 @@ def _count_epochs_without_geometry(pairing: dict, rover: pd.DataFrame, geometry:
     if not n:
         return pairing
     return {**pairing, "rover_epochs": pairing["rover_epochs"] + n, "dropped": {**pairing["dropped"], NO_GEOMETRY: n}}
+
+
+#: why a rover epoch of its file never reached the signal table
+NO_PHASE = "without a carrier phase of the signals used"
+
+
+def _count_epochs_without_phase(pairing: dict, header: dict, rover: pd.DataFrame) -> dict:
+    """The epoch pairing's summary with the rover file's epochs that hold no carrier phase of the signals used
+    (code only, no satellite, other signals: the signal table has no row of them) counted in ``rover_epochs``
+    and ``dropped``; ``header["file_epochs"]``: the file's distinct observation epochs (None: not known, e.g.
+    several files joined)."""
+    n_file = header.get("file_epochs")
+    n = (int(n_file) - int(np.unique(rover["time_gps_s"].to_numpy()).size)) if n_file is not None else 0
+    if n <= 0:
+        return pairing
+    return {**pairing, "rover_epochs": pairing["rover_epochs"] + n, "dropped": {**pairing["dropped"], NO_PHASE: n}}
 
 
 def _observed_signals(sigs: list, base: pd.DataFrame, rover: pd.DataFrame, paths: dict, warnings: list):
