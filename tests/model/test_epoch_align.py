@@ -143,10 +143,17 @@ def test_doppler_rate_never_spans_a_slip_and_short_segments_are_dropped():
 
 
 def test_duplicates_and_tolerance():
-    tags = T0 + np.array([0.0, 1.004, 1.010, 2.03, 3.0])
-    out, s = align_receiver(table(tags, ["G01"] * 5, np.zeros(5)), tol_s=0.025)
-    assert s["dropped_duplicate"] == 1 and s["dropped_off_grid"] == 1
-    np.testing.assert_allclose(out["tag_gps_s"], T0 + np.array([0.0, 1.004, 3.0]))
+    """Doppler mode moves observations by δ·Φ̇: only within the tolerance; geometry mode moves nothing and labels
+    an epoch up to a third of the step off its grid time with it (a rover tagged 30 ms after the second was
+    dropped whole by init while rtk bridged every epoch); beyond that third the epoch is dropped in both."""
+    tags = T0 + np.array([0.0, 1.004, 1.010, 2.03, 3.0, 4.4, 5.0])
+    obs = table(tags, ["G01"] * 7, np.arange(7.0) * 100)
+    out, s = align_receiver(obs, tol_s=0.025, mode="doppler")
+    assert s["dropped_duplicate"] == 1 and s["dropped_off_grid"] == 2 and s["tolerance_ms"] == pytest.approx(25)
+    out, s = align_receiver(obs, tol_s=0.025)
+    assert s["dropped_duplicate"] == 1 and s["dropped_off_grid"] == 1 and s["tolerance_ms"] == pytest.approx(1000 / 3)
+    np.testing.assert_allclose(out["tag_gps_s"], T0 + np.array([0.0, 1.004, 2.03, 3.0, 5.0]))
+    np.testing.assert_allclose(out["grid_gps_s"], T0 + np.array([0.0, 1.0, 2.0, 3.0, 5.0]))
 
 
 def test_pair_epochs_across_rates():

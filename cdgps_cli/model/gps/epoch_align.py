@@ -4,9 +4,10 @@ Each receiver's epochs are put on the grid of common GPS times of its own nomina
 whole seconds, 3 Hz → thirds of a second, 5 s → multiples of 5 s, all counted from GPS time 0,
 so grids of different rates share their common instants).  An epoch tagged ``t`` belongs to the
 grid time ``T`` nearest to it when its offset ``δ = t − T`` — for u-blox receivers the
-millisecond-level offset of their clock, tags at .990–.992 s — is at most the tolerance
-(``gnss.sync_tol_s``, 25 ms by default: RTKLIB's DTTOL); an epoch farther from the grid is dropped,
-and of two epochs on one grid time the nearer is kept.  Receivers are then paired on equal grid
+millisecond-level offset of their clock, tags at .990–.992 s — is at most a third of the step in the
+default ``"geometry"`` mode (nothing is moved), and at most the tolerance (``gnss.sync_tol_s``, 25 ms by
+default: RTKLIB's DTTOL) in ``"doppler"`` mode; an epoch farther from the grid is dropped, and of two
+epochs on one grid time the nearer is kept.  Receivers are then paired on equal grid
 times, whatever their rates.
 
 What happens to the observations of an off-grid epoch (:data:`ALIGN_MODES`):
@@ -168,11 +169,12 @@ def phase_rate(t, sat, phase, lli, interval_s):
     return rate
 
 
-def _epoch_grid(tags, tol_s, step_s=None):
+def _epoch_grid(tags, tol_s, step_s=None, *, reach_s=None):
     """Grid step, effective tolerance, grid time and offset of each distinct tag, within the
-    tolerance, and chosen (within it and the nearest on its grid time)."""
+    tolerance, and chosen (within it and the nearest on its grid time).  ``reach_s``: the tolerance
+    instead of ``tol_s`` (still at most a third of the step)."""
     step = grid_step_s(sampling_interval_s(tags)) if step_s is None else float(step_s)
-    tol = min(float(tol_s), step / 3.0)
+    tol = min(float(tol_s if reach_s is None else reach_s), step / 3.0)
     g_tag, d_tag = _grid(tags, step)
     keep_tag = np.abs(d_tag) <= tol
     cand = np.flatnonzero(keep_tag)
@@ -251,7 +253,11 @@ def align_receiver(obs: pd.DataFrame, *, tol_s: float, mode: str = ALIGN_MODES[0
     t = obs["time_gps_s"].to_numpy(dtype=np.float64)
     tags = np.unique(t)
     interval = nominal_interval_s(tags)
-    step, tol, g_tag, d_tag, keep_tag, chosen = _epoch_grid(tags, tol_s, step_s)
+    # geometry mode changes no observation (each receiver's geometry at its own reception instant): an epoch up to a
+    # third of the step off its grid time is labelled with it (a rover tagged 30 ms after the second was dropped
+    # whole, "no common epochs", while rtk bridged every epoch); doppler mode moves observations by δ·Φ̇, within tol_s
+    step, tol, g_tag, d_tag, keep_tag, chosen = _epoch_grid(tags, tol_s, step_s,
+                                                            reach_s=math.inf if mode == "geometry" else None)
     on_grid = chosen & (np.abs(d_tag) <= ON_GRID_S)
     summary = {"epochs": int(tags.size), "on_grid": int(on_grid.sum()),
                "off_grid_kept": int((chosen & ~on_grid).sum()), "corrected": 0,
