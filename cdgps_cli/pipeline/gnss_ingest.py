@@ -326,7 +326,7 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
     signal all receivers hold whose system has ephemerides in the navigation files (or the u-blox logs'
     RXM-SFRBX), as ``cdgps rtk --signals auto`` (:func:`cdgps_cli.pipeline.gnss_multi.common_signals`;
     systems without ephemerides named in ``kwargs["warnings"]``) — or a list of signal names."""
-    from cdgps_cli.pipeline.gnss_multi import common_signals  # noqa: PLC0415
+    from cdgps_cli.pipeline.gnss_multi import common_signals, recorded_signals  # noqa: PLC0415
 
     if signals != "auto":
         from cdgps_cli.core.signals import SIGNALS  # noqa: PLC0415
@@ -343,6 +343,8 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
         said: list = []
         try:
             signals = common_signals(files, list(nav_paths), said) if files else None
+            if signals:
+                signals = recorded_signals(rinex or {}, signals, said)
         except CdgpsError:     # no signal with ephemerides: the GPS L1 path, whose checks say what is missing
             signals, said = None, []
         if kwargs.get("warnings") is not None:

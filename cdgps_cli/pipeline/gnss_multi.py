@@ -703,6 +703,27 @@ def common_signals(receivers: dict, nav_paths, warnings: list) -> list[str]:
     return use
 
 
+def recorded_signals(rinex: dict, sigs: list, warnings: list) -> list[str]:
+    """Of ``sigs`` (from the headers, :func:`common_signals`), those every RINEX receiver's records hold a phase of
+    (``rinex``: antenna → its file): a header may list observation types no record fills (a file cut down to one
+    system), which ``config`` wrote into ``[gnss] signals`` and ``ingest`` then refused; each signal left out is named
+    in ``warnings``, as ``rtk --signals auto`` names it (:func:`_observed_signals`).  CdgpsError when none is left."""
+    from cdgps_cli.io.rinex_signals import read_rinex_signals  # noqa: PLC0415
+    keep = list(sigs)
+    for n, p in rinex.items():
+        held = set()
+        for q in _as_list(p):
+            held |= set(read_rinex_signals(q, keep)[1]["signal"].unique())
+        for s in [s for s in keep if s not in held]:
+            warnings.append(f"{s} not used: listed in the header of {pieces_text(_as_list(p))} ({n}) but no record "
+                            f"holds its phase")
+        keep = [s for s in keep if s in held]
+    if not keep:
+        raise CdgpsError(f"the receivers share no signal with phase observations in their records ({', '.join(sigs)} "
+                         f"listed in their headers)")
+    return keep
+
+
 def _first_of_repeated_epochs(df: pd.DataFrame, path, who: str, warnings: list) -> pd.DataFrame:
     """The rows of a receiver whose epoch was written more than once, kept once (the first record);
     a warning names the file and the repeated epochs."""

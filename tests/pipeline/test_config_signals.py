@@ -59,14 +59,14 @@ def test_a_glonass_only_run_goes_through_init_float(tmp_path):
     assert rov["solution"] == "float" and rov["n_fixed"] == 0
 
 
-def _one_system(text: str, system: str) -> str:
-    """A RINEX 3 observation file's text with the records and observation types of ``system`` alone (the epoch
-    lines' satellite counts set to what is left)."""
+def _one_system(text: str, system: str, header_too: bool = True) -> str:
+    """A RINEX 3 observation file's text with the records (and, ``header_too``, the observation types) of
+    ``system`` alone (the epoch lines' satellite counts set to what is left)."""
     lines = text.splitlines()
     end = next(i for i, ln in enumerate(lines) if ln[60:].strip() == "END OF HEADER")
     head, keep = [], True
     for ln in lines[:end + 1]:
-        if ln[60:].strip() == "SYS / # / OBS TYPES":
+        if header_too and ln[60:].strip() == "SYS / # / OBS TYPES":
             keep = ln[0] == system if ln[0] != " " else keep        # a continuation line follows its system
             if not keep:
                 continue
@@ -99,3 +99,17 @@ def test_a_galileo_only_pair_gets_a_config_that_init_fixes(tmp_path):
     r = run_cli("init", tmp_path / "run.mcap", "-o", tmp_path / "init.json")
     assert r.exit_code == 0, r.output
     assert "INIT base → rover: fixed" in r.stderr, r.stderr
+
+
+def test_auto_leaves_out_the_signals_a_header_lists_but_no_record_holds(tmp_path):
+    """Headers listing every system, records of GPS alone: ``config`` wrote the headers' signals and ``ingest``
+    refused the run ("no E:E1 … phase observations"); the signals no record holds are now left out, each named."""
+    for who in ("base", "rover"):
+        (tmp_path / f"{who}.obs").write_text(_one_system((MOSAIC / f"{who}.obs").read_text(), "G", header_too=False))
+    r = run_cli("config", "--rinex", f"base={tmp_path / 'base.obs'}", "--rinex", f"rover={tmp_path / 'rover.obs'}",
+                "--nav", MOSAIC / "base.nav", "-o", tmp_path / "c.toml")
+    assert r.exit_code == 0, r.output
+    assert tomllib.loads((tmp_path / "c.toml").read_text())["gnss"]["signals"] == ["G:L1", "G:L2", "G:L5"]
+    assert "E:E1 not used: listed in the header of" in r.stderr
+    r = run_cli("-q", "ingest", "--config", tmp_path / "c.toml", "-o", tmp_path / "run.mcap")
+    assert r.exit_code == 0, r.output
