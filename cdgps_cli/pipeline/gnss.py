@@ -140,7 +140,8 @@ def gnss_init(run: GnssRun, *, options: dict | None = None, progress=None) -> di
         res = json_safe(res)
         sol = res["fixed"] or res["float"]
         amb = res["ambiguities"]
-        res["warnings"] += _moving_unfixed_warning(res, run.cfg.displacement)
+        res["warnings"] += (_moving_unfixed_warning(res, run.cfg.displacement)
+                            + _static_misfit_warning(res, run.cfg.displacement))
         segments[r] = amb["segments"]
         names = list(res["states"])
         rovers[r] = {
@@ -206,6 +207,29 @@ def _moving_unfixed_warning(res: dict, model: str) -> list:
     return [f"no integer fixed, and the static float does not fit the data (unit variance {uv:.3g}): the rover moves "
             f"more than its {model} model lets init's float follow ([gnss.displacement] sigma_m_per_sqrt_s); its static "
             f"displacement and sigma do not describe it, and estimate's states will not hold"]
+
+
+#: a static solution whose DD phase unit variance exceeds this (its σ under half the residuals' spread) is said not
+#: to fit: the real static pairs give 0.0001–1.5; an unflagged one-cycle slip on the real mosaic rover 5.3, a 1 ms
+#: receiver clock jump in the M8P rover's codes 9.2 (both 0.8–1 m off with sub-millimetre σ)
+STATIC_UNIT_VARIANCE_WARNING = 4.0
+
+
+def _static_misfit_warning(res: dict, model: str) -> list:
+    """A warning for a static solution (fixed, else float) whose DD phase residuals are far larger than its weights
+    allow (unit variance above :data:`STATIC_UNIT_VARIANCE_WARNING`), naming the satellites with the largest
+    residuals: a slip the receiver did not flag, a receiver clock jump, or a moving rover, which the solution and
+    its σ do not describe."""
+    sol = res["fixed"] or res["float"] or {}
+    uv = sol.get("unit_variance")
+    if model != "static" or uv is None or not uv > STATIC_UNIT_VARIANCE_WARNING:
+        return []
+    per = (res.get("residuals") or {}).get("per_satellite_rms_m") or {}
+    worst = ", ".join(f"{k} {v * 1e3:.0f} mm" for k, v in sorted(per.items(), key=lambda kv: -kv[1])[:3])
+    return [f"the {res['solution']} static solution does not fit its double differences (unit variance {uv:.3g}, "
+            f"about 1 when it holds; largest residual rms: {worst}): a cycle slip the receiver did not flag, a "
+            f"receiver clock jump or a rover that moves can put it decimetres to metres off while its sigma stays "
+            f"millimetric; 'cdgps rtk' on the same files shows where the epochs disagree"]
 
 
 def _signals_summary(run: GnssRun, rovers: dict) -> dict:
