@@ -562,6 +562,9 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
         w = _missing_code_warning(n, files[n][1], rx)
         if w:
             warnings.append(w)
+        if rx.header.get("last_epoch_cut"):
+            warnings.append(f"{files[n][1]} ({n}): {rx.header['last_epoch_cut']} (the file is cut): that epoch is left "
+                            f"out, the ones before it are read")
 
     nav_ahead, glonass_k = _glonass_nav(cfg.signals, nav_list)
     if cfg.signals:

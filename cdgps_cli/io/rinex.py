@@ -113,7 +113,62 @@ def _read_bytes(path: str | Path) -> tuple[bytes, bool]:
             raise CdgpsError(f"{p}: cannot decompress this {what} file: {msg[-1] if msg else type(exc).__name__}") from None
         if not data:
             raise CdgpsError(f"{p}: decompressed to nothing; truncated or corrupt compressed file")
+    data, cut = without_cut_last_epoch(data)
+    if cut is not None:
+        CUT_LAST_EPOCH[str(p)] = cut
     return data, compressed or crinex
+
+
+def _epoch_before_is_whole(data: bytes, body: int, i: int) -> bool:
+    """Whether the epoch before the last epoch line (which starts after byte ``i``, a LF) holds as many record
+    lines as its epoch line announces (or there is none): only then is the last epoch the file's one flaw, cut by its
+    end; otherwise the reader names the miscounted epoch itself."""
+    j = data.rfind(b"\n>", 0, i)
+    if j < body:
+        return True
+    line = data[j + 1:data.find(b"\n", j + 1)]
+    try:
+        return int(line[32:35]) == data.count(b"\n", j + 1, i)
+    except ValueError:
+        return False
+
+
+#: path → what :func:`without_cut_last_epoch` left out of the file last read there; the observation header of that
+#: read takes it as ``info["last_epoch_cut"]`` (:class:`_ObsHeader`)
+CUT_LAST_EPOCH: dict = {}
+
+
+def without_cut_last_epoch(data: bytes) -> tuple[bytes, str | None]:
+    """A RINEX 3 observation file's bytes without a last epoch that the end of the file cuts (a logger stopped while
+    writing it: its epoch line announces more records than follow, or is itself cut), and what was left out (None:
+    nothing).  RTKLIB reads such a file up to that epoch; every reader here refused the whole file.  Other files
+    (RINEX 2, navigation files) are returned as they are."""
+    if len(data) < 80 or data[60:80].rstrip() != b"RINEX VERSION / TYPE" or data[20:21] not in (b"O", b"o"):
+        return data, None
+    try:
+        if float(data[:9]) < 3:
+            return data, None
+    except ValueError:
+        return data, None
+    body = data.find(b"END OF HEADER")
+    end = len(data.rstrip(b"\r\n"))
+    i = data.rfind(b"\n>", 0, end)
+    if body < 0 or i < body:
+        return data, None
+    start = i + 1
+    stop = data.find(b"\n", start, end)
+    line = data[start:stop if stop >= 0 else end].rstrip(b"\r")
+    left = data.count(b"\n", start, end)                 # record lines after the epoch line
+    try:
+        n = int(line[32:35]) if len(line) >= 35 else -1
+    except ValueError:
+        return data, None
+    if 0 <= n <= left or not _epoch_before_is_whole(data, body, i):
+        return data, None
+    lineno = data.count(b"\n", 0, start) + 1
+    what = (f"line {lineno}: the last epoch ({line[2:29].decode('latin-1').strip()}) announces {n} records but the "
+            f"file ends after {left}" if n >= 0 else f"line {lineno}: the last epoch line is cut")
+    return data[:start], what
 
 
 def _split_lines(data: bytes) -> list[str]:
@@ -211,6 +266,7 @@ class _ObsHeader:
         self.path = path
         self.version = version
         self.compressed = compressed
+        cut = CUT_LAST_EPOCH.pop(str(path), None)
         self.info: dict = {
             "path": str(path),
             "version": version,
@@ -240,6 +296,8 @@ class _ObsHeader:
             "scale_factors": {},
             "comments": [],
         }
+        if cut is not None:                                # (only then: the header of a whole file is as before)
+            self.info["last_epoch_cut"] = cut
         self._pending_types: tuple[str, int, list[str]] | None = None  # (system, count, types so far)
         self._pending_scale: tuple[str, int, int, list[str]] | None = None
 
