@@ -151,7 +151,9 @@ def without_cut_last_epoch(data: bytes) -> tuple[bytes, str | None]:
     except ValueError:
         return data, None
     body = data.find(b"END OF HEADER")
-    end = len(data.rstrip(b"\r\n"))
+    end = len(data)
+    while end and data[end - 1] in (10, 13):               # the trailing line ends (no copy of a day's file)
+        end -= 1
     i = data.rfind(b"\n>", 0, end)
     if body < 0 or i < body:
         return data, None
