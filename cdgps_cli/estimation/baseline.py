@@ -975,15 +975,45 @@ def _a_priori_positions(master: Station, rover: Station, nav, master_xyz, rover_
     xr0 = header_position_m(rover.header) if rover_xyz is None else np.asarray(rover_xyz, dtype=np.float64)
     rover_pos_source = "RINEX header APPROX POSITION XYZ" if rover_xyz is None else "given"
     if xr0 is None:
-        o = rover.obs
-        tt = o["time_gps_s"].to_numpy()
-        _, ep = np.unique(tt, return_inverse=True)
-        ok = ephemeris_coverage(nav, o["sat"].to_numpy(), tt)
-        xr0, _ = spp_static(ep[ok], o["sat"].to_numpy()[ok], tt[ok], o["pseudorange_l1_m"].to_numpy()[ok], nav,
-                            x0_ecef_m=xm, what=_where(rover))
+        xr0 = _rover_spp(rover, nav, xm)
         rover_pos_source = "pseudorange single-point position (no header position)"
         warnings.append(f"{rover.name}: no APPROX POSITION XYZ in the header; a priori position from pseudoranges")
+    elif rover_xyz is None and len(rover.obs):
+        try:
+            spp = _rover_spp(rover, nav, xm, max_epochs=HEADER_CHECK_EPOCHS)
+        except CdgpsError:                      # no single-point position: the header's stands, as before
+            spp = None
+        off = np.linalg.norm(spp - xr0) if spp is not None else 0.0
+        if off > HEADER_POSITION_TOL_M:
+            warnings.append(f"{rover.name}: its header's APPROX POSITION XYZ is {off / 1e3:.3g} km from its "
+                            f"pseudorange single-point position, which serves as its a priori position instead")
+            xr0, rover_pos_source = spp, (f"pseudorange single-point position (the header's APPROX POSITION XYZ is "
+                                          f"{off / 1e3:.3g} km from it)")
     return xm, xr0, rover_pos_source
+
+
+#: a rover header position farther than this from the rover's single-point position is not used (m): headers are
+#: metres to tens of metres off; one 100 km off made init take the pair for a 100 km baseline and refuse it
+HEADER_POSITION_TOL_M = 1000.0
+#: epochs (spread over the record) of the single-point position a rover header position is checked against
+HEADER_CHECK_EPOCHS = 120
+
+
+def _rover_spp(rover: Station, nav, xm, max_epochs: int | None = None) -> np.ndarray:
+    """The rover's static single-point position from its GPS L1 pseudoranges (ECEF m), from ``max_epochs`` epochs
+    spread over the record (None: all)."""
+    o = rover.obs
+    tt = o["time_gps_s"].to_numpy()
+    tags, ep = np.unique(tt, return_inverse=True)
+    ok = ephemeris_coverage(nav, o["sat"].to_numpy(), tt)
+    if max_epochs is not None and tags.size > max_epochs:
+        pick = np.zeros(tags.size, dtype=bool)
+        pick[np.linspace(0, tags.size - 1, max_epochs).round().astype(np.int64)] = True
+        ok &= pick[ep]
+    _, ep = np.unique(ep[ok], return_inverse=True)
+    xr0, _ = spp_static(ep, o["sat"].to_numpy()[ok], tt[ok], o["pseudorange_l1_m"].to_numpy()[ok], nav,
+                        x0_ecef_m=xm, what=_where(rover))
+    return xr0
 
 
 def _segments(d: _Data, opt: BaselineOptions) -> _Segments:

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
+
 import pytest
 
 from cdgps_cli.sim.rinex_edit import edit_rinex3_obs
@@ -86,3 +88,21 @@ def test_a_static_solution_that_does_not_fit_is_said(tmp_path):
             assert not said, said
         else:
             assert len(said) == 1 and "G05:L1" in said[0], r.stderr
+
+
+def test_a_rover_header_100_km_off_is_not_taken_for_the_rover(tmp_path):
+    """A rover header's APPROX POSITION XYZ 100 km off: init took the pair for a 100 km baseline and refused it
+    (exit 2); a header farther than baseline.HEADER_POSITION_TOL_M from the rover's single-point position is now
+    said and not used, and the integers are the unedited pair's."""
+    text = (MOSAIC / "rover.obs").read_text().splitlines()
+    i = next(k for k, ln in enumerate(text) if ln[60:].strip() == "APPROX POSITION XYZ")
+    x, y, z = (float(v) for v in text[i][:60].split())
+    text[i] = f"{x + 100e3:14.4f}{y:14.4f}{z:14.4f}" + text[i][42:]
+    far = tmp_path / "rover_far.obs"
+    far.write_text("\n".join(text) + "\n")
+    ref, got = _init(tmp_path, MOSAIC / "rover.obs", "ref"), _init(tmp_path, far, "far")
+    assert got["rovers"]["rover"]["n_fixed"] == ref["rovers"]["rover"]["n_fixed"] > 0
+    assert any("is 100 km from its pseudorange single-point position" in w for w in got["rovers"]["rover"]["warnings"])
+    assert not any("single-point position" in w for w in ref["rovers"]["rover"]["warnings"])
+    sol = [np.asarray(d["rovers"]["rover"]["rover_ecef_m"]) for d in (ref, got)]
+    assert np.linalg.norm(sol[0] - sol[1]) < 1e-3
