@@ -547,6 +547,7 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
             receivers[n] = read_receiver_file(n, kind, pieces[n][0], strict=strict, gps_l1_optional=l1_opt)
             continue
         rxs = [read_receiver_file(n, kind, q, gps_l1_optional=l1_opt) for q in pieces[n]]   # (--strict: below)
+        warnings.extend(_cut_warning(q, n, r.header) for q, r in zip(pieces[n], rxs) if r.header.get("last_epoch_cut"))
         receivers[n], joins[n], w, order = join_receivers(n, rxs, pieces[n])
         pieces[n] = [pieces[n][i] for i in order]
         files[n] = (kind, pieces_text(pieces[n]))
@@ -562,9 +563,8 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
         w = _missing_code_warning(n, files[n][1], rx)
         if w:
             warnings.append(w)
-        if rx.header.get("last_epoch_cut"):
-            warnings.append(f"{files[n][1]} ({n}): {rx.header['last_epoch_cut']} (the file is cut): that epoch is left "
-                            f"out, the ones before it are read")
+        if rx.header.get("last_epoch_cut") and len(pieces[n]) == 1:      # (several files: each said above)
+            warnings.append(_cut_warning(files[n][1], n, rx.header))
 
     nav_ahead, glonass_k = _glonass_nav(cfg.signals, nav_list)
     if cfg.signals:
@@ -766,6 +766,12 @@ def _ubx_integrity(receivers: dict, files: dict) -> dict:
         out[n] = {"file": files[n][1], **{k: int(rx.info.get(k) or 0) for k in INTEGRITY_COUNTS},
                   "problems": problems, "other_protocols": skipped_line(rx.info)}
     return out
+
+
+def _cut_warning(path, name: str, header: dict) -> str:
+    """The warning of a RINEX file whose last epoch the end of the file cuts (``header["last_epoch_cut"]``,
+    :func:`~cdgps_cli.io.rinex.without_cut_last_epoch`): read up to it."""
+    return f"{path} ({name}): {header['last_epoch_cut']} (the file is cut): that epoch is left out, the ones before it are read"
 
 
 def _missing_code_warning(name: str, path: str, rx: GnssReceiver) -> str | None:
@@ -1024,11 +1030,15 @@ def _rinex_comments(n: str, p, comments: list) -> bool:
     t = np.unique(rx.raw["time_gps_s"].to_numpy())
     if t.size == 0:                                   # no GPS L1 phase: the epochs of the signals the file holds
         from cdgps_cli.io.rinex_signals import read_rinex_signals, signals_in_file  # noqa: PLC0415
-        t = np.unique(read_rinex_signals(p, signals_in_file(p))[1]["time_gps_s"].to_numpy())
+        sigs = [s for s in signals_in_file(p) if not s.startswith("R:")]    # (GLONASS slots may be the nav's only)
+        try:
+            t = np.unique(read_rinex_signals(p, sigs)[1]["time_gps_s"].to_numpy()) if sigs else t
+        except CdgpsError:
+            pass
     pos = header_position_m(h)
+    span = f"{t.size} epochs {span_text(t)} every {nominal_interval_s(t):g} s" if t.size else "epochs: see ingest"
     comments.append(f"{n}: {Path(p).name}, RINEX {float(h.get('version') or 0):.2f}, marker {h.get('marker_name') or '?'}, receiver "
-                    f"{h.get('receiver_type') or '?'}, antenna {h.get('antenna_type') or '?'}, {t.size} epochs "
-                    f"{span_text(t)} every {nominal_interval_s(t):g} s,")
+                    f"{h.get('receiver_type') or '?'}, antenna {h.get('antenna_type') or '?'}, {span},")
     comments.append(f"    header position {('(' + ', '.join(f'{v:.4f}' for v in pos) + ')') if pos is not None else 'none'}")
     return pos is not None
 

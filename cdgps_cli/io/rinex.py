@@ -116,6 +116,8 @@ def _read_bytes(path: str | Path) -> tuple[bytes, bool]:
     data, cut = without_cut_last_epoch(data)
     if cut is not None:
         CUT_LAST_EPOCH[str(p)] = cut
+    else:
+        CUT_LAST_EPOCH.pop(str(p), None)            # (a file read whole again: no stale entry)
     return data, compressed or crinex
 
 
@@ -133,8 +135,9 @@ def _epoch_before_is_whole(data: bytes, body: int, i: int) -> bool:
         return False
 
 
-#: path → what :func:`without_cut_last_epoch` left out of the file last read there; the observation header of that
-#: read takes it as ``info["last_epoch_cut"]`` (:class:`_ObsHeader`)
+#: path → what :func:`without_cut_last_epoch` left out of the file last read there (each read sets or clears it); the
+#: observation headers of that read, a fast reader's and the line-by-line one's it falls back to, take it as
+#: ``info["last_epoch_cut"]`` (:class:`_ObsHeader`)
 CUT_LAST_EPOCH: dict = {}
 
 
@@ -165,12 +168,25 @@ def without_cut_last_epoch(data: bytes) -> tuple[bytes, str | None]:
         n = int(line[32:35]) if len(line) >= 35 else -1
     except ValueError:
         return data, None
+    lineno = data.count(b"\n", 0, start) + 1
+    if 0 <= n <= left and n and _last_line_cut_in_a_value(data, end):
+        return data[:start], (f"line {lineno}: the last epoch ({line[2:29].decode('latin-1').strip()})'s last record "
+                              f"line is cut in the middle of a value")
     if 0 <= n <= left or not _epoch_before_is_whole(data, body, i):
         return data, None
-    lineno = data.count(b"\n", 0, start) + 1
     what = (f"line {lineno}: the last epoch ({line[2:29].decode('latin-1').strip()}) announces {n} records but the "
             f"file ends after {left}" if n >= 0 else f"line {lineno}: the last epoch line is cut")
     return data[:start], what
+
+
+def _last_line_cut_in_a_value(data: bytes, end: int) -> bool:
+    """Whether the file ends without a line end inside a value of its last record line (a RINEX 3 record line is
+    3 + 16 k characters, the last value's two flag characters possibly left blank): a logger stopped in the middle
+    of a number, which would otherwise be read as a shorter one."""
+    if end < len(data):                            # the file ends with a line end: the line is whole
+        return False
+    line = data[data.rfind(b"\n", 0, end) + 1:end].rstrip(b"\r")
+    return len(line) > 3 and (len(line) - 3) % 16 not in (0, 14, 15)
 
 
 def _split_lines(data: bytes) -> list[str]:
@@ -268,7 +284,7 @@ class _ObsHeader:
         self.path = path
         self.version = version
         self.compressed = compressed
-        cut = CUT_LAST_EPOCH.pop(str(path), None)
+        cut = CUT_LAST_EPOCH.get(str(path))
         self.info: dict = {
             "path": str(path),
             "version": version,

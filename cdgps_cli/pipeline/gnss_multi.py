@@ -721,7 +721,10 @@ def recorded_signals(rinex: dict, sigs: list, warnings: list) -> list[str]:
     for n, p in rinex.items():
         held = set()
         for q in _as_list(p):
-            held |= set(read_rinex_signals(q, keep)[1]["signal"].unique())
+            try:
+                held |= set(read_rinex_signals(q, keep)[1]["signal"].unique())
+            except CdgpsError:        # (e.g. GLONASS slots only the navigation file has): not checked, all kept
+                held |= set(keep)
         for s in [s for s in keep if s not in held]:
             warnings.append(f"{s} not used: listed in the header of {pieces_text(_as_list(p))} ({n}) but no record "
                             f"holds its phase")

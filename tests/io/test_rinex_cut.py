@@ -56,3 +56,31 @@ def test_rtk_reads_a_cut_rover_and_says_so(tmp_path):
                 "--signals", "G:L1", "-o", tmp_path / "x.csv", "--json")
     assert r.exit_code == 0, r.output
     assert "announces 57 records but the file ends after 30 (the file is cut)" in r.stderr
+
+
+def test_a_last_line_cut_in_a_value_is_a_cut_epoch(tmp_path):
+    """A logger stopped in the middle of a number: the last record line ends inside a value, with no line end; the
+    number would be read as a shorter one (a static rover 1000 km off, silently); the epoch is left out."""
+    data = (MOSAIC / "rover.obs").read_bytes().rstrip(b"\n")
+    last_line = data.rfind(b"\n") + 1
+    p = tmp_path / "tail.obs"
+    p.write_bytes(data[:last_line + 3 + 16 + 7])               # 7 characters into the second value
+    hdr, _ = read_rinex_obs(p)
+    assert hdr["last_epoch_cut"].endswith("'s last record line is cut in the middle of a value")
+    whole = tmp_path / "whole_no_newline.obs"
+    whole.write_bytes(data)                                    # a whole file without its final line end: as it is
+    assert "last_epoch_cut" not in read_rinex_obs(whole)[0]
+
+
+def test_each_read_says_its_own_cut_and_the_fallback_reader_too(tmp_path):
+    """The cut is recorded per read of a path (a whole file read again there is not said to be cut), and the
+    line-by-line reader a fast one falls back to says it as well (a blank line after the header sends it there)."""
+    p, _ = _cut(tmp_path, 29)
+    cut_bytes = p.read_bytes()
+    assert "last_epoch_cut" in read_rinex_obs(p)[0]
+    p.write_bytes((MOSAIC / "rover.obs").read_bytes())
+    assert "last_epoch_cut" not in read_rinex_obs(p)[0]
+    end = cut_bytes.find(b"END OF HEADER")
+    end = cut_bytes.find(b"\n", end) + 1
+    p.write_bytes(cut_bytes[:end] + b"\n" + cut_bytes[end:])
+    assert "last_epoch_cut" in read_rinex_signals(p, ["G:L1"])[0]

@@ -113,3 +113,18 @@ def test_auto_leaves_out_the_signals_a_header_lists_but_no_record_holds(tmp_path
     assert "E:E1 not used: listed in the header of" in r.stderr
     r = run_cli("-q", "ingest", "--config", tmp_path / "c.toml", "-o", tmp_path / "run.mcap")
     assert r.exit_code == 0, r.output
+
+
+def test_auto_keeps_glonass_when_only_the_navigation_file_has_its_slots(tmp_path):
+    """Headers without GLONASS SLOT / FRQ # lines (the frequency numbers in the navigation file): the check of which
+    signals the records hold cannot read GLONASS there, and must not drop every signal for it (it fell back to GPS
+    L1 alone)."""
+    for who in ("base", "rover"):
+        text = "\n".join(ln for ln in (MOSAIC / f"{who}.obs").read_text().splitlines()
+                         if ln[60:].strip() != "GLONASS SLOT / FRQ #") + "\n"
+        (tmp_path / f"{who}.obs").write_text(text)
+    r = run_cli("-q", "config", "--rinex", f"base={tmp_path / 'base.obs'}", "--rinex", f"rover={tmp_path / 'rover.obs'}",
+                "--nav", MOSAIC / "base.nav", "-o", tmp_path / "c.toml")
+    assert r.exit_code == 0, r.output
+    sig = tomllib.loads((tmp_path / "c.toml").read_text())["gnss"]["signals"]
+    assert {"G:L1", "E:E1", "R:G1"} <= set(sig)
