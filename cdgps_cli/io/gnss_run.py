@@ -547,7 +547,6 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
             receivers[n] = read_receiver_file(n, kind, pieces[n][0], strict=strict, gps_l1_optional=l1_opt)
             continue
         rxs = [read_receiver_file(n, kind, q, gps_l1_optional=l1_opt) for q in pieces[n]]   # (--strict: below)
-        warnings.extend(_cut_warning(q, n, r.header) for q, r in zip(pieces[n], rxs) if r.header.get("last_epoch_cut"))
         receivers[n], joins[n], w, order = join_receivers(n, rxs, pieces[n])
         pieces[n] = [pieces[n][i] for i in order]
         files[n] = (kind, pieces_text(pieces[n]))
@@ -563,8 +562,6 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
         w = _missing_code_warning(n, files[n][1], rx)
         if w:
             warnings.append(w)
-        if rx.header.get("last_epoch_cut") and len(pieces[n]) == 1:      # (several files: each said above)
-            warnings.append(_cut_warning(files[n][1], n, rx.header))
 
     nav_ahead, glonass_k = _glonass_nav(cfg.signals, nav_list)
     if cfg.signals:
@@ -766,12 +763,6 @@ def _ubx_integrity(receivers: dict, files: dict) -> dict:
         out[n] = {"file": files[n][1], **{k: int(rx.info.get(k) or 0) for k in INTEGRITY_COUNTS},
                   "problems": problems, "other_protocols": skipped_line(rx.info)}
     return out
-
-
-def _cut_warning(path, name: str, header: dict) -> str:
-    """The warning of a RINEX file whose last epoch the end of the file cuts (``header["last_epoch_cut"]``,
-    :func:`~cdgps_cli.io.rinex.without_cut_last_epoch`): read up to it."""
-    return f"{path} ({name}): {header['last_epoch_cut']} (the file is cut): that epoch is left out, the ones before it are read"
 
 
 def _missing_code_warning(name: str, path: str, rx: GnssReceiver) -> str | None:

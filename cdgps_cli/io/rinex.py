@@ -113,70 +113,37 @@ def _read_bytes(path: str | Path) -> tuple[bytes, bool]:
             raise CdgpsError(f"{p}: cannot decompress this {what} file: {msg[-1] if msg else type(exc).__name__}") from None
         if not data:
             raise CdgpsError(f"{p}: decompressed to nothing; truncated or corrupt compressed file")
-    data, cut = without_cut_last_epoch(data)
-    if cut is not None:
-        CUT_LAST_EPOCH[str(p)] = cut
-    else:
-        CUT_LAST_EPOCH.pop(str(p), None)            # (a file read whole again: no stale entry)
+    _refuse_a_value_cut_by_the_end(data, p)
     return data, compressed or crinex
 
 
-def _epoch_before_is_whole(data: bytes, body: int, i: int) -> bool:
-    """Whether the epoch before the last epoch line (which starts after byte ``i``, a LF) holds as many record
-    lines as its epoch line announces (or there is none): only then is the last epoch the file's one flaw, cut by its
-    end; otherwise the reader names the miscounted epoch itself."""
-    j = data.rfind(b"\n>", 0, i)
-    if j < body:
-        return True
-    line = data[j + 1:data.find(b"\n", j + 1)]
-    try:
-        return int(line[32:35]) == data.count(b"\n", j + 1, i)
-    except ValueError:
-        return False
-
-
-#: path → what :func:`without_cut_last_epoch` left out of the file last read there (each read sets or clears it); the
-#: observation headers of that read, a fast reader's and the line-by-line one's it falls back to, take it as
-#: ``info["last_epoch_cut"]`` (:class:`_ObsHeader`)
-CUT_LAST_EPOCH: dict = {}
-
-
-def without_cut_last_epoch(data: bytes) -> tuple[bytes, str | None]:
-    """A RINEX 3 observation file's bytes without a last epoch that the end of the file cuts (a logger stopped while
-    writing it: its epoch line announces more records than follow, or is itself cut), and what was left out (None:
-    nothing).  RTKLIB reads such a file up to that epoch; every reader here refused the whole file.  Other files
-    (RINEX 2, navigation files) are returned as they are."""
+def _refuse_a_value_cut_by_the_end(data: bytes, path) -> None:
+    """CdgpsError naming the file, line and epoch when a RINEX 3 observation file ends, without a line end, inside a
+    value of its last record line (a logger stopped in the middle of a number): the readers would read the number
+    cut short (the real mosaic rover cut 42 bytes into its last line: a static rover about 1000 km off, 0 % fixed,
+    silently).  A record count the end of the file cuts is refused by the readers themselves (issue 29: a truncated
+    file is refused naming the file and the time); other files pass."""
     if len(data) < 80 or data[60:80].rstrip() != b"RINEX VERSION / TYPE" or data[20:21] not in (b"O", b"o"):
-        return data, None
+        return
     try:
         if float(data[:9]) < 3:
-            return data, None
+            return
     except ValueError:
-        return data, None
-    body = data.find(b"END OF HEADER")
+        return
     end = len(data)
-    while end and data[end - 1] in (10, 13):               # the trailing line ends (no copy of a day's file)
-        end -= 1
-    i = data.rfind(b"\n>", 0, end)
-    if body < 0 or i < body:
-        return data, None
-    start = i + 1
-    stop = data.find(b"\n", start, end)
-    line = data[start:stop if stop >= 0 else end].rstrip(b"\r")
-    left = data.count(b"\n", start, end)                 # record lines after the epoch line
+    body = data.find(b"END OF HEADER")
+    if body < 0 or data[end - 1:end] in (b"\n", b"\r") or not _last_line_cut_in_a_value(data, end):
+        return
+    i = data.rfind(b"\n>", body, end)
+    line = data[i + 1:data.find(b"\n", i + 1)] if i >= 0 else b""
     try:
-        n = int(line[32:35]) if len(line) >= 35 else -1
+        if i < 0 or int(line[32:35]) > data.count(b"\n", i + 1, end):
+            return                      # the epoch's record count is cut too: the readers name that, as before
     except ValueError:
-        return data, None
-    lineno = data.count(b"\n", 0, start) + 1
-    if 0 <= n <= left and n and _last_line_cut_in_a_value(data, end):
-        return data[:start], (f"line {lineno}: the last epoch ({line[2:29].decode('latin-1').strip()})'s last record "
-                              f"line is cut in the middle of a value")
-    if 0 <= n <= left or not _epoch_before_is_whole(data, body, i):
-        return data, None
-    what = (f"line {lineno}: the last epoch ({line[2:29].decode('latin-1').strip()}) announces {n} records but the "
-            f"file ends after {left}" if n >= 0 else f"line {lineno}: the last epoch line is cut")
-    return data[:start], what
+        return
+    lineno = data.count(b"\n", 0, end) + 1
+    raise CdgpsError(f"{_where(path, lineno, False)}: the file ends inside a value of its last record line (epoch "
+                     f"{line[2:29].decode('latin-1').strip() or '?'}): truncated file?")
 
 
 def _last_line_cut_in_a_value(data: bytes, end: int) -> bool:
@@ -186,7 +153,7 @@ def _last_line_cut_in_a_value(data: bytes, end: int) -> bool:
     if end < len(data):                            # the file ends with a line end: the line is whole
         return False
     line = data[data.rfind(b"\n", 0, end) + 1:end].rstrip(b"\r")
-    return len(line) > 3 and (len(line) - 3) % 16 not in (0, 14, 15)
+    return len(line) > 3 and not line.startswith(b">") and (len(line) - 3) % 16 not in (0, 14, 15)
 
 
 def _split_lines(data: bytes) -> list[str]:
@@ -284,7 +251,6 @@ class _ObsHeader:
         self.path = path
         self.version = version
         self.compressed = compressed
-        cut = CUT_LAST_EPOCH.get(str(path))
         self.info: dict = {
             "path": str(path),
             "version": version,
@@ -314,8 +280,6 @@ class _ObsHeader:
             "scale_factors": {},
             "comments": [],
         }
-        if cut is not None:                                # (only then: the header of a whole file is as before)
-            self.info["last_epoch_cut"] = cut
         self._pending_types: tuple[str, int, list[str]] | None = None  # (system, count, types so far)
         self._pending_scale: tuple[str, int, int, list[str]] | None = None
 

@@ -580,12 +580,6 @@ def _ubx_receiver(name, decoded: tuple, sigs, who: str, warnings: list) -> tuple
             tab[tab["signal"].isin(list(sigs))].reset_index(drop=True))
 
 
-def cut_epoch_warning(path, who: str, cut: str) -> str:
-    """The warning of a RINEX file whose last epoch the end of the file cuts (:func:`~cdgps_cli.io.rinex.
-    without_cut_last_epoch`): read up to it, as RTKLIB reads it."""
-    return f"{path} ({who}): {cut} (the file is cut): that epoch is left out, the ones before it are read"
-
-
 def _read_observations(path, sigs, glo_k, who: str, warnings: list) -> tuple[dict, pd.DataFrame]:
     """A receiver's header (``approx_position_xyz_m``) and signal table, from RINEX or from a u-blox
     log's RXM-RAWX (loss of lock from the lock times and half-cycle status; the position from its
@@ -594,8 +588,6 @@ def _read_observations(path, sigs, glo_k, who: str, warnings: list) -> tuple[dic
     if not is_ubx_log(path):
         header, obs = read_rinex_signals(path, sigs, glo_k)
         header["file_epochs"] = obs.attrs.pop("file_epochs", None)
-        if header.get("last_epoch_cut"):
-            warnings.append(cut_epoch_warning(path, who, header["last_epoch_cut"]))
         back = obs.attrs.pop("epochs_out_of_order", None)
         if back:
             warnings.append(f"{path} ({who}): {back[0]} epoch(s) written out of time order (first: "

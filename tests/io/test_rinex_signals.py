@@ -76,18 +76,11 @@ def test_rinex2_glonass_observations_with_frequency_numbers_from_elsewhere():
 
 
 def test_a_truncated_file_names_the_epoch_line(tmp_path: Path):
-    """An epoch announcing more satellites than the file still has: RINEX 3's last epoch, cut by the end of the file
-    (a log cut off), is left out and the header says so (io/rinex.without_cut_last_epoch; tests/io/test_rinex_cut.py);
-    an epoch before the last that holds fewer records, and RINEX 2, are errors naming the file and the epoch's line;
-    a malformed count too."""
+    """An epoch announcing more satellites than the file still has (a log cut off) is an error
+    naming the file and the epoch's line, for RINEX 3 and RINEX 2; a malformed count too."""
     p = tmp_path / "cut.obs"
-    second = "> 2023 01 08 10 00  1.0000000  0  2\nR01  20028872.875 9 105252416.357 9  20028871.910 8  82014855.350 8\n"
-    p.write_text(HDR + second)                                  # the last epoch's second satellite line is gone
-    hdr, df = read_rinex_signals(p, ["G:L1"])
-    assert hdr["last_epoch_cut"] == "line 8: the last epoch (2023 01 08 10 00  1.0000000) announces 2 records but the " \
-                                    "file ends after 1" and df["time_gps_s"].nunique() == 1
-    p.write_text(HDR.rsplit("G05", 1)[0] + second.replace("  0  2\n", "  0  1\n"))      # the first epoch miscounted
-    with pytest.raises(CdgpsError, match=r"cut.obs:7: an epoch line where satellite record 2 of 2 of the epoch at line 5"):
+    p.write_text(HDR.rsplit("G05", 1)[0])                       # the second satellite's line is gone
+    with pytest.raises(CdgpsError, match=r"cut.obs:5: the epoch announces 2 satellites but the file ends after 1"):
         read_rinex_signals(p, ["G:L1"])
     p.write_text(HDR.replace("  0  2\n", "  0  x\n"))
     with pytest.raises(CdgpsError, match=r"cut.obs:5: malformed epoch line"):
