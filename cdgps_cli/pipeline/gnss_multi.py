@@ -603,10 +603,15 @@ NO_GEOMETRY = "without a satellite position (no pseudorange, or no healthy ephem
 def _count_epochs_without_geometry(pairing: dict, rover: pd.DataFrame, geometry: pd.DataFrame) -> dict:
     """The epoch pairing's summary with the rover epochs read but left without a geometry row (every row of the
     epoch lacked a pseudorange, or an ephemeris covering it) counted too: in ``rover_epochs`` and in ``dropped``."""
-    n = np.setdiff1d(rover["time_gps_s"].to_numpy(), geometry["time_gps_s"].to_numpy()).size
-    if not n:
+    return _with_dropped(pairing, NO_GEOMETRY,
+                         np.setdiff1d(rover["time_gps_s"].to_numpy(), geometry["time_gps_s"].to_numpy()).size)
+
+
+def _with_dropped(pairing: dict, reason: str, n: int) -> dict:
+    """The epoch pairing's summary with ``n`` rover epochs more, dropped for ``reason`` (as it is when none)."""
+    if n <= 0:
         return pairing
-    return {**pairing, "rover_epochs": pairing["rover_epochs"] + n, "dropped": {**pairing["dropped"], NO_GEOMETRY: n}}
+    return {**pairing, "rover_epochs": pairing["rover_epochs"] + n, "dropped": {**pairing["dropped"], reason: n}}
 
 
 #: why a rover epoch of its file never reached the signal table
@@ -619,10 +624,13 @@ def _count_epochs_without_phase(pairing: dict, header: dict, rover: pd.DataFrame
     and ``dropped``; ``header["file_epochs"]``: the file's distinct observation epochs (None: not known, e.g.
     several files joined)."""
     n_file = header.get("file_epochs")
-    n = (int(n_file) - int(np.unique(rover["time_gps_s"].to_numpy()).size)) if n_file is not None else 0
-    if n <= 0:
-        return pairing
-    return {**pairing, "rover_epochs": pairing["rover_epochs"] + n, "dropped": {**pairing["dropped"], NO_PHASE: n}}
+    return _with_dropped(pairing, NO_PHASE, 0 if n_file is None else
+                         int(n_file) - int(np.unique(rover["time_gps_s"].to_numpy()).size))
+
+
+def _unrecorded(signal_name: str, where: str) -> str:
+    """The warning of a signal left out because a header lists it but no record of ``where`` holds its phase."""
+    return f"{signal_name} not used: listed in the header of {where} but no record holds its phase"
 
 
 def _observed_signals(sigs: list, base: pd.DataFrame, rover: pd.DataFrame, paths: dict, warnings: list):
@@ -633,8 +641,7 @@ def _observed_signals(sigs: list, base: pd.DataFrame, rover: pd.DataFrame, paths
     for s in sigs:
         if s not in keep:
             empty = [who for who in ("base", "rover") if s not in held[who]]
-            warnings.append(f"{s} not used: listed in the header of {' and '.join(f'{paths[w]} ({w})' for w in empty)}"
-                            f" but no record holds its phase")
+            warnings.append(_unrecorded(s, " and ".join(f"{paths[w]} ({w})" for w in empty)))
     if not keep:
         raise CdgpsError(f"{paths['base']} (base) and {paths['rover']} (rover) share no signal with phase "
                          f"observations: base holds {' '.join(sorted(held['base'])) or 'none'}, rover "
@@ -717,9 +724,7 @@ def recorded_signals(rinex: dict, sigs: list, warnings: list) -> list[str]:
                 held |= set(read_rinex_signals(q, keep)[1]["signal"].unique())
             except CdgpsError:        # (e.g. GLONASS slots only the navigation file has): not checked, all kept
                 held |= set(keep)
-        for s in [s for s in keep if s not in held]:
-            warnings.append(f"{s} not used: listed in the header of {pieces_text(_as_list(p))} ({n}) but no record "
-                            f"holds its phase")
+        warnings += [_unrecorded(s, f"{pieces_text(_as_list(p))} ({n})") for s in keep if s not in held]
         keep = [s for s in keep if s in held]
     if not keep:
         raise CdgpsError(f"the receivers share no signal with phase observations in their records ({', '.join(sigs)} "
