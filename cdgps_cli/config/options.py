@@ -28,6 +28,15 @@ MODAL_INITIAL_SIGMA_XIDOT = 1.0
 #: the DD ionosphere is neglected on baselines shorter than this, km (`cdgps rtk` estimates it at or
 #: above; `cdgps init` with [gnss] signals, which always neglects it, refuses there: gnss.iono_threshold_km)
 IONO_THRESHOLD_KM = 10.0
+#: the static engine's option ``iono_weighted`` (off by default; static_engine.iono_weighting_sigma_m) weighs the
+#: ionosphere in the float LAMBDA sees: one SD slant ionosphere per satellite, 0 ± ``iono_sigma_m_per_km`` × length,
+#: once that σ reaches this (m; 0.5 km at 2 mm/km; below, its effect is under a third of the phase σ)
+IONO_WEIGHTED_MIN_SIGMA_M = 0.001
+#: the static engine (`init`, `baseline`) rejects its integers when, with them, each epoch's carrier phases solved
+#: alone for a position leave a unit variance above this (≈ 1 when they are right; 0.14–0.79 on the real pairs'
+#: fixes; the GPS L1+L2 car's wrong partial fix 11, a wrong full one 72): the float LAMBDA saw was biased beyond
+#: its σ (correlated code multipath, an unmodelled ionosphere, a slip the receiver did not flag)
+FIXED_PHASE_UNIT_VARIANCE_MAX = 4.0
 
 #: pairing base epochs with rover epochs (measurement/epoch_pairing.py), every GNSS command:
 #: ``sync_tol_s`` a base epoch this close to a rover epoch is simultaneous (RTKLIB's DTTOL, 25 ms);

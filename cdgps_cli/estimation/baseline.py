@@ -48,7 +48,7 @@ from cdgps_cli.estimation.model_filter import filter_numpy
 from cdgps_cli.measurement.dd_displacement import SatelliteDDDisplacement, SDObservations
 from cdgps_cli.model.dynamics_models import RandomWalk, WithConstants
 from cdgps_cli.config.limits import MASK_DEG
-from cdgps_cli.config.options import GNSS_DEFAULTS, GNSS_WEIGHTINGS
+from cdgps_cli.config.options import FIXED_PHASE_UNIT_VARIANCE_MAX, GNSS_DEFAULTS, GNSS_WEIGHTINGS
 from cdgps_cli.measurement.differencing import (
     ambiguity_datum,
     ambiguity_segments,
@@ -1857,9 +1857,10 @@ def _engine_solution(d: _Data, sg: _Segments, w: _Weights, eng: dict, xr0, r_enu
     ints = np.where(fixed_mask, np.nan_to_num(seg_int[sg.free]), 0).astype(np.int64)
     res = eng["resolution"] or {}
     a_res, q_res = a_fl[sg.free], q_fl[3:, 3:]
-    if eng.get("random_walk") is not None:      # the float ambiguities LAMBDA saw: the random-walk filter's
+    if eng.get("lambda_float") is not None:     # the float ambiguities LAMBDA saw (random walk, ionosphere-weighted)
         Ja = J[sg.free][:, 3:]
-        a_res, q_res = Ja @ eng["random_walk"][0], Ja @ eng["random_walk"][1] @ Ja.T
+        a_res, q_res = Ja @ eng["lambda_float"][0], Ja @ eng["lambda_float"][1] @ Ja.T
+    if eng.get("random_walk") is not None:
         fl.block["motion"] = "random_walk"
         fl.block["random_walk_sigma_m_per_sqrt_s"] = list(opt.random_walk_sigma)
     glo = np.where(_fdma_segments(d, sg) & np.isfinite(seg_int), seg_int, np.nan) if opt.glonass_fix else None
@@ -1868,6 +1869,12 @@ def _engine_solution(d: _Data, sg: _Segments, w: _Weights, eng: dict, xr0, r_enu
               _nan_none(res.get("success_rate")), None if glo is None else np.isfinite(glo) & ~sg.is_pivot, glo)
     n_glo = int(fx.glonass_fixed.sum()) if fx.glonass_fixed is not None else 0     # GLONASS DDs fixed too
     n_fixed = int(fixed_mask.sum())
+    check = res.get("phase_check")
+    if check is not None:                      # the integers' check by the phases alone (static_engine.fixed_phase_check)
+        check = dict(check, threshold=FIXED_PHASE_UNIT_VARIANCE_MAX)
+        if res.get("rejected_n_fixed"):
+            fl.block["rejected_fix"] = {"n_integers": int(res["rejected_n_fixed"]), "ratio": _nan_none(res.get("ratio")),
+                                        "phase_check": check}
     if not n_fixed + n_glo:
         a_sig = np.zeros(sg.n_seg)
         a_sig[sg.free] = np.sqrt(np.diag(q_fl)[3:])
@@ -1889,7 +1896,8 @@ def _engine_solution(d: _Data, sg: _Segments, w: _Weights, eng: dict, xr0, r_enu
     block = {"enu_m": x_fix.tolist(), "sigma_enu_m": np.sqrt(np.diag(q3)).tolist(), "iterations": 0,
              "unit_variance": sq / dof if dof > 0 else None,
              "observations": ("L1 carrier phase only" if getattr(d, "group", None) is None
-                              else f"carrier phase only ({', '.join(d.group_names)})")}
+                              else f"carrier phase only ({', '.join(d.group_names)})"),
+             **({"phase_check": check} if check is not None else {})}
     fdma = _fdma_segments(d, sg)[sg.free]
     kind = ("fixed" if n_fixed + n_glo == int(np.sum(~fdma)) + (int(fdma.sum()) if opt.glonass_fix else 0)
             else "partially fixed")
@@ -1979,7 +1987,7 @@ def _engine_first(master: Station, rover: Station, nav, opt: BaselineOptions, xm
 
 
 def _engine_or_batch(master: Station, rover: Station, nav, opt: BaselineOptions, xm, xr0, iono_threshold_km,
-                     prepared: tuple, engine: bool, solved=None):
+                     prepared: tuple, engine: bool, solved=None, warnings: list | None = None):
     """((float, fix, final) of the static engine, "static_engine"), or (None, "batch (reason)") when the batch
     solver is to serve (engine not asked for, an option only the batch implements, arcs that are not the segments).
     ``solved``: :func:`_engine_first`'s answer (the engine already ran; arcs that are not the segments are then
@@ -1993,7 +2001,21 @@ def _engine_or_batch(master: Station, rover: Station, nav, opt: BaselineOptions,
     eng = solved if solved is not None else _run_engine(master, rover, nav, opt, xm, xr0, iono_threshold_km,
                                                         arcs_check=lambda arcs: _engine_columns(d, sg, arcs))
     known = eng if isinstance(eng, str) else _engine_solution(d, sg, w, eng, xr0, r_enu, opt)
+    if warnings is not None and not isinstance(eng, str):
+        warnings += _rejected_fix_warning(eng.get("resolution"))
     return (None, f"batch ({known})") if isinstance(known, str) else (known, "static_engine")
+
+
+def _rejected_fix_warning(res: dict | None) -> list:
+    """The warning for integers the engine's phase check rejected (:func:`~.static_engine.fixed_phase_check`)."""
+    if not res or not res.get("rejected_n_fixed"):
+        return []
+    chk = res["phase_check"]
+    return [f"{res['rejected_n_fixed']} integers passed LAMBDA (ratio {res['ratio']:.1f}) and were rejected: with them "
+            f"each epoch's carrier phases, solved alone for a position, leave a unit variance of "
+            f"{chk['unit_variance']:.3g} over {chk['n_dd']} DDs in {chk['epochs']} epochs (above "
+            f"{FIXED_PHASE_UNIT_VARIANCE_MAX:g}; about 1 when they are right): the float was biased beyond its sigma "
+            f"(correlated code multipath, the ionosphere, a cycle slip the receiver did not flag); the solution is float"]
 
 
 def _given_glonass(given: dict, d: _Data, sg: _Segments, rover: str) -> tuple[np.ndarray, np.ndarray]:
@@ -2275,7 +2297,7 @@ def _solve_static_baseline_once(master: Station, rover: Station, nav: pd.DataFra
         d, sg, w, r_enu = prepared
         if integers is None:
             return _engine_or_batch(master, rover, nav, opt, xm, xr0, iono_threshold_km, prepared, engine,
-                                    solved.pop("engine", None))
+                                    solved.pop("engine", None), warnings)
         return (None if solution is None else _known_solution(d, sg, w, integers, solution, xr0, r_enu, warnings,
                                                               solution_tol_m)), "batch (integers given)"
 

@@ -20,7 +20,8 @@ import numpy as np
 from cdgps_cli.core import progress
 from cdgps_cli.estimation.driver import EpochGrid, GridDynamics, RecordingSink, drive
 from cdgps_cli.estimation.kalman import StepFilter
-from cdgps_cli.config.options import GNSS_DEFAULTS, GNSS_WEIGHTINGS, MULTI_GNSS_DEFAULTS
+from cdgps_cli.config.options import (FIXED_PHASE_UNIT_VARIANCE_MAX, GNSS_DEFAULTS, GNSS_WEIGHTINGS, IONO_WEIGHTED_MIN_SIGMA_M,
+                                      MULTI_GNSS_DEFAULTS)
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.dd_signals import DDGroupModel, RunDDModel, channel_index, epoch_groups, paired_sd_rows
 from cdgps_cli.measurement.differencing import ambiguity_datum, ambiguity_segments
@@ -67,39 +68,60 @@ def _groups(rows, cols, k):
     return out
 
 
-def _model(rows, cols, base_xyz_m, origin_xyz_m):
+def _model(rows, cols, base_xyz_m, origin_xyz_m, iono_cols=None):
     """The DD model of ``rows`` with ambiguity columns ``cols``: :class:`RunDDModel` (whole-block layout) when
-    the rows carry :func:`paired_sd_rows`' group layout, else DDGroupModel over :func:`_groups` (the same rows)."""
+    the rows carry :func:`paired_sd_rows`' group layout, else DDGroupModel over :func:`_groups` (the same rows);
+    with ``iono_cols`` (N,) (:func:`iono_columns`) DDGroupModel with each row's SD ionosphere in that column."""
+    if iono_cols is not None:
+        def groups(k):
+            return [dict(g, iono_col=iono_cols[g["rows"][0]:g["rows"][1]]) for g in _groups(rows, cols, k)]
+        return DDGroupModel(groups, base_xyz_m, origin_xyz_m)
     if rows.get("groups") is not None:
         return RunDDModel(rows, cols, base_xyz_m, origin_xyz_m)
     return DDGroupModel(lambda k: _groups(rows, cols, k), base_xyz_m, origin_xyz_m)
 
 
-def static_prior(rows, cols, n_state: int, sigma_pos_m: float, sigma_amb_cycles: float):
-    """x0 (n,) and P0 (n, n): offset 0, each arc's ambiguity at its first row's (phase − code)/λ."""
+def iono_columns(rows, n_state: int) -> tuple[np.ndarray, int]:
+    """Each SD row's ionosphere column (N,): one SD slant ionosphere (m at L1, constant over the record) per
+    satellite, numbered from ``n_state`` in order of first appearance; and the number of satellites."""
+    sats, first, inverse = np.unique(rows["sats"], return_index=True, return_inverse=True)
+    rank = np.empty(sats.size, dtype=np.int64)
+    rank[np.argsort(first, kind="stable")] = np.arange(sats.size)
+    return n_state + rank[inverse.ravel()], int(sats.size)
+
+
+def static_prior(rows, cols, n_state: int, sigma_pos_m: float, sigma_amb_cycles: float, *, n_iono: int = 0,
+                 sigma_iono_m: float = 0.0):
+    """x0 (n,) and P0 (n, n): offset 0, each arc's ambiguity at its first row's (phase − code)/λ, and the last
+    ``n_iono`` states (SD ionosphere, m) 0 ± ``sigma_iono_m``."""
     x0 = np.zeros(n_state)
     first = np.unique(cols, return_index=True)[1]
     x0[cols[first]] = (rows["phase_sd_m"][first] - rows["code_sd_m"][first]) / rows["lam_m"][first]
     x0[cols[first]] = np.round(x0[cols[first]])
-    P0 = np.diag(np.r_[np.full(3, sigma_pos_m**2), np.full(n_state - 3, sigma_amb_cycles**2)])
+    P0 = np.diag(np.r_[np.full(3, sigma_pos_m**2), np.full(n_state - 3 - n_iono, sigma_amb_cycles**2),
+                       np.full(n_iono, sigma_iono_m**2)])
     return x0, P0
 
 
 def static_filter(rows, times_s, base_xyz_m, origin_xyz_m, *, sigma_pos_m: float = 100.0,
-                  sigma_amb_cycles: float = 1e3, max_iterations: int = 2, cols=None):
+                  sigma_amb_cycles: float = 1e3, max_iterations: int = 2, cols=None, sigma_iono_m: float = 0.0):
     """Static float solution over every epoch through :func:`drive`; ``cols`` (N,) the rows' ambiguity
-    columns (default: :func:`arc_columns` of ``rows`` and ``times_s`` with the default gap limit).
+    columns (default: :func:`arc_columns` of ``rows`` and ``times_s`` with the default gap limit); with
+    ``sigma_iono_m`` > 0 one SD ionosphere per satellite after the arcs (:func:`iono_columns`), 0 ± that σ.
 
     Returns
     -------
-    x : ndarray (n,)      [offset (3, m), arc ambiguities (cycles)]
+    x : ndarray (n,)      [offset (3, m), arc ambiguities (cycles), SD ionospheres (m) if any]
     P : ndarray (n, n)
     cols : ndarray (N,)   ambiguity column of each SD row
     """
     cols = arc_columns(rows, times_s) if cols is None else cols
     n = 3 + (int(cols.max()) - 2 if cols.size else 0)
-    x0, P0 = static_prior(rows, cols, n, sigma_pos_m, sigma_amb_cycles)
-    model = _model(rows, cols, base_xyz_m, origin_xyz_m)
+    iono_cols, n_iono = iono_columns(rows, n) if sigma_iono_m > 0 else (None, 0)
+    x0, P0 = static_prior(rows, cols, n + n_iono, sigma_pos_m, sigma_amb_cycles, n_iono=n_iono,
+                          sigma_iono_m=sigma_iono_m)
+    n += n_iono
+    model = _model(rows, cols, base_xyz_m, origin_xyz_m, iono_cols)
     # only the last state is kept (a whole record's x, P per epoch: 86400 × 90² × 8 B = 5.6 GB for a 24 h pair)
     sink = RecordingSink(len(times_s), n, history=False, keep_rows=False)
     with progress.bar(len(times_s), "static baseline (filter)", unit="epoch") as bar:
@@ -111,7 +133,7 @@ def static_filter(rows, times_s, base_xyz_m, origin_xyz_m, *, sigma_pos_m: float
 
 def static_least_squares(rows, cols, n_state: int, base_xyz_m, origin_xyz_m, *, sigma_pos_m: float = 100.0,
                          sigma_amb_cycles: float = 1e3, tol_m: float = 1e-7, max_iterations: int = 8,
-                         chunk_pairs: int = 1 << 19):
+                         chunk_pairs: int = 1 << 19, sigma_iono_m: float = 0.0):
     """The static float solution as one batch: what :func:`static_filter` converges to, at O(N) cost.
 
     With no process noise the filter's information adds up epoch by epoch, so its final state is the
@@ -144,18 +166,26 @@ def static_least_squares(rows, cols, n_state: int, base_xyz_m, origin_xyz_m, *, 
         Gauss–Newton steps at most.
     chunk_pairs : int
         Row pairs of the arcs' block summed at once.
+    sigma_iono_m : float
+        > 0: the ionosphere-weighted model, one SD slant ionosphere (m at L1, constant) per satellite after the
+        arcs (:func:`iono_columns`), 0 ± this σ; its phase rows take −μ I and its code rows +μ I, μ = (f_L1/f)²
+        (the terms :func:`_iono_block` and :func:`_normal_equations` add).  0: the ionosphere neglected.
 
     Returns
     -------
-    x : ndarray (n_state,)
-        [offset (3, m), arc ambiguities (cycles)].
-    P : ndarray (n_state, n_state)
+    x : ndarray (n_state + n_iono,)
+        [offset (3, m), arc ambiguities (cycles), SD ionospheres (m; none when ``sigma_iono_m`` is 0)].
+    P : ndarray (n_state + n_iono, n_state + n_iono)
         Its covariance, N⁻¹.
     """
-    x0, P0 = static_prior(rows, cols, n_state, sigma_pos_m, sigma_amb_cycles)
+    iono_cols, n_iono = iono_columns(rows, n_state) if sigma_iono_m > 0 else (None, 0)
+    n_state += n_iono
+    x0, P0 = static_prior(rows, cols, n_state, sigma_pos_m, sigma_amb_cycles, n_iono=n_iono, sigma_iono_m=sigma_iono_m)
     info0 = np.diag(1.0 / np.diag(P0))
-    g = _batch_rows(rows, cols, base_xyz_m)
+    g = _batch_rows(rows, cols, base_xyz_m, iono_cols)
     amb_info = _arc_block(g, n_state, chunk_pairs)
+    if iono_cols is not None:
+        amb_info += _iono_block(g, n_state, chunk_pairs)
     origin = np.asarray(origin_xyz_m, dtype=float)
     p_lin = np.zeros(3)
     for _ in range(max(1, int(max_iterations))):
@@ -176,10 +206,10 @@ def static_least_squares(rows, cols, n_state: int, base_xyz_m, origin_xyz_m, *, 
     return x, 0.5 * (P + P.T)
 
 
-def _batch_rows(rows, cols, base_xyz_m) -> dict:
+def _batch_rows(rows, cols, base_xyz_m, iono_cols=None) -> dict:
     """The rows of every signal group (≥ 2 satellites) of the run, group after group: ambiguity column, λ,
     satellite positions, base range, SD phase and code, their weights 1/σ², the group of each row and each
-    group's first row and weight sums."""
+    group's first row and weight sums; with ``iono_cols`` (N,) also each row's ionosphere column and μ."""
     lay = rows["groups"]
     size = (lay["stop"] - lay["start"]).astype(np.int64)
     first = np.cumsum(size) - size
@@ -187,7 +217,8 @@ def _batch_rows(rows, cols, base_xyz_m) -> dict:
     los_b = rows["sat_base_xyz"][idx] - np.asarray(base_xyz_m, dtype=float)
     wp, wc = 1.0 / rows["var_phase"][idx], 1.0 / rows["var_code"][idx]
     nonempty = size.size > 0
-    return {"amb": np.asarray(cols)[idx], "lam": rows["lam_m"][idx], "sx": np.ascontiguousarray(rows["sat_xyz"][idx]),
+    iono = {} if iono_cols is None else {"ion": np.asarray(iono_cols)[idx], "mu": rows["mu"][idx]}
+    return {**iono, "amb": np.asarray(cols)[idx], "lam": rows["lam_m"][idx], "sx": np.ascontiguousarray(rows["sat_xyz"][idx]),
             "base_rng": np.sqrt(np.einsum("ij,ij->i", los_b, los_b)), "zp": rows["phase_sd_m"][idx],
             "zc": rows["code_sd_m"][idx], "wp": wp, "wc": wc, "gid": np.repeat(np.arange(size.size), size),
             "first": first, "size": size,
@@ -199,30 +230,48 @@ def _arc_block(g: dict, n_state: int, chunk_pairs: int) -> np.ndarray:
     """The arcs' block of the normal matrix (it does not depend on the offset): Σ w λ² on each row's column
     less, per group, (w_i λ_i)(w_j λ_j)/Σw over every pair of its rows, summed in chunks of groups."""
     out = np.bincount(g["amb"], weights=g["wp"] * g["lam"] ** 2, minlength=n_state).astype(float)
-    nmat = np.zeros(n_state * n_state)
     wl = g["wp"] * g["lam"]
+    nmat = _group_pairs(g, g["sp"], g["amb"], wl, g["amb"], wl, n_state, chunk_pairs)
+    nmat[np.diag_indices(n_state)] += out
+    return nmat
+
+
+def _group_pairs(g: dict, s: np.ndarray, col_l, a_l, col_r, a_r, n_state: int, chunk_pairs: int) -> np.ndarray:
+    """(n_state, n_state): −Σ over the row pairs (i, j) of each group of ``a_l[i] a_r[j] / s[group]`` at
+    (``col_l[i]``, ``col_r[j]``), summed in chunks of about ``chunk_pairs`` pairs (as :func:`_arc_block`)."""
+    nmat = np.zeros(n_state * n_state)
     size, first, gid = g["size"], g["first"], g["gid"]
     cum = np.cumsum(size * size)
     j0 = 0
     while j0 < size.size:
         done = int(cum[j0 - 1]) if j0 else 0
         j1 = max(j0 + 1, int(np.searchsorted(cum, done + chunk_pairs, side="right")))
-        r = np.arange(first[j0], first[j1 - 1] + size[j1 - 1])   # the rows of groups j0 … j1 − 1
-        rep = size[gid[r]]                                         # each row pairs with every row of its group
+        r = np.arange(first[j0], first[j1 - 1] + size[j1 - 1])
+        rep = size[gid[r]]
         i = np.repeat(r, rep)
-        k = np.arange(i.size) - np.repeat(np.cumsum(rep) - rep, rep)
-        j = first[gid[i]] + k
-        val = -(wl[i] * wl[j]) / g["sp"][gid[i]]
-        nmat += np.bincount(g["amb"][i] * n_state + g["amb"][j], weights=val, minlength=n_state * n_state)
+        j = first[gid[i]] + np.arange(i.size) - np.repeat(np.cumsum(rep) - rep, rep)
+        nmat += np.bincount(col_l[i] * n_state + col_r[j], weights=-(a_l[i] * a_r[j]) / s[gid[i]],
+                            minlength=n_state * n_state)
         j0 = j1
-    nmat = nmat.reshape(n_state, n_state)
-    nmat[np.diag_indices(n_state)] += out
-    return nmat
+    return nmat.reshape(n_state, n_state)
+
+
+def _iono_block(g: dict, n_state: int, chunk_pairs: int) -> np.ndarray:
+    """The normal matrix's terms in the ionosphere columns that do not depend on the offset: a phase row's
+    constants ``λ e_N − μ e_I``, a code row's ``μ e_I``, each group weighted as its DDs (:func:`_arc_block`'s
+    ``Σ w a aᵀ − (Σ w a)(Σ w a)ᵀ/Σw``, less the arcs' block that function forms)."""
+    amb, ion, lam, mu, wp, wc = g["amb"], g["ion"], g["lam"], g["mu"], g["wp"], g["wc"]
+    nmat = np.bincount(ion * n_state + ion, weights=(wp + wc) * mu**2, minlength=n_state * n_state).reshape(n_state, n_state)
+    nmat += _group_pairs(g, g["sp"], ion, wp * mu, ion, wp * mu, n_state, chunk_pairs)
+    nmat += _group_pairs(g, g["sc"], ion, wc * mu, ion, wc * mu, n_state, chunk_pairs)
+    cross = np.bincount(amb * n_state + ion, weights=-wp * lam * mu, minlength=n_state * n_state).reshape(n_state, n_state)
+    cross += _group_pairs(g, g["sp"], amb, wp * lam, ion, -wp * mu, n_state, chunk_pairs)
+    return nmat + cross + cross.T
 
 
 def _normal_equations(g: dict, n_state: int, origin, p_lin) -> tuple[np.ndarray, np.ndarray]:
     """The offset's rows and columns of the normal matrix and the right-hand side, linearized at ``p_lin``
-    (the arcs' block: :func:`_arc_block`)."""
+    (the arcs' block: :func:`_arc_block`; the ionosphere's, with ``g["ion"]``: :func:`_iono_block`)."""
     los = g["sx"] - (origin + p_lin)
     rng = np.sqrt(np.einsum("ij,ij->i", los, los))
     gv = -los / rng[:, None]                                       # ∂ρ/∂offset
@@ -244,8 +293,123 @@ def _normal_equations(g: dict, n_state: int, origin, p_lin) -> tuple[np.ndarray,
             for c in range(3):
                 nmat[c, 3:] += np.bincount(g["amb"], weights=v[:, c], minlength=n_state)[3:]
             rhs[3:] += np.bincount(g["amb"], weights=wl * (y - mean_y[gid]), minlength=n_state)[3:]
+        if "ion" in g:                                             # the ionosphere: −μ in phase, +μ in code
+            wm = (-w if phase else w) * g["mu"]
+            v = wm[:, None] * (gv - mean_g[gid])
+            for c in range(3):
+                nmat[c, 3:] += np.bincount(g["ion"], weights=v[:, c], minlength=n_state)[3:]
+            rhs[3:] += np.bincount(g["ion"], weights=wm * (y - mean_y[gid]), minlength=n_state)[3:]
     nmat[3:, :3] = nmat[:3, 3:].T
     return nmat, rhs
+
+
+def epoch_phase_misfit(rows, cols, arcs_m, known, base_xyz_m, origin_xyz_m, offset_m, *, iterations: int = 2):
+    """Each epoch's carrier phases alone, with the ambiguities known, solved for a free position: the weighted
+    residual sum of squares and its degrees of freedom per epoch (the fixed solution's check that does not depend
+    on a motion model).
+
+    Only rows whose arc is ``known`` take part; each signal group is weighted as its DDs (:func:`_batch_rows`'
+    ``W = Σ⁻¹ − Σ⁻¹11ᵀΣ⁻¹/1ᵀΣ⁻¹1``: the SD arcs' common value drops out), and the offset of each epoch is solved
+    by Gauss–Newton from ``offset_m``.
+
+    Parameters
+    ----------
+    rows : dict
+        :func:`~cdgps_cli.measurement.dd_signals.paired_sd_rows` with its ``groups`` layout.
+    cols : ndarray (N,)
+        Each row's arc column.
+    arcs_m : ndarray (n_state,)
+        λ N of every arc column (m; only the known ones are read).
+    known : ndarray (n_state,) bool
+        Arc columns whose ambiguity is known.
+    base_xyz_m, origin_xyz_m, offset_m : array_like (3,)
+        Base position, the offset's origin and the offset to start from, ECEF m.
+
+    Returns
+    -------
+    chi2 : ndarray (n_epochs,)
+        Weighted residual sum of squares of each epoch's phases at its own position.
+    dof : ndarray (n_epochs,) int
+        DDs less 3; ≤ 0 where the epoch does not determine a position (its chi2 is then 0).
+    """
+    n_ep = rows["ptr"].size - 1
+    lay = rows["groups"]
+    size = (lay["stop"] - lay["start"]).astype(np.int64)
+    first = np.cumsum(size) - size
+    idx = np.arange(int(size.sum())) - np.repeat(first - lay["start"], size)
+    gid = np.repeat(np.arange(size.size), size)
+    g_epoch = np.searchsorted(lay["ptr"], np.arange(size.size), side="right") - 1
+    use = np.asarray(known, bool)[np.asarray(cols)[idx]]
+    idx, gid = idx[use], gid[use]
+    count = np.bincount(gid, minlength=size.size)
+    keep = count[gid] >= 2                                         # a group needs two known rows to form a DD
+    idx, gid = idx[keep], gid[keep]
+    w = 1.0 / rows["var_phase"][idx]
+    s = np.bincount(gid, weights=w, minlength=size.size).astype(float)
+    ep = g_epoch[gid]
+    z = rows["phase_sd_m"][idx] - np.asarray(arcs_m)[np.asarray(cols)[idx]]
+    los_b = rows["sat_base_xyz"][idx] - np.asarray(base_xyz_m, float)
+    base_rng = np.sqrt(np.einsum("ij,ij->i", los_b, los_b))
+    dof = np.bincount(g_epoch, weights=np.maximum(np.bincount(gid, minlength=size.size) - 1, 0),
+                      minlength=n_ep).astype(np.int64) - 3
+    pos = np.tile(np.asarray(origin_xyz_m, float) + np.asarray(offset_m, float), (n_ep, 1))
+    ok = dof > 0
+    chi2 = np.zeros(n_ep)
+    for it in range(iterations + 1):
+        los = rows["sat_xyz"][idx] - pos[ep]
+        rng = np.sqrt(np.einsum("ij,ij->i", los, los))
+        y = z - (rng - base_rng)
+        gv = -los / rng[:, None]
+        mean_g = np.zeros((size.size, 3))
+        for c in range(3):
+            mean_g[:, c] = np.bincount(gid, weights=w * gv[:, c], minlength=size.size)
+        mean_y = np.bincount(gid, weights=w * y, minlength=size.size).astype(float)
+        nz = s > 0
+        mean_g[nz] /= s[nz, None]
+        mean_y[nz] /= s[nz]
+        gc, yc = gv - mean_g[gid], y - mean_y[gid]                 # the group's common value eliminated
+        nmat, rhs = np.zeros((n_ep, 3, 3)), np.zeros((n_ep, 3))
+        for a in range(3):
+            rhs[:, a] = np.bincount(ep, weights=w * yc * gc[:, a], minlength=n_ep)
+            for b in range(a, 3):
+                nmat[:, a, b] = nmat[:, b, a] = np.bincount(ep, weights=w * gc[:, a] * gc[:, b], minlength=n_ep)
+        ss = np.bincount(ep, weights=w * yc * yc, minlength=n_ep).astype(float)
+        if it == 0:
+            ok[ok] = _full_rank(nmat[ok])
+        step = np.zeros((n_ep, 3))
+        step[ok] = np.linalg.solve(nmat[ok], rhs[ok][:, :, None])[:, :, 0]
+        if it == iterations:
+            chi2[ok] = ss[ok] - np.einsum("kc,kc->k", rhs[ok], step[ok])
+            break
+        pos[ok] += step[ok]
+    return chi2, np.where(ok, dof, 0)
+
+
+def fixed_phase_check(rows, cols, fixed_pairs, x_fix, base_xyz_m, origin_xyz_m) -> dict | None:
+    """The fixed integers' check by the phases alone: :func:`epoch_phase_misfit` of the arcs the fixed DDs
+    ``fixed_pairs`` ((arc, reference arc) columns) tie together, at their values in ``x_fix`` (cycles), each epoch's
+    position free.  Returns ``unit_variance`` (Σχ² / Σdof), ``n_dd`` (Σdof + 3 per epoch used) and ``epochs``,
+    or None when no epoch has phases of known arcs to spare (or the rows carry no group layout)."""
+    if not len(fixed_pairs) or rows.get("groups") is None or base_xyz_m is None:
+        return None
+    known = np.zeros(x_fix.size, dtype=bool)
+    known[np.asarray(fixed_pairs, dtype=np.int64).ravel()] = True
+    lam_m = np.zeros(x_fix.size)
+    lam_m[cols] = rows["lam_m"]
+    chi2, dof = epoch_phase_misfit(rows, cols, lam_m * x_fix, known, base_xyz_m, origin_xyz_m, x_fix[:3])
+    used = dof > 0
+    if not used.any():
+        return None
+    return {"unit_variance": float(chi2.sum() / dof.sum()), "n_dd": int(dof.sum() + 3 * used.sum()),
+            "epochs": int(used.sum())}
+
+
+def _full_rank(m: np.ndarray) -> np.ndarray:
+    """(k,) bool: each symmetric (k, 3, 3) matrix has its smallest eigenvalue above 1e-10 of its largest."""
+    if not len(m):
+        return np.zeros(0, dtype=bool)
+    ev = np.linalg.eigvalsh(m)
+    return ev[:, 0] > 1e-10 * np.maximum(ev[:, -1], np.finfo(float).tiny)
 
 
 class EnuRandomWalk(Dynamics):
@@ -267,7 +431,7 @@ class EnuRandomWalk(Dynamics):
 
 
 def random_walk_float(rows, cols, times_s, base_xyz_m, origin_xyz_m, x_static, *, sigma_rw, initial_sigma_m: float,
-                      sigma_amb_cycles: float = 1e3, max_iterations: int = 2):
+                      sigma_amb_cycles: float = 1e3, max_iterations: int = 2, sigma_iono_m: float = 0.0):
     """Float arc ambiguities of a rover whose position random-walks, through :func:`drive`.
 
     State [offset (3, m), arc ambiguities (cycles)]: the offset a random walk of σ ``sigma_rw`` (m/√s, per
@@ -276,21 +440,25 @@ def random_walk_float(rows, cols, times_s, base_xyz_m, origin_xyz_m, x_static, *
     float solution) ± ``initial_sigma_m`` and :func:`static_prior`'s ambiguities ± ``sigma_amb_cycles``.
     Constants are not moved by a smoother: their filtered estimate at the last epoch is their posterior given
     every epoch (what an RTS pass would give).  The ambiguities' prior stays (as :func:`static_filter`'s): the SD
-    arcs' common mode per signal is known only through it, and it is ≈ 10⁻⁶ of the DD information.
+    arcs' common mode per signal is known only through it, and it is ≈ 10⁻⁶ of the DD information.  With
+    ``sigma_iono_m`` > 0, one constant SD ionosphere per satellite (:func:`iono_columns`), 0 ± that σ, is
+    estimated beside them and the arcs' (a, Q) are its marginal.
 
     Returns
     -------
     a : ndarray (n_arc,) cycles, Q : ndarray (n_arc, n_arc) cycles²
     """
-    n = x_static.size
-    x0, P0 = static_prior(rows, cols, n, initial_sigma_m, sigma_amb_cycles)
+    n_arc_state = x_static.size
+    iono_cols, n_iono = iono_columns(rows, n_arc_state) if sigma_iono_m > 0 else (None, 0)
+    n = n_arc_state + n_iono
+    x0, P0 = static_prior(rows, cols, n, initial_sigma_m, sigma_amb_cycles, n_iono=n_iono, sigma_iono_m=sigma_iono_m)
     x0[:3] = x_static[:3]
     dyn = WithConstants(EnuRandomWalk(sigma_rw, origin_xyz_m), n - 3)
-    model = _model(rows, cols, base_xyz_m, origin_xyz_m)
+    model = _model(rows, cols, base_xyz_m, origin_xyz_m, iono_cols)
     with progress.bar(len(times_s), "static baseline (random-walk filter)", unit="epoch") as bar:
         ctx = drive(GridDynamics(dyn, times_s), [model], EpochGrid(np.asarray(times_s, float)),
                     StepFilter(x0, P0, form="covariance"), sink=RecordingSink(len(times_s), n, history=False), max_iterations=max_iterations, progress=bar)
-    return ctx.step.x[3:].copy(), ctx.step.P[3:, 3:].copy()
+    return ctx.step.x[3:n_arc_state].copy(), ctx.step.P[3:n_arc_state, 3:n_arc_state].copy()
 
 
 class _Ctx:
@@ -382,7 +550,7 @@ def condition_on_integers(x, P, D, ints):
 
 
 def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_success_rate: float | None = None,
-               amb=None, glonass_fix: bool = False):
+               amb=None, glonass_fix: bool = False, base_xyz_m=None, origin_xyz_m=None):
     """Integers of the static float solution by the shared policy on the DDs of :func:`dd_of_arcs`: with
     ``partial``, :func:`~cdgps_cli.estimation.ambiguity.resolve_cascaded` (the largest subset that passes, then
     the rest conditioned on it, again, until a stage fixes nothing); else the full set only
@@ -411,6 +579,12 @@ def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_succ
     ints[fixable] = res["integers"]
     res = {**res, "fixed_mask": m, "integers": ints}
     x_fix, P_fix = condition_on_integers(x, P, D[m], ints[m])
+    check = fixed_phase_check(rows, cols, [pairs[i] for i in np.flatnonzero(m)], x_fix, base_xyz_m, origin_xyz_m)
+    res["phase_check"] = check
+    if check is not None and check["unit_variance"] > FIXED_PHASE_UNIT_VARIANCE_MAX:
+        res.update(fixed_mask=np.zeros(a.size, dtype=bool), integers=np.zeros(a.size, dtype=np.int64), n_fixed=0,
+                   accepted=False, partial=False, rejected_n_fixed=int(m.sum()))
+        x_fix, P_fix = x.copy(), P.copy()
     return {"offset_m": x_fix[:3].copy(), "cov_m2": P_fix[:3, :3].copy(), "resolution": res, "pairs": pairs,
             "dd_float": a, "state_fixed": x_fix, "cov_fixed": P_fix}
 
@@ -431,7 +605,8 @@ def _option_defaults() -> dict:
             "code_noise": "model",           # baseline / init weight the codes as modelled (rtk: "auto")
             "motion": "static", "random_walk_sigma": GNSS_DEFAULTS["random_walk_sigma"],
             "initial_sigma_m": GNSS_DEFAULTS["initial_sigma_m"],
-            "max_gap_s": None}               # arcs: ambiguity_segments' gap limit (None: its default)
+            "max_gap_s": None,               # arcs: ambiguity_segments' gap limit (None: its default)
+            "iono_weighted": False}          # the float LAMBDA sees with an SD ionosphere per satellite (see there)
 
 
 def _static_options(options: dict | None) -> dict:
@@ -538,20 +713,43 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
     sigma_amb = {"sigma_amb_cycles": opt["amb_sigma_cycles"]}
     n_state = 3 + (int(cols.max()) - 2 if cols.size else 0)
     x, P = static_least_squares(rows, cols, n_state, base_xyz_m, rover_xyz0_m, **sigma_amb)    # a day at 1 Hz: ≈ 1 s
+    sigma_iono = iono_weighting_sigma_m(opt, base_xyz_m, rover_xyz0_m)
+    lambda_float = None                      # the arcs' (a, Q) LAMBDA sees when they are not x's and P's
+    if sigma_iono > 0 and x.size > 3:
+        xi, Pi = static_least_squares(rows, cols, n_state, base_xyz_m, rover_xyz0_m, sigma_iono_m=sigma_iono,
+                                      **sigma_amb)
+        lambda_float = (xi[3:n_state], Pi[3:n_state, 3:n_state])
     rw = None
     if opt["motion"] == "random_walk" and x.size > 3:
         rw = random_walk_float(rows, cols, times, base_xyz_m, rover_xyz0_m, x, sigma_rw=opt["random_walk_sigma"],
-                               initial_sigma_m=opt["initial_sigma_m"],
+                               initial_sigma_m=opt["initial_sigma_m"], sigma_iono_m=sigma_iono,
                                **(sigma_amb if opt["glonass_fix"] else {}))
+        lambda_float = rw
     if not opt["fix"]:
         f = {"offset_m": x[:3].copy(), "cov_m2": P[:3, :3].copy(), "resolution": None, "pairs": [], "dd_float": None,
              "state_fixed": x, "cov_fixed": P}
     else:
         f = static_fix(x, P, rows, cols, ratio=opt["ratio"], partial=opt["partial"],
-                       min_success_rate=opt["min_success_rate"], amb=rw, glonass_fix=opt["glonass_fix"])
-    return {**f, "random_walk": rw, "float_offset_m": x[:3], "float_cov_m2": P[:3, :3], "epochs_used": int(times.size),
+                       min_success_rate=opt["min_success_rate"], amb=lambda_float, glonass_fix=opt["glonass_fix"],
+                       base_xyz_m=base_xyz_m, origin_xyz_m=rover_xyz0_m)
+    return {**f, "random_walk": rw, "lambda_float": lambda_float, "iono_sigma_m": sigma_iono,
+            "float_offset_m": x[:3], "float_cov_m2": P[:3, :3], "epochs_used": int(times.size),
             "epoch_pairing": pairs.summary, "state": x, "cov": P, "arcs": arc_table(rows, cols, times),
             "arc_integers": arc_integers(f, x.size)}
+
+
+def iono_weighting_sigma_m(opt: dict, base_xyz_m, rover_xyz0_m) -> float:
+    """The prior σ (m) of each satellite's SD slant ionosphere in the float that LAMBDA sees, with ``iono_weighted``:
+    ``iono_sigma_m_per_km`` × the baseline's length when that reaches
+    :data:`~cdgps_cli.config.options.IONO_WEIGHTED_MIN_SIGMA_M`; else 0 (the ionosphere neglected).
+
+    Off by default (measured, session 21): on the GPS L1+L2 car (5.3 km, DD ionosphere 2–3 cm) it turned a partial
+    fix with 5 wrong integers into a full one with 8 wrong (both caught by :func:`fixed_phase_check`); on the real
+    pairs it fixed the same integers at lower ratios (GEONET L1 3.5 km: 157 → 44) and, at a 50° mask, nothing."""
+    if not opt.get("iono_weighted"):
+        return 0.0
+    sigma = opt["iono_sigma_m_per_km"] * float(np.linalg.norm(np.subtract(rover_xyz0_m, base_xyz_m))) / 1e3
+    return float(sigma) if sigma >= IONO_WEIGHTED_MIN_SIGMA_M else 0.0
 
 
 def _paired_rows(base, rover, opt: dict, base_xyz_m):

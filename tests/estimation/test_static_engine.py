@@ -197,7 +197,15 @@ def test_engine_matches_golden(case):
     nav = pd.concat([read_rinex_nav(n, systems=(s,)) for n, s in navs])
     _, b = read_rinex_signals(base, sig)
     _, r = read_rinex_signals(rover, sig)
-    res = static_baseline(receiver_geometry(b, nav, master_xyz), receiver_geometry(r, nav, rover_xyz), master_xyz, rover_xyz)
+    geo = receiver_geometry(b, nav, master_xyz), receiver_geometry(r, nav, rover_xyz)
+    res = static_baseline(*geo, master_xyz, rover_xyz)
+    assert res["iono_sigma_m"] == 0 and res["resolution"]["phase_check"]["unit_variance"] < 1.0
+    # the ionosphere weighed in the float LAMBDA sees (iono_weighted; ≥ 0.5 km, so not the mosaic's 1 m): the same
+    # integers and fixed position, another ratio (GEONET L1 157 → 44)
+    weighted = static_baseline(*geo, master_xyz, rover_xyz, {"iono_weighted": True})
+    assert (weighted["iono_sigma_m"] > 0) == (np.linalg.norm(rover_xyz - master_xyz) > 500.0)
+    np.testing.assert_array_equal(weighted["resolution"]["integers"], res["resolution"]["integers"])
+    np.testing.assert_array_equal(weighted["offset_m"], res["offset_m"])
     lat, lon, _ = ecef_to_geodetic(rover_xyz)
     R = np.asarray(enu_matrix(lat, lon))
     g = json.loads(GOLDEN.read_text())[case]
@@ -619,3 +627,81 @@ def test_the_batch_and_the_engine_interpolate_a_base_every_5_s_alike(monkeypatch
     assert seen["engine"].size == seen["batch"].size > 500
     np.testing.assert_allclose(seen["engine"], seen["batch"], rtol=0, atol=1e-9)
     assert np.max(np.abs(np.subtract(eng["fixed"]["enu_m"], batch["fixed"]["enu_m"]))) < 5e-5
+
+
+@pytest.mark.parametrize("sigma_iono_m", [0.01, 0.1])
+def test_static_least_squares_with_the_ionosphere_is_the_filters_answer(run, sigma_iono_m):
+    """The ionosphere-weighted batch (one SD ionosphere per satellite, 0 ± σ; its normal-matrix terms formed by
+    _iono_block and _normal_equations) against the filter through drive with DDGroupModel's ionosphere columns (the
+    model rtk estimates the ionosphere with): offset within 1e-7 m, every DD of arcs within 1e-6 cycles, the
+    ionospheres within 1e-8 m and their σ within 1e-6 (measured 2.6e-8 m, 1.5e-7 cycles, 4.6e-9 m, 1e-8); the
+    ionosphere widens the DDs' σ."""
+    from cdgps_cli.estimation.static_engine import dd_of_arcs, static_least_squares
+    rows, times, base_xyz, origin = run
+    x, P, cols = static_filter(rows, times, base_xyz, origin, max_iterations=2, sigma_iono_m=sigma_iono_m)
+    n = 3 + int(cols.max()) - 2
+    xb, Pb = static_least_squares(rows, cols, n, base_xyz, origin, sigma_iono_m=sigma_iono_m)
+    assert xb.size == x.size == n + np.unique(rows["sats"]).size
+    D = dd_of_arcs(rows, cols, x.size)[0]
+    assert np.max(np.abs(xb[:3] - x[:3])) < 1e-7 and np.max(np.abs(D @ xb - D @ x)) < 1e-6
+    assert np.max(np.abs(xb[n:] - x[n:])) < 1e-8
+    np.testing.assert_allclose(np.sqrt(np.diag(D @ Pb @ D.T)), np.sqrt(np.diag(D @ P @ D.T)), rtol=1e-6)
+    np.testing.assert_allclose(np.sqrt(np.diag(Pb)[n:]), np.sqrt(np.diag(P)[n:]), rtol=1e-6)
+    x0, P0 = static_least_squares(rows, cols, n, base_xyz, origin)
+    assert np.all(np.diag(D[:, :n] @ P0 @ D[:, :n].T) < np.diag(D @ Pb @ D.T))
+
+
+def test_epoch_phase_misfit_is_each_epochs_dd_least_squares(run):
+    """epoch_phase_misfit (the groups weighted as their DDs, the position solved per epoch by Gauss-Newton) against
+    a brute-force DD least squares of a few epochs (dd_operator, dd_covariance, a numerical Jacobian): the same χ²
+    to 1e-4 relative (measured 5.5e-6: a finite-difference Jacobian); with the static fix's integers the unit variance is that of noise (the simulator's: < 1),
+    one arc moved by one cycle lifts it above FIXED_PHASE_UNIT_VARIANCE_MAX (13.8 against 4), as fixed_phase_check says."""
+    from cdgps_cli.config.options import FIXED_PHASE_UNIT_VARIANCE_MAX
+    from cdgps_cli.estimation.static_engine import (epoch_phase_misfit, fixed_phase_check, static_fix,
+                                                    static_least_squares)
+    from cdgps_cli.measurement.dd_signals import dd_covariance, dd_operator, epoch_groups
+    rows, times, base_xyz, origin = run
+    cols = arc_columns(rows, times)
+    n = 3 + int(cols.max()) - 2
+    x, P = static_least_squares(rows, cols, n, base_xyz, origin)
+    f = static_fix(x, P, rows, cols, ratio=3.0, base_xyz_m=base_xyz, origin_xyz_m=origin)
+    xf = f["state_fixed"]
+    lam = np.zeros(n)
+    lam[cols] = rows["lam_m"]
+    known = np.ones(n, dtype=bool)
+    chi2, dof = epoch_phase_misfit(rows, cols, lam * xf, known, base_xyz, origin, xf[:3])
+    assert f["resolution"]["phase_check"]["unit_variance"] == pytest.approx(chi2.sum() / dof.sum())
+    assert chi2.sum() / dof.sum() < 1.0
+    for k in (0, 17, times.size - 1):                      # brute force: the DDs of epoch k, position free
+        groups = epoch_groups(rows, k)
+
+        def resid(p):
+            out = []
+            for g in groups:
+                a, b = g["rows"]
+                rng = np.linalg.norm(rows["sat_xyz"][a:b] - (origin + p), axis=1)
+                rng_b = np.linalg.norm(rows["sat_base_xyz"][a:b] - base_xyz, axis=1)
+                sd = rows["phase_sd_m"][a:b] - lam[cols[a:b]] * xf[cols[a:b]] - (rng - rng_b)
+                out.append(dd_operator(b - a, g["ref"]) @ sd)
+            return np.concatenate(out)
+        C = np.zeros((sum(g["rows"][1] - g["rows"][0] - 1 for g in groups),) * 2)
+        i = 0
+        for g in groups:
+            c = dd_covariance(rows["var_phase"][g["rows"][0]:g["rows"][1]], g["ref"])
+            C[i:i + len(c), i:i + len(c)] = c
+            i += len(c)
+        W = np.linalg.inv(C)
+        p = xf[:3].copy()
+        for _ in range(3):
+            r0 = resid(p)
+            J = np.column_stack([(resid(p + h) - r0) / 1e-3 for h in np.eye(3) * 1e-3])
+            p = p - np.linalg.solve(J.T @ W @ J, J.T @ W @ r0)
+        r = resid(p)
+        assert dof[k] == r.size - 3
+        assert chi2[k] == pytest.approx(r @ W @ r, rel=1e-4)            # measured 5.5e-6
+    moved = xf.copy()
+    moved[cols[0]] += 1.0                                  # one arc one cycle off
+    pairs = [pr for pr, ok in zip(f["pairs"], f["resolution"]["fixed_mask"]) if ok]
+    chk = fixed_phase_check(rows, cols, pairs, moved, base_xyz, origin)
+    assert chk["unit_variance"] > 3 * FIXED_PHASE_UNIT_VARIANCE_MAX          # measured 13.8
+    assert fixed_phase_check(rows, cols, pairs, xf, base_xyz, origin)["unit_variance"] < 1.0

@@ -91,7 +91,7 @@ def test_rows_and_prediction_are_ddgroupmodel_bit_for_bit(run, block_epochs):
 def test_static_filter_on_the_run_model_is_the_groups_model(run, monkeypatch):
     rows, cols, times = run
     x1, P1, _ = se.static_filter(rows, times, BASE, ROVER, cols=cols)
-    monkeypatch.setattr(se, "_model", lambda rows, cols, b, o: DDGroupModel(lambda k: se._groups(rows, cols, k), b, o))
+    monkeypatch.setattr(se, "_model", lambda rows, cols, b, o, iono_cols=None: DDGroupModel(lambda k: se._groups(rows, cols, k), b, o))
     x0, P0, _ = se.static_filter(rows, times, BASE, ROVER, cols=cols)
     assert _same(x0, x1) and _same(P0, P1)
 

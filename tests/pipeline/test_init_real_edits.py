@@ -6,7 +6,8 @@
   now labelled with it (model/gps/epoch_align.align_receiver), each receiver's geometry evaluated at its own
   reception instant as before: the solution is the unedited pair's.
 * A slip the receiver did not flag: the static solution goes decimetres off with sub-millimetre σ (not repaired);
-  init now says that it does not fit (pipeline/gnss._static_misfit_warning).
+  init now says that it does not fit (pipeline/gnss._static_misfit_warning), and the integers LAMBDA took from
+  that float fail the phases' epoch-by-epoch check (static_engine.fixed_phase_check): float, not a wrong fix.
 """
 
 from __future__ import annotations
@@ -69,10 +70,10 @@ def _slip(text: str, sat: str, code: str, from_epoch: int, cycles: float) -> str
 
 
 def test_a_static_solution_that_does_not_fit_is_said(tmp_path):
-    """An unflagged one-cycle slip of G05 L1 from the middle of the real mosaic rover: init's static solution goes
-    decimetres off with sub-millimetre σ (the sweep's edit of the same kind: 0.79 m; not repaired); init now says
-    that its double differences do not fit (unit variance above gnss.STATIC_UNIT_VARIANCE_WARNING, the worst
-    satellite named); the unedited pair does not."""
+    """An unflagged one-cycle slip of G05 L1 from the middle of the real mosaic rover: init's static fix went
+    decimetres off with sub-millimetre σ (the sweep's edit of the same kind: 0.79 m; not repaired).  Its integers now
+    fail the phases' epoch-by-epoch check (unit variance 22) and are rejected, with a warning: the solution is float
+    (0.39 m off, σ 7–11 mm: the slip still biases it); the unedited pair is fixed, with no warning."""
     slipped = tmp_path / "rover_slip.obs"
     slipped.write_text(_slip((MOSAIC / "rover.obs").read_text(), "G05", "L1C", 150, 1.0))
     for rover, tag in ((MOSAIC / "rover.obs", "ref"), (slipped, "slip")):
@@ -84,10 +85,16 @@ def test_a_static_solution_that_does_not_fit_is_said(tmp_path):
         r = run_cli("init", tmp_path / f"{tag}.mcap", "-o", tmp_path / f"{tag}.json")
         assert r.exit_code == 0, r.output
         said = [ln for ln in r.stderr.splitlines() if "does not fit its double differences" in ln]
+        rejected = [ln for ln in r.stderr.splitlines() if "were rejected" in ln]
+        rover = json.loads((tmp_path / f"{tag}.json").read_text())["rovers"]["rover"]
         if tag == "ref":
-            assert not said, said
+            assert not said and not rejected, (said, rejected)
+            assert rover["n_fixed"] > 0
         else:
-            assert len(said) == 1 and "G05:L1" in said[0], r.stderr
+            # the integers LAMBDA took (a partial fix 0.8 m off before, said by the static misfit warning naming
+            # G05:L1) fail the phases' epoch-by-epoch check: float, whose residuals the slip no longer lifts
+            assert len(rejected) == 1 and rover["n_fixed"] == 0 and rover["solution"] == "float", r.stderr
+            assert float(rejected[0].split("unit variance of ")[1].split()[0]) > 10.0
 
 
 def test_a_rover_header_100_km_off_is_not_taken_for_the_rover(tmp_path):
