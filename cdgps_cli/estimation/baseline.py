@@ -1977,9 +1977,12 @@ def _engine_first(master: Station, rover: Station, nav, opt: BaselineOptions, xm
     still stop it before it solves.  Returns its result (state, covariance, arc table, integers: small), the
     reason it cannot serve (a string), or the CdgpsError it raised (not :func:`_prepare`'s): raised by
     :func:`_engine_or_batch` once :func:`_prepare` has run, whose messages on bad input come first, as before."""
+    def check(arcs):
+        prepared.add_slips(arcs["unflagged_slips"])        # the engine's finds start segments here too
+        return _engine_columns(*prepared(weights=False)[:2], arcs)
+
     try:
-        return _run_engine(master, rover, nav, opt, xm, xr0, iono_threshold_km,
-                           arcs_check=lambda arcs: _engine_columns(*prepared(weights=False)[:2], arcs))
+        return _run_engine(master, rover, nav, opt, xm, xr0, iono_threshold_km, arcs_check=check)
     except CdgpsError as exc:
         if getattr(exc, "from_prepare", False):        # the batch tables' own message: passed on as it is
             raise
@@ -2002,8 +2005,19 @@ def _engine_or_batch(master: Station, rover: Station, nav, opt: BaselineOptions,
                                                         arcs_check=lambda arcs: _engine_columns(d, sg, arcs))
     known = eng if isinstance(eng, str) else _engine_solution(d, sg, w, eng, xr0, r_enu, opt)
     if warnings is not None and not isinstance(eng, str):
-        warnings += _rejected_fix_warning(eng.get("resolution"))
+        warnings += _unflagged_slip_warning(eng.get("unflagged_slips")) + _rejected_fix_warning(eng.get("resolution"))
     return (None, f"batch ({known})") if isinstance(known, str) else (known, "static_engine")
+
+
+def _unflagged_slip_warning(events: dict | None) -> list:
+    """The warning naming the slips no receiver flagged that the engine found (a new ambiguity from each)."""
+    if not events or not len(events["sat"]):
+        return []
+    where = [f"{sat}:{sig.split(':')[1]} at {gps_time_str(float(t))}"
+             for sat, sig, t in zip(events["sat"], events["signal"], events["time_s"])]
+    more = f" and {len(where) - 8} more" if len(where) > 8 else ""
+    return [f"{len(where)} cycle slip(s) that no receiver flagged, found in the epoch-to-epoch change of the "
+            f"phases, start a new ambiguity: {', '.join(where[:8])}{more}"]
 
 
 def _rejected_fix_warning(res: dict | None) -> list:
@@ -2315,6 +2329,17 @@ class _BatchTables:
     def __init__(self, prepare, opt: BaselineOptions, r_enu):
         self._prepare, self._opt, self._r_enu = prepare, opt, r_enu
         self._tables, self._error, self.t_prep = None, None, 0.0
+        self._slips = None
+
+    def add_slips(self, events: dict) -> None:
+        """Slips no receiver flagged that the static engine found (``sat``, ``signal``, ``time_s`` arrays,
+        :func:`~cdgps_cli.estimation.static_engine.unflagged_slips`): each starts a segment here too, so that
+        the segments stay the engine's arcs (the tables built again if they already were)."""
+        self._slips = events if len(events["sat"]) else None
+        if self._tables is not None and self._slips is not None:
+            d = self._tables[0]
+            _mark_slips(d, self._slips)
+            self._tables = (d, _segments(d, self._opt), None, self._r_enu)
 
     def __call__(self, weights: bool = True) -> tuple:
         if self._error is not None:
@@ -2328,6 +2353,8 @@ class _BatchTables:
                 self._error = exc
                 raise
             self.t_prep += time.perf_counter() - t0
+            if self._slips is not None:
+                _mark_slips(d, self._slips)
             self._tables = (d, _segments(d, self._opt), None, self._r_enu)
         d, sg, w, _ = self._tables
         if weights and w is None:
@@ -2335,6 +2362,17 @@ class _BatchTables:
             self._tables = (d, sg, _weights(d, self._opt), self._r_enu)
             self.t_prep += time.perf_counter() - t0
         return self._tables
+
+
+def _mark_slips(d: _Data, events: dict) -> None:
+    """Set ``d.slip`` at the rows of ``events`` (``sat``, ``signal``, ``time_s``: the epoch nearest each time)."""
+    sig = _satellite_signals(d)
+    epoch = _engine_epochs(d.t_label, np.asarray(events["time_s"], float))
+    index = {(d.sat_names[s].split(":")[0], sig[s]["signal"] if sig else "G:L1"): s for s in range(len(d.sat_names))}
+    for sat, signal, e in zip(events["sat"], events["signal"], epoch):
+        s = index.get((str(sat), str(signal)))
+        if s is not None and e >= 0:
+            d.slip[(d.sat == s) & (d.epoch == e)] = True
 
 
 def _baseline(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOptions, master_xyz, rover_xyz,

@@ -26,6 +26,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.dd_signals import DDGroupModel, RunDDModel, channel_index, epoch_groups, paired_sd_rows
 from cdgps_cli.measurement.differencing import ambiguity_datum, ambiguity_segments
 from cdgps_cli.measurement.epoch_pairing import pair_epochs
+from cdgps_cli.measurement.slips import time_differenced_slips
 from cdgps_cli.model.dynamics_models import Dynamics, Static, WithConstants
 from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
 
@@ -702,9 +703,13 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
         from cdgps_cli.estimation.baseline import check_iono_rule
         check_iono_rule("base", "rover", float(np.linalg.norm(np.subtract(rover_xyz0_m, base_xyz_m))),
                         opt["iono_threshold_km"])
+    found = unflagged_slips(rows, base_xyz_m, rover_xyz0_m, moving=opt["motion"] != "static")
+    if found.any():
+        rows = dict(rows, slip=rows["slip"] | found)
+    slips = _slip_events(rows, found, times)
     cols = arc_columns(rows, times, max_gap_s=opt["max_gap_s"])
     if arcs_check is not None:
-        why = arcs_check(arc_table(rows, cols, times))
+        why = arcs_check(dict(arc_table(rows, cols, times), unflagged_slips=slips))
         if isinstance(why, str):
             return why
     # the arcs' prior σ: rtk's (amb_sigma_cycles) — 1e3 cycles left P of a 24 h pair (σ down to 1e-4 m) too
@@ -732,10 +737,40 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
         f = static_fix(x, P, rows, cols, ratio=opt["ratio"], partial=opt["partial"],
                        min_success_rate=opt["min_success_rate"], amb=lambda_float, glonass_fix=opt["glonass_fix"],
                        base_xyz_m=base_xyz_m, origin_xyz_m=rover_xyz0_m)
-    return {**f, "random_walk": rw, "lambda_float": lambda_float, "iono_sigma_m": sigma_iono,
+    return {**f, "random_walk": rw, "lambda_float": lambda_float, "iono_sigma_m": sigma_iono, "unflagged_slips": slips,
             "float_offset_m": x[:3], "float_cov_m2": P[:3, :3], "epochs_used": int(times.size),
             "epoch_pairing": pairs.summary, "state": x, "cov": P, "arcs": arc_table(rows, cols, times),
             "arc_integers": arc_integers(f, x.size)}
+
+
+def unflagged_slips(rows, base_xyz_m, origin_xyz_m, *, moving: bool) -> np.ndarray:
+    """(N,) bool: rows where a slip that no receiver flagged starts a new arc
+    (:func:`~cdgps_cli.measurement.slips.time_differenced_slips` of the SD phases at ``origin_xyz_m``); for a
+    ``moving`` rover a second pass along the trajectory the first one's displacements sum to (centred on the
+    origin), where the lines of sight are the rover's own."""
+    n = rows["sats"].size
+    if n == 0:
+        return np.zeros(0, dtype=bool)
+    epoch = np.searchsorted(rows["ptr"], np.arange(n), side="right") - 1
+    channel = channel_index(rows["sats"], rows["code"])
+    rng_b = np.linalg.norm(rows["sat_base_xyz"] - np.asarray(base_xyz_m, float), axis=1)
+    pos = np.tile(np.asarray(origin_xyz_m, float), (rows["ptr"].size - 1, 1))
+    for _ in range(2 if moving else 1):
+        los = rows["sat_xyz"] - pos[epoch]
+        rng = np.sqrt(np.einsum("ij,ij->i", los, los))
+        found, disp = time_differenced_slips(epoch, channel, rows["code"], rows["phase_sd_m"], rng - rng_b,
+                                             rows["var_phase"], los / rng[:, None], flagged=rows["slip"])
+        trajectory = np.cumsum(disp, axis=0)
+        pos = np.asarray(origin_xyz_m, float) + trajectory - trajectory.mean(axis=0)
+    return found
+
+
+def _slip_events(rows, found, times_s) -> dict:
+    """The satellite, signal and epoch (GPS s) of each slip :func:`unflagged_slips` found."""
+    i = np.flatnonzero(found)
+    epoch = np.searchsorted(rows["ptr"], i, side="right") - 1
+    return {"sat": rows["sats"][i].astype(str), "signal": rows["names"][rows["code"][i]].astype(str),
+            "time_s": np.asarray(times_s, float)[epoch]}
 
 
 def iono_weighting_sigma_m(opt: dict, base_xyz_m, rover_xyz0_m) -> float:

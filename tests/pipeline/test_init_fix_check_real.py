@@ -4,8 +4,8 @@
 With GPS L1 + L2 only, the random-walk float is biased 1–1.6 cycles on G18, G23 and G24 (5–8 σ: the car's code
 multipath, correlated over the record, and a DD ionosphere of 2–3 cm), and LAMBDA took a partial set at ratio 6.0
 with 5 integers one cycle off (0.31 m).  Each epoch's phases, solved alone for a position with those integers,
-leave a unit variance of 11; with every signal (G+E+J, 44 integers, the reference here) 1.6.  The integers are
-now rejected (the solution float, with a warning), and the all-signal fix stays."""
+leave a unit variance of 11; with every signal (G+E+J, 45 of 50 integers) 1.3.  The integers are now rejected (the
+solution float, with a warning), and the all-signal fix stays."""
 
 from __future__ import annotations
 
@@ -34,10 +34,7 @@ def _init(d, tag: str, *signals: str):
 def test_wrong_integers_of_a_biased_float_are_rejected(tmp_path):
     ref, said_ref = _init(tmp_path, "all")
     gps, said = _init(tmp_path, "gps", "--signals", "G:L1,G:L2")
-    assert ref["rovers"]["rover"]["solution"] == "fixed" and "were rejected" not in said_ref
-    truth = {(b["satellite"], b["segment_start_s"]): b["integer_cycles"] for b in ref["biases"]}
-    fixed = [b for b in gps["biases"] if b["fixed"] and not b["pivot"]]
-    assert all(b["integer_cycles"] == truth[(b["satellite"], b["segment_start_s"])] for b in fixed), fixed
+    assert ref["rovers"]["rover"]["n_fixed"] >= 40 and "were rejected" not in said_ref      # 45 of 50
     rover = gps["rovers"]["rover"]
     assert rover["solution"] == "float" and rover["n_fixed"] == 0
     rejected = [w for w in rover["warnings"] if "integers passed LAMBDA" in w and "were rejected" in w]
@@ -47,4 +44,4 @@ def test_wrong_integers_of_a_biased_float_are_rejected(tmp_path):
     gone = rover["float"]["rejected_fix"]
     assert gone["n_integers"] == 12 and gone["phase_check"]["unit_variance"] > gone["phase_check"]["threshold"] == 4
     kept = ref["rovers"]["rover"]["fixed"]["phase_check"]
-    assert kept["unit_variance"] < 2.0 and kept["epochs"] == 360                     # measured 1.57
+    assert kept["unit_variance"] < 2.0 and kept["epochs"] == 360                     # measured 1.29
