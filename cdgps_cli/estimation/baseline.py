@@ -1932,10 +1932,11 @@ def l1_signal_table(obs: pd.DataFrame) -> pd.DataFrame:
 
 
 def _run_engine(master: Station, rover: Station, nav, opt: BaselineOptions, xm, xr0,
-                iono_threshold_km, arcs_check=None) -> dict | str:
+                iono_threshold_km, arcs_check=None, segment_starts=None) -> dict | str:
     """:func:`~cdgps_cli.estimation.static_engine.static_baseline` on the two receivers' signal tables (their
     GPS L1 rows without them), or the reason (a string) it cannot serve these options or (``arcs_check``,
-    before solving) these arcs."""
+    before solving) these arcs.  ``segment_starts``: a given solution's segments (INIT's), where the engine cuts its
+    arcs instead of searching for slips no receiver flagged."""
     from cdgps_cli.estimation.rtk_multi import receiver_geometry
     from cdgps_cli.estimation.static_engine import options_from_baseline, static_baseline
     from dataclasses import replace
@@ -1946,6 +1947,8 @@ def _run_engine(master: Station, rover: Station, nav, opt: BaselineOptions, xm, 
     except CdgpsError as exc:
         return str(exc).replace("static baseline: ", "")
     eopt["iono_threshold_km"] = math.inf if iono_threshold_km is None else iono_threshold_km
+    if segment_starts is not None:
+        eopt["segment_starts"] = list(segment_starts)
     tables = [_engine_table(master, rover, st) for st in (master, rover)]
     t_m, t_r = tables
     del tables
@@ -1982,7 +1985,8 @@ def _engine_first(master: Station, rover: Station, nav, opt: BaselineOptions, xm
         return _engine_columns(*prepared(weights=False)[:2], arcs)
 
     try:
-        return _run_engine(master, rover, nav, opt, xm, xr0, iono_threshold_km, arcs_check=check)
+        return _run_engine(master, rover, nav, opt, xm, xr0, iono_threshold_km, arcs_check=check,
+                           segment_starts=prepared.segment_starts)
     except CdgpsError as exc:
         if getattr(exc, "from_prepare", False):        # the batch tables' own message: passed on as it is
             raise
@@ -2066,12 +2070,14 @@ def _given_glonass(given: dict, d: _Data, sg: _Segments, rover: str) -> tuple[np
     return np.array(segs, dtype=np.int64), np.array(ints, dtype=np.int64)
 
 
-def _engine_float(master: Station, rover: Station, nav, opt: BaselineOptions, xm, xr0, prepared, check=None):
+def _engine_float(master: Station, rover: Station, nav, opt: BaselineOptions, xm, xr0, prepared, check=None,
+                  segment_starts=None):
     """The static engine's float solution (static, nothing fixed) and its state column of every SD segment:
     (:func:`_run_engine`'s result, columns (n_seg,)), or the reason (a string) the engine cannot serve these
     options or arcs.  ``prepared()`` (this module's batch tables, built once) is first called from the engine's arc
     check, once the engine has released its receiver geometry (as :func:`_engine_first`); ``check(d, sg)``, when
-    given, then runs there, before the filter (a CdgpsError of the given integers stops it before it solves)."""
+    given, then runs there, before the filter (a CdgpsError of the given integers stops it before it solves).
+    ``segment_starts``: the given integers' segments (:func:`_run_engine`)."""
     from dataclasses import replace
     found = {}
 
@@ -2083,7 +2089,8 @@ def _engine_float(master: Station, rover: Station, nav, opt: BaselineOptions, xm
         return found["cols"]
 
     # the float only (a random-walk float would only feed LAMBDA, which does not run here)
-    eng = _run_engine(master, rover, nav, replace(opt, fix=False, motion="static"), xm, xr0, None, arcs_check=arcs_check)
+    eng = _run_engine(master, rover, nav, replace(opt, fix=False, motion="static"), xm, xr0, None, arcs_check=arcs_check,
+                      segment_starts=segment_starts)
     return eng if isinstance(eng, str) else (eng, found["cols"])
 
 
@@ -2103,7 +2110,7 @@ def _engine_given(master: Station, rover: Station, nav, opt: BaselineOptions, xm
     if isinstance(solved, CdgpsError):
         raise solved
     eng = solved if solved is not None else _engine_float(master, rover, nav, opt, xm, xr0,
-                                                          lambda weights=True: prepared)
+                                                          lambda weights=True: prepared, segment_starts=list(integers))
     if isinstance(eng, str):
         return eng
     (eng, cols), x, P = eng, eng[0]["state"], eng[0]["cov"]
@@ -2165,7 +2172,8 @@ def baseline_from_init(master: Station, rover: Station, nav: pd.DataFrame, optio
     def first(xm, xr0, prepared):    # the engine's geometry released before the batch tables are built
         if _engine_needed_first(integers, solution, engine_init, glonass_integers):
             try:
-                solved["engine"] = _engine_float(master, rover, nav, options, xm, xr0, prepared, check)
+                solved["engine"] = _engine_float(master, rover, nav, options, xm, xr0, prepared, check,
+                                                 segment_starts=list(integers))
             except CdgpsError as exc:
                 if getattr(exc, "from_prepare", False):     # the batch tables' own message: passed on as it is
                     raise
@@ -2329,7 +2337,7 @@ class _BatchTables:
     def __init__(self, prepare, opt: BaselineOptions, r_enu):
         self._prepare, self._opt, self._r_enu = prepare, opt, r_enu
         self._tables, self._error, self.t_prep = None, None, 0.0
-        self._slips = None
+        self._slips, self._starts = None, []
 
     def add_slips(self, events: dict) -> None:
         """Slips no receiver flagged that the static engine found (``sat``, ``signal``, ``time_s`` arrays,
@@ -2340,6 +2348,16 @@ class _BatchTables:
             d = self._tables[0]
             _mark_slips(d, self._slips)
             self._tables = (d, _segments(d, self._opt), None, self._r_enu)
+
+    def start_segments_at(self, keys) -> None:
+        """Segments also start where the given integers' do (``{(satellite, first s): …}``, INIT's): arcs INIT cut
+        at slips no receiver flagged (:meth:`add_slips`) are these data's segments too.  Before the tables are built."""
+        self._starts = list(keys)
+
+    @property
+    def segment_starts(self):
+        """The given segments' (satellite, first s) (:meth:`start_segments_at`), or None when none were given."""
+        return self._starts if self._starts else None
 
     def __call__(self, weights: bool = True) -> tuple:
         if self._error is not None:
@@ -2355,6 +2373,7 @@ class _BatchTables:
             self.t_prep += time.perf_counter() - t0
             if self._slips is not None:
                 _mark_slips(d, self._slips)
+            _mark_segment_starts(d, self._starts)
             self._tables = (d, _segments(d, self._opt), None, self._r_enu)
         d, sg, w, _ = self._tables
         if weights and w is None:
@@ -2367,10 +2386,22 @@ class _BatchTables:
 def _mark_slips(d: _Data, events: dict) -> None:
     """Set ``d.slip`` at the rows of ``events`` (``sat``, ``signal``, ``time_s``: the epoch nearest each time)."""
     sig = _satellite_signals(d)
-    epoch = _engine_epochs(d.t_label, np.asarray(events["time_s"], float))
-    index = {(d.sat_names[s].split(":")[0], sig[s]["signal"] if sig else "G:L1"): s for s in range(len(d.sat_names))}
-    for sat, signal, e in zip(events["sat"], events["signal"], epoch):
-        s = index.get((str(sat), str(signal)))
+    name = {(d.sat_names[s].split(":")[0], sig[s]["signal"] if sig else "G:L1"): d.sat_names[s]
+            for s in range(len(d.sat_names))}
+    _mark_segment_starts(d, [(name.get((str(a), str(b)), ""), t)
+                             for a, b, t in zip(events["sat"], events["signal"], events["time_s"])])
+
+
+def _mark_segment_starts(d: _Data, keys) -> None:
+    """Set ``d.slip`` at the row of each (satellite as ``d.sat_names`` names it, time s: the epoch nearest it), so a
+    segment starts there; a row that already starts one is left as it was (a slip flag there makes no new segment)."""
+    keys = list(keys)
+    if not keys:
+        return
+    index = {n: s for s, n in enumerate(d.sat_names)}
+    epoch = _engine_epochs(d.t_label, np.array([float(t) for _, t in keys]))
+    for (sat, _), e in zip(keys, epoch):
+        s = index.get(str(sat))
         if s is not None and e >= 0:
             d.slip[(d.sat == s) & (d.epoch == e)] = True
 
@@ -2395,6 +2426,8 @@ def _baseline(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineO
 
     r_enu = enu_matrix(*ecef_to_geodetic(xr0)[:2])
     prepared = _BatchTables(lambda: _prepare(master, rover, nav, opt, xm, xr0, warnings), opt, r_enu)
+    if integers is not None:
+        prepared.start_segments_at(integers)
 
     t_first = 0.0
     if first is not None:

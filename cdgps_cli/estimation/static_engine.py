@@ -607,7 +607,8 @@ def _option_defaults() -> dict:
             "motion": "static", "random_walk_sigma": GNSS_DEFAULTS["random_walk_sigma"],
             "initial_sigma_m": GNSS_DEFAULTS["initial_sigma_m"],
             "max_gap_s": None,               # arcs: ambiguity_segments' gap limit (None: its default)
-            "iono_weighted": False}          # the float LAMBDA sees with an SD ionosphere per satellite (see there)
+            "iono_weighted": False,          # the float LAMBDA sees with an SD ionosphere per satellite (see there)
+            "segment_starts": None}          # [(satellite "G05:L1", time s)]: arcs start there (INIT's), no search
 
 
 def _static_options(options: dict | None) -> dict:
@@ -703,7 +704,10 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
         from cdgps_cli.estimation.baseline import check_iono_rule
         check_iono_rule("base", "rover", float(np.linalg.norm(np.subtract(rover_xyz0_m, base_xyz_m))),
                         opt["iono_threshold_km"])
-    found = unflagged_slips(rows, base_xyz_m, rover_xyz0_m, moving=opt["motion"] != "static")
+    if opt["segment_starts"] is None:
+        found = unflagged_slips(rows, base_xyz_m, rover_xyz0_m, moving=opt["motion"] != "static")
+    else:                                          # the arcs of a solution given (INIT's): cut where it cut them
+        found = _rows_at(rows, times, opt["segment_starts"]) & ~rows["slip"]
     if found.any():
         rows = dict(rows, slip=rows["slip"] | found)
     slips = _slip_events(rows, found, times)
@@ -763,6 +767,28 @@ def unflagged_slips(rows, base_xyz_m, origin_xyz_m, *, moving: bool) -> np.ndarr
         trajectory = np.cumsum(disp, axis=0)
         pos = np.asarray(origin_xyz_m, float) + trajectory - trajectory.mean(axis=0)
     return found
+
+
+def _rows_at(rows, times_s, keys) -> np.ndarray:
+    """(N,) bool: the row of each (satellite and band as INIT names it, "G05:L1", or "G05" for GPS L1 alone; time s:
+    the nearest epoch within half a step) of ``keys``."""
+    out = np.zeros(rows["sats"].size, dtype=bool)
+    times_s = np.asarray(times_s, float)
+    if not len(keys) or not times_s.size:
+        return out
+    epoch = np.searchsorted(rows["ptr"], np.arange(out.size), side="right") - 1
+    name = np.char.add(np.char.add(rows["sats"].astype(str), ":"),
+                       np.array([str(n).split(":")[1] for n in rows["names"]])[rows["code"]])
+    row_of = {(str(nm), int(e)): i for i, (nm, e) in enumerate(zip(name, epoch))}
+    # a GPS L1-only solution names its satellites alone ("G05")
+    row_of.update({(str(nm)[:-3], int(e)): i for i, (nm, e) in enumerate(zip(name, epoch)) if str(nm).endswith(":L1")})
+    half = 0.5 * float(np.median(np.diff(times_s))) if times_s.size > 1 else np.inf
+    for sat, t in keys:
+        e = int(np.argmin(np.abs(times_s - float(t))))
+        i = row_of.get((str(sat), e))
+        if i is not None and abs(times_s[e] - float(t)) <= half:
+            out[i] = True
+    return out
 
 
 def _slip_events(rows, found, times_s) -> dict:

@@ -73,7 +73,7 @@ def test_a_slip_no_receiver_flagged_is_found_and_starts_an_arc(tmp_path):
     off with sub-millimetre σ (session 20: only a misfit warning).  The epoch-to-epoch change of the phases now finds
     it (static_engine.unflagged_slips; its residual 0.148 m at 6σ and 3 cm thresholds), a new ambiguity starts
     there, and the solution is the unedited pair's (within 0.1 mm; one integer more), with a warning naming the
-    channel and time; the unedited pair has no such warning."""
+    channel and time; the unedited pair has no such warning.  estimate cuts its segments where INIT did."""
     slipped = tmp_path / "rover_slip.obs"
     slipped.write_text(_slip((MOSAIC / "rover.obs").read_text(), "G05", "L1C", 150, 1.0))
     got = {}
@@ -97,6 +97,11 @@ def test_a_slip_no_receiver_flagged_is_found_and_starts_an_arc(tmp_path):
     assert slip["solution"] == ref["solution"] == "fixed" and slip["n_fixed"] == ref["n_fixed"] + 1
     for k, v in got["ref"]["states"].items():
         assert got["slip"]["states"][k] == pytest.approx(v, abs=1e-4), k
+    # estimate takes INIT's arcs, the one cut where no flag was, as these data's segments (it refused them before)
+    r = run_cli("estimate", tmp_path / "slip.mcap", "--init", tmp_path / "slip.json", "-o", tmp_path / "slip_states.mcap",
+                "--json")
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["mean_nis_per_dof"] < 1.0                          # measured 0.16
 
 
 def test_a_rover_header_100_km_off_is_not_taken_for_the_rover(tmp_path):
