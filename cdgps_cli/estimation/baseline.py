@@ -2009,7 +2009,7 @@ def _engine_or_batch(master: Station, rover: Station, nav, opt: BaselineOptions,
                                                         arcs_check=lambda arcs: _engine_columns(d, sg, arcs))
     known = eng if isinstance(eng, str) else _engine_solution(d, sg, w, eng, xr0, r_enu, opt)
     if warnings is not None and not isinstance(eng, str):
-        warnings += _unflagged_slip_warning(eng.get("unflagged_slips")) + _rejected_fix_warning(eng.get("resolution"))
+        warnings += _rejected_fix_warning(eng.get("resolution"))
     return (None, f"batch ({known})") if isinstance(known, str) else (known, "static_engine")
 
 
@@ -2354,6 +2354,10 @@ class _BatchTables:
         at slips no receiver flagged (:meth:`add_slips`) are these data's segments too.  Before the tables are built."""
         self._starts = list(keys)
 
+    def slip_warnings(self) -> list:
+        """The warning naming the slips :meth:`add_slips` put here (whichever solver then serves)."""
+        return _unflagged_slip_warning(self._slips)
+
     @property
     def segment_starts(self):
         """The given segments' (satellite, first s) (:meth:`start_segments_at`), or None when none were given."""
@@ -2373,8 +2377,14 @@ class _BatchTables:
             self.t_prep += time.perf_counter() - t0
             if self._slips is not None:
                 _mark_slips(d, self._slips)
-            _mark_segment_starts(d, self._starts)
-            self._tables = (d, _segments(d, self._opt), None, self._r_enu)
+            sg = _segments(d, self._opt)
+            if self._starts:                 # only the given starts that are no segment's start here (INIT's cuts)
+                have = set(_segment_keys(d, sg))
+                new = [k for k in _keyed(dict.fromkeys(self._starts)) if k not in have]
+                if new:
+                    _mark_segment_starts(d, new)
+                    sg = _segments(d, self._opt)
+            self._tables = (d, sg, None, self._r_enu)
         d, sg, w, _ = self._tables
         if weights and w is None:
             t0 = time.perf_counter()
@@ -2394,16 +2404,21 @@ def _mark_slips(d: _Data, events: dict) -> None:
 
 def _mark_segment_starts(d: _Data, keys) -> None:
     """Set ``d.slip`` at the row of each (satellite as ``d.sat_names`` names it, time s: the epoch nearest it), so a
-    segment starts there; a row that already starts one is left as it was (a slip flag there makes no new segment)."""
+    segment starts there."""
     keys = list(keys)
-    if not keys:
+    if not keys or not d.sat.size:
         return
     index = {n: s for s, n in enumerate(d.sat_names)}
     epoch = _engine_epochs(d.t_label, np.array([float(t) for _, t in keys]))
-    for (sat, _), e in zip(keys, epoch):
-        s = index.get(str(sat))
-        if s is not None and e >= 0:
-            d.slip[(d.sat == s) & (d.epoch == e)] = True
+    sat = np.array([index.get(str(k[0]), -1) for k in keys], dtype=np.int64)
+    ok = (sat >= 0) & (epoch >= 0)
+    n_ep = d.t_label.size
+    key = d.sat.astype(np.int64) * n_ep + d.epoch
+    order = np.argsort(key, kind="stable")
+    want = sat[ok] * n_ep + epoch[ok]
+    at = np.minimum(np.searchsorted(key[order], want), key.size - 1)
+    hit = key[order][at] == want
+    d.slip[order[at[hit]]] = True
 
 
 def _baseline(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOptions, master_xyz, rover_xyz,
@@ -2437,6 +2452,7 @@ def _baseline(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineO
     lap()
     t_prep = prepared.t_prep
     known, solver = decide((d, sg, w, r_enu), xm, xr0, warnings)
+    warnings += prepared.slip_warnings()
     if known is None and opt.glonass_fix:
         raise CdgpsError(f"glonass_fix: GLONASS integers are fixed by the static engine only, which cannot solve "
                          f"{rover.name} here: {solver}")

@@ -23,9 +23,9 @@ from cdgps_cli.estimation.kalman import StepFilter
 from cdgps_cli.config.options import (FIXED_PHASE_UNIT_VARIANCE_MAX, GNSS_DEFAULTS, GNSS_WEIGHTINGS, IONO_WEIGHTED_MIN_SIGMA_M,
                                       MULTI_GNSS_DEFAULTS)
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.measurement.dd_signals import DDGroupModel, RunDDModel, channel_index, epoch_groups, paired_sd_rows
+from cdgps_cli.measurement.dd_signals import DDGroupModel, RunDDModel, epoch_groups, paired_sd_rows
 from cdgps_cli.measurement.differencing import ambiguity_datum, ambiguity_segments
-from cdgps_cli.measurement.epoch_pairing import pair_epochs
+from cdgps_cli.measurement.epoch_pairing import channel_index, pair_epochs
 from cdgps_cli.measurement.slips import time_differenced_slips
 from cdgps_cli.model.dynamics_models import Dynamics, Static, WithConstants
 from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
@@ -724,7 +724,7 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
     x, P = static_least_squares(rows, cols, n_state, base_xyz_m, rover_xyz0_m, **sigma_amb)    # a day at 1 Hz: ≈ 1 s
     sigma_iono = iono_weighting_sigma_m(opt, base_xyz_m, rover_xyz0_m)
     lambda_float = None                      # the arcs' (a, Q) LAMBDA sees when they are not x's and P's
-    if sigma_iono > 0 and x.size > 3:
+    if sigma_iono > 0 and x.size > 3 and opt["motion"] != "random_walk":
         xi, Pi = static_least_squares(rows, cols, n_state, base_xyz_m, rover_xyz0_m, sigma_iono_m=sigma_iono,
                                       **sigma_amb)
         lambda_float = (xi[3:n_state], Pi[3:n_state, 3:n_state])
@@ -755,10 +755,12 @@ def unflagged_slips(rows, base_xyz_m, origin_xyz_m, *, moving: bool) -> np.ndarr
     n = rows["sats"].size
     if n == 0:
         return np.zeros(0, dtype=bool)
-    epoch = np.searchsorted(rows["ptr"], np.arange(n), side="right") - 1
+    # the epochs that have rows, numbered in order: a change is taken across an epoch without any row (which cuts no
+    # arc), so a slip there is not missed
+    epoch = np.unique(np.searchsorted(rows["ptr"], np.arange(n), side="right") - 1, return_inverse=True)[1].ravel()
     channel = channel_index(rows["sats"], rows["code"])
     rng_b = np.linalg.norm(rows["sat_base_xyz"] - np.asarray(base_xyz_m, float), axis=1)
-    pos = np.tile(np.asarray(origin_xyz_m, float), (rows["ptr"].size - 1, 1))
+    pos = np.tile(np.asarray(origin_xyz_m, float), (int(epoch.max()) + 1, 1))
     for _ in range(2 if moving else 1):
         los = rows["sat_xyz"] - pos[epoch]
         rng = np.sqrt(np.einsum("ij,ij->i", los, los))
@@ -774,20 +776,32 @@ def _rows_at(rows, times_s, keys) -> np.ndarray:
     the nearest epoch within half a step) of ``keys``."""
     out = np.zeros(rows["sats"].size, dtype=bool)
     times_s = np.asarray(times_s, float)
-    if not len(keys) or not times_s.size:
+    if not len(keys) or not times_s.size or not out.size:
         return out
+    n_ep = times_s.size
     epoch = np.searchsorted(rows["ptr"], np.arange(out.size), side="right") - 1
-    name = np.char.add(np.char.add(rows["sats"].astype(str), ":"),
-                       np.array([str(n).split(":")[1] for n in rows["names"]])[rows["code"]])
-    row_of = {(str(nm), int(e)): i for i, (nm, e) in enumerate(zip(name, epoch))}
-    # a GPS L1-only solution names its satellites alone ("G05")
-    row_of.update({(str(nm)[:-3], int(e)): i for i, (nm, e) in enumerate(zip(name, epoch)) if str(nm).endswith(":L1")})
-    half = 0.5 * float(np.median(np.diff(times_s))) if times_s.size > 1 else np.inf
-    for sat, t in keys:
-        e = int(np.argmin(np.abs(times_s - float(t))))
-        i = row_of.get((str(sat), e))
-        if i is not None and abs(times_s[e] - float(t)) <= half:
-            out[i] = True
+    channel = channel_index(rows["sats"], rows["code"])
+    first = np.unique(channel, return_index=True)[1]               # one row of each channel: its name
+    band = [str(n).split(":")[1] for n in rows["names"]]
+    of_name = {}
+    for c, i in enumerate(first):
+        name = f"{rows['sats'][i]}:{band[rows['code'][i]]}"
+        of_name[name] = c
+        if name.endswith(":L1"):                                   # a GPS L1-only solution names satellites alone
+            of_name.setdefault(name[:-3], c)
+    t = np.array([float(k[1]) for k in keys])
+    c = np.array([of_name.get(str(k[0]), -1) for k in keys], dtype=np.int64)
+    e = np.clip(np.searchsorted(times_s, t), 1, max(n_ep - 1, 1)) if n_ep > 1 else np.zeros(t.size, dtype=np.int64)
+    if n_ep > 1:
+        e = np.where(np.abs(times_s[e - 1] - t) <= np.abs(times_s[e] - t), e - 1, e)
+    half = 0.5 * float(np.median(np.diff(times_s))) if n_ep > 1 else np.inf
+    ok = (c >= 0) & (np.abs(times_s[e] - t) <= half)
+    key = channel.astype(np.int64) * n_ep + epoch
+    order = np.argsort(key, kind="stable")
+    want = c[ok] * n_ep + e[ok]
+    at = np.minimum(np.searchsorted(key[order], want), out.size - 1)
+    hit = key[order][at] == want
+    out[order[at[hit]]] = True
     return out
 
 

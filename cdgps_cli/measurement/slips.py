@@ -138,7 +138,8 @@ def time_differenced_slips(epoch, channel, group, phase_m, range_m, var_m2, los,
     Parameters
     ----------
     epoch : ndarray of int (N,)
-        Epoch index of each row (rows of one channel in increasing epochs).
+        Epoch index of each row (rows of one channel in increasing epochs); a channel's change is taken from the
+        epoch numbered one less, so a caller numbers only the epochs that have rows.
     channel, group : ndarray of int (N,)
         Channel (satellite and signal) and signal group of each row.
     phase_m, range_m : ndarray (N,)

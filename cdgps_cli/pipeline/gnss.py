@@ -780,6 +780,8 @@ def _events(rover: str, master: str, res: dict, w: dict) -> list:
                 if d.slip_rover[i0] and d.slip_base[i0]:
                     who = f"{rover}+{master}"
                 kind = "slip (LLI bit 0 / lock-time restart)"
+            elif d.slip[i0]:
+                who, kind = f"{rover}/{master}", "slip no receiver flagged (init: the phases' epoch-to-epoch change)"
             elif int(segtab["first_epoch"][k]) in reset:
                 who, kind = rover, "receiver reset (epoch flag 1)"
             else:

@@ -705,3 +705,31 @@ def test_epoch_phase_misfit_is_each_epochs_dd_least_squares(run):
     chk = fixed_phase_check(rows, cols, pairs, moved, base_xyz, origin)
     assert chk["unit_variance"] > 3 * FIXED_PHASE_UNIT_VARIANCE_MAX          # measured 13.8
     assert fixed_phase_check(rows, cols, pairs, xf, base_xyz, origin)["unit_variance"] < 1.0
+
+
+def test_rows_at_finds_the_row_of_each_named_segment_start(run):
+    """_rows_at (estimate's cut of its arcs where INIT's start) on the Spirent G+E rows: satellite and band as INIT
+    names them ("G05:L1", "E11:E5a") or the satellite alone for GPS L1, at the epoch nearest the time within half a
+    step; a name the rows do not have, or a time more than half a step from every epoch, marks nothing.  Brute force: the row whose
+    satellite, signal and epoch match."""
+    from cdgps_cli.estimation.static_engine import _rows_at
+    rows, times, _, _ = run
+    epoch = np.searchsorted(rows["ptr"], np.arange(rows["sats"].size), side="right") - 1
+    names = rows["names"][rows["code"]].astype(str)
+    picks = [(0, 5), (3, 17), (7, 40)]                 # (row of a channel, epoch) tried below
+    keys, want = [], np.zeros(rows["sats"].size, dtype=bool)
+    for r0, k in picks:
+        sat, sig = str(rows["sats"][r0]), names[r0]
+        hit = (rows["sats"] == sat) & (names == sig) & (epoch == k)
+        if not hit.any():
+            continue
+        keys.append((f"{sat}:{sig.split(':')[1]}", float(times[k]) + 0.2))
+        want |= hit
+    e5a = np.flatnonzero(names == "E:E5a")[0]
+    keys.append((f"{rows['sats'][e5a]}:E5a", float(times[epoch[e5a]])))
+    want[e5a] = True
+    g_l1 = np.flatnonzero(names == "G:L1")[10]
+    keys.append((str(rows["sats"][g_l1]), float(times[epoch[g_l1]])))      # a GPS L1-only INIT's name
+    want[g_l1] = True
+    keys += [("G99:L1", float(times[3])), (keys[0][0], float(times[-1]) + 5.0)]   # no such channel; past the end
+    np.testing.assert_array_equal(_rows_at(rows, times, keys), want)

@@ -68,7 +68,7 @@ def _slip(text: str, sat: str, code: str, from_epoch: int, cycles: float) -> str
     return "\n".join(out) + "\n"
 
 
-def test_a_slip_no_receiver_flagged_is_found_and_starts_an_arc(tmp_path):
+def test_a_slip_no_receiver_flagged_is_found_and_starts_an_arc(tmp_path, monkeypatch):
     """An unflagged one-cycle slip of G05 L1 from the middle of the real mosaic rover: init's static fix went 0.8 m
     off with sub-millimetre σ (session 20: only a misfit warning).  The epoch-to-epoch change of the phases now finds
     it (static_engine.unflagged_slips; its residual 0.148 m at 6σ and 3 cm thresholds), a new ambiguity starts
@@ -97,11 +97,17 @@ def test_a_slip_no_receiver_flagged_is_found_and_starts_an_arc(tmp_path):
     assert slip["solution"] == ref["solution"] == "fixed" and slip["n_fixed"] == ref["n_fixed"] + 1
     for k, v in got["ref"]["states"].items():
         assert got["slip"]["states"][k] == pytest.approx(v, abs=1e-4), k
-    # estimate takes INIT's arcs, the one cut where no flag was, as these data's segments (it refused them before)
+    # estimate takes INIT's arcs, the one cut where no flag was, as these data's segments (it refused them before),
+    # and its events say what started that one
+    import cdgps_cli.pipeline.gnss as gnss
+    seen, events = [], gnss._events
+    monkeypatch.setattr(gnss, "_events", lambda *a, **k: seen.extend(events(*a, **k)) or seen)
     r = run_cli("estimate", tmp_path / "slip.mcap", "--init", tmp_path / "slip.json", "-o", tmp_path / "slip_states.mcap",
                 "--json")
     assert r.exit_code == 0, r.output
     assert json.loads(r.stdout)["mean_nis_per_dof"] < 1.0                          # measured 0.16
+    g05 = [e for e in seen if e["transmitter"] == "G05:L1" and "no receiver flagged" in e["kind"]]
+    assert len(g05) == 1 and g05[0]["action"].startswith("new ambiguity"), [e for e in seen if "G05" in e["transmitter"]]
 
 
 def test_a_rover_header_100_km_off_is_not_taken_for_the_rover(tmp_path):
