@@ -37,6 +37,10 @@ IONO_WEIGHTED_MIN_SIGMA_M = 0.001
 #: fixes; the GPS L1+L2 car's wrong partial fix 11, a wrong full one 72): the float LAMBDA saw was biased beyond
 #: its σ (correlated code multipath, an unmodelled ionosphere, a slip the receiver did not flag)
 FIXED_PHASE_UNIT_VARIANCE_MAX = 4.0
+#: … or when, over any window of this many seconds (with 20 DDs to spare), it is above the second figure: a wrong
+#: integer on a short arc, which a long record's mean dilutes.  The real pairs' fixes: 0.14–2.7 over 120 s windows
+#: (M8P 1.5; 4.5 over 30 s windows); the car's wrong partial fix 11.6, the M8P 1 ms clock jump's 8.3
+FIXED_PHASE_WINDOW_S, FIXED_PHASE_WINDOW_UNIT_VARIANCE_MAX = 120.0, 8.0
 
 #: pairing base epochs with rover epochs (measurement/epoch_pairing.py), every GNSS command:
 #: ``sync_tol_s`` a base epoch this close to a rover epoch is simultaneous (RTKLIB's DTTOL, 25 ms);

@@ -48,7 +48,8 @@ from cdgps_cli.estimation.model_filter import filter_numpy
 from cdgps_cli.measurement.dd_displacement import SatelliteDDDisplacement, SDObservations
 from cdgps_cli.model.dynamics_models import RandomWalk, WithConstants
 from cdgps_cli.config.limits import MASK_DEG
-from cdgps_cli.config.options import FIXED_PHASE_UNIT_VARIANCE_MAX, GNSS_DEFAULTS, GNSS_WEIGHTINGS
+from cdgps_cli.config.options import (FIXED_PHASE_UNIT_VARIANCE_MAX, FIXED_PHASE_WINDOW_S,
+                                      FIXED_PHASE_WINDOW_UNIT_VARIANCE_MAX, GNSS_DEFAULTS, GNSS_WEIGHTINGS)
 from cdgps_cli.measurement.differencing import (
     ambiguity_datum,
     ambiguity_segments,
@@ -1871,7 +1872,8 @@ def _engine_solution(d: _Data, sg: _Segments, w: _Weights, eng: dict, xr0, r_enu
     n_fixed = int(fixed_mask.sum())
     check = res.get("phase_check")
     if check is not None:                      # the integers' check by the phases alone (static_engine.fixed_phase_check)
-        check = dict(check, threshold=FIXED_PHASE_UNIT_VARIANCE_MAX)
+        check = dict(check, threshold=FIXED_PHASE_UNIT_VARIANCE_MAX, window_s=FIXED_PHASE_WINDOW_S,
+                     window_threshold=FIXED_PHASE_WINDOW_UNIT_VARIANCE_MAX)
         if res.get("rejected_n_fixed"):
             fl.block["rejected_fix"] = {"n_integers": int(res["rejected_n_fixed"]), "ratio": _nan_none(res.get("ratio")),
                                         "phase_check": check}
@@ -2029,11 +2031,14 @@ def _rejected_fix_warning(res: dict | None) -> list:
     if not res or not res.get("rejected_n_fixed"):
         return []
     chk = res["phase_check"]
+    win = chk.get("window_unit_variance")
+    worst = "" if win is None else f", {win:.3g} in its worst {FIXED_PHASE_WINDOW_S:g} s"
     return [f"{res['rejected_n_fixed']} integers passed LAMBDA (ratio {res['ratio']:.1f}) and were rejected: with them "
             f"each epoch's carrier phases, solved alone for a position, leave a unit variance of "
-            f"{chk['unit_variance']:.3g} over {chk['n_dd']} DDs in {chk['epochs']} epochs (above "
-            f"{FIXED_PHASE_UNIT_VARIANCE_MAX:g}; about 1 when they are right): the float was biased beyond its sigma "
-            f"(correlated code multipath, the ionosphere, a cycle slip the receiver did not flag); the solution is float"]
+            f"{chk['unit_variance']:.3g} over {chk['n_dd']} DDs in {chk['epochs']} epochs{worst} (above "
+            f"{FIXED_PHASE_UNIT_VARIANCE_MAX:g} over the record or {FIXED_PHASE_WINDOW_UNIT_VARIANCE_MAX:g} in a "
+            f"window; about 1 when they are right): the float was biased beyond its sigma (correlated code multipath, "
+            f"the ionosphere, a cycle slip the receiver did not flag); the solution is float"]
 
 
 def _given_glonass(given: dict, d: _Data, sg: _Segments, rover: str) -> tuple[np.ndarray, np.ndarray]:

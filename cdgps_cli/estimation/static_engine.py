@@ -20,7 +20,8 @@ import numpy as np
 from cdgps_cli.core import progress
 from cdgps_cli.estimation.driver import EpochGrid, GridDynamics, RecordingSink, drive
 from cdgps_cli.estimation.kalman import StepFilter
-from cdgps_cli.config.options import (FIXED_PHASE_UNIT_VARIANCE_MAX, GNSS_DEFAULTS, GNSS_WEIGHTINGS, IONO_WEIGHTED_MIN_SIGMA_M,
+from cdgps_cli.config.options import (FIXED_PHASE_UNIT_VARIANCE_MAX, FIXED_PHASE_WINDOW_S,
+                                      FIXED_PHASE_WINDOW_UNIT_VARIANCE_MAX, GNSS_DEFAULTS, GNSS_WEIGHTINGS, IONO_WEIGHTED_MIN_SIGMA_M,
                                       MULTI_GNSS_DEFAULTS)
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.dd_signals import DDGroupModel, RunDDModel, epoch_groups, paired_sd_rows
@@ -386,11 +387,16 @@ def epoch_phase_misfit(rows, cols, arcs_m, known, base_xyz_m, origin_xyz_m, offs
     return chi2, np.where(ok, dof, 0)
 
 
-def fixed_phase_check(rows, cols, fixed_pairs, x_fix, base_xyz_m, origin_xyz_m) -> dict | None:
+def fixed_phase_check(rows, cols, fixed_pairs, x_fix, base_xyz_m, origin_xyz_m, times_s=None) -> dict | None:
     """The fixed integers' check by the phases alone: :func:`epoch_phase_misfit` of the arcs the fixed DDs
     ``fixed_pairs`` ((arc, reference arc) columns) tie together, at their values in ``x_fix`` (cycles), each epoch's
-    position free.  Returns ``unit_variance`` (Σχ² / Σdof), ``n_dd`` (Σdof + 3 per epoch used) and ``epochs``,
-    or None when no epoch has phases of known arcs to spare (or the rows carry no group layout)."""
+    position free.
+
+    Returns ``unit_variance`` (Σχ² / Σdof over the record), ``n_dd`` (Σdof + 3 per epoch used), ``epochs``, and with
+    ``times_s`` (n_epochs,) ``window_unit_variance``: the largest Σχ² / Σdof over windows of
+    :data:`~cdgps_cli.config.options.FIXED_PHASE_WINDOW_S` with at least :data:`_WINDOW_MIN_DOF` DDs to spare (a wrong
+    integer on a short arc, which the record's mean dilutes), or None without such a window.  None when no epoch has
+    phases of known arcs to spare (or the rows carry no group layout)."""
     if not len(fixed_pairs) or rows.get("groups") is None or base_xyz_m is None:
         return None
     known = np.zeros(x_fix.size, dtype=bool)
@@ -401,8 +407,30 @@ def fixed_phase_check(rows, cols, fixed_pairs, x_fix, base_xyz_m, origin_xyz_m) 
     used = dof > 0
     if not used.any():
         return None
-    return {"unit_variance": float(chi2.sum() / dof.sum()), "n_dd": int(dof.sum() + 3 * used.sum()),
-            "epochs": int(used.sum())}
+    out = {"unit_variance": float(chi2.sum() / dof.sum()), "n_dd": int(dof.sum() + 3 * used.sum()),
+           "epochs": int(used.sum())}
+    if times_s is not None:
+        t = np.asarray(times_s, float)
+        win = np.floor((t - t[0]) / FIXED_PHASE_WINDOW_S).astype(np.int64)
+        c2, df = np.bincount(win, weights=chi2), np.bincount(win, weights=dof)
+        ok = df >= _WINDOW_MIN_DOF
+        out["window_unit_variance"] = float((c2[ok] / df[ok]).max()) if ok.any() else None
+    return out
+
+
+def fixed_phase_rejects(check: dict | None) -> bool:
+    """Whether :func:`fixed_phase_check`'s figures reject the integers: the record's unit variance above
+    :data:`~cdgps_cli.config.options.FIXED_PHASE_UNIT_VARIANCE_MAX`, or a window's above
+    :data:`~cdgps_cli.config.options.FIXED_PHASE_WINDOW_UNIT_VARIANCE_MAX`."""
+    if check is None:
+        return False
+    win = check.get("window_unit_variance")
+    return check["unit_variance"] > FIXED_PHASE_UNIT_VARIANCE_MAX or (
+        win is not None and win > FIXED_PHASE_WINDOW_UNIT_VARIANCE_MAX)
+
+
+#: the fewest DDs to spare a window of fixed_phase_check needs to be judged
+_WINDOW_MIN_DOF = 20
 
 
 def _full_rank(m: np.ndarray) -> np.ndarray:
@@ -551,7 +579,7 @@ def condition_on_integers(x, P, D, ints):
 
 
 def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_success_rate: float | None = None,
-               amb=None, glonass_fix: bool = False, base_xyz_m=None, origin_xyz_m=None):
+               amb=None, glonass_fix: bool = False, base_xyz_m=None, origin_xyz_m=None, times_s=None):
     """Integers of the static float solution by the shared policy on the DDs of :func:`dd_of_arcs`: with
     ``partial``, :func:`~cdgps_cli.estimation.ambiguity.resolve_cascaded` (the largest subset that passes, then
     the rest conditioned on it, again, until a stage fixes nothing); else the full set only
@@ -580,9 +608,10 @@ def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_succ
     ints[fixable] = res["integers"]
     res = {**res, "fixed_mask": m, "integers": ints}
     x_fix, P_fix = condition_on_integers(x, P, D[m], ints[m])
-    check = fixed_phase_check(rows, cols, [pairs[i] for i in np.flatnonzero(m)], x_fix, base_xyz_m, origin_xyz_m)
+    check = fixed_phase_check(rows, cols, [pairs[i] for i in np.flatnonzero(m)], x_fix, base_xyz_m, origin_xyz_m,
+                              times_s)
     res["phase_check"] = check
-    if check is not None and check["unit_variance"] > FIXED_PHASE_UNIT_VARIANCE_MAX:
+    if fixed_phase_rejects(check):
         res.update(fixed_mask=np.zeros(a.size, dtype=bool), integers=np.zeros(a.size, dtype=np.int64), n_fixed=0,
                    accepted=False, partial=False, rejected_n_fixed=int(m.sum()))
         x_fix, P_fix = x.copy(), P.copy()
@@ -740,7 +769,7 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
     else:
         f = static_fix(x, P, rows, cols, ratio=opt["ratio"], partial=opt["partial"],
                        min_success_rate=opt["min_success_rate"], amb=lambda_float, glonass_fix=opt["glonass_fix"],
-                       base_xyz_m=base_xyz_m, origin_xyz_m=rover_xyz0_m)
+                       base_xyz_m=base_xyz_m, origin_xyz_m=rover_xyz0_m, times_s=times)
     return {**f, "random_walk": rw, "lambda_float": lambda_float, "iono_sigma_m": sigma_iono, "unflagged_slips": slips,
             "float_offset_m": x[:3], "float_cov_m2": P[:3, :3], "epochs_used": int(times.size),
             "epoch_pairing": pairs.summary, "state": x, "cov": P, "arcs": arc_table(rows, cols, times),

@@ -733,3 +733,27 @@ def test_rows_at_finds_the_row_of_each_named_segment_start(run):
     want[g_l1] = True
     keys += [("G99:L1", float(times[3])), (keys[0][0], float(times[-1]) + 5.0)]   # no such channel; past the end
     np.testing.assert_array_equal(_rows_at(rows, times, keys), want)
+
+
+def test_a_wrong_integer_on_a_short_span_is_seen_in_its_window(run):
+    """fixed_phase_check's windows: one channel one cycle off over 12 of the 60 epochs (a short arc's wrong integer;
+    the epochs spaced 10 s apart here, so 12 make one 120 s window) lifts the record's unit variance less than that
+    window's, which alone passes FIXED_PHASE_WINDOW_UNIT_VARIANCE_MAX; the clean rows pass both."""
+    from cdgps_cli.config.options import FIXED_PHASE_UNIT_VARIANCE_MAX, FIXED_PHASE_WINDOW_UNIT_VARIANCE_MAX
+    from cdgps_cli.estimation.static_engine import fixed_phase_check, fixed_phase_rejects, static_fix, static_least_squares
+    rows, times, base_xyz, origin = run
+    cols = arc_columns(rows, times)
+    n = 3 + int(cols.max()) - 2
+    x, P = static_least_squares(rows, cols, n, base_xyz, origin)
+    f = static_fix(x, P, rows, cols, ratio=3.0, base_xyz_m=base_xyz, origin_xyz_m=origin)
+    pairs = [pr for pr, ok in zip(f["pairs"], f["resolution"]["fixed_mask"]) if ok]
+    spaced = np.arange(times.size) * 10.0
+    clean = fixed_phase_check(rows, cols, pairs, f["state_fixed"], base_xyz, origin, spaced)
+    assert not fixed_phase_rejects(clean) and clean["window_unit_variance"] < 1.0
+    epoch = np.searchsorted(rows["ptr"], np.arange(rows["sats"].size), side="right") - 1
+    one = (cols == cols[0]) & (epoch < 12)
+    bad = dict(rows, phase_sd_m=rows["phase_sd_m"] + np.where(one, rows["lam_m"], 0.0))
+    chk = fixed_phase_check(bad, cols, pairs, f["state_fixed"], base_xyz, origin, spaced)
+    assert chk["unit_variance"] < FIXED_PHASE_UNIT_VARIANCE_MAX < FIXED_PHASE_WINDOW_UNIT_VARIANCE_MAX < chk["window_unit_variance"]
+    assert fixed_phase_rejects(chk)
+    assert "window_unit_variance" not in fixed_phase_check(rows, cols, pairs, f["state_fixed"], base_xyz, origin)
