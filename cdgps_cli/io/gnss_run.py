@@ -54,6 +54,7 @@ from cdgps_cli.core.records import GLONASS_NAV_COLUMNS, NAV_COLUMNS
 from cdgps_cli.io.gnss_sequence import join_receivers, join_signal_tables, pieces_text
 from cdgps_cli.io.log_sequence import expand_paths
 from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
+from cdgps_cli.io.rinex_signals import repeated_epochs_text
 from cdgps_cli.io.ubx import INTEGRITY_COUNTS, integrity_problems, integrity_record, skipped_line
 from cdgps_cli.core.gps_time import nominal_interval_s
 
@@ -425,7 +426,7 @@ def _read_signal_tables(signals, receivers: dict, files: dict, say, glonass_k: d
     CdgpsError naming the file when a receiver lacks one of them (the receivers must share every
     signal asked for).  ``glonass_k``: GLONASS frequency numbers of the navigation records, for
     RINEX files whose header lacks ``GLONASS SLOT / FRQ #`` (UBX logs carry freqId)."""
-    from cdgps_cli.io.rinex_signals import read_rinex_signals  # noqa: PLC0415
+    from cdgps_cli.io.rinex_signals import first_of_repeated_epochs, read_rinex_signals  # noqa: PLC0415
     from cdgps_cli.io.ubx import read_ubx_signals  # noqa: PLC0415
 
     for n, rx in receivers.items():
@@ -435,6 +436,7 @@ def _read_signal_tables(signals, receivers: dict, files: dict, say, glonass_k: d
         tabs = [read_ubx_signals(q, signals) if kind == "ubx" else read_rinex_signals(q, signals, glonass_k)[1]
                 for q in paths]
         tab = tabs[0] if len(tabs) == 1 else join_signal_tables(n, tabs, paths)
+        tab = first_of_repeated_epochs(tab)[0]        # an epoch written twice: the first (the L1 reader's warning says)
         have = set(tab["signal"])
         absent = [g for g in signals if g not in have]
         if absent:
@@ -562,6 +564,10 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
         w = _missing_code_warning(n, files[n][1], rx)
         if w:
             warnings.append(w)
+        rep = rx.header.get("repeated_epochs") if isinstance(rx.header, dict) else None
+        if rep:
+            warnings.append(repeated_epochs_text(f"{files[n][1]} ({n})", [r["time_gps_s"] for r in rep],
+                                                 lines=[r["line"] for r in rep]))
 
     nav_ahead, glonass_k = _glonass_nav(cfg.signals, nav_list)
     if cfg.signals:

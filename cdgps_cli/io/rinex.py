@@ -526,7 +526,9 @@ def read_rinex_obs(path: str | Path, *, gps_l1_optional: bool = False,
         per special record: ``line``, ``flag``, ``time_gps_s`` (NaN if blank), ``labels`` of the
         header lines it carried; flags 2 start moving, 3 new site occupation, 4 header
         information, 5 external event, 6 cycle-slip records).  Header lines inside flag-3/4 events
-        (new marker name, position, observation types …) update the header for later epochs.
+        (new marker name, position, observation types …) update the header for later epochs.  An epoch written
+        twice in a row (the same time tag) is read once, the first record; ``repeated_epochs`` (only when there
+        is one) lists each repeat's ``time_gps_s``, ``line`` and ``first_line``.
     obs : DataFrame
         One row per observation epoch (flag 0 or 1) and GPS satellite with an L1 phase or
         pseudorange, sorted by time then satellite; columns :data:`OBS_COLUMNS`:
@@ -754,7 +756,7 @@ def _read_obs_fast(p: Path, data: bytes, compressed: bool, gps_l1_optional: bool
     t = ep["time_gps_s"]
     t_obs = t[obs_ep]
     if obs_ep.size == 0 or (t_obs[1:] <= t_obs[:-1]).any():
-        raise Unsupported("epoch order")
+        raise Unsupported("epoch order")          # (a repeated epoch: the line-by-line reader keeps the first)
     summary = {"n_epochs": int(obs_ep.size), "n_epochs_power_failure": int((ep["flag"] == 1).sum())}
     rows, by_sys, counts = _obs_blocks(lines, hdr, layouts, ep, rec0, obs_ep, sats_raw, block_epochs)
     del lines, sats_raw
@@ -927,13 +929,18 @@ class _Summary:
         self.events: list[dict] = []
         self.last_t = -math.inf
         self.last_line = 0
+        self.repeated: list[dict] = []
 
-    def epoch_time(self, t: float, lineno: int, hdr: _ObsHeader) -> None:
+    def epoch_time(self, t: float, lineno: int, hdr: _ObsHeader) -> bool:
+        """Whether the epoch at ``t`` (line ``lineno``) is read: False for one that repeats the previous epoch's time
+        (a logger that wrote it twice: the first record is kept, the repeat noted in ``repeated``)."""
         if t < self.last_t:
             raise hdr.error(lineno, f"epoch {gps_time_str(t)} is earlier than the previous epoch {gps_time_str(self.last_t)} (line {self.last_line}); epochs must be in time order")
         if t == self.last_t:
-            raise hdr.error(lineno, f"epoch {gps_time_str(t)} repeats the previous epoch (line {self.last_line})")
+            self.repeated.append({"time_gps_s": t, "line": lineno, "first_line": self.last_line})
+            return False
         self.last_t, self.last_line = t, lineno
+        return True
 
     def sat(self, sat: str) -> None:
         self.by_system.setdefault(sat[0], set()).add(sat)
@@ -947,6 +954,7 @@ class _Summary:
             "n_records_by_system": dict(sorted(self.records.items())),
             "time_last_obs_gps_s": self.last_t if self.n_epochs else None,
             "events": self.events,
+            **({"repeated_epochs": self.repeated} if self.repeated else {}),
         }
 
 
@@ -1037,7 +1045,9 @@ def _parse_obs_v2(lines: list[str], start: int, hdr: _ObsHeader, cols: _GpsL1Col
             i += nsat * per_sat
             summary.events.append({"line": lineno, "flag": 6, "time_gps_s": t, "labels": []})
             continue
-        summary.epoch_time(t, lineno, hdr)
+        if not summary.epoch_time(t, lineno, hdr):         # a repeated epoch: its records skipped
+            i += nsat * per_sat
+            continue
         summary.n_epochs += 1
         summary.n_power += flag == 1
         if i + nsat * per_sat > n_lines:
@@ -1139,7 +1149,9 @@ def _parse_obs_v3(lines: list[str], start: int, hdr: _ObsHeader, cols: _GpsL1Col
             clk = _float_field(clk_field) if clk_field.strip() else math.nan
         except ValueError:
             raise hdr.error(lineno, f"malformed receiver clock offset {clk_field.strip()!r} (columns 42-56)") from None
-        summary.epoch_time(t, lineno, hdr)
+        if not summary.epoch_time(t, lineno, hdr):         # a repeated epoch: its records skipped
+            i += 1 + nsat
+            continue
         summary.n_epochs += 1
         summary.n_power += flag == 1
         if i + 1 + nsat > n_lines:

@@ -28,9 +28,29 @@ from cdgps_cli.io.rinex import _as_path, _frame, _read_bytes, _split_header, _sp
 from cdgps_cli.io import rinex_body
 from cdgps_cli.io.rinex_body import BodyLines, distinct, epochs_v3, strict_float
 
-__all__ = ["read_rinex_signals", "SIGNAL_COLUMNS"]
+__all__ = ["read_rinex_signals", "SIGNAL_COLUMNS", "first_of_repeated_epochs", "repeated_epochs_text"]
 
 SIGNAL_COLUMNS = ("time_gps_s", "sat", "signal", "phase_cycles", "pseudorange_m", "lli", "wavelength_m")
+
+
+def first_of_repeated_epochs(df: pd.DataFrame) -> tuple[pd.DataFrame, np.ndarray, int]:
+    """A signal table whose epochs a logger wrote more than once, each (time, satellite, signal) kept once (the first
+    record): (the table, the repeated epochs' times (GPS s), the rows dropped)."""
+    dup = df.duplicated(["time_gps_s", "sat", "signal"], keep="first").to_numpy()
+    if not dup.any():
+        return df, np.zeros(0), 0
+    return df[~dup].reset_index(drop=True), np.unique(df["time_gps_s"].to_numpy()[dup]), int(dup.sum())
+
+
+def repeated_epochs_text(who: str, times_s, n_rows: int | None = None, lines=None) -> str:
+    """The one wording of epochs a logger wrote more than once (kept once, the first record): ``who`` the file and
+    receiver, ``times_s`` the repeated epochs (GPS s), and the observations dropped or the repeats' lines."""
+    times_s = np.asarray(times_s, float)
+    what = (f"{n_rows} repeated observations dropped" if n_rows is not None
+            else f"line{'s' if len(lines) > 1 else ''} {', '.join(str(x) for x in list(lines)[:5])}"
+                 f"{' …' if len(lines) > 5 else ''}")
+    return (f"{who}: {times_s.size} epoch(s) written more than once, the first record used ({what}; first at GPS "
+            f"{times_s[0]:.3f} s)")
 
 
 def _codes(types: list[str], name: str, v3: bool):

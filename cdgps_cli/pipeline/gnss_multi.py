@@ -29,7 +29,8 @@ from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.io.gnss_sequence import pieces_text, refuse_another_receiver
 from cdgps_cli.io.log_sequence import expand_paths, join_tables
 from cdgps_cli.io.rinex import COMPRESSED_MAGIC, NAV_SYSTEMS, read_rinex_nav
-from cdgps_cli.io.rinex_signals import read_rinex_signals, signals_in_file
+from cdgps_cli.io.rinex_signals import (first_of_repeated_epochs, read_rinex_signals, repeated_epochs_text,
+                                        signals_in_file)
 from cdgps_cli.io.solution_formats import Q_FIX, Q_FLOAT, csv_text, finite_or, geojson_text, nmea_gga_text, pos_text
 from cdgps_cli.model.gps.orbits import ecef_to_enu, ecef_to_geodetic, enu_matrix
 from cdgps_cli.model.gps.positioning import ephemeris_coverage, spp_static
@@ -735,10 +736,7 @@ def recorded_signals(rinex: dict, sigs: list, warnings: list) -> list[str]:
 def _first_of_repeated_epochs(df: pd.DataFrame, path, who: str, warnings: list) -> pd.DataFrame:
     """The rows of a receiver whose epoch was written more than once, kept once (the first record);
     a warning names the file and the repeated epochs."""
-    dup = df.duplicated(["time_gps_s", "sat", "signal"], keep="first").to_numpy()
-    if not dup.any():
-        return df
-    t = np.unique(df["time_gps_s"].to_numpy()[dup])
-    warnings.append(f"{path} ({who}): {t.size} epoch(s) written more than once, the first record used "
-                    f"({dup.sum()} repeated observations dropped; first at GPS {t[0]:.3f} s)")
-    return df[~dup].reset_index(drop=True)
+    kept, t, n_rows = first_of_repeated_epochs(df)
+    if n_rows:
+        warnings.append(repeated_epochs_text(f"{path} ({who})", t, n_rows))
+    return kept
