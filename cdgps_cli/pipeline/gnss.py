@@ -204,6 +204,10 @@ def _moving_unfixed_warning(res: dict, model: str) -> list:
     uv = (res["float"] or {}).get("unit_variance")
     if model == "static" or n_fixed_with_glonass(res["ambiguities"]) or uv is None or not uv > NIS_MISFIT_PER_DOF:
         return []
+    if (res["float"] or {}).get("rejected_fix"):       # the float is all there is: its integers failed the phase check
+        return [f"no integer fixed (the integers LAMBDA took were rejected, above), and the static float does not fit "
+                f"the data (unit variance {uv:.3g}: the rover moves); its static displacement and sigma do not "
+                f"describe it, and estimate's states from INIT's float ambiguities will not hold"]
     return [f"no integer fixed, and the static float does not fit the data (unit variance {uv:.3g}): the rover moves "
             f"more than its {model} model lets init's float follow ([gnss.displacement] sigma_m_per_sqrt_s); its static "
             f"displacement and sigma do not describe it, and estimate's states will not hold"]

@@ -43,5 +43,8 @@ def test_wrong_integers_of_a_biased_float_are_rejected(tmp_path):
     # INIT says it too: the rejected set under the float, the passing check under the fixed solution
     gone = rover["float"]["rejected_fix"]
     assert gone["n_integers"] == 12 and gone["phase_check"]["unit_variance"] > gone["phase_check"]["threshold"] == 4
+    # its float's misfit is said as the rejection's, not as a random walk too slow for the rover
+    moving = [w for w in rover["warnings"] if "static float does not fit" in w]
+    assert len(moving) == 1 and "were rejected, above" in moving[0] and "sigma_m_per_sqrt_s" not in moving[0]
     kept = ref["rovers"]["rover"]["fixed"]["phase_check"]
     assert kept["unit_variance"] < 2.0 and kept["epochs"] == 360                     # measured 1.29
