@@ -54,7 +54,7 @@ from cdgps_cli.core.records import GLONASS_NAV_COLUMNS, NAV_COLUMNS
 from cdgps_cli.io.gnss_sequence import join_receivers, join_signal_tables, pieces_text
 from cdgps_cli.io.log_sequence import expand_paths
 from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
-from cdgps_cli.io.rinex_signals import repeated_epochs_text
+from cdgps_cli.io.rinex_signals import out_of_order_text, repeated_epochs_text
 from cdgps_cli.io.ubx import INTEGRITY_COUNTS, integrity_problems, integrity_record, skipped_line
 from cdgps_cli.core.gps_time import nominal_interval_s
 
@@ -564,10 +564,13 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
         w = _missing_code_warning(n, files[n][1], rx)
         if w:
             warnings.append(w)
-        rep = rx.header.get("repeated_epochs") if isinstance(rx.header, dict) else None
+        rep, back = (rx.header.get(k) if isinstance(rx.header, dict) else None
+                     for k in ("repeated_epochs", "epochs_out_of_order"))
         if rep:
             warnings.append(repeated_epochs_text(f"{files[n][1]} ({n})", [r["time_gps_s"] for r in rep],
                                                  lines=[r["line"] for r in rep]))
+        if back:
+            warnings.append(out_of_order_text(f"{files[n][1]} ({n})", len(back), back[0]["time_gps_s"]))
 
     nav_ahead, glonass_k = _glonass_nav(cfg.signals, nav_list)
     if cfg.signals:

@@ -528,7 +528,9 @@ def read_rinex_obs(path: str | Path, *, gps_l1_optional: bool = False,
         information, 5 external event, 6 cycle-slip records).  Header lines inside flag-3/4 events
         (new marker name, position, observation types …) update the header for later epochs.  An epoch written
         twice in a row (the same time tag) is read once, the first record; ``repeated_epochs`` (only when there
-        is one) lists each repeat's ``time_gps_s``, ``line`` and ``first_line``.
+        is one) lists each repeat's ``time_gps_s``, ``line`` and ``first_line``.  An epoch earlier than one before
+        it is read, the table sorted by time (a time read twice keeping its first record), and listed in
+        ``epochs_out_of_order`` (``time_gps_s``, ``line``, ``after_line``), as ``rtk`` reads such files.
     obs : DataFrame
         One row per observation epoch (flag 0 or 1) and GPS satellite with an L1 phase or
         pseudorange, sorted by time then satellite; columns :data:`OBS_COLUMNS`:
@@ -557,7 +559,7 @@ def read_rinex_obs(path: str | Path, *, gps_l1_optional: bool = False,
     CdgpsError
         Unreadable or non-RINEX file, unsupported version, a navigation file, no GPS L1 phase
         observation type (the message lists the types the file has), a malformed line (file and
-        line number), epochs going backwards, an unsupported time system.
+        line number), an unsupported time system.
     """
     p = _as_path(path)
     if block_epochs < 1:
@@ -714,6 +716,8 @@ def _obs_result(p: Path, hdr: _ObsHeader, summary: dict, cols_arr: dict, sorted_
     obs = _frame({name: cols_arr.pop(k) for k, name in _ROW_COLUMNS}, copy=sorted_info is None)   # OBS_COLUMNS' order
     if sorted_info is None:
         obs = obs.sort_values(["time_gps_s", "sat"], kind="stable").reset_index(drop=True)
+        if info.get("epochs_out_of_order"):          # an epoch written again out of order: its first record
+            obs = obs[~obs.duplicated(["time_gps_s", "sat"], keep="first")].reset_index(drop=True)
         info["gps_satellites"] = sorted(obs["sat"].unique().tolist())
         info["n_gps_epochs"] = int(obs["time_gps_s"].nunique())
     else:
@@ -930,16 +934,23 @@ class _Summary:
         self.last_t = -math.inf
         self.last_line = 0
         self.repeated: list[dict] = []
+        self.backwards: list[dict] = []
+        self.times: list[float] = []          # (the line-by-line reader's: files the fast one does not take)
 
     def epoch_time(self, t: float, lineno: int, hdr: _ObsHeader) -> bool:
         """Whether the epoch at ``t`` (line ``lineno``) is read: False for one that repeats the previous epoch's time
-        (a logger that wrote it twice: the first record is kept, the repeat noted in ``repeated``)."""
+        (a logger that wrote it twice: the first record is kept, the repeat noted in ``repeated``).  An epoch earlier
+        than the latest one before it is read and noted in ``backwards`` (the table is sorted by time; a time read
+        twice keeps its first record)."""
         if t < self.last_t:
-            raise hdr.error(lineno, f"epoch {gps_time_str(t)} is earlier than the previous epoch {gps_time_str(self.last_t)} (line {self.last_line}); epochs must be in time order")
+            self.backwards.append({"time_gps_s": t, "line": lineno, "after_line": self.last_line})
+            self.times.append(t)
+            return True
         if t == self.last_t:
             self.repeated.append({"time_gps_s": t, "line": lineno, "first_line": self.last_line})
             return False
         self.last_t, self.last_line = t, lineno
+        self.times.append(t)
         return True
 
     def sat(self, sat: str) -> None:
@@ -947,14 +958,17 @@ class _Summary:
         self.records[sat[0]] = self.records.get(sat[0], 0) + 1
 
     def result(self) -> dict:
+        # epochs read again out of order count once (a time's first record is kept)
+        n_epochs = len(set(self.times)) if self.backwards else self.n_epochs
         return {
-            "n_epochs": self.n_epochs,
+            "n_epochs": n_epochs,
             "n_epochs_power_failure": self.n_power,
             "satellites_by_system": {k: sorted(v) for k, v in sorted(self.by_system.items())},
             "n_records_by_system": dict(sorted(self.records.items())),
             "time_last_obs_gps_s": self.last_t if self.n_epochs else None,
             "events": self.events,
             **({"repeated_epochs": self.repeated} if self.repeated else {}),
+            **({"epochs_out_of_order": self.backwards} if self.backwards else {}),
         }
 
 

@@ -19,7 +19,7 @@ import numpy as np
 import pandas as pd
 
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.core.gps_time import check_time_of_day, gps_seconds
+from cdgps_cli.core.gps_time import check_time_of_day, gps_seconds, gps_time_str
 from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, glonass_frequency_hz, signal
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.io.rinex import _ObsHeader, _parse_version_line, _range_note, _read_text, _sat_id
@@ -28,7 +28,8 @@ from cdgps_cli.io.rinex import _as_path, _frame, _read_bytes, _split_header, _sp
 from cdgps_cli.io import rinex_body
 from cdgps_cli.io.rinex_body import BodyLines, distinct, epochs_v3, strict_float
 
-__all__ = ["read_rinex_signals", "SIGNAL_COLUMNS", "first_of_repeated_epochs", "repeated_epochs_text"]
+__all__ = ["read_rinex_signals", "SIGNAL_COLUMNS", "first_of_repeated_epochs", "repeated_epochs_text",
+           "out_of_order_text"]
 
 SIGNAL_COLUMNS = ("time_gps_s", "sat", "signal", "phase_cycles", "pseudorange_m", "lli", "wavelength_m")
 
@@ -51,6 +52,12 @@ def repeated_epochs_text(who: str, times_s, n_rows: int | None = None, lines=Non
                  f"{' …' if len(lines) > 5 else ''}")
     return (f"{who}: {times_s.size} epoch(s) written more than once, the first record used ({what}; first at GPS "
             f"{times_s[0]:.3f} s)")
+
+
+def out_of_order_text(who: str, n_epochs: int, first_s: float) -> str:
+    """The one wording of epochs a file holds out of time order (read in time order)."""
+    return (f"{who}: {n_epochs} epoch(s) written out of time order (first: {gps_time_str(first_s)}, after a later one), "
+            f"read in time order")
 
 
 def _codes(types: list[str], name: str, v3: bool):

@@ -29,8 +29,8 @@ from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.io.gnss_sequence import pieces_text, refuse_another_receiver
 from cdgps_cli.io.log_sequence import expand_paths, join_tables
 from cdgps_cli.io.rinex import COMPRESSED_MAGIC, NAV_SYSTEMS, read_rinex_nav
-from cdgps_cli.io.rinex_signals import (first_of_repeated_epochs, read_rinex_signals, repeated_epochs_text,
-                                        signals_in_file)
+from cdgps_cli.io.rinex_signals import (first_of_repeated_epochs, out_of_order_text, read_rinex_signals,
+                                        repeated_epochs_text, signals_in_file)
 from cdgps_cli.io.solution_formats import Q_FIX, Q_FLOAT, csv_text, finite_or, geojson_text, nmea_gga_text, pos_text
 from cdgps_cli.model.gps.orbits import ecef_to_enu, ecef_to_geodetic, enu_matrix
 from cdgps_cli.model.gps.positioning import ephemeris_coverage, spp_static
@@ -591,8 +591,7 @@ def _read_observations(path, sigs, glo_k, who: str, warnings: list) -> tuple[dic
         header["file_epochs"] = obs.attrs.pop("file_epochs", None)
         back = obs.attrs.pop("epochs_out_of_order", None)
         if back:
-            warnings.append(f"{path} ({who}): {back[0]} epoch(s) written out of time order (first: "
-                            f"{gps_time_str(back[1])}, after a later one), read in time order")
+            warnings.append(out_of_order_text(f"{path} ({who})", back[0], back[1]))
         return header, obs
     return _ubx_receiver(path, _ubx(path), sigs, who, warnings)
 

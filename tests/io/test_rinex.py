@@ -458,8 +458,10 @@ def test_truncated_epoch_and_time_order(tmp_path):
     swapped = lines[:17] + lines[26:35] + lines[17:26] + lines[35:]
     p2 = tmp_path / "order.05o"
     p2.write_text("\n".join(swapped) + "\n")
-    with pytest.raises(CdgpsError, match=r"order\.05o, line 27: epoch 2005-04-02 00:00:00 GPST is earlier than the previous epoch"):
-        read_rinex_obs(p2)
+    # two epochs swapped are read in time order and listed (they were refused; rtk sorts them): tests/io/test_rinex_repeated.py
+    hdr, obs = read_rinex_obs(p2)
+    assert obs.equals(read_rinex_obs(DATA / "07590920.05o")[1])
+    assert [(b["line"], b["time_gps_s"]) for b in hdr["epochs_out_of_order"]] == [(27, obs["time_gps_s"].iloc[0])]
 
 
 @pytest.mark.parametrize("version", ["1.00", "4.00"])

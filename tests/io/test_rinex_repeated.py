@@ -1,6 +1,7 @@
 """An epoch a logger wrote twice in a row (the same time tag) is read once, the first record, and noted in the
 header's ``repeated_epochs`` (io/rinex.py); ``config``/``ingest`` refused such a file ("repeats the previous epoch")
-where ``rtk`` warned and used it (the adversarial sweep of session 20, D11).  Epochs going backwards stay refused."""
+where ``rtk`` warned and used it (the adversarial sweep of session 20, D11).  Epochs written out of time order are
+read in time order and listed in ``epochs_out_of_order`` (they were refused too), as rtk reads them."""
 
 from __future__ import annotations
 
@@ -8,7 +9,6 @@ import json
 
 import pytest
 
-from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.rinex import read_rinex_obs
 from cdgps_cli.io.rinex_signals import first_of_repeated_epochs, read_rinex_signals
 from tests._shared import REPO_ROOT, run_cli
@@ -48,32 +48,53 @@ def _edited(src, tmp_path, how: str, k: int = 40):
     return p, len(head) + sum(len(b) for b in blocks[:k + 1]) + 1
 
 
-@pytest.mark.parametrize("src", [MOSAIC / "rover.obs", GEONET_V2], ids=["rinex3", "rinex2"])
-def test_an_epoch_written_twice_is_read_once(tmp_path, src):
+def _read_edited(src, tmp_path, how: str):
+    """(the edited file, the edited epoch's line, the header read from it, the unedited file's epoch 40 time), the
+    tables of both read and checked equal, with the same count of epochs."""
     if not src.exists():
         pytest.skip(f"{src} absent")
-    p, line = _edited(src, tmp_path, "repeat")
+    p, line = _edited(src, tmp_path, how)
     hdr0, obs0 = read_rinex_obs(src)
     hdr, obs = read_rinex_obs(p)
     assert obs.equals(obs0) and hdr["n_epochs"] == hdr0["n_epochs"]
-    assert [(r["line"], r["time_gps_s"]) for r in hdr["repeated_epochs"]] == [(line, obs0["time_gps_s"].unique()[40])]
-    assert "repeated_epochs" not in hdr0
+    assert "repeated_epochs" not in hdr0 and "epochs_out_of_order" not in hdr0
+    return p, line, hdr, obs0["time_gps_s"].unique()[40]
+
+
+@pytest.mark.parametrize("src", [MOSAIC / "rover.obs", GEONET_V2], ids=["rinex3", "rinex2"])
+def test_an_epoch_written_twice_is_read_once(tmp_path, src):
+    p, line, hdr, t40 = _read_edited(src, tmp_path, "repeat")
+    assert [(r["line"], r["time_gps_s"]) for r in hdr["repeated_epochs"]] == [(line, t40)]
     if src.suffix == ".obs":                               # the signal reader's table, kept once the same way
         sig0 = read_rinex_signals(src, ["G:L1", "G:L2"])[1]
         sig, times, n_rows = first_of_repeated_epochs(read_rinex_signals(p, ["G:L1", "G:L2"])[1])
         assert sig.equals(sig0) and times.size == 1 and n_rows > 0
 
 
-def test_epochs_going_backwards_stay_refused(tmp_path):
-    p, line = _edited(MOSAIC / "rover.obs", tmp_path, "swap")
-    with pytest.raises(CdgpsError, match=r"earlier than the previous epoch"):
-        read_rinex_obs(p)
+@pytest.mark.parametrize("src", [MOSAIC / "rover.obs", GEONET_V2], ids=["rinex3", "rinex2"])
+def test_two_epochs_swapped_are_read_in_time_order(tmp_path, src):
+    """Epochs 40 and 41 written in the other order: the table is the unedited one, the header lists the epoch that
+    came back (as rtk's reader does, which sorts and warns)."""
+    p, line, hdr, t40 = _read_edited(src, tmp_path, "swap")
+    assert [(b["line"], b["time_gps_s"]) for b in hdr["epochs_out_of_order"]] == [(line, t40)]
 
 
-def test_config_ingest_init_take_a_rover_with_an_epoch_written_twice(tmp_path):
-    """The real mosaic pair, the rover's epoch 40 written twice: config → ingest → init exit 0, ingest warns naming
-    the file and the line, and INIT's states are the unedited pair's."""
-    p, line = _edited(MOSAIC / "rover.obs", tmp_path, "repeat")
+def test_an_earlier_file_appended_reads_each_time_once(tmp_path):
+    """The rover's first 60 epochs written again after the whole file (a logger that appended an older piece): the
+    table is the file's, each time once with its first record; the 60 are listed."""
+    head, blocks = _epochs((MOSAIC / "rover.obs").read_text())
+    p = tmp_path / "appended.obs"
+    p.write_text("".join(head) + "".join("".join(b) for b in blocks + blocks[:60]))
+    hdr0, obs0 = read_rinex_obs(MOSAIC / "rover.obs")
+    hdr, obs = read_rinex_obs(p)
+    assert obs.equals(obs0) and len(hdr["epochs_out_of_order"]) == 60 and hdr["n_epochs"] == hdr0["n_epochs"]
+
+
+@pytest.mark.parametrize("how, said_as", [("repeat", "written more than once"), ("swap", "out of time order")])
+def test_config_ingest_init_take_a_rover_with_epochs_out_of_place(tmp_path, how, said_as):
+    """The real mosaic pair, the rover's epoch 40 written twice, or epochs 40 and 41 swapped: config → ingest → init
+    exit 0, ingest warns naming the file (and the line of a repeat), and INIT's states are the unedited pair's."""
+    p, line = _edited(MOSAIC / "rover.obs", tmp_path, how)
     got = {}
     for rover, tag in ((MOSAIC / "rover.obs", "ref"), (p, "rep")):
         for args in (("config", "--rinex", f"base={MOSAIC / 'base.obs'}", "--rinex", f"rover={rover}", "--nav",
@@ -83,7 +104,8 @@ def test_config_ingest_init_take_a_rover_with_an_epoch_written_twice(tmp_path):
             r = run_cli(*args)
             assert r.exit_code == 0, (args[0], r.output)
             if args[0] == "ingest":
-                said = [ln for ln in r.stderr.splitlines() if "written more than once" in ln]
-                assert len(said) == (tag == "rep") and (tag == "ref" or f"line {line};" in said[0]), r.stderr
+                said = [ln for ln in r.stderr.splitlines() if said_as in ln]
+                assert len(said) == (tag == "rep") and (tag == "ref" or how == "swap" or f"line {line};" in said[0]), \
+                    r.stderr
         got[tag] = json.loads((tmp_path / f"{tag}.json").read_text())
     assert got["rep"]["states"] == got["ref"]["states"]

@@ -156,7 +156,7 @@ def test_rinex2_short_or_garbage_satellite_list_named(tmp_path: Path):
 
 
 def test_epochs_out_of_time_order_are_noted_for_the_caller(tmp_path: Path):
-    # rtk read a file with two epochs swapped in time order without a word (ingest and baseline refuse it)
+    # rtk read a file with two epochs swapped in time order without a word (ingest and baseline now read it in time order too, with the same warning)
     from tests.io._rinex_edit import edited_copy
     from cdgps_cli.io import rinex_signals
 
