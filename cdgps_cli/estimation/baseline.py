@@ -71,6 +71,7 @@ from cdgps_cli.model.gps.positioning import (
 )
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.measurement.dd_signals import glonass_code_factor
+from cdgps_cli.measurement.epoch_fit import full_rank
 from cdgps_cli.measurement.epoch_pairing import age_variance_m2, nearest_tags, pair_epochs, rows_for_pairs
 from cdgps_cli.measurement.noise import correlated_variance_factor
 from cdgps_cli.model.gps.epoch_align import ALIGN_MODES, align_receiver, carry_slips
@@ -1494,23 +1495,13 @@ def _single_epoch_positions(d: _Data, w: _Weights, fin: _Final, seg, opt: Baseli
         n_sat[ep] += rows.shape[1]
         n_dd[ep] += rows.shape[1] - 1
     ep = np.flatnonzero(n_dd >= opt.min_sats_kinematic - 1)
-    ep = ep[_full_rank(nmat[ep]) & _full_rank(gcg[ep])]     # (L1 and L2 DDs of too few satellites: not enough)
+    ep = ep[full_rank(nmat[ep]) & full_rank(gcg[ep])]     # (L1 and L2 DDs of too few satellites: not enough)
     if not ep.size:
         return None
     ck = np.linalg.inv(nmat[ep])
     dk = np.einsum("kcd,kd->kc", ck, rhs[ep])
     pdop = np.sqrt(np.trace(np.linalg.inv(gcg[ep]), axis1=1, axis2=2))
     return {"epoch": ep, "enu_m": fin.x + dk, "n_sat": n_sat[ep], "pdop": pdop, "cov_m2": ck}
-
-
-def _full_rank(m: np.ndarray) -> np.ndarray:
-    """(k,) bool: each of the symmetric (k, 3, 3) matrices ``m`` has full rank (smallest eigenvalue above 1e-10 of
-    the largest).  An epoch's DDs can be enough in number and still not fix a position: a real u-blox log with
-    L1 and L2 had epochs whose DDs came from two or three satellites, a singular system (LinAlgError)."""
-    if not len(m):
-        return np.zeros(0, dtype=bool)
-    ev = np.linalg.eigvalsh(m)
-    return ev[:, 0] > 1e-10 * np.maximum(ev[:, -1], np.finfo(float).tiny)
 
 
 def _kinematic_summary(d: _Data, ka: dict, x_final, opt: BaselineOptions) -> dict:

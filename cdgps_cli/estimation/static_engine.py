@@ -26,6 +26,7 @@ from cdgps_cli.config.options import (FIXED_PHASE_UNIT_VARIANCE_MAX, FIXED_PHASE
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.dd_signals import DDGroupModel, RunDDModel, epoch_groups, paired_sd_rows
 from cdgps_cli.measurement.differencing import ambiguity_datum, ambiguity_segments
+from cdgps_cli.measurement.epoch_fit import grouped_epoch_fit
 from cdgps_cli.measurement.epoch_pairing import channel_index, pair_epochs
 from cdgps_cli.measurement.slips import time_differenced_slips
 from cdgps_cli.model.dynamics_models import Dynamics, Static, WithConstants
@@ -347,7 +348,6 @@ def epoch_phase_misfit(rows, cols, arcs_m, known, base_xyz_m, origin_xyz_m, offs
     keep = count[gid] >= 2                                         # a group needs two known rows to form a DD
     idx, gid = idx[keep], gid[keep]
     w = 1.0 / rows["var_phase"][idx]
-    s = np.bincount(gid, weights=w, minlength=size.size).astype(float)
     ep = g_epoch[gid]
     z = rows["phase_sd_m"][idx] - np.asarray(arcs_m)[np.asarray(cols)[idx]]
     los_b = rows["sat_base_xyz"][idx] - np.asarray(base_xyz_m, float)
@@ -356,34 +356,13 @@ def epoch_phase_misfit(rows, cols, arcs_m, known, base_xyz_m, origin_xyz_m, offs
                       minlength=n_ep).astype(np.int64) - 3
     pos = np.tile(np.asarray(origin_xyz_m, float) + np.asarray(offset_m, float), (n_ep, 1))
     ok = dof > 0
-    chi2 = np.zeros(n_ep)
-    for it in range(iterations + 1):
+    for _ in range(iterations + 1):                 # Gauss–Newton on each epoch's position; χ² at the last
         los = rows["sat_xyz"][idx] - pos[ep]
         rng = np.sqrt(np.einsum("ij,ij->i", los, los))
-        y = z - (rng - base_rng)
-        gv = -los / rng[:, None]
-        mean_g = np.zeros((size.size, 3))
-        for c in range(3):
-            mean_g[:, c] = np.bincount(gid, weights=w * gv[:, c], minlength=size.size)
-        mean_y = np.bincount(gid, weights=w * y, minlength=size.size).astype(float)
-        nz = s > 0
-        mean_g[nz] /= s[nz, None]
-        mean_y[nz] /= s[nz]
-        gc, yc = gv - mean_g[gid], y - mean_y[gid]                 # the group's common value eliminated
-        nmat, rhs = np.zeros((n_ep, 3, 3)), np.zeros((n_ep, 3))
-        for a in range(3):
-            rhs[:, a] = np.bincount(ep, weights=w * yc * gc[:, a], minlength=n_ep)
-            for b in range(a, 3):
-                nmat[:, a, b] = nmat[:, b, a] = np.bincount(ep, weights=w * gc[:, a] * gc[:, b], minlength=n_ep)
-        ss = np.bincount(ep, weights=w * yc * yc, minlength=n_ep).astype(float)
-        if it == 0:
-            ok[ok] = _full_rank(nmat[ok])
-        step = np.zeros((n_ep, 3))
-        step[ok] = np.linalg.solve(nmat[ok], rhs[ok][:, :, None])[:, :, 0]
-        if it == iterations:
-            chi2[ok] = ss[ok] - np.einsum("kc,kc->k", rhs[ok], step[ok])
-            break
-        pos[ok] += step[ok]
+        fit = grouped_epoch_fit(z - (rng - base_rng), w, -los / rng[:, None], gid, ep, size.size, n_ep, usable=ok)
+        ok = fit.ok
+        pos[ok] += fit.step[ok]
+    chi2 = fit.chi2
     return chi2, np.where(ok, dof, 0)
 
 
@@ -431,14 +410,6 @@ def fixed_phase_rejects(check: dict | None) -> bool:
 
 #: the fewest DDs to spare a window of fixed_phase_check needs to be judged
 _WINDOW_MIN_DOF = 20
-
-
-def _full_rank(m: np.ndarray) -> np.ndarray:
-    """(k,) bool: each symmetric (k, 3, 3) matrix has its smallest eigenvalue above 1e-10 of its largest."""
-    if not len(m):
-        return np.zeros(0, dtype=bool)
-    ev = np.linalg.eigvalsh(m)
-    return ev[:, 0] > 1e-10 * np.maximum(ev[:, -1], np.finfo(float).tiny)
 
 
 class EnuRandomWalk(Dynamics):
@@ -733,13 +704,7 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
         from cdgps_cli.estimation.baseline import check_iono_rule
         check_iono_rule("base", "rover", float(np.linalg.norm(np.subtract(rover_xyz0_m, base_xyz_m))),
                         opt["iono_threshold_km"])
-    if opt["segment_starts"] is None:
-        found = unflagged_slips(rows, base_xyz_m, rover_xyz0_m, moving=opt["motion"] != "static")
-    else:                                          # the arcs of a solution given (INIT's): cut where it cut them
-        found = _rows_at(rows, times, opt["segment_starts"]) & ~rows["slip"]
-    if found.any():
-        rows = dict(rows, slip=rows["slip"] | found)
-    slips = _slip_events(rows, found, times)
+    rows, slips = _with_unflagged_slips(rows, times, opt, base_xyz_m, rover_xyz0_m)
     cols = arc_columns(rows, times, max_gap_s=opt["max_gap_s"])
     if arcs_check is not None:
         why = arcs_check(dict(arc_table(rows, cols, times), unflagged_slips=slips))
@@ -798,6 +763,18 @@ def unflagged_slips(rows, base_xyz_m, origin_xyz_m, *, moving: bool) -> np.ndarr
         trajectory = np.cumsum(disp, axis=0)
         pos = np.asarray(origin_xyz_m, float) + trajectory - trajectory.mean(axis=0)
     return found
+
+
+def _with_unflagged_slips(rows, times_s, opt: dict, base_xyz_m, origin_xyz_m) -> tuple[dict, dict]:
+    """(the SD rows with a slip flag where one no receiver flagged starts a new arc, :func:`_slip_events` of those):
+    found by :func:`unflagged_slips`, or, with ``opt["segment_starts"]`` (a given solution's, INIT's), where it cut."""
+    if opt["segment_starts"] is None:
+        found = unflagged_slips(rows, base_xyz_m, origin_xyz_m, moving=opt["motion"] != "static")
+    else:
+        found = _rows_at(rows, times_s, opt["segment_starts"]) & ~rows["slip"]
+    if found.any():
+        rows = dict(rows, slip=rows["slip"] | found)
+    return rows, _slip_events(rows, found, times_s)
 
 
 def _rows_at(rows, times_s, keys) -> np.ndarray:

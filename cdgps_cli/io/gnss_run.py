@@ -202,6 +202,19 @@ def _raw_from_ubx(obs: pd.DataFrame) -> pd.DataFrame:
     }, copy=False)
 
 
+def _receiver_warnings(n: str, path, rx: GnssReceiver) -> list[str]:
+    """What a receiver's file lacks or holds out of place: codes missing (:func:`_missing_code_warning`), epochs
+    written twice and epochs out of time order (the RINEX reader's ``repeated_epochs`` / ``epochs_out_of_order``)."""
+    out = [w for w in [_missing_code_warning(n, path, rx)] if w]
+    header = rx.header if isinstance(rx.header, dict) else {}
+    rep, back = header.get("repeated_epochs"), header.get("epochs_out_of_order")
+    if rep:
+        out.append(repeated_epochs_text(f"{path} ({n})", [r["time_gps_s"] for r in rep], lines=[r["line"] for r in rep]))
+    if back:
+        out.append(out_of_order_text(f"{path} ({n})", len(back), back[0]["time_gps_s"]))
+    return out
+
+
 def _read_single_files(files: dict, pieces: dict, say, strict: bool, l1_opt: bool) -> dict:
     """The receivers, each given as one file: the first read beside the others
     (:func:`cdgps_cli.core.beside.both`: on a second core, the same tables bit for bit; its error, if
@@ -561,16 +574,7 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
     receivers = {master: receivers[master], **{n: r for n, r in receivers.items() if n != master}}
     integrity = _ubx_integrity(receivers, files)
     for n, rx in receivers.items():
-        w = _missing_code_warning(n, files[n][1], rx)
-        if w:
-            warnings.append(w)
-        rep, back = (rx.header.get(k) if isinstance(rx.header, dict) else None
-                     for k in ("repeated_epochs", "epochs_out_of_order"))
-        if rep:
-            warnings.append(repeated_epochs_text(f"{files[n][1]} ({n})", [r["time_gps_s"] for r in rep],
-                                                 lines=[r["line"] for r in rep]))
-        if back:
-            warnings.append(out_of_order_text(f"{files[n][1]} ({n})", len(back), back[0]["time_gps_s"]))
+        warnings += _receiver_warnings(n, files[n][1], rx)
 
     nav_ahead, glonass_k = _glonass_nav(cfg.signals, nav_list)
     if cfg.signals:

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cdgps_cli.measurement.epoch_fit import grouped_epoch_fit
 from cdgps_cli.measurement.multipath import segment_stretches
 
 #: the test's half width (s): residuals on each side of a candidate epoch
@@ -114,8 +115,8 @@ def residual_steps(resid: np.ndarray, segment: np.ndarray, wavelength_m: float, 
 #: exceeds this many σ and this many metres is a slip (a quarter cycle at L1 is 4.8 cm; TD multipath at 1–10 Hz stays
 #: within a few mm), with at least this many redundant changes in the epoch pair (to tell which channel jumped)
 TD_SLIP_SIGMAS, TD_SLIP_MIN_M, TD_SLIP_MIN_REDUNDANCY = 6.0, 0.03, 2
-#: the runner-up channel whose w value is within this fraction of its epoch's largest is flagged with it (a cut arc
-#: costs one ambiguity; a slip left in an arc, a wrong fix)
+#: a channel whose w value is within this fraction of its epoch's largest is flagged with it (a cut arc costs one
+#: ambiguity; a slip left in an arc, a wrong fix)
 TD_SLIP_TIE = 0.8
 
 
@@ -130,8 +131,8 @@ def time_differenced_slips(epoch, channel, group, phase_m, range_m, var_m2, los,
     displacement (3) and one common term per group; the channel with the largest residual beyond both thresholds
     (``sigmas`` × its σ, σ√(1 − h) with h its leverage: the w-test of detection–identification–adaptation, the σ
     scaled up by the record's own spread of those w values when larger than the model says — the robust 1.4826 ×
-    median, over the first fit —; and an estimated jump r/(1 − h) over ``min_m``) is flagged and left out, with the
-    runner-up when its w value comes within :data:`TD_SLIP_TIE` of it, and the epoch is fitted again, ``rounds`` times at
+    median, over the first fit —; and an estimated jump r/(1 − h) over ``min_m``) is flagged and left out, with any
+    other whose w value comes within :data:`TD_SLIP_TIE` of it, and the epoch is fitted again, ``rounds`` times at
     most.  An epoch with fewer than ``min_redundancy`` changes to spare is not judged.  Unlike
     :func:`residual_steps` this needs no batch fit, and a rover's motion is a parameter, not a misfit.
 
@@ -166,15 +167,9 @@ def time_differenced_slips(epoch, channel, group, phase_m, range_m, var_m2, los,
     n_ep = int(epoch.max()) + 1 if n else 0
     if n == 0:
         return flagged, np.zeros((0, 3))
-    key = channel.astype(np.int64) * (n_ep + 1) + epoch
-    order = np.argsort(key, kind="stable")
-    pos = np.searchsorted(key[order], key - 1)
-    pos = np.minimum(pos, n - 1)
-    has_prev = (key[order][pos] == key - 1) & ~known
-    i = np.flatnonzero(has_prev)
+    i, j = _previous_rows(epoch, channel, n_ep, known)
     if i.size == 0:                                            # one epoch, or no channel seen twice running
         return flagged, np.zeros((n_ep, 3))
-    j = order[pos[has_prev]]                                   # the same channel's row at the previous epoch
     y = (phase_m[i] - range_m[i]) - (phase_m[j] - range_m[j])
     w = 1.0 / (var_m2[i] + var_m2[j])
     g = -los[i]
@@ -194,7 +189,7 @@ def time_differenced_slips(epoch, channel, group, phase_m, range_m, var_m2, los,
         big = (z > sigmas) & (np.abs(r) > min_m * np.maximum(1.0 - lev, 1e-9))
         if not big.any():
             break
-        hit = _largest_two(ep, z, big, n_ep)
+        hit = _largest_and_ties(ep, z, big, n_ep)
         live &= ~hit
         flagged[i[hit]] = True
     else:
@@ -202,51 +197,38 @@ def time_differenced_slips(epoch, channel, group, phase_m, range_m, var_m2, los,
     return flagged, step
 
 
-def _largest_two(ep, z, big, n_ep) -> np.ndarray:
-    """(M,) bool: each epoch's largest ``z`` among ``big``, and its second largest when within :data:`TD_SLIP_TIE` of
-    it: two channels whose geometry leaves their w-tests correlated (either one's removal hides the other's jump) are
-    both cut rather than the noise choosing."""
-    cand = np.flatnonzero(big)
-    order = cand[np.lexsort((-z[cand], ep[cand]))]            # by epoch, then largest first
-    first = np.r_[True, ep[order][1:] != ep[order][:-1]]
-    second = np.r_[False, ~first[1:] & first[:-1]]
-    best = np.zeros(n_ep)
-    best[ep[order][first]] = z[order][first]
-    keep = first | (second & (z[order] >= TD_SLIP_TIE * best[ep[order]]))
-    hit = np.zeros(z.size, dtype=bool)
-    hit[order[keep]] = True
-    return hit
+def _previous_rows(epoch, channel, n_ep: int, known) -> tuple[np.ndarray, np.ndarray]:
+    """(rows i, rows j): each row i not ``known`` whose channel has a row j at the epoch before."""
+    key = channel.astype(np.int64) * (n_ep + 1) + epoch
+    order = np.argsort(key, kind="stable")
+    pos = np.minimum(np.searchsorted(key[order], key - 1), key.size - 1)
+    has_prev = (key[order][pos] == key - 1) & ~known
+    return np.flatnonzero(has_prev), order[pos[has_prev]]
+
+
+def _largest_and_ties(ep, z, big, n_ep) -> np.ndarray:
+    """(M,) bool: each epoch's largest ``z`` among ``big``, and every other within :data:`TD_SLIP_TIE` of it: channels
+    whose geometry leaves their w-tests correlated (removing either hides the other's jump; three within 2 % were
+    seen) are all cut rather than the noise choosing."""
+    best = np.full(n_ep, -1.0)
+    np.maximum.at(best, ep[big], z[big])
+    return big & (z >= TD_SLIP_TIE * best[ep])
 
 
 def _td_residuals(y, w, g, grp, ep, live, n_ep):
     """Residuals (M,) of each epoch's least-squares fit of the changes ``y`` (rows ``live``) by a displacement and
-    one term per group, each epoch's redundancy (n_ep,): changes less groups less 3 (0 where not fitted), the
-    displacements (n_ep, 3) and each change's leverage (M,) (0 for rows not ``live``)."""
+    one term per group (:func:`~cdgps_cli.measurement.epoch_fit.grouped_epoch_fit`), each epoch's redundancy
+    (n_ep,): changes less groups less 3 (0 where not fitted), the displacements (n_ep, 3) and each change's leverage
+    (M,) (0 for rows not ``live``)."""
     wl = np.where(live, w, 0.0)
     n_grp = int(grp.max()) + 1
-    s = np.bincount(grp, weights=wl, minlength=n_grp)
-    safe = np.where(s > 0, s, 1.0)
-    mean_g = np.stack([np.bincount(grp, weights=wl * g[:, c], minlength=n_grp) for c in range(3)], axis=1) / safe[:, None]
-    mean_y = np.bincount(grp, weights=wl * y, minlength=n_grp) / safe
-    gc, yc = g - mean_g[grp], y - mean_y[grp]
-    nmat, rhs = np.zeros((n_ep, 3, 3)), np.zeros((n_ep, 3))
-    for a in range(3):
-        rhs[:, a] = np.bincount(ep, weights=wl * yc * gc[:, a], minlength=n_ep)
-        for b in range(a, 3):
-            nmat[:, a, b] = nmat[:, b, a] = np.bincount(ep, weights=wl * gc[:, a] * gc[:, b], minlength=n_ep)
-    n_live = np.bincount(ep, weights=live.astype(float), minlength=n_ep)
     grp_live = np.bincount(grp, weights=live.astype(float), minlength=n_grp) > 0
     grp_ep = np.zeros(n_grp, dtype=np.int64)
     grp_ep[grp] = ep
-    redundancy = n_live - np.bincount(grp_ep[grp_live], minlength=n_ep) - 3
-    ok = redundancy > 0
-    if ok.any():
-        ev = np.linalg.eigvalsh(nmat[ok])
-        ok[ok] = ev[:, 0] > 1e-10 * np.maximum(ev[:, -1], np.finfo(float).tiny)
-    step, n_inv = np.zeros((n_ep, 3)), np.zeros((n_ep, 3, 3))
-    n_inv[ok] = np.linalg.inv(nmat[ok])
-    step[ok] = np.einsum("kab,kb->ka", n_inv[ok], rhs[ok])
-    r = yc - np.einsum("ic,ic->i", gc, step[ep])
+    redundancy = (np.bincount(ep, weights=live.astype(float), minlength=n_ep)
+                  - np.bincount(grp_ep[grp_live], minlength=n_ep) - 3)
+    fit = grouped_epoch_fit(y, wl, g, grp, ep, n_grp, n_ep, usable=redundancy > 0)
+    r = fit.yc - np.einsum("ic,ic->i", fit.gc, fit.step[ep])
     # the hat matrix's diagonal (the group term and the displacement are orthogonal once the geometry is centred)
-    leverage = wl * (1.0 / safe[grp] + np.einsum("ia,iab,ib->i", gc, n_inv[ep], gc))
-    return r, np.where(ok, redundancy, 0), step, np.clip(leverage, 0.0, 1.0)
+    leverage = wl * (1.0 / fit.group_weight[grp] + np.einsum("ia,iab,ib->i", fit.gc, fit.n_inv[ep], fit.gc))
+    return r, np.where(fit.ok, redundancy, 0), fit.step, np.clip(leverage, 0.0, 1.0)

@@ -12,7 +12,7 @@ import json
 import numpy as np
 import pytest
 
-from cdgps_cli.estimation.baseline import _full_rank
+from cdgps_cli.measurement.epoch_fit import full_rank as _full_rank
 from tests._shared import REPO_ROOT, run_cli
 
 WALK = REPO_ROOT.parent / "shared" / "data" / "real-pairs" / "ublox-walk"

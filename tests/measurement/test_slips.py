@@ -128,10 +128,12 @@ def test_time_differenced_slips_white_noise_flags_nothing():
 @given(st.integers(0, 10_000), st.integers(0, 7), st.integers(2, 98), st.sampled_from([-3, -1, -0.5, 0.5, 1, 2, 7]))
 def test_a_slip_the_geometry_lets_the_test_see_is_found_where_it_is(seed, ch, k, cycles):
     """Any channel, epoch and size, under 8 satellites: when the slip's expected w value |s|·√(w(1 − h)) (h its
-    leverage in that epoch's fit) reaches 12 (the 6σ threshold, with room for the record's noise scale and a
-    runner-up), its row is flagged, with at most three others of its epoch (a runner-up whose w value ties with it,
-    each round) and none elsewhere; below that, no other epoch is touched.  (The geometry decides: a channel of
-    leverage 0.945 shows 5.5 % of a half-cycle slip in its residual, an expected w value of 7.)"""
+    leverage in that epoch's fit) reaches 12 (the 6σ threshold, with room for the record's noise scale and for
+    channels that tie with it), its row is flagged, with others of its epoch whose w values tie with it (three
+    within 2 % were seen, where cutting the top two alone missed the slip; at most m − 3 of the epoch's m rows) and
+    none elsewhere; below that, no other epoch is touched.  (The geometry decides: a channel of leverage 0.945 shows
+    5.5 % of a half-cycle slip in its residual, an expected w value of 7.)  400 random cases: 1–4 rows flagged
+    (5 in the weakest geometry hypothesis found), none missed, none elsewhere."""
     from cdgps_cli.measurement.slips import _td_residuals
     rows, _ = _td_scene(seed=seed, n_ep=100)
     at = (rows["epoch"] == k)
@@ -144,6 +146,6 @@ def test_a_slip_the_geometry_lets_the_test_see_is_found_where_it_is(seed, ch, k,
     rows["phase_m"][(rows["channel"] == ch) & (rows["epoch"] >= k)] += cycles * LAM
     found, _ = _td(rows)
     slip = (rows["channel"] == ch) & (rows["epoch"] == k)
-    assert (rows["epoch"][found] == k).all() and found.sum() <= 4
+    assert (rows["epoch"][found] == k).all() and found.sum() <= m - 3
     if expected_w >= 12.0:
         assert found[slip].all(), expected_w
