@@ -41,6 +41,15 @@ FIXED_PHASE_UNIT_VARIANCE_MAX = 4.0
 #: integer on a short arc, which a long record's mean dilutes.  The real pairs' fixes: 0.14–2.7 over 120 s windows
 #: (M8P 1.5; 4.5 over 30 s windows); the car's wrong partial fix 11.6, the M8P 1 ms clock jump's 8.3
 FIXED_PHASE_WINDOW_S, FIXED_PHASE_WINDOW_UNIT_VARIANCE_MAX = 120.0, 8.0
+#: integers no epoch's phases can check (each epoch has fewer than four DDs of fixed arcs) are not taken from a
+#: moving rover's random-walk float whose NIS per SD row is above this (≈ 0.9 when the walk holds the motion; the
+#: real pairs under a walk that does: 0.1–1.8; p9's walker under 1 mm/√s 8 900 (8 integers), the GEONET car
+#: 2.7·10⁵ (3 integers, against 44 of 44 fixed under 1 m/√s): the arcs' Q was too small by as much)
+UNCHECKED_FIX_NIS_MAX = 10.0
+#: … and a random-walk float above it is solved again with its σ raised by this factor, at most this many times
+#: (1 mm/√s → 10 m/√s), before LAMBDA sees it: the first σ whose NIS is not above it gives the float (p9's walker
+#: 8 900 → 171 → 5.5 at 0.1 m/√s; the car 2.7·10⁵ → … → 1.8 at 1 m/√s, 44 of 44 integers fixed and checked)
+RANDOM_WALK_RAISE_FACTOR, RANDOM_WALK_MAX_RAISES = 10.0, 4
 
 #: pairing base epochs with rover epochs (measurement/epoch_pairing.py), every GNSS command:
 #: ``sync_tol_s`` a base epoch this close to a rover epoch is simultaneous (RTKLIB's DTTOL, 25 ms);

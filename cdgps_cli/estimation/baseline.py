@@ -49,7 +49,8 @@ from cdgps_cli.measurement.dd_displacement import SatelliteDDDisplacement, SDObs
 from cdgps_cli.model.dynamics_models import RandomWalk, WithConstants
 from cdgps_cli.config.limits import MASK_DEG
 from cdgps_cli.config.options import (FIXED_PHASE_UNIT_VARIANCE_MAX, FIXED_PHASE_WINDOW_S,
-                                      FIXED_PHASE_WINDOW_UNIT_VARIANCE_MAX, GNSS_DEFAULTS, GNSS_WEIGHTINGS)
+                                      FIXED_PHASE_WINDOW_UNIT_VARIANCE_MAX, GNSS_DEFAULTS, GNSS_WEIGHTINGS,
+                                      UNCHECKED_FIX_NIS_MAX)
 from cdgps_cli.measurement.differencing import (
     ambiguity_datum,
     ambiguity_segments,
@@ -1855,6 +1856,12 @@ def _engine_solution(d: _Data, sg: _Segments, w: _Weights, eng: dict, xr0, r_enu
     if eng.get("random_walk") is not None:
         fl.block["motion"] = "random_walk"
         fl.block["random_walk_sigma_m_per_sqrt_s"] = list(opt.random_walk_sigma)
+        rw = eng["random_walk"]
+        fl.block["random_walk_nis_per_row"] = _nan_none(rw.nis_per_row)
+        if len(rw.tried) > 1:               # the walk's σ raised until its float held the motion
+            fl.block["random_walk_sigma_used_m_per_sqrt_s"] = list(rw.sigma_m_per_sqrt_s)
+            fl.block["random_walk_tried"] = [{"sigma_m_per_sqrt_s": list(sig), "nis_per_row": _nan_none(nis)}
+                                             for sig, nis in rw.tried]
     glo = np.where(_fdma_segments(d, sg) & np.isfinite(seg_int), seg_int, np.nan) if opt.glonass_fix else None
     fx = _Fix(a_res, q_res, fixed_mask, ints, _nan_none(res.get("ratio")),
               _nan_none(res.get("ratio_full_set")), bool(res.get("accepted", False)), bool(res.get("partial", False)),
@@ -1865,9 +1872,12 @@ def _engine_solution(d: _Data, sg: _Segments, w: _Weights, eng: dict, xr0, r_enu
     if check is not None:                      # the integers' check by the phases alone (static_engine.fixed_phase_check)
         check = dict(check, threshold=FIXED_PHASE_UNIT_VARIANCE_MAX, window_s=FIXED_PHASE_WINDOW_S,
                      window_threshold=FIXED_PHASE_WINDOW_UNIT_VARIANCE_MAX)
-        if res.get("rejected_n_fixed"):
-            fl.block["rejected_fix"] = {"n_integers": int(res["rejected_n_fixed"]), "ratio": _nan_none(res.get("ratio")),
-                                        "phase_check": check}
+    if res.get("rejected_n_fixed"):
+        fl.block["rejected_fix"] = {"n_integers": int(res["rejected_n_fixed"]), "ratio": _nan_none(res.get("ratio")),
+                                    "rejected_by": res.get("rejected_by", "phase_check"),
+                                    **({"phase_check": check} if check is not None else
+                                       {"float_nis_per_row": _nan_none(res.get("float_nis_per_row")),
+                                        "float_nis_threshold": UNCHECKED_FIX_NIS_MAX})}
     if not n_fixed + n_glo:
         a_sig = np.zeros(sg.n_seg)
         a_sig[sg.free] = np.sqrt(np.diag(q_fl)[3:])
@@ -2002,7 +2012,7 @@ def _engine_or_batch(master: Station, rover: Station, nav, opt: BaselineOptions,
                                                         arcs_check=lambda arcs: _engine_columns(d, sg, arcs))
     known = eng if isinstance(eng, str) else _engine_solution(d, sg, w, eng, xr0, r_enu, opt)
     if warnings is not None and not isinstance(eng, str):
-        warnings += _rejected_fix_warning(eng.get("resolution"))
+        warnings += _rejected_fix_warning(eng.get("resolution")) + _random_walk_misfit_warning(eng)
     return (None, f"batch ({known})") if isinstance(known, str) else (known, "static_engine")
 
 
@@ -2017,10 +2027,44 @@ def _unflagged_slip_warning(events: dict | None) -> list:
             f"phases, start a new ambiguity: {', '.join(where[:8])}{more}"]
 
 
+def _random_walk_misfit_warning(eng: dict) -> list:
+    """The warning for a random-walk float that does not hold the rover's motion (NIS per row above
+    :data:`~cdgps_cli.config.options.UNCHECKED_FIX_NIS_MAX`), unless :func:`_rejected_fix_warning` says it."""
+    rw, res = eng.get("random_walk"), eng.get("resolution") or {}
+    if rw is None or len(rw.tried) < 2:
+        return []
+    (sig0, nis0), (sig, nis) = rw.tried[0], rw.tried[-1]
+    raised = (f"init's random-walk float at [gnss.displacement] sigma_m_per_sqrt_s {_sigma_text(sig0)} m/sqrt(s) did "
+              f"not hold the rover's motion (NIS {nis0:.3g} per row, about 1 when it holds; above "
+              f"{UNCHECKED_FIX_NIS_MAX:g} its sigma is too small by about as much): ")
+    if nis > UNCHECKED_FIX_NIS_MAX:
+        if res.get("rejected_by") == "float_nis":
+            return []                       # _rejected_fix_warning says it
+        return [raised + f"raised to {_sigma_text(sig)} m/sqrt(s) it still did not (NIS {nis:.3g}); its integers and "
+                         f"sigma do not hold"]
+    return [raised + f"LAMBDA saw its float at {_sigma_text(sig)} m/sqrt(s) (NIS {nis:.3g}). Set sigma_m_per_sqrt_s "
+                     f"near {_sigma_text(sig)}: estimate's random_walk states use it too, and under the configured "
+                     f"one they will not follow the rover"]
+
+
+def _sigma_text(sigma) -> str:
+    """A walk's σ (3,) as one number when its components are equal."""
+    v = [float(x) for x in sigma]
+    return f"{v[0]:g}" if len(set(v)) == 1 else "/".join(f"{x:g}" for x in v)
+
+
 def _rejected_fix_warning(res: dict | None) -> list:
-    """The warning for integers the engine's phase check rejected (:func:`~.static_engine.fixed_phase_check`)."""
+    """The warning for integers the engine rejected (:func:`~.static_engine.fixed_integers_rejected`): by the
+    phase check (:func:`~.static_engine.fixed_phase_check`), or, unchecked, by the random-walk float's NIS."""
     if not res or not res.get("rejected_n_fixed"):
         return []
+    if res.get("rejected_by") == "float_nis":
+        return [f"{res['rejected_n_fixed']} integers passed LAMBDA (ratio {res['ratio']:.1f}) and were rejected: no "
+                f"epoch has phases of their arcs to spare to check them, and the random-walk float they came from "
+                f"does not hold the rover's motion (NIS {res['float_nis_per_row']:.3g} per row, above "
+                f"{UNCHECKED_FIX_NIS_MAX:g}; about 1 when it holds), so its sigma is too small by about as much; the "
+                f"solution is float. A [gnss.displacement] sigma_m_per_sqrt_s that follows the rover (a walker or a "
+                f"car: 1 m/sqrt(s)) gives a float whose integers can be judged"]
     chk = res["phase_check"]
     win = chk.get("window_unit_variance")
     worst = "" if win is None else f", {win:.3g} in its worst {FIXED_PHASE_WINDOW_S:g} s"

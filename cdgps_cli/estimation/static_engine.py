@@ -15,6 +15,9 @@ not implement).  ``baseline`` and GNSS ``init`` solve here through
 (:func:`arc_table`, :func:`arc_integers`, the states) in its JSON forms.
 """
 
+import math
+from typing import NamedTuple
+
 import numpy as np
 
 from cdgps_cli.core import progress
@@ -22,7 +25,8 @@ from cdgps_cli.estimation.driver import EpochGrid, GridDynamics, RecordingSink, 
 from cdgps_cli.estimation.kalman import StepFilter
 from cdgps_cli.config.options import (FIXED_PHASE_UNIT_VARIANCE_MAX, FIXED_PHASE_WINDOW_S,
                                       FIXED_PHASE_WINDOW_UNIT_VARIANCE_MAX, GNSS_DEFAULTS, GNSS_WEIGHTINGS, IONO_WEIGHTED_MIN_SIGMA_M,
-                                      MULTI_GNSS_DEFAULTS)
+                                      MULTI_GNSS_DEFAULTS, RANDOM_WALK_MAX_RAISES, RANDOM_WALK_RAISE_FACTOR,
+                                      UNCHECKED_FIX_NIS_MAX)
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.dd_signals import DDGroupModel, RunDDModel, epoch_groups, paired_sd_rows
 from cdgps_cli.measurement.differencing import ambiguity_datum, ambiguity_segments
@@ -408,6 +412,17 @@ def fixed_phase_rejects(check: dict | None) -> bool:
         win is not None and win > FIXED_PHASE_WINDOW_UNIT_VARIANCE_MAX)
 
 
+def fixed_integers_rejected(check: dict | None, float_nis_per_row: float | None) -> str | None:
+    """Why fixed integers are not taken, or None: ``"phase_check"`` when :func:`fixed_phase_rejects` says so;
+    ``"float_nis"`` when the phases cannot judge them (``check`` None: no epoch has phases of fixed arcs to
+    spare) and the float's NIS per row is above :data:`~cdgps_cli.config.options.UNCHECKED_FIX_NIS_MAX`."""
+    if fixed_phase_rejects(check):
+        return "phase_check"
+    if check is None and float_nis_per_row is not None and float_nis_per_row > UNCHECKED_FIX_NIS_MAX:
+        return "float_nis"
+    return None
+
+
 #: the fewest DDs to spare a window of fixed_phase_check needs to be judged
 _WINDOW_MIN_DOF = 20
 
@@ -446,7 +461,12 @@ def random_walk_float(rows, cols, times_s, base_xyz_m, origin_xyz_m, x_static, *
 
     Returns
     -------
-    a : ndarray (n_arc,) cycles, Q : ndarray (n_arc, n_arc) cycles²
+    RandomWalkFloat
+        ``a`` (n_arc,) cycles, ``Q`` (n_arc, n_arc) cycles² and ``nis_per_row``: the filter's NIS summed over the
+        record per SD row used (each epoch's NIS has one degree of freedom per DD, a row fewer per signal group,
+        so a walk that holds the rover's motion gives a little under 1; the real static pairs 0.1–1.3).  Far above
+        (p9's walker: 8 900, the GEONET car: 2.7·10⁵ at 1 mm/√s) the walk does not hold the motion, and the
+        arcs' Q is too small by about as much.
     """
     n_arc_state = x_static.size
     iono_cols, n_iono = iono_columns(rows, n_arc_state) if sigma_iono_m > 0 else (None, 0)
@@ -458,7 +478,38 @@ def random_walk_float(rows, cols, times_s, base_xyz_m, origin_xyz_m, x_static, *
     with progress.bar(len(times_s), "static baseline (random-walk filter)", unit="epoch") as bar:
         ctx = drive(GridDynamics(dyn, times_s), [model], EpochGrid(np.asarray(times_s, float)),
                     StepFilter(x0, P0, form="covariance"), sink=RecordingSink(len(times_s), n, history=False), max_iterations=max_iterations, progress=bar)
-    return ctx.step.x[3:n_arc_state].copy(), ctx.step.P[3:n_arc_state, 3:n_arc_state].copy()
+    n_rows = int(ctx.nis_dof.sum())
+    return RandomWalkFloat(ctx.step.x[3:n_arc_state].copy(), ctx.step.P[3:n_arc_state, 3:n_arc_state].copy(),
+                           float(np.nansum(ctx.nis) / n_rows) if n_rows else math.nan)
+
+
+class RandomWalkFloat(NamedTuple):
+    """:func:`random_walk_float`'s answer: the arcs' float ``a`` (cycles), ``Q`` (cycles²) and the filter's
+    ``nis_per_row`` (its NIS per SD row over the record); from :func:`random_walk_float_that_holds`, also the
+    walk's σ used (``sigma_m_per_sqrt_s``, (3,) E/N/U) and every σ tried with its NIS per row (``tried``)."""
+
+    a: np.ndarray
+    Q: np.ndarray
+    nis_per_row: float
+    sigma_m_per_sqrt_s: tuple = ()
+    tried: tuple = ()
+
+
+def random_walk_float_that_holds(rows, cols, times_s, base_xyz_m, origin_xyz_m, x_static, *, sigma_rw, **kw):
+    """:func:`random_walk_float` at σ ``sigma_rw``, and while its NIS per row is above
+    :data:`~cdgps_cli.config.options.UNCHECKED_FIX_NIS_MAX` (the walk does not hold the rover's motion and the
+    arcs' Q is too small by about as much) again at σ × :data:`~cdgps_cli.config.options.RANDOM_WALK_RAISE_FACTOR`,
+    at most :data:`~cdgps_cli.config.options.RANDOM_WALK_MAX_RAISES` times.  Returns the first float that holds, else
+    the last tried, as a :class:`RandomWalkFloat` with the σ used and every (σ, NIS per row) tried."""
+    sigma = np.broadcast_to(np.asarray(sigma_rw, dtype=float), (3,))
+    tried = []
+    for _ in range(RANDOM_WALK_MAX_RAISES + 1):
+        rw = random_walk_float(rows, cols, times_s, base_xyz_m, origin_xyz_m, x_static, sigma_rw=sigma, **kw)
+        tried.append((tuple(float(v) for v in sigma), rw.nis_per_row))
+        if not rw.nis_per_row > UNCHECKED_FIX_NIS_MAX:
+            break
+        sigma = sigma * RANDOM_WALK_RAISE_FACTOR
+    return rw._replace(sigma_m_per_sqrt_s=tried[-1][0], tried=tuple(tried))
 
 
 class _Ctx:
@@ -550,7 +601,8 @@ def condition_on_integers(x, P, D, ints):
 
 
 def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_success_rate: float | None = None,
-               amb=None, glonass_fix: bool = False, base_xyz_m=None, origin_xyz_m=None, times_s=None):
+               amb=None, glonass_fix: bool = False, base_xyz_m=None, origin_xyz_m=None, times_s=None,
+               float_nis_per_row: float | None = None):
     """Integers of the static float solution by the shared policy on the DDs of :func:`dd_of_arcs`: with
     ``partial``, :func:`~cdgps_cli.estimation.ambiguity.resolve_cascaded` (the largest subset that passes, then
     the rest conditioned on it, again, until a stage fixes nothing); else the full set only
@@ -562,6 +614,13 @@ def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_succ
         ``offset_m`` (3,) fixed (float when nothing fixed), ``cov_m2`` (3, 3), ``resolution`` (resolve's
         dict, its ``fixed_mask`` / ``integers`` over all DDs: the ones not fixable stay float), ``pairs``
         (the DDs' column pairs), ``dd_float`` (n_dd,) cycles.
+
+    Integers are then checked (:func:`fixed_integers_rejected`): by the phases alone
+    (:func:`fixed_phase_check`), or, when no epoch has phases of fixed arcs to spare, by the float's own
+    consistency: ``float_nis_per_row`` (a moving rover's random-walk float, :class:`RandomWalkFloat`) above
+    :data:`~cdgps_cli.config.options.UNCHECKED_FIX_NIS_MAX` means the walk did not hold the motion, its Q is too
+    small, and integers nothing else can check are not taken.  Rejected integers leave the float, with
+    ``rejected_n_fixed`` and ``rejected_by`` (``"phase_check"`` or ``"float_nis"``) in ``resolution``.
     """
     from cdgps_cli.estimation.ambiguity import resolve, resolve_cascaded
     D, pairs, fixable = dd_of_arcs(rows, cols, x.size, glonass_fix)
@@ -582,9 +641,11 @@ def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_succ
     check = fixed_phase_check(rows, cols, [pairs[i] for i in np.flatnonzero(m)], x_fix, base_xyz_m, origin_xyz_m,
                               times_s)
     res["phase_check"] = check
-    if fixed_phase_rejects(check):
+    res["float_nis_per_row"] = float_nis_per_row
+    why = fixed_integers_rejected(check, float_nis_per_row) if m.any() else None
+    if why is not None:
         res.update(fixed_mask=np.zeros(a.size, dtype=bool), integers=np.zeros(a.size, dtype=np.int64), n_fixed=0,
-                   accepted=False, partial=False, rejected_n_fixed=int(m.sum()))
+                   accepted=False, partial=False, rejected_n_fixed=int(m.sum()), rejected_by=why)
         x_fix, P_fix = x.copy(), P.copy()
     return {"offset_m": x_fix[:3].copy(), "cov_m2": P_fix[:3, :3].copy(), "resolution": res, "pairs": pairs,
             "dd_float": a, "state_fixed": x_fix, "cov_fixed": P_fix}
@@ -724,9 +785,9 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
         lambda_float = (xi[3:n_state], Pi[3:n_state, 3:n_state])
     rw = None
     if opt["motion"] == "random_walk" and x.size > 3:
-        rw = random_walk_float(rows, cols, times, base_xyz_m, rover_xyz0_m, x, sigma_rw=opt["random_walk_sigma"],
-                               initial_sigma_m=opt["initial_sigma_m"], sigma_iono_m=sigma_iono,
-                               **(sigma_amb if opt["glonass_fix"] else {}))
+        rw = random_walk_float_that_holds(rows, cols, times, base_xyz_m, rover_xyz0_m, x,
+                                          sigma_rw=opt["random_walk_sigma"], initial_sigma_m=opt["initial_sigma_m"],
+                                          sigma_iono_m=sigma_iono, **(sigma_amb if opt["glonass_fix"] else {}))
         lambda_float = rw
     if not opt["fix"]:
         f = {"offset_m": x[:3].copy(), "cov_m2": P[:3, :3].copy(), "resolution": None, "pairs": [], "dd_float": None,
@@ -734,7 +795,8 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
     else:
         f = static_fix(x, P, rows, cols, ratio=opt["ratio"], partial=opt["partial"],
                        min_success_rate=opt["min_success_rate"], amb=lambda_float, glonass_fix=opt["glonass_fix"],
-                       base_xyz_m=base_xyz_m, origin_xyz_m=rover_xyz0_m, times_s=times)
+                       base_xyz_m=base_xyz_m, origin_xyz_m=rover_xyz0_m, times_s=times,
+                       float_nis_per_row=None if rw is None else rw.nis_per_row)
     return {**f, "random_walk": rw, "lambda_float": lambda_float, "iono_sigma_m": sigma_iono, "unflagged_slips": slips,
             "float_offset_m": x[:3], "float_cov_m2": P[:3, :3], "epochs_used": int(times.size),
             "epoch_pairing": pairs.summary, "state": x, "cov": P, "arcs": arc_table(rows, cols, times),

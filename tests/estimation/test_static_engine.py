@@ -757,3 +757,35 @@ def test_a_wrong_integer_on_a_short_span_is_seen_in_its_window(run):
     assert chk["unit_variance"] < FIXED_PHASE_UNIT_VARIANCE_MAX < FIXED_PHASE_WINDOW_UNIT_VARIANCE_MAX < chk["window_unit_variance"]
     assert fixed_phase_rejects(chk)
     assert "window_unit_variance" not in fixed_phase_check(rows, cols, pairs, f["state_fixed"], base_xyz, origin)
+
+
+@pytest.mark.parametrize("check, nis, why", [
+    ({"unit_variance": 5.0}, None, "phase_check"),                 # the phases reject, whatever the float
+    ({"unit_variance": 5.0}, 0.5, "phase_check"),
+    ({"unit_variance": 0.5, "window_unit_variance": 9.0}, 1e5, "phase_check"),
+    ({"unit_variance": 0.5}, 1e5, None),                           # the phases judge and pass: a float that did not
+    (None, 1e5, "float_nis"),                                      # hold is rejected only when nothing else judges
+    (None, 10.0, None),
+    (None, None, None),                                            # a static float (no NIS): as before
+])
+def test_fixed_integers_rejected_by_phases_else_by_the_float_nis(check, nis, why):
+    from cdgps_cli.estimation.static_engine import fixed_integers_rejected
+    assert fixed_integers_rejected(check, nis) == why
+
+
+def test_the_walk_is_raised_only_while_its_float_does_not_hold(monkeypatch):
+    """random_walk_float_that_holds: σ × 10 while the NIS per row is above 10, at most four times; the answer
+    carries every σ tried."""
+    from cdgps_cli.estimation import static_engine as se
+    seen = []
+
+    def fake(*args, sigma_rw, **kw):
+        seen.append(float(sigma_rw[0]))
+        return se.RandomWalkFloat(np.zeros(1), np.eye(1), {0.001: 5e4, 0.01: 60.0, 0.1: 9.0}.get(round(seen[-1], 6), 50.0))
+    monkeypatch.setattr(se, "random_walk_float", fake)
+    rw = se.random_walk_float_that_holds(None, None, None, None, None, None, sigma_rw=0.001)
+    assert seen == pytest.approx([0.001, 0.01, 0.1]) and rw.sigma_m_per_sqrt_s == pytest.approx((0.1,) * 3)
+    assert [t[1] for t in rw.tried] == [5e4, 60.0, 9.0] and rw.nis_per_row == 9.0
+    seen.clear()
+    rw = se.random_walk_float_that_holds(None, None, None, None, None, None, sigma_rw=(1.0, 1.0, 2.0))
+    assert len(seen) == 5 and rw.sigma_m_per_sqrt_s == pytest.approx((1e4, 1e4, 2e4)) and rw.nis_per_row == 50.0

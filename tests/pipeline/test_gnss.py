@@ -517,6 +517,41 @@ def test_random_walk_float_reduces_to_static_and_fixes_a_wandering_rover():
     assert mr["n_fixed"] == mr["n_estimated"] and mr["ratio"] > 10 and ints(mr) == ints(a)
 
 
+def test_init_raises_a_walk_too_slow_for_the_simulated_rover(tmp_path):
+    """Simulator truth: a rover random-walking at 5 cm/√s (≈ 1 m in 10 min) with the simulator's phase noise at the
+    default weighting.  At the true σ the random-walk float's NIS per SD row is under 1 (each epoch's NIS has a degree
+    of freedom per DD, a row fewer per group; measured 0.73) and nothing is raised.  Configured at 0.5 mm/√s its NIS
+    is 47: init solves it again at 5 mm/√s (NIS 5.4, at most UNCHECKED_FIX_NIS_MAX), fixes every integer, the same
+    integers as at the true σ, and says so."""
+    from cdgps_cli.config.options import UNCHECKED_FIX_NIS_MAX
+    from cdgps_cli.sim.gnss import simulate_gnss_pair
+
+    simulate_gnss_pair(tmp_path, duration_s=600.0, seed=7, n_slips=3, random_walk_sigma=0.05)
+    text = (tmp_path / "config.toml").read_text()
+    assert "sigma_m_per_sqrt_s = 0.05" in text
+    got = {}
+    for sigma in ("0.05", "0.0005"):
+        (tmp_path / f"c{sigma}.toml").write_text(text.replace("sigma_m_per_sqrt_s = 0.05",
+                                                             f"sigma_m_per_sqrt_s = {sigma}"))
+        for args in (("ingest", "--config", tmp_path / f"c{sigma}.toml", "-o", tmp_path / f"r{sigma}.mcap"),
+                     ("init", tmp_path / f"r{sigma}.mcap", "-o", tmp_path / f"i{sigma}.json")):
+            r = run_cli("-q", *args)
+            assert r.exit_code == 0, r.output
+        got[sigma] = json.loads((tmp_path / f"i{sigma}.json").read_text())
+    true, slow = got["0.05"]["rovers"]["rover"], got["0.0005"]["rovers"]["rover"]
+    assert "random_walk_tried" not in true["float"] and 0.5 < true["float"]["random_walk_nis_per_row"] < 1.0
+    tried = slow["float"]["random_walk_tried"]
+    assert tried[0]["nis_per_row"] > 3 * UNCHECKED_FIX_NIS_MAX and tried[-1]["nis_per_row"] <= UNCHECKED_FIX_NIS_MAX
+    assert [t["sigma_m_per_sqrt_s"][0] for t in tried] == [0.0005, 0.005]
+    assert true["n_fixed"] == true["n_estimated"] == slow["n_fixed"] == slow["n_estimated"] > 5
+
+    def ints(init):
+        return [(b["satellite"], b["first"], b["integer_cycles"]) for b in init["biases"]]
+    assert ints(got["0.05"]) == ints(got["0.0005"])
+    assert any("did not hold the rover's motion" in w for w in slow["warnings"])
+    assert not any("did not hold" in w for w in true["warnings"])
+
+
 def test_single_receiver_run_is_refused_by_init(tmp_path):
     d = tmp_path / "s"
     assert run_cli("-q", "simulate-gnss", "--duration", "60", "--out", d).exit_code == 0

@@ -90,13 +90,21 @@ def test_a_random_walk_has_no_velocity_columns(rover, tmp_path):
     assert not any("_v" in c and c.endswith("_m_s") for c in pd.read_csv(tmp_path / "rw.csv").columns)
 
 
-def test_a_model_that_cannot_follow_the_rover_is_said(rover, tmp_path):
+def _slow_walk_config(rover, tmp_path):
     cfg = tmp_path / "bad.toml"
     text = re.sub(r"^sigma_m_per_sqrt_s = .*$", "sigma_m_per_sqrt_s = 0.001", (rover / "config.toml").read_text(),
                   flags=re.M)
     cfg.write_text(text.replace('"base.rnx"', f'"{rover / "base.rnx"}"').replace('"rover.rnx"', f'"{rover / "rover.rnx"}"')
                    .replace('"nav.rnx"', f'"{rover / "nav.rnx"}"'))
-    s, err = _chain(tmp_path, cfg, "bad")
+    return cfg
+
+
+def test_a_model_that_cannot_follow_the_rover_is_said(rover, tmp_path, monkeypatch):
+    """init's float under a 1 mm/√s walk, with the walk not raised (RANDOM_WALK_MAX_RAISES 0): nothing fixed, and
+    init and estimate each say the model does not follow the rover."""
+    from cdgps_cli.estimation import static_engine
+    monkeypatch.setattr(static_engine, "RANDOM_WALK_MAX_RAISES", 0)
+    s, err = _chain(tmp_path, _slow_walk_config(rover, tmp_path), "bad")
     r = run_cli("-q", "init", tmp_path / "bad.mcap", "-o", tmp_path / "again.json")       # init says it first
     assert r.exit_code == 0 and "cdgps: warning: baseline base → rover: no integer fixed, and the static float does " \
         "not fit the data" in r.stderr, r.stderr
@@ -106,6 +114,22 @@ def test_a_model_that_cannot_follow_the_rover_is_said(rover, tmp_path):
     assert any("mean NIS per degree of freedom" in w for w in s["warnings"]), s["warnings"]
     assert any("none of its 10 integers is fixed" in w for w in s["warnings"]), s["warnings"]
     assert "cdgps: warning: the double differences' mean NIS" in err and "sigma_m_per_sqrt_s" in err, err
+
+
+def test_init_raises_a_walk_its_float_cannot_follow_and_the_chain_holds(rover, tmp_path):
+    """The same 1 mm/√s walk as init's float, raised as init now does: its NIS per row 26 (the walk does not hold
+    the rover), solved again at 0.01 m/√s (1.8), every integer fixed, said in a warning; estimate's constant-velocity
+    states then hold (NIS per dof ≈ 1, measured 1.00), where nothing was fixed and the NIS was above 100."""
+    s, err = _chain(tmp_path, _slow_walk_config(rover, tmp_path), "bad")
+    r = run_cli("-q", "init", tmp_path / "bad.mcap", "-o", tmp_path / "again.json")
+    assert r.exit_code == 0 and "init's random-walk float at [gnss.displacement] sigma_m_per_sqrt_s 0.001 m/sqrt(s) " \
+        "did not hold the rover's motion" in r.stderr, r.stderr
+    rov = json.loads((tmp_path / "again.json").read_text())["rovers"]["rover"]
+    tried = rov["float"]["random_walk_tried"]
+    assert rov["float"]["random_walk_sigma_used_m_per_sqrt_s"] == [0.01] * 3 and len(tried) == 2
+    assert tried[0]["nis_per_row"] > 10 >= tried[1]["nis_per_row"]
+    assert rov["n_fixed"] == rov["n_estimated"] == 10
+    assert 0.7 < s["mean_nis_per_dof"] < 1.3 and not any("mean NIS" in w for w in s["warnings"]), s
 
 
 def test_init_says_what_its_states_are_under_a_moving_model(rover, tmp_path):
