@@ -51,6 +51,12 @@ UNCHECKED_FIX_NIS_MAX = 10.0
 #: 8 900 → 171 → 5.5 at 0.1 m/√s; the car 2.7·10⁵ → … → 1.8 at 1 m/√s, 44 of 44 integers fixed and checked)
 RANDOM_WALK_RAISE_FACTOR, RANDOM_WALK_MAX_RAISES = 10.0, 4
 
+#: a step of a signal group's SD codes against its phases at least this large, m, common to the group's channels
+#: between two epochs, is a receiver clock jump in the codes alone (1 ms: 299.8 km), which the static engine's arc
+#: prior removes (static_engine.code_clock_steps); code multipath and the ionosphere change (code − phase) by
+#: centimetres to a metre from one epoch to the next
+CODE_CLOCK_STEP_MIN_M = 30.0
+
 #: pairing base epochs with rover epochs (measurement/epoch_pairing.py), every GNSS command:
 #: ``sync_tol_s`` a base epoch this close to a rover epoch is simultaneous (RTKLIB's DTTOL, 25 ms);
 #: ``max_age_s`` the oldest base epoch bridged across a base gap (RTKLIB's ``pos2-maxage`` default, 30 s);

@@ -2012,7 +2012,8 @@ def _engine_or_batch(master: Station, rover: Station, nav, opt: BaselineOptions,
                                                         arcs_check=lambda arcs: _engine_columns(d, sg, arcs))
     known = eng if isinstance(eng, str) else _engine_solution(d, sg, w, eng, xr0, r_enu, opt)
     if warnings is not None and not isinstance(eng, str):
-        warnings += _rejected_fix_warning(eng.get("resolution")) + _random_walk_misfit_warning(eng)
+        warnings += (_rejected_fix_warning(eng.get("resolution")) + _random_walk_misfit_warning(eng)
+                     + _code_step_warning(eng.get("code_clock_steps")))
     return (None, f"batch ({known})") if isinstance(known, str) else (known, "static_engine")
 
 
@@ -2025,6 +2026,19 @@ def _unflagged_slip_warning(events: dict | None) -> list:
     more = f" and {len(where) - 8} more" if len(where) > 8 else ""
     return [f"{len(where)} cycle slip(s) that no receiver flagged, found in the epoch-to-epoch change of the "
             f"phases, start a new ambiguity: {', '.join(where[:8])}{more}"]
+
+
+def _code_step_warning(steps: dict | None) -> list:
+    """The warning naming the steps of the SD codes that the phases did not take (a receiver clock jump in the
+    codes alone, :func:`~.static_engine.code_clock_steps`), which the arcs' prior removed."""
+    if not steps or not len(steps["step_m"]):
+        return []
+    where = [f"{v / 1e3:+.3f} km ({v / SPEED_OF_LIGHT_M_S * 1e3:+.4f} ms) in {sig} at {gps_time_str(float(t))}"
+             for v, sig, t in zip(steps["step_m"], steps["signal"], steps["time_s"])]
+    more = f" and {len(where) - 4} more" if len(where) > 4 else ""
+    return [f"the single-difference codes stepped while the phases did not: {', '.join(where[:4])}{more} (a receiver "
+            f"clock jump that one receiver's codes took and its carrier did not); the double differences do not see "
+            f"it, and each ambiguity's starting value is taken with the step removed"]
 
 
 def _random_walk_misfit_warning(eng: dict) -> list:

@@ -19,11 +19,12 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+import pandas as pd
 
 from cdgps_cli.core import progress
 from cdgps_cli.estimation.driver import EpochGrid, GridDynamics, RecordingSink, drive
 from cdgps_cli.estimation.kalman import StepFilter
-from cdgps_cli.config.options import (FIXED_PHASE_UNIT_VARIANCE_MAX, FIXED_PHASE_WINDOW_S,
+from cdgps_cli.config.options import (CODE_CLOCK_STEP_MIN_M, FIXED_PHASE_UNIT_VARIANCE_MAX, FIXED_PHASE_WINDOW_S,
                                       FIXED_PHASE_WINDOW_UNIT_VARIANCE_MAX, GNSS_DEFAULTS, GNSS_WEIGHTINGS, IONO_WEIGHTED_MIN_SIGMA_M,
                                       MULTI_GNSS_DEFAULTS, RANDOM_WALK_MAX_RAISES, RANDOM_WALK_RAISE_FACTOR,
                                       UNCHECKED_FIX_NIS_MAX)
@@ -99,11 +100,15 @@ def iono_columns(rows, n_state: int) -> tuple[np.ndarray, int]:
 
 def static_prior(rows, cols, n_state: int, sigma_pos_m: float, sigma_amb_cycles: float, *, n_iono: int = 0,
                  sigma_iono_m: float = 0.0):
-    """x0 (n,) and P0 (n, n): offset 0, each arc's ambiguity at its first row's (phase − code)/λ, and the last
-    ``n_iono`` states (SD ionosphere, m) 0 ± ``sigma_iono_m``."""
+    """x0 (n,) and P0 (n, n): offset 0, each arc's ambiguity at its first row's (phase − code)/λ less the code
+    steps its signal group took before (:func:`code_clock_steps`: a receiver clock jump in the codes alone would
+    otherwise set the prior of every arc begun after it 10⁶ cycles from the arcs begun before, and σ 30 cycles
+    pulled the M8P pair's float 0.5 m), and the last ``n_iono`` states (SD ionosphere, m) 0 ± ``sigma_iono_m``."""
     x0 = np.zeros(n_state)
     first = np.unique(cols, return_index=True)[1]
-    x0[cols[first]] = (rows["phase_sd_m"][first] - rows["code_sd_m"][first]) / rows["lam_m"][first]
+    steps = code_clock_steps(rows)
+    x0[cols[first]] = (rows["phase_sd_m"][first] - rows["code_sd_m"][first]
+                       + _steps_before(steps, rows, first)) / rows["lam_m"][first]
     x0[cols[first]] = np.round(x0[cols[first]])
     P0 = np.diag(np.r_[np.full(3, sigma_pos_m**2), np.full(n_state - 3 - n_iono, sigma_amb_cycles**2),
                        np.full(n_iono, sigma_iono_m**2)])
@@ -136,6 +141,53 @@ def static_filter(rows, times_s, base_xyz_m, origin_xyz_m, *, sigma_pos_m: float
         ctx = drive(GridDynamics(Static(n), times_s), [model], EpochGrid(np.asarray(times_s, float)),
                     StepFilter(x0, P0, form="covariance"), sink=sink, max_iterations=max_iterations, progress=bar)
     return ctx.step.x, ctx.step.P, cols
+
+
+def code_clock_steps(rows, min_step_m: float = CODE_CLOCK_STEP_MIN_M) -> dict:
+    """Steps of the SD codes that the phases do not take, common to a signal group: a receiver clock jump seen in
+    the codes alone (a receiver whose phase stays continuous when its clock is reset by 1 ms: the codes step by
+    c · 1 ms = 299.8 km).  Per signal, the median over the channels present at two consecutive epochs of the change
+    of (code − phase), m, where its size is at least ``min_step_m``.
+
+    Returns ``{"code": (k,) signal index, "epoch": (k,) epoch of each step (its first epoch after it), "step_m":
+    (k,) m}``, in epoch order.  The DDs do not see such a step (it is common to the group); only what uses SD
+    codes per row does (:func:`static_prior`)."""
+    n = rows["code"].size
+    empty = {"code": np.zeros(0, np.int64), "epoch": np.zeros(0, np.int64), "step_m": np.zeros(0)}
+    if n < 2:
+        return empty
+    epoch = np.repeat(np.arange(rows["ptr"].size - 1), np.diff(rows["ptr"]))
+    chan = channel_index(rows["sats"], rows["code"])
+    order = np.lexsort((epoch, chan))
+    c, e = chan[order], epoch[order]
+    pair = (c[1:] == c[:-1]) & (e[1:] == e[:-1] + 1)
+    d = (rows["code_sd_m"] - rows["phase_sd_m"])[order]
+    later = order[1:][pair]
+    change = (d[1:] - d[:-1])[pair]
+    if not change.size:
+        return empty
+    key = epoch[later].astype(np.int64) * (int(rows["code"].max()) + 1) + rows["code"][later]
+    med = pd.Series(change).groupby(key).median()
+    big = np.abs(med.to_numpy()) >= min_step_m
+    keys = med.index.to_numpy()[big]
+    n_code = int(rows["code"].max()) + 1
+    return {"code": keys % n_code, "epoch": keys // n_code, "step_m": med.to_numpy()[big]}
+
+
+def _steps_before(steps: dict, rows, idx) -> np.ndarray:
+    """Per row of ``idx``, the sum of its signal group's code steps (:func:`code_clock_steps`) at or before its
+    epoch, m."""
+    out = np.zeros(np.size(idx))
+    if not steps["step_m"].size:
+        return out
+    epoch = np.searchsorted(rows["ptr"], idx, side="right") - 1
+    code = rows["code"][idx]
+    for k in np.unique(steps["code"]):
+        sel = steps["code"] == k
+        cum = np.r_[0.0, np.cumsum(steps["step_m"][sel])]
+        here = code == k
+        out[here] = cum[np.searchsorted(steps["epoch"][sel], epoch[here], side="right")]
+    return out
 
 
 def static_least_squares(rows, cols, n_state: int, base_xyz_m, origin_xyz_m, *, sigma_pos_m: float = 100.0,
@@ -797,7 +849,10 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
                        min_success_rate=opt["min_success_rate"], amb=lambda_float, glonass_fix=opt["glonass_fix"],
                        base_xyz_m=base_xyz_m, origin_xyz_m=rover_xyz0_m, times_s=times,
                        float_nis_per_row=None if rw is None else rw.nis_per_row)
+    steps = code_clock_steps(rows)
+    steps["time_s"], steps["signal"] = times[steps["epoch"]], [rows["names"][k] for k in steps["code"]]
     return {**f, "random_walk": rw, "lambda_float": lambda_float, "iono_sigma_m": sigma_iono, "unflagged_slips": slips,
+            "code_clock_steps": steps,
             "float_offset_m": x[:3], "float_cov_m2": P[:3, :3], "epochs_used": int(times.size),
             "epoch_pairing": pairs.summary, "state": x, "cov": P, "arcs": arc_table(rows, cols, times),
             "arc_integers": arc_integers(f, x.size)}

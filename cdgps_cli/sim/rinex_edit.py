@@ -10,6 +10,8 @@ into one that does, changing only what the edit says and leaving every other byt
   exactly as a receiver whose clock reads δ ahead would have measured them.  The double
   differences are unchanged: a solver that models each receiver's reception instant must give
   the same answer as on the original file;
+* ``code_clock_s(t)`` — a clock jump that the codes carry and the phases do not (tags on the grid): the
+  ranges taken δ earlier, the codes c·δ more;
 * ``range_change_m(t, sats)`` — a known antenna motion: every pseudorange and phase of satellite
   s at epoch t changes by the geometric range change Δρ_s(t) (m; cycles Δρ/λ), for instance
   Δρ = −eᵀ d(t) with e the unit vector to the satellite and d(t) a vibration
@@ -96,9 +98,10 @@ def _epoch_line(ln: str, offset_s: float) -> str:
             f"{when.second:3d}.{frac:07d}" + ln[29:])
 
 
-def _shift_record(ln: str, codes: list, sat: str, slots: dict, dr_m: float) -> str:
-    """One satellite line with every L (cycles) and C (m) value moved by the range change ``dr_m``."""
-    if dr_m == 0.0:
+def _shift_record(ln: str, codes: list, sat: str, slots: dict, dr_m: float, code_only_m: float = 0.0) -> str:
+    """One satellite line with every L (cycles) and C (m) value moved by the range change ``dr_m``, the C values
+    by ``code_only_m`` more."""
+    if dr_m == 0.0 and code_only_m == 0.0:
         return ln
     out = list(ln.ljust(3 + 16 * len(codes)))
     for k, code in enumerate(codes):
@@ -109,11 +112,23 @@ def _shift_record(ln: str, codes: list, sat: str, slots: dict, dr_m: float) -> s
         lam = _wavelength(sat, code, slots) if code[0] == "L" else 1.0
         if not math.isfinite(lam):
             continue
-        out[a:a + 14] = f"{float(field) + dr_m / lam:14.3f}"
+        out[a:a + 14] = f"{float(field) + dr_m / lam + (code_only_m if code[0] == 'C' else 0.0):14.3f}"
     return "".join(out).rstrip()
 
 
-def edit_rinex3_obs(text: str, *, keep=None, clock_offset_s=None, range_change_m=None) -> str:
+def _doppler_range_rate_m_s(ln: str, codes: list, sat: str, slots: dict) -> float:
+    """The satellite's range rate from the line's first Doppler (Hz, RINEX sign: positive approaching), m/s; 0
+    without one."""
+    for k, code in enumerate(codes):
+        field = ln[3 + 16 * k:3 + 16 * k + 14]
+        if code[0] == "D" and field.strip():
+            lam = _wavelength(sat, "L" + code[1:], slots)
+            if math.isfinite(lam):
+                return -float(field) * lam
+    return 0.0
+
+
+def edit_rinex3_obs(text: str, *, keep=None, clock_offset_s=None, range_change_m=None, code_clock_s=None) -> str:
     """Edit a RINEX 3 observation file's text (module docstring).
 
     Parameters
@@ -127,6 +142,11 @@ def edit_rinex3_obs(text: str, *, keep=None, clock_offset_s=None, range_change_m
     range_change_m : callable, optional
         ``range_change_m(t_gps_s, sats) -> array (len(sats),)``: geometric range change of each
         satellite of the epoch (``sats`` like ``["G05", "E11", …]``), m.
+    code_clock_s : callable, optional
+        ``code_clock_s(t_gps_s) -> float``: a receiver clock offset δ that the codes carry and the phases and time
+        tag do not (a receiver whose carrier stays continuous when its clock is reset by a millisecond): the
+        signals were received δ earlier than tagged, so every pseudorange and phase takes the range change over δ
+        (−ρ̇ δ, ρ̇ from the satellite's first Doppler in the line) and every pseudorange c·δ more.
 
     Returns
     -------
@@ -164,8 +184,14 @@ def edit_rinex3_obs(text: str, *, keep=None, clock_offset_s=None, range_change_m
             d = float(clock_offset_s(t))
             dr = dr + SPEED_OF_LIGHT_M_S * d
             ln = _epoch_line(ln, d)
+        code_m = 0.0
+        if code_clock_s is not None:
+            d = float(code_clock_s(t))
+            code_m = SPEED_OF_LIGHT_M_S * d
+            dr = dr - d * np.array([_doppler_range_rate_m_s(b, types.get(s[0], []), s, slots)
+                                    for b, s in zip(body, sats)])
         out.append(ln)
-        out += [_shift_record(b, types.get(s[0], []), s, slots, float(r)) for b, s, r in zip(body, sats, dr)]
+        out += [_shift_record(b, types.get(s[0], []), s, slots, float(r), code_m) for b, s, r in zip(body, sats, dr)]
     return "\n".join(out) + "\n"
 
 

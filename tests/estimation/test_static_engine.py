@@ -789,3 +789,30 @@ def test_the_walk_is_raised_only_while_its_float_does_not_hold(monkeypatch):
     seen.clear()
     rw = se.random_walk_float_that_holds(None, None, None, None, None, None, sigma_rw=(1.0, 1.0, 2.0))
     assert len(seen) == 5 and rw.sigma_m_per_sqrt_s == pytest.approx((1e4, 1e4, 2e4)) and rw.nis_per_row == 50.0
+
+
+def test_code_clock_steps_finds_a_step_of_the_codes_alone_and_the_prior_removes_it():
+    """A signal group's SD codes step by c·1 ms from epoch 6 while its phases do not (a receiver clock reset with
+    the carrier continuous), another group's one channel jumps 1 km once (an outlier: the median over channels
+    ignores it), code noise 0.5 m: one step found, at epoch 6, of c·1 ms within 1 m; the arcs' prior (a new arc
+    begins after the step) is the unstepped rows' to within the noise."""
+    from cdgps_cli.estimation.static_engine import code_clock_steps, static_prior
+    gen = np.random.default_rng(4)
+    n_ep, n_sat = 10, 5
+    epoch = np.repeat(np.arange(n_ep), 2 * n_sat)
+    code = np.tile(np.repeat([0, 1], n_sat), n_ep)
+    sats = np.tile(np.array([f"G{i:02d}" for i in range(n_sat)] * 2), n_ep)
+    phase = gen.uniform(-1e5, 1e5, 2 * n_sat)[np.tile(np.arange(2 * n_sat), n_ep)]
+    codes = phase + gen.normal(0, 0.5, epoch.size)
+    rows = {"ptr": np.searchsorted(epoch, np.arange(n_ep + 1)), "code": code, "sats": sats, "phase_sd_m": phase,
+            "lam_m": np.full(epoch.size, 0.19), "code_sd_m": codes}
+    stepped = dict(rows, code_sd_m=codes + np.where((code == 0) & (epoch >= 6), 299792.458, 0.0))
+    stepped["code_sd_m"][np.flatnonzero((epoch == 3) & (code == 1))[2]] += 1000.0
+    st = code_clock_steps(stepped)
+    assert st["code"].tolist() == [0] and st["epoch"].tolist() == [6]
+    assert st["step_m"][0] == pytest.approx(299792.458, abs=1.0)
+    assert code_clock_steps(rows)["step_m"].size == 0
+    cols = 3 + np.where((code == 0) & (epoch >= 7) & (sats == "G01"), 2 * n_sat, np.tile(np.arange(2 * n_sat), n_ep))
+    x_ref, _ = static_prior(rows, cols, 3 + 2 * n_sat + 1, 100.0, 30.0)
+    x_got, _ = static_prior(stepped, cols, 3 + 2 * n_sat + 1, 100.0, 30.0)
+    assert np.max(np.abs(x_got - x_ref)) <= 10                   # cycles: the noise (0.5 m / 0.19 m), not 1.6e6

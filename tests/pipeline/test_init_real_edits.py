@@ -44,9 +44,10 @@ def test_a_rover_30_ms_off_the_second_gives_the_same_solution(tmp_path):
         assert got["states"][k] == pytest.approx(v, abs=2e-4), k
 
 
-def _slip(text: str, sat: str, code: str, from_epoch: int, cycles: float) -> str:
+def _slip(text: str, sat: str, code: str, from_epoch: int, cycles: float, *, flagged: bool = False) -> str:
     """The RINEX 3 text with ``sat``'s ``code`` phase (e.g. "L1C") moved by ``cycles`` from epoch ``from_epoch`` on,
-    without a loss-of-lock flag: a slip the receiver did not report."""
+    without a loss-of-lock flag (a slip the receiver did not report), or with ``flagged`` the loss of lock flagged
+    (LLI bit 0) at that epoch."""
     lines = text.splitlines()
     types = {}
     for ln in lines:
@@ -63,7 +64,8 @@ def _slip(text: str, sat: str, code: str, from_epoch: int, cycles: float) -> str
         if ln.startswith(">"):
             e += 1
         elif e >= from_epoch and ln.startswith(sat) and ln[a:a + 14].strip():
-            ln = ln[:a] + f"{float(ln[a:a + 14]) + cycles:14.3f}" + ln[a + 14:]
+            lli = "1" if flagged and e == from_epoch else ln[a + 14:a + 15]
+            ln = ln[:a] + f"{float(ln[a:a + 14]) + cycles:14.3f}" + lli + ln[a + 15:]
         out.append(ln)
     return "\n".join(out) + "\n"
 
@@ -126,3 +128,33 @@ def test_a_rover_header_100_km_off_is_not_taken_for_the_rover(tmp_path):
     assert not any("single-point position" in w for w in ref["rovers"]["rover"]["warnings"])
     sol = [np.asarray(d["rovers"]["rover"]["rover_ecef_m"]) for d in (ref, got)]
     assert np.linalg.norm(sol[0] - sol[1]) < 1e-3
+
+
+def test_a_clock_jump_in_the_codes_alone_gives_the_same_solution(tmp_path, monkeypatch):
+    """The real mosaic rover from its middle as a receiver whose clock is reset by 1 ms with its carrier kept
+    continuous (session 20's D3 on the M8P pair): the signals are received 1 ms before their tags, every range takes
+    its change over 1 ms (from the Doppler) and the codes 299.8 km more.  The DDs do not see the step, but the arcs'
+    prior (each arc at its first (phase − code)/λ, σ 30 cycles) put every arc begun after it 1.6·10⁶ cycles from
+    those before: the M8P pair's float went 0.5 m off and its fix was rejected.  The prior now removes the step
+    (static_engine.code_clock_steps): the solution is the unedited pair's; with the step left in, it is not."""
+    from cdgps_cli.estimation import static_engine
+    from cdgps_cli.sim.rinex_edit import epoch_times_gps_s
+    text = (MOSAIC / "rover.obs").read_text()
+    for sat in ("G05", "G13", "G15"):             # lock lost (flagged) after the jump: arcs begun after it
+        text = _slip(text, sat, "L1C", 200, 7.0, flagged=True)
+    mid = float(np.median(epoch_times_gps_s(text)))
+    (tmp_path / "rover_lli.obs").write_text(text)
+    jumped = tmp_path / "rover_jump.obs"
+    jumped.write_text(edit_rinex3_obs(text, code_clock_s=lambda t: 1e-3 if t >= mid else 0.0))
+    ref, got = _init(tmp_path, tmp_path / "rover_lli.obs", "ref"), _init(tmp_path, jumped, "jump")
+    assert got["rovers"]["rover"]["n_fixed"] == ref["rovers"]["rover"]["n_fixed"] > 0
+    said = [w for w in got["rovers"]["rover"]["warnings"] if "codes stepped while the phases did not" in w]
+    assert len(said) == 1 and "+299.792 km (+1.0000 ms) in G:L1" in said[0], got["rovers"]["rover"]["warnings"]
+    assert not any("codes stepped" in w for w in ref["rovers"]["rover"]["warnings"])
+    for k, v in ref["states"].items():
+        assert got["states"][k] == pytest.approx(v, abs=2e-4), k
+    monkeypatch.setattr(static_engine, "code_clock_steps", lambda rows, *a: {
+        "code": np.zeros(0, np.int64), "epoch": np.zeros(0, np.int64), "step_m": np.zeros(0)})
+    left = _init(tmp_path, jumped, "left")
+    off = max(abs(left["states"][k] - v) for k, v in ref["states"].items())
+    assert off > 1.0, off                         # measured 4.6 m, 2 of 11 integers fixed

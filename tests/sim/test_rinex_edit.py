@@ -52,6 +52,31 @@ def test_clock_offset_moves_tags_and_every_observation_by_c_delta(tmp_path, head
     assert (a["signal"] == "R:G1").any()
 
 
+def test_a_clock_step_in_the_codes_alone(tmp_path, head):
+    """code_clock_s: tags unchanged; every range takes its change over δ earlier, −ρ̇ δ with ρ̇ = −λ D from the
+    satellite's Doppler (independently: the next epoch's phase change, 1 s, gives ρ̇ to its acceleration, < 1 mm
+    over 1 ms); the codes c·δ more."""
+    delta = 1e-3
+    a = _read(tmp_path, head, "a.obs")
+    b = _read(tmp_path, edit_rinex3_obs(head, code_clock_s=lambda t: delta), "b.obs")
+    assert len(a) == len(b) and (b["time_gps_s"] == a["time_gps_s"]).all()
+    g = (a["signal"] == "G:L1").to_numpy()
+    dphi_m = ((b["phase_cycles"] - a["phase_cycles"]) * a["wavelength_m"]).to_numpy()[g]
+    dcode = (b["pseudorange_m"] - a["pseudorange_m"]).to_numpy()[g]
+    np.testing.assert_allclose(dcode - dphi_m, 299792458.0 * delta, atol=2e-3)       # the codes' step alone
+    # the range change over 1 ms against the phases' own rate (one epoch to the next, same satellite)
+    t = a["time_gps_s"].to_numpy()[g]
+    sat = a["sat"].to_numpy()[g]
+    phi = (a["phase_cycles"] * a["wavelength_m"]).to_numpy()[g]
+    rate = {}
+    for s_ in np.unique(sat):
+        k = np.flatnonzero(sat == s_)
+        rate[s_] = np.diff(phi[k])[0] / np.diff(t[k])[0]
+    expected = np.array([-rate[s_] * delta for s_ in sat])
+    np.testing.assert_allclose(dphi_m, expected, atol=3e-3)
+    assert np.abs(dphi_m).max() > 0.05                                                # ranges do move (m)
+
+
 def test_keep_and_motion(tmp_path, head):
     a = _read(tmp_path, head, "a.obs")
     t0 = a["time_gps_s"].min()
