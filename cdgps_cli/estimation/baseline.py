@@ -2023,9 +2023,13 @@ def _unflagged_slip_warning(events: dict | None) -> list:
         return []
     where = [f"{sat}:{sig.split(':')[1]} at {gps_time_str(float(t))}"
              for sat, sig, t in zip(events["sat"], events["signal"], events["time_s"])]
-    more = f" and {len(where) - 8} more" if len(where) > 8 else ""
     return [f"{len(where)} cycle slip(s) that no receiver flagged, found in the epoch-to-epoch change of the "
-            f"phases, start a new ambiguity: {', '.join(where[:8])}{more}"]
+            f"phases, start a new ambiguity: {_first_of(where, 8)}"]
+
+
+def _first_of(items: list, n: int) -> str:
+    """The first ``n`` of ``items`` joined by commas, and how many more."""
+    return ", ".join(items[:n]) + (f" and {len(items) - n} more" if len(items) > n else "")
 
 
 def _code_step_warning(steps: dict | None) -> list:
@@ -2035,8 +2039,7 @@ def _code_step_warning(steps: dict | None) -> list:
         return []
     where = [f"{v / 1e3:+.3f} km ({v / SPEED_OF_LIGHT_M_S * 1e3:+.4f} ms) in {sig} at {gps_time_str(float(t))}"
              for v, sig, t in zip(steps["step_m"], steps["signal"], steps["time_s"])]
-    more = f" and {len(where) - 4} more" if len(where) > 4 else ""
-    return [f"the single-difference codes stepped while the phases did not: {', '.join(where[:4])}{more} (a receiver "
+    return [f"the single-difference codes stepped while the phases did not: {_first_of(where, 4)} (a receiver "
             f"clock jump that one receiver's codes took and its carrier did not); the double differences do not see "
             f"it, and each ambiguity's starting value is taken with the step removed"]
 
