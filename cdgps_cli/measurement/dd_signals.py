@@ -65,7 +65,7 @@ def _on_grid(df: pd.DataFrame, step_s: float, tol_s: float) -> pd.DataFrame:
 
 def signal_sd_table(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz_m, *, mask_rad: float,
                     max_gap_s: float | None, troposphere: bool = True, interval_s: float | None = None,
-                    sync_tol_s: float = 0.025) -> SimpleNamespace:
+                    sync_tol_s: float = 0.025, segment_starts=None) -> SimpleNamespace:
     """Single differences (rover − base) of one signal group over a run.
 
     Parameters
@@ -87,6 +87,9 @@ def signal_sd_table(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_x
         Each receiver's time tags are put on the grid of GPS times k·interval when within this of
         one (others dropped); epochs pair on grid times, labelled by them.  The geometry stays at each
         receiver's own reception instant (the "geometry" epoch alignment of the GPS L1 path).
+    segment_starts : iterable of (str, float), optional
+        (satellite as in ``sat``, e.g. "G05"; time s) where a segment also starts, at the epoch within half a
+        step of that time: a solution's segments (INIT's, cut where it found slips no receiver flagged).
 
     Returns
     -------
@@ -108,6 +111,8 @@ def signal_sd_table(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_x
     t_label = keys * step
     names, sat = np.unique(m["sat"].to_numpy().astype(str), return_inverse=True)
     slip = ((m["lli_b"].to_numpy() | m["lli_r"].to_numpy()) & 1) > 0
+    if segment_starts is not None:
+        slip |= _rows_at_starts(segment_starts, names, sat, epoch, t_label, step)
     seg, _ = ambiguity_segments(epoch, sat, slip, epoch_time_s=t_label, max_gap_s=max_gap_s)
     xs_r, xs_b = m[["sx_r", "sy_r", "sz_r"]].to_numpy(), m[["sx_b", "sy_b", "sz_b"]].to_numpy()
     lam = m["wavelength_m_r"].to_numpy()
@@ -534,6 +539,21 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False, base_xy
                     * opt.get("code_variance_factor", 1.0)
                     * glonass_code_factor(m["sat"].to_numpy(), bool(opt.get("glonass_fix", False))) + var_age,
     }
+
+
+def _rows_at_starts(starts, names, sat, epoch, t_label, step: float) -> np.ndarray:
+    """(N,) bool: the rows of :func:`signal_sd_table` at each (satellite name, time s) of ``starts`` (its epoch within
+    half a step)."""
+    out = np.zeros(sat.size, dtype=bool)
+    index = {str(n): k for k, n in enumerate(names)}
+    key = sat.astype(np.int64) * max(t_label.size, 1) + epoch
+    for name, t in starts:
+        k = index.get(str(name))
+        e = int(np.argmin(np.abs(t_label - float(t)))) if t_label.size else -1
+        if k is None or e < 0 or abs(t_label[e] - float(t)) > 0.5 * step:
+            continue
+        out |= key == k * max(t_label.size, 1) + e
+    return out
 
 
 def glonass_code_factor(sats, glonass_fix: bool) -> np.ndarray | float:

@@ -375,10 +375,13 @@ def apply_modal_record(tabs: list, record: dict) -> list:
     init_known = [np.asarray(tb["w"]["known_seg"], bool) & (tb["n_fixed"] > 0) for tb in tabs]
     known = [np.zeros(a.size, dtype=bool) for a in a_new]
     anchored = [True] * len(tabs)
+    names = [_segment_satellites(tb) for tb in tabs]
     for sg in record["segments"]:
         a, sj, sr = sg["rover_slot"], sg["segment"], sg["reference_segment"]
         if not (0 <= a < len(tabs) and 0 <= sj < a_new[a].size and 0 <= sr < a_new[a].size):
             raise CdgpsError("INIT.json's modal_init does not match this run's lock segments")
+        _check_segment_satellite(names[a], sj, sg.get("satellite"))
+        _check_segment_satellite(names[a], sr, sg.get("reference"))
         if sg["fixed"]:
             a_new[a][sj] = float(tabs[a]["a_seg"][sr]) + int(sg["integer_cycles"])
             known[a][sj] = known[a][sr] = True
@@ -387,6 +390,7 @@ def apply_modal_record(tabs: list, record: dict) -> list:
         a, sj = sg["rover_slot"], sg["segment"]
         if not (0 <= a < len(tabs) and 0 <= sj < a_new[a].size):
             raise CdgpsError("INIT.json's modal_init does not match this run's lock segments")
+        _check_segment_satellite(names[a], sj, sg.get("satellite"))
         a_new[a][sj], known[a][sj] = float(sg["a_cycles"]), True
     out = []
     for a, tb in enumerate(tabs):
@@ -394,6 +398,24 @@ def apply_modal_record(tabs: list, record: dict) -> list:
         keep = known[a] | (init_known[a] & anchored[a])
         out.append(_set_integers(tb, a_new[a], keep[tb["seg"]]))
     return out
+
+
+def _segment_satellites(tb: dict) -> list:
+    """The satellite (as the table names it) of each lock segment of a modal table."""
+    d, seg = tb["d"], np.asarray(tb["seg"])
+    out = [""] * (int(seg.max()) + 1 if seg.size else 0)
+    segs, first = np.unique(seg, return_index=True)
+    for k, i in zip(segs, first):
+        out[int(k)] = str(d.sat_names[int(d.sat[i])])
+    return out
+
+
+def _check_segment_satellite(names: list, seg: int, satellite) -> None:
+    """CdgpsError when a stored modal_init segment names another satellite than this run's segment ``seg`` (the
+    run's segments are not those INIT was made on: another INIT, or one made before its segments changed)."""
+    if satellite is not None and names[seg] and names[seg] != str(satellite):
+        raise CdgpsError(f"INIT.json's modal_init does not match this run's lock segments: its segment {seg} is "
+                         f"{satellite}, this run's is {names[seg]} (run 'cdgps init --structure' again on this run)")
 
 
 def _stored_record(init: dict, cfg: StructureConfig, mapping: dict, x_axis_azimuth_deg: float):
@@ -473,7 +495,7 @@ def _modal_setup(run, init: dict, cfg: StructureConfig, receivers, x_axis_azimut
     placement = StructurePlacement(tuple(float(v) for v in xm), float(x_axis_azimuth_deg))
     R = placement.rotation()
     if run.cfg.signals:                  # one slot per rover and signal group
-        tabs, slot_ants = _signal_slots(run, mapping, rover_ants, xm, say)
+        tabs, slot_ants = _signal_slots(run, mapping, rover_ants, xm, say, init)
     else:                                # one slot per rover: GPS L1 with INIT's integers
         tabs, slot_ants = [_rover_tables(run, init, mapping[a], stations, say) for a in rover_ants], list(rover_ants)
     ant_idx = np.array([cfg.antenna_names.index(a) for a in slot_ants])
@@ -525,10 +547,18 @@ def _final_biases(su, tabs: list, init: dict) -> tuple[dict, dict]:
     return biases, counts
 
 
-def _signal_slots(run, mapping: dict, rover_ants: list, xm: np.ndarray, say) -> tuple[list, list]:
+def init_segment_starts(init: dict | None, rover: str, signal: str) -> list:
+    """(satellite, first s) of each of INIT's segments of ``rover`` in ``signal`` (its ``biases``)."""
+    return [(str(b["satellite"]).split(":")[0], float(b["segment_start_s"])) for b in (init or {}).get("biases", [])
+            if b.get("rover") == rover and b.get("signal") == signal and b.get("segment_start_s") is not None]
+
+
+def _signal_slots(run, mapping: dict, rover_ants: list, xm: np.ndarray, say, init: dict | None = None) -> tuple[list, list]:
     """Per rover antenna and signal of ``[gnss] signals``, the SD table of that group
     (:func:`cdgps_cli.measurement.dd_signals.signal_sd_table`) in the form of :func:`_rover_tables`; no
-    integer is known yet (the modal batch initialization fixes them).  Returns (tables, antenna of each)."""
+    integer is known yet (the modal batch initialization fixes them).  Its segments also start where INIT's do
+    (:func:`init_segment_starts`: INIT cut its arcs at slips no receiver flagged).  Returns (tables, antenna of
+    each)."""
     from cdgps_cli.estimation.rtk_multi import receiver_geometry  # noqa: PLC0415
     from cdgps_cli.measurement.dd_signals import signal_sd_table  # noqa: PLC0415
     from cdgps_cli.pipeline.gnss import _position_args  # noqa: PLC0415
@@ -552,7 +582,7 @@ def _signal_slots(run, mapping: dict, rover_ants: list, xm: np.ndarray, say) -> 
         for g in c.signals:
             d = signal_sd_table(geo_m[geo_m["signal"] == g], geo_r[geo_r["signal"] == g], xm, xr0,
                                 mask_rad=math.radians(c.mask_deg), max_gap_s=c.max_gap_s, troposphere=c.troposphere,
-                                sync_tol_s=c.sync_tol_s)
+                                sync_tol_s=c.sync_tol_s, segment_starts=init_segment_starts(init, r, g))
             if d.t_label.size == 0:
                 raise CdgpsError(f"{run.path}: no common {g} observations of {run.master} and {r} above the {c.mask_deg:g}° mask")
             va = 0.5 * sd_variance(d.el_rover, d.el_rover, sigma_a_m=c.sigma_a_m, sigma_b_m=c.sigma_b_m, weighting=c.weighting)

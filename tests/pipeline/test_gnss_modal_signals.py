@@ -211,3 +211,46 @@ def test_a_segment_starting_after_the_window_is_fixed_by_a_later_window(multi):
     assert lw and lw[0]["start_s"] == pytest.approx(su.t_all[90]) and lw[0]["disagree"] == 0 and lw[0]["checked"] > 10
     assert any(s["rover_slot"] == 0 and s["segment"] == n_seg for s in rec["later_segments"])
     assert out[0]["a_seg"][n_seg] == out[0]["a_seg"][old] + 7 and out[0]["use"][hit].all()
+
+
+def test_a_slip_no_receiver_flagged_is_cut_where_init_cut_it(tmp_path):
+    """The tower on G:L1 + E:E1, one rover's G03 L1 phase one cycle up from 100 s with no loss-of-lock flag.  INIT
+    cuts G03's arc there (the slip search); the structure's signal path ignored INIT's arcs and rejected that DD as an
+    outlier at every epoch from 100 s (51 events).  Its segments now start where INIT's do: a later window fixes the
+    new segment (its SD integer one cycle from the first's), no DD is rejected, and the states are the unedited
+    record's.  An INIT whose modal_init was made on other segments is refused by name."""
+    from tests.pipeline.test_init_real_edits import _slip
+    out = {}
+    for tag in ("ref", "slip"):
+        d = tmp_path / tag
+        r = run_cli("-q", "simulate-gnss-structure", TOWER, "--duration", 150, "--seed", 3, "--signals", "G:L1,E:E1",
+                    "--out", d)
+        assert r.exit_code == 0, r.output
+        if tag == "slip":
+            (d / "r1.rnx").write_text(_slip((d / "r1.rnx").read_text(), "G03", "L1C", 100, 1.0))
+        for args in (("ingest", "--config", d / "config.toml", "-o", d / "run.mcap"),
+                     ("init", d / "run.mcap", "--structure", TOWER, "-o", d / "init.json")):
+            r = run_cli("-q", *args)
+            assert r.exit_code == 0, (args, r.output)
+        r = run_cli("-q", "estimate", d / "run.mcap", "--init", d / "init.json", "--structure", TOWER, "-o",
+                    d / "states.mcap", "--json")
+        assert r.exit_code == 0, r.output
+        out[tag] = (json.loads((d / "init.json").read_text()), json.loads(r.stdout))
+    init, est = out["slip"]
+    assert [b["segment_start_s"] - b["segment_end_s"] < 0 for b in init["biases"]
+            if b["rover"] == "r1" and b["satellite"] == "G03:L1"] == [True, True]          # INIT cut G03 there
+    later = init["modal_init"]["later_segments"]
+    assert len(later) == 1 and later[0]["rover_slot"] == 0
+    first = next(s for s in init["modal_init"]["segments"] if s["rover_slot"] == 0 and s["satellite"] == "G03:L1")
+    assert later[0]["a_cycles"] - first["integer_cycles"] == 1.0          # the slip: one cycle on the datum
+    assert est["events"] == out["ref"][1]["events"] == 0
+    assert est["integers"]["r1"]["signals"]["G:L1"] == {"fixed": 12, "estimated": 12}
+    assert est["mean_nis_per_dof"] == pytest.approx(out["ref"][1]["mean_nis_per_dof"], rel=1e-6)
+    # a modal_init made on other segments (here: INIT's G03 cut taken out of its biases) is refused
+    stale = dict(init, biases=[b for b in init["biases"] if not (b["rover"] == "r1" and b["satellite"] == "G03:L1"
+                                                                   and b["segment_start_s"] > init["biases"][0]["segment_start_s"] + 50)])
+    (tmp_path / "stale.json").write_text(json.dumps(stale))
+    r = run_cli("-q", "estimate", tmp_path / "slip" / "run.mcap", "--init", tmp_path / "stale.json", "--structure",
+                TOWER, "-o", tmp_path / "stale.mcap")
+    assert r.exit_code == 2 and "modal_init does not match this run's lock segments" in r.output, r.output
+    assert not (tmp_path / "stale.mcap").exists()
