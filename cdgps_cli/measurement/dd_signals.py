@@ -544,16 +544,18 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False, base_xy
 def _rows_at_starts(starts, names, sat, epoch, t_label, step: float) -> np.ndarray:
     """(N,) bool: the rows of :func:`signal_sd_table` at each (satellite name, time s) of ``starts`` (its epoch within
     half a step)."""
-    out = np.zeros(sat.size, dtype=bool)
+    starts = list(starts)
+    if not starts or not t_label.size:
+        return np.zeros(sat.size, dtype=bool)
     index = {str(n): k for k, n in enumerate(names)}
-    key = sat.astype(np.int64) * max(t_label.size, 1) + epoch
-    for name, t in starts:
-        k = index.get(str(name))
-        e = int(np.argmin(np.abs(t_label - float(t)))) if t_label.size else -1
-        if k is None or e < 0 or abs(t_label[e] - float(t)) > 0.5 * step:
-            continue
-        out |= key == k * max(t_label.size, 1) + e
-    return out
+    k = np.array([index.get(str(name), -1) for name, _ in starts], dtype=np.int64)
+    t = np.array([float(tt) for _, tt in starts])
+    e = np.clip(np.searchsorted(t_label, t), 1, t_label.size - 1) if t_label.size > 1 else np.zeros(t.size, np.int64)
+    if t_label.size > 1:                          # the nearer of the two neighbouring epochs
+        e = np.where(np.abs(t_label[e - 1] - t) <= np.abs(t_label[e] - t), e - 1, e)
+    ok = (k >= 0) & (np.abs(t_label[e] - t) <= 0.5 * step)
+    n_ep = t_label.size
+    return np.isin(sat.astype(np.int64) * n_ep + epoch, k[ok] * n_ep + e[ok])
 
 
 def glonass_code_factor(sats, glonass_fix: bool) -> np.ndarray | float:

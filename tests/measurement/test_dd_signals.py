@@ -135,3 +135,16 @@ def test_glonass_codes_weigh_less_while_glonass_is_float():
     assert GLONASS_FLOAT_CODE_VARIANCE_FACTOR > 1
     assert f.tolist() == [1.0, GLONASS_FLOAT_CODE_VARIANCE_FACTOR, 1.0, 1.0, GLONASS_FLOAT_CODE_VARIANCE_FACTOR, 1.0]
     assert np.all(glonass_code_factor(sats, glonass_fix=True) == 1.0)
+
+
+def test_rows_at_segment_starts_take_the_nearest_epoch_within_half_a_step():
+    """signal_sd_table's segment_starts: each (satellite, time) marks that satellite's row at the nearest epoch, when
+    within half a step of it; unknown satellites and times off the grid mark nothing."""
+    from cdgps_cli.measurement.dd_signals import _rows_at_starts
+    names, t_label = np.array(["G01", "G03"]), np.array([10.0, 11.0, 12.0, 13.0])
+    epoch, sat = np.repeat(np.arange(4), 2), np.tile([0, 1], 4)
+    got = _rows_at_starts([("G03", 12.2), ("G01", 9.9), ("G09", 11.0), ("G01", 14.0), ("G01", 13.6)], names, sat, epoch,
+                          t_label, 1.0)
+    assert np.flatnonzero(got).tolist() == [0, 5]
+    assert not _rows_at_starts([], names, sat, epoch, t_label, 1.0).any()
+    assert np.flatnonzero(_rows_at_starts([("G03", 10.0)], names, sat[:2], epoch[:2], t_label[:1], 1.0)).tolist() == [1]
