@@ -2045,23 +2045,27 @@ def _code_step_warning(steps: dict | None) -> list:
 
 
 def _random_walk_misfit_warning(eng: dict) -> list:
-    """The warning for a random-walk float that does not hold the rover's motion (NIS per row above
-    :data:`~cdgps_cli.config.options.UNCHECKED_FIX_NIS_MAX`), unless :func:`_rejected_fix_warning` says it."""
+    """The warning for a random-walk float that did not hold at the configured σ (NIS per row above
+    :data:`~cdgps_cli.config.options.UNCHECKED_FIX_NIS_MAX`): what raising σ gave, or that it did not help."""
     rw, res = eng.get("random_walk"), eng.get("resolution") or {}
     if rw is None or len(rw.tried) < 2:
         return []
-    (sig0, nis0), (sig, nis) = rw.tried[0], rw.tried[-1]
-    raised = (f"init's random-walk float at [gnss.displacement] sigma_m_per_sqrt_s {_sigma_text(sig0)} m/sqrt(s) did "
-              f"not hold the rover's motion (NIS {nis0:.3g} per row, about 1 when it holds; above "
-              f"{UNCHECKED_FIX_NIS_MAX:g} its sigma is too small by about as much): ")
+    (sig0, nis0), sig, nis = rw.tried[0], rw.sigma_m_per_sqrt_s, rw.nis_per_row
+    head = (f"init's random-walk float at [gnss.displacement] sigma_m_per_sqrt_s {_sigma_text(sig0)} m/sqrt(s) leaves "
+            f"a NIS of {nis0:.3g} per row (about 1 when its model holds; above {UNCHECKED_FIX_NIS_MAX:g} its sigma "
+            f"is too small by about as much): ")
+    if tuple(sig) == tuple(sig0):
+        why = ("" if res.get("rejected_by") == "float_nis" else
+               "; its integers were judged by the phases alone")
+        return [head + f"raising sigma to {_sigma_text(rw.tried[-1][0])} m/sqrt(s) did not lower it "
+                       f"({rw.tried[-1][1]:.3g}), so the misfit is not the rover's motion (a code or phase blunder, noise "
+                       f"the weights do not describe); the float was kept at the configured sigma{why}"]
     if nis > UNCHECKED_FIX_NIS_MAX:
-        if res.get("rejected_by") == "float_nis":
-            return []                       # _rejected_fix_warning says it
-        return [raised + f"raised to {_sigma_text(sig)} m/sqrt(s) it still did not (NIS {nis:.3g}); its integers and "
-                         f"sigma do not hold"]
-    return [raised + f"LAMBDA saw its float at {_sigma_text(sig)} m/sqrt(s) (NIS {nis:.3g}). Set sigma_m_per_sqrt_s "
-                     f"near {_sigma_text(sig)}: estimate's random_walk states use it too, and under the configured "
-                     f"one they will not follow the rover"]
+        return [head + f"it did not hold the rover's motion; raised to {_sigma_text(sig)} m/sqrt(s) the NIS is still "
+                       f"{nis:.3g}, and the float's integers and sigma are doubtful"]
+    return [head + f"it did not hold the rover's motion; LAMBDA saw its float at {_sigma_text(sig)} m/sqrt(s) (NIS "
+                   f"{nis:.3g}). Set sigma_m_per_sqrt_s near {_sigma_text(sig)} so that init need not raise it (a "
+                   f"random_walk model's states in estimate use it too; a constant_velocity model's do not)"]
 
 
 def _sigma_text(sigma) -> str:
@@ -2076,12 +2080,11 @@ def _rejected_fix_warning(res: dict | None) -> list:
     if not res or not res.get("rejected_n_fixed"):
         return []
     if res.get("rejected_by") == "float_nis":
-        return [f"{res['rejected_n_fixed']} integers passed LAMBDA (ratio {res['ratio']:.1f}) and were rejected: no "
-                f"epoch has phases of their arcs to spare to check them, and the random-walk float they came from "
-                f"does not hold the rover's motion (NIS {res['float_nis_per_row']:.3g} per row, above "
-                f"{UNCHECKED_FIX_NIS_MAX:g}; about 1 when it holds), so its sigma is too small by about as much; the "
-                f"solution is float. A [gnss.displacement] sigma_m_per_sqrt_s that follows the rover (a walker or a "
-                f"car: 1 m/sqrt(s)) gives a float whose integers can be judged"]
+        return [f"{res['rejected_n_fixed']} integers passed LAMBDA (ratio {res['ratio']:.1f}) and were not taken: no "
+                f"epoch has phases of their arcs to spare to judge them, and the random-walk float they came from "
+                f"does not fit its data (NIS {res['float_nis_per_row']:.3g} per row, above {UNCHECKED_FIX_NIS_MAX:g}; "
+                f"about 1 when it fits), so its sigma, which LAMBDA's ratio and success rate trust, is too small by "
+                f"about as much; the solution is float"]
     chk = res["phase_check"]
     win = chk.get("window_unit_variance")
     worst = "" if win is None else f", {win:.3g} in its worst {FIXED_PHASE_WINDOW_S:g} s"

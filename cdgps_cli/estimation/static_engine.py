@@ -106,7 +106,7 @@ def static_prior(rows, cols, n_state: int, sigma_pos_m: float, sigma_amb_cycles:
     pulled the M8P pair's float 0.5 m), and the last ``n_iono`` states (SD ionosphere, m) 0 ± ``sigma_iono_m``."""
     x0 = np.zeros(n_state)
     first = np.unique(cols, return_index=True)[1]
-    steps = code_clock_steps(rows)
+    steps = rows["code_steps"] if "code_steps" in rows else code_clock_steps(rows, cols)
     x0[cols[first]] = (rows["phase_sd_m"][first] - rows["code_sd_m"][first]
                        + _steps_before(steps, rows, first)) / rows["lam_m"][first]
     x0[cols[first]] = np.round(x0[cols[first]])
@@ -143,35 +143,57 @@ def static_filter(rows, times_s, base_xyz_m, origin_xyz_m, *, sigma_pos_m: float
     return ctx.step.x, ctx.step.P, cols
 
 
-def code_clock_steps(rows, min_step_m: float = CODE_CLOCK_STEP_MIN_M) -> dict:
+def code_clock_steps(rows, cols=None, min_step_m: float = CODE_CLOCK_STEP_MIN_M) -> dict:
     """Steps of the SD codes that the phases do not take, common to a signal group: a receiver clock jump seen in
     the codes alone (a receiver whose phase stays continuous when its clock is reset by 1 ms: the codes step by
-    c · 1 ms = 299.8 km).  Per signal, the median over the channels present at two consecutive epochs of the change
-    of (code − phase), m, where its size is at least ``min_step_m``.
+    c · 1 ms = 299.8 km).
+
+    The change of (code − phase) between consecutive rows of one arc (``cols``, (N,): each row's ambiguity column;
+    without it, of one channel at consecutive epochs) is taken per signal group and epoch; a step is where at
+    least :data:`_STEP_MIN_CHANNELS` arcs changed, two thirds of them within :data:`_STEP_AGREEMENT_M` of their
+    median, and that median is at least ``min_step_m``.  Rows of a new arc (a slip, an outage) are not compared
+    with the arc before: a restart's phase is not tied to its code.
 
     Returns ``{"code": (k,) signal index, "epoch": (k,) epoch of each step (its first epoch after it), "step_m":
-    (k,) m}``, in epoch order.  The DDs do not see such a step (it is common to the group); only what uses SD
-    codes per row does (:func:`static_prior`)."""
+    (k,) m}``, in epoch order.  The DDs do not see such a step (it is common to the group); the arcs' prior
+    (:func:`static_prior`), which starts each arc from its SD code, does."""
     n = rows["code"].size
     empty = {"code": np.zeros(0, np.int64), "epoch": np.zeros(0, np.int64), "step_m": np.zeros(0)}
     if n < 2:
         return empty
     epoch = np.repeat(np.arange(rows["ptr"].size - 1), np.diff(rows["ptr"]))
-    chan = channel_index(rows["sats"], rows["code"])
-    order = np.lexsort((epoch, chan))
-    c, e = chan[order], epoch[order]
-    pair = (c[1:] == c[:-1]) & (e[1:] == e[:-1] + 1)
+    if cols is None:
+        chan = channel_index(rows["sats"], rows["code"])
+        order = np.lexsort((epoch, chan))
+        pair = (chan[order][1:] == chan[order][:-1]) & (epoch[order][1:] == epoch[order][:-1] + 1)
+    else:
+        arc = np.asarray(cols)
+        order = np.lexsort((epoch, arc))
+        pair = arc[order][1:] == arc[order][:-1]
     d = (rows["code_sd_m"] - rows["phase_sd_m"])[order]
     later = order[1:][pair]
     change = (d[1:] - d[:-1])[pair]
     if not change.size:
         return empty
-    key = epoch[later].astype(np.int64) * (int(rows["code"].max()) + 1) + rows["code"][later]
-    med = pd.Series(change).groupby(key).median()
-    big = np.abs(med.to_numpy()) >= min_step_m
-    keys = med.index.to_numpy()[big]
     n_code = int(rows["code"].max()) + 1
+    key = epoch[later].astype(np.int64) * n_code + rows["code"][later]
+    by = pd.Series(change).groupby(key)
+    med, count = by.median(), by.size()
+    big = (np.abs(med.to_numpy()) >= min_step_m) & (count.to_numpy() >= _STEP_MIN_CHANNELS)
+    if not big.any():
+        return empty
+    near = np.abs(change - med.reindex(key).to_numpy()) <= _STEP_AGREEMENT_M
+    agree = pd.Series(near).groupby(key).sum().to_numpy()
+    big &= agree >= (2.0 / 3.0) * count.to_numpy()
+    keys = med.index.to_numpy()[big]
     return {"code": keys % n_code, "epoch": keys // n_code, "step_m": med.to_numpy()[big]}
+
+
+#: a code step is believed when at least this many arcs of the group took it …
+_STEP_MIN_CHANNELS = 3
+#: … and two thirds of them within this of their median, m (a clock jump moves every code alike; code noise and
+#: multipath differ by metres)
+_STEP_AGREEMENT_M = 10.0
 
 
 def _steps_before(steps: dict, rows, idx) -> np.ndarray:
@@ -551,17 +573,23 @@ def random_walk_float_that_holds(rows, cols, times_s, base_xyz_m, origin_xyz_m, 
     """:func:`random_walk_float` at σ ``sigma_rw``, and while its NIS per row is above
     :data:`~cdgps_cli.config.options.UNCHECKED_FIX_NIS_MAX` (the walk does not hold the rover's motion and the
     arcs' Q is too small by about as much) again at σ × :data:`~cdgps_cli.config.options.RANDOM_WALK_RAISE_FACTOR`,
-    at most :data:`~cdgps_cli.config.options.RANDOM_WALK_MAX_RAISES` times.  Returns the first float that holds, else
-    the last tried, as a :class:`RandomWalkFloat` with the σ used and every (σ, NIS per row) tried."""
+    at most :data:`~cdgps_cli.config.options.RANDOM_WALK_MAX_RAISES` times, and only while each raise at least halves
+    the NIS (a misfit the walk does not cause, e.g. one code blunder, stays whatever σ: raising stops at once).
+    Returns the first float that holds; else, when a raise did not help, the float before it; else the one of the
+    lowest NIS; as a :class:`RandomWalkFloat` with its σ and every (σ, NIS per row) tried."""
     sigma = np.broadcast_to(np.asarray(sigma_rw, dtype=float), (3,))
-    tried = []
+    tried, floats = [], []
     for _ in range(RANDOM_WALK_MAX_RAISES + 1):
-        rw = random_walk_float(rows, cols, times_s, base_xyz_m, origin_xyz_m, x_static, sigma_rw=sigma, **kw)
-        tried.append((tuple(float(v) for v in sigma), rw.nis_per_row))
-        if not rw.nis_per_row > UNCHECKED_FIX_NIS_MAX:
+        floats.append(random_walk_float(rows, cols, times_s, base_xyz_m, origin_xyz_m, x_static, sigma_rw=sigma, **kw))
+        tried.append((tuple(float(v) for v in sigma), floats[-1].nis_per_row))
+        if not floats[-1].nis_per_row > UNCHECKED_FIX_NIS_MAX:
             break
+        if len(tried) > 1 and not tried[-1][1] < 0.5 * tried[-2][1]:
+            k = len(tried) - 2                    # the last raise did not help: the σ before it
+            return floats[k]._replace(sigma_m_per_sqrt_s=tried[k][0], tried=tuple(tried))
         sigma = sigma * RANDOM_WALK_RAISE_FACTOR
-    return rw._replace(sigma_m_per_sqrt_s=tried[-1][0], tried=tuple(tried))
+    k = len(tried) - 1 if not floats[-1].nis_per_row > UNCHECKED_FIX_NIS_MAX else int(np.nanargmin([t[1] for t in tried]))
+    return floats[k]._replace(sigma_m_per_sqrt_s=tried[k][0], tried=tuple(tried))
 
 
 class _Ctx:
@@ -819,6 +847,7 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
                         opt["iono_threshold_km"])
     rows, slips = _with_unflagged_slips(rows, times, opt, base_xyz_m, rover_xyz0_m)
     cols = arc_columns(rows, times, max_gap_s=opt["max_gap_s"])
+    rows = {**rows, "code_steps": code_clock_steps(rows, cols)}        # found once, for every prior below
     if arcs_check is not None:
         why = arcs_check(dict(arc_table(rows, cols, times), unflagged_slips=slips))
         if isinstance(why, str):
@@ -849,7 +878,7 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
                        min_success_rate=opt["min_success_rate"], amb=lambda_float, glonass_fix=opt["glonass_fix"],
                        base_xyz_m=base_xyz_m, origin_xyz_m=rover_xyz0_m, times_s=times,
                        float_nis_per_row=None if rw is None else rw.nis_per_row)
-    steps = code_clock_steps(rows)
+    steps = dict(rows["code_steps"])
     steps["time_s"], steps["signal"] = times[steps["epoch"]], [rows["names"][k] for k in steps["code"]]
     return {**f, "random_walk": rw, "lambda_float": lambda_float, "iono_sigma_m": sigma_iono, "unflagged_slips": slips,
             "code_clock_steps": steps,

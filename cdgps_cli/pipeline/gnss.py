@@ -204,7 +204,8 @@ def _moving_unfixed_warning(res: dict, model: str) -> list:
     uv = (res["float"] or {}).get("unit_variance")
     if model == "static" or n_fixed_with_glonass(res["ambiguities"]) or uv is None or not uv > NIS_MISFIT_PER_DOF:
         return []
-    if (res["float"] or {}).get("rejected_fix"):       # the float is all there is: its integers failed the phase check
+    # the float is all there is: its integers were not taken (the phase check, or a float that does not fit)
+    if (res["float"] or {}).get("rejected_fix"):
         return [f"no integer fixed (the integers LAMBDA took were rejected, above), and the static float does not fit "
                 f"the data (unit variance {uv:.3g}: the rover moves); its static displacement and sigma do not "
                 f"describe it, and estimate's states from INIT's float ambiguities will not hold"]

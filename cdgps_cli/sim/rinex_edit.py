@@ -117,15 +117,15 @@ def _shift_record(ln: str, codes: list, sat: str, slots: dict, dr_m: float, code
 
 
 def _doppler_range_rate_m_s(ln: str, codes: list, sat: str, slots: dict) -> float:
-    """The satellite's range rate from the line's first Doppler (Hz, RINEX sign: positive approaching), m/s; 0
-    without one."""
+    """The satellite's range rate from the line's first Doppler (Hz, RINEX sign: positive approaching), m/s;
+    CdgpsError without one (the edit cannot move that satellite's ranges as the others')."""
     for k, code in enumerate(codes):
         field = ln[3 + 16 * k:3 + 16 * k + 14]
         if code[0] == "D" and field.strip():
             lam = _wavelength(sat, "L" + code[1:], slots)
             if math.isfinite(lam):
                 return -float(field) * lam
-    return 0.0
+    raise CdgpsError(f"code_clock_s: {sat} has no Doppler in its record '{ln[:40]}…' to move its ranges by")
 
 
 def edit_rinex3_obs(text: str, *, keep=None, clock_offset_s=None, range_change_m=None, code_clock_s=None) -> str:

@@ -774,8 +774,8 @@ def test_fixed_integers_rejected_by_phases_else_by_the_float_nis(check, nis, why
 
 
 def test_the_walk_is_raised_only_while_its_float_does_not_hold(monkeypatch):
-    """random_walk_float_that_holds: σ × 10 while the NIS per row is above 10, at most four times; the answer
-    carries every σ tried."""
+    """random_walk_float_that_holds: σ × 10 while the NIS per row is above 10 and each raise at least halves it, at
+    most four times; the answer is the float of the lowest NIS and carries every σ tried."""
     from cdgps_cli.estimation import static_engine as se
     seen = []
 
@@ -786,9 +786,17 @@ def test_the_walk_is_raised_only_while_its_float_does_not_hold(monkeypatch):
     rw = se.random_walk_float_that_holds(None, None, None, None, None, None, sigma_rw=0.001)
     assert seen == pytest.approx([0.001, 0.01, 0.1]) and rw.sigma_m_per_sqrt_s == pytest.approx((0.1,) * 3)
     assert [t[1] for t in rw.tried] == [5e4, 60.0, 9.0] and rw.nis_per_row == 9.0
-    seen.clear()
+    seen.clear()                             # raising does not lower it (a blunder, not the walk): the configured σ
     rw = se.random_walk_float_that_holds(None, None, None, None, None, None, sigma_rw=(1.0, 1.0, 2.0))
-    assert len(seen) == 5 and rw.sigma_m_per_sqrt_s == pytest.approx((1e4, 1e4, 2e4)) and rw.nis_per_row == 50.0
+    assert len(seen) == 2 and rw.sigma_m_per_sqrt_s == pytest.approx((1.0, 1.0, 2.0)) and rw.nis_per_row == 50.0
+    seen.clear()
+
+    def halving(*args, sigma_rw, **kw):      # every raise halves it, never to 10: five runs, the last kept
+        seen.append(float(sigma_rw[0]))
+        return se.RandomWalkFloat(np.zeros(1), np.eye(1), 1e4 / 2.5 ** len(seen))
+    monkeypatch.setattr(se, "random_walk_float", halving)
+    rw = se.random_walk_float_that_holds(None, None, None, None, None, None, sigma_rw=0.001)
+    assert len(seen) == 5 and rw.sigma_m_per_sqrt_s == pytest.approx((10.0,) * 3) and len(rw.tried) == 5
 
 
 def test_code_clock_steps_finds_a_step_of_the_codes_alone_and_the_prior_removes_it():
@@ -812,7 +820,34 @@ def test_code_clock_steps_finds_a_step_of_the_codes_alone_and_the_prior_removes_
     assert st["code"].tolist() == [0] and st["epoch"].tolist() == [6]
     assert st["step_m"][0] == pytest.approx(299792.458, abs=1.0)
     assert code_clock_steps(rows)["step_m"].size == 0
-    cols = 3 + np.where((code == 0) & (epoch >= 7) & (sats == "G01"), 2 * n_sat, np.tile(np.arange(2 * n_sat), n_ep))
-    x_ref, _ = static_prior(rows, cols, 3 + 2 * n_sat + 1, 100.0, 30.0)
-    x_got, _ = static_prior(stepped, cols, 3 + 2 * n_sat + 1, 100.0, 30.0)
+    # new arcs of group 0: G01 from epoch 7, G02 from the step's own epoch 6
+    cols = 3 + np.select([(code == 0) & (epoch >= 7) & (sats == "G01"), (code == 0) & (epoch >= 6) & (sats == "G02")],
+                         [2 * n_sat, 2 * n_sat + 1], np.tile(np.arange(2 * n_sat), n_ep))
+    assert code_clock_steps(stepped, cols)["epoch"].tolist() == [6]             # along arcs: the same step
+    x_ref, _ = static_prior(rows, cols, 3 + 2 * n_sat + 2, 100.0, 30.0)
+    x_got, _ = static_prior(stepped, cols, 3 + 2 * n_sat + 2, 100.0, 30.0)
     assert np.max(np.abs(x_got - x_ref)) <= 10                   # cycles: the noise (0.5 m / 0.19 m), not 1.6e6
+
+
+def test_code_clock_steps_are_not_restarts_nor_one_channels_blunder():
+    """No step where none is: four of five channels restart (new arcs, their phases 5 km off their codes, alike) at one
+    epoch, which along each channel looked like a 5 km step of the median; a group of two channels, one of whose
+    codes is 70 m off for three epochs (the median of two is their mean: ±35 m)."""
+    from cdgps_cli.estimation.static_engine import code_clock_steps
+    gen = np.random.default_rng(5)
+    n_ep, n_sat = 10, 5
+    epoch = np.repeat(np.arange(n_ep), n_sat)
+    sats = np.tile(np.array([f"G{i:02d}" for i in range(n_sat)]), n_ep)
+    phase = gen.uniform(-1e5, 1e5, n_sat)[np.tile(np.arange(n_sat), n_ep)]
+    codes = phase + gen.normal(0, 0.5, epoch.size)
+    restart = (epoch >= 6) & np.isin(sats, ["G00", "G01", "G02", "G03"])
+    rows = {"ptr": np.searchsorted(epoch, np.arange(n_ep + 1)), "code": np.zeros(epoch.size, np.int64), "sats": sats,
+            "phase_sd_m": phase + np.where(restart, gen.uniform(5e3, 5e3 + 5, epoch.size), 0.0), "code_sd_m": codes}
+    cols = 3 + np.where(restart, n_sat + np.tile(np.arange(n_sat), n_ep), np.tile(np.arange(n_sat), n_ep))
+    assert code_clock_steps(rows)["epoch"].size == 1                 # channel by channel: a false step
+    assert code_clock_steps(rows, cols)["epoch"].size == 0           # arc by arc: none
+    two = epoch.size // n_sat * 2
+    pair = {"ptr": np.arange(0, two + 1, 2), "code": np.zeros(two, np.int64), "sats": np.tile(["G01", "G02"], n_ep),
+            "phase_sd_m": np.zeros(two), "code_sd_m": gen.normal(0, 0.5, two)}
+    pair["code_sd_m"][2 * np.arange(3, 6)] += 70.0
+    assert code_clock_steps(pair)["epoch"].size == 0

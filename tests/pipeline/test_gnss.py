@@ -549,6 +549,23 @@ def test_init_raises_a_walk_too_slow_for_the_simulated_rover(tmp_path):
         return [(b["satellite"], b["first"], b["integer_cycles"]) for b in init["biases"]]
     assert ints(got["0.05"]) == ints(got["0.0005"])
     assert any("did not hold the rover's motion" in w for w in slow["warnings"])
+
+    # at the true σ, one 1 km code blunder at one epoch lifts the NIS above 10; raising σ does not lower it, so it
+    # stops at once, keeps the configured σ, and says the misfit is not the motion (every integer still fixed)
+    from tests.pipeline.test_init_real_edits import _slip
+    rover = (tmp_path / "rover.rnx").read_text()
+    sat = next(ln[:3] for ln in rover.splitlines()[40:] if ln[:1] == "G")
+    (tmp_path / "rover.rnx").write_text(_slip(_slip(rover, sat, "C1C", 300, 1000.0), sat, "C1C", 301, -1000.0))
+    for args in (("ingest", "--config", tmp_path / "c0.05.toml", "-o", tmp_path / "blunder.mcap"),
+                 ("init", tmp_path / "blunder.mcap", "-o", tmp_path / "blunder.json")):
+        r = run_cli("-q", *args)
+        assert r.exit_code == 0, r.output
+    blunder = json.loads((tmp_path / "blunder.json").read_text())["rovers"]["rover"]
+    tried = blunder["float"]["random_walk_tried"]
+    assert len(tried) == 2 and tried[0]["nis_per_row"] > UNCHECKED_FIX_NIS_MAX and tried[1]["nis_per_row"] > 0.5 * tried[0]["nis_per_row"]
+    assert blunder["float"]["random_walk_sigma_used_m_per_sqrt_s"] == [0.05] * 3
+    assert blunder["n_fixed"] == blunder["n_estimated"]
+    assert any("so the misfit is not the rover's motion" in w for w in blunder["warnings"]), blunder["warnings"]
     assert not any("did not hold" in w for w in true["warnings"])
 
 

@@ -123,7 +123,8 @@ def test_init_raises_a_walk_its_float_cannot_follow_and_the_chain_holds(rover, t
     s, err = _chain(tmp_path, _slow_walk_config(rover, tmp_path), "bad")
     r = run_cli("-q", "init", tmp_path / "bad.mcap", "-o", tmp_path / "again.json")
     assert r.exit_code == 0 and "init's random-walk float at [gnss.displacement] sigma_m_per_sqrt_s 0.001 m/sqrt(s) " \
-        "did not hold the rover's motion" in r.stderr, r.stderr
+        "leaves a NIS of" in r.stderr and "it did not hold the rover's motion" in r.stderr, r.stderr
+    assert "a constant_velocity model's do not" in r.stderr
     rov = json.loads((tmp_path / "again.json").read_text())["rovers"]["rover"]
     tried = rov["float"]["random_walk_tried"]
     assert rov["float"]["random_walk_sigma_used_m_per_sqrt_s"] == [0.01] * 3 and len(tried) == 2
