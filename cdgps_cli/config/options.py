@@ -44,7 +44,8 @@ FIXED_PHASE_WINDOW_S, FIXED_PHASE_WINDOW_UNIT_VARIANCE_MAX = 120.0, 8.0
 #: integers no epoch's phases can check (each epoch has fewer than four DDs of fixed arcs) are not taken from a
 #: moving rover's random-walk float whose NIS per SD row is above this (≈ 0.9 when the walk holds the motion; the
 #: real pairs under a walk that does: 0.1–1.8; p9's walker under 1 mm/√s 8 900 (8 integers), the GEONET car
-#: 2.7·10⁵ (3 integers, against 44 of 44 fixed under 1 m/√s): the arcs' Q was too small by as much)
+#: 2.7·10⁵ (3 integers, which the raised float confirms; 44 of 44 fixed under 1 m/√s)): LAMBDA's ratio and success rate
+#: trust a Q too small by about as much, so such integers cannot be judged, not that they are wrong
 UNCHECKED_FIX_NIS_MAX = 10.0
 #: … and a random-walk float above it is solved again with its σ raised by this factor, at most this many times
 #: (1 mm/√s → 10 m/√s), before LAMBDA sees it: the first σ whose NIS is not above it gives the float (p9's walker
