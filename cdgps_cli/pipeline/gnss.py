@@ -824,6 +824,15 @@ def _events(rover: str, master: str, res: dict, w: dict) -> list:
 # STATES.mcap
 
 
+def _raised_walks(init: dict) -> dict:
+    """``{"init_random_walk_sigma_used_m_per_sqrt_s": {rover: σ (3,)}}`` for the rovers whose random-walk float
+    ``init`` solved at a σ raised above the config's (INIT's float ``random_walk_sigma_used_m_per_sqrt_s``), else {}:
+    STATES say that their integers came from another walk than the one they were filtered with."""
+    used = {r: v["float"]["random_walk_sigma_used_m_per_sqrt_s"] for r, v in (init.get("rovers") or {}).items()
+            if (v.get("float") or {}).get("random_walk_sigma_used_m_per_sqrt_s") is not None}
+    return {"init_random_walk_sigma_used_m_per_sqrt_s": used} if used else {}
+
+
 def _write_gnss_states(run, init, init_text, out_path, names, t, q, P, qf, Pf, kq, kP, kin_n, kin_pdop,
                        res_cols, residual_m, nis, nis_dof, events, smoothed, meta_extra) -> dict:
     """The displacement states as a :class:`~cdgps_cli.core.records.StateSeries` (x = q, C = I)
@@ -844,6 +853,7 @@ def _write_gnss_states(run, init, init_text, out_path, names, t, q, P, qf, Pf, k
                                    **({"accel_sigma_m_per_s_per_sqrt_s": run.cfg.accel_sigma_m_per_s_per_sqrt_s,
                                        "init_random_walk_sigma_m_per_sqrt_s": list(run.cfg.random_walk_sigma)}
                                       if model == "constant_velocity" else {}),
+                                   **_raised_walks(init),
                                    **meta_extra.get("options", {})},
                                   sort_keys=True),
             "final_biases": json.dumps(biases), "smoothed": str(bool(smoothed)).lower(), "displacement_model": model,

@@ -131,6 +131,10 @@ def test_init_raises_a_walk_its_float_cannot_follow_and_the_chain_holds(rover, t
     assert tried[0]["nis_per_row"] > 10 >= tried[1]["nis_per_row"]
     assert rov["n_fixed"] == rov["n_estimated"] == 10
     assert 0.7 < s["mean_nis_per_dof"] < 1.3 and not any("mean NIS" in w for w in s["warnings"]), s
+    # STATES say that INIT's integers came from a raised walk
+    from cdgps_cli.io.states import States
+    opts = json.loads(States(tmp_path / "bad_states.mcap", diagnostics=False).metadata["options"])
+    assert opts["init_random_walk_sigma_used_m_per_sqrt_s"] == {"rover": [0.01] * 3}
 
 
 def test_init_says_what_its_states_are_under_a_moving_model(rover, tmp_path):
