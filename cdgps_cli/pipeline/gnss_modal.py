@@ -258,8 +258,10 @@ def modal_batch_initialization(cfg: StructureConfig, R, tabs, k_of, ant_idx, d_h
         if res.fixed[i] and init_known[a][sj] and init_known[a][sr]:
             n_cmp += 1
             agree += int(round(tabs[a]["a_seg"][sj] - tabs[a]["a_seg"][sr]) == res.integers[i])
-        segs.append({"rover_slot": int(a), "satellite": d.sat_names[int(d.sat[np.flatnonzero(seg == sj)[0]])],
+        first = np.flatnonzero(seg == sj)[0]
+        segs.append({"rover_slot": int(a), "satellite": d.sat_names[int(d.sat[first])],
                      "reference": d.sat_names[int(d.sat[np.flatnonzero(seg == sr)[0]])],
+                     "first_s": float(d.t_label[d.epoch[first]]),
                      "segment": int(sj), "reference_segment": int(sr), "float_cycles": float(res.float_bias_m[i] / lam[a]),
                      "sigma_cycles": float(res.float_sigma_m[i] / lam[a]), "integer_cycles": int(res.integers[i]),
                      "fixed": bool(res.fixed[i]), **({"signal": tabs[a]["signal"]} if "signal" in tabs[a] else {})})
@@ -327,6 +329,7 @@ def _later_windows(cfg, R, tabs, k_of, ant_idx, d_hdr, t_all, window_s: float, t
     The next window opens after this one.  ``tabs`` carry the first window's integers (``use``,
     ``a_seg``).  Returns ([{rover_slot, segment, a_cycles}], [per-window summary])."""
     a_cur = [np.array(tb["a_seg"], float) for tb in tabs]
+    names = [_segment_satellites(tb)[0] for tb in tabs]
     known = [np.isin(np.arange(a.size), tb["seg"][tb["use"]]) for a, tb in zip(a_cur, tabs)]
     first_t, last_t = [], []
     for a, tb in zip(a_cur, tabs):
@@ -360,7 +363,8 @@ def _later_windows(cfg, R, tabs, k_of, ant_idx, d_hdr, t_all, window_s: float, t
                 if known[s][r] != known[s][j]:
                     tgt, val = (j, a_cur[s][r] + n) if known[s][r] else (r, a_cur[s][j] - n)
                     a_cur[s][tgt], known[s][tgt] = val, True
-                    later.append({"rover_slot": int(s), "segment": int(tgt), "a_cycles": float(val)})
+                    later.append({"rover_slot": int(s), "segment": int(tgt), "a_cycles": float(val),
+                                  "satellite": names[s][tgt], "first_s": float(first_t[s][tgt])})
                     new += 1
         windows.append({"start_s": float(t_all[idx[0] + k0]), "end_s": float(t_all[idx[-1] + k0]), "epochs": int(idx.size),
                         "integer_fixing": res.note, "checked": len(both), "disagree": int(bad), "new_segments": new})
@@ -380,7 +384,7 @@ def apply_modal_record(tabs: list, record: dict) -> list:
         a, sj, sr = sg["rover_slot"], sg["segment"], sg["reference_segment"]
         if not (0 <= a < len(tabs) and 0 <= sj < a_new[a].size and 0 <= sr < a_new[a].size):
             raise CdgpsError("INIT.json's modal_init does not match this run's lock segments")
-        _check_segment_satellite(names[a], sj, sg.get("satellite"))
+        _check_segment_satellite(names[a], sj, sg.get("satellite"), sg.get("first_s"))
         _check_segment_satellite(names[a], sr, sg.get("reference"))
         if sg["fixed"]:
             a_new[a][sj] = float(tabs[a]["a_seg"][sr]) + int(sg["integer_cycles"])
@@ -390,7 +394,7 @@ def apply_modal_record(tabs: list, record: dict) -> list:
         a, sj = sg["rover_slot"], sg["segment"]
         if not (0 <= a < len(tabs) and 0 <= sj < a_new[a].size):
             raise CdgpsError("INIT.json's modal_init does not match this run's lock segments")
-        _check_segment_satellite(names[a], sj, sg.get("satellite"))
+        _check_segment_satellite(names[a], sj, sg.get("satellite"), sg.get("first_s"))
         a_new[a][sj], known[a][sj] = float(sg["a_cycles"]), True
     out = []
     for a, tb in enumerate(tabs):
@@ -400,22 +404,30 @@ def apply_modal_record(tabs: list, record: dict) -> list:
     return out
 
 
-def _segment_satellites(tb: dict) -> list:
-    """The satellite (as the table names it) of each lock segment of a modal table."""
+def _segment_satellites(tb: dict) -> tuple[list, np.ndarray]:
+    """The satellite (as the table names it) and the first time (s) of each lock segment of a modal table."""
     d, seg = tb["d"], np.asarray(tb["seg"])
-    out = [""] * (int(seg.max()) + 1 if seg.size else 0)
+    n = int(seg.max()) + 1 if seg.size else 0
+    names, first_s = [""] * n, np.full(n, np.nan)
     segs, first = np.unique(seg, return_index=True)
     for k, i in zip(segs, first):
-        out[int(k)] = str(d.sat_names[int(d.sat[i])])
-    return out
+        names[int(k)] = str(d.sat_names[int(d.sat[i])])
+        first_s[int(k)] = float(d.t_label[d.epoch[i]])
+    return names, first_s
 
 
-def _check_segment_satellite(names: list, seg: int, satellite) -> None:
-    """CdgpsError when a stored modal_init segment names another satellite than this run's segment ``seg`` (the
-    run's segments are not those INIT was made on: another INIT, or one made before its segments changed)."""
+def _check_segment_satellite(table: tuple, seg: int, satellite, first_s=None) -> None:
+    """CdgpsError when a stored modal_init segment names another satellite, or begins at another time, than this
+    run's segment ``seg`` (the run's segments are not those INIT was made on: another INIT, or one made before its
+    segments changed).  ``table``: :func:`_segment_satellites`' answer."""
+    names, first = table
     if satellite is not None and names[seg] and names[seg] != str(satellite):
         raise CdgpsError(f"INIT.json's modal_init does not match this run's lock segments: its segment {seg} is "
                          f"{satellite}, this run's is {names[seg]} (run 'cdgps init --structure' again on this run)")
+    if first_s is not None and np.isfinite(first[seg]) and abs(first[seg] - float(first_s)) > 1e-6:
+        raise CdgpsError(f"INIT.json's modal_init does not match this run's lock segments: its segment {seg} "
+                         f"({satellite}) begins at {gps_time_str(float(first_s))}, this run's at "
+                         f"{gps_time_str(float(first[seg]))} (run 'cdgps init --structure' again on this run)")
 
 
 def _stored_record(init: dict, cfg: StructureConfig, mapping: dict, x_axis_azimuth_deg: float):

@@ -240,7 +240,8 @@ def test_a_slip_no_receiver_flagged_is_cut_where_init_cut_it(tmp_path):
     assert [b["segment_start_s"] - b["segment_end_s"] < 0 for b in init["biases"]
             if b["rover"] == "r1" and b["satellite"] == "G03:L1"] == [True, True]          # INIT cut G03 there
     later = init["modal_init"]["later_segments"]
-    assert len(later) == 1 and later[0]["rover_slot"] == 0
+    assert len(later) == 1 and later[0]["rover_slot"] == 0 and later[0]["satellite"] == "G03:L1"
+    assert later[0]["first_s"] == init["modal_init"]["window"]["start_s"] + 100.0
     first = next(s for s in init["modal_init"]["segments"] if s["rover_slot"] == 0 and s["satellite"] == "G03:L1")
     assert later[0]["a_cycles"] - first["integer_cycles"] == 1.0          # the slip: one cycle on the datum
     assert est["events"] == out["ref"][1]["events"] == 0
@@ -254,3 +255,10 @@ def test_a_slip_no_receiver_flagged_is_cut_where_init_cut_it(tmp_path):
                 TOWER, "-o", tmp_path / "stale.mcap")
     assert r.exit_code == 2 and "modal_init does not match this run's lock segments" in r.output, r.output
     assert not (tmp_path / "stale.mcap").exists()
+    # a later segment stored with another start (the same satellite's segments numbered otherwise) is refused too
+    moved = json.loads(json.dumps(init))
+    moved["modal_init"]["later_segments"][0]["first_s"] += 1.0
+    (tmp_path / "moved.json").write_text(json.dumps(moved))
+    r = run_cli("-q", "estimate", tmp_path / "slip" / "run.mcap", "--init", tmp_path / "moved.json", "--structure",
+                TOWER, "-o", tmp_path / "moved.mcap")
+    assert r.exit_code == 2 and "begins at" in r.output and not (tmp_path / "moved.mcap").exists(), r.output
