@@ -2034,14 +2034,11 @@ def _first_of(items: list, n: int) -> str:
 
 def _code_step_warning(steps: dict | None) -> list:
     """The warning naming the steps of the SD codes that the phases did not take (a receiver clock jump in the
-    codes alone, :func:`~.static_engine.code_clock_steps`), which the arcs' prior removed."""
-    if not steps or not len(steps["step_m"]):
+    codes alone, :func:`~cdgps_cli.measurement.code_steps.code_clock_steps`), which the engine took out."""
+    if not steps:
         return []
-    where = [f"{v / 1e3:+.3f} km ({v / SPEED_OF_LIGHT_M_S * 1e3:+.4f} ms) in {sig} at {gps_time_str(float(t))}"
-             for v, sig, t in zip(steps["step_m"], steps["signal"], steps["time_s"])]
-    return [f"the single-difference codes stepped while the phases did not: {_first_of(where, 4)} (a receiver "
-            f"clock jump that one receiver's codes took and its carrier did not); the double differences do not see "
-            f"it, and each ambiguity's starting value is taken with the step removed"]
+    from cdgps_cli.measurement.code_steps import code_steps_warning
+    return code_steps_warning(steps["step_m"], steps["signal"], steps["time_s"])
 
 
 def _random_walk_misfit_warning(eng: dict) -> list:

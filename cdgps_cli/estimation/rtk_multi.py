@@ -40,6 +40,7 @@ from cdgps_cli.estimation.ambiguity import (AmbiguityError, SearchLimitError, _r
 from cdgps_cli.estimation.chi2 import chi2_quantile
 from cdgps_cli.estimation.driver import EpochGrid, Hook, drive
 from cdgps_cli.estimation.kalman import NUMPY_INVERSE, StepFilter
+from cdgps_cli.measurement.code_steps import without_code_steps
 from cdgps_cli.measurement.dd_signals import DDGroupModel, backward_slips, channel_index, epoch_groups, paired_sd_rows
 from cdgps_cli.measurement.differencing import sd_variance
 from cdgps_cli.measurement.epoch_pairing import pair_epochs
@@ -523,6 +524,7 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
     opt["age_sigma_m_per_s"] = age_noise["sigma_m_per_s"]
     rows = paired_sd_rows(base, rover, pairs, opt, mask_rover=True,    # the mask at both receivers, as RTKLIB's
                           base_xyz_m=base_xyz)
+    rows, code_steps = without_code_steps(rows)     # a clock jump in the codes alone: new arcs start from the code
     n_ep = times.size
     if not rows["groups"]["start"].size:                     # no epoch has a group of two satellites
         raise CdgpsError(f"no double differences: no epoch of the {n_ep} paired has two satellites of one signal "
@@ -540,6 +542,8 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
             "n_satellites": res["ns"], "direction": direction, "fixes_rejected": int(res.get("rejected", 0)),
             "partial_fixes": int(res["partial"].sum()), "wrong_fix_resets": int(res["wrong_fix_resets"].sum()),
             "code_noise": code_noise, "age_noise": age_noise,
+            "code_clock_steps": {"time_gps_s": times[code_steps["epoch"]].tolist(), "step_m": code_steps["step_m"].tolist(),
+                                 "signal": [rows["names"][k] for k in code_steps["code"]]},
             "ambiguities_released": int(res["released"].sum()),
             "float_variance": res.get("float_variance"),
             **_velocities(res, ok)}

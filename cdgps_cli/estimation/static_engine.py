@@ -19,18 +19,18 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-import pandas as pd
 
 from cdgps_cli.core import progress
 from cdgps_cli.estimation.driver import EpochGrid, GridDynamics, RecordingSink, drive
 from cdgps_cli.estimation.kalman import StepFilter
-from cdgps_cli.config.options import (CODE_CLOCK_STEP_MIN_M, FIXED_PHASE_UNIT_VARIANCE_MAX, FIXED_PHASE_WINDOW_S,
+from cdgps_cli.config.options import (FIXED_PHASE_UNIT_VARIANCE_MAX, FIXED_PHASE_WINDOW_S,
                                       FIXED_PHASE_WINDOW_UNIT_VARIANCE_MAX, GNSS_DEFAULTS, GNSS_WEIGHTINGS, IONO_WEIGHTED_MIN_SIGMA_M,
                                       MULTI_GNSS_DEFAULTS, RANDOM_WALK_MAX_RAISES, RANDOM_WALK_RAISE_FACTOR,
                                       UNCHECKED_FIX_NIS_MAX)
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.dd_signals import DDGroupModel, RunDDModel, epoch_groups, paired_sd_rows
 from cdgps_cli.measurement.differencing import ambiguity_datum, ambiguity_segments
+from cdgps_cli.measurement.code_steps import code_clock_steps, without_code_steps  # noqa: F401 (code_clock_steps: API)
 from cdgps_cli.measurement.epoch_fit import grouped_epoch_fit
 from cdgps_cli.measurement.epoch_pairing import channel_index, pair_epochs
 from cdgps_cli.measurement.slips import time_differenced_slips
@@ -100,15 +100,13 @@ def iono_columns(rows, n_state: int) -> tuple[np.ndarray, int]:
 
 def static_prior(rows, cols, n_state: int, sigma_pos_m: float, sigma_amb_cycles: float, *, n_iono: int = 0,
                  sigma_iono_m: float = 0.0):
-    """x0 (n,) and P0 (n, n): offset 0, each arc's ambiguity at its first row's (phase − code)/λ less the code
-    steps its signal group took before (:func:`code_clock_steps`: a receiver clock jump in the codes alone would
-    otherwise set the prior of every arc begun after it 10⁶ cycles from the arcs begun before, and σ 30 cycles
-    pulled the M8P pair's float 0.5 m), and the last ``n_iono`` states (SD ionosphere, m) 0 ± ``sigma_iono_m``."""
+    """x0 (n,) and P0 (n, n): offset 0, each arc's ambiguity at its first row's (phase − code)/λ (the rows' codes
+    without the clock steps they took alone: :func:`~cdgps_cli.measurement.code_steps.without_code_steps`, else
+    every arc begun after a 1 ms step sat 10⁶ cycles from those before, and σ 30 cycles pulled the M8P pair's
+    float 0.5 m), and the last ``n_iono`` states (SD ionosphere, m) 0 ± ``sigma_iono_m``."""
     x0 = np.zeros(n_state)
     first = np.unique(cols, return_index=True)[1]
-    steps = rows["code_steps"] if "code_steps" in rows else code_clock_steps(rows, cols)
-    x0[cols[first]] = (rows["phase_sd_m"][first] - rows["code_sd_m"][first]
-                       + _steps_before(steps, rows, first)) / rows["lam_m"][first]
+    x0[cols[first]] = (rows["phase_sd_m"][first] - rows["code_sd_m"][first]) / rows["lam_m"][first]
     x0[cols[first]] = np.round(x0[cols[first]])
     P0 = np.diag(np.r_[np.full(3, sigma_pos_m**2), np.full(n_state - 3 - n_iono, sigma_amb_cycles**2),
                        np.full(n_iono, sigma_iono_m**2)])
@@ -141,75 +139,6 @@ def static_filter(rows, times_s, base_xyz_m, origin_xyz_m, *, sigma_pos_m: float
         ctx = drive(GridDynamics(Static(n), times_s), [model], EpochGrid(np.asarray(times_s, float)),
                     StepFilter(x0, P0, form="covariance"), sink=sink, max_iterations=max_iterations, progress=bar)
     return ctx.step.x, ctx.step.P, cols
-
-
-def code_clock_steps(rows, cols=None, min_step_m: float = CODE_CLOCK_STEP_MIN_M) -> dict:
-    """Steps of the SD codes that the phases do not take, common to a signal group: a receiver clock jump seen in
-    the codes alone (a receiver whose phase stays continuous when its clock is reset by 1 ms: the codes step by
-    c · 1 ms = 299.8 km).
-
-    The change of (code − phase) between consecutive rows of one arc (``cols``, (N,): each row's ambiguity column;
-    without it, of one channel at consecutive epochs) is taken per signal group and epoch; a step is where at
-    least :data:`_STEP_MIN_CHANNELS` arcs changed, two thirds of them within :data:`_STEP_AGREEMENT_M` of their
-    median, and that median is at least ``min_step_m``.  Rows of a new arc (a slip, an outage) are not compared
-    with the arc before: a restart's phase is not tied to its code.
-
-    Returns ``{"code": (k,) signal index, "epoch": (k,) epoch of each step (its first epoch after it), "step_m":
-    (k,) m}``, in epoch order.  The DDs do not see such a step (it is common to the group); the arcs' prior
-    (:func:`static_prior`), which starts each arc from its SD code, does."""
-    n = rows["code"].size
-    empty = {"code": np.zeros(0, np.int64), "epoch": np.zeros(0, np.int64), "step_m": np.zeros(0)}
-    if n < 2:
-        return empty
-    epoch = np.repeat(np.arange(rows["ptr"].size - 1), np.diff(rows["ptr"]))
-    if cols is None:
-        chan = channel_index(rows["sats"], rows["code"])
-        order = np.lexsort((epoch, chan))
-        pair = (chan[order][1:] == chan[order][:-1]) & (epoch[order][1:] == epoch[order][:-1] + 1)
-    else:
-        arc = np.asarray(cols)
-        order = np.lexsort((epoch, arc))
-        pair = arc[order][1:] == arc[order][:-1]
-    d = (rows["code_sd_m"] - rows["phase_sd_m"])[order]
-    later = order[1:][pair]
-    change = (d[1:] - d[:-1])[pair]
-    if not change.size:
-        return empty
-    n_code = int(rows["code"].max()) + 1
-    key = epoch[later].astype(np.int64) * n_code + rows["code"][later]
-    by = pd.Series(change).groupby(key)
-    med, count = by.median(), by.size()
-    big = (np.abs(med.to_numpy()) >= min_step_m) & (count.to_numpy() >= _STEP_MIN_CHANNELS)
-    if not big.any():
-        return empty
-    near = np.abs(change - med.reindex(key).to_numpy()) <= _STEP_AGREEMENT_M
-    agree = pd.Series(near).groupby(key).sum().to_numpy()
-    big &= agree >= (2.0 / 3.0) * count.to_numpy()
-    keys = med.index.to_numpy()[big]
-    return {"code": keys % n_code, "epoch": keys // n_code, "step_m": med.to_numpy()[big]}
-
-
-#: a code step is believed when at least this many arcs of the group took it …
-_STEP_MIN_CHANNELS = 3
-#: … and two thirds of them within this of their median, m (a clock jump moves every code alike; code noise and
-#: multipath differ by metres)
-_STEP_AGREEMENT_M = 10.0
-
-
-def _steps_before(steps: dict, rows, idx) -> np.ndarray:
-    """Per row of ``idx``, the sum of its signal group's code steps (:func:`code_clock_steps`) at or before its
-    epoch, m."""
-    out = np.zeros(np.size(idx))
-    if not steps["step_m"].size:
-        return out
-    epoch = np.searchsorted(rows["ptr"], idx, side="right") - 1
-    code = rows["code"][idx]
-    for k in np.unique(steps["code"]):
-        sel = steps["code"] == k
-        cum = np.r_[0.0, np.cumsum(steps["step_m"][sel])]
-        here = code == k
-        out[here] = cum[np.searchsorted(steps["epoch"][sel], epoch[here], side="right")]
-    return out
 
 
 def static_least_squares(rows, cols, n_state: int, base_xyz_m, origin_xyz_m, *, sigma_pos_m: float = 100.0,
@@ -847,7 +776,7 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
                         opt["iono_threshold_km"])
     rows, slips = _with_unflagged_slips(rows, times, opt, base_xyz_m, rover_xyz0_m)
     cols = arc_columns(rows, times, max_gap_s=opt["max_gap_s"])
-    rows = {**rows, "code_steps": code_clock_steps(rows, cols)}        # found once, for every prior below
+    rows, code_steps = without_code_steps(rows, cols)      # a clock jump in the codes alone: out of every row
     if arcs_check is not None:
         why = arcs_check(dict(arc_table(rows, cols, times), unflagged_slips=slips))
         if isinstance(why, str):
@@ -878,7 +807,7 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
                        min_success_rate=opt["min_success_rate"], amb=lambda_float, glonass_fix=opt["glonass_fix"],
                        base_xyz_m=base_xyz_m, origin_xyz_m=rover_xyz0_m, times_s=times,
                        float_nis_per_row=None if rw is None else rw.nis_per_row)
-    steps = dict(rows["code_steps"])
+    steps = dict(code_steps)
     steps["time_s"], steps["signal"] = times[steps["epoch"]], [rows["names"][k] for k in steps["code"]]
     return {**f, "random_walk": rw, "lambda_float": lambda_float, "iono_sigma_m": sigma_iono, "unflagged_slips": slips,
             "code_clock_steps": steps,

@@ -803,8 +803,10 @@ def test_code_clock_steps_finds_a_step_of_the_codes_alone_and_the_prior_removes_
     """A signal group's SD codes step by c·1 ms from epoch 6 while its phases do not (a receiver clock reset with
     the carrier continuous), another group's one channel jumps 1 km once (an outlier: the median over channels
     ignores it), code noise 0.5 m: one step found, at epoch 6, of c·1 ms within 1 m; the arcs' prior (a new arc
-    begins after the step) is the unstepped rows' to within the noise."""
+    begins after the step) is the unstepped rows' to within the noise once the step is out of the codes
+    (measurement/code_steps.without_code_steps)."""
     from cdgps_cli.estimation.static_engine import code_clock_steps, static_prior
+    from cdgps_cli.measurement.code_steps import without_code_steps
     gen = np.random.default_rng(4)
     n_ep, n_sat = 10, 5
     epoch = np.repeat(np.arange(n_ep), 2 * n_sat)
@@ -825,8 +827,15 @@ def test_code_clock_steps_finds_a_step_of_the_codes_alone_and_the_prior_removes_
                          [2 * n_sat, 2 * n_sat + 1], np.tile(np.arange(2 * n_sat), n_ep))
     assert code_clock_steps(stepped, cols)["epoch"].tolist() == [6]             # along arcs: the same step
     x_ref, _ = static_prior(rows, cols, 3 + 2 * n_sat + 2, 100.0, 30.0)
-    x_got, _ = static_prior(stepped, cols, 3 + 2 * n_sat + 2, 100.0, 30.0)
+    x_raw, _ = static_prior(stepped, cols, 3 + 2 * n_sat + 2, 100.0, 30.0)
+    x_got, _ = static_prior(without_code_steps(stepped, cols)[0], cols, 3 + 2 * n_sat + 2, 100.0, 30.0)
     assert np.max(np.abs(x_got - x_ref)) <= 10                   # cycles: the noise (0.5 m / 0.19 m), not 1.6e6
+    assert np.max(np.abs(x_raw - x_ref)) > 1e6                   # with the step left in the codes
+    # the codes lose the step from its epoch on (the arc begun at that epoch too), nothing else
+    fixed = without_code_steps(stepped, cols)[0]["code_sd_m"]
+    np.testing.assert_allclose(fixed - codes, np.where((code == 1) & (epoch == 3), stepped["code_sd_m"] - codes
+                                                       - np.where((code == 0) & (epoch >= 6), 299792.458, 0.0), 0.0),
+                               atol=1.0)
 
 
 def test_code_clock_steps_are_not_restarts_nor_one_channels_blunder():

@@ -135,8 +135,9 @@ def test_a_clock_jump_in_the_codes_alone_gives_the_same_solution(tmp_path, monke
     continuous (session 20's D3 on the M8P pair): the signals are received 1 ms before their tags, every range takes
     its change over 1 ms (from the Doppler) and the codes 299.8 km more.  The DDs do not see the step, but the arcs'
     prior (each arc at its first (phase − code)/λ, σ 30 cycles) put every arc begun after it 1.6·10⁶ cycles from
-    those before: the M8P pair's float went 0.5 m off and its fix was rejected.  The prior now removes the step
-    (static_engine.code_clock_steps): the solution is the unedited pair's; with the step left in, it is not."""
+    those before: the M8P pair's float went 0.5 m off and its fix was rejected.  The step is now taken out of the
+    codes (measurement/code_steps): the solution is the unedited pair's; with the step left in, it is not.
+    ``rtk`` on the same files fixes the unedited pair's epochs (it fixed 431 of 1201 on the M8P pair, 1156 unedited)."""
     from cdgps_cli.estimation import static_engine
     from cdgps_cli.sim.rinex_edit import epoch_times_gps_s
     text = (MOSAIC / "rover.obs").read_text()
@@ -153,8 +154,19 @@ def test_a_clock_jump_in_the_codes_alone_gives_the_same_solution(tmp_path, monke
     assert not any("codes stepped" in w for w in ref["rovers"]["rover"]["warnings"])
     for k, v in ref["states"].items():
         assert got["states"][k] == pytest.approx(v, abs=2e-4), k
-    monkeypatch.setattr(static_engine, "code_clock_steps", lambda rows, *a: {
-        "code": np.zeros(0, np.int64), "epoch": np.zeros(0, np.int64), "step_m": np.zeros(0)})
+    monkeypatch.setattr(static_engine, "without_code_steps", lambda rows, *a: (rows, {
+        "code": np.zeros(0, np.int64), "epoch": np.zeros(0, np.int64), "step_m": np.zeros(0)}))
     left = _init(tmp_path, jumped, "left")
     off = max(abs(left["states"][k] - v) for k, v in ref["states"].items())
     assert off > 1.0, off                         # measured 4.6 m, 2 of 11 integers fixed
+    monkeypatch.undo()
+    fixed = {}
+    for tag, rover in (("ref", tmp_path / "rover_lli.obs"), ("jump", jumped)):
+        r = run_cli("rtk", "--base", MOSAIC / "base.obs", "--rover", rover, "--nav", MOSAIC / "base.nav", "--signals",
+                    "G:L1", "-o", tmp_path / f"{tag}.pos", "--json")
+        assert r.exit_code == 0, r.output
+        fixed[tag] = json.loads(r.stdout)
+    assert fixed["jump"]["fixed_epochs"] == fixed["ref"]["fixed_epochs"] > 250
+    assert fixed["jump"]["code_clock_steps"]["step_m"] == [pytest.approx(299792.458, abs=1.0)]
+    assert any("codes stepped while the phases did not" in w for w in fixed["jump"]["warnings"])
+    assert fixed["ref"]["code_clock_steps"]["step_m"] == []
