@@ -1824,6 +1824,40 @@ def _nan_none(v):
     return None if v is None or (isinstance(v, float) and math.isnan(v)) else v
 
 
+def _random_walk_notes(rw, opt: BaselineOptions) -> dict:
+    """INIT's float-block fields of the engine's random-walk float ``rw``
+    (:class:`~cdgps_cli.estimation.static_engine.RandomWalkFloat`; {} without one): the configured σ, its NIS per
+    row, and when σ was raised the σ used and every σ tried."""
+    if rw is None:
+        return {}
+    out = {"motion": "random_walk", "random_walk_sigma_m_per_sqrt_s": list(opt.random_walk_sigma),
+           "random_walk_nis_per_row": _nan_none(rw.nis_per_row)}
+    if len(rw.tried) > 1:                   # the walk's σ raised until its float held the motion
+        out["random_walk_sigma_used_m_per_sqrt_s"] = list(rw.sigma_m_per_sqrt_s)
+        out["random_walk_tried"] = [{"sigma_m_per_sqrt_s": list(sig), "nis_per_row": _nan_none(nis)}
+                                    for sig, nis in rw.tried]
+    return out
+
+
+def _phase_check_record(res: dict) -> dict | None:
+    """The integers' check by the phases alone (:func:`~.static_engine.fixed_phase_check`) with its thresholds, or
+    None when it could not judge them."""
+    check = res.get("phase_check")
+    if check is None:
+        return None
+    return dict(check, threshold=FIXED_PHASE_UNIT_VARIANCE_MAX, window_s=FIXED_PHASE_WINDOW_S,
+                window_threshold=FIXED_PHASE_WINDOW_UNIT_VARIANCE_MAX)
+
+
+def _rejected_fix_record(res: dict, check: dict | None) -> dict:
+    """INIT's ``float.rejected_fix``: how many integers were not taken, their ratio, and why (the phase check, or,
+    with none possible, the float's NIS)."""
+    why = ({"phase_check": check} if check is not None else
+           {"float_nis_per_row": _nan_none(res.get("float_nis_per_row")), "float_nis_threshold": UNCHECKED_FIX_NIS_MAX})
+    return {"n_integers": int(res["rejected_n_fixed"]), "ratio": _nan_none(res.get("ratio")),
+            "rejected_by": res.get("rejected_by", "phase_check"), **why}
+
+
 def _engine_solution(d: _Data, sg: _Segments, w: _Weights, eng: dict, xr0, r_enu, opt: BaselineOptions):
     """(float, fix, final) in this solver's forms from :func:`~cdgps_cli.estimation.static_engine.static_baseline`'s
     result ``eng`` (its float and fixed states and integers): the rendering (segment table, residuals,
@@ -1853,31 +1887,16 @@ def _engine_solution(d: _Data, sg: _Segments, w: _Weights, eng: dict, xr0, r_enu
     if eng.get("lambda_float") is not None:     # the float ambiguities LAMBDA saw (random walk, ionosphere-weighted)
         Ja = J[sg.free][:, 3:]
         a_res, q_res = Ja @ eng["lambda_float"][0], Ja @ eng["lambda_float"][1] @ Ja.T
-    if eng.get("random_walk") is not None:
-        fl.block["motion"] = "random_walk"
-        fl.block["random_walk_sigma_m_per_sqrt_s"] = list(opt.random_walk_sigma)
-        rw = eng["random_walk"]
-        fl.block["random_walk_nis_per_row"] = _nan_none(rw.nis_per_row)
-        if len(rw.tried) > 1:               # the walk's σ raised until its float held the motion
-            fl.block["random_walk_sigma_used_m_per_sqrt_s"] = list(rw.sigma_m_per_sqrt_s)
-            fl.block["random_walk_tried"] = [{"sigma_m_per_sqrt_s": list(sig), "nis_per_row": _nan_none(nis)}
-                                             for sig, nis in rw.tried]
+    fl.block.update(_random_walk_notes(eng.get("random_walk"), opt))
     glo = np.where(_fdma_segments(d, sg) & np.isfinite(seg_int), seg_int, np.nan) if opt.glonass_fix else None
     fx = _Fix(a_res, q_res, fixed_mask, ints, _nan_none(res.get("ratio")),
               _nan_none(res.get("ratio_full_set")), bool(res.get("accepted", False)), bool(res.get("partial", False)),
               _nan_none(res.get("success_rate")), None if glo is None else np.isfinite(glo) & ~sg.is_pivot, glo)
     n_glo = int(fx.glonass_fixed.sum()) if fx.glonass_fixed is not None else 0     # GLONASS DDs fixed too
     n_fixed = int(fixed_mask.sum())
-    check = res.get("phase_check")
-    if check is not None:                      # the integers' check by the phases alone (static_engine.fixed_phase_check)
-        check = dict(check, threshold=FIXED_PHASE_UNIT_VARIANCE_MAX, window_s=FIXED_PHASE_WINDOW_S,
-                     window_threshold=FIXED_PHASE_WINDOW_UNIT_VARIANCE_MAX)
+    check = _phase_check_record(res)
     if res.get("rejected_n_fixed"):
-        fl.block["rejected_fix"] = {"n_integers": int(res["rejected_n_fixed"]), "ratio": _nan_none(res.get("ratio")),
-                                    "rejected_by": res.get("rejected_by", "phase_check"),
-                                    **({"phase_check": check} if check is not None else
-                                       {"float_nis_per_row": _nan_none(res.get("float_nis_per_row")),
-                                        "float_nis_threshold": UNCHECKED_FIX_NIS_MAX})}
+        fl.block["rejected_fix"] = _rejected_fix_record(res, check)
     if not n_fixed + n_glo:
         a_sig = np.zeros(sg.n_seg)
         a_sig[sg.free] = np.sqrt(np.diag(q_fl)[3:])

@@ -252,16 +252,15 @@ def modal_batch_initialization(cfg: StructureConfig, R, tabs, k_of, ant_idx, d_h
         w_s = min(w_s * INIT_WINDOW_GROWTH, longest)
     init_known = [np.asarray(tb["w"]["known_seg"], bool) & (tb["n_fixed"] > 0) for tb in tabs]
     segs, agree, n_cmp = [], 0, 0
+    seg_ids = [_segment_satellites(tb) for tb in tabs]          # (satellite, first time) of every segment
     for i, col in enumerate(res.columns):
         a, sj, sr = model.segment_keys[col]
-        d, seg = tabs[a]["d"], tabs[a]["seg"]
         if res.fixed[i] and init_known[a][sj] and init_known[a][sr]:
             n_cmp += 1
             agree += int(round(tabs[a]["a_seg"][sj] - tabs[a]["a_seg"][sr]) == res.integers[i])
-        first = np.flatnonzero(seg == sj)[0]
-        segs.append({"rover_slot": int(a), "satellite": d.sat_names[int(d.sat[first])],
-                     "reference": d.sat_names[int(d.sat[np.flatnonzero(seg == sr)[0]])],
-                     "first_s": float(d.t_label[d.epoch[first]]),
+        names, first_s = seg_ids[a]
+        segs.append({"rover_slot": int(a), "satellite": names[sj], "reference": names[sr],
+                     "first_s": float(first_s[sj]),
                      "segment": int(sj), "reference_segment": int(sr), "float_cycles": float(res.float_bias_m[i] / lam[a]),
                      "sigma_cycles": float(res.float_sigma_m[i] / lam[a]), "integer_cycles": int(res.integers[i]),
                      "fixed": bool(res.fixed[i]), **({"signal": tabs[a]["signal"]} if "signal" in tabs[a] else {})})
