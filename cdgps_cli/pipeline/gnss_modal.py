@@ -423,6 +423,9 @@ def _check_segment_satellite(table: tuple, seg: int, satellite, first_s=None) ->
     if satellite is not None and names[seg] and names[seg] != str(satellite):
         raise CdgpsError(f"INIT.json's modal_init does not match this run's lock segments: its segment {seg} is "
                          f"{satellite}, this run's is {names[seg]} (run 'cdgps init --structure' again on this run)")
+    if first_s is not None and not (isinstance(first_s, (int, float)) and np.isfinite(first_s)):
+        raise CdgpsError(f"INIT.json's modal_init: segment {seg} ({satellite}) has first_s = {first_s!r}; expected a "
+                         f"GPS time in seconds")
     if first_s is not None and np.isfinite(first[seg]) and abs(first[seg] - float(first_s)) > 1e-6:
         raise CdgpsError(f"INIT.json's modal_init does not match this run's lock segments: its segment {seg} "
                          f"({satellite}) begins at {gps_time_str(float(first_s))}, this run's at "

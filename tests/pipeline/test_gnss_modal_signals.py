@@ -262,3 +262,8 @@ def test_a_slip_no_receiver_flagged_is_cut_where_init_cut_it(tmp_path):
     r = run_cli("-q", "estimate", tmp_path / "slip" / "run.mcap", "--init", tmp_path / "moved.json", "--structure",
                 TOWER, "-o", tmp_path / "moved.mcap")
     assert r.exit_code == 2 and "begins at" in r.output and not (tmp_path / "moved.mcap").exists(), r.output
+    moved["modal_init"]["later_segments"][0]["first_s"] = float("nan")            # and one that is no time
+    (tmp_path / "moved.json").write_text(json.dumps(moved))
+    r = run_cli("-q", "estimate", tmp_path / "slip" / "run.mcap", "--init", tmp_path / "moved.json", "--structure",
+                TOWER, "-o", tmp_path / "moved.mcap")
+    assert r.exit_code == 2 and "first_s = nan" in r.output and not (tmp_path / "moved.mcap").exists(), r.output
