@@ -144,6 +144,8 @@ def chi2_quantile(probability, dof):
     Abramowitz & Stegun, Handbook of Mathematical Functions, 6.5 and 26.4; Press et al.,
     Numerical Recipes, 3rd ed., §6.2 (series and continued fraction of the incomplete gamma function).
     """
+    if np.ndim(probability) == 0 and np.ndim(dof) == 0:      # a filter's per-epoch test: no arrays (_quantile caches)
+        return np.float64(_scalar(float(probability), float(dof)))
     p, k = np.broadcast_arrays(np.asarray(probability, dtype=float), np.asarray(dof, dtype=float))
     key = np.empty(p.size, dtype=complex)                 # (p, dof) as one sortable key
     key.real, key.imag = p.ravel(), k.ravel()

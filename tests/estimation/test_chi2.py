@@ -41,3 +41,17 @@ def test_edges_as_scipy():
     got = chi2_quantile([0.0, 1.0, -0.1, 1.1, np.nan, 0.5, 0.5], [3, 3, 3, 3, 3, 0, -1])
     np.testing.assert_array_equal(got, chi2.ppf([0.0, 1.0, -0.1, 1.1, np.nan, 0.5, 0.5], [3, 3, 3, 3, 3, 0, -1]))
     assert isinstance(chi2_quantile(0.999, 4), float)
+
+
+def test_scalar_arguments_give_the_array_paths_numbers():
+    """A filter's per-epoch call (two scalars, numpy or Python) takes a path without arrays: the same value, of the
+    same type, as one element of the array path, edges included."""
+    probs = [0.0, 1e-9, 0.025, 0.5, 0.975, 0.999, 1.0, -0.1, 1.1, float("nan")]
+    dofs = [0, -1, 1, 2, 3.5, 7, 40, 300]
+    grid = chi2_quantile(np.array(probs)[:, None], np.array(dofs, dtype=float)[None, :])
+    for i, p in enumerate(probs):
+        for j, k in enumerate(dofs):
+            for pp, kk in ((p, k), (np.float64(p), np.int64(k) if float(k).is_integer() else np.float64(k))):
+                got = chi2_quantile(pp, kk)
+                assert isinstance(got, np.float64)
+                assert got == grid[i, j] or (np.isnan(got) and np.isnan(grid[i, j])), (p, k, got, grid[i, j])
