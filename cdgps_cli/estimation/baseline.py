@@ -48,7 +48,7 @@ from cdgps_cli.estimation.model_filter import filter_numpy
 from cdgps_cli.measurement.dd_displacement import SatelliteDDDisplacement, SDObservations
 from cdgps_cli.model.dynamics_models import RandomWalk, WithConstants
 from cdgps_cli.config.limits import MASK_DEG
-from cdgps_cli.config.options import (FIXED_PHASE_UNIT_VARIANCE_MAX, FIXED_PHASE_WINDOW_S,
+from cdgps_cli.config.options import (EPOCH_PAIRING_DEFAULTS, FIXED_PHASE_UNIT_VARIANCE_MAX, FIXED_PHASE_WINDOW_S,
                                       FIXED_PHASE_WINDOW_UNIT_VARIANCE_MAX, GNSS_DEFAULTS, GNSS_WEIGHTINGS,
                                       UNCHECKED_FIX_NIS_MAX)
 from cdgps_cli.measurement.differencing import (
@@ -156,6 +156,12 @@ class BaselineOptions:
     glonass_fix : bool
         GLONASS double differences fixed as integers (identical receivers only: their inter-frequency
         biases cancel); the static engine only (the batch keeps GLONASS float and refuses the option).
+    age_sigma_m_per_s : float or None
+        σ a bridged base observation gains per second of its age, m/s (:func:`~cdgps_cli.measurement.epoch_pairing.
+        age_variance_m2`); None: rtk's ``--age-noise auto``, the base's own drift where it exceeds RTKLIB's 1.5 mm/s
+        (:func:`~cdgps_cli.measurement.base_interpolation.base_age_noise`, found once per baseline when some rover
+        epoch is bridged; the value found is what the result's ``options`` record, so ``estimate`` weighs as
+        ``init`` did).
     """
 
     mask_deg: float = GNSS_DEFAULTS["mask_deg"]
@@ -181,6 +187,7 @@ class BaselineOptions:
     initial_sigma_m: float = GNSS_DEFAULTS["initial_sigma_m"]
     min_success_rate: float = GNSS_DEFAULTS["min_success_rate"]
     glonass_fix: bool = GNSS_DEFAULTS["glonass_fix"]
+    age_sigma_m_per_s: float | None = None
 
     @classmethod
     def from_gnss_config(cls, cfg, **overrides) -> "BaselineOptions":
@@ -238,6 +245,9 @@ class BaselineOptions:
             p.append(f"min_success_rate must be a probability in [0, 1), got {self.min_success_rate!r}")
         if not isinstance(self.glonass_fix, bool):
             p.append(f"glonass_fix must be true or false, got {self.glonass_fix!r}")
+        a = self.age_sigma_m_per_s
+        if a is not None and not (isinstance(a, (int, float)) and not isinstance(a, bool) and math.isfinite(a) and a > 0):
+            p.append(f"age_sigma_m_per_s must be a number > 0 (m/s) or null (found from the base), got {a!r}")
         if not (math.isfinite(self.initial_sigma_m) and self.initial_sigma_m > 0):
             p.append(f"initial_sigma_m must be > 0, got {self.initial_sigma_m!r}")
         if not (isinstance(self.min_sats_kinematic, int) and self.min_sats_kinematic >= 4):
@@ -575,7 +585,7 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
     sel = np.flatnonzero(keep)
     age_ep = tag_r - tag_m                                   # rover − base time of each epoch, s
     simultaneous = np.abs(age_ep) <= opt.sync_tol_s
-    age_var_ep = age_variance_m2(np.nan_to_num(age_ep), opt.sync_tol_s)
+    age_var_ep = age_variance_m2(np.nan_to_num(age_ep), opt.sync_tol_s, _age_sigma(opt))
     info = {
         "n_epochs_master": int(ce.n_tags[master.name]),
         "n_epochs_rover": int(ce.n_tags[rover.name]),
@@ -666,7 +676,7 @@ def _interpolated_base(d: _Data, master: Station, rover: Station, base_grid, rov
     m = m.merge(at0, on=["_bep", "sat", "signal"], how="left", sort=False)
     age = age_ep[d.epoch]
     if len(m) != d.epoch.size or tb.size == 0:          # a repeated base row: the nearest epoch's, as the engine's
-        return d._replace(age_var_m2=age_variance_m2(age, opt.sync_tol_s)), 0
+        return d._replace(age_var_m2=age_variance_m2(age, opt.sync_tol_s, _age_sigma(opt))), 0
     ph0, rg0 = m["phase_cycles_b"].to_numpy(dtype=float), m["pseudorange_m_b"].to_numpy(dtype=float)
     ph, rg, age_i, done = interpolate_base(m.assign(_bep=np.maximum(m["_bep"].to_numpy(), 0)), b, tb,
                                            rover_tag_s[d.epoch], base_xyz_m=master_xyz, sync_tol_s=opt.sync_tol_s,
@@ -674,8 +684,39 @@ def _interpolated_base(d: _Data, master: Station, rover: Station, base_grid, rov
     age = np.where(done, age_i, age)
     d = d._replace(y_phase_m=d.y_phase_m - np.where(done, m["wavelength_m"].to_numpy() * (ph - ph0), 0.0),
                    y_code_m=d.y_code_m - np.where(done, rg - rg0, 0.0),
-                   age_var_m2=age_variance_m2(age, opt.sync_tol_s))
+                   age_var_m2=age_variance_m2(age, opt.sync_tol_s, _age_sigma(opt)))
     return d, int(np.unique(d.epoch[done]).size)
+
+
+def _with_age_noise(master: Station, rover: Station, nav, opt: BaselineOptions, xm) -> tuple:
+    """``opt`` with its age σ resolved, and the record of it (:func:`~cdgps_cli.measurement.base_interpolation.
+    base_age_noise`'s): as given; else ("auto") the base's own drift where it exceeds RTKLIB's 1.5 mm/s, when some
+    rover epoch is bridged (the engine's signal tables paired as the engine pairs them; the base's geometry built for
+    it alone).  Bad input is left to the stages after, whose messages name it: RTKLIB's σ then."""
+    from dataclasses import replace
+    from cdgps_cli.estimation.rtk_multi import receiver_geometry
+    from cdgps_cli.measurement.base_interpolation import base_age_noise
+    if opt.age_sigma_m_per_s is not None:
+        return opt, {"mode": "model", "sigma_m_per_s": float(opt.age_sigma_m_per_s), "estimate_m_per_s": None}
+    floor = EPOCH_PAIRING_DEFAULTS["age_sigma_m_per_s"]
+    noise = {"mode": "auto", "sigma_m_per_s": floor, "estimate_m_per_s": None}
+    try:
+        tb, tr = (_engine_table(master, rover, st) for st in (master, rover))
+        pairs = pair_epochs(np.unique(tr["time_gps_s"].to_numpy()), np.unique(tb["time_gps_s"].to_numpy()),
+                            sync_tol_s=opt.sync_tol_s, max_age_s=opt.max_age_s)
+        if pairs.summary.get("bridged"):
+            noise = base_age_noise(receiver_geometry(tb, nav, xm), pairs, xm,
+                                   {"age_noise": "auto", "age_sigma_m_per_s": floor, "troposphere": opt.troposphere,
+                                    "max_age_s": opt.max_age_s, "mask_deg": opt.mask_deg})
+    except CdgpsError:
+        pass
+    return replace(opt, age_sigma_m_per_s=noise["sigma_m_per_s"]), noise
+
+
+def _age_sigma(opt: BaselineOptions) -> float:
+    """The σ per second of base age the options weigh with, m/s (:attr:`BaselineOptions.age_sigma_m_per_s`; RTKLIB's
+    1.5 mm/s while it is not resolved)."""
+    return EPOCH_PAIRING_DEFAULTS["age_sigma_m_per_s"] if opt.age_sigma_m_per_s is None else float(opt.age_sigma_m_per_s)
 
 
 def _base_rows_around(master: Station, rover: Station, nav, master_xyz, t_base, bridged, opt: BaselineOptions):
@@ -2248,14 +2289,14 @@ def baseline_from_init(master: Station, rover: Station, nav: pd.DataFrame, optio
     def first(xm, xr0, prepared):    # the engine's geometry released before the batch tables are built
         if _engine_needed_first(integers, solution, engine_init, glonass_integers):
             try:
-                solved["engine"] = _engine_float(master, rover, nav, options, xm, xr0, prepared, check,
+                solved["engine"] = _engine_float(master, rover, nav, prepared.opt, xm, xr0, prepared, check,
                                                  segment_starts=list(integers))
             except CdgpsError as exc:
                 if getattr(exc, "from_prepare", False):     # the batch tables' own message: passed on as it is
                     raise
                 solved["engine"] = exc              # raised where the engine would have run (decide's checks first)
 
-    def decide(prepared, xm, xr0, warnings):
+    def decide(prepared, xm, xr0, warnings, opt):
         d, sg, w, r_enu = prepared
         glo = None if glonass_integers is None else _given_glonass(glonass_integers, d, sg, rover.name)
         fixed = solution is not None and solution.get("enu_m") is not None
@@ -2277,7 +2318,7 @@ def baseline_from_init(master: Station, rover: Station, nav: pd.DataFrame, optio
             _given_integers(integers, d, sg, np.zeros(sg.free.size, dtype=bool), np.zeros(sg.free.size, dtype=np.int64))
             k = _known_float(d, sg, w, solution["float_enu_m"], xr0, r_enu, max(tol, _FLOAT_STOP_M))
             return "the given float position is not the float solution of these data" if k is None else k
-        tries = [("static_engine (integers given)", lambda: _engine_given(master, rover, nav, options, xm, xr0,
+        tries = [("static_engine (integers given)", lambda: _engine_given(master, rover, nav, opt, xm, xr0,
                                                                            prepared, integers, glo,
                                                                            solved.pop("engine", None))),
                  ("given (INIT's position, float ambiguities at it)", at_position)]
@@ -2389,9 +2430,9 @@ def _solve_static_baseline_once(master: Station, rover: Station, nav: pd.DataFra
 
     def first(xm, xr0, prepared):    # the engine's geometry released before the batch tables are built
         if engine and integers is None:
-            solved["engine"] = _engine_first(master, rover, nav, opt, xm, xr0, iono_threshold_km, prepared)
+            solved["engine"] = _engine_first(master, rover, nav, prepared.opt, xm, xr0, iono_threshold_km, prepared)
 
-    def decide(prepared, xm, xr0, warnings):
+    def decide(prepared, xm, xr0, warnings, opt):
         d, sg, w, r_enu = prepared
         if integers is None:
             return _engine_or_batch(master, rover, nav, opt, xm, xr0, iono_threshold_km, prepared, engine,
@@ -2433,6 +2474,11 @@ class _BatchTables:
     def slip_warnings(self) -> list:
         """The warning naming the slips :meth:`add_slips` put here (whichever solver then serves)."""
         return _unflagged_slip_warning(self._slips)
+
+    @property
+    def opt(self) -> BaselineOptions:
+        """The options the tables are built with (the age σ resolved, :func:`_with_age_noise`)."""
+        return self._opt
 
     @property
     def segment_starts(self):
@@ -2499,8 +2545,9 @@ def _mark_segment_starts(d: _Data, keys) -> None:
 
 def _baseline(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOptions, master_xyz, rover_xyz,
               keep_work: bool, iono_threshold_km, decide, integers, first=None) -> dict:
-    """:func:`solve_static_baseline`'s and :func:`baseline_from_init`'s body: ``decide(prepared, xm, xr0, warnings)``
-    returns ((float, fix, final), solver) of a solution made elsewhere, or (None, solver): the batch below solves;
+    """:func:`solve_static_baseline`'s and :func:`baseline_from_init`'s body: ``decide(prepared, xm, xr0, warnings,
+    opt)`` (``opt`` with its age σ resolved, :func:`_with_age_noise`) returns ((float, fix, final), solver) of a
+    solution made elsewhere, or (None, solver): the batch below solves;
     ``first(xm, xr0, prepared)``, when given, runs before the batch tables are built (``prepared()`` builds them
     once, when first called; the time of ``first`` besides them counts as the solve's)."""
     t_start = time.perf_counter()
@@ -2516,6 +2563,7 @@ def _baseline(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineO
         return clock[-1] - clock[-2]
 
     r_enu = enu_matrix(*ecef_to_geodetic(xr0)[:2])
+    opt, age_noise = _with_age_noise(master, rover, nav, opt, xm)
     prepared = _BatchTables(lambda: _prepare(master, rover, nav, opt, xm, xr0, warnings), opt, r_enu)
     if integers is not None:
         prepared.start_segments_at(integers)
@@ -2527,7 +2575,7 @@ def _baseline(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineO
     d, sg, w, _ = prepared()
     lap()
     t_prep = prepared.t_prep
-    known, solver = decide((d, sg, w, r_enu), xm, xr0, warnings)
+    known, solver = decide((d, sg, w, r_enu), xm, xr0, warnings, opt)
     warnings += prepared.slip_warnings()
     if known is None and opt.glonass_fix:
         raise CdgpsError(f"glonass_fix: GLONASS integers are fixed by the static engine only, which cannot solve "
@@ -2554,7 +2602,7 @@ def _baseline(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineO
         "ambiguities": _ambiguity_summary(sg, fx, opt, _segment_table(d, sg, fx, fin)),
         "residuals": residuals,
         "kinematic": kin,
-        "epochs": dict(d.info, n_reference_changes=n_ref_changes, reference_satellites=ref_list),
+        "epochs": dict(d.info, n_reference_changes=n_ref_changes, reference_satellites=ref_list, age_noise=age_noise),
         "satellites": _satellite_table(d, sg),
         "warnings": warnings,
         "options": asdict(opt),

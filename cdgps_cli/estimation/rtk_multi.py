@@ -44,7 +44,7 @@ from cdgps_cli.measurement.code_steps import without_code_steps
 from cdgps_cli.measurement.dd_signals import DDGroupModel, backward_slips, channel_index, epoch_groups, paired_sd_rows
 from cdgps_cli.measurement.differencing import sd_variance
 from cdgps_cli.measurement.epoch_pairing import pair_epochs
-from cdgps_cli.measurement.base_interpolation import base_drift_m_per_s
+from cdgps_cli.measurement.base_interpolation import base_age_noise  # noqa: F401 (rtk_multi.base_age_noise: API)
 from cdgps_cli.measurement.noise import code_noise_factor, effective_sample_size
 from cdgps_cli.model.dynamics_models import ConstantVelocity, RandomWalk, Static
 from cdgps_cli.model.gps.orbits import OMEGA_E_GPS, azimuth_elevation, ecef_to_geodetic, ephemeris_rows, sat_position_rows
@@ -598,27 +598,6 @@ def _passes(rows, times, direction: str, opt, base_xyz, origin, iono, progress) 
         bwd = job.result()
     out = _combine(fwd, bwd)
     return _with_float_variance_factor(out, fwd, bwd) if not opt["fix"] else dict(out, float_variance=None)
-
-
-def base_age_noise(base: pd.DataFrame, pairs, base_xyz, opt: dict) -> dict:
-    """The σ per second of base age of option ``age_noise``: "model", ``age_sigma_m_per_s``; "auto", the base's own
-    drift (:func:`~cdgps_cli.measurement.base_interpolation.base_drift_m_per_s` over its rows above the mask) where
-    it exceeds that, when some rover epoch is bridged (else nothing to weigh).  Returns ``{"mode",
-    "sigma_m_per_s", "estimate_m_per_s"}``.
-
-    Measured (GPS L1, docs/gnss-pipeline.md, session 20): a Crescent base of 2008 (RTKLIB's test data) 10 mm/s,
-    its first rover epochs extrapolated 25–29 s and fixed 0.2 m off with σ 3–8 cm at 1.5 mm/s, none off at the
-    estimate; mosaic 2.1, the u-blox M8P base 1.3 (1.5 kept), the Leica CORS GLW1 0.9."""
-    floor = float(opt["age_sigma_m_per_s"])
-    out = {"mode": opt["age_noise"], "sigma_m_per_s": floor, "estimate_m_per_s": None}
-    if opt["age_noise"] != "auto" or not pairs.summary.get("bridged"):
-        return out
-    est = base_drift_m_per_s(base, base_xyz, troposphere=opt["troposphere"], max_age_s=float(opt["max_age_s"]),
-                             mask_rad=np.radians(opt["mask_deg"]))["estimate_m_per_s"]
-    out["estimate_m_per_s"] = est
-    if est is not None and est > floor:
-        out["sigma_m_per_s"] = est
-    return out
 
 
 def receivers_code_noise(base: pd.DataFrame, rover: pd.DataFrame, opt: dict) -> dict:

@@ -30,6 +30,7 @@ from cdgps_cli.config.options import (FIXED_PHASE_UNIT_VARIANCE_MAX, FIXED_PHASE
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.dd_signals import DDGroupModel, RunDDModel, epoch_groups, paired_sd_rows
 from cdgps_cli.measurement.differencing import ambiguity_datum, ambiguity_segments
+from cdgps_cli.measurement.base_interpolation import base_age_noise
 from cdgps_cli.measurement.code_steps import code_clock_steps, without_code_steps  # noqa: F401 (code_clock_steps: API)
 from cdgps_cli.measurement.epoch_fit import grouped_epoch_fit
 from cdgps_cli.measurement.epoch_pairing import channel_index, pair_epochs
@@ -713,7 +714,8 @@ _FIXED_VALUE = {"epoch_alignment": "geometry", "kinematic_series": False}
 def options_from_baseline(bopt) -> dict:
     """:class:`~cdgps_cli.estimation.baseline.BaselineOptions` → :func:`static_baseline` options.
 
-    Fields in ``_HONOURED`` are mapped (``weighting`` too: the SD rows' variance, :func:`paired_sd_rows`); a field in
+    Fields in ``_HONOURED`` are mapped (``weighting`` too: the SD rows' variance, :func:`paired_sd_rows`;
+    ``age_sigma_m_per_s`` as option ``age_noise`` "model" with that σ, or "auto" when None); a field in
     ``_FIXED_VALUE`` set otherwise raises CdgpsError naming it; the remaining ones (``max_iterations``, the batch's
     Gauss–Newton cap, which the engine's one pass has no equivalent of; the kinematic-series settings, which the
     caller renders) must keep their defaults, else CdgpsError naming them.
@@ -722,7 +724,9 @@ def options_from_baseline(bopt) -> dict:
     out = {}
     for f in fields(bopt):
         v = getattr(bopt, f.name)
-        if f.name in _HONOURED:
+        if f.name == "age_sigma_m_per_s":        # None: the engine finds it from the base ("auto"); else as given
+            out.update({} if v is None else {"age_noise": "model", "age_sigma_m_per_s": float(v)})
+        elif f.name in _HONOURED:
             out[_HONOURED[f.name]] = v
         elif f.name in _FIXED_VALUE:
             if v != _FIXED_VALUE[f.name]:
@@ -757,17 +761,20 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
     dict
         ``offset_m`` (3,) fixed (float when nothing is fixed) ECEF offset from ``rover_xyz0_m``, m;
         ``cov_m2`` (3, 3); ``float_offset_m`` (3,), ``float_cov_m2`` (3, 3); ``resolution``
-        (:func:`~cdgps_cli.estimation.ambiguity.resolve`'s dict); ``pairs``; ``epochs_used``; ``epoch_pairing``.
-        Or a string: what ``arcs_check`` returned.
+        (:func:`~cdgps_cli.estimation.ambiguity.resolve`'s dict); ``pairs``; ``epochs_used``; ``epoch_pairing``;
+        ``age_noise`` (:func:`~cdgps_cli.measurement.base_interpolation.base_age_noise` of option ``age_noise``: the
+        σ per second of base age the rows were weighed with).  Or a string: what ``arcs_check`` returned.
 
     Other Parameters
     ----------------
     arcs_check : callable, optional
-        Called with the :func:`arc_table` before the filter runs; when it returns a string, nothing is
-        solved and that string is returned (a caller that cannot use these arcs skips the solve).
+        Called with the :func:`arc_table` (and ``unflagged_slips``, ``age_noise``) before the filter runs; when it
+        returns a string, nothing is solved and that string is returned (a caller that cannot use these arcs skips
+        the solve).
     """
     opt = _static_options(options)
-    pairs, rows = _paired_rows(base, rover, opt, base_xyz_m)
+    age_noise: dict = {}
+    pairs, rows = _paired_rows(base, rover, opt, base_xyz_m, age_noise)
     del base, rover          # the geometry tables (a long record's largest) are not held through the check and solve
     times = pairs.rover_time_s
     if np.unique(rows["code"]).size > 1:           # multi-signal: the DD ionosphere is neglected (as init's)
@@ -778,7 +785,7 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
     cols = arc_columns(rows, times, max_gap_s=opt["max_gap_s"])
     rows, code_steps = without_code_steps(rows, cols)      # a clock jump in the codes alone: out of every row
     if arcs_check is not None:
-        why = arcs_check(dict(arc_table(rows, cols, times), unflagged_slips=slips))
+        why = arcs_check(dict(arc_table(rows, cols, times), unflagged_slips=slips, age_noise=age_noise))
         if isinstance(why, str):
             return why
     # the arcs' prior σ: rtk's (amb_sigma_cycles) — 1e3 cycles left P of a 24 h pair (σ down to 1e-4 m) too
@@ -810,7 +817,7 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
     steps = dict(code_steps)
     steps["time_s"], steps["signal"] = times[steps["epoch"]], [rows["names"][k] for k in steps["code"]]
     return {**f, "random_walk": rw, "lambda_float": lambda_float, "iono_sigma_m": sigma_iono, "unflagged_slips": slips,
-            "code_clock_steps": steps,
+            "code_clock_steps": steps, "age_noise": age_noise,
             "float_offset_m": x[:3], "float_cov_m2": P[:3, :3], "epochs_used": int(times.size),
             "epoch_pairing": pairs.summary, "state": x, "cov": P, "arcs": arc_table(rows, cols, times),
             "arc_integers": arc_integers(f, x.size)}
@@ -908,12 +915,17 @@ def iono_weighting_sigma_m(opt: dict, base_xyz_m, rover_xyz0_m) -> float:
     return float(sigma) if sigma >= IONO_WEIGHTED_MIN_SIGMA_M else 0.0
 
 
-def _paired_rows(base, rover, opt: dict, base_xyz_m):
+def _paired_rows(base, rover, opt: dict, base_xyz_m, age_noise: dict | None = None):
     """rtk's epoch pairing of the two geometry tables and their SD rows (the mask at both receivers, as the
     batch's; a bridged rover epoch's base observations interpolated to its time, as rtk's and the batch's);
-    CdgpsError when no satellite is common."""
+    CdgpsError when no satellite is common.  ``age_noise``, when given (a dict), receives
+    :func:`~cdgps_cli.measurement.base_interpolation.base_age_noise` of option ``age_noise``, and the rows' age
+    variance takes its σ (as rtk's); otherwise ``age_sigma_m_per_s`` as it is."""
     pairs = pair_epochs(rover["time_gps_s"].to_numpy(), base["time_gps_s"].to_numpy(),
                         sync_tol_s=opt["sync_tol_s"], max_age_s=opt["max_age_s"])
+    if age_noise is not None:
+        age_noise.update(base_age_noise(base, pairs, base_xyz_m, opt))
+        opt = {**opt, "age_sigma_m_per_s": age_noise["sigma_m_per_s"]}
     rows = paired_sd_rows(base, rover, pairs, opt, mask_rover=True, base_xyz_m=base_xyz_m)
     if rows["sats"].size == 0:
         raise CdgpsError("no common observations: no satellite observed at both receivers above the mask")

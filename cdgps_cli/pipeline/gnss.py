@@ -41,7 +41,7 @@ import numpy as np
 import pandas as pd
 
 from cdgps_cli import __version__
-from cdgps_cli.config.options import NIS_MISFIT_PER_DOF
+from cdgps_cli.config.options import EPOCH_PAIRING_DEFAULTS, NIS_MISFIT_PER_DOF
 from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.estimation.baseline import (BaselineOptions, Station, baseline_from_init, json_safe,
                                            known_phase_blocks, solve_static_baseline)
@@ -535,6 +535,7 @@ def solve_with_init_integers(run, init: dict, r: str, stations: dict):
     """
     rov = init["rovers"][r]
     o = dict(rov.get("options") or {})
+    o.setdefault("age_sigma_m_per_s", EPOCH_PAIRING_DEFAULTS["age_sigma_m_per_s"])   # an INIT before it was recorded
     try:
         opt = BaselineOptions(**{k: v for k, v in o.items() if k in BaselineOptions.__dataclass_fields__})
     except TypeError as exc:

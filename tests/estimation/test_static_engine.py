@@ -278,6 +278,14 @@ def test_baseline_options_mapped_or_refused_by_name():
                 {"kinematic_series": True}, {"max_iterations": 3}):
         with pytest.raises(CdgpsError, match=next(iter(bad))):
             options_from_baseline(BaselineOptions(**{"kinematic_series": False, **bad}))
+    # the age σ: None leaves the engine's "auto" (the base's own drift); a number is taken as it is ("model")
+    o = options_from_baseline(BaselineOptions(kinematic_series=False))
+    assert "age_sigma_m_per_s" not in o and _static_options(o)["age_noise"] == "auto"
+    o = options_from_baseline(BaselineOptions(kinematic_series=False, age_sigma_m_per_s=0.004))
+    assert o["age_noise"] == "model" and o["age_sigma_m_per_s"] == 0.004
+    for bad in (0.0, -1.0, float("nan"), "fast", True):
+        with pytest.raises(CdgpsError, match="age_sigma_m_per_s"):
+            BaselineOptions(age_sigma_m_per_s=bad).validate()
 
 
 def _mosaic_stations():

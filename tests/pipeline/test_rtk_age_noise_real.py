@@ -92,3 +92,43 @@ def test_a_real_base_that_starts_late_fixes_nothing_wrong_with_its_own_drift(tmp
     wrong_m, wrong_a = (int((f & (e > 0.05)).sum()) for f, e in ((fixed_m, err_m), (fixed_a, err_a)))
     assert wrong_m >= 3 and np.all(age[fixed_m & (err_m > 0.05)] < -20), (wrong_m, age[fixed_m & (err_m > 0.05)])
     assert wrong_a == 0 and fixed_a.sum() >= fixed_m.sum() - wrong_m
+
+
+def _init_run(d, base, rover):
+    """The pair through ``config`` and ``ingest`` (GPS + GLONASS + Galileo + BeiDou as the files hold them)."""
+    for args in (("config", "--rinex", f"base={base}", "--rinex", f"rover={rover}", "--nav", MOSAIC / "base.nav",
+                  "--master", "base", "-o", d / "cfg.toml"),
+                 ("ingest", "--config", d / "cfg.toml", "-o", d / "run.mcap")):
+        r = run_cli("-q", *args)
+        assert r.exit_code == 0, r.output
+    return d / "run.mcap"
+
+
+def test_init_weighs_the_carried_epochs_by_the_bases_own_drift(drifting, tmp_path):
+    """``init`` (the static engine and the batch tables it renders with) takes the age σ as rtk's ``--age-noise
+    auto`` does: on the drifting pair it finds 4-12 mm/s, records it in INIT (the rover's ``epochs.age_noise`` and
+    its ``options``, which ``estimate`` weighs with), and its static solution is that of the unedited pair (whose
+    epochs are all simultaneous) to 0.6 mm, where RTKLIB's 1.5 mm/s leaves 2 mm; ``estimate``'s NIS per degree of
+    freedom is then below 1 (3.7 at 1.5 mm/s)."""
+    from cdgps_cli.io.gnss_run import read_gnss_run
+    from cdgps_cli.pipeline.gnss import gnss_init
+
+    (tmp_path / "clean").mkdir()
+    (tmp_path / "drift").mkdir()
+    clean = gnss_init(read_gnss_run(_init_run(tmp_path / "clean", MOSAIC / "base.obs", MOSAIC / "rover.obs")))
+    drift_run = _init_run(tmp_path / "drift", drifting / "base.obs", drifting / "rover.obs")
+    auto = gnss_init(read_gnss_run(drift_run))
+    rtklib = gnss_init(read_gnss_run(drift_run), options={"age_sigma_m_per_s": 5e-12 * 299792458.0})
+    enu = {k: np.array(v["rovers"]["rover"]["fixed"]["enu_m"]) for k, v in
+           (("clean", clean), ("auto", auto), ("rtklib", rtklib))}
+    noise = auto["rovers"]["rover"]["epochs"]["age_noise"]
+    assert noise["mode"] == "auto" and 0.004 < noise["estimate_m_per_s"] == noise["sigma_m_per_s"] < 0.012
+    assert auto["rovers"]["rover"]["options"]["age_sigma_m_per_s"] == noise["sigma_m_per_s"]
+    assert clean["rovers"]["rover"]["epochs"]["age_noise"]["estimate_m_per_s"] is None      # nothing carried
+    assert rtklib["rovers"]["rover"]["epochs"]["age_noise"]["mode"] == "model"
+    d_auto, d_rtklib = (float(np.linalg.norm(enu[k] - enu["clean"])) for k in ("auto", "rtklib"))
+    assert d_auto < 0.6e-3 < 1.5e-3 < d_rtklib, (d_auto, d_rtklib)
+    (tmp_path / "init.json").write_text(json.dumps(auto))
+    r = run_cli("-q", "estimate", drift_run, "--init", tmp_path / "init.json", "-o", tmp_path / "states.mcap", "--json")
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["mean_nis_per_dof"] < 1.0
