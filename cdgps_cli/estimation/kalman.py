@@ -163,8 +163,9 @@ def _gauss_newton(model, mk, xbar: np.ndarray, max_iterations: int, correction, 
     """The iteration both update forms share: at each iterate x_i the whitened innovation
     ν = z_w − h_w(x_i) − H (x̄ − x_i) (at x̄: z_w − h_w(x̄)), x_{i+1} = x̄ + Δx from
     ``correction(H, ν, first, a) → (Δx, NIS at x̄ or None, what the covariance needs)``, until the step is
-    ≤ 1e-9 of the state or ``max_iterations`` (the rule: a second iteration only when the first step is
-    not negligible).  ``sparse``: H is cut to its non-zero columns ``a`` (:func:`_active_columns`) before
+    ≤ 1e-9 of the state, or the model says the step leaves its linearization good (``model.linear_within(Δ)``, when
+    it has one: relinearizing would not move the state), or ``max_iterations`` (the rule: a second iteration only
+    when the first step is not negligible).  ``sparse``: H is cut to its non-zero columns ``a`` (:func:`_active_columns`) before
     it is whitened, and ``correction`` gets H[:, a] and a (else H whole and a None); Δx is of the whole
     state either way.  Returns (x, NIS, the last correction's third item)."""
     zw = mk.whiten(mk.z_m)
@@ -192,8 +193,10 @@ def _gauss_newton(model, mk, xbar: np.ndarray, max_iterations: int, correction, 
             xi = x_new
             break
         step = abs(x_new - xi).max()
+        linear = getattr(model, "linear_within", None)          # a model that can tell its step is linear enough
+        done = step <= 1e-9 * max(1.0, float(abs(x_new).max())) or (linear is not None and linear(x_new - xi))
         xi = x_new
-        if step <= 1e-9 * max(1.0, float(abs(xi).max())):
+        if done:
             break
     return xi, nis, keep
 

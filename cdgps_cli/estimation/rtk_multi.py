@@ -448,6 +448,12 @@ def _dd_rows_on_state(rows, plus, ref_cols, sizes, n_state):
     return Ts
 
 
+#: a DD's linearization error (m) below which rtk's update does not relinearize (:meth:`~cdgps_cli.measurement.
+#: dd_signals.DDGroupModel.linear_within`): a micron, against millimetres of phase noise.  A second pass at each epoch
+#: moved the positions of the real pairs by 10-30 nm and cost 7 % of the whole command
+RTK_LINEARIZATION_TOL_M = 1e-6
+
+
 #: largest 3-D σ (m, √trace of the covariance) of a position reported fixed: integers held on too few satellites
 #: or with too weak a geometry do not set the position to centimetres (a u-blox rover that lost the phase of six
 #: of ten satellites for one epoch kept three held integers: σ_up 0.3 m, 16 cm off); such an epoch is float
@@ -648,13 +654,15 @@ def _filter_pass(rows, times, order, opt, base_xyz, origin, iono, progress) -> d
         out.update({key: np.full(out[like].shape, np.nan) for key, like in _VELOCITY_KEYS.items()})
     st = _State(_n_motion(opt))
     amb_keys, slip_rows = _amb_keys(rows), np.flatnonzero(rows["slip"]).tolist()
-    model = DDGroupModel(lambda i: _groups_with_keys(rows, order[i], amb_keys, slip_rows), base_xyz, origin)
+    model = DDGroupModel(lambda i: _groups_with_keys(rows, order[i], amb_keys, slip_rows), base_xyz, origin,
+                         linearization_tol_m=RTK_LINEARIZATION_TOL_M)
     source = EpochGrid(times[order])
     # the passes step |Δt| (:class:`_RtkDynamics`): a backward pass's velocity state is minus the rover's
     v_sign = -1.0 if n_ep > 1 and order[1] < order[0] else 1.0
     hook = _AmbiguityHook(st, model, order, opt, iono, out, progress, v_sign)
     dyn, sink = _RtkDynamics(st, source.time_s, opt, iono), _FloatSink(order, origin, out, v_sign)
-    # the first epoch relinearizes up to 4 times (the a-priori position may be metres off), the others twice
+    # the first epoch relinearizes up to 4 times (the a-priori position may be metres off), the others at most
+    # twice: once when the rover moved less than √(tol·ρ_min) ≈ 4 m from the prediction (its DDs linear to a micron)
     drive(dyn, [model], EpochGrid(source.time_s[:1]), st.step, hooks=[hook], sink=sink, max_iterations=4)
     drive(dyn, [model], source, st.step, hooks=[hook], sink=sink, max_iterations=2, k0=1)
     out["fixed"] = np.isfinite(out["fixed_xyz"][:, 0])

@@ -250,6 +250,11 @@ class GroupRows:
         return self.B @ v
 
 
+#: the shortest range from a receiver on the ground to a navigation satellite, m (GLONASS orbits at 19,100 km, GPS
+#: at 20,200 km, Galileo 23,200 km; BeiDou MEO 21,500 km, its GEO/IGSO 35,800 km)
+MIN_SATELLITE_RANGE_M = 1.9e7
+
+
 class DDGroupModel:
     """The engine's measurement model of the multi-GNSS double differences (module docstring).
 
@@ -262,11 +267,23 @@ class DDGroupModel:
     being concatenated (the same values).
     """
 
-    def __init__(self, groups_of, base_xyz_m, origin_xyz_m):
+    def __init__(self, groups_of, base_xyz_m, origin_xyz_m, linearization_tol_m: float | None = None):
         self.groups_of = groups_of
         self.base_xyz = np.asarray(base_xyz_m, dtype=float)
         self.origin = np.asarray(origin_xyz_m, dtype=float)
         self.groups, self._ctx = [], None
+        self.linearization_tol_m = linearization_tol_m
+
+    def linear_within(self, dx) -> bool:
+        """Whether a Gauss–Newton step ``dx`` (state, the rover offset first) leaves every DD's linearization good
+        to ``linearization_tol_m`` (None: never said): a range's second-order term is at most |δ|²/(2ρ), a DD's
+        two rover ranges' at most |δ|²/ρ_min with ρ_min :data:`MIN_SATELLITE_RANGE_M` — so relinearizing at
+        the new state would move it by no more than that (:func:`~cdgps_cli.estimation.kalman.iterated_update`
+        then stops)."""
+        if self.linearization_tol_m is None:
+            return False
+        d = np.asarray(dx[:3], dtype=float)
+        return float(d @ d) <= self.linearization_tol_m * MIN_SATELLITE_RANGE_M
 
     def prepare(self, k: int, ctx) -> None:
         """Epoch k's groups (the hooks that follow open their state columns)."""

@@ -48,6 +48,47 @@ def test_iterated_update_is_the_map_estimate():
     assert nis == pytest.approx((z - h0) @ np.linalg.solve(S, z - h0), rel=1e-10)
 
 
+class _CountingRanges(_Ranges):
+    """:class:`_Ranges` that counts its linearizations and says a step shorter than ``linear_m`` is linear enough."""
+
+    def __init__(self, anchors, linear_m):
+        super().__init__(anchors)
+        self.calls, self.linear_m = 0, linear_m
+
+    def predict(self, x, rows):
+        self.calls += 1
+        return super().predict(x, rows)
+
+    def linear_within(self, dx):
+        return float(np.linalg.norm(dx)) <= self.linear_m
+
+
+@pytest.mark.parametrize("form", ["information", "covariance"])
+def test_a_model_that_calls_its_step_linear_stops_the_iteration(form):
+    """A model's ``linear_within`` ends the Gauss–Newton loop after a step it calls linear (a 1 cm step: one
+    linearization, the extended Kalman update's numbers exactly); longer steps are relinearized as before (to the
+    MAP estimate)."""
+    anchors = [[0.0, 0.0], [10.0, 0.0], [0.0, 7.0]]
+    truth, sigma = np.array([3.0, 4.0]), np.array([0.05, 0.1, 0.08])
+    z = _Ranges(anchors).predict(truth, None)[0] + np.array([0.03, -0.05, 0.02])
+    for xbar, linear_m, calls in ((np.array([3.01, 3.99]), 0.1, 1), (np.array([4.5, 2.0]), 1e-4, None)):
+        Pbar = np.diag([4.0, 9.0])
+        said = _CountingRanges(anchors, linear_m)
+        x = StepFilter(xbar, Pbar, form=form)
+        x.update(said, _rows(z, sigma), max_iterations=20)
+        ekf = StepFilter(xbar, Pbar, form=form)
+        ekf.update(_Ranges(anchors), _rows(z, sigma), max_iterations=1)
+        full = StepFilter(xbar, Pbar, form=form)
+        full.update(_Ranges(anchors), _rows(z, sigma), max_iterations=20)
+        if calls == 1:                                   # a 1 cm step: stopped at once, the EKF's numbers
+            assert said.calls == 1
+            np.testing.assert_array_equal(x.x, ekf.x)
+            np.testing.assert_array_equal(x.P, ekf.P)
+        else:                                # a 2.5 m step: relinearized until a step is under 0.1 mm (the MAP)
+            assert said.calls > 2
+            np.testing.assert_allclose(x.x, full.x, rtol=0, atol=1e-6)
+
+
 def test_steps_compose_as_the_textbook_filter_for_both_noise_kinds():
     g = np.random.default_rng(5)
     n, p = 4, 6

@@ -148,3 +148,29 @@ def test_rows_at_segment_starts_take_the_nearest_epoch_within_half_a_step():
     assert np.flatnonzero(got).tolist() == [0, 5]
     assert not _rows_at_starts([], names, sat, epoch, t_label, 1.0).any()
     assert np.flatnonzero(_rows_at_starts([("G03", 10.0)], names, sat[:2], epoch[:2], t_label[:1], 1.0)).tolist() == [1]
+
+
+def test_a_step_called_linear_leaves_every_dd_linear_to_the_tolerance():
+    """DDGroupModel.linear_within: never without a tolerance; with one, a rover step is called linear up to
+    √(tol·ρ_min), and at that length the DD linearization error (brute force: the exact DD change minus its
+    first-order term, random satellites at the shortest range and random step directions) is within the tolerance."""
+    from cdgps_cli.measurement.dd_signals import MIN_SATELLITE_RANGE_M, DDGroupModel
+
+    tol = 1e-6
+    assert not DDGroupModel(None, np.zeros(3), np.zeros(3)).linear_within(np.zeros(5))
+    model = DDGroupModel(None, np.zeros(3), np.zeros(3), linearization_tol_m=tol)
+    limit = np.sqrt(tol * MIN_SATELLITE_RANGE_M)
+    assert model.linear_within(np.r_[0.999 * limit, 0.0, 0.0, 5.0e6])          # ambiguity columns do not count
+    assert not model.linear_within(np.r_[0.0, 1.001 * limit, 0.0, 0.0])
+    rng = np.random.default_rng(3)
+    worst = 0.0
+    for _ in range(2000):
+        u = rng.normal(size=(2, 3))
+        sats = MIN_SATELLITE_RANGE_M * u / np.linalg.norm(u, axis=1)[:, None]
+        step = rng.normal(size=3)
+        step *= limit / np.linalg.norm(step)
+        rng0 = np.linalg.norm(sats, axis=1)
+        exact = np.linalg.norm(sats - step, axis=1) - rng0
+        first = -(sats / rng0[:, None]) @ step
+        worst = max(worst, abs((exact[0] - first[0]) - (exact[1] - first[1])))
+    assert 0.3 * tol < worst <= tol
