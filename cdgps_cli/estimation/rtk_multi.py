@@ -536,14 +536,15 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
         raise CdgpsError(f"no double differences: no epoch of the {n_ep} paired has two satellites of one signal "
                          f"observed at both receivers above the {opt['mask_deg']:g}° mask")
     direction = "forward" if opt["mode"] == "static" else opt["direction"]
-    res = _passes(rows, times, direction, opt, base_xyz, origin, iono, progress)
+    res = _epochs_with_dd(_passes(rows, times, direction, opt, base_xyz, origin, iono, progress))
+    times, age_s, summary = times[res["with_dd"]], pairs.age_s[res["with_dd"]], _pairing_with_dd(pairs.summary, res)
     ok = res["fixed"]
     last = res["fixed_xyz"][-1] if ok[-1] else res["float_xyz"][-1]
     return {"time_gps_s": times, "float_xyz_m": res["float_xyz"], "fixed_xyz_m": np.where(ok[:, None], res["fixed_xyz"], np.nan),
             "fixed": ok, "n_dd_ambiguities": res["n_fixed"], "ratio": res["ratio"],
             "iono_model": "estimated" if iono else "neglected (short baseline)", "baseline_km": length_km,
-            "static_xyz_m": last, "epoch_pairing": {**pairs.summary, "interpolated": rows["interpolated_epochs"]},
-            "base_age_s": pairs.age_s,
+            "static_xyz_m": last, "epoch_pairing": {**summary, "interpolated": rows["interpolated_epochs"]},
+            "base_age_s": age_s,
             "float_cov_m2": res["float_cov"], "fixed_cov_m2": np.where(ok[:, None, None], res["fixed_cov"], np.nan),
             "n_satellites": res["ns"], "direction": direction, "fixes_rejected": int(res.get("rejected", 0)),
             "partial_fixes": int(res["partial"].sum()), "wrong_fix_resets": int(res["wrong_fix_resets"].sum()),
@@ -553,6 +554,30 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
             "ambiguities_released": int(res["released"].sum()),
             "float_variance": res.get("float_variance"),
             **_velocities(res, ok)}
+
+
+#: why a paired rover epoch has no solution: the filter only predicted through it (its position would be the
+#: neighbours' interpolated, labelled float; RTKLIB writes no line for such an epoch either)
+NO_DD = ("without a double difference (fewer than two satellites of one signal with a carrier phase at both "
+         "receivers above the mask)")
+
+
+def _epochs_with_dd(res: dict) -> dict:
+    """The passes' per-epoch results (:func:`_passes`) at the epochs that held a double difference (``ns`` > 0),
+    their mask as ``with_dd`` (n,) bool, and the count of the others as ``without_dd``."""
+    keep = res["ns"] > 0
+    n = keep.size
+    out = {k: (v[keep] if isinstance(v, np.ndarray) and v.ndim >= 1 and v.shape[0] == n else v) for k, v in res.items()}
+    return dict(out, with_dd=keep, without_dd=int(n - keep.sum()))
+
+
+def _pairing_with_dd(summary: dict, res: dict) -> dict:
+    """The epoch pairing's summary with the paired epochs that held no double difference (:data:`NO_DD`) taken
+    from ``used`` into ``dropped``."""
+    k = res["without_dd"]
+    if not k:
+        return summary
+    return {**summary, "used": summary["used"] - k, "dropped": {**summary["dropped"], NO_DD: k}}
 
 
 def _velocities(res: dict, ok) -> dict:

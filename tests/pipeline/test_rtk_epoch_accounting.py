@@ -46,3 +46,44 @@ def test_epochs_without_a_phase_of_the_signals_used_are_counted(tmp_path):
     assert any(f"3 of 301 epochs not used: 3 {NO_PHASE}" in w for w in out["E:E1"]["warnings"])
     ep = out["G:L1"]["epoch_pairing"]                    # GPS is still in those epochs: nothing to count
     assert ep["rover_epochs"] == 301 and ep["used"] == 301 and ep["dropped"] == {}
+
+
+def _one_satellite_of(text: str, system: str, epochs: set) -> str:
+    """The RINEX 3 text with only the first record of ``system`` left in the epochs numbered in ``epochs``."""
+    lines = text.splitlines()
+    i = next(k for k, ln in enumerate(lines) if ln[60:].strip() == "END OF HEADER") + 1
+    out, e = lines[:i], 0
+    while i < len(lines):
+        n = int(lines[i][32:35])
+        recs = lines[i + 1:i + 1 + n]
+        if e in epochs:
+            first = next(k for k, r in enumerate(recs) if r[0] == system)
+            recs = [r for k, r in enumerate(recs) if r[0] != system or k == first]
+        out += [lines[i][:32] + f"{len(recs):3d}" + lines[i][35:], *recs]
+        i, e = i + 1 + n, e + 1
+    return "\n".join(out) + "\n"
+
+
+def test_epochs_without_a_double_difference_are_not_written_and_are_counted(tmp_path):
+    """An epoch whose signals leave no double difference (here one Galileo satellite at the rover for ten epochs,
+    E:E1 alone) has no measurement: the filter only predicts through it.  It used to be written as a float
+    solution (the neighbours' positions interpolated, ns 0; a real F9P car in Hong Kong had 29 of 200); now it has
+    no line, as in RTKLIB's output, and the summary counts it in ``dropped`` with its reason."""
+    import numpy as np
+    import pandas as pd
+
+    from cdgps_cli.estimation.rtk_multi import NO_DD
+
+    rover = tmp_path / "rover.obs"
+    rover.write_text(_one_satellite_of((MOSAIC / "rover.obs").read_text(), "E", set(range(50, 60))))
+    r = run_cli("-q", "rtk", "--base", MOSAIC / "base.obs", "--rover", rover, "--nav", MOSAIC / "base.nav",
+                "--base-xyz", *BASE_XYZ, "--signals", "E:E1", "-o", tmp_path / "x.csv", "--json")
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.stdout)
+    ep = s["epoch_pairing"]
+    assert ep["rover_epochs"] == 301 and ep["used"] == 291 == s["epochs"] and ep["dropped"] == {NO_DD: 10}
+    assert any(f"10 of 301 epochs not used: 10 {NO_DD}" in w for w in s["warnings"])
+    df = pd.read_csv(tmp_path / "x.csv", comment="#")
+    t0 = 1403252400.0                                    # the rover's first epoch; one line per second after it
+    assert len(df) == 291 and (df["n_satellites"] >= 2).all()
+    assert not set(np.round(df["time_gps_s"] - t0).astype(int)) & set(range(50, 60))
