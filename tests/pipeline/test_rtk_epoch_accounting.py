@@ -17,8 +17,9 @@ BASE_XYZ = (-3817681.1213, 3562839.4311, 3650159.1593)
 pytestmark = pytest.mark.skipif(not MOSAIC.exists(), reason="../shared/data/real-pairs absent")
 
 
-def _without_system(text: str, system: str, epochs: set) -> str:
-    """The RINEX 3 text with the records of ``system`` removed from the epochs numbered in ``epochs``."""
+def _edit_records(text: str, epochs: set, keep) -> str:
+    """The RINEX 3 text with the satellite records of the epochs numbered in ``epochs`` kept where
+    ``keep(records) -> [bool]`` says (each epoch's record count set to what is left)."""
     lines = text.splitlines()
     i = next(k for k, ln in enumerate(lines) if ln[60:].strip() == "END OF HEADER") + 1
     out, e = lines[:i], 0
@@ -26,10 +27,15 @@ def _without_system(text: str, system: str, epochs: set) -> str:
         n = int(lines[i][32:35])
         recs = lines[i + 1:i + 1 + n]
         if e in epochs:
-            recs = [r for r in recs if r[0] != system]
+            recs = [r for r, k in zip(recs, keep(recs)) if k]
         out += [lines[i][:32] + f"{len(recs):3d}" + lines[i][35:], *recs]
         i, e = i + 1 + n, e + 1
     return "\n".join(out) + "\n"
+
+
+def _without_system(text: str, system: str, epochs: set) -> str:
+    """The RINEX 3 text with the records of ``system`` removed from the epochs numbered in ``epochs``."""
+    return _edit_records(text, epochs, lambda recs: [r[0] != system for r in recs])
 
 
 def test_epochs_without_a_phase_of_the_signals_used_are_counted(tmp_path):
@@ -50,18 +56,10 @@ def test_epochs_without_a_phase_of_the_signals_used_are_counted(tmp_path):
 
 def _one_satellite_of(text: str, system: str, epochs: set) -> str:
     """The RINEX 3 text with only the first record of ``system`` left in the epochs numbered in ``epochs``."""
-    lines = text.splitlines()
-    i = next(k for k, ln in enumerate(lines) if ln[60:].strip() == "END OF HEADER") + 1
-    out, e = lines[:i], 0
-    while i < len(lines):
-        n = int(lines[i][32:35])
-        recs = lines[i + 1:i + 1 + n]
-        if e in epochs:
-            first = next(k for k, r in enumerate(recs) if r[0] == system)
-            recs = [r for k, r in enumerate(recs) if r[0] != system or k == first]
-        out += [lines[i][:32] + f"{len(recs):3d}" + lines[i][35:], *recs]
-        i, e = i + 1 + n, e + 1
-    return "\n".join(out) + "\n"
+    def keep(recs):
+        first = next(k for k, r in enumerate(recs) if r[0] == system)
+        return [r[0] != system or k == first for k, r in enumerate(recs)]
+    return _edit_records(text, epochs, keep)
 
 
 def test_epochs_without_a_double_difference_are_not_written_and_are_counted(tmp_path):
