@@ -319,6 +319,7 @@ class _CarriedDecorrelation:
     def __init__(self):
         self.keys, self.Z, self.Zinv = None, None, None
         self.last_fix = None          # (Ts, integers) of the last accepted fix, for fix-and-hold
+        self.fixed_arcs = set()       # the SD arcs (state keys) of the last accepted whole-set fix
 
     def _update(self, keys, Qa):
         """Carry Z to this epoch's ``Qa``; the reduced factors ``(L, d)`` of ``Zᵀ Qa Z`` when they are
@@ -393,38 +394,27 @@ def _fix(st, groups, opt, carried):
     """DD ambiguities of every fixable group, resolved as one set (partially when only part of it
     reaches the success rate): the fixed position (or None), the number of (decorrelated)
     ambiguities fixed, the ratio, the fixed position's covariance (3, 3; m², or None) and whether only
-    part of the set was fixed."""
-    plus, ref_cols, sizes, keys = [], [], [], []
-    for g in groups:
-        if g["signal"].startswith("R:") and not opt["glonass_fix"]:
-            continue
-        ref = g["ref"]
-        if g["half"][ref]:
-            continue                                  # every satellite of the group has an unresolved half cycle
-        use = ~g["half"]                              # DDs of satellites with an unresolved half cycle stay float
-        use[ref] = False
-        n_use = int(np.count_nonzero(use))
-        if not n_use:
-            continue
-        plus.append(g["amb_col"][use])
-        ref_cols.append(g["amb_col"][ref])
-        sizes.append(n_use)
-        keys.append((tuple(g["amb_keys"]), ref) if "amb_keys" in g
-                    else (g["signal"], tuple(g["sats"]), ref, tuple(np.flatnonzero(g["half"]))))
-    if not plus:
+    part of the set was fixed.
+
+    When the set fails and holds arcs that were in no accepted fix yet (a satellite just risen, an arc just
+    restarted by a slip or a base gap), it is resolved again without them (they stay float): a new arc's float
+    takes its value from the float position, and one biased arc then failed the ratio of the whole set and lost
+    the fix of every arc already fixed (RTKLIB demo5's ``arfilter``; a real mosaic pair lost two epochs when one
+    base phase of C02 B2I was missing for one epoch)."""
+    got = _dd_set(st, groups, opt)
+    if got is None:
         return None, 0, np.nan, None, False
-    plus = np.concatenate(plus) if len(plus) > 1 else plus[0]
-    ref_cols, sizes = np.array(ref_cols), np.array(sizes)
-    minus = np.repeat(ref_cols, sizes)
-    # the DD operator T (rows e_plus - e_minus on the SD ambiguity columns) applied by indexing:
-    # T x and T P Tᵀ are the same numbers as the products (each entry one difference of two terms)
-    a = st.x[plus] - st.x[minus]
-    TP = st.P[plus] - st.P[minus]
-    Qa = TP[:, plus] - TP[:, minus]
-    res = carried.resolve(tuple(keys), a, 0.5 * (Qa + Qa.T), opt["ratio"], opt["min_success_rate"])
+    res = carried.resolve(got["keys"], got["a"], got["Qa"], opt["ratio"], opt["min_success_rate"])
+    new_arcs = got["arcs"] - carried.fixed_arcs if carried.fixed_arcs else set()
+    if not res["accepted"] and new_arcs:
+        known = _dd_set(st, groups, opt, leave_out=new_arcs)
+        if known is not None and known["a"].size >= ARC_FILTER_MIN_DD:
+            again = carried.resolve(known["keys"], known["a"], known["Qa"], opt["ratio"], opt["min_success_rate"])
+            if again["accepted"]:
+                got, res = known, again
     if not res["accepted"]:
         return None, 0, res["ratio"], None, False
-    Ts = _dd_rows_on_state(res["rows"], plus, ref_cols, sizes, len(st.x))   # the fixed integer combinations of the state
+    Ts = _dd_rows_on_state(res["rows"], got["plus"], got["ref_cols"], got["sizes"], len(st.x))   # the fixed combinations
     TsP = Ts @ st.P
     Qs = TsP @ Ts.T
     m = st.n_motion                                   # position, and velocity in constant-velocity mode
@@ -433,8 +423,55 @@ def _fix(st, groups, opt, carried):
     dx = Pxs @ sol[:, 0]
     cov = st.P[:m, :m] - Pxs @ sol[:, 1:]
     carried.last_fix = (Ts, res["integers"])
+    if not res["partial"]:
+        carried.fixed_arcs = got["arcs"]
     st.fix_products = (Ts, st.P, TsP, Qs)
     return st.x[:m] - dx, len(res["integers"]), res["ratio"], 0.5 * (cov + cov.T), res["partial"]
+
+
+#: the fewest DD ambiguities the set without the new arcs must hold to be tried (:func:`_fix`): on a real u-blox walk
+#: a retry kept 4, then 3, held them (their ratio grew into the thousands under fix-and-hold) and the float then
+#: jumped 6 m when the geometry changed; RTKLIB demo5 asks 4 satellites to fix and 5 to hold
+ARC_FILTER_MIN_DD = 6
+
+
+def _dd_set(st, groups, opt, leave_out=frozenset()) -> dict | None:
+    """The DD ambiguities LAMBDA is given at this epoch: per fixable group, its SD ambiguity columns less the
+    reference's (``plus``, ``ref_cols``, ``sizes``: the DD operator T by indexing), their float values ``a`` = T x and
+    covariance ``Qa`` = T P Tᵀ (the same numbers as the products: each entry one difference of two terms), the
+    decorrelation's ``keys`` and the SD ``arcs`` (state keys) taking part.  Arcs in ``leave_out`` stay float (a group
+    whose reference is one of them with it).  None when nothing is fixable."""
+    plus, ref_cols, sizes, keys, arcs = [], [], [], [], set()
+    for g in groups:
+        if g["signal"].startswith("R:") and not opt["glonass_fix"]:
+            continue
+        ref = g["ref"]
+        out = g["half"] | (np.array([k in leave_out for k in g["amb_keys"]]) if leave_out and "amb_keys" in g else False)
+        if out[ref]:
+            continue                                  # the reference's half cycle unresolved (or its arc left out)
+        use = ~out                                    # DDs of satellites with an unresolved half cycle stay float
+        use[ref] = False
+        n_use = int(np.count_nonzero(use))
+        if not n_use:
+            continue
+        plus.append(g["amb_col"][use])
+        ref_cols.append(g["amb_col"][ref])
+        sizes.append(n_use)
+        keys.append((tuple(g["amb_keys"]), ref, tuple(np.flatnonzero(out))) if "amb_keys" in g
+                    else (g["signal"], tuple(g["sats"]), ref, tuple(np.flatnonzero(g["half"]))))
+        if "amb_keys" in g:
+            arcs.update(g["amb_keys"][j] for j in np.flatnonzero(use))
+            arcs.add(g["amb_keys"][ref])
+    if not plus:
+        return None
+    plus = np.concatenate(plus) if len(plus) > 1 else plus[0]
+    ref_cols, sizes = np.array(ref_cols), np.array(sizes)
+    minus = np.repeat(ref_cols, sizes)
+    a = st.x[plus] - st.x[minus]
+    TP = st.P[plus] - st.P[minus]
+    Qa = TP[:, plus] - TP[:, minus]
+    return {"plus": plus, "ref_cols": ref_cols, "sizes": sizes, "keys": tuple(keys), "arcs": arcs, "a": a,
+            "Qa": 0.5 * (Qa + Qa.T)}
 
 
 def _dd_rows_on_state(rows, plus, ref_cols, sizes, n_state):
