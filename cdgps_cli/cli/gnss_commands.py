@@ -314,7 +314,8 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
 @click.option("--mode", type=click.Choice(["kinematic", "constant-velocity", "static"]), default="kinematic", show_default=True,
               help="kinematic: random-walk rover position, a solution per epoch; constant-velocity: position and "
                    "velocity, the velocity a random walk (white acceleration), written out too (ENU m/s and σ; "
-                   "RTKLIB's velocity columns in .pos); static: one position for the span.")
+                   "RTKLIB's velocity columns in .pos); static: one position for the span, its estimate from "
+                   "the data so far written at every epoch (the last line uses them all, as RTKLIB's static mode).")
 @click.option("--base-xyz", nargs=3, type=float, default=None, help="Base ECEF position, m (default: its header).")
 @click.option("--glonass-fix", is_flag=True, default=False,
               help="Fix GLONASS (FDMA) integers too: only for identical base and rover receivers (default: float).")

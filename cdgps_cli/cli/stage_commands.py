@@ -226,8 +226,8 @@ def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict=F
               f"{s['ephemerides']} ephemerides, {cfg.displacement} displacement model")
     for r in s["receivers"]:
         _say(ctx, f"  {r['name']:<8} {r['format']:<5} {r['file']}: {r['epochs']} epochs {r['first']} – {r['last']} "
-                  f"({r['interval_s']:g} s), {r['satellites']} satellites, {r['phase_rows']} phases, {r['slips']} slips, "
-                  f"{r['half_cycle_rows']} half-cycle rows")
+                  f"({r['interval_s']:g} s), {r['satellites']} satellites, {r['phase_rows']} phases{_signals_note(r)}, "
+                  f"{r['slips']} slips, {r['half_cycle_rows']} half-cycle rows")
     for n, c in s["common_epochs"].items():
         _say(ctx, f"  {n}: {c['common_epochs']} epochs in common with {s['master']}" + _grid_note(c))
     if "sensor_logs" in s:
@@ -893,14 +893,25 @@ def _span(t: dict) -> str:
     return t["start"] if t["start"] == t["end"] else f"{t['start']} – {t['end']}"
 
 
+def _signals_note(r: dict) -> str:
+    """A receiver summary's counts over its configured signals, after its GPS L1 ones (the lock counts): e.g.
+    " (GPS L1); all signals: 38 satellites (C 10, E 9, G 12, R 7), 5123 phases"; empty without a signal table."""
+    per = r.get("signal_satellites")
+    if not per:
+        return ""
+    return (f" (GPS L1); all signals: {sum(per.values())} satellites ({', '.join(f'{k} {v}' for k, v in per.items())}), "
+            f"{r['signal_phase_rows']} phases")
+
+
 def _gnss_info_lines(g: dict) -> list:
     c = g["config"]
     out = [f"  GNSS run: config {c['name']} (sha256 {c['config_sha256'][:12]}…), master {g['master']}, rovers "
            f"{', '.join(g['rovers']) or 'none'}, displacement {c['displacement']}; coordinates {', '.join(g['coordinates']) or '-'}"]
     for r in g["receivers"]:
         out.append(f"    {r['name']:<8} {r['format']:<5} {r['file']}: {r['epochs']} epochs {r['first']} – {r['last']} "
-                   f"({r['interval_s']:g} s), {r['satellites']} satellites, {r['phase_rows']} phases; lock: {r['arcs']} arcs, "
-                   f"{r['slips']} slips, {r['half_cycle_rows']} half-cycle rows; position: {r['position_source'] or 'none'}")
+                   f"({r['interval_s']:g} s), {r['satellites']} satellites, {r['phase_rows']} phases{_signals_note(r)}; "
+                   f"lock: {r['arcs']} arcs, {r['slips']} slips, {r['half_cycle_rows']} half-cycle rows; position: "
+                   f"{r['position_source'] or 'none'}")
         if "integrity" in r:
             from cdgps_cli.io.ubx import integrity_line
 

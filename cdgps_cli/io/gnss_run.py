@@ -809,7 +809,20 @@ def _receiver_summary(n, rx: GnssReceiver, lock: dict, pos) -> dict:
             "slips": int(sum(v["slips"] for v in lock.values())),
             "half_cycle_rows": int(sum(v["half_cycle_rows"] for v in lock.values())),
             "arcs": int(sum(v["arcs"] for v in lock.values())),
-            "position_source": pos[0], "position_ecef_m": pos[1]}
+            "position_source": pos[0], "position_ecef_m": pos[1], **_signal_summary(rx, tab)}
+
+
+def _signal_summary(rx: GnssReceiver, counted) -> dict:
+    """``signal_satellites`` ({system: satellites with a phase of a configured signal}) and ``signal_phase_rows``
+    of the receiver's signal table, when it has one beside the GPS L1 table the other counts are of (so a
+    multi-GNSS receiver is not summed up by its GPS L1 alone); nothing otherwise."""
+    sig = rx.signals
+    if sig is None or sig is counted or not len(sig):
+        return {}
+    ph = np.isfinite(sig["phase_cycles"].to_numpy(dtype=float))
+    sats = np.unique(sig["sat"].to_numpy()[ph].astype(str))
+    systems, counts = np.unique(np.array([x[0] for x in sats], dtype="U1"), return_counts=True)
+    return {"signal_satellites": {str(k): int(v) for k, v in zip(systems, counts)}, "signal_phase_rows": int(ph.sum())}
 
 
 _OBS_MESSAGES_PER_BLOCK = 4096

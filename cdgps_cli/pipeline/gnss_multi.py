@@ -19,7 +19,8 @@ import pandas as pd
 
 from cdgps_cli.config.limits import GEOCENTRIC_RANGE_M, MASK_DEG
 from cdgps_cli import __version__
-from cdgps_cli.config.options import GNSS_WEIGHTINGS, MULTI_GNSS_DEFAULTS, ROVER_ORIGIN_TOL_M
+from cdgps_cli.config.options import (CODE_NOISE_MIN_WINDOWS, CODE_NOISE_WINDOW_S, GNSS_WEIGHTINGS, MULTI_GNSS_DEFAULTS,
+                                      ROVER_ORIGIN_TOL_M)
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, signal
@@ -177,6 +178,7 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
                  for who, path, d in (("base", base_path, gb.attrs["no_code"]), ("rover", rover_path, gr.attrs["no_code"])) if d]
     gb.attrs, gr.attrs = {}, {}
     code_noise = receivers_code_noise(gb, gr, opt)       # the observations' own: the same for every solve below
+    warnings += _code_noise_warning(code_noise, {"base": base_path, "rover": rover_path})
     try:
         rx, gr = _place_rover(gb, gr, bx, rx, opt, rover=(r, rover_path, rx_from_spp), nav=(nav, nav_paths),
                               warnings=warnings)
@@ -197,6 +199,19 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
     text = solution_text(res, sigs, opt, out_csv, bx, inputs=(*rover_files, *base_files, *nav_paths))
     write_atomic(out_csv, lambda tmp: Path(tmp).write_text(text, newline=""))
     return {**_summary(res, per_epoch), "signals": sigs, "epoch_pairing": ep, "warnings": warnings}
+
+
+def _code_noise_warning(code_noise: dict, paths: dict) -> list:
+    """A warning per receiver whose code noise ``--code-noise auto`` could not measure (fewer full windows of
+    code-minus-carrier than it needs): its codes are then weighed as modelled, which a low-cost receiver's are not
+    (a u-blox M8P: 47 times the model's variance), so its float σ and integer tests may be optimistic."""
+    if code_noise.get("mode") != "auto":
+        return []
+    return [f"{paths[who]} ({who}): its code noise could not be measured ({code_noise['windows'][who]} full "
+            f"{CODE_NOISE_WINDOW_S:g} s windows of code minus carrier without a slip, {CODE_NOISE_MIN_WINDOWS} needed): "
+            f"its codes are weighed as modelled, and a low-cost receiver's are noisier (--code-noise; the float σ "
+            f"may then be optimistic)"
+            for who in ("base", "rover") if not np.isfinite(code_noise[who])]
 
 
 #: above this variance factor of the float positions (σ doubled) ``rtk`` says that it scaled them
@@ -418,8 +433,8 @@ def _static_float_offset(gb, gr, bx, rx, opt: dict) -> tuple:
         return np.zeros(3), "", None
     apart = float(np.linalg.norm(off - code))
     if np.all(np.isfinite(code)) and apart > MOVING_ROVER_FLOAT_M:
-        return code, (f"the mean position of its code (its static float solution, {apart:.0f} m away, fits no "
-                      f"static position: the rover moves)"), apart
+        return code, (f"the mean position of its code (its static float solution lands {apart:.0f} m from that mean: "
+                      f"the rover moves, and its phase fits no static position)"), apart
     return off, "its static float solution", None
 
 
