@@ -319,7 +319,7 @@ class _CarriedDecorrelation:
     def __init__(self):
         self.keys, self.Z, self.Zinv = None, None, None
         self.last_fix = None          # (Ts, integers) of the last accepted fix, for fix-and-hold
-        self.fixed_arcs = set()       # the SD arcs (state keys) of the last accepted whole-set fix
+        self.fixed_keys = None        # the DD set (:func:`_dd_set`'s keys) of the last accepted whole-set fix
 
     def _update(self, keys, Qa):
         """Carry Z to this epoch's ``Qa``; the reduced factors ``(L, d)`` of ``Zᵀ Qa Z`` when they are
@@ -405,8 +405,9 @@ def _fix(st, groups, opt, carried):
     if got is None:
         return None, 0, np.nan, None, False
     res = carried.resolve(got["keys"], got["a"], got["Qa"], opt["ratio"], opt["min_success_rate"])
-    new_arcs = got["arcs"] - carried.fixed_arcs if carried.fixed_arcs else set()
-    if not res["accepted"] and new_arcs:
+    new_arcs = (_arcs_of(got["keys"]) - _arcs_of(carried.fixed_keys)
+                if not res["accepted"] and carried.fixed_keys else set())
+    if new_arcs:
         known = _dd_set(st, groups, opt, leave_out=new_arcs)
         if known is not None and known["a"].size >= ARC_FILTER_MIN_DD:
             again = carried.resolve(known["keys"], known["a"], known["Qa"], opt["ratio"], opt["min_success_rate"])
@@ -424,7 +425,7 @@ def _fix(st, groups, opt, carried):
     cov = st.P[:m, :m] - Pxs @ sol[:, 1:]
     carried.last_fix = (Ts, res["integers"])
     if not res["partial"]:
-        carried.fixed_arcs = got["arcs"]
+        carried.fixed_keys = got["keys"]
     st.fix_products = (Ts, st.P, TsP, Qs)
     return st.x[:m] - dx, len(res["integers"]), res["ratio"], 0.5 * (cov + cov.T), res["partial"]
 
@@ -439,14 +440,14 @@ def _dd_set(st, groups, opt, leave_out=frozenset()) -> dict | None:
     """The DD ambiguities LAMBDA is given at this epoch: per fixable group, its SD ambiguity columns less the
     reference's (``plus``, ``ref_cols``, ``sizes``: the DD operator T by indexing), their float values ``a`` = T x and
     covariance ``Qa`` = T P Tᵀ (the same numbers as the products: each entry one difference of two terms), the
-    decorrelation's ``keys`` and the SD ``arcs`` (state keys) taking part.  Arcs in ``leave_out`` stay float (a group
-    whose reference is one of them with it).  None when nothing is fixable."""
-    plus, ref_cols, sizes, keys, arcs = [], [], [], [], set()
+    decorrelation's ``keys`` (:func:`_arcs_of` gives the SD arcs taking part).  Arcs in ``leave_out`` stay float (a
+    group whose reference is one of them with it).  None when nothing is fixable."""
+    plus, ref_cols, sizes, keys = [], [], [], []
     for g in groups:
         if g["signal"].startswith("R:") and not opt["glonass_fix"]:
             continue
         ref = g["ref"]
-        out = g["half"] | (np.array([k in leave_out for k in g["amb_keys"]]) if leave_out and "amb_keys" in g else False)
+        out = g["half"] if not leave_out else g["half"] | np.array([k in leave_out for k in g["amb_keys"]])
         if out[ref]:
             continue                                  # the reference's half cycle unresolved (or its arc left out)
         use = ~out                                    # DDs of satellites with an unresolved half cycle stay float
@@ -457,11 +458,11 @@ def _dd_set(st, groups, opt, leave_out=frozenset()) -> dict | None:
         plus.append(g["amb_col"][use])
         ref_cols.append(g["amb_col"][ref])
         sizes.append(n_use)
-        keys.append((tuple(g["amb_keys"]), ref, tuple(np.flatnonzero(out))) if "amb_keys" in g
-                    else (g["signal"], tuple(g["sats"]), ref, tuple(np.flatnonzero(g["half"]))))
-        if "amb_keys" in g:
-            arcs.update(g["amb_keys"][j] for j in np.flatnonzero(use))
-            arcs.add(g["amb_keys"][ref])
+        if "amb_keys" not in g:
+            keys.append((g["signal"], tuple(g["sats"]), ref, tuple(np.flatnonzero(g["half"]))))
+        else:                      # the half flags are in the arcs' keys; the arcs left out are named (a third item)
+            keys.append((tuple(g["amb_keys"]), ref) if not leave_out
+                        else (tuple(g["amb_keys"]), ref, tuple(np.flatnonzero(out).tolist())))
     if not plus:
         return None
     plus = np.concatenate(plus) if len(plus) > 1 else plus[0]
@@ -470,8 +471,19 @@ def _dd_set(st, groups, opt, leave_out=frozenset()) -> dict | None:
     a = st.x[plus] - st.x[minus]
     TP = st.P[plus] - st.P[minus]
     Qa = TP[:, plus] - TP[:, minus]
-    return {"plus": plus, "ref_cols": ref_cols, "sizes": sizes, "keys": tuple(keys), "arcs": arcs, "a": a,
-            "Qa": 0.5 * (Qa + Qa.T)}
+    return {"plus": plus, "ref_cols": ref_cols, "sizes": sizes, "keys": tuple(keys), "a": a, "Qa": 0.5 * (Qa + Qa.T)}
+
+
+def _arcs_of(keys) -> set:
+    """The SD arcs (state keys) a DD set of :func:`_dd_set`'s ``keys`` fixes: each group's reference and the arcs
+    whose half cycle is resolved and that were not left out (a set of groups without arc keys: none)."""
+    arcs = set()
+    for key in keys or ():
+        if not isinstance(key[0], tuple):
+            continue
+        amb, ref, out = key[0], key[1], set(key[2]) if len(key) > 2 else set()
+        arcs.update(k for j, k in enumerate(amb) if (j == ref or not k[3]) and j not in out)
+    return arcs
 
 
 def _dd_rows_on_state(rows, plus, ref_cols, sizes, n_state):
