@@ -606,3 +606,22 @@ def test_epoch_nis_is_the_double_differences_nis():
     for phase_only, k in ((True, M), (False, 2 * M)):
         got, want = rtk_multi.epoch_nis(model, rows, x, P, phase_only=phase_only), brute(k)
         assert got[1] == want[1] and got[0] == pytest.approx(want[0], rel=1e-9), (got, want)
+
+
+# the arc filter's bookkeeping: the SD arcs a DD set fixes (_arcs_of), from hand-made set keys
+
+def _arc(sat, half=False, signal="G:L1"):
+    return ("N", signal, sat, half)
+
+
+def test_the_arcs_of_a_set_are_its_references_and_its_resolved_arcs():
+    from cdgps_cli.estimation.rtk_multi import _arcs_of
+
+    group = (_arc("G01"), _arc("G02", half=True), _arc("G03"), _arc("G04"))
+    other = (_arc("E11", signal="E:E1"), _arc("E12", signal="E:E1"))
+    assert _arcs_of(((group, 0), (other, 1))) == {_arc("G01"), _arc("G03"), _arc("G04"), *other}
+    # a set with arcs left out names them (third item): they are not fixed, the half-cycle one neither
+    assert _arcs_of(((group, 0, (1, 3)),)) == {_arc("G01"), _arc("G03")}
+    # the reference is fixed with the rest; sets without arc keys (a caller's own groups) and no set give none
+    assert _arc("G04") in _arcs_of(((group, 3),))
+    assert _arcs_of((("G:L1", ("G01", "G02"), 0, ()),)) == set() and _arcs_of(None) == set()
