@@ -169,6 +169,7 @@ def _gauss_newton(model, mk, xbar: np.ndarray, max_iterations: int, correction, 
     it is whitened, and ``correction`` gets H[:, a] and a (else H whole and a None); Δx is of the whole
     state either way.  Returns (x, NIS, the last correction's third item)."""
     zw = mk.whiten(mk.z_m)
+    linear = getattr(model, "linear_within", None)          # a model that can tell its step is linear enough
     xi = xbar.copy()
     nis = np.nan
     last = max(int(max_iterations), 1) - 1
@@ -193,7 +194,6 @@ def _gauss_newton(model, mk, xbar: np.ndarray, max_iterations: int, correction, 
             xi = x_new
             break
         step = abs(x_new - xi).max()
-        linear = getattr(model, "linear_within", None)          # a model that can tell its step is linear enough
         done = step <= 1e-9 * max(1.0, float(abs(x_new).max())) or (linear is not None and linear(x_new - xi))
         xi = x_new
         if done:

@@ -773,8 +773,7 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
         the solve).
     """
     opt = _static_options(options)
-    age_noise: dict = {}
-    pairs, rows = _paired_rows(base, rover, opt, base_xyz_m, age_noise)
+    pairs, rows, age_noise = _paired_rows(base, rover, opt, base_xyz_m, weigh_age=True)
     del base, rover          # the geometry tables (a long record's largest) are not held through the check and solve
     times = pairs.rover_time_s
     if np.unique(rows["code"]).size > 1:           # multi-signal: the DD ionosphere is neglected (as init's)
@@ -794,18 +793,7 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
     sigma_amb = {"sigma_amb_cycles": opt["amb_sigma_cycles"]}
     n_state = 3 + (int(cols.max()) - 2 if cols.size else 0)
     x, P = static_least_squares(rows, cols, n_state, base_xyz_m, rover_xyz0_m, **sigma_amb)    # a day at 1 Hz: ≈ 1 s
-    sigma_iono = iono_weighting_sigma_m(opt, base_xyz_m, rover_xyz0_m)
-    lambda_float = None                      # the arcs' (a, Q) LAMBDA sees when they are not x's and P's
-    if sigma_iono > 0 and x.size > 3 and opt["motion"] != "random_walk":
-        xi, Pi = static_least_squares(rows, cols, n_state, base_xyz_m, rover_xyz0_m, sigma_iono_m=sigma_iono,
-                                      **sigma_amb)
-        lambda_float = (xi[3:n_state], Pi[3:n_state, 3:n_state])
-    rw = None
-    if opt["motion"] == "random_walk" and x.size > 3:
-        rw = random_walk_float_that_holds(rows, cols, times, base_xyz_m, rover_xyz0_m, x,
-                                          sigma_rw=opt["random_walk_sigma"], initial_sigma_m=opt["initial_sigma_m"],
-                                          sigma_iono_m=sigma_iono, **(sigma_amb if opt["glonass_fix"] else {}))
-        lambda_float = rw
+    sigma_iono, lambda_float, rw = _lambda_float(rows, cols, times, x, opt, (base_xyz_m, rover_xyz0_m), sigma_amb)
     if not opt["fix"]:
         f = {"offset_m": x[:3].copy(), "cov_m2": P[:3, :3].copy(), "resolution": None, "pairs": [], "dd_float": None,
              "state_fixed": x, "cov_fixed": P}
@@ -915,21 +903,40 @@ def iono_weighting_sigma_m(opt: dict, base_xyz_m, rover_xyz0_m) -> float:
     return float(sigma) if sigma >= IONO_WEIGHTED_MIN_SIGMA_M else 0.0
 
 
-def _paired_rows(base, rover, opt: dict, base_xyz_m, age_noise: dict | None = None):
+def _lambda_float(rows, cols, times, x, opt: dict, xyz: tuple, sigma_amb: dict) -> tuple:
+    """The float LAMBDA sees when it is not the static least squares' ``x``: (the DD ionosphere's weighting σ, m;
+    the arcs' (a, Q) — of the ionosphere-weighted least squares, or of the random walk that holds the rover, else
+    None; that random walk's :class:`RandomWalkFloat` or None).  ``xyz``: (base, rover origin) ECEF m."""
+    base_xyz_m, rover_xyz0_m = xyz
+    n_state = x.size
+    sigma_iono = iono_weighting_sigma_m(opt, base_xyz_m, rover_xyz0_m)
+    if opt["motion"] == "random_walk" and n_state > 3:
+        rw = random_walk_float_that_holds(rows, cols, times, base_xyz_m, rover_xyz0_m, x,
+                                          sigma_rw=opt["random_walk_sigma"], initial_sigma_m=opt["initial_sigma_m"],
+                                          sigma_iono_m=sigma_iono, **(sigma_amb if opt["glonass_fix"] else {}))
+        return sigma_iono, rw, rw
+    if sigma_iono > 0 and n_state > 3:
+        xi, Pi = static_least_squares(rows, cols, n_state, base_xyz_m, rover_xyz0_m, sigma_iono_m=sigma_iono,
+                                      **sigma_amb)
+        return sigma_iono, (xi[3:n_state], Pi[3:n_state, 3:n_state]), None      # (xi: with its ionosphere columns)
+    return sigma_iono, None, None
+
+
+def _paired_rows(base, rover, opt: dict, base_xyz_m, *, weigh_age: bool = False) -> tuple:
     """rtk's epoch pairing of the two geometry tables and their SD rows (the mask at both receivers, as the
-    batch's; a bridged rover epoch's base observations interpolated to its time, as rtk's and the batch's);
-    CdgpsError when no satellite is common.  ``age_noise``, when given (a dict), receives
-    :func:`~cdgps_cli.measurement.base_interpolation.base_age_noise` of option ``age_noise``, and the rows' age
-    variance takes its σ (as rtk's); otherwise ``age_sigma_m_per_s`` as it is."""
+    batch's; a bridged rover epoch's base observations interpolated to its time, as rtk's and the batch's), and
+    with ``weigh_age`` :func:`~cdgps_cli.measurement.base_interpolation.base_age_noise` of option ``age_noise``,
+    whose σ the rows' age variance takes (as rtk's; else None and ``age_sigma_m_per_s`` as it is).  CdgpsError when
+    no satellite is common."""
     pairs = pair_epochs(rover["time_gps_s"].to_numpy(), base["time_gps_s"].to_numpy(),
                         sync_tol_s=opt["sync_tol_s"], max_age_s=opt["max_age_s"])
+    age_noise = base_age_noise(base, pairs, base_xyz_m, opt) if weigh_age else None
     if age_noise is not None:
-        age_noise.update(base_age_noise(base, pairs, base_xyz_m, opt))
         opt = {**opt, "age_sigma_m_per_s": age_noise["sigma_m_per_s"]}
     rows = paired_sd_rows(base, rover, pairs, opt, mask_rover=True, base_xyz_m=base_xyz_m)
     if rows["sats"].size == 0:
         raise CdgpsError("no common observations: no satellite observed at both receivers above the mask")
-    return pairs, rows
+    return pairs, rows, age_noise
 
 
 def static_float_offset(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None = None) -> tuple:
@@ -940,7 +947,7 @@ def static_float_offset(base, rover, base_xyz_m, rover_xyz0_m, options: dict | N
     position when it moves (the phase of a moving rover fits no static position: a walk of 40 m put the static float
     789 m away).  ``options`` as :func:`static_baseline`'s."""
     opt = _static_options(options)
-    pairs, rows = _paired_rows(base, rover, opt, base_xyz_m)
+    pairs, rows, _ = _paired_rows(base, rover, opt, base_xyz_m)
     cols = arc_columns(rows, pairs.rover_time_s, max_gap_s=opt["max_gap_s"])
     n_state = 3 + (int(cols.max()) - 2 if cols.size else 0)
 

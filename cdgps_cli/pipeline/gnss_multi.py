@@ -170,12 +170,7 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
     rx, rx_from_spp = _rover_origin(hr, r, nav, bx, rover_path, warnings)
     gb, gr = (_geometry(df, nav, xyz, path, who, nav_paths) for df, xyz, path, who in
               ((b, bx, base_path, "base"), (r, rx, rover_path, "rover")))
-    warnings += [f"{path} ({who}): observations of {len(d)} satellite(s) without a healthy ephemeris covering them "
-                 f"dropped: " + ", ".join(f"{s} ({n} epochs)" for s, n in d.items())
-                 for who, path, d in (("base", base_path, gb.attrs["dropped"]), ("rover", rover_path, gr.attrs["dropped"])) if d]
-    warnings += [f"{path} ({who}): {sum(d.values())} phase observation(s) without a pseudorange of their own not used: "
-                 + ", ".join(f"{sig} {n}" for sig, n in d.items())
-                 for who, path, d in (("base", base_path, gb.attrs["no_code"]), ("rover", rover_path, gr.attrs["no_code"])) if d]
+    warnings += _geometry_warnings({"base": (base_path, gb), "rover": (rover_path, gr)})
     gb.attrs, gr.attrs = {}, {}
     code_noise = receivers_code_noise(gb, gr, opt)       # the observations' own: the same for every solve below
     warnings += _code_noise_warning(code_noise, {"base": base_path, "rover": rover_path})
@@ -199,6 +194,17 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
     text = solution_text(res, sigs, opt, out_csv, bx, inputs=(*rover_files, *base_files, *nav_paths))
     write_atomic(out_csv, lambda tmp: Path(tmp).write_text(text, newline=""))
     return {**_summary(res, per_epoch), "signals": sigs, "epoch_pairing": ep, "warnings": warnings}
+
+
+def _geometry_warnings(tables: dict) -> list:
+    """The warnings of :func:`receiver_geometry`'s notes (``tables``: who → (path, geometry table)): satellites
+    dropped for want of a healthy ephemeris, and phases without a pseudorange of their own."""
+    out = [f"{path} ({who}): observations of {len(d)} satellite(s) without a healthy ephemeris covering them "
+           f"dropped: " + ", ".join(f"{s} ({n} epochs)" for s, n in d.items())
+           for who, (path, g) in tables.items() if (d := g.attrs["dropped"])]
+    return out + [f"{path} ({who}): {sum(d.values())} phase observation(s) without a pseudorange of their own not "
+                  f"used: " + ", ".join(f"{sig} {n}" for sig, n in d.items())
+                  for who, (path, g) in tables.items() if (d := g.attrs["no_code"])]
 
 
 def _code_noise_warning(code_noise: dict, paths: dict) -> list:
