@@ -538,9 +538,10 @@ def solve_with_init_integers(run, init: dict, r: str, stations: dict):
     o.setdefault("age_sigma_m_per_s", EPOCH_PAIRING_DEFAULTS["age_sigma_m_per_s"])   # an INIT before it was recorded
     try:
         opt = BaselineOptions(**{k: v for k, v in o.items() if k in BaselineOptions.__dataclass_fields__})
-    except TypeError as exc:
-        raise CdgpsError(f"INIT.json: bad options for {r}: {exc}") from None
-    opt = BaselineOptions(**{**asdict(opt), "kinematic_series": False})
+        opt = BaselineOptions(**{**asdict(opt), "kinematic_series": False})
+        opt.validate()
+    except (TypeError, CdgpsError) as exc:
+        raise CdgpsError(f"INIT.json: bad options for {r} (rovers.{r}.options): {exc}") from None
     trop = rov.get("rover_troposphere_ecef_m")           # where init evaluated the rover's troposphere
     rover = stations[r] if trop is None else stations[r]._replace(troposphere_xyz_m=_init_position(trop, r))
     res = baseline_from_init(stations[run.master], rover, run.nav, opt,

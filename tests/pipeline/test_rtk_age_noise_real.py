@@ -132,3 +132,10 @@ def test_init_weighs_the_carried_epochs_by_the_bases_own_drift(drifting, tmp_pat
     r = run_cli("-q", "estimate", drift_run, "--init", tmp_path / "init.json", "-o", tmp_path / "states.mcap", "--json")
     assert r.exit_code == 0, r.output
     assert json.loads(r.stdout)["mean_nis_per_dof"] < 1.0
+    for bad in (-1.0, "NaN"):                     # an INIT whose recorded σ is not one: named, nothing written
+        auto["rovers"]["rover"]["options"]["age_sigma_m_per_s"] = bad
+        (tmp_path / "bad.json").write_text(json.dumps(auto))
+        r = run_cli("-q", "estimate", drift_run, "--init", tmp_path / "bad.json", "-o", tmp_path / "bad.mcap")
+        assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+        assert "bad.json: bad options for rover (rovers.rover.options)" in r.output and "age_sigma_m_per_s" in r.output
+        assert not (tmp_path / "bad.mcap").exists()
