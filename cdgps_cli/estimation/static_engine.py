@@ -940,21 +940,24 @@ def _paired_rows(base, rover, opt: dict, base_xyz_m, *, weigh_age: bool = False)
 
 
 def static_float_offset(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None = None) -> tuple:
-    """The rover's static float offset (3,) from ``rover_xyz0_m``, ECEF m: :func:`static_baseline`'s float solution
-    without its checks (the DD ionosphere neglected whatever the baseline's length) or its fixing, for a caller
-    that only needs to know where the rover is to a metre (rtk's a-priori position); and a function giving the
-    same least squares on the code alone (the phase rows' variance :data:`_UNUSED_VARIANCE_M2`): the rover's mean
-    position when it moves (the phase of a moving rover fits no static position: a walk of 40 m put the static float
-    789 m away).  ``options`` as :func:`static_baseline`'s."""
+    """The rover's static float offset from ``rover_xyz0_m`` and its covariance, ((3,) ECEF m, (3, 3) m²):
+    :func:`static_baseline`'s float solution without its checks (the DD ionosphere neglected whatever the baseline's
+    length) or its fixing, for a caller that only needs to know where the rover is to a metre (rtk's a-priori
+    position); and a function giving the same least squares on the code alone (the phase rows' variance
+    :data:`_UNUSED_VARIANCE_M2`), as the same pair: the rover's mean position when it moves (the phase of a moving
+    rover fits no static position: a walk of 40 m put the static float 789 m away).  The covariance says whether
+    the data determine the offset at all (two satellites over ten minutes: σ of tens of metres, the prior's
+    ``sigma_pos_m`` of :func:`static_least_squares` bounding it).  ``options`` as :func:`static_baseline`'s."""
     opt = _static_options(options)
     pairs, rows, _ = _paired_rows(base, rover, opt, base_xyz_m)
     cols = arc_columns(rows, pairs.rover_time_s, max_gap_s=opt["max_gap_s"])
     n_state = 3 + (int(cols.max()) - 2 if cols.size else 0)
 
     def solve(r):
-        return static_least_squares(r, cols, n_state, base_xyz_m, rover_xyz0_m,
-                                    sigma_amb_cycles=opt["amb_sigma_cycles"])[0][:3].copy()
-    return solve(rows), lambda: solve(dict(rows, var_phase=np.full_like(rows["var_phase"], _UNUSED_VARIANCE_M2)))
+        x, P = static_least_squares(r, cols, n_state, base_xyz_m, rover_xyz0_m, sigma_amb_cycles=opt["amb_sigma_cycles"])
+        return x[:3].copy(), P[:3, :3].copy()
+    return (*solve(rows),
+            lambda: solve(dict(rows, var_phase=np.full_like(rows["var_phase"], _UNUSED_VARIANCE_M2))))
 
 
 #: a row's variance (m²) that leaves it out of a least squares (its weight ≈ 10⁻¹² of a metre-σ code row's)

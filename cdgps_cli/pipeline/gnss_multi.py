@@ -408,6 +408,9 @@ def _place_rover(gb, gr, bx, rx, opt: dict, *, rover: tuple, nav: tuple, warning
         raise CdgpsError(f"{rover_path} (rover): the rover moves (its static float solution is {apart_m:.0f} m from the "
                          f"mean position of its code: its phase fits no static position), and --mode static assumes it "
                          f"does not; use --mode kinematic (or constant-velocity)")
+    if to.startswith("undetermined"):
+        warnings.append(f"{rover_path} (rover): {to.removeprefix('undetermined: ')}: its a-priori position is kept")
+        return rx, gr
     if np.linalg.norm(moved) <= ROVER_ORIGIN_TOL_M:
         return rx, gr
     if not from_spp:                      # (a single-point origin's own warning already says it is refined)
@@ -428,20 +431,44 @@ def _static_float_offset(gb, gr, bx, rx, opt: dict) -> tuple:
     from cdgps_cli.estimation.static_engine import static_float_offset, static_option_names
     keys = static_option_names()
     try:
-        off, code_only = static_float_offset(gb, gr, bx, rx, {**{k: v for k, v in opt.items() if k in keys},
-                                                              "fix": False, "fix_and_hold": False, "code_noise": "model"})
-        if not np.all(np.isfinite(off)):
+        off, cov, code_only = static_float_offset(gb, gr, bx, rx, {**{k: v for k, v in opt.items() if k in keys},
+                                                                   "fix": False, "fix_and_hold": False,
+                                                                   "code_noise": "model"})
+        if not (np.all(np.isfinite(off)) and np.all(np.isfinite(cov))):
             return np.zeros(3), "", None
         if np.linalg.norm(off) <= ROVER_ORIGIN_TOL_M:
             return off, "its static float solution", None
-        code = code_only()
+        if not _determined(off, cov):         # (nor can it tell a moving rover: its distance to the code's mean is noise)
+            return np.zeros(3), _undetermined_note("its static float solution", off, cov), None
+        code, code_cov = code_only()
     except (CdgpsError, np.linalg.LinAlgError):
         return np.zeros(3), "", None
     apart = float(np.linalg.norm(off - code))
     if np.all(np.isfinite(code)) and apart > MOVING_ROVER_FLOAT_M:
+        if not _determined(code, code_cov):
+            return np.zeros(3), _undetermined_note("the mean position of its code", code, code_cov), None
         return code, (f"the mean position of its code (its static float solution lands {apart:.0f} m from that mean: "
                       f"the rover moves, and its phase fits no static position)"), apart
     return off, "its static float solution", None
+
+
+#: an offset is taken as where the rover is only when it exceeds this many times its 3-D σ (√trace of its covariance)
+ORIGIN_MOVE_SIGMAS = 3.0
+
+
+def _determined(offset_m, cov_m2) -> bool:
+    """Whether an offset (3,) m of covariance (3, 3) m² says where the rover is: longer than
+    :data:`ORIGIN_MOVE_SIGMAS` times its 3-D σ (two satellites over ten minutes of a 35 km pair gave a static float
+    14.6 m away with σ of tens of metres: the data do not place the rover, and moving its a-priori position there
+    would only add that noise to its troposphere and linearization)."""
+    return bool(np.linalg.norm(offset_m) > ORIGIN_MOVE_SIGMAS * np.sqrt(max(float(np.trace(cov_m2)), 0.0)))
+
+
+def _undetermined_note(what: str, offset_m, cov_m2) -> str:
+    """The reason (prefixed ``undetermined: ``) an offset that :func:`_determined` refuses was not used."""
+    return (f"undetermined: {what} is {np.linalg.norm(offset_m):.1f} m from its a-priori position with a 3-D σ of "
+            f"{np.sqrt(max(float(np.trace(cov_m2)), 0.0)):.1f} m (more than 1/{ORIGIN_MOVE_SIGMAS:g} of that distance: "
+            f"these data do not say where the rover is)")
 
 
 #: a static float solution this far (m) from the code's mean position is not where the rover is: it moves (a static
