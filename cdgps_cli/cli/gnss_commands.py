@@ -329,6 +329,11 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
 @click.option("--sync-tol", "sync_tol_s", type=float, default=None,
               help="Base and rover epochs this close are simultaneous, s "
                    f"[{__import__('cdgps_cli.config.options', fromlist=['x']).EPOCH_PAIRING_DEFAULTS['sync_tol_s']:g}].")
+@click.option("--iono-threshold-km", "iono_threshold_km", type=float, default=None,
+              help="Baseline length from which the DD ionosphere is estimated (a state per satellite, σ growing with "
+                   "the length); shorter baselines neglect it, as RTKLIB's ionoopt=brdc on a short baseline; a large "
+                   "value neglects it on any baseline, as init's [gnss] iono_threshold_km "
+                   f"[{__import__('cdgps_cli.config.options', fromlist=['x']).MULTI_GNSS_DEFAULTS['iono_threshold_km']:g}].")
 @click.option("--direction", type=click.Choice(["forward", "backward", "combined"]), default=None,
               help="Kinematic passes: forward, backward, or both combined - an epoch is fixed where the passes' fixes "
                    "agree (or one's fix agrees with the other's float); disagreeing fixes are rejected [combined].")
@@ -364,7 +369,7 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (epochs used and why others were not, fixes) on stdout.")
 @click.pass_context
 def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_fix, mask_deg, ratio_threshold, max_age_s,
-        sync_tol_s, direction, code_correlation_s, code_noise, age_noise, fix_and_hold, wrong_fix_probability,
+        sync_tol_s, iono_threshold_km, direction, code_correlation_s, code_noise, age_noise, fix_and_hold, wrong_fix_probability,
         hold_after_fixes, min_success_rate, float_only, output, as_json):
     """Double differences per constellation and frequency, integers by LAMBDA (docs/gnss-pipeline.md, "Multi-GNSS").
 
@@ -378,7 +383,7 @@ def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_
     if float_only:
         options["fix"] = False
     for key, value in (("mask_deg", mask_deg), ("ratio", ratio_threshold), ("max_age_s", max_age_s),
-                       ("sync_tol_s", sync_tol_s), ("direction", direction), ("min_success_rate", min_success_rate),
+                       ("sync_tol_s", sync_tol_s), ("iono_threshold_km", iono_threshold_km), ("direction", direction), ("min_success_rate", min_success_rate),
                        ("code_correlation_s", code_correlation_s), ("code_noise", code_noise), ("age_noise", age_noise),
                        ("hold_after_fixes", hold_after_fixes),
                        ("fix_and_hold", fix_and_hold), ("wrong_fix_probability", wrong_fix_probability)):

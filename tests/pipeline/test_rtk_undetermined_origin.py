@@ -10,6 +10,7 @@ off.  RTKLIB (``rnx2rtkp`` 2.4.3) writes no row at all on these files.
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -63,3 +64,23 @@ def test_the_rows_say_that_they_place_nothing(two_satellites):
     df = pd.read_csv(two_satellites[1], comment="#")
     sigma = df[["sigma_e_m", "sigma_n_m", "sigma_u_m"]].to_numpy()
     assert (sigma.max(axis=1) > 50.0).all(), sigma
+
+
+def test_the_ionosphere_threshold_is_an_rtk_option_as_init_s_config_key(tmp_path):
+    """``--iono-threshold-km`` reaches the solver (init's ``[gnss] iono_threshold_km``; one default,
+    MULTI_GNSS_DEFAULTS): the 35 km pair estimates the DD ionosphere by default and neglects it above the threshold;
+    a negative threshold is refused by name."""
+    from cdgps_cli.config.options import MULTI_GNSS_DEFAULTS
+
+    assert MULTI_GNSS_DEFAULTS["iono_threshold_km"] == 10.0
+    args = ("rtk", "--base", DATA / "delf0010.21d", "--rover", DATA / "zegv0010.21d", "--nav", DATA / "cbw10010.21n.gz",
+            "--json", "-q")
+    models = {}
+    for t in (None, 100.0):
+        r = run_cli(*args, "-o", tmp_path / f"{t}.csv", *(() if t is None else ("--iono-threshold-km", t)))
+        assert r.exit_code == 0, r.output
+        models[t] = json.loads(r.output[r.output.index("{"):])["iono_model"]
+    assert models == {None: "estimated", 100.0: "neglected (short baseline)"}
+    bad = run_cli(*args, "-o", tmp_path / "bad.csv", "--iono-threshold-km", -1)
+    assert bad.exit_code == 2 and "--iono-threshold-km -1: outside the plausible range [0, 1e+06] km" in bad.output
+    assert not (tmp_path / "bad.csv").exists()
