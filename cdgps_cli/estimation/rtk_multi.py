@@ -555,8 +555,9 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
     -------
     dict
         ``time_gps_s`` (n,), ``float_xyz_m`` / ``fixed_xyz_m`` (n, 3; NaN rows where not fixed),
-        ``fixed`` (n,) bool, ``n_dd_ambiguities`` (n,), ``ratio`` (n,), ``iono_model``, ``static_xyz_m``
-        (the last epoch's fixed, else float, position — the static solution in static mode),
+        ``fixed`` (n,) bool, ``n_dd_ambiguities`` (n,), ``ratio`` (n,), ``iono_model``, ``last_xyz_m``
+        (the last epoch's fixed, else float, position), ``static_xyz_m`` (that position in static mode, where it is
+        the static solution; None in the kinematic modes),
         ``float_cov_m2`` / ``fixed_cov_m2`` (n, 3, 3; ECEF, m²; NaN where not fixed), ``n_satellites`` (n,),
         ``epoch_pairing`` (the summary of :func:`~cdgps_cli.measurement.epoch_pairing.pair_epochs`: rover
         epochs used, bridged, dropped with reasons) and ``base_age_s`` (n,; rover − base time, s); in
@@ -592,7 +593,7 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
     return {"time_gps_s": times, "float_xyz_m": res["float_xyz"], "fixed_xyz_m": np.where(ok[:, None], res["fixed_xyz"], np.nan),
             "fixed": ok, "n_dd_ambiguities": res["n_fixed"], "ratio": res["ratio"],
             "iono_model": "estimated" if iono else "neglected (short baseline)", "baseline_km": length_km,
-            "static_xyz_m": last, "epoch_pairing": {**summary, "interpolated": rows["interpolated_epochs"]},
+            "last_xyz_m": last, "static_xyz_m": last if opt["mode"] == "static" else None, "epoch_pairing": {**summary, "interpolated": rows["interpolated_epochs"]},
             "base_age_s": age_s,
             "float_cov_m2": res["float_cov"], "fixed_cov_m2": np.where(ok[:, None, None], res["fixed_cov"], np.nan),
             "n_satellites": res["ns"], "direction": direction, "fixes_rejected": int(res.get("rejected", 0)),

@@ -250,7 +250,9 @@ def _summary(res: dict, per_epoch: bool) -> dict:
             "code_noise": {"mode": c["mode"], "variance_factor": c["factor"],       # an estimate not made: null
                            "estimates": {w: (float(c[w]) if np.isfinite(c[w]) else None) for w in ("base", "rover")},
                            "windows": c["windows"]},
-            "static_xyz_m": res["static_xyz_m"].tolist(), "iono_model": res["iono_model"],
+            "last_xyz_m": res["last_xyz_m"].tolist(),     # the last epoch's solution (fixed when it is), ECEF m
+            "static_xyz_m": None if res["static_xyz_m"] is None else res["static_xyz_m"].tolist(),  # --mode static only
+            "iono_model": res["iono_model"],
             "rover_troposphere": "at each epoch's solution" if per_epoch else "at the a-priori position"}
 
 

@@ -120,6 +120,16 @@ def test_beidou_fixed_glonass_float_baseline_to_millimetres(pair):
     assert csv["n_dd_ambiguities"].max() >= 10
 
 
+def test_the_summary_names_a_static_solution_only_in_static_mode(pair):
+    """``static_xyz_m`` is the static solution of --mode static and null in the kinematic modes; ``last_xyz_m`` is the
+    last epoch's solution in every mode (a kinematic run's JSON used to call that position static)."""
+    s, csv, _ = _solve(pair, ["G:L1", "C:B1I", "C:B2I"], mode="kinematic")
+    assert s["static_xyz_m"] is None
+    assert np.allclose(s["last_xyz_m"], csv[["x_m", "y_m", "z_m"]].to_numpy()[-1], rtol=0, atol=1e-4)
+    st, _, _ = _solve(pair, ["C:B1I", "C:B2I"])
+    assert st["static_xyz_m"] == st["last_xyz_m"]
+
+
 def test_glonass_alone_stays_float_and_beidou_alone_fixes(pair):
     s, csv, _ = _solve(pair, ["R:G1"])
     assert s["fixed_pct"] == 0 and (csv["n_dd_ambiguities"] == 0).all()
