@@ -11,6 +11,7 @@ else the float one).
 from __future__ import annotations
 
 import functools
+import math
 import io as _io
 from pathlib import Path
 
@@ -22,7 +23,7 @@ from cdgps_cli import __version__
 from cdgps_cli.config.options import (CODE_NOISE_MIN_WINDOWS, CODE_NOISE_WINDOW_S, GNSS_WEIGHTINGS, MULTI_GNSS_DEFAULTS,
                                       ROVER_ORIGIN_TOL_M)
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.core.gps_time import gps_time_str
+from cdgps_cli.core.gps_time import gps_time_str, nominal_interval_s
 from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, signal
 from cdgps_cli.estimation.rtk_multi import (RTK_MODES, check_common_signals, receiver_geometry, receivers_code_noise,
                                             solve_rtk, troposphere_at_epochs)
@@ -173,7 +174,9 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
     warnings += _geometry_warnings({"base": (base_path, gb), "rover": (rover_path, gr)})
     gb.attrs, gr.attrs = {}, {}
     code_noise = receivers_code_noise(gb, gr, opt)       # the observations' own: the same for every solve below
-    warnings += _code_noise_warning(code_noise, {"base": base_path, "rover": rover_path})
+    warnings += _code_noise_warning(code_noise, {"base": base_path, "rover": rover_path},
+                                    {"base": nominal_interval_s(gb["time_gps_s"].to_numpy()),
+                                     "rover": nominal_interval_s(gr["time_gps_s"].to_numpy())})
     try:
         rx, gr = _place_rover(gb, gr, bx, rx, opt, rover=(r, rover_path, rx_from_spp), nav=(nav, nav_paths),
                               warnings=warnings)
@@ -207,16 +210,24 @@ def _geometry_warnings(tables: dict) -> list:
                   for who, (path, g) in tables.items() if (d := g.attrs["no_code"])]
 
 
-def _code_noise_warning(code_noise: dict, paths: dict) -> list:
+def _code_noise_warning(code_noise: dict, paths: dict, intervals_s: dict) -> list:
     """A warning per receiver whose code noise ``--code-noise auto`` could not measure (fewer full windows of
     code-minus-carrier than it needs): its codes are then weighed as modelled, which a low-cost receiver's are not
-    (a u-blox M8P: 47 times the model's variance), so its float σ and integer tests may be optimistic."""
+    (a u-blox M8P: 47 times the model's variance), so its float σ and integer tests may be optimistic.  Why: a
+    receiver whose epochs (``intervals_s``, its nominal interval, s) put fewer than three in a window (a 30 s CORS
+    file) has no full window at all; otherwise its arcs were too short or cut too often by slips and gaps."""
     if code_noise.get("mode") != "auto":
         return []
-    return [f"{paths[who]} ({who}): its code noise could not be measured ({code_noise['windows'][who]} full "
-            f"{CODE_NOISE_WINDOW_S:g} s windows of code minus carrier without a slip, {CODE_NOISE_MIN_WINDOWS} needed): "
-            f"its codes are weighed as modelled, and a low-cost receiver's are noisier (--code-noise; the float σ "
-            f"may then be optimistic)"
+
+    def why(who: str) -> str:
+        dt = intervals_s.get(who, math.nan)
+        if math.isfinite(dt) and 3.0 * dt > CODE_NOISE_WINDOW_S:
+            return (f"its epochs, {dt:g} s apart, put fewer than the 3 a {CODE_NOISE_WINDOW_S:g} s window of code "
+                    f"minus carrier needs in each")
+        return (f"{code_noise['windows'][who]} full {CODE_NOISE_WINDOW_S:g} s windows of code minus carrier without a "
+                f"slip or a gap, {CODE_NOISE_MIN_WINDOWS} needed")
+    return [f"{paths[who]} ({who}): its code noise could not be measured ({why(who)}): its codes are weighed as "
+            f"modelled, and a low-cost receiver's are noisier (--code-noise; the float σ may then be optimistic)"
             for who in ("base", "rover") if not np.isfinite(code_noise[who])]
 
 
