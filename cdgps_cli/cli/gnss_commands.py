@@ -316,7 +316,9 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
                    "velocity, the velocity a random walk (white acceleration), written out too (ENU m/s and σ; "
                    "RTKLIB's velocity columns in .pos); static: one position for the span, its estimate from "
                    "the data so far written at every epoch (the last line uses them all, as RTKLIB's static mode).")
-@click.option("--base-xyz", nargs=3, type=float, default=None, help="Base ECEF position, m (default: its header).")
+@click.option("--base-xyz", nargs=3, type=float, default=None,
+              help="Base antenna ECEF position, m (default: its header's APPROX POSITION XYZ plus its ANTENNA: DELTA "
+                   "H/E/N, as RTKLIB's base from its header; a rover's delta is not applied).")
 @click.option("--glonass-fix", is_flag=True, default=False,
               help="Fix GLONASS (FDMA) integers too: only for identical base and rover receivers (default: float).")
 @click.option("--mask-deg", type=float, default=None,

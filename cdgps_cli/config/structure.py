@@ -1075,5 +1075,6 @@ def gnss_config_toml(antennas: dict, nav=(), master: str | None = None, *, name:
         if pos is not None:
             out.append("position_ecef_m = [" + ", ".join(f"{float(x):.4f}" for x in pos) + "]")
         elif kind == "rinex":
-            out.append("# position_ecef_m = [x, y, z]    # default: the RINEX header APPROX POSITION XYZ")
+            out.append("# position_ecef_m = [x, y, z]    # the antenna's; default: the RINEX header APPROX POSITION XYZ"
+                       + (" plus its ANTENNA: DELTA H/E/N" if an == master else ""))
     return "\n".join(out) + "\n"

@@ -63,6 +63,8 @@ from cdgps_cli.measurement.differencing import (
 from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
 from cdgps_cli.core.errors import CdgpsError, join_problems
 from cdgps_cli.model.gps.positioning import (
+    antenna_reference_point_m,
+    rover_delta_note,
     ephemeris_coverage,
     estimate_receiver_clock,
     nominal_interval_s,
@@ -1012,11 +1014,13 @@ class _Final(NamedTuple):
 
 def _a_priori_positions(master: Station, rover: Station, nav, master_xyz, rover_xyz, warnings: list):
     """Master position (given or header) and the rover's a priori position with its source."""
-    xm = header_position_m(master.header) if master_xyz is None else np.asarray(master_xyz, dtype=np.float64)
+    xm = (antenna_reference_point_m(master.header, _where(master)) if master_xyz is None     # marker + DELTA H/E/N
+          else np.asarray(master_xyz, dtype=np.float64))
     if xm is None:
         raise CdgpsError(f"{_where(master)}: the RINEX header has no usable APPROX POSITION XYZ; the master (reference) "
                          f"receiver must be at a known position")
     xr0 = header_position_m(rover.header) if rover_xyz is None else np.asarray(rover_xyz, dtype=np.float64)
+    warnings += rover_delta_note(rover.header, _where(rover))
     rover_pos_source = "RINEX header APPROX POSITION XYZ" if rover_xyz is None else "given"
     if xr0 is None:
         xr0 = _rover_spp(rover, nav, xm)

@@ -49,6 +49,7 @@ from cdgps_cli.estimation.model_filter import filter_numpy
 from cdgps_cli.estimation.smoother import rts_smooth_indexed
 from cdgps_cli.measurement.dd_displacement import SatelliteDDDisplacement, SDObservations
 from cdgps_cli.model.dynamics_models import RandomWalk
+from cdgps_cli.model.gps.positioning import antenna_reference_point_m
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.records import INIT_FORMAT, Series, StateSeries, init_kind
@@ -316,7 +317,7 @@ def rover_segments(init: dict, rover: str) -> list[dict]:
 def _master_xyz(run: GnssRun) -> np.ndarray:
     p = _position_args(run, run.master)
     if p is None:
-        p = np.asarray(run.receivers[run.master].header["approx_position_xyz_m"], dtype=np.float64)
+        p = antenna_reference_point_m(run.receivers[run.master].header, f"{run.path}: master {run.master}")
     return p
 
 

@@ -36,7 +36,7 @@ from cdgps_cli.io.rinex_signals import (first_of_repeated_epochs, out_of_order_t
                                         repeated_epochs_text, signals_in_file)
 from cdgps_cli.io.solution_formats import Q_FIX, Q_FLOAT, csv_text, finite_or, geojson_text, nmea_gga_text, pos_text
 from cdgps_cli.model.gps.orbits import ecef_to_enu, ecef_to_geodetic, enu_matrix
-from cdgps_cli.model.gps.positioning import ephemeris_coverage, spp_static
+from cdgps_cli.model.gps.positioning import antenna_reference_point_m, ephemeris_coverage, rover_delta_note, spp_static
 
 __all__ = ["validate_options", "rtk_from_files", "common_signals"]
 
@@ -168,6 +168,9 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
         raise CdgpsError(f"{base_path}: the base has no position (no APPROX POSITION XYZ; give --base-xyz X Y Z)")
     # the base first: a rover without a position is placed by single-point positioning started at the base
     _check_position(bx, f"{base_path} (base)", "--base-xyz" if base_xyz_m is not None else "its APPROX POSITION XYZ")
+    if base_xyz_m is None:              # the header's marker: the antenna is DELTA H/E/N from it (as RTKLIB's rinexhead)
+        bx = antenna_reference_point_m(hb, f"{base_path} (base)")
+    warnings += rover_delta_note(hr, f"{rover_path} (rover)")
     rx, rx_from_spp = _rover_origin(hr, r, nav, bx, rover_path, warnings)
     gb, gr = (_geometry(df, nav, xyz, path, who, nav_paths) for df, xyz, path, who in
               ((b, bx, base_path, "base"), (r, rx, rover_path, "rover")))

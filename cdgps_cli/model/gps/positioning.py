@@ -49,6 +49,7 @@ from cdgps_cli.model.gps.orbits import (  # noqa: I001
     sat_position_at_reception,
     sat_positions_at_reception,
 )
+from cdgps_cli.core.checks import header_position_m
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import GPS_EPOCH, nominal_interval_s  # noqa: F401 (re-exported)
 from cdgps_cli.core.records import OBS_COLUMNS
@@ -76,6 +77,41 @@ __all__ = [
 # ----------------------------------------------------------------------------------------------
 # troposphere (a priori, hydrostatic)
 # ----------------------------------------------------------------------------------------------
+
+
+def antenna_reference_point_m(header: dict, what: str = "the header"):
+    """The antenna reference point (ARP) of a RINEX header's station, ECEF m (3,): its APPROX POSITION XYZ (the
+    marker) plus its ``ANTENNA: DELTA H/E/N`` (the ARP's height above the marker and its east and north offsets, m)
+    turned from the east-north-up axes at the marker; the marker itself, unchanged, when the delta is absent or zero;
+    None when the header has no usable position (:func:`~cdgps_cli.core.checks.header_position_m`).
+
+    A reference station's file gives the marker's surveyed coordinates and the antenna's height above it (a CORS:
+    centimetres to metres): the phases are the antenna's.  RTKLIB's ``rnx2rtkp`` does the same with a base position
+    taken from its header (``ant2-postype=rinexhead``; measured: a DELTA H/E/N of 0.5 / 0.1 / −0.2 m moves its rover
+    by that vector) and applies no delta to a position given as coordinates or to the rover's header.  ``what``
+    names the file in the error raised for a delta that is not three finite numbers."""
+    pos = header_position_m(header)
+    delta = header.get("antenna_delta_hen_m")
+    if pos is None or delta is None:
+        return pos
+    h, e, n = (float(v) for v in delta)
+    if not all(math.isfinite(v) for v in (h, e, n)):
+        raise CdgpsError(f"{what}: ANTENNA: DELTA H/E/N is not three finite numbers ({h!r} {e!r} {n!r} m)")
+    if h == e == n == 0.0:
+        return pos
+    lat, lon, _ = ecef_to_geodetic(pos)
+    return pos + enu_matrix(lat, lon).T @ np.array([e, n, h])
+
+
+def rover_delta_note(header: dict, what: str) -> list:
+    """A note (a list of one string, or none) when a rover's header gives a non-zero ANTENNA: DELTA H/E/N: its
+    positions are its antenna's (the reference point), not the marker's below it, which is not solved for (RTKLIB
+    applies no rover delta from the header either).  ``what`` names the file."""
+    d = header.get("antenna_delta_hen_m")
+    if d is None or not any(float(v) != 0.0 for v in d):
+        return []
+    return [f"{what}: its header's ANTENNA: DELTA H/E/N ({' '.join(f'{float(v):g}' for v in d)} m) is not applied: "
+            f"the positions are of its antenna reference point, not of the marker that far below it"]
 
 
 def day_of_year(t_gps_s) -> np.ndarray:
