@@ -300,6 +300,19 @@ def _velocity_enu(res, lat_deg, lon_deg):
     return np.einsum("nij,nj->ni", R, v), C_enu, np.sqrt(np.abs(np.einsum("nii->ni", C_enu)))
 
 
+def _partial_ratio_note(q, ratio, opt: dict) -> list:
+    """A .pos header line when a float (Q=2) line's ratio passes the test: there only part of the DD ambiguities was
+    fixed (partial fixing; the ratio is that part's) or, combined, the other pass contradicted the fix, and the
+    position stays float (RTKLIB 2.4.3 fixes no part: a tool that reads ratio ≥ 3 as fixed would be misled; the CSV's
+    n_dd_ambiguities counts the ambiguities fixed)."""
+    n = int(np.sum((np.asarray(q) == 2) & (np.asarray(ratio) >= opt["ratio"])))
+    if not n:
+        return []
+    return [f"ratio     : on {n} float (Q=2) line(s) the ratio is {opt['ratio']:g} or more while the position stays "
+            f"float: only part of the DD ambiguities was fixed (partial fixing) or the other pass contradicted the fix "
+            f"(combined); Q says whether the position is fixed"]
+
+
 def solution_text(res: dict, sigs, opt: dict, out_path, base_xyz, *, inputs=()) -> str:
     """The solution as the text of the format ``out_path``'s suffix names (:data:`OUTPUT_FORMATS`;
     any other suffix: CSV).  CSV columns: ``time_gps_s, x_m, y_m, z_m, fixed, n_dd_ambiguities, ratio,
@@ -318,7 +331,7 @@ def solution_text(res: dict, sigs, opt: dict, out_path, base_xyz, *, inputs=()) 
     if suffix == ".pos":
         bl, bo, bh = ecef_to_geodetic(np.asarray(base_xyz, float))
         header = [f"program   : {desc}", *(f"inp file  : {p}" for p in inputs),
-                  f"ref pos   : {np.degrees(bl):.9f} {np.degrees(bo):.9f} {bh:.4f}"]
+                  f"ref pos   : {np.degrees(bl):.9f} {np.degrees(bo):.9f} {bh:.4f}", *_partial_ratio_note(q, ratio, opt)]
         cov_neu = cov_enu[:, [1, 0, 2]][:, :, [1, 0, 2]]
         neu = None if vel is None else (vel[0][:, [1, 0, 2]], vel[1][:, [1, 0, 2]][:, :, [1, 0, 2]])
         return pos_text(t, np.c_[lat, lon, h], q, ns, cov_neu, age, ratio, frame="llh", header=header, velocity_neu=neu)

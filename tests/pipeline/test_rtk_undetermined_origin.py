@@ -86,3 +86,15 @@ def test_the_ionosphere_threshold_is_an_rtk_option_as_init_s_config_key(tmp_path
     bad = run_cli(*args, "-o", tmp_path / "bad.csv", "--iono-threshold-km", -1)
     assert bad.exit_code == 2 and "--iono-threshold-km -1: outside the plausible range [0, 1e+06] km" in bad.output
     assert not (tmp_path / "bad.csv").exists()
+
+
+def test_a_pos_file_says_why_a_float_line_has_a_passing_ratio():
+    """(The real 35 km pair with the IGS broadcast file, kept outside the repository: 19 float lines with partial-fix
+    ratios of 19 to 12 555 and no word on them.)"""
+    from cdgps_cli.pipeline.gnss_multi import _partial_ratio_note
+
+    q, ratio = np.array([1, 2, 2, 2]), np.array([8.0, 2.9, 3.0, 12555.0])
+    note, = _partial_ratio_note(q, ratio, {"ratio": 3.0})
+    assert note.startswith("ratio     : on 2 float (Q=2) line(s) the ratio is 3 or more while the position stays float")
+    assert _partial_ratio_note(q, ratio, {"ratio": 20000.0}) == []
+    assert _partial_ratio_note(np.array([1, 2]), np.array([50.0, 0.0]), {"ratio": 3.0}) == []
