@@ -368,11 +368,14 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
 @click.option("--float-only", is_flag=True, help="Do not fix integers (float solution only; RTKLIB pos2-armode=off).")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Output: .pos (RTKLIB, lat/lon/height), .nmea/.gga (NMEA GGA), .geojson, or CSV (any other suffix).")
+@click.option("--pos-frame", "pos_frame", type=click.Choice(["llh", "xyz", "enu"]), default=None,
+              help="Coordinates of a .pos output (RTKLIB out-solformat): llh latitude/longitude/height, xyz ECEF, "
+                   "enu the baseline's east/north/up at the base [llh].")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (epochs used and why others were not, fixes) on stdout.")
 @click.pass_context
 def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_fix, mask_deg, ratio_threshold, max_age_s,
         sync_tol_s, iono_threshold_km, direction, code_correlation_s, code_noise, age_noise, fix_and_hold, wrong_fix_probability,
-        hold_after_fixes, min_success_rate, float_only, output, as_json):
+        hold_after_fixes, min_success_rate, float_only, output, pos_frame, as_json):
     """Double differences per constellation and frequency, integers by LAMBDA (docs/gnss-pipeline.md, "Multi-GNSS").
 
     The rover's epochs drive the solution: each takes the nearest base epoch within --max-age (a base
@@ -388,7 +391,8 @@ def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_
                        ("sync_tol_s", sync_tol_s), ("iono_threshold_km", iono_threshold_km), ("direction", direction), ("min_success_rate", min_success_rate),
                        ("code_correlation_s", code_correlation_s), ("code_noise", code_noise), ("age_noise", age_noise),
                        ("hold_after_fixes", hold_after_fixes),
-                       ("fix_and_hold", fix_and_hold), ("wrong_fix_probability", wrong_fix_probability)):
+                       ("fix_and_hold", fix_and_hold), ("wrong_fix_probability", wrong_fix_probability),
+                       ("pos_frame", pos_frame)):
         if value is not None:
             options[key] = value
     s = rtk_from_files(list(base_file), list(rover_file), list(nav_files), output, base_xyz_m=base_xyz or None,

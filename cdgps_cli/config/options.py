@@ -157,6 +157,7 @@ MULTI_GNSS_DEFAULTS = {
     "weighting": GNSS_DEFAULTS["weighting"],  # SD variance a² + b²/sin²(el) ("elevation") or a² + b² ("equal"), per receiver
     "amb_sigma_cycles": 30.0, "troposphere": True,
     "iono_threshold_km": IONO_THRESHOLD_KM,  # below: DD ionosphere neglected; above: estimated
+    "pos_frame": "llh",                    # a .pos output's coordinates: "llh", "xyz" (ECEF) or "enu" (baseline; RTKLIB out-solformat)
     "iono_sigma_m_per_km": 0.002,          # prior σ of the SD slant ionosphere per km of baseline
     "iono_rw_m_per_sqrt_s": 0.0005,
     **EPOCH_PAIRING_DEFAULTS,

@@ -125,9 +125,11 @@ def pos_text(time_gps_s, coords, q, ns, cov, age_s, ratio, *, frame: str, header
     cr = np.stack([_signed_root(P[:, i, j]) for i, j in _COV_PAIRS[frame]], axis=1)
     out = [f"% {h}" for h in header]
     out.append("%")
-    out.append("% (Q=1:fix,2:float,5:single,ns=# of satellites; " +
-               ("lat/lon/height=WGS84/ellipsoidal" if frame == "llh" else "ECEF" if frame == "xyz" else "e/n/u-baseline=WGS84")
-               + ")")
+    if frame == "xyz":      # RTKLIB's readers (pos2kml, rtkplot) tell an ECEF file by this comment's "(x/y/z-ecef="
+        out.append("% (x/y/z-ecef=WGS84,Q=1:fix,2:float,5:single,ns=# of satellites)")
+    else:
+        out.append("% (Q=1:fix,2:float,5:single,ns=# of satellites; " +
+                   ("lat/lon/height=WGS84/ellipsoidal" if frame == "llh" else "e/n/u-baseline=WGS84") + ")")
     vel = _velocity_fields(velocity_neu, c.shape[0])
     out.append(f"%  GPST                  {names[0]:>14s} {names[1]:>14s} {names[2]:>14s}   Q  ns "
                + " ".join(f"{n:>8s}" for n in sd_names) + "  age(s)  ratio" + (_POS_VELOCITY_HEAD if vel else ""))

@@ -34,7 +34,7 @@ from cdgps_cli.io.log_sequence import expand_paths, join_tables
 from cdgps_cli.io.rinex import COMPRESSED_MAGIC, NAV_SYSTEMS, read_rinex_nav
 from cdgps_cli.io.rinex_signals import (first_of_repeated_epochs, out_of_order_text, read_rinex_signals,
                                         repeated_epochs_text, signals_in_file)
-from cdgps_cli.io.solution_formats import Q_FIX, Q_FLOAT, csv_text, finite_or, geojson_text, nmea_gga_text, pos_text
+from cdgps_cli.io.solution_formats import POS_FRAMES, Q_FIX, Q_FLOAT, csv_text, finite_or, geojson_text, nmea_gga_text, pos_text
 from cdgps_cli.model.gps.orbits import ecef_to_enu, ecef_to_geodetic, enu_matrix
 from cdgps_cli.model.gps.positioning import antenna_reference_point_m, ephemeris_coverage, rover_delta_note, spp_static
 
@@ -47,6 +47,10 @@ def validate_options(options: dict) -> dict:
     bad = [f"{k}: unknown option" for k in options if k not in MULTI_GNSS_DEFAULTS]
     if opt["mode"] not in RTK_MODES:
         bad.append(f"mode: expected one of {', '.join(repr(m) for m in RTK_MODES)}, got {opt['mode']!r}")
+    if opt["pos_frame"] not in POS_FRAMES:
+        bad.append(f"pos_frame: expected one of {', '.join(repr(f) for f in POS_FRAMES)}, got {opt['pos_frame']!r}")
+    if not (np.isfinite(float(opt["iono_threshold_km"])) and float(opt["iono_threshold_km"]) >= 0):
+        bad.append(f"iono_threshold_km: expected a baseline length in km >= 0, got {opt['iono_threshold_km']}")
     if opt["direction"] not in ("forward", "backward", "combined"):
         bad.append(f"direction: expected 'forward', 'backward' or 'combined', got {opt['direction']!r}")
     if not (np.isfinite(float(opt["code_correlation_s"])) and float(opt["code_correlation_s"]) >= 0):
@@ -123,6 +127,9 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
     consecutive files of one receiver (hourly or daily), joined in time order into one record
     (:func:`_read_receiver`)."""
     opt = validate_options(options or {})
+    if opt["pos_frame"] != MULTI_GNSS_DEFAULTS["pos_frame"] and Path(str(out_csv)).suffix.lower() != ".pos":
+        raise CdgpsError(f"{out_csv}: pos_frame {opt['pos_frame']!r} (--pos-frame) is the coordinates of a .pos output; "
+                         f"this output is not one (its suffix is not .pos)")
     base_files, rover_files = (expand_paths(_as_list(p), f"--{who}") for p, who in ((base_path, "base"), (rover_path, "rover")))
     # a navigation file named twice, or matched by two patterns, is read once (its ephemerides are merged anyway)
     nav_paths = expand_paths(list(nav_paths or ()), "--nav", repeats="once")
@@ -300,6 +307,20 @@ def _velocity_enu(res, lat_deg, lon_deg):
     return np.einsum("nij,nj->ni", R, v), C_enu, np.sqrt(np.abs(np.einsum("nii->ni", C_enu)))
 
 
+def _pos_frame(frame: str, xyz, cov, llh, enu, cov_enu, base_xyz) -> tuple:
+    """A .pos file's coordinates (n, 3) and their covariance (n, 3, 3; m²) in ``frame`` (RTKLIB's out-solformat):
+    "llh" latitude, longitude (deg), height (m) with the covariance in north, east, up at the rover; "xyz" ECEF with
+    its ECEF covariance; "enu" the baseline's east, north, up at the base (RTKLIB's e/n/u-baseline) with the
+    covariance turned to those axes."""
+    if frame == "llh":
+        return np.c_[llh[0], llh[1], llh[2]], cov_enu[:, [1, 0, 2]][:, :, [1, 0, 2]]
+    if frame == "xyz":
+        return xyz, cov
+    bl, bo, _ = ecef_to_geodetic(np.asarray(base_xyz, float))
+    R = enu_matrix(bl, bo)                                      # (3, 3) rows e, n, u at the base
+    return enu, np.einsum("ij,njk,lk->nil", R, cov, R)
+
+
 def _partial_ratio_note(q, ratio, opt: dict) -> list:
     """A .pos header line when a float (Q=2) line's ratio passes the test: there only part of the DD ambiguities was
     fixed (partial fixing; the ratio is that part's) or, combined, the other pass contradicted the fix, and the
@@ -330,11 +351,14 @@ def solution_text(res: dict, sigs, opt: dict, out_path, base_xyz, *, inputs=()) 
             f"ratio {opt['ratio']:g}, max age {opt['max_age_s']:g} s, ionosphere {res['iono_model']}")
     if suffix == ".pos":
         bl, bo, bh = ecef_to_geodetic(np.asarray(base_xyz, float))
-        header = [f"program   : {desc}", *(f"inp file  : {p}" for p in inputs),
-                  f"ref pos   : {np.degrees(bl):.9f} {np.degrees(bo):.9f} {bh:.4f}", *_partial_ratio_note(q, ratio, opt)]
-        cov_neu = cov_enu[:, [1, 0, 2]][:, :, [1, 0, 2]]
+        ref = (" ".join(f"{v:.4f}" for v in np.asarray(base_xyz, float)) if opt["pos_frame"] == "xyz"   # as RTKLIB's
+               else f"{np.degrees(bl):.9f} {np.degrees(bo):.9f} {bh:.4f}")
+        header = [f"program   : {desc}", *(f"inp file  : {p}" for p in inputs), f"ref pos   : {ref}",
+                  *_partial_ratio_note(q, ratio, opt)]
         neu = None if vel is None else (vel[0][:, [1, 0, 2]], vel[1][:, [1, 0, 2]][:, :, [1, 0, 2]])
-        return pos_text(t, np.c_[lat, lon, h], q, ns, cov_neu, age, ratio, frame="llh", header=header, velocity_neu=neu)
+        coords, frame_cov = _pos_frame(opt["pos_frame"], xyz, cov, (lat, lon, h), enu, cov_enu, base_xyz)
+        return pos_text(t, coords, q, ns, frame_cov, age, ratio, frame=opt["pos_frame"], header=header,
+                        velocity_neu=neu)
     if suffix in (".nmea", ".gga"):
         return nmea_gga_text(t, lat, lon, h, q, ns, age)
     if suffix == ".geojson":
