@@ -42,8 +42,11 @@ def test_no_delta_leaves_the_marker_as_it_is_and_no_position_stays_none():
         p = antenna_reference_point_m({"approx_position_xyz_m": MARKER, "antenna_delta_hen_m": delta})
         assert p.tolist() == list(MARKER)                                                  # bit for bit
     assert antenna_reference_point_m({"approx_position_xyz_m": (0.0, 0.0, 0.0), "antenna_delta_hen_m": (1, 0, 0)}) is None
-    with pytest.raises(CdgpsError, match=r"base.obs: ANTENNA: DELTA H/E/N is not three finite numbers"):
-        antenna_reference_point_m({"approx_position_xyz_m": MARKER, "antenna_delta_hen_m": (np.nan, 0, 0)}, "base.obs")
+    for bad in ((np.nan, 0, 0), (1e30, 0, 0), (0, 0, -1.0001e4)):
+        with pytest.raises(CdgpsError, match=r"base.obs: ANTENNA: DELTA H/E/N \(.*\) is not three numbers within "
+                                             r"±10000 m of the marker"):
+            antenna_reference_point_m({"approx_position_xyz_m": MARKER, "antenna_delta_hen_m": bad}, "base.obs")
+    assert np.isfinite(antenna_reference_point_m({"approx_position_xyz_m": MARKER, "antenna_delta_hen_m": (1e4, 0, 0)})).all()
 
 
 def test_a_rover_delta_is_said_not_applied():

@@ -79,6 +79,10 @@ __all__ = [
 # ----------------------------------------------------------------------------------------------
 
 
+#: an antenna farther than this from its marker in any axis is refused (m): a header's nonsense, not a mast
+ANTENNA_DELTA_MAX_M = 1.0e4
+
+
 def antenna_reference_point_m(header: dict, what: str = "the header"):
     """The antenna reference point (ARP) of a RINEX header's station, ECEF m (3,): its APPROX POSITION XYZ (the
     marker) plus its ``ANTENNA: DELTA H/E/N`` (the ARP's height above the marker and its east and north offsets, m)
@@ -89,14 +93,16 @@ def antenna_reference_point_m(header: dict, what: str = "the header"):
     centimetres to metres): the phases are the antenna's.  RTKLIB's ``rnx2rtkp`` does the same with a base position
     taken from its header (``ant2-postype=rinexhead``; measured: a DELTA H/E/N of 0.5 / 0.1 / −0.2 m moves its rover
     by that vector) and applies no delta to a position given as coordinates or to the rover's header.  ``what``
-    names the file in the error raised for a delta that is not three finite numbers."""
+    names the file in the error raised for a delta that is not three finite numbers within
+    :data:`ANTENNA_DELTA_MAX_M` of the marker."""
     pos = header_position_m(header)
     delta = header.get("antenna_delta_hen_m")
     if pos is None or delta is None:
         return pos
     h, e, n = (float(v) for v in delta)
-    if not all(math.isfinite(v) for v in (h, e, n)):
-        raise CdgpsError(f"{what}: ANTENNA: DELTA H/E/N is not three finite numbers ({h!r} {e!r} {n!r} m)")
+    if not all(math.isfinite(v) and abs(v) <= ANTENNA_DELTA_MAX_M for v in (h, e, n)):
+        raise CdgpsError(f"{what}: ANTENNA: DELTA H/E/N ({h!r} {e!r} {n!r} m) is not three numbers within "
+                         f"±{ANTENNA_DELTA_MAX_M:g} m of the marker")
     if h == e == n == 0.0:
         return pos
     lat, lon, _ = ecef_to_geodetic(pos)
