@@ -508,6 +508,33 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
     writes the run with :func:`write_gnss_run`.
     """
     say = progress or (lambda m: None)
+    files, pieces = _ingest_files(cfg, rinex, ubx)
+    master = master or cfg.master or (next(iter(files)) if len(files) == 1 else None)
+    if not master:
+        raise CdgpsError(f"--master is required: which of {', '.join(files)} is the reference receiver at a known position")
+    if master not in files:
+        raise CdgpsError(f"master {master!r} is not one of the receivers given: {', '.join(files)}")
+    nav_list = expand_paths(list(cfg.nav), f"{cfg.path}: [gnss] nav") if nav_paths is None else \
+        expand_paths([str(p) for p in nav_paths], "--nav")
+    _refuse_overwriting_an_input(Path(out_path), pieces, nav_list)
+    warnings: list[str] = []
+    receivers, joins = _read_receivers(cfg, files, pieces, say, strict, warnings)
+    # master first, then the others in the given order
+    receivers = {master: receivers[master], **{n: r for n, r in receivers.items() if n != master}}
+    integrity = _ubx_integrity(receivers, files)
+    for n, rx in receivers.items():
+        warnings += _receiver_warnings(n, files[n][1], rx)
+    nav_ahead, glonass_k = _glonass_nav(cfg.signals, nav_list)
+    if cfg.signals:
+        _read_signal_tables(cfg.signals, receivers, files, say, glonass_k, pieces)
+    nav, nav_source = _ingest_nav(cfg, nav_list, nav_ahead, receivers, files, pieces, master, say, warnings)
+    return IngestInputs(files, master, nav_list, receivers, nav, integrity, warnings, nav_source, pieces, joins)
+
+
+def _ingest_files(cfg: GnssConfig, rinex: dict | None, ubx: dict | None) -> tuple[dict, dict]:
+    """The receivers' files of an ingest: (antenna → (kind, file or the text of its pieces), antenna → the files
+    its patterns expand to), from --rinex/--ubx or else the config's [gnss.antennas.NAME] tables; CdgpsError for an
+    antenna given twice, one without a file, or none at all."""
     files: dict = {}
     if rinex or ubx:
         for kind, d in (("rinex", rinex or {}), ("ubx", ubx or {})):
@@ -531,14 +558,11 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
     if not files:
         raise CdgpsError("no receiver files: give --rinex NAME=FILE / --ubx NAME=FILE, or list them in the config's "
                          "[gnss.antennas.NAME] tables")
-    master = master or cfg.master or (next(iter(files)) if len(files) == 1 else None)
-    if not master:
-        raise CdgpsError(f"--master is required: which of {', '.join(files)} is the reference receiver at a known position")
-    if master not in files:
-        raise CdgpsError(f"master {master!r} is not one of the receivers given: {', '.join(files)}")
-    nav_list = expand_paths(list(cfg.nav), f"{cfg.path}: [gnss] nav") if nav_paths is None else \
-        expand_paths([str(p) for p in nav_paths], "--nav")
-    out_path = Path(out_path)
+    return files, pieces
+
+
+def _refuse_overwriting_an_input(out_path: Path, pieces: dict, nav_list: list) -> None:
+    """CdgpsError when the output is one of the receivers' or navigation files."""
     for n, ps in pieces.items():
         for p in ps:
             if Path(p).resolve() == out_path.resolve():
@@ -546,11 +570,14 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
     for p in nav_list:
         if Path(p).resolve() == out_path.resolve():
             raise CdgpsError(f"{out_path}: the output would overwrite the navigation file {p}")
-    warnings: list[str] = []
 
-    receivers, joins = {}, {}
+
+def _read_receivers(cfg: GnssConfig, files: dict, pieces: dict, say, strict: bool, warnings: list) -> tuple[dict, dict]:
+    """Each antenna's receiver (its consecutive files joined in time order: ``files`` and ``pieces`` updated to that
+    order) and the joins' records; the joins' warnings appended to ``warnings``."""
     from cdgps_cli.core.signals import anchor_signal  # noqa: PLC0415
 
+    receivers, joins = {}, {}
     l1_opt = anchor_signal(cfg.signals) is not None       # epochs and clocks from another signal: GPS L1 not needed
     if all(len(ps) == 1 for ps in pieces.values()):
         receivers = _read_single_files(files, pieces, say, strict, l1_opt)
@@ -570,15 +597,13 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
         if strict:
             _refuse_lost_data(n, receivers[n], pieces[n])
         warnings.extend(w)
-    # master first, then the others in the given order
-    receivers = {master: receivers[master], **{n: r for n, r in receivers.items() if n != master}}
-    integrity = _ubx_integrity(receivers, files)
-    for n, rx in receivers.items():
-        warnings += _receiver_warnings(n, files[n][1], rx)
+    return receivers, joins
 
-    nav_ahead, glonass_k = _glonass_nav(cfg.signals, nav_list)
-    if cfg.signals:
-        _read_signal_tables(cfg.signals, receivers, files, say, glonass_k, pieces)
+
+def _ingest_nav(cfg: GnssConfig, nav_list: list, nav_ahead, receivers: dict, files: dict, pieces: dict, master: str,
+                say, warnings: list) -> tuple:
+    """The run's broadcast ephemerides and where they come from: the navigation files, else the UBX logs' RXM-SFRBX
+    subframes (CdgpsError when a UBX-only pair has neither), else none (a warning: ``init`` needs them)."""
     nav = None
     sf_navs = [rx.nav for rx in receivers.values() if rx.nav is not None and len(rx.nav)]
     nav_source = ",".join(Path(p).name for p in nav_list)
@@ -599,7 +624,7 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
     elif not sf_navs:               # SFRBX ephemerides are a navigation source (issue 28)
         warnings.append("no navigation file: the run has no ephemerides, and 'cdgps init' needs them "
                         "(ingest again with --nav, or list nav files in the config)")
-    return IngestInputs(files, master, nav_list, receivers, nav, integrity, warnings, nav_source, pieces, joins)
+    return nav, nav_source
 
 
 _LOSS_OFFSETS = ("bad_frame_offsets", "undecodable_frame_offsets", "bad_rtcm_offsets")
