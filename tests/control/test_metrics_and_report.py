@@ -74,25 +74,33 @@ def pulse_runs(tmp_path_factory, testbed_path):
     return d
 
 
-def test_pulse_report(pulse_runs, tmp_path):
-    d = pulse_runs
-    r = _run("report", "control", d / "g.json", "--open", d / "open", "--closed", d / "closed", "-o", tmp_path / "rep",
+@pytest.fixture(scope="module")
+def pulse_report(pulse_runs, tmp_path_factory):
+    """`cdgps report control` of the pulse runs with --json, once for the tests reading it: (result, its folder)."""
+    d, out = pulse_runs, tmp_path_factory.mktemp("pulse_report") / "rep"
+    r = _run("report", "control", d / "g.json", "--open", d / "open", "--closed", d / "closed", "-o", out,
              "--date", "2026-12-02", "--json")
     assert r.exit_code == 0, r.output
+    return r, out
+
+
+def test_pulse_report(pulse_runs, pulse_report, tmp_path):
+    d = pulse_runs
+    r, rep = pulse_report
     data = json.loads(r.stdout)
     assert data["scenario"] == "pulse"
     assert data["metrics"]["closed"]["q5"]["peak_ratio"] < 0.5
     assert data["controllers"]["closed"]["estimator_process_noise_scale"] > 1.0     # the separation rule
-    md = (tmp_path / "rep" / "report.md").read_text()
+    md = (rep / "report.md").read_text()
     assert "## Controller" in md and "(met)" in md
-    names = sorted(p.name for p in (tmp_path / "rep").iterdir())
+    names = sorted(p.name for p in rep.iterdir())
     assert names == ["coordinates.png", "poles.png", "pulse.png", "report.html", "report.json", "report.md"]
-    html = (tmp_path / "rep" / "report.html").read_text()
+    html = (rep / "report.html").read_text()
     assert "Provenance" in html and "sha256" in html and "Figure 1" in html
     r2 = _run("report", "control", d / "g.json", "--open", d / "open", "--closed", d / "closed", "-o", tmp_path / "rep2",
               "--date", "2026-12-02")
     for n in names:
-        assert (tmp_path / "rep" / n).read_bytes() == (tmp_path / "rep2" / n).read_bytes(), n
+        assert (rep / n).read_bytes() == (tmp_path / "rep2" / n).read_bytes(), n
 
 
 @pytest.mark.parametrize("args,words", [
@@ -142,16 +150,14 @@ def _bare_name(column: str) -> str:
     return column.removesuffix("_rad").removesuffix("_m") if column != "time_s" else column
 
 
-def test_control_reports_check_every_coordinate(pulse_runs, tmp_path):
+def test_control_reports_check_every_coordinate(pulse_runs, pulse_report):
     """Every generalized coordinate, q3, q6, q9 and q10 included, is in the pulse report, checked from 3 s
     after the pulse against its limit (q10 about its value at the pulse start), with the numbers computed
     from truth.csv, and each limit's source named: the paper's for q2/q5/q8, ours for the rest."""
     import pandas as pd
 
     d = pulse_runs
-    r = _run("report", "control", d / "g.json", "--open", d / "open", "--closed", d / "closed", "-o", tmp_path / "rep",
-             "--date", "2026-12-02", "--json")
-    assert r.exit_code == 0, r.output
+    r, rep = pulse_report
     checks = json.loads(r.stdout)["coordinates"]["closed"]
     assert list(checks) == [f"q{i}" for i in range(1, 11)]
     q = pd.read_csv(d / "closed" / "truth.csv").rename(columns=_bare_name)
@@ -167,7 +173,7 @@ def test_control_reports_check_every_coordinate(pulse_runs, tmp_path):
     assert all(src[n].startswith("the paper's") for n in ("q2", "q5", "q8"))
     assert all(src[n].startswith("ours") and "paper states no limit" in src[n] for n in ("q1", "q3", "q4", "q6", "q7", "q9"))
     assert src["q10"].startswith("ours") and "Sec. VI.C" in src["q10"]
-    md = (tmp_path / "rep" / "report.md").read_text()
+    md = (rep / "report.md").read_text()
     assert "## Every coordinate" in md and "| q3 |" in md and "| q9 |" in md and "| q10 |" in md
     assert "Where each limit comes from" in md and "| limit | ≤ 17.5 mm from 9 s |" in md
 
@@ -239,7 +245,7 @@ def test_simulate_refuses_a_gain_of_another_sample_period(pulse_runs, testbed_pa
     assert not (tmp_path / "sim").exists()
 
 
-def test_every_coordinate_is_drawn_against_the_limit_the_report_states(pulse_runs, tmp_path):
+def test_every_coordinate_is_drawn_against_the_limit_the_report_states(pulse_runs, pulse_report):
     """Issues 31, 33: the closed loop's q1…q10 (q3/q6/q9 included) in coordinates.png, each drawn against
     the limit the 'Every coordinate' table checks (the same value, centre and start), its title naming the
     source; after a pulse q2, q5, q8 also carry the 'back within' band (10 % of the open-loop first peak)."""
@@ -249,9 +255,7 @@ def test_every_coordinate_is_drawn_against_the_limit_the_report_states(pulse_run
     from cdgps_cli.control.metrics import BACK_FRACTION, first_peak_deg
 
     d = pulse_runs
-    r = _run("report", "control", d / "g.json", "--open", d / "open", "--closed", d / "closed", "-o", tmp_path / "rep",
-             "--date", "2026-12-02", "--json")
-    assert r.exit_code == 0, r.output
+    r, rep = pulse_report
     limits = json.loads(r.stdout)["coordinate_limits"]
     assert sorted(limits, key=lambda n: int(n[1:])) == [f"q{i}" for i in range(1, 11)]
     open_q = pd.read_csv(d / "open" / "truth.csv").rename(columns=_bare_name)
@@ -267,8 +271,8 @@ def test_every_coordinate_is_drawn_against_the_limit_the_report_states(pulse_run
             assert back[0]["half_width"] == pytest.approx(BACK_FRACTION * peak) and back[0]["from_s"] == start["start_s"]
         else:
             assert back == [], n
-    im = Image.open(tmp_path / "rep" / "coordinates.png")
+    im = Image.open(rep / "coordinates.png")
     assert im.size[0] >= 1000 and im.size[1] >= 900                 # ten panels at print size
     caption = json.loads(r.stdout)["captions"]["coordinates.png"]
-    assert "Figure" in (tmp_path / "rep" / "report.html").read_text() and "checks" in caption
+    assert "Figure" in (rep / "report.html").read_text() and "checks" in caption
     assert "no limit" not in caption

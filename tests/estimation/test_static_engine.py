@@ -297,15 +297,25 @@ def _mosaic_stations():
     return st, read_rinex_nav(MOSAIC / "base.nav", systems=("G",))
 
 
-def test_baseline_on_the_engine_says_so_and_falls_back_by_name(monkeypatch):
+@pytest.fixture(scope="module")
+def mosaic():
+    """The mosaic pair's stations and nav, and its static baseline with default options on the batch and on
+    the engine, each solved once for the tests that compare with them (read only)."""
+    from cdgps_cli.estimation.baseline import solve_static_baseline
+    (b, r), nav = _mosaic_stations()
+    return {"stations": (b, r), "nav": nav, "batch": solve_static_baseline(b, r, nav),
+            "engine": solve_static_baseline(b, r, nav, engine=True)}
+
+
+def test_baseline_on_the_engine_says_so_and_falls_back_by_name(mosaic, monkeypatch):
     """solve_static_baseline(engine=True) reports the engine's numbers ("solver": "static_engine"; its fixed
     position is the engine's, not the batch's 0.019 mm away); an option only the batch implements, or engine
     arcs that are not the segments, give the batch's result, bit for bit, with the reason in "solver"."""
     from cdgps_cli.estimation import static_engine
     from cdgps_cli.estimation.baseline import BaselineOptions, solve_static_baseline
-    (b, r), nav = _mosaic_stations()
-    batch = solve_static_baseline(b, r, nav)
-    eng = solve_static_baseline(b, r, nav, engine=True)
+    (b, r), nav = mosaic["stations"], mosaic["nav"]
+    batch = mosaic["batch"]                          # solve_static_baseline(b, r, nav)
+    eng = mosaic["engine"]                           # solve_static_baseline(b, r, nav, engine=True)
     assert batch["solver"] == "batch (engine not asked for)" and eng["solver"] == "static_engine"
     assert [s["integer"] for s in eng["ambiguities"]["segments"]] == [s["integer"] for s in batch["ambiguities"]["segments"]]
     dx = np.subtract(eng["fixed"]["enu_m"], batch["fixed"]["enu_m"])
@@ -329,14 +339,14 @@ def test_engine_arc_integers_relative_to_the_reference():
     assert np.isnan(got[:3]).all() and np.isnan(arc_integers({**fix, "resolution": None}, 6)).all()
 
 
-def test_arcs_that_are_not_the_segments_skip_the_solve(monkeypatch):
+def test_arcs_that_are_not_the_segments_skip_the_solve(mosaic, monkeypatch):
     """Engine arcs that are not the batch's segments are found before the engine's filter runs (issue 29: a
     24 h pair's thrown-away solve cost 41 s CPU and 4.6 GB): no static_least_squares call, the batch's result bit for
     bit; ``arcs_check`` returning an array (the arcs fit) lets the solve run unchanged."""
     from cdgps_cli.estimation import static_engine
     from cdgps_cli.estimation.baseline import solve_static_baseline
-    (b, r), nav = _mosaic_stations()
-    batch = solve_static_baseline(b, r, nav)
+    (b, r), nav = mosaic["stations"], mosaic["nav"]
+    batch = mosaic["batch"]                          # solve_static_baseline(b, r, nav)
     real = static_engine.arc_table
     monkeypatch.setattr(static_engine, "arc_table", lambda *a: {k: v[1:] for k, v in real(*a).items()})
 
@@ -376,17 +386,17 @@ def test_engine_shows_lambda_progress_unless_quiet(monkeypatch, tmp_path):
 
 
 @pytest.mark.parametrize("sigma", [(0.001, 0.001, 0.001), (0.01, 0.01, 0.03)])
-def test_random_walk_float_on_the_engine_equals_the_batch(sigma):
+def test_random_walk_float_on_the_engine_equals_the_batch(mosaic, sigma):
     """motion = "random_walk" on the engine (drive with an east/north/up random walk of the offset and constant arc
     ambiguities) equals the batch's random-walk float (an exact least squares, baseline._float_random_walk) on the
     mosaic pair (301 s): float ambiguities within 1e-3 cycles (measured 2.5e-4, the static engine's own distance
     from the batch), their σ within 1e-4 relative (1.4e-6), the same integers, fixed position within 0.1 mm
     (0.019); and it is not the static float (the walk moves the floats by up to 0.7 cycles)."""
     from cdgps_cli.estimation.baseline import BaselineOptions, solve_static_baseline
-    (b, r), nav = _mosaic_stations()
+    (b, r), nav = mosaic["stations"], mosaic["nav"]
     o = BaselineOptions(motion="random_walk", random_walk_sigma=sigma)
     batch, eng = solve_static_baseline(b, r, nav, o), solve_static_baseline(b, r, nav, o, engine=True)
-    static = solve_static_baseline(b, r, nav, engine=True)
+    static = mosaic["engine"]                        # solve_static_baseline(b, r, nav, engine=True)
     assert eng["solver"] == "static_engine" and eng["float"]["motion"] == "random_walk"
 
     def col(res, k):

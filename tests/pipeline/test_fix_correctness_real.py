@@ -32,12 +32,27 @@ def _solve(tmp_path, base, rover, nav, base_xyz, signals, **options):
     return s, d["time_gps_s"].to_numpy(), d[["e_m", "n_m", "u_m"]].to_numpy(), d["fixed"].to_numpy() == 1
 
 
+@pytest.fixture(scope="module")
+def solved(tmp_path_factory):
+    """:func:`_solve` with default options, each (pair, signals) solved once in the module (several tests solve the
+    same pair with the same signals): ``solved(base, rover, nav, base_xyz, signals)``, read only."""
+    cache, d = {}, tmp_path_factory.mktemp("solved")
+
+    def get(base, rover, nav, base_xyz, signals):
+        key = (str(base), str(rover), str(nav), tuple(base_xyz), signals)
+        if key not in cache:
+            (d / str(len(cache))).mkdir()
+            cache[key] = _solve(d / str(len(cache)), base, rover, nav, base_xyz, signals)
+        return cache[key]
+    return get
+
+
 def _wrong(enu, fixed, answer) -> int:
     return int((fixed & (np.linalg.norm(enu - np.asarray(answer), axis=1) > 0.05)).sum())
 
 
-def test_car_fixes_at_least_rtklibs_epochs_and_none_wrong_where_known(tmp_path):
-    s, t, enu, fixed = _solve(tmp_path, CAR / "3034265G.21O", CAR / "SEPT265G.21O", CAR / "SEPT2650.21P", CAR_BASE,
+def test_car_fixes_at_least_rtklibs_epochs_and_none_wrong_where_known(solved):
+    s, t, enu, fixed = solved(CAR / "3034265G.21O", CAR / "SEPT265G.21O", CAR / "SEPT2650.21P", CAR_BASE,
                               ("G:L1", "E:E1"))
     t = t - t[0]
     start, end = t <= 34, t >= 312
@@ -47,7 +62,7 @@ def test_car_fixes_at_least_rtklibs_epochs_and_none_wrong_where_known(tmp_path):
     assert _wrong(enu, fixed & end, (5049.078, 1691.873, -1.360)) == 0
 
 
-def test_a_new_arc_that_fails_the_set_leaves_the_fixed_arcs_fixed(tmp_path):
+def test_a_new_arc_that_fails_the_set_leaves_the_fixed_arcs_fixed(tmp_path, solved):
     """rtk_multi._fix's retry without the arcs that were in no accepted fix yet (RTKLIB demo5's arfilter).  The
     mosaic base's C02 B2I phase is missing at 08:24:53 only: the arc starts again, its float (from a float position
     ~10 cm off, which the held integers do not move) fails the ratio of the whole set, and the forward pass lost two
@@ -58,8 +73,7 @@ def test_a_new_arc_that_fails_the_set_leaves_the_fixed_arcs_fixed(tmp_path):
                               ("E:E1", "E:E5a", "E:E5b", "C:B1I", "C:B2I"), direction="forward")
     assert fixed.sum() == 301 and _wrong(enu, fixed, MOSAIC_ENU) == 0 and s["wrong_fix_resets"] == 0
     for signals, at_least in ((("G:L1", "E:E1"), 48), ("auto", 48)):
-        s, t, enu, fixed = _solve(tmp_path, CAR / "3034265G.21O", CAR / "SEPT265G.21O", CAR / "SEPT2650.21P",
-                                  CAR_BASE, signals)
+        s, t, enu, fixed = solved(CAR / "3034265G.21O", CAR / "SEPT265G.21O", CAR / "SEPT2650.21P", CAR_BASE, signals)
         t = t - t[0]
         start, end = t <= 34, t >= 312
         assert (fixed & end).sum() >= at_least and (fixed & start).sum() == 35, (signals, (fixed & end).sum())
@@ -69,8 +83,8 @@ def test_a_new_arc_that_fails_the_set_leaves_the_fixed_arcs_fixed(tmp_path):
 
 
 @pytest.mark.parametrize("signals", [("G:L1",), ("E:E1",), ("G:L1", "E:E1")])
-def test_static_pair_run_kinematic_fixes_every_epoch_right(tmp_path, signals):
-    s, _, enu, fixed = _solve(tmp_path, MOSAIC / "base.obs", MOSAIC / "rover.obs", MOSAIC / "base.nav", MOSAIC_BASE, signals)
+def test_static_pair_run_kinematic_fixes_every_epoch_right(solved, signals):
+    s, _, enu, fixed = solved(MOSAIC / "base.obs", MOSAIC / "rover.obs", MOSAIC / "base.nav", MOSAIC_BASE, signals)
     assert fixed.sum() == 301 and _wrong(enu, fixed, MOSAIC_ENU) == 0 and s["wrong_fix_resets"] == 0
 
 
@@ -155,14 +169,14 @@ def test_an_unflagged_slip_releases_one_ambiguity_and_the_fix_stays(tmp_path, cy
     assert fixed[after].sum() >= after.sum() - 3, (fixed[after].sum(), after.sum())
 
 
-def test_the_code_noise_of_the_real_receivers(tmp_path):
+def test_the_code_noise_of_the_real_receivers(tmp_path, solved):
     """code_noise "auto" on the real pairs: the geodetic receivers' code-minus-carrier over 30 s is what their
     model says or better (factor 1: the mosaic pair stays near it, GEONET's Trimble is far below), the
     u-blox walk's UBX log tens of times worse; "model" keeps 1 and says so."""
-    s, *_ = _solve(tmp_path, MOSAIC / "base.obs", MOSAIC / "rover.obs", MOSAIC / "base.nav", MOSAIC_BASE, ("G:L1",))
+    s, *_ = solved(MOSAIC / "base.obs", MOSAIC / "rover.obs", MOSAIC / "base.nav", MOSAIC_BASE, ("G:L1",))
     c = s["code_noise"]
     assert c["mode"] == "auto" and 1.0 <= c["variance_factor"] < 4.0 and min(c["windows"].values()) >= 50, c
-    s, *_ = _solve(tmp_path, CAR / "3034265G.21O", CAR / "SEPT265G.21O", CAR / "SEPT2650.21P", CAR_BASE, ("G:L1",))
+    s, *_ = solved(CAR / "3034265G.21O", CAR / "SEPT265G.21O", CAR / "SEPT2650.21P", CAR_BASE, ("G:L1",))
     assert s["code_noise"]["variance_factor"] == 1.0 and max(s["code_noise"]["estimates"].values()) < 1.0
     walk = PAIRS / "ublox-walk"
     out = tmp_path / "walk.csv"

@@ -569,16 +569,23 @@ def test_init_raises_a_walk_too_slow_for_the_simulated_rover(tmp_path):
     assert not any("did not hold" in w for w in true["warnings"])
 
 
-def test_single_receiver_run_is_refused_by_init(tmp_path):
-    d = tmp_path / "s"
+@pytest.fixture(scope="module")
+def short_pair(tmp_path_factory):
+    """`cdgps simulate-gnss --duration 60` (default seed), once for the two refusal tests below (read only)."""
+    d = tmp_path_factory.mktemp("short") / "s"
     assert run_cli("-q", "simulate-gnss", "--duration", "60", "--out", d).exit_code == 0
+    return d
+
+
+def test_single_receiver_run_is_refused_by_init(short_pair, tmp_path):
+    d = short_pair
     r = run_cli("-q", "ingest", "--rinex", f"b={d / 'base.rnx'}", "--nav", d / "nav.rnx", "-o", tmp_path / "one.mcap")
     assert r.exit_code == 0, r.output
     r = run_cli("init", tmp_path / "one.mcap", "-o", tmp_path / "i.json")
     assert r.exit_code == 2 and "only the master receiver 'b'" in r.stderr and not (tmp_path / "i.json").exists()
 
 
-def test_a_solver_error_names_the_run_and_the_files(tmp_path, monkeypatch):
+def test_a_solver_error_names_the_run_and_the_files(short_pair, tmp_path, monkeypatch):
     # 'cdgps init' of a RUN from a badly damaged u-blox log said only 'float solution: the normal equations are
     # singular (...)', naming no file; 'cdgps baseline' the same
     import cdgps_cli.pipeline.baseline_job as baseline_job
@@ -587,8 +594,7 @@ def test_a_solver_error_names_the_run_and_the_files(tmp_path, monkeypatch):
     def singular(*args, **kwargs):
         raise CdgpsError("float solution: the normal equations are singular (too few satellites or epochs for the unknowns)")
 
-    d = tmp_path / "s"
-    assert run_cli("-q", "simulate-gnss", "--duration", "60", "--out", d).exit_code == 0
+    d = short_pair
     rinex = sorted(d.glob("*.rnx"))
     obs = [p for p in rinex if p.name != "nav.rnx"]
     args = [x for k, p in zip("ab", obs) for x in ("--rinex", f"{k}={p}")] + ["--nav", d / "nav.rnx", "--master", "a"]

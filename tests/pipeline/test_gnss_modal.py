@@ -60,6 +60,25 @@ def tower(tmp_path_factory):
     return tmp, cfg, sim, json.loads((tmp / "init.json").read_text()), json.loads(r.stdout), ev
 
 
+@pytest.fixture(scope="module")
+def tower_run(tower):
+    """The tower's RUN.mcap read once (read only by the tests)."""
+    return read_gnss_run(tower[0] / "run.mcap")
+
+
+@pytest.fixture(scope="module")
+def modal_default(tower, tower_run, tmp_path_factory):
+    """gnss_modal_estimate on the integer INIT with the default 60 s batch-init window (the same call
+    test_float_only_init_is_fixed_by_the_modal_batch_init and test_the_window_grows_until_every_integer_is_fixed
+    compare with; computed once)."""
+    from cdgps_cli.pipeline.gnss_modal import INIT_WINDOW_S
+
+    assert INIT_WINDOW_S == 60.0
+    tmp, *_ = tower
+    text = (tmp / "init.json").read_text()
+    return gnss_modal_estimate(tower_run, json.loads(text), text, tower[1], tmp_path_factory.mktemp("modal") / "z.mcap")
+
+
 def test_integers_fixed_and_right(tower):
     tmp, cfg, sim, init, _, _ = tower
     truth = sim["integers"]                         # per receiver and satellite (one lock segment each here)
@@ -194,22 +213,21 @@ def test_cli_refuses_bad_structure_mappings(tower, tmp_path):
     assert not (tmp_path / "x.mcap").exists()
 
 
-def test_float_only_init_is_fixed_by_the_modal_batch_init(tower, tmp_path):
+def test_float_only_init_is_fixed_by_the_modal_batch_init(tower, tower_run, modal_default, tmp_path):
     """A float-only INIT has no integers: the modal batch initialization fixes the window's own
     (the same as the integer INIT's, which test_integers_fixed_and_right checks against the truth);
     without it the estimate is refused."""
     tmp, cfg, *_ = tower
     assert run_cli("-q", "init", tmp / "run.mcap", "--float-only", "-o", tmp_path / "float.json").exit_code == 0
     text = (tmp_path / "float.json").read_text()
-    run = read_gnss_run(tmp / "run.mcap")
+    run = tower_run
     with pytest.raises(CdgpsError, match="no fixed integers"):
         gnss_modal_estimate(run, json.loads(text), text, cfg, tmp_path / "x.mcap", batch_init=False)
     assert not (tmp_path / "x.mcap").exists()
     out = gnss_modal_estimate(run, json.loads(text), text, cfg, tmp_path / "y.mcap", init_window_s=60.0)
     mi = out["modal_init"]
     assert mi["n_fixed"] == mi["n_segments"] >= 10 and mi["agree_with_init"]["compared"] == 0
-    good = json.loads((tmp / "init.json").read_text())
-    ref = gnss_modal_estimate(run, good, (tmp / "init.json").read_text(), cfg, tmp_path / "z.mcap")
+    ref = modal_default                     # gnss_modal_estimate(run, the integer INIT, its text, cfg, …): defaults
     assert ref["modal_init"]["agree_with_init"]["equal"] == ref["modal_init"]["agree_with_init"]["compared"] >= 10
     assert [s["integer_cycles"] for s in mi["segments"]] == [s["integer_cycles"] for s in ref["modal_init"]["segments"]]
 
@@ -238,7 +256,7 @@ def test_simulate_gnss_structure_bad_input_leaves_nothing(tmp_path, args, messag
     assert not out.exists()
 
 
-def test_init_with_structure_writes_the_modal_init_and_estimate_uses_it(tower, tmp_path):
+def test_init_with_structure_writes_the_modal_init_and_estimate_uses_it(tower, tower_run, tmp_path):
     """`cdgps init RUN --structure S` adds INIT.json's modal_init (the batch initialization on the
     first 60 s); `estimate --structure S` applies it instead of solving the window again."""
     tmp, cfg, sim, *_ = tower
@@ -249,7 +267,7 @@ def test_init_with_structure_writes_the_modal_init_and_estimate_uses_it(tower, t
     assert mi["structure_sha256"] == cfg.sha256 and mi["window"]["epochs"] == 60
     assert mi["n_fixed"] == mi["n_segments"] >= 10 and mi["agree_with_init"]["equal"] == mi["agree_with_init"]["compared"]
     text = (tmp_path / "init.json").read_text()
-    run = read_gnss_run(tmp / "run.mcap")
+    run = tower_run
     used = gnss_modal_estimate(run, init, text, cfg, tmp_path / "a.mcap")["modal_init"]
     assert used is not None and used["segments"] == mi["segments"] and "structure_sha256" in used
     # another azimuth: the stored record does not apply, the window is solved again
@@ -259,7 +277,7 @@ def test_init_with_structure_writes_the_modal_init_and_estimate_uses_it(tower, t
     assert r.exit_code == 2 and "--receiver needs --structure" in r.output and not (tmp_path / "bad.json").exists()
 
 
-def test_the_window_grows_until_every_integer_is_fixed(tower, tmp_path, monkeypatch):
+def test_the_window_grows_until_every_integer_is_fixed(tower, tower_run, modal_default, tmp_path, monkeypatch):
     """A first window whose integers are not all fixed is extended ×1.5 up to 3× (and no further);
     each attempt is recorded.  Windows under 25 epochs are made to fail here, so the growth path is
     taken whatever the data: 10 s → 15 s → 22.5 s → 30 s (the cap), where the real fix stands."""
@@ -276,7 +294,7 @@ def test_the_window_grows_until_every_integer_is_fixed(tower, tmp_path, monkeypa
 
     monkeypatch.setattr(model_init, "model_batch_init", weak)
     tmp, cfg, *_ = tower
-    run = read_gnss_run(tmp / "run.mcap")
+    run = tower_run
     text = (tmp / "init.json").read_text()
     mi = gnss_modal_estimate(run, json.loads(text), text, cfg, tmp_path / "g.mcap", init_window_s=10.0)["modal_init"]
     tried = mi["windows_tried"]
@@ -284,12 +302,12 @@ def test_the_window_grows_until_every_integer_is_fixed(tower, tmp_path, monkeypa
     solved = [w for w in tried if "refused" not in w]     # a window may be refused (not converged): skipped
     assert all(w["n_fixed"] == 0 for w in solved if w["epochs"] < 25)
     assert solved[-1]["n_fixed"] == mi["n_fixed"] and mi["window"]["epochs"] == solved[-1]["epochs"]
-    # a window fixed at once is not extended and records no attempts
-    mi60 = gnss_modal_estimate(run, json.loads(text), text, cfg, tmp_path / "h.mcap", init_window_s=60.0)["modal_init"]
+    # a window fixed at once is not extended and records no attempts (the default window, 60 s, unpatched)
+    mi60 = modal_default["modal_init"]
     assert "windows_tried" not in mi60 and mi60["window"]["epochs"] == 60
 
 
-def test_the_set_up_keeps_only_what_the_modal_filter_reads(tower):
+def test_the_set_up_keeps_only_what_the_modal_filter_reads(tower, tower_run):
     """Issue 29: each rover's table keeps neither the baseline's result nor its working arrays, and of
     its SD table only the fields read after the set-up (the same arrays, not copies)."""
     from cdgps_cli.io.gnss_run import read_gnss_run
@@ -297,7 +315,7 @@ def test_the_set_up_keeps_only_what_the_modal_filter_reads(tower):
     from cdgps_cli.pipeline.gnss import _stations, solve_with_init_integers
 
     tmp, cfg, _, init, _, _ = tower
-    run = read_gnss_run(tmp / "run.mcap")
+    run = tower_run
     su = gnss_modal._modal_setup(run, init, cfg, None, 90.0, lambda m: None)
     for tb in su.tabs:
         assert tb["res"] is None and set(tb["w"]) == {"known_seg"}

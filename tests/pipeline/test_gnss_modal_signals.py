@@ -219,13 +219,18 @@ def test_a_slip_no_receiver_flagged_is_cut_where_init_cut_it(tmp_path):
     outlier at every epoch from 100 s (51 events).  Its segments now start where INIT's do: a later window fixes the
     new segment (its SD integer one cycle from the first's), no DD is rejected, and the states are the unedited
     record's.  An INIT whose modal_init was made on other segments is refused by name."""
+    import shutil
+
     from tests.pipeline.test_init_real_edits import _slip
     out = {}
+    r = run_cli("-q", "simulate-gnss-structure", TOWER, "--duration", 150, "--seed", 3, "--signals", "G:L1,E:E1",
+                "--out", tmp_path / "ref")
+    assert r.exit_code == 0, r.output
+    shutil.copytree(tmp_path / "ref", tmp_path / "slip")     # the same simulation (same seed: the same bytes), then edited
+    assert "/" not in "".join(ln for ln in (tmp_path / "ref" / "config.toml").read_text().splitlines()
+                              if ln.startswith(("rinex", "nav")))                  # its files named relative to it
     for tag in ("ref", "slip"):
         d = tmp_path / tag
-        r = run_cli("-q", "simulate-gnss-structure", TOWER, "--duration", 150, "--seed", 3, "--signals", "G:L1,E:E1",
-                    "--out", d)
-        assert r.exit_code == 0, r.output
         if tag == "slip":
             (d / "r1.rnx").write_text(_slip((d / "r1.rnx").read_text(), "G03", "L1C", 100, 1.0))
         for args in (("ingest", "--config", d / "config.toml", "-o", d / "run.mcap"),

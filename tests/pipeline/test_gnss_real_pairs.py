@@ -239,21 +239,33 @@ def test_rover_without_a_header_position_gets_a_single_point_position(files, ori
     assert np.abs(_enu(df) - _enu(original[1])).max() < 0.001
 
 
+CAR = SHARED / "real-pairs" / "geonet-car"
+
+
+@pytest.fixture(scope="module")
+def car(tmp_path_factory):
+    """`cdgps rtk` of the real car (GPS + Galileo L1 against the CORS 5 km away) with and without fix-and-hold:
+    ``{hold: (--json summary, solution)}``, each solved once for the tests below (read only)."""
+    d = tmp_path_factory.mktemp("car")
+    out = {}
+    for hold in (False, True):
+        path = d / f"car-{hold}.csv"
+        r = run_cli("-q", "rtk", "--base", CAR / "3034265G.21O", "--rover", CAR / "SEPT265G.21O", "--nav", CAR / "SEPT2650.21P",
+                    "--base-xyz", -3959400.631, 3385704.533, 3667523.111, "--signals", "G:L1,E:E1", "-o", path, "--json",
+                    "--fix-and-hold" if hold else "--no-fix-and-hold")
+        assert r.exit_code == 0, r.output
+        import json
+        out[hold] = json.loads(r.stdout), pd.read_csv(path, comment="#")
+    return out
+
+
 @pytest.mark.parametrize("hold", [False, True])
-def test_car_against_a_cors_5_km_away(tmp_path, hold):
+def test_car_against_a_cors_5_km_away(car, hold):
     """The real car of ../shared/data/real-pairs/geonet-car (GPS + Galileo L1, forward and backward
     combined): the fixed epochs of the two standing segments lie within 1 cm horizontally of the
     static multi-GNSS answers of its README (heights within 5 cm: 5.4 km of unmodelled ionosphere);
     fix-and-hold fixes more epochs, not fewer."""
-    car = SHARED / "real-pairs" / "geonet-car"
-    out = tmp_path / "car.csv"
-    r = run_cli("-q", "rtk", "--base", car / "3034265G.21O", "--rover", car / "SEPT265G.21O", "--nav", car / "SEPT2650.21P",
-                "--base-xyz", -3959400.631, 3385704.533, 3667523.111, "--signals", "G:L1,E:E1", "-o", out, "--json",
-                "--fix-and-hold" if hold else "--no-fix-and-hold")
-    assert r.exit_code == 0, r.output
-    import json
-    s = json.loads(r.stdout)
-    d = pd.read_csv(out, comment="#")
+    s, d = car[hold]
     t = (d["time_gps_s"] - d["time_gps_s"].iloc[0]).to_numpy()
     e, fixed = _enu(d), d["fixed"].to_numpy() == 1
     for seg, ref in (((t <= 34), (5083.057, 1707.376, -1.192)), ((t >= 312), (5049.078, 1691.873, -1.360))):
@@ -399,19 +411,17 @@ def test_zero_baseline_rover_troposphere_where_the_rover_is(tmp_path, monkeypatc
     assert np.sqrt(np.mean(_enu(f) ** 2, axis=0)).max() < 0.001                    # was 4.9 mm
 
 
-def test_car_heights_agree_with_rtklib_where_both_fix(tmp_path):
+def test_car_heights_agree_with_rtklib_where_both_fix(car):
     """The car's rover header is 17.5 m above its antenna: with the rover's troposphere evaluated there,
     the 79 epochs both programs fixed sat 16.0 mm above RTKLIB's in median (Debian rnx2rtkp, G+E+J L1,
     forward; ../shared/data/real-pairs/geonet-car/rtklib/gej_l1_kinematic.pos).  Evaluated at each fixed
     epoch's position: 3.0 mm (the reference also uses QZSS, so single epochs differ by up to 3.4 cm; with
     the same signals, side by side in benchmarks/bench_rtk_rtklib.py, 0.6 mm in median, 5.5 mm at most)."""
-    car = SHARED / "real-pairs" / "geonet-car"
-    out = tmp_path / "car.csv"
-    r = run_cli("-q", "rtk", "--base", car / "3034265G.21O", "--rover", car / "SEPT265G.21O", "--nav", car / "SEPT2650.21P",
-                "--base-xyz", -3959400.631, 3385704.533, 3667523.111, "--signals", "G:L1,E:E1", "-o", out)
-    assert r.exit_code == 0, r.output
-    d = pd.read_csv(out, comment="#")
-    ref = read_pos(car / "rtklib" / "gej_l1_kinematic.pos")
+    from cdgps_cli.config.options import MULTI_GNSS_DEFAULTS
+
+    assert MULTI_GNSS_DEFAULTS["fix_and_hold"] is True          # the command's default: the fixture's hold run
+    _, d = car[True]
+    ref = read_pos(CAR / "rtklib" / "gej_l1_kinematic.pos")
     assert ref["frame"] == "enu"
     t, fixed = d["time_gps_s"].to_numpy(), d["fixed"].to_numpy() == 1
     k = np.clip(np.searchsorted(ref["time_gps_s"], t), 0, ref["time_gps_s"].size - 1)

@@ -34,11 +34,15 @@ def rover(tmp_path_factory):
     return d
 
 
-def _chain(d, config, tag: str):
-    for args in (("ingest", "--config", config, "-o", d / f"{tag}.mcap"),
-                 ("init", d / f"{tag}.mcap", "-o", d / f"{tag}_init.json")):
-        r = run_cli("-q", *args)
-        assert r.exit_code == 0, (args, r.output)
+def _chain(d, config, tag: str, init_said: list | None = None):
+    """ingest → init → estimate --smooth; estimate's --json summary and stderr.  ``init_said``: a list that gets
+    init's stderr (init then runs without -q: the same INIT, with what it says)."""
+    r = run_cli("-q", "ingest", "--config", config, "-o", d / f"{tag}.mcap")
+    assert r.exit_code == 0, ("ingest", r.output)
+    r = run_cli(*(() if init_said is not None else ("-q",)), "init", d / f"{tag}.mcap", "-o", d / f"{tag}_init.json")
+    assert r.exit_code == 0, ("init", r.output)
+    if init_said is not None:
+        init_said.append(r.stderr)
     r = run_cli("estimate", d / f"{tag}.mcap", "--init", d / f"{tag}_init.json", "--smooth", "-o",
                 d / f"{tag}_states.mcap", "--json")
     assert r.exit_code == 0, r.output
@@ -51,16 +55,24 @@ def test_the_simulators_config_follows_its_rover(rover):
     assert sigma == pytest.approx(3 * ACCEL * 300**0.5)          # 3 σ of the velocity at the end, m/s per √s
 
 
-def test_velocities_are_exported_and_honest(rover, tmp_path):
-    s, err = _chain(rover, rover / "config.toml", "cv")
+@pytest.fixture(scope="module")
+def cv_chain(rover):
+    """The simulated rover's own config through the chain once: (estimate's summary, its stderr, init's stderr)."""
+    said = []
+    s, err = _chain(rover, rover / "config.toml", "cv", said)
+    return s, err, said[0]
+
+
+def test_velocities_are_exported_and_honest(rover, cv_chain):
+    s, err, _ = cv_chain
     assert s["warnings"] == [] and "warning" not in err, err
     init = json.loads((rover / "cv_init.json").read_text())
     assert init["rovers"]["rover"]["n_fixed"] == init["rovers"]["rover"]["n_estimated"]
     st = States(rover / "cv_states.mcap", diagnostics=False)
     assert st.xidot.shape == st.q.shape and st.sigma_xidot.shape == st.q.shape
-    r = run_cli("-q", "export", rover / "cv_states.mcap", "-o", tmp_path / "s.csv")
+    r = run_cli("-q", "export", rover / "cv_states.mcap", "-o", rover / "cv_states.csv")
     assert r.exit_code == 0, r.output
-    out = pd.read_csv(tmp_path / "s.csv")
+    out = pd.read_csv(rover / "cv_states.csv")
     vel = [f"rover_v{c}_m_s" for c in "enu"]
     assert list(out.columns[-6:]) == vel + [f"sigma_{v}" for v in vel]
     truth = pd.read_csv(rover / "truth.csv")
@@ -104,11 +116,11 @@ def test_a_model_that_cannot_follow_the_rover_is_said(rover, tmp_path, monkeypat
     init and estimate each say the model does not follow the rover."""
     from cdgps_cli.estimation import static_engine
     monkeypatch.setattr(static_engine, "RANDOM_WALK_MAX_RAISES", 0)
-    s, err = _chain(tmp_path, _slow_walk_config(rover, tmp_path), "bad")
-    r = run_cli("-q", "init", tmp_path / "bad.mcap", "-o", tmp_path / "again.json")       # init says it first
-    assert r.exit_code == 0 and "cdgps: warning: baseline base → rover: no integer fixed, and the static float does " \
-        "not fit the data" in r.stderr, r.stderr
-    rov = json.loads((tmp_path / "again.json").read_text())["rovers"]["rover"]
+    said = []
+    s, err = _chain(tmp_path, _slow_walk_config(rover, tmp_path), "bad", said)
+    assert "cdgps: warning: baseline base → rover: no integer fixed, and the static float does " \
+        "not fit the data" in said[0], said[0]                                             # init says it first
+    rov = json.loads((tmp_path / "bad_init.json").read_text())["rovers"]["rover"]
     assert any("no integer fixed" in w for w in rov["warnings"])
     assert s["mean_nis_per_dof"] > 100
     assert any("mean NIS per degree of freedom" in w for w in s["warnings"]), s["warnings"]
@@ -120,12 +132,12 @@ def test_init_raises_a_walk_its_float_cannot_follow_and_the_chain_holds(rover, t
     """The same 1 mm/√s walk as init's float, raised as init now does: its NIS per row 26 (the walk does not hold
     the rover), solved again at 0.01 m/√s (1.8), every integer fixed, said in a warning; estimate's constant-velocity
     states then hold (NIS per dof ≈ 1, measured 1.00), where nothing was fixed and the NIS was above 100."""
-    s, err = _chain(tmp_path, _slow_walk_config(rover, tmp_path), "bad")
-    r = run_cli("-q", "init", tmp_path / "bad.mcap", "-o", tmp_path / "again.json")
-    assert r.exit_code == 0 and "init's random-walk float at [gnss.displacement] sigma_m_per_sqrt_s 0.001 m/sqrt(s) " \
-        "leaves a NIS of" in r.stderr and "it did not hold the rover's motion" in r.stderr, r.stderr
-    assert "a constant_velocity model's do not" in r.stderr
-    rov = json.loads((tmp_path / "again.json").read_text())["rovers"]["rover"]
+    said = []
+    s, err = _chain(tmp_path, _slow_walk_config(rover, tmp_path), "bad", said)
+    assert "init's random-walk float at [gnss.displacement] sigma_m_per_sqrt_s 0.001 m/sqrt(s) " \
+        "leaves a NIS of" in said[0] and "it did not hold the rover's motion" in said[0], said[0]
+    assert "a constant_velocity model's do not" in said[0]
+    rov = json.loads((tmp_path / "bad_init.json").read_text())["rovers"]["rover"]
     tried = rov["float"]["random_walk_tried"]
     assert rov["float"]["random_walk_sigma_used_m_per_sqrt_s"] == [0.01] * 3 and len(tried) == 2
     assert tried[0]["nis_per_row"] > 10 >= tried[1]["nis_per_row"]
@@ -137,12 +149,9 @@ def test_init_raises_a_walk_its_float_cannot_follow_and_the_chain_holds(rover, t
     assert opts["init_random_walk_sigma_used_m_per_sqrt_s"] == {"rover": [0.01] * 3}
 
 
-def test_init_says_what_its_states_are_under_a_moving_model(rover, tmp_path):
+def test_init_says_what_its_states_are_under_a_moving_model(cv_chain):
     """Under constant velocity INIT's states are the record's mean (static) position, the origin estimate's
-    states move about: init says so instead of calling them the rover's static displacement."""
-    r = run_cli("-q", "ingest", "--config", rover / "config.toml", "-o", tmp_path / "run.mcap")
-    assert r.exit_code == 0, r.output
-    r = run_cli("init", tmp_path / "run.mcap", "-o", tmp_path / "init.json")
-    assert r.exit_code == 0, r.output
-    line = next(ln for ln in r.stderr.splitlines() if ln.startswith("INIT "))
+    states move about: init says so instead of calling them the rover's static displacement (init on the
+    simulator's config, as cv_chain runs it: ingest, then init without -q)."""
+    line = next(ln for ln in cv_chain[2].splitlines() if ln.startswith("INIT "))
     assert "the mean over the record; the origin of estimate's constant_velocity states, m): rover_e " in line, line

@@ -4,7 +4,6 @@ ingest → init, against the simulator's truth; and the two commands' bad-input 
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -139,9 +138,12 @@ def test_simulate_if_refuses_a_folder_of_another_config(chain, tmp_path):
 
 
 def test_track_structure_bad_input(chain, tmp_path, testbed_cfg, dof2_cfg):
+    """(on 20 ms of IF samples of the chain's simulation, as test_same_seed_same_files writes them: every
+    check below reads the manifest, the files' sha256 or their sizes, none the length of the record)"""
     d, _ = chain
     bad = tmp_path / "if"
-    shutil.copytree(d / "if", bad)
+    r = _cli("-q", "simulate-if", TESTBED, d / "sim", "--duration", 0.02, "--fs", FS, "--seed", 2, "-o", bad)
+    assert r.exit_code == 0, r.output
     out = tmp_path / "rx.csv"
     with pytest.raises(CdgpsError, match="another config"):
         track_structure(bad / "if.json", dof2_cfg, out)

@@ -37,6 +37,23 @@ def _solve(d, out, **options):
     return s, pd.read_csv(out, comment="#")
 
 
+@pytest.fixture(scope="module")
+def velocity(climb, tmp_path_factory):
+    """The climbing rover in constant-velocity mode at the simulated ACCEL, each direction solved once
+    (forward, backward and combined, the default): ``{direction: (summary, solution CSV path, solution)}``,
+    read only by the tests (the two velocity tests and the output-format test used to solve them again)."""
+    from cdgps_cli.config.options import MULTI_GNSS_DEFAULTS
+
+    assert MULTI_GNSS_DEFAULTS["direction"] == "combined"
+    d = tmp_path_factory.mktemp("velocity")
+    out = {}
+    for direction in ("forward", "backward", "combined"):
+        s, sol = _solve(climb, d / f"{direction}.csv", mode="constant-velocity", accel_sigma_m_per_s_per_sqrt_s=ACCEL,
+                        direction=direction)
+        out[direction] = s, d / f"{direction}.csv", sol
+    return out
+
+
 def _truth_enu(d, sol: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
     """The solution's ENU positions from the rover's nominal position, and the truth's."""
     x0 = np.asarray(json.loads((d / "truth.json").read_text())["rover_nominal_ecef_m"])
@@ -57,9 +74,8 @@ def test_a_climbing_rover_fixes_with_its_troposphere_where_it_is(climb, tmp_path
 
 
 @pytest.mark.parametrize("direction", ["forward", "backward"])
-def test_each_pass_velocity_is_honest_against_the_true_velocity(climb, tmp_path, direction):
-    _, sol = _solve(climb, tmp_path / "v.csv", mode="constant-velocity", accel_sigma_m_per_s_per_sqrt_s=ACCEL,
-                    direction=direction)
+def test_each_pass_velocity_is_honest_against_the_true_velocity(climb, velocity, direction):
+    _, _, sol = velocity[direction]           # mode constant-velocity, accel σ ACCEL, this direction
     truth = pd.read_csv(climb / "truth.csv")[["rover_ve_m_s", "rover_vn_m_s", "rover_vu_m_s"]].to_numpy()
     err = sol[["ve_m_s", "vn_m_s", "vu_m_s"]].to_numpy() - truth
     z = err / sol[["sigma_ve_m_s", "sigma_vn_m_s", "sigma_vu_m_s"]].to_numpy()
@@ -68,12 +84,11 @@ def test_each_pass_velocity_is_honest_against_the_true_velocity(climb, tmp_path,
     assert np.mean(np.abs(z) < 3) > 0.98
 
 
-def test_combined_velocity_beats_each_pass_and_stays_within_its_sigma(climb, tmp_path):
+def test_combined_velocity_beats_each_pass_and_stays_within_its_sigma(climb, velocity):
     truth = pd.read_csv(climb / "truth.csv")[["rover_ve_m_s", "rover_vn_m_s", "rover_vu_m_s"]].to_numpy()
     rms = {}
     for direction in ("forward", "backward", "combined"):
-        _, sol = _solve(climb, tmp_path / f"{direction}.csv", mode="constant-velocity",
-                        accel_sigma_m_per_s_per_sqrt_s=ACCEL, direction=direction)
+        _, _, sol = velocity[direction]       # mode constant-velocity, accel σ ACCEL, this direction
         err = sol[["ve_m_s", "vn_m_s", "vu_m_s"]].to_numpy() - truth
         rms[direction] = np.sqrt((err**2).mean(0))
         if direction == "combined":
@@ -104,7 +119,7 @@ def test_spirent_rose_figure_velocity_within_1_cm_per_s(tmp_path):
     assert np.all(np.sqrt((err**2).mean(0)) < 0.01), np.sqrt((err**2).mean(0))
 
 
-def test_velocity_in_every_output_format_and_only_in_constant_velocity_mode(climb, tmp_path):
+def test_velocity_in_every_output_format_and_only_in_constant_velocity_mode(climb, velocity, tmp_path):
     from cdgps_cli.io.solution_formats import read_pos
 
     rtk_from_files(climb / "base.rnx", climb / "rover.rnx", [climb / "nav.rnx"], tmp_path / "v.pos",
@@ -116,9 +131,8 @@ def test_velocity_in_every_output_format_and_only_in_constant_velocity_mode(clim
     line = next(ln for ln in text.splitlines() if not ln.startswith("%"))
     assert len(line.split()) == len(head.lstrip("%").split()) + 1          # GPST takes two fields
     assert read_pos(tmp_path / "v.pos")["coords"].shape == (600, 3)
-    rtk_from_files(climb / "base.rnx", climb / "rover.rnx", [climb / "nav.rnx"], tmp_path / "v.csv",
-                   options={"mode": "constant-velocity", "accel_sigma_m_per_s_per_sqrt_s": ACCEL})
-    csv = pd.read_csv(tmp_path / "v.csv", comment="#")
+    # the same solve to CSV (the default direction, combined: the fixture's, asserted the default there)
+    csv = pd.read_csv(velocity["combined"][1], comment="#")
     v_neu = np.array([[float(x) for x in ln.split()[15:18]] for ln in text.splitlines() if not ln.startswith("%")])
     assert np.abs(v_neu[:, [1, 0, 2]] - csv[["ve_m_s", "vn_m_s", "vu_m_s"]].to_numpy()).max() <= 1e-4
     rtk_from_files(climb / "base.rnx", climb / "rover.rnx", [climb / "nav.rnx"], tmp_path / "v.geojson",
