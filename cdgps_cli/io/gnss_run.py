@@ -692,8 +692,7 @@ def nominal_positions(cfg: GnssConfig, inp: IngestInputs) -> dict:
         if a is not None and a.position_ecef_m is not None:
             pos_src[n] = ("config position_ecef_m", list(a.position_ecef_m))
         elif header_position_m(rx.header) is not None:
-            pos_src[n] = (rx.header.get("position_source") or "RINEX header APPROX POSITION XYZ",
-                          header_position_m(rx.header).tolist())
+            pos_src[n] = (_header_position_source(rx.header, n == master), header_position_m(rx.header).tolist())
         else:
             pos_src[n] = (None, None)
     rovers = [n for n in receivers if n != master]
@@ -708,6 +707,17 @@ def nominal_positions(cfg: GnssConfig, inp: IngestInputs) -> dict:
             warnings.append(f"{n}: no nominal position (header or config); 'cdgps init' uses a pseudorange single-point "
                             f"position, and the displacement states refer to it")
     return pos_src
+
+
+def _header_position_source(header: dict, master: bool) -> str:
+    """What a receiver's header position is: the master's antenna is its marker plus a non-zero ANTENNA: DELTA H/E/N
+    (``positioning.antenna_reference_point_m``, where init and estimate put it); the position recorded is the
+    marker's."""
+    src = header.get("position_source") or "RINEX header APPROX POSITION XYZ"
+    d = header.get("antenna_delta_hen_m")
+    if master and d is not None and any(float(v) != 0.0 for v in d):
+        src += f", the marker (the antenna: its ANTENNA: DELTA H/E/N {' '.join(f'{float(v):g}' for v in d)} m from it)"
+    return src
 
 
 def write_gnss_run(cfg: GnssConfig, out_path: str | Path, inp: IngestInputs, pos_src: dict, common: dict,

@@ -93,6 +93,9 @@ def test_rtk_and_init_put_the_base_antenna_where_rtklib_does(tmp_path):
                      ("init", run, "-o", init)):
             r = run_cli("-q", *args)
             assert r.exit_code == 0, (args, r.output)
+        info = run_cli("info", run)
+        assert info.exit_code == 0 and (("position: RINEX header APPROX POSITION XYZ, the marker (the antenna: its "
+                                         "ANTENNA: DELTA H/E/N 0.5 0.1 -0.2 m from it)") in info.output) == (name == "base")
         doc = json.loads(init.read_text())
         xyz[name] = (np.asarray(doc["rovers"]["r"]["rover_ecef_m"]), np.asarray(doc["master_ecef_m"]))
     shift = antenna_reference_point_m({"approx_position_xyz_m": MARKER, "antenna_delta_hen_m": (0.5, 0.1, -0.2)}) - MARKER
