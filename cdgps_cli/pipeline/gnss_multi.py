@@ -11,8 +11,8 @@ else the float one).
 from __future__ import annotations
 
 import functools
-import math
 import io as _io
+import math
 from pathlib import Path
 
 import numpy as np
