@@ -207,11 +207,17 @@ def _parse_version_line(lines: list[str], path, compressed: bool, kind: str) -> 
     return version, first[20:21].upper(), first[40:41].upper()
 
 
+#: the newest RINEX major version read, per kind of file: a 4.xx observation file is laid out as a 3.05 one (its new
+#: header records, DOI, LICENSE OF USE, STATION INFORMATION, are passed over); 4.xx navigation records are not read
+_RINEX_BELOW = {"observation": 5.0, "navigation": 4.0}
+
+
 def _check_version(version: float, path, kind: str) -> None:
-    if not (2.0 <= version < 4.0):
+    below = _RINEX_BELOW[kind]
+    if not (2.0 <= version < below):
         raise CdgpsError(
             f"{path}: RINEX version {version:.2f} is not supported for {kind} files (supported: 2.xx, i.e. 2.10/2.11, "
-            f"and 3.xx); convert it with gfzrnx or teqc"
+            f"{'3.xx and 4.xx' if below > 4 else 'and 3.xx'}); convert it with gfzrnx or teqc"
         )
 
 

@@ -464,7 +464,7 @@ def test_truncated_epoch_and_time_order(tmp_path):
     assert [(b["line"], b["time_gps_s"]) for b in hdr["epochs_out_of_order"]] == [(27, obs["time_gps_s"].iloc[0])]
 
 
-@pytest.mark.parametrize("version", ["1.00", "4.00"])
+@pytest.mark.parametrize("version", ["1.00", "5.00"])
 def test_unsupported_version(tmp_path, version):
     text = (DATA / "07590920.05o").read_text().replace("     2.10           OBSERVATION", f"{version:>9}           OBSERVATION", 1)
     p = tmp_path / "v.05o"
