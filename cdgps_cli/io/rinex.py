@@ -209,7 +209,7 @@ def _parse_version_line(lines: list[str], path, compressed: bool, kind: str) -> 
 
 #: the newest RINEX major version read, per kind of file: a 4.xx observation file is laid out as a 3.05 one (its new
 #: header records, DOI, LICENSE OF USE, STATION INFORMATION, are passed over); 4.xx navigation records are not read
-_RINEX_BELOW = {"observation": 5.0, "navigation": 4.0}
+_RINEX_BELOW = {"observation": 5.0, "navigation": 5.0}
 
 
 def _check_version(version: float, path, kind: str) -> None:
@@ -1499,14 +1499,32 @@ def nav_file_systems(path: str | Path) -> tuple[str, ...]:
     return {"N": ("G",), "G": ("R",)}.get(ftype, ())
 
 
+#: the RINEX 4 navigation messages read (``> EPH <sat> <type>``): the legacy ephemerides, laid out as in RINEX 3.05
+_V4_EPHEMERIS_TYPES = {"G": ("LNAV",), "J": ("LNAV",), "E": ("INAV", "FNAV"), "C": ("D1", "D2"), "R": ("FDMA",)}
+
+
+def _v4_record_start(lines: list, i: int) -> int:
+    """The line after RINEX 4 navigation header line ``lines[i]`` (``> EPH G05 LNAV``) when the record below it is
+    one this reader takes (:data:`_V4_EPHEMERIS_TYPES`), else the next ``>`` line (or the end): CNAV/CNV1–3
+    ephemerides, SBAS, and the STO, EOP and ION messages are passed over."""
+    f = lines[i][1:].split()
+    if len(f) >= 3 and f[0] == "EPH" and f[2] in _V4_EPHEMERIS_TYPES.get(f[1][:1], ()):
+        return i + 1
+    i += 1
+    while i < len(lines) and not lines[i].startswith(">"):
+        i += 1
+    return i
+
+
 def read_rinex_nav(path: str | Path, systems=("G",)) -> pd.DataFrame:
-    """Read the broadcast ephemerides of a RINEX 2 or 3 navigation file.
+    """Read the broadcast ephemerides of a RINEX 2, 3 or 4 navigation file.
 
     Parameters
     ----------
     path : str or Path
         A RINEX 2 GPS (type ``N``) or GLONASS (type ``G``) navigation file, or a RINEX 3
-        navigation file (type ``N``; records of systems not asked for are skipped and counted).
+        navigation file (type ``N``; records of systems not asked for are skipped and counted), or a RINEX 4 one
+        (its legacy ephemerides, :data:`_V4_EPHEMERIS_TYPES`; the other messages passed over).
         Compressed files are decompressed as in :func:`read_rinex_obs`.
     systems : sequence of str, default ("G",)
         System letters to read, among :data:`NAV_SYSTEMS`.  **BeiDou** records keep BDT's
@@ -1562,6 +1580,9 @@ def read_rinex_nav(path: str | Path, systems=("G",)) -> pd.DataFrame:
         lineno = i + 1
         if not ln.strip():
             i += 1
+            continue
+        if ln.startswith(">") and version >= 4:       # RINEX 4: a record's header line; other messages passed over
+            i = _v4_record_start(lines, i)
             continue
         if v3:
             sysc = ln[0:1]

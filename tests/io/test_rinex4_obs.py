@@ -1,4 +1,4 @@
-"""RINEX 4.00 observation files are read as 3.05 ones (``rinex._RINEX_BELOW``): the body and the header records the
+"""RINEX 4.00 observation and navigation files are read as 3.05 ones (``rinex._RINEX_BELOW``): the body and the header records the
 readers use are laid out as in 3.05.  Before, ``ingest`` refused them ("RINEX version 4.00 is not supported").
 
 The real file: KMS3 (Denmark), 2022-06-08 10:00–10:09 GPST, 30 s, Compact RINEX of a RINEX 4.00 mixed observation
@@ -8,18 +8,22 @@ code of the file, cut out of the text by column (F14.3 + LLI + SSI per observati
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import hatanaka
 import numpy as np
+import pandas as pd
 import pytest
 
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import gps_seconds
 from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
 from cdgps_cli.io.rinex_signals import read_rinex_signals
+from tests._shared import run_cli
 
-FILE = Path(__file__).resolve().parents[1] / "data" / "georust-rinex4" / "KMS300DNK_R_20221591000_01H_30S_MO.crx"
+DATA = Path(__file__).resolve().parents[1] / "data" / "georust-rinex4"
+FILE, NAV = DATA / "KMS300DNK_R_20221591000_01H_30S_MO.crx", DATA / "KMS300DNK_R_20221591000_01H_MN.rnx.gz"
 
 
 def _by_columns() -> dict:
@@ -65,10 +69,32 @@ def test_a_rinex_4_observation_file_is_read_as_its_columns_say():
     assert set(sig["signal"]) == {"G:L1", "G:L2", "E:E1", "C:B1I"}
 
 
-def test_a_rinex_4_navigation_file_is_still_refused_by_name(tmp_path):
-    nav = tmp_path / "v4.rnx"
-    nav.write_text("     4.00           NAVIGATION DATA     M                   RINEX VERSION / TYPE\n"
+def test_a_rinex_4_navigation_file_gives_its_legacy_ephemerides():
+    """RINEX 4 navigation (``> EPH G05 LNAV`` before each record, laid out as in 3.05): GPS/QZSS LNAV, Galileo I/NAV
+    and F/NAV, BeiDou D1/D2 and GLONASS FDMA read; SBAS, the STO and ION messages passed over.  The file's message
+    counts (its ``>`` lines): 31 LNAV (30 GPS, 1 QZSS), 55 INAV + 53 FNAV, 33 D1 + 3 D2, 24 FDMA, 158 SBAS."""
+    nav = read_rinex_nav(NAV, systems=("G", "E", "C", "R"))
+    assert nav.attrs["n_records_by_system"] == {"G": 30, "J": 1, "E": 108, "C": 36, "R": 24}
+    g05 = nav[nav["sat"] == "G05"].iloc[0]                 # the record's own text (the file's third LNAV message)
+    assert g05["sqrt_a_sqrt_m"] == 5.153730890274e03 and g05["e"] == 6.032018922269e-03 and g05["toe_sow_s"] == 2.952e05
+    assert g05["toc_gps_s"] == gps_seconds(2022, 6, 8, 10, 0, 0) and g05["af0_s"] == -8.477037772536e-05
+
+
+def test_the_rinex_4_pair_of_a_station_solves_its_zero_baseline(tmp_path):
+    """The station's own RINEX 4 observation and navigation files as base and rover: every epoch fixed, on every signal
+    both hold, at the base's position."""
+    r = run_cli("-q", "rtk", "--base", FILE, "--rover", FILE, "--nav", NAV, "-o", tmp_path / "z.csv", "--json")
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.stdout)
+    assert s["epochs"] == s["fixed_epochs"] == 19 and {"G:L1", "G:L2", "E:E1", "C:B1I", "R:G1"} <= set(s["signals"])
+    out = pd.read_csv(tmp_path / "z.csv", comment="#")
+    assert np.abs(out[["e_m", "n_m", "u_m"]].to_numpy()).max() < 1e-4
+
+
+def test_a_rinex_5_file_is_refused_by_name(tmp_path):
+    nav = tmp_path / "v5.rnx"
+    nav.write_text("     5.00           N: GNSS NAV DATA    M: MIXED            RINEX VERSION / TYPE\n"
                    "                                                            END OF HEADER\n")
-    with pytest.raises(CdgpsError, match=r"v4.rnx: RINEX version 4.00 is not supported for navigation files "
-                                         r"\(supported: 2.xx, i.e. 2.10/2.11, and 3.xx\)"):
+    with pytest.raises(CdgpsError, match=r"v5.rnx: RINEX version 5.00 is not supported for navigation files "
+                                         r"\(supported: 2.xx, i.e. 2.10/2.11, 3.xx and 4.xx\)"):
         read_rinex_nav(nav)
