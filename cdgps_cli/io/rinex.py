@@ -1516,6 +1516,24 @@ def _v4_record_start(lines: list, i: int) -> int:
     return i
 
 
+def _check_nav_kind(p: Path, version: float, ftype: str, system: str, systems: tuple) -> bool:
+    """CdgpsError unless file ``p`` (its RINEX VERSION / TYPE: ``version``, ``ftype``, ``system``) is a navigation file
+    whose ephemerides of ``systems`` can be read; whether it is a RINEX 2 GLONASS file (type ``G``) read for them."""
+    glonass2 = version < 3 and ftype == "G" and "R" in systems
+    if version < 3 and ftype in ("G", "H") and not glonass2:
+        raise CdgpsError(f"{p}: this is a RINEX {version:.2f} {'GLONASS' if ftype == 'G' else 'SBAS'} navigation file; GPS broadcast ephemerides (a type N file) are needed")
+    if ftype != "N" and not glonass2:
+        kind = "observation" if ftype == "O" else f"type {ftype!r}"
+        raise CdgpsError(f"{p}: this is a RINEX {kind} file, not a navigation file (RINEX VERSION / TYPE says {ftype!r})")
+    _check_version(version, p, "navigation")
+    bad_sys = [c for c in systems if c not in NAV_SYSTEMS]
+    if bad_sys:
+        raise CdgpsError(f"{p}: ephemerides of system(s) {', '.join(bad_sys)} cannot be read; supported: {', '.join(NAV_SYSTEMS)}")
+    if version >= 3 and system not in ("G", "M", " ", "") and system not in systems:
+        raise CdgpsError(f"{p}: RINEX {version:.2f} navigation file for system {system!r}; GPS ('G') or mixed ('M') ephemerides are needed")
+    return glonass2
+
+
 def read_rinex_nav(path: str | Path, systems=("G",)) -> pd.DataFrame:
     """Read the broadcast ephemerides of a RINEX 2, 3 or 4 navigation file.
 
@@ -1556,18 +1574,7 @@ def read_rinex_nav(path: str | Path, systems=("G",)) -> pd.DataFrame:
     lines, compressed = _read_lines(p)
     version, ftype, system = _parse_version_line(lines, p, compressed, "navigation")
     systems = tuple(systems)
-    glonass2 = version < 3 and ftype == "G" and "R" in systems
-    if version < 3 and ftype in ("G", "H") and not glonass2:
-        raise CdgpsError(f"{p}: this is a RINEX {version:.2f} {'GLONASS' if ftype == 'G' else 'SBAS'} navigation file; GPS broadcast ephemerides (a type N file) are needed")
-    if ftype != "N" and not glonass2:
-        kind = "observation" if ftype == "O" else f"type {ftype!r}"
-        raise CdgpsError(f"{p}: this is a RINEX {kind} file, not a navigation file (RINEX VERSION / TYPE says {ftype!r})")
-    _check_version(version, p, "navigation")
-    bad_sys = [c for c in systems if c not in NAV_SYSTEMS]
-    if bad_sys:
-        raise CdgpsError(f"{p}: ephemerides of system(s) {', '.join(bad_sys)} cannot be read; supported: {', '.join(NAV_SYSTEMS)}")
-    if version >= 3 and system not in ("G", "M", " ", "") and system not in systems:
-        raise CdgpsError(f"{p}: RINEX {version:.2f} navigation file for system {system!r}; GPS ('G') or mixed ('M') ephemerides are needed")
+    glonass2 = _check_nav_kind(p, version, ftype, system, systems)
     attrs, end = _nav_header(lines, p, compressed, version)
     v3 = version >= 3
     records: list[list] = []

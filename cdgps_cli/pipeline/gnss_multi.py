@@ -146,18 +146,8 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
         if c not in NAV_SYSTEMS:
             raise CdgpsError(f"signals of system {c} cannot be processed yet (broadcast ephemerides read for "
                              f"{', '.join(NAV_SYSTEMS)} only)")
-    try:                  # read first for its GLONASS frequency numbers; the observation files' errors come first
-        if nav_paths:
-            nav, nav_error = _nav(nav_paths, systems), None
-        else:
-            nav = _ubx_nav((*base_files, *rover_files))
-            nav_error = None if nav is not None else CdgpsError(
-                f"no broadcast ephemerides: no --nav given and neither {base_path} nor {rover_path} is a u-blox log "
-                f"with RXM-SFRBX ephemerides")
-            nav = nav[nav["sat"].str[0].isin(systems)] if nav is not None else pd.DataFrame()
-            nav_paths = [f"RXM-SFRBX of {', '.join(str(p) for p in (*base_files, *rover_files) if is_ubx_log(p))}"]
-    except CdgpsError as exc:
-        nav, nav_error = pd.DataFrame(), exc
+    # read first for its GLONASS frequency numbers; the observation files' errors come first
+    nav, nav_error, nav_paths = _run_nav(nav_paths, systems, base_files, rover_files, (base_path, rover_path))
     # GLONASS frequency numbers: the observation header's, else the navigation records'
     glo_k = ({sat: int(k) for sat, k in nav.dropna(subset=["glonass_k"]).groupby("sat")["glonass_k"].first().items()}
              if "glonass_k" in nav.columns else {})
@@ -170,13 +160,8 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
         sigs, b, r = _observed_signals(sigs, b, r, {"base": base_path, "rover": rover_path}, warnings)
         opt["signals"] = tuple(sigs)
     check_common_signals(b, r, sigs, nav, {"base": str(base_path), "rover": str(rover_path), "nav": ", ".join(map(str, nav_paths))})
-    bx = np.asarray(base_xyz_m if base_xyz_m is not None else hb["approx_position_xyz_m"] or (), dtype=float)
-    if bx.shape != (3,):
-        raise CdgpsError(f"{base_path}: the base has no position (no APPROX POSITION XYZ; give --base-xyz X Y Z)")
     # the base first: a rover without a position is placed by single-point positioning started at the base
-    _check_position(bx, f"{base_path} (base)", "--base-xyz" if base_xyz_m is not None else "its APPROX POSITION XYZ")
-    if base_xyz_m is None:              # the header's marker: the antenna is DELTA H/E/N from it (as RTKLIB's rinexhead)
-        bx = antenna_reference_point_m(hb, f"{base_path} (base)")
+    bx = _base_antenna(hb, base_xyz_m, base_path)
     warnings += rover_delta_note(hr, f"{rover_path} (rover)")
     rx, rx_from_spp = _rover_origin(hr, r, nav, bx, rover_path, warnings)
     gb, gr = (_geometry(df, nav, xyz, path, who, nav_paths) for df, xyz, path, who in
@@ -207,6 +192,33 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
     text = solution_text(res, sigs, opt, out_csv, bx, inputs=(*rover_files, *base_files, *nav_paths))
     write_atomic(out_csv, lambda tmp: Path(tmp).write_text(text, newline=""))
     return {**_summary(res, per_epoch), "signals": sigs, "epoch_pairing": ep, "warnings": warnings}
+
+
+def _run_nav(nav_paths: list, systems: list, base_files: list, rover_files: list, paths: tuple) -> tuple:
+    """(ephemerides, the CdgpsError to raise once the observation files are read, or None, what the ephemerides came
+    from): the navigation files', else the u-blox logs' RXM-SFRBX ephemerides of ``systems``."""
+    try:
+        if nav_paths:
+            return _nav(nav_paths, systems), None, nav_paths
+        nav = _ubx_nav((*base_files, *rover_files))
+        nav_error = None if nav is not None else CdgpsError(
+            f"no broadcast ephemerides: no --nav given and neither {paths[0]} nor {paths[1]} is a u-blox log "
+            f"with RXM-SFRBX ephemerides")
+        nav = nav[nav["sat"].str[0].isin(systems)] if nav is not None else pd.DataFrame()
+        return nav, nav_error, [f"RXM-SFRBX of {', '.join(str(p) for p in (*base_files, *rover_files) if is_ubx_log(p))}"]
+    except CdgpsError as exc:
+        return pd.DataFrame(), exc, nav_paths
+
+
+def _base_antenna(header: dict, base_xyz_m, base_path) -> np.ndarray:
+    """The base antenna's position, ECEF m: ``base_xyz_m`` as given, else its header's marker plus its ANTENNA: DELTA
+    H/E/N (:func:`~cdgps_cli.model.gps.positioning.antenna_reference_point_m`, as RTKLIB's rinexhead); CdgpsError
+    when there is none, or it is not on the Earth."""
+    bx = np.asarray(base_xyz_m if base_xyz_m is not None else header["approx_position_xyz_m"] or (), dtype=float)
+    if bx.shape != (3,):
+        raise CdgpsError(f"{base_path}: the base has no position (no APPROX POSITION XYZ; give --base-xyz X Y Z)")
+    _check_position(bx, f"{base_path} (base)", "--base-xyz" if base_xyz_m is not None else "its APPROX POSITION XYZ")
+    return bx if base_xyz_m is not None else antenna_reference_point_m(header, f"{base_path} (base)")
 
 
 def _geometry_warnings(tables: dict) -> list:
