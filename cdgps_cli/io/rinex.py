@@ -32,7 +32,7 @@ import pandas as pd
 
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import GPS_EPOCH, SECONDS_PER_WEEK, gps_seconds, gps_time_str  # noqa: F401  (__all__)
-from cdgps_cli.core.gps_time import BDT_WEEK_OFFSET, GPS_MINUS_BDT_S
+from cdgps_cli.core.gps_time import BDT_WEEK_OFFSET, GLONASST_MINUS_UTC_S, GPS_MINUS_BDT_S, glonasst_to_gps_s
 from cdgps_cli.core.records import GLONASS_NAV_COLUMNS, NAV_COLUMNS, OBS_COLUMNS  # noqa: F401  (__all__)
 from cdgps_cli.core.timescales import gps_minus_utc_s
 from cdgps_cli.config.options import RINEX_BLOCK_EPOCHS
@@ -365,6 +365,9 @@ class _ObsHeader:
         y, mo, d, h, mi = (int(body[i : i + 6]) for i in (0, 6, 12, 18, 24))
         sec = float(body[30:43])
         info["time_system"] = body[48:51].strip() or None
+        if info["time_system"] not in (None, *OBS_TIME_SYSTEMS):
+            raise self.error(lineno, f"time system {info['time_system']!r} in 'TIME OF FIRST OBS' is not read (epochs "
+                                     f"in {', '.join(OBS_TIME_SYSTEMS)} time are)")
         info["time_first_obs_gps_s"] = gps_seconds(y, mo, d, h, mi, sec)
         info["time_first_obs"] = f"{y:04d}-{mo:02d}-{d:02d} {h:02d}:{mi:02d}:{sec:010.7f}"
 
@@ -565,7 +568,8 @@ def read_rinex_obs(path: str | Path, *, gps_l1_optional: bool = False,
     CdgpsError
         Unreadable or non-RINEX file, unsupported version, a navigation file, no GPS L1 phase
         observation type (the message lists the types the file has), a malformed line (file and
-        line number), an unsupported time system.
+        line number), a time system other than :data:`OBS_TIME_SYSTEMS` (epochs in BeiDou or GLONASS time are
+        returned in GPS time, :func:`in_gps_time`).
     """
     p = _as_path(path)
     if block_epochs < 1:
@@ -573,11 +577,11 @@ def read_rinex_obs(path: str | Path, *, gps_l1_optional: bool = False,
     if FAST_PARSE:
         data, compressed = _read_bytes(p)
         try:
-            return _read_obs_fast(p, data, compressed, gps_l1_optional, block_epochs)
+            return in_gps_time(*_read_obs_fast(p, data, compressed, gps_l1_optional, block_epochs))
         except Unsupported:
             pass                      # the line-by-line reader: the same table, or the error naming the line
     lines, compressed = _read_lines(p)
-    return _read_obs_lines(p, lines, compressed, gps_l1_optional)
+    return in_gps_time(*_read_obs_lines(p, lines, compressed, gps_l1_optional))
 
 
 _COLUMN_INDEXES: dict = {}
@@ -697,10 +701,54 @@ def _obs_header(p: Path, lines: list[str], compressed: bool, gps_l1_optional: bo
     if end is None:
         raise CdgpsError(f"{p}: no 'END OF HEADER' line; truncated or not a RINEX observation file")
     hdr.finish(end + 1)
-    ts = hdr.info["time_system"]
-    if ts not in (None, "GPS", "GAL"):
-        raise CdgpsError(f"{p}: time system {ts!r} in 'TIME OF FIRST OBS' is not supported; epochs must be in GPS time")
     return hdr, end, _GpsL1Columns(hdr, end + 1)
+
+
+#: the time systems of observation epochs the readers take (RINEX 3.05 'TIME OF FIRST OBS'), all returned in GPS time:
+#: Galileo's GST and QZSST keep GPS time to the second, BDT = GPST − 14 s, GLONASST = UTC(SU) + 3 h with UTC's leap
+#: seconds (IRNSS time is not read)
+OBS_TIME_SYSTEMS = ("GPS", "GAL", "QZS", "BDT", "GLO")
+#: the time system of a file whose 'TIME OF FIRST OBS' names none: a GLONASS or a BeiDou file's own (RINEX 3.05 §5.4),
+#: else GPS
+_DEFAULT_TIME_SYSTEMS = {"R": "GLO", "C": "BDT"}
+
+
+def epoch_time_system(info: dict) -> str:
+    """The time system of an observation file's epoch tags: its header's (``time_system``), else its satellite
+    system's default (:data:`_DEFAULT_TIME_SYSTEMS`)."""
+    return info.get("time_system") or _DEFAULT_TIME_SYSTEMS.get(info.get("satellite_system") or "G", "GPS")
+
+
+def to_gps_time_s(t_s, system: str) -> np.ndarray:
+    """GPS seconds of epoch tags ``t_s`` read in time system ``system`` (as :func:`gps_seconds` of their date and time
+    fields): BDT + 14 s; GLONASST − 3 h + the leap seconds GPS − UTC in force; GPS, GST and QZSST as they are."""
+    t = np.asarray(t_s, dtype=np.float64)
+    if system == "BDT":
+        return t + GPS_MINUS_BDT_S
+    if system == "GLO":
+        # the leap seconds in force at that UTC instant: the table is in GPS time, where a leap second that takes
+        # effect at UTC u falls at u + the new count (one more than the count before it)
+        utc = t - GLONASST_MINUS_UTC_S
+        return glonasst_to_gps_s(t, gps_minus_utc_s(utc + gps_minus_utc_s(utc) + 1))
+    return t
+
+
+def in_gps_time(info: dict, obs: pd.DataFrame) -> tuple[dict, pd.DataFrame]:
+    """An observation reader's (header, table) with every epoch time in GPS time (:func:`to_gps_time_s`): the table's
+    ``time_gps_s``, the header's first and last epochs and the times of its events, repeated and out-of-order epochs;
+    ``epochs_time_system`` names a conversion made.  A file in GPS, Galileo or QZSS time is returned as it is."""
+    system = epoch_time_system(info)
+    if system not in ("BDT", "GLO"):
+        return info, obs
+    obs["time_gps_s"] = to_gps_time_s(obs["time_gps_s"].to_numpy(), system)
+    for key in ("time_first_obs_gps_s", "time_last_obs_gps_s"):
+        if info.get(key) is not None:
+            info[key] = float(to_gps_time_s(info[key], system))
+    for key in ("events", "repeated_epochs", "epochs_out_of_order"):
+        for ev in info.get(key) or ():
+            ev["time_gps_s"] = float(to_gps_time_s(ev["time_gps_s"], system))
+    info["epochs_time_system"] = f"{system} (converted to GPS time)"
+    return info, obs
 
 
 def _read_obs_lines(p: Path, lines: list[str], compressed: bool, gps_l1_optional: bool):
