@@ -404,7 +404,7 @@ class _ObsHeader:
         if len(types) > n:
             raise self.error(lineno, f"'SYS / # / OBS TYPES' for {system} announces {n} types but lists {len(types)}")
         if len(types) == n:
-            self.info["obs_types"][system] = list(types)
+            self.info["obs_types"][system] = _beidou_b1i_types(types, self.version, self.info) if system == "C" else list(types)
             self._pending_types = None
 
     def _scale_v3(self, body: str, lineno: int) -> None:
@@ -429,6 +429,22 @@ class _ObsHeader:
     def finish(self, lineno: int) -> None:
         if self._pending_types is not None:
             raise self.error(lineno, f"observation types list incomplete ({len(self._pending_types[2])} of {self._pending_types[1]})")
+
+
+def _beidou_b1i_types(types: list[str], version: float, info: dict) -> list[str]:
+    """BeiDou observation types with B1I as RINEX 3.03 on names it (band 2): RINEX 3.02 named B1I band 1 ("C1I",
+    "L1I", "C1Q", "C1X" …; a Trimble NetR9's 3.02 file), which 3.03 gave to B1C (attributes D, P, X).  Band-1 types
+    with attribute I or Q, and X below 3.03, become band 2 unless the file also lists that name; the renames are
+    noted in ``info["beidou_b1i_band1"]`` (RTKLIB reads both bands as B1)."""
+    out, renamed = list(types), {}
+    for i, t in enumerate(types):
+        if len(t) == 3 and t[1] == "1" and (t[2] in "IQ" or (t[2] == "X" and version < 3.03)):
+            new = f"{t[0]}2{t[2]}"
+            if new not in types:
+                out[i], renamed[t] = new, new
+    if renamed:
+        info["beidou_b1i_band1"] = renamed
+    return out
 
 
 _HEADER_READERS = {
