@@ -163,6 +163,14 @@ MULTI_GNSS_DEFAULTS = {
     **EPOCH_PAIRING_DEFAULTS,
 }
 
+#: a receiver's header position (APPROX POSITION XYZ) farther than this from its pseudorange single-point position,
+#: m: a rover's is not used (headers are metres to tens of metres off; one 100 km off made init take the pair for a
+#: 100 km baseline and refuse it); a base's or master's is refused (it would put every rover as far off: a Trimble
+#: NetR9's RINEX 3.02 file 207 km off), by `rtk`, `baseline`, `init` and `estimate` alike
+HEADER_POSITION_TOL_M = 1000.0
+#: epochs (spread over the record) of the single-point position a header position is checked against
+HEADER_CHECK_EPOCHS = 120
+
 #: `cdgps estimate` (:class:`cdgps_cli.estimation.filter.EstimateOptions`): integrity tests and static mode
 ESTIMATE_DEFAULTS = {
     "nis_probability": 0.999,          # chi-square level of the per-epoch NIS test

@@ -50,7 +50,7 @@ from cdgps_cli.model.dynamics_models import RandomWalk, WithConstants
 from cdgps_cli.config.limits import MASK_DEG
 from cdgps_cli.config.options import (EPOCH_PAIRING_DEFAULTS, FIXED_PHASE_UNIT_VARIANCE_MAX, FIXED_PHASE_WINDOW_S,
                                       FIXED_PHASE_WINDOW_UNIT_VARIANCE_MAX, GNSS_DEFAULTS, GNSS_WEIGHTINGS,
-                                      UNCHECKED_FIX_NIS_MAX)
+                                      HEADER_CHECK_EPOCHS, HEADER_POSITION_TOL_M, UNCHECKED_FIX_NIS_MAX)
 from cdgps_cli.measurement.differencing import (
     ambiguity_datum,
     ambiguity_segments,
@@ -1019,16 +1019,18 @@ def _a_priori_positions(master: Station, rover: Station, nav, master_xyz, rover_
     if xm is None:
         raise CdgpsError(f"{_where(master)}: the RINEX header has no usable APPROX POSITION XYZ; the master (reference) "
                          f"receiver must be at a known position")
+    if master_xyz is None:
+        _check_master_header(master, nav, xm)
     xr0 = header_position_m(rover.header) if rover_xyz is None else np.asarray(rover_xyz, dtype=np.float64)
     warnings += rover_delta_note(rover.header, _where(rover))
     rover_pos_source = "RINEX header APPROX POSITION XYZ" if rover_xyz is None else "given"
     if xr0 is None:
-        xr0 = _rover_spp(rover, nav, xm)
+        xr0 = _station_spp(rover, nav, xm)
         rover_pos_source = "pseudorange single-point position (no header position)"
         warnings.append(f"{rover.name}: no APPROX POSITION XYZ in the header; a priori position from pseudoranges")
     elif rover_xyz is None and len(rover.obs):
         try:
-            spp = _rover_spp(rover, nav, xm, max_epochs=HEADER_CHECK_EPOCHS)
+            spp = _station_spp(rover, nav, xm, max_epochs=HEADER_CHECK_EPOCHS)
         except CdgpsError:                      # no single-point position: the header's stands, as before
             spp = None
         off = np.linalg.norm(spp - xr0) if spp is not None else 0.0
@@ -1040,17 +1042,31 @@ def _a_priori_positions(master: Station, rover: Station, nav, master_xyz, rover_
     return xm, xr0, rover_pos_source
 
 
-#: a rover header position farther than this from the rover's single-point position is not used (m): headers are
-#: metres to tens of metres off; one 100 km off made init take the pair for a 100 km baseline and refuse it
-HEADER_POSITION_TOL_M = 1000.0
-#: epochs (spread over the record) of the single-point position a rover header position is checked against
-HEADER_CHECK_EPOCHS = 120
 
 
-def _rover_spp(rover: Station, nav, xm, max_epochs: int | None = None) -> np.ndarray:
-    """The rover's static single-point position from its GPS L1 pseudoranges (ECEF m), from ``max_epochs`` epochs
-    spread over the record (None: all)."""
-    o = rover.obs
+def _check_master_header(master: Station, nav, xm) -> None:
+    """CdgpsError when the master's header position ``xm`` is more than :data:`HEADER_POSITION_TOL_M` from its
+    single-point position: every rover would be solved against a master that is not there (a Trimble NetR9's RINEX
+    3.02 file put it 207 km off; `init` then took a 6.8 m pair for a 207 km baseline and blamed the ionosphere).  No
+    check when the master has no GPS L1 pseudoranges for one."""
+    if not len(master.obs):
+        return
+    try:
+        spp = _station_spp(master, nav, xm, max_epochs=HEADER_CHECK_EPOCHS)
+    except CdgpsError:
+        return
+    off = float(np.linalg.norm(spp - xm))
+    if off > HEADER_POSITION_TOL_M:
+        raise CdgpsError(f"{_where(master)}: the master's header position (APPROX POSITION XYZ) is {off / 1e3:.4g} km "
+                         f"from its pseudorange single-point position ({' '.join(f'{v:.1f}' for v in spp)}); the master "
+                         f"must be at a known position: give its surveyed one as position_ecef_m in the config's "
+                         f"[gnss.antennas.\"{master.name}\"] (the single-point position is good to a few metres)")
+
+
+def _station_spp(station: Station, nav, x0, max_epochs: int | None = None) -> np.ndarray:
+    """A receiver's static single-point position from its GPS L1 pseudoranges (ECEF m), from ``max_epochs`` epochs
+    spread over the record (None: all), started at ``x0``."""
+    o = station.obs
     tt = o["time_gps_s"].to_numpy()
     tags, ep = np.unique(tt, return_inverse=True)
     ok = ephemeris_coverage(nav, o["sat"].to_numpy(), tt)
@@ -1059,9 +1075,9 @@ def _rover_spp(rover: Station, nav, xm, max_epochs: int | None = None) -> np.nda
         pick[np.linspace(0, tags.size - 1, max_epochs).round().astype(np.int64)] = True
         ok &= pick[ep]
     _, ep = np.unique(ep[ok], return_inverse=True)
-    xr0, _ = spp_static(ep, o["sat"].to_numpy()[ok], tt[ok], o["pseudorange_l1_m"].to_numpy()[ok], nav,
-                        x0_ecef_m=xm, what=_where(rover))
-    return xr0
+    x, _ = spp_static(ep, o["sat"].to_numpy()[ok], tt[ok], o["pseudorange_l1_m"].to_numpy()[ok], nav,
+                      x0_ecef_m=x0, what=_where(station))
+    return x
 
 
 def _segments(d: _Data, opt: BaselineOptions) -> _Segments:

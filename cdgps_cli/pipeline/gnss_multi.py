@@ -20,8 +20,8 @@ import pandas as pd
 
 from cdgps_cli.config.limits import GEOCENTRIC_RANGE_M, MASK_DEG
 from cdgps_cli import __version__
-from cdgps_cli.config.options import (CODE_NOISE_MIN_WINDOWS, CODE_NOISE_WINDOW_S, GNSS_WEIGHTINGS, MULTI_GNSS_DEFAULTS,
-                                      ROVER_ORIGIN_TOL_M)
+from cdgps_cli.config.options import (CODE_NOISE_MIN_WINDOWS, CODE_NOISE_WINDOW_S, GNSS_WEIGHTINGS, HEADER_CHECK_EPOCHS,
+                                      HEADER_POSITION_TOL_M, MULTI_GNSS_DEFAULTS, ROVER_ORIGIN_TOL_M)
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import gps_time_str, nominal_interval_s
 from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, signal
@@ -162,6 +162,8 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
     check_common_signals(b, r, sigs, nav, {"base": str(base_path), "rover": str(rover_path), "nav": ", ".join(map(str, nav_paths))})
     # the base first: a rover without a position is placed by single-point positioning started at the base
     bx = _base_antenna(hb, base_xyz_m, base_path)
+    if base_xyz_m is None:
+        _check_base_header(bx, b, nav, base_path)
     warnings += rover_delta_note(hr, f"{rover_path} (rover)")
     rx, rx_from_spp = _rover_origin(hr, r, nav, bx, rover_path, warnings)
     gb, gr = (_geometry(df, nav, xyz, path, who, nav_paths) for df, xyz, path, who in
@@ -423,19 +425,51 @@ def _rover_origin(header: dict, obs: pd.DataFrame, nav, base_xyz, path, warnings
     r = float(np.linalg.norm(hx))
     if np.all(np.isfinite(hx)) and _GEOCENTRIC_RANGE_M[0] <= r <= _GEOCENTRIC_RANGE_M[1]:
         return hx, False
-    sig = "G:L1" if (obs["signal"] == "G:L1").any() else str(obs["signal"].iloc[0])
-    o = obs[(obs["signal"] == sig) & np.isfinite(obs["pseudorange_m"].to_numpy())]
-    o = o[ephemeris_coverage(nav, o["sat"].to_numpy(), o["time_gps_s"].to_numpy())]
-    if o.empty:
+    x, sig = _single_point(obs, nav, base_xyz, f"{path} (rover)")
+    if x is None:
         raise CdgpsError(f"{path} (rover): no usable APPROX POSITION XYZ and no {sig} pseudoranges covered by the "
                          f"navigation data for a single-point position")
-    t = o["time_gps_s"].to_numpy()
-    x, _ = spp_static(np.unique(t, return_inverse=True)[1], o["sat"].to_numpy(), t, o["pseudorange_m"].to_numpy(), nav,
-                      x0_ecef_m=base_xyz, what=f"{path} (rover)")
     warnings.append(f"{path} (rover): no position on the Earth in the file (APPROX POSITION XYZ, RTCM 1005/1006: "
                     f"{' '.join(f'{v:g}' for v in hx)}); the a-priori position is the mean single-point position from "
                     f"its {sig} pseudoranges, refined by a float solution")
     return np.asarray(x, dtype=float), True
+
+
+def _single_point(obs: pd.DataFrame, nav, x0, what: str, max_epochs: int | None = None) -> tuple:
+    """(the static single-point position of a receiver's signal table from the pseudoranges of its GPS L1, else its
+    first signal, ECEF m, from ``max_epochs`` epochs spread over the record (None: all), or None when it has none
+    covered by the navigation data; that signal's name)."""
+    sig = "G:L1" if (obs["signal"] == "G:L1").any() else str(obs["signal"].iloc[0])
+    o = obs[(obs["signal"] == sig) & np.isfinite(obs["pseudorange_m"].to_numpy())]
+    o = o[ephemeris_coverage(nav, o["sat"].to_numpy(), o["time_gps_s"].to_numpy())]
+    t = o["time_gps_s"].to_numpy()
+    tags, ep = np.unique(t, return_inverse=True)
+    if max_epochs is not None and tags.size > max_epochs:
+        keep = np.zeros(tags.size, dtype=bool)
+        keep[np.linspace(0, tags.size - 1, max_epochs).round().astype(np.int64)] = True
+        o, t = o[keep[ep]], t[keep[ep]]
+        ep = np.unique(t, return_inverse=True)[1]
+    if o.empty:
+        return None, sig
+    x, _ = spp_static(ep, o["sat"].to_numpy(), t, o["pseudorange_m"].to_numpy(), nav, x0_ecef_m=x0, what=what)
+    return np.asarray(x, dtype=float), sig
+
+
+def _check_base_header(bx, obs: pd.DataFrame, nav, path) -> None:
+    """CdgpsError when the base's header position ``bx`` is more than :data:`~cdgps_cli.config.options.
+    HEADER_POSITION_TOL_M` from its single-point position (from :data:`~cdgps_cli.config.options.
+    HEADER_CHECK_EPOCHS` epochs): every rover position would be as far off, and the warnings would blame the rover's
+    header (a Trimble NetR9's RINEX 3.02 file 207 km off).  No check when no single-point position can be made."""
+    try:
+        spp, sig = _single_point(obs, nav, bx, f"{path} (base)", HEADER_CHECK_EPOCHS)
+    except CdgpsError:
+        return
+    off = float(np.linalg.norm(spp - bx)) if spp is not None else 0.0
+    if off > HEADER_POSITION_TOL_M:
+        raise CdgpsError(f"{path} (base): its header position (APPROX POSITION XYZ) is {off / 1e3:.4g} km from its "
+                         f"single-point position from its {sig} pseudoranges ({' '.join(f'{v:.1f}' for v in spp)}); "
+                         f"every rover position would be as far off: give the base's surveyed position with --base-xyz "
+                         f"X Y Z (the single-point one is good to a few metres)")
 
 
 def _solve_where_the_rover_is(gb, gr, bx, rx, opt: dict, *, rover: tuple, nav: tuple, code_noise: dict, warnings: list):

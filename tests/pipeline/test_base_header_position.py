@@ -1,0 +1,49 @@
+"""A base (master) whose header position is far from where its own pseudoranges put it is refused, naming the file.
+
+The real Trimble NetR9 RINEX 3.02 base of tests/data/matrtklib-2018-static writes an APPROX POSITION 207 km from its
+published position.  Before, `rtk` solved every rover against it (exit 0) and its warning blamed the rover's header;
+`init` refused the pair as a 207 km baseline and suggested raising gnss.iono_threshold_km.
+"""
+
+import json
+
+import pytest
+
+from tests._shared import REPO_ROOT, run_cli
+
+DATA = REPO_ROOT / "tests" / "data" / "matrtklib-2018-static"
+BASE, ROVER, NAV = DATA / "base_60s.obs.gz", DATA / "rover_60s.obs.gz", DATA / "base.nav.gz"
+BASE_XYZ = (-3937776.1063, 3354867.8075, 3718445.0835)
+
+
+def test_rtk_refuses_the_base_header_and_takes_the_given_position(tmp_path):
+    out = tmp_path / "x.pos"
+    r = run_cli("rtk", "--base", BASE, "--rover", ROVER, "--nav", NAV, "--signals", "G:L1", "-o", out)
+    assert r.exit_code == 2 and "Traceback" not in r.output
+    assert "base_60s.obs.gz (base): its header position (APPROX POSITION XYZ) is 206.8 km from its single-point" in r.output
+    assert "--base-xyz" in r.output and not out.exists()
+    r = run_cli("-q", "rtk", "--base", BASE, "--rover", ROVER, "--nav", NAV, "--signals", "G:L1", "--base-xyz", *BASE_XYZ,
+                "-o", out)
+    assert r.exit_code == 0, r.output
+
+
+def test_init_refuses_the_master_header_and_takes_the_configs_position(tmp_path):
+    cfg, run = tmp_path / "cfg.toml", tmp_path / "run.mcap"
+    r = run_cli("-q", "config", "--rinex", f"base={BASE}", "--rinex", f"rover={ROVER}", "--nav", NAV, "--master", "base",
+                "--signals", "G:L1,C:B1I", "-o", cfg)
+    assert r.exit_code == 0, r.output
+    assert run_cli("-q", "ingest", "--config", cfg, "-o", run).exit_code == 0
+    r = run_cli("init", run, "-o", tmp_path / "init.json")
+    assert r.exit_code == 2 and "Traceback" not in r.output
+    assert "the master's header position (APPROX POSITION XYZ) is 206.8 km" in r.output
+    assert 'position_ecef_m in the config\'s [gnss.antennas."base"]' in r.output and "iono_threshold_km" not in r.output
+    text = cfg.read_text()
+    head, tail = text.split('[gnss.antennas."base"]')
+    tail = tail.replace("# position_ecef_m = [x, y, z]", f"position_ecef_m = [{', '.join(map(str, BASE_XYZ))}]", 1)
+    cfg.write_text(head + '[gnss.antennas."base"]' + tail)
+    run2 = tmp_path / "run2.mcap"
+    assert run_cli("-q", "ingest", "--config", cfg, "-o", run2).exit_code == 0
+    r = run_cli("-q", "init", run2, "-o", tmp_path / "init2.json")
+    assert r.exit_code == 0, r.output
+    init = json.loads((tmp_path / "init2.json").read_text())
+    assert init["rovers"]["rover"]["baseline_length_m"] == pytest.approx(6.8, abs=0.1)
