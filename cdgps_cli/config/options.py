@@ -171,6 +171,14 @@ HEADER_POSITION_TOL_M = 1000.0
 #: epochs (spread over the record) of the single-point position a header position is checked against
 HEADER_CHECK_EPOCHS = 120
 
+#: a receiver channel (satellite and signal) whose carrier phase is flagged lost-lock (LLI bit 0) at more than this
+#: share of its epochs, over at least UNLOCKED_CHANNEL_MIN_EPOCHS, carries no phase: each flag starts a new
+#: ambiguity.  `rtk` leaves it out (a warning names it).  A real rover's BeiDou B2I of three satellites flagged at
+#: 91–96 % of 601 epochs kept every set holding B2I from fixing (0 of 601 epochs; 601 without those channels); the
+#: real pairs' other channels flag at most 30 % (a satellite setting through the mask)
+UNLOCKED_CHANNEL_SHARE = 0.5
+UNLOCKED_CHANNEL_MIN_EPOCHS = 20
+
 #: `cdgps estimate` (:class:`cdgps_cli.estimation.filter.EstimateOptions`): integrity tests and static mode
 ESTIMATE_DEFAULTS = {
     "nis_probability": 0.999,          # chi-square level of the per-epoch NIS test

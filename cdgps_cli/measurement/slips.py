@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cdgps_cli.config.options import UNLOCKED_CHANNEL_MIN_EPOCHS, UNLOCKED_CHANNEL_SHARE
 from cdgps_cli.measurement.epoch_fit import grouped_epoch_fit
 from cdgps_cli.measurement.multipath import segment_stretches
 
@@ -37,6 +38,56 @@ STEP_HALF_WIDTH_S = 2.0
 STEP_Z_MIN = 6.0
 #: … and its size, in cycles (half the smallest slip, a half cycle)
 STEP_MIN_CYCLES = 0.25
+
+
+def unlocked_channels(channel, lli, *, share: float = UNLOCKED_CHANNEL_SHARE,
+                      min_epochs: int = UNLOCKED_CHANNEL_MIN_EPOCHS) -> tuple[np.ndarray, np.ndarray]:
+    """Channels whose phase is flagged lost-lock (``lli`` bit 0) at more than ``share`` of their rows.
+
+    Parameters
+    ----------
+    channel : ndarray of int (N,)
+        Channel (satellite and signal) of each row, one row per epoch.
+    lli : ndarray of int (N,)
+        The rows' loss-of-lock indicators (bit 0: lost lock since the previous epoch).
+    share, min_epochs : float, int
+        The share of flagged rows above which a channel of at least ``min_epochs`` rows is unlocked
+        (:data:`~cdgps_cli.config.options.UNLOCKED_CHANNEL_SHARE`, ``UNLOCKED_CHANNEL_MIN_EPOCHS``).
+
+    Returns
+    -------
+    rows : ndarray of bool (N,)
+        The rows of those channels.
+    flagged_share : ndarray (N,)
+        Each row's channel's share of flagged rows.
+    """
+    channel = np.asarray(channel, dtype=np.int64)
+    flagged = (np.asarray(lli, dtype=np.int64) & 1) > 0
+    n = np.bincount(channel, minlength=int(channel.max()) + 1 if channel.size else 0)
+    k = np.bincount(channel, weights=flagged.astype(float), minlength=n.size)
+    frac = np.divide(k, n, out=np.zeros(n.size), where=n > 0)
+    bad = (n >= min_epochs) & (frac > share)
+    return bad[channel], frac[channel]
+
+
+def without_unlocked_channels(table, where: str):
+    """A receiver's signal table (``sat``, ``signal``, ``lli`` per row) less its :func:`unlocked_channels`, and the
+    warnings naming them (``where``: the receiver, e.g. "base.obs (base)"; [] when none): each flag starts a new
+    ambiguity, so they carry no phase, and one such channel as its group's reference would leave every DD of the group
+    without one (a real rover's BeiDou B2I: no epoch of 601 fixed with it, all 601 without it)."""
+    if table is None or table.empty:
+        return table, []
+    sat = np.unique(table["sat"].to_numpy(), return_inverse=True)[1].ravel()       # (pandas stays off this module)
+    sig = np.unique(table["signal"].to_numpy(), return_inverse=True)[1].ravel()
+    bad, share = unlocked_channels(sat * (int(sig.max()) + 1) + sig, table["lli"].to_numpy())
+    if not bad.any():
+        return table, []
+    named = (table.loc[bad, ["signal", "sat"]].assign(pct=100 * share[bad]).drop_duplicates(["signal", "sat"])
+             .sort_values(["signal", "sat"]))
+    text = (f"{where}: " + ", ".join(f"{s} {n} ({p:.0f} %)" for s, n, p in named.itertuples(index=False))
+            + f": their carrier phase is flagged lost-lock at more than {100 * UNLOCKED_CHANNEL_SHARE:.0f} % of their "
+            f"epochs (in brackets), each flag a new ambiguity: they carry no phase and are not used")
+    return table[~bad].reset_index(drop=True), [text]
 
 
 @dataclass(frozen=True)

@@ -48,6 +48,7 @@ from cdgps_cli.estimation.baseline import (BaselineOptions, Station, baseline_fr
 from cdgps_cli.estimation.model_filter import filter_numpy
 from cdgps_cli.estimation.smoother import rts_smooth_indexed
 from cdgps_cli.measurement.dd_displacement import SatelliteDDDisplacement, SDObservations
+from cdgps_cli.measurement.slips import without_unlocked_channels
 from cdgps_cli.model.dynamics_models import RandomWalk
 from cdgps_cli.model.gps.positioning import antenna_reference_point_m
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
@@ -72,7 +73,10 @@ GNSS_CONFIG_ATTACHMENT = "gnss_config.toml"
 # stations from the run
 
 
-def _stations(run: GnssRun):
+def _stations(run: GnssRun, notes: dict | None = None):
+    """The solvers' :class:`Station` of every receiver of the run; a multi-signal run's tables less their channels
+    that carry no phase (:func:`~cdgps_cli.measurement.slips.without_unlocked_channels`), as `rtk` reads them, with
+    the warnings naming them in ``notes[receiver]``."""
     if len(run.nav) == 0:
         raise CdgpsError(f"{run.path}: the run has no broadcast ephemerides; ingest it again with --nav NAVFILE "
                          f"(or nav = [...] in the config)")
@@ -82,7 +86,10 @@ def _stations(run: GnssRun):
     sigs = tuple(run.cfg.signals)
     stations = {}
     for n, rx in run.receivers.items():
-        stations[n] = Station(n, dict(rx.header, path=rx.file), anchor_obs(rx, sigs), signal_obs(rx) if sigs else None)
+        table, said = without_unlocked_channels(signal_obs(rx) if sigs else None, f"{rx.file} ({n})")
+        if notes is not None:
+            notes[n] = said
+        stations[n] = Station(n, dict(rx.header, path=rx.file), anchor_obs(rx, sigs), table)
     return stations
 
 
@@ -124,7 +131,8 @@ def gnss_init(run: GnssRun, *, options: dict | None = None, progress=None) -> di
     (e.g. ``ratio_threshold``, ``partial``, ``fix``).
     """
     say = progress or (lambda m: None)
-    stations = _stations(run)
+    unlocked: dict = {}
+    stations = _stations(run, unlocked)
     _check_master_position(run)
     opt = BaselineOptions.from_gnss_config(run.cfg, kinematic_series=False, **(options or {}))
     opt.validate()
@@ -142,7 +150,8 @@ def gnss_init(run: GnssRun, *, options: dict | None = None, progress=None) -> di
         sol = res["fixed"] or res["float"]
         amb = res["ambiguities"]
         res["warnings"] += (_moving_unfixed_warning(res, run.cfg.displacement)
-                            + _static_misfit_warning(res, run.cfg.displacement))
+                            + _static_misfit_warning(res, run.cfg.displacement)
+                            + unlocked[run.master] + unlocked[r])
         segments[r] = amb["segments"]
         names = list(res["states"])
         rovers[r] = {

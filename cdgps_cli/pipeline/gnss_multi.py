@@ -28,6 +28,7 @@ from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, signal
 from cdgps_cli.estimation.rtk_multi import (RTK_MODES, check_common_signals, receiver_geometry, receivers_code_noise,
                                             solve_rtk, troposphere_at_epochs)
 from cdgps_cli.measurement.code_steps import code_steps_warning
+from cdgps_cli.measurement.slips import without_unlocked_channels
 from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.io.gnss_sequence import pieces_text, refuse_another_receiver
 from cdgps_cli.io.log_sequence import expand_paths, join_tables
@@ -155,7 +156,8 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
     hr, r = _read_receiver(rover_files, sigs, glo_k, "rover", warnings)
     if nav_error is not None:
         raise nav_error
-    b, r = (_first_of_repeated_epochs(df, path, who, warnings) for df, path, who in ((b, base_path, "base"), (r, rover_path, "rover")))
+    b, r = (_without_unlocked_channels(_first_of_repeated_epochs(df, path, who, warnings), path, who, warnings)
+            for df, path, who in ((b, base_path, "base"), (r, rover_path, "rover")))
     if auto:                # a header may list a signal its records never hold: 'auto' keeps those both files observe
         sigs, b, r = _observed_signals(sigs, b, r, {"base": base_path, "rover": rover_path}, warnings)
         opt["signals"] = tuple(sigs)
@@ -880,6 +882,13 @@ def recorded_signals(rinex: dict, sigs: list, warnings: list) -> list[str]:
         raise CdgpsError(f"the receivers share no signal with phase observations in their records ({', '.join(sigs)} "
                          f"listed in their headers)")
     return keep
+
+
+def _without_unlocked_channels(df: pd.DataFrame, path, who: str, warnings: list) -> pd.DataFrame:
+    """:func:`~cdgps_cli.measurement.slips.without_unlocked_channels` of a receiver, its warning added."""
+    kept, notes = without_unlocked_channels(df, f"{path} ({who})")
+    warnings += notes
+    return kept
 
 
 def _first_of_repeated_epochs(df: pd.DataFrame, path, who: str, warnings: list) -> pd.DataFrame:
