@@ -903,6 +903,18 @@ def _signals_note(r: dict) -> str:
             f"{r['signal_phase_rows']} phases")
 
 
+def _file_notes(r: dict) -> str:
+    """What a receiver's file needed read otherwise: epochs in BeiDou or GLONASS time (converted to GPS time), a RINEX
+    3.02 file's BeiDou B1I types (band 1 there, band 2 from 3.03); empty when neither."""
+    notes = []
+    if r.get("epochs_time_system"):
+        notes.append(f"epochs in {r['epochs_time_system']}")
+    if r.get("beidou_b1i_band1"):
+        notes.append("BeiDou B1I as RINEX 3.02 names it (" + ", ".join(f"{a} read as {b}" for a, b in
+                                                                     r["beidou_b1i_band1"].items()) + ")")
+    return "; " + "; ".join(notes) if notes else ""
+
+
 def _gnss_info_lines(g: dict) -> list:
     c = g["config"]
     out = [f"  GNSS run: config {c['name']} (sha256 {c['config_sha256'][:12]}…), master {g['master']}, rovers "
@@ -911,7 +923,7 @@ def _gnss_info_lines(g: dict) -> list:
         out.append(f"    {r['name']:<8} {r['format']:<5} {r['file']}: {r['epochs']} epochs {r['first']} – {r['last']} "
                    f"({r['interval_s']:g} s), {r['satellites']} satellites, {r['phase_rows']} phases{_signals_note(r)}; "
                    f"lock: {r['arcs']} arcs, {r['slips']} slips, {r['half_cycle_rows']} half-cycle rows; position: "
-                   f"{r['position_source'] or 'none'}")
+                   f"{r['position_source'] or 'none'}" + _file_notes(r))
         if "integrity" in r:
             from cdgps_cli.io.ubx import integrity_line
 

@@ -1056,6 +1056,8 @@ def gnss_run_info(path: str | Path, contents, common_epochs=None, lock_summary=N
         pos = (r.info.get("position_source"), r.info.get("position_ecef_m"))
         s = _receiver_summary(n, r, lock, pos)
         s["lock"] = lock
+        s["epochs_time_system"] = r.header.get("epochs_time_system")     # a file's epochs in BDT or GLONASS time
+        s["beidou_b1i_band1"] = r.header.get("beidou_b1i_band1")         # a RINEX 3.02 file's B1I types, renamed
         if r.format == "ubx":
             s["integrity"] = {**{k: int(r.info.get(k) or 0) for k in INTEGRITY_COUNTS},
                               "problems": integrity_problems(r.info)}

@@ -118,6 +118,9 @@ def test_rtk_and_init_solve_as_in_gps_time(rovers, tmp_path, system):
         inits[name] = json.loads(init.read_text())["rovers"]["rover"]
     for key in ("rover_ecef_m", "n_fixed", "epochs"):
         assert inits[system][key] == inits["GPS"][key], key
+    r = run_cli("info", tmp_path / f"{system}.mcap")        # info says so, beside the GPS times of the epochs
+    line = next(ln for ln in r.output.splitlines() if f"rover_{system}.obs" in ln)
+    assert line.endswith(f"; epochs in {system} (converted to GPS time)") and "2024-06-24 08:20:00 GPST" in line
 
 
 @need_shared

@@ -45,3 +45,5 @@ def test_init_leaves_them_out_and_says_so(tmp_path):
     assert r.exit_code == 0, r.output
     rover = json.loads((tmp_path / "init.json").read_text())["rovers"]["rover"]
     assert any(NAMED in w for w in rover["warnings"]) and rover["n_fixed"] > 0
+    base = next(ln for ln in run_cli("info", run).output.splitlines() if "base_60s.obs.gz:" in ln)
+    assert base.endswith("; BeiDou B1I as RINEX 3.02 names it (C1I read as C2I, L1I read as L2I, S1I read as S2I)")
