@@ -177,6 +177,10 @@ HEADER_CHECK_EPOCHS = 120
 #: 91–96 % of 601 epochs kept every set holding B2I from fixing (0 of 601 epochs; 601 without those channels); the
 #: real pairs' other channels flag at most 30 % (a satellite setting through the mask)
 UNLOCKED_CHANNEL_SHARE = 0.5
+#: largest change of a satellite's geometry-free phase combination (two signals' single-difference phases, m) between
+#: consecutive epochs that `rtk` takes for ionosphere and noise, not a slip (measurement/slips.geometry_free_slips;
+#: RTKLIB's pos2-slipthres)
+GF_SLIP_THRESHOLD_M = 0.05
 UNLOCKED_CHANNEL_MIN_EPOCHS = 20
 
 #: `cdgps estimate` (:class:`cdgps_cli.estimation.filter.EstimateOptions`): integrity tests and static mode

@@ -46,6 +46,7 @@ from cdgps_cli.measurement.differencing import sd_variance
 from cdgps_cli.measurement.epoch_pairing import pair_epochs
 from cdgps_cli.measurement.base_interpolation import base_age_noise  # noqa: F401 (rtk_multi.base_age_noise: API)
 from cdgps_cli.measurement.noise import code_noise_factor, effective_sample_size
+from cdgps_cli.measurement.slips import geometry_free_slips
 from cdgps_cli.model.dynamics_models import ConstantVelocity, RandomWalk, Static
 from cdgps_cli.model.gps.orbits import OMEGA_E_GPS, azimuth_elevation, ecef_to_geodetic, ephemeris_rows, sat_position_rows
 from cdgps_cli.model.gps.positioning import ephemeris_coverage, tropo_hydrostatic_m
@@ -581,6 +582,7 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
     rows = paired_sd_rows(base, rover, pairs, opt, mask_rover=True,    # the mask at both receivers, as RTKLIB's
                           base_xyz_m=base_xyz)
     rows, code_steps = without_code_steps(rows)     # a clock jump in the codes alone: new arcs start from the code
+    rows = _with_geometry_free_slips(rows)
     n_ep = times.size
     if not rows["groups"]["start"].size:                     # no epoch has a group of two satellites
         raise CdgpsError(f"no double differences: no epoch of the {n_ep} paired has two satellites of one signal "
@@ -659,6 +661,18 @@ def _paired_epochs(base: pd.DataFrame, rover: pd.DataFrame, opt: dict):
         raise CdgpsError(f"no common satellites: the base observes {_few(base['sat'])}, the rover {_few(rover['sat'])} "
                          f"(signals asked for); a double difference needs satellites observed at both receivers")
     return pairs
+
+
+def _with_geometry_free_slips(rows) -> dict:
+    """``rows`` with a slip flag where a satellite's geometry-free phase combination jumped between consecutive epochs
+    (:func:`~cdgps_cli.measurement.slips.geometry_free_slips`; the same ``rows`` when none, or one signal)."""
+    n = rows["sats"].size
+    if n == 0 or len(rows["names"]) < 2:
+        return rows
+    epoch = np.searchsorted(rows["ptr"], np.arange(n), side="right") - 1
+    found = geometry_free_slips(epoch, rows["sats"], rows["code"], rows["phase_sd_m"], rows["var_phase"],
+                                flagged=rows["slip"]) & ~rows["slip"]
+    return dict(rows, slip=rows["slip"] | found, gf_slips=int(found.sum())) if found.any() else rows
 
 
 def _passes(rows, times, direction: str, opt, base_xyz, origin, iono, progress) -> dict:

@@ -34,7 +34,7 @@ from cdgps_cli.measurement.base_interpolation import base_age_noise
 from cdgps_cli.measurement.code_steps import code_clock_steps, without_code_steps  # noqa: F401 (code_clock_steps: API)
 from cdgps_cli.measurement.epoch_fit import grouped_epoch_fit
 from cdgps_cli.measurement.epoch_pairing import channel_index, pair_epochs
-from cdgps_cli.measurement.slips import time_differenced_slips
+from cdgps_cli.measurement.slips import geometry_free_slips, time_differenced_slips
 from cdgps_cli.model.dynamics_models import Dynamics, Static, WithConstants
 from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
 
@@ -832,7 +832,10 @@ def unflagged_slips(rows, base_xyz_m, origin_xyz_m, *, moving: bool) -> np.ndarr
                                              rows["var_phase"], los / rng[:, None], flagged=rows["slip"])
         trajectory = np.cumsum(disp, axis=0)
         pos = np.asarray(origin_xyz_m, float) + trajectory - trajectory.mean(axis=0)
-    return found
+    # and where a satellite's two signals moved apart (an epoch too poor in satellites for the test above)
+    known = rows["slip"] | found
+    return found | (geometry_free_slips(epoch, rows["sats"], rows["code"], rows["phase_sd_m"], rows["var_phase"],
+                                             flagged=known) & ~known)
 
 
 def _with_unflagged_slips(rows, times_s, opt: dict, base_xyz_m, origin_xyz_m) -> tuple[dict, dict]:

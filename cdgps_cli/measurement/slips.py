@@ -28,10 +28,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cdgps_cli.config.options import UNLOCKED_CHANNEL_MIN_EPOCHS, UNLOCKED_CHANNEL_SHARE
+from cdgps_cli.config.options import GF_SLIP_THRESHOLD_M, UNLOCKED_CHANNEL_MIN_EPOCHS, UNLOCKED_CHANNEL_SHARE
 from cdgps_cli.measurement.epoch_fit import grouped_epoch_fit
 from cdgps_cli.measurement.multipath import segment_stretches
 
+#: time-differenced carrier phase (:func:`time_differenced_slips`): a channel's epoch-to-epoch change whose residual
+#: exceeds this many σ and this many metres is a slip (a quarter cycle at L1 is 4.8 cm; TD multipath at 1–10 Hz stays
+#: within a few mm), with at least this many redundant changes in the epoch pair (to tell which channel jumped)
+TD_SLIP_SIGMAS, TD_SLIP_MIN_M, TD_SLIP_MIN_REDUNDANCY = 6.0, 0.03, 2
 #: the test's half width (s): residuals on each side of a candidate epoch
 STEP_HALF_WIDTH_S = 2.0
 #: z value a step must exceed
@@ -68,6 +72,73 @@ def unlocked_channels(channel, lli, *, share: float = UNLOCKED_CHANNEL_SHARE,
     frac = np.divide(k, n, out=np.zeros(n.size), where=n > 0)
     bad = (n >= min_epochs) & (frac > share)
     return bad[channel], frac[channel]
+
+
+def geometry_free_slips(epoch, sat, code, phase_m, var_m2=None, *, flagged=None,
+                        threshold_m: float = GF_SLIP_THRESHOLD_M, sigmas: float = TD_SLIP_SIGMAS) -> np.ndarray:
+    """Slips no flag reported, from the epoch-to-epoch change of each satellite's geometry-free combinations.
+
+    At each epoch a satellite's phases of two signals (m) differ by their ionosphere and their ambiguities only: the
+    range, the clocks and the troposphere cancel.  Between consecutive epochs (of the epochs that have rows) that
+    difference moves by the change of the ionosphere (millimetres over seconds on a short baseline's single
+    differences) and the phase noise; a slip of k cycles on one signal moves it by kλ (19 cm for one GPS L1 cycle), a
+    slip of k on each by kλ₁ − kλ₂ (5.4 cm for one cycle on L1 and L2).  Each signal of a satellite is compared with
+    its first one (the lowest ``code``); a change beyond ``threshold_m`` (RTKLIB's ``detslp_gf``, ``pos2-slipthres``
+    0.05 m) and beyond ``sigmas`` times its σ from the four phases' variances ``var_m2`` (noisier phases than real
+    receivers': a simulation's 5 cm steps of noise) flags both rows at that epoch, unless either row is ``flagged`` already (a slip on one signal, known,
+    moves the combination too: its partner keeps its ambiguity).  Blind to slips that keep the combination
+    (k₁λ₁ = k₂λ₂: 77 and 60 cycles on L1 and L2) and to a satellite with one signal.
+
+    Parameters
+    ----------
+    epoch, sat, code : ndarray (N,)
+        Each row's epoch index (non-decreasing in row order is not needed), satellite and signal index.
+    phase_m : ndarray (N,)
+        The rows' (single-difference) carrier phases, m.
+    var_m2 : ndarray (N,), optional
+        Their variances, m² (None: the threshold alone).
+    flagged : ndarray of bool (N,), optional
+        Rows already starting a new arc (the receivers' flags, slips found otherwise).
+    threshold_m, sigmas : float
+        Largest change of a geometry-free combination between consecutive epochs that is not a slip, m, and in its σ.
+
+    Returns
+    -------
+    ndarray of bool (N,)
+        The rows at which a slip starts (both rows of the combination that moved).
+    """
+    n = np.asarray(phase_m).size
+    out = np.zeros(n, dtype=bool)
+    if n == 0:
+        return out
+    epoch = np.asarray(epoch, dtype=np.int64)
+    s = np.unique(np.asarray(sat), return_inverse=True)[1].ravel().astype(np.int64)
+    code = np.asarray(code, dtype=np.int64)
+    order = np.lexsort((code, epoch, s))                    # by satellite, epoch, signal
+    se = s[order] * (int(epoch.max()) + 2) + epoch[order]
+    first = np.r_[True, se[1:] != se[:-1]]                 # each (satellite, epoch)'s first signal
+    ref = order[np.maximum.accumulate(np.where(first, np.arange(n), 0))]
+    other = order[~first]                                  # rows with a first signal to compare with
+    if other.size == 0:
+        return out
+    gf = np.asarray(phase_m, dtype=np.float64)[other] - np.asarray(phase_m, dtype=np.float64)[ref[~first]]
+    # consecutive rows of one combination (satellite, signal): epochs in order within it (the lexsort keeps them so)
+    chan = s[other] * (int(code.max()) + 1) + code[other]
+    o2 = np.lexsort((epoch[other], chan))
+    c2, e2, g2 = chan[o2], epoch[other][o2], gf[o2]
+    limit = np.full(c2.size - 1, threshold_m)
+    if var_m2 is not None:
+        v = np.asarray(var_m2, dtype=np.float64)
+        vg = (v[other] + v[ref[~first]])[o2]                     # each combination's variance
+        limit = np.maximum(limit, sigmas * np.sqrt(vg[1:] + vg[:-1]))
+    step = np.r_[False, (c2[1:] == c2[:-1]) & (e2[1:] == e2[:-1] + 1) & (np.abs(np.diff(g2)) > limit)]
+    if flagged is not None:
+        known = np.asarray(flagged, dtype=bool)
+        step &= ~(known[other[o2]] | known[ref[~first][o2]])
+    hit = other[o2][step]
+    out[hit] = True
+    out[ref[~first][o2][step]] = True
+    return out
 
 
 def without_unlocked_channels(table, where: str):
@@ -162,10 +233,6 @@ def residual_steps(resid: np.ndarray, segment: np.ndarray, wavelength_m: float, 
     return out
 
 
-#: time-differenced carrier phase (:func:`time_differenced_slips`): a channel's epoch-to-epoch change whose residual
-#: exceeds this many σ and this many metres is a slip (a quarter cycle at L1 is 4.8 cm; TD multipath at 1–10 Hz stays
-#: within a few mm), with at least this many redundant changes in the epoch pair (to tell which channel jumped)
-TD_SLIP_SIGMAS, TD_SLIP_MIN_M, TD_SLIP_MIN_REDUNDANCY = 6.0, 0.03, 2
 #: a channel whose w value is within this fraction of its epoch's largest is flagged with it (a cut arc costs one
 #: ambiguity; a slip left in an arc, a wrong fix)
 TD_SLIP_TIE = 0.8
