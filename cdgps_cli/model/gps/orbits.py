@@ -142,15 +142,16 @@ def _params(eph) -> dict[str, np.ndarray]:
     """The orbit fields of one ephemeris (Series / mapping) or many (DataFrame) as float arrays."""
     if isinstance(eph, pd.DataFrame):
         missing = [f for f in _ORBIT_FIELDS if f not in eph.columns]
-        get = lambda f: eph[f].to_numpy(dtype=np.float64)  # noqa: E731
     elif isinstance(eph, (pd.Series, Mapping)):
         missing = [f for f in _ORBIT_FIELDS if f not in eph]
-        get = lambda f: np.float64(eph[f])  # noqa: E731
     else:
         raise TypeError(f"expected an ephemeris row (pandas Series or mapping) or a DataFrame, got {type(eph).__name__}")
     if missing:
         raise ValueError(f"ephemeris lacks field(s) {', '.join(missing)} (as produced by read_rinex_nav)")
-    return {f: get(f) for f in _ORBIT_FIELDS}
+    if isinstance(eph, pd.DataFrame):      # one (fields, rows) float block, a row a field: one column selection, not 22
+        block = np.ascontiguousarray(eph[list(_ORBIT_FIELDS)].to_numpy(dtype=np.float64).T)
+        return dict(zip(_ORBIT_FIELDS, block))
+    return {f: np.float64(eph[f]) for f in _ORBIT_FIELDS}
 
 
 def _sats(eph, shape) -> np.ndarray:

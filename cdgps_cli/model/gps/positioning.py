@@ -282,7 +282,10 @@ def ephemeris_coverage(nav: pd.DataFrame, sats, t_gps_s, *, max_age_s: float | N
     t = np.asarray(t_gps_s, dtype=np.float64)
     ok = np.zeros(t.shape, dtype=bool)
     healthy = nav[nav["sv_health"] == 0]
-    toes = {s: np.sort(g["toe_gps_s"].to_numpy()) for s, g in healthy.groupby("sat")}
+    # each satellite's sorted toes (what a groupby("sat") over the rows gives, without a DataFrame per satellite)
+    codes, names = pd.factorize(healthy["sat"].to_numpy(), sort=True)
+    toe_all = healthy["toe_gps_s"].to_numpy()
+    toes = {s: np.sort(toe_all[codes == i]) for i, s in enumerate(names)}
     for s, sel in _groups(sats):
         toe = toes.get(s)
         if toe is None or toe.size == 0:
