@@ -401,7 +401,11 @@ def _direction_quaternion(u) -> dict:
     c = float(np.dot(x, u))
     if c < -1.0 + 1e-12:                                   # opposite: half a turn about z
         return {"x": 0.0, "y": 0.0, "z": 1.0, "w": 0.0}
-    axis = np.cross(x, u)
+    u0, u1, u2 = (float(v) for v in u)
+    # x × u as numpy.cross evaluates it (a1·b2 − a2·b1, a2·b0 − a0·b2, a0·b1 − a1·b0 with a = x): the same
+    # products and differences bit for bit, signed zeros too, without its per-call axis handling (a STATES
+    # file turns an arrow per satellite and preview epoch)
+    axis = (0.0 * u2 - 0.0 * u1, 0.0 * u0 - 1.0 * u2, 1.0 * u1 - 0.0 * u0)
     qv = np.array([*axis, 1.0 + c])
     qv /= np.linalg.norm(qv)
     return dict(zip("xyzw", [float(v) for v in qv]))

@@ -66,6 +66,7 @@ from cdgps_cli.model.gps.positioning import (
     antenna_reference_point_m,
     rover_delta_note,
     ephemeris_coverage,
+    ephemeris_coverage_all,
     estimate_receiver_clock,
     nominal_interval_s,
     reception_geometry,
@@ -470,8 +471,7 @@ def _covered(nav: pd.DataFrame, sats, label_s, tag_s) -> np.ndarray:
     :data:`COVERAGE_MARGIN_S` of their time tag ``tag_s`` (GPS s), where the receiver clock and the satellites'
     geometry are evaluated."""
     tag_s = np.asarray(tag_s, dtype=np.float64)
-    return (ephemeris_coverage(nav, sats, label_s) & ephemeris_coverage(nav, sats, tag_s - COVERAGE_MARGIN_S)
-            & ephemeris_coverage(nav, sats, tag_s + COVERAGE_MARGIN_S))
+    return ephemeris_coverage_all(nav, sats, (label_s, tag_s - COVERAGE_MARGIN_S, tag_s + COVERAGE_MARGIN_S))
 
 
 def _receiver_clock(st: Station, o: pd.DataFrame, tag: np.ndarray, t_label: np.ndarray, nav: pd.DataFrame, pos,

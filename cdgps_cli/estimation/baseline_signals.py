@@ -146,7 +146,8 @@ def signal_sd_fields(master_sig: pd.DataFrame, rover_sig: pd.DataFrame, tag_m: n
     j = _covered(j, nav, t_label, warnings)
     gb = _geometry(j, nav, t_label, xm, "_b", troposphere)
     gr = _geometry(j, nav, t_label, xr, "_r", troposphere)
-    order = [s for s in SIGNALS if s in set(j["signal"])]
+    present = set(j["signal"].unique())          # once (the comprehension re-built the set per entry of SIGNALS)
+    order = [s for s in SIGNALS if s in present]
     grp = pd.Categorical(j["signal"], categories=order).codes.astype(np.int64)
     keep = (gb["el_rad"] >= mask_rad) & (gr["el_rad"] >= mask_rad)
     ep = j["ep"].to_numpy()

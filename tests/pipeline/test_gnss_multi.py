@@ -71,15 +71,16 @@ def _write_rinex(path, obs, rx, slots_line=True):
             "".ljust(60) + "END OF HEADER"]
     assert t0 == gps_seconds(2020, 6, 25, 0, 30, 0)
     lines = list(hdr)
-    for t, ep in obs.groupby("t", sort=True):
+    epochs: dict = {}                         # time → satellite → {code or phase type: value}, rows in order
+    for t, sat, code, phase, c, ph in zip(*(obs[k].to_numpy() for k in ("t", "sat", "code", "phase", "C", "L"))):
+        vals = epochs.setdefault(t, {}).setdefault(sat, {})
+        vals[code], vals[phase] = c, ph
+    for t in sorted(epochs):
         sec = t - gps_seconds(2020, 6, 25, 0, 30, 0)
-        sats = sorted(ep["sat"].unique())
+        sats = sorted(epochs[t])
         lines.append(f"> 2020 06 25 00 {30 + int(sec // 60):2d} {sec % 60:10.7f}  0{len(sats):3d}")
         for sat in sats:
-            e = ep[ep["sat"] == sat].set_index("code")
-            vals = {}
-            for code, row in e.iterrows():
-                vals[code], vals[row["phase"]] = row["C"], row["L"]
+            vals = epochs[t][sat]
             lines.append(sat + "".join(f"{vals[x]:14.3f}  " if x in vals else " " * 16 for x in types[sat[0]]).rstrip())
     path.write_text("\n".join(lines) + "\n")
 

@@ -28,6 +28,34 @@ needs_if = pytest.mark.skipif(not IQ_FILE.exists(), reason="bundled IF file not 
 FS = 4e6
 
 
+_ACQUIRED: dict = {}
+
+
+@pytest.fixture(autouse=True)
+def _each_acquisition_once(monkeypatch):
+    """The trackers' acquisition (the costly part of these short records: a 10 ms search of 32 PRNs) computed
+    once per distinct input: acquire reads only its first noncoherent_ms ms of samples, so those samples
+    (bytes and dtype), the rate, the PRNs and the options are the key; equal keys give equal results (a pure
+    function), and the copies handed out are fresh.  The whole-array and the block paths, and the tests'
+    repeated records, then share one search instead of repeating it (10 searches -> 2 in this file)."""
+    import copy
+    import hashlib
+
+    from cdgps_cli.tracking import receiver
+    from cdgps_cli.tracking.acquisition import NONCOHERENT_MS
+
+    real = receiver.acquire
+
+    def once(samples, fs_hz, prns=range(1, 33), **kw):
+        x = np.asarray(samples)[: int(round(fs_hz * 1e-3)) * int(kw.get("noncoherent_ms", NONCOHERENT_MS))]
+        key = (x.dtype.str, hashlib.sha256(x.tobytes()).hexdigest(), fs_hz, tuple(prns), tuple(sorted(kw.items())))
+        if key not in _ACQUIRED:
+            _ACQUIRED[key] = real(samples, fs_hz, list(prns), **kw)
+        return copy.deepcopy(_ACQUIRED[key])
+
+    monkeypatch.setattr(receiver, "acquire", once)
+
+
 def _same_tracks(a: dict, b: dict) -> None:
     assert sorted(a) == sorted(b)
     for prn in a:

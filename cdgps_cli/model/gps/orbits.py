@@ -142,15 +142,23 @@ def _params(eph) -> dict[str, np.ndarray]:
     """The orbit fields of one ephemeris (Series / mapping) or many (DataFrame) as float arrays."""
     if isinstance(eph, pd.DataFrame):
         missing = [f for f in _ORBIT_FIELDS if f not in eph.columns]
-        get = lambda f: eph[f].to_numpy(dtype=np.float64)  # noqa: E731
     elif isinstance(eph, (pd.Series, Mapping)):
         missing = [f for f in _ORBIT_FIELDS if f not in eph]
-        get = lambda f: np.float64(eph[f])  # noqa: E731
     else:
         raise TypeError(f"expected an ephemeris row (pandas Series or mapping) or a DataFrame, got {type(eph).__name__}")
     if missing:
         raise ValueError(f"ephemeris lacks field(s) {', '.join(missing)} (as produced by read_rinex_nav)")
-    return {f: get(f) for f in _ORBIT_FIELDS}
+    if isinstance(eph, pd.DataFrame):
+        return _float_columns(eph, _ORBIT_FIELDS)
+    return {f: np.float64(eph[f]) for f in _ORBIT_FIELDS}
+
+
+def _float_columns(df: pd.DataFrame, fields) -> dict[str, np.ndarray]:
+    """``{f: df[f].to_numpy(dtype=np.float64)}`` for the columns ``fields``, the same values taken as one
+    (fields, rows) float block in one column selection (a column selection per field cost more than the
+    orbit arithmetic on a few rows); each field a contiguous row of the block."""
+    block = np.ascontiguousarray(df[list(fields)].to_numpy(dtype=np.float64).T)
+    return dict(zip(fields, block))
 
 
 def _sats(eph, shape) -> np.ndarray:
@@ -293,7 +301,7 @@ def _glonass_record_position(eph, t: np.ndarray) -> tuple[np.ndarray, np.ndarray
         raise ValueError(f"GLONASS ephemeris lacks field(s) {', '.join(missing)} (as produced by read_rinex_nav with 'R')")
     flat = t.reshape(-1)
     if isinstance(eph, pd.DataFrame):
-        v = {f: eph[f].to_numpy(dtype=np.float64) for f in fields}
+        v = _float_columns(eph, fields)
     else:
         v = {f: np.full(flat.shape, float(eph[f])) for f in fields}
     state0 = np.column_stack([v[f] for f in GLONASS_NAV_COLUMNS[:6]])
@@ -649,7 +657,7 @@ def _kepler_constants(nav: pd.DataFrame) -> dict:
     missing = [f for f in _ORBIT_FIELDS if f not in nav.columns]
     if missing:
         raise ValueError(f"ephemeris lacks field(s) {', '.join(missing)} (as produced by read_rinex_nav)")
-    p = {f: nav[f].to_numpy(dtype=np.float64) for f in _ORBIT_FIELDS}
+    p = _float_columns(nav, _ORBIT_FIELDS)
     gm, we, geo, _ = _system_constants(nav["sat"].astype(str).to_numpy())
     a = p["sqrt_a_sqrt_m"] ** 2
     e = p["e"]

@@ -61,6 +61,7 @@ __all__ = [
     "niell_hydrostatic_mapping",
     "tropo_hydrostatic_m",
     "ephemeris_coverage",
+    "ephemeris_coverage_all",
     "estimate_receiver_clock",
     "spp_static",
     "nominal_interval_s",
@@ -278,20 +279,46 @@ def ephemeris_coverage(nav: pd.DataFrame, sats, t_gps_s, *, max_age_s: float | N
     -------
     ndarray of bool, shape (N,)
     """
+    return ephemeris_coverage_all(nav, sats, (t_gps_s,), max_age_s=max_age_s)
+
+
+def ephemeris_coverage_all(nav: pd.DataFrame, sats, times, *, max_age_s: float | None = None) -> np.ndarray:
+    """:func:`ephemeris_coverage` of the same rows at each of several time arrays, all required (their AND),
+    with the ephemerides sorted and the rows grouped by satellite once.
+
+    Parameters
+    ----------
+    nav, sats, max_age_s
+        As for :func:`ephemeris_coverage`.
+    times : sequence of array_like, each shape (N,)
+        Times of each row, GPS s.
+
+    Returns
+    -------
+    ndarray of bool, shape (N,)
+    """
     sats = np.asarray(sats, dtype=object)
-    t = np.asarray(t_gps_s, dtype=np.float64)
-    ok = np.zeros(t.shape, dtype=bool)
-    healthy = nav[nav["sv_health"] == 0]
-    toes = {s: np.sort(g["toe_gps_s"].to_numpy()) for s, g in healthy.groupby("sat")}
+    ts = [np.asarray(t, dtype=np.float64) for t in times]
+    ok = np.zeros(ts[0].shape, dtype=bool)
+    # each satellite's sorted healthy toes (as a groupby("sat") over nav's healthy rows gives them; only the
+    # two columns taken, not a filtered copy of the whole table)
+    healthy = (nav["sv_health"] == 0).to_numpy()
+    codes, names = pd.factorize(nav["sat"].to_numpy()[healthy], sort=True)
+    toe_all = nav["toe_gps_s"].to_numpy()[healthy]
+    toes = {s: np.sort(toe_all[codes == i]) for i, s in enumerate(names)}
     for s, sel in _groups(sats):
         toe = toes.get(s)
         if toe is None or toe.size == 0:
             continue
-        k = np.searchsorted(toe, t[sel])
-        before = toe[np.clip(k - 1, 0, toe.size - 1)]
-        after = toe[np.clip(k, 0, toe.size - 1)]
         age = max_age_s if max_age_s is not None else (MAX_EPHEMERIS_AGE_GLONASS_S if str(s).startswith("R") else MAX_EPHEMERIS_AGE_S)
-        ok[sel] = np.minimum(np.abs(t[sel] - before), np.abs(t[sel] - after)) <= age
+        hit = None
+        for t in ts:
+            k = np.searchsorted(toe, t[sel])
+            before = toe[np.clip(k - 1, 0, toe.size - 1)]
+            after = toe[np.clip(k, 0, toe.size - 1)]
+            h = np.minimum(np.abs(t[sel] - before), np.abs(t[sel] - after)) <= age
+            hit = h if hit is None else hit & h
+        ok[sel] = hit
     return ok
 
 
