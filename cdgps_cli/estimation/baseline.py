@@ -51,6 +51,7 @@ from cdgps_cli.config.limits import MASK_DEG
 from cdgps_cli.config.options import (EPOCH_PAIRING_DEFAULTS, FIXED_PHASE_UNIT_VARIANCE_MAX, FIXED_PHASE_WINDOW_S,
                                       FIXED_PHASE_WINDOW_UNIT_VARIANCE_MAX, GNSS_DEFAULTS, GNSS_WEIGHTINGS,
                                       HEADER_CHECK_EPOCHS, HEADER_POSITION_TOL_M, UNCHECKED_FIX_NIS_MAX)
+from cdgps_cli.measurement.slips import unflagged_slip_text
 from cdgps_cli.measurement.differencing import (
     ambiguity_datum,
     ambiguity_segments,
@@ -2099,17 +2100,9 @@ def _engine_or_batch(master: Station, rover: Station, nav, opt: BaselineOptions,
 
 def _unflagged_slip_warning(events: dict | None) -> list:
     """The warning naming the slips no receiver flagged that the engine found (a new ambiguity from each)."""
-    if not events or not len(events["sat"]):
+    if not events:
         return []
-    where = [f"{sat}:{sig.split(':')[1]} at {gps_time_str(float(t))}"
-             for sat, sig, t in zip(events["sat"], events["signal"], events["time_s"])]
-    return [f"{len(where)} cycle slip(s) that no receiver flagged, found in the epoch-to-epoch change of the "
-            f"phases, start a new ambiguity: {_first_of(where, 8)}"]
-
-
-def _first_of(items: list, n: int) -> str:
-    """The first ``n`` of ``items`` joined by commas, and how many more."""
-    return ", ".join(items[:n]) + (f" and {len(items) - n} more" if len(items) > n else "")
+    return unflagged_slip_text(events["sat"], events["signal"], events["time_s"])
 
 
 def _code_step_warning(steps: dict | None) -> list:

@@ -582,7 +582,7 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
     rows = paired_sd_rows(base, rover, pairs, opt, mask_rover=True,    # the mask at both receivers, as RTKLIB's
                           base_xyz_m=base_xyz)
     rows, code_steps = without_code_steps(rows)     # a clock jump in the codes alone: new arcs start from the code
-    rows = _with_geometry_free_slips(rows)
+    rows, gf_found = _with_geometry_free_slips(rows)
     n_ep = times.size
     if not rows["groups"]["start"].size:                     # no epoch has a group of two satellites
         raise CdgpsError(f"no double differences: no epoch of the {n_ep} paired has two satellites of one signal "
@@ -604,6 +604,7 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
             "code_clock_steps": {"time_gps_s": times[code_steps["epoch"]].tolist(), "step_m": code_steps["step_m"].tolist(),
                                  "signal": [rows["names"][k] for k in code_steps["code"]]},
             "ambiguities_released": int(res["released"].sum()),
+            "unflagged_slips": _slip_events(rows, gf_found, pairs.rover_time_s),
             "float_variance": res.get("float_variance"),
             **_velocities(res, ok)}
 
@@ -663,16 +664,25 @@ def _paired_epochs(base: pd.DataFrame, rover: pd.DataFrame, opt: dict):
     return pairs
 
 
-def _with_geometry_free_slips(rows) -> dict:
-    """``rows`` with a slip flag where a satellite's geometry-free phase combination jumped between consecutive epochs
-    (:func:`~cdgps_cli.measurement.slips.geometry_free_slips`; the same ``rows`` when none, or one signal)."""
+def _with_geometry_free_slips(rows) -> tuple[dict, np.ndarray]:
+    """(``rows`` with a slip flag where a satellite's geometry-free phase combination jumped between consecutive
+    epochs, the rows so flagged): :func:`~cdgps_cli.measurement.slips.geometry_free_slips`; the same ``rows`` when none,
+    or one signal."""
     n = rows["sats"].size
     if n == 0 or len(rows["names"]) < 2:
-        return rows
+        return rows, np.zeros(n, dtype=bool)
     epoch = np.searchsorted(rows["ptr"], np.arange(n), side="right") - 1
     found = geometry_free_slips(epoch, rows["sats"], rows["code"], rows["phase_sd_m"], rows["var_phase"],
                                 flagged=rows["slip"]) & ~rows["slip"]
-    return dict(rows, slip=rows["slip"] | found, gf_slips=int(found.sum())) if found.any() else rows
+    return (dict(rows, slip=rows["slip"] | found) if found.any() else rows), found
+
+
+def _slip_events(rows, found, times_s) -> dict:
+    """The satellite, signal name and epoch time (GPS s) of each row in ``found`` (lists)."""
+    i = np.flatnonzero(found)
+    epoch = np.searchsorted(rows["ptr"], i, side="right") - 1
+    return {"sat": [str(s) for s in rows["sats"][i]], "signal": [str(rows["names"][c]) for c in rows["code"][i]],
+            "time_gps_s": [float(t) for t in np.asarray(times_s, float)[epoch]]}
 
 
 def _passes(rows, times, direction: str, opt, base_xyz, origin, iono, progress) -> dict:

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cdgps_cli.config.options import GF_SLIP_THRESHOLD_M, UNLOCKED_CHANNEL_MIN_EPOCHS, UNLOCKED_CHANNEL_SHARE
+from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.measurement.epoch_fit import grouped_epoch_fit
 from cdgps_cli.measurement.multipath import segment_stretches
 
@@ -139,6 +140,17 @@ def geometry_free_slips(epoch, sat, code, phase_m, var_m2=None, *, flagged=None,
     out[hit] = True
     out[ref[~first][o2][step]] = True
     return out
+
+
+def unflagged_slip_text(sat, signal, time_s, n_show: int = 8) -> list[str]:
+    """The warning naming slips no receiver flagged that a solver found, each a new ambiguity (satellite, signal name
+    "G:L1" and epoch time, GPS s, per slip; [] when there is none): `init`'s and `rtk`'s."""
+    where = [f"{s}:{str(g).split(':')[1]} at {gps_time_str(float(t))}" for s, g, t in zip(sat, signal, time_s)]
+    if not where:
+        return []
+    more = f" and {len(where) - n_show} more" if len(where) > n_show else ""
+    return [f"{len(where)} cycle slip(s) that no receiver flagged, found in the epoch-to-epoch change of the phases, "
+            f"start a new ambiguity: {', '.join(where[:n_show])}{more}"]
 
 
 def without_unlocked_channels(table, where: str):

@@ -28,7 +28,7 @@ from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, signal
 from cdgps_cli.estimation.rtk_multi import (RTK_MODES, check_common_signals, receiver_geometry, receivers_code_noise,
                                             solve_rtk, troposphere_at_epochs)
 from cdgps_cli.measurement.code_steps import code_steps_warning
-from cdgps_cli.measurement.slips import without_unlocked_channels
+from cdgps_cli.measurement.slips import unflagged_slip_text, without_unlocked_channels
 from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.io.gnss_sequence import pieces_text, refuse_another_receiver
 from cdgps_cli.io.log_sequence import expand_paths, join_tables
@@ -191,6 +191,8 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
                         + "; ".join(f"{n} {why}" for why, n in ep["dropped"].items())
                         + f" (max_age_s {opt['max_age_s']:g} s)")
     warnings += _float_variance_warning(res)
+    ev = res["unflagged_slips"]
+    warnings += unflagged_slip_text(ev["sat"], ev["signal"], ev["time_gps_s"])
     cs = res["code_clock_steps"]
     warnings += code_steps_warning(cs["step_m"], cs["signal"], cs["time_gps_s"])
     text = solution_text(res, sigs, opt, out_csv, bx, inputs=(*rover_files, *base_files, *nav_paths))
@@ -282,6 +284,7 @@ def _summary(res: dict, per_epoch: bool) -> dict:
             "fixed_epochs": int(res["fixed"].sum()), "direction": res["direction"],
             "fixes_rejected": res["fixes_rejected"], "partial_fixes": res["partial_fixes"],
             "wrong_fix_resets": res["wrong_fix_resets"], "ambiguities_released": res["ambiguities_released"],
+            "unflagged_slips": res["unflagged_slips"],         # slips no receiver flagged: a new ambiguity from each
             "float_variance": res["float_variance"],      # combined mode (the passes' disagreement); null for one pass
             "age_noise": res["age_noise"], "code_clock_steps": res["code_clock_steps"],
             "code_noise": {"mode": c["mode"], "variance_factor": c["factor"],       # an estimate not made: null

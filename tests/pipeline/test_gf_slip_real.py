@@ -55,6 +55,11 @@ def test_the_slip_is_found_and_the_zero_baseline_holds(rover, tmp_path):
     off = np.linalg.norm(xyz - BASE_XYZ, axis=1)
     assert fixed.any() and off[fixed].max() < 0.005
     assert off.max() < 0.05, off.max()
+    ev = s["unflagged_slips"]                                  # where the cycle came and went, both signals each time
+    assert ev["sat"] == ["G10"] * 4 and ev["signal"] == ["G:L1", "G:L2"] * 2
+    assert np.diff(ev["time_gps_s"])[[0, 2]].tolist() == [0.0, 0.0] and 25 < np.ptp(ev["time_gps_s"]) < 28
+    assert any(w.startswith("4 cycle slip(s) that no receiver flagged") and "G10:L1 at 2025-08-28 17:31:59.998 GPST" in w
+               for w in s["warnings"])
 
 
 def test_without_it_the_float_runs_away(rover, tmp_path, monkeypatch):
