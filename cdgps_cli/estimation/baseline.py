@@ -67,6 +67,7 @@ from cdgps_cli.model.gps.positioning import (
     antenna_reference_point_m,
     rover_delta_note,
     ephemeris_coverage,
+    epochs_spread,
     ephemeris_coverage_all,
     estimate_receiver_clock,
     nominal_interval_s,
@@ -1071,10 +1072,7 @@ def _station_spp(station: Station, nav, x0, max_epochs: int | None = None) -> np
     tt = o["time_gps_s"].to_numpy()
     tags, ep = np.unique(tt, return_inverse=True)
     ok = ephemeris_coverage(nav, o["sat"].to_numpy(), tt)
-    if max_epochs is not None and tags.size > max_epochs:
-        pick = np.zeros(tags.size, dtype=bool)
-        pick[np.linspace(0, tags.size - 1, max_epochs).round().astype(np.int64)] = True
-        ok &= pick[ep]
+    ok &= epochs_spread(tags.size, max_epochs)[ep]
     _, ep = np.unique(ep[ok], return_inverse=True)
     x, _ = spp_static(ep, o["sat"].to_numpy()[ok], tt[ok], o["pseudorange_l1_m"].to_numpy()[ok], nav,
                       x0_ecef_m=x0, what=_where(station))

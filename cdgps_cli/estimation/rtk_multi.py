@@ -46,7 +46,7 @@ from cdgps_cli.measurement.differencing import sd_variance
 from cdgps_cli.measurement.epoch_pairing import pair_epochs
 from cdgps_cli.measurement.base_interpolation import base_age_noise  # noqa: F401 (rtk_multi.base_age_noise: API)
 from cdgps_cli.measurement.noise import code_noise_factor, effective_sample_size
-from cdgps_cli.measurement.slips import geometry_free_slips
+from cdgps_cli.measurement.slips import geometry_free_slips, slip_events
 from cdgps_cli.model.dynamics_models import ConstantVelocity, RandomWalk, Static
 from cdgps_cli.model.gps.orbits import OMEGA_E_GPS, azimuth_elevation, ecef_to_geodetic, ephemeris_rows, sat_position_rows
 from cdgps_cli.model.gps.positioning import ephemeris_coverage, tropo_hydrostatic_m
@@ -678,11 +678,9 @@ def _with_geometry_free_slips(rows) -> tuple[dict, np.ndarray]:
 
 
 def _slip_events(rows, found, times_s) -> dict:
-    """The satellite, signal name and epoch time (GPS s) of each row in ``found`` (lists)."""
-    i = np.flatnonzero(found)
-    epoch = np.searchsorted(rows["ptr"], i, side="right") - 1
-    return {"sat": [str(s) for s in rows["sats"][i]], "signal": [str(rows["names"][c]) for c in rows["code"][i]],
-            "time_gps_s": [float(t) for t in np.asarray(times_s, float)[epoch]]}
+    """:func:`~cdgps_cli.measurement.slips.slip_events` as the JSON summary's lists (``time_gps_s``)."""
+    ev = slip_events(rows, found, times_s)
+    return {"sat": ev["sat"].tolist(), "signal": ev["signal"].tolist(), "time_gps_s": ev["time_s"].tolist()}
 
 
 def _passes(rows, times, direction: str, opt, base_xyz, origin, iono, progress) -> dict:

@@ -34,7 +34,7 @@ from cdgps_cli.measurement.base_interpolation import base_age_noise
 from cdgps_cli.measurement.code_steps import code_clock_steps, without_code_steps  # noqa: F401 (code_clock_steps: API)
 from cdgps_cli.measurement.epoch_fit import grouped_epoch_fit
 from cdgps_cli.measurement.epoch_pairing import channel_index, pair_epochs
-from cdgps_cli.measurement.slips import geometry_free_slips, time_differenced_slips
+from cdgps_cli.measurement.slips import geometry_free_slips, slip_events, time_differenced_slips
 from cdgps_cli.model.dynamics_models import Dynamics, Static, WithConstants
 from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
 
@@ -839,7 +839,7 @@ def unflagged_slips(rows, base_xyz_m, origin_xyz_m, *, moving: bool) -> np.ndarr
 
 
 def _with_unflagged_slips(rows, times_s, opt: dict, base_xyz_m, origin_xyz_m) -> tuple[dict, dict]:
-    """(the SD rows with a slip flag where one no receiver flagged starts a new arc, :func:`_slip_events` of those):
+    """(the SD rows with a slip flag where one no receiver flagged starts a new arc, :func:`~cdgps_cli.measurement.slips.slip_events` of those):
     found by :func:`unflagged_slips`, or, with ``opt["segment_starts"]`` (a given solution's, INIT's), where it cut."""
     if opt["segment_starts"] is None:
         found = unflagged_slips(rows, base_xyz_m, origin_xyz_m, moving=opt["motion"] != "static")
@@ -847,7 +847,7 @@ def _with_unflagged_slips(rows, times_s, opt: dict, base_xyz_m, origin_xyz_m) ->
         found = _rows_at(rows, times_s, opt["segment_starts"]) & ~rows["slip"]
     if found.any():
         rows = dict(rows, slip=rows["slip"] | found)
-    return rows, _slip_events(rows, found, times_s)
+    return rows, slip_events(rows, found, times_s)
 
 
 def _rows_at(rows, times_s, keys) -> np.ndarray:
@@ -882,14 +882,6 @@ def _rows_at(rows, times_s, keys) -> np.ndarray:
     hit = key[order][at] == want
     out[order[at[hit]]] = True
     return out
-
-
-def _slip_events(rows, found, times_s) -> dict:
-    """The satellite, signal and epoch (GPS s) of each slip :func:`unflagged_slips` found."""
-    i = np.flatnonzero(found)
-    epoch = np.searchsorted(rows["ptr"], i, side="right") - 1
-    return {"sat": rows["sats"][i].astype(str), "signal": rows["names"][rows["code"][i]].astype(str),
-            "time_s": np.asarray(times_s, float)[epoch]}
 
 
 def iono_weighting_sigma_m(opt: dict, base_xyz_m, rover_xyz0_m) -> float:

@@ -142,6 +142,16 @@ def geometry_free_slips(epoch, sat, code, phase_m, var_m2=None, *, flagged=None,
     return out
 
 
+def slip_events(rows, found, times_s) -> dict:
+    """The satellite (str array), signal name and epoch time (GPS s) of each SD row in ``found`` (rows of
+    :func:`~cdgps_cli.measurement.dd_signals.paired_sd_rows`: ``ptr``, ``sats``, ``names``, ``code``; ``times_s`` per
+    epoch), as ``sat``, ``signal``, ``time_s``."""
+    i = np.flatnonzero(found)
+    epoch = np.searchsorted(rows["ptr"], i, side="right") - 1
+    return {"sat": rows["sats"][i].astype(str), "signal": rows["names"][rows["code"][i]].astype(str),
+            "time_s": np.asarray(times_s, float)[epoch]}
+
+
 def unflagged_slip_text(sat, signal, time_s, n_show: int = 8) -> list[str]:
     """The warning naming slips no receiver flagged that a solver found, each a new ambiguity (satellite, signal name
     "G:L1" and epoch time, GPS s, per slip; [] when there is none): `init`'s and `rtk`'s."""

@@ -37,7 +37,8 @@ from cdgps_cli.io.rinex_signals import (first_of_repeated_epochs, out_of_order_t
                                         repeated_epochs_text, signals_in_file)
 from cdgps_cli.io.solution_formats import POS_FRAMES, Q_FIX, Q_FLOAT, csv_text, finite_or, geojson_text, nmea_gga_text, pos_text
 from cdgps_cli.model.gps.orbits import ecef_to_enu, ecef_to_geodetic, enu_matrix
-from cdgps_cli.model.gps.positioning import antenna_reference_point_m, ephemeris_coverage, rover_delta_note, spp_static
+from cdgps_cli.model.gps.positioning import (antenna_reference_point_m, ephemeris_coverage, epochs_spread,
+                                             rover_delta_note, spp_static)
 
 __all__ = ["validate_options", "rtk_from_files", "common_signals"]
 
@@ -450,9 +451,8 @@ def _single_point(obs: pd.DataFrame, nav, x0, what: str, max_epochs: int | None 
     t = o["time_gps_s"].to_numpy()
     tags, ep = np.unique(t, return_inverse=True)
     if max_epochs is not None and tags.size > max_epochs:
-        keep = np.zeros(tags.size, dtype=bool)
-        keep[np.linspace(0, tags.size - 1, max_epochs).round().astype(np.int64)] = True
-        o, t = o[keep[ep]], t[keep[ep]]
+        keep = epochs_spread(tags.size, max_epochs)[ep]
+        o, t = o[keep], t[keep]
         ep = np.unique(t, return_inverse=True)[1]
     if o.empty:
         return None, sig

@@ -101,3 +101,11 @@ def test_rtk_and_init_put_the_base_antenna_where_rtklib_does(tmp_path):
     shift = antenna_reference_point_m({"approx_position_xyz_m": MARKER, "antenna_delta_hen_m": (0.5, 0.1, -0.2)}) - MARKER
     assert np.abs(xyz["base"][1] - xyz["plain"][1] - shift).max() < 1e-9
     assert np.abs(xyz["base"][0] - xyz["plain"][0] - shift).max() < 1e-3
+
+
+def test_epochs_spread_keeps_the_first_the_last_and_as_many_as_asked():
+    from cdgps_cli.model.gps.positioning import epochs_spread
+
+    k = epochs_spread(601, 120)
+    assert k.sum() == 120 and k[0] and k[-1]
+    assert epochs_spread(100, 120).all() and epochs_spread(100, None).all() and epochs_spread(0, 5).size == 0

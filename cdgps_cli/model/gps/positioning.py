@@ -474,6 +474,17 @@ def _rate_along_satellites(sats: np.ndarray, t_s: np.ndarray, value: np.ndarray)
     return out
 
 
+def epochs_spread(n_epochs: int, max_epochs: int | None) -> np.ndarray:
+    """(n_epochs,) bool: ``max_epochs`` epochs spread evenly over ``n_epochs`` (the first and the last among them; all
+    when ``max_epochs`` is None or not fewer), for a single-point position that checks a header's."""
+    keep = np.zeros(n_epochs, dtype=bool)
+    if max_epochs is None or n_epochs <= max_epochs:
+        keep[:] = True
+    else:
+        keep[np.linspace(0, n_epochs - 1, max_epochs).round().astype(np.int64)] = True
+    return keep
+
+
 def spp_static(
     epoch_index,
     sats,
