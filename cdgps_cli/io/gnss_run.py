@@ -1076,9 +1076,9 @@ def gnss_run_info(path: str | Path, contents, common_epochs=None, lock_summary=N
 # starter configs from the files' headers
 
 
-def _rinex_comments(n: str, p, comments: list) -> bool:
+def _rinex_comments(n: str, p, comments: list) -> GnssReceiver:
     """A starter config's comment lines on antenna ``n``'s RINEX file ``p`` (marker, receiver, antenna, span, header
-    position); whether the header has a position."""
+    position); returns the file read (GPS L1)."""
     rx = read_receiver_file(n, "rinex", p, gps_l1_optional=True)       # (a file of other systems: the run's signals say)
     h = rx.header
     t = np.unique(rx.raw["time_gps_s"].to_numpy())
@@ -1094,7 +1094,7 @@ def _rinex_comments(n: str, p, comments: list) -> bool:
     comments.append(f"{n}: {Path(p).name}, RINEX {float(h.get('version') or 0):.2f}, marker {h.get('marker_name') or '?'}, receiver "
                     f"{h.get('receiver_type') or '?'}, antenna {h.get('antenna_type') or '?'}, {span},")
     comments.append(f"    header position {('(' + ', '.join(f'{v:.4f}' for v in pos) + ')') if pos is not None else 'none'}")
-    return pos is not None
+    return rx
 
 
 def _ubx_comments(n: str, p, comments: list, warnings: list | None):
@@ -1122,7 +1122,7 @@ def _ubx_comments(n: str, p, comments: list, warnings: list | None):
 def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), master: str | None = None, *,
                         displacement: str = "static", sigma_m_per_sqrt_s=None, relative_to: Path | None = None,
                         name: str | None = None, notes: list | None = None, warnings: list | None = None,
-                        master_position=None, signals=None) -> str:
+                        master_position=None, master_header_check=None, signals=None) -> str:
     """Text of a GNSS run config for the given files; the headers are read and summarised in
     comments (marker, receiver, antenna, span, header position); ``signals`` (names) become ``[gnss] signals``
     unless they are GPS L1 alone (the GPS L1 path, no key).  The master defaults to the first
@@ -1130,7 +1130,9 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
     paths are written relative to ``relative_to``.  A UBX master's ``position_ecef_m`` is the
     RTCM 1005/1006 antenna reference point, else the mean single-point position (said in the
     comments and appended to ``notes``).  A UBX log that lost data (bad checksums, skipped bytes, a cut
-    frame) is named in ``warnings`` as ``ingest`` names it.  The text is parsed back and its positions checked."""
+    frame) is named in ``warnings`` as ``ingest`` names it.  ``master_header_check(name, path, receiver, nav_paths)``:
+    a RINEX master's header position checked against its data ((a warning, a comment), or None), said in
+    ``warnings`` and in the comments.  The text is parsed back and its positions checked."""
     ubx = ubx or {}
     if not rinex and not ubx:
         raise CdgpsError("give at least one receiver file (--rinex/--ubx ANTENNA=FILE)")
@@ -1146,8 +1148,10 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
                 "      cdgps estimate run.mcap --init init.json -o states.mcap && cdgps export states.mcap -o states.csv", ""]
     files = {}
     with_pos = []
+    rinex_rx = {}
     for n, p in rinex.items():
-        if _rinex_comments(n, p, comments):
+        rinex_rx[n] = _rinex_comments(n, p, comments)
+        if header_position_m(rinex_rx[n].header) is not None:
             with_pos.append(n)
         files[n] = ("rinex", rel(p))
     positions: dict = {}
@@ -1180,6 +1184,14 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
         if notes is not None:
             notes.append(f"{master} ({Path(ubx[master]).name}): no RTCM 1005/1006 base position in the log; "
                          f"position_ecef_m is the mean single-point position (metre level), not a surveyed one")
+    if master in rinex_rx and master in with_pos and master_header_check is not None:
+        off = master_header_check(master, rinex[master], rinex_rx[master], nav_paths)
+        if off:
+            import textwrap  # noqa: PLC0415
+            comments += textwrap.wrap(f"{master} position: CHECK IT — {off[1]}", 112, initial_indent="    ",
+                                      subsequent_indent="      ")
+            if warnings is not None:
+                warnings.append(off[0])
     sig = list(signals or ())
     text = gnss_config_toml(files, [rel(p) for p in nav_paths], master, name=name or "-".join(files),
                             displacement=displacement, sigma_m_per_sqrt_s=sigma_m_per_sqrt_s, comments=comments,

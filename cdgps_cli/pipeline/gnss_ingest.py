@@ -29,7 +29,8 @@ from cdgps_cli.io.sensor_logs import sensor_attachments, sensor_log_file
 from cdgps_cli.io.ubx_esf import receiver_imu_tables
 from cdgps_cli.measurement.channels import FIRST, lock_segments, ubx_loss_of_lock  # noqa: F401 (ubx_loss_of_lock: re-exported)
 from cdgps_cli.measurement.epoch_pairing import pair_epochs
-from cdgps_cli.model.gps.positioning import ephemeris_coverage, spp_static
+from cdgps_cli.config.options import HEADER_CHECK_EPOCHS, HEADER_POSITION_TOL_M
+from cdgps_cli.model.gps.positioning import antenna_reference_point_m, ephemeris_coverage, epochs_spread, spp_static
 
 __all__ = ["ingest_gnss", "run_info", "processing_obs", "signal_obs", "ubx_loss_of_lock", "lock_summary", "starter_gnss_config",
            "spp_master_position"]
@@ -350,7 +351,7 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
         if kwargs.get("warnings") is not None:
             kwargs["warnings"].extend(said)
     return gnss_run.starter_gnss_config(rinex, ubx, nav_paths, master, master_position=spp_master_position,
-                                        signals=signals, **kwargs)
+                                        master_header_check=master_header_check, signals=signals, **kwargs)
 
 
 def spp_master_position(name: str, path, rx: "gnss_run.GnssReceiver", nav_paths, ubx_rx: dict) -> tuple:
@@ -365,10 +366,44 @@ def spp_master_position(name: str, path, rx: "gnss_run.GnssReceiver", nav_paths,
                              f"no ephemerides for a single-point position (no RXM-SFRBX GPS subframes in the UBX logs "
                              f"and no --nav file); give --nav, or write position_ecef_m in the config yourself")
         nav = gnss_run._merge_nav_tables(navs)
-    r = rx.raw[np.isfinite(rx.raw["pseudorange_m"].to_numpy())]
-    cov = ephemeris_coverage(nav, r["sat"].to_numpy(), r["time_gps_s"].to_numpy())
-    r = r[cov]
+    return tuple(float(v) for v in _raw_single_point(rx.raw, nav, f"{path} ({name})"))
+
+
+def _raw_single_point(raw: pd.DataFrame, nav: pd.DataFrame, what: str, x0=None,
+                      max_epochs: int | None = None) -> np.ndarray:
+    """A receiver's static single-point position (ECEF m) from the GPS L1 pseudoranges of its raw table
+    (:data:`~cdgps_cli.io.gnss_run.RAW_COLUMNS`) that ``nav`` covers, from ``max_epochs`` epochs spread over the
+    record (None: all)."""
+    r = raw[np.isfinite(raw["pseudorange_m"].to_numpy())]
+    r = r[ephemeris_coverage(nav, r["sat"].to_numpy(), r["time_gps_s"].to_numpy())]
     t = r["time_gps_s"].to_numpy()
-    ep = np.unique(t, return_inverse=True)[1]
-    x, _ = spp_static(ep, r["sat"].to_numpy(), t, r["pseudorange_m"].to_numpy(), nav, what=f"{path} ({name})")
-    return tuple(float(v) for v in x)
+    tags, ep = np.unique(t, return_inverse=True)
+    keep = epochs_spread(tags.size, max_epochs)[ep]
+    _, ep = np.unique(ep[keep], return_inverse=True)
+    x, _ = spp_static(ep, r["sat"].to_numpy()[keep], t[keep], r["pseudorange_m"].to_numpy()[keep], nav,
+                      x0_ecef_m=x0, what=what)
+    return np.asarray(x, dtype=np.float64)
+
+
+def master_header_check(name: str, path, rx: "gnss_run.GnssReceiver", nav_paths) -> tuple | None:
+    """For ``cdgps config``: a warning when a RINEX master's antenna position from its header (APPROX POSITION XYZ
+    plus ANTENNA: DELTA H/E/N) is more than :data:`~cdgps_cli.config.options.HEADER_POSITION_TOL_M` from its
+    single-point position (:data:`~cdgps_cli.config.options.HEADER_CHECK_EPOCHS` epochs) — ``init`` and ``rtk``
+    refuse such a master — (the warning, the config's comment) —; None when it is within, or when no single-point
+    position can be made (no navigation files, no GPS L1 pseudoranges they cover)."""
+    xm = antenna_reference_point_m(rx.header, str(path))
+    if xm is None or not nav_paths or not len(rx.raw):
+        return None
+    try:
+        spp = _raw_single_point(rx.raw, gnss_run.merge_nav(nav_paths), f"{path} ({name})", xm, HEADER_CHECK_EPOCHS)
+    except CdgpsError:
+        return None
+    off = float(np.linalg.norm(spp - xm))
+    if off <= HEADER_POSITION_TOL_M:
+        return None
+    where = f"is {off / 1e3:.4g} km from its pseudorange single-point position ({' '.join(f'{v:.1f}' for v in spp)})"
+    return (f"{path} ({name}, the master): its header position (APPROX POSITION XYZ) {where}; 'cdgps init' and "
+            f"'cdgps rtk' refuse such a master: write its surveyed position as position_ecef_m in "
+            f"[gnss.antennas.\"{name}\"] (the single-point position is good to a few metres)",
+            f"the header's APPROX POSITION XYZ {where}: init and rtk refuse it; write the surveyed position_ecef_m "
+            f"below")

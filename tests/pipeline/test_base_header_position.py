@@ -47,3 +47,24 @@ def test_init_refuses_the_master_header_and_takes_the_configs_position(tmp_path)
     assert r.exit_code == 0, r.output
     init = json.loads((tmp_path / "init2.json").read_text())
     assert init["rovers"]["rover"]["baseline_length_m"] == pytest.approx(6.8, abs=0.1)
+
+
+def test_config_warns_of_the_master_header_and_says_nothing_of_a_good_one(tmp_path):
+    cfg = tmp_path / "cfg.toml"
+    r = run_cli("-q", "config", "--rinex", f"base={BASE}", "--rinex", f"rover={ROVER}", "--nav", NAV, "--master", "base",
+                "--json", "-o", cfg)
+    assert r.exit_code == 0, r.output
+    summary = json.loads(r.stdout)
+    [w] = [w for w in summary["warnings"] if "the master" in w]
+    assert "206.8 km from its pseudorange single-point position" in w and 'position_ecef_m in [gnss.antennas."base"]' in w
+    assert "#     base position: CHECK IT" in cfg.read_text()
+    # the rover as master: its header is where its data are (6.8 m from the base) -> no warning, no comment
+    r = run_cli("-q", "config", "--rinex", f"base={BASE}", "--rinex", f"rover={ROVER}", "--nav", NAV, "--master", "rover",
+                "--json", "-o", cfg)
+    assert r.exit_code == 0, r.output
+    assert not [w for w in json.loads(r.stdout)["warnings"] if "the master" in w] and "CHECK IT" not in cfg.read_text()
+    # without navigation files no single-point position can be made: nothing is said
+    r = run_cli("-q", "config", "--rinex", f"base={BASE}", "--rinex", f"rover={ROVER}", "--master", "base", "--json",
+                "-o", cfg)
+    assert r.exit_code == 0, r.output
+    assert not [w for w in json.loads(r.stdout)["warnings"] if "the master" in w]
