@@ -252,8 +252,10 @@ def _placement_options(f):
 
 @main.command("init", short_help="Batch bias init and LAMBDA integers → INIT.json")
 @click.argument("run_mcap", type=click.Path(dir_okay=False))
-@click.option("--start", "start_s", type=float, default=None, help="Window start, s (default: automatic).")
-@click.option("--duration", "duration_s", type=float, default=None, help="Window length, s (default: 60 s).")
+@click.option("--start", "start_s", type=float, default=None,
+              help="Window start, s (default: automatic; GNSS runs: from the record's first epoch, default 0).")
+@click.option("--duration", "duration_s", type=float, default=None,
+              help="Window length, s (default: 60 s; GNSS runs: to the record's end; estimate then uses the same window).")
 @click.option("--no-process-noise", is_flag=True, help="1995 variant: no process noise in the batch.")
 @click.option("--float-only", is_flag=True, help="Do not fix integers (float biases only).")
 @click.option("--ratio", "ratio_threshold", type=float, default=RATIO_THRESHOLD, show_default=True, help="Ratio-test threshold.")
@@ -289,8 +291,8 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
     if require_kind(run_mcap, RUNS, "RUN_MCAP") == GNSS_RUN:      # (the file's metadata read once)
         _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, as_json,
                    structure=(structure, x_axis_azimuth_deg, receiver_map) if (structure or receiver_map) else None,
-                   structure_only={"--start": start_s is not None, "--duration": duration_s is not None,
-                                   "--no-process-noise": no_process_noise, "--sigma-m": sigma_m is not None,
+                   window_s=None if start_s is None and duration_s is None else (start_s or 0.0, duration_s),
+                   structure_only={"--no-process-noise": no_process_noise, "--sigma-m": sigma_m is not None,
                                    "--starts": starts != INIT_STARTS, "--max-iterations": max_iterations != INIT_MAX_ITERATIONS,
                                    "--multipath-sigma-m": multipath_sigma_m is not None,
                                    "--multipath-tau-s": multipath_time_constant_s is not None})
@@ -956,16 +958,16 @@ def _reject_structure_options(given: dict, what: str) -> None:
                          f"(see docs/gnss-pipeline.md)")
 
 
-def _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, as_json, structure_only, structure=None):
-    import hashlib
-
+def _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, as_json, structure_only, structure=None,
+               window_s=None):
     from click.core import ParameterSource
 
+    from cdgps_cli.io.atomic import file_sha256
     from cdgps_cli.pipeline.gnss import gnss_init
     from cdgps_cli.io.gnss_run import SOLVER_COLUMNS, read_gnss_run
 
     _reject_structure_options(structure_only, "'cdgps init'")
-    run = read_gnss_run(run_mcap, columns=SOLVER_COLUMNS)
+    run = read_gnss_run(run_mcap, columns=SOLVER_COLUMNS, window_s=window_s)
     over = {}
     if ctx.get_parameter_source("ratio_threshold") != ParameterSource.DEFAULT:
         over["ratio_threshold"] = ratio_threshold
@@ -981,8 +983,11 @@ def _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, a
 
         res["modal_init"] = gnss_modal_init(run, res, modal[0], receivers=modal[1], x_axis_azimuth_deg=structure[1],
                                             progress=say)
-    res["run_sha256"] = hashlib.sha256(Path(run_mcap).read_bytes()).hexdigest()
+    res["run_sha256"] = file_sha256(run_mcap)          # (in blocks: a day's RUN is not read into memory)
     _write_json_atomic(output, res)
+    if run.window is not None:
+        _say(ctx, f"window: {_gps_time(run.window['start_gps_s'])} – {_gps_time(run.window['end_gps_s'])} "
+                  f"({run.window['start_s']:g} s after the record's first epoch, {run.window['duration_s']:g} s)")
     for r, v in res["rovers"].items():
         ratio = v["ratio"] if v["ratio"] is None or isinstance(v["ratio"], str) else f"{v['ratio']:.1f}"
         st = ", ".join(f"{k} {x:+.4f} ± {v['sigma'][k]:.4f}" for k, x in v["states"].items())
@@ -1023,7 +1028,7 @@ def _scene_factor(text) -> float | str:
 def _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json, structure_only, structure=None,
                    x_axis_azimuth_deg=X_AXIS_AZIMUTH_DEG, receiver_map=(), allow_other_run=False,
                    scene_exaggeration=SCENE_EXAGGERATION, fuse=None, hold_out=()):
-    from cdgps_cli.pipeline.gnss import gnss_estimate
+    from cdgps_cli.pipeline.gnss import gnss_estimate, init_window
     from cdgps_cli.io.gnss_run import SOLVER_COLUMNS, read_gnss_run
 
     _reject_structure_options(structure_only, "'cdgps estimate'")
@@ -1032,7 +1037,7 @@ def _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json, structure_
     init, init_text = read_init_json(init_json)
     pairing = _check_pairing(ctx, init, init_json, run_mcap, allow_other_run)
     extra = {"allow_other_run": True, "init_run_sha256": pairing["init_run_sha256"]} if allow_other_run else None
-    run = read_gnss_run(run_mcap, columns=SOLVER_COLUMNS)
+    run = read_gnss_run(run_mcap, columns=SOLVER_COLUMNS, window=init_window(init))
     if structure is not None or receiver_map:
         _estimate_gnss_modal(ctx, run, init, init_text, output, as_json, smooth, structure, x_axis_azimuth_deg,
                              receiver_map, extra, pairing, scene_exaggeration, fuse=fuse, hold_out=hold_out)

@@ -29,7 +29,6 @@ Layout (format details in docs/gnss-pipeline.md):
 
 from __future__ import annotations
 
-import io
 import itertools
 import json
 import math
@@ -43,6 +42,7 @@ import pandas as pd
 
 from cdgps_cli.core import beside, progress
 from cdgps_cli.core.checks import header_position_m
+from cdgps_cli.io import gnss_archive
 from cdgps_cli.io.atomic import path_for_config
 from cdgps_cli.config.structure import GnssConfig, gnss_config_toml, parse_gnss_config
 from cdgps_cli.core.errors import CdgpsError
@@ -67,8 +67,8 @@ GNSS_OBS_TOPIC = "/cdgps/gnss/obs"
 GNSS_EPHEMERIS_TOPIC = "/cdgps/gnss/ephemeris"
 RECEIVERS_ATTACHMENT = "gnss/receivers.json"
 EPHEMERIS_ATTACHMENT = "gnss/ephemeris.json"
-OBS_ATTACHMENT = "gnss/obs/{}.npz.zst"
-SIGNALS_ATTACHMENT = "gnss/signals/{}.npz.zst"
+OBS_PREFIX = "gnss/obs/{}"
+SIGNALS_PREFIX = "gnss/signals/{}"
 
 RAW_COLUMNS = {
     "time_gps_s": "receiver time tag, GPS s",
@@ -133,6 +133,11 @@ class GnssRun:
     receivers: dict
     nav: pd.DataFrame
     metadata: dict
+    window: dict | None = None
+    """The window of the record read (:func:`read_gnss_run` ``window``/``window_s``): ``start_s`` and ``duration_s``
+    (from the record's first epoch), ``start_gps_s`` and ``end_gps_s`` (GPS s; a rover's rows t with start ≤ t < end)
+    and ``master_margin_s`` (the master's rows read that much wider on each side: the epochs the rover's pair with);
+    None: the whole record."""
 
     @property
     def rovers(self) -> list:
@@ -289,71 +294,39 @@ def read_receiver_file(name: str, kind: str, path: str | Path, *, strict: bool =
 # writing
 
 
-def _pack_npz_zst(tab: pd.DataFrame, text_cols: tuple, dtypes: dict) -> bytes:
-    """Columns of ``tab`` as zstd-compressed numpy arrays: each text column as ``<c>_index`` (int16) and
-    ``<c>_names``, each numeric column ``c`` of ``dtypes`` in its dtype."""
-    import zstandard  # noqa: PLC0415
-
-    arrays = {}
-    for c in text_cols:
-        codes, names = pd.factorize(tab[c], sort=True)
-        arrays[c + "_index"], arrays[c + "_names"] = codes.astype(np.int16), np.array(list(names), dtype="U8")
-    for c, dt in dtypes.items():
-        arrays[c] = tab[c].to_numpy().astype(dt)
-    buf = io.BytesIO()
-    np.savez(buf, **arrays)
-    arrays.clear()                                  # (the arrays are in the archive: not held while compressing)
-    with buf.getbuffer() as archive:                # (no copy of the archive)
-        return zstandard.ZstdCompressor(level=3).compress(archive)
-
-
-def _unpack_npz_zst(data: bytes, what: str, text_cols: tuple, dtypes: dict, columns: list,
-                    optional: tuple = (), keep=None) -> pd.DataFrame:
-    """The table of :func:`_pack_npz_zst` (floats as float64, integers as int64; the ``optional`` numeric
-    columns when stored; ``keep``: only these numeric columns, else all); CdgpsError when damaged."""
-    import zstandard  # noqa: PLC0415
-
-    try:
-        z = np.load(io.BytesIO(zstandard.ZstdDecompressor().decompress(data)), allow_pickle=False)
-        df = {c: np.asarray(z[c + "_names"], dtype=object)[z[c + "_index"].astype(np.int64)] for c in text_cols}
-        extra = [c for c in optional if c in z.files]
-        if keep is not None:
-            dtypes = {c: d for c, d in dtypes.items() if c in keep}
-            columns = [c for c in columns if c in keep or c in text_cols]
-        for c in list(dtypes) + extra:
-            v = z[c]
-            df[c] = v.astype(np.float64 if v.dtype.kind == "f" else np.int64, copy=False)
-    except (KeyError, ValueError, OSError, zstandard.ZstdError) as exc:
-        raise CdgpsError(f"{what}: damaged observation arrays: {exc}") from None
-    # copy=False: the columns become the frame's blocks as they are (no second, consolidated copy of the table)
-    return pd.DataFrame(df, columns=columns + extra, copy=False)
-
-
-def _npz_zst(raw: pd.DataFrame) -> bytes:
-    return _pack_npz_zst(raw, ("sat",), _DTYPES)
-
-
-def _raw_from_npz_zst(data: bytes, what: str, columns=None) -> pd.DataFrame:
-    return _unpack_npz_zst(data, what, ("sat",), _DTYPES, list(RAW_COLUMNS), keep=columns)
-
-
 _SIGNAL_DTYPES = {"time_gps_s": np.float64, "phase_cycles": np.float64, "pseudorange_m": np.float64, "lli": np.int8,
                   "wavelength_m": np.float64}
 _SIGNAL_UBX_DTYPES = {"lock_time_ms": np.int32, "half_cycle": np.int8}
 """Columns of a UBX receiver's signal table (:func:`~cdgps_cli.io.ubx.read_ubx_signals`): loss of lock
 comes from the lock times at processing."""
+_SIGNAL_COLUMNS = ["time_gps_s", "sat", "signal", "phase_cycles", "pseudorange_m", "lli", "wavelength_m"]
 
 
-def _signals_npz_zst(tab: pd.DataFrame) -> bytes:
-    """A multi-signal table (:data:`~cdgps_cli.io.rinex_signals.SIGNAL_COLUMNS`) as zstd-compressed numpy arrays."""
-    ubx = all(c in tab for c in _SIGNAL_UBX_DTYPES)
-    return _pack_npz_zst(tab, ("sat", "signal"), {**_SIGNAL_DTYPES, **(_SIGNAL_UBX_DTYPES if ubx else {})})
+def _pack_receiver(rx: GnssReceiver, i: int, submit) -> list:
+    """The attachments of receiver ``i``'s tables, in blocks (:func:`cdgps_cli.io.gnss_archive.pack_blocks`; each
+    block packed by ``submit``): [(name, bytes or a future of them)], each table's block index first."""
+    out = []
+    tabs = [(OBS_PREFIX.format(i), rx.raw, ("sat",), _DTYPES)]
+    if rx.signals is not None:
+        ubx = all(c in rx.signals for c in _SIGNAL_UBX_DTYPES)
+        tabs.append((SIGNALS_PREFIX.format(i), rx.signals, ("sat", "signal"),
+                     {**_SIGNAL_DTYPES, **(_SIGNAL_UBX_DTYPES if ubx else {})}))
+    for prefix, tab, text, dtypes in tabs:
+        index_name, index, blocks = gnss_archive.pack_blocks(tab, prefix, text, dtypes, submit)
+        out += [(index_name, index), *blocks]
+    return out
 
 
-def _signals_from_npz_zst(data: bytes, what: str) -> pd.DataFrame:
-    return _unpack_npz_zst(data, what, ("sat", "signal"), _SIGNAL_DTYPES,
-                           ["time_gps_s", "sat", "signal", "phase_cycles", "pseudorange_m", "lli", "wavelength_m"],
-                           optional=tuple(_SIGNAL_UBX_DTYPES))
+def _raw_table(c, i: int, what: str, columns=None, window=None) -> pd.DataFrame:
+    """Receiver ``i``'s raw table of a RUN's contents (``columns``: only these numeric ones; ``window``: GPS s)."""
+    return gnss_archive.read_table(c, OBS_PREFIX.format(i), what, ("sat",), _DTYPES, list(RAW_COLUMNS), keep=columns,
+                                   window=window)
+
+
+def _signal_table(c, i: int, what: str, window=None) -> pd.DataFrame:
+    """Receiver ``i``'s multi-signal table of a RUN's contents (``window``: GPS s)."""
+    return gnss_archive.read_table(c, SIGNALS_PREFIX.format(i), what, ("sat", "signal"), _SIGNAL_DTYPES,
+                                   _SIGNAL_COLUMNS, optional=tuple(_SIGNAL_UBX_DTYPES), window=window)
 
 
 def _nullable(values: np.ndarray) -> list:
@@ -762,14 +735,13 @@ def write_gnss_run(cfg: GnssConfig, out_path: str | Path, inp: IngestInputs, pos
         # the observation archives are packed in a worker thread while the messages are built (numpy's copies
         # and zstd release the GIL: a day's pair 8.8 -> 8.0 s), and attached after them, in order, as before
         with ThreadPoolExecutor(max_workers=1, thread_name_prefix="cdgps-archive") as pool:
-            packed = []
-            for i, (n, rx) in enumerate(receivers.items()):
-                packed.append((OBS_ATTACHMENT.format(i), pool.submit(_npz_zst, rx.raw)))
-                if rx.signals is not None:
-                    packed.append((SIGNALS_ATTACHMENT.format(i), pool.submit(_signals_npz_zst, rx.signals)))
+            packed = [a for i, rx in enumerate(receivers.values()) for a in _pack_receiver(rx, i, pool.submit)]
             n_msg = _write_obs_messages(out, ch, receivers)
-            for name, fut in packed:
-                out.attach(name, fut.result(), "application/x-npz+zstd")
+            for name, data in packed:
+                if isinstance(data, bytes):
+                    out.attach(name, data, "application/json")
+                else:
+                    out.attach(name, data.result(), "application/x-npz+zstd")
         out.attach(RECEIVERS_ATTACHMENT, json.dumps(_json_safe(rx_json), indent=1).encode(), "application/json")
         out.attach(CONFIG_ATTACHMENT, cfg.text.encode("utf-8"), "application/toml")
         for name, data in (extra_attachments or {}).items():
@@ -982,12 +954,17 @@ SOLVER_COLUMNS = tuple(c for c in RAW_COLUMNS if c not in ("doppler_hz", "sub_ha
 (≈ 33 MiB per receiver of a day at 1 Hz) undecoded."""
 
 
-def read_gnss_run(path: str | Path, contents=None, columns=None) -> GnssRun:
+def read_gnss_run(path: str | Path, contents=None, columns=None, window=None, window_s=None) -> GnssRun:
     """Read a GNSS RUN.mcap written by :func:`ingest_gnss` (CRCs validated; attachments only).
 
     ``columns``: the receivers' raw tables hold only these of :data:`RAW_COLUMNS` (e.g.
-    :data:`SOLVER_COLUMNS`; the time, satellite and what a stage reads), None: all."""
-    c = contents if contents is not None else read_mcap(path, topics=[])
+    :data:`SOLVER_COLUMNS`; the time, satellite and what a stage reads), None: all.  ``window`` (t0, t1), GPS s:
+    the receivers' tables hold only the rows with t0 ≤ time_gps_s < t1, decoded from the archive blocks that
+    overlap it (:mod:`cdgps_cli.io.gnss_archive`); None: the whole record.  ``window_s`` (start_s, duration_s):
+    the same, from start_s seconds after the record's first epoch (its earliest time tag of any receiver; duration_s
+    None: to the record's last epoch).  A window
+    holding no observation of a receiver is refused, naming the receiver and its record's span."""
+    c = contents if contents is not None else read_mcap(path, topics=[], attachments=_not_a_table)
     if not is_gnss_run(c):
         raise CdgpsError(f"{path}: not a GNSS RUN.mcap (no {RECEIVERS_ATTACHMENT}); is this a run from "
                          f"'cdgps ingest --rinex/--ubx'?")
@@ -1004,15 +981,22 @@ def read_gnss_run(path: str | Path, contents=None, columns=None) -> GnssRun:
         raise CdgpsError(f"{path}: no {EPHEMERIS_ATTACHMENT} attachment although the run was ingested with "
                          f"navigation files (damaged file)")
     receivers = {}
+    named_master = meta.get("master") or cfg.master or (rx_json[0].get("name") if rx_json else None)
+    if window is not None or window_s is not None:
+        window = _record_window(c, path, len(rx_json), cfg, window, window_s)
     for i, rj in enumerate(rx_json):
-        key = OBS_ATTACHMENT.format(i)
-        if key not in c.attachments:
-            raise CdgpsError(f"{path}: no {key} attachment (observations of {rj.get('name')})")
-        raw = _raw_from_npz_zst(c.attachments[key], f"{path}:{key}", columns)
-        skey = SIGNALS_ATTACHMENT.format(i)
-        if cfg.signals and skey not in c.attachments:
-            raise CdgpsError(f"{path}: no {skey} attachment (signals of {rj.get('name')}) although the config lists signals")
-        sig = _signals_from_npz_zst(c.attachments[skey], f"{path}:{skey}") if cfg.signals else None
+        key = OBS_PREFIX.format(i)
+        if not gnss_archive.has_table(c, key):
+            raise CdgpsError(f"{path}: no {key} attachments (observations of {rj.get('name')})")
+        rows = None if window is None else _receiver_rows(window, rj.get("name") == named_master)
+        raw = _raw_table(c, i, str(path), columns, rows)
+        skey = SIGNALS_PREFIX.format(i)
+        if cfg.signals and not gnss_archive.has_table(c, skey):
+            raise CdgpsError(f"{path}: no {skey} attachments (signals of {rj.get('name')}) although the config lists signals")
+        sig = _signal_table(c, i, str(path), rows) if cfg.signals else None
+        if window is not None:
+            _check_window_rows(path, rj.get("name"), raw if sig is None or len(raw) else sig, window,
+                               gnss_archive.table_span(c, key, str(path)))
         receivers[rj["name"]] = GnssReceiver(rj["name"], rj["format"], rj["file"], rj["header"], raw,
                                              dict(rj.get("info") or {}, position_source=rj.get("position_source"),
                                                   position_ecef_m=rj.get("position_ecef_m")), signals=sig)
@@ -1031,7 +1015,59 @@ def read_gnss_run(path: str | Path, contents=None, columns=None) -> GnssRun:
     master = meta.get("master") or cfg.master or next(iter(receivers))
     if master not in receivers:
         raise CdgpsError(f"{path}: the master {master!r} has no observations in the run")
-    return GnssRun(str(path), cfg, master, receivers, nav, meta)
+    return GnssRun(str(path), cfg, master, receivers, nav, meta, window)
+
+
+def _record_window(c, path, n_receivers: int, cfg: GnssConfig, window, window_s) -> dict:
+    """:attr:`GnssRun.window` (and the master's margin, :func:`_receiver_rows`) of ``window`` (t0, t1) GPS s or ``window_s`` (start_s, duration_s or None: to the
+    record's end) from the record's first epoch (the earliest of every receiver's tables, from their block indexes);
+    CdgpsError for a window that is not one (naming the field)."""
+    spans = [s for s in (gnss_archive.table_span(c, p.format(i), str(path)) for i in range(n_receivers)
+                         for p in ((OBS_PREFIX, SIGNALS_PREFIX) if cfg.signals else (OBS_PREFIX,))) if s is not None]
+    first = min((s[0] for s in spans), default=0.0)
+    last = max((s[1] for s in spans), default=0.0)
+    names, vals = (("start_s", "duration_s"), window_s) if window_s is not None else (("start_gps_s", "end_gps_s"), window)
+    for k, v in zip(names, vals):
+        if not (v is None and k == "duration_s") and not (isinstance(v, (int, float)) and math.isfinite(v)):
+            raise CdgpsError(f"{path}: window {k}: expected a finite number of seconds, got {v!r}")
+    if window_s is not None:
+        start, duration = float(window_s[0]), window_s[1]
+        if start < 0 or (duration is not None and duration <= 0):
+            raise CdgpsError(f"{path}: window start_s {start:g}, duration_s {duration}: expected start_s ≥ 0 and "
+                             f"duration_s > 0 (seconds from the record's first epoch)")
+        t0 = first + start
+        t1 = t0 + float(duration) if duration is not None else max(math.nextafter(last, math.inf), t0 + 1e-3)
+    else:
+        t0, t1 = float(window[0]), float(window[1])
+        if not t1 > t0:
+            raise CdgpsError(f"{path}: window {t0!r} – {t1!r} GPS s: expected its end after its start")
+    return {"start_s": t0 - first, "duration_s": t1 - t0, "start_gps_s": t0, "end_gps_s": t1,
+            "master_margin_s": float(cfg.max_age_s + cfg.sync_tol_s)}
+
+
+def _receiver_rows(window: dict, master: bool) -> tuple:
+    """The time tags (t0, t1) GPS s a receiver's rows are read in: the window itself for a rover (its epochs decide,
+    as in the epoch pairing), widened by ``master_margin_s`` (gnss.max_age_s + gnss.sync_tol_s) on each side for the
+    master, so that every rover epoch of the window finds the master epochs it pairs with or is bridged across, as
+    in the whole record (a master tagged 4 ms before the rover pairs its epoch before the window's start)."""
+    m = window["master_margin_s"] if master else 0.0
+    return window["start_gps_s"] - m, window["end_gps_s"] + m
+
+
+def _check_window_rows(path, name, tab: pd.DataFrame, window: dict, span) -> None:
+    """CdgpsError when receiver ``name``'s table read in ``window`` has no row (naming its record's span)."""
+    if len(tab):
+        return
+    rec = f"{gps_time_str(span[0])} – {gps_time_str(span[1])}" if span else "no observations"
+    raise CdgpsError(f"{path}: the window {gps_time_str(window['start_gps_s'])} – {gps_time_str(window['end_gps_s'])} "
+                     f"({window['start_s']:g} s after the record's first epoch, {window['duration_s']:g} s long) holds "
+                     f"no observation of {name} (its record: {rec})")
+
+
+def _not_a_table(name: str) -> bool:
+    """The attachments :func:`read_gnss_run` keeps in memory: all but the receivers' table blocks (read one at a
+    time, :meth:`~cdgps_cli.io.mcap.McapContents.attachment`)."""
+    return not (name.startswith(("gnss/obs/", "gnss/signals/")) and name.endswith(".npz.zst"))
 
 
 def _pairing_info(pairing: dict | None) -> dict:

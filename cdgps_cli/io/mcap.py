@@ -1091,6 +1091,19 @@ class McapContents:
     message_encoding: dict  # topic → encoding
     channel_metadata: dict = field(default_factory=dict)  # topic → dict[str, str] (e.g. time_scale)
     channels: frozenset = frozenset()   # every topic registered in the file (also those without messages)
+    attachment_offsets: dict = field(default_factory=dict)  # name → (offset, length) of those left on disk
+
+    def has_attachment(self, name: str) -> bool:
+        """Whether the file holds the attachment ``name`` (in memory or left on disk)."""
+        return name in self.attachments or name in self.attachment_offsets
+
+    def attachment(self, name: str) -> bytes:
+        """The attachment ``name``'s data: from memory, or read from the file now (one record, its CRC checked:
+        :func:`read_mcap`'s ``attachments`` left it there, issue 29); KeyError when the file has none."""
+        if name in self.attachments:
+            return self.attachments[name]
+        offset, length = self.attachment_offsets[name]
+        return read_attachment_at(self.path, name, offset, length)
 
     def require_channels(self, *topics: str, what: str = "cdgps file") -> None:
         """Refuse the file unless every topic in ``topics`` has a channel (a CdgpsError naming them)."""
@@ -1105,6 +1118,40 @@ class McapContents:
             raise CdgpsError(f"{self.path}: no {name!r} metadata record; expected in a {what} "
                              f"(damaged or not written by cdgps)")
         return self.metadata[name]
+
+
+_ATTACHMENT_HEAD = struct.Struct("<QQ")         # log time, create time
+
+
+def read_attachment_at(path: str | Path, name: str, offset: int, length: int, fh=None) -> bytes:
+    """The data of the attachment record ``name`` at byte ``offset`` (``length`` bytes, from the summary's attachment
+    index) of the MCAP file ``path`` (``fh``: the file already open), after checking its length, name and CRC-32
+    (the file may have changed since it was verified: a CdgpsError naming it then)."""
+    if fh is None:
+        with open(path, "rb") as f:
+            return read_attachment_at(path, name, offset, length, f)
+    fh.seek(offset)
+    raw = fh.read(length)
+    bad = CdgpsError(f"{path}: attachment {name!r} is damaged (changed since the file was read, or truncated)")
+    if len(raw) != length or length < 9 + 16 + 4 + 4 + 8 + 4:
+        raise bad
+    content = memoryview(raw)[9:]
+    stored = struct.unpack_from("<I", content, len(content) - 4)[0]
+    if stored != 0 and zlib.crc32(content[:-4]) != stored:
+        raise bad
+    try:
+        at = _ATTACHMENT_HEAD.size
+        n = struct.unpack_from("<I", content, at)[0]
+        got = bytes(content[at + 4:at + 4 + n]).decode("utf-8")
+        at += 4 + n
+        at += 4 + struct.unpack_from("<I", content, at)[0]               # media type
+        size = struct.unpack_from("<Q", content, at)[0]
+        data = content[at + 8:at + 8 + size]
+    except (struct.error, UnicodeDecodeError):
+        raise bad from None
+    if got != name or len(data) != size or at + 8 + size != len(content) - 4:
+        raise bad
+    return bytes(data)
 
 
 def _check_attachment_crcs(fh, summary, path, zero_ok: bool = True) -> None:
@@ -1253,7 +1300,7 @@ def read_mcap(path: str | Path, topics: list[str] | None = None, attachments=Non
     ``topics`` None: every channel but those of Foxglove's own schemas (``foxglove.*``, nested
     messages that do not fit :class:`TopicColumns`; read them with the ``mcap`` reader).
     ``attachments(name) -> bool``, when given, chooses the attachments kept in memory (every one's
-    CRC is still checked).
+    CRC is still checked); the others are left on disk, read one at a time by :meth:`McapContents.attachment`.
 
     Raises
     ------
@@ -1280,9 +1327,11 @@ def read_mcap(path: str | Path, topics: list[str] | None = None, attachments=Non
         if not info.data_section_crc_checked:      # (else every attachment's bytes are in the checked section)
             _check_attachment_crcs(fh, summary, p, zero_ok=False)
         keep = attachments or (lambda name: True)
-        attachments = {a.name: bytes(a.data) for a in reader.iter_attachments() if keep(a.name)}
+        left = {a.name: (a.offset, a.length) for a in summary.attachment_indexes if not keep(a.name)}
+        attachments = {a.name: read_attachment_at(p, a.name, a.offset, a.length, fh)
+                       for a in summary.attachment_indexes if keep(a.name)}
         channels = frozenset(ch.topic for ch in summary.channels.values())
-    return McapContents(str(p), cols, attachments, info.metadata, schemas, encodings, chan_meta, channels)
+    return McapContents(str(p), cols, attachments, info.metadata, schemas, encodings, chan_meta, channels, left)
 
 
 _OP_CHUNK, _OP_MESSAGE_INDEX, _OP_MESSAGE = int(Opcode.CHUNK), int(Opcode.MESSAGE_INDEX), int(Opcode.MESSAGE)

@@ -47,8 +47,9 @@ OUTPUT = {"ingest": "run.mcap", "init": "init.json", "estimate": "states.mcap", 
 INPUT_COLUMNS = ("receiver_csv", "gyro_csv", "actuator_csv", "config", "gnss_config", "run_mcap")
 #: what a GNSS session (RINEX/UBX receivers) runs: no structure spectra on rover displacements
 GNSS_STAGES = ("ingest", "init", "estimate")
-#: the options a GNSS session takes (its other settings are its GNSS config's)
-GNSS_OPTIONS = ("float_only", "smooth")
+#: the options a GNSS session takes (its other settings are its GNSS config's); init_start_s / init_duration_s: the
+#: window of the record its init and estimate read (`cdgps init --start --duration`: a long record hour by hour)
+GNSS_OPTIONS = ("float_only", "smooth", "init_start_s", "init_duration_s")
 RECORD_DIR = ".batch"                 # OUTDIR/<session>/.batch/<stage>.json: the resume records
 CAMPAIGN_FILE = ".cdgps-batch.json"   # OUTDIR/.cdgps-batch.json: which manifest owns OUTDIR
 LOCK_FILE = ".cdgps-batch.lock"       # OUTDIR/.cdgps-batch.lock: the batch writing OUTDIR now (batch_lock)

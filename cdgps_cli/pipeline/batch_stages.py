@@ -9,7 +9,6 @@ in a GNSS run config, `cdgps ingest --config GNSS.toml`) run ingest, init and es
 
 from __future__ import annotations
 
-import hashlib
 import json
 from pathlib import Path
 
@@ -55,12 +54,16 @@ def _run_kind(path: str) -> str:
 
 def _init_gnss(s, run_mcap: str) -> dict:
     from cdgps_cli.io.atomic import write_bytes_atomic
+    from cdgps_cli.io.atomic import file_sha256
     from cdgps_cli.pipeline.gnss import gnss_init
     from cdgps_cli.io.gnss_run import read_gnss_run
 
-    run = read_gnss_run(run_mcap)
-    res = gnss_init(run, options={"fix": False} if s.options["float_only"] else {}, progress=None)
-    res["run_sha256"] = hashlib.sha256(Path(run_mcap).read_bytes()).hexdigest()
+    o = s.options
+    window_s = None if o["init_start_s"] is None and o["init_duration_s"] is None else \
+        (o["init_start_s"] or 0.0, o["init_duration_s"])
+    run = read_gnss_run(run_mcap, window_s=window_s)
+    res = gnss_init(run, options={"fix": False} if o["float_only"] else {}, progress=None)
+    res["run_sha256"] = file_sha256(run_mcap)
     write_bytes_atomic(s.path("init"), (json.dumps(res, indent=2) + "\n").encode())     # as `cdgps init`
     rov = res["rovers"].values()
     return {"integers_fixed": sum(v["n_fixed"] for v in rov), "integers": sum(v["n_estimated"] for v in rov),
@@ -68,10 +71,10 @@ def _init_gnss(s, run_mcap: str) -> dict:
 
 
 def _estimate_gnss(s, run_mcap: str, init_json: str, init: dict, init_text: str) -> dict:
-    from cdgps_cli.pipeline.gnss import gnss_estimate
+    from cdgps_cli.pipeline.gnss import gnss_estimate, init_window
     from cdgps_cli.io.gnss_run import read_gnss_run
 
-    run = read_gnss_run(run_mcap)
+    run = read_gnss_run(run_mcap, window=init_window(init))
     w = gnss_estimate(run, init, init_text, s.path("estimate"), smooth=s.options["smooth"], progress=None,
                       extra_options=None)
     return {"events": w["events"], "rovers": {r: {"solution": v["solution"], "static_enu_m": v["static_enu_m"],
@@ -93,7 +96,7 @@ def _init(s) -> dict:
                       max_iterations=30, sigma_m=o["init_sigma_m"], multipath_sigma_m=None,
                       multipath_time_constant_s=None, progress=None)
     res = initialize(run, opt)
-    res["run_sha256"] = hashlib.sha256(Path(run_mcap).read_bytes()).hexdigest()
+    res["run_sha256"] = file_sha256(run_mcap)
     res.pop("elapsed_s", None)                      # as `cdgps init`: INIT.json byte-identical across runs
     write_bytes_atomic(s.path("init"), (json.dumps(res, indent=2) + "\n").encode())
     ratio = res["ratio"]

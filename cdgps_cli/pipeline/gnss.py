@@ -199,6 +199,7 @@ def gnss_init(run: GnssRun, *, options: dict | None = None, progress=None) -> di
         "rovers": rovers,
         "options": json_safe(asdict(opt)),
         **_signals_summary(run, rovers),
+        **({"window": run.window} if run.window is not None else {}),
     }
 
 
@@ -647,8 +648,24 @@ def _misfit_warnings(nis_per_dof: float | None, model: str) -> list:
             + "does not follow this rover, or its integers are wrong; the states and their sigma do not hold"]
 
 
+def init_window(init: dict) -> tuple | None:
+    """(start_gps_s, end_gps_s) of the window an INIT was made on (``cdgps init --start/--duration``; estimate reads
+    the RUN in it: :func:`~cdgps_cli.io.gnss_run.read_gnss_run` ``window``), None for a whole-record INIT."""
+    w = init.get("window") if isinstance(init, dict) else None
+    if w is None:
+        return None
+    try:
+        t0, t1 = float(w["start_gps_s"]), float(w["end_gps_s"])
+    except (KeyError, TypeError, ValueError):
+        raise CdgpsError("INIT.json: malformed window (expected start_gps_s and end_gps_s, GPS s)") from None
+    if not (math.isfinite(t0) and math.isfinite(t1) and t1 > t0):
+        raise CdgpsError(f"INIT.json: window {t0!r} – {t1!r}: expected finite GPS seconds, its end after its start")
+    return t0, t1
+
+
 def _check_init_of_run(init: dict, run: GnssRun) -> None:
-    """CdgpsError unless INIT is a GNSS INIT made from this run (its config, master and rovers)."""
+    """CdgpsError unless INIT is a GNSS INIT made from this run (its config, master and rovers) and the run was read
+    in INIT's window (:func:`init_window`)."""
     if not is_gnss_init(init):
         raise CdgpsError("INIT.json is not from 'cdgps init' on a GNSS run (kind "
                          f"{init.get('kind') if isinstance(init, dict) else None!r})")
@@ -657,6 +674,15 @@ def _check_init_of_run(init: dict, run: GnssRun) -> None:
         raise CdgpsError(f"INIT.json was made from another run (config {init.get('config_name')!r}, master "
                          f"{init.get('master')!r}, rovers {', '.join(init.get('rovers', {}))}) than {run.path} "
                          f"(config {run.cfg.name!r}, master {run.master!r}, rovers {', '.join(run.rovers)})")
+    w = init_window(init)
+    have = None if run.window is None else (run.window["start_gps_s"], run.window["end_gps_s"])
+    if w != have:
+        from cdgps_cli.core.gps_time import gps_time_str  # noqa: PLC0415
+
+        def text(x):
+            return "the whole record" if x is None else f"the window {gps_time_str(x[0])} – {gps_time_str(x[1])}"
+        raise CdgpsError(f"INIT.json was made on {text(w)} of {run.path}, which was read on {text(have)}: read the "
+                         f"run in INIT's window (read_gnss_run window=)")
 
 
 class _EstimateArrays:

@@ -103,11 +103,11 @@ def test_a_value_the_schema_cannot_hold_is_refused_as_before(tmp_path):
 def test_solver_columns_read_alone_hold_the_same_values():
     """``read_gnss_run(columns=SOLVER_COLUMNS)`` (init, estimate): the columns the solvers read, equal to the
     whole table's; the others are not decoded (memory of a day's pair)."""
-    from cdgps_cli.io.gnss_run import SOLVER_COLUMNS, _npz_zst, _raw_from_npz_zst  # noqa: PLC0415
+    from cdgps_cli.io.gnss_run import SOLVER_COLUMNS  # noqa: PLC0415
+    from tests.io.test_gnss_archive import archived  # noqa: PLC0415
 
     raw = _raw(np.random.default_rng(8), 1.4e9, 30, ["G01", "G02", "G09"])
-    data = _npz_zst(raw)
-    whole, part = _raw_from_npz_zst(data, "t"), _raw_from_npz_zst(data, "t", SOLVER_COLUMNS)
+    whole, part = archived(raw), archived(raw, columns=SOLVER_COLUMNS)
     assert list(part.columns) == [c for c in RAW_COLUMNS if c in SOLVER_COLUMNS]
     assert {"doppler_hz", "cp_std_cycles"}.isdisjoint(part.columns) and {"lock_time_ms", "half_cycle"} <= set(part.columns)
     for c in part.columns:

@@ -436,7 +436,7 @@ def test_sfrbx_ephemerides_count_as_a_navigation_source(tmp_path):
 def test_observation_arrays_round_trip_as_float64_and_int64_columns():
     """The RUN's observation table: every column back with its values, floats as float64 and integers
     as int64 (the frame is built on the decoded columns without a consolidated copy)."""
-    from cdgps_cli.io.gnss_run import _npz_zst, _raw_from_npz_zst  # noqa: PLC0415
+    from tests.io.test_gnss_archive import archived  # noqa: PLC0415
 
     rng = np.random.default_rng(3)
     n = 500
@@ -447,7 +447,7 @@ def test_observation_arrays_round_trip_as_float64_and_int64_columns():
     for c in ("snr_dbhz", "doppler_hz", "cp_std_cycles", "pr_std_m"):
         raw[c] = rng.normal(0.0, 1e3, n).astype(np.float32).astype(np.float64)
     raw.loc[::7, "phase_cycles"] = np.nan
-    back = _raw_from_npz_zst(_npz_zst(raw), "test")
+    back = archived(raw)
     assert list(back.columns) == list(RAW_COLUMNS)
     for c in RAW_COLUMNS:
         want = raw[c].to_numpy()

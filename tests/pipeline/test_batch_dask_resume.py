@@ -125,3 +125,24 @@ def test_a_gnss_session_gives_the_single_commands_bytes(tmp_path, inproc):
     (e,) = s["sessions"]
     assert e["integers_fixed"] == e["integers"] > 0 and e["rovers"]["rover"]["solution"] == "fixed"
     _assert_same_tree(root / "reference", root / "out", 3)
+
+
+def test_gnss_sessions_on_windows_of_one_run_give_the_single_commands_bytes(tmp_path, inproc):
+    """One GNSS RUN processed window by window (issue 29: a long record hour by hour, each session in the memory of
+    its window): sessions on the same run_mcap with init_start_s / init_duration_s write what `cdgps init --start
+    --duration` and `cdgps estimate` write."""
+    root = tmp_path / "gnss"
+    _cli("simulate-gnss", "--duration", "120", "--seed", "4", "-o", root / "pair")
+    _cli("ingest", "--config", root / "pair/config.toml", "-o", root / "run.mcap")
+    (root / "m.csv").write_text("session,run_mcap,init_start_s,init_duration_s\n"
+                                "w0,run.mcap,0,60\nw1,run.mcap,60,\n")
+    for w, window in (("w0", ("--start", 0, "--duration", 60)), ("w1", ("--start", 60))):
+        o = root / "reference" / w
+        _cli("init", root / "run.mcap", *window, "-o", o / "init.json")
+        _cli("estimate", root / "run.mcap", "--init", o / "init.json", "-o", o / "states.mcap")
+    s = run_batch(root / "m.csv", root / "out", client=inproc)
+    assert s["counts"] == {"sessions": 2, "done": 2}, s["failures"]
+    _assert_same_tree(root / "reference", root / "out", 4)
+    inits = [json.loads((root / "out" / w / "init.json").read_text()) for w in ("w0", "w1")]
+    assert [i["window"]["start_s"] for i in inits] == [0.0, 60.0]
+    assert [i["rovers"]["rover"]["epochs"]["n_epochs_used"] for i in inits] == [60, 60]

@@ -298,7 +298,7 @@ def test_ubx_pieces_with_gnss_signals_keep_the_whole_logs_signal_table(tmp_path)
     for name in ("whole", "pieces"):
         r = _cli("-q", "ingest", "--config", tmp_path / f"{name}.toml", "-o", tmp_path / f"{name}.mcap")
         assert r.exit_code == 0, r.output
-    assert "gnss/signals/0.npz.zst" in _parts(tmp_path / "pieces.mcap")[1]
+    assert "gnss/signals/0/blocks.json" in _parts(tmp_path / "pieces.mcap")[1]
     assert_same_record(tmp_path / "whole.mcap", tmp_path / "pieces.mcap", {"ubx:U": 3}, other_config=True)
 
 
