@@ -1091,7 +1091,7 @@ class McapContents:
     message_encoding: dict  # topic → encoding
     channel_metadata: dict = field(default_factory=dict)  # topic → dict[str, str] (e.g. time_scale)
     channels: frozenset = frozenset()   # every topic registered in the file (also those without messages)
-    attachment_offsets: dict = field(default_factory=dict)  # name → (offset, length) of those left on disk
+    attachment_offsets: dict = field(default_factory=dict)  # name → (offset, length, data size) of those left on disk
 
     def has_attachment(self, name: str) -> bool:
         """Whether the file holds the attachment ``name`` (in memory or left on disk)."""
@@ -1102,8 +1102,9 @@ class McapContents:
         :func:`read_mcap`'s ``attachments`` left it there, issue 29); KeyError when the file has none."""
         if name in self.attachments:
             return self.attachments[name]
-        offset, length = self.attachment_offsets[name]
-        return read_attachment_at(self.path, name, offset, length)
+        offset, length, size = self.attachment_offsets[name]
+        with open(self.path, "rb") as fh:
+            return attachment_at(fh, offset, length, size, name, self.path)
 
     def require_channels(self, *topics: str, what: str = "cdgps file") -> None:
         """Refuse the file unless every topic in ``topics`` has a channel (a CdgpsError naming them)."""
@@ -1118,40 +1119,6 @@ class McapContents:
             raise CdgpsError(f"{self.path}: no {name!r} metadata record; expected in a {what} "
                              f"(damaged or not written by cdgps)")
         return self.metadata[name]
-
-
-_ATTACHMENT_HEAD = struct.Struct("<QQ")         # log time, create time
-
-
-def read_attachment_at(path: str | Path, name: str, offset: int, length: int, fh=None) -> bytes:
-    """The data of the attachment record ``name`` at byte ``offset`` (``length`` bytes, from the summary's attachment
-    index) of the MCAP file ``path`` (``fh``: the file already open), after checking its length, name and CRC-32
-    (the file may have changed since it was verified: a CdgpsError naming it then)."""
-    if fh is None:
-        with open(path, "rb") as f:
-            return read_attachment_at(path, name, offset, length, f)
-    fh.seek(offset)
-    raw = fh.read(length)
-    bad = CdgpsError(f"{path}: attachment {name!r} is damaged (changed since the file was read, or truncated)")
-    if len(raw) != length or length < 9 + 16 + 4 + 4 + 8 + 4:
-        raise bad
-    content = memoryview(raw)[9:]
-    stored = struct.unpack_from("<I", content, len(content) - 4)[0]
-    if stored != 0 and zlib.crc32(content[:-4]) != stored:
-        raise bad
-    try:
-        at = _ATTACHMENT_HEAD.size
-        n = struct.unpack_from("<I", content, at)[0]
-        got = bytes(content[at + 4:at + 4 + n]).decode("utf-8")
-        at += 4 + n
-        at += 4 + struct.unpack_from("<I", content, at)[0]               # media type
-        size = struct.unpack_from("<Q", content, at)[0]
-        data = content[at + 8:at + 8 + size]
-    except (struct.error, UnicodeDecodeError):
-        raise bad from None
-    if got != name or len(data) != size or at + 8 + size != len(content) - 4:
-        raise bad
-    return bytes(data)
 
 
 def _check_attachment_crcs(fh, summary, path, zero_ok: bool = True) -> None:
@@ -1327,8 +1294,8 @@ def read_mcap(path: str | Path, topics: list[str] | None = None, attachments=Non
         if not info.data_section_crc_checked:      # (else every attachment's bytes are in the checked section)
             _check_attachment_crcs(fh, summary, p, zero_ok=False)
         keep = attachments or (lambda name: True)
-        left = {a.name: (a.offset, a.length) for a in summary.attachment_indexes if not keep(a.name)}
-        attachments = {a.name: read_attachment_at(p, a.name, a.offset, a.length, fh)
+        left = {a.name: (a.offset, a.length, a.data_size) for a in summary.attachment_indexes if not keep(a.name)}
+        attachments = {a.name: attachment_at(fh, a.offset, a.length, a.data_size, a.name, p)
                        for a in summary.attachment_indexes if keep(a.name)}
         channels = frozenset(ch.topic for ch in summary.channels.values())
     return McapContents(str(p), cols, attachments, info.metadata, schemas, encodings, chan_meta, channels, left)
@@ -1503,8 +1470,15 @@ def read_attachment(fh, summary, name: str, path) -> bytes:
     """The data of the attachment ``name`` (the last of that name, as :func:`read_mcap` keeps),
     read through its index entry alone; its record framing and CRC (when not 0) are checked."""
     idx = [a for a in summary.attachment_indexes if a.name == name][-1]
-    fh.seek(idx.offset)
-    raw = fh.read(idx.length)
+    return attachment_at(fh, idx.offset, idx.length, idx.data_size, name, path)
+
+
+def attachment_at(fh, offset: int, record_length: int, data_size: int, name: str, path) -> bytes:
+    """The data of the attachment record ``name`` at byte ``offset`` of the open file ``fh`` (``record_length`` bytes
+    of record and ``data_size`` of data, as its index entry says); its framing, name and CRC (when not 0) checked — a
+    CdgpsError naming the file and the attachment otherwise (e.g. a file changed since it was verified)."""
+    fh.seek(offset)
+    raw = fh.read(record_length)
     try:
         op, length, _lt, _ct, n = struct.unpack_from("<BQQQI", raw)
         pos = 1 + 8 + 8 + 8 + 4
@@ -1517,7 +1491,8 @@ def read_attachment(fh, summary, name: str, path) -> bytes:
         data, stored = raw[pos:pos + size], struct.unpack_from("<I", raw, pos + size)[0]
     except (struct.error, UnicodeDecodeError):
         raise CdgpsError(f"{path}: attachment {name!r} is truncated or damaged (corrupt file)") from None
-    if (op != int(Opcode.ATTACHMENT) or length + 9 != idx.length or got_name != name or size != idx.data_size
+    if (op != int(Opcode.ATTACHMENT) or length + 9 != record_length or len(raw) != record_length or got_name != name
+            or size != data_size
             or pos + size + 4 != len(raw)):
         raise CdgpsError(f"{path}: attachment {name!r} differs from its index entry (corrupt file)")
     if stored != 0 and zlib.crc32(raw[9:pos + size]) != stored:

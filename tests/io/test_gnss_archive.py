@@ -145,5 +145,5 @@ def test_a_block_changed_on_disk_after_the_file_was_checked_is_refused(tmp_path)
     at = data.index(b"0123456789")
     data[at] ^= 0xFF
     p.write_bytes(bytes(data))
-    with pytest.raises(CdgpsError, match=r"attachment 'gnss/obs/0/0.npz.zst' is damaged"):
+    with pytest.raises(CdgpsError, match=r"attachment 'gnss/obs/0/0.npz.zst' fails its CRC check"):
         c.attachment("gnss/obs/0/0.npz.zst")
