@@ -66,6 +66,9 @@ __all__ = [
 GNSS_OBS_TOPIC = "/cdgps/gnss/obs"
 GNSS_EPHEMERIS_TOPIC = "/cdgps/gnss/ephemeris"
 RECEIVERS_ATTACHMENT = "gnss/receivers.json"
+GNSS_INFO_ATTACHMENT = "gnss/info.json"
+"""What ``cdgps info`` says of the run's receivers (:func:`gnss_info`), written by ``ingest``: answered from it, the
+observations are not decoded (issue 29 item 3)."""
 EPHEMERIS_ATTACHMENT = "gnss/ephemeris.json"
 OBS_PREFIX = "gnss/obs/{}"
 SIGNALS_PREFIX = "gnss/signals/{}"
@@ -743,6 +746,9 @@ def write_gnss_run(cfg: GnssConfig, out_path: str | Path, inp: IngestInputs, pos
                 else:
                     out.attach(name, data.result(), "application/x-npz+zstd")
         out.attach(RECEIVERS_ATTACHMENT, json.dumps(_json_safe(rx_json), indent=1).encode(), "application/json")
+        out.attach(GNSS_INFO_ATTACHMENT, gnss_info_json(gnss_info(
+            cfg, master, receivers, nav, {n: c["pairing"] for n, c in common.items()} if common is not None else None,
+            lock, pos_src)), "application/json")
         out.attach(CONFIG_ATTACHMENT, cfg.text.encode("utf-8"), "application/toml")
         for name, data in (extra_attachments or {}).items():
             out.attach(name, data, "text/csv" if name.endswith(".csv") else "application/octet-stream")
@@ -1079,18 +1085,29 @@ def _pairing_info(pairing: dict | None) -> dict:
 
 
 def gnss_run_info(path: str | Path, contents, common_epochs=None, lock_summary=None) -> dict:
-    """The GNSS part of ``cdgps info``: config, master, receivers with lock counters, ephemerides.
+    """The GNSS part of ``cdgps info`` (:func:`gnss_info`) of a run decoded.
 
     ``common_epochs``: a function of the :class:`GnssRun` giving rover → its epoch pairing with the
     master (a summary with ``used``, ``bridged``, ``dropped`` …); ``lock_summary``: a function of a :class:`GnssReceiver` and the run's
     signals giving its lock counters per satellite (:func:`cdgps_cli.pipeline.gnss_ingest.run_info` passes both: epoch
     alignment and the lock-segment rule are model computations); None: recorded as None / {}."""
     run = read_gnss_run(path, contents)
+    locks = {n: lock_summary(r, run.cfg.signals) for n, r in run.receivers.items()} if lock_summary else {}
+    positions = {n: (r.info.get("position_source"), r.info.get("position_ecef_m")) for n, r in run.receivers.items()}
+    return gnss_info(run.cfg, run.master, run.receivers, run.nav, common_epochs(run) if common_epochs else None,
+                     locks, positions)
+
+
+def gnss_info(cfg: GnssConfig, master: str, receivers: dict, nav, pairing: dict | None, locks: dict,
+              positions: dict) -> dict:
+    """The GNSS part of ``cdgps info``: config, master, receivers with lock counters (``locks``: name → per satellite),
+    epoch pairing (``pairing``: rover → its summary, or None), ephemerides.  ``ingest`` writes it into the RUN
+    (:data:`GNSS_INFO_ATTACHMENT`), from which ``info`` answers without decoding the observations; ``info --deep``
+    computes it again from the decoded run and refuses a file whose record differs."""
     rx = []
-    for n, r in run.receivers.items():
-        lock = lock_summary(r, run.cfg.signals) if lock_summary else {}
-        pos = (r.info.get("position_source"), r.info.get("position_ecef_m"))
-        s = _receiver_summary(n, r, lock, pos)
+    for n, r in receivers.items():
+        lock = locks.get(n, {})
+        s = _receiver_summary(n, r, lock, positions[n])
         s["lock"] = lock
         s["epochs_time_system"] = r.header.get("epochs_time_system")     # a file's epochs in BDT or GLONASS time
         s["beidou_b1i_band1"] = r.header.get("beidou_b1i_band1")         # a RINEX 3.02 file's B1I types, renamed
@@ -1098,14 +1115,22 @@ def gnss_run_info(path: str | Path, contents, common_epochs=None, lock_summary=N
             s["integrity"] = {**{k: int(r.info.get(k) or 0) for k in INTEGRITY_COUNTS},
                               "problems": integrity_problems(r.info)}
         rx.append(s)
-    nav = run.nav
+    rovers = [n for n in receivers if n != master]
+    has_nav = nav is not None and len(nav) > 0
     return {
-        "config": run.cfg.summary(), "master": run.master, "rovers": run.rovers,
-        "coordinates": [f"{r}_{c}" for r in run.rovers for c in "enu"],
-        "receivers": rx, **_pairing_info(common_epochs(run) if common_epochs else None),
-        "ephemerides": int(len(nav)), "ephemeris_satellites": int(nav["sat"].nunique()) if len(nav) else 0,
-        "ephemeris_toe": [gps_time_str(float(nav["toe_gps_s"].min())), gps_time_str(float(nav["toe_gps_s"].max()))] if len(nav) else None,
+        "config": cfg.summary(), "master": master, "rovers": rovers,
+        "coordinates": [f"{r}_{c}" for r in rovers for c in "enu"],
+        "receivers": rx, **_pairing_info(pairing),
+        "ephemerides": int(len(nav)) if has_nav else 0, "ephemeris_satellites": int(nav["sat"].nunique()) if has_nav else 0,
+        "ephemeris_toe": [gps_time_str(float(nav["toe_gps_s"].min())), gps_time_str(float(nav["toe_gps_s"].max()))]
+        if has_nav else None,
     }
+
+
+def gnss_info_json(info: dict) -> bytes:
+    """The bytes of :data:`GNSS_INFO_ATTACHMENT`: :func:`gnss_info` as JSON, its ``config`` left out (the config's
+    summary names the path it is read from: ``info`` reads it from the run's config attachment)."""
+    return json.dumps(_json_safe({k: v for k, v in info.items() if k != "config"})).encode()
 
 
 # ----------------------------------------------------------------------------------------------

@@ -685,6 +685,8 @@ def _decoded_info(path, gnss_common_epochs, channel_summary, gnss_lock_summary) 
 
     if contents_kind(c) == "gnss":
         info["gnss"] = gnss_run_info(path, c, gnss_common_epochs, gnss_lock_summary)
+        if GNSS_INFO_ATTACHMENT in c.attachments and gnss_lock_summary is not None and gnss_common_epochs is not None:
+            _compare_gnss_record(path, info["gnss"], c.attachments[GNSS_INFO_ATTACHMENT])
     if PHASE_TOPIC in c.topics and CONFIG_ATTACHMENT in c.attachments:
         cfg = parse_config(c.attachments[CONFIG_ATTACHMENT].decode("utf-8"), f"{path}:{CONFIG_ATTACHMENT}")
         phase = c.topics[PHASE_TOPIC].table(PHASE_ARRAYS, ["master"])
@@ -709,8 +711,9 @@ def summary_info(path, want_channels: bool = True) -> dict | None:
         names = {a.name for a in summary.attachment_indexes}
         if record is None or record.get("format") != INFO_FORMAT:
             return None
-        if (meta.get(INGEST_METADATA) or {}).get("kind") == "gnss" or "gnss/receivers.json" in names:
-            return None                                      # GNSS runs: gnss_run_info decodes the run
+        gnss = (meta.get(INGEST_METADATA) or {}).get("kind") == "gnss" or "gnss/receivers.json" in names
+        if gnss and GNSS_INFO_ATTACHMENT not in names:
+            return None                                      # GNSS runs before their info record: decoded
         idx = check_indexes(fh, summary, path, chunk_crcs=not integrity.data_section_crc_checked)
         spans = _record_json(path, record, "topics")
         by_topic: dict = {}
@@ -728,6 +731,12 @@ def summary_info(path, want_channels: bool = True) -> dict | None:
             info["topics"].append(_topic_entry(topic, (sc.name, sc.encoding) if sc else ("", ""), ch.message_encoding,
                                                sum(idx.messages[c] for c in cids), span,
                                                time_scale(view, topic, np.array(ends, dtype=float))))
+        if gnss:
+            from cdgps_cli.config.structure import parse_gnss_config  # noqa: PLC0415
+
+            text = read_attachment(fh, summary, CONFIG_ATTACHMENT, path)
+            cfg = parse_gnss_config(text.decode("utf-8"), f"{path}:{CONFIG_ATTACHMENT}")
+            info["gnss"] = {"config": cfg.summary(), **_gnss_record(fh, summary, path)}
         if PHASE_TOPIC in by_topic and CONFIG_ATTACHMENT in names:
             part = _record_json(path, record, INFO_STRUCTURE_KEY) if INFO_STRUCTURE_KEY in record else {}
             if "gaps" not in part or (want_channels and "channels" not in part):
@@ -740,6 +749,39 @@ def summary_info(path, want_channels: bool = True) -> dict | None:
                 info["channels"] = part["channels"]
                 info["slips"] = _slips(part["channels"])
     return info
+
+
+GNSS_INFO_ATTACHMENT = "gnss/info.json"
+"""(:data:`cdgps_cli.io.gnss_run.GNSS_INFO_ATTACHMENT`, named here: this module does not import that one.)"""
+
+
+def _compare_gnss_record(path, decoded: dict, recorded: bytes) -> None:
+    """CdgpsError when the GNSS info ``ingest`` recorded differs from the one computed from the decoded run (``info``
+    answers from the record: it must say what the observations say)."""
+    from cdgps_cli.io.gnss_run import gnss_info_json  # noqa: PLC0415
+
+    want = {"config": decoded["config"], **json.loads(gnss_info_json(decoded))}
+    try:
+        got = {"config": decoded["config"], **json.loads(recorded)}
+    except (ValueError, TypeError):
+        got = None
+    if got != want:
+        keys = sorted(k for k in set(want) | set(got or {}) if (got or {}).get(k) != want.get(k))
+        raise CdgpsError(f"{path}: its {GNSS_INFO_ATTACHMENT} record differs from its observations decoded "
+                         f"({', '.join(keys) or 'not JSON'}) (corrupt or altered file)")
+
+
+def _gnss_record(fh, summary, path) -> dict:
+    """The GNSS part of ``info`` as ``ingest`` recorded it (:func:`cdgps_cli.io.gnss_run.gnss_info`)."""
+    from cdgps_cli.io.mcap import read_attachment  # noqa: PLC0415
+
+    try:
+        out = json.loads(read_attachment(fh, summary, GNSS_INFO_ATTACHMENT, path))
+    except ValueError:
+        out = None
+    if not isinstance(out, dict) or not isinstance(out.get("receivers"), list):
+        raise CdgpsError(f"{path}: damaged {GNSS_INFO_ATTACHMENT} attachment (corrupt file)")
+    return out
 
 
 @dataclass
