@@ -538,7 +538,10 @@ def _description(ss: StateSeries) -> bytes:
 def provenance(run_path: str | Path, init_text: str, run_sha256: str | None = None) -> dict:
     """The RUN and INIT part of the ``cdgps.estimate`` metadata: file name and sha256 of each
     (``run_sha256``: the RUN's, when the caller has already hashed it)."""
-    run_sha256 = run_sha256 or hashlib.sha256(Path(run_path).read_bytes()).hexdigest()
+    if not run_sha256:
+        from cdgps_cli.io.atomic import file_sha256  # noqa: PLC0415
+
+        run_sha256 = file_sha256(run_path)          # (in blocks: a day's RUN is not read into memory)
     return {"run": Path(run_path).name, "run_sha256": run_sha256,
             "init_sha256": hashlib.sha256(init_text.encode()).hexdigest()}
 

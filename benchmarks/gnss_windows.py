@@ -1,0 +1,105 @@
+#!/usr/bin/env python3
+"""A GNSS pair at 10 Hz, whole record against window by window: peak RSS and wall time per stage (issue 29).
+
+For each ``--hours`` H simulates a static pair at 10 Hz (``cdgps simulate-gnss --duration 3600·H --rate-hz 10
+--slips 30 --seed 1``, cached in ``--workdir``/gnss10-<H>h) and runs, each a fresh ``cdgps`` process under
+``/usr/bin/time`` (benchmarks/long_records.py ``_timed``)::
+
+    ingest          cdgps ingest --config config.toml -o run.mcap
+    info            cdgps info run.mcap --json                  (answered from the summary)
+    init, estimate  cdgps init run.mcap -o init.json; cdgps estimate run.mcap --init init.json -o states.mcap
+    window k        cdgps init run.mcap --start k·W --duration W -o init-k.json;
+                    cdgps estimate run.mcap --init init-k.json -o states-k.mcap      (W = --window-s)
+
+and writes ``--out`` (JSON) with a markdown table: the whole record's init and estimate grow with it, a window's
+stay what a record of its length costs::
+
+    CDGPS_SERIAL=1 python benchmarks/gnss_windows.py --hours 1 3 6 --out docs/benchmarks/gnss_windows.json
+
+(``CDGPS_SERIAL=1``: a pair's two receivers in one process, so that its peak RSS is all the stage's memory.)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from long_records import _timed  # noqa: E402  (benchmarks/long_records.py)
+
+
+def _say(hours: float, what: str, r: dict) -> None:
+    print(f"  {hours:g} h {what:22s} {r['wall_s']:7.1f} s {r['peak_rss_mib']:8.1f} MiB (load {r['load_1min']:.1f})"
+          + ("" if not r["exit"] else f"  EXIT {r['exit']}: {r.get('stderr', '')[-300:]}"), file=sys.stderr, flush=True)
+
+
+def pair(workdir: Path, hours: float, window_s: float, whole: bool) -> dict:
+    d = workdir / f"gnss10-{hours:g}h"
+    if not (d / "config.toml").exists():
+        r = _timed(["simulate-gnss", "--duration", str(int(3600 * hours)), "--rate-hz", "10", "--slips", "30",
+                    "--seed", "1", "-o", str(d)])
+        if r["exit"]:
+            raise SystemExit(f"simulate-gnss {hours} h failed: {r.get('stderr')}")
+    rec: dict = {"hours": hours, "rate_hz": 10.0, "window_s": window_s, "stages": {}, "windows": []}
+    steps = [("ingest", ["ingest", "--config", "config.toml", "-o", "run.mcap"]),
+             ("info", ["info", "--json", "run.mcap"])]
+    if whole:
+        steps += [("init", ["init", "run.mcap", "-o", "init.json"]),
+                  ("estimate", ["estimate", "run.mcap", "--init", "init.json", "-o", "states.mcap"])]
+    for name, args in steps:
+        r = _timed(args, cwd=d)
+        rec["stages"][name] = r
+        _say(hours, name, r)
+    for k in range(int(round(3600 * hours / window_s))):
+        w = {"start_s": k * window_s}
+        for name, args in (("init", ["init", "run.mcap", "--start", str(k * window_s), "--duration", str(window_s),
+                                     "-o", f"init-{k}.json"]),
+                           ("estimate", ["estimate", "run.mcap", "--init", f"init-{k}.json", "-o", f"states-{k}.mcap"])):
+            w[name] = _timed(args, cwd=d)
+            _say(hours, f"window {k} {name}", w[name])
+        rec["windows"].append(w)
+    rec["run_mcap_mib"] = round((d / "run.mcap").stat().st_size / 2**20, 1)
+    return rec
+
+
+def table(records: list[dict]) -> str:
+    lines = ["| record (10 Hz) | ingest | info | init whole | estimate whole | init, a window (max) | "
+             "estimate, a window (max) |", "|---|---|---|---|---|---|---|"]
+
+    def cell(r):
+        return "—" if r is None else f"{r['peak_rss_mib']:.0f} MiB / {r['wall_s']:.1f} s"
+    for rec in records:
+        st, ws = rec["stages"], rec["windows"]
+        worst = {s: max((w[s] for w in ws), key=lambda r: r["peak_rss_mib"]) if ws else None for s in ("init", "estimate")}
+        lines.append(f"| {rec['hours']:g} h | {cell(st.get('ingest'))} | {cell(st.get('info'))} | "
+                     f"{cell(st.get('init'))} | {cell(st.get('estimate'))} | {cell(worst['init'])} | "
+                     f"{cell(worst['estimate'])} |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--hours", type=float, nargs="+", default=[1.0, 3.0])
+    ap.add_argument("--window-s", type=float, default=3600.0)
+    ap.add_argument("--no-whole", action="store_true", help="leave out the whole record's init and estimate")
+    ap.add_argument("--workdir", type=Path, default=Path("/tmp/cdgps-gnss-windows"))
+    ap.add_argument("--out", type=Path)
+    a = ap.parse_args()
+    records = [pair(a.workdir, h, a.window_s, not a.no_whole) for h in a.hours]
+    result = {"pair": "simulate-gnss --rate-hz 10 --slips 30 --seed 1 (static, GPS L1)",
+              "machine": f"{platform.machine()}, {os.cpu_count()} cores (shared)", "python": platform.python_version(),
+              "records": records, "table": table(records),
+              "note": "peak RSS: /usr/bin/time maximum resident set size of each cdgps process; load_1min: the "
+                      "1-minute load average when the stage started (times depend on it, memory does not)"}
+    if a.out:
+        a.out.parent.mkdir(parents=True, exist_ok=True)
+        a.out.write_text(json.dumps(result, indent=1) + "\n")
+    print(table(records))
+
+
+if __name__ == "__main__":
+    main()
