@@ -968,8 +968,8 @@ def read_gnss_run(path: str | Path, contents=None, columns=None, window=None, wi
     the receivers' tables hold only the rows with t0 ≤ time_gps_s < t1, decoded from the archive blocks that
     overlap it (:mod:`cdgps_cli.io.gnss_archive`); None: the whole record.  ``window_s`` (start_s, duration_s):
     the same, from start_s seconds after the record's first epoch (its earliest time tag of any receiver; duration_s
-    None: to the record's last epoch).  A window
-    holding no observation of a receiver is refused, naming the receiver and its record's span."""
+    None: to the record's last epoch).  A window holding no observation of a receiver is refused, naming the
+    receiver and its record's span."""
     c = contents if contents is not None else read_mcap(path, topics=[], attachments=_not_a_table)
     if not is_gnss_run(c):
         raise CdgpsError(f"{path}: not a GNSS RUN.mcap (no {RECEIVERS_ATTACHMENT}); is this a run from "
@@ -986,42 +986,54 @@ def read_gnss_run(path: str | Path, contents=None, columns=None, window=None, wi
     if any(k.startswith("nav[") for k in meta) and EPHEMERIS_ATTACHMENT not in c.attachments:
         raise CdgpsError(f"{path}: no {EPHEMERIS_ATTACHMENT} attachment although the run was ingested with "
                          f"navigation files (damaged file)")
-    receivers = {}
     named_master = meta.get("master") or cfg.master or (rx_json[0].get("name") if rx_json else None)
     if window is not None or window_s is not None:
         window = _record_window(c, path, len(rx_json), cfg, window, window_s)
-    for i, rj in enumerate(rx_json):
-        key = OBS_PREFIX.format(i)
-        if not gnss_archive.has_table(c, key):
-            raise CdgpsError(f"{path}: no {key} attachments (observations of {rj.get('name')})")
-        rows = None if window is None else _receiver_rows(window, rj.get("name") == named_master)
-        raw = _raw_table(c, i, str(path), columns, rows)
-        skey = SIGNALS_PREFIX.format(i)
-        if cfg.signals and not gnss_archive.has_table(c, skey):
-            raise CdgpsError(f"{path}: no {skey} attachments (signals of {rj.get('name')}) although the config lists signals")
-        sig = _signal_table(c, i, str(path), rows) if cfg.signals else None
-        if window is not None:
-            _check_window_rows(path, rj.get("name"), raw if sig is None or len(raw) else sig, window,
-                               gnss_archive.table_span(c, key, str(path)))
-        receivers[rj["name"]] = GnssReceiver(rj["name"], rj["format"], rj["file"], rj["header"], raw,
-                                             dict(rj.get("info") or {}, position_source=rj.get("position_source"),
-                                                  position_ecef_m=rj.get("position_ecef_m")), signals=sig)
-    nav = pd.DataFrame(columns=list(NAV_COLUMNS))
-    if EPHEMERIS_ATTACHMENT in c.attachments:
-        try:
-            tab = json.loads(c.attachments[EPHEMERIS_ATTACHMENT])
-            nav = pd.DataFrame({k: tab[k] for k in NAV_COLUMNS + (GLONASS_NAV_COLUMNS if "x_m" in tab else ())})
-        except (ValueError, KeyError) as exc:
-            raise CdgpsError(f"{path}: damaged {EPHEMERIS_ATTACHMENT}: {exc}") from None
-        for col in ("iode", "codes_l2", "l2p_data_flag", "sv_health", "iodc", "week", "line"):
-            nav[col] = nav[col].fillna(-1).astype(np.int64)
-        for col in [c for c in NAV_COLUMNS + GLONASS_NAV_COLUMNS if c in nav.columns]:
-            if col not in ("sat", "iode", "codes_l2", "l2p_data_flag", "sv_health", "iodc", "week", "line"):
-                nav[col] = nav[col].astype(np.float64)
+    receivers = {rj["name"]: _read_receiver(c, path, cfg, i, rj, columns, window, rj.get("name") == named_master)
+                 for i, rj in enumerate(rx_json)}
+    nav = _nav_table(c, path)
     master = meta.get("master") or cfg.master or next(iter(receivers))
     if master not in receivers:
         raise CdgpsError(f"{path}: the master {master!r} has no observations in the run")
     return GnssRun(str(path), cfg, master, receivers, nav, meta, window)
+
+
+def _read_receiver(c, path, cfg: GnssConfig, i: int, rj: dict, columns, window, master: bool) -> GnssReceiver:
+    """Receiver ``i`` of a RUN's contents (``rj``: its entry of :data:`RECEIVERS_ATTACHMENT`), its tables read whole
+    or in ``window`` (:func:`_receiver_rows`)."""
+    key, skey = OBS_PREFIX.format(i), SIGNALS_PREFIX.format(i)
+    if not gnss_archive.has_table(c, key):
+        raise CdgpsError(f"{path}: no {key} attachments (observations of {rj.get('name')})")
+    if cfg.signals and not gnss_archive.has_table(c, skey):
+        raise CdgpsError(f"{path}: no {skey} attachments (signals of {rj.get('name')}) although the config lists signals")
+    rows = None if window is None else _receiver_rows(window, master)
+    raw = _raw_table(c, i, str(path), columns, rows)
+    sig = _signal_table(c, i, str(path), rows) if cfg.signals else None
+    if window is not None:
+        _check_window_rows(path, rj.get("name"), raw if sig is None or len(raw) else sig, window,
+                           gnss_archive.table_span(c, key, str(path)))
+    return GnssReceiver(rj["name"], rj["format"], rj["file"], rj["header"], raw,
+                        dict(rj.get("info") or {}, position_source=rj.get("position_source"),
+                             position_ecef_m=rj.get("position_ecef_m")), signals=sig)
+
+
+def _nav_table(c, path) -> pd.DataFrame:
+    """The RUN's ephemeris table (:data:`EPHEMERIS_ATTACHMENT`; no rows without one)."""
+    nav = pd.DataFrame(columns=list(NAV_COLUMNS))
+    if EPHEMERIS_ATTACHMENT not in c.attachments:
+        return nav
+    try:
+        tab = json.loads(c.attachments[EPHEMERIS_ATTACHMENT])
+        nav = pd.DataFrame({k: tab[k] for k in NAV_COLUMNS + (GLONASS_NAV_COLUMNS if "x_m" in tab else ())})
+    except (ValueError, KeyError) as exc:
+        raise CdgpsError(f"{path}: damaged {EPHEMERIS_ATTACHMENT}: {exc}") from None
+    ints = ("iode", "codes_l2", "l2p_data_flag", "sv_health", "iodc", "week", "line")
+    for col in ints:
+        nav[col] = nav[col].fillna(-1).astype(np.int64)
+    for col in [c for c in NAV_COLUMNS + GLONASS_NAV_COLUMNS if c in nav.columns]:
+        if col not in ("sat", *ints):
+            nav[col] = nav[col].astype(np.float64)
+    return nav
 
 
 def _record_window(c, path, n_receivers: int, cfg: GnssConfig, window, window_s) -> dict:
@@ -1180,6 +1192,18 @@ def _ubx_comments(n: str, p, comments: list, warnings: list | None):
     return rx
 
 
+def _master_header_comments(found, master: str, comments: list, warnings: list | None) -> None:
+    """A master header check's (warning, comment) ``found`` (None: nothing to say) into a starter config's comments
+    and warnings."""
+    if not found:
+        return
+    import textwrap  # noqa: PLC0415
+    comments += textwrap.wrap(f"{master} position: CHECK IT — {found[1]}", 112, initial_indent="    ",
+                              subsequent_indent="      ")
+    if warnings is not None:
+        warnings.append(found[0])
+
+
 def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), master: str | None = None, *,
                         displacement: str = "static", sigma_m_per_sqrt_s=None, relative_to: Path | None = None,
                         name: str | None = None, notes: list | None = None, warnings: list | None = None,
@@ -1246,13 +1270,8 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
             notes.append(f"{master} ({Path(ubx[master]).name}): no RTCM 1005/1006 base position in the log; "
                          f"position_ecef_m is the mean single-point position (metre level), not a surveyed one")
     if master in rinex_rx and master in with_pos and master_header_check is not None:
-        off = master_header_check(master, rinex[master], rinex_rx[master], nav_paths)
-        if off:
-            import textwrap  # noqa: PLC0415
-            comments += textwrap.wrap(f"{master} position: CHECK IT — {off[1]}", 112, initial_indent="    ",
-                                      subsequent_indent="      ")
-            if warnings is not None:
-                warnings.append(off[0])
+        _master_header_comments(master_header_check(master, rinex[master], rinex_rx[master], nav_paths), master,
+                             comments, warnings)
     sig = list(signals or ())
     text = gnss_config_toml(files, [rel(p) for p in nav_paths], master, name=name or "-".join(files),
                             displacement=displacement, sigma_m_per_sqrt_s=sigma_m_per_sqrt_s, comments=comments,
