@@ -4,7 +4,8 @@ A receiver's raw table (:data:`cdgps_cli.io.gnss_run.RAW_COLUMNS`) and its multi
 zstd-compressed numpy archives, one per block of :data:`OBS_BLOCK_S` seconds of GPS time (aligned on multiples of
 it, so every receiver's blocks cover the same hours), plus a small JSON index of the blocks
 (``<prefix>/blocks.json``: the block span, and per block its attachment name, rows and first and last time tag).
-A stage reads the whole table (the blocks joined, the same table as one archive of it) or a window of GPS time,
+Each block's name holds its number and its hour (``gnss/obs/0/2_2024-01-01T02h.npz.zst``: an error naming a damaged
+block names the hour of the record it held).  A stage reads the whole table (the blocks joined, the same table as one archive of it) or a window of GPS time,
 decoding only the blocks it overlaps (:class:`~cdgps_cli.io.mcap.McapContents` leaves the others on disk).
 RUNs written before the blocks (one ``<prefix>.npz.zst`` per receiver) are read as one block.
 
@@ -16,6 +17,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 
 import numpy as np
 import pandas as pd
@@ -64,12 +66,21 @@ def pack_blocks(tab: pd.DataFrame, prefix: str, text_cols: tuple, dtypes: dict, 
     t = tab["time_gps_s"].to_numpy()
     blocks, packed = [], []
     for k, (a, b) in enumerate(block_bounds(t)):
-        name = f"{prefix}/{k}.npz.zst"
+        name = f"{prefix}/{k}_{_hour_label(float(t[a])) if b > a else 'empty'}.npz.zst"
         blocks.append({"name": name, "rows": b - a, "first_gps_s": float(t[a:b].min()) if b > a else None,
                        "last_gps_s": float(t[a:b].max()) if b > a else None})
         packed.append((name, submit(pack_table, tab.iloc[a:b], text_cols, dtypes)))
     index = json.dumps({"block_s": OBS_BLOCK_S, "blocks": blocks}).encode()
     return f"{prefix}/blocks.json", index, packed
+
+
+def _hour_label(t_gps_s: float) -> str:
+    """'2024-01-01T02h': the GPS hour of a block, in its attachment's name (so a message naming a damaged block names
+    the hour of the record it held)."""
+    from cdgps_cli.core.gps_time import gps_time_str  # noqa: PLC0415
+
+    day, clock = gps_time_str(math.floor(t_gps_s / OBS_BLOCK_S) * OBS_BLOCK_S).split()[:2]
+    return f"{day}T{clock[:2]}h"
 
 
 def has_table(contents, prefix: str) -> bool:

@@ -73,7 +73,10 @@ def test_the_blocks_joined_are_the_table_of_one_archive(columns):
     att = dict(_pack_receiver(SimpleNamespace(raw=raw, signals=None), 0, lambda f, *a: f(*a)))
     index = gnss_archive._block_list(_contents(att), "gnss/obs/0", "test")
     hours = np.unique(np.floor(raw["time_gps_s"].to_numpy() / 3600.0))
-    assert len(index) == hours.size == 4 and [n for n, _, _ in index] == [f"gnss/obs/0/{k}.npz.zst" for k in range(4)]
+    assert len(index) == hours.size == 4
+    from cdgps_cli.core.gps_time import gps_time_str      # noqa: PLC0415 (each block named by its number and hour)
+    assert [n for n, _, _ in index] == [f"gnss/obs/0/{k}_{gps_time_str(h * 3600).replace(' ', 'T')[:13]}h.npz.zst"
+                                        for k, h in enumerate(hours)]
     whole = archived(raw, columns)
     _same(whole, _one_archive(raw, columns))
     _same(whole, raw[list(whole.columns)].astype({c: np.int64 for c in whole.columns if raw[c].dtype.kind == "i"}))
@@ -114,17 +117,28 @@ def test_a_run_read_back_whole_and_in_windows(tmp_path):
     keep = (t >= w[0]) & (t < w[1])
     assert 0 < keep.sum() < t.size
     _same(part.receivers["rover"].raw, run.receivers["rover"].raw, keep)
+    # a block damaged on disk: exit 2, the file, the block and its hour named, nothing written
+    name = "gnss/obs/1/1_2024-01-01T01h.npz.zst"
+    offset, length, _ = c.attachment_offsets[name]
+    bad = tmp_path / "bad.mcap"
+    data = bytearray(run_path.read_bytes())
+    data[offset + length // 2] ^= 0x55
+    bad.write_bytes(bytes(data))
+    r = run_cli("init", bad, "--start", "0", "--duration", "600", "-o", tmp_path / "i.json")
+    assert r.exit_code == 2 and "Traceback" not in r.output and not (tmp_path / "i.json").exists()
+    assert f"bad.mcap: the MCAP data section fails its CRC check" in r.output and f"attachment '{name}'" in r.output
 
 
 def test_damaged_or_missing_blocks_are_named(tmp_path):
     raw = _raw(np.random.default_rng(7), 1_400_000_000.0, 2.5, 0.1)
     att = dict(_pack_receiver(SimpleNamespace(raw=raw, signals=None), 0, lambda f, *a: f(*a)))
+    names = sorted(n for n in att if n.endswith(".npz.zst"))
     gone = dict(att)
-    del gone["gnss/obs/0/1.npz.zst"]
-    with pytest.raises(CdgpsError, match=r"gnss/obs/0/1.npz.zst missing"):
+    del gone[names[1]]
+    with pytest.raises(CdgpsError, match=rf"{names[1]} missing"):
         _raw_table(_contents(gone), 0, "run.mcap")
-    bad = dict(att, **{"gnss/obs/0/2.npz.zst": b"not an archive"})
-    with pytest.raises(CdgpsError, match=r"run.mcap:gnss/obs/0/2.npz.zst: damaged observation arrays"):
+    bad = dict(att, **{names[2]: b"not an archive"})
+    with pytest.raises(CdgpsError, match=rf"run.mcap:{names[2]}: damaged observation arrays"):
         _raw_table(_contents(bad), 0, "run.mcap")
     bad = dict(att, **{"gnss/obs/0/blocks.json": b"{"})
     with pytest.raises(CdgpsError, match=r"damaged block index gnss/obs/0/blocks.json"):
