@@ -13,7 +13,7 @@ import json
 import numpy as np
 import pytest
 
-from tests._shared import run_cli
+from tests._shared import REPO_ROOT, run_cli
 
 START_S, DURATION_S, INTERVAL_S = 3000.0, 900.0, 2.0
 MARGIN_S = 30.025                       # gnss.max_age_s + gnss.sync_tol_s (defaults)
@@ -108,3 +108,22 @@ def test_start_alone_runs_to_the_records_end_and_bad_windows_are_refused(pair):
     with pytest.raises(CdgpsError, match="INIT.json was made on the window .* which was read on the whole record"):
         gnss_estimate(read_gnss_run(pair / "run.mcap"), json.loads(text), text, pair / "x.mcap")
     assert not (pair / "x.mcap").exists()
+
+
+def test_the_modal_estimate_of_a_structure_reads_inits_window(tmp_path):
+    """`init --structure` on a window and `estimate --structure` with that INIT: the structure's modal states at the
+    window's epochs only."""
+    tower = REPO_ROOT / "configs" / "gnss-tower.toml"
+    sim = tmp_path / "tw"
+    assert run_cli("-q", "simulate-gnss-structure", tower, "--duration", "180", "--seed", "5", "--out", sim).exit_code == 0
+    run = tmp_path / "run.mcap"
+    assert run_cli("-q", "ingest", "--config", sim / "config.toml", "-o", run).exit_code == 0
+    r = run_cli("-q", "init", run, "--start", 60, "--duration", 90, "--structure", tower, "-o", tmp_path / "i.json")
+    assert r.exit_code == 0, r.output
+    r = run_cli("-q", "estimate", run, "--init", tmp_path / "i.json", "--structure", tower, "-o", tmp_path / "s.mcap")
+    assert r.exit_code == 0, r.output
+    assert run_cli("-q", "export", tmp_path / "s.mcap", "-o", tmp_path / "s.csv").exit_code == 0
+    rows = (tmp_path / "s.csv").read_text().splitlines()[1:]
+    t0 = json.loads((tmp_path / "i.json").read_text())["window"]["start_gps_s"]
+    times = [float(x.split(",")[0]) for x in rows]
+    assert len(rows) == 90 and t0 <= times[0] < t0 + 1 and times[-1] < t0 + 90
