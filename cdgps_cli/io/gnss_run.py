@@ -42,6 +42,7 @@ import pandas as pd
 
 from cdgps_cli.core import beside, progress
 from cdgps_cli.core.checks import header_position_m
+from cdgps_cli.core.signals import anchor_signal
 from cdgps_cli.io import gnss_archive
 from cdgps_cli.io.atomic import path_for_config
 from cdgps_cli.config.structure import GnssConfig, gnss_config_toml, parse_gnss_config
@@ -1010,8 +1011,13 @@ def _read_receiver(c, path, cfg: GnssConfig, i: int, rj: dict, columns, window, 
     raw = _raw_table(c, i, str(path), columns, rows)
     sig = _signal_table(c, i, str(path), rows) if cfg.signals else None
     if window is not None:
-        _check_window_rows(path, rj.get("name"), raw if sig is None or len(raw) else sig, window,
-                           gnss_archive.table_span(c, key, str(path)))
+        anchor = anchor_signal(cfg.signals)
+        if anchor is None or sig is None:          # the GPS L1 table anchors the epochs (or the only table)
+            _check_window_rows(path, rj.get("name"), raw if sig is None or len(raw) else sig, window,
+                               gnss_archive.table_span(c, key if len(raw) or sig is None else skey, str(path)))
+        else:                                      # the first signal's rows anchor them (a run of other systems)
+            _check_window_rows(path, rj.get("name"), sig[sig["signal"].to_numpy() == anchor], window,
+                               gnss_archive.table_span(c, skey, str(path)))
     return GnssReceiver(rj["name"], rj["format"], rj["file"], rj["header"], raw,
                         dict(rj.get("info") or {}, position_source=rj.get("position_source"),
                              position_ecef_m=rj.get("position_ecef_m")), signals=sig)
@@ -1053,6 +1059,9 @@ def _record_window(c, path, n_receivers: int, cfg: GnssConfig, window, window_s)
         if start < 0 or (duration is not None and duration <= 0):
             raise CdgpsError(f"{path}: window start_s {start:g}, duration_s {duration}: expected start_s ≥ 0 and "
                              f"duration_s > 0 (seconds from the record's first epoch)")
+        if spans and start > last - first:
+            raise CdgpsError(f"{path}: window start_s {start:g}: past the record's end (the record: "
+                             f"{gps_time_str(first)} – {gps_time_str(last)}, {last - first:g} s from its first epoch)")
         t0 = first + start
         t1 = t0 + float(duration) if duration is not None else max(math.nextafter(last, math.inf), t0 + 1e-3)
     else:
@@ -1106,8 +1115,11 @@ def gnss_run_info(path: str | Path, contents, common_epochs=None, lock_summary=N
     run = read_gnss_run(path, contents)
     locks = {n: lock_summary(r, run.cfg.signals) for n, r in run.receivers.items()} if lock_summary else {}
     positions = {n: (r.info.get("position_source"), r.info.get("position_ecef_m")) for n, r in run.receivers.items()}
-    return gnss_info(run.cfg, run.master, run.receivers, run.nav, common_epochs(run) if common_epochs else None,
+    info = gnss_info(run.cfg, run.master, run.receivers, run.nav, common_epochs(run) if common_epochs else None,
                      locks, positions)
+    # JSON-safe as the record ingest wrote (NaN -> null: the interval of a one-epoch receiver), so that info from
+    # the record and info --deep print the same
+    return {"config": info["config"], **json.loads(gnss_info_json(info))}
 
 
 def gnss_info(cfg: GnssConfig, master: str, receivers: dict, nav, pairing: dict | None, locks: dict,

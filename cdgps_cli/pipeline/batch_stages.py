@@ -83,7 +83,7 @@ def _estimate_gnss(s, run_mcap: str, init_json: str, init: dict, init_text: str)
 
 
 def _init(s) -> dict:
-    from cdgps_cli.io.atomic import write_bytes_atomic
+    from cdgps_cli.io.atomic import file_sha256, write_bytes_atomic
     from cdgps_cli.estimation.initializer import InitOptions, initialize
     from cdgps_cli.io.run import read_run
 

@@ -394,9 +394,15 @@ def master_header_check(name: str, path, rx: "gnss_run.GnssReceiver", nav_paths)
     xm = antenna_reference_point_m(rx.header, str(path))
     if xm is None or not nav_paths or not len(rx.raw):
         return None
-    try:
-        spp = _raw_single_point(rx.raw, gnss_run.merge_nav(nav_paths), f"{path} ({name})", xm, HEADER_CHECK_EPOCHS)
-    except CdgpsError:
+    nav = gnss_run.merge_nav(nav_paths)
+    spp = None
+    for x0 in (xm, None):        # seeded at the header; from the Earth's centre when that fails (a header thousands
+        try:                     # of km off leaves too few satellites above the mask seen from there)
+            spp = _raw_single_point(rx.raw, nav, f"{path} ({name})", x0, HEADER_CHECK_EPOCHS)
+            break
+        except CdgpsError:
+            continue
+    if spp is None:
         return None
     off = float(np.linalg.norm(spp - xm))
     if off <= HEADER_POSITION_TOL_M:

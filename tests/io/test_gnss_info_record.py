@@ -23,6 +23,9 @@ def _runs(tmp_path):
     assert run_cli("-q", "simulate-gnss", "--duration", "300", "--slips", "3", "--seed", "2", "-o", sim).exit_code == 0
     yield "simulated pair", ["--config", sim / "config.toml"]
     yield "one receiver", ["--rinex", f"base={sim / 'base.rnx'}", "--nav", sim / "nav.rnx"]
+    one = tmp_path / "one"                # one epoch: no interval (null in the record, "one epoch" in the text)
+    assert run_cli("-q", "simulate-gnss", "--duration", "1", "--seed", "2", "-o", one).exit_code == 0
+    yield "one epoch", ["--config", one / "config.toml"]
     ubx = REPO_ROOT.parent / "shared" / "data" / "real-pairs" / "ublox-walk" / "gnss_1730.ubx"
     if ubx.is_file():                    # (../shared: CI has it; without it the other runs are checked)
         yield "u-blox log", ["--ubx", f"U={ubx}"]
@@ -50,6 +53,8 @@ def test_info_from_the_record_is_info_decoded(tmp_path):
         s = json.loads(fast.stdout)
         assert "gnss/info.json" in s["attachments"] and s["gnss"]["receivers"], what
         assert "reading" not in fast.stderr, what                # (no message read: no progress of it)
+        text = run_cli("info", run)
+        assert text.exit_code == 0 and text.output == run_cli("info", "--deep", run).stdout, what
 
 
 def test_info_answers_without_decoding_the_observations(tmp_path, monkeypatch):

@@ -68,3 +68,21 @@ def test_config_warns_of_the_master_header_and_says_nothing_of_a_good_one(tmp_pa
                 "-o", cfg)
     assert r.exit_code == 0, r.output
     assert not [w for w in json.loads(r.stdout)["warnings"] if "the master" in w]
+
+
+def test_config_warns_of_a_header_thousands_of_km_off(tmp_path):
+    """A master header with X's sign flipped (≈ 8,000 km off): the single-point fit seeded there keeps too few
+    satellites above the mask, and is made again from the Earth's centre instead of staying silent."""
+    sim = tmp_path / "sim"
+    assert run_cli("-q", "simulate-gnss", "--duration", "60", "--seed", "1", "-o", sim).exit_code == 0
+    lines = (sim / "base.rnx").read_text().splitlines(keepends=True)
+    i = next(k for k, ln in enumerate(lines) if "APPROX POSITION XYZ" in ln)
+    x = float(lines[i][:14])
+    lines[i] = f"{-x:14.4f}" + lines[i][14:]
+    (sim / "base.rnx").write_text("".join(lines))
+    cfg = tmp_path / "c.toml"
+    r = run_cli("-q", "config", "--rinex", f"base={sim / 'base.rnx'}", "--rinex", f"rover={sim / 'rover.rnx'}",
+                "--nav", sim / "nav.rnx", "--master", "base", "--json", "-o", cfg)
+    assert r.exit_code == 0, r.output
+    [w] = [w for w in json.loads(r.stdout)["warnings"] if "the master" in w]
+    assert " km from its pseudorange single-point position" in w and "CHECK IT" in cfg.read_text()

@@ -93,7 +93,9 @@ def test_start_alone_runs_to_the_records_end_and_bad_windows_are_refused(pair):
     assert r.exit_code == 0, r.output
     init = json.loads(r.stdout)
     assert init["rovers"]["rover"]["epochs"]["n_epochs_used"] == 50 and init["window"]["start_s"] == 3900
-    for args, what in ((("--start", 5000), "holds no observation of base"), (("--duration", 0), "duration_s > 0"),
+    for args, what in ((("--start", 5000), "window start_s 5000: past the record's end (the record: "),
+                       (("--start", 0.01, "--duration", 0.5), "holds no observation of rover (its record: "),
+                       (("--duration", 0), "duration_s > 0"),
                        (("--start", -1), "start_s ≥ 0"), (("--duration", "nan"), "'--duration'")):
         out = pair / "bad.json"
         r = run_cli("init", pair / "run.mcap", *args, "-o", out)
