@@ -5,8 +5,9 @@ zstd-compressed numpy archives, one per block of :data:`OBS_BLOCK_S` seconds of 
 it, so every receiver's blocks cover the same hours), plus a small JSON index of the blocks
 (``<prefix>/blocks.json``: the block span, and per block its attachment name, rows and first and last time tag).
 Each block's name holds its number and its hour (``gnss/obs/0/2_2024-01-01T02h.npz.zst``: an error naming a damaged
-block names the hour of the record it held).  A stage reads the whole table (the blocks joined, the same table as one archive of it) or a window of GPS time,
-decoding only the blocks it overlaps (:class:`~cdgps_cli.io.mcap.McapContents` leaves the others on disk).
+block names the hour of the record it held).  A stage reads the whole table (the blocks joined: the same table as
+one archive of it) or a window of GPS time, decoding only the blocks it overlaps
+(:class:`~cdgps_cli.io.mcap.McapContents` leaves the others on disk).
 RUNs written before the blocks (one ``<prefix>.npz.zst`` per receiver) are read as one block.
 
 In each archive a text column ``c`` is ``<c>_index`` (int16) and ``<c>_names``; a numeric column is stored in its
@@ -24,7 +25,7 @@ import pandas as pd
 
 from cdgps_cli.core.errors import CdgpsError
 
-__all__ = ["OBS_BLOCK_S", "pack_blocks", "read_table", "pack_table", "has_table"]
+__all__ = ["OBS_BLOCK_S", "block_bounds", "pack_blocks", "pack_table", "has_table", "read_table", "table_span"]
 
 OBS_BLOCK_S = 3600.0
 """Span of one archive block, GPS s (an hour: 36,000 epochs of a 10 Hz receiver; blocks start at multiples of it)."""
