@@ -117,6 +117,19 @@ def test_a_run_read_back_whole_and_in_windows(tmp_path):
     keep = (t >= w[0]) & (t < w[1])
     assert 0 < keep.sum() < t.size
     _same(part.receivers["rover"].raw, run.receivers["rover"].raw, keep)
+    # only the blocks the window overlaps are decoded (the rover's second hour; the master's with its margin)
+    seen = []
+    decode = gnss_archive._block_arrays
+
+    def spy(data, what, *a):
+        seen.append(what.split(":")[-1])
+        return decode(data, what, *a)
+    gnss_archive._block_arrays = spy
+    try:
+        read_gnss_run(run_path, window=(t[0] + 3700.0, t[0] + 3800.0))
+    finally:
+        gnss_archive._block_arrays = decode
+    assert sorted(seen) == ["gnss/obs/0/1_2024-01-01T01h.npz.zst", "gnss/obs/1/1_2024-01-01T01h.npz.zst"], seen
     # a block damaged on disk: exit 2, the file, the block and its hour named, nothing written
     name = "gnss/obs/1/1_2024-01-01T01h.npz.zst"
     offset, length, _ = c.attachment_offsets[name]
