@@ -7,6 +7,7 @@ without glibc (not Linux, or musl) every function here does nothing and says so 
 
 from __future__ import annotations
 
+import functools
 import sys
 
 __all__ = ["M_TRIM_THRESHOLD", "M_MMAP_THRESHOLD", "available", "trim", "set_option"]
@@ -19,6 +20,13 @@ def _glibc(name: str):
     """The C library's function ``name``, or None where there is no glibc (or not Linux)."""
     if not sys.platform.startswith("linux"):
         return None
+    return _libc_function(name)
+
+
+@functools.lru_cache(maxsize=None)
+def _libc_function(name: str):
+    """The C library's function ``name`` or None, looked up once per process (``find_library`` and
+    loading the library cost ~2 ms, and :func:`trim` runs before every fork of core/beside.py)."""
     import ctypes  # noqa: PLC0415
     import ctypes.util  # noqa: PLC0415
 

@@ -224,20 +224,34 @@ def _block(chans: list, k0: int, k1: int, spk: int, opt: IfOptions, rng: np.rand
     z = rng.standard_normal((nk, spk, 2), dtype=np.float32)          # one stream, whatever the blocking
     re, im = z[..., 0], z[..., 1]
     two_pi = np.float32(2 * np.pi)
+    # per channel, the same float32 operations as written out (each result computed once, in buffers
+    # reused from channel to channel: the same values, fewer allocations)
+    ang = np.empty((nk, spk), dtype=np.float32)
+    tmp = np.empty((nk, spk), dtype=np.float32)
+    a = np.empty((nk, spk), dtype=np.float32)
+    idx = np.empty((nk, spk), dtype=np.int32)
     for ch in chans:
-        ang = two_pi * (ch.phase_base[k0:k1, None] + ch.phase_step[k0:k1, None] * u32)
+        np.multiply(ch.phase_step[k0:k1, None], u32, out=ang)
+        np.add(ch.phase_base[k0:k1, None], ang, out=ang)
+        np.multiply(two_pi, ang, out=ang)
         # chip index = whole chips at the knot + floor(fraction + increment), the latter in float32 (< 1100
         # chips: 1e-4 chip), counts relative to the first navigation bit of the block
         base = ch.chip_base[k0:k1]
         whole = np.floor(base)
         b0 = int(whole[0]) // CHIPS_PER_BIT
         b1 = int(base[-1] + ch.chip_step[k1 - 1]) // CHIPS_PER_BIT + 1
-        frac = (base - whole).astype(np.float32)[:, None] + ch.chip_step[k0:k1].astype(np.float32)[:, None] * u32
-        idx = frac.astype(np.int32) + (whole - b0 * CHIPS_PER_BIT).astype(np.int32)[:, None]
+        np.multiply(ch.chip_step[k0:k1].astype(np.float32)[:, None], u32, out=tmp)
+        np.add((base - whole).astype(np.float32)[:, None], tmp, out=tmp)
+        idx[...] = tmp                                                  # float32 → int32 (truncation, as astype)
+        idx += (whole - b0 * CHIPS_PER_BIT).astype(np.int32)[:, None]
         table = np.tile(ch.code, 20 * (b1 - b0)) * np.repeat(ch.bits[b0:b1], CHIPS_PER_BIT)
-        a = table[idx]
-        re += a * np.cos(ang)
-        im += a * np.sin(ang)
+        np.take(table, idx, out=a)
+        np.cos(ang, out=tmp)
+        tmp *= a
+        re += tmp
+        np.sin(ang, out=tmp)
+        tmp *= a
+        im += tmp
     out = np.empty(2 * re.size, dtype=np.int8)
     out[0::2] = quantize(re.ravel(), opt.bits)
     out[1::2] = quantize((im if opt.iq_sign == "plus" else -im).ravel(), opt.bits)

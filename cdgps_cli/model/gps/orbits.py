@@ -259,13 +259,24 @@ def sat_position_ecef(eph, t_gps_s, *, apply_tgd: bool = True) -> tuple[np.ndarr
     return xyz, clock
 
 
-def _kepler_position(eph, t: np.ndarray, sats: np.ndarray, apply_tgd: bool) -> tuple[np.ndarray, np.ndarray]:
-    """The Kepler user algorithm of :func:`sat_position_ecef` (GPS, Galileo, BeiDou incl. GEO)."""
+def _kepler_fields(eph, shape) -> dict:
+    """The orbit fields :func:`_kepler_position` reads from ``eph`` (a DataFrame's shaped like the times)."""
     p = _params(eph)
     if isinstance(eph, pd.DataFrame):
-        p = {k: v.reshape(t.shape) for k, v in p.items()}
+        p = {k: v.reshape(shape) for k, v in p.items()}
+    return p
+
+
+def _kepler_position(eph, t: np.ndarray, sats: np.ndarray, apply_tgd: bool) -> tuple[np.ndarray, np.ndarray]:
+    """The Kepler user algorithm of :func:`sat_position_ecef` (GPS, Galileo, BeiDou incl. GEO)."""
+    return _kepler_at(_kepler_fields(eph, t.shape), _system_constants(sats), t, apply_tgd)
+
+
+def _kepler_at(p: dict, constants: tuple, t: np.ndarray, apply_tgd: bool) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_kepler_position` from the fields ``p`` (:func:`_kepler_fields`) and the records'
+    :func:`_system_constants`."""
     a = p["sqrt_a_sqrt_m"] ** 2
-    gm, we, geo, _ = _system_constants(sats)
+    gm, we, geo, _ = constants
     n0 = np.sqrt(gm / a**3)
     tk = t - p["toe_gps_s"]
     n = n0 + p["delta_n_rad_per_s"]
@@ -295,15 +306,23 @@ def _kepler_position(eph, t: np.ndarray, sats: np.ndarray, apply_tgd: bool) -> t
 
 def _glonass_record_position(eph, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Position and clock of GLONASS state-vector records (:data:`GLONASS_NAV_COLUMNS`) at GPS times ``t``."""
+    return _glonass_at(_glonass_fields(eph, t.size), t)
+
+
+def _glonass_fields(eph, size: int) -> dict:
+    """The fields :func:`_glonass_record_position` reads from ``eph`` (a record's repeated ``size`` times)."""
     fields = GLONASS_NAV_COLUMNS[:9] + ("toe_gps_s", "af0_s", "af1_s_per_s")
     missing = [f for f in fields if f not in (eph.columns if isinstance(eph, pd.DataFrame) else eph)]
     if missing:
         raise ValueError(f"GLONASS ephemeris lacks field(s) {', '.join(missing)} (as produced by read_rinex_nav with 'R')")
-    flat = t.reshape(-1)
     if isinstance(eph, pd.DataFrame):
-        v = _float_columns(eph, fields)
-    else:
-        v = {f: np.full(flat.shape, float(eph[f])) for f in fields}
+        return _float_columns(eph, fields)
+    return {f: np.full((size,), float(eph[f])) for f in fields}
+
+
+def _glonass_at(v: dict, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_glonass_record_position` from the fields ``v`` (:func:`_glonass_fields`)."""
+    flat = t.reshape(-1)
     state0 = np.column_stack([v[f] for f in GLONASS_NAV_COLUMNS[:6]])
     accel = np.column_stack([v[f] for f in GLONASS_NAV_COLUMNS[6:9]])
     dt = flat - v["toe_gps_s"]
@@ -558,8 +577,9 @@ def sat_position_at_reception(
     eph = select_ephemeris(nav, sat, t_rx, max_age_s=max_age_s)
     t_true = t_rx - np.asarray(rx_clock_s, dtype=np.float64)
     tau = np.full(t_rx.shape, 0.075)
+    position = _position_of(eph, (t_true - tau).shape, apply_tgd)
     for _ in range(10):
-        xyz, clk = sat_position_ecef(eph, t_true - tau, apply_tgd=apply_tgd)
+        xyz, clk = position(t_true - tau)
         theta = OMEGA_E_GPS * tau
         c, s = np.cos(theta), np.sin(theta)
         rot = np.stack([c * xyz[:, 0] + s * xyz[:, 1], -s * xyz[:, 0] + c * xyz[:, 1], xyz[:, 2]], axis=-1)
@@ -570,6 +590,25 @@ def sat_position_at_reception(
         if done:
             break
     return ReceptionGeometry(rot, clk, rng, tau)
+
+
+def _position_of(eph, shape: tuple, apply_tgd: bool):
+    """``t ↦ sat_position_ecef(eph, t, apply_tgd=apply_tgd)`` for times of ``shape``: the same values,
+    the ephemeris fields of a DataFrame of one kind of orbit (Kepler or GLONASS, e.g. one satellite's)
+    taken out of it once for all the light-time iterations instead of at each."""
+    size = int(np.prod(shape))
+    if not isinstance(eph, pd.DataFrame) or eph.shape[0] != size:
+        return lambda t: sat_position_ecef(eph, t, apply_tgd=apply_tgd)
+    sats = _sats(eph, shape)
+    constants = _system_constants(sats)
+    glo = constants[3]
+    if not glo.any():
+        p = _kepler_fields(eph, shape)
+        return lambda t: _kepler_at(p, constants, np.asarray(t, dtype=np.float64), apply_tgd)
+    if glo.all():
+        v = _glonass_fields(eph, size)
+        return lambda t: _glonass_at(v, np.asarray(t, dtype=np.float64))
+    return lambda t: sat_position_ecef(eph, t, apply_tgd=apply_tgd)
 
 
 class ReceptionEphemeris(NamedTuple):
