@@ -22,14 +22,12 @@ stay what a record of its length costs::
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import platform
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from long_records import _timed  # noqa: E402  (benchmarks/long_records.py)
+from long_records import _timed, machine, write_json  # noqa: E402  (benchmarks/long_records.py)
 
 
 def _say(hours: float, what: str, r: dict) -> None:
@@ -91,13 +89,11 @@ def main() -> None:
     a = ap.parse_args()
     records = [pair(a.workdir, h, a.window_s, not a.no_whole) for h in a.hours]
     result = {"pair": "simulate-gnss --rate-hz 10 --slips 30 --seed 1 (static, GPS L1)",
-              "machine": f"{platform.machine()}, {os.cpu_count()} cores (shared)", "python": platform.python_version(),
+              "machine": machine(), "python": platform.python_version(),
               "records": records, "table": table(records),
               "note": "peak RSS: /usr/bin/time maximum resident set size of each cdgps process; load_1min: the "
                       "1-minute load average when the stage started (times depend on it, memory does not)"}
-    if a.out:
-        a.out.parent.mkdir(parents=True, exist_ok=True)
-        a.out.write_text(json.dumps(result, indent=1) + "\n")
+    write_json(a.out, result)
     print(table(records))
 
 

@@ -180,6 +180,18 @@ def gnss_pair(workdir: Path, hours: float, before: Path | None = None, rounds: i
     return rec
 
 
+def machine() -> str:
+    """The machine line of a benchmark's JSON."""
+    return f"{platform.machine()}, {os.cpu_count()} cores (shared)"
+
+
+def write_json(out: Path | None, result: dict) -> None:
+    """A benchmark's result to ``out`` (JSON; its folder made), when given."""
+    if out:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(result, indent=1) + "\n")
+
+
 def table(records: list[dict]) -> str:
     hours = [r["hours"] for r in records]
     head = "| stage | " + " | ".join(f"{h:g} h: peak RSS MiB / s (s per h)" for h in hours) + " |"
@@ -214,16 +226,14 @@ def main() -> None:
         if h is not None:
             records.append(run_record(a.workdir, h, a.stages))
         result = {"config": "configs/testbed-1998.toml (10 Hz), seed 1, 2 cm noise, disturbance scale 1",
-                  "machine": f"{platform.machine()}, {os.cpu_count()} cores (shared)",
+                  "machine": machine(),
                   "python": platform.python_version(), "records": records,
                   "note": "peak RSS: /usr/bin/time maximum resident set size of each cdgps process; load_1min: "
                           "the 1-minute load average when the stage started (times depend on it)"}
         result = {**old, **result, "records": old.get("records", records) if not a.hours else records}
         if gnss:
             result.update(gnss_pair=gnss[-1], gnss_pairs=gnss)
-        if a.out:
-            a.out.parent.mkdir(parents=True, exist_ok=True)
-            a.out.write_text(json.dumps(result, indent=1) + "\n")
+        write_json(a.out, result)
     print(table(records))
 
 

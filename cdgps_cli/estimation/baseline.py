@@ -66,13 +66,11 @@ from cdgps_cli.core.errors import CdgpsError, join_problems
 from cdgps_cli.model.gps.positioning import (
     antenna_reference_point_m,
     rover_delta_note,
-    ephemeris_coverage,
-    epochs_spread,
     ephemeris_coverage_all,
     estimate_receiver_clock,
     nominal_interval_s,
     reception_geometry,
-    spp_static,
+    spp_spread,
     tropo_hydrostatic_m,
 )
 from cdgps_cli.core.gps_time import gps_time_str
@@ -1067,15 +1065,13 @@ def _check_master_header(master: Station, nav, xm) -> None:
 
 def _station_spp(station: Station, nav, x0, max_epochs: int | None = None) -> np.ndarray:
     """A receiver's static single-point position from its GPS L1 pseudoranges (ECEF m), from ``max_epochs`` epochs
-    spread over the record (None: all), started at ``x0``."""
+    spread over the record (None: all), started at ``x0`` (:func:`~cdgps_cli.model.gps.positioning.spp_spread`)."""
     o = station.obs
-    tt = o["time_gps_s"].to_numpy()
-    tags, ep = np.unique(tt, return_inverse=True)
-    ok = ephemeris_coverage(nav, o["sat"].to_numpy(), tt)
-    ok &= epochs_spread(tags.size, max_epochs)[ep]
-    _, ep = np.unique(ep[ok], return_inverse=True)
-    x, _ = spp_static(ep, o["sat"].to_numpy()[ok], tt[ok], o["pseudorange_l1_m"].to_numpy()[ok], nav,
-                      x0_ecef_m=x0, what=_where(station))
+    x = spp_spread(o["sat"].to_numpy(), o["time_gps_s"].to_numpy(), o["pseudorange_l1_m"].to_numpy(), nav,
+                   x0_ecef_m=x0, max_epochs=max_epochs, what=_where(station))
+    if x is None:
+        raise CdgpsError(f"{_where(station)}: no L1 pseudorange covered by the navigation data for a single-point "
+                         f"position")
     return x
 
 

@@ -30,7 +30,7 @@ from cdgps_cli.io.ubx_esf import receiver_imu_tables
 from cdgps_cli.measurement.channels import FIRST, lock_segments, ubx_loss_of_lock  # noqa: F401 (ubx_loss_of_lock: re-exported)
 from cdgps_cli.measurement.epoch_pairing import pair_epochs
 from cdgps_cli.config.options import HEADER_CHECK_EPOCHS, HEADER_POSITION_TOL_M
-from cdgps_cli.model.gps.positioning import antenna_reference_point_m, ephemeris_coverage, epochs_spread, spp_static
+from cdgps_cli.model.gps.positioning import antenna_reference_point_m, ephemeris_coverage, spp_spread
 
 __all__ = ["ingest_gnss", "run_info", "processing_obs", "signal_obs", "ubx_loss_of_lock", "lock_summary", "starter_gnss_config",
            "spp_master_position"]
@@ -371,18 +371,13 @@ def spp_master_position(name: str, path, rx: "gnss_run.GnssReceiver", nav_paths,
 
 def _raw_single_point(raw: pd.DataFrame, nav: pd.DataFrame, what: str, x0=None,
                       max_epochs: int | None = None) -> np.ndarray:
-    """A receiver's static single-point position (ECEF m) from the GPS L1 pseudoranges of its raw table
-    (:data:`~cdgps_cli.io.gnss_run.RAW_COLUMNS`) that ``nav`` covers, from ``max_epochs`` epochs spread over the
-    record (None: all)."""
-    r = raw[np.isfinite(raw["pseudorange_m"].to_numpy())]
-    r = r[ephemeris_coverage(nav, r["sat"].to_numpy(), r["time_gps_s"].to_numpy())]
-    t = r["time_gps_s"].to_numpy()
-    tags, ep = np.unique(t, return_inverse=True)
-    keep = epochs_spread(tags.size, max_epochs)[ep]
-    _, ep = np.unique(ep[keep], return_inverse=True)
-    x, _ = spp_static(ep, r["sat"].to_numpy()[keep], t[keep], r["pseudorange_m"].to_numpy()[keep], nav,
-                      x0_ecef_m=x0, what=what)
-    return np.asarray(x, dtype=np.float64)
+    """A receiver's static single-point position (ECEF m, :func:`~cdgps_cli.model.gps.positioning.spp_spread`) from
+    the GPS L1 pseudoranges of its raw table (:data:`~cdgps_cli.io.gnss_run.RAW_COLUMNS`)."""
+    x = spp_spread(raw["sat"].to_numpy(), raw["time_gps_s"].to_numpy(), raw["pseudorange_m"].to_numpy(), nav,
+                   x0_ecef_m=x0, max_epochs=max_epochs, what=what)
+    if x is None:
+        raise CdgpsError(f"{what}: no L1 pseudorange covered by the navigation data for a single-point position")
+    return x
 
 
 def master_header_check(name: str, path, rx: "gnss_run.GnssReceiver", nav_paths) -> tuple | None:

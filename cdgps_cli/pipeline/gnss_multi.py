@@ -37,8 +37,7 @@ from cdgps_cli.io.rinex_signals import (first_of_repeated_epochs, out_of_order_t
                                         repeated_epochs_text, signals_in_file)
 from cdgps_cli.io.solution_formats import POS_FRAMES, Q_FIX, Q_FLOAT, csv_text, finite_or, geojson_text, nmea_gga_text, pos_text
 from cdgps_cli.model.gps.orbits import ecef_to_enu, ecef_to_geodetic, enu_matrix
-from cdgps_cli.model.gps.positioning import (antenna_reference_point_m, ephemeris_coverage, epochs_spread,
-                                             rover_delta_note, spp_static)
+from cdgps_cli.model.gps.positioning import antenna_reference_point_m, rover_delta_note, spp_spread
 
 __all__ = ["validate_options", "rtk_from_files", "common_signals"]
 
@@ -446,18 +445,10 @@ def _single_point(obs: pd.DataFrame, nav, x0, what: str, max_epochs: int | None 
     first signal, ECEF m, from ``max_epochs`` epochs spread over the record (None: all), or None when it has none
     covered by the navigation data; that signal's name)."""
     sig = "G:L1" if (obs["signal"] == "G:L1").any() else str(obs["signal"].iloc[0])
-    o = obs[(obs["signal"] == sig) & np.isfinite(obs["pseudorange_m"].to_numpy())]
-    o = o[ephemeris_coverage(nav, o["sat"].to_numpy(), o["time_gps_s"].to_numpy())]
-    t = o["time_gps_s"].to_numpy()
-    tags, ep = np.unique(t, return_inverse=True)
-    if max_epochs is not None and tags.size > max_epochs:
-        keep = epochs_spread(tags.size, max_epochs)[ep]
-        o, t = o[keep], t[keep]
-        ep = np.unique(t, return_inverse=True)[1]
-    if o.empty:
-        return None, sig
-    x, _ = spp_static(ep, o["sat"].to_numpy(), t, o["pseudorange_m"].to_numpy(), nav, x0_ecef_m=x0, what=what)
-    return np.asarray(x, dtype=float), sig
+    o = obs[obs["signal"].to_numpy() == sig]
+    x = spp_spread(o["sat"].to_numpy(), o["time_gps_s"].to_numpy(), o["pseudorange_m"].to_numpy(), nav, x0_ecef_m=x0,
+                   max_epochs=max_epochs, what=what)
+    return x, sig
 
 
 def _check_base_header(bx, obs: pd.DataFrame, nav, path) -> None:

@@ -62,6 +62,7 @@ __all__ = [
     "tropo_hydrostatic_m",
     "ephemeris_coverage",
     "ephemeris_coverage_all",
+    "spp_spread",
     "estimate_receiver_clock",
     "spp_static",
     "nominal_interval_s",
@@ -483,6 +484,28 @@ def epochs_spread(n_epochs: int, max_epochs: int | None) -> np.ndarray:
     else:
         keep[np.linspace(0, n_epochs - 1, max_epochs).round().astype(np.int64)] = True
     return keep
+
+
+def spp_spread(sats, t_tag_s, pseudorange_m, nav: pd.DataFrame, *, x0_ecef_m=None, max_epochs: int | None = None,
+               what: str = "receiver") -> np.ndarray | None:
+    """A receiver's static single-point position (ECEF m, :func:`spp_static`) from its pseudoranges (rows of
+    ``sats``, ``t_tag_s``, ``pseudorange_m``) that ``nav`` covers (:func:`ephemeris_coverage`), from ``max_epochs`` of
+    those epochs spread over the record (:func:`epochs_spread`; None: all), started at ``x0_ecef_m``; None when no
+    finite pseudorange is covered.  The one function behind the header checks and the a-priori positions of
+    ``rtk``, ``init`` / ``estimate`` and ``config``."""
+    sats = np.asarray(sats, dtype=object)
+    t = np.asarray(t_tag_s, dtype=np.float64)
+    pr = np.asarray(pseudorange_m, dtype=np.float64)
+    ok = np.isfinite(pr)
+    ok[ok] = ephemeris_coverage(nav, sats[ok], t[ok])
+    sats, t, pr = sats[ok], t[ok], pr[ok]
+    if not t.size:
+        return None
+    tags, ep = np.unique(t, return_inverse=True)
+    keep = epochs_spread(tags.size, max_epochs)[ep]
+    _, ep = np.unique(ep[keep], return_inverse=True)
+    x, _ = spp_static(ep, sats[keep], t[keep], pr[keep], nav, x0_ecef_m=x0_ecef_m, what=what)
+    return np.asarray(x, dtype=np.float64)
 
 
 def spp_static(
